@@ -1,0 +1,48 @@
+#pragma once
+/// @file cloud.hpp
+/// The point cloud and stage-report types that flow through the offline pipeline.
+
+#include <Eigen/Core>
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace hc::pipeline {
+
+/// A point cloud in double precision: 3 × N coordinates. The frame and unit depend on the stage
+/// (file units right after ingest; metres from `to_metres_and_recentre` on). Double precision
+/// keeps georeferenced offsets (10^5 to 10^6 m) exact until recentring.
+struct Cloud {
+  Eigen::Matrix3Xd xyz;                ///< 3 × N coordinates
+  std::vector<std::uint16_t> scan_id;  ///< empty, or N source-scan indices (multi-view merges)
+
+  std::size_t size() const { return static_cast<std::size_t>(xyz.cols()); }
+  bool has_scan_id() const { return !scan_id.empty(); }
+  /// Keeps the points whose keep[i] is true, in order (scan_id follows). keep.size() == size().
+  void keep_if(const std::vector<bool>& keep);
+};
+
+/// What one stage did: counts in and out, wall time, named figures and free-text notes.
+/// Figures carry their unit in the name (for example "rms_mm").
+struct StageReport {
+  std::string stage;
+  std::size_t count_in = 0;
+  std::size_t count_out = 0;
+  double seconds = 0.0;
+  std::vector<std::pair<std::string, double>> figures;
+  std::vector<std::string> notes;
+
+  void figure(std::string name, double value) { figures.emplace_back(std::move(name), value); }
+};
+
+/// A stage's result together with its report.
+template <class T>
+struct StageResult {
+  T value;
+  StageReport report;
+};
+
+}  // namespace hc::pipeline

@@ -1,0 +1,44 @@
+#pragma once
+/// @file transform.hpp
+/// Stages 2 and 3: units and recentring (double precision), then the user's orientation,
+/// translation and uniform scale, giving the grid frame (the grid looks along −z).
+
+#include "hc/pipeline/cloud.hpp"
+
+#include <Eigen/Geometry>
+
+#include <optional>
+
+namespace hc::pipeline {
+
+/// Scales a cloud from file units to metres and subtracts the centre of its bounding box,
+/// all in double precision, so a scan with georeferenced offsets (10^5 to 10^6 m) gives the
+/// same recentred coordinates, to well under 1 µm, as the same scan near the origin.
+/// @param metres_per_unit  1, 0.01 or 0.001 for m, cm, mm (see hc::metres_per_unit)
+/// @param offset_m         out: the subtracted centre [m], in the file frame scaled to metres
+/// @throws hc::InputError if the cloud is empty.
+StageResult<Cloud> to_metres_and_recentre(Cloud cloud, double metres_per_unit,
+                                          Eigen::Vector3d* offset_m);
+
+/// The user's view: rotation (built by one of the helpers below), then uniform scale, then
+/// translation [m]: p_grid = scale · R · p + t.
+struct ViewTransform {
+  Eigen::Quaterniond rotation = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d translation_m = Eigen::Vector3d::Zero();
+  double scale = 1.0;  ///< [-], > 0
+
+  Eigen::Affine3d matrix() const;
+};
+
+/// Rotation of angle_deg about `axis` (any non-zero length). @throws hc::ConfigError on a zero axis.
+Eigen::Quaterniond rotation_from_axis_angle(const Eigen::Vector3d& axis, double angle_deg);
+/// Intrinsic Euler angles in degrees, applied in the order of `order` (a permutation such as
+/// "xyz" or "zyx": R = R_a(first)·R_b(second)·R_c(third)). @throws hc::ConfigError on a bad order.
+Eigen::Quaterniond rotation_from_euler(const Eigen::Vector3d& angles_deg, const std::string& order);
+/// Unit quaternion (w, x, y, z) normalised. @throws hc::ConfigError if its norm is near zero.
+Eigen::Quaterniond rotation_from_quaternion(double w, double x, double y, double z);
+
+/// Applies p ← scale·R·p + t to every point. Real-time: no. Cost O(N).
+StageResult<Cloud> apply_view_transform(Cloud cloud, const ViewTransform& view);
+
+}  // namespace hc::pipeline
