@@ -15,7 +15,7 @@ hc::HeightField plane_field(int rows, int cols, double cell, double a, double b,
 TEST(BilinearSurface, ReproducesAPlaneAndItsGradientExactly) {
   const auto field = plane_field(7, 9, 0.001, 0.3, -0.2, 0.05);
   const hc::BilinearSurface s(hc::HeightFieldView::of(field));
-  for (double x : {-0.0095, -0.004, 0.0, -0.003}) {
+  for (double x : {-0.0095, -0.004, -0.0021, -0.003}) {
     for (double y : {0.0201, 0.023, 0.025}) {
       const auto q = s.sample(x, y);
       ASSERT_TRUE(q.valid);
