@@ -1,0 +1,16 @@
+#pragma once
+/// @file commands.hpp
+/// Subcommands of the `hapticloud` program. Each add_* registers one subcommand on `app`; its
+/// callback throws hc::Error on failure, which main() turns into a one-line cause and exit 1.
+
+#include <CLI/CLI.hpp>
+
+namespace hc::app {
+
+/// `hapticloud run CONFIG.yaml [--out DIR] [--set key=value ...]`: the offline pipeline.
+void add_run_command(CLI::App& app);
+
+/// `hapticloud touch SCENE_OR_CONFIG ...`: a headless scripted haptic session (issue 3).
+void add_touch_command(CLI::App& app);
+
+}  // namespace hc::app

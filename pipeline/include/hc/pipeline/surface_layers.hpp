@@ -1,0 +1,63 @@
+#pragma once
+/// @file surface_layers.hpp
+/// Surface layers for haptic rendering (Sec. 3.1–3.2 of the paper): envelope f_b (bilateral
+/// filter of the depth grid), texture h = f − f_b, curvature of h (H, K), and friction maps
+/// μ_d (from curvature) and μ_s (from the config).
+
+#include "hc/common/height_field.hpp"
+#include "hc/pipeline/cloud.hpp"
+
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+/// `paper`: μ_d = 1/(R·√(H² + K²)) (the paper's Eq. for μ_d; shrinks with curvature);
+/// `curvature`: μ_d = μ_min + c·√(H² + K²) (grows with curvature, as the paper's text says).
+/// Both are clamped to [μ_min, μ_max]; see docs/friction.md.
+enum class FrictionModel { kPaper, kCurvature };
+
+/// @throws hc::ConfigError naming the value and the allowed set ("paper", "curvature").
+FrictionModel friction_model_from_string(const std::string& name);
+std::string to_string(FrictionModel model);
+
+/// An axis-aligned box region (grid frame, metres) with its own μ_s.
+struct StaticFrictionRegion {
+  double x_min_m = 0, y_min_m = 0, x_max_m = 0, y_max_m = 0;
+  double mu_s = 0.0;  ///< [-], ≥ 0
+};
+
+struct SurfaceLayerOptions {
+  double sigma_space_cells = 3.0;   ///< bilateral σ_s [cells], > 0
+  double sigma_range_m = 0.001;     ///< bilateral σ_r [m], > 0
+  FrictionModel friction_model = FrictionModel::kPaper;
+  double mu_min = 0.05;             ///< lower clamp of μ_d [-], ≥ 0
+  double mu_max = 0.6;              ///< upper clamp of μ_d [-], ≥ μ_min
+  double workspace_radius_m = 0.05; ///< R: radius of the largest sphere inscribed in the
+                                    ///< haptic workspace [m] (paper model), > 0
+  double curvature_gain_m = 0.01;   ///< c in the curvature model [m] (μ per 1/m), ≥ 0
+  double mu_s = 0.2;                ///< default static friction μ_s [-], ≥ 0
+  std::vector<StaticFrictionRegion> mu_s_regions;  ///< later regions override earlier ones
+};
+
+/// All layers share the depth grid's geometry; NaN exactly where the depth grid has no data.
+struct SurfaceLayers {
+  HeightField envelope_m;              ///< f_b [m]
+  HeightField texture_m;               ///< h = f − f_b [m]
+  HeightField mean_curvature_per_m;    ///< H of h [1/m]
+  HeightField gaussian_curvature_per_m2;  ///< K of h [1/m²]
+  HeightField mu_d;                    ///< dynamic friction [-] in [μ_min, μ_max]
+  HeightField mu_s;                    ///< static friction [-]
+  FrictionModel friction_model = FrictionModel::kPaper;
+};
+
+/// Computes the layers from a depth grid (metres, NaN = no data).
+/// No-data cells neither spread NaN nor bias their valid neighbours (the bilateral filter and
+/// the finite differences use valid cells only).
+/// @throws hc::ConfigError on out-of-range options (names the option and range);
+///         hc::InputError if the grid has no valid cell.
+/// Source: paper Eq. (bilateral f_b, h = f − f_b, H, K, μ_d); Tomasi & Manduchi 1998.
+StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
+                                                  const SurfaceLayerOptions& options);
+
+}  // namespace hc::pipeline
