@@ -29,6 +29,40 @@ struct Scene {
   bool has(const std::string& layer) const { return layers.count(layer) != 0; }
 };
 
+/// Writes `scene` into the folder `scene_dir` (created; must not exist yet): one 32-bit float
+/// TIFF per layer (`<name>.tiff`, TIFF row 0 = grid row 0 = smallest y), `flags.png` (8-bit
+/// CellFlag codes) when flags are present, and `scene.yaml` with format_version, grid geometry,
+/// the model→grid frame of the depth layer, the layer list, friction model and the contents of
+/// `extra_yaml` (a YAML map, e.g. provenance and the resolved config) appended.
+/// Callers make the write atomic by writing into a temporary folder (see StagingDir).
+/// @throws hc::InputError if the folder exists or a file cannot be written (names it);
+///         std::invalid_argument if layers disagree in geometry.
+void write_scene(const Scene& scene, const std::filesystem::path& scene_dir,
+                 const std::string& extra_yaml);
+
+/// A temporary sibling folder `<target>.partial-<pid>` that replaces `target` only on commit():
+/// a failed run (an exception, a crash) never leaves a half-written `target`, and an existing
+/// `target` from an earlier run is only removed once the new one is complete.
+class StagingDir {
+ public:
+  /// @throws hc::InputError if the staging folder cannot be created (names it).
+  explicit StagingDir(std::filesystem::path target);
+  ~StagingDir();  ///< removes the staging folder unless committed
+  StagingDir(const StagingDir&) = delete;
+  StagingDir& operator=(const StagingDir&) = delete;
+
+  const std::filesystem::path& path() const { return staging_; }
+  const std::filesystem::path& target() const { return target_; }
+  /// Renames staging → target (an older target is moved aside first, then removed).
+  /// @throws hc::InputError naming both paths if a rename fails.
+  void commit();
+
+ private:
+  std::filesystem::path target_;
+  std::filesystem::path staging_;
+  bool committed_ = false;
+};
+
 /// Loads a scene folder written by `hapticloud run`.
 /// @throws hc::InputError naming the folder or file when scene.yaml or a layer is missing,
 ///         the format version is not kSceneFormatVersion, or a layer's size disagrees with

@@ -1,0 +1,82 @@
+#pragma once
+/// @file config.hpp
+/// The YAML run configuration of `hapticloud run`, validated into plain structs.
+/// Every key, its type, default and allowed range is listed in docs/config.md.
+
+#include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/surface_layers.hpp"
+#include "hc/pipeline/synthetic.hpp"
+#include "hc/pipeline/transform.hpp"
+
+#include <Eigen/Core>
+
+#include <filesystem>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+struct InputConfig {
+  std::vector<std::filesystem::path> files;     ///< scans, resolved against the config's folder
+  std::optional<std::filesystem::path> conf;    ///< scanalyze .conf to merge several views
+  std::string units = "m";                      ///< "m" | "cm" | "mm"
+  std::optional<SyntheticSpec> synthetic;       ///< generate instead of reading files
+};
+
+struct OutlierConfig {
+  bool enabled = true;
+  int k = 16;                    ///< neighbours [-], 1..256
+  double std_multiplier = 2.0;   ///< σ multiplier [-], (0, 100]
+};
+
+struct FilterConfig {
+  OutlierConfig outliers;
+  std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> crop_m;  ///< min, max (grid frame)
+  double voxel_m = 0.0;          ///< voxel-grid leaf [m]; 0 = off
+};
+
+struct GridConfig {
+  ReprojectOptions reproject;    ///< N or cell size, splat radius, see-through
+  int hole_fill_max_cells = 0;   ///< largest hole filled [cells]; 0 = off
+};
+
+struct CrossCheckConfig {
+  bool enabled = true;
+  double tolerance_m = 0.0005;   ///< a cell is supported if a point lies within this [m]
+};
+
+struct LayersConfig {
+  bool enabled = true;           ///< texture, curvature and friction layers (issue 3)
+  SurfaceLayerOptions options;
+};
+
+/// A fully validated run configuration.
+struct RunConfig {
+  std::filesystem::path source;        ///< the config file it came from ("" when built in code)
+  std::string name;                    ///< run name (default: the config file's stem)
+  InputConfig input;
+  ViewTransform view;
+  FilterConfig filters;
+  GridConfig grid;
+  CrossCheckConfig cross_check;
+  LayersConfig layers;
+  std::string resolved_yaml;           ///< every key with the value used (defaults included)
+};
+
+/// Reads and validates a run config. `overrides` are "dotted.key=value" strings (the value is
+/// parsed as YAML, so `view.rotation.axis=[0,1,0]` works) applied before validation.
+/// Relative input paths are resolved against the config file's folder.
+/// @throws hc::ConfigError naming the file, the dotted key, its line (or the --set override),
+///         the offending value and the allowed type or range; also for unknown keys.
+/// @throws hc::InputError if the file is missing or not valid YAML (with line and column).
+RunConfig load_run_config(const std::filesystem::path& path,
+                          const std::vector<std::string>& overrides = {});
+
+/// The same from YAML text (used by tests); `origin` names it in messages and is the base for
+/// relative paths (its parent folder).
+RunConfig parse_run_config(const std::string& yaml_text, const std::filesystem::path& origin,
+                           const std::vector<std::string>& overrides = {});
+
+}  // namespace hc::pipeline

@@ -1,0 +1,42 @@
+#pragma once
+/// @file run.hpp
+/// The whole offline pipeline of `hapticloud run`: scan(s) → Monge grid → scene + report.
+
+#include "hc/pipeline/cloud.hpp"
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/cross_check.hpp"
+
+#include <filesystem>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+/// Progress callback: called when a stage starts (done = false) and ends (done = true).
+using ProgressFn = std::function<void(const StageReport& stage, bool done)>;
+
+struct RunSummary {
+  std::vector<StageReport> stages;
+  std::optional<CrossCheck> cross_check;  ///< when enabled (cell_error_m holds the map)
+  GridGeometry grid;
+  std::size_t valid_cells = 0;
+  double total_seconds = 0.0;             ///< file to written report
+  std::filesystem::path out_dir;
+};
+
+/// Runs every stage of `config` and writes, atomically (StagingDir), the folder `out_dir`:
+///   scene/ (scene.yaml + TIFF layers: depth, envelope, texture, mu_d, mu_s, cell_error),
+///   previews/*.png, report.md and report.json.
+/// Stages: ingest → units + recentre → view transform → filters → reproject → hole fill →
+/// surface layers → cross-check → write.
+/// @throws hc::Error subclasses from any stage (naming file, key or value); on a throw nothing
+///         is left at out_dir that was not there before.
+RunSummary run_pipeline(const RunConfig& config, const std::filesystem::path& out_dir,
+                        const ProgressFn& progress = {});
+
+/// SHA-256 of a file as lowercase hex. @throws hc::InputError naming the file if unreadable.
+std::string sha256_file(const std::filesystem::path& file);
+
+}  // namespace hc::pipeline

@@ -1,0 +1,491 @@
+#include "hc/pipeline/config.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/common/units.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <algorithm>
+#include <cmath>
+#include <fstream>
+#include <limits>
+#include <set>
+#include <sstream>
+
+namespace hc::pipeline {
+namespace {
+
+std::vector<std::string> split_dotted(const std::string& path) {
+  std::vector<std::string> parts;
+  std::stringstream ss(path);
+  std::string part;
+  while (std::getline(ss, part, '.')) parts.push_back(part);
+  return parts;
+}
+
+std::string scalar_text(const YAML::Node& n) {
+  if (n.IsScalar()) return "'" + n.Scalar() + "'";
+  YAML::Emitter e;
+  e << YAML::Flow << n;
+  return e.c_str();
+}
+
+std::string format_double(double v) {
+  std::ostringstream os;
+  os << v;
+  return os.str();
+}
+
+/// Walks a YAML tree by dotted keys, remembers what was read (to reject unknown keys) and the
+/// value used for every key (the resolved config), and formats errors with file and line.
+class Reader {
+ public:
+  Reader(YAML::Node root, std::string origin, std::set<std::string> overridden)
+      : root_(std::move(root)), origin_(std::move(origin)), overridden_(std::move(overridden)) {}
+
+  std::optional<YAML::Node> find(const std::string& path) const {
+    return find_in(root_, split_dotted(path), 0);
+  }
+
+  bool has(const std::string& path) {
+    mark_known(path);
+    return find(path).has_value();
+  }
+
+  [[noreturn]] void fail(const std::string& path, const std::string& what) const {
+    throw ConfigError(where(path) + ": " + path + " " + what);
+  }
+
+  std::string where(const std::string& path) const {
+    if (overridden_.count(path)) return origin_ + " (--set " + path + ")";
+    const auto n = find(path);
+    if (n && n->Mark().line >= 0) return origin_ + ":" + std::to_string(n->Mark().line + 1);
+    return origin_;
+  }
+
+  double get_double(const std::string& path, double def, double lo, double hi, bool lo_open = false) {
+    mark_known(path);
+    double v = def;
+    if (const auto n = find(path)) {
+      if (!n->IsScalar()) fail(path, "= " + scalar_text(*n) + ": expected a number");
+      try {
+        v = n->as<double>();
+      } catch (const YAML::Exception&) {
+        fail(path, "= " + scalar_text(*n) + ": expected a number");
+      }
+    }
+    if (!std::isfinite(v) || v < lo || v > hi || (lo_open && v == lo)) {
+      fail(path, "= " + format_double(v) + ": expected a number in " + (lo_open ? "(" : "[") +
+                     format_double(lo) + ", " + format_double(hi) + "]");
+    }
+    resolved_set(path, YAML::Node(v));
+    return v;
+  }
+
+  long long get_int(const std::string& path, long long def, long long lo, long long hi) {
+    mark_known(path);
+    long long v = def;
+    if (const auto n = find(path)) {
+      try {
+        if (!n->IsScalar()) throw YAML::Exception(YAML::Mark::null_mark(), "");
+        v = n->as<long long>();
+      } catch (const YAML::Exception&) {
+        fail(path, "= " + scalar_text(*n) + ": expected an integer in [" + std::to_string(lo) + ", " +
+                       std::to_string(hi) + "]");
+      }
+    }
+    if (v < lo || v > hi) {
+      fail(path, "= " + std::to_string(v) + ": expected an integer in [" + std::to_string(lo) + ", " +
+                     std::to_string(hi) + "]");
+    }
+    resolved_set(path, YAML::Node(v));
+    return v;
+  }
+
+  bool get_bool(const std::string& path, bool def) {
+    mark_known(path);
+    bool v = def;
+    if (const auto n = find(path)) {
+      try {
+        if (!n->IsScalar()) throw YAML::Exception(YAML::Mark::null_mark(), "");
+        v = n->as<bool>();
+      } catch (const YAML::Exception&) {
+        fail(path, "= " + scalar_text(*n) + ": expected true or false");
+      }
+    }
+    resolved_set(path, YAML::Node(v));
+    return v;
+  }
+
+  std::string get_string(const std::string& path, const std::string& def,
+                         const std::vector<std::string>& allowed = {}) {
+    mark_known(path);
+    std::string v = def;
+    if (const auto n = find(path)) {
+      if (!n->IsScalar()) fail(path, "= " + scalar_text(*n) + ": expected a string");
+      v = n->Scalar();
+    }
+    if (!allowed.empty() && std::find(allowed.begin(), allowed.end(), v) == allowed.end()) {
+      std::string list;
+      for (const auto& a : allowed) list += (list.empty() ? "" : ", ") + a;
+      fail(path, "= '" + v + "': expected one of: " + list);
+    }
+    resolved_set(path, YAML::Node(v));
+    return v;
+  }
+
+  Eigen::Vector3d get_vec3(const std::string& path, const Eigen::Vector3d& def, double lo = -1e12,
+                           double hi = 1e12) {
+    mark_known(path);
+    Eigen::Vector3d v = def;
+    if (const auto n = find(path)) {
+      bool ok = n->IsSequence() && n->size() == 3;
+      for (std::size_t i = 0; ok && i < 3; ++i) {
+        try {
+          v[static_cast<Eigen::Index>(i)] = (*n)[i].as<double>();
+        } catch (const YAML::Exception&) {
+          ok = false;
+        }
+      }
+      if (!ok) fail(path, "= " + scalar_text(*n) + ": expected a list of 3 numbers [x, y, z]");
+    }
+    for (int i = 0; i < 3; ++i) {
+      if (!std::isfinite(v[i]) || v[i] < lo || v[i] > hi) {
+        fail(path, "has a value out of range: expected 3 finite numbers in [" + format_double(lo) +
+                       ", " + format_double(hi) + "]");
+      }
+    }
+    YAML::Node out(YAML::NodeType::Sequence);
+    for (int i = 0; i < 3; ++i) out.push_back(v[i]);
+    resolved_set(path, out);
+    return v;
+  }
+
+  std::vector<std::string> get_string_list(const std::string& path) {
+    mark_known(path);
+    std::vector<std::string> out;
+    const auto n = find(path);
+    if (!n) return out;
+    if (n->IsScalar()) {
+      out.push_back(n->Scalar());
+    } else if (n->IsSequence()) {
+      for (const auto& item : *n) {
+        if (!item.IsScalar()) fail(path, "= " + scalar_text(*n) + ": expected a list of file names");
+        out.push_back(item.Scalar());
+      }
+    } else {
+      fail(path, "= " + scalar_text(*n) + ": expected a file name or a list of file names");
+    }
+    YAML::Node seq(YAML::NodeType::Sequence);
+    for (const auto& s : out) seq.push_back(s);
+    resolved_set(path, seq);
+    return out;
+  }
+
+  /// Registers a key whose value is a list handled element by element by the caller.
+  std::vector<YAML::Node> get_map_list(const std::string& path) {
+    mark_known(path, /*leaf=*/true);
+    std::vector<YAML::Node> out;
+    const auto n = find(path);
+    if (!n) return out;
+    if (!n->IsSequence()) fail(path, "= " + scalar_text(*n) + ": expected a list");
+    for (const auto& item : *n) {
+      if (!item.IsMap()) fail(path, "has an element that is not a key: value map");
+      out.push_back(item);
+    }
+    return out;
+  }
+
+  /// Every map key in the file must have been read by some getter.
+  void reject_unknown_keys() const { check_node(root_, ""); }
+
+  YAML::Node resolved() const { return resolved_; }
+  void resolved_set_raw(const std::string& path, const YAML::Node& v) { resolved_set(path, v); }
+
+ private:
+  static std::optional<YAML::Node> find_in(const YAML::Node& node, const std::vector<std::string>& parts,
+                                           std::size_t i) {
+    if (i == parts.size()) return node;
+    if (!node.IsMap()) return std::nullopt;
+    const YAML::Node child = node[parts[i]];
+    if (!child.IsDefined() || child.IsNull()) return std::nullopt;
+    return find_in(child, parts, i + 1);
+  }
+
+  void mark_known(const std::string& path, bool leaf = false) {
+    known_.insert(path);
+    if (leaf) leaves_.insert(path);
+    for (std::size_t dot = path.find('.'); dot != std::string::npos; dot = path.find('.', dot + 1)) {
+      known_.insert(path.substr(0, dot));
+    }
+  }
+
+  void check_node(const YAML::Node& node, const std::string& prefix) const {
+    if (!node.IsMap()) return;
+    for (const auto& kv : node) {
+      const std::string key = kv.first.as<std::string>();
+      const std::string path = prefix.empty() ? key : prefix + "." + key;
+      if (!known_.count(path)) {
+        std::string hint;
+        for (const auto& k : known_) {
+          const auto dot = k.rfind('.');
+          const std::string parent = dot == std::string::npos ? "" : k.substr(0, dot);
+          if (parent == prefix) hint += (hint.empty() ? "" : ", ") + k.substr(dot == std::string::npos ? 0 : dot + 1);
+        }
+        const int line = kv.first.Mark().line;
+        throw ConfigError(origin_ + (line >= 0 ? ":" + std::to_string(line + 1) : "") + ": unknown key '" +
+                          path + "'" + (hint.empty() ? "" : " (allowed here: " + hint + ")"));
+      }
+      if (!leaves_.count(path)) check_node(kv.second, path);
+    }
+  }
+
+  void resolved_set(const std::string& path, const YAML::Node& value) {
+    const auto parts = split_dotted(path);
+    YAML::Node cur = resolved_;
+    for (std::size_t i = 0; i + 1 < parts.size(); ++i) {
+      if (!cur[parts[i]] || !cur[parts[i]].IsMap()) cur[parts[i]] = YAML::Node(YAML::NodeType::Map);
+      YAML::Node next = cur[parts[i]];
+      cur.reset(next);
+    }
+    cur[parts.back()] = value;
+  }
+
+  YAML::Node root_;
+  std::string origin_;
+  std::set<std::string> overridden_;
+  std::set<std::string> known_;
+  std::set<std::string> leaves_;
+  YAML::Node resolved_{YAML::NodeType::Map};
+};
+
+void apply_override(YAML::Node& root, const std::string& spec, const std::string& origin,
+                    std::set<std::string>& overridden) {
+  const auto eq = spec.find('=');
+  if (eq == std::string::npos || eq == 0) {
+    throw ConfigError(origin + ": --set '" + spec + "': expected key=value (for example grid.n=400)");
+  }
+  const std::string key = spec.substr(0, eq);
+  YAML::Node value;
+  try {
+    value = YAML::Load(spec.substr(eq + 1));
+  } catch (const YAML::Exception& e) {
+    throw ConfigError(origin + ": --set '" + spec + "': the value is not valid YAML (" + e.msg + ")");
+  }
+  const auto parts = split_dotted(key);
+  YAML::Node cur = root;
+  for (std::size_t i = 0; i + 1 < parts.size(); ++i) {
+    if (!cur[parts[i]] || !cur[parts[i]].IsMap()) cur[parts[i]] = YAML::Node(YAML::NodeType::Map);
+    YAML::Node next = cur[parts[i]];
+    cur.reset(next);
+  }
+  cur[parts.back()] = value;
+  overridden.insert(key);
+}
+
+SyntheticSpec read_synthetic(Reader& r, const std::string& p) {
+  SyntheticSpec s;
+  s.kind = surface_kind_from_string(r.get_string(p + ".surface", "sinusoid",
+                                                 {"plane", "tilted_plane", "sphere_cap", "step", "sinusoid"}));
+  s.half_extent_m = r.get_double(p + ".half_extent_m", s.half_extent_m, 0.0, 100.0, true);
+  s.density_per_m2 = r.get_double(p + ".density_per_m2", s.density_per_m2, 0.0, 1e12, true);
+  s.noise_sigma_m = r.get_double(p + ".noise_sigma_m", s.noise_sigma_m, 0.0, 1.0);
+  s.seed = static_cast<std::uint64_t>(r.get_int(p + ".seed", 1, 0, std::numeric_limits<int>::max()));
+  s.amplitude_m = r.get_double(p + ".amplitude_m", s.amplitude_m, 0.0, 10.0);
+  s.wavelength_m = r.get_double(p + ".wavelength_m", s.wavelength_m, 0.0, 100.0, true);
+  s.slope_x = r.get_double(p + ".slope_x", s.slope_x, -100.0, 100.0);
+  s.slope_y = r.get_double(p + ".slope_y", s.slope_y, -100.0, 100.0);
+  s.sphere_radius_m = r.get_double(p + ".sphere_radius_m", s.sphere_radius_m, 0.0, 100.0, true);
+  return s;
+}
+
+ViewTransform read_view(Reader& r) {
+  ViewTransform v;
+  const bool axis = r.has("view.rotation.axis") || r.has("view.rotation.angle_deg");
+  const bool euler = r.has("view.rotation.euler_deg") || r.has("view.rotation.order");
+  const bool quat = r.has("view.rotation.quaternion_wxyz");
+  if (int(axis) + int(euler) + int(quat) > 1) {
+    r.fail("view.rotation", "mixes forms: give either axis + angle_deg, euler_deg + order, or quaternion_wxyz");
+  }
+  if (axis) {
+    const Eigen::Vector3d a = r.get_vec3("view.rotation.axis", Eigen::Vector3d::UnitZ());
+    if (a.norm() < 1e-12) r.fail("view.rotation.axis", "= [0, 0, 0]: expected a non-zero axis");
+    v.rotation = rotation_from_axis_angle(a, r.get_double("view.rotation.angle_deg", 0.0, -360.0, 360.0));
+  } else if (euler) {
+    const Eigen::Vector3d e = r.get_vec3("view.rotation.euler_deg", Eigen::Vector3d::Zero(), -360.0, 360.0);
+    const std::string order =
+        r.get_string("view.rotation.order", "xyz", {"xyz", "xzy", "yxz", "yzx", "zxy", "zyx"});
+    v.rotation = rotation_from_euler(e, order);
+  } else if (quat) {
+    r.has("view.rotation.quaternion_wxyz");
+    const auto n = r.find("view.rotation.quaternion_wxyz");
+    double q[4] = {1, 0, 0, 0};
+    bool ok = n && n->IsSequence() && n->size() == 4;
+    for (std::size_t i = 0; ok && i < 4; ++i) {
+      try {
+        q[i] = (*n)[i].as<double>();
+      } catch (const YAML::Exception&) {
+        ok = false;
+      }
+    }
+    const double norm = std::sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]);
+    if (!ok || !(norm > 1e-9)) {
+      r.fail("view.rotation.quaternion_wxyz", "is invalid: expected 4 numbers [w, x, y, z] with a non-zero norm");
+    }
+    v.rotation = rotation_from_quaternion(q[0], q[1], q[2], q[3]);
+    YAML::Node seq(YAML::NodeType::Sequence);
+    for (double x : q) seq.push_back(x / norm);
+    r.resolved_set_raw("view.rotation.quaternion_wxyz", seq);
+  } else {
+    r.resolved_set_raw("view.rotation.quaternion_wxyz", YAML::Load("[1, 0, 0, 0]"));
+  }
+  v.translation_m = r.get_vec3("view.translation_m", Eigen::Vector3d::Zero(), -1e4, 1e4);
+  v.scale = r.get_double("view.scale", 1.0, 0.0, 1e6, true);
+  return v;
+}
+
+RunConfig build(Reader& r, const std::filesystem::path& origin) {
+  RunConfig c;
+  c.source = origin;
+  c.name = r.get_string("name", origin.stem().string());
+  const std::filesystem::path base = origin.has_parent_path() ? origin.parent_path() : ".";
+
+  // input
+  c.input.units = r.get_string("input.units", "m", {"m", "cm", "mm"});
+  for (const auto& f : r.get_string_list("input.files")) c.input.files.push_back(base / f);
+  if (r.has("input.conf")) c.input.conf = base / r.get_string("input.conf", "");
+  if (r.has("input.synthetic")) c.input.synthetic = read_synthetic(r, "input.synthetic");
+  if (c.input.files.empty() && !c.input.synthetic) {
+    r.fail("input", "is missing its scans: expected input.files (a list of scan files) or input.synthetic");
+  }
+  if (!c.input.files.empty() && c.input.synthetic) {
+    r.fail("input", "has both files and synthetic: expected exactly one of them");
+  }
+  if (c.input.files.size() > 1 && !c.input.conf) {
+    r.fail("input.files", "lists several scans but input.conf is missing: expected a scanalyze .conf "
+                          "giving each scan's pose");
+  }
+
+  c.view = read_view(r);
+
+  // filters
+  c.filters.outliers.enabled = r.get_bool("filters.outliers.enabled", true);
+  c.filters.outliers.k = static_cast<int>(r.get_int("filters.outliers.k", 16, 1, 256));
+  c.filters.outliers.std_multiplier = r.get_double("filters.outliers.std_multiplier", 2.0, 0.0, 100.0, true);
+  if (r.has("filters.crop")) {
+    const Eigen::Vector3d lo = r.get_vec3("filters.crop.min_m", Eigen::Vector3d::Constant(-1e3));
+    const Eigen::Vector3d hi = r.get_vec3("filters.crop.max_m", Eigen::Vector3d::Constant(1e3));
+    if ((hi.array() <= lo.array()).any()) r.fail("filters.crop", "is empty: expected max_m > min_m on every axis");
+    c.filters.crop_m = std::make_pair(lo, hi);
+  }
+  c.filters.voxel_m = r.get_double("filters.voxel_m", 0.0, 0.0, 10.0);
+
+  // grid
+  auto& g = c.grid.reproject;
+  const bool has_n = r.has("grid.n");
+  const bool has_cell = r.has("grid.cell_size_m");
+  if (has_n && has_cell) r.fail("grid", "gives both n and cell_size_m: expected exactly one");
+  if (has_cell) {
+    g.grid.cell_size_m = r.get_double("grid.cell_size_m", 0.0, 0.0, 100.0, true);
+  } else {
+    g.grid.n_long_side = static_cast<int>(r.get_int("grid.n", 800, 2, 65536));
+  }
+  g.grid.max_cells = static_cast<std::size_t>(r.get_int("grid.max_cells", 64LL * 1024 * 1024, 4, 1LL << 34));
+  g.splat_radius_cells = r.get_double("grid.splat_radius_cells", 0.0, 0.0, 16.0);
+  g.see_through_depth_m = r.get_double("grid.see_through_depth_m", 0.0, 0.0, 100.0);
+  g.see_through_window_cells = static_cast<int>(r.get_int("grid.see_through_window_cells", 3, 1, 64));
+  c.grid.hole_fill_max_cells = static_cast<int>(r.get_int("grid.hole_fill_max_cells", 0, 0, 1 << 24));
+
+  // cross-check
+  c.cross_check.enabled = r.get_bool("cross_check.enabled", true);
+  c.cross_check.tolerance_m = r.get_double("cross_check.tolerance_m", 0.0005, 0.0, 1.0, true);
+
+  // surface layers
+  auto& L = c.layers.options;
+  c.layers.enabled = r.get_bool("layers.enabled", true);
+  L.sigma_space_cells = r.get_double("layers.texture.sigma_space_cells", L.sigma_space_cells, 0.0, 100.0, true);
+  L.sigma_range_m = r.get_double("layers.texture.sigma_range_m", L.sigma_range_m, 0.0, 10.0, true);
+  L.friction_model = friction_model_from_string(
+      r.get_string("layers.friction.model", "paper", {"paper", "curvature"}));
+  L.mu_min = r.get_double("layers.friction.mu_min", L.mu_min, 0.0, 10.0);
+  L.mu_max = r.get_double("layers.friction.mu_max", L.mu_max, 0.0, 10.0);
+  if (L.mu_max < L.mu_min) {
+    r.fail("layers.friction.mu_max", "= " + format_double(L.mu_max) + ": expected a number ≥ mu_min (" +
+                                         format_double(L.mu_min) + ")");
+  }
+  L.workspace_radius_m = r.get_double("layers.friction.workspace_radius_m", L.workspace_radius_m, 0.0, 10.0, true);
+  L.curvature_gain_m = r.get_double("layers.friction.curvature_gain_m", L.curvature_gain_m, 0.0, 100.0);
+  L.mu_s = r.get_double("layers.friction.mu_s", L.mu_s, 0.0, 10.0);
+  const auto regions = r.get_map_list("layers.friction.mu_s_regions");
+  YAML::Node resolved_regions(YAML::NodeType::Sequence);
+  for (std::size_t i = 0; i < regions.size(); ++i) {
+    const std::string p = "layers.friction.mu_s_regions[" + std::to_string(i) + "]";
+    StaticFrictionRegion reg;
+    double* fields[] = {&reg.x_min_m, &reg.y_min_m, &reg.x_max_m, &reg.y_max_m, &reg.mu_s};
+    const char* names[] = {"x_min_m", "y_min_m", "x_max_m", "y_max_m", "mu_s"};
+    for (const auto& kv : regions[i]) {
+      const std::string key = kv.first.as<std::string>();
+      if (std::find(std::begin(names), std::end(names), key) == std::end(names)) {
+        throw ConfigError(r.where("layers.friction.mu_s_regions") + ": unknown key '" + p + "." + key +
+                          "' (allowed here: x_min_m, y_min_m, x_max_m, y_max_m, mu_s)");
+      }
+    }
+    YAML::Node out(YAML::NodeType::Map);
+    for (int k = 0; k < 5; ++k) {
+      const YAML::Node v = regions[i][names[k]];
+      if (!v.IsDefined() || !v.IsScalar()) {
+        r.fail("layers.friction.mu_s_regions", "element " + std::to_string(i) + " lacks '" + names[k] +
+                                                   "': expected x_min_m, y_min_m, x_max_m, y_max_m, mu_s");
+      }
+      try {
+        *fields[k] = v.as<double>();
+      } catch (const YAML::Exception&) {
+        r.fail("layers.friction.mu_s_regions", "element " + std::to_string(i) + " has " + names[k] + " = '" +
+                                                   v.Scalar() + "': expected a number");
+      }
+      out[names[k]] = *fields[k];
+    }
+    if (reg.x_max_m <= reg.x_min_m || reg.y_max_m <= reg.y_min_m || reg.mu_s < 0.0 || reg.mu_s > 10.0) {
+      r.fail("layers.friction.mu_s_regions", "element " + std::to_string(i) +
+                                                 " is invalid: expected x_max_m > x_min_m, y_max_m > y_min_m and mu_s in [0, 10]");
+    }
+    L.mu_s_regions.push_back(reg);
+    resolved_regions.push_back(out);
+  }
+  r.resolved_set_raw("layers.friction.mu_s_regions", resolved_regions);
+
+  r.reject_unknown_keys();
+  YAML::Emitter e;
+  e << r.resolved();
+  c.resolved_yaml = e.c_str();
+  return c;
+}
+
+}  // namespace
+
+RunConfig parse_run_config(const std::string& yaml_text, const std::filesystem::path& origin,
+                           const std::vector<std::string>& overrides) {
+  YAML::Node root;
+  try {
+    root = YAML::Load(yaml_text);
+  } catch (const YAML::ParserException& e) {
+    throw InputError(origin.string() + ":" + std::to_string(e.mark.line + 1) + ":" +
+                     std::to_string(e.mark.column + 1) + ": not valid YAML: " + e.msg);
+  }
+  if (root.IsNull()) root = YAML::Node(YAML::NodeType::Map);
+  if (!root.IsMap()) throw ConfigError(origin.string() + ": expected a YAML map of sections (input, grid, ...)");
+  std::set<std::string> overridden;
+  for (const auto& o : overrides) apply_override(root, o, origin.string(), overridden);
+  Reader reader(root, origin.string(), overridden);
+  return build(reader, origin);
+}
+
+RunConfig load_run_config(const std::filesystem::path& path, const std::vector<std::string>& overrides) {
+  std::ifstream in(path);
+  if (!in) throw InputError(path.string() + ": cannot open the config file (does it exist?)");
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return parse_run_config(ss.str(), path, overrides);
+}
+
+}  // namespace hc::pipeline

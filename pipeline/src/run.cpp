@@ -1,0 +1,300 @@
+#include "hc/pipeline/run.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/common/units.hpp"
+#include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/preview.hpp"
+#include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/scene_io.hpp"
+#include "hc/pipeline/surface_layers.hpp"
+#include "hc/pipeline/synthetic.hpp"
+#include "hc/pipeline/transform.hpp"
+
+#include <nlohmann/json.hpp>
+#include <openssl/evp.h>
+
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <iomanip>
+#include <memory>
+#include <sstream>
+
+namespace hc::pipeline {
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+std::string sha256_file(const fs::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw InputError(file.string() + ": cannot open to compute its checksum");
+  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
+  EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr);
+  std::vector<char> buf(1 << 20);
+  while (in) {
+    in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+    EVP_DigestUpdate(ctx.get(), buf.data(), static_cast<std::size_t>(in.gcount()));
+  }
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int len = 0;
+  EVP_DigestFinal_ex(ctx.get(), digest, &len);
+  std::ostringstream os;
+  for (unsigned int i = 0; i < len; ++i) os << std::hex << std::setw(2) << std::setfill('0') << int(digest[i]);
+  return os.str();
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+/// Runs one stage: announces it, runs it, records its report.
+template <class F>
+auto stage(const char* name, std::vector<StageReport>& reports, const ProgressFn& progress, F&& body) {
+  StageReport announce;
+  announce.stage = name;
+  if (progress) progress(announce, false);
+  const auto t0 = Clock::now();
+  auto result = body();
+  result.report.stage = name;
+  if (result.report.seconds <= 0.0) result.report.seconds = seconds_since(t0);
+  reports.push_back(result.report);
+  if (progress) progress(result.report, true);
+  return std::move(result.value);
+}
+
+json stats_json(const ErrorStats& s) {
+  return {{"count", s.count}, {"rms_mm", s.rms_mm}, {"p50_mm", s.p50_mm}, {"p95_mm", s.p95_mm},
+          {"p99_mm", s.p99_mm}, {"max_mm", s.max_mm}};
+}
+
+std::string fmt(double v, int precision = 3) {
+  std::ostringstream os;
+  os << std::fixed << std::setprecision(precision) << v;
+  return os.str();
+}
+
+std::string stats_row(const std::string& what, const ErrorStats& s) {
+  return "| " + what + " | " + std::to_string(s.count) + " | " + fmt(s.rms_mm) + " | " + fmt(s.p50_mm) +
+         " | " + fmt(s.p95_mm) + " | " + fmt(s.p99_mm) + " | " + fmt(s.max_mm) + " |\n";
+}
+
+void write_text(const fs::path& file, const std::string& text) {
+  std::ofstream out(file);
+  out << text;
+  if (!out) throw InputError(file.string() + ": cannot write");
+}
+
+}  // namespace
+
+RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const ProgressFn& progress) {
+  const auto t_start = Clock::now();
+  RunSummary summary;
+  auto& reports = summary.stages;
+  StagingDir staging(out_dir);
+
+  // 1. Ingest.
+  json inputs = json::array();
+  Cloud cloud = stage("ingest", reports, progress, [&] {
+    if (config.input.synthetic) return StageResult<Cloud>{generate_surface(*config.input.synthetic), {}};
+    if (config.input.conf) return load_and_merge_scans(config.input.files, *config.input.conf);
+    return load_cloud(config.input.files.front());
+  });
+  if (reports.back().count_out == 0) reports.back().count_out = cloud.size();
+  for (const auto& f : config.input.files) inputs.push_back({{"file", f.string()}, {"sha256", sha256_file(f)}});
+  if (config.input.conf) inputs.push_back({{"file", config.input.conf->string()}, {"sha256", sha256_file(*config.input.conf)}});
+
+  // 2. Units and recentring (double precision), 3. view transform.
+  Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
+  const double unit_m = metres_per_unit(config.input.units);
+  cloud = stage("recentre", reports, progress,
+                [&] { return to_metres_and_recentre(std::move(cloud), unit_m, &offset_m); });
+  cloud = stage("transform", reports, progress, [&] { return apply_view_transform(std::move(cloud), config.view); });
+
+  // 4. Filters.
+  cloud = stage("non_finite", reports, progress, [&] { return remove_non_finite(std::move(cloud)); });
+  if (config.filters.crop_m) {
+    cloud = stage("crop", reports, progress, [&] {
+      return crop_box(std::move(cloud), config.filters.crop_m->first, config.filters.crop_m->second);
+    });
+  }
+  if (config.filters.voxel_m > 0.0) {
+    cloud = stage("voxel", reports, progress, [&] { return voxel_downsample(std::move(cloud), config.filters.voxel_m); });
+  }
+  if (config.filters.outliers.enabled) {
+    cloud = stage("outliers", reports, progress, [&] {
+      return remove_statistical_outliers(std::move(cloud), config.filters.outliers.k,
+                                         config.filters.outliers.std_multiplier);
+    });
+  }
+
+  // 5. Reprojection and hole filling.
+  DepthGrid grid = stage("reproject", reports, progress, [&] { return reproject(cloud, config.grid.reproject); });
+  if (config.grid.hole_fill_max_cells > 0) {
+    grid = stage("hole_fill", reports, progress, [&] { return fill_holes(std::move(grid), config.grid.hole_fill_max_cells); });
+  }
+  const Eigen::Affine3d model_to_grid =
+      config.view.matrix() * Eigen::Translation3d(-offset_m) * Eigen::Scaling(unit_m);
+  grid.depth.model_to_grid = model_to_grid;
+  summary.grid = grid.depth.geometry();
+  summary.valid_cells = grid.depth.valid_count();
+
+  Scene scene;
+  scene.flags = grid.flags;
+
+  // 6. Surface layers (texture, curvature, friction).
+  if (config.layers.enabled) {
+    SurfaceLayers layers = stage("surface_layers", reports, progress,
+                                 [&] { return compute_surface_layers(grid.depth, config.layers.options); });
+    scene.friction_model = to_string(layers.friction_model);
+    scene.layers.emplace("envelope", std::move(layers.envelope_m));
+    scene.layers.emplace("texture", std::move(layers.texture_m));
+    scene.layers.emplace("mu_d", std::move(layers.mu_d));
+    scene.layers.emplace("mu_s", std::move(layers.mu_s));
+    for (auto& [name, layer] : scene.layers) layer.model_to_grid = model_to_grid;
+  }
+
+  // 7. Cross-check.
+  if (config.cross_check.enabled) {
+    summary.cross_check = stage("cross_check", reports, progress,
+                                [&] { return cross_check(cloud, grid.depth, config.cross_check.tolerance_m); });
+    summary.cross_check->cell_error_m.model_to_grid = model_to_grid;
+    scene.layers.emplace("cell_error", summary.cross_check->cell_error_m);
+  }
+  scene.layers.emplace("depth", std::move(grid.depth));
+
+  // 8. Scene, previews and report, all inside the staging folder.
+  const auto t_write = Clock::now();
+  StageReport write_report;
+  write_report.stage = "write";
+  if (progress) progress(write_report, false);
+  json provenance = {{"tool", std::string("hapticloud ") + HC_VERSION}, {"inputs", inputs},
+                     {"recentre_offset_m", {offset_m.x(), offset_m.y(), offset_m.z()}},
+                     {"units", config.input.units}};
+  std::string extra = "provenance:\n";
+  extra += "  tool: hapticloud " HC_VERSION "\n  config_file: \"" + config.source.string() + "\"\n";
+  extra += "  units: " + config.input.units + "\n";
+  {
+    std::ostringstream os;
+    os << std::setprecision(17) << "  recentre_offset_m: [" << offset_m.x() << ", " << offset_m.y() << ", "
+       << offset_m.z() << "]\n";
+    extra += os.str();
+  }
+  extra += "  inputs:\n";
+  for (const auto& in : inputs) {
+    extra += "    - file: \"" + in["file"].get<std::string>() + "\"\n      sha256: " + in["sha256"].get<std::string>() + "\n";
+  }
+  if (config.input.synthetic) extra += "    - synthetic: " + to_string(config.input.synthetic->kind) + "\n";
+  extra += "resolved_config:\n";
+  {
+    std::istringstream is(config.resolved_yaml);
+    for (std::string line; std::getline(is, line);) extra += "  " + line + "\n";
+  }
+  write_scene(scene, staging.path() / "scene", extra);
+
+  const fs::path previews = staging.path() / "previews";
+  fs::create_directories(previews);
+  const HeightField& depth = scene.depth();
+  write_colour_preview(depth, previews / "depth.png", "depth z", "mm", 1000.0);
+  write_hillshade_preview(depth, previews / "hillshade.png");
+  if (summary.cross_check) {
+    write_colour_preview(summary.cross_check->cell_error_m, previews / "cross_check_error.png",
+                         "cross-check: grid sample to nearest point", "mm", 1000.0);
+  }
+  if (scene.has("texture")) {
+    write_colour_preview(scene.layers.at("texture"), previews / "texture.png", "texture h = f - f_b", "mm", 1000.0);
+    write_colour_preview(scene.layers.at("mu_d"), previews / "mu_d.png", "dynamic friction mu_d (" + scene.friction_model + ")", "-", 1.0);
+    write_colour_preview(scene.layers.at("mu_s"), previews / "mu_s.png", "static friction mu_s", "-", 1.0);
+  }
+  write_report.seconds = seconds_since(t_write);
+  reports.push_back(write_report);
+  if (progress) progress(write_report, true);
+  summary.total_seconds = seconds_since(t_start);
+
+  // Report: JSON for machines, Markdown for people; both from the same figures.
+  const GridGeometry& g = summary.grid;
+  std::size_t n_filled = 0, n_see_through = 0, n_splatted = 0;
+  for (auto f : scene.flags) {
+    n_filled += f == kCellFilled;
+    n_see_through += f == kCellSeeThrough;
+    n_splatted += f == kCellSplatted;
+  }
+  json j;
+  j["name"] = config.name;
+  j["tool"] = std::string("hapticloud ") + HC_VERSION;
+  j["config_file"] = config.source.string();
+  j["provenance"] = provenance;
+  j["grid"] = {{"rows", g.rows}, {"cols", g.cols}, {"cell_size_m", g.cell_size_m}, {"x0_m", g.x0_m},
+               {"y0_m", g.y0_m}, {"valid_cells", summary.valid_cells}, {"filled_cells", n_filled},
+               {"see_through_cells", n_see_through}, {"splatted_cells", n_splatted}};
+  j["stages"] = json::array();
+  for (const auto& s : reports) {
+    json js = {{"stage", s.stage}, {"count_in", s.count_in}, {"count_out", s.count_out}, {"seconds", s.seconds}};
+    for (const auto& [k, v] : s.figures) js["figures"][k] = v;
+    if (!s.notes.empty()) js["notes"] = s.notes;
+    j["stages"].push_back(js);
+  }
+  j["total_seconds"] = summary.total_seconds;
+  if (summary.cross_check) {
+    const CrossCheck& c = *summary.cross_check;
+    j["cross_check"] = {{"point_vertical", stats_json(c.point_vertical)},
+                        {"point_normal", stats_json(c.point_normal)},
+                        {"cell_to_point", stats_json(c.cell_to_point)},
+                        {"points_on_surface", c.points_on_surface},
+                        {"points_off_surface", c.points_off_surface},
+                        {"supported_fraction", c.supported_fraction},
+                        {"tolerance_m", c.tolerance_m}};
+  }
+  if (!scene.friction_model.empty()) j["friction_model"] = scene.friction_model;
+  write_text(staging.path() / "report.json", j.dump(2) + "\n");
+
+  std::ostringstream md;
+  md << "# hapticloud run report: " << config.name << "\n\n";
+  md << "Config: `" << config.source.string() << "`. Tool: hapticloud " << HC_VERSION << ".\n\n";
+  md << "## Input\n\n";
+  if (config.input.synthetic) md << "- synthetic surface: " << to_string(config.input.synthetic->kind) << "\n";
+  for (const auto& in : inputs) md << "- `" << in["file"].get<std::string>() << "` (sha256 " << in["sha256"].get<std::string>().substr(0, 16) << "…)\n";
+  md << "\n## Grid\n\n";
+  md << "| rows | cols | cell size (mm) | valid cells | filled | see-through (removed) |\n|---|---|---|---|---|---|\n";
+  md << "| " << g.rows << " | " << g.cols << " | " << fmt(g.cell_size_m * 1000.0, 4) << " | " << summary.valid_cells
+     << " | " << n_filled << " | " << n_see_through << " |\n\n";
+  md << "## Stages (speed)\n\n| stage | points/cells in | out | time (ms) | figures |\n|---|---|---|---|---|\n";
+  for (const auto& s : reports) {
+    md << "| " << s.stage << " | " << s.count_in << " | " << s.count_out << " | " << fmt(s.seconds * 1000.0, 1) << " | ";
+    for (const auto& [k, v] : s.figures) md << k << " = " << fmt(v, 4) << "; ";
+    md << " |\n";
+  }
+  md << "| **total (file to written scene and previews)** | | | **" << fmt(summary.total_seconds * 1000.0, 1) << "** | |\n\n";
+  if (summary.cross_check) {
+    const CrossCheck& c = *summary.cross_check;
+    md << "## Cross-check (accuracy)\n\n| measure | count | RMS (mm) | p50 | p95 | p99 | max |\n|---|---|---|---|---|---|---|\n";
+    md << stats_row("(a) points vs bilinear surface, vertical", c.point_vertical);
+    md << stats_row("(a) points vs bilinear surface, along normal", c.point_normal);
+    md << stats_row("(b) grid samples vs nearest point", c.cell_to_point);
+    md << "\nPoints on the surface: " << c.points_on_surface << "; not on it (no-data cell or hidden): "
+       << c.points_off_surface << ". Cells supported within " << fmt(c.tolerance_m * 1000.0, 3)
+       << " mm: " << fmt(100.0 * c.supported_fraction, 2) << " %.\n\n";
+    md << "## Speed against error\n\n| N (long side) | cell (mm) | total time (ms) | RMS (mm) | p95 (mm) |\n|---|---|---|---|---|\n";
+    md << "| " << std::max(g.rows, g.cols) << " | " << fmt(g.cell_size_m * 1000.0, 4) << " | "
+       << fmt(summary.total_seconds * 1000.0, 1) << " | " << fmt(c.point_vertical.rms_mm) << " | "
+       << fmt(c.point_vertical.p95_mm) << " |\n\n";
+    md << "(Benchmarks over N = 200…1600: `build/release/bench/pipeline_bench`.)\n\n";
+  }
+  if (!scene.friction_model.empty()) {
+    md << "## Surface layers\n\nFriction model: **" << scene.friction_model
+       << "** (see docs/friction.md for paper vs curvature).\n\n";
+  }
+  md << "## Previews\n\n![depth](previews/depth.png)\n![hillshade](previews/hillshade.png)\n";
+  if (summary.cross_check) md << "![cross-check error](previews/cross_check_error.png)\n";
+  if (scene.has("texture")) md << "![texture](previews/texture.png)\n![mu_d](previews/mu_d.png)\n![mu_s](previews/mu_s.png)\n";
+  write_text(staging.path() / "report.md", md.str());
+
+  staging.commit();
+  summary.out_dir = out_dir;
+  return summary;
+}
+
+}  // namespace hc::pipeline
