@@ -1,0 +1,121 @@
+#include "hc/pipeline/config.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <gtest/gtest.h>
+
+#include "test_paths.hpp"
+
+#include <fstream>
+
+namespace {
+
+using hc::pipeline::parse_run_config;
+
+const std::string kMinimal = "input:\n  files: [scan.ply]\n";
+
+std::string error_of(const std::string& yaml, const std::vector<std::string>& sets = {}) {
+  try {
+    parse_run_config(yaml, "configs/test.yaml", sets);
+  } catch (const hc::Error& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(Config, DefaultsAreFilledAndPathsResolvedAgainstTheConfigFolder) {
+  const auto c = parse_run_config(kMinimal, "configs/test.yaml");
+  ASSERT_EQ(c.input.files.size(), 1u);
+  EXPECT_EQ(c.input.files[0], std::filesystem::path("configs/scan.ply"));
+  EXPECT_EQ(c.name, "test");
+  EXPECT_EQ(c.grid.reproject.grid.n_long_side, 800);
+  EXPECT_TRUE(c.filters.outliers.enabled);
+  EXPECT_EQ(c.filters.outliers.k, 16);
+  EXPECT_NE(c.resolved_yaml.find("n: 800"), std::string::npos) << c.resolved_yaml;
+  EXPECT_NE(c.resolved_yaml.find("std_multiplier: 2"), std::string::npos);
+}
+
+TEST(Config, UnknownKeyIsNamedWithItsLineAndTheAllowedKeys) {
+  const std::string msg = error_of(kMinimal + "grid:\n  n: 400\n  nn: 3\n");
+  EXPECT_NE(msg.find("configs/test.yaml:5"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("grid.nn"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("cell_size_m"), std::string::npos) << msg;  // the allowed keys are listed
+  EXPECT_NE(error_of(kMinimal + "grdi: {n: 3}\n").find("unknown key 'grdi'"), std::string::npos);
+}
+
+TEST(Config, WrongTypeAndOutOfRangeNameKeyLineValueAndRange) {
+  std::string msg = error_of(kMinimal + "grid:\n  n: lots\n");
+  EXPECT_NE(msg.find("configs/test.yaml:4"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("grid.n"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("'lots'"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("integer"), std::string::npos) << msg;
+
+  msg = error_of(kMinimal + "grid:\n  n: 1\n");  // N ≤ 1
+  EXPECT_NE(msg.find("grid.n = 1"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("[2, 65536]"), std::string::npos) << msg;
+
+  msg = error_of(kMinimal + "filters:\n  outliers: {std_multiplier: -1}\n");
+  EXPECT_NE(msg.find("filters.outliers.std_multiplier = -1"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("(0, 100]"), std::string::npos) << msg;
+
+  msg = error_of(kMinimal + "input:\n  files: [a]\n  units: inch\n");
+  EXPECT_FALSE(msg.empty());
+  msg = error_of("input:\n  files: [a]\n  units: inch\n");
+  EXPECT_NE(msg.find("input.units = 'inch': expected one of: m, cm, mm"), std::string::npos) << msg;
+
+  msg = error_of(kMinimal + "layers:\n  friction: {model: magic}\n");
+  EXPECT_NE(msg.find("paper, curvature"), std::string::npos) << msg;
+  msg = error_of(kMinimal + "layers:\n  friction: {mu_min: 0.5, mu_max: 0.1}\n");
+  EXPECT_NE(msg.find("layers.friction.mu_max"), std::string::npos) << msg;
+}
+
+TEST(Config, ConflictingOrMissingChoicesAreErrors) {
+  EXPECT_NE(error_of(kMinimal + "grid: {n: 100, cell_size_m: 0.001}\n").find("both n and cell_size_m"), std::string::npos);
+  EXPECT_NE(error_of("grid: {n: 100}\n").find("input.files"), std::string::npos);
+  EXPECT_NE(error_of("input:\n  files: [a.ply, b.ply]\n").find("input.conf"), std::string::npos);
+  EXPECT_NE(error_of(kMinimal + "view:\n  rotation: {axis: [0,1,0], angle_deg: 10, euler_deg: [1,2,3]}\n")
+                .find("mixes forms"), std::string::npos);
+  EXPECT_NE(error_of(kMinimal + "view:\n  rotation: {axis: [0,0,0], angle_deg: 10}\n").find("non-zero axis"),
+            std::string::npos);
+}
+
+TEST(Config, SetOverridesApplyBeforeValidationAndAreNamedInErrors) {
+  const auto c = parse_run_config(kMinimal, "configs/test.yaml", {"grid.n=400", "view.rotation.axis=[0,1,0]",
+                                                                  "view.rotation.angle_deg=90"});
+  EXPECT_EQ(c.grid.reproject.grid.n_long_side, 400);
+  const Eigen::Vector3d x = c.view.rotation * Eigen::Vector3d::UnitX();
+  EXPECT_NEAR(x.z(), -1.0, 1e-12);  // +90° about y takes +x to −z
+  const std::string msg = error_of(kMinimal, {"grid.n=0"});
+  EXPECT_NE(msg.find("--set grid.n"), std::string::npos) << msg;
+  EXPECT_NE(error_of(kMinimal, {"grid.n"}).find("key=value"), std::string::npos);
+  EXPECT_NE(error_of(kMinimal, {"grid.bogus=3"}).find("unknown key 'grid.bogus'"), std::string::npos);
+}
+
+TEST(Config, InvalidYamlAndMissingFileAreInputErrorsWithPosition) {
+  try {
+    parse_run_config("input: [unclosed\n", "configs/bad.yaml");
+    FAIL() << "expected an InputError";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("configs/bad.yaml:"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW(hc::pipeline::load_run_config("does/not/exist.yaml"), hc::InputError);
+}
+
+TEST(Config, StaticFrictionRegionsAreValidated) {
+  const auto c = parse_run_config(
+      kMinimal + "layers:\n  friction:\n    mu_s_regions:\n      - {x_min_m: 0, y_min_m: 0, x_max_m: 0.01, y_max_m: 0.02, mu_s: 0.4}\n",
+      "configs/test.yaml");
+  ASSERT_EQ(c.layers.options.mu_s_regions.size(), 1u);
+  EXPECT_DOUBLE_EQ(c.layers.options.mu_s_regions[0].mu_s, 0.4);
+  EXPECT_NE(error_of(kMinimal + "layers:\n  friction:\n    mu_s_regions:\n      - {x_min_m: 0, y_min_m: 0, x_max_m: 0.01, y_max_m: 0.02, mu: 0.4}\n")
+                .find("unknown key"), std::string::npos);
+}
+
+TEST(Config, ShippedConfigsAllValidate) {
+  for (const char* name : {"happy_buddha.yaml", "buddha_raw_scans.yaml", "bunny.yaml", "sinusoid.yaml"}) {
+    const auto path = std::filesystem::path(HC_SOURCE_DIR) / "configs" / name;
+    EXPECT_NO_THROW(hc::pipeline::load_run_config(path)) << name;
+  }
+}
+
+}  // namespace
