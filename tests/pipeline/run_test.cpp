@@ -1,0 +1,137 @@
+#include "hc/pipeline/run.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/scene_io.hpp"
+
+#include <gtest/gtest.h>
+
+#include "test_paths.hpp"
+
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+
+namespace {
+
+namespace fs = std::filesystem;
+using namespace hc::pipeline;
+
+/// Writes a cloud as XYZ text with 17 significant digits (exact round trip of doubles).
+void write_xyz(const Cloud& c, const fs::path& file, const Eigen::Vector3d& shift) {
+  std::FILE* f = std::fopen(file.c_str(), "w");
+  ASSERT_NE(f, nullptr);
+  for (Eigen::Index i = 0; i < c.xyz.cols(); ++i) {
+    const Eigen::Vector3d p = c.xyz.col(i) + shift;
+    std::fprintf(f, "%.17g %.17g %.17g\n", p.x(), p.y(), p.z());
+  }
+  std::fclose(f);
+}
+
+RunConfig xyz_config(const fs::path& file) {
+  return parse_run_config("input: {files: [" + file.filename().string() + "]}\n"
+                          "grid: {n: 200, see_through_depth_m: 0.003, hole_fill_max_cells: 16}\n"
+                          "filters: {outliers: {enabled: true}}\n",
+                          file.parent_path() / "run.yaml");
+}
+
+TEST(RunPipeline, GeoreferencedOffsetsGiveTheSameGridWithinOneMicrometre) {
+  const fs::path dir = hc::test::temp_dir("geo");
+  const Cloud bunny = load_cloud(hc::test::scan_path("bunny/bun000.ply")).value;
+  write_xyz(bunny, dir / "near.xyz", Eigen::Vector3d::Zero());
+  write_xyz(bunny, dir / "far.xyz", Eigen::Vector3d(452311.25, 5218733.5, 312.75));  // UTM-like offsets
+  run_pipeline(xyz_config(dir / "near.xyz"), dir / "near");
+  run_pipeline(xyz_config(dir / "far.xyz"), dir / "far");
+  const Scene near = load_scene(dir / "near" / "scene");
+  const Scene far = load_scene(dir / "far" / "scene");
+  ASSERT_EQ(near.depth().geometry().rows, far.depth().geometry().rows);
+  ASSERT_EQ(near.depth().geometry().cols, far.depth().geometry().cols);
+  EXPECT_NEAR(near.depth().geometry().x0_m, far.depth().geometry().x0_m, 1e-6);
+  EXPECT_NEAR(near.depth().geometry().y0_m, far.depth().geometry().y0_m, 1e-6);
+  double max_diff = 0.0;
+  std::size_t valid = 0;
+  for (std::size_t i = 0; i < near.depth().values().size(); ++i) {
+    const float a = near.depth().values()[i], b = far.depth().values()[i];
+    ASSERT_EQ(std::isnan(a), std::isnan(b)) << "cell " << i;
+    if (std::isnan(a)) continue;
+    ++valid;
+    max_diff = std::max(max_diff, std::abs(double(a) - double(b)));
+  }
+  EXPECT_GT(valid, 10000u);
+  EXPECT_LE(max_diff, 1e-6);
+  // The frame records the offset, so grid points map back to georeferenced coordinates.
+  const Eigen::Vector3d back = far.depth().model_to_grid.inverse() * Eigen::Vector3d(0, 0, 0);
+  EXPECT_NEAR(back.x(), 452311.25 + (near.depth().model_to_grid.inverse() * Eigen::Vector3d::Zero()).x(), 1e-6);
+}
+
+TEST(RunPipeline, AFailedRunLeavesNothingAndKeepsTheEarlierOutput) {
+  const fs::path dir = hc::test::temp_dir("atomic");
+  const Cloud bunny = load_cloud(hc::test::scan_path("bunny/bun000.ply")).value;
+  write_xyz(bunny, dir / "ok.xyz", Eigen::Vector3d::Zero());
+  run_pipeline(xyz_config(dir / "ok.xyz"), dir / "out");
+  ASSERT_TRUE(fs::exists(dir / "out" / "report.json"));
+  const auto before = fs::last_write_time(dir / "out" / "report.json");
+
+  // A run whose input is broken must fail without touching dir/out or leaving a partial folder.
+  { std::ofstream(dir / "broken.xyz") << "0 0 0\n1 2 x\n"; }
+  EXPECT_THROW(run_pipeline(xyz_config(dir / "broken.xyz"), dir / "out"), hc::InputError);
+  EXPECT_EQ(fs::last_write_time(dir / "out" / "report.json"), before);
+  for (const auto& e : fs::directory_iterator(dir)) {
+    EXPECT_EQ(e.path().filename().string().find(".partial"), std::string::npos) << e.path();
+  }
+  EXPECT_THROW(run_pipeline(xyz_config(dir / "broken.xyz"), dir / "fresh"), hc::InputError);
+  EXPECT_FALSE(fs::exists(dir / "fresh"));
+}
+
+TEST(SceneIo, WriteThenLoadRoundTripsLayersFlagsAndFrame) {
+  const fs::path dir = hc::test::temp_dir("scene");
+  Scene s;
+  hc::HeightField depth(hc::GridGeometry{3, 4, -0.01, 0.02, 0.001});
+  for (int r = 0; r < 3; ++r)
+    for (int c = 0; c < 4; ++c) depth.at(r, c) = 0.001f * float(r * 4 + c);
+  depth.at(1, 2) = hc::kNoData;
+  depth.model_to_grid = Eigen::Translation3d(1, 2, 3) * Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitY());
+  hc::HeightField mu(depth.geometry(), 0.25f);
+  mu.model_to_grid = depth.model_to_grid;
+  s.layers.emplace("depth", depth);
+  s.layers.emplace("mu_d", mu);
+  s.flags.assign(12, kCellMeasured);
+  s.flags[6] = kCellSeeThrough;
+  s.friction_model = "paper";
+  write_scene(s, dir / "scene", "provenance: {note: test}\n");
+  EXPECT_THROW(write_scene(s, dir / "scene", ""), hc::InputError);  // never overwrite in place
+
+  const Scene back = load_scene(dir / "scene");
+  ASSERT_TRUE(back.has("mu_d"));
+  EXPECT_EQ(back.depth().geometry(), depth.geometry());
+  for (std::size_t i = 0; i < 12; ++i) {
+    const float a = depth.values()[i], b = back.depth().values()[i];
+    EXPECT_TRUE((std::isnan(a) && std::isnan(b)) || a == b) << i;
+  }
+  EXPECT_EQ(back.flags, s.flags);
+  EXPECT_EQ(back.friction_model, "paper");
+  EXPECT_TRUE(back.depth().model_to_grid.matrix().isApprox(depth.model_to_grid.matrix(), 1e-12));
+  EXPECT_NE(back.metadata_yaml.find("note: test"), std::string::npos);
+}
+
+TEST(SceneIo, MissingOrCorruptScenesAreNamedErrors) {
+  const fs::path dir = hc::test::temp_dir("bad");
+  try {
+    load_scene(dir / "nothing");
+    FAIL();
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("nothing"), std::string::npos);
+  }
+  fs::create_directories(dir / "s");
+  std::ofstream(dir / "s" / "scene.yaml") << "format_version: 1\ngrid: {rows: 2, cols: 2, x0_m: 0, y0_m: 0, cell_size_m: 1}\nlayers: {depth: depth.tiff}\n";
+  try {
+    load_scene(dir / "s");
+    FAIL();
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("depth.tiff"), std::string::npos) << e.what();
+  }
+  std::ofstream(dir / "s" / "scene.yaml") << "format_version: 99\n";
+  EXPECT_THROW(load_scene(dir / "s"), hc::InputError);
+}
+
+}  // namespace
