@@ -1,0 +1,126 @@
+// End-to-end: the hapticloud program run on the raw bunny scan and on the paper's sinusoid.
+
+#include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include "test_paths.hpp"
+
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <string>
+
+namespace {
+
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+
+struct Outcome {
+  int status = -1;
+  std::string output;  // stdout and stderr together
+};
+
+Outcome run_app(const std::string& args) {
+  const std::string cmd = std::string(HC_APP) + " " + args + " 2>&1";
+  Outcome o;
+  std::FILE* p = popen(cmd.c_str(), "r");
+  if (!p) return o;
+  char buf[4096];
+  while (std::fgets(buf, sizeof buf, p)) o.output += buf;
+  const int raw = pclose(p);
+  o.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
+  return o;
+}
+
+json read_json(const fs::path& file) {
+  std::ifstream in(file);
+  return json::parse(in);
+}
+
+std::string config(const char* name) { return (fs::path(HC_SOURCE_DIR) / "configs" / name).string(); }
+
+TEST(RunCommand, VersionAndHelp) {
+  const Outcome v = run_app("--version");
+  EXPECT_EQ(v.status, 0);
+  EXPECT_NE(v.output.find("hapticloud "), std::string::npos);
+  const Outcome h = run_app("--help");
+  EXPECT_EQ(h.status, 0);
+  EXPECT_NE(h.output.find("run"), std::string::npos);
+}
+
+TEST(RunCommand, SinusoidReportMatchesTheAnalyticSurface) {
+  const fs::path out = hc::test::temp_dir("sinusoid") / "run";
+  const Outcome o = run_app("run " + config("sinusoid.yaml") + " --out " + out.string());
+  ASSERT_EQ(o.status, 0) << o.output;
+  for (const char* f : {"report.md", "report.json", "scene/scene.yaml", "scene/depth.tiff", "scene/texture.tiff",
+                        "scene/mu_d.tiff", "scene/mu_s.tiff", "previews/depth.png", "previews/hillshade.png",
+                        "previews/cross_check_error.png"}) {
+    EXPECT_TRUE(fs::exists(out / f)) << f;
+  }
+  const json r = read_json(out / "report.json");
+  EXPECT_EQ(r["grid"]["cols"].get<int>(), 200);
+  const double cell_mm = r["grid"]["cell_size_m"].get<double>() * 1000.0;
+  EXPECT_NEAR(cell_mm, 100.0 / 199.0, 0.05);  // 10 cm over 200 samples
+  // Dense samples with 20 µm noise: the grid must agree with its points far below a cell.
+  const json& cc = r["cross_check"];
+  EXPECT_LT(cc["point_vertical"]["rms_mm"].get<double>(), 0.25 * cell_mm);
+  EXPECT_LT(cc["cell_to_point"]["p95_mm"].get<double>(), cell_mm);
+  EXPECT_GT(cc["supported_fraction"].get<double>(), 0.95);
+  EXPECT_EQ(r["friction_model"].get<std::string>(), "paper");
+  bool saw_reproject = false;
+  for (const auto& s : r["stages"]) {
+    EXPECT_GE(s["seconds"].get<double>(), 0.0);
+    if (s["stage"] == "reproject") {
+      saw_reproject = true;
+      EXPECT_GT(s["count_in"].get<long>(), 300000);
+    }
+  }
+  EXPECT_TRUE(saw_reproject);
+}
+
+TEST(RunCommand, RawBunnyScanGivesAPlausibleGrid) {
+  const fs::path out = hc::test::temp_dir("bunny") / "run";
+  const Outcome o = run_app("run " + config("bunny.yaml") + " --out " + out.string() + " --quiet");
+  ASSERT_EQ(o.status, 0) << o.output;
+  const json r = read_json(out / "report.json");
+  EXPECT_EQ(std::max(r["grid"]["rows"].get<int>(), r["grid"]["cols"].get<int>()), 300);
+  // 40 256 points: the ingest stage reads them all.
+  EXPECT_EQ(r["stages"][0]["count_out"].get<long>(), 40256);
+  // The bunny is ~15 cm across: about 0.5 mm cells; the raw scan is dense, so the surface
+  // follows its points to well under a cell and almost every cell is supported by a point.
+  const double cell_mm = r["grid"]["cell_size_m"].get<double>() * 1000.0;
+  EXPECT_GT(cell_mm, 0.4);
+  EXPECT_LT(cell_mm, 0.6);
+  EXPECT_LT(r["cross_check"]["point_vertical"]["p50_mm"].get<double>(), 0.25 * cell_mm);
+  EXPECT_GT(r["cross_check"]["supported_fraction"].get<double>(), 0.9);
+  EXPECT_GT(r["grid"]["valid_cells"].get<long>(), 20000);
+  EXPECT_EQ(r["provenance"]["inputs"][0]["sha256"].get<std::string>(),
+            "7d48f9fdf917311de680d074edce8aff25a4b9bfd87be9301822dace811209fb");
+}
+
+TEST(RunCommand, BadConfigFailsWithOneLineCauseAndWritesNothing) {
+  const fs::path dir = hc::test::temp_dir("bad");
+  std::ofstream(dir / "bad.yaml") << "input: {files: [x.ply]}\ngrid: {n: 1}\n";
+  const Outcome o = run_app("run " + (dir / "bad.yaml").string() + " --out " + (dir / "out").string());
+  EXPECT_EQ(o.status, 1);
+  EXPECT_NE(o.output.find("bad.yaml:2: grid.n = 1"), std::string::npos) << o.output;
+  EXPECT_FALSE(fs::exists(dir / "out"));
+
+  std::ofstream(dir / "missing.yaml") << "input: {files: [no_such_scan.ply]}\n";
+  const Outcome m = run_app("run " + (dir / "missing.yaml").string() + " --out " + (dir / "out").string());
+  EXPECT_EQ(m.status, 1);
+  EXPECT_NE(m.output.find("no_such_scan.ply"), std::string::npos) << m.output;
+  EXPECT_FALSE(fs::exists(dir / "out"));
+}
+
+TEST(RunCommand, SetOverridesAConfigKey) {
+  const fs::path out = hc::test::temp_dir("set") / "run";
+  const Outcome o = run_app("run " + config("sinusoid.yaml") + " --out " + out.string() +
+                            " --quiet --set grid.n=64 --set layers.friction.model=curvature");
+  ASSERT_EQ(o.status, 0) << o.output;
+  const json r = read_json(out / "report.json");
+  EXPECT_EQ(r["grid"]["cols"].get<int>(), 64);
+  EXPECT_EQ(r["friction_model"].get<std::string>(), "curvature");
+}
+
+}  // namespace
