@@ -6,6 +6,7 @@
 #include "hc/pipeline/cloud.hpp"
 
 #include <cstddef>
+#include <vector>
 
 namespace hc::pipeline {
 
@@ -16,6 +17,9 @@ struct ErrorStats {
 };
 
 /// Summary statistics of |values| given in metres. Empty input gives count 0 and zeros.
+/// Percentiles use the nearest-rank rule: p_q is the ⌈q·n⌉-th smallest value (partial
+/// selection with std::nth_element, O(n); no full sort).
+/// @throws hc::InputError if a value is NaN or infinite.
 ErrorStats error_stats_mm(std::vector<double> abs_errors_m);
 
 struct CrossCheck {
@@ -27,6 +31,11 @@ struct CrossCheck {
   ErrorStats cell_to_point;
   /// Points considered in (a) and points skipped because their cell is no data.
   std::size_t points_on_surface = 0, points_off_surface = 0;
+  /// Points skipped in (a) because they lie more than hidden_band_m BELOW the surface (hidden
+  /// behind it, e.g. the back of a statue: not part of a Monge surface seen along −z), and
+  /// finite points outside the grid's x-y extent. Points above the surface always count.
+  std::size_t points_hidden = 0, points_outside = 0;
+  double hidden_band_m = 0.0;
   /// Fraction of valid cells whose nearest input point is within tolerance_m [-].
   double supported_fraction = 0.0;
   double tolerance_m = 0.0;
@@ -36,10 +45,12 @@ struct CrossCheck {
 
 /// Cross-checks the grid against the points that made it (same grid frame, metres).
 /// Nearest neighbours by a kd-tree over the points (nanoflann); queries run in grid order.
-/// @param tolerance_m  a cell is "supported" if an input point lies within this distance.
-/// @throws hc::InputError if the grid has no valid cell or the cloud is empty.
-/// Real-time: no. Cost: O(N log N) build + O(cells · log N).
+/// @param tolerance_m    a cell is "supported" if an input point lies within this distance.
+/// @param hidden_band_m  (a) uses a point only if z_p ≥ f(x_p, y_p) − hidden_band_m [m].
+/// @throws hc::InputError if the grid has no valid cell, is smaller than 2 × 2, or the cloud has
+///         no finite point; hc::ConfigError for tolerance_m or hidden_band_m not > 0.
+/// Real-time: no. Threads: 2. Cost: O(N log N) build + O(cells · log N) + O(N) for (a).
 StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& grid,
-                                    double tolerance_m);
+                                    double tolerance_m, double hidden_band_m = 0.002);
 
 }  // namespace hc::pipeline

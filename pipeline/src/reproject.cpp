@@ -1,0 +1,374 @@
+// Stage 5: orthographic depth scan onto a node-centred grid, with optional disc splats and
+// see-through detection. Hole filling lives in hole_fill.cpp.
+//
+// Design (the why, in one place):
+//  * Geometry. The grid covers the x-y bounding box of the finite points. With N given, the
+//    longer side holds N samples, so cell = extent_long / (N − 1); the shorter side gets
+//    round(extent_short / cell) + 1 samples, centred on the box. With a cell size given, both
+//    sides are computed that way. Each point goes to its nearest node (ties to the higher index),
+//    so a "cell" is the cell-sized square centred on its node.
+//  * Front-most rule. A depth buffer: the largest z (nearest to the viewer, who looks along −z)
+//    per cell wins. Heights are kept as float with −inf for "nothing yet" during the scan, so the
+//    inner loop is one compare and one store per point; −inf becomes NaN (no data) at the end.
+//  * Splats. A point also writes every node within splat_radius_cells of its exact (x, y) into a
+//    second, "splat" buffer (front-most rule again). Splat heights only fill cells where no point
+//    fell, and act as occluders in the see-through test: they never overwrite a measured cell
+//    that agrees with them, so splatting does not bias measured heights on slopes.
+//  * See-through. A point cloud is not a closed surface: where the front surface of an object has
+//    a gap at this resolution, the front-most point of a cell can be a point on the back of the
+//    object. Such a cell is "enclosed" by a front surface that lies far above it on opposite
+//    sides. A cell with height z is declared see-through when, for at least kMinBracketingPairs of
+//    the 4 line directions through it (row, column, two diagonals), BOTH opposite rays within
+//    see_through_window_cells hold a cell higher than z + see_through_depth_m. The two-sided test
+//    is what separates a gap from a legitimate drop: at a silhouette or the wall of a step the
+//    higher surface is on one side only, so these cells are kept; a single outlier spike above
+//    the surface cannot bracket anything on its own. With splats on, a measured cell that lies
+//    more than see_through_depth_m below the splat of a neighbour's point is occluded by that
+//    disc: the disc's height replaces it (flag kCellSplatted), which closes gaps narrower than
+//    the splat radius before the ray test runs.
+//    Candidate cells are pre-selected with a separable (2w+1)² max filter (a cell can only be
+//    bracketed if something in its window is higher than z + depth), so the ray test runs on a
+//    small fraction of the grid.
+//    Known limits: a genuine crease narrower than the window and deeper than the depth threshold
+//    on both sides is indistinguishable from a gap and is dropped (it becomes a small hole that
+//    hole filling may close); a gap wider than the window is not found.
+
+#include "hc/pipeline/reproject.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <sstream>
+
+namespace hc::pipeline {
+
+namespace {
+
+constexpr float kEmpty = -std::numeric_limits<float>::infinity();
+constexpr int kMinBracketingPairs = 2;
+
+struct Bounds {
+  double x_min = std::numeric_limits<double>::infinity();
+  double x_max = -std::numeric_limits<double>::infinity();
+  double y_min = std::numeric_limits<double>::infinity();
+  double y_max = -std::numeric_limits<double>::infinity();
+  std::size_t finite = 0;
+};
+
+bool finite_point(const double* p) {
+  return std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
+}
+
+Bounds finite_bounds(const Cloud& cloud) {
+  Bounds b;
+  const double* p = cloud.xyz.data();
+  const std::size_t n = cloud.size();
+  for (std::size_t i = 0; i < n; ++i, p += 3) {
+    if (!finite_point(p)) continue;
+    b.x_min = std::min(b.x_min, p[0]);
+    b.x_max = std::max(b.x_max, p[0]);
+    b.y_min = std::min(b.y_min, p[1]);
+    b.y_max = std::max(b.y_max, p[1]);
+    ++b.finite;
+  }
+  return b;
+}
+
+void validate_options(const ReprojectOptions& o) {
+  const GridSpec& g = o.grid;
+  std::ostringstream msg;
+  if (g.n_long_side != 0 && g.cell_size_m != 0.0) {
+    msg << "reproject: grid is ambiguous: n_long_side = " << g.n_long_side
+        << " and cell_size_m = " << g.cell_size_m << " are both set (give exactly one)";
+    throw ConfigError(msg.str());
+  }
+  if (g.n_long_side == 0 && g.cell_size_m == 0.0) {
+    throw ConfigError("reproject: grid is unspecified: give n_long_side (>= 2) or cell_size_m (> 0)");
+  }
+  if (g.cell_size_m == 0.0 && g.n_long_side <= 1) {
+    msg << "reproject: n_long_side = " << g.n_long_side << " (expected >= 2 samples along the longer side)";
+    throw ConfigError(msg.str());
+  }
+  if (g.n_long_side == 0 && !(g.cell_size_m > 0.0 && std::isfinite(g.cell_size_m))) {
+    msg << "reproject: cell_size_m = " << g.cell_size_m << " (expected a finite value > 0)";
+    throw ConfigError(msg.str());
+  }
+  if (!(o.splat_radius_cells >= 0.0) || o.splat_radius_cells > 64.0) {
+    msg << "reproject: splat_radius_cells = " << o.splat_radius_cells << " (expected 0 to 64)";
+    throw ConfigError(msg.str());
+  }
+  if (std::isnan(o.see_through_depth_m)) {
+    throw ConfigError("reproject: see_through_depth_m is NaN (expected a depth in metres, <= 0 disables)");
+  }
+  if (o.see_through_depth_m > 0.0 && (o.see_through_window_cells < 1 || o.see_through_window_cells > 64)) {
+    msg << "reproject: see_through_window_cells = " << o.see_through_window_cells << " (expected 1 to 64)";
+    throw ConfigError(msg.str());
+  }
+}
+
+std::size_t bytes_per_cell(const ReprojectOptions& o) {
+  std::size_t b = sizeof(float) + sizeof(std::uint8_t);  // height + flag
+  if (o.splat_radius_cells > 0.0) b += sizeof(float);    // splat buffer
+  if (o.see_through_depth_m > 0.0) b += 2 * sizeof(float);  // window max (two passes)
+  return b;
+}
+
+GridGeometry make_geometry(const Bounds& b, const ReprojectOptions& o) {
+  const double ext_x = b.x_max - b.x_min;
+  const double ext_y = b.y_max - b.y_min;
+  const double ext_long = std::max(ext_x, ext_y);
+  std::ostringstream msg;
+  if (!(ext_long > 0.0)) {
+    msg << "reproject: all " << b.finite << " finite points share one x-y position (" << b.x_min
+        << ", " << b.y_min << ") m: zero projected area (a single point, or a cloud seen edge-on "
+        << "along the view direction -z)";
+    throw DegenerateInputError(msg.str());
+  }
+  const double cell = o.grid.n_long_side > 0 ? ext_long / (o.grid.n_long_side - 1) : o.grid.cell_size_m;
+  const double cols_d = std::round(ext_x / cell) + 1.0;
+  const double rows_d = std::round(ext_y / cell) + 1.0;
+  if (cols_d < 2.0 || rows_d < 2.0) {
+    msg << "reproject: the points' x-y extent " << ext_x << " m x " << ext_y << " m gives a grid of "
+        << cols_d << " x " << rows_d << " samples (cols x rows) at cell size " << cell << " m: ";
+    if (cols_d < 2.0 && rows_d < 2.0) {
+      msg << "all points fall in one cell";
+    } else {
+      msg << "the points lie on a line along " << (cols_d < 2.0 ? "y" : "x")
+          << " (zero projected area: a cloud edge-on to the view direction -z?)";
+    }
+    msg << "; a grid needs at least 2 x 2 samples";
+    throw DegenerateInputError(msg.str());
+  }
+  const double cells = cols_d * rows_d;
+  const double bytes = cells * static_cast<double>(bytes_per_cell(o));
+  if (cells > static_cast<double>(o.grid.max_cells) || cols_d > 2.0e9 || rows_d > 2.0e9) {
+    msg.precision(15);
+    msg << "reproject: a grid of " << cols_d << " x " << rows_d << " = " << cells
+        << " cells (cell size " << cell << " m) exceeds max_cells = " << o.grid.max_cells
+        << "; it would need " << bytes << " bytes (" << bytes_per_cell(o)
+        << " bytes per cell); raise the cap or coarsen the grid";
+    throw ResourceError(msg.str());
+  }
+  GridGeometry g;
+  g.cols = static_cast<int>(cols_d);
+  g.rows = static_cast<int>(rows_d);
+  g.cell_size_m = cell;
+  g.x0_m = 0.5 * (b.x_min + b.x_max) - 0.5 * (g.cols - 1) * cell;
+  g.y0_m = 0.5 * (b.y_min + b.y_max) - 0.5 * (g.rows - 1) * cell;
+  return g;
+}
+
+// Nearest node index of a fractional index f that is ≥ −0.5 up to rounding; clamped to [0, n−1].
+inline int nearest_index(double f, int n) {
+  const int i = static_cast<int>(std::floor(f + 0.5));
+  return std::clamp(i, 0, n - 1);
+}
+
+// Front-most z per cell over every finite point; returns the number of points binned.
+std::size_t bin_front_most(const Cloud& cloud, const GridGeometry& g, float* depth) {
+  const double inv = 1.0 / g.cell_size_m;
+  const double* p = cloud.xyz.data();
+  const std::size_t n = cloud.size();
+  const std::size_t cols = static_cast<std::size_t>(g.cols);
+  std::size_t binned = 0;
+  for (std::size_t i = 0; i < n; ++i, p += 3) {
+    if (!finite_point(p)) continue;
+    const int c = nearest_index((p[0] - g.x0_m) * inv, g.cols);
+    const int r = nearest_index((p[1] - g.y0_m) * inv, g.rows);
+    float& cell = depth[static_cast<std::size_t>(r) * cols + static_cast<std::size_t>(c)];
+    cell = std::max(cell, static_cast<float>(p[2]));
+    ++binned;
+  }
+  return binned;
+}
+
+// Disc splats: every node within radius (cells) of the point's exact position, except the
+// point's own node, takes the front-most z in `splat`.
+void splat_discs(const Cloud& cloud, const GridGeometry& g, double radius_cells, float* splat) {
+  const double inv = 1.0 / g.cell_size_m;
+  const double r2 = radius_cells * radius_cells;
+  const int reach = static_cast<int>(std::ceil(radius_cells));
+  const double* p = cloud.xyz.data();
+  const std::size_t n = cloud.size();
+  const std::size_t cols = static_cast<std::size_t>(g.cols);
+  for (std::size_t i = 0; i < n; ++i, p += 3) {
+    if (!finite_point(p)) continue;
+    const double fc = (p[0] - g.x0_m) * inv;
+    const double fr = (p[1] - g.y0_m) * inv;
+    const int c0 = nearest_index(fc, g.cols);
+    const int r0 = nearest_index(fr, g.rows);
+    const float z = static_cast<float>(p[2]);
+    const int r_lo = std::max(0, r0 - reach), r_hi = std::min(g.rows - 1, r0 + reach);
+    const int c_lo = std::max(0, c0 - reach), c_hi = std::min(g.cols - 1, c0 + reach);
+    for (int r = r_lo; r <= r_hi; ++r) {
+      const double dr = r - fr;
+      float* row = splat + static_cast<std::size_t>(r) * cols;
+      for (int c = c_lo; c <= c_hi; ++c) {
+        const double dc = c - fc;
+        if (dr * dr + dc * dc > r2 || (r == r0 && c == c0)) continue;
+        row[c] = std::max(row[c], z);
+      }
+    }
+  }
+}
+
+// Separable (2w+1)² max filter of `in` (−inf = empty) into `out`, using `tmp`.
+void window_max(const float* in, int rows, int cols, int w, float* tmp, float* out) {
+  const std::size_t ncols = static_cast<std::size_t>(cols);
+  for (int r = 0; r < rows; ++r) {
+    const float* src = in + static_cast<std::size_t>(r) * ncols;
+    float* dst = tmp + static_cast<std::size_t>(r) * ncols;
+    for (int c = 0; c < cols; ++c) dst[c] = src[c];
+    for (int k = 1; k <= w; ++k) {
+      for (int c = 0; c + k < cols; ++c) dst[c] = std::max(dst[c], src[c + k]);
+      for (int c = k; c < cols; ++c) dst[c] = std::max(dst[c], src[c - k]);
+    }
+  }
+  for (int r = 0; r < rows; ++r) {
+    float* dst = out + static_cast<std::size_t>(r) * ncols;
+    const int lo = std::max(0, r - w), hi = std::min(rows - 1, r + w);
+    const float* first = tmp + static_cast<std::size_t>(lo) * ncols;
+    for (int c = 0; c < cols; ++c) dst[c] = first[c];
+    for (int rr = lo + 1; rr <= hi; ++rr) {
+      const float* src = tmp + static_cast<std::size_t>(rr) * ncols;
+      for (int c = 0; c < cols; ++c) dst[c] = std::max(dst[c], src[c]);
+    }
+  }
+}
+
+// True when a cell strictly higher than `threshold` lies on the ray from (r, c) in direction
+// (dr, dc) within w steps.
+inline bool ray_has_higher(const float* depth, int rows, int cols, int r, int c, int dr, int dc,
+                           int w, float threshold) {
+  for (int k = 1; k <= w; ++k) {
+    const int rr = r + k * dr, cc = c + k * dc;
+    if (rr < 0 || rr >= rows || cc < 0 || cc >= cols) return false;
+    if (depth[static_cast<std::size_t>(rr) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(cc)] > threshold) return true;
+  }
+  return false;
+}
+
+}  // namespace
+
+StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  validate_options(options);
+  const Bounds bounds = finite_bounds(points_m);
+  if (bounds.finite == 0) {
+    std::ostringstream msg;
+    msg << "reproject: none of the " << points_m.size()
+        << " input points is finite (every point has a NaN or infinite coordinate)";
+    throw InputError(msg.str());
+  }
+  const GridGeometry g = make_geometry(bounds, options);
+  const std::size_t cells = g.cell_count();
+
+  StageResult<DepthGrid> result;
+  DepthGrid& out = result.value;
+  out.depth = HeightField(g, kEmpty);
+  out.flags.assign(cells, kCellEmpty);
+  float* depth = out.depth.data();
+  const std::size_t binned = bin_front_most(points_m, g, depth);
+
+  std::size_t occupied = 0;
+  for (std::size_t i = 0; i < cells; ++i) occupied += depth[i] != kEmpty ? 1U : 0U;
+  if (occupied < 2) {
+    std::ostringstream msg;
+    msg << "reproject: all " << binned << " finite points fall in one cell of the " << g.cols
+        << " x " << g.rows << " grid (cell size " << g.cell_size_m << " m); nothing to grid";
+    throw DegenerateInputError(msg.str());
+  }
+  for (std::size_t i = 0; i < cells; ++i) {
+    if (depth[i] != kEmpty) out.flags[i] = kCellMeasured;
+  }
+
+  const bool see_through = options.see_through_depth_m > 0.0;
+  const float depth_gap = static_cast<float>(options.see_through_depth_m);
+  std::size_t splatted = 0, occluded = 0;
+  if (options.splat_radius_cells > 0.0) {
+    std::vector<float> splat(cells, kEmpty);
+    splat_discs(points_m, g, options.splat_radius_cells, splat.data());
+    for (std::size_t i = 0; i < cells; ++i) {
+      const float s = splat[i];
+      if (s == kEmpty) continue;
+      if (depth[i] == kEmpty) {
+        depth[i] = s;
+        out.flags[i] = kCellSplatted;
+        ++splatted;
+      } else if (see_through && s > depth[i] + depth_gap) {
+        depth[i] = s;  // the measured point is hidden behind a neighbour's disc
+        out.flags[i] = kCellSplatted;
+        ++occluded;
+      }
+    }
+  }
+
+  std::size_t see_through_cells = 0, candidates = 0;
+  if (see_through) {
+    const int w = options.see_through_window_cells;
+    std::vector<float> tmp(cells), wmax(cells);
+    window_max(depth, g.rows, g.cols, w, tmp.data(), wmax.data());
+    std::vector<std::size_t> rejected;
+    static constexpr int kDirs[4][2] = {{0, 1}, {1, 0}, {1, 1}, {1, -1}};
+    for (int r = 0; r < g.rows; ++r) {
+      for (int c = 0; c < g.cols; ++c) {
+        const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c);
+        const float z = depth[i];
+        if (z == kEmpty) continue;
+        const float threshold = z + depth_gap;
+        if (!(wmax[i] > threshold)) continue;
+        ++candidates;
+        int pairs = 0;
+        for (const auto& d : kDirs) {
+          if (ray_has_higher(depth, g.rows, g.cols, r, c, d[0], d[1], w, threshold) &&
+              ray_has_higher(depth, g.rows, g.cols, r, c, -d[0], -d[1], w, threshold)) {
+            if (++pairs >= kMinBracketingPairs) break;
+          }
+        }
+        if (pairs >= kMinBracketingPairs) rejected.push_back(i);
+      }
+    }
+    // Applied after the scan so that every test saw the same (unmodified) grid.
+    for (std::size_t i : rejected) {
+      depth[i] = kEmpty;
+      out.flags[i] = kCellSeeThrough;
+    }
+    see_through_cells = rejected.size();
+  }
+
+  std::size_t valid = 0, measured = 0, splat_final = 0;
+  for (std::size_t i = 0; i < cells; ++i) {
+    if (depth[i] == kEmpty) {
+      depth[i] = kNoData;
+      continue;
+    }
+    ++valid;
+    measured += out.flags[i] == kCellMeasured ? 1U : 0U;
+    splat_final += out.flags[i] == kCellSplatted ? 1U : 0U;
+  }
+
+  StageReport& rep = result.report;
+  rep.stage = "reproject";
+  rep.count_in = points_m.size();
+  rep.count_out = valid;
+  rep.figure("rows", g.rows);
+  rep.figure("cols", g.cols);
+  rep.figure("cell_size_mm", g.cell_size_m * 1e3);
+  rep.figure("points_binned", static_cast<double>(binned));
+  rep.figure("points_non_finite", static_cast<double>(points_m.size() - binned));
+  rep.figure("cells", static_cast<double>(cells));
+  rep.figure("cells_valid", static_cast<double>(valid));
+  rep.figure("cells_measured", static_cast<double>(measured));
+  rep.figure("cells_splatted", static_cast<double>(splat_final));
+  rep.figure("cells_splat_filled_empty", static_cast<double>(splatted));
+  rep.figure("cells_occluded_by_splat", static_cast<double>(occluded));
+  rep.figure("cells_see_through", static_cast<double>(see_through_cells));
+  rep.figure("see_through_candidates", static_cast<double>(candidates));
+  rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return result;
+}
+
+}  // namespace hc::pipeline
