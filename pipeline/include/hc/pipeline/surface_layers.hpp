@@ -7,6 +7,7 @@
 #include "hc/common/height_field.hpp"
 #include "hc/pipeline/cloud.hpp"
 
+#include <cstddef>
 #include <string>
 #include <vector>
 
@@ -51,11 +52,32 @@ struct SurfaceLayers {
   FrictionModel friction_model = FrictionModel::kPaper;
 };
 
+/// Mean curvature H [1/m] and Gaussian curvature K [1/m²] of a height field (paper, Sec. 3.2):
+///   H = (h_xx(1+h_y²) + h_yy(1+h_x²) − 2h_xy·h_x·h_y) / (2(1+h_x²+h_y²)^{3/2}),
+///   K = (h_xx·h_yy − h_xy²) / (1+h_x²+h_y²)².
+/// Derivatives by finite differences with the real cell size: central where both neighbours
+/// along an axis are valid, second-order one-sided (3 cells) where only one side is, and
+/// h_xy from the derivative of h_x along y (averaged with that of h_y along x when both exist).
+/// A valid cell where some derivative has no stencil (grid border or no-data on both sides,
+/// grids narrower than 3 cells) gets H = K = 0; no-data cells get NaN.
+/// Output geometry = input geometry. Not real-time (allocates). See docs/friction.md.
+struct Curvature {
+  HeightField mean_per_m;        ///< H [1/m]
+  HeightField gaussian_per_m2;   ///< K [1/m²]
+  std::size_t zero_fallback_cells = 0;  ///< valid cells set to 0 for lack of a stencil
+};
+Curvature compute_curvature(const HeightField& surface_m);
+
 /// Computes the layers from a depth grid (metres, NaN = no data).
-/// No-data cells neither spread NaN nor bias their valid neighbours (the bilateral filter and
-/// the finite differences use valid cells only).
-/// @throws hc::ConfigError on out-of-range options (names the option and range);
-///         hc::InputError if the grid has no valid cell.
+/// No-data cells neither spread NaN nor bias their valid neighbours: before cv::bilateralFilter
+/// (window radius ⌈2σ_s⌉ cells) every no-data cell, and a margin of that width around the grid,
+/// gets the first-order extrapolation f(p) + ∇f(p)·(q − p) from its nearest valid cell p (filter
+/// input only), so a locally planar surface is filtered without bias up to holes and the border
+/// and a depth step is not blended; finite differences use valid cells only.
+/// The report carries counts, seconds per step and figures (texture_rms_mm, mu_d_min/median/max,
+/// ...); its notes state the friction model. Not real-time; OpenCV threads (default count).
+/// @throws hc::ConfigError on out-of-range options (names the option, its config key and range);
+///         hc::InputError if the grid is empty, has no valid cell or holds ±inf.
 /// Source: paper Eq. (bilateral f_b, h = f − f_b, H, K, μ_d); Tomasi & Manduchi 1998.
 StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
                                                   const SurfaceLayerOptions& options);

@@ -1,0 +1,455 @@
+#include "hc/pipeline/surface_layers.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+std::string fmt(double v) {
+  std::ostringstream os;
+  os.precision(6);
+  os << v;
+  return os.str();
+}
+
+[[noreturn]] void option_error(const std::string& field, const std::string& key, double value,
+                               const std::string& expected) {
+  throw ConfigError("surface layers: option " + field + " (config key " + key + ") = " + fmt(value) +
+                    ": expected " + expected);
+}
+
+/// Checks lo < v ≤ hi (open_low) or lo ≤ v ≤ hi, rejecting NaN.
+void check_range(const std::string& field, const std::string& key, double v, double lo, double hi,
+                 bool open_low) {
+  const bool ok = std::isfinite(v) && (open_low ? v > lo : v >= lo) && v <= hi;
+  if (!ok) {
+    option_error(field, key, v,
+                 "a number in " + std::string(open_low ? "(" : "[") + fmt(lo) + ", " + fmt(hi) + "]");
+  }
+}
+
+void validate(const SurfaceLayerOptions& o) {
+  check_range("sigma_space_cells", "layers.texture.sigma_space_cells", o.sigma_space_cells, 0.0, 100.0, true);
+  check_range("sigma_range_m", "layers.texture.sigma_range_m", o.sigma_range_m, 0.0, 10.0, true);
+  check_range("mu_min", "layers.friction.mu_min", o.mu_min, 0.0, 10.0, false);
+  check_range("mu_max", "layers.friction.mu_max", o.mu_max, 0.0, 10.0, false);
+  if (o.mu_max < o.mu_min) {
+    option_error("mu_max", "layers.friction.mu_max", o.mu_max,
+                 "a number in [mu_min, 10] = [" + fmt(o.mu_min) + ", 10]");
+  }
+  check_range("workspace_radius_m", "layers.friction.workspace_radius_m", o.workspace_radius_m, 0.0, 10.0, true);
+  check_range("curvature_gain_m", "layers.friction.curvature_gain_m", o.curvature_gain_m, 0.0, 100.0, false);
+  check_range("mu_s", "layers.friction.mu_s", o.mu_s, 0.0, 10.0, false);
+  for (std::size_t i = 0; i < o.mu_s_regions.size(); ++i) {
+    const StaticFrictionRegion& g = o.mu_s_regions[i];
+    const std::string field = "mu_s_regions[" + std::to_string(i) + "]";
+    const std::string key = "layers.friction." + field;
+    for (double v : {g.x_min_m, g.y_min_m, g.x_max_m, g.y_max_m}) {
+      if (!std::isfinite(v)) option_error(field + ".bounds", key, v, "finite bounds in metres");
+    }
+    if (!(g.x_max_m > g.x_min_m)) {
+      option_error(field + ".x_max_m", key + ".x_max_m", g.x_max_m, "a number > x_min_m = " + fmt(g.x_min_m));
+    }
+    if (!(g.y_max_m > g.y_min_m)) {
+      option_error(field + ".y_max_m", key + ".y_max_m", g.y_max_m, "a number > y_min_m = " + fmt(g.y_min_m));
+    }
+    check_range(field + ".mu_s", key + ".mu_s", g.mu_s, 0.0, 10.0, false);
+  }
+}
+
+/// Window radius [cells] of the bilateral filter and of the hole fill: ⌈2σ_s⌉, at least 1.
+int window_radius_cells(double sigma_space_cells) {
+  return std::max(1, static_cast<int>(std::ceil(2.0 * sigma_space_cells)));
+}
+
+/// minmod of two slopes: the smaller magnitude when they agree in sign, else 0. Keeps a cliff
+/// between two valid cells from dominating the extrapolated gradient.
+float minmod(float a, float b) {
+  if (a * b <= 0.0f) return 0.0f;
+  return std::abs(a) < std::abs(b) ? a : b;
+}
+
+struct EnvelopeResult {
+  cv::Mat envelope;  ///< rows × cols CV_32F, f_b − ref at valid cells (other cells undefined)
+  double fill_seconds = 0.0;
+  double filter_seconds = 0.0;
+  std::size_t filled_cells = 0;  ///< no-data cells (padding included) given an extrapolated value
+  double lut_bin_m = 0.0;        ///< OpenCV's range-kernel table step over the filter input [m]
+  int diameter_cells = 0;
+};
+
+/// Bilateral envelope of (f − ref) where `valid` marks data. See compute_surface_layers' comment.
+EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const SurfaceLayerOptions& o) {
+  EnvelopeResult out;
+  const auto t0 = Clock::now();
+  const int r = window_radius_cells(o.sigma_space_cells);
+  out.diameter_cells = 2 * r + 1;
+  const int rows = f.rows + 2 * r;
+  const int cols = f.cols + 2 * r;
+  const cv::Rect inner(r, r, f.cols, f.rows);
+
+  // Padded value, mask and minmod gradient (metres per cell) images; zero where no data.
+  cv::Mat value(rows, cols, CV_32F, cv::Scalar(0));
+  cv::Mat mask(rows, cols, CV_32F, cv::Scalar(0));
+  cv::Mat gx(rows, cols, CV_32F, cv::Scalar(0));
+  cv::Mat gy(rows, cols, CV_32F, cv::Scalar(0));
+  float vmin = std::numeric_limits<float>::max();
+  float vmax = std::numeric_limits<float>::lowest();
+  auto ok = [&](int rr, int cc) {
+    return rr >= 0 && cc >= 0 && rr < f.rows && cc < f.cols && valid.at<std::uint8_t>(rr, cc) != 0;
+  };
+  auto slope = [&](int rr, int cc, int dr, int dc) {
+    const bool fwd = ok(rr + dr, cc + dc);
+    const bool bwd = ok(rr - dr, cc - dc);
+    const float v = f.at<float>(rr, cc);
+    const float sf = fwd ? f.at<float>(rr + dr, cc + dc) - v : 0.0f;
+    const float sb = bwd ? v - f.at<float>(rr - dr, cc - dc) : 0.0f;
+    if (fwd && bwd) return minmod(sf, sb);
+    return fwd ? sf : sb;
+  };
+  for (int rr = 0; rr < f.rows; ++rr) {
+    for (int cc = 0; cc < f.cols; ++cc) {
+      if (!ok(rr, cc)) continue;
+      const float v = f.at<float>(rr, cc);
+      vmin = std::min(vmin, v);
+      vmax = std::max(vmax, v);
+      value.at<float>(rr + r, cc + r) = v;
+      mask.at<float>(rr + r, cc + r) = 1.0f;
+      gx.at<float>(rr + r, cc + r) = slope(rr, cc, 0, 1);
+      gy.at<float>(rr + r, cc + r) = slope(rr, cc, 1, 0);
+    }
+  }
+
+  // Smooth the gradient a little over valid cells only (normalised 5-tap Gaussian, σ = 1 cell):
+  // exact gradients of a plane stay exact, single-cell noise is damped before it is extrapolated.
+  cv::Mat w(1, 5, CV_32F);
+  for (int k = -2; k <= 2; ++k) w.at<float>(0, k + 2) = static_cast<float>(std::exp(-0.5 * k * k));
+  cv::Mat bm, bgx, bgy;
+  const cv::Point anchor(-1, -1);
+  cv::sepFilter2D(mask, bm, CV_32F, w, w, anchor, 0.0, cv::BORDER_CONSTANT);
+  cv::sepFilter2D(gx, bgx, CV_32F, w, w, anchor, 0.0, cv::BORDER_CONSTANT);
+  cv::sepFilter2D(gy, bgy, CV_32F, w, w, anchor, 0.0, cv::BORDER_CONSTANT);
+
+  // Every no-data cell q takes the first-order extrapolation from its nearest valid cell p:
+  //   fill(q) = f(p) + ∇f(p)·(q − p),
+  // exact on planes; taking one nearest cell (not an average) keeps the fill from blending the
+  // two sides of a depth step. Nearest cells from OpenCV's labelled distance transform.
+  cv::Mat features(rows, cols, CV_8U, cv::Scalar(255));
+  features(inner).setTo(cv::Scalar(0), valid);
+  cv::Mat dist, labels;
+  cv::distanceTransform(features, dist, labels, cv::DIST_L2, cv::DIST_MASK_5, cv::DIST_LABEL_PIXEL);
+  std::vector<cv::Point> label_cell(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols) + 1);
+  for (int rr = 0; rr < rows; ++rr) {
+    for (int cc = 0; cc < cols; ++cc) {
+      if (mask.at<float>(rr, cc) != 0.0f) label_cell[static_cast<std::size_t>(labels.at<int>(rr, cc))] = {cc, rr};
+    }
+  }
+  // Keep extrapolations within a band around the data so OpenCV's range table stays fine.
+  const float span = std::max(vmax - vmin, static_cast<float>(o.sigma_range_m));
+  const float lo = vmin - span;
+  const float hi = vmax + span;
+  const float reach = static_cast<float>(r) * 1.5f + 1.0f;  // beyond this no window sees the cell
+  float fmin = vmin, fmax = vmax;
+  for (int rr = 0; rr < rows; ++rr) {
+    for (int cc = 0; cc < cols; ++cc) {
+      if (mask.at<float>(rr, cc) != 0.0f) continue;
+      const cv::Point p = label_cell[static_cast<std::size_t>(labels.at<int>(rr, cc))];
+      float v = value.at<float>(p);
+      if (dist.at<float>(rr, cc) <= reach) {
+        const float m = bm.at<float>(p);
+        v += (bgx.at<float>(p) * static_cast<float>(cc - p.x) + bgy.at<float>(p) * static_cast<float>(rr - p.y)) / m;
+        v = std::clamp(v, lo, hi);
+        ++out.filled_cells;
+      }
+      value.at<float>(rr, cc) = v;
+      fmin = std::min(fmin, v);
+      fmax = std::max(fmax, v);
+    }
+  }
+  out.fill_seconds = seconds_since(t0);
+
+  const auto t1 = Clock::now();
+  cv::Mat filtered;
+  cv::bilateralFilter(value, filtered, out.diameter_cells, o.sigma_range_m, o.sigma_space_cells,
+                      cv::BORDER_REPLICATE);
+  out.envelope = filtered(inner).clone();
+  out.filter_seconds = seconds_since(t1);
+  out.lut_bin_m = static_cast<double>(fmax - fmin) / 4096.0;
+  return out;
+}
+
+/// First (and second) derivative along one axis at index i of n, step `stride` in `v`, spacing
+/// 1/inv_d: central if both neighbours are valid, else second-order one-sided over 3 cells.
+/// Returns false when no stencil exists.
+template <class T>
+bool axis_derivative(const T* v, int i, int n, std::ptrdiff_t stride, double inv_d, double& d1,
+                     double* d2) {
+  auto at = [&](int k) -> double { return static_cast<double>(v[k * stride]); };
+  auto good = [&](int k) { return i + k >= 0 && i + k < n && !std::isnan(at(k)); };
+  const double h0 = at(0);
+  if (good(-1) && good(1)) {
+    d1 = 0.5 * (at(1) - at(-1)) * inv_d;
+    if (d2) *d2 = (at(1) - 2.0 * h0 + at(-1)) * inv_d * inv_d;
+    return true;
+  }
+  for (int s : {1, -1}) {
+    if (good(s) && good(2 * s)) {
+      d1 = s * (-3.0 * h0 + 4.0 * at(s) - at(2 * s)) * 0.5 * inv_d;
+      if (d2) *d2 = (h0 - 2.0 * at(s) + at(2 * s)) * inv_d * inv_d;
+      return true;
+    }
+  }
+  return false;
+}
+
+}  // namespace
+
+FrictionModel friction_model_from_string(const std::string& name) {
+  if (name == "paper") return FrictionModel::kPaper;
+  if (name == "curvature") return FrictionModel::kCurvature;
+  throw ConfigError("layers.friction.model = '" + name + "': expected one of paper, curvature");
+}
+
+std::string to_string(FrictionModel model) {
+  return model == FrictionModel::kPaper ? "paper" : "curvature";
+}
+
+Curvature compute_curvature(const HeightField& surface_m) {
+  const GridGeometry& g = surface_m.geometry();
+  const int rows = g.rows;
+  const int cols = g.cols;
+  const double inv_d = 1.0 / g.cell_size_m;
+  const std::size_t n = g.cell_count();
+  const float nan = kNoData;
+  std::vector<float> hx(n, nan), hy(n, nan), hxx(n, nan), hyy(n, nan);
+  const float* h = surface_m.data();
+  auto idx = [cols](int r, int c) { return static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) +
+                                           static_cast<std::size_t>(c); };
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) {
+      const std::size_t i = idx(r, c);
+      if (std::isnan(h[i])) continue;
+      double d1 = 0, d2 = 0;
+      if (axis_derivative(h + i, c, cols, 1, inv_d, d1, &d2)) {
+        hx[i] = static_cast<float>(d1);
+        hxx[i] = static_cast<float>(d2);
+      }
+      if (axis_derivative(h + i, r, rows, cols, inv_d, d1, &d2)) {
+        hy[i] = static_cast<float>(d1);
+        hyy[i] = static_cast<float>(d2);
+      }
+    }
+  }
+  Curvature out{HeightField(g), HeightField(g), 0};
+  out.mean_per_m.model_to_grid = surface_m.model_to_grid;
+  out.gaussian_per_m2.model_to_grid = surface_m.model_to_grid;
+  float* H = out.mean_per_m.data();
+  float* K = out.gaussian_per_m2.data();
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) {
+      const std::size_t i = idx(r, c);
+      if (std::isnan(h[i])) continue;
+      H[i] = 0.0f;
+      K[i] = 0.0f;
+      if (std::isnan(hx[i]) || std::isnan(hy[i])) {
+        ++out.zero_fallback_cells;
+        continue;
+      }
+      double xy_a = 0, xy_b = 0;
+      const bool a = axis_derivative(hx.data() + i, r, rows, cols, inv_d, xy_a, nullptr);
+      const bool b = axis_derivative(hy.data() + i, c, cols, 1, inv_d, xy_b, nullptr);
+      if (!a && !b) {
+        ++out.zero_fallback_cells;
+        continue;
+      }
+      const double hxy = a && b ? 0.5 * (xy_a + xy_b) : (a ? xy_a : xy_b);
+      const double px = hx[i], py = hy[i], pxx = hxx[i], pyy = hyy[i];
+      const double q = 1.0 + px * px + py * py;
+      const double mean = (pxx * (1.0 + py * py) + pyy * (1.0 + px * px) - 2.0 * hxy * px * py) /
+                          (2.0 * q * std::sqrt(q));
+      const double gauss = (pxx * pyy - hxy * hxy) / (q * q);
+      H[i] = static_cast<float>(mean);
+      K[i] = static_cast<float>(gauss);
+    }
+  }
+  return out;
+}
+
+StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
+                                                  const SurfaceLayerOptions& options) {
+  const auto t_start = Clock::now();
+  validate(options);
+  const GridGeometry& g = depth_m.geometry();
+  if (g.rows < 1 || g.cols < 1 || !(g.cell_size_m > 0.0) || depth_m.values().size() != g.cell_count()) {
+    throw InputError("surface layers: depth grid is empty or malformed (" + std::to_string(g.rows) + " × " +
+                     std::to_string(g.cols) + " cells, cell size " + fmt(g.cell_size_m) +
+                     " m): expected ≥ 1 × 1 cells and a cell size > 0");
+  }
+  const std::size_t n = g.cell_count();
+  const float* f = depth_m.data();
+  std::size_t valid_cells = 0;
+  double sum = 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (std::isnan(f[i])) continue;
+    if (std::isinf(f[i])) {
+      throw InputError("surface layers: depth grid cell (" + std::to_string(i / static_cast<std::size_t>(g.cols)) +
+                       ", " + std::to_string(i % static_cast<std::size_t>(g.cols)) +
+                       ") is infinite: expected a finite height in metres or NaN (no data)");
+    }
+    ++valid_cells;
+    sum += f[i];
+  }
+  if (valid_cells == 0) {
+    throw InputError("surface layers: the depth grid (" + std::to_string(g.rows) + " × " + std::to_string(g.cols) +
+                     " cells) has no valid cell: expected at least one finite height");
+  }
+  // Work relative to the mean height so float keeps sub-micrometre resolution.
+  const double ref = sum / static_cast<double>(valid_cells);
+  cv::Mat fm(g.rows, g.cols, CV_32F);
+  cv::Mat valid(g.rows, g.cols, CV_8U);
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      const float v = depth_m.at(r, c);
+      const bool ok = !std::isnan(v);
+      valid.at<std::uint8_t>(r, c) = ok ? 1 : 0;
+      fm.at<float>(r, c) = ok ? static_cast<float>(static_cast<double>(v) - ref) : 0.0f;
+    }
+  }
+
+  const EnvelopeResult env = bilateral_envelope(fm, valid, options);
+
+  StageResult<SurfaceLayers> result;
+  SurfaceLayers& L = result.value;
+  L.friction_model = options.friction_model;
+  L.envelope_m = HeightField(g);
+  L.texture_m = HeightField(g);
+  L.mu_d = HeightField(g);
+  L.mu_s = HeightField(g);
+  for (HeightField* layer : {&L.envelope_m, &L.texture_m, &L.mu_d, &L.mu_s}) {
+    layer->model_to_grid = depth_m.model_to_grid;
+  }
+  double sum_h2 = 0.0, max_abs_h = 0.0;
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      if (valid.at<std::uint8_t>(r, c) == 0) continue;
+      const float fb = env.envelope.at<float>(r, c);
+      const float h = fm.at<float>(r, c) - fb;
+      L.envelope_m.at(r, c) = static_cast<float>(static_cast<double>(fb) + ref);
+      L.texture_m.at(r, c) = h;
+      sum_h2 += static_cast<double>(h) * h;
+      max_abs_h = std::max(max_abs_h, std::abs(static_cast<double>(h)));
+    }
+  }
+
+  const auto t_curv = Clock::now();
+  Curvature curv = compute_curvature(L.texture_m);
+  L.mean_curvature_per_m = std::move(curv.mean_per_m);
+  L.gaussian_curvature_per_m2 = std::move(curv.gaussian_per_m2);
+  const double curvature_seconds = seconds_since(t_curv);
+
+  // Friction maps.
+  const auto t_fric = Clock::now();
+  const double mu_min = options.mu_min;
+  const double mu_max = options.mu_max;
+  const double R = options.workspace_radius_m;
+  std::size_t at_min = 0, at_max = 0;
+  std::vector<float> mu_values;
+  mu_values.reserve(valid_cells);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (std::isnan(f[i])) continue;
+    const double H = L.mean_curvature_per_m.data()[i];
+    const double K = L.gaussian_curvature_per_m2.data()[i];
+    // H [1/m] and K [1/m²] are added as SI numbers, as the paper prints it (docs/friction.md).
+    const double s = std::sqrt(H * H + K * K);
+    double mu;
+    if (options.friction_model == FrictionModel::kPaper) {
+      // 1/(R·s) ≥ μ_max ⇔ R·s·μ_max ≤ 1 (also covers s = 0 without dividing by zero).
+      mu = (R * s * mu_max <= 1.0) ? mu_max : std::max(mu_min, 1.0 / (R * s));
+    } else {
+      mu = std::min(mu_max, mu_min + options.curvature_gain_m * s);
+    }
+    if (!std::isfinite(mu)) mu = options.friction_model == FrictionModel::kPaper ? mu_min : mu_max;
+    at_min += mu <= mu_min ? 1U : 0U;
+    at_max += mu >= mu_max ? 1U : 0U;
+    L.mu_d.data()[i] = static_cast<float>(mu);
+    mu_values.push_back(static_cast<float>(mu));
+  }
+  for (int r = 0; r < g.rows; ++r) {
+    const double y = g.y_of_row(r);
+    for (int c = 0; c < g.cols; ++c) {
+      if (valid.at<std::uint8_t>(r, c) == 0) continue;
+      const double x = g.x_of_col(c);
+      double mu = options.mu_s;
+      for (const StaticFrictionRegion& reg : options.mu_s_regions) {
+        if (x >= reg.x_min_m && x <= reg.x_max_m && y >= reg.y_min_m && y <= reg.y_max_m) mu = reg.mu_s;
+      }
+      L.mu_s.at(r, c) = static_cast<float>(mu);
+    }
+  }
+  const double friction_seconds = seconds_since(t_fric);
+
+  StageReport& rep = result.report;
+  rep.stage = "surface_layers";
+  rep.count_in = valid_cells;
+  rep.count_out = valid_cells;
+  const double nv = static_cast<double>(valid_cells);
+  rep.figure("grid_cells", static_cast<double>(n));
+  rep.figure("bilateral_diameter_cells", env.diameter_cells);
+  rep.figure("hole_fill_cells", static_cast<double>(env.filled_cells));
+  rep.figure("hole_fill_seconds", env.fill_seconds);
+  rep.figure("bilateral_seconds", env.filter_seconds);
+  rep.figure("curvature_seconds", curvature_seconds);
+  rep.figure("friction_seconds", friction_seconds);
+  rep.figure("texture_rms_mm", 1e3 * std::sqrt(sum_h2 / nv));
+  rep.figure("texture_max_abs_mm", 1e3 * max_abs_h);
+  rep.figure("curvature_zero_fallback_cells", static_cast<double>(curv.zero_fallback_cells));
+  const auto mid = mu_values.begin() + static_cast<std::ptrdiff_t>(mu_values.size() / 2);
+  std::nth_element(mu_values.begin(), mid, mu_values.end());
+  rep.figure("mu_d_median", *mid);
+  rep.figure("mu_d_min", *std::min_element(mu_values.begin(), mu_values.end()));
+  rep.figure("mu_d_max", *std::max_element(mu_values.begin(), mu_values.end()));
+  rep.figure("mu_d_at_min_fraction", static_cast<double>(at_min) / nv);
+  rep.figure("mu_d_at_max_fraction", static_cast<double>(at_max) / nv);
+  if (options.friction_model == FrictionModel::kPaper) {
+    rep.notes.push_back("friction.model = paper: mu_d = 1/(R*sqrt(H^2+K^2)) with R = " + fmt(R) +
+                        " m, clamped to [" + fmt(mu_min) + ", " + fmt(mu_max) +
+                        "]; friction falls as curvature grows (flat texture -> mu_max)");
+  } else {
+    rep.notes.push_back("friction.model = curvature: mu_d = mu_min + c*sqrt(H^2+K^2) with c = " +
+                        fmt(options.curvature_gain_m) + " m, clamped to [" + fmt(mu_min) + ", " + fmt(mu_max) +
+                        "]; friction grows with curvature (flat texture -> mu_min)");
+  }
+  rep.notes.push_back("envelope: cv::bilateralFilter, sigma_s = " + fmt(options.sigma_space_cells) +
+                      " cells, sigma_r = " + fmt(options.sigma_range_m) + " m, window " +
+                      std::to_string(env.diameter_cells) + " cells; no-data cells and the border filled by "
+                      "first-order normalised convolution for the filter input only");
+  if (env.lut_bin_m > 0.25 * options.sigma_range_m) {
+    rep.notes.push_back("warning: the filter input spans " + fmt(env.lut_bin_m * 4096.0) +
+                        " m, so OpenCV's 4096-entry range table steps by " + fmt(env.lut_bin_m) +
+                        " m, more than sigma_r/4: the range kernel is coarsely quantised");
+  }
+  rep.seconds = seconds_since(t_start);
+  return result;
+}
+
+}  // namespace hc::pipeline
