@@ -6,6 +6,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstddef>
@@ -245,53 +246,62 @@ Curvature compute_curvature(const HeightField& surface_m) {
   const float* h = surface_m.data();
   auto idx = [cols](int r, int c) { return static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) +
                                            static_cast<std::size_t>(c); };
-  for (int r = 0; r < rows; ++r) {
-    for (int c = 0; c < cols; ++c) {
-      const std::size_t i = idx(r, c);
-      if (std::isnan(h[i])) continue;
-      double d1 = 0, d2 = 0;
-      if (axis_derivative(h + i, c, cols, 1, inv_d, d1, &d2)) {
-        hx[i] = static_cast<float>(d1);
-        hxx[i] = static_cast<float>(d2);
-      }
-      if (axis_derivative(h + i, r, rows, cols, inv_d, d1, &d2)) {
-        hy[i] = static_cast<float>(d1);
-        hyy[i] = static_cast<float>(d2);
+  // Rows are independent within each pass: OpenCV's thread pool (default thread count).
+  cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+    for (int r = range.start; r < range.end; ++r) {
+      for (int c = 0; c < cols; ++c) {
+        const std::size_t i = idx(r, c);
+        if (std::isnan(h[i])) continue;
+        double d1 = 0, d2 = 0;
+        if (axis_derivative(h + i, c, cols, 1, inv_d, d1, &d2)) {
+          hx[i] = static_cast<float>(d1);
+          hxx[i] = static_cast<float>(d2);
+        }
+        if (axis_derivative(h + i, r, rows, cols, inv_d, d1, &d2)) {
+          hy[i] = static_cast<float>(d1);
+          hyy[i] = static_cast<float>(d2);
+        }
       }
     }
-  }
+  });
   Curvature out{HeightField(g), HeightField(g), 0};
   out.mean_per_m.model_to_grid = surface_m.model_to_grid;
   out.gaussian_per_m2.model_to_grid = surface_m.model_to_grid;
   float* H = out.mean_per_m.data();
   float* K = out.gaussian_per_m2.data();
-  for (int r = 0; r < rows; ++r) {
-    for (int c = 0; c < cols; ++c) {
-      const std::size_t i = idx(r, c);
-      if (std::isnan(h[i])) continue;
-      H[i] = 0.0f;
-      K[i] = 0.0f;
-      if (std::isnan(hx[i]) || std::isnan(hy[i])) {
-        ++out.zero_fallback_cells;
-        continue;
+  std::atomic<std::size_t> zero_fallback{0};
+  cv::parallel_for_(cv::Range(0, rows), [&](const cv::Range& range) {
+    std::size_t zeros = 0;
+    for (int r = range.start; r < range.end; ++r) {
+      for (int c = 0; c < cols; ++c) {
+        const std::size_t i = idx(r, c);
+        if (std::isnan(h[i])) continue;
+        H[i] = 0.0f;
+        K[i] = 0.0f;
+        if (std::isnan(hx[i]) || std::isnan(hy[i])) {
+          ++zeros;
+          continue;
+        }
+        double xy_a = 0, xy_b = 0;
+        const bool a = axis_derivative(hx.data() + i, r, rows, cols, inv_d, xy_a, nullptr);
+        const bool b = axis_derivative(hy.data() + i, c, cols, 1, inv_d, xy_b, nullptr);
+        if (!a && !b) {
+          ++zeros;
+          continue;
+        }
+        const double hxy = a && b ? 0.5 * (xy_a + xy_b) : (a ? xy_a : xy_b);
+        const double px = hx[i], py = hy[i], pxx = hxx[i], pyy = hyy[i];
+        const double q = 1.0 + px * px + py * py;
+        const double mean = (pxx * (1.0 + py * py) + pyy * (1.0 + px * px) - 2.0 * hxy * px * py) /
+                            (2.0 * q * std::sqrt(q));
+        const double gauss = (pxx * pyy - hxy * hxy) / (q * q);
+        H[i] = static_cast<float>(mean);
+        K[i] = static_cast<float>(gauss);
       }
-      double xy_a = 0, xy_b = 0;
-      const bool a = axis_derivative(hx.data() + i, r, rows, cols, inv_d, xy_a, nullptr);
-      const bool b = axis_derivative(hy.data() + i, c, cols, 1, inv_d, xy_b, nullptr);
-      if (!a && !b) {
-        ++out.zero_fallback_cells;
-        continue;
-      }
-      const double hxy = a && b ? 0.5 * (xy_a + xy_b) : (a ? xy_a : xy_b);
-      const double px = hx[i], py = hy[i], pxx = hxx[i], pyy = hyy[i];
-      const double q = 1.0 + px * px + py * py;
-      const double mean = (pxx * (1.0 + py * py) + pyy * (1.0 + px * px) - 2.0 * hxy * px * py) /
-                          (2.0 * q * std::sqrt(q));
-      const double gauss = (pxx * pyy - hxy * hxy) / (q * q);
-      H[i] = static_cast<float>(mean);
-      K[i] = static_cast<float>(gauss);
     }
-  }
+    zero_fallback += zeros;
+  });
+  out.zero_fallback_cells = zero_fallback.load();
   return out;
 }
 
