@@ -1,0 +1,184 @@
+#include "hc/haptics/haptic_surface.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <string>
+
+namespace hc::haptics {
+namespace {
+
+std::string geometry_text(const GridGeometry& g) {
+  std::ostringstream s;
+  s << g.rows << "x" << g.cols << " cells of " << g.cell_size_m << " m at (" << g.x0_m << ", "
+    << g.y0_m << ")";
+  return s.str();
+}
+
+void check_layer(const HeightField* layer, const char* name, const GridGeometry& depth) {
+  if (layer == nullptr) return;
+  if (!(layer->geometry() == depth)) {
+    throw InputError(std::string("haptic surface: layer '") + name + "' has geometry " +
+                     geometry_text(layer->geometry()) + ", expected the depth layer's " +
+                     geometry_text(depth));
+  }
+}
+
+void check_option(double value, const char* name) {
+  if (!std::isfinite(value) || value < 0.0) {
+    std::ostringstream s;
+    s << "haptic surface: option " << name << " = " << value << ", expected a finite value >= 0";
+    throw ConfigError(s.str());
+  }
+}
+
+}  // namespace
+
+HapticSurface::HapticSurface(const SurfaceLayers& layers, const SurfaceOptions& options)
+    : options_(options) {
+  if (layers.depth == nullptr) throw InputError("haptic surface: the depth layer is required");
+  const GridGeometry& g = layers.depth->geometry();
+  if (g.rows < 1 || g.cols < 1 || !(g.cell_size_m > 0.0) || !std::isfinite(g.cell_size_m)) {
+    throw InputError("haptic surface: depth layer has invalid geometry " + geometry_text(g) +
+                     " (expected rows, cols >= 1 and cell_size_m > 0)");
+  }
+  check_layer(layers.envelope, "envelope", g);
+  check_layer(layers.texture, "texture", g);
+  check_layer(layers.mu_d, "mu_d", g);
+  check_layer(layers.mu_s, "mu_s", g);
+  check_layer(layers.region_id, "region_id", g);
+  check_option(options.texture_gain, "texture_gain");
+  check_option(options.default_mu_d, "default_mu_d");
+  check_option(options.default_mu_s, "default_mu_s");
+  check_option(options.floor_margin_m, "floor_margin_m");
+  source_geometry_ = g;
+
+  // Rendered height of every input sample (double for the sum, stored as float).
+  const std::size_t n = g.cell_count();
+  std::vector<float> rendered(n);
+  double lo = std::numeric_limits<double>::infinity();
+  double hi = -lo;
+  const float* d = layers.depth->data();
+  const float* e = layers.envelope ? layers.envelope->data() : nullptr;
+  const float* t = layers.texture ? layers.texture->data() : nullptr;
+  const double gain = options.texture_gain;
+  for (std::size_t k = 0; k < n; ++k) {
+    double env = 0.0;
+    double tex = 0.0;
+    if (e != nullptr && t != nullptr) {
+      env = e[k];
+      tex = t[k];
+    } else if (e != nullptr) {
+      env = e[k];
+      tex = static_cast<double>(d[k]) - e[k];
+    } else if (t != nullptr) {
+      env = static_cast<double>(d[k]) - t[k];
+      tex = t[k];
+    } else {
+      env = d[k];
+      tex = 0.0;
+    }
+    const double z = env + gain * tex;
+    if (std::isfinite(z) && std::isfinite(static_cast<double>(d[k]))) {
+      rendered[k] = static_cast<float>(z);
+      lo = std::min(lo, static_cast<double>(rendered[k]));
+      hi = std::max(hi, static_cast<double>(rendered[k]));
+    } else {
+      rendered[k] = kNoData;
+      ++no_data_count_;
+    }
+  }
+  if (!(lo <= hi)) {
+    throw DegenerateInputError("haptic surface: no sample of the depth layer (" + geometry_text(g) +
+                               ") has a finite rendered height");
+  }
+  min_height_m_ = lo;
+  max_height_m_ = hi;
+  floor_m_ = static_cast<double>(static_cast<float>(lo - options.floor_margin_m));
+  const float floor_f = static_cast<float>(floor_m_);
+
+  // Padded copy: one ring of floor samples around the input grid.
+  GridGeometry pg = g;
+  pg.rows = g.rows + 2;
+  pg.cols = g.cols + 2;
+  pg.x0_m = g.x0_m - g.cell_size_m;
+  pg.y0_m = g.y0_m - g.cell_size_m;
+  padded_ = HeightField(pg, floor_f);
+  padded_.model_to_grid = layers.depth->model_to_grid;
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      const float z = rendered[static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) +
+                               static_cast<std::size_t>(c)];
+      padded_.at(r + 1, c + 1) = std::isnan(z) ? floor_f : z;
+    }
+  }
+  surface_ = BilinearSurface(HeightFieldView::of(padded_));
+
+  const auto pad_layer = [&](const HeightField* layer, double fallback, std::vector<float>& out) {
+    if (layer == nullptr) return;
+    out.assign(pg.cell_count(), static_cast<float>(fallback));
+    for (int r = 0; r < g.rows; ++r) {
+      for (int c = 0; c < g.cols; ++c) {
+        const float v = layer->at(r, c);
+        out[static_cast<std::size_t>(r + 1) * static_cast<std::size_t>(pg.cols) +
+            static_cast<std::size_t>(c + 1)] =
+            std::isfinite(v) && v >= 0.0F ? v : static_cast<float>(fallback);
+      }
+    }
+  };
+  pad_layer(layers.mu_d, options.default_mu_d, mu_d_);
+  pad_layer(layers.mu_s, options.default_mu_s, mu_s_);
+  if (layers.region_id != nullptr) {
+    region_.assign(pg.cell_count(), -1);
+    for (int r = 0; r < g.rows; ++r) {
+      for (int c = 0; c < g.cols; ++c) {
+        const float v = layers.region_id->at(r, c);
+        region_[static_cast<std::size_t>(r + 1) * static_cast<std::size_t>(pg.cols) +
+                static_cast<std::size_t>(c + 1)] =
+            std::isfinite(v) && std::fabs(v) < 2.0e9F ? static_cast<std::int32_t>(std::lround(v))
+                                                       : -1;
+      }
+    }
+  }
+}
+
+double HapticSurface::bilinear_layer(const std::vector<float>& layer, double x_m,
+                                     double y_m) const noexcept {
+  const GridGeometry& g = padded_.geometry();
+  double cu = (x_m - g.x0_m) / g.cell_size_m;
+  double cv = (y_m - g.y0_m) / g.cell_size_m;
+  if (!(cu == cu) || !(cv == cv)) return layer[0];
+  cu = std::clamp(cu, 0.0, static_cast<double>(g.cols - 1));
+  cv = std::clamp(cv, 0.0, static_cast<double>(g.rows - 1));
+  const int i = std::min(static_cast<int>(cu), g.cols - 2);
+  const int j = std::min(static_cast<int>(cv), g.rows - 2);
+  const double u = cu - i;
+  const double v = cv - j;
+  const std::size_t k = static_cast<std::size_t>(j) * static_cast<std::size_t>(g.cols) +
+                        static_cast<std::size_t>(i);
+  const std::size_t stride = static_cast<std::size_t>(g.cols);
+  return (1 - u) * (1 - v) * layer[k] + u * (1 - v) * layer[k + 1] + (1 - u) * v * layer[k + stride] +
+         u * v * layer[k + stride + 1];
+}
+
+FrictionSample HapticSurface::friction(double x_m, double y_m) const noexcept {
+  FrictionSample f{options_.default_mu_d, options_.default_mu_s};
+  if (!mu_d_.empty()) f.mu_d = bilinear_layer(mu_d_, x_m, y_m);
+  if (!mu_s_.empty()) f.mu_s = bilinear_layer(mu_s_, x_m, y_m);
+  return f;
+}
+
+std::int32_t HapticSurface::region_id(double x_m, double y_m) const noexcept {
+  if (region_.empty()) return -1;
+  const GridGeometry& g = padded_.geometry();
+  const double cu = std::round((x_m - g.x0_m) / g.cell_size_m);
+  const double cv = std::round((y_m - g.y0_m) / g.cell_size_m);
+  if (!(cu >= 0.0 && cu <= g.cols - 1) || !(cv >= 0.0 && cv <= g.rows - 1)) return -1;
+  return region_[static_cast<std::size_t>(cv) * static_cast<std::size_t>(g.cols) +
+                 static_cast<std::size_t>(cu)];
+}
+
+}  // namespace hc::haptics
