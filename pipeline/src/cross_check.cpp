@@ -147,17 +147,18 @@ ErrorStats stats_of(std::vector<T>& v) {
     const auto k = static_cast<std::size_t>(std::ceil(q * static_cast<double>(n)));
     return std::clamp<std::size_t>(k, 1, n) - 1;
   };
-  // Successive selections on the shrinking upper part: O(n) in total.
+  // Successive selections, each on the upper part left by the previous one: O(n) in total.
+  // (Each selection reorders its range, so a value is read right after its own selection.)
+  auto select = [&v](std::size_t from, std::size_t k) {
+    std::nth_element(v.begin() + static_cast<std::ptrdiff_t>(from), v.begin() + static_cast<std::ptrdiff_t>(k), v.end());
+    return static_cast<double>(v[k]) * 1e3;
+  };
   const std::size_t k50 = rank(0.50), k95 = rank(0.95), k99 = rank(0.99);
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k50), v.end());
-  std::nth_element(v.begin() + static_cast<std::ptrdiff_t>(k50), v.begin() + static_cast<std::ptrdiff_t>(k95), v.end());
-  std::nth_element(v.begin() + static_cast<std::ptrdiff_t>(k95), v.begin() + static_cast<std::ptrdiff_t>(k99), v.end());
-  const T max_v = *std::max_element(v.begin() + static_cast<std::ptrdiff_t>(k99), v.end());
+  s.p50_mm = select(0, k50);
+  s.p95_mm = select(k50, k95);
+  s.p99_mm = select(k95, k99);
+  s.max_mm = static_cast<double>(*std::max_element(v.begin() + static_cast<std::ptrdiff_t>(k99), v.end())) * 1e3;
   s.rms_mm = std::sqrt(sum_sq / static_cast<double>(n)) * 1e3;
-  s.p50_mm = static_cast<double>(v[k50]) * 1e3;
-  s.p95_mm = static_cast<double>(v[k95]) * 1e3;
-  s.p99_mm = static_cast<double>(v[k99]) * 1e3;
-  s.max_mm = static_cast<double>(max_v) * 1e3;
   return s;
 }
 
@@ -209,6 +210,19 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
     msg << "cross_check: the " << g.cols << " x " << g.rows << " grid has no valid cell";
     throw InputError(msg.str());
   }
+  // The kd-tree works in float, in a local frame centred on the grid (x, y) and on the middle
+  // of its height range (z), so that float keeps ~1e-9 relative precision even for
+  // coordinates far from the origin.
+  Eigen::Vector3d centre(g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)), 0.0);
+  {
+    float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
+    for (float v : grid.values()) {
+      if (std::isnan(v)) continue;
+      z_lo = std::min(z_lo, v);
+      z_hi = std::max(z_hi, v);
+    }
+    centre.z() = 0.5 * (static_cast<double>(z_lo) + static_cast<double>(z_hi));
+  }
   int split_row = 1;  // rows [0, split_row) belong to the lower half
   {
     std::size_t acc = 0;
@@ -236,9 +250,9 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
     for (std::size_t i = 0; i < points_m.size(); ++i, p += 3) {
       if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
       if ((p[1] < y_split) != (h == 0)) continue;
-      packed.push_back(static_cast<float>(p[0]));
-      packed.push_back(static_cast<float>(p[1]));
-      packed.push_back(static_cast<float>(p[2]));
+      packed.push_back(static_cast<float>(p[0] - centre.x()));
+      packed.push_back(static_cast<float>(p[1] - centre.y()));
+      packed.push_back(static_cast<float>(p[2] - centre.z()));
       if (p[0] < x_lo || p[0] > x_hi || p[1] < y_lo || p[1] > y_hi) {
         ++out.outside;
         continue;
@@ -283,9 +297,11 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
       float* err = cc.cell_error_m.data() + static_cast<std::size_t>(r) * ucols;
       const double y = g.y_of_row(r);
       const double dy_split = y - y_split;
+      const auto y_local = static_cast<float>(y - centre.y());
       for (int c = 0; c < g.cols; ++c) {
         if (std::isnan(row[c])) continue;
-        const float q[3] = {static_cast<float>(g.x_of_col(c)), static_cast<float>(y), row[c]};
+        const float q[3] = {static_cast<float>(g.x_of_col(c) - centre.x()), y_local,
+                            static_cast<float>(static_cast<double>(row[c]) - centre.z())};
         double d = own.nearest_distance_m(q, unbounded);
         if (dy_split * dy_split < d * d) d = other.nearest_distance_m(q, d);
         err[c] = static_cast<float>(d);

@@ -143,13 +143,18 @@ GridGeometry make_geometry(const Bounds& b, const ReprojectOptions& o) {
     throw DegenerateInputError(msg.str());
   }
   const double cells = cols_d * rows_d;
-  const double bytes = cells * static_cast<double>(bytes_per_cell(o));
   if (cells > static_cast<double>(o.grid.max_cells) || cols_d > 2.0e9 || rows_d > 2.0e9) {
-    msg.precision(15);
+    const double bytes = cells * static_cast<double>(bytes_per_cell(o));
+    msg.precision(17);
     msg << "reproject: a grid of " << cols_d << " x " << rows_d << " = " << cells
         << " cells (cell size " << cell << " m) exceeds max_cells = " << o.grid.max_cells
-        << "; it would need " << bytes << " bytes (" << bytes_per_cell(o)
-        << " bytes per cell); raise the cap or coarsen the grid";
+        << "; it would need ";
+    if (bytes < 9.0e18) {
+      msg << static_cast<std::uint64_t>(bytes);
+    } else {
+      msg << bytes;
+    }
+    msg << " bytes (" << bytes_per_cell(o) << " bytes per cell); raise the cap or coarsen the grid";
     throw ResourceError(msg.str());
   }
   GridGeometry g;

@@ -1,0 +1,485 @@
+#include "hc/pipeline/reproject.hpp"
+
+#include "hc/common/bilinear_surface.hpp"
+#include "hc/common/error.hpp"
+#include "hc/pipeline/synthetic.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <random>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+namespace {
+
+Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts) {
+  Cloud c;
+  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
+  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
+  return c;
+}
+
+ReprojectOptions with_n(int n) {
+  ReprojectOptions o;
+  o.grid.n_long_side = n;
+  return o;
+}
+
+ReprojectOptions with_cell(double cell_m) {
+  ReprojectOptions o;
+  o.grid.cell_size_m = cell_m;
+  return o;
+}
+
+std::size_t count_flag(const DepthGrid& g, CellFlag f) {
+  return static_cast<std::size_t>(std::count(g.flags.begin(), g.flags.end(), static_cast<std::uint8_t>(f)));
+}
+
+double figure(const StageReport& r, const std::string& name) {
+  for (const auto& [k, v] : r.figures) {
+    if (k == name) return v;
+  }
+  ADD_FAILURE() << "no figure " << name;
+  return std::numeric_limits<double>::quiet_NaN();
+}
+
+// ---------------------------------------------------------------------------------------------
+// Geometry and known answers
+
+TEST(Reproject, GeometryFollowsTheLongerSideAndCentresTheShorterOne) {
+  // x extent 0.10 m, y extent 0.043 m, N = 11 → cell 0.01 m, cols 11, rows round(4.3) + 1 = 5.
+  const Cloud c = cloud_of({{0.0, 0.0, 0.0}, {0.1, 0.043, 1.0}, {0.05, 0.02, 2.0}});
+  const auto r = reproject(c, with_n(11));
+  const GridGeometry& g = r.value.depth.geometry();
+  EXPECT_EQ(g.cols, 11);
+  EXPECT_EQ(g.rows, 5);
+  EXPECT_DOUBLE_EQ(g.cell_size_m, 0.01);
+  EXPECT_DOUBLE_EQ(g.x0_m, 0.0);
+  EXPECT_NEAR(g.y0_m, 0.0215 - 0.02, 1e-15);  // centred: middle row at the box centre
+  EXPECT_EQ(r.value.flags.size(), g.cell_count());
+  EXPECT_EQ(r.report.count_in, 3u);
+  EXPECT_EQ(r.report.count_out, 3u);
+  EXPECT_EQ(count_flag(r.value, kCellMeasured), 3u);
+
+  // Cell size given: both sides from the extent.
+  const auto r2 = reproject(c, with_cell(0.02));
+  EXPECT_EQ(r2.value.depth.cols(), 6);
+  EXPECT_EQ(r2.value.depth.rows(), 3);
+}
+
+TEST(Reproject, FrontMostRuleMatchesABruteForceOracle) {
+  std::mt19937_64 rng(42);
+  std::uniform_real_distribution<double> ux(-0.3, 0.7), uy(0.1, 0.5), uz(-1.0, 1.0);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 6000; ++i) pts.emplace_back(ux(rng), uy(rng), uz(rng));
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  pts.emplace_back(nan, 0.2, 5.0);  // non-finite points are skipped
+  pts.emplace_back(0.2, 0.3, std::numeric_limits<double>::infinity());
+  const Cloud cloud = cloud_of(pts);
+  const auto r = reproject(cloud, with_n(41));
+  const HeightField& h = r.value.depth;
+  const GridGeometry& g = h.geometry();
+  EXPECT_EQ(std::max(g.rows, g.cols), 41);
+  EXPECT_EQ(figure(r.report, "points_non_finite"), 2.0);
+
+  // Oracle: each finite point to its nearest node by exhaustive search over the nodes' x and y,
+  // then the largest z per node.
+  std::vector<double> best(g.cell_count(), -std::numeric_limits<double>::infinity());
+  for (const auto& p : pts) {
+    if (!p.allFinite()) continue;
+    int bc = 0, br = 0;
+    for (int c = 1; c < g.cols; ++c) {
+      if (std::abs(p.x() - g.x_of_col(c)) < std::abs(p.x() - g.x_of_col(bc))) bc = c;
+    }
+    for (int rr = 1; rr < g.rows; ++rr) {
+      if (std::abs(p.y() - g.y_of_row(rr)) < std::abs(p.y() - g.y_of_row(br))) br = rr;
+    }
+    auto& b = best[static_cast<std::size_t>(br * g.cols + bc)];
+    b = std::max(b, p.z());
+  }
+  std::size_t valid = 0;
+  for (int rr = 0; rr < g.rows; ++rr) {
+    for (int c = 0; c < g.cols; ++c) {
+      const double b = best[static_cast<std::size_t>(rr * g.cols + c)];
+      if (std::isinf(b)) {
+        EXPECT_TRUE(std::isnan(h.at(rr, c))) << rr << "," << c;
+        EXPECT_EQ(r.value.flags[static_cast<std::size_t>(rr * g.cols + c)], kCellEmpty);
+      } else {
+        ++valid;
+        EXPECT_EQ(h.at(rr, c), static_cast<float>(b)) << rr << "," << c;
+        EXPECT_EQ(r.value.flags[static_cast<std::size_t>(rr * g.cols + c)], kCellMeasured);
+      }
+    }
+  }
+  EXPECT_EQ(h.valid_count(), valid);
+  EXPECT_GT(valid, 0.8 * static_cast<double>(g.cell_count()));
+}
+
+class ReprojectAnalytic : public ::testing::TestWithParam<SurfaceKind> {};
+
+TEST_P(ReprojectAnalytic, DenseNoiseFreeGridIsWithinAQuarterCellOfTheSurface) {
+  SyntheticSpec s;
+  s.kind = GetParam();
+  s.half_extent_m = 0.05;
+  s.density_per_m2 = 4e7;  // ≈ 40 points per 1 mm cell
+  s.seed = 3;
+  const Cloud cloud = generate_surface(s);
+  const auto r = reproject(cloud, with_n(101));
+  const HeightField& h = r.value.depth;
+  const double cell = h.cell_size_m();
+  ASSERT_NEAR(cell, 1e-3, 1e-5);
+  EXPECT_EQ(h.valid_count(), h.geometry().cell_count());  // dense: no pinholes
+
+  const BilinearSurface f(HeightFieldView::of(h));
+  const GridGeometry& g = h.geometry();
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> ux(g.x0_m, g.x_of_col(g.cols - 1));
+  std::uniform_real_distribution<double> uy(g.y0_m, g.y_of_row(g.rows - 1));
+  double sum_sq = 0.0;
+  const int n = 20000;
+  for (int i = 0; i < n; ++i) {
+    const double x = ux(rng), y = uy(rng);
+    const SurfaceSample v = f.sample(x, y);
+    ASSERT_TRUE(v.valid);
+    const double e = v.z_m - synthetic_height(s, x, y);
+    sum_sq += e * e;
+  }
+  const double rms = std::sqrt(sum_sq / n);
+  RecordProperty("rms_in_cells", std::to_string(rms / cell));
+  EXPECT_LE(rms, 0.25 * cell) << to_string(s.kind) << ": RMS " << rms * 1e3 << " mm";
+}
+
+INSTANTIATE_TEST_SUITE_P(AllSurfaces, ReprojectAnalytic,
+                         ::testing::Values(SurfaceKind::kPlane, SurfaceKind::kTiltedPlane,
+                                           SurfaceKind::kSphereCap, SurfaceKind::kStep,
+                                           SurfaceKind::kSinusoid),
+                         [](const ::testing::TestParamInfo<SurfaceKind>& p) { return to_string(p.param); });
+
+// ---------------------------------------------------------------------------------------------
+// Splats
+
+TEST(Reproject, SplatClosesPinholesWithoutMovingMeasuredCells) {
+  SyntheticSpec s;
+  s.kind = SurfaceKind::kTiltedPlane;
+  s.half_extent_m = 0.025;
+  s.density_per_m2 = 2e6;  // 2 points per 1 mm cell on average: ≈ 13 % of the cells stay empty
+  s.seed = 5;
+  const Cloud cloud = generate_surface(s);
+  const auto plain = reproject(cloud, with_n(51));
+  ReprojectOptions o = with_n(51);
+  o.splat_radius_cells = 2.5;
+  const auto splat = reproject(cloud, o);
+  const HeightField& a = plain.value.depth;
+  const HeightField& b = splat.value.depth;
+  ASSERT_EQ(a.geometry(), b.geometry());
+  const double cell = a.cell_size_m();
+
+  std::size_t pinholes = 0;
+  for (int r = 0; r < a.rows(); ++r) {
+    for (int c = 0; c < a.cols(); ++c) {
+      const auto i = static_cast<std::size_t>(r * a.cols() + c);
+      ASSERT_TRUE(b.valid(r, c)) << "pinhole left at " << r << "," << c;
+      if (a.valid(r, c)) {
+        EXPECT_EQ(b.at(r, c), a.at(r, c));  // measured cells are untouched
+        EXPECT_EQ(splat.value.flags[i], kCellMeasured);
+      } else {
+        ++pinholes;
+        EXPECT_EQ(splat.value.flags[i], kCellSplatted);
+        // A flat disc from a point within 2.5 cells: off by at most slope · 2.5 cells.
+        const double truth = synthetic_height(s, a.geometry().x_of_col(c), a.geometry().y_of_row(r));
+        EXPECT_NEAR(b.at(r, c), truth, (s.slope_x + s.slope_y) * 2.5 * cell + 1e-7);
+      }
+    }
+  }
+  EXPECT_GT(pinholes, a.geometry().cell_count() / 20);
+  EXPECT_EQ(count_flag(splat.value, kCellSplatted), pinholes);
+  EXPECT_EQ(figure(splat.report, "cells_splatted"), static_cast<double>(pinholes));
+}
+
+// ---------------------------------------------------------------------------------------------
+// See-through
+
+struct TwoLayer {
+  Cloud cloud;
+  double cell = 1e-3;
+  int n = 61;  // nodes per side, cell 1 mm, x0 = y0 = −30 mm
+};
+
+// Front plane z = 0 with rectangular gaps (in node indices, inclusive) and optionally only over
+// x < front_x_max; a back plane z = −10 mm everywhere. Dense (≈ 25 points per cell per layer).
+// Corner points pin the bounding box so that node (r, c) sits at (−30 + c, −30 + r) mm.
+TwoLayer two_layer(const std::vector<std::array<int, 4>>& gaps, double front_x_max = 1.0) {
+  TwoLayer t;
+  const double h = 0.5 * (t.n - 1) * t.cell;
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> u(-h, h);
+  std::vector<Eigen::Vector3d> pts = {{-h, -h, -0.01}, {h, -h, -0.01}, {-h, h, -0.01}, {h, h, -0.01}};
+  const int per_layer = 25 * t.n * t.n;
+  for (int i = 0; i < per_layer; ++i) pts.emplace_back(u(rng), u(rng), -0.01);
+  for (int i = 0; i < per_layer; ++i) {
+    const double x = u(rng), y = u(rng);
+    if (x >= front_x_max) continue;
+    const int c = static_cast<int>(std::floor((x + h) / t.cell + 0.5));
+    const int r = static_cast<int>(std::floor((y + h) / t.cell + 0.5));
+    bool in_gap = false;
+    for (const auto& gap : gaps) in_gap |= r >= gap[0] && r <= gap[1] && c >= gap[2] && c <= gap[3];
+    if (!in_gap) pts.emplace_back(x, y, 0.0);
+  }
+  t.cloud = cloud_of(pts);
+  return t;
+}
+
+TEST(Reproject, SeeThroughGapsBecomeNoDataAndNoFrontCellIsLost) {
+  // A 3 × 3 gap, a 5 × 5 gap and a 1 × 6 slit in the front plane.
+  const std::vector<std::array<int, 4>> gaps = {{10, 12, 10, 12}, {30, 34, 40, 44}, {50, 50, 20, 25}};
+  const TwoLayer t = two_layer(gaps);
+  ReprojectOptions o = with_cell(t.cell);
+  const auto naive = reproject(t.cloud, o);
+  ASSERT_EQ(naive.value.depth.cols(), t.n);
+  ASSERT_EQ(naive.value.depth.rows(), t.n);
+  o.see_through_depth_m = 0.002;
+  o.see_through_window_cells = 5;  // reaches across the 5-cell gap from its corners
+  const auto handled = reproject(t.cloud, o);
+  const HeightField& h = handled.value.depth;
+
+  std::size_t gap_cells = 0;
+  for (int r = 0; r < t.n; ++r) {
+    for (int c = 0; c < t.n; ++c) {
+      bool in_gap = false;
+      for (const auto& gap : gaps) in_gap |= r >= gap[0] && r <= gap[1] && c >= gap[2] && c <= gap[3];
+      const auto i = static_cast<std::size_t>(r * t.n + c);
+      if (in_gap) {
+        ++gap_cells;
+        EXPECT_FLOAT_EQ(naive.value.depth.at(r, c), -0.01f);  // the naive grid sees the back
+        EXPECT_EQ(handled.value.flags[i], kCellSeeThrough) << r << "," << c;
+        EXPECT_TRUE(std::isnan(h.at(r, c)));
+      } else {
+        EXPECT_EQ(handled.value.flags[i], kCellMeasured) << r << "," << c;
+        EXPECT_FLOAT_EQ(h.at(r, c), 0.0f) << r << "," << c;
+      }
+    }
+  }
+  EXPECT_EQ(count_flag(handled.value, kCellSeeThrough), gap_cells);
+  EXPECT_EQ(figure(handled.report, "cells_see_through"), static_cast<double>(gap_cells));
+}
+
+TEST(Reproject, SeeThroughKeepsAOneSidedDrop) {
+  // The front plane covers x < 0.3 mm only: beyond its edge the back plane is the visible
+  // surface (a silhouette, not a gap), so nothing is rejected.
+  const TwoLayer t = two_layer({}, 0.0003);
+  ReprojectOptions o = with_cell(t.cell);
+  o.see_through_depth_m = 0.002;
+  o.see_through_window_cells = 3;
+  const auto r = reproject(t.cloud, o);
+  EXPECT_EQ(count_flag(r.value, kCellSeeThrough), 0u);
+  EXPECT_EQ(r.value.depth.valid_count(), r.value.depth.geometry().cell_count());
+  EXPECT_FLOAT_EQ(r.value.depth.at(30, 30), 0.0f);
+  EXPECT_FLOAT_EQ(r.value.depth.at(30, 31), -0.01f);
+}
+
+TEST(Reproject, SplatOccludesNarrowGapsWithTheFrontSurface) {
+  // With splats on, a 1-cell gap is covered by the discs of the front points around it.
+  const TwoLayer t = two_layer({{20, 20, 20, 20}});
+  ReprojectOptions o = with_cell(t.cell);
+  o.splat_radius_cells = 1.5;
+  o.see_through_depth_m = 0.002;
+  const auto r = reproject(t.cloud, o);
+  EXPECT_FLOAT_EQ(r.value.depth.at(20, 20), 0.0f);
+  EXPECT_EQ(r.value.flags[static_cast<std::size_t>(20 * t.n + 20)], kCellSplatted);
+  EXPECT_EQ(count_flag(r.value, kCellSeeThrough), 0u);
+  EXPECT_EQ(count_flag(r.value, kCellSplatted), 1u);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Hole filling
+
+DepthGrid tilted_grid(int rows, int cols, double cell) {
+  GridGeometry g{rows, cols, 0.0, 0.0, cell};
+  DepthGrid d{HeightField(g), std::vector<std::uint8_t>(g.cell_count(), kCellMeasured)};
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) d.depth.at(r, c) = static_cast<float>(0.01 + 0.1 * g.x_of_col(c));
+  }
+  return d;
+}
+
+void carve(DepthGrid& d, int r0, int r1, int c0, int c1, CellFlag flag = kCellEmpty) {
+  for (int r = r0; r <= r1; ++r) {
+    for (int c = c0; c <= c1; ++c) {
+      d.depth.at(r, c) = kNoData;
+      d.flags[static_cast<std::size_t>(r * d.depth.cols() + c)] = flag;
+    }
+  }
+}
+
+TEST(FillHoles, FillsSmallInteriorHolesOnlyAndMarksThem) {
+  DepthGrid d = tilted_grid(60, 80, 1e-3);
+  carve(d, 10, 12, 10, 12);                   // 9 cells: filled
+  carve(d, 20, 24, 30, 33, kCellSeeThrough);  // 20 cells (see-through): filled
+  carve(d, 30, 39, 50, 59);                   // 100 cells: too large
+  carve(d, 0, 59, 75, 79);                    // touches the border: background
+  carve(d, 50, 51, 0, 2);                     // 6 cells on the border: background
+  const DepthGrid before = d;
+  const auto r = fill_holes(d, 50);
+  const DepthGrid& out = r.value;
+  const GridGeometry& g = out.depth.geometry();
+  std::size_t filled = 0;
+  for (int row = 0; row < g.rows; ++row) {
+    for (int c = 0; c < g.cols; ++c) {
+      const auto i = static_cast<std::size_t>(row * g.cols + c);
+      const bool small = (row >= 10 && row <= 12 && c >= 10 && c <= 12) ||
+                         (row >= 20 && row <= 24 && c >= 30 && c <= 33);
+      if (small) {
+        ++filled;
+        EXPECT_EQ(out.flags[i], kCellFilled);
+        ASSERT_TRUE(out.depth.valid(row, c));
+        // Normalised convolution is a weighted mean of the known cells around a hole cell; on a
+        // ramp its error is slope × the offset of that mean, less than 2 cells here.
+        EXPECT_NEAR(out.depth.at(row, c), 0.01 + 0.1 * g.x_of_col(c), 0.1 * 2e-3);
+      } else if (!before.depth.valid(row, c)) {
+        EXPECT_TRUE(std::isnan(out.depth.at(row, c))) << row << "," << c;
+        EXPECT_EQ(out.flags[i], before.flags[i]);
+      } else {
+        EXPECT_EQ(out.depth.at(row, c), before.depth.at(row, c));
+        EXPECT_EQ(out.flags[i], kCellMeasured);
+      }
+    }
+  }
+  EXPECT_EQ(filled, 29u);
+  EXPECT_EQ(r.report.count_out, r.report.count_in + 29);
+  EXPECT_EQ(figure(r.report, "holes_filled"), 2.0);
+  EXPECT_EQ(figure(r.report, "cells_filled"), 29.0);
+}
+
+TEST(FillHoles, ConstantSurfaceIsFilledExactlyAndSizeLimitIsInclusive) {
+  GridGeometry g{30, 30, 0.0, 0.0, 1e-3};
+  DepthGrid d{HeightField(g, 0.25f), std::vector<std::uint8_t>(g.cell_count(), kCellMeasured)};
+  carve(d, 5, 9, 5, 9);  // 25 cells
+  // Two 4-cell holes touching only at a corner: separate under 4-connectivity.
+  carve(d, 15, 16, 15, 16);
+  carve(d, 17, 18, 17, 18);
+  const auto r = fill_holes(d, 25);
+  EXPECT_EQ(r.value.depth.valid_count(), g.cell_count());
+  for (float v : r.value.depth.values()) EXPECT_FLOAT_EQ(v, 0.25f);
+  EXPECT_EQ(figure(r.report, "holes_filled"), 3.0);
+
+  const auto limited = fill_holes(d, 24);  // the 25-cell hole is now too large
+  EXPECT_EQ(limited.value.depth.valid_count(), g.cell_count() - 25);
+  EXPECT_EQ(figure(limited.report, "holes_filled"), 2.0);
+}
+
+TEST(FillHoles, ZeroDisablesAndNegativeIsAnError) {
+  DepthGrid d = tilted_grid(10, 10, 1e-3);
+  carve(d, 4, 5, 4, 5);
+  const auto r = fill_holes(d, 0);
+  EXPECT_EQ(r.value.depth.valid_count(), 96u);
+  EXPECT_THROW(fill_holes(d, -1), ConfigError);
+  DepthGrid bad = d;
+  bad.flags.pop_back();
+  EXPECT_THROW(fill_holes(bad, 10), InputError);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Errors
+
+template <class E>
+std::string message_of(const Cloud& c, const ReprojectOptions& o) {
+  try {
+    reproject(c, o);
+  } catch (const E& e) {
+    return e.what();
+  } catch (const std::exception& e) {
+    ADD_FAILURE() << "wrong exception type: " << e.what();
+    return {};
+  }
+  ADD_FAILURE() << "no exception";
+  return {};
+}
+
+TEST(ReprojectErrors, BadGridSpecIsAConfigError) {
+  const Cloud c = cloud_of({{0, 0, 0}, {1, 1, 0}});
+  EXPECT_NE(message_of<ConfigError>(c, with_n(1)).find("n_long_side = 1"), std::string::npos);
+  EXPECT_NE(message_of<ConfigError>(c, with_n(-5)).find("n_long_side = -5"), std::string::npos);
+  EXPECT_NE(message_of<ConfigError>(c, ReprojectOptions{}).find("unspecified"), std::string::npos);
+  ReprojectOptions both = with_n(10);
+  both.grid.cell_size_m = 0.1;
+  EXPECT_NE(message_of<ConfigError>(c, both).find("ambiguous"), std::string::npos);
+  EXPECT_NE(message_of<ConfigError>(c, with_cell(-0.1)).find("cell_size_m"), std::string::npos);
+  ReprojectOptions splat = with_n(10);
+  splat.splat_radius_cells = -1.0;
+  EXPECT_NE(message_of<ConfigError>(c, splat).find("splat_radius_cells"), std::string::npos);
+  ReprojectOptions win = with_n(10);
+  win.see_through_depth_m = 0.001;
+  win.see_through_window_cells = 0;
+  EXPECT_NE(message_of<ConfigError>(c, win).find("see_through_window_cells"), std::string::npos);
+}
+
+TEST(ReprojectErrors, OnePointAndEdgeOnCloudsAreDegenerate) {
+  EXPECT_NE(message_of<DegenerateInputError>(cloud_of({{0.1, 0.2, 0.3}}), with_n(100))
+                .find("zero projected area"),
+            std::string::npos);
+  // The same x-y position many times (a cloud seen exactly edge-on along z).
+  EXPECT_NE(message_of<DegenerateInputError>(cloud_of({{0.1, 0.2, 0.3}, {0.1, 0.2, -0.3}}), with_n(100))
+                .find("edge-on"),
+            std::string::npos);
+}
+
+TEST(ReprojectErrors, PointsOnALineAreDegenerate) {
+  std::vector<Eigen::Vector3d> line;
+  for (int i = 0; i < 100; ++i) line.emplace_back(0.001 * i, 0.05, 0.01 * (i % 7));  // y constant
+  const std::string m = message_of<DegenerateInputError>(cloud_of(line), with_n(200));
+  EXPECT_NE(m.find("line along x"), std::string::npos) << m;
+  EXPECT_NE(m.find("200 x 1"), std::string::npos) << m;
+  // Nearly a line: the y extent is less than half a cell, so the grid still has one row.
+  line.back().y() += 1e-7;
+  EXPECT_THROW(reproject(cloud_of(line), with_n(200)), DegenerateInputError);
+  // A line along y: an x-z plane seen from +z.
+  std::vector<Eigen::Vector3d> wall;
+  for (int i = 0; i < 100; ++i) wall.emplace_back(0.02, 0.001 * i, 0.001 * (i % 5));
+  EXPECT_NE(message_of<DegenerateInputError>(cloud_of(wall), with_n(50)).find("line along y"),
+            std::string::npos);
+}
+
+TEST(ReprojectErrors, AllPointsInOneCellAreDegenerate) {
+  const Cloud c = cloud_of({{0.0, 0.0, 0.0}, {0.001, 0.002, 0.1}, {0.002, 0.0005, 0.2}});
+  const std::string m = message_of<DegenerateInputError>(c, with_cell(0.01));
+  EXPECT_NE(m.find("one cell"), std::string::npos) << m;
+}
+
+TEST(ReprojectErrors, MemoryCapNamesTheBytesNeeded) {
+  const Cloud c = cloud_of({{0, 0, 0}, {1, 0.5, 0}});
+  ReprojectOptions o = with_n(1001);  // 1001 x 501 = 501501 cells
+  o.grid.max_cells = 500000;
+  std::string m = message_of<ResourceError>(c, o);
+  EXPECT_NE(m.find("501501 cells"), std::string::npos) << m;
+  EXPECT_NE(m.find("max_cells = 500000"), std::string::npos) << m;
+  EXPECT_NE(m.find(std::to_string(501501 * 5) + " bytes"), std::string::npos) << m;  // float + flag
+  o.splat_radius_cells = 1.0;
+  o.see_through_depth_m = 0.001;
+  m = message_of<ResourceError>(c, o);
+  EXPECT_NE(m.find(std::to_string(501501 * 17) + " bytes"), std::string::npos) << m;
+  // A request far beyond any machine does not overflow.
+  o.grid.n_long_side = 2000000000;
+  EXPECT_THROW(reproject(c, o), ResourceError);
+}
+
+TEST(ReprojectErrors, NoFinitePointIsAnInputError) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const Cloud c = cloud_of({{nan, nan, nan}, {0.0, nan, 1.0}, {0.0, 0.0, std::numeric_limits<double>::infinity()}});
+  try {
+    reproject(c, with_n(10));
+    FAIL() << "expected InputError";
+  } catch (const DegenerateInputError&) {
+    FAIL() << "expected a plain InputError, not DegenerateInputError";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("none of the 3 input points is finite"), std::string::npos);
+  }
+  EXPECT_THROW(reproject(Cloud{}, with_n(10)), InputError);
+}
+
+}  // namespace
+}  // namespace hc::pipeline
