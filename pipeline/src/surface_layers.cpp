@@ -159,10 +159,16 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
   features(inner).setTo(cv::Scalar(0), valid);
   cv::Mat dist, labels;
   cv::distanceTransform(features, dist, labels, cv::DIST_L2, cv::DIST_MASK_5, cv::DIST_LABEL_PIXEL);
-  std::vector<cv::Point> label_cell(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols) + 1);
+  // Label of a valid cell → its linear index in the padded image (labels count the valid cells).
+  std::vector<int> label_cell;
   for (int rr = 0; rr < rows; ++rr) {
+    const float* m = mask.ptr<float>(rr);
+    const int* lab = labels.ptr<int>(rr);
     for (int cc = 0; cc < cols; ++cc) {
-      if (mask.at<float>(rr, cc) != 0.0f) label_cell[static_cast<std::size_t>(labels.at<int>(rr, cc))] = {cc, rr};
+      if (m[cc] == 0.0f) continue;
+      const auto l = static_cast<std::size_t>(lab[cc]);
+      if (l >= label_cell.size()) label_cell.resize(std::max(l + 1, 2 * label_cell.size()), 0);
+      label_cell[l] = rr * cols + cc;
     }
   }
   // Keep extrapolations within a band around the data so OpenCV's range table stays fine.
@@ -171,18 +177,25 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
   const float hi = vmax + span;
   const float reach = static_cast<float>(r) * 1.5f + 1.0f;  // beyond this no window sees the cell
   float fmin = vmin, fmax = vmax;
+  float* const val = value.ptr<float>();
+  const float* const sm = bm.ptr<float>();
+  const float* const sgx = bgx.ptr<float>();
+  const float* const sgy = bgy.ptr<float>();
   for (int rr = 0; rr < rows; ++rr) {
+    const float* m = mask.ptr<float>(rr);
+    const int* lab = labels.ptr<int>(rr);
+    const float* d = dist.ptr<float>(rr);
     for (int cc = 0; cc < cols; ++cc) {
-      if (mask.at<float>(rr, cc) != 0.0f) continue;
-      const cv::Point p = label_cell[static_cast<std::size_t>(labels.at<int>(rr, cc))];
-      float v = value.at<float>(p);
-      if (dist.at<float>(rr, cc) <= reach) {
-        const float m = bm.at<float>(p);
-        v += (bgx.at<float>(p) * static_cast<float>(cc - p.x) + bgy.at<float>(p) * static_cast<float>(rr - p.y)) / m;
+      if (m[cc] != 0.0f) continue;
+      const int p = label_cell[static_cast<std::size_t>(lab[cc])];
+      float v = val[p];
+      if (d[cc] <= reach) {
+        const int pr = p / cols, pc = p % cols;
+        v += (sgx[p] * static_cast<float>(cc - pc) + sgy[p] * static_cast<float>(rr - pr)) / sm[p];
         v = std::clamp(v, lo, hi);
         ++out.filled_cells;
       }
-      value.at<float>(rr, cc) = v;
+      val[rr * cols + cc] = v;
       fmin = std::min(fmin, v);
       fmax = std::max(fmax, v);
     }
