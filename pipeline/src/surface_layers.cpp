@@ -116,28 +116,36 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
   cv::Mat gy(rows, cols, CV_32F, cv::Scalar(0));
   float vmin = std::numeric_limits<float>::max();
   float vmax = std::numeric_limits<float>::lowest();
-  auto ok = [&](int rr, int cc) {
-    return rr >= 0 && cc >= 0 && rr < f.rows && cc < f.cols && valid.at<std::uint8_t>(rr, cc) != 0;
-  };
-  auto slope = [&](int rr, int cc, int dr, int dc) {
-    const bool fwd = ok(rr + dr, cc + dc);
-    const bool bwd = ok(rr - dr, cc - dc);
-    const float v = f.at<float>(rr, cc);
-    const float sf = fwd ? f.at<float>(rr + dr, cc + dc) - v : 0.0f;
-    const float sb = bwd ? v - f.at<float>(rr - dr, cc - dc) : 0.0f;
-    if (fwd && bwd) return minmod(sf, sb);
-    return fwd ? sf : sb;
+  std::size_t valid_cells = 0;
+  // Slope along one axis at a valid cell from its two neighbours (nullptr = none or no data).
+  auto slope = [](float v, const float* fwd, const float* bwd) {
+    if (fwd && bwd) return minmod(*fwd - v, v - *bwd);
+    if (fwd) return *fwd - v;
+    if (bwd) return v - *bwd;
+    return 0.0f;
   };
   for (int rr = 0; rr < f.rows; ++rr) {
+    const float* fr = f.ptr<float>(rr);
+    const std::uint8_t* ok = valid.ptr<std::uint8_t>(rr);
+    const float* fu = rr + 1 < f.rows ? f.ptr<float>(rr + 1) : nullptr;
+    const std::uint8_t* oku = rr + 1 < f.rows ? valid.ptr<std::uint8_t>(rr + 1) : nullptr;
+    const float* fd = rr > 0 ? f.ptr<float>(rr - 1) : nullptr;
+    const std::uint8_t* okd = rr > 0 ? valid.ptr<std::uint8_t>(rr - 1) : nullptr;
+    float* vrow = value.ptr<float>(rr + r) + r;
+    float* mrow = mask.ptr<float>(rr + r) + r;
+    float* gxrow = gx.ptr<float>(rr + r) + r;
+    float* gyrow = gy.ptr<float>(rr + r) + r;
     for (int cc = 0; cc < f.cols; ++cc) {
-      if (!ok(rr, cc)) continue;
-      const float v = f.at<float>(rr, cc);
+      if (!ok[cc]) continue;
+      const float v = fr[cc];
+      ++valid_cells;
       vmin = std::min(vmin, v);
       vmax = std::max(vmax, v);
-      value.at<float>(rr + r, cc + r) = v;
-      mask.at<float>(rr + r, cc + r) = 1.0f;
-      gx.at<float>(rr + r, cc + r) = slope(rr, cc, 0, 1);
-      gy.at<float>(rr + r, cc + r) = slope(rr, cc, 1, 0);
+      vrow[cc] = v;
+      mrow[cc] = 1.0f;
+      gxrow[cc] = slope(v, cc + 1 < f.cols && ok[cc + 1] ? fr + cc + 1 : nullptr,
+                        cc > 0 && ok[cc - 1] ? fr + cc - 1 : nullptr);
+      gyrow[cc] = slope(v, fu && oku[cc] ? fu + cc : nullptr, fd && okd[cc] ? fd + cc : nullptr);
     }
   }
 
@@ -160,7 +168,7 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
   cv::Mat dist, labels;
   cv::distanceTransform(features, dist, labels, cv::DIST_L2, cv::DIST_MASK_5, cv::DIST_LABEL_PIXEL);
   // Label of a valid cell → its linear index in the padded image (labels count the valid cells).
-  std::vector<int> label_cell;
+  std::vector<int> label_cell(valid_cells + 1, 0);
   for (int rr = 0; rr < rows; ++rr) {
     const float* m = mask.ptr<float>(rr);
     const int* lab = labels.ptr<int>(rr);
