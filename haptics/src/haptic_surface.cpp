@@ -4,9 +4,16 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <limits>
+#include <new>
 #include <sstream>
 #include <string>
+#include <vector>
+
+#if defined(__linux__)
+#include <sys/mman.h>
+#endif
 
 namespace hc::haptics {
 namespace {
@@ -106,38 +113,50 @@ HapticSurface::HapticSurface(const SurfaceLayers& layers, const SurfaceOptions& 
   pg.cols = g.cols + 2;
   pg.x0_m = g.x0_m - g.cell_size_m;
   pg.y0_m = g.y0_m - g.cell_size_m;
-  padded_ = HeightField(pg, floor_f);
-  padded_.model_to_grid = layers.depth->model_to_grid;
+  padded_geometry_ = pg;
+  const std::size_t pcols = static_cast<std::size_t>(pg.cols);
+  const auto padded_index = [pcols](int r, int c) {
+    return static_cast<std::size_t>(r + 1) * pcols + static_cast<std::size_t>(c + 1);
+  };
+  nodes_ = allocate_nodes(pg.cell_count(), floor_f);
   for (int r = 0; r < g.rows; ++r) {
     for (int c = 0; c < g.cols; ++c) {
       const float z = rendered[static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) +
                                static_cast<std::size_t>(c)];
-      padded_.at(r + 1, c + 1) = std::isnan(z) ? floor_f : z;
+      nodes_[padded_index(r, c)] = std::isnan(z) ? floor_f : z;
     }
   }
-  surface_ = BilinearSurface(HeightFieldView::of(padded_));
+  surface_ = BilinearSurface(HeightFieldView{nodes_.get(), pg, pg.cols});
+  data_ = nodes_.get();
+  stride_ = pg.cols;
+  x0_m_ = pg.x0_m;
+  y0_m_ = pg.y0_m;
+  inv_cell_ = 1.0 / pg.cell_size_m;
+  max_u_ = static_cast<double>(pg.cols - 1);
+  max_v_ = static_cast<double>(pg.rows - 1);
+  last_i_ = pg.cols - 2;
+  last_j_ = pg.rows - 2;
 
-  const auto pad_layer = [&](const HeightField* layer, double fallback, std::vector<float>& out) {
-    if (layer == nullptr) return;
-    out.assign(pg.cell_count(), static_cast<float>(fallback));
+  const auto pad_layer = [&](const HeightField* layer, double fallback) -> NodeBuffer {
+    if (layer == nullptr) return nullptr;
+    NodeBuffer out = allocate_nodes(pg.cell_count(), static_cast<float>(fallback));
     for (int r = 0; r < g.rows; ++r) {
       for (int c = 0; c < g.cols; ++c) {
         const float v = layer->at(r, c);
-        out[static_cast<std::size_t>(r + 1) * static_cast<std::size_t>(pg.cols) +
-            static_cast<std::size_t>(c + 1)] =
-            std::isfinite(v) && v >= 0.0F ? v : static_cast<float>(fallback);
+        out[padded_index(r, c)] = std::isfinite(v) && v >= 0.0F ? v : static_cast<float>(fallback);
       }
     }
+    return out;
   };
-  pad_layer(layers.mu_d, options.default_mu_d, mu_d_);
-  pad_layer(layers.mu_s, options.default_mu_s, mu_s_);
+  mu_d_ = pad_layer(layers.mu_d, options.default_mu_d);
+  mu_s_ = pad_layer(layers.mu_s, options.default_mu_s);
   if (layers.region_id != nullptr) {
-    region_.assign(pg.cell_count(), -1);
+    region_ = std::make_unique<std::int32_t[]>(pg.cell_count());
+    std::fill_n(region_.get(), pg.cell_count(), -1);
     for (int r = 0; r < g.rows; ++r) {
       for (int c = 0; c < g.cols; ++c) {
         const float v = layers.region_id->at(r, c);
-        region_[static_cast<std::size_t>(r + 1) * static_cast<std::size_t>(pg.cols) +
-                static_cast<std::size_t>(c + 1)] =
+        region_[padded_index(r, c)] =
             std::isfinite(v) && std::fabs(v) < 2.0e9F ? static_cast<std::int32_t>(std::lround(v))
                                                        : -1;
       }
@@ -145,9 +164,26 @@ HapticSurface::HapticSurface(const SurfaceLayers& layers, const SurfaceOptions& 
   }
 }
 
-double HapticSurface::bilinear_layer(const std::vector<float>& layer, double x_m,
-                                     double y_m) const noexcept {
-  const GridGeometry& g = padded_.geometry();
+void HapticSurface::FreeDeleter::operator()(float* p) const noexcept { std::free(p); }
+
+HapticSurface::NodeBuffer HapticSurface::allocate_nodes(std::size_t count, float fill) {
+  constexpr std::size_t kHugePage = std::size_t{2} << 20;
+  const std::size_t bytes = count * sizeof(float);
+  const std::size_t align = bytes >= kHugePage ? kHugePage : 64;
+  const std::size_t rounded = (bytes + align - 1) / align * align;
+  void* p = std::aligned_alloc(align, rounded);
+  if (p == nullptr) throw std::bad_alloc();
+#if defined(__linux__)
+  // Best effort: without transparent huge pages this is a no-op and only costs TLB misses.
+  if (align == kHugePage) (void)madvise(p, rounded, MADV_HUGEPAGE);
+#endif
+  NodeBuffer buffer(static_cast<float*>(p));
+  std::fill_n(buffer.get(), count, fill);
+  return buffer;
+}
+
+double HapticSurface::bilinear_layer(const float* layer, double x_m, double y_m) const noexcept {
+  const GridGeometry& g = padded_geometry_;
   double cu = (x_m - g.x0_m) / g.cell_size_m;
   double cv = (y_m - g.y0_m) / g.cell_size_m;
   if (!(cu == cu) || !(cv == cv)) return layer[0];
@@ -164,16 +200,16 @@ double HapticSurface::bilinear_layer(const std::vector<float>& layer, double x_m
          u * v * layer[k + stride + 1];
 }
 
-FrictionSample HapticSurface::friction(double x_m, double y_m) const noexcept {
+FrictionSample HapticSurface::friction_from_maps(double x_m, double y_m) const noexcept {
   FrictionSample f{options_.default_mu_d, options_.default_mu_s};
-  if (!mu_d_.empty()) f.mu_d = bilinear_layer(mu_d_, x_m, y_m);
-  if (!mu_s_.empty()) f.mu_s = bilinear_layer(mu_s_, x_m, y_m);
+  if (mu_d_) f.mu_d = bilinear_layer(mu_d_.get(), x_m, y_m);
+  if (mu_s_) f.mu_s = bilinear_layer(mu_s_.get(), x_m, y_m);
   return f;
 }
 
 std::int32_t HapticSurface::region_id(double x_m, double y_m) const noexcept {
-  if (region_.empty()) return -1;
-  const GridGeometry& g = padded_.geometry();
+  if (!region_) return -1;
+  const GridGeometry& g = padded_geometry_;
   const double cu = std::round((x_m - g.x0_m) / g.cell_size_m);
   const double cv = std::round((y_m - g.y0_m) / g.cell_size_m);
   if (!(cu >= 0.0 && cu <= g.cols - 1) || !(cv >= 0.0 && cv <= g.rows - 1)) return -1;

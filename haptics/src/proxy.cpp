@@ -79,60 +79,86 @@ void clip_slab(double p, double d, double lo, double hi, double& t_in, double& t
   t_out = std::min(t_out, t1);
 }
 
-Eigen::Vector3d unit_normal(const SurfaceSample& s) noexcept {
-  Eigen::Vector3d n(-s.dz_dx, -s.dz_dy, 1.0);
-  return n / n.norm();
-}
-
 /// Eq. 3–5 iterations with static friction; xp and sp (the sample at xp) are updated in place.
+/// Uses the unnormalised normal m = (−f_x, −f_y, 1), q = |m|², so that n = m/√q, n·v_h = m·v_h/√q
+/// and (n·v_h)·n = (m·v_h/q)·m: one division and one square root per iteration.
 void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
                         Eigen::Vector3d& xp, SurfaceSample& sp, ProxyState& s,
                         const ProxyParams& p) noexcept {
   const double cell = surface.geometry().cell_size_m;
   const double max_step_xy = p.max_step_cells * cell;
+  const double conv2 = p.convergence_m * p.convergence_m;
+  const bool maps = p.friction_enabled && surface.has_friction_maps();
+  const int guard_cells = 2 * static_cast<int>(std::ceil(p.max_step_cells)) + 4;
+  const Eigen::Vector3d guard_lift(0.0, 0.0, 0.1 * cell);
   FrictionSample mu{0.0, 0.0};
   if (p.friction_enabled) mu = surface.friction(xp.x(), xp.y());
   const Eigen::Vector3d x_start = xp;
   bool friction_limited = false;
+  double last_t2 = 0.0, last_q = 1.0, last_mv = 0.0;
   for (int k = 0; k < p.max_iterations; ++k) {
-    const Eigen::Vector3d n = unit_normal(sp);
-    const Eigen::Vector3d vh = xh - xp;                 // Eq. 3: v_h = X_h − X_p
-    const double vn = n.dot(vh);
-    const Eigen::Vector3d vt = vh - vn * n;              // Eq. 3: v_t = v_h − (n·v_h) n
-    const double t_len = vt.norm();                      // ∝ |f_t|
-    const double d_n = -vn;                              // ∝ f_n (> 0: pressing in)
-    s.beta_rad = std::atan2(t_len, d_n);
-    s.mu_d = mu.mu_d;
-    s.mu_s = mu.mu_s;
+    const Eigen::Vector3d m(-sp.dz_dx, -sp.dz_dy, 1.0);  // normal, unnormalised
+    const double q = m.squaredNorm();
+    const Eigen::Vector3d vh = xh - xp;                   // Eq. 3: v_h = X_h − X_p
+    const double mv = m.dot(vh);                          // √q·(n·v_h) = −√q·f_n/k
+    const Eigen::Vector3d vt = vh - (mv / q) * m;          // Eq. 3: v_t = v_h − (n·v_h) n
+    const double t2 = vt.squaredNorm();                   // |v_t|² ∝ |f_t|²
+    last_t2 = t2;
+    last_q = q;
+    last_mv = mv;
     if (k == 0 && s.sticking) {
-      if (t_len < mu.mu_s * std::max(d_n, 0.0)) break;  // static friction holds (Sec. 3.2)
+      // Static friction holds while |f_t| < μ_s·|f_n| (Sec. 3.2), with f_n > 0 (pressing).
+      if (mv < 0.0 && t2 * q < mu.mu_s * mu.mu_s * mv * mv) break;
       s.sticking = false;
     }
-    const double factor = friction_factor(t_len, d_n, mu.mu_d);
-    if (factor <= 0.0) {  // inside the dynamic friction cone: the proxy stops and sticks
-      s.sticking = true;
+    // Eq. 5 friction factor 1 − μ_d·cot β, cot β = f_n/|f_t| = −mv/√(q·t2), clamped to [0, 1].
+    double factor = 1.0;
+    if (mu.mu_d > 0.0 && mv < 0.0) {
+      const double r = std::sqrt(q * t2);
+      const double resist = -mu.mu_d * mv;
+      factor = resist < r ? 1.0 - resist / r : 0.0;
+    }
+    if (factor <= 0.0) {
+      // Inside the dynamic friction cone: the proxy stops. If it has not moved at all this
+      // tick it is at rest, and static friction takes over.
+      if (k == 0) s.sticking = true;
       break;
     }
-    Eigen::Vector3d step = (p.rho * factor) * vt;        // Eq. 5
-    const double step_xy = std::hypot(step.x(), step.y());
-    if (step_xy > max_step_xy) step *= max_step_xy / step_xy;
-    const double dist0 = vh.norm();
+    Eigen::Vector3d step = (p.rho * factor) * vt;         // Eq. 5
+    double step_xy2 = step.x() * step.x() + step.y() * step.y();
+    if (step_xy2 > max_step_xy * max_step_xy) {
+      step *= max_step_xy / std::sqrt(step_xy2);
+      step_xy2 = max_step_xy * max_step_xy;
+    }
+    if (step.squaredNorm() < conv2) {  // converged: the next move would be below tolerance
+      friction_limited = factor < 1.0;
+      break;
+    }
+    if (step_xy2 > cell * cell) {
+      // A step over more than one cell could jump a thin feature: take it only if the tangent
+      // path, lifted by a tenth of a cell, runs through no material; else one cell.
+      const SegmentHit block =
+          find_first_crossing(surface, xp + guard_lift, xp + step + guard_lift, guard_cells);
+      if (block.hit || block.budget_exceeded) step *= cell / std::sqrt(step_xy2);
+    }
+    const double dist0_2 = vh.squaredNorm();
     bool accepted = false;
-    double moved = 0.0;
     for (int halving = 0; halving < 4 && !accepted; ++halving) {
       Eigen::Vector3d c = xp + step;
       SurfaceSample sc = surface.sample(c.x(), c.y());
-      // Re-project along n (one Newton step on g(τ) = z + τ n_z − f(x + τ n_x, y + τ n_y)).
+      // Re-project along n: one Newton step on g(τ) = z + τ n_z − f(x + τ n_x, y + τ n_y),
+      // worth a second sample only when the tangent step left the surface noticeably.
       const double g = c.z() - sc.z_m;
-      const double dg = n.z() - (sc.dz_dx * n.x() + sc.dz_dy * n.y());
-      if (dg > 0.05) {
-        const double tau = std::clamp(-g / dg, -cell, cell);
-        c += tau * n;
-        sc = surface.sample(c.x(), c.y());
+      if (g * g > conv2) {
+        const double dg = m.z() - (sc.dz_dx * m.x() + sc.dz_dy * m.y());  // √q·g'(0) along n
+        if (dg > 0.05 * std::sqrt(q)) {
+          const double tau = std::clamp(-g / dg, -cell, cell);  // along m (= √q·n)
+          c += tau * m;
+          sc = surface.sample(c.x(), c.y());
+        }
       }
       c.z() = sc.z_m;  // exactly onto z = f(x, y)
-      if ((xh - c).norm() <= dist0 + kBelowTol) {
-        moved = (c - xp).norm();
+      if ((xh - c).squaredNorm() <= dist0_2 + kBelowTol * kBelowTol) {
         xp = c;
         sp = sc;
         accepted = true;
@@ -142,14 +168,14 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
     }
     ++s.iterations;
     if (!accepted) break;
-    if (p.friction_enabled) mu = surface.friction(xp.x(), xp.y());
-    if (moved < p.convergence_m) {
-      friction_limited = factor < 1.0;
-      break;
-    }
+    if (maps) mu = surface.friction(xp.x(), xp.y());
   }
   // At rest on the dynamic friction cone for a whole tick: static friction takes over.
-  if (friction_limited && (xp - x_start).norm() < p.convergence_m) s.sticking = true;
+  if (friction_limited && (xp - x_start).squaredNorm() < conv2) s.sticking = true;
+  s.tangential_m = std::sqrt(last_t2);
+  s.normal_m = -last_mv / std::sqrt(last_q);
+  s.mu_d = mu.mu_d;
+  s.mu_s = mu.mu_s;
 }
 
 }  // namespace
@@ -290,7 +316,8 @@ ProxyState step_proxy(const ProxyState& previous, const HipInput& hip,
   const double dt = std::max(hip.dt_s, 0.0);
   const bool had_history = previous.initialized && previous.hip_m.allFinite();
   Eigen::Vector3d xp = previous.proxy_m;
-  s.beta_rad = 0.0;
+  s.tangential_m = 0.0;
+  s.normal_m = 0.0;
 
   if (surface == nullptr) {
     xp = xh;
@@ -359,12 +386,14 @@ ProxyState step_proxy(const ProxyState& previous, const HipInput& hip,
       raw -= p.damping_n_s_per_m * (xh - previous.hip_m) / dt;
     }
   }
-  const double mag = raw.norm();
+  double mag = raw.norm();
   if (!(mag <= p.max_force_n)) {
     if (std::isfinite(mag) && mag > 0.0) {
       raw *= p.max_force_n / mag;
+      mag = p.max_force_n;
     } else {
       raw.setZero();
+      mag = 0.0;
     }
     s.saturated = true;
   }
@@ -372,7 +401,7 @@ ProxyState step_proxy(const ProxyState& previous, const HipInput& hip,
     s.gate_open = false;
     s.ramp = 0.0;
   } else if (!s.gate_open) {
-    if (raw.norm() <= p.gate_force_n) {
+    if (mag <= p.gate_force_n) {
       s.gate_open = true;
       s.ramp = p.ramp_time_s > 0.0 ? 0.0 : 1.0;
     }

@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <limits>
+#include <random>
 
 namespace hc::haptics {
 namespace {
@@ -31,6 +32,33 @@ TEST(HapticSurface, ReproducesDepthInsideTheGrid) {
   EXPECT_EQ(s->geometry().rows, 7);
   EXPECT_EQ(s->geometry().cols, 9);
   EXPECT_EQ(s->no_data_count(), 0U);
+}
+
+TEST(HapticSurface, InlineSamplerMatchesBilinearSurface) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> z(-0.01, 0.01);
+  HeightField depth = make_field(13, 17, 0.002, -0.01, 0.03, [&](double, double) { return z(rng); });
+  depth.at(4, 4) = kNoData;
+  const auto s = test::make_surface(depth);
+  std::uniform_real_distribution<double> x(-0.02, 0.04), y(0.02, 0.07);
+  for (int k = 0; k < 20000; ++k) {
+    const double qx = k % 7 == 0 ? -0.01 + 0.002 * (k % 19) : x(rng);  // some exactly on nodes
+    const double qy = k % 5 == 0 ? 0.03 + 0.002 * (k % 13) : y(rng);
+    const SurfaceSample a = s->sample(qx, qy);
+    const SurfaceSample b = s->bilinear().sample(qx, qy);
+    ASSERT_TRUE(b.valid);
+    ASSERT_NEAR(a.z_m, b.z_m, 1e-15);
+    // Exactly on the padded grid's outer border, inside/outside may round either way (the
+    // gradient there is one-sided by definition); compare gradients away from it.
+    const GridGeometry& g = s->geometry();
+    const double cu = g.col_of_x(qx), cv = g.row_of_y(qy);
+    if (std::fabs(cu) > 1e-9 && std::fabs(cu - (g.cols - 1)) > 1e-9) {
+      ASSERT_NEAR(a.dz_dx, b.dz_dx, 1e-9 * (1 + std::fabs(b.dz_dx)));
+    }
+    if (std::fabs(cv) > 1e-9 && std::fabs(cv - (g.rows - 1)) > 1e-9) {
+      ASSERT_NEAR(a.dz_dy, b.dz_dy, 1e-9 * (1 + std::fabs(b.dz_dy)));
+    }
+  }
 }
 
 TEST(HapticSurface, HolesAndBorderBecomeTheFloor) {

@@ -50,7 +50,7 @@ inline double sinusoid(double x, double y, double amp = 0.004, double lambda = 0
 /// Invariants of every tick: finite outputs, force within the cap, proxy not below the surface.
 inline ::testing::AssertionResult tick_invariants(const ProxyState& s, const HapticSurface& surface,
                                                   const ProxyParams& p) {
-  if (!s.proxy_m.allFinite() || !s.force_n.allFinite() || !std::isfinite(s.beta_rad)) {
+  if (!s.proxy_m.allFinite() || !s.force_n.allFinite() || !std::isfinite(s.beta_rad())) {
     return ::testing::AssertionFailure() << "non-finite output";
   }
   if (s.force_n.norm() > p.max_force_n * (1 + 1e-12)) {

@@ -210,7 +210,7 @@ TEST(StepProxy, PressingOnAPlaneGivesTheSpringForceAlongTheNormal) {
   EXPECT_NEAR(d.state.proxy_m.z(), 0.0, 1e-12);
   EXPECT_NEAR(d.state.force_n.z(), 800.0 * 0.003, 1e-9);
   EXPECT_NEAR(d.state.force_n.head<2>().norm(), 0.0, 1e-9);
-  EXPECT_NEAR(d.state.beta_rad, 0.0, 1e-9);
+  EXPECT_NEAR(d.state.beta_rad(), 0.0, 1e-9);
   // Leaving: contact ends as soon as z_h ≥ f(x_h, y_h); the proxy rejoins the HIP.
   d.tick(Vector3d(0.001, 0.002, 0.0));
   EXPECT_FALSE(d.state.in_contact);
@@ -253,7 +253,7 @@ TEST(StepProxy, DynamicFrictionOnFlatTextureKeepsTheProxyOnTheCone) {
   EXPECT_NEAR(lag, 0.4 * depth, 1e-6);  // |f_t| = μ_d |f_n| while sliding
   EXPECT_NEAR(d.state.force_n.x() / d.state.force_n.z(), -0.4, 1e-3);
   EXPECT_NEAR(d.state.mu_d, 0.4, 1e-12);
-  EXPECT_NEAR(std::tan(d.state.beta_rad), 0.4, 1e-3);
+  EXPECT_NEAR(std::tan(d.state.beta_rad()), 0.4, 1e-3);
   EXPECT_GT(d.state.proxy_m.x() - x_start, 0.039);  // it slid the whole way
 }
 
@@ -314,7 +314,7 @@ TEST(StepProxy, ZeroTangentialForceWithZeroStaticFriction) {
     d.move(Vector3d(0.003, -0.004, 0.001), Vector3d(0.003, -0.004, -0.001), 20);
     for (int k = 0; k < 100; ++k) d.tick(Vector3d(0.003, -0.004, -0.001));  // f_t = 0 exactly
     EXPECT_EQ(d.state.proxy_m, Vector3d(0.003, -0.004, 0.0));
-    EXPECT_EQ(d.state.beta_rad, 0.0);
+    EXPECT_EQ(d.state.beta_rad(), 0.0);
     EXPECT_NEAR(d.state.force_n.z(), 0.8, 1e-9);
   }
 }
@@ -337,7 +337,7 @@ TEST(StepProxy, BetaOfNinetyDegreesLetsTheProxySlideWhateverMuD) {
   const Vector3d hip(0.002, 0.0, -0.001);
   ASSERT_LT(hip.z(), s->height(hip.x(), hip.y()));
   const ProxyState out = step_proxy(st, HipInput{hip, kDt, true}, s.get(), p);
-  EXPECT_NEAR(out.beta_rad, std::numbers::pi / 2, 1e-6);  // float heights
+  EXPECT_NEAR(out.beta_rad(), std::numbers::pi / 2, 1e-6);  // float heights
   EXPECT_GT(out.proxy_m.x(), -0.002 + 1e-4);  // moved towards the groove
   EXPECT_TRUE(tick_invariants(out, *s, p));
 }

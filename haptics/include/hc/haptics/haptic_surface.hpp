@@ -7,8 +7,9 @@
 #include "hc/common/bilinear_surface.hpp"
 #include "hc/common/height_field.hpp"
 
+#include <cstddef>
 #include <cstdint>
-#include <vector>
+#include <memory>
 
 namespace hc::haptics {
 
@@ -68,26 +69,56 @@ class HapticSurface {
   /// Real-time: no (allocates O(rows·cols)). Cost: O(rows·cols).
   HapticSurface(const SurfaceLayers& layers, const SurfaceOptions& options);
 
-  /// f(x, y) [m] and its gradient [-] at (x_m, y_m), grid frame; always valid and finite.
-  /// On a shared cell edge the gradient is that of the cell with the larger index (see
-  /// hc::BilinearSurface). Real-time: yes. Cost: O(1).
-  SurfaceSample sample(double x_m, double y_m) const noexcept { return surface_.sample(x_m, y_m); }
+  /// f(x, y) [m] and its gradient [-] at (x_m, y_m), grid frame; always valid and finite
+  /// (non-finite coordinates are clamped to the grid's corner).
+  /// The same bilinear interpolant and border rule as hc::BilinearSurface over the padded grid
+  /// (equal to it up to rounding; tested), written inline without divisions or NaN checks
+  /// because the servo loop calls it several times per tick. On a shared cell edge the
+  /// gradient is that of the cell with the larger index. Real-time: yes. Cost: O(1).
+  SurfaceSample sample(double x_m, double y_m) const noexcept {
+    double cu = (x_m - x0_m_) * inv_cell_;
+    double cv = (y_m - y0_m_) * inv_cell_;
+    const bool inside_u = cu >= 0.0 && cu <= max_u_;  // false for NaN too
+    const bool inside_v = cv >= 0.0 && cv <= max_v_;
+    if (!inside_u) cu = cu > max_u_ ? max_u_ : 0.0;
+    if (!inside_v) cv = cv > max_v_ ? max_v_ : 0.0;
+    int i = static_cast<int>(cu);
+    int j = static_cast<int>(cv);
+    if (i > last_i_) i = last_i_;
+    if (j > last_j_) j = last_j_;
+    const double u = cu - i;
+    const double v = cv - j;
+    const float* r0 = data_ + static_cast<std::ptrdiff_t>(j) * stride_ + i;
+    const double z00 = r0[0], z10 = r0[1], z01 = r0[stride_], z11 = r0[stride_ + 1];
+    SurfaceSample s;
+    s.z_m = (1 - u) * (1 - v) * z00 + u * (1 - v) * z10 + (1 - u) * v * z01 + u * v * z11;
+    s.dz_dx = inside_u ? ((1 - v) * (z10 - z00) + v * (z11 - z01)) * inv_cell_ : 0.0;
+    s.dz_dy = inside_v ? ((1 - u) * (z01 - z00) + u * (z11 - z10)) * inv_cell_ : 0.0;
+    s.valid = true;
+    return s;
+  }
 
   /// f(x, y) [m]; always finite. Real-time: yes.
-  double height(double x_m, double y_m) const noexcept { return surface_.sample(x_m, y_m).z_m; }
+  double height(double x_m, double y_m) const noexcept { return sample(x_m, y_m).z_m; }
+
+  /// True when μ_d or μ_s vary over the surface (a layer was given). Real-time: yes.
+  bool has_friction_maps() const noexcept { return mu_d_ != nullptr || mu_s_ != nullptr; }
 
   /// μ_d and μ_s [-] at (x_m, y_m), bilinear between nodes. Real-time: yes. Cost: O(1).
-  FrictionSample friction(double x_m, double y_m) const noexcept;
+  FrictionSample friction(double x_m, double y_m) const noexcept {
+    if (!has_friction_maps()) return FrictionSample{options_.default_mu_d, options_.default_mu_s};
+    return friction_from_maps(x_m, y_m);
+  }
 
   /// Region id of the nearest sample (−1 = none or no region layer). Real-time: yes.
   std::int32_t region_id(double x_m, double y_m) const noexcept;
 
   /// Geometry of the stored (padded) grid: rows + 2, cols + 2, origin one cell before the input.
-  const GridGeometry& geometry() const noexcept { return padded_.geometry(); }
+  const GridGeometry& geometry() const noexcept { return padded_geometry_; }
   /// Geometry of the input grid.
   const GridGeometry& source_geometry() const noexcept { return source_geometry_; }
   /// Padded sample (row, col) [m], 0 ≤ row < geometry().rows; never NaN. Real-time: yes.
-  float node(int row, int col) const noexcept { return padded_.at(row, col); }
+  float node(int row, int col) const noexcept { return data_[row * stride_ + col]; }
   /// The floor height [m] used for no-data samples and the world beyond the border.
   double floor_m() const noexcept { return floor_m_; }
   /// Lowest and highest finite rendered height [m] of the input samples.
@@ -103,15 +134,31 @@ class HapticSurface {
   HapticSurface& operator=(const HapticSurface&) = delete;
 
  private:
-  double bilinear_layer(const std::vector<float>& layer, double x_m, double y_m) const noexcept;
+  /// Node storage: 2 MiB-aligned and advised for transparent huge pages on Linux, so that the
+  /// servo loop's walks over large grids (4096²) do not miss the TLB on every row.
+  struct FreeDeleter {
+    void operator()(float* p) const noexcept;
+  };
+  using NodeBuffer = std::unique_ptr<float[], FreeDeleter>;
+  static NodeBuffer allocate_nodes(std::size_t count, float fill);
+
+  double bilinear_layer(const float* layer, double x_m, double y_m) const noexcept;
+  FrictionSample friction_from_maps(double x_m, double y_m) const noexcept;
+
+  // Hot-path copies of the padded grid's geometry.
+  const float* data_ = nullptr;
+  std::ptrdiff_t stride_ = 0;
+  double x0_m_ = 0.0, y0_m_ = 0.0, inv_cell_ = 0.0, max_u_ = 0.0, max_v_ = 0.0;
+  int last_i_ = 0, last_j_ = 0;
 
   SurfaceOptions options_{};
   GridGeometry source_geometry_{};
-  HeightField padded_{};
+  GridGeometry padded_geometry_{};
+  NodeBuffer nodes_;                  // padded heights, never NaN
   BilinearSurface surface_{};
-  std::vector<float> mu_d_;         // padded; empty when constant (default_mu_d everywhere)
-  std::vector<float> mu_s_;         // padded; empty when constant
-  std::vector<std::int32_t> region_;  // padded; empty when no region layer
+  NodeBuffer mu_d_;                   // padded; null when constant (default_mu_d everywhere)
+  NodeBuffer mu_s_;                   // padded; null when constant
+  std::unique_ptr<std::int32_t[]> region_;  // padded; null when no region layer
   double floor_m_ = 0.0;
   double min_height_m_ = 0.0;
   double max_height_m_ = 0.0;

@@ -14,6 +14,7 @@
 
 #include <Eigen/Core>
 
+#include <cmath>
 #include <cstdint>
 
 namespace hc::haptics {
@@ -26,8 +27,8 @@ struct ProxyParams {
   double max_force_n = 8.0;          ///< cap on |F| [N] > 0; direction is kept when saturating
   double rho = 0.9;                  ///< ρ ∈ (0, 1] of Eq. 4–5 [-]
   int max_iterations = 16;           ///< bound on Eq. 5 iterations per tick, ≥ 1
-  double convergence_m = 1.0e-7;     ///< stop iterating once the proxy moves less than this [m]
-  double max_step_cells = 1.0;       ///< bound on one iteration's xy move, in cells (> 0)
+  double convergence_m = 1.0e-7;     ///< stop iterating once a step is shorter than this [m]
+  double max_step_cells = 4.0;       ///< bound on one iteration's xy move [cells] (> 0); see step_proxy
   bool friction_enabled = true;      ///< false: μ_d = μ_s = 0 whatever the surface holds
   double ramp_time_s = 0.25;         ///< forces ramp 0 → 1 over this time once the gate opens [s]
   double gate_force_n = 0.5;         ///< forces (re)start only when the unramped |F| ≤ this [N]
@@ -66,10 +67,16 @@ struct ProxyState {
   double ramp = 0.0;         ///< force scale [0, 1] of the ramp-in
   double mu_d = 0.0;         ///< μ_d at the proxy this tick [-]
   double mu_s = 0.0;         ///< μ_s at the proxy this tick [-]
-  double beta_rad = 0.0;     ///< β: angle between the reaction force and the normal [rad]
+  double tangential_m = 0.0; ///< |v_t| at the last contact evaluation [m] (∝ |f_t|)
+  double normal_m = 0.0;     ///< −n·v_h at the last contact evaluation [m] (∝ f_n, > 0 pressing)
   int iterations = 0;        ///< Eq. 5 iterations used this tick
   int cells_visited = 0;     ///< cells swept by the free-space test this tick
   ProxyStatus status = ProxyStatus::kOk;
+
+  /// β [rad] ∈ [0, π]: the angle between the reaction force and the surface normal,
+  /// atan2(|f_t|, f_n) (paper Sec. 3.2); 0 in free space. Computed on demand (atan2 is costly
+  /// on the servo thread). Real-time: yes.
+  double beta_rad() const noexcept { return std::atan2(tangential_m, normal_m); }
 };
 
 /// Result of the swept-segment crossing test.
@@ -108,11 +115,17 @@ double friction_factor(double tangential_m, double normal_m, double mu_d) noexce
 /// Contact phase (paper Eq. 3–5), at most max_iterations times:
 ///   n = unit normal at X_p, v_h = X_h − X_p, v_t = v_h − (n·v_h)·n;
 ///   static friction: the proxy sticks while |f_t| < μ_s·|f_n| (|v_t| < μ_s·max(−n·v_h, 0));
-///   X_p ← X_p + ρ·clamp(1 − μ_d·cot β, 0, 1)·v_t (xy step ≤ max_step_cells cells), then one
-///   Newton step along n onto the surface and finally exactly onto z = f(x, y); a step that would
-///   not bring the proxy closer to the HIP is halved (at most 3 times) or dropped;
-///   stop when the proxy moves less than convergence_m. Where the bilinear normal jumps (cell
-///   edges, corners) the iteration uses the normal of the cell holding the proxy.
+///   X_p ← X_p + ρ·clamp(1 − μ_d·cot β, 0, 1)·v_t (xy step ≤ max_step_cells cells; a step
+///   longer than one cell is taken only if the tangent path lifted by 0.1 cell crosses no
+///   material (find_first_crossing), else it is cut to one cell, which cannot pass over a
+///   one-cell spike: the spike raises a two-cell-wide zone), then,
+///   when that leaves the surface by more than convergence_m, one Newton step along n onto the
+///   surface, and finally exactly onto z = f(x, y); a step that would not bring the proxy closer
+///   to the HIP is halved (at most 3 times) or dropped; stop when the step is shorter than
+///   convergence_m. The proxy enters static friction when it stays at rest for a whole tick
+///   (inside the dynamic cone at the first iteration, or converged without moving).
+///   Where the bilinear normal jumps (cell edges, corners) the iteration uses the normal of the
+///   cell holding the proxy.
 /// Force: F = −k·(X_h − X_p) − b·v_hip in contact, 0 in free space; |F| capped at max_force_n
 /// keeping its direction; then multiplied by the ramp. The gate opens (ramp starts from 0) only
 /// while forces_enabled and the capped force is ≤ gate_force_n, so forces never start while the
