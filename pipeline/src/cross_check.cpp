@@ -12,12 +12,29 @@
 //     point; the distance is the per-cell error map, and a cell is "supported" when it is within
 //     tolerance_m. Invented surface (over-filled holes) shows up here.
 //
-// Speed. Two threads (std::thread). The points are split at a grid-row boundary y_s chosen so
-// that both halves hold about half of the valid cells; each thread converts its half to float,
-// runs (a) on it and builds a nanoflann kd-tree over it. Queries of (b) then run in grid order,
-// each thread on its own rows: the own half's tree first, and the other half's tree only when
-// the query sphere crosses y = y_s, seeded with the distance already found so that it prunes
-// at once. The result is the exact nearest neighbour over all points.
+// (b) is an exact nearest-neighbour search over ALL finite input points, organised for speed:
+//   * Buckets. The points are counting-sorted by their nearest grid node (clamped to the grid;
+//     a point outside the grid lands in a border cell, which only makes it look nearer than it
+//     is, so no bound below is ever violated). Each cell keeps its points' z range.
+//   * kd-tree (nanoflann), per half of the rows, over the front-most point of every non-empty
+//     cell (about a fifth of the Buddha's points), built on first use.
+//   * Query of the sample at node (r, c): scan the node's own bucket, then the buckets ring by
+//     ring around (r, c), skipping every cell whose square (horizontally) and z range
+//     (vertically) cannot beat the current best, and stop at the first ring whose nearest edge
+//     is farther than the best. If nothing is found within kRingsBeforeTree rings (the middle of
+//     a large filled hole, or a grid far from the points), the kd-tree supplies a bound first,
+//     so the ring search stays short. The result is the exact nearest point over all points.
+//     On a grid made from the points the tree is rarely needed: measured on the Buddha, the
+//     buckets alone answer in a fraction of the time it takes to build a kd-tree over all
+//     1.1 M points (about 0.2 s of CPU per 0.55 M points with nanoflann 1.4).
+//   * Two threads (std::thread), in four phases: (1) each thread takes half of the points, runs
+//     (a) on them and finds their buckets; (2) each scatters its points into the shared bucket
+//     array (a two-thread counting sort); (3) the rows are split where both halves hold about
+//     half of the valid cells, and each thread summarises the buckets of its rows; (4) each thread
+//     answers the queries of its rows in grid order (the other half's tree only when the search
+//     sphere crosses the split). The statistics then run on both threads.
+//   * Float in a local frame centred on the grid, so float keeps ~1e-7 relative precision even
+//     for coordinates far from the origin. nanoflann's squared distances never leave this file.
 
 #include "hc/pipeline/cross_check.hpp"
 
@@ -32,6 +49,7 @@
 #include <exception>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <sstream>
 #include <thread>
 #include <utility>
@@ -162,12 +180,19 @@ ErrorStats stats_of(std::vector<T>& v) {
   return s;
 }
 
-/// What one thread computes over its half of the points and rows.
-struct HalfResult {
-  std::vector<float> vertical_m, normal_m;
-  std::size_t on_surface = 0, off_surface = 0, hidden = 0, outside = 0;
-  std::unique_ptr<NearestPointIndex> index;
-  std::vector<float> cell_m;
+/// What one of the two threads builds and computes. Thread h handles the points with index in
+/// [point_begin, point_end) for (a) and bucketing, and the rows [row_begin, row_end) for the
+/// kd-tree and the queries of (b).
+struct Part {
+  std::size_t point_begin = 0, point_end = 0;
+  int row_begin = 0, row_end = 0;
+  std::vector<std::uint32_t> count;          ///< per cell: points of this part (then offsets)
+  std::vector<float> front_xyz;              ///< its rows' front-most point of each bucket
+  std::once_flag front_built;
+  std::unique_ptr<NearestPointIndex> front;  ///< kd-tree over front_xyz, built on first use
+  std::vector<float> vertical_m, normal_m;   ///< (a)
+  std::size_t on_surface = 0, off_surface = 0, hidden = 0, outside = 0, finite = 0;
+  std::vector<float> cell_m;                 ///< (b), in grid order
   std::size_t supported = 0;
 };
 
@@ -239,20 +264,46 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   const BilinearSurface surface(HeightFieldView::of(grid));
   const double x_lo = g.x0_m, x_hi = g.x_of_col(g.cols - 1);
   const double y_lo = g.y0_m, y_hi = g.y_of_row(g.rows - 1);
-  HalfResult halves[2];
+  const double inv_cell = 1.0 / g.cell_size_m;
+  const auto cell_f = static_cast<float>(g.cell_size_m);
+  const std::size_t cells = g.cell_count();
+  const std::size_t n_points = points_m.size();
+  if (n_points >= std::numeric_limits<std::uint32_t>::max() / 2) {
+    msg << "cross_check: " << n_points << " points is more than this cross-check indexes (2^31)";
+    throw ResourceError(msg.str());
+  }
+  constexpr std::uint32_t kSkip = std::numeric_limits<std::uint32_t>::max();
+  Part parts[2];
+  for (int h = 0; h < 2; ++h) {
+    parts[h].point_begin = h == 0 ? 0 : n_points / 2;
+    parts[h].point_end = h == 0 ? n_points / 2 : n_points;
+    parts[h].row_begin = h == 0 ? 0 : split_row;
+    parts[h].row_end = h == 0 ? split_row : g.rows;
+  }
+  std::vector<std::uint32_t> key(n_points);     // cell of each point, kSkip if not finite
+  std::vector<std::uint32_t> first(cells + 1);  // bucket k = sorted points [first[k], first[k+1])
+  std::vector<float> sorted;                     // xyz, local frame, sorted by cell
+  std::vector<float> z_lo(cells), z_hi(cells);   // z range of each bucket
 
-  // Phase 1 (per half): select and pack the points, check them against f, build the kd-tree.
+  // Phase 1 (per half of the points): (a) against f, and each point's bucket.
   auto phase1 = [&](int h) {
-    HalfResult& out = halves[h];
-    std::vector<float> packed;
-    packed.reserve(3 * (points_m.size() / 2 + 1));
-    const double* p = points_m.xyz.data();
-    for (std::size_t i = 0; i < points_m.size(); ++i, p += 3) {
-      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
-      if ((p[1] < y_split) != (h == 0)) continue;
-      packed.push_back(static_cast<float>(p[0] - centre.x()));
-      packed.push_back(static_cast<float>(p[1] - centre.y()));
-      packed.push_back(static_cast<float>(p[2] - centre.z()));
+    Part& out = parts[h];
+    out.count.assign(cells, 0);
+    const double* p = points_m.xyz.data() + 3 * out.point_begin;
+    for (std::size_t i = out.point_begin; i < out.point_end; ++i, p += 3) {
+      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
+        key[i] = kSkip;
+        continue;
+      }
+      const int c = std::clamp(static_cast<int>(std::floor((p[0] - g.x0_m) * inv_cell + 0.5)), 0, g.cols - 1);
+      // Rows follow the exact y split, so that each thread's rows hold exactly its tree's points.
+      const int r = p[1] < y_split
+                        ? std::clamp(static_cast<int>(std::floor((p[1] - g.y0_m) * inv_cell + 0.5)), 0, split_row - 1)
+                        : std::clamp(static_cast<int>(std::floor((p[1] - g.y0_m) * inv_cell + 0.5)), split_row, g.rows - 1);
+      const auto k = static_cast<std::uint32_t>(static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c));
+      key[i] = k;
+      ++out.count[k];
+      ++out.finite;
       if (p[0] < x_lo || p[0] > x_hi || p[1] < y_lo || p[1] > y_hi) {
         ++out.outside;
         continue;
@@ -272,27 +323,93 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
       out.vertical_m.push_back(static_cast<float>(std::abs(residual)));
       out.normal_m.push_back(static_cast<float>(std::abs(residual) * n_z));
     }
-    out.index = std::make_unique<NearestPointIndex>(std::move(packed));
   };
   run_two([&] { phase1(1); }, [&] { phase1(0); });
-  if (halves[0].index->size() + halves[1].index->size() == 0) {
-    msg << "cross_check: none of the " << points_m.size() << " points is finite";
+  if (parts[0].finite + parts[1].finite == 0) {
+    msg << "cross_check: none of the " << n_points << " points is finite";
     throw InputError(msg.str());
   }
+  // Bucket offsets (counting sort): within a bucket, part 0's points come before part 1's.
+  {
+    std::uint32_t running = 0;
+    for (std::size_t k = 0; k < cells; ++k) {
+      first[k] = running;
+      const std::uint32_t n0 = parts[0].count[k], n1 = parts[1].count[k];
+      parts[0].count[k] = running;
+      parts[1].count[k] = running + n0;
+      running += n0 + n1;
+    }
+    first[cells] = running;
+    sorted.resize(3 * static_cast<std::size_t>(running));
+  }
 
-  // Phase 2 (per half of the rows): nearest input point of every valid sample, in grid order.
+  // Phase 2 (per half of the points): scatter into the buckets (float, local frame).
+  auto phase2 = [&](int h) {
+    Part& out = parts[h];
+    const double* p = points_m.xyz.data() + 3 * out.point_begin;
+    for (std::size_t i = out.point_begin; i < out.point_end; ++i, p += 3) {
+      if (key[i] == kSkip) continue;
+      float* dst = &sorted[3 * static_cast<std::size_t>(out.count[key[i]]++)];
+      dst[0] = static_cast<float>(p[0] - centre.x());
+      dst[1] = static_cast<float>(p[1] - centre.y());
+      dst[2] = static_cast<float>(p[2] - centre.z());
+    }
+    std::vector<std::uint32_t>().swap(out.count);
+  };
+  run_two([&] { phase2(1); }, [&] { phase2(0); });
+  std::vector<std::uint32_t>().swap(key);
+
+  // Phase 3 (per half of the rows): z range and front-most point of each bucket.
+  auto phase3 = [&](int h) {
+    Part& out = parts[h];
+    std::vector<float>& front = out.front_xyz;
+    const std::size_t k_end = static_cast<std::size_t>(out.row_end) * ucols;
+    for (std::size_t k = static_cast<std::size_t>(out.row_begin) * ucols; k < k_end; ++k) {
+      const std::uint32_t b = first[k], e = first[k + 1];
+      if (b == e) continue;
+      std::uint32_t top = b;
+      float lo = sorted[3 * b + 2], hi = lo;
+      for (std::uint32_t j = b + 1; j < e; ++j) {
+        const float z = sorted[3 * j + 2];
+        lo = std::min(lo, z);
+        if (z > hi) {
+          hi = z;
+          top = j;
+        }
+      }
+      z_lo[k] = lo;
+      z_hi[k] = hi;
+      front.insert(front.end(), &sorted[3 * top], &sorted[3 * top] + 3);
+    }
+  };
+  run_two([&] { phase3(1); }, [&] { phase3(0); });
+
+  // Phase 4 (per half of the rows): exact nearest input point of every valid sample.
   StageResult<CrossCheck> result;
   CrossCheck& cc = result.value;
   cc.cell_error_m = HeightField(g, kNoData);
   cc.cell_error_m.model_to_grid = grid.model_to_grid;
-  auto phase2 = [&](int h) {
-    HalfResult& out = halves[h];
-    const NearestPointIndex& own = *halves[h].index;
-    const NearestPointIndex& other = *halves[1 - h].index;
-    const int r_begin = h == 0 ? 0 : split_row, r_end = h == 0 ? split_row : g.rows;
+  // The kd-trees are built on first use (by either thread), which is only for samples with no
+  // point within kRingsBeforeTree cells: on a grid made from the points, rarely or never.
+  constexpr int kRingsBeforeTree = 4;
+  auto tree = [&parts](int h) -> const NearestPointIndex& {
+    std::call_once(parts[h].front_built, [&parts, h] {
+      parts[h].front = std::make_unique<NearestPointIndex>(std::move(parts[h].front_xyz));
+    });
+    return *parts[h].front;
+  };
+  auto phase4 = [&](int h) {
+    Part& out = parts[h];
     out.cell_m.reserve(valid_total / 2 + 1);
-    const double unbounded = std::numeric_limits<double>::infinity();
-    for (int r = r_begin; r < r_end; ++r) {
+    // Best squared distance from q to the points of bucket k, folded into best_sq.
+    auto scan = [&](std::size_t k, const float* q, float& best_sq) {
+      const float* pt = sorted.data();
+      for (std::uint32_t j = first[k]; j < first[k + 1]; ++j) {
+        const float dx = pt[3 * j] - q[0], dy = pt[3 * j + 1] - q[1], dz = pt[3 * j + 2] - q[2];
+        best_sq = std::min(best_sq, dx * dx + dy * dy + dz * dz);
+      }
+    };
+    for (int r = out.row_begin; r < out.row_end; ++r) {
       const float* row = grid.data() + static_cast<std::size_t>(r) * ucols;
       float* err = cc.cell_error_m.data() + static_cast<std::size_t>(r) * ucols;
       const double y = g.y_of_row(r);
@@ -302,38 +419,67 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
         if (std::isnan(row[c])) continue;
         const float q[3] = {static_cast<float>(g.x_of_col(c) - centre.x()), y_local,
                             static_cast<float>(static_cast<double>(row[c]) - centre.z())};
-        double d = own.nearest_distance_m(q, unbounded);
-        if (dy_split * dy_split < d * d) d = other.nearest_distance_m(q, d);
+        float best_sq = std::numeric_limits<float>::infinity();
+        scan(static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c), q, best_sq);
+        // Rings of cells around (r, c): ring k's nearest edge is (k − ½) cells away.
+        for (int k = 1;; ++k) {
+          const float gap = (static_cast<float>(k) - 0.5f) * cell_f;
+          if (k == kRingsBeforeTree + 1 && gap * gap < best_sq) {
+            // Still far from everything: a bound from the front points' kd-trees.
+            double d = std::sqrt(static_cast<double>(best_sq));
+            d = tree(h).nearest_distance_m(q, d);
+            if (dy_split * dy_split < d * d) d = tree(1 - h).nearest_distance_m(q, d);
+            best_sq = std::min(best_sq, static_cast<float>(d * d));
+          }
+          if (gap * gap >= best_sq || (k > r && k > c && r + k >= g.rows && c + k >= g.cols)) break;
+          for (int dr = -k; dr <= k; ++dr) {
+            const int rr = r + dr;
+            if (rr < 0 || rr >= g.rows) continue;
+            const float hy = std::max(0.0f, (static_cast<float>(std::abs(dr)) - 0.5f) * cell_f);
+            const int step = (dr == -k || dr == k) ? 1 : 2 * k;  // full edge rows, else two cells
+            for (int dc = -k; dc <= k; dc += step) {
+              const int cc2 = c + dc;
+              if (cc2 < 0 || cc2 >= g.cols) continue;
+              const std::size_t kc = static_cast<std::size_t>(rr) * ucols + static_cast<std::size_t>(cc2);
+              if (first[kc] == first[kc + 1]) continue;
+              const float hx = std::max(0.0f, (static_cast<float>(std::abs(dc)) - 0.5f) * cell_f);
+              const float vz = std::max({0.0f, z_lo[kc] - q[2], q[2] - z_hi[kc]});
+              if (hx * hx + hy * hy + vz * vz >= best_sq) continue;
+              scan(kc, q, best_sq);
+            }
+          }
+        }
+        const double d = std::sqrt(static_cast<double>(best_sq));
         err[c] = static_cast<float>(d);
         out.cell_m.push_back(static_cast<float>(d));
         out.supported += d <= tolerance_m ? 1U : 0U;
       }
     }
   };
-  run_two([&] { phase2(1); }, [&] { phase2(0); });
+  run_two([&] { phase4(1); }, [&] { phase4(0); });
 
-  // Phase 3: statistics (two threads over the three distributions).
+  // Phase 5: statistics (two threads over the three distributions).
   auto concat = [](std::vector<float>& a, std::vector<float>& b) {
     a.insert(a.end(), b.begin(), b.end());
     std::vector<float>().swap(b);
     return std::move(a);
   };
-  std::vector<float> vertical = concat(halves[0].vertical_m, halves[1].vertical_m);
-  std::vector<float> normal = concat(halves[0].normal_m, halves[1].normal_m);
-  std::vector<float> cells = concat(halves[0].cell_m, halves[1].cell_m);
+  std::vector<float> vertical = concat(parts[0].vertical_m, parts[1].vertical_m);
+  std::vector<float> normal = concat(parts[0].normal_m, parts[1].normal_m);
+  std::vector<float> cell_dist = concat(parts[0].cell_m, parts[1].cell_m);
   run_two([&] { cc.point_vertical = stats_of(vertical); },
           [&] {
             cc.point_normal = stats_of(normal);
-            cc.cell_to_point = stats_of(cells);
+            cc.cell_to_point = stats_of(cell_dist);
           });
 
-  cc.points_on_surface = halves[0].on_surface + halves[1].on_surface;
-  cc.points_off_surface = halves[0].off_surface + halves[1].off_surface;
-  cc.points_hidden = halves[0].hidden + halves[1].hidden;
-  cc.points_outside = halves[0].outside + halves[1].outside;
+  cc.points_on_surface = parts[0].on_surface + parts[1].on_surface;
+  cc.points_off_surface = parts[0].off_surface + parts[1].off_surface;
+  cc.points_hidden = parts[0].hidden + parts[1].hidden;
+  cc.points_outside = parts[0].outside + parts[1].outside;
   cc.hidden_band_m = hidden_band_m;
   cc.tolerance_m = tolerance_m;
-  cc.supported_fraction = static_cast<double>(halves[0].supported + halves[1].supported) /
+  cc.supported_fraction = static_cast<double>(parts[0].supported + parts[1].supported) /
                           static_cast<double>(valid_total);
 
   StageReport& rep = result.report;
@@ -358,6 +504,9 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   rep.figure("hidden_band_mm", hidden_band_m * 1e3);
   rep.figure("tolerance_mm", tolerance_m * 1e3);
   rep.figure("supported_fraction", cc.supported_fraction);
+  rep.figure("kd_tree_points_built",
+             static_cast<double>((parts[0].front ? parts[0].front->size() : 0) +
+                                 (parts[1].front ? parts[1].front->size() : 0)));
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;
 }

@@ -62,11 +62,45 @@ bool finite_point(const double* p) {
   return std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
 }
 
+// One pass over the points: x-y bounds of the finite points and their count.
+// Fast path: plain min/max in two interleaved chains plus a finiteness sum (x·0 + y·0 + z·0 is
+// 0 for a finite point and NaN otherwise); only a cloud with a non-finite point takes the
+// careful per-point path.
 Bounds finite_bounds(const Cloud& cloud) {
-  Bounds b;
   const double* p = cloud.xyz.data();
   const std::size_t n = cloud.size();
-  for (std::size_t i = 0; i < n; ++i, p += 3) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  double x_lo[2] = {kInf, kInf}, x_hi[2] = {-kInf, -kInf}, y_lo[2] = {kInf, kInf}, y_hi[2] = {-kInf, -kInf};
+  double zero[2] = {0.0, 0.0};
+  std::size_t i = 0;
+  for (; i + 1 < n; i += 2) {
+    for (int k = 0; k < 2; ++k) {
+      const double* q = p + 3 * (i + static_cast<std::size_t>(k));
+      x_lo[k] = std::min(x_lo[k], q[0]);
+      x_hi[k] = std::max(x_hi[k], q[0]);
+      y_lo[k] = std::min(y_lo[k], q[1]);
+      y_hi[k] = std::max(y_hi[k], q[1]);
+      zero[k] += q[0] * 0.0 + q[1] * 0.0 + q[2] * 0.0;
+    }
+  }
+  for (; i < n; ++i) {
+    const double* q = p + 3 * i;
+    x_lo[0] = std::min(x_lo[0], q[0]);
+    x_hi[0] = std::max(x_hi[0], q[0]);
+    y_lo[0] = std::min(y_lo[0], q[1]);
+    y_hi[0] = std::max(y_hi[0], q[1]);
+    zero[0] += q[0] * 0.0 + q[1] * 0.0 + q[2] * 0.0;
+  }
+  Bounds b;
+  if (zero[0] + zero[1] == 0.0) {  // every point finite
+    b.x_min = std::min(x_lo[0], x_lo[1]);
+    b.x_max = std::max(x_hi[0], x_hi[1]);
+    b.y_min = std::min(y_lo[0], y_lo[1]);
+    b.y_max = std::max(y_hi[0], y_hi[1]);
+    b.finite = n;
+    return b;
+  }
+  for (i = 0; i < n; ++i, p += 3) {
     if (!finite_point(p)) continue;
     b.x_min = std::min(b.x_min, p[0]);
     b.x_max = std::max(b.x_max, p[0]);
@@ -166,23 +200,22 @@ GridGeometry make_geometry(const Bounds& b, const ReprojectOptions& o) {
   return g;
 }
 
-// Nearest node index of a fractional index f that is ≥ −0.5 up to rounding; clamped to [0, n−1].
-inline int nearest_index(double f, int n) {
-  const int i = static_cast<int>(std::floor(f + 0.5));
-  return std::clamp(i, 0, n - 1);
-}
-
 // Front-most z per cell over every finite point; returns the number of points binned.
-std::size_t bin_front_most(const Cloud& cloud, const GridGeometry& g, float* depth) {
+// Every finite point lies inside the bounding box the geometry was made from, so its fractional
+// index plus one half is in [0.25, n − 0.25): truncation is the nearest node (ties to the higher
+// index), and the clamp only guards against rounding.
+std::size_t bin_front_most(const Cloud& cloud, const GridGeometry& g, bool all_finite, float* depth) {
   const double inv = 1.0 / g.cell_size_m;
+  const double cx = 0.5 - g.x0_m * inv, cy = 0.5 - g.y0_m * inv;
   const double* p = cloud.xyz.data();
   const std::size_t n = cloud.size();
   const std::size_t cols = static_cast<std::size_t>(g.cols);
+  const int c_max = g.cols - 1, r_max = g.rows - 1;
   std::size_t binned = 0;
   for (std::size_t i = 0; i < n; ++i, p += 3) {
-    if (!finite_point(p)) continue;
-    const int c = nearest_index((p[0] - g.x0_m) * inv, g.cols);
-    const int r = nearest_index((p[1] - g.y0_m) * inv, g.rows);
+    if (!all_finite && !finite_point(p)) continue;
+    const int c = std::clamp(static_cast<int>(p[0] * inv + cx), 0, c_max);
+    const int r = std::clamp(static_cast<int>(p[1] * inv + cy), 0, r_max);
     float& cell = depth[static_cast<std::size_t>(r) * cols + static_cast<std::size_t>(c)];
     cell = std::max(cell, static_cast<float>(p[2]));
     ++binned;
@@ -190,31 +223,24 @@ std::size_t bin_front_most(const Cloud& cloud, const GridGeometry& g, float* dep
   return binned;
 }
 
-// Disc splats: every node within radius (cells) of the point's exact position, except the
-// point's own node, takes the front-most z in `splat`.
-void splat_discs(const Cloud& cloud, const GridGeometry& g, double radius_cells, float* splat) {
-  const double inv = 1.0 / g.cell_size_m;
+// Disc splats: every node within radius_cells of a node holding a point takes that node's
+// front-most z, front-most rule again (a grey-value dilation of the measured grid with a disc;
+// the cell's own value is excluded). Points are taken at their node: a point splats the nodes
+// within radius_cells of the node it fell on. O(rows·cols·r²), branch-free inner loop.
+void splat_discs(const float* measured, int rows, int cols, double radius_cells, float* splat) {
+  const int reach = static_cast<int>(std::floor(radius_cells));
   const double r2 = radius_cells * radius_cells;
-  const int reach = static_cast<int>(std::ceil(radius_cells));
-  const double* p = cloud.xyz.data();
-  const std::size_t n = cloud.size();
-  const std::size_t cols = static_cast<std::size_t>(g.cols);
-  for (std::size_t i = 0; i < n; ++i, p += 3) {
-    if (!finite_point(p)) continue;
-    const double fc = (p[0] - g.x0_m) * inv;
-    const double fr = (p[1] - g.y0_m) * inv;
-    const int c0 = nearest_index(fc, g.cols);
-    const int r0 = nearest_index(fr, g.rows);
-    const float z = static_cast<float>(p[2]);
-    const int r_lo = std::max(0, r0 - reach), r_hi = std::min(g.rows - 1, r0 + reach);
-    const int c_lo = std::max(0, c0 - reach), c_hi = std::min(g.cols - 1, c0 + reach);
-    for (int r = r_lo; r <= r_hi; ++r) {
-      const double dr = r - fr;
-      float* row = splat + static_cast<std::size_t>(r) * cols;
-      for (int c = c_lo; c <= c_hi; ++c) {
-        const double dc = c - fc;
-        if (dr * dr + dc * dc > r2 || (r == r0 && c == c0)) continue;
-        row[c] = std::max(row[c], z);
+  const auto ucols = static_cast<std::size_t>(cols);
+  for (int dr = -reach; dr <= reach; ++dr) {
+    for (int dc = -reach; dc <= reach; ++dc) {
+      if ((dr == 0 && dc == 0) || dr * dr + dc * dc > r2) continue;
+      // splat(r, c) = max(splat(r, c), measured(r + dr, c + dc)) over the overlapping rows.
+      const int r_lo = std::max(0, -dr), r_hi = std::min(rows, rows - dr);
+      const int c_lo = std::max(0, -dc), c_hi = std::min(cols, cols - dc);
+      for (int r = r_lo; r < r_hi; ++r) {
+        float* dst = splat + static_cast<std::size_t>(r) * ucols;
+        const float* src = measured + static_cast<std::size_t>(r + dr) * ucols + dc;
+        for (int c = c_lo; c < c_hi; ++c) dst[c] = std::max(dst[c], src[c]);
       }
     }
   }
@@ -276,26 +302,15 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
   out.depth = HeightField(g, kEmpty);
   out.flags.assign(cells, kCellEmpty);
   float* depth = out.depth.data();
-  const std::size_t binned = bin_front_most(points_m, g, depth);
-
-  std::size_t occupied = 0;
-  for (std::size_t i = 0; i < cells; ++i) occupied += depth[i] != kEmpty ? 1U : 0U;
-  if (occupied < 2) {
-    std::ostringstream msg;
-    msg << "reproject: all " << binned << " finite points fall in one cell of the " << g.cols
-        << " x " << g.rows << " grid (cell size " << g.cell_size_m << " m); nothing to grid";
-    throw DegenerateInputError(msg.str());
-  }
-  for (std::size_t i = 0; i < cells; ++i) {
-    if (depth[i] != kEmpty) out.flags[i] = kCellMeasured;
-  }
+  const std::size_t binned = bin_front_most(points_m, g, bounds.finite == points_m.size(), depth);
+  for (std::size_t i = 0; i < cells; ++i) out.flags[i] = depth[i] != kEmpty ? kCellMeasured : kCellEmpty;
 
   const bool see_through = options.see_through_depth_m > 0.0;
   const float depth_gap = static_cast<float>(options.see_through_depth_m);
   std::size_t splatted = 0, occluded = 0;
   if (options.splat_radius_cells > 0.0) {
     std::vector<float> splat(cells, kEmpty);
-    splat_discs(points_m, g, options.splat_radius_cells, splat.data());
+    splat_discs(depth, g.rows, g.cols, options.splat_radius_cells, splat.data());
     for (std::size_t i = 0; i < cells; ++i) {
       const float s = splat[i];
       if (s == kEmpty) continue;

@@ -121,6 +121,23 @@ TEST(CrossCheck, CellDistancesEqualBruteForceOnAFullGrid) {
   }
 }
 
+TEST(CrossCheck, FarSamplesEqualBruteForceThroughTheKdTree) {
+  // Points only in one corner of the grid: most samples are many cells from any point, so the
+  // search takes its bound from the kd-trees of the front-most points.
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> u(0.0, 0.002), uz(-0.001, 0.001);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 400; ++i) pts.emplace_back(u(rng), u(rng), uz(rng));
+  GridGeometry g{40, 50, 0.0, 0.0, 5e-4};
+  HeightField h(g);
+  for (float& v : h.values()) v = static_cast<float>(uz(rng));
+  const auto r = cross_check(cloud_of(pts), h, 1e-3);
+  bool built = false;
+  for (const auto& [k, v] : r.report.figures) built |= k == "kd_tree_points_built" && v > 0;
+  EXPECT_TRUE(built);
+  expect_cells_match_brute_force(cloud_of(pts), h, 1e-3);
+}
+
 TEST(CrossCheck, CellDistancesEqualBruteForceOnAReprojectedScan) {
   SyntheticSpec s;
   s.kind = SurfaceKind::kSinusoid;

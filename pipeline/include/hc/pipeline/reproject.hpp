@@ -21,8 +21,11 @@ struct GridSpec {
 /// Orthographic depth scan options.
 struct ReprojectOptions {
   GridSpec grid;
-  /// Each point also writes the cells within this radius [cells] of it (disc splat), so sparse
-  /// scans leave no pinholes. 0 = only the cell containing the point.
+  /// Each point also writes, front-most rule again, the nodes within this radius [cells] of the
+  /// node it falls on (a disc splat), so sparse scans leave no pinholes. Splats fill empty
+  /// cells and, with see-through handling on, hide measured cells lying more than
+  /// see_through_depth_m behind them; they never move a measured cell otherwise.
+  /// 0 = only the cell containing the point.
   double splat_radius_cells = 0.0;
   /// See-through handling: a valid cell whose height lies more than this [m] below the
   /// robust front envelope of its neighbourhood is treated as a hole (a point seen through a
@@ -52,7 +55,7 @@ struct DepthGrid {
 ///         extent is zero (a cloud edge-on to the view, all points in one cell);
 ///         hc::ConfigError if n_long_side ≤ 1 or the spec is ambiguous; hc::ResourceError if
 ///         rows·cols exceeds max_cells (the message gives both numbers and the bytes needed).
-/// Real-time: no. Cost: O(N + rows·cols) (plus O(N·r²) with a splat radius r).
+/// Real-time: no. Cost: two passes over the points + O(rows·cols) (·r² with a splat radius r).
 /// Source: depth-buffer scan of Sec. 1 of the paper; front-most rule as in an OpenGL z-buffer.
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options);
 
