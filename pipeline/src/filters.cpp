@@ -1,0 +1,782 @@
+// Stage 4: non-finite removal, crop box, voxel grid (PCL VoxelGrid) and statistical outlier
+// removal.
+//
+// Statistical outlier removal computes, like PCL's StatisticalOutlierRemoval, the mean distance
+// of every point to its k nearest neighbours, then removes the points whose mean distance exceeds
+// mean + σ·stddev over all points. The k-NN distances are exact; the search is not a kd-tree but
+// a uniform grid of cubic cells with the points sorted cell by cell (a radix sort), which on
+// scans is several times faster than a kd-tree:
+//   A. For each occupied cell, the points of its 3×3×3 block are the candidates of every point in
+//      the cell (9 contiguous runs of the sorted array, found with monotone cursors). The k+1
+//      smallest distances are exact when the (k+1)-th is no larger than the distance from the
+//      point to the outside of the block (ρ); most points are settled here.
+//   B. The few points that are not: blocks of 5×5×5 and 7×7×7 cells, same test.
+//   C. The rest (isolated points far from everything): a kd-tree (nanoflann) over the centres of
+//      the occupied cells gives an upper bound f of the (k+1)-th distance from the nearest cells,
+//      then all cells whose centre lies within f + half a cell diagonal are searched exhaustively.
+// Distances are computed in float32 on recentred coordinates, in the same arithmetic order as
+// PCL's FLANN search, and the statistics in double as PCL does, so on the same float input the
+// removed set is PCL's (see tests/pipeline/filters_test.cpp).
+
+#include "hc/pipeline/filters.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <nanoflann.hpp>
+#include <pcl/filters/voxel_grid.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <limits>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace hc::pipeline {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+std::string num(double v) {
+  char buf[32];
+  std::snprintf(buf, sizeof buf, "%.6g", v);
+  return buf;
+}
+
+constexpr int kSearchThreads = 2;
+
+// ---------------------------------------------------------------------------------------------
+// Points sorted into a uniform grid of cubic cells.
+
+struct CellGrid {
+  double cell = 0.0;                     // edge [m]
+  std::array<double, 3> lo{};            // grid origin [m]
+  std::array<std::int64_t, 3> n{};       // cells per axis
+  std::vector<std::uint64_t> cell_key;   // sorted unique keys of occupied cells
+  std::vector<std::uint32_t> cell_start; // first sorted point of each cell; size cells + 1
+  std::vector<float> x, y, z;            // points in cell order
+  std::vector<std::uint32_t> original;   // sorted position -> input index
+
+  std::size_t cells() const { return cell_key.size(); }
+  std::uint64_t key(std::int64_t ix, std::int64_t iy, std::int64_t iz) const {
+    return static_cast<std::uint64_t>(ix + n[0] * (iy + n[1] * iz));
+  }
+  std::array<std::int64_t, 3> coords(std::uint64_t k) const {
+    const auto s = static_cast<std::int64_t>(k);
+    return {s % n[0], (s / n[0]) % n[1], s / (n[0] * n[1])};
+  }
+  std::int64_t index_of(double v, int axis) const {
+    const auto i = static_cast<std::int64_t>((v - lo[static_cast<std::size_t>(axis)]) / cell);
+    return std::clamp<std::int64_t>(i, 0, n[static_cast<std::size_t>(axis)] - 1);
+  }
+  // First occupied cell with key >= k.
+  std::size_t lower(std::uint64_t k) const {
+    return static_cast<std::size_t>(std::lower_bound(cell_key.begin(), cell_key.end(), k) - cell_key.begin());
+  }
+};
+
+// LSD radix sort of (key, index) pairs on the low `bits` bits of the keys.
+void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx, int bits) {
+  constexpr int kDigit = 11;
+  constexpr std::size_t kBuckets = std::size_t{1} << kDigit;
+  const std::size_t n = keys.size();
+  std::vector<std::uint64_t> k2(n);
+  std::vector<std::uint32_t> i2(n);
+  std::vector<std::size_t> count(kBuckets);
+  for (int shift = 0; shift < bits; shift += kDigit) {
+    std::fill(count.begin(), count.end(), 0);
+    for (std::size_t i = 0; i < n; ++i) ++count[(keys[i] >> shift) & (kBuckets - 1)];
+    std::size_t sum = 0;
+    for (auto& c : count) {
+      const std::size_t t = c;
+      c = sum;
+      sum += t;
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::size_t d = count[(keys[i] >> shift) & (kBuckets - 1)]++;
+      k2[d] = keys[i];
+      i2[d] = idx[i];
+    }
+    keys.swap(k2);
+    idx.swap(i2);
+  }
+}
+
+// Mean points per occupied cell of edge `cell` over every `stride`-th point, with the cell scaled
+// by sqrt(stride) so that on a surface the estimate matches the full cloud at edge `cell`.
+double occupancy_estimate(const std::vector<float>& p, std::size_t count, double cell, std::size_t stride,
+                          const std::array<double, 3>& lo) {
+  const double c = cell * std::sqrt(static_cast<double>(stride));
+  std::vector<std::uint64_t> keys;
+  keys.reserve(count / stride + 1);
+  for (std::size_t i = 0; i < count; i += stride) {
+    std::uint64_t k = 0;
+    for (int a = 0; a < 3; ++a) {
+      const auto v = static_cast<std::uint64_t>((p[3 * i + static_cast<std::size_t>(a)] - lo[static_cast<std::size_t>(a)]) / c);
+      k = k * 2097152u + std::min<std::uint64_t>(v, 2097151u);
+    }
+    keys.push_back(k);
+  }
+  std::sort(keys.begin(), keys.end());
+  const auto cells = static_cast<std::size_t>(std::unique(keys.begin(), keys.end()) - keys.begin());
+  return static_cast<double>(keys.size()) / static_cast<double>(std::max<std::size_t>(cells, 1));
+}
+
+// Builds the grid. `p` holds 3·count floats (x, y, z interleaved). The cell edge is chosen so
+// that an occupied cell holds about 0.45·(k+1) points (then most points' k+1 nearest neighbours
+// lie in their 3×3×3 block); it only affects speed, never the result.
+CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
+  CellGrid g;
+  std::array<double, 3> hi{};
+  for (int a = 0; a < 3; ++a) {
+    g.lo[static_cast<std::size_t>(a)] = std::numeric_limits<double>::infinity();
+    hi[static_cast<std::size_t>(a)] = -std::numeric_limits<double>::infinity();
+  }
+  for (std::size_t i = 0; i < count; ++i) {
+    for (std::size_t a = 0; a < 3; ++a) {
+      g.lo[a] = std::min(g.lo[a], static_cast<double>(p[3 * i + a]));
+      hi[a] = std::max(hi[a], static_cast<double>(p[3 * i + a]));
+    }
+  }
+  const double ex = hi[0] - g.lo[0], ey = hi[1] - g.lo[1], ez = hi[2] - g.lo[2];
+  const double target = 0.45 * (k + 1);
+  const double extent = std::max({ex, ey, ez});
+  double cell = extent > 0 ? extent : 1.0;
+  const double box_area = 2.0 * (ex * ey + ey * ez + ez * ex);
+  if (box_area > 0) cell = std::sqrt(target * box_area / static_cast<double>(count));
+  // Refine on a subsample: occupancy grows like cell² on surfaces.
+  const std::size_t stride = std::max<std::size_t>(1, std::min<std::size_t>(16, count / 4096));
+  for (int iter = 0; iter < 3 && extent > 0; ++iter) {
+    const double occ = occupancy_estimate(p, count, cell, stride, g.lo);
+    if (occ > 0.7 * target && occ < 1.4 * target) break;
+    cell *= std::clamp(std::sqrt(target / occ), 0.25, 4.0);
+  }
+  // At most 2^21 cells per axis (64-bit keys); a far outlier can force coarser cells.
+  constexpr double kMaxCellsPerAxis = 2097151.0;
+  cell = std::max({cell, extent / kMaxCellsPerAxis, std::numeric_limits<double>::min()});
+  if (!(extent > 0)) cell = 1.0;
+  g.cell = cell;
+  g.n = {static_cast<std::int64_t>(ex / cell) + 1, static_cast<std::int64_t>(ey / cell) + 1,
+         static_cast<std::int64_t>(ez / cell) + 1};
+
+  std::vector<std::uint64_t> keys(count);
+  g.original.resize(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    keys[i] = g.key(g.index_of(p[3 * i], 0), g.index_of(p[3 * i + 1], 1), g.index_of(p[3 * i + 2], 2));
+    g.original[i] = static_cast<std::uint32_t>(i);
+  }
+  const auto total = static_cast<std::uint64_t>(g.n[0] * g.n[1] * g.n[2]);
+  int bits = 1;
+  while (bits < 64 && (std::uint64_t{1} << bits) < total) ++bits;
+  radix_sort(keys, g.original, bits);
+
+  g.x.resize(count);
+  g.y.resize(count);
+  g.z.resize(count);
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::size_t o = g.original[i];
+    g.x[i] = p[3 * o];
+    g.y[i] = p[3 * o + 1];
+    g.z[i] = p[3 * o + 2];
+    if (i == 0 || keys[i] != keys[i - 1]) {
+      g.cell_key.push_back(keys[i]);
+      g.cell_start.push_back(static_cast<std::uint32_t>(i));
+    }
+  }
+  g.cell_start.push_back(static_cast<std::uint32_t>(count));
+  return g;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Exact mean k-NN distances on the grid.
+
+// Keeps the k+1 smallest squared distances in ascending order.
+class SmallestK {
+ public:
+  explicit SmallestK(int k1) : k1_(static_cast<std::size_t>(k1)), top_(k1_) {}
+
+  // Fills from `d2[0..m)` (m >= k+1); `hint` pre-filters candidates when it leaves enough.
+  void select(const float* d2, std::size_t m, float hint, std::vector<float>& scratch) {
+    const float* src = d2;
+    std::size_t count = m;
+    if (hint > 0.0f) {
+      std::size_t c = 0;
+      float* s = scratch.data();
+      for (std::size_t j = 0; j < m; ++j) {
+        s[c] = d2[j];
+        c += d2[j] <= hint ? 1u : 0u;
+      }
+      if (c >= k1_) {
+        src = s;
+        count = c;
+      }
+    }
+    std::copy(src, src + k1_, top_.begin());
+    std::sort(top_.begin(), top_.end());
+    float worst = top_[k1_ - 1];
+    for (std::size_t j = k1_; j < count; ++j) {
+      const float v = src[j];
+      if (v >= worst) continue;
+      std::size_t q = k1_ - 1;
+      while (q > 0 && top_[q - 1] > v) {
+        top_[q] = top_[q - 1];
+        --q;
+      }
+      top_[q] = v;
+      worst = top_[k1_ - 1];
+    }
+  }
+  float kth() const { return top_[k1_ - 1]; }
+  // Mean of the square roots of entries 1..k (entry 0 is the query point itself), as PCL.
+  float mean_distance() const {
+    double sum = 0.0;
+    for (std::size_t j = 1; j < k1_; ++j) sum += std::sqrt(top_[j]);
+    return static_cast<float>(sum / static_cast<double>(k1_ - 1));
+  }
+
+ private:
+  std::size_t k1_;
+  std::vector<float> top_;
+};
+
+// Distance from (px,py,pz) to the outside of the block of cells [i-r, i+r]^3 around cell i;
+// a side at the edge of the grid has no points beyond it (infinite).
+double block_clearance(const CellGrid& g, const std::array<std::int64_t, 3>& c, std::int64_t r, const float* pt) {
+  double rho = std::numeric_limits<double>::infinity();
+  for (std::size_t a = 0; a < 3; ++a) {
+    const double v = pt[a];
+    if (c[a] - r > 0) rho = std::min(rho, v - (g.lo[a] + static_cast<double>(c[a] - r) * g.cell));
+    if (c[a] + r < g.n[a] - 1) rho = std::min(rho, (g.lo[a] + static_cast<double>(c[a] + r + 1) * g.cell) - v);
+  }
+  return rho;
+}
+
+// True when the (k+1)-th squared distance (float) is certainly no larger than rho² (margin for
+// the float rounding of coordinates and distances).
+bool settled(float kth_d2, double rho) {
+  if (std::isinf(rho)) return true;
+  if (rho <= 0) return false;
+  return static_cast<double>(kth_d2) * (1.0 + 1e-5) + 1e-30 <= rho * rho;
+}
+
+struct CellCentres {
+  std::vector<float> c;
+  std::size_t kdtree_get_point_count() const { return c.size() / 3; }
+  float kdtree_get_pt(std::size_t i, int d) const { return c[3 * i + static_cast<std::size_t>(d)]; }
+  template <class B>
+  bool kdtree_get_bbox(B&) const {
+    return false;
+  }
+};
+using CellTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, CellCentres>, CellCentres, 3,
+                                                     std::uint32_t>;
+
+class KnnDistances {
+ public:
+  KnnDistances(const CellGrid& g, int k) : g_(g), k_(k) {}
+
+  // Stage A over cells [cb, ce); unresolved sorted positions go to `later`.
+  // Per point, a search radius tau (from the previous point's result) limits the candidates to
+  // the cells of the 3×3×3 block that come within tau; if at least k+1 candidates lie within
+  // tau the k+1 nearest are exact. Otherwise the whole block is searched (exact when the
+  // (k+1)-th distance is within the block's clearance), else the point waits for stage B.
+  void stage_a(std::size_t cb, std::size_t ce, std::vector<float>& mean_d, std::vector<std::uint32_t>& later) const {
+    const std::size_t nc = g_.cells();
+    const auto k1 = static_cast<std::size_t>(k_ + 1);
+    std::vector<float> d2, scratch, near;
+    SmallestK top(k_ + 1);
+    std::int64_t off[9];
+    std::size_t cur_lo[9], cur_hi[9];
+    {
+      int j = 0;
+      for (std::int64_t dz = -1; dz <= 1; ++dz)
+        for (std::int64_t dy = -1; dy <= 1; ++dy) off[j++] = dy * g_.n[0] + dz * g_.n[0] * g_.n[1];
+    }
+    if (cb < ce) {
+      for (int j = 0; j < 9; ++j) {
+        const std::int64_t want = static_cast<std::int64_t>(g_.cell_key[cb]) + off[j] - 1;
+        cur_lo[j] = g_.lower(static_cast<std::uint64_t>(std::max<std::int64_t>(0, want)));
+        cur_hi[j] = cur_lo[j];
+      }
+    }
+    const double cell = g_.cell;
+    float hint = 0.0f;  // search radius guess [m] carried from point to point
+    for (std::size_t ci = cb; ci < ce; ++ci) {
+      const auto key = static_cast<std::int64_t>(g_.cell_key[ci]);
+      const auto c = g_.coords(g_.cell_key[ci]);
+      // Point ranges of the 27 cells, [first, last) per (row j, dx + 1); rows outside the grid
+      // and cells outside it are empty. Within a row the three cells are consecutive.
+      std::uint32_t cs[9][4];
+      std::size_t m_total = 0;
+      int j = 0;
+      for (std::int64_t dz = -1; dz <= 1; ++dz) {
+        for (std::int64_t dy = -1; dy <= 1; ++dy, ++j) {
+          const std::int64_t lok = std::max<std::int64_t>(0, key + off[j] - (c[0] > 0 ? 1 : 0));
+          const std::int64_t hik = key + off[j] + (c[0] + 1 < g_.n[0] ? 1 : 0);
+          while (cur_lo[j] < nc && static_cast<std::int64_t>(g_.cell_key[cur_lo[j]]) < lok) ++cur_lo[j];
+          if (cur_hi[j] < cur_lo[j]) cur_hi[j] = cur_lo[j];
+          while (cur_hi[j] < nc && static_cast<std::int64_t>(g_.cell_key[cur_hi[j]]) <= hik) ++cur_hi[j];
+          const bool row_ok = c[1] + dy >= 0 && c[1] + dy < g_.n[1] && c[2] + dz >= 0 && c[2] + dz < g_.n[2];
+          std::size_t q = cur_lo[j];
+          const std::size_t q_end = row_ok ? cur_hi[j] : cur_lo[j];
+          // cs[j][0..3] are boundaries: cell dx = -1 is [cs[j][0], cs[j][1]), dx = 0 is
+          // [cs[j][1], cs[j][2]), dx = +1 is [cs[j][2], cs[j][3]).
+          cs[j][0] = g_.cell_start[q];
+          for (std::int64_t dx = -1; dx <= 1; ++dx) {
+            if (q < q_end && static_cast<std::int64_t>(g_.cell_key[q]) == key + off[j] + dx) ++q;
+            cs[j][dx + 2] = g_.cell_start[q];
+          }
+          m_total += cs[j][3] - cs[j][0];
+        }
+      }
+      const std::uint32_t pb = g_.cell_start[ci], pe = g_.cell_start[ci + 1];
+      if (m_total < k1) {
+        for (std::uint32_t p = pb; p < pe; ++p) later.push_back(p);
+        continue;
+      }
+      if (d2.size() < m_total) {
+        d2.resize(m_total);
+        scratch.resize(m_total);
+        near.resize(m_total);
+      }
+      const double box_lo[3] = {g_.lo[0] + static_cast<double>(c[0]) * cell, g_.lo[1] + static_cast<double>(c[1]) * cell,
+                                g_.lo[2] + static_cast<double>(c[2]) * cell};
+      for (std::uint32_t p = pb; p < pe; ++p) {
+        const float pt[3] = {g_.x[p], g_.y[p], g_.z[p]};
+        // Distances to the six faces of the own cell, and the block's clearance.
+        double face_lo[3], face_hi[3];
+        double rho = std::numeric_limits<double>::infinity();
+        for (std::size_t a = 0; a < 3; ++a) {
+          face_lo[a] = static_cast<double>(pt[a]) - box_lo[a];
+          face_hi[a] = box_lo[a] + cell - static_cast<double>(pt[a]);
+          if (c[a] > 0) rho = std::min(rho, face_lo[a] + cell);
+          if (c[a] + 1 < g_.n[a]) rho = std::min(rho, face_hi[a] + cell);
+        }
+        bool done = false;
+        if (hint > 0.0f) {
+          const double tau = std::min(static_cast<double>(hint), rho);
+          // Cells of the block within tau of the point (a skipped cell is at least tau away).
+          const int x0 = face_lo[0] < tau ? 0 : 1, x1 = face_hi[0] < tau ? 3 : 2;
+          const int y0 = face_lo[1] < tau ? 0 : 1, y1 = face_hi[1] < tau ? 2 : 1;
+          const int z0 = face_lo[2] < tau ? 0 : 1, z1 = face_hi[2] < tau ? 2 : 1;
+          const auto t2 = static_cast<float>(tau * tau * (1.0 - 1e-5));
+          std::size_t m = 0;
+          float* out = near.data();
+          for (int zz = z0; zz <= z1; ++zz) {
+            for (int yy = y0; yy <= y1; ++yy) {
+              const std::uint32_t* row = cs[zz * 3 + yy];
+              for (std::uint32_t q = row[x0]; q < row[x1]; ++q) {
+                const float dx = g_.x[q] - pt[0], dy = g_.y[q] - pt[1], dz = g_.z[q] - pt[2];
+                const float v = dx * dx + dy * dy + dz * dz;
+                out[m] = v;
+                m += v <= t2 ? 1u : 0u;
+              }
+            }
+          }
+          if (m >= k1) {
+            top.select(out, m, 0.0f, scratch);
+            done = true;
+          }
+        }
+        if (!done) {
+          std::size_t m = 0;
+          for (int jj = 0; jj < 9; ++jj) m += distances(cs[jj][0], cs[jj][3], pt, d2.data() + m);
+          top.select(d2.data(), m, 0.0f, scratch);
+          if (!settled(top.kth(), rho)) {
+            later.push_back(p);
+            hint = 0.0f;
+            continue;
+          }
+        }
+        mean_d[p] = top.mean_distance();
+        hint = std::sqrt(top.kth()) * 1.25f;
+      }
+    }
+  }
+
+  // Stages B and C for the given sorted positions.
+  void stages_bc(const std::vector<std::uint32_t>& todo, std::vector<float>& mean_d, const CellTree* tree,
+                 const CellCentres* centres, std::vector<std::uint32_t>* left) const {
+    const auto k1 = static_cast<std::size_t>(k_ + 1);
+    std::vector<float> d2, scratch;
+    SmallestK top(k_ + 1);
+    std::vector<std::pair<std::uint32_t, float>> found;
+    for (const std::uint32_t p : todo) {
+      const float pt[3] = {g_.x[p], g_.y[p], g_.z[p]};
+      const auto c = g_.coords(g_.cell_key[cell_of_sorted(p)]);
+      bool done = false;
+      float best_kth = std::numeric_limits<float>::infinity();
+      for (std::int64_t r = 2; r <= 3 && !done; ++r) {
+        std::size_t m = 0;
+        for (std::int64_t dz = -r; dz <= r; ++dz) {
+          for (std::int64_t dy = -r; dy <= r; ++dy) {
+            if (c[1] + dy < 0 || c[1] + dy >= g_.n[1] || c[2] + dz < 0 || c[2] + dz >= g_.n[2]) continue;
+            const std::int64_t x0 = std::max<std::int64_t>(0, c[0] - r), x1 = std::min(g_.n[0] - 1, c[0] + r);
+            const std::size_t a = g_.lower(g_.key(x0, c[1] + dy, c[2] + dz));
+            const std::size_t b = g_.lower(g_.key(x1, c[1] + dy, c[2] + dz) + 1);
+            if (b > a) m += gather(g_.cell_start[a], g_.cell_start[b], pt, d2, m);
+          }
+        }
+        if (m >= k1) {
+          ensure(scratch, m);
+          top.select(d2.data(), m, 0.0f, scratch);
+          best_kth = top.kth();
+          if (settled(top.kth(), block_clearance(g_, c, r, pt))) {
+            mean_d[p] = top.mean_distance();
+            done = true;
+          }
+        }
+      }
+      if (done) continue;
+      if (!tree) {
+        left->push_back(p);
+        continue;
+      }
+      // Stage C. Upper bound of the (k+1)-th distance from the nearest cells, then all cells
+      // whose centre lies within that bound plus half a cell diagonal (and a rounding margin).
+      if (!std::isfinite(best_kth)) {
+        std::size_t want = 8;
+        for (;;) {
+          want = std::min(want, centres->kdtree_get_point_count());
+          std::vector<std::uint32_t> ids(want);
+          std::vector<float> dd(want);
+          const std::size_t got = tree->knnSearch(pt, want, ids.data(), dd.data());
+          std::size_t m = 0, pts = 0;
+          for (std::size_t i = 0; i < got; ++i) pts += g_.cell_start[ids[i] + 1] - g_.cell_start[ids[i]];
+          if (pts >= k1 || want == centres->kdtree_get_point_count()) {
+            for (std::size_t i = 0; i < got; ++i) {
+              m += gather(g_.cell_start[ids[i]], g_.cell_start[ids[i] + 1], pt, d2, m);
+            }
+            ensure(scratch, m);
+            top.select(d2.data(), m, 0.0f, scratch);
+            best_kth = top.kth();
+            break;
+          }
+          want *= 4;
+        }
+      }
+      const double reach = std::sqrt(static_cast<double>(best_kth)) * (1.0 + 1e-5) + 0.8661 * g_.cell +
+                           1e-6 * g_.cell + 1e-6 * extent();
+      found.clear();
+      tree->radiusSearch(pt, static_cast<float>(reach * reach), found, nanoflann::SearchParams(32, 0.0f, false));
+      std::size_t m = 0;
+      for (const auto& f : found) m += gather(g_.cell_start[f.first], g_.cell_start[f.first + 1], pt, d2, m);
+      ensure(scratch, m);
+      top.select(d2.data(), m, 0.0f, scratch);
+      mean_d[p] = top.mean_distance();
+    }
+  }
+
+  double extent() const {
+    return g_.cell * static_cast<double>(std::max({g_.n[0], g_.n[1], g_.n[2]}));
+  }
+
+ private:
+  std::size_t distances(std::size_t b, std::size_t e, const float* pt, float* out) const {
+    const float px = pt[0], py = pt[1], pz = pt[2];
+    const float* X = g_.x.data();
+    const float* Y = g_.y.data();
+    const float* Z = g_.z.data();
+    for (std::size_t q = b; q < e; ++q) {
+      const float dx = X[q] - px, dy = Y[q] - py, dz = Z[q] - pz;
+      out[q - b] = dx * dx + dy * dy + dz * dz;
+    }
+    return e - b;
+  }
+  std::size_t gather(std::size_t b, std::size_t e, const float* pt, std::vector<float>& d2, std::size_t at) const {
+    if (d2.size() < at + (e - b)) d2.resize(std::max(2 * d2.size(), at + (e - b)));
+    return distances(b, e, pt, d2.data() + at);
+  }
+  static void ensure(std::vector<float>& v, std::size_t m) {
+    if (v.size() < m) v.resize(m);
+  }
+  std::size_t cell_of_sorted(std::uint32_t p) const {
+    return static_cast<std::size_t>(std::upper_bound(g_.cell_start.begin(), g_.cell_start.end(), p) -
+                                    g_.cell_start.begin()) -
+           1;
+  }
+
+  const CellGrid& g_;
+  int k_;
+};
+
+template <class F>
+void run_parallel(int threads, F&& f) {
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(f, t);
+  f(0);
+  for (auto& th : pool) th.join();
+}
+
+// Mean distance of every point (float32 coordinates, interleaved) to its k nearest neighbours.
+std::vector<float> mean_knn_distances(const std::vector<float>& p, std::size_t count, int k,
+                                      StageReport* report) {
+  const auto t0 = Clock::now();
+  const CellGrid g = build_grid(p, count, k);
+  const double t_grid = seconds_since(t0);
+  const KnnDistances knn(g, k);
+  std::vector<float> mean_sorted(count, -1.0f);
+
+  // Stage A: split the cells into contiguous ranges of about equal point counts.
+  const int threads = static_cast<int>(std::min<std::size_t>(kSearchThreads, std::max<std::size_t>(1, count / 20000)));
+  std::vector<std::size_t> split(static_cast<std::size_t>(threads) + 1, g.cells());
+  split[0] = 0;
+  for (int t = 1; t < threads; ++t) {
+    const auto target = static_cast<std::uint32_t>(count * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads));
+    split[static_cast<std::size_t>(t)] = static_cast<std::size_t>(
+        std::lower_bound(g.cell_start.begin(), g.cell_start.end() - 1, target) - g.cell_start.begin());
+  }
+  std::vector<std::vector<std::uint32_t>> later(static_cast<std::size_t>(threads));
+  run_parallel(threads, [&](int t) {
+    const auto ts = static_cast<std::size_t>(t);
+    knn.stage_a(split[ts], split[ts + 1], mean_sorted, later[ts]);
+  });
+  std::vector<std::uint32_t> todo;
+  for (auto& l : later) todo.insert(todo.end(), l.begin(), l.end());
+  const std::size_t after_a = todo.size();
+
+  // Stage B without a tree; whatever is left goes to stage C with the cell-centre tree.
+  auto split_run = [&](const std::vector<std::uint32_t>& work, const CellTree* tree, const CellCentres* centres,
+                       std::vector<std::vector<std::uint32_t>>* left) {
+    const int th = work.size() > 2000 ? threads : 1;
+    run_parallel(th, [&](int t) {
+      const std::size_t b = work.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
+      const std::size_t e = work.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
+      const std::vector<std::uint32_t> part(work.begin() + static_cast<std::ptrdiff_t>(b),
+                                            work.begin() + static_cast<std::ptrdiff_t>(e));
+      knn.stages_bc(part, mean_sorted, tree, centres, left ? &(*left)[static_cast<std::size_t>(t)] : nullptr);
+    });
+  };
+  std::vector<std::vector<std::uint32_t>> left(static_cast<std::size_t>(threads));
+  split_run(todo, nullptr, nullptr, &left);
+  todo.clear();
+  for (auto& l : left) todo.insert(todo.end(), l.begin(), l.end());
+  const std::size_t after_b = todo.size();
+  if (!todo.empty()) {
+    CellCentres centres;
+    centres.c.resize(3 * g.cells());
+    for (std::size_t i = 0; i < g.cells(); ++i) {
+      const auto c = g.coords(g.cell_key[i]);
+      for (std::size_t a = 0; a < 3; ++a) {
+        centres.c[3 * i + a] = static_cast<float>(g.lo[a] + (static_cast<double>(c[a]) + 0.5) * g.cell);
+      }
+    }
+    const CellTree tree(3, centres, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+    split_run(todo, &tree, &centres, nullptr);
+  }
+
+  std::vector<float> mean_d(count);
+  for (std::size_t i = 0; i < count; ++i) mean_d[g.original[i]] = mean_sorted[i];
+  if (report) {
+    report->figure("grid_cell_mm", g.cell * 1e3);
+    report->figure("grid_cells", static_cast<double>(g.cells()));
+    report->figure("grid_build_s", t_grid);
+    report->figure("knn_beyond_3x3x3_block", static_cast<double>(after_a));
+    report->figure("knn_by_cell_tree", static_cast<double>(after_b));
+  }
+  return mean_d;
+}
+
+// Float32 copy of the finite points, recentred on their bounding-box centre (double), so that
+// float keeps sub-micrometre resolution whatever the cloud's offset.
+std::vector<float> recentred_float(const Cloud& cloud, const std::vector<std::uint32_t>& rows) {
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d hi = -lo;
+  for (const std::uint32_t i : rows) {
+    lo = lo.cwiseMin(cloud.xyz.col(static_cast<Eigen::Index>(i)));
+    hi = hi.cwiseMax(cloud.xyz.col(static_cast<Eigen::Index>(i)));
+  }
+  const Eigen::Vector3d centre = 0.5 * (lo + hi);
+  std::vector<float> p(3 * rows.size());
+  for (std::size_t j = 0; j < rows.size(); ++j) {
+    const auto c = cloud.xyz.col(static_cast<Eigen::Index>(rows[j]));
+    for (Eigen::Index a = 0; a < 3; ++a) p[3 * j + static_cast<std::size_t>(a)] = static_cast<float>(c(a) - centre(a));
+  }
+  return p;
+}
+
+StageReport make_report(const char* stage, std::size_t in) {
+  StageReport r;
+  r.stage = stage;
+  r.count_in = in;
+  return r;
+}
+
+}  // namespace
+
+StageResult<Cloud> remove_non_finite(Cloud cloud) {
+  const auto t0 = Clock::now();
+  StageReport report = make_report("non_finite", cloud.size());
+  std::vector<bool> keep(cloud.size());
+  std::size_t kept = 0;
+  for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
+    const bool ok = cloud.xyz.col(i).allFinite();
+    keep[static_cast<std::size_t>(i)] = ok;
+    kept += ok ? 1u : 0u;
+  }
+  const std::size_t dropped = cloud.size() - kept;
+  if (dropped > 0) cloud.keep_if(keep);
+  report.count_out = cloud.size();
+  report.figure("dropped", static_cast<double>(dropped));
+  report.notes.push_back("dropped " + std::to_string(dropped) + " of " + std::to_string(report.count_in) +
+                         " points with a NaN or infinite coordinate");
+  report.seconds = seconds_since(t0);
+  return {std::move(cloud), std::move(report)};
+}
+
+StageResult<Cloud> crop_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m) {
+  const auto t0 = Clock::now();
+  if (!min_m.allFinite() || !max_m.allFinite() || (min_m.array() > max_m.array()).any()) {
+    throw ConfigError("crop_box: min (" + num(min_m.x()) + ", " + num(min_m.y()) + ", " + num(min_m.z()) +
+                      ") m and max (" + num(max_m.x()) + ", " + num(max_m.y()) + ", " + num(max_m.z()) +
+                      ") m must be finite with min <= max on every axis");
+  }
+  if (cloud.size() == 0) throw InputError("crop_box: the cloud is empty");
+  StageReport report = make_report("crop", cloud.size());
+  std::vector<bool> keep(cloud.size());
+  for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
+    const auto p = cloud.xyz.col(i);
+    keep[static_cast<std::size_t>(i)] = (p.array() >= min_m.array()).all() && (p.array() <= max_m.array()).all();
+  }
+  cloud.keep_if(keep);
+  if (cloud.size() == 0) {
+    throw DegenerateInputError("crop_box: no point of " + std::to_string(report.count_in) +
+                               " lies inside the box min (" + num(min_m.x()) + ", " + num(min_m.y()) + ", " +
+                               num(min_m.z()) + ") m, max (" + num(max_m.x()) + ", " + num(max_m.y()) + ", " +
+                               num(max_m.z()) + ") m (grid frame)");
+  }
+  report.count_out = cloud.size();
+  report.figure("removed", static_cast<double>(report.count_in - report.count_out));
+  report.seconds = seconds_since(t0);
+  return {std::move(cloud), std::move(report)};
+}
+
+StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
+  const auto t0 = Clock::now();
+  if (!(leaf_m > 0.0) || !std::isfinite(leaf_m)) {
+    throw ConfigError("voxel_downsample: leaf = " + num(leaf_m) + " m, expected a finite value > 0");
+  }
+  StageReport report = make_report("voxel", cloud.size());
+  pcl::PointCloud<pcl::PointXYZ>::Ptr in(new pcl::PointCloud<pcl::PointXYZ>);
+  in->reserve(cloud.size());
+  Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity());
+  Eigen::Vector3f hi = -lo;
+  for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
+    if (!cloud.xyz.col(i).allFinite()) continue;
+    const Eigen::Vector3f p = cloud.xyz.col(i).cast<float>();
+    in->push_back(pcl::PointXYZ(p.x(), p.y(), p.z()));
+    lo = lo.cwiseMin(p);
+    hi = hi.cwiseMax(p);
+  }
+  if (in->empty()) throw InputError("voxel_downsample: the cloud has no finite points");
+  // PCL's VoxelGrid indexes voxels with 32-bit ints; beyond that it only warns and returns the
+  // input unchanged. Check with its own arithmetic and say so instead.
+  const float inv = static_cast<float>(1.0 / leaf_m);
+  std::int64_t voxels = 1;
+  bool overflow = false;
+  for (int a = 0; a < 3; ++a) {
+    const double lo_i = std::floor(static_cast<double>(lo[a] * inv));
+    const double hi_i = std::floor(static_cast<double>(hi[a] * inv));
+    if (std::abs(lo_i) > 1e9 || std::abs(hi_i) > 1e9) {
+      overflow = true;
+      break;
+    }
+    voxels *= static_cast<std::int64_t>(hi_i - lo_i) + 1;
+    if (voxels > std::numeric_limits<std::int32_t>::max()) {
+      overflow = true;
+      break;
+    }
+  }
+  if (overflow) {
+    const Eigen::Vector3d ext = (hi - lo).cast<double>();
+    const double min_leaf = std::cbrt(std::max(ext.prod(), 0.0) / std::numeric_limits<std::int32_t>::max()) * 1.05;
+    throw ConfigError("voxel_downsample: leaf " + num(leaf_m) + " m is too small for a cloud of " + num(ext.x()) +
+                      " x " + num(ext.y()) + " x " + num(ext.z()) +
+                      " m: PCL's VoxelGrid allows at most 2147483647 voxels (use a leaf of at least about " +
+                      num(std::max(min_leaf, std::max({ext.x(), ext.y(), ext.z()}) / 1.0e9)) +
+                      " m, or recentre the cloud first)");
+  }
+  pcl::VoxelGrid<pcl::PointXYZ> grid;
+  grid.setInputCloud(in);
+  grid.setLeafSize(static_cast<float>(leaf_m), static_cast<float>(leaf_m), static_cast<float>(leaf_m));
+  pcl::PointCloud<pcl::PointXYZ> out;
+  grid.filter(out);
+  Cloud result;
+  result.xyz.resize(3, static_cast<Eigen::Index>(out.size()));
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    result.xyz.col(static_cast<Eigen::Index>(i)) = out[i].getVector3fMap().cast<double>();
+  }
+  report.count_out = result.size();
+  report.figure("leaf_mm", leaf_m * 1e3);
+  if (cloud.has_scan_id()) report.notes.push_back("scan_id dropped: a voxel centroid mixes scans");
+  report.seconds = seconds_since(t0);
+  return {std::move(result), std::move(report)};
+}
+
+StageResult<Cloud> remove_statistical_outliers(Cloud cloud, int k, double std_multiplier) {
+  const auto t0 = Clock::now();
+  if (k < 1 || k > 1000) throw ConfigError("remove_statistical_outliers: k = " + std::to_string(k) + ", expected 1..1000");
+  if (!(std_multiplier > 0.0) || !std::isfinite(std_multiplier)) {
+    throw ConfigError("remove_statistical_outliers: std_multiplier = " + num(std_multiplier) +
+                      ", expected a finite value > 0");
+  }
+  StageReport report = make_report("outliers", cloud.size());
+  std::vector<std::uint32_t> rows;
+  rows.reserve(cloud.size());
+  if (cloud.size() > std::numeric_limits<std::uint32_t>::max() - 1) {
+    throw ResourceError("remove_statistical_outliers: " + std::to_string(cloud.size()) +
+                        " points, at most 4294967294 supported");
+  }
+  for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
+    if (cloud.xyz.col(i).allFinite()) rows.push_back(static_cast<std::uint32_t>(i));
+  }
+  const std::size_t n = rows.size();
+  if (n < static_cast<std::size_t>(k) + 2) {
+    throw DegenerateInputError("remove_statistical_outliers: the cloud has " + std::to_string(n) +
+                               " finite points; k = " + std::to_string(k) + " needs at least " +
+                               std::to_string(k + 2));
+  }
+  const std::vector<float> p = recentred_float(cloud, rows);
+  const std::vector<float> d = mean_knn_distances(p, n, k, &report);
+
+  // Statistics exactly as PCL: sums in input order, squares in float, variance over n - 1.
+  double sum = 0.0, sq_sum = 0.0;
+  for (const float v : d) {
+    sum += v;
+    sq_sum += v * v;
+  }
+  const double nd = static_cast<double>(n);
+  const double mean = sum / nd;
+  const double variance = (sq_sum - sum * sum / nd) / (nd - 1.0);
+  const double stddev = std::sqrt(std::max(variance, 0.0));
+  const double threshold = mean + std_multiplier * stddev;
+
+  std::vector<bool> keep(cloud.size(), false);
+  for (std::size_t j = 0; j < n; ++j) keep[rows[j]] = static_cast<double>(d[j]) <= threshold;
+  cloud.keep_if(keep);
+  report.count_out = cloud.size();
+  report.figure("k", k);
+  report.figure("std_multiplier", std_multiplier);
+  report.figure("mean_knn_distance_mm", mean * 1e3);
+  report.figure("stddev_knn_distance_mm", stddev * 1e3);
+  report.figure("threshold_mm", threshold * 1e3);
+  report.figure("removed", static_cast<double>(n - report.count_out));
+  if (n != report.count_in) {
+    report.notes.push_back("dropped " + std::to_string(report.count_in - n) + " non-finite points");
+  }
+  report.seconds = seconds_since(t0);
+  return {std::move(cloud), std::move(report)};
+}
+
+}  // namespace hc::pipeline
