@@ -44,12 +44,16 @@ struct CrossCheck {
 };
 
 /// Cross-checks the grid against the points that made it (same grid frame, metres).
-/// Nearest neighbours by a kd-tree over the points (nanoflann); queries run in grid order.
+/// (b) is an exact nearest-neighbour search over all finite points: the points are bucketed by
+/// grid node and searched ring by ring in grid order, with a nanoflann kd-tree over each
+/// bucket's front-most point giving the bound for samples far from every point (filled holes).
+/// (a) hidden points: see hidden_band_m; no-data cells: points_off_surface.
 /// @param tolerance_m    a cell is "supported" if an input point lies within this distance.
 /// @param hidden_band_m  (a) uses a point only if z_p ≥ f(x_p, y_p) − hidden_band_m [m].
 /// @throws hc::InputError if the grid has no valid cell, is smaller than 2 × 2, or the cloud has
 ///         no finite point; hc::ConfigError for tolerance_m or hidden_band_m not > 0.
-/// Real-time: no. Threads: 2. Cost: O(N log N) build + O(cells · log N) + O(N) for (a).
+/// Real-time: no. Threads: 2. Cost: O(N + cells) for grids made from the points (plus a kd-tree
+/// build over at most one point per cell when some sample is far from every point).
 StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& grid,
                                     double tolerance_m, double hidden_band_m = 0.002);
 
