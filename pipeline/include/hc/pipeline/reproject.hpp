@@ -29,9 +29,15 @@ struct ReprojectOptions {
   double splat_radius_cells = 0.0;
   /// See-through handling: a valid cell whose height lies more than this [m] below the
   /// robust front envelope of its neighbourhood is treated as a hole (a point seen through a
-  /// gap in the front surface). ≤ 0 disables.
+  /// gap in the front surface). The envelope test is two-sided: the cell is rejected when, on
+  /// at least 2 of the 4 lines through it (row, column, both diagonals), BOTH directions reach
+  /// a cell higher than z + see_through_depth_m within see_through_window_cells. A one-sided
+  /// drop (a silhouette, the wall of a step) and a single outlier spike are kept; a gap is
+  /// found when it is at most about see_through_window_cells wide in some direction; a genuine
+  /// crease narrower than the window and deeper than the threshold is rejected too. ≤ 0
+  /// disables.
   double see_through_depth_m = 0.0;
-  int see_through_window_cells = 3;  ///< half-width of that neighbourhood [cells]
+  int see_through_window_cells = 3;  ///< half-width of that neighbourhood [cells], 1 to 64
 };
 
 /// Per-cell classification masks, rows·cols each, row-major like the HeightField.
@@ -50,19 +56,35 @@ struct DepthGrid {
 
 /// Reprojects grid-frame points (metres; z towards the viewer) onto a grid covering their x-y
 /// bounding box; the front-most (largest) z per cell wins.
-/// @return depth grid plus flags; report figures: cells, valid cells, see-through cells.
-/// @throws hc::InputError if there is no finite point; hc::DegenerateInputError if the x-y
-///         extent is zero (a cloud edge-on to the view, all points in one cell);
-///         hc::ConfigError if n_long_side ≤ 1 or the spec is ambiguous; hc::ResourceError if
-///         rows·cols exceeds max_cells (the message gives both numbers and the bytes needed).
+/// Geometry: with n_long_side = N the longer side of the finite points' x-y box holds N
+/// samples, cell = extent / (N − 1); the other side holds round(extent / cell) + 1 samples,
+/// centred on the box (likewise both sides for a given cell_size_m). Samples are node-centred
+/// (GridGeometry) and each point goes to its nearest node (ties to the higher index).
+/// Non-finite points are skipped (counted in figure points_non_finite).
+/// @return depth grid plus flags; report figures: rows, cols, cell_size_mm, cells,
+///         cells_valid, cells_measured, cells_splatted, cells_occluded_by_splat,
+///         cells_see_through.
+/// @throws hc::InputError if there is no finite point; hc::DegenerateInputError if the grid
+///         would have fewer than 2 samples along a side (a single x-y position, all points on
+///         a line, e.g. a cloud edge-on to the view, or all points in one cell);
+///         hc::ConfigError if n_long_side ≤ 1, neither or both of n_long_side and cell_size_m
+///         are given, or an option is out of range; hc::ResourceError if rows·cols exceeds
+///         max_cells (the message gives rows, cols, the cap and the bytes needed: 5 per cell,
+///         +4 with splats, +8 with see-through handling).
 /// Real-time: no. Cost: two passes over the points + O(rows·cols) (·r² with a splat radius r).
 /// Source: depth-buffer scan of Sec. 1 of the paper; front-most rule as in an OpenGL z-buffer.
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options);
 
-/// Fills holes (connected no-data regions, 4-connectivity) of at most max_hole_cells cells
-/// that do not touch the grid border, by normalised convolution; larger holes and the
-/// background stay no data. Filled cells get kCellFilled in `grid.flags`.
+/// Fills holes (connected no-data regions, 4-connectivity, empty or see-through) of at most
+/// max_hole_cells cells that do not touch the grid border, by normalised convolution (Gaussian
+/// σ = 1 cell over a 7 × 7 window, Σw·z / Σw over the known cells, evaluated at hole cells
+/// only), from the rim inwards until the hole is full; larger holes and the background stay no
+/// data. Filled cells get kCellFilled in `grid.flags`. A fill is a weighted mean, so on a slope
+/// it is off by up to slope × 2 cells, and across a depth step it invents an intermediate
+/// surface (the cross-check's cell-to-point distance shows it).
 /// @param max_hole_cells  0 disables filling.
+/// @throws hc::ConfigError if max_hole_cells < 0; hc::InputError if flags and depth disagree
+///         in size. Real-time: no. Cost: O(rows·cols) labelling + O(filled cells · 49 · sweeps).
 StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells);
 
 }  // namespace hc::pipeline
