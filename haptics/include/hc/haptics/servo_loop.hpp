@@ -1,0 +1,182 @@
+#pragma once
+/// @file servo_loop.hpp
+/// The haptic servo loop: every tick reads the device, maps the HIP into the grid frame, steps
+/// the proxy (proxy.hpp), writes the force, and publishes a snapshot and contact events
+/// (shared_state.hpp). Runs on its own thread at 1 kHz by default (up to 10 kHz), paced by
+/// absolute deadlines (clock_nanosleep, TIMER_ABSTIME), or without a thread "as fast as
+/// possible" on a ManualClock for tests and scripted sessions.
+/// Inside a tick nothing allocates, locks, does I/O or logs; set-up (constructor, start) may
+/// throw and allocates everything in advance. Model: libfranka's control loop (a tiny loop body,
+/// everything slow before it starts).
+
+#include "hc/haptics/clock.hpp"
+#include "hc/haptics/device.hpp"
+#include "hc/haptics/proxy.hpp"
+#include "hc/haptics/shared_state.hpp"
+#include "hc/haptics/workspace_map.hpp"
+
+#include <array>
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <span>
+#include <string>
+#include <string_view>
+#include <thread>
+
+namespace hc::haptics {
+
+/// What the loop does about real-time scheduling (SCHED_FIFO and mlockall).
+enum class RealtimeMode : std::uint8_t {
+  kOff = 0,  ///< do not ask
+  kWarn,     ///< ask; run anyway if refused and say so in the report
+  kEnforce,  ///< ask; refuse to start (hc::ResourceError) if either is refused
+};
+
+/// Parses "off", "warn", "enforce". @throws hc::ConfigError naming the value and the allowed set.
+RealtimeMode realtime_mode_from_string(std::string_view name);
+const char* to_string(RealtimeMode mode) noexcept;
+
+/// Configuration of a servo loop. Stiffness and damping in proxy are DEVICE-frame values
+/// (N/m, N·s/m); the loop divides them by the workspace scale for the grid-frame proxy.
+struct ServoConfig {
+  double rate_hz = 1000.0;               ///< tick rate (0, 10000] [Hz]
+  RealtimeMode realtime = RealtimeMode::kWarn;
+  int fifo_priority = 80;                ///< SCHED_FIFO priority [1, 99]
+  ProxyParams proxy;                     ///< proxy and force parameters (device units)
+  WorkspaceMap workspace;                ///< device ↔ grid map
+  int slide_event_every_ticks = 10;      ///< a slide event at most every N ticks of sliding, ≥ 1
+  int max_commands_per_tick = 16;        ///< commands applied per tick, ≥ 1
+};
+
+/// What start() obtained.
+struct RealtimeReport {
+  RealtimeMode mode = RealtimeMode::kOff;
+  bool fifo_granted = false;   ///< the servo thread runs SCHED_FIFO
+  int priority = 0;            ///< its priority when granted
+  bool memory_locked = false;  ///< mlockall(MCL_CURRENT | MCL_FUTURE) succeeded
+  std::string detail;          ///< one line per refusal with errno text and what to check
+};
+
+/// Fixed-size histogram of durations [ns] (1 ns bins below 4096 ns, 64 ns bins up to
+/// 266 µs, one overflow bin) with exact count, mean and max. add() is real-time safe.
+class LatencyHistogram {
+ public:
+  void add(std::int64_t ns) noexcept;
+  void reset() noexcept;
+  std::uint64_t count() const noexcept { return count_; }
+  double mean_ns() const noexcept { return count_ ? static_cast<double>(sum_) / static_cast<double>(count_) : 0.0; }
+  std::int64_t max_ns() const noexcept { return max_; }
+  /// Smallest bin upper edge below which a fraction q ∈ [0, 1] of the samples lie (the exact
+  /// max for the overflow bin). 0 when empty. Real-time: no (O(bins)).
+  double percentile_ns(double q) const noexcept;
+
+ private:
+  static constexpr int kFineBins = 4096;   // [0, 4096) ns, 1 ns each
+  static constexpr int kCoarseBins = 4096; // [4096, 266240) ns, 64 ns each
+  std::array<std::uint64_t, kFineBins + kCoarseBins + 1> bins_{};
+  std::uint64_t count_ = 0;
+  std::int64_t sum_ = 0;
+  std::int64_t max_ = 0;
+};
+
+/// Per-tick statistics, kept in fixed arrays (no allocation while running).
+struct ServoStats {
+  std::uint64_t ticks = 0;
+  std::uint64_t overruns = 0;  ///< threaded: the tick ended after the next deadline;
+                               ///< as fast as possible: compute time > period
+  LatencyHistogram compute;    ///< tick compute time (device read to snapshot) [ns]
+  LatencyHistogram lateness;   ///< wake-up time − deadline (period jitter; threaded only) [ns]
+};
+
+/// One trace row (trivially copyable). Grid frame, SI units.
+struct TickRecord {
+  double t_s = 0.0;
+  Vec3 hip_m, proxy_m, force_n;
+  float mu_d = 0.0F, mu_s = 0.0F, beta_rad = 0.0F;
+  std::int32_t compute_ns = 0;
+  std::int16_t iterations = 0;
+  bool in_contact = false;
+  bool sticking = false;
+  std::uint8_t device_state = 0;
+};
+
+class ServoLoop {
+ public:
+  /// Pre-allocates everything; `device`, `shared` and `clock` must outlive the loop. In the
+  /// threaded mode `clock` should be a SteadyClock (timestamps); pacing always uses
+  /// CLOCK_MONOTONIC.
+  /// @throws hc::ConfigError naming the field: rate outside (0, 10000] Hz, priority outside
+  ///         [1, 99], invalid workspace or proxy parameters, stiffness above the device's max
+  ///         stable stiffness, damping above its max damping, max force above its max force.
+  ServoLoop(HapticDevice& device, SharedState& shared, const Clock& clock, const ServoConfig& config);
+  ~ServoLoop();
+  ServoLoop(const ServoLoop&) = delete;
+  ServoLoop& operator=(const ServoLoop&) = delete;
+
+  /// Starts the servo thread (mlockall and SCHED_FIFO as configured) and returns what it got.
+  /// @throws hc::InputError if the device is Closed; hc::ConfigError if already running;
+  ///         hc::ResourceError under realtime: enforce when SCHED_FIFO or mlockall is refused
+  ///         (the message says which, the errno text, and what to check). Real-time: no.
+  RealtimeReport start();
+  /// Stops and joins the servo thread (no-op if not running); then writes a zero force and
+  /// releases the memory lock taken by start().
+  void stop() noexcept;
+  bool running() const noexcept { return thread_.joinable() && !finished_.load(std::memory_order_acquire); }
+
+  /// As fast as possible, on this thread: n ticks, advancing `clock` by one period after each.
+  /// @throws hc::ConfigError if `clock` is not the clock given to the constructor or the
+  ///         threaded loop is running. The ticks themselves do not allocate.
+  void run_ticks(std::uint64_t n, ManualClock& clock);
+  /// One tick at the clock's current time, on this thread. Real-time: yes.
+  void tick() noexcept;
+
+  /// Trace rows are written to `rows` (caller-owned) one per tick until it is full.
+  /// Call before start() / run_ticks(). Real-time: yes.
+  void set_trace(std::span<TickRecord> rows) noexcept {
+    trace_ = rows;
+    trace_size_ = 0;
+  }
+  std::size_t trace_size() const noexcept { return trace_size_; }
+
+  /// Statistics (read after stop(), or between run_ticks calls).
+  const ServoStats& stats() const noexcept { return stats_; }
+  /// Proxy state after the last tick (same rule).
+  const ProxyState& proxy_state() const noexcept { return state_; }
+  const ServoConfig& config() const noexcept { return config_; }
+  std::int64_t period_ns() const noexcept { return period_ns_; }
+
+ private:
+  void tick_impl(std::int64_t lateness_ns) noexcept;
+  void apply(const Command& command) noexcept;
+  void update_grid_params() noexcept;
+  void thread_main() noexcept;
+
+  HapticDevice& device_;
+  SharedState& shared_;
+  const Clock& clock_;
+  ServoConfig config_;
+  ProxyParams grid_params_;
+  std::int64_t period_ns_ = 1000000;
+  ProxyState state_{};
+  ServoStats stats_{};
+  std::span<TickRecord> trace_{};
+  std::size_t trace_size_ = 0;
+  std::uint64_t tick_count_ = 0;
+  std::int64_t prev_tick_ns_ = 0;
+  bool have_prev_tick_ = false;
+  // Slide events: proxy position and time at the last one.
+  Eigen::Vector3d slide_from_m_ = Eigen::Vector3d::Zero();
+  double slide_from_s_ = 0.0;
+  int ticks_since_slide_ = 0;
+
+  std::thread thread_;
+  std::atomic<int> go_{0};  // 0 wait, 1 run, −1 abandon
+  std::atomic<bool> stop_flag_{false};
+  std::atomic<bool> finished_{false};
+  bool stop_requested_ = false;  // a kStop command (servo thread only)
+  bool threaded_ = false;        // set before the thread starts, cleared after it is joined
+  bool memory_locked_ = false;   // mlockall taken by start(), released by stop()
+};
+
+}  // namespace hc::haptics

@@ -1,0 +1,147 @@
+#pragma once
+/// @file shared_state.hpp
+/// Everything the servo thread shares with the rest of the program (docs/architecture.md,
+/// "Threads and shared state"): snapshots out (triple buffer), contact events out (SPSC ring),
+/// commands in (SPSC ring), a new surface in (pointer mailbox, the old one handed back on a
+/// retire ring so the servo thread never frees memory), and atomic counters.
+/// Every channel carries fixed-size, trivially copyable types. Made once by the app before any
+/// thread starts and passed by reference; no globals.
+
+#include "hc/haptics/haptic_surface.hpp"
+#include "hc/haptics/spsc_ring.hpp"
+#include "hc/haptics/triple_buffer.hpp"
+#include "hc/haptics/workspace_map.hpp"
+
+#include <Eigen/Core>
+
+#include <atomic>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+
+namespace hc::haptics {
+
+/// Plain 3-vector for the channels (Eigen types are not trivially copyable).
+struct Vec3 {
+  double x = 0.0, y = 0.0, z = 0.0;
+  static Vec3 of(const Eigen::Vector3d& v) noexcept { return Vec3{v.x(), v.y(), v.z()}; }
+  Eigen::Vector3d eigen() const noexcept { return Eigen::Vector3d(x, y, z); }
+};
+
+/// The servo loop's state after one tick (for viewers and monitors). Positions and force_n in
+/// the grid frame; device_force_n in device axes.
+struct Snapshot {
+  std::uint64_t tick = 0;       ///< tick counter since start
+  double t_s = 0.0;             ///< clock time of the tick [s]
+  Vec3 hip_m;                   ///< X_h, grid frame [m]
+  Vec3 proxy_m;                 ///< X_p, grid frame [m]
+  Vec3 force_n;                 ///< rendered force, grid frame [N]
+  Vec3 device_force_n;          ///< force sent to the device, device axes [N]
+  double ramp = 0.0;            ///< force ramp [0, 1]
+  float mu_d = 0.0F;            ///< μ_d at the proxy [-]
+  float mu_s = 0.0F;            ///< μ_s at the proxy [-]
+  float beta_rad = 0.0F;        ///< β [rad]
+  std::int32_t region_id = -1;  ///< region under the proxy, −1 = none
+  std::int16_t iterations = 0;  ///< Eq. 5 iterations this tick
+  bool in_contact = false;
+  bool sticking = false;
+  bool gate_open = false;
+  bool saturated = false;
+  std::uint8_t device_state = 0;  ///< DeviceState as a number
+  std::uint8_t proxy_status = 0;  ///< ProxyStatus as a number
+};
+
+enum class ContactEventType : std::uint8_t { kOnset = 0, kSlide, kRelease };
+
+/// A contact event for audio and logging. position_m is the proxy, grid frame.
+struct ContactEvent {
+  ContactEventType type = ContactEventType::kOnset;
+  std::int32_t region_id = -1;      ///< region under the proxy, −1 = none
+  std::uint64_t tick = 0;
+  double t_s = 0.0;
+  Vec3 position_m;                  ///< proxy, grid frame [m]
+  Vec3 force_n;                     ///< rendered force, grid frame [N]
+  double speed_m_per_s = 0.0;       ///< proxy speed over the surface (slide events) [m/s]
+};
+
+enum class CommandType : std::uint8_t {
+  kArm = 0,               ///< device Open → Armed (forces go through the gate and ramp)
+  kDisarm,                ///< Armed → Open
+  kResetFault,            ///< Fault → Open
+  kSetStiffness,          ///< a = k [N/m], device frame; clamped to [0, max stable stiffness]
+  kSetDamping,            ///< a = b [N·s/m]; clamped to [0, device max damping]
+  kSetMaxForce,           ///< a = cap [N]; clamped to (0, device max force]
+  kSetRho,                ///< a = ρ; clamped to [0.001, 1]
+  kSetFrictionEnabled,    ///< a ≠ 0: friction on
+  kSetWorkspace,          ///< a, b, c = origin [m], d = scale, e = rotation [rad]; rejected if invalid
+  kStop,                  ///< ends the threaded loop after this tick
+};
+
+/// One command for the servo loop. Plain data; build it with the helpers.
+struct Command {
+  CommandType type = CommandType::kArm;
+  double a = 0.0, b = 0.0, c = 0.0, d = 0.0, e = 0.0;
+
+  static Command of(CommandType type, double value = 0.0) noexcept { return Command{type, value, 0, 0, 0, 0}; }
+  static Command set_workspace(const WorkspaceMap& m) noexcept {
+    return Command{CommandType::kSetWorkspace, m.origin_m.x(), m.origin_m.y(), m.origin_m.z(), m.scale,
+                   m.rotation_rad};
+  }
+};
+
+/// Counters written by the servo thread, read by anyone (relaxed atomics).
+struct ServoCounters {
+  std::atomic<std::uint64_t> ticks{0};
+  std::atomic<std::uint64_t> overruns{0};           ///< ticks that ended after the next deadline
+  std::atomic<std::uint64_t> events_dropped{0};     ///< contact events lost to a full ring
+  std::atomic<std::uint64_t> commands_applied{0};
+  std::atomic<std::uint64_t> commands_rejected{0};  ///< invalid (e.g. non-finite) commands
+  std::atomic<std::uint64_t> device_errors{0};      ///< read/write statuses other than ok
+  std::atomic<std::uint64_t> nonfinite_inputs{0};   ///< ticks with a NaN/inf HIP
+  std::atomic<std::uint64_t> surfaces_adopted{0};
+  std::atomic<std::int64_t> worst_compute_ns{0};
+  std::atomic<std::int64_t> worst_lateness_ns{0};
+};
+
+class SharedState {
+ public:
+  static constexpr std::size_t kEventCapacity = 1024;
+  static constexpr std::size_t kCommandCapacity = 64;
+  static constexpr std::size_t kRetireCapacity = 8;
+
+  /// @param initial the surface the servo starts with (may be null: free space until one is
+  ///        published). Real-time: no.
+  explicit SharedState(std::unique_ptr<const HapticSurface> initial = nullptr);
+  /// Frees the current, pending and retired surfaces. The servo loop must have stopped.
+  ~SharedState();
+  SharedState(const SharedState&) = delete;
+  SharedState& operator=(const SharedState&) = delete;
+
+  TripleBuffer<Snapshot> snapshots;                       ///< servo → readers
+  SpscRing<ContactEvent, kEventCapacity> events;          ///< servo → one consumer (audio)
+  SpscRing<Command, kCommandCapacity> commands;           ///< one producer (UI) → servo
+  ServoCounters counters;
+
+  /// Producer side (one non-real-time thread): hands a new surface to the servo, which adopts it
+  /// at its next tick boundary. A previously published surface the servo has not adopted yet is
+  /// freed here. Real-time: no.
+  void publish_surface(std::unique_ptr<const HapticSurface> surface);
+  /// Producer side: frees the surfaces the servo has handed back. @return how many. Real-time: no.
+  std::size_t collect_retired() noexcept;
+  /// True while a published surface waits for adoption.
+  bool surface_pending() const noexcept { return pending_.load(std::memory_order_acquire) != nullptr; }
+
+  /// Servo side: adopts a pending surface if the retire ring has room (else keeps the current
+  /// one and retries next tick) and returns the surface to render this tick (may be null).
+  /// Real-time: yes (no allocation, no free).
+  const HapticSurface* adopt_surface() noexcept;
+  /// Servo side: the surface in use.
+  const HapticSurface* current_surface() const noexcept { return current_; }
+
+ private:
+  std::atomic<const HapticSurface*> pending_{nullptr};
+  const HapticSurface* current_ = nullptr;  // owned; touched by the servo thread only
+  SpscRing<const HapticSurface*, kRetireCapacity> retired_;
+};
+
+}  // namespace hc::haptics

@@ -1,0 +1,403 @@
+#include "hc/haptics/servo_loop.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <algorithm>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <ctime>
+#include <sstream>
+
+#include <pthread.h>
+#include <sched.h>
+#include <sys/mman.h>
+
+namespace hc::haptics {
+namespace {
+
+constexpr std::int64_t kNsPerS = 1000000000LL;
+
+timespec to_timespec(std::int64_t ns) noexcept {
+  timespec ts{};
+  ts.tv_sec = static_cast<time_t>(ns / kNsPerS);
+  ts.tv_nsec = static_cast<long>(ns % kNsPerS);
+  return ts;
+}
+
+}  // namespace
+
+RealtimeMode realtime_mode_from_string(std::string_view name) {
+  if (name == "off") return RealtimeMode::kOff;
+  if (name == "warn") return RealtimeMode::kWarn;
+  if (name == "enforce") return RealtimeMode::kEnforce;
+  throw ConfigError("unknown realtime mode '" + std::string(name) + "' (expected one of: off, warn, enforce)");
+}
+
+const char* to_string(RealtimeMode mode) noexcept {
+  switch (mode) {
+    case RealtimeMode::kOff: return "off";
+    case RealtimeMode::kWarn: return "warn";
+    case RealtimeMode::kEnforce: return "enforce";
+  }
+  return "unknown";
+}
+
+// ---------------------------------------------------------------- histogram
+
+void LatencyHistogram::add(std::int64_t ns) noexcept {
+  if (ns < 0) ns = 0;
+  std::size_t bin = 0;
+  if (ns < kFineBins) {
+    bin = static_cast<std::size_t>(ns);
+  } else if (ns < kFineBins + 64LL * kCoarseBins) {
+    bin = static_cast<std::size_t>(kFineBins + (ns - kFineBins) / 64);
+  } else {
+    bin = kFineBins + kCoarseBins;
+  }
+  ++bins_[bin];
+  ++count_;
+  sum_ += ns;
+  max_ = std::max(max_, ns);
+}
+
+void LatencyHistogram::reset() noexcept {
+  bins_.fill(0);
+  count_ = 0;
+  sum_ = 0;
+  max_ = 0;
+}
+
+double LatencyHistogram::percentile_ns(double q) const noexcept {
+  if (count_ == 0) return 0.0;
+  q = std::clamp(q, 0.0, 1.0);
+  const double target = q * static_cast<double>(count_);
+  std::uint64_t seen = 0;
+  for (std::size_t b = 0; b < bins_.size(); ++b) {
+    seen += bins_[b];
+    if (bins_[b] != 0 && static_cast<double>(seen) >= target) {
+      if (b < static_cast<std::size_t>(kFineBins)) return static_cast<double>(b);
+      if (b < static_cast<std::size_t>(kFineBins + kCoarseBins)) {
+        return std::min(static_cast<double>(max_),
+                        static_cast<double>(kFineBins + (static_cast<std::int64_t>(b) - kFineBins + 1) * 64));
+      }
+      return static_cast<double>(max_);
+    }
+  }
+  return static_cast<double>(max_);
+}
+
+// ---------------------------------------------------------------- loop
+
+ServoLoop::ServoLoop(HapticDevice& device, SharedState& shared, const Clock& clock, const ServoConfig& config)
+    : device_(device), shared_(shared), clock_(clock), config_(config) {
+  const auto fail = [](const char* field, double value, const std::string& expected) {
+    std::ostringstream s;
+    s << "servo loop: " << field << " = " << value << ", expected " << expected;
+    throw ConfigError(s.str());
+  };
+  if (!(config_.rate_hz > 0.0 && config_.rate_hz <= 10000.0)) fail("rate_hz", config_.rate_hz, "a rate in (0, 10000] Hz");
+  if (config_.fifo_priority < 1 || config_.fifo_priority > 99) fail("fifo_priority", config_.fifo_priority, "[1, 99]");
+  if (config_.slide_event_every_ticks < 1) fail("slide_event_every_ticks", config_.slide_event_every_ticks, ">= 1");
+  if (config_.max_commands_per_tick < 1) fail("max_commands_per_tick", config_.max_commands_per_tick, ">= 1");
+  if (!config_.workspace.valid()) fail("workspace.scale", config_.workspace.scale, "finite > 0 with a finite origin and rotation");
+  validate_proxy_params(config_.proxy);
+  const DeviceInfo& info = device_.info();
+  if (config_.proxy.stiffness_n_per_m > info.max_stable_stiffness_n_per_m) {
+    fail("proxy.stiffness_n_per_m", config_.proxy.stiffness_n_per_m,
+         "at most the device's max stable stiffness " + std::to_string(info.max_stable_stiffness_n_per_m) + " N/m");
+  }
+  if (config_.proxy.damping_n_s_per_m > info.max_damping_n_s_per_m) {
+    fail("proxy.damping_n_s_per_m", config_.proxy.damping_n_s_per_m,
+         "at most the device's max damping " + std::to_string(info.max_damping_n_s_per_m) + " N s/m");
+  }
+  if (config_.proxy.max_force_n > info.max_force_n) {
+    fail("proxy.max_force_n", config_.proxy.max_force_n,
+         "at most the device's max force " + std::to_string(info.max_force_n) + " N");
+  }
+  period_ns_ = std::max<std::int64_t>(1, std::llround(1e9 / config_.rate_hz));
+  update_grid_params();
+}
+
+ServoLoop::~ServoLoop() { stop(); }
+
+void ServoLoop::update_grid_params() noexcept {
+  grid_params_ = config_.proxy;
+  grid_params_.stiffness_n_per_m = config_.workspace.stiffness_to_grid(config_.proxy.stiffness_n_per_m);
+  grid_params_.damping_n_s_per_m = config_.workspace.stiffness_to_grid(config_.proxy.damping_n_s_per_m);
+}
+
+void ServoLoop::apply(const Command& c) noexcept {
+  const DeviceInfo& info = device_.info();
+  bool ok = true;
+  switch (c.type) {
+    case CommandType::kArm: ok = device_.arm(); break;
+    case CommandType::kDisarm: device_.disarm(); break;
+    case CommandType::kResetFault: ok = device_.reset_fault(); break;
+    case CommandType::kSetStiffness:
+      ok = std::isfinite(c.a);
+      if (ok) config_.proxy.stiffness_n_per_m = std::clamp(c.a, 0.0, info.max_stable_stiffness_n_per_m);
+      break;
+    case CommandType::kSetDamping:
+      ok = std::isfinite(c.a);
+      if (ok) config_.proxy.damping_n_s_per_m = std::clamp(c.a, 0.0, info.max_damping_n_s_per_m);
+      break;
+    case CommandType::kSetMaxForce:
+      ok = std::isfinite(c.a) && c.a > 0.0;
+      if (ok) config_.proxy.max_force_n = std::min(c.a, info.max_force_n);
+      break;
+    case CommandType::kSetRho:
+      ok = std::isfinite(c.a);
+      if (ok) config_.proxy.rho = std::clamp(c.a, 0.001, 1.0);
+      break;
+    case CommandType::kSetFrictionEnabled: config_.proxy.friction_enabled = c.a != 0.0; break;
+    case CommandType::kSetWorkspace: {
+      WorkspaceMap m;
+      m.origin_m = Eigen::Vector3d(c.a, c.b, c.c);
+      m.scale = c.d;
+      m.rotation_rad = c.e;
+      ok = m.valid();
+      if (ok) {
+        config_.workspace = m;
+        // The HIP jumps in grid space: restart the proxy on it (free or on the surface).
+        state_.initialized = false;
+      }
+      break;
+    }
+    case CommandType::kStop: stop_requested_ = true; break;
+  }
+  if (ok) {
+    update_grid_params();
+    shared_.counters.commands_applied.fetch_add(1, std::memory_order_relaxed);
+  } else {
+    shared_.counters.commands_rejected.fetch_add(1, std::memory_order_relaxed);
+  }
+}
+
+void ServoLoop::tick() noexcept { tick_impl(0); }
+
+void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
+  const std::int64_t t_start = monotonic_now_ns();
+  const std::int64_t now = clock_.now_ns();
+  const double dt = have_prev_tick_ ? static_cast<double>(now - prev_tick_ns_) * 1e-9
+                                    : static_cast<double>(period_ns_) * 1e-9;
+  prev_tick_ns_ = now;
+  have_prev_tick_ = true;
+  const double t_s = static_cast<double>(now) * 1e-9;
+  ServoCounters& counters = shared_.counters;
+
+  for (int k = 0; k < config_.max_commands_per_tick; ++k) {
+    Command c;
+    if (!shared_.commands.try_pop(c)) break;
+    apply(c);
+  }
+  const HapticSurface* surface = shared_.adopt_surface();
+
+  DeviceReading reading;
+  const DeviceStatus rs = device_.read(reading);
+  const bool read_ok = rs == DeviceStatus::kOk || rs == DeviceStatus::kEndOfData;
+  if (!read_ok && rs != DeviceStatus::kFault) {
+    counters.device_errors.fetch_add(1, std::memory_order_relaxed);
+    device_.fault();
+  }
+  const bool was_in_contact = state_.in_contact;
+  if (read_ok || rs == DeviceStatus::kFault) {
+    const HipInput in{config_.workspace.to_grid(reading.position_m), dt,
+                      device_.state() == DeviceState::kArmed};
+    state_ = step_proxy(state_, in, surface, grid_params_);
+    if (state_.status == ProxyStatus::kNonFiniteInput) {
+      counters.nonfinite_inputs.fetch_add(1, std::memory_order_relaxed);
+      device_.fault();
+    }
+  } else {
+    state_.force_n.setZero();
+    state_.gate_open = false;
+    state_.ramp = 0.0;
+  }
+  const Eigen::Vector3d device_force = config_.workspace.force_to_device(state_.force_n);
+  const DeviceStatus ws = device_.write(device_force);
+  if (ws == DeviceStatus::kIoError) {
+    counters.device_errors.fetch_add(1, std::memory_order_relaxed);
+    device_.fault();
+  }
+
+  // Contact events.
+  const auto region = [&]() { return surface != nullptr ? surface->region_id(state_.proxy_m.x(), state_.proxy_m.y()) : -1; };
+  const auto push = [&](ContactEventType type, double speed) {
+    ContactEvent e;
+    e.type = type;
+    e.region_id = region();
+    e.tick = tick_count_;
+    e.t_s = t_s;
+    e.position_m = Vec3::of(state_.proxy_m);
+    e.force_n = Vec3::of(state_.force_n);
+    e.speed_m_per_s = speed;
+    if (!shared_.events.try_push(e)) counters.events_dropped.fetch_add(1, std::memory_order_relaxed);
+  };
+  if (!was_in_contact && state_.in_contact) {
+    push(ContactEventType::kOnset, 0.0);
+    slide_from_m_ = state_.proxy_m;
+    slide_from_s_ = t_s;
+    ticks_since_slide_ = 0;
+  } else if (was_in_contact && !state_.in_contact) {
+    push(ContactEventType::kRelease, 0.0);
+  } else if (state_.in_contact && ++ticks_since_slide_ >= config_.slide_event_every_ticks) {
+    const double moved = (state_.proxy_m - slide_from_m_).norm();
+    const double elapsed = t_s - slide_from_s_;
+    if (!state_.sticking && moved > 0.0 && elapsed > 0.0) push(ContactEventType::kSlide, moved / elapsed);
+    slide_from_m_ = state_.proxy_m;
+    slide_from_s_ = t_s;
+    ticks_since_slide_ = 0;
+  }
+
+  // Snapshot.
+  Snapshot snap;
+  snap.tick = tick_count_;
+  snap.t_s = t_s;
+  snap.hip_m = Vec3::of(state_.hip_m);
+  snap.proxy_m = Vec3::of(state_.proxy_m);
+  snap.force_n = Vec3::of(state_.force_n);
+  snap.device_force_n = Vec3::of(device_.last_force_n());
+  snap.ramp = state_.ramp;
+  snap.mu_d = static_cast<float>(state_.mu_d);
+  snap.mu_s = static_cast<float>(state_.mu_s);
+  snap.beta_rad = state_.in_contact ? static_cast<float>(state_.beta_rad()) : 0.0F;
+  snap.region_id = state_.in_contact ? region() : -1;
+  snap.iterations = static_cast<std::int16_t>(state_.iterations);
+  snap.in_contact = state_.in_contact;
+  snap.sticking = state_.sticking;
+  snap.gate_open = state_.gate_open;
+  snap.saturated = state_.saturated;
+  snap.device_state = static_cast<std::uint8_t>(device_.state());
+  snap.proxy_status = static_cast<std::uint8_t>(state_.status);
+  shared_.snapshots.write(snap);
+
+  const std::int64_t compute = monotonic_now_ns() - t_start;
+  stats_.compute.add(compute);
+  ++stats_.ticks;
+  if (threaded_) stats_.lateness.add(lateness_ns);
+  if (!threaded_ && compute > period_ns_) {
+    ++stats_.overruns;
+    counters.overruns.fetch_add(1, std::memory_order_relaxed);
+  }
+  counters.ticks.fetch_add(1, std::memory_order_relaxed);
+  if (compute > counters.worst_compute_ns.load(std::memory_order_relaxed)) {
+    counters.worst_compute_ns.store(compute, std::memory_order_relaxed);
+  }
+  if (lateness_ns > counters.worst_lateness_ns.load(std::memory_order_relaxed)) {
+    counters.worst_lateness_ns.store(lateness_ns, std::memory_order_relaxed);
+  }
+  if (trace_size_ < trace_.size()) {
+    TickRecord& r = trace_[trace_size_++];
+    r.t_s = t_s;
+    r.hip_m = snap.hip_m;
+    r.proxy_m = snap.proxy_m;
+    r.force_n = snap.force_n;
+    r.mu_d = snap.mu_d;
+    r.mu_s = snap.mu_s;
+    r.beta_rad = snap.beta_rad;
+    r.compute_ns = static_cast<std::int32_t>(std::min<std::int64_t>(compute, 2000000000LL));
+    r.iterations = snap.iterations;
+    r.in_contact = snap.in_contact;
+    r.sticking = snap.sticking;
+    r.device_state = snap.device_state;
+  }
+  ++tick_count_;
+}
+
+void ServoLoop::run_ticks(std::uint64_t n, ManualClock& clock) {
+  if (&clock != &clock_) {
+    throw ConfigError("servo loop: run_ticks needs the ManualClock the loop was constructed with");
+  }
+  if (threaded_) throw ConfigError("servo loop: run_ticks while the servo thread runs");
+  for (std::uint64_t k = 0; k < n && !stop_requested_; ++k) {
+    tick_impl(0);
+    clock.advance_ns(period_ns_);
+  }
+}
+
+RealtimeReport ServoLoop::start() {
+  if (thread_.joinable()) throw ConfigError("servo loop: start() while already running");
+  if (device_.state() == DeviceState::kClosed) {
+    throw InputError("servo loop: device '" + device_.info().name + "' is closed; open() it before start()");
+  }
+  RealtimeReport report;
+  report.mode = config_.realtime;
+  std::string detail;
+  if (config_.realtime != RealtimeMode::kOff) {
+    if (mlockall(MCL_CURRENT | MCL_FUTURE) == 0) {
+      report.memory_locked = true;
+    } else {
+      detail += std::string("mlockall refused: ") + std::strerror(errno) +
+                " (check the memlock limit: ulimit -l, or CAP_IPC_LOCK)\n";
+    }
+  }
+  go_.store(0, std::memory_order_release);
+  stop_flag_.store(false, std::memory_order_release);
+  finished_.store(false, std::memory_order_release);
+  stop_requested_ = false;
+  threaded_ = true;  // written before the thread exists: the thread sees it
+  thread_ = std::thread([this] { thread_main(); });
+  if (config_.realtime != RealtimeMode::kOff) {
+    sched_param sp{};
+    sp.sched_priority = config_.fifo_priority;
+    const int rc = pthread_setschedparam(thread_.native_handle(), SCHED_FIFO, &sp);
+    if (rc == 0) {
+      report.fifo_granted = true;
+      report.priority = config_.fifo_priority;
+    } else {
+      detail += "SCHED_FIFO priority " + std::to_string(config_.fifo_priority) + " refused: " +
+                std::strerror(rc) + " (check CAP_SYS_NICE or the rtprio limit: ulimit -r, /etc/security/limits.conf)\n";
+    }
+  }
+  if (!detail.empty()) detail.pop_back();
+  report.detail = detail;
+  memory_locked_ = report.memory_locked;
+  if (config_.realtime == RealtimeMode::kEnforce && !(report.fifo_granted && report.memory_locked)) {
+    go_.store(-1, std::memory_order_release);
+    thread_.join();
+    threaded_ = false;
+    if (memory_locked_) munlockall();
+    memory_locked_ = false;
+    throw ResourceError("servo loop: realtime: enforce, but " + detail);
+  }
+  go_.store(1, std::memory_order_release);
+  return report;
+}
+
+void ServoLoop::thread_main() noexcept {
+  while (go_.load(std::memory_order_acquire) == 0) std::this_thread::yield();
+  if (go_.load(std::memory_order_acquire) < 0) {
+    finished_.store(true, std::memory_order_release);
+    return;
+  }
+  std::int64_t deadline = monotonic_now_ns();
+  while (!stop_flag_.load(std::memory_order_acquire) && !stop_requested_) {
+    deadline += period_ns_;
+    const timespec ts = to_timespec(deadline);
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+    }
+    const std::int64_t wake = monotonic_now_ns();
+    tick_impl(wake - deadline);
+    const std::int64_t end = monotonic_now_ns();
+    if (end > deadline + period_ns_) {
+      ++stats_.overruns;
+      shared_.counters.overruns.fetch_add(1, std::memory_order_relaxed);
+      // Skip the deadlines already missed instead of running late ticks back to back.
+      deadline += (end - deadline) / period_ns_ * period_ns_;
+    }
+  }
+  finished_.store(true, std::memory_order_release);
+}
+
+void ServoLoop::stop() noexcept {
+  if (!thread_.joinable()) return;
+  stop_flag_.store(true, std::memory_order_release);
+  thread_.join();
+  threaded_ = false;
+  (void)device_.write(Eigen::Vector3d::Zero());
+  if (memory_locked_) munlockall();  // the lock was taken for the servo thread only
+  memory_locked_ = false;
+}
+
+}  // namespace hc::haptics

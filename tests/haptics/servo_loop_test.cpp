@@ -1,0 +1,285 @@
+#include "hc/haptics/servo_loop.hpp"
+#include "hc/haptics/simulated_device.hpp"
+
+#include "haptics_test_support.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <memory>
+#include <thread>
+#include <vector>
+
+namespace hc::haptics {
+namespace {
+
+using Eigen::Vector3d;
+
+std::unique_ptr<const HapticSurface> sinusoid_surface(int n = 200) {
+  const HeightField f = test::make_square(n, 0.1, [](double x, double y) { return test::sinusoid(x, y); });
+  SurfaceOptions opt;
+  opt.default_mu_d = 0.3;
+  opt.default_mu_s = 0.4;
+  return test::make_surface(f, opt);
+}
+
+ScriptedPath circle_path() {
+  ScriptedPath p;
+  p.kind = PathKind::kCircle;
+  p.half_x_m = 0.015;
+  p.z_above_m = 0.01;
+  p.z_contact_m = -0.01;  // the virtual hand pulls the HIP into the surface
+  p.speed_m_per_s = 0.05;
+  p.approach_s = 0.5;
+  return p;
+}
+
+TEST(ServoLoop, ScriptedSessionAsFastAsPossible) {
+  SharedState shared(sinusoid_surface());
+  ManualClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  dev.open();
+  ServoConfig cfg;
+  ServoLoop loop(dev, shared, clock, cfg);
+  std::vector<TickRecord> trace(6000);
+  loop.set_trace(trace);
+  ASSERT_TRUE(shared.commands.try_push(Command::of(CommandType::kArm)));
+  loop.run_ticks(5000, clock);
+  EXPECT_EQ(dev.state(), DeviceState::kArmed);
+  EXPECT_EQ(loop.stats().ticks, 5000U);
+  EXPECT_EQ(loop.stats().compute.count(), 5000U);
+  EXPECT_EQ(loop.trace_size(), 5000U);
+  EXPECT_EQ(shared.counters.ticks.load(), 5000U);
+  EXPECT_EQ(clock.now_ns(), 5000000000LL);
+  // The hand pressed the HIP into the surface and the rendered force held it there.
+  const HapticSurface& s = *shared.current_surface();
+  int contact_ticks = 0;
+  double max_force = 0.0;
+  for (std::size_t k = 0; k < loop.trace_size(); ++k) {
+    const TickRecord& r = trace[k];
+    contact_ticks += r.in_contact ? 1 : 0;
+    const double f = r.force_n.eigen().norm();
+    max_force = std::max(max_force, f);
+    ASSERT_LE(f, cfg.proxy.max_force_n + 1e-12);
+    ASSERT_GE(r.proxy_m.z, s.height(r.proxy_m.x, r.proxy_m.y) - 1e-6);
+  }
+  EXPECT_GT(contact_ticks, 4000);
+  EXPECT_GT(max_force, 1.0);
+  // Rendered force fed back: the HIP stays far above the hand's target (−10 mm).
+  EXPECT_GT(trace[4999].hip_m.z, -0.008);
+  // The snapshot is the last tick; events told about the touch-down.
+  Snapshot snap;
+  ASSERT_TRUE(shared.snapshots.read(snap));
+  EXPECT_EQ(snap.tick, 4999U);
+  EXPECT_TRUE(snap.in_contact);
+  EXPECT_EQ(static_cast<DeviceState>(snap.device_state), DeviceState::kArmed);
+  ContactEvent e;
+  ASSERT_TRUE(shared.events.try_pop(e));
+  EXPECT_EQ(e.type, ContactEventType::kOnset);
+  int slides = 0;
+  while (shared.events.try_pop(e)) slides += e.type == ContactEventType::kSlide ? 1 : 0;
+  EXPECT_GT(slides, 50);  // at most one per 10 ticks of sliding (not while sticking)
+  EXPECT_GT(loop.stats().compute.percentile_ns(0.5), 0.0);
+}
+
+TEST(ServoLoop, CommandsAreClampedOrRejected) {
+  SharedState shared(sinusoid_surface(50));
+  ManualClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  dev.open();
+  ServoLoop loop(dev, shared, clock, ServoConfig{});
+  shared.commands.try_push(Command::of(CommandType::kSetStiffness, 1e9));
+  shared.commands.try_push(Command::of(CommandType::kSetMaxForce, std::numeric_limits<double>::quiet_NaN()));
+  shared.commands.try_push(Command::of(CommandType::kSetRho, 5.0));
+  WorkspaceMap bad;
+  bad.scale = -1;
+  shared.commands.try_push(Command::set_workspace(bad));
+  WorkspaceMap zoom;
+  zoom.scale = 0.5;
+  shared.commands.try_push(Command::set_workspace(zoom));
+  shared.commands.try_push(Command::of(CommandType::kResetFault));  // not in Fault: rejected
+  loop.run_ticks(1, clock);
+  EXPECT_EQ(loop.config().proxy.stiffness_n_per_m, dev.info().max_stable_stiffness_n_per_m);
+  EXPECT_EQ(loop.config().proxy.rho, 1.0);
+  EXPECT_EQ(loop.config().workspace.scale, 0.5);
+  EXPECT_EQ(shared.counters.commands_applied.load(), 3U);
+  EXPECT_EQ(shared.counters.commands_rejected.load(), 3U);
+  shared.commands.try_push(Command::of(CommandType::kStop));
+  loop.run_ticks(100, clock);
+  EXPECT_EQ(loop.stats().ticks, 2U);  // stopped after the tick that applied kStop
+}
+
+TEST(ServoLoop, ConfigurationOutsideTheDeviceIsAnError) {
+  SharedState shared;
+  ManualClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  ServoConfig cfg;
+  cfg.rate_hz = 20000;
+  EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
+  cfg = ServoConfig{};
+  cfg.proxy.stiffness_n_per_m = 1e5;
+  EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
+  cfg = ServoConfig{};
+  cfg.proxy.max_force_n = 100;
+  EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
+  EXPECT_EQ(realtime_mode_from_string("enforce"), RealtimeMode::kEnforce);
+  EXPECT_THROW(realtime_mode_from_string("always"), ConfigError);
+  ServoLoop loop(dev, shared, clock, ServoConfig{});
+  ManualClock wrong;
+  EXPECT_THROW(loop.run_ticks(1, wrong), ConfigError);
+  EXPECT_THROW(loop.start(), InputError);  // device closed
+}
+
+/// A device whose position turns NaN on request: NaN in → zero force out, device faulted.
+class GlitchDevice final : public HapticDevice {
+ public:
+  GlitchDevice() : HapticDevice(SimulatedDevice::default_info()) {}
+  bool glitch = false;
+  Vector3d position = Vector3d(0, 0, -0.002);
+
+ protected:
+  void do_open() override {}
+  void do_close() noexcept override {}
+  DeviceStatus do_read(DeviceReading& out) noexcept override {
+    out.position_m = glitch ? Vector3d(std::numeric_limits<double>::quiet_NaN(), 0, 0) : position;
+    return DeviceStatus::kOk;
+  }
+  DeviceStatus do_write(const Vector3d&) noexcept override { return DeviceStatus::kOk; }
+};
+
+TEST(ServoLoop, NonFiniteHipGivesZeroForceAndAFault) {
+  const HeightField flat = test::make_square(21, 0.02, [](double, double) { return 0.0; });
+  SharedState shared(test::make_surface(flat));
+  ManualClock clock;
+  GlitchDevice dev;
+  dev.position = Vector3d(0, 0, 0.005);  // start above, then press
+  dev.open();
+  ServoConfig cfg;
+  cfg.proxy.ramp_time_s = 0.0;
+  ServoLoop loop(dev, shared, clock, cfg);
+  shared.commands.try_push(Command::of(CommandType::kArm));
+  loop.run_ticks(2, clock);
+  dev.position = Vector3d(0, 0, -0.002);
+  loop.run_ticks(5, clock);
+  EXPECT_NEAR(dev.last_force_n().z(), cfg.proxy.stiffness_n_per_m * 0.002, 1e-9);
+  dev.glitch = true;
+  loop.run_ticks(1, clock);
+  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());
+  EXPECT_EQ(dev.state(), DeviceState::kFault);
+  EXPECT_EQ(shared.counters.nonfinite_inputs.load(), 1U);
+  dev.glitch = false;
+  loop.run_ticks(3, clock);
+  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());  // zero until an explicit reset
+  shared.commands.try_push(Command::of(CommandType::kResetFault));
+  shared.commands.try_push(Command::of(CommandType::kArm));
+  loop.run_ticks(3, clock);
+  EXPECT_EQ(dev.state(), DeviceState::kArmed);
+  // The gate holds: 1.6 N at the HIP is above the 0.5 N gate, so the force stays off until
+  // the user eases off.
+  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());
+  dev.position = Vector3d(0, 0, -0.0005);
+  loop.run_ticks(3, clock);
+  EXPECT_NEAR(dev.last_force_n().z(), cfg.proxy.stiffness_n_per_m * 0.0005, 1e-9);
+}
+
+TEST(ServoLoop, NewSurfaceIsAdoptedAtATickBoundaryAndTheOldOneRetired) {
+  SharedState shared(sinusoid_surface(50));
+  ManualClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  dev.open();
+  ServoLoop loop(dev, shared, clock, ServoConfig{});
+  shared.commands.try_push(Command::of(CommandType::kArm));
+  loop.run_ticks(1500, clock);
+  const HapticSurface* before = shared.current_surface();
+  // A higher surface appears under the proxy: it is lifted onto it, never left inside.
+  const HeightField higher = test::make_square(50, 0.1, [](double x, double y) { return test::sinusoid(x, y) + 0.003; });
+  shared.publish_surface(test::make_surface(higher));
+  std::vector<TickRecord> trace(10);
+  loop.set_trace(trace);
+  loop.run_ticks(10, clock);
+  EXPECT_NE(shared.current_surface(), before);
+  EXPECT_EQ(shared.counters.surfaces_adopted.load(), 1U);
+  EXPECT_EQ(shared.collect_retired(), 1U);
+  for (const TickRecord& r : trace) {
+    EXPECT_GE(r.proxy_m.z, shared.current_surface()->height(r.proxy_m.x, r.proxy_m.y) - 1e-6);
+    EXPECT_LE(r.force_n.eigen().norm(), loop.config().proxy.max_force_n + 1e-12);
+  }
+}
+
+TEST(ServoLoop, ThreadedLoopRunsAndStops) {
+  SharedState shared(sinusoid_surface(50));
+  SteadyClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  dev.open();
+  ServoConfig cfg;
+  cfg.rate_hz = 2000;
+  cfg.realtime = RealtimeMode::kOff;
+  ServoLoop loop(dev, shared, clock, cfg);
+  shared.commands.try_push(Command::of(CommandType::kArm));
+  const RealtimeReport rep = loop.start();
+  EXPECT_FALSE(rep.fifo_granted);
+  EXPECT_FALSE(rep.memory_locked);
+  EXPECT_TRUE(loop.running());
+  EXPECT_THROW(loop.start(), ConfigError);
+  while (shared.counters.ticks.load() < 300) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  Snapshot snap;
+  EXPECT_TRUE(shared.snapshots.read(snap));
+  loop.stop();
+  EXPECT_FALSE(loop.running());
+  EXPECT_GE(loop.stats().ticks, 300U);
+  EXPECT_EQ(loop.stats().lateness.count(), loop.stats().ticks);
+  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());  // stop() leaves zero force
+  EXPECT_EQ(loop.period_ns(), 500000);
+}
+
+TEST(ServoLoop, EnforcedRealtimeEitherGetsItOrRefusesToStart) {
+  SharedState shared(sinusoid_surface(50));
+  SteadyClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  dev.open();
+  ServoConfig cfg;
+  cfg.realtime = RealtimeMode::kEnforce;
+  ServoLoop loop(dev, shared, clock, cfg);
+  try {
+    const RealtimeReport rep = loop.start();
+    EXPECT_TRUE(rep.fifo_granted);
+    EXPECT_TRUE(rep.memory_locked);
+    EXPECT_EQ(rep.priority, cfg.fifo_priority);
+    loop.stop();
+  } catch (const ResourceError& e) {
+    const std::string what = e.what();
+    EXPECT_TRUE(what.find("SCHED_FIFO") != std::string::npos || what.find("mlockall") != std::string::npos) << what;
+    EXPECT_FALSE(loop.running());
+  }
+  // Warn: runs in any case and says what it got.
+  ServoConfig warn = cfg;
+  warn.realtime = RealtimeMode::kWarn;
+  ServoLoop loop2(dev, shared, clock, warn);
+  const RealtimeReport rep = loop2.start();
+  EXPECT_EQ(rep.detail.empty(), rep.fifo_granted && rep.memory_locked);
+  loop2.stop();
+}
+
+TEST(LatencyHistogram, PercentilesAndOverflow) {
+  LatencyHistogram h;
+  EXPECT_EQ(h.percentile_ns(0.5), 0.0);
+  for (int k = 1; k <= 1000; ++k) h.add(k);
+  EXPECT_EQ(h.count(), 1000U);
+  EXPECT_NEAR(h.mean_ns(), 500.5, 1e-9);
+  EXPECT_EQ(h.percentile_ns(0.5), 500.0);
+  EXPECT_EQ(h.percentile_ns(0.999), 999.0);
+  EXPECT_EQ(h.max_ns(), 1000);
+  h.add(10000);      // coarse bin
+  h.add(5000000);    // overflow bin: its percentile is the exact max
+  EXPECT_EQ(h.percentile_ns(1.0), 5000000.0);
+  EXPECT_EQ(h.max_ns(), 5000000);
+  h.reset();
+  EXPECT_EQ(h.count(), 0U);
+}
+
+}  // namespace
+}  // namespace hc::haptics
