@@ -7,9 +7,12 @@
 
 #include <gtest/gtest.h>
 #include <nanoflann.hpp>
+#include <pcl/PCLPointCloud2.h>
+#include <pcl/io/ply_io.h>
 #include <zlib.h>
 
 #include <algorithm>
+#include <bit>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -178,6 +181,88 @@ TEST(Ingest, ReadsMergedBinaryBuddhaPlyGz) {
   EXPECT_FALSE(c.has_scan_id());  // per-file loads leave scan_id empty
 }
 
+// The direct fixed-stride read of binary PLY vertices against PCL's PLY reader (the oracle) on
+// the whole merged Buddha: every coordinate identical.
+TEST(Ingest, DirectBinaryPlyReadEqualsPclReader) {
+  const fs::path gz = hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  const auto ours = hp::load_cloud(gz);
+  const fs::path dir = hc::test::temp_dir("oracle");
+  {
+    gzFile f = gzopen(gz.string().c_str(), "rb");
+    ASSERT_NE(f, nullptr);
+    std::ofstream out(dir / "merged.ply", std::ios::binary);
+    std::vector<char> buf(1 << 20);
+    for (int n; (n = gzread(f, buf.data(), static_cast<unsigned>(buf.size()))) > 0;) out.write(buf.data(), n);
+    gzclose(f);
+  }
+  pcl::PCLPointCloud2 pc;
+  pcl::PLYReader reader;
+  ASSERT_EQ(reader.read((dir / "merged.ply").string(), pc), 0);
+  fs::remove_all(dir);
+  ASSERT_EQ(static_cast<std::size_t>(pc.width) * pc.height, ours.value.size());
+  ASSERT_EQ(pc.fields.size(), 4u);  // x, y, z float32 and scan_id uint8
+  std::size_t mismatches = 0;
+  for (std::size_t i = 0; i < ours.value.size(); ++i) {
+    for (int a = 0; a < 3; ++a) {
+      float v;
+      std::memcpy(&v, pc.data.data() + i * pc.point_step + pc.fields[static_cast<std::size_t>(a)].offset, 4);
+      mismatches += static_cast<double>(v) == ours.value.xyz(a, static_cast<Eigen::Index>(i)) ? 0u : 1u;
+    }
+  }
+  EXPECT_EQ(mismatches, 0u);
+}
+
+// The direct ASCII read against PCL's PLY reader on a raw range scan: PCL returns the range
+// grid (NaN where empty); its valid cells in grid order are the vertices in file order.
+TEST(Ingest, DirectAsciiPlyReadEqualsPclReader) {
+  const fs::path file = hc::test::scan_path("bunny/bun000.ply");
+  const auto ours = hp::load_cloud(file);
+  pcl::PCLPointCloud2 pc;
+  pcl::PLYReader reader;
+  ASSERT_EQ(reader.read(file.string(), pc), 0);
+  std::vector<Eigen::Vector3d> theirs;
+  for (std::size_t i = 0; i < static_cast<std::size_t>(pc.width) * pc.height; ++i) {
+    float v[3];
+    for (int a = 0; a < 3; ++a) {
+      std::memcpy(&v[a], pc.data.data() + i * pc.point_step + pc.fields[static_cast<std::size_t>(a)].offset, 4);
+    }
+    if (std::isfinite(v[0])) theirs.emplace_back(v[0], v[1], v[2]);
+  }
+  ASSERT_EQ(theirs.size(), ours.value.size());
+  std::size_t mismatches = 0;
+  for (std::size_t i = 0; i < theirs.size(); ++i) {
+    mismatches += theirs[i] == ours.value.xyz.col(static_cast<Eigen::Index>(i)) ? 0u : 1u;
+  }
+  EXPECT_EQ(mismatches, 0u);
+}
+
+TEST(Ingest, ReadsBigEndianBinaryPlyWithMixedTypes) {
+  const fs::path dir = hc::test::temp_dir("be");
+  std::string s = "ply\nformat binary_big_endian 1.0\nelement camera 1\nproperty float f\n"
+                  "element vertex 2\nproperty short z\nproperty uchar r\nproperty double x\nproperty int y\n"
+                  "end_header\n";
+  auto put = [&](auto v) {
+    char b[sizeof v];
+    std::memcpy(b, &v, sizeof v);
+    if constexpr (std::endian::native == std::endian::little) std::reverse(b, b + sizeof v);
+    s.append(b, sizeof v);
+  };
+  put(1.5f);
+  put(std::int16_t{-7});
+  put(std::uint8_t{200});
+  put(450000.123456789);
+  put(std::int32_t{-123456});
+  put(std::int16_t{300});
+  put(std::uint8_t{1});
+  put(-2.5);
+  put(std::int32_t{42});
+  write_text(dir / "be.ply", s);
+  const auto r = hp::load_cloud(dir / "be.ply");
+  ASSERT_EQ(r.value.size(), 2u);
+  EXPECT_EQ(r.value.xyz.col(0), Eigen::Vector3d(450000.123456789, -123456, -7));
+  EXPECT_EQ(r.value.xyz.col(1), Eigen::Vector3d(-2.5, 42, 300));
+}
+
 TEST(Ingest, ReadsOldVersionPcd) {
   const auto r = hp::load_cloud(hc::test::scan_path("bunny/pcl_bunny.pcd"));
   ASSERT_EQ(r.value.size(), 397u);
@@ -233,6 +318,19 @@ TEST(Ingest, ReadsCrlfAsciiPly) {
   const auto r = hp::load_cloud(dir / "crlf.ply");
   ASSERT_EQ(r.value.size(), 2u);
   EXPECT_EQ(r.value.xyz(2, 1), 6.0);
+}
+
+TEST(Ingest, ReadsPlyWithAListPropertyInTheVertexElementThroughPcl) {
+  const fs::path dir = hc::test::temp_dir("vlist");
+  write_text(dir / "vlist.ply", "ply\nformat ascii 1.0\nobj_info x\nelement vertex 2\nproperty float x\nproperty float y\n"
+                                "property float z\nproperty list uchar int tags\nelement face 0\n"
+                                "property list uchar int vertex_indices\nend_header\n1 2 3 2 7 8\n4 5 6 0\n");
+  const auto r = hp::load_cloud(dir / "vlist.ply");
+  ASSERT_EQ(r.value.size(), 2u);
+  EXPECT_EQ(r.value.xyz.col(1), Eigen::Vector3d(4, 5, 6));
+  const auto& notes = r.report.notes;
+  EXPECT_TRUE(std::any_of(notes.begin(), notes.end(),
+                          [](const std::string& n) { return n.find("read by PCL") != std::string::npos; }));
 }
 
 TEST(Ingest, GzipOfAFileGivesTheSameCloud) {
