@@ -1,6 +1,344 @@
-// Placeholder registration until the haptic renderer lands (issue 3); replaced by its owner.
+/// `hapticloud touch`: a headless scripted haptic session. A SimulatedDevice follows a scripted
+/// path through a virtual hand, the servo loop renders the scene (as fast as possible on a
+/// manual clock, or in real time on its own thread with --realtime), and the session is written
+/// as trace.csv, events.csv and summary.json in --out, with a summary on stdout.
+
 #include "commands.hpp"
 
+#include "hc/common/error.hpp"
+#include "hc/haptics/haptic_surface.hpp"
+#include "hc/haptics/servo_loop.hpp"
+#include "hc/haptics/shared_state.hpp"
+#include "hc/haptics/simulated_device.hpp"
+#include "hc/haptics/workspace_map.hpp"
+#include "hc/pipeline/scene_io.hpp"
+
+#include <CLI/CLI.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <memory>
+#include <numbers>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
 namespace hc::app {
-void add_touch_command(CLI::App& /*app*/) {}
+namespace {
+
+namespace fs = std::filesystem;
+using haptics::HapticSurface;
+
+struct TouchOptions {
+  std::string input;
+  std::string synthetic;
+  std::string path = "raster";
+  double seconds = 10.0;
+  double rate_hz = 1000.0;
+  bool realtime = false;
+  std::string out = "touch-out";
+  double texture_gain = 1.0;
+  bool no_friction = false;
+  double mu_d = 0.3;
+  double mu_s = 0.4;
+  double stiffness_n_per_m = 800.0;
+  double max_force_n = 8.0;
+  double rho = 0.9;
+  int cells = 400;
+  bool no_hand = false;
+  double press_m = 0.01;
+  double speed_m_per_s = 0.05;
+};
+
+/// The layers the session renders (owned here; HapticSurface copies what it needs).
+struct SceneLayers {
+  std::map<std::string, HeightField> layers;
+  std::string description;
+};
+
+/// The paper's validation sinusoid (Sec. 5.1) with a fine texture: envelope
+/// A·sin(2πx/λ)·sin(2πy/λ), A = 4 mm, λ = 40 mm; texture a·sin(2πx/λt)·sin(2πy/λt), a = 0.2 mm,
+/// λt = 2 mm; over a 100 mm square centred on the origin.
+SceneLayers synthetic_sinusoid(int n) {
+  if (n < 2 || n > 8192) {
+    throw ConfigError("touch: --cells " + std::to_string(n) + " is out of range (expected 2..8192)");
+  }
+  const double side = 0.1;
+  const double cell = side / (n - 1);
+  const GridGeometry g{n, n, -side / 2, -side / 2, cell};
+  HeightField env(g), tex(g), depth(g);
+  const double k = 2 * std::numbers::pi / 0.04, kt = 2 * std::numbers::pi / 0.002;
+  for (int r = 0; r < n; ++r) {
+    for (int c = 0; c < n; ++c) {
+      const double x = g.x_of_col(c), y = g.y_of_row(r);
+      const double e = 0.004 * std::sin(k * x) * std::sin(k * y);
+      const double t = 0.0002 * std::sin(kt * x) * std::sin(kt * y);
+      env.at(r, c) = static_cast<float>(e);
+      tex.at(r, c) = static_cast<float>(t);
+      depth.at(r, c) = static_cast<float>(e + t);
+    }
+  }
+  SceneLayers s;
+  s.layers.emplace("depth", std::move(depth));
+  s.layers.emplace("envelope", std::move(env));
+  s.layers.emplace("texture", std::move(tex));
+  s.description = "synthetic sinusoid " + std::to_string(n) + "x" + std::to_string(n);
+  return s;
+}
+
+SceneLayers load_input(const TouchOptions& o) {
+  if (!o.synthetic.empty()) {
+    if (o.synthetic != "sinusoid") {
+      throw ConfigError("touch: --synthetic '" + o.synthetic + "' is unknown (expected: sinusoid)");
+    }
+    return synthetic_sinusoid(o.cells);
+  }
+  if (o.input.empty()) {
+    throw ConfigError("touch: give a scene folder (written by `hapticloud run`) or --synthetic sinusoid");
+  }
+  const fs::path p(o.input);
+  if (fs::is_directory(p) && fs::exists(p / "scene.yaml")) {
+    pipeline::Scene scene = pipeline::load_scene(p);
+    SceneLayers s;
+    for (const char* name : {"depth", "envelope", "texture", "mu_d", "mu_s"}) {
+      auto it = scene.layers.find(name);
+      if (it != scene.layers.end()) s.layers.emplace(name, std::move(it->second));
+    }
+    s.description = "scene " + p.string();
+    return s;
+  }
+  throw InputError("touch: '" + o.input +
+                   "' is not a scene folder (no scene.yaml inside); YAML configs are not accepted by "
+                   "touch yet: run `hapticloud run CONFIG` first, or use --synthetic sinusoid");
+}
+
+const HeightField* layer(const SceneLayers& s, const char* name) {
+  auto it = s.layers.find(name);
+  return it == s.layers.end() ? nullptr : &it->second;
+}
+
+std::string json_number(double v) {
+  if (!std::isfinite(v)) return "null";
+  std::ostringstream s;
+  s.precision(10);
+  s << v;
+  return s.str();
+}
+
+void run_touch(const TouchOptions& o) {
+  if (!(o.seconds > 0.0) || o.seconds > 3600.0) {
+    throw ConfigError("touch: --seconds " + json_number(o.seconds) + " is out of range (expected (0, 3600])");
+  }
+  const SceneLayers scene = load_input(o);
+  haptics::SurfaceLayers layers;
+  layers.depth = layer(scene, "depth");
+  layers.envelope = layer(scene, "envelope");
+  layers.texture = layer(scene, "texture");
+  layers.mu_d = layer(scene, "mu_d");
+  layers.mu_s = layer(scene, "mu_s");
+  haptics::SurfaceOptions sopt;
+  sopt.texture_gain = o.texture_gain;
+  sopt.default_mu_d = o.mu_d;
+  sopt.default_mu_s = o.mu_s;
+  auto surface = std::make_unique<HapticSurface>(layers, sopt);
+  const HapticSurface& surf = *surface;
+  const GridGeometry& g = surf.source_geometry();
+
+  // Device and workspace: the grid's extent fills the device box, device z = 0 at mid height.
+  const haptics::DeviceInfo info = haptics::SimulatedDevice::default_info();
+  const double z_mid = 0.5 * (surf.min_height_m() + surf.max_height_m());
+  const haptics::WorkspaceMap map = haptics::WorkspaceMap::fit(
+      info.workspace_half_extent_m, g.x0_m, g.x_of_col(g.cols - 1), g.y0_m, g.y_of_row(g.rows - 1), z_mid);
+  const double top_dev = (surf.max_height_m() - z_mid) / map.scale;
+  haptics::ScriptedPath path;
+  path.kind = haptics::path_kind_from_string(o.path);
+  path.centre_m = Eigen::Vector3d::Zero();
+  path.half_x_m = 0.6 * info.workspace_half_extent_m.x();
+  path.half_y_m = 0.6 * info.workspace_half_extent_m.y();
+  path.raster_spacing_m = 0.1 * info.workspace_half_extent_m.y();
+  path.z_above_m = top_dev + 0.01;
+  path.z_contact_m = -o.press_m;  // the hand aims this far below mid height
+  path.speed_m_per_s = o.speed_m_per_s;
+  path.approach_s = std::min(0.5, 0.1 * o.seconds);
+  haptics::VirtualHand hand;
+  hand.enabled = !o.no_hand;
+
+  haptics::ServoConfig cfg;
+  cfg.rate_hz = o.rate_hz;
+  cfg.realtime = o.realtime ? haptics::RealtimeMode::kWarn : haptics::RealtimeMode::kOff;
+  cfg.workspace = map;
+  cfg.proxy.stiffness_n_per_m = o.stiffness_n_per_m;
+  cfg.proxy.max_force_n = o.max_force_n;
+  cfg.proxy.rho = o.rho;
+  cfg.proxy.friction_enabled = !o.no_friction;
+  const double ticks_d = std::ceil(o.seconds * o.rate_hz);
+  if (ticks_d > 5.0e7) {
+    throw ResourceError("touch: " + json_number(ticks_d) + " ticks requested (--seconds x --rate), at most 5e7 are traced");
+  }
+  const auto ticks = static_cast<std::uint64_t>(ticks_d);
+  std::vector<haptics::TickRecord> trace(ticks + 16);
+
+  const fs::path out(o.out);
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  if (ec) throw InputError("touch: cannot create the output folder '" + out.string() + "': " + ec.message());
+
+  haptics::SharedState shared(std::move(surface));
+  std::vector<haptics::ContactEvent> events;
+  events.reserve(1 << 16);
+  const auto drain = [&] {
+    haptics::ContactEvent e;
+    while (shared.events.try_pop(e)) events.push_back(e);
+  };
+  haptics::RealtimeReport report;
+  haptics::ServoStats stats;
+  if (!o.realtime) {
+    auto clock = std::make_unique<haptics::ManualClock>();
+    haptics::SimulatedDevice dev(*clock, path, hand, info);
+    dev.open();
+    haptics::ServoLoop loop(dev, shared, *clock, cfg);
+    loop.set_trace(trace);
+    shared.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
+    for (std::uint64_t done = 0; done < ticks;) {
+      const std::uint64_t n = std::min<std::uint64_t>(500, ticks - done);  // the event ring holds 1024
+      loop.run_ticks(n, *clock);
+      drain();
+      done += n;
+    }
+    stats = loop.stats();
+    trace.resize(loop.trace_size());
+    dev.close();
+  } else {
+    haptics::SteadyClock clock;
+    haptics::SimulatedDevice dev(clock, path, hand, info);
+    dev.open();
+    haptics::ServoLoop loop(dev, shared, clock, cfg);
+    loop.set_trace(trace);
+    shared.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
+    report = loop.start();
+    std::cout << "realtime: SCHED_FIFO " << (report.fifo_granted ? "granted" : "not granted")
+              << ", memory " << (report.memory_locked ? "locked" : "not locked") << "\n";
+    if (!report.detail.empty()) std::cout << "realtime: " << report.detail << "\n";
+    while (shared.counters.ticks.load(std::memory_order_relaxed) < ticks) {
+      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      drain();
+    }
+    loop.stop();
+    drain();
+    stats = loop.stats();
+    trace.resize(std::min<std::size_t>(loop.trace_size(), ticks));
+    dev.close();
+  }
+
+  // trace.csv, and the figures of the summary.
+  const HapticSurface& s = *shared.current_surface();
+  std::ofstream csv(out / "trace.csv");
+  if (!csv) throw InputError("touch: cannot write '" + (out / "trace.csv").string() + "'");
+  csv << "t_s,hip_x_m,hip_y_m,hip_z_m,proxy_x_m,proxy_y_m,proxy_z_m,force_x_n,force_y_n,force_z_n,"
+         "force_n,contact,sticking,mu_d,mu_s,beta_rad,iterations,compute_ns,surface_z_m,"
+         "proxy_below_surface_m\n";
+  double max_force = 0.0, deepest = 0.0, t0 = trace.empty() ? 0.0 : trace.front().t_s;
+  std::size_t contact_ticks = 0;
+  char row[512];
+  for (const haptics::TickRecord& r : trace) {
+    const double f = r.force_n.eigen().norm();
+    const double zs = s.height(r.proxy_m.x, r.proxy_m.y);
+    const double below = zs - r.proxy_m.z;
+    max_force = std::max(max_force, f);
+    deepest = std::max(deepest, below);
+    contact_ticks += r.in_contact ? 1 : 0;
+    std::snprintf(row, sizeof row,
+                  "%.6f,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g,%.6g,%.6g,%.6g,%d,%d,%.4g,%.4g,%.6g,%d,%d,%.9g,%.3g\n",
+                  r.t_s - t0, r.hip_m.x, r.hip_m.y, r.hip_m.z, r.proxy_m.x, r.proxy_m.y, r.proxy_m.z,
+                  r.force_n.x, r.force_n.y, r.force_n.z, f, r.in_contact ? 1 : 0, r.sticking ? 1 : 0,
+                  static_cast<double>(r.mu_d), static_cast<double>(r.mu_s), static_cast<double>(r.beta_rad),
+                  static_cast<int>(r.iterations), static_cast<int>(r.compute_ns), zs, below);
+    csv << row;
+  }
+  csv.close();
+  std::ofstream ev(out / "events.csv");
+  ev << "t_s,type,region_id,x_m,y_m,z_m,force_n,speed_m_per_s\n";
+  std::size_t counts[3] = {0, 0, 0};
+  for (const haptics::ContactEvent& e : events) {
+    static const char* kNames[3] = {"onset", "slide", "release"};
+    const auto type = static_cast<std::size_t>(e.type);
+    ++counts[type];
+    std::snprintf(row, sizeof row, "%.6f,%s,%d,%.9g,%.9g,%.9g,%.6g,%.6g\n", e.t_s - t0, kNames[type],
+                  static_cast<int>(e.region_id), e.position_m.x, e.position_m.y, e.position_m.z,
+                  e.force_n.eigen().norm(), e.speed_m_per_s);
+    ev << row;
+  }
+  ev.close();
+
+  const double p50 = stats.compute.percentile_ns(0.5), p99 = stats.compute.percentile_ns(0.99);
+  const double p999 = stats.compute.percentile_ns(0.999);
+  const double cmax = static_cast<double>(stats.compute.max_ns());
+  std::ofstream js(out / "summary.json");
+  js << "{\n"
+     << "  \"input\": \"" << scene.description << "\",\n"
+     << "  \"path\": \"" << o.path << "\",\n"
+     << "  \"mode\": \"" << (o.realtime ? "realtime" : "as_fast_as_possible") << "\",\n"
+     << "  \"rate_hz\": " << json_number(o.rate_hz) << ",\n"
+     << "  \"texture_gain\": " << json_number(o.texture_gain) << ",\n"
+     << "  \"friction\": " << (o.no_friction ? "false" : "true") << ",\n"
+     << "  \"ticks\": " << stats.ticks << ",\n"
+     << "  \"overruns\": " << stats.overruns << ",\n"
+     << "  \"compute_ns\": {\"mean\": " << json_number(stats.compute.mean_ns()) << ", \"p50\": " << json_number(p50)
+     << ", \"p99\": " << json_number(p99) << ", \"p99_9\": " << json_number(p999) << ", \"max\": " << json_number(cmax) << "},\n"
+     << "  \"lateness_ns\": {\"p99_9\": " << json_number(stats.lateness.percentile_ns(0.999))
+     << ", \"max\": " << stats.lateness.max_ns() << "},\n"
+     << "  \"max_force_n\": " << json_number(max_force) << ",\n"
+     << "  \"deepest_proxy_below_surface_m\": " << json_number(deepest) << ",\n"
+     << "  \"contact_fraction\": " << json_number(trace.empty() ? 0.0 : static_cast<double>(contact_ticks) / static_cast<double>(trace.size())) << ",\n"
+     << "  \"events\": {\"onset\": " << counts[0] << ", \"slide\": " << counts[1] << ", \"release\": " << counts[2]
+     << ", \"dropped\": " << shared.counters.events_dropped.load() << "},\n"
+     << "  \"realtime\": {\"fifo_granted\": " << (report.fifo_granted ? "true" : "false")
+     << ", \"memory_locked\": " << (report.memory_locked ? "true" : "false") << "}\n"
+     << "}\n";
+  js.close();
+
+  std::cout << "touch: " << scene.description << ", path " << o.path << ", " << stats.ticks << " ticks at "
+            << o.rate_hz << " Hz (" << (o.realtime ? "real time" : "as fast as possible") << ")\n"
+            << "  overruns " << stats.overruns << "\n"
+            << "  compute ns: p50 " << p50 << ", p99 " << p99 << ", p99.9 " << p999 << ", max " << cmax << "\n"
+            << "  max force " << max_force << " N; deepest proxy below the surface " << deepest << " m\n"
+            << "  contact " << contact_ticks << " ticks; events: " << counts[0] << " onset, " << counts[1]
+            << " slide, " << counts[2] << " release\n"
+            << "  wrote " << (out / "trace.csv").string() << ", events.csv, summary.json\n";
+}
+
+}  // namespace
+
+void add_touch_command(CLI::App& app) {
+  auto opts = std::make_shared<TouchOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "touch", "Headless scripted haptic session: a simulated hand explores a scene; writes trace.csv and a summary.");
+  cmd->add_option("SCENE_OR_CONFIG", opts->input, "Scene folder written by `hapticloud run`");
+  cmd->add_option("--synthetic", opts->synthetic, "Built-in scene instead of a folder: sinusoid (the paper's validation surface)");
+  cmd->add_option("--path", opts->path, "Scripted path: raster | circle | line | press-slide | hold")->capture_default_str();
+  cmd->add_option("--seconds", opts->seconds, "Session length [s]")->capture_default_str();
+  cmd->add_option("--rate", opts->rate_hz, "Servo rate [Hz], up to 10000")->capture_default_str();
+  cmd->add_flag("--realtime", opts->realtime, "Run the servo thread in real time (tries SCHED_FIFO; realtime: warn)");
+  cmd->add_option("--out", opts->out, "Output folder")->capture_default_str();
+  cmd->add_option("--texture-gain", opts->texture_gain, "Texture gain (0 renders the envelope only)")->capture_default_str();
+  cmd->add_flag("--no-friction", opts->no_friction, "Render without friction (mu_d = mu_s = 0)");
+  cmd->add_option("--mu-d", opts->mu_d, "mu_d where the scene has no mu_d layer")->capture_default_str();
+  cmd->add_option("--mu-s", opts->mu_s, "mu_s where the scene has no mu_s layer")->capture_default_str();
+  cmd->add_option("--stiffness", opts->stiffness_n_per_m, "Stiffness k [N/m] (device frame)")->capture_default_str();
+  cmd->add_option("--max-force", opts->max_force_n, "Force cap [N]")->capture_default_str();
+  cmd->add_option("--rho", opts->rho, "Proxy step factor rho of Eq. 4-5, (0, 1]")->capture_default_str();
+  cmd->add_option("--cells", opts->cells, "Grid size of the synthetic scene (N x N)")->capture_default_str();
+  cmd->add_option("--press", opts->press_m, "How far below mid height the hand aims [m] (device frame)")->capture_default_str();
+  cmd->add_option("--speed", opts->speed_m_per_s, "Path speed [m/s] (device frame)")->capture_default_str();
+  cmd->add_flag("--no-hand", opts->no_hand, "Drive the device exactly along the path (no virtual hand)");
+  cmd->callback([opts] { run_touch(*opts); });
+}
+
 }  // namespace hc::app

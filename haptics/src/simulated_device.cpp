@@ -149,7 +149,7 @@ SimulatedDevice::SimulatedDevice(const Clock& clock, const ScriptedPath& path, c
 }
 
 void SimulatedDevice::do_open() {
-  start_ns_ = clock_.now_ns();
+  started_ = false;
   last_t_s_ = 0.0;
   target_m_ = path_.position_at(0.0);
   x_m_ = target_m_;
@@ -159,6 +159,10 @@ void SimulatedDevice::do_open() {
 
 DeviceStatus SimulatedDevice::do_read(DeviceReading& out) noexcept {
   const std::int64_t now = clock_.now_ns();
+  if (!started_) {
+    started_ = true;
+    start_ns_ = now;
+  }
   const double t = static_cast<double>(now - start_ns_) * 1e-9;
   target_m_ = path_.position_at(t);
   if (!hand_.enabled) {

@@ -62,7 +62,8 @@ struct VirtualHand {
 };
 
 /// Device following a ScriptedPath (see the file comment).
-/// Time: the clock's time since open() is the path time. Each read() integrates the hand from
+/// Time: the clock's time since the first read() after open() is the path time (so set-up
+/// between open() and the first servo tick does not eat into the path). Each read() integrates the hand from
 /// the previous read to now (semi-implicit Euler, sub-steps ≤ 0.25 ms, at most 4000 of them)
 /// using the last force written. Real-time: read/write yes.
 class SimulatedDevice final : public HapticDevice {
@@ -86,6 +87,7 @@ class SimulatedDevice final : public HapticDevice {
   const Clock& clock_;
   ScriptedPath path_;
   VirtualHand hand_;
+  bool started_ = false;
   std::int64_t start_ns_ = 0;
   double last_t_s_ = 0.0;
   Eigen::Vector3d x_m_ = Eigen::Vector3d::Zero();
