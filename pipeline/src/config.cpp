@@ -9,6 +9,7 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <set>
 #include <sstream>
 
@@ -222,9 +223,16 @@ class Reader {
 
   void check_node(const YAML::Node& node, const std::string& prefix) const {
     if (!node.IsMap()) return;
+    std::map<std::string, int> seen_line;  // yaml-cpp keeps duplicate keys silently: reject them
     for (const auto& kv : node) {
       const std::string key = kv.first.as<std::string>();
       const std::string path = prefix.empty() ? key : prefix + "." + key;
+      const int line = kv.first.Mark().line;
+      if (const auto it = seen_line.find(key); it != seen_line.end()) {
+        throw ConfigError(origin_ + ":" + std::to_string(line + 1) + ": duplicate key '" + path +
+                          "' (first given on line " + std::to_string(it->second + 1) + ")");
+      }
+      seen_line.emplace(key, line);
       if (!known_.count(path)) {
         std::string hint;
         for (const auto& k : known_) {
@@ -232,7 +240,6 @@ class Reader {
           const std::string parent = dot == std::string::npos ? "" : k.substr(0, dot);
           if (parent == prefix) hint += (hint.empty() ? "" : ", ") + k.substr(dot == std::string::npos ? 0 : dot + 1);
         }
-        const int line = kv.first.Mark().line;
         throw ConfigError(origin_ + (line >= 0 ? ":" + std::to_string(line + 1) : "") + ": unknown key '" +
                           path + "'" + (hint.empty() ? "" : " (allowed here: " + hint + ")"));
       }

@@ -139,6 +139,7 @@ Scene load_scene(const fs::path& scene_dir) {
     for (const auto& kv : root["layers"]) {
       const std::string name = kv.first.as<std::string>();
       const fs::path file = scene_dir / kv.second.as<std::string>();
+      if (!fs::exists(file)) throw InputError(file.string() + ": missing scene layer '" + name + "'");
       const cv::Mat img = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
       if (img.empty()) throw InputError(file.string() + ": missing or unreadable scene layer '" + name + "'");
       if (img.type() != CV_32FC1 || img.rows != g.rows || img.cols != g.cols) {
