@@ -264,7 +264,8 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   md << "## Stages (speed)\n\n| stage | points/cells in | out | time (ms) | figures |\n|---|---|---|---|---|\n";
   for (const auto& s : reports) {
     md << "| " << s.stage << " | " << s.count_in << " | " << s.count_out << " | " << fmt(s.seconds * 1000.0, 1) << " | ";
-    for (const auto& [k, v] : s.figures) md << k << " = " << fmt(v, 4) << "; ";
+    for (const auto& [k, v] : s.figures) md << k << " = " << std::setprecision(5) << std::defaultfloat << v << "; ";
+    for (const auto& note : s.notes) md << note << "; ";
     md << " |\n";
   }
   md << "| **total (file to written scene and previews)** | | | **" << fmt(summary.total_seconds * 1000.0, 1) << "** | |\n\n";
