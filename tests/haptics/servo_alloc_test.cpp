@@ -2,6 +2,10 @@
 // the whole hc_haptics_tests executable with counting versions (they count only while
 // g_counting is set, and otherwise behave like the standard ones).
 
+// The replacement operator new below returns malloc'd memory, so freeing it with free() is
+// right; GCC cannot see that through inlining and warns. Only for this file.
+#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
+
 #include "hc/haptics/servo_loop.hpp"
 #include "hc/haptics/simulated_device.hpp"
 
