@@ -55,6 +55,8 @@ std::string num(double v) {
 }
 
 constexpr int kSearchThreads = 2;
+// Search radius for the next point = this point's (k+1)-th neighbour distance times this.
+constexpr float kHintFactor = 1.15f;
 
 // ---------------------------------------------------------------------------------------------
 // Points sorted into a uniform grid of cubic cells.
@@ -201,53 +203,32 @@ CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
 // ---------------------------------------------------------------------------------------------
 // Exact mean k-NN distances on the grid.
 
-// Keeps the k+1 smallest squared distances in ascending order.
+// Selects the k+1 smallest squared distances of a candidate list (the query point itself is one
+// of them, at distance 0).
 class SmallestK {
  public:
-  explicit SmallestK(int k1) : k1_(static_cast<std::size_t>(k1)), top_(k1_) {}
+  explicit SmallestK(int k1) : k1_(static_cast<std::size_t>(k1)) {}
 
-  // Fills from `d2[0..m)` (m >= k+1); `hint` pre-filters candidates when it leaves enough.
-  void select(const float* d2, std::size_t m, float hint, std::vector<float>& scratch) {
-    const float* src = d2;
-    std::size_t count = m;
-    if (hint > 0.0f) {
-      std::size_t c = 0;
-      float* s = scratch.data();
-      for (std::size_t j = 0; j < m; ++j) {
-        s[c] = d2[j];
-        c += d2[j] <= hint ? 1u : 0u;
-      }
-      if (c >= k1_) {
-        src = s;
-        count = c;
-      }
-    }
-    std::copy(src, src + k1_, top_.begin());
-    std::sort(top_.begin(), top_.end());
-    float worst = top_[k1_ - 1];
-    for (std::size_t j = k1_; j < count; ++j) {
-      const float v = src[j];
-      if (v >= worst) continue;
-      std::size_t q = k1_ - 1;
-      while (q > 0 && top_[q - 1] > v) {
-        top_[q] = top_[q - 1];
-        --q;
-      }
-      top_[q] = v;
-      worst = top_[k1_ - 1];
-    }
+  // Partially orders d2[0..m) (m >= k+1) so that its first k+1 entries are the smallest.
+  void select(float* d2, std::size_t m) {
+    std::nth_element(d2, d2 + (k1_ - 1), d2 + m);
+    top_ = d2;
   }
+  // The (k+1)-th smallest squared distance.
   float kth() const { return top_[k1_ - 1]; }
-  // Mean of the square roots of entries 1..k (entry 0 is the query point itself), as PCL.
+  // Mean distance to the k nearest neighbours other than the point itself, as PCL computes it
+  // (the query's own zero distance adds nothing). Each square root is a float and there are at
+  // most 1001 of them, so their double sum is exact in any order unless they span more than
+  // 2^19 in magnitude: the result matches PCL's ascending-order sum.
   float mean_distance() const {
     double sum = 0.0;
-    for (std::size_t j = 1; j < k1_; ++j) sum += std::sqrt(top_[j]);
+    for (std::size_t j = 0; j < k1_; ++j) sum += std::sqrt(top_[j]);
     return static_cast<float>(sum / static_cast<double>(k1_ - 1));
   }
 
  private:
   std::size_t k1_;
-  std::vector<float> top_;
+  const float* top_ = nullptr;
 };
 
 // Distance from (px,py,pz) to the outside of the block of cells [i-r, i+r]^3 around cell i;
@@ -294,7 +275,7 @@ class KnnDistances {
   void stage_a(std::size_t cb, std::size_t ce, std::vector<float>& mean_d, std::vector<std::uint32_t>& later) const {
     const std::size_t nc = g_.cells();
     const auto k1 = static_cast<std::size_t>(k_ + 1);
-    std::vector<float> d2, scratch, near;
+    std::vector<float> d2, near;
     SmallestK top(k_ + 1);
     std::int64_t off[9];
     std::size_t cur_lo[9], cur_hi[9];
@@ -347,7 +328,6 @@ class KnnDistances {
       }
       if (d2.size() < m_total) {
         d2.resize(m_total);
-        scratch.resize(m_total);
         near.resize(m_total);
       }
       const double box_lo[3] = {g_.lo[0] + static_cast<double>(c[0]) * cell, g_.lo[1] + static_cast<double>(c[1]) * cell,
@@ -372,27 +352,28 @@ class KnnDistances {
           const int z0 = face_lo[2] < tau ? 0 : 1, z1 = face_hi[2] < tau ? 2 : 1;
           const auto t2 = static_cast<float>(tau * tau * (1.0 - 1e-5));
           std::size_t m = 0;
-          float* out = near.data();
           for (int zz = z0; zz <= z1; ++zz) {
             for (int yy = y0; yy <= y1; ++yy) {
               const std::uint32_t* row = cs[zz * 3 + yy];
-              for (std::uint32_t q = row[x0]; q < row[x1]; ++q) {
-                const float dx = g_.x[q] - pt[0], dy = g_.y[q] - pt[1], dz = g_.z[q] - pt[2];
-                const float v = dx * dx + dy * dy + dz * dz;
-                out[m] = v;
-                m += v <= t2 ? 1u : 0u;
-              }
+              m += distances(row[x0], row[x1], pt, d2.data() + m);
             }
           }
-          if (m >= k1) {
-            top.select(out, m, 0.0f, scratch);
+          // Keep those within tau (branch-free compaction).
+          std::size_t kept = 0;
+          float* out = near.data();
+          for (std::size_t q = 0; q < m; ++q) {
+            out[kept] = d2[q];
+            kept += d2[q] <= t2 ? 1u : 0u;
+          }
+          if (kept >= k1) {
+            top.select(out, kept);
             done = true;
           }
         }
         if (!done) {
           std::size_t m = 0;
           for (int jj = 0; jj < 9; ++jj) m += distances(cs[jj][0], cs[jj][3], pt, d2.data() + m);
-          top.select(d2.data(), m, 0.0f, scratch);
+          top.select(d2.data(), m);
           if (!settled(top.kth(), rho)) {
             later.push_back(p);
             hint = 0.0f;
@@ -400,7 +381,7 @@ class KnnDistances {
           }
         }
         mean_d[p] = top.mean_distance();
-        hint = std::sqrt(top.kth()) * 1.25f;
+        hint = std::sqrt(top.kth()) * kHintFactor;
       }
     }
   }
@@ -409,7 +390,7 @@ class KnnDistances {
   void stages_bc(const std::vector<std::uint32_t>& todo, std::vector<float>& mean_d, const CellTree* tree,
                  const CellCentres* centres, std::vector<std::uint32_t>* left) const {
     const auto k1 = static_cast<std::size_t>(k_ + 1);
-    std::vector<float> d2, scratch;
+    std::vector<float> d2;
     SmallestK top(k_ + 1);
     std::vector<std::pair<std::uint32_t, float>> found;
     for (const std::uint32_t p : todo) {
@@ -429,8 +410,7 @@ class KnnDistances {
           }
         }
         if (m >= k1) {
-          ensure(scratch, m);
-          top.select(d2.data(), m, 0.0f, scratch);
+          top.select(d2.data(), m);
           best_kth = top.kth();
           if (settled(top.kth(), block_clearance(g_, c, r, pt))) {
             mean_d[p] = top.mean_distance();
@@ -458,8 +438,7 @@ class KnnDistances {
             for (std::size_t i = 0; i < got; ++i) {
               m += gather(g_.cell_start[ids[i]], g_.cell_start[ids[i] + 1], pt, d2, m);
             }
-            ensure(scratch, m);
-            top.select(d2.data(), m, 0.0f, scratch);
+            top.select(d2.data(), m);
             best_kth = top.kth();
             break;
           }
@@ -472,8 +451,8 @@ class KnnDistances {
       tree->radiusSearch(pt, static_cast<float>(reach * reach), found, nanoflann::SearchParams(32, 0.0f, false));
       std::size_t m = 0;
       for (const auto& f : found) m += gather(g_.cell_start[f.first], g_.cell_start[f.first + 1], pt, d2, m);
-      ensure(scratch, m);
-      top.select(d2.data(), m, 0.0f, scratch);
+      if (m < k1) m = gather(0, g_.x.size(), pt, d2, 0);  // cannot happen (the bound's own points are in reach)
+      top.select(d2.data(), m);
       mean_d[p] = top.mean_distance();
     }
   }
@@ -497,9 +476,6 @@ class KnnDistances {
   std::size_t gather(std::size_t b, std::size_t e, const float* pt, std::vector<float>& d2, std::size_t at) const {
     if (d2.size() < at + (e - b)) d2.resize(std::max(2 * d2.size(), at + (e - b)));
     return distances(b, e, pt, d2.data() + at);
-  }
-  static void ensure(std::vector<float>& v, std::size_t m) {
-    if (v.size() < m) v.resize(m);
   }
   std::size_t cell_of_sorted(std::uint32_t p) const {
     return static_cast<std::size_t>(std::upper_bound(g_.cell_start.begin(), g_.cell_start.end(), p) -
