@@ -16,23 +16,27 @@
 //   * Buckets. The points are counting-sorted by their nearest grid node (clamped to the grid;
 //     a point outside the grid lands in a border cell, which only makes it look nearer than it
 //     is, so no bound below is ever violated). Each cell keeps its points' z range.
-//   * kd-tree (nanoflann), per half of the rows, over the front-most point of every non-empty
-//     cell (about a fifth of the Buddha's points), built on first use.
+//   * Front kd-tree (nanoflann), per half of the rows, over the front-most point of every
+//     non-empty cell (about a fifth of the Buddha's points), built on first use.
 //   * Query of the sample at node (r, c): scan the node's own bucket, then the buckets ring by
 //     ring around (r, c), skipping every cell whose square (horizontally) and z range
 //     (vertically) cannot beat the current best, and stop at the first ring whose nearest edge
-//     is farther than the best. If nothing is found within kRingsBeforeTree rings (the middle of
-//     a large filled hole, or a grid far from the points), the kd-tree supplies a bound first,
-//     so the ring search stays short. The result is the exact nearest point over all points.
-//     On a grid made from the points the tree is rarely needed: measured on the Buddha, the
-//     buckets alone answer in a fraction of the time it takes to build a kd-tree over all
-//     1.1 M points (about 0.2 s of CPU per 0.55 M points with nanoflann 1.4).
-//   * Two threads (std::thread), in four phases: (1) each thread takes half of the points, runs
+//     is farther than the best. If nothing is found within kRingsBeforeTree rings, the front
+//     kd-tree supplies a bound first. A search that would go beyond kRingsNearLimit rings (a
+//     sample far from every point, e.g. a hole filled across a depth step) is deferred: the
+//     deferred searches are finished by rings when that is cheap in total, else through
+//     kd-trees over all points (one per half of the rows, built in parallel). The result is
+//     always the exact nearest point over all points.
+//     On a grid made from the points the full trees are rarely needed: measured on the Buddha,
+//     the buckets answer in a fraction of the time it takes to build a kd-tree over all
+//     1.1 M points (about 0.1 s of CPU per 0.55 M points with nanoflann 1.4).
+//   * Two threads (std::thread), in phases: (1) each thread takes half of the points, runs
 //     (a) on them and finds their buckets; (2) each scatters its points into the shared bucket
 //     array (a two-thread counting sort); (3) the rows are split where both halves hold about
 //     half of the valid cells, and each thread summarises the buckets of its rows; (4) each thread
 //     answers the queries of its rows in grid order (the other half's tree only when the search
-//     sphere crosses the split). The statistics then run on both threads.
+//     sphere crosses the split); (5, 6) deferred far samples, if any. The statistics then run
+//     on both threads.
 //   * Float in a local frame centred on the grid, so float keeps ~1e-7 relative precision even
 //     for coordinates far from the origin. nanoflann's squared distances never leave this file.
 
@@ -58,10 +62,12 @@ namespace hc::pipeline {
 
 namespace {
 
-/// nanoflann dataset adaptor over packed float xyz triples.
+/// nanoflann dataset adaptor over packed float xyz triples, owned or viewed.
 struct PackedPoints {
-  std::vector<float> xyz;
-  std::size_t kdtree_get_point_count() const { return xyz.size() / 3; }
+  std::vector<float> owned;
+  const float* xyz = nullptr;
+  std::size_t count = 0;
+  std::size_t kdtree_get_point_count() const { return count; }
   float kdtree_get_pt(std::size_t i, std::size_t dim) const { return xyz[3 * i + dim]; }
   template <class BBox>
   bool kdtree_get_bbox(BBox& /*bb*/) const {
@@ -100,12 +106,22 @@ class NearestWithinSq {
 /// Build: O(n log n). Query: thread-safe (const), no allocation.
 class NearestPointIndex {
  public:
-  explicit NearestPointIndex(std::vector<float> xyz) : points_{std::move(xyz)} {
-    if (points_.kdtree_get_point_count() > 0) {
-      tree_ = std::make_unique<Tree>(3, points_, nanoflann::KDTreeSingleIndexAdaptorParams(kLeafSize));
-    }
+  /// Over points it owns (3·n floats).
+  explicit NearestPointIndex(std::vector<float> xyz) {
+    points_.owned = std::move(xyz);
+    points_.xyz = points_.owned.data();
+    points_.count = points_.owned.size() / 3;
+    build();
   }
-  std::size_t size() const { return points_.kdtree_get_point_count(); }
+  /// Over n points viewed at xyz (3·n floats), which must outlive the index.
+  NearestPointIndex(const float* xyz, std::size_t n) {
+    points_.xyz = xyz;
+    points_.count = n;
+    build();
+  }
+  NearestPointIndex(const NearestPointIndex&) = delete;
+  NearestPointIndex& operator=(const NearestPointIndex&) = delete;
+  std::size_t size() const { return points_.count; }
 
   /// Distance [m] from q to its nearest point, or bound_m when no point is strictly closer.
   double nearest_distance_m(const float q[3], double bound_m) const {
@@ -117,6 +133,11 @@ class NearestPointIndex {
   }
 
  private:
+  void build() {
+    if (points_.count > 0) {
+      tree_ = std::make_unique<Tree>(3, points_, nanoflann::KDTreeSingleIndexAdaptorParams(kLeafSize));
+    }
+  }
   static constexpr std::size_t kLeafSize = 16;
   using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, PackedPoints>,
                                                    PackedPoints, 3, std::uint32_t>;
@@ -194,6 +215,14 @@ struct Part {
   std::size_t on_surface = 0, off_surface = 0, hidden = 0, outside = 0, finite = 0;
   std::vector<float> cell_m;                 ///< (b), in grid order
   std::size_t supported = 0;
+  /// Samples whose search reaches beyond kRingsNearLimit rings: finished after phase 4.
+  struct Far {
+    int row, col;
+    float best_sq;      ///< upper bound so far (squared, local frame)
+    std::size_t slot;   ///< index in cell_m
+  };
+  std::vector<Far> far;
+  std::unique_ptr<NearestPointIndex> all;  ///< kd-tree over all its rows' points (far samples)
 };
 
 }  // namespace
@@ -392,71 +421,139 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   // The kd-trees are built on first use (by either thread), which is only for samples with no
   // point within kRingsBeforeTree cells: on a grid made from the points, rarely or never.
   constexpr int kRingsBeforeTree = 4;
+  // Beyond this many rings a sample's search is deferred to phase 5 [cells].
+  constexpr int kRingsNearLimit = 16;
+  // Phase 5 finishes the deferred searches by rings if they visit fewer cells than this in
+  // total, else it builds kd-trees over all points (≈ 0.2 µs per point and thread).
+  constexpr double kFarRingCellBudget = 2e7;
   auto tree = [&parts](int h) -> const NearestPointIndex& {
     std::call_once(parts[h].front_built, [&parts, h] {
       parts[h].front = std::make_unique<NearestPointIndex>(std::move(parts[h].front_xyz));
     });
     return *parts[h].front;
   };
+  // Best squared distance from q to the points of bucket k, folded into best_sq.
+  auto scan = [&](std::size_t k, const float* q, float& best_sq) {
+    const float* pt = sorted.data();
+    for (std::uint32_t j = first[k]; j < first[k + 1]; ++j) {
+      const float dx = pt[3 * j] - q[0], dy = pt[3 * j + 1] - q[1], dz = pt[3 * j + 2] - q[2];
+      best_sq = std::min(best_sq, dx * dx + dy * dy + dz * dz);
+    }
+  };
+  // Scans the rings k_from, k_from + 1, ... of cells around (r, c) (ring k's nearest edge is
+  // (k − ½) cells away), skipping cells whose square and z range cannot beat best_sq. Returns
+  // true when the search is complete, false if it stopped after ring k_to.
+  auto search_rings = [&](int r, int c, const float* q, float& best_sq, int k_from, int k_to) {
+    for (int k = k_from;; ++k) {
+      const float gap = (static_cast<float>(k) - 0.5f) * cell_f;
+      if (gap * gap >= best_sq || (k > r && k > c && r + k >= g.rows && c + k >= g.cols)) return true;
+      if (k > k_to) return false;
+      for (int dr = -k; dr <= k; ++dr) {
+        const int rr = r + dr;
+        if (rr < 0 || rr >= g.rows) continue;
+        const float hy = std::max(0.0f, (static_cast<float>(std::abs(dr)) - 0.5f) * cell_f);
+        const int step = (dr == -k || dr == k) ? 1 : 2 * k;  // full edge rows, else two cells
+        for (int dc = -k; dc <= k; dc += step) {
+          const int c2 = c + dc;
+          if (c2 < 0 || c2 >= g.cols) continue;
+          const std::size_t kc = static_cast<std::size_t>(rr) * ucols + static_cast<std::size_t>(c2);
+          if (first[kc] == first[kc + 1]) continue;
+          const float hx = std::max(0.0f, (static_cast<float>(std::abs(dc)) - 0.5f) * cell_f);
+          const float vz = std::max({0.0f, z_lo[kc] - q[2], q[2] - z_hi[kc]});
+          if (hx * hx + hy * hy + vz * vz >= best_sq) continue;
+          scan(kc, q, best_sq);
+        }
+      }
+    }
+  };
+  auto query_point = [&](int r, int c, float* q) {
+    q[0] = static_cast<float>(g.x_of_col(c) - centre.x());
+    q[1] = static_cast<float>(g.y_of_row(r) - centre.y());
+    q[2] = static_cast<float>(static_cast<double>(grid.at(r, c)) - centre.z());
+  };
+  auto record = [&](Part& out, int r, int c, std::size_t slot, float best_sq) {
+    const double d = std::sqrt(static_cast<double>(best_sq));
+    cc.cell_error_m.at(r, c) = static_cast<float>(d);
+    out.cell_m[slot] = static_cast<float>(d);
+    out.supported += d <= tolerance_m ? 1U : 0U;
+  };
   auto phase4 = [&](int h) {
     Part& out = parts[h];
     out.cell_m.reserve(valid_total / 2 + 1);
-    // Best squared distance from q to the points of bucket k, folded into best_sq.
-    auto scan = [&](std::size_t k, const float* q, float& best_sq) {
-      const float* pt = sorted.data();
-      for (std::uint32_t j = first[k]; j < first[k + 1]; ++j) {
-        const float dx = pt[3 * j] - q[0], dy = pt[3 * j + 1] - q[1], dz = pt[3 * j + 2] - q[2];
-        best_sq = std::min(best_sq, dx * dx + dy * dy + dz * dz);
-      }
-    };
     for (int r = out.row_begin; r < out.row_end; ++r) {
       const float* row = grid.data() + static_cast<std::size_t>(r) * ucols;
-      float* err = cc.cell_error_m.data() + static_cast<std::size_t>(r) * ucols;
-      const double y = g.y_of_row(r);
-      const double dy_split = y - y_split;
-      const auto y_local = static_cast<float>(y - centre.y());
+      const double dy_split = g.y_of_row(r) - y_split;
       for (int c = 0; c < g.cols; ++c) {
         if (std::isnan(row[c])) continue;
-        const float q[3] = {static_cast<float>(g.x_of_col(c) - centre.x()), y_local,
-                            static_cast<float>(static_cast<double>(row[c]) - centre.z())};
+        float q[3];
+        query_point(r, c, q);
+        const std::size_t slot = out.cell_m.size();
+        out.cell_m.push_back(0.0f);
         float best_sq = std::numeric_limits<float>::infinity();
         scan(static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c), q, best_sq);
-        // Rings of cells around (r, c): ring k's nearest edge is (k − ½) cells away.
-        for (int k = 1;; ++k) {
-          const float gap = (static_cast<float>(k) - 0.5f) * cell_f;
-          if (k == kRingsBeforeTree + 1 && gap * gap < best_sq) {
-            // Still far from everything: a bound from the front points' kd-trees.
-            double d = std::sqrt(static_cast<double>(best_sq));
-            d = tree(h).nearest_distance_m(q, d);
-            if (dy_split * dy_split < d * d) d = tree(1 - h).nearest_distance_m(q, d);
-            best_sq = std::min(best_sq, static_cast<float>(d * d));
-          }
-          if (gap * gap >= best_sq || (k > r && k > c && r + k >= g.rows && c + k >= g.cols)) break;
-          for (int dr = -k; dr <= k; ++dr) {
-            const int rr = r + dr;
-            if (rr < 0 || rr >= g.rows) continue;
-            const float hy = std::max(0.0f, (static_cast<float>(std::abs(dr)) - 0.5f) * cell_f);
-            const int step = (dr == -k || dr == k) ? 1 : 2 * k;  // full edge rows, else two cells
-            for (int dc = -k; dc <= k; dc += step) {
-              const int cc2 = c + dc;
-              if (cc2 < 0 || cc2 >= g.cols) continue;
-              const std::size_t kc = static_cast<std::size_t>(rr) * ucols + static_cast<std::size_t>(cc2);
-              if (first[kc] == first[kc + 1]) continue;
-              const float hx = std::max(0.0f, (static_cast<float>(std::abs(dc)) - 0.5f) * cell_f);
-              const float vz = std::max({0.0f, z_lo[kc] - q[2], q[2] - z_hi[kc]});
-              if (hx * hx + hy * hy + vz * vz >= best_sq) continue;
-              scan(kc, q, best_sq);
-            }
+        if (!search_rings(r, c, q, best_sq, 1, kRingsBeforeTree)) {
+          // Still far from everything: a bound from the front points' kd-trees.
+          double d = std::sqrt(static_cast<double>(best_sq));
+          d = tree(h).nearest_distance_m(q, d);
+          if (dy_split * dy_split < d * d) d = tree(1 - h).nearest_distance_m(q, d);
+          best_sq = std::min(best_sq, static_cast<float>(d * d));
+          if (!search_rings(r, c, q, best_sq, kRingsBeforeTree + 1, kRingsNearLimit)) {
+            out.far.push_back({r, c, best_sq, slot});
+            continue;
           }
         }
-        const double d = std::sqrt(static_cast<double>(best_sq));
-        err[c] = static_cast<float>(d);
-        out.cell_m.push_back(static_cast<float>(d));
-        out.supported += d <= tolerance_m ? 1U : 0U;
+        record(out, r, c, slot, best_sq);
       }
     }
   };
   run_two([&] { phase4(1); }, [&] { phase4(0); });
+
+  // Phase 5 (only if some sample is farther than kRingsNearLimit cells from every point; e.g. a
+  // hole filled across a depth step): finish those searches by rings if that is cheap in total,
+  // else through kd-trees over all points (each thread: its rows' slice of the bucket array).
+  std::size_t far_total = 0, far_by_tree = 0;
+  {
+    double ring_cells = 0.0;
+    for (const Part& part : parts) {
+      far_total += part.far.size();
+      for (const auto& f : part.far) {
+        const double rings = std::sqrt(static_cast<double>(f.best_sq)) / g.cell_size_m + 1.0;
+        ring_cells += 4.0 * rings * rings;
+      }
+    }
+    const bool by_tree = ring_cells > kFarRingCellBudget;
+    if (far_total > 0) {
+      auto phase5 = [&](int h) {
+        Part& out = parts[h];
+        if (by_tree) {
+          const std::size_t b = first[static_cast<std::size_t>(out.row_begin) * ucols];
+          const std::size_t e = first[static_cast<std::size_t>(out.row_end) * ucols];
+          out.all = std::make_unique<NearestPointIndex>(sorted.data() + 3 * b, e - b);
+        }
+      };
+      run_two([&] { phase5(1); }, [&] { phase5(0); });
+      auto phase6 = [&](int h) {
+        Part& out = parts[h];
+        for (const auto& f : out.far) {
+          float q[3];
+          query_point(f.row, f.col, q);
+          float best_sq = f.best_sq;
+          if (by_tree) {
+            const double dy_split = g.y_of_row(f.row) - y_split;
+            double d = std::sqrt(static_cast<double>(best_sq));
+            d = parts[h].all->nearest_distance_m(q, d);
+            if (dy_split * dy_split < d * d) d = parts[1 - h].all->nearest_distance_m(q, d);
+            best_sq = std::min(best_sq, static_cast<float>(d * d));
+          } else {
+            search_rings(f.row, f.col, q, best_sq, 1, std::numeric_limits<int>::max());
+          }
+          record(out, f.row, f.col, f.slot, best_sq);
+        }
+      };
+      run_two([&] { phase6(1); }, [&] { phase6(0); });
+      far_by_tree = by_tree ? far_total : 0;
+    }
+  }
 
   // Phase 5: statistics (two threads over the three distributions).
   auto concat = [](std::vector<float>& a, std::vector<float>& b) {
@@ -504,9 +601,13 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   rep.figure("hidden_band_mm", hidden_band_m * 1e3);
   rep.figure("tolerance_mm", tolerance_m * 1e3);
   rep.figure("supported_fraction", cc.supported_fraction);
+  rep.figure("samples_far", static_cast<double>(far_total));
+  rep.figure("samples_far_by_full_tree", static_cast<double>(far_by_tree));
   rep.figure("kd_tree_points_built",
              static_cast<double>((parts[0].front ? parts[0].front->size() : 0) +
-                                 (parts[1].front ? parts[1].front->size() : 0)));
+                                 (parts[1].front ? parts[1].front->size() : 0) +
+                                 (parts[0].all ? parts[0].all->size() : 0) +
+                                 (parts[1].all ? parts[1].all->size() : 0)));
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;
 }

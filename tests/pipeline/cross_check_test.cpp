@@ -11,6 +11,7 @@
 #include <cmath>
 #include <limits>
 #include <random>
+#include <string>
 #include <vector>
 
 namespace hc::pipeline {
@@ -121,20 +122,46 @@ TEST(CrossCheck, CellDistancesEqualBruteForceOnAFullGrid) {
   }
 }
 
-TEST(CrossCheck, FarSamplesEqualBruteForceThroughTheKdTree) {
-  // Points only in one corner of the grid: most samples are many cells from any point, so the
-  // search takes its bound from the kd-trees of the front-most points.
+double figure(const StageReport& r, const std::string& name) {
+  for (const auto& [k, v] : r.figures) {
+    if (k == name) return v;
+  }
+  ADD_FAILURE() << "no figure " << name;
+  return std::nan("");
+}
+
+TEST(CrossCheck, FarSamplesEqualBruteForceThroughTheKdTrees) {
+  // Points only in one corner of a large grid: most samples are many cells from any point, so
+  // their searches finish through kd-trees over all points.
   std::mt19937_64 rng(5);
   std::uniform_real_distribution<double> u(0.0, 0.002), uz(-0.001, 0.001);
   std::vector<Eigen::Vector3d> pts;
   for (int i = 0; i < 400; ++i) pts.emplace_back(u(rng), u(rng), uz(rng));
-  GridGeometry g{40, 50, 0.0, 0.0, 5e-4};
+  GridGeometry g{120, 150, 0.0, 0.0, 2e-4};
   HeightField h(g);
   for (float& v : h.values()) v = static_cast<float>(uz(rng));
   const auto r = cross_check(cloud_of(pts), h, 1e-3);
-  bool built = false;
-  for (const auto& [k, v] : r.report.figures) built |= k == "kd_tree_points_built" && v > 0;
-  EXPECT_TRUE(built);
+  EXPECT_GT(figure(r.report, "samples_far_by_full_tree"), 1000.0);
+  expect_cells_match_brute_force(cloud_of(pts), h, 1e-3);
+}
+
+TEST(CrossCheck, AFewFarSamplesEqualBruteForceThroughRings) {
+  // A dense patch of samples over the points plus three samples 30+ cells away.
+  std::mt19937_64 rng(6);
+  std::uniform_real_distribution<double> u(0.0, 0.002), uz(-0.001, 0.001);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 400; ++i) pts.emplace_back(u(rng), u(rng), uz(rng));
+  GridGeometry g{60, 60, 0.0, 0.0, 2e-4};
+  HeightField h(g);
+  for (int r = 0; r < 10; ++r) {
+    for (int c = 0; c < 10; ++c) h.at(r, c) = static_cast<float>(uz(rng));
+  }
+  h.at(45, 50) = 0.0f;
+  h.at(59, 0) = 0.003f;
+  h.at(30, 59) = -0.002f;
+  const auto r = cross_check(cloud_of(pts), h, 1e-3);
+  EXPECT_EQ(figure(r.report, "samples_far"), 3.0);
+  EXPECT_EQ(figure(r.report, "samples_far_by_full_tree"), 0.0);
   expect_cells_match_brute_force(cloud_of(pts), h, 1e-3);
 }
 

@@ -53,7 +53,8 @@ struct CrossCheck {
 /// @throws hc::InputError if the grid has no valid cell, is smaller than 2 × 2, or the cloud has
 ///         no finite point; hc::ConfigError for tolerance_m or hidden_band_m not > 0.
 /// Real-time: no. Threads: 2. Cost: O(N + cells) for grids made from the points (plus a kd-tree
-/// build over at most one point per cell when some sample is far from every point).
+/// build over at most one point per cell, and over all points when many samples lie far from
+/// every point).
 StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& grid,
                                     double tolerance_m, double hidden_band_m = 0.002);
 
