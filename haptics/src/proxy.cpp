@@ -124,15 +124,17 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
       if (k == 0) s.sticking = true;
       break;
     }
+    // Converged when the proxy is within tolerance of where Eq. 5 is heading (the friction-cone
+    // equilibrium), whatever ρ: factor·|v_t| is that distance.
+    if (factor * factor * t2 < conv2) {
+      friction_limited = factor < 1.0;
+      break;
+    }
     Eigen::Vector3d step = (p.rho * factor) * vt;         // Eq. 5
     double step_xy2 = step.x() * step.x() + step.y() * step.y();
     if (step_xy2 > max_step_xy * max_step_xy) {
       step *= max_step_xy / std::sqrt(step_xy2);
       step_xy2 = max_step_xy * max_step_xy;
-    }
-    if (step.squaredNorm() < conv2) {  // converged: the next move would be below tolerance
-      friction_limited = factor < 1.0;
-      break;
     }
     if (step_xy2 > cell * cell) {
       // A step over more than one cell could jump a thin feature: take it only if the tangent

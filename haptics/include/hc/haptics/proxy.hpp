@@ -26,8 +26,8 @@ struct ProxyParams {
   double damping_n_s_per_m = 0.0;    ///< b ≥ 0: F −= b·v_hip while in contact [N·s/m]
   double max_force_n = 8.0;          ///< cap on |F| [N] > 0; direction is kept when saturating
   double rho = 0.9;                  ///< ρ ∈ (0, 1] of Eq. 4–5 [-]
-  int max_iterations = 16;           ///< bound on Eq. 5 iterations per tick, ≥ 1
-  double convergence_m = 1.0e-7;     ///< stop iterating once a step is shorter than this [m]
+  int max_iterations = 8;            ///< bound on Eq. 5 iterations per tick, ≥ 1 (the proxy resumes next tick)
+  double convergence_m = 1.0e-6;     ///< stop once the proxy is this close to where Eq. 5 leads [m]
   double max_step_cells = 4.0;       ///< bound on one iteration's xy move [cells] (> 0); see step_proxy
   bool friction_enabled = true;      ///< false: μ_d = μ_s = 0 whatever the surface holds
   double ramp_time_s = 0.25;         ///< forces ramp 0 → 1 over this time once the gate opens [s]
@@ -109,21 +109,25 @@ double friction_factor(double tangential_m, double normal_m, double mu_d) noexce
 
 /// One servo tick of the proxy and the force stage.
 ///
-/// Free space (or HIP outside the surface, z_h ≥ f(x_h, y_h)): the proxy moves towards the HIP;
+/// Free space, or HIP outside the surface (z_h ≥ f(x_h, y_h)): the proxy moves towards the HIP;
 /// if the segment crosses the surface (find_first_crossing) it stops on the crossing and the
-/// contact phase starts; otherwise it is placed on the HIP and contact ends.
+/// contact phase starts; otherwise it is placed on the HIP and contact ends. So contact ends
+/// when z_h ≥ f(x_h, y_h) AND the straight way from the proxy to the HIP is free: a HIP that
+/// got over a wall keeps its proxy on the near side of it.
 /// Contact phase (paper Eq. 3–5), at most max_iterations times:
 ///   n = unit normal at X_p, v_h = X_h − X_p, v_t = v_h − (n·v_h)·n;
 ///   static friction: the proxy sticks while |f_t| < μ_s·|f_n| (|v_t| < μ_s·max(−n·v_h, 0));
-///   X_p ← X_p + ρ·clamp(1 − μ_d·cot β, 0, 1)·v_t (xy step ≤ max_step_cells cells; a step
-///   longer than one cell is taken only if the tangent path lifted by 0.1 cell crosses no
-///   material (find_first_crossing), else it is cut to one cell, which cannot pass over a
-///   one-cell spike: the spike raises a two-cell-wide zone), then,
-///   when that leaves the surface by more than convergence_m, one Newton step along n onto the
-///   surface, and finally exactly onto z = f(x, y); a step that would not bring the proxy closer
-///   to the HIP is halved (at most 3 times) or dropped; stop when the step is shorter than
-///   convergence_m. The proxy enters static friction when it stays at rest for a whole tick
-///   (inside the dynamic cone at the first iteration, or converged without moving).
+///   X_p ← X_p + ρ·clamp(1 − μ_d·cot β, 0, 1)·v_t, with the xy step at most max_step_cells
+///   cells; a step longer than one cell is taken only if the tangent path lifted by 0.1 cell
+///   crosses no material (find_first_crossing), else it is cut to one cell, which cannot pass
+///   over a one-cell spike (the spike raises a two-cell-wide zone);
+///   then, when that leaves the surface by more than convergence_m, one Newton step along n onto
+///   the surface, and finally exactly onto z = f(x, y); a step that would not bring the proxy
+///   closer to the HIP is halved (at most 3 times) or dropped;
+///   stop when the proxy is within convergence_m of the point Eq. 5 heads for
+///   (factor·|v_t| < convergence_m, independent of ρ), else resume at the next tick.
+///   The proxy enters static friction when it stays at rest for a whole tick (inside the
+///   dynamic cone at the first iteration, or converged without moving).
 ///   Where the bilinear normal jumps (cell edges, corners) the iteration uses the normal of the
 ///   cell holding the proxy.
 /// Force: F = −k·(X_h − X_p) − b·v_hip in contact, 0 in free space; |F| capped at max_force_n
