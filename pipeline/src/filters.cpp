@@ -69,6 +69,8 @@ struct CellGrid {
   std::vector<std::uint32_t> cell_start; // first sorted point of each cell; size cells + 1
   std::vector<float> x, y, z;            // points in cell order
   std::vector<std::uint32_t> original;   // sorted position -> input index
+  std::vector<std::uint32_t> zero;       // input indices left out: copies beyond k+1 of one location
+  double load = 0.0;                     // mean over points of their cell's point count
 
   std::size_t cells() const { return cell_key.size(); }
   std::uint64_t key(std::int64_t ix, std::int64_t iy, std::int64_t iz) const {
@@ -115,10 +117,11 @@ void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& id
   }
 }
 
-// Mean points per occupied cell of edge `cell` over every `stride`-th point, with the cell scaled
-// by sqrt(stride) so that on a surface the estimate matches the full cloud at edge `cell`.
-double occupancy_estimate(const std::vector<float>& p, std::size_t count, double cell, std::size_t stride,
-                          const std::array<double, 3>& lo) {
+// Mean over every `stride`-th point of the number of sampled points in its cell, with the cell
+// edge scaled by sqrt(stride) so that on a surface the estimate matches the full cloud at edge
+// `cell`. This point-weighted count is what one k-NN search costs.
+double load_estimate(const std::vector<float>& p, std::size_t count, double cell, std::size_t stride,
+                     const std::array<double, 3>& lo) {
   const double c = cell * std::sqrt(static_cast<double>(stride));
   std::vector<std::uint64_t> keys;
   keys.reserve(count / stride + 1);
@@ -131,12 +134,18 @@ double occupancy_estimate(const std::vector<float>& p, std::size_t count, double
     keys.push_back(k);
   }
   std::sort(keys.begin(), keys.end());
-  const auto cells = static_cast<std::size_t>(std::unique(keys.begin(), keys.end()) - keys.begin());
-  return static_cast<double>(keys.size()) / static_cast<double>(std::max<std::size_t>(cells, 1));
+  double sum_sq = 0.0;
+  for (std::size_t i = 0; i < keys.size();) {
+    std::size_t j = i + 1;
+    while (j < keys.size() && keys[j] == keys[i]) ++j;
+    sum_sq += static_cast<double>(j - i) * static_cast<double>(j - i);
+    i = j;
+  }
+  return sum_sq / static_cast<double>(std::max<std::size_t>(keys.size(), 1));
 }
 
 // Builds the grid. `p` holds 3·count floats (x, y, z interleaved). The cell edge is chosen so
-// that an occupied cell holds about 0.45·(k+1) points (then most points' k+1 nearest neighbours
+// that a point's cell holds about 0.85·(k+1) points (then most points' k+1 nearest neighbours
 // lie in their 3×3×3 block); it only affects speed, never the result.
 CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
   CellGrid g;
@@ -152,17 +161,17 @@ CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
     }
   }
   const double ex = hi[0] - g.lo[0], ey = hi[1] - g.lo[1], ez = hi[2] - g.lo[2];
-  const double target = 0.45 * (k + 1);
+  const double target = 0.85 * (k + 1);
   const double extent = std::max({ex, ey, ez});
   double cell = extent > 0 ? extent : 1.0;
   const double box_area = 2.0 * (ex * ey + ey * ez + ez * ex);
   if (box_area > 0) cell = std::sqrt(target * box_area / static_cast<double>(count));
   // Refine on a subsample: occupancy grows like cell² on surfaces.
   const std::size_t stride = std::max<std::size_t>(1, std::min<std::size_t>(16, count / 4096));
-  for (int iter = 0; iter < 3 && extent > 0; ++iter) {
-    const double occ = occupancy_estimate(p, count, cell, stride, g.lo);
-    if (occ > 0.7 * target && occ < 1.4 * target) break;
-    cell *= std::clamp(std::sqrt(target / occ), 0.25, 4.0);
+  for (int iter = 0; iter < 4 && extent > 0; ++iter) {
+    const double load = load_estimate(p, count, cell, stride, g.lo);
+    if (load > 0.8 * target && load < 1.25 * target) break;
+    cell *= std::clamp(std::sqrt(target / load), 0.25, 4.0);
   }
   // At most 2^21 cells per axis (64-bit keys); a far outlier can force coarser cells.
   constexpr double kMaxCellsPerAxis = 2097151.0;
@@ -183,20 +192,54 @@ CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
   while (bits < 64 && (std::uint64_t{1} << bits) < total) ++bits;
   radix_sort(keys, g.original, bits);
 
-  g.x.resize(count);
-  g.y.resize(count);
-  g.z.resize(count);
-  for (std::size_t i = 0; i < count; ++i) {
-    const std::size_t o = g.original[i];
-    g.x[i] = p[3 * o];
-    g.y[i] = p[3 * o + 1];
-    g.z[i] = p[3 * o + 2];
-    if (i == 0 || keys[i] != keys[i - 1]) {
-      g.cell_key.push_back(keys[i]);
-      g.cell_start.push_back(static_cast<std::uint32_t>(i));
+  // Copy the points in cell order. In a crowded cell, points at exactly the same location are
+  // sorted together and only k+1 copies of each location are kept: a further copy can never be
+  // among anyone's k+1 nearest, and every copy has k others at distance 0 (mean distance 0).
+  const auto k1 = static_cast<std::size_t>(k + 1);
+  const std::size_t crowded = 16 * k1;
+  auto same = [&](std::uint32_t a, std::uint32_t b) {
+    return p[3 * a] == p[3 * b] && p[3 * a + 1] == p[3 * b + 1] && p[3 * a + 2] == p[3 * b + 2];
+  };
+  auto before = [&](std::uint32_t a, std::uint32_t b) {
+    for (std::size_t c = 0; c < 3; ++c) {
+      if (p[3 * a + c] != p[3 * b + c]) return p[3 * a + c] < p[3 * b + c];
     }
+    return a < b;
+  };
+  g.x.reserve(count);
+  g.y.reserve(count);
+  g.z.reserve(count);
+  std::vector<std::uint32_t> kept;
+  kept.reserve(count);
+  double load = 0.0;
+  for (std::size_t i = 0; i < count;) {
+    std::size_t j = i + 1;
+    while (j < count && keys[j] == keys[i]) ++j;
+    const bool crowd = j - i > crowded;
+    if (crowd) std::sort(g.original.begin() + static_cast<std::ptrdiff_t>(i), g.original.begin() + static_cast<std::ptrdiff_t>(j), before);
+    g.cell_key.push_back(keys[i]);
+    g.cell_start.push_back(static_cast<std::uint32_t>(kept.size()));
+    const std::size_t first = kept.size();
+    std::size_t run = 0;
+    for (std::size_t q = i; q < j; ++q) {
+      const std::uint32_t o = g.original[q];
+      run = crowd && q > i && same(o, g.original[q - 1]) ? run + 1 : 1;
+      if (run > k1) {
+        g.zero.push_back(o);
+        continue;
+      }
+      kept.push_back(o);
+      g.x.push_back(p[3 * o]);
+      g.y.push_back(p[3 * o + 1]);
+      g.z.push_back(p[3 * o + 2]);
+    }
+    const auto n = static_cast<double>(kept.size() - first);
+    load += n * n;
+    i = j;
   }
-  g.cell_start.push_back(static_cast<std::uint32_t>(count));
+  g.original.swap(kept);
+  g.load = load / static_cast<double>(std::max<std::size_t>(g.original.size(), 1));
+  g.cell_start.push_back(static_cast<std::uint32_t>(g.original.size()));
   return g;
 }
 
@@ -495,71 +538,111 @@ void run_parallel(int threads, F&& f) {
   for (auto& th : pool) th.join();
 }
 
+struct SortedPoints {
+  const CellGrid* g;
+  std::size_t kdtree_get_point_count() const { return g->x.size(); }
+  float kdtree_get_pt(std::size_t i, int d) const { return d == 0 ? g->x[i] : d == 1 ? g->y[i] : g->z[i]; }
+  template <class B>
+  bool kdtree_get_bbox(B&) const {
+    return false;
+  }
+};
+using PointTree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, SortedPoints>, SortedPoints,
+                                                      3, std::uint32_t>;
+
 // Mean distance of every point (float32 coordinates, interleaved) to its k nearest neighbours.
+// On the grid, or with a kd-tree (nanoflann, queries in cell order) when the cloud is so uneven
+// that the cells of its densest parts hold many times the typical count.
 std::vector<float> mean_knn_distances(const std::vector<float>& p, std::size_t count, int k,
                                       StageReport* report) {
   const auto t0 = Clock::now();
   const CellGrid g = build_grid(p, count, k);
   const double t_grid = seconds_since(t0);
-  const KnnDistances knn(g, k);
-  std::vector<float> mean_sorted(count, -1.0f);
+  const std::size_t kept = g.original.size();
+  const auto k1 = static_cast<std::size_t>(k + 1);
+  std::vector<float> mean_sorted(kept, -1.0f);
+  const int threads = static_cast<int>(std::min<std::size_t>(kSearchThreads, std::max<std::size_t>(1, kept / 20000)));
+  const bool use_tree = g.load > 4.0 * static_cast<double>(k1);
+  std::size_t after_a = 0, after_b = 0;
 
-  // Stage A: split the cells into contiguous ranges of about equal point counts.
-  const int threads = static_cast<int>(std::min<std::size_t>(kSearchThreads, std::max<std::size_t>(1, count / 20000)));
-  std::vector<std::size_t> split(static_cast<std::size_t>(threads) + 1, g.cells());
-  split[0] = 0;
-  for (int t = 1; t < threads; ++t) {
-    const auto target = static_cast<std::uint32_t>(count * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads));
-    split[static_cast<std::size_t>(t)] = static_cast<std::size_t>(
-        std::lower_bound(g.cell_start.begin(), g.cell_start.end() - 1, target) - g.cell_start.begin());
-  }
-  std::vector<std::vector<std::uint32_t>> later(static_cast<std::size_t>(threads));
-  run_parallel(threads, [&](int t) {
-    const auto ts = static_cast<std::size_t>(t);
-    knn.stage_a(split[ts], split[ts + 1], mean_sorted, later[ts]);
-  });
-  std::vector<std::uint32_t> todo;
-  for (auto& l : later) todo.insert(todo.end(), l.begin(), l.end());
-  const std::size_t after_a = todo.size();
-
-  // Stage B without a tree; whatever is left goes to stage C with the cell-centre tree.
-  auto split_run = [&](const std::vector<std::uint32_t>& work, const CellTree* tree, const CellCentres* centres,
-                       std::vector<std::vector<std::uint32_t>>* left) {
-    const int th = work.size() > 2000 ? threads : 1;
-    run_parallel(th, [&](int t) {
-      const std::size_t b = work.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
-      const std::size_t e = work.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
-      const std::vector<std::uint32_t> part(work.begin() + static_cast<std::ptrdiff_t>(b),
-                                            work.begin() + static_cast<std::ptrdiff_t>(e));
-      knn.stages_bc(part, mean_sorted, tree, centres, left ? &(*left)[static_cast<std::size_t>(t)] : nullptr);
-    });
-  };
-  std::vector<std::vector<std::uint32_t>> left(static_cast<std::size_t>(threads));
-  split_run(todo, nullptr, nullptr, &left);
-  todo.clear();
-  for (auto& l : left) todo.insert(todo.end(), l.begin(), l.end());
-  const std::size_t after_b = todo.size();
-  if (!todo.empty()) {
-    CellCentres centres;
-    centres.c.resize(3 * g.cells());
-    for (std::size_t i = 0; i < g.cells(); ++i) {
-      const auto c = g.coords(g.cell_key[i]);
-      for (std::size_t a = 0; a < 3; ++a) {
-        centres.c[3 * i + a] = static_cast<float>(g.lo[a] + (static_cast<double>(c[a]) + 0.5) * g.cell);
+  if (use_tree) {
+    const SortedPoints pts{&g};
+    const PointTree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+    run_parallel(threads, [&](int t) {
+      const std::size_t b = kept * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
+      const std::size_t e = kept * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+      std::vector<std::uint32_t> idx(k1);
+      std::vector<float> d2(k1);
+      SmallestK top(k + 1);
+      for (std::size_t i = b; i < e; ++i) {
+        const float q[3] = {g.x[i], g.y[i], g.z[i]};
+        tree.knnSearch(q, k1, idx.data(), d2.data());
+        top.select(d2.data(), k1);
+        mean_sorted[i] = top.mean_distance();
       }
+    });
+  } else {
+    const KnnDistances knn(g, k);
+    // Stage A: split the cells into contiguous ranges of about equal point counts.
+    std::vector<std::size_t> split(static_cast<std::size_t>(threads) + 1, g.cells());
+    split[0] = 0;
+    for (int t = 1; t < threads; ++t) {
+      const auto target =
+          static_cast<std::uint32_t>(kept * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads));
+      split[static_cast<std::size_t>(t)] = static_cast<std::size_t>(
+          std::lower_bound(g.cell_start.begin(), g.cell_start.end() - 1, target) - g.cell_start.begin());
     }
-    const CellTree tree(3, centres, nanoflann::KDTreeSingleIndexAdaptorParams(16));
-    split_run(todo, &tree, &centres, nullptr);
+    std::vector<std::vector<std::uint32_t>> later(static_cast<std::size_t>(threads));
+    run_parallel(threads, [&](int t) {
+      const auto ts = static_cast<std::size_t>(t);
+      knn.stage_a(split[ts], split[ts + 1], mean_sorted, later[ts]);
+    });
+    std::vector<std::uint32_t> todo;
+    for (auto& l : later) todo.insert(todo.end(), l.begin(), l.end());
+    after_a = todo.size();
+
+    // Stage B without a tree; whatever is left goes to stage C with the cell-centre tree.
+    auto split_run = [&](const std::vector<std::uint32_t>& work, const CellTree* tree, const CellCentres* centres,
+                         std::vector<std::vector<std::uint32_t>>* left) {
+      const int th = work.size() > 2000 ? threads : 1;
+      run_parallel(th, [&](int t) {
+        const std::size_t b = work.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
+        const std::size_t e = work.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
+        const std::vector<std::uint32_t> part(work.begin() + static_cast<std::ptrdiff_t>(b),
+                                              work.begin() + static_cast<std::ptrdiff_t>(e));
+        knn.stages_bc(part, mean_sorted, tree, centres, left ? &(*left)[static_cast<std::size_t>(t)] : nullptr);
+      });
+    };
+    std::vector<std::vector<std::uint32_t>> left(static_cast<std::size_t>(threads));
+    split_run(todo, nullptr, nullptr, &left);
+    todo.clear();
+    for (auto& l : left) todo.insert(todo.end(), l.begin(), l.end());
+    after_b = todo.size();
+    if (!todo.empty()) {
+      CellCentres centres;
+      centres.c.resize(3 * g.cells());
+      for (std::size_t i = 0; i < g.cells(); ++i) {
+        const auto c = g.coords(g.cell_key[i]);
+        for (std::size_t a = 0; a < 3; ++a) {
+          centres.c[3 * i + a] = static_cast<float>(g.lo[a] + (static_cast<double>(c[a]) + 0.5) * g.cell);
+        }
+      }
+      const CellTree tree(3, centres, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+      split_run(todo, &tree, &centres, nullptr);
+    }
   }
 
-  std::vector<float> mean_d(count);
-  for (std::size_t i = 0; i < count; ++i) mean_d[g.original[i]] = mean_sorted[i];
+  std::vector<float> mean_d(count, 0.0f);  // the left-out copies keep 0
+  for (std::size_t i = 0; i < kept; ++i) mean_d[g.original[i]] = mean_sorted[i];
   if (report) {
     report->figure("grid_cell_mm", g.cell * 1e3);
     report->figure("grid_cells", static_cast<double>(g.cells()));
+    report->figure("grid_points_per_cell", g.load);
     report->figure("grid_build_s", t_grid);
     report->figure("knn_beyond_3x3x3_block", static_cast<double>(after_a));
     report->figure("knn_by_cell_tree", static_cast<double>(after_b));
+    report->figure("knn_by_point_tree", use_tree ? static_cast<double>(kept) : 0.0);
+    report->figure("duplicates_left_out", static_cast<double>(g.zero.size()));
   }
   return mean_d;
 }

@@ -247,6 +247,37 @@ TEST(StatisticalOutliers, MatchesBruteForceOnACloudThatNeedsEverySearchStage) {
   }
 }
 
+// Thousands of copies of one location (scanners often write "no return" as 0, 0, 0) and a
+// very uneven density must neither slow the search down quadratically nor change the answer.
+TEST(StatisticalOutliers, MatchesBruteForceWithAFloodOfDuplicatesAndAVeryDenseCluster) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> wide(-0.5, 0.5), tight(-0.0005, 0.0005);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 2500; ++i) pts.emplace_back(0, 0, 0);
+  for (int i = 0; i < 1500; ++i) pts.emplace_back(wide(rng), wide(rng), 0.01 * wide(rng));
+  for (int i = 0; i < 40; ++i) pts.emplace_back(0.25, 0.25, 0.0);  // a smaller pile
+  hp::Cloud flood = cloud_of(pts);
+  for (const auto& [k, sigma] : {std::pair{16, 1.0}, std::pair{5, 2.0}}) {
+    hp::StageReport report;
+    const auto ours = kept_by_hc(flood, k, sigma, &report);
+    EXPECT_EQ(symmetric_difference(ours, kept_by_brute_force(flood, k, sigma)), 0u) << "k " << k;
+    EXPECT_GE(figure(report, "duplicates_left_out"), 2500.0 - (k + 1));
+  }
+  // Dense cluster: 5000 points in a 1 mm cube inside 1500 points spread over a metre (the grid
+  // adapts), then 5000 more in a 1 µm cube (beyond what the grid adapts to: a kd-tree answers).
+  for (int i = 0; i < 5000; ++i) pts.emplace_back(0.1 + tight(rng), 0.1 + tight(rng), tight(rng));
+  const hp::Cloud uneven = cloud_of(pts);
+  hp::StageReport report;
+  auto ours = kept_by_hc(uneven, 12, 1.5, &report);
+  EXPECT_EQ(symmetric_difference(ours, kept_by_brute_force(uneven, 12, 1.5)), 0u);
+  EXPECT_EQ(figure(report, "knn_by_point_tree"), 0.0);
+  for (int i = 0; i < 5000; ++i) pts.emplace_back(-0.1 + 1e-3 * tight(rng), 1e-3 * tight(rng), 1e-3 * tight(rng));
+  const hp::Cloud extreme = cloud_of(pts);
+  ours = kept_by_hc(extreme, 12, 1.5, &report);
+  EXPECT_EQ(symmetric_difference(ours, kept_by_brute_force(extreme, 12, 1.5)), 0u);
+  EXPECT_GT(figure(report, "knn_by_point_tree"), 0.0);
+}
+
 TEST(StatisticalOutliers, DropsNonFinitePointsAndKeepsScanIdsAligned) {
   std::vector<Eigen::Vector3d> pts;
   for (int i = 0; i < 20; ++i)
