@@ -16,7 +16,9 @@ namespace hc::pipeline {
 /// same recentred coordinates, to well under 1 µm, as the same scan near the origin.
 /// @param metres_per_unit  1, 0.01 or 0.001 for m, cm, mm (see hc::metres_per_unit)
 /// @param offset_m         out: the subtracted centre [m], in the file frame scaled to metres
-/// @throws hc::InputError if the cloud is empty.
+///                         (may be null). The box ignores non-finite points (they stay NaN).
+/// @throws hc::InputError if the cloud is empty or has no finite point; hc::ConfigError if
+///         metres_per_unit is not > 0.
 StageResult<Cloud> to_metres_and_recentre(Cloud cloud, double metres_per_unit,
                                           Eigen::Vector3d* offset_m);
 
@@ -33,7 +35,10 @@ struct ViewTransform {
 /// Rotation of angle_deg about `axis` (any non-zero length). @throws hc::ConfigError on a zero axis.
 Eigen::Quaterniond rotation_from_axis_angle(const Eigen::Vector3d& axis, double angle_deg);
 /// Intrinsic Euler angles in degrees, applied in the order of `order` (a permutation such as
-/// "xyz" or "zyx": R = R_a(first)·R_b(second)·R_c(third)). @throws hc::ConfigError on a bad order.
+/// "xyz" or "zyx": R = R_a(first)·R_b(second)·R_c(third)). angles_deg[i] turns about axis
+/// order[i]: first about the fixed axis order[0], then about the once-turned order[1], then about
+/// the twice-turned order[2]; the same R read extrinsically applies the turns in reverse order
+/// about fixed axes. @throws hc::ConfigError on a bad order (lower-case letters only).
 Eigen::Quaterniond rotation_from_euler(const Eigen::Vector3d& angles_deg, const std::string& order);
 /// Unit quaternion (w, x, y, z) normalised. @throws hc::ConfigError if its norm is near zero.
 Eigen::Quaterniond rotation_from_quaternion(double w, double x, double y, double z);
