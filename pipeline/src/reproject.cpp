@@ -7,6 +7,9 @@
 //    round(extent_short / cell) + 1 samples, centred on the box. With a cell size given, both
 //    sides are computed that way. Each point goes to its nearest node (ties to the higher index),
 //    so a "cell" is the cell-sized square centred on its node.
+//  * Threads. For clouds of 2^18 points or more, the two passes over the points (bounds, then
+//    binning) each run on two threads (std::thread), each on half of the points; the second
+//    thread bins into its own grid, merged by the front-most rule (one pass over the cells).
 //  * Front-most rule. A depth buffer: the largest z (nearest to the viewer, who looks along −z)
 //    per cell wins. Heights are kept as float with −inf for "nothing yet" during the scan, so the
 //    inner loop is one compare and one store per point; −inf becomes NaN (no data) at the end.
@@ -40,8 +43,11 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <exception>
 #include <limits>
+#include <memory>
 #include <sstream>
+#include <thread>
 
 namespace hc::pipeline {
 
@@ -49,6 +55,7 @@ namespace {
 
 constexpr float kEmpty = -std::numeric_limits<float>::infinity();
 constexpr int kMinBracketingPairs = 2;
+constexpr std::size_t kTwoThreadPoints = 1u << 18;  ///< clouds this large use two threads
 
 struct Bounds {
   double x_min = std::numeric_limits<double>::infinity();
@@ -66,9 +73,7 @@ bool finite_point(const double* p) {
 // Fast path: plain min/max in two interleaved chains plus a finiteness sum (x·0 + y·0 + z·0 is
 // 0 for a finite point and NaN otherwise); only a cloud with a non-finite point takes the
 // careful per-point path.
-Bounds finite_bounds(const Cloud& cloud) {
-  const double* p = cloud.xyz.data();
-  const std::size_t n = cloud.size();
+Bounds finite_bounds(const double* p, std::size_t n) {
   constexpr double kInf = std::numeric_limits<double>::infinity();
   double x_lo[2] = {kInf, kInf}, x_hi[2] = {-kInf, -kInf}, y_lo[2] = {kInf, kInf}, y_hi[2] = {-kInf, -kInf};
   double zero[2] = {0.0, 0.0};
@@ -109,6 +114,37 @@ Bounds finite_bounds(const Cloud& cloud) {
     ++b.finite;
   }
   return b;
+}
+
+Bounds merge(const Bounds& a, const Bounds& b) {
+  Bounds m;
+  m.x_min = std::min(a.x_min, b.x_min);
+  m.x_max = std::max(a.x_max, b.x_max);
+  m.y_min = std::min(a.y_min, b.y_min);
+  m.y_max = std::max(a.y_max, b.y_max);
+  m.finite = a.finite + b.finite;
+  return m;
+}
+
+/// Runs a() on a second thread and b() on this one; rethrows the first exception.
+template <class A, class B>
+void run_two(A&& a, B&& b) {
+  std::exception_ptr error_a, error_b;
+  std::thread worker([&] {
+    try {
+      a();
+    } catch (...) {
+      error_a = std::current_exception();
+    }
+  });
+  try {
+    b();
+  } catch (...) {
+    error_b = std::current_exception();
+  }
+  worker.join();
+  if (error_a) std::rethrow_exception(error_a);
+  if (error_b) std::rethrow_exception(error_b);
 }
 
 void validate_options(const ReprojectOptions& o) {
@@ -203,21 +239,28 @@ GridGeometry make_geometry(const Bounds& b, const ReprojectOptions& o) {
 // Front-most z per cell over every finite point; returns the number of points binned.
 // Every finite point lies inside the bounding box the geometry was made from, so its fractional
 // index plus one half is in [0.25, n − 0.25): truncation is the nearest node (ties to the higher
-// index), and the clamp only guards against rounding.
-std::size_t bin_front_most(const Cloud& cloud, const GridGeometry& g, bool all_finite, float* depth) {
+// index). One unsigned min per axis guards against rounding (a negative index would wrap to a
+// large unsigned value and be clamped too).
+std::size_t bin_front_most(const double* p, std::size_t n, const GridGeometry& g, bool all_finite,
+                           float* depth) {
   const double inv = 1.0 / g.cell_size_m;
   const double cx = 0.5 - g.x0_m * inv, cy = 0.5 - g.y0_m * inv;
-  const double* p = cloud.xyz.data();
-  const std::size_t n = cloud.size();
   const std::size_t cols = static_cast<std::size_t>(g.cols);
-  const int c_max = g.cols - 1, r_max = g.rows - 1;
+  const auto c_max = static_cast<unsigned>(g.cols - 1), r_max = static_cast<unsigned>(g.rows - 1);
+  auto bin = [&](const double* q) {
+    const unsigned c = std::min(static_cast<unsigned>(static_cast<int>(q[0] * inv + cx)), c_max);
+    const unsigned r = std::min(static_cast<unsigned>(static_cast<int>(q[1] * inv + cy)), r_max);
+    float& cell = depth[static_cast<std::size_t>(r) * cols + c];
+    cell = std::max(cell, static_cast<float>(q[2]));
+  };
+  if (all_finite) {
+    for (std::size_t i = 0; i < n; ++i, p += 3) bin(p);
+    return n;
+  }
   std::size_t binned = 0;
   for (std::size_t i = 0; i < n; ++i, p += 3) {
-    if (!all_finite && !finite_point(p)) continue;
-    const int c = std::clamp(static_cast<int>(p[0] * inv + cx), 0, c_max);
-    const int r = std::clamp(static_cast<int>(p[1] * inv + cy), 0, r_max);
-    float& cell = depth[static_cast<std::size_t>(r) * cols + static_cast<std::size_t>(c)];
-    cell = std::max(cell, static_cast<float>(p[2]));
+    if (!finite_point(p)) continue;
+    bin(p);
     ++binned;
   }
   return binned;
@@ -287,7 +330,21 @@ inline bool ray_has_higher(const float* depth, int rows, int cols, int r, int c,
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   validate_options(options);
-  const Bounds bounds = finite_bounds(points_m);
+  // The two passes over the points (bounds, binning) run on two threads for large clouds; each
+  // thread takes half of the points (binning into its own grid, merged by the front-most rule).
+  const double* pts = points_m.xyz.data();
+  const std::size_t n_points = points_m.size();
+  const bool two_threads = n_points >= kTwoThreadPoints;
+  const std::size_t half = two_threads ? n_points / 2 : n_points;
+  Bounds bounds;
+  if (two_threads) {
+    Bounds upper;
+    run_two([&] { upper = finite_bounds(pts + 3 * half, n_points - half); },
+            [&] { bounds = finite_bounds(pts, half); });
+    bounds = merge(bounds, upper);
+  } else {
+    bounds = finite_bounds(pts, n_points);
+  }
   if (bounds.finite == 0) {
     std::ostringstream msg;
     msg << "reproject: none of the " << points_m.size()
@@ -302,7 +359,22 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
   out.depth = HeightField(g, kEmpty);
   out.flags.assign(cells, kCellEmpty);
   float* depth = out.depth.data();
-  const std::size_t binned = bin_front_most(points_m, g, bounds.finite == points_m.size(), depth);
+  const bool all_finite = bounds.finite == n_points;
+  std::size_t binned = 0;
+  if (two_threads) {
+    const auto upper = std::make_unique_for_overwrite<float[]>(cells);
+    std::size_t binned_upper = 0;
+    run_two(
+        [&] {
+          std::fill_n(upper.get(), cells, kEmpty);
+          binned_upper = bin_front_most(pts + 3 * half, n_points - half, g, all_finite, upper.get());
+        },
+        [&] { binned = bin_front_most(pts, half, g, all_finite, depth); });
+    for (std::size_t i = 0; i < cells; ++i) depth[i] = std::max(depth[i], upper[i]);
+    binned += binned_upper;
+  } else {
+    binned = bin_front_most(pts, n_points, g, all_finite, depth);
+  }
   for (std::size_t i = 0; i < cells; ++i) out.flags[i] = depth[i] != kEmpty ? kCellMeasured : kCellEmpty;
 
   const bool see_through = options.see_through_depth_m > 0.0;
@@ -329,8 +401,9 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
   std::size_t see_through_cells = 0, candidates = 0;
   if (see_through) {
     const int w = options.see_through_window_cells;
-    std::vector<float> tmp(cells), wmax(cells);
-    window_max(depth, g.rows, g.cols, w, tmp.data(), wmax.data());
+    const auto tmp = std::make_unique_for_overwrite<float[]>(cells);
+    const auto wmax = std::make_unique_for_overwrite<float[]>(cells);
+    window_max(depth, g.rows, g.cols, w, tmp.get(), wmax.get());
     std::vector<std::size_t> rejected;
     static constexpr int kDirs[4][2] = {{0, 1}, {1, 0}, {1, 1}, {1, -1}};
     for (int r = 0; r < g.rows; ++r) {
@@ -342,10 +415,23 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
         if (!(wmax[i] > threshold)) continue;
         ++candidates;
         int pairs = 0;
-        for (const auto& d : kDirs) {
-          if (ray_has_higher(depth, g.rows, g.cols, r, c, d[0], d[1], w, threshold) &&
-              ray_has_higher(depth, g.rows, g.cols, r, c, -d[0], -d[1], w, threshold)) {
-            if (++pairs >= kMinBracketingPairs) break;
+        if (r >= w && c >= w && r + w < g.rows && c + w < g.cols) {
+          // Interior: branch-free maxima along the 8 rays.
+          for (const auto& d : kDirs) {
+            const std::ptrdiff_t step = static_cast<std::ptrdiff_t>(d[0]) * g.cols + d[1];
+            float up = kEmpty, down = kEmpty;
+            for (int k = 1; k <= w; ++k) {
+              up = std::max(up, depth[static_cast<std::ptrdiff_t>(i) + k * step]);
+              down = std::max(down, depth[static_cast<std::ptrdiff_t>(i) - k * step]);
+            }
+            pairs += (up > threshold && down > threshold) ? 1 : 0;
+          }
+        } else {
+          for (const auto& d : kDirs) {
+            if (ray_has_higher(depth, g.rows, g.cols, r, c, d[0], d[1], w, threshold) &&
+                ray_has_higher(depth, g.rows, g.cols, r, c, -d[0], -d[1], w, threshold)) {
+              ++pairs;
+            }
           }
         }
         if (pairs >= kMinBracketingPairs) rejected.push_back(i);

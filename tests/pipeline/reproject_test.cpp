@@ -12,6 +12,7 @@
 #include <limits>
 #include <random>
 #include <string>
+#include <tuple>
 #include <vector>
 
 namespace hc::pipeline {
@@ -72,20 +73,27 @@ TEST(Reproject, GeometryFollowsTheLongerSideAndCentresTheShorterOne) {
   EXPECT_EQ(r2.value.depth.rows(), 3);
 }
 
-TEST(Reproject, FrontMostRuleMatchesABruteForceOracle) {
+class FrontMostOracle : public ::testing::TestWithParam<std::tuple<int, bool>> {};
+
+// Small clouds take the one-thread path, large ones (≥ 2^18 points) the two-thread path; clouds
+// with a non-finite point the careful path, others the fast path.
+TEST_P(FrontMostOracle, FrontMostRuleMatchesABruteForceOracle) {
+  const auto [size, with_non_finite] = GetParam();
   std::mt19937_64 rng(42);
   std::uniform_real_distribution<double> ux(-0.3, 0.7), uy(0.1, 0.5), uz(-1.0, 1.0);
   std::vector<Eigen::Vector3d> pts;
-  for (int i = 0; i < 6000; ++i) pts.emplace_back(ux(rng), uy(rng), uz(rng));
+  for (int i = 0; i < size; ++i) pts.emplace_back(ux(rng), uy(rng), uz(rng));
   const double nan = std::numeric_limits<double>::quiet_NaN();
-  pts.emplace_back(nan, 0.2, 5.0);  // non-finite points are skipped
-  pts.emplace_back(0.2, 0.3, std::numeric_limits<double>::infinity());
+  if (with_non_finite) {
+    pts.insert(pts.begin() + 3, Eigen::Vector3d(nan, 0.2, 5.0));  // skipped, in both halves
+    pts.emplace_back(0.2, 0.3, std::numeric_limits<double>::infinity());
+  }
   const Cloud cloud = cloud_of(pts);
   const auto r = reproject(cloud, with_n(41));
   const HeightField& h = r.value.depth;
   const GridGeometry& g = h.geometry();
   EXPECT_EQ(std::max(g.rows, g.cols), 41);
-  EXPECT_EQ(figure(r.report, "points_non_finite"), 2.0);
+  EXPECT_EQ(figure(r.report, "points_non_finite"), with_non_finite ? 2.0 : 0.0);
 
   // Oracle: each finite point to its nearest node by exhaustive search over the nodes' x and y,
   // then the largest z per node.
@@ -119,6 +127,9 @@ TEST(Reproject, FrontMostRuleMatchesABruteForceOracle) {
   EXPECT_EQ(h.valid_count(), valid);
   EXPECT_GT(valid, 0.8 * static_cast<double>(g.cell_count()));
 }
+
+INSTANTIATE_TEST_SUITE_P(Sizes, FrontMostOracle,
+                         ::testing::Combine(::testing::Values(6000, 300000), ::testing::Bool()));
 
 class ReprojectAnalytic : public ::testing::TestWithParam<SurfaceKind> {};
 

@@ -71,7 +71,8 @@ struct DepthGrid {
 ///         are given, or an option is out of range; hc::ResourceError if rows·cols exceeds
 ///         max_cells (the message gives rows, cols, the cap and the bytes needed: 5 per cell,
 ///         +4 with splats, +8 with see-through handling).
-/// Real-time: no. Cost: two passes over the points + O(rows·cols) (·r² with a splat radius r).
+/// Real-time: no. Threads: 2 for clouds of 2^18 points or more. Cost: two passes over the points
+/// + O(rows·cols) (·r² with a splat radius r).
 /// Source: depth-buffer scan of Sec. 1 of the paper; front-most rule as in an OpenGL z-buffer.
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options);
 
