@@ -1,7 +1,9 @@
 /// `hapticloud touch`: a headless scripted haptic session. A SimulatedDevice follows a scripted
 /// path through a virtual hand, the servo loop renders the scene (as fast as possible on a
 /// manual clock, or in real time on its own thread with --realtime), and the session is written
-/// as trace.csv, events.csv and summary.json in --out, with a summary on stdout.
+/// as trace.csv, events.csv, summary.json and PNG plots in --out, with a summary on stdout.
+/// --validate reproduces the paper's validation (Sec. 5.1): the same press-and-slide with and
+/// without texture and friction, proxy z and force against time, in one report.
 
 #include "commands.hpp"
 
@@ -11,6 +13,9 @@
 #include "hc/haptics/shared_state.hpp"
 #include "hc/haptics/simulated_device.hpp"
 #include "hc/haptics/workspace_map.hpp"
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/plot.hpp"
+#include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
 #include <CLI/CLI.hpp>
@@ -55,6 +60,7 @@ struct TouchOptions {
   bool no_hand = false;
   double press_m = 0.01;
   double speed_m_per_s = 0.05;
+  bool validate = false;
 };
 
 /// The layers the session renders (owned here; HapticSurface copies what it needs).
@@ -103,7 +109,15 @@ SceneLayers load_input(const TouchOptions& o) {
   if (o.input.empty()) {
     throw ConfigError("touch: give a scene folder (written by `hapticloud run`) or --synthetic sinusoid");
   }
-  const fs::path p(o.input);
+  fs::path p(o.input);
+  if (fs::is_regular_file(p) && (p.extension() == ".yaml" || p.extension() == ".yml")) {
+    // A run config: build its scene first (atomically, beside the session output).
+    const pipeline::RunConfig cfg = pipeline::load_run_config(p);
+    const fs::path run_dir = fs::path(o.out) / "pipeline";
+    std::cout << "touch: building the scene of " << p.string() << " into " << run_dir.string() << "\n";
+    pipeline::run_pipeline(cfg, run_dir);
+    p = run_dir / "scene";
+  }
   if (fs::is_directory(p) && fs::exists(p / "scene.yaml")) {
     pipeline::Scene scene = pipeline::load_scene(p);
     SceneLayers s;
@@ -115,8 +129,8 @@ SceneLayers load_input(const TouchOptions& o) {
     return s;
   }
   throw InputError("touch: '" + o.input +
-                   "' is not a scene folder (no scene.yaml inside); YAML configs are not accepted by "
-                   "touch yet: run `hapticloud run CONFIG` first, or use --synthetic sinusoid");
+                   "' is neither a scene folder (with scene.yaml) nor a run config (.yaml); make a scene "
+                   "with `hapticloud run CONFIG`, or use --synthetic sinusoid");
 }
 
 const HeightField* layer(const SceneLayers& s, const char* name) {
@@ -132,11 +146,49 @@ std::string json_number(double v) {
   return s.str();
 }
 
-void run_touch(const TouchOptions& o) {
-  if (!(o.seconds > 0.0) || o.seconds > 3600.0) {
-    throw ConfigError("touch: --seconds " + json_number(o.seconds) + " is out of range (expected (0, 3600])");
+/// Draws proxy/HIP z and |F| against time for one or more sessions.
+struct PlotInput {
+  std::string label;
+  const std::vector<haptics::TickRecord>* trace;
+};
+
+void plot_sessions(const std::vector<PlotInput>& runs, const fs::path& z_png, const fs::path& f_png,
+                   const std::string& title) {
+  pipeline::PlotSpec z{z_png, title + ": proxy height", "time", "s", "z (model frame)", "mm", {}};
+  pipeline::PlotSpec f{f_png, title + ": force", "time", "s", "|F|", "N", {}};
+  for (const PlotInput& run : runs) {
+    pipeline::PlotSeries pz{"proxy z" + run.label, {}, {}}, hz{"HIP z" + run.label, {}, {}};
+    pipeline::PlotSeries fz{"|F|" + run.label, {}, {}};
+    const auto& tr = *run.trace;
+    const std::size_t stride = std::max<std::size_t>(1, tr.size() / 4000);  // enough for a 900 px plot
+    const double t0 = tr.empty() ? 0.0 : tr.front().t_s;
+    for (std::size_t i = 0; i < tr.size(); i += stride) {
+      const double t = tr[i].t_s - t0;
+      pz.x.push_back(t);
+      pz.y.push_back(tr[i].proxy_m.z * 1000.0);
+      hz.x.push_back(t);
+      hz.y.push_back(tr[i].hip_m.z * 1000.0);
+      fz.x.push_back(t);
+      fz.y.push_back(tr[i].force_n.eigen().norm());
+    }
+    z.series.push_back(std::move(pz));
+    if (runs.size() == 1) z.series.push_back(std::move(hz));
+    f.series.push_back(std::move(fz));
   }
-  const SceneLayers scene = load_input(o);
+  pipeline::plot_series(z);
+  pipeline::plot_series(f);
+}
+
+struct SessionSummary {
+  double max_force_n = 0.0;
+  double deepest_m = 0.0;
+  double mean_force_contact_n = 0.0;
+  std::uint64_t ticks = 0, overruns = 0;
+  double p50_ns = 0, p99_ns = 0, p999_ns = 0, max_ns = 0;
+};
+
+SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, const fs::path& out,
+                           std::vector<haptics::TickRecord>& trace) {
   haptics::SurfaceLayers layers;
   layers.depth = layer(scene, "depth");
   layers.envelope = layer(scene, "envelope");
@@ -183,9 +235,8 @@ void run_touch(const TouchOptions& o) {
     throw ResourceError("touch: " + json_number(ticks_d) + " ticks requested (--seconds x --rate), at most 5e7 are traced");
   }
   const auto ticks = static_cast<std::uint64_t>(ticks_d);
-  std::vector<haptics::TickRecord> trace(ticks + 16);
+  trace.assign(ticks + 16, haptics::TickRecord{});
 
-  const fs::path out(o.out);
   std::error_code ec;
   fs::create_directories(out, ec);
   if (ec) throw InputError("touch: cannot create the output folder '" + out.string() + "': " + ec.message());
@@ -245,6 +296,7 @@ void run_touch(const TouchOptions& o) {
          "force_n,contact,sticking,mu_d,mu_s,beta_rad,iterations,compute_ns,surface_z_m,"
          "proxy_below_surface_m\n";
   double max_force = 0.0, deepest = 0.0, t0 = trace.empty() ? 0.0 : trace.front().t_s;
+  double force_sum_contact = 0.0;
   std::size_t contact_ticks = 0;
   char row[512];
   for (const haptics::TickRecord& r : trace) {
@@ -254,6 +306,7 @@ void run_touch(const TouchOptions& o) {
     max_force = std::max(max_force, f);
     deepest = std::max(deepest, below);
     contact_ticks += r.in_contact ? 1 : 0;
+    force_sum_contact += r.in_contact ? f : 0.0;
     std::snprintf(row, sizeof row,
                   "%.6f,%.9g,%.9g,%.9g,%.9g,%.9g,%.9g,%.6g,%.6g,%.6g,%.6g,%d,%d,%.4g,%.4g,%.6g,%d,%d,%.9g,%.3g\n",
                   r.t_s - t0, r.hip_m.x, r.hip_m.y, r.hip_m.z, r.proxy_m.x, r.proxy_m.y, r.proxy_m.z,
@@ -304,6 +357,7 @@ void run_touch(const TouchOptions& o) {
      << "}\n";
   js.close();
 
+  plot_sessions({{"", &trace}}, out / "proxy_z.png", out / "force.png", scene.description + ", " + o.path);
   std::cout << "touch: " << scene.description << ", path " << o.path << ", " << stats.ticks << " ticks at "
             << o.rate_hz << " Hz (" << (o.realtime ? "real time" : "as fast as possible") << ")\n"
             << "  overruns " << stats.overruns << "\n"
@@ -311,7 +365,60 @@ void run_touch(const TouchOptions& o) {
             << "  max force " << max_force << " N; deepest proxy below the surface " << deepest << " m\n"
             << "  contact " << contact_ticks << " ticks; events: " << counts[0] << " onset, " << counts[1]
             << " slide, " << counts[2] << " release\n"
-            << "  wrote " << (out / "trace.csv").string() << ", events.csv, summary.json\n";
+            << "  wrote " << (out / "trace.csv").string() << ", events.csv, summary.json, proxy_z.png, force.png\n";
+  SessionSummary sum;
+  sum.max_force_n = max_force;
+  sum.deepest_m = deepest;
+  sum.mean_force_contact_n = contact_ticks ? force_sum_contact / static_cast<double>(contact_ticks) : 0.0;
+  sum.ticks = stats.ticks;
+  sum.overruns = stats.overruns;
+  sum.p50_ns = p50;
+  sum.p99_ns = p99;
+  sum.p999_ns = p999;
+  sum.max_ns = cmax;
+  return sum;
+}
+
+void run_touch(const TouchOptions& o) {
+  if (!(o.seconds > 0.0) || o.seconds > 3600.0) {
+    throw ConfigError("touch: --seconds " + json_number(o.seconds) + " is out of range (expected (0, 3600])");
+  }
+  const fs::path out(o.out);
+  std::error_code ec;
+  fs::create_directories(out, ec);
+  if (ec) throw InputError("touch: cannot create the output folder '" + out.string() + "': " + ec.message());
+  const SceneLayers scene = load_input(o);
+  if (!o.validate) {
+    std::vector<haptics::TickRecord> trace;
+    run_session(o, scene, out, trace);
+    return;
+  }
+  // The paper's validation (Sec. 5.1, Figs. of proxy z and force against time): one scripted
+  // press-and-slide, rendered with texture and friction, and again without either.
+  TouchOptions with = o, without = o;
+  with.path = without.path = (o.path == "raster" ? std::string("press-slide") : o.path);
+  without.texture_gain = 0.0;
+  without.no_friction = true;
+  std::vector<haptics::TickRecord> trace_with, trace_without;
+  const SessionSummary a = run_session(with, scene, out / "with_texture_friction", trace_with);
+  const SessionSummary b = run_session(without, scene, out / "without_texture_friction", trace_without);
+  plot_sessions({{" (texture + friction)", &trace_with}, {" (neither)", &trace_without}},
+                out / "validation_proxy_z.png", out / "validation_force.png", "validation, " + with.path);
+  std::ofstream md(out / "report.md");
+  md << "# hapticloud touch: validation on " << scene.description << "\n\n"
+     << "The paper's validation (Sec. 5.1): the same scripted " << with.path
+     << " rendered with surface texture and friction, and without either (texture gain 0, "
+        "mu_s = mu_d = 0). Time axis from the first tick; z in the model frame.\n\n"
+     << "| session | ticks | max force (N) | mean force in contact (N) | deepest proxy below surface (m) | "
+        "compute p50 / p99.9 (ns) |\n|---|---|---|---|---|---|\n";
+  const auto row = [&](const char* name, const SessionSummary& s) {
+    md << "| " << name << " | " << s.ticks << " | " << s.max_force_n << " | " << s.mean_force_contact_n << " | "
+       << s.deepest_m << " | " << s.p50_ns << " / " << s.p999_ns << " |\n";
+  };
+  row("texture + friction", a);
+  row("neither", b);
+  md << "\n![proxy z against time](validation_proxy_z.png)\n\n![force against time](validation_force.png)\n";
+  std::cout << "touch: validation report " << (out / "report.md").string() << "\n";
 }
 
 }  // namespace
@@ -320,7 +427,8 @@ void add_touch_command(CLI::App& app) {
   auto opts = std::make_shared<TouchOptions>();
   CLI::App* cmd = app.add_subcommand(
       "touch", "Headless scripted haptic session: a simulated hand explores a scene; writes trace.csv and a summary.");
-  cmd->add_option("SCENE_OR_CONFIG", opts->input, "Scene folder written by `hapticloud run`");
+  cmd->add_option("SCENE_OR_CONFIG", opts->input,
+                  "Scene folder written by `hapticloud run`, or a run config (its scene is built first)");
   cmd->add_option("--synthetic", opts->synthetic, "Built-in scene instead of a folder: sinusoid (the paper's validation surface)");
   cmd->add_option("--path", opts->path, "Scripted path: raster | circle | line | press-slide | hold")->capture_default_str();
   cmd->add_option("--seconds", opts->seconds, "Session length [s]")->capture_default_str();
@@ -337,6 +445,8 @@ void add_touch_command(CLI::App& app) {
   cmd->add_option("--cells", opts->cells, "Grid size of the synthetic scene (N x N)")->capture_default_str();
   cmd->add_option("--press", opts->press_m, "How far below mid height the hand aims [m] (device frame)")->capture_default_str();
   cmd->add_option("--speed", opts->speed_m_per_s, "Path speed [m/s] (device frame)")->capture_default_str();
+  cmd->add_flag("--validate", opts->validate,
+                "Paper's validation: the session with and without texture and friction, plots and report.md");
   cmd->add_flag("--no-hand", opts->no_hand, "Drive the device exactly along the path (no virtual hand)");
   cmd->callback([opts] { run_touch(*opts); });
 }
