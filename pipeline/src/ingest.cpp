@@ -10,16 +10,19 @@
 #include <zlib.h>
 
 #include <algorithm>
+#include <atomic>
 #include <bit>
 #include <cctype>
 #include <charconv>
 #include <chrono>
 #include <cstring>
+#include <exception>
 #include <fstream>
 #include <limits>
 #include <sstream>
 #include <string_view>
 #include <system_error>
+#include <thread>
 
 namespace hc::pipeline {
 
@@ -923,17 +926,36 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
     matched.push_back(found);
   }
 
-  std::vector<Cloud> parts;
-  parts.reserve(scans.size());
+  // Scans are read and moved into the common frame on two threads; the first error (in scan
+  // order) is rethrown.
+  std::vector<Cloud> parts(scans.size());
+  std::vector<std::exception_ptr> errors(scans.size());
+  std::atomic<std::size_t> next{0};
+  auto worker = [&] {
+    for (std::size_t i; (i = next.fetch_add(1)) < scans.size();) {
+      try {
+        Cloud c = load_cloud(scans[i]).value;
+        const Eigen::Affine3d m = matched[i]->scan_to_world();
+        c.xyz = (m.linear() * c.xyz).colwise() + m.translation();
+        parts[i] = std::move(c);
+      } catch (...) {
+        errors[i] = std::current_exception();
+      }
+    }
+  };
+  {
+    std::thread helper;
+    if (scans.size() > 1) helper = std::thread(worker);
+    worker();
+    if (helper.joinable()) helper.join();
+  }
+  for (const auto& e : errors) {
+    if (e) std::rethrow_exception(e);
+  }
   std::size_t total = 0;
   for (std::size_t i = 0; i < scans.size(); ++i) {
-    auto loaded = load_cloud(scans[i]);
-    const Eigen::Affine3d m = matched[i]->scan_to_world();
-    Cloud& c = loaded.value;
-    c.xyz = (m.linear() * c.xyz).colwise() + m.translation();
-    total += c.size();
-    report.notes.push_back(scans[i].filename().string() + ": " + std::to_string(c.size()) + " points");
-    parts.push_back(std::move(c));
+    total += parts[i].size();
+    report.notes.push_back(scans[i].filename().string() + ": " + std::to_string(parts[i].size()) + " points");
   }
 
   Cloud merged;

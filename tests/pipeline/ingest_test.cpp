@@ -581,6 +581,13 @@ TEST(ScanalyzeConf, ScanWithoutPoseNamesBothFiles) {
   const std::string msg = error_of([&] { hp::load_and_merge_scans({dir / "scan.xyz"}, dir / "one.conf"); });
   EXPECT_NE(msg.find("scan.xyz"), std::string::npos) << msg;
   EXPECT_NE(msg.find("one.conf"), std::string::npos) << msg;
+  // A scan that fails to load (read on the second thread or not) names itself.
+  write_text(dir / "two.conf", "bmesh scan.xyz 0 0 0 0 0 0 1\nbmesh gone.xyz 0 0 0 0 0 0 1\nbmesh bad.xyz 0 0 0 0 0 0 1\n");
+  write_text(dir / "bad.xyz", "1 2 x\n");
+  const std::string missing =
+      error_of([&] { hp::load_and_merge_scans({dir / "scan.xyz", dir / "gone.xyz", dir / "bad.xyz"}, dir / "two.conf"); });
+  EXPECT_NE(missing.find("gone.xyz"), std::string::npos) << missing;
+  EXPECT_THROW(hp::load_and_merge_scans({}, dir / "two.conf"), hc::InputError);
 }
 
 TEST(ScanalyzeConf, MergeMatchesNamesIgnoringGzAndAppliesTheInverseRotation) {
