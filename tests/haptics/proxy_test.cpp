@@ -631,66 +631,6 @@ TEST(StepProxy, RhoSmallAndRhoNearOne) {
 
 // ---------------------------------------------------------------- long sliding, passivity
 
-struct LoopResult {
-  double first_loop_work_j = 0, max_loop_work_j = -1e9, total_work_j = 0;
-  double max_lag_m = 0, min_window_travel_ratio = 1e9;
-  double max_force_n = 0;
-};
-
-/// Circles of radius r around the origin, one per `ticks_per_loop`, pressing `press_m` below the
-/// envelope; trapezoidal work of the rendered force on the HIP per loop.
-LoopResult slide_loops(const HapticSurface& s, const ProxyParams& p, int loops, int ticks_per_loop,
-                       double r, double press_m, const std::function<double(double, double)>& envelope) {
-  LoopResult res;
-  ProxyState st;
-  const auto hip_at = [&](int k) {
-    const double a = 2 * std::numbers::pi * k / ticks_per_loop;
-    const double x = r * std::cos(a), y = r * std::sin(a);
-    return Vector3d(x, y, envelope(x, y) - press_m);
-  };
-  // Approach from above to the start of the loop.
-  const Vector3d start = hip_at(0);
-  for (int k = 0; k <= 50; ++k) {
-    st = step_proxy(st, HipInput{start + Vector3d(0, 0, 0.01 * (50 - k) / 50.0), kDt, true}, &s, p);
-  }
-  for (int k = 0; k < 300; ++k) st = step_proxy(st, HipInput{start, kDt, true}, &s, p);  // ramp done
-  Vector3d f_prev = st.force_n, x_prev = start;
-  double loop_work = 0, window_hip = 0, window_proxy = 0;
-  Vector3d proxy_prev = st.proxy_m;
-  for (int loop = 0; loop < loops; ++loop) {
-    loop_work = 0;
-    for (int k = 1; k <= ticks_per_loop; ++k) {
-      const Vector3d x = hip_at(k);
-      st = step_proxy(st, HipInput{x, kDt, true}, &s, p);
-      if (!(st.force_n.norm() <= p.max_force_n * (1 + 1e-12)) || !st.proxy_m.allFinite()) {
-        ADD_FAILURE() << "bad force or proxy at loop " << loop << " tick " << k;
-        return res;
-      }
-      const double below = s.height(st.proxy_m.x(), st.proxy_m.y()) - st.proxy_m.z();
-      if (below > 1e-6) {
-        ADD_FAILURE() << "proxy below surface by " << below;
-        return res;
-      }
-      loop_work += 0.5 * (f_prev + st.force_n).dot(x - x_prev);
-      window_hip += (x - x_prev).head<2>().norm();
-      window_proxy += (st.proxy_m - proxy_prev).head<2>().norm();
-      if (k % 100 == 0) {
-        res.min_window_travel_ratio = std::min(res.min_window_travel_ratio, window_proxy / window_hip);
-        window_hip = window_proxy = 0;
-      }
-      res.max_lag_m = std::max(res.max_lag_m, (x - st.proxy_m).head<2>().norm());
-      res.max_force_n = std::max(res.max_force_n, st.force_n.norm());
-      f_prev = st.force_n;
-      x_prev = x;
-      proxy_prev = st.proxy_m;
-    }
-    if (loop == 0) res.first_loop_work_j = loop_work;
-    res.max_loop_work_j = std::max(res.max_loop_work_j, loop_work);
-    res.total_work_j += loop_work;
-  }
-  return res;
-}
-
 void long_sliding(int n, double mu_d) {
   const auto env = [](double x, double y) { return test::sinusoid(x, y, 0.004, 0.04, 0.0, 1.0); };
   const HeightField f = test::make_square(n, 0.1, [](double x, double y) { return test::sinusoid(x, y); });
@@ -700,7 +640,7 @@ void long_sliding(int n, double mu_d) {
   const auto s = test::make_surface(f, opt);
   ProxyParams p;
   // 1000 loops of 1 s each at 1 kHz: 10^6 ticks, 1000 s of sliding.
-  const LoopResult r = slide_loops(*s, p, 1000, 1000, 0.015, 0.0015, env);
+  const test::LoopResult r = test::slide_loops(*s, p, 1000, 1000, Vector3d::Zero(), 0.015, 0.0015, env);
   EXPECT_LE(r.max_force_n, p.max_force_n);
   EXPECT_LT(r.max_lag_m, 0.003) << n << "^2";
   EXPECT_GT(r.min_window_travel_ratio, 0.5) << n << "^2: the proxy stopped following";
