@@ -3,20 +3,31 @@
 //
 // Statistical outlier removal computes, like PCL's StatisticalOutlierRemoval, the mean distance
 // of every point to its k nearest neighbours, then removes the points whose mean distance exceeds
-// mean + σ·stddev over all points. The k-NN distances are exact; the search is not a kd-tree but
-// a uniform grid of cubic cells with the points sorted cell by cell (a radix sort), which on
-// scans is several times faster than a kd-tree:
-//   A. For each occupied cell, the points of its 3×3×3 block are the candidates of every point in
-//      the cell (9 contiguous runs of the sorted array, found with monotone cursors). The k+1
-//      smallest distances are exact when the (k+1)-th is no larger than the distance from the
-//      point to the outside of the block (ρ); most points are settled here.
-//   B. The few points that are not: blocks of 5×5×5 and 7×7×7 cells, same test.
+// mean + σ·stddev over all points. The k-NN distances are exact. The search is a uniform grid of
+// cubic cells with the points sorted cell by cell (a radix sort); on the 1.1 M-point Buddha it
+// takes about half the time of a nanoflann kd-tree (build plus queries in tree order on two
+// threads) and a third of PCL's (measured on 2 cores, k = 16):
+//   A. For each occupied cell, the points of its 3×3×3 block (9 contiguous runs of the sorted
+//      array, found with monotone cursors) are the candidates of the cell's points. A search
+//      radius tau, from the previous point's result, trims the block to the cells within tau;
+//      if at least k+1 candidates lie within tau the k+1 nearest are exact. Otherwise the whole
+//      block is used, exact when the (k+1)-th distance is within the block's clearance ρ (the
+//      distance from the point to the outside of the block). Most points are settled here.
+//   B. The few that are not: blocks of 5×5×5 and 7×7×7 cells, same test.
 //   C. The rest (isolated points far from everything): a kd-tree (nanoflann) over the centres of
 //      the occupied cells gives an upper bound f of the (k+1)-th distance from the nearest cells,
 //      then all cells whose centre lies within f + half a cell diagonal are searched exhaustively.
+// Copies beyond k+1 of one location are left out of the grid (their mean distance is 0), and a
+// cloud too uneven for one cell size goes to a nanoflann kd-tree over all points instead.
 // Distances are computed in float32 on recentred coordinates, in the same arithmetic order as
 // PCL's FLANN search, and the statistics in double as PCL does, so on the same float input the
-// removed set is PCL's (see tests/pipeline/filters_test.cpp).
+// removed set is PCL's (tests/pipeline/filters_test.cpp checks it against PCL and brute force).
+//
+// A voxel-count density pre-test ("only points in sparse neighbourhoods pay a k-NN query") was
+// measured and rejected: on the merged Buddha with k = 16, σ = 1 the threshold lies at the 89th
+// percentile of the mean distances, only 0.11 mm above the median, and the best count-based
+// bound certifies 1.3 % of the points as inliers (27 % at σ = 2, 62 % at σ = 3), while the
+// mean and stddev still need every point's distance.
 
 #include "hc/pipeline/filters.hpp"
 

@@ -1,7 +1,8 @@
 // Stage 1: reading scans. This file holds everything that does not need PCL headers: file
-// reading, gzip decompression (zlib), the PLY header sanitiser, the OBJ-vertex and XYZ-text
-// parsers, the scanalyze .conf reader and the multi-view merge. PLY and PCD bodies are parsed by
-// PCL in ingest_pcl.cpp.
+// reading, gzip decompression (zlib, in memory), the PLY header parser and direct PLY vertex
+// readers, the PCD header check, the OBJ-vertex and XYZ-text parsers, the scanalyze .conf reader
+// and the multi-view merge. PCD files, and PLYs whose vertex layout needs list parsing, are read
+// by PCL in ingest_pcl.cpp.
 
 #include "hc/pipeline/ingest.hpp"
 
@@ -88,8 +89,17 @@ std::string gunzip(const std::string& packed, const std::filesystem::path& path)
     throw ResourceError("load_cloud: zlib could not initialise an inflate stream for " + quoted(path));
   }
   std::string out;
-  // Typical compression ratios of scans are 1.2x to 4x; grow geometrically.
-  out.resize(std::max<std::size_t>(packed.size() * 2, 1 << 16));
+  // A gzip member ends with its uncompressed size mod 2^32 (ISIZE): size the output from it
+  // when it is plausible, else guess twice the input; grow geometrically if needed.
+  std::size_t guess = packed.size() * 2;
+  if (packed.size() >= 18 && static_cast<unsigned char>(packed[0]) == 0x1f &&
+      static_cast<unsigned char>(packed[1]) == 0x8b) {
+    std::uint32_t isize = 0;
+    for (std::size_t i = 1; i <= 4; ++i) isize = (isize << 8) | static_cast<unsigned char>(packed[packed.size() - i]);
+    // Trusted only up to 16x the input (a corrupt trailer must not allocate gigabytes).
+    if (isize >= packed.size() / 2 && isize / 16 <= packed.size()) guess = static_cast<std::size_t>(isize) + 1;
+  }
+  out.resize(std::max<std::size_t>(guess, 1 << 16));
   zs.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(packed.data()));
   std::size_t in_left = packed.size();
   std::size_t produced = 0;
