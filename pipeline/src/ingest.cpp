@@ -407,6 +407,10 @@ PlyLayout parse_ply_header(const std::string& raw, const std::string& name) {
   if (out.vertex_index == out.elements.size()) throw fail("the header declares no 'vertex' element");
   const PlyElement& vertex = out.vertex();
   if (vertex.count == 0) throw fail("the header declares 0 vertices");
+  if (vertex.count > raw.size() - out.body) {  // every vertex takes at least one byte
+    throw fail("truncated: the header declares " + std::to_string(vertex.count) + " vertices but only " +
+               std::to_string(raw.size() - out.body) + " bytes follow it");
+  }
   for (const char* axis : {"x", "y", "z"}) {
     const bool found = std::any_of(vertex.properties.begin(), vertex.properties.end(),
                                    [&](const PlyProperty& p) { return p.name == axis && p.type != PlyType::kList; });
@@ -709,6 +713,12 @@ void validate_pcd(const std::string& raw, const std::string& name) {
     values += static_cast<std::size_t>(c);
   }
   if (width < 0) throw fail("the PCD header has no WIDTH line");
+  const auto bytes = static_cast<long long>(raw.size());
+  if (width > bytes || height > bytes || points > bytes) {  // every point takes at least one byte
+    throw fail("truncated: the header declares WIDTH " + std::to_string(width) + ", HEIGHT " + std::to_string(height) +
+               (points >= 0 ? ", POINTS " + std::to_string(points) : std::string()) + " in a file of " +
+               std::to_string(raw.size()) + " bytes");
+  }
   if (points < 0) points = width * height;
   if (points != width * height) {
     throw fail("the PCD header declares POINTS " + std::to_string(points) + " but WIDTH x HEIGHT = " +

@@ -465,6 +465,20 @@ TEST(IngestBadInput, HeaderPromisesMoreVerticesThanTheFileHolds) {
   EXPECT_NE(msg.find("short_grid.ply"), std::string::npos) << msg;
 }
 
+TEST(IngestBadInput, AbsurdDeclaredCountsAreTruncationNotAllocation) {
+  const fs::path dir = hc::test::temp_dir("absurd");
+  write_text(dir / "huge.ply", "ply\nformat binary_little_endian 1.0\nelement vertex 999999999999999\n"
+                               "property float x\nproperty float y\nproperty float z\nend_header\n0123456789ab");
+  std::string msg = error_of([&] { hp::load_cloud(dir / "huge.ply"); });
+  EXPECT_NE(msg.find("huge.ply"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("truncated"), std::string::npos) << msg;
+  write_text(dir / "huge.pcd", "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                               "WIDTH 4000000000000000000\nHEIGHT 4000000000000000000\nDATA binary\n0123");
+  msg = error_of([&] { hp::load_cloud(dir / "huge.pcd"); });
+  EXPECT_NE(msg.find("huge.pcd"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("truncated"), std::string::npos) << msg;
+}
+
 TEST(IngestBadInput, UnknownExtension) {
   const fs::path dir = hc::test::temp_dir("ext");
   write_text(dir / "scan.las", "1 2 3\n");
