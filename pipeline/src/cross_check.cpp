@@ -16,27 +16,26 @@
 //   * Buckets. The points are counting-sorted by their nearest grid node (clamped to the grid;
 //     a point outside the grid lands in a border cell, which only makes it look nearer than it
 //     is, so no bound below is ever violated). Each cell keeps its points' z range.
-//   * Front kd-tree (nanoflann), per half of the rows, over the front-most point of every
-//     non-empty cell (about a fifth of the Buddha's points), built on first use.
 //   * Query of the sample at node (r, c): scan the node's own bucket, then the buckets ring by
 //     ring around (r, c), skipping every cell whose square (horizontally) and z range
 //     (vertically) cannot beat the current best, and stop at the first ring whose nearest edge
-//     is farther than the best. If nothing is found within kRingsBeforeTree rings, the front
-//     kd-tree supplies a bound first. A search that would go beyond kRingsNearLimit rings (a
-//     sample far from every point, e.g. a hole filled across a depth step) is deferred: the
+//     is farther than the best. A search that would go beyond kRingsNearLimit rings (a sample
+//     far from every point, e.g. a hole filled across a depth step) is deferred.
+//   * Deferred samples (nanoflann kd-trees). A deferred sample with no point found yet gets a
+//     bound from kd-trees over the front-most point of every non-empty bucket. Then the
 //     deferred searches are finished by rings when that is cheap in total, else through
 //     kd-trees over all points (one per half of the rows, built in parallel). The result is
 //     always the exact nearest point over all points.
-//     On a grid made from the points the full trees are rarely needed: measured on the Buddha,
-//     the buckets answer in a fraction of the time it takes to build a kd-tree over all
-//     1.1 M points (about 0.1 s of CPU per 0.55 M points with nanoflann 1.4).
+//     On a grid made from the points the trees are rarely needed: measured on the Buddha, the
+//     buckets answer all of (b) in less time than nanoflann 1.4 needs to build a kd-tree over
+//     the 1.1 M points (about 0.1 s of CPU per 0.55 M points).
 //   * Two threads (std::thread), in phases: (1) each thread takes half of the points, runs
 //     (a) on them and finds their buckets; (2) each scatters its points into the shared bucket
 //     array (a two-thread counting sort); (3) the rows are split where both halves hold about
 //     half of the valid cells, and each thread summarises the buckets of its rows; (4) each thread
-//     answers the queries of its rows in grid order (the other half's tree only when the search
-//     sphere crosses the split); (5, 6) deferred far samples, if any. The statistics then run
-//     on both threads.
+//     answers the queries of its rows in grid order; (5) deferred far samples, if any (a
+//     thread's trees hold its rows' points; the other half's tree is searched only when the
+//     search sphere crosses the split). The statistics then run on both threads.
 //   * Float in a local frame centred on the grid, so float keeps ~1e-7 relative precision even
 //     for coordinates far from the origin. nanoflann's squared distances never leave this file.
 
@@ -53,7 +52,6 @@
 #include <exception>
 #include <limits>
 #include <memory>
-#include <mutex>
 #include <sstream>
 #include <thread>
 #include <utility>
@@ -209,8 +207,7 @@ struct Part {
   int row_begin = 0, row_end = 0;
   std::vector<std::uint32_t> count;          ///< per cell: points of this part (then offsets)
   std::vector<float> front_xyz;              ///< its rows' front-most point of each bucket
-  std::once_flag front_built;
-  std::unique_ptr<NearestPointIndex> front;  ///< kd-tree over front_xyz, built on first use
+  std::unique_ptr<NearestPointIndex> front;  ///< kd-tree over front_xyz (only if needed)
   std::vector<float> vertical_m, normal_m;   ///< (a)
   std::size_t on_surface = 0, off_surface = 0, hidden = 0, outside = 0, finite = 0;
   std::vector<float> cell_m;                 ///< (b), in grid order
@@ -312,7 +309,13 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   std::vector<std::uint32_t> key(n_points);     // cell of each point, kSkip if not finite
   std::vector<std::uint32_t> first(cells + 1);  // bucket k = sorted points [first[k], first[k+1])
   std::vector<float> sorted;                     // xyz, local frame, sorted by cell
-  std::vector<float> z_lo(cells), z_hi(cells);   // z range of each bucket
+  // Per bucket, packed for the queries (one cache line holds four cells): point range in
+  // `sorted` and z range.
+  struct Bucket {
+    std::uint32_t begin, end;
+    float z_lo, z_hi;
+  };
+  std::vector<Bucket> buckets(cells);
 
   // Phase 1 (per half of the points): (a) against f, and each point's bucket.
   auto phase1 = [&](int h) {
@@ -395,6 +398,7 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
     const std::size_t k_end = static_cast<std::size_t>(out.row_end) * ucols;
     for (std::size_t k = static_cast<std::size_t>(out.row_begin) * ucols; k < k_end; ++k) {
       const std::uint32_t b = first[k], e = first[k + 1];
+      buckets[k] = Bucket{b, e, 0.0f, 0.0f};
       if (b == e) continue;
       std::uint32_t top = b;
       float lo = sorted[3 * b + 2], hi = lo;
@@ -406,8 +410,8 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
           top = j;
         }
       }
-      z_lo[k] = lo;
-      z_hi[k] = hi;
+      buckets[k].z_lo = lo;
+      buckets[k].z_hi = hi;
       front.insert(front.end(), &sorted[3 * top], &sorted[3 * top] + 3);
     }
   };
@@ -418,24 +422,15 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   CrossCheck& cc = result.value;
   cc.cell_error_m = HeightField(g, kNoData);
   cc.cell_error_m.model_to_grid = grid.model_to_grid;
-  // The kd-trees are built on first use (by either thread), which is only for samples with no
-  // point within kRingsBeforeTree cells: on a grid made from the points, rarely or never.
-  constexpr int kRingsBeforeTree = 4;
   // Beyond this many rings a sample's search is deferred to phase 5 [cells].
   constexpr int kRingsNearLimit = 16;
   // Phase 5 finishes the deferred searches by rings if they visit fewer cells than this in
   // total, else it builds kd-trees over all points (≈ 0.2 µs per point and thread).
   constexpr double kFarRingCellBudget = 2e7;
-  auto tree = [&parts](int h) -> const NearestPointIndex& {
-    std::call_once(parts[h].front_built, [&parts, h] {
-      parts[h].front = std::make_unique<NearestPointIndex>(std::move(parts[h].front_xyz));
-    });
-    return *parts[h].front;
-  };
   // Best squared distance from q to the points of bucket k, folded into best_sq.
   auto scan = [&](std::size_t k, const float* q, float& best_sq) {
     const float* pt = sorted.data();
-    for (std::uint32_t j = first[k]; j < first[k + 1]; ++j) {
+    for (std::uint32_t j = buckets[k].begin, e = buckets[k].end; j < e; ++j) {
       const float dx = pt[3 * j] - q[0], dy = pt[3 * j + 1] - q[1], dz = pt[3 * j + 2] - q[2];
       best_sq = std::min(best_sq, dx * dx + dy * dy + dz * dz);
     }
@@ -457,9 +452,10 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
           const int c2 = c + dc;
           if (c2 < 0 || c2 >= g.cols) continue;
           const std::size_t kc = static_cast<std::size_t>(rr) * ucols + static_cast<std::size_t>(c2);
-          if (first[kc] == first[kc + 1]) continue;
+          const Bucket& bk = buckets[kc];
+          if (bk.begin == bk.end) continue;
           const float hx = std::max(0.0f, (static_cast<float>(std::abs(dc)) - 0.5f) * cell_f);
-          const float vz = std::max({0.0f, z_lo[kc] - q[2], q[2] - z_hi[kc]});
+          const float vz = std::max({0.0f, bk.z_lo - q[2], q[2] - bk.z_hi});
           if (hx * hx + hy * hy + vz * vz >= best_sq) continue;
           scan(kc, q, best_sq);
         }
@@ -482,7 +478,6 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
     out.cell_m.reserve(valid_total / 2 + 1);
     for (int r = out.row_begin; r < out.row_end; ++r) {
       const float* row = grid.data() + static_cast<std::size_t>(r) * ucols;
-      const double dy_split = g.y_of_row(r) - y_split;
       for (int c = 0; c < g.cols; ++c) {
         if (std::isnan(row[c])) continue;
         float q[3];
@@ -491,16 +486,9 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
         out.cell_m.push_back(0.0f);
         float best_sq = std::numeric_limits<float>::infinity();
         scan(static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c), q, best_sq);
-        if (!search_rings(r, c, q, best_sq, 1, kRingsBeforeTree)) {
-          // Still far from everything: a bound from the front points' kd-trees.
-          double d = std::sqrt(static_cast<double>(best_sq));
-          d = tree(h).nearest_distance_m(q, d);
-          if (dy_split * dy_split < d * d) d = tree(1 - h).nearest_distance_m(q, d);
-          best_sq = std::min(best_sq, static_cast<float>(d * d));
-          if (!search_rings(r, c, q, best_sq, kRingsBeforeTree + 1, kRingsNearLimit)) {
-            out.far.push_back({r, c, best_sq, slot});
-            continue;
-          }
+        if (!search_rings(r, c, q, best_sq, 1, kRingsNearLimit)) {
+          out.far.push_back({r, c, best_sq, slot});
+          continue;
         }
         record(out, r, c, slot, best_sq);
       }
@@ -509,53 +497,73 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   run_two([&] { phase4(1); }, [&] { phase4(0); });
 
   // Phase 5 (only if some sample is farther than kRingsNearLimit cells from every point; e.g. a
-  // hole filled across a depth step): finish those searches by rings if that is cheap in total,
-  // else through kd-trees over all points (each thread: its rows' slice of the bucket array).
-  std::size_t far_total = 0, far_by_tree = 0;
-  {
+  // hole filled across a depth step). A deferred sample without any point found yet first gets
+  // a bound from kd-trees over the buckets' front-most points. Then the deferred searches are
+  // finished by rings if that is cheap in total, else through kd-trees over all points (each
+  // thread: its rows' slice of the bucket array). Trees are built in parallel, one per thread.
+  std::size_t far_total = parts[0].far.size() + parts[1].far.size(), far_by_tree = 0;
+  if (far_total > 0) {
+    bool unbounded = false;
+    for (const Part& part : parts) {
+      for (const auto& f : part.far) unbounded |= std::isinf(f.best_sq);
+    }
+    auto tree_bound = [&](int h, float* q, int row, float best_sq, bool full) {
+      const NearestPointIndex& own = full ? *parts[h].all : *parts[h].front;
+      const NearestPointIndex& other = full ? *parts[1 - h].all : *parts[1 - h].front;
+      const double dy_split = g.y_of_row(row) - y_split;
+      double d = std::sqrt(static_cast<double>(best_sq));
+      d = own.nearest_distance_m(q, d);
+      if (dy_split * dy_split < d * d) d = other.nearest_distance_m(q, d);
+      return std::min(best_sq, static_cast<float>(d * d));
+    };
+    if (unbounded) {
+      run_two([&] { parts[1].front = std::make_unique<NearestPointIndex>(std::move(parts[1].front_xyz)); },
+              [&] { parts[0].front = std::make_unique<NearestPointIndex>(std::move(parts[0].front_xyz)); });
+      auto bound = [&](int h) {
+        for (auto& f : parts[h].far) {
+          if (!std::isinf(f.best_sq)) continue;
+          float q[3];
+          query_point(f.row, f.col, q);
+          f.best_sq = tree_bound(h, q, f.row, f.best_sq, false);
+        }
+      };
+      run_two([&] { bound(1); }, [&] { bound(0); });
+    }
     double ring_cells = 0.0;
     for (const Part& part : parts) {
-      far_total += part.far.size();
       for (const auto& f : part.far) {
         const double rings = std::sqrt(static_cast<double>(f.best_sq)) / g.cell_size_m + 1.0;
         ring_cells += 4.0 * rings * rings;
       }
     }
     const bool by_tree = ring_cells > kFarRingCellBudget;
-    if (far_total > 0) {
-      auto phase5 = [&](int h) {
-        Part& out = parts[h];
+    auto finish = [&](int h) {
+      Part& out = parts[h];
+      for (const auto& f : out.far) {
+        float q[3];
+        query_point(f.row, f.col, q);
+        float best_sq = f.best_sq;
         if (by_tree) {
-          const std::size_t b = first[static_cast<std::size_t>(out.row_begin) * ucols];
-          const std::size_t e = first[static_cast<std::size_t>(out.row_end) * ucols];
-          out.all = std::make_unique<NearestPointIndex>(sorted.data() + 3 * b, e - b);
+          best_sq = tree_bound(h, q, f.row, best_sq, true);
+        } else {
+          search_rings(f.row, f.col, q, best_sq, 1, std::numeric_limits<int>::max());
         }
+        record(out, f.row, f.col, f.slot, best_sq);
+      }
+    };
+    if (by_tree) {
+      auto build_all = [&](int h) {
+        const std::size_t b = first[static_cast<std::size_t>(parts[h].row_begin) * ucols];
+        const std::size_t e = first[static_cast<std::size_t>(parts[h].row_end) * ucols];
+        parts[h].all = std::make_unique<NearestPointIndex>(sorted.data() + 3 * b, e - b);
       };
-      run_two([&] { phase5(1); }, [&] { phase5(0); });
-      auto phase6 = [&](int h) {
-        Part& out = parts[h];
-        for (const auto& f : out.far) {
-          float q[3];
-          query_point(f.row, f.col, q);
-          float best_sq = f.best_sq;
-          if (by_tree) {
-            const double dy_split = g.y_of_row(f.row) - y_split;
-            double d = std::sqrt(static_cast<double>(best_sq));
-            d = parts[h].all->nearest_distance_m(q, d);
-            if (dy_split * dy_split < d * d) d = parts[1 - h].all->nearest_distance_m(q, d);
-            best_sq = std::min(best_sq, static_cast<float>(d * d));
-          } else {
-            search_rings(f.row, f.col, q, best_sq, 1, std::numeric_limits<int>::max());
-          }
-          record(out, f.row, f.col, f.slot, best_sq);
-        }
-      };
-      run_two([&] { phase6(1); }, [&] { phase6(0); });
-      far_by_tree = by_tree ? far_total : 0;
+      run_two([&] { build_all(1); }, [&] { build_all(0); });
+      far_by_tree = far_total;
     }
+    run_two([&] { finish(1); }, [&] { finish(0); });
   }
 
-  // Phase 5: statistics (two threads over the three distributions).
+  // Statistics (two threads over the three distributions).
   auto concat = [](std::vector<float>& a, std::vector<float>& b) {
     a.insert(a.end(), b.begin(), b.end());
     std::vector<float>().swap(b);
