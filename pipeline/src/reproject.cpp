@@ -181,7 +181,9 @@ void validate_options(const ReprojectOptions& o) {
 
 std::size_t bytes_per_cell(const ReprojectOptions& o) {
   std::size_t b = sizeof(float) + sizeof(std::uint8_t);  // height + flag
-  if (o.splat_radius_cells > 0.0) b += sizeof(float);    // splat buffer
+  if (o.splat_radius_cells > 0.0) {  // splat buffer + running maxima of half-width 1..⌊r⌋
+    b += sizeof(float) * (1 + static_cast<std::size_t>(std::floor(o.splat_radius_cells)));
+  }
   if (o.see_through_depth_m > 0.0) b += 2 * sizeof(float);  // window max (two passes)
   return b;
 }
@@ -268,23 +270,44 @@ std::size_t bin_front_most(const double* p, std::size_t n, const GridGeometry& g
 
 // Disc splats: every node within radius_cells of a node holding a point takes that node's
 // front-most z, front-most rule again (a grey-value dilation of the measured grid with a disc;
-// the cell's own value is excluded). Points are taken at their node: a point splats the nodes
-// within radius_cells of the node it fell on. O(rows·cols·r²), branch-free inner loop.
+// including the node itself, which changes nothing where the result is used). Points are taken
+// at their node: a point splats the nodes within radius_cells of the node it fell on.
+// The disc is a stack of row segments: the row at offset dr spans |dc| ≤ hw(dr) with
+// hw(dr) = ⌊√(r² − dr²)⌋. Horizontal running maxima H_h (half-width h) are built incrementally
+// (H_{h+1}(c) = max(H_h(c), m(c − h − 1), m(c + h + 1))), and each output row takes the max of
+// H_hw(dr) over the disc's rows: O(rows·cols·r) with branch-free inner loops.
 void splat_discs(const float* measured, int rows, int cols, double radius_cells, float* splat) {
   const int reach = static_cast<int>(std::floor(radius_cells));
   const double r2 = radius_cells * radius_cells;
   const auto ucols = static_cast<std::size_t>(cols);
-  for (int dr = -reach; dr <= reach; ++dr) {
-    for (int dc = -reach; dc <= reach; ++dc) {
-      if ((dr == 0 && dc == 0) || dr * dr + dc * dc > r2) continue;
-      // splat(r, c) = max(splat(r, c), measured(r + dr, c + dc)) over the overlapping rows.
-      const int r_lo = std::max(0, -dr), r_hi = std::min(rows, rows - dr);
-      const int c_lo = std::max(0, -dc), c_hi = std::min(cols, cols - dc);
-      for (int r = r_lo; r < r_hi; ++r) {
-        float* dst = splat + static_cast<std::size_t>(r) * ucols;
-        const float* src = measured + static_cast<std::size_t>(r + dr) * ucols + dc;
-        for (int c = c_lo; c < c_hi; ++c) dst[c] = std::max(dst[c], src[c]);
-      }
+  const std::size_t cells = static_cast<std::size_t>(rows) * ucols;
+  std::vector<int> half_width(static_cast<std::size_t>(reach) + 1);
+  for (int dr = 0; dr <= reach; ++dr) {
+    half_width[static_cast<std::size_t>(dr)] =
+        static_cast<int>(std::floor(std::sqrt(std::max(0.0, r2 - static_cast<double>(dr) * dr)) + 1e-9));
+  }
+  // running[h] = H_h for h = 1..reach; H_0 is the measured grid itself.
+  std::vector<std::vector<float>> running(static_cast<std::size_t>(reach) + 1);
+  std::vector<const float*> level(static_cast<std::size_t>(reach) + 1, measured);
+  for (int h = 1; h <= reach; ++h) {
+    std::vector<float>& out = running[static_cast<std::size_t>(h)];
+    out.assign(level[static_cast<std::size_t>(h - 1)], level[static_cast<std::size_t>(h - 1)] + cells);
+    level[static_cast<std::size_t>(h)] = out.data();
+    for (int r = 0; r < rows; ++r) {
+      float* dst = out.data() + static_cast<std::size_t>(r) * ucols;
+      const float* src = measured + static_cast<std::size_t>(r) * ucols;
+      for (int c = 0; c + h < cols; ++c) dst[c] = std::max(dst[c], src[c + h]);
+      for (int c = h; c < cols; ++c) dst[c] = std::max(dst[c], src[c - h]);
+    }
+  }
+  for (int r = 0; r < rows; ++r) {
+    float* dst = splat + static_cast<std::size_t>(r) * ucols;
+    for (int dr = -reach; dr <= reach; ++dr) {
+      const int rr = r + dr;
+      if (rr < 0 || rr >= rows) continue;
+      const float* src = level[static_cast<std::size_t>(half_width[static_cast<std::size_t>(std::abs(dr))])] +
+                         static_cast<std::size_t>(rr) * ucols;
+      for (int c = 0; c < cols; ++c) dst[c] = std::max(dst[c], src[c]);
     }
   }
 }

@@ -213,6 +213,43 @@ TEST(Reproject, SplatClosesPinholesWithoutMovingMeasuredCells) {
   EXPECT_EQ(figure(splat.report, "cells_splatted"), static_cast<double>(pinholes));
 }
 
+TEST(Reproject, SplatEqualsABruteForceDiscDilation) {
+  std::mt19937_64 rng(8);
+  std::uniform_real_distribution<double> u(0.0, 0.04), uz(-0.01, 0.01);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 700; ++i) pts.emplace_back(u(rng), u(rng), uz(rng));
+  const Cloud cloud = cloud_of(pts);
+  for (double radius : {1.0, 1.5, 2.4, 3.0}) {
+    const auto plain = reproject(cloud, with_n(61));
+    ReprojectOptions o = with_n(61);
+    o.splat_radius_cells = radius;
+    const auto splat = reproject(cloud, o);
+    const HeightField& a = plain.value.depth;
+    const HeightField& b = splat.value.depth;
+    for (int r = 0; r < a.rows(); ++r) {
+      for (int c = 0; c < a.cols(); ++c) {
+        if (a.valid(r, c)) {
+          ASSERT_EQ(b.at(r, c), a.at(r, c));
+          continue;
+        }
+        float want = -std::numeric_limits<float>::infinity();
+        for (int rr = 0; rr < a.rows(); ++rr) {
+          for (int cc = 0; cc < a.cols(); ++cc) {
+            if ((rr - r) * (rr - r) + (cc - c) * (cc - c) <= radius * radius && a.valid(rr, cc)) {
+              want = std::max(want, a.at(rr, cc));
+            }
+          }
+        }
+        if (std::isinf(want)) {
+          ASSERT_TRUE(std::isnan(b.at(r, c))) << radius << ": " << r << "," << c;
+        } else {
+          ASSERT_EQ(b.at(r, c), want) << radius << ": " << r << "," << c;
+        }
+      }
+    }
+  }
+}
+
 // ---------------------------------------------------------------------------------------------
 // See-through
 
@@ -470,10 +507,10 @@ TEST(ReprojectErrors, MemoryCapNamesTheBytesNeeded) {
   EXPECT_NE(m.find("501501 cells"), std::string::npos) << m;
   EXPECT_NE(m.find("max_cells = 500000"), std::string::npos) << m;
   EXPECT_NE(m.find(std::to_string(501501 * 5) + " bytes"), std::string::npos) << m;  // float + flag
-  o.splat_radius_cells = 1.0;
+  o.splat_radius_cells = 1.5;
   o.see_through_depth_m = 0.001;
   m = message_of<ResourceError>(c, o);
-  EXPECT_NE(m.find(std::to_string(501501 * 17) + " bytes"), std::string::npos) << m;
+  EXPECT_NE(m.find(std::to_string(501501 * (5 + 8 + 8)) + " bytes"), std::string::npos) << m;
   // A request far beyond any machine does not overflow.
   o.grid.n_long_side = 2000000000;
   EXPECT_THROW(reproject(c, o), ResourceError);

@@ -70,7 +70,7 @@ struct DepthGrid {
 ///         hc::ConfigError if n_long_side ≤ 1, neither or both of n_long_side and cell_size_m
 ///         are given, or an option is out of range; hc::ResourceError if rows·cols exceeds
 ///         max_cells (the message gives rows, cols, the cap and the bytes needed: 5 per cell,
-///         +4 with splats, +8 with see-through handling).
+///         +4·(1 + ⌊splat_radius_cells⌋) with splats, +8 with see-through handling).
 /// Real-time: no. Threads: 2 for clouds of 2^18 points or more. Cost: two passes over the points
 /// + O(rows·cols) (·r² with a splat radius r).
 /// Source: depth-buffer scan of Sec. 1 of the paper; front-most rule as in an OpenGL z-buffer.
