@@ -468,16 +468,15 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
     see_through_cells = rejected.size();
   }
 
-  std::size_t valid = 0, measured = 0, splat_final = 0;
+  // −inf (nothing) becomes NaN (no data); counts by flag (empty and see-through cells are the
+  // only −inf ones). Branch-free.
+  std::size_t measured = 0, splat_final = 0;
   for (std::size_t i = 0; i < cells; ++i) {
-    if (depth[i] == kEmpty) {
-      depth[i] = kNoData;
-      continue;
-    }
-    ++valid;
+    depth[i] = depth[i] == kEmpty ? kNoData : depth[i];
     measured += out.flags[i] == kCellMeasured ? 1U : 0U;
     splat_final += out.flags[i] == kCellSplatted ? 1U : 0U;
   }
+  const std::size_t valid = measured + splat_final;
 
   StageReport& rep = result.report;
   rep.stage = "reproject";
