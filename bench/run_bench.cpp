@@ -1,0 +1,174 @@
+// Every stage of the N = 800 run of configs/happy_buddha.yaml on the merged Happy Buddha
+// (1.1 M points), each timed on its own input, plus the whole run (file to written scene,
+// previews and report) and two baselines measured in the same process:
+//   BM_Baseline_PclLoadPly        PCL's loadPLYFile on the decompressed PLY (the reference reader);
+//   BM_Baseline_PclOutliers       PCL's StatisticalOutlierRemoval, k = 16, σ = 2 (the reference filter).
+// Compare medians: BM_Stage_Ingest / BM_Baseline_PclLoadPly (our ingest includes gunzip) and
+// BM_Stage_Outliers / BM_Baseline_PclOutliers. Wall time (UseRealTime), 5 repetitions; read the
+// medians. Not part of ctest. Run: build/release/bench/run_bench [--benchmark_filter=...]
+
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/cross_check.hpp"
+#include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/run.hpp"
+#include "hc/pipeline/scene_io.hpp"
+#include "hc/pipeline/surface_layers.hpp"
+#include "hc/pipeline/transform.hpp"
+
+#include <benchmark/benchmark.h>
+#include <pcl/filters/statistical_outlier_removal.h>
+#include <pcl/io/ply_io.h>
+#include <pcl/point_types.h>
+#include <zlib.h>
+
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+namespace {
+
+namespace fs = std::filesystem;
+using namespace hc::pipeline;
+
+const fs::path kConfig = fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml";
+
+/// Every intermediate result of one run, computed once (the config's own options).
+struct Intermediates {
+  RunConfig config;
+  Cloud loaded, recentred, transformed, finite, filtered;
+  DepthGrid grid, filled;
+  SurfaceLayers layers;
+};
+
+const Intermediates& run_once() {
+  static const std::unique_ptr<Intermediates> r = [] {
+    auto i = std::make_unique<Intermediates>();
+    i->config = load_run_config(kConfig);
+    i->loaded = load_cloud(i->config.input.files.front()).value;
+    Eigen::Vector3d offset;
+    i->recentred = to_metres_and_recentre(i->loaded, 1.0, &offset).value;
+    i->transformed = apply_view_transform(i->recentred, i->config.view).value;
+    i->finite = remove_non_finite(i->transformed).value;
+    i->filtered = remove_statistical_outliers(i->finite, i->config.filters.outliers.k,
+                                              i->config.filters.outliers.std_multiplier).value;
+    i->grid = reproject(i->filtered, i->config.grid.reproject).value;
+    i->filled = fill_holes(i->grid, i->config.grid.hole_fill_max_cells).value;
+    i->layers = compute_surface_layers(i->filled.depth, i->config.layers.options).value;
+    return i;
+  }();
+  return *r;
+}
+
+#define HC_STAGE(name, body)                         \
+  void name(benchmark::State& state) {               \
+    const Intermediates& in = run_once();            \
+    for (auto _ : state) {                           \
+      auto out = body;                               \
+      benchmark::DoNotOptimize(out);                 \
+    }                                                \
+  }
+
+HC_STAGE(BM_Stage_Ingest, load_cloud(in.config.input.files.front()))
+HC_STAGE(BM_Stage_Recentre, ([&] { Eigen::Vector3d o; return to_metres_and_recentre(in.loaded, 1.0, &o); }()))
+HC_STAGE(BM_Stage_Transform, apply_view_transform(in.recentred, in.config.view))
+HC_STAGE(BM_Stage_NonFinite, remove_non_finite(in.transformed))
+HC_STAGE(BM_Stage_Outliers, remove_statistical_outliers(in.finite, 16, 2.0))
+HC_STAGE(BM_Stage_Reproject, reproject(in.filtered, in.config.grid.reproject))
+HC_STAGE(BM_Stage_HoleFill, fill_holes(in.grid, in.config.grid.hole_fill_max_cells))
+HC_STAGE(BM_Stage_SurfaceLayers, compute_surface_layers(in.filled.depth, in.config.layers.options))
+HC_STAGE(BM_Stage_CrossCheck, cross_check(in.filtered, in.filled.depth, in.config.cross_check.tolerance_m))
+
+void BM_Stage_WriteScene(benchmark::State& state) {
+  const Intermediates& in = run_once();
+  Scene scene;
+  scene.layers.emplace("depth", in.filled.depth);
+  scene.layers.emplace("envelope", in.layers.envelope_m);
+  scene.layers.emplace("texture", in.layers.texture_m);
+  scene.layers.emplace("mu_d", in.layers.mu_d);
+  scene.layers.emplace("mu_s", in.layers.mu_s);
+  scene.flags = in.filled.flags;
+  const fs::path dir = fs::temp_directory_path() / "hapticloud-bench-scene";
+  for (auto _ : state) {
+    fs::remove_all(dir);
+    write_scene(scene, dir, "");
+  }
+  fs::remove_all(dir);
+}
+
+void BM_WholeRun(benchmark::State& state) {
+  const RunConfig cfg = load_run_config(kConfig);
+  const fs::path out = fs::temp_directory_path() / "hapticloud-bench-run";
+  double cross_rms = 0, cross_p95 = 0;
+  for (auto _ : state) {
+    const RunSummary s = run_pipeline(cfg, out);
+    cross_rms = s.cross_check->point_vertical.rms_mm;
+    cross_p95 = s.cross_check->point_vertical.p95_mm;
+  }
+  state.counters["rms_mm"] = cross_rms;
+  state.counters["p95_mm"] = cross_p95;
+  fs::remove_all(out);
+}
+
+/// Decompresses the .ply.gz once into a temporary .ply for PCL's reader.
+fs::path plain_ply() {
+  static const fs::path p = [] {
+    const fs::path out = fs::temp_directory_path() / "hapticloud-bench-buddha.ply";
+    gzFile in = gzopen(run_once().config.input.files.front().c_str(), "rb");
+    std::ofstream o(out, std::ios::binary);
+    char buf[1 << 16];
+    for (int n; (n = gzread(in, buf, sizeof buf)) > 0;) o.write(buf, n);
+    gzclose(in);
+    return out;
+  }();
+  return p;
+}
+
+void BM_Baseline_PclLoadPly(benchmark::State& state) {
+  const fs::path p = plain_ply();
+  for (auto _ : state) {
+    pcl::PointCloud<pcl::PointXYZ> cloud;
+    pcl::io::loadPLYFile(p.string(), cloud);
+    benchmark::DoNotOptimize(cloud.size());
+  }
+}
+
+void BM_Baseline_PclOutliers(benchmark::State& state) {
+  const Cloud& c = run_once().finite;
+  auto cloud = std::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  cloud->resize(c.size());
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    const auto col = c.xyz.col(static_cast<Eigen::Index>(i)).cast<float>();
+    (*cloud)[i] = pcl::PointXYZ(col.x(), col.y(), col.z());
+  }
+  for (auto _ : state) {
+    pcl::StatisticalOutlierRemoval<pcl::PointXYZ> sor;
+    sor.setInputCloud(cloud);
+    sor.setMeanK(16);
+    sor.setStddevMulThresh(2.0);
+    pcl::PointCloud<pcl::PointXYZ> out;
+    sor.filter(out);
+    benchmark::DoNotOptimize(out.size());
+  }
+}
+
+#define HC_SETTINGS UseRealTime()->Unit(benchmark::kMillisecond)->Repetitions(5)->ReportAggregatesOnly(true)
+BENCHMARK(BM_Stage_Ingest)->HC_SETTINGS;
+BENCHMARK(BM_Stage_Recentre)->HC_SETTINGS;
+BENCHMARK(BM_Stage_Transform)->HC_SETTINGS;
+BENCHMARK(BM_Stage_NonFinite)->HC_SETTINGS;
+BENCHMARK(BM_Stage_Outliers)->HC_SETTINGS;
+BENCHMARK(BM_Stage_Reproject)->HC_SETTINGS;
+BENCHMARK(BM_Stage_HoleFill)->HC_SETTINGS;
+BENCHMARK(BM_Stage_SurfaceLayers)->HC_SETTINGS;
+BENCHMARK(BM_Stage_CrossCheck)->HC_SETTINGS;
+BENCHMARK(BM_Stage_WriteScene)->HC_SETTINGS;
+BENCHMARK(BM_WholeRun)->HC_SETTINGS;
+BENCHMARK(BM_Baseline_PclLoadPly)->HC_SETTINGS;
+BENCHMARK(BM_Baseline_PclOutliers)->Iterations(1)->HC_SETTINGS;
+
+}  // namespace
+
+BENCHMARK_MAIN();
