@@ -379,6 +379,9 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   c.filters.outliers.enabled = r.get_bool("filters.outliers.enabled", true);
   c.filters.outliers.k = static_cast<int>(r.get_int("filters.outliers.k", 16, 1, 256));
   c.filters.outliers.std_multiplier = r.get_double("filters.outliers.std_multiplier", 2.0, 0.0, 100.0, true);
+  c.filters.outliers.scope = r.get_string("filters.outliers.scope", "all", {"all", "front"}) == "front"
+                                 ? OutlierScope::kFront
+                                 : OutlierScope::kAll;
   if (r.has("filters.crop")) {
     const Eigen::Vector3d lo = r.get_vec3("filters.crop.min_m", Eigen::Vector3d::Constant(-1e3));
     const Eigen::Vector3d hi = r.get_vec3("filters.crop.max_m", Eigen::Vector3d::Constant(1e3));
@@ -406,6 +409,8 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   // cross-check
   c.cross_check.enabled = r.get_bool("cross_check.enabled", true);
   c.cross_check.tolerance_m = r.get_double("cross_check.tolerance_m", 0.0005, 0.0, 1.0, true);
+  c.cross_check.compare_naive = r.get_bool("cross_check.compare_naive", true);
+  c.cross_check.hidden_band_m = r.get_double("cross_check.hidden_band_m", 0.002, 0.0, 10.0, true);
 
   // surface layers
   auto& L = c.layers.options;

@@ -29,6 +29,7 @@ struct OutlierConfig {
   bool enabled = true;
   int k = 16;                    ///< neighbours [-], 1..256
   double std_multiplier = 2.0;   ///< σ multiplier [-], (0, 100]
+  OutlierScope scope = OutlierScope::kAll;  ///< "all" | "front" (which points are tested)
 };
 
 struct FilterConfig {
@@ -45,6 +46,10 @@ struct GridConfig {
 struct CrossCheckConfig {
   bool enabled = true;
   double tolerance_m = 0.0005;   ///< a cell is supported if a point lies within this [m]
+  double hidden_band_m = 0.002;  ///< (a) uses points at most this far below the surface [m]
+  bool compare_naive = true;     ///< also grid naively (front-most only) and cross-check that,
+                                 ///< so the report shows what see-through handling, splats and
+                                 ///< hole filling change
 };
 
 struct LayersConfig {

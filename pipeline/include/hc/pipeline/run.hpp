@@ -20,6 +20,7 @@ using ProgressFn = std::function<void(const StageReport& stage, bool done)>;
 struct RunSummary {
   std::vector<StageReport> stages;
   std::optional<CrossCheck> cross_check;  ///< when enabled (cell_error_m holds the map)
+  std::optional<CrossCheck> naive_cross_check;  ///< the naive front-most grid's, when compared
   GridGeometry grid;
   std::size_t valid_cells = 0;
   double total_seconds = 0.0;             ///< file to written report
