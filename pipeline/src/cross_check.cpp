@@ -39,6 +39,7 @@
 //   * Float in a local frame centred on the grid, so float keeps ~1e-7 relative precision even
 //     for coordinates far from the origin. nanoflann's squared distances never leave this file.
 
+#include "stage_util.hpp"
 #include "hc/pipeline/cross_check.hpp"
 
 #include "hc/common/bilinear_surface.hpp"
@@ -59,6 +60,8 @@
 namespace hc::pipeline {
 
 namespace {
+
+using detail::run_two;
 
 /// nanoflann dataset adaptor over packed float xyz triples, owned or viewed.
 struct PackedPoints {
@@ -142,27 +145,6 @@ class NearestPointIndex {
   PackedPoints points_;
   std::unique_ptr<Tree> tree_;
 };
-
-/// Runs a() on a second thread and b() on this one; rethrows the first exception.
-template <class A, class B>
-void run_two(A&& a, B&& b) {
-  std::exception_ptr error_a, error_b;
-  std::thread worker([&] {
-    try {
-      a();
-    } catch (...) {
-      error_a = std::current_exception();
-    }
-  });
-  try {
-    b();
-  } catch (...) {
-    error_b = std::current_exception();
-  }
-  worker.join();
-  if (error_a) std::rethrow_exception(error_a);
-  if (error_b) std::rethrow_exception(error_b);
-}
 
 template <class T>
 ErrorStats stats_of(std::vector<T>& v) {

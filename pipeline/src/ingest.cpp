@@ -4,6 +4,7 @@
 // and the multi-view merge. PCD files, and PLYs whose vertex layout needs list parsing, are read
 // by PCL in ingest_pcl.cpp.
 
+#include "stage_util.hpp"
 #include "hc/pipeline/ingest.hpp"
 
 #include "hc/common/error.hpp"
@@ -37,11 +38,8 @@ Cloud read_pcd_with_pcl(const std::string& bytes, const std::filesystem::path& o
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double seconds_since(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
-}
+using detail::Clock;
+using detail::seconds_since;
 
 std::string quoted(const std::filesystem::path& p) {
   std::string s(1, '\'');  // built by appending: GCC 12 -O3 flags "'" + str + "'" (-Wrestrict)

@@ -36,6 +36,7 @@
 //    on both sides is indistinguishable from a gap and is dropped (it becomes a small hole that
 //    hole filling may close); a gap wider than the window is not found.
 
+#include "stage_util.hpp"
 #include "hc/pipeline/reproject.hpp"
 
 #include "hc/common/error.hpp"
@@ -52,6 +53,8 @@
 namespace hc::pipeline {
 
 namespace {
+
+using detail::run_two;
 
 constexpr float kEmpty = -std::numeric_limits<float>::infinity();
 constexpr int kMinBracketingPairs = 2;
@@ -124,27 +127,6 @@ Bounds merge(const Bounds& a, const Bounds& b) {
   m.y_max = std::max(a.y_max, b.y_max);
   m.finite = a.finite + b.finite;
   return m;
-}
-
-/// Runs a() on a second thread and b() on this one; rethrows the first exception.
-template <class A, class B>
-void run_two(A&& a, B&& b) {
-  std::exception_ptr error_a, error_b;
-  std::thread worker([&] {
-    try {
-      a();
-    } catch (...) {
-      error_a = std::current_exception();
-    }
-  });
-  try {
-    b();
-  } catch (...) {
-    error_b = std::current_exception();
-  }
-  worker.join();
-  if (error_a) std::rethrow_exception(error_a);
-  if (error_b) std::rethrow_exception(error_b);
 }
 
 void validate_options(const ReprojectOptions& o) {

@@ -1,3 +1,4 @@
+#include "stage_util.hpp"
 #include "hc/pipeline/run.hpp"
 
 #include "hc/common/error.hpp"
@@ -45,11 +46,8 @@ std::string sha256_file(const fs::path& file) {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double seconds_since(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
-}
+using detail::Clock;
+using detail::seconds_since;
 
 /// Runs one stage: announces it, runs it, records its report.
 template <class F>

@@ -1,3 +1,4 @@
+#include "stage_util.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 
 #include "hc/common/error.hpp"
@@ -20,11 +21,8 @@ namespace hc::pipeline {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double seconds_since(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
-}
+using detail::Clock;
+using detail::seconds_since;
 
 std::string fmt(double v) {
   std::ostringstream os;

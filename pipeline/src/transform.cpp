@@ -1,5 +1,6 @@
 // Stages 2 and 3: units and recentring in double precision, then the user's view transform.
 
+#include "stage_util.hpp"
 #include "hc/pipeline/transform.hpp"
 
 #include "hc/common/error.hpp"
@@ -14,11 +15,8 @@ namespace hc::pipeline {
 
 namespace {
 
-using Clock = std::chrono::steady_clock;
-
-double seconds_since(Clock::time_point t0) {
-  return std::chrono::duration<double>(Clock::now() - t0).count();
-}
+using detail::Clock;
+using detail::seconds_since;
 
 double radians(double deg) { return deg * std::numbers::pi / 180.0; }
 

@@ -1,0 +1,41 @@
+#pragma once
+/// @file stage_util.hpp
+/// Private helpers shared by the pipeline stages' .cpp files (not installed, not public API).
+
+#include <chrono>
+#include <exception>
+#include <thread>
+#include <utility>
+
+namespace hc::pipeline::detail {
+
+using Clock = std::chrono::steady_clock;
+
+/// Wall time [s] since t0 on the steady clock (stage reports).
+inline double seconds_since(Clock::time_point t0) {
+  return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+/// Runs a() on a second thread and b() on this one, joins, then rethrows a's exception if it
+/// threw, else b's. Used by stages that split their work in two (the machines have two cores).
+template <class A, class B>
+void run_two(A&& a, B&& b) {
+  std::exception_ptr error_a, error_b;
+  std::thread worker([&] {
+    try {
+      a();
+    } catch (...) {
+      error_a = std::current_exception();
+    }
+  });
+  try {
+    b();
+  } catch (...) {
+    error_b = std::current_exception();
+  }
+  worker.join();
+  if (error_a) std::rethrow_exception(error_a);
+  if (error_b) std::rethrow_exception(error_b);
+}
+
+}  // namespace hc::pipeline::detail
