@@ -23,6 +23,7 @@
 #include <pcl/point_types.h>
 #include <zlib.h>
 
+#include <cmath>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -76,6 +77,35 @@ HC_STAGE(BM_Stage_Recentre, ([&] { Eigen::Vector3d o; return to_metres_and_recen
 HC_STAGE(BM_Stage_Transform, apply_view_transform(in.recentred, in.config.view))
 HC_STAGE(BM_Stage_NonFinite, remove_non_finite(in.transformed))
 HC_STAGE(BM_Stage_Outliers, remove_statistical_outliers(in.finite, 16, 2.0))
+/// Outliers with scope front; counters: the grid cells (depth or flag) that differ from those of
+/// scope all, the points tested, and the threshold's relative deviation from the full one.
+void BM_Stage_OutliersFront(benchmark::State& state) {
+  const Intermediates& in = run_once();
+  StageResult<Cloud> front;
+  for (auto _ : state) {
+    front = remove_front_statistical_outliers(in.finite, 16, 2.0, in.config.grid.reproject);
+    benchmark::DoNotOptimize(front);
+  }
+  const auto all = remove_statistical_outliers(in.finite, 16, 2.0);
+  const DepthGrid a = reproject(all.value, in.config.grid.reproject).value;
+  const DepthGrid f = reproject(front.value, in.config.grid.reproject).value;
+  double differ = a.depth.geometry() == f.depth.geometry() ? 0.0 : -1.0;
+  for (std::size_t i = 0; differ >= 0.0 && i < a.flags.size(); ++i) {
+    const float x = a.depth.values()[i], y = f.depth.values()[i];
+    if (!((std::isnan(x) && std::isnan(y)) || x == y) || a.flags[i] != f.flags[i]) differ += 1.0;
+  }
+  auto fig = [](const StageReport& r, const char* name) {
+    for (const auto& [k, v] : r.figures) {
+      if (k == name) return v;
+    }
+    return std::nan("");
+  };
+  state.counters["cells_differing"] = differ;  // -1: different geometry
+  state.counters["tested"] = fig(front.report, "tested");
+  state.counters["removed_front"] = fig(front.report, "removed");
+  state.counters["removed_all"] = fig(all.report, "removed");
+  state.counters["threshold_rel_err"] = fig(front.report, "threshold_mm") / fig(all.report, "threshold_mm") - 1.0;
+}
 HC_STAGE(BM_Stage_Reproject, reproject(in.filtered, in.config.grid.reproject))
 HC_STAGE(BM_Stage_HoleFill, fill_holes(in.grid, in.config.grid.hole_fill_max_cells))
 HC_STAGE(BM_Stage_SurfaceLayers, compute_surface_layers(in.filled.depth, in.config.layers.options))
@@ -98,8 +128,9 @@ void BM_Stage_WriteScene(benchmark::State& state) {
   fs::remove_all(dir);
 }
 
-void BM_WholeRun(benchmark::State& state) {
-  const RunConfig cfg = load_run_config(kConfig);
+/// The whole run with the config's outlier scope, or scope all / front forced (for comparison).
+void whole_run(benchmark::State& state, const std::vector<std::string>& overrides) {
+  const RunConfig cfg = load_run_config(kConfig, overrides);
   const fs::path out = fs::temp_directory_path() / "hapticloud-bench-run";
   double cross_rms = 0, cross_p95 = 0;
   for (auto _ : state) {
@@ -111,6 +142,9 @@ void BM_WholeRun(benchmark::State& state) {
   state.counters["p95_mm"] = cross_p95;
   fs::remove_all(out);
 }
+void BM_WholeRun(benchmark::State& state) { whole_run(state, {}); }
+void BM_WholeRun_ScopeAll(benchmark::State& state) { whole_run(state, {"filters.outliers.scope=all"}); }
+void BM_WholeRun_ScopeFront(benchmark::State& state) { whole_run(state, {"filters.outliers.scope=front"}); }
 
 /// Decompresses the .ply.gz once into a temporary .ply for PCL's reader.
 fs::path plain_ply() {
@@ -160,12 +194,15 @@ BENCHMARK(BM_Stage_Recentre)->HC_SETTINGS;
 BENCHMARK(BM_Stage_Transform)->HC_SETTINGS;
 BENCHMARK(BM_Stage_NonFinite)->HC_SETTINGS;
 BENCHMARK(BM_Stage_Outliers)->HC_SETTINGS;
+BENCHMARK(BM_Stage_OutliersFront)->HC_SETTINGS;
 BENCHMARK(BM_Stage_Reproject)->HC_SETTINGS;
 BENCHMARK(BM_Stage_HoleFill)->HC_SETTINGS;
 BENCHMARK(BM_Stage_SurfaceLayers)->HC_SETTINGS;
 BENCHMARK(BM_Stage_CrossCheck)->HC_SETTINGS;
 BENCHMARK(BM_Stage_WriteScene)->HC_SETTINGS;
 BENCHMARK(BM_WholeRun)->HC_SETTINGS;
+BENCHMARK(BM_WholeRun_ScopeAll)->HC_SETTINGS;
+BENCHMARK(BM_WholeRun_ScopeFront)->HC_SETTINGS;
 BENCHMARK(BM_Baseline_PclLoadPly)->HC_SETTINGS;
 BENCHMARK(BM_Baseline_PclOutliers)->Iterations(1)->HC_SETTINGS;
 
