@@ -79,6 +79,170 @@ void clip_slab(double p, double d, double lo, double hi, double& t_in, double& t
   t_out = std::min(t_out, t1);
 }
 
+/// Where the x-y move from p by t·d, t ∈ [0, 1], first meets the border of the grid cell that
+/// HapticSurface::sample() uses at p (on a shared edge: the cell with the larger index).
+struct CellExit {
+  double t = 1.0;       ///< exit fraction; 1 when the move stays in the cell
+  int axis = -1;        ///< the grid line met: 0 a line x = const, 1 a line y = const, −1 none
+  bool corner = false;  ///< both lines met at once (the move leaves through a node)
+};
+
+CellExit cell_exit(const GridGeometry& g, const Eigen::Vector3d& p, const Eigen::Vector3d& d) noexcept {
+  const double inv = 1.0 / g.cell_size_m;
+  const double cu = std::clamp((p.x() - g.x0_m) * inv, 0.0, static_cast<double>(g.cols - 1));
+  const double cv = std::clamp((p.y() - g.y0_m) * inv, 0.0, static_cast<double>(g.rows - 1));
+  const double i = std::min(std::floor(cu), static_cast<double>(g.cols - 2));
+  const double j = std::min(std::floor(cv), static_cast<double>(g.rows - 2));
+  const double du = d.x() * inv;
+  const double dv = d.y() * inv;
+  const double tu = du > 0.0 ? (i + 1.0 - cu) / du : (du < 0.0 ? (i - cu) / du : kInf);
+  const double tv = dv > 0.0 ? (j + 1.0 - cv) / dv : (dv < 0.0 ? (j - cv) / dv : kInf);
+  CellExit e;
+  // Through a corner (tu = tv) the line crossed along the larger component counts.
+  const bool u_first = tu < tv || (tu == tv && std::fabs(du) >= std::fabs(dv));
+  const double t = std::max(u_first ? tu : tv, 0.0);
+  if (t < 1.0) {
+    e.t = t;
+    e.axis = u_first ? 0 : 1;
+    // Both lines within 1e-6 cell of the point of exit: the move leaves through the node.
+    e.corner = std::fabs(tu - tv) * std::max(std::fabs(du), std::fabs(dv)) <= 1.0e-6;
+  }
+  return e;
+}
+
+/// True when p lies on a grid line of its cell's border (within 1e-6 cell) and the x-y move d
+/// leaves the cell across it at once.
+bool on_line_heading_across(const GridGeometry& g, const Eigen::Vector3d& p,
+                            const Eigen::Vector3d& d) noexcept {
+  const CellExit e = cell_exit(g, p, d);
+  return e.axis >= 0 && e.t * std::hypot(d.x(), d.y()) <= 1.0e-6 * g.cell_size_m;
+}
+
+/// Eq. 5 friction factor 1 − μ_d·cot β for the pull v_h split into the part `along_m` ≥ 0 the
+/// proxy may move along and the rest `across_m` ≥ 0 (the normal force), clamped to [0, 1].
+double split_factor(double along_m, double across_m, double mu_d) noexcept {
+  if (!(mu_d > 0.0)) return 1.0;
+  const double resist = mu_d * across_m;
+  return resist < along_m ? 1.0 - resist / along_m : 0.0;
+}
+
+/// A candidate proxy position: (x, y) of c put exactly on the surface; taken (written to xp,
+/// sp) only if it is no farther from the HIP than the proxy was (dist0_2, squared) — so a
+/// fallback move can only release spring energy, never add any.
+bool take_if_closer(const HapticSurface& surface, const Eigen::Vector3d& xh, Eigen::Vector3d c,
+                    double dist0_2, Eigen::Vector3d& xp, SurfaceSample& sp) noexcept {
+  const SurfaceSample sc = surface.sample(c.x(), c.y());
+  c.z() = sc.z_m;
+  if ((xh - c).squaredNorm() > dist0_2 + kBelowTol * kBelowTol) return false;
+  xp = c;
+  sp = sc;
+  return true;
+}
+
+/// Slide along the grid line through xp (axis 0: the line x = const, so along y; axis 1:
+/// along x). The bilinear surface is a straight segment between two nodes on a grid line, and
+/// every kink of it lies on grid lines, so this is the god-object's motion along a crease (two
+/// active constraints, Zilles & Salisbury 1995). Direction: the way along the line the pull
+/// v_h favours; friction: Eq. 5 with everything of v_h across the line as the normal force.
+/// The move stops at the end of the segment (the next node) and is at most one cell.
+bool crease_slide(const HapticSurface& surface, const Eigen::Vector3d& xh, int axis, double mu_d,
+                  const ProxyParams& p, Eigen::Vector3d& xp, SurfaceSample& sp) noexcept {
+  const GridGeometry& g = surface.geometry();
+  const double cell = g.cell_size_m;
+  const Eigen::Vector3d vh = xh - xp;
+  const double dist0_2 = vh.squaredNorm();
+  const double eps = 1.0e-3 * cell;
+  double along = 0.0;
+  double sign = 0.0;
+  Eigen::Vector3d dir = Eigen::Vector3d::Zero();  // unit, along the segment entered
+  for (const double sg : {1.0, -1.0}) {
+    const SurfaceSample a = axis == 0 ? surface.sample(xp.x(), xp.y() + sg * eps)
+                                      : surface.sample(xp.x() + sg * eps, xp.y());
+    const double slope = axis == 0 ? a.dz_dy : a.dz_dx;
+    Eigen::Vector3d d(axis == 1 ? sg : 0.0, axis == 0 ? sg : 0.0, sg * slope);
+    d /= std::sqrt(1.0 + slope * slope);
+    const double al = vh.dot(d);
+    if (al > along) {
+      along = al;
+      sign = sg;
+      dir = d;
+    }
+  }
+  if (!(along > 0.0)) return false;
+  const double factor = split_factor(along, std::sqrt(std::max(dist0_2 - along * along, 0.0)), mu_d);
+  const double dxy = axis == 0 ? std::fabs(dir.y()) : std::fabs(dir.x());  // x-y share of dir
+  // Room to the next node along the line, in cells (a whole cell when on a node already).
+  const double c = axis == 0 ? (xp.y() - g.y0_m) / cell : (xp.x() - g.x0_m) / cell;
+  const double node = std::round(c);
+  const double room = std::fabs(c - node) < 1.0e-9 ? 1.0
+                      : sign > 0.0                 ? std::floor(c) + 1.0 - c
+                                                   : c - std::floor(c);
+  double move_xy = std::min({p.rho * factor * along * dxy, room * cell, cell});
+  if (!(move_xy > 1.0e-9 * cell) || factor * along < p.convergence_m) return false;
+  for (int h = 0; h < 3; ++h, move_xy *= 0.5) {
+    if (take_if_closer(surface, xh, xp + (move_xy / dxy) * dir, dist0_2, xp, sp)) return true;
+  }
+  return false;
+}
+
+/// Fallback of an Eq. 5 iteration whose tangent step `step` (and its halvings) was refused.
+/// That happens at concave kinks of the bilinear surface: the step leaves the proxy's cell
+/// across a grid line beyond which the neighbour cell bends up above the proxy's tangent plane
+/// (one-cell risers, pits, creases), or the Newton re-projection along a steep normal swings
+/// the proxy sideways. Without a fallback the proxy stalls there, although a god-object slides.
+/// Candidates, each taken only if closer to the HIP (take_if_closer):
+///  1. the tangent step put on the surface vertically instead of along n;
+///  2. the point where the step leaves the proxy's cell (the proxy stops on the grid line);
+///  3. on the line, the Eq. 5 step with the neighbour cell's normal, if it leads across;
+///  4. otherwise a slide along the line (crease_slide), or from a node along either line.
+/// Real-time: yes. Cost: at most 15 surface samples.
+bool kink_fallback(const HapticSurface& surface, const Eigen::Vector3d& xh, double mu_d,
+                   const Eigen::Vector3d& step, const ProxyParams& p, Eigen::Vector3d& xp,
+                   SurfaceSample& sp) noexcept {
+  const double cell = surface.geometry().cell_size_m;
+  const Eigen::Vector3d vh = xh - xp;
+  const double dist0_2 = vh.squaredNorm();
+  if (take_if_closer(surface, xh, xp + step, dist0_2, xp, sp)) return true;  // 1
+  const CellExit exit = cell_exit(surface.geometry(), xp, step);
+  if (exit.axis < 0) return false;  // the step stays in the cell: nothing to add
+  const double step_xy = std::hypot(step.x(), step.y());
+  if (exit.t * step_xy > 1.0e-6 * cell) {
+    return take_if_closer(surface, xh, xp + exit.t * step, dist0_2, xp, sp);  // 2
+  }
+  // On the line, heading out of the cell: the neighbour's normal, just across the line.
+  const double nudge = 1.0e-3 * cell / step_xy;
+  const SurfaceSample nb = surface.sample(xp.x() + nudge * step.x(), xp.y() + nudge * step.y());
+  const Eigen::Vector3d m2(-nb.dz_dx, -nb.dz_dy, 1.0);
+  const double q2 = m2.squaredNorm();
+  const double mv2 = m2.dot(vh);
+  const Eigen::Vector3d vt2 = vh - (mv2 / q2) * m2;
+  if (vt2.x() * step.x() + vt2.y() * step.y() > 0.0) {  // 3: the neighbour plane leads on
+    const double factor = mv2 < 0.0 ? split_factor(vt2.norm(), -mv2 / std::sqrt(q2), mu_d) : 1.0;
+    // At most one cell long in 3-D. When refused, shorten it by at least half, and more where
+    // the patch bends away from the plane by e (≈ c·|s|², the bilinear twist on steep cells),
+    // so that the bend, shrinking quadratically, becomes at most half the step.
+    Eigen::Vector3d s2 = (p.rho * factor) * vt2;
+    const double l2 = s2.squaredNorm();
+    if (l2 > cell * cell) s2 *= cell / std::sqrt(l2);
+    for (int h = 0; h < 3 && factor > 0.0; ++h) {
+      Eigen::Vector3d c = xp + s2;
+      const SurfaceSample sc = surface.sample(c.x(), c.y());
+      const double bend = std::fabs(sc.z_m - c.z());
+      c.z() = sc.z_m;
+      if ((xh - c).squaredNorm() <= dist0_2 + kBelowTol * kBelowTol) {
+        xp = c;
+        sp = sc;
+        return true;
+      }
+      const double len = s2.norm();
+      s2 *= bend > len ? 0.5 * len / bend : 0.5;
+    }
+  }
+  // 4: along the line; from a node, along either line through it.
+  if (crease_slide(surface, xh, exit.axis, mu_d, p, xp, sp)) return true;
+  return exit.corner && crease_slide(surface, xh, 1 - exit.axis, mu_d, p, xp, sp);
+}
+
 /// Eq. 3–5 iterations with static friction; xp and sp (the sample at xp) are updated in place.
 /// Uses the unnormalised normal m = (−f_x, −f_y, 1), q = |m|², so that n = m/√q, n·v_h = m·v_h/√q
 /// and (n·v_h)·n = (m·v_h/q)·m: one division and one square root per iteration.
@@ -144,6 +308,7 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
       if (block.hit || block.budget_exceeded) step *= cell / std::sqrt(step_xy2);
     }
     const double dist0_2 = vh.squaredNorm();
+    const Eigen::Vector3d full_step = step;
     bool accepted = false;
     for (int halving = 0; halving < 4 && !accepted; ++halving) {
       Eigen::Vector3d c = xp + step;
@@ -164,10 +329,13 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
         xp = c;
         sp = sc;
         accepted = true;
+      } else if (halving == 0 && on_line_heading_across(surface.geometry(), xp, step)) {
+        break;  // every halving would cross the same kink: straight to the fallback
       } else {
         step *= 0.5;
       }
     }
+    if (!accepted) accepted = kink_fallback(surface, xh, mu.mu_d, full_step, p, xp, sp);
     ++s.iterations;
     if (!accepted) break;
     if (maps) mu = surface.friction(xp.x(), xp.y());

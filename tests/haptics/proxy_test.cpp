@@ -1,5 +1,6 @@
 #include "hc/haptics/proxy.hpp"
 
+#include "godobject_oracle.hpp"
 #include "haptics_test_support.hpp"
 
 #include "hc/common/error.hpp"
@@ -543,6 +544,100 @@ TEST(StepProxy, OneCellSpikeAndPit) {
   d.move(Vector3d(0.012, 0.0, 0.010), Vector3d(0.012, 0.0, -0.001), 50);
   d.move(Vector3d(0.012, 0.0, -0.001), Vector3d(0.016, 0.0, -0.001), 400);
   EXPECT_NEAR(d.state.proxy_m.x(), 0.016 - 0.2 * 0.001, 3e-6);  // sliding with μ_d lag
+}
+
+// A V-groove along the grid line x = 0 between two 76° facets (slope 4), falling along +y with
+// slope 0.2; the HIP walks along it 1.5 mm below the groove line at 10 mm/s. The kink lies on
+// the grid line, so the Eq. 5 step from either facet crosses into the other one, which bends up:
+// the proxy has to slide along the crease (two active constraints). Known answers: without
+// friction it rests on the groove point closest to the HIP, press·s/(1 + s²) ahead of it along
+// y; with μ_d it trails where the pull along the groove is μ_d times the pull across it.
+TEST(StepProxy, SlidesAlongACreaseToTheFrictionConeEquilibrium) {
+  const double cell = 0.0005;
+  const double slope = 0.2;
+  const double press = 0.0015;
+  const HeightField f = make_field(81, 81, cell, -40 * cell, -40 * cell, [slope](double x, double y) {
+    return 4.0 * std::fabs(x) - slope * y;
+  });
+  const auto hip = [&](double y) { return Vector3d(0.0, y, -slope * y - press); };
+  // Lag Δ = y_hip − y_proxy where the pull along the groove is mu times the pull across it.
+  const auto equilibrium_lag = [&](double mu) {
+    const Vector3d d = Vector3d(0.0, 1.0, -slope).normalized();
+    const auto excess = [&](double lag) {
+      const Vector3d vh(0.0, lag, -slope * lag - press);
+      const double along = vh.dot(d);
+      return along - mu * std::sqrt(vh.squaredNorm() - along * along);
+    };
+    double lo = -press, hi = press;  // excess(lo) < 0 < excess(hi)
+    for (int k = 0; k < 200; ++k) (excess(0.5 * (lo + hi)) < 0.0 ? lo : hi) = 0.5 * (lo + hi);
+    return 0.5 * (lo + hi);
+  };
+  EXPECT_NEAR(equilibrium_lag(0.0), -press * slope / (1 + slope * slope), 1e-12);
+  for (double mu : {0.0, 0.3}) {
+    SurfaceOptions opt;
+    opt.default_mu_d = mu;
+    opt.default_mu_s = 1.2 * mu;
+    const auto s = test::make_surface(f, opt);
+    Driver d{s.get(), no_ramp()};
+    const Vector3d above = hip(-0.01) + Vector3d(0, 0, 0.0035);
+    d.tick(above);
+    d.move(above, hip(-0.01), 50);
+    const double lag_eq = equilibrium_lag(mu);
+    double worst = 0.0;      // |lag − lag_eq| once settled
+    double held_back = 0.0;  // lag beyond the equilibrium at any tick
+    double off_groove = 0.0;
+    for (int k = 1; k <= 2000; ++k) {
+      d.tick(hip(-0.01 + 1e-5 * k));
+      ASSERT_TRUE(d.state.in_contact);
+      const double lag = d.state.hip_m.y() - d.state.proxy_m.y();
+      if (k > 20) worst = std::max(worst, std::fabs(lag - lag_eq));
+      held_back = std::max(held_back, lag - lag_eq);
+      off_groove = std::max(off_groove, std::fabs(d.state.proxy_m.x()));
+    }
+    EXPECT_LT(off_groove, 1e-12) << "mu " << mu;
+    EXPECT_LT(held_back, 1e-6) << "mu " << mu << ": held back in the crease";
+    EXPECT_LT(worst, 2e-6) << "mu " << mu << ": lag off the friction-cone equilibrium " << lag_eq;
+  }
+}
+
+// Blocky terraces like a scan splatted finer than its point spacing (the Buddha at 4096²):
+// plateaus of 3 × 3 nodes at random heights up to 0.6 mm, so one-cell risers (slope up to 3),
+// creases and pits everywhere. Pressed onto it, a point proxy is often held by a riser or in a
+// pit, which is right for a god-object; it must never be held where the ideal god-object would
+// slide (brute-force oracle), with or without friction.
+TEST(StepProxy, NeverHeldWhereAGodObjectSlides) {
+  const int n = 61;
+  const double cell = 0.0002;
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> level(0.0, 0.0006);
+  std::vector<double> block(21 * 21);
+  for (double& b : block) b = level(rng);
+  const HeightField f = make_field(n, n, cell, -30 * cell, -30 * cell, [&](double x, double y) {
+    const int c = static_cast<int>(std::lround(x / cell)) + 30;
+    const int r = static_cast<int>(std::lround(y / cell)) + 30;
+    return block[static_cast<std::size_t>((r / 3) * 21 + c / 3)];
+  });
+  for (double mu : {0.0, 0.3}) {
+    SurfaceOptions opt;
+    opt.default_mu_d = mu;
+    opt.default_mu_s = 1.2 * mu;
+    const auto s = test::make_surface(f, opt);
+    Driver d{s.get(), no_ramp()};
+    int held = 0;
+    double worst_cells = 0.0;
+    for (int k = 0; k < 20000; ++k) {  // 10 circles of 3 mm radius, 2 s each, HIP at z = 0
+      const double a = 2 * std::numbers::pi * k / 2000.0;
+      const double lift = k < 50 ? 0.002 * (1.0 - k / 50.0) : 0.0;
+      const Vector3d before = d.state.proxy_m;
+      d.tick(Vector3d(0.003 * std::cos(a), 0.003 * std::sin(a), lift));
+      if (k < 50 || !test::proxy_held_while_sliding(d.state, before, d.params)) continue;
+      ++held;
+      worst_cells = std::max(worst_cells, test::godobject_slide_cells(*s, d.state.proxy_m,
+                                                                      d.state.hip_m, mu));
+    }
+    EXPECT_GT(held, 100) << "mu " << mu << ": the terraces should hold the proxy at times";
+    EXPECT_LT(worst_cells, 0.25) << "mu " << mu << ": held where a god-object slides";
+  }
 }
 
 TEST(StepProxy, NoTunnellingThroughAThinRidgeAtTwoMetresPerSecond) {

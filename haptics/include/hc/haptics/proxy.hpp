@@ -123,7 +123,16 @@ double friction_factor(double tangential_m, double normal_m, double mu_d) noexce
 ///   over a one-cell spike (the spike raises a two-cell-wide zone);
 ///   then, when that leaves the surface by more than convergence_m, one Newton step along n onto
 ///   the surface, and finally exactly onto z = f(x, y); a step that would not bring the proxy
-///   closer to the HIP is halved (at most 3 times) or dropped;
+///   closer to the HIP is halved (at most 3 times);
+///   if that fails too, the step ran into a concave kink of the bilinear surface (it leaves the
+///   proxy's cell across a grid line beyond which the surface bends up: one-cell risers, pits,
+///   creases), and the iteration falls back to, in order: the tangent step put on the surface
+///   vertically; stopping where the step meets the grid line; from the line, the Eq. 5 step
+///   with the neighbour cell's normal when it leads across; else a slide along the grid line
+///   (the crease; all kinks of a bilinear surface lie on grid lines) up to the next node, with
+///   the Eq. 5 friction factor in which all of v_h across the line is the normal force (two
+///   active constraints, Zilles & Salisbury); each only if it brings the proxy closer to the
+///   HIP, else the proxy stays;
 ///   stop when the proxy is within convergence_m of the point Eq. 5 heads for
 ///   (factor·|v_t| < convergence_m, independent of ρ), else resume at the next tick.
 ///   The proxy enters static friction when it stays at rest for a whole tick (inside the
@@ -138,8 +147,11 @@ double friction_factor(double tangential_m, double normal_m, double mu_d) noexce
 /// A previous proxy found below the surface (a new surface was adopted) is lifted onto it.
 /// NaN/inf HIP or dt: zero force, the previous proxy kept, gate closed, status kNonFiniteInput.
 /// @param surface may be nullptr (status kNoSurface, proxy = HIP, zero force).
-/// Guarantees: every output finite; |force_n| ≤ max_force_n; z_p ≥ f(x_p, y_p) − 1e-9 m.
-/// Real-time: yes (noexcept, no allocation, no locks). Cost: O(max_iterations + cells swept).
+/// Guarantees: every output finite; |force_n| ≤ max_force_n; z_p ≥ f(x_p, y_p) − 1e-9 m; in
+/// contact on an unchanged surface no move takes the proxy farther from the HIP, so proxy
+/// motion never adds energy to the spring (passivity of the renderer itself).
+/// Real-time: yes (noexcept, no allocation, no locks). Cost: O(max_iterations + cells swept);
+/// a step refused with all its halvings costs at most 15 more surface samples.
 ProxyState step_proxy(const ProxyState& previous, const HipInput& hip,
                       const HapticSurface* surface, const ProxyParams& params) noexcept;
 
