@@ -5,6 +5,7 @@
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/synthetic.hpp"
 
+#include "cloud_fixtures.hpp"
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -17,12 +18,7 @@
 namespace hc::pipeline {
 namespace {
 
-Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts) {
-  Cloud c;
-  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
-  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
-  return c;
-}
+using hc::test::cloud_of;
 
 // Nearest-rank percentile of a fully sorted copy (the oracle for error_stats_mm).
 double rank_of_sorted(std::vector<double> v, double q) {

@@ -4,6 +4,7 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/synthetic.hpp"
 
+#include "cloud_fixtures.hpp"
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -18,12 +19,7 @@
 namespace hc::pipeline {
 namespace {
 
-Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts) {
-  Cloud c;
-  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
-  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
-  return c;
-}
+using hc::test::cloud_of;
 
 ReprojectOptions with_n(int n) {
   ReprojectOptions o;
