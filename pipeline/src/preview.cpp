@@ -30,7 +30,8 @@ cv::Mat present(const cv::Mat& img) {
 void save(const cv::Mat& img, const std::filesystem::path& png) {
   bool ok = false;
   try {
-    ok = cv::imwrite(png.string(), img);
+    // Fast zlib level: previews are for people, a few % larger files save most of the write time.
+    ok = cv::imwrite(png.string(), img, {cv::IMWRITE_PNG_COMPRESSION, 1});
   } catch (const cv::Exception& e) {
     throw InputError(png.string() + ": cannot write the preview: " + e.what());
   }

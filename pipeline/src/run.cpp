@@ -214,17 +214,23 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   const fs::path previews = staging.path() / "previews";
   fs::create_directories(previews);
   const HeightField& depth = scene.depth();
-  write_colour_preview(depth, previews / "depth.png", "depth z", "mm", 1000.0);
-  write_hillshade_preview(depth, previews / "hillshade.png");
-  if (summary.cross_check) {
-    write_colour_preview(summary.cross_check->cell_error_m, previews / "cross_check_error.png",
-                         "cross-check: grid sample to nearest point", "mm", 1000.0);
-  }
-  if (scene.has("texture")) {
-    write_colour_preview(scene.layers.at("texture"), previews / "texture.png", "texture h = f - f_b", "mm", 1000.0);
-    write_colour_preview(scene.layers.at("mu_d"), previews / "mu_d.png", "dynamic friction mu_d (" + scene.friction_model + ")", "-", 1.0);
-    write_colour_preview(scene.layers.at("mu_s"), previews / "mu_s.png", "static friction mu_s", "-", 1.0);
-  }
+  // Previews are independent images: two threads, one per core.
+  detail::run_two(
+      [&] {
+        write_colour_preview(depth, previews / "depth.png", "depth z", "mm", 1000.0);
+        write_hillshade_preview(depth, previews / "hillshade.png");
+        if (summary.cross_check) {
+          write_colour_preview(summary.cross_check->cell_error_m, previews / "cross_check_error.png",
+                               "cross-check: grid sample to nearest point", "mm", 1000.0);
+        }
+      },
+      [&] {
+        if (!scene.has("texture")) return;
+        write_colour_preview(scene.layers.at("texture"), previews / "texture.png", "texture h = f - f_b", "mm", 1000.0);
+        write_colour_preview(scene.layers.at("mu_d"), previews / "mu_d.png",
+                             "dynamic friction mu_d (" + scene.friction_model + ")", "-", 1.0);
+        write_colour_preview(scene.layers.at("mu_s"), previews / "mu_s.png", "static friction mu_s", "-", 1.0);
+      });
   write_report.seconds = seconds_since(t_write);
   reports.push_back(write_report);
   if (progress) progress(write_report, true);
