@@ -1,4 +1,5 @@
-// Stage 5: orthographic depth scan onto a node-centred grid, with optional disc splats and
+// Stage 5: orthographic depth scan onto a node-centred grid, with optional disc or interpolating
+// splats and
 // see-through detection. Hole filling lives in hole_fill.cpp.
 //
 // Design (the why, in one place):
@@ -29,6 +30,12 @@
 //    more than see_through_depth_m below the splat of a neighbour's point is occluded by that
 //    disc: the disc's height replaces it (flag kCellSplatted), which closes gaps narrower than
 //    the splat radius before the ray test runs.
+//    Interpolating splats (SplatMode::kInterpolate) instead fill only EMPTY cells, with the
+//    Gaussian-weighted mean of the measured cells within the radius (normalised convolution);
+//    they never replace a measured cell, so no occlusion step. The see-through test runs after
+//    either kind of splat, on the filled grid: splatted cells bracket back-surface cells seen
+//    through a gap just as measured front cells do, and splatted cells that are themselves
+//    bracketed (an interpolated value pulled down by a back-surface point) are rejected too.
 //    Candidate cells are pre-selected with a separable (2w+1)² max filter (a cell can only be
 //    bracketed if something in its window is higher than z + depth), so the ray test runs on a
 //    small fraction of the grid.
@@ -148,6 +155,10 @@ void validate_options(const ReprojectOptions& o) {
     msg << "reproject: cell_size_m = " << g.cell_size_m << " (expected a finite value > 0)";
     throw ConfigError(msg.str());
   }
+  if (o.splat_mode != SplatMode::kDisc && o.splat_mode != SplatMode::kInterpolate) {
+    msg << "reproject: splat_mode = " << static_cast<int>(o.splat_mode) << " (expected kDisc or kInterpolate)";
+    throw ConfigError(msg.str());
+  }
   if (!(o.splat_radius_cells >= 0.0) || o.splat_radius_cells > 64.0) {
     msg << "reproject: splat_radius_cells = " << o.splat_radius_cells << " (expected 0 to 64)";
     throw ConfigError(msg.str());
@@ -163,7 +174,9 @@ void validate_options(const ReprojectOptions& o) {
 
 std::size_t bytes_per_cell(const ReprojectOptions& o) {
   std::size_t b = sizeof(float) + sizeof(std::uint8_t);  // height + flag
-  if (o.splat_radius_cells > 0.0) {  // splat buffer + running maxima of half-width 1..⌊r⌋
+  if (o.splat_radius_cells > 0.0 && o.splat_mode == SplatMode::kInterpolate) {
+    b += 2 * sizeof(float) + sizeof(std::uint32_t);  // z·mask, mask, summed-area table
+  } else if (o.splat_radius_cells > 0.0) {  // splat buffer + running maxima of half-width 1..⌊r⌋
     b += sizeof(float) * (1 + static_cast<std::size_t>(std::floor(o.splat_radius_cells)));
   }
   if (o.see_through_depth_m > 0.0) b += 2 * sizeof(float);  // window max (two passes)
@@ -294,6 +307,104 @@ void splat_discs(const float* measured, int rows, int cols, double radius_cells,
   }
 }
 
+// Interpolating splats: order-0 normalised convolution restricted to a disc. Every EMPTY cell
+// (flag kCellEmpty) with at least one measured cell within radius_cells takes
+// Σ w·z / Σ w over those measured cells, w = exp(−d² / 2σ²), σ = radius / 2 (so the rim of the
+// disc still weighs exp(−2) ≈ 0.14 of the centre); it is written in place (only measured cells
+// are read, so the order of the writes does not matter) and flagged kCellSplatted. Cells with
+// no measured cell in their (2⌊r⌋+1)² box are skipped in O(1) with a summed-area table of the
+// mask, which is what keeps the background of a large grid cheap. Heights are taken relative
+// to one measured height so that float sums keep their precision. Rows are split between two
+// threads for large grids. Returns the number of cells filled.
+std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int cols, double radius_cells) {
+  const int reach = static_cast<int>(std::floor(radius_cells));
+  const std::size_t ucols = static_cast<std::size_t>(cols);
+  const std::size_t cells = static_cast<std::size_t>(rows) * ucols;
+  if (reach < 1) return 0;  // a disc of radius < 1 holds no other node
+  float z_ref = 0.0f;
+  for (std::size_t i = 0; i < cells; ++i) {
+    if (flags[i] == kCellMeasured) {
+      z_ref = depth[i];
+      break;
+    }
+  }
+  // z·mask and mask, padded by `reach` on every side so the inner loop needs no bounds checks.
+  const int pc = cols + 2 * reach;
+  const std::size_t upc = static_cast<std::size_t>(pc);
+  const std::size_t padded = static_cast<std::size_t>(rows + 2 * reach) * upc;
+  std::vector<float> zm(padded, 0.0f), mask(padded, 0.0f);
+  // Summed-area table of the mask, (rows + 1) × (cols + 1).
+  std::vector<std::uint32_t> sat((static_cast<std::size_t>(rows) + 1) * (ucols + 1), 0u);
+  for (int r = 0; r < rows; ++r) {
+    std::uint32_t run = 0;
+    const std::size_t prow = static_cast<std::size_t>(r + reach) * upc + static_cast<std::size_t>(reach);
+    for (int c = 0; c < cols; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c);
+      const bool m = flags[i] == kCellMeasured;
+      if (m) {
+        zm[prow + static_cast<std::size_t>(c)] = depth[i] - z_ref;
+        mask[prow + static_cast<std::size_t>(c)] = 1.0f;
+      }
+      run += m ? 1u : 0u;
+      sat[(static_cast<std::size_t>(r) + 1) * (ucols + 1) + static_cast<std::size_t>(c) + 1] =
+          sat[static_cast<std::size_t>(r) * (ucols + 1) + static_cast<std::size_t>(c) + 1] + run;
+    }
+  }
+  // Disc taps: offsets into the padded arrays and Gaussian weights.
+  const double r2 = radius_cells * radius_cells;
+  const double sigma = 0.5 * radius_cells;
+  std::vector<std::ptrdiff_t> offset;
+  std::vector<float> weight;
+  for (int dr = -reach; dr <= reach; ++dr) {
+    for (int dc = -reach; dc <= reach; ++dc) {
+      const double d2 = static_cast<double>(dr * dr + dc * dc);
+      if (d2 > r2 || d2 == 0.0) continue;  // the centre is empty by construction
+      offset.push_back(static_cast<std::ptrdiff_t>(dr) * pc + dc);
+      weight.push_back(static_cast<float>(std::exp(-d2 / (2.0 * sigma * sigma))));
+    }
+  }
+  const std::size_t taps = offset.size();
+  auto box_count = [&](int r, int c) {
+    const std::size_t r0 = static_cast<std::size_t>(std::max(0, r - reach));
+    const std::size_t r1 = static_cast<std::size_t>(std::min(rows, r + reach + 1));
+    const std::size_t c0 = static_cast<std::size_t>(std::max(0, c - reach));
+    const std::size_t c1 = static_cast<std::size_t>(std::min(cols, c + reach + 1));
+    const std::size_t w = ucols + 1;
+    return sat[r1 * w + c1] + sat[r0 * w + c0] - sat[r0 * w + c1] - sat[r1 * w + c0];
+  };
+  auto rows_range = [&](int r_begin, int r_end, std::size_t* filled) {
+    std::size_t n = 0;
+    for (int r = r_begin; r < r_end; ++r) {
+      for (int c = 0; c < cols; ++c) {
+        const std::size_t i = static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c);
+        if (flags[i] != kCellEmpty || box_count(r, c) == 0) continue;
+        const std::ptrdiff_t p = static_cast<std::ptrdiff_t>(static_cast<std::size_t>(r + reach) * upc +
+                                                             static_cast<std::size_t>(c + reach));
+        float num = 0.0f, den = 0.0f;
+        for (std::size_t k = 0; k < taps; ++k) {
+          const std::size_t q = static_cast<std::size_t>(p + offset[k]);
+          num += weight[k] * zm[q];
+          den += weight[k] * mask[q];
+        }
+        if (den > 0.0f) {  // a measured cell in the box may still lie outside the disc
+          depth[i] = z_ref + num / den;
+          flags[i] = kCellSplatted;
+          ++n;
+        }
+      }
+    }
+    *filled = n;
+  };
+  std::size_t filled_a = 0, filled_b = 0;
+  if (cells >= (1u << 20)) {
+    const int mid = rows / 2;
+    run_two([&] { rows_range(mid, rows, &filled_b); }, [&] { rows_range(0, mid, &filled_a); });
+  } else {
+    rows_range(0, rows, &filled_a);
+  }
+  return filled_a + filled_b;
+}
+
 // Separable (2w+1)² max filter of `in` (−inf = empty) into `out`, using `tmp`.
 void window_max(const float* in, int rows, int cols, int w, float* tmp, float* out) {
   const std::size_t ncols = static_cast<std::size_t>(cols);
@@ -385,7 +496,9 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
   const bool see_through = options.see_through_depth_m > 0.0;
   const float depth_gap = static_cast<float>(options.see_through_depth_m);
   std::size_t splatted = 0, occluded = 0;
-  if (options.splat_radius_cells > 0.0) {
+  if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kInterpolate) {
+    splatted = splat_interpolate(depth, out.flags.data(), g.rows, g.cols, options.splat_radius_cells);
+  } else if (options.splat_radius_cells > 0.0) {
     std::vector<float> splat(cells, kEmpty);
     splat_discs(depth, g.rows, g.cols, options.splat_radius_cells, splat.data());
     for (std::size_t i = 0; i < cells; ++i) {

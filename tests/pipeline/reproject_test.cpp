@@ -247,6 +247,151 @@ TEST(Reproject, SplatEqualsABruteForceDiscDilation) {
 }
 
 // ---------------------------------------------------------------------------------------------
+// Interpolating splats (SplatMode::kInterpolate)
+
+// The tilted plane z = 10 mm + 0.4·x − 0.25·y sampled on every third node of a 61 × 61 grid of
+// 1 mm cells (points exactly on the nodes (3i, 3j) mm, i, j = 0 … 20).
+constexpr double kPlaneSx = 0.4, kPlaneSy = -0.25, kLatticeCell = 1e-3;
+double lattice_plane(double x, double y) { return 0.01 + kPlaneSx * x + kPlaneSy * y; }
+
+Cloud sparse_plane_lattice() {
+  std::vector<Eigen::Vector3d> pts;
+  for (int j = 0; j <= 20; ++j) {
+    for (int i = 0; i <= 20; ++i) {
+      const double x = 3 * i * kLatticeCell, y = 3 * j * kLatticeCell;
+      pts.emplace_back(x, y, lattice_plane(x, y));
+    }
+  }
+  return cloud_of(pts);
+}
+
+ReprojectOptions interpolating(ReprojectOptions o, double radius) {
+  o.splat_radius_cells = radius;
+  o.splat_mode = SplatMode::kInterpolate;
+  return o;
+}
+
+TEST(Reproject, InterpolatingSplatsLieOnATiltedPlaneWhereDiscsMakeTerraces) {
+  const Cloud cloud = sparse_plane_lattice();
+  const double radius = 3.0;
+  const auto plain = reproject(cloud, with_cell(kLatticeCell));
+  ReprojectOptions disc_o = with_cell(kLatticeCell);
+  disc_o.splat_radius_cells = radius;
+  const auto disc = reproject(cloud, disc_o);
+  const auto interp = reproject(cloud, interpolating(with_cell(kLatticeCell), radius));
+  const HeightField& a = plain.value.depth;
+  const HeightField& d = disc.value.depth;
+  const HeightField& b = interp.value.depth;
+  ASSERT_EQ(a.cols(), 61);
+  ASSERT_EQ(a.rows(), 61);
+  ASSERT_EQ(b.geometry(), a.geometry());
+  ASSERT_EQ(a.valid_count(), 21u * 21u);
+  const GridGeometry& g = a.geometry();
+
+  // Every cell is within 3 cells of a lattice node: all valid; measured cells unchanged.
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      const auto i = static_cast<std::size_t>(r * g.cols + c);
+      ASSERT_TRUE(b.valid(r, c)) << r << "," << c;
+      if (a.valid(r, c)) {
+        EXPECT_EQ(b.at(r, c), a.at(r, c));
+        EXPECT_EQ(interp.value.flags[i], kCellMeasured);
+      } else {
+        EXPECT_EQ(interp.value.flags[i], kCellSplatted) << r << "," << c;
+      }
+    }
+  }
+  EXPECT_EQ(figure(interp.report, "cells_splatted"), static_cast<double>(61 * 61 - 21 * 21));
+
+  // Away from the border (where the samples are one-sided) the interpolated heights lie on the
+  // plane and neighbour differences are the plane's slope · cell: no terraces. The discs give
+  // steps of 0 and up to 3 slope · cell instead.
+  const double step_x = kPlaneSx * kLatticeCell, step_y = kPlaneSy * kLatticeCell;
+  double max_plane_err = 0.0, max_dev_x = 0.0, max_dev_y = 0.0, disc_dev_x = 0.0, disc_dev_y = 0.0;
+  for (int r = 3; r < g.rows - 3; ++r) {
+    for (int c = 3; c < g.cols - 3; ++c) {
+      max_plane_err = std::max(max_plane_err, std::abs(b.at(r, c) - lattice_plane(g.x_of_col(c), g.y_of_row(r))));
+      if (c + 1 < g.cols - 3) {
+        max_dev_x = std::max(max_dev_x, std::abs(b.at(r, c + 1) - b.at(r, c) - step_x));
+        disc_dev_x = std::max(disc_dev_x, std::abs(d.at(r, c + 1) - d.at(r, c) - step_x));
+      }
+      if (r + 1 < g.rows - 3) {
+        max_dev_y = std::max(max_dev_y, std::abs(b.at(r + 1, c) - b.at(r, c) - step_y));
+        disc_dev_y = std::max(disc_dev_y, std::abs(d.at(r + 1, c) - d.at(r, c) - step_y));
+      }
+    }
+  }
+  const double slope_cell = (std::abs(kPlaneSx) + std::abs(kPlaneSy)) * kLatticeCell;
+  EXPECT_LT(max_plane_err, 0.05 * slope_cell);
+  EXPECT_LT(max_dev_x, 0.1 * std::abs(step_x));
+  EXPECT_LT(max_dev_y, 0.1 * std::abs(step_y));
+  EXPECT_GT(disc_dev_x, 1.5 * std::abs(step_x));  // risers of 3 steps between flat terraces
+  EXPECT_GT(disc_dev_y, 1.5 * std::abs(step_y));
+  RecordProperty("plane_err_fraction", std::to_string(max_plane_err / slope_cell));
+  RecordProperty("step_dev_x_fraction", std::to_string(max_dev_x / std::abs(step_x)));
+  RecordProperty("disc_step_dev_x_fraction", std::to_string(disc_dev_x / std::abs(step_x)));
+}
+
+TEST(Reproject, InterpolatingSplatsEqualABruteForceNormalisedConvolution) {
+  // Random sparse points with a 15 × 15 mm hole: the cells farther than the radius from every
+  // measured cell stay no data, the others take Σ w z / Σ w (σ = radius / 2) over the measured
+  // cells within the radius.
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> u(0.0, 0.06), uz(-0.01, 0.01);
+  std::vector<Eigen::Vector3d> pts = {{0.0, 0.0, 0.0}, {0.06, 0.06, 0.0}};
+  while (pts.size() < 900) {
+    const double x = u(rng), y = u(rng);
+    if (x > 0.02 && x < 0.035 && y > 0.025 && y < 0.04) continue;
+    pts.emplace_back(x, y, uz(rng));
+  }
+  const Cloud cloud = cloud_of(pts);
+  const auto plain = reproject(cloud, with_cell(kLatticeCell));
+  const HeightField& a = plain.value.depth;
+  const GridGeometry& g = a.geometry();
+  for (double radius : {0.7, 1.0, 1.5, 2.4, 3.0, 4.5}) {
+    const auto interp = reproject(cloud, interpolating(with_cell(kLatticeCell), radius));
+    const HeightField& b = interp.value.depth;
+    const double sigma = radius / 2;
+    const int reach = static_cast<int>(std::floor(radius));
+    std::size_t filled = 0, far = 0;
+    for (int r = 0; r < g.rows; ++r) {
+      for (int c = 0; c < g.cols; ++c) {
+        const auto i = static_cast<std::size_t>(r * g.cols + c);
+        if (a.valid(r, c)) {
+          ASSERT_EQ(b.at(r, c), a.at(r, c));
+          ASSERT_EQ(interp.value.flags[i], kCellMeasured);
+          continue;
+        }
+        double num = 0.0, den = 0.0;
+        for (int rr = std::max(0, r - reach); rr <= std::min(g.rows - 1, r + reach); ++rr) {
+          for (int cc = std::max(0, c - reach); cc <= std::min(g.cols - 1, c + reach); ++cc) {
+            const double d2 = (rr - r) * (rr - r) + (cc - c) * (cc - c);
+            if (d2 > radius * radius || !a.valid(rr, cc)) continue;
+            const double w = std::exp(-d2 / (2 * sigma * sigma));
+            num += w * a.at(rr, cc);
+            den += w;
+          }
+        }
+        if (den == 0.0) {
+          ++far;
+          ASSERT_TRUE(std::isnan(b.at(r, c))) << radius << ": " << r << "," << c;
+          ASSERT_EQ(interp.value.flags[i], kCellEmpty);
+        } else {
+          ++filled;
+          ASSERT_NEAR(b.at(r, c), num / den, 1e-8) << radius << ": " << r << "," << c;
+          ASSERT_EQ(interp.value.flags[i], kCellSplatted);
+        }
+      }
+    }
+    EXPECT_EQ(figure(interp.report, "cells_splatted"), static_cast<double>(filled));
+    EXPECT_GT(far, radius < 1.0 ? 1000u : 20u) << radius;  // the hole's centre stays empty
+    if (radius >= 1.0) {
+      EXPECT_GT(filled, 100u) << radius;
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
 // See-through
 
 struct TwoLayer {
@@ -338,6 +483,20 @@ TEST(Reproject, SplatOccludesNarrowGapsWithTheFrontSurface) {
   EXPECT_EQ(r.value.flags[static_cast<std::size_t>(20 * t.n + 20)], kCellSplatted);
   EXPECT_EQ(count_flag(r.value, kCellSeeThrough), 0u);
   EXPECT_EQ(count_flag(r.value, kCellSplatted), 1u);
+}
+
+TEST(Reproject, SeeThroughRunsAfterInterpolatingSplats) {
+  // Interpolating splats never replace a measured cell, so the back-plane cell seen through a
+  // 1-cell gap stays measured until the see-through test, which then rejects it.
+  const TwoLayer t = two_layer({{20, 20, 20, 20}});
+  ReprojectOptions o = interpolating(with_cell(t.cell), 1.5);
+  o.see_through_depth_m = 0.002;
+  const auto r = reproject(t.cloud, o);
+  EXPECT_TRUE(std::isnan(r.value.depth.at(20, 20)));
+  EXPECT_EQ(r.value.flags[static_cast<std::size_t>(20 * t.n + 20)], kCellSeeThrough);
+  EXPECT_EQ(count_flag(r.value, kCellSeeThrough), 1u);
+  EXPECT_EQ(count_flag(r.value, kCellSplatted), 0u);
+  EXPECT_EQ(figure(r.report, "cells_occluded_by_splat"), 0.0);
 }
 
 // ---------------------------------------------------------------------------------------------

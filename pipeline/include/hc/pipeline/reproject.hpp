@@ -18,15 +18,35 @@ struct GridSpec {
   std::size_t max_cells = 64u * 1024u * 1024u;  ///< memory cap on rows·cols
 };
 
+/// How splat_radius_cells fills the cells around the measured ones.
+enum class SplatMode {
+  /// Flat discs: each point writes its z over the disc, front-most rule (see splat_radius_cells).
+  /// Finer than the point spacing this leaves flat terraces with one-cell risers.
+  kDisc,
+  /// Normalised convolution restricted to the disc: each EMPTY cell within splat_radius_cells of
+  /// at least one measured cell takes the Gaussian-weighted mean (σ = radius / 2 cells, weight
+  /// exp(−d² / 2σ²) over the measured cells at distance d ≤ radius) of those measured heights.
+  /// Measured cells keep their front-most z (they are never occluded by a neighbour, unlike
+  /// kDisc); cells farther than the radius from every measured cell stay no data. A weighted
+  /// mean is exact on a plane only where the weighted centroid of the measured cells is the
+  /// cell itself (symmetric sampling); otherwise it is off by slope × that offset (at most
+  /// slope × radius, at the rim of the data).
+  kInterpolate,
+};
+
 /// Orthographic depth scan options.
 struct ReprojectOptions {
   GridSpec grid;
-  /// Each point also writes, front-most rule again, the nodes within this radius [cells] of the
-  /// node it falls on (a disc splat), so sparse scans leave no pinholes. Splats fill empty
-  /// cells and, with see-through handling on, hide measured cells lying more than
+  /// kDisc: each point also writes, front-most rule again, the nodes within this radius [cells]
+  /// of the node it falls on (a disc splat), so sparse scans leave no pinholes. Splats fill
+  /// empty cells and, with see-through handling on, hide measured cells lying more than
   /// see_through_depth_m behind them; they never move a measured cell otherwise.
+  /// kInterpolate: empty cells within this radius of a measured cell are interpolated (see
+  /// SplatMode). Either way the filled cells are flagged kCellSplatted, and see-through
+  /// detection runs afterwards on the filled grid (splats act as occluders / bracketing cells).
   /// 0 = only the cell containing the point.
   double splat_radius_cells = 0.0;
+  SplatMode splat_mode = SplatMode::kDisc;  ///< how that radius is filled
   /// See-through handling: a valid cell whose height lies more than this [m] below the
   /// robust front envelope of its neighbourhood is treated as a hole (a point seen through a
   /// gap in the front surface). The envelope test is two-sided: the cell is rejected when, on
@@ -70,10 +90,13 @@ struct DepthGrid {
 ///         hc::ConfigError if n_long_side ≤ 1, neither or both of n_long_side and cell_size_m
 ///         are given, or an option is out of range; hc::ResourceError if rows·cols exceeds
 ///         max_cells (the message gives rows, cols, the cap and the bytes needed: 5 per cell,
-///         +4·(1 + ⌊splat_radius_cells⌋) with splats, +8 with see-through handling).
+///         +4·(1 + ⌊splat_radius_cells⌋) with disc splats, +12 with interpolating
+///         splats, +8 with see-through handling).
 /// Real-time: no. Threads: 2 for clouds of 2^18 points or more. Cost: two passes over the points
-/// + O(rows·cols) (·r² with a splat radius r).
-/// Source: depth-buffer scan of Sec. 1 of the paper; front-most rule as in an OpenGL z-buffer.
+/// + O(rows·cols) (·r with disc splats of radius r; interpolating splats add O(r²) per empty
+/// cell within r of the data, skipping the others with a summed-area table).
+/// Source: depth-buffer scan of Sec. 1 of the paper; front-most rule as in an OpenGL z-buffer;
+/// interpolating splats: normalised convolution (Knutsson & Westin, CVPR 1993), order 0.
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options);
 
 /// Fills holes (connected no-data regions, 4-connectivity, empty or see-through) of at most
