@@ -111,6 +111,14 @@ TEST(Config, StaticFrictionRegionsAreValidated) {
                 .find("unknown key"), std::string::npos);
 }
 
+TEST(Config, SplatModeIsReadAndValidated) {
+  EXPECT_EQ(parse_run_config(kMinimal, "configs/test.yaml").grid.reproject.splat_mode, hc::pipeline::SplatMode::kDisc);
+  EXPECT_EQ(parse_run_config(kMinimal + "grid: {splat_mode: interpolate}\n", "configs/test.yaml").grid.reproject.splat_mode,
+            hc::pipeline::SplatMode::kInterpolate);
+  EXPECT_NE(error_of(kMinimal + "grid: {splat_mode: blur}\n").find("grid.splat_mode = 'blur': expected one of: disc, interpolate"),
+            std::string::npos);
+}
+
 TEST(Config, ShippedConfigsAllValidate) {
   for (const char* name : {"happy_buddha.yaml", "buddha_raw_scans.yaml", "bunny.yaml", "sinusoid.yaml"}) {
     const auto path = std::filesystem::path(HC_SOURCE_DIR) / "configs" / name;
