@@ -327,6 +327,22 @@ struct PlyLayout {
   const PlyElement& vertex() const { return elements[vertex_index]; }
 };
 
+/// Header line reader shared by the PLY and PCD header parsers: copies the line that starts at
+/// `pos` into `line` (without its '\n' and a trailing '\r') and moves `pos` past it. Returns
+/// false when no line is left; an unterminated last line counts only if accept_unterminated.
+bool next_line(const std::string& raw, std::size_t& pos, std::string& line, bool accept_unterminated) {
+  if (pos >= raw.size()) return false;
+  std::size_t nl = raw.find('\n', pos);
+  if (nl == std::string::npos) {
+    if (!accept_unterminated) return false;
+    nl = raw.size();
+  }
+  line.assign(raw, pos, nl - pos);
+  pos = nl + 1;
+  if (!line.empty() && line.back() == '\r') line.pop_back();
+  return true;
+}
+
 PlyLayout parse_ply_header(const std::string& raw, const std::string& name) {
   auto fail = [&](const std::string& what) -> InputError {
     return InputError("load_cloud: " + name + ": " + what);
@@ -338,13 +354,9 @@ PlyLayout parse_ply_header(const std::string& raw, const std::string& name) {
   std::size_t pos = raw.find('\n') + 1;
   std::size_t line_no = 1;
   bool ended = false;
-  while (pos < raw.size()) {
-    const std::size_t nl = raw.find('\n', pos);
-    if (nl == std::string::npos) break;
-    std::string line = raw.substr(pos, nl - pos);
-    pos = nl + 1;
+  std::string line;
+  while (next_line(raw, pos, line, /*accept_unterminated=*/false)) {
     ++line_no;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream ls(line);
     std::string kw;
     ls >> kw;
@@ -652,13 +664,9 @@ void validate_pcd(const std::string& raw, const std::string& name) {
   std::string data;
   std::size_t pos = 0;
   std::size_t line_no = 0;
-  while (pos < raw.size() && data.empty()) {
-    std::size_t nl = raw.find('\n', pos);
-    if (nl == std::string::npos) nl = raw.size();
-    std::string line = raw.substr(pos, nl - pos);
-    pos = nl + 1;
+  std::string line;
+  while (data.empty() && next_line(raw, pos, line, /*accept_unterminated=*/true)) {
     ++line_no;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
     std::istringstream ls(line);
     std::string kw;
     if (!(ls >> kw) || kw[0] == '#') continue;
