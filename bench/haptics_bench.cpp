@@ -120,13 +120,21 @@ ProxyState warm_up(const Workload& w, const ProxyParams& p) {
   return s;
 }
 
-void BM_StepProxy(benchmark::State& state, const std::string& kind) {
-  const int n = static_cast<int>(state.range(0));
-  Workload& w = workload(kind, n);
+/// The workload of `kind` at n = state.range(0), or nullptr after marking the benchmark as an
+/// error (for example a missing scan).
+Workload* workload_for(benchmark::State& state, const std::string& kind) {
+  Workload& w = workload(kind, static_cast<int>(state.range(0)));
   if (!w.error.empty()) {
     state.SkipWithError(w.error.c_str());
-    return;
+    return nullptr;
   }
+  return &w;
+}
+
+void BM_StepProxy(benchmark::State& state, const std::string& kind) {
+  Workload* wp = workload_for(state, kind);
+  if (wp == nullptr) return;
+  Workload& w = *wp;
   const ProxyParams p;
   ProxyState s = warm_up(w, p);
   std::size_t k = 0;
@@ -149,12 +157,9 @@ std::int64_t now_ns() {
 }
 
 void BM_StepProxyLatency(benchmark::State& state, const std::string& kind) {
-  const int n = static_cast<int>(state.range(0));
-  Workload& w = workload(kind, n);
-  if (!w.error.empty()) {
-    state.SkipWithError(w.error.c_str());
-    return;
-  }
+  Workload* wp = workload_for(state, kind);
+  if (wp == nullptr) return;
+  Workload& w = *wp;
   const ProxyParams p;
   ProxyState s = warm_up(w, p);
   // Cost of one timer read pair, subtracted from nothing: reported separately.
