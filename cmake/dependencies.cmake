@@ -18,3 +18,15 @@ endif()
 if(HC_BUILD_BENCH)
   find_package(benchmark REQUIRED)
 endif()
+# Device, viewer and audio modules (issues 5, 6, 7).
+find_package(PkgConfig REQUIRED)
+pkg_check_modules(LIBUSB REQUIRED IMPORTED_TARGET libusb-1.0)
+find_package(OpenGL REQUIRED COMPONENTS OpenGL)
+find_package(glfw3 3.3 REQUIRED)
+# Debian's libimgui-dev ships the core as a static library and the GLFW / OpenGL 3 backends as
+# sources under its documentation folder; hc::viewer compiles those two backend files.
+pkg_check_modules(IMGUI REQUIRED IMPORTED_TARGET imgui)
+set(HC_IMGUI_BACKENDS_DIR /usr/share/doc/libimgui-dev/examples/backends
+    CACHE PATH "Folder holding imgui_impl_glfw.cpp and imgui_impl_opengl3.cpp (libimgui-dev)")
+find_package(OpenAL REQUIRED)
+pkg_check_modules(SNDFILE REQUIRED IMPORTED_TARGET sndfile)
