@@ -200,6 +200,16 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
     counters.device_errors.fetch_add(1, std::memory_order_relaxed);
     device_.fault();
   }
+  if ((read_ok || rs == DeviceStatus::kFault) && reading.buttons != prev_buttons_) {
+    ButtonEvent b;
+    b.tick = tick_count_;
+    b.t_s = t_s;
+    b.buttons = reading.buttons;
+    b.pressed = reading.buttons & ~prev_buttons_;
+    b.released = prev_buttons_ & ~reading.buttons;
+    prev_buttons_ = reading.buttons;
+    if (!shared_.button_events.try_push(b)) counters.events_dropped.fetch_add(1, std::memory_order_relaxed);
+  }
   const bool was_in_contact = state_.in_contact;
   if (read_ok || rs == DeviceStatus::kFault) {
     const HipInput in{config_.workspace.to_grid(reading.position_m), dt,
@@ -270,6 +280,7 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
   snap.saturated = state_.saturated;
   snap.device_state = static_cast<std::uint8_t>(device_.state());
   snap.proxy_status = static_cast<std::uint8_t>(state_.status);
+  snap.buttons = prev_buttons_;
   shared_.snapshots.write(snap);
 
   const std::int64_t compute = monotonic_now_ns() - t_start;

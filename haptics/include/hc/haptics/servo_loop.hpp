@@ -169,6 +169,7 @@ class ServoLoop {
   Eigen::Vector3d slide_from_m_ = Eigen::Vector3d::Zero();
   double slide_from_s_ = 0.0;
   int ticks_since_slide_ = 0;
+  std::uint32_t prev_buttons_ = 0;  // buttons at the previous good read (button events)
 
   std::thread thread_;
   std::atomic<int> go_{0};  // 0 wait, 1 run, −1 abandon

@@ -32,6 +32,7 @@ struct Vec3 {
 /// the grid frame; device_force_n in device axes.
 struct Snapshot {
   std::uint64_t tick = 0;       ///< tick counter since start
+  std::uint64_t surface_tag = 0;  ///< tag of the surface rendered this tick (publish_surface)
   double t_s = 0.0;             ///< clock time of the tick [s]
   Vec3 hip_m;                   ///< X_h, grid frame [m]
   Vec3 proxy_m;                 ///< X_p, grid frame [m]
@@ -49,6 +50,7 @@ struct Snapshot {
   bool saturated = false;
   std::uint8_t device_state = 0;  ///< DeviceState as a number
   std::uint8_t proxy_status = 0;  ///< ProxyStatus as a number
+  std::uint32_t buttons = 0;      ///< device buttons pressed this tick (DeviceReading::buttons)
 };
 
 enum class ContactEventType : std::uint8_t { kOnset = 0, kSlide, kRelease };
@@ -62,6 +64,16 @@ struct ContactEvent {
   Vec3 position_m;                  ///< proxy, grid frame [m]
   Vec3 force_n;                     ///< rendered force, grid frame [N]
   double speed_m_per_s = 0.0;       ///< proxy speed over the surface (slide events) [m/s]
+};
+
+/// A change of the device's buttons (for people who explore without the screen: level and
+/// region changes from the grip). pressed/released are the bits that changed this tick.
+struct ButtonEvent {
+  std::uint64_t tick = 0;
+  double t_s = 0.0;
+  std::uint32_t buttons = 0;   ///< bit mask now pressed
+  std::uint32_t pressed = 0;   ///< bits that went down this tick
+  std::uint32_t released = 0;  ///< bits that went up this tick
 };
 
 enum class CommandType : std::uint8_t {
@@ -93,12 +105,13 @@ struct Command {
 struct ServoCounters {
   std::atomic<std::uint64_t> ticks{0};
   std::atomic<std::uint64_t> overruns{0};           ///< ticks that ended after the next deadline
-  std::atomic<std::uint64_t> events_dropped{0};     ///< contact events lost to a full ring
+  std::atomic<std::uint64_t> events_dropped{0};     ///< contact or button events lost to a full ring
   std::atomic<std::uint64_t> commands_applied{0};
   std::atomic<std::uint64_t> commands_rejected{0};  ///< invalid (e.g. non-finite) commands
   std::atomic<std::uint64_t> device_errors{0};      ///< read/write statuses other than ok
   std::atomic<std::uint64_t> nonfinite_inputs{0};   ///< ticks with a NaN/inf HIP
   std::atomic<std::uint64_t> surfaces_adopted{0};
+  std::atomic<std::uint64_t> surface_tag{0};        ///< tag of the surface in use (publish_surface)
   std::atomic<std::int64_t> worst_compute_ns{0};
   std::atomic<std::int64_t> worst_lateness_ns{0};
 };
@@ -108,6 +121,7 @@ class SharedState {
   static constexpr std::size_t kEventCapacity = 1024;
   static constexpr std::size_t kCommandCapacity = 64;
   static constexpr std::size_t kRetireCapacity = 8;
+  static constexpr std::size_t kButtonEventCapacity = 64;
 
   /// @param initial the surface the servo starts with (may be null: free space until one is
   ///        published). Real-time: no.
@@ -120,12 +134,20 @@ class SharedState {
   TripleBuffer<Snapshot> snapshots;                       ///< servo → readers
   SpscRing<ContactEvent, kEventCapacity> events;          ///< servo → one consumer (audio)
   SpscRing<Command, kCommandCapacity> commands;           ///< one producer (UI) → servo
+  SpscRing<ButtonEvent, kButtonEventCapacity> button_events;  ///< servo → one consumer (session)
   ServoCounters counters;
 
   /// Producer side (one non-real-time thread): hands a new surface to the servo, which adopts it
   /// at its next tick boundary. A previously published surface the servo has not adopted yet is
   /// freed here. Real-time: no.
   void publish_surface(std::unique_ptr<const HapticSurface> surface);
+  /// Producer side: the same, with the workspace map the surface is to be rendered with. The
+  /// servo adopts surface and map at the same tick boundary and carries the proxy over (it keeps
+  /// the proxy's device position; servo_loop.hpp). `tag` (≠ 0 to be useful) identifies the
+  /// surface: once adopted it is in counters.surface_tag and every Snapshot::surface_tag.
+  /// @throws hc::ConfigError if `map` is invalid (WorkspaceMap::valid). Real-time: no.
+  void publish_surface(std::unique_ptr<const HapticSurface> surface, const WorkspaceMap& map,
+                       std::uint64_t tag = 0);
   /// Producer side: frees the surfaces the servo has handed back. @return how many. Real-time: no.
   std::size_t collect_retired() noexcept;
   /// True while a published surface waits for adoption.
@@ -135,13 +157,35 @@ class SharedState {
   /// one and retries next tick) and returns the surface to render this tick (may be null).
   /// Real-time: yes (no allocation, no free).
   const HapticSurface* adopt_surface() noexcept;
+  /// What adopt() found this tick.
+  struct Adoption {
+    const HapticSurface* surface = nullptr;  ///< the surface to render this tick (may be null)
+    const WorkspaceMap* map = nullptr;       ///< the map published with a surface adopted THIS
+                                             ///< tick, else null (keep the current map)
+    bool changed = false;                    ///< a new surface was adopted this tick
+    std::uint64_t tag = 0;                   ///< tag of `surface`
+  };
+  /// Servo side: adopt_surface() that also reports whether the surface changed this tick and the
+  /// map published with it. Real-time: yes (no allocation, no free).
+  Adoption adopt() noexcept;
+
   /// Servo side: the surface in use.
-  const HapticSurface* current_surface() const noexcept { return current_; }
+  const HapticSurface* current_surface() const noexcept { return current_ ? current_->surface : nullptr; }
 
  private:
-  std::atomic<const HapticSurface*> pending_{nullptr};
-  const HapticSurface* current_ = nullptr;  // owned; touched by the servo thread only
-  SpscRing<const HapticSurface*, kRetireCapacity> retired_;
+  /// One publication: the surface with its optional map (owned; freed by the producer side).
+  struct Published {
+    const HapticSurface* surface = nullptr;
+    WorkspaceMap map;
+    bool has_map = false;
+    std::uint64_t tag = 0;
+  };
+  static void destroy(const Published* p) noexcept;
+  void publish(Published* p);
+
+  std::atomic<Published*> pending_{nullptr};
+  Published* current_ = nullptr;  // owned; touched by the servo thread only
+  SpscRing<Published*, kRetireCapacity> retired_;
 };
 
 }  // namespace hc::haptics
