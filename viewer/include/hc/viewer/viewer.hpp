@@ -1,0 +1,289 @@
+#pragma once
+/// @file viewer.hpp
+/// The exploration viewer (issue 6): a GLFW window with an OpenGL 3.3 core context that draws
+/// the active haptic window as a lit quad mesh, the proxy (blue ball), the HIP (small marker)
+/// and the contact force (arrow); a navigation view of the whole object with the window
+/// outlined; an optional red/cyan anaglyph; a Dear ImGui panel and a help overlay.
+///
+/// Threads: every member function is for the ONE UI thread that constructed the viewer, except
+/// set_scene() (any thread). The viewer only reads the servo loop's snapshots (triple buffer,
+/// it is that buffer's one reader) and atomic counters, and pushes Commands (stiffness, ρ,
+/// friction on/off) into SharedState::commands; it is that ring's one producer, so the app's
+/// own commands (arm, disarm, workspace) must be sent from the same UI thread, e.g. from the
+/// on_frame callback. It never waits on the servo thread and owns no scene data the servo uses.
+/// The viewer does not link the pipeline: re-scans, level and region changes are requests to
+/// the app through ViewerCallbacks, answered later with set_scene().
+
+#include "hc/common/height_field.hpp"
+#include "hc/haptics/shared_state.hpp"
+#include "hc/haptics/workspace_map.hpp"
+
+#include <Eigen/Core>
+#include <Eigen/Geometry>
+
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+struct GLFWwindow;  // GLFW's window handle (GLFW headers stay in the .cpp files)
+
+namespace hc::viewer {
+
+/// What the viewer shows of the scene. Immutable once handed to set_scene().
+struct DisplayScene {
+  HeightField window;    ///< the active haptic window: rendered heights, grid frame [m], NaN = none
+  HeightField overview;  ///< the whole object at a coarse level, grid frame [m] (may be empty:
+                         ///< then the window itself is the overview)
+  haptics::WorkspaceMap workspace;  ///< device ↔ grid map of this window
+  int level = 0;                    ///< LoD level of the window (0 = finest)
+  int level_count = 1;              ///< levels available
+  std::string description;          ///< one line for the panel ("Buddha, level 1 of 3, ...")
+  /// Optional raw-cloud preview for choosing the orientation before the depth scan: x, y, z
+  /// triplets [m] in the recentred model frame (before the view rotation); empty = the
+  /// orientation tool only offers typed angles.
+  std::vector<float> cloud_xyz_m;
+  /// The rotation that made this scene's grid from the model frame (shown and edited by the
+  /// orientation tool).
+  Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();
+};
+
+/// Level-of-detail and region commands. Keys, mouse clicks in the navigation view, the GUI and
+/// device buttons all go through Viewer::issue() and reach the app as one of these.
+enum class RegionCommandType : std::uint8_t {
+  kFiner = 0,   ///< one level finer (smaller window, more detail)
+  kCoarser,     ///< one level coarser
+  kSetLevel,    ///< level = `level`
+  kPan,         ///< move the window by (dx, dy) window widths [-]
+  kCentreAt,    ///< centre the window on (x_m, y_m), grid frame [m]
+};
+
+struct RegionCommand {
+  RegionCommandType type = RegionCommandType::kFiner;
+  int level = 0;
+  double dx = 0.0, dy = 0.0;     ///< kPan [window widths]
+  double x_m = 0.0, y_m = 0.0;   ///< kCentreAt [m]
+};
+
+/// Surface-side settings the app applies by rebuilding the haptic surface (not servo commands).
+struct SurfaceSettings {
+  bool texture_enabled = true;          ///< false: render the envelope only (texture gain 0)
+  double mu_s = 0.2;                    ///< static friction μ_s [-] ≥ 0 (constant over the surface)
+  std::string friction_model = "paper"; ///< "paper" | "curvature"
+};
+
+/// Requests from the viewer to the app, all called on the UI thread; an empty function means
+/// "not available" (the matching GUI control is disabled). They must return quickly: slow work
+/// (the pipeline) belongs on another thread, and its result comes back through set_scene().
+struct ViewerCallbacks {
+  std::function<void(const RegionCommand&)> on_region;
+  /// Re-scan the raw cloud with this orientation (model → grid rotation).
+  std::function<void(const Eigen::Quaterniond&)> on_rescan;
+  std::function<void(const SurfaceSettings&)> on_surface_settings;
+  std::function<void(double volume)> on_audio_volume;  ///< [0, 1]
+  /// Called once per frame before drawing (the app's session state machine runs here).
+  std::function<void()> on_frame;
+  /// A one-line status from the app (e.g. "re-scanning ..."), shown in the panel.
+  std::function<std::string()> status;
+};
+
+/// Initial state and limits of the viewer.
+struct ViewerOptions {
+  int width_px = 1280;
+  int height_px = 800;
+  std::string title = "hapticloud explore";
+  bool visible = true;               ///< false: hidden window (tests, --screenshot)
+  bool show_panel = true;            ///< the ImGui panel
+  bool show_help = false;            ///< the help overlay (toggle with H / F1)
+  bool show_navigation = true;       ///< the navigation view (right-hand strip)
+  bool vsync = true;
+  double max_fps = 60.0;             ///< frame-rate cap (sleeps the UI thread) [Hz]; 0 = none
+  bool stereo = false;               ///< red/cyan anaglyph (mono by default)
+  double eye_separation = 0.03;      ///< eye separation / convergence distance [-], (0, 0.2]
+  double field_of_view_deg = 35.0;   ///< vertical field of view of the main view [deg]
+  /// Mouse drives the HIP: x, y under the cursor (on the plane of the HIP), wheel for z.
+  bool mouse_drives_hip = false;
+  double max_force_n = 8.0;          ///< force that draws the longest arrow [N]
+  double max_stiffness_n_per_m = 2000.0;  ///< slider range of the stiffness (device frame)
+  // Initial GUI values (the servo loop's own settings, shown in the panel).
+  double stiffness_n_per_m = 800.0;
+  double rho = 0.9;
+  bool friction_enabled = true;
+  SurfaceSettings surface;
+  double audio_volume = 0.8;
+};
+
+/// An RGB image, 8 bits per channel, rows top to bottom.
+struct Image {
+  int width = 0;
+  int height = 0;
+  std::vector<std::uint8_t> rgb;  ///< width·height·3 bytes
+  std::uint8_t at(int x, int y, int channel) const {
+    return rgb[(static_cast<std::size_t>(y) * static_cast<std::size_t>(width) + static_cast<std::size_t>(x)) * 3 +
+               static_cast<std::size_t>(channel)];
+  }
+};
+
+/// Writes `image` as an 8-bit RGB PNG. @throws hc::InputError naming the file if it cannot be
+/// written. Real-time: no.
+void write_png(const Image& image, const std::string& path);
+
+/// Frame timing measured by the viewer (steady clock, whole frame including swap).
+/// Times exclude the frame-rate cap's sleep.
+struct FrameStats {
+  std::uint64_t frames = 0;
+  double mean_frame_s = 0.0;
+  double max_frame_s = 0.0;
+  double last_frame_s = 0.0;
+};
+
+/// Pixel rectangle of a view inside the window (origin top-left, y down).
+struct PixelRect {
+  int x = 0, y = 0, width = 0, height = 0;
+  bool contains(double px, double py) const {
+    return px >= x && py >= y && px < x + width && py < y + height;
+  }
+};
+
+class Viewer {
+ public:
+  /// Opens the window and the OpenGL 3.3 core context, compiles the shaders, sets up ImGui.
+  /// @throws hc::ResourceError when GLFW cannot start (no display: name $DISPLAY and suggest
+  ///         xvfb-run) or the context cannot be created; hc::ConfigError for options out of range.
+  /// Real-time: no.
+  Viewer(haptics::SharedState& shared, const ViewerOptions& options, ViewerCallbacks callbacks = {});
+  ~Viewer();
+  Viewer(const Viewer&) = delete;
+  Viewer& operator=(const Viewer&) = delete;
+
+  /// Hands a new scene to the viewer; it is meshed at the next frame. Thread-safe (any thread).
+  void set_scene(std::shared_ptr<const DisplayScene> scene);
+
+  /// One frame: events, on_frame, snapshot, draw, swap. @return false once the window was
+  /// asked to close (close button, Esc, Q). Never blocks on the servo loop.
+  bool frame();
+  /// Draws one frame and returns its pixels (read before the swap).
+  Image capture();
+
+  /// The common path of keys, GUI, navigation clicks and device buttons.
+  void issue(const RegionCommand& command);
+  /// Device buttons (bit mask, as DeviceReading::buttons): a newly pressed bit issues
+  /// bit 0 → finer, bit 1 → coarser, bit 2 → pan left, bit 3 → pan right.
+  void set_device_buttons(std::uint32_t buttons);
+  /// Where the mouse drives the HIP [m, device frame] (mouse mode); false until the cursor has
+  /// been over the main view.
+  bool mouse_target(Eigen::Vector3d& device_m) const;
+  /// Mouse mode without a mouse (tests): the cursor at pixel (px, py) of the window.
+  void set_cursor_for_test(double px, double py);
+
+  void set_stereo(bool on) { stereo_ = on; }
+  bool stereo() const { return stereo_; }
+  /// @param ratio eye separation / convergence distance, clamped to [0.001, 0.2].
+  void set_eye_separation(double ratio);
+  double eye_separation() const { return eye_separation_; }
+  /// Orbit of the main camera about the window centre [deg]: yaw about the grid z axis, tilt
+  /// away from looking straight down −z.
+  void set_camera(double yaw_deg, double tilt_deg, double zoom = 1.0);
+
+  /// Pixel (x right, y down, window pixels) of a grid-frame point in the main view, seen by
+  /// eye −1 (left, red), 0 (mono) or +1 (right, cyan).
+  Eigen::Vector2d project(const Eigen::Vector3d& grid_m, int eye = 0) const;
+  PixelRect main_view() const;
+  PixelRect navigation_view() const;
+  /// The scene being drawn (null before the first set_scene() has been taken by a frame).
+  std::shared_ptr<const DisplayScene> scene() const { return scene_; }
+  /// The latest snapshot read.
+  const haptics::Snapshot& snapshot() const { return snapshot_; }
+  const FrameStats& frame_stats() const { return frame_stats_; }
+  /// Quad count of the window mesh (triangles / 2).
+  std::size_t mesh_quads() const;
+  void request_close();
+
+ private:
+  struct Gpu;  // OpenGL objects (viewer.cpp)
+  void take_pending_scene();
+  void handle_input();
+  void draw_main(const PixelRect& view);
+  void draw_navigation(const PixelRect& view);
+  void draw_orientation(const PixelRect& view);
+  void draw_gui();
+  void update_plots();
+  void send_servo_settings();
+  Eigen::Matrix4d main_view_matrix(double eye_offset) const;
+  Eigen::Matrix4d main_projection(const PixelRect& view, double eye_offset) const;
+  Eigen::Matrix4d navigation_projection(const PixelRect& view) const;
+  void render_frame();
+  void present();
+  double eye_offset_for(int eye) const;
+  Eigen::Vector3d arcball_vector(double px, double py, const PixelRect& view) const;
+  static void on_key(::GLFWwindow* w, int key, int scancode, int action, int mods);
+  static void on_scroll(::GLFWwindow* w, double dx, double dy);
+  static void on_mouse_button(::GLFWwindow* w, int button, int action, int mods);
+
+  haptics::SharedState& shared_;
+  ViewerOptions options_;
+  ViewerCallbacks callbacks_;
+  ::GLFWwindow* window_ = nullptr;
+  std::unique_ptr<Gpu> gpu_;
+
+  std::mutex pending_mutex_;
+  std::shared_ptr<const DisplayScene> pending_;
+  std::shared_ptr<const DisplayScene> scene_;
+
+  haptics::Snapshot snapshot_{};
+  FrameStats frame_stats_{};
+  bool stereo_ = false;
+  double eye_separation_ = 0.03;
+  double yaw_deg_ = 0.0, tilt_deg_ = 0.0, zoom_ = 1.0;
+  bool show_panel_ = true, show_help_ = false, show_navigation_ = true;
+  bool close_requested_ = false;
+
+  // Mouse.
+  double cursor_x_ = -1.0, cursor_y_ = -1.0;
+  bool cursor_override_ = false;
+  bool orbiting_ = false;
+  double orbit_from_x_ = 0.0, orbit_from_y_ = 0.0;
+  double hip_device_z_m_ = 0.0;
+  bool have_mouse_target_ = false;
+  Eigen::Vector3d mouse_target_m_ = Eigen::Vector3d::Zero();
+  std::uint32_t buttons_ = 0;
+
+  // Orientation tool (arcball on the raw-cloud preview).
+  bool orienting_ = false;
+  bool arcball_active_ = false;
+  Eigen::Vector3d arcball_from_ = Eigen::Vector3d::UnitZ();
+  Eigen::Quaterniond orientation_ = Eigen::Quaterniond::Identity();
+  Eigen::Quaterniond arcball_start_ = Eigen::Quaterniond::Identity();
+  float typed_angles_deg_[3] = {0.0F, 0.0F, 0.0F};
+
+  // GUI values.
+  float stiffness_ = 800.0F, rho_ = 0.9F, volume_ = 0.8F, mu_s_ = 0.2F;
+  bool friction_enabled_ = true, texture_enabled_ = true;
+  int friction_model_ = 0;  // 0 paper, 1 curvature
+  int gui_level_ = 0;
+
+  // Live plots (ring buffers, newest at plot_head_ − 1).
+  static constexpr int kPlotLength = 240;
+  float force_plot_[kPlotLength] = {};
+  float rate_plot_[kPlotLength] = {};
+  int plot_head_ = 0;
+  std::uint64_t last_ticks_ = 0;
+  double last_plot_time_s_ = 0.0;
+  double last_frame_start_s_ = 0.0;
+};
+
+/// The controls, one line each (the help overlay shows them; the README lists the same).
+const std::vector<std::string>& controls_help();
+
+/// Off-axis (asymmetric) perspective frustum for one eye of a stereo pair whose eyes sit at
+/// ±separation/2 along the camera's x axis, with parallel view axes and the zero-parallax plane
+/// at `convergence` (OpenGL clip conventions, right-handed eye space looking down −z).
+/// eye_offset = −separation/2 (left eye) or +separation/2 (right eye), same units as the
+/// distances; 0 gives the ordinary symmetric frustum. Source: the parallel-axis asymmetric
+/// frustum method (Bourke, "Calculating stereo pairs"). Real-time: yes.
+Eigen::Matrix4d off_axis_projection(double fov_y_rad, double aspect, double near, double far,
+                                    double convergence, double eye_offset);
+
+}  // namespace hc::viewer

@@ -1,0 +1,146 @@
+/// CPU-side meshes (geometry.hpp).
+
+#include "geometry.hpp"
+
+#include <Eigen/Core>
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+namespace hc::viewer {
+
+namespace {
+
+void push_vertex(MeshData& m, const Eigen::Vector3d& p, const Eigen::Vector3d& n) {
+  m.vertices.insert(m.vertices.end(), {static_cast<float>(p.x()), static_cast<float>(p.y()), static_cast<float>(p.z()),
+                                       static_cast<float>(n.x()), static_cast<float>(n.y()), static_cast<float>(n.z())});
+}
+
+std::uint32_t vertex_count(const MeshData& m) { return static_cast<std::uint32_t>(m.vertices.size() / 6); }
+
+}  // namespace
+
+MeshData height_field_mesh(const HeightField& field, int max_side) {
+  MeshData m;
+  const int rows = field.rows(), cols = field.cols();
+  if (rows < 2 || cols < 2) return m;
+  const int stride = std::max(1, (std::max(rows, cols) + max_side - 2) / std::max(1, max_side - 1));
+  std::vector<int> rs, cs;
+  for (int r = 0; r < rows; r += stride) rs.push_back(r);
+  if (rs.back() != rows - 1) rs.push_back(rows - 1);
+  for (int c = 0; c < cols; c += stride) cs.push_back(c);
+  if (cs.back() != cols - 1) cs.push_back(cols - 1);
+  const GridGeometry& g = field.geometry();
+  const auto z = [&](int r, int c) { return static_cast<double>(field.at(r, c)); };
+  // Slope along one axis from the nearest valid neighbours (central, else one-sided, else 0).
+  const auto slope = [&](int r, int c, int dr, int dc) {
+    const int r0 = r - dr, c0 = c - dc, r1 = r + dr, c1 = c + dc;
+    const bool lo = r0 >= 0 && c0 >= 0 && field.valid(r0, c0);
+    const bool hi = r1 < rows && c1 < cols && field.valid(r1, c1);
+    const double h = g.cell_size_m * stride;
+    if (lo && hi) return (z(r1, c1) - z(r0, c0)) / (2.0 * h);
+    if (hi) return (z(r1, c1) - z(r, c)) / h;
+    if (lo) return (z(r, c) - z(r0, c0)) / h;
+    return 0.0;
+  };
+  const auto nr = static_cast<int>(rs.size()), nc = static_cast<int>(cs.size());
+  m.vertices.reserve(static_cast<std::size_t>(nr) * static_cast<std::size_t>(nc) * 6);
+  for (int i = 0; i < nr; ++i) {
+    for (int j = 0; j < nc; ++j) {
+      const int r = rs[static_cast<std::size_t>(i)], c = cs[static_cast<std::size_t>(j)];
+      const bool ok = field.valid(r, c);
+      const Eigen::Vector3d p(g.x_of_col(c), g.y_of_row(r), ok ? z(r, c) : 0.0);
+      Eigen::Vector3d n(0, 0, 1);
+      if (ok) {
+        // Steps of `stride` samples along x (columns) and y (rows).
+        const auto sx = [&] {
+          const int c0 = std::max(0, c - stride), c1 = std::min(cols - 1, c + stride);
+          const bool lo = c0 < c && field.valid(r, c0), hi = c1 > c && field.valid(r, c1);
+          if (lo && hi) return (z(r, c1) - z(r, c0)) / (g.cell_size_m * (c1 - c0));
+          if (hi) return (z(r, c1) - z(r, c)) / (g.cell_size_m * (c1 - c));
+          if (lo) return (z(r, c) - z(r, c0)) / (g.cell_size_m * (c - c0));
+          return slope(r, c, 0, 1);
+        }();
+        const auto sy = [&] {
+          const int r0 = std::max(0, r - stride), r1 = std::min(rows - 1, r + stride);
+          const bool lo = r0 < r && field.valid(r0, c), hi = r1 > r && field.valid(r1, c);
+          if (lo && hi) return (z(r1, c) - z(r0, c)) / (g.cell_size_m * (r1 - r0));
+          if (hi) return (z(r1, c) - z(r, c)) / (g.cell_size_m * (r1 - r));
+          if (lo) return (z(r, c) - z(r0, c)) / (g.cell_size_m * (r - r0));
+          return slope(r, c, 1, 0);
+        }();
+        n = Eigen::Vector3d(-sx, -sy, 1.0).normalized();
+      }
+      push_vertex(m, p, n);
+    }
+  }
+  for (int i = 0; i + 1 < nr; ++i) {
+    for (int j = 0; j + 1 < nc; ++j) {
+      const int r0 = rs[static_cast<std::size_t>(i)], r1 = rs[static_cast<std::size_t>(i + 1)];
+      const int c0 = cs[static_cast<std::size_t>(j)], c1 = cs[static_cast<std::size_t>(j + 1)];
+      if (!field.valid(r0, c0) || !field.valid(r0, c1) || !field.valid(r1, c0) || !field.valid(r1, c1)) continue;
+      const auto a = static_cast<std::uint32_t>(i * nc + j), b = a + 1;
+      const auto d = static_cast<std::uint32_t>((i + 1) * nc + j), e = d + 1;
+      m.indices.insert(m.indices.end(), {a, b, e, a, e, d});
+      ++m.quads;
+    }
+  }
+  return m;
+}
+
+MeshData sphere_mesh(int slices, int stacks) {
+  MeshData m;
+  for (int i = 0; i <= stacks; ++i) {
+    const double phi = std::numbers::pi * i / stacks;
+    for (int j = 0; j <= slices; ++j) {
+      const double theta = 2 * std::numbers::pi * j / slices;
+      const Eigen::Vector3d p(std::sin(phi) * std::cos(theta), std::sin(phi) * std::sin(theta), std::cos(phi));
+      push_vertex(m, p, p);
+    }
+  }
+  const auto w = static_cast<std::uint32_t>(slices + 1);
+  for (std::uint32_t i = 0; i < static_cast<std::uint32_t>(stacks); ++i) {
+    for (std::uint32_t j = 0; j < static_cast<std::uint32_t>(slices); ++j) {
+      const std::uint32_t a = i * w + j, b = a + 1, d = a + w, e = d + 1;
+      m.indices.insert(m.indices.end(), {a, d, e, a, e, b});
+    }
+  }
+  return m;
+}
+
+MeshData arrow_mesh(int slices) {
+  MeshData m;
+  const double shaft_r = 0.03, cone_r = 0.08, cone_z = 0.75;
+  const auto ring = [&](double radius, double z_m, double nz) {
+    const std::uint32_t first = vertex_count(m);
+    for (int j = 0; j <= slices; ++j) {
+      const double t = 2 * std::numbers::pi * j / slices;
+      const Eigen::Vector3d dir(std::cos(t), std::sin(t), 0);
+      push_vertex(m, Eigen::Vector3d(radius * dir.x(), radius * dir.y(), z_m), (dir + Eigen::Vector3d(0, 0, nz)).normalized());
+    }
+    return first;
+  };
+  const auto strip = [&](std::uint32_t lo, std::uint32_t hi) {
+    for (std::uint32_t j = 0; j < static_cast<std::uint32_t>(slices); ++j) {
+      m.indices.insert(m.indices.end(), {lo + j, lo + j + 1, hi + j + 1, lo + j, hi + j + 1, hi + j});
+    }
+  };
+  strip(ring(shaft_r, 0.0, 0.0), ring(shaft_r, cone_z, 0.0));
+  const double slope = cone_r / (1.0 - cone_z);
+  strip(ring(cone_r, cone_z, slope), ring(1e-4, 1.0, slope));
+  // Base of the cone (a disc facing −z).
+  const std::uint32_t centre = vertex_count(m);
+  push_vertex(m, Eigen::Vector3d(0, 0, cone_z), Eigen::Vector3d(0, 0, -1));
+  const std::uint32_t rim = vertex_count(m);
+  for (int j = 0; j <= slices; ++j) {
+    const double t = 2 * std::numbers::pi * j / slices;
+    push_vertex(m, Eigen::Vector3d(cone_r * std::cos(t), cone_r * std::sin(t), cone_z), Eigen::Vector3d(0, 0, -1));
+  }
+  for (std::uint32_t j = 0; j < static_cast<std::uint32_t>(slices); ++j) {
+    m.indices.insert(m.indices.end(), {centre, rim + j + 1, rim + j});
+  }
+  return m;
+}
+
+}  // namespace hc::viewer

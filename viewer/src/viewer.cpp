@@ -1,0 +1,945 @@
+/// The exploration viewer (viewer.hpp).
+
+#include "hc/viewer/viewer.hpp"
+
+#include "geometry.hpp"
+#include "gl.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/haptics/device.hpp"
+
+#define GLFW_INCLUDE_NONE
+#include <GLFW/glfw3.h>
+#include <imgui.h>
+#include <imgui_impl_glfw.h>
+#include <imgui_impl_opengl3.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdlib>
+#include <numbers>
+#include <string>
+#include <thread>
+
+namespace hc::viewer {
+
+namespace {
+
+constexpr double kDegToRad = std::numbers::pi / 180.0;
+constexpr int kMaxMeshSide = 640;       // display mesh: at most this many vertices per side
+constexpr int kMaxOverviewSide = 256;   // navigation mesh
+const Eigen::Vector3f kBackground(0.08F, 0.09F, 0.11F);
+const Eigen::Vector3f kStone(0.86F, 0.80F, 0.70F);
+const Eigen::Vector3f kProxyBlue(0.15F, 0.35F, 0.95F);
+const Eigen::Vector3f kHipColour(0.95F, 0.85F, 0.20F);
+const Eigen::Vector3f kForceColour(0.95F, 0.30F, 0.15F);
+const Eigen::Vector3f kOutline(1.0F, 0.85F, 0.1F);
+
+const char* const kVertexShader = R"(#version 330 core
+layout(location = 0) in vec3 a_position;
+layout(location = 1) in vec3 a_normal;
+uniform mat4 u_mvp;
+uniform mat4 u_model;
+uniform mat3 u_normal_matrix;
+out vec3 v_normal;
+out vec3 v_world;
+void main() {
+  gl_Position = u_mvp * vec4(a_position, 1.0);
+  v_normal = u_normal_matrix * a_normal;
+  v_world = (u_model * vec4(a_position, 1.0)).xyz;
+  gl_PointSize = 2.0;
+}
+)";
+
+const char* const kFragmentShader = R"(#version 330 core
+in vec3 v_normal;
+in vec3 v_world;
+uniform vec3 u_colour;
+uniform vec3 u_light_dir;     // towards the light, world frame, unit
+uniform vec3 u_eye;           // camera position, world frame
+uniform int u_lit;            // 0: flat colour
+uniform int u_height_colour;  // 1: colour by world z over u_height_range
+uniform vec2 u_height_range;
+uniform int u_grey;           // 1: luminance only (anaglyph)
+out vec4 frag_colour;
+void main() {
+  vec3 c = u_colour;
+  if (u_height_colour == 1) {
+    float t = clamp((v_world.z - u_height_range.x) / max(u_height_range.y - u_height_range.x, 1e-9), 0.0, 1.0);
+    c = mix(vec3(0.20, 0.28, 0.50), vec3(0.95, 0.88, 0.72), t);
+  }
+  if (u_lit == 1) {
+    vec3 n = normalize(v_normal);
+    if (!gl_FrontFacing) n = -n;
+    float diffuse = max(dot(n, u_light_dir), 0.0);
+    vec3 h = normalize(u_light_dir + normalize(u_eye - v_world));
+    float specular = pow(max(dot(n, h), 0.0), 40.0) * 0.25;
+    c = c * (0.16 + 0.84 * diffuse) + vec3(specular);
+  }
+  if (u_grey == 1) c = vec3(dot(c, vec3(0.299, 0.587, 0.114)));
+  frag_colour = vec4(c, 1.0);
+}
+)";
+
+std::string glfw_error_text;
+
+void glfw_error(int code, const char* text) { glfw_error_text = "GLFW error " + std::to_string(code) + ": " + text; }
+
+Eigen::Matrix4d look_at(const Eigen::Vector3d& eye, const Eigen::Vector3d& target, const Eigen::Vector3d& up) {
+  const Eigen::Vector3d f = (target - eye).normalized();
+  const Eigen::Vector3d s = f.cross(up).normalized();
+  const Eigen::Vector3d u = s.cross(f);
+  Eigen::Matrix4d m = Eigen::Matrix4d::Identity();
+  m.block<1, 3>(0, 0) = s.transpose();
+  m.block<1, 3>(1, 0) = u.transpose();
+  m.block<1, 3>(2, 0) = -f.transpose();
+  m(0, 3) = -s.dot(eye);
+  m(1, 3) = -u.dot(eye);
+  m(2, 3) = f.dot(eye);
+  return m;
+}
+
+Eigen::Matrix4d ortho(double l, double r, double b, double t, double n, double f) {
+  Eigen::Matrix4d m = Eigen::Matrix4d::Identity();
+  m(0, 0) = 2 / (r - l);
+  m(1, 1) = 2 / (t - b);
+  m(2, 2) = -2 / (f - n);
+  m(0, 3) = -(r + l) / (r - l);
+  m(1, 3) = -(t + b) / (t - b);
+  m(2, 3) = -(f + n) / (f - n);
+  return m;
+}
+
+/// Extent of a height field: x/y bounds of the samples and the range of finite heights.
+struct Extent {
+  double x_min = 0, x_max = 0, y_min = 0, y_max = 0, z_min = 0, z_max = 0;
+  double size() const { return std::max(x_max - x_min, y_max - y_min); }
+  Eigen::Vector3d centre() const { return {0.5 * (x_min + x_max), 0.5 * (y_min + y_max), 0.5 * (z_min + z_max)}; }
+};
+
+Extent extent_of(const HeightField& f) {
+  Extent e;
+  const GridGeometry& g = f.geometry();
+  e.x_min = g.x0_m;
+  e.x_max = g.x_of_col(std::max(0, g.cols - 1));
+  e.y_min = g.y0_m;
+  e.y_max = g.y_of_row(std::max(0, g.rows - 1));
+  double lo = 1e300, hi = -1e300;
+  for (float v : f.values()) {
+    if (std::isfinite(v)) {
+      lo = std::min(lo, static_cast<double>(v));
+      hi = std::max(hi, static_cast<double>(v));
+    }
+  }
+  if (lo > hi) lo = hi = 0.0;
+  e.z_min = lo;
+  e.z_max = hi;
+  return e;
+}
+
+Eigen::Matrix4f to_f(const Eigen::Matrix4d& m) { return m.cast<float>(); }
+
+}  // namespace
+
+const std::vector<std::string>& controls_help() {
+  static const std::vector<std::string> lines = {
+      "H / F1       this help",
+      "Esc / Q      quit (Esc leaves the orientation tool first)",
+      "G            show / hide the panel;   N  navigation view",
+      "+ / PageUp   finer level (smaller window);   - / PageDown  coarser",
+      "0 ... 9      go to level n (0 = finest)",
+      "arrow keys   pan the window by a quarter of its width",
+      "click        in the navigation view: centre the window there",
+      "right drag   orbit the camera;   R  reset the camera",
+      "wheel        mouse device: HIP height (1 mm per notch); otherwise zoom",
+      "Ctrl+wheel   zoom",
+      "Space        arm / disarm the device (forces on / off)",
+      "S            red/cyan anaglyph on / off;   [ ]  eye separation",
+      "O            orientation tool: left drag turns the raw cloud (arcball)",
+      "Enter        re-scan the cloud with that orientation (new scene, no restart)",
+      "device buttons  1 finer, 2 coarser, 3 pan left, 4 pan right",
+  };
+  return lines;
+}
+
+Eigen::Matrix4d off_axis_projection(double fov_y_rad, double aspect, double near, double far, double convergence,
+                                    double eye_offset) {
+  const double top = near * std::tan(0.5 * fov_y_rad);
+  const double half_w = aspect * top;
+  const double shift = eye_offset * near / convergence;
+  const double l = -half_w - shift, r = half_w - shift, b = -top, t = top;
+  Eigen::Matrix4d m = Eigen::Matrix4d::Zero();
+  m(0, 0) = 2 * near / (r - l);
+  m(0, 2) = (r + l) / (r - l);
+  m(1, 1) = 2 * near / (t - b);
+  m(1, 2) = (t + b) / (t - b);
+  m(2, 2) = -(far + near) / (far - near);
+  m(2, 3) = -2 * far * near / (far - near);
+  m(3, 2) = -1;
+  return m;
+}
+
+/// Everything on the GPU, plus what was derived from the current scene.
+struct Viewer::Gpu {
+  gl::Program program;
+  gl::Framebuffer target;
+  gl::Mesh window_mesh, overview_mesh, sphere, arrow, outline, cloud;
+  std::size_t window_quads = 0;
+  Extent window_extent, overview_extent, cloud_extent;
+  bool has_cloud = false;
+};
+
+Viewer::Viewer(haptics::SharedState& shared, const ViewerOptions& options, ViewerCallbacks callbacks)
+    : shared_(shared), options_(options), callbacks_(std::move(callbacks)) {
+  if (options.width_px < 64 || options.height_px < 64 || options.width_px > 8192 || options.height_px > 8192) {
+    throw ConfigError("viewer: window size " + std::to_string(options.width_px) + "x" + std::to_string(options.height_px) +
+                      " is out of range (expected 64..8192 pixels per side)");
+  }
+  if (!(options.field_of_view_deg > 5.0 && options.field_of_view_deg < 120.0)) {
+    throw ConfigError("viewer: field_of_view_deg " + std::to_string(options.field_of_view_deg) +
+                      " is out of range (expected (5, 120))");
+  }
+  stereo_ = options.stereo;
+  set_eye_separation(options.eye_separation);
+  show_panel_ = options.show_panel;
+  show_help_ = options.show_help;
+  show_navigation_ = options.show_navigation;
+  stiffness_ = static_cast<float>(options.stiffness_n_per_m);
+  rho_ = static_cast<float>(options.rho);
+  friction_enabled_ = options.friction_enabled;
+  texture_enabled_ = options.surface.texture_enabled;
+  mu_s_ = static_cast<float>(options.surface.mu_s);
+  friction_model_ = options.surface.friction_model == "curvature" ? 1 : 0;
+  volume_ = static_cast<float>(options.audio_volume);
+
+  glfwSetErrorCallback(glfw_error);
+  if (glfwInit() == GLFW_FALSE) {
+    const char* display = std::getenv("DISPLAY");
+    throw ResourceError("viewer: GLFW could not start (" + glfw_error_text + "); DISPLAY is '" +
+                        (display ? display : "") + "': run on a desktop, or under `xvfb-run -a -s \"-screen 0 1280x1024x24\"`");
+  }
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
+  glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
+  glfwWindowHint(GLFW_OPENGL_PROFILE, GLFW_OPENGL_CORE_PROFILE);
+  glfwWindowHint(GLFW_OPENGL_FORWARD_COMPAT, GLFW_TRUE);
+  glfwWindowHint(GLFW_VISIBLE, options.visible ? GLFW_TRUE : GLFW_FALSE);
+  window_ = glfwCreateWindow(options.width_px, options.height_px, options.title.c_str(), nullptr, nullptr);
+  if (window_ == nullptr) {
+    glfwTerminate();
+    throw ResourceError("viewer: no OpenGL 3.3 core context (" + glfw_error_text +
+                        "); check the graphics driver (Mesa's llvmpipe works under Xvfb)");
+  }
+  glfwMakeContextCurrent(window_);
+  glfwSwapInterval(options.vsync ? 1 : 0);
+  glfwSetWindowUserPointer(window_, this);
+  glfwSetKeyCallback(window_, &Viewer::on_key);
+  glfwSetScrollCallback(window_, &Viewer::on_scroll);
+  glfwSetMouseButtonCallback(window_, &Viewer::on_mouse_button);
+
+  try {
+    gpu_ = std::make_unique<Gpu>();
+    gpu_->program = gl::Program(kVertexShader, kFragmentShader);
+    const MeshData sphere = sphere_mesh(24, 16);
+    gpu_->sphere.upload(sphere.vertices, sphere.indices, GL_TRIANGLES);
+    const MeshData arrow = arrow_mesh(16);
+    gpu_->arrow.upload(arrow.vertices, arrow.indices, GL_TRIANGLES);
+  } catch (...) {
+    gpu_.reset();
+    glfwDestroyWindow(window_);
+    glfwTerminate();
+    throw;
+  }
+  // ImGui chains the callbacks installed above (they are called first).
+  IMGUI_CHECKVERSION();
+  ImGui::CreateContext();
+  ImGui::GetIO().IniFilename = nullptr;
+  ImGui::StyleColorsDark();
+  ImGui_ImplGlfw_InitForOpenGL(window_, true);
+  ImGui_ImplOpenGL3_Init("#version 330 core");
+  last_frame_start_s_ = glfwGetTime();
+}
+
+Viewer::~Viewer() {
+  ImGui_ImplOpenGL3_Shutdown();
+  ImGui_ImplGlfw_Shutdown();
+  ImGui::DestroyContext();
+  gpu_.reset();  // GL objects go while the context is current
+  glfwDestroyWindow(window_);
+  glfwTerminate();
+}
+
+void Viewer::set_scene(std::shared_ptr<const DisplayScene> scene) {
+  const std::lock_guard<std::mutex> lock(pending_mutex_);
+  pending_ = std::move(scene);
+}
+
+void Viewer::set_eye_separation(double ratio) {
+  eye_separation_ = std::clamp(std::isfinite(ratio) ? ratio : 0.03, 0.001, 0.2);
+}
+
+void Viewer::set_camera(double yaw_deg, double tilt_deg, double zoom) {
+  yaw_deg_ = yaw_deg;
+  tilt_deg_ = std::clamp(tilt_deg, 0.0, 85.0);
+  zoom_ = std::clamp(zoom, 0.1, 20.0);
+}
+
+void Viewer::request_close() { close_requested_ = true; }
+
+std::size_t Viewer::mesh_quads() const { return gpu_->window_quads; }
+
+void Viewer::take_pending_scene() {
+  std::shared_ptr<const DisplayScene> next;
+  {
+    const std::lock_guard<std::mutex> lock(pending_mutex_);
+    next = std::move(pending_);
+    pending_.reset();
+  }
+  if (!next) return;
+  const bool first = !scene_;
+  scene_ = std::move(next);
+  MeshData w = height_field_mesh(scene_->window, kMaxMeshSide);
+  gpu_->window_mesh.upload(w.vertices, w.indices, GL_TRIANGLES);
+  gpu_->window_quads = w.quads;
+  gpu_->window_extent = extent_of(scene_->window);
+  const HeightField& ov = scene_->overview.rows() > 1 ? scene_->overview : scene_->window;
+  MeshData o = height_field_mesh(ov, kMaxOverviewSide);
+  gpu_->overview_mesh.upload(o.vertices, o.indices, GL_TRIANGLES);
+  gpu_->overview_extent = extent_of(ov);
+  gpu_->has_cloud = scene_->cloud_xyz_m.size() >= 3;
+  if (gpu_->has_cloud) {
+    std::vector<float> v;
+    const std::size_t n = scene_->cloud_xyz_m.size() / 3;
+    v.reserve(n * 6);
+    std::vector<std::uint32_t> idx(n);
+    double r2 = 0.0;
+    for (std::size_t i = 0; i < n; ++i) {
+      const float* p = &scene_->cloud_xyz_m[3 * i];
+      v.insert(v.end(), {p[0], p[1], p[2], 0.0F, 0.0F, 1.0F});
+      idx[i] = static_cast<std::uint32_t>(i);
+      r2 = std::max(r2, static_cast<double>(p[0] * p[0] + p[1] * p[1] + p[2] * p[2]));
+    }
+    gpu_->cloud.upload(v, idx, GL_POINTS);
+    const double r = std::sqrt(r2);
+    gpu_->cloud_extent = Extent{-r, r, -r, r, -r, r};
+  }
+  if (first) orientation_ = scene_->orientation;
+  if (!arcball_active_) orientation_ = scene_->orientation;
+  gui_level_ = scene_->level;
+  if (first && options_.mouse_drives_hip) hip_device_z_m_ = 0.0;
+}
+
+void Viewer::issue(const RegionCommand& command) {
+  if (callbacks_.on_region) callbacks_.on_region(command);
+}
+
+void Viewer::set_device_buttons(std::uint32_t buttons) {
+  const std::uint32_t pressed = buttons & ~buttons_;
+  buttons_ = buttons;
+  if ((pressed & 1U) != 0) issue({RegionCommandType::kFiner});
+  if ((pressed & 2U) != 0) issue({RegionCommandType::kCoarser});
+  if ((pressed & 4U) != 0) issue({RegionCommandType::kPan, 0, -0.25, 0.0});
+  if ((pressed & 8U) != 0) issue({RegionCommandType::kPan, 0, 0.25, 0.0});
+}
+
+bool Viewer::mouse_target(Eigen::Vector3d& device_m) const {
+  if (!have_mouse_target_) return false;
+  device_m = mouse_target_m_;
+  return true;
+}
+
+void Viewer::set_cursor_for_test(double px, double py) {
+  cursor_override_ = true;
+  cursor_x_ = px;
+  cursor_y_ = py;
+}
+
+PixelRect Viewer::main_view() const {
+  int w = 0, h = 0;
+  glfwGetFramebufferSize(window_, &w, &h);
+  if (!show_navigation_ || orienting_) return {0, 0, w, h};
+  const int nav = std::min(h, w * 3 / 10);
+  return {0, 0, w - nav, h};
+}
+
+PixelRect Viewer::navigation_view() const {
+  int w = 0, h = 0;
+  glfwGetFramebufferSize(window_, &w, &h);
+  if (!show_navigation_ || orienting_) return {w, 0, 0, 0};
+  const int nav = std::min(h, w * 3 / 10);
+  return {w - nav, 0, nav, nav};
+}
+
+// --- cameras -------------------------------------------------------------------------------
+
+namespace {
+struct MainCamera {
+  Eigen::Vector3d target, eye, up, right;
+  double distance = 1.0;
+};
+
+MainCamera main_camera(const Extent& e, double fov_deg, double yaw_deg, double tilt_deg, double zoom, double aspect) {
+  MainCamera c;
+  c.target = e.centre();
+  const double half = 0.5 * std::max(e.size(), 1e-6);
+  // Fit the window's half size (times a margin) in the narrower of the two fields of view.
+  const double tan_half = std::tan(0.5 * fov_deg * kDegToRad) * std::min(1.0, aspect);
+  c.distance = 1.15 * half / tan_half / zoom;
+  const Eigen::Matrix3d r = (Eigen::AngleAxisd(yaw_deg * kDegToRad, Eigen::Vector3d::UnitZ()) *
+                             Eigen::AngleAxisd(tilt_deg * kDegToRad, Eigen::Vector3d::UnitX()))
+                                .toRotationMatrix();
+  c.eye = c.target + r * Eigen::Vector3d(0, 0, c.distance);
+  c.up = r * Eigen::Vector3d::UnitY();
+  c.right = r * Eigen::Vector3d::UnitX();
+  return c;
+}
+}  // namespace
+
+Eigen::Matrix4d Viewer::main_view_matrix(double eye_offset) const {
+  const PixelRect v = main_view();
+  const double aspect = static_cast<double>(std::max(1, v.width)) / std::max(1, v.height);
+  const Extent& e = orienting_ ? gpu_->cloud_extent : gpu_->window_extent;
+  const MainCamera c = main_camera(e, options_.field_of_view_deg, orienting_ ? 0.0 : yaw_deg_,
+                                   orienting_ ? 0.0 : tilt_deg_, zoom_, aspect);
+  return look_at(c.eye + eye_offset * c.right, c.target + eye_offset * c.right, c.up);
+}
+
+Eigen::Matrix4d Viewer::main_projection(const PixelRect& view, double eye_offset) const {
+  const double aspect = static_cast<double>(std::max(1, view.width)) / std::max(1, view.height);
+  const Extent& e = orienting_ ? gpu_->cloud_extent : gpu_->window_extent;
+  const MainCamera c = main_camera(e, options_.field_of_view_deg, yaw_deg_, tilt_deg_, zoom_, aspect);
+  return off_axis_projection(options_.field_of_view_deg * kDegToRad, aspect, 0.05 * c.distance, 20.0 * c.distance,
+                             c.distance, eye_offset);
+}
+
+Eigen::Matrix4d Viewer::navigation_projection(const PixelRect& view) const {
+  const Extent& e = gpu_->overview_extent;
+  const double aspect = static_cast<double>(std::max(1, view.width)) / std::max(1, view.height);
+  const Eigen::Vector3d c = e.centre();
+  double half_w = 0.55 * std::max(e.x_max - e.x_min, 1e-6), half_h = 0.55 * std::max(e.y_max - e.y_min, 1e-6);
+  if (half_w / half_h < aspect) half_w = half_h * aspect; else half_h = half_w / aspect;
+  const double depth = std::max(1.0, 10.0 * std::abs(e.z_max) + 10.0 * std::abs(e.z_min) + 1.0);
+  return ortho(c.x() - half_w, c.x() + half_w, c.y() - half_h, c.y() + half_h, -depth, depth);
+}
+
+double Viewer::eye_offset_for(int eye) const {
+  if (eye == 0 || !gpu_) return 0.0;
+  const PixelRect v = main_view();
+  const double aspect = static_cast<double>(std::max(1, v.width)) / std::max(1, v.height);
+  const Extent& e = orienting_ ? gpu_->cloud_extent : gpu_->window_extent;
+  const MainCamera c = main_camera(e, options_.field_of_view_deg, yaw_deg_, tilt_deg_, zoom_, aspect);
+  return 0.5 * eye * eye_separation_ * c.distance;
+}
+
+Eigen::Vector2d Viewer::project(const Eigen::Vector3d& grid_m, int eye) const {
+  const PixelRect v = main_view();
+  const double s = eye_offset_for(eye);
+  const Eigen::Vector4d clip = main_projection(v, s) * main_view_matrix(s) * grid_m.homogeneous();
+  const Eigen::Vector2d ndc = clip.head<2>() / clip.w();
+  return {v.x + 0.5 * (ndc.x() + 1.0) * v.width, v.y + 0.5 * (1.0 - ndc.y()) * v.height};
+}
+
+// --- input ---------------------------------------------------------------------------------
+
+void Viewer::on_key(GLFWwindow* w, int key, int, int action, int mods) {
+  auto* self = static_cast<Viewer*>(glfwGetWindowUserPointer(w));
+  if (self == nullptr || action == GLFW_RELEASE) return;
+  if (ImGui::GetCurrentContext() != nullptr && ImGui::GetIO().WantCaptureKeyboard) return;
+  const bool repeat = action == GLFW_REPEAT;
+  switch (key) {
+    case GLFW_KEY_ESCAPE:
+      if (self->orienting_) self->orienting_ = false; else self->close_requested_ = true;
+      break;
+    case GLFW_KEY_Q: if (!repeat) self->close_requested_ = true; break;
+    case GLFW_KEY_H:
+    case GLFW_KEY_F1: if (!repeat) self->show_help_ = !self->show_help_; break;
+    case GLFW_KEY_G: if (!repeat) self->show_panel_ = !self->show_panel_; break;
+    case GLFW_KEY_N: if (!repeat) self->show_navigation_ = !self->show_navigation_; break;
+    case GLFW_KEY_S: if (!repeat) self->stereo_ = !self->stereo_; break;
+    case GLFW_KEY_LEFT_BRACKET: self->set_eye_separation(self->eye_separation_ / 1.2); break;
+    case GLFW_KEY_RIGHT_BRACKET: self->set_eye_separation(self->eye_separation_ * 1.2); break;
+    case GLFW_KEY_R: if (!repeat) self->set_camera(0.0, 0.0, 1.0); break;
+    case GLFW_KEY_O: if (!repeat) self->orienting_ = !self->orienting_; break;
+    case GLFW_KEY_ENTER:
+      if (!repeat && self->orienting_ && self->callbacks_.on_rescan) {
+        self->callbacks_.on_rescan(self->orientation_);
+        self->orienting_ = false;
+      }
+      break;
+    case GLFW_KEY_SPACE:
+      if (!repeat) {
+        const bool armed = self->snapshot_.device_state == static_cast<std::uint8_t>(haptics::DeviceState::kArmed);
+        self->shared_.commands.try_push(haptics::Command::of(armed ? haptics::CommandType::kDisarm : haptics::CommandType::kArm));
+      }
+      break;
+    case GLFW_KEY_PAGE_UP:
+    case GLFW_KEY_EQUAL:
+    case GLFW_KEY_KP_ADD: self->issue({RegionCommandType::kFiner}); break;
+    case GLFW_KEY_PAGE_DOWN:
+    case GLFW_KEY_MINUS:
+    case GLFW_KEY_KP_SUBTRACT: self->issue({RegionCommandType::kCoarser}); break;
+    case GLFW_KEY_LEFT: self->issue({RegionCommandType::kPan, 0, -0.25, 0.0}); break;
+    case GLFW_KEY_RIGHT: self->issue({RegionCommandType::kPan, 0, 0.25, 0.0}); break;
+    case GLFW_KEY_UP: self->issue({RegionCommandType::kPan, 0, 0.0, 0.25}); break;
+    case GLFW_KEY_DOWN: self->issue({RegionCommandType::kPan, 0, 0.0, -0.25}); break;
+    default:
+      if (key >= GLFW_KEY_0 && key <= GLFW_KEY_9 && !repeat && (mods & GLFW_MOD_CONTROL) == 0) {
+        self->issue({RegionCommandType::kSetLevel, key - GLFW_KEY_0});
+      }
+      break;
+  }
+}
+
+void Viewer::on_scroll(GLFWwindow* w, double, double dy) {
+  auto* self = static_cast<Viewer*>(glfwGetWindowUserPointer(w));
+  if (self == nullptr || ImGui::GetIO().WantCaptureMouse) return;
+  const bool ctrl = glfwGetKey(w, GLFW_KEY_LEFT_CONTROL) == GLFW_PRESS || glfwGetKey(w, GLFW_KEY_RIGHT_CONTROL) == GLFW_PRESS;
+  if (self->options_.mouse_drives_hip && !ctrl && !self->orienting_) {
+    // 1 mm of device travel per wheel notch, within the device box.
+    self->hip_device_z_m_ = std::clamp(self->hip_device_z_m_ + 0.001 * dy, -0.05, 0.05);
+  } else {
+    self->zoom_ = std::clamp(self->zoom_ * std::pow(1.1, dy), 0.1, 20.0);
+  }
+}
+
+void Viewer::on_mouse_button(GLFWwindow* w, int button, int action, int) {
+  auto* self = static_cast<Viewer*>(glfwGetWindowUserPointer(w));
+  if (self == nullptr) return;
+  if (action == GLFW_RELEASE) {
+    if (button == GLFW_MOUSE_BUTTON_RIGHT) self->orbiting_ = false;
+    if (button == GLFW_MOUSE_BUTTON_LEFT) self->arcball_active_ = false;
+    return;
+  }
+  if (ImGui::GetIO().WantCaptureMouse) return;
+  double x = 0, y = 0;
+  glfwGetCursorPos(w, &x, &y);
+  int ww = 1, wh = 1, fw = 1, fh = 1;
+  glfwGetWindowSize(w, &ww, &wh);
+  glfwGetFramebufferSize(w, &fw, &fh);
+  x *= static_cast<double>(fw) / std::max(1, ww);
+  y *= static_cast<double>(fh) / std::max(1, wh);
+  if (button == GLFW_MOUSE_BUTTON_RIGHT) {
+    self->orbiting_ = true;
+    self->orbit_from_x_ = x;
+    self->orbit_from_y_ = y;
+    return;
+  }
+  if (button != GLFW_MOUSE_BUTTON_LEFT) return;
+  const PixelRect nav = self->navigation_view();
+  if (!self->orienting_ && nav.contains(x, y) && self->gpu_ && self->scene_) {
+    // Click in the navigation view: centre the window there.
+    const Eigen::Matrix4d inv = self->navigation_projection(nav).inverse();
+    const double nx = 2.0 * (x - nav.x) / nav.width - 1.0, ny = 1.0 - 2.0 * (y - nav.y) / nav.height;
+    const Eigen::Vector4d p = inv * Eigen::Vector4d(nx, ny, 0.0, 1.0);
+    RegionCommand c{RegionCommandType::kCentreAt};
+    c.x_m = p.x() / p.w();
+    c.y_m = p.y() / p.w();
+    self->issue(c);
+    return;
+  }
+  if (self->orienting_) {
+    const PixelRect v = self->main_view();
+    self->arcball_active_ = true;
+    self->arcball_start_ = self->orientation_;
+    self->arcball_from_ = self->arcball_vector(x, y, v);
+  }
+}
+
+Eigen::Vector3d Viewer::arcball_vector(double px, double py, const PixelRect& v) const {
+  const double r = 0.5 * std::min(v.width, v.height);
+  Eigen::Vector3d p((px - (v.x + 0.5 * v.width)) / r, ((v.y + 0.5 * v.height) - py) / r, 0.0);
+  const double d2 = p.x() * p.x() + p.y() * p.y();
+  if (d2 <= 1.0) p.z() = std::sqrt(1.0 - d2); else p.normalize();
+  return p.normalized();
+}
+
+void Viewer::handle_input() {
+  double x = cursor_x_, y = cursor_y_;
+  if (!cursor_override_) {
+    glfwGetCursorPos(window_, &x, &y);
+    int ww = 1, wh = 1, fw = 1, fh = 1;
+    glfwGetWindowSize(window_, &ww, &wh);
+    glfwGetFramebufferSize(window_, &fw, &fh);
+    x *= static_cast<double>(fw) / std::max(1, ww);
+    y *= static_cast<double>(fh) / std::max(1, wh);
+    cursor_x_ = x;
+    cursor_y_ = y;
+  }
+  if (orbiting_) {
+    yaw_deg_ -= 0.3 * (x - orbit_from_x_);
+    tilt_deg_ = std::clamp(tilt_deg_ - 0.3 * (y - orbit_from_y_), 0.0, 85.0);
+    orbit_from_x_ = x;
+    orbit_from_y_ = y;
+  }
+  if (arcball_active_ && orienting_) {
+    const Eigen::Vector3d to = arcball_vector(x, y, main_view());
+    orientation_ = (Eigen::Quaterniond::FromTwoVectors(arcball_from_, to) * arcball_start_).normalized();
+  }
+  // Mouse device: the cursor ray meets the plane of the HIP (device z fixed by the wheel).
+  const PixelRect v = main_view();
+  if (options_.mouse_drives_hip && scene_ && !orienting_ && v.contains(x, y)) {
+    const haptics::WorkspaceMap& map = scene_->workspace;
+    const double plane_z = map.to_grid(Eigen::Vector3d(0, 0, hip_device_z_m_)).z();
+    const Eigen::Matrix4d inv = (main_projection(v, 0.0) * main_view_matrix(0.0)).inverse();
+    const double nx = 2.0 * (x - v.x) / v.width - 1.0, ny = 1.0 - 2.0 * (y - v.y) / v.height;
+    const Eigen::Vector4d a = inv * Eigen::Vector4d(nx, ny, -1.0, 1.0), b = inv * Eigen::Vector4d(nx, ny, 1.0, 1.0);
+    const Eigen::Vector3d p0 = a.head<3>() / a.w(), p1 = b.head<3>() / b.w();
+    const double dz = p1.z() - p0.z();
+    if (std::abs(dz) > 1e-12) {
+      const double t = (plane_z - p0.z()) / dz;
+      Eigen::Vector3d device = map.to_device(p0 + t * (p1 - p0));
+      device.z() = hip_device_z_m_;
+      if (device.allFinite()) {
+        const double lim = 0.06;
+        device.x() = std::clamp(device.x(), -lim, lim);
+        device.y() = std::clamp(device.y(), -lim, lim);
+        mouse_target_m_ = device;
+        have_mouse_target_ = true;
+      }
+    }
+  }
+}
+
+// --- drawing -------------------------------------------------------------------------------
+
+namespace {
+void viewport(const PixelRect& v, int fb_height) {
+  glViewport(v.x, fb_height - (v.y + v.height), v.width, v.height);
+  glScissor(v.x, fb_height - (v.y + v.height), v.width, v.height);
+}
+}  // namespace
+
+void Viewer::draw_main(const PixelRect& view) {
+  const gl::Program& p = gpu_->program;
+  const Extent& e = gpu_->window_extent;
+  const double size = std::max(e.size(), 1e-6);
+  const int eyes = stereo_ ? 2 : 1;
+  const int fb_h = gpu_->target.height();
+  for (int k = 0; k < eyes; ++k) {
+    const int eye = stereo_ ? (k == 0 ? -1 : 1) : 0;
+    const double s = eye_offset_for(eye);
+    if (stereo_) {
+      const auto left = static_cast<GLboolean>(eye < 0 ? GL_TRUE : GL_FALSE);
+      const auto right = static_cast<GLboolean>(eye < 0 ? GL_FALSE : GL_TRUE);
+      glColorMask(left, right, right, GL_TRUE);
+      glClear(GL_DEPTH_BUFFER_BIT);
+    }
+    viewport(view, fb_h);
+    const Eigen::Matrix4d vp = main_projection(view, s) * main_view_matrix(s);
+    const Eigen::Vector3d eye_pos = main_view_matrix(s).inverse().block<3, 1>(0, 3);
+    p.use();
+    p.set("u_eye", Eigen::Vector3f(eye_pos.cast<float>()));
+    p.set("u_light_dir", Eigen::Vector3f(Eigen::Vector3f(-0.45F, 0.55F, 0.70F).normalized()));
+    p.set("u_grey", stereo_ ? 1 : 0);
+    p.set("u_height_colour", 0);
+    const auto draw = [&](const gl::Mesh& mesh, const Eigen::Matrix4d& model, const Eigen::Vector3f& colour, bool lit) {
+      p.set("u_mvp", to_f(vp * model));
+      p.set("u_model", to_f(model));
+      const Eigen::Matrix3d nm = model.block<3, 3>(0, 0).inverse().transpose();
+      p.set("u_normal_matrix", Eigen::Matrix3f(nm.cast<float>()));
+      p.set("u_colour", colour);
+      p.set("u_lit", lit ? 1 : 0);
+      mesh.draw();
+    };
+    if (orienting_) {
+      if (gpu_->has_cloud) {
+        Eigen::Matrix4d model = Eigen::Matrix4d::Identity();
+        model.block<3, 3>(0, 0) = orientation_.toRotationMatrix();
+        p.set("u_height_colour", 1);
+        const double r = gpu_->cloud_extent.x_max;
+        p.set("u_height_range", Eigen::Vector2f(static_cast<float>(-r), static_cast<float>(r)));
+        draw(gpu_->cloud, model, kStone, false);
+        p.set("u_height_colour", 0);
+      }
+      continue;
+    }
+    draw(gpu_->window_mesh, Eigen::Matrix4d::Identity(), kStone, true);
+    // Proxy, HIP and force (snapshot, grid frame).
+    const Eigen::Vector3d proxy = snapshot_.proxy_m.eigen(), hip = snapshot_.hip_m.eigen();
+    const Eigen::Vector3d force = snapshot_.force_n.eigen();
+    if (snapshot_.tick > 0 && proxy.allFinite() && hip.allFinite()) {
+      const double ball = 0.012 * size;
+      Eigen::Affine3d m = Eigen::Translation3d(proxy) * Eigen::Scaling(ball);
+      draw(gpu_->sphere, m.matrix(), kProxyBlue, true);
+      m = Eigen::Translation3d(hip) * Eigen::Scaling(0.45 * ball);
+      draw(gpu_->sphere, m.matrix(), kHipColour, true);
+      const double f = force.norm();
+      if (f > 1e-3 && std::isfinite(f)) {
+        const double length = 0.25 * size * std::min(1.0, f / std::max(options_.max_force_n, 1e-6));
+        const Eigen::Quaterniond q = Eigen::Quaterniond::FromTwoVectors(Eigen::Vector3d::UnitZ(), force / f);
+        const Eigen::Affine3d a = Eigen::Translation3d(proxy) * q * Eigen::Scaling(length, length, length);
+        draw(gpu_->arrow, a.matrix(), kForceColour, true);
+      }
+    }
+  }
+  glColorMask(GL_TRUE, GL_TRUE, GL_TRUE, GL_TRUE);
+}
+
+void Viewer::draw_navigation(const PixelRect& view) {
+  if (view.width <= 0) return;
+  const int fb_h = gpu_->target.height();
+  viewport(view, fb_h);
+  glClearColor(0.05F, 0.05F, 0.07F, 1.0F);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+  const gl::Program& p = gpu_->program;
+  p.use();
+  const Eigen::Matrix4d proj = navigation_projection(view);
+  p.set("u_mvp", to_f(proj));
+  p.set("u_model", Eigen::Matrix4f(Eigen::Matrix4f::Identity()));
+  p.set("u_normal_matrix", Eigen::Matrix3f(Eigen::Matrix3f::Identity()));
+  p.set("u_eye", Eigen::Vector3f(0, 0, 10));
+  p.set("u_light_dir", Eigen::Vector3f(Eigen::Vector3f(-0.45F, 0.55F, 0.70F).normalized()));
+  p.set("u_grey", 0);
+  p.set("u_lit", 1);
+  p.set("u_height_colour", 1);
+  const Extent& oe = gpu_->overview_extent;
+  p.set("u_height_range", Eigen::Vector2f(static_cast<float>(oe.z_min), static_cast<float>(oe.z_max)));
+  p.set("u_colour", kStone);
+  gpu_->overview_mesh.draw();
+  p.set("u_height_colour", 0);
+  // The window outline, drawn on top.
+  glDisable(GL_DEPTH_TEST);
+  const Extent& we = gpu_->window_extent;
+  const auto z = static_cast<float>(oe.z_max);
+  const std::vector<float> v = {
+      static_cast<float>(we.x_min), static_cast<float>(we.y_min), z, 0, 0, 1,
+      static_cast<float>(we.x_max), static_cast<float>(we.y_min), z, 0, 0, 1,
+      static_cast<float>(we.x_max), static_cast<float>(we.y_max), z, 0, 0, 1,
+      static_cast<float>(we.x_min), static_cast<float>(we.y_max), z, 0, 0, 1};
+  gpu_->outline.upload(v, {0, 1, 1, 2, 2, 3, 3, 0}, GL_LINES, true);
+  p.set("u_lit", 0);
+  p.set("u_colour", kOutline);
+  gpu_->outline.draw();
+  if (snapshot_.tick > 0 && snapshot_.proxy_m.eigen().allFinite()) {
+    const double r = 0.015 * std::max(oe.size(), 1e-6);
+    const Eigen::Affine3d m = Eigen::Translation3d(snapshot_.proxy_m.eigen()) * Eigen::Scaling(r);
+    p.set("u_mvp", to_f(proj * m.matrix()));
+    p.set("u_colour", kProxyBlue);
+    gpu_->sphere.draw();
+  }
+  glEnable(GL_DEPTH_TEST);
+}
+
+void Viewer::update_plots() {
+  const double now = glfwGetTime();
+  const std::uint64_t ticks = shared_.counters.ticks.load(std::memory_order_relaxed);
+  const double dt = now - last_plot_time_s_;
+  float rate = 0.0F;
+  if (last_plot_time_s_ > 0.0 && dt > 0.0) rate = static_cast<float>(static_cast<double>(ticks - last_ticks_) / dt);
+  last_ticks_ = ticks;
+  last_plot_time_s_ = now;
+  force_plot_[plot_head_] = static_cast<float>(snapshot_.force_n.eigen().norm());
+  rate_plot_[plot_head_] = rate;
+  plot_head_ = (plot_head_ + 1) % kPlotLength;
+}
+
+void Viewer::send_servo_settings() {
+  using haptics::Command;
+  using haptics::CommandType;
+  shared_.commands.try_push(Command::of(CommandType::kSetStiffness, static_cast<double>(stiffness_)));
+  shared_.commands.try_push(Command::of(CommandType::kSetRho, static_cast<double>(rho_)));
+  shared_.commands.try_push(Command::of(CommandType::kSetFrictionEnabled, friction_enabled_ ? 1.0 : 0.0));
+}
+
+void Viewer::draw_gui() {
+  ImGui_ImplOpenGL3_NewFrame();
+  ImGui_ImplGlfw_NewFrame();
+  ImGui::NewFrame();
+  if (show_panel_) {
+    ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_FirstUseEver);
+    ImGui::SetNextWindowSize(ImVec2(330, 0), ImGuiCond_FirstUseEver);
+    ImGui::Begin("hapticloud");
+    if (scene_) ImGui::TextWrapped("%s", scene_->description.c_str());
+    if (callbacks_.status) {
+      const std::string s = callbacks_.status();
+      if (!s.empty()) ImGui::TextWrapped("%s", s.c_str());
+    }
+    const auto device_state = static_cast<haptics::DeviceState>(snapshot_.device_state);
+    ImGui::Text("device %s, %s, |F| %.2f N", haptics::to_string(device_state), snapshot_.in_contact ? "contact" : "free",
+                snapshot_.force_n.eigen().norm());
+    if (ImGui::Button(device_state == haptics::DeviceState::kArmed ? "Disarm (Space)" : "Arm (Space)")) {
+      shared_.commands.try_push(haptics::Command::of(
+          device_state == haptics::DeviceState::kArmed ? haptics::CommandType::kDisarm : haptics::CommandType::kArm));
+    }
+    if (device_state == haptics::DeviceState::kFault) {
+      ImGui::SameLine();
+      if (ImGui::Button("Reset fault")) shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kResetFault));
+    }
+    if (ImGui::CollapsingHeader("Orientation (before the depth scan)", ImGuiTreeNodeFlags_DefaultOpen)) {
+      ImGui::BeginDisabled(!callbacks_.on_rescan);
+      ImGui::Checkbox("Arcball on the raw cloud (O)", &orienting_);
+      ImGui::InputFloat3("angles xyz [deg]", typed_angles_deg_, "%.1f");
+      if (ImGui::Button("Use angles")) {
+        orientation_ = Eigen::AngleAxisd(typed_angles_deg_[0] * kDegToRad, Eigen::Vector3d::UnitX()) *
+                       Eigen::AngleAxisd(typed_angles_deg_[1] * kDegToRad, Eigen::Vector3d::UnitY()) *
+                       Eigen::AngleAxisd(typed_angles_deg_[2] * kDegToRad, Eigen::Vector3d::UnitZ());
+      }
+      ImGui::SameLine();
+      if (ImGui::Button("Re-scan (Enter)")) {
+        callbacks_.on_rescan(orientation_);
+        orienting_ = false;
+      }
+      ImGui::EndDisabled();
+      const Eigen::Vector3d a = orientation_.toRotationMatrix().eulerAngles(0, 1, 2) / kDegToRad;
+      ImGui::Text("current: x %.1f, y %.1f, z %.1f deg", a.x(), a.y(), a.z());
+    }
+    if (ImGui::CollapsingHeader("Level and window", ImGuiTreeNodeFlags_DefaultOpen)) {
+      const int levels = scene_ ? scene_->level_count : 1;
+      ImGui::BeginDisabled(!callbacks_.on_region);
+      if (ImGui::SliderInt("level (0 finest)", &gui_level_, 0, std::max(0, levels - 1))) {
+        issue({RegionCommandType::kSetLevel, gui_level_});
+      }
+      if (ImGui::Button("finer (+)")) issue({RegionCommandType::kFiner});
+      ImGui::SameLine();
+      if (ImGui::Button("coarser (-)")) issue({RegionCommandType::kCoarser});
+      if (ImGui::ArrowButton("left", ImGuiDir_Left)) issue({RegionCommandType::kPan, 0, -0.25, 0.0});
+      ImGui::SameLine();
+      if (ImGui::ArrowButton("up", ImGuiDir_Up)) issue({RegionCommandType::kPan, 0, 0.0, 0.25});
+      ImGui::SameLine();
+      if (ImGui::ArrowButton("down", ImGuiDir_Down)) issue({RegionCommandType::kPan, 0, 0.0, -0.25});
+      ImGui::SameLine();
+      if (ImGui::ArrowButton("right", ImGuiDir_Right)) issue({RegionCommandType::kPan, 0, 0.25, 0.0});
+      ImGui::EndDisabled();
+      if (scene_) {
+        const Extent& e = gpu_->window_extent;
+        ImGui::Text("window %.1f x %.1f mm at (%.1f, %.1f) mm", 1e3 * (e.x_max - e.x_min), 1e3 * (e.y_max - e.y_min),
+                    1e3 * e.centre().x(), 1e3 * e.centre().y());
+      }
+    }
+    if (ImGui::CollapsingHeader("Haptics", ImGuiTreeNodeFlags_DefaultOpen)) {
+      bool servo = false;
+      servo |= ImGui::SliderFloat("stiffness [N/m]", &stiffness_, 0.0F, static_cast<float>(options_.max_stiffness_n_per_m));
+      servo |= ImGui::SliderFloat("rho", &rho_, 0.01F, 1.0F);
+      servo |= ImGui::Checkbox("friction", &friction_enabled_);
+      if (servo) send_servo_settings();
+      ImGui::BeginDisabled(!callbacks_.on_surface_settings);
+      bool surface = false;
+      surface |= ImGui::SliderFloat("mu_s", &mu_s_, 0.0F, 1.5F);
+      const char* models[] = {"paper", "curvature"};
+      surface |= ImGui::Combo("friction model", &friction_model_, models, 2);
+      surface |= ImGui::Checkbox("texture", &texture_enabled_);
+      if (surface && callbacks_.on_surface_settings) {
+        SurfaceSettings s;
+        s.texture_enabled = texture_enabled_;
+        s.mu_s = static_cast<double>(mu_s_);
+        s.friction_model = models[friction_model_];
+        callbacks_.on_surface_settings(s);
+      }
+      ImGui::EndDisabled();
+    }
+    if (ImGui::CollapsingHeader("View and sound", ImGuiTreeNodeFlags_DefaultOpen)) {
+      ImGui::Checkbox("anaglyph stereo (S)", &stereo_);
+      auto sep = static_cast<float>(eye_separation_);
+      if (ImGui::SliderFloat("eye separation", &sep, 0.001F, 0.2F, "%.3f")) set_eye_separation(static_cast<double>(sep));
+      ImGui::BeginDisabled(!callbacks_.on_audio_volume);
+      if (ImGui::SliderFloat("audio volume", &volume_, 0.0F, 1.0F) && callbacks_.on_audio_volume) {
+        callbacks_.on_audio_volume(static_cast<double>(volume_));
+      }
+      ImGui::EndDisabled();
+    }
+    if (ImGui::CollapsingHeader("Plots", ImGuiTreeNodeFlags_DefaultOpen)) {
+      ImGui::PlotLines("|F| [N]", force_plot_, kPlotLength, plot_head_, nullptr, 0.0F,
+                       static_cast<float>(options_.max_force_n), ImVec2(0, 50));
+      ImGui::PlotLines("ticks/s", rate_plot_, kPlotLength, plot_head_, nullptr, 0.0F, 1200.0F, ImVec2(0, 50));
+      const auto& c = shared_.counters;
+      ImGui::Text("ticks %llu, overruns %llu", static_cast<unsigned long long>(c.ticks.load(std::memory_order_relaxed)),
+                  static_cast<unsigned long long>(c.overruns.load(std::memory_order_relaxed)));
+      ImGui::Text("worst tick %.1f us, worst lateness %.1f us",
+                  1e-3 * static_cast<double>(c.worst_compute_ns.load(std::memory_order_relaxed)),
+                  1e-3 * static_cast<double>(c.worst_lateness_ns.load(std::memory_order_relaxed)));
+      ImGui::Text("frame %.1f ms (mean %.1f ms)", 1e3 * frame_stats_.last_frame_s, 1e3 * frame_stats_.mean_frame_s);
+    }
+    ImGui::End();
+  }
+  if (show_help_) {
+    const ImGuiViewport* vp = ImGui::GetMainViewport();
+    ImGui::SetNextWindowPos(ImVec2(vp->Size.x * 0.5F, vp->Size.y * 0.5F), ImGuiCond_Always, ImVec2(0.5F, 0.5F));
+    ImGui::SetNextWindowBgAlpha(0.85F);
+    ImGui::Begin("Controls", &show_help_, ImGuiWindowFlags_AlwaysAutoResize | ImGuiWindowFlags_NoCollapse);
+    for (const std::string& line : controls_help()) ImGui::TextUnformatted(line.c_str());
+    ImGui::End();
+  }
+  ImGui::Render();
+  ImGui_ImplOpenGL3_RenderDrawData(ImGui::GetDrawData());
+}
+
+void Viewer::render_frame() {
+  const double start = glfwGetTime();
+  glfwPollEvents();
+  if (glfwWindowShouldClose(window_) != 0) close_requested_ = true;
+  handle_input();
+  if (callbacks_.on_frame) callbacks_.on_frame();
+  take_pending_scene();
+  haptics::Snapshot s;
+  shared_.snapshots.read(s);
+  if (s.tick > 0) snapshot_ = s;
+  update_plots();
+
+  int fw = 1, fh = 1;
+  glfwGetFramebufferSize(window_, &fw, &fh);
+  gpu_->target.ensure(std::max(1, fw), std::max(1, fh));
+  glBindFramebuffer(GL_FRAMEBUFFER, gpu_->target.id());
+  glDisable(GL_SCISSOR_TEST);
+  glViewport(0, 0, fw, fh);
+  glClearColor(kBackground.x(), kBackground.y(), kBackground.z(), 1.0F);
+  glClear(GL_COLOR_BUFFER_BIT | GL_DEPTH_BUFFER_BIT);
+  glEnable(GL_DEPTH_TEST);
+  glEnable(GL_PROGRAM_POINT_SIZE);
+  if (scene_) {
+    glEnable(GL_SCISSOR_TEST);
+    draw_main(main_view());
+    if (!orienting_) draw_navigation(navigation_view());
+    glDisable(GL_SCISSOR_TEST);
+  }
+  glViewport(0, 0, fw, fh);
+  draw_gui();
+  last_frame_start_s_ = start;
+}
+
+bool Viewer::frame() {
+  render_frame();
+  present();
+  return !close_requested_;
+}
+
+Image Viewer::capture() {
+  render_frame();
+  Image img;
+  img.width = gpu_->target.width();
+  img.height = gpu_->target.height();
+  img.rgb.resize(static_cast<std::size_t>(img.width) * static_cast<std::size_t>(img.height) * 3);
+  glBindFramebuffer(GL_READ_FRAMEBUFFER, gpu_->target.id());
+  glPixelStorei(GL_PACK_ALIGNMENT, 1);
+  std::vector<std::uint8_t> flipped(img.rgb.size());
+  glReadPixels(0, 0, img.width, img.height, GL_RGB, GL_UNSIGNED_BYTE, flipped.data());
+  const std::size_t row = static_cast<std::size_t>(img.width) * 3;
+  for (int y = 0; y < img.height; ++y) {
+    std::copy_n(flipped.data() + static_cast<std::size_t>(img.height - 1 - y) * row, row,
+                img.rgb.data() + static_cast<std::size_t>(y) * row);
+  }
+  present();
+  return img;
+}
+
+void Viewer::present() {
+  const int w = gpu_->target.width(), h = gpu_->target.height();
+  glBindFramebuffer(GL_READ_FRAMEBUFFER, gpu_->target.id());
+  glBindFramebuffer(GL_DRAW_FRAMEBUFFER, 0);
+  glBlitFramebuffer(0, 0, w, h, 0, 0, w, h, GL_COLOR_BUFFER_BIT, GL_NEAREST);
+  glBindFramebuffer(GL_FRAMEBUFFER, 0);
+  glfwSwapBuffers(window_);
+  const double t = glfwGetTime() - last_frame_start_s_;
+  ++frame_stats_.frames;
+  frame_stats_.last_frame_s = t;
+  frame_stats_.max_frame_s = std::max(frame_stats_.max_frame_s, t);
+  frame_stats_.mean_frame_s += (t - frame_stats_.mean_frame_s) / static_cast<double>(frame_stats_.frames);
+  // Without vsync (or where the server ignores it), cap the rate so the UI thread leaves the
+  // CPU to the servo loop.
+  if (options_.max_fps > 0.0) {
+    const double next = last_frame_start_s_ + 1.0 / options_.max_fps;
+    const double wait = next - glfwGetTime();
+    if (wait > 0.0) std::this_thread::sleep_for(std::chrono::duration<double>(wait));
+  }
+}
+
+}  // namespace hc::viewer
