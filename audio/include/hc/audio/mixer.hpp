@@ -103,7 +103,8 @@ class Mixer {
     bool active = false;
     double level = 0.0;         // current loudness (smoothed)
     double level_target = 0.0;
-    double grain_rate_hz = 0.0; // grains per second (target)
+    double grain_rate_hz = 0.0; // grains per second
+    std::uint64_t last_event_frame = 0;  // frame of the last slide event (silence after 30 ms)
     Material material;
     double b0 = 0.0, a1 = 0.0, a2 = 0.0;  // resonator coefficients
     double y1 = 0.0, y2 = 0.0;
@@ -132,6 +133,8 @@ class Mixer {
   double release_coeff_ = 0.0;  // limiter recovery per sample
   double smooth_coeff_ = 0.0;   // gain smoothing per sample (~2 ms)
   double fade_step_ = 0.0;      // per-sample gain step of a 10 ms release fade
+  double slide_coeff_ = 0.0;    // sliding loudness smoothing per sample (~10 ms)
+  std::uint64_t slide_timeout_frames_ = 0;
   std::uint64_t frames_ = 0;
   MixerStats stats_{};
 };
