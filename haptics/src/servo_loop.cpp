@@ -100,6 +100,12 @@ ServoLoop::ServoLoop(HapticDevice& device, SharedState& shared, const Clock& clo
   if (config_.fifo_priority < 1 || config_.fifo_priority > 99) fail("fifo_priority", config_.fifo_priority, "[1, 99]");
   if (config_.slide_event_every_ticks < 1) fail("slide_event_every_ticks", config_.slide_event_every_ticks, ">= 1");
   if (config_.max_commands_per_tick < 1) fail("max_commands_per_tick", config_.max_commands_per_tick, ">= 1");
+  if (!(std::isfinite(config_.switch_max_force_step_n) && config_.switch_max_force_step_n > 0.0)) {
+    fail("switch_max_force_step_n", config_.switch_max_force_step_n, "a finite force > 0 N");
+  }
+  if (!(std::isfinite(config_.switch_ramp_s) && config_.switch_ramp_s >= 0.0)) {
+    fail("switch_ramp_s", config_.switch_ramp_s, "a finite time >= 0 s");
+  }
   if (!config_.workspace.valid()) fail("workspace.scale", config_.workspace.scale, "finite > 0 with a finite origin and rotation");
   validate_proxy_params(config_.proxy);
   const DeviceInfo& info = device_.info();
@@ -191,7 +197,26 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
     if (!shared_.commands.try_pop(c)) break;
     apply(c);
   }
-  const HapticSurface* surface = shared_.adopt_surface();
+  const SharedState::Adoption adoption = shared_.adopt();
+  const HapticSurface* surface = adoption.surface;
+  if (adoption.changed) {
+    if (adoption.map != nullptr) {
+      // Surface and map switch together. The proxy keeps its DEVICE position (so the spring to
+      // the hand, and the force, carry over); in grid terms it moves old map → device → new map.
+      const WorkspaceMap old = config_.workspace;
+      const WorkspaceMap& next = *adoption.map;
+      if (state_.initialized) {
+        state_.proxy_m = next.to_grid(old.to_device(state_.proxy_m));
+        state_.hip_m = next.to_grid(old.to_device(state_.hip_m));
+        slide_from_m_ = next.to_grid(old.to_device(slide_from_m_));
+      }
+      config_.workspace = next;
+      update_grid_params();
+    }
+    // Blend from the force sent last; ended at once below if the new force is close to it.
+    blend_from_n_ = last_device_force_n_;
+    blend_ = 0.0;
+  }
 
   DeviceReading reading;
   const DeviceStatus rs = device_.read(reading);
@@ -224,8 +249,29 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
     state_.gate_open = false;
     state_.ramp = 0.0;
   }
-  const Eigen::Vector3d device_force = config_.workspace.force_to_device(state_.force_n);
+  Eigen::Vector3d device_force = config_.workspace.force_to_device(state_.force_n);
+  if (blend_ < 1.0) {
+    // After a surface switch: move from the last force sent towards the new one by at most half
+    // the configured step per tick (plus the new force's own change), over switch_ramp_s or more.
+    const Eigen::Vector3d diff = device_force - blend_from_n_;
+    const double gap = diff.norm();
+    if (adoption.changed && !(gap > config_.switch_max_force_step_n)) {
+      blend_ = 1.0;  // the switch causes no step above the limit: nothing to blend
+    } else {
+      const double step_s = dt > 0.0 ? dt : static_cast<double>(period_ns_) * 1e-9;
+      double inc = config_.switch_ramp_s > 0.0 ? step_s / config_.switch_ramp_s : 1.0;
+      if (gap > 0.0) inc = std::min(inc, 0.5 * config_.switch_max_force_step_n / gap);
+      blend_ = std::min(1.0, blend_ + inc);
+      device_force = blend_from_n_ + blend_ * diff;
+      if (!device_force.allFinite()) device_force.setZero();
+      // Back to grid axes (device_force = R_zᵀ·F_grid) for the snapshot and the trace.
+      const double c = std::cos(config_.workspace.rotation_rad), sn = std::sin(config_.workspace.rotation_rad);
+      state_.force_n = Eigen::Vector3d(c * device_force.x() - sn * device_force.y(),
+                                       sn * device_force.x() + c * device_force.y(), device_force.z());
+    }
+  }
   const DeviceStatus ws = device_.write(device_force);
+  last_device_force_n_ = device_.last_force_n();
   if (ws == DeviceStatus::kIoError) {
     counters.device_errors.fetch_add(1, std::memory_order_relaxed);
     device_.fault();
@@ -263,6 +309,7 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
   // Snapshot.
   Snapshot snap;
   snap.tick = tick_count_;
+  snap.surface_tag = adoption.tag;
   snap.t_s = t_s;
   snap.hip_m = Vec3::of(state_.hip_m);
   snap.proxy_m = Vec3::of(state_.proxy_m);

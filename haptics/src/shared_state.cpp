@@ -1,40 +1,87 @@
 #include "hc/haptics/shared_state.hpp"
 
+#include "hc/common/error.hpp"
+
+#include <sstream>
+
 namespace hc::haptics {
 
-SharedState::SharedState(std::unique_ptr<const HapticSurface> initial) : current_(initial.release()) {}
+SharedState::SharedState(std::unique_ptr<const HapticSurface> initial) {
+  if (initial) current_ = new Published{initial.release(), WorkspaceMap{}, false, 0};
+}
 
 SharedState::~SharedState() {
   collect_retired();
-  delete pending_.exchange(nullptr, std::memory_order_acq_rel);
-  delete current_;
+  destroy(pending_.exchange(nullptr, std::memory_order_acq_rel));
+  destroy(current_);
+}
+
+void SharedState::destroy(const Published* p) noexcept {
+  if (p == nullptr) return;
+  delete p->surface;
+  delete p;
+}
+
+void SharedState::publish(Published* p) {
+  // Never seen by the servo: the exchange gave the previous pending publication back to us alone.
+  destroy(pending_.exchange(p, std::memory_order_acq_rel));
 }
 
 void SharedState::publish_surface(std::unique_ptr<const HapticSurface> surface) {
-  const HapticSurface* previous = pending_.exchange(surface.release(), std::memory_order_acq_rel);
-  delete previous;  // never seen by the servo: the exchange gave it back to us alone
+  auto p = std::make_unique<Published>();
+  p->surface = surface.release();
+  publish(p.release());
+}
+
+void SharedState::publish_surface(std::unique_ptr<const HapticSurface> surface, const WorkspaceMap& map,
+                                  std::uint64_t tag) {
+  if (!map.valid()) {
+    std::ostringstream s;
+    s << "shared state: publish_surface with an invalid workspace map (scale " << map.scale << ", origin "
+      << map.origin_m.transpose() << ", rotation " << map.rotation_rad
+      << "); expected finite values and scale > 0";
+    throw ConfigError(s.str());
+  }
+  auto p = std::make_unique<Published>();
+  p->map = map;
+  p->has_map = true;
+  p->tag = tag;
+  p->surface = surface.release();
+  publish(p.release());
 }
 
 std::size_t SharedState::collect_retired() noexcept {
   std::size_t n = 0;
-  const HapticSurface* s = nullptr;
-  while (retired_.try_pop(s)) {
-    delete s;
+  Published* p = nullptr;
+  while (retired_.try_pop(p)) {
+    destroy(p);
     ++n;
   }
   return n;
 }
 
-const HapticSurface* SharedState::adopt_surface() noexcept {
-  if (pending_.load(std::memory_order_relaxed) == nullptr) return current_;
-  // Only the servo pushes to the retire ring, so room seen here is still there after the swap.
-  if (retired_.size_approx() >= kRetireCapacity) return current_;
-  const HapticSurface* next = pending_.exchange(nullptr, std::memory_order_acq_rel);
-  if (next == nullptr) return current_;
-  if (current_ != nullptr) (void)retired_.try_push(current_);
-  current_ = next;
-  counters.surfaces_adopted.fetch_add(1, std::memory_order_relaxed);
-  return current_;
+SharedState::Adoption SharedState::adopt() noexcept {
+  Adoption a;
+  if (pending_.load(std::memory_order_relaxed) != nullptr &&
+      // Only the servo pushes to the retire ring, so room seen here is still there after the swap.
+      retired_.size_approx() < kRetireCapacity) {
+    Published* next = pending_.exchange(nullptr, std::memory_order_acq_rel);
+    if (next != nullptr) {
+      if (current_ != nullptr) (void)retired_.try_push(current_);
+      current_ = next;
+      a.changed = true;
+      a.map = next->has_map ? &next->map : nullptr;
+      counters.surfaces_adopted.fetch_add(1, std::memory_order_relaxed);
+      counters.surface_tag.store(next->tag, std::memory_order_release);
+    }
+  }
+  if (current_ != nullptr) {
+    a.surface = current_->surface;
+    a.tag = current_->tag;
+  }
+  return a;
 }
+
+const HapticSurface* SharedState::adopt_surface() noexcept { return adopt().surface; }
 
 }  // namespace hc::haptics

@@ -47,6 +47,13 @@ struct ServoConfig {
   WorkspaceMap workspace;                ///< device ↔ grid map
   int slide_event_every_ticks = 10;      ///< a slide event at most every N ticks of sliding, ≥ 1
   int max_commands_per_tick = 16;        ///< commands applied per tick, ≥ 1
+  /// Surface switch (a surface adopted from the mailbox, e.g. a new level or window): the force
+  /// sent to the device changes by at most this much per tick because of the switch [N], > 0.
+  /// When the new surface's force differs more from the last one sent, the loop blends from the
+  /// old force to the new one (the force "ramps in"), each tick moving by at most half this
+  /// step and completing within switch_ramp_s or longer.
+  double switch_max_force_step_n = 0.5;
+  double switch_ramp_s = 0.05;           ///< shortest blend after a switch [s], ≥ 0
 };
 
 /// What start() obtained.
@@ -165,6 +172,11 @@ class ServoLoop {
   std::uint64_t tick_count_ = 0;
   std::int64_t prev_tick_ns_ = 0;
   bool have_prev_tick_ = false;
+  // Surface switch: blend of the device force from blend_from_n_ (the last force sent before
+  // the switch, device axes) to the newly rendered force; blend_ in [0, 1], active while < 1.
+  Eigen::Vector3d last_device_force_n_ = Eigen::Vector3d::Zero();
+  Eigen::Vector3d blend_from_n_ = Eigen::Vector3d::Zero();
+  double blend_ = 1.0;
   // Slide events: proxy position and time at the last one.
   Eigen::Vector3d slide_from_m_ = Eigen::Vector3d::Zero();
   double slide_from_s_ = 0.0;

@@ -1,0 +1,156 @@
+#pragma once
+/// @file lod.hpp
+/// Levels of detail (paper Sec. 4.1, "adaptive scaling"): a pyramid of Monge grids from the
+/// finest depth grid (level 0) down to a configured minimum, each level half the resolution of
+/// the one before, smoothed before it is decimated (anti-aliasing) with no-data handled, and
+/// with its own texture, envelope, μ_d and μ_s computed for the level (compute_surface_layers).
+/// Levels and haptic windows are built on demand and kept in an LRU cache under a memory
+/// budget (docs/lod.md). No OpenCV, PCL or yaml-cpp in this header.
+
+#include "hc/common/height_field.hpp"
+#include "hc/pipeline/surface_layers.hpp"
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+struct Scene;
+
+/// Options of the pyramid, the cache and the haptic window (config keys `lod.*`, docs/config.md).
+struct LodOptions {
+  int min_cells = 64;                ///< lod.min_cells: a level is made only while its longer
+                                     ///< side stays ≥ this [samples], [2, 65536]
+  double valid_fraction = 0.5;       ///< lod.valid_fraction: a coarse sample is valid only if the
+                                     ///< smoothing weight of its valid fine samples is at least this
+                                     ///< fraction of the weight of its fine samples inside the grid, (0, 1]
+  double antialias_sigma_cells = 1.0;///< lod.antialias_sigma_cells: Gaussian σ of the smoothing
+                                     ///< before each 2× decimation [fine samples], [0.5, 4]
+  double memory_budget_mb = 512.0;   ///< lod.memory_budget_mb: bound on the cache of built levels
+                                     ///< and windows [MiB] (the finest level is held outside it), (0, 1e6]
+  int window_cells = 200;            ///< lod.window_cells: haptic window side [samples], [2, 4096]
+  bool report = true;                ///< lod.report: levels table in the run report (off for huge N)
+  bool report_cross_check = true;    ///< lod.report_cross_check: cross-check every level against the points
+};
+
+/// One level: its depth grid and the layers computed for it. All fields share one geometry.
+/// Level L has cell size 2^L·(level 0's) and the same origin (x0_m, y0_m): sample (r, c) of
+/// level L sits on sample (2^L·r, 2^L·c) of level 0, so every level lives in the same grid frame.
+struct LodLevel {
+  int level = 0;
+  HeightField depth_m;      ///< smoothed, decimated depth [m], NaN = no data
+  HeightField envelope_m;   ///< f_b of this level [m] (empty when !has_layers)
+  HeightField texture_m;    ///< h = f − f_b of this level [m]
+  HeightField mu_d;         ///< μ_d [-] of this level (curvature with this level's cell size)
+  HeightField mu_s;         ///< μ_s [-]
+  bool has_layers = false;  ///< envelope, texture, μ_d, μ_s present
+  double depth_seconds = 0.0;   ///< time to smooth and decimate from the level above [s] (0 for level 0)
+  double layers_seconds = 0.0;  ///< time of compute_surface_layers for this level [s]
+  /// Bytes held by the grids. Real-time: no.
+  std::size_t bytes() const;
+};
+
+/// Cropped layers of one haptic window: `rows × cols` samples of a level starting at sample
+/// (row0, col0). Fields share one geometry (the window's samples, grid frame); the layers other
+/// than depth are empty when the level has none.
+struct LodWindowLayers {
+  int level = 0;
+  int row0 = 0, col0 = 0;
+  HeightField depth_m, envelope_m, texture_m, mu_d, mu_s;
+  std::size_t bytes() const;
+};
+
+/// Number of levels (≥ 1) for a finest grid: level L exists while the longer side of its grid
+/// is ≥ min_cells (level 0 always exists). @throws hc::ConfigError for min_cells < 2.
+int lod_level_count(const GridGeometry& finest, int min_cells);
+
+/// Geometry of level L without building it: rows_L = ⌈rows_{L−1}/2⌉ (likewise cols), cell size
+/// 2^L·cell, same origin. For an even size the last fine row/column has no coarse sample on it
+/// (the coarse grid ends half a coarse cell short of it). @throws hc::ConfigError for L < 0.
+GridGeometry lod_level_geometry(const GridGeometry& finest, int level);
+
+/// Anti-aliased 2× decimation of a depth grid with no-data handling (normalised convolution,
+/// Knutsson & Westin 1993): with the separable Gaussian kernel w (σ = sigma_cells fine samples,
+/// radius ⌈3σ⌉) and m = 1 on valid samples inside the grid, 0 elsewhere (no data and beyond
+/// the border),
+///   z_coarse(r, c) = Σ w·m·z / Σ w·m   around fine sample (2r, 2c),
+/// valid only if Σ w·m ≥ valid_fraction · Σ w·[inside the grid]; else NaN. NaN never enters a
+/// sum, so it never leaks into a valid sample; a plane is reproduced exactly away from holes and
+/// the border (a one-sided neighbourhood there shifts it by at most slope·σ).
+/// Output geometry: lod_level_geometry(fine, 1) relative to `fine`; model_to_grid is copied.
+/// @throws hc::ConfigError for sigma_cells outside [0.5, 4] or valid_fraction outside (0, 1];
+///         hc::InputError for an empty grid. Real-time: no. Cost: O(rows·cols·σ).
+HeightField downsample_2x(const HeightField& fine, double sigma_cells, double valid_fraction);
+
+/// The pyramid and its cache. Level 0 is given (the scene's depth and, when present, its
+/// envelope, texture, μ_d and μ_s); every coarser level is built on first use from the level
+/// above (its depth by downsample_2x, its layers by compute_surface_layers with `layer_options`)
+/// and cached. Cached entries (levels ≥ 1, window crops) are evicted least recently used first
+/// when their bytes exceed memory_budget_mb; an evicted level is rebuilt on demand (from the
+/// nearest cached finer depth). Objects handed out stay valid while the caller holds them.
+/// Thread-safe: one internal mutex; a build holds it (so two threads never build the same level).
+class LodPyramid {
+ public:
+  /// @param finest level 0; its depth must have rows, cols ≥ 2 and a valid sample; its other
+  ///        fields, when has_layers, must share the depth's geometry.
+  /// @throws hc::ConfigError for options out of range (naming the lod.* key and the value);
+  ///         hc::InputError for an empty or geometry-mismatched level 0.
+  LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options, const LodOptions& options);
+
+  /// From a loaded scene: moves its depth (and envelope, texture, mu_d, mu_s when all four are
+  /// present) into level 0. @throws as the constructor, and hc::InputError without a depth layer.
+  static std::shared_ptr<LodPyramid> from_scene(Scene&& scene, const SurfaceLayerOptions& layer_options,
+                                                const LodOptions& options);
+
+  int level_count() const noexcept { return level_count_; }
+  /// Geometry of level L (nothing is built). @throws hc::InputError for L out of range.
+  const GridGeometry& geometry(int level) const;
+  const LodOptions& options() const noexcept { return options_; }
+  const SurfaceLayerOptions& layer_options() const noexcept { return layer_options_; }
+
+  /// Level L with its layers, built if needed. @throws hc::InputError for L out of range, and
+  /// whatever compute_surface_layers throws. Real-time: no.
+  std::shared_ptr<const LodLevel> level(int level);
+  /// Level L with at least its depth (layers not computed if not cached). Real-time: no.
+  std::shared_ptr<const LodLevel> depth_level(int level);
+  /// True when level L's depth (and layers, if `with_layers`) are cached.
+  bool is_cached(int level, bool with_layers = true) const;
+
+  /// The window of rows × cols samples of level L at (row0, col0), clamped so that it lies
+  /// inside the level (a level smaller than the window gives the whole level), cropped from the
+  /// level's layers and cached. @throws hc::InputError for L out of range or a size < 2.
+  std::shared_ptr<const LodWindowLayers> window(int level, int row0, int col0, int rows, int cols);
+
+  /// Cache figures.
+  struct CacheStats {
+    std::size_t bytes = 0;          ///< bytes of the cached entries (levels ≥ 1 and windows)
+    std::size_t budget_bytes = 0;   ///< memory_budget_mb in bytes
+    std::size_t finest_bytes = 0;   ///< level 0, held outside the budget
+    std::uint64_t hits = 0, misses = 0, evictions = 0;
+    int levels_cached = 0, windows_cached = 0;
+  };
+  CacheStats cache_stats() const;
+
+ private:
+  struct Entry;
+  std::shared_ptr<const LodLevel> level_locked(int level, bool with_layers);
+  void touch_locked(Entry& e);
+  void evict_locked();
+
+  LodOptions options_;
+  SurfaceLayerOptions layer_options_;
+  int level_count_ = 1;
+  std::vector<GridGeometry> geometries_;
+  std::shared_ptr<LodLevel> finest_;
+  mutable std::mutex mutex_;
+  std::vector<std::shared_ptr<Entry>> entries_;  // cached levels ≥ 1 and windows
+  std::uint64_t clock_ = 0;
+  std::size_t bytes_ = 0;
+  std::uint64_t hits_ = 0, misses_ = 0, evictions_ = 0;
+};
+
+}  // namespace hc::pipeline

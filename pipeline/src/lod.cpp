@@ -1,0 +1,420 @@
+#include "stage_util.hpp"
+#include "hc/pipeline/lod.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/pipeline/scene_io.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <utility>
+
+namespace hc::pipeline {
+namespace {
+
+using detail::Clock;
+using detail::seconds_since;
+
+std::string num(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+std::size_t field_bytes(const HeightField& f) { return f.values().size() * sizeof(float); }
+
+void validate_options(const LodOptions& o) {
+  const auto fail = [](const std::string& key, double value, const std::string& expected) {
+    throw ConfigError("lod: " + key + " = " + num(value) + ": expected " + expected);
+  };
+  if (o.min_cells < 2 || o.min_cells > 65536) fail("lod.min_cells", o.min_cells, "an integer in [2, 65536]");
+  if (!(o.valid_fraction > 0.0 && o.valid_fraction <= 1.0)) fail("lod.valid_fraction", o.valid_fraction, "a number in (0, 1]");
+  if (!(o.antialias_sigma_cells >= 0.5 && o.antialias_sigma_cells <= 4.0)) {
+    fail("lod.antialias_sigma_cells", o.antialias_sigma_cells, "a number in [0.5, 4]");
+  }
+  if (!(o.memory_budget_mb > 0.0 && o.memory_budget_mb <= 1e6)) fail("lod.memory_budget_mb", o.memory_budget_mb, "a number in (0, 1e6]");
+  if (o.window_cells < 2 || o.window_cells > 4096) fail("lod.window_cells", o.window_cells, "an integer in [2, 4096]");
+}
+
+/// Crops rows × cols samples of `src` at (row0, col0) (inside the field) into a new field.
+HeightField crop(const HeightField& src, int row0, int col0, int rows, int cols) {
+  const GridGeometry& g = src.geometry();
+  GridGeometry w{rows, cols, g.x_of_col(col0), g.y_of_row(row0), g.cell_size_m};
+  HeightField out(w);
+  out.model_to_grid = src.model_to_grid;
+  for (int r = 0; r < rows; ++r) {
+    const float* from = src.data() + static_cast<std::ptrdiff_t>(row0 + r) * g.cols + col0;
+    std::copy(from, from + cols, out.data() + static_cast<std::ptrdiff_t>(r) * cols);
+  }
+  return out;
+}
+
+}  // namespace
+
+std::size_t LodLevel::bytes() const {
+  return field_bytes(depth_m) + field_bytes(envelope_m) + field_bytes(texture_m) + field_bytes(mu_d) +
+         field_bytes(mu_s);
+}
+
+std::size_t LodWindowLayers::bytes() const {
+  return field_bytes(depth_m) + field_bytes(envelope_m) + field_bytes(texture_m) + field_bytes(mu_d) +
+         field_bytes(mu_s);
+}
+
+int lod_level_count(const GridGeometry& finest, int min_cells) {
+  if (min_cells < 2) throw ConfigError("lod: lod.min_cells = " + std::to_string(min_cells) + ": expected an integer >= 2");
+  int count = 1;
+  for (GridGeometry g = finest;;) {
+    g.rows = (g.rows + 1) / 2;
+    g.cols = (g.cols + 1) / 2;
+    if (std::max(g.rows, g.cols) < min_cells || std::min(g.rows, g.cols) < 2) break;
+    ++count;
+    if (g.rows <= 2 && g.cols <= 2) break;
+  }
+  return count;
+}
+
+GridGeometry lod_level_geometry(const GridGeometry& finest, int level) {
+  if (level < 0 || level > 30) throw ConfigError("lod: level " + std::to_string(level) + " is out of range: expected 0..30");
+  GridGeometry g = finest;
+  for (int l = 0; l < level; ++l) {
+    g.rows = (g.rows + 1) / 2;
+    g.cols = (g.cols + 1) / 2;
+    g.cell_size_m *= 2.0;
+  }
+  return g;
+}
+
+HeightField downsample_2x(const HeightField& fine, double sigma_cells, double valid_fraction) {
+  if (!(sigma_cells >= 0.5 && sigma_cells <= 4.0)) {
+    throw ConfigError("lod: lod.antialias_sigma_cells = " + num(sigma_cells) + ": expected a number in [0.5, 4]");
+  }
+  if (!(valid_fraction > 0.0 && valid_fraction <= 1.0)) {
+    throw ConfigError("lod: lod.valid_fraction = " + num(valid_fraction) + ": expected a number in (0, 1]");
+  }
+  const GridGeometry& fg = fine.geometry();
+  if (fg.rows < 1 || fg.cols < 1 || fine.values().size() != fg.cell_count()) {
+    throw InputError("lod: cannot decimate an empty grid (" + std::to_string(fg.rows) + " x " +
+                     std::to_string(fg.cols) + " samples)");
+  }
+  const GridGeometry cg = lod_level_geometry(fg, 1);
+  HeightField coarse(cg);
+  coarse.model_to_grid = fine.model_to_grid;
+
+  // Reference height: sums relative to it keep float resolution far below a micrometre.
+  double ref = 0.0;
+  std::size_t n_valid = 0;
+  for (float v : fine.values()) {
+    if (std::isfinite(v)) {
+      ref += v;
+      ++n_valid;
+    }
+  }
+  if (n_valid == 0) return coarse;  // all no data
+  ref /= static_cast<double>(n_valid);
+
+  const int radius = static_cast<int>(std::ceil(3.0 * sigma_cells));
+  std::vector<double> w(static_cast<std::size_t>(2 * radius + 1));
+  for (int k = -radius; k <= radius; ++k) {
+    w[static_cast<std::size_t>(k + radius)] = std::exp(-0.5 * k * k / (sigma_cells * sigma_cells));
+  }
+  // Weight of the in-grid fine samples of each coarse column / row (the certainty of a full grid).
+  const auto inside_weight = [&](int centre, int n) {
+    double s = 0.0;
+    for (int k = -radius; k <= radius; ++k) {
+      const int i = centre + k;
+      if (i >= 0 && i < n) s += w[static_cast<std::size_t>(k + radius)];
+    }
+    return s;
+  };
+  std::vector<double> inside_col(static_cast<std::size_t>(cg.cols)), inside_row(static_cast<std::size_t>(cg.rows));
+  for (int c = 0; c < cg.cols; ++c) inside_col[static_cast<std::size_t>(c)] = inside_weight(2 * c, fg.cols);
+  for (int r = 0; r < cg.rows; ++r) inside_row[static_cast<std::size_t>(r)] = inside_weight(2 * r, fg.rows);
+
+  // Horizontal pass at the coarse columns, every fine row: S = Σ w·m·(z − ref), W = Σ w·m.
+  const std::size_t hn = static_cast<std::size_t>(fg.rows) * static_cast<std::size_t>(cg.cols);
+  std::vector<float> hs(hn), hw(hn);
+  const auto horizontal = [&](int r_begin, int r_end) {
+    for (int r = r_begin; r < r_end; ++r) {
+      const float* row = fine.data() + static_cast<std::ptrdiff_t>(r) * fg.cols;
+      float* os = hs.data() + static_cast<std::ptrdiff_t>(r) * cg.cols;
+      float* ow = hw.data() + static_cast<std::ptrdiff_t>(r) * cg.cols;
+      for (int c = 0; c < cg.cols; ++c) {
+        const int lo = std::max(0, 2 * c - radius), hi = std::min(fg.cols - 1, 2 * c + radius);
+        double s = 0.0, sw = 0.0;
+        for (int i = lo; i <= hi; ++i) {
+          const float v = row[i];
+          if (std::isnan(v)) continue;
+          const double wk = w[static_cast<std::size_t>(i - 2 * c + radius)];
+          s += wk * (static_cast<double>(v) - ref);
+          sw += wk;
+        }
+        os[c] = static_cast<float>(s);
+        ow[c] = static_cast<float>(sw);
+      }
+    }
+  };
+  // Vertical pass at the coarse rows.
+  const auto vertical = [&](int r_begin, int r_end) {
+    for (int r = r_begin; r < r_end; ++r) {
+      const int lo = std::max(0, 2 * r - radius), hi = std::min(fg.rows - 1, 2 * r + radius);
+      float* out = coarse.data() + static_cast<std::ptrdiff_t>(r) * cg.cols;
+      for (int c = 0; c < cg.cols; ++c) {
+        double s = 0.0, sw = 0.0;
+        for (int i = lo; i <= hi; ++i) {
+          const double wk = w[static_cast<std::size_t>(i - 2 * r + radius)];
+          const std::size_t k = static_cast<std::size_t>(i) * static_cast<std::size_t>(cg.cols) + static_cast<std::size_t>(c);
+          s += wk * hs[k];
+          sw += wk * hw[k];
+        }
+        const double full = inside_row[static_cast<std::size_t>(r)] * inside_col[static_cast<std::size_t>(c)];
+        out[c] = sw > 0.0 && sw >= valid_fraction * full * (1.0 - 1e-9) ? static_cast<float>(ref + s / sw) : kNoData;
+      }
+    }
+  };
+  const int mid_f = fg.rows / 2, mid_c = cg.rows / 2;
+  if (fine.values().size() >= (std::size_t{1} << 18)) {
+    detail::run_two([&] { horizontal(0, mid_f); }, [&] { horizontal(mid_f, fg.rows); });
+    detail::run_two([&] { vertical(0, mid_c); }, [&] { vertical(mid_c, cg.rows); });
+  } else {
+    horizontal(0, fg.rows);
+    vertical(0, cg.rows);
+  }
+  return coarse;
+}
+
+// ---------------------------------------------------------------- pyramid and cache
+
+struct LodPyramid::Entry {
+  bool is_window = false;
+  int level = 0;
+  int row0 = 0, col0 = 0, rows = 0, cols = 0;  // windows
+  std::shared_ptr<const LodLevel> lvl;         // levels
+  std::shared_ptr<const LodWindowLayers> win;  // windows
+  std::size_t bytes = 0;
+  std::uint64_t last_use = 0;
+};
+
+LodPyramid::LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options, const LodOptions& options)
+    : options_(options), layer_options_(layer_options) {
+  validate_options(options_);
+  const GridGeometry& g = finest.depth_m.geometry();
+  if (g.rows < 2 || g.cols < 2 || !(g.cell_size_m > 0.0) || finest.depth_m.values().size() != g.cell_count()) {
+    throw InputError("lod: the finest depth grid has " + std::to_string(g.rows) + " x " + std::to_string(g.cols) +
+                     " samples of " + num(g.cell_size_m) + " m: expected at least 2 x 2 and a cell size > 0");
+  }
+  if (finest.depth_m.valid_count() == 0) throw InputError("lod: the finest depth grid has no valid sample");
+  if (finest.has_layers) {
+    const std::pair<const char*, const HeightField*> layers[] = {
+        {"envelope", &finest.envelope_m}, {"texture", &finest.texture_m}, {"mu_d", &finest.mu_d}, {"mu_s", &finest.mu_s}};
+    for (const auto& [name, f] : layers) {
+      if (!(f->geometry() == g)) {
+        throw InputError(std::string("lod: level 0 layer '") + name + "' has " + std::to_string(f->rows()) + " x " +
+                         std::to_string(f->cols()) + " samples, expected the depth's " + std::to_string(g.rows) +
+                         " x " + std::to_string(g.cols));
+      }
+    }
+  }
+  finest.level = 0;
+  level_count_ = lod_level_count(g, options_.min_cells);
+  for (int l = 0; l < level_count_; ++l) geometries_.push_back(lod_level_geometry(g, l));
+  finest_ = std::make_shared<LodLevel>(std::move(finest));
+}
+
+std::shared_ptr<LodPyramid> LodPyramid::from_scene(Scene&& scene, const SurfaceLayerOptions& layer_options,
+                                                   const LodOptions& options) {
+  if (!scene.has("depth")) throw InputError("lod: the scene has no depth layer");
+  LodLevel l0;
+  l0.depth_m = std::move(scene.layers.at("depth"));
+  if (scene.has("envelope") && scene.has("texture") && scene.has("mu_d") && scene.has("mu_s")) {
+    l0.envelope_m = std::move(scene.layers.at("envelope"));
+    l0.texture_m = std::move(scene.layers.at("texture"));
+    l0.mu_d = std::move(scene.layers.at("mu_d"));
+    l0.mu_s = std::move(scene.layers.at("mu_s"));
+    l0.has_layers = true;
+  }
+  return std::make_shared<LodPyramid>(std::move(l0), layer_options, options);
+}
+
+const GridGeometry& LodPyramid::geometry(int level) const {
+  if (level < 0 || level >= level_count_) {
+    throw InputError("lod: level " + std::to_string(level) + " does not exist: expected 0.." +
+                     std::to_string(level_count_ - 1));
+  }
+  return geometries_[static_cast<std::size_t>(level)];
+}
+
+void LodPyramid::touch_locked(Entry& e) { e.last_use = ++clock_; }
+
+void LodPyramid::evict_locked() {
+  const auto budget = static_cast<std::size_t>(options_.memory_budget_mb * 1024.0 * 1024.0);
+  while (bytes_ > budget && entries_.size() > 1) {
+    // Least recently used, but never the entry touched last (the one just built or returned).
+    auto victim = entries_.end();
+    for (auto it = entries_.begin(); it != entries_.end(); ++it) {
+      if ((*it)->last_use == clock_) continue;
+      if (victim == entries_.end() || (*it)->last_use < (*victim)->last_use) victim = it;
+    }
+    if (victim == entries_.end()) break;
+    bytes_ -= (*victim)->bytes;
+    entries_.erase(victim);
+    ++evictions_;
+  }
+}
+
+std::shared_ptr<const LodLevel> LodPyramid::level_locked(int level, bool with_layers) {
+  (void)geometry(level);  // range check
+  if (level == 0) {
+    if (with_layers && !finest_->has_layers) {
+      auto l0 = std::make_shared<LodLevel>();
+      l0->depth_m = finest_->depth_m;
+      const auto t0 = Clock::now();
+      SurfaceLayers layers = compute_surface_layers(l0->depth_m, layer_options_).value;
+      l0->envelope_m = std::move(layers.envelope_m);
+      l0->texture_m = std::move(layers.texture_m);
+      l0->mu_d = std::move(layers.mu_d);
+      l0->mu_s = std::move(layers.mu_s);
+      l0->has_layers = true;
+      l0->layers_seconds = seconds_since(t0);
+      finest_ = std::move(l0);
+    }
+    return finest_;
+  }
+  std::shared_ptr<Entry> entry;
+  for (const auto& e : entries_) {
+    if (!e->is_window && e->level == level) entry = e;
+  }
+  if (entry && (entry->lvl->has_layers || !with_layers)) {
+    ++hits_;
+    touch_locked(*entry);
+    return entry->lvl;
+  }
+  ++misses_;
+  std::shared_ptr<LodLevel> built;
+  if (entry) {
+    built = std::make_shared<LodLevel>();
+    built->level = level;
+    built->depth_m = entry->lvl->depth_m;
+    built->depth_seconds = entry->lvl->depth_seconds;
+  } else {
+    const std::shared_ptr<const LodLevel> above = level_locked(level - 1, false);
+    built = std::make_shared<LodLevel>();
+    built->level = level;
+    const auto t0 = Clock::now();
+    built->depth_m = downsample_2x(above->depth_m, options_.antialias_sigma_cells, options_.valid_fraction);
+    built->depth_seconds = seconds_since(t0);
+  }
+  if (with_layers) {
+    const auto t0 = Clock::now();
+    if (built->depth_m.valid_count() > 0) {
+      SurfaceLayers layers = compute_surface_layers(built->depth_m, layer_options_).value;
+      built->envelope_m = std::move(layers.envelope_m);
+      built->texture_m = std::move(layers.texture_m);
+      built->mu_d = std::move(layers.mu_d);
+      built->mu_s = std::move(layers.mu_s);
+    } else {
+      // No valid sample (every coarse sample below valid_fraction): all layers are no data.
+      built->envelope_m = built->texture_m = built->mu_d = built->mu_s = HeightField(built->depth_m.geometry());
+    }
+    for (HeightField* f : {&built->envelope_m, &built->texture_m, &built->mu_d, &built->mu_s}) {
+      f->model_to_grid = built->depth_m.model_to_grid;
+    }
+    built->has_layers = true;
+    built->layers_seconds = seconds_since(t0);
+  }
+  // The entry is added (or updated) only once the level is complete: a throw leaves no trace.
+  if (!entry) {
+    entry = std::make_shared<Entry>();
+    entry->level = level;
+    entries_.push_back(entry);
+  }
+  bytes_ -= entry->bytes;
+  entry->lvl = built;
+  entry->bytes = built->bytes();
+  bytes_ += entry->bytes;
+  touch_locked(*entry);
+  evict_locked();
+  return built;
+}
+
+std::shared_ptr<const LodLevel> LodPyramid::level(int level) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return level_locked(level, true);
+}
+
+std::shared_ptr<const LodLevel> LodPyramid::depth_level(int level) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  return level_locked(level, false);
+}
+
+bool LodPyramid::is_cached(int level, bool with_layers) const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (level == 0) return !with_layers || finest_->has_layers;
+  for (const auto& e : entries_) {
+    if (!e->is_window && e->level == level) return !with_layers || e->lvl->has_layers;
+  }
+  return false;
+}
+
+std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, int col0, int rows, int cols) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  const GridGeometry& g = geometry(level);
+  if (rows < 2 || cols < 2) {
+    throw InputError("lod: window of " + std::to_string(rows) + " x " + std::to_string(cols) +
+                     " samples: expected at least 2 x 2");
+  }
+  rows = std::min(rows, g.rows);
+  cols = std::min(cols, g.cols);
+  row0 = std::clamp(row0, 0, g.rows - rows);
+  col0 = std::clamp(col0, 0, g.cols - cols);
+  for (const auto& e : entries_) {
+    if (e->is_window && e->level == level && e->row0 == row0 && e->col0 == col0 && e->rows == rows && e->cols == cols) {
+      ++hits_;
+      touch_locked(*e);
+      return e->win;
+    }
+  }
+  const std::shared_ptr<const LodLevel> lvl = level_locked(level, true);
+  ++misses_;
+  auto win = std::make_shared<LodWindowLayers>();
+  win->level = level;
+  win->row0 = row0;
+  win->col0 = col0;
+  win->depth_m = crop(lvl->depth_m, row0, col0, rows, cols);
+  if (lvl->has_layers) {
+    win->envelope_m = crop(lvl->envelope_m, row0, col0, rows, cols);
+    win->texture_m = crop(lvl->texture_m, row0, col0, rows, cols);
+    win->mu_d = crop(lvl->mu_d, row0, col0, rows, cols);
+    win->mu_s = crop(lvl->mu_s, row0, col0, rows, cols);
+  }
+  auto entry = std::make_shared<Entry>();
+  entry->is_window = true;
+  entry->level = level;
+  entry->row0 = row0;
+  entry->col0 = col0;
+  entry->rows = rows;
+  entry->cols = cols;
+  entry->win = win;
+  entry->bytes = win->bytes();
+  bytes_ += entry->bytes;
+  entries_.push_back(entry);
+  touch_locked(*entry);
+  evict_locked();
+  return win;
+}
+
+LodPyramid::CacheStats LodPyramid::cache_stats() const {
+  std::lock_guard<std::mutex> lock(mutex_);
+  CacheStats s;
+  s.bytes = bytes_;
+  s.budget_bytes = static_cast<std::size_t>(options_.memory_budget_mb * 1024.0 * 1024.0);
+  s.finest_bytes = finest_->bytes();
+  s.hits = hits_;
+  s.misses = misses_;
+  s.evictions = evictions_;
+  for (const auto& e : entries_) (e->is_window ? s.windows_cached : s.levels_cached) += 1;
+  return s;
+}
+
+}  // namespace hc::pipeline
