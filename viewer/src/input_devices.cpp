@@ -1,4 +1,4 @@
-/// MouseDevice and ButtonTap (input_devices.hpp).
+/// MouseDevice (input_devices.hpp).
 
 #include "hc/viewer/input_devices.hpp"
 
@@ -30,19 +30,6 @@ haptics::DeviceStatus MouseDevice::do_read(haptics::DeviceReading& out) noexcept
   out.time_ns = clock_.now_ns();
   out.buttons = 0;
   return haptics::DeviceStatus::kOk;
-}
-
-ButtonTap::ButtonTap(haptics::HapticDevice& inner) : HapticDevice(inner.info()), inner_(inner) {}
-
-void ButtonTap::do_open() {
-  inner_.open();
-  inner_.arm();
-}
-
-haptics::DeviceStatus ButtonTap::do_read(haptics::DeviceReading& out) noexcept {
-  const haptics::DeviceStatus s = inner_.read(out);
-  buttons_.store(out.buttons, std::memory_order_relaxed);
-  return s;
 }
 
 }  // namespace hc::viewer

@@ -333,9 +333,7 @@ void Viewer::issue(const RegionCommand& command) {
   if (callbacks_.on_region) callbacks_.on_region(command);
 }
 
-void Viewer::set_device_buttons(std::uint32_t buttons) {
-  const std::uint32_t pressed = buttons & ~buttons_;
-  buttons_ = buttons;
+void Viewer::press_device_buttons(std::uint32_t pressed) {
   if ((pressed & 1U) != 0) issue({RegionCommandType::kFiner});
   if ((pressed & 2U) != 0) issue({RegionCommandType::kCoarser});
   if ((pressed & 4U) != 0) issue({RegionCommandType::kPan, 0, -0.25, 0.0});
@@ -629,7 +627,9 @@ void Viewer::draw_main(const PixelRect& view) {
     const Eigen::Vector3d eye_pos = main_view_matrix(s).inverse().block<3, 1>(0, 3);
     p.use();
     p.set("u_eye", Eigen::Vector3f(eye_pos.cast<float>()));
-    p.set("u_light_dir", Eigen::Vector3f(Eigen::Vector3f(-0.45F, 0.55F, 0.70F).normalized()));
+    // A light from the viewer's upper left, fixed to the camera.
+    const Eigen::Matrix3d to_world = main_view_matrix(s).block<3, 3>(0, 0).transpose();
+    p.set("u_light_dir", Eigen::Vector3f((to_world * Eigen::Vector3d(-0.45, 0.55, 0.70).normalized()).cast<float>()));
     p.set("u_grey", stereo_ ? 1 : 0);
     p.set("u_height_colour", 0);
     const auto draw = [&](const gl::Mesh& mesh, const Eigen::Matrix4d& model, const Eigen::Vector3f& colour, bool lit) {
@@ -870,6 +870,8 @@ void Viewer::render_frame() {
   handle_input();
   if (callbacks_.on_frame) callbacks_.on_frame();
   take_pending_scene();
+  haptics::ButtonEvent b;
+  while (shared_.button_events.try_pop(b)) press_device_buttons(b.pressed);
   haptics::Snapshot s;
   shared_.snapshots.read(s);
   if (s.tick > 0) snapshot_ = s;

@@ -1,9 +1,7 @@
 #pragma once
 /// @file input_devices.hpp
 /// Haptic devices for an exploration session without (or around) force-feedback hardware:
-/// MouseDevice, a position-only device driven by the viewer's mouse (no force is felt), and
-/// ButtonTap, a wrapper that forwards to another device and publishes its button mask so the
-/// UI thread can turn device buttons into level/region commands.
+/// MouseDevice, a position-only device driven by the viewer's mouse (no force is felt).
 
 #include "hc/haptics/device.hpp"
 #include "hc/haptics/clock.hpp"
@@ -12,7 +10,6 @@
 
 #include <Eigen/Core>
 
-#include <atomic>
 #include <cstdint>
 
 namespace hc::viewer {
@@ -39,29 +36,6 @@ class MouseDevice final : public haptics::HapticDevice {
   const haptics::Clock& clock_;
   haptics::TripleBuffer<haptics::Vec3> position_;
   haptics::Vec3 last_{};
-};
-
-/// Forwards open/close/read/write to `inner` (which it opens and arms: the lifecycle and force
-/// gating are this wrapper's own) and stores the button mask of every read in an atomic that
-/// any thread may read. Real-time: read/write yes (one relaxed atomic store more than inner).
-class ButtonTap final : public haptics::HapticDevice {
- public:
-  /// `inner` must outlive the wrapper and be Closed. @throws what inner's constructor checks.
-  explicit ButtonTap(haptics::HapticDevice& inner);
-  /// Buttons of the latest read (bit mask). Thread-safe.
-  std::uint32_t buttons() const noexcept { return buttons_.load(std::memory_order_relaxed); }
-  haptics::HapticDevice& inner() noexcept { return inner_; }
-
- protected:
-  /// Opens and arms `inner`. @throws what inner.open() throws.
-  void do_open() override;
-  void do_close() noexcept override { inner_.close(); }
-  haptics::DeviceStatus do_read(haptics::DeviceReading& out) noexcept override;
-  haptics::DeviceStatus do_write(const Eigen::Vector3d& force_n) noexcept override { return inner_.write(force_n); }
-
- private:
-  haptics::HapticDevice& inner_;
-  std::atomic<std::uint32_t> buttons_{0};
 };
 
 }  // namespace hc::viewer

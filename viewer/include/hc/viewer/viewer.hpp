@@ -169,9 +169,10 @@ class Viewer {
 
   /// The common path of keys, GUI, navigation clicks and device buttons.
   void issue(const RegionCommand& command);
-  /// Device buttons (bit mask, as DeviceReading::buttons): a newly pressed bit issues
-  /// bit 0 → finer, bit 1 → coarser, bit 2 → pan left, bit 3 → pan right.
-  void set_device_buttons(std::uint32_t buttons);
+  /// Device buttons newly pressed (bit mask, as ButtonEvent::pressed) issue
+  /// bit 0 → finer, bit 1 → coarser, bit 2 → pan left, bit 3 → pan right. Every frame the
+  /// viewer drains SharedState::button_events (it is that ring's one consumer) into this.
+  void press_device_buttons(std::uint32_t pressed);
   /// Where the mouse drives the HIP [m, device frame] (mouse mode); false until the cursor has
   /// been over the main view.
   bool mouse_target(Eigen::Vector3d& device_m) const;
@@ -248,7 +249,6 @@ class Viewer {
   double hip_device_z_m_ = 0.0;
   bool have_mouse_target_ = false;
   Eigen::Vector3d mouse_target_m_ = Eigen::Vector3d::Zero();
-  std::uint32_t buttons_ = 0;
 
   // Orientation tool (arcball on the raw-cloud preview).
   bool orienting_ = false;
