@@ -169,7 +169,7 @@ HeightField downsample_2x(const HeightField& fine, double sigma_cells, double va
           sw += wk * hw[k];
         }
         const double full = inside_row[static_cast<std::size_t>(r)] * inside_col[static_cast<std::size_t>(c)];
-        out[c] = sw > 0.0 && sw >= valid_fraction * full * (1.0 - 1e-9) ? static_cast<float>(ref + s / sw) : kNoData;
+        out[c] = sw > 0.0 && sw >= valid_fraction * full * (1.0 - 1e-6) ? static_cast<float>(ref + s / sw) : kNoData;
       }
     }
   };
