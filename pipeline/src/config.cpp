@@ -293,7 +293,8 @@ void apply_override(YAML::Node& root, const std::string& spec, const std::string
 SyntheticSpec read_synthetic(Reader& r, const std::string& p) {
   SyntheticSpec s;
   s.kind = surface_kind_from_string(r.get_string(p + ".surface", "sinusoid",
-                                                 {"plane", "tilted_plane", "sphere_cap", "step", "sinusoid"}));
+                                                 {"plane", "tilted_plane", "sphere_cap", "step", "sinusoid",
+                                                  "temple_relief"}));
   s.half_extent_m = r.get_double(p + ".half_extent_m", s.half_extent_m, 0.0, 100.0, true);
   s.density_per_m2 = r.get_double(p + ".density_per_m2", s.density_per_m2, 0.0, 1e12, true);
   s.noise_sigma_m = r.get_double(p + ".noise_sigma_m", s.noise_sigma_m, 0.0, 1.0);
@@ -349,6 +350,185 @@ ViewTransform read_view(Reader& r) {
   v.translation_m = r.get_vec3("view.translation_m", Eigen::Vector3d::Zero(), -1e4, 1e4);
   v.scale = r.get_double("view.scale", 1.0, 0.0, 1e6, true);
   return v;
+}
+
+/// audio.* (issue 7): contact sounds. Ranges mirror hc::audio::validate, which checks again.
+const std::vector<std::string> kAudioMaterials = {"granite", "sandstone", "marble", "bronze", "wood"};
+const std::vector<std::string> kAudioNotes = {"Sa", "Re", "Ga", "Ma", "Pa", "Dha", "Ni"};
+
+void read_material_overrides(Reader& r, const std::string& p, AudioMaterialSpec& m) {
+  if (r.has(p + ".slide_gain")) m.slide_gain = r.get_double(p + ".slide_gain", 0.0, 0.0, 4.0);
+  if (r.has(p + ".resonance_hz")) m.resonance_hz = r.get_double(p + ".resonance_hz", 1000.0, 20.0, 20000.0, true);
+  if (r.has(p + ".q")) m.q = r.get_double(p + ".q", 4.0, 0.3, 100.0);
+  if (r.has(p + ".grain_m")) m.grain_m = r.get_double(p + ".grain_m", 0.001, 0.0, 0.1, true);
+  if (r.has(p + ".roughness")) m.roughness = r.get_double(p + ".roughness", 0.5, 0.0, 1.0);
+  if (r.has(p + ".speed_ref_m_per_s")) m.speed_ref_m_per_s = r.get_double(p + ".speed_ref_m_per_s", 0.1, 0.0, 10.0, true);
+  if (r.has(p + ".texture_ref_m")) m.texture_ref_m = r.get_double(p + ".texture_ref_m", 0.0002, 0.0, 0.1, true);
+}
+
+AudioMaterialSpec read_material(Reader& r, const std::string& p) {
+  AudioMaterialSpec m;
+  const auto n = r.find(p);
+  if (n && n->IsScalar()) {
+    m.preset = r.get_string(p, "granite", kAudioMaterials);
+  } else {
+    m.preset = r.get_string(p + ".preset", "granite", kAudioMaterials);
+    read_material_overrides(r, p, m);
+  }
+  return m;
+}
+
+/// One element of audio.regions, checked key by key (a list element has no dotted path).
+AudioRegionSpec read_audio_region(Reader& r, const YAML::Node& node, std::size_t i, const std::filesystem::path& base) {
+  const std::string list = "audio.regions";
+  const std::string p = list + "[" + std::to_string(i) + "]";
+  const auto fail = [&](const std::string& what) -> void {
+    throw ConfigError(r.where(list) + ": " + p + " " + what);
+  };
+  static const std::vector<std::string> kKeys = {"name", "box_m", "polygon_m", "label", "clip", "note", "gain",
+                                                 "pitch", "retrigger", "trigger_on_enter", "mode", "material"};
+  for (const auto& kv : node) {
+    const std::string key = kv.first.as<std::string>();
+    if (std::find(kKeys.begin(), kKeys.end(), key) == kKeys.end()) {
+      std::string allowed;
+      for (const auto& k : kKeys) allowed += (allowed.empty() ? "" : ", ") + k;
+      fail("has an unknown key '" + key + "' (allowed here: " + allowed + ")");
+    }
+  }
+  const auto number = [&](const YAML::Node& v, const std::string& key) {
+    double d = 0.0;
+    try {
+      if (!v.IsScalar()) throw YAML::Exception(YAML::Mark::null_mark(), "");
+      d = v.as<double>();
+    } catch (const YAML::Exception&) {
+      fail("." + key + " = " + scalar_text(v) + ": expected a number");
+    }
+    if (!std::isfinite(d)) fail("." + key + " is not finite");
+    return d;
+  };
+  const auto boolean = [&](const YAML::Node& v, const std::string& key) {
+    try {
+      if (!v.IsScalar()) throw YAML::Exception(YAML::Mark::null_mark(), "");
+      return v.as<bool>();
+    } catch (const YAML::Exception&) {
+      fail("." + key + " = " + scalar_text(v) + ": expected true or false");
+    }
+    return false;
+  };
+  const auto text = [&](const YAML::Node& v, const std::string& key) {
+    if (!v.IsScalar()) fail("." + key + " = " + scalar_text(v) + ": expected a string");
+    return v.Scalar();
+  };
+  AudioRegionSpec s;
+  if (!node["name"]) fail("lacks 'name': every region needs a unique name");
+  s.name = text(node["name"], "name");
+  const int shapes = int(bool(node["box_m"])) + int(bool(node["polygon_m"])) + int(bool(node["label"]));
+  if (shapes != 1) fail("('" + s.name + "') needs exactly one of box_m, polygon_m, label");
+  if (node["box_m"]) {
+    const YAML::Node b = node["box_m"];
+    if (!b.IsSequence() || b.size() != 4) fail(".box_m = " + scalar_text(b) + ": expected [x_min, y_min, x_max, y_max] in metres");
+    for (std::size_t k = 0; k < 4; ++k) s.box_m[k] = number(b[k], "box_m");
+    if (!(s.box_m[2] > s.box_m[0] && s.box_m[3] > s.box_m[1])) fail(".box_m: expected x_max > x_min and y_max > y_min");
+  } else if (node["polygon_m"]) {
+    s.shape = "polygon";
+    const YAML::Node poly = node["polygon_m"];
+    if (!poly.IsSequence() || poly.size() < 3) fail(".polygon_m: expected a list of at least 3 [x, y] pairs in metres");
+    for (const auto& v : poly) {
+      if (!v.IsSequence() || v.size() != 2) fail(".polygon_m has a vertex that is not an [x, y] pair");
+      s.polygon_m.push_back({number(v[0], "polygon_m"), number(v[1], "polygon_m")});
+    }
+  } else {
+    s.shape = "label";
+    const double l = number(node["label"], "label");
+    if (l < 1 || l > 65535 || l != std::floor(l)) fail(".label = " + scalar_text(node["label"]) + ": expected an integer in [1, 65535]");
+    s.label = static_cast<int>(l);
+  }
+  if (node["clip"]) s.clip = base / text(node["clip"], "clip");
+  if (node["note"]) {
+    s.note = text(node["note"], "note");
+    if (std::find(kAudioNotes.begin(), kAudioNotes.end(), s.note) == kAudioNotes.end()) {
+      fail(".note = '" + s.note + "': expected one of Sa, Re, Ga, Ma, Pa, Dha, Ni");
+    }
+  }
+  if (node["gain"]) s.gain = number(node["gain"], "gain");
+  if (s.gain < 0.0 || s.gain > 16.0) fail(".gain = " + format_double(s.gain) + ": expected a number in [0, 16]");
+  if (node["pitch"]) s.pitch = number(node["pitch"], "pitch");
+  if (s.pitch < 0.25 || s.pitch > 4.0) fail(".pitch = " + format_double(s.pitch) + ": expected a number in [0.25, 4]");
+  if (node["retrigger"]) s.retrigger = boolean(node["retrigger"], "retrigger");
+  if (node["trigger_on_enter"]) s.trigger_on_enter = boolean(node["trigger_on_enter"], "trigger_on_enter");
+  if (node["mode"]) {
+    s.mode = text(node["mode"], "mode");
+    if (s.mode != "one_shot" && s.mode != "continuous") fail(".mode = '" + s.mode + "': expected one_shot or continuous");
+  }
+  if (node["material"]) {
+    const YAML::Node m = node["material"];
+    const auto preset_ok = [&](const std::string& v) {
+      if (std::find(kAudioMaterials.begin(), kAudioMaterials.end(), v) == kAudioMaterials.end()) {
+        fail(".material = '" + v + "': expected one of granite, sandstone, marble, bronze, wood (or a map with preset and overrides)");
+      }
+      return v;
+    };
+    if (m.IsScalar()) {
+      s.material.preset = preset_ok(m.Scalar());
+    } else if (m.IsMap()) {
+      double* fields[] = {&s.material.slide_gain, &s.material.resonance_hz, &s.material.q, &s.material.grain_m,
+                          &s.material.roughness, &s.material.speed_ref_m_per_s, &s.material.texture_ref_m};
+      const char* names[] = {"slide_gain", "resonance_hz", "q", "grain_m", "roughness", "speed_ref_m_per_s", "texture_ref_m"};
+      for (const auto& kv : m) {
+        const std::string key = kv.first.as<std::string>();
+        if (key == "preset") {
+          s.material.preset = preset_ok(text(kv.second, "material.preset"));
+          continue;
+        }
+        const auto it = std::find(std::begin(names), std::end(names), key);
+        if (it == std::end(names)) {
+          fail(".material has an unknown key '" + key + "' (allowed: preset, slide_gain, resonance_hz, q, grain_m, "
+               "roughness, speed_ref_m_per_s, texture_ref_m)");
+        }
+        *fields[it - std::begin(names)] = number(kv.second, "material." + key);
+      }
+    } else {
+      fail(".material: expected a preset name or a map");
+    }
+  }
+  return s;
+}
+
+void read_audio(Reader& r, RunConfig& c, const std::filesystem::path& base) {
+  AudioSpec& a = c.audio;
+  a.present = r.has("audio");
+  if (!a.present) return;
+  a.enabled = r.get_bool("audio.enabled", true);
+  a.sample_rate_hz = static_cast<int>(r.get_int("audio.sample_rate_hz", 48000, 8000, 192000));
+  a.master_gain = r.get_double("audio.master_gain", a.master_gain, 0.0, 4.0);
+  a.limiter_threshold_dbfs = r.get_double("audio.limiter.threshold_dbfs", a.limiter_threshold_dbfs, -40.0, 0.0);
+  a.limiter_release_s = r.get_double("audio.limiter.release_s", a.limiter_release_s, 0.0, 10.0, true);
+  a.sa_hz = r.get_double("audio.tones.sa_hz", a.sa_hz, 20.0, 4000.0, true);
+  a.tone_seconds = r.get_double("audio.tones.seconds", a.tone_seconds, 0.05, 20.0, true);
+  a.region_cell_m = r.get_double("audio.region_cell_m", a.region_cell_m, 0.0, 1.0, true);
+  if (r.has("audio.label_image")) a.label_image = base / r.get_string("audio.label_image", "");
+  a.force_threshold_n = r.get_double("audio.force.threshold_n", a.force_threshold_n, 0.0, 100.0);
+  a.force_full_n = r.get_double("audio.force.full_force_n", a.force_full_n, 0.0, 100.0, true);
+  a.force_min_gain = r.get_double("audio.force.min_gain", a.force_min_gain, 0.0, 1.0);
+  a.strike_window_s = r.get_double("audio.force.strike_window_s", a.strike_window_s, 0.0, 1.0);
+  a.slide_enabled = r.get_bool("audio.slide.enabled", true);
+  a.slide_material = read_material(r, "audio.slide.material");
+  const auto regions = r.get_map_list("audio.regions");
+  YAML::Node resolved(YAML::NodeType::Sequence);
+  for (std::size_t i = 0; i < regions.size(); ++i) {
+    a.regions.push_back(read_audio_region(r, regions[i], i, base));
+    for (std::size_t j = 0; j < i; ++j) {
+      if (a.regions[j].name == a.regions[i].name) {
+        r.fail("audio.regions", "has the name '" + a.regions[i].name + "' twice (elements " + std::to_string(j) +
+                                    " and " + std::to_string(i) + "): expected unique names");
+      }
+    }
+    if (a.regions[i].shape == "label" && a.label_image.empty()) {
+      r.fail("audio.regions", "element " + std::to_string(i) + " uses a label but audio.label_image is not given");
+    }
+    resolved.push_back(regions[i]);
+  }
+  r.resolved_set_raw("audio.regions", resolved);
 }
 
 RunConfig build(Reader& r, const std::filesystem::path& origin) {
@@ -468,6 +648,8 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     resolved_regions.push_back(out);
   }
   r.resolved_set_raw("layers.friction.mu_s_regions", resolved_regions);
+
+  read_audio(r, c, base);
 
   r.reject_unknown_keys();
   YAML::Emitter e;

@@ -28,8 +28,9 @@ SurfaceKind surface_kind_from_string(const std::string& name) {
   if (name == "sphere_cap") return SurfaceKind::kSphereCap;
   if (name == "step") return SurfaceKind::kStep;
   if (name == "sinusoid") return SurfaceKind::kSinusoid;
+  if (name == "temple_relief") return SurfaceKind::kTempleRelief;
   throw ConfigError("unknown synthetic surface '" + name +
-                    "' (expected one of: plane, tilted_plane, sphere_cap, step, sinusoid)");
+                    "' (expected one of: plane, tilted_plane, sphere_cap, step, sinusoid, temple_relief)");
 }
 
 std::string to_string(SurfaceKind kind) {
@@ -39,6 +40,7 @@ std::string to_string(SurfaceKind kind) {
     case SurfaceKind::kSphereCap: return "sphere_cap";
     case SurfaceKind::kStep: return "step";
     case SurfaceKind::kSinusoid: return "sinusoid";
+    case SurfaceKind::kTempleRelief: return "temple_relief";
   }
   return "unknown";
 }
@@ -64,8 +66,33 @@ double synthetic_height(const SyntheticSpec& spec, double x_m, double y_m) {
       const double k = 2.0 * std::numbers::pi / spec.wavelength_m;
       return spec.amplitude_m * std::sin(k * x_m) * std::sin(k * y_m);
     }
+    case SurfaceKind::kTempleRelief: {
+      const double h = spec.half_extent_m, a = spec.amplitude_m;
+      const double s = 2.0 * h / 9.0, r = 0.35 * s, half_len = 0.75 * h;
+      // Wall: shallow grooves (mortar lines) every 0.2·h along y.
+      const double course = 0.2 * h;
+      const double d = y_m - course * std::round(y_m / course);
+      double z = -0.08 * a * std::exp(-(d * d) / (0.0004 * 0.0004));
+      const double i = std::clamp(std::round(x_m / s), -3.0, 3.0);
+      const double u = (x_m - i * s) / r;
+      if (std::abs(y_m) <= half_len && std::abs(u) < 1.0) {
+        // Fluted half-cylinder shaft.
+        z = std::max(z, a * (std::sqrt(1.0 - u * u) + 0.03 * std::cos(7.0 * std::numbers::pi * u)));
+      } else if (std::abs(y_m) <= half_len + 0.6 * r && std::abs(u) < 1.3) {
+        z = std::max(z, 0.6 * a);  // plinth and capital
+      }
+      return z;
+    }
   }
   return 0.0;
+}
+
+std::vector<std::array<double, 4>> temple_pillar_boxes(const SyntheticSpec& spec) {
+  const double h = spec.half_extent_m;
+  const double s = 2.0 * h / 9.0, r = 0.35 * s, half_len = 0.75 * h;
+  std::vector<std::array<double, 4>> boxes;
+  for (int i = -3; i <= 3; ++i) boxes.push_back({i * s - r, -half_len, i * s + r, half_len});
+  return boxes;
 }
 
 Cloud generate_surface(const SyntheticSpec& spec) {

@@ -1,16 +1,19 @@
 #pragma once
 /// @file synthetic.hpp
-/// Analytic test surfaces with known answers: plane, tilted plane, sphere cap, step, and the
-/// paper's validation sinusoid z = A·sin(2πx/λ)·sin(2πy/λ) (Sec. 5.1 of the paper).
+/// Analytic test surfaces with known answers: plane, tilted plane, sphere cap, step, the
+/// paper's validation sinusoid z = A·sin(2πx/λ)·sin(2πy/λ) (Sec. 5.1 of the paper), and a
+/// temple relief with seven musical pillars (the audio demo, Sec. 4.4 of the paper).
 
 #include "hc/pipeline/cloud.hpp"
 
+#include <array>
 #include <cstdint>
+#include <vector>
 #include <string>
 
 namespace hc::pipeline {
 
-enum class SurfaceKind { kPlane, kTiltedPlane, kSphereCap, kStep, kSinusoid };
+enum class SurfaceKind { kPlane, kTiltedPlane, kSphereCap, kStep, kSinusoid, kTempleRelief };
 
 /// Parameters of an analytic surface over the square [−half_extent_m, half_extent_m]².
 struct SyntheticSpec {
@@ -19,19 +22,25 @@ struct SyntheticSpec {
   double density_per_m2 = 4e6;     ///< mean samples per square metre
   double noise_sigma_m = 0.0;      ///< Gaussian noise on z [m]
   std::uint64_t seed = 1;          ///< random seed (positions are uniform random)
-  double amplitude_m = 0.002;      ///< sinusoid A, step height, sphere-cap depth [m]
+  double amplitude_m = 0.002;      ///< sinusoid A, step height, sphere-cap depth, pillar relief [m]
   double wavelength_m = 0.02;      ///< sinusoid λ [m]
   double slope_x = 0.2, slope_y = 0.1;  ///< tilted plane gradient [-]
   double sphere_radius_m = 0.08;   ///< sphere cap radius [m]
 };
 
-/// Parses "plane", "tilted_plane", "sphere_cap", "step", "sinusoid".
+/// Parses "plane", "tilted_plane", "sphere_cap", "step", "sinusoid", "temple_relief".
 /// @throws hc::ConfigError naming the value and the allowed set.
 SurfaceKind surface_kind_from_string(const std::string& name);
 std::string to_string(SurfaceKind kind);
 
 /// Exact height z(x, y) [m] of the analytic surface (no noise).
 double synthetic_height(const SyntheticSpec& spec, double x_m, double y_m);
+
+/// Temple relief: seven fluted half-cylinder pillars standing out amplitude_m from a wall of
+/// stone courses, side by side along x. Pillar i (0..6, Sa..Ni in the audio demo) is centred at
+/// x = (i − 3)·s with s = 2·half_extent_m/9, radius 0.35·s, spanning |y| ≤ 0.75·half_extent_m;
+/// @return the footprint [x_min, y_min, x_max, y_max] [m] of each pillar (for audio regions).
+std::vector<std::array<double, 4>> temple_pillar_boxes(const SyntheticSpec& spec);
 
 /// Samples the surface at uniform random (x, y) with Gaussian noise on z.
 /// @throws hc::ConfigError for non-positive extent, density, wavelength or radius.
