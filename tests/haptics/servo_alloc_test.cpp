@@ -117,6 +117,39 @@ TEST(ServoAllocation, NoAllocationOver100000TicksAfterWarmUp) {
   shared.collect_retired();
 }
 
+TEST(ServoAllocation, SurfaceSwitchWithMapAndForceBlendDoesNotAllocate) {
+  // A LoD switch: surface and workspace map adopted together, the proxy carried over and the
+  // force step blended; none of it allocates on the servo side.
+  const HeightField f = test::make_square(200, 0.1, [](double x, double y) { return test::sinusoid(x, y); });
+  SharedState shared(test::make_surface(f));
+  ManualClock clock;
+  ScriptedPath path;
+  path.kind = PathKind::kCircle;
+  path.half_x_m = 0.01;
+  path.z_contact_m = -0.01;
+  SimulatedDevice dev(clock, path);
+  dev.open();
+  ServoLoop loop(dev, shared, clock, ServoConfig{});
+  shared.commands.try_push(Command::of(CommandType::kArm));
+  loop.run_ticks(3000, clock);  // warm-up, in contact
+  const HeightField g = test::make_square(100, 0.05, [](double x, double y) { return test::sinusoid(x, y) + 0.004; });
+  WorkspaceMap m;
+  m.scale = 0.5;
+  m.origin_m = Eigen::Vector3d(0.0, 0.0, 0.002);
+  shared.publish_surface(test::make_surface(g), m, 11);
+  ContactEvent e;
+  g_allocations = 0;
+  g_counting = true;
+  loop.run_ticks(5000, clock);
+  g_counting = false;
+  while (shared.events.try_pop(e)) {
+  }
+  EXPECT_EQ(g_allocations.load(), 0) << "allocations inside servo ticks";
+  EXPECT_EQ(shared.counters.surface_tag.load(), 11U);
+  EXPECT_DOUBLE_EQ(loop.config().workspace.scale, 0.5);
+  shared.collect_retired();
+}
+
 TEST(ServoAllocation, ThreadedTicksDoNotAllocate) {
   const HeightField f = test::make_square(100, 0.1, [](double x, double y) { return test::sinusoid(x, y); });
   SharedState shared(test::make_surface(f));

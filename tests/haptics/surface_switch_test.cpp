@@ -1,0 +1,190 @@
+// A new surface and its workspace map reach the servo through the mailbox together: both switch
+// at one tick, the proxy keeps its device position, and the force changes by at most the
+// configured step per tick (it ramps in where the HIP ends up inside the new surface).
+
+#include "hc/common/error.hpp"
+#include "hc/haptics/servo_loop.hpp"
+#include "hc/haptics/simulated_device.hpp"
+
+#include "haptics_test_support.hpp"
+
+#include <gtest/gtest.h>
+
+#include <atomic>
+#include <chrono>
+#include <thread>
+#include <vector>
+
+namespace hc::haptics {
+namespace {
+
+using Eigen::Vector3d;
+
+/// A device held where the test puts it.
+class PinnedDevice final : public HapticDevice {
+ public:
+  PinnedDevice() : HapticDevice(SimulatedDevice::default_info()) {}
+  Vector3d position = Vector3d(0, 0, 0.005);
+
+ protected:
+  void do_open() override {}
+  void do_close() noexcept override {}
+  DeviceStatus do_read(DeviceReading& out) noexcept override {
+    out.position_m = position;
+    return DeviceStatus::kOk;
+  }
+  DeviceStatus do_write(const Vector3d&) noexcept override { return DeviceStatus::kOk; }
+};
+
+std::unique_ptr<HapticSurface> flat(double z_m) {
+  return test::make_surface(test::make_square(41, 0.1, [z_m](double, double) { return z_m; }));
+}
+
+/// Arms, then presses the pinned HIP 2 mm into the surface at device (x, 0) until the force settles.
+void press(ServoLoop& loop, PinnedDevice& dev, ManualClock& clock, SharedState& shared, double x_m = 0.01) {
+  shared.commands.try_push(Command::of(CommandType::kArm));
+  dev.position = Vector3d(x_m, 0, 0.005);
+  loop.run_ticks(10, clock);
+  dev.position = Vector3d(x_m, 0, -0.002);
+  loop.run_ticks(600, clock);  // gate opens at once (small force), ramp 0.25 s
+}
+
+TEST(SurfaceSwitch, SurfaceAndMapSwitchAtOneTickAndTheProxyKeepsItsDevicePosition) {
+  SharedState shared(flat(0.0));
+  ManualClock clock;
+  PinnedDevice dev;
+  dev.open();
+  ServoConfig cfg;
+  cfg.proxy.friction_enabled = false;
+  ServoLoop loop(dev, shared, clock, cfg);
+  press(loop, dev, clock, shared);
+  Snapshot before;
+  ASSERT_TRUE(shared.snapshots.read(before));
+  ASSERT_TRUE(before.in_contact);
+  EXPECT_NEAR(before.device_force_n.z, 800.0 * 0.002, 1e-6);
+  EXPECT_EQ(before.surface_tag, 0U);
+
+  // A window twice as coarse, elsewhere in the grid frame, 3 mm higher in grid terms.
+  WorkspaceMap next;
+  next.scale = 2.0;
+  next.origin_m = Vector3d(0.3, -0.2, 0.003);
+  // The new surface spans x ∈ [0.2, 0.4], y ∈ [−0.3, −0.1]: the new map's device box.
+  shared.publish_surface(test::make_surface(test::make_field(41, 41, 0.005, 0.2, -0.3, [](double, double) { return 0.003; })),
+                         next, 7);
+  loop.run_ticks(1, clock);
+  Snapshot after;
+  ASSERT_TRUE(shared.snapshots.read(after));
+  EXPECT_EQ(after.surface_tag, 7U);
+  EXPECT_EQ(shared.counters.surface_tag.load(), 7U);
+  EXPECT_EQ(shared.counters.surfaces_adopted.load(), 1U);
+  // The HIP was mapped with the new map on the very tick the new surface was rendered.
+  EXPECT_TRUE(after.hip_m.eigen().isApprox(next.to_grid(dev.position), 1e-12));
+  // The proxy kept its device position: same spring, same force (the new surface sits at the
+  // same device height: (0.003 − 0.003)/2 = 0).
+  EXPECT_NEAR(next.to_device(after.proxy_m.eigen()).x(), 0.01, 1e-9);
+  EXPECT_NEAR(next.to_device(after.proxy_m.eigen()).z(), 0.0, 1e-9);
+  EXPECT_TRUE(after.in_contact);
+  EXPECT_NEAR((after.device_force_n.eigen() - before.device_force_n.eigen()).norm(), 0.0, 1e-6);
+  // Grid-frame stiffness follows the new scale: the device force is still k·2 mm.
+  EXPECT_NEAR(after.device_force_n.z, 800.0 * 0.002, 1e-6);
+  EXPECT_EQ(shared.collect_retired(), 1U);
+}
+
+TEST(SurfaceSwitch, ForceStepIsLimitedAndRampsInWhenTheHipEndsUpInside) {
+  SharedState shared(flat(0.0));
+  ManualClock clock;
+  PinnedDevice dev;
+  dev.open();
+  ServoConfig cfg;
+  cfg.proxy.friction_enabled = false;
+  cfg.switch_max_force_step_n = 0.5;
+  ServoLoop loop(dev, shared, clock, cfg);
+  press(loop, dev, clock, shared);
+  std::vector<TickRecord> trace(400);
+  loop.set_trace(trace);
+  loop.run_ticks(5, clock);
+  // The new surface is 5 mm higher: the HIP ends up 7 mm inside (5.6 N).
+  shared.publish_surface(flat(0.005), WorkspaceMap{}, 2);
+  loop.run_ticks(395, clock);
+  ASSERT_EQ(loop.trace_size(), 400U);
+  double worst_step = 0.0;
+  for (std::size_t k = 1; k < trace.size(); ++k) {
+    worst_step = std::max(worst_step, (trace[k].force_n.eigen() - trace[k - 1].force_n.eigen()).norm());
+    ASSERT_LE(trace[k].force_n.eigen().norm(), cfg.proxy.max_force_n + 1e-12);
+    if (k >= 5) {  // on the new surface from tick 5 on
+      ASSERT_GE(trace[k].proxy_m.z, shared.current_surface()->height(trace[k].proxy_m.x, trace[k].proxy_m.y) - 1e-9);
+    }
+  }
+  EXPECT_LE(worst_step, cfg.switch_max_force_step_n + 1e-9);
+  EXPECT_GT(worst_step, 0.05);  // there was a step to limit
+  // The force reached the new surface's value: k·7 mm.
+  EXPECT_NEAR(trace.back().force_n.z, 800.0 * 0.007, 1e-6);
+  // ... within the ramp time or the step-limited time, whichever is longer (here ~23 ticks).
+  EXPECT_NEAR(trace[5 + 60].force_n.z, 800.0 * 0.007, 1e-6);
+}
+
+TEST(SurfaceSwitch, SmallChangesAreNotBlendedAndOldPublicationsStillWork) {
+  SharedState shared(flat(0.0));
+  ManualClock clock;
+  PinnedDevice dev;
+  dev.open();
+  ServoConfig cfg;
+  cfg.proxy.friction_enabled = false;
+  ServoLoop loop(dev, shared, clock, cfg);
+  press(loop, dev, clock, shared);
+  shared.publish_surface(flat(0.0002));  // without a map: the map stays
+  loop.run_ticks(1, clock);
+  Snapshot s;
+  ASSERT_TRUE(shared.snapshots.read(s));
+  EXPECT_NEAR(s.device_force_n.z, 800.0 * 0.0022, 1e-6);  // 0.16 N step: taken at once
+  EXPECT_EQ(s.surface_tag, 0U);
+}
+
+TEST(SurfaceSwitch, InvalidMapsAndLimitsAreRejected) {
+  SharedState shared;
+  WorkspaceMap bad;
+  bad.scale = 0.0;
+  EXPECT_THROW(shared.publish_surface(flat(0.0), bad, 1), ConfigError);
+  EXPECT_FALSE(shared.surface_pending());
+  ManualClock clock;
+  PinnedDevice dev;
+  ServoConfig cfg;
+  cfg.switch_max_force_step_n = 0.0;
+  EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
+  cfg.switch_max_force_step_n = 0.5;
+  cfg.switch_ramp_s = -1.0;
+  EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
+}
+
+TEST(SurfaceSwitch, ThreadedPublicationsWithMapsAreAdoptedInOrder) {
+  SharedState shared(flat(0.0));
+  SteadyClock clock;
+  PinnedDevice dev;
+  dev.position = Vector3d(0.0, 0.0, -0.001);
+  dev.open();
+  ServoConfig cfg;
+  cfg.rate_hz = 4000;
+  cfg.realtime = RealtimeMode::kOff;
+  ServoLoop loop(dev, shared, clock, cfg);
+  shared.commands.try_push(Command::of(CommandType::kArm));
+  loop.start();
+  std::uint64_t last = 0;
+  for (std::uint64_t tag = 1; tag <= 40; ++tag) {
+    WorkspaceMap m;
+    m.scale = 1.0 + 0.01 * static_cast<double>(tag);
+    shared.publish_surface(flat(0.0001 * static_cast<double>(tag % 3)), m, tag);
+    last = tag;
+    std::this_thread::sleep_for(std::chrono::microseconds(300));
+    shared.collect_retired();
+  }
+  while (shared.counters.surface_tag.load() != last) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  loop.stop();
+  Snapshot s;
+  ASSERT_TRUE(shared.snapshots.read(s));
+  EXPECT_EQ(s.surface_tag, last);
+  EXPECT_NEAR(loop.config().workspace.scale, 1.4, 1e-12);
+  shared.collect_retired();
+}
+
+}  // namespace
+}  // namespace hc::haptics
