@@ -18,6 +18,12 @@
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
+#ifdef HC_HAVE_AUDIO
+#include "audio_setup.hpp"
+#include "hc/audio/engine.hpp"
+#include "hc/audio/offline.hpp"
+#endif
+
 #include <CLI/CLI.hpp>
 
 #include <algorithm>
@@ -61,12 +67,16 @@ struct TouchOptions {
   double press_m = 0.01;
   double speed_m_per_s = 0.05;
   bool validate = false;
+  std::string audio_out;     ///< offline render of the session's contact sounds (WAV)
+  std::string audio_live;    ///< play live: "default", "loopback" or an OpenAL device name
+  std::string audio_config;  ///< run config whose audio: section to use
 };
 
 /// The layers the session renders (owned here; HapticSurface copies what it needs).
 struct SceneLayers {
   std::map<std::string, HeightField> layers;
   std::string description;
+  pipeline::AudioSpec audio;  ///< the run config's audio: section (when the input is a config)
 };
 
 /// The paper's validation sinusoid (Sec. 5.1) with a fine texture: envelope
@@ -99,6 +109,8 @@ SceneLayers synthetic_sinusoid(int n) {
   return s;
 }
 
+SceneLayers load_input_scene(const fs::path& p, const TouchOptions& o);
+
 SceneLayers load_input(const TouchOptions& o) {
   if (!o.synthetic.empty()) {
     if (o.synthetic != "sinusoid") {
@@ -117,7 +129,14 @@ SceneLayers load_input(const TouchOptions& o) {
     std::cout << "touch: building the scene of " << p.string() << " into " << run_dir.string() << "\n";
     pipeline::run_pipeline(cfg, run_dir);
     p = run_dir / "scene";
+    SceneLayers s = load_input_scene(p, o);
+    s.audio = cfg.audio;
+    return s;
   }
+  return load_input_scene(p, o);
+}
+
+SceneLayers load_input_scene(const fs::path& p, const TouchOptions& o) {
   if (fs::is_directory(p) && fs::exists(p / "scene.yaml")) {
     pipeline::Scene scene = pipeline::load_scene(p);
     SceneLayers s;
@@ -195,6 +214,22 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
   layers.texture = layer(scene, "texture");
   layers.mu_d = layer(scene, "mu_d");
   layers.mu_s = layer(scene, "mu_s");
+#ifdef HC_HAVE_AUDIO
+  // Contact sounds (issue 7): clips decoded and regions rasterised BEFORE the session, so a bad
+  // clip stops here; the region ids ride on the haptic surface into the contact events.
+  std::shared_ptr<const audio::AudioScene> audio_scene;
+  HeightField region_layer;
+  if ((!o.audio_out.empty() || !o.audio_live.empty()) && layers.depth != nullptr) {
+    const GridGeometry& grid = layers.depth->geometry();
+    audio_scene = audio::build_audio_scene(audio_config_from(scene.audio), {&grid, layers.texture});
+    if (!audio_scene->config.regions.empty()) {
+      region_layer = audio_scene->regions.to_layer(grid);
+      layers.region_id = &region_layer;
+    }
+    std::cout << "audio: " << audio_scene->config.regions.size() << " region(s)"
+              << (scene.audio.present ? "" : " (the input has no audio: section; sliding sound only)") << "\n";
+  }
+#endif
   haptics::SurfaceOptions sopt;
   sopt.texture_gain = o.texture_gain;
   sopt.default_mu_d = o.mu_d;
@@ -244,9 +279,25 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
   haptics::SharedState shared(std::move(surface));
   std::vector<haptics::ContactEvent> events;
   events.reserve(1 << 16);
+#ifdef HC_HAVE_AUDIO
+  std::unique_ptr<audio::AudioEngine> live;
+  if (!o.audio_live.empty()) {
+    audio::EngineOptions eo;
+    eo.loopback = o.audio_live == "loopback";
+    if (o.audio_live != "default" && !eo.loopback) eo.device_name = o.audio_live;
+    live = std::make_unique<audio::AudioEngine>(audio_scene, eo);
+    const audio::EngineReport rep = live->start();  // events are forwarded by drain()
+    std::cout << rep.detail << "\n";
+  }
+#endif
   const auto drain = [&] {
     haptics::ContactEvent e;
-    while (shared.events.try_pop(e)) events.push_back(e);
+    while (shared.events.try_pop(e)) {
+      events.push_back(e);
+#ifdef HC_HAVE_AUDIO
+      if (live) live->submit(e);
+#endif
+    }
   };
   haptics::RealtimeReport report;
   haptics::ServoStats stats;
@@ -330,6 +381,43 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
   }
   ev.close();
 
+  std::string audio_json;
+#ifdef HC_HAVE_AUDIO
+  if (live) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));  // let the last notes start
+    live->stop();
+    const audio::EngineStats st = live->stats();
+    audio_json += "  \"audio_live\": {\"device\": \"" + o.audio_live + "\", \"events\": " + std::to_string(st.events) +
+                  ", \"onsets_played\": " + std::to_string(st.onsets_played) + ", \"underruns\": " +
+                  std::to_string(st.underruns) + ", \"latency_median_ms\": " + json_number(st.latency_median_s * 1e3) +
+                  ", \"latency_max_ms\": " + json_number(st.latency_max_s * 1e3) + "},\n";
+    std::cout << "  audio live: " << st.onsets_played << " onsets played, event->first sample latency median "
+              << st.latency_median_s * 1e3 << " ms (max " << st.latency_max_s * 1e3 << " ms), " << st.underruns
+              << " underruns\n";
+  }
+  if (!o.audio_out.empty()) {
+    // The same mixer as the live player, sample-accurate to the event times: sample
+    // round((t - t0) * rate) with t0 the first tick, as in events.csv.
+    audio::MixerStats ms;
+    const std::vector<float> wav =
+        audio::render_offline(audio_scene, events, t0, static_cast<double>(trace.size()) / o.rate_hz, 1.0, &ms);
+    audio::write_wav(o.audio_out, wav, audio_scene->config.sample_rate_hz);
+    float peak = 0.0F;
+    for (float v : wav) peak = std::max(peak, std::abs(v));
+    const double peak_dbfs = peak > 0.0F ? 20.0 * std::log10(static_cast<double>(peak)) : -200.0;
+    audio_json += "  \"audio\": {\"file\": \"" + o.audio_out + "\", \"sample_rate_hz\": " +
+                  std::to_string(audio_scene->config.sample_rate_hz) + ", \"seconds\": " +
+                  json_number(static_cast<double>(wav.size()) / audio_scene->config.sample_rate_hz) +
+                  ", \"regions\": " + std::to_string(audio_scene->config.regions.size()) +
+                  ", \"onsets_played\": " + std::to_string(ms.onsets_played) + ", \"onsets_silent\": " +
+                  std::to_string(ms.onsets_silent) + ", \"peak_dbfs\": " + json_number(peak_dbfs) +
+                  ", \"limiter_min_gain\": " + json_number(ms.limiter_min_gain) +
+                  ", \"latency_note\": \"live event-to-first-sample latency: bench/audio_bench (docs/audio.md)\"},\n";
+    std::cout << "  audio: wrote " << o.audio_out << " (" << wav.size() << " samples, " << ms.onsets_played
+              << " notes, peak " << peak_dbfs << " dBFS)\n";
+  }
+#endif
+
   const double p50 = stats.compute.percentile_ns(0.5), p99 = stats.compute.percentile_ns(0.99);
   const double p999 = stats.compute.percentile_ns(0.999);
   const double cmax = static_cast<double>(stats.compute.max_ns());
@@ -352,6 +440,7 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
      << "  \"contact_fraction\": " << json_number(trace.empty() ? 0.0 : static_cast<double>(contact_ticks) / static_cast<double>(trace.size())) << ",\n"
      << "  \"events\": {\"onset\": " << counts[0] << ", \"slide\": " << counts[1] << ", \"release\": " << counts[2]
      << ", \"dropped\": " << shared.counters.events_dropped.load() << "},\n"
+     << audio_json
      << "  \"realtime\": {\"fifo_granted\": " << (report.fifo_granted ? "true" : "false")
      << ", \"memory_locked\": " << (report.memory_locked ? "true" : "false") << "}\n"
      << "}\n";
@@ -387,7 +476,16 @@ void run_touch(const TouchOptions& o) {
   std::error_code ec;
   fs::create_directories(out, ec);
   if (ec) throw InputError("touch: cannot create the output folder '" + out.string() + "': " + ec.message());
-  const SceneLayers scene = load_input(o);
+  SceneLayers scene = load_input(o);
+  if (!o.audio_config.empty()) scene.audio = pipeline::load_run_config(o.audio_config).audio;
+  if (o.validate && (!o.audio_out.empty() || !o.audio_live.empty())) {
+    throw ConfigError("touch: --audio-out and --audio-live are for one session, not with --validate");
+  }
+#ifndef HC_HAVE_AUDIO
+  if (!o.audio_out.empty() || !o.audio_live.empty()) {
+    throw ConfigError("touch: this build has no audio module (hc::audio); --audio-out/--audio-live are unavailable");
+  }
+#endif
   if (!o.validate) {
     std::vector<haptics::TickRecord> trace;
     run_session(o, scene, out, trace);
@@ -448,6 +546,12 @@ void add_touch_command(CLI::App& app) {
   cmd->add_flag("--validate", opts->validate,
                 "Paper's validation: the session with and without texture and friction, plots and report.md");
   cmd->add_flag("--no-hand", opts->no_hand, "Drive the device exactly along the path (no virtual hand)");
+  cmd->add_option("--audio-out", opts->audio_out,
+                  "Write the session's contact sounds to this WAV file (offline, sample-accurate to the events)");
+  cmd->add_option("--audio-live", opts->audio_live,
+                  "Play the contact sounds while the session runs: default | loopback | an OpenAL device name");
+  cmd->add_option("--audio-config", opts->audio_config,
+                  "Run config whose audio: section to use (default: the input config's own)");
   cmd->callback([opts] { run_touch(*opts); });
 }
 

@@ -68,18 +68,21 @@ double synthetic_height(const SyntheticSpec& spec, double x_m, double y_m) {
     }
     case SurfaceKind::kTempleRelief: {
       const double h = spec.half_extent_m, a = spec.amplitude_m;
-      const double s = 2.0 * h / 9.0, r = 0.35 * s, half_len = 0.75 * h;
+      const double s = 2.0 * h / 9.0, r = 0.45 * s, half_len = 0.75 * h;
       // Wall: shallow grooves (mortar lines) every 0.2·h along y.
       const double course = 0.2 * h;
       const double d = y_m - course * std::round(y_m / course);
       double z = -0.08 * a * std::exp(-(d * d) / (0.0004 * 0.0004));
       const double i = std::clamp(std::round(x_m / s), -3.0, 3.0);
       const double u = (x_m - i * s) / r;
-      if (std::abs(y_m) <= half_len && std::abs(u) < 1.0) {
-        // Fluted half-cylinder shaft.
-        z = std::max(z, a * (std::sqrt(1.0 - u * u) + 0.03 * std::cos(7.0 * std::numbers::pi * u)));
-      } else if (std::abs(y_m) <= half_len + 0.6 * r && std::abs(u) < 1.3) {
-        z = std::max(z, 0.6 * a);  // plinth and capital
+      if (std::abs(u) < 1.0) {
+        // Shaft: a raised-cosine profile across x (no step at its edges, so a sliding probe
+        // climbs it) with shallow flutes, tapering to the wall over 0.1·h beyond |y| = 0.75·h.
+        const double across = std::cos(0.5 * std::numbers::pi * u);
+        const double over = std::max(0.0, std::abs(y_m) - half_len) / (0.1 * h);
+        const double along = over >= 1.0 ? 0.0 : std::cos(0.5 * std::numbers::pi * over);
+        const double shaft = a * across * across * (1.0 + 0.04 * std::cos(7.0 * std::numbers::pi * u)) * along * along;
+        z = std::max(z, shaft);
       }
       return z;
     }
@@ -89,7 +92,7 @@ double synthetic_height(const SyntheticSpec& spec, double x_m, double y_m) {
 
 std::vector<std::array<double, 4>> temple_pillar_boxes(const SyntheticSpec& spec) {
   const double h = spec.half_extent_m;
-  const double s = 2.0 * h / 9.0, r = 0.35 * s, half_len = 0.75 * h;
+  const double s = 2.0 * h / 9.0, r = 0.45 * s, half_len = 0.75 * h;
   std::vector<std::array<double, 4>> boxes;
   for (int i = -3; i <= 3; ++i) boxes.push_back({i * s - r, -half_len, i * s + r, half_len});
   return boxes;

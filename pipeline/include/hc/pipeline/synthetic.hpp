@@ -36,9 +36,11 @@ std::string to_string(SurfaceKind kind);
 /// Exact height z(x, y) [m] of the analytic surface (no noise).
 double synthetic_height(const SyntheticSpec& spec, double x_m, double y_m);
 
-/// Temple relief: seven fluted half-cylinder pillars standing out amplitude_m from a wall of
-/// stone courses, side by side along x. Pillar i (0..6, Sa..Ni in the audio demo) is centred at
-/// x = (i − 3)·s with s = 2·half_extent_m/9, radius 0.35·s, spanning |y| ≤ 0.75·half_extent_m;
+/// Temple relief: seven fluted pillars standing out amplitude_m from a wall of stone courses,
+/// side by side along x, each a raised-cosine profile A·cos²(πu/2) across its width (so a probe
+/// sliding at constant depth climbs over it). Pillar i (0..6, Sa..Ni in the audio demo) is
+/// centred at x = (i − 3)·s with s = 2·half_extent_m/9, half-width 0.45·s, spanning
+/// |y| ≤ 0.75·half_extent_m (tapering to the wall over 0.1·half_extent_m beyond);
 /// @return the footprint [x_min, y_min, x_max, y_max] [m] of each pillar (for audio regions).
 std::vector<std::array<double, 4>> temple_pillar_boxes(const SyntheticSpec& spec);
 
