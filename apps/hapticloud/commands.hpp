@@ -13,4 +13,7 @@ void add_run_command(CLI::App& app);
 /// `hapticloud touch SCENE_OR_CONFIG ...`: a headless scripted haptic session (issue 3).
 void add_touch_command(CLI::App& app);
 
+/// `hapticloud explore CONFIG_OR_SCENE [--device falcon|mouse|sim] ...`: the interactive session (issue 6).
+void add_explore_command(CLI::App& app);
+
 }  // namespace hc::app

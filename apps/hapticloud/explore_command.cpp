@@ -1,0 +1,607 @@
+/// `hapticloud explore`: the interactive session of the paper. The scene (built from a run
+/// config, or loaded from a scene folder) goes into a level-of-detail pyramid; a LodController
+/// publishes the haptic window to the servo loop (its own thread, 1 kHz); the viewer (this,
+/// the UI thread) draws snapshots, sends level/region and parameter commands, and asks for
+/// re-scans, which run the pipeline on a worker thread and replace the scene without a restart
+/// while the device is disarmed (zero force). Devices: the Falcon (hc::falcon), the mouse, or a
+/// scripted path (sim). Audio through hc::audio when it is built.
+///
+/// Threads (docs/architecture.md): servo (SCHED_FIFO when granted), UI (this thread, nice +10
+/// once the servo runs, and every thread it starts inherits that: Mesa's, the workers'),
+/// re-scan / rebuild workers (std::async), audio (hc::audio's own).
+
+#include "commands.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/common/units.hpp"
+#include "hc/haptics/clock.hpp"
+#include "hc/haptics/servo_loop.hpp"
+#include "hc/haptics/shared_state.hpp"
+#include "hc/haptics/simulated_device.hpp"
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/lod_controller.hpp"
+#include "hc/pipeline/run.hpp"
+#include "hc/pipeline/scene_io.hpp"
+#include "hc/pipeline/surface_layers.hpp"
+#include "hc/pipeline/synthetic.hpp"
+#include "hc/pipeline/transform.hpp"
+
+#ifdef HC_HAVE_VIEWER
+#include "hc/viewer/input_devices.hpp"
+#include "hc/viewer/viewer.hpp"
+#endif
+#ifdef HC_HAVE_FALCON
+#include "hc/falcon/falcon_device.hpp"
+#include "hc/falcon/usb_transport.hpp"
+#endif
+#ifdef HC_HAVE_AUDIO
+#include "hc/audio/engine.hpp"
+#include "hc/audio/mixer.hpp"
+#endif
+
+#include <CLI/CLI.hpp>
+
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <future>
+#include <iostream>
+#include <memory>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace hc::app {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct ExploreOptions {
+  std::string input;
+  std::string device = "mouse";
+  std::string path = "raster";
+  double speed_m_per_s = 0.03;
+  std::string screenshot;
+  int frames = 0;
+  double seconds = 0.0;
+  std::string summary;
+  std::string out = "explore-out";
+  int width = 1280, height = 800;
+  bool stereo = false;
+  bool hidden = false;
+  bool no_audio = false;
+  double stiffness_n_per_m = 800.0;
+  double rho = 0.9;
+  int window_cells = 200;
+};
+
+#ifdef HC_HAVE_VIEWER
+
+std::string fmt(double v, int precision = 4) {
+  std::ostringstream s;
+  s.precision(precision);
+  s << v;
+  return s.str();
+}
+
+/// A scene ready to explore: level 0 with its layers (kept for rebuilds) and its pyramid.
+struct Built {
+  pipeline::Scene base;  ///< level-0 layers (depth, envelope, texture, mu_d, mu_s)
+  std::shared_ptr<pipeline::LodPyramid> pyramid;
+  Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();
+  std::string description;
+  bool disarm = true;    ///< a new object (re-scan): zero force while it swaps
+  bool keep_window = false;
+};
+
+pipeline::Scene copy_layers(const pipeline::Scene& s) {
+  pipeline::Scene c;
+  for (const char* name : {"depth", "envelope", "texture", "mu_d", "mu_s"}) {
+    auto it = s.layers.find(name);
+    if (it != s.layers.end()) c.layers.emplace(name, it->second);
+  }
+  c.friction_model = s.friction_model;
+  return c;
+}
+
+std::shared_ptr<Built> build(pipeline::Scene scene, const pipeline::SurfaceLayerOptions& layer_options,
+                             const pipeline::LodOptions& lod_options, bool recompute_layers) {
+  auto b = std::make_shared<Built>();
+  if (recompute_layers) {
+    pipeline::SurfaceLayers l = pipeline::compute_surface_layers(scene.depth(), layer_options).value;
+    scene.layers["envelope"] = std::move(l.envelope_m);
+    scene.layers["texture"] = std::move(l.texture_m);
+    scene.layers["mu_d"] = std::move(l.mu_d);
+    scene.layers["mu_s"] = std::move(l.mu_s);
+  }
+  b->base = copy_layers(scene);
+  b->pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod_options);
+  return b;
+}
+
+/// Recentred cloud of a run config, subsampled to at most `max_points`, as float triplets.
+std::vector<float> cloud_preview(const pipeline::RunConfig& cfg, std::size_t max_points) {
+  pipeline::Cloud cloud;
+  if (cfg.input.synthetic) {
+    cloud = pipeline::generate_surface(*cfg.input.synthetic);
+  } else if (cfg.input.conf) {
+    cloud = pipeline::load_and_merge_scans(cfg.input.files, *cfg.input.conf).value;
+  } else {
+    cloud = pipeline::load_cloud(cfg.input.files.front()).value;
+  }
+  Eigen::Vector3d offset;
+  cloud = pipeline::to_metres_and_recentre(std::move(cloud), metres_per_unit(cfg.input.units), &offset).value;
+  const std::size_t n = cloud.size();
+  const std::size_t stride = std::max<std::size_t>(1, (n + max_points - 1) / max_points);
+  std::vector<float> out;
+  out.reserve(3 * (n / stride + 1));
+  for (std::size_t i = 0; i < n; i += stride) {
+    const auto c = static_cast<Eigen::Index>(i);
+    if (!cloud.xyz.col(c).allFinite()) continue;
+    for (int k = 0; k < 3; ++k) out.push_back(static_cast<float>(cloud.xyz(k, c)));
+  }
+  return out;
+}
+
+/// The interactive session (UI-thread side).
+class Session {
+ public:
+  explicit Session(const ExploreOptions& o) : o_(o) {}
+
+  void run();
+
+ private:
+  void load_input();
+  void start_device();
+  void show_window();
+  void on_region(const viewer::RegionCommand& c);
+  void on_rescan(const Eigen::Quaterniond& q);
+  void on_surface_settings(const viewer::SurfaceSettings& s);
+  void on_frame();
+  void adopt(const std::shared_ptr<Built>& b);
+  pipeline::LodControllerOptions controller_options() const;
+  std::optional<Eigen::Vector3d> anchor() const;
+  void write_summary(const haptics::ServoStats& stats, const haptics::RealtimeReport& rt) const;
+
+  ExploreOptions o_;
+  std::optional<pipeline::RunConfig> config_;
+  std::vector<float> cloud_;
+  pipeline::SurfaceLayerOptions layer_options_;
+  pipeline::LodOptions lod_options_;
+  std::shared_ptr<Built> built_;
+  std::string description_;
+  bool texture_enabled_ = true;
+
+  haptics::SteadyClock clock_;
+  haptics::SharedState shared_;
+  std::unique_ptr<pipeline::LodController> lod_;
+  std::unique_ptr<haptics::HapticDevice> device_;
+  viewer::MouseDevice* mouse_ = nullptr;
+  std::unique_ptr<haptics::ServoLoop> loop_;
+  std::unique_ptr<viewer::Viewer> viewer_;
+
+  // Re-scan / rebuild on a worker thread, then the swap (UI thread).
+  std::future<std::shared_ptr<Built>> job_;
+  std::shared_ptr<Built> incoming_;
+  enum class Swap { kIdle, kWaitDisarm, kWaitAdopt } swap_ = Swap::kIdle;
+  std::uint64_t mark_ = 0;
+  int rescans_ = 0;
+  std::string status_;
+};
+
+pipeline::LodControllerOptions Session::controller_options() const {
+  pipeline::LodControllerOptions c;
+  c.device_half_extent_m = device_ ? device_->info().workspace_half_extent_m : Eigen::Vector3d(0.05, 0.05, 0.05);
+  c.surface.texture_gain = texture_enabled_ ? 1.0 : 0.0;
+  c.surface.default_mu_s = layer_options_.mu_s;
+  return c;
+}
+
+void Session::load_input() {
+  fs::path p(o_.input);
+  if (fs::is_regular_file(p) && (p.extension() == ".yaml" || p.extension() == ".yml")) {
+    config_ = pipeline::load_run_config(p);
+    layer_options_ = config_->layers.options;
+    const fs::path dir = fs::path(o_.out) / "scan-0";
+    std::cout << "explore: building the scene of " << p.string() << " into " << dir.string() << "\n";
+    pipeline::run_pipeline(*config_, dir);
+    pipeline::Scene scene = pipeline::load_scene(dir / "scene");
+    cloud_ = cloud_preview(*config_, 150000);
+    built_ = build(std::move(scene), layer_options_, lod_options_, false);
+    built_->orientation = config_->view.rotation;
+    built_->description = config_->name;
+    return;
+  }
+  if (fs::is_directory(p) && fs::exists(p / "scene.yaml")) {
+    pipeline::Scene scene = pipeline::load_scene(p);
+    if (!scene.friction_model.empty()) layer_options_.friction_model = pipeline::friction_model_from_string(scene.friction_model);
+    built_ = build(std::move(scene), layer_options_, lod_options_, false);
+    built_->description = p.filename().string();
+    return;
+  }
+  throw InputError("explore: '" + o_.input +
+                   "' is neither a run config (.yaml) nor a scene folder (with scene.yaml); make a scene with "
+                   "`hapticloud run CONFIG`, or pass the config itself");
+}
+
+std::optional<Eigen::Vector3d> Session::anchor() const {
+  const haptics::Snapshot& s = viewer_->snapshot();
+  if (s.tick == 0) return std::nullopt;
+  return s.proxy_m.eigen();
+}
+
+/// The level whose whole grid fits in one window (else the coarsest), and the overview level.
+int fitting_level(const pipeline::LodController& lod, int cells) {
+  for (int l = 0; l < lod.level_count(); ++l) {
+    const GridGeometry& g = lod.level_geometry(l);
+    if (std::max(g.rows, g.cols) <= cells) return l;
+  }
+  return lod.level_count() - 1;
+}
+
+void Session::show_window() {
+  const pipeline::HapticWindow& w = lod_->window();
+  auto layers = lod_->pyramid().window(w.level, w.row0, w.col0, w.rows, w.cols);
+  auto d = std::make_shared<viewer::DisplayScene>();
+  d->window = (!texture_enabled_ && layers->envelope_m.rows() > 0) ? layers->envelope_m : layers->depth_m;
+  const int ov = fitting_level(*lod_, 256);
+  d->overview = lod_->pyramid().depth_level(ov)->depth_m;
+  d->workspace = w.map;
+  d->level = w.level;
+  d->level_count = lod_->level_count();
+  d->cloud_xyz_m = cloud_;
+  d->orientation = built_->orientation;
+  d->description = built_->description + ": level " + std::to_string(w.level) + " of " +
+                   std::to_string(lod_->level_count() - 1) + ", window " + std::to_string(w.cols) + "x" +
+                   std::to_string(w.rows) + " samples, cell " + fmt(1e3 * w.geometry.cell_size_m, 3) + " mm";
+  if (viewer_) viewer_->set_scene(std::move(d));
+}
+
+void Session::on_region(const viewer::RegionCommand& c) {
+  if (!lod_ || swap_ != Swap::kIdle) return;
+  const pipeline::HapticWindow& w = lod_->window();
+  switch (c.type) {
+    case viewer::RegionCommandType::kFiner: lod_->zoom_in(anchor()); break;
+    case viewer::RegionCommandType::kCoarser: lod_->zoom_out(anchor()); break;
+    case viewer::RegionCommandType::kSetLevel:
+      lod_->set_level(std::clamp(c.level, 0, lod_->level_count() - 1), anchor());
+      break;
+    case viewer::RegionCommandType::kPan:
+      lod_->pan(static_cast<int>(std::lround(c.dx * w.cols)), static_cast<int>(std::lround(c.dy * w.rows)));
+      break;
+    case viewer::RegionCommandType::kCentreAt: lod_->centre_window(w.level, c.x_m, c.y_m); break;
+  }
+  show_window();
+}
+
+void Session::on_rescan(const Eigen::Quaterniond& q) {
+  if (!config_ || job_.valid() || swap_ != Swap::kIdle) return;
+  pipeline::RunConfig cfg = *config_;
+  cfg.view.rotation = q.normalized();
+  const fs::path dir = fs::path(o_.out) / ("scan-" + std::to_string(++rescans_));
+  const pipeline::SurfaceLayerOptions layers = layer_options_;
+  const pipeline::LodOptions lod = lod_options_;
+  const std::string name = config_->name;
+  status_ = "re-scanning in " + dir.string() + " ...";
+  job_ = std::async(std::launch::async, [cfg, dir, layers, lod, name] {
+    pipeline::run_pipeline(cfg, dir);
+    auto b = build(pipeline::load_scene(dir / "scene"), layers, lod, false);
+    b->orientation = cfg.view.rotation;
+    b->description = name + " (re-scanned)";
+    b->disarm = true;
+    return b;
+  });
+}
+
+void Session::on_surface_settings(const viewer::SurfaceSettings& s) {
+  if (swap_ != Swap::kIdle) return;
+  const pipeline::FrictionModel model = pipeline::friction_model_from_string(s.friction_model);
+  if (s.texture_enabled != texture_enabled_) {
+    // Same pyramid, new surface options: republish the window in place.
+    texture_enabled_ = s.texture_enabled;
+    const pipeline::HapticWindow w = lod_->window();
+    lod_ = std::make_unique<pipeline::LodController>(built_->pyramid, shared_, controller_options());
+    lod_->set_window(w.level, w.col0, w.row0);
+    show_window();
+  }
+  if ((model != layer_options_.friction_model || s.mu_s != layer_options_.mu_s) && !job_.valid()) {
+    // Friction layers of every level change: rebuild the pyramid on a worker.
+    layer_options_.friction_model = model;
+    layer_options_.mu_s = s.mu_s;
+    pipeline::Scene base = copy_layers(built_->base);
+    const pipeline::SurfaceLayerOptions layers = layer_options_;
+    const pipeline::LodOptions lod = lod_options_;
+    const Eigen::Quaterniond q = built_->orientation;
+    const std::string name = built_->description;
+    status_ = "rebuilding the friction layers ...";
+    job_ = std::async(std::launch::async, [base = std::move(base), layers, lod, q, name]() mutable {
+      auto b = build(std::move(base), layers, lod, true);
+      b->orientation = q;
+      b->description = name;
+      b->disarm = false;
+      b->keep_window = true;
+      return b;
+    });
+  }
+}
+
+void Session::adopt(const std::shared_ptr<Built>& b) {
+  std::optional<pipeline::HapticWindow> old;
+  if (lod_ && lod_->has_window()) old = lod_->window();
+  built_ = b;
+  lod_ = std::make_unique<pipeline::LodController>(built_->pyramid, shared_, controller_options());
+  if (b->keep_window && old) {
+    lod_->set_window(old->level, old->col0, old->row0);
+  } else {
+    const GridGeometry& g = lod_->level_geometry(0);
+    lod_->centre_window(fitting_level(*lod_, lod_->window_cells()), g.x_of_col(0.5 * (g.cols - 1)),
+                        g.y_of_row(0.5 * (g.rows - 1)));
+  }
+  show_window();
+}
+
+void Session::on_frame() {
+  if (mouse_ != nullptr) {
+    Eigen::Vector3d p;
+    if (viewer_->mouse_target(p)) mouse_->set_position(p);
+  }
+  shared_.collect_retired();
+#ifndef HC_HAVE_AUDIO
+  haptics::ContactEvent e;
+  while (shared_.events.try_pop(e)) {
+  }
+#endif
+  if (job_.valid() && job_.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
+    try {
+      incoming_ = job_.get();
+    } catch (const std::exception& e) {
+      status_ = std::string("failed: ") + e.what();
+      incoming_.reset();
+    }
+    if (incoming_) {
+      if (incoming_->disarm) {
+        shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kDisarm));
+        mark_ = shared_.counters.commands_applied.load();
+        swap_ = Swap::kWaitDisarm;
+        status_ = "swapping the scene (forces off) ...";
+      } else {
+        adopt(incoming_);
+        incoming_.reset();
+        status_.clear();
+      }
+    }
+  }
+  if (swap_ == Swap::kWaitDisarm && shared_.counters.commands_applied.load() > mark_) {
+    // The device is Open: zero force. Publish the new scene and wait until the servo has it.
+    mark_ = shared_.counters.surfaces_adopted.load();
+    adopt(incoming_);
+    incoming_.reset();
+    swap_ = Swap::kWaitAdopt;
+  }
+  if (swap_ == Swap::kWaitAdopt && shared_.counters.surfaces_adopted.load() > mark_ && !shared_.surface_pending()) {
+    shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
+    swap_ = Swap::kIdle;
+    status_ = "new scene in place";
+  }
+}
+
+void Session::start_device() {
+  if (o_.device == "mouse") {
+    auto m = std::make_unique<viewer::MouseDevice>(clock_);
+    mouse_ = m.get();
+    device_ = std::move(m);
+  } else if (o_.device == "sim") {
+    // Made in run() once the first window's heights are known (the path's heights need them).
+  } else if (o_.device == "falcon") {
+#ifdef HC_HAVE_FALCON
+    falcon::install_stop_signal_handlers();
+    device_ = std::make_unique<falcon::FalconDevice>(clock_, std::make_unique<falcon::UsbFalconProvider>(),
+                                                     falcon::FalconConfig{});
+#else
+    throw ConfigError("explore: --device falcon: this build has no Falcon driver (hc::falcon was not built)");
+#endif
+  } else {
+    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
+  }
+}
+
+void Session::write_summary(const haptics::ServoStats& stats, const haptics::RealtimeReport& rt) const {
+  const viewer::FrameStats& f = viewer_->frame_stats();
+  const auto& c = shared_.counters;
+  std::cout << "explore: " << stats.ticks << " servo ticks, " << stats.overruns << " overruns; compute p50 "
+            << stats.compute.percentile_ns(0.5) << " ns, p99.9 " << stats.compute.percentile_ns(0.999) << " ns, max "
+            << stats.compute.max_ns() << " ns; lateness p99.9 " << stats.lateness.percentile_ns(0.999) << " ns, max "
+            << stats.lateness.max_ns() << " ns\n"
+            << "explore: " << f.frames << " frames, mean " << fmt(1e3 * f.mean_frame_s) << " ms, max "
+            << fmt(1e3 * f.max_frame_s) << " ms (excluding the frame-rate cap)\n";
+  if (o_.summary.empty()) return;
+  std::ofstream js(o_.summary);
+  if (!js) throw InputError("explore: cannot write the summary '" + o_.summary + "'");
+  js << "{\n"
+     << "  \"device\": \"" << o_.device << "\",\n"
+     << "  \"ticks\": " << stats.ticks << ",\n"
+     << "  \"overruns\": " << stats.overruns << ",\n"
+     << "  \"compute_ns\": {\"p50\": " << stats.compute.percentile_ns(0.5) << ", \"p99\": "
+     << stats.compute.percentile_ns(0.99) << ", \"p99_9\": " << stats.compute.percentile_ns(0.999)
+     << ", \"max\": " << stats.compute.max_ns() << "},\n"
+     << "  \"lateness_ns\": {\"p50\": " << stats.lateness.percentile_ns(0.5) << ", \"p99_9\": "
+     << stats.lateness.percentile_ns(0.999) << ", \"max\": " << stats.lateness.max_ns() << "},\n"
+     << "  \"device_errors\": " << c.device_errors.load() << ",\n"
+     << "  \"commands_applied\": " << c.commands_applied.load() << ",\n"
+     << "  \"commands_rejected\": " << c.commands_rejected.load() << ",\n"
+     << "  \"surfaces_adopted\": " << c.surfaces_adopted.load() << ",\n"
+     << "  \"events_dropped\": " << c.events_dropped.load() << ",\n"
+     << "  \"frames\": " << f.frames << ",\n"
+     << "  \"frame_mean_s\": " << f.mean_frame_s << ",\n"
+     << "  \"frame_max_s\": " << f.max_frame_s << ",\n"
+     << "  \"fifo_granted\": " << (rt.fifo_granted ? "true" : "false") << ",\n"
+     << "  \"memory_locked\": " << (rt.memory_locked ? "true" : "false") << ",\n"
+     << "  \"mesh_quads\": " << viewer_->mesh_quads() << "\n"
+     << "}\n";
+}
+
+void Session::run() {
+  if (o_.frames < 0) throw ConfigError("explore: --frames " + std::to_string(o_.frames) + " must be ≥ 0");
+  if (!(o_.seconds >= 0.0) || o_.seconds > 86400.0) {
+    throw ConfigError("explore: --seconds " + fmt(o_.seconds) + " is out of range (expected [0, 86400])");
+  }
+  if (!o_.screenshot.empty() && o_.frames == 0 && o_.seconds == 0.0) o_.frames = 1;
+  lod_options_.window_cells = o_.window_cells;
+  std::error_code ec;
+  fs::create_directories(o_.out, ec);
+  if (ec) throw InputError("explore: cannot create the output folder '" + o_.out + "': " + ec.message());
+  load_input();
+  start_device();
+
+  // First window, then the device and the servo loop.
+  lod_ = std::make_unique<pipeline::LodController>(built_->pyramid, shared_, controller_options());
+  {
+    const GridGeometry& g = lod_->level_geometry(0);
+    lod_->centre_window(fitting_level(*lod_, lod_->window_cells()), g.x_of_col(0.5 * (g.cols - 1)),
+                        g.y_of_row(0.5 * (g.rows - 1)));
+  }
+  const pipeline::HapticWindow& w0 = lod_->window();
+  if (o_.device == "sim") {
+    const haptics::DeviceInfo info = haptics::SimulatedDevice::default_info();
+    const double mid = 0.5 * (w0.min_height_m + w0.max_height_m);
+    haptics::ScriptedPath path;
+    path.kind = haptics::path_kind_from_string(o_.path);
+    path.half_x_m = 0.6 * info.workspace_half_extent_m.x();
+    path.half_y_m = 0.6 * info.workspace_half_extent_m.y();
+    path.raster_spacing_m = 0.1 * info.workspace_half_extent_m.y();
+    path.z_above_m = (w0.max_height_m - mid) / w0.map.scale + 0.01;
+    path.z_contact_m = -0.01;
+    path.speed_m_per_s = o_.speed_m_per_s;
+    device_ = std::make_unique<haptics::SimulatedDevice>(clock_, path, haptics::VirtualHand{}, info);
+  }
+  device_->open();
+  haptics::ServoConfig cfg;
+  cfg.realtime = haptics::RealtimeMode::kWarn;
+  cfg.workspace = w0.map;
+  cfg.proxy.stiffness_n_per_m = o_.stiffness_n_per_m;
+  cfg.proxy.rho = o_.rho;
+  cfg.proxy.max_force_n = std::min(cfg.proxy.max_force_n, device_->info().max_force_n);
+  loop_ = std::make_unique<haptics::ServoLoop>(*device_, shared_, clock_, cfg);
+  const haptics::RealtimeReport rt = loop_->start();
+  std::cout << "explore: device " << device_->info().name << "; servo " << cfg.rate_hz << " Hz, SCHED_FIFO "
+            << (rt.fifo_granted ? "granted" : "not granted") << "\n";
+  if (!rt.detail.empty()) std::cout << "explore: " << rt.detail << "\n";
+  // The UI thread and everything it starts (Mesa's threads, workers) yield to the servo thread.
+  setpriority(PRIO_PROCESS, static_cast<id_t>(gettid()), 10);
+
+#ifdef HC_HAVE_AUDIO
+  std::unique_ptr<audio::AudioEngine> sound;
+  if (!o_.no_audio) {
+    const auto& base = built_->base;
+    const HeightField* texture = base.has("texture") ? &base.layers.at("texture") : nullptr;
+    const GridGeometry grid = base.depth().geometry();
+    sound = std::make_unique<audio::AudioEngine>(audio::build_audio_scene(audio::AudioConfig{}, {&grid, texture}));
+    const audio::EngineReport ar = sound->start(shared_);
+    std::cout << "explore: audio " << (ar.device_open ? ar.device : std::string("off")) << ": " << ar.detail << "\n";
+  }
+#endif
+
+  viewer::ViewerOptions vo;
+  vo.width_px = o_.width;
+  vo.height_px = o_.height;
+  vo.visible = !o_.hidden;
+  vo.stereo = o_.stereo;
+  vo.mouse_drives_hip = mouse_ != nullptr;
+  vo.max_force_n = cfg.proxy.max_force_n;
+  vo.max_stiffness_n_per_m = device_->info().max_stable_stiffness_n_per_m;
+  vo.stiffness_n_per_m = cfg.proxy.stiffness_n_per_m;
+  vo.rho = cfg.proxy.rho;
+  vo.surface.mu_s = layer_options_.mu_s;
+  vo.surface.friction_model = pipeline::to_string(layer_options_.friction_model);
+  viewer::ViewerCallbacks cb;
+  cb.on_region = [this](const viewer::RegionCommand& c) { on_region(c); };
+  if (config_) cb.on_rescan = [this](const Eigen::Quaterniond& q) { on_rescan(q); };
+  cb.on_surface_settings = [this](const viewer::SurfaceSettings& s) { on_surface_settings(s); };
+#ifdef HC_HAVE_AUDIO
+  if (sound) cb.on_audio_volume = [&sound](double v) { sound->set_volume(v); };
+#endif
+  cb.on_frame = [this] { on_frame(); };
+  cb.status = [this] { return status_; };
+  try {
+    viewer_ = std::make_unique<viewer::Viewer>(shared_, vo, cb);
+  } catch (...) {
+    loop_->stop();
+    device_->close();
+    throw;
+  }
+  show_window();
+  shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
+
+  const auto t0 = std::chrono::steady_clock::now();
+  for (int frame = 1;; ++frame) {
+    const bool last = (o_.frames > 0 && frame >= o_.frames) ||
+                      (o_.seconds > 0.0 && std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() >= o_.seconds);
+    if (last && !o_.screenshot.empty()) {
+      viewer::write_png(viewer_->capture(), o_.screenshot);
+      std::cout << "explore: wrote " << o_.screenshot << "\n";
+      break;
+    }
+    if (!viewer_->frame() || last) break;
+  }
+  if (job_.valid()) job_.wait();
+  loop_->stop();
+#ifdef HC_HAVE_AUDIO
+  if (sound) sound->stop();
+#endif
+  const haptics::ServoStats stats = loop_->stats();
+  device_->close();
+  write_summary(stats, rt);
+  viewer_.reset();
+}
+
+#endif  // HC_HAVE_VIEWER
+
+void run_explore(const ExploreOptions& o) {
+#ifdef HC_HAVE_VIEWER
+  Session session(o);
+  session.run();
+#else
+  (void)o;
+  throw ConfigError("explore: this build has no viewer (hc::viewer was not built)");
+#endif
+}
+
+}  // namespace
+
+void add_explore_command(CLI::App& app) {
+  auto o = std::make_shared<ExploreOptions>();
+  CLI::App* cmd = app.add_subcommand(
+      "explore",
+      "Interactive session: see, feel and hear a scene (viewer + servo loop + device). Press H in the window for the controls.");
+  cmd->add_option("CONFIG_OR_SCENE", o->input, "Run config (.yaml; its scene is built first, re-scans possible) or a scene folder")
+      ->required();
+  cmd->add_option("--device", o->device, "falcon | mouse | sim (a scripted path)")->capture_default_str();
+  cmd->add_option("--path", o->path, "Scripted path of --device sim: raster | circle | line | press-slide | hold")
+      ->capture_default_str();
+  cmd->add_option("--speed", o->speed_m_per_s, "Speed of the scripted path [m/s] (device frame)")->capture_default_str();
+  cmd->add_option("--screenshot", o->screenshot, "Render --frames N frames (1 if not given), save the last as PNG and exit");
+  cmd->add_option("--frames", o->frames, "Exit after this many frames (0 = run until the window closes)")->capture_default_str();
+  cmd->add_option("--seconds", o->seconds, "Exit after this many seconds (0 = no limit)")->capture_default_str();
+  cmd->add_option("--summary", o->summary, "Write servo and frame statistics of the session as JSON to this file");
+  cmd->add_option("--out", o->out, "Folder for the scenes built from a config (scan-0, scan-1 after re-scans, ...)")
+      ->capture_default_str();
+  cmd->add_option("--width", o->width, "Window width [px]")->capture_default_str();
+  cmd->add_option("--height", o->height, "Window height [px]")->capture_default_str();
+  cmd->add_option("--window-cells", o->window_cells, "Haptic window side [samples]")->capture_default_str();
+  cmd->add_option("--stiffness", o->stiffness_n_per_m, "Stiffness k [N/m] (device frame)")->capture_default_str();
+  cmd->add_option("--rho", o->rho, "Proxy step factor rho of Eq. 4-5, (0, 1]")->capture_default_str();
+  cmd->add_flag("--stereo", o->stereo, "Start in red/cyan anaglyph stereo");
+  cmd->add_flag("--hidden", o->hidden, "Do not show the window (with --screenshot or --seconds)");
+  cmd->add_flag("--no-audio", o->no_audio, "No contact sounds");
+  cmd->callback([o] { run_explore(*o); });
+}
+
+}  // namespace hc::app
