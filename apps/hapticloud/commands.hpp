@@ -13,6 +13,11 @@ void add_run_command(CLI::App& app);
 /// `hapticloud touch SCENE_OR_CONFIG ...`: a headless scripted haptic session (issue 3).
 void add_touch_command(CLI::App& app);
 
+#ifdef HC_HAVE_FALCON
+/// `hapticloud devices` and `hapticloud falcon-check` (issue 5).
+void add_falcon_command(CLI::App& app);
+#endif
+
 /// `hapticloud explore CONFIG_OR_SCENE [--device falcon|mouse|sim] ...`: the interactive session (issue 6).
 void add_explore_command(CLI::App& app);
 
