@@ -85,7 +85,10 @@ Workload make_buddha(int n) {
     const auto cloud = hc::pipeline::load_cloud(path).value;
     hc::pipeline::ReprojectOptions opt;
     opt.grid.n_long_side = n;
-    opt.splat_radius_cells = std::max(0.0, n / 800.0 - 0.5);
+    // As configs/happy_buddha.yaml: finer than the scan, scan every K-th node and interpolate.
+    opt.splat_radius_cells = 1.2;
+    opt.see_through_depth_m = 0.002;
+    opt.upsample_factor = 0;
     auto grid = hc::pipeline::reproject(cloud, opt).value;
     w.depth = std::make_unique<HeightField>(std::move(grid.depth));
     hc::haptics::SurfaceLayers layers;

@@ -587,6 +587,26 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
                      : SplatMode::kDisc;
   g.see_through_depth_m = r.get_double("grid.see_through_depth_m", 0.0, 0.0, 100.0);
   g.see_through_window_cells = static_cast<int>(r.get_int("grid.see_through_window_cells", 3, 1, 64));
+  {
+    const std::string up = r.get_string("grid.upsample", "off");
+    const std::string expected = "expected auto, off, or an integer factor in [1, " +
+                                 std::to_string(kMaxUpsampleFactor) + "]";
+    if (up == "auto") {
+      g.upsample_factor = 0;
+    } else if (up == "off") {
+      g.upsample_factor = 1;
+    } else {
+      std::size_t used = 0;
+      int k = -1;
+      try {
+        k = std::stoi(up, &used);
+      } catch (const std::exception&) {
+        used = 0;
+      }
+      if (used != up.size() || k < 1 || k > kMaxUpsampleFactor) r.fail("grid.upsample", "= '" + up + "': " + expected);
+      g.upsample_factor = k;
+    }
+  }
   c.grid.hole_fill_max_cells = static_cast<int>(r.get_int("grid.hole_fill_max_cells", 0, 0, 1 << 24));
 
   // cross-check

@@ -39,6 +39,13 @@
 //    Candidate cells are pre-selected with a separable (2w+1)² max filter (a cell can only be
 //    bracketed if something in its window is higher than z + depth), so the ray test runs on a
 //    small fraction of the grid.
+//  * Upsampling. Cells finer than the point spacing hold a point only here and there; splats
+//    then fill the rest with flat discs (terraces with one-cell risers, which hold a point proxy)
+//    and the see-through test meets gaps wider than its window. With upsample_factor K the scan
+//    runs on every K-th node (K× the cell) and bilinear interpolation fills the nodes between:
+//    the surface is then exactly the coarse scan's bilinear surface, no detail is invented.
+//    Auto picks the smallest K at which 90 % of the hit nodes have 4 hit neighbours (a scan
+//    hitting each node with probability p has that fraction ≈ p⁴, so 0.9 means p ≈ 0.97).
 //    Known limits: a genuine crease narrower than the window and deeper than the depth threshold
 //    on both sides is indistinguishable from a gap and is dropped (it becomes a small hole that
 //    hole filling may close); a gap wider than the window is not found.
@@ -56,6 +63,7 @@
 #include <memory>
 #include <sstream>
 #include <thread>
+#include <vector>
 
 namespace hc::pipeline {
 
@@ -165,6 +173,11 @@ void validate_options(const ReprojectOptions& o) {
   }
   if (std::isnan(o.see_through_depth_m)) {
     throw ConfigError("reproject: see_through_depth_m is NaN (expected a depth in metres, <= 0 disables)");
+  }
+  if (o.upsample_factor < 0 || o.upsample_factor > kMaxUpsampleFactor) {
+    msg << "reproject: upsample_factor = " << o.upsample_factor << " (expected 0 = auto, or 1 to "
+        << kMaxUpsampleFactor << ")";
+    throw ConfigError(msg.str());
   }
   if (o.see_through_depth_m > 0.0 && (o.see_through_window_cells < 1 || o.see_through_window_cells > 64)) {
     msg << "reproject: see_through_window_cells = " << o.see_through_window_cells << " (expected 1 to 64)";
@@ -441,42 +454,112 @@ inline bool ray_has_higher(const float* depth, int rows, int cols, int r, int c,
   return false;
 }
 
-}  // namespace
 
-StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options) {
-  const auto t0 = std::chrono::steady_clock::now();
-  validate_options(options);
-  // The two passes over the points (bounds, binning) run on two threads for large clouds; each
-  // thread takes half of the points (binning into its own grid, merged by the front-most rule).
-  const double* pts = points_m.xyz.data();
-  const std::size_t n_points = points_m.size();
-  const bool two_threads = n_points >= kTwoThreadPoints;
-  const std::size_t half = two_threads ? n_points / 2 : n_points;
-  Bounds bounds;
-  if (two_threads) {
-    Bounds upper;
-    run_two([&] { upper = finite_bounds(pts + 3 * half, n_points - half); },
-            [&] { bounds = finite_bounds(pts, half); });
-    bounds = merge(bounds, upper);
-  } else {
-    bounds = finite_bounds(pts, n_points);
-  }
-  if (bounds.finite == 0) {
-    std::ostringstream msg;
-    msg << "reproject: none of the " << points_m.size()
-        << " input points is finite (every point has a NaN or infinite coordinate)";
-    throw InputError(msg.str());
-  }
-  const GridGeometry g = make_geometry(bounds, options);
+// Coverage of the scan on geometry g: of the nodes holding at least one point, the fraction
+// whose 4 neighbours hold one too (1 for a scan denser than the grid everywhere; about p⁴ when
+// a node is hit with probability p, so it falls fast once cells get finer than the spacing).
+double coverage_on(const double* p, std::size_t n, const GridGeometry& g, bool all_finite) {
   const std::size_t cells = g.cell_count();
+  std::vector<std::uint8_t> hit(cells, 0);
+  const double inv = 1.0 / g.cell_size_m;
+  const double cx = 0.5 - g.x0_m * inv, cy = 0.5 - g.y0_m * inv;
+  const auto c_max = static_cast<unsigned>(g.cols - 1), r_max = static_cast<unsigned>(g.rows - 1);
+  const std::size_t cols = static_cast<std::size_t>(g.cols);
+  for (std::size_t i = 0; i < n; ++i, p += 3) {
+    if (!all_finite && !finite_point(p)) continue;
+    const unsigned c = std::min(static_cast<unsigned>(static_cast<int>(p[0] * inv + cx)), c_max);
+    const unsigned r = std::min(static_cast<unsigned>(static_cast<int>(p[1] * inv + cy)), r_max);
+    hit[static_cast<std::size_t>(r) * cols + c] = 1;
+  }
+  std::size_t occupied = 0, interior = 0;
+  for (int r = 1; r + 1 < g.rows; ++r) {
+    for (int c = 1; c + 1 < g.cols; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r) * cols + static_cast<std::size_t>(c);
+      if (!hit[i]) continue;
+      ++occupied;
+      interior += (hit[i - 1] & hit[i + 1] & hit[i - cols] & hit[i + cols]) ? 1U : 0U;
+    }
+  }
+  return occupied == 0 ? 0.0 : static_cast<double>(interior) / static_cast<double>(occupied);
+}
 
-  StageResult<DepthGrid> result;
-  DepthGrid& out = result.value;
+// The grid whose node (R, C) is node (K·R, K·C) of g: same origin, K× the cell, covering g.
+GridGeometry coarse_geometry(const GridGeometry& g, int k) {
+  GridGeometry c = g;
+  c.cell_size_m = g.cell_size_m * k;
+  c.cols = (g.cols - 1 + k - 1) / k + 1;
+  c.rows = (g.rows - 1 + k - 1) / k + 1;
+  return c;
+}
+
+int auto_upsample_factor(const double* p, std::size_t n, const GridGeometry& g, bool all_finite,
+                         double* coverage) {
+  for (int k = 1; k <= kMaxUpsampleFactor; ++k) {
+    const GridGeometry c = coarse_geometry(g, k);
+    if (c.cols < 3 || c.rows < 3) return std::max(1, k - 1);
+    *coverage = coverage_on(p, n, c, all_finite);
+    if (*coverage >= kAutoUpsampleCoverage) return k;
+  }
+  return kMaxUpsampleFactor;
+}
+
+// Bilinear interpolation of the coarse scan onto g (g's node (r, c) sits at coarse (r/K, c/K)).
+// A node is no data when a coarse node with non-zero weight is; nodes that coincide with a
+// coarse node keep its value and flag, the others are flagged kCellUpsampled (or keep the
+// no-data flag of the nearest coarse node).
+DepthGrid upsample(const DepthGrid& coarse, const GridGeometry& cg, const GridGeometry& g, int k) {
+  DepthGrid out;
+  out.depth = HeightField(g, kNoData);
+  out.flags.assign(g.cell_count(), kCellEmpty);
+  const float* z = coarse.depth.data();
+  const std::size_t ccols = static_cast<std::size_t>(cg.cols);
+  const double inv_k = 1.0 / k;
+  for (int r = 0; r < g.rows; ++r) {
+    const int r0 = std::min(r / k, cg.rows - 2);
+    const double v = (r - r0 * k) * inv_k;
+    for (int c = 0; c < g.cols; ++c) {
+      const int c0 = std::min(c / k, cg.cols - 2);
+      const double u = (c - c0 * k) * inv_k;
+      const std::size_t i00 = static_cast<std::size_t>(r0) * ccols + static_cast<std::size_t>(c0);
+      const double w[4] = {(1 - u) * (1 - v), u * (1 - v), (1 - u) * v, u * v};
+      const std::size_t idx[4] = {i00, i00 + 1, i00 + ccols, i00 + ccols + 1};
+      double acc = 0.0;
+      bool valid = true;
+      for (int q = 0; q < 4; ++q) {
+        if (w[q] == 0.0) continue;
+        const float zq = z[idx[q]];
+        if (std::isnan(zq)) valid = false;
+        acc += w[q] * static_cast<double>(zq);
+      }
+      const std::size_t near = idx[(u >= 0.5 ? 1 : 0) + (v >= 0.5 ? 2 : 0)];
+      const std::size_t o = static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c);
+      const bool on_node = (r % k == 0) && (c % k == 0) && r / k < cg.rows && c / k < cg.cols;
+      if (valid) {
+        out.depth.data()[o] = static_cast<float>(acc);
+        out.flags[o] = on_node ? coarse.flags[near] : std::uint8_t{kCellUpsampled};
+      } else {
+        out.flags[o] = std::isnan(z[near]) ? coarse.flags[near] : std::uint8_t{kCellEmpty};
+      }
+    }
+  }
+  return out;
+}
+
+// Counts of one scan_grid call, for the stage report.
+struct ScanCounts {
+  std::size_t binned = 0, splatted = 0, occluded = 0, see_through = 0, candidates = 0;
+};
+
+// Binning, splats and see-through detection on geometry g (the whole scan at one resolution).
+DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, bool two_threads,
+                    bool all_finite, const GridGeometry& g, const ReprojectOptions& options,
+                    ScanCounts& counts) {
+  const std::size_t cells = g.cell_count();
+  DepthGrid out;
   out.depth = HeightField(g, kEmpty);
   out.flags.assign(cells, kCellEmpty);
   float* depth = out.depth.data();
-  const bool all_finite = bounds.finite == n_points;
-  std::size_t binned = 0;
+  std::size_t& binned = counts.binned;
   if (two_threads) {
     const auto upper = std::make_unique_for_overwrite<float[]>(cells);
     std::size_t binned_upper = 0;
@@ -495,7 +578,8 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 
   const bool see_through = options.see_through_depth_m > 0.0;
   const float depth_gap = static_cast<float>(options.see_through_depth_m);
-  std::size_t splatted = 0, occluded = 0;
+  std::size_t& splatted = counts.splatted;
+  std::size_t& occluded = counts.occluded;
   if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kInterpolate) {
     splatted = splat_interpolate(depth, out.flags.data(), g.rows, g.cols, options.splat_radius_cells);
   } else if (options.splat_radius_cells > 0.0) {
@@ -516,7 +600,8 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
     }
   }
 
-  std::size_t see_through_cells = 0, candidates = 0;
+  std::size_t& see_through_cells = counts.see_through;
+  std::size_t& candidates = counts.candidates;
   if (see_through) {
     const int w = options.see_through_window_cells;
     const auto tmp = std::make_unique_for_overwrite<float[]>(cells);
@@ -563,15 +648,63 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
     see_through_cells = rejected.size();
   }
 
-  // −inf (nothing) becomes NaN (no data); counts by flag (empty and see-through cells are the
-  // only −inf ones). Branch-free.
-  std::size_t measured = 0, splat_final = 0;
+  // −inf (nothing) becomes NaN (no data) (empty and see-through cells are the only −inf ones).
+  for (std::size_t i = 0; i < cells; ++i) depth[i] = depth[i] == kEmpty ? kNoData : depth[i];
+  return out;
+}
+
+}  // namespace
+
+StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  validate_options(options);
+  // The two passes over the points (bounds, binning) run on two threads for large clouds; each
+  // thread takes half of the points (binning into its own grid, merged by the front-most rule).
+  const double* pts = points_m.xyz.data();
+  const std::size_t n_points = points_m.size();
+  const bool two_threads = n_points >= kTwoThreadPoints;
+  const std::size_t half = two_threads ? n_points / 2 : n_points;
+  Bounds bounds;
+  if (two_threads) {
+    Bounds upper;
+    run_two([&] { upper = finite_bounds(pts + 3 * half, n_points - half); },
+            [&] { bounds = finite_bounds(pts, half); });
+    bounds = merge(bounds, upper);
+  } else {
+    bounds = finite_bounds(pts, n_points);
+  }
+  if (bounds.finite == 0) {
+    std::ostringstream msg;
+    msg << "reproject: none of the " << points_m.size()
+        << " input points is finite (every point has a NaN or infinite coordinate)";
+    throw InputError(msg.str());
+  }
+  const GridGeometry g = make_geometry(bounds, options);
+  const bool all_finite = bounds.finite == n_points;
+  StageResult<DepthGrid> result;
+  ScanCounts counts;
+  double coverage = 0.0;
+  const int factor = options.upsample_factor == 0
+                         ? auto_upsample_factor(pts, n_points, g, all_finite, &coverage)
+                         : options.upsample_factor;
+  if (factor == 1) {
+    result.value = scan_grid(pts, n_points, half, two_threads, all_finite, g, options, counts);
+  } else {
+    const GridGeometry coarse = coarse_geometry(g, factor);
+    const DepthGrid scanned = scan_grid(pts, n_points, half, two_threads, all_finite, coarse, options, counts);
+    result.value = upsample(scanned, coarse, g, factor);
+  }
+  DepthGrid& out = result.value;
+  const std::size_t cells = g.cell_count();
+  std::size_t measured = 0, splat_final = 0, upsampled = 0;
   for (std::size_t i = 0; i < cells; ++i) {
-    depth[i] = depth[i] == kEmpty ? kNoData : depth[i];
     measured += out.flags[i] == kCellMeasured ? 1U : 0U;
     splat_final += out.flags[i] == kCellSplatted ? 1U : 0U;
+    upsampled += out.flags[i] == kCellUpsampled ? 1U : 0U;
   }
-  const std::size_t valid = measured + splat_final;
+  const std::size_t valid = measured + splat_final + upsampled;
+  const std::size_t binned = counts.binned, splatted = counts.splatted, occluded = counts.occluded;
+  const std::size_t see_through_cells = counts.see_through, candidates = counts.candidates;
 
   StageReport& rep = result.report;
   rep.stage = "reproject";
@@ -589,6 +722,9 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
   rep.figure("cells_splat_filled_empty", static_cast<double>(splatted));
   rep.figure("cells_occluded_by_splat", static_cast<double>(occluded));
   rep.figure("cells_see_through", static_cast<double>(see_through_cells));
+  rep.figure("upsample_factor", factor);
+  rep.figure("cells_upsampled", static_cast<double>(upsampled));
+  if (options.upsample_factor == 0) rep.figure("upsample_coverage", coverage);
   rep.figure("see_through_candidates", static_cast<double>(candidates));
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;

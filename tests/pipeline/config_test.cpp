@@ -119,6 +119,22 @@ TEST(Config, SplatModeIsReadAndValidated) {
             std::string::npos);
 }
 
+TEST(Config, UpsampleIsOffAutoOrAFactor) {
+  const auto factor = [](const std::string& extra) {
+    return parse_run_config(kMinimal + extra, "configs/test.yaml").grid.reproject.upsample_factor;
+  };
+  EXPECT_EQ(factor(""), 1);
+  EXPECT_EQ(factor("grid: {upsample: off}\n"), 1);
+  EXPECT_EQ(factor("grid: {upsample: auto}\n"), 0);
+  EXPECT_EQ(factor("grid: {upsample: 4}\n"), 4);
+  for (const std::string bad : {"0", "17", "2.5", "yes", "4x"}) {
+    EXPECT_NE(error_of(kMinimal + "grid: {upsample: " + bad + "}\n")
+                  .find("grid.upsample = '" + bad + "': expected auto, off, or an integer factor in [1, 16]"),
+              std::string::npos)
+        << bad;
+  }
+}
+
 TEST(Config, ShippedConfigsAllValidate) {
   for (const char* name : {"happy_buddha.yaml", "buddha_raw_scans.yaml", "bunny.yaml", "sinusoid.yaml"}) {
     const auto path = std::filesystem::path(HC_SOURCE_DIR) / "configs" / name;

@@ -332,6 +332,82 @@ TEST(Reproject, InterpolatingSplatsLieOnATiltedPlaneWhereDiscsMakeTerraces) {
   RecordProperty("disc_step_dev_x_fraction", std::to_string(disc_dev_x / std::abs(step_x)));
 }
 
+// Upsampling: the lattice has a point on every 3rd node; scanned on every 3rd node and
+// interpolated, the grid is the plane itself (bilinear interpolation is exact on a plane).
+TEST(Reproject, UpsampledGridIsTheCoarseScansBilinearSurface) {
+  const Cloud cloud = sparse_plane_lattice();
+  ReprojectOptions o = with_cell(kLatticeCell);
+  o.upsample_factor = 3;
+  const auto up = reproject(cloud, o);
+  const HeightField& z = up.value.depth;
+  const GridGeometry& g = z.geometry();
+  ASSERT_EQ(g.cols, 61);
+  ASSERT_EQ(g.rows, 61);
+  EXPECT_EQ(z.valid_count(), 61u * 61u);
+  EXPECT_EQ(count_flag(up.value, kCellMeasured), 21u * 21u);
+  EXPECT_EQ(count_flag(up.value, kCellUpsampled), 61u * 61u - 21u * 21u);
+  EXPECT_EQ(figure(up.report, "upsample_factor"), 3.0);
+  double max_err = 0.0;
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      max_err = std::max(max_err, std::abs(z.at(r, c) - lattice_plane(g.x_of_col(c), g.y_of_row(r))));
+    }
+  }
+  const double slope_cell = (std::abs(kPlaneSx) + std::abs(kPlaneSy)) * kLatticeCell;
+  EXPECT_LT(max_err, 1e-3 * slope_cell);  // float rounding only
+}
+
+TEST(Reproject, AutoUpsampleFindsTheLatticeSpacing) {
+  ReprojectOptions o = with_cell(kLatticeCell);
+  o.upsample_factor = 0;
+  const auto up = reproject(sparse_plane_lattice(), o);
+  EXPECT_EQ(figure(up.report, "upsample_factor"), 3.0);  // K = 1, 2 leave lattice nodes isolated
+  EXPECT_GE(figure(up.report, "upsample_coverage"), kAutoUpsampleCoverage);
+  // A dense scan (a point on every node) is not upsampled.
+  std::vector<Eigen::Vector3d> pts;
+  for (int j = 0; j <= 30; ++j) {
+    for (int i = 0; i <= 30; ++i) pts.emplace_back(i * kLatticeCell, j * kLatticeCell, lattice_plane(i * kLatticeCell, j * kLatticeCell));
+  }
+  EXPECT_EQ(figure(reproject(cloud_of(pts), o).report, "upsample_factor"), 1.0);
+}
+
+TEST(Reproject, UpsamplingNeverSpreadsAHoleBeyondItsCoarseCells) {
+  // The lattice without its point at lattice (10, 10): coarse node (10, 10) has no data, so the
+  // fine nodes within one coarse cell of it (|dr|, |dc| < 3 from node (30, 30)) have none.
+  std::vector<Eigen::Vector3d> pts;
+  for (int j = 0; j <= 20; ++j) {
+    for (int i = 0; i <= 20; ++i) {
+      if (i == 10 && j == 10) continue;
+      const double x = 3 * i * kLatticeCell, y = 3 * j * kLatticeCell;
+      pts.emplace_back(x, y, lattice_plane(x, y));
+    }
+  }
+  ReprojectOptions o = with_cell(kLatticeCell);
+  o.upsample_factor = 3;
+  const auto up = reproject(cloud_of(pts), o);
+  const HeightField& z = up.value.depth;
+  const GridGeometry& g = z.geometry();
+  ASSERT_EQ(g.cols, 61);
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      const bool in_hole = std::abs(r - 30) < 3 && std::abs(c - 30) < 3;
+      EXPECT_EQ(z.valid(r, c), !in_hole) << r << "," << c;
+      if (!in_hole) {
+        EXPECT_NEAR(z.at(r, c), lattice_plane(g.x_of_col(c), g.y_of_row(r)), 1e-6);
+      }
+    }
+  }
+  EXPECT_EQ(up.value.flags[30 * 61 + 30], kCellEmpty);
+}
+
+TEST(ReprojectErrors, UpsampleFactorOutOfRangeIsAConfigError) {
+  ReprojectOptions o = with_n(10);
+  o.upsample_factor = kMaxUpsampleFactor + 1;
+  EXPECT_THROW(reproject(sparse_plane_lattice(), o), ConfigError);
+  o.upsample_factor = -1;
+  EXPECT_THROW(reproject(sparse_plane_lattice(), o), ConfigError);
+}
+
 TEST(Reproject, InterpolatingSplatsEqualABruteForceNormalisedConvolution) {
   // Random sparse points with a 15 × 15 mm hole: the cells farther than the radius from every
   // measured cell stay no data, the others take Σ w z / Σ w (σ = radius / 2) over the measured

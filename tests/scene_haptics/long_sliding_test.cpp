@@ -7,32 +7,37 @@
 // Eq. 5 asks it to slide, a brute-force god-object (godobject_oracle.hpp) cannot slide it
 // either; and where the god-object physics lets a point proxy follow the HIP, it follows.
 //
+// The grids: 200 and 800 cells (1 mm and 0.25 mm) are scanned directly; 4096 (0.049 mm) is
+// finer than the scan, so it is scanned on every 5th node (grid.upsample auto: 0.244 mm, where
+// 90 % of the hit nodes have 4 hit neighbours) and interpolated bilinearly in between: its
+// surface is that coarse scan's surface, without the flat splat terraces a direct 4096 scan
+// has (which held even an ideal point proxy in 197 of 200 windows; measured before upsampling
+// existed).
+//
 // Two HIP motions on the Buddha, an 8 mm circle on the belly at 1 loop/s (50 mm/s):
 //
 // 1. Scripted: the HIP pressed 1 mm below the rendered surface itself, f(x, y) − 1 mm, whatever
 //    f does. This is the harshest motion for the renderer but not a physical one: the grids at
-//    800 and 4096 have risers of up to 1.6 mm between neighbouring cells (0.25 mm and 0.05 mm
-//    cells; where scan views overlap with ~0.2 mm misalignment, on robe folds, and at 4096 between
-//    the flat terraces that splatting finer than the point spacing leaves: 11 % of the cell edges
-//    around the belly are steeper than 76°). The scripted HIP dives through such risers. A point
-//    proxy pulled into a riser is held at its foot while the pull lies inside the friction cone
-//    of the riser's face (for a face steeper than 90° − atan μ_d ≈ 73°, whenever the HIP is not
-//    above the proxy), and even without friction while the HIP stays below the riser's top (the
-//    foot is then a local minimum of the distance to the HIP); the scripted HIP runs on.
-//    Measured with the oracle's search run as the proxy on this motion (20 loops): held in 52
-//    of 200 windows of 100 ms at 800 (lag up to 14 mm), in 198 of 200 at 4096 (187 of 200
-//    without friction). So on this motion only the no-stall, passivity and cap checks apply at
-//    800 and 4096; the following check applies at 200, where the ideal proxy follows.
+//    800 and 4096 have risers of up to 1.6 mm between neighbouring scan nodes (where scan views
+//    overlap with ~0.2 mm misalignment, and on robe folds). The scripted HIP dives through such
+//    risers. A point proxy pulled into a riser is held at its foot while the pull lies inside
+//    the friction cone of the riser's face (for a face steeper than 90° − atan μ_d ≈ 73°,
+//    whenever the HIP is not above the proxy), and even without friction while the HIP stays
+//    below the riser's top (the foot is then a local minimum of the distance to the HIP); the
+//    scripted HIP runs on. Measured with the oracle's search run as the proxy on this motion
+//    (20 loops): held in 52 of 200 windows of 100 ms at 800 (lag up to 14 mm). So on this
+//    motion only the no-stall, passivity and cap checks apply at 800 and 4096; the following
+//    check applies at 200, where the ideal proxy follows.
 //
 // 2. A person: the device is held by a hand, the SimulatedDevice's virtual hand (spring-damper
 //    and mass, VirtualHand defaults) that the rendered force pushes back, pulled towards a
 //    target that presses 0.5 mm below the envelope a 1 mm-radius fingertip traces over the
 //    statue (the lowest height of a 1 mm ball resting on it), which is what a person following
 //    the shape of the belly does. The proxy must follow the HIP: in every 100 ms window it
-//    travels at least 30 % of the HIP's path and lags it by less than 5 mm. That is asserted at
-//    200 and 800. At 4096 the terraces hold a pressing point proxy even for this hand (the
-//    oracle's search run as the proxy is held in 197 of 200 windows of a 20 s run, the renderer
-//    in 195), so there the test asserts the no-stall, passivity and cap checks only.
+//    travels at least 30 % of the HIP's path and lags it by less than 5 mm, at 200, 800 and
+//    4096. (Scanned at 0.195 mm or 0.146 mm instead, the Buddha's view misalignment makes pits
+//    that hold this hand too, for the renderer and the ideal proxy alike: the scan's detail ends
+//    near 0.25 mm.)
 
 #include "hc/haptics/haptic_surface.hpp"
 #include "hc/haptics/proxy.hpp"
@@ -79,9 +84,13 @@ const pipeline::Cloud& buddha() {
 HeightField buddha_grid(int n) {
   pipeline::ReprojectOptions opt;
   opt.grid.n_long_side = n;
-  // Finer than the ~0.15 mm point spacing, splats close the pinholes between samples.
-  const double cell_m = 0.2 / n;
-  opt.splat_radius_cells = cell_m < 0.0002 ? std::ceil(0.0002 / cell_m) : 0.0;
+  // Finer than the scan (0.2 mm cells and below) the scan runs on every K-th node and is
+  // interpolated in between (auto K: 5 at 4096, 0.244 mm); 1.2-cell splats (coarse cells)
+  // close its pinholes.
+  if (0.2 / n < 0.0002) {
+    opt.upsample_factor = 0;
+    opt.splat_radius_cells = 1.2;
+  }
   opt.see_through_depth_m = 0.002;
   pipeline::DepthGrid g = pipeline::reproject(buddha(), opt).value;
   g = pipeline::fill_holes(std::move(g), 64).value;
@@ -275,7 +284,7 @@ void slide_on_buddha(int n, bool follows_scripted, bool follows_hand) {
 
 TEST(LongSlidingOnScenes, Buddha200) { slide_on_buddha(200, true, true); }
 TEST(LongSlidingOnScenes, Buddha800) { slide_on_buddha(800, false, true); }
-TEST(LongSlidingOnScenes, Buddha4096) { slide_on_buddha(4096, false, false); }
+TEST(LongSlidingOnScenes, Buddha4096) { slide_on_buddha(4096, false, true); }
 
 TEST(LongSlidingOnScenes, SinusoidWithFineTexture4096) {
   const HeightField f =

@@ -58,7 +58,21 @@ struct ReprojectOptions {
   /// disables.
   double see_through_depth_m = 0.0;
   int see_through_window_cells = 3;  ///< half-width of that neighbourhood [cells], 1 to 64
+  /// Grids finer than the scan. 1: scan at the requested cells. K in [2, kMaxUpsampleFactor]:
+  /// scan (binning, splats, see-through, all radii in coarse cells) on the grid of K× the cell
+  /// size whose node (R, C) is requested node (K·R, K·C), then interpolate bilinearly onto the
+  /// requested grid (flag kCellUpsampled; no data where a contributing coarse node has none).
+  /// The result's bilinear surface equals the coarse grid's, so a grid finer than the points
+  /// carries no invented detail: no flat splat terraces with one-cell risers, which hold a
+  /// point proxy. 0 (auto): the smallest K at which at least kAutoUpsampleCoverage of the
+  /// nodes hit by a point have their 4 neighbours hit too (reported as upsample_coverage).
+  int upsample_factor = 1;
 };
+
+/// Largest upsample factor (ReprojectOptions::upsample_factor).
+inline constexpr int kMaxUpsampleFactor = 16;
+/// Coverage the auto upsample factor asks for [-] (fraction of hit nodes with 4 hit neighbours).
+inline constexpr double kAutoUpsampleCoverage = 0.9;
 
 /// Per-cell classification masks, rows·cols each, row-major like the HeightField.
 enum CellFlag : std::uint8_t {
@@ -67,6 +81,7 @@ enum CellFlag : std::uint8_t {
   kCellSplatted = 2,     ///< written by a neighbouring point's splat
   kCellSeeThrough = 3,   ///< rejected as see-through (now no data)
   kCellFilled = 4,       ///< filled by hole filling
+  kCellUpsampled = 5,    ///< interpolated between the nodes of a coarser scan (upsample_factor)
 };
 
 struct DepthGrid {
