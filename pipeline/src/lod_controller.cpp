@@ -55,8 +55,7 @@ haptics::WorkspaceMap LodController::fitted_map(const HapticWindow& w, double z_
 }
 
 const HapticWindow& LodController::publish(int level, int row0, int col0,
-                                           const std::optional<haptics::WorkspaceMap>& map, bool anchored) {
-  (void)anchored;
+                                           const std::optional<haptics::WorkspaceMap>& map) {
   const auto t0 = Clock::now();
   const bool was_cached = pyramid_->is_cached(level, true);
   if (!was_cached) (void)pyramid_->level(level);
@@ -90,12 +89,22 @@ const HapticWindow& LodController::publish(int level, int row0, int col0,
   hw.window_seconds = seconds_since(t1);
   shared_.collect_retired();
   window_ = hw;
+  recent_.push_back(hw);
+  if (recent_.size() > 8) recent_.erase(recent_.begin());
   return *window_;
+}
+
+const haptics::WorkspaceMap& LodController::adopted_map() const {
+  const std::uint64_t tag = shared_.counters.surface_tag.load(std::memory_order_acquire);
+  for (auto it = recent_.rbegin(); it != recent_.rend(); ++it) {
+    if (it->tag == tag) return it->map;
+  }
+  return window_->map;
 }
 
 const HapticWindow& LodController::set_window(int level, int col0, int row0) {
   (void)level_geometry(level);
-  return publish(level, row0, col0, std::nullopt, false);
+  return publish(level, row0, col0, std::nullopt);
 }
 
 const HapticWindow& LodController::centre_window(int level, double x_m, double y_m) {
@@ -107,7 +116,7 @@ const HapticWindow& LodController::centre_window(int level, double x_m, double y
   const int rows = std::min(window_cells(), g.rows), cols = std::min(window_cells(), g.cols);
   const auto col0 = static_cast<int>(std::lround(std::clamp(g.col_of_x(x_m) - 0.5 * (cols - 1), -1e9, 1e9)));
   const auto row0 = static_cast<int>(std::lround(std::clamp(g.row_of_y(y_m) - 0.5 * (rows - 1), -1e9, 1e9)));
-  return publish(level, row0, col0, std::nullopt, false);
+  return publish(level, row0, col0, std::nullopt);
 }
 
 const HapticWindow& LodController::set_level(int level, std::optional<Eigen::Vector3d> anchor_grid_m) {
@@ -116,7 +125,7 @@ const HapticWindow& LodController::set_level(int level, std::optional<Eigen::Vec
     const GridGeometry& g0 = level_geometry(0);
     return centre_window(level, g0.x_of_col(0.5 * (g0.cols - 1)), g0.y_of_row(0.5 * (g0.rows - 1)));
   }
-  const haptics::WorkspaceMap& old = window_->map;
+  const haptics::WorkspaceMap& old = adopted_map();
   const Eigen::Vector3d anchor = anchor_grid_m && anchor_grid_m->allFinite() ? *anchor_grid_m : old.origin_m;
   const Eigen::Vector3d anchor_dev = old.to_device(anchor);
   haptics::WorkspaceMap next;
@@ -131,7 +140,7 @@ const HapticWindow& LodController::set_level(int level, std::optional<Eigen::Vec
       static_cast<int>(std::lround(std::clamp(g.col_of_x(next.origin_m.x()) - 0.5 * (cols - 1), -1e9, 1e9)));
   const auto row0 =
       static_cast<int>(std::lround(std::clamp(g.row_of_y(next.origin_m.y()) - 0.5 * (rows - 1), -1e9, 1e9)));
-  return publish(level, row0, col0, next, true);
+  return publish(level, row0, col0, next);
 }
 
 const HapticWindow& LodController::zoom_in(std::optional<Eigen::Vector3d> anchor_grid_m) {
@@ -156,7 +165,7 @@ const HapticWindow& LodController::pan(int dcols, int drows) {
   haptics::WorkspaceMap next = w.map;
   next.origin_m.x() += (col0 - w.col0) * g.cell_size_m;
   next.origin_m.y() += (row0 - w.row0) * g.cell_size_m;
-  return publish(w.level, row0, col0, next, true);
+  return publish(w.level, row0, col0, next);
 }
 
 void LodController::prefetch(int level) { (void)pyramid_->level(level); }

@@ -19,6 +19,7 @@
 #include <cstdint>
 #include <memory>
 #include <optional>
+#include <vector>
 
 namespace hc::pipeline {
 
@@ -91,7 +92,9 @@ class LodController {
   const HapticWindow& centre_window(int level, double x_m, double y_m);
 
   /// Switch to level L keeping `anchor_grid_m` (normally the proxy, from the latest Snapshot)
-  /// fixed in both frames. Without an anchor: the grid point at the device origin.
+  /// fixed in both frames. Without an anchor: the grid point at the device origin. The anchor's
+  /// device position is taken with the map the servo renders with (the adopted window's, found
+  /// by counters.surface_tag), so requests faster than the servo adopts them still anchor right.
   /// Before any window was published this is centre_window(L, centre of the grid).
   /// @throws hc::InputError for L out of range.
   const HapticWindow& set_level(int level, std::optional<Eigen::Vector3d> anchor_grid_m = std::nullopt);
@@ -107,15 +110,19 @@ class LodController {
   void prefetch(int level);
 
  private:
-  const HapticWindow& publish(int level, int row0, int col0, const std::optional<haptics::WorkspaceMap>& map,
-                              bool anchored);
+  const HapticWindow& publish(int level, int row0, int col0, const std::optional<haptics::WorkspaceMap>& map);
   haptics::WorkspaceMap fitted_map(const HapticWindow& w, double z_centre_m) const;
   double level_scale(int level) const;
 
   std::shared_ptr<LodPyramid> pyramid_;
   haptics::SharedState& shared_;
   LodControllerOptions options_;
+  /// The map the servo renders with now (the adopted window's; the last published one if the
+  /// adopted tag is no longer among the recent windows).
+  const haptics::WorkspaceMap& adopted_map() const;
+
   std::optional<HapticWindow> window_;
+  std::vector<HapticWindow> recent_;  // the last few published windows, for adopted_map()
   std::uint64_t next_tag_ = 1;
 };
 
