@@ -78,7 +78,7 @@ class FalconKinematics {
   /// tolerance_m. x_inout is left unchanged if a step turns singular or non-finite.
   /// Real-time: yes (no allocation).
   FkResult forward(const Eigen::Vector3d& theta_rad, Eigen::Vector3d& x_inout, int max_iterations = 3,
-                   double tolerance_m = 1e-7) const noexcept;
+                   double tolerance_m = 1e-6) const noexcept;
   /// dx/dθ [m/rad] at a consistent (x, θ). @return false when singular. Real-time: yes.
   bool jacobian(const Eigen::Vector3d& x_m, const Eigen::Vector3d& theta_rad, Eigen::Matrix3d& j) const noexcept;
   /// Arm torques [N·m] producing force_n [N] at the effector: τ = Jᵀ F. Zero if singular.
