@@ -671,6 +671,15 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
 
   read_audio(r, c, base);
 
+  // levels of detail (lod.hpp; docs/lod.md)
+  c.lod.min_cells = static_cast<int>(r.get_int("lod.min_cells", c.lod.min_cells, 2, 65536));
+  c.lod.valid_fraction = r.get_double("lod.valid_fraction", c.lod.valid_fraction, 0.0, 1.0, true);
+  c.lod.antialias_sigma_cells = r.get_double("lod.antialias_sigma_cells", c.lod.antialias_sigma_cells, 0.5, 4.0);
+  c.lod.memory_budget_mb = r.get_double("lod.memory_budget_mb", c.lod.memory_budget_mb, 0.0, 1e6, true);
+  c.lod.window_cells = static_cast<int>(r.get_int("lod.window_cells", c.lod.window_cells, 2, 4096));
+  c.lod.report = r.get_bool("lod.report", c.lod.report);
+  c.lod.report_cross_check = r.get_bool("lod.report_cross_check", c.lod.report_cross_check);
+
   r.reject_unknown_keys();
   YAML::Emitter e;
   e << r.resolved();

@@ -2,6 +2,7 @@
 // no-data handling, aliasing, per-level layers, windows and the LRU cache.
 
 #include "hc/common/error.hpp"
+#include "hc/pipeline/config.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 #include "hc/pipeline/synthetic.hpp"
@@ -327,6 +328,34 @@ TEST(LodPyramid, RejectsBadOptionsNamingTheKey) {
   LodLevel empty;
   empty.depth_m = HeightField(GridGeometry{10, 10, 0, 0, 0.001});
   EXPECT_THROW(LodPyramid(std::move(empty), SurfaceLayerOptions{}, LodOptions{}), InputError);
+}
+
+TEST(LodConfig, KeysAreReadValidatedAndResolved) {
+  const std::string base = "input: {synthetic: {surface: plane}}\n";
+  const RunConfig d = parse_run_config(base, "lod.yaml");
+  EXPECT_EQ(d.lod.window_cells, 200);
+  EXPECT_EQ(d.lod.min_cells, 64);
+  EXPECT_NE(d.resolved_yaml.find("memory_budget_mb"), std::string::npos);
+  const RunConfig c = parse_run_config(base + "lod: {min_cells: 32, valid_fraction: 0.75, antialias_sigma_cells: 1.5, "
+                                              "memory_budget_mb: 64, window_cells: 150, report: false, report_cross_check: false}\n",
+                                       "lod.yaml");
+  EXPECT_EQ(c.lod.min_cells, 32);
+  EXPECT_DOUBLE_EQ(c.lod.valid_fraction, 0.75);
+  EXPECT_DOUBLE_EQ(c.lod.antialias_sigma_cells, 1.5);
+  EXPECT_DOUBLE_EQ(c.lod.memory_budget_mb, 64.0);
+  EXPECT_EQ(c.lod.window_cells, 150);
+  EXPECT_FALSE(c.lod.report);
+  EXPECT_FALSE(c.lod.report_cross_check);
+  for (const char* bad : {"lod: {valid_fraction: 0}", "lod: {valid_fraction: 1.5}", "lod: {window_cells: 1}",
+                          "lod: {min_cells: 1}", "lod: {memory_budget_mb: 0}", "lod: {antialias_sigma_cells: 9}",
+                          "lod: {levels: 3}"}) {
+    try {
+      parse_run_config(base + bad + "\n", "lod.yaml");
+      FAIL() << bad;
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("lod."), std::string::npos) << e.what();
+    }
+  }
 }
 
 }  // namespace

@@ -4,6 +4,7 @@
 /// Every key, its type, default and allowed range is listed in docs/config.md.
 
 #include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 #include "hc/pipeline/synthetic.hpp"
@@ -123,6 +124,7 @@ struct RunConfig {
   CrossCheckConfig cross_check;
   LayersConfig layers;
   AudioSpec audio;                     ///< contact sounds (optional section)
+  LodOptions lod;                      ///< levels of detail and the haptic window (lod.*, issue 4)
   std::string resolved_yaml;           ///< every key with the value used (defaults included)
 };
 
