@@ -24,9 +24,9 @@ namespace hc::audio {
 
 /// Output options of the live engine.
 struct EngineOptions {
-  int buffer_frames = 128;       ///< frames per streamed buffer [16, 4096] (128 = 2.7 ms at 48 kHz)
-  int queued_buffers = 3;        ///< buffers kept queued at OpenAL [2, 16]
-  int device_refresh_hz = 250;   ///< ALC_REFRESH asked of the device (its mixing period = 1/this)
+  int buffer_frames = 64;        ///< frames per streamed buffer [16, 4096] (64 = 1.33 ms at 48 kHz)
+  int queued_buffers = 3;        ///< buffers kept queued at OpenAL [2, 16] (64 × 3: 4 ms queued)
+  int device_refresh_hz = 500;   ///< ALC_REFRESH asked of the device (its mixing period = 1/this)
   std::string device_name;       ///< OpenAL device name; empty = the default device
   /// Use OpenAL Soft's loopback device (ALC_SOFT_loopback) paced by the engine's own clock
   /// instead of a sound card: the full OpenAL path without a device (benchmarks, tests).
