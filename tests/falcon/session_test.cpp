@@ -7,8 +7,10 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
 #include <numbers>
+#include <thread>
 
 namespace hc::falcon {
 namespace {
@@ -174,6 +176,50 @@ TEST(FalconSession, UnplugMidSessionThenReconnect) {
   std::tie(contact, up) = s.touch(1500);
   EXPECT_GT(contact, 500);
   EXPECT_GT(up, 1.0);  // forces are back
+}
+
+}  // namespace
+}  // namespace hc::falcon
+
+namespace hc::falcon {
+namespace {
+
+/// Waits (bounded) until pred() holds; returns whether it did. Not a speed requirement: the bound
+/// only keeps a broken build from hanging.
+template <class Pred>
+bool wait_for(Pred pred) {
+  for (int k = 0; k < 1000 && !pred(); ++k) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  return pred();
+}
+
+TEST(FalconSession, ThreadedLoopAndSupervisorSurviveAnUnplug) {
+  haptics::SteadyClock clock;
+  FalconConfig cfg;
+  cfg.max_missed_ticks = 1000;  // a shared 2-core machine may stall the threads; not under test here
+  EmulatorOptions eo;
+  eo.firmware_preloaded = true;
+  auto emu = std::make_shared<FalconEmulator>(eo);
+  cfg.supervisor_thread = true;
+  cfg.reconnect_interval_ms = 0;
+  FalconDevice dev(clock, std::make_unique<EmulatorProvider>(emu), cfg);
+  dev.open();
+  haptics::SharedState shared(wave_surface());
+  haptics::ServoConfig scfg;
+  scfg.realtime = haptics::RealtimeMode::kOff;
+  haptics::ServoLoop loop(dev, shared, clock, scfg);
+  loop.start();
+  ASSERT_TRUE(wait_for([&] { return shared.counters.ticks.load() > 50; }));
+  emu->unplug();
+  EXPECT_TRUE(wait_for([&] { return dev.state() == DeviceState::kFault; }));
+  EXPECT_TRUE(wait_for([&] { return !dev.last_reconnect_error().empty(); }));
+  emu->plug();
+  EXPECT_TRUE(wait_for([&] { return dev.status().reconnections == 1 && dev.status().link == LinkState::kUp; }));
+  const std::uint64_t frames = dev.status().frames;
+  EXPECT_TRUE(wait_for([&] { return dev.status().frames > frames + 20; }));  // frames flow again
+  EXPECT_TRUE(loop.running());
+  loop.stop();
+  dev.close();
+  EXPECT_EQ(emu->motor_force_n().norm(), 0.0);
 }
 
 }  // namespace

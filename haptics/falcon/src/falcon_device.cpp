@@ -166,8 +166,7 @@ void FalconDevice::apply_status(const StatusFrame& s, bool cold) noexcept {
 DeviceStatus FalconDevice::do_read(haptics::DeviceReading& out) noexcept {
   const std::int64_t now = clock_.now_ns();
   out.time_ns = now;
-  out.position_m = config_.frame.to_device(x_m_);
-  out.buttons = buttons_.load(std::memory_order_relaxed);
+  // Link down: the supervisor owns the transport and the kinematic state (reconnection).
   if (link_.load(std::memory_order_acquire) != LinkState::kUp) return DeviceStatus::kIoError;
   if (!acquire()) return DeviceStatus::kIoError;  // the watchdog is writing: the servo stalled
   DeviceStatus status = DeviceStatus::kOk;
