@@ -13,6 +13,9 @@ void add_run_command(CLI::App& app);
 /// `hapticloud touch SCENE_OR_CONFIG ...`: a headless scripted haptic session (issue 3).
 void add_touch_command(CLI::App& app);
 
+/// `hapticloud levels SCENE`: speed against error per level of detail (issue 4).
+void add_levels_command(CLI::App& app);
+
 #ifdef HC_HAVE_FALCON
 /// `hapticloud devices` and `hapticloud falcon-check` (issue 5).
 void add_falcon_command(CLI::App& app);

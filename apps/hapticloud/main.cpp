@@ -17,6 +17,7 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
   hc::app::add_run_command(app);
   hc::app::add_touch_command(app);
+  hc::app::add_levels_command(app);
   hc::app::add_explore_command(app);
 #ifdef HC_HAVE_FALCON
   hc::app::add_falcon_command(app);

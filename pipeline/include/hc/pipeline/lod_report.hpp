@@ -1,0 +1,80 @@
+#pragma once
+/// @file lod_report.hpp
+/// Speed against error per level of detail (`hapticloud levels SCENE` and the run report):
+/// cell size, size, build time, cross-check against the original points, per-tick cost of the
+/// servo loop on a window of the level, and the time to switch to it; plus preview images of
+/// every level side by side. No OpenCV, PCL or yaml-cpp in this header.
+
+#include "hc/pipeline/cloud.hpp"
+#include "hc/pipeline/cross_check.hpp"
+#include "hc/pipeline/lod.hpp"
+
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+struct RunConfig;
+struct Scene;
+
+/// One row of the levels table.
+struct LevelRow {
+  int level = 0;
+  int rows = 0, cols = 0;
+  double cell_size_m = 0.0;
+  std::size_t valid_cells = 0;
+  double build_seconds = 0.0;   ///< smoothing + decimation + layers of this level [s] (level 0: its layers, if computed here)
+  std::optional<ErrorStats> point_vertical;  ///< cross-check (a): points vs the level's bilinear surface
+  double supported_fraction = 0.0;           ///< cross-check (b): samples with a point within tolerance
+  double tick_mean_ns = 0.0, tick_p99_ns = 0.0;  ///< servo tick compute on a window of this level [ns]
+  double switch_ms = 0.0;       ///< request → first servo tick on the new window, level cached [ms]
+                                ///< (window crop + HapticSurface + mailbox + one tick; as fast as possible;
+                                ///< a real-time loop adds the wait for its next tick, ≤ 1 period)
+};
+
+struct LevelTableOptions {
+  bool cross_check = true;      ///< needs `points`
+  double tolerance_m = 0.0005;
+  double hidden_band_m = 0.002;
+  int ticks = 3000;             ///< servo ticks timed per level (a pressing circle in the window)
+  /// Level 0's cross-check when the caller has it already (the run's): reused, not recomputed.
+  std::optional<CrossCheck> level0_cross_check;
+};
+
+/// Builds every level of `pyramid` (with layers) and measures its row. `points` in the grid
+/// frame (metres), as the grid was made from; may be null (no cross-check).
+/// @throws what building the levels or the cross-check throws. Real-time: no. Cost: every level
+/// is built and cross-checked (O(points + cells) each).
+std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, const Cloud* points,
+                                  const LevelTableOptions& options);
+
+/// The table as Markdown (one header line, one row per level).
+std::string level_table_markdown(const std::vector<LevelRow>& rows);
+/// The table as plain text for a terminal.
+std::string level_table_text(const std::vector<LevelRow>& rows);
+
+/// Writes `lod_level_<L>.png` (hillshade) for every level into `dir`, and `lod_levels.png`: all
+/// levels side by side at the same height (nearest-neighbour enlargement, so coarse levels show
+/// their cells). @return the file names written (relative to dir), composite last.
+/// @throws hc::InputError naming a file that cannot be written.
+std::vector<std::string> write_level_previews(LodPyramid& pyramid, const std::filesystem::path& dir);
+
+/// The points a scene was made from, in its grid frame: the scene's resolved config (stored in
+/// scene.yaml) is read again and its input goes through the same ingest, recentring, view
+/// transform and filters as in `hapticloud run`. `config_override` replaces the stored config
+/// (e.g. when the run was made from another working folder).
+/// @throws hc::InputError if the scene has no resolved config or its input files are missing
+///         (naming them and suggesting --config); whatever ingest and the filters throw.
+Cloud scene_points(const Scene& scene, const std::optional<std::filesystem::path>& config_override = std::nullopt);
+
+/// The same for a run config (the stages of run_pipeline before reprojection).
+Cloud prepare_points(const RunConfig& config);
+
+/// The SurfaceLayerOptions and LodOptions stored in a scene's resolved config (defaults when
+/// the scene has none). @throws hc::ConfigError if the stored config is invalid.
+void scene_options(const Scene& scene, SurfaceLayerOptions& layers, LodOptions& lod);
+
+}  // namespace hc::pipeline
