@@ -37,6 +37,7 @@
 #include "hc/falcon/usb_transport.hpp"
 #endif
 #ifdef HC_HAVE_AUDIO
+#include "audio_setup.hpp"
 #include "hc/audio/engine.hpp"
 #include "hc/audio/mixer.hpp"
 #endif
@@ -81,6 +82,9 @@ struct ExploreOptions {
   double stiffness_n_per_m = 800.0;
   double rho = 0.9;
   int window_cells = 200;
+  std::string realtime = "warn";
+  int rescan_at_frame = 0;               ///< scripted re-scan (tests, demos): at this frame, 0 = never
+  std::vector<double> rescan_angles_deg; ///< its x, y, z angles [deg] (R = Rx·Ry·Rz)
 };
 
 #ifdef HC_HAVE_VIEWER
@@ -195,6 +199,11 @@ class Session {
   std::uint64_t mark_ = 0;
   int rescans_ = 0;
   std::string status_;
+  // What a swap looked like from the UI thread (summary): swaps completed, the largest device
+  // force and whether the device was ever seen Armed between the disarm and the re-arm.
+  int swaps_done_ = 0;
+  double swap_max_force_n_ = 0.0;
+  bool swap_seen_armed_ = false;
 };
 
 pipeline::LodControllerOptions Session::controller_options() const {
@@ -368,8 +377,8 @@ void Session::on_frame() {
     }
     if (incoming_) {
       if (incoming_->disarm) {
-        shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kDisarm));
         mark_ = shared_.counters.commands_applied.load();
+        shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kDisarm));
         swap_ = Swap::kWaitDisarm;
         status_ = "swapping the scene (forces off) ...";
       } else {
@@ -377,6 +386,13 @@ void Session::on_frame() {
         incoming_.reset();
         status_.clear();
       }
+    }
+  }
+  if (swap_ != Swap::kIdle) {
+    const haptics::Snapshot& sn = viewer_->snapshot();
+    if (swap_ == Swap::kWaitAdopt) {
+      swap_max_force_n_ = std::max(swap_max_force_n_, sn.device_force_n.eigen().norm());
+      swap_seen_armed_ = swap_seen_armed_ || sn.device_state == static_cast<std::uint8_t>(haptics::DeviceState::kArmed);
     }
   }
   if (swap_ == Swap::kWaitDisarm && shared_.counters.commands_applied.load() > mark_) {
@@ -389,6 +405,7 @@ void Session::on_frame() {
   if (swap_ == Swap::kWaitAdopt && shared_.counters.surfaces_adopted.load() > mark_ && !shared_.surface_pending()) {
     shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
     swap_ = Swap::kIdle;
+    ++swaps_done_;
     status_ = "new scene in place";
   }
 }
@@ -444,7 +461,12 @@ void Session::write_summary(const haptics::ServoStats& stats, const haptics::Rea
      << "  \"frame_max_s\": " << f.max_frame_s << ",\n"
      << "  \"fifo_granted\": " << (rt.fifo_granted ? "true" : "false") << ",\n"
      << "  \"memory_locked\": " << (rt.memory_locked ? "true" : "false") << ",\n"
-     << "  \"mesh_quads\": " << viewer_->mesh_quads() << "\n"
+     << "  \"mesh_quads\": " << viewer_->mesh_quads() << ",\n"
+     << "  \"rescans\": " << rescans_ << ",\n"
+     << "  \"swaps\": " << swaps_done_ << ",\n"
+     << "  \"swap_max_device_force_n\": " << swap_max_force_n_ << ",\n"
+     << "  \"swap_seen_armed\": " << (swap_seen_armed_ ? "true" : "false") << ",\n"
+     << "  \"status\": \"" << status_ << "\"\n"
      << "}\n";
 }
 
@@ -454,6 +476,13 @@ void Session::run() {
     throw ConfigError("explore: --seconds " + fmt(o_.seconds) + " is out of range (expected [0, 86400])");
   }
   if (!o_.screenshot.empty() && o_.frames == 0 && o_.seconds == 0.0) o_.frames = 1;
+  if (o_.rescan_at_frame > 0 && o_.rescan_angles_deg.size() != 3) {
+    throw ConfigError("explore: --rescan-angles needs three angles x,y,z [deg] (got " +
+                      std::to_string(o_.rescan_angles_deg.size()) + ")");
+  }
+  if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim") {
+    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
+  }
   lod_options_.window_cells = o_.window_cells;
   std::error_code ec;
   fs::create_directories(o_.out, ec);
@@ -484,7 +513,7 @@ void Session::run() {
   }
   device_->open();
   haptics::ServoConfig cfg;
-  cfg.realtime = haptics::RealtimeMode::kWarn;
+  cfg.realtime = haptics::realtime_mode_from_string(o_.realtime);
   cfg.workspace = w0.map;
   cfg.proxy.stiffness_n_per_m = o_.stiffness_n_per_m;
   cfg.proxy.rho = o_.rho;
@@ -503,7 +532,10 @@ void Session::run() {
     const auto& base = built_->base;
     const HeightField* texture = base.has("texture") ? &base.layers.at("texture") : nullptr;
     const GridGeometry grid = base.depth().geometry();
-    sound = std::make_unique<audio::AudioEngine>(audio::build_audio_scene(audio::AudioConfig{}, {&grid, texture}));
+    // The run config's audio: section (regions, materials); a scene folder gets the sliding
+    // sound only.
+    const audio::AudioConfig ac = config_ ? audio_config_from(config_->audio) : audio::AudioConfig{};
+    sound = std::make_unique<audio::AudioEngine>(audio::build_audio_scene(ac, {&grid, texture}));
     const audio::EngineReport ar = sound->start(shared_);
     std::cout << "explore: audio " << (ar.device_open ? ar.device : std::string("off")) << ": " << ar.detail << "\n";
   }
@@ -542,14 +574,20 @@ void Session::run() {
 
   const auto t0 = std::chrono::steady_clock::now();
   for (int frame = 1;; ++frame) {
-    const bool last = (o_.frames > 0 && frame >= o_.frames) ||
-                      (o_.seconds > 0.0 && std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() >= o_.seconds);
+    // A session never ends half-way through a re-scan or a swap.
+    const bool busy = job_.valid() || swap_ != Swap::kIdle || (o_.rescan_at_frame >= frame);
+    const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const bool last = !busy && ((o_.frames > 0 && frame >= o_.frames) || (o_.seconds > 0.0 && elapsed_s >= o_.seconds));
     if (last && !o_.screenshot.empty()) {
       viewer::write_png(viewer_->capture(), o_.screenshot);
       std::cout << "explore: wrote " << o_.screenshot << "\n";
       break;
     }
     if (!viewer_->frame() || last) break;
+    if (frame == o_.rescan_at_frame) {
+      const std::vector<double>& a = o_.rescan_angles_deg;
+      on_rescan(pipeline::rotation_from_euler(Eigen::Vector3d(a[0], a[1], a[2]), "xyz"));
+    }
   }
   if (job_.valid()) job_.wait();
   loop_->stop();
@@ -598,6 +636,12 @@ void add_explore_command(CLI::App& app) {
   cmd->add_option("--window-cells", o->window_cells, "Haptic window side [samples]")->capture_default_str();
   cmd->add_option("--stiffness", o->stiffness_n_per_m, "Stiffness k [N/m] (device frame)")->capture_default_str();
   cmd->add_option("--rho", o->rho, "Proxy step factor rho of Eq. 4-5, (0, 1]")->capture_default_str();
+  cmd->add_option("--realtime", o->realtime, "Servo thread scheduling: off | warn | enforce (SCHED_FIFO + mlockall)")
+      ->capture_default_str();
+  cmd->add_option("--rescan-at-frame", o->rescan_at_frame,
+                  "Scripted re-scan (tests, demos): at this frame, re-scan with --rescan-angles, as the orientation tool does");
+  cmd->add_option("--rescan-angles", o->rescan_angles_deg, "x,y,z [deg] of the scripted re-scan (R = Rx*Ry*Rz)")
+      ->delimiter(',');
   cmd->add_flag("--stereo", o->stereo, "Start in red/cyan anaglyph stereo");
   cmd->add_flag("--hidden", o->hidden, "Do not show the window (with --screenshot or --seconds)");
   cmd->add_flag("--no-audio", o->no_audio, "No contact sounds");

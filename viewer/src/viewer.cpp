@@ -29,6 +29,7 @@ namespace {
 constexpr double kDegToRad = std::numbers::pi / 180.0;
 constexpr int kMaxMeshSide = 640;       // display mesh: at most this many vertices per side
 constexpr int kMaxOverviewSide = 256;   // navigation mesh
+constexpr int kPanelWidthPx = 340;      // the ImGui panel's strip
 const Eigen::Vector3f kBackground(0.08F, 0.09F, 0.11F);
 const Eigen::Vector3f kStone(0.86F, 0.80F, 0.70F);
 const Eigen::Vector3f kProxyBlue(0.15F, 0.35F, 0.95F);
@@ -355,9 +356,11 @@ void Viewer::set_cursor_for_test(double px, double py) {
 PixelRect Viewer::main_view() const {
   int w = 0, h = 0;
   glfwGetFramebufferSize(window_, &w, &h);
-  if (!show_navigation_ || orienting_) return {0, 0, w, h};
+  // The panel has its own strip on the left (when the window is wide enough for it).
+  const int panel = show_panel_ && w >= 3 * kPanelWidthPx ? kPanelWidthPx : 0;
+  if (!show_navigation_ || orienting_) return {panel, 0, w - panel, h};
   const int nav = std::min(h, w * 3 / 10);
-  return {0, 0, w - nav, h};
+  return {panel, 0, w - nav - panel, h};
 }
 
 PixelRect Viewer::navigation_view() const {
@@ -746,8 +749,8 @@ void Viewer::draw_gui() {
   ImGui_ImplGlfw_NewFrame();
   ImGui::NewFrame();
   if (show_panel_) {
-    ImGui::SetNextWindowPos(ImVec2(8, 8), ImGuiCond_FirstUseEver);
-    ImGui::SetNextWindowSize(ImVec2(330, 0), ImGuiCond_FirstUseEver);
+    ImGui::SetNextWindowPos(ImVec2(4, 4), ImGuiCond_FirstUseEver);
+    ImGui::SetNextWindowSize(ImVec2(kPanelWidthPx - 8, 0), ImGuiCond_FirstUseEver);
     ImGui::Begin("hapticloud");
     if (scene_) ImGui::TextWrapped("%s", scene_->description.c_str());
     if (callbacks_.status) {
