@@ -383,7 +383,7 @@ AudioRegionSpec read_audio_region(Reader& r, const YAML::Node& node, std::size_t
   const std::string list = "audio.regions";
   const std::string p = list + "[" + std::to_string(i) + "]";
   const auto fail = [&](const std::string& what) -> void {
-    throw ConfigError(r.where(list) + ": " + p + " " + what);
+    throw ConfigError(r.where(list) + ": " + p + (what.rfind(".", 0) == 0 ? "" : " ") + what);
   };
   static const std::vector<std::string> kKeys = {"name", "box_m", "polygon_m", "label", "clip", "note", "gain",
                                                  "pitch", "retrigger", "trigger_on_enter", "mode", "material"};

@@ -170,4 +170,26 @@ TEST(TouchAudio, AMissingClipStopsAtStartNamingTheFile) {
   EXPECT_FALSE(fs::exists(dir / "touch" / "trace.csv"));  // no session ran
 }
 
+TEST(TouchAudio, ABadAudioKeyNamesTheKeyAndLine) {
+  const fs::path dir = hc::test::temp_dir("badkey");
+  std::ifstream in(temple_config(dir));
+  std::stringstream ss;
+  ss << in.rdbuf();
+  std::string text = ss.str();
+  const std::string ni = "note: Ni,";
+  const auto at = text.find(ni);
+  ASSERT_NE(at, std::string::npos);
+  text.replace(at, ni.size(), "note: Do,");
+  std::ofstream(dir / "bad.yaml") << text;
+  std::string log;
+  EXPECT_EQ(run_app("touch " + (dir / "bad.yaml").string() + " --seconds 1 --out " + (dir / "touch").string() +
+                        " --audio-out " + (dir / "x.wav").string(),
+                    &log),
+            1)
+      << log;
+  EXPECT_NE(log.find("audio.regions[6].note = 'Do'"), std::string::npos) << log;
+  EXPECT_NE(log.find("Sa, Re, Ga, Ma, Pa, Dha, Ni"), std::string::npos) << log;
+  EXPECT_NE(log.find("bad.yaml:"), std::string::npos) << log;  // file and line
+}
+
 }  // namespace
