@@ -5,6 +5,8 @@
 #include "hc/common/units.hpp"
 #include "hc/pipeline/filters.hpp"
 #include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/scene_io.hpp"
@@ -234,6 +236,34 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   write_report.seconds = seconds_since(t_write);
   reports.push_back(write_report);
   if (progress) progress(write_report, true);
+
+  // 9. Levels of detail (issue 4): speed against error per level, with previews side by side.
+  std::vector<LevelRow> lod_rows;
+  std::vector<std::string> lod_previews;
+  if (config.lod.report) {
+    lod_rows = stage("levels", reports, progress, [&] {
+      LodLevel l0;
+      l0.depth_m = scene.depth();
+      if (scene.has("envelope") && scene.has("texture") && scene.has("mu_d") && scene.has("mu_s")) {
+        l0.envelope_m = scene.layers.at("envelope");
+        l0.texture_m = scene.layers.at("texture");
+        l0.mu_d = scene.layers.at("mu_d");
+        l0.mu_s = scene.layers.at("mu_s");
+        l0.has_layers = true;
+      }
+      auto pyramid = std::make_shared<LodPyramid>(std::move(l0), config.layers.options, config.lod);
+      LevelTableOptions to;
+      to.cross_check = config.lod.report_cross_check;
+      to.tolerance_m = config.cross_check.tolerance_m;
+      to.hidden_band_m = config.cross_check.hidden_band_m;
+      if (summary.cross_check) to.level0_cross_check = *summary.cross_check;
+      StageResult<std::vector<LevelRow>> r{level_table(pyramid, &cloud, to), {}};
+      lod_previews = write_level_previews(*pyramid, previews);
+      r.report.count_in = summary.valid_cells;
+      r.report.count_out = r.value.size();
+      return r;
+    });
+  }
   summary.total_seconds = seconds_since(t_start);
 
   // Report: JSON for machines, Markdown for people; both from the same figures.
@@ -279,6 +309,19 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
     }
   }
   if (!scene.friction_model.empty()) j["friction_model"] = scene.friction_model;
+  if (!lod_rows.empty()) {
+    j["levels"] = json::array();
+    for (const LevelRow& r : lod_rows) {
+      json jr = {{"level", r.level}, {"rows", r.rows}, {"cols", r.cols}, {"cell_size_m", r.cell_size_m},
+                 {"valid_cells", r.valid_cells}, {"build_seconds", r.build_seconds},
+                 {"tick_mean_ns", r.tick_mean_ns}, {"tick_p99_ns", r.tick_p99_ns}, {"switch_ms", r.switch_ms}};
+      if (r.point_vertical) {
+        jr["point_vertical"] = stats_json(*r.point_vertical);
+        jr["supported_fraction"] = r.supported_fraction;
+      }
+      j["levels"].push_back(jr);
+    }
+  }
   write_text(staging.path() / "report.json", j.dump(2) + "\n");
 
   std::ostringstream md;
@@ -324,6 +367,17 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   if (!scene.friction_model.empty()) {
     md << "## Surface layers\n\nFriction model: **" << scene.friction_model
        << "** (see docs/friction.md for paper vs curvature).\n\n";
+  }
+  if (!lod_rows.empty()) {
+    md << "## Levels of detail\n\nEach level halves the resolution of the one before after an anti-aliasing "
+          "Gaussian (σ = " << config.lod.antialias_sigma_cells << " fine samples, no data handled by normalised "
+          "convolution; docs/lod.md); texture and friction are computed per level. Build = smoothing, decimation "
+          "and layers; RMS and p95 = cross-check (a) of the input points against the level's bilinear surface; "
+          "tick = servo tick compute on a " << config.lod.window_cells << "-sample window of the level; switch = "
+          "request to the first servo tick on the new window (level cached).\n\n"
+       << level_table_markdown(lod_rows) << "\n";
+    for (std::size_t i = 0; i + 1 < lod_previews.size(); ++i) md << "![level " << i << "](previews/" << lod_previews[i] << ")";
+    md << "\n\n![all levels side by side](previews/" << lod_previews.back() << ")\n\n";
   }
   md << "## Previews\n\n![depth](previews/depth.png)\n![hillshade](previews/hillshade.png)\n";
   if (summary.cross_check) md << "![cross-check error](previews/cross_check_error.png)\n";
