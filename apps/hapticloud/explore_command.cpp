@@ -81,7 +81,7 @@ struct ExploreOptions {
   bool no_audio = false;
   double stiffness_n_per_m = 800.0;
   double rho = 0.9;
-  int window_cells = 200;
+  int window_cells = 0;  ///< 0: the config's lod.window_cells (200 for a scene folder)
   std::string realtime = "warn";
   int rescan_at_frame = 0;               ///< scripted re-scan (tests, demos): at this frame, 0 = never
   std::vector<double> rescan_angles_deg; ///< its x, y, z angles [deg] (R = Rx·Ry·Rz)
@@ -219,6 +219,9 @@ void Session::load_input() {
   if (fs::is_regular_file(p) && (p.extension() == ".yaml" || p.extension() == ".yml")) {
     config_ = pipeline::load_run_config(p);
     layer_options_ = config_->layers.options;
+    const int cells = lod_options_.window_cells;
+    lod_options_ = config_->lod;
+    if (o_.window_cells > 0) lod_options_.window_cells = cells;
     const fs::path dir = fs::path(o_.out) / "scan-0";
     std::cout << "explore: building the scene of " << p.string() << " into " << dir.string() << "\n";
     pipeline::run_pipeline(*config_, dir);
@@ -483,7 +486,7 @@ void Session::run() {
   if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim") {
     throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
   }
-  lod_options_.window_cells = o_.window_cells;
+  if (o_.window_cells > 0) lod_options_.window_cells = o_.window_cells;
   std::error_code ec;
   fs::create_directories(o_.out, ec);
   if (ec) throw InputError("explore: cannot create the output folder '" + o_.out + "': " + ec.message());
@@ -633,7 +636,7 @@ void add_explore_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--width", o->width, "Window width [px]")->capture_default_str();
   cmd->add_option("--height", o->height, "Window height [px]")->capture_default_str();
-  cmd->add_option("--window-cells", o->window_cells, "Haptic window side [samples]")->capture_default_str();
+  cmd->add_option("--window-cells", o->window_cells, "Haptic window side [samples] (default: the config's lod.window_cells, else 200)");
   cmd->add_option("--stiffness", o->stiffness_n_per_m, "Stiffness k [N/m] (device frame)")->capture_default_str();
   cmd->add_option("--rho", o->rho, "Proxy step factor rho of Eq. 4-5, (0, 1]")->capture_default_str();
   cmd->add_option("--realtime", o->realtime, "Servo thread scheduling: off | warn | enforce (SCHED_FIFO + mlockall)")
