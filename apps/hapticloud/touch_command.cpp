@@ -6,6 +6,7 @@
 /// without texture and friction, proxy z and force against time, in one report.
 
 #include "commands.hpp"
+#include "lod_session.hpp"
 
 #include "hc/common/error.hpp"
 #include "hc/haptics/haptic_surface.hpp"
@@ -70,6 +71,10 @@ struct TouchOptions {
   std::string audio_out;     ///< offline render of the session's contact sounds (WAV)
   std::string audio_live;    ///< play live: "default", "loopback" or an OpenAL device name
   std::string audio_config;  ///< run config whose audio: section to use
+  int level = -1;            ///< levels of detail: start level (−1 with a zoom path: the coarsest)
+  std::string window;        ///< "X,Y": first column and row of the haptic window at that level
+  std::string zoom_path;     ///< scripted level switches and pans (file or spec)
+  int window_cells = 200;    ///< side of the haptic window [samples]
 };
 
 /// The layers the session renders (owned here; HapticSurface copies what it needs).
@@ -234,16 +239,36 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
   sopt.texture_gain = o.texture_gain;
   sopt.default_mu_d = o.mu_d;
   sopt.default_mu_s = o.mu_s;
-  auto surface = std::make_unique<HapticSurface>(layers, sopt);
-  const HapticSurface& surf = *surface;
-  const GridGeometry& g = surf.source_geometry();
-
-  // Device and workspace: the grid's extent fills the device box, device z = 0 at mid height.
   const haptics::DeviceInfo info = haptics::SimulatedDevice::default_info();
-  const double z_mid = 0.5 * (surf.min_height_m() + surf.max_height_m());
-  const haptics::WorkspaceMap map = haptics::WorkspaceMap::fit(
-      info.workspace_half_extent_m, g.x0_m, g.x_of_col(g.cols - 1), g.y0_m, g.y_of_row(g.rows - 1), z_mid);
-  const double top_dev = (surf.max_height_m() - z_mid) / map.scale;
+  // Levels of detail (issue 4): the servo renders a window of a level; the LodSession publishes
+  // it (and every scripted switch) with its workspace map through the surface mailbox.
+  const bool lod_mode = o.level >= 0 || !o.window.empty() || !o.zoom_path.empty();
+  haptics::SharedState shared(lod_mode ? nullptr : std::make_unique<HapticSurface>(layers, sopt));
+  std::unique_ptr<LodSession> lod;
+  haptics::WorkspaceMap map;
+  double top_dev = 0.0;
+  if (lod_mode) {
+    if (layers.region_id != nullptr) {
+      throw ConfigError("touch: audio regions are not carried into level-of-detail windows yet; drop --level, "
+                        "--window and --zoom-path, or the audio options");
+    }
+    pipeline::LodOptions lod_options;
+    lod_options.window_cells = o.window_cells;
+    lod = std::make_unique<LodSession>(
+        scene.layers, sopt, info.workspace_half_extent_m, o.level,
+        o.window.empty() ? std::nullopt : std::optional<std::pair<int, int>>(parse_window_origin(o.window)),
+        o.zoom_path.empty() ? std::vector<ZoomAction>{} : parse_zoom_path(o.zoom_path), shared, lod_options);
+    map = lod->initial().map;
+    top_dev = (lod->initial().max_height_m - map.origin_m.z()) / map.scale;
+  } else {
+    // Device and workspace: the grid's extent fills the device box, device z = 0 at mid height.
+    const HapticSurface& surf = *shared.current_surface();
+    const GridGeometry& g = surf.source_geometry();
+    const double z_mid = 0.5 * (surf.min_height_m() + surf.max_height_m());
+    map = haptics::WorkspaceMap::fit(info.workspace_half_extent_m, g.x0_m, g.x_of_col(g.cols - 1), g.y0_m,
+                                     g.y_of_row(g.rows - 1), z_mid);
+    top_dev = (surf.max_height_m() - z_mid) / map.scale;
+  }
   haptics::ScriptedPath path;
   path.kind = haptics::path_kind_from_string(o.path);
   path.centre_m = Eigen::Vector3d::Zero();
@@ -276,7 +301,6 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
   fs::create_directories(out, ec);
   if (ec) throw InputError("touch: cannot create the output folder '" + out.string() + "': " + ec.message());
 
-  haptics::SharedState shared(std::move(surface));
   std::vector<haptics::ContactEvent> events;
   events.reserve(1 << 16);
 #ifdef HC_HAVE_AUDIO
@@ -309,7 +333,21 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
     loop.set_trace(trace);
     shared.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
     for (std::uint64_t done = 0; done < ticks;) {
-      const std::uint64_t n = std::min<std::uint64_t>(500, ticks - done);  // the event ring holds 1024
+      std::uint64_t n = std::min<std::uint64_t>(500, ticks - done);  // the event ring holds 1024
+      if (lod) {
+        // Scripted switches between ticks, anchored at the proxy of the last tick.
+        const double t = static_cast<double>(done) / o.rate_hz;
+        if (lod->next_time() <= t + 1e-12) {
+          haptics::Snapshot snap;
+          shared.snapshots.read(snap);
+          lod->apply_due(t, snap.proxy_m.eigen());
+          shared.collect_retired();
+        }
+        const double next_tick = std::ceil(lod->next_time() * o.rate_hz - 1e-9);
+        if (next_tick > static_cast<double>(done) && next_tick < static_cast<double>(done + n)) {
+          n = static_cast<std::uint64_t>(next_tick) - done;
+        }
+      }
       loop.run_ticks(n, *clock);
       drain();
       done += n;
@@ -329,8 +367,17 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
               << ", memory " << (report.memory_locked ? "locked" : "not locked") << "\n";
     if (!report.detail.empty()) std::cout << "realtime: " << report.detail << "\n";
     while (shared.counters.ticks.load(std::memory_order_relaxed) < ticks) {
-      std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      std::this_thread::sleep_for(std::chrono::milliseconds(lod ? 1 : 5));
       drain();
+      if (lod) {
+        const double t = static_cast<double>(shared.counters.ticks.load(std::memory_order_relaxed)) / o.rate_hz;
+        if (lod->next_time() <= t) {
+          haptics::Snapshot snap;
+          shared.snapshots.read(snap);
+          lod->apply_due(t, snap.proxy_m.eigen());
+        }
+        shared.collect_retired();
+      }
     }
     loop.stop();
     drain();
@@ -352,7 +399,7 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
   char row[512];
   for (const haptics::TickRecord& r : trace) {
     const double f = r.force_n.eigen().norm();
-    const double zs = s.height(r.proxy_m.x, r.proxy_m.y);
+    const double zs = (lod ? lod->surface_for(r.surface_tag) : s).height(r.proxy_m.x, r.proxy_m.y);
     const double below = zs - r.proxy_m.z;
     max_force = std::max(max_force, f);
     deepest = std::max(deepest, below);
@@ -441,6 +488,7 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
      << "  \"events\": {\"onset\": " << counts[0] << ", \"slide\": " << counts[1] << ", \"release\": " << counts[2]
      << ", \"dropped\": " << shared.counters.events_dropped.load() << "},\n"
      << audio_json
+     << (lod ? "  \"lod\": " + lod->json() + ",\n" : std::string())
      << "  \"realtime\": {\"fifo_granted\": " << (report.fifo_granted ? "true" : "false")
      << ", \"memory_locked\": " << (report.memory_locked ? "true" : "false") << "}\n"
      << "}\n";
@@ -455,6 +503,7 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
             << "  contact " << contact_ticks << " ticks; events: " << counts[0] << " onset, " << counts[1]
             << " slide, " << counts[2] << " release\n"
             << "  wrote " << (out / "trace.csv").string() << ", events.csv, summary.json, proxy_z.png, force.png\n";
+  if (lod) lod->print(std::cout);
   SessionSummary sum;
   sum.max_force_n = max_force;
   sum.deepest_m = deepest;
@@ -552,6 +601,14 @@ void add_touch_command(CLI::App& app) {
                   "Play the contact sounds while the session runs: default | loopback | an OpenAL device name");
   cmd->add_option("--audio-config", opts->audio_config,
                   "Run config whose audio: section to use (default: the input config's own)");
+  cmd->add_option("--level", opts->level,
+                  "Levels of detail: render a window of this level (0 = finest; each level halves the resolution)");
+  cmd->add_option("--window", opts->window,
+                  "X,Y: first column and row of the haptic window at --level (default: centred)");
+  cmd->add_option("--window-cells", opts->window_cells, "Side of the haptic window [samples]")->capture_default_str();
+  cmd->add_option("--zoom-path", opts->zoom_path,
+                  "Scripted level switches and pans: a file (one 'T ACTION ARGS' per line) or a spec like "
+                  "'1:in,2.5:pan:20:-10,4:out,5:level:2,6:window:1:0:40' (T in seconds; zooms keep the proxy)");
   cmd->callback([opts] { run_touch(*opts); });
 }
 

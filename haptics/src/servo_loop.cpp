@@ -359,6 +359,7 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
     r.in_contact = snap.in_contact;
     r.sticking = snap.sticking;
     r.device_state = snap.device_state;
+    r.surface_tag = static_cast<std::uint32_t>(snap.surface_tag);
   }
   ++tick_count_;
 }

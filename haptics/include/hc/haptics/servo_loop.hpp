@@ -106,6 +106,7 @@ struct TickRecord {
   bool in_contact = false;
   bool sticking = false;
   std::uint8_t device_state = 0;
+  std::uint32_t surface_tag = 0;  ///< tag of the surface rendered (Snapshot::surface_tag, low 32 bits)
 };
 
 class ServoLoop {

@@ -1,0 +1,89 @@
+#pragma once
+/// @file lod_session.hpp
+/// Levels of detail in a scripted `hapticloud touch` session (issue 4): the pyramid of the
+/// session's scene, the initial window (--level L --window X,Y) and a scripted sequence of level
+/// switches and pans (--zoom-path) applied at given session times through a LodController.
+
+#include "hc/common/height_field.hpp"
+#include "hc/haptics/haptic_surface.hpp"
+#include "hc/haptics/shared_state.hpp"
+#include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/lod_controller.hpp"
+
+#include <Eigen/Core>
+
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <optional>
+#include <ostream>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace hc::app {
+
+/// One scripted request: at session time t_s, `in` / `out` (zoom around the proxy), `level L`
+/// (switch around the proxy), `pan DX DY` (samples of the current level), `window L X Y`
+/// (window at level L whose first sample is column X, row Y).
+struct ZoomAction {
+  enum class Kind { kIn, kOut, kLevel, kPan, kWindow };
+  double t_s = 0.0;
+  Kind kind = Kind::kIn;
+  int a = 0, b = 0, c = 0;
+  std::string text;  ///< as written (for the report)
+};
+
+/// Parses a zoom path: a file with one action per line ("T ACTION ARGS...", '#' starts a
+/// comment), or a spec with actions separated by ',' or ';' and fields by ' ' or ':'
+/// (e.g. "1:in,2.5:pan:20:-10,4:out,5:level:2,6:window:1:0:40"). Times must not decrease.
+/// @throws hc::ConfigError naming the action and what was expected.
+std::vector<ZoomAction> parse_zoom_path(const std::string& file_or_spec);
+
+/// Parses "X,Y" into a column and a row. @throws hc::ConfigError.
+std::pair<int, int> parse_window_origin(const std::string& text);
+
+/// One switch made during the session.
+struct SwitchRecord {
+  double t_s = 0.0;             ///< session time of the request [s]
+  std::string request;          ///< the action
+  pipeline::HapticWindow window;
+};
+
+class LodSession {
+ public:
+  /// Builds the pyramid from the session's layers (depth required; envelope, texture, mu_d and
+  /// mu_s are used for level 0 when all four are present, else computed) and publishes the
+  /// initial window: level `level` (−1: the coarsest) with its first sample at `origin`
+  /// (column, row) or centred on the grid.
+  /// @throws hc::ConfigError / hc::InputError for a level or layers out of range.
+  LodSession(const std::map<std::string, HeightField>& layers, const haptics::SurfaceOptions& surface,
+             const Eigen::Vector3d& device_half_extent_m, int level, std::optional<std::pair<int, int>> origin,
+             std::vector<ZoomAction> actions, haptics::SharedState& shared, const pipeline::LodOptions& lod = {});
+
+  const pipeline::HapticWindow& initial() const { return switches_.front().window; }
+  /// Session time [s] of the next scripted action (infinity when none is left).
+  double next_time() const;
+  /// Applies every action due at session time t_s; `proxy_m` anchors zooms (grid frame).
+  /// @return the number applied. Real-time: no (builds windows; call between servo ticks).
+  int apply_due(double t_s, const Eigen::Vector3d& proxy_m);
+
+  /// The rendered surface of a published window (by tag), for evaluating trace rows.
+  const haptics::HapticSurface& surface_for(std::uint64_t tag);
+  const std::vector<SwitchRecord>& switches() const { return switches_; }
+  int level_count() const { return controller_->level_count(); }
+  /// JSON object text with the levels and every switch.
+  std::string json() const;
+  void print(std::ostream& out) const;
+
+ private:
+  std::shared_ptr<pipeline::LodPyramid> pyramid_;
+  std::unique_ptr<pipeline::LodController> controller_;
+  haptics::SurfaceOptions surface_options_;
+  std::vector<ZoomAction> actions_;
+  std::size_t next_ = 0;
+  std::vector<SwitchRecord> switches_;
+  std::map<std::uint64_t, std::unique_ptr<haptics::HapticSurface>> eval_;
+};
+
+}  // namespace hc::app
