@@ -11,6 +11,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <numbers>
 #include <string>
 #include <vector>
 
@@ -277,6 +278,58 @@ TEST_F(ViewerTest, ScreenshotPngIsWritten) {
   in.read(sig, 8);
   EXPECT_EQ(std::string(sig + 1, 3), "PNG");
   EXPECT_GT(std::filesystem::file_size(path), 1000U);
+}
+
+}  // namespace
+}  // namespace hc
+
+namespace hc {
+namespace {
+
+TEST(Arcball, DragsTurnTheSphereUnderTheCursor) {
+  const viewer::PixelRect v{0, 0, 400, 200};  // sphere radius 100 px about (200, 100)
+  const Eigen::Vector2d c(200, 100);
+  EXPECT_TRUE(viewer::arcball_rotation(v, c, c).isApprox(Eigen::Quaterniond::Identity()));
+  // Centre → right rim: the point facing the viewer turns to +x, a quarter turn about +y.
+  const Eigen::Quaterniond q = viewer::arcball_rotation(v, c, c + Eigen::Vector2d(100, 0));
+  EXPECT_TRUE((q * Eigen::Vector3d::UnitZ()).isApprox(Eigen::Vector3d::UnitX(), 1e-12));
+  EXPECT_NEAR(Eigen::AngleAxisd(q).angle(), std::numbers::pi / 2, 1e-12);
+  // Centre → up (pixel y decreases): a turn about −x that brings +z towards +y.
+  const Eigen::Quaterniond u = viewer::arcball_rotation(v, c, c + Eigen::Vector2d(0, -50));
+  const Eigen::Vector3d z = u * Eigen::Vector3d::UnitZ();
+  EXPECT_GT(z.y(), 0.4);
+  EXPECT_NEAR(z.x(), 0.0, 1e-12);
+}
+
+TEST_F(ViewerTest, OrientationToolTurnsTheRawCloudBeforeTheScan) {
+  Viewer v(shared_, test::test_options());
+  const HeightField f = test::sinusoid_field(41);
+  auto scene = test::display_scene(f, f);
+  // A raw cloud: a 10 cm square of points in the xy plane (z is the scan direction).
+  for (int i = 0; i < 200; ++i)
+    for (int j = 0; j < 200; ++j)
+      scene->cloud_xyz_m.insert(scene->cloud_xyz_m.end(), {-0.05F + 0.0005F * static_cast<float>(i), -0.05F + 0.0005F * static_cast<float>(j), 0.0F});
+  std::vector<Eigen::Quaterniond> asked;
+  v.set_scene(scene);
+  v.set_orienting(true);
+  const auto width_of_points = [&](const Image& img) {
+    int lo = 1 << 30, hi = -1;
+    const viewer::PixelRect r = v.main_view();
+    for (int y = r.y; y < r.y + r.height; ++y)
+      for (int x = r.x; x < r.x + r.width; ++x)
+        if (!test::is_background(img, x, y)) lo = std::min(lo, x), hi = std::max(hi, x);
+    return hi - lo;
+  };
+  const int face_on = width_of_points(v.capture());
+  EXPECT_GT(face_on, 100);
+  // A quarter turn about y shows the square edge-on: a thin vertical line of points.
+  v.set_orientation(Eigen::Quaterniond(Eigen::AngleAxisd(std::numbers::pi / 2, Eigen::Vector3d::UnitY())));
+  const int edge_on = width_of_points(v.capture());
+  EXPECT_LT(edge_on, face_on / 10);
+  // A level change (new scene, same orientation) keeps the turn the user has not re-scanned yet.
+  v.set_scene(test::display_scene(f, f));
+  v.capture();
+  EXPECT_TRUE(v.orientation().isApprox(Eigen::Quaterniond(Eigen::AngleAxisd(std::numbers::pi / 2, Eigen::Vector3d::UnitY()))));
 }
 
 }  // namespace

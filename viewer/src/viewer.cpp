@@ -324,8 +324,10 @@ void Viewer::take_pending_scene() {
     const double r = std::sqrt(r2);
     gpu_->cloud_extent = Extent{-r, r, -r, r, -r, r};
   }
-  if (first) orientation_ = scene_->orientation;
-  if (!arcball_active_) orientation_ = scene_->orientation;
+  // A new orientation (first scene, re-scan) resets the tool; level and window changes keep
+  // what the user has turned but not yet re-scanned.
+  if (first || !scene_->orientation.isApprox(scene_orientation_)) orientation_ = scene_->orientation;
+  scene_orientation_ = scene_->orientation;
   gui_level_ = scene_->level;
   if (first && options_.mouse_drives_hip) hip_device_z_m_ = 0.0;
 }
@@ -539,19 +541,24 @@ void Viewer::on_mouse_button(GLFWwindow* w, int button, int action, int) {
     return;
   }
   if (self->orienting_) {
-    const PixelRect v = self->main_view();
     self->arcball_active_ = true;
     self->arcball_start_ = self->orientation_;
-    self->arcball_from_ = self->arcball_vector(x, y, v);
+    self->arcball_from_px_ = Eigen::Vector2d(x, y);
   }
 }
 
-Eigen::Vector3d Viewer::arcball_vector(double px, double py, const PixelRect& v) const {
-  const double r = 0.5 * std::min(v.width, v.height);
-  Eigen::Vector3d p((px - (v.x + 0.5 * v.width)) / r, ((v.y + 0.5 * v.height) - py) / r, 0.0);
+namespace {
+Eigen::Vector3d arcball_point(const PixelRect& v, const Eigen::Vector2d& px) {
+  const double r = 0.5 * std::max(1, std::min(v.width, v.height));
+  Eigen::Vector3d p((px.x() - (v.x + 0.5 * v.width)) / r, ((v.y + 0.5 * v.height) - px.y()) / r, 0.0);
   const double d2 = p.x() * p.x() + p.y() * p.y();
-  if (d2 <= 1.0) p.z() = std::sqrt(1.0 - d2); else p.normalize();
+  if (d2 <= 1.0) p.z() = std::sqrt(1.0 - d2);
   return p.normalized();
+}
+}  // namespace
+
+Eigen::Quaterniond arcball_rotation(const PixelRect& view, const Eigen::Vector2d& from_px, const Eigen::Vector2d& to_px) {
+  return Eigen::Quaterniond::FromTwoVectors(arcball_point(view, from_px), arcball_point(view, to_px));
 }
 
 void Viewer::handle_input() {
@@ -573,8 +580,7 @@ void Viewer::handle_input() {
     orbit_from_y_ = y;
   }
   if (arcball_active_ && orienting_) {
-    const Eigen::Vector3d to = arcball_vector(x, y, main_view());
-    orientation_ = (Eigen::Quaterniond::FromTwoVectors(arcball_from_, to) * arcball_start_).normalized();
+    orientation_ = (arcball_rotation(main_view(), arcball_from_px_, Eigen::Vector2d(x, y)) * arcball_start_).normalized();
   }
   // Mouse device: the cursor ray meets the plane of the HIP (device z fixed by the wheel).
   const PixelRect v = main_view();

@@ -184,6 +184,12 @@ class Viewer {
   /// @param ratio eye separation / convergence distance, clamped to [0.001, 0.2].
   void set_eye_separation(double ratio);
   double eye_separation() const { return eye_separation_; }
+  /// The orientation tool: the raw-cloud preview turned by the orientation (arcball with the
+  /// left button, or set_orientation); on_rescan(orientation()) is what Enter / Re-scan send.
+  void set_orienting(bool on) { orienting_ = on; }
+  bool orienting() const { return orienting_; }
+  void set_orientation(const Eigen::Quaterniond& q) { orientation_ = q.normalized(); }
+  const Eigen::Quaterniond& orientation() const { return orientation_; }
   /// Orbit of the main camera about the window centre [deg]: yaw about the grid z axis, tilt
   /// away from looking straight down −z.
   void set_camera(double yaw_deg, double tilt_deg, double zoom = 1.0);
@@ -218,7 +224,6 @@ class Viewer {
   void render_frame();
   void present();
   double eye_offset_for(int eye) const;
-  Eigen::Vector3d arcball_vector(double px, double py, const PixelRect& view) const;
   static void on_key(::GLFWwindow* w, int key, int scancode, int action, int mods);
   static void on_scroll(::GLFWwindow* w, double dx, double dy);
   static void on_mouse_button(::GLFWwindow* w, int button, int action, int mods);
@@ -253,9 +258,10 @@ class Viewer {
   // Orientation tool (arcball on the raw-cloud preview).
   bool orienting_ = false;
   bool arcball_active_ = false;
-  Eigen::Vector3d arcball_from_ = Eigen::Vector3d::UnitZ();
+  Eigen::Vector2d arcball_from_px_ = Eigen::Vector2d::Zero();
   Eigen::Quaterniond orientation_ = Eigen::Quaterniond::Identity();
   Eigen::Quaterniond arcball_start_ = Eigen::Quaterniond::Identity();
+  Eigen::Quaterniond scene_orientation_ = Eigen::Quaterniond::Identity();
   float typed_angles_deg_[3] = {0.0F, 0.0F, 0.0F};
 
   // GUI values.
@@ -273,6 +279,12 @@ class Viewer {
   double last_plot_time_s_ = 0.0;
   double last_frame_start_s_ = 0.0;
 };
+
+/// Arcball (Shoemake, "ARCBALL", Graphics Interface 1992): the rotation that takes the point of
+/// the unit sphere under pixel `from_px` to the one under `to_px`; the sphere fills the smaller
+/// side of `view` (pixels, y down), points outside it lie on its rim. Eye frame (x right, y up,
+/// z towards the viewer), which is the grid frame in the orientation tool. Real-time: yes.
+Eigen::Quaterniond arcball_rotation(const PixelRect& view, const Eigen::Vector2d& from_px, const Eigen::Vector2d& to_px);
 
 /// The controls, one line each (the help overlay shows them; the README lists the same).
 const std::vector<std::string>& controls_help();
