@@ -218,7 +218,7 @@ Viewer::Viewer(haptics::SharedState& shared, const ViewerOptions& options, Viewe
   if (glfwInit() == GLFW_FALSE) {
     const char* display = std::getenv("DISPLAY");
     throw ResourceError("viewer: GLFW could not start (" + glfw_error_text + "); DISPLAY is '" +
-                        (display ? display : "") + "': run on a desktop, or under `xvfb-run -a -s \"-screen 0 1280x1024x24\"`");
+                        (display ? display : "") + "': run on a desktop, or under `xvfb-run -a -s \"-screen 0 1280x1024x24 -noreset\"`");
   }
   glfwWindowHint(GLFW_CONTEXT_VERSION_MAJOR, 3);
   glfwWindowHint(GLFW_CONTEXT_VERSION_MINOR, 3);
