@@ -79,5 +79,33 @@ TEST(AudioEngine, DrainsTheSharedContactRing) {
   engine.stop();
 }
 
+TEST(AudioEngine, WithoutASoundDeviceItSaysSoAndStillDrainsTheRing) {
+  haptics::SharedState shared;
+  EngineOptions o;
+  o.device_name = "hapticloud-test: no such device";
+  AudioEngine engine(one_box_scene(), o);
+  const EngineReport report = engine.start(shared);
+  EXPECT_FALSE(report.device_open);
+  EXPECT_NE(report.detail.find("no sound output device"), std::string::npos) << report.detail;
+  EXPECT_NE(report.detail.find("--audio-out"), std::string::npos) << report.detail;
+  for (int i = 0; i < 100; ++i) ASSERT_TRUE(shared.events.try_push(onset_now()));
+  ASSERT_TRUE(wait_for([&] { return engine.stats().events >= 100; }));
+  EXPECT_EQ(engine.stats().onsets_played, 0u);
+  engine.stop();
+}
+
+TEST(AudioEngine, RejectsOutOfRangeOptionsNamingThem) {
+  EngineOptions o;
+  o.buffer_frames = 8;
+  AudioEngine engine(one_box_scene(), o);
+  try {
+    engine.start();
+    FAIL() << "expected a ConfigError";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("buffer_frames = 8"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(engine.running());
+}
+
 }  // namespace
 }  // namespace hc::audio
