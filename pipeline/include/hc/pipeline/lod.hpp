@@ -78,7 +78,8 @@ GridGeometry lod_level_geometry(const GridGeometry& finest, int level);
 /// radius ⌈3σ⌉) and m = 1 on valid samples inside the grid, 0 elsewhere (no data and beyond
 /// the border),
 ///   z_coarse(r, c) = Σ w·m·z / Σ w·m   around fine sample (2r, 2c),
-/// valid only if Σ w·m ≥ valid_fraction · Σ w·[inside the grid]; else NaN. NaN never enters a
+/// valid only if Σ w·m ≥ valid_fraction · Σ w·[inside the grid] (to a relative 1e-6: the sums
+/// are single precision); else NaN. NaN never enters a
 /// sum, so it never leaks into a valid sample; a plane is reproduced exactly away from holes and
 /// the border (a one-sided neighbourhood there shifts it by at most slope·σ).
 /// Output geometry: lod_level_geometry(fine, 1) relative to `fine`; model_to_grid is copied.
