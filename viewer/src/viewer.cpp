@@ -730,15 +730,18 @@ void Viewer::draw_navigation(const PixelRect& view) {
 }
 
 void Viewer::update_plots() {
-  const double now = glfwGetTime();
-  const std::uint64_t ticks = shared_.counters.ticks.load(std::memory_order_relaxed);
-  const double dt = now - last_plot_time_s_;
-  float rate = 0.0F;
-  if (last_plot_time_s_ > 0.0 && dt > 0.0) rate = static_cast<float>(static_cast<double>(ticks - last_ticks_) / dt);
-  last_ticks_ = ticks;
-  last_plot_time_s_ = now;
+  // Servo timing from the snapshots themselves: the mean tick period since the previous frame
+  // (servo clock, so the UI's own delays do not enter), and the loop's worst tick compute time.
+  float period_us = 0.0F;
+  if (snapshot_.tick > last_ticks_ && last_ticks_ > 0) {
+    period_us = static_cast<float>(1e6 * (snapshot_.t_s - last_plot_time_s_) / static_cast<double>(snapshot_.tick - last_ticks_));
+  }
+  if (snapshot_.tick != last_ticks_) {
+    last_ticks_ = snapshot_.tick;
+    last_plot_time_s_ = snapshot_.t_s;
+  }
   force_plot_[plot_head_] = static_cast<float>(snapshot_.force_n.eigen().norm());
-  rate_plot_[plot_head_] = rate;
+  rate_plot_[plot_head_] = period_us;
   plot_head_ = (plot_head_ + 1) % kPlotLength;
 }
 
@@ -849,7 +852,7 @@ void Viewer::draw_gui() {
     if (ImGui::CollapsingHeader("Plots", ImGuiTreeNodeFlags_DefaultOpen)) {
       ImGui::PlotLines("|F| [N]", force_plot_, kPlotLength, plot_head_, nullptr, 0.0F,
                        static_cast<float>(options_.max_force_n), ImVec2(0, 50));
-      ImGui::PlotLines("ticks/s", rate_plot_, kPlotLength, plot_head_, nullptr, 0.0F, 1200.0F, ImVec2(0, 50));
+      ImGui::PlotLines("tick period [us]", rate_plot_, kPlotLength, plot_head_, nullptr, 0.0F, 2000.0F, ImVec2(0, 50));
       const auto& c = shared_.counters;
       ImGui::Text("ticks %llu, overruns %llu", static_cast<unsigned long long>(c.ticks.load(std::memory_order_relaxed)),
                   static_cast<unsigned long long>(c.overruns.load(std::memory_order_relaxed)));

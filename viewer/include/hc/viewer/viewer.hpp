@@ -273,10 +273,10 @@ class Viewer {
   // Live plots (ring buffers, newest at plot_head_ − 1).
   static constexpr int kPlotLength = 240;
   float force_plot_[kPlotLength] = {};
-  float rate_plot_[kPlotLength] = {};
+  float rate_plot_[kPlotLength] = {};  // mean servo tick period per frame [us]
   int plot_head_ = 0;
   std::uint64_t last_ticks_ = 0;
-  double last_plot_time_s_ = 0.0;
+  double last_plot_time_s_ = 0.0;  // servo clock time of the snapshot at last_ticks_
   double last_frame_start_s_ = 0.0;
 };
 
