@@ -271,8 +271,8 @@ void Session::show_window() {
   d->level_count = lod_->level_count();
   d->cloud_xyz_m = cloud_;
   d->orientation = built_->orientation;
-  d->description = built_->description + ": level " + std::to_string(w.level) + " of " +
-                   std::to_string(lod_->level_count() - 1) + ", window " + std::to_string(w.cols) + "x" +
+  d->description = built_->description + ": level " + std::to_string(w.level) + " (levels 0.." +
+                   std::to_string(lod_->level_count() - 1) + "), window " + std::to_string(w.cols) + "x" +
                    std::to_string(w.rows) + " samples, cell " + fmt(1e3 * w.geometry.cell_size_m, 3) + " mm";
   if (viewer_) viewer_->set_scene(std::move(d));
 }

@@ -90,6 +90,23 @@ TEST(ExploreSession, RescanReplacesTheSceneWithoutRestartAndWithZeroForce) {
   EXPECT_TRUE(fs::exists(dir / "out" / "scan-1" / "scene" / "scene.yaml"));
 }
 
+TEST(ExploreSession, SceneFolderWithTheMouseDeviceInStereo) {
+  const fs::path dir = test::temp_dir("folder");
+  const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
+  const Result built = run_app("run " + config.string() + " --out " + (dir / "run").string() + " --set grid.n=120");
+  ASSERT_EQ(built.status, 0) << built.output;
+  const Result r = run_app("explore " + (dir / "run" / "scene").string() +
+                           " --device mouse --stereo --frames 20 --hidden --no-audio --summary " +
+                           (dir / "summary.json").string() + " --screenshot " + (dir / "stereo.png").string());
+  ASSERT_EQ(r.status, 0) << r.output;
+  const nlohmann::json s = read_json(dir / "summary.json");
+  EXPECT_EQ(s["frames"].get<long>(), 20);
+  EXPECT_EQ(s["device"].get<std::string>(), "mouse");
+  EXPECT_EQ(s["device_errors"].get<long>(), 0);
+  EXPECT_GT(s["mesh_quads"].get<long>(), 119L * 119L * 9 / 10);  // the grid, less its few holes
+  EXPECT_GT(fs::file_size(dir / "stereo.png"), 10000U);
+}
+
 TEST(ExploreSession, UnknownDeviceIsAnErrorNamingTheChoices) {
   const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
   const Result r = run_app("explore " + config.string() + " --device joystick --hidden --out " +
