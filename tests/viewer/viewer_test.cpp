@@ -236,6 +236,16 @@ TEST_F(ViewerTest, LevelCommandsFromEveryInputReachTheAppAndTheNewWindowIsDrawn)
   const int span_coarse = outline_span(coarse), span_fine = outline_span(fine);
   ASSERT_GT(span_coarse, 50);
   EXPECT_NEAR(static_cast<double>(span_fine) / span_coarse, 80.0 / 200.0, 0.05);
+  // A click in the navigation view centres the window on the point under the cursor.
+  const Eigen::Vector2d at = v.project_navigation(Eigen::Vector3d(0.02, -0.015, 0.0));
+  ASSERT_TRUE(v.navigation_view().contains(at.x(), at.y()));
+  v.left_click(at.x(), at.y());
+  ASSERT_EQ(received.size(), 2U);
+  EXPECT_EQ(received[1].type, RegionCommandType::kCentreAt);
+  const double pixel_m = 0.1 / v.navigation_view().width;  // the overview spans less than the view
+  EXPECT_NEAR(received[1].x_m, 0.02, pixel_m);
+  EXPECT_NEAR(received[1].y_m, -0.015, pixel_m);
+  received.erase(received.begin() + 1);
   // Keys, GUI and buttons share issue(): the same command arrives unchanged.
   v.issue({RegionCommandType::kPan, 0, 0.25, 0.0});
   ASSERT_EQ(received.size(), 2U);
@@ -330,6 +340,39 @@ TEST_F(ViewerTest, OrientationToolTurnsTheRawCloudBeforeTheScan) {
   v.set_scene(test::display_scene(f, f));
   v.capture();
   EXPECT_TRUE(v.orientation().isApprox(Eigen::Quaterniond(Eigen::AngleAxisd(std::numbers::pi / 2, Eigen::Vector3d::UnitY()))));
+}
+
+}  // namespace
+}  // namespace hc
+
+namespace hc {
+namespace {
+
+TEST_F(ViewerTest, PanelAndHelpOverlayAreDrawnWhenShown) {
+  viewer::ViewerOptions o = test::test_options();
+  o.width_px = 1100;
+  o.height_px = 700;
+  const HeightField f = test::sinusoid_field(65);
+  Image plain, with_panel;
+  {
+    Viewer v(shared_, o);
+    v.set_scene(test::display_scene(f, f));
+    plain = v.capture();
+  }
+  o.show_panel = true;
+  o.show_help = true;
+  Viewer v(shared_, o);
+  v.set_scene(test::display_scene(f, f));
+  v.capture();  // ImGui lays its windows out on the first frame
+  with_panel = v.capture();
+  // The panel has its own strip on the left; the main view starts right of it.
+  EXPECT_GE(v.main_view().x, 300);
+  const viewer::PixelRect strip{0, 0, 300, 700};
+  EXPECT_GT(test::fraction_changed(plain, with_panel, strip), 0.5);
+  // The help overlay sits in the middle of the window, over the mesh.
+  const viewer::PixelRect middle{450, 250, 200, 200};
+  EXPECT_GT(test::fraction_changed(plain, with_panel, middle), 0.2);
+  EXPECT_EQ(viewer::controls_help().size() >= 10, true);
 }
 
 }  // namespace

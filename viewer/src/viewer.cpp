@@ -527,24 +527,34 @@ void Viewer::on_mouse_button(GLFWwindow* w, int button, int action, int) {
     self->orbit_from_y_ = y;
     return;
   }
-  if (button != GLFW_MOUSE_BUTTON_LEFT) return;
-  const PixelRect nav = self->navigation_view();
-  if (!self->orienting_ && nav.contains(x, y) && self->gpu_ && self->scene_) {
+  if (button == GLFW_MOUSE_BUTTON_LEFT) self->left_click(x, y);
+}
+
+void Viewer::left_click(double x, double y) {
+  const PixelRect nav = navigation_view();
+  if (!orienting_ && nav.contains(x, y) && scene_) {
     // Click in the navigation view: centre the window there.
-    const Eigen::Matrix4d inv = self->navigation_projection(nav).inverse();
+    const Eigen::Matrix4d inv = navigation_projection(nav).inverse();
     const double nx = 2.0 * (x - nav.x) / nav.width - 1.0, ny = 1.0 - 2.0 * (y - nav.y) / nav.height;
     const Eigen::Vector4d p = inv * Eigen::Vector4d(nx, ny, 0.0, 1.0);
     RegionCommand c{RegionCommandType::kCentreAt};
     c.x_m = p.x() / p.w();
     c.y_m = p.y() / p.w();
-    self->issue(c);
+    issue(c);
     return;
   }
-  if (self->orienting_) {
-    self->arcball_active_ = true;
-    self->arcball_start_ = self->orientation_;
-    self->arcball_from_px_ = Eigen::Vector2d(x, y);
+  if (orienting_) {
+    arcball_active_ = true;
+    arcball_start_ = orientation_;
+    arcball_from_px_ = Eigen::Vector2d(x, y);
   }
+}
+
+Eigen::Vector2d Viewer::project_navigation(const Eigen::Vector3d& grid_m) const {
+  const PixelRect v = navigation_view();
+  const Eigen::Vector4d clip = navigation_projection(v) * grid_m.homogeneous();
+  const Eigen::Vector2d ndc = clip.head<2>() / clip.w();
+  return {v.x + 0.5 * (ndc.x() + 1.0) * v.width, v.y + 0.5 * (1.0 - ndc.y()) * v.height};
 }
 
 namespace {

@@ -176,6 +176,9 @@ class Viewer {
   /// Where the mouse drives the HIP [m, device frame] (mouse mode); false until the cursor has
   /// been over the main view.
   bool mouse_target(Eigen::Vector3d& device_m) const;
+  /// What a left click at window pixel (x, y) does: in the navigation view, centre the window
+  /// there (a kCentreAt command); in the orientation tool, start an arcball drag.
+  void left_click(double x, double y);
   /// Mouse mode without a mouse (tests): the cursor at pixel (px, py) of the window.
   void set_cursor_for_test(double px, double py);
 
@@ -197,6 +200,8 @@ class Viewer {
   /// Pixel (x right, y down, window pixels) of a grid-frame point in the main view, seen by
   /// eye −1 (left, red), 0 (mono) or +1 (right, cyan).
   Eigen::Vector2d project(const Eigen::Vector3d& grid_m, int eye = 0) const;
+  /// Pixel of a grid-frame point (x, y used) in the navigation view.
+  Eigen::Vector2d project_navigation(const Eigen::Vector3d& grid_m) const;
   PixelRect main_view() const;
   PixelRect navigation_view() const;
   /// The scene being drawn (null before the first set_scene() has been taken by a frame).
