@@ -416,9 +416,9 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
   csv.close();
   std::ofstream ev(out / "events.csv");
   ev << "t_s,type,region_id,x_m,y_m,z_m,force_n,speed_m_per_s\n";
-  std::size_t counts[3] = {0, 0, 0};
+  std::size_t counts[4] = {0, 0, 0, 0};
   for (const haptics::ContactEvent& e : events) {
-    static const char* kNames[3] = {"onset", "slide", "release"};
+    static const char* kNames[4] = {"onset", "slide", "release", "press"};
     const auto type = static_cast<std::size_t>(e.type);
     ++counts[type];
     std::snprintf(row, sizeof row, "%.6f,%s,%d,%.9g,%.9g,%.9g,%.6g,%.6g\n", e.t_s - t0, kNames[type],
@@ -485,7 +485,7 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
      << "  \"max_force_n\": " << json_number(max_force) << ",\n"
      << "  \"deepest_proxy_below_surface_m\": " << json_number(deepest) << ",\n"
      << "  \"contact_fraction\": " << json_number(trace.empty() ? 0.0 : static_cast<double>(contact_ticks) / static_cast<double>(trace.size())) << ",\n"
-     << "  \"events\": {\"onset\": " << counts[0] << ", \"slide\": " << counts[1] << ", \"release\": " << counts[2]
+     << "  \"events\": {\"onset\": " << counts[0] << ", \"slide\": " << counts[1] << ", \"release\": " << counts[2] << ", \"press\": " << counts[3]
      << ", \"dropped\": " << shared.counters.events_dropped.load() << "},\n"
      << audio_json
      << (lod ? "  \"lod\": " + lod->json() + ",\n" : std::string())
@@ -501,7 +501,7 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
             << "  compute ns: p50 " << p50 << ", p99 " << p99 << ", p99.9 " << p999 << ", max " << cmax << "\n"
             << "  max force " << max_force << " N; deepest proxy below the surface " << deepest << " m\n"
             << "  contact " << contact_ticks << " ticks; events: " << counts[0] << " onset, " << counts[1]
-            << " slide, " << counts[2] << " release\n"
+            << " slide, " << counts[2] << " release, " << counts[3] << " press\n"
             << "  wrote " << (out / "trace.csv").string() << ", events.csv, summary.json, proxy_z.png, force.png\n";
   if (lod) lod->print(std::cout);
   SessionSummary sum;

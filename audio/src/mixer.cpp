@@ -237,6 +237,7 @@ void Mixer::handle(const haptics::ContactEvent& e) noexcept {
       update_slide(e, region);
       break;
     case haptics::ContactEventType::kSlide:
+    case haptics::ContactEventType::kPress:  // speed 0: the force grows, the slide sound fades
       if (!in_contact_ || region != contact_region_) {
         // Entered another region while in contact (or the onset was lost): a new strike.
         if (in_contact_ && contact_region_ >= 0) release_region_voices(contact_region_, false);

@@ -300,7 +300,11 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
   } else if (state_.in_contact && ++ticks_since_slide_ >= config_.slide_event_every_ticks) {
     const double moved = (state_.proxy_m - slide_from_m_).norm();
     const double elapsed = t_s - slide_from_s_;
-    if (!state_.sticking && moved > 0.0 && elapsed > 0.0) push(ContactEventType::kSlide, moved / elapsed);
+    if (!state_.sticking && moved > 0.0 && elapsed > 0.0) {
+      push(ContactEventType::kSlide, moved / elapsed);
+    } else {
+      push(ContactEventType::kPress, 0.0);
+    }
     slide_from_m_ = state_.proxy_m;
     slide_from_s_ = t_s;
     ticks_since_slide_ = 0;

@@ -142,6 +142,10 @@ TEST(AudioMixer, TheStrikeGainRisesWithTheForceInsideTheStrikeWindow) {
   const float p_weak = peak(render_offline(scene, weak, 0.0, 0.4, 0.0));
   const float p_strong = peak(render_offline(scene, strong, 0.0, 0.4, 0.0));
   EXPECT_GT(p_strong, 5.0F * p_weak);
+  // A straight press that sticks sends press events (speed 0): they raise the strike as well.
+  std::vector<ContactEvent> pressed = weak;
+  pressed.push_back(event(ContactEventType::kPress, 0.02, 0.035, 3.0, 0.0));
+  EXPECT_NEAR(peak(render_offline(scene, pressed, 0.0, 0.4, 0.0)), p_strong, 0.05F * p_strong);
   // Outside the window the force no longer changes the strike.
   std::vector<ContactEvent> late = weak;
   late.push_back(event(ContactEventType::kSlide, 0.2, 0.035, 3.0, 0.01));

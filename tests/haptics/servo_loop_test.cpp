@@ -86,6 +86,40 @@ TEST(ServoLoop, ScriptedSessionAsFastAsPossible) {
   EXPECT_GT(loop.stats().compute.percentile_ns(0.5), 0.0);
 }
 
+TEST(ServoLoop, AStillPressSendsPressEventsWithTheGrowingForce) {
+  // The hand holds the centre, pressing 10 mm into the surface: after the onset the proxy does
+  // not slip, so no slide events; press events (speed 0) carry the force as it ramps in.
+  SharedState shared(sinusoid_surface());
+  ManualClock clock;
+  ScriptedPath hold = circle_path();
+  hold.kind = PathKind::kHold;
+  SimulatedDevice dev(clock, hold);
+  dev.open();
+  ServoLoop loop(dev, shared, clock, ServoConfig{});
+  ASSERT_TRUE(shared.commands.try_push(Command::of(CommandType::kArm)));
+  loop.run_ticks(2000, clock);
+  ContactEvent e;
+  std::vector<ContactEvent> events;
+  while (shared.events.try_pop(e)) events.push_back(e);
+  ASSERT_FALSE(events.empty());
+  EXPECT_EQ(events.front().type, ContactEventType::kOnset);
+  int presses = 0, slides = 0;
+  double first_press_force = -1.0, last_press_force = 0.0;
+  for (const ContactEvent& ev : events) {
+    if (ev.type == ContactEventType::kSlide) ++slides;
+    if (ev.type != ContactEventType::kPress) continue;
+    ++presses;
+    EXPECT_EQ(ev.speed_m_per_s, 0.0);
+    const double f = ev.force_n.eigen().norm();
+    if (first_press_force < 0.0) first_press_force = f;
+    last_press_force = f;
+  }
+  EXPECT_GT(presses, 100);  // one per 10 ticks of contact without slip
+  EXPECT_LT(slides, presses / 10);
+  EXPECT_GT(last_press_force, 1.0);
+  EXPECT_GT(last_press_force, 2.0 * first_press_force);
+}
+
 TEST(ServoLoop, CommandsAreClampedOrRejected) {
   SharedState shared(sinusoid_surface(50));
   ManualClock clock;

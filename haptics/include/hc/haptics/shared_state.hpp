@@ -53,7 +53,11 @@ struct Snapshot {
   std::uint32_t buttons = 0;      ///< device buttons pressed this tick (DeviceReading::buttons)
 };
 
-enum class ContactEventType : std::uint8_t { kOnset = 0, kSlide, kRelease };
+/// kOnset: contact begins; kSlide: in contact and slipping (speed_m_per_s > 0); kPress: in
+/// contact without slipping (stuck or still; speed 0), so that consumers see the force grow
+/// after an onset; kRelease: contact ends. kSlide and kPress come at most every
+/// ServoConfig::slide_event_every_ticks ticks.
+enum class ContactEventType : std::uint8_t { kOnset = 0, kSlide, kRelease, kPress };
 
 /// A contact event for audio and logging. position_m is the proxy, grid frame.
 struct ContactEvent {
