@@ -28,7 +28,7 @@ namespace {
 
 constexpr double kDegToRad = std::numbers::pi / 180.0;
 constexpr int kMaxMeshSide = 640;       // display mesh: at most this many vertices per side
-constexpr int kMaxOverviewSide = 256;   // navigation mesh
+constexpr int kMaxOverviewSide = 128;   // navigation mesh (small: it is redrawn every frame)
 constexpr int kPanelWidthPx = 340;      // the ImGui panel's strip
 const Eigen::Vector3f kBackground(0.08F, 0.09F, 0.11F);
 const Eigen::Vector3f kStone(0.86F, 0.80F, 0.70F);
