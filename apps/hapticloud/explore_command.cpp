@@ -54,6 +54,7 @@
 #include <fstream>
 #include <future>
 #include <iostream>
+#include <map>
 #include <memory>
 #include <optional>
 #include <sstream>
@@ -83,9 +84,58 @@ struct ExploreOptions {
   double rho = 0.9;
   int window_cells = 0;  ///< 0: the config's lod.window_cells (200 for a scene folder)
   std::string realtime = "warn";
-  int rescan_at_frame = 0;               ///< scripted re-scan (tests, demos): at this frame, 0 = never
-  std::vector<double> rescan_angles_deg; ///< its x, y, z angles [deg] (R = Rx·Ry·Rz)
+  std::string script;  ///< scripted actions "FRAME ACTION ARGS; ..." (tests, demos; see --help)
 };
+
+/// One scripted action: at frame `frame`, what a key, the panel or the orientation tool would do.
+struct ScriptStep {
+  int frame = 0;
+  std::string action;          ///< finer | coarser | level | pan | centre | texture | mu_s | model | rescan | stereo
+  std::vector<std::string> args;
+};
+
+/// Parses "FRAME ACTION [ARGS...]; ..." (frames ascending). @throws hc::ConfigError naming the step.
+std::vector<ScriptStep> parse_script(const std::string& text) {
+  static const std::map<std::string, std::size_t> kArity = {
+      {"finer", 0}, {"coarser", 0}, {"level", 1}, {"pan", 2}, {"centre", 2}, {"texture", 1},
+      {"mu_s", 1}, {"model", 1}, {"rescan", 3}, {"stereo", 1}};
+  std::vector<ScriptStep> steps;
+  std::stringstream all(text);
+  std::string item;
+  while (std::getline(all, item, ';')) {
+    std::stringstream words(item);
+    ScriptStep st;
+    std::string frame;
+    if (!(words >> frame)) continue;  // empty item
+    const auto bad = [&](const std::string& why) {
+      return ConfigError("explore: --script step '" + item + "': " + why +
+                         " (expected FRAME ACTION ARGS with ACTION one of finer, coarser, level N, pan DX DY, "
+                         "centre X_M Y_M, texture on|off, mu_s V, model paper|curvature, rescan AX AY AZ, stereo on|off)");
+    };
+    try {
+      std::size_t used = 0;
+      st.frame = std::stoi(frame, &used);
+      if (used != frame.size() || st.frame < 1) throw std::invalid_argument("frame");
+    } catch (const std::exception&) {
+      throw bad("the frame must be an integer ≥ 1");
+    }
+    if (!(words >> st.action) || kArity.count(st.action) == 0) throw bad("unknown action");
+    for (std::string w; words >> w;) st.args.push_back(w);
+    if (st.args.size() != kArity.at(st.action)) throw bad("wrong number of arguments");
+    if (!steps.empty() && st.frame < steps.back().frame) throw bad("frames must not decrease");
+    steps.push_back(std::move(st));
+  }
+  return steps;
+}
+
+double script_number(const ScriptStep& st, std::size_t i) {
+  try {
+    return std::stod(st.args[i]);
+  } catch (const std::exception&) {
+    throw ConfigError("explore: --script step at frame " + std::to_string(st.frame) + ": '" + st.args[i] +
+                      "' is not a number");
+  }
+}
 
 #ifdef HC_HAVE_VIEWER
 
@@ -171,6 +221,7 @@ class Session {
   void on_surface_settings(const viewer::SurfaceSettings& s);
   void on_frame();
   void adopt(const std::shared_ptr<Built>& b);
+  void run_step(const ScriptStep& st);
   pipeline::LodControllerOptions controller_options() const;
   std::optional<Eigen::Vector3d> anchor() const;
   void write_summary(const haptics::ServoStats& stats, const haptics::RealtimeReport& rt) const;
@@ -413,6 +464,36 @@ void Session::on_frame() {
   }
 }
 
+void Session::run_step(const ScriptStep& st) {
+  using viewer::RegionCommandType;
+  const std::string& a = st.action;
+  if (a == "finer") viewer_->issue({RegionCommandType::kFiner});
+  if (a == "coarser") viewer_->issue({RegionCommandType::kCoarser});
+  if (a == "level") viewer_->issue({RegionCommandType::kSetLevel, static_cast<int>(script_number(st, 0))});
+  if (a == "pan") viewer_->issue({RegionCommandType::kPan, 0, script_number(st, 0), script_number(st, 1)});
+  if (a == "centre") {
+    viewer::RegionCommand c{RegionCommandType::kCentreAt};
+    c.x_m = script_number(st, 0);
+    c.y_m = script_number(st, 1);
+    viewer_->issue(c);
+  }
+  if (a == "texture" || a == "mu_s" || a == "model") {
+    viewer::SurfaceSettings s;
+    s.texture_enabled = texture_enabled_;
+    s.mu_s = layer_options_.mu_s;
+    s.friction_model = pipeline::to_string(layer_options_.friction_model);
+    if (a == "texture") s.texture_enabled = st.args[0] == "on";
+    if (a == "mu_s") s.mu_s = script_number(st, 0);
+    if (a == "model") s.friction_model = st.args[0];
+    on_surface_settings(s);
+  }
+  if (a == "rescan") {
+    on_rescan(pipeline::rotation_from_euler(
+        Eigen::Vector3d(script_number(st, 0), script_number(st, 1), script_number(st, 2)), "xyz"));
+  }
+  if (a == "stereo") viewer_->set_stereo(st.args[0] == "on");
+}
+
 void Session::start_device() {
   if (o_.device == "mouse") {
     auto m = std::make_unique<viewer::MouseDevice>(clock_);
@@ -465,6 +546,11 @@ void Session::write_summary(const haptics::ServoStats& stats, const haptics::Rea
      << "  \"fifo_granted\": " << (rt.fifo_granted ? "true" : "false") << ",\n"
      << "  \"memory_locked\": " << (rt.memory_locked ? "true" : "false") << ",\n"
      << "  \"mesh_quads\": " << viewer_->mesh_quads() << ",\n"
+     << "  \"level\": " << (lod_ && lod_->has_window() ? lod_->window().level : -1) << ",\n"
+     << "  \"level_count\": " << (lod_ ? lod_->level_count() : 0) << ",\n"
+     << "  \"texture\": " << (texture_enabled_ ? "true" : "false") << ",\n"
+     << "  \"mu_s\": " << layer_options_.mu_s << ",\n"
+     << "  \"friction_model\": \"" << pipeline::to_string(layer_options_.friction_model) << "\",\n"
      << "  \"rescans\": " << rescans_ << ",\n"
      << "  \"swaps\": " << swaps_done_ << ",\n"
      << "  \"swap_max_device_force_n\": " << swap_max_force_n_ << ",\n"
@@ -479,10 +565,8 @@ void Session::run() {
     throw ConfigError("explore: --seconds " + fmt(o_.seconds) + " is out of range (expected [0, 86400])");
   }
   if (!o_.screenshot.empty() && o_.frames == 0 && o_.seconds == 0.0) o_.frames = 1;
-  if (o_.rescan_at_frame > 0 && o_.rescan_angles_deg.size() != 3) {
-    throw ConfigError("explore: --rescan-angles needs three angles x,y,z [deg] (got " +
-                      std::to_string(o_.rescan_angles_deg.size()) + ")");
-  }
+  const std::vector<ScriptStep> script = parse_script(o_.script);
+  std::size_t next_step = 0;
   if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim") {
     throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
   }
@@ -578,7 +662,7 @@ void Session::run() {
   const auto t0 = std::chrono::steady_clock::now();
   for (int frame = 1;; ++frame) {
     // A session never ends half-way through a re-scan or a swap.
-    const bool busy = job_.valid() || swap_ != Swap::kIdle || (o_.rescan_at_frame >= frame);
+    const bool busy = job_.valid() || swap_ != Swap::kIdle || next_step < script.size();
     const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     const bool last = !busy && ((o_.frames > 0 && frame >= o_.frames) || (o_.seconds > 0.0 && elapsed_s >= o_.seconds));
     if (last && !o_.screenshot.empty()) {
@@ -587,9 +671,10 @@ void Session::run() {
       break;
     }
     if (!viewer_->frame() || last) break;
-    if (frame == o_.rescan_at_frame) {
-      const std::vector<double>& a = o_.rescan_angles_deg;
-      on_rescan(pipeline::rotation_from_euler(Eigen::Vector3d(a[0], a[1], a[2]), "xyz"));
+    // Scripted steps go through the same entry points as keys, the panel and the orientation
+    // tool; a step waits while a re-scan or rebuild is under way.
+    while (next_step < script.size() && script[next_step].frame <= frame && !job_.valid() && swap_ == Swap::kIdle) {
+      run_step(script[next_step++]);
     }
   }
   if (job_.valid()) job_.wait();
@@ -641,10 +726,10 @@ void add_explore_command(CLI::App& app) {
   cmd->add_option("--rho", o->rho, "Proxy step factor rho of Eq. 4-5, (0, 1]")->capture_default_str();
   cmd->add_option("--realtime", o->realtime, "Servo thread scheduling: off | warn | enforce (SCHED_FIFO + mlockall)")
       ->capture_default_str();
-  cmd->add_option("--rescan-at-frame", o->rescan_at_frame,
-                  "Scripted re-scan (tests, demos): at this frame, re-scan with --rescan-angles, as the orientation tool does");
-  cmd->add_option("--rescan-angles", o->rescan_angles_deg, "x,y,z [deg] of the scripted re-scan (R = Rx*Ry*Rz)")
-      ->delimiter(',');
+  cmd->add_option("--script", o->script,
+                  "Scripted actions for tests and demos, \"FRAME ACTION ARGS; ...\": finer, coarser, level N, pan DX DY "
+                  "(window widths), centre X_M Y_M, texture on|off, mu_s V, model paper|curvature, rescan AX AY AZ "
+                  "(deg, R = Rx*Ry*Rz), stereo on|off; each goes through the same path as the keys and the panel");
   cmd->add_flag("--stereo", o->stereo, "Start in red/cyan anaglyph stereo");
   cmd->add_flag("--hidden", o->hidden, "Do not show the window (with --screenshot or --seconds)");
   cmd->add_flag("--no-audio", o->no_audio, "No contact sounds");

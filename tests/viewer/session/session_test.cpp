@@ -76,7 +76,7 @@ TEST(ExploreSession, RescanReplacesTheSceneWithoutRestartAndWithZeroForce) {
   const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
   const Result r = run_app("explore " + config.string() + " --device sim --seconds 2 --hidden --out " +
                            (dir / "out").string() + " --summary " + (dir / "summary.json").string() +
-                           " --rescan-at-frame 2 --rescan-angles 0,25,0");
+                           " --script '2 rescan 0 25 0'");
   ASSERT_EQ(r.status, 0) << r.output;
   const nlohmann::json s = read_json(dir / "summary.json");
   expect_servo_unharmed(s);
@@ -88,6 +88,35 @@ TEST(ExploreSession, RescanReplacesTheSceneWithoutRestartAndWithZeroForce) {
   EXPECT_FALSE(s["swap_seen_armed"].get<bool>());
   EXPECT_EQ(s["swap_max_device_force_n"].get<double>(), 0.0);
   EXPECT_TRUE(fs::exists(dir / "out" / "scan-1" / "scene" / "scene.yaml"));
+}
+
+TEST(ExploreSession, LevelRegionAndSurfaceCommandsReachTheServoLoop) {
+  const fs::path dir = test::temp_dir("script");
+  const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
+  // The sinusoid's 200-sample grid with 64-sample windows: levels 0 and 1, starting at 1.
+  const Result r = run_app("explore " + config.string() + " --device sim --frames 30 --hidden --no-audio --out " +
+                           (dir / "out").string() + " --window-cells 64 --summary " + (dir / "summary.json").string() +
+                           " --script '3 finer; 6 pan 0.25 0; 9 texture off; 12 mu_s 0.5; 16 model curvature; 20 coarser'");
+  ASSERT_EQ(r.status, 0) << r.output;
+  const nlohmann::json s = read_json(dir / "summary.json");
+  expect_servo_unharmed(s);
+  EXPECT_EQ(s["level_count"].get<int>(), 2);
+  EXPECT_EQ(s["level"].get<int>(), 1);
+  EXPECT_FALSE(s["texture"].get<bool>());
+  EXPECT_DOUBLE_EQ(s["mu_s"].get<double>(), 0.5);
+  EXPECT_EQ(s["friction_model"].get<std::string>(), "curvature");
+  // Every step published a new surface, and the servo adopted each: the first window, finer,
+  // pan, texture off, μ_s, friction model, coarser.
+  EXPECT_EQ(s["surfaces_adopted"].get<long>(), 7);
+  EXPECT_EQ(s["swaps"].get<int>(), 0);  // none of these disarms the device
+}
+
+TEST(ExploreSession, ScriptErrorsNameTheStep) {
+  const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
+  const Result r = run_app("explore " + config.string() + " --device sim --hidden --out " +
+                           test::temp_dir("badscript").string() + " --script '3 jump'");
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.output.find("'3 jump': unknown action"), std::string::npos) << r.output;
 }
 
 TEST(ExploreSession, SceneFolderWithTheMouseDeviceInStereo) {
