@@ -133,6 +133,22 @@ void ServoLoop::update_grid_params() noexcept {
   grid_params_.damping_n_s_per_m = config_.workspace.stiffness_to_grid(config_.proxy.damping_n_s_per_m);
 }
 
+void ServoLoop::switch_map(const WorkspaceMap& next) noexcept {
+  // The proxy keeps its DEVICE position (so the spring to the hand, and the force, carry over);
+  // in grid terms it moves old map → device → new map.
+  const WorkspaceMap old = config_.workspace;
+  if (state_.initialized) {
+    state_.proxy_m = next.to_grid(old.to_device(state_.proxy_m));
+    state_.hip_m = next.to_grid(old.to_device(state_.hip_m));
+    slide_from_m_ = next.to_grid(old.to_device(slide_from_m_));
+  }
+  config_.workspace = next;
+  update_grid_params();
+  // Blend from the force sent last; ended at once in the tick if the new force is close to it.
+  blend_from_n_ = last_device_force_n_;
+  blend_ = 0.0;
+}
+
 void ServoLoop::apply(const Command& c) noexcept {
   const DeviceInfo& info = device_.info();
   bool ok = true;
@@ -163,11 +179,7 @@ void ServoLoop::apply(const Command& c) noexcept {
       m.scale = c.d;
       m.rotation_rad = c.e;
       ok = m.valid();
-      if (ok) {
-        config_.workspace = m;
-        // The HIP jumps in grid space: restart the proxy on it (free or on the surface).
-        state_.initialized = false;
-      }
+      if (ok) switch_map(m);  // the proxy keeps its device position; the force is blended
       break;
     }
     case CommandType::kStop: stop_requested_ = true; break;
@@ -200,22 +212,14 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
   const SharedState::Adoption adoption = shared_.adopt();
   const HapticSurface* surface = adoption.surface;
   if (adoption.changed) {
+    // Surface and map switch together (the map, when published with the surface).
     if (adoption.map != nullptr) {
-      // Surface and map switch together. The proxy keeps its DEVICE position (so the spring to
-      // the hand, and the force, carry over); in grid terms it moves old map → device → new map.
-      const WorkspaceMap old = config_.workspace;
-      const WorkspaceMap& next = *adoption.map;
-      if (state_.initialized) {
-        state_.proxy_m = next.to_grid(old.to_device(state_.proxy_m));
-        state_.hip_m = next.to_grid(old.to_device(state_.hip_m));
-        slide_from_m_ = next.to_grid(old.to_device(slide_from_m_));
-      }
-      config_.workspace = next;
-      update_grid_params();
+      switch_map(*adoption.map);
+    } else {
+      // Blend from the force sent last; ended at once below if the new force is close to it.
+      blend_from_n_ = last_device_force_n_;
+      blend_ = 0.0;
     }
-    // Blend from the force sent last; ended at once below if the new force is close to it.
-    blend_from_n_ = last_device_force_n_;
-    blend_ = 0.0;
   }
 
   DeviceReading reading;
@@ -255,7 +259,7 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
     // the configured step per tick (plus the new force's own change), over switch_ramp_s or more.
     const Eigen::Vector3d diff = device_force - blend_from_n_;
     const double gap = diff.norm();
-    if (adoption.changed && !(gap > config_.switch_max_force_step_n)) {
+    if (blend_ == 0.0 && !(gap > config_.switch_max_force_step_n)) {  // first tick of the switch
       blend_ = 1.0;  // the switch causes no step above the limit: nothing to blend
     } else {
       const double step_s = dt > 0.0 ? dt : static_cast<double>(period_ns_) * 1e-9;

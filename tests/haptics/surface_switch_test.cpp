@@ -140,6 +140,36 @@ TEST(SurfaceSwitch, SmallChangesAreNotBlendedAndOldPublicationsStillWork) {
   EXPECT_EQ(s.surface_tag, 0U);
 }
 
+TEST(SurfaceSwitch, AWorkspaceCommandAloneAlsoCarriesTheProxyOverAndBlends) {
+  SharedState shared(flat(0.0));
+  ManualClock clock;
+  PinnedDevice dev;
+  dev.open();
+  ServoConfig cfg;
+  cfg.proxy.friction_enabled = false;
+  ServoLoop loop(dev, shared, clock, cfg);
+  press(loop, dev, clock, shared);
+  std::vector<TickRecord> trace(200);
+  loop.set_trace(trace);
+  loop.run_ticks(2, clock);
+  // Same surface, a map at half the scale whose device z = 0 lies 3 mm below the surface: the
+  // surface moves to device z = +6 mm, the HIP (device −2 mm) ends up 8 mm inside: 6.4 N.
+  WorkspaceMap m;
+  m.scale = 0.5;
+  m.origin_m = Vector3d(0.0, 0.0, -0.003);
+  shared.commands.try_push(Command::set_workspace(m));
+  loop.run_ticks(198, clock);
+  double worst = 0.0;
+  for (std::size_t k = 1; k < loop.trace_size(); ++k) {
+    worst = std::max(worst, (trace[k].force_n.eigen() - trace[k - 1].force_n.eigen()).norm());
+  }
+  EXPECT_LE(worst, cfg.switch_max_force_step_n + 1e-9);
+  EXPECT_GT(worst, 0.05);
+  EXPECT_TRUE(trace.back().in_contact);
+  EXPECT_NEAR(trace.back().force_n.z, 800.0 * 0.008, 1e-6);
+  EXPECT_NEAR(m.to_device(trace.back().proxy_m.eigen()).x(), 0.01, 1e-9);  // device position kept
+}
+
 TEST(SurfaceSwitch, InvalidMapsAndLimitsAreRejected) {
   SharedState shared;
   WorkspaceMap bad;

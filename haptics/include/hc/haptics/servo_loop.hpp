@@ -158,6 +158,9 @@ class ServoLoop {
   void tick_impl(std::int64_t lateness_ns) noexcept;
   void apply(const Command& command) noexcept;
   void update_grid_params() noexcept;
+  /// A new workspace map at a tick boundary: the proxy keeps its device position, the grid
+  /// parameters follow the scale, and the force blend starts (see switch_max_force_step_n).
+  void switch_map(const WorkspaceMap& next) noexcept;
   void thread_main() noexcept;
 
   HapticDevice& device_;

@@ -89,7 +89,9 @@ enum class CommandType : std::uint8_t {
   kSetMaxForce,           ///< a = cap [N]; clamped to (0, device max force]
   kSetRho,                ///< a = ρ; clamped to [0.001, 1]
   kSetFrictionEnabled,    ///< a ≠ 0: friction on
-  kSetWorkspace,          ///< a, b, c = origin [m], d = scale, e = rotation [rad]; rejected if invalid
+  kSetWorkspace,          ///< a, b, c = origin [m], d = scale, e = rotation [rad]; rejected if invalid;
+                          ///< the proxy keeps its device position and the force is blended (as
+                          ///< for a surface published with a map, which LoD switches use)
   kStop,                  ///< ends the threaded loop after this tick
 };
 
