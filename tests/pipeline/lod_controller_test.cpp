@@ -206,5 +206,43 @@ TEST(LodController, LevelSwitchAndPanDuringContactHaveNoForceSpike) {
   EXPECT_EQ(shared.counters.surfaces_adopted.load(), 4U);
 }
 
+TEST(LodController, ACornerWindowIsRenderedWithTheProxyAlwaysOnItsSurface) {
+  // The window touching two borders of the finest level; a hand rastering over nearly the whole
+  // device box, so the proxy passes the window's edges (padding ring, floor beyond).
+  auto pyr = sinusoid_pyramid(301, 80, 30);
+  haptics::SharedState shared;
+  LodController lod(pyr, shared, controller_options());
+  const HapticWindow& w = lod.set_window(0, 10000, 10000);
+  EXPECT_EQ(w.col0, 301 - 80);
+  EXPECT_EQ(w.row0, 301 - 80);
+  haptics::ManualClock clock;
+  haptics::ScriptedPath path;
+  path.kind = haptics::PathKind::kRaster;
+  path.half_x_m = 0.048;
+  path.half_y_m = 0.048;
+  path.raster_spacing_m = 0.012;
+  path.z_above_m = (w.max_height_m - w.map.origin_m.z()) / w.map.scale + 0.01;
+  path.z_contact_m = -0.006;
+  path.speed_m_per_s = 0.1;
+  path.approach_s = 0.2;
+  haptics::SimulatedDevice dev(clock, path, haptics::VirtualHand{}, haptics::SimulatedDevice::default_info());
+  dev.open();
+  haptics::ServoConfig cfg;
+  cfg.workspace = w.map;
+  haptics::ServoLoop loop(dev, shared, clock, cfg);
+  std::vector<haptics::TickRecord> trace(4000);
+  loop.set_trace(trace);
+  shared.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
+  loop.run_ticks(4000, clock);
+  const haptics::HapticSurface& s = *shared.current_surface();
+  int contact = 0;
+  for (const haptics::TickRecord& r : trace) {
+    ASSERT_LE(r.force_n.eigen().norm(), cfg.proxy.max_force_n + 1e-12);
+    ASSERT_GE(r.proxy_m.z, s.height(r.proxy_m.x, r.proxy_m.y) - 1e-6);
+    contact += r.in_contact ? 1 : 0;
+  }
+  EXPECT_GT(contact, 2000);
+}
+
 }  // namespace
 }  // namespace hc::pipeline
