@@ -733,6 +733,11 @@ void add_explore_command(CLI::App& app) {
   cmd->add_flag("--stereo", o->stereo, "Start in red/cyan anaglyph stereo");
   cmd->add_flag("--hidden", o->hidden, "Do not show the window (with --screenshot or --seconds)");
   cmd->add_flag("--no-audio", o->no_audio, "No contact sounds");
+#ifdef HC_HAVE_VIEWER
+  std::string controls = "Controls in the window (H shows them):\n";
+  for (const std::string& line : viewer::controls_help()) controls += "  " + line + "\n";
+  cmd->footer(controls);
+#endif
   cmd->callback([o] { run_explore(*o); });
 }
 
