@@ -169,7 +169,7 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
     haptics::ServoLoop loop(dev, shared, clock, cfg);
     shared.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
     loop.run_ticks(static_cast<std::uint64_t>(std::max(options.ticks, 10)), clock);
-    row.tick_mean_ns = loop.stats().compute.mean_ns();
+    row.tick_p50_ns = loop.stats().compute.percentile_ns(0.5);
     row.tick_p99_ns = loop.stats().compute.percentile_ns(0.99);
 
     // Switch: from a neighbouring level to this one (levels cached), to the first tick on it.
@@ -195,7 +195,7 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
 
 std::string level_table_markdown(const std::vector<LevelRow>& rows) {
   std::ostringstream md;
-  md << "| level | cell (mm) | size (samples) | valid | build (ms) | RMS (mm) | p95 (mm) | supported | tick mean / p99 (ns) "
+  md << "| level | cell (mm) | size (samples) | valid | build (ms) | RMS (mm) | p95 (mm) | supported | tick p50 / p99 (ns) "
         "| switch (ms) |\n|---|---|---|---|---|---|---|---|---|---|\n";
   for (const LevelRow& r : rows) {
     md << "| " << r.level << " | " << fixed(r.cell_size_m * 1000.0, 4) << " | " << r.cols << " × " << r.rows << " | "
@@ -206,7 +206,7 @@ std::string level_table_markdown(const std::vector<LevelRow>& rows) {
     } else {
       md << "– | – | – | ";
     }
-    md << fixed(r.tick_mean_ns, 0) << " / " << fixed(r.tick_p99_ns, 0) << " | " << fixed(r.switch_ms, 3) << " |\n";
+    md << fixed(r.tick_p50_ns, 0) << " / " << fixed(r.tick_p99_ns, 0) << " | " << fixed(r.switch_ms, 3) << " |\n";
   }
   return md.str();
 }
@@ -215,7 +215,7 @@ std::string level_table_text(const std::vector<LevelRow>& rows) {
   std::ostringstream t;
   t << std::left << std::setw(6) << "level" << std::setw(11) << "cell_mm" << std::setw(14) << "cols x rows"
     << std::setw(10) << "build_ms" << std::setw(10) << "rms_mm" << std::setw(10) << "p95_mm" << std::setw(11)
-    << "supported" << std::setw(13) << "tick_mean_ns" << std::setw(12) << "tick_p99_ns" << "switch_ms\n";
+    << "supported" << std::setw(13) << "tick_p50_ns" << std::setw(12) << "tick_p99_ns" << "switch_ms\n";
   for (const LevelRow& r : rows) {
     t << std::setw(6) << r.level << std::setw(11) << fixed(r.cell_size_m * 1000.0, 4) << std::setw(14)
       << (std::to_string(r.cols) + " x " + std::to_string(r.rows)) << std::setw(10) << fixed(r.build_seconds * 1000.0, 1);
@@ -225,7 +225,7 @@ std::string level_table_text(const std::vector<LevelRow>& rows) {
     } else {
       t << std::setw(10) << "-" << std::setw(10) << "-" << std::setw(11) << "-";
     }
-    t << std::setw(13) << fixed(r.tick_mean_ns, 0) << std::setw(12) << fixed(r.tick_p99_ns, 0) << fixed(r.switch_ms, 3)
+    t << std::setw(13) << fixed(r.tick_p50_ns, 0) << std::setw(12) << fixed(r.tick_p99_ns, 0) << fixed(r.switch_ms, 3)
       << "\n";
   }
   return t.str();

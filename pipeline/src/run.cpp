@@ -314,7 +314,7 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
     for (const LevelRow& r : lod_rows) {
       json jr = {{"level", r.level}, {"rows", r.rows}, {"cols", r.cols}, {"cell_size_m", r.cell_size_m},
                  {"valid_cells", r.valid_cells}, {"build_seconds", r.build_seconds},
-                 {"tick_mean_ns", r.tick_mean_ns}, {"tick_p99_ns", r.tick_p99_ns}, {"switch_ms", r.switch_ms}};
+                 {"tick_p50_ns", r.tick_p50_ns}, {"tick_p99_ns", r.tick_p99_ns}, {"switch_ms", r.switch_ms}};
       if (r.point_vertical) {
         jr["point_vertical"] = stats_json(*r.point_vertical);
         jr["supported_fraction"] = r.supported_fraction;
@@ -373,7 +373,7 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
           "Gaussian (σ = " << config.lod.antialias_sigma_cells << " fine samples, no data handled by normalised "
           "convolution; docs/lod.md); texture and friction are computed per level. Build = smoothing, decimation "
           "and layers; RMS and p95 = cross-check (a) of the input points against the level's bilinear surface; "
-          "tick = servo tick compute on a " << config.lod.window_cells << "-sample window of the level; switch = "
+          "tick = servo tick compute (median, 99th percentile) on a " << config.lod.window_cells << "-sample window of the level; switch = "
           "request to the first servo tick on the new window (level cached).\n\n"
        << level_table_markdown(lod_rows) << "\n";
     for (std::size_t i = 0; i + 1 < lod_previews.size(); ++i) md << "![level " << i << "](previews/" << lod_previews[i] << ")";

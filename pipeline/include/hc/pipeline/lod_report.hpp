@@ -29,7 +29,8 @@ struct LevelRow {
   double build_seconds = 0.0;   ///< smoothing + decimation + layers of this level [s] (level 0: its layers, if computed here)
   std::optional<ErrorStats> point_vertical;  ///< cross-check (a): points vs the level's bilinear surface
   double supported_fraction = 0.0;           ///< cross-check (b): samples with a point within tolerance
-  double tick_mean_ns = 0.0, tick_p99_ns = 0.0;  ///< servo tick compute on a window of this level [ns]
+  double tick_p50_ns = 0.0, tick_p99_ns = 0.0;  ///< servo tick compute on a window of this level,
+                                                 ///< median and 99th percentile [ns]
   double switch_ms = 0.0;       ///< request → first servo tick on the new window, level cached [ms]
                                 ///< (window crop + HapticSurface + mailbox + one tick; as fast as possible;
                                 ///< a real-time loop adds the wait for its next tick, ≤ 1 period)
