@@ -68,7 +68,9 @@ TEST(TouchCommand, RasterOnARunSceneWritesTraceAndPlots) {
                         (dir / "touch").string(), &log), 0) << log;
   const json s = read_json(dir / "touch" / "summary.json");
   EXPECT_EQ(s["ticks"].get<long>(), 4000);
-  EXPECT_EQ(s["overruns"].get<long>(), 0);
+  // Overruns (ticks whose compute exceeded the period) depend on the machine's load in this
+  // as-fast-as-possible run, so they are reported, not asserted.
+  EXPECT_TRUE(s.contains("overruns"));
   EXPECT_LE(s["max_force_n"].get<double>(), 8.0);
   EXPECT_LE(s["deepest_proxy_below_surface_m"].get<double>(), 1e-6);
   EXPECT_GT(s["contact_fraction"].get<double>(), 0.05);
