@@ -671,6 +671,12 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
 
   read_audio(r, c, base);
 
+  // Novint Falcon (issue 5; hc::falcon reads these through the app)
+  if (r.has("falcon.firmware")) c.falcon.firmware = base / r.get_string("falcon.firmware", "");
+  c.falcon.index = static_cast<int>(r.get_int("falcon.index", c.falcon.index, 0, 63));
+  c.falcon.max_force_n = r.get_double("falcon.max_force_n", c.falcon.max_force_n, 0.0, 10.0, true);
+  c.falcon.max_missed_ticks = static_cast<int>(r.get_int("falcon.max_missed_ticks", c.falcon.max_missed_ticks, 1, 1000));
+
   // levels of detail (lod.hpp; docs/lod.md)
   c.lod.min_cells = static_cast<int>(r.get_int("lod.min_cells", c.lod.min_cells, 2, 65536));
   c.lod.valid_fraction = r.get_double("lod.valid_fraction", c.lod.valid_fraction, 0.0, 1.0, true);

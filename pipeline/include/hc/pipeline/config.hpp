@@ -114,6 +114,17 @@ struct AudioSpec {
 };
 
 /// A fully validated run configuration.
+/// Settings of the Novint Falcon used by `hapticloud explore --device falcon` (falcon.*).
+/// Plain data: hc::pipeline does not depend on hc::falcon; the app copies these into
+/// falcon::FalconConfig.
+struct FalconSpec {
+  std::filesystem::path firmware;  ///< firmware image, resolved against the config's folder; "" →
+                                   ///< $HAPTICLOUD_FALCON_FIRMWARE (the image is never shipped)
+  int index = 0;                   ///< which attached Falcon (0 = the first found), ≥ 0
+  double max_force_n = 8.0;        ///< force cap (0, 10] [N]
+  int max_missed_ticks = 10;       ///< servo ticks without a read before forces go to zero, [1, 1000]
+};
+
 struct RunConfig {
   std::filesystem::path source;        ///< the config file it came from ("" when built in code)
   std::string name;                    ///< run name (default: the config file's stem)
@@ -124,6 +135,7 @@ struct RunConfig {
   CrossCheckConfig cross_check;
   LayersConfig layers;
   AudioSpec audio;                     ///< contact sounds (optional section)
+  FalconSpec falcon;                   ///< the Novint Falcon (falcon.*, issue 5)
   LodOptions lod;                      ///< levels of detail and the haptic window (lod.*, issue 4)
   std::string resolved_yaml;           ///< every key with the value used (defaults included)
 };
