@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "app_runner.hpp"
 #include "test_paths.hpp"
 
 #include <algorithm>
@@ -21,16 +22,9 @@ namespace {
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
-
-int run_app(const std::string& args, std::string* output) {
-  const std::string cmd = std::string(HC_APP) + " " + args + " 2>&1";
-  std::FILE* p = popen(cmd.c_str(), "r");
-  if (!p) return -1;
-  char buf[4096];
-  while (std::fgets(buf, sizeof buf, p)) *output += buf;
-  const int raw = pclose(p);
-  return WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-}
+using hc::test::is_png;
+using hc::test::read_json;
+using hc::test::run_app;
 
 /// The temple config with the sliding sound switched off (so only strikes make sound) and
 /// optionally one region's clip replaced.

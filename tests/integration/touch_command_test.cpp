@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "app_runner.hpp"
 #include "test_paths.hpp"
 
 #include <cstdio>
@@ -13,28 +14,9 @@ namespace {
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
-
-int run_app(const std::string& args, std::string* output) {
-  const std::string cmd = std::string(HC_APP) + " " + args + " 2>&1";
-  std::FILE* p = popen(cmd.c_str(), "r");
-  if (!p) return -1;
-  char buf[4096];
-  while (std::fgets(buf, sizeof buf, p)) *output += buf;
-  const int raw = pclose(p);
-  return WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
-}
-
-json read_json(const fs::path& f) {
-  std::ifstream in(f);
-  return json::parse(in);
-}
-
-bool is_png(const fs::path& f) {
-  std::ifstream in(f, std::ios::binary);
-  char sig[8] = {};
-  in.read(sig, 8);
-  return in && std::string(sig, 8) == "\x89PNG\r\n\x1a\n";
-}
+using hc::test::is_png;
+using hc::test::read_json;
+using hc::test::run_app;
 
 TEST(TouchCommand, ValidationOnTheSinusoidConfigWritesBothSessionsPlotsAndReport) {
   const fs::path out = hc::test::temp_dir("validate") / "touch";
