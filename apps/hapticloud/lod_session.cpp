@@ -206,15 +206,7 @@ const haptics::HapticSurface& LodSession::surface_for(std::uint64_t tag) {
   }
   const pipeline::HapticWindow& w = rec->window;
   const auto win = pyramid_->window(w.level, w.row0, w.col0, w.rows, w.cols);
-  haptics::SurfaceLayers layers;
-  layers.depth = &win->depth_m;
-  if (!win->envelope_m.values().empty()) {
-    layers.envelope = &win->envelope_m;
-    layers.texture = &win->texture_m;
-    layers.mu_d = &win->mu_d;
-    layers.mu_s = &win->mu_s;
-  }
-  auto s = std::make_unique<haptics::HapticSurface>(layers, surface_options_);
+  auto s = pipeline::make_window_surface(*win, surface_options_);
   const haptics::HapticSurface& ref = *s;
   eval_.emplace(tag, std::move(s));
   return ref;

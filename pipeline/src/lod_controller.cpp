@@ -15,6 +15,19 @@ using detail::seconds_since;
 
 }  // namespace
 
+std::unique_ptr<haptics::HapticSurface> make_window_surface(const LodWindowLayers& win,
+                                                            const haptics::SurfaceOptions& options) {
+  haptics::SurfaceLayers layers;
+  layers.depth = &win.depth_m;
+  if (!win.envelope_m.values().empty()) {
+    layers.envelope = &win.envelope_m;
+    layers.texture = &win.texture_m;
+    layers.mu_d = &win.mu_d;
+    layers.mu_s = &win.mu_s;
+  }
+  return std::make_unique<haptics::HapticSurface>(layers, options);
+}
+
 LodController::LodController(std::shared_ptr<LodPyramid> pyramid, haptics::SharedState& shared,
                              const LodControllerOptions& options)
     : pyramid_(std::move(pyramid)), shared_(shared), options_(options) {
@@ -63,15 +76,7 @@ const HapticWindow& LodController::publish(int level, int row0, int col0,
   const auto t1 = Clock::now();
   const int w = window_cells();
   const std::shared_ptr<const LodWindowLayers> win = pyramid_->window(level, row0, col0, w, w);
-  haptics::SurfaceLayers layers;
-  layers.depth = &win->depth_m;
-  if (!win->envelope_m.values().empty()) {
-    layers.envelope = &win->envelope_m;
-    layers.texture = &win->texture_m;
-    layers.mu_d = &win->mu_d;
-    layers.mu_s = &win->mu_s;
-  }
-  auto surface = std::make_unique<haptics::HapticSurface>(layers, options_.surface);
+  auto surface = make_window_surface(*win, options_.surface);
 
   HapticWindow hw;
   hw.level = level;

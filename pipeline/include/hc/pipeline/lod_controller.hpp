@@ -48,6 +48,12 @@ struct HapticWindow {
   double min_height_m = 0.0, max_height_m = 0.0;  ///< rendered height range of the window [m]
 };
 
+/// The haptic surface of one window: its depth, and its envelope, texture, μ_d and μ_s when the
+/// pyramid computed layers (`win.envelope_m` non-empty). Frames and units as in `win` (grid
+/// frame of the level, metres). Real-time: no (allocates). Throws what HapticSurface throws.
+std::unique_ptr<haptics::HapticSurface> make_window_surface(const LodWindowLayers& win,
+                                                            const haptics::SurfaceOptions& options);
+
 /// Level and window control for one SharedState. Not thread-safe: call from one thread (the UI
 /// or main thread); never from the servo thread (every call allocates and may take long: a level
 /// not yet cached is built, up to seconds for the coarse levels of a 4096² scene).
