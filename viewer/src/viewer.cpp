@@ -227,7 +227,6 @@ Viewer::Viewer(haptics::SharedState& shared, const ViewerOptions& options, Viewe
   glfwWindowHint(GLFW_VISIBLE, options.visible ? GLFW_TRUE : GLFW_FALSE);
   window_ = glfwCreateWindow(options.width_px, options.height_px, options.title.c_str(), nullptr, nullptr);
   if (window_ == nullptr) {
-    glfwTerminate();
     throw ResourceError("viewer: no OpenGL 3.3 core context (" + glfw_error_text +
                         "); check the graphics driver (Mesa's llvmpipe works under Xvfb)");
   }
@@ -248,7 +247,6 @@ Viewer::Viewer(haptics::SharedState& shared, const ViewerOptions& options, Viewe
   } catch (...) {
     gpu_.reset();
     glfwDestroyWindow(window_);
-    glfwTerminate();
     throw;
   }
   // ImGui chains the callbacks installed above (they are called first).
@@ -267,7 +265,9 @@ Viewer::~Viewer() {
   ImGui::DestroyContext();
   gpu_.reset();  // GL objects go while the context is current
   glfwDestroyWindow(window_);
-  glfwTerminate();
+  // GLFW stays initialised for the rest of the process (glfwInit() is idempotent, so the next
+  // viewer reuses it): glfwTerminate() would unload the OpenGL driver, and LeakSanitizer then
+  // reports the driver's bookkeeping, no longer reachable from its unmapped globals, as leaks.
 }
 
 void Viewer::set_scene(std::shared_ptr<const DisplayScene> scene) {
