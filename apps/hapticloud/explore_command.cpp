@@ -349,6 +349,7 @@ void Session::on_rescan(const Eigen::Quaterniond& q) {
   if (!config_ || job_.valid() || swap_ != Swap::kIdle) return;
   pipeline::RunConfig cfg = *config_;
   cfg.view.rotation = q.normalized();
+  cfg.layers.options = layer_options_;  // the friction model and μ_s chosen in the session
   const fs::path dir = fs::path(o_.out) / ("scan-" + std::to_string(++rescans_));
   const pipeline::SurfaceLayerOptions layers = layer_options_;
   const pipeline::LodOptions lod = lod_options_;
