@@ -505,8 +505,13 @@ void Session::start_device() {
   } else if (o_.device == "falcon") {
 #ifdef HC_HAVE_FALCON
     falcon::install_stop_signal_handlers();
-    device_ = std::make_unique<falcon::FalconDevice>(clock_, std::make_unique<falcon::UsbFalconProvider>(),
-                                                     falcon::FalconConfig{});
+    // The run config's falcon: section when there is one (firmware, which device, force cap).
+    const pipeline::FalconSpec spec = config_ ? config_->falcon : pipeline::FalconSpec{};
+    falcon::FalconConfig fc;
+    fc.firmware_path = spec.firmware.string();
+    fc.max_force_n = spec.max_force_n;
+    fc.max_missed_ticks = spec.max_missed_ticks;
+    device_ = std::make_unique<falcon::FalconDevice>(clock_, std::make_unique<falcon::UsbFalconProvider>(spec.index), fc);
 #else
     throw ConfigError("explore: --device falcon: this build has no Falcon driver (hc::falcon was not built)");
 #endif
