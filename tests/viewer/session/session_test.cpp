@@ -1,6 +1,7 @@
 // `hapticloud explore` end to end under Xvfb: a simulated device on its scripted path, the servo
 // loop on its own thread, the viewer drawing, a re-scan swapping the scene mid-session.
 
+#include "app_runner.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -23,20 +24,12 @@ struct Result {
 };
 
 Result run_app(const std::string& args) {
-  const std::string cmd = std::string(HC_APP) + " " + args + " 2>&1";
   Result r;
-  std::FILE* p = popen(cmd.c_str(), "r");
-  if (p == nullptr) return r;
-  char buf[4096];
-  while (std::fgets(buf, sizeof buf, p) != nullptr) r.output += buf;
-  r.status = pclose(p);
+  r.status = test::run_app(args, &r.output);
   return r;
 }
 
-nlohmann::json read_json(const fs::path& p) {
-  std::ifstream in(p);
-  return nlohmann::json::parse(in);
-}
+using test::read_json;
 
 /// Servo statistics of a session with the viewer drawing: the loop's own counters.
 void expect_servo_unharmed(const nlohmann::json& s) {
