@@ -77,9 +77,10 @@ Clip decode_clip(const std::filesystem::path& path, int target_rate_hz, double p
   }
   std::vector<float> interleaved(static_cast<std::size_t>(info.frames) * static_cast<std::size_t>(info.channels));
   const sf_count_t got = sf_readf_float(f.get(), interleaved.data(), info.frames);
-  if (sf_error(f.get()) != SF_ERR_NO_ERROR || got <= 0) {
-    throw InputError("audio: clip '" + path.string() + "' is corrupt: read " + std::to_string(got) + " of " +
-                     std::to_string(info.frames) + " frames (" + sf_strerror(f.get()) + ")");
+  // Fewer frames than the header declares: the file is cut short (a partial copy or download).
+  if (sf_error(f.get()) != SF_ERR_NO_ERROR || got != info.frames) {
+    throw InputError("audio: clip '" + path.string() + "' is corrupt: read " + std::to_string(got) + " of the " +
+                     std::to_string(info.frames) + " frames its header declares (" + sf_strerror(f.get()) + ")");
   }
   const auto frames = static_cast<std::size_t>(got);
   const auto ch = static_cast<std::size_t>(info.channels);

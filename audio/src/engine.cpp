@@ -231,6 +231,9 @@ struct AudioEngine::Impl {
     alSourceQueueBuffers(source, static_cast<ALsizei>(buffers.size()), buffers.data());
     alSourcePlay(source);
     double pending_onset = std::numeric_limits<double>::quiet_NaN();  // loopback: awaiting its first sample
+    // Loopback: an onset is timed only if the output was silent just before it; otherwise the first
+    // audible sample could belong to a note still ringing, and the figure would be too small.
+    bool loop_silent = true;
     double next_pump = now_s();
     while (!stop_flag.load(std::memory_order_acquire)) {
       if (render_loopback != nullptr) {
@@ -240,15 +243,19 @@ struct AudioEngine::Impl {
           render_loopback(device, loop_out.data(), static_cast<ALCsizei>(frames));
           next_pump += period_s;
           if (next_pump < t - 10 * period_s) next_pump = t;  // fell far behind: resynchronise
+          bool found = false;
           if (!std::isnan(pending_onset)) {
             for (std::size_t i = 0; i < frames; ++i) {
               if (std::abs(loop_out[i]) > 1e-4F) {
                 latency.add(t + static_cast<double>(i) / rate - pending_onset);
                 pending_onset = std::numeric_limits<double>::quiet_NaN();
+                found = true;
                 break;
               }
             }
           }
+          loop_silent = !found && std::none_of(loop_out.begin(), loop_out.end(),
+                                               [](float x) { return std::abs(x) > 1e-4F; });
         }
       }
       ALint processed = 0;
@@ -261,7 +268,7 @@ struct AudioEngine::Impl {
         alSourceQueueBuffers(source, 1, &b);
         if (!std::isnan(onset_t)) {
           if (render_loopback != nullptr) {
-            if (std::isnan(pending_onset)) pending_onset = onset_t;
+            if (std::isnan(pending_onset) && loop_silent) pending_onset = onset_t;
           } else {
             // Audio ahead of this buffer: the rest of the queue minus what has played of its head.
             ALint offset = 0;

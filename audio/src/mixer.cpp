@@ -127,7 +127,7 @@ void Mixer::set_resonator(const Material& m) noexcept {
   slide_.a2 = r * r;
   // Normalises the resonator's peak gain to about 1.
   slide_.b0 = (1.0 - r) * std::sqrt(1.0 - 2.0 * r * std::cos(2.0 * w) + r * r);
-  slide_.material = m;
+  slide_.material = &m;
 }
 
 float Mixer::next_noise() noexcept {
@@ -175,11 +175,7 @@ void Mixer::update_slide(const haptics::ContactEvent& e, std::int32_t region) no
   const AudioConfig& c = scene_->config;
   if (!c.slide_enabled) return;
   const Material& m = region >= 0 ? c.regions[static_cast<std::size_t>(region)].material : c.default_material;
-  if (!slide_.active || m.name != slide_.material.name || m.resonance_hz != slide_.material.resonance_hz ||
-      m.q != slide_.material.q) {
-    set_resonator(m);
-  }
-  slide_.material = m;
+  if (!slide_.active || &m != slide_.material) set_resonator(m);
   slide_.active = true;
   const double speed = std::isfinite(e.speed_m_per_s) ? e.speed_m_per_s : 0.0;
   const double force = e.force_n.eigen().norm();
@@ -310,7 +306,7 @@ void Mixer::render(std::span<float> out) noexcept {
   // Sliding sound: noise and grains through the material's resonator.
   if (slide_.active) {
     const double rate = scene_->config.sample_rate_hz;
-    const double rough = slide_.material.roughness;
+    const double rough = slide_.material->roughness;
     for (std::size_t i = 0; i < n; ++i) {
       if (frames_ + i - slide_.last_event_frame > slide_timeout_frames_) slide_.level_target = 0.0;
       slide_.level += (slide_.level_target - slide_.level) * slide_coeff_;

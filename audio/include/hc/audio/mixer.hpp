@@ -105,7 +105,7 @@ class Mixer {
     double level_target = 0.0;
     double grain_rate_hz = 0.0; // grains per second
     std::uint64_t last_event_frame = 0;  // frame of the last slide event (silence after 30 ms)
-    Material material;
+    const Material* material = nullptr;  // into the scene's config (outlives the mixer); no copy, no allocation
     double b0 = 0.0, a1 = 0.0, a2 = 0.0;  // resonator coefficients
     double y1 = 0.0, y2 = 0.0;
     std::uint32_t rng = 0x12345678u;
