@@ -7,6 +7,8 @@
 
 #include <csignal>
 #include <cstdlib>
+#include <functional>
+#include <vector>
 
 namespace hc::falcon {
 namespace {
@@ -198,6 +200,140 @@ TEST(FalconDevice, CloseSendsZeroForce) {
   f.dev->close();
   EXPECT_EQ(f.emu->motor_force_n().norm(), 0.0);
   EXPECT_EQ(f.dev->state(), DeviceState::kClosed);
+}
+
+TEST(FalconDevice, NoForceOnATickWhoseKinematicsDidNotConverge) {
+  // One Newton step per tick: while the grip moves, a single warm step is not below the
+  // tolerance, and those ticks must send zero force whatever is asked.
+  ManualClock clock;
+  FalconConfig cfg;
+  cfg.fk_iterations = 1;
+  auto f = test::make_emulated(clock, "falcon_dev_fk", cfg);
+  f.dev->open();
+  ASSERT_TRUE(home(f, clock));
+  // Hold the grip still until the one-step solves converge (the homing gesture leaves it moving).
+  const Vector3d hold = f.emu->position_m();
+  f.emu->set_hand(EmulatedHand{[hold](double) { return hold; }, 300.0, 8.0});
+  int still = 0;
+  for (int k = 0; k < 3000 && still < 20; ++k) {
+    tick(*f.dev, clock);
+    still = f.dev->last_fk_converged() ? still + 1 : 0;
+  }
+  ASSERT_EQ(still, 20);
+  ASSERT_TRUE(f.dev->arm());
+  f.emu->clear_hand();
+  int unconverged = 0, converged = 0;
+  for (int k = 0; k < 60; ++k) {
+    DeviceReading r;
+    ASSERT_EQ(f.dev->read(r), DeviceStatus::kOk);
+    const bool conv = f.dev->last_fk_converged();
+    EXPECT_LE(f.dev->last_fk_iterations(), 1);
+    (void)f.dev->write(Vector3d(0, 0, 2.0));
+    clock.advance_ns(1000000);
+    const double fn = f.emu->motor_force_n().norm();
+    if (conv) {
+      ++converged;
+      EXPECT_GT(fn, 1.0) << "tick " << k;
+    } else {
+      ++unconverged;
+      EXPECT_EQ(fn, 0.0) << "tick " << k;
+    }
+  }
+  EXPECT_GT(unconverged, 0);
+  EXPECT_GT(converged, 0);
+}
+
+TEST(FalconDevice, RepeatedTransportErrorsTakeTheLinkDownAndItReconnects) {
+  ManualClock clock;
+  FalconConfig cfg;
+  cfg.max_consecutive_io_errors = 5;
+  auto f = test::make_emulated(clock, "falcon_dev_ioerr", cfg);
+  f.dev->open();
+  ASSERT_TRUE(home(f, clock));
+  f.emu->faults().io_errors = true;
+  // Each tick is one failed read and one failed write: below the limit the link stays up ...
+  EXPECT_EQ(tick(*f.dev, clock), DeviceStatus::kIoError);
+  EXPECT_EQ(tick(*f.dev, clock), DeviceStatus::kIoError);
+  EXPECT_EQ(f.dev->status().link, LinkState::kUp);
+  EXPECT_EQ(f.dev->status().io_errors, 4U);
+  // ... the fifth error in a row takes it down, like an unplug.
+  EXPECT_EQ(tick(*f.dev, clock), DeviceStatus::kIoError);
+  EXPECT_EQ(f.dev->status().link, LinkState::kDown);
+  EXPECT_EQ(f.dev->status().io_errors, 5U);
+  EXPECT_FALSE(f.dev->homed());
+  f.emu->faults().io_errors = false;
+  f.dev->supervise();
+  EXPECT_EQ(f.dev->status().reconnections, 1U);
+  EXPECT_EQ(f.dev->status().link, LinkState::kUp);
+  EXPECT_EQ(tick(*f.dev, clock), DeviceStatus::kOk);
+  EXPECT_TRUE(f.dev->homed());  // the emulated Falcon kept its homing
+}
+
+TEST(FalconDevice, ErrorsThatAreNotInARowKeepTheLinkUp) {
+  ManualClock clock;
+  FalconConfig cfg;
+  cfg.max_consecutive_io_errors = 3;
+  auto f = test::make_emulated(clock, "falcon_dev_ioerr_sparse", cfg);
+  f.dev->open();
+  for (int k = 0; k < 10; ++k) {
+    f.emu->faults().io_errors = true;
+    DeviceReading r;
+    EXPECT_EQ(f.dev->read(r), DeviceStatus::kIoError);  // one error ...
+    f.emu->faults().io_errors = false;
+    EXPECT_EQ(f.dev->write(Vector3d::Zero()), DeviceStatus::kOk);  // ... then a success
+    clock.advance_ns(1000000);
+  }
+  EXPECT_EQ(f.dev->status().link, LinkState::kUp);
+  EXPECT_EQ(f.dev->status().io_errors, 10U);
+}
+
+/// Opens emulated transports and runs a hook first (a servo tick arriving mid-reconnection).
+class HookedProvider final : public TransportProvider {
+ public:
+  explicit HookedProvider(std::shared_ptr<FalconEmulator> emu) : inner_(std::move(emu)) {}
+  std::unique_ptr<Transport> open() override {
+    if (hook) hook();
+    return inner_.open();
+  }
+  std::string describe() const override { return "hooked emulated Falcon"; }
+  std::function<void()> hook;
+
+ private:
+  EmulatorProvider inner_;
+};
+
+TEST(FalconDevice, ServoTicksDuringAReconnectionGetIoErrorsAndNoTransport) {
+  ManualClock clock;
+  EmulatorOptions eo;
+  eo.expected_image_size = 1000;
+  auto emu = std::make_shared<FalconEmulator>(eo);
+  auto provider = std::make_unique<HookedProvider>(emu);
+  HookedProvider* hooked = provider.get();
+  FalconConfig cfg;
+  cfg.firmware_path = test::write_fake_image("falcon_dev_hook").string();
+  cfg.supervisor_thread = false;
+  cfg.reconnect_interval_ms = 0;
+  FalconDevice dev(clock, std::move(provider), cfg);
+  dev.open();
+  emu->unplug();
+  DeviceReading r;
+  EXPECT_EQ(dev.read(r), DeviceStatus::kIoError);
+  EXPECT_EQ(dev.status().link, LinkState::kDown);
+  emu->plug();
+  std::vector<DeviceStatus> seen;
+  hooked->hook = [&] {
+    DeviceReading rr;
+    seen.push_back(dev.read(rr));
+    seen.push_back(dev.write(Vector3d(0, 0, 2.0)));
+  };
+  dev.supervise();
+  hooked->hook = nullptr;
+  ASSERT_EQ(seen.size(), 2U);
+  EXPECT_EQ(seen[0], DeviceStatus::kIoError);
+  EXPECT_EQ(seen[1], DeviceStatus::kIoError);
+  EXPECT_EQ(dev.status().reconnections, 1U);
+  EXPECT_EQ(dev.status().link, LinkState::kUp);
+  EXPECT_EQ(dev.read(r), DeviceStatus::kOk);
 }
 
 TEST(FalconDevice, OpenWithoutFirmwareSaysWhatToSet) {

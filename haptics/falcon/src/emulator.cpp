@@ -63,6 +63,7 @@ IoStatus FalconEmulator::control(std::uint64_t connection, std::uint8_t request,
 IoStatus FalconEmulator::write(std::uint64_t connection, std::span<const std::uint8_t> bytes) {
   std::lock_guard lock(m_);
   if (!plugged_ || connection != connection_) return IoStatus::kDisconnected;
+  if (faults_.io_errors && mode_ == Mode::kRunning) return IoStatus::kError;
   for (const std::uint8_t b : bytes) {
     switch (mode_) {
       case Mode::kRunning: {
@@ -116,6 +117,7 @@ IoStatus FalconEmulator::read(std::uint64_t connection, std::span<std::uint8_t> 
   std::lock_guard lock(m_);
   received = 0;
   if (!plugged_ || connection != connection_) return IoStatus::kDisconnected;
+  if (faults_.io_errors && mode_ == Mode::kRunning) return IoStatus::kError;
   while (received < out.size() && !out_.empty()) {
     out[received++] = out_.front();
     out_.pop_front();

@@ -20,6 +20,8 @@ volatile std::sig_atomic_t g_stop = 0;
 
 extern "C" void hc_falcon_on_signal(int) { g_stop = 1; }
 
+// Newton steps allowed on a cold solve (start from the workspace centre: open, reconnection,
+// homing change, encoder jump). Forces stay off until a solve converges (do_write).
 constexpr int kColdIterations = 30;
 constexpr double kJumpRad = 0.05;  // encoder jump that calls for a cold FK solve [rad]
 
@@ -70,6 +72,7 @@ FalconDevice::FalconDevice(const haptics::Clock& clock, std::unique_ptr<Transpor
   if (config_.supervisor_period_ms < 1) fail("supervisor_period_ms", config_.supervisor_period_ms, ">= 1");
   if (config_.reconnect_interval_ms < 0) fail("reconnect_interval_ms", config_.reconnect_interval_ms, ">= 0");
   if (config_.firmware.attempts < 1) fail("firmware.attempts", config_.firmware.attempts, ">= 1");
+  if (config_.max_consecutive_io_errors < 1) fail("max_consecutive_io_errors", config_.max_consecutive_io_errors, ">= 1");
   (void)kin_.inverse(x_m_, theta_rad_);
 }
 
@@ -124,8 +127,10 @@ void FalconDevice::do_open() {
 
 void FalconDevice::do_close() noexcept {
   stop_supervisor();
+  while (!acquire()) std::this_thread::yield();  // a servo tick in flight finishes first
   link_.store(LinkState::kDown, std::memory_order_release);
   transport_.reset();
+  release();
 }
 
 void FalconDevice::start_supervisor() {
@@ -168,7 +173,13 @@ DeviceStatus FalconDevice::do_read(haptics::DeviceReading& out) noexcept {
   out.time_ns = now;
   // Link down: the supervisor owns the transport and the kinematic state (reconnection).
   if (link_.load(std::memory_order_acquire) != LinkState::kUp) return DeviceStatus::kIoError;
-  if (!acquire()) return DeviceStatus::kIoError;  // the watchdog is writing: the servo stalled
+  if (!acquire()) return DeviceStatus::kIoError;  // the supervisor holds the transport
+  // Re-check under the token: the supervisor may have taken the link down (and be reconnecting)
+  // between the check above and acquire().
+  if (link_.load(std::memory_order_acquire) != LinkState::kUp || transport_ == nullptr) {
+    release();
+    return DeviceStatus::kIoError;
+  }
   DeviceStatus status = DeviceStatus::kOk;
   const std::int64_t limit = period_ns_ * (config_.max_missed_ticks + 1);
   if (state() == DeviceState::kArmed && have_read_.load(std::memory_order_relaxed) &&
@@ -195,9 +206,14 @@ DeviceStatus FalconDevice::do_read(haptics::DeviceReading& out) noexcept {
     if (s == IoStatus::kError) {
       io_errors_.fetch_add(1, std::memory_order_relaxed);
       status = DeviceStatus::kIoError;
+      if (note_transport_error()) {
+        release();
+        return DeviceStatus::kIoError;
+      }
       break;
     }
     if (s != IoStatus::kOk) break;
+    consecutive_errors_ = 0;
     if (assembler_.push(std::span<const std::uint8_t>(buf.data(), n)) > 0) {
       Frame f{};
       StatusFrame st;
@@ -229,15 +245,32 @@ IoStatus FalconDevice::send_idle_frame() noexcept {
   return transport_ ? transport_->write(f, config_.io_timeout_ms) : IoStatus::kDisconnected;
 }
 
+bool FalconDevice::note_transport_error() noexcept {
+  if (++consecutive_errors_ < config_.max_consecutive_io_errors) return false;
+  // A transport that keeps failing is treated like an unplug: the supervisor reconnects.
+  consecutive_errors_ = 0;
+  link_.store(LinkState::kDown, std::memory_order_release);
+  homed_mask_.store(0, std::memory_order_release);
+  return true;
+}
+
 DeviceStatus FalconDevice::do_write(const Eigen::Vector3d& force_n) noexcept {
   if (link_.load(std::memory_order_acquire) != LinkState::kUp) return DeviceStatus::kIoError;
   if (!acquire()) return DeviceStatus::kIoError;
+  // Re-check under the token (see do_read): nothing is sent on a link being reconnected.
+  if (link_.load(std::memory_order_acquire) != LinkState::kUp || transport_ == nullptr) {
+    release();
+    return DeviceStatus::kIoError;
+  }
   const bool homed_now = homed();
   CommandFrame c;
   c.homing = !homed_now;
   c.leds = homed_now ? kLedGreen : kLedRed;
   if (stop_requested()) c.leds = kLedBlue;
-  const bool forces_allowed = homed_now && stale_ == 0 && !stop_requested() && state() == DeviceState::kArmed;
+  // Forces only from a fresh frame whose forward kinematics converged (a cold start may take
+  // several ticks; until then x_m_ is not trustworthy and the force is zero).
+  const bool forces_allowed =
+      homed_now && stale_ == 0 && last_fk_.converged && !stop_requested() && state() == DeviceState::kArmed;
   if (forces_allowed && force_n.allFinite() && force_n.squaredNorm() > 0.0) {
     const MotorCommands m =
         kin_.commands_for_force(x_m_, theta_rad_, config_.frame.vector_to_falcon(force_n), config_.max_motor_command);
@@ -250,6 +283,11 @@ DeviceStatus FalconDevice::do_write(const Eigen::Vector3d& force_n) noexcept {
     homed_mask_.store(0, std::memory_order_release);
   }
   if (s != IoStatus::kOk) io_errors_.fetch_add(1, std::memory_order_relaxed);
+  if (s == IoStatus::kError) {
+    (void)note_transport_error();
+  } else if (s == IoStatus::kOk) {
+    consecutive_errors_ = 0;
+  }
   release();
   return s == IoStatus::kOk ? DeviceStatus::kOk : DeviceStatus::kIoError;
 }
@@ -279,21 +317,23 @@ void FalconDevice::supervise() noexcept {
   const std::int64_t mono = haptics::monotonic_now_ns();
   if (last_attempt_ns_ != 0 && mono - last_attempt_ns_ < std::int64_t{config_.reconnect_interval_ms} * 1000000) return;
   last_attempt_ns_ = mono;
-  std::unique_ptr<Transport> fresh;
+  // The token is held for the whole reconnection (connect() also resets the frame assembler and
+  // the kinematic state): the servo side sees either no transport or a primed one, never a
+  // half-made one, and meanwhile its reads and writes return kIoError.
+  if (!acquire()) return;
+  transport_.reset();
   try {
-    if (!acquire()) return;
+    transport_ = connect();
+  } catch (const std::exception& e) {
     transport_.reset();
     release();
-    fresh = connect();
-  } catch (const std::exception& e) {
     std::lock_guard lock(error_mutex_);
     reconnect_error_ = e.what();
     return;
   }
-  while (!acquire()) std::this_thread::yield();
-  transport_ = std::move(fresh);
   stale_ = 1;
   cold_fk_ = true;
+  consecutive_errors_ = 0;
   have_read_.store(false, std::memory_order_release);
   reconnections_.fetch_add(1, std::memory_order_relaxed);
   link_.store(LinkState::kUp, std::memory_order_release);

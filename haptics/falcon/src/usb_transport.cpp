@@ -28,6 +28,8 @@ libusb_context* context() {
   return ctx;
 }
 
+// Every libusb error other than a time-out or a vanished device is kError; FalconDevice takes the
+// link down after FalconConfig::max_consecutive_io_errors of them in a row and reconnects.
 IoStatus status_of(int rc) noexcept {
   switch (rc) {
     case LIBUSB_SUCCESS: return IoStatus::kOk;

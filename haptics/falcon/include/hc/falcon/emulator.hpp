@@ -46,6 +46,7 @@ struct EmulatorFaults {
   int garbage_every = 0;        ///< > 0: junk bytes before every n-th status frame
   int short_every = 0;          ///< > 0: every n-th status frame cut to 9 bytes
   int silent_every = 0;         ///< > 0: every n-th command frame gets no answer
+  bool io_errors = false;       ///< run-mode reads and writes fail with kError (a flaky link)
 };
 
 /// A scripted hand holding the grip: spring-damper towards target(t) [m], Falcon frame.

@@ -10,11 +10,15 @@
 /// an atomic token, never a lock held by the servo thread.
 ///
 /// Safety: the force is capped (DeviceInfo::max_force_n, default 8 N) and is zero: until all
-/// three arms are homed; on a tick whose read brought no fresh frame; after more than
+/// three arms are homed; on a tick whose read brought no fresh frame; on a tick whose forward
+/// kinematics did not converge (a cold solve from the workspace centre, after open, reconnection,
+/// a homing change or an encoder jump, may use up to 30 Newton steps in one tick; a steady-state
+/// tick uses at most fk_iterations; the force stays zero until a solve converges); after more than
 /// max_missed_ticks ticks without a read while armed (the watchdog sends zero frames and the
 /// next read reports kIoError, so the servo loop faults the device); after SIGINT/SIGTERM once
 /// install_stop_signal_handlers() was called; when the device is unplugged (reads return
-/// kIoError); on close() and destruction. Homing: the homing bit is sent and the LED is red until
+/// kIoError), also after max_consecutive_io_errors transport errors in a row (then the link is
+/// taken down and the supervisor reconnects as after an unplug); on close() and destruction. Homing: the homing bit is sent and the LED is red until
 /// the firmware reports all arms homed, then green; homing_message() says what to do.
 
 #include "hc/falcon/firmware.hpp"
@@ -35,22 +39,36 @@ namespace hc::falcon {
 
 struct FalconConfig {
   std::string firmware_path;        ///< "" → $HAPTICLOUD_FALCON_FIRMWARE (only needed to load)
+  /// Firmware start-up settings (attempts ≥ 1, probe counts, read time-out [ms], upload chunk
+  /// [bytes]; firmware.hpp); used by open() and by every reconnection (the upload is skipped
+  /// when the firmware already runs).
   FirmwareOptions firmware;
   double max_force_n = 8.0;         ///< force cap [N] > 0
+  /// Largest virtual-wall stiffness [N/m] the Falcon renders stably at nominal_rate_hz; reported
+  /// in DeviceInfo for the haptic renderer to clamp to (not enforced by this class).
   double max_stable_stiffness_n_per_m = 2000.0;
   double nominal_rate_hz = 1000.0;  ///< servo rate [Hz], for the missed-tick watchdog
   int max_missed_ticks = 10;        ///< ticks without a read (armed) or stale reads tolerated, ≥ 1
   int io_timeout_ms = 2;            ///< run-mode read time-out [ms] ≥ 1
-  int fk_iterations = 3;            ///< Newton steps per tick (steady state), ≥ 1
+  int fk_iterations = 3;            ///< Newton steps per tick (steady state), ≥ 1; no force on a tick whose solve did not converge
+  int max_consecutive_io_errors = 5;  ///< transport errors in a row (kError) after which the link counts as down, ≥ 1
   std::int16_t max_motor_command = 32000;  ///< per-motor command limit (direction-preserving)
+  /// Mechanism constants (lengths [m], leg angles [rad], encoder and motor scales); defaults are
+  /// the stock Falcon's.
   FalconGeometry geometry;
+  /// The device frame handed to the haptics (metres, z up, origin at the workspace centre) as a
+  /// rotation and centre relative to the Falcon frame (kinematics.hpp); positions are reported
+  /// and forces [N] are taken in this frame.
   DeviceFrame frame;
   bool supervisor_thread = true;    ///< run supervise() on a thread every supervisor_period_ms
   int supervisor_period_ms = 2;
   int reconnect_interval_ms = 500;  ///< between reconnection attempts [ms] ≥ 0
 };
 
+/// USB link state: kUp while a primed transport exists and the servo may use it; kDown after an
+/// unplug, repeated transport errors or close() (the supervisor then reconnects).
 enum class LinkState : std::uint8_t { kUp = 0, kDown };
+/// "up" or "down" (static strings). Real-time: yes.
 const char* to_string(LinkState state) noexcept;
 
 /// Counters and flags, readable from any thread.
@@ -91,10 +109,14 @@ class FalconDevice final : public haptics::HapticDevice {
   /// never throws (reconnection errors are kept in last_reconnect_error()).
   void supervise() noexcept;
 
+  /// A snapshot of the link state, homing mask, buttons and counters (each field read
+  /// atomically; the fields are not mutually consistent to the tick). Any thread; real-time: yes.
   FalconStatus status() const noexcept;
   bool homed() const noexcept { return homed_mask_.load(std::memory_order_acquire) == kAllAxesHomed; }
   /// What the user should do now (homing guidance, unplugged, fault). Real-time: no.
   std::string homing_message() const;
+  /// The message of the last failed reconnection attempt ("" after a successful one or before any
+  /// attempt). Any thread; takes a mutex, real-time: no.
   std::string last_reconnect_error() const;
   const FirmwareReport& firmware_report() const noexcept { return firmware_report_; }
   /// Effector position from the last good frame [m], Falcon frame (servo thread / stopped).
@@ -103,6 +125,8 @@ class FalconDevice final : public haptics::HapticDevice {
   const Eigen::Vector3d& arm_angles_rad() const noexcept { return theta_rad_; }
   /// Newton steps used by the last read (servo thread / stopped).
   int last_fk_iterations() const noexcept { return last_fk_.iterations; }
+  /// Whether the last forward-kinematics solve converged (forces need it; servo thread / stopped).
+  bool last_fk_converged() const noexcept { return last_fk_.converged; }
   const FalconConfig& config() const noexcept { return config_; }
 
  protected:
@@ -114,6 +138,9 @@ class FalconDevice final : public haptics::HapticDevice {
  private:
   bool acquire() noexcept;
   void release() noexcept { io_busy_.store(false, std::memory_order_release); }
+  /// Counts a kError from the transport; after max_consecutive_io_errors in a row takes the link
+  /// down and returns true. Caller holds the token.
+  bool note_transport_error() noexcept;
   /// Sends zero motors, the homing bit while not homed and the LEDs. Caller holds the token.
   IoStatus send_idle_frame() noexcept;
   /// Applies a decoded status frame (counts → angles → FK). Servo side or under the token.
@@ -138,6 +165,7 @@ class FalconDevice final : public haptics::HapticDevice {
   Eigen::Vector3d theta_rad_ = Eigen::Vector3d::Zero();
   FkResult last_fk_{};
   int stale_ = 1;  // reads since the last fresh frame
+  int consecutive_errors_ = 0;  // transport kError results in a row
   bool cold_fk_ = true;
   std::uint8_t leds_ = kLedRed;
 

@@ -53,6 +53,9 @@ struct FkResult {
 
 /// Motor commands for a force, with whether they had to be scaled down.
 struct MotorCommands {
+  /// Raw motor command per arm as sent in the command frame (signed int16 units of the
+  /// firmware, not encoder counts): command_per_newton_metre · command_sign · arm torque [N·m],
+  /// rounded and limited to ±max_command.
   std::array<std::int16_t, 3> counts{};
   bool saturated = false;
 };
