@@ -83,6 +83,11 @@ struct CheckOptions {
   double floor_s = 5.0;
 };
 
+constexpr int kInterrupted = 2;  // run_falcon_check's result when SIGINT/SIGTERM cut it short
+
+/// Opens, homes and arms a Falcon (or the emulator) over a virtual floor. @return 0 pass, 1 fail,
+/// kInterrupted when SIGINT/SIGTERM ended it early. @throws hc::ResourceError when it cannot
+/// open or home. Real-time: no (runs the servo loop on its own thread).
 int run_falcon_check(const CheckOptions& o) {
   falcon::install_stop_signal_handlers();
   haptics::SteadyClock clock;
@@ -139,6 +144,12 @@ int run_falcon_check(const CheckOptions& o) {
     last = m;
     std::this_thread::sleep_for(20ms);
   }
+  if (!dev.homed()) {  // the loop ended on SIGINT/SIGTERM, not by homing
+    loop.stop();
+    dev.close();
+    std::cout << "  interrupted (not homed)\nfalcon-check: INTERRUPTED before the self-test ran\n";
+    return kInterrupted;
+  }
   std::cout << "  homed\n";
   const std::uint64_t frames0 = dev.status().frames;
   shared.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
@@ -168,6 +179,10 @@ int run_falcon_check(const CheckOptions& o) {
   std::printf("  in contact %.0f%% of the samples, max force %.2f N, servo overruns %llu\n",
               samples ? 100.0 * static_cast<double>(contact) / static_cast<double>(samples) : 0.0, max_force,
               static_cast<unsigned long long>(loop.stats().overruns));
+  if (falcon::stop_requested()) {
+    std::cout << "falcon-check: INTERRUPTED during the floor test (no verdict)\n";
+    return kInterrupted;
+  }
   const bool ok = rate > 500.0 && st.io_errors == 0 && st.watchdog_trips == 0;
   std::cout << "falcon-check: " << (ok ? "PASS" : "FAIL (frame rate below 500/s or I/O errors; see above)") << "\n";
   return ok ? 0 : 1;
@@ -191,6 +206,7 @@ void add_falcon_command(CLI::App& app) {
   chk->add_option("--floor-seconds", o->floor_s, "Seconds of the virtual-floor test")->capture_default_str();
   chk->callback([o] {
     const int rc = run_falcon_check(*o);
+    if (rc == kInterrupted) throw ResourceError("falcon-check interrupted (SIGINT/SIGTERM) before it finished");
     if (rc != 0) throw ResourceError("falcon-check failed");
   });
 }
