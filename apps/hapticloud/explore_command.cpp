@@ -22,6 +22,7 @@
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_controller.hpp"
+#include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/surface_layers.hpp"
@@ -43,8 +44,10 @@
 #endif
 
 #include <CLI/CLI.hpp>
+#include <nlohmann/json.hpp>
 
 #include <sys/resource.h>
+#include <csignal>
 #include <unistd.h>
 
 #include <algorithm>
@@ -65,6 +68,30 @@ namespace hc::app {
 namespace {
 
 namespace fs = std::filesystem;
+
+/// Set by SIGINT / SIGTERM (explore's own handler; the Falcon installs its own, see
+/// stop_requested()). Async-signal-safe: only this flag is written.
+volatile std::sig_atomic_t g_explore_stop = 0;
+
+extern "C" void hc_explore_on_signal(int /*signal*/) { g_explore_stop = 1; }
+
+/// Ctrl-C / SIGTERM end the session between frames (servo stopped, device closed, summary
+/// written) instead of killing the process with the device armed.
+void install_explore_signal_handlers() {
+  struct sigaction sa {};
+  sa.sa_handler = hc_explore_on_signal;
+  sigemptyset(&sa.sa_mask);
+  sa.sa_flags = 0;
+  sigaction(SIGINT, &sa, nullptr);
+  sigaction(SIGTERM, &sa, nullptr);
+}
+
+bool explore_stop_requested() {
+#ifdef HC_HAVE_FALCON
+  if (falcon::stop_requested()) return true;
+#endif
+  return g_explore_stop != 0;
+}
 
 struct ExploreOptions {
   std::string input;
@@ -248,6 +275,12 @@ class Session {
   std::shared_ptr<Built> incoming_;
   enum class Swap { kIdle, kWaitDisarm, kWaitAdopt } swap_ = Swap::kIdle;
   std::uint64_t mark_ = 0;
+  bool disarm_sent_ = false;          ///< the swap's disarm is in the command ring
+  std::uint64_t disarm_tick_ = 0;     ///< a snapshot newer than this tick counts (set once the ring drained)
+  bool disarm_drained_ = false;       ///< the command ring was empty after the disarm was pushed
+  bool arm_pending_ = false;          ///< an arm to push (retried while the ring is full)
+  bool drain_events_ = true;          ///< nothing else (no sound engine) reads shared_.events
+  bool stopped_by_signal_ = false;
   int rescans_ = 0;
   std::string status_;
   // What a swap looked like from the UI thread (summary): swaps completed, the largest device
@@ -269,6 +302,9 @@ void Session::load_input() {
   fs::path p(o_.input);
   if (fs::is_regular_file(p) && (p.extension() == ".yaml" || p.extension() == ".yml")) {
     config_ = pipeline::load_run_config(p);
+    // Levels are built on demand by the session's pyramid: no levels table in the run report
+    // (it would build every level of every scan before the session starts).
+    config_->lod.report = false;
     layer_options_ = config_->layers.options;
     const int cells = lod_options_.window_cells;
     lod_options_ = config_->lod;
@@ -285,6 +321,11 @@ void Session::load_input() {
   }
   if (fs::is_directory(p) && fs::exists(p / "scene.yaml")) {
     pipeline::Scene scene = pipeline::load_scene(p);
+    // The scene's own layers.* and lod.* (its stored config), as `hapticloud run` built it;
+    // --window-cells still wins.
+    const int cells = lod_options_.window_cells;
+    pipeline::scene_options(scene, layer_options_, lod_options_);
+    if (o_.window_cells > 0) lod_options_.window_cells = cells;
     if (!scene.friction_model.empty()) layer_options_.friction_model = pipeline::friction_model_from_string(scene.friction_model);
     built_ = build(std::move(scene), layer_options_, lod_options_, false);
     built_->description = p.filename().string();
@@ -350,6 +391,7 @@ void Session::on_rescan(const Eigen::Quaterniond& q) {
   pipeline::RunConfig cfg = *config_;
   cfg.view.rotation = q.normalized();
   cfg.layers.options = layer_options_;  // the friction model and μ_s chosen in the session
+  cfg.lod.report = false;               // levels are built on demand by the pyramid
   const fs::path dir = fs::path(o_.out) / ("scan-" + std::to_string(++rescans_));
   const pipeline::SurfaceLayerOptions layers = layer_options_;
   const pipeline::LodOptions lod = lod_options_;
@@ -418,11 +460,16 @@ void Session::on_frame() {
     if (viewer_->mouse_target(p)) mouse_->set_position(p);
   }
   shared_.collect_retired();
-#ifndef HC_HAVE_AUDIO
-  haptics::ContactEvent e;
-  while (shared_.events.try_pop(e)) {
+  if (drain_events_) {
+    // No sound engine reads the contact events (no audio module, --no-audio): drop them here so
+    // the servo never finds the ring full (events_dropped).
+    haptics::ContactEvent e;
+    while (shared_.events.try_pop(e)) {
+    }
   }
-#endif
+  if (arm_pending_ && shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kArm))) {
+    arm_pending_ = false;
+  }
   if (job_.valid() && job_.wait_for(std::chrono::seconds(0)) == std::future_status::ready) {
     try {
       incoming_ = job_.get();
@@ -432,8 +479,9 @@ void Session::on_frame() {
     }
     if (incoming_) {
       if (incoming_->disarm) {
-        mark_ = shared_.counters.commands_applied.load();
-        shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kDisarm));
+        arm_pending_ = false;  // a pending arm must not follow the disarm
+        disarm_sent_ = shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kDisarm));
+        disarm_drained_ = false;
         swap_ = Swap::kWaitDisarm;
         status_ = "swapping the scene (forces off) ...";
       } else {
@@ -450,7 +498,25 @@ void Session::on_frame() {
       swap_seen_armed_ = swap_seen_armed_ || sn.device_state == static_cast<std::uint8_t>(haptics::DeviceState::kArmed);
     }
   }
-  if (swap_ == Swap::kWaitDisarm && shared_.counters.commands_applied.load() > mark_) {
+  if (swap_ == Swap::kWaitDisarm && !disarm_sent_) {
+    // The command ring was full: retry every frame until the disarm is in.
+    disarm_sent_ = shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kDisarm));
+  }
+  bool disarmed = false;
+  if (swap_ == Swap::kWaitDisarm && disarm_sent_) {
+    // The disarm is applied once the servo has emptied the ring; a snapshot of a later tick that
+    // shows the device Open means zero force (not merely "some command was applied").
+    haptics::Snapshot sn;
+    shared_.snapshots.read(sn);
+    if (!disarm_drained_ && shared_.commands.size_approx() == 0) {
+      disarm_drained_ = true;
+      disarm_tick_ = sn.tick;
+    } else if (disarm_drained_ && sn.tick > disarm_tick_ &&
+               sn.device_state == static_cast<std::uint8_t>(haptics::DeviceState::kOpen)) {
+      disarmed = true;
+    }
+  }
+  if (swap_ == Swap::kWaitDisarm && disarmed) {
     // The device is Open: zero force. Publish the new scene and wait until the servo has it.
     mark_ = shared_.counters.surfaces_adopted.load();
     adopt(incoming_);
@@ -458,7 +524,8 @@ void Session::on_frame() {
     swap_ = Swap::kWaitAdopt;
   }
   if (swap_ == Swap::kWaitAdopt && shared_.counters.surfaces_adopted.load() > mark_ && !shared_.surface_pending()) {
-    shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
+    // Re-arm (retried next frames while the ring is full).
+    arm_pending_ = !shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
     swap_ = Swap::kIdle;
     ++swaps_done_;
     status_ = "new scene in place";
@@ -532,37 +599,45 @@ void Session::write_summary(const haptics::ServoStats& stats, const haptics::Rea
   if (o_.summary.empty()) return;
   std::ofstream js(o_.summary);
   if (!js) throw InputError("explore: cannot write the summary '" + o_.summary + "'");
-  js << "{\n"
-     << "  \"device\": \"" << o_.device << "\",\n"
-     << "  \"ticks\": " << stats.ticks << ",\n"
-     << "  \"overruns\": " << stats.overruns << ",\n"
-     << "  \"compute_ns\": {\"p50\": " << stats.compute.percentile_ns(0.5) << ", \"p99\": "
-     << stats.compute.percentile_ns(0.99) << ", \"p99_9\": " << stats.compute.percentile_ns(0.999)
-     << ", \"max\": " << stats.compute.max_ns() << "},\n"
-     << "  \"lateness_ns\": {\"p50\": " << stats.lateness.percentile_ns(0.5) << ", \"p99_9\": "
-     << stats.lateness.percentile_ns(0.999) << ", \"max\": " << stats.lateness.max_ns() << "},\n"
-     << "  \"device_errors\": " << c.device_errors.load() << ",\n"
-     << "  \"commands_applied\": " << c.commands_applied.load() << ",\n"
-     << "  \"commands_rejected\": " << c.commands_rejected.load() << ",\n"
-     << "  \"surfaces_adopted\": " << c.surfaces_adopted.load() << ",\n"
-     << "  \"events_dropped\": " << c.events_dropped.load() << ",\n"
-     << "  \"frames\": " << f.frames << ",\n"
-     << "  \"frame_mean_s\": " << f.mean_frame_s << ",\n"
-     << "  \"frame_max_s\": " << f.max_frame_s << ",\n"
-     << "  \"fifo_granted\": " << (rt.fifo_granted ? "true" : "false") << ",\n"
-     << "  \"memory_locked\": " << (rt.memory_locked ? "true" : "false") << ",\n"
-     << "  \"mesh_quads\": " << viewer_->mesh_quads() << ",\n"
-     << "  \"level\": " << (lod_ && lod_->has_window() ? lod_->window().level : -1) << ",\n"
-     << "  \"level_count\": " << (lod_ ? lod_->level_count() : 0) << ",\n"
-     << "  \"texture\": " << (texture_enabled_ ? "true" : "false") << ",\n"
-     << "  \"mu_s\": " << layer_options_.mu_s << ",\n"
-     << "  \"friction_model\": \"" << pipeline::to_string(layer_options_.friction_model) << "\",\n"
-     << "  \"rescans\": " << rescans_ << ",\n"
-     << "  \"swaps\": " << swaps_done_ << ",\n"
-     << "  \"swap_max_device_force_n\": " << swap_max_force_n_ << ",\n"
-     << "  \"swap_seen_armed\": " << (swap_seen_armed_ ? "true" : "false") << ",\n"
-     << "  \"status\": \"" << status_ << "\"\n"
-     << "}\n";
+  // Built with nlohmann::json: the status text (an exception's message, a path) is escaped.
+  nlohmann::ordered_json j;
+  j["device"] = o_.device;
+  j["ticks"] = stats.ticks;
+  j["overruns"] = stats.overruns;
+  j["compute_ns"] = {{"p50", stats.compute.percentile_ns(0.5)},
+                     {"p99", stats.compute.percentile_ns(0.99)},
+                     {"p99_9", stats.compute.percentile_ns(0.999)},
+                     {"max", stats.compute.max_ns()}};
+  j["lateness_ns"] = {{"p50", stats.lateness.percentile_ns(0.5)},
+                      {"p99_9", stats.lateness.percentile_ns(0.999)},
+                      {"max", stats.lateness.max_ns()}};
+  j["device_errors"] = c.device_errors.load();
+  j["commands_applied"] = c.commands_applied.load();
+  j["commands_rejected"] = c.commands_rejected.load();
+  j["surfaces_adopted"] = c.surfaces_adopted.load();
+  j["events_dropped"] = c.events_dropped.load();
+  j["frames"] = f.frames;
+  j["frame_mean_s"] = f.mean_frame_s;
+  j["frame_max_s"] = f.max_frame_s;
+  j["fifo_granted"] = rt.fifo_granted;
+  j["memory_locked"] = rt.memory_locked;
+  j["mesh_quads"] = viewer_->mesh_quads();
+  j["level"] = lod_ && lod_->has_window() ? lod_->window().level : -1;
+  j["level_count"] = lod_ ? lod_->level_count() : 0;
+  if (lod_ && lod_->has_window()) {
+    const pipeline::HapticWindow& w = lod_->window();
+    j["window"] = {{"col0", w.col0}, {"row0", w.row0}, {"cols", w.cols}, {"rows", w.rows}};
+  }
+  j["texture"] = texture_enabled_;
+  j["mu_s"] = layer_options_.mu_s;
+  j["friction_model"] = pipeline::to_string(layer_options_.friction_model);
+  j["rescans"] = rescans_;
+  j["swaps"] = swaps_done_;
+  j["swap_max_device_force_n"] = swap_max_force_n_;
+  j["swap_seen_armed"] = swap_seen_armed_;
+  j["stopped_by_signal"] = stopped_by_signal_;
+  j["status"] = status_;
+  js << j.dump(2) << "\n";
 }
 
 void Session::run() {
@@ -577,6 +652,10 @@ void Session::run() {
     throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
   }
   if (o_.window_cells > 0) lod_options_.window_cells = o_.window_cells;
+  // Before anything is built: a Ctrl-C from here on ends the session between frames (the
+  // Falcon replaces this handler with its own, checked the same way).
+  g_explore_stop = 0;
+  install_explore_signal_handlers();
   std::error_code ec;
   fs::create_directories(o_.out, ec);
   if (ec) throw InputError("explore: cannot create the output folder '" + o_.out + "': " + ec.message());
@@ -630,6 +709,7 @@ void Session::run() {
     const audio::AudioConfig ac = config_ ? audio_config_from(config_->audio) : audio::AudioConfig{};
     sound = std::make_unique<audio::AudioEngine>(audio::build_audio_scene(ac, {&grid, texture}));
     const audio::EngineReport ar = sound->start(shared_);
+    drain_events_ = false;  // the engine reads shared_.events
     std::cout << "explore: audio " << (ar.device_open ? ar.device : std::string("off")) << ": " << ar.detail << "\n";
   }
 #endif
@@ -663,10 +743,17 @@ void Session::run() {
     throw;
   }
   show_window();
-  shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
+  arm_pending_ = !shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
 
   const auto t0 = std::chrono::steady_clock::now();
   for (int frame = 1;; ++frame) {
+    if (explore_stop_requested()) {
+      // Ctrl-C / SIGTERM: close the viewer and end cleanly (a re-scan under way is waited for
+      // below; the servo stops and the device closes with zero force).
+      stopped_by_signal_ = true;
+      std::cout << "explore: stop requested (signal); ending the session\n";
+      break;
+    }
     // A session never ends half-way through a re-scan or a swap.
     const bool busy = job_.valid() || swap_ != Swap::kIdle || next_step < script.size();
     const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

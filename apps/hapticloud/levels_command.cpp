@@ -35,6 +35,15 @@ struct LevelsOptions {
 
 void run_levels(const LevelsOptions& o) {
   const fs::path dir(o.scene);
+  if (!o.previews.empty()) {
+    // Made before the (long) level table, so an unusable folder stops the command at once.
+    std::error_code ec;
+    fs::create_directories(o.previews, ec);
+    if (ec || !fs::is_directory(o.previews)) {
+      throw InputError("levels: --previews '" + o.previews + "': cannot create the folder" +
+                       (ec ? ": " + ec.message() : std::string(" (a file of that name exists)")));
+    }
+  }
   pipeline::Scene scene = pipeline::load_scene(dir);
   pipeline::SurfaceLayerOptions layer_options;
   pipeline::LodOptions lod;
@@ -57,7 +66,6 @@ void run_levels(const LevelsOptions& o) {
             << pipeline::level_table_text(rows);
   if (!o.previews.empty()) {
     const fs::path out(o.previews);
-    fs::create_directories(out);
     const auto names = pipeline::write_level_previews(*pyramid, out);
     std::cout << "levels: previews in " << out.string() << " (" << names.back() << ": all levels side by side)\n";
   }
@@ -75,7 +83,7 @@ void add_levels_command(CLI::App& app) {
   cmd->add_flag("--no-cross-check", opts->no_cross_check, "Skip the cross-check (no points needed)");
   cmd->add_option("--previews", opts->previews, "Write a hillshade per level and all side by side into this folder");
   cmd->add_option("--min-cells", opts->min_cells, "Override lod.min_cells");
-  cmd->add_option("--window", opts->window_cells, "Override lod.window_cells");
+  cmd->add_option("--window-cells,--window", opts->window_cells, "Override lod.window_cells (haptic window side [samples])");
   cmd->add_option("--ticks", opts->ticks, "Servo ticks timed per level")->capture_default_str();
   cmd->callback([opts] { run_levels(*opts); });
 }

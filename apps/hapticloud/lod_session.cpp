@@ -2,6 +2,8 @@
 
 #include "hc/common/error.hpp"
 
+#include <nlohmann/json.hpp>
+
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
@@ -82,13 +84,6 @@ ZoomAction parse_action(const std::string& text) {
   return a;
 }
 
-std::string num(double v) {
-  std::ostringstream s;
-  s.precision(10);
-  s << v;
-  return s.str();
-}
-
 }  // namespace
 
 std::vector<ZoomAction> parse_zoom_path(const std::string& file_or_spec) {
@@ -134,8 +129,12 @@ std::pair<int, int> parse_window_origin(const std::string& text) {
 
 LodSession::LodSession(const std::map<std::string, HeightField>& layers, const haptics::SurfaceOptions& surface,
                        const Eigen::Vector3d& device_half_extent_m, int level, std::optional<std::pair<int, int>> origin,
-                       std::vector<ZoomAction> actions, haptics::SharedState& shared, const pipeline::LodOptions& lod)
+                       std::vector<ZoomAction> actions, haptics::SharedState& shared,
+                       const pipeline::SurfaceLayerOptions& layer_options, const pipeline::LodOptions& lod)
     : surface_options_(surface), actions_(std::move(actions)) {
+  if (level < -1) {
+    throw ConfigError("touch: --level " + std::to_string(level) + ": expected -1 (the coarsest) or a level >= 0");
+  }
   const auto find = [&](const char* name) -> const HeightField* {
     const auto it = layers.find(name);
     return it == layers.end() ? nullptr : &it->second;
@@ -150,7 +149,7 @@ LodSession::LodSession(const std::map<std::string, HeightField>& layers, const h
     l0.mu_s = *find("mu_s");
     l0.has_layers = true;
   }
-  pyramid_ = std::make_shared<pipeline::LodPyramid>(std::move(l0), pipeline::SurfaceLayerOptions{}, lod);
+  pyramid_ = std::make_shared<pipeline::LodPyramid>(std::move(l0), layer_options, lod);
   pipeline::LodControllerOptions co;
   co.surface = surface;
   co.device_half_extent_m = device_half_extent_m;
@@ -159,6 +158,18 @@ LodSession::LodSession(const std::map<std::string, HeightField>& layers, const h
   if (start >= pyramid_->level_count()) {
     throw ConfigError("touch: --level " + std::to_string(level) + " does not exist: the scene has levels 0.." +
                       std::to_string(pyramid_->level_count() - 1));
+  }
+  if (origin) check_origin("--window " + std::to_string(origin->first) + "," + std::to_string(origin->second), start,
+                           origin->first, origin->second);
+  // Every scripted level and window is checked against the pyramid before anything is published.
+  for (const ZoomAction& a : actions_) {
+    if (a.kind == ZoomAction::Kind::kLevel || a.kind == ZoomAction::Kind::kWindow) {
+      if (a.a < 0 || a.a >= pyramid_->level_count()) {
+        throw ConfigError("touch: --zoom-path action '" + a.text + "': level " + std::to_string(a.a) +
+                          " does not exist: the scene has levels 0.." + std::to_string(pyramid_->level_count() - 1));
+      }
+    }
+    if (a.kind == ZoomAction::Kind::kWindow) check_origin("--zoom-path action '" + a.text + "'", a.a, a.b, a.c);
   }
   SwitchRecord first;
   if (origin) {
@@ -171,6 +182,15 @@ LodSession::LodSession(const std::map<std::string, HeightField>& layers, const h
     first.request = "start: level " + std::to_string(start) + ", centred";
   }
   switches_.push_back(first);
+}
+
+void LodSession::check_origin(const std::string& what, int level, int col0, int row0) const {
+  const GridGeometry& g = pyramid_->geometry(level);
+  if (col0 < 0 || col0 >= g.cols || row0 < 0 || row0 >= g.rows) {
+    throw ConfigError("touch: " + what + ": window origin column " + std::to_string(col0) + ", row " +
+                      std::to_string(row0) + " is outside level " + std::to_string(level) + " (columns 0.." +
+                      std::to_string(g.cols - 1) + ", rows 0.." + std::to_string(g.rows - 1) + ")");
+  }
 }
 
 double LodSession::next_time() const {
@@ -213,24 +233,31 @@ const haptics::HapticSurface& LodSession::surface_for(std::uint64_t tag) {
 }
 
 std::string LodSession::json() const {
-  std::ostringstream j;
-  j << "{\"levels\": [";
+  nlohmann::ordered_json j;
+  j["levels"] = nlohmann::ordered_json::array();
   for (int l = 0; l < pyramid_->level_count(); ++l) {
     const GridGeometry& g = pyramid_->geometry(l);
-    j << (l ? ", " : "") << "{\"level\": " << l << ", \"rows\": " << g.rows << ", \"cols\": " << g.cols
-      << ", \"cell_size_m\": " << num(g.cell_size_m) << "}";
+    j["levels"].push_back({{"level", l}, {"rows", g.rows}, {"cols", g.cols}, {"cell_size_m", g.cell_size_m}});
   }
-  j << "], \"window_cells\": " << controller_->window_cells() << ", \"switches\": [";
-  for (std::size_t i = 0; i < switches_.size(); ++i) {
-    const SwitchRecord& s = switches_[i];
+  j["window_cells"] = controller_->window_cells();
+  j["switches"] = nlohmann::ordered_json::array();
+  for (const SwitchRecord& s : switches_) {
     const pipeline::HapticWindow& w = s.window;
-    j << (i ? ", " : "") << "{\"t_s\": " << num(s.t_s) << ", \"request\": \"" << s.request << "\", \"level\": "
-      << w.level << ", \"col0\": " << w.col0 << ", \"row0\": " << w.row0 << ", \"cols\": " << w.cols
-      << ", \"rows\": " << w.rows << ", \"scale\": " << num(w.map.scale) << ", \"tag\": " << w.tag
-      << ", \"level_build_s\": " << num(w.level_seconds) << ", \"window_build_s\": " << num(w.window_seconds) << "}";
+    // The request is the action as the user wrote it: nlohmann escapes quotes, backslashes and
+    // control characters.
+    j["switches"].push_back({{"t_s", s.t_s},
+                             {"request", s.request},
+                             {"level", w.level},
+                             {"col0", w.col0},
+                             {"row0", w.row0},
+                             {"cols", w.cols},
+                             {"rows", w.rows},
+                             {"scale", w.map.scale},
+                             {"tag", w.tag},
+                             {"level_build_s", w.level_seconds},
+                             {"window_build_s", w.window_seconds}});
   }
-  j << "]}";
-  return j.str();
+  return j.dump();
 }
 
 void LodSession::print(std::ostream& out) const {

@@ -9,6 +9,7 @@
 #include "hc/haptics/shared_state.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_controller.hpp"
+#include "hc/pipeline/surface_layers.hpp"
 
 #include <Eigen/Core>
 
@@ -55,11 +56,15 @@ class LodSession {
   /// Builds the pyramid from the session's layers (depth required; envelope, texture, mu_d and
   /// mu_s are used for level 0 when all four are present, else computed) and publishes the
   /// initial window: level `level` (−1: the coarsest) with its first sample at `origin`
-  /// (column, row) or centred on the grid.
-  /// @throws hc::ConfigError / hc::InputError for a level or layers out of range.
+  /// (column, row) or centred on the grid. Levels ≥ 1 get their layers from `layer_options`
+  /// (the scene's own, as in `hapticloud run`). Every level and window origin of `actions` is
+  /// checked against the pyramid before the first window is published.
+  /// @throws hc::ConfigError naming --level, --window or the --zoom-path action for a level or
+  ///         origin out of range; hc::InputError for missing layers.
   LodSession(const std::map<std::string, HeightField>& layers, const haptics::SurfaceOptions& surface,
              const Eigen::Vector3d& device_half_extent_m, int level, std::optional<std::pair<int, int>> origin,
-             std::vector<ZoomAction> actions, haptics::SharedState& shared, const pipeline::LodOptions& lod = {});
+             std::vector<ZoomAction> actions, haptics::SharedState& shared,
+             const pipeline::SurfaceLayerOptions& layer_options, const pipeline::LodOptions& lod);
 
   const pipeline::HapticWindow& initial() const { return switches_.front().window; }
   /// Session time [s] of the next scripted action (infinity when none is left).
@@ -72,11 +77,14 @@ class LodSession {
   const haptics::HapticSurface& surface_for(std::uint64_t tag);
   const std::vector<SwitchRecord>& switches() const { return switches_; }
   int level_count() const { return controller_->level_count(); }
-  /// JSON object text with the levels and every switch.
+  /// JSON object text with the levels and every switch (strings escaped).
   std::string json() const;
   void print(std::ostream& out) const;
 
  private:
+  /// @throws hc::ConfigError naming `what` when (col0, row0) is not a sample of `level`.
+  void check_origin(const std::string& what, int level, int col0, int row0) const;
+
   std::shared_ptr<pipeline::LodPyramid> pyramid_;
   std::unique_ptr<pipeline::LodController> controller_;
   haptics::SurfaceOptions surface_options_;

@@ -15,6 +15,7 @@
 #include "hc/haptics/simulated_device.hpp"
 #include "hc/haptics/workspace_map.hpp"
 #include "hc/pipeline/config.hpp"
+#include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/plot.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
@@ -74,14 +75,21 @@ struct TouchOptions {
   int level = -1;            ///< levels of detail: start level (−1 with a zoom path: the coarsest)
   std::string window;        ///< "X,Y": first column and row of the haptic window at that level
   std::string zoom_path;     ///< scripted level switches and pans (file or spec)
-  int window_cells = 200;    ///< side of the haptic window [samples]
+  int window_cells = 0;      ///< side of the haptic window [samples] (0: the scene's lod.window_cells)
+  bool level_given = false;         ///< --level was on the command line (even -1)
+  bool window_cells_given = false;  ///< --window-cells was on the command line
 };
+
+/// Levels of detail are on when --level, --window or --zoom-path is given.
+bool lod_mode(const TouchOptions& o) { return o.level_given || !o.window.empty() || !o.zoom_path.empty(); }
 
 /// The layers the session renders (owned here; HapticSurface copies what it needs).
 struct SceneLayers {
   std::map<std::string, HeightField> layers;
   std::string description;
   pipeline::AudioSpec audio;  ///< the run config's audio: section (when the input is a config)
+  pipeline::SurfaceLayerOptions layer_options;  ///< the scene's layers.* (levels ≥ 1 are computed with them)
+  pipeline::LodOptions lod;                     ///< the scene's lod.*
 };
 
 /// The paper's validation sinusoid (Sec. 5.1) with a fine texture: envelope
@@ -136,6 +144,8 @@ SceneLayers load_input(const TouchOptions& o) {
     p = run_dir / "scene";
     SceneLayers s = load_input_scene(p, o);
     s.audio = cfg.audio;
+    s.layer_options = cfg.layers.options;
+    s.lod = cfg.lod;
     return s;
   }
   return load_input_scene(p, o);
@@ -145,6 +155,8 @@ SceneLayers load_input_scene(const fs::path& p, const TouchOptions& o) {
   if (fs::is_directory(p) && fs::exists(p / "scene.yaml")) {
     pipeline::Scene scene = pipeline::load_scene(p);
     SceneLayers s;
+    // Levels of detail compute their layers with the scene's own settings (its stored config).
+    if (lod_mode(o)) pipeline::scene_options(scene, s.layer_options, s.lod);
     for (const char* name : {"depth", "envelope", "texture", "mu_d", "mu_s"}) {
       auto it = scene.layers.find(name);
       if (it != scene.layers.end()) s.layers.emplace(name, std::move(it->second));
@@ -242,22 +254,23 @@ SessionSummary run_session(const TouchOptions& o, const SceneLayers& scene, cons
   const haptics::DeviceInfo info = haptics::SimulatedDevice::default_info();
   // Levels of detail (issue 4): the servo renders a window of a level; the LodSession publishes
   // it (and every scripted switch) with its workspace map through the surface mailbox.
-  const bool lod_mode = o.level >= 0 || !o.window.empty() || !o.zoom_path.empty();
-  haptics::SharedState shared(lod_mode ? nullptr : std::make_unique<HapticSurface>(layers, sopt));
+  const bool levels = lod_mode(o);
+  haptics::SharedState shared(levels ? nullptr : std::make_unique<HapticSurface>(layers, sopt));
   std::unique_ptr<LodSession> lod;
   haptics::WorkspaceMap map;
   double top_dev = 0.0;
-  if (lod_mode) {
+  if (levels) {
     if (layers.region_id != nullptr) {
       throw ConfigError("touch: audio regions are not carried into level-of-detail windows yet; drop --level, "
                         "--window and --zoom-path, or the audio options");
     }
-    pipeline::LodOptions lod_options;
-    lod_options.window_cells = o.window_cells;
+    pipeline::LodOptions lod_options = scene.lod;
+    if (o.window_cells_given) lod_options.window_cells = o.window_cells;
     lod = std::make_unique<LodSession>(
         scene.layers, sopt, info.workspace_half_extent_m, o.level,
         o.window.empty() ? std::nullopt : std::optional<std::pair<int, int>>(parse_window_origin(o.window)),
-        o.zoom_path.empty() ? std::vector<ZoomAction>{} : parse_zoom_path(o.zoom_path), shared, lod_options);
+        o.zoom_path.empty() ? std::vector<ZoomAction>{} : parse_zoom_path(o.zoom_path), shared,
+        scene.layer_options, lod_options);
     map = lod->initial().map;
     top_dev = (lod->initial().max_height_m - map.origin_m.z()) / map.scale;
   } else {
@@ -521,11 +534,23 @@ void run_touch(const TouchOptions& o) {
   if (!(o.seconds > 0.0) || o.seconds > 3600.0) {
     throw ConfigError("touch: --seconds " + json_number(o.seconds) + " is out of range (expected (0, 3600])");
   }
+  // Options checked before anything is written to --out.
+  if (o.level < -1) {
+    throw ConfigError("touch: --level " + std::to_string(o.level) + ": expected -1 (the coarsest) or a level >= 0");
+  }
+  if (o.window_cells_given && !lod_mode(o)) {
+    throw ConfigError("touch: --window-cells " + std::to_string(o.window_cells) +
+                      " needs --level (or --window / --zoom-path): without levels of detail there is no window");
+  }
+  if (o.window_cells_given && (o.window_cells < 2 || o.window_cells > 4096)) {
+    throw ConfigError("touch: --window-cells " + std::to_string(o.window_cells) + ": expected an integer in [2, 4096]");
+  }
+  if (!o.window.empty()) (void)parse_window_origin(o.window);
+  if (!o.zoom_path.empty()) (void)parse_zoom_path(o.zoom_path);
   const fs::path out(o.out);
-  std::error_code ec;
-  fs::create_directories(out, ec);
-  if (ec) throw InputError("touch: cannot create the output folder '" + out.string() + "': " + ec.message());
   SceneLayers scene = load_input(o);
+  // The session's levels and windows are checked against the scene's pyramid in run_session,
+  // before its output folder is made.
   if (!o.audio_config.empty()) scene.audio = pipeline::load_run_config(o.audio_config).audio;
   if (o.validate && (!o.audio_out.empty() || !o.audio_live.empty())) {
     throw ConfigError("touch: --audio-out and --audio-live are for one session, not with --validate");
@@ -535,6 +560,8 @@ void run_touch(const TouchOptions& o) {
     throw ConfigError("touch: this build has no audio module (hc::audio); --audio-out/--audio-live are unavailable");
   }
 #endif
+  // run_session makes its output folder once its level-of-detail session is set up (so a bad
+  // level or window leaves nothing in --out).
   if (!o.validate) {
     std::vector<haptics::TickRecord> trace;
     run_session(o, scene, out, trace);
@@ -601,15 +628,22 @@ void add_touch_command(CLI::App& app) {
                   "Play the contact sounds while the session runs: default | loopback | an OpenAL device name");
   cmd->add_option("--audio-config", opts->audio_config,
                   "Run config whose audio: section to use (default: the input config's own)");
-  cmd->add_option("--level", opts->level,
-                  "Levels of detail: render a window of this level (0 = finest; each level halves the resolution)");
+  CLI::Option* level_opt = cmd->add_option(
+      "--level", opts->level,
+      "Levels of detail: render a window of this level (0 = finest; each level halves the resolution; -1 = coarsest)");
   cmd->add_option("--window", opts->window,
                   "X,Y: first column and row of the haptic window at --level (default: centred)");
-  cmd->add_option("--window-cells", opts->window_cells, "Side of the haptic window [samples]")->capture_default_str();
+  CLI::Option* cells_opt = cmd->add_option("--window-cells", opts->window_cells,
+                                           "Side of the haptic window [samples], 2..4096 (default: the scene's "
+                                           "lod.window_cells, else 200); needs --level, --window or --zoom-path");
   cmd->add_option("--zoom-path", opts->zoom_path,
                   "Scripted level switches and pans: a file (one 'T ACTION ARGS' per line) or a spec like "
                   "'1:in,2.5:pan:20:-10,4:out,5:level:2,6:window:1:0:40' (T in seconds; zooms keep the proxy)");
-  cmd->callback([opts] { run_touch(*opts); });
+  cmd->callback([opts, level_opt, cells_opt] {
+    opts->level_given = level_opt->count() > 0;
+    opts->window_cells_given = cells_opt->count() > 0;
+    run_touch(*opts);
+  });
 }
 
 }  // namespace hc::app

@@ -9,6 +9,8 @@
 
 #include <cstdio>
 #include <fstream>
+#include <sstream>
+#include <vector>
 #include <string>
 
 namespace {
@@ -65,6 +67,93 @@ TEST(TouchLevels, BadLevelOrZoomPathIsAOneLineError) {
   EXPECT_NE(log.find("X,Y"), std::string::npos) << log;
 }
 
+/// Runs a touch session expected to fail: exit status 1, the message names `what`, and --out
+/// is not made at all.
+void expect_rejected(const std::string& args, const std::string& what) {
+  const fs::path out = hc::test::temp_dir("rejected") / "out";
+  std::string log;
+  EXPECT_EQ(run_app("touch --synthetic sinusoid --cells 201 --seconds 1 " + args + " --out " + out.string(), &log), 1)
+      << args << "\n" << log;
+  EXPECT_NE(log.find(what), std::string::npos) << args << "\n" << log;
+  EXPECT_FALSE(fs::exists(out)) << args;
+}
+
+TEST(TouchLevels, BadOptionsAreRejectedBeforeTheSessionNamingTheOption) {
+  expect_rejected("--level -2", "--level -2");
+  expect_rejected("--window-cells 50", "--window-cells 50 needs --level");
+  // The option, not the config key lod.window_cells.
+  expect_rejected("--level 0 --window-cells 1", "--window-cells 1:");
+  // 201 samples with the default lod.min_cells (64): levels 0 (201) and 1 (101). Every scripted
+  // level and window is checked before the first tick.
+  expect_rejected("--level 0 --window-cells 50 --zoom-path '0.5:in,0.8:level:2'", "action '0.8:level:2': level 2");
+  expect_rejected("--level 0 --zoom-path '0.5:window:1:101:0'", "action '0.5:window:1:101:0': window origin");
+  expect_rejected("--level 1 --window 0,150", "--window 0,150: window origin");
+}
+
+TEST(TouchLevels, ZoomPathTextIsEscapedInTheSummary) {
+  // A zoom path file with Windows line ends and tabs: the actions are reported as written, in
+  // valid JSON.
+  const fs::path dir = hc::test::temp_dir("crlf");
+  {
+    std::ofstream zp(dir / "zoom.txt", std::ios::binary);
+    zp << "0.3 in\r\n0.5\tpan 5 5\r\n";
+  }
+  std::string log;
+  ASSERT_EQ(run_app("touch --synthetic sinusoid --cells 201 --seconds 1 --level 1 --window-cells 50 --zoom-path " +
+                        (dir / "zoom.txt").string() + " --out " + (dir / "out").string(),
+                    &log),
+            0)
+      << log;
+  const json s = read_json(dir / "out" / "summary.json");
+  const json& sw = s["lod"]["switches"];
+  ASSERT_EQ(sw.size(), 3U);
+  EXPECT_EQ(sw[1]["request"].get<std::string>(), "0.3 in\r");
+  EXPECT_EQ(sw[2]["request"].get<std::string>(), "0.5\tpan 5 5\r");
+  EXPECT_EQ(s["lod"]["window_cells"].get<int>(), 50);
+}
+
+TEST(TouchLevels, SceneFolderLevelsUseTheScenesLayerAndLodSettings) {
+  // A scene made with a static friction of 0.55 (default 0.2), levels down to 30 samples and
+  // 40-sample windows: level 1 of touch's pyramid must be computed with those settings.
+  const fs::path dir = hc::test::temp_dir("scene_options");
+  {
+    std::ofstream cfg(dir / "sin.yaml");
+    cfg << "input: {synthetic: {surface: sinusoid, half_extent_m: 0.02, density_per_m2: 2.0e7, wavelength_m: 0.008}}\n"
+           "filters: {outliers: {enabled: false}}\n"
+           "grid: {n: 120, splat_radius_cells: 1.0}\n"
+           "layers: {friction: {mu_s: 0.55}}\n"
+           "lod: {min_cells: 25, window_cells: 40, report: false}\n";
+  }
+  std::string log;
+  ASSERT_EQ(run_app("run " + (dir / "sin.yaml").string() + " --out " + (dir / "run").string(), &log), 0) << log;
+  log.clear();
+  ASSERT_EQ(run_app("touch " + (dir / "run" / "scene").string() + " --level 1 --path raster --seconds 2 --out " +
+                        (dir / "out").string(),
+                    &log),
+            0)
+      << log;
+  const json s = read_json(dir / "out" / "summary.json");
+  EXPECT_EQ(s["lod"]["levels"].size(), 3U);  // 120, 60, 30 (lod.min_cells 25)
+  EXPECT_EQ(s["lod"]["window_cells"].get<int>(), 40);
+  EXPECT_EQ(s["lod"]["switches"][0]["level"].get<int>(), 1);
+  // μ_s of every tick in contact: the scene's 0.55, not the default 0.2.
+  std::ifstream trace(dir / "out" / "trace.csv");
+  std::string line;
+  std::getline(trace, line);
+  std::size_t contact = 0;
+  while (std::getline(trace, line)) {
+    std::vector<std::string> f;
+    std::stringstream ss(line);
+    for (std::string x; std::getline(ss, x, ',');) f.push_back(x);
+    ASSERT_GE(f.size(), 15U);
+    if (f[11] != "1") continue;  // contact
+    ++contact;
+    EXPECT_NEAR(std::stod(f[14]), 0.55, 1e-3) << line;
+    if (::testing::Test::HasFailure()) break;
+  }
+  EXPECT_GT(contact, 100U);
+}
+
 TEST(LevelsCommand, PrintsOneRowPerLevelWithCrossCheckAndWritesPreviews) {
   const fs::path dir = hc::test::temp_dir("levels");
   {
@@ -77,15 +166,26 @@ TEST(LevelsCommand, PrintsOneRowPerLevelWithCrossCheckAndWritesPreviews) {
   std::string log;
   ASSERT_EQ(run_app("run " + (dir / "sin.yaml").string() + " --out " + (dir / "run").string(), &log), 0) << log;
   log.clear();
-  ASSERT_EQ(run_app("levels " + (dir / "run" / "scene").string() + " --ticks 300 --previews " + (dir / "prev").string(), &log),
+  ASSERT_EQ(run_app("levels " + (dir / "run" / "scene").string() + " --ticks 300 --window-cells 50 --previews " +
+                        (dir / "prev").string(),
+                    &log),
             0)
       << log;
+  EXPECT_NE(log.find("window 50 samples"), std::string::npos) << log;
   EXPECT_NE(log.find("rms_mm"), std::string::npos) << log;
   EXPECT_NE(log.find("\n2 "), std::string::npos) << log;   // levels 0, 1, 2 (120 → 60 → 30)
   EXPECT_EQ(log.find("\n3 "), std::string::npos) << log;
   EXPECT_TRUE(fs::exists(dir / "prev" / "lod_levels.png"));
   log.clear();
   EXPECT_EQ(run_app("levels " + (dir / "nothing").string(), &log), 1);
+  // A previews folder that cannot be made (its parent is a file): an error naming --previews.
+  { std::ofstream(dir / "a_file") << "x"; }
+  log.clear();
+  EXPECT_EQ(run_app("levels " + (dir / "run" / "scene").string() + " --no-cross-check --previews " +
+                        (dir / "a_file" / "prev").string(),
+                    &log),
+            1);
+  EXPECT_NE(log.find("--previews"), std::string::npos) << log;
 }
 
 }  // namespace
