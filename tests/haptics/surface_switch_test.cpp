@@ -10,6 +10,8 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
+
 #include <atomic>
 #include <chrono>
 #include <thread>
@@ -199,16 +201,35 @@ TEST(SurfaceSwitch, ThreadedPublicationsWithMapsAreAdoptedInOrder) {
   shared.commands.try_push(Command::of(CommandType::kArm));
   loop.start();
   std::uint64_t last = 0;
+  // The tags the servo adopted, as seen from this thread: they may skip (a publication replaced
+  // before any tick) but never go back.
+  std::uint64_t seen = shared.counters.surface_tag.load();
+  bool went_back = false;
+  const auto observe = [&] {
+    const std::uint64_t now = shared.counters.surface_tag.load();
+    went_back = went_back || now < seen;
+    seen = std::max(seen, now);
+  };
   for (std::uint64_t tag = 1; tag <= 40; ++tag) {
     WorkspaceMap m;
     m.scale = 1.0 + 0.01 * static_cast<double>(tag);
     shared.publish_surface(flat(0.0001 * static_cast<double>(tag % 3)), m, tag);
     last = tag;
     std::this_thread::sleep_for(std::chrono::microseconds(300));
+    observe();
     shared.collect_retired();
   }
-  while (shared.counters.surface_tag.load() != last) std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  // A hang guard, not a speed limit: a loop that never adopts the last surface fails the test
+  // instead of blocking the suite.
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(30);
+  while (shared.counters.surface_tag.load() != last && std::chrono::steady_clock::now() < deadline) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+    observe();
+  }
+  observe();
   loop.stop();
+  EXPECT_FALSE(went_back) << "an older surface was adopted after a newer one";
+  ASSERT_EQ(shared.counters.surface_tag.load(), last) << "the last surface was not adopted within 30 s";
   Snapshot s;
   ASSERT_TRUE(shared.snapshots.read(s));
   EXPECT_EQ(s.surface_tag, last);
