@@ -651,6 +651,10 @@ void Session::run() {
   if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim") {
     throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
   }
+  if (o_.window_cells != 0 && (o_.window_cells < 2 || o_.window_cells > 4096)) {
+    throw ConfigError("explore: --window-cells " + std::to_string(o_.window_cells) +
+                      ": expected an integer in [2, 4096] (or 0: the scene's lod.window_cells)");
+  }
   if (o_.window_cells > 0) lod_options_.window_cells = o_.window_cells;
   // Before anything is built: a Ctrl-C from here on ends the session between frames (the
   // Falcon replaces this handler with its own, checked the same way).

@@ -160,6 +160,15 @@ TEST(ExploreSession, ScriptErrorsNameTheStep) {
   EXPECT_NE(r.output.find("'3 jump': unknown action"), std::string::npos) << r.output;
 }
 
+TEST(ExploreSession, BadWindowCellsNamesTheOption) {
+  const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
+  const fs::path out = test::temp_dir("badcells") / "out";
+  const Result r = run_app("explore " + config.string() + " --device sim --hidden --window-cells 1 --out " + out.string());
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.output.find("--window-cells 1:"), std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(out));  // nothing built
+}
+
 TEST(ExploreSession, SceneFolderWithTheMouseDeviceInStereo) {
   const fs::path dir = test::temp_dir("folder");
   const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
