@@ -38,6 +38,20 @@ bool home(test::EmulatedFalcon& f, ManualClock& clock) {
   return f.dev->homed();
 }
 
+/// Opens, homes and arms the emulated device. @return false if homing or arming failed.
+bool open_home_arm(test::EmulatedFalcon& f, ManualClock& clock) {
+  f.dev->open();
+  return home(f, clock) && f.dev->arm();
+}
+
+/// Lets go of the grip and asks for 2 N up for two ticks. @return the force the motors give [N].
+double push_up(test::EmulatedFalcon& f, ManualClock& clock) {
+  f.emu->clear_hand();
+  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
+  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
+  return f.emu->motor_force_n().norm();
+}
+
 TEST(FalconDevice, OpensLoadsFirmwareAndHomesWithGuidance) {
   ManualClock clock;
   auto f = test::make_emulated(clock, "falcon_dev_open");
@@ -74,9 +88,7 @@ TEST(FalconDevice, OpensLoadsFirmwareAndHomesWithGuidance) {
 TEST(FalconDevice, ForceIsCappedKeepingItsDirection) {
   ManualClock clock;
   auto f = test::make_emulated(clock, "falcon_dev_cap");
-  f.dev->open();
-  ASSERT_TRUE(home(f, clock));
-  ASSERT_TRUE(f.dev->arm());
+  ASSERT_TRUE(open_home_arm(f, clock));
   EXPECT_DOUBLE_EQ(f.dev->info().max_force_n, 8.0);
   const Vector3d dir = Vector3d(1, 2, -2).normalized();
   tick(*f.dev, clock, dir * 100.0);
@@ -88,9 +100,7 @@ TEST(FalconDevice, ForceIsCappedKeepingItsDirection) {
 TEST(FalconDevice, SurvivesGarbageAndShortFrames) {
   ManualClock clock;
   auto f = test::make_emulated(clock, "falcon_dev_garbage");
-  f.dev->open();
-  ASSERT_TRUE(home(f, clock));
-  ASSERT_TRUE(f.dev->arm());
+  ASSERT_TRUE(open_home_arm(f, clock));
   f.emu->faults().garbage_every = 3;
   f.emu->faults().short_every = 7;
   int errors = 0;
@@ -111,13 +121,8 @@ TEST(FalconDevice, SilentDeviceGetsZeroForceThenFaults) {
   FalconConfig cfg;
   cfg.max_missed_ticks = 5;
   auto f = test::make_emulated(clock, "falcon_dev_silent", cfg);
-  f.dev->open();
-  ASSERT_TRUE(home(f, clock));
-  ASSERT_TRUE(f.dev->arm());
-  f.emu->clear_hand();
-  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
-  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
-  EXPECT_GT(f.emu->motor_force_n().norm(), 1.0);
+  ASSERT_TRUE(open_home_arm(f, clock));
+  EXPECT_GT(push_up(f, clock), 1.0);
   f.emu->faults().silent_every = 1;  // no more answers
   tick(*f.dev, clock, Vector3d(0, 0, 2.0));  // the last answer still arrives
   EXPECT_EQ(tick(*f.dev, clock, Vector3d(0, 0, 2.0)), DeviceStatus::kOk);  // stale read ...
@@ -135,13 +140,8 @@ TEST(FalconDevice, WatchdogZeroesForceWhenTicksAreMissed) {
   FalconConfig cfg;
   cfg.max_missed_ticks = 10;
   auto f = test::make_emulated(clock, "falcon_dev_watchdog", cfg);
-  f.dev->open();
-  ASSERT_TRUE(home(f, clock));
-  ASSERT_TRUE(f.dev->arm());
-  f.emu->clear_hand();
-  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
-  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
-  EXPECT_GT(f.emu->motor_force_n().norm(), 1.0);
+  ASSERT_TRUE(open_home_arm(f, clock));
+  EXPECT_GT(push_up(f, clock), 1.0);
   clock.advance_ns(5000000);  // 5 missed ticks: tolerated
   f.dev->supervise();
   EXPECT_GT(f.emu->motor_force_n().norm(), 1.0);
@@ -156,9 +156,7 @@ TEST(FalconDevice, WatchdogZeroesForceWhenTicksAreMissed) {
 TEST(FalconDevice, MissedTicksAreCaughtWithoutTheSupervisorToo) {
   ManualClock clock;
   auto f = test::make_emulated(clock, "falcon_dev_gap");
-  f.dev->open();
-  ASSERT_TRUE(home(f, clock));
-  ASSERT_TRUE(f.dev->arm());
+  ASSERT_TRUE(open_home_arm(f, clock));
   tick(*f.dev, clock);
   clock.advance_ns(50000000);
   EXPECT_EQ(tick(*f.dev, clock), DeviceStatus::kIoError);
@@ -168,13 +166,8 @@ TEST(FalconDevice, MissedTicksAreCaughtWithoutTheSupervisorToo) {
 TEST(FalconDevice, StopSignalZeroesForce) {
   ManualClock clock;
   auto f = test::make_emulated(clock, "falcon_dev_signal");
-  f.dev->open();
-  ASSERT_TRUE(home(f, clock));
-  ASSERT_TRUE(f.dev->arm());
-  f.emu->clear_hand();
-  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
-  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
-  EXPECT_GT(f.emu->motor_force_n().norm(), 1.0);
+  ASSERT_TRUE(open_home_arm(f, clock));
+  EXPECT_GT(push_up(f, clock), 1.0);
   install_stop_signal_handlers();
   clear_stop_request();
   std::raise(SIGINT);  // handled: the process goes on
@@ -190,13 +183,8 @@ TEST(FalconDevice, StopSignalZeroesForce) {
 TEST(FalconDevice, CloseSendsZeroForce) {
   ManualClock clock;
   auto f = test::make_emulated(clock, "falcon_dev_close");
-  f.dev->open();
-  ASSERT_TRUE(home(f, clock));
-  ASSERT_TRUE(f.dev->arm());
-  f.emu->clear_hand();
-  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
-  tick(*f.dev, clock, Vector3d(0, 0, 2.0));
-  EXPECT_GT(f.emu->motor_force_n().norm(), 1.0);
+  ASSERT_TRUE(open_home_arm(f, clock));
+  EXPECT_GT(push_up(f, clock), 1.0);
   f.dev->close();
   EXPECT_EQ(f.emu->motor_force_n().norm(), 0.0);
   EXPECT_EQ(f.dev->state(), DeviceState::kClosed);
