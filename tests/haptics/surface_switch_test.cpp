@@ -14,6 +14,7 @@
 
 #include <atomic>
 #include <chrono>
+#include <optional>
 #include <thread>
 #include <vector>
 
@@ -51,15 +52,30 @@ void press(ServoLoop& loop, PinnedDevice& dev, ManualClock& clock, SharedState& 
   loop.run_ticks(600, clock);  // gate opens at once (small force), ramp 0.25 s
 }
 
-TEST(SurfaceSwitch, SurfaceAndMapSwitchAtOneTickAndTheProxyKeepsItsDevicePosition) {
-  SharedState shared(flat(0.0));
+/// A frictionless servo loop on a flat surface at height 0, pressed 2 mm in by start().
+class SurfaceSwitchPressed : public ::testing::Test {
+ protected:
+  SurfaceSwitchPressed() {
+    dev.open();
+    cfg.proxy.friction_enabled = false;
+  }
+  /// Makes the loop with `cfg` as set by the test and presses the HIP in (press()).
+  ServoLoop& start() {
+    loop_.emplace(dev, shared, clock, cfg);
+    press(*loop_, dev, clock, shared);
+    return *loop_;
+  }
+  SharedState shared{flat(0.0)};
   ManualClock clock;
   PinnedDevice dev;
-  dev.open();
   ServoConfig cfg;
-  cfg.proxy.friction_enabled = false;
-  ServoLoop loop(dev, shared, clock, cfg);
-  press(loop, dev, clock, shared);
+
+ private:
+  std::optional<ServoLoop> loop_;
+};
+
+TEST_F(SurfaceSwitchPressed, SurfaceAndMapSwitchAtOneTickAndTheProxyKeepsItsDevicePosition) {
+  ServoLoop& loop = start();
   Snapshot before;
   ASSERT_TRUE(shared.snapshots.read(before));
   ASSERT_TRUE(before.in_contact);
@@ -92,16 +108,9 @@ TEST(SurfaceSwitch, SurfaceAndMapSwitchAtOneTickAndTheProxyKeepsItsDevicePositio
   EXPECT_EQ(shared.collect_retired(), 1U);
 }
 
-TEST(SurfaceSwitch, ForceStepIsLimitedAndRampsInWhenTheHipEndsUpInside) {
-  SharedState shared(flat(0.0));
-  ManualClock clock;
-  PinnedDevice dev;
-  dev.open();
-  ServoConfig cfg;
-  cfg.proxy.friction_enabled = false;
+TEST_F(SurfaceSwitchPressed, ForceStepIsLimitedAndRampsInWhenTheHipEndsUpInside) {
   cfg.switch_max_force_step_n = 0.5;
-  ServoLoop loop(dev, shared, clock, cfg);
-  press(loop, dev, clock, shared);
+  ServoLoop& loop = start();
   std::vector<TickRecord> trace(400);
   loop.set_trace(trace);
   loop.run_ticks(5, clock);
@@ -125,15 +134,8 @@ TEST(SurfaceSwitch, ForceStepIsLimitedAndRampsInWhenTheHipEndsUpInside) {
   EXPECT_NEAR(trace[5 + 60].force_n.z, 800.0 * 0.007, 1e-6);
 }
 
-TEST(SurfaceSwitch, SmallChangesAreNotBlendedAndOldPublicationsStillWork) {
-  SharedState shared(flat(0.0));
-  ManualClock clock;
-  PinnedDevice dev;
-  dev.open();
-  ServoConfig cfg;
-  cfg.proxy.friction_enabled = false;
-  ServoLoop loop(dev, shared, clock, cfg);
-  press(loop, dev, clock, shared);
+TEST_F(SurfaceSwitchPressed, SmallChangesAreNotBlendedAndOldPublicationsStillWork) {
+  ServoLoop& loop = start();
   shared.publish_surface(flat(0.0002));  // without a map: the map stays
   loop.run_ticks(1, clock);
   Snapshot s;
@@ -142,15 +144,8 @@ TEST(SurfaceSwitch, SmallChangesAreNotBlendedAndOldPublicationsStillWork) {
   EXPECT_EQ(s.surface_tag, 0U);
 }
 
-TEST(SurfaceSwitch, AWorkspaceCommandAloneAlsoCarriesTheProxyOverAndBlends) {
-  SharedState shared(flat(0.0));
-  ManualClock clock;
-  PinnedDevice dev;
-  dev.open();
-  ServoConfig cfg;
-  cfg.proxy.friction_enabled = false;
-  ServoLoop loop(dev, shared, clock, cfg);
-  press(loop, dev, clock, shared);
+TEST_F(SurfaceSwitchPressed, AWorkspaceCommandAloneAlsoCarriesTheProxyOverAndBlends) {
+  ServoLoop& loop = start();
   std::vector<TickRecord> trace(200);
   loop.set_trace(trace);
   loop.run_ticks(2, clock);
