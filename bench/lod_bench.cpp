@@ -114,6 +114,7 @@ void BM_SwitchLatency(benchmark::State& state) {
   hc::haptics::SharedState shared;
   hc::pipeline::LodControllerOptions co;
   co.device_half_extent_m = info.workspace_half_extent_m;
+  co.prefetch_neighbours = false;  // the levels are cached above; no background work while timing
   hc::pipeline::LodController lod(pyramid, shared, co);
   const hc::GridGeometry& g = pyramid->geometry(level);
   const hc::pipeline::HapticWindow start =

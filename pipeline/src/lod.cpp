@@ -263,44 +263,47 @@ void LodPyramid::evict_locked() {
   }
 }
 
-std::shared_ptr<const LodLevel> LodPyramid::level_locked(int level, bool with_layers) {
-  (void)geometry(level);  // range check
+std::shared_ptr<const LodLevel> LodPyramid::cached_locked(int level, bool with_layers,
+                                                          std::shared_ptr<const LodLevel>* depth_only) {
   if (level == 0) {
-    if (with_layers && !finest_->has_layers) {
-      auto l0 = std::make_shared<LodLevel>();
-      l0->depth_m = finest_->depth_m;
-      const auto t0 = Clock::now();
-      SurfaceLayers layers = compute_surface_layers(l0->depth_m, layer_options_).value;
-      l0->envelope_m = std::move(layers.envelope_m);
-      l0->texture_m = std::move(layers.texture_m);
-      l0->mu_d = std::move(layers.mu_d);
-      l0->mu_s = std::move(layers.mu_s);
-      l0->has_layers = true;
-      l0->layers_seconds = seconds_since(t0);
-      finest_ = std::move(l0);
-    }
-    return finest_;
+    if (!with_layers || finest_->has_layers) return finest_;
+    if (depth_only != nullptr) *depth_only = finest_;
+    return nullptr;
   }
-  std::shared_ptr<Entry> entry;
   for (const auto& e : entries_) {
-    if (!e->is_window && e->level == level) entry = e;
+    if (e->is_window || e->level != level) continue;
+    if (e->lvl->has_layers || !with_layers) {
+      ++hits_;
+      touch_locked(*e);
+      return e->lvl;
+    }
+    if (depth_only != nullptr) *depth_only = e->lvl;
   }
-  if (entry && (entry->lvl->has_layers || !with_layers)) {
-    ++hits_;
-    touch_locked(*entry);
-    return entry->lvl;
+  return nullptr;
+}
+
+std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layers) {
+  (void)geometry(level);  // range check
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (auto hit = cached_locked(level, with_layers, nullptr)) return hit;
   }
-  ++misses_;
-  std::shared_ptr<LodLevel> built;
-  if (entry) {
-    built = std::make_shared<LodLevel>();
-    built->level = level;
-    built->depth_m = entry->lvl->depth_m;
-    built->depth_seconds = entry->lvl->depth_seconds;
+  // Builds are serialised by build_mutex_ (recursive: a level builds the depth above it first)
+  // and run without mutex_, so lookups and windows of cached levels never wait for a build.
+  std::lock_guard<std::recursive_mutex> build(build_mutex_);
+  std::shared_ptr<const LodLevel> depth_only;
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (auto hit = cached_locked(level, with_layers, &depth_only)) return hit;  // built meanwhile
+    ++misses_;
+  }
+  auto built = std::make_shared<LodLevel>();
+  built->level = level;
+  if (depth_only) {
+    built->depth_m = depth_only->depth_m;
+    built->depth_seconds = depth_only->depth_seconds;
   } else {
-    const std::shared_ptr<const LodLevel> above = level_locked(level - 1, false);
-    built = std::make_shared<LodLevel>();
-    built->level = level;
+    const std::shared_ptr<const LodLevel> above = get_level(level - 1, false);
     const auto t0 = Clock::now();
     built->depth_m = downsample_2x(above->depth_m, options_.antialias_sigma_cells, options_.valid_fraction);
     built->depth_seconds = seconds_since(t0);
@@ -323,7 +326,16 @@ std::shared_ptr<const LodLevel> LodPyramid::level_locked(int level, bool with_la
     built->has_layers = true;
     built->layers_seconds = seconds_since(t0);
   }
-  // The entry is added (or updated) only once the level is complete: a throw leaves no trace.
+  // The level is published only once complete: a throw leaves no trace.
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (level == 0) {
+    finest_ = built;
+    return built;
+  }
+  std::shared_ptr<Entry> entry;
+  for (const auto& e : entries_) {
+    if (!e->is_window && e->level == level) entry = e;
+  }
   if (!entry) {
     entry = std::make_shared<Entry>();
     entry->level = level;
@@ -338,15 +350,9 @@ std::shared_ptr<const LodLevel> LodPyramid::level_locked(int level, bool with_la
   return built;
 }
 
-std::shared_ptr<const LodLevel> LodPyramid::level(int level) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return level_locked(level, true);
-}
+std::shared_ptr<const LodLevel> LodPyramid::level(int level) { return get_level(level, true); }
 
-std::shared_ptr<const LodLevel> LodPyramid::depth_level(int level) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return level_locked(level, false);
-}
+std::shared_ptr<const LodLevel> LodPyramid::depth_level(int level) { return get_level(level, false); }
 
 bool LodPyramid::is_cached(int level, bool with_layers) const {
   std::lock_guard<std::mutex> lock(mutex_);
@@ -358,7 +364,6 @@ bool LodPyramid::is_cached(int level, bool with_layers) const {
 }
 
 std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, int col0, int rows, int cols) {
-  std::lock_guard<std::mutex> lock(mutex_);
   const GridGeometry& g = geometry(level);
   if (rows < 2 || cols < 2) {
     throw InputError("lod: window of " + std::to_string(rows) + " x " + std::to_string(cols) +
@@ -368,14 +373,24 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
   cols = std::min(cols, g.cols);
   row0 = std::clamp(row0, 0, g.rows - rows);
   col0 = std::clamp(col0, 0, g.cols - cols);
-  for (const auto& e : entries_) {
-    if (e->is_window && e->level == level && e->row0 == row0 && e->col0 == col0 && e->rows == rows && e->cols == cols) {
-      ++hits_;
-      touch_locked(*e);
-      return e->win;
+  const auto cached_window = [&]() -> std::shared_ptr<const LodWindowLayers> {
+    for (const auto& e : entries_) {
+      if (e->is_window && e->level == level && e->row0 == row0 && e->col0 == col0 && e->rows == rows &&
+          e->cols == cols) {
+        ++hits_;
+        touch_locked(*e);
+        return e->win;
+      }
     }
+    return nullptr;
+  };
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (auto hit = cached_window()) return hit;
   }
-  const std::shared_ptr<const LodLevel> lvl = level_locked(level, true);
+  const std::shared_ptr<const LodLevel> lvl = get_level(level, true);  // may build (without mutex_)
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (auto hit = cached_window()) return hit;  // cropped by another thread meanwhile
   ++misses_;
   auto win = std::make_shared<LodWindowLayers>();
   win->level = level;

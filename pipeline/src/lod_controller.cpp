@@ -39,6 +39,52 @@ LodController::LodController(std::shared_ptr<LodPyramid> pyramid, haptics::Share
       << " rad: expected positive finite extents and a finite rotation";
     throw ConfigError(s.str());
   }
+  if (options_.prefetch_neighbours) prefetch_thread_ = std::thread([this] { prefetch_loop(); });
+}
+
+LodController::~LodController() {
+  {
+    std::lock_guard<std::mutex> lock(prefetch_mutex_);
+    prefetch_stop_ = true;
+  }
+  prefetch_cv_.notify_all();
+  if (prefetch_thread_.joinable()) prefetch_thread_.join();
+}
+
+void LodController::queue_prefetch(int level) {
+  if (!options_.prefetch_neighbours || level < 0 || level >= pyramid_->level_count()) return;
+  if (pyramid_->is_cached(level, true)) return;
+  {
+    std::lock_guard<std::mutex> lock(prefetch_mutex_);
+    if (std::find(prefetch_queue_.begin(), prefetch_queue_.end(), level) != prefetch_queue_.end()) return;
+    prefetch_queue_.push_back(level);
+  }
+  prefetch_cv_.notify_all();
+}
+
+void LodController::prefetch_loop() {
+  std::unique_lock<std::mutex> lock(prefetch_mutex_);
+  for (;;) {
+    prefetch_cv_.wait(lock, [this] { return prefetch_stop_ || !prefetch_queue_.empty(); });
+    if (prefetch_stop_) return;
+    const int level = prefetch_queue_.front();
+    prefetch_queue_.erase(prefetch_queue_.begin());
+    prefetch_busy_ = true;
+    lock.unlock();
+    try {
+      (void)pyramid_->level(level);
+    } catch (const std::exception&) {
+      // A level that cannot be built fails again, with its message, when it is asked for.
+    }
+    lock.lock();
+    prefetch_busy_ = false;
+    prefetch_cv_.notify_all();
+  }
+}
+
+void LodController::wait_prefetch_idle() {
+  std::unique_lock<std::mutex> lock(prefetch_mutex_);
+  prefetch_cv_.wait(lock, [this] { return prefetch_stop_ || (prefetch_queue_.empty() && !prefetch_busy_); });
 }
 
 const HapticWindow& LodController::window() const {
@@ -96,6 +142,8 @@ const HapticWindow& LodController::publish(int level, int row0, int col0,
   window_ = hw;
   recent_.push_back(hw);
   if (recent_.size() > 8) recent_.erase(recent_.begin());
+  queue_prefetch(level - 1);
+  queue_prefetch(level + 1);
   return *window_;
 }
 

@@ -151,6 +151,7 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
     haptics::SharedState shared;
     LodControllerOptions lo;
     lo.device_half_extent_m = info.workspace_half_extent_m;
+    lo.prefetch_neighbours = false;  // time this level alone, in the order of the table
     LodController lod(pyramid, shared, lo);
     const HapticWindow& w =
         lod.centre_window(level, g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)));

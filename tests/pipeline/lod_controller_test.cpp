@@ -14,6 +14,7 @@
 #include <functional>
 #include <memory>
 #include <numbers>
+#include <thread>
 #include <vector>
 
 namespace hc::pipeline {
@@ -49,6 +50,57 @@ LodControllerOptions controller_options() {
   LodControllerOptions o;
   o.device_half_extent_m = haptics::SimulatedDevice::default_info().workspace_half_extent_m;
   return o;
+}
+
+TEST(LodController, TheNeighbouringLevelsAreBuiltInTheBackground) {
+  auto pyr = sinusoid_pyramid(401, 100, 30);  // levels 401, 201, 101, 51
+  haptics::SharedState shared;
+  LodController lod(pyr, shared, controller_options());
+  lod.set_window(2, 0, 0);
+  lod.wait_prefetch_idle();
+  EXPECT_TRUE(pyr->is_cached(1, true));
+  EXPECT_TRUE(pyr->is_cached(3, true));
+  // The prefetched level is the level a direct build gives (same depth, same layers).
+  auto fresh = sinusoid_pyramid(401, 100, 30);
+  const auto a = pyr->level(1), b = fresh->level(1);
+  EXPECT_EQ(a->depth_m.values(), b->depth_m.values());
+  EXPECT_EQ(a->texture_m.values(), b->texture_m.values());
+  EXPECT_EQ(a->mu_d.values(), b->mu_d.values());
+  // A switch to a prefetched level builds only its window.
+  const HapticWindow& w = lod.zoom_in();
+  EXPECT_EQ(w.level, 1);
+  EXPECT_EQ(w.level_seconds, 0.0);
+  // Switched off: nothing is built beyond what is asked for.
+  auto quiet = sinusoid_pyramid(401, 100, 30);
+  LodControllerOptions off = controller_options();
+  off.prefetch_neighbours = false;
+  LodController still(quiet, shared, off);
+  still.set_window(2, 0, 0);
+  still.wait_prefetch_idle();
+  EXPECT_FALSE(quiet->is_cached(1, true));
+  EXPECT_FALSE(quiet->is_cached(3, true));
+}
+
+TEST(LodPyramid, ConcurrentRequestsGiveTheLevelsAndWindowsOfASequentialPyramid) {
+  auto shared_pyr = sinusoid_pyramid(301, 60, 20);
+  auto reference = sinusoid_pyramid(301, 60, 20);
+  const int levels = shared_pyr->level_count();
+  ASSERT_GE(levels, 3);
+  std::vector<std::shared_ptr<const LodWindowLayers>> got_a, got_b;
+  std::thread other([&] {
+    for (int l = levels - 1; l >= 0; --l) got_b.push_back(shared_pyr->window(l, 5, 7, 60, 60));
+  });
+  for (int l = 0; l < levels; ++l) got_a.push_back(shared_pyr->window(l, 5, 7, 60, 60));
+  other.join();
+  for (int l = 0; l < levels; ++l) {
+    const auto ref = reference->window(l, 5, 7, 60, 60);
+    const auto& b = got_b[static_cast<std::size_t>(levels - 1 - l)];
+    for (const auto* w : {got_a[static_cast<std::size_t>(l)].get(), b.get()}) {
+      EXPECT_EQ(w->depth_m.values(), ref->depth_m.values()) << "level " << l;
+      EXPECT_EQ(w->envelope_m.values(), ref->envelope_m.values()) << "level " << l;
+      EXPECT_EQ(w->mu_s.values(), ref->mu_s.values()) << "level " << l;
+    }
+  }
 }
 
 TEST(LodController, EachFinerLevelHalvesTheScaleAndWindowsFitTheDeviceBox) {

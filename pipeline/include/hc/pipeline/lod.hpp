@@ -93,7 +93,9 @@ HeightField downsample_2x(const HeightField& fine, double sigma_cells, double va
 /// and cached. Cached entries (levels ≥ 1, window crops) are evicted least recently used first
 /// when their bytes exceed memory_budget_mb; an evicted level is rebuilt on demand (from the
 /// nearest cached finer depth). Objects handed out stay valid while the caller holds them.
-/// Thread-safe: one internal mutex; a build holds it (so two threads never build the same level).
+/// Thread-safe. The cache has one mutex, held only for lookups and inserts; builds run outside it,
+/// serialised by a second (recursive) mutex, so two threads never build the same level and
+/// lookups and windows of cached levels never wait for a build (a background prefetch, say).
 class LodPyramid {
  public:
   /// @param finest level 0; its depth must have rows, cols ≥ 2 and a valid sample; its other
@@ -138,7 +140,10 @@ class LodPyramid {
 
  private:
   struct Entry;
-  std::shared_ptr<const LodLevel> level_locked(int level, bool with_layers);
+  // Cached level (mutex_ held): the level, or null; *depth_only gets a cached depth-only level.
+  std::shared_ptr<const LodLevel> cached_locked(int level, bool with_layers,
+                                                std::shared_ptr<const LodLevel>* depth_only);
+  std::shared_ptr<const LodLevel> get_level(int level, bool with_layers);
   void touch_locked(Entry& e);
   void evict_locked();
 
@@ -147,7 +152,8 @@ class LodPyramid {
   int level_count_ = 1;
   std::vector<GridGeometry> geometries_;
   std::shared_ptr<LodLevel> finest_;
-  mutable std::mutex mutex_;
+  mutable std::mutex mutex_;          // the cache: entries_, finest_, counters
+  std::recursive_mutex build_mutex_;  // one build at a time (a level builds the depth above it)
   std::vector<std::shared_ptr<Entry>> entries_;  // cached levels ≥ 1 and windows
   std::uint64_t clock_ = 0;
   std::size_t bytes_ = 0;

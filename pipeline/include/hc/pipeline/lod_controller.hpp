@@ -16,9 +16,12 @@
 
 #include <Eigen/Core>
 
+#include <condition_variable>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <optional>
+#include <thread>
 #include <vector>
 
 namespace hc::pipeline {
@@ -30,6 +33,10 @@ struct LodControllerOptions {
   /// are used for the map's scale.
   Eigen::Vector3d device_half_extent_m = Eigen::Vector3d(0.05, 0.05, 0.05);
   double rotation_rad = 0.0;        ///< rotation of every map about the view axis [rad]
+  /// After each switch, build the levels just finer and coarser than the new one on a background
+  /// thread, so the next zoom step costs only its window (the ≤ 1 ms switch of issue 4) instead
+  /// of a level build; the pyramid's LRU budget still bounds the memory.
+  bool prefetch_neighbours = true;
 };
 
 /// The haptic window: what the servo renders (or is about to).
@@ -75,6 +82,10 @@ class LodController {
   /// @throws hc::ConfigError for non-positive device extents or invalid surface options.
   LodController(std::shared_ptr<LodPyramid> pyramid, haptics::SharedState& shared,
                 const LodControllerOptions& options);
+  /// Stops the prefetch thread (waits for a level build in progress to end).
+  ~LodController();
+  LodController(const LodController&) = delete;
+  LodController& operator=(const LodController&) = delete;
 
   int level_count() const noexcept { return pyramid_->level_count(); }
   /// Geometry of level L. @throws hc::InputError for L out of range.
@@ -114,8 +125,14 @@ class LodController {
   /// Builds (if needed) level L with its layers now, so a later switch to it costs only the
   /// window (call from a worker thread while the user explores; thread-safe w.r.t. the pyramid).
   void prefetch(int level);
+  /// Blocks until the background prefetch (prefetch_neighbours) has nothing left to build.
+  /// For tests and benchmarks. Real-time: no.
+  void wait_prefetch_idle();
 
  private:
+  void queue_prefetch(int level);
+  void prefetch_loop();
+
   const HapticWindow& publish(int level, int row0, int col0, const std::optional<haptics::WorkspaceMap>& map);
   haptics::WorkspaceMap fitted_map(const HapticWindow& w, double z_centre_m) const;
   double level_scale(int level) const;
@@ -130,6 +147,13 @@ class LodController {
   std::optional<HapticWindow> window_;
   std::vector<HapticWindow> recent_;  // the last few published windows, for adopted_map()
   std::uint64_t next_tag_ = 1;
+  // Background prefetch of neighbouring levels (prefetch_neighbours): a queue served by one thread.
+  std::mutex prefetch_mutex_;
+  std::condition_variable prefetch_cv_;
+  std::vector<int> prefetch_queue_;
+  bool prefetch_busy_ = false;
+  bool prefetch_stop_ = false;
+  std::thread prefetch_thread_;
 };
 
 }  // namespace hc::pipeline
