@@ -16,6 +16,7 @@
 #include "hc/common/units.hpp"
 #include "hc/haptics/clock.hpp"
 #include "hc/haptics/servo_loop.hpp"
+#include "hc/haptics/stop_signal.hpp"
 #include "hc/haptics/shared_state.hpp"
 #include "hc/haptics/simulated_device.hpp"
 #include "hc/pipeline/config.hpp"
@@ -47,7 +48,6 @@
 #include <nlohmann/json.hpp>
 
 #include <sys/resource.h>
-#include <csignal>
 #include <unistd.h>
 
 #include <algorithm>
@@ -68,30 +68,6 @@ namespace hc::app {
 namespace {
 
 namespace fs = std::filesystem;
-
-/// Set by SIGINT / SIGTERM (explore's own handler; the Falcon installs its own, see
-/// stop_requested()). Async-signal-safe: only this flag is written.
-volatile std::sig_atomic_t g_explore_stop = 0;
-
-extern "C" void hc_explore_on_signal(int /*signal*/) { g_explore_stop = 1; }
-
-/// Ctrl-C / SIGTERM end the session between frames (servo stopped, device closed, summary
-/// written) instead of killing the process with the device armed.
-void install_explore_signal_handlers() {
-  struct sigaction sa {};
-  sa.sa_handler = hc_explore_on_signal;
-  sigemptyset(&sa.sa_mask);
-  sa.sa_flags = 0;
-  sigaction(SIGINT, &sa, nullptr);
-  sigaction(SIGTERM, &sa, nullptr);
-}
-
-bool explore_stop_requested() {
-#ifdef HC_HAVE_FALCON
-  if (falcon::stop_requested()) return true;
-#endif
-  return g_explore_stop != 0;
-}
 
 struct ExploreOptions {
   std::string input;
@@ -571,7 +547,6 @@ void Session::start_device() {
     // Made in run() once the first window's heights are known (the path's heights need them).
   } else if (o_.device == "falcon") {
 #ifdef HC_HAVE_FALCON
-    falcon::install_stop_signal_handlers();
     // The run config's falcon: section when there is one (firmware, which device, force cap).
     const pipeline::FalconSpec spec = config_ ? config_->falcon : pipeline::FalconSpec{};
     falcon::FalconConfig fc;
@@ -656,10 +631,10 @@ void Session::run() {
                       ": expected an integer in [2, 4096] (or 0: the scene's lod.window_cells)");
   }
   if (o_.window_cells > 0) lod_options_.window_cells = o_.window_cells;
-  // Before anything is built: a Ctrl-C from here on ends the session between frames (the
-  // Falcon replaces this handler with its own, checked the same way).
-  g_explore_stop = 0;
-  install_explore_signal_handlers();
+  // Before anything is built: a Ctrl-C from here on ends the session between frames, and a
+  // Falcon sends zero force at once (one process-wide flag, hc/haptics/stop_signal.hpp).
+  haptics::clear_stop_request();
+  haptics::install_stop_signal_handlers();
   std::error_code ec;
   fs::create_directories(o_.out, ec);
   if (ec) throw InputError("explore: cannot create the output folder '" + o_.out + "': " + ec.message());
@@ -751,7 +726,7 @@ void Session::run() {
 
   const auto t0 = std::chrono::steady_clock::now();
   for (int frame = 1;; ++frame) {
-    if (explore_stop_requested()) {
+    if (haptics::stop_requested()) {
       // Ctrl-C / SIGTERM: close the viewer and end cleanly (a re-scan under way is waited for
       // below; the servo stops and the device closes with zero force).
       stopped_by_signal_ = true;

@@ -7,7 +7,6 @@
 #include <array>
 #include <chrono>
 #include <cmath>
-#include <csignal>
 #include <sstream>
 
 namespace hc::falcon {
@@ -16,28 +15,12 @@ namespace {
 using haptics::DeviceState;
 using haptics::DeviceStatus;
 
-volatile std::sig_atomic_t g_stop = 0;
-
-extern "C" void hc_falcon_on_signal(int) { g_stop = 1; }
-
 // Newton steps allowed on a cold solve (start from the workspace centre: open, reconnection,
 // homing change, encoder jump). Forces stay off until a solve converges (do_write).
 constexpr int kColdIterations = 30;
 constexpr double kJumpRad = 0.05;  // encoder jump that calls for a cold FK solve [rad]
 
 }  // namespace
-
-void install_stop_signal_handlers() {
-  struct sigaction sa {};
-  sa.sa_handler = hc_falcon_on_signal;
-  sigemptyset(&sa.sa_mask);
-  sa.sa_flags = 0;
-  sigaction(SIGINT, &sa, nullptr);
-  sigaction(SIGTERM, &sa, nullptr);
-}
-bool stop_requested() noexcept { return g_stop != 0; }
-void request_stop() noexcept { g_stop = 1; }
-void clear_stop_request() noexcept { g_stop = 0; }
 
 const char* to_string(LinkState state) noexcept { return state == LinkState::kUp ? "up" : "down"; }
 

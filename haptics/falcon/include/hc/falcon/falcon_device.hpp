@@ -27,6 +27,7 @@
 #include "hc/falcon/transport.hpp"
 #include "hc/haptics/clock.hpp"
 #include "hc/haptics/device.hpp"
+#include "hc/haptics/stop_signal.hpp"
 
 #include <atomic>
 #include <cstdint>
@@ -86,14 +87,12 @@ struct FalconStatus {
   std::uint64_t saturated_ticks = 0;  ///< motor commands scaled down
 };
 
-/// Installs SIGINT and SIGTERM handlers that only set a flag (async-signal-safe); every
-/// FalconDevice then sends zero force. Real-time: no. Idempotent.
-void install_stop_signal_handlers();
-/// True once SIGINT/SIGTERM arrived (or request_stop() was called). Real-time: yes.
-bool stop_requested() noexcept;
-/// Sets / clears the flag by hand (tests, an app's own shutdown path).
-void request_stop() noexcept;
-void clear_stop_request() noexcept;
+// The process-wide stop request (hc/haptics/stop_signal.hpp): once SIGINT/SIGTERM arrived,
+// every FalconDevice sends zero force.
+using haptics::clear_stop_request;
+using haptics::install_stop_signal_handlers;
+using haptics::request_stop;
+using haptics::stop_requested;
 
 class FalconDevice final : public haptics::HapticDevice {
  public:
