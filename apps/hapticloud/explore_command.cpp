@@ -195,7 +195,8 @@ std::vector<float> cloud_preview(const pipeline::RunConfig& cfg, std::size_t max
     cloud = pipeline::load_cloud(cfg.input.files.front()).value;
   }
   Eigen::Vector3d offset;
-  cloud = pipeline::to_metres_and_recentre(std::move(cloud), metres_per_unit(cfg.input.units), &offset).value;
+  cloud = pipeline::to_metres_and_recentre(std::move(cloud), metres_per_unit(cfg.input.units), &offset,
+                                           cfg.input.max_extent_m).value;
   const std::size_t n = cloud.size();
   const std::size_t stride = std::max<std::size_t>(1, (n + max_points - 1) / max_points);
   std::vector<float> out;

@@ -18,6 +18,7 @@ struct RunArgs {
   std::string out;
   std::vector<std::string> sets;
   bool quiet = false;
+  bool force = false;
 };
 
 void run(const RunArgs& a) {
@@ -33,7 +34,11 @@ void run(const RunArgs& a) {
     }
   };
   if (!a.quiet) std::cerr << "hapticloud run " << a.config << " -> " << out.string() << "\n";
-  const pipeline::RunSummary summary = pipeline::run_pipeline(cfg, out, progress);
+  const pipeline::RunSummary summary = pipeline::run_pipeline(
+      cfg, out, progress, a.force ? pipeline::ExistingOutput::kMoveAside : pipeline::ExistingOutput::kRefuse);
+  if (!summary.moved_aside.empty()) {
+    std::cout << "kept the earlier content of " << out.string() << " as " << summary.moved_aside.string() << "\n";
+  }
   std::cout << "scene: " << (out / "scene").string() << "\nreport: " << (out / "report.md").string()
             << "\ngrid: " << summary.grid.rows << " x " << summary.grid.cols << " cells of "
             << summary.grid.cell_size_m * 1000.0 << " mm, " << summary.valid_cells << " valid; total "
@@ -52,7 +57,11 @@ void add_run_command(CLI::App& app) {
   auto args = std::make_shared<RunArgs>();
   CLI::App* cmd = app.add_subcommand("run", "Run a YAML-configured pipeline: scan in, scene and report out.");
   cmd->add_option("config", args->config, "Run configuration (YAML), e.g. configs/happy_buddha.yaml")->required();
-  cmd->add_option("--out", args->out, "Output folder (default: runs/<config name>); replaced atomically");
+  cmd->add_option("--out", args->out,
+                  "Output folder (default: runs/<config name>); an earlier output there is replaced atomically, "
+                  "anything else is refused");
+  cmd->add_flag("--force", args->force,
+                "Write --out even if it holds something else: that is kept as <out>.replaced-<time>, never deleted");
   cmd->add_option("--set", args->sets, "Override a config key, e.g. --set grid.n=400 (repeatable)");
   cmd->add_flag("--quiet,-q", args->quiet, "No progress lines on stderr");
   cmd->callback([args] { run(*args); });

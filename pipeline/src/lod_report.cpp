@@ -67,7 +67,8 @@ Cloud prepare_points(const RunConfig& config) {
     cloud = load_cloud(config.input.files.front()).value;
   }
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
-  cloud = to_metres_and_recentre(std::move(cloud), metres_per_unit(config.input.units), &offset_m).value;
+  cloud = to_metres_and_recentre(std::move(cloud), metres_per_unit(config.input.units), &offset_m,
+                                 config.input.max_extent_m).value;
   cloud = apply_view_transform(std::move(cloud), config.view).value;
   cloud = remove_non_finite(std::move(cloud)).value;
   if (config.filters.crop_m) {

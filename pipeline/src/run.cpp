@@ -90,11 +90,12 @@ void write_text(const fs::path& file, const std::string& text) {
 
 }  // namespace
 
-RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const ProgressFn& progress) {
+RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const ProgressFn& progress,
+                        ExistingOutput existing) {
   const auto t_start = Clock::now();
   RunSummary summary;
   auto& reports = summary.stages;
-  StagingDir staging(out_dir);
+  StagingDir staging(out_dir, existing);
 
   // 1. Ingest.
   json inputs = json::array();
@@ -111,7 +112,7 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
   const double unit_m = metres_per_unit(config.input.units);
   cloud = stage("recentre", reports, progress,
-                [&] { return to_metres_and_recentre(std::move(cloud), unit_m, &offset_m); });
+                [&] { return to_metres_and_recentre(std::move(cloud), unit_m, &offset_m, config.input.max_extent_m); });
   cloud = stage("transform", reports, progress, [&] { return apply_view_transform(std::move(cloud), config.view); });
 
   // 4. Filters.
@@ -386,6 +387,7 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
 
   staging.commit();
   summary.out_dir = out_dir;
+  summary.moved_aside = staging.moved_aside();
   return summary;
 }
 

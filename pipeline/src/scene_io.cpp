@@ -8,7 +8,9 @@
 
 #include <unistd.h>
 
+#include <ctime>
 #include <fstream>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -171,14 +173,70 @@ Scene load_scene(const fs::path& scene_dir) {
   return s;
 }
 
-StagingDir::StagingDir(fs::path target) : target_(std::move(target)) {
-  if (target_.filename().empty()) target_ = target_.parent_path();
-  staging_ = target_;
-  staging_ += ".partial-" + std::to_string(::getpid());
+bool is_hapticloud_output(const fs::path& dir) {
   std::error_code ec;
-  fs::remove_all(staging_, ec);
+  if (!fs::is_directory(dir, ec)) return false;
+  if (fs::is_regular_file(dir / kOutputMarkerFile, ec)) return true;
+  // Run folders written before the marker existed: only the names a run writes.
+  static const std::set<std::string> kRunEntries = {"scene", "previews", "report.md", "report.json"};
+  if (!fs::is_regular_file(dir / "scene" / "scene.yaml", ec)) return false;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    if (!kRunEntries.count(it->path().filename().string())) return false;
+  }
+  return !ec;
+}
+
+namespace {
+
+/// `base` + suffix, with "-1", "-2", ... appended until the name is free.
+fs::path free_sibling(const fs::path& base, const std::string& suffix) {
+  fs::path p = base;
+  p += suffix;
+  std::error_code ec;
+  for (int k = 1; fs::exists(fs::symlink_status(p, ec)); ++k) {
+    p = base;
+    p += suffix + "-" + std::to_string(k);
+  }
+  return p;
+}
+
+std::string local_time_stamp() {
+  const std::time_t now = std::time(nullptr);
+  std::tm tm{};
+  localtime_r(&now, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y%m%d-%H%M%S", &tm);
+  return buf;
+}
+
+}  // namespace
+
+StagingDir::StagingDir(fs::path target, ExistingOutput existing) : target_(std::move(target)) {
+  if (target_.filename().empty()) target_ = target_.parent_path();
+  std::error_code ec;
+  const fs::file_status st = fs::symlink_status(target_, ec);
+  if (fs::exists(st)) {
+    const bool empty_dir = fs::is_directory(st) && fs::is_empty(target_, ec) && !ec;
+    target_is_foreign_ = !empty_dir && !is_hapticloud_output(target_);
+    if (target_is_foreign_ && existing == ExistingOutput::kRefuse) {
+      const std::string what = fs::is_directory(st) ? "a folder that is not an earlier hapticloud output"
+                                                    : "an existing file";
+      throw InputError("output " + target_.string() + " is " + what +
+                       ": refusing to replace it; expected a new or empty folder, or an earlier output "
+                       "(choose another --out, or pass --force to keep it as " + target_.string() +
+                       ".replaced-<time> and write the output there)");
+    }
+  }
+  // A fresh staging name: nothing that happens to exist is ever removed.
+  staging_ = free_sibling(target_, ".partial-" + std::to_string(::getpid()));
   fs::create_directories(staging_, ec);
   if (ec) throw InputError(staging_.string() + ": cannot create the output folder: " + ec.message());
+  std::ofstream marker(staging_ / kOutputMarkerFile);
+  marker << "This folder was written by hapticloud; a later run may replace it.\n";
+  if (!marker) {
+    fs::remove_all(staging_, ec);
+    throw InputError((staging_ / kOutputMarkerFile).string() + ": cannot write the output marker");
+  }
 }
 
 StagingDir::~StagingDir() {
@@ -191,20 +249,25 @@ StagingDir::~StagingDir() {
 void StagingDir::commit() {
   std::error_code ec;
   fs::path old;
-  if (fs::exists(target_)) {
-    old = target_;
-    old += ".old-" + std::to_string(::getpid());
-    fs::remove_all(old, ec);
+  if (fs::exists(fs::symlink_status(target_, ec))) {
+    old = target_is_foreign_ ? free_sibling(target_, ".replaced-" + local_time_stamp())
+                             : free_sibling(target_, ".old-" + std::to_string(::getpid()));
     fs::rename(target_, old, ec);
     if (ec) throw InputError("cannot move the earlier output " + target_.string() + " aside: " + ec.message());
   }
   fs::rename(staging_, target_, ec);
   if (ec) {
+    const std::string why = ec.message();
     if (!old.empty()) fs::rename(old, target_, ec);
-    throw InputError("cannot rename " + staging_.string() + " to " + target_.string() + ": " + ec.message());
+    throw InputError("cannot rename " + staging_.string() + " to " + target_.string() + ": " + why);
   }
   committed_ = true;
-  if (!old.empty()) fs::remove_all(old, ec);
+  if (old.empty()) return;
+  if (target_is_foreign_) {
+    moved_aside_ = old;  // the user's: kept
+  } else {
+    fs::remove_all(old, ec);  // an earlier output or an empty folder: ours to remove
+  }
 }
 
 }  // namespace hc::pipeline

@@ -97,6 +97,12 @@ struct EnvelopeResult {
   int diameter_cells = 0;
 };
 
+/// Largest |value| the fill clamps to: far inside float's range, so differences stay finite.
+constexpr double kFloatRangeLimit = 1e30;
+/// Largest depth range [m] handed to cv::bilateralFilter (a whole site is ≤ 10 km, see
+/// input.max_extent_m); its range table is built in float from max − min.
+constexpr double kMaxEnvelopeRangeM = 1e6;
+
 /// Bilateral envelope of (f − ref) where `valid` marks data. See compute_surface_layers' comment.
 EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const SurfaceLayerOptions& o) {
   EnvelopeResult out;
@@ -178,9 +184,10 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
     }
   }
   // Keep extrapolations within a band around the data so OpenCV's range table stays fine.
-  const float span = std::max(vmax - vmin, static_cast<float>(o.sigma_range_m));
-  const float lo = vmin - span;
-  const float hi = vmax + span;
+  // In double: vmax − vmin overflows float for finite depths near ±3.4e38.
+  const double span = std::max(static_cast<double>(vmax) - vmin, o.sigma_range_m);
+  const float lo = static_cast<float>(std::max(static_cast<double>(vmin) - span, -kFloatRangeLimit));
+  const float hi = static_cast<float>(std::min(static_cast<double>(vmax) + span, kFloatRangeLimit));
   const float reach = static_cast<float>(r) * 1.5f + 1.0f;  // beyond this no window sees the cell
   float fmin = vmin, fmax = vmax;
   float* const val = value.ptr<float>();
@@ -208,6 +215,17 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
   }
   out.fill_seconds = seconds_since(t0);
 
+  // OpenCV's bilateral filter builds its range table from (max − min) in float; a range that
+  // overflows it, or leaves too little precision for sigma_range, makes it read out of bounds.
+  const double value_range = static_cast<double>(fmax) - fmin;
+  if (!(value_range <= kMaxEnvelopeRangeM)) {
+    std::ostringstream msg;
+    msg << "surface layers: the depth values span " << value_range << " m (from " << fmin << " to " << fmax
+        << " m), more than the " << kMaxEnvelopeRangeM
+        << " m the bilateral envelope can filter; expected a scan of bounded depth (far outliers? enable "
+           "filters.outliers or crop with filters.crop)";
+    throw InputError(msg.str());
+  }
   const auto t1 = Clock::now();
   cv::Mat filtered;
   cv::bilateralFilter(value, filtered, out.diameter_cells, o.sigma_range_m, o.sigma_space_cells,

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
+#include <sstream>
 #include <string>
 
 namespace hc::pipeline {
@@ -22,11 +23,15 @@ double radians(double deg) { return deg * std::numbers::pi / 180.0; }
 
 }  // namespace
 
-StageResult<Cloud> to_metres_and_recentre(Cloud cloud, double metres_per_unit, Eigen::Vector3d* offset_m) {
+StageResult<Cloud> to_metres_and_recentre(Cloud cloud, double metres_per_unit, Eigen::Vector3d* offset_m,
+                                          double max_extent_m) {
   const auto t0 = Clock::now();
   if (!(metres_per_unit > 0.0) || !std::isfinite(metres_per_unit)) {
     throw ConfigError("to_metres_and_recentre: metres_per_unit = " + std::to_string(metres_per_unit) +
                       ", expected a finite value > 0 (1 for m, 0.01 for cm, 0.001 for mm)");
+  }
+  if (!(max_extent_m > 0.0) || !std::isfinite(max_extent_m)) {
+    throw ConfigError("input.max_extent_m = " + std::to_string(max_extent_m) + ": expected a finite value > 0 [m]");
   }
   if (cloud.size() == 0) throw InputError("to_metres_and_recentre: the cloud is empty");
 
@@ -45,6 +50,20 @@ StageResult<Cloud> to_metres_and_recentre(Cloud cloud, double metres_per_unit, E
     throw InputError("to_metres_and_recentre: none of the " + std::to_string(cloud.size()) +
                      " points has finite coordinates");
   }
+  // Absurd extents (finite floats near ±3.4e38, a unit mix-up) are refused before any stage can
+  // overflow float arithmetic on them. Computed in double: hi − lo cannot overflow there.
+  const Eigen::Vector3d box_m = (hi - lo) * metres_per_unit;
+  for (int a = 0; a < 3; ++a) {
+    if (!(box_m[a] <= max_extent_m)) {
+      const char axis = static_cast<char>('x' + a);
+      std::ostringstream msg;
+      msg << "the points span " << box_m[a] << " m along " << axis << " (from " << lo[a] * metres_per_unit
+          << " to " << hi[a] * metres_per_unit << " m): more than input.max_extent_m = " << max_extent_m
+          << " m; expected a scan of at most that size (far outliers or wrong input.units? crop them with "
+             "filters.crop or raise input.max_extent_m)";
+      throw InputError(msg.str());
+    }
+  }
   // Centre in file units; subtract before scaling so large offsets cancel exactly first.
   const Eigen::Vector3d centre = 0.5 * (lo + hi);
   cloud.xyz.colwise() -= centre;
@@ -60,10 +79,9 @@ StageResult<Cloud> to_metres_and_recentre(Cloud cloud, double metres_per_unit, E
   report.figure("offset_x_m", centre_m.x());
   report.figure("offset_y_m", centre_m.y());
   report.figure("offset_z_m", centre_m.z());
-  const Eigen::Vector3d extent_m = (hi - lo) * metres_per_unit;
-  report.figure("extent_x_m", extent_m.x());
-  report.figure("extent_y_m", extent_m.y());
-  report.figure("extent_z_m", extent_m.z());
+  report.figure("extent_x_m", box_m.x());
+  report.figure("extent_y_m", box_m.y());
+  report.figure("extent_z_m", box_m.z());
   if (finite != cloud.size()) {
     report.notes.push_back(std::to_string(cloud.size() - finite) + " non-finite points left for remove_non_finite");
   }

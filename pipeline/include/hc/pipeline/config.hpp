@@ -26,6 +26,7 @@ struct InputConfig {
   std::vector<std::filesystem::path> files;     ///< scans, resolved against the config's folder
   std::optional<std::filesystem::path> conf;    ///< scanalyze .conf to merge several views
   std::string units = "m";                      ///< "m" | "cm" | "mm"
+  double max_extent_m = kDefaultMaxExtentM;     ///< largest accepted bounding-box side [m]
   std::optional<SyntheticSpec> synthetic;       ///< generate instead of reading files
 };
 

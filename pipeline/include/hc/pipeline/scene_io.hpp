@@ -40,28 +40,51 @@ struct Scene {
 void write_scene(const Scene& scene, const std::filesystem::path& scene_dir,
                  const std::string& extra_yaml);
 
-/// A temporary sibling folder `<target>.partial-<pid>` that replaces `target` only on commit():
-/// a failed run (an exception, a crash) never leaves a half-written `target`, and an existing
-/// `target` from an earlier run is only removed once the new one is complete.
+/// Name of the marker file every output folder written through StagingDir holds: it tells a
+/// later run that the folder is hapticloud's own output and may be replaced.
+inline constexpr const char* kOutputMarkerFile = ".hapticloud-output";
+
+/// What StagingDir may do with an existing target that is not an earlier hapticloud output.
+enum class ExistingOutput {
+  kRefuse,    ///< refuse (default): a file, or a non-empty folder without the marker
+  kMoveAside  ///< `--force`: keep it as `<target>.replaced-<time>` (never deleted)
+};
+
+/// A temporary sibling folder `<target>.partial-<pid>[-k]` that replaces `target` only on
+/// commit(): a failed run (an exception, a crash) never leaves a half-written `target`, and an
+/// existing `target` from an earlier run is only removed once the new one is complete.
+/// Never deletes what hapticloud did not write: an existing `target` is replaced only if it is
+/// an empty folder or an earlier output (it holds kOutputMarkerFile, or it is a pre-marker run
+/// folder: only scene/, previews/, report.md, report.json with scene/scene.yaml present);
+/// anything else is refused, or with ExistingOutput::kMoveAside renamed aside and kept.
 class StagingDir {
  public:
-  /// @throws hc::InputError if the staging folder cannot be created (names it).
-  explicit StagingDir(std::filesystem::path target);
+  /// @throws hc::InputError if `target` is a file or a foreign non-empty folder (kRefuse; the
+  ///         message names it and suggests --force) or the staging folder cannot be created.
+  explicit StagingDir(std::filesystem::path target, ExistingOutput existing = ExistingOutput::kRefuse);
   ~StagingDir();  ///< removes the staging folder unless committed
   StagingDir(const StagingDir&) = delete;
   StagingDir& operator=(const StagingDir&) = delete;
 
   const std::filesystem::path& path() const { return staging_; }
   const std::filesystem::path& target() const { return target_; }
-  /// Renames staging → target (an older target is moved aside first, then removed).
+  /// Where a foreign target was moved by commit() (kMoveAside), else empty.
+  const std::filesystem::path& moved_aside() const { return moved_aside_; }
+  /// Renames staging → target (an earlier output is moved aside first, then removed; a foreign
+  /// target, allowed by kMoveAside, is moved aside and kept).
   /// @throws hc::InputError naming both paths if a rename fails.
   void commit();
 
  private:
   std::filesystem::path target_;
   std::filesystem::path staging_;
+  std::filesystem::path moved_aside_;
+  bool target_is_foreign_ = false;
   bool committed_ = false;
 };
+
+/// True if `dir` is an output folder hapticloud wrote (see StagingDir). Never throws.
+bool is_hapticloud_output(const std::filesystem::path& dir);
 
 /// Loads a scene folder written by `hapticloud run`.
 /// @throws hc::InputError naming the folder or file when scene.yaml or a layer is missing,

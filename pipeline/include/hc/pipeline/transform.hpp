@@ -11,16 +11,25 @@
 
 namespace hc::pipeline {
 
+/// Default for `input.max_extent_m` [m]: the largest scan extent accepted (a whole site fits).
+inline constexpr double kDefaultMaxExtentM = 10'000.0;
+
 /// Scales a cloud from file units to metres and subtracts the centre of its bounding box,
 /// all in double precision, so a scan with georeferenced offsets (10^5 to 10^6 m) gives the
 /// same recentred coordinates, to well under 1 µm, as the same scan near the origin.
 /// @param metres_per_unit  1, 0.01 or 0.001 for m, cm, mm (see hc::metres_per_unit)
 /// @param offset_m         out: the subtracted centre [m], in the file frame scaled to metres
 ///                         (may be null). The box ignores non-finite points (they stay NaN).
-/// @throws hc::InputError if the cloud is empty or has no finite point; hc::ConfigError if
-///         metres_per_unit is not > 0.
+/// @param max_extent_m     largest accepted bounding-box side after unit conversion [m]
+///                         (`input.max_extent_m`, default 10 km): a finite but absurd
+///                         coordinate (say z = 3e38) is refused here instead of overflowing
+///                         single-precision arithmetic in later stages.
+/// @throws hc::InputError if the cloud is empty, has no finite point, or its extent along an
+///         axis exceeds max_extent_m (the message gives the axis, the extent and the key);
+///         hc::ConfigError if metres_per_unit or max_extent_m is not finite and > 0.
 StageResult<Cloud> to_metres_and_recentre(Cloud cloud, double metres_per_unit,
-                                          Eigen::Vector3d* offset_m);
+                                          Eigen::Vector3d* offset_m,
+                                          double max_extent_m = kDefaultMaxExtentM);
 
 /// The user's view: rotation (built by one of the helpers below), then uniform scale, then
 /// translation [m]: p_grid = scale · R · p + t.

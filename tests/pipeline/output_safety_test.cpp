@@ -1,0 +1,157 @@
+// Issue 15, D1 and D5: absurd but finite coordinates are refused with a clear error (no crash
+// inside OpenCV), and an output folder never replaces what hapticloud did not write.
+
+#include "hc/common/error.hpp"
+#include "hc/pipeline/run.hpp"
+#include "hc/pipeline/scene_io.hpp"
+#include "hc/pipeline/surface_layers.hpp"
+#include "hc/pipeline/transform.hpp"
+
+#include <gtest/gtest.h>
+
+#include "cloud_fixtures.hpp"
+#include "test_paths.hpp"
+
+#include <unistd.h>
+
+#include <cstdio>
+#include <fstream>
+#include <iterator>
+#include <string>
+#include <vector>
+
+namespace {
+
+namespace fs = std::filesystem;
+using namespace hc::pipeline;
+
+/// A binary little-endian float PLY: a 40 × 40 plane of 1 mm pitch plus `extra` vertices.
+void write_plane_ply(const fs::path& file, const std::vector<Eigen::Vector3f>& extra) {
+  std::vector<Eigen::Vector3f> v;
+  for (int i = 0; i < 40; ++i)
+    for (int j = 0; j < 40; ++j) v.emplace_back(0.001f * float(i), 0.001f * float(j), 0.0002f * float(i % 3));
+  v.insert(v.end(), extra.begin(), extra.end());
+  std::ofstream out(file, std::ios::binary);
+  out << "ply\nformat binary_little_endian 1.0\nelement vertex " << v.size()
+      << "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  for (const auto& p : v) out.write(reinterpret_cast<const char*>(p.data()), 3 * sizeof(float));
+}
+
+RunConfig plane_config(const fs::path& ply, bool outliers) {
+  return parse_run_config("input: {files: [" + ply.filename().string() + "]}\n"
+                          "grid: {n: 40}\n"
+                          "filters: {outliers: {enabled: " + std::string(outliers ? "true" : "false") + "}}\n",
+                          ply.parent_path() / "run.yaml");
+}
+
+std::string slurp(const fs::path& f) {
+  std::ifstream in(f, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), {}};
+}
+
+bool has_partial_sibling(const fs::path& dir) {
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (e.path().filename().string().find(".partial") != std::string::npos) return true;
+  }
+  return false;
+}
+
+// D1: two vertices at z = ±3e38 (finite floats) with the outlier filter off crashed in
+// cv::bilateralFilter (vmax − vmin overflowed float). Now: an InputError naming the key, no output.
+TEST(OutputSafety, FiniteButAbsurdCoordinatesAreRefusedNotCrashed) {
+  const fs::path dir = hc::test::temp_dir("d1");
+  write_plane_ply(dir / "spike.ply", {{0.02f, 0.02f, 3e38f}, {0.021f, 0.02f, -3e38f}});
+  try {
+    run_pipeline(plane_config(dir / "spike.ply", false), dir / "out");
+    FAIL() << "the run accepted a 6e38 m extent";
+  } catch (const hc::InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("input.max_extent_m"), std::string::npos) << what;
+    EXPECT_NE(what.find("along z"), std::string::npos) << what;
+  }
+  EXPECT_FALSE(fs::exists(dir / "out"));
+  EXPECT_FALSE(has_partial_sibling(dir));
+}
+
+TEST(OutputSafety, ExtentLimitIsAppliedAfterUnitConversion) {
+  // 9 000 000 mm = 9 km passes the 10 km default; 11 000 000 mm = 11 km does not.
+  const auto ok = hc::test::cloud_of({{0, 0, 0}, {9e6, 1, 1}});
+  EXPECT_NO_THROW(to_metres_and_recentre(ok, 0.001, nullptr));
+  const auto far = hc::test::cloud_of({{0, 0, 0}, {1.1e7, 1, 1}});
+  EXPECT_THROW(to_metres_and_recentre(far, 0.001, nullptr), hc::InputError);
+  EXPECT_NO_THROW(to_metres_and_recentre(far, 0.001, nullptr, 20'000.0));
+  EXPECT_THROW(to_metres_and_recentre(ok, 0.001, nullptr, -1.0), hc::ConfigError);
+  EXPECT_EQ(parse_run_config("input: {files: [a.ply], max_extent_m: 250}\n", "x.yaml").input.max_extent_m, 250.0);
+  EXPECT_THROW(parse_run_config("input: {files: [a.ply], max_extent_m: 0}\n", "x.yaml"), hc::ConfigError);
+}
+
+TEST(OutputSafety, EnvelopeRefusesADepthRangeFloatCannotFilter) {
+  // The layer stage called on its own (no ingest check in front of it) must not crash either.
+  hc::HeightField depth(hc::GridGeometry{16, 16, 0.0, 0.0, 0.001}, 0.0f);
+  depth.at(3, 3) = 3e38f;
+  depth.at(9, 9) = -3e38f;
+  EXPECT_THROW(compute_surface_layers(depth, SurfaceLayerOptions{}), hc::InputError);
+}
+
+// D5: --out deleted whatever was there.
+TEST(OutputSafety, AnExistingFileIsNeverReplaced) {
+  const fs::path dir = hc::test::temp_dir("d5file");
+  write_plane_ply(dir / "plane.ply", {});
+  { std::ofstream(dir / "notes.txt") << "the user's notes\n"; }
+  EXPECT_THROW(run_pipeline(plane_config(dir / "plane.ply", true), dir / "notes.txt"), hc::InputError);
+  EXPECT_EQ(slurp(dir / "notes.txt"), "the user's notes\n");
+  EXPECT_FALSE(has_partial_sibling(dir));
+}
+
+TEST(OutputSafety, AForeignFolderIsRefusedAndWithForceKeptAside) {
+  const fs::path dir = hc::test::temp_dir("d5dir");
+  write_plane_ply(dir / "plane.ply", {});
+  fs::create_directories(dir / "thesis" / "chapter1");
+  { std::ofstream(dir / "thesis" / "chapter1" / "draft.tex") << "\\section{Temples}\n"; }
+  EXPECT_THROW(run_pipeline(plane_config(dir / "plane.ply", true), dir / "thesis"), hc::InputError);
+  EXPECT_EQ(slurp(dir / "thesis" / "chapter1" / "draft.tex"), "\\section{Temples}\n");
+
+  const RunSummary s =
+      run_pipeline(plane_config(dir / "plane.ply", true), dir / "thesis", {}, ExistingOutput::kMoveAside);
+  EXPECT_TRUE(fs::exists(dir / "thesis" / "scene" / "scene.yaml"));
+  ASSERT_FALSE(s.moved_aside.empty());
+  EXPECT_EQ(s.moved_aside.parent_path(), dir);
+  EXPECT_EQ(slurp(s.moved_aside / "chapter1" / "draft.tex"), "\\section{Temples}\n");
+}
+
+TEST(OutputSafety, EmptyFoldersAndEarlierOutputsAreReplaced) {
+  const fs::path dir = hc::test::temp_dir("d5ok");
+  write_plane_ply(dir / "plane.ply", {});
+  fs::create_directories(dir / "empty");
+  run_pipeline(plane_config(dir / "plane.ply", true), dir / "empty");
+  EXPECT_TRUE(fs::exists(dir / "empty" / kOutputMarkerFile));
+  EXPECT_TRUE(is_hapticloud_output(dir / "empty"));
+  // The same folder again: an earlier output, replaced without --force, nothing kept aside.
+  const RunSummary again = run_pipeline(plane_config(dir / "plane.ply", true), dir / "empty");
+  EXPECT_TRUE(again.moved_aside.empty());
+  int siblings = 0;
+  for (const auto& e : fs::directory_iterator(dir)) siblings += e.path().filename().string().rfind("empty", 0) == 0;
+  EXPECT_EQ(siblings, 1);
+  // A run folder written before the marker existed is still recognised as an earlier output.
+  fs::remove(dir / "empty" / kOutputMarkerFile);
+  EXPECT_TRUE(is_hapticloud_output(dir / "empty"));
+  { std::ofstream(dir / "empty" / "mine.txt") << "x"; }
+  EXPECT_FALSE(is_hapticloud_output(dir / "empty"));
+}
+
+TEST(OutputSafety, AStagingNameThatExistsIsLeftAlone) {
+  const fs::path dir = hc::test::temp_dir("d5staging");
+  fs::path squatter = dir / "out";
+  squatter += ".partial-" + std::to_string(::getpid());
+  fs::create_directories(squatter);
+  { std::ofstream(squatter / "keep.txt") << "keep"; }
+  {
+    StagingDir staging(dir / "out");
+    EXPECT_NE(staging.path(), squatter);
+    staging.commit();
+  }
+  EXPECT_EQ(slurp(squatter / "keep.txt"), "keep");
+  EXPECT_TRUE(fs::exists(dir / "out" / kOutputMarkerFile));
+}
+
+}  // namespace
