@@ -14,7 +14,7 @@
 #include "hc/haptics/simulated_device.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/lod.hpp"
-#include "hc/pipeline/lod_controller.hpp"
+#include "hc/session/lod_controller.hpp"
 #include "hc/pipeline/reproject.hpp"
 
 #include <benchmark/benchmark.h>
@@ -112,12 +112,12 @@ void BM_SwitchLatency(benchmark::State& state) {
   (void)pyramid->level(level + 1);
   const hc::haptics::DeviceInfo info = hc::haptics::SimulatedDevice::default_info();
   hc::haptics::SharedState shared;
-  hc::pipeline::LodControllerOptions co;
+  hc::session::LodControllerOptions co;
   co.device_half_extent_m = info.workspace_half_extent_m;
   co.prefetch_neighbours = false;  // the levels are cached above; no background work while timing
-  hc::pipeline::LodController lod(pyramid, shared, co);
+  hc::session::LodController lod(pyramid, shared, co);
   const hc::GridGeometry& g = pyramid->geometry(level);
-  const hc::pipeline::HapticWindow start =
+  const hc::session::HapticWindow start =
       lod.centre_window(level, g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.55 * (g.rows - 1)));
   hc::haptics::SteadyClock clock;
   hc::haptics::ScriptedPath path;

@@ -13,6 +13,7 @@
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/run.hpp"
+#include "hc/session/level_timing.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 #include "hc/pipeline/transform.hpp"
@@ -114,16 +115,17 @@ HC_STAGE(BM_Stage_CrossCheck, cross_check(in.filtered, in.filled.depth, in.confi
 void BM_Stage_WriteScene(benchmark::State& state) {
   const Intermediates& in = run_once();
   Scene scene;
-  scene.layers.emplace("depth", in.filled.depth);
-  scene.layers.emplace("envelope", in.layers.envelope_m);
-  scene.layers.emplace("texture", in.layers.texture_m);
-  scene.layers.emplace("mu_d", in.layers.mu_d);
-  scene.layers.emplace("mu_s", in.layers.mu_s);
-  scene.flags = in.filled.flags;
+  scene.geometry = in.filled.depth.geometry();
+  scene.layers.depth = in.filled.depth;
+  scene.layers.envelope = in.layers.envelope_m;
+  scene.layers.texture = in.layers.texture_m;
+  scene.layers.mu_d = in.layers.mu_d;
+  scene.layers.mu_s = in.layers.mu_s;
+  scene.layers.flags = in.filled.flags;
   const fs::path dir = fs::temp_directory_path() / "hapticloud-bench-scene";
   for (auto _ : state) {
     fs::remove_all(dir);
-    write_scene(scene, dir, "");
+    write_scene(scene, dir);
   }
   fs::remove_all(dir);
 }
@@ -134,7 +136,7 @@ void whole_run(benchmark::State& state, const std::vector<std::string>& override
   const fs::path out = fs::temp_directory_path() / "hapticloud-bench-run";
   double cross_rms = 0, cross_p95 = 0;
   for (auto _ : state) {
-    const RunSummary s = run_pipeline(cfg, out);
+    const RunSummary s = run_pipeline(cfg, out, {}, ExistingOutput::kRefuse, hc::session::servo_level_timing());
     cross_rms = s.cross_check->point_vertical.rms_mm;
     cross_p95 = s.cross_check->point_vertical.p95_mm;
   }

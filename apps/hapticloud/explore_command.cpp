@@ -22,7 +22,8 @@
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/lod.hpp"
-#include "hc/pipeline/lod_controller.hpp"
+#include "hc/session/lod_controller.hpp"
+#include "hc/session/scene_source.hpp"
 #include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
@@ -151,7 +152,7 @@ std::string fmt(double v, int precision = 4) {
 
 /// A scene ready to explore: level 0 with its layers (kept for rebuilds) and its pyramid.
 struct Built {
-  pipeline::Scene base;  ///< level-0 layers (depth, envelope, texture, mu_d, mu_s)
+  Scene base;  ///< level-0 layers (depth, envelope, texture, mu_d, mu_s)
   std::shared_ptr<pipeline::LodPyramid> pyramid;
   Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();
   std::string description;
@@ -159,52 +160,49 @@ struct Built {
   bool keep_window = false;
 };
 
-pipeline::Scene copy_layers(const pipeline::Scene& s) {
-  pipeline::Scene c;
-  for (const char* name : {"depth", "envelope", "texture", "mu_d", "mu_s"}) {
-    auto it = s.layers.find(name);
-    if (it != s.layers.end()) c.layers.emplace(name, it->second);
-  }
+/// Level 0 of a scene with only what a pyramid and a rebuild need (no cross-check or flags).
+Scene copy_layers(const Scene& s) {
+  Scene c;
+  c.geometry = s.geometry;
+  c.model_to_grid = s.model_to_grid;
+  c.layers.depth = s.layers.depth;
+  c.layers.envelope = s.layers.envelope;
+  c.layers.texture = s.layers.texture;
+  c.layers.mu_d = s.layers.mu_d;
+  c.layers.mu_s = s.layers.mu_s;
   c.friction_model = s.friction_model;
   return c;
 }
 
-std::shared_ptr<Built> build(pipeline::Scene scene, const pipeline::SurfaceLayerOptions& layer_options,
+std::shared_ptr<Built> build(Scene scene, const pipeline::SurfaceLayerOptions& layer_options,
                              const pipeline::LodOptions& lod_options, bool recompute_layers) {
   auto b = std::make_shared<Built>();
   if (recompute_layers) {
     pipeline::SurfaceLayers l = pipeline::compute_surface_layers(scene.depth(), layer_options).value;
-    scene.layers["envelope"] = std::move(l.envelope_m);
-    scene.layers["texture"] = std::move(l.texture_m);
-    scene.layers["mu_d"] = std::move(l.mu_d);
-    scene.layers["mu_s"] = std::move(l.mu_s);
+    scene.layers.envelope = std::move(l.envelope_m);
+    scene.layers.texture = std::move(l.texture_m);
+    scene.layers.mu_d = std::move(l.mu_d);
+    scene.layers.mu_s = std::move(l.mu_s);
+    scene.friction_model = l.friction_model;
   }
   b->base = copy_layers(scene);
   b->pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod_options);
   return b;
 }
 
-/// Recentred cloud of a run config, subsampled to at most `max_points`, as float triplets.
-std::vector<float> cloud_preview(const pipeline::RunConfig& cfg, std::size_t max_points) {
-  pipeline::Cloud cloud;
-  if (cfg.input.synthetic) {
-    cloud = pipeline::generate_surface(*cfg.input.synthetic);
-  } else if (cfg.input.conf) {
-    cloud = pipeline::load_and_merge_scans(cfg.input.files, *cfg.input.conf).value;
-  } else {
-    cloud = pipeline::load_cloud(cfg.input.files.front()).value;
-  }
-  Eigen::Vector3d offset;
-  cloud = pipeline::to_metres_and_recentre(std::move(cloud), metres_per_unit(cfg.input.units), &offset,
-                                           cfg.input.max_extent_m).value;
-  const std::size_t n = cloud.size();
+/// The filtered cloud of a run, back in the recentred model frame (before the view transform:
+/// the orientation tool turns it), subsampled to at most `max_points`, as float triplets.
+std::vector<float> cloud_preview(const pipeline::Cloud& grid_frame_cloud, const pipeline::ViewTransform& view,
+                                 std::size_t max_points) {
+  const Eigen::Affine3d to_model = view.matrix().inverse();
+  const std::size_t n = grid_frame_cloud.size();
   const std::size_t stride = std::max<std::size_t>(1, (n + max_points - 1) / max_points);
   std::vector<float> out;
   out.reserve(3 * (n / stride + 1));
   for (std::size_t i = 0; i < n; i += stride) {
-    const auto c = static_cast<Eigen::Index>(i);
-    if (!cloud.xyz.col(c).allFinite()) continue;
-    for (int k = 0; k < 3; ++k) out.push_back(static_cast<float>(cloud.xyz(k, c)));
+    const Eigen::Vector3d p = to_model * grid_frame_cloud.xyz.col(static_cast<Eigen::Index>(i));
+    if (!p.allFinite()) continue;
+    for (int k = 0; k < 3; ++k) out.push_back(static_cast<float>(p[k]));
   }
   return out;
 }
@@ -226,7 +224,7 @@ class Session {
   void on_frame();
   void adopt(const std::shared_ptr<Built>& b);
   void run_step(const ScriptStep& st);
-  pipeline::LodControllerOptions controller_options() const;
+  session::LodControllerOptions controller_options() const;
   std::optional<Eigen::Vector3d> anchor() const;
   void write_summary(const haptics::ServoStats& stats, const haptics::RealtimeReport& rt) const;
 
@@ -241,7 +239,7 @@ class Session {
 
   haptics::SteadyClock clock_;
   haptics::SharedState shared_;
-  std::unique_ptr<pipeline::LodController> lod_;
+  std::unique_ptr<session::LodController> lod_;
   std::unique_ptr<haptics::HapticDevice> device_;
   viewer::MouseDevice* mouse_ = nullptr;
   std::unique_ptr<haptics::ServoLoop> loop_;
@@ -267,8 +265,8 @@ class Session {
   bool swap_seen_armed_ = false;
 };
 
-pipeline::LodControllerOptions Session::controller_options() const {
-  pipeline::LodControllerOptions c;
+session::LodControllerOptions Session::controller_options() const {
+  session::LodControllerOptions c;
   c.device_half_extent_m = device_ ? device_->info().workspace_half_extent_m : Eigen::Vector3d(0.05, 0.05, 0.05);
   c.surface.texture_gain = texture_enabled_ ? 1.0 : 0.0;
   c.surface.default_mu_s = layer_options_.mu_s;
@@ -276,41 +274,30 @@ pipeline::LodControllerOptions Session::controller_options() const {
 }
 
 void Session::load_input() {
-  fs::path p(o_.input);
-  if (fs::is_regular_file(p) && (p.extension() == ".yaml" || p.extension() == ".yml")) {
-    config_ = pipeline::load_run_config(p);
+  const fs::path p(o_.input);
+  session::SceneSourceOptions so;
+  if (session::is_run_config(p)) {
     // Levels are built on demand by the session's pyramid: no levels table in the run report
     // (it would build every level of every scan before the session starts).
+    so.lod_report = false;
+    so.keep_cloud = true;  // the orientation tool's preview
+    so.run_dir = fs::path(o_.out) / "scan-0";
+    std::cout << "explore: building the scene of " << p.string() << " into " << so.run_dir.string() << "\n";
+  }
+  session::OpenedScene opened = session::open_scene_or_config(p, so);
+  // The scene's own layers.* and lod.* (as `hapticloud run` built it); --window-cells still wins.
+  const int cells = lod_options_.window_cells;
+  layer_options_ = opened.scene.layer_options;
+  lod_options_ = opened.scene.lod;
+  if (o_.window_cells > 0) lod_options_.window_cells = cells;
+  if (opened.config) {
+    config_ = std::move(opened.config);
     config_->lod.report = false;
-    layer_options_ = config_->layers.options;
-    const int cells = lod_options_.window_cells;
-    lod_options_ = config_->lod;
-    if (o_.window_cells > 0) lod_options_.window_cells = cells;
-    const fs::path dir = fs::path(o_.out) / "scan-0";
-    std::cout << "explore: building the scene of " << p.string() << " into " << dir.string() << "\n";
-    pipeline::run_pipeline(*config_, dir);
-    pipeline::Scene scene = pipeline::load_scene(dir / "scene");
-    cloud_ = cloud_preview(*config_, 150000);
-    built_ = build(std::move(scene), layer_options_, lod_options_, false);
-    built_->orientation = config_->view.rotation;
-    built_->description = config_->name;
-    return;
+    cloud_ = cloud_preview(*opened.cloud, config_->view, 150000);
   }
-  if (fs::is_directory(p) && fs::exists(p / "scene.yaml")) {
-    pipeline::Scene scene = pipeline::load_scene(p);
-    // The scene's own layers.* and lod.* (its stored config), as `hapticloud run` built it;
-    // --window-cells still wins.
-    const int cells = lod_options_.window_cells;
-    pipeline::scene_options(scene, layer_options_, lod_options_);
-    if (o_.window_cells > 0) lod_options_.window_cells = cells;
-    if (!scene.friction_model.empty()) layer_options_.friction_model = pipeline::friction_model_from_string(scene.friction_model);
-    built_ = build(std::move(scene), layer_options_, lod_options_, false);
-    built_->description = p.filename().string();
-    return;
-  }
-  throw InputError("explore: '" + o_.input +
-                   "' is neither a run config (.yaml) nor a scene folder (with scene.yaml); make a scene with "
-                   "`hapticloud run CONFIG`, or pass the config itself");
+  built_ = build(std::move(opened.scene), layer_options_, lod_options_, false);
+  if (config_) built_->orientation = config_->view.rotation;
+  built_->description = config_ ? config_->name : p.filename().string();
 }
 
 std::optional<Eigen::Vector3d> Session::anchor() const {
@@ -320,7 +307,7 @@ std::optional<Eigen::Vector3d> Session::anchor() const {
 }
 
 /// The level whose whole grid fits in one window (else the coarsest), and the overview level.
-int fitting_level(const pipeline::LodController& lod, int cells) {
+int fitting_level(const session::LodController& lod, int cells) {
   for (int l = 0; l < lod.level_count(); ++l) {
     const GridGeometry& g = lod.level_geometry(l);
     if (std::max(g.rows, g.cols) <= cells) return l;
@@ -329,7 +316,7 @@ int fitting_level(const pipeline::LodController& lod, int cells) {
 }
 
 void Session::show_window() {
-  const pipeline::HapticWindow& w = lod_->window();
+  const session::HapticWindow& w = lod_->window();
   auto layers = lod_->pyramid().window(w.level, w.row0, w.col0, w.rows, w.cols);
   auto d = std::make_shared<viewer::DisplayScene>();
   d->window = (!texture_enabled_ && layers->envelope_m.rows() > 0) ? layers->envelope_m : layers->depth_m;
@@ -348,7 +335,7 @@ void Session::show_window() {
 
 void Session::on_region(const viewer::RegionCommand& c) {
   if (!lod_ || swap_ != Swap::kIdle) return;
-  const pipeline::HapticWindow& w = lod_->window();
+  const session::HapticWindow& w = lod_->window();
   switch (c.type) {
     case viewer::RegionCommandType::kFiner: lod_->zoom_in(anchor()); break;
     case viewer::RegionCommandType::kCoarser: lod_->zoom_out(anchor()); break;
@@ -375,8 +362,9 @@ void Session::on_rescan(const Eigen::Quaterniond& q) {
   const std::string name = config_->name;
   status_ = "re-scanning in " + dir.string() + " ...";
   job_ = std::async(std::launch::async, [cfg, dir, layers, lod, name] {
-    pipeline::run_pipeline(cfg, dir);
-    auto b = build(pipeline::load_scene(dir / "scene"), layers, lod, false);
+    pipeline::BuiltScene scan = pipeline::build_scene(cfg);
+    pipeline::write_run(scan, cfg, dir);
+    auto b = build(std::move(scan.scene), layers, lod, false);
     b->orientation = cfg.view.rotation;
     b->description = name + " (re-scanned)";
     b->disarm = true;
@@ -390,8 +378,8 @@ void Session::on_surface_settings(const viewer::SurfaceSettings& s) {
   if (s.texture_enabled != texture_enabled_) {
     // Same pyramid, new surface options: republish the window in place.
     texture_enabled_ = s.texture_enabled;
-    const pipeline::HapticWindow w = lod_->window();
-    lod_ = std::make_unique<pipeline::LodController>(built_->pyramid, shared_, controller_options());
+    const session::HapticWindow w = lod_->window();
+    lod_ = std::make_unique<session::LodController>(built_->pyramid, shared_, controller_options());
     lod_->set_window(w.level, w.col0, w.row0);
     show_window();
   }
@@ -399,7 +387,7 @@ void Session::on_surface_settings(const viewer::SurfaceSettings& s) {
     // Friction layers of every level change: rebuild the pyramid on a worker.
     layer_options_.friction_model = model;
     layer_options_.mu_s = s.mu_s;
-    pipeline::Scene base = copy_layers(built_->base);
+    Scene base = copy_layers(built_->base);
     const pipeline::SurfaceLayerOptions layers = layer_options_;
     const pipeline::LodOptions lod = lod_options_;
     const Eigen::Quaterniond q = built_->orientation;
@@ -417,10 +405,10 @@ void Session::on_surface_settings(const viewer::SurfaceSettings& s) {
 }
 
 void Session::adopt(const std::shared_ptr<Built>& b) {
-  std::optional<pipeline::HapticWindow> old;
+  std::optional<session::HapticWindow> old;
   if (lod_ && lod_->has_window()) old = lod_->window();
   built_ = b;
-  lod_ = std::make_unique<pipeline::LodController>(built_->pyramid, shared_, controller_options());
+  lod_ = std::make_unique<session::LodController>(built_->pyramid, shared_, controller_options());
   if (b->keep_window && old) {
     lod_->set_window(old->level, old->col0, old->row0);
   } else {
@@ -601,7 +589,7 @@ void Session::write_summary(const haptics::ServoStats& stats, const haptics::Rea
   j["level"] = lod_ && lod_->has_window() ? lod_->window().level : -1;
   j["level_count"] = lod_ ? lod_->level_count() : 0;
   if (lod_ && lod_->has_window()) {
-    const pipeline::HapticWindow& w = lod_->window();
+    const session::HapticWindow& w = lod_->window();
     j["window"] = {{"col0", w.col0}, {"row0", w.row0}, {"cols", w.cols}, {"rows", w.rows}};
   }
   j["texture"] = texture_enabled_;
@@ -643,13 +631,13 @@ void Session::run() {
   start_device();
 
   // First window, then the device and the servo loop.
-  lod_ = std::make_unique<pipeline::LodController>(built_->pyramid, shared_, controller_options());
+  lod_ = std::make_unique<session::LodController>(built_->pyramid, shared_, controller_options());
   {
     const GridGeometry& g = lod_->level_geometry(0);
     lod_->centre_window(fitting_level(*lod_, lod_->window_cells()), g.x_of_col(0.5 * (g.cols - 1)),
                         g.y_of_row(0.5 * (g.rows - 1)));
   }
-  const pipeline::HapticWindow& w0 = lod_->window();
+  const session::HapticWindow& w0 = lod_->window();
   if (o_.device == "sim") {
     const haptics::DeviceInfo info = haptics::SimulatedDevice::default_info();
     const double mid = 0.5 * (w0.min_height_m + w0.max_height_m);
@@ -682,7 +670,7 @@ void Session::run() {
   std::unique_ptr<audio::AudioEngine> sound;
   if (!o_.no_audio) {
     const auto& base = built_->base;
-    const HeightField* texture = base.has("texture") ? &base.layers.at("texture") : nullptr;
+    const HeightField* texture = base.layers.texture.rows() > 0 ? &base.layers.texture : nullptr;
     const GridGeometry grid = base.depth().geometry();
     // The run config's audio: section (regions, materials); a scene folder gets the sliding
     // sound only.

@@ -8,7 +8,9 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_report.hpp"
+#include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
+#include "hc/session/level_timing.hpp"
 
 #include <CLI/CLI.hpp>
 
@@ -33,6 +35,39 @@ struct LevelsOptions {
   int ticks = 3000;
 };
 
+/// The points of the scene's scan for the cross-check: from --config, else from the run config
+/// its provenance names (config_file, as given when the scene was made). The scan files must be
+/// the ones the scene was made from (SHA-256 compared with the provenance).
+/// @throws hc::InputError naming the config or the scan that is missing or changed.
+pipeline::Cloud scene_points(const Scene& scene, const std::string& config_option) {
+  const fs::path config_file = config_option.empty() ? fs::path(scene.provenance.config_file) : fs::path(config_option);
+  if (config_file.empty() || !fs::is_regular_file(config_file)) {
+    throw InputError("levels: the run config '" + config_file.string() +
+                     "' the scene was made from is not found from this folder; give it with --config, run from the "
+                     "folder the scene was made in, or pass --no-cross-check");
+  }
+  const pipeline::RunConfig config = pipeline::load_run_config(config_file);
+  std::vector<std::string> inputs;
+  for (const auto& f : config.input.files) inputs.push_back(f.string());
+  if (config.input.conf) inputs.push_back(config.input.conf->string());
+  for (const std::string& f : inputs) {
+    if (!fs::exists(f)) throw InputError("levels: the scan '" + f + "' of " + config_file.string() + " does not exist");
+    const std::string sum = pipeline::sha256_file(f);
+    for (const SceneInput& in : scene.provenance.inputs) {
+      if (fs::path(in.file).filename() == fs::path(f).filename() && !in.sha256.empty() && in.sha256 != sum) {
+        throw InputError("levels: the scan '" + f + "' changed since the scene was made (sha256 " + sum.substr(0, 16) +
+                         "… against " + in.sha256.substr(0, 16) + "… in scene.yaml); give the right config with "
+                         "--config or pass --no-cross-check");
+      }
+    }
+  }
+  std::cout << "levels: reading the scene's points for the cross-check from " << config_file.string() << " ...\n"
+            << std::flush;
+  pipeline::Cloud points = pipeline::prepare_points(config);
+  std::cout << "levels: " << points.size() << " points\n";
+  return points;
+}
+
 void run_levels(const LevelsOptions& o) {
   const fs::path dir(o.scene);
   if (!o.previews.empty()) {
@@ -44,23 +79,19 @@ void run_levels(const LevelsOptions& o) {
                        (ec ? ": " + ec.message() : std::string(" (a file of that name exists)")));
     }
   }
-  pipeline::Scene scene = pipeline::load_scene(dir);
-  pipeline::SurfaceLayerOptions layer_options;
-  pipeline::LodOptions lod;
-  pipeline::scene_options(scene, layer_options, lod);
+  Scene scene = pipeline::load_scene(dir);
+  // Levels ≥ 1 get the layers the scene's own options make (its typed metadata).
+  const pipeline::SurfaceLayerOptions layer_options = scene.layer_options;
+  pipeline::LodOptions lod = scene.lod;
   if (o.min_cells > 0) lod.min_cells = o.min_cells;
   if (o.window_cells > 0) lod.window_cells = o.window_cells;
   std::optional<pipeline::Cloud> points;
-  if (!o.no_cross_check) {
-    std::cout << "levels: reading the scene's points for the cross-check ...\n" << std::flush;
-    points = pipeline::scene_points(scene, o.config.empty() ? std::nullopt : std::optional<fs::path>(o.config));
-    std::cout << "levels: " << points->size() << " points\n";
-  }
+  if (!o.no_cross_check) points = scene_points(scene, o.config);
   const auto pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
   pipeline::LevelTableOptions to;
   to.cross_check = points.has_value();
-  to.ticks = o.ticks;
-  const auto rows = pipeline::level_table(pyramid, points ? &*points : nullptr, to);
+  auto rows = pipeline::level_table(pyramid, points ? &*points : nullptr, to);
+  session::time_levels(pyramid, rows, o.ticks);
   std::cout << "levels of " << dir.string() << " (window " << lod.window_cells << " samples; switch = request to "
             << "first tick on the new window, level cached, as fast as possible):\n"
             << pipeline::level_table_text(rows);
@@ -79,12 +110,13 @@ void add_levels_command(CLI::App& app) {
                                                "cross-check, per-tick cost, switch time).");
   cmd->add_option("SCENE", opts->scene, "Scene folder written by `hapticloud run`")->required();
   cmd->add_option("--config", opts->config,
-                  "Run config to read the points from (default: the one stored in scene.yaml)");
+                  "Run config to read the points from (default: the one named in scene.yaml's provenance)");
   cmd->add_flag("--no-cross-check", opts->no_cross_check, "Skip the cross-check (no points needed)");
   cmd->add_option("--previews", opts->previews, "Write a hillshade per level and all side by side into this folder");
-  cmd->add_option("--min-cells", opts->min_cells, "Override lod.min_cells");
-  cmd->add_option("--window-cells,--window", opts->window_cells, "Override lod.window_cells (haptic window side [samples])");
-  cmd->add_option("--ticks", opts->ticks, "Servo ticks timed per level")->capture_default_str();
+  cmd->add_option("--min-cells", opts->min_cells, "Override lod.min_cells")->check(CLI::Range(2, 65536));
+  cmd->add_option("--window-cells,--window", opts->window_cells, "Override lod.window_cells (haptic window side [samples])")
+      ->check(CLI::Range(2, 4096));
+  cmd->add_option("--ticks", opts->ticks, "Servo ticks timed per level")->capture_default_str()->check(CLI::Range(10, 10000000));
   cmd->callback([opts] { run_levels(*opts); });
 }
 

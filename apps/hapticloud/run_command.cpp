@@ -4,6 +4,7 @@
 
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
+#include "hc/session/level_timing.hpp"
 
 #include <spdlog/spdlog.h>
 
@@ -35,7 +36,8 @@ void run(const RunArgs& a) {
   };
   if (!a.quiet) std::cerr << "hapticloud run " << a.config << " -> " << out.string() << "\n";
   const pipeline::RunSummary summary = pipeline::run_pipeline(
-      cfg, out, progress, a.force ? pipeline::ExistingOutput::kMoveAside : pipeline::ExistingOutput::kRefuse);
+      cfg, out, progress, a.force ? pipeline::ExistingOutput::kMoveAside : pipeline::ExistingOutput::kRefuse,
+      session::servo_level_timing());
   if (!summary.moved_aside.empty()) {
     std::cout << "kept the earlier content of " << out.string() << " as " << summary.moved_aside.string() << "\n";
   }

@@ -6,7 +6,8 @@
 /// without texture and friction, proxy z and force against time, in one report.
 
 #include "commands.hpp"
-#include "lod_session.hpp"
+#include "hc/session/lod_session.hpp"
+#include "hc/session/scene_source.hpp"
 
 #include "hc/common/error.hpp"
 #include "hc/haptics/haptic_surface.hpp"
@@ -48,6 +49,10 @@ namespace {
 
 namespace fs = std::filesystem;
 using haptics::HapticSurface;
+using session::LodSession;
+using session::parse_window_origin;
+using session::parse_zoom_path;
+using session::ZoomAction;
 
 struct TouchOptions {
   std::string input;
@@ -122,8 +127,6 @@ SceneLayers synthetic_sinusoid(int n) {
   return s;
 }
 
-SceneLayers load_input_scene(const fs::path& p, const TouchOptions& o);
-
 SceneLayers load_input(const TouchOptions& o) {
   if (!o.synthetic.empty()) {
     if (o.synthetic != "sinusoid") {
@@ -134,39 +137,27 @@ SceneLayers load_input(const TouchOptions& o) {
   if (o.input.empty()) {
     throw ConfigError("touch: give a scene folder (written by `hapticloud run`) or --synthetic sinusoid");
   }
-  fs::path p(o.input);
-  if (fs::is_regular_file(p) && (p.extension() == ".yaml" || p.extension() == ".yml")) {
-    // A run config: build its scene first (atomically, beside the session output).
-    const pipeline::RunConfig cfg = pipeline::load_run_config(p);
-    const fs::path run_dir = fs::path(o.out) / "pipeline";
-    std::cout << "touch: building the scene of " << p.string() << " into " << run_dir.string() << "\n";
-    pipeline::run_pipeline(cfg, run_dir);
-    p = run_dir / "scene";
-    SceneLayers s = load_input_scene(p, o);
-    s.audio = cfg.audio;
-    s.layer_options = cfg.layers.options;
-    s.lod = cfg.lod;
-    return s;
+  // A run config: its scene is built in memory; the run folder is written beside the session output.
+  const fs::path p(o.input);
+  session::SceneSourceOptions so;
+  if (session::is_run_config(p)) {
+    so.run_dir = fs::path(o.out) / "pipeline";
+    std::cout << "touch: building the scene of " << p.string() << " into " << so.run_dir.string() << "\n";
   }
-  return load_input_scene(p, o);
-}
-
-SceneLayers load_input_scene(const fs::path& p, const TouchOptions& o) {
-  if (fs::is_directory(p) && fs::exists(p / "scene.yaml")) {
-    pipeline::Scene scene = pipeline::load_scene(p);
-    SceneLayers s;
-    // Levels of detail compute their layers with the scene's own settings (its stored config).
-    if (lod_mode(o)) pipeline::scene_options(scene, s.layer_options, s.lod);
-    for (const char* name : {"depth", "envelope", "texture", "mu_d", "mu_s"}) {
-      auto it = scene.layers.find(name);
-      if (it != scene.layers.end()) s.layers.emplace(name, std::move(it->second));
-    }
-    s.description = "scene " + p.string();
-    return s;
+  session::OpenedScene opened = session::open_scene_or_config(p, so);
+  SceneLayers s;
+  Scene& scene = opened.scene;
+  // Levels of detail compute their layers with the scene's own settings (its typed metadata).
+  s.layer_options = scene.layer_options;
+  s.lod = scene.lod;
+  if (opened.config) s.audio = opened.config->audio;
+  s.layers.emplace("depth", std::move(scene.layers.depth));
+  for (auto [name, f] : {std::pair<const char*, HeightField*>{"envelope", &scene.layers.envelope},
+                         {"texture", &scene.layers.texture}, {"mu_d", &scene.layers.mu_d}, {"mu_s", &scene.layers.mu_s}}) {
+    if (f->rows() > 0) s.layers.emplace(name, std::move(*f));
   }
-  throw InputError("touch: '" + o.input +
-                   "' is neither a scene folder (with scene.yaml) nor a run config (.yaml); make a scene "
-                   "with `hapticloud run CONFIG`, or use --synthetic sinusoid");
+  s.description = opened.config ? opened.description : "scene " + p.string();
+  return s;
 }
 
 const HeightField* layer(const SceneLayers& s, const char* name) {

@@ -222,16 +222,16 @@ LodPyramid::LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options
   finest_ = std::make_shared<LodLevel>(std::move(finest));
 }
 
-std::shared_ptr<LodPyramid> LodPyramid::from_scene(Scene&& scene, const SurfaceLayerOptions& layer_options,
+std::shared_ptr<LodPyramid> LodPyramid::from_scene(hc::Scene&& scene, const SurfaceLayerOptions& layer_options,
                                                    const LodOptions& options) {
-  if (!scene.has("depth")) throw InputError("lod: the scene has no depth layer");
+  if (scene.layers.depth.rows() == 0) throw InputError("lod: the scene has no depth layer");
   LodLevel l0;
-  l0.depth_m = std::move(scene.layers.at("depth"));
-  if (scene.has("envelope") && scene.has("texture") && scene.has("mu_d") && scene.has("mu_s")) {
-    l0.envelope_m = std::move(scene.layers.at("envelope"));
-    l0.texture_m = std::move(scene.layers.at("texture"));
-    l0.mu_d = std::move(scene.layers.at("mu_d"));
-    l0.mu_s = std::move(scene.layers.at("mu_s"));
+  l0.depth_m = std::move(scene.layers.depth);
+  if (scene.layers.has_surface_layers()) {
+    l0.envelope_m = std::move(scene.layers.envelope);
+    l0.texture_m = std::move(scene.layers.texture);
+    l0.mu_d = std::move(scene.layers.mu_d);
+    l0.mu_s = std::move(scene.layers.mu_s);
     l0.has_layers = true;
   }
   return std::make_shared<LodPyramid>(std::move(l0), layer_options, options);

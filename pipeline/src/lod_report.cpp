@@ -3,20 +3,15 @@
 
 #include "hc/common/error.hpp"
 #include "hc/common/units.hpp"
-#include "hc/haptics/servo_loop.hpp"
-#include "hc/haptics/simulated_device.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/filters.hpp"
 #include "hc/pipeline/ingest.hpp"
-#include "hc/pipeline/lod_controller.hpp"
 #include "hc/pipeline/preview.hpp"
-#include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/synthetic.hpp"
 #include "hc/pipeline/transform.hpp"
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
-#include <yaml-cpp/yaml.h>
 
 #include <algorithm>
 #include <cmath>
@@ -26,8 +21,6 @@
 namespace hc::pipeline {
 namespace {
 
-using detail::Clock;
-using detail::seconds_since;
 
 std::string fixed(double v, int precision) {
   std::ostringstream s;
@@ -35,100 +28,11 @@ std::string fixed(double v, int precision) {
   return s.str();
 }
 
-/// The scene's stored resolved config as YAML text and the config file it came from.
-bool stored_config(const Scene& scene, std::string& yaml_text, std::filesystem::path& origin) {
-  YAML::Node meta;
-  try {
-    meta = YAML::Load(scene.metadata_yaml);
-  } catch (const YAML::Exception& e) {
-    throw InputError(std::string("levels: the scene's scene.yaml does not parse: ") + e.what());
-  }
-  const YAML::Node resolved = meta["resolved_config"];
-  if (!resolved || !resolved.IsMap()) return false;
-  YAML::Emitter out;
-  out << resolved;
-  yaml_text = out.c_str();
-  const YAML::Node prov = meta["provenance"];
-  origin = prov && prov["config_file"] && prov["config_file"].IsScalar() ? prov["config_file"].Scalar()
-                                                                          : std::string("scene.yaml");
-  if (origin.empty()) origin = "scene.yaml";
-  return true;
-}
-
 }  // namespace
-
-Cloud prepare_points(const RunConfig& config) {
-  Cloud cloud;
-  if (config.input.synthetic) {
-    cloud = generate_surface(*config.input.synthetic);
-  } else if (config.input.conf) {
-    cloud = load_and_merge_scans(config.input.files, *config.input.conf).value;
-  } else {
-    cloud = load_cloud(config.input.files.front()).value;
-  }
-  Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
-  cloud = to_metres_and_recentre(std::move(cloud), metres_per_unit(config.input.units), &offset_m,
-                                 config.input.max_extent_m).value;
-  cloud = apply_view_transform(std::move(cloud), config.view).value;
-  cloud = remove_non_finite(std::move(cloud)).value;
-  if (config.filters.crop_m) {
-    cloud = crop_box(std::move(cloud), config.filters.crop_m->first, config.filters.crop_m->second).value;
-  }
-  if (config.filters.voxel_m > 0.0) cloud = voxel_downsample(std::move(cloud), config.filters.voxel_m).value;
-  if (config.filters.outliers.enabled) {
-    if (config.filters.outliers.scope == OutlierScope::kFront) {
-      cloud = remove_front_statistical_outliers(std::move(cloud), config.filters.outliers.k,
-                                                config.filters.outliers.std_multiplier, config.grid.reproject)
-                  .value;
-    } else {
-      cloud = remove_statistical_outliers(std::move(cloud), config.filters.outliers.k,
-                                          config.filters.outliers.std_multiplier)
-                  .value;
-    }
-  }
-  return cloud;
-}
-
-Cloud scene_points(const Scene& scene, const std::optional<std::filesystem::path>& config_override) {
-  RunConfig config;
-  if (config_override) {
-    config = load_run_config(*config_override);
-  } else {
-    std::string text;
-    std::filesystem::path origin;
-    if (!stored_config(scene, text, origin)) {
-      throw InputError("levels: the scene's scene.yaml has no resolved_config to find its points; give the run "
-                       "config with --config");
-    }
-    config = parse_run_config(text, origin);
-  }
-  for (const auto& f : config.input.files) {
-    if (!std::filesystem::exists(f)) {
-      throw InputError("levels: the scene's input '" + f.string() + "' (relative to the config '" +
-                       config.source.string() + "') does not exist from this folder; run from the folder the scene "
-                       "was made in, or give the run config with --config");
-    }
-  }
-  return prepare_points(config);
-}
-
-void scene_options(const Scene& scene, SurfaceLayerOptions& layers, LodOptions& lod) {
-  std::string text;
-  std::filesystem::path origin;
-  if (!stored_config(scene, text, origin)) {
-    layers = SurfaceLayerOptions{};
-    lod = LodOptions{};
-    return;
-  }
-  const RunConfig c = parse_run_config(text, origin);
-  layers = c.layers.options;
-  lod = c.lod;
-}
 
 std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, const Cloud* points,
                                   const LevelTableOptions& options) {
   std::vector<LevelRow> rows;
-  const haptics::DeviceInfo info = haptics::SimulatedDevice::default_info();
   for (int level = 0; level < pyramid->level_count(); ++level) {
     LevelRow row;
     row.level = level;
@@ -148,48 +52,6 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
       row.supported_fraction = c.supported_fraction;
     }
 
-    // Per-tick cost: a pressing circle on the centred window of this level.
-    haptics::SharedState shared;
-    LodControllerOptions lo;
-    lo.device_half_extent_m = info.workspace_half_extent_m;
-    lo.prefetch_neighbours = false;  // time this level alone, in the order of the table
-    LodController lod(pyramid, shared, lo);
-    const HapticWindow& w =
-        lod.centre_window(level, g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)));
-    haptics::ManualClock clock;
-    haptics::ScriptedPath path;
-    path.kind = haptics::PathKind::kCircle;
-    path.half_x_m = 0.5 * info.workspace_half_extent_m.x();
-    path.z_above_m = (w.max_height_m - w.map.origin_m.z()) / w.map.scale + 0.01;
-    path.z_contact_m = -0.005;
-    path.speed_m_per_s = 0.05;
-    path.approach_s = 0.2;
-    haptics::SimulatedDevice dev(clock, path, haptics::VirtualHand{}, info);
-    dev.open();
-    haptics::ServoConfig cfg;
-    cfg.workspace = w.map;
-    haptics::ServoLoop loop(dev, shared, clock, cfg);
-    shared.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
-    loop.run_ticks(static_cast<std::uint64_t>(std::max(options.ticks, 10)), clock);
-    row.tick_p50_ns = loop.stats().compute.percentile_ns(0.5);
-    row.tick_p99_ns = loop.stats().compute.percentile_ns(0.99);
-
-    // Switch: from a neighbouring level to this one (levels cached), to the first tick on it.
-    const int other = level + 1 < pyramid->level_count() ? level + 1 : std::max(0, level - 1);
-    std::vector<double> ms;
-    for (int k = 0; k < 5; ++k) {
-      lod.set_level(other);
-      loop.run_ticks(5, clock);
-      haptics::Snapshot snap;
-      shared.snapshots.read(snap);
-      const auto t0 = Clock::now();
-      lod.set_level(level, snap.proxy_m.eigen());
-      loop.run_ticks(1, clock);
-      ms.push_back(seconds_since(t0) * 1000.0);
-      shared.collect_retired();
-    }
-    std::nth_element(ms.begin(), ms.begin() + 2, ms.end());
-    row.switch_ms = ms[2];
     rows.push_back(row);
   }
   return rows;
@@ -208,7 +70,11 @@ std::string level_table_markdown(const std::vector<LevelRow>& rows) {
     } else {
       md << "– | – | – | ";
     }
-    md << fixed(r.tick_p50_ns, 0) << " / " << fixed(r.tick_p99_ns, 0) << " | " << fixed(r.switch_ms, 3) << " |\n";
+    if (r.timed) {
+      md << fixed(r.tick_p50_ns, 0) << " / " << fixed(r.tick_p99_ns, 0) << " | " << fixed(r.switch_ms, 3) << " |\n";
+    } else {
+      md << "– | – |\n";
+    }
   }
   return md.str();
 }
@@ -227,8 +93,12 @@ std::string level_table_text(const std::vector<LevelRow>& rows) {
     } else {
       t << std::setw(10) << "-" << std::setw(10) << "-" << std::setw(11) << "-";
     }
-    t << std::setw(13) << fixed(r.tick_p50_ns, 0) << std::setw(12) << fixed(r.tick_p99_ns, 0) << fixed(r.switch_ms, 3)
-      << "\n";
+    if (r.timed) {
+      t << std::setw(13) << fixed(r.tick_p50_ns, 0) << std::setw(12) << fixed(r.tick_p99_ns, 0) << fixed(r.switch_ms, 3)
+        << "\n";
+    } else {
+      t << std::setw(13) << "-" << std::setw(12) << "-" << "-\n";
+    }
   }
   return t.str();
 }

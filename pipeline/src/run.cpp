@@ -51,6 +51,30 @@ namespace {
 using detail::Clock;
 using detail::seconds_since;
 
+/// Text for a JSON string: valid UTF-8 is kept; other bytes are written as \\xHH (file names
+/// on POSIX are bytes, and nlohmann::json refuses invalid UTF-8 when dumping).
+std::string json_text(const std::string& s) {
+  std::string out;
+  out.reserve(s.size());
+  for (std::size_t i = 0; i < s.size();) {
+    const auto c = static_cast<unsigned char>(s[i]);
+    std::size_t n = c < 0x80 ? 1 : (c >> 5) == 0x6 ? 2 : (c >> 4) == 0xE ? 3 : (c >> 3) == 0x1E ? 4 : 0;
+    bool ok = n > 0 && i + n <= s.size();
+    for (std::size_t k = 1; ok && k < n; ++k) ok = (static_cast<unsigned char>(s[i + k]) >> 6) == 0x2;
+    if (ok) {
+      out.append(s, i, n);
+      i += n;
+    } else {
+      static const char* hex = "0123456789abcdef";
+      out += "\\x";
+      out += hex[c >> 4];
+      out += hex[c & 0xF];
+      ++i;
+    }
+  }
+  return out;
+}
+
 /// Runs one stage: announces it, runs it, records its report.
 template <class F>
 auto stage(const char* name, std::vector<StageReport>& reports, const ProgressFn& progress, F&& body) {
@@ -88,28 +112,21 @@ void write_text(const fs::path& file, const std::string& text) {
   if (!out) throw InputError(file.string() + ": cannot write");
 }
 
-}  // namespace
-
-RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const ProgressFn& progress,
-                        ExistingOutput existing) {
-  const auto t_start = Clock::now();
-  RunSummary summary;
-  auto& reports = summary.stages;
-  StagingDir staging(out_dir, existing);
-
+/// Ingest, units and recentring, view transform and filters, each recorded as a stage.
+/// `inputs` gets the input files with their checksums, `offset_m` the recentring offset.
+Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& reports, const ProgressFn& progress,
+                            std::vector<SceneInput>& scene_inputs, Eigen::Vector3d& offset_m) {
   // 1. Ingest.
-  json inputs = json::array();
   Cloud cloud = stage("ingest", reports, progress, [&] {
     if (config.input.synthetic) return StageResult<Cloud>{generate_surface(*config.input.synthetic), {}};
     if (config.input.conf) return load_and_merge_scans(config.input.files, *config.input.conf);
     return load_cloud(config.input.files.front());
   });
   if (reports.back().count_out == 0) reports.back().count_out = cloud.size();
-  for (const auto& f : config.input.files) inputs.push_back({{"file", f.string()}, {"sha256", sha256_file(f)}});
-  if (config.input.conf) inputs.push_back({{"file", config.input.conf->string()}, {"sha256", sha256_file(*config.input.conf)}});
+  for (const auto& f : config.input.files) scene_inputs.push_back({f.string(), sha256_file(f)});
+  if (config.input.conf) scene_inputs.push_back({config.input.conf->string(), sha256_file(*config.input.conf)});
 
   // 2. Units and recentring (double precision), 3. view transform.
-  Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
   const double unit_m = metres_per_unit(config.input.units);
   cloud = stage("recentre", reports, progress,
                 [&] { return to_metres_and_recentre(std::move(cloud), unit_m, &offset_m, config.input.max_extent_m); });
@@ -136,30 +153,55 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
     });
   }
 
+  return cloud;
+}
+
+}  // namespace
+
+Cloud prepare_points(const RunConfig& config) {
+  std::vector<StageReport> reports;
+  std::vector<SceneInput> inputs;
+  Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
+  return prepare_points_staged(config, reports, {}, inputs, offset_m);
+}
+
+BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressFn& progress) {
+  const auto t_start = Clock::now();
+  BuiltScene built;
+  RunSummary& summary = built.summary;
+  auto& reports = summary.stages;
+  Scene& scene = built.scene;
+  SceneProvenance& prov = scene.provenance;
+  Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
+  Cloud cloud = prepare_points_staged(config, reports, progress, prov.inputs, offset_m);
+
   // 5. Reprojection and hole filling.
   DepthGrid grid = stage("reproject", reports, progress, [&] { return reproject(cloud, config.grid.reproject); });
   if (config.grid.hole_fill_max_cells > 0) {
     grid = stage("hole_fill", reports, progress, [&] { return fill_holes(std::move(grid), config.grid.hole_fill_max_cells); });
   }
+  const double unit_m = metres_per_unit(config.input.units);
   const Eigen::Affine3d model_to_grid =
       config.view.matrix() * Eigen::Translation3d(-offset_m) * Eigen::Scaling(unit_m);
   grid.depth.model_to_grid = model_to_grid;
   summary.grid = grid.depth.geometry();
   summary.valid_cells = grid.depth.valid_count();
-
-  Scene scene;
-  scene.flags = grid.flags;
+  scene.geometry = grid.depth.geometry();
+  scene.model_to_grid = model_to_grid;
+  scene.layers.flags = std::move(grid.flags);
 
   // 6. Surface layers (texture, curvature, friction).
   if (config.layers.enabled) {
     SurfaceLayers layers = stage("surface_layers", reports, progress,
                                  [&] { return compute_surface_layers(grid.depth, config.layers.options); });
-    scene.friction_model = to_string(layers.friction_model);
-    scene.layers.emplace("envelope", std::move(layers.envelope_m));
-    scene.layers.emplace("texture", std::move(layers.texture_m));
-    scene.layers.emplace("mu_d", std::move(layers.mu_d));
-    scene.layers.emplace("mu_s", std::move(layers.mu_s));
-    for (auto& [name, layer] : scene.layers) layer.model_to_grid = model_to_grid;
+    scene.friction_model = layers.friction_model;
+    scene.layers.envelope = std::move(layers.envelope_m);
+    scene.layers.texture = std::move(layers.texture_m);
+    scene.layers.mu_d = std::move(layers.mu_d);
+    scene.layers.mu_s = std::move(layers.mu_s);
+    for (HeightField* f : {&scene.layers.envelope, &scene.layers.texture, &scene.layers.mu_d, &scene.layers.mu_s}) {
+      f->model_to_grid = model_to_grid;
+    }
   }
 
   // 7. Cross-check.
@@ -181,42 +223,50 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
       });
       summary.naive_cross_check->cell_error_m = HeightField();  // the figures are enough
     }
-    scene.layers.emplace("cell_error", summary.cross_check->cell_error_m);
+    scene.layers.cell_error = summary.cross_check->cell_error_m;
   }
-  scene.layers.emplace("depth", std::move(grid.depth));
+  scene.layers.depth = std::move(grid.depth);
+
+  // Typed metadata: what made the layers, and where the scan came from.
+  scene.layer_options = config.layers.options;
+  scene.lod = config.lod;
+  prov.tool = std::string("hapticloud ") + HC_VERSION;
+  prov.config_file = config.source.string();
+  prov.units = config.input.units;
+  prov.recentre_offset_m = offset_m;
+  if (config.input.synthetic) prov.synthetic = to_string(config.input.synthetic->kind);
+  prov.resolved_config_yaml = config.resolved_yaml;
+
+  if (keep_cloud) built.cloud = std::move(cloud);
+  summary.total_seconds = seconds_since(t_start);
+  return built;
+}
+
+RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs::path& out_dir,
+                     const ProgressFn& progress, ExistingOutput existing, const LevelTimingFn& level_timing) {
+  const auto t_start = Clock::now();
+  RunSummary summary = built.summary;
+  auto& reports = summary.stages;
+  const Scene& scene = built.scene;
+  StagingDir staging(out_dir, existing);
 
   // 8. Scene, previews and report, all inside the staging folder.
   const auto t_write = Clock::now();
   StageReport write_report;
   write_report.stage = "write";
   if (progress) progress(write_report, false);
-  json provenance = {{"tool", std::string("hapticloud ") + HC_VERSION}, {"inputs", inputs},
-                     {"recentre_offset_m", {offset_m.x(), offset_m.y(), offset_m.z()}},
-                     {"units", config.input.units}};
-  std::string extra = "provenance:\n";
-  extra += "  tool: hapticloud " HC_VERSION "\n  config_file: \"" + config.source.string() + "\"\n";
-  extra += "  units: " + config.input.units + "\n";
-  {
-    std::ostringstream os;
-    os << std::setprecision(17) << "  recentre_offset_m: [" << offset_m.x() << ", " << offset_m.y() << ", "
-       << offset_m.z() << "]\n";
-    extra += os.str();
-  }
-  extra += "  inputs:\n";
-  for (const auto& in : inputs) {
-    extra += "    - file: \"" + in["file"].get<std::string>() + "\"\n      sha256: " + in["sha256"].get<std::string>() + "\n";
-  }
-  if (config.input.synthetic) extra += "    - synthetic: " + to_string(config.input.synthetic->kind) + "\n";
-  extra += "resolved_config:\n";
-  {
-    std::istringstream is(config.resolved_yaml);
-    for (std::string line; std::getline(is, line);) extra += "  " + line + "\n";
-  }
-  write_scene(scene, staging.path() / "scene", extra);
+  const SceneProvenance& prov = scene.provenance;
+  json inputs = json::array();
+  for (const SceneInput& in : prov.inputs) inputs.push_back({{"file", json_text(in.file)}, {"sha256", in.sha256}});
+  json provenance = {{"tool", prov.tool}, {"inputs", inputs},
+                     {"recentre_offset_m", {prov.recentre_offset_m.x(), prov.recentre_offset_m.y(), prov.recentre_offset_m.z()}},
+                     {"units", prov.units}};
+  write_scene(scene, staging.path() / "scene");
 
   const fs::path previews = staging.path() / "previews";
   fs::create_directories(previews);
   const HeightField& depth = scene.depth();
+  const std::string friction_name = scene.friction_model ? to_string(*scene.friction_model) : std::string();
   // Previews are independent images: two threads, one per core.
   detail::run_two(
       [&] {
@@ -228,11 +278,11 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
         }
       },
       [&] {
-        if (!scene.has("texture")) return;
-        write_colour_preview(scene.layers.at("texture"), previews / "texture.png", "texture h = f - f_b", "mm", 1000.0);
-        write_colour_preview(scene.layers.at("mu_d"), previews / "mu_d.png",
-                             "dynamic friction mu_d (" + scene.friction_model + ")", "-", 1.0);
-        write_colour_preview(scene.layers.at("mu_s"), previews / "mu_s.png", "static friction mu_s", "-", 1.0);
+        if (!scene.layers.has_surface_layers()) return;
+        write_colour_preview(scene.layers.texture, previews / "texture.png", "texture h = f - f_b", "mm", 1000.0);
+        write_colour_preview(scene.layers.mu_d, previews / "mu_d.png",
+                             "dynamic friction mu_d (" + friction_name + ")", "-", 1.0);
+        write_colour_preview(scene.layers.mu_s, previews / "mu_s.png", "static friction mu_s", "-", 1.0);
       });
   write_report.seconds = seconds_since(t_write);
   reports.push_back(write_report);
@@ -244,41 +294,42 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   if (config.lod.report) {
     lod_rows = stage("levels", reports, progress, [&] {
       LodLevel l0;
-      l0.depth_m = scene.depth();
-      if (scene.has("envelope") && scene.has("texture") && scene.has("mu_d") && scene.has("mu_s")) {
-        l0.envelope_m = scene.layers.at("envelope");
-        l0.texture_m = scene.layers.at("texture");
-        l0.mu_d = scene.layers.at("mu_d");
-        l0.mu_s = scene.layers.at("mu_s");
+      l0.depth_m = scene.layers.depth;
+      if (scene.layers.has_surface_layers()) {
+        l0.envelope_m = scene.layers.envelope;
+        l0.texture_m = scene.layers.texture;
+        l0.mu_d = scene.layers.mu_d;
+        l0.mu_s = scene.layers.mu_s;
         l0.has_layers = true;
       }
       auto pyramid = std::make_shared<LodPyramid>(std::move(l0), config.layers.options, config.lod);
       LevelTableOptions to;
-      to.cross_check = config.lod.report_cross_check;
+      to.cross_check = config.lod.report_cross_check && built.cloud.has_value();
       to.tolerance_m = config.cross_check.tolerance_m;
       to.hidden_band_m = config.cross_check.hidden_band_m;
       if (summary.cross_check) to.level0_cross_check = *summary.cross_check;
-      StageResult<std::vector<LevelRow>> r{level_table(pyramid, &cloud, to), {}};
+      StageResult<std::vector<LevelRow>> r{level_table(pyramid, built.cloud ? &*built.cloud : nullptr, to), {}};
+      if (level_timing) level_timing(pyramid, r.value);
       lod_previews = write_level_previews(*pyramid, previews);
       r.report.count_in = summary.valid_cells;
       r.report.count_out = r.value.size();
       return r;
     });
   }
-  summary.total_seconds = seconds_since(t_start);
+  summary.total_seconds = built.summary.total_seconds + seconds_since(t_start);
 
   // Report: JSON for machines, Markdown for people; both from the same figures.
   const GridGeometry& g = summary.grid;
   std::size_t n_filled = 0, n_see_through = 0, n_splatted = 0;
-  for (auto f : scene.flags) {
+  for (auto f : scene.layers.flags) {
     n_filled += f == kCellFilled;
     n_see_through += f == kCellSeeThrough;
     n_splatted += f == kCellSplatted;
   }
   json j;
-  j["name"] = config.name;
+  j["name"] = json_text(config.name);
   j["tool"] = std::string("hapticloud ") + HC_VERSION;
-  j["config_file"] = config.source.string();
+  j["config_file"] = json_text(config.source.string());
   j["provenance"] = provenance;
   j["grid"] = {{"rows", g.rows}, {"cols", g.cols}, {"cell_size_m", g.cell_size_m}, {"x0_m", g.x0_m},
                {"y0_m", g.y0_m}, {"valid_cells", summary.valid_cells}, {"filled_cells", n_filled},
@@ -309,13 +360,17 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
                                 {"supported_fraction", n.supported_fraction}};
     }
   }
-  if (!scene.friction_model.empty()) j["friction_model"] = scene.friction_model;
+  if (scene.friction_model) j["friction_model"] = friction_name;
   if (!lod_rows.empty()) {
     j["levels"] = json::array();
     for (const LevelRow& r : lod_rows) {
       json jr = {{"level", r.level}, {"rows", r.rows}, {"cols", r.cols}, {"cell_size_m", r.cell_size_m},
-                 {"valid_cells", r.valid_cells}, {"build_seconds", r.build_seconds},
-                 {"tick_p50_ns", r.tick_p50_ns}, {"tick_p99_ns", r.tick_p99_ns}, {"switch_ms", r.switch_ms}};
+                 {"valid_cells", r.valid_cells}, {"build_seconds", r.build_seconds}};
+      if (r.timed) {
+        jr["tick_p50_ns"] = r.tick_p50_ns;
+        jr["tick_p99_ns"] = r.tick_p99_ns;
+        jr["switch_ms"] = r.switch_ms;
+      }
       if (r.point_vertical) {
         jr["point_vertical"] = stats_json(*r.point_vertical);
         jr["supported_fraction"] = r.supported_fraction;
@@ -330,7 +385,7 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   md << "Config: `" << config.source.string() << "`. Tool: hapticloud " << HC_VERSION << ".\n\n";
   md << "## Input\n\n";
   if (config.input.synthetic) md << "- synthetic surface: " << to_string(config.input.synthetic->kind) << "\n";
-  for (const auto& in : inputs) md << "- `" << in["file"].get<std::string>() << "` (sha256 " << in["sha256"].get<std::string>().substr(0, 16) << "…)\n";
+  for (const SceneInput& in : prov.inputs) md << "- `" << in.file << "` (sha256 " << in.sha256.substr(0, 16) << "…)\n";
   md << "\n## Grid\n\n";
   md << "| rows | cols | cell size (mm) | valid cells | filled | see-through (removed) |\n|---|---|---|---|---|---|\n";
   md << "| " << g.rows << " | " << g.cols << " | " << fmt(g.cell_size_m * 1000.0, 4) << " | " << summary.valid_cells
@@ -365,8 +420,8 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
        << fmt(c.point_vertical.p95_mm) << " |\n\n";
     md << "(Benchmarks over N = 200…1600: `build/release/bench/pipeline_bench`.)\n\n";
   }
-  if (!scene.friction_model.empty()) {
-    md << "## Surface layers\n\nFriction model: **" << scene.friction_model
+  if (scene.friction_model) {
+    md << "## Surface layers\n\nFriction model: **" << friction_name
        << "** (see docs/friction.md for paper vs curvature).\n\n";
   }
   if (!lod_rows.empty()) {
@@ -382,13 +437,21 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   }
   md << "## Previews\n\n![depth](previews/depth.png)\n![hillshade](previews/hillshade.png)\n";
   if (summary.cross_check) md << "![cross-check error](previews/cross_check_error.png)\n";
-  if (scene.has("texture")) md << "![texture](previews/texture.png)\n![mu_d](previews/mu_d.png)\n![mu_s](previews/mu_s.png)\n";
+  if (scene.layers.has_surface_layers()) md << "![texture](previews/texture.png)\n![mu_d](previews/mu_d.png)\n![mu_s](previews/mu_s.png)\n";
   write_text(staging.path() / "report.md", md.str());
 
   staging.commit();
   summary.out_dir = out_dir;
   summary.moved_aside = staging.moved_aside();
   return summary;
+}
+
+RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const ProgressFn& progress,
+                        ExistingOutput existing, const LevelTimingFn& level_timing) {
+  check_output_target(out_dir, existing);  // refuse before hours of work, not after
+  const bool keep_cloud = config.lod.report && config.lod.report_cross_check;
+  const BuiltScene built = build_scene(config, keep_cloud, progress);
+  return write_run(built, config, out_dir, progress, existing, level_timing);
 }
 
 }  // namespace hc::pipeline

@@ -1,13 +1,17 @@
 #include "hc/pipeline/scene_io.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/pipeline/surface_layers.hpp"
 
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 #include <yaml-cpp/yaml.h>
 
 #include <unistd.h>
 
+#include <cerrno>
+#include <cstring>
 #include <ctime>
 #include <fstream>
 #include <set>
@@ -24,30 +28,170 @@ cv::Mat as_mat(const HeightField& f) {
   return cv::Mat(f.rows(), f.cols(), CV_32FC1, const_cast<float*>(f.data()));
 }
 
+/// Why writing `bytes` into `file` may have failed: "no space left" when the file system has
+/// less free than that, else the errno text (may be "Success" when OpenCV swallowed it).
+std::string write_failure_reason(const fs::path& file, std::size_t bytes) {
+  std::error_code ec;
+  const fs::space_info sp = fs::space(file.parent_path(), ec);
+  if (!ec && sp.available < bytes + (1u << 20)) {
+    return "no space left on the device (" + std::to_string(sp.available) + " bytes free, about " +
+           std::to_string(bytes) + " needed)";
+  }
+  return errno != 0 ? std::string(std::strerror(errno)) : std::string("the image encoder refused it");
+}
+
 void write_float_tiff(const HeightField& f, const fs::path& file) {
   bool ok = false;
+  errno = 0;
   try {
     ok = cv::imwrite(file.string(), as_mat(f));
   } catch (const cv::Exception& e) {
     throw InputError(file.string() + ": cannot write the TIFF layer: " + e.what());
   }
-  if (!ok) throw InputError(file.string() + ": cannot write the TIFF layer");
+  if (!ok) {
+    throw InputError(file.string() + ": cannot write the TIFF layer: " +
+                     write_failure_reason(file, f.values().size() * sizeof(float)));
+  }
+}
+
+/// The float layers of a scene in file order, with their file stems.
+template <class Layers, class F>
+void for_each_layer(Layers& l, F&& f) {
+  f("depth", l.depth);
+  f("envelope", l.envelope);
+  f("texture", l.texture);
+  f("mu_d", l.mu_d);
+  f("mu_s", l.mu_s);
+  f("cell_error", l.cell_error);
+  f("region_id", l.region_id);
+  f("intensity", l.intensity);
+}
+
+void emit_layer_options(YAML::Emitter& y, const SurfaceLayerOptions& o) {
+  y << YAML::Key << "layer_options" << YAML::Value << YAML::BeginMap;
+  y << YAML::Key << "sigma_space_cells" << YAML::Value << o.sigma_space_cells;
+  y << YAML::Key << "sigma_range_m" << YAML::Value << o.sigma_range_m;
+  y << YAML::Key << "friction_model" << YAML::Value << to_string(o.friction_model);
+  y << YAML::Key << "mu_min" << YAML::Value << o.mu_min;
+  y << YAML::Key << "mu_max" << YAML::Value << o.mu_max;
+  y << YAML::Key << "workspace_radius_m" << YAML::Value << o.workspace_radius_m;
+  y << YAML::Key << "curvature_gain_m" << YAML::Value << o.curvature_gain_m;
+  y << YAML::Key << "mu_s" << YAML::Value << o.mu_s;
+  y << YAML::Key << "mu_s_regions" << YAML::Value << YAML::BeginSeq;
+  for (const auto& r : o.mu_s_regions) {
+    y << YAML::Flow << YAML::BeginSeq << r.x_min_m << r.y_min_m << r.x_max_m << r.y_max_m << r.mu_s << YAML::EndSeq;
+  }
+  y << YAML::EndSeq << YAML::EndMap;
+}
+
+void emit_lod_options(YAML::Emitter& y, const LodOptions& o) {
+  y << YAML::Key << "lod" << YAML::Value << YAML::BeginMap;
+  y << YAML::Key << "min_cells" << YAML::Value << o.min_cells;
+  y << YAML::Key << "valid_fraction" << YAML::Value << o.valid_fraction;
+  y << YAML::Key << "antialias_sigma_cells" << YAML::Value << o.antialias_sigma_cells;
+  y << YAML::Key << "memory_budget_mb" << YAML::Value << o.memory_budget_mb;
+  y << YAML::Key << "window_cells" << YAML::Value << o.window_cells;
+  y << YAML::Key << "report" << YAML::Value << o.report;
+  y << YAML::Key << "report_cross_check" << YAML::Value << o.report_cross_check;
+  y << YAML::EndMap;
+}
+
+void emit_provenance(YAML::Emitter& y, const SceneProvenance& p) {
+  y << YAML::Key << "provenance" << YAML::Value << YAML::BeginMap;
+  y << YAML::Key << "tool" << YAML::Value << p.tool;
+  y << YAML::Key << "config_file" << YAML::Value << p.config_file;
+  y << YAML::Key << "units" << YAML::Value << p.units;
+  y << YAML::Key << "recentre_offset_m" << YAML::Value << YAML::Flow << YAML::BeginSeq << p.recentre_offset_m.x()
+    << p.recentre_offset_m.y() << p.recentre_offset_m.z() << YAML::EndSeq;
+  y << YAML::Key << "inputs" << YAML::Value << YAML::BeginSeq;
+  for (const auto& in : p.inputs) {
+    y << YAML::BeginMap << YAML::Key << "file" << YAML::Value << in.file << YAML::Key << "sha256" << YAML::Value
+      << in.sha256 << YAML::EndMap;
+  }
+  y << YAML::EndSeq;
+  if (!p.synthetic.empty()) y << YAML::Key << "synthetic" << YAML::Value << p.synthetic;
+  y << YAML::EndMap;
+}
+
+/// Reads `node[key]` as T, or keeps `out` when the key is absent.
+template <class T>
+void read_opt(const YAML::Node& node, const char* key, T& out) {
+  if (const YAML::Node v = node[key]) out = v.as<T>();
+}
+
+SurfaceLayerOptions parse_layer_options(const YAML::Node& n) {
+  SurfaceLayerOptions o;
+  read_opt(n, "sigma_space_cells", o.sigma_space_cells);
+  read_opt(n, "sigma_range_m", o.sigma_range_m);
+  if (const YAML::Node fm = n["friction_model"]) o.friction_model = friction_model_from_string(fm.as<std::string>());
+  read_opt(n, "mu_min", o.mu_min);
+  read_opt(n, "mu_max", o.mu_max);
+  read_opt(n, "workspace_radius_m", o.workspace_radius_m);
+  read_opt(n, "curvature_gain_m", o.curvature_gain_m);
+  read_opt(n, "mu_s", o.mu_s);
+  for (const auto& r : n["mu_s_regions"]) {
+    o.mu_s_regions.push_back({r[0].as<double>(), r[1].as<double>(), r[2].as<double>(), r[3].as<double>(),
+                              r[4].as<double>()});
+  }
+  return o;
+}
+
+LodOptions parse_lod_options(const YAML::Node& n) {
+  LodOptions o;
+  read_opt(n, "min_cells", o.min_cells);
+  read_opt(n, "valid_fraction", o.valid_fraction);
+  read_opt(n, "antialias_sigma_cells", o.antialias_sigma_cells);
+  read_opt(n, "memory_budget_mb", o.memory_budget_mb);
+  read_opt(n, "window_cells", o.window_cells);
+  read_opt(n, "report", o.report);
+  read_opt(n, "report_cross_check", o.report_cross_check);
+  return o;
+}
+
+SceneProvenance parse_provenance(const YAML::Node& n) {
+  SceneProvenance p;
+  if (!n || !n.IsMap()) return p;
+  read_opt(n, "tool", p.tool);
+  read_opt(n, "config_file", p.config_file);
+  read_opt(n, "units", p.units);
+  read_opt(n, "synthetic", p.synthetic);
+  if (const YAML::Node o = n["recentre_offset_m"]) {
+    p.recentre_offset_m = {o[0].as<double>(), o[1].as<double>(), o[2].as<double>()};
+  }
+  for (const auto& in : n["inputs"]) {
+    if (in["file"]) p.inputs.push_back({in["file"].as<std::string>(), in["sha256"] ? in["sha256"].as<std::string>() : ""});
+  }
+  return p;
+}
+
+void write_text_file(const fs::path& file, const std::string& text) {
+  errno = 0;
+  std::ofstream out(file);
+  out << text;
+  out.flush();
+  if (!out) {
+    throw InputError(file.string() + ": cannot write: " + write_failure_reason(file, text.size()));
+  }
 }
 
 }  // namespace
 
-void write_scene(const Scene& scene, const fs::path& scene_dir, const std::string& extra_yaml) {
-  if (!scene.has("depth")) throw std::invalid_argument("write_scene: the scene has no 'depth' layer");
-  const HeightField& depth = scene.depth();
-  const GridGeometry& g = depth.geometry();
-  for (const auto& [name, layer] : scene.layers) {
-    if (!(layer.geometry() == g)) {
-      throw std::invalid_argument("write_scene: layer '" + name + "' has a different grid geometry than 'depth'");
+void write_scene(const Scene& scene, const fs::path& scene_dir) {
+  const GridGeometry& g = scene.geometry;
+  if (scene.layers.depth.rows() == 0) throw std::invalid_argument("write_scene: the scene has no depth layer");
+  for_each_layer(scene.layers, [&](const char* name, const HeightField& layer) {
+    if (layer.rows() != 0 && !(layer.geometry() == g)) {
+      throw std::invalid_argument(std::string("write_scene: layer '") + name +
+                                  "' has a different grid geometry than the scene");
     }
-  }
-  if (!scene.flags.empty() && scene.flags.size() != g.cell_count()) {
-    throw std::invalid_argument("write_scene: flags hold " + std::to_string(scene.flags.size()) +
+  });
+  if (!scene.layers.flags.empty() && scene.layers.flags.size() != g.cell_count()) {
+    throw std::invalid_argument("write_scene: flags hold " + std::to_string(scene.layers.flags.size()) +
                                 " cells, the grid " + std::to_string(g.cell_count()));
+  }
+  if (!scene.layers.colour_rgb8.empty() && scene.layers.colour_rgb8.size() != 3 * g.cell_count()) {
+    throw std::invalid_argument("write_scene: colour holds " + std::to_string(scene.layers.colour_rgb8.size()) +
+                                " bytes, expected 3 per cell (" + std::to_string(3 * g.cell_count()) + ")");
   }
   std::error_code ec;
   if (fs::exists(scene_dir)) throw InputError(scene_dir.string() + ": the scene folder already exists");
@@ -55,6 +199,7 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const std::strin
   if (ec) throw InputError(scene_dir.string() + ": cannot create the scene folder: " + ec.message());
 
   YAML::Emitter y;
+  y.SetDoublePrecision(17);
   y << YAML::BeginMap;
   y << YAML::Key << "format" << YAML::Value << "hapticloud-scene";
   y << YAML::Key << "format_version" << YAML::Value << kSceneFormatVersion;
@@ -70,33 +215,54 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const std::strin
   y << YAML::Key << "model_to_grid" << YAML::Value << YAML::Flow << YAML::BeginSeq;
   for (int r = 0; r < 4; ++r) {
     y << YAML::Flow << YAML::BeginSeq;
-    for (int c = 0; c < 4; ++c) y << depth.model_to_grid.matrix()(r, c);
+    for (int c = 0; c < 4; ++c) y << scene.model_to_grid.matrix()(r, c);
     y << YAML::EndSeq;
   }
   y << YAML::EndSeq;
   y << YAML::Key << "layers" << YAML::Value << YAML::BeginMap;
-  for (const auto& [name, layer] : scene.layers) {
-    (void)layer;
-    y << YAML::Key << name << YAML::Value << (name + ".tiff");
-    write_float_tiff(layer, scene_dir / (name + ".tiff"));
-  }
+  for_each_layer(scene.layers, [&](const char* name, const HeightField& layer) {
+    if (layer.rows() == 0) return;
+    y << YAML::Key << name << YAML::Value << (std::string(name) + ".tiff");
+    write_float_tiff(layer, scene_dir / (std::string(name) + ".tiff"));
+  });
   y << YAML::EndMap;
-  if (!scene.flags.empty()) {
-    const cv::Mat flags(g.rows, g.cols, CV_8UC1, const_cast<std::uint8_t*>(scene.flags.data()));
+  if (!scene.layers.flags.empty()) {
+    const cv::Mat flags(g.rows, g.cols, CV_8UC1, const_cast<std::uint8_t*>(scene.layers.flags.data()));
+    errno = 0;
     if (!cv::imwrite((scene_dir / "flags.png").string(), flags)) {
-      throw InputError((scene_dir / "flags.png").string() + ": cannot write the flags layer");
+      throw InputError((scene_dir / "flags.png").string() + ": cannot write the flags layer: " +
+                       write_failure_reason(scene_dir / "flags.png", g.cell_count()));
     }
     y << YAML::Key << "flags" << YAML::Value << "flags.png";
     y << YAML::Key << "flag_codes" << YAML::Value
-      << "0 empty, 1 measured, 2 splatted, 3 see-through (no data), 4 filled";
+      << "0 empty, 1 measured, 2 splatted, 3 see-through (no data), 4 filled, 5 upsampled";
   }
-  if (!scene.friction_model.empty()) y << YAML::Key << "friction_model" << YAML::Value << scene.friction_model;
+  if (!scene.layers.colour_rgb8.empty()) {
+    cv::Mat rgb(g.rows, g.cols, CV_8UC3, const_cast<std::uint8_t*>(scene.layers.colour_rgb8.data()));
+    cv::Mat bgr;
+    cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
+    errno = 0;
+    if (!cv::imwrite((scene_dir / "colour.png").string(), bgr)) {
+      throw InputError((scene_dir / "colour.png").string() + ": cannot write the colour layer: " +
+                       write_failure_reason(scene_dir / "colour.png", 3 * g.cell_count()));
+    }
+    y << YAML::Key << "colour" << YAML::Value << "colour.png";
+  }
+  if (scene.friction_model) y << YAML::Key << "friction_model" << YAML::Value << to_string(*scene.friction_model);
+  emit_layer_options(y, scene.layer_options);
+  emit_lod_options(y, scene.lod);
+  emit_provenance(y, scene.provenance);
   y << YAML::EndMap;
 
-  std::ofstream out(scene_dir / "scene.yaml");
-  out << "# hapticloud scene: heights in metres (grid frame), NaN = no data\n" << y.c_str() << "\n";
-  if (!extra_yaml.empty()) out << extra_yaml << (extra_yaml.back() == '\n' ? "" : "\n");
-  if (!out) throw InputError((scene_dir / "scene.yaml").string() + ": cannot write");
+  std::string text = "# hapticloud scene: heights in metres (grid frame), NaN = no data\n";
+  text += y.c_str();
+  text += "\n";
+  if (!scene.provenance.resolved_config_yaml.empty()) {
+    text += "# the run config as resolved, for the record (nothing reads it back)\nresolved_config:\n";
+    std::istringstream is(scene.provenance.resolved_config_yaml);
+    for (std::string line; std::getline(is, line);) text += "  " + line + "\n";
+  }
+  write_text_file(scene_dir / "scene.yaml", text);
 }
 
 Scene load_scene(const fs::path& scene_dir) {
@@ -111,18 +277,16 @@ Scene load_scene(const fs::path& scene_dir) {
     throw InputError(meta.string() + ": not valid YAML: " + e.what());
   }
   Scene s;
-  {
-    std::ifstream in(meta);
-    std::stringstream ss;
-    ss << in.rdbuf();
-    s.metadata_yaml = ss.str();
-  }
   try {
-    const int version = root["format_version"].as<int>();
-    if (version != kSceneFormatVersion) {
-      throw InputError(meta.string() + ": format_version " + std::to_string(version) + " is not supported (expected " +
-                       std::to_string(kSceneFormatVersion) + ")");
+    if (!root.IsMap() || !root["format_version"]) {
+      throw InputError(meta.string() + ": no format_version: not a hapticloud scene");
     }
+    const int version = root["format_version"].as<int>();
+    if (version != 1 && version != kSceneFormatVersion) {
+      throw InputError(meta.string() + ": format_version " + std::to_string(version) +
+                       " is not supported (expected 1 or " + std::to_string(kSceneFormatVersion) + ")");
+    }
+    s.format_version = version;
     const YAML::Node grid = root["grid"];
     GridGeometry g;
     g.rows = grid["rows"].as<int>();
@@ -133,14 +297,27 @@ Scene load_scene(const fs::path& scene_dir) {
     if (g.rows < 1 || g.cols < 1 || !(g.cell_size_m > 0)) {
       throw InputError(meta.string() + ": grid has rows, cols ≥ 1 and cell_size_m > 0 violated");
     }
+    s.geometry = g;
     Eigen::Matrix4d m = Eigen::Matrix4d::Identity();
     if (const YAML::Node frame = root["model_to_grid"]) {
       for (int r = 0; r < 4; ++r)
         for (int c = 0; c < 4; ++c) m(r, c) = frame[static_cast<std::size_t>(r)][static_cast<std::size_t>(c)].as<double>();
     }
-    for (const auto& kv : root["layers"]) {
+    s.model_to_grid = Eigen::Affine3d(m);
+    const YAML::Node listed = root["layers"];
+    for (const auto& kv : listed) {
       const std::string name = kv.first.as<std::string>();
-      const fs::path file = scene_dir / kv.second.as<std::string>();
+      bool known = false;
+      for_each_layer(s.layers, [&](const char* n, HeightField&) { known = known || name == n; });
+      if (!known) {
+        throw InputError(meta.string() + ": unknown layer '" + name +
+                         "' (expected depth, envelope, texture, mu_d, mu_s, cell_error, region_id, intensity)");
+      }
+    }
+    for_each_layer(s.layers, [&](const char* name, HeightField& out) {
+      const YAML::Node entry = listed[name];
+      if (!entry) return;
+      const fs::path file = scene_dir / entry.as<std::string>();
       if (!fs::exists(file)) throw InputError(file.string() + ": missing scene layer '" + name + "'");
       const cv::Mat img = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
       if (img.empty()) throw InputError(file.string() + ": missing or unreadable scene layer '" + name + "'");
@@ -154,20 +331,47 @@ Scene load_scene(const fs::path& scene_dir) {
         const float* src = img.ptr<float>(r);
         std::copy(src, src + g.cols, f.data() + static_cast<std::ptrdiff_t>(r) * g.cols);
       }
-      f.model_to_grid = Eigen::Affine3d(m);
-      s.layers.emplace(name, std::move(f));
-    }
-    if (!s.has("depth")) throw InputError(meta.string() + ": the scene lists no 'depth' layer");
+      f.model_to_grid = s.model_to_grid;
+      out = std::move(f);
+    });
+    if (s.layers.depth.rows() == 0) throw InputError(meta.string() + ": the scene lists no 'depth' layer");
     if (const YAML::Node flags = root["flags"]) {
       const fs::path file = scene_dir / flags.as<std::string>();
       const cv::Mat img = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
       if (img.empty() || img.type() != CV_8UC1 || img.rows != g.rows || img.cols != g.cols) {
         throw InputError(file.string() + ": missing or malformed flags layer");
       }
-      s.flags.assign(img.begin<std::uint8_t>(), img.end<std::uint8_t>());
+      s.layers.flags.assign(img.begin<std::uint8_t>(), img.end<std::uint8_t>());
     }
-    if (const YAML::Node fm = root["friction_model"]) s.friction_model = fm.as<std::string>();
+    if (const YAML::Node colour = root["colour"]) {
+      const fs::path file = scene_dir / colour.as<std::string>();
+      const cv::Mat img = cv::imread(file.string(), cv::IMREAD_COLOR);
+      if (img.empty() || img.type() != CV_8UC3 || img.rows != g.rows || img.cols != g.cols) {
+        throw InputError(file.string() + ": missing or malformed colour layer (expected " + std::to_string(g.cols) +
+                         "x" + std::to_string(g.rows) + " RGB)");
+      }
+      cv::Mat rgb;
+      cv::cvtColor(img, rgb, cv::COLOR_BGR2RGB);
+      s.layers.colour_rgb8.assign(rgb.datastart, rgb.dataend);
+    }
+    if (const YAML::Node fm = root["friction_model"]) s.friction_model = friction_model_from_string(fm.as<std::string>());
+    s.provenance = parse_provenance(root["provenance"]);
+    if (const YAML::Node rc = root["resolved_config"]) {
+      YAML::Emitter e;
+      e << rc;
+      s.provenance.resolved_config_yaml = e.c_str();
+    }
+    if (version >= 2) {
+      if (const YAML::Node lo = root["layer_options"]) s.layer_options = parse_layer_options(lo);
+      if (const YAML::Node lod = root["lod"]) s.lod = parse_lod_options(lod);
+    } else {
+      s.notes.push_back(meta.string() +
+                        ": format_version 1 records no typed layer_options or lod; defaults assumed for levels >= 1");
+      if (s.friction_model) s.layer_options.friction_model = *s.friction_model;
+    }
   } catch (const YAML::Exception& e) {
+    throw InputError(meta.string() + ": malformed scene metadata: " + e.what());
+  } catch (const ConfigError& e) {
     throw InputError(meta.string() + ": malformed scene metadata: " + e.what());
   }
   return s;
@@ -211,22 +415,29 @@ std::string local_time_stamp() {
 
 }  // namespace
 
+bool check_output_target(const fs::path& target_in, ExistingOutput existing) {
+  fs::path target = target_in;
+  if (target.filename().empty()) target = target.parent_path();
+  std::error_code ec;
+  const fs::file_status st = fs::symlink_status(target, ec);
+  if (!fs::exists(st)) return false;
+  const bool empty_dir = fs::is_directory(st) && fs::is_empty(target, ec) && !ec;
+  const bool foreign = !empty_dir && !is_hapticloud_output(target);
+  if (foreign && existing == ExistingOutput::kRefuse) {
+    const std::string what =
+        fs::is_directory(st) ? "a folder that is not an earlier hapticloud output" : "an existing file";
+    throw InputError("output " + target.string() + " is " + what +
+                     ": refusing to replace it; expected a new or empty folder, or an earlier output "
+                     "(choose another --out, or pass --force to keep it as " + target.string() +
+                     ".replaced-<time> and write the output there)");
+  }
+  return foreign;
+}
+
 StagingDir::StagingDir(fs::path target, ExistingOutput existing) : target_(std::move(target)) {
   if (target_.filename().empty()) target_ = target_.parent_path();
   std::error_code ec;
-  const fs::file_status st = fs::symlink_status(target_, ec);
-  if (fs::exists(st)) {
-    const bool empty_dir = fs::is_directory(st) && fs::is_empty(target_, ec) && !ec;
-    target_is_foreign_ = !empty_dir && !is_hapticloud_output(target_);
-    if (target_is_foreign_ && existing == ExistingOutput::kRefuse) {
-      const std::string what = fs::is_directory(st) ? "a folder that is not an earlier hapticloud output"
-                                                    : "an existing file";
-      throw InputError("output " + target_.string() + " is " + what +
-                       ": refusing to replace it; expected a new or empty folder, or an earlier output "
-                       "(choose another --out, or pass --force to keep it as " + target_.string() +
-                       ".replaced-<time> and write the output there)");
-    }
-  }
+  target_is_foreign_ = check_output_target(target_, existing);
   // A fresh staging name: nothing that happens to exist is ever removed.
   staging_ = free_sibling(target_, ".partial-" + std::to_string(::getpid()));
   fs::create_directories(staging_, ec);

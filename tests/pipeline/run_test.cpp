@@ -83,37 +83,6 @@ TEST(RunPipeline, AFailedRunLeavesNothingAndKeepsTheEarlierOutput) {
   EXPECT_FALSE(fs::exists(dir / "fresh"));
 }
 
-TEST(SceneIo, WriteThenLoadRoundTripsLayersFlagsAndFrame) {
-  const fs::path dir = hc::test::temp_dir("scene");
-  Scene s;
-  hc::HeightField depth(hc::GridGeometry{3, 4, -0.01, 0.02, 0.001});
-  for (int r = 0; r < 3; ++r)
-    for (int c = 0; c < 4; ++c) depth.at(r, c) = 0.001f * float(r * 4 + c);
-  depth.at(1, 2) = hc::kNoData;
-  depth.model_to_grid = Eigen::Translation3d(1, 2, 3) * Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitY());
-  hc::HeightField mu(depth.geometry(), 0.25f);
-  mu.model_to_grid = depth.model_to_grid;
-  s.layers.emplace("depth", depth);
-  s.layers.emplace("mu_d", mu);
-  s.flags.assign(12, kCellMeasured);
-  s.flags[6] = kCellSeeThrough;
-  s.friction_model = "paper";
-  write_scene(s, dir / "scene", "provenance: {note: test}\n");
-  EXPECT_THROW(write_scene(s, dir / "scene", ""), hc::InputError);  // never overwrite in place
-
-  const Scene back = load_scene(dir / "scene");
-  ASSERT_TRUE(back.has("mu_d"));
-  EXPECT_EQ(back.depth().geometry(), depth.geometry());
-  for (std::size_t i = 0; i < 12; ++i) {
-    const float a = depth.values()[i], b = back.depth().values()[i];
-    EXPECT_TRUE((std::isnan(a) && std::isnan(b)) || a == b) << i;
-  }
-  EXPECT_EQ(back.flags, s.flags);
-  EXPECT_EQ(back.friction_model, "paper");
-  EXPECT_TRUE(back.depth().model_to_grid.matrix().isApprox(depth.model_to_grid.matrix(), 1e-12));
-  EXPECT_NE(back.metadata_yaml.find("note: test"), std::string::npos);
-}
-
 TEST(SceneIo, MissingOrCorruptScenesAreNamedErrors) {
   const fs::path dir = hc::test::temp_dir("bad");
   try {

@@ -7,7 +7,7 @@
 #include "hc/haptics/shared_state.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/lod.hpp"
-#include "hc/pipeline/lod_controller.hpp"
+#include "hc/session/lod_controller.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/viewer/viewer.hpp"
@@ -33,8 +33,8 @@ pipeline::Scene build_scene(const std::string& config, const std::vector<std::st
 }
 
 /// What `hapticloud explore` shows for the controller's window.
-std::shared_ptr<viewer::DisplayScene> display_of(pipeline::LodController& lod) {
-  const pipeline::HapticWindow& w = lod.window();
+std::shared_ptr<viewer::DisplayScene> display_of(session::LodController& lod) {
+  const session::HapticWindow& w = lod.window();
   auto d = std::make_shared<viewer::DisplayScene>();
   d->window = lod.pyramid().window(w.level, w.row0, w.col0, w.rows, w.cols)->depth_m;
   d->overview = lod.pyramid().depth_level(lod.level_count() - 1)->depth_m;
@@ -48,7 +48,7 @@ std::shared_ptr<viewer::DisplayScene> display_of(pipeline::LodController& lod) {
 /// level commands go to the controller.
 struct SceneSession {
   haptics::SharedState shared;
-  std::unique_ptr<pipeline::LodController> lod;
+  std::unique_ptr<session::LodController> lod;
   std::unique_ptr<viewer::Viewer> view;
 
   SceneSession(pipeline::Scene scene, int window_cells, int start_level) {
@@ -56,7 +56,7 @@ struct SceneSession {
     lo.window_cells = window_cells;
     lo.min_cells = 32;
     auto pyramid = pipeline::LodPyramid::from_scene(std::move(scene), pipeline::SurfaceLayerOptions{}, lo);
-    lod = std::make_unique<pipeline::LodController>(pyramid, shared, pipeline::LodControllerOptions{});
+    lod = std::make_unique<session::LodController>(pyramid, shared, session::LodControllerOptions{});
     const GridGeometry& g = lod->level_geometry(0);
     lod->centre_window(start_level, g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)));
     viewer::ViewerCallbacks cb;

@@ -19,23 +19,8 @@
 
 namespace hc::pipeline {
 
-struct Scene;
-
-/// Options of the pyramid, the cache and the haptic window (config keys `lod.*`, docs/config.md).
-struct LodOptions {
-  int min_cells = 64;                ///< lod.min_cells: a level is made only while its longer
-                                     ///< side stays ≥ this [samples], [2, 65536]
-  double valid_fraction = 0.5;       ///< lod.valid_fraction: a coarse sample is valid only if the
-                                     ///< smoothing weight of its valid fine samples is at least this
-                                     ///< fraction of the weight of its fine samples inside the grid, (0, 1]
-  double antialias_sigma_cells = 1.0;///< lod.antialias_sigma_cells: Gaussian σ of the smoothing
-                                     ///< before each 2× decimation [fine samples], [0.5, 4]
-  double memory_budget_mb = 512.0;   ///< lod.memory_budget_mb: bound on the cache of built levels
-                                     ///< and windows [MiB] (the finest level is held outside it), (0, 1e6]
-  int window_cells = 200;            ///< lod.window_cells: haptic window side [samples], [2, 4096]
-  bool report = true;                ///< lod.report: levels table in the run report (off for huge N)
-  bool report_cross_check = true;    ///< lod.report_cross_check: cross-check every level against the points
-};
+/// Options of the pyramid, the cache and the haptic window: hc::LodOptions (scene contract).
+using hc::LodOptions;
 
 /// One level: its depth grid and the layers computed for it. All fields share one geometry.
 /// Level L has cell size 2^L·(level 0's) and the same origin (x0_m, y0_m): sample (r, c) of
@@ -104,9 +89,10 @@ class LodPyramid {
   ///         hc::InputError for an empty or geometry-mismatched level 0.
   LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options, const LodOptions& options);
 
-  /// From a loaded scene: moves its depth (and envelope, texture, mu_d, mu_s when all four are
-  /// present) into level 0. @throws as the constructor, and hc::InputError without a depth layer.
-  static std::shared_ptr<LodPyramid> from_scene(Scene&& scene, const SurfaceLayerOptions& layer_options,
+  /// From a scene: moves its depth (and envelope, texture, mu_d, mu_s when all four are
+  /// present) into level 0. Callers usually pass the scene's own layer_options and lod.
+  /// @throws as the constructor (hc::InputError for an empty depth layer).
+  static std::shared_ptr<LodPyramid> from_scene(hc::Scene&& scene, const SurfaceLayerOptions& layer_options,
                                                 const LodOptions& options);
 
   int level_count() const noexcept { return level_count_; }

@@ -17,8 +17,6 @@
 
 namespace hc::pipeline {
 
-struct RunConfig;
-struct Scene;
 
 /// One row of the levels table.
 struct LevelRow {
@@ -29,6 +27,7 @@ struct LevelRow {
   double build_seconds = 0.0;   ///< smoothing + decimation + layers of this level [s] (level 0: its layers, if computed here)
   std::optional<ErrorStats> point_vertical;  ///< cross-check (a): points vs the level's bilinear surface
   double supported_fraction = 0.0;           ///< cross-check (b): samples with a point within tolerance
+  bool timed = false;           ///< the servo columns below were measured (hc::session::time_levels)
   double tick_p50_ns = 0.0, tick_p99_ns = 0.0;  ///< servo tick compute on a window of this level,
                                                  ///< median and 99th percentile [ns]
   double switch_ms = 0.0;       ///< request → first servo tick on the new window, level cached [ms]
@@ -40,13 +39,15 @@ struct LevelTableOptions {
   bool cross_check = true;      ///< needs `points`
   double tolerance_m = 0.0005;
   double hidden_band_m = 0.002;
-  int ticks = 3000;             ///< servo ticks timed per level (a pressing circle in the window)
   /// Level 0's cross-check when the caller has it already (the run's): reused, not recomputed.
   std::optional<CrossCheck> level0_cross_check;
 };
 
-/// Builds every level of `pyramid` (with layers) and measures its row. `points` in the grid
-/// frame (metres), as the grid was made from; may be null (no cross-check).
+/// Builds every level of `pyramid` (with layers) and measures its row: size, build time and the
+/// cross-check of `points` (grid frame, metres, as the grid was made from; may be null: no
+/// cross-check) against the level's bilinear surface. The servo columns (tick cost, switch time)
+/// are left unmeasured (`timed` false): the pipeline does not run servo loops; hc::session's
+/// time_levels fills them.
 /// @throws what building the levels or the cross-check throws. Real-time: no. Cost: every level
 /// is built and cross-checked (O(points + cells) each).
 std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, const Cloud* points,
@@ -62,20 +63,5 @@ std::string level_table_text(const std::vector<LevelRow>& rows);
 /// their cells). @return the file names written (relative to dir), composite last.
 /// @throws hc::InputError naming a file that cannot be written.
 std::vector<std::string> write_level_previews(LodPyramid& pyramid, const std::filesystem::path& dir);
-
-/// The points a scene was made from, in its grid frame: the scene's resolved config (stored in
-/// scene.yaml) is read again and its input goes through the same ingest, recentring, view
-/// transform and filters as in `hapticloud run`. `config_override` replaces the stored config
-/// (e.g. when the run was made from another working folder).
-/// @throws hc::InputError if the scene has no resolved config or its input files are missing
-///         (naming them and suggesting --config); whatever ingest and the filters throw.
-Cloud scene_points(const Scene& scene, const std::optional<std::filesystem::path>& config_override = std::nullopt);
-
-/// The same for a run config (the stages of run_pipeline before reprojection).
-Cloud prepare_points(const RunConfig& config);
-
-/// The SurfaceLayerOptions and LodOptions stored in a scene's resolved config (defaults when
-/// the scene has none). @throws hc::ConfigError if the stored config is invalid.
-void scene_options(const Scene& scene, SurfaceLayerOptions& layers, LodOptions& lod);
 
 }  // namespace hc::pipeline

@@ -5,10 +5,13 @@
 #include "hc/pipeline/cloud.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/cross_check.hpp"
+#include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
 #include <filesystem>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -24,24 +27,54 @@ struct RunSummary {
   std::optional<CrossCheck> naive_cross_check;  ///< the naive front-most grid's, when compared
   GridGeometry grid;
   std::size_t valid_cells = 0;
-  double total_seconds = 0.0;             ///< file to written report
+  double total_seconds = 0.0;             ///< file to scene (build_scene) or to written report (run_pipeline)
   std::filesystem::path out_dir;
   std::filesystem::path moved_aside;      ///< where a foreign out_dir was kept (--force), or empty
 };
 
-/// Runs every stage of `config` and writes, atomically (StagingDir), the folder `out_dir`:
-///   scene/ (scene.yaml + TIFF layers: depth, envelope, texture, mu_d, mu_s, cell_error),
-///   previews/*.png, report.md and report.json.
-/// Stages: ingest → units + recentre → view transform → filters → reproject → hole fill →
-/// surface layers → cross-check → write.
+/// A scene built in memory, with what the report needs.
+struct BuiltScene {
+  Scene scene;                 ///< typed layers and metadata (hc/common/scene.hpp)
+  RunSummary summary;          ///< stage reports and the cross-check
+  std::optional<Cloud> cloud;  ///< the filtered points in the grid frame [m], when kept
+};
+
+/// Runs every stage of `config` in memory: ingest → units + recentre → view transform → filters
+/// → reproject → hole fill → surface layers → cross-check. Nothing is written.
+/// @param keep_cloud keep the filtered points (grid frame, metres) in the result (for the
+///        levels table's cross-check or a viewer's cloud preview); otherwise they are freed.
+/// @throws hc::Error subclasses from any stage (naming file, key or value).
+/// Real-time: no. Threads: stages use up to two threads internally.
+BuiltScene build_scene(const RunConfig& config, bool keep_cloud = false, const ProgressFn& progress = {});
+
+/// Fills the servo-timing columns of a levels table. The pipeline does not run servo loops;
+/// hc::session::servo_level_timing() provides one (the `hapticloud` program passes it).
+using LevelTimingFn = std::function<void(const std::shared_ptr<LodPyramid>&, std::vector<LevelRow>&)>;
+
+/// Writes, atomically (StagingDir), the run folder `out_dir` of a built scene:
+///   scene/ (write_scene), previews/*.png, report.md and report.json; with `config.lod.report`,
+/// the levels table (pipeline::level_table, cross-checked against built.cloud when present and
+/// lod.report_cross_check, timed by `level_timing` when given) and its previews.
 /// An existing out_dir is replaced only if it is an earlier output or an empty folder; a file or
 /// a foreign folder is refused, or kept aside with ExistingOutput::kMoveAside (see StagingDir).
-/// @throws hc::Error subclasses from any stage (naming file, key or value), hc::InputError for a
-///         refused out_dir (before any stage runs); on a throw nothing is left at out_dir that
-///         was not there before.
+/// @return the summary with the write and levels stages appended, total_seconds = build + write.
+/// @throws hc::InputError for a refused out_dir (before anything is written) or a file that
+///         cannot be written; on a throw nothing is left at out_dir that was not there before.
+RunSummary write_run(const BuiltScene& built, const RunConfig& config, const std::filesystem::path& out_dir,
+                     const ProgressFn& progress = {}, ExistingOutput existing = ExistingOutput::kRefuse,
+                     const LevelTimingFn& level_timing = {});
+
+/// build_scene then write_run: the whole of `hapticloud run`.
+/// @throws as build_scene and write_run; the out_dir check happens before any stage runs.
 RunSummary run_pipeline(const RunConfig& config, const std::filesystem::path& out_dir,
                         const ProgressFn& progress = {},
-                        ExistingOutput existing = ExistingOutput::kRefuse);
+                        ExistingOutput existing = ExistingOutput::kRefuse,
+                        const LevelTimingFn& level_timing = {});
+
+/// The points a run config's grid is made from, in its grid frame (metres): ingest, recentring,
+/// view transform and filters, the stages of build_scene before reprojection (no report).
+/// @throws whatever ingest and the filters throw (naming the file or key).
+Cloud prepare_points(const RunConfig& config);
 
 /// SHA-256 of a file as lowercase hex. @throws hc::InputError naming the file if unreadable.
 std::string sha256_file(const std::filesystem::path& file);

@@ -5,6 +5,7 @@
 /// row 0 = smallest y) and `scene.yaml` (format version, grid geometry, frame, provenance).
 
 #include "hc/common/height_field.hpp"
+#include "hc/common/scene.hpp"
 
 #include <cstdint>
 #include <filesystem>
@@ -14,31 +15,23 @@
 
 namespace hc::pipeline {
 
-inline constexpr int kSceneFormatVersion = 1;
+/// Format written by write_scene. Version 1 (before the typed scene) still loads.
+inline constexpr int kSceneFormatVersion = 2;
 
-/// A scene as loaded: named float layers sharing one GridGeometry, plus metadata.
-/// Layer names: "depth" (always), and when present "envelope", "texture", "mu_d", "mu_s",
-/// "cell_error" (cross-check, metres).
-struct Scene {
-  std::map<std::string, HeightField> layers;
-  std::vector<std::uint8_t> flags;  ///< CellFlag per cell (reproject.hpp); may be empty
-  std::string friction_model;       ///< "paper" | "curvature" | "" (no friction layers)
-  std::string metadata_yaml;        ///< the full scene.yaml text (provenance, config)
-
-  const HeightField& depth() const { return layers.at("depth"); }
-  bool has(const std::string& layer) const { return layers.count(layer) != 0; }
-};
+/// The scene type is hc::Scene (hc/common/scene.hpp); the pipeline names it too.
+using hc::Scene;
 
 /// Writes `scene` into the folder `scene_dir` (created; must not exist yet): one 32-bit float
-/// TIFF per layer (`<name>.tiff`, TIFF row 0 = grid row 0 = smallest y), `flags.png` (8-bit
-/// CellFlag codes) when flags are present, and `scene.yaml` with format_version, grid geometry,
-/// the model→grid frame of the depth layer, the layer list, friction model and the contents of
-/// `extra_yaml` (a YAML map, e.g. provenance and the resolved config) appended.
+/// TIFF per present layer (`<name>.tiff`: depth, envelope, texture, mu_d, mu_s, cell_error,
+/// region_id, intensity; TIFF row 0 = grid row 0 = smallest y), `flags.png` (8-bit CellFlag
+/// codes) and `colour.png` (RGB, 8 bit) when present, and `scene.yaml` (format_version 2): grid
+/// geometry, the model→grid frame, the layer list, friction model, layer_options, lod and
+/// provenance as typed keys, and the resolved config under `resolved_config` (for the record).
 /// Callers make the write atomic by writing into a temporary folder (see StagingDir).
-/// @throws hc::InputError if the folder exists or a file cannot be written (names it);
-///         std::invalid_argument if layers disagree in geometry.
-void write_scene(const Scene& scene, const std::filesystem::path& scene_dir,
-                 const std::string& extra_yaml);
+/// @throws hc::InputError if the folder exists or a file cannot be written (names it and the
+///         reason); std::invalid_argument if a layer's geometry differs from scene.geometry or
+///         the depth layer is empty.
+void write_scene(const Scene& scene, const std::filesystem::path& scene_dir);
 
 /// Name of the marker file every output folder written through StagingDir holds: it tells a
 /// later run that the folder is hapticloud's own output and may be replaced.
@@ -83,13 +76,19 @@ class StagingDir {
   bool committed_ = false;
 };
 
+/// Refuses an output target as StagingDir would, without creating anything: a file or a
+/// non-empty folder that is not an earlier output, unless `existing` is kMoveAside.
+/// @return true if the target exists and is foreign (it will be moved aside).
+/// @throws hc::InputError naming the target and suggesting --force.
+bool check_output_target(const std::filesystem::path& target, ExistingOutput existing);
+
 /// True if `dir` is an output folder hapticloud wrote (see StagingDir). Never throws.
 bool is_hapticloud_output(const std::filesystem::path& dir);
 
-/// Loads a scene folder written by `hapticloud run`.
-/// @throws hc::InputError naming the folder or file when scene.yaml or a layer is missing,
-///         the format version is not kSceneFormatVersion, or a layer's size disagrees with
-///         the geometry.
+/// Loads a scene folder written by `hapticloud run` (format_version 2, or 1: then the layer
+/// and LoD options were not recorded as typed keys, defaults are assumed and a note says so).
+/// @throws hc::InputError naming the folder or file when scene.yaml or a layer is missing or
+///         malformed, the format version is unknown, or a layer's size disagrees with the geometry.
 Scene load_scene(const std::filesystem::path& scene_dir);
 
 }  // namespace hc::pipeline

@@ -5,6 +5,7 @@
 /// μ_d (from curvature) and μ_s (from the config).
 
 #include "hc/common/height_field.hpp"
+#include "hc/common/scene.hpp"
 #include "hc/pipeline/cloud.hpp"
 
 #include <cstddef>
@@ -13,33 +14,15 @@
 
 namespace hc::pipeline {
 
-/// `paper`: μ_d = 1/(R·√(H² + K²)) (the paper's Eq. for μ_d; shrinks with curvature);
-/// `curvature`: μ_d = μ_min + c·√(H² + K²) (grows with curvature, as the paper's text says).
-/// Both are clamped to [μ_min, μ_max]; see docs/friction.md.
-enum class FrictionModel { kPaper, kCurvature };
+// FrictionModel, StaticFrictionRegion and SurfaceLayerOptions are part of the scene contract
+// (hc/common/scene.hpp); the pipeline uses them under its own namespace too.
+using hc::FrictionModel;
+using hc::StaticFrictionRegion;
+using hc::SurfaceLayerOptions;
 
 /// @throws hc::ConfigError naming the value and the allowed set ("paper", "curvature").
 FrictionModel friction_model_from_string(const std::string& name);
 std::string to_string(FrictionModel model);
-
-/// An axis-aligned box region (grid frame, metres) with its own μ_s.
-struct StaticFrictionRegion {
-  double x_min_m = 0, y_min_m = 0, x_max_m = 0, y_max_m = 0;
-  double mu_s = 0.0;  ///< [-], ≥ 0
-};
-
-struct SurfaceLayerOptions {
-  double sigma_space_cells = 3.0;   ///< bilateral σ_s [cells], > 0
-  double sigma_range_m = 0.001;     ///< bilateral σ_r [m], > 0
-  FrictionModel friction_model = FrictionModel::kPaper;
-  double mu_min = 0.05;             ///< lower clamp of μ_d [-], ≥ 0
-  double mu_max = 0.6;              ///< upper clamp of μ_d [-], ≥ μ_min
-  double workspace_radius_m = 0.05; ///< R: radius of the largest sphere inscribed in the
-                                    ///< haptic workspace [m] (paper model), > 0
-  double curvature_gain_m = 0.01;   ///< c in the curvature model [m] (μ per 1/m), ≥ 0
-  double mu_s = 0.2;                ///< default static friction μ_s [-], ≥ 0
-  std::vector<StaticFrictionRegion> mu_s_regions;  ///< later regions override earlier ones
-};
 
 /// All layers share the depth grid's geometry; NaN exactly where the depth grid has no data.
 struct SurfaceLayers {

@@ -5,7 +5,7 @@
 #include "hc/haptics/servo_loop.hpp"
 #include "hc/haptics/simulated_device.hpp"
 #include "hc/pipeline/lod.hpp"
-#include "hc/pipeline/lod_controller.hpp"
+#include "hc/session/lod_controller.hpp"
 
 #include <gtest/gtest.h>
 
@@ -17,8 +17,10 @@
 #include <thread>
 #include <vector>
 
-namespace hc::pipeline {
+namespace hc::session {
 namespace {
+
+using namespace hc::pipeline;
 
 using Eigen::Vector3d;
 
@@ -312,4 +314,4 @@ TEST(LodController, ACornerWindowIsRenderedWithTheProxyAlwaysOnItsSurface) {
 }
 
 }  // namespace
-}  // namespace hc::pipeline
+}  // namespace hc::session

@@ -1,4 +1,4 @@
-#include "lod_session.hpp"
+#include "hc/session/lod_session.hpp"
 
 #include "hc/common/error.hpp"
 
@@ -12,7 +12,7 @@
 #include <limits>
 #include <sstream>
 
-namespace hc::app {
+namespace hc::session {
 namespace {
 
 std::vector<std::string> split_fields(std::string s) {
@@ -150,10 +150,10 @@ LodSession::LodSession(const std::map<std::string, HeightField>& layers, const h
     l0.has_layers = true;
   }
   pyramid_ = std::make_shared<pipeline::LodPyramid>(std::move(l0), layer_options, lod);
-  pipeline::LodControllerOptions co;
+  LodControllerOptions co;
   co.surface = surface;
   co.device_half_extent_m = device_half_extent_m;
-  controller_ = std::make_unique<pipeline::LodController>(pyramid_, shared, co);
+  controller_ = std::make_unique<LodController>(pyramid_, shared, co);
   const int start = level < 0 ? pyramid_->level_count() - 1 : level;
   if (start >= pyramid_->level_count()) {
     throw ConfigError("touch: --level " + std::to_string(level) + " does not exist: the scene has levels 0.." +
@@ -224,9 +224,9 @@ const haptics::HapticSurface& LodSession::surface_for(std::uint64_t tag) {
   for (const SwitchRecord& s : switches_) {
     if (s.window.tag == tag) rec = &s;
   }
-  const pipeline::HapticWindow& w = rec->window;
+  const HapticWindow& w = rec->window;
   const auto win = pyramid_->window(w.level, w.row0, w.col0, w.rows, w.cols);
-  auto s = pipeline::make_window_surface(*win, surface_options_);
+  auto s = make_window_surface(*win, surface_options_);
   const haptics::HapticSurface& ref = *s;
   eval_.emplace(tag, std::move(s));
   return ref;
@@ -242,7 +242,7 @@ std::string LodSession::json() const {
   j["window_cells"] = controller_->window_cells();
   j["switches"] = nlohmann::ordered_json::array();
   for (const SwitchRecord& s : switches_) {
-    const pipeline::HapticWindow& w = s.window;
+    const HapticWindow& w = s.window;
     // The request is the action as the user wrote it: nlohmann escapes quotes, backslashes and
     // control characters.
     j["switches"].push_back({{"t_s", s.t_s},
@@ -264,7 +264,7 @@ void LodSession::print(std::ostream& out) const {
   out << "  levels of detail: " << pyramid_->level_count() << " levels, window " << controller_->window_cells()
       << " samples; " << switches_.size() << " window(s):\n";
   for (const SwitchRecord& s : switches_) {
-    const pipeline::HapticWindow& w = s.window;
+    const HapticWindow& w = s.window;
     out << "    t " << std::fixed << std::setprecision(3) << s.t_s << " s  " << s.request << " -> level " << w.level
         << " window " << w.col0 << "," << w.row0 << " (" << w.cols << "x" << w.rows << "), scale "
         << std::setprecision(4) << w.map.scale << ", built in " << std::setprecision(3)
@@ -273,4 +273,4 @@ void LodSession::print(std::ostream& out) const {
   out << std::defaultfloat;
 }
 
-}  // namespace hc::app
+}  // namespace hc::session

@@ -24,7 +24,13 @@
 #include <thread>
 #include <vector>
 
-namespace hc::pipeline {
+namespace hc::session {
+
+using pipeline::LodLevel;
+using pipeline::LodOptions;
+using pipeline::LodPyramid;
+using pipeline::LodWindowLayers;
+
 
 /// How windows are turned into haptic surfaces and mapped into the device.
 struct LodControllerOptions {
@@ -156,4 +162,4 @@ class LodController {
   std::thread prefetch_thread_;
 };
 
-}  // namespace hc::pipeline
+}  // namespace hc::session

@@ -1,17 +1,17 @@
-#include "stage_util.hpp"
-#include "hc/pipeline/lod_controller.hpp"
+#include "hc/session/lod_controller.hpp"
 
 #include "hc/common/error.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <sstream>
 
-namespace hc::pipeline {
+namespace hc::session {
 namespace {
 
-using detail::Clock;
-using detail::seconds_since;
+using Clock = std::chrono::steady_clock;
+double seconds_since(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 }  // namespace
 
@@ -223,4 +223,4 @@ const HapticWindow& LodController::pan(int dcols, int drows) {
 
 void LodController::prefetch(int level) { (void)pyramid_->level(level); }
 
-}  // namespace hc::pipeline
+}  // namespace hc::session

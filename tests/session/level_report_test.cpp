@@ -1,5 +1,6 @@
 // The levels table (hapticloud levels and the run report): real runs of the pipeline on an
-// analytic surface, the points found again through the scene's provenance.
+// analytic surface, the servo columns timed by hc::session, the scene's own LoD options read back
+// from its typed metadata.
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
@@ -7,6 +8,7 @@
 #include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
+#include "hc/session/level_timing.hpp"
 
 #include <gtest/gtest.h>
 
@@ -31,7 +33,7 @@ const char* kSinusoid =
 TEST(LodReport, RunReportHasTheLevelsTableAndPreviewsAndLevelsCommandFindsThePoints) {
   const fs::path dir = test::temp_dir("run");
   const RunConfig config = parse_run_config(kSinusoid, dir / "lod.yaml");
-  const RunSummary summary = run_pipeline(config, dir / "out");
+  const RunSummary summary = run_pipeline(config, dir / "out", {}, ExistingOutput::kRefuse, session::servo_level_timing());
   std::ifstream js(dir / "out" / "report.json");
   const nlohmann::json j = nlohmann::json::parse(js);
   ASSERT_TRUE(j.contains("levels"));
@@ -59,20 +61,28 @@ TEST(LodReport, RunReportHasTheLevelsTableAndPreviewsAndLevelsCommandFindsThePoi
   EXPECT_NE(md.find("## Levels of detail"), std::string::npos);
   EXPECT_NE(md.find("previews/lod_levels.png"), std::string::npos);
 
-  // `hapticloud levels`: the stored config gives the same points (a synthetic input here) and
-  // the same table for level 0 when cross-checked afresh.
+  // `hapticloud levels`: the scene's typed options are the config's, the config gives the same
+  // points (a synthetic input here) and the same table for level 0 when cross-checked afresh.
   Scene scene = load_scene(dir / "out" / "scene");
-  SurfaceLayerOptions lo;
-  LodOptions lod;
-  scene_options(scene, lo, lod);
+  const SurfaceLayerOptions lo = scene.layer_options;
+  const LodOptions lod = scene.lod;
   EXPECT_EQ(lod.window_cells, 64);
   EXPECT_EQ(lod.min_cells, 20);
-  const Cloud points = scene_points(scene);
+  EXPECT_EQ(lod, config.lod);
+  EXPECT_EQ(lo, config.layers.options);
+  const Cloud points = prepare_points(config);
   EXPECT_GT(points.size(), 30000U);
   auto pyramid = LodPyramid::from_scene(std::move(scene), lo, lod);
   LevelTableOptions to;
-  to.ticks = 200;
-  const auto rows = level_table(pyramid, &points, to);
+  auto rows = level_table(pyramid, &points, to);
+  for (const LevelRow& r : rows) EXPECT_FALSE(r.timed);  // the pipeline alone times no servo
+  EXPECT_NE(level_table_text(rows).find("-"), std::string::npos);
+  session::time_levels(pyramid, rows, 200);
+  for (const LevelRow& r : rows) {
+    EXPECT_TRUE(r.timed);
+    EXPECT_GT(r.tick_p50_ns, 0.0);
+    EXPECT_GT(r.switch_ms, 0.0);
+  }
   ASSERT_EQ(rows.size(), levels.size());
   ASSERT_TRUE(rows[0].point_vertical.has_value());
   EXPECT_NEAR(rows[0].point_vertical->rms_mm, summary.cross_check->point_vertical.rms_mm, 1e-9);

@@ -8,7 +8,7 @@
 #include "hc/haptics/haptic_surface.hpp"
 #include "hc/haptics/shared_state.hpp"
 #include "hc/pipeline/lod.hpp"
-#include "hc/pipeline/lod_controller.hpp"
+#include "hc/session/lod_controller.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 
 #include <Eigen/Core>
@@ -22,7 +22,7 @@
 #include <utility>
 #include <vector>
 
-namespace hc::app {
+namespace hc::session {
 
 /// One scripted request: at session time t_s, `in` / `out` (zoom around the proxy), `level L`
 /// (switch around the proxy), `pan DX DY` (samples of the current level), `window L X Y`
@@ -48,7 +48,7 @@ std::pair<int, int> parse_window_origin(const std::string& text);
 struct SwitchRecord {
   double t_s = 0.0;             ///< session time of the request [s]
   std::string request;          ///< the action
-  pipeline::HapticWindow window;
+  HapticWindow window;
 };
 
 class LodSession {
@@ -66,7 +66,7 @@ class LodSession {
              std::vector<ZoomAction> actions, haptics::SharedState& shared,
              const pipeline::SurfaceLayerOptions& layer_options, const pipeline::LodOptions& lod);
 
-  const pipeline::HapticWindow& initial() const { return switches_.front().window; }
+  const HapticWindow& initial() const { return switches_.front().window; }
   /// Session time [s] of the next scripted action (infinity when none is left).
   double next_time() const;
   /// Applies every action due at session time t_s; `proxy_m` anchors zooms (grid frame).
@@ -86,7 +86,7 @@ class LodSession {
   void check_origin(const std::string& what, int level, int col0, int row0) const;
 
   std::shared_ptr<pipeline::LodPyramid> pyramid_;
-  std::unique_ptr<pipeline::LodController> controller_;
+  std::unique_ptr<LodController> controller_;
   haptics::SurfaceOptions surface_options_;
   std::vector<ZoomAction> actions_;
   std::size_t next_ = 0;
@@ -94,4 +94,4 @@ class LodSession {
   std::map<std::uint64_t, std::unique_ptr<haptics::HapticSurface>> eval_;
 };
 
-}  // namespace hc::app
+}  // namespace hc::session

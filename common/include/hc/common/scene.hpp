@@ -1,0 +1,123 @@
+#pragma once
+/// @file scene.hpp
+/// The scene: the one typed data contract between the offline pipeline (which builds it), the
+/// scene folder on disk (hc::pipeline::write_scene / read_scene) and the online side (levels of
+/// detail, the haptic surface, the viewer). Eigen only. See docs/architecture.md, "Data contract".
+///
+/// A Scene holds one GridGeometry shared by every layer, the model → grid transform, a fixed set
+/// of layers (depth always; the others empty when absent), and typed metadata: the friction model
+/// and the layer and level-of-detail options the layers were made with (so levels ≥ 1 are
+/// computed the same way), and the provenance (tool, inputs with SHA-256, recentring offset, the
+/// resolved config as text for the record only — nothing parses it back).
+
+#include "hc/common/height_field.hpp"
+
+#include <Eigen/Geometry>
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+namespace hc {
+
+/// `paper`: μ_d = 1/(R·√(H² + K²)) (the paper's Eq. for μ_d; shrinks with curvature);
+/// `curvature`: μ_d = μ_min + c·√(H² + K²) (grows with curvature, as the paper's text says).
+/// Both are clamped to [μ_min, μ_max]; see docs/friction.md.
+enum class FrictionModel { kPaper, kCurvature };
+
+/// An axis-aligned box region (grid frame, metres) with its own μ_s.
+struct StaticFrictionRegion {
+  double x_min_m = 0, y_min_m = 0, x_max_m = 0, y_max_m = 0;
+  double mu_s = 0.0;  ///< [-], ≥ 0
+  bool operator==(const StaticFrictionRegion&) const = default;
+};
+
+/// Options of the surface-layer stage (config keys `layers.*`, docs/config.md).
+/// Source: paper Sec. 3.1 (bilateral envelope, texture) and 3.2 (curvature, μ_d).
+struct SurfaceLayerOptions {
+  double sigma_space_cells = 3.0;   ///< bilateral σ_s [cells], > 0
+  double sigma_range_m = 0.001;     ///< bilateral σ_r [m], > 0
+  FrictionModel friction_model = FrictionModel::kPaper;
+  double mu_min = 0.05;             ///< lower clamp of μ_d [-], ≥ 0
+  double mu_max = 0.6;              ///< upper clamp of μ_d [-], ≥ μ_min
+  double workspace_radius_m = 0.05; ///< R: radius of the largest sphere inscribed in the
+                                    ///< haptic workspace [m] (paper model), > 0
+  double curvature_gain_m = 0.01;   ///< c in the curvature model [m] (μ per 1/m), ≥ 0
+  double mu_s = 0.2;                ///< default static friction μ_s [-], ≥ 0
+  std::vector<StaticFrictionRegion> mu_s_regions;  ///< later regions override earlier ones
+  bool operator==(const SurfaceLayerOptions&) const = default;
+};
+
+/// Options of the level-of-detail pyramid, its cache and the haptic window (config keys
+/// `lod.*`, docs/config.md and docs/lod.md). Source: paper Sec. 4.1 ("adaptive scaling").
+struct LodOptions {
+  int min_cells = 64;                ///< lod.min_cells: a level is made only while its longer
+                                     ///< side stays ≥ this [samples], [2, 65536]
+  double valid_fraction = 0.5;       ///< lod.valid_fraction: a coarse sample is valid only if the
+                                     ///< smoothing weight of its valid fine samples is at least this
+                                     ///< fraction of the weight of its fine samples inside the grid, (0, 1]
+  double antialias_sigma_cells = 1.0;///< lod.antialias_sigma_cells: Gaussian σ of the smoothing
+                                     ///< before each 2× decimation [fine samples], [0.5, 4]
+  double memory_budget_mb = 512.0;   ///< lod.memory_budget_mb: bound on the cache of built levels
+                                     ///< and windows [MiB] (the finest level is held outside it), (0, 1e6]
+  int window_cells = 200;            ///< lod.window_cells: haptic window side [samples], [2, 4096]
+  bool report = true;                ///< lod.report: levels table in the run report (off for huge N)
+  bool report_cross_check = true;    ///< lod.report_cross_check: cross-check every level against the points
+  bool operator==(const LodOptions&) const = default;
+};
+
+/// One input file of a scene, as read.
+struct SceneInput {
+  std::string file;    ///< path as given in the config (resolved against the config's folder)
+  std::string sha256;  ///< lowercase hex SHA-256 of the file's bytes
+  bool operator==(const SceneInput&) const = default;
+};
+
+/// Where a scene came from.
+struct SceneProvenance {
+  std::string tool;                     ///< "hapticloud <version>"
+  std::string config_file;              ///< the run config's path as given
+  std::string units;                    ///< input.units of the scan ("m", "cm", "mm")
+  Eigen::Vector3d recentre_offset_m = Eigen::Vector3d::Zero();  ///< subtracted centre [m], file frame
+  std::vector<SceneInput> inputs;       ///< scans (and the .conf), with checksums
+  std::string synthetic;                ///< generated surface kind, or empty
+  std::string resolved_config_yaml;     ///< the resolved run config, for the record only
+};
+
+/// The layers of a scene. Every non-empty HeightField has the scene's geometry and model_to_grid;
+/// NaN = no data. `depth` is always present; the others are empty (rows = cols = 0) when absent.
+struct SceneLayers {
+  HeightField depth;        ///< f(x, y) [m], grid frame (larger z nearer the viewer)
+  HeightField envelope;     ///< f_b, bilateral envelope of f [m] (paper Sec. 3.1)
+  HeightField texture;      ///< h = f − f_b [m]
+  HeightField mu_d;         ///< dynamic friction coefficient [-] (paper Sec. 3.2)
+  HeightField mu_s;         ///< static friction coefficient [-]
+  HeightField cell_error;   ///< cross-check: grid sample to nearest point [m]
+  HeightField region_id;    ///< sounding/semantic region per cell as float, NaN = none
+  HeightField intensity;    ///< scanner return intensity [-] (as stored by the scanner)
+  std::vector<std::uint8_t> flags;        ///< CellFlag per cell (hc/pipeline/reproject.hpp), or empty
+  std::vector<std::uint8_t> colour_rgb8;  ///< rows·cols·3 bytes, R G B per cell, or empty
+
+  /// True when envelope, texture, μ_d and μ_s are all present (the haptic surface layers).
+  bool has_surface_layers() const noexcept {
+    return envelope.rows() > 0 && texture.rows() > 0 && mu_d.rows() > 0 && mu_s.rows() > 0;
+  }
+};
+
+/// A whole scene: geometry, frame, layers and metadata.
+struct Scene {
+  GridGeometry geometry;                                     ///< shared by every layer
+  Eigen::Affine3d model_to_grid = Eigen::Affine3d::Identity();  ///< file units → grid frame [m]
+  SceneLayers layers;
+  std::optional<FrictionModel> friction_model;  ///< set when μ_d was computed
+  SurfaceLayerOptions layer_options;            ///< the options that made the layers
+  LodOptions lod;                               ///< the level-of-detail options of the run
+  SceneProvenance provenance;
+  int format_version = 0;               ///< on a loaded scene: the folder's format_version
+  std::vector<std::string> notes;       ///< what loading assumed (e.g. defaults for an old folder)
+
+  const HeightField& depth() const noexcept { return layers.depth; }
+};
+
+}  // namespace hc
