@@ -268,10 +268,8 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
       blend_ = std::min(1.0, blend_ + inc);
       device_force = blend_from_n_ + blend_ * diff;
       if (!device_force.allFinite()) device_force.setZero();
-      // Back to grid axes (device_force = R_zᵀ·F_grid) for the snapshot and the trace.
-      const double c = std::cos(config_.workspace.rotation_rad), sn = std::sin(config_.workspace.rotation_rad);
-      state_.force_n = Eigen::Vector3d(c * device_force.x() - sn * device_force.y(),
-                                       sn * device_force.x() + c * device_force.y(), device_force.z());
+      // Back to grid axes for the snapshot and the trace.
+      state_.force_n = config_.workspace.force_to_grid(device_force);
     }
   }
   const DeviceStatus ws = device_.write(device_force);
