@@ -168,6 +168,30 @@ TEST(ServoLoop, ConfigurationOutsideTheDeviceIsAnError) {
   EXPECT_THROW(loop.start(), InputError);  // device closed
 }
 
+TEST(ServoLoop, ForceLimitsAreTheDevicesInConfigAndCommands) {
+  SharedState shared(sinusoid_surface(50));
+  ManualClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  const DeviceInfo& info = dev.info();
+  ServoConfig cfg;
+  cfg.proxy.damping_n_s_per_m = info.max_damping_n_s_per_m * 2;
+  EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
+  dev.open();
+  ServoLoop loop(dev, shared, clock, ServoConfig{});
+  shared.commands.try_push(Command::of(CommandType::kSetDamping, 1e9));
+  shared.commands.try_push(Command::of(CommandType::kSetMaxForce, 1e9));
+  shared.commands.try_push(Command::of(CommandType::kSetMaxForce, -1.0));  // rejected
+  shared.commands.try_push(Command::of(CommandType::kSetMaxForce, 0.0));   // rejected
+  shared.commands.try_push(Command::of(CommandType::kSetStiffness, -5.0));
+  shared.commands.try_push(Command::of(CommandType::kSetDamping, std::numeric_limits<double>::infinity()));  // rejected
+  loop.run_ticks(1, clock);
+  EXPECT_EQ(loop.config().proxy.damping_n_s_per_m, info.max_damping_n_s_per_m);
+  EXPECT_EQ(loop.config().proxy.max_force_n, info.max_force_n);
+  EXPECT_EQ(loop.config().proxy.stiffness_n_per_m, 0.0);
+  EXPECT_EQ(shared.counters.commands_applied.load(), 3U);
+  EXPECT_EQ(shared.counters.commands_rejected.load(), 3U);
+}
+
 /// A device whose position turns NaN on request: NaN in → zero force out, device faulted.
 class GlitchDevice final : public HapticDevice {
  public:
