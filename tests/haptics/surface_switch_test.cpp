@@ -215,6 +215,9 @@ TEST(SurfaceSwitch, InvalidMapsAndLimitsAreRejected) {
   cfg.switch_max_force_step_n = 0.5;
   cfg.switch_ramp_s = -1.0;
   EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
+  cfg.switch_ramp_s = 0.05;
+  cfg.workspace.scale = 0.0;  // an invalid map at construction
+  EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
 }
 
 TEST(SurfaceSwitch, ThreadedPublicationsWithMapsAreAdoptedInOrder) {
