@@ -118,14 +118,6 @@ bool on_line_heading_across(const GridGeometry& g, const Eigen::Vector3d& p,
   return e.axis >= 0 && e.t * std::hypot(d.x(), d.y()) <= 1.0e-6 * g.cell_size_m;
 }
 
-/// Eq. 5 friction factor 1 − μ_d·cot β for the pull v_h split into the part `along_m` ≥ 0 the
-/// proxy may move along and the rest `across_m` ≥ 0 (the normal force), clamped to [0, 1].
-double split_factor(double along_m, double across_m, double mu_d) noexcept {
-  if (!(mu_d > 0.0)) return 1.0;
-  const double resist = mu_d * across_m;
-  return resist < along_m ? 1.0 - resist / along_m : 0.0;
-}
-
 /// A candidate proxy position: (x, y) of c put exactly on the surface; taken (written to xp,
 /// sp) only if it is no farther from the HIP than the proxy was (dist0_2, squared) — so a
 /// fallback move can only release spring energy, never add any.
@@ -169,7 +161,9 @@ bool crease_slide(const HapticSurface& surface, const Eigen::Vector3d& xh, int a
     }
   }
   if (!(along > 0.0)) return false;
-  const double factor = split_factor(along, std::sqrt(std::max(dist0_2 - along * along, 0.0)), mu_d);
+  // Eq. 5 with the pull v_h split into the part along the line (the "tangential" share) and
+  // the rest across it (the normal force).
+  const double factor = friction_factor(along, std::sqrt(std::max(dist0_2 - along * along, 0.0)), mu_d);
   const double dxy = axis == 0 ? std::fabs(dir.y()) : std::fabs(dir.x());  // x-y share of dir
   // Room to the next node along the line, in cells (a whole cell when on a node already).
   const double c = axis == 0 ? (xp.y() - g.y0_m) / cell : (xp.x() - g.x0_m) / cell;
@@ -217,7 +211,7 @@ bool kink_fallback(const HapticSurface& surface, const Eigen::Vector3d& xh, doub
   const double mv2 = m2.dot(vh);
   const Eigen::Vector3d vt2 = vh - (mv2 / q2) * m2;
   if (vt2.x() * step.x() + vt2.y() * step.y() > 0.0) {  // 3: the neighbour plane leads on
-    const double factor = mv2 < 0.0 ? split_factor(vt2.norm(), -mv2 / std::sqrt(q2), mu_d) : 1.0;
+    const double factor = friction_factor(vt2.norm(), -mv2 / std::sqrt(q2), mu_d);  // 1 if mv2 ≥ 0
     // At most one cell long in 3-D. When refused, shorten it by at least half, and more where
     // the patch bends away from the plane by e (≈ c·|s|², the bilinear twist on steep cells),
     // so that the bend, shrinking quadratically, becomes at most half the step.
@@ -276,12 +270,9 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
       s.sticking = false;
     }
     // Eq. 5 friction factor 1 − μ_d·cot β, cot β = f_n/|f_t| = −mv/√(q·t2), clamped to [0, 1].
-    double factor = 1.0;
-    if (mu.mu_d > 0.0 && mv < 0.0) {
-      const double r = std::sqrt(q * t2);
-      const double resist = -mu.mu_d * mv;
-      factor = resist < r ? 1.0 - resist / r : 0.0;
-    }
+    // friction_factor() depends on tangential and normal only through their ratio, so both are
+    // given scaled by √q (√(q·t2) = √q·|v_t|, −mv = √q·(−n·v_h)): no division by √q needed.
+    const double factor = friction_factor(std::sqrt(q * t2), -mv, mu.mu_d);
     if (factor <= 0.0) {
       // Inside the dynamic friction cone: the proxy stops. If it has not moved at all this
       // tick it is at rest, and static friction takes over.

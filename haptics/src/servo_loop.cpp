@@ -194,140 +194,186 @@ void ServoLoop::apply(const Command& c) noexcept {
 
 void ServoLoop::tick() noexcept { tick_impl(0); }
 
+// One tick: read → update → write, then publish. Every phase below is noexcept and free of
+// allocation, locks and I/O; the member state they share is listed in servo_loop.hpp.
 void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
   const std::int64_t t_start = monotonic_now_ns();
+  TickFrame frame = advance_time();
+  apply_commands();
+  adopt_surface(frame);
+  // Read.
+  DeviceReading reading;
+  const bool have_reading = read_device(reading);
+  if (have_reading) publish_buttons(reading, frame);
+  // Update: proxy and force in the grid frame, then the switch blend in device axes.
+  const bool was_in_contact = state_.in_contact;
+  update_proxy(reading, have_reading, frame);
+  const Eigen::Vector3d device_force = blend_switch(config_.workspace.force_to_device(state_.force_n), frame);
+  // Write.
+  write_device(device_force);
+  // Publish.
+  emit_contact_events(was_in_contact, frame);
+  const Snapshot snap = publish_snapshot(frame);
+  const std::int64_t compute_ns = monotonic_now_ns() - t_start;
+  record_stats(compute_ns, lateness_ns);
+  record_trace(snap, compute_ns);
+  ++tick_count_;
+}
+
+ServoLoop::TickFrame ServoLoop::advance_time() noexcept {
   const std::int64_t now = clock_.now_ns();
-  const double dt = have_prev_tick_ ? static_cast<double>(now - prev_tick_ns_) * 1e-9
-                                    : static_cast<double>(period_ns_) * 1e-9;
+  TickFrame frame;
+  frame.dt_s = have_prev_tick_ ? static_cast<double>(now - prev_tick_ns_) * 1e-9
+                               : static_cast<double>(period_ns_) * 1e-9;
+  frame.t_s = static_cast<double>(now) * 1e-9;
   prev_tick_ns_ = now;
   have_prev_tick_ = true;
-  const double t_s = static_cast<double>(now) * 1e-9;
-  ServoCounters& counters = shared_.counters;
+  return frame;
+}
 
+void ServoLoop::apply_commands() noexcept {
   for (int k = 0; k < config_.max_commands_per_tick; ++k) {
     Command c;
     if (!shared_.commands.try_pop(c)) break;
     apply(c);
   }
-  const SharedState::Adoption adoption = shared_.adopt();
-  const HapticSurface* surface = adoption.surface;
-  if (adoption.changed) {
-    // Surface and map switch together (the map, when published with the surface).
-    if (adoption.map != nullptr) {
-      switch_map(*adoption.map);
-    } else {
-      // Blend from the force sent last; ended at once below if the new force is close to it.
-      blend_from_n_ = last_device_force_n_;
-      blend_ = 0.0;
-    }
-  }
+}
 
-  DeviceReading reading;
+void ServoLoop::adopt_surface(TickFrame& frame) noexcept {
+  const SharedState::Adoption adoption = shared_.adopt();
+  frame.surface = adoption.surface;
+  frame.surface_tag = adoption.tag;
+  if (!adoption.changed) return;
+  // Surface and map switch together (the map, when published with the surface).
+  if (adoption.map != nullptr) {
+    switch_map(*adoption.map);
+  } else {
+    // Blend from the force sent last; ended at once in blend_switch if the new force is close to it.
+    blend_from_n_ = last_device_force_n_;
+    blend_ = 0.0;
+  }
+}
+
+bool ServoLoop::read_device(DeviceReading& reading) noexcept {
   const DeviceStatus rs = device_.read(reading);
   const bool read_ok = rs == DeviceStatus::kOk || rs == DeviceStatus::kEndOfData;
   if (!read_ok && rs != DeviceStatus::kFault) {
-    counters.device_errors.fetch_add(1, std::memory_order_relaxed);
+    shared_.counters.device_errors.fetch_add(1, std::memory_order_relaxed);
     device_.fault();
   }
-  if ((read_ok || rs == DeviceStatus::kFault) && reading.buttons != prev_buttons_) {
-    ButtonEvent b;
-    b.tick = tick_count_;
-    b.t_s = t_s;
-    b.buttons = reading.buttons;
-    b.pressed = reading.buttons & ~prev_buttons_;
-    b.released = prev_buttons_ & ~reading.buttons;
-    prev_buttons_ = reading.buttons;
-    if (!shared_.button_events.try_push(b)) counters.events_dropped.fetch_add(1, std::memory_order_relaxed);
-  }
-  const bool was_in_contact = state_.in_contact;
-  if (read_ok || rs == DeviceStatus::kFault) {
-    const HipInput in{config_.workspace.to_grid(reading.position_m), dt,
-                      device_.state() == DeviceState::kArmed};
-    state_ = step_proxy(state_, in, surface, grid_params_);
-    if (state_.status == ProxyStatus::kNonFiniteInput) {
-      counters.nonfinite_inputs.fetch_add(1, std::memory_order_relaxed);
-      device_.fault();
-    }
-  } else {
+  return read_ok || rs == DeviceStatus::kFault;  // a device in Fault still reads
+}
+
+void ServoLoop::publish_buttons(const DeviceReading& reading, const TickFrame& frame) noexcept {
+  if (reading.buttons == prev_buttons_) return;
+  ButtonEvent b;
+  b.tick = tick_count_;
+  b.t_s = frame.t_s;
+  b.buttons = reading.buttons;
+  b.pressed = reading.buttons & ~prev_buttons_;
+  b.released = prev_buttons_ & ~reading.buttons;
+  prev_buttons_ = reading.buttons;
+  if (!shared_.button_events.try_push(b)) shared_.counters.events_dropped.fetch_add(1, std::memory_order_relaxed);
+}
+
+void ServoLoop::update_proxy(const DeviceReading& reading, bool have_reading, const TickFrame& frame) noexcept {
+  if (!have_reading) {
     state_.force_n.setZero();
     state_.gate_open = false;
     state_.ramp = 0.0;
+    return;
   }
-  Eigen::Vector3d device_force = config_.workspace.force_to_device(state_.force_n);
-  if (blend_ < 1.0) {
-    // After a surface switch: move from the last force sent towards the new one by at most half
-    // the configured step per tick (plus the new force's own change), over switch_ramp_s or more.
-    const Eigen::Vector3d diff = device_force - blend_from_n_;
-    const double gap = diff.norm();
-    if (blend_ == 0.0 && !(gap > config_.switch_max_force_step_n)) {  // first tick of the switch
-      blend_ = 1.0;  // the switch causes no step above the limit: nothing to blend
-    } else {
-      const double step_s = dt > 0.0 ? dt : static_cast<double>(period_ns_) * 1e-9;
-      double inc = config_.switch_ramp_s > 0.0 ? step_s / config_.switch_ramp_s : 1.0;
-      if (gap > 0.0) inc = std::min(inc, 0.5 * config_.switch_max_force_step_n / gap);
-      blend_ = std::min(1.0, blend_ + inc);
-      device_force = blend_from_n_ + blend_ * diff;
-      if (!device_force.allFinite()) device_force.setZero();
-      // Back to grid axes (device_force = R_zᵀ·F_grid) for the snapshot and the trace.
-      const double c = std::cos(config_.workspace.rotation_rad), sn = std::sin(config_.workspace.rotation_rad);
-      state_.force_n = Eigen::Vector3d(c * device_force.x() - sn * device_force.y(),
-                                       sn * device_force.x() + c * device_force.y(), device_force.z());
-    }
+  const HipInput in{config_.workspace.to_grid(reading.position_m), frame.dt_s,
+                    device_.state() == DeviceState::kArmed};
+  state_ = step_proxy(state_, in, frame.surface, grid_params_);
+  if (state_.status == ProxyStatus::kNonFiniteInput) {
+    shared_.counters.nonfinite_inputs.fetch_add(1, std::memory_order_relaxed);
+    device_.fault();
   }
+}
+
+Eigen::Vector3d ServoLoop::blend_switch(const Eigen::Vector3d& device_force, const TickFrame& frame) noexcept {
+  if (!(blend_ < 1.0)) return device_force;
+  // After a surface switch: move from the last force sent towards the new one by at most half
+  // the configured step per tick (plus the new force's own change), over switch_ramp_s or more.
+  const Eigen::Vector3d diff = device_force - blend_from_n_;
+  const double gap = diff.norm();
+  if (blend_ == 0.0 && !(gap > config_.switch_max_force_step_n)) {  // first tick of the switch
+    blend_ = 1.0;  // the switch causes no step above the limit: nothing to blend
+    return device_force;
+  }
+  const double step_s = frame.dt_s > 0.0 ? frame.dt_s : static_cast<double>(period_ns_) * 1e-9;
+  double inc = config_.switch_ramp_s > 0.0 ? step_s / config_.switch_ramp_s : 1.0;
+  if (gap > 0.0) inc = std::min(inc, 0.5 * config_.switch_max_force_step_n / gap);
+  blend_ = std::min(1.0, blend_ + inc);
+  Eigen::Vector3d blended = blend_from_n_ + blend_ * diff;
+  if (!blended.allFinite()) blended.setZero();
+  state_.force_n = config_.workspace.force_to_grid(blended);  // grid axes, for snapshot and trace
+  return blended;
+}
+
+void ServoLoop::write_device(const Eigen::Vector3d& device_force) noexcept {
   const DeviceStatus ws = device_.write(device_force);
   last_device_force_n_ = device_.last_force_n();
   if (ws == DeviceStatus::kIoError) {
-    counters.device_errors.fetch_add(1, std::memory_order_relaxed);
+    shared_.counters.device_errors.fetch_add(1, std::memory_order_relaxed);
     device_.fault();
   }
+}
 
-  // Contact events.
-  const auto region = [&]() { return surface != nullptr ? surface->region_id(state_.proxy_m.x(), state_.proxy_m.y()) : -1; };
-  const auto push = [&](ContactEventType type, double speed) {
-    ContactEvent e;
-    e.type = type;
-    e.region_id = region();
-    e.tick = tick_count_;
-    e.t_s = t_s;
-    e.position_m = Vec3::of(state_.proxy_m);
-    e.force_n = Vec3::of(state_.force_n);
-    e.speed_m_per_s = speed;
-    if (!shared_.events.try_push(e)) counters.events_dropped.fetch_add(1, std::memory_order_relaxed);
-  };
+std::int32_t ServoLoop::region_at_proxy(const TickFrame& frame) const noexcept {
+  return frame.surface != nullptr ? frame.surface->region_id(state_.proxy_m.x(), state_.proxy_m.y()) : -1;
+}
+
+void ServoLoop::push_contact_event(ContactEventType type, double speed_m_per_s, const TickFrame& frame) noexcept {
+  ContactEvent e;
+  e.type = type;
+  e.region_id = region_at_proxy(frame);
+  e.tick = tick_count_;
+  e.t_s = frame.t_s;
+  e.position_m = Vec3::of(state_.proxy_m);
+  e.force_n = Vec3::of(state_.force_n);
+  e.speed_m_per_s = speed_m_per_s;
+  if (!shared_.events.try_push(e)) shared_.counters.events_dropped.fetch_add(1, std::memory_order_relaxed);
+}
+
+void ServoLoop::emit_contact_events(bool was_in_contact, const TickFrame& frame) noexcept {
+  const double t_s = frame.t_s;
   if (!was_in_contact && state_.in_contact) {
-    push(ContactEventType::kOnset, 0.0);
+    push_contact_event(ContactEventType::kOnset, 0.0, frame);
     slide_from_m_ = state_.proxy_m;
     slide_from_s_ = t_s;
     ticks_since_slide_ = 0;
   } else if (was_in_contact && !state_.in_contact) {
-    push(ContactEventType::kRelease, 0.0);
+    push_contact_event(ContactEventType::kRelease, 0.0, frame);
   } else if (state_.in_contact && ++ticks_since_slide_ >= config_.slide_event_every_ticks) {
     const double moved = (state_.proxy_m - slide_from_m_).norm();
     const double elapsed = t_s - slide_from_s_;
     if (!state_.sticking && moved > 0.0 && elapsed > 0.0) {
-      push(ContactEventType::kSlide, moved / elapsed);
+      push_contact_event(ContactEventType::kSlide, moved / elapsed, frame);
     } else {
-      push(ContactEventType::kPress, 0.0);
+      push_contact_event(ContactEventType::kPress, 0.0, frame);
     }
     slide_from_m_ = state_.proxy_m;
     slide_from_s_ = t_s;
     ticks_since_slide_ = 0;
   }
+}
 
-  // Snapshot.
+Snapshot ServoLoop::publish_snapshot(const TickFrame& frame) noexcept {
   Snapshot snap;
   snap.tick = tick_count_;
-  snap.surface_tag = adoption.tag;
-  snap.t_s = t_s;
+  snap.surface_tag = frame.surface_tag;
+  snap.t_s = frame.t_s;
   snap.hip_m = Vec3::of(state_.hip_m);
   snap.proxy_m = Vec3::of(state_.proxy_m);
   snap.force_n = Vec3::of(state_.force_n);
-  snap.device_force_n = Vec3::of(device_.last_force_n());
+  snap.device_force_n = Vec3::of(device_.last_force_n());  // zero if the write faulted the device
   snap.ramp = state_.ramp;
   snap.mu_d = static_cast<float>(state_.mu_d);
   snap.mu_s = static_cast<float>(state_.mu_s);
   snap.beta_rad = state_.in_contact ? static_cast<float>(state_.beta_rad()) : 0.0F;
-  snap.region_id = state_.in_contact ? region() : -1;
+  snap.region_id = state_.in_contact ? region_at_proxy(frame) : -1;
   snap.iterations = static_cast<std::int16_t>(state_.iterations);
   snap.in_contact = state_.in_contact;
   snap.sticking = state_.sticking;
@@ -337,39 +383,43 @@ void ServoLoop::tick_impl(std::int64_t lateness_ns) noexcept {
   snap.proxy_status = static_cast<std::uint8_t>(state_.status);
   snap.buttons = prev_buttons_;
   shared_.snapshots.write(snap);
+  return snap;
+}
 
-  const std::int64_t compute = monotonic_now_ns() - t_start;
-  stats_.compute.add(compute);
+void ServoLoop::record_stats(std::int64_t compute_ns, std::int64_t lateness_ns) noexcept {
+  ServoCounters& counters = shared_.counters;
+  stats_.compute.add(compute_ns);
   ++stats_.ticks;
   if (threaded_) stats_.lateness.add(lateness_ns);
-  if (!threaded_ && compute > period_ns_) {
+  if (!threaded_ && compute_ns > period_ns_) {
     ++stats_.overruns;
     counters.overruns.fetch_add(1, std::memory_order_relaxed);
   }
   counters.ticks.fetch_add(1, std::memory_order_relaxed);
-  if (compute > counters.worst_compute_ns.load(std::memory_order_relaxed)) {
-    counters.worst_compute_ns.store(compute, std::memory_order_relaxed);
+  if (compute_ns > counters.worst_compute_ns.load(std::memory_order_relaxed)) {
+    counters.worst_compute_ns.store(compute_ns, std::memory_order_relaxed);
   }
   if (lateness_ns > counters.worst_lateness_ns.load(std::memory_order_relaxed)) {
     counters.worst_lateness_ns.store(lateness_ns, std::memory_order_relaxed);
   }
-  if (trace_size_ < trace_.size()) {
-    TickRecord& r = trace_[trace_size_++];
-    r.t_s = t_s;
-    r.hip_m = snap.hip_m;
-    r.proxy_m = snap.proxy_m;
-    r.force_n = snap.force_n;
-    r.mu_d = snap.mu_d;
-    r.mu_s = snap.mu_s;
-    r.beta_rad = snap.beta_rad;
-    r.compute_ns = static_cast<std::int32_t>(std::min<std::int64_t>(compute, 2000000000LL));
-    r.iterations = snap.iterations;
-    r.in_contact = snap.in_contact;
-    r.sticking = snap.sticking;
-    r.device_state = snap.device_state;
-    r.surface_tag = static_cast<std::uint32_t>(snap.surface_tag);
-  }
-  ++tick_count_;
+}
+
+void ServoLoop::record_trace(const Snapshot& snap, std::int64_t compute_ns) noexcept {
+  if (trace_size_ >= trace_.size()) return;
+  TickRecord& r = trace_[trace_size_++];
+  r.t_s = snap.t_s;
+  r.hip_m = snap.hip_m;
+  r.proxy_m = snap.proxy_m;
+  r.force_n = snap.force_n;
+  r.mu_d = snap.mu_d;
+  r.mu_s = snap.mu_s;
+  r.beta_rad = snap.beta_rad;
+  r.compute_ns = static_cast<std::int32_t>(std::min<std::int64_t>(compute_ns, 2000000000LL));
+  r.iterations = snap.iterations;
+  r.in_contact = snap.in_contact;
+  r.sticking = snap.sticking;
+  r.device_state = snap.device_state;
+  r.surface_tag = static_cast<std::uint32_t>(snap.surface_tag);
 }
 
 void ServoLoop::run_ticks(std::uint64_t n, ManualClock& clock) {

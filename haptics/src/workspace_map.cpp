@@ -28,6 +28,11 @@ Eigen::Vector3d WorkspaceMap::force_to_device(const Eigen::Vector3d& f) const no
   return Eigen::Vector3d(c * f.x() + s * f.y(), -s * f.x() + c * f.y(), f.z());
 }
 
+Eigen::Vector3d WorkspaceMap::force_to_grid(const Eigen::Vector3d& f) const noexcept {
+  const double c = std::cos(rotation_rad), s = std::sin(rotation_rad);
+  return Eigen::Vector3d(c * f.x() - s * f.y(), s * f.x() + c * f.y(), f.z());
+}
+
 WorkspaceMap WorkspaceMap::fit(const Eigen::Vector3d& half, double x_min, double x_max,
                                double y_min, double y_max, double z_centre, double rotation) {
   const bool ok = half.allFinite() && half.x() > 0 && half.y() > 0 && std::isfinite(x_min) &&

@@ -368,6 +368,26 @@ TEST(StepProxy, NonFiniteInputGivesZeroForce) {
   EXPECT_EQ(none.force_n, Vector3d::Zero());
 }
 
+TEST(StepProxy, ASpringForceThatOverflowsIsZeroedNotSent) {
+  // A valid but absurd stiffness: k·|x| overflows to infinity for a 2 m penetration. The cap
+  // cannot scale an infinite force; it must send zero, not NaN or infinity.
+  const HeightField f = flat();
+  const auto s = test::make_surface(f);
+  ProxyParams p = no_ramp();
+  p.stiffness_n_per_m = 1e308;
+  ASSERT_NO_THROW(validate_proxy_params(p));
+  ProxyState st;
+  st = step_proxy(st, HipInput{Vector3d(0, 0, -2.0), kDt, true}, s.get(), p);
+  ASSERT_TRUE(st.in_contact);
+  EXPECT_TRUE(st.saturated);
+  EXPECT_EQ(st.force_n, Vector3d::Zero());
+  // A finite over-cap force on the next tick is capped, not zeroed (the branch above is only
+  // for the non-finite case).
+  st = step_proxy(st, HipInput{Vector3d(0, 0, -1e-300), kDt, true}, s.get(), p);
+  EXPECT_TRUE(st.saturated);
+  EXPECT_NEAR(st.force_n.z(), p.max_force_n, 1e-12);
+}
+
 // ---------------------------------------------------------------- gate and ramp
 
 TEST(StepProxy, HipFiftyMillimetresInsideWhenForcesSwitchOn) {

@@ -168,6 +168,30 @@ TEST(ServoLoop, ConfigurationOutsideTheDeviceIsAnError) {
   EXPECT_THROW(loop.start(), InputError);  // device closed
 }
 
+TEST(ServoLoop, ForceLimitsAreTheDevicesInConfigAndCommands) {
+  SharedState shared(sinusoid_surface(50));
+  ManualClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  const DeviceInfo& info = dev.info();
+  ServoConfig cfg;
+  cfg.proxy.damping_n_s_per_m = info.max_damping_n_s_per_m * 2;
+  EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
+  dev.open();
+  ServoLoop loop(dev, shared, clock, ServoConfig{});
+  shared.commands.try_push(Command::of(CommandType::kSetDamping, 1e9));
+  shared.commands.try_push(Command::of(CommandType::kSetMaxForce, 1e9));
+  shared.commands.try_push(Command::of(CommandType::kSetMaxForce, -1.0));  // rejected
+  shared.commands.try_push(Command::of(CommandType::kSetMaxForce, 0.0));   // rejected
+  shared.commands.try_push(Command::of(CommandType::kSetStiffness, -5.0));
+  shared.commands.try_push(Command::of(CommandType::kSetDamping, std::numeric_limits<double>::infinity()));  // rejected
+  loop.run_ticks(1, clock);
+  EXPECT_EQ(loop.config().proxy.damping_n_s_per_m, info.max_damping_n_s_per_m);
+  EXPECT_EQ(loop.config().proxy.max_force_n, info.max_force_n);
+  EXPECT_EQ(loop.config().proxy.stiffness_n_per_m, 0.0);
+  EXPECT_EQ(shared.counters.commands_applied.load(), 3U);
+  EXPECT_EQ(shared.counters.commands_rejected.load(), 3U);
+}
+
 /// A device whose position turns NaN on request: NaN in → zero force out, device faulted.
 class GlitchDevice final : public HapticDevice {
  public:
@@ -218,6 +242,78 @@ TEST(ServoLoop, NonFiniteHipGivesZeroForceAndAFault) {
   dev.position = Vector3d(0, 0, -0.0005);
   loop.run_ticks(3, clock);
   EXPECT_NEAR(dev.last_force_n().z(), cfg.proxy.stiffness_n_per_m * 0.0005, 1e-9);
+}
+
+/// A device whose read and write statuses the test sets (a flaky transport).
+class FlakyDevice final : public HapticDevice {
+ public:
+  FlakyDevice() : HapticDevice(SimulatedDevice::default_info()) {}
+  Vector3d position = Vector3d(0, 0, 0.005);
+  DeviceStatus read_status = DeviceStatus::kOk;
+  DeviceStatus write_status = DeviceStatus::kOk;
+
+ protected:
+  void do_open() override {}
+  void do_close() noexcept override {}
+  DeviceStatus do_read(DeviceReading& out) noexcept override {
+    out.position_m = position;
+    return read_status;
+  }
+  DeviceStatus do_write(const Vector3d&) noexcept override { return write_status; }
+};
+
+TEST(ServoLoop, DeviceIoErrorsFaultTheDeviceAndTheGateHoldsAfterTheReset) {
+  SharedState shared(test::make_surface(test::make_square(21, 0.02, [](double, double) { return 0.0; })));
+  ManualClock clock;
+  FlakyDevice dev;
+  dev.open();
+  ServoConfig cfg;
+  cfg.proxy.ramp_time_s = 0.0;
+  ServoLoop loop(dev, shared, clock, cfg);
+  const double k = cfg.proxy.stiffness_n_per_m;
+  const auto press_to = [&](double z_m) {
+    dev.position = Vector3d(0, 0, z_m);
+    loop.run_ticks(5, clock);
+  };
+  shared.commands.try_push(Command::of(CommandType::kArm));
+  press_to(0.005);
+  press_to(-0.002);
+  ASSERT_NEAR(dev.last_force_n().z(), k * 0.002, 1e-9);
+
+  // A failed read: no position to render, so zero force at once, and the device is faulted.
+  dev.read_status = DeviceStatus::kIoError;
+  loop.run_ticks(1, clock);
+  Snapshot s;
+  ASSERT_TRUE(shared.snapshots.read(s));
+  EXPECT_EQ(dev.state(), DeviceState::kFault);
+  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());
+  EXPECT_EQ(s.device_force_n.eigen(), Vector3d::Zero());
+  EXPECT_EQ(s.force_n.eigen(), Vector3d::Zero());
+  EXPECT_FALSE(s.gate_open);
+  EXPECT_EQ(shared.counters.device_errors.load(), 1U);
+  dev.read_status = DeviceStatus::kOk;
+  loop.run_ticks(5, clock);
+  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());  // zero until an explicit reset
+  // Reset and re-arm while still pressed 2 mm in (1.6 N, above the 0.5 N gate): no kick.
+  shared.commands.try_push(Command::of(CommandType::kResetFault));
+  shared.commands.try_push(Command::of(CommandType::kArm));
+  loop.run_ticks(5, clock);
+  EXPECT_EQ(dev.state(), DeviceState::kArmed);
+  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());
+  press_to(-0.0005);  // eased off below the gate: forces return
+  EXPECT_NEAR(dev.last_force_n().z(), k * 0.0005, 1e-9);
+
+  // A failed write: counted, the device is faulted and its force zeroed in the same tick.
+  dev.write_status = DeviceStatus::kIoError;
+  loop.run_ticks(1, clock);
+  ASSERT_TRUE(shared.snapshots.read(s));
+  EXPECT_EQ(dev.state(), DeviceState::kFault);
+  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());
+  EXPECT_EQ(s.device_force_n.eigen(), Vector3d::Zero());
+  EXPECT_EQ(shared.counters.device_errors.load(), 2U);
+  dev.write_status = DeviceStatus::kOk;
+  loop.run_ticks(5, clock);
+  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());
 }
 
 TEST(ServoLoop, NewSurfaceIsAdoptedAtATickBoundaryAndTheOldOneRetired) {

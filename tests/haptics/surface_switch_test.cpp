@@ -167,6 +167,40 @@ TEST_F(SurfaceSwitchPressed, AWorkspaceCommandAloneAlsoCarriesTheProxyOverAndBle
   EXPECT_NEAR(m.to_device(trace.back().proxy_m.eigen()).x(), 0.01, 1e-9);  // device position kept
 }
 
+TEST_F(SurfaceSwitchPressed, BlendUnderARotatedMapReportsTheSentForceInGridAxes) {
+  ServoLoop& loop = start();
+  // A slope (grid z = 5 mm + 0.3·x) under a map rotated by 0.8 rad: the HIP ends up ~9 mm
+  // inside, and the force has components along grid x, so the rotation matters.
+  WorkspaceMap next;
+  next.rotation_rad = 0.8;
+  shared.publish_surface(test::make_surface(test::make_square(41, 0.1, [](double x, double) { return 0.005 + 0.3 * x; })),
+                         next, 3);
+  Snapshot prev;
+  ASSERT_TRUE(shared.snapshots.read(prev));
+  double worst_step = 0.0;
+  int blended_ticks = 0;
+  for (int k = 0; k < 300; ++k) {
+    loop.run_ticks(1, clock);
+    Snapshot s;
+    ASSERT_TRUE(shared.snapshots.read(s));
+    ASSERT_EQ(s.surface_tag, 3U);
+    const Vector3d sent = s.device_force_n.eigen();
+    worst_step = std::max(worst_step, (sent - prev.device_force_n.eigen()).norm());
+    // The grid-frame force reported is the force sent, in grid axes (the forward map, tested
+    // on its own in workspace_map_test.cpp, takes it back to device axes).
+    EXPECT_TRUE(next.force_to_device(s.force_n.eigen()).isApprox(sent, 1e-12)) << "tick " << k;
+    EXPECT_NEAR(s.force_n.eigen().norm(), sent.norm(), 1e-12) << "tick " << k;
+    if ((sent - prev.device_force_n.eigen()).norm() > 1e-3) ++blended_ticks;
+    prev = s;
+  }
+  EXPECT_LE(worst_step, cfg.switch_max_force_step_n + 1e-9);
+  EXPECT_GT(blended_ticks, 5);  // the switch was blended over several ticks
+  // At rest, frictionless: the force is along the plane's normal in grid axes.
+  const Vector3d n = Vector3d(-0.3, 0.0, 1.0).normalized();
+  EXPECT_NEAR(prev.force_n.eigen().normalized().dot(n), 1.0, 1e-6);
+  EXPECT_GT(prev.force_n.eigen().norm(), 5.0);
+}
+
 TEST(SurfaceSwitch, InvalidMapsAndLimitsAreRejected) {
   SharedState shared;
   WorkspaceMap bad;
@@ -180,6 +214,9 @@ TEST(SurfaceSwitch, InvalidMapsAndLimitsAreRejected) {
   EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
   cfg.switch_max_force_step_n = 0.5;
   cfg.switch_ramp_s = -1.0;
+  EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
+  cfg.switch_ramp_s = 0.05;
+  cfg.workspace.scale = 0.0;  // an invalid map at construction
   EXPECT_THROW(ServoLoop(dev, shared, clock, cfg), ConfigError);
 }
 

@@ -104,6 +104,7 @@ SegmentHit find_first_crossing(const HapticSurface& surface, const Eigen::Vector
 /// @param tangential_m  |v_t| ≥ 0 [m]; @param normal_m  −n·v_h, penetration along the normal
 ///        [m] (> 0 when the HIP is below the tangent plane); cot β = normal_m / tangential_m.
 /// β → 0 (tangential_m → 0 with normal_m > 0) gives 0; β = 90° gives 1; β > 90° gives 1.
+/// step_proxy() uses it for every Eq. 5 step (contact iterations, kink fallback, crease slide).
 /// Real-time: yes. Source: paper Eq. 5 and the text before it.
 double friction_factor(double tangential_m, double normal_m, double mu_d) noexcept;
 

@@ -155,7 +155,51 @@ class ServoLoop {
   std::int64_t period_ns() const noexcept { return period_ns_; }
 
  private:
+  /// What one tick knows beyond the members: its time and the surface it renders.
+  struct TickFrame {
+    double t_s = 0.0;   ///< clock time of the tick [s]
+    double dt_s = 0.0;  ///< time since the previous tick [s] (one period on the first tick)
+    const HapticSurface* surface = nullptr;  ///< surface rendered this tick (null: free space)
+    std::uint64_t surface_tag = 0;           ///< its publish_surface tag
+  };
+
+  /// One tick, read → update → write, then publish: the phases below, in this order. Each is
+  /// noexcept and real-time safe (no allocation, lock, I/O or log).
   void tick_impl(std::int64_t lateness_ns) noexcept;
+  /// Clock time and dt of this tick; remembers the time for the next one.
+  TickFrame advance_time() noexcept;
+  /// Applies at most max_commands_per_tick queued commands (apply()).
+  void apply_commands() noexcept;
+  /// Adopts a newly published surface (and its map, via switch_map(); without a map the
+  /// force blend starts alone); writes the surface in use and its tag to `frame`.
+  void adopt_surface(TickFrame& frame) noexcept;
+  /// Reads the device. A status other than ok / end-of-data / fault counts a device error and
+  /// faults the device. @return true when `reading` holds a position to render (a device in
+  /// Fault still reads; its force is zero anyway).
+  bool read_device(DeviceReading& reading) noexcept;
+  /// Pushes a ButtonEvent when the buttons changed since the last good read.
+  void publish_buttons(const DeviceReading& reading, const TickFrame& frame) noexcept;
+  /// Steps the proxy with the HIP mapped to the grid frame (forces enabled only when Armed);
+  /// a non-finite HIP faults the device. Without a reading: zero force, gate closed, ramp 0.
+  void update_proxy(const DeviceReading& reading, bool have_reading, const TickFrame& frame) noexcept;
+  /// The surface-switch blend (see switch_max_force_step_n) of the force about to be sent
+  /// [N, device axes]: returns the force to send; while blending, also writes it back in grid
+  /// axes to state_.force_n (WorkspaceMap::force_to_grid) for the snapshot and the trace.
+  Eigen::Vector3d blend_switch(const Eigen::Vector3d& device_force_n, const TickFrame& frame) noexcept;
+  /// Sends the force (HapticDevice::write clamps it and enforces the device state); an I/O
+  /// error counts a device error and faults the device.
+  void write_device(const Eigen::Vector3d& device_force_n) noexcept;
+  /// Onset, release, and (every slide_event_every_ticks ticks in contact) slide or press events.
+  void emit_contact_events(bool was_in_contact, const TickFrame& frame) noexcept;
+  void push_contact_event(ContactEventType type, double speed_m_per_s, const TickFrame& frame) noexcept;
+  /// Region under the proxy on the tick's surface, −1 without a surface or region.
+  std::int32_t region_at_proxy(const TickFrame& frame) const noexcept;
+  /// Writes this tick's Snapshot to the triple buffer and returns it.
+  Snapshot publish_snapshot(const TickFrame& frame) noexcept;
+  /// Compute-time and lateness histograms, overruns, and the shared counters.
+  void record_stats(std::int64_t compute_ns, std::int64_t lateness_ns) noexcept;
+  /// One trace row, while the caller's trace span has room.
+  void record_trace(const Snapshot& snap, std::int64_t compute_ns) noexcept;
   void apply(const Command& command) noexcept;
   void update_grid_params() noexcept;
   /// A new workspace map at a tick boundary: the proxy keeps its device position, the grid

@@ -28,8 +28,16 @@ struct WorkspaceMap {
   Eigen::Vector3d to_grid(const Eigen::Vector3d& device_m) const noexcept;
   /// Grid point [m] → device point [m] (inverse of to_grid). Real-time: yes.
   Eigen::Vector3d to_device(const Eigen::Vector3d& grid_m) const noexcept;
-  /// A grid-frame force [N] expressed in device axes (rotation only). Real-time: yes.
+  /// A grid-frame force [N] expressed in device axes: F_device = R_z(θ)ᵀ·F_grid (rotation
+  /// only; origin and scale do not enter, forces are never scaled). Real-time: yes.
   Eigen::Vector3d force_to_device(const Eigen::Vector3d& force_grid_n) const noexcept;
+  /// Inverse of force_to_device: a device-axes force [N] (e.g. the one sent to the device)
+  /// expressed in grid axes, F_grid = R_z(θ)·F_device, θ = rotation_rad. Rotation only, like
+  /// force_to_device: |F| and F_z are unchanged, origin and scale do not enter. A device-axes
+  /// force points along the device displacement d that to_grid maps to the grid displacement
+  /// scale·R_z(θ)·d, so F_grid is parallel to that displacement, and the power F·v is the same
+  /// in both frames once the grid velocity is divided by the scale. Real-time: yes.
+  Eigen::Vector3d force_to_grid(const Eigen::Vector3d& force_device_n) const noexcept;
   /// Device stiffness [N/m] → the grid-frame stiffness giving the same force per device metre.
   double stiffness_to_grid(double stiffness_device_n_per_m) const noexcept {
     return stiffness_device_n_per_m / scale;
