@@ -204,13 +204,56 @@ struct Part {
   std::unique_ptr<NearestPointIndex> all;  ///< kd-tree over all its rows' points (far samples)
 };
 
-}  // namespace
+/// Per bucket, packed for the queries (one cache line holds four cells): point range in
+/// Run::sorted and z range.
+struct Bucket {
+  std::uint32_t begin, end;
+  float z_lo, z_hi;
+};
 
-ErrorStats error_stats_mm(std::vector<double> abs_errors_m) { return stats_of(abs_errors_m); }
+/// Beyond this many rings a sample's search is deferred to phase 5 [cells].
+constexpr int kRingsNearLimit = 16;
+/// Phase 5 finishes the deferred searches by rings if they visit fewer cells than this in
+/// total, else it builds kd-trees over all points (≈ 0.2 µs per point and thread).
+constexpr double kFarRingCellBudget = 2e7;
+/// key of a non-finite point.
+constexpr std::uint32_t kSkip = std::numeric_limits<std::uint32_t>::max();
 
-StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& grid,
-                                    double tolerance_m, double hidden_band_m) {
-  const auto t0 = std::chrono::steady_clock::now();
+/// The inputs and the state shared by the phases of one cross_check run.
+struct Run {
+  const Cloud& points_m;
+  const HeightField& grid;
+  const GridGeometry& g;
+  double tolerance_m, hidden_band_m;
+  CrossCheck& cc;  ///< the result being filled
+  std::size_t ucols = 0, cells = 0, n_points = 0;
+  std::size_t valid_total = 0;  ///< valid samples of the grid
+  /// Local frame of the float coordinates: centred on the grid (x, y) and on the middle of its
+  /// height range (z), so that float keeps ~1e-9 relative precision even for coordinates far
+  /// from the origin.
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  int split_row = 1;    ///< rows [0, split_row) belong to the lower half
+  double y_split = 0;   ///< y of the boundary between the halves [m]
+  BilinearSurface surface;
+  Part parts[2];
+  std::vector<std::uint32_t> key;    ///< cell of each point, kSkip if not finite
+  std::vector<std::uint32_t> first;  ///< bucket k = sorted points [first[k], first[k+1])
+  std::vector<float> sorted;         ///< xyz, local frame, sorted by cell
+  std::vector<Bucket> buckets;
+
+  Run(const Cloud& points, const HeightField& grid_m, double tolerance, double hidden_band, CrossCheck& out)
+      : points_m(points), grid(grid_m), g(grid_m.geometry()), tolerance_m(tolerance), hidden_band_m(hidden_band),
+        cc(out), surface(HeightFieldView::of(grid_m)) {}
+};
+
+/// Runs f(run, 1) on a second thread and f(run, 0) on this one.
+template <class F>
+void on_both_halves(Run& run, F f) {
+  run_two([&] { f(run, 1); }, [&] { f(run, 0); });
+}
+
+/// The argument checks that need no pass over the data.
+void check_arguments(const Cloud& points_m, const HeightField& grid, double tolerance_m, double hidden_band_m) {
   std::ostringstream msg;
   if (!(tolerance_m > 0.0) || !std::isfinite(tolerance_m)) {
     msg << "cross_check: tolerance_m = " << tolerance_m << " (expected a finite distance > 0)";
@@ -227,325 +270,328 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
     throw InputError(msg.str());
   }
   if (points_m.size() == 0) throw InputError("cross_check: the point cloud is empty");
+}
 
-  // Split rows so that both threads get about half of the valid cells.
-  const auto ucols = static_cast<std::size_t>(g.cols);
+/// Sizes, the local frame, and the split of the rows so that both threads get about half of
+/// the valid cells (and half of the points each).
+void plan(Run& run) {
+  const GridGeometry& g = run.g;
+  std::ostringstream msg;
+  run.ucols = static_cast<std::size_t>(g.cols);
   std::vector<std::size_t> valid_in_row(static_cast<std::size_t>(g.rows), 0);
-  std::size_t valid_total = 0;
   for (int r = 0; r < g.rows; ++r) {
-    const float* row = grid.data() + static_cast<std::size_t>(r) * ucols;
+    const float* row = run.grid.data() + static_cast<std::size_t>(r) * run.ucols;
     std::size_t n = 0;
     for (int c = 0; c < g.cols; ++c) n += std::isnan(row[c]) ? 0U : 1U;
     valid_in_row[static_cast<std::size_t>(r)] = n;
-    valid_total += n;
+    run.valid_total += n;
   }
-  if (valid_total == 0) {
+  if (run.valid_total == 0) {
     msg << "cross_check: the " << g.cols << " x " << g.rows << " grid has no valid cell";
     throw InputError(msg.str());
   }
-  // The kd-tree works in float, in a local frame centred on the grid (x, y) and on the middle
-  // of its height range (z), so that float keeps ~1e-9 relative precision even for
-  // coordinates far from the origin.
-  Eigen::Vector3d centre(g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)), 0.0);
+  run.centre = Eigen::Vector3d(g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)), 0.0);
   {
     float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
-    for (float v : grid.values()) {
+    for (float v : run.grid.values()) {
       if (std::isnan(v)) continue;
       z_lo = std::min(z_lo, v);
       z_hi = std::max(z_hi, v);
     }
-    centre.z() = 0.5 * (static_cast<double>(z_lo) + static_cast<double>(z_hi));
+    run.centre.z() = 0.5 * (static_cast<double>(z_lo) + static_cast<double>(z_hi));
   }
-  int split_row = 1;  // rows [0, split_row) belong to the lower half
-  {
-    std::size_t acc = 0;
-    for (int r = 0; r < g.rows; ++r) {
-      acc += valid_in_row[static_cast<std::size_t>(r)];
-      if (2 * acc >= valid_total) {
-        split_row = std::clamp(r + 1, 1, g.rows - 1);
-        break;
-      }
+  std::size_t acc = 0;
+  for (int r = 0; r < g.rows; ++r) {
+    acc += valid_in_row[static_cast<std::size_t>(r)];
+    if (2 * acc >= run.valid_total) {
+      run.split_row = std::clamp(r + 1, 1, g.rows - 1);
+      break;
     }
   }
-  const double y_split = g.y_of_row(split_row - 0.5);
+  run.y_split = g.y_of_row(run.split_row - 0.5);
 
-  const BilinearSurface surface(HeightFieldView::of(grid));
+  run.cells = g.cell_count();
+  run.n_points = run.points_m.size();
+  if (run.n_points >= std::numeric_limits<std::uint32_t>::max() / 2) {
+    msg << "cross_check: " << run.n_points << " points is more than this cross-check indexes (2^31)";
+    throw ResourceError(msg.str());
+  }
+  for (int h = 0; h < 2; ++h) {
+    Part& part = run.parts[h];
+    part.point_begin = h == 0 ? 0 : run.n_points / 2;
+    part.point_end = h == 0 ? run.n_points / 2 : run.n_points;
+    part.row_begin = h == 0 ? 0 : run.split_row;
+    part.row_end = h == 0 ? run.split_row : g.rows;
+  }
+  run.key.resize(run.n_points);
+  run.first.resize(run.cells + 1);
+  run.buckets.resize(run.cells);
+}
+
+/// Phase 1 (per half of the points): (a) against f, and each point's bucket.
+void phase1_residuals_and_keys(Run& run, int h) {
+  const GridGeometry& g = run.g;
   const double x_lo = g.x0_m, x_hi = g.x_of_col(g.cols - 1);
   const double y_lo = g.y0_m, y_hi = g.y_of_row(g.rows - 1);
   const double inv_cell = 1.0 / g.cell_size_m;
-  const auto cell_f = static_cast<float>(g.cell_size_m);
-  const std::size_t cells = g.cell_count();
-  const std::size_t n_points = points_m.size();
-  if (n_points >= std::numeric_limits<std::uint32_t>::max() / 2) {
-    msg << "cross_check: " << n_points << " points is more than this cross-check indexes (2^31)";
-    throw ResourceError(msg.str());
-  }
-  constexpr std::uint32_t kSkip = std::numeric_limits<std::uint32_t>::max();
-  Part parts[2];
-  for (int h = 0; h < 2; ++h) {
-    parts[h].point_begin = h == 0 ? 0 : n_points / 2;
-    parts[h].point_end = h == 0 ? n_points / 2 : n_points;
-    parts[h].row_begin = h == 0 ? 0 : split_row;
-    parts[h].row_end = h == 0 ? split_row : g.rows;
-  }
-  std::vector<std::uint32_t> key(n_points);     // cell of each point, kSkip if not finite
-  std::vector<std::uint32_t> first(cells + 1);  // bucket k = sorted points [first[k], first[k+1])
-  std::vector<float> sorted;                     // xyz, local frame, sorted by cell
-  // Per bucket, packed for the queries (one cache line holds four cells): point range in
-  // `sorted` and z range.
-  struct Bucket {
-    std::uint32_t begin, end;
-    float z_lo, z_hi;
-  };
-  std::vector<Bucket> buckets(cells);
-
-  // Phase 1 (per half of the points): (a) against f, and each point's bucket.
-  auto phase1 = [&](int h) {
-    Part& out = parts[h];
-    out.count.assign(cells, 0);
-    const double* p = points_m.xyz.data() + 3 * out.point_begin;
-    for (std::size_t i = out.point_begin; i < out.point_end; ++i, p += 3) {
-      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
-        key[i] = kSkip;
-        continue;
-      }
-      const int c = std::clamp(static_cast<int>(std::floor((p[0] - g.x0_m) * inv_cell + 0.5)), 0, g.cols - 1);
-      // Rows follow the exact y split, so that each thread's rows hold exactly its tree's points.
-      const int r = p[1] < y_split
-                        ? std::clamp(static_cast<int>(std::floor((p[1] - g.y0_m) * inv_cell + 0.5)), 0, split_row - 1)
-                        : std::clamp(static_cast<int>(std::floor((p[1] - g.y0_m) * inv_cell + 0.5)), split_row, g.rows - 1);
-      const auto k = static_cast<std::uint32_t>(static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c));
-      key[i] = k;
-      ++out.count[k];
-      ++out.finite;
-      if (p[0] < x_lo || p[0] > x_hi || p[1] < y_lo || p[1] > y_hi) {
-        ++out.outside;
-        continue;
-      }
-      const SurfaceSample s = surface.sample(p[0], p[1]);
-      if (!s.valid) {
-        ++out.off_surface;
-        continue;
-      }
-      const double residual = p[2] - s.z_m;
-      if (residual < -hidden_band_m) {
-        ++out.hidden;
-        continue;
-      }
-      ++out.on_surface;
-      const double n_z = 1.0 / std::sqrt(1.0 + s.dz_dx * s.dz_dx + s.dz_dy * s.dz_dy);
-      out.vertical_m.push_back(static_cast<float>(std::abs(residual)));
-      out.normal_m.push_back(static_cast<float>(std::abs(residual) * n_z));
+  const int split_row = run.split_row;
+  Part& out = run.parts[h];
+  out.count.assign(run.cells, 0);
+  const double* p = run.points_m.xyz.data() + 3 * out.point_begin;
+  for (std::size_t i = out.point_begin; i < out.point_end; ++i, p += 3) {
+    if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
+      run.key[i] = kSkip;
+      continue;
     }
-  };
-  run_two([&] { phase1(1); }, [&] { phase1(0); });
-  if (parts[0].finite + parts[1].finite == 0) {
-    msg << "cross_check: none of the " << n_points << " points is finite";
+    const int c = std::clamp(static_cast<int>(std::floor((p[0] - g.x0_m) * inv_cell + 0.5)), 0, g.cols - 1);
+    // Rows follow the exact y split, so that each thread's rows hold exactly its tree's points.
+    const int r = p[1] < run.y_split
+                      ? std::clamp(static_cast<int>(std::floor((p[1] - g.y0_m) * inv_cell + 0.5)), 0, split_row - 1)
+                      : std::clamp(static_cast<int>(std::floor((p[1] - g.y0_m) * inv_cell + 0.5)), split_row, g.rows - 1);
+    const auto k = static_cast<std::uint32_t>(static_cast<std::size_t>(r) * run.ucols + static_cast<std::size_t>(c));
+    run.key[i] = k;
+    ++out.count[k];
+    ++out.finite;
+    if (p[0] < x_lo || p[0] > x_hi || p[1] < y_lo || p[1] > y_hi) {
+      ++out.outside;
+      continue;
+    }
+    const SurfaceSample s = run.surface.sample(p[0], p[1]);
+    if (!s.valid) {
+      ++out.off_surface;
+      continue;
+    }
+    const double residual = p[2] - s.z_m;
+    if (residual < -run.hidden_band_m) {
+      ++out.hidden;
+      continue;
+    }
+    ++out.on_surface;
+    const double n_z = 1.0 / std::sqrt(1.0 + s.dz_dx * s.dz_dx + s.dz_dy * s.dz_dy);
+    out.vertical_m.push_back(static_cast<float>(std::abs(residual)));
+    out.normal_m.push_back(static_cast<float>(std::abs(residual) * n_z));
+  }
+}
+
+/// Bucket offsets (counting sort): within a bucket, part 0's points come before part 1's.
+void bucket_offsets(Run& run) {
+  if (run.parts[0].finite + run.parts[1].finite == 0) {
+    std::ostringstream msg;
+    msg << "cross_check: none of the " << run.n_points << " points is finite";
     throw InputError(msg.str());
   }
-  // Bucket offsets (counting sort): within a bucket, part 0's points come before part 1's.
-  {
-    std::uint32_t running = 0;
-    for (std::size_t k = 0; k < cells; ++k) {
-      first[k] = running;
-      const std::uint32_t n0 = parts[0].count[k], n1 = parts[1].count[k];
-      parts[0].count[k] = running;
-      parts[1].count[k] = running + n0;
-      running += n0 + n1;
-    }
-    first[cells] = running;
-    sorted.resize(3 * static_cast<std::size_t>(running));
+  std::uint32_t running = 0;
+  for (std::size_t k = 0; k < run.cells; ++k) {
+    run.first[k] = running;
+    const std::uint32_t n0 = run.parts[0].count[k], n1 = run.parts[1].count[k];
+    run.parts[0].count[k] = running;
+    run.parts[1].count[k] = running + n0;
+    running += n0 + n1;
   }
+  run.first[run.cells] = running;
+  run.sorted.resize(3 * static_cast<std::size_t>(running));
+}
 
-  // Phase 2 (per half of the points): scatter into the buckets (float, local frame).
-  auto phase2 = [&](int h) {
-    Part& out = parts[h];
-    const double* p = points_m.xyz.data() + 3 * out.point_begin;
-    for (std::size_t i = out.point_begin; i < out.point_end; ++i, p += 3) {
-      if (key[i] == kSkip) continue;
-      float* dst = &sorted[3 * static_cast<std::size_t>(out.count[key[i]]++)];
-      dst[0] = static_cast<float>(p[0] - centre.x());
-      dst[1] = static_cast<float>(p[1] - centre.y());
-      dst[2] = static_cast<float>(p[2] - centre.z());
-    }
-    std::vector<std::uint32_t>().swap(out.count);
-  };
-  run_two([&] { phase2(1); }, [&] { phase2(0); });
-  std::vector<std::uint32_t>().swap(key);
+/// Phase 2 (per half of the points): scatter into the buckets (float, local frame).
+void phase2_scatter(Run& run, int h) {
+  Part& out = run.parts[h];
+  const double* p = run.points_m.xyz.data() + 3 * out.point_begin;
+  for (std::size_t i = out.point_begin; i < out.point_end; ++i, p += 3) {
+    if (run.key[i] == kSkip) continue;
+    float* dst = &run.sorted[3 * static_cast<std::size_t>(out.count[run.key[i]]++)];
+    dst[0] = static_cast<float>(p[0] - run.centre.x());
+    dst[1] = static_cast<float>(p[1] - run.centre.y());
+    dst[2] = static_cast<float>(p[2] - run.centre.z());
+  }
+  std::vector<std::uint32_t>().swap(out.count);
+}
 
-  // Phase 3 (per half of the rows): z range and front-most point of each bucket.
-  auto phase3 = [&](int h) {
-    Part& out = parts[h];
-    std::vector<float>& front = out.front_xyz;
-    const std::size_t k_end = static_cast<std::size_t>(out.row_end) * ucols;
-    for (std::size_t k = static_cast<std::size_t>(out.row_begin) * ucols; k < k_end; ++k) {
-      const std::uint32_t b = first[k], e = first[k + 1];
-      buckets[k] = Bucket{b, e, 0.0f, 0.0f};
-      if (b == e) continue;
-      std::uint32_t top = b;
-      float lo = sorted[3 * b + 2], hi = lo;
-      for (std::uint32_t j = b + 1; j < e; ++j) {
-        const float z = sorted[3 * j + 2];
-        lo = std::min(lo, z);
-        if (z > hi) {
-          hi = z;
-          top = j;
-        }
-      }
-      buckets[k].z_lo = lo;
-      buckets[k].z_hi = hi;
-      front.insert(front.end(), &sorted[3 * top], &sorted[3 * top] + 3);
-    }
-  };
-  run_two([&] { phase3(1); }, [&] { phase3(0); });
-
-  // Phase 4 (per half of the rows): exact nearest input point of every valid sample.
-  StageResult<CrossCheck> result;
-  CrossCheck& cc = result.value;
-  cc.cell_error_m = HeightField(g, kNoData);
-  cc.cell_error_m.model_to_grid = grid.model_to_grid;
-  // Beyond this many rings a sample's search is deferred to phase 5 [cells].
-  constexpr int kRingsNearLimit = 16;
-  // Phase 5 finishes the deferred searches by rings if they visit fewer cells than this in
-  // total, else it builds kd-trees over all points (≈ 0.2 µs per point and thread).
-  constexpr double kFarRingCellBudget = 2e7;
-  // Best squared distance from q to the points of bucket k, folded into best_sq.
-  auto scan = [&](std::size_t k, const float* q, float& best_sq) {
-    const float* pt = sorted.data();
-    for (std::uint32_t j = buckets[k].begin, e = buckets[k].end; j < e; ++j) {
-      const float dx = pt[3 * j] - q[0], dy = pt[3 * j + 1] - q[1], dz = pt[3 * j + 2] - q[2];
-      best_sq = std::min(best_sq, dx * dx + dy * dy + dz * dz);
-    }
-  };
-  // Scans the rings k_from, k_from + 1, ... of cells around (r, c) (ring k's nearest edge is
-  // (k − ½) cells away), skipping cells whose square and z range cannot beat best_sq. Returns
-  // true when the search is complete, false if it stopped after ring k_to.
-  auto search_rings = [&](int r, int c, const float* q, float& best_sq, int k_from, int k_to) {
-    for (int k = k_from;; ++k) {
-      const float gap = (static_cast<float>(k) - 0.5f) * cell_f;
-      if (gap * gap >= best_sq || (k > r && k > c && r + k >= g.rows && c + k >= g.cols)) return true;
-      if (k > k_to) return false;
-      for (int dr = -k; dr <= k; ++dr) {
-        const int rr = r + dr;
-        if (rr < 0 || rr >= g.rows) continue;
-        const float hy = std::max(0.0f, (static_cast<float>(std::abs(dr)) - 0.5f) * cell_f);
-        const int step = (dr == -k || dr == k) ? 1 : 2 * k;  // full edge rows, else two cells
-        for (int dc = -k; dc <= k; dc += step) {
-          const int c2 = c + dc;
-          if (c2 < 0 || c2 >= g.cols) continue;
-          const std::size_t kc = static_cast<std::size_t>(rr) * ucols + static_cast<std::size_t>(c2);
-          const Bucket& bk = buckets[kc];
-          if (bk.begin == bk.end) continue;
-          const float hx = std::max(0.0f, (static_cast<float>(std::abs(dc)) - 0.5f) * cell_f);
-          const float vz = std::max({0.0f, bk.z_lo - q[2], q[2] - bk.z_hi});
-          if (hx * hx + hy * hy + vz * vz >= best_sq) continue;
-          scan(kc, q, best_sq);
-        }
+/// Phase 3 (per half of the rows): z range and front-most point of each bucket.
+void phase3_bucket_summaries(Run& run, int h) {
+  Part& out = run.parts[h];
+  std::vector<float>& front = out.front_xyz;
+  const std::vector<float>& sorted = run.sorted;
+  const std::size_t k_end = static_cast<std::size_t>(out.row_end) * run.ucols;
+  for (std::size_t k = static_cast<std::size_t>(out.row_begin) * run.ucols; k < k_end; ++k) {
+    const std::uint32_t b = run.first[k], e = run.first[k + 1];
+    run.buckets[k] = Bucket{b, e, 0.0f, 0.0f};
+    if (b == e) continue;
+    std::uint32_t top = b;
+    float lo = sorted[3 * b + 2], hi = lo;
+    for (std::uint32_t j = b + 1; j < e; ++j) {
+      const float z = sorted[3 * j + 2];
+      lo = std::min(lo, z);
+      if (z > hi) {
+        hi = z;
+        top = j;
       }
     }
+    run.buckets[k].z_lo = lo;
+    run.buckets[k].z_hi = hi;
+    front.insert(front.end(), &sorted[3 * top], &sorted[3 * top] + 3);
+  }
+}
+
+/// Best squared distance from q to the points of bucket k, folded into best_sq.
+void scan(const Run& run, std::size_t k, const float* q, float& best_sq) {
+  const float* pt = run.sorted.data();
+  for (std::uint32_t j = run.buckets[k].begin, e = run.buckets[k].end; j < e; ++j) {
+    const float dx = pt[3 * j] - q[0], dy = pt[3 * j + 1] - q[1], dz = pt[3 * j + 2] - q[2];
+    best_sq = std::min(best_sq, dx * dx + dy * dy + dz * dz);
+  }
+}
+
+/// Scans the rings k_from, k_from + 1, ... of cells around (r, c) (ring k's nearest edge is
+/// (k − ½) cells away), skipping cells whose square and z range cannot beat best_sq. Returns
+/// true when the search is complete, false if it stopped after ring k_to.
+bool search_rings(const Run& run, int r, int c, const float* q, float& best_sq, int k_from, int k_to) {
+  const GridGeometry& g = run.g;
+  const auto cell_f = static_cast<float>(g.cell_size_m);
+  for (int k = k_from;; ++k) {
+    const float gap = (static_cast<float>(k) - 0.5f) * cell_f;
+    if (gap * gap >= best_sq || (k > r && k > c && r + k >= g.rows && c + k >= g.cols)) return true;
+    if (k > k_to) return false;
+    for (int dr = -k; dr <= k; ++dr) {
+      const int rr = r + dr;
+      if (rr < 0 || rr >= g.rows) continue;
+      const float hy = std::max(0.0f, (static_cast<float>(std::abs(dr)) - 0.5f) * cell_f);
+      const int step = (dr == -k || dr == k) ? 1 : 2 * k;  // full edge rows, else two cells
+      for (int dc = -k; dc <= k; dc += step) {
+        const int c2 = c + dc;
+        if (c2 < 0 || c2 >= g.cols) continue;
+        const std::size_t kc = static_cast<std::size_t>(rr) * run.ucols + static_cast<std::size_t>(c2);
+        const Bucket& bk = run.buckets[kc];
+        if (bk.begin == bk.end) continue;
+        const float hx = std::max(0.0f, (static_cast<float>(std::abs(dc)) - 0.5f) * cell_f);
+        const float vz = std::max({0.0f, bk.z_lo - q[2], q[2] - bk.z_hi});
+        if (hx * hx + hy * hy + vz * vz >= best_sq) continue;
+        scan(run, kc, q, best_sq);
+      }
+    }
+  }
+}
+
+/// The sample at (r, c) in the local frame.
+void query_point(const Run& run, int r, int c, float* q) {
+  q[0] = static_cast<float>(run.g.x_of_col(c) - run.centre.x());
+  q[1] = static_cast<float>(run.g.y_of_row(r) - run.centre.y());
+  q[2] = static_cast<float>(static_cast<double>(run.grid.at(r, c)) - run.centre.z());
+}
+
+/// Stores the distance of the sample at (r, c) (error map and the part's list, at `slot`).
+void record(Run& run, Part& out, int r, int c, std::size_t slot, float best_sq) {
+  const double d = std::sqrt(static_cast<double>(best_sq));
+  run.cc.cell_error_m.at(r, c) = static_cast<float>(d);
+  out.cell_m[slot] = static_cast<float>(d);
+  out.supported += d <= run.tolerance_m ? 1U : 0U;
+}
+
+/// Phase 4 (per half of the rows): exact nearest input point of every valid sample, by rings
+/// up to kRingsNearLimit; farther searches are deferred to phase 5 (Part::far).
+void phase4_near_queries(Run& run, int h) {
+  const GridGeometry& g = run.g;
+  Part& out = run.parts[h];
+  out.cell_m.reserve(run.valid_total / 2 + 1);
+  for (int r = out.row_begin; r < out.row_end; ++r) {
+    const float* row = run.grid.data() + static_cast<std::size_t>(r) * run.ucols;
+    for (int c = 0; c < g.cols; ++c) {
+      if (std::isnan(row[c])) continue;
+      float q[3];
+      query_point(run, r, c, q);
+      const std::size_t slot = out.cell_m.size();
+      out.cell_m.push_back(0.0f);
+      float best_sq = std::numeric_limits<float>::infinity();
+      scan(run, static_cast<std::size_t>(r) * run.ucols + static_cast<std::size_t>(c), q, best_sq);
+      if (!search_rings(run, r, c, q, best_sq, 1, kRingsNearLimit)) {
+        out.far.push_back({r, c, best_sq, slot});
+        continue;
+      }
+      record(run, out, r, c, slot, best_sq);
+    }
+  }
+}
+
+/// Deferred samples: how many, and how many went through the kd-trees over all points.
+struct FarCounts {
+  std::size_t total = 0, by_tree = 0;
+};
+
+/// Phase 5 (only if some sample is farther than kRingsNearLimit cells from every point; e.g. a
+/// hole filled across a depth step). A deferred sample without any point found yet first gets
+/// a bound from kd-trees over the buckets' front-most points. Then the deferred searches are
+/// finished by rings if that is cheap in total, else through kd-trees over all points (each
+/// thread: its rows' slice of the bucket array). Trees are built in parallel, one per thread.
+FarCounts phase5_far_queries(Run& run) {
+  const GridGeometry& g = run.g;
+  Part* parts = run.parts;
+  FarCounts counts;
+  counts.total = parts[0].far.size() + parts[1].far.size();
+  if (counts.total == 0) return counts;
+  bool unbounded = false;
+  for (int h = 0; h < 2; ++h) {
+    for (const auto& f : parts[h].far) unbounded |= std::isinf(f.best_sq);
+  }
+  auto tree_bound = [&](int h, float* q, int row, float best_sq, bool full) {
+    const NearestPointIndex& own = full ? *parts[h].all : *parts[h].front;
+    const NearestPointIndex& other = full ? *parts[1 - h].all : *parts[1 - h].front;
+    const double dy_split = g.y_of_row(row) - run.y_split;
+    double d = std::sqrt(static_cast<double>(best_sq));
+    d = own.nearest_distance_m(q, d);
+    if (dy_split * dy_split < d * d) d = other.nearest_distance_m(q, d);
+    return std::min(best_sq, static_cast<float>(d * d));
   };
-  auto query_point = [&](int r, int c, float* q) {
-    q[0] = static_cast<float>(g.x_of_col(c) - centre.x());
-    q[1] = static_cast<float>(g.y_of_row(r) - centre.y());
-    q[2] = static_cast<float>(static_cast<double>(grid.at(r, c)) - centre.z());
-  };
-  auto record = [&](Part& out, int r, int c, std::size_t slot, float best_sq) {
-    const double d = std::sqrt(static_cast<double>(best_sq));
-    cc.cell_error_m.at(r, c) = static_cast<float>(d);
-    out.cell_m[slot] = static_cast<float>(d);
-    out.supported += d <= tolerance_m ? 1U : 0U;
-  };
-  auto phase4 = [&](int h) {
-    Part& out = parts[h];
-    out.cell_m.reserve(valid_total / 2 + 1);
-    for (int r = out.row_begin; r < out.row_end; ++r) {
-      const float* row = grid.data() + static_cast<std::size_t>(r) * ucols;
-      for (int c = 0; c < g.cols; ++c) {
-        if (std::isnan(row[c])) continue;
+  if (unbounded) {
+    run_two([&] { parts[1].front = std::make_unique<NearestPointIndex>(std::move(parts[1].front_xyz)); },
+            [&] { parts[0].front = std::make_unique<NearestPointIndex>(std::move(parts[0].front_xyz)); });
+    auto bound = [&](int h) {
+      for (auto& f : parts[h].far) {
+        if (!std::isinf(f.best_sq)) continue;
         float q[3];
-        query_point(r, c, q);
-        const std::size_t slot = out.cell_m.size();
-        out.cell_m.push_back(0.0f);
-        float best_sq = std::numeric_limits<float>::infinity();
-        scan(static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c), q, best_sq);
-        if (!search_rings(r, c, q, best_sq, 1, kRingsNearLimit)) {
-          out.far.push_back({r, c, best_sq, slot});
-          continue;
-        }
-        record(out, r, c, slot, best_sq);
-      }
-    }
-  };
-  run_two([&] { phase4(1); }, [&] { phase4(0); });
-
-  // Phase 5 (only if some sample is farther than kRingsNearLimit cells from every point; e.g. a
-  // hole filled across a depth step). A deferred sample without any point found yet first gets
-  // a bound from kd-trees over the buckets' front-most points. Then the deferred searches are
-  // finished by rings if that is cheap in total, else through kd-trees over all points (each
-  // thread: its rows' slice of the bucket array). Trees are built in parallel, one per thread.
-  std::size_t far_total = parts[0].far.size() + parts[1].far.size(), far_by_tree = 0;
-  if (far_total > 0) {
-    bool unbounded = false;
-    for (const Part& part : parts) {
-      for (const auto& f : part.far) unbounded |= std::isinf(f.best_sq);
-    }
-    auto tree_bound = [&](int h, float* q, int row, float best_sq, bool full) {
-      const NearestPointIndex& own = full ? *parts[h].all : *parts[h].front;
-      const NearestPointIndex& other = full ? *parts[1 - h].all : *parts[1 - h].front;
-      const double dy_split = g.y_of_row(row) - y_split;
-      double d = std::sqrt(static_cast<double>(best_sq));
-      d = own.nearest_distance_m(q, d);
-      if (dy_split * dy_split < d * d) d = other.nearest_distance_m(q, d);
-      return std::min(best_sq, static_cast<float>(d * d));
-    };
-    if (unbounded) {
-      run_two([&] { parts[1].front = std::make_unique<NearestPointIndex>(std::move(parts[1].front_xyz)); },
-              [&] { parts[0].front = std::make_unique<NearestPointIndex>(std::move(parts[0].front_xyz)); });
-      auto bound = [&](int h) {
-        for (auto& f : parts[h].far) {
-          if (!std::isinf(f.best_sq)) continue;
-          float q[3];
-          query_point(f.row, f.col, q);
-          f.best_sq = tree_bound(h, q, f.row, f.best_sq, false);
-        }
-      };
-      run_two([&] { bound(1); }, [&] { bound(0); });
-    }
-    double ring_cells = 0.0;
-    for (const Part& part : parts) {
-      for (const auto& f : part.far) {
-        const double rings = std::sqrt(static_cast<double>(f.best_sq)) / g.cell_size_m + 1.0;
-        ring_cells += 4.0 * rings * rings;
-      }
-    }
-    const bool by_tree = ring_cells > kFarRingCellBudget;
-    auto finish = [&](int h) {
-      Part& out = parts[h];
-      for (const auto& f : out.far) {
-        float q[3];
-        query_point(f.row, f.col, q);
-        float best_sq = f.best_sq;
-        if (by_tree) {
-          best_sq = tree_bound(h, q, f.row, best_sq, true);
-        } else {
-          search_rings(f.row, f.col, q, best_sq, 1, std::numeric_limits<int>::max());
-        }
-        record(out, f.row, f.col, f.slot, best_sq);
+        query_point(run, f.row, f.col, q);
+        f.best_sq = tree_bound(h, q, f.row, f.best_sq, false);
       }
     };
-    if (by_tree) {
-      auto build_all = [&](int h) {
-        const std::size_t b = first[static_cast<std::size_t>(parts[h].row_begin) * ucols];
-        const std::size_t e = first[static_cast<std::size_t>(parts[h].row_end) * ucols];
-        parts[h].all = std::make_unique<NearestPointIndex>(sorted.data() + 3 * b, e - b);
-      };
-      run_two([&] { build_all(1); }, [&] { build_all(0); });
-      far_by_tree = far_total;
-    }
-    run_two([&] { finish(1); }, [&] { finish(0); });
+    run_two([&] { bound(1); }, [&] { bound(0); });
   }
+  double ring_cells = 0.0;
+  for (int h = 0; h < 2; ++h) {
+    for (const auto& f : parts[h].far) {
+      const double rings = std::sqrt(static_cast<double>(f.best_sq)) / g.cell_size_m + 1.0;
+      ring_cells += 4.0 * rings * rings;
+    }
+  }
+  const bool by_tree = ring_cells > kFarRingCellBudget;
+  auto finish = [&](int h) {
+    Part& out = parts[h];
+    for (const auto& f : out.far) {
+      float q[3];
+      query_point(run, f.row, f.col, q);
+      float best_sq = f.best_sq;
+      if (by_tree) {
+        best_sq = tree_bound(h, q, f.row, best_sq, true);
+      } else {
+        search_rings(run, f.row, f.col, q, best_sq, 1, std::numeric_limits<int>::max());
+      }
+      record(run, out, f.row, f.col, f.slot, best_sq);
+    }
+  };
+  if (by_tree) {
+    auto build_all = [&](int h) {
+      const std::size_t b = run.first[static_cast<std::size_t>(parts[h].row_begin) * run.ucols];
+      const std::size_t e = run.first[static_cast<std::size_t>(parts[h].row_end) * run.ucols];
+      parts[h].all = std::make_unique<NearestPointIndex>(run.sorted.data() + 3 * b, e - b);
+    };
+    run_two([&] { build_all(1); }, [&] { build_all(0); });
+    counts.by_tree = counts.total;
+  }
+  run_two([&] { finish(1); }, [&] { finish(0); });
+  return counts;
+}
 
-  // Statistics (two threads over the three distributions).
+/// The three distributions' statistics (two threads) and the counts of the result.
+void summarise(Run& run) {
+  Part* parts = run.parts;
+  CrossCheck& cc = run.cc;
   auto concat = [](std::vector<float>& a, std::vector<float>& b) {
     a.insert(a.end(), b.begin(), b.end());
     std::vector<float>().swap(b);
@@ -564,15 +610,19 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   cc.points_off_surface = parts[0].off_surface + parts[1].off_surface;
   cc.points_hidden = parts[0].hidden + parts[1].hidden;
   cc.points_outside = parts[0].outside + parts[1].outside;
-  cc.hidden_band_m = hidden_band_m;
-  cc.tolerance_m = tolerance_m;
+  cc.hidden_band_m = run.hidden_band_m;
+  cc.tolerance_m = run.tolerance_m;
   cc.supported_fraction = static_cast<double>(parts[0].supported + parts[1].supported) /
-                          static_cast<double>(valid_total);
+                          static_cast<double>(run.valid_total);
+}
 
-  StageReport& rep = result.report;
+/// The stage report: every figure of the result plus the search's own counts.
+void fill_report(const Run& run, const FarCounts& far, StageReport& rep) {
+  const CrossCheck& cc = run.cc;
+  const Part* parts = run.parts;
   rep.stage = "cross_check";
-  rep.count_in = points_m.size();
-  rep.count_out = valid_total;
+  rep.count_in = run.points_m.size();
+  rep.count_out = run.valid_total;
   auto add = [&rep](const std::string& prefix, const ErrorStats& s) {
     rep.figure(prefix + "_count", static_cast<double>(s.count));
     rep.figure(prefix + "_rms_mm", s.rms_mm);
@@ -588,17 +638,41 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   rep.figure("points_off_surface", static_cast<double>(cc.points_off_surface));
   rep.figure("points_hidden", static_cast<double>(cc.points_hidden));
   rep.figure("points_outside", static_cast<double>(cc.points_outside));
-  rep.figure("hidden_band_mm", hidden_band_m * 1e3);
-  rep.figure("tolerance_mm", tolerance_m * 1e3);
+  rep.figure("hidden_band_mm", run.hidden_band_m * 1e3);
+  rep.figure("tolerance_mm", run.tolerance_m * 1e3);
   rep.figure("supported_fraction", cc.supported_fraction);
-  rep.figure("samples_far", static_cast<double>(far_total));
-  rep.figure("samples_far_by_full_tree", static_cast<double>(far_by_tree));
+  rep.figure("samples_far", static_cast<double>(far.total));
+  rep.figure("samples_far_by_full_tree", static_cast<double>(far.by_tree));
   rep.figure("kd_tree_points_built",
              static_cast<double>((parts[0].front ? parts[0].front->size() : 0) +
                                  (parts[1].front ? parts[1].front->size() : 0) +
                                  (parts[0].all ? parts[0].all->size() : 0) +
                                  (parts[1].all ? parts[1].all->size() : 0)));
-  rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+}  // namespace
+
+ErrorStats error_stats_mm(std::vector<double> abs_errors_m) { return stats_of(abs_errors_m); }
+
+StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& grid,
+                                    double tolerance_m, double hidden_band_m) {
+  const auto t0 = detail::Clock::now();
+  check_arguments(points_m, grid, tolerance_m, hidden_band_m);
+  StageResult<CrossCheck> result;
+  Run run(points_m, grid, tolerance_m, hidden_band_m, result.value);
+  plan(run);
+  on_both_halves(run, phase1_residuals_and_keys);  // (a), and each point's bucket
+  bucket_offsets(run);
+  on_both_halves(run, phase2_scatter);
+  std::vector<std::uint32_t>().swap(run.key);
+  on_both_halves(run, phase3_bucket_summaries);
+  result.value.cell_error_m = HeightField(run.g, kNoData);
+  result.value.cell_error_m.model_to_grid = grid.model_to_grid;
+  on_both_halves(run, phase4_near_queries);  // (b)
+  const FarCounts far = phase5_far_queries(run);
+  summarise(run);
+  fill_report(run, far, result.report);
+  result.report.seconds = detail::seconds_since(t0);
   return result;
 }
 

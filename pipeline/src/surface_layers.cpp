@@ -1,3 +1,4 @@
+#include "format.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 
@@ -24,16 +25,11 @@ namespace {
 using detail::Clock;
 using detail::seconds_since;
 
-std::string fmt(double v) {
-  std::ostringstream os;
-  os.precision(6);
-  os << v;
-  return os.str();
-}
+using detail::format_number;
 
 [[noreturn]] void option_error(const std::string& field, const std::string& key, double value,
                                const std::string& expected) {
-  throw ConfigError("surface layers: option " + field + " (config key " + key + ") = " + fmt(value) +
+  throw ConfigError("surface layers: option " + field + " (config key " + key + ") = " + format_number(value) +
                     ": expected " + expected);
 }
 
@@ -43,7 +39,7 @@ void check_range(const std::string& field, const std::string& key, double v, dou
   const bool ok = std::isfinite(v) && (open_low ? v > lo : v >= lo) && v <= hi;
   if (!ok) {
     option_error(field, key, v,
-                 "a number in " + std::string(open_low ? "(" : "[") + fmt(lo) + ", " + fmt(hi) + "]");
+                 "a number in " + std::string(open_low ? "(" : "[") + format_number(lo) + ", " + format_number(hi) + "]");
   }
 }
 
@@ -54,7 +50,7 @@ void validate(const SurfaceLayerOptions& o) {
   check_range("mu_max", "layers.friction.mu_max", o.mu_max, 0.0, 10.0, false);
   if (o.mu_max < o.mu_min) {
     option_error("mu_max", "layers.friction.mu_max", o.mu_max,
-                 "a number in [mu_min, 10] = [" + fmt(o.mu_min) + ", 10]");
+                 "a number in [mu_min, 10] = [" + format_number(o.mu_min) + ", 10]");
   }
   check_range("workspace_radius_m", "layers.friction.workspace_radius_m", o.workspace_radius_m, 0.0, 10.0, true);
   check_range("curvature_gain_m", "layers.friction.curvature_gain_m", o.curvature_gain_m, 0.0, 100.0, false);
@@ -67,10 +63,10 @@ void validate(const SurfaceLayerOptions& o) {
       if (!std::isfinite(v)) option_error(field + ".bounds", key, v, "finite bounds in metres");
     }
     if (!(g.x_max_m > g.x_min_m)) {
-      option_error(field + ".x_max_m", key + ".x_max_m", g.x_max_m, "a number > x_min_m = " + fmt(g.x_min_m));
+      option_error(field + ".x_max_m", key + ".x_max_m", g.x_max_m, "a number > x_min_m = " + format_number(g.x_min_m));
     }
     if (!(g.y_max_m > g.y_min_m)) {
-      option_error(field + ".y_max_m", key + ".y_max_m", g.y_max_m, "a number > y_min_m = " + fmt(g.y_min_m));
+      option_error(field + ".y_max_m", key + ".y_max_m", g.y_max_m, "a number > y_min_m = " + format_number(g.y_min_m));
     }
     check_range(field + ".mu_s", key + ".mu_s", g.mu_s, 0.0, 10.0, false);
   }
@@ -349,7 +345,7 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   const GridGeometry& g = depth_m.geometry();
   if (g.rows < 1 || g.cols < 1 || !(g.cell_size_m > 0.0) || depth_m.values().size() != g.cell_count()) {
     throw InputError("surface layers: depth grid is empty or malformed (" + std::to_string(g.rows) + " × " +
-                     std::to_string(g.cols) + " cells, cell size " + fmt(g.cell_size_m) +
+                     std::to_string(g.cols) + " cells, cell size " + format_number(g.cell_size_m) +
                      " m): expected ≥ 1 × 1 cells and a cell size > 0");
   }
   const std::size_t n = g.cell_count();
@@ -478,21 +474,21 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   rep.figure("mu_d_at_min_fraction", static_cast<double>(at_min) / nv);
   rep.figure("mu_d_at_max_fraction", static_cast<double>(at_max) / nv);
   if (options.friction_model == FrictionModel::kPaper) {
-    rep.notes.push_back("friction.model = paper: mu_d = 1/(R*sqrt(H^2+K^2)) with R = " + fmt(R) +
-                        " m, clamped to [" + fmt(mu_min) + ", " + fmt(mu_max) +
+    rep.notes.push_back("friction.model = paper: mu_d = 1/(R*sqrt(H^2+K^2)) with R = " + format_number(R) +
+                        " m, clamped to [" + format_number(mu_min) + ", " + format_number(mu_max) +
                         "]; friction falls as curvature grows (flat texture -> mu_max)");
   } else {
     rep.notes.push_back("friction.model = curvature: mu_d = mu_min + c*sqrt(H^2+K^2) with c = " +
-                        fmt(options.curvature_gain_m) + " m, clamped to [" + fmt(mu_min) + ", " + fmt(mu_max) +
+                        format_number(options.curvature_gain_m) + " m, clamped to [" + format_number(mu_min) + ", " + format_number(mu_max) +
                         "]; friction grows with curvature (flat texture -> mu_min)");
   }
-  rep.notes.push_back("envelope: cv::bilateralFilter, sigma_s = " + fmt(options.sigma_space_cells) +
-                      " cells, sigma_r = " + fmt(options.sigma_range_m) + " m, window " +
+  rep.notes.push_back("envelope: cv::bilateralFilter, sigma_s = " + format_number(options.sigma_space_cells) +
+                      " cells, sigma_r = " + format_number(options.sigma_range_m) + " m, window " +
                       std::to_string(env.diameter_cells) + " cells; no-data cells and the border filled by "
                       "first-order normalised convolution for the filter input only");
   if (env.lut_bin_m > 0.25 * options.sigma_range_m) {
-    rep.notes.push_back("warning: the filter input spans " + fmt(env.lut_bin_m * 4096.0) +
-                        " m, so OpenCV's 4096-entry range table steps by " + fmt(env.lut_bin_m) +
+    rep.notes.push_back("warning: the filter input spans " + format_number(env.lut_bin_m * 4096.0) +
+                        " m, so OpenCV's 4096-entry range table steps by " + format_number(env.lut_bin_m) +
                         " m, more than sigma_r/4: the range kernel is coarsely quantised");
   }
   rep.seconds = seconds_since(t_start);

@@ -1,5 +1,6 @@
 // Stages 2 and 3: units and recentring in double precision, then the user's view transform.
 
+#include "format.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/transform.hpp"
 
@@ -16,6 +17,8 @@ namespace hc::pipeline {
 
 namespace {
 
+using detail::format_number;
+
 using detail::Clock;
 using detail::seconds_since;
 
@@ -27,11 +30,11 @@ StageResult<Cloud> to_metres_and_recentre(Cloud cloud, double metres_per_unit, E
                                           double max_extent_m) {
   const auto t0 = Clock::now();
   if (!(metres_per_unit > 0.0) || !std::isfinite(metres_per_unit)) {
-    throw ConfigError("to_metres_and_recentre: metres_per_unit = " + std::to_string(metres_per_unit) +
+    throw ConfigError("to_metres_and_recentre: metres_per_unit = " + format_number(metres_per_unit) +
                       ", expected a finite value > 0 (1 for m, 0.01 for cm, 0.001 for mm)");
   }
   if (!(max_extent_m > 0.0) || !std::isfinite(max_extent_m)) {
-    throw ConfigError("input.max_extent_m = " + std::to_string(max_extent_m) + ": expected a finite value > 0 [m]");
+    throw ConfigError("input.max_extent_m = " + format_number(max_extent_m) + ": expected a finite value > 0 [m]");
   }
   if (cloud.size() == 0) throw InputError("to_metres_and_recentre: the cloud is empty");
 
@@ -99,8 +102,8 @@ Eigen::Affine3d ViewTransform::matrix() const {
 Eigen::Quaterniond rotation_from_axis_angle(const Eigen::Vector3d& axis, double angle_deg) {
   const double n = axis.norm();
   if (!std::isfinite(n) || n < 1e-12) {
-    throw ConfigError("rotation axis (" + std::to_string(axis.x()) + ", " + std::to_string(axis.y()) + ", " +
-                      std::to_string(axis.z()) + ") is zero or not finite: expected a non-zero axis");
+    throw ConfigError("rotation axis (" + format_number(axis.x()) + ", " + format_number(axis.y()) + ", " +
+                      format_number(axis.z()) + ") is zero or not finite: expected a non-zero axis");
   }
   if (!std::isfinite(angle_deg)) throw ConfigError("rotation angle_deg is not finite");
   return Eigen::Quaterniond(Eigen::AngleAxisd(radians(angle_deg), axis / n));
@@ -128,8 +131,8 @@ Eigen::Quaterniond rotation_from_quaternion(double w, double x, double y, double
   const Eigen::Quaterniond q(w, x, y, z);
   const double n = q.norm();
   if (!std::isfinite(n) || n < 1e-9) {
-    throw ConfigError("quaternion (w, x, y, z) = (" + std::to_string(w) + ", " + std::to_string(x) + ", " +
-                      std::to_string(y) + ", " + std::to_string(z) + ") has norm " + std::to_string(n) +
+    throw ConfigError("quaternion (w, x, y, z) = (" + format_number(w) + ", " + format_number(x) + ", " +
+                      format_number(y) + ", " + format_number(z) + ") has norm " + format_number(n) +
                       ": expected a finite, non-zero norm");
   }
   return q.normalized();
@@ -138,7 +141,7 @@ Eigen::Quaterniond rotation_from_quaternion(double w, double x, double y, double
 StageResult<Cloud> apply_view_transform(Cloud cloud, const ViewTransform& view) {
   const auto t0 = Clock::now();
   if (!(view.scale > 0.0) || !std::isfinite(view.scale)) {
-    throw ConfigError("apply_view_transform: scale = " + std::to_string(view.scale) + ", expected a finite value > 0");
+    throw ConfigError("apply_view_transform: scale = " + format_number(view.scale) + ", expected a finite value > 0");
   }
   if (!view.translation_m.allFinite()) throw ConfigError("apply_view_transform: translation_m is not finite");
   const Eigen::Affine3d m = view.matrix();

@@ -13,6 +13,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cstdint>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
@@ -320,7 +321,7 @@ TEST(Ingest, ReadsCrlfAsciiPly) {
   EXPECT_EQ(r.value.xyz(2, 1), 6.0);
 }
 
-TEST(Ingest, ReadsPlyWithAListPropertyInTheVertexElementThroughPcl) {
+TEST(Ingest, ReadsPlyWithAListPropertyInTheVertexElement) {
   const fs::path dir = hc::test::temp_dir("vlist");
   write_text(dir / "vlist.ply", "ply\nformat ascii 1.0\nobj_info x\nelement vertex 2\nproperty float x\nproperty float y\n"
                                 "property float z\nproperty list uchar int tags\nelement face 0\n"
@@ -329,8 +330,180 @@ TEST(Ingest, ReadsPlyWithAListPropertyInTheVertexElementThroughPcl) {
   ASSERT_EQ(r.value.size(), 2u);
   EXPECT_EQ(r.value.xyz.col(1), Eigen::Vector3d(4, 5, 6));
   const auto& notes = r.report.notes;
-  EXPECT_TRUE(std::any_of(notes.begin(), notes.end(),
-                          [](const std::string& n) { return n.find("read by PCL") != std::string::npos; }));
+  EXPECT_TRUE(std::any_of(notes.begin(), notes.end(), [](const std::string& n) {
+    return n.find("skipped the vertex list property 'tags'") != std::string::npos;
+  }));
+}
+
+// Issue 15 D2: a scalar property before a list property in the vertex element. PCL's PLY
+// reader (used before for list layouts) shifted the columns (x read from y, y from z) and the
+// run succeeded. The oracle is the values written here.
+namespace {
+
+struct D2Vertex {
+  unsigned char red;
+  std::vector<float> extra;  // the list property, of varying length
+  float x, y, z;
+};
+
+const std::vector<D2Vertex>& d2_vertices() {
+  static const std::vector<D2Vertex> v = {
+      {7, {0.5f, 1.5f}, 1.25f, -2.5f, 3.0f},
+      {255, {}, 0.1f, 0.2f, 0.3f},
+      {0, {9.0f, 8.0f, 7.0f, 6.0f}, -1000.125f, 450000.0f, 1e-6f},
+      {42, {-4.0f}, 12.0f, 13.0f, 14.0f},
+  };
+  return v;
+}
+
+const char* const kD2Header =
+    "element vertex 4\nproperty uchar red\nproperty list uchar float extra\nproperty float x\n"
+    "property float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
+
+template <class T>
+void append_binary(std::string& s, T v, bool big_endian) {
+  char b[sizeof(T)];
+  std::memcpy(b, &v, sizeof(T));
+  if (big_endian != (std::endian::native == std::endian::big)) std::reverse(b, b + sizeof(T));
+  s.append(b, sizeof(T));
+}
+
+std::string d2_ply_binary(bool big_endian) {
+  std::string s = std::string("ply\nformat ") + (big_endian ? "binary_big_endian" : "binary_little_endian") +
+                  " 1.0\n" + kD2Header;
+  for (const auto& v : d2_vertices()) {
+    s.push_back(static_cast<char>(v.red));
+    s.push_back(static_cast<char>(v.extra.size()));
+    for (const float e : v.extra) append_binary(s, e, big_endian);
+    append_binary(s, v.x, big_endian);
+    append_binary(s, v.y, big_endian);
+    append_binary(s, v.z, big_endian);
+  }
+  s.push_back(3);
+  for (const int i : {0, 1, 2}) append_binary(s, i, big_endian);
+  return s;
+}
+
+std::string d2_ply_ascii() {
+  std::string s = std::string("ply\nformat ascii 1.0\n") + kD2Header;
+  char buf[64];
+  for (const auto& v : d2_vertices()) {
+    s += std::to_string(v.red) + " " + std::to_string(v.extra.size());
+    for (const float e : v.extra) {
+      std::snprintf(buf, sizeof buf, " %.9g", static_cast<double>(e));
+      s += buf;
+    }
+    std::snprintf(buf, sizeof buf, " %.9g %.9g %.9g\n", static_cast<double>(v.x), static_cast<double>(v.y),
+                  static_cast<double>(v.z));
+    s += buf;
+  }
+  s += "3 0 1 2\n";
+  return s;
+}
+
+void expect_d2_points(const hp::Cloud& c, const std::string& what) {
+  const auto& v = d2_vertices();
+  ASSERT_EQ(c.size(), v.size()) << what;
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    const auto col = static_cast<Eigen::Index>(i);
+    EXPECT_EQ(c.xyz(0, col), static_cast<double>(v[i].x)) << what << " vertex " << i;
+    EXPECT_EQ(c.xyz(1, col), static_cast<double>(v[i].y)) << what << " vertex " << i;
+    EXPECT_EQ(c.xyz(2, col), static_cast<double>(v[i].z)) << what << " vertex " << i;
+  }
+}
+
+}  // namespace
+
+TEST(IngestPlyLists, ScalarBeforeListInTheVertexElementGivesTheWrittenXyz) {
+  const fs::path dir = hc::test::temp_dir("d2");
+  write_text(dir / "d2_ascii.ply", d2_ply_ascii());
+  write_text(dir / "d2_le.ply", d2_ply_binary(false));
+  write_text(dir / "d2_be.ply", d2_ply_binary(true));
+  write_gzip(dir / "d2_le.ply.gz", d2_ply_binary(false));
+  for (const char* name : {"d2_ascii.ply", "d2_le.ply", "d2_be.ply", "d2_le.ply.gz"}) {
+    const auto r = hp::load_cloud(dir / name);
+    expect_d2_points(r.value, name);
+    const auto& notes = r.report.notes;
+    EXPECT_TRUE(std::any_of(notes.begin(), notes.end(), [](const std::string& n) {
+      return n.find("skipped the vertex list property 'extra'") != std::string::npos;
+    })) << name;
+  }
+}
+
+TEST(IngestPlyLists, ListsInAnElementBeforeTheVertexElementAreSkipped) {
+  // A binary element with a list property (int16 count, double items) and an ASCII one come
+  // before the vertex element; the vertex element has its list last.
+  const fs::path dir = hc::test::temp_dir("d2_before");
+  const std::string elements =
+      "element camera 2\nproperty list short double params\nproperty uint id\n"
+      "element vertex 2\nproperty double x\nproperty double y\nproperty double z\nproperty list uint uchar tag\n"
+      "end_header\n";
+  std::string bin = "ply\nformat binary_little_endian 1.0\n" + elements;
+  append_binary<std::int16_t>(bin, 3, false);
+  for (const double d : {1.0, 2.0, 3.0}) append_binary(bin, d, false);
+  append_binary<std::uint32_t>(bin, 11, false);
+  append_binary<std::int16_t>(bin, 0, false);
+  append_binary<std::uint32_t>(bin, 12, false);
+  for (int i = 0; i < 2; ++i) {
+    for (const double d : kGeo[i]) append_binary(bin, d, false);
+    append_binary<std::uint32_t>(bin, 2, false);
+    bin += "ab";
+  }
+  write_text(dir / "before.ply", bin);
+  std::string ascii = "ply\nformat ascii 1.0\n" + elements + "3 1 2 3 11\n0 12\n";
+  char buf[128];
+  for (int i = 0; i < 2; ++i) {
+    std::snprintf(buf, sizeof buf, "%.17g %.17g %.17g 2 97 98\n", kGeo[i][0], kGeo[i][1], kGeo[i][2]);
+    ascii += buf;
+  }
+  write_text(dir / "before_ascii.ply", ascii);
+  for (const char* name : {"before.ply", "before_ascii.ply"}) {
+    const auto r = hp::load_cloud(dir / name);
+    ASSERT_EQ(r.value.size(), 2u) << name;
+    for (int i = 0; i < 2; ++i)
+      for (int a = 0; a < 3; ++a) EXPECT_EQ(r.value.xyz(a, i), kGeo[i][a]) << name << " point " << i;
+  }
+}
+
+TEST(IngestPlyLists, MalformedListsAreInputErrorsNamingFileAndProperty) {
+  const fs::path dir = hc::test::temp_dir("d2_bad");
+  // Binary: the data ends inside vertex 2's list.
+  std::string cut = d2_ply_binary(false);
+  const std::size_t body = cut.find("end_header\n") + 11;
+  write_text(dir / "cut.ply", cut.substr(0, body + 2 * 1 + 2 * 1 + 2 * 4 + 6 * 4 + 1 + 1 + 5));
+  std::string msg = error_of([&] { hp::load_cloud(dir / "cut.ply"); });
+  EXPECT_NE(msg.find("cut.ply"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("truncated"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("inside vertex 2"), std::string::npos) << msg;
+  // Binary: a negative count (signed count type).
+  std::string neg = "ply\nformat binary_little_endian 1.0\nelement vertex 1\nproperty char n\n"
+                    "property list char float extra\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  neg.push_back(1);
+  neg.push_back(static_cast<char>(-2));
+  neg.append(16, '\0');
+  write_text(dir / "negative.ply", neg);
+  msg = error_of([&] { hp::load_cloud(dir / "negative.ply"); });
+  EXPECT_NE(msg.find("negative.ply"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("list property 'extra'"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("negative item count -2"), std::string::npos) << msg;
+  // ASCII: a count that is not an integer, and a list longer than its line.
+  const std::string ascii_head = std::string("ply\nformat ascii 1.0\n") + kD2Header;
+  write_text(dir / "frac.ply", ascii_head + "1 1.5 2 3 4 5\n");
+  msg = error_of([&] { hp::load_cloud(dir / "frac.ply"); });
+  EXPECT_NE(msg.find("frac.ply"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("line 12 (vertex 0): list property 'extra': item count '1.5' is not a non-negative integer"),
+            std::string::npos)
+      << msg;
+  write_text(dir / "long.ply", ascii_head + "1 9 2 3 4\n");
+  msg = error_of([&] { hp::load_cloud(dir / "long.ply"); });
+  EXPECT_NE(msg.find("list property 'extra' declares 9 items but the line ends after 3"), std::string::npos) << msg;
+  // Header: a floating-point count type cannot be placed.
+  write_text(dir / "float_count.ply", "ply\nformat binary_little_endian 1.0\nelement vertex 1\n"
+                                      "property list float float extra\nproperty float x\nproperty float y\n"
+                                      "property float z\nend_header\n0123456789abcdef");
+  msg = error_of([&] { hp::load_cloud(dir / "float_count.ply"); });
+  EXPECT_NE(msg.find("float_count.ply"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("list property 'extra' of element 'vertex' has count type 'float'"), std::string::npos) << msg;
 }
 
 TEST(Ingest, GzipOfAFileGivesTheSameCloud) {

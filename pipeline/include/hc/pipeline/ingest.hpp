@@ -19,13 +19,14 @@ namespace hc::pipeline {
 /// decompressed in memory first. Double-typed properties stay double (no float rounding).
 /// Stanford range-grid PLYs: `obj_info` lines and stray header lines (for example `bye`) are
 /// skipped; the `range_grid` element (and any element after `vertex`, such as faces) is ignored.
-/// PLY vertex data is read directly (binary records, ASCII lines); PCD, and PLYs with list
-/// properties in or before the vertex element, by PCL after a header check. NaN values are
-/// kept (see remove_non_finite). scan_id is left empty.
+/// PLY is read by the project's own parser (binary records, ASCII lines), list properties
+/// included in any position of any element up to `vertex` (skipped); PCD by PCL after a
+/// header and data check. NaN values are kept (see remove_non_finite). scan_id is left empty.
 /// @return N > 0 points.
 /// @throws hc::InputError naming the file when it is missing, unreadable, empty, truncated,
 ///         declares more points than it holds, holds a non-numeric value (the message names the
-///         line), is not valid gzip, or has an unknown extension.
+///         line), has a PLY list that cannot be placed (negative or fractional count, float count
+///         type; the message names the property), is not valid gzip, or has an unknown extension.
 /// Real-time: no. Thread-safe: yes. Source: PLY format (Turk, 1994); PCD v0.5/v0.7 (PCL).
 StageResult<Cloud> load_cloud(const std::filesystem::path& path);
 

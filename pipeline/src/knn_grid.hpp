@@ -1,0 +1,106 @@
+#pragma once
+/// @file knn_grid.hpp
+/// Exact k-nearest-neighbour mean distances on a uniform grid of cubic cells: the search engine
+/// of remove_statistical_outliers and remove_front_statistical_outliers (filters.cpp). Private
+/// to the pipeline (not installed, not public API); the algorithm is described in knn_grid.cpp.
+/// Coordinates are float32, interleaved x, y, z, recentred by the caller; distances are in the
+/// coordinates' unit (metres in the pipeline).
+
+#include "hc/pipeline/cloud.hpp"
+
+#include <algorithm>
+#include <array>
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <thread>
+#include <vector>
+
+namespace hc::pipeline::detail {
+
+/// Threads of the k-NN searches (the machines have two cores).
+constexpr int kSearchThreads = 2;
+
+/// Points sorted into a uniform grid of cubic cells (built by build_grid).
+struct CellGrid {
+  double cell = 0.0;                     // edge [m]
+  std::array<double, 3> lo{};            // grid origin [m]
+  std::array<std::int64_t, 3> n{};       // cells per axis
+  std::vector<std::uint64_t> cell_key;   // sorted unique keys of occupied cells
+  std::vector<std::uint32_t> cell_start; // first sorted point of each cell; size cells + 1
+  std::vector<float> x, y, z;            // points in cell order
+  std::vector<std::uint32_t> original;   // sorted position -> input index
+  std::vector<std::uint32_t> zero;       // input indices left out: copies beyond k+1 of one location
+  double load = 0.0;                     // mean over points of their cell's point count
+
+  std::size_t cells() const { return cell_key.size(); }
+  std::uint64_t key(std::int64_t ix, std::int64_t iy, std::int64_t iz) const {
+    return static_cast<std::uint64_t>(ix + n[0] * (iy + n[1] * iz));
+  }
+  std::array<std::int64_t, 3> coords(std::uint64_t k) const {
+    const auto s = static_cast<std::int64_t>(k);
+    return {s % n[0], (s / n[0]) % n[1], s / (n[0] * n[1])};
+  }
+  std::int64_t index_of(double v, int axis) const {
+    const auto i = static_cast<std::int64_t>((v - lo[static_cast<std::size_t>(axis)]) / cell);
+    return std::clamp<std::int64_t>(i, 0, n[static_cast<std::size_t>(axis)] - 1);
+  }
+  // First occupied cell with key >= k.
+  std::size_t lower(std::uint64_t k) const {
+    return static_cast<std::size_t>(std::lower_bound(cell_key.begin(), cell_key.end(), k) - cell_key.begin());
+  }
+};
+
+/// Builds the grid over `count` points (`p` holds 3·count floats, x, y, z interleaved). The cell
+/// edge is chosen so that a point's cell holds about 0.85·(k+1) points; it only affects speed,
+/// never the result. Copies beyond k+1 of one location are left out (CellGrid::zero).
+CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k);
+
+/// Mean distance of every point of `p` (3·count floats) to its k nearest neighbours, exact, in
+/// PCL's arithmetic (float distances, double sum). Left-out copies get 0. Adds the search's
+/// figures (grid_*, knn_*) to `report` when given. Cost: about O(count·k); two threads.
+std::vector<float> mean_knn_distances(const std::vector<float>& p, std::size_t count, int k,
+                                      StageReport* report);
+
+/// Mean k-NN distance of single points of a built grid on demand, from any thread (each thread
+/// with its own Scratch). Same result as mean_knn_distances for the same point.
+class PointQueries {
+ public:
+  /// `g` must outlive this object.
+  PointQueries(const CellGrid& g, int k);
+  ~PointQueries();
+  PointQueries(const PointQueries&) = delete;
+  PointQueries& operator=(const PointQueries&) = delete;
+
+  /// Per-thread buffers and search radius hint.
+  class Scratch {
+   public:
+    explicit Scratch(int k);
+    ~Scratch();
+    Scratch(const Scratch&) = delete;
+    Scratch& operator=(const Scratch&) = delete;
+
+   private:
+    friend class PointQueries;
+    struct State;
+    std::unique_ptr<State> state_;
+  };
+
+  /// Mean distance from the point at sorted grid position `sorted` to its k nearest neighbours.
+  float mean_distance(std::uint32_t sorted, Scratch& s) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Runs f(0) on this thread and f(1..threads-1) on new threads, then joins them.
+template <class F>
+void run_parallel(int threads, F&& f) {
+  std::vector<std::thread> pool;
+  for (int t = 1; t < threads; ++t) pool.emplace_back(f, t);
+  f(0);
+  for (auto& th : pool) th.join();
+}
+
+}  // namespace hc::pipeline::detail

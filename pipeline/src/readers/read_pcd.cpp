@@ -1,0 +1,294 @@
+// PCD reader. The header and the amount of data are checked here first (PCL's PCDReader crashes
+// on some malformed files, a garbage file without FIELDS for example, and accepts a non-numeric
+// ASCII token silently); then PCL parses the body into a pcl::PCLPointCloud2, whose fields keep
+// their declared type (float64 stays double), and x, y, z are copied into a Cloud.
+//
+// PCL's readers take a file name only. Data that exists only in memory (a decompressed .gz) is
+// handed over through an anonymous memory file (memfd_create) opened as /proc/self/fd/N:
+// nothing touches the disk and the kernel frees it when the descriptor closes, even if the
+// process dies. Where memfd_create is unavailable, an unlinked private temporary file is used
+// the same way.
+
+#include "readers.hpp"
+#include "text_parse.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/pipeline/cloud.hpp"
+
+#include <pcl/PCLPointCloud2.h>
+#include <pcl/exceptions.h>
+#include <pcl/io/pcd_io.h>
+
+#include <sys/mman.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+#include <sstream>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline::detail {
+
+
+namespace {
+
+// An in-memory file readable by path; closed (and so freed) on destruction.
+class MemoryFile {
+ public:
+  MemoryFile(const std::string& bytes, const std::string& display_name) {
+    fd_ = static_cast<int>(::memfd_create("hapticloud-scan", MFD_CLOEXEC));
+    if (fd_ < 0) {
+      std::string tmpl = (std::filesystem::temp_directory_path() / "hapticloud-scan-XXXXXX").string();
+      fd_ = ::mkstemp(tmpl.data());
+      if (fd_ < 0) {
+        throw ResourceError("load_cloud: " + display_name + ": cannot create an in-memory or temporary file (" +
+                            std::strerror(errno) + ")");
+      }
+      ::unlink(tmpl.c_str());  // removed now; readable through /proc/self/fd until closed
+    }
+    std::size_t done = 0;
+    while (done < bytes.size()) {
+      const ssize_t w = ::write(fd_, bytes.data() + done, bytes.size() - done);
+      if (w < 0) {
+        if (errno == EINTR) continue;
+        const std::string err = std::strerror(errno);
+        ::close(fd_);
+        throw ResourceError("load_cloud: " + display_name + ": cannot stage " + std::to_string(bytes.size()) +
+                            " bytes in memory (" + err + ")");
+      }
+      done += static_cast<std::size_t>(w);
+    }
+    path_ = "/proc/self/fd/" + std::to_string(fd_);
+  }
+  MemoryFile(const MemoryFile&) = delete;
+  MemoryFile& operator=(const MemoryFile&) = delete;
+  ~MemoryFile() { ::close(fd_); }
+
+  const std::string& path() const { return path_; }
+
+ private:
+  int fd_ = -1;
+  std::string path_;
+};
+
+template <class T>
+double read_as_double(const std::uint8_t* p) {
+  T v;
+  std::memcpy(&v, p, sizeof(T));
+  return static_cast<double>(v);
+}
+
+double read_field(const std::uint8_t* p, std::uint8_t datatype) {
+  switch (datatype) {
+    case pcl::PCLPointField::INT8: return read_as_double<std::int8_t>(p);
+    case pcl::PCLPointField::UINT8: return read_as_double<std::uint8_t>(p);
+    case pcl::PCLPointField::INT16: return read_as_double<std::int16_t>(p);
+    case pcl::PCLPointField::UINT16: return read_as_double<std::uint16_t>(p);
+    case pcl::PCLPointField::INT32: return read_as_double<std::int32_t>(p);
+    case pcl::PCLPointField::UINT32: return read_as_double<std::uint32_t>(p);
+    case pcl::PCLPointField::FLOAT32: return read_as_double<float>(p);
+    case pcl::PCLPointField::FLOAT64: return read_as_double<double>(p);
+    default: return std::numeric_limits<double>::quiet_NaN();
+  }
+}
+
+// Copies x, y, z of every point of a PCLPointCloud2 into a Cloud, in each field's own type.
+Cloud to_cloud(const pcl::PCLPointCloud2& pc, const std::string& display_name) {
+  const pcl::PCLPointField* f[3] = {nullptr, nullptr, nullptr};
+  const char* names[3] = {"x", "y", "z"};
+  for (const auto& field : pc.fields) {
+    for (int a = 0; a < 3; ++a) {
+      if (field.name == names[a]) f[a] = &field;
+    }
+  }
+  for (int a = 0; a < 3; ++a) {
+    if (!f[a]) throw InputError("load_cloud: " + display_name + " has no '" + names[a] + "' field");
+    if (f[a]->datatype < pcl::PCLPointField::INT8 || f[a]->datatype > pcl::PCLPointField::FLOAT64) {
+      throw InputError("load_cloud: " + display_name + ": field '" + names[a] + "' has an unsupported type");
+    }
+  }
+  const std::size_t n = static_cast<std::size_t>(pc.width) * pc.height;
+  if (pc.data.size() < n * pc.point_step) {
+    throw InputError("load_cloud: " + display_name + ": PCL returned " + std::to_string(pc.data.size()) +
+                     " bytes for " + std::to_string(n) + " points (file truncated?)");
+  }
+  Cloud cloud;
+  cloud.xyz.resize(3, static_cast<Eigen::Index>(n));
+  const std::uint8_t* base = pc.data.data();
+  const bool all_float = f[0]->datatype == pcl::PCLPointField::FLOAT32 &&
+                         f[1]->datatype == pcl::PCLPointField::FLOAT32 &&
+                         f[2]->datatype == pcl::PCLPointField::FLOAT32;
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint8_t* p = base + i * pc.point_step;
+    const Eigen::Index col = static_cast<Eigen::Index>(i);
+    if (all_float) {
+      cloud.xyz(0, col) = read_as_double<float>(p + f[0]->offset);
+      cloud.xyz(1, col) = read_as_double<float>(p + f[1]->offset);
+      cloud.xyz(2, col) = read_as_double<float>(p + f[2]->offset);
+    } else {
+      for (int a = 0; a < 3; ++a) cloud.xyz(a, col) = read_field(p + f[a]->offset, f[a]->datatype);
+    }
+  }
+  return cloud;
+}
+
+Cloud read_with_pcl(const std::string& bytes, const std::filesystem::path& original_path, bool from_memory, const std::string& display_name) {
+  pcl::PCLPointCloud2 pc;
+  int rc = -1;
+  try {
+    pcl::PCDReader reader;
+    if (from_memory) {
+      const MemoryFile file(bytes, display_name);
+      rc = reader.read(file.path(), pc);
+    } else {
+      rc = reader.read(original_path.string(), pc);
+    }
+  } catch (const std::exception& e) {
+    throw InputError("load_cloud: " + display_name + ": PCL's PCD reader failed: " + e.what());
+  }
+  if (rc < 0) {
+    throw InputError("load_cloud: " + display_name +
+                     ": PCL's PCD reader rejected the file (malformed header or data; its message is above)");
+  }
+  return to_cloud(pc, display_name);
+}
+
+// PCD header check. PCL's PCDReader crashes on some malformed files (a garbage file without
+// FIELDS, for example), so the header and the amount of data are checked here first.
+
+void validate_pcd(const std::string& raw, const std::string& name) {
+  auto fail = [&](const std::string& what) -> InputError {
+    return InputError("load_cloud: " + name + ": " + what);
+  };
+  std::vector<std::string> fields, sizes, types, counts;
+  long long width = -1, height = 1, points = -1;
+  std::string data;
+  std::size_t pos = 0;
+  std::size_t line_no = 0;
+  std::string line;
+  while (data.empty() && next_line(raw, pos, line, /*accept_unterminated=*/true)) {
+    ++line_no;
+    std::istringstream ls(line);
+    std::string kw;
+    if (!(ls >> kw) || kw[0] == '#') continue;
+    std::vector<std::string> rest;
+    for (std::string t; ls >> t;) rest.push_back(t);
+    auto one_int = [&](long long& v) {
+      if (rest.size() != 1) throw fail("header line " + std::to_string(line_no) + ": malformed '" + line + "'");
+      const char* b = rest[0].data();
+      const auto r = std::from_chars(b, b + rest[0].size(), v);
+      if (r.ec != std::errc() || r.ptr != b + rest[0].size() || v < 0) {
+        throw fail("header line " + std::to_string(line_no) + ": '" + rest[0] + "' is not a count");
+      }
+    };
+    if (kw == "VERSION" || kw == "VIEWPOINT") continue;
+    if (kw == "FIELDS" || kw == "COLUMNS") fields = rest;
+    else if (kw == "SIZE") sizes = rest;
+    else if (kw == "TYPE") types = rest;
+    else if (kw == "COUNT") counts = rest;
+    else if (kw == "WIDTH") one_int(width);
+    else if (kw == "HEIGHT") one_int(height);
+    else if (kw == "POINTS") one_int(points);
+    else if (kw == "DATA") data = rest.empty() ? std::string("?") : rest[0];
+    else throw fail("header line " + std::to_string(line_no) + ": unknown PCD keyword '" + kw.substr(0, 40) + "'");
+  }
+  if (data.empty()) throw fail("not a PCD file (no DATA line in the header)");
+  if (fields.empty()) throw fail("the PCD header has no FIELDS line");
+  if (counts.empty()) counts.assign(fields.size(), "1");
+  if (sizes.size() != fields.size() || types.size() != fields.size() || counts.size() != fields.size()) {
+    throw fail("the PCD header lists " + std::to_string(fields.size()) + " FIELDS but " + std::to_string(sizes.size()) +
+               " SIZE, " + std::to_string(types.size()) + " TYPE and " + std::to_string(counts.size()) + " COUNT entries");
+  }
+  for (const char* axis : {"x", "y", "z"}) {
+    if (std::find(fields.begin(), fields.end(), axis) == fields.end()) {
+      throw fail(std::string("the PCD header has no '") + axis + "' field");
+    }
+  }
+  std::size_t point_bytes = 0, values = 0;
+  for (std::size_t i = 0; i < fields.size(); ++i) {
+    const std::string& t = types[i];
+    const std::string& z = sizes[i];
+    const bool ok = (t == "F" && (z == "4" || z == "8")) ||
+                    ((t == "I" || t == "U") && (z == "1" || z == "2" || z == "4" || z == "8"));
+    long long c = 0;
+    const auto r = std::from_chars(counts[i].data(), counts[i].data() + counts[i].size(), c);
+    if (!ok || r.ec != std::errc() || c < 1) {
+      throw fail("field '" + fields[i] + "' has TYPE " + t + ", SIZE " + z + ", COUNT " + counts[i] +
+                 " (expected F 4|8 or I/U 1|2|4|8 and a count >= 1)");
+    }
+    point_bytes += static_cast<std::size_t>(std::stoi(z)) * static_cast<std::size_t>(c);
+    values += static_cast<std::size_t>(c);
+  }
+  if (width < 0) throw fail("the PCD header has no WIDTH line");
+  const auto bytes = static_cast<long long>(raw.size());
+  if (width > bytes || height > bytes || points > bytes) {  // every point takes at least one byte
+    throw fail("truncated: the header declares WIDTH " + std::to_string(width) + ", HEIGHT " + std::to_string(height) +
+               (points >= 0 ? ", POINTS " + std::to_string(points) : std::string()) + " in a file of " +
+               std::to_string(raw.size()) + " bytes");
+  }
+  if (points < 0) points = width * height;
+  if (points != width * height) {
+    throw fail("the PCD header declares POINTS " + std::to_string(points) + " but WIDTH x HEIGHT = " +
+               std::to_string(width * height));
+  }
+  if (points == 0) throw fail("the PCD header declares 0 points");
+  const auto n = static_cast<std::size_t>(points);
+  const std::size_t have = pos < raw.size() ? raw.size() - pos : 0;
+  if (data == "ascii") {
+    std::size_t lines = 0;
+    std::size_t p = pos;
+    while (p < raw.size() && lines < n) {
+      std::size_t nl = raw.find('\n', p);
+      if (nl == std::string::npos) nl = raw.size();
+      std::size_t tokens = 0;
+      bool in = false;
+      for (std::size_t i = p; i < nl; ++i) {
+        const bool sp = is_space(raw[i]);
+        if (!sp && !in) ++tokens;
+        in = !sp;
+      }
+      if (tokens > 0) {
+        ++lines;
+        const std::string problem = check_numeric_line(raw.data() + p, raw.data() + nl, values);
+        if (!problem.empty()) throw fail("data line " + std::to_string(lines) + ": " + problem);
+      }
+      p = nl + 1;
+    }
+    if (lines < n) {
+      throw fail("truncated: the header declares " + std::to_string(n) + " points but only " + std::to_string(lines) +
+                 " data lines follow");
+    }
+  } else if (data == "binary") {
+    if (have < n * point_bytes) {
+      throw fail("truncated: the header declares " + std::to_string(n) + " points (" + std::to_string(n * point_bytes) +
+                 " bytes) but only " + std::to_string(have) + " bytes follow");
+    }
+  } else if (data == "binary_compressed") {
+    std::uint32_t sizes_lz[2] = {0, 0};
+    if (have < 8) throw fail("truncated: no compressed block after the header");
+    std::memcpy(sizes_lz, raw.data() + pos, 8);
+    if (sizes_lz[1] != n * point_bytes) {
+      throw fail("the compressed block unpacks to " + std::to_string(sizes_lz[1]) + " bytes, expected " +
+                 std::to_string(n * point_bytes));
+    }
+    if (have - 8 < sizes_lz[0]) {
+      throw fail("truncated: the compressed block needs " + std::to_string(sizes_lz[0]) + " bytes, " +
+                 std::to_string(have - 8) + " follow");
+    }
+  } else {
+    throw fail("unknown PCD DATA type '" + data + "' (expected ascii, binary or binary_compressed)");
+  }
+}
+}  // namespace
+
+ReadResult read_pcd(const ScanSource& source) {
+  validate_pcd(source.bytes, source.display_name);
+  return {read_with_pcl(source.bytes, source.path, source.inflated, source.display_name), {"PCD"}};
+}
+
+}  // namespace hc::pipeline::detail

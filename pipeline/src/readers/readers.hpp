@@ -1,0 +1,59 @@
+#pragma once
+/// @file readers.hpp
+/// The per-format scan readers behind hc::pipeline::load_cloud (private to the pipeline; not
+/// installed, not public API). One file per format under pipeline/src/readers/:
+///   read_ply.cpp  PLY ascii / binary_little_endian / binary_big_endian (own parser, lists too)
+///   read_pcd.cpp  PCD v0.5/v0.7 (header and data check here, body parsed by PCL)
+///   read_obj.cpp  OBJ `v x y z` lines
+///   read_xyz.cpp  XYZ / TXT text, x y z per line
+///   read_conf.cpp scanalyze .conf poses (read_scanalyze_conf of the public header)
+/// load_cloud (ingest.cpp) reads the file once, inflates a trailing .gz once, and dispatches on
+/// the extension through its table kFormats: a new format is a new read_<format>.cpp defining
+/// a ReaderFn plus one line in that table.
+///
+/// Interface contract of a reader:
+///   - input: the whole file, already decompressed, in memory (ScanSource);
+///   - output: every point in the file's own units and frame, in double, NaN kept, scan_id
+///     empty, plus human-readable notes for the stage report;
+///   - errors: hc::InputError whose message starts "load_cloud: " + display_name and says what
+///     was found and what was expected (line or record number where there is one); never a
+///     warning plus an empty or partial cloud.
+///
+/// Later readers (E57, LAS, LAZ, PTX, PTS). PTX and PTS are text and fit this interface as is.
+/// E57 and LAZ files can be larger than memory should hold twice; such a reader will be added
+/// with a second entry point that opens ScanSource::path itself and delivers the points in
+/// chunks, e.g. `using ChunkReaderFn = void (*)(const ScanSource&, const ChunkSink&)` with
+/// `ChunkSink = std::function<void(const Eigen::Matrix3Xd& chunk)>`, and a flag in the
+/// dispatch table so load_cloud skips the whole-file read (and any .gz inflation, which such
+/// formats do not use) for it. Nothing in the existing readers needs to change for that.
+
+#include "hc/pipeline/cloud.hpp"
+
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline::detail {
+
+/// One scan file as a reader sees it.
+struct ScanSource {
+  const std::string& bytes;            ///< the whole file, inflated if it was .gz; never empty
+  const std::filesystem::path& path;   ///< the file on disk (for readers that reopen it)
+  bool inflated = false;               ///< true if `bytes` came from a .gz (not the file on disk)
+  const std::string& display_name;     ///< the path, quoted, for messages
+};
+
+/// What a reader returns: the points and notes for the load stage's report.
+struct ReadResult {
+  Cloud cloud;
+  std::vector<std::string> notes;
+};
+
+using ReaderFn = ReadResult (*)(const ScanSource&);
+
+ReadResult read_ply(const ScanSource& source);  ///< read_ply.cpp
+ReadResult read_pcd(const ScanSource& source);  ///< read_pcd.cpp
+ReadResult read_obj(const ScanSource& source);  ///< read_obj.cpp
+ReadResult read_xyz(const ScanSource& source);  ///< read_xyz.cpp
+
+}  // namespace hc::pipeline::detail
