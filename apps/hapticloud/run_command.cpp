@@ -18,7 +18,6 @@ struct RunArgs {
   std::string config;
   std::string out;
   std::vector<std::string> sets;
-  bool quiet = false;
   bool force = false;
 };
 
@@ -26,15 +25,15 @@ void run(const RunArgs& a) {
   const pipeline::RunConfig cfg = pipeline::load_run_config(a.config, a.sets);
   const std::filesystem::path out = a.out.empty() ? std::filesystem::path("runs") / cfg.name : std::filesystem::path(a.out);
   auto progress = [&](const pipeline::StageReport& s, bool done) {
-    if (a.quiet) return;
     if (!done) {
-      std::cerr << "  " << s.stage << " ..." << std::flush;
+      spdlog::debug("  {} ...", s.stage);
     } else {
-      std::cerr << "\r  " << s.stage << ": " << s.count_in << " -> " << s.count_out << " in "
-                << static_cast<long>(s.seconds * 1000.0 + 0.5) << " ms\n";
+      spdlog::info("  {}: {} -> {} in {} ms", s.stage, s.count_in, s.count_out,
+                   static_cast<long>(s.seconds * 1000.0 + 0.5));
+      for (const auto& note : s.notes) spdlog::debug("    {}", note);
     }
   };
-  if (!a.quiet) std::cerr << "hapticloud run " << a.config << " -> " << out.string() << "\n";
+  spdlog::info("hapticloud run {} -> {}", a.config, out.string());
   const pipeline::RunSummary summary = pipeline::run_pipeline(
       cfg, out, progress, a.force ? pipeline::ExistingOutput::kMoveAside : pipeline::ExistingOutput::kRefuse,
       session::servo_level_timing());
@@ -65,7 +64,6 @@ void add_run_command(CLI::App& app) {
   cmd->add_flag("--force", args->force,
                 "Write --out even if it holds something else: that is kept as <out>.replaced-<time>, never deleted");
   cmd->add_option("--set", args->sets, "Override a config key, e.g. --set grid.n=400 (repeatable)");
-  cmd->add_flag("--quiet,-q", args->quiet, "No progress lines on stderr");
   cmd->callback([args] { run(*args); });
 }
 
