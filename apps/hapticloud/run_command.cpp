@@ -4,6 +4,7 @@
 
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
+#include "hc/session/interrupt_cleanup.hpp"
 #include "hc/session/level_timing.hpp"
 
 #include <spdlog/spdlog.h>
@@ -22,6 +23,8 @@ struct RunArgs {
 };
 
 void run(const RunArgs& a) {
+  // Before any stage starts a thread: Ctrl-C removes the unfinished output folder.
+  const session::InterruptCleanup cleanup;
   const pipeline::RunConfig cfg = pipeline::load_run_config(a.config, a.sets);
   const std::filesystem::path out = a.out.empty() ? std::filesystem::path("runs") / cfg.name : std::filesystem::path(a.out);
   auto progress = [&](const pipeline::StageReport& s, bool done) {

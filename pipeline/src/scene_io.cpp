@@ -8,12 +8,14 @@
 #include <opencv2/imgproc.hpp>
 #include <yaml-cpp/yaml.h>
 
+#include <signal.h>
 #include <unistd.h>
 
 #include <cerrno>
 #include <cstring>
 #include <ctime>
 #include <fstream>
+#include <mutex>
 #include <set>
 #include <sstream>
 #include <stdexcept>
@@ -404,6 +406,33 @@ fs::path free_sibling(const fs::path& base, const std::string& suffix) {
   return p;
 }
 
+/// Staging folders of the StagingDirs alive in this process.
+std::mutex g_live_mutex;
+std::set<std::string> g_live_staging;
+
+/// Removes `<target>.partial-<pid>[-k]` and `<target>.old-<pid>[-k]` siblings whose process is
+/// gone and that hold the output marker (so they are ours). Best effort; never throws.
+void remove_stale_siblings(const fs::path& target) {
+  std::error_code ec;
+  const fs::path parent = target.has_parent_path() ? target.parent_path() : fs::path(".");
+  const std::string stem = target.filename().string();
+  for (fs::directory_iterator it(parent, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    for (const char* tag : {".partial-", ".old-"}) {
+      const std::string prefix = stem + tag;
+      if (name.rfind(prefix, 0) != 0) continue;
+      const std::string rest = name.substr(prefix.size());
+      const std::size_t digits = rest.find_first_not_of("0123456789");
+      if (digits == 0 || rest.empty()) continue;
+      const long pid = std::stol(rest.substr(0, digits));
+      if (pid <= 0 || pid == static_cast<long>(::getpid())) continue;
+      const bool gone = ::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH;
+      std::error_code ec2;
+      if (gone && fs::is_regular_file(it->path() / kOutputMarkerFile, ec2)) fs::remove_all(it->path(), ec2);
+    }
+  }
+}
+
 std::string local_time_stamp() {
   const std::time_t now = std::time(nullptr);
   std::tm tm{};
@@ -438,6 +467,7 @@ StagingDir::StagingDir(fs::path target, ExistingOutput existing) : target_(std::
   if (target_.filename().empty()) target_ = target_.parent_path();
   std::error_code ec;
   target_is_foreign_ = check_output_target(target_, existing);
+  remove_stale_siblings(target_);
   // A fresh staging name: nothing that happens to exist is ever removed.
   staging_ = free_sibling(target_, ".partial-" + std::to_string(::getpid()));
   fs::create_directories(staging_, ec);
@@ -448,9 +478,40 @@ StagingDir::StagingDir(fs::path target, ExistingOutput existing) : target_(std::
     fs::remove_all(staging_, ec);
     throw InputError((staging_ / kOutputMarkerFile).string() + ": cannot write the output marker");
   }
+  std::lock_guard<std::mutex> lock(g_live_mutex);
+  g_live_staging.insert(staging_.string());
+}
+
+int remove_live_staging_dirs() noexcept {
+  int n = 0;
+  try {
+    std::lock_guard<std::mutex> lock(g_live_mutex);
+    for (const std::string& dir : g_live_staging) {
+      // Another thread may still be writing into it: move it out of the way first (its next
+      // file then fails to open), then remove it, retrying while files still appear in it.
+      std::error_code ec;
+      fs::path trash = dir;
+      trash += ".removing";
+      fs::rename(dir, trash, ec);
+      const fs::path victim = ec ? fs::path(dir) : trash;
+      for (int attempt = 0; attempt < 50; ++attempt) {
+        fs::remove_all(victim, ec);
+        if (!fs::exists(victim, ec)) break;
+      }
+      fs::remove_all(dir, ec);  // recreated by a create_directories in the meantime
+      ++n;
+    }
+    g_live_staging.clear();
+  } catch (...) {
+  }
+  return n;
 }
 
 StagingDir::~StagingDir() {
+  {
+    std::lock_guard<std::mutex> lock(g_live_mutex);
+    g_live_staging.erase(staging_.string());
+  }
   if (!committed_) {
     std::error_code ec;
     fs::remove_all(staging_, ec);
@@ -473,6 +534,10 @@ void StagingDir::commit() {
     throw InputError("cannot rename " + staging_.string() + " to " + target_.string() + ": " + why);
   }
   committed_ = true;
+  {
+    std::lock_guard<std::mutex> lock(g_live_mutex);
+    g_live_staging.erase(staging_.string());
+  }
   if (old.empty()) return;
   if (target_is_foreign_) {
     moved_aside_ = old;  // the user's: kept

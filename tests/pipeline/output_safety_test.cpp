@@ -12,7 +12,10 @@
 #include "cloud_fixtures.hpp"
 #include "test_paths.hpp"
 
+#include <signal.h>
 #include <unistd.h>
+
+#include <cerrno>
 
 #include <cstdio>
 #include <fstream>
@@ -152,6 +155,46 @@ TEST(OutputSafety, AStagingNameThatExistsIsLeftAlone) {
   }
   EXPECT_EQ(slurp(squatter / "keep.txt"), "keep");
   EXPECT_TRUE(fs::exists(dir / "out" / kOutputMarkerFile));
+}
+
+}  // namespace
+
+namespace {
+
+TEST(OutputSafety, StaleStagingFoldersOfDeadProcessesAreRemovedOnlyWhenOurs) {
+  const fs::path dir = hc::test::temp_dir("stale");
+  // A pid that is not running: the first free one above a high start.
+  long pid = 4'000'000;
+  while (::kill(static_cast<pid_t>(pid), 0) == 0 || errno != ESRCH) ++pid;
+  const fs::path ours = dir / ("out.partial-" + std::to_string(pid));
+  const fs::path old = dir / ("out.old-" + std::to_string(pid));
+  const fs::path foreign = dir / ("out.partial-" + std::to_string(pid) + "-1");
+  for (const fs::path& p : {ours, old, foreign}) fs::create_directories(p);
+  { std::ofstream(ours / kOutputMarkerFile) << "x"; }
+  { std::ofstream(old / kOutputMarkerFile) << "x"; }
+  { std::ofstream(foreign / "thesis.tex") << "mine"; }  // no marker: not ours
+  // This process's own name is never touched either.
+  const fs::path mine = dir / ("out.partial-" + std::to_string(::getpid()) + "-7");
+  fs::create_directories(mine);
+  { std::ofstream(mine / kOutputMarkerFile) << "x"; }
+  {
+    StagingDir staging(dir / "out");
+    staging.commit();
+  }
+  EXPECT_FALSE(fs::exists(ours));
+  EXPECT_FALSE(fs::exists(old));
+  EXPECT_TRUE(fs::exists(foreign / "thesis.tex"));
+  EXPECT_TRUE(fs::exists(mine));
+}
+
+TEST(OutputSafety, LiveStagingFoldersCanBeRemovedByASignalWatcher) {
+  const fs::path dir = hc::test::temp_dir("live");
+  StagingDir a(dir / "a");
+  StagingDir b(dir / "b");
+  ASSERT_TRUE(fs::exists(a.path()));
+  EXPECT_EQ(remove_live_staging_dirs(), 2);
+  EXPECT_FALSE(fs::exists(a.path()));
+  EXPECT_FALSE(fs::exists(b.path()));
 }
 
 }  // namespace

@@ -50,6 +50,8 @@ enum class ExistingOutput {
 /// an empty folder or an earlier output (it holds kOutputMarkerFile, or it is a pre-marker run
 /// folder: only scene/, previews/, report.md, report.json with scene/scene.yaml present);
 /// anything else is refused, or with ExistingOutput::kMoveAside renamed aside and kept.
+/// Stale siblings `<target>.partial-<pid>` and `<target>.old-<pid>` left by a process that no
+/// longer runs (a crash, a kill -9) are removed when they hold the output marker.
 class StagingDir {
  public:
   /// @throws hc::InputError if `target` is a file or a foreign non-empty folder (kRefuse; the
@@ -81,6 +83,12 @@ class StagingDir {
 /// @return true if the target exists and is foreign (it will be moved aside).
 /// @throws hc::InputError naming the target and suggesting --force.
 bool check_output_target(const std::filesystem::path& target, ExistingOutput existing);
+
+/// Removes the staging folders of every StagingDir alive in this process (for a signal watcher
+/// thread: SIGINT/SIGTERM during a run must not leave `<out>.partial-<pid>` behind). Not
+/// async-signal-safe: call it from a normal thread (sigwait), not from a signal handler.
+/// @return how many were removed. Never throws.
+int remove_live_staging_dirs() noexcept;
 
 /// True if `dir` is an output folder hapticloud wrote (see StagingDir). Never throws.
 bool is_hapticloud_output(const std::filesystem::path& dir);

@@ -1,0 +1,62 @@
+// Issue 15: SIGTERM (or Ctrl-C) while `hapticloud run` writes its output leaves no
+// `<out>.partial-<pid>` behind, and stale ones of dead processes are removed by the next run.
+
+#include <gtest/gtest.h>
+
+#include "test_paths.hpp"
+
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+extern char** environ;
+
+namespace {
+
+namespace fs = std::filesystem;
+
+bool has_partial(const fs::path& dir) {
+  for (const auto& e : fs::directory_iterator(dir)) {
+    if (e.path().filename().string().find(".partial-") != std::string::npos) return true;
+  }
+  return false;
+}
+
+TEST(Interrupt, SigtermDuringTheWriteRemovesTheStagingFolder) {
+  const fs::path dir = hc::test::temp_dir("sigterm");
+  const std::string config = (fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml").string();
+  const std::string out = (dir / "out").string();
+  // N = 1600 with the levels table: the write stage (scene, previews, levels) lasts long enough
+  // to be caught by polling; the folder only exists during it.
+  std::vector<std::string> args = {HC_APP, "run", config, "--out", out, "-q", "--set", "grid.n=1600"};
+  std::vector<char*> argv;
+  for (auto& a : args) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  pid_t pid = 0;
+  ASSERT_EQ(posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ), 0);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+  bool seen = false;
+  int status = 0;
+  while (!seen && std::chrono::steady_clock::now() < deadline) {
+    if (waitpid(pid, &status, WNOHANG) == pid) break;  // finished before we saw it
+    seen = has_partial(dir);
+    if (!seen) std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  ASSERT_TRUE(seen) << "the run's staging folder never appeared (the run ended or took over 120 s)";
+  ASSERT_EQ(kill(pid, SIGTERM), 0);
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
+  EXPECT_EQ(WEXITSTATUS(status), 128 + SIGTERM);
+  EXPECT_FALSE(has_partial(dir));
+  EXPECT_FALSE(fs::exists(dir / "out"));
+}
+
+}  // namespace
