@@ -1,0 +1,53 @@
+#include "explore_script.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <map>
+#include <sstream>
+#include <stdexcept>
+
+namespace hc::app {
+
+std::vector<ScriptStep> parse_script(const std::string& text) {
+  static const std::map<std::string, std::size_t> kArity = {
+      {"finer", 0}, {"coarser", 0}, {"level", 1}, {"pan", 2}, {"centre", 2}, {"texture", 1},
+      {"mu_s", 1}, {"model", 1}, {"rescan", 3}, {"stereo", 1}};
+  std::vector<ScriptStep> steps;
+  std::stringstream all(text);
+  std::string item;
+  while (std::getline(all, item, ';')) {
+    std::stringstream words(item);
+    ScriptStep st;
+    std::string frame;
+    if (!(words >> frame)) continue;  // empty item
+    const auto bad = [&](const std::string& why) {
+      return ConfigError("explore: --script step '" + item + "': " + why +
+                         " (expected FRAME ACTION ARGS with ACTION one of finer, coarser, level N, pan DX DY, "
+                         "centre X_M Y_M, texture on|off, mu_s V, model paper|curvature, rescan AX AY AZ, stereo on|off)");
+    };
+    try {
+      std::size_t used = 0;
+      st.frame = std::stoi(frame, &used);
+      if (used != frame.size() || st.frame < 1) throw std::invalid_argument("frame");
+    } catch (const std::exception&) {
+      throw bad("the frame must be an integer ≥ 1");
+    }
+    if (!(words >> st.action) || kArity.count(st.action) == 0) throw bad("unknown action");
+    for (std::string w; words >> w;) st.args.push_back(w);
+    if (st.args.size() != kArity.at(st.action)) throw bad("wrong number of arguments");
+    if (!steps.empty() && st.frame < steps.back().frame) throw bad("frames must not decrease");
+    steps.push_back(std::move(st));
+  }
+  return steps;
+}
+
+double script_number(const ScriptStep& st, std::size_t i) {
+  try {
+    return std::stod(st.args[i]);
+  } catch (const std::exception&) {
+    throw ConfigError("explore: --script step at frame " + std::to_string(st.frame) + ": '" + st.args[i] +
+                      "' is not a number");
+  }
+}
+
+}  // namespace hc::app

@@ -1,0 +1,29 @@
+#pragma once
+/// @file explore_script.hpp
+/// `hapticloud explore --script "FRAME ACTION ARGS; ..."`: scripted actions for tests and demos.
+/// Each step is what a key, the panel or the orientation tool would do at that frame; the
+/// session (explore_session.hpp) runs it through the same entry points.
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace hc::app {
+
+/// One scripted action: at frame `frame`, what a key, the panel or the orientation tool would do.
+struct ScriptStep {
+  int frame = 0;               ///< UI frame (1 = the first), ≥ 1
+  std::string action;          ///< finer | coarser | level | pan | centre | texture | mu_s | model | rescan | stereo
+  std::vector<std::string> args;
+};
+
+/// Parses "FRAME ACTION [ARGS...]; ..." (frames must not decrease; empty items are skipped).
+/// Arities: finer, coarser 0; level, texture, mu_s, model, stereo 1; pan, centre 2; rescan 3.
+/// Numbers are checked when the step runs (script_number). Any thread.
+/// @throws hc::ConfigError naming the step and the expected form.
+std::vector<ScriptStep> parse_script(const std::string& text);
+
+/// Argument i of `st` as a number. @throws hc::ConfigError naming the frame and the text.
+double script_number(const ScriptStep& st, std::size_t i);
+
+}  // namespace hc::app

@@ -1,0 +1,253 @@
+/// `hapticloud explore`, the session's set-up and frame loop (explore_session.hpp).
+
+#include "explore_session.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/haptics/simulated_device.hpp"
+#include "hc/haptics/stop_signal.hpp"
+#include "hc/session/scene_source.hpp"
+
+#ifdef HC_HAVE_FALCON
+#include "hc/falcon/falcon_device.hpp"
+#include "hc/falcon/usb_transport.hpp"
+#endif
+#ifdef HC_HAVE_AUDIO
+#include "audio_setup.hpp"
+#include "hc/audio/mixer.hpp"
+#endif
+
+#include <sys/resource.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <filesystem>
+#include <iostream>
+
+namespace hc::app {
+
+#ifdef HC_HAVE_VIEWER
+
+namespace fs = std::filesystem;
+
+session::LodControllerOptions Session::controller_options() const {
+  session::LodControllerOptions c;
+  c.device_half_extent_m = device_ ? device_->info().workspace_half_extent_m : Eigen::Vector3d(0.05, 0.05, 0.05);
+  c.surface.texture_gain = texture_enabled_ ? 1.0 : 0.0;
+  c.surface.default_mu_s = layer_options_.mu_s;
+  return c;
+}
+
+std::vector<ScriptStep> Session::check_options() {
+  if (o_.frames < 0) throw ConfigError("explore: --frames " + std::to_string(o_.frames) + " must be ≥ 0");
+  if (!(o_.seconds >= 0.0) || o_.seconds > 86400.0) {
+    throw ConfigError("explore: --seconds " + fmt(o_.seconds) + " is out of range (expected [0, 86400])");
+  }
+  if (!o_.screenshot.empty() && o_.frames == 0 && o_.seconds == 0.0) o_.frames = 1;
+  std::vector<ScriptStep> script = parse_script(o_.script);
+  if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim") {
+    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
+  }
+  if (o_.window_cells != 0 && (o_.window_cells < 2 || o_.window_cells > 4096)) {
+    throw ConfigError("explore: --window-cells " + std::to_string(o_.window_cells) +
+                      ": expected an integer in [2, 4096] (or 0: the scene's lod.window_cells)");
+  }
+  if (o_.window_cells > 0) lod_options_.window_cells = o_.window_cells;
+  return script;
+}
+
+void Session::load_input() {
+  const fs::path p(o_.input);
+  session::SceneSourceOptions so;
+  if (session::is_run_config(p)) {
+    // Levels are built on demand by the session's pyramid: no levels table in the run report
+    // (it would build every level of every scan before the session starts).
+    so.lod_report = false;
+    so.keep_cloud = true;  // the orientation tool's preview
+    so.run_dir = fs::path(o_.out) / "scan-0";
+    std::cout << "explore: building the scene of " << p.string() << " into " << so.run_dir.string() << "\n";
+  }
+  session::OpenedScene opened = session::open_scene_or_config(p, so);
+  // The scene's own layers.* and lod.* (as `hapticloud run` built it); --window-cells still wins.
+  const int cells = lod_options_.window_cells;
+  layer_options_ = opened.scene.layer_options;
+  lod_options_ = opened.scene.lod;
+  if (o_.window_cells > 0) lod_options_.window_cells = cells;
+  if (opened.config) {
+    config_ = std::move(opened.config);
+    config_->lod.report = false;
+    cloud_ = session::cloud_preview(*opened.cloud, config_->view, 150000);
+  }
+  built_ = session::build_explore_scene(std::move(opened.scene), layer_options_, lod_options_, false);
+  if (config_) built_->orientation = config_->view.rotation;
+  built_->description = config_ ? config_->name : p.filename().string();
+}
+
+void Session::start_device() {
+  if (o_.device == "mouse") {
+    auto m = std::make_unique<viewer::MouseDevice>(clock_);
+    mouse_ = m.get();
+    device_ = std::move(m);
+  } else if (o_.device == "sim") {
+    // Made in start_servo() once the first window's heights are known (the path's heights need them).
+  } else if (o_.device == "falcon") {
+#ifdef HC_HAVE_FALCON
+    // The run config's falcon: section when there is one (firmware, which device, force cap).
+    const pipeline::FalconSpec spec = config_ ? config_->falcon : pipeline::FalconSpec{};
+    falcon::FalconConfig fc;
+    fc.firmware_path = spec.firmware.string();
+    fc.max_force_n = spec.max_force_n;
+    fc.max_missed_ticks = spec.max_missed_ticks;
+    device_ = std::make_unique<falcon::FalconDevice>(clock_, std::make_unique<falcon::UsbFalconProvider>(spec.index), fc);
+#else
+    throw ConfigError("explore: --device falcon: this build has no Falcon driver (hc::falcon was not built)");
+#endif
+  } else {
+    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
+  }
+}
+
+void Session::start_servo() {
+  const session::HapticWindow& w0 = lod_->window();
+  if (o_.device == "sim") {
+    const haptics::DeviceInfo info = haptics::SimulatedDevice::default_info();
+    const double mid = 0.5 * (w0.min_height_m + w0.max_height_m);
+    haptics::ScriptedPath path;
+    path.kind = haptics::path_kind_from_string(o_.path);
+    path.half_x_m = 0.6 * info.workspace_half_extent_m.x();
+    path.half_y_m = 0.6 * info.workspace_half_extent_m.y();
+    path.raster_spacing_m = 0.1 * info.workspace_half_extent_m.y();
+    path.z_above_m = (w0.max_height_m - mid) / w0.map.scale + 0.01;
+    path.z_contact_m = -0.01;
+    path.speed_m_per_s = o_.speed_m_per_s;
+    device_ = std::make_unique<haptics::SimulatedDevice>(clock_, path, haptics::VirtualHand{}, info);
+  }
+  device_->open();
+  haptics::ServoConfig& cfg = servo_config_;
+  cfg.realtime = haptics::realtime_mode_from_string(o_.realtime);
+  cfg.workspace = w0.map;
+  cfg.proxy.stiffness_n_per_m = o_.stiffness_n_per_m;
+  cfg.proxy.rho = o_.rho;
+  cfg.proxy.max_force_n = std::min(cfg.proxy.max_force_n, device_->info().max_force_n);
+  loop_ = std::make_unique<haptics::ServoLoop>(*device_, shared_, clock_, cfg);
+  realtime_ = loop_->start();
+  std::cout << "explore: device " << device_->info().name << "; servo " << cfg.rate_hz << " Hz, SCHED_FIFO "
+            << (realtime_.fifo_granted ? "granted" : "not granted") << "\n";
+  if (!realtime_.detail.empty()) std::cout << "explore: " << realtime_.detail << "\n";
+  // The UI thread and everything it starts (Mesa's threads, workers) yield to the servo thread.
+  setpriority(PRIO_PROCESS, static_cast<id_t>(gettid()), 10);
+}
+
+void Session::make_viewer() {
+#ifdef HC_HAVE_AUDIO
+  if (!o_.no_audio) {
+    const auto& base = built_->base;
+    const HeightField* texture = base.layers.texture.rows() > 0 ? &base.layers.texture : nullptr;
+    const GridGeometry grid = base.depth().geometry();
+    // The run config's audio: section (regions, materials); a scene folder gets the sliding
+    // sound only.
+    const audio::AudioConfig ac = config_ ? audio_config_from(config_->audio) : audio::AudioConfig{};
+    sound_ = std::make_unique<audio::AudioEngine>(audio::build_audio_scene(ac, {&grid, texture}));
+    const audio::EngineReport ar = sound_->start(shared_);
+    drain_events_ = false;  // the engine reads shared_.events
+    std::cout << "explore: audio " << (ar.device_open ? ar.device : std::string("off")) << ": " << ar.detail << "\n";
+  }
+#endif
+  viewer::ViewerOptions vo;
+  vo.width_px = o_.width;
+  vo.height_px = o_.height;
+  vo.visible = !o_.hidden;
+  vo.stereo = o_.stereo;
+  vo.mouse_drives_hip = mouse_ != nullptr;
+  vo.max_force_n = servo_config_.proxy.max_force_n;
+  vo.max_stiffness_n_per_m = device_->info().max_stable_stiffness_n_per_m;
+  vo.stiffness_n_per_m = servo_config_.proxy.stiffness_n_per_m;
+  vo.rho = servo_config_.proxy.rho;
+  vo.surface.mu_s = layer_options_.mu_s;
+  vo.surface.friction_model = pipeline::to_string(layer_options_.friction_model);
+  viewer::ViewerCallbacks cb;
+  cb.on_region = [this](const viewer::RegionCommand& c) { on_region(c); };
+  if (config_) cb.on_rescan = [this](const Eigen::Quaterniond& q) { on_rescan(q); };
+  cb.on_surface_settings = [this](const viewer::SurfaceSettings& s) { on_surface_settings(s); };
+#ifdef HC_HAVE_AUDIO
+  if (sound_) cb.on_audio_volume = [this](double v) { sound_->set_volume(v); };
+#endif
+  cb.on_frame = [this] { on_frame(); };
+  cb.status = [this] { return status_; };
+  try {
+    viewer_ = std::make_unique<viewer::Viewer>(shared_, vo, cb);
+  } catch (...) {
+    loop_->stop();
+    device_->close();
+    throw;
+  }
+}
+
+void Session::run() {
+  const std::vector<ScriptStep> script = check_options();
+  std::size_t next_step = 0;
+  // Before anything is built: a Ctrl-C from here on ends the session between frames, and a
+  // Falcon sends zero force at once (one process-wide flag, hc/haptics/stop_signal.hpp).
+  haptics::clear_stop_request();
+  haptics::install_stop_signal_handlers();
+  std::error_code ec;
+  fs::create_directories(o_.out, ec);
+  if (ec) throw InputError("explore: cannot create the output folder '" + o_.out + "': " + ec.message());
+  load_input();
+  start_device();
+  // First window, then the device and the servo loop.
+  lod_ = std::make_unique<session::LodController>(built_->pyramid, shared_, controller_options());
+  centre_first_window();
+  start_servo();
+  make_viewer();
+  show_window();
+  swap_.arm();  // retried by swap_.step() each frame while the command ring is full
+
+  const auto t0 = std::chrono::steady_clock::now();
+  for (int frame = 1;; ++frame) {
+    if (haptics::stop_requested()) {
+      // Ctrl-C / SIGTERM: close the viewer and end cleanly (a re-scan under way is waited for
+      // below; the servo stops and the device closes with zero force).
+      stopped_by_signal_ = true;
+      std::cout << "explore: stop requested (signal); ending the session\n";
+      break;
+    }
+    // A session never ends half-way through a re-scan or a swap.
+    const bool pending = busy() || next_step < script.size();
+    const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const bool last =
+        !pending && ((o_.frames > 0 && frame >= o_.frames) || (o_.seconds > 0.0 && elapsed_s >= o_.seconds));
+    if (last && !o_.screenshot.empty()) {
+      viewer::write_png(viewer_->capture(), o_.screenshot);
+      std::cout << "explore: wrote " << o_.screenshot << "\n";
+      break;
+    }
+    if (!viewer_->frame() || last) break;
+    // Scripted steps go through the same entry points as keys, the panel and the orientation
+    // tool; a step waits while a re-scan or rebuild is under way.
+    while (next_step < script.size() && script[next_step].frame <= frame && !busy()) run_step(script[next_step++]);
+  }
+  if (job_.valid()) job_.wait();
+  loop_->stop();
+#ifdef HC_HAVE_AUDIO
+  if (sound_) sound_->stop();
+#endif
+  const haptics::ServoStats stats = loop_->stats();
+  device_->close();
+  write_summary(stats);
+  viewer_.reset();
+}
+
+#endif  // HC_HAVE_VIEWER
+
+void run_explore(const ExploreOptions& o) {
+#ifdef HC_HAVE_VIEWER
+  Session session(o);
+  session.run();
+#else
+  (void)o;
+  throw ConfigError("explore: this build has no viewer (hc::viewer was not built)");
+#endif
+}
+
+}  // namespace hc::app
