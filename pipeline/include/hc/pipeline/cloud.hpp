@@ -18,11 +18,24 @@ namespace hc::pipeline {
 struct Cloud {
   Eigen::Matrix3Xd xyz;                ///< 3 × N coordinates
   std::vector<std::uint16_t> scan_id;  ///< empty, or N source-scan indices (multi-view merges)
+  /// Per-point attributes, each empty or of size N (scanner formats fill what they carry):
+  std::vector<float> intensity;        ///< return intensity as stored by the scanner [-]
+                                       ///< (E57 and PTX normalised to [0, 1], LAS raw 0..65535)
+  std::vector<std::uint8_t> rgb;       ///< empty or 3·N bytes: R G B per point, 8 bit
+  std::vector<std::int32_t> row, col;  ///< organised scans (E57 rowIndex/columnIndex, PTX):
+                                       ///< the point's row and column in its scan's grid
 
   std::size_t size() const { return static_cast<std::size_t>(xyz.cols()); }
   bool has_scan_id() const { return !scan_id.empty(); }
-  /// Keeps the points whose keep[i] is true, in order (scan_id follows). keep.size() == size().
+  bool has_intensity() const { return !intensity.empty(); }
+  bool has_rgb() const { return !rgb.empty(); }
+  bool has_grid_index() const { return !row.empty(); }
+  /// Keeps the points whose keep[i] is true, in order (every attribute follows).
+  /// keep.size() == size().
   void keep_if(const std::vector<bool>& keep);
+  /// Appends `other`'s points; an attribute that only one side has is dropped (the result must
+  /// hold it for every point or for none). Returns the names of the attributes dropped.
+  std::vector<std::string> append(const Cloud& other);
 };
 
 /// What one stage did: counts in and out, wall time, named figures and free-text notes.
