@@ -182,16 +182,16 @@ void add_touch_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_flag("--force", opts->force,
                 "Write --out even if it holds something else: that is kept as <out>.replaced-<time>, never deleted");
-  cmd->add_option("--texture-gain", opts->s.texture_gain, "Texture gain (0 renders the envelope only)")->capture_default_str();
+  cmd->add_option("--texture-gain", opts->s.texture_gain, "Texture gain, [0, 100] (0 renders the envelope only)")->capture_default_str();
   cmd->add_flag("--no-friction", opts->no_friction, "Render without friction (mu_d = mu_s = 0)");
-  cmd->add_option("--mu-d", opts->s.mu_d, "mu_d where the scene has no mu_d layer")->capture_default_str();
-  cmd->add_option("--mu-s", opts->s.mu_s, "mu_s where the scene has no mu_s layer")->capture_default_str();
-  cmd->add_option("--stiffness", opts->s.stiffness_n_per_m, "Stiffness k [N/m] (device frame)")->capture_default_str();
-  cmd->add_option("--max-force", opts->s.max_force_n, "Force cap [N]")->capture_default_str();
+  cmd->add_option("--mu-d", opts->s.mu_d, "mu_d where the scene has no mu_d layer, [0, 10]")->capture_default_str();
+  cmd->add_option("--mu-s", opts->s.mu_s, "mu_s where the scene has no mu_s layer, [0, 10]")->capture_default_str();
+  cmd->add_option("--stiffness", opts->s.stiffness_n_per_m, "Stiffness k [N/m] (device frame), (0, the device's max stable stiffness]")->capture_default_str();
+  cmd->add_option("--max-force", opts->s.max_force_n, "Force cap [N], (0, the device's max force]")->capture_default_str();
   cmd->add_option("--rho", opts->s.rho, "Proxy step factor rho of Eq. 4-5, (0, 1]")->capture_default_str();
-  cmd->add_option("--cells", opts->cells, "Grid size of the synthetic scene (N x N)")->capture_default_str();
-  cmd->add_option("--press", opts->s.press_m, "How far below mid height the hand aims [m] (device frame)")->capture_default_str();
-  cmd->add_option("--speed", opts->s.speed_m_per_s, "Path speed [m/s] (device frame)")->capture_default_str();
+  cmd->add_option("--cells", opts->cells, "Grid size of the synthetic scene (N x N), 2..8192")->capture_default_str();
+  cmd->add_option("--press", opts->s.press_m, "How far below mid height the hand aims [m] (device frame), [0, 0.1]")->capture_default_str();
+  cmd->add_option("--speed", opts->s.speed_m_per_s, "Path speed [m/s] (device frame), (0, 10]")->capture_default_str();
   cmd->add_flag("--validate", opts->validate,
                 "Paper's validation: the session with and without texture and friction, plots and report.md");
   cmd->add_flag("--no-hand", opts->no_hand, "Drive the device exactly along the path (no virtual hand)");
