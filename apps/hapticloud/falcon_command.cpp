@@ -20,9 +20,12 @@
 
 #include <array>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
 #include <iostream>
 #include <memory>
+#include <sstream>
+#include <string>
 #include <thread>
 
 namespace hc::app {
@@ -82,6 +85,23 @@ struct CheckOptions {
   double home_timeout_s = 60.0;
   double floor_s = 5.0;
 };
+
+/// @throws hc::ConfigError naming `option` unless `v` is finite and in (0, hi].
+void check_seconds(const char* option, double v, double hi) {
+  if (!std::isfinite(v) || !(v > 0.0) || v > hi) {
+    std::ostringstream s;
+    s << "falcon-check: " << option << " " << v << " is out of range (expected a number of seconds in (0, " << hi
+      << "])";
+    throw ConfigError(s.str());
+  }
+}
+
+/// Checks every numeric option before anything is opened. @throws hc::ConfigError naming it.
+void check_options(const CheckOptions& o) {
+  if (o.index < 0) throw ConfigError("falcon-check: --index " + std::to_string(o.index) + " is out of range (expected >= 0)");
+  check_seconds("--home-timeout", o.home_timeout_s, 3600.0);
+  check_seconds("--floor-seconds", o.floor_s, 3600.0);
+}
 
 constexpr int kInterrupted = 2;  // run_falcon_check's result when SIGINT/SIGTERM cut it short
 
@@ -202,9 +222,10 @@ void add_falcon_command(CLI::App& app) {
   chk->add_option("--firmware", o->firmware,
                   std::string("Firmware image if the firmware is not running (default: $") + falcon::kFirmwareEnvVar + ")");
   chk->add_flag("--emulate", o->emulate, "Check the built-in emulator instead of hardware");
-  chk->add_option("--home-timeout", o->home_timeout_s, "Seconds to wait for homing")->capture_default_str();
-  chk->add_option("--floor-seconds", o->floor_s, "Seconds of the virtual-floor test")->capture_default_str();
+  chk->add_option("--home-timeout", o->home_timeout_s, "Seconds to wait for homing, (0, 3600]")->capture_default_str();
+  chk->add_option("--floor-seconds", o->floor_s, "Seconds of the virtual-floor test, (0, 3600]")->capture_default_str();
   chk->callback([o] {
+    check_options(*o);
     const int rc = run_falcon_check(*o);
     if (rc == kInterrupted) throw ResourceError("falcon-check interrupted (SIGINT/SIGTERM) before it finished");
     if (rc != 0) throw ResourceError("falcon-check failed");

@@ -127,7 +127,7 @@ std::pair<int, int> parse_window_origin(const std::string& text) {
   return {to_int(text.substr(0, comma), "--window " + text), to_int(text.substr(comma + 1), "--window " + text)};
 }
 
-LodSession::LodSession(const std::map<std::string, HeightField>& layers, const haptics::SurfaceOptions& surface,
+LodSession::LodSession(const SceneLayers& layers, const haptics::SurfaceOptions& surface,
                        const Eigen::Vector3d& device_half_extent_m, int level, std::optional<std::pair<int, int>> origin,
                        std::vector<ZoomAction> actions, haptics::SharedState& shared,
                        const pipeline::SurfaceLayerOptions& layer_options, const pipeline::LodOptions& lod)
@@ -135,18 +135,14 @@ LodSession::LodSession(const std::map<std::string, HeightField>& layers, const h
   if (level < -1) {
     throw ConfigError("touch: --level " + std::to_string(level) + ": expected -1 (the coarsest) or a level >= 0");
   }
-  const auto find = [&](const char* name) -> const HeightField* {
-    const auto it = layers.find(name);
-    return it == layers.end() ? nullptr : &it->second;
-  };
-  if (find("depth") == nullptr) throw InputError("touch: the scene has no depth layer for levels of detail");
+  if (layers.depth.rows() == 0) throw InputError("touch: the scene has no depth layer for levels of detail");
   pipeline::LodLevel l0;
-  l0.depth_m = *find("depth");
-  if (find("envelope") && find("texture") && find("mu_d") && find("mu_s")) {
-    l0.envelope_m = *find("envelope");
-    l0.texture_m = *find("texture");
-    l0.mu_d = *find("mu_d");
-    l0.mu_s = *find("mu_s");
+  l0.depth_m = layers.depth;
+  if (layers.has_surface_layers()) {
+    l0.envelope_m = layers.envelope;
+    l0.texture_m = layers.texture;
+    l0.mu_d = layers.mu_d;
+    l0.mu_s = layers.mu_s;
     l0.has_layers = true;
   }
   pyramid_ = std::make_shared<pipeline::LodPyramid>(std::move(l0), layer_options, lod);

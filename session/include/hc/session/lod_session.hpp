@@ -5,6 +5,7 @@
 /// switches and pans (--zoom-path) applied at given session times through a LodController.
 
 #include "hc/common/height_field.hpp"
+#include "hc/common/scene.hpp"
 #include "hc/haptics/haptic_surface.hpp"
 #include "hc/haptics/shared_state.hpp"
 #include "hc/pipeline/lod.hpp"
@@ -53,15 +54,15 @@ struct SwitchRecord {
 
 class LodSession {
  public:
-  /// Builds the pyramid from the session's layers (depth required; envelope, texture, mu_d and
-  /// mu_s are used for level 0 when all four are present, else computed) and publishes the
+  /// Builds the pyramid from the scene's layers (hc/common/scene.hpp; depth required; envelope,
+  /// texture, mu_d and mu_s are used for level 0 when all four are present, else computed) and publishes the
   /// initial window: level `level` (−1: the coarsest) with its first sample at `origin`
   /// (column, row) or centred on the grid. Levels ≥ 1 get their layers from `layer_options`
   /// (the scene's own, as in `hapticloud run`). Every level and window origin of `actions` is
   /// checked against the pyramid before the first window is published.
   /// @throws hc::ConfigError naming --level, --window or the --zoom-path action for a level or
   ///         origin out of range; hc::InputError for missing layers.
-  LodSession(const std::map<std::string, HeightField>& layers, const haptics::SurfaceOptions& surface,
+  LodSession(const SceneLayers& layers, const haptics::SurfaceOptions& surface,
              const Eigen::Vector3d& device_half_extent_m, int level, std::optional<std::pair<int, int>> origin,
              std::vector<ZoomAction> actions, haptics::SharedState& shared,
              const pipeline::SurfaceLayerOptions& layer_options, const pipeline::LodOptions& lod);
