@@ -67,7 +67,7 @@ void Session::write_summary(const haptics::ServoStats& stats) const {
   j["swap_seen_armed"] = sw.seen_armed;
   j["stopped_by_signal"] = stopped_by_signal_;
   j["status"] = status_;
-  js << j.dump(2) << "\n";
+  js << j.dump(2, ' ', false, nlohmann::json::error_handler_t::replace) << "\n";
 }
 
 #endif  // HC_HAVE_VIEWER

@@ -378,7 +378,8 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
       j["levels"].push_back(jr);
     }
   }
-  write_text(staging.path() / "report.json", j.dump(2) + "\n");
+  // Bytes that are not UTF-8 (file names are bytes on POSIX) are written as U+FFFD, never a throw.
+  write_text(staging.path() / "report.json", j.dump(2, ' ', false, json::error_handler_t::replace) + "\n");
 
   std::ostringstream md;
   md << "# hapticloud run report: " << config.name << "\n\n";

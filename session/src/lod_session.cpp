@@ -253,7 +253,7 @@ std::string LodSession::json() const {
                              {"level_build_s", w.level_seconds},
                              {"window_build_s", w.window_seconds}});
   }
-  return j.dump();
+  return j.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
 void LodSession::print(std::ostream& out) const {

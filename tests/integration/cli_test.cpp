@@ -87,3 +87,28 @@ TEST(Cli, OutIsRefusedOnAFileOrForeignFolderAndForceKeepsItAside) {
 }
 
 }  // namespace
+
+namespace {
+
+// Issue 15 D4: bytes that are not UTF-8 in a PLY element name (or a file name) ended the run with
+// "internal error: ... invalid UTF-8 byte" after all the work. Now the report is written.
+TEST(Cli, NonUtf8BytesInAPlyEndInAValidReport) {
+  const fs::path dir = hc::test::temp_dir("utf8");
+  const fs::path ply = dir / "plane.ply";
+  {
+    std::ofstream out(ply, std::ios::binary);
+    out << "ply\nformat ascii 1.0\nelement vertex 400\nproperty float x\nproperty float y\nproperty float z\n"
+        << "element caf\xe9\xff 1\nproperty float v\nend_header\n";
+    for (int i = 0; i < 20; ++i)
+      for (int j = 0; j < 20; ++j) out << 0.001 * i << " " << 0.001 * j << " " << 0.0001 * ((i + j) % 3) << "\n";
+    out << "1\n";
+  }
+  std::ofstream(dir / "run.yaml") << "input: {files: [plane.ply]}\ngrid: {n: 20}\nlod: {report: false}\n";
+  std::string out;
+  ASSERT_EQ(hc::test::run_app("run " + (dir / "run.yaml").string() + " -q --out " + (dir / "out").string(), &out), 0)
+      << out;
+  const nlohmann::json r = hc::test::read_json(dir / "out" / "report.json");  // throws if not valid JSON
+  EXPECT_EQ(r["grid"]["cols"].get<int>(), 20);
+}
+
+}  // namespace
