@@ -12,7 +12,6 @@
 #include "hc/falcon/usb_transport.hpp"
 #endif
 #ifdef HC_HAVE_AUDIO
-#include "audio_setup.hpp"
 #include "hc/audio/mixer.hpp"
 #endif
 
@@ -93,12 +92,8 @@ void Session::start_device() {
   } else if (o_.device == "falcon") {
 #ifdef HC_HAVE_FALCON
     // The run config's falcon: section when there is one (firmware, which device, force cap).
-    const pipeline::FalconSpec spec = config_ ? config_->falcon : pipeline::FalconSpec{};
-    falcon::FalconConfig fc;
-    fc.firmware_path = spec.firmware.string();
-    fc.max_force_n = spec.max_force_n;
-    fc.max_missed_ticks = spec.max_missed_ticks;
-    device_ = std::make_unique<falcon::FalconDevice>(clock_, std::make_unique<falcon::UsbFalconProvider>(spec.index), fc);
+    const falcon::FalconConfig fc = config_ ? config_->falcon : falcon::FalconConfig{};
+    device_ = std::make_unique<falcon::FalconDevice>(clock_, std::make_unique<falcon::UsbFalconProvider>(fc.device_index), fc);
 #else
     throw ConfigError("explore: --device falcon: this build has no Falcon driver (hc::falcon was not built)");
 #endif
@@ -146,7 +141,7 @@ void Session::make_viewer() {
     const GridGeometry grid = base.depth().geometry();
     // The run config's audio: section (regions, materials); a scene folder gets the sliding
     // sound only.
-    const audio::AudioConfig ac = config_ ? audio_config_from(config_->audio) : audio::AudioConfig{};
+    const audio::AudioConfig ac = config_ && config_->audio ? *config_->audio : audio::AudioConfig{};
     sound_ = std::make_unique<audio::AudioEngine>(audio::build_audio_scene(ac, {&grid, texture}));
     const audio::EngineReport ar = sound_->start(shared_);
     drain_events_ = false;  // the engine reads shared_.events

@@ -2,7 +2,6 @@
 
 #include "touch_audio.hpp"
 
-#include "audio_setup.hpp"
 #include "hc/audio/offline.hpp"
 
 #include <nlohmann/json.hpp>
@@ -16,14 +15,15 @@
 
 namespace hc::app {
 
-TouchAudio::TouchAudio(const pipeline::AudioSpec& spec, const Scene& scene, std::string wav_out, std::string live)
+TouchAudio::TouchAudio(const std::optional<audio::AudioConfig>& spec, const Scene& scene, std::string wav_out,
+                       std::string live)
     : wav_out_(std::move(wav_out)), live_name_(std::move(live)) {
   const GridGeometry& grid = scene.layers.depth.geometry();
   const HeightField* texture = scene.layers.texture.rows() > 0 ? &scene.layers.texture : nullptr;
-  scene_ = audio::build_audio_scene(audio_config_from(spec), {&grid, texture});
+  scene_ = audio::build_audio_scene(spec.value_or(audio::AudioConfig{}), {&grid, texture});
   if (!scene_->config.regions.empty()) region_layer_ = scene_->regions.to_layer(grid);
   std::cout << "audio: " << scene_->config.regions.size() << " region(s)"
-            << (spec.present ? "" : " (the input has no audio: section; sliding sound only)") << "\n";
+            << (spec ? "" : " (the input has no audio: section; sliding sound only)") << "\n";
 }
 
 TouchAudio::~TouchAudio() {

@@ -17,12 +17,13 @@ namespace hc::app {
 
 class TouchAudio {
  public:
-  /// Decodes the clips and rasterises the regions of `spec` (the run config's audio: section) on
+  /// Decodes the clips and rasterises the regions of `spec` (the run config's audio: section;
+  /// nullopt: no section, the sliding sound only) on
   /// the scene's grid BEFORE the session, so a bad clip stops here. `wav_out`: offline render of
   /// the session's contact sounds (empty: none); `live`: "default", "loopback" or an OpenAL
   /// device name (empty: no live playback).
   /// @throws hc::ConfigError / hc::InputError from hc::audio naming the key or file.
-  TouchAudio(const pipeline::AudioSpec& spec, const Scene& scene, std::string wav_out, std::string live);
+  TouchAudio(const std::optional<audio::AudioConfig>& spec, const Scene& scene, std::string wav_out, std::string live);
   ~TouchAudio();
 
   /// Starts live playback (when asked for) and returns the hooks that feed it the contact events

@@ -130,9 +130,9 @@ void run_touch(const TouchOptions& o) {
 #ifdef HC_HAVE_AUDIO
     std::optional<TouchAudio> audio;
     if (!o.audio_out.empty() || !o.audio_live.empty()) {
-      const pipeline::AudioSpec spec = !o.audio_config.empty() ? pipeline::load_run_config(o.audio_config).audio
-                                       : opened.config         ? opened.config->audio
-                                                               : pipeline::AudioSpec{};
+      const std::optional<audio::AudioConfig> spec = !o.audio_config.empty() ? pipeline::load_run_config(o.audio_config).audio
+                                                     : opened.config         ? opened.config->audio
+                                                                             : std::nullopt;
       audio.emplace(spec, scene, o.audio_out, o.audio_live);
       hooks = audio->start();
     }

@@ -25,11 +25,16 @@ std::string num(double v) {
   return os.str();
 }
 
+/// Thrown inside check() to carry the first issue out of the nested checks.
+struct Issue {
+  ConfigIssue issue;
+};
+
 void check_range(const std::string& key, double v, double lo, double hi, bool lo_open = false, bool hi_open = false) {
   const bool ok = std::isfinite(v) && (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
   if (!ok) {
-    throw ConfigError("audio: " + key + " = " + num(v) + ": expected a number in " + (lo_open ? "(" : "[") +
-                      num(lo) + ", " + num(hi) + (hi_open ? ")" : "]"));
+    throw Issue{{key, "= " + num(v) + ": expected a number in " + (lo_open ? "(" : "[") + num(lo) + ", " + num(hi) +
+                          (hi_open ? ")" : "]")}};
   }
 }
 
@@ -83,34 +88,39 @@ Material material_preset(const std::string& name) {
   return m;
 }
 
-void validate(const AudioConfig& c) {
+void check_all(const AudioConfig& c) {
   if (c.sample_rate_hz < 8000 || c.sample_rate_hz > 192000) {
-    throw ConfigError("audio: sample_rate_hz = " + std::to_string(c.sample_rate_hz) + ": expected an integer in [8000, 192000]");
+    throw Issue{{"sample_rate_hz", "= " + std::to_string(c.sample_rate_hz) + ": expected an integer in [8000, 192000]"}};
   }
   check_range("master_gain", c.master_gain, 0.0, 4.0);
-  check_range("limiter_threshold", c.limiter_threshold, 0.0, 1.0, true);
-  check_range("limiter_release_s", c.limiter_release_s, 0.0, 10.0, true);
-  check_range("sa_hz", c.sa_hz, 20.0, 4000.0, true, true);
-  check_range("tone_seconds", c.tone_seconds, 0.05, 20.0, true);
+  if (!(c.limiter_threshold > 0.0 && c.limiter_threshold <= 1.0)) {
+    const double dbfs = c.limiter_threshold > 0.0 ? 20.0 * std::log10(c.limiter_threshold) : -HUGE_VAL;
+    throw Issue{{"limiter.threshold_dbfs", "= " + num(dbfs) + " (linear " + num(c.limiter_threshold) +
+                                               "): expected a number in [-40, 0] dBFS, i.e. (0, 1] linear"}};
+  }
+  check_range("limiter.release_s", c.limiter_release_s, 0.0, 10.0, true);
+  check_range("tones.sa_hz", c.sa_hz, 20.0, 4000.0, true);
+  check_range("tones.seconds", c.tone_seconds, 0.05, 20.0, true);
   check_range("region_cell_m", c.region_cell_m, 0.0, 1.0, true);
   check_range("force.threshold_n", c.force.threshold_n, 0.0, 100.0);
   check_range("force.full_force_n", c.force.full_force_n, 0.0, 100.0, true);
   check_range("force.min_gain", c.force.min_gain, 0.0, 1.0);
   check_range("force.strike_window_s", c.force.strike_window_s, 0.0, 1.0);
-  check_material("default_material", c.default_material);
+  check_material("slide.material", c.default_material);
   if (note_frequency_hz(Note::kNi, c.sa_hz) * 2.0 >= 0.5 * c.sample_rate_hz) {
-    throw ConfigError("audio: sa_hz = " + num(c.sa_hz) + " is too high for sample_rate_hz = " +
-                      std::to_string(c.sample_rate_hz) + ": the synthesised partials would alias");
+    throw Issue{{"tones.sa_hz", "= " + num(c.sa_hz) + " is too high for sample_rate_hz = " +
+                                    std::to_string(c.sample_rate_hz) + ": the synthesised partials would alias"}};
   }
   std::set<std::string> names;
   for (std::size_t i = 0; i < c.regions.size(); ++i) {
     const RegionConfig& r = c.regions[i];
     const std::string p = "regions[" + std::to_string(i) + "]";
-    if (r.name.empty()) throw ConfigError("audio: " + p + ".name is empty: expected a name");
+    if (r.name.empty()) throw Issue{{p + ".name", "is empty: expected a name"}};
     if (!names.insert(r.name).second) {
-      throw ConfigError("audio: " + p + ".name = '" + r.name + "' is used twice: expected unique region names");
+      throw Issue{{"regions", "has the name '" + r.name + "' twice (element " + std::to_string(i) +
+                                  "): expected unique names"}};
     }
-    const std::string q = p + " ('" + r.name + "')";
+    const std::string& q = p;
     check_range(q + ".gain", r.gain, 0.0, 16.0);
     check_range(q + ".pitch", r.pitch, 0.25, 4.0);
     check_material(q + ".material", r.material);
@@ -119,32 +129,45 @@ void validate(const AudioConfig& c) {
       case ShapeKind::kBox:
         if (!(std::isfinite(s.x_min_m) && std::isfinite(s.x_max_m) && std::isfinite(s.y_min_m) &&
               std::isfinite(s.y_max_m) && s.x_max_m > s.x_min_m && s.y_max_m > s.y_min_m)) {
-          throw ConfigError("audio: " + q + ".box = [" + num(s.x_min_m) + ", " + num(s.y_min_m) + ", " +
-                            num(s.x_max_m) + ", " + num(s.y_max_m) +
-                            "]: expected [x_min, y_min, x_max, y_max] with x_max > x_min and y_max > y_min");
+          throw Issue{{q + ".box_m", "= [" + num(s.x_min_m) + ", " + num(s.y_min_m) + ", " + num(s.x_max_m) + ", " +
+                                         num(s.y_max_m) +
+                                         "]: expected [x_min, y_min, x_max, y_max] with x_max > x_min and y_max > y_min"}};
         }
         break;
       case ShapeKind::kPolygon:
         if (s.polygon_m.size() < 3) {
-          throw ConfigError("audio: " + q + ".polygon has " + std::to_string(s.polygon_m.size()) +
-                            " vertices: expected at least 3 [x, y] pairs");
+          throw Issue{{q + ".polygon_m", "has " + std::to_string(s.polygon_m.size()) +
+                                             " vertices: expected at least 3 [x, y] pairs"}};
         }
         for (const auto& v : s.polygon_m) {
           if (!std::isfinite(v[0]) || !std::isfinite(v[1])) {
-            throw ConfigError("audio: " + q + ".polygon has a non-finite vertex");
+            throw Issue{{q + ".polygon_m", "has a non-finite vertex"}};
           }
         }
         break;
       case ShapeKind::kLabel:
         if (s.label < 1) {
-          throw ConfigError("audio: " + q + ".label = " + std::to_string(s.label) + ": expected an integer ≥ 1");
+          throw Issue{{q + ".label", "= " + std::to_string(s.label) + ": expected an integer in [1, 65535]"}};
         }
         if (c.label_image.empty()) {
-          throw ConfigError("audio: " + q + " uses a label but audio.label_image is not given");
+          throw Issue{{"regions", "element " + q.substr(8, q.size() - 9) + " uses a label but audio.label_image is not given"}};
         }
         break;
     }
   }
+}
+
+std::optional<ConfigIssue> check(const AudioConfig& config) {
+  try {
+    check_all(config);
+  } catch (const Issue& e) {
+    return e.issue;
+  }
+  return std::nullopt;
+}
+
+void validate(const AudioConfig& config) {
+  if (const auto issue = check(config)) throw ConfigError("audio." + issue->key + " " + issue->message);
 }
 
 }  // namespace hc::audio

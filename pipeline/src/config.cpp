@@ -76,6 +76,9 @@ class Reader {
       }
     }
     if (!std::isfinite(v) || v < lo || v > hi || (lo_open && v == lo)) {
+      if (lo == -std::numeric_limits<double>::max() && hi == std::numeric_limits<double>::max()) {
+        fail(path, "= " + format_double(v) + ": expected a finite number");  // the range is checked by its module
+      }
       fail(path, "= " + format_double(v) + ": expected a number in " + (lo_open ? "(" : "[") +
                      format_double(lo) + ", " + format_double(hi) + "]");
     }
@@ -96,6 +99,7 @@ class Reader {
       }
     }
     if (v < lo || v > hi) {
+      if (lo == -1000000000 && hi == 1000000000) fail(path, "= " + std::to_string(v) + ": expected an integer");
       fail(path, "= " + std::to_string(v) + ": expected an integer in [" + std::to_string(lo) + ", " +
                      std::to_string(hi) + "]");
     }
@@ -352,34 +356,37 @@ ViewTransform read_view(Reader& r) {
   return v;
 }
 
-/// audio.* (issue 7): contact sounds. Ranges mirror hc::audio::validate, which checks again.
+/// audio.* (issue 7): contact sounds, parsed straight into hc::audio::AudioConfig. This reader
+/// checks types, names and shapes (with the key's line); the ranges are checked once, by
+/// hc::audio::check, whose issue is reported here with the key's line.
 const std::vector<std::string> kAudioMaterials = {"granite", "sandstone", "marble", "bronze", "wood"};
 const std::vector<std::string> kAudioNotes = {"Sa", "Re", "Ga", "Ma", "Pa", "Dha", "Ni"};
+constexpr double kAny = std::numeric_limits<double>::max();
 
-void read_material_overrides(Reader& r, const std::string& p, AudioMaterialSpec& m) {
-  if (r.has(p + ".slide_gain")) m.slide_gain = r.get_double(p + ".slide_gain", 0.0, 0.0, 4.0);
-  if (r.has(p + ".resonance_hz")) m.resonance_hz = r.get_double(p + ".resonance_hz", 1000.0, 20.0, 20000.0, true);
-  if (r.has(p + ".q")) m.q = r.get_double(p + ".q", 4.0, 0.3, 100.0);
-  if (r.has(p + ".grain_m")) m.grain_m = r.get_double(p + ".grain_m", 0.001, 0.0, 0.1, true);
-  if (r.has(p + ".roughness")) m.roughness = r.get_double(p + ".roughness", 0.5, 0.0, 1.0);
-  if (r.has(p + ".speed_ref_m_per_s")) m.speed_ref_m_per_s = r.get_double(p + ".speed_ref_m_per_s", 0.1, 0.0, 10.0, true);
-  if (r.has(p + ".texture_ref_m")) m.texture_ref_m = r.get_double(p + ".texture_ref_m", 0.0002, 0.0, 0.1, true);
+void read_material_overrides(Reader& r, const std::string& p, audio::Material& m) {
+  const auto over = [&](const char* key, double& field) {
+    if (r.has(p + "." + key)) field = r.get_double(p + "." + key, field, -kAny, kAny);
+  };
+  over("slide_gain", m.slide_gain);
+  over("resonance_hz", m.resonance_hz);
+  over("q", m.q);
+  over("grain_m", m.grain_m);
+  over("roughness", m.roughness);
+  over("speed_ref_m_per_s", m.speed_ref_m_per_s);
+  over("texture_ref_m", m.texture_ref_m);
 }
 
-AudioMaterialSpec read_material(Reader& r, const std::string& p) {
-  AudioMaterialSpec m;
+audio::Material read_material(Reader& r, const std::string& p) {
   const auto n = r.find(p);
-  if (n && n->IsScalar()) {
-    m.preset = r.get_string(p, "granite", kAudioMaterials);
-  } else {
-    m.preset = r.get_string(p + ".preset", "granite", kAudioMaterials);
-    read_material_overrides(r, p, m);
-  }
+  if (n && n->IsScalar()) return audio::material_preset(r.get_string(p, "granite", kAudioMaterials));
+  audio::Material m = audio::material_preset(r.get_string(p + ".preset", "granite", kAudioMaterials));
+  read_material_overrides(r, p, m);
   return m;
 }
 
 /// One element of audio.regions, checked key by key (a list element has no dotted path).
-AudioRegionSpec read_audio_region(Reader& r, const YAML::Node& node, std::size_t i, const std::filesystem::path& base) {
+audio::RegionConfig read_audio_region(Reader& r, const YAML::Node& node, std::size_t i,
+                                      const std::filesystem::path& base) {
   const std::string list = "audio.regions";
   const std::string p = list + "[" + std::to_string(i) + "]";
   const auto fail = [&](const std::string& what) -> void {
@@ -419,7 +426,7 @@ AudioRegionSpec read_audio_region(Reader& r, const YAML::Node& node, std::size_t
     if (!v.IsScalar()) fail("." + key + " = " + scalar_text(v) + ": expected a string");
     return v.Scalar();
   };
-  AudioRegionSpec s;
+  audio::RegionConfig s;
   if (!node["name"]) fail("lacks 'name': every region needs a unique name");
   s.name = text(node["name"], "name");
   const int shapes = int(bool(node["box_m"])) + int(bool(node["polygon_m"])) + int(bool(node["label"]));
@@ -427,38 +434,41 @@ AudioRegionSpec read_audio_region(Reader& r, const YAML::Node& node, std::size_t
   if (node["box_m"]) {
     const YAML::Node b = node["box_m"];
     if (!b.IsSequence() || b.size() != 4) fail(".box_m = " + scalar_text(b) + ": expected [x_min, y_min, x_max, y_max] in metres");
-    for (std::size_t k = 0; k < 4; ++k) s.box_m[k] = number(b[k], "box_m");
-    if (!(s.box_m[2] > s.box_m[0] && s.box_m[3] > s.box_m[1])) fail(".box_m: expected x_max > x_min and y_max > y_min");
+    s.shape.kind = audio::ShapeKind::kBox;
+    s.shape.x_min_m = number(b[0], "box_m");
+    s.shape.y_min_m = number(b[1], "box_m");
+    s.shape.x_max_m = number(b[2], "box_m");
+    s.shape.y_max_m = number(b[3], "box_m");
   } else if (node["polygon_m"]) {
-    s.shape = "polygon";
+    s.shape.kind = audio::ShapeKind::kPolygon;
     const YAML::Node poly = node["polygon_m"];
-    if (!poly.IsSequence() || poly.size() < 3) fail(".polygon_m: expected a list of at least 3 [x, y] pairs in metres");
+    if (!poly.IsSequence()) fail(".polygon_m: expected a list of at least 3 [x, y] pairs in metres");
     for (const auto& v : poly) {
       if (!v.IsSequence() || v.size() != 2) fail(".polygon_m has a vertex that is not an [x, y] pair");
-      s.polygon_m.push_back({number(v[0], "polygon_m"), number(v[1], "polygon_m")});
+      s.shape.polygon_m.push_back({number(v[0], "polygon_m"), number(v[1], "polygon_m")});
     }
   } else {
-    s.shape = "label";
+    s.shape.kind = audio::ShapeKind::kLabel;
     const double l = number(node["label"], "label");
-    if (l < 1 || l > 65535 || l != std::floor(l)) fail(".label = " + scalar_text(node["label"]) + ": expected an integer in [1, 65535]");
-    s.label = static_cast<int>(l);
+    if (l != std::floor(l) || std::abs(l) > 1e9) fail(".label = " + scalar_text(node["label"]) + ": expected an integer in [1, 65535]");
+    s.shape.label = static_cast<std::int32_t>(l);
   }
   if (node["clip"]) s.clip = base / text(node["clip"], "clip");
   if (node["note"]) {
-    s.note = text(node["note"], "note");
-    if (std::find(kAudioNotes.begin(), kAudioNotes.end(), s.note) == kAudioNotes.end()) {
-      fail(".note = '" + s.note + "': expected one of Sa, Re, Ga, Ma, Pa, Dha, Ni");
+    const std::string note = text(node["note"], "note");
+    if (std::find(kAudioNotes.begin(), kAudioNotes.end(), note) == kAudioNotes.end()) {
+      fail(".note = '" + note + "': expected one of Sa, Re, Ga, Ma, Pa, Dha, Ni");
     }
+    s.note = audio::note_from_string(note);
   }
   if (node["gain"]) s.gain = number(node["gain"], "gain");
-  if (s.gain < 0.0 || s.gain > 16.0) fail(".gain = " + format_double(s.gain) + ": expected a number in [0, 16]");
   if (node["pitch"]) s.pitch = number(node["pitch"], "pitch");
-  if (s.pitch < 0.25 || s.pitch > 4.0) fail(".pitch = " + format_double(s.pitch) + ": expected a number in [0.25, 4]");
   if (node["retrigger"]) s.retrigger = boolean(node["retrigger"], "retrigger");
   if (node["trigger_on_enter"]) s.trigger_on_enter = boolean(node["trigger_on_enter"], "trigger_on_enter");
   if (node["mode"]) {
-    s.mode = text(node["mode"], "mode");
-    if (s.mode != "one_shot" && s.mode != "continuous") fail(".mode = '" + s.mode + "': expected one_shot or continuous");
+    const std::string mode = text(node["mode"], "mode");
+    if (mode != "one_shot" && mode != "continuous") fail(".mode = '" + mode + "': expected one_shot or continuous");
+    s.mode = mode == "continuous" ? audio::PlayMode::kContinuous : audio::PlayMode::kOneShot;
   }
   if (node["material"]) {
     const YAML::Node m = node["material"];
@@ -469,17 +479,15 @@ AudioRegionSpec read_audio_region(Reader& r, const YAML::Node& node, std::size_t
       return v;
     };
     if (m.IsScalar()) {
-      s.material.preset = preset_ok(m.Scalar());
+      s.material = audio::material_preset(preset_ok(m.Scalar()));
     } else if (m.IsMap()) {
+      s.material = audio::material_preset(m["preset"] ? preset_ok(text(m["preset"], "material.preset")) : "granite");
       double* fields[] = {&s.material.slide_gain, &s.material.resonance_hz, &s.material.q, &s.material.grain_m,
                           &s.material.roughness, &s.material.speed_ref_m_per_s, &s.material.texture_ref_m};
       const char* names[] = {"slide_gain", "resonance_hz", "q", "grain_m", "roughness", "speed_ref_m_per_s", "texture_ref_m"};
       for (const auto& kv : m) {
         const std::string key = kv.first.as<std::string>();
-        if (key == "preset") {
-          s.material.preset = preset_ok(text(kv.second, "material.preset"));
-          continue;
-        }
+        if (key == "preset") continue;
         const auto it = std::find(std::begin(names), std::end(names), key);
         if (it == std::end(names)) {
           fail(".material has an unknown key '" + key + "' (allowed: preset, slide_gain, resonance_hz, q, grain_m, "
@@ -495,40 +503,52 @@ AudioRegionSpec read_audio_region(Reader& r, const YAML::Node& node, std::size_t
 }
 
 void read_audio(Reader& r, RunConfig& c, const std::filesystem::path& base) {
-  AudioSpec& a = c.audio;
-  a.present = r.has("audio");
-  if (!a.present) return;
+  if (!r.has("audio")) return;
+  audio::AudioConfig a;
   a.enabled = r.get_bool("audio.enabled", true);
-  a.sample_rate_hz = static_cast<int>(r.get_int("audio.sample_rate_hz", 48000, 8000, 192000));
-  a.master_gain = r.get_double("audio.master_gain", a.master_gain, 0.0, 4.0);
-  a.limiter_threshold_dbfs = r.get_double("audio.limiter.threshold_dbfs", a.limiter_threshold_dbfs, -40.0, 0.0);
-  a.limiter_release_s = r.get_double("audio.limiter.release_s", a.limiter_release_s, 0.0, 10.0, true);
-  a.sa_hz = r.get_double("audio.tones.sa_hz", a.sa_hz, 20.0, 4000.0, true);
-  a.tone_seconds = r.get_double("audio.tones.seconds", a.tone_seconds, 0.05, 20.0, true);
-  a.region_cell_m = r.get_double("audio.region_cell_m", a.region_cell_m, 0.0, 1.0, true);
+  a.sample_rate_hz = static_cast<int>(r.get_int("audio.sample_rate_hz", a.sample_rate_hz, -1000000000, 1000000000));
+  a.master_gain = r.get_double("audio.master_gain", a.master_gain, -kAny, kAny);
+  const double threshold_dbfs = r.get_double("audio.limiter.threshold_dbfs", -1.0, -kAny, kAny);
+  a.limiter_threshold = std::pow(10.0, threshold_dbfs / 20.0);
+  a.limiter_release_s = r.get_double("audio.limiter.release_s", a.limiter_release_s, -kAny, kAny);
+  a.sa_hz = r.get_double("audio.tones.sa_hz", a.sa_hz, -kAny, kAny);
+  a.tone_seconds = r.get_double("audio.tones.seconds", a.tone_seconds, -kAny, kAny);
+  a.region_cell_m = r.get_double("audio.region_cell_m", a.region_cell_m, -kAny, kAny);
   if (r.has("audio.label_image")) a.label_image = base / r.get_string("audio.label_image", "");
-  a.force_threshold_n = r.get_double("audio.force.threshold_n", a.force_threshold_n, 0.0, 100.0);
-  a.force_full_n = r.get_double("audio.force.full_force_n", a.force_full_n, 0.0, 100.0, true);
-  a.force_min_gain = r.get_double("audio.force.min_gain", a.force_min_gain, 0.0, 1.0);
-  a.strike_window_s = r.get_double("audio.force.strike_window_s", a.strike_window_s, 0.0, 1.0);
+  a.force.threshold_n = r.get_double("audio.force.threshold_n", a.force.threshold_n, -kAny, kAny);
+  a.force.full_force_n = r.get_double("audio.force.full_force_n", a.force.full_force_n, -kAny, kAny);
+  a.force.min_gain = r.get_double("audio.force.min_gain", a.force.min_gain, -kAny, kAny);
+  a.force.strike_window_s = r.get_double("audio.force.strike_window_s", a.force.strike_window_s, -kAny, kAny);
   a.slide_enabled = r.get_bool("audio.slide.enabled", true);
-  a.slide_material = read_material(r, "audio.slide.material");
+  a.default_material = read_material(r, "audio.slide.material");
   const auto regions = r.get_map_list("audio.regions");
   YAML::Node resolved(YAML::NodeType::Sequence);
   for (std::size_t i = 0; i < regions.size(); ++i) {
     a.regions.push_back(read_audio_region(r, regions[i], i, base));
-    for (std::size_t j = 0; j < i; ++j) {
-      if (a.regions[j].name == a.regions[i].name) {
-        r.fail("audio.regions", "has the name '" + a.regions[i].name + "' twice (elements " + std::to_string(j) +
-                                    " and " + std::to_string(i) + "): expected unique names");
-      }
-    }
-    if (a.regions[i].shape == "label" && a.label_image.empty()) {
-      r.fail("audio.regions", "element " + std::to_string(i) + " uses a label but audio.label_image is not given");
-    }
     resolved.push_back(regions[i]);
   }
   r.resolved_set_raw("audio.regions", resolved);
+  // The one range check, the audio module's own; reported at the key's line.
+  if (const auto issue = audio::check(a)) {
+    const std::string key = "audio." + issue->key;
+    const std::string at = key.rfind("audio.regions", 0) == 0 ? std::string("audio.regions") : key;
+    throw ConfigError(r.where(at) + ": " + key + " " + issue->message);
+  }
+  c.audio = std::move(a);
+}
+
+/// falcon.* (issue 5): parsed straight into hc::falcon::FalconConfig; ranges checked once, by
+/// hc::falcon::check_falcon_config, reported at the key's line.
+void read_falcon(Reader& r, RunConfig& c, const std::filesystem::path& base) {
+  falcon::FalconConfig& f = c.falcon;
+  if (r.has("falcon.firmware")) f.firmware_path = (base / r.get_string("falcon.firmware", "")).string();
+  f.device_index = static_cast<int>(r.get_int("falcon.index", f.device_index, -1000000000, 1000000000));
+  f.max_force_n = r.get_double("falcon.max_force_n", f.max_force_n, -kAny, kAny);
+  f.max_missed_ticks = static_cast<int>(r.get_int("falcon.max_missed_ticks", f.max_missed_ticks, -1000000000, 1000000000));
+  if (const auto issue = falcon::check_falcon_config(f)) {
+    const std::string key = "falcon." + issue->key;
+    throw ConfigError(r.where(key) + ": " + key + " " + issue->message);
+  }
 }
 
 RunConfig build(Reader& r, const std::filesystem::path& origin) {
@@ -673,10 +693,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   read_audio(r, c, base);
 
   // Novint Falcon (issue 5; hc::falcon reads these through the app)
-  if (r.has("falcon.firmware")) c.falcon.firmware = base / r.get_string("falcon.firmware", "");
-  c.falcon.index = static_cast<int>(r.get_int("falcon.index", c.falcon.index, 0, 63));
-  c.falcon.max_force_n = r.get_double("falcon.max_force_n", c.falcon.max_force_n, 0.0, 10.0, true);
-  c.falcon.max_missed_ticks = static_cast<int>(r.get_int("falcon.max_missed_ticks", c.falcon.max_missed_ticks, 1, 1000));
+  read_falcon(r, c, base);
 
   // levels of detail (lod.hpp; docs/lod.md)
   c.lod.min_cells = static_cast<int>(r.get_int("lod.min_cells", c.lod.min_cells, 2, 65536));

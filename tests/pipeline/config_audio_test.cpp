@@ -27,8 +27,7 @@ std::string error_of(const std::string& yaml) {
 
 TEST(ConfigAudio, AbsentSectionMeansNoAudio) {
   const auto c = parse_run_config(kInput, "configs/test.yaml");
-  EXPECT_FALSE(c.audio.present);
-  EXPECT_TRUE(c.audio.regions.empty());
+  EXPECT_FALSE(c.audio.has_value());
 }
 
 TEST(ConfigAudio, RegionsOfEveryShapeWithClipsNotesAndMaterials) {
@@ -50,33 +49,33 @@ TEST(ConfigAudio, RegionsOfEveryShapeWithClipsNotesAndMaterials) {
                            "      material: wood\n"
                            "    - {name: c, label: 3, material: {preset: marble, slide_gain: 0.5}}\n";
   const auto c = parse_run_config(yaml, "configs/test.yaml");
-  const auto& a = c.audio;
-  ASSERT_TRUE(a.present);
+  ASSERT_TRUE(c.audio.has_value());
+  const hc::audio::AudioConfig& a = *c.audio;
   EXPECT_DOUBLE_EQ(a.master_gain, 0.4);
-  EXPECT_DOUBLE_EQ(a.limiter_threshold_dbfs, -3.0);
-  EXPECT_DOUBLE_EQ(a.force_full_n, 2.5);
-  EXPECT_DOUBLE_EQ(a.strike_window_s, 0.02);
-  EXPECT_DOUBLE_EQ(a.force_min_gain, 0.1);  // default
-  EXPECT_EQ(a.slide_material.preset, "bronze");
-  EXPECT_DOUBLE_EQ(a.slide_material.q, 12.0);
-  EXPECT_TRUE(std::isnan(a.slide_material.resonance_hz));  // the preset's
+  EXPECT_DOUBLE_EQ(a.limiter_threshold, std::pow(10.0, -3.0 / 20.0));  // -3 dBFS, linear
+  EXPECT_DOUBLE_EQ(a.force.full_force_n, 2.5);
+  EXPECT_DOUBLE_EQ(a.force.strike_window_s, 0.02);
+  EXPECT_DOUBLE_EQ(a.force.min_gain, 0.1);  // default
+  EXPECT_EQ(a.default_material.name, "bronze");
+  EXPECT_DOUBLE_EQ(a.default_material.q, 12.0);
+  EXPECT_DOUBLE_EQ(a.default_material.resonance_hz, hc::audio::material_preset("bronze").resonance_hz);  // the preset's
   EXPECT_EQ(a.label_image, std::filesystem::path("configs/labels.pgm"));
   ASSERT_EQ(a.regions.size(), 3u);
-  EXPECT_EQ(a.regions[0].shape, "box");
-  EXPECT_DOUBLE_EQ(a.regions[0].box_m[3], 0.02);
-  EXPECT_EQ(a.regions[0].note, "Dha");
+  EXPECT_EQ(a.regions[0].shape.kind, hc::audio::ShapeKind::kBox);
+  EXPECT_DOUBLE_EQ(a.regions[0].shape.y_max_m, 0.02);
+  EXPECT_EQ(a.regions[0].note, hc::audio::Note::kDha);
   EXPECT_DOUBLE_EQ(a.regions[0].gain, 2.0);
   EXPECT_TRUE(a.regions[0].clip.empty());
-  EXPECT_EQ(a.regions[1].shape, "polygon");
-  ASSERT_EQ(a.regions[1].polygon_m.size(), 3u);
-  EXPECT_DOUBLE_EQ(a.regions[1].polygon_m[1][0], 0.01);
+  EXPECT_EQ(a.regions[1].shape.kind, hc::audio::ShapeKind::kPolygon);
+  ASSERT_EQ(a.regions[1].shape.polygon_m.size(), 3u);
+  EXPECT_DOUBLE_EQ(a.regions[1].shape.polygon_m[1][0], 0.01);
   EXPECT_EQ(a.regions[1].clip, std::filesystem::path("configs/sounds/b.flac"));
-  EXPECT_EQ(a.regions[1].mode, "continuous");
+  EXPECT_EQ(a.regions[1].mode, hc::audio::PlayMode::kContinuous);
   EXPECT_FALSE(a.regions[1].retrigger);
   EXPECT_TRUE(a.regions[1].trigger_on_enter);
-  EXPECT_EQ(a.regions[1].material.preset, "wood");
-  EXPECT_EQ(a.regions[2].shape, "label");
-  EXPECT_EQ(a.regions[2].label, 3);
+  EXPECT_EQ(a.regions[1].material.name, "wood");
+  EXPECT_EQ(a.regions[2].shape.kind, hc::audio::ShapeKind::kLabel);
+  EXPECT_EQ(a.regions[2].shape.label, 3);
   EXPECT_DOUBLE_EQ(a.regions[2].material.slide_gain, 0.5);
   EXPECT_NE(c.resolved_yaml.find("master_gain: 0.4"), std::string::npos) << c.resolved_yaml;
 }

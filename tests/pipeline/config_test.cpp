@@ -138,11 +138,11 @@ TEST(Config, UpsampleIsOffAutoOrAFactor) {
 TEST(Config, FalconSectionIsReadAndValidated) {
   const auto c = parse_run_config(kMinimal + "falcon: {firmware: fw/falcon.bin, index: 1, max_force_n: 5}\n",
                                   "configs/test.yaml");
-  EXPECT_EQ(c.falcon.firmware, std::filesystem::path("configs") / "fw" / "falcon.bin");
-  EXPECT_EQ(c.falcon.index, 1);
+  EXPECT_EQ(c.falcon.firmware_path, (std::filesystem::path("configs") / "fw" / "falcon.bin").string());
+  EXPECT_EQ(c.falcon.device_index, 1);
   EXPECT_EQ(c.falcon.max_force_n, 5.0);
   EXPECT_EQ(c.falcon.max_missed_ticks, 10);
-  EXPECT_TRUE(parse_run_config(kMinimal, "configs/test.yaml").falcon.firmware.empty());
+  EXPECT_TRUE(parse_run_config(kMinimal, "configs/test.yaml").falcon.firmware_path.empty());
   EXPECT_NE(error_of(kMinimal + "falcon: {max_force_n: 20}\n").find("falcon.max_force_n = 20: expected a number in (0, 10]"),
             std::string::npos);
   EXPECT_NE(error_of(kMinimal + "falcon: {max_missed_ticks: 0}\n").find("falcon.max_missed_ticks = 0"), std::string::npos);

@@ -42,20 +42,10 @@ FalconDevice::FalconDevice(const haptics::Clock& clock, std::unique_ptr<Transpor
       config_(std::move(config)),
       kin_(config_.geometry),
       period_ns_(std::llround(1e9 / config_.nominal_rate_hz)) {
-  const auto fail = [](const std::string& field, double v, const char* expected) {
-    std::ostringstream s;
-    s << "falcon config: " << field << " = " << v << ", expected " << expected;
-    throw ConfigError(s.str());
-  };
   if (!provider_) throw ConfigError("falcon: no transport provider given");
-  if (config_.max_missed_ticks < 1) fail("max_missed_ticks", config_.max_missed_ticks, ">= 1");
-  if (config_.io_timeout_ms < 1) fail("io_timeout_ms", config_.io_timeout_ms, ">= 1");
-  if (config_.fk_iterations < 1) fail("fk_iterations", config_.fk_iterations, ">= 1");
-  if (config_.max_motor_command < 1) fail("max_motor_command", config_.max_motor_command, "1..32767");
-  if (config_.supervisor_period_ms < 1) fail("supervisor_period_ms", config_.supervisor_period_ms, ">= 1");
-  if (config_.reconnect_interval_ms < 0) fail("reconnect_interval_ms", config_.reconnect_interval_ms, ">= 0");
-  if (config_.firmware.attempts < 1) fail("firmware.attempts", config_.firmware.attempts, ">= 1");
-  if (config_.max_consecutive_io_errors < 1) fail("max_consecutive_io_errors", config_.max_consecutive_io_errors, ">= 1");
+  if (const auto issue = check_falcon_config(config_)) {
+    throw ConfigError("falcon config: " + issue->key + " " + issue->message);
+  }
   (void)kin_.inverse(x_m_, theta_rad_);
 }
 

@@ -2,12 +2,16 @@
 /// @file audio_config.hpp
 /// Plain, validated settings of the contact sounds (issue 7): audio regions in the grid frame,
 /// their clips and options, the force → gain mapping, the limiter and the sliding-sound
-/// materials. No YAML here: the run config's `audio:` section is read by hc::pipeline
-/// (docs/config.md) and copied into these structs by the app.
+/// materials. No YAML here: the run config's `audio:` section (docs/config.md) is parsed by the
+/// config reader (hc::pipeline) straight into these structs, and check() below is the one place
+/// their ranges are checked. This header and audio_config.cpp form the small target
+/// hc::audio_config (standard library and hc::common only), which hc::pipeline links without
+/// linking the audio engine.
 
 #include <array>
 #include <cstdint>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -102,8 +106,20 @@ struct AudioConfig {
   std::vector<RegionConfig> regions;
 };
 
-/// Checks ranges and uniqueness of names. @throws hc::ConfigError naming `audio.<key>` (and the
-/// region's index and name), the value and the allowed range. Real-time: no.
+/// A setting out of range: `key` is its run-config key below `audio.` (e.g. "master_gain",
+/// "limiter.threshold_dbfs", "regions[2].gain"), `message` the value and what was expected
+/// ("= 9: expected a number in [0, 4]").
+struct ConfigIssue {
+  std::string key;
+  std::string message;
+};
+
+/// Checks ranges, shapes, label use and uniqueness of names: the first violation, or nothing.
+/// The one range check of the audio settings (the config reader and validate() both use it).
+/// Real-time: no.
+std::optional<ConfigIssue> check(const AudioConfig& config);
+
+/// check() as an exception. @throws hc::ConfigError "audio.<key> <message>". Real-time: no.
 void validate(const AudioConfig& config);
 
 }  // namespace hc::audio

@@ -21,6 +21,7 @@
 /// taken down and the supervisor reconnects as after an unplug); on close() and destruction. Homing: the homing bit is sent and the LED is red until
 /// the firmware reports all arms homed, then green; homing_message() says what to do.
 
+#include "hc/falcon/falcon_config.hpp"
 #include "hc/falcon/firmware.hpp"
 #include "hc/falcon/kinematics.hpp"
 #include "hc/falcon/protocol.hpp"
@@ -37,34 +38,6 @@
 #include <thread>
 
 namespace hc::falcon {
-
-struct FalconConfig {
-  std::string firmware_path;        ///< "" → $HAPTICLOUD_FALCON_FIRMWARE (only needed to load)
-  /// Firmware start-up settings (attempts ≥ 1, probe counts, read time-out [ms], upload chunk
-  /// [bytes]; firmware.hpp); used by open() and by every reconnection (the upload is skipped
-  /// when the firmware already runs).
-  FirmwareOptions firmware;
-  double max_force_n = 8.0;         ///< force cap [N] > 0
-  /// Largest virtual-wall stiffness [N/m] the Falcon renders stably at nominal_rate_hz; reported
-  /// in DeviceInfo for the haptic renderer to clamp to (not enforced by this class).
-  double max_stable_stiffness_n_per_m = 2000.0;
-  double nominal_rate_hz = 1000.0;  ///< servo rate [Hz], for the missed-tick watchdog
-  int max_missed_ticks = 10;        ///< ticks without a read (armed) or stale reads tolerated, ≥ 1
-  int io_timeout_ms = 2;            ///< run-mode read time-out [ms] ≥ 1
-  int fk_iterations = 3;            ///< Newton steps per tick (steady state), ≥ 1; no force on a tick whose solve did not converge
-  int max_consecutive_io_errors = 5;  ///< transport errors in a row (kError) after which the link counts as down, ≥ 1
-  std::int16_t max_motor_command = 32000;  ///< per-motor command limit (direction-preserving)
-  /// Mechanism constants (lengths [m], leg angles [rad], encoder and motor scales); defaults are
-  /// the stock Falcon's.
-  FalconGeometry geometry;
-  /// The device frame handed to the haptics (metres, z up, origin at the workspace centre) as a
-  /// rotation and centre relative to the Falcon frame (kinematics.hpp); positions are reported
-  /// and forces [N] are taken in this frame.
-  DeviceFrame frame;
-  bool supervisor_thread = true;    ///< run supervise() on a thread every supervisor_period_ms
-  int supervisor_period_ms = 2;
-  int reconnect_interval_ms = 500;  ///< between reconnection attempts [ms] ≥ 0
-};
 
 /// USB link state: kUp while a primed transport exists and the servo may use it; kDown after an
 /// unplug, repeated transport errors or close() (the supervisor then reconnects).
