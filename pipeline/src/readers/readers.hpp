@@ -55,5 +55,6 @@ ReadResult read_ply(const ScanSource& source);  ///< read_ply.cpp
 ReadResult read_pcd(const ScanSource& source);  ///< read_pcd.cpp
 ReadResult read_obj(const ScanSource& source);  ///< read_obj.cpp
 ReadResult read_xyz(const ScanSource& source);  ///< read_xyz.cpp
+ReadResult read_e57(const ScanSource& source);  ///< read_e57.cpp: ASTM E2807 E57 (all data3D scans, posed and merged)
 
 }  // namespace hc::pipeline::detail
