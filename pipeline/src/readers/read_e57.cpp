@@ -343,14 +343,14 @@ void collect_fields(const Xml& xml, const pugi::xml_node& node, std::vector<Fiel
 /// `s` carries 16 bytes of zero padding). Bit packing: value i occupies bits [i·b, (i+1)·b) of
 /// the stream, least significant bit first (E2807 § 9.3.3); value = minimum + raw, then
 /// raw·scale + offset for ScaledInteger.
-void decode_field(const Field& f, const std::string& s, std::size_t count, std::vector<double>& out) {
-  out.resize(count);
+/// Value i goes to out[i · stride].
+void decode_field(const Field& f, const std::string& s, std::size_t count, double* out, std::size_t stride) {
   const auto* p = reinterpret_cast<const unsigned char*>(s.data());
   if (f.kind == Field::Kind::Float) {
     if (f.single) {
-      for (std::size_t i = 0; i < count; ++i) out[i] = static_cast<double>(std::bit_cast<float>(load_le<std::uint32_t>(p + 4 * i)));
+      for (std::size_t i = 0; i < count; ++i) out[i * stride] = static_cast<double>(std::bit_cast<float>(load_le<std::uint32_t>(p + 4 * i)));
     } else {
-      for (std::size_t i = 0; i < count; ++i) out[i] = std::bit_cast<double>(load_le<std::uint64_t>(p + 8 * i));
+      for (std::size_t i = 0; i < count; ++i) out[i * stride] = std::bit_cast<double>(load_le<std::uint64_t>(p + 8 * i));
     }
     return;
   }
@@ -362,7 +362,7 @@ void decode_field(const Field& f, const std::string& s, std::size_t count, std::
     return scaled ? static_cast<double>(v) * f.scale + f.offset : static_cast<double>(v);
   };
   if (b == 0) {
-    std::fill(out.begin(), out.end(), finish(0));
+    for (std::size_t i = 0; i < count; ++i) out[i * stride] = finish(0);
     return;
   }
   if (b == 8 || b == 16 || b == 32 || b == 64) {  // byte-aligned widths
@@ -375,7 +375,7 @@ void decode_field(const Field& f, const std::string& s, std::size_t count, std::
         case 4: raw = load_le<std::uint32_t>(p + 4 * i); break;
         default: raw = load_le<std::uint64_t>(p + 8 * i); break;
       }
-      out[i] = finish(raw);
+      out[i * stride] = finish(raw);
     }
     return;
   }
@@ -386,7 +386,7 @@ void decode_field(const Field& f, const std::string& s, std::size_t count, std::
     const unsigned shift = static_cast<unsigned>(bit & 7U);
     std::uint64_t w = load_le<std::uint64_t>(p + byte) >> shift;
     if (shift + b > 64) w |= std::uint64_t{p[byte + 8]} << (64 - shift);
-    out[i] = finish(w & mask);
+    out[i * stride] = finish(w & mask);
   }
 }
 
@@ -449,7 +449,7 @@ std::vector<std::string> read_bytestreams(PagedFile& file, const Xml& xml, const
     needed[k] = fields[k].bytes_needed(count);
     streams[k].reserve(needed[k] + 16);
   }
-  std::vector<unsigned char> packet;
+  std::vector<unsigned char> lengths;
   while (pos + 4 <= section_end) {
     unsigned char ph[4];
     file.read(pos, 4, ph, "a packet header");
@@ -461,10 +461,10 @@ std::vector<std::string> read_bytestreams(PagedFile& file, const Xml& xml, const
                        std::to_string(section_end) + "): the file is corrupt");
     }
     if (ph[0] == 1) {  // data packet: type, flags, length − 1, bytestream count, buffer lengths
-      packet.resize(plen);
-      file.read(pos, plen, packet.data(), "a data packet");
       if (plen < 6) throw InputError("load_cloud: " + name + ": " + where + " is shorter than a data packet header");
-      const std::size_t nstreams = load_le<std::uint16_t>(packet.data() + 4);
+      unsigned char cnt[2];
+      file.read(pos + 4, 2, cnt, "a data packet header");
+      const std::size_t nstreams = load_le<std::uint16_t>(cnt);
       if (nstreams != fields.size()) {
         throw InputError("load_cloud: " + name + ": " + where + " holds " + std::to_string(nstreams) +
                          " bytestreams, expected " + std::to_string(fields.size()) +
@@ -472,14 +472,18 @@ std::vector<std::string> read_bytestreams(PagedFile& file, const Xml& xml, const
       }
       std::uint64_t at = 6 + 2 * nstreams;
       if (at > plen) throw InputError("load_cloud: " + name + ": " + where + " is shorter than its header");
+      lengths.resize(2 * nstreams);
+      file.read(pos + 6, lengths.size(), lengths.data(), "a data packet header");
       for (std::size_t k = 0; k < nstreams; ++k) {
-        const std::uint64_t len = load_le<std::uint16_t>(packet.data() + 6 + 2 * k);
+        const std::uint64_t len = load_le<std::uint16_t>(lengths.data() + 2 * k);
         if (at + len > plen) {
           throw InputError("load_cloud: " + name + ": " + where + ": bytestream " + std::to_string(k) +
                            " (" + fields[k].name + ") of " + std::to_string(len) +
                            " bytes runs past the packet's end");
         }
-        streams[k].append(reinterpret_cast<const char*>(packet.data() + at), len);
+        const std::size_t old = streams[k].size();
+        streams[k].resize(old + len);
+        file.read(pos + at, len, reinterpret_cast<unsigned char*>(streams[k].data() + old), "a bytestream buffer");
         at += len;
       }
     } else if (ph[0] != 0 && ph[0] != 2) {  // 0 index packet, 2 empty packet: skipped
@@ -545,14 +549,31 @@ ScanOut read_scan(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, s
   auto decode = [&](const char* key, std::vector<double>& v) {
     const auto it = at.find(key);
     if (it == at.end()) return false;
-    decode_field(fields[it->second], streams[it->second], n, v);
+    v.resize(n);
+    decode_field(fields[it->second], streams[it->second], n, v.data(), 1);
     return true;
   };
+  const Pose pose = read_pose(xml, scan);
+  const Eigen::Matrix3d rot = pose.q.toRotationMatrix();
+  const bool identity = !pose.has_rotation && !pose.has_translation;
 
   std::vector<double> a, b, c, state;
   std::string coords;
   bool have_state = false;
-  if (cart) {
+  const bool direct = cart && !has("cartesianInvalidState");  // every record a point: decode in place
+  if (direct) {
+    coords = "cartesian";
+    out.cloud.xyz.resize(3, static_cast<Eigen::Index>(n));
+    const char* axes[3] = {"cartesianX", "cartesianY", "cartesianZ"};
+    for (std::size_t k = 0; k < 3; ++k) {
+      const std::size_t f = at[axes[k]];
+      decode_field(fields[f], streams[f], n, out.cloud.xyz.data() + k, 3);
+    }
+    if (!identity) {
+      for (Eigen::Index j = 0; j < out.cloud.xyz.cols(); ++j)
+        out.cloud.xyz.col(j) = rot * out.cloud.xyz.col(j) + pose.t;
+    }
+  } else if (cart) {
     coords = "cartesian";
     decode("cartesianX", a);
     decode("cartesianY", b);
@@ -577,8 +598,8 @@ ScanOut read_scan(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, s
   }
   std::size_t direction_only = 0, no_point = 0;
   std::vector<std::size_t> keep;
-  keep.reserve(n);
-  for (std::size_t i = 0; i < n; ++i) {
+  if (!direct) keep.reserve(n);
+  for (std::size_t i = 0; !direct && i < n; ++i) {
     const double s = have_state ? state[i] : 0.0;
     if (s == 0.0) {
       keep.push_back(i);
@@ -588,14 +609,19 @@ ScanOut read_scan(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, s
       ++no_point;
     }
   }
-  const std::size_t m = keep.size();
-  const Pose pose = read_pose(xml, scan);
-  const Eigen::Matrix3d rot = pose.q.toRotationMatrix();
+  const std::size_t m = direct ? n : keep.size();
   Cloud& cloud = out.cloud;
-  cloud.xyz.resize(3, static_cast<Eigen::Index>(m));
-  for (std::size_t j = 0; j < m; ++j) {
-    const std::size_t i = keep[j];
-    cloud.xyz.col(static_cast<Eigen::Index>(j)) = rot * Eigen::Vector3d(a[i], b[i], c[i]) + pose.t;
+  if (direct) {
+    if (has("intensity") || has("colorRed") || has("rowIndex")) {  // index for the attributes
+      keep.resize(n);
+      for (std::size_t i = 0; i < n; ++i) keep[i] = i;
+    }
+  } else {
+    cloud.xyz.resize(3, static_cast<Eigen::Index>(m));
+    for (std::size_t j = 0; j < m; ++j) {
+      const std::size_t i = keep[j];
+      cloud.xyz.col(static_cast<Eigen::Index>(j)) = rot * Eigen::Vector3d(a[i], b[i], c[i]) + pose.t;
+    }
   }
 
   std::string kept_attrs;
@@ -785,6 +811,10 @@ ReadResult read_e57(const ScanSource& source) {
     ScanOut one = read_scan(file, xml, scans[s], s, name);
     if (scans.size() > 1) one.cloud.scan_id.assign(one.cloud.size(), static_cast<std::uint16_t>(s));
     notes.insert(notes.end(), one.notes.begin(), one.notes.end());
+    if (result.cloud.size() == 0 && s == 0) {
+      result.cloud = std::move(one.cloud);
+      continue;
+    }
     const std::vector<std::string> dropped = result.cloud.append(one.cloud);
     for (const auto& d : dropped)
       notes.push_back("attribute '" + d + "' dropped: not every scan carries it (at scan " + std::to_string(s) + ")");
