@@ -725,6 +725,14 @@ ScanOut read_scan(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, s
 
 }  // namespace
 
+/// Reads an E57 file (E2807 §§ 7–9) whole from memory. Output: every valid record of every
+/// data3D scan (invalid state 1 or 2 skipped with a note), 3 × N in metres, each scan's pose
+/// (rotation quaternion w x y z, translation; missing parts identity) applied so all scans share
+/// the file frame; scan_id per point when there are several scans; intensity normalised to
+/// [0, 1] (intensityLimits, else the prototype's bounds), rgb 8 bit (colorLimits, else the
+/// prototype's bounds), row/col from rowIndex/columnIndex. Errors (hc::InputError naming the
+/// file): short or foreign header, truncated file, a page whose CRC-32C does not match (its
+/// physical offset), XML that does not parse, zero scans, a packet or bytestream that is short.
 ReadResult read_e57(const ScanSource& source) {
   const std::string& name = source.display_name;
   const std::string& bytes = source.bytes;
