@@ -41,6 +41,7 @@ constexpr Format kFormats[] = {
     {".obj", detail::read_obj},
     {".xyz", detail::read_xyz},
     {".txt", detail::read_xyz},
+    {".e57", detail::read_e57},
 };
 
 // ".ply, .pcd, .obj, .xyz or .txt"

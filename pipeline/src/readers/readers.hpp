@@ -55,5 +55,6 @@ ReadResult read_ply(const ScanSource& source);  ///< read_ply.cpp
 ReadResult read_pcd(const ScanSource& source);  ///< read_pcd.cpp
 ReadResult read_obj(const ScanSource& source);  ///< read_obj.cpp
 ReadResult read_xyz(const ScanSource& source);  ///< read_xyz.cpp
+ReadResult read_e57(const ScanSource& source);  ///< read_e57.cpp: ASTM E2807 E57, every data3D scan posed into the file frame and merged (metres; scan_id when > 1 scan; intensity [0,1], rgb 8 bit, row/col); InputError on bad CRC-32C page (its offset), truncation, bad XML, zero scans
 
 }  // namespace hc::pipeline::detail

@@ -1,0 +1,834 @@
+// E57 reader (ASTM E2807-11, "Standard Specification for 3D Imaging Data Exchange, Version 1.0"),
+// written clean room from the public specification: the file header (§ 7.2 / Table 1), the paged
+// physical layout with a CRC-32C per page (§ 7.3), the XML section (§ 8) parsed with pugixml, and
+// the CompressedVector binary sections (§ 9: section header, data / index / empty packets,
+// bit-packed integer, scaled-integer and float bytestreams) of every data3D scan (§ 8.4.x,
+// Data3D, PointRecord, Pose, IntensityLimits, ColorLimits).
+
+#include "readers.hpp"
+#include "text_parse.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <pugixml.hpp>
+
+#include <Eigen/Geometry>
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <charconv>
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <cstring>
+#include <limits>
+#include <map>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#if defined(__x86_64__) && defined(__GNUC__)
+#include <nmmintrin.h>
+#define HC_E57_HW_CRC 1
+#endif
+
+namespace hc::pipeline::detail {
+
+namespace {
+
+// E57 stores integers little-endian; this reader loads them with memcpy.
+static_assert(std::endian::native == std::endian::little, "read_e57 assumes a little-endian host");
+
+// ---------------------------------------------------------------------------------------------
+// CRC-32C (Castagnoli, reflected polynomial 0x82F63B78, initial value and final xor 0xFFFFFFFF),
+// the checksum of E2807 § 7.3. Hardware (SSE 4.2 crc32) when the CPU has it, else slicing-by-8.
+
+struct Crc32cTables {
+  std::array<std::array<std::uint32_t, 256>, 8> t{};
+  Crc32cTables() {
+    for (std::uint32_t i = 0; i < 256; ++i) {
+      std::uint32_t c = i;
+      for (int k = 0; k < 8; ++k) c = (c >> 1) ^ ((c & 1U) ? 0x82F63B78U : 0U);
+      t[0][i] = c;
+    }
+    for (std::size_t s = 1; s < 8; ++s)
+      for (std::size_t i = 0; i < 256; ++i) t[s][i] = (t[s - 1][i] >> 8) ^ t[0][t[s - 1][i] & 0xFFU];
+  }
+};
+
+std::uint32_t crc32c_soft(const unsigned char* p, std::size_t n) {
+  static const Crc32cTables tables;
+  const auto& t = tables.t;
+  std::uint32_t crc = 0xFFFFFFFFU;
+  while (n >= 8) {
+    std::uint64_t w;
+    std::memcpy(&w, p, 8);
+    w ^= crc;
+    crc = t[7][w & 0xFF] ^ t[6][(w >> 8) & 0xFF] ^ t[5][(w >> 16) & 0xFF] ^ t[4][(w >> 24) & 0xFF] ^
+          t[3][(w >> 32) & 0xFF] ^ t[2][(w >> 40) & 0xFF] ^ t[1][(w >> 48) & 0xFF] ^ t[0][w >> 56];
+    p += 8;
+    n -= 8;
+  }
+  while (n-- > 0) crc = (crc >> 8) ^ t[0][(crc ^ *p++) & 0xFFU];
+  return crc ^ 0xFFFFFFFFU;
+}
+
+#ifdef HC_E57_HW_CRC
+__attribute__((target("sse4.2"))) std::uint32_t crc32c_hw(const unsigned char* p, std::size_t n) {
+  std::uint64_t crc = 0xFFFFFFFFU;
+  while (n >= 8) {
+    std::uint64_t w;
+    std::memcpy(&w, p, 8);
+    crc = _mm_crc32_u64(crc, w);
+    p += 8;
+    n -= 8;
+  }
+  auto c = static_cast<std::uint32_t>(crc);
+  while (n-- > 0) c = _mm_crc32_u8(c, *p++);
+  return c ^ 0xFFFFFFFFU;
+}
+#endif
+
+std::uint32_t crc32c(const unsigned char* p, std::size_t n) {
+#ifdef HC_E57_HW_CRC
+  static const bool hw = __builtin_cpu_supports("sse4.2");
+  if (hw) return crc32c_hw(p, n);
+#endif
+  return crc32c_soft(p, n);
+}
+
+template <class T>
+T load_le(const unsigned char* p) {
+  T v;
+  std::memcpy(&v, p, sizeof(T));
+  return v;
+}
+
+std::string hex(std::uint64_t v) {
+  char buf[24];
+  std::snprintf(buf, sizeof buf, "0x%llx", static_cast<unsigned long long>(v));
+  return buf;
+}
+
+// ---------------------------------------------------------------------------------------------
+// The paged file (E2807 § 7.3): each page of `page` bytes holds page − 4 bytes of logical data
+// followed by the CRC-32C of those bytes, stored big-endian. Every page is checked the first
+// time any of its bytes is read.
+
+class PagedFile {
+ public:
+  PagedFile(const std::string& bytes, std::uint64_t page, std::string name)
+      : data_(reinterpret_cast<const unsigned char*>(bytes.data())),
+        size_(bytes.size()),
+        page_(page),
+        payload_(page - 4),
+        name_(std::move(name)),
+        checked_((bytes.size() + page - 1) / page, false) {}
+
+  std::uint64_t payload() const { return payload_; }
+  std::uint64_t logical_size() const { return (size_ / page_) * payload_; }
+  /// Physical offset → logical offset (the physical offset must not point into a CRC).
+  std::uint64_t to_logical(std::uint64_t phys) const { return (phys / page_) * payload_ + phys % page_; }
+
+  /// Copies `n` logical bytes starting at logical offset `logical` into `dst`, checking pages.
+  /// `what` names the structure read, for the error when it runs past the end of the file.
+  void read(std::uint64_t logical, std::size_t n, unsigned char* dst, const std::string& what) {
+    if (logical > logical_size() || n > logical_size() - logical) {
+      throw InputError("load_cloud: " + name_ + ": " + what + " at logical offset " +
+                       std::to_string(logical) + " (" + std::to_string(n) +
+                       " bytes) runs past the end of the file (" + std::to_string(logical_size()) +
+                       " logical bytes): the file is truncated or corrupt");
+    }
+    while (n > 0) {
+      const std::uint64_t pg = logical / payload_;
+      const std::uint64_t in = logical % payload_;
+      check_page(pg);
+      const std::size_t take = static_cast<std::size_t>(std::min<std::uint64_t>(n, payload_ - in));
+      std::memcpy(dst, data_ + pg * page_ + in, take);
+      dst += take;
+      n -= take;
+      logical += take;
+    }
+  }
+
+  void check_page(std::uint64_t pg) {
+    if (checked_[pg]) return;
+    const unsigned char* p = data_ + pg * page_;
+    const std::uint32_t stored = (std::uint32_t{p[payload_]} << 24) | (std::uint32_t{p[payload_ + 1]} << 16) |
+                                 (std::uint32_t{p[payload_ + 2]} << 8) | std::uint32_t{p[payload_ + 3]};
+    const std::uint32_t computed = crc32c(p, payload_);
+    if (stored != computed) {
+      throw InputError("load_cloud: " + name_ + ": bad page checksum: the page at physical offset " +
+                       std::to_string(pg * page_) + " stores CRC-32C " + hex(stored) + " but its " +
+                       std::to_string(payload_) + " data bytes give " + hex(computed) +
+                       " (E57 pages end in the CRC-32C of their data): the file is corrupt");
+    }
+    checked_[pg] = true;
+  }
+
+ private:
+  const unsigned char* data_;
+  std::uint64_t size_, page_, payload_;
+  std::string name_;
+  std::vector<bool> checked_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// XML helpers (E2807 § 8: element types Integer, ScaledInteger, Float, String, Structure, Vector,
+// CompressedVector, Blob; values as element text, attributes for bounds and scaling).
+
+std::string_view trim(std::string_view s) {
+  while (!s.empty() && std::isspace(static_cast<unsigned char>(s.front()))) s.remove_prefix(1);
+  while (!s.empty() && std::isspace(static_cast<unsigned char>(s.back()))) s.remove_suffix(1);
+  return s;
+}
+
+template <class T>
+std::optional<T> parse_text(std::string_view s) {
+  s = trim(s);
+  if (!s.empty() && s.front() == '+') s.remove_prefix(1);
+  if (s.empty()) return std::nullopt;
+  T v{};
+  const auto r = std::from_chars(s.data(), s.data() + s.size(), v);
+  if (r.ec != std::errc() || r.ptr != s.data() + s.size()) return std::nullopt;
+  return v;
+}
+
+class Xml {
+ public:
+  explicit Xml(std::string name) : name_(std::move(name)) {}
+
+  [[noreturn]] void fail(const pugi::xml_node& node, const std::string& what) const {
+    throw InputError("load_cloud: " + name_ + ": XML element <" + path(node) + ">: " + what);
+  }
+
+  static std::string path(pugi::xml_node n) {
+    std::string p;
+    for (; n && n.type() == pugi::node_element; n = n.parent()) p = p.empty() ? n.name() : std::string(n.name()) + "/" + p;
+    return p;
+  }
+
+  /// An attribute as a number; `fallback` when absent; an error when present but not a number.
+  template <class T>
+  T attr(const pugi::xml_node& node, const char* key, T fallback) const {
+    const pugi::xml_attribute a = node.attribute(key);
+    if (!a) return fallback;
+    const auto v = parse_text<T>(a.value());
+    if (!v) fail(node, std::string("attribute ") + key + "=\"" + a.value() + "\" is not a number");
+    return *v;
+  }
+
+  /// The value of a terminal element (Integer, ScaledInteger → scaled, Float); an empty element
+  /// is 0 (the default of § 8).
+  double number(const pugi::xml_node& node) const {
+    const std::string type = node.attribute("type").value();
+    const std::string_view text = trim(node.child_value());
+    if (type == "Integer") {
+      if (text.empty()) return 0.0;
+      const auto v = parse_text<std::int64_t>(text);
+      if (!v) fail(node, "Integer value '" + std::string(text) + "' is not an integer");
+      return static_cast<double>(*v);
+    }
+    if (type == "ScaledInteger") {
+      std::int64_t raw = 0;
+      if (!text.empty()) {
+        const auto v = parse_text<std::int64_t>(text);
+        if (!v) fail(node, "ScaledInteger value '" + std::string(text) + "' is not an integer");
+        raw = *v;
+      }
+      return static_cast<double>(raw) * attr<double>(node, "scale", 1.0) + attr<double>(node, "offset", 0.0);
+    }
+    if (type == "Float") {
+      if (text.empty()) return 0.0;
+      const auto v = parse_text<double>(text);
+      if (!v) fail(node, "Float value '" + std::string(text) + "' is not a number");
+      return *v;
+    }
+    fail(node, "type '" + type + "' found, expected Integer, ScaledInteger or Float");
+  }
+
+  /// The number held by child `key` of `parent`, or `fallback` when there is no such child.
+  double child_number(const pugi::xml_node& parent, const char* key, double fallback) const {
+    const pugi::xml_node c = parent.child(key);
+    return c ? number(c) : fallback;
+  }
+
+ private:
+  std::string name_;
+};
+
+// ---------------------------------------------------------------------------------------------
+// One field of a CompressedVector prototype (E2807 § 9.3: one bytestream per terminal element,
+// in document order).
+
+struct Field {
+  enum class Kind { Integer, ScaledInteger, Float } kind = Kind::Float;
+  std::string name;
+  bool single = false;                                      // Float precision="single"
+  std::int64_t minimum = std::numeric_limits<std::int64_t>::min();
+  std::int64_t maximum = std::numeric_limits<std::int64_t>::max();
+  double scale = 1.0, offset = 0.0;                         // ScaledInteger
+  double fmin = -std::numeric_limits<double>::max();        // Float bounds
+  double fmax = std::numeric_limits<double>::max();
+  unsigned bits = 0;                                         // Integer kinds: packed width
+
+  /// Bytes the bytestream needs for `count` records.
+  std::uint64_t bytes_needed(std::uint64_t count) const {
+    if (kind == Kind::Float) return count * (single ? 4U : 8U);
+    return (count * bits + 7) / 8;
+  }
+  /// The value range in the field's own units (scaled for ScaledInteger).
+  std::pair<double, double> bounds() const {
+    if (kind == Kind::Float) return {fmin, fmax};
+    const double a = static_cast<double>(minimum), b = static_cast<double>(maximum);
+    if (kind == Kind::Integer) return {a, b};
+    const double sa = a * scale + offset, sb = b * scale + offset;
+    return {std::min(sa, sb), std::max(sa, sb)};
+  }
+  std::string describe() const {
+    switch (kind) {
+      case Kind::Float: return name + ":Float" + (single ? "32" : "64");
+      case Kind::Integer: return name + ":Integer(" + std::to_string(bits) + " bit)";
+      case Kind::ScaledInteger: return name + ":ScaledInteger(" + std::to_string(bits) + " bit)";
+    }
+    return name;
+  }
+};
+
+/// Packed width of an integer field: ceil(log2(maximum − minimum + 1)) bits (E2807 § 9.3.3).
+unsigned packed_bits(std::int64_t minimum, std::int64_t maximum) {
+  const std::uint64_t range = static_cast<std::uint64_t>(maximum) - static_cast<std::uint64_t>(minimum);
+  return range == 0 ? 0U : static_cast<unsigned>(std::bit_width(range));
+}
+
+void collect_fields(const Xml& xml, const pugi::xml_node& node, std::vector<Field>& out) {
+  for (const pugi::xml_node c : node.children()) {
+    if (c.type() != pugi::node_element) continue;
+    const std::string type = c.attribute("type").value();
+    Field f;
+    f.name = c.name();
+    if (type == "Structure") {  // nested structures: their terminals, in order
+      collect_fields(xml, c, out);
+      continue;
+    }
+    if (type == "Integer" || type == "ScaledInteger") {
+      f.kind = type == "Integer" ? Field::Kind::Integer : Field::Kind::ScaledInteger;
+      f.minimum = xml.attr<std::int64_t>(c, "minimum", f.minimum);
+      f.maximum = xml.attr<std::int64_t>(c, "maximum", f.maximum);
+      if (f.maximum < f.minimum) xml.fail(c, "maximum is below minimum");
+      f.scale = xml.attr<double>(c, "scale", 1.0);
+      f.offset = xml.attr<double>(c, "offset", 0.0);
+      f.bits = packed_bits(f.minimum, f.maximum);
+    } else if (type == "Float") {
+      const std::string precision = c.attribute("precision") ? c.attribute("precision").value() : "double";
+      if (precision != "single" && precision != "double")
+        xml.fail(c, "precision '" + precision + "' found, expected single or double");
+      f.single = precision == "single";
+      const double lim = f.single ? static_cast<double>(std::numeric_limits<float>::max())
+                                  : std::numeric_limits<double>::max();
+      f.fmin = xml.attr<double>(c, "minimum", -lim);
+      f.fmax = xml.attr<double>(c, "maximum", lim);
+    } else {
+      xml.fail(c, "prototype field of type '" + type +
+                      "' found, expected Integer, ScaledInteger, Float or Structure (this reader does "
+                      "not decode " + type + " fields)");
+    }
+    out.push_back(std::move(f));
+  }
+}
+
+/// Decodes `count` values of one field from its whole bytestream (already checked long enough;
+/// `s` carries 16 bytes of zero padding). Bit packing: value i occupies bits [i·b, (i+1)·b) of
+/// the stream, least significant bit first (E2807 § 9.3.3); value = minimum + raw, then
+/// raw·scale + offset for ScaledInteger.
+/// Value i goes to out[i · stride].
+void decode_field(const Field& f, const std::string& s, std::size_t count, double* out, std::size_t stride) {
+  const auto* p = reinterpret_cast<const unsigned char*>(s.data());
+  if (f.kind == Field::Kind::Float) {
+    if (f.single) {
+      for (std::size_t i = 0; i < count; ++i) out[i * stride] = static_cast<double>(std::bit_cast<float>(load_le<std::uint32_t>(p + 4 * i)));
+    } else {
+      for (std::size_t i = 0; i < count; ++i) out[i * stride] = std::bit_cast<double>(load_le<std::uint64_t>(p + 8 * i));
+    }
+    return;
+  }
+  const unsigned b = f.bits;
+  const bool scaled = f.kind == Field::Kind::ScaledInteger;
+  const auto umin = static_cast<std::uint64_t>(f.minimum);
+  auto finish = [&](std::uint64_t raw) {
+    const auto v = static_cast<std::int64_t>(umin + raw);
+    return scaled ? static_cast<double>(v) * f.scale + f.offset : static_cast<double>(v);
+  };
+  if (b == 0) {
+    for (std::size_t i = 0; i < count; ++i) out[i * stride] = finish(0);
+    return;
+  }
+  if (b == 8 || b == 16 || b == 32 || b == 64) {  // byte-aligned widths
+    const unsigned nb = b / 8;
+    for (std::size_t i = 0; i < count; ++i) {
+      std::uint64_t raw = 0;
+      switch (nb) {
+        case 1: raw = p[i]; break;
+        case 2: raw = load_le<std::uint16_t>(p + 2 * i); break;
+        case 4: raw = load_le<std::uint32_t>(p + 4 * i); break;
+        default: raw = load_le<std::uint64_t>(p + 8 * i); break;
+      }
+      out[i * stride] = finish(raw);
+    }
+    return;
+  }
+  const std::uint64_t mask = (std::uint64_t{1} << b) - 1;  // b < 64 here
+  std::uint64_t bit = 0;
+  for (std::size_t i = 0; i < count; ++i, bit += b) {
+    const std::uint64_t byte = bit >> 3;
+    const unsigned shift = static_cast<unsigned>(bit & 7U);
+    std::uint64_t w = load_le<std::uint64_t>(p + byte) >> shift;
+    if (shift + b > 64) w |= std::uint64_t{p[byte + 8]} << (64 - shift);
+    out[i * stride] = finish(w & mask);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// One data3D scan.
+
+struct Pose {
+  Eigen::Quaterniond q = Eigen::Quaterniond::Identity();
+  Eigen::Vector3d t = Eigen::Vector3d::Zero();
+  bool has_rotation = false, has_translation = false;
+};
+
+Pose read_pose(const Xml& xml, const pugi::xml_node& scan) {
+  Pose pose;
+  const pugi::xml_node node = scan.child("pose");
+  if (!node) return pose;
+  if (const pugi::xml_node r = node.child("rotation")) {
+    pose.has_rotation = true;
+    const double w = xml.child_number(r, "w", 1.0), x = xml.child_number(r, "x", 0.0),
+                 y = xml.child_number(r, "y", 0.0), z = xml.child_number(r, "z", 0.0);
+    const double norm = std::sqrt(w * w + x * x + y * y + z * z);
+    if (!(norm > 0.0) || !std::isfinite(norm)) xml.fail(r, "rotation quaternion has zero or non-finite norm");
+    pose.q = Eigen::Quaterniond(w / norm, x / norm, y / norm, z / norm);
+  }
+  if (const pugi::xml_node t = node.child("translation")) {
+    pose.has_translation = true;
+    pose.t = {xml.child_number(t, "x", 0.0), xml.child_number(t, "y", 0.0), xml.child_number(t, "z", 0.0)};
+  }
+  return pose;
+}
+
+/// Reads the bytestreams of one CompressedVector (E2807 § 9: binary section header, then packets
+/// from dataPhysicalOffset to the end of the section). Returns one byte string per field.
+std::vector<std::string> read_bytestreams(PagedFile& file, const Xml& xml, const pugi::xml_node& points,
+                                          const std::vector<Field>& fields, std::uint64_t count,
+                                          const std::string& name) {
+  std::vector<std::string> streams(fields.size());
+  if (count == 0) return streams;
+  const auto section_phys = xml.attr<std::uint64_t>(points, "fileOffset", 0);
+  if (!points.attribute("fileOffset")) xml.fail(points, "CompressedVector without fileOffset");
+  const std::uint64_t section_log = file.to_logical(section_phys);
+  unsigned char hdr[32];
+  file.read(section_log, 32, hdr, "the CompressedVector section header");
+  if (hdr[0] != 1) {
+    throw InputError("load_cloud: " + name + ": the binary section at physical offset " +
+                     std::to_string(section_phys) + " has section id " + std::to_string(hdr[0]) +
+                     ", expected 1 (CompressedVector)");
+  }
+  const auto section_len = load_le<std::uint64_t>(hdr + 8);
+  const auto data_phys = load_le<std::uint64_t>(hdr + 16);
+  const std::uint64_t section_end = section_log + section_len;
+  std::uint64_t pos = file.to_logical(data_phys);
+  if (section_len < 32 || pos < section_log + 32 || pos > section_end) {
+    throw InputError("load_cloud: " + name + ": the binary section at physical offset " +
+                     std::to_string(section_phys) + " has length " + std::to_string(section_len) +
+                     " and data offset " + std::to_string(data_phys) + ", expected the data inside the section");
+  }
+  std::vector<std::uint64_t> needed(fields.size());
+  for (std::size_t k = 0; k < fields.size(); ++k) {
+    needed[k] = fields[k].bytes_needed(count);
+    streams[k].reserve(needed[k] + 16);
+  }
+  std::vector<unsigned char> lengths;
+  while (pos + 4 <= section_end) {
+    unsigned char ph[4];
+    file.read(pos, 4, ph, "a packet header");
+    const std::uint64_t plen = std::uint64_t{load_le<std::uint16_t>(ph + 2)} + 1;
+    const std::string where = "the packet at logical offset " + std::to_string(pos);
+    if (pos + plen > section_end) {
+      throw InputError("load_cloud: " + name + ": " + where + " (" + std::to_string(plen) +
+                       " bytes) runs past the end of its binary section (logical " +
+                       std::to_string(section_end) + "): the file is corrupt");
+    }
+    if (ph[0] == 1) {  // data packet: type, flags, length − 1, bytestream count, buffer lengths
+      if (plen < 6) throw InputError("load_cloud: " + name + ": " + where + " is shorter than a data packet header");
+      unsigned char cnt[2];
+      file.read(pos + 4, 2, cnt, "a data packet header");
+      const std::size_t nstreams = load_le<std::uint16_t>(cnt);
+      if (nstreams != fields.size()) {
+        throw InputError("load_cloud: " + name + ": " + where + " holds " + std::to_string(nstreams) +
+                         " bytestreams, expected " + std::to_string(fields.size()) +
+                         " (one per prototype field)");
+      }
+      std::uint64_t at = 6 + 2 * nstreams;
+      if (at > plen) throw InputError("load_cloud: " + name + ": " + where + " is shorter than its header");
+      lengths.resize(2 * nstreams);
+      file.read(pos + 6, lengths.size(), lengths.data(), "a data packet header");
+      for (std::size_t k = 0; k < nstreams; ++k) {
+        const std::uint64_t len = load_le<std::uint16_t>(lengths.data() + 2 * k);
+        if (at + len > plen) {
+          throw InputError("load_cloud: " + name + ": " + where + ": bytestream " + std::to_string(k) +
+                           " (" + fields[k].name + ") of " + std::to_string(len) +
+                           " bytes runs past the packet's end");
+        }
+        const std::size_t old = streams[k].size();
+        streams[k].resize(old + len);
+        file.read(pos + at, len, reinterpret_cast<unsigned char*>(streams[k].data() + old), "a bytestream buffer");
+        at += len;
+      }
+    } else if (ph[0] != 0 && ph[0] != 2) {  // 0 index packet, 2 empty packet: skipped
+      throw InputError("load_cloud: " + name + ": " + where + " has packet type " + std::to_string(ph[0]) +
+                       ", expected 0 (index), 1 (data) or 2 (empty)");
+    }
+    pos += plen;
+  }
+  for (std::size_t k = 0; k < fields.size(); ++k) {
+    if (streams[k].size() < needed[k]) {
+      throw InputError("load_cloud: " + name + ": the bytestream of field '" + fields[k].name + "' holds " +
+                       std::to_string(streams[k].size()) + " bytes, expected " + std::to_string(needed[k]) +
+                       " for recordCount " + std::to_string(count) + ": the file is truncated or corrupt");
+    }
+    streams[k].append(16, '\0');  // padding for the 8-byte loads of the bit unpacker
+  }
+  return streams;
+}
+
+const char* const kKnownFields[] = {"cartesianX",     "cartesianY",           "cartesianZ",
+                                    "sphericalRange", "sphericalAzimuth",     "sphericalElevation",
+                                    "cartesianInvalidState", "sphericalInvalidState", "intensity",
+                                    "colorRed",       "colorGreen",           "colorBlue",
+                                    "rowIndex",       "columnIndex"};
+
+struct ScanOut {
+  Cloud cloud;
+  std::vector<std::string> notes;
+};
+
+ScanOut read_scan(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, std::size_t index,
+                  const std::string& name) {
+  ScanOut out;
+  const std::string label = "scan " + std::to_string(index) +
+                            (scan.child("name") ? " '" + std::string(trim(scan.child("name").child_value())) + "'" : "");
+  const pugi::xml_node points = scan.child("points");
+  if (!points) xml.fail(scan, "data3D scan without a 'points' CompressedVector");
+  if (std::string(points.attribute("type").value()) != "CompressedVector")
+    xml.fail(points, "type '" + std::string(points.attribute("type").value()) + "' found, expected CompressedVector");
+  if (!points.attribute("recordCount")) xml.fail(points, "CompressedVector without recordCount");
+  const auto count = xml.attr<std::uint64_t>(points, "recordCount", 0);
+  const pugi::xml_node proto = points.child("prototype");
+  if (!proto) xml.fail(points, "CompressedVector without a prototype");
+  std::vector<Field> fields;
+  collect_fields(xml, proto, fields);
+
+  std::map<std::string, std::size_t> at;
+  for (std::size_t k = 0; k < fields.size(); ++k) at.emplace(fields[k].name, k);
+  auto has = [&](const char* n) { return at.count(n) > 0; };
+  const bool cart = has("cartesianX") && has("cartesianY") && has("cartesianZ");
+  const bool sph = has("sphericalRange") && has("sphericalAzimuth") && has("sphericalElevation");
+  if (!cart && !sph) {
+    std::string list;
+    for (const auto& f : fields) list += (list.empty() ? "" : ", ") + f.name;
+    xml.fail(proto, "no coordinates: found fields {" + list +
+                        "}, expected cartesianX/Y/Z or sphericalRange/Azimuth/Elevation");
+  }
+  if (count > std::numeric_limits<std::uint32_t>::max())
+    xml.fail(points, "recordCount " + std::to_string(count) + " is larger than this reader accepts");
+
+  const std::vector<std::string> streams = read_bytestreams(file, xml, points, fields, count, name);
+  const auto n = static_cast<std::size_t>(count);
+  auto decode = [&](const char* key, std::vector<double>& v) {
+    const auto it = at.find(key);
+    if (it == at.end()) return false;
+    v.resize(n);
+    decode_field(fields[it->second], streams[it->second], n, v.data(), 1);
+    return true;
+  };
+  const Pose pose = read_pose(xml, scan);
+  const Eigen::Matrix3d rot = pose.q.toRotationMatrix();
+  const bool identity = !pose.has_rotation && !pose.has_translation;
+
+  std::vector<double> a, b, c, state;
+  std::string coords;
+  bool have_state = false;
+  const bool direct = cart && !has("cartesianInvalidState");  // every record a point: decode in place
+  if (direct) {
+    coords = "cartesian";
+    out.cloud.xyz.resize(3, static_cast<Eigen::Index>(n));
+    const char* axes[3] = {"cartesianX", "cartesianY", "cartesianZ"};
+    for (std::size_t k = 0; k < 3; ++k) {
+      const std::size_t f = at[axes[k]];
+      decode_field(fields[f], streams[f], n, out.cloud.xyz.data() + k, 3);
+    }
+    if (!identity) {
+      for (Eigen::Index j = 0; j < out.cloud.xyz.cols(); ++j)
+        out.cloud.xyz.col(j) = rot * out.cloud.xyz.col(j) + pose.t;
+    }
+  } else if (cart) {
+    coords = "cartesian";
+    decode("cartesianX", a);
+    decode("cartesianY", b);
+    decode("cartesianZ", c);
+    have_state = decode("cartesianInvalidState", state);
+  } else {
+    coords = "spherical";
+    std::vector<double> r, az, el;
+    decode("sphericalRange", r);
+    decode("sphericalAzimuth", az);
+    decode("sphericalElevation", el);
+    have_state = decode("sphericalInvalidState", state);
+    a.resize(n);
+    b.resize(n);
+    c.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {  // E2807 § 8.4.20: x = r cos(el) cos(az), ...
+      const double ce = std::cos(el[i]);
+      a[i] = r[i] * ce * std::cos(az[i]);
+      b[i] = r[i] * ce * std::sin(az[i]);
+      c[i] = r[i] * std::sin(el[i]);
+    }
+  }
+  std::size_t direction_only = 0, no_point = 0;
+  std::vector<std::size_t> keep;
+  if (!direct) keep.reserve(n);
+  for (std::size_t i = 0; !direct && i < n; ++i) {
+    const double s = have_state ? state[i] : 0.0;
+    if (s == 0.0) {
+      keep.push_back(i);
+    } else if (s == 1.0) {
+      ++direction_only;
+    } else {
+      ++no_point;
+    }
+  }
+  const std::size_t m = direct ? n : keep.size();
+  Cloud& cloud = out.cloud;
+  if (direct) {
+    if (has("intensity") || has("colorRed") || has("rowIndex")) {  // index for the attributes
+      keep.resize(n);
+      for (std::size_t i = 0; i < n; ++i) keep[i] = i;
+    }
+  } else {
+    cloud.xyz.resize(3, static_cast<Eigen::Index>(m));
+    for (std::size_t j = 0; j < m; ++j) {
+      const std::size_t i = keep[j];
+      cloud.xyz.col(static_cast<Eigen::Index>(j)) = rot * Eigen::Vector3d(a[i], b[i], c[i]) + pose.t;
+    }
+  }
+
+  std::string kept_attrs;
+  std::vector<double> v;
+  if (decode("intensity", v)) {  // normalised with intensityLimits, else the prototype's bounds
+    const Field& f = fields[at["intensity"]];
+    auto [lo, hi] = f.bounds();
+    std::string source = "prototype bounds";
+    if (const pugi::xml_node lim = scan.child("intensityLimits")) {
+      lo = xml.child_number(lim, "intensityMinimum", lo);
+      hi = xml.child_number(lim, "intensityMaximum", hi);
+      source = "intensityLimits";
+    }
+    if (!(hi > lo) || !std::isfinite(hi - lo)) {
+      const auto [mn, mx] = std::minmax_element(v.begin(), v.end());
+      lo = n ? *mn : 0.0;
+      hi = n ? *mx : 1.0;
+      source = "the data's own range (no usable limits)";
+    }
+    const double inv = hi > lo ? 1.0 / (hi - lo) : 0.0;
+    cloud.intensity.resize(m);
+    for (std::size_t j = 0; j < m; ++j)
+      cloud.intensity[j] = static_cast<float>(std::clamp((v[keep[j]] - lo) * inv, 0.0, 1.0));
+    char buf[160];
+    std::snprintf(buf, sizeof buf, "intensity normalised from [%g, %g] (%s)", lo, hi, source.c_str());
+    kept_attrs += std::string(kept_attrs.empty() ? "" : "; ") + buf;
+  }
+  if (has("colorRed") && has("colorGreen") && has("colorBlue")) {
+    cloud.rgb.resize(3 * m);
+    const char* keys[3] = {"colorRed", "colorGreen", "colorBlue"};
+    const char* lim_keys[3][2] = {{"colorRedMinimum", "colorRedMaximum"},
+                                  {"colorGreenMinimum", "colorGreenMaximum"},
+                                  {"colorBlueMinimum", "colorBlueMaximum"}};
+    const pugi::xml_node lim = scan.child("colorLimits");
+    for (int ch = 0; ch < 3; ++ch) {
+      decode(keys[ch], v);
+      auto [lo, hi] = fields[at[keys[ch]]].bounds();
+      if (lim) {
+        lo = xml.child_number(lim, lim_keys[ch][0], lo);
+        hi = xml.child_number(lim, lim_keys[ch][1], hi);
+      }
+      if (!(hi > lo) || !std::isfinite(hi - lo)) {
+        lo = 0.0;
+        hi = 255.0;
+      }
+      const double k = 255.0 / (hi - lo);
+      for (std::size_t j = 0; j < m; ++j)
+        cloud.rgb[3 * j + static_cast<std::size_t>(ch)] =
+            static_cast<std::uint8_t>(std::lround(std::clamp((v[keep[j]] - lo) * k, 0.0, 255.0)));
+    }
+    kept_attrs += std::string(kept_attrs.empty() ? "" : "; ") + "colour scaled to 8 bit" +
+                  (lim ? " with colorLimits" : " with the prototype's bounds");
+  } else if (has("colorRed") || has("colorGreen") || has("colorBlue")) {
+    out.notes.push_back(label + ": colour dropped: the prototype lacks one of colorRed/Green/Blue");
+  }
+  if (has("rowIndex") && has("columnIndex")) {
+    std::vector<double> col;
+    decode("rowIndex", v);
+    decode("columnIndex", col);
+    cloud.row.resize(m);
+    cloud.col.resize(m);
+    for (std::size_t j = 0; j < m; ++j) {
+      cloud.row[j] = static_cast<std::int32_t>(v[keep[j]]);
+      cloud.col[j] = static_cast<std::int32_t>(col[keep[j]]);
+    }
+    kept_attrs += std::string(kept_attrs.empty() ? "" : "; ") + "rowIndex/columnIndex kept";
+  } else if (has("rowIndex") || has("columnIndex")) {
+    out.notes.push_back(label + ": grid index dropped: the prototype has only one of rowIndex/columnIndex");
+  }
+
+  std::string proto_list, skipped;
+  for (const auto& f : fields) {
+    proto_list += (proto_list.empty() ? "" : ", ") + f.describe();
+    if (std::find_if(std::begin(kKnownFields), std::end(kKnownFields),
+                     [&](const char* k) { return f.name == k; }) == std::end(kKnownFields))
+      skipped += (skipped.empty() ? "" : ", ") + f.name;
+    else if (cart && f.name.rfind("spherical", 0) == 0)
+      skipped += (skipped.empty() ? "" : ", ") + f.name + " (cartesian used)";
+  }
+  std::string pose_text = "no pose (identity)";
+  if (pose.has_rotation || pose.has_translation) {
+    char buf[200];
+    std::snprintf(buf, sizeof buf, "pose q(w x y z) = (%.9g %.9g %.9g %.9g)%s, t = (%.9g %.9g %.9g) m%s",
+                  pose.q.w(), pose.q.x(), pose.q.y(), pose.q.z(), pose.has_rotation ? "" : " [no rotation: identity]",
+                  pose.t.x(), pose.t.y(), pose.t.z(), pose.has_translation ? "" : " [no translation]");
+    pose_text = buf;
+  }
+  out.notes.push_back(label + ": " + std::to_string(count) + " records, " + coords + " coordinates, prototype {" +
+                      proto_list + "}, " + pose_text);
+  if (!kept_attrs.empty()) out.notes.push_back(label + ": " + kept_attrs);
+  if (!skipped.empty()) out.notes.push_back(label + ": fields skipped: " + skipped);
+  if (direction_only > 0) {
+    out.notes.push_back(label + ": " + std::to_string(direction_only) +
+                        " records with invalid state 1 (direction only, no range) skipped");
+  }
+  if (no_point > 0) {
+    out.notes.push_back(label + ": " + std::to_string(no_point) + " records with invalid state 2 (no point) skipped");
+  }
+  return out;
+}
+
+}  // namespace
+
+/// Reads an E57 file (E2807 §§ 7–9) whole from memory. Output: every valid record of every
+/// data3D scan (invalid state 1 or 2 skipped with a note), 3 × N in metres, each scan's pose
+/// (rotation quaternion w x y z, translation; missing parts identity) applied so all scans share
+/// the file frame; scan_id per point when there are several scans; intensity normalised to
+/// [0, 1] (intensityLimits, else the prototype's bounds), rgb 8 bit (colorLimits, else the
+/// prototype's bounds), row/col from rowIndex/columnIndex. Errors (hc::InputError naming the
+/// file): short or foreign header, truncated file, a page whose CRC-32C does not match (its
+/// physical offset), XML that does not parse, zero scans, a packet or bytestream that is short.
+ReadResult read_e57(const ScanSource& source) {
+  const std::string& name = source.display_name;
+  const std::string& bytes = source.bytes;
+  const auto* u = reinterpret_cast<const unsigned char*>(bytes.data());
+  // File header, E2807 § 7.2: signature, version, lengths and offsets, page size (48 bytes).
+  if (bytes.size() < 48) {
+    throw InputError("load_cloud: " + name + " is " + std::to_string(bytes.size()) +
+                     " bytes long, shorter than the 48-byte E57 file header");
+  }
+  if (std::memcmp(u, "ASTM-E57", 8) != 0) {
+    throw InputError("load_cloud: " + name + " does not start with the E57 signature 'ASTM-E57'");
+  }
+  const auto major = load_le<std::uint32_t>(u + 8), minor = load_le<std::uint32_t>(u + 12);
+  const auto phys_len = load_le<std::uint64_t>(u + 16), xml_off = load_le<std::uint64_t>(u + 24),
+             xml_len = load_le<std::uint64_t>(u + 32), page = load_le<std::uint64_t>(u + 40);
+  if (major != 1) {
+    throw InputError("load_cloud: " + name + " is E57 version " + std::to_string(major) + "." +
+                     std::to_string(minor) + ", expected major version 1");
+  }
+  if (page < 64 || page > (1U << 20) || page % 4 != 0) {
+    throw InputError("load_cloud: " + name + ": the E57 header gives page size " + std::to_string(page) +
+                     ", expected 1024");
+  }
+  if (bytes.size() < phys_len) {
+    throw InputError("load_cloud: " + name + " is " + std::to_string(bytes.size()) +
+                     " bytes long but its E57 header says " + std::to_string(phys_len) +
+                     " bytes: the file is truncated");
+  }
+  if (phys_len % page != 0 || phys_len == 0) {
+    throw InputError("load_cloud: " + name + ": the E57 header gives file length " + std::to_string(phys_len) +
+                     ", expected a positive multiple of the page size " + std::to_string(page));
+  }
+  const std::string view = bytes.size() == phys_len ? std::string() : bytes.substr(0, phys_len);
+  PagedFile file(view.empty() ? bytes : view, page, name);
+  file.check_page(0);
+
+  std::vector<std::string> notes;
+  notes.push_back("E57 version " + std::to_string(major) + "." + std::to_string(minor) + ", " +
+                  std::to_string(phys_len) + " bytes in pages of " + std::to_string(page) +
+                  " (CRC-32C checked on every page read); coordinates in metres");
+  if (bytes.size() > phys_len) {
+    notes.push_back(std::to_string(bytes.size() - phys_len) + " bytes after the E57 file length ignored");
+  }
+
+  // XML section, E2807 § 8.
+  std::string text(static_cast<std::size_t>(std::min<std::uint64_t>(xml_len, file.logical_size())), '\0');
+  if (xml_len > file.logical_size()) {
+    throw InputError("load_cloud: " + name + ": the XML section (" + std::to_string(xml_len) +
+                     " bytes) is longer than the file: the file is truncated or corrupt");
+  }
+  file.read(file.to_logical(xml_off), text.size(), reinterpret_cast<unsigned char*>(text.data()), "the XML section");
+  pugi::xml_document doc;
+  const pugi::xml_parse_result parsed = doc.load_buffer(text.data(), text.size(), pugi::parse_default, pugi::encoding_utf8);
+  if (!parsed) {
+    throw InputError("load_cloud: " + name + ": the XML section does not parse: " + parsed.description() +
+                     " at XML byte " + std::to_string(parsed.offset) + " (expected the E57 XML tree)");
+  }
+  const Xml xml(name);
+  const pugi::xml_node root = doc.child("e57Root");
+  if (!root) throw InputError("load_cloud: " + name + ": the XML section has no <e57Root> element");
+
+  const pugi::xml_node data3d = root.child("data3D");
+  std::vector<pugi::xml_node> scans;
+  if (data3d)
+    for (const pugi::xml_node c : data3d.children("vectorChild")) scans.push_back(c);
+  if (scans.empty()) {
+    throw InputError("load_cloud: " + name + " holds no scans (data3D is " +
+                     std::string(data3d ? "empty" : "absent") + "): expected at least one data3D scan");
+  }
+  if (scans.size() > std::numeric_limits<std::uint16_t>::max()) {
+    throw InputError("load_cloud: " + name + " holds " + std::to_string(scans.size()) +
+                     " scans, more than the 65535 scan ids a cloud carries");
+  }
+  if (const pugi::xml_node images = root.child("images2D")) {
+    const auto n_images = static_cast<std::size_t>(std::distance(images.children("vectorChild").begin(),
+                                                                 images.children("vectorChild").end()));
+    if (n_images > 0) notes.push_back(std::to_string(n_images) + " images2D skipped (images are not read)");
+  }
+
+  ReadResult result;
+  notes.push_back(std::to_string(scans.size()) + " data3D scan" + (scans.size() == 1 ? "" : "s") +
+                  (scans.size() > 1 ? ", each placed by its pose into the file frame and merged" : ""));
+  for (std::size_t s = 0; s < scans.size(); ++s) {
+    ScanOut one = read_scan(file, xml, scans[s], s, name);
+    if (scans.size() > 1) one.cloud.scan_id.assign(one.cloud.size(), static_cast<std::uint16_t>(s));
+    notes.insert(notes.end(), one.notes.begin(), one.notes.end());
+    if (result.cloud.size() == 0 && s == 0) {
+      result.cloud = std::move(one.cloud);
+      continue;
+    }
+    const std::vector<std::string> dropped = result.cloud.append(one.cloud);
+    for (const auto& d : dropped)
+      notes.push_back("attribute '" + d + "' dropped: not every scan carries it (at scan " + std::to_string(s) + ")");
+  }
+  result.notes = std::move(notes);
+  return result;
+}
+
+}  // namespace hc::pipeline::detail
