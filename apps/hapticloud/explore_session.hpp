@@ -10,6 +10,7 @@
 /// rebuild workers (std::async), audio (hc::audio's own).
 
 #include "explore_script.hpp"
+#include "hc/common/format.hpp"
 
 #include <string>
 
@@ -67,12 +68,7 @@ void run_explore(const ExploreOptions& options);
 
 #ifdef HC_HAVE_VIEWER
 
-inline std::string fmt(double v, int precision = 4) {
-  std::ostringstream s;
-  s.precision(precision);
-  s << v;
-  return s.str();
-}
+inline std::string fmt(double v, int precision = 4) { return format_number(v, precision); }
 
 /// The level whose whole grid fits in `cells` samples (else the coarsest).
 int fitting_level(const session::LodController& lod, int cells);

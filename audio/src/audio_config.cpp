@@ -1,6 +1,7 @@
 #include "hc/audio/audio_config.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
 
 #include <algorithm>
 #include <cctype>
@@ -19,12 +20,6 @@ std::string lower(std::string s) {
   return s;
 }
 
-std::string num(double v) {
-  std::ostringstream os;
-  os << v;
-  return os.str();
-}
-
 /// Thrown inside check() to carry the first issue out of the nested checks.
 struct Issue {
   ConfigIssue issue;
@@ -33,7 +28,7 @@ struct Issue {
 void check_range(const std::string& key, double v, double lo, double hi, bool lo_open = false, bool hi_open = false) {
   const bool ok = std::isfinite(v) && (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
   if (!ok) {
-    throw Issue{{key, "= " + num(v) + ": expected a number in " + (lo_open ? "(" : "[") + num(lo) + ", " + num(hi) +
+    throw Issue{{key, "= " + format_number(v) + ": expected a number in " + (lo_open ? "(" : "[") + format_number(lo) + ", " + format_number(hi) +
                           (hi_open ? ")" : "]")}};
   }
 }
@@ -95,7 +90,7 @@ void check_all(const AudioConfig& c) {
   check_range("master_gain", c.master_gain, 0.0, 4.0);
   if (!(c.limiter_threshold > 0.0 && c.limiter_threshold <= 1.0)) {
     const double dbfs = c.limiter_threshold > 0.0 ? 20.0 * std::log10(c.limiter_threshold) : -HUGE_VAL;
-    throw Issue{{"limiter.threshold_dbfs", "= " + num(dbfs) + " (linear " + num(c.limiter_threshold) +
+    throw Issue{{"limiter.threshold_dbfs", "= " + format_number(dbfs) + " (linear " + format_number(c.limiter_threshold) +
                                                "): expected a number in [-40, 0] dBFS, i.e. (0, 1] linear"}};
   }
   check_range("limiter.release_s", c.limiter_release_s, 0.0, 10.0, true);
@@ -108,7 +103,7 @@ void check_all(const AudioConfig& c) {
   check_range("force.strike_window_s", c.force.strike_window_s, 0.0, 1.0);
   check_material("slide.material", c.default_material);
   if (note_frequency_hz(Note::kNi, c.sa_hz) * 2.0 >= 0.5 * c.sample_rate_hz) {
-    throw Issue{{"tones.sa_hz", "= " + num(c.sa_hz) + " is too high for sample_rate_hz = " +
+    throw Issue{{"tones.sa_hz", "= " + format_number(c.sa_hz) + " is too high for sample_rate_hz = " +
                                     std::to_string(c.sample_rate_hz) + ": the synthesised partials would alias"}};
   }
   std::set<std::string> names;
@@ -129,8 +124,8 @@ void check_all(const AudioConfig& c) {
       case ShapeKind::kBox:
         if (!(std::isfinite(s.x_min_m) && std::isfinite(s.x_max_m) && std::isfinite(s.y_min_m) &&
               std::isfinite(s.y_max_m) && s.x_max_m > s.x_min_m && s.y_max_m > s.y_min_m)) {
-          throw Issue{{q + ".box_m", "= [" + num(s.x_min_m) + ", " + num(s.y_min_m) + ", " + num(s.x_max_m) + ", " +
-                                         num(s.y_max_m) +
+          throw Issue{{q + ".box_m", "= [" + format_number(s.x_min_m) + ", " + format_number(s.y_min_m) + ", " + format_number(s.x_max_m) + ", " +
+                                         format_number(s.y_max_m) +
                                          "]: expected [x_min, y_min, x_max, y_max] with x_max > x_min and y_max > y_min"}};
         }
         break;

@@ -1,6 +1,7 @@
 #include "hc/audio/clip.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
 
 #include <sndfile.h>
 
@@ -20,17 +21,11 @@ struct SndCloser {
 };
 using SndHandle = std::unique_ptr<SNDFILE, SndCloser>;
 
-std::string num(double v) {
-  std::ostringstream os;
-  os << v;
-  return os.str();
-}
-
 }  // namespace
 
 std::vector<float> resample_linear(std::span<const float> in, double ratio) {
   if (!(ratio > 0.0) || !std::isfinite(ratio)) {
-    throw ConfigError("audio: resampling ratio " + num(ratio) + ": expected a finite number > 0");
+    throw ConfigError("audio: resampling ratio " + format_number(ratio) + ": expected a finite number > 0");
   }
   if (in.empty()) return {};
   if (ratio == 1.0) return {in.begin(), in.end()};
@@ -53,7 +48,7 @@ Clip decode_clip(const std::filesystem::path& path, int target_rate_hz, double p
     throw ConfigError("audio: sample rate " + std::to_string(target_rate_hz) + " Hz: expected [1000, 384000]");
   }
   if (!(pitch >= 0.25 && pitch <= 4.0)) {
-    throw ConfigError("audio: pitch " + num(pitch) + " for '" + path.string() + "': expected a number in [0.25, 4]");
+    throw ConfigError("audio: pitch " + format_number(pitch) + " for '" + path.string() + "': expected a number in [0.25, 4]");
   }
   std::error_code ec;
   if (!std::filesystem::is_regular_file(path, ec)) {
@@ -107,11 +102,11 @@ Clip synth_stone_tone(double fundamental_hz, int sample_rate_hz, double seconds)
     throw ConfigError("audio: sample rate " + std::to_string(sample_rate_hz) + " Hz: expected [1000, 384000]");
   }
   if (!(fundamental_hz > 20.0 && fundamental_hz < sample_rate_hz / 8.0)) {
-    throw ConfigError("audio: tone frequency " + num(fundamental_hz) + " Hz: expected (20, " +
-                      num(sample_rate_hz / 8.0) + ")");
+    throw ConfigError("audio: tone frequency " + format_number(fundamental_hz) + " Hz: expected (20, " +
+                      format_number(sample_rate_hz / 8.0) + ")");
   }
   if (!(seconds > 0.0 && seconds <= 20.0)) {
-    throw ConfigError("audio: tone length " + num(seconds) + " s: expected (0, 20]");
+    throw ConfigError("audio: tone length " + format_number(seconds) + " s: expected (0, 20]");
   }
   // Partials of a struck stone column: inharmonic ratios, amplitudes and 60 dB decay times
   // chosen by ear (higher partials decay faster); a 3 ms noise burst for the strike.
@@ -157,7 +152,7 @@ Clip synth_stone_tone(double fundamental_hz, int sample_rate_hz, double seconds)
   if (peak > 0.0F) {
     for (float& s : clip.samples) s *= 0.8F / peak;
   }
-  clip.source = "synth:" + num(fundamental_hz) + "Hz";
+  clip.source = "synth:" + format_number(fundamental_hz) + "Hz";
   return clip;
 }
 

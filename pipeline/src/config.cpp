@@ -1,6 +1,7 @@
 #include "hc/pipeline/config.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
 #include "hc/common/units.hpp"
 
 #include <yaml-cpp/yaml.h>
@@ -29,12 +30,6 @@ std::string scalar_text(const YAML::Node& n) {
   YAML::Emitter e;
   e << YAML::Flow << n;
   return e.c_str();
-}
-
-std::string format_double(double v) {
-  std::ostringstream os;
-  os << v;
-  return os.str();
 }
 
 /// Walks a YAML tree by dotted keys, remembers what was read (to reject unknown keys) and the
@@ -77,10 +72,10 @@ class Reader {
     }
     if (!std::isfinite(v) || v < lo || v > hi || (lo_open && v == lo)) {
       if (lo == -std::numeric_limits<double>::max() && hi == std::numeric_limits<double>::max()) {
-        fail(path, "= " + format_double(v) + ": expected a finite number");  // the range is checked by its module
+        fail(path, "= " + format_number(v) + ": expected a finite number");  // the range is checked by its module
       }
-      fail(path, "= " + format_double(v) + ": expected a number in " + (lo_open ? "(" : "[") +
-                     format_double(lo) + ", " + format_double(hi) + "]");
+      fail(path, "= " + format_number(v) + ": expected a number in " + (lo_open ? "(" : "[") +
+                     format_number(lo) + ", " + format_number(hi) + "]");
     }
     resolved_set(path, YAML::Node(v));
     return v;
@@ -156,8 +151,8 @@ class Reader {
     }
     for (int i = 0; i < 3; ++i) {
       if (!std::isfinite(v[i]) || v[i] < lo || v[i] > hi) {
-        fail(path, "has a value out of range: expected 3 finite numbers in [" + format_double(lo) +
-                       ", " + format_double(hi) + "]");
+        fail(path, "has a value out of range: expected 3 finite numbers in [" + format_number(lo) +
+                       ", " + format_number(hi) + "]");
       }
     }
     YAML::Node out(YAML::NodeType::Sequence);
@@ -646,8 +641,8 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   L.mu_min = r.get_double("layers.friction.mu_min", L.mu_min, 0.0, 10.0);
   L.mu_max = r.get_double("layers.friction.mu_max", L.mu_max, 0.0, 10.0);
   if (L.mu_max < L.mu_min) {
-    r.fail("layers.friction.mu_max", "= " + format_double(L.mu_max) + ": expected a number ≥ mu_min (" +
-                                         format_double(L.mu_min) + ")");
+    r.fail("layers.friction.mu_max", "= " + format_number(L.mu_max) + ": expected a number ≥ mu_min (" +
+                                         format_number(L.mu_min) + ")");
   }
   L.workspace_radius_m = r.get_double("layers.friction.workspace_radius_m", L.workspace_radius_m, 0.0, 10.0, true);
   L.curvature_gain_m = r.get_double("layers.friction.curvature_gain_m", L.curvature_gain_m, 0.0, 100.0);

@@ -20,7 +20,7 @@
 // bound certifies 1.3 % of the points as inliers (27 % at σ = 2, 62 % at σ = 3), while the
 // mean and stddev still need every point's distance.
 
-#include "format.hpp"
+#include "hc/common/format.hpp"
 #include "knn_grid.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/filters.hpp"
@@ -46,7 +46,7 @@ namespace {
 using detail::build_grid;
 using detail::CellGrid;
 using detail::Clock;
-using detail::format_number;
+using hc::format_number;
 using detail::kSearchThreads;
 using detail::mean_knn_distances;
 using detail::PointQueries;

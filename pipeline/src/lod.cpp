@@ -2,6 +2,7 @@
 #include "hc/pipeline/lod.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
 #include <algorithm>
@@ -16,17 +17,11 @@ namespace {
 using detail::Clock;
 using detail::seconds_since;
 
-std::string num(double v) {
-  std::ostringstream s;
-  s << v;
-  return s.str();
-}
-
 std::size_t field_bytes(const HeightField& f) { return f.values().size() * sizeof(float); }
 
 void validate_options(const LodOptions& o) {
   const auto fail = [](const std::string& key, double value, const std::string& expected) {
-    throw ConfigError("lod: " + key + " = " + num(value) + ": expected " + expected);
+    throw ConfigError("lod: " + key + " = " + format_number(value) + ": expected " + expected);
   };
   if (o.min_cells < 2 || o.min_cells > 65536) fail("lod.min_cells", o.min_cells, "an integer in [2, 65536]");
   if (!(o.valid_fraction > 0.0 && o.valid_fraction <= 1.0)) fail("lod.valid_fraction", o.valid_fraction, "a number in (0, 1]");
@@ -88,10 +83,10 @@ GridGeometry lod_level_geometry(const GridGeometry& finest, int level) {
 
 HeightField downsample_2x(const HeightField& fine, double sigma_cells, double valid_fraction) {
   if (!(sigma_cells >= 0.5 && sigma_cells <= 4.0)) {
-    throw ConfigError("lod: lod.antialias_sigma_cells = " + num(sigma_cells) + ": expected a number in [0.5, 4]");
+    throw ConfigError("lod: lod.antialias_sigma_cells = " + format_number(sigma_cells) + ": expected a number in [0.5, 4]");
   }
   if (!(valid_fraction > 0.0 && valid_fraction <= 1.0)) {
-    throw ConfigError("lod: lod.valid_fraction = " + num(valid_fraction) + ": expected a number in (0, 1]");
+    throw ConfigError("lod: lod.valid_fraction = " + format_number(valid_fraction) + ": expected a number in (0, 1]");
   }
   const GridGeometry& fg = fine.geometry();
   if (fg.rows < 1 || fg.cols < 1 || fine.values().size() != fg.cell_count()) {
@@ -202,7 +197,7 @@ LodPyramid::LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options
   const GridGeometry& g = finest.depth_m.geometry();
   if (g.rows < 2 || g.cols < 2 || !(g.cell_size_m > 0.0) || finest.depth_m.values().size() != g.cell_count()) {
     throw InputError("lod: the finest depth grid has " + std::to_string(g.rows) + " x " + std::to_string(g.cols) +
-                     " samples of " + num(g.cell_size_m) + " m: expected at least 2 x 2 and a cell size > 0");
+                     " samples of " + format_number(g.cell_size_m) + " m: expected at least 2 x 2 and a cell size > 0");
   }
   if (finest.depth_m.valid_count() == 0) throw InputError("lod: the finest depth grid has no valid sample");
   if (finest.has_layers) {

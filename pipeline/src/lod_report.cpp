@@ -2,6 +2,7 @@
 #include "hc/pipeline/lod_report.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
 #include "hc/common/units.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/filters.hpp"
@@ -22,11 +23,7 @@ namespace hc::pipeline {
 namespace {
 
 
-std::string fixed(double v, int precision) {
-  std::ostringstream s;
-  s << std::fixed << std::setprecision(precision) << v;
-  return s.str();
-}
+std::string fixed(double v, int precision) { return format_number(v, precision, NumberStyle::kFixed); }
 
 }  // namespace
 

@@ -1,4 +1,4 @@
-#include "format.hpp"
+#include "hc/common/format.hpp"
 #include "hc/pipeline/preview.hpp"
 
 #include "hc/common/error.hpp"
@@ -88,8 +88,8 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   cv::resize(ramp_col, ramp_col, cv::Size(bar_w, body.rows), 0, 0, cv::INTER_NEAREST);
   ramp_col.copyTo(canvas(cv::Rect(body.cols + 8, title_h, bar_w, body.rows)));
   const cv::Scalar black(0, 0, 0);
-  cv::putText(canvas, detail::format_number(hi * scale, 3), {body.cols + 8 + bar_w + 4, title_h + 12}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
-  cv::putText(canvas, detail::format_number(lo * scale, 3), {body.cols + 8 + bar_w + 4, title_h + body.rows - 4}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
+  cv::putText(canvas, hc::format_number(hi * scale, 3), {body.cols + 8 + bar_w + 4, title_h + 12}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
+  cv::putText(canvas, hc::format_number(lo * scale, 3), {body.cols + 8 + bar_w + 4, title_h + body.rows - 4}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
   cv::putText(canvas, unit, {body.cols + 8 + bar_w + 4, title_h + body.rows / 2}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black, 1);
   cv::putText(canvas, title + " (grey: no data; +y up)", {6, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1);
   save(canvas, png);

@@ -2,6 +2,7 @@
 #include "hc/pipeline/run.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
 #include "hc/common/units.hpp"
 #include "hc/pipeline/filters.hpp"
 #include "hc/pipeline/ingest.hpp"
@@ -95,11 +96,8 @@ json stats_json(const ErrorStats& s) {
           {"p99_mm", s.p99_mm}, {"max_mm", s.max_mm}};
 }
 
-std::string fmt(double v, int precision = 3) {
-  std::ostringstream os;
-  os << std::fixed << std::setprecision(precision) << v;
-  return os.str();
-}
+/// The report's numbers: `precision` decimals (hc::format_number, fixed style).
+std::string fmt(double v, int precision = 3) { return format_number(v, precision, NumberStyle::kFixed); }
 
 std::string stats_row(const std::string& what, const ErrorStats& s) {
   return "| " + what + " | " + std::to_string(s.count) + " | " + fmt(s.rms_mm) + " | " + fmt(s.p50_mm) +

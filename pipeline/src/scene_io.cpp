@@ -470,16 +470,25 @@ StagingDir::StagingDir(fs::path target, ExistingOutput existing) : target_(std::
   remove_stale_siblings(target_);
   // A fresh staging name: nothing that happens to exist is ever removed.
   staging_ = free_sibling(target_, ".partial-" + std::to_string(::getpid()));
+  {
+    // Registered before it exists, so a signal watcher never misses a folder it could see.
+    std::lock_guard<std::mutex> lock(g_live_mutex);
+    g_live_staging.insert(staging_.string());
+  }
   fs::create_directories(staging_, ec);
-  if (ec) throw InputError(staging_.string() + ": cannot create the output folder: " + ec.message());
+  if (ec) {
+    std::lock_guard<std::mutex> lock(g_live_mutex);
+    g_live_staging.erase(staging_.string());
+    throw InputError(staging_.string() + ": cannot create the output folder: " + ec.message());
+  }
   std::ofstream marker(staging_ / kOutputMarkerFile);
   marker << "This folder was written by hapticloud; a later run may replace it.\n";
   if (!marker) {
     fs::remove_all(staging_, ec);
+    std::lock_guard<std::mutex> lock(g_live_mutex);
+    g_live_staging.erase(staging_.string());
     throw InputError((staging_ / kOutputMarkerFile).string() + ": cannot write the output marker");
   }
-  std::lock_guard<std::mutex> lock(g_live_mutex);
-  g_live_staging.insert(staging_.string());
 }
 
 int remove_live_staging_dirs() noexcept {

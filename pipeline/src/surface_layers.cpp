@@ -1,4 +1,4 @@
-#include "format.hpp"
+#include "hc/common/format.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 
@@ -25,7 +25,7 @@ namespace {
 using detail::Clock;
 using detail::seconds_since;
 
-using detail::format_number;
+using hc::format_number;
 
 [[noreturn]] void option_error(const std::string& field, const std::string& key, double value,
                                const std::string& expected) {

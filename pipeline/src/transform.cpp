@@ -1,6 +1,6 @@
 // Stages 2 and 3: units and recentring in double precision, then the user's view transform.
 
-#include "format.hpp"
+#include "hc/common/format.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/transform.hpp"
 
@@ -17,7 +17,7 @@ namespace hc::pipeline {
 
 namespace {
 
-using detail::format_number;
+using hc::format_number;
 
 using detail::Clock;
 using detail::seconds_since;

@@ -1,6 +1,7 @@
 #include "hc/session/touch_session.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
 #include "hc/haptics/haptic_surface.hpp"
 #include "hc/haptics/simulated_device.hpp"
 #include "hc/pipeline/plot.hpp"
@@ -23,12 +24,8 @@ namespace {
 namespace fs = std::filesystem;
 using haptics::HapticSurface;
 
-std::string number_text(double v) {
-  std::ostringstream s;
-  s.precision(10);
-  s << v;
-  return s.str();
-}
+/// Numbers in messages: 10 significant digits (hc::format_number).
+std::string number_text(double v) { return format_number(v, 10); }
 
 /// @throws hc::ConfigError naming `option` unless lo (<) v <= hi and v is finite.
 void check_range(const char* option, double v, double lo, bool lo_open, double hi) {

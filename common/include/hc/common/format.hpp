@@ -1,12 +1,11 @@
 #pragma once
 /// @file format.hpp
-/// The pipeline's one number formatter for error messages, report notes and labels (private to
-/// the pipeline's .cpp files; not installed, not public API).
+/// The project's one number formatter for error messages, reports, notes and labels.
 
 #include <cstdio>
 #include <string>
 
-namespace hc::pipeline::detail {
+namespace hc {
 
 /// How format_number writes a value.
 enum class NumberStyle {
@@ -28,4 +27,4 @@ inline std::string format_number(double v, int precision = 6, NumberStyle style 
                : std::string();
 }
 
-}  // namespace hc::pipeline::detail
+}  // namespace hc
