@@ -42,6 +42,8 @@ constexpr Format kFormats[] = {
     {".xyz", detail::read_xyz},
     {".txt", detail::read_xyz},
     {".las", detail::read_las},
+    {".ptx", detail::read_ptx},
+    {".pts", detail::read_pts},
 };
 
 // ".ply, .pcd, .obj, .xyz or .txt"

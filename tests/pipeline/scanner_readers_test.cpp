@@ -434,4 +434,311 @@ TEST(ScannerConfig, UnitsAndLasDropClasses) {
   EXPECT_NE(msg.find("input.units = 'yd': expected one of: m, cm, mm, ft, us-ft, in"), std::string::npos) << msg;
 }
 
+// ---------------------------------------------------------------------------------------------
+// PTX: oracle with std::istringstream; the pose from the scanner position and axis lines
+// (p = position + x·axisX + y·axisY + z·axisZ), which never reads the 4×4 block.
+
+struct TextPoint {
+  Eigen::Vector3d p;
+  double intensity = 0;
+  int rgb[3] = {-1, -1, -1};
+  int row = -1, col = -1;
+};
+
+struct PtxOracle {
+  std::vector<TextPoint> points;
+  std::size_t scans = 0, zeros = 0;
+  std::vector<Eigen::Vector3d> positions;
+  std::vector<Eigen::Matrix3d> axes;       // rows: the axis lines
+  std::vector<Eigen::Matrix4d> transforms;  // as written
+};
+
+PtxOracle ptx_oracle(const std::string& text) {
+  PtxOracle o;
+  std::istringstream in(text);
+  std::string line;
+  auto next = [&](std::istringstream& ls) {
+    while (std::getline(in, line)) {
+      if (line.find_first_not_of(" \t\r") != std::string::npos) {
+        ls = std::istringstream(line);
+        return true;
+      }
+    }
+    return false;
+  };
+  std::istringstream ls;
+  while (next(ls)) {
+    std::size_t cols = 0, rows = 0;
+    ls >> cols;
+    next(ls);
+    ls >> rows;
+    Eigen::Vector3d pos;
+    Eigen::Matrix3d ax;
+    Eigen::Matrix4d m;
+    next(ls);
+    ls >> pos.x() >> pos.y() >> pos.z();
+    for (int r = 0; r < 3; ++r) {
+      next(ls);
+      ls >> ax(r, 0) >> ax(r, 1) >> ax(r, 2);
+    }
+    for (int r = 0; r < 4; ++r) {
+      next(ls);
+      ls >> m(r, 0) >> m(r, 1) >> m(r, 2) >> m(r, 3);
+    }
+    o.positions.push_back(pos);
+    o.axes.push_back(ax);
+    o.transforms.push_back(m);
+    ++o.scans;
+    for (std::size_t i = 0; i < cols * rows; ++i) {
+      EXPECT_TRUE(next(ls));
+      double x, y, z;
+      TextPoint t;
+      ls >> x >> y >> z >> t.intensity;
+      if (int r, g, b; ls >> r >> g >> b) {
+        t.rgb[0] = r;
+        t.rgb[1] = g;
+        t.rgb[2] = b;
+      }
+      if (x == 0 && y == 0 && z == 0) {
+        ++o.zeros;
+        continue;
+      }
+      t.p = pos + x * ax.row(0).transpose() + y * ax.row(1).transpose() + z * ax.row(2).transpose();
+      t.row = static_cast<int>(i % rows);
+      t.col = static_cast<int>(i / rows);
+      o.points.push_back(t);
+    }
+  }
+  return o;
+}
+
+void expect_matches(const hp::Cloud& c, const std::vector<TextPoint>& want, double tol, bool grid) {
+  ASSERT_EQ(c.size(), want.size());
+  const bool rgb = want.front().rgb[0] >= 0;
+  EXPECT_EQ(c.has_rgb(), rgb);
+  ASSERT_EQ(c.intensity.size(), c.size());
+  EXPECT_EQ(c.has_grid_index(), grid);
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(1e300), hi = -lo;
+  for (std::size_t i = 0; i < want.size(); ++i) {
+    const auto j = static_cast<Eigen::Index>(i);
+    EXPECT_NEAR((c.xyz.col(j) - want[i].p).norm(), 0.0, tol) << "point " << i;
+    EXPECT_FLOAT_EQ(c.intensity[i], static_cast<float>(want[i].intensity)) << "point " << i;
+    if (rgb) {
+      for (int k = 0; k < 3; ++k) EXPECT_EQ(c.rgb[3 * i + static_cast<std::size_t>(k)], want[i].rgb[k]) << "point " << i;
+    }
+    if (grid) {
+      EXPECT_EQ(c.row[i], want[i].row) << "point " << i;
+      EXPECT_EQ(c.col[i], want[i].col) << "point " << i;
+    }
+    lo = lo.cwiseMin(want[i].p);
+    hi = hi.cwiseMax(want[i].p);
+  }
+  EXPECT_NEAR((c.xyz.rowwise().minCoeff() - lo).norm(), 0.0, tol);
+  EXPECT_NEAR((c.xyz.rowwise().maxCoeff() - hi).norm(), 0.0, tol);
+}
+
+TEST(PtxReader, SharedSamplesMatchAnIndependentParse) {
+  struct S {
+    const char* file;
+    std::size_t points, zeros;
+  };
+  for (const S s : {S{"pdal-1.2-with-color.ptx", 1065, 0}, S{"pdal-complex-transform.ptx", 4, 8},
+                    S{"pdal-no-color.ptx", 15, 0}}) {
+    SCOPED_TRACE(s.file);
+    const fs::path path = hc::test::scan_path(std::string("scanner_samples/ptx/") + s.file);
+    const PtxOracle o = ptx_oracle(read_bytes(path));
+    ASSERT_EQ(o.points.size(), s.points);
+    EXPECT_EQ(o.zeros, s.zeros);
+    const auto r = hp::load_cloud(path);
+    expect_matches(r.value, o.points, 1e-9 * (1 + o.points.front().p.norm()), true);
+    EXPECT_TRUE(has_note(r.report, std::to_string(s.zeros) + " no-return points"));
+  }
+}
+
+TEST(PtxReader, TransformIsRowVectorConventionAsTheComplexTransformSampleShows) {
+  // The sample's 4×4 block: rows 0–2 equal the scanner axis lines, row 3 the scanner position,
+  // column 3 is 0 0 0 1. So [x y z 1]·M = position + x·axisX + y·axisY + z·axisZ.
+  const PtxOracle o = ptx_oracle(read_bytes(hc::test::scan_path("scanner_samples/ptx/pdal-complex-transform.ptx")));
+  ASSERT_EQ(o.scans, 1u);
+  const Eigen::Matrix4d& m = o.transforms[0];
+  const Eigen::Matrix3d rot = m.topLeftCorner<3, 3>();
+  const Eigen::Vector3d translation = m.block<1, 3>(3, 0).transpose();
+  EXPECT_TRUE(rot.isApprox(o.axes[0], 1e-12));
+  EXPECT_TRUE(translation.isApprox(o.positions[0], 1e-12));
+  EXPECT_EQ(m.col(3), Eigen::Vector4d(0, 0, 0, 1));
+  EXPECT_FALSE(o.axes[0].isIdentity(1e-3));  // a real rotation: R and Rᵀ differ
+  // First kept point by hand: x = -0.005630, y = 0.645218, z = -0.440506.
+  const Eigen::Vector3d want = o.positions[0] + Eigen::Vector3d(-0.005630 * 0.999979 + 0.645218 * 0.003613 + -0.440506 * 0.005359,
+                                                                -0.005630 * -0.003604 + 0.645218 * 0.999992 + -0.440506 * -0.001650,
+                                                                -0.005630 * -0.005365 + 0.645218 * 0.001630 + -0.440506 * 0.999984);
+  const auto c = hp::load_cloud(hc::test::scan_path("scanner_samples/ptx/pdal-complex-transform.ptx")).value;
+  EXPECT_NEAR((c.xyz.col(0) - want).norm(), 0.0, 1e-12);
+  EXPECT_EQ(c.row[0], 4);
+  EXPECT_EQ(c.col[0], 0);
+}
+
+/// A PTX scan of `world` points seen from a scanner with rotation r (scanner axes as columns,
+/// in the common frame) and position t: local = rᵀ·(world − t); one 0 0 0 no-return point first.
+std::string ptx_scan(const std::vector<Eigen::Vector3d>& world, const Eigen::Matrix3d& r, const Eigen::Vector3d& t) {
+  std::ostringstream os;
+  os << std::setprecision(17);
+  os << 1 << "\n" << world.size() + 1 << "\n" << t.x() << " " << t.y() << " " << t.z() << "\n";
+  for (int a = 0; a < 3; ++a) os << r(0, a) << " " << r(1, a) << " " << r(2, a) << "\n";
+  for (int a = 0; a < 3; ++a) os << r(0, a) << " " << r(1, a) << " " << r(2, a) << " 0\n";
+  os << t.x() << " " << t.y() << " " << t.z() << " 1\n";
+  os << "0 0 0 0.5 0 0 0\n";
+  for (std::size_t i = 0; i < world.size(); ++i) {
+    const Eigen::Vector3d l = r.transpose() * (world[i] - t);
+    os << l.x() << " " << l.y() << " " << l.z() << " 0." << i + 1 << " " << 10 * i << " " << 20 << " " << 30 << "\n";
+  }
+  return os.str();
+}
+
+TEST(PtxReader, TwoScansWithKnownPosesMergeIntoTheCommonFrame) {
+  const std::vector<Eigen::Vector3d> world = {{1.0, 2.0, 3.0}, {-4.5, 0.25, 7.0}, {100.0, -50.0, 0.125}, {0.0, 0.0, 1.0}};
+  const Eigen::Matrix3d ra = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix();
+  const Eigen::Matrix3d rb = Eigen::AngleAxisd(-2.1, Eigen::Vector3d(0, -1, 0.3).normalized()).toRotationMatrix();
+  const std::string text = ptx_scan(world, ra, {10, -5, 2}) + ptx_scan(world, rb, {-300, 40, 12.5}) +
+                           ptx_scan(world, Eigen::Matrix3d::Identity(), Eigen::Vector3d::Zero());
+  const fs::path f = hc::test::temp_dir("ptx2") / "two.ptx";
+  write_bytes(f, text);
+  const auto r = hp::load_cloud(f);
+  ASSERT_EQ(r.value.size(), 3 * world.size());
+  for (std::size_t s = 0; s < 3; ++s) {
+    for (std::size_t i = 0; i < world.size(); ++i) {
+      const auto j = static_cast<Eigen::Index>(s * world.size() + i);
+      EXPECT_NEAR((r.value.xyz.col(j) - world[i]).norm(), 0.0, 1e-9) << "scan " << s << " point " << i;
+      EXPECT_EQ(r.value.row[static_cast<std::size_t>(j)], static_cast<int>(i + 1));
+      EXPECT_EQ(r.value.rgb[3 * static_cast<std::size_t>(j)], 10 * i);
+    }
+  }
+  EXPECT_TRUE(has_note(r.report, "3 scan(s), 3 no-return points"));
+}
+
+TEST(PtxReader, RowCountThatDoesNotMatchIsAnError) {
+  const fs::path dir = hc::test::temp_dir("ptxbad");
+  const std::string header = "2\n3\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";
+  std::string pts;
+  for (int i = 0; i < 7; ++i) pts += std::to_string(i + 1) + " 2 3 0.5\n";
+  // Too few: 5 point lines for 3 rows x 2 columns.
+  write_bytes(dir / "few.ptx", header + pts.substr(0, pts.size() / 7 * 5));
+  std::string msg = error_of([&] { hp::load_cloud(dir / "few.ptx"); });
+  EXPECT_NE(msg.find("few.ptx' scan 1 (header at line 1) declares 3 rows x 2 columns = 6 points, but the file ends "
+                     "after 5 point lines (line 15)"),
+            std::string::npos)
+      << msg;
+  // Too many: the 7th point line stands where the next scan's column count should be.
+  write_bytes(dir / "many.ptx", header + pts);
+  msg = error_of([&] { hp::load_cloud(dir / "many.ptx"); });
+  EXPECT_NE(msg.find("many.ptx' line 17: scan 2: expected the column count"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("more point lines than scan 1's rows"), std::string::npos) << msg;
+  // A second scan cut short.
+  write_bytes(dir / "second.ptx", header + pts.substr(0, pts.size() / 7 * 6) + header + pts.substr(0, pts.size() / 7 * 2));
+  msg = error_of([&] { hp::load_cloud(dir / "second.ptx"); });
+  EXPECT_NE(msg.find("scan 2 (header at line 17) declares 3 rows x 2 columns = 6 points, but the file ends after 2"),
+            std::string::npos)
+      << msg;
+  // A header line that is not numbers.
+  write_bytes(dir / "hdr.ptx", "2\n3\n0 0 0\n1 0 0\nzero 1 0\n");
+  msg = error_of([&] { hp::load_cloud(dir / "hdr.ptx"); });
+  EXPECT_NE(msg.find("line 5: scan 1: expected scanner axis Y"), std::string::npos) << msg;
+}
+
+// ---------------------------------------------------------------------------------------------
+// PTS
+
+std::vector<TextPoint> pts_oracle(const std::string& text, std::size_t& stated) {
+  std::istringstream in(text);
+  std::string line;
+  std::getline(in, line);
+  stated = std::stoul(line);
+  std::vector<TextPoint> out;
+  while (std::getline(in, line)) {
+    std::istringstream ls(line);
+    std::vector<double> v;
+    for (double x; ls >> x;) v.push_back(x);
+    if (v.empty()) continue;
+    TextPoint t;
+    t.p = {v[0], v[1], v[2]};
+    if (v.size() == 4 || v.size() == 7) t.intensity = v[3];
+    if (v.size() >= 6) {
+      for (int k = 0; k < 3; ++k) t.rgb[k] = static_cast<int>(v[v.size() - 3 + static_cast<std::size_t>(k)]);
+    }
+    out.push_back(t);
+  }
+  return out;
+}
+
+TEST(PtsReader, SharedSamplesMatchAnIndependentParse) {
+  struct S {
+    const char* file;
+    std::size_t points;
+    bool intensity;
+  };
+  for (const S s : {S{"pdal-site_56_8.pts", 8, true}, S{"pdal-test.pts", 19, true}}) {
+    SCOPED_TRACE(s.file);
+    const fs::path path = hc::test::scan_path(std::string("scanner_samples/pts/") + s.file);
+    std::size_t stated = 0;
+    const auto want = pts_oracle(read_bytes(path), stated);
+    ASSERT_EQ(stated, s.points);
+    ASSERT_EQ(want.size(), s.points);
+    const auto r = hp::load_cloud(path);
+    const hp::Cloud& c = r.value;
+    ASSERT_EQ(c.size(), want.size());
+    EXPECT_EQ(c.has_intensity(), s.intensity);
+    EXPECT_FALSE(c.has_grid_index());
+    for (std::size_t i = 0; i < want.size(); ++i) {
+      const auto j = static_cast<Eigen::Index>(i);
+      for (int a = 0; a < 3; ++a) EXPECT_DOUBLE_EQ(c.xyz(a, j), want[i].p[a]) << "point " << i;
+      if (s.intensity) {
+        EXPECT_EQ(c.intensity[i], static_cast<float>(want[i].intensity));
+      }
+      if (want[i].rgb[0] >= 0) {
+        ASSERT_TRUE(c.has_rgb());
+        for (int k = 0; k < 3; ++k) EXPECT_EQ(c.rgb[3 * i + static_cast<std::size_t>(k)], want[i].rgb[k]);
+      }
+    }
+    EXPECT_EQ(has_note(r.report, "Leica's integer range -2048..2047"), s.intensity);
+  }
+}
+
+// The shared bunny_8.pts is itself a lying file: its count line says 8 and 9 point lines follow
+// (the oracle counts them). It is refused, naming both numbers, rather than read in part.
+TEST(PtsReader, SharedBunnySampleHasACountLineThatLies) {
+  const fs::path path = hc::test::scan_path("scanner_samples/pts/pdal-bunny_8.pts");
+  std::size_t stated = 0;
+  const auto lines = pts_oracle(read_bytes(path), stated);
+  ASSERT_EQ(stated, 8u);
+  ASSERT_EQ(lines.size(), 9u);
+  const std::string msg = error_of([&] { hp::load_cloud(path); });
+  EXPECT_NE(msg.find("pdal-bunny_8.pts' line 1: the count line says 8 points but 9 point lines follow it"),
+            std::string::npos)
+      << msg;
+}
+
+TEST(PtsReader, CountLineThatLiesIsAnError) {
+  const fs::path dir = hc::test::temp_dir("ptsbad");
+  std::string body;
+  for (int i = 0; i < 9; ++i) body += std::to_string(i) + ".5 1 2 -100 1 2 3\n";
+  const std::size_t line_len = body.size() / 9;
+  write_bytes(dir / "fewer.pts", "8\n" + body.substr(0, 7 * line_len));
+  std::string msg = error_of([&] { hp::load_cloud(dir / "fewer.pts"); });
+  EXPECT_NE(msg.find("fewer.pts' line 1: the count line says 8 points but 7 point lines follow it"), std::string::npos)
+      << msg;
+  write_bytes(dir / "more.pts", "8\n" + body);
+  msg = error_of([&] { hp::load_cloud(dir / "more.pts"); });
+  EXPECT_NE(msg.find("the count line says 8 points but 9 point lines follow it"), std::string::npos) << msg;
+  // Two blocks, the first one short.
+  write_bytes(dir / "blocks.pts", "3\n" + body.substr(0, 2 * line_len) + "2\n" + body.substr(0, 2 * line_len));
+  msg = error_of([&] { hp::load_cloud(dir / "blocks.pts"); });
+  EXPECT_NE(msg.find("the count line says 3 points but 2 point lines follow it (up to line 3)"), std::string::npos)
+      << msg;
+  // Two honest blocks are read whole.
+  write_bytes(dir / "ok.pts", "2\n" + body.substr(0, 2 * line_len) + "3\n" + body.substr(0, 3 * line_len));
+  EXPECT_EQ(hp::load_cloud(dir / "ok.pts").value.size(), 5u);
+  write_bytes(dir / "nocount.pts", body);
+  EXPECT_NE(error_of([&] { hp::load_cloud(dir / "nocount.pts"); }).find("expected the point count line first"),
+            std::string::npos);
+}
+
 }  // namespace
