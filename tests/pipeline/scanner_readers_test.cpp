@@ -6,6 +6,7 @@
 #include "hc/common/error.hpp"
 #include "hc/common/units.hpp"
 #include "hc/pipeline/config.hpp"
+#include "hc/pipeline/run.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "test_paths.hpp"
 
@@ -739,6 +740,34 @@ TEST(PtsReader, CountLineThatLiesIsAnError) {
   write_bytes(dir / "nocount.pts", body);
   EXPECT_NE(error_of([&] { hp::load_cloud(dir / "nocount.pts"); }).find("expected the point count line first"),
             std::string::npos);
+}
+
+// ---------------------------------------------------------------------------------------------
+// End to end: configs/las_sample.yaml (pdal-simple.las, feet) through every stage of `run`.
+
+TEST(LasEndToEnd, SampleConfigGivesAValidGridInMetres) {
+  const fs::path config_path = fs::path(HC_SOURCE_DIR) / "configs" / "las_sample.yaml";
+  const hp::RunConfig config = hp::load_run_config(config_path);
+  EXPECT_EQ(config.input.units, "ft");
+  const std::string b = read_bytes(hc::test::scan_path("scanner_samples/las/pdal-simple.las"));
+  const LasHeader h = las_header(b);
+  const hp::BuiltScene built = hp::build_scene(config, /*keep_cloud=*/true);
+  const auto& g = built.summary.grid;
+  ASSERT_GT(g.rows, 0);
+  ASSERT_GT(g.cols, 0);
+  const double cells = static_cast<double>(g.rows) * g.cols;
+  EXPECT_GT(static_cast<double>(built.summary.valid_cells) / cells, 0.8);
+  // The grid spans the header's x-y extent converted from feet (0.3048 m), within two cells
+  // (the outlier filter may trim a few edge points).
+  const double x_m = (h.max[0] - h.min[0]) * 0.3048, y_m = (h.max[1] - h.min[1]) * 0.3048;
+  EXPECT_NEAR(g.cols * g.cell_size_m, x_m, 2 * g.cell_size_m);
+  EXPECT_NEAR(g.rows * g.cell_size_m, y_m, 2 * g.cell_size_m);
+  ASSERT_TRUE(built.cloud.has_value());
+  const Eigen::Vector3d extent = built.cloud->xyz.rowwise().maxCoeff() - built.cloud->xyz.rowwise().minCoeff();
+  EXPECT_NEAR(extent.z(), (h.max[2] - h.min[2]) * 0.3048, 0.5 * (h.max[2] - h.min[2]) * 0.3048);
+  const auto& ingest = built.summary.stages.front();
+  EXPECT_TRUE(has_note(ingest, "LAS 1.2, point data format 3"));
+  EXPECT_EQ(ingest.count_out, h.count);
 }
 
 }  // namespace
