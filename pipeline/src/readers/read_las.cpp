@@ -290,11 +290,15 @@ ReadResult read_las(const ScanSource& source) {
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(n));
   cloud.intensity.resize(n);
-  std::vector<std::uint16_t> rgb16(rgb_at ? 3 * n : 0);
+  cloud.rgb.resize(rgb_at ? 3 * n : 0);
+  std::uint8_t* out_rgb = cloud.rgb.data();
   std::array<std::uint64_t, 256> dropped{};
   std::uint16_t rgb_max = 0;
   std::size_t k = 0;
   double* xyz = cloud.xyz.data();
+  float* out_intensity = cloud.intensity.data();
+  // Locals, so the compiler keeps them in registers (stores through xyz could alias the arrays).
+  const double sx = scale[0], sy = scale[1], sz = scale[2], ox = shift[0], oy = shift[1], oz = shift[2];
   const char* p = b + offset;
   for (std::size_t i = 0; i < n; ++i, p += record_length) {
     const unsigned cls = static_cast<unsigned char>(p[class_at]) & class_mask;
@@ -302,21 +306,23 @@ ReadResult read_las(const ScanSource& source) {
       ++dropped[cls];
       continue;
     }
-    xyz[3 * k + 0] = get<std::int32_t>(p + 0) * scale[0] + shift[0];
-    xyz[3 * k + 1] = get<std::int32_t>(p + 4) * scale[1] + shift[1];
-    xyz[3 * k + 2] = get<std::int32_t>(p + 8) * scale[2] + shift[2];
-    cloud.intensity[k] = static_cast<float>(get<std::uint16_t>(p + 12));
+    xyz[3 * k + 0] = get<std::int32_t>(p + 0) * sx + ox;
+    xyz[3 * k + 1] = get<std::int32_t>(p + 4) * sy + oy;
+    xyz[3 * k + 2] = get<std::int32_t>(p + 8) * sz + oz;
+    out_intensity[k] = static_cast<float>(get<std::uint16_t>(p + 12));
     if (rgb_at) {
       for (std::size_t c = 0; c < 3; ++c) {
         const std::uint16_t v = get<std::uint16_t>(p + rgb_at + 2 * c);
-        rgb16[3 * k + c] = v;
+        out_rgb[3 * k + c] = static_cast<std::uint8_t>(v >> 8);  // high byte; see below for 8-bit data
         rgb_max = std::max(rgb_max, v);
       }
     }
     ++k;
   }
-  cloud.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
-  cloud.intensity.resize(k);
+  if (k < n) {  // points were dropped (conservativeResize reallocates: only when needed)
+    cloud.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
+    cloud.intensity.resize(k);
+  }
 
   notes.push_back("LAS " + version + ", point data format " + std::to_string(format) + " (" +
                   std::to_string(record_length) + "-byte records), " + std::to_string(n) + " point records; system '" +
@@ -348,10 +354,16 @@ ReadResult read_las(const ScanSource& source) {
   if (rgb_at) {
     cloud.rgb.resize(3 * k);
     if (rgb_max <= 255) {
-      for (std::size_t i = 0; i < 3 * k; ++i) cloud.rgb[i] = static_cast<std::uint8_t>(rgb16[i]);
+      // Every value fits 8 bits: a second pass takes the low bytes (the high ones are all 0).
+      std::size_t j = 0;
+      p = b + offset;
+      for (std::size_t i = 0; i < n; ++i, p += record_length) {
+        if (drop[static_cast<unsigned char>(p[class_at]) & class_mask]) continue;
+        for (std::size_t c = 0; c < 3; ++c) cloud.rgb[3 * j + c] = static_cast<std::uint8_t>(p[rgb_at + 2 * c]);
+        ++j;
+      }
       notes.push_back("RGB kept; every value is at most 255 (8-bit values stored in the 16-bit fields), used as is");
     } else {
-      for (std::size_t i = 0; i < 3 * k; ++i) cloud.rgb[i] = static_cast<std::uint8_t>(rgb16[i] >> 8);
       notes.push_back("RGB kept, 16-bit scaled to 8-bit (high byte)");
     }
   }
