@@ -553,7 +553,29 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   const std::filesystem::path base = origin.has_parent_path() ? origin.parent_path() : ".";
 
   // input
-  c.input.units = r.get_string("input.units", "m", {"m", "cm", "mm"});
+  c.input.units = r.get_string("input.units", "m", {"m", "cm", "mm", "ft", "us-ft", "in"});
+  if (r.has("input.las.drop_classes")) {  // a list of LAS classification codes, 0..255
+    const YAML::Node n = *r.find("input.las.drop_classes");
+    const std::string expected = ": expected a list of LAS classification codes, integers in [0, 255] (e.g. [7, 18])";
+    if (!n.IsSequence()) r.fail("input.las.drop_classes", "= " + scalar_text(n) + expected);
+    c.input.las_drop_classes.clear();
+    for (const auto& item : n) {
+      long long v = -1;
+      try {
+        if (!item.IsScalar()) throw YAML::Exception(YAML::Mark::null_mark(), "");
+        v = item.as<long long>();
+      } catch (const YAML::Exception&) {
+        r.fail("input.las.drop_classes", "has the element " + scalar_text(item) + expected);
+      }
+      if (v < 0 || v > 255) r.fail("input.las.drop_classes", "has the element " + std::to_string(v) + expected);
+      c.input.las_drop_classes.push_back(static_cast<int>(v));
+    }
+  }
+  {
+    YAML::Node seq(YAML::NodeType::Sequence);
+    for (int v : c.input.las_drop_classes) seq.push_back(v);
+    r.resolved_set_raw("input.las.drop_classes", seq);
+  }
   c.input.max_extent_m = r.get_double("input.max_extent_m", kDefaultMaxExtentM, 0.0, 1e9, true);
   for (const auto& f : r.get_string_list("input.files")) c.input.files.push_back(base / f);
   if (r.has("input.conf")) c.input.conf = base / r.get_string("input.conf", "");

@@ -42,6 +42,9 @@ constexpr Format kFormats[] = {
     {".xyz", detail::read_xyz},
     {".txt", detail::read_xyz},
     {".e57", detail::read_e57},
+    {".las", detail::read_las},
+    {".ptx", detail::read_ptx},
+    {".pts", detail::read_pts},
 };
 
 // ".ply, .pcd, .obj, .xyz or .txt"
@@ -147,7 +150,9 @@ std::string strip_gz(const std::string& file_name) {
 
 }  // namespace
 
-StageResult<Cloud> load_cloud(const std::filesystem::path& path) {
+StageResult<Cloud> load_cloud(const std::filesystem::path& path) { return load_cloud(path, LoadOptions{}); }
+
+StageResult<Cloud> load_cloud(const std::filesystem::path& path, const LoadOptions& options) {
   const auto t0 = Clock::now();
   StageReport report;
   report.stage = "load";
@@ -174,7 +179,7 @@ StageResult<Cloud> load_cloud(const std::filesystem::path& path) {
   }
 
   const auto tp = Clock::now();
-  detail::ReadResult read = format->read(detail::ScanSource{bytes, path, gz, name});
+  detail::ReadResult read = format->read(detail::ScanSource{bytes, path, gz, name, &options});
   Cloud& cloud = read.cloud;
   report.notes.insert(report.notes.end(), read.notes.begin(), read.notes.end());
   report.figure("parse_s", seconds_since(tp));
@@ -186,7 +191,7 @@ StageResult<Cloud> load_cloud(const std::filesystem::path& path) {
 }
 
 StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>& scans,
-                                        const std::filesystem::path& conf_path) {
+                                        const std::filesystem::path& conf_path, const LoadOptions& options) {
   const auto t0 = Clock::now();
   if (scans.empty()) throw InputError("load_and_merge_scans: no scan files given (conf " + quoted(conf_path) + ")");
   if (scans.size() > std::numeric_limits<std::uint16_t>::max()) {
@@ -222,7 +227,7 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
   auto worker = [&] {
     for (std::size_t i; (i = next.fetch_add(1)) < scans.size();) {
       try {
-        Cloud c = load_cloud(scans[i]).value;
+        Cloud c = load_cloud(scans[i], options).value;
         const Eigen::Affine3d m = matched[i]->scan_to_world();
         c.xyz = (m.linear() * c.xyz).colwise() + m.translation();
         parts[i] = std::move(c);

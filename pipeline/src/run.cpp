@@ -117,8 +117,9 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   // 1. Ingest.
   Cloud cloud = stage("ingest", reports, progress, [&] {
     if (config.input.synthetic) return StageResult<Cloud>{generate_surface(*config.input.synthetic), {}};
-    if (config.input.conf) return load_and_merge_scans(config.input.files, *config.input.conf);
-    return load_cloud(config.input.files.front());
+    const LoadOptions load_options{config.input.las_drop_classes};
+    if (config.input.conf) return load_and_merge_scans(config.input.files, *config.input.conf, load_options);
+    return load_cloud(config.input.files.front(), load_options);
   });
   if (reports.back().count_out == 0) reports.back().count_out = cloud.size();
   for (const auto& f : config.input.files) scene_inputs.push_back({f.string(), sha256_file(f)});

@@ -654,10 +654,10 @@ TEST(IngestBadInput, AbsurdDeclaredCountsAreTruncationNotAllocation) {
 
 TEST(IngestBadInput, UnknownExtension) {
   const fs::path dir = hc::test::temp_dir("ext");
-  write_text(dir / "scan.las", "1 2 3\n");
-  const std::string msg = error_of([&] { hp::load_cloud(dir / "scan.las"); });
-  EXPECT_NE(msg.find("scan.las"), std::string::npos) << msg;
-  EXPECT_NE(msg.find("unknown extension '.las'"), std::string::npos) << msg;
+  write_text(dir / "scan.rcp", "1 2 3\n");
+  const std::string msg = error_of([&] { hp::load_cloud(dir / "scan.rcp"); });
+  EXPECT_NE(msg.find("scan.rcp"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("unknown extension '.rcp'"), std::string::npos) << msg;
   write_text(dir / "noext", "1 2 3\n");
   EXPECT_NE(error_of([&] { hp::load_cloud(dir / "noext"); }).find("unknown extension"), std::string::npos);
 }

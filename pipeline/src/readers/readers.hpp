@@ -7,6 +7,9 @@
 ///   read_obj.cpp  OBJ `v x y z` lines
 ///   read_xyz.cpp  XYZ / TXT text, x y z per line
 ///   read_conf.cpp scanalyze .conf poses (read_scanalyze_conf of the public header)
+///   read_las.cpp  LAS 1.0–1.4, point data formats 0–10 (uncompressed)
+///   read_ptx.cpp  Leica PTX text, one or several scans, each moved by its 4×4 transform
+///   read_pts.cpp  Leica PTS text, point count line(s) then X Y Z [I] [R G B]
 /// load_cloud (ingest.cpp) reads the file once, inflates a trailing .gz once, and dispatches on
 /// the extension through its table kFormats: a new format is a new read_<format>.cpp defining
 /// a ReaderFn plus one line in that table.
@@ -19,7 +22,11 @@
 ///     was found and what was expected (line or record number where there is one); never a
 ///     warning plus an empty or partial cloud.
 ///
-/// Later readers (E57, LAS, LAZ, PTX, PTS). PTX and PTS are text and fit this interface as is.
+/// Options: a reader that has settings (LAS: the classes to drop) reads them from
+/// ScanSource::options, which load_cloud fills from its LoadOptions argument (run.cpp passes
+/// config.input's values); nullptr means LoadOptions' defaults.
+///
+/// Later readers (E57, LAZ). PTX and PTS are text and fit this interface as is.
 /// E57 and LAZ files can be larger than memory should hold twice; such a reader will be added
 /// with a second entry point that opens ScanSource::path itself and delivers the points in
 /// chunks, e.g. `using ChunkReaderFn = void (*)(const ScanSource&, const ChunkSink&)` with
@@ -28,6 +35,7 @@
 /// formats do not use) for it. Nothing in the existing readers needs to change for that.
 
 #include "hc/pipeline/cloud.hpp"
+#include "hc/pipeline/ingest.hpp"
 
 #include <filesystem>
 #include <string>
@@ -41,6 +49,8 @@ struct ScanSource {
   const std::filesystem::path& path;   ///< the file on disk (for readers that reopen it)
   bool inflated = false;               ///< true if `bytes` came from a .gz (not the file on disk)
   const std::string& display_name;     ///< the path, quoted, for messages
+  /// Format options from the config (input.las.*); nullptr = the defaults of LoadOptions.
+  const LoadOptions* options = nullptr;
 };
 
 /// What a reader returns: the points and notes for the load stage's report.
@@ -56,5 +66,8 @@ ReadResult read_pcd(const ScanSource& source);  ///< read_pcd.cpp
 ReadResult read_obj(const ScanSource& source);  ///< read_obj.cpp
 ReadResult read_xyz(const ScanSource& source);  ///< read_xyz.cpp
 ReadResult read_e57(const ScanSource& source);  ///< read_e57.cpp: ASTM E2807 E57, every data3D scan posed into the file frame and merged (metres; scan_id when > 1 scan; intensity [0,1], rgb 8 bit, row/col); InputError on bad CRC-32C page (its offset), truncation, bad XML, zero scans
+ReadResult read_las(const ScanSource& source);  ///< read_las.cpp (LAS 1.0–1.4, formats 0–10)
+ReadResult read_ptx(const ScanSource& source);  ///< read_ptx.cpp (Leica PTX, one or more scans)
+ReadResult read_pts(const ScanSource& source);  ///< read_pts.cpp (Leica PTS)
 
 }  // namespace hc::pipeline::detail

@@ -27,7 +27,8 @@ namespace hc::pipeline {
 struct InputConfig {
   std::vector<std::filesystem::path> files;     ///< scans, resolved against the config's folder
   std::optional<std::filesystem::path> conf;    ///< scanalyze .conf to merge several views
-  std::string units = "m";                      ///< "m" | "cm" | "mm"
+  std::string units = "m";                      ///< "m" | "cm" | "mm" | "ft" | "us-ft" | "in"
+  std::vector<int> las_drop_classes{7, 18};     ///< LAS classes dropped on reading (0..255)
   double max_extent_m = kDefaultMaxExtentM;     ///< largest accepted bounding-box side [m]
   std::optional<SyntheticSpec> synthetic;       ///< generate instead of reading files
 };

@@ -1,7 +1,7 @@
 #pragma once
 /// @file ingest.hpp
 /// Stage 1: reading scans (PLY ASCII/binary incl. Stanford range-grid PLYs and .ply.gz, PCD,
-/// OBJ vertices, XYZ text) and merging several views through a scanalyze .conf.
+/// OBJ vertices, XYZ text, LAS, PTX, PTS) and merging several views through a scanalyze .conf.
 
 #include "hc/pipeline/cloud.hpp"
 
@@ -12,6 +12,13 @@
 #include <vector>
 
 namespace hc::pipeline {
+
+/// Format-specific reading options (config keys input.las.*, docs/config.md).
+struct LoadOptions {
+  /// LAS classification codes whose points are dropped on reading (ASPRS: 7 low noise,
+  /// 18 high noise); the count per class goes into the stage report. Values 0..255.
+  std::vector<int> las_drop_classes{7, 18};
+};
 
 /// Reads every vertex of one scan file, in the file's own units and frame.
 /// Format by extension: .ply, .pcd, .obj (vertex lines only), .xyz/.txt (whitespace-separated
@@ -29,6 +36,17 @@ namespace hc::pipeline {
 ///         type; the message names the property), is not valid gzip, or has an unknown extension.
 /// Real-time: no. Thread-safe: yes. Source: PLY format (Turk, 1994); PCD v0.5/v0.7 (PCL).
 StageResult<Cloud> load_cloud(const std::filesystem::path& path);
+
+/// As above, with format options. Also reads .las (LAS 1.0–1.4, point data formats 0–10:
+/// scaled X Y Z in double, intensity, RGB as 8 bit, classes in options.las_drop_classes
+/// dropped, CRS in the notes), .ptx (Leica PTX: every scan moved into the common frame by its
+/// 4×4 transform, no-return points 0 0 0 skipped, intensity, RGB, row/column kept) and .pts
+/// (Leica PTS: count line, X Y Z [intensity] [R G B]).
+/// @throws hc::InputError as above, and for a LAS header whose counts exceed the file, an
+///         unknown point format or a record shorter than its format; a PTX scan whose lines do
+///         not match its rows × columns; a PTS count line that disagrees with the points.
+/// Sources: ASPRS LAS 1.4 R15; Leica PTX/PTS conventions (Cyclone export formats).
+StageResult<Cloud> load_cloud(const std::filesystem::path& path, const LoadOptions& options);
 
 /// One `bmesh` line of a scanalyze .conf: file name, translation t and unit quaternion q.
 struct ScanPose {
@@ -50,6 +68,7 @@ std::vector<ScanPose> read_scanalyze_conf(const std::filesystem::path& conf_path
 /// file name, ignoring a trailing .gz) and concatenates them; scan_id is the index in `scans`.
 /// @throws hc::InputError if a scan has no pose in the .conf (names both files).
 StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>& scans,
-                                        const std::filesystem::path& conf_path);
+                                        const std::filesystem::path& conf_path,
+                                        const LoadOptions& options = {});
 
 }  // namespace hc::pipeline

@@ -1,0 +1,406 @@
+// LAS reader: ASPRS LAS 1.0–1.4 (LAS Specification 1.4 R15, with the 1.0–1.3 header layouts),
+// uncompressed point data formats 0–10. Written from the specification (clean room).
+//
+// Public header block (little-endian; offsets in bytes, spec R15 table 3):
+//   0 "LASF" · 24 version major, 25 minor · 26 system identifier char[32] · 58 generating
+//   software char[32] · 94 header size u16 · 96 offset to point data u32 · 100 number of VLRs
+//   u32 · 104 point data format u8 · 105 point record length u16 · 107 legacy point count u32 ·
+//   131 x/y/z scale f64 · 155 x/y/z offset f64 · 179 max x, min x, max y, min y, max z, min z f64.
+//   1.3 adds 227 start of waveform data u64 (header 235 bytes); 1.4 adds 235 start of first
+//   EVLR u64, 243 number of EVLRs u32, 247 point count u64, 255 points by return u64[15]
+//   (header 375 bytes).
+// VLR header: 54 bytes (reserved u16, user id char[16], record id u16, length after header u16,
+// description char[32]); EVLR header: 60 bytes (the length is u64).
+// Point records (spec R15 tables 7–17): X Y Z int32 at 0, 4, 8 (x = X·scale + offset, in
+// double); intensity u16 at 12; classification: formats 0–5 the low 5 bits of byte 15, formats
+// 6–10 the byte at 16; RGB u16 ×3 at 20 (format 2), 28 (3, 5), 30 (7, 8, 10). Base record
+// sizes 20, 28, 26, 34, 57, 63, 30, 36, 38, 59, 67 bytes; a longer record carries extra bytes
+// (skipped here).
+// CRS: VLR user id "LASF_Projection", record 2112 (OGC WKT) or the GeoTIFF keys 34735
+// (GeoKeyDirectoryTag, u16), 34736 (GeoDoubleParamsTag, f64), 34737 (GeoAsciiParamsTag).
+
+#include "readers.hpp"
+#include "text_parse.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <array>
+#include <bit>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <sstream>
+
+namespace hc::pipeline::detail {
+
+namespace {
+
+static_assert(std::endian::native == std::endian::little, "the LAS reader assumes a little-endian host");
+
+template <class T>
+T get(const char* p) {
+  T v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+
+constexpr std::array<std::uint16_t, 11> kBaseRecordLength = {20, 28, 26, 34, 57, 63, 30, 36, 38, 59, 67};
+constexpr std::size_t kVlrHeader = 54;
+constexpr std::size_t kEvlrHeader = 60;
+
+/// Byte offset of R, G, B in a record of `format`, or 0 if the format has no colour.
+std::size_t rgb_offset(int format) {
+  switch (format) {
+    case 2: return 20;
+    case 3: case 5: return 28;
+    case 7: case 8: case 10: return 30;
+    default: return 0;
+  }
+}
+
+std::string fixed_text(const char* p, std::size_t n) {
+  std::size_t len = 0;
+  while (len < n && p[len] != '\0') ++len;
+  std::string s(p, len);
+  while (!s.empty() && (s.back() == ' ' || s.back() == '\t')) s.pop_back();
+  return s;
+}
+
+std::string fmt_g(double v) {
+  std::ostringstream os;
+  os.precision(12);
+  os << v;
+  return os.str();
+}
+
+/// One (E)VLR found in the file.
+struct Vlr {
+  std::string user_id;
+  std::uint16_t record_id = 0;
+  const char* data = nullptr;
+  std::size_t length = 0;
+};
+
+std::string geokey_name(std::uint16_t id) {
+  switch (id) {
+    case 1024: return "GTModelTypeGeoKey";
+    case 1025: return "GTRasterTypeGeoKey";
+    case 1026: return "GTCitationGeoKey";
+    case 2048: return "GeographicTypeGeoKey";
+    case 2049: return "GeogCitationGeoKey";
+    case 2050: return "GeogGeodeticDatumGeoKey";
+    case 2054: return "GeogAngularUnitsGeoKey";
+    case 3072: return "ProjectedCSTypeGeoKey";
+    case 3073: return "PCSCitationGeoKey";
+    case 3076: return "ProjLinearUnitsGeoKey";
+    case 4096: return "VerticalCSTypeGeoKey";
+    case 4097: return "VerticalCitationGeoKey";
+    case 4098: return "VerticalDatumGeoKey";
+    case 4099: return "VerticalUnitsGeoKey";
+    default: return "GeoKey" + std::to_string(id);
+  }
+}
+
+std::string linear_unit_name(unsigned code) {
+  switch (code) {
+    case 9001: return "metre";
+    case 9002: return "foot";
+    case 9003: return "US survey foot";
+    default: return {};
+  }
+}
+
+/// GeoTIFF keys (34735, with 34736 doubles and 34737 ASCII) as one line of text.
+std::string summarise_geokeys(const Vlr& dir, const Vlr* doubles, const Vlr* ascii) {
+  const std::size_t n_u16 = dir.length / 2;
+  if (n_u16 < 4) return "GeoTIFF key directory (VLR 34735) too short (" + std::to_string(dir.length) + " bytes)";
+  const auto u16 = [&](std::size_t i) { return get<std::uint16_t>(dir.data + 2 * i); };
+  const std::size_t n_keys = u16(3);
+  std::string out;
+  for (std::size_t k = 0; k < n_keys && 4 + 4 * k + 3 < n_u16; ++k) {
+    const std::uint16_t id = u16(4 + 4 * k), loc = u16(5 + 4 * k), count = u16(6 + 4 * k), value = u16(7 + 4 * k);
+    std::string text;
+    if (loc == 0) {
+      text = std::to_string(value);
+      const std::string unit = (id == 3076 || id == 4099 || id == 2052) ? linear_unit_name(value) : std::string();
+      if (!unit.empty()) text += " (" + unit + ")";
+    } else if (loc == 34736 && doubles && (static_cast<std::size_t>(value) + count) * 8 <= doubles->length) {
+      for (std::size_t j = 0; j < count; ++j) {
+        if (j) text += ',';
+        text += fmt_g(get<double>(doubles->data + 8 * (value + j)));
+      }
+    } else if (loc == 34737 && ascii && static_cast<std::size_t>(value) + count <= ascii->length) {
+      std::string s(ascii->data + value, count);
+      while (!s.empty() && (s.back() == '|' || s.back() == '\0')) s.pop_back();
+      text.assign(1, '\'');  // built by appending: GCC 12 -O3 flags "'" + str (-Wrestrict)
+      text += s;
+      text += '\'';
+    } else {
+      text = "(tag " + std::to_string(loc) + " not found)";
+    }
+    if (!out.empty()) out += "; ";
+    out += geokey_name(id);
+    out += '=';
+    out += text;
+  }
+  return out;
+}
+
+/// The last UNIT["name", factor] of a WKT string (the projected CRS's linear unit in WKT1), or "".
+std::string wkt_last_unit(const std::string& wkt) {
+  const std::size_t at = wkt.rfind("UNIT[");
+  if (at == std::string::npos) return {};
+  const std::size_t close = wkt.find(']', at);
+  std::string unit = wkt.substr(at + 5, close == std::string::npos ? std::string::npos : close - at - 5);
+  return unit;
+}
+
+}  // namespace
+
+ReadResult read_las(const ScanSource& source) {
+  const std::string& bytes = source.bytes;
+  const std::string& name = source.display_name;
+  const std::size_t size = bytes.size();
+  const char* const b = bytes.data();
+  const auto fail = [&](const std::string& what) -> void { throw InputError("load_cloud: " + name + " " + what); };
+
+  if (size < 227) {
+    fail("is " + std::to_string(size) + " bytes long: too short for a LAS public header (at least 227 bytes)");
+  }
+  if (std::memcmp(b, "LASF", 4) != 0) {
+    fail("does not start with the LAS signature 'LASF' (found '" + fixed_text(b, 4) + "'): expected a LAS file");
+  }
+  const int major = static_cast<unsigned char>(b[24]);
+  const int minor = static_cast<unsigned char>(b[25]);
+  const std::string version = std::to_string(major) + "." + std::to_string(minor);
+  if (major != 1 || minor > 4) fail("has LAS version " + version + ": expected 1.0 to 1.4");
+  const std::size_t min_header = minor <= 2 ? 227 : minor == 3 ? 235 : 375;
+  const std::size_t header_size = get<std::uint16_t>(b + 94);
+  if (header_size < min_header) {
+    fail("declares a header size of " + std::to_string(header_size) + " bytes: LAS " + version + " needs at least " +
+         std::to_string(min_header));
+  }
+  if (header_size > size) {
+    fail("declares a header size of " + std::to_string(header_size) + " bytes but the file holds " +
+         std::to_string(size) + " bytes");
+  }
+  const std::size_t offset = get<std::uint32_t>(b + 96);
+  const std::size_t n_vlr = get<std::uint32_t>(b + 100);
+  const int format_byte = static_cast<unsigned char>(b[104]);
+  const std::size_t record_length = get<std::uint16_t>(b + 105);
+  if (format_byte & 0xC0) {
+    fail("has point data format byte " + std::to_string(format_byte) + " (compression bit set): compressed LAZ data; "
+         "expected uncompressed LAS point data (format 0 to 10)");
+  }
+  const int format = format_byte;
+  if (format > 10) fail("has point data format " + std::to_string(format) + ": expected 0 to 10 (LAS 1.4 R15)");
+  const std::size_t base = kBaseRecordLength[static_cast<std::size_t>(format)];
+  if (record_length < base) {
+    fail("declares point records of " + std::to_string(record_length) + " bytes: point data format " +
+         std::to_string(format) + " needs at least " + std::to_string(base));
+  }
+  const std::uint64_t legacy_count = get<std::uint32_t>(b + 107);
+  std::uint64_t count = legacy_count;
+  std::vector<std::string> notes;
+  if (minor >= 4) {
+    const std::uint64_t count64 = get<std::uint64_t>(b + 247);
+    if (count64 == 0 && legacy_count != 0) {
+      notes.push_back("LAS 1.4 header: the 64-bit point count is 0, the legacy count " + std::to_string(legacy_count) +
+                      " is used");
+    } else {
+      if (legacy_count != 0 && legacy_count != count64) {
+        fail("has a legacy point count of " + std::to_string(legacy_count) + " and a 64-bit point count of " +
+             std::to_string(count64) + ": expected equal counts (or a legacy count of 0)");
+      }
+      count = count64;
+    }
+  }
+  if (offset < header_size || offset > size) {
+    fail("declares its point data at byte " + std::to_string(offset) + ": expected an offset between the header size " +
+         std::to_string(header_size) + " and the file size " + std::to_string(size));
+  }
+  const std::uint64_t room = (size - offset) / record_length;
+  if (count > room) {
+    fail("declares " + std::to_string(count) + " point records of " + std::to_string(record_length) +
+         " bytes from byte " + std::to_string(offset) + ", but the file (" + std::to_string(size) +
+         " bytes) holds room for only " + std::to_string(room) + ": truncated file or wrong header counts");
+  }
+  if (count == 0) fail("declares 0 point records: expected at least one point");
+
+  double scale[3], shift[3];
+  for (int a = 0; a < 3; ++a) {
+    scale[a] = get<double>(b + 131 + 8 * a);
+    shift[a] = get<double>(b + 155 + 8 * a);
+    if (!std::isfinite(scale[a]) || scale[a] == 0.0 || !std::isfinite(shift[a])) {
+      fail(std::string("has ") + "xyz"[a] + " scale " + fmt_g(scale[a]) + " and offset " + fmt_g(shift[a]) +
+           ": expected a finite, non-zero scale and a finite offset");
+    }
+  }
+
+  // Variable-length records between the header and the point data; EVLRs (1.4) after it.
+  std::vector<Vlr> vlrs;
+  std::size_t at = header_size;
+  for (std::size_t i = 0; i < n_vlr; ++i) {
+    if (at + kVlrHeader > offset) {
+      fail("declares " + std::to_string(n_vlr) + " VLRs but VLR " + std::to_string(i) + " at byte " +
+           std::to_string(at) + " runs past the start of the point data (byte " + std::to_string(offset) + ")");
+    }
+    Vlr v{fixed_text(b + at + 2, 16), get<std::uint16_t>(b + at + 18), b + at + kVlrHeader, get<std::uint16_t>(b + at + 20)};
+    if (at + kVlrHeader + v.length > offset) {
+      fail("has VLR " + std::to_string(i) + " ('" + v.user_id + "' " + std::to_string(v.record_id) + ") of " +
+           std::to_string(v.length) + " bytes at byte " + std::to_string(at) +
+           ", running past the start of the point data (byte " + std::to_string(offset) + ")");
+    }
+    at += kVlrHeader + v.length;
+    vlrs.push_back(std::move(v));
+  }
+  if (minor >= 4) {
+    const std::uint64_t evlr_start = get<std::uint64_t>(b + 235);
+    const std::uint64_t n_evlr = get<std::uint32_t>(b + 243);
+    std::uint64_t e = evlr_start;
+    for (std::uint64_t i = 0; i < n_evlr; ++i) {
+      if (e < offset || e > size || size - e < kEvlrHeader) {
+        fail("declares " + std::to_string(n_evlr) + " EVLRs from byte " + std::to_string(evlr_start) + " but EVLR " +
+             std::to_string(i) + " at byte " + std::to_string(e) + " lies outside the file (" + std::to_string(size) +
+             " bytes)");
+      }
+      const std::uint64_t len = get<std::uint64_t>(b + e + 20);
+      if (len > size - e - kEvlrHeader) {
+        fail("has EVLR " + std::to_string(i) + " of " + std::to_string(len) + " bytes at byte " + std::to_string(e) +
+             ", running past the end of the file (" + std::to_string(size) + " bytes)");
+      }
+      vlrs.push_back({fixed_text(b + e + 2, 16), get<std::uint16_t>(b + e + 18), b + e + kEvlrHeader,
+                      static_cast<std::size_t>(len)});
+      e += kEvlrHeader + len;
+    }
+  }
+
+  // Drop table (classification codes 0..255).
+  std::array<bool, 256> drop{};
+  const std::vector<int> drop_classes = source.options ? source.options->las_drop_classes : LoadOptions{}.las_drop_classes;
+  for (int c : drop_classes) {
+    if (c >= 0 && c <= 255) drop[static_cast<std::size_t>(c)] = true;
+  }
+
+  // Points.
+  const std::size_t n = static_cast<std::size_t>(count);
+  const std::size_t class_at = format <= 5 ? 15 : 16;
+  const unsigned class_mask = format <= 5 ? 0x1Fu : 0xFFu;
+  const std::size_t rgb_at = rgb_offset(format);
+  Cloud cloud;
+  cloud.xyz.resize(3, static_cast<Eigen::Index>(n));
+  cloud.intensity.resize(n);
+  cloud.rgb.resize(rgb_at ? 3 * n : 0);
+  std::uint8_t* out_rgb = cloud.rgb.data();
+  std::array<std::uint64_t, 256> dropped{};
+  std::uint16_t rgb_max = 0;
+  std::size_t k = 0;
+  double* xyz = cloud.xyz.data();
+  float* out_intensity = cloud.intensity.data();
+  // Locals, so the compiler keeps them in registers (stores through xyz could alias the arrays).
+  const double sx = scale[0], sy = scale[1], sz = scale[2], ox = shift[0], oy = shift[1], oz = shift[2];
+  const char* p = b + offset;
+  for (std::size_t i = 0; i < n; ++i, p += record_length) {
+    const unsigned cls = static_cast<unsigned char>(p[class_at]) & class_mask;
+    if (drop[cls]) {
+      ++dropped[cls];
+      continue;
+    }
+    xyz[3 * k + 0] = get<std::int32_t>(p + 0) * sx + ox;
+    xyz[3 * k + 1] = get<std::int32_t>(p + 4) * sy + oy;
+    xyz[3 * k + 2] = get<std::int32_t>(p + 8) * sz + oz;
+    out_intensity[k] = static_cast<float>(get<std::uint16_t>(p + 12));
+    if (rgb_at) {
+      for (std::size_t c = 0; c < 3; ++c) {
+        const std::uint16_t v = get<std::uint16_t>(p + rgb_at + 2 * c);
+        out_rgb[3 * k + c] = static_cast<std::uint8_t>(v >> 8);  // high byte; see below for 8-bit data
+        rgb_max = std::max(rgb_max, v);
+      }
+    }
+    ++k;
+  }
+  if (k < n) {  // points were dropped (conservativeResize reallocates: only when needed)
+    cloud.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
+    cloud.intensity.resize(k);
+  }
+
+  notes.push_back("LAS " + version + ", point data format " + std::to_string(format) + " (" +
+                  std::to_string(record_length) + "-byte records), " + std::to_string(n) + " point records; system '" +
+                  fixed_text(b + 26, 32) + "', software '" + fixed_text(b + 58, 32) + "'");
+  notes.push_back("scale " + fmt_g(scale[0]) + " " + fmt_g(scale[1]) + " " + fmt_g(scale[2]) + ", offset " +
+                  fmt_g(shift[0]) + " " + fmt_g(shift[1]) + " " + fmt_g(shift[2]) + " (file units)");
+  if (record_length > base) {
+    notes.push_back(std::to_string(record_length - base) + " extra bytes per record (beyond format " +
+                    std::to_string(format) + "'s " + std::to_string(base) + ") skipped");
+  }
+  std::uint64_t n_dropped = 0;
+  std::string dropped_text;
+  for (std::size_t c = 0; c < 256; ++c) {
+    if (dropped[c] == 0) continue;
+    n_dropped += dropped[c];
+    dropped_text += (dropped_text.empty() ? "" : ", ") + std::string("class ") + std::to_string(c) + ": " +
+                    std::to_string(dropped[c]);
+  }
+  {
+    std::string list;
+    for (int c : drop_classes) list += (list.empty() ? "" : ", ") + std::to_string(c);
+    notes.push_back("dropped " + std::to_string(n_dropped) + " points by classification (input.las.drop_classes = [" +
+                    list + "]" + (dropped_text.empty() ? "" : "; " + dropped_text) + ")");
+  }
+  if (k == 0) {
+    fail("holds " + std::to_string(n) + " points, all of a classification in input.las.drop_classes: expected "
+         "at least one point to keep");
+  }
+  if (rgb_at) {
+    cloud.rgb.resize(3 * k);
+    if (rgb_max <= 255) {
+      // Every value fits 8 bits: a second pass takes the low bytes (the high ones are all 0).
+      std::size_t j = 0;
+      p = b + offset;
+      for (std::size_t i = 0; i < n; ++i, p += record_length) {
+        if (drop[static_cast<unsigned char>(p[class_at]) & class_mask]) continue;
+        for (std::size_t c = 0; c < 3; ++c) cloud.rgb[3 * j + c] = static_cast<std::uint8_t>(p[rgb_at + 2 * c]);
+        ++j;
+      }
+      notes.push_back("RGB kept; every value is at most 255 (8-bit values stored in the 16-bit fields), used as is");
+    } else {
+      notes.push_back("RGB kept, 16-bit scaled to 8-bit (high byte)");
+    }
+  }
+  notes.push_back("intensity kept (raw 0..65535)");
+
+  // CRS.
+  const Vlr* wkt = nullptr;
+  const Vlr* keys = nullptr;
+  const Vlr* key_doubles = nullptr;
+  const Vlr* key_ascii = nullptr;
+  std::string others;
+  for (const Vlr& v : vlrs) {
+    if (v.user_id == "LASF_Projection") {
+      if (v.record_id == 2112 && !wkt) wkt = &v;
+      else if (v.record_id == 34735) keys = &v;
+      else if (v.record_id == 34736) key_doubles = &v;
+      else if (v.record_id == 34737) key_ascii = &v;
+      continue;
+    }
+    others += (others.empty() ? "" : ", ") + ("'" + v.user_id + "' " + std::to_string(v.record_id));
+  }
+  if (wkt) {
+    std::string text(wkt->data, wkt->length);
+    while (!text.empty() && text.back() == '\0') text.pop_back();
+    std::string note = "CRS (OGC WKT, VLR 2112): " + text;
+    const std::string unit = wkt_last_unit(text);
+    if (!unit.empty()) note += " [last UNIT in the WKT: " + unit + "; check input.units]";
+    notes.push_back(note);
+  } else if (keys) {
+    notes.push_back("CRS (GeoTIFF keys, VLR 34735): " + summarise_geokeys(*keys, key_doubles, key_ascii) +
+                    " [check input.units against the linear unit]");
+  } else {
+    notes.push_back("no CRS record (no LASF_Projection VLR 2112 or 34735): set input.units from the data's source");
+  }
+  notes.push_back("the CRS is carried in this report only; the scene provenance does not hold it yet");
+  if (!others.empty()) notes.push_back("other VLRs ignored: " + others);
+  return {std::move(cloud), std::move(notes)};
+}
+
+}  // namespace hc::pipeline::detail
