@@ -12,6 +12,7 @@
 #include <map>
 #include <set>
 #include <sstream>
+#include <utility>
 
 namespace hc::pipeline {
 namespace {
@@ -211,12 +212,12 @@ class Reader {
       YAML::Node parent = root_;
       bool reachable = true;
       for (std::size_t i = 0; i + 1 < parts.size() && reachable; ++i) {
-        const YAML::Node child = parent[parts[i]];
+        const YAML::Node child = std::as_const(parent)[parts[i]];  // const: looks up, never inserts
         reachable = child.IsDefined() && child.IsMap();
         if (reachable) parent.reset(child);
       }
       if (!reachable) continue;
-      const YAML::Node node = parent[parts.back()];
+      const YAML::Node node = std::as_const(parent)[parts.back()];
       if (node.IsDefined() && !node.IsMap()) fail_not_map(path, parent, parts.back(), node);
     }
   }
