@@ -13,6 +13,7 @@
 #include <map>
 #include <set>
 #include <sstream>
+#include <utility>
 
 namespace hc::pipeline {
 namespace {
@@ -199,6 +200,46 @@ class Reader {
   /// Every map key in the file must have been read by some getter.
   void reject_unknown_keys() const { check_node(root_, ""); }
 
+  /// Each of `sections` (dotted paths, parents before children) that the file or a --set gives
+  /// must be a map of keys; a scalar, a list or an empty value (`grid:`) is a ConfigError naming
+  /// the file, the line, the key and "expected a map" (issue 15 D3: such a section used to be
+  /// ignored silently, the run going on with the defaults). A section under a parent that is
+  /// not a map is reported through its parent.
+  void require_maps(const std::vector<std::string>& sections) const {
+    for (const auto& path : sections) {
+      const auto parts = split_dotted(path);
+      YAML::Node parent = root_;
+      bool reachable = true;
+      for (std::size_t i = 0; i + 1 < parts.size() && reachable; ++i) {
+        const YAML::Node child = std::as_const(parent)[parts[i]];  // const: looks up, never inserts
+        reachable = child.IsDefined() && child.IsMap();
+        if (reachable) parent.reset(child);
+      }
+      if (!reachable) continue;
+      const YAML::Node node = std::as_const(parent)[parts.back()];
+      if (node.IsDefined() && !node.IsMap()) fail_not_map(path, parent, parts.back(), node);
+    }
+  }
+
+  [[noreturn]] void fail_not_map(const std::string& path, const YAML::Node& parent, const std::string& key,
+                                 const YAML::Node& node) const {
+    std::string where = origin_;
+    if (overridden_.count(path)) {
+      where += " (--set " + path + ")";
+    } else {
+      for (const auto& kv : parent) {  // the key's own line: an empty value has no useful mark
+        if (kv.first.IsScalar() && kv.first.Scalar() == key && kv.first.Mark().line >= 0) {
+          where += ":" + std::to_string(kv.first.Mark().line + 1);
+          break;
+        }
+      }
+    }
+    const std::string value = node.IsNull() ? " is empty" : " = " + scalar_text(node);
+    throw ConfigError(where + ": " + path + value + ": expected a map (a section of `key: value` lines, " +
+                      "for example `" + path.substr(path.rfind('.') == std::string::npos ? 0 : path.rfind('.') + 1) +
+                      ": {…}`); remove it to use the defaults");
+  }
+
   YAML::Node resolved() const { return resolved_; }
   void resolved_set_raw(const std::string& path, const YAML::Node& v) { resolved_set(path, v); }
 
@@ -217,6 +258,7 @@ class Reader {
     if (leaf) leaves_.insert(path);
     for (std::size_t dot = path.find('.'); dot != std::string::npos; dot = path.find('.', dot + 1)) {
       known_.insert(path.substr(0, dot));
+      sections_.insert(path.substr(0, dot));
     }
   }
 
@@ -242,6 +284,11 @@ class Reader {
         throw ConfigError(origin_ + (line >= 0 ? ":" + std::to_string(line + 1) : "") + ": unknown key '" +
                           path + "'" + (hint.empty() ? "" : " (allowed here: " + hint + ")"));
       }
+      // A key some getter read below this one is a section: it must be a map (a backstop for
+      // sections missing from kSections; see require_maps).
+      if (sections_.count(path) && !leaves_.count(path) && !kv.second.IsMap()) {
+        fail_not_map(path, node, key, kv.second);
+      }
       if (!leaves_.count(path)) check_node(kv.second, path);
     }
   }
@@ -262,6 +309,7 @@ class Reader {
   std::set<std::string> overridden_;
   std::set<std::string> known_;
   std::set<std::string> leaves_;
+  std::set<std::string> sections_;
   YAML::Node resolved_{YAML::NodeType::Map};
 };
 
@@ -281,6 +329,13 @@ void apply_override(YAML::Node& root, const std::string& spec, const std::string
   const auto parts = split_dotted(key);
   YAML::Node cur = root;
   for (std::size_t i = 0; i + 1 < parts.size(); ++i) {
+    if (cur[parts[i]] && !cur[parts[i]].IsNull() && !cur[parts[i]].IsMap()) {
+      std::string section;
+      for (std::size_t j = 0; j <= i; ++j) section += (j ? "." : "") + parts[j];
+      const int line = cur[parts[i]].Mark().line;
+      throw ConfigError(origin + (line >= 0 ? ":" + std::to_string(line + 1) : "") + ": --set '" + spec + "': " +
+                        section + " = " + scalar_text(cur[parts[i]]) + ": expected a map");
+    }
     if (!cur[parts[i]] || !cur[parts[i]].IsMap()) cur[parts[i]] = YAML::Node(YAML::NodeType::Map);
     YAML::Node next = cur[parts[i]];
     cur.reset(next);
@@ -546,7 +601,18 @@ void read_falcon(Reader& r, RunConfig& c, const std::filesystem::path& base) {
   }
 }
 
+/// Every section of the run config (docs/config.md), parents before children. A section read
+/// only when present (audio, input.synthetic, filters.crop, view.rotation) is listed too, so
+/// that an empty one (`audio:`) is an error rather than "absent". audio.slide.material is not
+/// a section: it is a preset name or a map.
+const std::vector<std::string> kSections = {
+    "input",  "input.synthetic", "view",          "view.rotation", "filters",       "filters.outliers",
+    "filters.crop", "grid",      "cross_check",   "layers",        "layers.texture", "layers.friction",
+    "audio",  "audio.limiter",   "audio.tones",   "audio.force",   "audio.slide",   "falcon",
+    "lod"};
+
 RunConfig build(Reader& r, const std::filesystem::path& origin) {
+  r.require_maps(kSections);
   RunConfig c;
   c.source = origin;
   c.name = r.get_string("name", origin.stem().string());
@@ -728,6 +794,30 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   return c;
 }
 
+/// The 1-based number of the line, at or before `error_line` (else just after it), whose
+/// indentation holds a tab; 0 if none. yaml-cpp reports a tab-indented line as "illegal map
+/// value" or "illegal tab when looking for indentation" without naming the tab.
+int tab_indented_line(const std::string& text, int error_line) {
+  std::vector<int> tabbed;
+  std::istringstream in(text);
+  std::string line;
+  for (int n = 1; std::getline(in, line); ++n) {
+    const auto first = line.find_first_not_of(" \t");
+    const std::string indent = line.substr(0, first == std::string::npos ? line.size() : first);
+    if (first != std::string::npos && indent.find('\t') != std::string::npos) tabbed.push_back(n);
+  }
+  int best = 0;
+  for (int n : tabbed) {
+    if (n <= error_line) best = n;
+  }
+  if (best == 0) {
+    for (int n : tabbed) {
+      if (n == error_line + 1) best = n;
+    }
+  }
+  return best;
+}
+
 }  // namespace
 
 RunConfig parse_run_config(const std::string& yaml_text, const std::filesystem::path& origin,
@@ -736,6 +826,11 @@ RunConfig parse_run_config(const std::string& yaml_text, const std::filesystem::
   try {
     root = YAML::Load(yaml_text);
   } catch (const YAML::ParserException& e) {
+    if (const int tab_line = tab_indented_line(yaml_text, e.mark.line + 1); tab_line > 0) {
+      throw InputError(origin.string() + ":" + std::to_string(tab_line) +
+                       ": not valid YAML: a tab in the indentation (YAML indents with spaces only; " +
+                       "yaml-cpp says: " + e.msg + ")");
+    }
     throw InputError(origin.string() + ":" + std::to_string(e.mark.line + 1) + ":" +
                      std::to_string(e.mark.column + 1) + ": not valid YAML: " + e.msg);
   }

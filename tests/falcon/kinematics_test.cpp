@@ -13,21 +13,83 @@ namespace {
 using Eigen::Vector3d;
 constexpr double kPi = std::numbers::pi;
 
+// The published Falcon geometry, as literal numbers (not the library's FalconGeometry), so that a
+// wrong constant in the library fails the tests below. Source: libnifalcon (BSD, Kyle Machulis,
+// Kevin Ouellet), include/falcon/core/FalconGeometry.h, values after the 2009 commit "Flipped r/s
+// values for geometry based on advice from Steven Martin"; symbols after R. E. Stamper, "A
+// three degree of freedom parallel manipulator with only translational degrees of freedom",
+// PhD thesis, Univ. of Maryland, 1997 (diagram p. 30). Metres and radians.
+struct Published {
+  static constexpr double a = 0.060;     // leg base to knee (upper arm)
+  static constexpr double b = 0.1025;    // shin parallelogram side
+  static constexpr double c = 0.01443;   // shin joint to effector centre, u component
+  static constexpr double d = 0.01125;   // shin to effector joint
+  static constexpr double e = 0.01125;   // knee to shin joint (e = d)
+  static constexpr double f = -0.025;    // shin joint to effector centre, v component
+  static constexpr double r = 0.0400;    // frame origin to leg base, u component
+  static constexpr double s = -0.02309;  // frame origin to leg base, v component
+  // Leg angles: 90°, −30°, −150°, each plus the 15° offset of the axes from the desk plane.
+  static constexpr double phi[3] = {kPi / 2 + kPi / 12, -kPi / 6 + kPi / 12, -5 * kPi / 6 + kPi / 12};
+  static constexpr double theta_at_count_zero = 35 * kPi / 180;  // THETA_OFFSET_ANGLE
+};
+
 // Independent oracle for one leg's arm angle: the tangent-half-angle quadratic of the leg equation
-// (a different derivation from the library's atan2/acos form), on the geometry's own numbers.
-double oracle_arm_angle(const FalconGeometry& g, const Vector3d& x, int leg) {
-  const double phi = g.leg_angle_rad[static_cast<std::size_t>(leg)];
-  const double u = std::cos(phi) * x.x() + std::sin(phi) * x.y() - g.r_m;
-  const double v = -std::sin(phi) * x.x() + std::cos(phi) * x.y() - g.s_m;
+// (a different derivation from the library's atan2/acos form), on the published numbers above.
+double oracle_arm_angle(const Vector3d& x, int leg) {
+  using P = Published;
+  const double phi = P::phi[leg];
+  const double u = std::cos(phi) * x.x() + std::sin(phi) * x.y() - P::r;
+  const double v = -std::sin(phi) * x.x() + std::cos(phi) * x.y() - P::s;
   const double w = x.z();
-  const double len = g.d_m + g.e_m + g.b_m * std::sin(std::acos((v + g.f_m) / g.b_m));
+  const double len = P::d + P::e + P::b * std::sin(std::acos((v + P::f) / P::b));
   // (u + c − a cos θ)² + (w − a sin θ)² = L², with t = tan(θ/2).
-  const double k = (u + g.c_m) * (u + g.c_m) + w * w + g.a_m * g.a_m - len * len;
-  const double q0 = k - 2 * g.a_m * (u + g.c_m);
-  const double q1 = -4 * g.a_m * w;
-  const double q2 = k + 2 * g.a_m * (u + g.c_m);
+  const double k = (u + P::c) * (u + P::c) + w * w + P::a * P::a - len * len;
+  const double q0 = k - 2 * P::a * (u + P::c);
+  const double q1 = -4 * P::a * w;
+  const double q2 = k + 2 * P::a * (u + P::c);
   const double t = (-q1 - std::sqrt(q1 * q1 - 4 * q0 * q2)) / (2 * q2);
   return 2 * std::atan(t);
+}
+
+TEST(FalconKinematics, DefaultGeometryIsThePublishedOne) {
+  const FalconGeometry g = FalconKinematics().geometry();
+  EXPECT_EQ(g.a_m, Published::a);
+  EXPECT_EQ(g.b_m, Published::b);
+  EXPECT_EQ(g.c_m, Published::c);
+  EXPECT_EQ(g.d_m, Published::d);
+  EXPECT_EQ(g.e_m, Published::e);
+  EXPECT_EQ(g.f_m, Published::f);
+  EXPECT_EQ(g.r_m, Published::r);
+  EXPECT_EQ(g.s_m, Published::s);
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(g.leg_angle_rad[static_cast<std::size_t>(i)], Published::phi[i], 1e-12) << i;
+  EXPECT_NEAR(g.angle_at_zero_count_rad, Published::theta_at_count_zero, 1e-15);
+}
+
+TEST(FalconKinematics, HandComputedPoses) {
+  // On the z axis (x = y = 0) every leg sees u = −r = −0.04, v = −s = 0.02309, w = z, so
+  //   L = d + e + √(b² − (v + f)²) = 0.0225 + √(0.01050625 − 0.00191²)
+  //     = 0.0225 + √0.0105026019 = 0.0225 + 0.1024822 = 0.1249822 m,   L² = 0.01562055 m²,
+  //   u + c = −0.04 + 0.01443 = −0.02557 m.
+  // Pose 1, all arms at θ = 0: (u + c − a)² + z² = L² gives
+  //   z = √(0.01562055 − 0.08557²) = √(0.01562055 − 0.00732222) = √0.00829833 = 0.0910951 m.
+  const FalconKinematics kin;
+  Vector3d x = FalconKinematics::workspace_centre_m();
+  const FkResult r = kin.forward(Vector3d::Zero(), x, 50, 1e-12);
+  ASSERT_TRUE(r.converged);
+  EXPECT_NEAR(x.x(), 0.0, 1e-9);
+  EXPECT_NEAR(x.y(), 0.0, 1e-9);
+  EXPECT_NEAR(x.z(), 0.0910951, 2e-7);
+  Vector3d th;
+  ASSERT_TRUE(kin.inverse(Vector3d(0, 0, 0.0910951), th));
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(th[i], 0.0, 1e-5) << i;
+  // Pose 2, the workspace centre z = 0.11 m: expanding (−0.02557 − 0.06 cos θ)² + (0.11 − 0.06 sin θ)²
+  // = L² gives 0.01635382 + 0.0030684 cos θ − 0.0132 sin θ = 0.01562055, i.e.
+  //   0.0132 sin θ − 0.0030684 cos θ = 0.00073327.
+  // With R = √(0.0132² + 0.0030684²) = 0.0135519 and δ = atan(0.0030684 / 0.0132) = 13.0863°:
+  //   sin(θ − δ) = 0.00073327 / 0.0135519 = 0.054108,  θ − δ = 3.1017°,  θ = 16.188°
+  // (the other root, θ − δ = 176.9°, is the knee-in branch).
+  ASSERT_TRUE(kin.inverse(Vector3d(0, 0, 0.11), th));
+  for (int i = 0; i < 3; ++i) EXPECT_NEAR(th[i] * 180 / kPi, 16.188, 0.002) << i;
 }
 
 std::vector<Vector3d> workspace_grid(double half, int n) {
@@ -47,7 +109,7 @@ TEST(FalconKinematics, InverseMatchesAnIndependentOracle) {
   for (const Vector3d& x : workspace_grid(0.04, 7)) {
     Vector3d th;
     ASSERT_TRUE(kin.inverse(x, th)) << x.transpose();
-    for (int i = 0; i < 3; ++i) EXPECT_NEAR(th[i], oracle_arm_angle(kin.geometry(), x, i), 1e-9);
+    for (int i = 0; i < 3; ++i) EXPECT_NEAR(th[i], oracle_arm_angle(x, i), 1e-9);
     EXPECT_LT(kin.residual(x, th).cwiseAbs().maxCoeff(), 1e-15);
   }
 }
@@ -61,7 +123,7 @@ TEST(FalconKinematics, SymmetricPoseKnownAnswer) {
     double lo = 0.05, hi = 0.19;
     for (int k = 0; k < 200; ++k) {
       const double mid = 0.5 * (lo + hi);
-      (oracle_arm_angle(kin.geometry(), Vector3d(0, 0, mid), 0) < th ? lo : hi) = mid;
+      (oracle_arm_angle(Vector3d(0, 0, mid), 0) < th ? lo : hi) = mid;
     }
     Vector3d x = FalconKinematics::workspace_centre_m();
     const FkResult r = kin.forward(Vector3d::Constant(th), x, 50, 1e-12);
@@ -70,10 +132,7 @@ TEST(FalconKinematics, SymmetricPoseKnownAnswer) {
     EXPECT_NEAR(x.y(), 0.0, 1e-9);
     EXPECT_NEAR(x.z(), 0.5 * (lo + hi), 1e-9) << deg;
   }
-  // The workspace centre is the pose with all arms near 16°.
-  Vector3d th;
-  ASSERT_TRUE(kin.inverse(FalconKinematics::workspace_centre_m(), th));
-  EXPECT_NEAR(th[0] * 180 / kPi, 16.19, 0.01);
+  // The workspace centre's arm angle (16.188°) is derived by hand in HandComputedPoses.
 }
 
 TEST(FalconKinematics, ForwardInverseRoundTripFromColdStart) {

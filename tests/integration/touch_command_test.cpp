@@ -6,9 +6,15 @@
 #include "app_runner.hpp"
 #include "test_paths.hpp"
 
+#include <tiffio.h>
+
+#include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <sstream>
 #include <string>
+#include <vector>
 
 namespace {
 
@@ -17,6 +23,101 @@ using json = nlohmann::json;
 using hc::test::is_png;
 using hc::test::read_json;
 using hc::test::run_app;
+
+/// One row of trace.csv (grid frame, SI units), the columns this test reads.
+struct TraceRow {
+  double hip[3], proxy[3], force[3];
+  bool contact;
+};
+
+std::vector<TraceRow> read_trace(const fs::path& file) {
+  std::ifstream in(file);
+  std::string line;
+  std::getline(in, line);
+  std::vector<std::string> names;
+  {
+    std::stringstream ss(line);
+    for (std::string n; std::getline(ss, n, ',');) names.push_back(n);
+  }
+  const auto col = [&](const std::string& n) {
+    const auto it = std::find(names.begin(), names.end(), n);
+    EXPECT_NE(it, names.end()) << "no column " << n << " in " << file;
+    return static_cast<std::size_t>(it - names.begin());
+  };
+  const std::size_t hip = col("hip_x_m"), proxy = col("proxy_x_m"), force = col("force_x_n"), contact = col("contact");
+  std::vector<TraceRow> rows;
+  while (std::getline(in, line)) {
+    std::vector<double> v;
+    std::stringstream ss(line);
+    for (std::string f; std::getline(ss, f, ',');) v.push_back(std::stod(f));
+    if (v.size() != names.size()) break;
+    TraceRow r{};
+    for (std::size_t k = 0; k < 3; ++k) {
+      r.hip[k] = v[hip + k];
+      r.proxy[k] = v[proxy + k];
+      r.force[k] = v[force + k];
+    }
+    r.contact = v[contact] != 0.0;
+    rows.push_back(r);
+  }
+  return rows;
+}
+
+/// A 32-bit float layer of the scene, read with libtiff (independently of the program's
+/// OpenCV-based reader), placed on the grid of scene.yaml (node-centred, row 0 = smallest y).
+struct Layer {
+  int rows = 0, cols = 0;
+  double x0 = 0, y0 = 0, cell = 0;
+  std::vector<float> v;
+  /// Bilinear interpolation at (x, y) [m], grid frame; clamped to the border.
+  double at(double x, double y) const {
+    const double u = std::clamp((x - x0) / cell, 0.0, cols - 1.000001), w = std::clamp((y - y0) / cell, 0.0, rows - 1.000001);
+    const int c = static_cast<int>(u), r = static_cast<int>(w);
+    const double a = u - c, b = w - r;
+    const auto z = [&](int rr, int cc) { return static_cast<double>(v[static_cast<std::size_t>(rr * cols + cc)]); };
+    return (1 - a) * (1 - b) * z(r, c) + a * (1 - b) * z(r, c + 1) + (1 - a) * b * z(r + 1, c) + a * b * z(r + 1, c + 1);
+  }
+};
+
+double yaml_number(const fs::path& scene_yaml, const std::string& key) {
+  std::ifstream in(scene_yaml);
+  for (std::string line; std::getline(in, line);) {
+    const auto at = line.find(key + ": ");
+    if (at != std::string::npos && line.find_first_not_of(' ') == at) return std::stod(line.substr(at + key.size() + 2));
+  }
+  ADD_FAILURE() << "no " << key << " in " << scene_yaml;
+  return 0.0;
+}
+
+Layer read_layer(const fs::path& scene, const std::string& name) {
+  Layer l;
+  l.x0 = yaml_number(scene / "scene.yaml", "x0_m");
+  l.y0 = yaml_number(scene / "scene.yaml", "y0_m");
+  l.cell = yaml_number(scene / "scene.yaml", "cell_size_m");
+  TIFF* tif = TIFFOpen((scene / (name + ".tiff")).c_str(), "r");
+  EXPECT_NE(tif, nullptr) << name;
+  if (tif == nullptr) return l;
+  std::uint32_t w = 0, h = 0;
+  std::uint16_t bits = 0, format = 0;
+  TIFFGetField(tif, TIFFTAG_IMAGEWIDTH, &w);
+  TIFFGetField(tif, TIFFTAG_IMAGELENGTH, &h);
+  TIFFGetField(tif, TIFFTAG_BITSPERSAMPLE, &bits);
+  TIFFGetField(tif, TIFFTAG_SAMPLEFORMAT, &format);
+  EXPECT_EQ(bits, 32);
+  EXPECT_EQ(format, SAMPLEFORMAT_IEEEFP);
+  l.rows = static_cast<int>(h);
+  l.cols = static_cast<int>(w);
+  l.v.resize(static_cast<std::size_t>(w) * h);
+  for (std::uint32_t r = 0; r < h; ++r) EXPECT_EQ(TIFFReadScanline(tif, &l.v[static_cast<std::size_t>(r) * w], r), 1);
+  TIFFClose(tif);
+  return l;
+}
+
+double rms(const std::vector<double>& v) {
+  double s = 0;
+  for (double x : v) s += x * x;
+  return v.empty() ? 0.0 : std::sqrt(s / static_cast<double>(v.size()));
+}
 
 TEST(TouchCommand, ValidationOnTheSinusoidConfigWritesBothSessionsPlotsAndReport) {
   const fs::path out = hc::test::temp_dir("validate") / "touch";
@@ -36,9 +137,86 @@ TEST(TouchCommand, ValidationOnTheSinusoidConfigWritesBothSessionsPlotsAndReport
     EXPECT_LE((*s)["deepest_proxy_below_surface_m"].get<double>(), 1e-6);
     EXPECT_GT((*s)["events"]["onset"].get<long>(), 0);
   }
-  EXPECT_FALSE(with["texture_gain"].get<double>() == without["texture_gain"].get<double>());
+  EXPECT_EQ(with["texture_gain"].get<double>(), 1.0);
+  EXPECT_EQ(without["texture_gain"].get<double>(), 0.0);
   EXPECT_TRUE(with["friction"].get<bool>());
   EXPECT_FALSE(without["friction"].get<bool>());
+
+  // The effects, from the traces (issue 15): 3 s = one press-slide cycle of the scripted hand
+  // (press, slide 60 mm along +x, lift, fly back), one contact episode per session.
+  const auto trace_with = read_trace(out / "with_texture_friction" / "trace.csv");
+  const auto trace_without = read_trace(out / "without_texture_friction" / "trace.csv");
+  ASSERT_EQ(trace_with.size(), 3000u);
+  ASSERT_EQ(trace_without.size(), 3000u);
+
+  // Texture. The renderer's surface is z = E + g·T (envelope, texture layers; g = 1 with, 0
+  // without), and a proxy in contact rests on it. So, with the layers read from the scene and
+  // interpolated here: with texture the proxy's height above the envelope is the texture under
+  // it, without texture it is zero — the texture moved the proxy by T.
+  const fs::path scene = out / "pipeline" / "scene";
+  const Layer envelope = read_layer(scene, "envelope");
+  const Layer texture = read_layer(scene, "texture");
+  ASSERT_GT(envelope.rows, 1);
+  ASSERT_EQ(texture.v.size(), envelope.v.size());
+  const auto above_envelope = [&](const std::vector<TraceRow>& trace, std::vector<double>& t_under) {
+    std::vector<double> d;
+    for (const TraceRow& r : trace) {
+      if (!r.contact) continue;
+      d.push_back(r.proxy[2] - envelope.at(r.proxy[0], r.proxy[1]));
+      t_under.push_back(texture.at(r.proxy[0], r.proxy[1]));
+    }
+    return d;
+  };
+  std::vector<double> t_with, t_without;
+  const std::vector<double> d_with = above_envelope(trace_with, t_with);
+  const std::vector<double> d_without = above_envelope(trace_without, t_without);
+  ASSERT_GT(d_with.size(), 500u);  // the slide alone is 1.2 s
+  ASSERT_GT(d_without.size(), 500u);
+  // The texture under the path is real: the bilateral envelope (σ = 3 cells = 1.5 mm) flattens the
+  // 5 mm, 40 mm-wavelength sinusoid by a few per cent, i.e. by 0.1 mm or more where the path
+  // crosses it, and the 20 µm scan noise stays in T. A floor of 10 µm RMS is well below both.
+  const double texture_rms = rms(t_with);
+  EXPECT_GT(texture_rms, 10e-6);
+  std::vector<double> err_with(d_with.size());
+  for (std::size_t i = 0; i < d_with.size(); ++i) err_with[i] = d_with[i] - t_with[i];
+  // On its surface within a tenth of the texture: with texture the proxy follows E + T ...
+  EXPECT_LT(rms(err_with), 0.1 * texture_rms) << "with texture the proxy is not on envelope + texture";
+  EXPECT_GT(rms(d_with), 0.9 * texture_rms);
+  // ... without, it follows E, although the texture under its path is as large.
+  EXPECT_LT(rms(d_without), 0.1 * rms(t_without)) << "without texture the proxy is not on the envelope";
+  ::testing::Test::RecordProperty("texture_rms_m", std::to_string(texture_rms));
+  ::testing::Test::RecordProperty("off_surface_rms_with_m", std::to_string(rms(err_with)));
+  ::testing::Test::RecordProperty("above_envelope_rms_without_m", std::to_string(rms(d_without)));
+
+  // Friction. The work the force does on the hand over a contact episode, W = Σ F·ΔX_hip. A
+  // frictionless proxy sits at the closest point of the surface, so F = −∇U with
+  // U(depth) = ∫ k·depth (capped): W = U(start) − U(end) = 0 for an episode from touch-down to
+  // release; friction makes the force oppose the sliding and W = −Σ μ F_n |ΔX| < 0. Relative to
+  // M = Σ |F| |ΔX|, −W/M is about μ/√(1+μ²) while sliding; the scene's μ_d ≥ mu_min = 0.05
+  // (configs/sinusoid.yaml), so with friction −W/M must exceed half of that, and without it must
+  // stay below a tenth of it.
+  const auto work_ratio = [](const std::vector<TraceRow>& trace) {
+    double w = 0, m = 0;
+    for (std::size_t i = 0; i + 1 < trace.size(); ++i) {
+      if (!trace[i].contact) continue;
+      double f2 = 0, d2 = 0;
+      for (int k = 0; k < 3; ++k) {
+        const double dx = trace[i + 1].hip[k] - trace[i].hip[k];
+        w += trace[i].force[k] * dx;
+        f2 += trace[i].force[k] * trace[i].force[k];
+        d2 += dx * dx;
+      }
+      m += std::sqrt(f2 * d2);
+    }
+    EXPECT_GT(m, 0.0);
+    return m > 0 ? w / m : 0.0;
+  };
+  const double mu_min = 0.05;
+  const double r_with = work_ratio(trace_with), r_without = work_ratio(trace_without);
+  EXPECT_LT(r_with, -0.5 * mu_min) << "friction dissipated too little: W/M = " << r_with;
+  EXPECT_LT(std::abs(r_without), 0.1 * mu_min) << "frictionless contact dissipated: W/M = " << r_without;
+  ::testing::Test::RecordProperty("work_ratio_with", std::to_string(r_with));
+  ::testing::Test::RecordProperty("work_ratio_without", std::to_string(r_without));
 }
 
 TEST(TouchCommand, RasterOnARunSceneWritesTraceAndPlots) {

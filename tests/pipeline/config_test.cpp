@@ -6,6 +6,7 @@
 
 #include "test_paths.hpp"
 
+#include <algorithm>
 #include <fstream>
 
 namespace {
@@ -153,6 +154,88 @@ TEST(Config, ShippedConfigsAllValidate) {
     const auto path = std::filesystem::path(HC_SOURCE_DIR) / "configs" / name;
     EXPECT_NO_THROW(hc::pipeline::load_run_config(path)) << name;
   }
+}
+
+
+// Issue 15 D3: a known section that is not a map (a scalar, a list, empty) used to be ignored,
+// the run going on with the defaults. Each must stop the run naming file, line, key, "expected a map".
+void expect_not_a_map(const std::string& yaml, const std::vector<std::string>& sets, const std::string& where,
+                      const std::string& key) {
+  std::string msg;
+  try {
+    parse_run_config(yaml, "configs/test.yaml", sets);
+  } catch (const hc::ConfigError& e) {
+    msg = e.what();
+  }
+  ASSERT_FALSE(msg.empty()) << "no ConfigError for:\n" << yaml;
+  EXPECT_EQ(msg.rfind(where + ": ", 0), 0u) << msg;  // file and line (or the --set) first
+  EXPECT_NE(msg.find(key), std::string::npos) << msg;
+  EXPECT_NE(msg.find("expected a map"), std::string::npos) << msg;
+}
+
+TEST(Config, SectionGivenAsAScalarIsAnErrorNamingFileLineAndKey) {
+  expect_not_a_map(kMinimal + "grid: 5\n", {}, "configs/test.yaml:3", "grid = '5'");
+  expect_not_a_map(kMinimal + "filters: yes\n", {}, "configs/test.yaml:3", "filters = 'yes'");
+  expect_not_a_map(kMinimal + "lod: off\n", {}, "configs/test.yaml:3", "lod = 'off'");
+  expect_not_a_map("input: scan.ply\n", {}, "configs/test.yaml:1", "input = 'scan.ply'");
+}
+
+TEST(Config, SectionGivenAsAListIsAnError) {
+  expect_not_a_map(kMinimal + "cross_check: [1, 2]\n", {}, "configs/test.yaml:3", "cross_check = [1, 2]");
+  expect_not_a_map(kMinimal + "layers:\n  friction: [paper]\n", {}, "configs/test.yaml:4", "layers.friction");
+}
+
+TEST(Config, EmptySectionIsAnErrorNotTheDefaults) {
+  expect_not_a_map(kMinimal + "grid:\n", {}, "configs/test.yaml:3", "grid is empty");
+  expect_not_a_map(kMinimal + "grid:\nlod: {min_cells: 4}\n", {}, "configs/test.yaml:3", "grid is empty");
+  // Sections read only when present are checked too: an empty one is not "absent".
+  expect_not_a_map(kMinimal + "audio:\n", {}, "configs/test.yaml:3", "audio is empty");
+  expect_not_a_map(kMinimal + "filters:\n  crop:\n", {}, "configs/test.yaml:4", "filters.crop is empty");
+  expect_not_a_map("input:\n  synthetic: sinusoid\n", {}, "configs/test.yaml:2", "input.synthetic = 'sinusoid'");
+}
+
+TEST(Config, NestedSectionGivenAsAScalarIsAnError) {
+  expect_not_a_map(kMinimal + "filters:\n  outliers: false\n", {}, "configs/test.yaml:4", "filters.outliers = 'false'");
+  expect_not_a_map(kMinimal + "view:\n  rotation: 90\n", {}, "configs/test.yaml:4", "view.rotation = '90'");
+  expect_not_a_map(kMinimal + "audio:\n  slide: on\n", {}, "configs/test.yaml:4", "audio.slide = 'on'");
+}
+
+TEST(Config, SetOfASectionToAScalarIsAnError) {
+  expect_not_a_map(kMinimal, {"grid=5"}, "configs/test.yaml (--set grid)", "grid = '5'");
+  expect_not_a_map(kMinimal, {"filters=[1]"}, "configs/test.yaml (--set filters)", "filters = [1]");
+  // A --set below a section the file gives as a scalar does not silently replace the file's value.
+  expect_not_a_map(kMinimal + "grid: 5\n", {"grid.n=400"}, "configs/test.yaml:3", "grid = '5'");
+}
+
+TEST(Config, WellFormedSectionsAndScalarMaterialStillLoad) {
+  // The checks above must not reject what is valid: maps, a null file, a material given by name.
+  EXPECT_NO_THROW(parse_run_config(kMinimal + "grid: {n: 300}\nfilters:\n  outliers: {k: 8}\n", "configs/test.yaml"));
+  EXPECT_NO_THROW(parse_run_config(kMinimal + "audio:\n  slide: {material: marble}\n", "configs/test.yaml"));
+  const auto c = parse_run_config(kMinimal, "configs/test.yaml", {"grid.n=300"});
+  EXPECT_EQ(c.grid.reproject.grid.n_long_side, 300);
+}
+
+TEST(Config, TabIndentationIsNamedWithItsLine) {
+  for (const std::string& yaml : {kMinimal + "grid:\n\tn: 5\n", std::string("input:\n\tfiles: [a]\n"),
+                                  kMinimal + "grid:\n  n: 5\n\tsplat_mode: disc\n"}) {
+    std::string msg;
+    try {
+      parse_run_config(yaml, "configs/tabs.yaml");
+    } catch (const hc::InputError& e) {
+      msg = e.what();
+    }
+    const auto lines = std::count(yaml.begin(), yaml.end(), '\n');
+    int tab_line = 0;  // the line of the tab, counted here independently of the reader
+    for (int n = 1, pos = 0; n <= lines; ++n) {
+      if (yaml[static_cast<std::size_t>(pos)] == '\t') tab_line = n;
+      pos = static_cast<int>(yaml.find('\n', static_cast<std::size_t>(pos))) + 1;
+    }
+    ASSERT_GT(tab_line, 0);
+    EXPECT_EQ(msg.rfind("configs/tabs.yaml:" + std::to_string(tab_line) + ": ", 0), 0u) << msg;
+    EXPECT_NE(msg.find("tab"), std::string::npos) << msg;
+  }
+  // A tab that is not indentation (inside a line) is not reported as one.
+  EXPECT_NO_THROW(parse_run_config(kMinimal + "grid:\t{n: 300}\n", "configs/test.yaml"));
 }
 
 }  // namespace

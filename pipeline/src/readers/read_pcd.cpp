@@ -173,6 +173,16 @@ void validate_pcd(const std::string& raw, const std::string& name) {
   std::string line;
   while (data.empty() && next_line(raw, pos, line, /*accept_unterminated=*/true)) {
     ++line_no;
+    // A PCD header is text: control bytes (a binary blob in a comment, a NUL) make PCL's own header
+    // parser read counts out of garbage (a fuzzed file crashed it), so they are refused here.
+    for (const char ch : line) {
+      const auto c = static_cast<unsigned char>(ch);
+      if ((c < 0x20 && c != '\t' && c != '\r') || c == 0x7f) {
+        throw fail("header line " + std::to_string(line_no) + " holds a control byte (0x" +
+                   std::string(1, "0123456789abcdef"[c >> 4]) + std::string(1, "0123456789abcdef"[c & 0xF]) +
+                   "): expected a text header up to the DATA line");
+      }
+    }
     std::istringstream ls(line);
     std::string kw;
     if (!(ls >> kw) || kw[0] == '#') continue;
