@@ -45,6 +45,8 @@ const std::vector<Target>& all_targets() {
       {"scanalyze_conf", &scanalyze_conf}, {"run_config", &run_config},
       {"scene_yaml", &scene_yaml},         {"scene_tiff", &scene_tiff},
       {"falcon_frames", &falcon_frames},
+      {"e57", &e57},           {"las", &las},
+      {"ptx", &ptx},           {"pts", &pts},
   };
   return targets;
 }

@@ -10,7 +10,6 @@ import sys
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CORPUS = os.path.join(ROOT, "tests", "fuzz", "corpus")
-BUNNY = os.path.join(ROOT, "data", "scans", "bunny")
 LIMIT = 64 * 1024
 
 
@@ -24,14 +23,14 @@ def put(target, name, data):
         f.write(data)
 
 
-def bunny_points(n):
-    """n points of bun000.ply (ASCII, x y z per line after end_header)."""
-    with open(os.path.join(BUNNY, "bun000.ply"), "rb") as f:
-        body = f.read().split(b"end_header\n", 1)[1]
+def surface_points(n):
+    """n points of a synthetic wavy patch (no scan data is committed: data/README.md)."""
+    import math
     pts = []
-    for line in body.split(b"\n")[: n]:
-        x, y, z = (float(v) for v in line.split()[:3])
-        pts.append((x, y, z))
+    for i in range(n):
+        x = -0.05 + 0.1 * ((i * 37) % n) / n
+        y = -0.05 + 0.1 * ((i * 53) % n) / n
+        pts.append((round(x, 6), round(y, 6), round(0.004 * math.sin(60 * x) * math.cos(40 * y), 6)))
     return pts
 
 
@@ -40,7 +39,7 @@ def ply_header(fmt, n, props="property float x\nproperty float y\nproperty float
 
 
 def main():
-    pts = bunny_points(300)
+    pts = surface_points(300)
     few = pts[:40]
     # PLY: ASCII, binary little and big endian, doubles, extra properties, a range grid, faces.
     put("ply", "ascii.ply", ply_header("ascii", len(few)) + "".join(f"{x} {y} {z}\n" for x, y, z in few))
@@ -51,20 +50,19 @@ def main():
     put("ply", "double_rgb.ply", ply_header("binary_little_endian", len(few),
         "property double x\nproperty double y\nproperty double z\nproperty uchar red\nproperty uchar green\n"
         "property uchar blue\n").encode() + b"".join(struct.pack("<dddBBB", x, y, z, 200, 100, 50) for x, y, z in few))
-    with open(os.path.join(BUNNY, "bun000.ply"), "rb") as f:
-        raw = f.read()
-    head = raw.split(b"end_header\n", 1)[0].decode()
-    head = head.replace("element vertex 40256", "element vertex 60").replace("element range_grid 204800",
-                                                                             "element range_grid 4")
-    body = raw.split(b"end_header\n", 1)[1].split(b"\n")[:60]
-    put("ply", "range_grid.ply", head + "end_header\n" + "\n".join(l.decode() for l in body) + "\n1 0\n1 1\n0\n1 2\n")
+    # A scanalyze-style range-grid PLY (obj_info lines, a range_grid list element), synthetic.
+    head = ("ply\nformat ascii 1.0\nobj_info num_cols 2\nobj_info num_rows 2\nelement vertex 3\n"
+            "property float x\nproperty float y\nproperty float z\nelement range_grid 4\n"
+            "property list uchar int vertex_indices\n")
+    put("ply", "range_grid.ply", head + "end_header\n" + "".join(f"{x} {y} {z}\n" for x, y, z in few[:3]) +
+        "1 0\n1 1\n0\n1 2\n")
     put("ply", "with_faces.ply", ply_header("ascii", 4, extra="element face 2\nproperty list uchar int vertex_indices\n") +
         "0 0 0\n1 0 0\n0 1 0\n1 1 0.5\n3 0 1 2\n3 1 3 2\n")
     put("ply", "list_before.ply", ply_header("ascii", 3, "property list uchar float extra\nproperty float x\n"
         "property float y\nproperty float z\n") + "2 0.5 0.25 1 2 3\n0 4 5 6\n1 7 7 8 9\n")
-    # PCD: ASCII and binary, v0.7 and v0.5 (the bunny's own header).
-    with open(os.path.join(BUNNY, "pcl_bunny.pcd"), "rb") as f:
-        put("pcd", "pcl_bunny.pcd", f.read())
+    # PCD: ASCII and binary, v0.7 and v0.5 headers.
+    put("pcd", "v05.pcd", "# .PCD v.5 - Point Cloud Data file format\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\n"
+        "COUNT 1 1 1\nWIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n0 0 0\n0.01 0 0.001\n0 0.01 0.002\n")
     def pcd(data_kind, fields="x y z", size="4 4 4", typ="F F F", count="1 1 1", n=len(few)):
         return (f"# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\nFIELDS {fields}\nSIZE {size}\n"
                 f"TYPE {typ}\nCOUNT {count}\nWIDTH {n}\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS {n}\n"
@@ -80,9 +78,8 @@ def main():
     # XYZ: plain, comments, extra columns, tabs and CRLF.
     put("xyz", "plain.xyz", "".join(f"{x} {y} {z}\n" for x, y, z in pts[:100]))
     put("xyz", "comments.xyz", "# x y z r g b\n" + "".join(f"{x}\t{y}\t{z} 10 20 30\r\n" for x, y, z in few))
-    # scanalyze .conf: the bunny's own, and a small hand-made one.
-    with open(os.path.join(BUNNY, "bun.conf"), "rb") as f:
-        put("scanalyze_conf", "bun.conf", f.read())
+    # scanalyze .conf: small hand-made ones.
+    put("scanalyze_conf", "one.conf", "camera 0.0 0.0 0.0 0.0 0.0 0.0 1.0\nbmesh s000.ply -0.01 0.02 -0.03 0.1 0.2 0.3 0.9\n")
     put("scanalyze_conf", "two.conf", "camera 0 0 -1 0 0 0 1\nbmesh a.ply 0 0 0 0 0 0 1\nmesh b.ply\n"
         "bmesh b.ply.gz 0.1 -0.2 0.3 0.5 0.5 0.5 0.5\n")
     # Run configs: the repository's own (configs/*.yaml) and a few edge cases.
@@ -115,6 +112,40 @@ def main():
     put("falcon_frames", "status_16", bytes([0, 15]) + status)
     put("falcon_frames", "status_garbage_7", bytes([0, 6]) + b"xx<" + status[:20] + b">>" + status)
     put("falcon_frames", "command_64", bytes([1, 63]) + command)
+    # Scanner formats (synthetic: written here from the format's public layout).
+    put("pts", "xyz.pts", f"{len(few)}\n" + "".join(f"{x} {y} {z}\n" for x, y, z in few))
+    put("pts", "xyzirgb.pts", f"{len(few)}\n" + "".join(f"{x} {y} {z} -120 10 20 30\n" for x, y, z in few))
+    ptx_head = "3\n2\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0.5 0.25 2 1\n"
+    put("ptx", "one_scan.ptx", ptx_head + "".join(f"{x} {y} {z} 0.5 10 20 30\n" for x, y, z in few[:5]) + "0 0 0 0.5 0 0 0\n")
+    put("ptx", "two_scans.ptx", (ptx_head + "".join(f"{x} {y} {z} 0.25\n" for x, y, z in few[:6])) * 2)
+    for version_minor, pf, rec in ((2, 0, 20), (2, 3, 34), (4, 7, 36)):
+        hsize = 375 if version_minor == 4 else 227
+        n = len(few)
+        hdr = bytearray(hsize)
+        hdr[0:4] = b"LASF"
+        hdr[24], hdr[25] = 1, version_minor
+        struct.pack_into("<HIIBHI", hdr, 94, hsize, hsize, 0, pf, rec, n if pf < 6 else 0)
+        scale = 1e-4
+        struct.pack_into("<3d3d", hdr, 131, scale, scale, scale, 0.0, 0.0, 0.0)
+        struct.pack_into("<6d", hdr, 179, 1, -1, 1, -1, 1, -1)
+        if version_minor == 4:
+            struct.pack_into("<Q", hdr, 247, n)
+        body = b""
+        for i, (x, y, z) in enumerate(few):
+            r = struct.pack("<iiiH", round(x / scale), round(y / scale), round(z / scale), 100 * i)
+            r += bytes(rec - len(r))
+            if pf == 3:
+                r = r[:28] + struct.pack("<HHH", 256 * i, 512, 65535)
+            if pf == 7:
+                r = r[:30] + struct.pack("<HHH", 256 * i, 512, 65535)
+            body += r
+        put("las", f"pf{pf}_1{version_minor}.las", bytes(hdr) + body)
+    # E57: the CC0 synthetic cube of libE57Format-test-data (data/README.md credits it), when the
+    # scans are present (data/get-data); the synthetic seeds above cover the text formats.
+    cube = os.path.join(ROOT, "data", "scans", "scanner_samples", "e57", "libe57-ColourRepresentation.e57")
+    if os.path.exists(cube):
+        with open(cube, "rb") as f:
+            put("e57", "cc0_colour_cube.e57", f.read())
     return 0
 
 
