@@ -1,6 +1,7 @@
 #!/usr/bin/env python3
 """Writes the seed corpora of the fuzz targets (tests/fuzz/corpus/TARGET/): small valid files,
-hand-made or cut from the shared bunny scans (data/scans/bunny, data/get-data), each < 64 KiB.
+all synthetic (no scan data is committed), each < 64 KiB; the E57 seed is the CC0 synthetic cube
+of the scanner samples (data/README.md), copied when data/get-data has fetched it.
 Run from the repository root: python3 tests/fuzz/make_corpus.py
 The scene seeds come from tests/fuzz/scene_base (a small scene written by `hapticloud run`)."""
 import os
