@@ -185,6 +185,11 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
   report.count_out = result.size();
   report.figure("leaf_mm", leaf_m * 1e3);
   if (cloud.has_scan_id()) report.notes.push_back("scan_id dropped: a voxel centroid mixes scans");
+  // The centroids are new points; the per-point attributes are not carried over (never left
+  // misaligned: the result holds none of them).
+  if (cloud.has_rgb()) report.notes.push_back("colour (rgb) dropped: a voxel centroid is a new point");
+  if (cloud.has_intensity()) report.notes.push_back("intensity dropped: a voxel centroid is a new point");
+  if (cloud.has_grid_index()) report.notes.push_back("row/col dropped: a voxel centroid has no scan grid position");
   report.seconds = seconds_since(t0);
   return {std::move(result), std::move(report)};
 }

@@ -10,12 +10,15 @@
 // so the result does not depend on scan order). A hole cell 4-adjacent to a known cell always
 // has enough support, so each sweep fills at least the hole's outer ring and the loop ends.
 // The cost is proportional to the hole area times the kernel size, not to the grid size.
+// Colour and intensity, when the grid has them, are filled by the same weights over the same
+// known cells as the depth (so a filled cell's colour is the blur of its rim's colours).
 
 #include "hc/pipeline/reproject.hpp"
 
 #include "hc/common/error.hpp"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -47,6 +50,15 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells) {
         << " x " << rows << " grid (expected " << cells << ")";
     throw InputError(msg.str());
   }
+  if ((grid.has_colour() && grid.colour_rgb8.size() != 3 * cells) ||
+      (grid.has_intensity() && grid.intensity.values().size() != cells)) {
+    std::ostringstream msg;
+    msg << "fill_holes: colour (" << grid.colour_rgb8.size() << " bytes) or intensity ("
+        << grid.intensity.values().size() << " cells) does not match a " << cols << " x " << rows
+        << " grid (expected " << 3 * cells << " bytes and " << cells << " cells)";
+    throw InputError(msg.str());
+  }
+  const bool rgb = grid.has_colour(), inten = grid.has_intensity();
 
   StageResult<DepthGrid> result;
   StageReport& rep = result.report;
@@ -107,13 +119,19 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells) {
 
     std::vector<std::size_t> pending = std::move(fillable), next;
     std::vector<std::pair<std::size_t, float>> staged;
+    // Colour (3) and intensity (1) of each staged cell, same weights as its depth.
+    std::vector<std::array<double, 4>> staged_attr;
+    std::uint8_t* colour = grid.colour_rgb8.data();
+    float* intensity = grid.intensity.data();
     while (!pending.empty()) {
       ++sweeps;
       staged.clear();
+      staged_attr.clear();
       next.clear();
       for (const std::size_t i : pending) {
         const int r = static_cast<int>(i / ucols), c = static_cast<int>(i % ucols);
         double wsum = 0.0, zsum = 0.0;
+        std::array<double, 4> asum = {0.0, 0.0, 0.0, 0.0};
         const int r_lo = std::max(0, r - kRadiusCells), r_hi = std::min(rows - 1, r + kRadiusCells);
         const int c_lo = std::max(0, c - kRadiusCells), c_hi = std::min(cols - 1, c + kRadiusCells);
         for (int rr = r_lo; rr <= r_hi; ++rr) {
@@ -125,10 +143,18 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells) {
             const double w = krow[cc - c + kRadiusCells];
             wsum += w;
             zsum += w * v;
+            if (rgb || inten) {
+              const std::size_t j = static_cast<std::size_t>(rr) * ucols + static_cast<std::size_t>(cc);
+              if (rgb) {
+                for (std::size_t k = 0; k < 3; ++k) asum[k] += w * colour[3 * j + k];
+              }
+              if (inten) asum[3] += w * static_cast<double>(intensity[j]);
+            }
           }
         }
         if (wsum >= min_weight) {
           staged.emplace_back(i, static_cast<float>(zsum / wsum));
+          if (rgb || inten) staged_attr.push_back({asum[0] / wsum, asum[1] / wsum, asum[2] / wsum, asum[3] / wsum});
         } else {
           next.push_back(i);
         }
@@ -143,6 +169,15 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells) {
       for (const auto& [i, v] : staged) {
         z[i] = v;
         grid.flags[i] = kCellFilled;
+      }
+      for (std::size_t s = 0; s < staged_attr.size(); ++s) {
+        const std::size_t i = staged[s].first;
+        if (rgb) {
+          for (std::size_t k = 0; k < 3; ++k) {
+            colour[3 * i + k] = static_cast<std::uint8_t>(std::clamp(std::lround(staged_attr[s][k]), 0L, 255L));
+          }
+        }
+        if (inten) intensity[i] = static_cast<float>(staged_attr[s][3]);
       }
       cells_filled += staged.size();
       pending.swap(next);

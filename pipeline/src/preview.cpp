@@ -95,14 +95,17 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   save(canvas, png);
 }
 
-void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::path& png) {
+namespace {
+
+/// Hillshade grey level per cell (40 + 215 · Lambert, 8 bit), 0 where the depth is no data.
+cv::Mat hillshade_grey(const HeightField& depth_m) {
   const int rows = depth_m.rows(), cols = depth_m.cols();
   const double cell = depth_m.cell_size_m();
   const double azimuth = 315.0 * M_PI / 180.0, altitude = 45.0 * M_PI / 180.0;
   // Light direction in the grid frame (x east, y north, z up): from the north-west.
   const double lx = std::cos(altitude) * std::sin(azimuth), ly = std::cos(altitude) * std::cos(azimuth);
   const double lz = std::sin(altitude);
-  cv::Mat shade(rows, cols, CV_8UC3, cv::Scalar(90, 90, 90));
+  cv::Mat grey(rows, cols, CV_8UC1, cv::Scalar(0));
   auto z = [&](int r, int c, float centre) {
     r = std::clamp(r, 0, rows - 1);
     c = std::clamp(c, 0, cols - 1);
@@ -120,11 +123,50 @@ void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::
                            (z(r - 1, c - 1, zc) + 2 * z(r - 1, c, zc) + z(r - 1, c + 1, zc))) / (8 * cell);
       const double norm = std::sqrt(dzdx * dzdx + dzdy * dzdy + 1.0);
       const double lambert = std::max(0.0, (-dzdx * lx - dzdy * ly + lz) / norm);
-      const auto g = static_cast<std::uint8_t>(std::clamp(40.0 + 215.0 * lambert, 0.0, 255.0));
+      grey.at<std::uint8_t>(r, c) = static_cast<std::uint8_t>(std::clamp(40.0 + 215.0 * lambert, 0.0, 255.0));
+    }
+  }
+  return grey;
+}
+
+}  // namespace
+
+void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::path& png) {
+  const cv::Mat grey = hillshade_grey(depth_m);
+  cv::Mat shade(depth_m.rows(), depth_m.cols(), CV_8UC3, cv::Scalar(90, 90, 90));
+  for (int r = 0; r < depth_m.rows(); ++r) {
+    for (int c = 0; c < depth_m.cols(); ++c) {
+      if (!std::isfinite(depth_m.at(r, c))) continue;
+      const std::uint8_t g = grey.at<std::uint8_t>(r, c);
       shade.at<cv::Vec3b>(r, c) = cv::Vec3b(g, g, g);
     }
   }
   save(present(shade), png);
+}
+
+void write_rgb_preview(const HeightField& depth_m, const std::vector<std::uint8_t>& colour_rgb8,
+                       const std::filesystem::path& png, bool shaded) {
+  const int rows = depth_m.rows(), cols = depth_m.cols();
+  const std::size_t cells = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols);
+  if (colour_rgb8.size() != 3 * cells) {
+    throw InputError(png.string() + ": the colour layer holds " + std::to_string(colour_rgb8.size()) +
+                     " bytes for a " + std::to_string(cols) + " x " + std::to_string(rows) + " grid (expected " +
+                     std::to_string(3 * cells) + ")");
+  }
+  cv::Mat grey;
+  if (shaded) grey = hillshade_grey(depth_m);
+  cv::Mat img(rows, cols, CV_8UC3, cv::Scalar(90, 90, 90));
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) {
+      if (!std::isfinite(depth_m.at(r, c))) continue;
+      const std::uint8_t* rgb = colour_rgb8.data() + 3 * (static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) +
+                                                          static_cast<std::size_t>(c));
+      const double f = shaded ? grey.at<std::uint8_t>(r, c) / 255.0 : 1.0;
+      auto ch = [&](std::uint8_t v) { return static_cast<std::uint8_t>(std::lround(v * f)); };
+      img.at<cv::Vec3b>(r, c) = cv::Vec3b(ch(rgb[2]), ch(rgb[1]), ch(rgb[0]));  // OpenCV is BGR
+    }
+  }
+  save(present(img), png);
 }
 
 }  // namespace hc::pipeline

@@ -653,6 +653,153 @@ DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, b
   return out;
 }
 
+// ---- Colour and intensity -------------------------------------------------------------------
+// Carried in passes of their own after the depth scan, so the depth path (and its result) is
+// the same with or without attributes. The winner of a cell is found again here by the same
+// binning as bin_front_most (same float z, same node); it is single-threaded.
+
+constexpr std::uint32_t kNoPoint = std::numeric_limits<std::uint32_t>::max();
+
+// Index of the front-most point per node of g (largest float z, ties to the earliest point),
+// kNoPoint where no finite point fell; `front_z` gets that point's z (the measured grid).
+std::vector<std::uint32_t> front_most_index(const double* p, std::size_t n, const GridGeometry& g,
+                                            bool all_finite, std::vector<float>& front_z) {
+  const std::size_t cells = g.cell_count();
+  std::vector<std::uint32_t> winner(cells, kNoPoint);
+  front_z.assign(cells, kEmpty);
+  const double inv = 1.0 / g.cell_size_m;
+  const double cx = 0.5 - g.x0_m * inv, cy = 0.5 - g.y0_m * inv;
+  const std::size_t cols = static_cast<std::size_t>(g.cols);
+  const auto c_max = static_cast<unsigned>(g.cols - 1), r_max = static_cast<unsigned>(g.rows - 1);
+  for (std::size_t i = 0; i < n; ++i, p += 3) {
+    if (!all_finite && !finite_point(p)) continue;
+    const unsigned c = std::min(static_cast<unsigned>(static_cast<int>(p[0] * inv + cx)), c_max);
+    const unsigned r = std::min(static_cast<unsigned>(static_cast<int>(p[1] * inv + cy)), r_max);
+    const std::size_t k = static_cast<std::size_t>(r) * cols + c;
+    const float z = static_cast<float>(p[2]);
+    if (winner[k] == kNoPoint || z > front_z[k]) {
+      winner[k] = static_cast<std::uint32_t>(i);
+      front_z[k] = z;
+    }
+  }
+  return winner;
+}
+
+// Fills out.colour_rgb8 / out.intensity (whichever the cloud has) on geometry g after scan_grid.
+void scan_attributes(const Cloud& cloud, bool all_finite, const GridGeometry& g, const ReprojectOptions& options,
+                     DepthGrid& out) {
+  const bool rgb = cloud.has_rgb(), inten = cloud.has_intensity();
+  const std::size_t cells = g.cell_count();
+  std::vector<float> front_z;
+  const std::vector<std::uint32_t> winner = front_most_index(cloud.xyz.data(), cloud.size(), g, all_finite, front_z);
+  if (rgb) out.colour_rgb8.assign(3 * cells, 0);
+  if (inten) out.intensity = HeightField(g, kNoData);
+  auto copy_from = [&](std::size_t cell, std::uint32_t point) {
+    if (rgb) std::copy_n(cloud.rgb.data() + 3 * static_cast<std::size_t>(point), 3, out.colour_rgb8.data() + 3 * cell);
+    if (inten) out.intensity.data()[cell] = cloud.intensity[point];
+  };
+  const int reach = static_cast<int>(std::floor(options.splat_radius_cells));
+  const double r2 = options.splat_radius_cells * options.splat_radius_cells;
+  std::vector<int> half_width(static_cast<std::size_t>(reach) + 1);
+  for (int dr = 0; dr <= reach; ++dr) {  // the disc of splat_discs
+    half_width[static_cast<std::size_t>(dr)] =
+        static_cast<int>(std::floor(std::sqrt(std::max(0.0, r2 - static_cast<double>(dr) * dr)) + 1e-9));
+  }
+  const double sigma = 0.5 * options.splat_radius_cells;
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c);
+      const std::uint8_t f = out.flags[i];
+      if (f == kCellMeasured) {
+        copy_from(i, winner[i]);
+      } else if (f == kCellSplatted && options.splat_mode == SplatMode::kDisc) {
+        // The measured node whose z the disc dilation took: the front-most one in the disc.
+        std::size_t best = cells;
+        for (int dr = -reach; dr <= reach; ++dr) {
+          const int rr = r + dr;
+          if (rr < 0 || rr >= g.rows) continue;
+          const int hw = half_width[static_cast<std::size_t>(std::abs(dr))];
+          for (int cc = std::max(0, c - hw); cc <= std::min(g.cols - 1, c + hw); ++cc) {
+            const std::size_t j = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
+            if (winner[j] == kNoPoint) continue;
+            if (best == cells || front_z[j] > front_z[best]) best = j;
+          }
+        }
+        if (best != cells) copy_from(i, winner[best]);
+      } else if (f == kCellSplatted) {
+        // Interpolating splat: the Gaussian-weighted mean over the measured cells in the disc.
+        double w_sum = 0.0, c_sum[3] = {0.0, 0.0, 0.0}, i_sum = 0.0;
+        for (int dr = -reach; dr <= reach; ++dr) {
+          const int rr = r + dr;
+          if (rr < 0 || rr >= g.rows) continue;
+          for (int dc = -reach; dc <= reach; ++dc) {
+            const int cc = c + dc;
+            const double d2 = static_cast<double>(dr * dr + dc * dc);
+            if (cc < 0 || cc >= g.cols || d2 > r2 || d2 == 0.0) continue;
+            const std::size_t j = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
+            if (winner[j] == kNoPoint) continue;
+            const double w = static_cast<float>(std::exp(-d2 / (2.0 * sigma * sigma)));
+            w_sum += w;
+            const std::size_t pt = winner[j];
+            if (rgb) {
+              for (int k = 0; k < 3; ++k) c_sum[k] += w * cloud.rgb[3 * pt + static_cast<std::size_t>(k)];
+            }
+            if (inten) i_sum += w * static_cast<double>(cloud.intensity[pt]);
+          }
+        }
+        if (w_sum > 0.0) {
+          if (rgb) {
+            for (int k = 0; k < 3; ++k) {
+              out.colour_rgb8[3 * i + static_cast<std::size_t>(k)] =
+                  static_cast<std::uint8_t>(std::clamp(std::lround(c_sum[k] / w_sum), 0L, 255L));
+            }
+          }
+          if (inten) out.intensity.data()[i] = static_cast<float>(i_sum / w_sum);
+        }
+      }
+    }
+  }
+}
+
+// Bilinear interpolation of the coarse attributes onto g with the weights upsample() gives the
+// depth; only nodes whose depth is valid get values.
+void upsample_attributes(const DepthGrid& coarse, const GridGeometry& cg, const GridGeometry& g, int k,
+                         DepthGrid& out) {
+  const bool rgb = coarse.has_colour(), inten = coarse.has_intensity();
+  if (rgb) out.colour_rgb8.assign(3 * g.cell_count(), 0);
+  if (inten) out.intensity = HeightField(g, kNoData);
+  const std::size_t ccols = static_cast<std::size_t>(cg.cols);
+  const double inv_k = 1.0 / k;
+  for (int r = 0; r < g.rows; ++r) {
+    const int r0 = std::min(r / k, cg.rows - 2);
+    const double v = (r - r0 * k) * inv_k;
+    for (int c = 0; c < g.cols; ++c) {
+      const std::size_t o = static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c);
+      if (std::isnan(out.depth.data()[o])) continue;
+      const int c0 = std::min(c / k, cg.cols - 2);
+      const double u = (c - c0 * k) * inv_k;
+      const std::size_t i00 = static_cast<std::size_t>(r0) * ccols + static_cast<std::size_t>(c0);
+      const double w[4] = {(1 - u) * (1 - v), u * (1 - v), (1 - u) * v, u * v};
+      const std::size_t idx[4] = {i00, i00 + 1, i00 + ccols, i00 + ccols + 1};
+      double c_acc[3] = {0.0, 0.0, 0.0}, i_acc = 0.0;
+      for (int q = 0; q < 4; ++q) {
+        if (w[q] == 0.0) continue;
+        if (rgb) {
+          for (int ch = 0; ch < 3; ++ch) c_acc[ch] += w[q] * coarse.colour_rgb8[3 * idx[q] + static_cast<std::size_t>(ch)];
+        }
+        if (inten) i_acc += w[q] * static_cast<double>(coarse.intensity.data()[idx[q]]);
+      }
+      if (rgb) {
+        for (int ch = 0; ch < 3; ++ch) {
+          out.colour_rgb8[3 * o + static_cast<std::size_t>(ch)] =
+              static_cast<std::uint8_t>(std::clamp(std::lround(c_acc[ch]), 0L, 255L));
+        }
+      }
+      if (inten) out.intensity.data()[o] = static_cast<float>(i_acc);
+    }
+  }
+}
+
 }  // namespace
 
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options) {
@@ -687,12 +834,29 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
   const int factor = options.upsample_factor == 0
                          ? auto_upsample_factor(pts, n_points, g, all_finite, &coverage)
                          : options.upsample_factor;
+  const bool attributes = points_m.has_rgb() || points_m.has_intensity();
+  if (attributes) {
+    std::ostringstream msg;
+    if ((points_m.has_rgb() && points_m.rgb.size() != 3 * n_points) ||
+        (points_m.has_intensity() && points_m.intensity.size() != n_points)) {
+      msg << "reproject: the cloud's attributes are misaligned (" << n_points << " points, " << points_m.rgb.size()
+          << " rgb bytes, " << points_m.intensity.size() << " intensities; expected 3 bytes and 1 intensity per point)";
+      throw InputError(msg.str());
+    }
+    if (n_points >= kNoPoint) {
+      msg << "reproject: " << n_points << " points with colour or intensity; at most " << kNoPoint - 1 << " supported";
+      throw ResourceError(msg.str());
+    }
+  }
   if (factor == 1) {
     result.value = scan_grid(pts, n_points, half, two_threads, all_finite, g, options, counts);
+    if (attributes) scan_attributes(points_m, all_finite, g, options, result.value);
   } else {
     const GridGeometry coarse = coarse_geometry(g, factor);
-    const DepthGrid scanned = scan_grid(pts, n_points, half, two_threads, all_finite, coarse, options, counts);
+    DepthGrid scanned = scan_grid(pts, n_points, half, two_threads, all_finite, coarse, options, counts);
+    if (attributes) scan_attributes(points_m, all_finite, coarse, options, scanned);
     result.value = upsample(scanned, coarse, g, factor);
+    if (attributes) upsample_attributes(scanned, coarse, g, factor, result.value);
   }
   DepthGrid& out = result.value;
   const std::size_t cells = g.cell_count();
@@ -726,6 +890,10 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
   rep.figure("cells_upsampled", static_cast<double>(upsampled));
   if (options.upsample_factor == 0) rep.figure("upsample_coverage", coverage);
   rep.figure("see_through_candidates", static_cast<double>(candidates));
+  if (attributes) {
+    rep.notes.emplace_back(std::string("carried per cell from the front-most point:") +
+                           (points_m.has_rgb() ? " colour (rgb8)" : "") + (points_m.has_intensity() ? " intensity" : ""));
+  }
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;
 }

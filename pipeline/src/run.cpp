@@ -122,6 +122,10 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     return load_cloud(config.input.files.front(), load_options);
   });
   if (reports.back().count_out == 0) reports.back().count_out = cloud.size();
+  const std::size_t ingest_index = reports.size() - 1;
+  struct {
+    bool rgb, intensity, grid_index, scan_id;
+  } const ingest_attrs{cloud.has_rgb(), cloud.has_intensity(), cloud.has_grid_index(), cloud.has_scan_id()};
   for (const auto& f : config.input.files) scene_inputs.push_back({f.string(), sha256_file(f)});
   if (config.input.conf) scene_inputs.push_back({config.input.conf->string(), sha256_file(*config.input.conf)});
 
@@ -152,6 +156,21 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     });
   }
 
+  // What per-point attributes the scan carried and what reached the grid (the ingest report).
+  {
+    StageReport& ingest = reports[ingest_index];
+    std::string found, kept;
+    auto item = [](std::string& list, const char* name) { list += (list.empty() ? "" : ", ") + std::string(name); };
+    if (ingest_attrs.rgb) item(found, "colour (rgb)");
+    if (ingest_attrs.intensity) item(found, "intensity");
+    if (ingest_attrs.grid_index) item(found, "row/col");
+    if (ingest_attrs.scan_id) item(found, "scan_id");
+    if (cloud.has_rgb()) item(kept, "colour (rgb)");
+    if (cloud.has_intensity()) item(kept, "intensity");
+    ingest.notes.push_back("per-point attributes found: " + (found.empty() ? std::string("none") : found) +
+                           "; kept through the filters: " + (kept.empty() ? std::string("none") : kept) +
+                           " (colour and intensity go to the scene's layers; row/col and scan_id are not used by the grid)");
+  }
   return cloud;
 }
 
@@ -188,6 +207,12 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   scene.geometry = grid.depth.geometry();
   scene.model_to_grid = model_to_grid;
   scene.layers.flags = std::move(grid.flags);
+  // Colour and intensity of the front-most point per cell (reproject), hole-filled like depth.
+  scene.layers.colour_rgb8 = std::move(grid.colour_rgb8);
+  if (grid.has_intensity()) {
+    scene.layers.intensity = std::move(grid.intensity);
+    scene.layers.intensity.model_to_grid = model_to_grid;
+  }
 
   // 6. Surface layers (texture, curvature, friction).
   if (config.layers.enabled) {
@@ -283,6 +308,13 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
                              "dynamic friction mu_d (" + friction_name + ")", "-", 1.0);
         write_colour_preview(scene.layers.mu_s, previews / "mu_s.png", "static friction mu_s", "-", 1.0);
       });
+  if (!scene.layers.colour_rgb8.empty()) {
+    detail::run_two([&] { write_rgb_preview(depth, scene.layers.colour_rgb8, previews / "colour.png", false); },
+                    [&] { write_rgb_preview(depth, scene.layers.colour_rgb8, previews / "colour_hillshade.png", true); });
+  }
+  if (!scene.layers.intensity.values().empty()) {
+    write_colour_preview(scene.layers.intensity, previews / "intensity.png", "scanner intensity (as stored)", "-", 1.0);
+  }
   write_report.seconds = seconds_since(t_write);
   reports.push_back(write_report);
   if (progress) progress(write_report, true);
@@ -438,6 +470,10 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
   md << "## Previews\n\n![depth](previews/depth.png)\n![hillshade](previews/hillshade.png)\n";
   if (summary.cross_check) md << "![cross-check error](previews/cross_check_error.png)\n";
   if (scene.layers.has_surface_layers()) md << "![texture](previews/texture.png)\n![mu_d](previews/mu_d.png)\n![mu_s](previews/mu_s.png)\n";
+  if (!scene.layers.colour_rgb8.empty()) {
+    md << "![colour (front-most point per cell)](previews/colour.png)\n![colour over hillshade](previews/colour_hillshade.png)\n";
+  }
+  if (!scene.layers.intensity.values().empty()) md << "![intensity](previews/intensity.png)\n";
   write_text(staging.path() / "report.md", md.str());
 
   staging.commit();

@@ -84,9 +84,21 @@ enum CellFlag : std::uint8_t {
   kCellUpsampled = 5,    ///< interpolated between the nodes of a coarser scan (upsample_factor)
 };
 
+/// The result of the depth scan. `colour_rgb8` and `intensity` are filled only when the cloud
+/// carries per-point rgb / intensity (else empty), with the layout of the scene's layers.
 struct DepthGrid {
   HeightField depth;                ///< heights [m], NaN = no data
   std::vector<std::uint8_t> flags;  ///< CellFlag per cell
+  /// Empty, or rows·cols·3 bytes, R G B per cell, row-major like `depth`. A cell takes the
+  /// colour of the point that gave it its depth (see reproject); no-data cells are 0, 0, 0
+  /// (the flag says no data).
+  std::vector<std::uint8_t> colour_rgb8{};
+  /// Empty, or the geometry of `depth`: the scanner intensity [-] of the point that gave the
+  /// cell its depth (as stored by the scanner, see Cloud::intensity); NaN where depth is NaN.
+  HeightField intensity{};
+
+  bool has_colour() const { return !colour_rgb8.empty(); }
+  bool has_intensity() const { return !intensity.values().empty(); }
 };
 
 /// Reprojects grid-frame points (metres; z towards the viewer) onto a grid covering their x-y
@@ -96,10 +108,19 @@ struct DepthGrid {
 /// centred on the box (likewise both sides for a given cell_size_m). Samples are node-centred
 /// (GridGeometry) and each point goes to its nearest node (ties to the higher index).
 /// Non-finite points are skipped (counted in figure points_non_finite).
+/// Colour and intensity (only when the cloud has rgb / intensity; the depth and flags are the
+/// same with or without them): a measured cell takes the attributes of its front-most point
+/// (the largest z as float; among equal z the earliest point); a disc-splatted cell (filled or
+/// occluding) those of the measured cell whose z it took (the front-most measured cell within
+/// the disc; ties to the first in row-major order); an interpolated splat the same Gaussian-
+/// weighted mean of the measured cells' attributes as its depth (colour rounded to 8 bit); an
+/// upsampled node the same bilinear weights as its depth. Cells binned before see-through
+/// rejection count as measured for the splats, as they do for the depth. No-data cells: colour
+/// 0, 0, 0, intensity NaN. Extra memory while scanning: 8 bytes per cell.
 /// @return depth grid plus flags; report figures: rows, cols, cell_size_mm, cells,
 ///         cells_valid, cells_measured, cells_splatted, cells_occluded_by_splat,
 ///         cells_see_through.
-/// @throws hc::InputError if there is no finite point; hc::DegenerateInputError if the grid
+/// @throws hc::InputError if there is no finite point or rgb / intensity are not 3·N / N long; hc::DegenerateInputError if the grid
 ///         would have fewer than 2 samples along a side (a single x-y position, all points on
 ///         a line, e.g. a cloud edge-on to the view, or all points in one cell);
 ///         hc::ConfigError if n_long_side ≤ 1, neither or both of n_long_side and cell_size_m
@@ -118,12 +139,14 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 /// max_hole_cells cells that do not touch the grid border, by normalised convolution (Gaussian
 /// σ = 1 cell over a 7 × 7 window, Σw·z / Σw over the known cells, evaluated at hole cells
 /// only), from the rim inwards until the hole is full; larger holes and the background stay no
-/// data. Filled cells get kCellFilled in `grid.flags`. A fill is a weighted mean, so on a slope
+/// data. Filled cells get kCellFilled in `grid.flags`, and colour / intensity (when the grid
+/// has them) by the same normalised convolution over the same known cells (colour rounded to
+/// 8 bit; a known cell with NaN intensity makes the fill NaN). A fill is a weighted mean, so on a slope
 /// it is off by up to slope × 2 cells, and across a depth step it invents an intermediate
 /// surface (the cross-check's cell-to-point distance shows it).
 /// @param max_hole_cells  0 disables filling.
-/// @throws hc::ConfigError if max_hole_cells < 0; hc::InputError if flags and depth disagree
-///         in size. Real-time: no. Cost: O(rows·cols) labelling + O(filled cells · 49 · sweeps).
+/// @throws hc::ConfigError if max_hole_cells < 0; hc::InputError if flags, colour or
+///         intensity and depth disagree in size. Real-time: no. Cost: O(rows·cols) labelling + O(filled cells · 49 · sweeps).
 StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells);
 
 }  // namespace hc::pipeline
