@@ -5,7 +5,34 @@
 
 #include <CLI/CLI.hpp>
 
+#include <cmath>
+#include <exception>
+#include <string>
+
 namespace hc::app {
+
+/// A CLI11 check that the option's value is a finite number in [lo, hi] ((lo, hi] with lo_open).
+/// CLI::Range lets NaN through (every comparison with NaN is false); this does not. A failure is
+/// a usage error (exit 2) naming the option, the value and the range.
+inline CLI::Validator finite_in(double lo, double hi, bool lo_open = false) {
+  const std::string range = std::string(lo_open ? "(" : "[") + std::to_string(lo) + ", " + std::to_string(hi) + "]";
+  return CLI::Validator(
+      [lo, hi, lo_open, range](std::string& text) -> std::string {
+        double v = 0.0;
+        try {
+          std::size_t used = 0;
+          v = std::stod(text, &used);
+          if (used != text.size()) return "'" + text + "' is not a number";
+        } catch (const std::exception&) {
+          return "'" + text + "' is not a number";
+        }
+        if (!std::isfinite(v) || v < lo || v > hi || (lo_open && v == lo)) {
+          return "value " + text + " is out of range: expected a finite number in " + range;
+        }
+        return std::string();
+      },
+      "NUMBER in " + range);
+}
 
 /// `hapticloud run CONFIG.yaml [--out DIR] [--set key=value ...]`: the offline pipeline.
 void add_run_command(CLI::App& app);

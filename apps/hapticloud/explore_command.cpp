@@ -32,18 +32,18 @@ void add_explore_command(CLI::App& app) {
   cmd->add_option("--device", o->device, "falcon | mouse | sim (a scripted path)")->capture_default_str();
   cmd->add_option("--path", o->path, "Scripted path of --device sim: raster | circle | line | press-slide | hold")
       ->capture_default_str();
-  cmd->add_option("--speed", o->speed_m_per_s, "Speed of the scripted path [m/s] (device frame)")->capture_default_str();
+  cmd->add_option("--speed", o->speed_m_per_s, "Speed of the scripted path [m/s] (device frame)")->capture_default_str()->check(finite_in(0.0, 10.0, true));
   cmd->add_option("--screenshot", o->screenshot, "Render --frames N frames (1 if not given), save the last as PNG and exit");
-  cmd->add_option("--frames", o->frames, "Exit after this many frames (0 = run until the window closes)")->capture_default_str();
-  cmd->add_option("--seconds", o->seconds, "Exit after this many seconds (0 = no limit)")->capture_default_str();
+  cmd->add_option("--frames", o->frames, "Exit after this many frames (0 = run until the window closes)")->capture_default_str()->check(CLI::Range(0, 100000000));
+  cmd->add_option("--seconds", o->seconds, "Exit after this many seconds (0 = no limit)")->capture_default_str()->check(finite_in(0.0, 86400.0));
   cmd->add_option("--summary", o->summary, "Write servo and frame statistics of the session as JSON to this file");
   cmd->add_option("--out", o->out, "Folder for the scenes built from a config (scan-0, scan-1 after re-scans, ...)")
       ->capture_default_str();
-  cmd->add_option("--width", o->width, "Window width [px]")->capture_default_str();
-  cmd->add_option("--height", o->height, "Window height [px]")->capture_default_str();
+  cmd->add_option("--width", o->width, "Window width [px]")->capture_default_str()->check(CLI::Range(64, 16384));
+  cmd->add_option("--height", o->height, "Window height [px]")->capture_default_str()->check(CLI::Range(64, 16384));
   cmd->add_option("--window-cells", o->window_cells, "Haptic window side [samples] (default: the config's lod.window_cells, else 200)");
-  cmd->add_option("--stiffness", o->stiffness_n_per_m, "Stiffness k [N/m] (device frame)")->capture_default_str();
-  cmd->add_option("--rho", o->rho, "Proxy step factor rho of Eq. 4-5, (0, 1]")->capture_default_str();
+  cmd->add_option("--stiffness", o->stiffness_n_per_m, "Stiffness k [N/m] (device frame)")->capture_default_str()->check(finite_in(0.0, 100000.0, true));
+  cmd->add_option("--rho", o->rho, "Proxy step factor rho of Eq. 4-5, (0, 1]")->capture_default_str()->check(finite_in(0.0, 1.0, true));
   cmd->add_option("--realtime", o->realtime, "Servo thread scheduling: off | warn | enforce (SCHED_FIFO + mlockall)")
       ->capture_default_str();
   cmd->add_option("--script", o->script,

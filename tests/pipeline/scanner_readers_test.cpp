@@ -461,7 +461,8 @@ PtxOracle ptx_oracle(const std::string& text) {
   auto next = [&](std::istringstream& ls) {
     while (std::getline(in, line)) {
       if (line.find_first_not_of(" \t\r") != std::string::npos) {
-        ls = std::istringstream(line);
+        ls.clear();  // reuse the stream (move-assigning one trips GCC 12's -Wstringop-overflow under ASan)
+        ls.str(line);
         return true;
       }
     }
