@@ -326,6 +326,7 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
     lod_rows = stage("levels", reports, progress, [&] {
       LodLevel l0;
       l0.depth_m = scene.layers.depth;
+      l0.colour_rgb8 = scene.layers.colour_rgb8;
       if (scene.layers.has_surface_layers()) {
         l0.envelope_m = scene.layers.envelope;
         l0.texture_m = scene.layers.texture;
