@@ -167,6 +167,8 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     if (ingest_attrs.scan_id) item(found, "scan_id");
     if (cloud.has_rgb()) item(kept, "colour (rgb)");
     if (cloud.has_intensity()) item(kept, "intensity");
+    if (cloud.has_grid_index()) item(kept, "row/col");
+    if (cloud.has_scan_id()) item(kept, "scan_id");
     ingest.notes.push_back("per-point attributes found: " + (found.empty() ? std::string("none") : found) +
                            "; kept through the filters: " + (kept.empty() ? std::string("none") : kept) +
                            " (colour and intensity go to the scene's layers; row/col and scan_id are not used by the grid)");
