@@ -45,16 +45,48 @@ HeightField crop(const HeightField& src, int row0, int col0, int rows, int cols)
   return out;
 }
 
+/// Crops the colour bytes of the same window (3 bytes per sample).
+std::vector<std::uint8_t> crop_colour(const std::vector<std::uint8_t>& src, const GridGeometry& g, int row0, int col0,
+                                      int rows, int cols) {
+  std::vector<std::uint8_t> out(3 * static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols));
+  for (int r = 0; r < rows; ++r) {
+    const std::uint8_t* from = src.data() + 3 * (static_cast<std::ptrdiff_t>(row0 + r) * g.cols + col0);
+    std::copy(from, from + 3 * cols, out.data() + 3 * static_cast<std::ptrdiff_t>(r) * cols);
+  }
+  return out;
+}
+
+/// Colour of the next level: each channel by downsample_2x over the samples whose depth is
+/// valid (so the same mask, the same weights and the same validity as the depth), rounded.
+std::vector<std::uint8_t> downsample_colour_2x(const HeightField& fine_depth, const std::vector<std::uint8_t>& fine_rgb,
+                                               double sigma_cells, double valid_fraction) {
+  const std::size_t n = fine_depth.values().size();
+  std::vector<std::uint8_t> out;
+  for (std::size_t ch = 0; ch < 3; ++ch) {
+    HeightField channel(fine_depth.geometry());
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!std::isnan(fine_depth.data()[i])) channel.data()[i] = fine_rgb[3 * i + ch];
+    }
+    const HeightField coarse = downsample_2x(channel, sigma_cells, valid_fraction);
+    if (out.empty()) out.assign(3 * coarse.values().size(), 0);
+    for (std::size_t i = 0; i < coarse.values().size(); ++i) {
+      const float v = coarse.data()[i];
+      if (!std::isnan(v)) out[3 * i + ch] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 std::size_t LodLevel::bytes() const {
   return field_bytes(depth_m) + field_bytes(envelope_m) + field_bytes(texture_m) + field_bytes(mu_d) +
-         field_bytes(mu_s);
+         field_bytes(mu_s) + colour_rgb8.size();
 }
 
 std::size_t LodWindowLayers::bytes() const {
   return field_bytes(depth_m) + field_bytes(envelope_m) + field_bytes(texture_m) + field_bytes(mu_d) +
-         field_bytes(mu_s);
+         field_bytes(mu_s) + colour_rgb8.size();
 }
 
 int lod_level_count(const GridGeometry& finest, int min_cells) {
@@ -200,6 +232,11 @@ LodPyramid::LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options
                      " samples of " + format_number(g.cell_size_m) + " m: expected at least 2 x 2 and a cell size > 0");
   }
   if (finest.depth_m.valid_count() == 0) throw InputError("lod: the finest depth grid has no valid sample");
+  if (!finest.colour_rgb8.empty() && finest.colour_rgb8.size() != 3 * g.cell_count()) {
+    throw InputError("lod: level 0 colour holds " + std::to_string(finest.colour_rgb8.size()) + " bytes, expected " +
+                     std::to_string(3 * g.cell_count()) + " (3 per sample of the depth's " + std::to_string(g.rows) +
+                     " x " + std::to_string(g.cols) + ")");
+  }
   if (finest.has_layers) {
     const std::pair<const char*, const HeightField*> layers[] = {
         {"envelope", &finest.envelope_m}, {"texture", &finest.texture_m}, {"mu_d", &finest.mu_d}, {"mu_s", &finest.mu_s}};
@@ -222,6 +259,7 @@ std::shared_ptr<LodPyramid> LodPyramid::from_scene(hc::Scene&& scene, const Surf
   if (scene.layers.depth.rows() == 0) throw InputError("lod: the scene has no depth layer");
   LodLevel l0;
   l0.depth_m = std::move(scene.layers.depth);
+  l0.colour_rgb8 = std::move(scene.layers.colour_rgb8);
   if (scene.layers.has_surface_layers()) {
     l0.envelope_m = std::move(scene.layers.envelope);
     l0.texture_m = std::move(scene.layers.texture);
@@ -296,11 +334,16 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
   built->level = level;
   if (depth_only) {
     built->depth_m = depth_only->depth_m;
+    built->colour_rgb8 = depth_only->colour_rgb8;
     built->depth_seconds = depth_only->depth_seconds;
   } else {
     const std::shared_ptr<const LodLevel> above = get_level(level - 1, false);
     const auto t0 = Clock::now();
     built->depth_m = downsample_2x(above->depth_m, options_.antialias_sigma_cells, options_.valid_fraction);
+    if (!above->colour_rgb8.empty()) {
+      built->colour_rgb8 = downsample_colour_2x(above->depth_m, above->colour_rgb8, options_.antialias_sigma_cells,
+                                                options_.valid_fraction);
+    }
     built->depth_seconds = seconds_since(t0);
   }
   if (with_layers) {
@@ -392,6 +435,7 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
   win->row0 = row0;
   win->col0 = col0;
   win->depth_m = crop(lvl->depth_m, row0, col0, rows, cols);
+  if (!lvl->colour_rgb8.empty()) win->colour_rgb8 = crop_colour(lvl->colour_rgb8, lvl->depth_m.geometry(), row0, col0, rows, cols);
   if (lvl->has_layers) {
     win->envelope_m = crop(lvl->envelope_m, row0, col0, rows, cols);
     win->texture_m = crop(lvl->texture_m, row0, col0, rows, cols);

@@ -167,6 +167,8 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     if (ingest_attrs.scan_id) item(found, "scan_id");
     if (cloud.has_rgb()) item(kept, "colour (rgb)");
     if (cloud.has_intensity()) item(kept, "intensity");
+    if (cloud.has_grid_index()) item(kept, "row/col");
+    if (cloud.has_scan_id()) item(kept, "scan_id");
     ingest.notes.push_back("per-point attributes found: " + (found.empty() ? std::string("none") : found) +
                            "; kept through the filters: " + (kept.empty() ? std::string("none") : kept) +
                            " (colour and intensity go to the scene's layers; row/col and scan_id are not used by the grid)");
@@ -326,6 +328,7 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
     lod_rows = stage("levels", reports, progress, [&] {
       LodLevel l0;
       l0.depth_m = scene.layers.depth;
+      l0.colour_rgb8 = scene.layers.colour_rgb8;
       if (scene.layers.has_surface_layers()) {
         l0.envelope_m = scene.layers.envelope;
         l0.texture_m = scene.layers.texture;

@@ -3,6 +3,7 @@
 // the filters keeping attributes aligned, and a coloured sample through the whole run.
 
 #include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
@@ -281,6 +282,71 @@ TEST(ColourLayers, ColouredLasRunWritesColourLayerAndPreviewsAndReadsThemBack) {
   EXPECT_NE(text.str().find("previews/colour_hillshade.png"), std::string::npos);
   EXPECT_NE(text.str().find("previews/intensity.png"), std::string::npos);
   EXPECT_NE(text.str().find("per-point attributes found: colour (rgb), intensity"), std::string::npos);
+}
+
+TEST(ColourLayers, LevelsOfDetailSmoothColourLikeDepthAndCropItIntoWindows) {
+  // Level 0: 64 x 64 plane with a hole; red is a ramp along columns (R = col), so normalised
+  // smoothing reproduces it at the interior coarse samples: R = 2^L · col_L.
+  const hc::GridGeometry g{64, 64, 0.0, 0.0, 0.001};
+  LodLevel l0;
+  l0.depth_m = hc::HeightField(g, 0.0f);
+  l0.colour_rgb8.assign(3 * g.cell_count(), 0);
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      const std::size_t k = static_cast<std::size_t>(r) * 64 + static_cast<std::size_t>(c);
+      if (r >= 20 && r < 40 && c >= 20 && c < 40) {
+        l0.depth_m.data()[k] = hc::kNoData;
+        continue;
+      }
+      l0.colour_rgb8[3 * k] = static_cast<std::uint8_t>(c);
+      l0.colour_rgb8[3 * k + 1] = 50;
+      l0.colour_rgb8[3 * k + 2] = 200;
+    }
+  }
+  hc::LodOptions lo;
+  lo.min_cells = 8;
+  LodPyramid pyramid(std::move(l0), hc::SurfaceLayerOptions{}, lo);
+  ASSERT_GE(pyramid.level_count(), 3);
+  for (int level = 1; level < 3; ++level) {
+    const auto lvl = pyramid.depth_level(level);
+    const hc::GridGeometry& lg = lvl->depth_m.geometry();
+    ASSERT_EQ(lvl->colour_rgb8.size(), 3 * lg.cell_count()) << "level " << level;
+    const int step = 1 << level;
+    std::size_t checked = 0;
+    for (int r = 0; r < lg.rows; ++r) {
+      for (int c = 0; c < lg.cols; ++c) {
+        const std::size_t k = static_cast<std::size_t>(r) * static_cast<std::size_t>(lg.cols) + static_cast<std::size_t>(c);
+        const std::uint8_t* rgb = lvl->colour_rgb8.data() + 3 * k;
+        if (std::isnan(lvl->depth_m.data()[k])) {
+          EXPECT_EQ(rgb[0] | rgb[1] | rgb[2], 0);
+          continue;
+        }
+        EXPECT_EQ(rgb[1], 50);
+        EXPECT_EQ(rgb[2], 200);
+        // Away from the border and the hole by the reach of the kernels of every level so far
+        // (⌈3σ⌉ samples of each finer level), the ramp is exact.
+        const int reach = static_cast<int>(std::ceil(3.0 * lo.antialias_sigma_cells));
+        const int fr = r * step, fc = c * step, margin = (step - 1) * reach + 1;
+        const bool clear = fr >= margin && fc >= margin && fr < 64 - margin && fc < 64 - margin &&
+                           (fr < 20 - margin || fr >= 40 + margin || fc < 20 - margin || fc >= 40 + margin);
+        if (!clear) continue;
+        ++checked;
+        EXPECT_NEAR(rgb[0], fc, 1) << "level " << level << " (" << r << ", " << c << ")";
+      }
+    }
+    EXPECT_GT(checked, 0u) << "level " << level;
+  }
+  const auto win = pyramid.window(1, 3, 5, 8, 9);
+  const auto lvl1 = pyramid.depth_level(1);
+  ASSERT_EQ(win->colour_rgb8.size(), 3u * 8u * 9u);
+  for (int r = 0; r < 8; ++r) {
+    for (int c = 0; c < 9; ++c) {
+      for (int ch = 0; ch < 3; ++ch) {
+        EXPECT_EQ(win->colour_rgb8[static_cast<std::size_t>(3 * (r * 9 + c) + ch)],
+                  lvl1->colour_rgb8[static_cast<std::size_t>(3 * ((win->row0 + r) * lvl1->depth_m.cols() + win->col0 + c) + ch)]);
+      }
+    }
+  }
 }
 
 }  // namespace

@@ -33,6 +33,11 @@ struct LodLevel {
   HeightField mu_d;         ///< μ_d [-] of this level (curvature with this level's cell size)
   HeightField mu_s;         ///< μ_s [-]
   bool has_layers = false;  ///< envelope, texture, μ_d, μ_s present
+  /// Empty, or rows·cols·3 bytes, R G B per sample (the scan's colour, scene layer colour).
+  /// Coarser levels: each channel by the same normalised smoothing as depth (downsample_2x over
+  /// the samples with valid depth, rounded to 8 bit), so it is present exactly where depth is;
+  /// 0, 0, 0 where depth is no data. Built together with the depth.
+  std::vector<std::uint8_t> colour_rgb8{};
   double depth_seconds = 0.0;   ///< time to smooth and decimate from the level above [s] (0 for level 0)
   double layers_seconds = 0.0;  ///< time of compute_surface_layers for this level [s]
   /// Bytes held by the grids. Real-time: no.
@@ -46,6 +51,7 @@ struct LodWindowLayers {
   int level = 0;
   int row0 = 0, col0 = 0;
   HeightField depth_m, envelope_m, texture_m, mu_d, mu_s;
+  std::vector<std::uint8_t> colour_rgb8{};  ///< the level's colour cropped (empty if it has none)
   std::size_t bytes() const;
 };
 
@@ -84,13 +90,14 @@ HeightField downsample_2x(const HeightField& fine, double sigma_cells, double va
 class LodPyramid {
  public:
   /// @param finest level 0; its depth must have rows, cols ≥ 2 and a valid sample; its other
-  ///        fields, when has_layers, must share the depth's geometry.
+  ///        fields, when has_layers, must share the depth's geometry; its colour, if any,
+  ///        must hold rows·cols·3 bytes.
   /// @throws hc::ConfigError for options out of range (naming the lod.* key and the value);
   ///         hc::InputError for an empty or geometry-mismatched level 0.
   LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options, const LodOptions& options);
 
   /// From a scene: moves its depth (and envelope, texture, mu_d, mu_s when all four are
-  /// present) into level 0. Callers usually pass the scene's own layer_options and lod.
+  /// present, and its colour when present) into level 0. Callers usually pass the scene's own layer_options and lod.
   /// @throws as the constructor (hc::InputError for an empty depth layer).
   static std::shared_ptr<LodPyramid> from_scene(hc::Scene&& scene, const SurfaceLayerOptions& layer_options,
                                                 const LodOptions& options);

@@ -120,9 +120,10 @@ struct DepthGrid {
 /// @return depth grid plus flags; report figures: rows, cols, cell_size_mm, cells,
 ///         cells_valid, cells_measured, cells_splatted, cells_occluded_by_splat,
 ///         cells_see_through.
-/// @throws hc::InputError if there is no finite point or rgb / intensity are not 3·N / N long; hc::DegenerateInputError if the grid
-///         would have fewer than 2 samples along a side (a single x-y position, all points on
-///         a line, e.g. a cloud edge-on to the view, or all points in one cell);
+/// @throws hc::InputError if there is no finite point or rgb / intensity are not 3·N / N
+///         long; hc::ResourceError for 2^32 − 1 points or more with rgb or intensity;
+///         hc::DegenerateInputError if the grid would have fewer than 2 samples along a side
+///         (a single x-y position, all points on a line, e.g. a cloud edge-on to the view, or all points in one cell);
 ///         hc::ConfigError if n_long_side ≤ 1, neither or both of n_long_side and cell_size_m
 ///         are given, or an option is out of range; hc::ResourceError if rows·cols exceeds
 ///         max_cells (the message gives rows, cols, the cap and the bytes needed: 5 per cell,
