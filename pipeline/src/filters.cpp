@@ -185,11 +185,76 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
   report.count_out = result.size();
   report.figure("leaf_mm", leaf_m * 1e3);
   if (cloud.has_scan_id()) report.notes.push_back("scan_id dropped: a voxel centroid mixes scans");
-  // The centroids are new points; the per-point attributes are not carried over (never left
-  // misaligned: the result holds none of them).
-  if (cloud.has_rgb()) report.notes.push_back("colour (rgb) dropped: a voxel centroid is a new point");
-  if (cloud.has_intensity()) report.notes.push_back("intensity dropped: a voxel centroid is a new point");
   if (cloud.has_grid_index()) report.notes.push_back("row/col dropped: a voxel centroid has no scan grid position");
+  if (cloud.has_rgb() || cloud.has_intensity()) {
+    // Colour and intensity: the mean over the voxel's points. Each input point's voxel is found
+    // with VoxelGrid's own arithmetic (float floor(p · (1/leaf)) − min index, linear index
+    // i + j·nx + k·nx·ny); PCL emits one centroid per occupied voxel in increasing linear index
+    // (min_points_per_voxel 0), so the i-th distinct index is output point i. Checked: the
+    // voxel count and each voxel's centroid must match PCL's output, else the attributes are
+    // dropped with a note (never misaligned).
+    const float inv_leaf = 1.0f / static_cast<float>(leaf_m);
+    Eigen::Vector3i min_b, div_b;
+    for (int a = 0; a < 3; ++a) {
+      min_b[a] = static_cast<int>(std::floor(lo[a] * inv_leaf));
+      div_b[a] = static_cast<int>(std::floor(hi[a] * inv_leaf)) - min_b[a] + 1;
+    }
+    std::vector<std::pair<std::int64_t, std::size_t>> keyed;  // (voxel index, input point)
+    keyed.reserve(in->size());
+    for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
+      if (!cloud.xyz.col(i).allFinite()) continue;
+      const Eigen::Vector3f p = cloud.xyz.col(i).cast<float>();
+      std::int64_t ijk[3];
+      for (int a = 0; a < 3; ++a) {
+        ijk[a] = static_cast<std::int64_t>(std::floor(p[a] * inv_leaf) - static_cast<float>(min_b[a]));
+      }
+      keyed.emplace_back(ijk[0] + ijk[1] * div_b[0] + ijk[2] * static_cast<std::int64_t>(div_b[0]) * div_b[1],
+                         static_cast<std::size_t>(i));
+    }
+    std::stable_sort(keyed.begin(), keyed.end(),
+                     [](const auto& a, const auto& b) { return a.first < b.first; });
+    const bool rgb = cloud.has_rgb(), inten = cloud.has_intensity();
+    std::vector<std::uint8_t> rgb_out(rgb ? 3 * out.size() : 0);
+    std::vector<float> int_out(inten ? out.size() : 0);
+    bool ok = true;
+    std::size_t voxel = 0;
+    for (std::size_t b = 0; b < keyed.size() && ok; ++voxel) {
+      std::size_t e = b;
+      while (e < keyed.size() && keyed[e].first == keyed[b].first) ++e;
+      if (voxel >= out.size()) {
+        ok = false;
+        break;
+      }
+      Eigen::Vector3d centroid = Eigen::Vector3d::Zero();
+      double c_sum[3] = {0.0, 0.0, 0.0}, i_sum = 0.0;
+      for (std::size_t q = b; q < e; ++q) {
+        const std::size_t pt = keyed[q].second;
+        centroid += cloud.xyz.col(static_cast<Eigen::Index>(pt));
+        if (rgb) {
+          for (std::size_t ch = 0; ch < 3; ++ch) c_sum[ch] += cloud.rgb[3 * pt + ch];
+        }
+        if (inten) i_sum += static_cast<double>(cloud.intensity[pt]);
+      }
+      const double n = static_cast<double>(e - b);
+      centroid /= n;
+      const double tol = 1e-3 * leaf_m + 1e-6 * centroid.cwiseAbs().maxCoeff();
+      if ((centroid - result.xyz.col(static_cast<Eigen::Index>(voxel))).cwiseAbs().maxCoeff() > tol) ok = false;
+      if (rgb) {
+        for (std::size_t ch = 0; ch < 3; ++ch) {
+          rgb_out[3 * voxel + ch] = static_cast<std::uint8_t>(std::clamp(std::lround(c_sum[ch] / n), 0L, 255L));
+        }
+      }
+      if (inten) int_out[voxel] = static_cast<float>(i_sum / n);
+      b = e;
+    }
+    if (ok && voxel == out.size()) {
+      result.rgb = std::move(rgb_out);
+      result.intensity = std::move(int_out);
+      report.notes.push_back(std::string("per voxel mean of") + (rgb ? " colour (rgb)" : "") + (inten ? " intensity" : ""));
+    } else {
+      report.notes.push_back("colour and intensity dropped: the voxels could not be matched to PCL's centroids");
+    }
+  }
   report.seconds = seconds_since(t0);
   return {std::move(result), std::move(report)};
 }
