@@ -3,6 +3,7 @@
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/ingest.hpp"
+#include "error_of.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -76,17 +77,7 @@ std::string float_ply_binary(int n, int declared) {
   return s;
 }
 
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const hc::InputError& e) {
-    return e.what();
-  } catch (const std::exception& e) {
-    return std::string("WRONG EXCEPTION TYPE: ") + e.what();
-  }
-  return "NO EXCEPTION";
-}
+using hc::test::error_of;
 
 // Median distance from each point of `a` to its nearest neighbour in `b`, over the points
 // whose nearest neighbour lies within `overlap_m` (the overlap of two views).

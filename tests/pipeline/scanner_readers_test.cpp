@@ -8,6 +8,7 @@
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/ingest.hpp"
+#include "error_of.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -41,17 +42,7 @@ void write_bytes(const fs::path& p, const std::string& bytes) {
   out << bytes;
 }
 
-template <class F>
-std::string error_of(F&& f) {
-  try {
-    f();
-  } catch (const hc::InputError& e) {
-    return e.what();
-  } catch (const std::exception& e) {
-    return std::string("WRONG EXCEPTION TYPE: ") + e.what();
-  }
-  return "NO EXCEPTION";
-}
+using hc::test::error_of;
 
 bool has_note(const hp::StageReport& r, const std::string& text) {
   return std::any_of(r.notes.begin(), r.notes.end(), [&](const std::string& n) { return n.find(text) != std::string::npos; });
