@@ -266,7 +266,13 @@ class Reader {
     if (!node.IsMap()) return;
     std::map<std::string, int> seen_line;  // yaml-cpp keeps duplicate keys silently: reject them
     for (const auto& kv : node) {
-      const std::string key = kv.first.as<std::string>();
+      if (!kv.first.IsScalar()) {  // a YAML complex key ("? a: b"), a list or a map as a key
+        const int l = kv.first.Mark().line;
+        throw ConfigError(origin_ + (l >= 0 ? ":" + std::to_string(l + 1) : "") + ": a key " +
+                          (prefix.empty() ? std::string("at the top level") : "in '" + prefix + "'") + " is " +
+                          scalar_text(kv.first) + ": expected a plain name");
+      }
+      const std::string key = kv.first.Scalar();
       const std::string path = prefix.empty() ? key : prefix + "." + key;
       const int line = kv.first.Mark().line;
       if (const auto it = seen_line.find(key); it != seen_line.end()) {
@@ -839,7 +845,13 @@ RunConfig parse_run_config(const std::string& yaml_text, const std::filesystem::
   std::set<std::string> overridden;
   for (const auto& o : overrides) apply_override(root, o, origin.string(), overridden);
   Reader reader(root, origin.string(), overridden);
-  return build(reader, origin);
+  try {
+    return build(reader, origin);
+  } catch (const YAML::Exception& e) {
+    // Every key is checked by the reader; this is the backstop for a node shape it did not expect.
+    throw ConfigError(origin.string() + ":" + std::to_string(e.mark.line + 1) + ": unexpected YAML structure (" +
+                      e.msg + ")");
+  }
 }
 
 RunConfig load_run_config(const std::filesystem::path& path, const std::vector<std::string>& overrides) {
