@@ -48,8 +48,7 @@ void expect_servo_unharmed(const nlohmann::json& s) {
   EXPECT_EQ(s["events_dropped"].get<long>(), 0);
   ASSERT_TRUE(s.contains("overruns")) << s.dump();  // the counter is reported ...
   ASSERT_TRUE(s.contains("fifo_granted")) << s.dump();
-  const long overruns = s["overruns"].get<long>();
-  EXPECT_GE(overruns, 0);
+  const long overruns = s["overruns"].get<long>();  // a count: never asserted (a loaded machine overruns)
   // ... in the test's XML/console output, for whoever studies timing, not as a pass criterion.
   ::testing::Test::RecordProperty("servo_ticks", std::to_string(s["ticks"].get<long>()));
   ::testing::Test::RecordProperty("viewer_frames", std::to_string(s["frames"].get<long>()));
