@@ -1,7 +1,9 @@
 // PCD reader. The header and the amount of data are checked here first (PCL's PCDReader crashes
 // on some malformed files, a garbage file without FIELDS for example, and accepts a non-numeric
-// ASCII token silently); then PCL parses the body into a pcl::PCLPointCloud2, whose fields keep
-// their declared type (float64 stays double), and x, y, z are copied into a Cloud.
+// ASCII token silently); a DATA binary body is then read here directly (PCL crashed on a fuzzed
+// binary file with a sound header), while PCL parses ascii and binary_compressed bodies into a
+// pcl::PCLPointCloud2, whose fields keep their declared type (float64 stays double), and x, y, z
+// are copied into a Cloud.
 //
 // PCL's readers take a file name only. Data that exists only in memory (a decompressed .gz) is
 // handed over through an anonymous memory file (memfd_create) opened as /proc/self/fd/N:
@@ -161,7 +163,55 @@ Cloud read_with_pcl(const std::string& bytes, const std::filesystem::path& origi
 // PCD header check. PCL's PCDReader crashes on some malformed files (a garbage file without
 // FIELDS, for example), so the header and the amount of data are checked here first.
 
-void validate_pcd(const std::string& raw, const std::string& name) {
+/// Where x, y, z sit in a point record, and what the header declared.
+struct PcdLayout {
+  std::string data;             ///< ascii | binary | binary_compressed
+  std::size_t pos = 0;          ///< first byte after the header
+  std::size_t n = 0;            ///< points
+  std::size_t point_bytes = 0;  ///< record size of a binary point
+  struct Axis {
+    std::size_t offset = 0;     ///< byte offset in the record
+    char type = 'F';            ///< F, I or U
+    int size = 4;               ///< bytes
+  } axis[3];
+};
+
+/// One value of a binary record: type F/I/U and size in bytes (as the header declared).
+double binary_value(const std::uint8_t* p, char type, int size) {
+  if (type == 'F') return size == 8 ? read_as_double<double>(p) : read_as_double<float>(p);
+  if (type == 'I') {
+    switch (size) {
+      case 1: return read_as_double<std::int8_t>(p);
+      case 2: return read_as_double<std::int16_t>(p);
+      case 4: return read_as_double<std::int32_t>(p);
+      default: return read_as_double<std::int64_t>(p);
+    }
+  }
+  switch (size) {
+    case 1: return read_as_double<std::uint8_t>(p);
+    case 2: return read_as_double<std::uint16_t>(p);
+    case 4: return read_as_double<std::uint32_t>(p);
+    default: return read_as_double<std::uint64_t>(p);
+  }
+}
+
+/// DATA binary, read here (PCL's reader crashed on a fuzzed binary file whose header was sound):
+/// n records of point_bytes bytes, little-endian as PCL writes them.
+Cloud read_binary_body(const std::string& raw, const PcdLayout& l) {
+  Cloud cloud;
+  cloud.xyz.resize(3, static_cast<Eigen::Index>(l.n));
+  const auto* base = reinterpret_cast<const std::uint8_t*>(raw.data()) + l.pos;
+  for (std::size_t i = 0; i < l.n; ++i) {
+    const std::uint8_t* rec = base + i * l.point_bytes;
+    for (int a = 0; a < 3; ++a) {
+      cloud.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l.axis[a].offset, l.axis[a].type, l.axis[a].size);
+    }
+  }
+  return cloud;
+}
+
+PcdLayout validate_pcd(const std::string& raw, const std::string& name) {
+  PcdLayout layout;
   auto fail = [&](const std::string& what) -> InputError {
     return InputError("load_cloud: " + name + ": " + what);
   };
@@ -220,6 +270,7 @@ void validate_pcd(const std::string& raw, const std::string& name) {
     }
   }
   std::size_t point_bytes = 0, values = 0;
+  bool axis_seen[3] = {false, false, false};
   for (std::size_t i = 0; i < fields.size(); ++i) {
     const std::string& t = types[i];
     const std::string& z = sizes[i];
@@ -230,6 +281,12 @@ void validate_pcd(const std::string& raw, const std::string& name) {
     if (!ok || r.ec != std::errc() || c < 1) {
       throw fail("field '" + fields[i] + "' has TYPE " + t + ", SIZE " + z + ", COUNT " + counts[i] +
                  " (expected F 4|8 or I/U 1|2|4|8 and a count >= 1)");
+    }
+    for (int a = 0; a < 3; ++a) {
+      if (fields[i] == std::string(1, static_cast<char>('x' + a)) && !axis_seen[a]) {
+        axis_seen[a] = true;
+        layout.axis[a] = {point_bytes, t[0], std::stoi(z)};
+      }
     }
     point_bytes += static_cast<std::size_t>(std::stoi(z)) * static_cast<std::size_t>(c);
     values += static_cast<std::size_t>(c);
@@ -293,11 +350,17 @@ void validate_pcd(const std::string& raw, const std::string& name) {
   } else {
     throw fail("unknown PCD DATA type '" + data + "' (expected ascii, binary or binary_compressed)");
   }
+  layout.data = data;
+  layout.pos = pos;
+  layout.n = n;
+  layout.point_bytes = point_bytes;
+  return layout;
 }
 }  // namespace
 
 ReadResult read_pcd(const ScanSource& source) {
-  validate_pcd(source.bytes, source.display_name);
+  const PcdLayout layout = validate_pcd(source.bytes, source.display_name);
+  if (layout.data == "binary") return {read_binary_body(source.bytes, layout), {"PCD (binary, read directly)"}};
   return {read_with_pcl(source.bytes, source.path, source.inflated, source.display_name), {"PCD"}};
 }
 
