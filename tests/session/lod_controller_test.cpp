@@ -9,6 +9,8 @@
 
 #include <gtest/gtest.h>
 
+#include "session_fixtures.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <functional>
@@ -36,28 +38,13 @@ std::shared_ptr<LodPyramid> sinusoid_pyramid(int n, int window_cells, int min_ce
       depth.at(r, c) = static_cast<float>(0.004 * std::sin(k * x) * std::sin(k * y) + 0.0002 * std::sin(kt * x) * std::sin(kt * y));
     }
   }
-  LodLevel l0;
-  l0.depth_m = std::move(depth);
-  LodOptions opt;
-  opt.window_cells = window_cells;
-  opt.min_cells = min_cells;
-  SurfaceLayerOptions layers;
-  layers.mu_min = 0.1;
-  layers.mu_max = 0.3;
-  layers.mu_s = 0.2;
-  return std::make_shared<LodPyramid>(std::move(l0), layers, opt);
-}
-
-LodControllerOptions controller_options() {
-  LodControllerOptions o;
-  o.device_half_extent_m = haptics::SimulatedDevice::default_info().workspace_half_extent_m;
-  return o;
+  return test::pyramid_of(std::move(depth), window_cells, min_cells);
 }
 
 TEST(LodController, TheNeighbouringLevelsAreBuiltInTheBackground) {
   auto pyr = sinusoid_pyramid(401, 100, 30);  // levels 401, 201, 101, 51
   haptics::SharedState shared;
-  LodController lod(pyr, shared, controller_options());
+  LodController lod(pyr, shared, test::controller_options());
   lod.set_window(2, 0, 0);
   lod.wait_prefetch_idle();
   EXPECT_TRUE(pyr->is_cached(1, true));
@@ -74,7 +61,7 @@ TEST(LodController, TheNeighbouringLevelsAreBuiltInTheBackground) {
   EXPECT_EQ(w.level_seconds, 0.0);
   // Switched off: nothing is built beyond what is asked for.
   auto quiet = sinusoid_pyramid(401, 100, 30);
-  LodControllerOptions off = controller_options();
+  LodControllerOptions off = test::controller_options();
   off.prefetch_neighbours = false;
   LodController still(quiet, shared, off);
   still.set_window(2, 0, 0);
@@ -109,7 +96,7 @@ TEST(LodController, EachFinerLevelHalvesTheScaleAndWindowsFitTheDeviceBox) {
   auto pyr = sinusoid_pyramid(401, 100, 30);
   ASSERT_EQ(pyr->level_count(), 4);  // 401, 201, 101, 51
   haptics::SharedState shared;
-  LodController lod(pyr, shared, controller_options());
+  LodController lod(pyr, shared, test::controller_options());
   EXPECT_FALSE(lod.has_window());
   EXPECT_THROW(lod.window(), InputError);
   EXPECT_THROW(lod.pan(1, 0), InputError);
@@ -162,7 +149,7 @@ TEST(LodController, EachFinerLevelHalvesTheScaleAndWindowsFitTheDeviceBox) {
 TEST(LodController, ZoomKeepsTheAnchorInBothFrames) {
   auto pyr = sinusoid_pyramid(401, 100, 30);
   haptics::SharedState shared;
-  LodController lod(pyr, shared, controller_options());
+  LodController lod(pyr, shared, test::controller_options());
   lod.set_level(2);
   const Vector3d anchor(0.012, -0.007, 0.001);
   const haptics::WorkspaceMap before = lod.window().map;
@@ -215,7 +202,7 @@ TEST(LodController, LevelSwitchAndPanDuringContactHaveNoForceSpike) {
   // The envelope only (texture gain 0) and no friction (below): the rendered force then varies
   // smoothly while sliding (the 0.2 mm texture's crests and static friction's stick-slip snap
   // the proxy now and then, steps of their own), so every step within the blend is the switch's.
-  LodControllerOptions options = controller_options();
+  LodControllerOptions options = test::controller_options();
   options.surface.texture_gain = 0.0;
   LodController lod(pyr, shared, options);
   const HapticWindow& start = lod.set_level(1);
@@ -280,7 +267,7 @@ TEST(LodController, ACornerWindowIsRenderedWithTheProxyAlwaysOnItsSurface) {
   // device box, so the proxy passes the window's edges (padding ring, floor beyond).
   auto pyr = sinusoid_pyramid(301, 80, 30);
   haptics::SharedState shared;
-  LodController lod(pyr, shared, controller_options());
+  LodController lod(pyr, shared, test::controller_options());
   const HapticWindow& w = lod.set_window(0, 10000, 10000);
   EXPECT_EQ(w.col0, 301 - 80);
   EXPECT_EQ(w.row0, 301 - 80);

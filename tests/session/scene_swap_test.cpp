@@ -12,6 +12,8 @@
 
 #include <gtest/gtest.h>
 
+#include "session_fixtures.hpp"
+
 #include <cmath>
 #include <cstdint>
 #include <memory>
@@ -37,23 +39,7 @@ std::shared_ptr<LodPyramid> sinusoid_pyramid(int n, double amp) {
                                           std::sin(k * depth.geometry().y_of_row(r)));
     }
   }
-  LodLevel l0;
-  l0.depth_m = std::move(depth);
-  LodOptions opt;
-  opt.window_cells = 100;
-  opt.min_cells = 30;
-  pipeline::SurfaceLayerOptions layers;
-  layers.mu_min = 0.1;
-  layers.mu_max = 0.3;
-  layers.mu_s = 0.2;
-  return std::make_shared<LodPyramid>(std::move(l0), layers, opt);
-}
-
-LodControllerOptions controller_options() {
-  LodControllerOptions o;
-  o.device_half_extent_m = haptics::SimulatedDevice::default_info().workspace_half_extent_m;
-  o.prefetch_neighbours = false;
-  return o;
+  return test::pyramid_of(std::move(depth), 100, 30);
 }
 
 /// What the device and the servo showed after one tick.
@@ -68,7 +54,7 @@ struct TickSeen {
 class SwapRig {
  public:
   SwapRig() {
-    lod_a = std::make_unique<LodController>(sinusoid_pyramid(121, 0.004), shared, controller_options());
+    lod_a = std::make_unique<LodController>(sinusoid_pyramid(121, 0.004), shared, test::controller_options(false));
     // Two windows, so scene A's tag (2) differs from the first tag of scene B's controller (1).
     lod_a->set_level(1);
     const HapticWindow& w = lod_a->set_level(0);
@@ -103,7 +89,7 @@ class SwapRig {
     ++publishes;
     state_at_publish = device->state();
     force_at_publish_n = device->last_force_n().norm();
-    lod_b = std::make_unique<LodController>(sinusoid_pyramid(121, 0.002), shared, controller_options());
+    lod_b = std::make_unique<LodController>(sinusoid_pyramid(121, 0.002), shared, test::controller_options(false));
     tag_b = lod_b->centre_window(0, 0.0, 0.0).tag;
     return tag_b;
   }
