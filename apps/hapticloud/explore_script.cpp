@@ -2,11 +2,26 @@
 
 #include "hc/common/error.hpp"
 
+#include <algorithm>
+#include <fstream>
 #include <map>
 #include <sstream>
 #include <stdexcept>
 
 namespace hc::app {
+
+std::string script_text(const std::string& arg) {
+  if (arg.empty() || arg.front() != '@') return arg;
+  const std::string path = arg.substr(1);
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw InputError("explore: --script file '" + path + "' cannot be read");
+  std::ostringstream text;
+  text << in.rdbuf();
+  if (in.bad()) throw InputError("explore: --script file '" + path + "': read error");
+  std::string s = text.str();
+  std::replace(s.begin(), s.end(), '\n', ';');
+  return s;
+}
 
 std::vector<ScriptStep> parse_script(const std::string& text) {
   static const std::map<std::string, std::size_t> kArity = {

@@ -23,6 +23,12 @@ struct ScriptStep {
 /// @throws hc::ConfigError naming the step and the expected form.
 std::vector<ScriptStep> parse_script(const std::string& text);
 
+/// The text of --script: the argument itself, or, when it starts with '@', the content of the
+/// file it names (long scripts, e.g. bench/soak.py's 18 000 steps, exceed the 128 KiB limit of
+/// one command-line argument). Newlines in a file separate steps like ';'.
+/// @throws hc::InputError naming the file when it cannot be read.
+std::string script_text(const std::string& arg);
+
 /// Argument i of `st` as a number. @throws hc::ConfigError naming the frame and the text.
 double script_number(const ScriptStep& st, std::size_t i);
 

@@ -43,7 +43,7 @@ std::vector<ScriptStep> Session::check_options() {
     throw ConfigError("explore: --seconds " + fmt(o_.seconds) + " is out of range (expected [0, 86400])");
   }
   if (!o_.screenshot.empty() && o_.frames == 0 && o_.seconds == 0.0) o_.frames = 1;
-  std::vector<ScriptStep> script = parse_script(o_.script);
+  std::vector<ScriptStep> script = parse_script(script_text(o_.script));
   if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim") {
     throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
   }
@@ -180,6 +180,7 @@ void Session::make_viewer() {
 
 void Session::run() {
   const std::vector<ScriptStep> script = check_options();
+  script_steps_ = script.size();
   std::size_t next_step = 0;
   // Before anything is built: a Ctrl-C from here on ends the session between frames, and a
   // Falcon sends zero force at once (one process-wide flag, hc/haptics/stop_signal.hpp).
@@ -220,7 +221,10 @@ void Session::run() {
     if (!viewer_->frame() || last) break;
     // Scripted steps go through the same entry points as keys, the panel and the orientation
     // tool; a step waits while a re-scan or rebuild is under way.
-    while (next_step < script.size() && script[next_step].frame <= frame && !busy()) run_step(script[next_step++]);
+    while (next_step < script.size() && script[next_step].frame <= frame && !busy()) {
+      run_step(script[next_step++]);
+      ++script_steps_run_;
+    }
   }
   if (job_.valid()) job_.wait();
   loop_->stop();

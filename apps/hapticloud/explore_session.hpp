@@ -126,6 +126,7 @@ class Session {
   bool drain_events_ = true;  ///< nothing else (no sound engine) reads shared_.events
   bool stopped_by_signal_ = false;
   int rescans_ = 0;
+  std::size_t script_steps_ = 0, script_steps_run_ = 0;  ///< --script steps given and run
   std::string status_;
 #ifdef HC_HAVE_AUDIO
   std::unique_ptr<audio::AudioEngine> sound_;  ///< reads shared_.events; stopped before the servo's stats

@@ -59,6 +59,12 @@ void Session::write_summary(const haptics::ServoStats& stats) const {
   j["mu_s"] = layer_options_.mu_s;
   j["friction_model"] = pipeline::to_string(layer_options_.friction_model);
   j["rescans"] = rescans_;
+  j["script_steps"] = script_steps_;
+  j["script_steps_run"] = script_steps_run_;
+  // Surface accounting (SharedState): published − freed is what is still held (current, pending,
+  // retire ring) when the summary is written, before the shared state is destroyed.
+  j["surfaces_published"] = shared_.surfaces_published();
+  j["surfaces_freed"] = shared_.surfaces_freed();
   // What the swaps looked like from the UI thread: swaps completed, the largest device force and
   // whether the device was ever seen Armed between the disarm and the re-arm (SceneSwap).
   const session::SceneSwapFigures& sw = swap_.figures();

@@ -7,12 +7,18 @@
 namespace hc::haptics {
 
 SharedState::SharedState(std::unique_ptr<const HapticSurface> initial) {
-  if (initial) current_ = new Published{initial.release(), WorkspaceMap{}, false, 0};
+  if (initial) {
+    current_ = new Published{initial.release(), WorkspaceMap{}, false, 0};
+    published_.store(1, std::memory_order_relaxed);
+  }
 }
 
 SharedState::~SharedState() {
   collect_retired();
-  destroy(pending_.exchange(nullptr, std::memory_order_acq_rel));
+  Published* pending = pending_.exchange(nullptr, std::memory_order_acq_rel);
+  if (pending != nullptr) freed_.fetch_add(1, std::memory_order_relaxed);
+  destroy(pending);
+  if (current_ != nullptr) freed_.fetch_add(1, std::memory_order_relaxed);
   destroy(current_);
 }
 
@@ -23,8 +29,11 @@ void SharedState::destroy(const Published* p) noexcept {
 }
 
 void SharedState::publish(Published* p) {
+  published_.fetch_add(1, std::memory_order_relaxed);
   // Never seen by the servo: the exchange gave the previous pending publication back to us alone.
-  destroy(pending_.exchange(p, std::memory_order_acq_rel));
+  Published* superseded = pending_.exchange(p, std::memory_order_acq_rel);
+  if (superseded != nullptr) freed_.fetch_add(1, std::memory_order_relaxed);
+  destroy(superseded);
 }
 
 void SharedState::publish_surface(std::unique_ptr<const HapticSurface> surface) {
@@ -57,6 +66,7 @@ std::size_t SharedState::collect_retired() noexcept {
     destroy(p);
     ++n;
   }
+  freed_.fetch_add(n, std::memory_order_relaxed);
   return n;
 }
 

@@ -177,6 +177,7 @@ LodSession::LodSession(const SceneLayers& layers, const haptics::SurfaceOptions&
     first.window = controller_->centre_window(start, g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)));
     first.request = "start: level " + std::to_string(start) + ", centred";
   }
+  switch_of_tag_[first.window.tag] = switches_.size();
   switches_.push_back(first);
 }
 
@@ -207,6 +208,7 @@ int LodSession::apply_due(double t_s, const Eigen::Vector3d& proxy_m) {
       case ZoomAction::Kind::kPan: rec.window = controller_->pan(a.a, a.b); break;
       case ZoomAction::Kind::kWindow: rec.window = controller_->set_window(a.a, a.b, a.c); break;
     }
+    switch_of_tag_[rec.window.tag] = switches_.size();
     switches_.push_back(rec);
     ++applied;
   }
@@ -214,18 +216,14 @@ int LodSession::apply_due(double t_s, const Eigen::Vector3d& proxy_m) {
 }
 
 const haptics::HapticSurface& LodSession::surface_for(std::uint64_t tag) {
-  auto it = eval_.find(tag);
-  if (it != eval_.end()) return *it->second;
-  const SwitchRecord* rec = &switches_.front();
-  for (const SwitchRecord& s : switches_) {
-    if (s.window.tag == tag) rec = &s;
-  }
-  const HapticWindow& w = rec->window;
+  if (eval_ && eval_tag_ == tag) return *eval_;
+  // A row traced before the first window was adopted (tag 0) renders the first window.
+  const auto it = switch_of_tag_.find(tag);
+  const HapticWindow& w = switches_.at(it != switch_of_tag_.end() ? it->second : 0).window;
   const auto win = pyramid_->window(w.level, w.row0, w.col0, w.rows, w.cols);
-  auto s = make_window_surface(*win, surface_options_);
-  const haptics::HapticSurface& ref = *s;
-  eval_.emplace(tag, std::move(s));
-  return ref;
+  eval_ = make_window_surface(*win, surface_options_);
+  eval_tag_ = tag;
+  return *eval_;
 }
 
 std::string LodSession::json() const {

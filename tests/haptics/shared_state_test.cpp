@@ -9,6 +9,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <atomic>
 #include <cstdint>
 #include <memory>
@@ -205,6 +206,53 @@ TEST(SharedState, EventAndCommandChannelsAcrossThreads) {
     }
   }
   servo.join();
+}
+
+// Surface accounting (the soak benchmark's "every surface retired"): the expected counts follow
+// from the publication protocol step by step (shared_state.hpp), not from the implementation.
+TEST(SharedState, SurfaceAccountingFollowsPublishSupersedeAdoptAndCollect) {
+  const HeightField depth = test::make_square(8, 0.1, [](double, double) { return 0.0; });
+  SharedState shared(test::make_surface(depth));  // the initial surface: published 1
+  EXPECT_EQ(shared.surfaces_published(), 1U);
+  EXPECT_EQ(shared.surfaces_freed(), 0U);
+  shared.publish_surface(test::make_surface(depth));  // A pending
+  shared.publish_surface(test::make_surface(depth));  // B supersedes A before adoption: A freed
+  EXPECT_EQ(shared.surfaces_published(), 3U);
+  EXPECT_EQ(shared.surfaces_freed(), 1U);
+  ASSERT_NE(shared.adopt_surface(), nullptr);  // B current, the initial one to the retire ring
+  EXPECT_EQ(shared.surfaces_freed(), 1U);       // the servo never frees
+  EXPECT_EQ(shared.collect_retired(), 1U);
+  EXPECT_EQ(shared.surfaces_freed(), 2U);
+  // Many switches, each adopted and collected: exactly one surface (the current) stays held.
+  for (int k = 0; k < 50; ++k) {
+    shared.publish_surface(test::make_surface(depth));
+    ASSERT_NE(shared.adopt_surface(), nullptr);
+    shared.collect_retired();
+  }
+  EXPECT_EQ(shared.surfaces_published(), 53U);
+  EXPECT_EQ(shared.surfaces_published() - shared.surfaces_freed(), 1U);
+}
+
+TEST(SharedState, SurfaceAccountingUnderARunningServoHoldsAtMostCurrentPendingAndRing) {
+  const HeightField depth = test::make_square(8, 0.1, [](double, double) { return 0.0; });
+  auto shared = std::make_unique<SharedState>();
+  std::atomic<bool> stop{false};
+  std::thread servo([&] {
+    while (!stop.load(std::memory_order_acquire)) (void)shared->adopt_surface();
+  });
+  constexpr std::uint64_t kN = 2000;
+  std::uint64_t worst_held = 0;
+  for (std::uint64_t k = 0; k < kN; ++k) {
+    shared->publish_surface(test::make_surface(depth));
+    shared->collect_retired();
+    worst_held = std::max(worst_held, shared->surfaces_published() - shared->surfaces_freed());
+  }
+  stop.store(true, std::memory_order_release);
+  servo.join();
+  shared->collect_retired();
+  EXPECT_EQ(shared->surfaces_published(), kN);
+  EXPECT_LE(worst_held, 2U + SharedState::kRetireCapacity);
+  EXPECT_LE(shared->surfaces_published() - shared->surfaces_freed(), 2U);  // current + pending
 }
 
 }  // namespace

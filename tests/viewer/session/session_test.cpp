@@ -134,13 +134,25 @@ TEST(ExploreSession, InterruptEndsTheSessionCleanly) {
 TEST(ExploreSession, LevelRegionAndSurfaceCommandsReachTheServoLoop) {
   const fs::path dir = test::temp_dir("script");
   const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
-  // The sinusoid's 200-sample grid with 64-sample windows: levels 0 and 1, starting at 1.
+  // The sinusoid's 200-sample grid with 64-sample windows: levels 0 and 1, starting at 1. The
+  // steps come from a file (--script @FILE, one step per line), as the soak benchmark passes them.
+  const fs::path script = dir / "steps.script";
+  {
+    std::ofstream f(script);
+    f << "3 finer\n6 pan 0.25 0\n9 texture off\n12 mu_s 0.5\n16 model curvature\n20 coarser\n";
+  }
   const Result r = run_app("explore " + config.string() + " --device sim --frames 30 --hidden --no-audio --out " +
                            (dir / "out").string() + " --window-cells 64 --summary " + (dir / "summary.json").string() +
-                           " --script '3 finer; 6 pan 0.25 0; 9 texture off; 12 mu_s 0.5; 16 model curvature; 20 coarser'");
+                           " --script @" + script.string());
   ASSERT_EQ(r.status, 0) << r.output;
   const nlohmann::json s = read_json(dir / "summary.json");
   expect_servo_unharmed(s);
+  EXPECT_EQ(s["script_steps"].get<int>(), 6);
+  EXPECT_EQ(s["script_steps_run"].get<int>(), 6);
+  // Surface accounting at the end of the session: everything published but the current, the
+  // pending and the retire ring (2 + 8) has been freed.
+  EXPECT_GE(s["surfaces_published"].get<long>(), 7);
+  EXPECT_LE(s["surfaces_published"].get<long>() - s["surfaces_freed"].get<long>(), 10);
   EXPECT_EQ(s["level_count"].get<int>(), 2);
   EXPECT_EQ(s["level"].get<int>(), 1);
   EXPECT_FALSE(s["texture"].get<bool>());

@@ -156,6 +156,14 @@ class SharedState {
                        std::uint64_t tag = 0);
   /// Producer side: frees the surfaces the servo has handed back. @return how many. Real-time: no.
   std::size_t collect_retired() noexcept;
+  /// Surface accounting (producer side; any thread may read): publications made (the initial
+  /// surface counts as one) and publications freed (superseded before adoption, handed back by the
+  /// servo and collected, or freed at destruction). While the session runs,
+  /// published − freed ≤ 2 + kRetireCapacity (current, pending and the retire ring); a larger
+  /// difference that grows over a session is a leak (the soak benchmark, bench/soak.py, reports
+  /// both). Real-time: no (the servo never touches them).
+  std::uint64_t surfaces_published() const noexcept { return published_.load(std::memory_order_relaxed); }
+  std::uint64_t surfaces_freed() const noexcept { return freed_.load(std::memory_order_relaxed); }
   /// True while a published surface waits for adoption.
   bool surface_pending() const noexcept { return pending_.load(std::memory_order_acquire) != nullptr; }
 
@@ -192,6 +200,8 @@ class SharedState {
   std::atomic<Published*> pending_{nullptr};
   Published* current_ = nullptr;  // owned; touched by the servo thread only
   SpscRing<Published*, kRetireCapacity> retired_;
+  std::atomic<std::uint64_t> published_{0};  // producer side only
+  std::atomic<std::uint64_t> freed_{0};      // producer side only
 };
 
 }  // namespace hc::haptics

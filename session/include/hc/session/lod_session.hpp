@@ -74,7 +74,11 @@ class LodSession {
   /// @return the number applied. Real-time: no (builds windows; call between servo ticks).
   int apply_due(double t_s, const Eigen::Vector3d& proxy_m);
 
-  /// The rendered surface of a published window (by tag), for evaluating trace rows.
+  /// The rendered surface of a published window (by tag), for evaluating trace rows. Rebuilt
+  /// from the pyramid on demand; only the last one asked for is kept, so a long session's rows,
+  /// asked for in time order (each tag's rows are contiguous), cost one window build per switch
+  /// and one window of memory (a 30-minute soak switches 18 000 times).
+  /// A tag no switch published (rows traced before the first adoption) gives the first window.
   const haptics::HapticSurface& surface_for(std::uint64_t tag);
   const std::vector<SwitchRecord>& switches() const { return switches_; }
   int level_count() const { return controller_->level_count(); }
@@ -92,7 +96,9 @@ class LodSession {
   std::vector<ZoomAction> actions_;
   std::size_t next_ = 0;
   std::vector<SwitchRecord> switches_;
-  std::map<std::uint64_t, std::unique_ptr<haptics::HapticSurface>> eval_;
+  std::uint64_t eval_tag_ = 0;                             ///< tag of eval_ (0: none)
+  std::unique_ptr<haptics::HapticSurface> eval_;           ///< the last surface_for result
+  std::map<std::uint64_t, std::size_t> switch_of_tag_;     ///< tag → index in switches_
 };
 
 }  // namespace hc::session
