@@ -5,11 +5,13 @@ command every 100 ms, run side by side.
 
 Reported (JSON on stdout, and --out FILE if given):
   - resident memory (VmRSS from /proc/PID/status, sampled every --sample-s seconds): after the
-    warm-up (the first --warmup-fraction of the run), the first and last sample, the growth
-    between them and the slope of a least-squares line through the samples [MiB/min];
+    warm-up (the first --warmup-fraction of the run, while the LoD cache of built levels and
+    windows fills up to lod.memory_budget_mb), the first and last sample, the growth between
+    them and the slope of a least-squares line through the samples [MiB/min]. touch --realtime
+    locks its memory (mlockall), so its RSS counts every mapped page;
   - commands: the touch session's LoD switches recorded against the zoom-path actions written,
-    and explore's script steps run against the steps written (a step waits while the session
-    is busy; none may be lost), plus the servo's rejected commands and dropped events;
+    and explore's timed script steps run against the steps written (a step waits while the
+    session is busy; none may be lost), plus the servo's rejected commands and dropped events;
   - surfaces: published and freed (SharedState's accounting) at the end of explore; what is
     still held must be at most the current, the pending and the retire ring (2 + 8).
 
@@ -88,12 +90,12 @@ def touch_zoom_path(rng, seconds, period_s, path):
     return n
 
 
-def explore_script(rng, frames_total, every_frames, path):
-    """One step every `every_frames` frames: level, finer/coarser, pan, texture, mu_s, model."""
+def explore_script(rng, seconds, period_s, path):
+    """One timed step ("T s") every period_s: level, finer/coarser, pan, texture, mu_s, model."""
     n = 0
     with open(path, "w") as f:
-        frame = every_frames
-        while frame < frames_total:
+        t = period_s
+        while t < seconds - period_s:
             r = rng.random()
             if r < 0.15:
                 step = "finer"
@@ -109,9 +111,9 @@ def explore_script(rng, frames_total, every_frames, path):
                 step = f"mu_s {rng.uniform(0.0, 1.0):.3f}"
             else:
                 step = f"model {rng.choice(['paper', 'curvature'])}"
-            f.write(f"{frame} {step}\n")
+            f.write(f"{t:.3f}s {step}\n")
             n += 1
-            frame += every_frames
+            t += period_s
     return n
 
 
@@ -133,9 +135,10 @@ def main():
     ap.add_argument("--config", default="configs/happy_buddha.yaml")
     ap.add_argument("--build", default="build/release")
     ap.add_argument("--period-s", type=float, default=0.1, help="time between commands [s]")
-    ap.add_argument("--fps", type=float, default=60.0, help="explore's frame-rate cap (viewer max_fps)")
     ap.add_argument("--sample-s", type=float, default=5.0)
-    ap.add_argument("--warmup-fraction", type=float, default=0.1)
+    ap.add_argument("--warmup-fraction", type=float, default=0.25,
+                    help="part of the run left out of the growth figures: the LoD cache (lod.memory_budget_mb, "
+                         "512 MiB by default) fills first")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--keep", help="folder for the work files (default: a temporary folder, removed)")
     ap.add_argument("--out", help="also write the JSON figures here")
@@ -154,14 +157,13 @@ def main():
         work = tmp_obj.name
 
     scene_run = os.path.join(work, "scene-run")
-    subprocess.run([exe, "run", "--config", a.config, "--out", scene_run, "--force", "-q"], check=True)
+    subprocess.run([exe, "-q", "run", a.config, "--out", scene_run], check=True)
     scene = os.path.join(scene_run, "scene")
 
     zoom = os.path.join(work, "touch.zoom")
     n_zoom = touch_zoom_path(rng, seconds, a.period_s, zoom)
-    every = max(1, round(a.period_s * a.fps))
     script = os.path.join(work, "explore.script")
-    n_steps = explore_script(rng, int(seconds * a.fps), every, script)
+    n_steps = explore_script(rng, seconds, a.period_s, script)
 
     touch_cmd = [exe, "touch", scene, "--realtime", "--seconds", str(seconds), "--zoom-path", zoom,
                  "--out", os.path.join(work, "touch-out"), "--force"]
@@ -174,7 +176,8 @@ def main():
 
     def go(name, cmd):
         rc, samples, wall = run_monitored(cmd, a.sample_s, os.path.join(work, name + ".log"))
-        results[name] = {"exit": rc, "wall_s": wall, "memory": memory_figures(samples, a.warmup_fraction)}
+        results[name] = {"exit": rc, "wall_s": wall, "memory": memory_figures(samples, a.warmup_fraction),
+                         "rss_series_mib": [[round(t, 1), round(v / 1024.0, 1)] for t, v in samples[::max(1, len(samples) // 60)]]}
 
     threads = [threading.Thread(target=go, args=("touch", touch_cmd)),
                threading.Thread(target=go, args=("explore", explore_cmd))]
@@ -203,7 +206,7 @@ def main():
             "surfaces_freed": es.get("surfaces_freed"), "surfaces_held_at_end": held,
             "surfaces_held_limit": 10, "status": es.get("status")})
     results["settings"] = {"minutes": a.minutes, "config": a.config, "period_s": a.period_s,
-                           "explore_every_frames": every, "seed": a.seed,
+                           "seed": a.seed,
                            "load_avg_at_end": os.getloadavg()}
     text = json.dumps(results, indent=2)
     print(text)

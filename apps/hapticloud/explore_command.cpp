@@ -50,7 +50,7 @@ void add_explore_command(CLI::App& app) {
                   "Scripted actions for tests and demos, \"FRAME ACTION ARGS; ...\": finer, coarser, level N, pan DX DY "
                   "(window widths), centre X_M Y_M, texture on|off, mu_s V, model paper|curvature, rescan AX AY AZ "
                   "(deg, R = Rx*Ry*Rz), stereo on|off; each goes through the same path as the keys and the panel. "
-                  "@FILE reads the steps from FILE (one per line or ';'-separated)");
+                  "FRAME may be a time, '12.5s'. @FILE reads the steps from FILE (one per line or ';'-separated)");
   cmd->add_flag("--stereo", o->stereo, "Start in red/cyan anaglyph stereo");
   cmd->add_flag("--hidden", o->hidden, "Do not show the window (with --screenshot or --seconds)");
   cmd->add_flag("--no-audio", o->no_audio, "No contact sounds");

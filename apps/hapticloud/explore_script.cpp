@@ -3,6 +3,7 @@
 #include "hc/common/error.hpp"
 
 #include <algorithm>
+#include <cmath>
 #include <fstream>
 #include <map>
 #include <sstream>
@@ -40,17 +41,32 @@ std::vector<ScriptStep> parse_script(const std::string& text) {
                          " (expected FRAME ACTION ARGS with ACTION one of finer, coarser, level N, pan DX DY, "
                          "centre X_M Y_M, texture on|off, mu_s V, model paper|curvature, rescan AX AY AZ, stereo on|off)");
     };
+    // FRAME is a UI frame number (≥ 1), or a session time in seconds written with an 's'
+    // suffix ("12.5s"): time steps keep their pace when a loaded machine renders fewer frames.
+    const bool timed = frame.size() > 1 && frame.back() == 's';
     try {
       std::size_t used = 0;
-      st.frame = std::stoi(frame, &used);
-      if (used != frame.size() || st.frame < 1) throw std::invalid_argument("frame");
+      if (timed) {
+        const std::string number = frame.substr(0, frame.size() - 1);
+        st.at_s = std::stod(number, &used);
+        if (used != number.size() || !std::isfinite(st.at_s) || st.at_s < 0.0) throw std::invalid_argument("time");
+        st.frame = 1;
+      } else {
+        st.frame = std::stoi(frame, &used);
+        if (used != frame.size() || st.frame < 1) throw std::invalid_argument("frame");
+      }
     } catch (const std::exception&) {
-      throw bad("the frame must be an integer ≥ 1");
+      throw bad(timed ? "the time must be a number of seconds ≥ 0 followed by 's'" : "the frame must be an integer ≥ 1");
+    }
+    if (!steps.empty() && (st.at_s >= 0.0) != (steps.back().at_s >= 0.0)) {
+      throw bad("a script gives either frames or times ('12.5s'), not both");
     }
     if (!(words >> st.action) || kArity.count(st.action) == 0) throw bad("unknown action");
     for (std::string w; words >> w;) st.args.push_back(w);
     if (st.args.size() != kArity.at(st.action)) throw bad("wrong number of arguments");
-    if (!steps.empty() && st.frame < steps.back().frame) throw bad("frames must not decrease");
+    if (!steps.empty() && (st.frame < steps.back().frame || st.at_s < steps.back().at_s)) {
+      throw bad("frames and times must not decrease");
+    }
     steps.push_back(std::move(st));
   }
   return steps;
@@ -60,8 +76,8 @@ double script_number(const ScriptStep& st, std::size_t i) {
   try {
     return std::stod(st.args[i]);
   } catch (const std::exception&) {
-    throw ConfigError("explore: --script step at frame " + std::to_string(st.frame) + ": '" + st.args[i] +
-                      "' is not a number");
+    const std::string when = st.at_s >= 0.0 ? "time " + std::to_string(st.at_s) + " s" : "frame " + std::to_string(st.frame);
+    throw ConfigError("explore: --script step at " + when + ": '" + st.args[i] + "' is not a number");
   }
 }
 

@@ -221,7 +221,8 @@ void Session::run() {
     if (!viewer_->frame() || last) break;
     // Scripted steps go through the same entry points as keys, the panel and the orientation
     // tool; a step waits while a re-scan or rebuild is under way.
-    while (next_step < script.size() && script[next_step].frame <= frame && !busy()) {
+    const auto due = [&](const ScriptStep& st) { return st.at_s >= 0.0 ? st.at_s <= elapsed_s : st.frame <= frame; };
+    while (next_step < script.size() && due(script[next_step]) && !busy()) {
       run_step(script[next_step++]);
       ++script_steps_run_;
     }

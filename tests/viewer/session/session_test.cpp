@@ -179,6 +179,15 @@ TEST(ExploreSession, ScriptErrorsNameTheStep) {
                            test::temp_dir("badscript").string() + " --script '3 jump'");
   EXPECT_NE(r.status, 0);
   EXPECT_NE(r.output.find("'3 jump': unknown action"), std::string::npos) << r.output;
+  // Timed steps ("0.5s") and frame steps do not mix; a time must be a number of seconds ≥ 0.
+  const Result mixed = run_app("explore " + config.string() + " --device sim --hidden --out " +
+                               test::temp_dir("badscript2").string() + " --script '3 finer; 1.5s coarser'");
+  EXPECT_NE(mixed.status, 0);
+  EXPECT_NE(mixed.output.find("not both"), std::string::npos) << mixed.output;
+  const Result negative = run_app("explore " + config.string() + " --device sim --hidden --out " +
+                                  test::temp_dir("badscript3").string() + " --script '-1s finer'");
+  EXPECT_NE(negative.status, 0);
+  EXPECT_NE(negative.output.find("seconds ≥ 0"), std::string::npos) << negative.output;
 }
 
 TEST(ExploreSession, BadWindowCellsNamesTheOption) {
