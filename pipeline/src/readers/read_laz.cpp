@@ -155,6 +155,15 @@ std::string decompress_laz(const ScanSource& source, LasHeader& header) {
     }
   }
 
+  // A plausibility bound before any table or buffer is sized, so a corrupt count cannot ask
+  // for gigabytes: even constant points cost LASzip well over 1/4096 byte each.
+  constexpr std::uint64_t kMaxPointsPerByte = 4096;
+  if (count / kMaxPointsPerByte > size - offset) {
+    fail("declares " + std::to_string(count) + " points in " + std::to_string(size - offset) +
+         " bytes of compressed point data: more than " + std::to_string(kMaxPointsPerByte) +
+         " points per byte is not plausible (corrupt header or truncated file)");
+  }
+
   // Chunks.
   std::vector<Chunk> chunks;
   if (z.compressor == 1) {
@@ -180,7 +189,8 @@ std::string decompress_laz(const ScanSource& source, LasHeader& header) {
     const bool variable = z.chunk_size == 0xFFFFFFFFu;
     if (!variable && z.chunk_size == 0) fail("has a LASzip chunk size of 0: expected a positive size or 0xFFFFFFFF");
     const std::uint64_t expect_chunks = variable ? 0 : (count + z.chunk_size - 1) / z.chunk_size;
-    if (n_chunks == 0 || n_chunks > count || (!variable && n_chunks != expect_chunks)) {
+    const std::uint64_t room = (t - offset - 8) / record_length;  // each chunk starts with a raw point
+    if (n_chunks == 0 || n_chunks > count || n_chunks > room || (!variable && n_chunks != expect_chunks)) {
       fail("has a chunk table (byte " + std::to_string(t) + ") of " + std::to_string(n_chunks) + " chunks for " +
            std::to_string(count) + " points" +
            (variable ? std::string() : " in chunks of " + std::to_string(z.chunk_size) + " (expected " +
@@ -285,7 +295,7 @@ std::string decompress_laz(const ScanSource& source, LasHeader& header) {
       }
       std::size_t over = 0;
       for (const auto& dd : dec) over += dd->overrun();
-      if (over > 0) chunk_fail("compressed layers end " + std::to_string(over) + " bytes early (truncated or corrupt)");
+      if (ch.points > 1 && over > 0) chunk_fail("compressed layers end " + std::to_string(over) + " bytes early (truncated or corrupt)");
     }
     out += ch.points * record_length;
   }
