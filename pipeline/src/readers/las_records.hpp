@@ -2,7 +2,7 @@
 /// @file las_records.hpp
 /// What the LAS reader (read_las.cpp) shares with the LAZ reader (read_laz.cpp): the public
 /// header and (E)VLR parsing, and the decoding of uncompressed point records into a Cloud.
-/// A LAZ file is a LAS file whose point records are compressed (LAZ specification 1.4 §2: the
+/// A LAZ file is a LAS file whose point records are compressed (LASzip specification: the
 /// LAS header and VLRs are stored as in LAS, the format byte carries the compression bit): the
 /// LAZ reader parses the header here, decompresses the records into LAS record layout, and
 /// hands them to decode_las_records, so both formats keep exactly the same fields.

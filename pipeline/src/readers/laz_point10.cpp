@@ -1,6 +1,7 @@
 // Point-wise LAZ item decoders (compressors 1 and 2, LAS point formats 0–5): POINT10 v2,
-// GPSTIME11 v2, RGB12 v2, BYTE v2. Written clean room from the LAZ specification 1.4 R0 ("point
-// wise compression", items POINT10/GPSTIME11/RGB12/BYTE version 2) and M. Isenburg, "LASzip:
+// GPSTIME11 v2, RGB12 v2, BYTE v2. Written clean room from the LASzip specification (items
+// POINT10/GPSTIME11/RGB12/BYTE version 2; order of operations and model sizes checked against
+// LASzip's v2 item readers as facts) and M. Isenburg, "LASzip:
 // lossless compression of LiDAR data", PE&RS 79(2) 2013. Facts followed (no code carried over):
 //   POINT10 (20 bytes: X Y Z i32, intensity u16, return byte, classification, scan angle rank
 //   i8, user data, point source ID u16):

@@ -1,5 +1,6 @@
 // LAS reader: ASPRS LAS 1.0–1.4 (LAS Specification 1.4 R15, with the 1.0–1.3 header layouts),
-// uncompressed point data formats 0–10. Written from the specification (clean room).
+// uncompressed point data formats 0–10. Written from the specification (clean room). The header
+// parsing and the record decoding are shared with the LAZ reader (las_records.hpp).
 //
 // Public header block (little-endian; offsets in bytes, spec R15 table 3):
 //   0 "LASF" · 24 version major, 25 minor · 26 system identifier char[32] · 58 generating
@@ -300,7 +301,6 @@ ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, cons
   const double* const shift = header.shift;
   const std::vector<Vlr>& vlrs = header.vlrs;
   std::vector<std::string> notes = std::move(header.notes);
-  const std::size_t offset = 0;  // `records` points at the first record
 
   // Drop table (classification codes 0..255).
   std::array<bool, 256> drop{};
@@ -326,7 +326,7 @@ ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, cons
   float* out_intensity = cloud.intensity.data();
   // Locals, so the compiler keeps them in registers (stores through xyz could alias the arrays).
   const double sx = scale[0], sy = scale[1], sz = scale[2], ox = shift[0], oy = shift[1], oz = shift[2];
-  const char* p = records + offset;
+  const char* p = records;
   for (std::size_t i = 0; i < n; ++i, p += record_length) {
     const unsigned cls = static_cast<unsigned char>(p[class_at]) & class_mask;
     if (drop[cls]) {
@@ -383,7 +383,7 @@ ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, cons
     if (rgb_max <= 255) {
       // Every value fits 8 bits: a second pass takes the low bytes (the high ones are all 0).
       std::size_t j = 0;
-      p = records + offset;
+      p = records;
       for (std::size_t i = 0; i < n; ++i, p += record_length) {
         if (drop[static_cast<unsigned char>(p[class_at]) & class_mask]) continue;
         for (std::size_t c = 0; c < 3; ++c) cloud.rgb[3 * j + c] = static_cast<std::uint8_t>(p[rgb_at + 2 * c]);

@@ -1,22 +1,25 @@
-// LAZ reader: LASzip-compressed LAS (LAZ specification 1.4 R0, rapidlasso/ASPRS LAS working
-// group 2023), written clean room from the specification; no code from LASzip, laz-perf or
-// laz-rs. COPC files (.copc.laz, COPC 1.0 specification) are LAZ files whose chunks are the
+// LAZ reader: LASzip-compressed LAS, written clean room. Sources of facts: the LASzip
+// specification document "LASzip for LAS 1.4 (native extension)" (LAStools repository,
+// LASzip/design/specification.rst; below "spec"), M. Isenburg, "LASzip: lossless compression
+// of LiDAR data", PE&RS 79(2), 2013, and LASzip's reader (lasreadpoint.cpp, the v2/v3 item
+// readers) read for facts only (field order, model sizes, contexts); no code from LASzip,
+// laz-perf or laz-rs. COPC files (.copc.laz, COPC 1.0 specification) are LAZ files whose chunks are the
 // octree's nodes; they are read as plain LAZ, every chunk in file order.
 //
 // Facts followed:
 //   - the LAS header and VLRs are stored as in LAS; bit 7 (older writers: bit 6) of the point
-//     data format byte marks compressed data (LAZ spec §2);
+//     data format byte marks compressed data (spec, first paragraph);
 //   - the LASzip VLR (user id "laszip encoded", record 22204), little-endian: compressor u16
 //     (0 none, 1 point-wise, 2 point-wise chunked, 3 layered chunked), coder u16 (0 arithmetic),
 //     version major u8, minor u8, revision u16, options u32, chunk size u32 (0xFFFFFFFF =
 //     variable), number and offset of special EVLRs i64 ×2, item count u16, then per item
-//     type u16, size u16, version u16 (LAZ spec §3);
+//     type u16, size u16, version u16 (LASzip reader, VLR unpacking);
 //   - chunked compressors: the point data starts with an i64 offset of the chunk table (−1 when
 //     the writer could not seek back: then the offset is the file's last 8 bytes); the chunks
 //     follow. The table: version u32 (0), chunk count u32, then per chunk (variable chunk
 //     size only) the point count and the byte count, each coded by an integer compressor
 //     (32 bit, 2 contexts: 0 counts, 1 bytes) predicted by the previous chunk's value, in one
-//     arithmetic stream (LAZ spec §4);
+//     arithmetic stream (spec, "LAZ File Layout"; LASzip reader, chunk table);
 //   - point-wise chunk: the first point raw (LAS record layout), then one arithmetic stream for
 //     the rest (laz_point10.cpp);
 //   - layered chunk: the first point raw, u32 point count, every item's layer byte counts (u32
