@@ -43,6 +43,7 @@ constexpr Format kFormats[] = {
     {".txt", detail::read_xyz},
     {".e57", detail::read_e57},
     {".las", detail::read_las},
+    {".laz", detail::read_laz},
     {".ptx", detail::read_ptx},
     {".pts", detail::read_pts},
 };

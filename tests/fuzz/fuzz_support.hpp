@@ -46,6 +46,7 @@ void scene_tiff(const std::uint8_t* data, std::size_t size);
 void falcon_frames(const std::uint8_t* data, std::size_t size);
 void e57(const std::uint8_t* data, std::size_t size);
 void las(const std::uint8_t* data, std::size_t size);
+void laz(const std::uint8_t* data, std::size_t size);
 void ptx(const std::uint8_t* data, std::size_t size);
 void pts(const std::uint8_t* data, std::size_t size);
 

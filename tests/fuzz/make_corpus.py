@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """Writes the seed corpora of the fuzz targets (tests/fuzz/corpus/TARGET/): small valid files,
 all synthetic (no scan data is committed), each < 64 KiB; the E57 seed is the CC0 synthetic cube
-of the scanner samples (data/README.md), copied when data/get-data has fetched it.
+of the scanner samples (data/README.md) and the LAZ seeds are two BSD-licensed PDAL samples
+(© Hobu, Inc.), copied when data/get-data has fetched them.
 Run from the repository root: python3 tests/fuzz/make_corpus.py
 The scene seeds come from tests/fuzz/scene_base (a small scene written by `hapticloud run`)."""
 import os
@@ -147,6 +148,13 @@ def main():
     if os.path.exists(cube):
         with open(cube, "rb") as f:
             put("e57", "cc0_colour_cube.e57", f.read())
+    # LAZ: the BSD-licensed PDAL samples (data/README.md credits them, © Hobu, Inc.), a
+    # point-wise (LAS 1.2 format 3) and a layered COPC (LAS 1.4 format 7) file, when present.
+    for name in ("pdal-simple.laz", "pdal-1.2-with-color.copc.laz"):
+        src = os.path.join(ROOT, "data", "scans", "scanner_samples", "laz", name)
+        if os.path.exists(src):
+            with open(src, "rb") as f:
+                put("laz", "bsd_" + name, f.read())
     return 0
 
 

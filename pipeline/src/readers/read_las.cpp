@@ -1,5 +1,6 @@
 // LAS reader: ASPRS LAS 1.0–1.4 (LAS Specification 1.4 R15, with the 1.0–1.3 header layouts),
-// uncompressed point data formats 0–10. Written from the specification (clean room).
+// uncompressed point data formats 0–10. Written from the specification (clean room). The header
+// parsing and the record decoding are shared with the LAZ reader (las_records.hpp).
 //
 // Public header block (little-endian; offsets in bytes, spec R15 table 3):
 //   0 "LASF" · 24 version major, 25 minor · 26 system identifier char[32] · 58 generating
@@ -19,6 +20,7 @@
 // CRS: VLR user id "LASF_Projection", record 2112 (OGC WKT) or the GeoTIFF keys 34735
 // (GeoKeyDirectoryTag, u16), 34736 (GeoDoubleParamsTag, f64), 34737 (GeoAsciiParamsTag).
 
+#include "las_records.hpp"
 #include "readers.hpp"
 #include "text_parse.hpp"
 
@@ -72,14 +74,6 @@ std::string fmt_g(double v) {
   os << v;
   return os.str();
 }
-
-/// One (E)VLR found in the file.
-struct Vlr {
-  std::string user_id;
-  std::uint16_t record_id = 0;
-  const char* data = nullptr;
-  std::size_t length = 0;
-};
 
 std::string geokey_name(std::uint16_t id) {
   switch (id) {
@@ -157,7 +151,7 @@ std::string wkt_last_unit(const std::string& wkt) {
 
 }  // namespace
 
-ReadResult read_las(const ScanSource& source) {
+LasHeader parse_las_header(const ScanSource& source, bool compressed) {
   const std::string& bytes = source.bytes;
   const std::string& name = source.display_name;
   const std::size_t size = bytes.size();
@@ -188,11 +182,12 @@ ReadResult read_las(const ScanSource& source) {
   const std::size_t n_vlr = get<std::uint32_t>(b + 100);
   const int format_byte = static_cast<unsigned char>(b[104]);
   const std::size_t record_length = get<std::uint16_t>(b + 105);
-  if (format_byte & 0xC0) {
+  if (!compressed && (format_byte & 0xC0)) {
     fail("has point data format byte " + std::to_string(format_byte) + " (compression bit set): compressed LAZ data; "
-         "expected uncompressed LAS point data (format 0 to 10)");
+         "expected uncompressed LAS point data (format 0 to 10; a .laz file is read by the LAZ reader)");
   }
-  const int format = format_byte;
+  // LASzip sets bit 7 of the format byte (bit 6 by older writers) in compressed files.
+  const int format = compressed ? (format_byte & 0x3F) : format_byte;
   if (format > 10) fail("has point data format " + std::to_string(format) + ": expected 0 to 10 (LAS 1.4 R15)");
   const std::size_t base = kBaseRecordLength[static_cast<std::size_t>(format)];
   if (record_length < base) {
@@ -220,7 +215,7 @@ ReadResult read_las(const ScanSource& source) {
          std::to_string(header_size) + " and the file size " + std::to_string(size));
   }
   const std::uint64_t room = (size - offset) / record_length;
-  if (count > room) {
+  if (!compressed && count > room) {
     fail("declares " + std::to_string(count) + " point records of " + std::to_string(record_length) +
          " bytes from byte " + std::to_string(offset) + ", but the file (" + std::to_string(size) +
          " bytes) holds room for only " + std::to_string(room) + ": truncated file or wrong header counts");
@@ -275,6 +270,38 @@ ReadResult read_las(const ScanSource& source) {
     }
   }
 
+  LasHeader h;
+  h.version = version;
+  h.minor = minor;
+  h.header_size = header_size;
+  h.offset = offset;
+  h.format = format;
+  h.record_length = record_length;
+  h.base_length = base;
+  h.count = count;
+  for (int a = 0; a < 3; ++a) {
+    h.scale[a] = scale[a];
+    h.shift[a] = shift[a];
+  }
+  h.vlrs = std::move(vlrs);
+  h.notes = std::move(notes);
+  return h;
+}
+
+ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, const char* records) {
+  const char* const b = source.bytes.data();
+  const std::string& name = source.display_name;
+  const auto fail = [&](const std::string& what) -> void { throw InputError("load_cloud: " + name + " " + what); };
+  const std::string& version = header.version;
+  const int format = header.format;
+  const std::size_t record_length = header.record_length;
+  const std::size_t base = header.base_length;
+  const std::uint64_t count = header.count;
+  const double* const scale = header.scale;
+  const double* const shift = header.shift;
+  const std::vector<Vlr>& vlrs = header.vlrs;
+  std::vector<std::string> notes = std::move(header.notes);
+
   // Drop table (classification codes 0..255).
   std::array<bool, 256> drop{};
   const std::vector<int> drop_classes = source.options ? source.options->las_drop_classes : LoadOptions{}.las_drop_classes;
@@ -299,7 +326,7 @@ ReadResult read_las(const ScanSource& source) {
   float* out_intensity = cloud.intensity.data();
   // Locals, so the compiler keeps them in registers (stores through xyz could alias the arrays).
   const double sx = scale[0], sy = scale[1], sz = scale[2], ox = shift[0], oy = shift[1], oz = shift[2];
-  const char* p = b + offset;
+  const char* p = records;
   for (std::size_t i = 0; i < n; ++i, p += record_length) {
     const unsigned cls = static_cast<unsigned char>(p[class_at]) & class_mask;
     if (drop[cls]) {
@@ -356,7 +383,7 @@ ReadResult read_las(const ScanSource& source) {
     if (rgb_max <= 255) {
       // Every value fits 8 bits: a second pass takes the low bytes (the high ones are all 0).
       std::size_t j = 0;
-      p = b + offset;
+      p = records;
       for (std::size_t i = 0; i < n; ++i, p += record_length) {
         if (drop[static_cast<unsigned char>(p[class_at]) & class_mask]) continue;
         for (std::size_t c = 0; c < 3; ++c) cloud.rgb[3 * j + c] = static_cast<std::uint8_t>(p[rgb_at + 2 * c]);
@@ -401,6 +428,12 @@ ReadResult read_las(const ScanSource& source) {
   notes.push_back("the CRS is carried in this report only; the scene provenance does not hold it yet");
   if (!others.empty()) notes.push_back("other VLRs ignored: " + others);
   return {std::move(cloud), std::move(notes)};
+}
+
+ReadResult read_las(const ScanSource& source) {
+  LasHeader header = parse_las_header(source, false);
+  const char* records = source.bytes.data() + header.offset;
+  return decode_las_records(source, std::move(header), records);
 }
 
 }  // namespace hc::pipeline::detail

@@ -8,6 +8,7 @@
 ///   read_xyz.cpp  XYZ / TXT text, x y z per line
 ///   read_conf.cpp scanalyze .conf poses (read_scanalyze_conf of the public header)
 ///   read_las.cpp  LAS 1.0–1.4, point data formats 0–10 (uncompressed)
+///   read_laz.cpp  LAZ (LASzip point-wise and layered chunked compressors; COPC read as LAZ)
 ///   read_ptx.cpp  Leica PTX text, one or several scans, each moved by its 4×4 transform
 ///   read_pts.cpp  Leica PTS text, point count line(s) then X Y Z [I] [R G B]
 /// load_cloud (ingest.cpp) reads the file once, inflates a trailing .gz once, and dispatches on
@@ -67,6 +68,7 @@ ReadResult read_obj(const ScanSource& source);  ///< read_obj.cpp
 ReadResult read_xyz(const ScanSource& source);  ///< read_xyz.cpp
 ReadResult read_e57(const ScanSource& source);  ///< read_e57.cpp: ASTM E2807 E57, every data3D scan posed into the file frame and merged (metres; scan_id when > 1 scan; intensity [0,1], rgb 8 bit, row/col); InputError on bad CRC-32C page (its offset), truncation, bad XML, zero scans
 ReadResult read_las(const ScanSource& source);  ///< read_las.cpp (LAS 1.0–1.4, formats 0–10)
+ReadResult read_laz(const ScanSource& source);  ///< read_laz.cpp (LAZ: LASzip compressors 1–3, formats 0–3 and 6–8; COPC as plain LAZ)
 ReadResult read_ptx(const ScanSource& source);  ///< read_ptx.cpp (Leica PTX, one or more scans)
 ReadResult read_pts(const ScanSource& source);  ///< read_pts.cpp (Leica PTS)
 

@@ -35,6 +35,8 @@ void xyz(const std::uint8_t* data, std::size_t size) { scan_file(".xyz", data, s
 void e57(const std::uint8_t* data, std::size_t size) { scan_file(".e57", data, size); }
 /// a .las scan file
 void las(const std::uint8_t* data, std::size_t size) { scan_file(".las", data, size); }
+/// a .laz (LASzip-compressed LAS, COPC included) scan file
+void laz(const std::uint8_t* data, std::size_t size) { scan_file(".laz", data, size); }
 /// a .ptx scan file
 void ptx(const std::uint8_t* data, std::size_t size) { scan_file(".ptx", data, size); }
 /// a .pts scan file

@@ -39,13 +39,18 @@ StageResult<Cloud> load_cloud(const std::filesystem::path& path);
 
 /// As above, with format options. Also reads .las (LAS 1.0–1.4, point data formats 0–10:
 /// scaled X Y Z in double, intensity, RGB as 8 bit, classes in options.las_drop_classes
-/// dropped, CRS in the notes), .ptx (Leica PTX: every scan moved into the common frame by its
+/// dropped, CRS in the notes), .laz (LASzip-compressed LAS: point-wise compressor for formats
+/// 0–5 with POINT10/GPSTIME11/RGB12/BYTE v2, layered chunked compressor for formats 6–10 with
+/// POINT14/RGB14/RGBNIR14/BYTE14 v3; COPC files read as plain LAZ; the same fields as .las),
+/// .ptx (Leica PTX: every scan moved into the common frame by its
 /// 4×4 transform, no-return points 0 0 0 skipped, intensity, RGB, row/column kept) and .pts
 /// (Leica PTS: count line, X Y Z [intensity] [R G B]).
 /// @throws hc::InputError as above, and for a LAS header whose counts exceed the file, an
-///         unknown point format or a record shorter than its format; a PTX scan whose lines do
+///         unknown point format or a record shorter than its format; a LAZ file without a
+///         LASzip VLR, with another compressor, coder, item type or item version, or with a
+///         chunk table or chunk that lies outside the file or ends early (offset named); a PTX scan whose lines do
 ///         not match its rows × columns; a PTS count line that disagrees with the points.
-/// Sources: ASPRS LAS 1.4 R15; Leica PTX/PTS conventions (Cyclone export formats).
+/// Sources: ASPRS LAS 1.4 R15; LASzip specification ("LASzip for LAS 1.4", Isenburg 2013); COPC 1.0; Leica PTX/PTS conventions (Cyclone export formats).
 StageResult<Cloud> load_cloud(const std::filesystem::path& path, const LoadOptions& options);
 
 /// One `bmesh` line of a scanalyze .conf: file name, translation t and unit quaternion q.

@@ -1,0 +1,64 @@
+#pragma once
+/// @file las_records.hpp
+/// What the LAS reader (read_las.cpp) shares with the LAZ reader (read_laz.cpp): the public
+/// header and (E)VLR parsing, and the decoding of uncompressed point records into a Cloud.
+/// A LAZ file is a LAS file whose point records are compressed (LASzip specification: the
+/// LAS header and VLRs are stored as in LAS, the format byte carries the compression bit): the
+/// LAZ reader parses the header here, decompresses the records into LAS record layout, and
+/// hands them to decode_las_records, so both formats keep exactly the same fields.
+/// Private to the pipeline (not installed).
+
+#include "readers.hpp"
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline::detail {
+
+/// One (E)VLR found in the file; `data` points into ScanSource::bytes.
+struct Vlr {
+  std::string user_id;
+  std::uint16_t record_id = 0;
+  const char* data = nullptr;
+  std::size_t length = 0;
+};
+
+/// The validated LAS public header (ASPRS LAS 1.4 R15 §2.4) of a LAS or LAZ file.
+struct LasHeader {
+  std::string version;            ///< "1.2" etc.
+  int minor = 0;                  ///< version minor (major is 1)
+  std::size_t header_size = 0;    ///< bytes
+  std::size_t offset = 0;         ///< byte offset of the point data
+  int format = 0;                 ///< point data format 0..10 (compression bits cleared)
+  std::size_t record_length = 0;  ///< bytes per point record (base + extra bytes)
+  std::size_t base_length = 0;    ///< bytes of the format's standard fields
+  std::uint64_t count = 0;        ///< number of point records (> 0)
+  double scale[3] = {1, 1, 1};    ///< x y z scale factors (file units per count)
+  double shift[3] = {0, 0, 0};    ///< x y z offsets (file units)
+  std::vector<Vlr> vlrs;          ///< VLRs then EVLRs, in file order
+  std::vector<std::string> notes; ///< header notes for the stage report
+};
+
+/// Parses and checks the header and (E)VLRs of source.bytes. `compressed` = false (LAS): the
+/// compression bits of the format byte are refused and the records must fit the file;
+/// true (LAZ): the format byte's bits 6–7 are cleared and the record room is not checked
+/// (the LAZ reader checks its chunks against the file size). Throws hc::InputError naming the
+/// file and the offending field.
+LasHeader parse_las_header(const ScanSource& source, bool compressed);
+
+/// Decodes `header.count` uncompressed records of `header.record_length` bytes starting at
+/// `records` (LAS 1.4 R15 tables 7–17 layout) into a Cloud in file units: x y z = X·scale +
+/// offset in double, intensity raw 0..65535, RGB 16 → 8 bit, classes of
+/// LoadOptions::las_drop_classes dropped; notes on format, CRS and dropped points.
+/// Throws hc::InputError if every point is dropped.
+ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, const char* records);
+
+/// read_laz.cpp: decompresses the LAZ point data of source (whose header was parsed with
+/// `compressed` = true) into header.count LAS records of header.record_length bytes, in file
+/// order, and appends a note on the compressor to header.notes. Throws hc::InputError naming
+/// the file and the offending VLR field, item, chunk or offset.
+std::string decompress_laz(const ScanSource& source, LasHeader& header);
+
+}  // namespace hc::pipeline::detail

@@ -1,0 +1,323 @@
+#pragma once
+/// @file laz_arith.hpp
+/// The entropy decoder of LAZ (LASzip) point data: a 32-bit range (arithmetic) decoder with
+/// adaptive binary and multi-symbol models, and the "integer compressor" that codes a value as
+/// a corrector to a prediction (bucket k = bit length of the corrector, then the corrector's
+/// bits). Written clean room from the published descriptions (LASzip specification and
+/// M. Isenburg, "LASzip: lossless compression of
+/// LiDAR data", PE&RS 79(2), 2013; the coder is A. Said's "FastAC", HP Labs report
+/// HPL-2004-76), with constants checked against LASzip's decoder as facts. Facts followed
+/// (no code carried over):
+///   - interval: 32-bit `length`, renormalised by bytes while length < 2^24; the decoder
+///     starts with 4 big-endian bytes in `value` and length 2^32 − 1;
+///   - binary model: probability of 0 in 13 bits, counts halved above 2^13, the update period
+///     starts at 4 and grows ×5/4 up to 64 symbols;
+///   - multi-symbol model: cumulative distribution in 15 bits, counts halved above 2^15, the
+///     update period starts at (n + 6)/2 and grows ×5/4 up to 8·(n + 6); models of more than
+///     16 symbols search a lookup table of 2^b entries (b from 3 while n > 2^(b+2));
+///   - raw bits: up to 19 bits at once from the interval, wider values as 16-bit halves
+///     (low half first);
+///   - integer compressor: correctors of `bits` bits (range 2^bits, wrapped into it); bucket
+///     model per context with bits + 1 symbols; bucket 0 codes {0, 1} with a binary model;
+///     bucket k ≤ bits_high (8) codes the k-bit corrector with a 2^k-symbol model; above, the
+///     top bits_high bits by model and the k − bits_high low bits raw; a k-bit code c maps to
+///     c + 1 if c ≥ 2^(k−1), else c − (2^k − 1); bucket 32 is the minimum integer.
+///
+/// Safety: the decoder reads only inside its [begin, end) buffer; past the end it feeds zero
+/// bytes and counts them, and `overrun()` tells the caller the stream was too short (a
+/// truncated or corrupt chunk), so no input makes it read out of bounds, divide by zero or
+/// loop forever.
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace hc::pipeline::detail::laz {
+
+/// Adaptive model of one binary decision.
+class BitModel {
+ public:
+  BitModel() = default;
+
+ private:
+  friend class ArithDecoder;
+  void refresh() {
+    count_total_ += period_;
+    if (count_total_ > kMaxCount) {
+      count_total_ = (count_total_ + 1) >> 1;
+      count_zero_ = (count_zero_ + 1) >> 1;
+      if (count_zero_ == count_total_) ++count_total_;
+    }
+    const std::uint32_t unit = 0x80000000u / count_total_;
+    p_zero_ = (count_zero_ * unit) >> (31 - kShift);
+    period_ = (5 * period_) >> 2;
+    if (period_ > 64) period_ = 64;
+    countdown_ = period_;
+  }
+  static constexpr std::uint32_t kShift = 13;
+  static constexpr std::uint32_t kMaxCount = 1u << kShift;
+  std::uint32_t count_zero_ = 1, count_total_ = 2;
+  std::uint32_t p_zero_ = 1u << (kShift - 1);
+  std::uint32_t period_ = 4, countdown_ = 4;
+};
+
+/// Adaptive model of a symbol in [0, n), 2 ≤ n ≤ 2^11.
+class SymbolModel {
+ public:
+  explicit SymbolModel(std::uint32_t n = 2) { reset(n); }
+  void reset(std::uint32_t n) {
+    n_ = n;
+    counts_.assign(n, 1u);
+    cdf_.assign(n, 0u);
+    if (n > 16) {
+      std::uint32_t bits = 3;
+      while (n > (1u << (bits + 2))) ++bits;
+      table_size_ = 1u << bits;
+      table_shift_ = kShift - bits;
+      table_.assign(table_size_ + 2, 0u);
+    } else {
+      table_size_ = 0;
+      table_shift_ = 0;
+      table_.clear();
+    }
+    total_ = 0;
+    period_ = n;
+    refresh();
+    period_ = (n + 6) >> 1;
+    countdown_ = period_;
+  }
+  std::uint32_t size() const { return n_; }
+
+ private:
+  friend class ArithDecoder;
+  void refresh() {
+    total_ += period_;
+    if (total_ > kMaxCount) {
+      total_ = 0;
+      for (auto& c : counts_) {
+        c = (c + 1) >> 1;
+        total_ += c;
+      }
+    }
+    const std::uint32_t unit = 0x80000000u / total_;
+    std::uint32_t running = 0;
+    if (table_size_ == 0) {
+      for (std::uint32_t s = 0; s < n_; ++s) {
+        cdf_[s] = (unit * running) >> (31 - kShift);
+        running += counts_[s];
+      }
+    } else {
+      std::uint32_t slot = 0;
+      for (std::uint32_t s = 0; s < n_; ++s) {
+        cdf_[s] = (unit * running) >> (31 - kShift);
+        running += counts_[s];
+        const std::uint32_t w = cdf_[s] >> table_shift_;
+        while (slot < w) table_[++slot] = s - 1;
+      }
+      table_[0] = 0;
+      while (slot <= table_size_) table_[++slot] = n_ - 1;
+    }
+    period_ = (5 * period_) >> 2;
+    const std::uint32_t longest = (n_ + 6) << 3;
+    if (period_ > longest) period_ = longest;
+    countdown_ = period_;
+  }
+  static constexpr std::uint32_t kShift = 15;
+  static constexpr std::uint32_t kMaxCount = 1u << kShift;
+  std::uint32_t n_ = 0;
+  std::vector<std::uint32_t> counts_, cdf_, table_;
+  std::uint32_t table_size_ = 0, table_shift_ = 0;
+  std::uint32_t total_ = 0, period_ = 0, countdown_ = 0;
+};
+
+/// Range decoder over one byte buffer.
+class ArithDecoder {
+ public:
+  ArithDecoder() = default;
+  /// Starts decoding at `begin` (reads the first 4 bytes). Bytes past `end` read as 0.
+  void start(const std::uint8_t* begin, const std::uint8_t* end) {
+    at_ = begin;
+    end_ = end;
+    missing_ = 0;
+    length_ = 0xFFFFFFFFu;
+    value_ = 0;
+    for (int i = 0; i < 4; ++i) value_ = (value_ << 8) | next_byte();
+  }
+  /// Number of bytes requested past the end of the buffer. The encoder's flush leaves the last
+  /// bytes the decoder needs inside the stream, so a valid stream keeps this at 0; more than a
+  /// few means a truncated or corrupt stream.
+  std::size_t overrun() const { return missing_; }
+
+  std::uint32_t bit(BitModel& m) {
+    const std::uint32_t split = m.p_zero_ * (length_ >> BitModel::kShift);
+    std::uint32_t out;
+    if (value_ < split) {
+      out = 0;
+      length_ = split;
+      ++m.count_zero_;
+    } else {
+      out = 1;
+      value_ -= split;
+      length_ -= split;
+    }
+    if (length_ < kMinLength) renormalise();
+    if (--m.countdown_ == 0) m.refresh();
+    return out;
+  }
+
+  std::uint32_t symbol(SymbolModel& m) {
+    std::uint32_t s, lo, hi = length_;
+    if (m.table_size_ != 0) {
+      length_ >>= SymbolModel::kShift;
+      const std::uint32_t target = value_ / length_;
+      std::uint32_t t = target >> m.table_shift_;
+      if (t > m.table_size_) t = m.table_size_;  // only reachable from corrupt input
+      s = m.table_[t];
+      std::uint32_t top = m.table_[t + 1] + 1;
+      if (top > m.n_) top = m.n_;
+      const std::uint32_t* cdf = m.cdf_.data();
+      while (top > s + 1) {  // bisection written for conditional moves (few mispredicted branches)
+        const std::uint32_t mid = (s + top) >> 1;
+        const bool above = cdf[mid] > target;
+        top = above ? mid : top;
+        s = above ? s : mid;
+      }
+      lo = m.cdf_[s] * length_;
+      if (s + 1 != m.n_) hi = m.cdf_[s + 1] * length_;
+    } else {
+      s = 0;
+      lo = 0;
+      length_ >>= SymbolModel::kShift;
+      std::uint32_t top = m.n_, mid = top >> 1;
+      do {
+        const std::uint32_t edge = length_ * m.cdf_[mid];
+        if (edge > value_) {
+          top = mid;
+          hi = edge;
+        } else {
+          s = mid;
+          lo = edge;
+        }
+      } while ((mid = (s + top) >> 1) != s);
+    }
+    value_ -= lo;
+    length_ = hi - lo;
+    if (length_ < kMinLength) renormalise();
+    ++m.counts_[s];
+    if (--m.countdown_ == 0) m.refresh();
+    return s;
+  }
+
+  /// `n` raw bits (0 < n ≤ 32), low half first when n > 19.
+  std::uint32_t bits(std::uint32_t n) {
+    if (n > 19) {
+      const std::uint32_t low = short16();
+      const std::uint32_t high = bits(n - 16);
+      return (high << 16) | low;
+    }
+    length_ >>= n;
+    const std::uint32_t s = value_ / length_;
+    value_ -= length_ * s;
+    if (length_ < kMinLength) renormalise();
+    return s;
+  }
+  std::uint32_t short16() {
+    length_ >>= 16;
+    const std::uint32_t s = value_ / length_;
+    value_ -= length_ * s;
+    if (length_ < kMinLength) renormalise();
+    return s;
+  }
+  std::uint32_t int32() {
+    const std::uint32_t low = short16();
+    const std::uint32_t high = short16();
+    return (high << 16) | low;
+  }
+
+ private:
+  static constexpr std::uint32_t kMinLength = 0x01000000u;
+  std::uint32_t next_byte() {
+    if (at_ < end_) return *at_++;
+    ++missing_;
+    return 0;
+  }
+  void renormalise() {
+    if (length_ == 0) length_ = 1;  // corrupt input only: keeps the loop finite
+    do {
+      value_ = (value_ << 8) | next_byte();
+      length_ <<= 8;
+    } while (length_ < kMinLength);
+  }
+  const std::uint8_t* at_ = nullptr;
+  const std::uint8_t* end_ = nullptr;
+  std::size_t missing_ = 0;
+  std::uint32_t value_ = 0, length_ = 0;
+};
+
+/// Integer compressor (decoding side): value = prediction + corrector, wrapped into the
+/// corrector range; `contexts` independent bucket models.
+class IntDecoder {
+ public:
+  IntDecoder(std::uint32_t bits = 16, std::uint32_t contexts = 1, std::uint32_t bits_high = 8)
+      : bits_high_(bits_high) {
+    if (bits > 0 && bits < 32) {
+      corr_bits_ = bits;
+      range_ = 1u << bits;
+      min_ = -static_cast<std::int64_t>(range_ / 2);
+    } else {
+      corr_bits_ = 32;
+      range_ = 0;
+      min_ = INT32_MIN;
+    }
+    buckets_.assign(contexts, SymbolModel(corr_bits_ + 1));
+    small_.resize(corr_bits_ + 1);
+    for (std::uint32_t k = 1; k <= corr_bits_; ++k) small_[k].reset(1u << (k <= bits_high_ ? k : bits_high_));
+  }
+  /// Resets every model to its initial state (start of a chunk).
+  void reset() {
+    for (auto& b : buckets_) b.reset(corr_bits_ + 1);
+    zero_ = BitModel();
+    for (std::uint32_t k = 1; k <= corr_bits_; ++k) small_[k].reset(1u << (k <= bits_high_ ? k : bits_high_));
+  }
+  /// The value predicted by `pred` and coded in `context` (< contexts).
+  std::int32_t decode(ArithDecoder& d, std::int32_t pred, std::uint32_t context) {
+    const std::int32_t c = corrector(d, buckets_[context]);
+    std::uint32_t v = static_cast<std::uint32_t>(pred) + static_cast<std::uint32_t>(c);
+    if (range_ != 0) {
+      // Wrap into [0, range) the way a two's-complement sum of a `bits`-bit field does.
+      const std::int64_t sv = static_cast<std::int64_t>(pred) + c;
+      std::int64_t w = sv;
+      if (w < 0) w += range_;
+      else if (w >= static_cast<std::int64_t>(range_)) w -= range_;
+      v = static_cast<std::uint32_t>(w);
+    }
+    return static_cast<std::int32_t>(v);
+  }
+  /// The bucket (bit length of the corrector) of the last decode; contexts of later fields.
+  std::uint32_t last_k() const { return k_; }
+
+ private:
+  std::int32_t corrector(ArithDecoder& d, SymbolModel& bucket) {
+    k_ = d.symbol(bucket);
+    if (k_ == 0) return static_cast<std::int32_t>(d.bit(zero_));
+    if (k_ >= 32) return static_cast<std::int32_t>(min_);
+    std::uint32_t code;
+    if (k_ <= bits_high_) {
+      code = d.symbol(small_[k_]);
+    } else {
+      const std::uint32_t low_bits = k_ - bits_high_;
+      code = (d.symbol(small_[k_]) << low_bits) | d.bits(low_bits);
+    }
+    const std::int64_t c = code;
+    if (c >= (std::int64_t{1} << (k_ - 1))) return static_cast<std::int32_t>(c + 1);
+    return static_cast<std::int32_t>(c - ((std::int64_t{1} << k_) - 1));
+  }
+  std::uint32_t bits_high_ = 8, corr_bits_ = 16, range_ = 0;
+  std::int64_t min_ = 0;
+  std::vector<SymbolModel> buckets_;
+  BitModel zero_;
+  std::vector<SymbolModel> small_;
+  std::uint32_t k_ = 0;
+};
+
+}  // namespace hc::pipeline::detail::laz
