@@ -30,6 +30,7 @@ struct InputConfig {
   std::string units = "m";                      ///< "m" | "cm" | "mm" | "ft" | "us-ft" | "in"
   std::vector<int> las_drop_classes{7, 18};     ///< LAS classes dropped on reading (0..255)
   double max_extent_m = kDefaultMaxExtentM;     ///< largest accepted bounding-box side [m]
+  bool as_points = false;                       ///< meshes: vertices only, faces dropped
   std::optional<SyntheticSpec> synthetic;       ///< generate instead of reading files
 };
 
