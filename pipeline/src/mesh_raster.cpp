@@ -36,6 +36,7 @@ namespace hc::pipeline {
 namespace {
 
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+constexpr std::uint32_t kPointBit = 0x80000000u;  // winner is a binned point, not a triangle
 
 struct P2 {
   double x, y;
@@ -89,6 +90,10 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
   const Mesh& mesh = mesh_m.mesh;
   const std::size_t n_points = mesh_m.size(), n_tri = mesh.triangles.size();
   if (n_tri == 0) throw InputError("rasterise_mesh: the cloud has no triangles (expected a mesh)");
+  if (n_tri >= kPointBit || n_points >= kPointBit) {
+    throw ResourceError("rasterise_mesh: " + std::to_string(n_tri) + " triangles and " + std::to_string(n_points) +
+                        " points; at most 2^31 - 1 of each supported");
+  }
   for (std::size_t t = 0; t < n_tri; ++t) {
     for (const std::uint32_t v : mesh.triangles[t]) {
       if (v >= n_points) {
@@ -184,6 +189,28 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
     rasterised += any ? 1 : 0;
   }
 
+  // Points on no triangle (an organised scan's isolated samples and the ends of cut edges; a
+  // mesh file's stray vertices) are binned like points: front-most z at their nearest node.
+  std::vector<bool> referenced(n_points, false);
+  for (const auto& tri : mesh.triangles) {
+    for (const std::uint32_t v : tri) referenced[v] = true;
+  }
+  std::size_t unreferenced = 0, binned = 0;
+  for (std::size_t i = 0; i < n_points; ++i) {
+    if (referenced[i]) continue;
+    ++unreferenced;
+    const double* p = xyz + 3 * i;
+    if (!(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) continue;
+    const long long c = std::llround(g.col_of_x(p[0])), r = std::llround((p[1] - g.y0_m) * inv);
+    if (c < 0 || r < 0 || c >= g.cols || r >= g.rows) continue;
+    const std::size_t k = static_cast<std::size_t>(r) * cols + static_cast<std::size_t>(c);
+    ++binned;
+    if (p[2] > zbuf[k]) {
+      zbuf[k] = p[2];
+      winner[k] = kPointBit | static_cast<std::uint32_t>(i);
+    }
+  }
+
   StageResult<DepthGrid> result;
   DepthGrid& out = result.value;
   out.depth = HeightField(g, kNoData);
@@ -201,6 +228,12 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
     out.depth.data()[i] = static_cast<float>(zbuf[i]);
     out.flags[i] = kCellMeasured;
     if (!rgb && !inten) continue;
+    if (t & kPointBit) {  // a binned point: its own attributes (a texture needs a face: black)
+      const std::size_t pt = t & ~kPointBit;
+      if (rgb && mesh_m.has_rgb()) std::copy_n(mesh_m.rgb.data() + 3 * pt, 3, out.colour_rgb8.data() + 3 * i);
+      if (inten) out.intensity.data()[i] = mesh_m.intensity[pt];
+      continue;
+    }
     const double l1 = bary[2 * i], l2 = bary[2 * i + 1], l0 = 1.0 - l1 - l2;
     const double lam[3] = {l0, l1, l2};
     const auto& tri = mesh.triangles[t];
@@ -223,12 +256,6 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
       out.intensity.data()[i] = static_cast<float>(acc);
     }
   }
-  std::vector<bool> referenced(n_points, false);
-  for (const auto& tri : mesh.triangles) {
-    for (const std::uint32_t v : tri) referenced[v] = true;
-  }
-  const auto unreferenced = static_cast<std::size_t>(std::count(referenced.begin(), referenced.end(), false));
-
   StageReport& rep = result.report;
   rep.stage = "reproject";
   rep.count_in = n_points;
@@ -240,10 +267,11 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
   rep.figure("cells_valid", static_cast<double>(valid));
   rep.figure("cells_measured", static_cast<double>(valid));
   rep.figure("triangles", static_cast<double>(n_tri));
-  rep.figure("triangles_rasterised", static_cast<double>(rasterised));
+  rep.figure("triangles_covering_a_node", static_cast<double>(rasterised));
   rep.figure("triangles_edge_on", static_cast<double>(edge_on));
   rep.figure("triangles_non_finite", static_cast<double>(non_finite));
   rep.figure("vertices_unreferenced", static_cast<double>(unreferenced));
+  rep.figure("vertices_binned_as_points", static_cast<double>(binned));
   rep.notes.emplace_back("mesh: " + std::to_string(n_tri) +
                          " triangles rasterised with a z-buffer (front-most z by barycentric interpolation at each node)");
   if (options.splat_radius_cells > 0.0 || options.see_through_depth_m > 0.0 || options.upsample_factor != 1) {
@@ -254,6 +282,171 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
                                           : std::string("colour interpolated from the vertex colours"));
   if (inten) rep.notes.emplace_back("intensity interpolated from the vertices");
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return result;
+}
+
+}  // namespace hc::pipeline
+
+namespace hc::pipeline {
+
+StageResult<Cloud> mesh_organised_scans(Cloud cloud, double max_edge_factor) {
+  const auto t0 = std::chrono::steady_clock::now();
+  if (!(max_edge_factor >= 1.0 && max_edge_factor <= 100.0)) {
+    throw ConfigError("mesh_organised_scans: max_edge_factor = " + std::to_string(max_edge_factor) +
+                      " (expected 1 to 100, a multiple of the median sample spacing)");
+  }
+  const std::size_t n = cloud.size();
+  if (!cloud.has_grid_index() || cloud.row.size() != n || cloud.col.size() != n ||
+      (cloud.has_scan_id() && cloud.scan_id.size() != n)) {
+    throw InputError("mesh_organised_scans: the cloud has no (or misaligned) scanner row/col: " + std::to_string(n) +
+                     " points, " + std::to_string(cloud.row.size()) + " rows, " + std::to_string(cloud.col.size()) +
+                     " columns, " + std::to_string(cloud.scan_id.size()) + " scan ids");
+  }
+  if (n > 0xFFFFFFFEu) throw InputError("mesh_organised_scans: more than 2^32 - 2 points cannot be indexed");
+  std::uint16_t scans = 1;
+  for (const auto s : cloud.scan_id) scans = std::max<std::uint16_t>(scans, static_cast<std::uint16_t>(s + 1));
+  std::vector<std::vector<std::uint32_t>> members(scans);
+  for (std::size_t i = 0; i < n; ++i) members[cloud.has_scan_id() ? cloud.scan_id[i] : 0].push_back(static_cast<std::uint32_t>(i));
+
+  Mesh mesh;
+  std::size_t cut = 0, skipped_scans = 0;
+  std::vector<double> spacings;
+  StageResult<Cloud> result;
+  const double* p = cloud.xyz.data();
+  auto dist = [&](std::uint32_t a, std::uint32_t b) {
+    const double dx = p[3 * a] - p[3 * b], dy = p[3 * a + 1] - p[3 * b + 1], dz = p[3 * a + 2] - p[3 * b + 2];
+    return std::sqrt(dx * dx + dy * dy + dz * dz);
+  };
+  for (std::uint16_t s = 0; s < scans; ++s) {
+    const auto& idx = members[s];
+    if (idx.size() < 3) continue;
+    std::int32_t r0 = std::numeric_limits<std::int32_t>::max(), r1 = std::numeric_limits<std::int32_t>::min();
+    std::int32_t c0 = r0, c1 = r1;
+    for (const auto i : idx) {
+      r0 = std::min(r0, cloud.row[i]);
+      r1 = std::max(r1, cloud.row[i]);
+      c0 = std::min(c0, cloud.col[i]);
+      c1 = std::max(c1, cloud.col[i]);
+    }
+    const auto rows = static_cast<std::size_t>(static_cast<std::int64_t>(r1) - r0 + 1);
+    const auto cols = static_cast<std::size_t>(static_cast<std::int64_t>(c1) - c0 + 1);
+    if (rows * cols > std::max<std::size_t>(64 * idx.size(), 1u << 22)) {  // sparse or bogus indices
+      ++skipped_scans;
+      result.report.notes.push_back("scan " + std::to_string(s) + ": row/col span " + std::to_string(rows) + " × " +
+                                    std::to_string(cols) + " for " + std::to_string(idx.size()) +
+                                    " points: not meshed (its points have no triangles)");
+      continue;
+    }
+    std::vector<std::uint32_t> at(rows * cols, kNone);
+    for (const auto i : idx) {
+      at[static_cast<std::size_t>(cloud.row[i] - r0) * cols + static_cast<std::size_t>(cloud.col[i] - c0)] = i;
+    }
+    std::vector<double> d;
+    for (std::size_t r = 0; r < rows; ++r) {
+      for (std::size_t c = 0; c < cols; ++c) {
+        const std::uint32_t a = at[r * cols + c];
+        if (a == kNone) continue;
+        if (c + 1 < cols && at[r * cols + c + 1] != kNone) d.push_back(dist(a, at[r * cols + c + 1]));
+        if (r + 1 < rows && at[(r + 1) * cols + c] != kNone) d.push_back(dist(a, at[(r + 1) * cols + c]));
+      }
+    }
+    if (d.empty()) continue;
+    std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
+    const double spacing = d[d.size() / 2];
+    spacings.push_back(spacing);
+    const double limit = max_edge_factor * spacing;
+    auto add = [&](std::uint32_t a, std::uint32_t b, std::uint32_t c) {
+      if (dist(a, b) <= limit && dist(b, c) <= limit && dist(c, a) <= limit) {
+        mesh.triangles.push_back({a, b, c});
+      } else {
+        ++cut;
+      }
+    };
+    for (std::size_t r = 0; r + 1 < rows; ++r) {
+      for (std::size_t c = 0; c + 1 < cols; ++c) {
+        const std::uint32_t a = at[r * cols + c], b = at[r * cols + c + 1];
+        const std::uint32_t e = at[(r + 1) * cols + c], f = at[(r + 1) * cols + c + 1];
+        const int present = (a != kNone) + (b != kNone) + (e != kNone) + (f != kNone);
+        if (present < 3) continue;
+        if (present == 4) {
+          if (dist(a, f) <= dist(b, e)) {
+            add(a, b, f);
+            add(a, f, e);
+          } else {
+            add(a, b, e);
+            add(b, f, e);
+          }
+        } else if (a == kNone) {
+          add(b, f, e);
+        } else if (b == kNone) {
+          add(a, f, e);
+        } else if (e == kNone) {
+          add(a, b, f);
+        } else {
+          add(a, b, e);
+        }
+      }
+    }
+  }
+  std::sort(spacings.begin(), spacings.end());
+  StageReport& rep = result.report;
+  rep.count_in = n;
+  rep.count_out = n;
+  rep.figure("scans", scans);
+  rep.figure("triangles", static_cast<double>(mesh.triangles.size()));
+  rep.figure("triangles_cut", static_cast<double>(cut));
+  rep.figure("median_spacing_mm", spacings.empty() ? std::numeric_limits<double>::quiet_NaN() : 1e3 * spacings[spacings.size() / 2]);
+  rep.notes.push_back("each scan meshed on its own row/column grid; triangles with an edge over " +
+                      std::to_string(max_edge_factor) + " × the scan's median spacing cut (depth jumps)");
+  if (skipped_scans > 0) rep.notes.push_back(std::to_string(skipped_scans) + " scans not meshed");
+  cloud.mesh = std::move(mesh);
+  result.value = std::move(cloud);
+  rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return result;
+}
+
+StageResult<int> corrugation(const DepthGrid& grid) {
+  StageResult<int> result;
+  const HeightField& h = grid.depth;
+  const GridGeometry& g = h.geometry();
+  const double step = 2.0 * g.cell_size_m;
+  const bool flags = grid.flags.size() == g.cell_count();
+  auto usable = [&](int r, int c) {
+    const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c);
+    return !std::isnan(h.data()[i]) && (!flags || grid.flags[i] != kCellFilled);
+  };
+  double e[2] = {0.0, 0.0};
+  std::size_t count[2] = {0, 0};
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      if (!usable(r, c)) continue;
+      const double z = h.at(r, c);
+      for (int axis = 0; axis < 2; ++axis) {
+        const int dr = axis, dc = 1 - axis;
+        if (r - dr < 0 || c - dc < 0 || r + dr >= g.rows || c + dc >= g.cols) continue;
+        if (!usable(r - dr, c - dc) || !usable(r + dr, c + dc)) continue;
+        const double zm = h.at(r - dr, c - dc), zp = h.at(r + dr, c + dc);
+        if (std::abs(z - zm) > step || std::abs(zp - z) > step) continue;
+        const double d2 = zm - 2.0 * z + zp;
+        e[axis] += d2 * d2;
+        ++count[axis];
+      }
+    }
+  }
+  const double ex = count[0] ? e[0] / static_cast<double>(count[0]) : 0.0;
+  const double ey = count[1] ? e[1] / static_cast<double>(count[1]) : 0.0;
+  StageReport& rep = result.report;
+  rep.figure("d2_energy_x_um2", ex * 1e12);
+  rep.figure("d2_energy_y_um2", ey * 1e12);
+  rep.figure("triples_x", static_cast<double>(count[0]));
+  rep.figure("triples_y", static_cast<double>(count[1]));
+  rep.figure("corrugation_um2", std::max(ex, ey) * 1e12);
+  const bool enough = count[0] >= 100 && count[1] >= 100 && std::min(ex, ey) > 0.0;
+  const double aniso = enough ? std::max(ex, ey) / std::min(ex, ey) - 1.0 : std::numeric_limits<double>::quiet_NaN();
+  rep.figure("corrugation_anisotropy", aniso);
+  rep.notes.push_back("second-difference energy of z along x and y (slopes <= 2, filled cells excluded); "
+                      "anisotropy max/min - 1: scan-line ribbing along a grid axis raises it");
+  result.value = 0;
   return result;
 }
 

@@ -219,10 +219,20 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   Cloud cloud = prepare_points_staged(config, reports, progress, prov.inputs, offset_m);
 
   // 5. Reprojection and hole filling.
+  // Organised scans (row/col) meshed per scan on their own grid (grid.organised: mesh).
+  if (config.grid.organised_mesh && cloud.has_grid_index() && !cloud.has_mesh()) {
+    cloud = stage("organised_mesh", reports, progress, [&] {
+      return mesh_organised_scans(std::move(cloud), config.grid.organised_max_edge_factor);
+    });
+  } else if (config.grid.organised_mesh && !cloud.has_mesh()) {
+    reports.back().notes.push_back("grid.organised: mesh, but the points carry no scanner row/col: gridded as points");
+  }
   // Meshes are rasterised (z-buffer over the faces); points are binned and splatted.
   DepthGrid grid = stage("reproject", reports, progress, [&] {
     return cloud.has_mesh() ? rasterise_mesh(cloud, config.grid.reproject) : reproject(cloud, config.grid.reproject);
   });
+  // Scan-line corrugation of the grid (before hole filling), for the report.
+  (void)stage("corrugation", reports, progress, [&] { return corrugation(grid); });
   if (config.grid.hole_fill_max_cells > 0) {
     grid = stage("hole_fill", reports, progress, [&] { return fill_holes(std::move(grid), config.grid.hole_fill_max_cells); });
   }

@@ -19,6 +19,7 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
+#include <map>
 #include <optional>
 #include <random>
 #include <string>
@@ -463,8 +464,11 @@ TEST(MeshRasterRealData, BunnyMeshAtN300CoversTheOracleSilhouette) {
   const Agreement a = compare_with_oracle(m, r.value, 1e-6);
   EXPECT_GT(a.covered, 40000u);
   EXPECT_EQ(a.covered_valid, a.covered);
-  EXPECT_EQ(a.uncovered_valid, 0u);
-  EXPECT_EQ(a.depth_off, 0u) << a.max_dz;
+  // The file's vertices on no face are binned as points: each may set (or lie in front at)
+  // one node the faces leave empty (or lower); nothing else departs from the oracle.
+  const double binned = figure(r.report, "vertices_binned_as_points");
+  EXPECT_LE(static_cast<double>(a.uncovered_valid + a.depth_off), binned) << a.max_dz;
+  EXPECT_LT(binned, 100.0);
   // The vertices as points (today's path) cover a small part of the same silhouette.
   const auto points = reproject(m, with_n(300));
   EXPECT_GT(figure(r.report, "cells_valid"), 5.0 * figure(points.report, "cells_valid"));
@@ -522,6 +526,137 @@ TEST(MeshRasterRealData, BuildSceneRasterisesTheBunnyMeshAndAsPointsKeepsTheVert
   EXPECT_TRUE(has_note(stage(pts, "ingest"), "input.as_points: dropped the 16301 triangles"));
   ASSERT_TRUE(mesh.summary.cross_check.has_value());
   EXPECT_GT(mesh.summary.cross_check->point_normal.count, 1000u);  // the vertices as points
+}
+
+// ---------------------------------------------------------------------------------------------
+// Scan-aware reconstruction: organised scans meshed on their own grid
+
+TEST(OrganisedScans, NeighboursAreJoinedAndDepthJumpsCut) {
+  // One scan, 20 × 20 samples 1 mm apart on z = 0, columns ≥ 10 raised by 10 mm (a step 10×
+  // the spacing), sample (5, 5) missing. 19 × 19 quads: the 19 quads across the step lose both
+  // triangles (38 cut); the 4 quads around the missing sample keep one triangle each (4 lost,
+  // not cut: never formed). Kept: 2·(361 − 19 − 4) + 4 = 680.
+  Cloud c;
+  std::vector<Eigen::Vector3d> pts;
+  for (int r = 0; r < 20; ++r) {
+    for (int col = 0; col < 20; ++col) {
+      if (r == 5 && col == 5) continue;
+      pts.emplace_back(1e-3 * col, 1e-3 * r, col >= 10 ? 0.01 : 0.0);
+      c.row.push_back(r);
+      c.col.push_back(col);
+    }
+  }
+  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
+  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
+  const auto m = mesh_organised_scans(c, 4.0);
+  EXPECT_EQ(m.value.mesh.triangles.size(), 680u);
+  EXPECT_EQ(figure(m.report, "triangles_cut"), 38.0);
+  EXPECT_NEAR(figure(m.report, "median_spacing_mm"), 1.0, 1e-9);
+  // No triangle joins the two levels.
+  for (const auto& t : m.value.mesh.triangles) {
+    const double z0 = m.value.xyz(2, t[0]);
+    EXPECT_EQ(m.value.xyz(2, t[1]), z0);
+    EXPECT_EQ(m.value.xyz(2, t[2]), z0);
+  }
+  // Rasterised: both levels covered, the step's gap (one cell at 0.5 mm cells) left open.
+  const auto g = rasterise_mesh(m.value, with_n(39));
+  EXPECT_TRUE(std::isnan(g.value.depth.at(10, 19)));  // x = 9.5 mm: between the levels
+  EXPECT_NEAR(g.value.depth.at(10, 21), 0.01, 1e-7);
+  EXPECT_NEAR(g.value.depth.at(10, 17), 0.0, 1e-7);
+  // Sample (5, 5) is missing: its 4 quads keep one triangle each, leaving a diamond hole
+  // around it (for hole filling to close), while its neighbours hold data.
+  // In nodes (two per sample), the hole is the diamond |dr| + |dc| < 2 around node (10, 10);
+  // |dr| + |dc| = 2 is its border (the tie rule decides), farther nodes lie inside triangles.
+  for (int dr = -3; dr <= 3; ++dr) {
+    for (int dc = -3; dc <= 3; ++dc) {
+      const int d = std::abs(dr) + std::abs(dc);
+      if (d < 2) {
+        EXPECT_TRUE(std::isnan(g.value.depth.at(10 + dr, 10 + dc))) << dr << ", " << dc;
+      } else if (d > 2) {
+        EXPECT_FALSE(std::isnan(g.value.depth.at(10 + dr, 10 + dc))) << dr << ", " << dc;
+      }
+    }
+  }
+  // Without row/col: a clear error.
+  Cloud plain;
+  plain.xyz = c.xyz;
+  EXPECT_THROW((void)mesh_organised_scans(plain, 4.0), InputError);
+}
+
+TEST(OrganisedScans, StanfordRangeGridGivesEachVertexItsScannerRowAndColumn) {
+  const auto r = load_cloud(hc::test::scan_path("bunny/bun000.ply"));
+  const Cloud& c = r.value;
+  ASSERT_TRUE(c.has_grid_index()) << ::testing::PrintToString(r.report.notes);
+  // obj_info num_cols 512, num_rows 400.
+  EXPECT_EQ(*std::max_element(c.row.begin(), c.row.end()) < 400, true);
+  EXPECT_EQ(*std::max_element(c.col.begin(), c.col.end()) < 512, true);
+  // Grid neighbours are spatial neighbours: the median distance between samples one column
+  // apart is far below the scan's extent (0.15 m) and near the 0.5 mm sample step (echo_lgincr).
+  std::map<std::pair<int, int>, std::size_t> at;
+  for (std::size_t i = 0; i < c.size(); ++i) at[{c.row[i], c.col[i]}] = i;
+  std::vector<double> d;
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    const auto it = at.find({c.row[i], c.col[i] + 1});
+    if (it != at.end()) d.push_back((c.xyz.col(static_cast<Eigen::Index>(i)) - c.xyz.col(static_cast<Eigen::Index>(it->second))).norm());
+  }
+  ASSERT_GT(d.size(), 30000u);
+  std::nth_element(d.begin(), d.begin() + static_cast<std::ptrdiff_t>(d.size() / 2), d.end());
+  EXPECT_LT(d[d.size() / 2], 0.002);
+}
+
+struct SplatVsMesh {
+  double corrugation_splat = 0, corrugation_mesh = 0, normal_rms_splat = 0, normal_rms_mesh = 0;
+  double cell_rms_splat = 0, cell_rms_mesh = 0;
+};
+
+SplatVsMesh splat_vs_mesh(const RunConfig& splat, const RunConfig& mesh) {
+  SplatVsMesh out;
+  for (const RunConfig* cfg : {&splat, &mesh}) {
+    const BuiltScene b = build_scene(*cfg);
+    double corr = std::numeric_limits<double>::quiet_NaN();
+    for (const auto& s : b.summary.stages)
+      if (s.stage == "corrugation") corr = figure(s, "corrugation_um2");
+    EXPECT_TRUE(b.summary.cross_check.has_value());
+    const double rms = b.summary.cross_check ? b.summary.cross_check->point_normal.rms_mm : 0.0;
+    (cfg == &splat ? out.corrugation_splat : out.corrugation_mesh) = corr;
+    (cfg == &splat ? out.normal_rms_splat : out.normal_rms_mesh) = rms;
+    (cfg == &splat ? out.cell_rms_splat : out.cell_rms_mesh) =
+        b.summary.cross_check ? b.summary.cross_check->cell_to_point.rms_mm : 0.0;
+  }
+  return out;
+}
+
+TEST(OrganisedScansRealData, RawBunnyScansMeshedCorrugateFiveTimesLessWithoutLargerNormalError) {
+  const fs::path dir = hc::test::scan_path("bunny");
+  const std::string yaml = "input: {files: [" + (dir / "bun000.ply").string() + ", " + (dir / "bun045.ply").string() +
+                           "], conf: " + (dir / "bun.conf").string() + "}\n"
+                           "grid: {n: 300, splat_radius_cells: 1, see_through_depth_m: 0.003, hole_fill_max_cells: 32}\n"
+                           "cross_check: {tolerance_m: 0.001}\nlayers: {enabled: false}\n";
+  const fs::path origin = fs::path(HC_BINARY_DIR) / "bunny2.yaml";
+  const SplatVsMesh r = splat_vs_mesh(parse_run_config(yaml, origin), parse_run_config(yaml, origin, {"grid.organised=mesh"}));
+  EXPECT_GE(r.corrugation_splat, 5.0 * r.corrugation_mesh) << r.corrugation_splat << " vs " << r.corrugation_mesh;
+  EXPECT_LE(r.normal_rms_mesh, r.normal_rms_splat) << r.normal_rms_mesh << " vs " << r.normal_rms_splat;
+}
+
+TEST(OrganisedScansRealData, RawBuddhaScansMeshedCorrugateFiveTimesLessAndLieNearerTheScan) {
+  (void)hc::test::scan_path("happy_buddha/raw_scans/happyStandRight.conf");
+  const fs::path cfg = fs::path(HC_SOURCE_DIR) / "configs" / "buddha_raw_scans.yaml";
+  const std::vector<std::string> common = {"layers.enabled=false"};
+  auto with = [&](std::vector<std::string> extra) {
+    extra.insert(extra.end(), common.begin(), common.end());
+    return load_run_config(cfg, extra);
+  };
+  const SplatVsMesh r = splat_vs_mesh(with({"grid.organised=splat"}), with({"grid.organised=mesh"}));
+  EXPECT_GE(r.corrugation_splat, 5.0 * r.corrugation_mesh) << r.corrugation_splat << " vs " << r.corrugation_mesh;
+  // Grid samples lie nearer the scan than the splat grid's.
+  EXPECT_LE(r.cell_rms_mesh, r.cell_rms_splat) << r.cell_rms_mesh << " vs " << r.cell_rms_splat;
+  // KNOWN GAP (issue "A surface you can trust"): the points-to-surface RMS along the normal
+  // grows here (0.255 → 0.357 mm at N = 800): strips of the front surface narrower than a cell
+  // at silhouettes cover no node, so their points float above the bilinear surface, where the
+  // splats' 1.2-cell dilation covered them. Recorded, not asserted, until the rasteriser
+  // handles sub-cell strips (conservative coverage).
+  RecordProperty("normal_rms_splat_mm", std::to_string(r.normal_rms_splat));
+  RecordProperty("normal_rms_mesh_mm", std::to_string(r.normal_rms_mesh));
 }
 
 }  // namespace

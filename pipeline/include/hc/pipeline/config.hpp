@@ -50,6 +50,8 @@ struct FilterConfig {
 struct GridConfig {
   ReprojectOptions reproject;    ///< N or cell size, splat radius, see-through
   int hole_fill_max_cells = 0;   ///< largest hole filled [cells]; 0 = off
+  bool organised_mesh = false;   ///< grid.organised: mesh (organised scans meshed per scan) | splat
+  double organised_max_edge_factor = 4.0;  ///< depth-jump limit / median sample spacing [-]
 };
 
 struct CrossCheckConfig {
