@@ -189,7 +189,8 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     if (cloud.has_scan_id()) item(kept, "scan_id");
     ingest.notes.push_back("per-point attributes found: " + (found.empty() ? std::string("none") : found) +
                            "; kept through the filters: " + (kept.empty() ? std::string("none") : kept) +
-                           " (colour and intensity go to the scene's layers; row/col and scan_id are not used by the grid)");
+                           " (colour and intensity go to the scene's layers; row/col and scan_id are used by the grid only with "
+                           "grid.organised: mesh)");
     if (ingest_triangles > 0) {
       ingest.notes.push_back("mesh: " + std::to_string(ingest_triangles) + " triangles read, " +
                              std::to_string(cloud.mesh.triangles.size()) +
