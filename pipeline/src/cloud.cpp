@@ -1,5 +1,6 @@
 #include "hc/pipeline/cloud.hpp"
 
+#include <algorithm>
 #include <cassert>
 
 namespace hc::pipeline {
@@ -16,6 +17,31 @@ void move_point(std::vector<T>& v, std::size_t out, std::size_t i, std::size_t s
 
 void Cloud::keep_if(const std::vector<bool>& keep) {
   assert(keep.size() == size());
+  if (has_mesh()) {  // renumber the triangles whose three points stay; drop the others
+    constexpr std::uint32_t kGone = 0xFFFFFFFFu;
+    std::vector<std::uint32_t> new_index(size(), kGone);
+    std::uint32_t next = 0;
+    for (std::size_t i = 0; i < size(); ++i) {
+      if (keep[i]) new_index[i] = next++;
+    }
+    const bool uv = !mesh.corner_uv.empty();
+    std::size_t t_out = 0;
+    for (std::size_t t = 0; t < mesh.triangles.size(); ++t) {
+      std::array<std::uint32_t, 3> tri = mesh.triangles[t];
+      bool all = true;
+      for (auto& v : tri) {
+        v = v < new_index.size() ? new_index[v] : kGone;
+        all = all && v != kGone;
+      }
+      if (!all) continue;
+      mesh.triangles[t_out] = tri;
+      if (uv) std::copy_n(mesh.corner_uv.begin() + static_cast<std::ptrdiff_t>(6 * t), 6,
+                          mesh.corner_uv.begin() + static_cast<std::ptrdiff_t>(6 * t_out));
+      ++t_out;
+    }
+    mesh.triangles.resize(t_out);
+    if (uv) mesh.corner_uv.resize(6 * t_out);
+  }
   std::size_t out = 0;
   for (std::size_t i = 0; i < size(); ++i) {
     if (!keep[i]) continue;
@@ -64,6 +90,22 @@ std::vector<std::string> Cloud::append(const Cloud& other) {
     col.clear();
   }
   const Eigen::Index n = xyz.cols();
+  if (first) {
+    mesh = other.mesh;
+  } else if (!other.mesh.empty()) {
+    const bool uv = mesh.has_texture() && other.mesh.has_texture() && mesh.texture == other.mesh.texture;
+    if (!uv && (mesh.has_texture() || other.mesh.has_texture())) dropped.push_back("texture");
+    if (!uv) {
+      mesh.corner_uv.clear();
+      mesh.texture.reset();
+    }
+    const auto offset = static_cast<std::uint32_t>(n);
+    for (auto tri : other.mesh.triangles) {
+      for (auto& v : tri) v += offset;
+      mesh.triangles.push_back(tri);
+    }
+    if (uv) mesh.corner_uv.insert(mesh.corner_uv.end(), other.mesh.corner_uv.begin(), other.mesh.corner_uv.end());
+  }
   xyz.conservativeResize(Eigen::NoChange, n + other.xyz.cols());
   xyz.rightCols(other.xyz.cols()) = other.xyz;
   return dropped;

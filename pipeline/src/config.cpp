@@ -666,6 +666,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     r.resolved_set_raw("input.las.drop_classes", seq);
   }
   c.input.max_extent_m = r.get_double("input.max_extent_m", kDefaultMaxExtentM, 0.0, 1e9, true);
+  c.input.as_points = r.get_bool("input.as_points", false);
   for (const auto& f : r.get_string_list("input.files")) c.input.files.push_back(base / f);
   if (r.has("input.conf")) c.input.conf = base / r.get_string("input.conf", "");
   if (r.has("input.synthetic")) c.input.synthetic = read_synthetic(r, "input.synthetic");
@@ -735,6 +736,8 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     }
   }
   c.grid.hole_fill_max_cells = static_cast<int>(r.get_int("grid.hole_fill_max_cells", 0, 0, 1 << 24));
+  c.grid.organised_mesh = r.get_string("grid.organised", "splat", {"splat", "mesh"}) == "mesh";
+  c.grid.organised_max_edge_factor = r.get_double("grid.organised_max_edge_factor", 4.0, 1.0, 100.0);
 
   // cross-check
   c.cross_check.enabled = r.get_bool("cross_check.enabled", true);

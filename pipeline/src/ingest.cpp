@@ -185,6 +185,12 @@ StageResult<Cloud> load_cloud(const std::filesystem::path& path, const LoadOptio
   report.notes.insert(report.notes.end(), read.notes.begin(), read.notes.end());
   report.figure("parse_s", seconds_since(tp));
   if (cloud.size() == 0) throw InputError("load_cloud: " + name + " holds no points");
+  if (options.as_points && cloud.has_mesh()) {
+    report.notes.push_back("input.as_points: dropped the " + std::to_string(cloud.mesh.triangles.size()) +
+                           " triangles of the file's faces; its vertices are used as points");
+    cloud.mesh = Mesh{};
+  }
+  if (cloud.has_mesh()) report.figure("triangles", static_cast<double>(cloud.mesh.triangles.size()));
   report.count_in = cloud.size();
   report.count_out = cloud.size();
   report.seconds = seconds_since(t0);
@@ -224,11 +230,19 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
   // order) is rethrown.
   std::vector<Cloud> parts(scans.size());
   std::vector<std::exception_ptr> errors(scans.size());
+  std::vector<std::vector<std::string>> part_notes(scans.size());
   std::atomic<std::size_t> next{0};
   auto worker = [&] {
     for (std::size_t i; (i = next.fetch_add(1)) < scans.size();) {
       try {
-        Cloud c = load_cloud(scans[i], options).value;
+        StageResult<Cloud> loaded = load_cloud(scans[i], options);
+        Cloud c = std::move(loaded.value);
+        for (const auto& note : loaded.report.notes) {  // faces, range grid, drops: never silent
+          if (note.find("dropped") != std::string::npos || note.find("not used") != std::string::npos ||
+              note.find("as_points") != std::string::npos) {
+            part_notes[i].push_back(scans[i].filename().string() + ": " + note);
+          }
+        }
         const Eigen::Affine3d m = matched[i]->scan_to_world();
         c.xyz = (m.linear() * c.xyz).colwise() + m.translation();
         parts[i] = std::move(c);
@@ -250,18 +264,50 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
   for (std::size_t i = 0; i < scans.size(); ++i) {
     total += parts[i].size();
     report.notes.push_back(scans[i].filename().string() + ": " + std::to_string(parts[i].size()) + " points");
+    report.notes.insert(report.notes.end(), part_notes[i].begin(), part_notes[i].end());
   }
 
+  // Scanner row/col (organised scans) are kept when every scan has them, and faces (meshes)
+  // are renumbered into the merged points; other per-point attributes are not merged.
+  const bool grid_index =
+      std::all_of(parts.begin(), parts.end(), [](const Cloud& c) { return c.has_grid_index(); });
   Cloud merged;
   merged.xyz.resize(3, static_cast<Eigen::Index>(total));
   merged.scan_id.resize(total);
+  if (grid_index) {
+    merged.row.reserve(total);
+    merged.col.reserve(total);
+  }
   Eigen::Index at = 0;
+  std::size_t dropped_textures = 0;
   for (std::size_t i = 0; i < parts.size(); ++i) {
     const Eigen::Index n = parts[i].xyz.cols();
     merged.xyz.middleCols(at, n) = parts[i].xyz;
     std::fill_n(merged.scan_id.begin() + at, n, static_cast<std::uint16_t>(i));
+    if (grid_index) {
+      merged.row.insert(merged.row.end(), parts[i].row.begin(), parts[i].row.end());
+      merged.col.insert(merged.col.end(), parts[i].col.begin(), parts[i].col.end());
+    }
+    dropped_textures += parts[i].mesh.has_texture() ? 1 : 0;
+    if (total > 0xFFFFFFFEu && parts[i].has_mesh()) {
+      report.notes.push_back(scans[i].filename().string() + ": dropped its " +
+                             std::to_string(parts[i].mesh.triangles.size()) +
+                             " triangles: the merged scans have more points than 32-bit indices reach");
+      parts[i].mesh = Mesh{};
+    }
+    for (auto tri : parts[i].mesh.triangles) {
+      for (auto& v : tri) v += static_cast<std::uint32_t>(at);
+      merged.mesh.triangles.push_back(tri);
+    }
     at += n;
   }
+  if (merged.has_mesh()) {
+    report.notes.push_back("faces of the scans merged: " + std::to_string(merged.mesh.triangles.size()) + " triangles");
+  }
+  if (dropped_textures > 0) {
+    report.notes.push_back("textures of " + std::to_string(dropped_textures) + " scans not used (merged meshes carry no texture)");
+  }
+
   report.figure("scans", static_cast<double>(scans.size()));
   report.count_in = total;
   report.count_out = total;

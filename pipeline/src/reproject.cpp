@@ -899,3 +899,17 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 }
 
 }  // namespace hc::pipeline
+
+namespace hc::pipeline::detail {
+
+GridGeometry grid_geometry_of(const Cloud& points_m, const ReprojectOptions& options) {
+  validate_options(options);
+  const Bounds bounds = finite_bounds(points_m.xyz.data(), points_m.size());
+  if (bounds.finite == 0) {
+    throw InputError("reproject: none of the " + std::to_string(points_m.size()) +
+                     " input points is finite (every point has a NaN or infinite coordinate)");
+  }
+  return make_geometry(bounds, options);
+}
+
+}  // namespace hc::pipeline::detail

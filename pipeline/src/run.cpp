@@ -8,6 +8,7 @@
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_report.hpp"
+#include "hc/pipeline/mesh_raster.hpp"
 #include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/scene_io.hpp"
@@ -110,6 +111,16 @@ void write_text(const fs::path& file, const std::string& text) {
   if (!out) throw InputError(file.string() + ": cannot write");
 }
 
+/// A point filter skipped for a mesh: the cloud unchanged, with a note naming the key.
+StageResult<Cloud> skip_for_mesh(Cloud cloud, const char* key) {
+  StageResult<Cloud> r;
+  r.report.count_in = r.report.count_out = cloud.size();
+  r.report.notes.push_back(std::string("skipped for a mesh (") + key +
+                           " would remove vertices and open holes in its faces; input.as_points: true applies it)");
+  r.value = std::move(cloud);
+  return r;
+}
+
 /// Ingest, units and recentring, view transform and filters, each recorded as a stage.
 /// `inputs` gets the input files with their checksums, `offset_m` the recentring offset.
 Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& reports, const ProgressFn& progress,
@@ -117,7 +128,7 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   // 1. Ingest.
   Cloud cloud = stage("ingest", reports, progress, [&] {
     if (config.input.synthetic) return StageResult<Cloud>{generate_surface(*config.input.synthetic), {}};
-    const LoadOptions load_options{config.input.las_drop_classes};
+    const LoadOptions load_options{config.input.las_drop_classes, config.input.as_points};
     if (config.input.conf) return load_and_merge_scans(config.input.files, *config.input.conf, load_options);
     return load_cloud(config.input.files.front(), load_options);
   });
@@ -126,6 +137,7 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   struct {
     bool rgb, intensity, grid_index, scan_id;
   } const ingest_attrs{cloud.has_rgb(), cloud.has_intensity(), cloud.has_grid_index(), cloud.has_scan_id()};
+  const std::size_t ingest_triangles = cloud.mesh.triangles.size();
   for (const auto& f : config.input.files) scene_inputs.push_back({f.string(), sha256_file(f)});
   if (config.input.conf) scene_inputs.push_back({config.input.conf->string(), sha256_file(*config.input.conf)});
 
@@ -142,11 +154,17 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
       return crop_box(std::move(cloud), config.filters.crop_m->first, config.filters.crop_m->second);
     });
   }
+  // Meshes: the point filters that would delete vertices (and so open holes in the faces) or
+  // replace them (voxel centroids carry no faces) are skipped, with a note (mesh_raster.hpp).
+  const bool mesh = cloud.has_mesh();
   if (config.filters.voxel_m > 0.0) {
-    cloud = stage("voxel", reports, progress, [&] { return voxel_downsample(std::move(cloud), config.filters.voxel_m); });
+    cloud = stage("voxel", reports, progress, [&] {
+      return mesh ? skip_for_mesh(std::move(cloud), "filters.voxel_m") : voxel_downsample(std::move(cloud), config.filters.voxel_m);
+    });
   }
   if (config.filters.outliers.enabled) {
     cloud = stage("outliers", reports, progress, [&] {
+      if (mesh) return skip_for_mesh(std::move(cloud), "filters.outliers");
       if (config.filters.outliers.scope == OutlierScope::kFront) {
         return remove_front_statistical_outliers(std::move(cloud), config.filters.outliers.k,
                                                  config.filters.outliers.std_multiplier, config.grid.reproject);
@@ -171,7 +189,13 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     if (cloud.has_scan_id()) item(kept, "scan_id");
     ingest.notes.push_back("per-point attributes found: " + (found.empty() ? std::string("none") : found) +
                            "; kept through the filters: " + (kept.empty() ? std::string("none") : kept) +
-                           " (colour and intensity go to the scene's layers; row/col and scan_id are not used by the grid)");
+                           " (colour and intensity go to the scene's layers; row/col and scan_id are used by the grid only with "
+                           "grid.organised: mesh)");
+    if (ingest_triangles > 0) {
+      ingest.notes.push_back("mesh: " + std::to_string(ingest_triangles) + " triangles read, " +
+                             std::to_string(cloud.mesh.triangles.size()) +
+                             " rasterised (a triangle with a vertex removed by a filter is dropped)");
+    }
   }
   return cloud;
 }
@@ -196,7 +220,20 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   Cloud cloud = prepare_points_staged(config, reports, progress, prov.inputs, offset_m);
 
   // 5. Reprojection and hole filling.
-  DepthGrid grid = stage("reproject", reports, progress, [&] { return reproject(cloud, config.grid.reproject); });
+  // Organised scans (row/col) meshed per scan on their own grid (grid.organised: mesh).
+  if (config.grid.organised_mesh && cloud.has_grid_index() && !cloud.has_mesh()) {
+    cloud = stage("organised_mesh", reports, progress, [&] {
+      return mesh_organised_scans(std::move(cloud), config.grid.organised_max_edge_factor);
+    });
+  } else if (config.grid.organised_mesh && !cloud.has_mesh()) {
+    reports.back().notes.push_back("grid.organised: mesh, but the points carry no scanner row/col: gridded as points");
+  }
+  // Meshes are rasterised (z-buffer over the faces); points are binned and splatted.
+  DepthGrid grid = stage("reproject", reports, progress, [&] {
+    return cloud.has_mesh() ? rasterise_mesh(cloud, config.grid.reproject) : reproject(cloud, config.grid.reproject);
+  });
+  // Scan-line corrugation of the grid (before hole filling), for the report.
+  (void)stage("corrugation", reports, progress, [&] { return corrugation(grid); });
   if (config.grid.hole_fill_max_cells > 0) {
     grid = stage("hole_fill", reports, progress, [&] { return fill_holes(std::move(grid), config.grid.hole_fill_max_cells); });
   }

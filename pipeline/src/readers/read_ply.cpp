@@ -1,8 +1,13 @@
 // PLY reader (ascii, binary_little_endian, binary_big_endian), without PCL.
 //
-// Header: `obj_info` lines (Stanford range scans) and stray lines such as `bye` are skipped;
-// elements after `vertex` (range_grid, face) are ignored. Declared counts are checked against
-// the bytes or lines actually present.
+// Header: `obj_info` lines (Stanford range scans) and stray lines such as `bye` are skipped
+// (num_cols / num_rows are kept for the range grid). Declared counts are checked against the
+// bytes or lines actually present.
+// Elements after `vertex`: `face` (its vertex_indices list, polygons fan-split into
+// Cloud::mesh) and `range_grid` (Stanford range scans: each vertex's scanner row/column) are
+// read; others are skipped. A face or range_grid element that cannot be used (truncated, bad
+// counts, indices out of range) never fails the read: it is dropped with a note naming why.
+// Vertex colours (red/green/blue, or diffuse_*) become Cloud::rgb.
 //
 // Vertex data is read in each property's own type (float32 stays the float nearest to the text,
 // double stays double):
@@ -32,6 +37,7 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <utility>
@@ -92,6 +98,7 @@ struct PlyLayout {
   std::size_t body = 0;          // offset of the first data byte
   std::size_t header_lines = 0;  // line number of end_header
   std::size_t skipped_lines = 0;
+  long long num_cols = -1, num_rows = -1;  // Stanford range scans: `obj_info num_cols N`
   const PlyElement& vertex() const { return elements[vertex_index]; }
 };
 
@@ -159,6 +166,13 @@ PlyLayout parse_ply_header(const std::string& raw, const std::string& name) {
       out.elements.back().properties.push_back(std::move(pr));
     } else {
       // obj_info (Stanford range scans), stray lines such as `bye`, blank lines: not data.
+      if (kw == "obj_info") {  // the range grid's size, used to place range_grid records
+        std::string key;
+        long long v = -1;
+        ls >> key >> v;
+        if (ls && key == "num_cols") out.num_cols = v;
+        if (ls && key == "num_rows") out.num_rows = v;
+      }
       ++out.skipped_lines;
     }
   }
@@ -192,14 +206,45 @@ PlyLayout parse_ply_header(const std::string& raw, const std::string& name) {
   return out;
 }
 
-// Axis (0, 1, 2) of each vertex property, -1 for the others.
+// Slot of each vertex property: 0, 1, 2 for x, y, z; 3, 4, 5 for red, green, blue (or
+// diffuse_red, ...) when all three are scalars, each given once; -1 for the others.
 std::vector<int> axes_of(const PlyElement& v) {
   std::vector<int> axis_of(v.properties.size(), -1);
+  int colour_found[3] = {0, 0, 0};
+  auto colour_slot = [](const std::string& n) {
+    const std::string c = n.rfind("diffuse_", 0) == 0 ? n.substr(8) : n;
+    return c == "red" ? 0 : c == "green" ? 1 : c == "blue" ? 2 : -1;
+  };
   for (std::size_t j = 0; j < v.properties.size(); ++j) {
     const std::string& n = v.properties[j].name;
     axis_of[j] = n == "x" ? 0 : n == "y" ? 1 : n == "z" ? 2 : -1;
+    const int c = colour_slot(n);
+    if (c >= 0) colour_found[c] += v.properties[j].is_list ? 2 : 1;
+  }
+  if (colour_found[0] == 1 && colour_found[1] == 1 && colour_found[2] == 1) {
+    for (std::size_t j = 0; j < v.properties.size(); ++j) {
+      const int c = colour_slot(v.properties[j].name);
+      if (c >= 0) axis_of[j] = 3 + c;
+    }
   }
   return axis_of;
+}
+
+bool has_colour(const std::vector<int>& axis_of) {
+  return std::find(axis_of.begin(), axis_of.end(), 3) != axis_of.end();
+}
+
+// A colour channel in its PLY type to 8 bit: 1-byte integers as they are, 2-byte integers
+// scaled by 255/65535, wider integers clamped to [0, 255], floats in [0, 1] scaled by 255.
+std::uint8_t colour_byte(double v, PlyType t) {
+  double c = v;
+  if (t == PlyType::kFloat32 || t == PlyType::kFloat64) {
+    c = v * 255.0;
+  } else if (t == PlyType::kInt16 || t == PlyType::kUint16) {
+    c = v / 257.0;
+  }
+  if (!(c > 0.0)) return 0;
+  return static_cast<std::uint8_t>(std::lround(std::min(c, 255.0)));
 }
 
 template <class T>
@@ -300,8 +345,9 @@ Cloud read_binary_fixed(const std::string& raw, const PlyLayout& ply, std::size_
                      " vertices (" + std::to_string(stride * v.count) + " bytes) but only " + std::to_string(have) +
                      " bytes of vertex data follow (" + std::to_string(have / stride) + " whole vertices)");
   }
-  std::size_t field_off[3] = {0, 0, 0};
-  PlyType field_type[3] = {PlyType::kFloat32, PlyType::kFloat32, PlyType::kFloat32};
+  std::size_t field_off[6] = {0, 0, 0, 0, 0, 0};
+  PlyType field_type[6] = {PlyType::kFloat32, PlyType::kFloat32, PlyType::kFloat32,
+                           PlyType::kUint8,   PlyType::kUint8,   PlyType::kUint8};
   const std::vector<int> axis_of = axes_of(v);
   std::size_t at = 0;
   for (std::size_t j = 0; j < v.properties.size(); ++j) {
@@ -318,6 +364,15 @@ Cloud read_binary_fixed(const std::string& raw, const PlyLayout& ply, std::size_
   const char* base = raw.data() + offset;
   const bool plain_float = !swap && field_type[0] == PlyType::kFloat32 && field_type[1] == PlyType::kFloat32 &&
                            field_type[2] == PlyType::kFloat32;
+  if (has_colour(axis_of)) {
+    cloud.rgb.resize(3 * v.count);
+    for (std::size_t i = 0; i < v.count; ++i) {
+      const char* rec = base + i * stride;
+      for (std::size_t a = 0; a < 3; ++a) {
+        cloud.rgb[3 * i + a] = colour_byte(load_ply_scalar(rec + field_off[3 + a], field_type[3 + a], swap), field_type[3 + a]);
+      }
+    }
+  }
   for (std::size_t i = 0; i < v.count; ++i) {
     const char* rec = base + i * stride;
     if (plain_float) {
@@ -334,7 +389,8 @@ Cloud read_binary_fixed(const std::string& raw, const PlyLayout& ply, std::size_
 }
 
 // Record-by-record read of binary vertex records with list properties.
-Cloud read_binary_records(const std::string& raw, const PlyLayout& ply, std::size_t offset, const std::string& name) {
+Cloud read_binary_records(const std::string& raw, const PlyLayout& ply, std::size_t offset, const std::string& name,
+                          std::size_t* end_offset) {
   const PlyElement& v = ply.vertex();
   const std::vector<int> axis_of = axes_of(v);
   const bool swap = needs_swap(ply);
@@ -343,14 +399,26 @@ Cloud read_binary_records(const std::string& raw, const PlyLayout& ply, std::siz
   double* out = cloud.xyz.data();
   const char* p = raw.data() + offset;
   const char* const end = raw.data() + raw.size();
+  const bool colour = has_colour(axis_of);
+  if (colour) cloud.rgb.resize(3 * v.count);
+  PlyType colour_type[3] = {PlyType::kUint8, PlyType::kUint8, PlyType::kUint8};
+  for (std::size_t j = 0; j < v.properties.size(); ++j) {
+    if (axis_of[j] >= 3) colour_type[axis_of[j] - 3] = v.properties[j].type;
+  }
   for (std::size_t i = 0; i < v.count; ++i) {
-    p = walk_binary_record(p, end, v, i, swap, axis_of.data(), out + 3 * i, name);
+    double slots[6] = {0, 0, 0, 0, 0, 0};
+    p = walk_binary_record(p, end, v, i, swap, axis_of.data(), slots, name);
+    if (p) {
+      std::copy_n(slots, 3, out + 3 * i);
+      for (std::size_t a = 0; colour && a < 3; ++a) cloud.rgb[3 * i + a] = colour_byte(slots[3 + a], colour_type[a]);
+    }
     if (!p) {
       throw InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(v.count) +
                        " vertices but the data ends inside vertex " + std::to_string(i) + " (" + std::to_string(i) +
                        " whole vertices)");
     }
   }
+  *end_offset = static_cast<std::size_t>(p - raw.data());
   return cloud;
 }
 
@@ -361,7 +429,8 @@ Cloud read_binary_records(const std::string& raw, const PlyLayout& ply, std::siz
 // instance). Each number is parsed in the property's own type (float32 properties give the
 // float nearest to the text, as PCL's reader does); a list takes its count, a non-negative
 // integer, then that many numbers. Any non-numeric token is an error naming the line.
-Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const std::string& name) {
+Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const std::string& name,
+                          std::size_t* end_offset) {
   const PlyElement& v = ply.vertex();
   const bool lists = v.has_list();
   std::size_t skip = 0;
@@ -371,6 +440,8 @@ Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const st
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(v.count));
   double* out = cloud.xyz.data();
+  const bool colour = has_colour(axis_of);
+  if (colour) cloud.rgb.resize(3 * v.count);
   const char* p = raw.data() + ply.body;
   const char* const end = raw.data() + raw.size();
   std::size_t line = 0;
@@ -423,7 +494,11 @@ Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const st
           ok = parse_number(q, e, value);
         }
         if (!ok) throw bad_value(t, j);
-        if (axis_of[j] >= 0) out[3 * vertex + static_cast<std::size_t>(axis_of[j])] = value;
+        if (axis_of[j] >= 3) {
+          cloud.rgb[3 * vertex + static_cast<std::size_t>(axis_of[j] - 3)] = colour_byte(value, pr.type);
+        } else if (axis_of[j] >= 0) {
+          out[3 * vertex + static_cast<std::size_t>(axis_of[j])] = value;
+        }
       }
       while (q < e && is_space(*q)) ++q;
       if (q != e) {
@@ -439,7 +514,222 @@ Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const st
     throw InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(v.count) +
                      " vertices but only " + std::to_string(vertex) + " vertex lines follow");
   }
+  *end_offset = static_cast<std::size_t>(p - raw.data());
   return cloud;
+}
+
+
+// ---------------------------------------------------------------------------------------------
+// Elements after the vertex element: faces and the range grid.
+//
+// Both are lists of vertex indices, one list per record. They are read without throwing: a
+// problem (truncated data, a bad token, a negative count) makes the element unusable and is
+// returned as text for a note, and the vertices are used as they are. Elements after an
+// unusable one cannot be located and are reported as not read.
+
+/// The `vertex_indices` (or `vertex_index`) list of every record of one element.
+struct IndexLists {
+  std::vector<std::uint32_t> counts;  // items per record
+  std::vector<std::int64_t> items;    // all items, record after record
+};
+
+struct AfterVertex {
+  std::optional<IndexLists> face, range_grid;
+  std::vector<std::string> notes;
+};
+
+bool is_index_list(const PlyProperty& pr) {
+  return pr.is_list && (pr.name == "vertex_indices" || pr.name == "vertex_index") && pr.type != PlyType::kFloat32 &&
+         pr.type != PlyType::kFloat64;
+}
+
+// Walks the elements after the vertex element from byte `start` (binary: the first byte after
+// the vertex records; ASCII: the first line after the vertex lines).
+AfterVertex read_after_vertex(const std::string& raw, const PlyLayout& ply, std::size_t start) {
+  AfterVertex out;
+  const bool ascii = ply.format == "ascii";
+  const bool swap = needs_swap(ply);
+  const char* p = raw.data() + std::min(start, raw.size());
+  const char* const end = raw.data() + raw.size();
+  for (std::size_t ei = ply.vertex_index + 1; ei < ply.elements.size(); ++ei) {
+    const PlyElement& el = ply.elements[ei];
+    const bool wanted = el.name == "face" || el.name == "range_grid";
+    std::size_t list_at = el.properties.size();
+    for (std::size_t j = 0; wanted && j < el.properties.size(); ++j) {
+      if (is_index_list(el.properties[j])) {
+        list_at = j;
+        break;
+      }
+    }
+    if (wanted && list_at == el.properties.size()) {
+      out.notes.push_back("dropped PLY element '" + el.name + "': it has no integer list property 'vertex_indices'");
+    }
+    IndexLists lists;
+    const bool capture = wanted && list_at < el.properties.size();
+    if (capture) lists.counts.reserve(std::min<std::size_t>(el.count, raw.size()));
+    std::string problem;
+    for (std::size_t r = 0; r < el.count && problem.empty(); ++r) {
+      if (ascii) {
+        if (p >= end) {
+          problem = "the file ends after " + std::to_string(r) + " of its " + std::to_string(el.count) + " lines";
+          break;
+        }
+        const void* nl = std::memchr(p, '\n', static_cast<std::size_t>(end - p));
+        const char* e = nl ? static_cast<const char*>(nl) : end;
+        const char* q = p;
+        for (std::size_t j = 0; j < el.properties.size() && problem.empty(); ++j) {
+          const PlyProperty& pr = el.properties[j];
+          double v = 0.0;
+          if (!parse_number(q, e, v)) {
+            problem = "line " + std::to_string(r) + " of the element is not " + std::to_string(el.properties.size()) +
+                      " numbers";
+            break;
+          }
+          if (!pr.is_list) continue;
+          if (!(v >= 0.0) || v != std::floor(v) || v > 1e9) {
+            problem = "record " + std::to_string(r) + " has the list count " + std::string(first_token(p, e).substr(0, 20));
+            break;
+          }
+          const auto items = static_cast<std::size_t>(v);
+          if (capture && j == list_at) lists.counts.push_back(static_cast<std::uint32_t>(items));
+          for (std::size_t k = 0; k < items; ++k) {
+            double item = 0.0;
+            if (!parse_number(q, e, item) || item != std::floor(item)) {
+              problem = "record " + std::to_string(r) + " has fewer list items than its count or a non-integer item";
+              break;
+            }
+            if (capture && j == list_at) lists.items.push_back(std::abs(item) < 9e18 ? static_cast<std::int64_t>(item) : -1);
+          }
+        }
+        p = nl ? e + 1 : end;
+        continue;
+      }
+      for (std::size_t j = 0; j < el.properties.size() && problem.empty(); ++j) {
+        const PlyProperty& pr = el.properties[j];
+        if (!pr.is_list) {
+          if (static_cast<std::size_t>(end - p) < pr.size_bytes) problem = "the data ends inside record " + std::to_string(r);
+          p += problem.empty() ? pr.size_bytes : 0;
+          continue;
+        }
+        if (static_cast<std::size_t>(end - p) < pr.count_bytes) {
+          problem = "the data ends inside record " + std::to_string(r);
+          break;
+        }
+        const double count = load_ply_scalar(p, pr.count_type, swap);
+        p += pr.count_bytes;
+        if (count < 0.0) {
+          problem = "record " + std::to_string(r) + " has the negative list count " + std::to_string(static_cast<long long>(count));
+          break;
+        }
+        const auto items = static_cast<std::size_t>(count);
+        if (items > static_cast<std::size_t>(end - p) / pr.size_bytes) {
+          problem = "the data ends inside record " + std::to_string(r);
+          break;
+        }
+        if (capture && j == list_at) {
+          lists.counts.push_back(static_cast<std::uint32_t>(items));
+          for (std::size_t k = 0; k < items; ++k) {
+            const double item = load_ply_scalar(p + k * pr.size_bytes, pr.type, swap);
+            lists.items.push_back(static_cast<std::int64_t>(item));
+          }
+        }
+        p += items * pr.size_bytes;
+      }
+    }
+    if (!problem.empty()) {
+      out.notes.push_back("dropped PLY element '" + el.name + "' (" + std::to_string(el.count) +
+                          " records): " + problem);
+      for (std::size_t rest = ei + 1; rest < ply.elements.size(); ++rest) {
+        out.notes.push_back("did not read PLY element '" + ply.elements[rest].name + "' (after an unreadable element)");
+      }
+      break;
+    }
+    if (capture && el.name == "face" && !out.face) {
+      out.face = std::move(lists);
+    } else if (capture && el.name == "range_grid" && !out.range_grid) {
+      out.range_grid = std::move(lists);
+    } else if (!wanted) {
+      out.notes.push_back("ignored PLY element '" + el.name + "'");
+    }
+  }
+  return out;
+}
+
+// Fan-splits the face lists into triangles (v0, v_k, v_k+1). Faces with fewer than 3 vertices
+// or an index outside [0, vertices) are dropped and counted in the notes.
+void add_faces(const IndexLists& faces, std::size_t vertices, Cloud& cloud, std::vector<std::string>& notes) {
+  std::size_t at = 0, bad_index = 0, too_short = 0, polygons = 0;
+  auto& tris = cloud.mesh.triangles;
+  tris.reserve(faces.counts.size());
+  for (const std::uint32_t n : faces.counts) {
+    const std::int64_t* f = faces.items.data() + at;
+    at += n;
+    if (n < 3) {
+      ++too_short;
+      continue;
+    }
+    bool ok = true;
+    for (std::uint32_t k = 0; k < n; ++k) ok = ok && f[k] >= 0 && static_cast<std::uint64_t>(f[k]) < vertices;
+    if (!ok) {
+      ++bad_index;
+      continue;
+    }
+    polygons += n > 3 ? 1 : 0;
+    for (std::uint32_t k = 1; k + 1 < n; ++k) {
+      tris.push_back({static_cast<std::uint32_t>(f[0]), static_cast<std::uint32_t>(f[k]), static_cast<std::uint32_t>(f[k + 1])});
+    }
+  }
+  notes.push_back("PLY face element: " + std::to_string(faces.counts.size()) + " faces, " + std::to_string(tris.size()) +
+                  " triangles" + (polygons > 0 ? " (" + std::to_string(polygons) + " polygons fan-split)" : ""));
+  if (bad_index > 0) {
+    notes.push_back("dropped " + std::to_string(bad_index) + " PLY faces with a vertex index outside [0, " +
+                    std::to_string(vertices) + ")");
+  }
+  if (too_short > 0) notes.push_back("dropped " + std::to_string(too_short) + " PLY faces with fewer than 3 vertices");
+}
+
+// Places each vertex of a Stanford range grid on its scanner row and column: record k of the
+// range_grid element is row k / num_cols, column k % num_cols (obj_info num_cols / num_rows),
+// and holds 0 (no sample) or 1 vertex index. Anything else leaves row/col empty, with a note.
+void add_range_grid(const IndexLists& grid, const PlyLayout& ply, std::size_t vertices, Cloud& cloud,
+                    std::vector<std::string>& notes) {
+  const long long cols = ply.num_cols, rows = ply.num_rows;
+  if (cols <= 0 || rows <= 0 || static_cast<unsigned long long>(cols) * static_cast<unsigned long long>(rows) != grid.counts.size()) {
+    notes.push_back("range_grid not used: obj_info num_cols × num_rows (" + std::to_string(cols) + " × " +
+                    std::to_string(rows) + ") does not match its " + std::to_string(grid.counts.size()) + " records");
+    return;
+  }
+  std::vector<std::int32_t> row(vertices, -1), col(vertices, -1);
+  std::size_t at = 0, placed = 0;
+  for (std::size_t k = 0; k < grid.counts.size(); ++k) {
+    const std::uint32_t n = grid.counts[k];
+    if (n > 1) {
+      notes.push_back("range_grid not used: record " + std::to_string(k) + " lists " + std::to_string(n) +
+                      " vertices (expected 0 or 1)");
+      return;
+    }
+    if (n == 1) {
+      const std::int64_t v = grid.items[at];
+      if (v < 0 || static_cast<std::uint64_t>(v) >= vertices || row[static_cast<std::size_t>(v)] >= 0) {
+        notes.push_back("range_grid not used: record " + std::to_string(k) + " holds the vertex index " +
+                        std::to_string(v) + " (out of range or placed twice)");
+        return;
+      }
+      row[static_cast<std::size_t>(v)] = static_cast<std::int32_t>(static_cast<long long>(k) / cols);
+      col[static_cast<std::size_t>(v)] = static_cast<std::int32_t>(static_cast<long long>(k) % cols);
+      ++placed;
+    }
+    at += n;
+  }
+  if (placed != vertices) {
+    notes.push_back("range_grid not used: it places " + std::to_string(placed) + " of the " +
+                    std::to_string(vertices) + " vertices");
+    return;
+  }
+  cloud.row = std::move(row);
+  cloud.col = std::move(col);
+  notes.push_back("range_grid: every vertex placed on the scanner's " + std::to_string(rows) + " × " +
+                  std::to_string(cols) + " grid (row/col)");
 }
 
 }  // namespace
@@ -451,16 +741,18 @@ ReadResult read_ply(const ScanSource& source) {
   const PlyElement& vertex = ply.vertex();
   ReadResult result;
   std::string how;
+  std::size_t vertex_end = 0;
   if (ply.format == "ascii") {
-    result.cloud = read_ascii_vertices(bytes, ply, name);
+    result.cloud = read_ascii_vertices(bytes, ply, name, &vertex_end);
     how = "lines parsed directly";
   } else {
     const std::size_t offset = binary_vertex_offset(bytes, ply, name);
     if (vertex.has_list()) {
-      result.cloud = read_binary_records(bytes, ply, offset, name);
+      result.cloud = read_binary_records(bytes, ply, offset, name, &vertex_end);
       how = "records with list properties parsed directly";
     } else {
       result.cloud = read_binary_fixed(bytes, ply, offset, name);
+      vertex_end = offset + vertex.stride() * vertex.count;
       how = "fixed-stride records read directly";
     }
   }
@@ -472,8 +764,16 @@ ReadResult read_ply(const ScanSource& source) {
     result.notes.push_back("skipped " + std::to_string(ply.skipped_lines) +
                            " non-standard header lines (obj_info and stray lines)");
   }
-  for (std::size_t i = ply.vertex_index + 1; i < ply.elements.size(); ++i) {
-    result.notes.push_back("ignored PLY element '" + ply.elements[i].name + "'");
+  if (result.cloud.has_rgb()) result.notes.push_back("vertex colours (red, green, blue) read as 8-bit RGB");
+  if (ply.vertex_index + 1 < ply.elements.size()) {
+    AfterVertex after = read_after_vertex(bytes, ply, vertex_end);
+    result.notes.insert(result.notes.end(), after.notes.begin(), after.notes.end());
+    if (after.face && vertex.count > 0xFFFFFFFEu) {
+      result.notes.push_back("dropped PLY element 'face': more than 2^32 - 2 vertices cannot be indexed");
+    } else if (after.face) {
+      add_faces(*after.face, vertex.count, result.cloud, result.notes);
+    }
+    if (after.range_grid) add_range_grid(*after.range_grid, ply, vertex.count, result.cloud, result.notes);
   }
   return result;
 }

@@ -5,12 +5,37 @@
 #include <Eigen/Core>
 
 #include <cstddef>
+#include <array>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <utility>
 #include <vector>
 
 namespace hc::pipeline {
+
+/// An 8-bit RGB texture image as decoded from its file (OBJ + MTL `map_Kd`): row 0 is the top
+/// row of the image, pixel (x, y) at rgb[3·(y·width + x) + {0, 1, 2}].
+struct TextureImage {
+  int width = 0, height = 0;
+  std::vector<std::uint8_t> rgb;  ///< width·height·3 bytes
+  std::string source;             ///< the image file, for reports
+};
+
+/// Triangles on the points of a Cloud (a mesh read from PLY `face` or OBJ `f`, polygons
+/// fan-split (v0, v_k, v_k+1)). Indices refer to the Cloud's points, so every point transform
+/// (units, recentring, the rigid + uniform-scale view transform) keeps the faces valid.
+struct Mesh {
+  std::vector<std::array<std::uint32_t, 3>> triangles;  ///< point indices per triangle
+  /// Empty, or 6 floats per triangle: (u, v) of its three corners, OBJ convention (u to the
+  /// right, v up: v = 0 is the BOTTOM row of the image) [-].
+  std::vector<float> corner_uv;
+  /// The image the corner_uv address (shared between copies: read-only), or null.
+  std::shared_ptr<const TextureImage> texture;
+
+  bool empty() const { return triangles.empty(); }
+  bool has_texture() const { return texture != nullptr && corner_uv.size() == 6 * triangles.size(); }
+};
 
 /// A point cloud in double precision: 3 × N coordinates. The frame and unit depend on the stage
 /// (file units right after ingest; metres from `to_metres_and_recentre` on). Double precision
@@ -24,17 +49,22 @@ struct Cloud {
   std::vector<std::uint8_t> rgb;       ///< empty or 3·N bytes: R G B per point, 8 bit
   std::vector<std::int32_t> row, col;  ///< organised scans (E57 rowIndex/columnIndex, PTX):
                                        ///< the point's row and column in its scan's grid
+  Mesh mesh;                           ///< faces on the points (meshes), or empty
 
   std::size_t size() const { return static_cast<std::size_t>(xyz.cols()); }
   bool has_scan_id() const { return !scan_id.empty(); }
   bool has_intensity() const { return !intensity.empty(); }
   bool has_rgb() const { return !rgb.empty(); }
   bool has_grid_index() const { return !row.empty(); }
-  /// Keeps the points whose keep[i] is true, in order (every attribute follows).
+  bool has_mesh() const { return !mesh.empty(); }
+  /// Keeps the points whose keep[i] is true, in order (every attribute follows; a triangle
+  /// survives only if all three of its points do, its indices renumbered).
   /// keep.size() == size().
   void keep_if(const std::vector<bool>& keep);
   /// Appends `other`'s points; an attribute that only one side has is dropped (the result must
-  /// hold it for every point or for none). Returns the names of the attributes dropped.
+  /// hold it for every point or for none). Triangles of both are kept (other's renumbered); the
+  /// texture only when both share the same image (else "texture" is dropped, with the UVs).
+  /// Returns the names of the attributes dropped.
   std::vector<std::string> append(const Cloud& other);
 };
 

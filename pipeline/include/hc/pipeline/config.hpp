@@ -30,6 +30,7 @@ struct InputConfig {
   std::string units = "m";                      ///< "m" | "cm" | "mm" | "ft" | "us-ft" | "in"
   std::vector<int> las_drop_classes{7, 18};     ///< LAS classes dropped on reading (0..255)
   double max_extent_m = kDefaultMaxExtentM;     ///< largest accepted bounding-box side [m]
+  bool as_points = false;                       ///< meshes: vertices only, faces dropped
   std::optional<SyntheticSpec> synthetic;       ///< generate instead of reading files
 };
 
@@ -49,6 +50,8 @@ struct FilterConfig {
 struct GridConfig {
   ReprojectOptions reproject;    ///< N or cell size, splat radius, see-through
   int hole_fill_max_cells = 0;   ///< largest hole filled [cells]; 0 = off
+  bool organised_mesh = false;   ///< grid.organised: mesh (organised scans meshed per scan) | splat
+  double organised_max_edge_factor = 4.0;  ///< depth-jump limit / median sample spacing [-]
 };
 
 struct CrossCheckConfig {

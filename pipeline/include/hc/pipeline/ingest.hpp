@@ -18,14 +18,21 @@ struct LoadOptions {
   /// LAS classification codes whose points are dropped on reading (ASPRS: 7 low noise,
   /// 18 high noise); the count per class goes into the stage report. Values 0..255.
   std::vector<int> las_drop_classes{7, 18};
+  /// `input.as_points`: read a mesh's vertices only. The faces a PLY or OBJ file holds are
+  /// dropped (the load report's notes say how many) and an OBJ's texture is not read.
+  bool as_points = false;
 };
 
 /// Reads every vertex of one scan file, in the file's own units and frame.
-/// Format by extension: .ply, .pcd, .obj (vertex lines only), .xyz/.txt (whitespace-separated
+/// Format by extension: .ply, .pcd, .obj, .xyz/.txt (whitespace-separated
 /// x y z per line, extra columns ignored, '#' comments); a trailing .gz on any of them is
 /// decompressed in memory first. Double-typed properties stay double (no float rounding).
 /// Stanford range-grid PLYs: `obj_info` lines and stray header lines (for example `bye`) are
-/// skipped; the `range_grid` element (and any element after `vertex`, such as faces) is ignored.
+/// skipped; the `range_grid` element gives each vertex its scanner row/col (Cloud::row, col).
+/// Meshes: PLY `face` and OBJ `f` elements become Cloud::mesh (polygons fan-split into
+/// triangles; OBJ texture coordinates and the MTL `map_Kd` image read with OpenCV; PLY and
+/// OBJ vertex colours become Cloud::rgb). A face element that cannot be used (truncated,
+/// indices out of range) is dropped with a note in the report, never silently.
 /// PLY is read by the project's own parser (binary records, ASCII lines), list properties
 /// included in any position of any element up to `vertex` (skipped); PCD by PCL after a
 /// header and data check. NaN values are kept (see remove_non_finite). scan_id is left empty.
