@@ -10,6 +10,7 @@
 #include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/robust_outliers.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 #include "hc/pipeline/synthetic.hpp"
@@ -147,6 +148,14 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   }
   if (config.filters.outliers.enabled) {
     cloud = stage("outliers", reports, progress, [&] {
+      const OutlierConfig& oc = config.filters.outliers;
+      if (oc.method == OutlierMethod::kRobust) {
+        RobustOutlierOptions ro;
+        ro.k = oc.k;
+        ro.local_ratio = oc.local_ratio;
+        ro.mad_multiplier = oc.mad_multiplier;
+        return remove_outliers_robust(std::move(cloud), ro, oc.far_clusters);
+      }
       if (config.filters.outliers.scope == OutlierScope::kFront) {
         return remove_front_statistical_outliers(std::move(cloud), config.filters.outliers.k,
                                                  config.filters.outliers.std_multiplier, config.grid.reproject);
@@ -196,7 +205,16 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   Cloud cloud = prepare_points_staged(config, reports, progress, prov.inputs, offset_m);
 
   // 5. Reprojection and hole filling.
-  DepthGrid grid = stage("reproject", reports, progress, [&] { return reproject(cloud, config.grid.reproject); });
+  DepthGrid grid = stage("reproject", reports, progress, [&] {
+    try {
+      return reproject(cloud, config.grid.reproject);
+    } catch (const DegenerateInputError& e) {
+      // Name the far points that stretch the grid (a passer-by, a distant wall), if any.
+      const std::string far = describe_far_points(cloud);
+      if (far.empty()) throw;
+      throw DegenerateInputError(e.what() + far);
+    }
+  });
   if (config.grid.hole_fill_max_cells > 0) {
     grid = stage("hole_fill", reports, progress, [&] { return fill_holes(std::move(grid), config.grid.hole_fill_max_cells); });
   }
