@@ -630,7 +630,7 @@ void read_falcon(Reader& r, RunConfig& c, const std::filesystem::path& base) {
 /// a section: it is a preset name or a map.
 const std::vector<std::string> kSections = {
     "input",  "input.synthetic", "view",          "view.rotation", "filters",       "filters.outliers",
-    "filters.crop", "grid",      "cross_check",   "layers",        "layers.texture", "layers.friction",
+    "filters.outliers.far_clusters", "filters.crop", "grid",      "cross_check",   "layers",        "layers.texture", "layers.friction",
     "audio",  "audio.limiter",   "audio.tones",   "audio.force",   "audio.slide",   "falcon",
     "lod"};
 
@@ -690,6 +690,24 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   c.filters.outliers.scope = r.get_string("filters.outliers.scope", "all", {"all", "front"}) == "front"
                                  ? OutlierScope::kFront
                                  : OutlierScope::kAll;
+  {
+    auto& o = c.filters.outliers;
+    o.method = r.get_string("filters.outliers.method", "robust", {"robust", "statistical"}) == "statistical"
+                   ? OutlierMethod::kStatistical
+                   : OutlierMethod::kRobust;
+    o.local_ratio = r.get_double("filters.outliers.local_ratio", 3.0, 1.0, 100.0, true);
+    o.mad_multiplier = r.get_double("filters.outliers.mad_multiplier", 8.0, 0.0, 100.0, true);
+    if (o.method == OutlierMethod::kRobust && o.scope == OutlierScope::kFront) {
+      r.fail("filters.outliers.scope", "= front applies to method statistical only: expected scope all with method robust, "
+                                       "or method statistical");
+    }
+    auto& f = o.far_clusters;
+    f.enabled = r.get_bool("filters.outliers.far_clusters.enabled", true);
+    f.link_m = r.get_double("filters.outliers.far_clusters.link_m", 0.0, 0.0, 1e3);
+    f.far_distance_m = r.get_double("filters.outliers.far_clusters.far_distance_m", 0.0, 0.0, 1e6);
+    f.max_points = static_cast<std::size_t>(r.get_int("filters.outliers.far_clusters.max_points", 1000, 0, 1LL << 32));
+    f.max_fraction = r.get_double("filters.outliers.far_clusters.max_fraction", 0.01, 0.0, 1.0);
+  }
   if (r.has("filters.crop")) {
     const Eigen::Vector3d lo = r.get_vec3("filters.crop.min_m", Eigen::Vector3d::Constant(-1e3));
     const Eigen::Vector3d hi = r.get_vec3("filters.crop.max_m", Eigen::Vector3d::Constant(1e3));

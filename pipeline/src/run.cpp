@@ -11,6 +11,7 @@
 #include "hc/pipeline/mesh_raster.hpp"
 #include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/robust_outliers.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 #include "hc/pipeline/synthetic.hpp"
@@ -165,6 +166,14 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   if (config.filters.outliers.enabled) {
     cloud = stage("outliers", reports, progress, [&] {
       if (mesh) return skip_for_mesh(std::move(cloud), "filters.outliers");
+      const OutlierConfig& oc = config.filters.outliers;
+      if (oc.method == OutlierMethod::kRobust) {
+        RobustOutlierOptions ro;
+        ro.k = oc.k;
+        ro.local_ratio = oc.local_ratio;
+        ro.mad_multiplier = oc.mad_multiplier;
+        return remove_outliers_robust(std::move(cloud), ro, oc.far_clusters);
+      }
       if (config.filters.outliers.scope == OutlierScope::kFront) {
         return remove_front_statistical_outliers(std::move(cloud), config.filters.outliers.k,
                                                  config.filters.outliers.std_multiplier, config.grid.reproject);
@@ -230,7 +239,15 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   }
   // Meshes are rasterised (z-buffer over the faces); points are binned and splatted.
   DepthGrid grid = stage("reproject", reports, progress, [&] {
-    return cloud.has_mesh() ? rasterise_mesh(cloud, config.grid.reproject) : reproject(cloud, config.grid.reproject);
+    if (cloud.has_mesh()) return rasterise_mesh(cloud, config.grid.reproject);
+    try {
+      return reproject(cloud, config.grid.reproject);
+    } catch (const DegenerateInputError& e) {
+      // Name the far points that stretch the grid (a passer-by, a distant wall), if any.
+      const std::string far = describe_far_points(cloud);
+      if (far.empty()) throw;
+      throw DegenerateInputError(e.what() + far);
+    }
   });
   // Scan-line corrugation of the grid (before hole filling), for the report.
   (void)stage("corrugation", reports, progress, [&] { return corrugation(grid); });

@@ -167,7 +167,7 @@ TEST(FrontOutliers, RejectsBadParametersAndConfigReadsTheScope) {
   EXPECT_THROW(remove_front_statistical_outliers(bunny(), 16, 2.0, run_options(100), 1), hc::ConfigError);
   const std::string yaml = "input:\n  files: [scan.ply]\n";
   EXPECT_EQ(parse_run_config(yaml, "configs/test.yaml").filters.outliers.scope, OutlierScope::kAll);
-  EXPECT_EQ(parse_run_config(yaml, "configs/test.yaml", {"filters.outliers.scope=front"}).filters.outliers.scope,
+  EXPECT_EQ(parse_run_config(yaml, "configs/test.yaml", {"filters.outliers.method=statistical", "filters.outliers.scope=front"}).filters.outliers.scope,
             OutlierScope::kFront);
   EXPECT_THROW(parse_run_config(yaml, "configs/test.yaml", {"filters.outliers.scope=back"}), hc::ConfigError);
 }

@@ -8,6 +8,7 @@
 #include "hc/pipeline/filters.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/robust_outliers.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 #include "hc/pipeline/synthetic.hpp"
 #include "hc/pipeline/transform.hpp"
@@ -39,6 +40,10 @@ struct OutlierConfig {
   int k = 16;                    ///< neighbours [-], 1..256
   double std_multiplier = 2.0;   ///< σ multiplier [-], (0, 100]
   OutlierScope scope = OutlierScope::kAll;  ///< "all" | "front" (which points are tested)
+  OutlierMethod method = OutlierMethod::kRobust;  ///< "robust" | "statistical" (exact PCL SOR)
+  double local_ratio = 3.0;      ///< robust: local test ratio [-], (1, 100]
+  double mad_multiplier = 8.0;   ///< robust: global test in σ of ln d [-], (0, 100]
+  FarClusterOptions far_clusters;  ///< robust: far-cluster removal (far_clusters.*)
 };
 
 struct FilterConfig {

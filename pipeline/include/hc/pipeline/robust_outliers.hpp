@@ -1,0 +1,145 @@
+#pragma once
+/// @file robust_outliers.hpp
+/// Stage 4 (filters.outliers.method = robust, the default): a robust, density-aware outlier
+/// test and the removal of small clusters far from the main body, for real scans with far
+/// points, stray clusters, uniform clutter and uneven density. The exact PCL-compatible test
+/// stays in filters.hpp (method = statistical).
+
+#include "hc/pipeline/cloud.hpp"
+
+#include <Eigen/Core>
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+/// Which outlier test the outliers stage runs (config key filters.outliers.method).
+enum class OutlierMethod {
+  kRobust,       ///< remove_robust_outliers, then remove_far_clusters (the default)
+  kStatistical,  ///< remove_statistical_outliers / remove_front_statistical_outliers (PCL's SOR)
+};
+
+/// Options of the robust test (filters.outliers.*; docs/config.md).
+struct RobustOutlierOptions {
+  int k = 16;                  ///< neighbours [-], 1..256
+  double local_ratio = 3.0;    ///< a point is a local outlier when its mean k-NN distance exceeds
+                               ///< local_ratio × its reference distance [-], > 1
+  double mad_multiplier = 8.0; ///< global test: ln d > median(ln d) + mad_multiplier·σ, where
+                               ///< σ = 1.4826·MAD(ln d) [-], > 0
+  double max_surface_variation = 0.05;  ///< above D_glob, a point whose k-neighbourhood's surface
+                               ///< variation λ0/(λ0+λ1+λ2) is at most this lies on a sparse
+                               ///< surface and gets the local test instead [-], 0..1/3
+  std::size_t sample = 50000;  ///< points whose exact k-NN distance gives the median and MAD
+};
+
+/// Options of far-cluster removal (filters.outliers.far_clusters.*; docs/config.md).
+struct FarClusterOptions {
+  bool enabled = true;
+  double link_m = 0.0;          ///< linking distance [m]; 0 = auto (the robust test's global
+                                ///< threshold distance, see remove_far_clusters)
+  double far_distance_m = 0.0;  ///< a cluster is far when its box is more than this from the main
+                                ///< body's box [m]; 0 = auto (10 × the linking distance)
+  std::size_t max_points = 1000;  ///< a cluster is small when it has at most
+  double max_fraction = 0.01;     ///< max(max_points, max_fraction·N) points
+};
+
+/// Robust, density-aware statistical outlier removal.
+///
+/// Statistic: d_i, the mean Euclidean distance of point i to its k nearest neighbours (as in
+/// Rusu et al. 2008 and PCL's StatisticalOutlierRemoval), in float32 on recentred coordinates.
+/// Scale (robust, Rousseeuw & Croux 1993; Leys et al. 2013): the median m and σ = 1.4826·MAD
+/// of ln d_i over a deterministic stratified sample of min(N, sample) points (exact k-NN each;
+/// m and the MAD rounded to steps of 1/128, so that a few added points cannot move them);
+/// the median distance is d_med = exp(m). In log space a far point or a cluster 1 km away moves
+/// the median and the MAD by at most its share of the sample, never the threshold by metres.
+/// Point i is removed when either test fails:
+///  - global: d_i > D_glob = max(exp(m + mad_multiplier·σ), local_ratio·d_med) and the point's
+///    neighbourhood (itself and its k nearest) is not a surface: its surface variation
+///    λ0/(λ0+λ1+λ2) (Pauly et al. 2002) exceeds max_surface_variation. Isolated clutter away from
+///    the surface goes; a sparse but coherent surface (near 0) gets only the local test;
+///  - local (the local-density idea of LOF, Breunig et al. 2000, with the neighbours' median as
+///    the reference, as in LoOP, Kriegel et al. 2009): d_i > local_ratio·max(d_ref, d_med), where
+///    d_ref is the median of d_j over the k nearest neighbours j of i. A sparse but coherent
+///    region (a scan's far side at 3 % density) has neighbours as sparse as itself and stays;
+///    a spike in front of the surface, whose neighbours lie on the surface, goes. The floor
+///    d_med keeps points of regions denser than typical (overlaps of merged views, duplicates).
+/// Speed: both tests need d_i only for points with d_i > local_ratio·d_med (below it neither
+/// test can fail). The points are sorted into a uniform grid of cubic cells (knn_grid.hpp); a
+/// point with at least k other points within D_cert = local_ratio·d_med among its own cell
+/// (then among the cells of its 3×3×3 block within D_cert) has d_i ≤ D_cert and is kept
+/// without a k-NN query (counting, no selection). The others get the exact k-NN distance; those
+/// above D_cert also get their k nearest neighbours and those neighbours' exact distances (the
+/// neighbour set breaks distance ties by input index). The removed set is
+/// exactly that of the rule above applied to every point, given the sample's m and σ.
+/// Report figures: k, local_ratio, mad_multiplier, sample, median_knn_distance_mm,
+/// mad_log_knn_distance, sigma_log_knn_distance, global_threshold_mm, certify_distance_mm,
+/// certified, exact_queries, max_surface_variation, local_tests, coherent_above_global (points
+/// above D_glob on a surface, judged locally), removed_robust, removed_global, removed_local,
+/// duplicates_left_out, knn_grid_cell_mm and the seconds of each step (grid_s, sample_s,
+/// certify_s, exact_s, local_s). Notes: what was dropped and why.
+/// @param cloud    any frame, metres (the grid frame in build_scene); non-finite points dropped
+/// @param options  k 1..1000, local_ratio > 1, mad_multiplier > 0, max_surface_variation
+///                0..1/3, sample >= 2
+/// @throws hc::ConfigError on out-of-range options; hc::DegenerateInputError when fewer than
+///         k + 2 finite points remain; hc::ResourceError beyond 2^32 − 2 points.
+/// Real-time: no. Threads: 2. Cost: one grid build and counting pass over all points, plus
+/// (sample + uncertified + their neighbours) exact k-NN queries.
+StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& options);
+
+/// A connected component of the cloud at a linking distance (remove_far_clusters).
+struct PointCluster {
+  std::size_t count = 0;              ///< points [-]
+  Eigen::Vector3d centroid_m{0, 0, 0};  ///< mean position, the cloud's frame [m]
+  Eigen::Vector3d min_m{0, 0, 0}, max_m{0, 0, 0};  ///< bounding box [m]
+  double gap_m = 0.0;                 ///< distance from its box to the main body's box [m]
+  bool removed = false;               ///< small and far: removed by remove_far_clusters
+};
+
+/// The clusters of a cloud other than its main body.
+struct FarClusters {
+  double link_m = 0.0;          ///< linking distance used [m]
+  double far_distance_m = 0.0;  ///< "far" beyond this gap [m]
+  PointCluster main_body;       ///< the largest component
+  std::vector<PointCluster> others;  ///< every other component, largest first
+};
+
+/// Connected components of the finite points at linking distance link_m, and which of them are
+/// small and far (see remove_far_clusters). Two points closer than link_m always share a
+/// component; the components are unions of grid cells of edge ≥ link_m linked with their 26
+/// neighbours, so points up to 2√3 cell edges apart may share one too (a coarser linking, never
+/// a finer one). Cost O(N) plus a sort of the occupied cells. Non-finite points are ignored.
+/// @param link_m  > 0 [m]; far_distance_m in `options` (0 = 10·link_m) and max_points /
+///                max_fraction decide `removed`.
+/// @throws hc::ConfigError if link_m <= 0 or not finite; hc::InputError if no point is finite.
+FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarClusterOptions& options);
+
+/// Removes the clusters that are both small (at most max(max_points, max_fraction·N) points) and
+/// far (the gap between their bounding box and the main body's exceeds far_distance_m) — a
+/// passer-by, a distant wall, stray returns far behind the object in a terrestrial scan. The
+/// main body is the component with the most points. Each removed cluster is reported (count,
+/// centroid, gap) in a note; figures: link_mm, far_distance_mm, clusters, far_clusters,
+/// removed_far_clusters (points), kept_far_clusters (far but too large: still in the cloud).
+/// @param link_m  linking distance [m], > 0 (build_scene: options.link_m, or when 0 the robust
+///                test's global threshold distance, the largest mean k-NN distance it keeps)
+/// @throws hc::ConfigError on a bad link_m or options; hc::InputError on a cloud without finite
+///         points. Source: single-linkage connected components (Euclidean cluster extraction,
+///         Rusu 2009, Sec. 6.2) on a cell grid.
+StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& options);
+
+/// The outliers stage of method robust: remove_robust_outliers, then (when far.enabled)
+/// remove_far_clusters at far.link_m, or when that is 0 at the robust test's global threshold
+/// distance D_glob (every kept point has its nearest neighbour within D_glob, since the nearest
+/// distance is at most the mean k-NN distance). One report with both steps' figures and notes;
+/// "removed" = removed_robust + removed_far_clusters. Throws what the two steps throw.
+StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOptions& options,
+                                          const FarClusterOptions& far);
+
+/// One line for an error message when a cloud's grid is degenerate: the clusters far from the
+/// main body (count, centroid, gap; at most five) and a filters.crop box around the main body,
+/// or "" when the cloud has no far cluster. The linking distance is derived from the cloud's own
+/// median k-NN distance (k = 16, on a sample). Never throws on a finite cloud; "" otherwise.
+std::string describe_far_points(const Cloud& cloud);
+
+}  // namespace hc::pipeline

@@ -1,0 +1,701 @@
+// Robust, density-aware outlier removal and far-cluster removal (robust_outliers.hpp).
+//
+// The test (remove_robust_outliers): d_i = mean distance to the k nearest neighbours; robust
+// scale from the median and MAD of ln d on a stratified sample; a point goes when d_i exceeds the
+// global bound D_glob, or local_ratio × max(median of its neighbours' d, median d). Neither test
+// can fail for d_i ≤ D_cert = local_ratio × median d, and "k other points within D_cert" proves
+// d_i ≤ D_cert by counting alone, so most points of a scan are settled in their own grid cell
+// without a k-NN query; the engine (knn_grid.hpp) answers the rest exactly.
+//
+// Far clusters (remove_far_clusters): single-linkage components on a cell grid of edge ≥ the
+// linking distance (26-neighbour union-find), the largest is the main body; small components
+// whose bounding box is far from the main body's are removed.
+
+#include "hc/pipeline/robust_outliers.hpp"
+
+#include "knn_grid.hpp"
+#include "stage_util.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
+
+#include <Eigen/Eigenvalues>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <numeric>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+namespace {
+
+using detail::build_grid;
+using detail::CellGrid;
+using detail::Clock;
+using detail::kSearchThreads;
+using detail::PointQueries;
+using detail::run_parallel;
+using detail::seconds_since;
+using hc::format_number;
+
+constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+
+std::uint64_t splitmix64(std::uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+// Finite columns of the cloud.
+std::vector<std::uint32_t> finite_rows(const Cloud& cloud, const char* who) {
+  if (cloud.size() > std::numeric_limits<std::uint32_t>::max() - 1) {
+    throw ResourceError(std::string(who) + ": " + std::to_string(cloud.size()) + " points, at most 4294967294 supported");
+  }
+  std::vector<std::uint32_t> rows;
+  rows.reserve(cloud.size());
+  for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
+    if (cloud.xyz.col(i).allFinite()) rows.push_back(static_cast<std::uint32_t>(i));
+  }
+  return rows;
+}
+
+// Float32 copy of the given points, recentred (in double) on the per-axis median of a sample of
+// at most 4096 of them: the bulk of the cloud keeps float's sub-micrometre resolution even when a
+// far point or cluster 1 km away stretches the bounding box (its own coordinates lose precision,
+// which cannot matter: it is far from everything).
+std::vector<float> recentred(const Cloud& cloud, const std::vector<std::uint32_t>& rows) {
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  if (!rows.empty()) {
+    const std::size_t m = std::min<std::size_t>(rows.size(), 4096);
+    std::vector<double> v(m);
+    for (Eigen::Index a = 0; a < 3; ++a) {
+      for (std::size_t j = 0; j < m; ++j) v[j] = cloud.xyz(a, static_cast<Eigen::Index>(rows[j * rows.size() / m]));
+      std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(m / 2), v.end());
+      centre(a) = v[m / 2];
+    }
+  }
+  std::vector<float> p(3 * rows.size());
+  for (std::size_t j = 0; j < rows.size(); ++j) {
+    for (Eigen::Index a = 0; a < 3; ++a) {
+      p[3 * j + static_cast<std::size_t>(a)] = static_cast<float>(cloud.xyz(a, static_cast<Eigen::Index>(rows[j])) - centre(a));
+    }
+  }
+  return p;
+}
+
+// Stratified deterministic sample of m of n indices (one per run of n/m, splitmix64).
+std::vector<std::uint32_t> stratified_sample(std::size_t n, std::size_t m) {
+  std::vector<std::uint32_t> s(m);
+  for (std::size_t j = 0; j < m; ++j) {
+    const std::size_t lo = j * n / m, hi = (j + 1) * n / m;
+    s[j] = static_cast<std::uint32_t>(lo + splitmix64(j) % (hi - lo));
+  }
+  return s;
+}
+
+double median_of(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
+  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  double m = *mid;
+  if (v.size() % 2 == 0) m = 0.5 * (m + *std::max_element(v.begin(), mid));
+  return m;
+}
+
+// Exact k-NN distances of single points of a grid, cached per input index.
+class ExactDistances {
+ public:
+  ExactDistances(const CellGrid& g, int k, std::size_t n) : g_(g), q_(g, k), k_(k), d_(n, -1.0f), pos_(n, kNone) {
+    for (std::size_t s = 0; s < g.original.size(); ++s) pos_[g.original[s]] = static_cast<std::uint32_t>(s);
+    for (const std::uint32_t z : g.zero) d_[z] = 0.0f;  // copies left out: k others at distance 0
+  }
+  // Computes d for the listed input indices not known yet (grid order, two threads if long).
+  // Returns how many queries ran.
+  std::size_t compute(const std::vector<std::uint32_t>& list) {
+    order_.clear();
+    for (const std::uint32_t j : list) {
+      if (d_[j] < 0.0f) order_.emplace_back(pos_[j], j);
+    }
+    std::sort(order_.begin(), order_.end());
+    order_.erase(std::unique(order_.begin(), order_.end()), order_.end());
+    const std::size_t len = order_.size();
+    const int th = len >= 4096 ? kSearchThreads : 1;
+    run_parallel(th, [&](int t) {
+      PointQueries::Scratch s(k_);
+      const std::size_t b = len * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
+      const std::size_t e = len * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
+      for (std::size_t i = b; i < e; ++i) d_[order_[i].second] = q_.mean_distance(order_[i].first, s);
+    });
+    return len;
+  }
+  float operator[](std::size_t j) const { return d_[j]; }
+  std::uint32_t pos(std::size_t j) const { return pos_[j]; }
+
+ private:
+  const CellGrid& g_;
+  PointQueries q_;
+  int k_;
+  std::vector<float> d_;
+  std::vector<std::uint32_t> pos_;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> order_;
+};
+
+// Point range [first, last) of the occupied cell at (ix, iy, iz), empty if none.
+std::pair<std::uint32_t, std::uint32_t> cell_range(const CellGrid& g, std::int64_t ix, std::int64_t iy, std::int64_t iz) {
+  if (ix < 0 || iy < 0 || iz < 0 || ix >= g.n[0] || iy >= g.n[1] || iz >= g.n[2]) return {0, 0};
+  const std::uint64_t key = g.key(ix, iy, iz);
+  const std::size_t c = g.lower(key);
+  if (c >= g.cells() || g.cell_key[c] != key) return {0, 0};
+  return {g.cell_start[c], g.cell_start[c + 1]};
+}
+
+// Input indices of the k nearest neighbours of the point at sorted position s (itself excluded;
+// equal distances ordered by input index, so the set does not depend on the grid), exact: blocks of (2r+1)³ cells for r = 1, 2, 4, 8, 16 until the k-th distance is
+// within the block's clearance, else all points.
+void knn_sorted(const CellGrid& g, std::uint32_t s, int k, std::vector<std::pair<float, std::uint32_t>>& cand,
+                std::vector<std::uint32_t>& out) {
+  const float pt[3] = {g.x[s], g.y[s], g.z[s]};
+  const std::array<std::int64_t, 3> c = {g.index_of(pt[0], 0), g.index_of(pt[1], 1), g.index_of(pt[2], 2)};
+  const auto k1 = static_cast<std::size_t>(k);
+  auto add = [&](std::uint32_t b, std::uint32_t e) {
+    for (std::uint32_t q = b; q < e; ++q) {
+      if (q == s) continue;
+      const float dx = g.x[q] - pt[0], dy = g.y[q] - pt[1], dz = g.z[q] - pt[2];
+      cand.emplace_back(dx * dx + dy * dy + dz * dz, g.original[q]);  // ties: by input index
+    }
+  };
+  auto finish = [&] {
+    std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k1 - 1), cand.end());
+    out.clear();
+    for (std::size_t i = 0; i < k1; ++i) out.push_back(cand[i].second);
+  };
+  for (std::int64_t r = 1; r <= 16; r *= 2) {
+    cand.clear();
+    for (std::int64_t dz = -r; dz <= r; ++dz) {
+      for (std::int64_t dy = -r; dy <= r; ++dy) {
+        const std::int64_t iy = c[1] + dy, iz = c[2] + dz;
+        if (iy < 0 || iz < 0 || iy >= g.n[1] || iz >= g.n[2]) continue;
+        const std::int64_t x0 = std::max<std::int64_t>(0, c[0] - r), x1 = std::min(g.n[0] - 1, c[0] + r);
+        const std::size_t a = g.lower(g.key(x0, iy, iz)), b = g.lower(g.key(x1, iy, iz) + 1);
+        if (b > a) add(g.cell_start[a], g.cell_start[b]);
+      }
+    }
+    if (cand.size() < k1) continue;
+    double rho = std::numeric_limits<double>::infinity();
+    for (std::size_t a = 0; a < 3; ++a) {
+      const double v = pt[a];
+      if (c[a] - r > 0) rho = std::min(rho, v - (g.lo[a] + static_cast<double>(c[a] - r) * g.cell));
+      if (c[a] + r < g.n[a] - 1) rho = std::min(rho, (g.lo[a] + static_cast<double>(c[a] + r + 1) * g.cell) - v);
+    }
+    std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k1 - 1), cand.end());
+    if (std::isinf(rho) || static_cast<double>(cand[k1 - 1].first) * (1.0 + 1e-5) <= rho * rho) {
+      finish();
+      return;
+    }
+  }
+  cand.clear();
+  add(0, static_cast<std::uint32_t>(g.x.size()));
+  finish();
+}
+
+StageReport make_report(const char* stage, std::size_t in) {
+  StageReport r;
+  r.stage = stage;
+  r.count_in = in;
+  return r;
+}
+
+}  // namespace
+
+StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& o) {
+  const auto t0 = Clock::now();
+  const int k = o.k;
+  if (k < 1 || k > 1000) throw ConfigError("remove_robust_outliers: k = " + std::to_string(k) + ", expected 1..1000");
+  if (!(o.local_ratio > 1.0) || !std::isfinite(o.local_ratio)) {
+    throw ConfigError("remove_robust_outliers: local_ratio = " + format_number(o.local_ratio) + ", expected a finite value > 1");
+  }
+  if (!(o.mad_multiplier > 0.0) || !std::isfinite(o.mad_multiplier)) {
+    throw ConfigError("remove_robust_outliers: mad_multiplier = " + format_number(o.mad_multiplier) +
+                      ", expected a finite value > 0");
+  }
+  if (!(o.max_surface_variation >= 0.0) || o.max_surface_variation > 1.0 / 3.0) {
+    throw ConfigError("remove_robust_outliers: max_surface_variation = " + format_number(o.max_surface_variation) +
+                      ", expected 0..1/3");
+  }
+  if (o.sample < 2) throw ConfigError("remove_robust_outliers: sample = " + std::to_string(o.sample) + ", expected at least 2");
+  StageReport report = make_report("outliers", cloud.size());
+  const std::vector<std::uint32_t> rows = finite_rows(cloud, "remove_robust_outliers");
+  const std::size_t n = rows.size();
+  if (n < static_cast<std::size_t>(k) + 2) {
+    throw DegenerateInputError("remove_robust_outliers: the cloud has " + std::to_string(n) + " finite points; k = " +
+                               std::to_string(k) + " needs at least " + std::to_string(k + 2));
+  }
+  const std::vector<float> p = recentred(cloud, rows);
+  // Cells of about 0.85·(2k+2) points: the counting pass mostly settles a point in its own cell.
+  const CellGrid g = build_grid(p, n, std::min(2 * k + 1, 1000));
+  ExactDistances d(g, k, n);
+  const double t_grid = seconds_since(t0);
+
+  // 1. Robust scale from the sample: median and MAD of ln d over its points with d > 0.
+  const std::size_t m = std::min(n, o.sample);
+  const std::vector<std::uint32_t> sample = stratified_sample(n, m);
+  std::size_t queries = d.compute(sample);
+  std::vector<double> logs;
+  logs.reserve(m);
+  for (const std::uint32_t j : sample) {
+    if (d[j] > 0.0f) logs.push_back(std::log(static_cast<double>(d[j])));
+  }
+  if (logs.empty()) {
+    // Every sampled point has k copies of itself: nothing is sparse relative to anything.
+    report.count_out = cloud.size();
+    report.notes.push_back("every sampled point has k exact copies (mean k-NN distance 0): nothing removed");
+    report.figure("removed_robust", 0.0);
+    report.seconds = seconds_since(t0);
+    return {std::move(cloud), std::move(report)};
+  }
+  // Rounded to steps of 1/128 in ln d (0.8 %): a handful of added points (a far point, a far
+  // cluster) moves the median and the MAD by a fraction of a rank, so the rounded scale, hence
+  // every decision, stays the same (unless it lies within that fraction of a step boundary).
+  const auto step = [](double v) { return std::round(v * 128.0) / 128.0; };
+  const double med = step(median_of(logs));
+  for (double& v : logs) v = std::abs(v - med);
+  const double mad = step(median_of(logs));
+  const double sigma = 1.4826 * mad;
+  const double d_med = std::exp(med);
+  const double d_cert = o.local_ratio * d_med;
+  const double d_glob = std::max(std::exp(med + o.mad_multiplier * sigma), d_cert);
+  const double t_sample = seconds_since(t0);
+
+  // 2. Counting pass: at least k other points within d_cert (own cell, then the cells of the
+  // 3×3×3 block that come within d_cert) prove d_i <= d_cert. Cells split in two halves.
+  const auto cert2 = static_cast<float>(d_cert * d_cert * (1.0 - 1e-5));
+  const std::size_t cells = g.cells();
+  std::vector<std::uint8_t> certified(g.original.size(), 0);
+  run_parallel(cells > 64 ? kSearchThreads : 1, [&](int t) {
+    const int th = cells > 64 ? kSearchThreads : 1;
+    const std::size_t cb = cells * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
+    const std::size_t ce = cells * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
+    std::array<std::pair<std::uint32_t, std::uint32_t>, 27> block{};
+    std::array<std::array<std::int64_t, 3>, 27> offs{};
+    for (std::size_t ci = cb; ci < ce; ++ci) {
+      const std::uint32_t pb = g.cell_start[ci], pe = g.cell_start[ci + 1];
+      bool all = true;
+      for (std::uint32_t a = pb; a < pe; ++a) {
+        const float x = g.x[a], y = g.y[a], z = g.z[a];
+        std::uint32_t cnt = 0;
+        for (std::uint32_t b = pb; b < pe; ++b) {
+          const float dx = g.x[b] - x, dy = g.y[b] - y, dz = g.z[b] - z;
+          cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
+        }
+        const bool ok = cnt >= static_cast<std::uint32_t>(k) + 1;  // the point itself counts once
+        certified[a] = ok ? 1 : 0;
+        all = all && ok;
+      }
+      if (all) continue;
+      const auto c = g.coords(g.cell_key[ci]);
+      std::size_t nb = 0;
+      for (std::int64_t dz = -1; dz <= 1; ++dz) {
+        for (std::int64_t dy = -1; dy <= 1; ++dy) {
+          for (std::int64_t dx = -1; dx <= 1; ++dx) {
+            if (dx == 0 && dy == 0 && dz == 0) continue;
+            const auto r = cell_range(g, c[0] + dx, c[1] + dy, c[2] + dz);
+            if (r.second > r.first) {
+              block[nb] = r;
+              offs[nb] = {dx, dy, dz};
+              ++nb;
+            }
+          }
+        }
+      }
+      const double lo[3] = {g.lo[0] + static_cast<double>(c[0]) * g.cell, g.lo[1] + static_cast<double>(c[1]) * g.cell,
+                            g.lo[2] + static_cast<double>(c[2]) * g.cell};
+      for (std::uint32_t a = pb; a < pe; ++a) {
+        if (certified[a]) continue;
+        const float pt[3] = {g.x[a], g.y[a], g.z[a]};
+        std::uint32_t cnt = 0;
+        for (std::uint32_t b = pb; b < pe; ++b) {
+          const float dx = g.x[b] - pt[0], dy = g.y[b] - pt[1], dz = g.z[b] - pt[2];
+          cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
+        }
+        for (std::size_t q = 0; q < nb && cnt <= static_cast<std::uint32_t>(k); ++q) {
+          // Skip a neighbour cell farther than d_cert from the point.
+          double gap2 = 0.0;
+          for (std::size_t ax = 0; ax < 3; ++ax) {
+            const double v = pt[ax];
+            const double cl = lo[ax] + static_cast<double>(offs[q][ax]) * g.cell;
+            const double gap = v < cl ? cl - v : (v > cl + g.cell ? v - cl - g.cell : 0.0);
+            gap2 += gap * gap;
+          }
+          if (gap2 > static_cast<double>(cert2)) continue;
+          for (std::uint32_t b = block[q].first; b < block[q].second; ++b) {
+            const float dx = g.x[b] - pt[0], dy = g.y[b] - pt[1], dz = g.z[b] - pt[2];
+            cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
+          }
+        }
+        certified[a] = cnt >= static_cast<std::uint32_t>(k) + 1 ? 1 : 0;
+      }
+    }
+  });
+  std::vector<std::uint32_t> uncertain;
+  std::size_t n_certified = g.zero.size();
+  for (std::size_t s = 0; s < certified.size(); ++s) {
+    if (certified[s]) {
+      ++n_certified;
+    } else {
+      uncertain.push_back(g.original[s]);
+    }
+  }
+  const double t_cert = seconds_since(t0);
+
+  // 3. Exact d for the rest; the candidates of both tests (d > d_cert).
+  queries += d.compute(uncertain);
+  std::vector<std::uint8_t> out(n, 0);  // 1 = global, 2 = local
+  std::vector<std::uint32_t> cand;
+  for (const std::uint32_t j : uncertain) {
+    if (static_cast<double>(d[j]) > d_cert) cand.push_back(j);
+  }
+  const double t_exact = seconds_since(t0);
+
+  // 4. Neighbours of the candidates (exact); surface variation of those above d_glob.
+  std::vector<std::vector<std::uint32_t>> nbrs(cand.size());
+  std::vector<double> variation(cand.size(), 0.0);
+  {
+    const int th = cand.size() >= 256 ? kSearchThreads : 1;
+    run_parallel(th, [&](int t) {
+      std::vector<std::pair<float, std::uint32_t>> scratch;
+      std::vector<std::uint32_t> knn;
+      const std::size_t b = cand.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
+      const std::size_t e = cand.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
+      for (std::size_t i = b; i < e; ++i) {
+        const std::uint32_t s = d.pos(cand[i]);
+        if (s == kNone) continue;
+        knn_sorted(g, s, k, scratch, knn);
+        nbrs[i].clear();
+        nbrs[i] = knn;
+        if (static_cast<double>(d[cand[i]]) <= d_glob) continue;
+        // Surface variation λ0 / (λ0 + λ1 + λ2) of the point and its k neighbours (Pauly et al.
+        // 2002): near 0 on a surface or a line at any density, about 1/3 in isotropic clutter.
+        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+        auto at = [&](std::uint32_t q) { return Eigen::Vector3d(g.x[q], g.y[q], g.z[q]); };
+        mean += at(s);
+        for (const std::uint32_t q : knn) mean += at(d.pos(q));
+        mean /= static_cast<double>(knn.size() + 1);
+        Eigen::Matrix3d cov = (at(s) - mean) * (at(s) - mean).transpose();
+        for (const std::uint32_t q : knn) cov += (at(d.pos(q)) - mean) * (at(d.pos(q)) - mean).transpose();
+        const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+        const double tr = ev.sum();
+        variation[i] = tr > 0.0 ? std::max(ev(0), 0.0) / tr : 0.0;
+      }
+    });
+  }
+  std::size_t n_planar = 0;
+  std::vector<std::uint32_t> need;
+  for (std::size_t i = 0; i < cand.size(); ++i) {
+    if (static_cast<double>(d[cand[i]]) > d_glob) {
+      if (variation[i] > o.max_surface_variation) {
+        out[cand[i]] = 1;
+        continue;
+      }
+      ++n_planar;
+    }
+    need.insert(need.end(), nbrs[i].begin(), nbrs[i].end());
+  }
+  queries += d.compute(need);
+
+  // 5. Local test against the neighbours' median distance.
+  std::size_t n_local = 0, n_global = 0, local_tests = 0;
+  for (std::size_t i = 0; i < cand.size(); ++i) {
+    if (out[cand[i]] != 0) continue;
+    ++local_tests;
+    std::vector<double> nd;
+    nd.reserve(nbrs[i].size());
+    for (const std::uint32_t j : nbrs[i]) nd.push_back(d[j]);
+    const double ref = std::max(median_of(std::move(nd)), d_med);
+    if (static_cast<double>(d[cand[i]]) > o.local_ratio * ref) out[cand[i]] = 2;
+  }
+  std::vector<bool> keep(cloud.size(), false);
+  for (std::size_t j = 0; j < n; ++j) {
+    n_global += out[j] == 1 ? 1u : 0u;
+    n_local += out[j] == 2 ? 1u : 0u;
+    keep[rows[j]] = out[j] == 0;
+  }
+  cloud.keep_if(keep);
+  report.count_out = cloud.size();
+  report.figure("k", k);
+  report.figure("local_ratio", o.local_ratio);
+  report.figure("mad_multiplier", o.mad_multiplier);
+  report.figure("sample", static_cast<double>(m));
+  report.figure("median_knn_distance_mm", d_med * 1e3);
+  report.figure("mad_log_knn_distance", mad);
+  report.figure("sigma_log_knn_distance", sigma);
+  report.figure("global_threshold_mm", d_glob * 1e3);
+  report.figure("certify_distance_mm", d_cert * 1e3);
+  report.figure("certified", static_cast<double>(n_certified));
+  report.figure("exact_queries", static_cast<double>(queries));
+  report.figure("max_surface_variation", o.max_surface_variation);
+  report.figure("local_tests", static_cast<double>(local_tests));
+  report.figure("coherent_above_global", static_cast<double>(n_planar));
+  report.figure("removed_robust", static_cast<double>(n_global + n_local));
+  report.figure("removed_global", static_cast<double>(n_global));
+  report.figure("removed_local", static_cast<double>(n_local));
+  report.figure("duplicates_left_out", static_cast<double>(g.zero.size()));
+  report.figure("knn_grid_cell_mm", g.cell * 1e3);
+  report.figure("grid_s", t_grid);
+  report.figure("sample_s", t_sample - t_grid);
+  report.figure("certify_s", t_cert - t_sample);
+  report.figure("exact_s", t_exact - t_cert);
+  report.figure("local_s", seconds_since(t0) - t_exact);
+  report.notes.push_back("robust: removed " + std::to_string(n_global) + " points with mean k-NN distance above " +
+                         format_number(d_glob * 1e3) + " mm (median " + format_number(d_med * 1e3) + " mm, sigma(ln d) " +
+                         format_number(sigma) + ") whose neighbourhood is not a surface (" + std::to_string(n_planar) +
+                         " such points lie on one and were judged locally) and " + std::to_string(n_local) + " more than " +
+                         format_number(o.local_ratio) + " x sparser than their neighbours; " + std::to_string(n_certified) +
+                         " of " + std::to_string(n) + " points settled by counting");
+  if (n != report.count_in) report.notes.push_back("dropped " + std::to_string(report.count_in - n) + " non-finite points");
+  report.seconds = seconds_since(t0);
+  return {std::move(cloud), std::move(report)};
+}
+
+namespace {
+
+// find_far_clusters; `removed_rows`, when given, receives the cloud columns of the removed
+// clusters' points.
+FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarClusterOptions& o,
+                              std::vector<std::uint32_t>* removed_rows) {
+  if (!(link_m > 0.0) || !std::isfinite(link_m)) {
+    throw ConfigError("find_far_clusters: link distance = " + format_number(link_m) + " m, expected a finite value > 0");
+  }
+  if (!(o.far_distance_m >= 0.0) || !std::isfinite(o.far_distance_m)) {
+    throw ConfigError("find_far_clusters: far_distance_m = " + format_number(o.far_distance_m) +
+                      " m, expected a finite value >= 0 (0 = 10 x the linking distance)");
+  }
+  if (!(o.max_fraction >= 0.0) || o.max_fraction > 1.0) {
+    throw ConfigError("find_far_clusters: max_fraction = " + format_number(o.max_fraction) + ", expected 0..1");
+  }
+  const std::vector<std::uint32_t> rows = finite_rows(cloud, "find_far_clusters");
+  const std::size_t n = rows.size();
+  if (n == 0) throw InputError("find_far_clusters: the cloud has no finite points");
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (const std::uint32_t i : rows) {
+    lo = lo.cwiseMin(cloud.xyz.col(static_cast<Eigen::Index>(i)));
+    hi = hi.cwiseMax(cloud.xyz.col(static_cast<Eigen::Index>(i)));
+  }
+  // Cells of edge >= link (at most 2^21 per axis: keys fit 63 bits).
+  const double edge = std::max(link_m, (hi - lo).maxCoeff() / 2097150.0);
+  std::array<std::int64_t, 3> nc{};
+  for (int a = 0; a < 3; ++a) nc[static_cast<std::size_t>(a)] = static_cast<std::int64_t>((hi(a) - lo(a)) / edge) + 1;
+  auto key_of = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
+    return static_cast<std::uint64_t>(x + nc[0] * (y + nc[1] * z));
+  };
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n);
+  for (std::size_t j = 0; j < n; ++j) {
+    const auto q = cloud.xyz.col(static_cast<Eigen::Index>(rows[j]));
+    std::array<std::int64_t, 3> c{};
+    for (int a = 0; a < 3; ++a) {
+      c[static_cast<std::size_t>(a)] =
+          std::clamp<std::int64_t>(static_cast<std::int64_t>((q(a) - lo(a)) / edge), 0, nc[static_cast<std::size_t>(a)] - 1);
+    }
+    keyed[j] = {key_of(c[0], c[1], c[2]), static_cast<std::uint32_t>(j)};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::vector<std::uint64_t> keys;
+  std::vector<std::uint32_t> cell_of(n);
+  for (const auto& [key, j] : keyed) {
+    if (keys.empty() || keys.back() != key) keys.push_back(key);
+    cell_of[j] = static_cast<std::uint32_t>(keys.size() - 1);
+  }
+  // Union-find over the occupied cells, 26-neighbourhood (the 13 "forward" offsets suffice).
+  std::vector<std::uint32_t> parent(keys.size());
+  std::iota(parent.begin(), parent.end(), 0u);
+  auto find = [&](std::uint32_t x) {
+    while (parent[x] != x) {
+      parent[x] = parent[parent[x]];
+      x = parent[x];
+    }
+    return x;
+  };
+  for (std::size_t c = 0; c < keys.size(); ++c) {
+    const auto s = static_cast<std::int64_t>(keys[c]);
+    const std::array<std::int64_t, 3> xyz = {s % nc[0], (s / nc[0]) % nc[1], s / (nc[0] * nc[1])};
+    for (std::int64_t dz = 0; dz <= 1; ++dz) {
+      for (std::int64_t dy = dz == 0 ? 0 : -1; dy <= 1; ++dy) {
+        for (std::int64_t dx = (dz == 0 && dy == 0) ? 1 : -1; dx <= 1; ++dx) {
+          const std::int64_t x = xyz[0] + dx, y = xyz[1] + dy, z = xyz[2] + dz;
+          if (x < 0 || y < 0 || x >= nc[0] || y >= nc[1] || z >= nc[2]) continue;
+          const auto it = std::lower_bound(keys.begin(), keys.end(), key_of(x, y, z));
+          if (it == keys.end() || *it != key_of(x, y, z)) continue;
+          const std::uint32_t a = find(static_cast<std::uint32_t>(c)), b = find(static_cast<std::uint32_t>(it - keys.begin()));
+          if (a != b) parent[std::max(a, b)] = std::min(a, b);
+        }
+      }
+    }
+  }
+  // Component statistics.
+  std::vector<std::uint32_t> comp_of_cell(keys.size(), kNone);
+  std::vector<PointCluster> comps;
+  std::vector<Eigen::Vector3d> sums;
+  for (std::size_t j = 0; j < n; ++j) {
+    const std::uint32_t root = find(cell_of[j]);
+    if (comp_of_cell[root] == kNone) {
+      comp_of_cell[root] = static_cast<std::uint32_t>(comps.size());
+      PointCluster pc;
+      pc.min_m = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+      pc.max_m = -pc.min_m;
+      comps.push_back(pc);
+      sums.emplace_back(Eigen::Vector3d::Zero());
+    }
+    PointCluster& pc = comps[comp_of_cell[root]];
+    const Eigen::Vector3d q = cloud.xyz.col(static_cast<Eigen::Index>(rows[j]));
+    ++pc.count;
+    sums[comp_of_cell[root]] += q;
+    pc.min_m = pc.min_m.cwiseMin(q);
+    pc.max_m = pc.max_m.cwiseMax(q);
+  }
+  for (std::size_t i = 0; i < comps.size(); ++i) comps[i].centroid_m = sums[i] / static_cast<double>(comps[i].count);
+  std::vector<std::uint32_t> rank(comps.size());
+  std::iota(rank.begin(), rank.end(), 0u);
+  std::stable_sort(rank.begin(), rank.end(), [&](std::uint32_t a, std::uint32_t b) { return comps[a].count > comps[b].count; });
+  FarClusters result;
+  result.link_m = link_m;
+  result.far_distance_m = o.far_distance_m > 0.0 ? o.far_distance_m : 10.0 * link_m;
+  result.main_body = comps[rank.front()];
+  const double small = std::max(static_cast<double>(o.max_points), o.max_fraction * static_cast<double>(n));
+  for (std::size_t i = 1; i < comps.size(); ++i) {
+    PointCluster& pc = comps[rank[i]];
+    const Eigen::Vector3d gap = (result.main_body.min_m - pc.max_m).cwiseMax(pc.min_m - result.main_body.max_m).cwiseMax(0.0);
+    pc.gap_m = gap.norm();
+    pc.removed = static_cast<double>(pc.count) <= small && pc.gap_m > result.far_distance_m;
+    result.others.push_back(pc);
+  }
+  if (removed_rows) {
+    removed_rows->clear();
+    for (std::size_t j = 0; j < n; ++j) {
+      if (comps[comp_of_cell[find(cell_of[j])]].removed) removed_rows->push_back(rows[j]);
+    }
+  }
+  return result;
+}
+
+}  // namespace
+
+FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarClusterOptions& o) {
+  return far_clusters_impl(cloud, link_m, o, nullptr);
+}
+
+namespace {
+
+std::string describe(const PointCluster& c) {
+  return std::to_string(c.count) + " points at (" + format_number(c.centroid_m.x()) + ", " + format_number(c.centroid_m.y()) +
+         ", " + format_number(c.centroid_m.z()) + ") m, " + format_number(c.gap_m) + " m from the main body";
+}
+
+}  // namespace
+
+StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& o) {
+  const auto t0 = Clock::now();
+  StageReport report = make_report("far_clusters", cloud.size());
+  std::vector<std::uint32_t> gone;
+  const FarClusters fc = far_clusters_impl(cloud, link_m, o, &gone);
+  std::size_t removed_clusters = 0, kept_far = 0;
+  for (const auto& c : fc.others) {
+    removed_clusters += c.removed ? 1u : 0u;
+    kept_far += !c.removed && c.gap_m > fc.far_distance_m ? 1u : 0u;
+  }
+  if (!gone.empty()) {
+    std::vector<bool> keep(cloud.size(), true);
+    for (const std::uint32_t i : gone) keep[i] = false;
+    cloud.keep_if(keep);
+  }
+  report.count_out = cloud.size();
+  report.figure("link_mm", fc.link_m * 1e3);
+  report.figure("far_distance_mm", fc.far_distance_m * 1e3);
+  report.figure("clusters", static_cast<double>(fc.others.size() + 1));
+  report.figure("far_clusters", static_cast<double>(removed_clusters));
+  report.figure("removed_far_clusters", static_cast<double>(report.count_in - report.count_out));
+  report.figure("kept_far_clusters", static_cast<double>(kept_far));
+  std::size_t listed = 0;
+  for (const auto& c : fc.others) {
+    if (!c.removed && !(c.gap_m > fc.far_distance_m)) continue;
+    if (++listed > 20) {
+      report.notes.push_back("... and more far clusters");
+      break;
+    }
+    report.notes.push_back(std::string(c.removed ? "removed far cluster: " : "kept far cluster (too large to remove): ") + describe(c));
+  }
+  report.seconds = seconds_since(t0);
+  return {std::move(cloud), std::move(report)};
+}
+
+StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOptions& options, const FarClusterOptions& far) {
+  const auto t0 = Clock::now();
+  auto robust = remove_robust_outliers(std::move(cloud), options);
+  StageReport report = std::move(robust.report);
+  auto removed = static_cast<double>(report.count_in - robust.value.size());
+  if (far.enabled && robust.value.size() > 0) {
+    double link = far.link_m;
+    if (!(link > 0.0)) {
+      for (const auto& [name, v] : report.figures) {
+        if (name == "global_threshold_mm") link = v * 1e-3;
+      }
+    }
+    if (!(link > 0.0)) link = 1e-3;  // every point a copy of another: any positive link
+    auto fc = remove_far_clusters(std::move(robust.value), link, far);
+    robust.value = std::move(fc.value);
+    for (auto& f : fc.report.figures) report.figures.push_back(std::move(f));
+    for (auto& s : fc.report.notes) report.notes.push_back(std::move(s));
+    removed = static_cast<double>(report.count_in - robust.value.size());
+  } else {
+    report.figure("removed_far_clusters", 0.0);
+  }
+  report.figure("removed", removed);
+  report.count_out = robust.value.size();
+  report.seconds = seconds_since(t0);
+  return {std::move(robust.value), std::move(report)};
+}
+
+std::string describe_far_points(const Cloud& cloud) {
+  try {
+    const std::vector<std::uint32_t> rows = finite_rows(cloud, "describe_far_points");
+    const int k = 16;
+    if (rows.size() < static_cast<std::size_t>(k) + 2) return "";
+    const std::vector<float> p = recentred(cloud, rows);
+    const CellGrid g = build_grid(p, rows.size(), k);
+    ExactDistances d(g, k, rows.size());
+    const std::vector<std::uint32_t> sample = stratified_sample(rows.size(), std::min<std::size_t>(rows.size(), 5000));
+    d.compute(sample);
+    std::vector<double> v;
+    for (const std::uint32_t j : sample) {
+      if (d[j] > 0.0f) v.push_back(d[j]);
+    }
+    if (v.empty()) return "";
+    const double link = 10.0 * median_of(v);
+    FarClusterOptions o;
+    o.max_points = 0;
+    o.max_fraction = 0.0;
+    const FarClusters fc = find_far_clusters(cloud, link, o);
+    std::string far;
+    std::size_t count = 0, listed = 0;
+    for (const auto& c : fc.others) {
+      if (!(c.gap_m > fc.far_distance_m)) continue;
+      count += c.count;
+      if (listed++ < 5) far += (far.empty() ? "" : "; ") + describe(c);
+    }
+    if (count == 0) return "";
+    const PointCluster& b = fc.main_body;
+    return "; " + std::to_string(count) + " points lie far from the main body (" + std::to_string(b.count) +
+           " points): " + far + (listed > 5 ? "; ..." : "") + ". Remove them with filters.crop, e.g. min_m: [" +
+           format_number(b.min_m.x()) + ", " + format_number(b.min_m.y()) + ", " + format_number(b.min_m.z()) + "], max_m: [" +
+           format_number(b.max_m.x()) + ", " + format_number(b.max_m.y()) + ", " + format_number(b.max_m.z()) +
+           "] (the main body's box, grid frame), or enable filters.outliers.far_clusters";
+  } catch (const std::exception&) {
+    return "";
+  }
+}
+
+}  // namespace hc::pipeline
