@@ -89,6 +89,9 @@ std::vector<std::string> Cloud::append(const Cloud& other) {
     row.clear();
     col.clear();
   }
+  if (first || crs.empty()) crs = other.crs;  // the first CRS found is kept
+  // Any float-stored part limits the precision of the whole.
+  float32_xyz = first ? other.float32_xyz : (float32_xyz || other.float32_xyz);
   const Eigen::Index n = xyz.cols();
   if (first) {
     mesh = other.mesh;

@@ -778,6 +778,8 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   }
   L.workspace_radius_m = r.get_double("layers.friction.workspace_radius_m", L.workspace_radius_m, 0.0, 10.0, true);
   L.curvature_gain_m = r.get_double("layers.friction.curvature_gain_m", L.curvature_gain_m, 0.0, 100.0);
+  L.friction_scale = friction_scale_from_string(r.get_string("layers.friction.scale", to_string(L.friction_scale),
+                                                             {"scene", "device", "level_median"}));
   L.mu_s = r.get_double("layers.friction.mu_s", L.mu_s, 0.0, 10.0);
   const auto regions = r.get_map_list("layers.friction.mu_s_regions");
   YAML::Node resolved_regions(YAML::NodeType::Sequence);

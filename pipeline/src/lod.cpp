@@ -349,7 +349,7 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
   if (with_layers) {
     const auto t0 = Clock::now();
     if (built->depth_m.valid_count() > 0) {
-      SurfaceLayers layers = compute_surface_layers(built->depth_m, layer_options_).value;
+      SurfaceLayers layers = compute_surface_layers(built->depth_m, layer_options_, options_.window_cells).value;
       built->envelope_m = std::move(layers.envelope_m);
       built->texture_m = std::move(layers.texture_m);
       built->mu_d = std::move(layers.mu_d);

@@ -40,6 +40,9 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
     row.cell_size_m = g.cell_size_m;
     row.valid_cells = lvl->depth_m.valid_count();
     row.build_seconds = lvl->depth_seconds + lvl->layers_seconds;
+    if (lvl->has_layers && lvl->mu_d.rows() > 0) {
+      row.mu_d = friction_histogram(lvl->mu_d, pyramid->layer_options().mu_min, pyramid->layer_options().mu_max);
+    }
     if (options.cross_check && level == 0 && options.level0_cross_check) {
       row.point_vertical = options.level0_cross_check->point_vertical;
       row.supported_fraction = options.level0_cross_check->supported_fraction;
@@ -57,7 +60,7 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
 std::string level_table_markdown(const std::vector<LevelRow>& rows) {
   std::ostringstream md;
   md << "| level | cell (mm) | size (samples) | valid | build (ms) | RMS (mm) | p95 (mm) | supported | tick p50 / p99 (ns) "
-        "| switch (ms) |\n|---|---|---|---|---|---|---|---|---|---|\n";
+        "| switch (ms) | μ_d at min / max | μ_d histogram (10 bins, %) |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const LevelRow& r : rows) {
     md << "| " << r.level << " | " << fixed(r.cell_size_m * 1000.0, 4) << " | " << r.cols << " × " << r.rows << " | "
        << r.valid_cells << " | " << fixed(r.build_seconds * 1000.0, 1) << " | ";
@@ -68,7 +71,18 @@ std::string level_table_markdown(const std::vector<LevelRow>& rows) {
       md << "– | – | – | ";
     }
     if (r.timed) {
-      md << fixed(r.tick_p50_ns, 0) << " / " << fixed(r.tick_p99_ns, 0) << " | " << fixed(r.switch_ms, 3) << " |\n";
+      md << fixed(r.tick_p50_ns, 0) << " / " << fixed(r.tick_p99_ns, 0) << " | " << fixed(r.switch_ms, 3) << " | ";
+    } else {
+      md << "– | – | ";
+    }
+    if (r.mu_d && r.mu_d->valid > 0) {
+      const double nv = static_cast<double>(r.mu_d->valid);
+      md << fixed(100.0 * r.mu_d->at_min_fraction(), 1) << " % / " << fixed(100.0 * r.mu_d->at_max_fraction(), 1)
+         << " % | ";
+      for (std::size_t k = 0; k < r.mu_d->bins.size(); ++k) {
+        md << (k ? " " : "") << fixed(100.0 * static_cast<double>(r.mu_d->bins[k]) / nv, 0);
+      }
+      md << " |\n";
     } else {
       md << "– | – |\n";
     }

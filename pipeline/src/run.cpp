@@ -122,10 +122,74 @@ StageResult<Cloud> skip_for_mesh(Cloud cloud, const char* key) {
   return r;
 }
 
+/// What ingest tells about the stored precision of the coordinates (Cloud::float32_xyz).
+struct StoredPrecision {
+  bool float32 = false;
+  std::string file;                                  ///< the (first) input, for messages
+  std::string crs;                                   ///< Cloud::crs as read
+  Eigen::Vector3d max_abs_m = Eigen::Vector3d::Zero();  ///< largest |coordinate| per file axis [m], before recentring
+  Eigen::Vector3i distinct = Eigen::Vector3i::Zero();   ///< distinct stored values per axis, counted up to kDistinctCap
+};
+constexpr int kDistinctCap = 64;
+/// Fewer distinct stored values than this along a grid axis: the grid has collapsed.
+constexpr int kCollapsedDistinct = 16;
+
+StoredPrecision stored_precision(const Cloud& cloud, double unit_m, const std::string& file) {
+  StoredPrecision p;
+  p.float32 = cloud.float32_xyz;
+  p.file = file;
+  p.crs = cloud.crs;
+  if (!p.float32) return p;
+  for (int a = 0; a < 3; ++a) {
+    std::vector<double> seen;
+    double m = 0.0;
+    for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
+      const double v = cloud.xyz(a, i);
+      if (!std::isfinite(v)) continue;
+      m = std::max(m, std::abs(v));
+      if (static_cast<int>(seen.size()) < kDistinctCap && std::find(seen.begin(), seen.end(), v) == seen.end()) {
+        seen.push_back(v);
+      }
+    }
+    p.max_abs_m[a] = m * unit_m;
+    p.distinct[a] = static_cast<int>(seen.size());
+  }
+  return p;
+}
+
+/// The float-precision check once the cell size is known: a warning when a float-stored
+/// coordinate cannot resolve a tenth of a cell (|x|·2⁻²⁴ > cell/10), an error naming the cause
+/// when the points along a grid axis (an axis not along the view direction) have collapsed onto
+/// fewer than kCollapsedDistinct distinct values.
+void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen::Matrix3d& view_rotation,
+                            StageReport& report, std::vector<std::string>& warnings) {
+  if (!p.float32) return;
+  const char* names = "xyz";
+  const double ulp_factor = std::ldexp(1.0, -24);
+  for (int a = 0; a < 3; ++a) {
+    const double step_m = p.max_abs_m[a] * ulp_factor;
+    if (!(step_m > cell_m / 10.0)) continue;
+    const std::string what = p.file + ": coordinates are stored as 32-bit floats and reach |" + names[a] +
+                             "| = " + format_number(p.max_abs_m[a]) + " m, where float32 resolves only about " +
+                             format_number(step_m * 1e3) + " mm (|" + names[a] + "|·2^-24), more than a tenth of the " +
+                             format_number(cell_m * 1e3) + " mm grid cell";
+    // Grid axis: the file axis contributes to grid x or y (not only to the depth).
+    const bool grid_axis = std::abs(view_rotation(2, a)) < 0.9;
+    if (grid_axis && p.distinct[a] < kCollapsedDistinct) {
+      throw DegenerateInputError(what + "; the points take only " + std::to_string(p.distinct[a]) +
+                                 " distinct " + names[a] + " values, so the grid collapses. Store the coordinates "
+                                 "as double (or subtract the georeferencing offset before saving as float)");
+    }
+    report.notes.push_back("warning: " + what + "; store them as double or subtract the offset before saving");
+    warnings.push_back(report.notes.back().substr(9));
+  }
+}
+
 /// Ingest, units and recentring, view transform and filters, each recorded as a stage.
 /// `inputs` gets the input files with their checksums, `offset_m` the recentring offset.
 Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& reports, const ProgressFn& progress,
-                            std::vector<SceneInput>& scene_inputs, Eigen::Vector3d& offset_m) {
+                            std::vector<SceneInput>& scene_inputs, Eigen::Vector3d& offset_m,
+                            StoredPrecision* precision = nullptr) {
   // 1. Ingest.
   Cloud cloud = stage("ingest", reports, progress, [&] {
     if (config.input.synthetic) return StageResult<Cloud>{generate_surface(*config.input.synthetic), {}};
@@ -144,6 +208,9 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
 
   // 2. Units and recentring (double precision), 3. view transform.
   const double unit_m = metres_per_unit(config.input.units);
+  if (precision != nullptr && !config.input.files.empty()) {
+    *precision = stored_precision(cloud, unit_m, config.input.files.front().string());
+  }
   cloud = stage("recentre", reports, progress,
                 [&] { return to_metres_and_recentre(std::move(cloud), unit_m, &offset_m, config.input.max_extent_m); });
   cloud = stage("transform", reports, progress, [&] { return apply_view_transform(std::move(cloud), config.view); });
@@ -226,7 +293,9 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   Scene& scene = built.scene;
   SceneProvenance& prov = scene.provenance;
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
-  Cloud cloud = prepare_points_staged(config, reports, progress, prov.inputs, offset_m);
+  StoredPrecision precision;
+  Cloud cloud = prepare_points_staged(config, reports, progress, prov.inputs, offset_m, &precision);
+  prov.crs = precision.crs;
 
   // 5. Reprojection and hole filling.
   // Organised scans (row/col) meshed per scan on their own grid (grid.organised: mesh).
@@ -249,6 +318,8 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
       throw DegenerateInputError(e.what() + far);
     }
   });
+  check_stored_precision(precision, grid.depth.geometry().cell_size_m, config.view.matrix().rotation(), reports.back(),
+                         summary.warnings);
   // Scan-line corrugation of the grid (before hole filling), for the report.
   (void)stage("corrugation", reports, progress, [&] { return corrugation(grid); });
   if (config.grid.hole_fill_max_cells > 0) {
@@ -273,7 +344,7 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   // 6. Surface layers (texture, curvature, friction).
   if (config.layers.enabled) {
     SurfaceLayers layers = stage("surface_layers", reports, progress,
-                                 [&] { return compute_surface_layers(grid.depth, config.layers.options); });
+                                 [&] { return compute_surface_layers(grid.depth, config.layers.options, config.lod.window_cells); });
     scene.friction_model = layers.friction_model;
     scene.layers.envelope = std::move(layers.envelope_m);
     scene.layers.texture = std::move(layers.texture_m);
@@ -341,6 +412,7 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
   json provenance = {{"tool", prov.tool}, {"inputs", inputs},
                      {"recentre_offset_m", {prov.recentre_offset_m.x(), prov.recentre_offset_m.y(), prov.recentre_offset_m.z()}},
                      {"units", prov.units}};
+  if (!prov.crs.empty()) provenance["crs"] = json_text(prov.crs);
   write_scene(scene, staging.path() / "scene");
 
   const fs::path previews = staging.path() / "previews";
@@ -430,6 +502,8 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
     j["stages"].push_back(js);
   }
   j["total_seconds"] = summary.total_seconds;
+  j["warnings"] = json::array();
+  for (const std::string& w : summary.warnings) j["warnings"].push_back(json_text(w));
   if (summary.cross_check) {
     const CrossCheck& c = *summary.cross_check;
     j["cross_check"] = {{"point_vertical", stats_json(c.point_vertical)},
@@ -463,6 +537,11 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
         jr["point_vertical"] = stats_json(*r.point_vertical);
         jr["supported_fraction"] = r.supported_fraction;
       }
+      if (r.mu_d) {
+        jr["mu_d"] = {{"valid", r.mu_d->valid}, {"at_min", r.mu_d->at_min}, {"at_max", r.mu_d->at_max},
+                      {"bins", r.mu_d->bins}, {"mu_min", config.layers.options.mu_min},
+                      {"mu_max", config.layers.options.mu_max}};
+      }
       j["levels"].push_back(jr);
     }
   }
@@ -472,9 +551,15 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
   std::ostringstream md;
   md << "# hapticloud run report: " << config.name << "\n\n";
   md << "Config: `" << config.source.string() << "`. Tool: hapticloud " << HC_VERSION << ".\n\n";
+  if (!summary.warnings.empty()) {
+    md << "## Warnings\n\n";
+    for (const std::string& w : summary.warnings) md << "- **warning:** " << w << "\n";
+    md << "\n";
+  }
   md << "## Input\n\n";
   if (config.input.synthetic) md << "- synthetic surface: " << to_string(config.input.synthetic->kind) << "\n";
   for (const SceneInput& in : prov.inputs) md << "- `" << in.file << "` (sha256 " << in.sha256.substr(0, 16) << "…)\n";
+  if (!prov.crs.empty()) md << "- CRS: `" << prov.crs << "`\n";
   md << "\n## Grid\n\n";
   md << "| rows | cols | cell size (mm) | valid cells | filled | see-through (removed) |\n|---|---|---|---|---|---|\n";
   md << "| " << g.rows << " | " << g.cols << " | " << fmt(g.cell_size_m * 1000.0, 4) << " | " << summary.valid_cells

@@ -78,6 +78,7 @@ void emit_layer_options(YAML::Emitter& y, const SurfaceLayerOptions& o) {
   y << YAML::Key << "mu_max" << YAML::Value << o.mu_max;
   y << YAML::Key << "workspace_radius_m" << YAML::Value << o.workspace_radius_m;
   y << YAML::Key << "curvature_gain_m" << YAML::Value << o.curvature_gain_m;
+  y << YAML::Key << "friction_scale" << YAML::Value << to_string(o.friction_scale);
   y << YAML::Key << "mu_s" << YAML::Value << o.mu_s;
   y << YAML::Key << "mu_s_regions" << YAML::Value << YAML::BeginSeq;
   for (const auto& r : o.mu_s_regions) {
@@ -112,6 +113,7 @@ void emit_provenance(YAML::Emitter& y, const SceneProvenance& p) {
   }
   y << YAML::EndSeq;
   if (!p.synthetic.empty()) y << YAML::Key << "synthetic" << YAML::Value << p.synthetic;
+  if (!p.crs.empty()) y << YAML::Key << "crs" << YAML::Value << p.crs;
   y << YAML::EndMap;
 }
 
@@ -130,6 +132,9 @@ SurfaceLayerOptions parse_layer_options(const YAML::Node& n) {
   read_opt(n, "mu_max", o.mu_max);
   read_opt(n, "workspace_radius_m", o.workspace_radius_m);
   read_opt(n, "curvature_gain_m", o.curvature_gain_m);
+  // Scenes written before per-level friction scaling had their μ_d in scene units.
+  o.friction_scale = FrictionScale::kScene;
+  if (const YAML::Node fs = n["friction_scale"]) o.friction_scale = friction_scale_from_string(fs.as<std::string>());
   read_opt(n, "mu_s", o.mu_s);
   for (const auto& r : n["mu_s_regions"]) {
     o.mu_s_regions.push_back({r[0].as<double>(), r[1].as<double>(), r[2].as<double>(), r[3].as<double>(),
@@ -157,6 +162,7 @@ SceneProvenance parse_provenance(const YAML::Node& n) {
   read_opt(n, "config_file", p.config_file);
   read_opt(n, "units", p.units);
   read_opt(n, "synthetic", p.synthetic);
+  read_opt(n, "crs", p.crs);
   if (const YAML::Node o = n["recentre_offset_m"]) {
     p.recentre_offset_m = {o[0].as<double>(), o[1].as<double>(), o[2].as<double>()};
   }
@@ -370,6 +376,7 @@ Scene load_scene(const fs::path& scene_dir) {
       s.notes.push_back(meta.string() +
                         ": format_version 1 records no typed layer_options or lod; defaults assumed for levels >= 1");
       if (s.friction_model) s.layer_options.friction_model = *s.friction_model;
+      s.layer_options.friction_scale = FrictionScale::kScene;  // how format 1 made its μ_d
     }
   } catch (const YAML::Exception& e) {
     throw InputError(meta.string() + ": malformed scene metadata: " + e.what());

@@ -268,6 +268,61 @@ std::string to_string(FrictionModel model) {
   return model == FrictionModel::kPaper ? "paper" : "curvature";
 }
 
+FrictionScale friction_scale_from_string(const std::string& name) {
+  if (name == "scene") return FrictionScale::kScene;
+  if (name == "device") return FrictionScale::kDevice;
+  if (name == "level_median") return FrictionScale::kLevelMedian;
+  throw ConfigError("layers.friction.scale = '" + name + "': expected one of scene, device, level_median");
+}
+
+std::string to_string(FrictionScale scale) {
+  switch (scale) {
+    case FrictionScale::kScene: return "scene";
+    case FrictionScale::kDevice: return "device";
+    case FrictionScale::kLevelMedian: break;
+  }
+  return "level_median";
+}
+
+double device_scale(double workspace_radius_m, int window_cells, double cell_size_m) {
+  if (window_cells < 2) {
+    throw ConfigError("friction: lod.window_cells = " + std::to_string(window_cells) +
+                      ": expected at least 2 samples to map a haptic window into the workspace");
+  }
+  if (!(workspace_radius_m > 0.0) || !std::isfinite(workspace_radius_m)) {
+    throw ConfigError("friction: layers.friction.workspace_radius_m = " + format_number(workspace_radius_m) +
+                      ": expected a radius > 0 m");
+  }
+  if (!(cell_size_m > 0.0) || !std::isfinite(cell_size_m)) {
+    throw ConfigError("friction: cell size " + format_number(cell_size_m) + " m: expected a cell size > 0 m");
+  }
+  return 2.0 * workspace_radius_m / (static_cast<double>(window_cells - 1) * cell_size_m);
+}
+
+FrictionHistogram friction_histogram(const HeightField& mu_d, double mu_min, double mu_max, int bins) {
+  if (bins < 1) throw ConfigError("friction histogram: " + std::to_string(bins) + " bins: expected at least 1");
+  if (!(mu_max >= mu_min)) {
+    throw ConfigError("friction histogram: mu_max = " + format_number(mu_max) + " < mu_min = " + format_number(mu_min));
+  }
+  FrictionHistogram h;
+  h.bins.assign(static_cast<std::size_t>(bins), 0);
+  const float lo = static_cast<float>(mu_min), hi = static_cast<float>(mu_max);
+  for (float v : mu_d.values()) {
+    if (std::isnan(v)) continue;
+    ++h.valid;
+    if (v <= lo) {
+      ++h.at_min;
+    } else if (v >= hi) {
+      ++h.at_max;
+    } else {
+      const double t = (static_cast<double>(v) - mu_min) / (mu_max - mu_min);
+      const auto k = static_cast<std::size_t>(std::clamp(static_cast<int>(std::ceil(t * bins)) - 1, 0, bins - 1));
+      ++h.bins[k];
+    }
+  }
+  return h;
+}
+
 Curvature compute_curvature(const HeightField& surface_m) {
   const GridGeometry& g = surface_m.geometry();
   const int rows = g.rows;
@@ -339,7 +394,7 @@ Curvature compute_curvature(const HeightField& surface_m) {
 }
 
 StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
-                                                  const SurfaceLayerOptions& options) {
+                                                  const SurfaceLayerOptions& options, int window_cells) {
   const auto t_start = Clock::now();
   validate(options);
   const GridGeometry& g = depth_m.geometry();
@@ -410,26 +465,59 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   L.gaussian_curvature_per_m2 = std::move(curv.gaussian_per_m2);
   const double curvature_seconds = seconds_since(t_curv);
 
-  // Friction maps.
+  // Friction maps. s = √(H² + K²) in the units of options.friction_scale (docs/friction.md).
   const auto t_fric = Clock::now();
   const double mu_min = options.mu_min;
   const double mu_max = options.mu_max;
   const double R = options.workspace_radius_m;
+  const FrictionScale fscale = options.friction_scale;
+  // σ: device metres per grid metre (1 for `scene`): H_dev = H/σ [1/m], K_dev = K/σ² [1/m²].
+  const double sigma = fscale == FrictionScale::kScene ? 1.0 : device_scale(R, window_cells, g.cell_size_m);
+  std::vector<double> s_values(n, 0.0);
+  std::vector<double> s_positive;
+  if (fscale == FrictionScale::kLevelMedian) s_positive.reserve(valid_cells);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (std::isnan(f[i])) continue;
+    const double H = L.mean_curvature_per_m.data()[i] / sigma;
+    const double K = L.gaussian_curvature_per_m2.data()[i] / (sigma * sigma);
+    // H [1/m] and K [1/m²] are added as numbers in SI (scene or device metres), as the paper prints it.
+    const double s = std::sqrt(H * H + K * K);
+    s_values[i] = s;
+    if (fscale == FrictionScale::kLevelMedian && s > 0.0 && std::isfinite(s)) s_positive.push_back(s);
+  }
+  // Reference for `level_median`: the median of s over the cells with s > 0, but never below
+  // the flatness floor 1/(R·μ_max) [device units]: the curvature that the paper's own formula
+  // maps to μ_max. A texture whose median is below it is flat to the hand (float rounding on a
+  // plane, say) and is not stretched over the whole friction range.
+  double s_ref = 0.0, s_median = 0.0;
+  const double s_floor = mu_max > 0.0 ? 1.0 / (R * mu_max) : 0.0;
+  if (!s_positive.empty()) {
+    const auto mid_s = s_positive.begin() + static_cast<std::ptrdiff_t>(s_positive.size() / 2);
+    std::nth_element(s_positive.begin(), mid_s, s_positive.end());
+    s_median = *mid_s;
+  }
+  if (fscale == FrictionScale::kLevelMedian) s_ref = std::max(s_median, s_floor);
   std::size_t at_min = 0, at_max = 0;
   std::vector<float> mu_values;
   mu_values.reserve(valid_cells);
   for (std::size_t i = 0; i < n; ++i) {
     if (std::isnan(f[i])) continue;
-    const double H = L.mean_curvature_per_m.data()[i];
-    const double K = L.gaussian_curvature_per_m2.data()[i];
-    // H [1/m] and K [1/m²] are added as SI numbers, as the paper prints it (docs/friction.md).
-    const double s = std::sqrt(H * H + K * K);
     double mu;
-    if (options.friction_model == FrictionModel::kPaper) {
+    if (fscale == FrictionScale::kLevelMedian) {
+      const double sh = s_ref > 0.0 ? s_values[i] / s_ref : 0.0;  // ŝ, dimensionless
+      if (options.friction_model == FrictionModel::kPaper) {
+        // μ = √(μ_min μ_max)/ŝ ≥ μ_max ⇔ ŝ·μ_max ≤ √(μ_min μ_max) (covers ŝ = 0 without dividing).
+        const double mu_mid = std::sqrt(mu_min * mu_max);
+        mu = (sh * mu_max <= mu_mid) ? mu_max : std::max(mu_min, mu_mid / sh);
+      } else {
+        mu = std::min(mu_max, mu_min + 0.5 * (mu_max - mu_min) * sh);
+      }
+    } else if (options.friction_model == FrictionModel::kPaper) {
       // 1/(R·s) ≥ μ_max ⇔ R·s·μ_max ≤ 1 (also covers s = 0 without dividing by zero).
+      const double s = s_values[i];
       mu = (R * s * mu_max <= 1.0) ? mu_max : std::max(mu_min, 1.0 / (R * s));
     } else {
-      mu = std::min(mu_max, mu_min + options.curvature_gain_m * s);
+      mu = std::min(mu_max, mu_min + options.curvature_gain_m * s_values[i]);
     }
     if (!std::isfinite(mu)) mu = options.friction_model == FrictionModel::kPaper ? mu_min : mu_max;
     at_min += mu <= mu_min ? 1U : 0U;
@@ -473,6 +561,28 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   rep.figure("mu_d_max", *std::max_element(mu_values.begin(), mu_values.end()));
   rep.figure("mu_d_at_min_fraction", static_cast<double>(at_min) / nv);
   rep.figure("mu_d_at_max_fraction", static_cast<double>(at_max) / nv);
+  rep.figure("friction_device_scale", sigma);
+  if (fscale == FrictionScale::kLevelMedian) {
+    rep.figure("friction_s_median", s_median);
+    rep.figure("friction_s_reference", s_ref);
+  }
+  {
+    const FrictionHistogram hist = friction_histogram(L.mu_d, mu_min, mu_max);
+    for (std::size_t k = 0; k < hist.bins.size(); ++k) {
+      rep.figure("mu_d_bin_" + std::to_string(k) + "_fraction", static_cast<double>(hist.bins[k]) / nv);
+    }
+  }
+  if (fscale == FrictionScale::kScene) {
+    rep.notes.push_back("friction.scale = scene: H [1/m] and K [1/m^2] in scene metres");
+  } else {
+    rep.notes.push_back("friction.scale = " + to_string(fscale) + ": H and K in device metres, sigma = 2R/((" +
+                        std::to_string(window_cells) + " - 1) * cell) = " + format_number(sigma) +
+                        " device m per scene m" +
+                        (fscale == FrictionScale::kLevelMedian
+                             ? "; s divided by max(its median over cells with s > 0, 1/(R*mu_max)) = " +
+                                   format_number(s_ref) + ", c unused, mid-range constants"
+                             : std::string()));
+  }
   if (options.friction_model == FrictionModel::kPaper) {
     rep.notes.push_back("friction.model = paper: mu_d = 1/(R*sqrt(H^2+K^2)) with R = " + format_number(R) +
                         " m, clamped to [" + format_number(mu_min) + ", " + format_number(mu_max) +

@@ -22,7 +22,7 @@ std::shared_ptr<ExploreScene> build_explore_scene(Scene scene, const pipeline::S
                                                   const pipeline::LodOptions& lod_options, bool recompute_layers) {
   auto b = std::make_shared<ExploreScene>();
   if (recompute_layers) {
-    pipeline::SurfaceLayers l = pipeline::compute_surface_layers(scene.depth(), layer_options).value;
+    pipeline::SurfaceLayers l = pipeline::compute_surface_layers(scene.depth(), layer_options, lod_options.window_cells).value;
     scene.layers.envelope = std::move(l.envelope_m);
     scene.layers.texture = std::move(l.texture_m);
     scene.layers.mu_d = std::move(l.mu_d);

@@ -53,8 +53,9 @@ TEST(ExploreScene, TheFrictionRebuildGivesThePipelinesLayersForTheNewOptions) {
   lod.min_cells = 20;
 
   const auto rebuilt = build_explore_scene(explore_base_layers(scene), after, lod, true);
-  // Oracle: the pipeline's own layers for the same depth and the new options.
-  const pipeline::SurfaceLayers want = pipeline::compute_surface_layers(scene.depth(), after).value;
+  // Oracle: the pipeline's own layers for the same depth, the new options and the same haptic
+  // window (μ_d's device scale depends on lod.window_cells, docs/friction.md).
+  const pipeline::SurfaceLayers want = pipeline::compute_surface_layers(scene.depth(), after, lod.window_cells).value;
   ASSERT_NE(want.mu_d.values(), scene.layers.mu_d.values()) << "the new model must change μ_d for the test to mean anything";
   EXPECT_EQ(rebuilt->base.layers.mu_d.values(), want.mu_d.values());
   EXPECT_EQ(rebuilt->base.layers.mu_s.values(), want.mu_s.values());

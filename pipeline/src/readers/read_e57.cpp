@@ -556,6 +556,10 @@ ScanOut read_scan(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, s
   const Pose pose = read_pose(xml, scan);
   const Eigen::Matrix3d rot = pose.q.toRotationMatrix();
   const bool identity = !pose.has_rotation && !pose.has_translation;
+  // Stored precision: single-precision floats in the file's own frame (a pose moves the points
+  // away from what was stored, so only an identity pose tells the loader the stored magnitudes).
+  out.cloud.float32_xyz = cart && identity && fields[at["cartesianX"]].single && fields[at["cartesianY"]].single &&
+                          fields[at["cartesianZ"]].single && fields[at["cartesianX"]].kind == Field::Kind::Float;
 
   std::vector<double> a, b, c, state;
   std::string coords;
@@ -826,6 +830,14 @@ ReadResult read_e57(const ScanSource& source) {
     const std::vector<std::string> dropped = result.cloud.append(one.cloud);
     for (const auto& d : dropped)
       notes.push_back("attribute '" + d + "' dropped: not every scan carries it (at scan " + std::to_string(s) + ")");
+  }
+  // ASTM E2807 §8.4: e57Root/coordinateMetadata, a String describing the CRS (e.g. WKT).
+  if (const pugi::xml_node cm = root.child("coordinateMetadata")) {
+    const std::string crs_text(trim(cm.child_value()));
+    if (!crs_text.empty()) {
+      result.cloud.crs = crs_text;
+      notes.push_back("CRS (coordinateMetadata): " + crs_text + " [carried into the scene's provenance]");
+    }
   }
   result.notes = std::move(notes);
   return result;

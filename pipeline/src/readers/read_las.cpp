@@ -419,13 +419,15 @@ ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, cons
     const std::string unit = wkt_last_unit(text);
     if (!unit.empty()) note += " [last UNIT in the WKT: " + unit + "; check input.units]";
     notes.push_back(note);
+    cloud.crs = text;
   } else if (keys) {
-    notes.push_back("CRS (GeoTIFF keys, VLR 34735): " + summarise_geokeys(*keys, key_doubles, key_ascii) +
-                    " [check input.units against the linear unit]");
+    const std::string summary = summarise_geokeys(*keys, key_doubles, key_ascii);
+    notes.push_back("CRS (GeoTIFF keys, VLR 34735): " + summary + " [check input.units against the linear unit]");
+    cloud.crs = "GeoTIFF keys: " + summary;
   } else {
     notes.push_back("no CRS record (no LASF_Projection VLR 2112 or 34735): set input.units from the data's source");
   }
-  notes.push_back("the CRS is carried in this report only; the scene provenance does not hold it yet");
+  if (!cloud.crs.empty()) notes.push_back("the CRS is carried into the scene's provenance (scene.yaml provenance.crs)");
   if (!others.empty()) notes.push_back("other VLRs ignored: " + others);
   return {std::move(cloud), std::move(notes)};
 }

@@ -360,8 +360,13 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name) {
 
 ReadResult read_pcd(const ScanSource& source) {
   const PcdLayout layout = validate_pcd(source.bytes, source.display_name);
-  if (layout.data == "binary") return {read_binary_body(source.bytes, layout), {"PCD (binary, read directly)"}};
-  return {read_with_pcl(source.bytes, source.path, source.inflated, source.display_name), {"PCD"}};
+  bool float32 = true;
+  for (const auto& a : layout.axis) float32 = float32 && a.type == 'F' && a.size == 4;
+  ReadResult r = layout.data == "binary"
+                     ? ReadResult{read_binary_body(source.bytes, layout), {"PCD (binary, read directly)"}}
+                     : ReadResult{read_with_pcl(source.bytes, source.path, source.inflated, source.display_name), {"PCD"}};
+  r.cloud.float32_xyz = float32;
+  return r;
 }
 
 }  // namespace hc::pipeline::detail

@@ -757,6 +757,14 @@ ReadResult read_ply(const ScanSource& source) {
     }
   }
   result.notes.push_back("PLY " + ply.format + ", " + std::to_string(vertex.count) + " vertices (" + how + ")");
+  {
+    const std::vector<int> axis_of = axes_of(vertex);
+    int float_axes = 0;
+    for (std::size_t j = 0; j < vertex.properties.size(); ++j) {
+      if (axis_of[j] >= 0 && vertex.properties[j].type == PlyType::kFloat32) ++float_axes;
+    }
+    result.cloud.float32_xyz = float_axes == 3;
+  }
   for (const auto& pr : vertex.properties) {
     if (pr.is_list) result.notes.push_back("skipped the vertex list property '" + pr.name + "'");
   }

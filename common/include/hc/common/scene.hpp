@@ -26,6 +26,20 @@ namespace hc {
 /// Both are clamped to [μ_min, μ_max]; see docs/friction.md.
 enum class FrictionModel { kPaper, kCurvature };
 
+/// In which units the resultant curvature s = √(H² + K²) enters the friction model
+/// (`layers.friction.scale`, docs/friction.md "Per level, in the units the hand feels"):
+/// - `scene`: H [1/m], K [1/m²] of the grid in scene metres (the paper's formula read in SI; the
+///   behaviour before per-level scaling);
+/// - `device`: H and K in device metres: the haptic window of `lod.window_cells` samples of the
+///   level (side (n − 1)·Δ_L) spans the workspace's inscribed sphere diameter 2R, so lengths scale
+///   by σ_L = 2R / ((n − 1)·Δ_L) and H_dev = H/σ_L, K_dev = K/σ_L²;
+/// - `level_median` (default): s in device units divided by its median over the level's cells
+///   with s > 0, ŝ = s/s̃_L (dimensionless; s̃_L is floored at 1/(R·μ_max), so a texture flat to
+///   the hand is not stretched over the range); the paper model becomes μ_d = √(μ_min·μ_max)/ŝ and
+///   the curvature model μ_d = μ_min + ½(μ_max − μ_min)·ŝ, so the level's median cell sits
+///   mid-range and fewer than half the cells can reach either clamp.
+enum class FrictionScale { kScene, kDevice, kLevelMedian };
+
 /// An axis-aligned box region (grid frame, metres) with its own μ_s.
 struct StaticFrictionRegion {
   double x_min_m = 0, y_min_m = 0, x_max_m = 0, y_max_m = 0;
@@ -44,6 +58,7 @@ struct SurfaceLayerOptions {
   double workspace_radius_m = 0.05; ///< R: radius of the largest sphere inscribed in the
                                     ///< haptic workspace [m] (paper model), > 0
   double curvature_gain_m = 0.01;   ///< c in the curvature model [m] (μ per 1/m), ≥ 0
+  FrictionScale friction_scale = FrictionScale::kLevelMedian;  ///< units of √(H²+K²), see above
   double mu_s = 0.2;                ///< default static friction μ_s [-], ≥ 0
   std::vector<StaticFrictionRegion> mu_s_regions;  ///< later regions override earlier ones
   bool operator==(const SurfaceLayerOptions&) const = default;
@@ -82,6 +97,8 @@ struct SceneProvenance {
   Eigen::Vector3d recentre_offset_m = Eigen::Vector3d::Zero();  ///< subtracted centre [m], file frame
   std::vector<SceneInput> inputs;       ///< scans (and the .conf), with checksums
   std::string synthetic;                ///< generated surface kind, or empty
+  std::string crs;                      ///< the scan's coordinate reference system as text (LAS WKT or
+                                        ///< GeoTIFF key summary, E57 coordinateMetadata), or empty
   std::string resolved_config_yaml;     ///< the resolved run config, for the record only
 };
 

@@ -50,6 +50,14 @@ struct Cloud {
   std::vector<std::int32_t> row, col;  ///< organised scans (E57 rowIndex/columnIndex, PTX):
                                        ///< the point's row and column in its scan's grid
   Mesh mesh;                           ///< faces on the points (meshes), or empty
+  /// True when the file stored x, y and z as 32-bit floats (PLY float/float32, PCD F 4, E57
+  /// Float precision="single" without a pose), so coordinates carry 24 significant bits:
+  /// a georeferenced magnitude |x| resolves only about |x|·2⁻²⁴ (build_scene warns, docs/config.md).
+  bool float32_xyz = false;
+  /// The file's coordinate reference system as text, or empty: LAS OGC WKT (VLR LASF_Projection
+  /// 2112) verbatim, or "GeoTIFF keys: ..." (VLRs 34735–34737) summarised; E57 the root's
+  /// coordinateMetadata string (ASTM E2807 §8.4). Carried into SceneProvenance::crs.
+  std::string crs;
 
   std::size_t size() const { return static_cast<std::size_t>(xyz.cols()); }
   bool has_scan_id() const { return !scan_id.empty(); }

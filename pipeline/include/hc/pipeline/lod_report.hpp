@@ -27,6 +27,9 @@ struct LevelRow {
   double build_seconds = 0.0;   ///< smoothing + decimation + layers of this level [s] (level 0: its layers, if computed here)
   std::optional<ErrorStats> point_vertical;  ///< cross-check (a): points vs the level's bilinear surface
   double supported_fraction = 0.0;           ///< cross-check (b): samples with a point within tolerance
+  /// μ_d of the level: clamp counts and 10 bins between μ_min and μ_max (the pyramid's layer
+  /// options); empty when the level has no friction layer.
+  std::optional<FrictionHistogram> mu_d;
   bool timed = false;           ///< the servo columns below were measured (hc::session::time_levels)
   double tick_p50_ns = 0.0, tick_p99_ns = 0.0;  ///< servo tick compute on a window of this level,
                                                  ///< median and 99th percentile [ns]

@@ -27,6 +27,9 @@ struct RunSummary {
   std::optional<CrossCheck> naive_cross_check;  ///< the naive front-most grid's, when compared
   GridGeometry grid;
   std::size_t valid_cells = 0;
+  /// Warnings for the report (e.g. float-stored georeferenced coordinates coarser than a tenth
+  /// of a cell); each also sits in its stage's notes.
+  std::vector<std::string> warnings;
   double total_seconds = 0.0;             ///< file to scene (build_scene) or to written report (run_pipeline)
   std::filesystem::path out_dir;
   std::filesystem::path moved_aside;      ///< where a foreign out_dir was kept (--force), or empty

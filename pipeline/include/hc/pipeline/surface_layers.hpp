@@ -17,12 +17,38 @@ namespace hc::pipeline {
 // FrictionModel, StaticFrictionRegion and SurfaceLayerOptions are part of the scene contract
 // (hc/common/scene.hpp); the pipeline uses them under its own namespace too.
 using hc::FrictionModel;
+using hc::FrictionScale;
 using hc::StaticFrictionRegion;
 using hc::SurfaceLayerOptions;
 
 /// @throws hc::ConfigError naming the value and the allowed set ("paper", "curvature").
 FrictionModel friction_model_from_string(const std::string& name);
 std::string to_string(FrictionModel model);
+/// @throws hc::ConfigError naming the value and the allowed set ("scene", "device", "level_median").
+FrictionScale friction_scale_from_string(const std::string& name);
+std::string to_string(FrictionScale scale);
+
+/// Device metres per grid metre σ_L of a level of cell size `cell_size_m` whose haptic window of
+/// `window_cells` samples spans the diameter 2R of the workspace's inscribed sphere:
+/// σ_L = 2R / ((window_cells − 1)·cell_size_m) [-]. The same scale as the LodController's map
+/// (session/src/lod_controller.cpp, level_scale) when the device box's smaller x/y half extent is
+/// R (the defaults: 0.05 m both). Source: paper Sec. 3.2 (R) and Sec. 4.1 (200 × 200 haptic space).
+/// @throws hc::ConfigError for window_cells < 2 or a non-positive R or cell size.
+double device_scale(double workspace_radius_m, int window_cells, double cell_size_m);
+
+/// Histogram of a μ_d layer over its valid cells: cells at the clamps (μ ≤ μ_min, μ ≥ μ_max as
+/// stored in float) and, for the others, `bins` equal bins of (μ_min, μ_max).
+struct FrictionHistogram {
+  std::size_t valid = 0;               ///< valid (non-NaN) cells
+  std::size_t at_min = 0, at_max = 0;  ///< cells at the lower / upper clamp
+  std::vector<std::size_t> bins;       ///< cells strictly between the clamps, bin k covers
+                                       ///< μ_min + (k, k+1]·(μ_max − μ_min)/bins
+  double at_min_fraction() const noexcept { return valid ? static_cast<double>(at_min) / static_cast<double>(valid) : 0.0; }
+  double at_max_fraction() const noexcept { return valid ? static_cast<double>(at_max) / static_cast<double>(valid) : 0.0; }
+};
+/// @param mu_d a μ_d layer (NaN = no data) @param bins ≥ 1. Real-time: no (allocates).
+/// @throws hc::ConfigError for bins < 1 or mu_max < mu_min.
+FrictionHistogram friction_histogram(const HeightField& mu_d, double mu_min, double mu_max, int bins = 10);
 
 /// All layers share the depth grid's geometry; NaN exactly where the depth grid has no data.
 struct SurfaceLayers {
@@ -58,11 +84,15 @@ Curvature compute_curvature(const HeightField& surface_m);
 /// input only), so a locally planar surface is filtered without bias up to holes and the border
 /// and a depth step is not blended; finite differences use valid cells only.
 /// The report carries counts, seconds per step and figures (texture_rms_mm, mu_d_min/median/max,
-/// ...); its notes state the friction model. Not real-time; OpenCV threads (default count).
+/// ...); its notes state the friction model and scale. Not real-time; OpenCV threads (default count).
+/// μ_d uses √(H² + K²) in the units of options.friction_scale (docs/friction.md): for `device`
+/// and `level_median` the grid is taken as one level of detail whose haptic window has
+/// `window_cells` samples (lod.window_cells), so σ = device_scale(R, window_cells, cell size).
 /// @throws hc::ConfigError on out-of-range options (names the option, its config key and range);
 ///         hc::InputError if the grid is empty, has no valid cell or holds ±inf.
 /// Source: paper Eq. (bilateral f_b, h = f − f_b, H, K, μ_d); Tomasi & Manduchi 1998.
 StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
-                                                  const SurfaceLayerOptions& options);
+                                                  const SurfaceLayerOptions& options,
+                                                  int window_cells = hc::LodOptions{}.window_cells);
 
 }  // namespace hc::pipeline
