@@ -458,11 +458,20 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
       const float z = grid.at(r, c);
       if (std::isnan(z)) continue;
       win.clear();
-      for (int rr = std::max(0, r - h); rr <= std::min(g.rows - 1, r + h); ++rr)
-        for (int cc = std::max(0, c - h); cc <= std::min(g.cols - 1, c + h); ++cc) {
+      bool edge = false;  // the window holds no data or crosses the grid's border
+      for (int rr = r - h; rr <= r + h; ++rr)
+        for (int cc = c - h; cc <= c + h; ++cc) {
+          if (rr < 0 || rr >= g.rows || cc < 0 || cc >= g.cols) {
+            edge = true;
+            continue;
+          }
           if (rr == r && cc == c) continue;
           const float v = grid.at(rr, cc);
-          if (!std::isnan(v)) win.push_back(v);
+          if (std::isnan(v)) {
+            edge = true;
+          } else {
+            win.push_back(v);
+          }
         }
       if (win.size() < 3) continue;
       ++out.tested;
@@ -477,6 +486,8 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
       const double scale = 1.4826 * static_cast<double>(*dmid);
       const double d = static_cast<double>(z) - median;
       if (std::abs(d) <= o.spike_min_height_m || std::abs(d) <= o.spike_mad_factor * scale) continue;
+      // At a silhouette the surface falls away from the viewer: a low cell there is expected.
+      if (d < 0 && edge) continue;
       // Neighbours closer than half the deviation continue the cell's own surface (a steep
       // slope along a silhouette); a spike's foot differs from it by about the whole deviation.
       const double step_m = std::max(o.spike_min_height_m, 0.5 * std::abs(d));

@@ -40,7 +40,9 @@ struct HonestCheckOptions {
   int isolation_min_neighbours = 3;
   /// Grid spike/pit test: window (2·h+1)² with h = spike_window_cells / 2 [cells, odd ≥ 3]; a
   /// cell is a spike (pit) when it lies more than spike_min_height_m AND spike_mad_factor ×
-  /// 1.4826·MAD above (below) the window's median (the cell itself excluded).
+  /// 1.4826·MAD above (below) the window's median (the cell itself excluded). Pits are only
+  /// sought where the window is full (no no-data cell, not at the grid's border): at a
+  /// silhouette the surface legitimately falls away from the viewer.
   /// A flagged cell (deviation d from its window's median) is a spike or pit only if it belongs
   /// to a group of at most spike_max_cells cells joined by 8-neighbour steps of at most
   /// max(spike_min_height_m, |d|/2) (a larger group is a surface: the thin visible strip of a
