@@ -241,7 +241,7 @@ void check_honest_options(const HonestCheckOptions& o) {
 }
 
 InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
-                       const HonestCheckOptions& o, double voxel_leaf_m) {
+                       const HonestCheckOptions& o, double voxel_leaf_m, GridSpikes* spikes) {
   const auto t0 = Clock::now();
   check_honest_options(o);
   const GridGeometry& g = grid.geometry();
@@ -438,6 +438,20 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
       ++out.spikes_kept;
       if (out.spikes_kept_cells.size() < 100) out.spikes_kept_cells.push_back({r, c});
     }
+    // 5. Spikes and pits of the grid that the scan confirms (a not isolated point within tol).
+    if (spikes) {
+      spikes->confirmed = 0;
+      for (const auto& rc : spikes->flagged) {
+        float q[3];
+        sample_local(rc[0], rc[1], q);
+        bool genuine = false;
+        hash.visit(q, reach_voxels, [&](std::uint32_t, const float* p, std::uint32_t j) {
+          if (!isolated[j] && dist_sq(p, q) <= tol2) genuine = true;
+          return !genuine;
+        });
+        spikes->confirmed += genuine;
+      }
+    }
   }
   out.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   return out;
@@ -500,6 +514,7 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
   });
   for (const auto& a : all) {
     if (out.marked.size() < 1000) out.marked.push_back({a.row, a.col});
+    out.flagged.push_back({a.row, a.col});
   }
   all.resize(std::min<std::size_t>(all.size(), 10));
   out.worst = all;
@@ -549,7 +564,7 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
     }
     return std::numeric_limits<double>::quiet_NaN();
   };
-  const std::size_t spike_cells = sp.spikes + sp.pits;
+  const std::size_t spike_cells = sp.spikes + sp.pits - std::min(sp.confirmed, sp.spikes + sp.pits);
   if (spike_cells > static_cast<std::size_t>(o.max_spike_cells)) {
     std::string worst;
     if (!sp.worst.empty()) {
@@ -558,8 +573,8 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
               (w.deviation_m > 0 ? "+" : "") + mm(w.deviation_m) + " from its neighbourhood";
     }
     add("grid_spikes", "fail",
-        "the grid has " + std::to_string(sp.spikes) + " spike and " + std::to_string(sp.pits) +
-            " pit cells (more than " + mm(o.spike_min_height_m) + " and " + format_number(o.spike_mad_factor) +
+        "the grid has " + std::to_string(sp.spikes) + " spike and " + std::to_string(sp.pits) + " pit cells, " +
+            std::to_string(spike_cells) + " of them not confirmed by a scan point that is not isolated (more than " + mm(o.spike_min_height_m) + " and " + format_number(o.spike_mad_factor) +
             " MAD from the median of their " + std::to_string(o.spike_window_cells) + " x " +
             std::to_string(o.spike_window_cells) + " window" + worst + "; limit cross_check.max_spike_cells = " +
             std::to_string(o.max_spike_cells) + ")");

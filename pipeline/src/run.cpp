@@ -339,8 +339,9 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
     };
     Honest honest = stage("honest_check", reports, progress, [&] {
       StageResult<Honest> r;
-      r.value.input = check_input(as_read, cloud, grid.depth, config.cross_check.honest, config.filters.voxel_m);
       r.value.spikes = find_grid_spikes(grid.depth, config.cross_check.honest);
+      r.value.input = check_input(as_read, cloud, grid.depth, config.cross_check.honest, config.filters.voxel_m,
+                                  &r.value.spikes);
       const InputCheck& in = r.value.input;
       const GridSpikes& sp = r.value.spikes;
       r.report.count_in = in.points;
@@ -361,6 +362,7 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
       r.report.figure("spikes_kept", static_cast<double>(in.spikes_kept));
       r.report.figure("grid_spikes", static_cast<double>(sp.spikes));
       r.report.figure("grid_pits", static_cast<double>(sp.pits));
+      r.report.figure("grid_spikes_pits_confirmed", static_cast<double>(sp.confirmed));
       r.report.figure("island_cells", static_cast<double>(sp.island_cells));
       r.report.figure("as_read_copy_mb", static_cast<double>(as_read.size() * sizeof(double)) / 1e6);
       if (!in.removal_exact) {
@@ -550,7 +552,7 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
     for (const GridAnomaly& a : sp.worst) {
       worst.push_back({{"row", a.row}, {"col", a.col}, {"height_m", a.height_m}, {"deviation_m", a.deviation_m}});
     }
-    j["grid_spikes"] = {{"spikes", sp.spikes}, {"pits", sp.pits}, {"tested", sp.tested}, {"islands", sp.islands},
+    j["grid_spikes"] = {{"spikes", sp.spikes}, {"pits", sp.pits}, {"confirmed", sp.confirmed}, {"tested", sp.tested}, {"islands", sp.islands},
                         {"island_cells", sp.island_cells}, {"worst", worst}};
   }
   if (scene.friction_model) j["friction_model"] = friction_name;

@@ -55,12 +55,12 @@ struct HonestCheckOptions {
   /// largest group, are islands [cells].
   int island_max_cells = 16;
   // Verdict limits (decide_verdict).
-  int max_spike_cells = 0;                  ///< spike + pit cells allowed before "fail"
+  int max_spike_cells = 0;                  ///< unconfirmed spike + pit cells allowed before "fail"
   int max_spikes_kept_cells = 0;            ///< cells supported only by isolated points ("fail")
-  int max_island_cells = 0;                 ///< island cells before "warn"
+  int max_island_cells = 2;                 ///< island cells before "warn"
   double max_removed_fraction = 0.10;       ///< of the input, removed by the filters ("warn")
   double max_surface_lost_fraction = 0.005; ///< of the input, surface lost ("warn")
-  double min_visible_on_surface_fraction = 0.9;  ///< on / (on + off + no-data) ("warn")
+  double min_visible_on_surface_fraction = 0.7;  ///< on / (on + off + no-data) ("warn")
   double min_supported_fraction = 0.95;     ///< cross_check's supported fraction ("warn")
   double max_filter_threshold_spacings = 20.0;  ///< outlier threshold / input spacing ("warn")
 };
@@ -117,6 +117,10 @@ struct GridSpikes {
   std::size_t island_cells = 0;       ///< cells in those groups
   std::vector<GridAnomaly> worst;     ///< the largest |deviation| first, at most 10
   std::vector<std::array<int, 2>> marked;  ///< (row, col) of spike, pit and island cells, at most 1000
+  std::vector<std::array<int, 2>> flagged; ///< (row, col) of every spike and pit cell
+  /// Spike and pit cells the scan confirms (check_input: a point within the tolerance that is
+  /// not isolated): relief such as deep folds, not an error. The verdict counts the others.
+  std::size_t confirmed = 0;
 };
 
 /// Grid vs the input as read. `as_read_m` (3 × N, grid frame, metres) is the cloud after units,
@@ -132,8 +136,10 @@ struct GridSpikes {
 /// @throws hc::ConfigError for options out of range (names the cross_check.* key);
 ///         hc::InputError if the grid has no valid cell.
 /// Real-time: no. Threads: 1. Cost: O(N) hashing plus O(N) early-stopped neighbour counts.
+/// With `spikes` (find_grid_spikes of the same grid), also counts its confirmed cells.
 InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
-                       const HonestCheckOptions& options, double voxel_leaf_m = 0.0);
+                       const HonestCheckOptions& options, double voxel_leaf_m = 0.0,
+                       GridSpikes* spikes = nullptr);
 
 /// Spike, pit and island test of a grid (metres, NaN = no data); see HonestCheckOptions.
 /// Robust fit: median of the window's valid cells (the cell excluded), scale 1.4826·MAD (the
