@@ -439,14 +439,19 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
       if (out.spikes_kept_cells.size() < 100) out.spikes_kept_cells.push_back({r, c});
     }
     // 5. Spikes and pits of the grid that the scan confirms (a not isolated point within tol).
+    // Within max(tolerance, spike_min_height_m): a genuine point that close means the cell does
+    // not stand more than the spike limit away from the scan.
     if (spikes) {
       spikes->confirmed = 0;
+      const double conf_m = std::max(tol, o.spike_min_height_m);
+      const auto conf2 = static_cast<float>(conf_m * conf_m);
+      const int conf_reach = static_cast<int>(std::ceil(conf_m / hash.edge()));
       for (const auto& rc : spikes->flagged) {
         float q[3];
         sample_local(rc[0], rc[1], q);
         bool genuine = false;
-        hash.visit(q, reach_voxels, [&](std::uint32_t, const float* p, std::uint32_t j) {
-          if (!isolated[j] && dist_sq(p, q) <= tol2) genuine = true;
+        hash.visit(q, conf_reach, [&](std::uint32_t, const float* p, std::uint32_t j) {
+          if (!isolated[j] && dist_sq(p, q) <= conf2) genuine = true;
           return !genuine;
         });
         spikes->confirmed += genuine;

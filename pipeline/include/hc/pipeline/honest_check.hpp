@@ -118,8 +118,9 @@ struct GridSpikes {
   std::vector<GridAnomaly> worst;     ///< the largest |deviation| first, at most 10
   std::vector<std::array<int, 2>> marked;  ///< (row, col) of spike, pit and island cells, at most 1000
   std::vector<std::array<int, 2>> flagged; ///< (row, col) of every spike and pit cell
-  /// Spike and pit cells the scan confirms (check_input: a point within the tolerance that is
-  /// not isolated): relief such as deep folds, not an error. The verdict counts the others.
+  /// Spike and pit cells the scan confirms (check_input: a point within max(tolerance,
+  /// spike_min_height_m) that is not isolated): relief such as deep folds, not an error. The
+  /// verdict counts the others.
   std::size_t confirmed = 0;
 };
 
