@@ -37,6 +37,17 @@ inline CLI::Validator finite_in(double lo, double hi, bool lo_open = false) {
 /// `hapticloud run CONFIG.yaml [--out DIR] [--set key=value ...]`: the offline pipeline.
 void add_run_command(CLI::App& app);
 
+/// Thrown by `run` after it wrote its output when the cross-check's verdict is "fail"; main()
+/// prints the message and exits kExitVerdictFail (4), so a wrong surface never looks like success.
+class VerdictFailed : public std::exception {
+ public:
+  explicit VerdictFailed(std::string message) : message_(std::move(message)) {}
+  const char* what() const noexcept override { return message_.c_str(); }
+
+ private:
+  std::string message_;
+};
+
 /// `hapticloud touch SCENE_OR_CONFIG ...`: a headless scripted haptic session (issue 3).
 void add_touch_command(CLI::App& app);
 

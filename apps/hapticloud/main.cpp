@@ -2,7 +2,8 @@
 ///
 /// Exit codes (README, "Using it"): 0 success; 1 an input or config error (hc::Error: the message
 /// names the file, key or value); 2 a usage error (unknown subcommand or option, missing or
-/// malformed argument: the usage line follows); 3 an internal error (a bug: please report it).
+/// malformed argument: the usage line follows); 3 an internal error (a bug: please report it);
+/// 4 `run` wrote its output but the cross-check's verdict is fail (report.md says why).
 /// `-v/--verbose` and `-q/--quiet` set the log level (spdlog, on stderr) for every subcommand.
 
 #include "commands.hpp"
@@ -21,6 +22,7 @@ namespace {
 constexpr int kExitInput = 1;
 constexpr int kExitUsage = 2;
 constexpr int kExitInternal = 3;
+constexpr int kExitVerdictFail = 4;
 
 /// Progress and diagnostics go to stderr through one logger: "hapticloud: message".
 void set_up_logging(int verbosity) {
@@ -82,6 +84,9 @@ int main(int argc, char** argv) {
     std::cerr << "usage: hapticloud " << (where == &app ? std::string("SUBCOMMAND ...") : where->get_name() + " ...")
               << " (see 'hapticloud " << (where == &app ? std::string() : where->get_name() + " ") << "--help')\n";
     return kExitUsage;
+  } catch (const hc::app::VerdictFailed& e) {
+    std::cerr << "hapticloud: verdict fail: " << e.what() << "\n";
+    return kExitVerdictFail;
   } catch (const hc::Error& e) {
     std::cerr << "hapticloud: error: " << e.what() << "\n";
     return kExitInput;

@@ -2,6 +2,7 @@
 
 #include "commands.hpp"
 
+#include "hc/common/format.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/session/interrupt_cleanup.hpp"
@@ -52,6 +53,26 @@ void run(const RunArgs& a) {
     std::cout << "cross-check: points vs surface RMS " << c.point_vertical.rms_mm << " mm, p95 "
               << c.point_vertical.p95_mm << " mm; grid vs points RMS " << c.cell_to_point.rms_mm
               << " mm; supported " << 100.0 * c.supported_fraction << " %\n";
+  }
+  if (summary.verdict) {
+    const auto& v = *summary.verdict;
+    std::cout << "verdict: " << v.status;
+    if (summary.input_check) {
+      const auto& in = *summary.input_check;
+      auto pct = [&in](std::size_t k) { return hc::format_number(100.0 * in.fraction(k), 2, hc::NumberStyle::kFixed) + " %"; };
+      std::cout << " (input: " << pct(in.on_surface) << " on the surface, " << pct(in.removed) << " removed, "
+                << pct(in.hidden) << " hidden, " << pct(in.no_data) << " on no data)";
+    }
+    std::cout << "\n";
+    std::string fail_reasons;
+    for (const auto& r : v.reasons) {
+      std::cout << "  " << r.level << " (" << r.code << "): " << r.message << "\n";
+      if (r.level == "fail") fail_reasons += (fail_reasons.empty() ? "" : "; ") + r.code;
+    }
+    if (v.status == "fail") {
+      throw VerdictFailed("the surface in " + out.string() + " failed the cross-check (" + fail_reasons +
+                          "); see " + (out / "report.md").string());
+    }
   }
 }
 

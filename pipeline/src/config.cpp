@@ -762,6 +762,35 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   c.cross_check.tolerance_m = r.get_double("cross_check.tolerance_m", 0.0005, 0.0, 1.0, true);
   c.cross_check.compare_naive = r.get_bool("cross_check.compare_naive", true);
   c.cross_check.hidden_band_m = r.get_double("cross_check.hidden_band_m", 0.002, 0.0, 10.0, true);
+  {  // the honest cross-check and the verdict (honest_check.hpp)
+    HonestCheckOptions& h = c.cross_check.honest;
+    h.tolerance_m = c.cross_check.tolerance_m;
+    h.hidden_band_m = c.cross_check.hidden_band_m;
+    h.isolation_radius_spacings =
+        r.get_double("cross_check.isolation_radius_spacings", h.isolation_radius_spacings, 1.0, 1000.0);
+    h.isolation_min_neighbours =
+        static_cast<int>(r.get_int("cross_check.isolation_min_neighbours", h.isolation_min_neighbours, 1, 1000));
+    h.spike_window_cells = static_cast<int>(r.get_int("cross_check.spike_window_cells", h.spike_window_cells, 3, 15));
+    if (h.spike_window_cells % 2 == 0) {
+      r.fail("cross_check.spike_window_cells", "= " + std::to_string(h.spike_window_cells) + ": expected an odd integer in [3, 15]");
+    }
+    h.spike_min_height_m = r.get_double("cross_check.spike_min_height_m", h.spike_min_height_m, 0.0, 1e6, true);
+    h.spike_mad_factor = r.get_double("cross_check.spike_mad_factor", h.spike_mad_factor, 0.0, 1e6, true);
+    h.spike_max_cells = static_cast<int>(r.get_int("cross_check.spike_max_cells", h.spike_max_cells, 1, 10000));
+    h.island_max_cells = static_cast<int>(r.get_int("cross_check.island_max_cells", h.island_max_cells, 1, 1 << 30));
+    h.max_spike_cells = static_cast<int>(r.get_int("cross_check.max_spike_cells", h.max_spike_cells, 0, 1 << 30));
+    h.max_spikes_kept_cells =
+        static_cast<int>(r.get_int("cross_check.max_spikes_kept_cells", h.max_spikes_kept_cells, 0, 1 << 30));
+    h.max_island_cells = static_cast<int>(r.get_int("cross_check.max_island_cells", h.max_island_cells, 0, 1 << 30));
+    h.max_removed_fraction = r.get_double("cross_check.max_removed_fraction", h.max_removed_fraction, 0.0, 1.0);
+    h.max_surface_lost_fraction =
+        r.get_double("cross_check.max_surface_lost_fraction", h.max_surface_lost_fraction, 0.0, 1.0);
+    h.min_visible_on_surface_fraction =
+        r.get_double("cross_check.min_visible_on_surface_fraction", h.min_visible_on_surface_fraction, 0.0, 1.0);
+    h.min_supported_fraction = r.get_double("cross_check.min_supported_fraction", h.min_supported_fraction, 0.0, 1.0);
+    h.max_filter_threshold_spacings =
+        r.get_double("cross_check.max_filter_threshold_spacings", h.max_filter_threshold_spacings, 0.0, 1e9, true);
+  }
 
   // surface layers
   auto& L = c.layers.options;

@@ -42,21 +42,46 @@ void save(const cv::Mat& img, const std::filesystem::path& png) {
 
 }  // namespace
 
-void write_colour_preview(const HeightField& layer, const std::filesystem::path& png,
-                          const std::string& title, const std::string& unit, double scale) {
+ColourBar colour_bar(const HeightField& layer, double scale) {
+  ColourBar bar;
   std::vector<float> finite;
   finite.reserve(layer.values().size());
   for (float v : layer.values())
     if (std::isfinite(v)) finite.push_back(v);
-  double lo = 0.0, hi = 1.0;
-  if (!finite.empty()) {
-    const auto k1 = finite.size() / 100, k99 = finite.size() - 1 - finite.size() / 100;
-    std::nth_element(finite.begin(), finite.begin() + static_cast<std::ptrdiff_t>(k1), finite.end());
-    lo = finite[k1];
-    std::nth_element(finite.begin(), finite.begin() + static_cast<std::ptrdiff_t>(k99), finite.end());
-    hi = finite[k99];
-    if (!(hi > lo)) hi = lo + 1e-12;
+  if (finite.empty()) {
+    bar.lo_label = format_number(bar.lo * scale, 3);
+    bar.hi_label = format_number(bar.hi * scale, 3);
+    return bar;
   }
+  const auto [mn, mx] = std::minmax_element(finite.begin(), finite.end());
+  bar.min = *mn;
+  bar.max = *mx;
+  const auto k1 = finite.size() / 100, k99 = finite.size() - 1 - finite.size() / 100;
+  std::nth_element(finite.begin(), finite.begin() + static_cast<std::ptrdiff_t>(k1), finite.end());
+  bar.lo = finite[k1];
+  std::nth_element(finite.begin(), finite.begin() + static_cast<std::ptrdiff_t>(k99), finite.end());
+  bar.hi = finite[k99];
+  if (!(bar.hi > bar.lo)) {
+    // A flat range: widen it by a relative step float can represent.
+    bar.hi = bar.lo + std::max(1e-12, 1e-6 * std::abs(bar.lo));
+  }
+  bar.clipped_low = bar.min < bar.lo;
+  bar.clipped_high = bar.max > bar.hi;
+  for (int digits = 3; digits <= 12; ++digits) {
+    bar.lo_label = format_number(bar.lo * scale, digits);
+    bar.hi_label = format_number(bar.hi * scale, digits);
+    if (bar.lo_label != bar.hi_label) break;
+  }
+  if (bar.clipped_low) bar.min_label = "min " + format_number(bar.min * scale, 3);
+  if (bar.clipped_high) bar.max_label = "max " + format_number(bar.max * scale, 3);
+  return bar;
+}
+
+void write_colour_preview(const HeightField& layer, const std::filesystem::path& png,
+                          const std::string& title, const std::string& unit, double scale,
+                          const std::vector<std::array<int, 2>>& marks) {
+  const ColourBar bar = colour_bar(layer, scale);
+  const double lo = bar.lo, hi = bar.hi;
   cv::Mat idx(layer.rows(), layer.cols(), CV_8UC1);
   cv::Mat nodata(layer.rows(), layer.cols(), CV_8UC1, cv::Scalar(0));
   for (int r = 0; r < layer.rows(); ++r) {
@@ -74,24 +99,49 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   cv::Mat colour;
   cv::applyColorMap(idx, colour, cv::COLORMAP_TURBO);
   colour.setTo(cv::Scalar(90, 90, 90), nodata);
-  const cv::Mat body = present(colour);
+  cv::Mat body = present(colour);
+  if (!marks.empty()) {
+    // present() flips rows and enlarges by an integer factor: map (row, col) the same way.
+    const double f = static_cast<double>(body.cols) / std::max(1, layer.cols());
+    const int radius = std::max(4, static_cast<int>(std::lround(3.0 * f)));
+    for (const auto& m : marks) {
+      const cv::Point centre(static_cast<int>((m[1] + 0.5) * f), static_cast<int>((layer.rows() - 1 - m[0] + 0.5) * f));
+      cv::circle(body, centre, radius, cv::Scalar(255, 0, 255), 1, cv::LINE_AA);
+    }
+  }
 
-  // Legend: a vertical colour bar with min/max labels, and a title strip.
-  const int bar_w = 24, margin = 90, title_h = 30;
-  cv::Mat canvas(body.rows + title_h, body.cols + margin, CV_8UC3, cv::Scalar(255, 255, 255));
+  // Legend: a vertical colour bar with range labels (clipped ends: a triangle and the true
+  // extreme), and a title strip.
+  const int bar_w = 24, margin = 110, title_h = 30, foot_h = 20;
+  cv::Mat canvas(body.rows + title_h + foot_h, body.cols + margin, CV_8UC3, cv::Scalar(255, 255, 255));
   body.copyTo(canvas(cv::Rect(0, title_h, body.cols, body.rows)));
-  cv::Mat ramp(body.rows, 1, CV_8UC1);
-  for (int r = 0; r < body.rows; ++r)
-    ramp.at<std::uint8_t>(r, 0) = static_cast<std::uint8_t>(255 - (255 * r) / std::max(1, body.rows - 1));
+  const int bar_top = title_h + 10, bar_h = std::max(2, body.rows - 20);
+  cv::Mat ramp(bar_h, 1, CV_8UC1);
+  for (int r = 0; r < bar_h; ++r)
+    ramp.at<std::uint8_t>(r, 0) = static_cast<std::uint8_t>(255 - (255 * r) / std::max(1, bar_h - 1));
   cv::Mat ramp_col;
   cv::applyColorMap(ramp, ramp_col, cv::COLORMAP_TURBO);
-  cv::resize(ramp_col, ramp_col, cv::Size(bar_w, body.rows), 0, 0, cv::INTER_NEAREST);
-  ramp_col.copyTo(canvas(cv::Rect(body.cols + 8, title_h, bar_w, body.rows)));
+  cv::resize(ramp_col, ramp_col, cv::Size(bar_w, bar_h), 0, 0, cv::INTER_NEAREST);
+  const int bar_x = body.cols + 8;
+  ramp_col.copyTo(canvas(cv::Rect(bar_x, bar_top, bar_w, bar_h)));
   const cv::Scalar black(0, 0, 0);
-  cv::putText(canvas, hc::format_number(hi * scale, 3), {body.cols + 8 + bar_w + 4, title_h + 12}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
-  cv::putText(canvas, hc::format_number(lo * scale, 3), {body.cols + 8 + bar_w + 4, title_h + body.rows - 4}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
-  cv::putText(canvas, unit, {body.cols + 8 + bar_w + 4, title_h + body.rows / 2}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black, 1);
+  auto triangle = [&](int tip_y, int base_y) {
+    const std::vector<cv::Point> pts{{bar_x + bar_w / 2, tip_y}, {bar_x, base_y}, {bar_x + bar_w, base_y}};
+    cv::fillConvexPoly(canvas, pts, black, cv::LINE_AA);
+  };
+  if (bar.clipped_high) triangle(bar_top - 9, bar_top - 1);
+  if (bar.clipped_low) triangle(bar_top + bar_h + 9, bar_top + bar_h + 1);
+  const int text_x = bar_x + bar_w + 4;
+  cv::putText(canvas, bar.hi_label, {text_x, bar_top + 8}, cv::FONT_HERSHEY_SIMPLEX, 0.35, black, 1);
+  cv::putText(canvas, bar.lo_label, {text_x, bar_top + bar_h}, cv::FONT_HERSHEY_SIMPLEX, 0.35, black, 1);
+  if (!bar.max_label.empty()) cv::putText(canvas, bar.max_label, {text_x, bar_top + 22}, cv::FONT_HERSHEY_SIMPLEX, 0.3, black, 1);
+  if (!bar.min_label.empty()) cv::putText(canvas, bar.min_label, {text_x, bar_top + bar_h - 14}, cv::FONT_HERSHEY_SIMPLEX, 0.3, black, 1);
+  cv::putText(canvas, unit, {text_x, bar_top + bar_h / 2}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black, 1);
   cv::putText(canvas, title + " (grey: no data; +y up)", {6, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1);
+  if (bar.clipped_low || bar.clipped_high) {
+    cv::putText(canvas, "colours span the 1st-99th percentile; triangles: values beyond it",
+                {6, title_h + body.rows + 14}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
+  }
   save(canvas, png);
 }
 

@@ -6,6 +6,7 @@
 #include "hc/audio/audio_config.hpp"
 #include "hc/falcon/falcon_config.hpp"
 #include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/robust_outliers.hpp"
@@ -66,6 +67,9 @@ struct CrossCheckConfig {
   bool compare_naive = true;     ///< also grid naively (front-most only) and cross-check that,
                                  ///< so the report shows what see-through handling, splats and
                                  ///< hole filling change
+  /// The honest cross-check's tests and the verdict's limits (cross_check.* keys; its
+  /// tolerance_m and hidden_band_m are copied from the two above).
+  HonestCheckOptions honest;
 };
 
 struct LayersConfig {

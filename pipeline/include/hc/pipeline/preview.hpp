@@ -5,6 +5,7 @@
 
 #include "hc/common/height_field.hpp"
 
+#include <array>
 #include <filesystem>
 #include <cstdint>
 #include <string>
@@ -12,12 +13,31 @@
 
 namespace hc::pipeline {
 
-/// Writes `layer` colour-mapped (turbo) between its 1st and 99th percentile, with a legend bar
-/// labelled in `unit` after multiplying values by `scale` (e.g. 1000 for metres → mm).
-/// Grids smaller than 400 px on their long side are enlarged (nearest neighbour).
+/// The colour bar of a layer: the robust range (1st and 99th percentiles of the finite values,
+/// nearest rank) and its labels, in the display unit (values × scale).
+struct ColourBar {
+  double lo = 0.0, hi = 1.0;          ///< colour range [layer unit]
+  double min = 0.0, max = 1.0;        ///< finite extremes [layer unit]
+  bool clipped_low = false, clipped_high = false;  ///< values beyond the range exist
+  std::string lo_label, hi_label;     ///< lo·scale and hi·scale (hc::format_number), with as many
+                                      ///< significant digits (3..12) as it takes for them to differ
+  std::string min_label, max_label;   ///< "min …" / "max …" when clipped, else empty
+};
+
+/// The colour bar of `layer` (NaN and infinities ignored; an all-NaN layer gives 0..1).
+/// Labels stay readable whatever the range: a +500 m offset with a 0.1 mm range reads
+/// "500000.00" and "500000.10", not "5e+05" twice. Thread-safe.
+ColourBar colour_bar(const HeightField& layer, double scale);
+
+/// Writes `layer` colour-mapped (turbo) between its 1st and 99th percentile (colour_bar), with a
+/// legend bar labelled in `unit` after multiplying values by `scale` (e.g. 1000 for metres → mm);
+/// clipped ends are marked by a triangle on the bar and labelled with the true min / max.
+/// `marks` (row, col) are circled in magenta (spikes, pits, islands). Grids smaller than 400 px
+/// on their long side are enlarged (nearest neighbour).
 /// @throws hc::InputError naming the file if it cannot be written.
 void write_colour_preview(const HeightField& layer, const std::filesystem::path& png,
-                          const std::string& title, const std::string& unit, double scale);
+                          const std::string& title, const std::string& unit, double scale,
+                          const std::vector<std::array<int, 2>>& marks = {});
 
 /// Writes a hillshade of a height field (light from the north-west, 45° altitude; Horn's
 /// gradient on the real cell size). Source: standard GIS hillshade (Horn 1981).

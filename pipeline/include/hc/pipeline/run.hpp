@@ -25,6 +25,11 @@ struct RunSummary {
   std::vector<StageReport> stages;
   std::optional<CrossCheck> cross_check;  ///< when enabled (cell_error_m holds the map)
   std::optional<CrossCheck> naive_cross_check;  ///< the naive front-most grid's, when compared
+  /// The honest cross-check (when the cross-check is enabled): the grid against the input as
+  /// read, the grid's spikes, pits and islands, and the verdict (honest_check.hpp).
+  std::optional<InputCheck> input_check;
+  std::optional<GridSpikes> grid_spikes;
+  std::optional<Verdict> verdict;
   GridGeometry grid;
   std::size_t valid_cells = 0;
   /// Warnings for the report (e.g. float-stored georeferenced coordinates coarser than a tenth

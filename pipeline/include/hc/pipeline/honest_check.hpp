@@ -1,0 +1,181 @@
+#pragma once
+/// @file honest_check.hpp
+/// The honest cross-check (issue "A surface you can trust", part 2): the grid against the
+/// input AS READ (before the filters), a spike and pit test on the grid itself, and the run's
+/// verdict (pass / warn / fail with reasons) from configured limits.
+///
+/// cross_check() (cross_check.hpp) compares the grid with the points that survived the filters;
+/// a filter that removed real surface, or kept an outlier that became a spike, passes it. The
+/// functions here close that gap:
+///  - check_input():  every point as read is put in exactly one class (removed by the filters,
+///    on the surface, off the surface, hidden behind it, on a no-data cell, outside the grid);
+///    "surface lost" = removed points that are genuine surface samples (not isolated) and are
+///    not represented by the grid; "spikes kept" = valid cells whose only support is isolated
+///    points; "far" = points far from the grid's box.
+///  - find_grid_spikes(): each valid cell against the median and MAD of its window; small
+///    disconnected groups of valid cells (islands).
+///  - decide_verdict(): the limits of cross_check.* (docs/config.md) applied to these figures
+///    and to the filter stages' reports.
+
+#include "hc/common/height_field.hpp"
+#include "hc/pipeline/cloud.hpp"
+
+#include <Eigen/Core>
+
+#include <array>
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+/// Limits of the honest cross-check and of the verdict (config keys cross_check.*, see
+/// docs/config.md; the defaults let the shipped bunny and Buddha configs pass).
+struct HonestCheckOptions {
+  double tolerance_m = 0.0005;     ///< a point within this of the surface is on it [m]
+  double hidden_band_m = 0.002;    ///< a point more than this below the surface is hidden [m]
+  /// Point test: a point is isolated when fewer than isolation_min_neighbours other input points
+  /// lie within isolation_radius_spacings × (median nearest-neighbour spacing of the input).
+  double isolation_radius_spacings = 10.0;
+  int isolation_min_neighbours = 3;
+  /// Grid spike/pit test: window (2·h+1)² with h = spike_window_cells / 2 [cells, odd ≥ 3]; a
+  /// cell is a spike (pit) when it lies more than spike_min_height_m AND spike_mad_factor ×
+  /// 1.4826·MAD above (below) the window's median (the cell itself excluded). Pits are only
+  /// sought where the window is full (no no-data cell, not at the grid's border): at a
+  /// silhouette the surface legitimately falls away from the viewer.
+  /// A flagged cell (deviation d from its window's median) is a spike or pit only if it belongs
+  /// to a group of at most spike_max_cells cells joined by 8-neighbour steps of at most
+  /// max(spike_min_height_m, |d|/2) (a larger group is a surface: the thin visible strip of a
+  /// far surface along an occlusion edge, a steep slope at a silhouette) [cells].
+  int spike_window_cells = 5;
+  double spike_min_height_m = 0.002;
+  double spike_mad_factor = 6.0;
+  int spike_max_cells = 25;
+  /// Connected groups of valid cells (8-neighbours) of at most this many cells, apart from the
+  /// largest group, are islands [cells].
+  int island_max_cells = 16;
+  // Verdict limits (decide_verdict).
+  int max_spike_cells = 0;                  ///< unconfirmed spike + pit cells allowed before "fail"
+  int max_spikes_kept_cells = 0;            ///< cells supported only by isolated points ("fail")
+  int max_island_cells = 2;                 ///< island cells before "warn"
+  double max_removed_fraction = 0.10;       ///< of the input, removed by the filters ("warn")
+  double max_surface_lost_fraction = 0.005; ///< of the input, surface lost ("warn")
+  double min_visible_on_surface_fraction = 0.7;  ///< on / (on + off + no-data) ("warn")
+  double min_supported_fraction = 0.95;     ///< cross_check's supported fraction ("warn")
+  double max_filter_threshold_spacings = 20.0;  ///< outlier threshold / input spacing ("warn")
+};
+
+/// The input as read against the grid. Counts are points; every point as read is in exactly
+/// one of removed, on_surface, off_surface, hidden, no_data, outside (they sum to `points`).
+struct InputCheck {
+  std::size_t points = 0;       ///< as read (after units, recentring and view transform)
+  std::size_t removed = 0;      ///< removed by the filters (non-finite, crop, voxel, outliers)
+  std::size_t on_surface = 0;   ///< kept, over a valid cell, |z − f(x, y)| ≤ tolerance
+  std::size_t off_surface = 0;  ///< kept, over a valid cell, farther, but not hidden
+  std::size_t hidden = 0;       ///< kept, more than hidden_band below the surface
+  std::size_t no_data = 0;      ///< kept, over a cell with a no-data corner
+  std::size_t outside = 0;      ///< kept, outside the grid's x-y extent
+  /// Points (removed or kept) farther from the box of the grid's valid samples than that box's
+  /// diagonal; far_max_distance_m is the farthest one's distance to the box [m].
+  std::size_t far = 0;
+  double far_max_distance_m = 0.0;
+  /// Whether removal was judged by exact coordinates (false when the voxel filter replaced
+  /// points by centroids: a point then counts as removed when no kept point lies within one
+  /// voxel diagonal).
+  bool removal_exact = true;
+  double spacing_m = 0.0;           ///< median nearest-neighbour distance of the input [m]
+  double isolation_radius_m = 0.0;  ///< radius of the point test [m]
+  std::size_t isolated = 0;         ///< points the point test flags
+  /// Removed points that are not isolated, not far, and lie over no-data cells or outside the
+  /// grid more than the tolerance (x-y) from its nearest valid sample: surface the grid lost.
+  std::size_t surface_lost = 0;
+  double surface_lost_max_gap_m = 0.0;  ///< largest x-y gap of a lost point to the grid [m]
+  /// Removed points, not isolated, not far, over valid cells and more than the tolerance in
+  /// front of the surface: either scanner artefacts at depth edges (mixed pixels, which the
+  /// filters should remove) or a thin front surface lost; reported, not judged.
+  std::size_t removed_in_front = 0;
+  /// Valid cells whose every input point within the tolerance is isolated.
+  std::size_t spikes_kept = 0;
+  std::vector<std::array<int, 2>> spikes_kept_cells;  ///< (row, col), at most 100
+  double seconds = 0.0;
+
+  double fraction(std::size_t n) const { return points ? static_cast<double>(n) / static_cast<double>(points) : 0.0; }
+};
+
+/// One flagged grid cell: where, and how far from its window's median [m] (+ spike, − pit).
+struct GridAnomaly {
+  int row = 0, col = 0;
+  float height_m = 0.0f;      ///< the cell's z [m]
+  float deviation_m = 0.0f;   ///< z − median of the window [m]
+};
+
+/// Result of find_grid_spikes.
+struct GridSpikes {
+  std::size_t spikes = 0, pits = 0;   ///< cells above / below their window
+  std::size_t tested = 0;             ///< valid cells with at least 3 valid window neighbours
+  std::size_t islands = 0;            ///< groups of at most island_max_cells cells
+  std::size_t island_cells = 0;       ///< cells in those groups
+  std::vector<GridAnomaly> worst;     ///< the largest |deviation| first, at most 10
+  std::vector<std::array<int, 2>> marked;  ///< (row, col) of spike, pit and island cells, at most 1000
+  std::vector<std::array<int, 2>> flagged; ///< (row, col) of every spike and pit cell
+  /// Spike and pit cells the scan confirms (check_input: a point within max(tolerance,
+  /// spike_min_height_m) that is not isolated): relief such as deep folds, not an error. The
+  /// verdict counts the others.
+  std::size_t confirmed = 0;
+};
+
+/// Grid vs the input as read. `as_read_m` (3 × N, grid frame, metres) is the cloud after units,
+/// recentring and view transform, before any filter; `kept_m` the points the grid was made from
+/// (the same frame); `grid` the final depth (metres, NaN = no data), `voxel_leaf_m` the voxel
+/// filter's leaf (0 = off; see InputCheck::removal_exact).
+/// Method: the point test counts, for every input point, the other points within the isolation
+/// radius (a hash of cubic voxels of that edge, exact distances, stopping at the minimum); the
+/// spacing is the median nearest-neighbour distance of up to 4096 evenly strided points.
+/// Removal is an exact match of coordinates (a hash multiset of the kept points). The gap of a
+/// lost point over no data or outside is its x-y distance to the nearest valid sample (OpenCV
+/// distance transform of the valid mask, plus the distance to the grid's box).
+/// @throws hc::ConfigError for options out of range (names the cross_check.* key);
+///         hc::InputError if the grid has no valid cell.
+/// Real-time: no. Threads: 1. Cost: O(N) hashing plus O(N) early-stopped neighbour counts.
+/// With `spikes` (find_grid_spikes of the same grid), also counts its confirmed cells.
+InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
+                       const HonestCheckOptions& options, double voxel_leaf_m = 0.0,
+                       GridSpikes* spikes = nullptr);
+
+/// Spike, pit and island test of a grid (metres, NaN = no data); see HonestCheckOptions.
+/// Robust fit: median of the window's valid cells (the cell excluded), scale 1.4826·MAD (the
+/// normal-consistent median absolute deviation; Rousseeuw & Croux 1993). Cells with fewer than
+/// 3 valid window neighbours are not tested (the island test covers them). Islands: OpenCV
+/// connected components (8-connectivity) of the valid mask.
+/// @throws hc::ConfigError for a window < 3 or even, or non-positive limits.
+/// Real-time: no. Threads: 1. Cost: O(cells · window²).
+GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& options);
+
+/// One reason of a verdict: a stable code, its level and a sentence with the figures.
+struct VerdictReason {
+  std::string code;     ///< e.g. "grid_spikes", "spikes_kept", "surface_lost", "far_points"
+  std::string level;    ///< "warn" or "fail"
+  std::string message;  ///< what was found against which limit (config key named)
+};
+
+/// pass (no reason), warn (only warn reasons), fail (at least one fail reason).
+struct Verdict {
+  std::string status = "pass";
+  std::vector<VerdictReason> reasons;
+  bool has(const std::string& code) const;
+};
+
+/// The run's verdict from the figures of the honest cross-check, cross_check's supported
+/// fraction (`supported_fraction`, NaN if the cross-check did not run) and the filter stages'
+/// reports (`stages`: by stage and figure name; absent figures are skipped: "outliers"
+/// threshold_mm, removed_far_clusters and far_clusters when a stage reports them).
+/// Reasons and their levels: grid_spikes (fail), spikes_kept (fail), islands (warn),
+/// removed_fraction (warn), surface_lost (warn), far_points (warn), visible_off_surface (warn),
+/// unsupported (warn), filter_threshold (warn). The limits are HonestCheckOptions'.
+Verdict decide_verdict(const InputCheck& input, const GridSpikes& spikes, double supported_fraction,
+                       const std::vector<StageReport>& stages, const HonestCheckOptions& options);
+
+/// Checks HonestCheckOptions' ranges. @throws hc::ConfigError naming the cross_check.* key.
+void check_honest_options(const HonestCheckOptions& options);
+
+}  // namespace hc::pipeline

@@ -1,0 +1,656 @@
+// The honest cross-check: the grid against the input as read, the grid's own spikes and pits,
+// and the verdict. See honest_check.hpp for what each figure means.
+//
+// Point test ("isolated"): a point with fewer than m other input points within the radius
+// rho = isolation_radius_spacings × spacing, where spacing is the median nearest-neighbour
+// distance of the input. It is local: a scan region sampled 30 times more sparsely than the
+// rest still has about pi·(rho/spacing)²/30 ≈ 10 neighbours within rho and is NOT isolated
+// (the k-NN statistics of the outlier filter call it an outlier); a stray point in front of
+// the surface or in the background has none. It cannot tell a surface sampled more than
+// about pi·factor²/m times more sparsely than the median from scattered noise.
+
+#include "hc/pipeline/honest_check.hpp"
+
+#include "hc/common/bilinear_surface.hpp"
+#include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
+
+#include <opencv2/imgproc.hpp>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <numeric>
+#include <unordered_map>
+
+namespace hc::pipeline {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+/// Points hashed into cubic voxels of one edge: sorted by voxel key; unique keys and the range
+/// of each. Coordinates are floats in a local frame (the caller's origin).
+class VoxelHash {
+ public:
+  VoxelHash(const std::vector<float>& xyz, const std::vector<std::uint8_t>& finite, double edge_m)
+      : edge_(edge_m), inv_(1.0 / edge_m) {
+    const std::size_t n = finite.size();
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> order;
+    order.reserve(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!finite[i]) continue;
+      order.emplace_back(key_of(&xyz[3 * i]), static_cast<std::uint32_t>(i));
+    }
+    std::sort(order.begin(), order.end());
+    index_.resize(order.size());
+    pts_.resize(3 * order.size());
+    for (std::size_t s = 0; s < order.size(); ++s) {
+      const std::uint32_t i = order[s].second;
+      index_[s] = i;
+      std::memcpy(&pts_[3 * s], &xyz[3 * i], 3 * sizeof(float));
+      if (s == 0 || order[s].first != order[s - 1].first) {
+        keys_.push_back(order[s].first);
+        start_.push_back(static_cast<std::uint32_t>(s));
+      }
+    }
+    start_.push_back(static_cast<std::uint32_t>(order.size()));
+  }
+
+  static constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+  static constexpr std::int64_t kLimit = (std::int64_t{1} << 20) - 1;
+
+  std::int64_t cell(float v) const {
+    const double c = std::floor(static_cast<double>(v) * inv_);
+    return static_cast<std::int64_t>(std::clamp(c, -static_cast<double>(kLimit), static_cast<double>(kLimit)));
+  }
+  static std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
+    auto u = [](std::int64_t v) {
+      return static_cast<std::uint64_t>(std::clamp(v, -kLimit, kLimit) + kLimit + 1);
+    };
+    return (u(x) << 42) | (u(y) << 21) | u(z);
+  }
+  std::uint64_t key_of(const float* p) const { return pack(cell(p[0]), cell(p[1]), cell(p[2])); }
+
+  /// Visits the hashed points (sorted slot s, its xyz, its original index) of the voxels within
+  /// `reach` voxels of q's voxel, q's own voxel first; f returns false to stop.
+  template <class F>
+  void visit(const float* q, int reach, F&& f) const {
+    const std::int64_t cx = cell(q[0]), cy = cell(q[1]), cz = cell(q[2]);
+    const bool at_limit = std::max({std::abs(cx), std::abs(cy), std::abs(cz)}) + reach > kLimit;
+    std::vector<std::uint64_t> seen;  // only at the clamp limit, where keys can repeat
+    auto run = [&](std::uint64_t k) {
+      if (at_limit) {
+        if (std::find(seen.begin(), seen.end(), k) != seen.end()) return true;
+        seen.push_back(k);
+      }
+      const auto it = std::lower_bound(keys_.begin(), keys_.end(), k);
+      if (it == keys_.end() || *it != k) return true;
+      const auto v = static_cast<std::size_t>(it - keys_.begin());
+      for (std::uint32_t s = start_[v]; s < start_[v + 1]; ++s) {
+        if (!f(s, &pts_[3 * static_cast<std::size_t>(s)], index_[s])) return false;
+      }
+      return true;
+    };
+    if (!run(pack(cx, cy, cz))) return;
+    for (int dz = -reach; dz <= reach; ++dz)
+      for (int dy = -reach; dy <= reach; ++dy)
+        for (int dx = -reach; dx <= reach; ++dx) {
+          if (dx == 0 && dy == 0 && dz == 0) continue;
+          if (!run(pack(cx + dx, cy + dy, cz + dz))) return;
+        }
+  }
+
+  double edge() const { return edge_; }
+  std::size_t size() const { return index_.size(); }
+
+ private:
+  double edge_, inv_;
+  std::vector<std::uint64_t> keys_;
+  std::vector<std::uint32_t> start_, index_;
+  std::vector<float> pts_;
+};
+
+float dist_sq(const float* a, const float* b) {
+  const float dx = a[0] - b[0], dy = a[1] - b[1], dz = a[2] - b[2];
+  return dx * dx + dy * dy + dz * dz;
+}
+
+/// Median nearest-neighbour distance [m] of up to 4096 evenly strided finite points.
+double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint8_t>& finite, double start_edge_m) {
+  std::vector<std::uint32_t> sample;
+  const std::size_t n = finite.size();
+  std::size_t n_finite = 0;
+  for (auto f : finite) n_finite += f;
+  const std::size_t stride = std::max<std::size_t>(1, n_finite / 4096);
+  for (std::size_t i = 0, seen = 0; i < n; ++i) {
+    if (!finite[i]) continue;
+    if (seen++ % stride == 0) sample.push_back(static_cast<std::uint32_t>(i));
+  }
+  double edge = start_edge_m;
+  for (int attempt = 0; attempt < 8; ++attempt, edge *= 4.0) {
+    const VoxelHash hash(xyz, finite, edge);
+    std::vector<double> nn;
+    nn.reserve(sample.size());
+    for (std::uint32_t i : sample) {
+      const float* q = &xyz[3 * static_cast<std::size_t>(i)];
+      float best = std::numeric_limits<float>::infinity();
+      hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
+        if (j != i) best = std::min(best, dist_sq(p, q));
+        return true;
+      });
+      nn.push_back(std::sqrt(static_cast<double>(best)));  // exact when ≤ edge
+    }
+    if (nn.empty()) return 0.0;
+    auto mid = nn.begin() + static_cast<std::ptrdiff_t>(nn.size() / 2);
+    std::nth_element(nn.begin(), mid, nn.end());
+    if (*mid <= edge) return *mid;
+  }
+  return edge;
+}
+
+struct Coord3Hash {
+  std::size_t operator()(const std::array<std::uint64_t, 3>& k) const {
+    std::uint64_t h = k[0] * 0x9E3779B97F4A7C15ULL;
+    h ^= k[1] + 0x9E3779B97F4A7C15ULL + (h << 6) + (h >> 2);
+    h ^= k[2] + 0x9E3779B97F4A7C15ULL + (h << 6) + (h >> 2);
+    return static_cast<std::size_t>(h ^ (h >> 31));
+  }
+};
+
+std::array<std::uint64_t, 3> bits_of(const double* p) {
+  std::array<std::uint64_t, 3> k{};
+  for (int a = 0; a < 3; ++a) {
+    const double v = p[a] == 0.0 ? 0.0 : p[a];  // -0 == +0
+    std::memcpy(&k[static_cast<std::size_t>(a)], &v, sizeof v);
+  }
+  return k;
+}
+
+struct FloodScratch {
+  std::vector<std::size_t> stack, visited;
+};
+
+/// Whether the valid cells reachable from (r, c) through 8-neighbours whose heights differ by
+/// at most step_m from one another number more than max_cells: the cell then continues a larger
+/// surface (e.g. the thin visible strip of a far surface along an occlusion edge), not a spike.
+/// Bounded: visits at most max_cells + 1 cells.
+bool part_of_large_surface(const HeightField& grid, int r0, int c0, double step_m, int max_cells, FloodScratch& s) {
+  const int rows = grid.rows(), cols = grid.cols();
+  const auto ucols = static_cast<std::size_t>(cols);
+  s.stack.assign(1, static_cast<std::size_t>(r0) * ucols + static_cast<std::size_t>(c0));
+  s.visited.assign(1, s.stack.front());
+  while (!s.stack.empty()) {
+    const std::size_t k = s.stack.back();
+    s.stack.pop_back();
+    const int r = static_cast<int>(k / ucols), c = static_cast<int>(k % ucols);
+    const double z = grid.at(r, c);
+    for (int dr = -1; dr <= 1; ++dr)
+      for (int dc = -1; dc <= 1; ++dc) {
+        const int rr = r + dr, cc = c + dc;
+        if ((dr == 0 && dc == 0) || rr < 0 || rr >= rows || cc < 0 || cc >= cols) continue;
+        const float v = grid.at(rr, cc);
+        if (std::isnan(v) || std::abs(static_cast<double>(v) - z) > step_m) continue;
+        const std::size_t kk = static_cast<std::size_t>(rr) * ucols + static_cast<std::size_t>(cc);
+        if (std::find(s.visited.begin(), s.visited.end(), kk) != s.visited.end()) continue;
+        s.visited.push_back(kk);
+        if (static_cast<int>(s.visited.size()) > max_cells) return true;
+        s.stack.push_back(kk);
+      }
+  }
+  return false;
+}
+
+[[noreturn]] void bad_option(const std::string& key, double value, const std::string& expected) {
+  throw ConfigError("cross_check." + key + " = " + format_number(value) + ": expected " + expected);
+}
+
+std::string pct(double fraction) { return format_number(100.0 * fraction, 2, NumberStyle::kFixed) + " %"; }
+std::string mm(double metres) { return format_number(metres * 1e3, 3) + " mm"; }
+
+}  // namespace
+
+void check_honest_options(const HonestCheckOptions& o) {
+  if (!(o.tolerance_m > 0.0) || !std::isfinite(o.tolerance_m)) bad_option("tolerance_m", o.tolerance_m, "a distance > 0 [m]");
+  if (!(o.hidden_band_m > 0.0) || !std::isfinite(o.hidden_band_m)) bad_option("hidden_band_m", o.hidden_band_m, "a distance > 0 [m]");
+  if (!(o.isolation_radius_spacings >= 1.0 && o.isolation_radius_spacings <= 1000.0))
+    bad_option("isolation_radius_spacings", o.isolation_radius_spacings, "a number in [1, 1000]");
+  if (o.isolation_min_neighbours < 1 || o.isolation_min_neighbours > 1000)
+    bad_option("isolation_min_neighbours", o.isolation_min_neighbours, "an integer in [1, 1000]");
+  if (o.spike_window_cells < 3 || o.spike_window_cells > 15 || o.spike_window_cells % 2 == 0)
+    bad_option("spike_window_cells", o.spike_window_cells, "an odd integer in [3, 15]");
+  if (!(o.spike_min_height_m > 0.0) || !std::isfinite(o.spike_min_height_m))
+    bad_option("spike_min_height_m", o.spike_min_height_m, "a height > 0 [m]");
+  if (!(o.spike_mad_factor > 0.0) || !std::isfinite(o.spike_mad_factor))
+    bad_option("spike_mad_factor", o.spike_mad_factor, "a number > 0");
+  if (o.spike_max_cells < 1 || o.spike_max_cells > 10000) bad_option("spike_max_cells", o.spike_max_cells, "an integer in [1, 10000]");
+  if (o.island_max_cells < 1) bad_option("island_max_cells", o.island_max_cells, "an integer ≥ 1");
+  if (o.max_spike_cells < 0) bad_option("max_spike_cells", o.max_spike_cells, "an integer ≥ 0");
+  if (o.max_spikes_kept_cells < 0) bad_option("max_spikes_kept_cells", o.max_spikes_kept_cells, "an integer ≥ 0");
+  if (o.max_island_cells < 0) bad_option("max_island_cells", o.max_island_cells, "an integer ≥ 0");
+  for (const auto& [key, v] : {std::pair{"max_removed_fraction", o.max_removed_fraction},
+                               std::pair{"max_surface_lost_fraction", o.max_surface_lost_fraction},
+                               std::pair{"min_visible_on_surface_fraction", o.min_visible_on_surface_fraction},
+                               std::pair{"min_supported_fraction", o.min_supported_fraction}}) {
+    if (!(v >= 0.0 && v <= 1.0)) bad_option(key, v, "a fraction in [0, 1]");
+  }
+  if (!(o.max_filter_threshold_spacings > 0.0) || !std::isfinite(o.max_filter_threshold_spacings))
+    bad_option("max_filter_threshold_spacings", o.max_filter_threshold_spacings, "a number > 0");
+}
+
+InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
+                       const HonestCheckOptions& o, double voxel_leaf_m, GridSpikes* spikes) {
+  const auto t0 = Clock::now();
+  check_honest_options(o);
+  const GridGeometry& g = grid.geometry();
+  InputCheck out;
+  out.points = static_cast<std::size_t>(as_read_m.cols());
+
+  // Box of the valid samples; local frame centred on it (float keeps 1e-7 of the distance).
+  int r_lo = g.rows, r_hi = -1, c_lo = g.cols, c_hi = -1;
+  float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) {
+      const float z = grid.at(r, c);
+      if (std::isnan(z)) continue;
+      r_lo = std::min(r_lo, r), r_hi = std::max(r_hi, r), c_lo = std::min(c_lo, c), c_hi = std::max(c_hi, c);
+      z_lo = std::min(z_lo, z), z_hi = std::max(z_hi, z);
+    }
+  if (r_hi < 0) throw InputError("check_input: the grid has no valid cell");
+  const Eigen::Vector3d box_lo(g.x_of_col(c_lo), g.y_of_row(r_lo), z_lo), box_hi(g.x_of_col(c_hi), g.y_of_row(r_hi), z_hi);
+  const double diag = std::max((box_hi - box_lo).norm(), g.cell_size_m);
+  const Eigen::Vector3d centre = 0.5 * (box_lo + box_hi);
+
+  const std::size_t n = out.points;
+  std::vector<float> local(3 * n);
+  std::vector<std::uint8_t> finite(n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
+    if (!p.allFinite()) continue;
+    finite[i] = 1;
+    for (int a = 0; a < 3; ++a) local[3 * i + static_cast<std::size_t>(a)] = static_cast<float>(p[a] - centre[a]);
+  }
+
+  // 1. Removed by the filters.
+  std::vector<std::uint8_t> removed(n, 1);
+  if (voxel_leaf_m <= 0.0) {
+    std::unordered_map<std::array<std::uint64_t, 3>, std::uint32_t, Coord3Hash> kept;
+    kept.reserve(kept_m.size());
+    for (Eigen::Index i = 0; i < kept_m.xyz.cols(); ++i) ++kept[bits_of(kept_m.xyz.col(i).data())];
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!finite[i]) continue;
+      const auto it = kept.find(bits_of(as_read_m.col(static_cast<Eigen::Index>(i)).data()));
+      if (it != kept.end() && it->second > 0) {
+        --it->second;
+        removed[i] = 0;
+      }
+    }
+  } else {
+    out.removal_exact = false;
+    const std::size_t m = kept_m.size();
+    std::vector<float> kept_local(3 * m);
+    std::vector<std::uint8_t> kept_finite(m, 0);
+    for (std::size_t i = 0; i < m; ++i) {
+      const Eigen::Vector3d p = kept_m.xyz.col(static_cast<Eigen::Index>(i));
+      if (!p.allFinite()) continue;
+      kept_finite[i] = 1;
+      for (int a = 0; a < 3; ++a) kept_local[3 * i + static_cast<std::size_t>(a)] = static_cast<float>(p[a] - centre[a]);
+    }
+    const double reach_m = voxel_leaf_m * std::sqrt(3.0);
+    const VoxelHash kept_hash(kept_local, kept_finite, reach_m);
+    const auto r2 = static_cast<float>(reach_m * reach_m);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!finite[i]) continue;
+      kept_hash.visit(&local[3 * i], 1, [&](std::uint32_t, const float* p, std::uint32_t) {
+        if (dist_sq(p, &local[3 * i]) > r2) return true;
+        removed[i] = 0;
+        return false;
+      });
+    }
+  }
+
+  // 2. The point test: isolated points.
+  out.spacing_m = median_spacing(local, finite, 2.0 * g.cell_size_m);
+  out.isolation_radius_m = std::max(o.isolation_radius_spacings * out.spacing_m, 1e-9);
+  const VoxelHash hash(local, finite, out.isolation_radius_m);
+  std::vector<std::uint8_t> isolated(n, 0);
+  {
+    const auto rho2 = static_cast<float>(out.isolation_radius_m * out.isolation_radius_m);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!finite[i]) continue;
+      int count = 0;
+      const float* q = &local[3 * i];
+      hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
+        if (j != i && dist_sq(p, q) <= rho2) ++count;
+        return count < o.isolation_min_neighbours;
+      });
+      isolated[i] = count < o.isolation_min_neighbours;
+      out.isolated += isolated[i];
+    }
+  }
+
+  // 3. Classes of every point, far points, surface lost.
+  cv::Mat gap_cells;  // x-y distance to the nearest valid sample [cells]
+  {
+    cv::Mat not_valid(g.rows, g.cols, CV_8UC1);
+    for (int r = 0; r < g.rows; ++r)
+      for (int c = 0; c < g.cols; ++c) not_valid.at<std::uint8_t>(r, c) = std::isnan(grid.at(r, c)) ? 255 : 0;
+    cv::distanceTransform(not_valid, gap_cells, cv::DIST_L2, cv::DIST_MASK_PRECISE);
+  }
+  const BilinearSurface surface(HeightFieldView::of(grid));
+  const double x_max = g.x_of_col(g.cols - 1), y_max = g.y_of_row(g.rows - 1);
+  auto xy_gap = [&](double x, double y) {
+    const double cx = std::clamp(x, g.x0_m, x_max), cy = std::clamp(y, g.y0_m, y_max);
+    const int c = std::clamp(static_cast<int>(std::lround((cx - g.x0_m) / g.cell_size_m)), 0, g.cols - 1);
+    const int r = std::clamp(static_cast<int>(std::lround((cy - g.y0_m) / g.cell_size_m)), 0, g.rows - 1);
+    return std::hypot(x - cx, y - cy) + static_cast<double>(gap_cells.at<float>(r, c)) * g.cell_size_m;
+  };
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!finite[i]) {
+      ++out.removed;  // the non-finite filter drops it
+      continue;
+    }
+    const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
+    const double to_box = (p - p.cwiseMax(box_lo).cwiseMin(box_hi)).norm();
+    const bool far = to_box > diag;
+    if (far) {
+      ++out.far;
+      out.far_max_distance_m = std::max(out.far_max_distance_m, to_box);
+    }
+    // Geometry against the grid.
+    double gap = 0.0;  // > tolerance: not represented
+    enum { kOn, kOff, kHidden, kNoData, kOutside } cls = kOn;
+    if (p.x() < g.x0_m || p.x() > x_max || p.y() < g.y0_m || p.y() > y_max) {
+      cls = kOutside;
+      gap = xy_gap(p.x(), p.y());
+    } else {
+      const SurfaceSample s = surface.sample(p.x(), p.y());
+      if (!s.valid) {
+        cls = kNoData;
+        gap = xy_gap(p.x(), p.y());
+      } else {
+        const double res = p.z() - s.z_m;
+        cls = res < -o.hidden_band_m ? kHidden : std::abs(res) <= o.tolerance_m ? kOn : kOff;
+        gap = std::abs(res);
+      }
+    }
+    if (removed[i]) {
+      ++out.removed;
+      if (!isolated[i] && !far && gap > o.tolerance_m) {
+        if (cls == kNoData || cls == kOutside) {
+          ++out.surface_lost;
+          out.surface_lost_max_gap_m = std::max(out.surface_lost_max_gap_m, gap);
+        } else if (cls == kOff) {
+          ++out.removed_in_front;
+        }
+      }
+      continue;
+    }
+    switch (cls) {
+      case kOn: ++out.on_surface; break;
+      case kOff: ++out.off_surface; break;
+      case kHidden: ++out.hidden; break;
+      case kNoData: ++out.no_data; break;
+      case kOutside: ++out.outside; break;
+    }
+  }
+
+  // 4. Spikes kept: valid cells supported (within tolerance) only by isolated points.
+  {
+    const double tol = o.tolerance_m;
+    const auto tol2 = static_cast<float>(tol * tol);
+    const int reach_cells = static_cast<int>(std::ceil(tol / g.cell_size_m));
+    const int reach_voxels = static_cast<int>(std::ceil(tol / hash.edge()));
+    std::vector<std::size_t> candidates;
+    auto sample_local = [&](int r, int c, float* q) {
+      q[0] = static_cast<float>(g.x_of_col(c) - centre.x());
+      q[1] = static_cast<float>(g.y_of_row(r) - centre.y());
+      q[2] = static_cast<float>(static_cast<double>(grid.at(r, c)) - centre.z());
+    };
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!isolated[i]) continue;
+      const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
+      const int c0 = static_cast<int>(std::lround((p.x() - g.x0_m) / g.cell_size_m));
+      const int r0 = static_cast<int>(std::lround((p.y() - g.y0_m) / g.cell_size_m));
+      for (int r = std::max(0, r0 - reach_cells); r <= std::min(g.rows - 1, r0 + reach_cells); ++r)
+        for (int c = std::max(0, c0 - reach_cells); c <= std::min(g.cols - 1, c0 + reach_cells); ++c) {
+          if (std::isnan(grid.at(r, c))) continue;
+          float q[3];
+          sample_local(r, c, q);
+          if (dist_sq(q, &local[3 * i]) <= tol2)
+            candidates.push_back(static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c));
+        }
+    }
+    std::sort(candidates.begin(), candidates.end());
+    candidates.erase(std::unique(candidates.begin(), candidates.end()), candidates.end());
+    for (std::size_t k : candidates) {
+      const int r = static_cast<int>(k / static_cast<std::size_t>(g.cols)), c = static_cast<int>(k % static_cast<std::size_t>(g.cols));
+      float q[3];
+      sample_local(r, c, q);
+      bool genuine = false;
+      hash.visit(q, reach_voxels, [&](std::uint32_t, const float* p, std::uint32_t j) {
+        if (!isolated[j] && dist_sq(p, q) <= tol2) genuine = true;
+        return !genuine;
+      });
+      if (genuine) continue;
+      ++out.spikes_kept;
+      if (out.spikes_kept_cells.size() < 100) out.spikes_kept_cells.push_back({r, c});
+    }
+    // 5. Spikes and pits of the grid that the scan confirms (a not isolated point within tol).
+    // Within max(tolerance, spike_min_height_m): a genuine point that close means the cell does
+    // not stand more than the spike limit away from the scan.
+    if (spikes) {
+      spikes->confirmed = 0;
+      const double conf_m = std::max(tol, o.spike_min_height_m);
+      const auto conf2 = static_cast<float>(conf_m * conf_m);
+      const int conf_reach = static_cast<int>(std::ceil(conf_m / hash.edge()));
+      for (const auto& rc : spikes->flagged) {
+        float q[3];
+        sample_local(rc[0], rc[1], q);
+        bool genuine = false;
+        hash.visit(q, conf_reach, [&](std::uint32_t, const float* p, std::uint32_t j) {
+          if (!isolated[j] && dist_sq(p, q) <= conf2) genuine = true;
+          return !genuine;
+        });
+        spikes->confirmed += genuine;
+      }
+    }
+  }
+  out.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return out;
+}
+
+GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o) {
+  check_honest_options(o);
+  const GridGeometry& g = grid.geometry();
+  const int h = o.spike_window_cells / 2;
+  GridSpikes out;
+  std::vector<GridAnomaly> all;
+  std::vector<float> win, dev;
+  FloodScratch flood;
+  win.reserve(static_cast<std::size_t>((2 * h + 1) * (2 * h + 1)));
+  dev.reserve(win.capacity());
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) {
+      const float z = grid.at(r, c);
+      if (std::isnan(z)) continue;
+      win.clear();
+      bool edge = false;  // the window holds no data or crosses the grid's border
+      for (int rr = r - h; rr <= r + h; ++rr)
+        for (int cc = c - h; cc <= c + h; ++cc) {
+          if (rr < 0 || rr >= g.rows || cc < 0 || cc >= g.cols) {
+            edge = true;
+            continue;
+          }
+          if (rr == r && cc == c) continue;
+          const float v = grid.at(rr, cc);
+          if (std::isnan(v)) {
+            edge = true;
+          } else {
+            win.push_back(v);
+          }
+        }
+      if (win.size() < 3) continue;
+      ++out.tested;
+      // Median (upper median for an even count) and MAD.
+      const auto mid = win.begin() + static_cast<std::ptrdiff_t>(win.size() / 2);
+      std::nth_element(win.begin(), mid, win.end());
+      const double median = *mid;
+      dev.clear();
+      for (float v : win) dev.push_back(std::abs(static_cast<float>(v - median)));
+      const auto dmid = dev.begin() + static_cast<std::ptrdiff_t>(dev.size() / 2);
+      std::nth_element(dev.begin(), dmid, dev.end());
+      const double scale = 1.4826 * static_cast<double>(*dmid);
+      const double d = static_cast<double>(z) - median;
+      if (std::abs(d) <= o.spike_min_height_m || std::abs(d) <= o.spike_mad_factor * scale) continue;
+      // At a silhouette the surface falls away from the viewer: a low cell there is expected.
+      if (d < 0 && edge) continue;
+      // Neighbours closer than half the deviation continue the cell's own surface (a steep
+      // slope along a silhouette); a spike's foot differs from it by about the whole deviation.
+      const double step_m = std::max(o.spike_min_height_m, 0.5 * std::abs(d));
+      if (part_of_large_surface(grid, r, c, step_m, o.spike_max_cells, flood)) continue;
+      (d > 0 ? out.spikes : out.pits) += 1;
+      all.push_back({r, c, z, static_cast<float>(d)});
+    }
+  std::sort(all.begin(), all.end(), [](const GridAnomaly& a, const GridAnomaly& b) {
+    return std::abs(a.deviation_m) > std::abs(b.deviation_m);
+  });
+  for (const auto& a : all) {
+    if (out.marked.size() < 1000) out.marked.push_back({a.row, a.col});
+    out.flagged.push_back({a.row, a.col});
+  }
+  all.resize(std::min<std::size_t>(all.size(), 10));
+  out.worst = all;
+
+  // Islands: small groups of valid cells away from the largest group.
+  cv::Mat valid(g.rows, g.cols, CV_8UC1);
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) valid.at<std::uint8_t>(r, c) = std::isnan(grid.at(r, c)) ? 0 : 255;
+  cv::Mat labels, stats, centroids;
+  const int n_labels = cv::connectedComponentsWithStats(valid, labels, stats, centroids, 8, CV_32S);
+  int largest = 0, largest_area = -1;
+  for (int l = 1; l < n_labels; ++l) {
+    const int area = stats.at<int>(l, cv::CC_STAT_AREA);
+    if (area > largest_area) largest_area = area, largest = l;
+  }
+  std::vector<std::uint8_t> is_island(static_cast<std::size_t>(std::max(n_labels, 1)), 0);
+  for (int l = 1; l < n_labels; ++l) {
+    const int area = stats.at<int>(l, cv::CC_STAT_AREA);
+    if (l == largest || area > o.island_max_cells) continue;
+    is_island[static_cast<std::size_t>(l)] = 1;
+    ++out.islands;
+    out.island_cells += static_cast<std::size_t>(area);
+  }
+  if (out.islands > 0) {
+    for (int r = 0; r < g.rows && out.marked.size() < 1000; ++r)
+      for (int c = 0; c < g.cols && out.marked.size() < 1000; ++c)
+        if (is_island[static_cast<std::size_t>(labels.at<int>(r, c))]) out.marked.push_back({r, c});
+  }
+  return out;
+}
+
+bool Verdict::has(const std::string& code) const {
+  return std::any_of(reasons.begin(), reasons.end(), [&](const VerdictReason& r) { return r.code == code; });
+}
+
+Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double supported_fraction,
+                       const std::vector<StageReport>& stages, const HonestCheckOptions& o) {
+  Verdict v;
+  auto add = [&v](const char* code, const char* level, std::string message) {
+    v.reasons.push_back({code, level, std::move(message)});
+  };
+  auto figure = [&stages](const std::string& stage, const std::string& name) {
+    for (const auto& s : stages) {
+      if (s.stage != stage) continue;
+      for (const auto& [k, val] : s.figures)
+        if (k == name) return val;
+    }
+    return std::numeric_limits<double>::quiet_NaN();
+  };
+  const std::size_t spike_cells = sp.spikes + sp.pits - std::min(sp.confirmed, sp.spikes + sp.pits);
+  if (spike_cells > static_cast<std::size_t>(o.max_spike_cells)) {
+    std::string worst;
+    if (!sp.worst.empty()) {
+      const GridAnomaly& w = sp.worst.front();
+      worst = "; worst at cell (row " + std::to_string(w.row) + ", col " + std::to_string(w.col) + "): " +
+              (w.deviation_m > 0 ? "+" : "") + mm(w.deviation_m) + " from its neighbourhood";
+    }
+    add("grid_spikes", "fail",
+        "the grid has " + std::to_string(sp.spikes) + " spike and " + std::to_string(sp.pits) + " pit cells, " +
+            std::to_string(spike_cells) + " of them not confirmed by a scan point that is not isolated (more than " + mm(o.spike_min_height_m) + " and " + format_number(o.spike_mad_factor) +
+            " MAD from the median of their " + std::to_string(o.spike_window_cells) + " x " +
+            std::to_string(o.spike_window_cells) + " window" + worst + "; limit cross_check.max_spike_cells = " +
+            std::to_string(o.max_spike_cells) + ")");
+  }
+  if (in.spikes_kept > static_cast<std::size_t>(o.max_spikes_kept_cells)) {
+    add("spikes_kept", "fail",
+        std::to_string(in.spikes_kept) + " grid cells are supported only by isolated input points (fewer than " +
+            std::to_string(o.isolation_min_neighbours) + " neighbours within " + mm(in.isolation_radius_m) +
+            "): outliers the filters kept (limit cross_check.max_spikes_kept_cells = " +
+            std::to_string(o.max_spikes_kept_cells) + ")");
+  }
+  if (sp.island_cells > static_cast<std::size_t>(o.max_island_cells)) {
+    add("islands", "warn",
+        std::to_string(sp.islands) + " islands (" + std::to_string(sp.island_cells) + " cells in groups of at most " +
+            std::to_string(o.island_max_cells) + " cells apart from the surface; limit cross_check.max_island_cells = " +
+            std::to_string(o.max_island_cells) + ")");
+  }
+  const double far_clusters_removed = figure("outliers", "removed_far_clusters");
+  if (in.far > 0 || (std::isfinite(far_clusters_removed) && far_clusters_removed > 0)) {
+    std::string msg = std::to_string(in.far) + " input points lie farther from the grid's box than its diagonal";
+    if (in.far > 0) msg += " (the farthest " + format_number(in.far_max_distance_m, 4) + " m away)";
+    if (std::isfinite(far_clusters_removed) && far_clusters_removed > 0) {
+      msg += "; the outlier stage removed " + format_number(far_clusters_removed) + " points in far clusters";
+      const double clusters = figure("outliers", "far_clusters");
+      if (std::isfinite(clusters)) msg += " (" + format_number(clusters) + " clusters)";
+    }
+    add("far_points", "warn", msg + ": far points in the scan (stray returns or another object); crop them "
+                                   "(filters.crop) if they are not part of the object");
+  }
+  if (in.fraction(in.removed) > o.max_removed_fraction) {
+    add("removed_fraction", "warn",
+        "the filters removed " + pct(in.fraction(in.removed)) + " of the input (" + std::to_string(in.removed) + " of " +
+            std::to_string(in.points) + " points; limit cross_check.max_removed_fraction = " +
+            pct(o.max_removed_fraction) + ")");
+  }
+  if (in.fraction(in.surface_lost) > o.max_surface_lost_fraction) {
+    add("surface_lost", "warn",
+        std::to_string(in.surface_lost) + " points (" + pct(in.fraction(in.surface_lost)) +
+            " of the input) removed by the filters are surface samples (not isolated) that the grid does not "
+            "represent, up to " + mm(in.surface_lost_max_gap_m) + " from it (limit cross_check.max_surface_lost_fraction = " +
+            pct(o.max_surface_lost_fraction) + ")");
+  }
+  const std::size_t visible = in.on_surface + in.off_surface + in.no_data;
+  if (visible > 0) {
+    const double f = static_cast<double>(in.on_surface) / static_cast<double>(visible);
+    if (f < o.min_visible_on_surface_fraction) {
+      add("visible_off_surface", "warn",
+          "only " + pct(f) + " of the kept, visible input points lie within " + mm(o.tolerance_m) +
+              " of the surface (limit cross_check.min_visible_on_surface_fraction = " +
+              pct(o.min_visible_on_surface_fraction) + ")");
+    }
+  }
+  if (std::isfinite(supported_fraction) && supported_fraction < o.min_supported_fraction) {
+    add("unsupported", "warn",
+        pct(supported_fraction) + " of the valid cells have a point within " + mm(o.tolerance_m) +
+            " (limit cross_check.min_supported_fraction = " + pct(o.min_supported_fraction) + ")");
+  }
+  const double threshold_mm = figure("outliers", "threshold_mm");
+  if (std::isfinite(threshold_mm) && in.spacing_m > 0.0 &&
+      threshold_mm * 1e-3 > o.max_filter_threshold_spacings * in.spacing_m) {
+    add("filter_threshold", "warn",
+        "the outlier filter's threshold (" + format_number(threshold_mm, 4) + " mm) is " +
+            format_number(threshold_mm * 1e-3 / in.spacing_m, 3) + " times the input's point spacing (" +
+            mm(in.spacing_m) + "): its statistics are inflated by outliers, so it removes too little (limit "
+            "cross_check.max_filter_threshold_spacings = " + format_number(o.max_filter_threshold_spacings) + ")");
+  }
+  for (const auto& r : v.reasons) {
+    if (r.level == "fail") v.status = "fail";
+    else if (v.status == "pass") v.status = "warn";
+  }
+  return v;
+}
+
+}  // namespace hc::pipeline

@@ -1,0 +1,382 @@
+// The honest cross-check (issue "A surface you can trust", part 2): the five altered copies of
+// the shared bunny scan that today's cross-check passed must each end in warn or fail with the
+// right reason; the clean bunny and the Buddha configs pass. Plus oracle tests of the pieces.
+
+#include "hc/pipeline/honest_check.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/preview.hpp"
+#include "hc/pipeline/run.hpp"
+
+#include "cloud_fixtures.hpp"
+#include "test_paths.hpp"
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <random>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+namespace {
+
+namespace fs = std::filesystem;
+using hc::test::cloud_of;
+
+// ---------------------------------------------------------------------------------------------
+// Variants of the shared bunny scan (configs/bunny.yaml reads bun000.ply).
+
+const Cloud& bunny() {
+  static const Cloud c = load_cloud(hc::test::scan_path("bunny/bun000.ply")).value;
+  return c;
+}
+
+/// A real point of the scan near the middle of its x-y extent (a visible surface point).
+Eigen::Vector3d middle_point(const Cloud& c) {
+  const Eigen::Vector3d centre = 0.5 * (c.xyz.rowwise().minCoeff() + c.xyz.rowwise().maxCoeff());
+  Eigen::Index best = 0;
+  double best_d = 1e300;
+  for (Eigen::Index i = 0; i < c.xyz.cols(); ++i) {
+    const double d = (c.xyz.col(i).head<2>() - centre.head<2>()).norm();
+    if (d < best_d) best_d = d, best = i;
+  }
+  return c.xyz.col(best);
+}
+
+Cloud with_points(const Cloud& base, const std::vector<Eigen::Vector3d>& extra) {
+  Cloud c;
+  c.xyz.resize(3, base.xyz.cols() + static_cast<Eigen::Index>(extra.size()));
+  c.xyz.leftCols(base.xyz.cols()) = base.xyz;
+  for (std::size_t i = 0; i < extra.size(); ++i) c.xyz.col(base.xyz.cols() + static_cast<Eigen::Index>(i)) = extra[i];
+  return c;
+}
+
+/// Writes the cloud as XYZ text (17 significant digits: exact) and builds the scene with
+/// configs/bunny.yaml, its input replaced by that file, plus `overrides`.
+BuiltScene build_bunny_variant(const Cloud& c, const std::string& name, std::vector<std::string> overrides = {}) {
+  const fs::path dir = hc::test::temp_dir(name);
+  const fs::path file = dir / (name + ".xyz");
+  std::FILE* f = std::fopen(file.c_str(), "w");
+  EXPECT_NE(f, nullptr);
+  for (Eigen::Index i = 0; f && i < c.xyz.cols(); ++i) {
+    std::fprintf(f, "%.17g %.17g %.17g\n", c.xyz(0, i), c.xyz(1, i), c.xyz(2, i));
+  }
+  if (f) std::fclose(f);
+  overrides.push_back("input.files=[" + file.string() + "]");
+  const RunConfig config = load_run_config(fs::path(HC_SOURCE_DIR) / "configs" / "bunny.yaml", overrides);
+  return build_scene(config);
+}
+
+std::string reasons_of(const Verdict& v) {
+  std::string s = v.status + ":";
+  for (const auto& r : v.reasons) s += "\n  " + r.level + " " + r.code + ": " + r.message;
+  return s;
+}
+
+std::string reasons_of(const BuiltScene& b) {
+  std::string s = reasons_of(*b.summary.verdict);
+  if (const auto& in = b.summary.input_check) {
+    s += "\n  input " + std::to_string(in->points) + ": removed " + std::to_string(in->removed) + ", on " +
+         std::to_string(in->on_surface) + ", off " + std::to_string(in->off_surface) + ", hidden " +
+         std::to_string(in->hidden) + ", no data " + std::to_string(in->no_data) + ", outside " +
+         std::to_string(in->outside) + ", isolated " + std::to_string(in->isolated) + ", lost " +
+         std::to_string(in->surface_lost) + ", in front " + std::to_string(in->removed_in_front) + ", kept spikes " +
+         std::to_string(in->spikes_kept);
+  }
+  return s;
+}
+
+void expect_partition(const InputCheck& in) {
+  EXPECT_EQ(in.removed + in.on_surface + in.off_surface + in.hidden + in.no_data + in.outside, in.points);
+}
+
+TEST(HonestCrossCheck, CleanBunnyPasses) {
+  const BuiltScene b = build_bunny_variant(bunny(), "clean");
+  ASSERT_TRUE(b.summary.verdict.has_value());
+  EXPECT_EQ(b.summary.verdict->status, "pass") << reasons_of(b);
+  ASSERT_TRUE(b.summary.input_check.has_value());
+  const InputCheck& in = *b.summary.input_check;
+  EXPECT_EQ(in.points, static_cast<std::size_t>(bunny().xyz.cols()));
+  expect_partition(in);
+  // The filter's removals, counted from the stage reports, are what the input check calls removed.
+  std::size_t removed_by_stages = 0;
+  for (const auto& s : b.summary.stages) {
+    if (s.stage == "non_finite" || s.stage == "crop" || s.stage == "outliers") removed_by_stages += s.count_in - s.count_out;
+  }
+  EXPECT_EQ(in.removed, removed_by_stages);
+  EXPECT_EQ(in.far, 0u);
+}
+
+TEST(HonestCrossCheck, OnePointOneKilometreAwayWarnsOfFarPoints) {
+  const Cloud c = with_points(bunny(), {middle_point(bunny()) + Eigen::Vector3d(1000.0, 0.0, 0.0)});
+  const BuiltScene b = build_bunny_variant(c, "far_point");
+  ASSERT_TRUE(b.summary.verdict.has_value());
+  const Verdict& v = *b.summary.verdict;
+  EXPECT_NE(v.status, "pass") << reasons_of(b);
+  EXPECT_TRUE(v.has("far_points")) << reasons_of(b);
+  // The one far point is 1000 m from the bunny: the farthest distance to the grid's box is
+  // 1000 m minus the half-extent of the box along x (under 0.1 m).
+  EXPECT_EQ(b.summary.input_check->far, 1u);
+  EXPECT_NEAR(b.summary.input_check->far_max_distance_m, 1000.0, 0.1);
+  expect_partition(*b.summary.input_check);
+}
+
+TEST(HonestCrossCheck, TwoPercentUniformOutliersAreNotAPass) {
+  const Cloud& base = bunny();
+  const Eigen::Vector3d lo = base.xyz.rowwise().minCoeff(), hi = base.xyz.rowwise().maxCoeff();
+  std::mt19937_64 rng(2024);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<Eigen::Vector3d> noise;
+  const auto n_noise = static_cast<std::size_t>(0.02 * static_cast<double>(base.xyz.cols()));
+  for (std::size_t i = 0; i < n_noise; ++i) {
+    noise.emplace_back(lo.x() + u(rng) * (hi.x() - lo.x()), lo.y() + u(rng) * (hi.y() - lo.y()),
+                       lo.z() + u(rng) * (hi.z() - lo.z()));
+  }
+  const BuiltScene b = build_bunny_variant(with_points(base, noise), "uniform_outliers");
+  const Verdict& v = *b.summary.verdict;
+  EXPECT_NE(v.status, "pass") << reasons_of(b);
+  // Outliers that reach the grid: spikes, cells kept only by isolated points or islands.
+  EXPECT_TRUE(v.has("grid_spikes") || v.has("spikes_kept") || v.has("islands")) << reasons_of(b);
+  expect_partition(*b.summary.input_check);
+}
+
+TEST(HonestCrossCheck, FilterOffAndOnePointOneKilometreAboveFails) {
+  // Today's report said: RMS 0.21 mm, 99.98 % supported, and no verdict: a pass.
+  const Eigen::Vector3d top = middle_point(bunny()) + Eigen::Vector3d(0.0, 0.0, 1000.0);
+  const BuiltScene b = build_bunny_variant(with_points(bunny(), {top}), "filter_off_spike",
+                                           {"filters.outliers.enabled=false"});
+  ASSERT_TRUE(b.summary.verdict.has_value());
+  const Verdict& v = *b.summary.verdict;
+  EXPECT_EQ(v.status, "fail") << reasons_of(b);
+  EXPECT_TRUE(v.has("grid_spikes")) << reasons_of(b);
+  EXPECT_TRUE(v.has("spikes_kept")) << reasons_of(b);
+  // The worst spike stands ~1000 m above its neighbourhood (the bunny is < 0.2 m deep).
+  ASSERT_FALSE(b.summary.grid_spikes->worst.empty());
+  EXPECT_NEAR(b.summary.grid_spikes->worst.front().deviation_m, 1000.0, 0.2);
+  EXPECT_GE(b.summary.input_check->spikes_kept, 1u);
+  // The depth colour bar reads two different, finite numbers (today: -5e+05 at both ends).
+  const ColourBar bar = colour_bar(b.scene.depth(), 1000.0);
+  EXPECT_NE(bar.lo_label, bar.hi_label);
+  EXPECT_TRUE(std::isfinite(std::stod(bar.lo_label)) && std::isfinite(std::stod(bar.hi_label)));
+  EXPECT_LT(std::stod(bar.lo_label), std::stod(bar.hi_label));
+  EXPECT_TRUE(bar.clipped_high);  // the spike is beyond the 99th percentile, and marked
+  EXPECT_FALSE(bar.max_label.empty());
+}
+
+TEST(HonestCrossCheck, ThirtyPointClusterOneKilometreAwayNamesFarPoints) {
+  std::vector<Eigen::Vector3d> cluster;
+  const Eigen::Vector3d at = middle_point(bunny()) + Eigen::Vector3d(1000.0, 0.0, 0.0);
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> u(-0.005, 0.005);
+  for (int i = 0; i < 30; ++i) cluster.push_back(at + Eigen::Vector3d(u(rng), u(rng), u(rng)));
+  // Either the run stops with an error that names the far points (today's filters keep the
+  // cluster and the grid degenerates), or it completes and the verdict names them.
+  try {
+    const BuiltScene b = build_bunny_variant(with_points(bunny(), cluster), "far_cluster");
+    const Verdict& v = *b.summary.verdict;
+    EXPECT_NE(v.status, "pass") << reasons_of(b);
+    EXPECT_TRUE(v.has("far_points")) << reasons_of(b);
+  } catch (const hc::Error& e) {
+    const std::string what = e.what();
+    EXPECT_TRUE(what.find("far") != std::string::npos || what.find("crop") != std::string::npos) << what;
+  }
+}
+
+TEST(HonestCrossCheck, SparseRightHalfIsNotAPass) {
+  // Right half (x above the median) at 3 % of the density of the left half.
+  const Cloud& base = bunny();
+  std::vector<double> xs;
+  for (Eigen::Index i = 0; i < base.xyz.cols(); ++i) xs.push_back(base.xyz(0, i));
+  std::nth_element(xs.begin(), xs.begin() + static_cast<std::ptrdiff_t>(xs.size() / 2), xs.end());
+  const double x_mid = xs[xs.size() / 2];
+  std::vector<Eigen::Vector3d> kept;
+  std::size_t right = 0;
+  for (Eigen::Index i = 0; i < base.xyz.cols(); ++i) {
+    if (base.xyz(0, i) <= x_mid || right++ % 33 == 0) kept.push_back(base.xyz.col(i));
+  }
+  const BuiltScene b = build_bunny_variant(cloud_of(kept), "density_step");
+  const Verdict& v = *b.summary.verdict;
+  EXPECT_NE(v.status, "pass") << reasons_of(b);
+  // The sparse half is either lost by the filters or reaches the grid without support.
+  EXPECT_TRUE(v.has("surface_lost") || v.has("unsupported") || v.has("islands")) << reasons_of(b);
+  expect_partition(*b.summary.input_check);
+}
+
+TEST(HonestCrossCheck, BuddhaConfigPasses) {
+  hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  const RunConfig config = load_run_config(fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml");
+  const BuiltScene b = build_scene(config);
+  ASSERT_TRUE(b.summary.verdict.has_value());
+  EXPECT_EQ(b.summary.verdict->status, "pass") << reasons_of(b);
+  expect_partition(*b.summary.input_check);
+}
+
+// ---------------------------------------------------------------------------------------------
+// The pieces against hand-made oracles.
+
+TEST(GridSpikes, FindsExactlyThePlantedSpikeAndPitOnATiltedPlane) {
+  GridGeometry g{40, 50, 0.0, 0.0, 0.001};
+  HeightField h(g);
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) h.at(r, c) = static_cast<float>(0.3 * g.x_of_col(c) + 0.1 * g.y_of_row(r));
+  const float plane_10_10 = h.at(10, 10), plane_30_40 = h.at(30, 40);
+  h.at(10, 10) += 0.010f;  // a 10 mm spike
+  h.at(30, 40) -= 0.005f;  // a 5 mm pit
+  HonestCheckOptions o;  // 2 mm and 6 MAD: the plane's window spread is < 2 mm
+  const GridSpikes s = find_grid_spikes(h, o);
+  EXPECT_EQ(s.spikes, 1u);
+  EXPECT_EQ(s.pits, 1u);
+  EXPECT_EQ(s.islands, 0u);
+  ASSERT_EQ(s.worst.size(), 2u);
+  EXPECT_EQ(s.worst[0].row, 10);
+  EXPECT_EQ(s.worst[0].col, 10);
+  // The window median of a plane is the plane at the centre (symmetric window): +10 mm.
+  EXPECT_NEAR(s.worst[0].deviation_m, h.at(10, 10) - plane_10_10, 2e-4);
+  EXPECT_EQ(s.worst[1].row, 30);
+  EXPECT_EQ(s.worst[1].col, 40);
+  EXPECT_NEAR(s.worst[1].deviation_m, h.at(30, 40) - plane_30_40, 2e-4);
+}
+
+TEST(GridSpikes, IslandsAreSmallGroupsApartFromTheSurface) {
+  GridGeometry g{30, 30, 0.0, 0.0, 0.001};
+  HeightField h(g);
+  for (int r = 0; r < 20; ++r)
+    for (int c = 0; c < 20; ++c) h.at(r, c) = 0.0f;
+  h.at(25, 25) = 0.0f;  // one lone cell
+  h.at(27, 5) = h.at(27, 6) = h.at(28, 5) = 0.0f;  // a group of 3
+  HonestCheckOptions o;
+  o.island_max_cells = 3;
+  GridSpikes s = find_grid_spikes(h, o);
+  EXPECT_EQ(s.islands, 2u);
+  EXPECT_EQ(s.island_cells, 4u);
+  o.island_max_cells = 2;  // the group of 3 is no longer an island
+  s = find_grid_spikes(h, o);
+  EXPECT_EQ(s.islands, 1u);
+  EXPECT_EQ(s.island_cells, 1u);
+}
+
+TEST(InputCheck, ClassesOnAFlatGridMatchTheirConstruction) {
+  // A flat grid (z = 0, nodes every 1 mm over 20 x 20 mm) with a no-data corner (nodes 15..20
+  // in both axes), points at the cell centres ((c + ½), (r + ½)) mm, and known extras.
+  GridGeometry g{21, 21, 0.0, 0.0, 0.001};
+  HeightField h(g, 0.0f);
+  for (int r = 15; r < 21; ++r)
+    for (int c = 15; c < 21; ++c) h.at(r, c) = kNoData;
+  std::vector<Eigen::Vector3d> all;
+  for (int r = 0; r < 20; ++r)
+    for (int c = 0; c < 20; ++c) all.emplace_back(0.001 * (c + 0.5), 0.001 * (r + 0.5), 0.0);
+  const std::size_t lattice = all.size();
+  all.emplace_back(0.0055, 0.0055, -0.003);  // hidden: 3 mm behind (kept)
+  all.emplace_back(0.0065, 0.0035, 0.0015);  // off the surface: 1.5 mm in front (kept)
+  all.emplace_back(0.0055, 0.0055, 0.02);    // isolated, 20 mm in front: removed
+  all.emplace_back(0.021, 0.0105, 0.0);      // outside the grid, 1 mm beyond x = 20 mm (kept)
+  // The filter also "removed" two lattice points over no data: surface lost.
+  const std::size_t lost_a = 19 * 20 + 19, lost_b = 19 * 20 + 18;
+  std::vector<Eigen::Vector3d> kept_pts;
+  for (std::size_t i = 0; i < lattice; ++i)
+    if (i != lost_a && i != lost_b) kept_pts.push_back(all[i]);
+  kept_pts.push_back(all[lattice]);
+  kept_pts.push_back(all[lattice + 1]);
+  kept_pts.push_back(all[lattice + 3]);
+  const Cloud as_read = cloud_of(all), kept = cloud_of(kept_pts);
+  HonestCheckOptions o;
+  o.tolerance_m = 0.0005;
+  o.hidden_band_m = 0.002;
+  const InputCheck in = check_input(as_read.xyz, kept, h, o);
+  EXPECT_EQ(in.points, all.size());
+  EXPECT_EQ(in.removed, 3u);
+  EXPECT_EQ(in.hidden, 1u);
+  EXPECT_EQ(in.off_surface, 1u);
+  EXPECT_EQ(in.outside, 1u);
+  // No data: the bilinear cell of a centre point (c + ½, r + ½) has corners c, c + 1 and r, r + 1,
+  // so it touches the corner when c ≥ 14 and r ≥ 14: 6 x 6 points, minus the two removed ones.
+  EXPECT_EQ(in.no_data, 6u * 6u - 2u);
+  EXPECT_EQ(in.on_surface, lattice - 36u);
+  expect_partition(in);
+  EXPECT_NEAR(in.spacing_m, 0.001, 1e-6);
+  EXPECT_EQ(in.isolated, 1u);
+  EXPECT_EQ(in.surface_lost, 2u);
+  // The lost point (19.5, 19.5) mm is binned to node (20, 20); the nearest valid nodes are
+  // (14, 20) and (20, 14): 6 mm.
+  EXPECT_NEAR(in.surface_lost_max_gap_m, 0.006, 1e-5);
+  EXPECT_EQ(in.far, 0u);
+  EXPECT_EQ(in.spikes_kept, 0u);
+}
+
+TEST(InputCheck, ACellKeptOnlyByAnIsolatedPointIsASpikeKept) {
+  GridGeometry g{21, 21, 0.0, 0.0, 0.001};
+  HeightField h(g, 0.0f);
+  std::vector<Eigen::Vector3d> pts;
+  for (int r = 0; r < 21; ++r)
+    for (int c = 0; c < 21; ++c) pts.emplace_back(0.001 * c, 0.001 * r, 0.0);
+  pts.emplace_back(0.010, 0.010, 0.040);  // 40 mm above the node (10, 10)
+  h.at(10, 10) = 0.040f;                  // which the grid kept
+  const Cloud c = cloud_of(pts);
+  HonestCheckOptions o;
+  const InputCheck in = check_input(c.xyz, c, h, o);
+  EXPECT_EQ(in.isolated, 1u);
+  EXPECT_EQ(in.spikes_kept, 1u);
+  ASSERT_EQ(in.spikes_kept_cells.size(), 1u);
+  EXPECT_EQ(in.spikes_kept_cells[0][0], 10);
+  EXPECT_EQ(in.spikes_kept_cells[0][1], 10);
+}
+
+TEST(Verdict, LevelsFollowTheLimitsAndTheStageFigures) {
+  InputCheck in;
+  in.points = 1000;
+  in.on_surface = 1000;
+  in.spacing_m = 0.0005;
+  GridSpikes sp;
+  HonestCheckOptions o;
+  EXPECT_EQ(decide_verdict(in, sp, 1.0, {}, o).status, "pass");
+  // A far-cluster figure from the outlier stage alone makes a warning.
+  StageReport outliers;
+  outliers.stage = "outliers";
+  outliers.figure("removed_far_clusters", 30);
+  outliers.figure("threshold_mm", 9993.0);  // 20 000 spacings
+  Verdict v = decide_verdict(in, sp, 1.0, {outliers}, o);
+  EXPECT_EQ(v.status, "warn");
+  EXPECT_TRUE(v.has("far_points"));
+  EXPECT_TRUE(v.has("filter_threshold"));
+  sp.spikes = 1;
+  v = decide_verdict(in, sp, 1.0, {}, o);
+  EXPECT_EQ(v.status, "fail");
+  EXPECT_TRUE(v.has("grid_spikes"));
+  o.max_spike_cells = 1;
+  EXPECT_EQ(decide_verdict(in, sp, 1.0, {}, o).status, "pass");
+  EXPECT_EQ(decide_verdict(in, sp, 0.5, {}, o).status, "warn");  // unsupported
+}
+
+TEST(ColourBar, LabelsDifferAndMarkClippedEnds) {
+  GridGeometry g{10, 10, 0.0, 0.0, 0.001};
+  HeightField h(g);
+  for (int i = 0; i < 100; ++i) h.values()[static_cast<std::size_t>(i)] = static_cast<float>(-500.0 + 1e-4 * i);
+  h.values()[0] = 500.0f;  // one spike far above
+  const ColourBar bar = colour_bar(h, 1000.0);
+  EXPECT_NE(bar.lo_label, bar.hi_label);
+  EXPECT_LT(std::stod(bar.lo_label), std::stod(bar.hi_label));
+  EXPECT_TRUE(bar.clipped_high);
+  EXPECT_EQ(bar.max_label, "max 5e+05");
+}
+
+TEST(HonestCheckConfig, KeysAreReadAndCheckedByName) {
+  const fs::path origin = fs::path(HC_SOURCE_DIR) / "configs" / "x.yaml";
+  const RunConfig c = parse_run_config(
+      "input: {files: [a.ply]}\ncross_check: {spike_window_cells: 7, max_removed_fraction: 0.2, tolerance_m: 0.001}\n", origin);
+  EXPECT_EQ(c.cross_check.honest.spike_window_cells, 7);
+  EXPECT_DOUBLE_EQ(c.cross_check.honest.max_removed_fraction, 0.2);
+  EXPECT_DOUBLE_EQ(c.cross_check.honest.tolerance_m, 0.001);
+  try {
+    parse_run_config("input: {files: [a.ply]}\ncross_check: {spike_window_cells: 4}\n", origin);
+    ADD_FAILURE() << "an even window was accepted";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("cross_check.spike_window_cells"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace hc::pipeline
