@@ -570,7 +570,9 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
     return std::numeric_limits<double>::quiet_NaN();
   };
   const std::size_t spike_cells = sp.spikes + sp.pits - std::min(sp.confirmed, sp.spikes + sp.pits);
-  if (spike_cells > static_cast<std::size_t>(o.max_spike_cells)) {
+  const auto spike_limit = std::max(static_cast<std::size_t>(o.max_spike_cells),
+                                    static_cast<std::size_t>(o.max_spike_fraction * static_cast<double>(sp.tested)));
+  if (spike_cells > spike_limit) {
     std::string worst;
     if (!sp.worst.empty()) {
       const GridAnomaly& w = sp.worst.front();
@@ -581,8 +583,9 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
         "the grid has " + std::to_string(sp.spikes) + " spike and " + std::to_string(sp.pits) + " pit cells, " +
             std::to_string(spike_cells) + " of them not confirmed by a scan point that is not isolated (more than " + mm(o.spike_min_height_m) + " and " + format_number(o.spike_mad_factor) +
             " MAD from the median of their " + std::to_string(o.spike_window_cells) + " x " +
-            std::to_string(o.spike_window_cells) + " window" + worst + "; limit cross_check.max_spike_cells = " +
-            std::to_string(o.max_spike_cells) + ")");
+            std::to_string(o.spike_window_cells) + " window" + worst + "; limit " + std::to_string(spike_limit) + " cells: cross_check.max_spike_cells = " +
+            std::to_string(o.max_spike_cells) + " or cross_check.max_spike_fraction = " +
+            format_number(o.max_spike_fraction) + " of " + std::to_string(sp.tested) + " tested cells)");
   }
   if (in.spikes_kept > static_cast<std::size_t>(o.max_spikes_kept_cells)) {
     add("spikes_kept", "fail",

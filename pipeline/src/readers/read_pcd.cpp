@@ -169,6 +169,11 @@ struct PcdLayout {
   std::size_t pos = 0;          ///< first byte after the header
   std::size_t n = 0;            ///< points
   std::size_t point_bytes = 0;  ///< record size of a binary point
+  /// The header as validated here, written anew in PCL's canonical form (one keyword a line,
+  /// no comments): what PCL parses for ascii and binary_compressed bodies, so that its header
+  /// parser never sees a line this check read differently (a fuzzed header with repeated
+  /// FIELDS lines and stray bytes crashed pcl::PCDReader::read).
+  std::string canonical_header;
   struct Axis {
     std::size_t offset = 0;     ///< byte offset in the record
     char type = 'F';            ///< F, I or U
@@ -350,6 +355,15 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name) {
   } else {
     throw fail("unknown PCD DATA type '" + data + "' (expected ascii, binary or binary_compressed)");
   }
+  const auto join = [](const std::vector<std::string>& v) {
+    std::string out;
+    for (const std::string& t : v) out += " " + t;
+    return out;
+  };
+  layout.canonical_header = "VERSION 0.7\nFIELDS" + join(fields) + "\nSIZE" + join(sizes) + "\nTYPE" + join(types) +
+                            "\nCOUNT" + join(counts) + "\nWIDTH " + std::to_string(width) + "\nHEIGHT " +
+                            std::to_string(height) + "\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " + std::to_string(n) +
+                            "\nDATA " + data + "\n";
   layout.data = data;
   layout.pos = pos;
   layout.n = n;
@@ -364,7 +378,9 @@ ReadResult read_pcd(const ScanSource& source) {
   for (const auto& a : layout.axis) float32 = float32 && a.type == 'F' && a.size == 4;
   ReadResult r = layout.data == "binary"
                      ? ReadResult{read_binary_body(source.bytes, layout), {"PCD (binary, read directly)"}}
-                     : ReadResult{read_with_pcl(source.bytes, source.path, source.inflated, source.display_name), {"PCD"}};
+                     : ReadResult{read_with_pcl(layout.canonical_header + source.bytes.substr(layout.pos), source.path,
+                                                /*from_memory=*/true, source.display_name),
+                                  {"PCD"}};
   r.cloud.float32_xyz = float32;
   return r;
 }
