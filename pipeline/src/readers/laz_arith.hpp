@@ -102,22 +102,29 @@ class SymbolModel {
       }
     }
     const std::uint32_t unit = 0x80000000u / total_;
+    // Locals, not members, in the loops: the stores into the uint32 arrays could alias the
+    // uint32 members, which would make the compiler reload them on every iteration.
+    const std::uint32_t n = n_, shift = table_shift_, size = table_size_;
+    const std::uint32_t* counts = counts_.data();
+    std::uint32_t* cdf = cdf_.data();
     std::uint32_t running = 0;
-    if (table_size_ == 0) {
-      for (std::uint32_t s = 0; s < n_; ++s) {
-        cdf_[s] = (unit * running) >> (31 - kShift);
-        running += counts_[s];
+    if (size == 0) {
+      for (std::uint32_t s = 0; s < n; ++s) {
+        cdf[s] = (unit * running) >> (31 - kShift);
+        running += counts[s];
       }
     } else {
+      std::uint32_t* table = table_.data();
       std::uint32_t slot = 0;
-      for (std::uint32_t s = 0; s < n_; ++s) {
-        cdf_[s] = (unit * running) >> (31 - kShift);
-        running += counts_[s];
-        const std::uint32_t w = cdf_[s] >> table_shift_;
-        while (slot < w) table_[++slot] = s - 1;
+      for (std::uint32_t s = 0; s < n; ++s) {
+        const std::uint32_t c = (unit * running) >> (31 - kShift);
+        cdf[s] = c;
+        running += counts[s];
+        const std::uint32_t w = c >> shift;
+        while (slot < w) table[++slot] = s - 1;
       }
-      table_[0] = 0;
-      while (slot <= table_size_) table_[++slot] = n_ - 1;
+      table[0] = 0;
+      while (slot <= size) table[++slot] = n - 1;
     }
     period_ = (5 * period_) >> 2;
     const std::uint32_t longest = (n_ + 6) << 3;
