@@ -41,7 +41,9 @@ class BitModel {
 
  private:
   friend class ArithDecoder;
-  void refresh() {
+  // Out of line: runs once per update period, and keeping it out of the symbol path keeps
+  // that path small enough to inline into the item decoders.
+  [[gnu::noinline]] void refresh() {
     count_total_ += period_;
     if (count_total_ > kMaxCount) {
       count_total_ = (count_total_ + 1) >> 1;
@@ -90,7 +92,7 @@ class SymbolModel {
 
  private:
   friend class ArithDecoder;
-  void refresh() {
+  [[gnu::noinline]] void refresh() {  // out of line, as BitModel::refresh
     total_ += period_;
     if (total_ > kMaxCount) {
       total_ = 0;
@@ -100,22 +102,29 @@ class SymbolModel {
       }
     }
     const std::uint32_t unit = 0x80000000u / total_;
+    // Locals, not members, in the loops: the stores into the uint32 arrays could alias the
+    // uint32 members, which would make the compiler reload them on every iteration.
+    const std::uint32_t n = n_, shift = table_shift_, size = table_size_;
+    const std::uint32_t* counts = counts_.data();
+    std::uint32_t* cdf = cdf_.data();
     std::uint32_t running = 0;
-    if (table_size_ == 0) {
-      for (std::uint32_t s = 0; s < n_; ++s) {
-        cdf_[s] = (unit * running) >> (31 - kShift);
-        running += counts_[s];
+    if (size == 0) {
+      for (std::uint32_t s = 0; s < n; ++s) {
+        cdf[s] = (unit * running) >> (31 - kShift);
+        running += counts[s];
       }
     } else {
+      std::uint32_t* table = table_.data();
       std::uint32_t slot = 0;
-      for (std::uint32_t s = 0; s < n_; ++s) {
-        cdf_[s] = (unit * running) >> (31 - kShift);
-        running += counts_[s];
-        const std::uint32_t w = cdf_[s] >> table_shift_;
-        while (slot < w) table_[++slot] = s - 1;
+      for (std::uint32_t s = 0; s < n; ++s) {
+        const std::uint32_t c = (unit * running) >> (31 - kShift);
+        cdf[s] = c;
+        running += counts[s];
+        const std::uint32_t w = c >> shift;
+        while (slot < w) table[++slot] = s - 1;
       }
-      table_[0] = 0;
-      while (slot <= table_size_) table_[++slot] = n_ - 1;
+      table[0] = 0;
+      while (slot <= size) table[++slot] = n - 1;
     }
     period_ = (5 * period_) >> 2;
     const std::uint32_t longest = (n_ + 6) << 3;
@@ -280,7 +289,9 @@ class IntDecoder {
     for (std::uint32_t k = 1; k <= corr_bits_; ++k) small_[k].reset(1u << (k <= bits_high_ ? k : bits_high_));
   }
   /// The value predicted by `pred` and coded in `context` (< contexts).
-  std::int32_t decode(ArithDecoder& d, std::int32_t pred, std::uint32_t context) {
+  /// Inlined into the item decoders (a few call sites each), which saves the call overhead on
+  /// the hottest path of the decoder.
+  [[gnu::always_inline]] std::int32_t decode(ArithDecoder& d, std::int32_t pred, std::uint32_t context) {
     const std::int32_t c = corrector(d, buckets_[context]);
     std::uint32_t v = static_cast<std::uint32_t>(pred) + static_cast<std::uint32_t>(c);
     if (range_ != 0) {
@@ -297,7 +308,7 @@ class IntDecoder {
   std::uint32_t last_k() const { return k_; }
 
  private:
-  std::int32_t corrector(ArithDecoder& d, SymbolModel& bucket) {
+  [[gnu::always_inline]] std::int32_t corrector(ArithDecoder& d, SymbolModel& bucket) {
     k_ = d.symbol(bucket);
     if (k_ == 0) return static_cast<std::int32_t>(d.bit(zero_));
     if (k_ >= 32) return static_cast<std::int32_t>(min_);

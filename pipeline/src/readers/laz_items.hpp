@@ -115,11 +115,62 @@ void decode_rgb(ArithDecoder& d, SymbolModel& used, SymbolModel* diff, const std
 class Median5 {
  public:
   std::int32_t get() const { return v_[2]; }
-  void add(std::int32_t x);
+  void add(std::int32_t x);  // inline below: called twice per point
 
  private:
   std::int32_t v_[5] = {0, 0, 0, 0, 0};
   bool upper_ = true;
 };
+
+inline void Median5::add(std::int32_t x) {
+  // Five sorted values; alternately the top or the bottom value is the one pushed out.
+  if (upper_) {
+    if (x < v_[2]) {
+      v_[4] = v_[3];
+      v_[3] = v_[2];
+      if (x < v_[0]) {
+        v_[2] = v_[1];
+        v_[1] = v_[0];
+        v_[0] = x;
+      } else if (x < v_[1]) {
+        v_[2] = v_[1];
+        v_[1] = x;
+      } else {
+        v_[2] = x;
+      }
+    } else {
+      if (x < v_[3]) {
+        v_[4] = v_[3];
+        v_[3] = x;
+      } else {
+        v_[4] = x;
+      }
+      upper_ = false;
+    }
+  } else {
+    if (v_[2] < x) {
+      v_[0] = v_[1];
+      v_[1] = v_[2];
+      if (v_[4] < x) {
+        v_[2] = v_[3];
+        v_[3] = v_[4];
+        v_[4] = x;
+      } else if (v_[3] < x) {
+        v_[2] = v_[3];
+        v_[3] = x;
+      } else {
+        v_[2] = x;
+      }
+    } else {
+      if (v_[1] < x) {
+        v_[0] = v_[1];
+        v_[1] = x;
+      } else {
+        v_[0] = x;
+      }
+      upper_ = true;
+    }
+  }
+}
 
 }  // namespace hc::pipeline::detail::laz

@@ -43,57 +43,6 @@ constexpr std::uint8_t kReturnClass8[8][8] = {
     {9, 10, 11, 12, 13, 14, 15, 14},  {8, 9, 10, 11, 12, 13, 14, 15},
 };
 
-void Median5::add(std::int32_t x) {
-  // Five sorted values; alternately the top or the bottom value is the one pushed out.
-  if (upper_) {
-    if (x < v_[2]) {
-      v_[4] = v_[3];
-      v_[3] = v_[2];
-      if (x < v_[0]) {
-        v_[2] = v_[1];
-        v_[1] = v_[0];
-        v_[0] = x;
-      } else if (x < v_[1]) {
-        v_[2] = v_[1];
-        v_[1] = x;
-      } else {
-        v_[2] = x;
-      }
-    } else {
-      if (x < v_[3]) {
-        v_[4] = v_[3];
-        v_[3] = x;
-      } else {
-        v_[4] = x;
-      }
-      upper_ = false;
-    }
-  } else {
-    if (v_[2] < x) {
-      v_[0] = v_[1];
-      v_[1] = v_[2];
-      if (v_[4] < x) {
-        v_[2] = v_[3];
-        v_[3] = v_[4];
-        v_[4] = x;
-      } else if (v_[3] < x) {
-        v_[2] = v_[3];
-        v_[3] = x;
-      } else {
-        v_[2] = x;
-      }
-    } else {
-      if (v_[1] < x) {
-        v_[0] = v_[1];
-        v_[1] = x;
-      } else {
-        v_[0] = x;
-      }
-      upper_ = true;
-    }
-  }
-}
-
 std::string item_name(std::uint16_t type) {
   switch (type) {
     case kByte: return "BYTE";
