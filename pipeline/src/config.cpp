@@ -780,6 +780,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     h.island_max_cells = static_cast<int>(r.get_int("cross_check.island_max_cells", h.island_max_cells, 1, 1 << 30));
     h.max_spike_cells = static_cast<int>(r.get_int("cross_check.max_spike_cells", h.max_spike_cells, 0, 1 << 30));
     h.max_spike_fraction = r.get_double("cross_check.max_spike_fraction", h.max_spike_fraction, 0.0, 1.0);
+    h.spike_allowance_max_m = r.get_double("cross_check.spike_allowance_max_m", h.spike_allowance_max_m, 0.0, 1e3);
     h.max_spikes_kept_cells =
         static_cast<int>(r.get_int("cross_check.max_spikes_kept_cells", h.max_spikes_kept_cells, 0, 1 << 30));
     h.max_island_cells = static_cast<int>(r.get_int("cross_check.max_island_cells", h.max_island_cells, 0, 1 << 30));

@@ -5,6 +5,7 @@
 #include "hc/common/format.hpp"
 #include "hc/common/units.hpp"
 #include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_report.hpp"
@@ -254,6 +255,12 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
       return remove_statistical_outliers(std::move(cloud), config.filters.outliers.k,
                                          config.filters.outliers.std_multiplier);
     });
+    // The robust test keeps coherent sparse regions; stray points with almost no neighbour at
+    // the scan's own spacing go here, by the same rule the verdict uses for "spikes kept".
+    if (!mesh && config.filters.outliers.method == OutlierMethod::kRobust) {
+      cloud = stage("isolated", reports, progress,
+                    [&] { return remove_isolated_points(std::move(cloud), config.cross_check.honest); });
+    }
   }
 
   // What per-point attributes the scan carried and what reached the grid (the ingest report).

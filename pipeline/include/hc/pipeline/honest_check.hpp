@@ -60,6 +60,9 @@ struct HonestCheckOptions {
   /// deepest folds give a few unconfirmed pits (the Buddha at N = 800: 43 of about 196 000
   /// cells, 2.2e-4, on 2026-11-22; whether they are hole-filled cells across a fold is open).
   double max_spike_fraction = 5e-4;
+  /// The fraction applies only while no spike among the worst listed cells (GridSpikes::worst)
+  /// stands above its window by more than this [m]; pits (folds) do not cancel it.
+  double spike_allowance_max_m = 0.03;
   int max_spikes_kept_cells = 0;            ///< cells supported only by isolated points ("fail")
   int max_island_cells = 2;                 ///< island cells before "warn"
   double max_removed_fraction = 0.10;       ///< of the input, removed by the filters ("warn")
@@ -154,6 +157,22 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
 /// @throws hc::ConfigError for a window < 3 or even, or non-positive limits.
 /// Real-time: no. Threads: 1. Cost: O(cells · window²).
 GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& options);
+
+/// Removes the points the verdict calls isolated (check_input's point test, on this cloud): a
+/// finite point with fewer than options.isolation_min_neighbours other points within
+/// 0.9 × options.isolation_radius_spacings × the median nearest-neighbour spacing (10 % inside
+/// the check's radius, whose sampled spacing estimate differs by about 1 %) (of up to 4096
+/// evenly strided points, exact). Run by build_scene after the robust outlier test
+/// (filters.outliers.method: robust), so that the filter removes what the verdict's
+/// "spikes kept" would otherwise flag (the clean raw bunny keeps 3 such stray points).
+/// Frame and units: the cloud's (grid frame, metres). Report figures: spacing_mm,
+/// isolation_radius_mm, removed_isolated. Cost O(N) (a voxel hash of the radius, counting
+/// stops at the minimum). Non-finite points are kept (the non_finite stage drops them).
+/// @throws hc::ConfigError for options outside their ranges (check_honest_options).
+/// Source: the radius outlier test (Rusu 2009, PCL's RadiusOutlierRemoval), radius from the
+/// scan's own spacing.
+StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& options);
+
 
 /// One reason of a verdict: a stable code, its level and a sentence with the figures.
 struct VerdictReason {
