@@ -410,7 +410,8 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
       q[2] = static_cast<float>(static_cast<double>(grid.at(r, c)) - centre.z());
     };
     for (std::size_t i = 0; i < n; ++i) {
-      if (!isolated[i]) continue;
+      // Only kept points support the grid: an isolated point the filters removed made no cell.
+      if (!isolated[i] || removed[i]) continue;
       const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
       const int c0 = static_cast<int>(std::lround((p.x() - g.x0_m) / g.cell_size_m));
       const int r0 = static_cast<int>(std::lround((p.y() - g.y0_m) / g.cell_size_m));

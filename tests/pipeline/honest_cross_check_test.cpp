@@ -206,12 +206,7 @@ TEST(HonestCrossCheck, SparseRightHalfIsNotAPass) {
   expect_partition(*b.summary.input_check);
 }
 
-// DISABLED: open (issue 13). On 2026-11-22 the merged Buddha with configs/happy_buddha.yaml ends
-// in "fail": spikes_kept, 1 grid cell supported only by an isolated input point (17 isolated of
-// 1 099 005; the isolated stage removes 14 of them from the filtered cloud, yet the check still
-// finds one cell). Until that is explained the Buddha's verdict is fail, and this test says so
-// by not running (ctest lists it as disabled, never as passed).
-TEST(HonestCrossCheck, DISABLED_BuddhaConfigPasses) {
+TEST(HonestCrossCheck, BuddhaConfigPasses) {
   hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
   const RunConfig config = load_run_config(fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml");
   const BuiltScene b = build_scene(config);
