@@ -151,6 +151,28 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
   return edge;
 }
 
+/// The point test: flags[i] = 1 when finite point i has fewer than min_neighbours other points
+/// within radius_m (exact distances; counting stops at the minimum). Used by check_input and
+/// remove_isolated_points, so the filter and the verdict apply one rule.
+std::vector<std::uint8_t> isolated_flags(const std::vector<float>& local, const std::vector<std::uint8_t>& finite,
+                                         double radius_m, int min_neighbours) {
+  const std::size_t n = finite.size();
+  const VoxelHash hash(local, finite, radius_m);
+  const auto rho2 = static_cast<float>(radius_m * radius_m);
+  std::vector<std::uint8_t> isolated(n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!finite[i]) continue;
+    int count = 0;
+    const float* q = &local[3 * i];
+    hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
+      if (j != i && dist_sq(p, q) <= rho2) ++count;
+      return count < min_neighbours;
+    });
+    isolated[i] = count < min_neighbours ? 1 : 0;
+  }
+  return isolated;
+}
+
 struct Coord3Hash {
   std::size_t operator()(const std::array<std::uint64_t, 3>& k) const {
     std::uint64_t h = k[0] * 0x9E3779B97F4A7C15ULL;
@@ -315,21 +337,9 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   out.spacing_m = median_spacing(local, finite, 2.0 * g.cell_size_m);
   out.isolation_radius_m = std::max(o.isolation_radius_spacings * out.spacing_m, 1e-9);
   const VoxelHash hash(local, finite, out.isolation_radius_m);
-  std::vector<std::uint8_t> isolated(n, 0);
-  {
-    const auto rho2 = static_cast<float>(out.isolation_radius_m * out.isolation_radius_m);
-    for (std::size_t i = 0; i < n; ++i) {
-      if (!finite[i]) continue;
-      int count = 0;
-      const float* q = &local[3 * i];
-      hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
-        if (j != i && dist_sq(p, q) <= rho2) ++count;
-        return count < o.isolation_min_neighbours;
-      });
-      isolated[i] = count < o.isolation_min_neighbours;
-      out.isolated += isolated[i];
-    }
-  }
+  const std::vector<std::uint8_t> isolated =
+      isolated_flags(local, finite, out.isolation_radius_m, o.isolation_min_neighbours);
+  for (const std::uint8_t f : isolated) out.isolated += f;
 
   // 3. Classes of every point, far points, surface lost.
   cv::Mat gap_cells;  // x-y distance to the nearest valid sample [cells]
@@ -714,22 +724,13 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   // estimate (on the cloud as read) differs from this one by about 1 %, which must not leave a
   // point the check calls isolated (the Buddha: 1.466 mm here against 1.455 mm there).
   const double radius = std::max(0.9 * o.isolation_radius_spacings * spacing, 1e-9);
-  const VoxelHash hash(local, finite, radius);
-  const auto rho2 = static_cast<float>(radius * radius);
+  const std::vector<std::uint8_t> isolated = isolated_flags(local, finite, radius, o.isolation_min_neighbours);
   std::vector<bool> keep(n, true);
   std::size_t removed = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    if (!finite[i]) continue;
-    int count = 0;
-    const float* q = &local[3 * i];
-    hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
-      if (j != i && dist_sq(p, q) <= rho2) ++count;
-      return count < o.isolation_min_neighbours;
-    });
-    if (count < o.isolation_min_neighbours) {
-      keep[i] = false;
-      ++removed;
-    }
+    if (!isolated[i]) continue;
+    keep[i] = false;
+    ++removed;
   }
   if (removed > 0) cloud.keep_if(keep);
   report.count_out = cloud.size();
