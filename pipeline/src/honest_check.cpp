@@ -11,6 +11,8 @@
 
 #include "hc/pipeline/honest_check.hpp"
 
+#include "knn_grid.hpp"  // detail::run_parallel, kSearchThreads
+
 #include "hc/common/bilinear_surface.hpp"
 #include "hc/common/error.hpp"
 #include "hc/common/format.hpp"
@@ -31,6 +33,36 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
+/// Sorts keys ascending and permutes idx alike; stable (equal keys keep their input order, as
+/// the points' original order), so the result equals std::stable_sort on (key). LSD radix sort
+/// with 16-bit digits; a digit equal in every key is skipped. O(n) per digit, n + 64 Ki words
+/// of scratch: 5–10 times faster than a comparison sort of 10^6 (key, index) pairs.
+void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx) {
+  const std::size_t n = keys.size();
+  if (n < 2) return;
+  std::vector<std::uint64_t> k2(n);
+  std::vector<std::uint32_t> i2(n);
+  std::vector<std::size_t> count(std::size_t{1} << 16);
+  for (int shift = 0; shift < 64; shift += 16) {
+    std::fill(count.begin(), count.end(), 0);
+    for (const std::uint64_t k : keys) ++count[(k >> shift) & 0xFFFFu];
+    if (count[(keys[0] >> shift) & 0xFFFFu] == n) continue;  // one digit value: order unchanged
+    std::size_t sum = 0;
+    for (auto& c : count) {
+      const std::size_t here = c;
+      c = sum;
+      sum += here;
+    }
+    for (std::size_t s = 0; s < n; ++s) {
+      const std::size_t d = count[(keys[s] >> shift) & 0xFFFFu]++;
+      k2[d] = keys[s];
+      i2[d] = idx[s];
+    }
+    keys.swap(k2);
+    idx.swap(i2);
+  }
+}
+
 /// Points hashed into cubic voxels of one edge: sorted by voxel key; unique keys and the range
 /// of each. Coordinates are floats in a local frame (the caller's origin).
 class VoxelHash {
@@ -38,25 +70,26 @@ class VoxelHash {
   VoxelHash(const std::vector<float>& xyz, const std::vector<std::uint8_t>& finite, double edge_m)
       : edge_(edge_m), inv_(1.0 / edge_m) {
     const std::size_t n = finite.size();
-    std::vector<std::pair<std::uint64_t, std::uint32_t>> order;
+    std::vector<std::uint64_t> keys;
+    std::vector<std::uint32_t> order;
+    keys.reserve(n);
     order.reserve(n);
     for (std::size_t i = 0; i < n; ++i) {
       if (!finite[i]) continue;
-      order.emplace_back(key_of(&xyz[3 * i]), static_cast<std::uint32_t>(i));
+      keys.push_back(key_of(&xyz[3 * i]));
+      order.push_back(static_cast<std::uint32_t>(i));
     }
-    std::sort(order.begin(), order.end());
-    index_.resize(order.size());
-    pts_.resize(3 * order.size());
-    for (std::size_t s = 0; s < order.size(); ++s) {
-      const std::uint32_t i = order[s].second;
-      index_[s] = i;
-      std::memcpy(&pts_[3 * s], &xyz[3 * i], 3 * sizeof(float));
-      if (s == 0 || order[s].first != order[s - 1].first) {
-        keys_.push_back(order[s].first);
+    radix_sort(keys, order);
+    index_ = std::move(order);
+    pts_.resize(3 * index_.size());
+    for (std::size_t s = 0; s < index_.size(); ++s) {
+      std::memcpy(&pts_[3 * s], &xyz[3 * static_cast<std::size_t>(index_[s])], 3 * sizeof(float));
+      if (s == 0 || keys[s] != keys[s - 1]) {
+        keys_.push_back(keys[s]);
         start_.push_back(static_cast<std::uint32_t>(s));
       }
     }
-    start_.push_back(static_cast<std::uint32_t>(order.size()));
+    start_.push_back(static_cast<std::uint32_t>(index_.size()));
   }
 
   static constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
@@ -152,24 +185,31 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
 }
 
 /// The point test: flags[i] = 1 when finite point i has fewer than min_neighbours other points
-/// within radius_m (exact distances; counting stops at the minimum). Used by check_input and
-/// remove_isolated_points, so the filter and the verdict apply one rule.
-std::vector<std::uint8_t> isolated_flags(const std::vector<float>& local, const std::vector<std::uint8_t>& finite,
-                                         double radius_m, int min_neighbours) {
+/// within radius_m (exact distances; counting stops at the minimum). `hash` holds the same
+/// points (local, finite) with an edge of at least radius_m. Used by check_input and
+/// remove_isolated_points, so the filter and the verdict apply one rule. Two threads, each a
+/// contiguous half of the points (each writes only its own flags).
+std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, const std::vector<float>& local,
+                                         const std::vector<std::uint8_t>& finite, double radius_m,
+                                         int min_neighbours) {
   const std::size_t n = finite.size();
-  const VoxelHash hash(local, finite, radius_m);
   const auto rho2 = static_cast<float>(radius_m * radius_m);
   std::vector<std::uint8_t> isolated(n, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    if (!finite[i]) continue;
-    int count = 0;
-    const float* q = &local[3 * i];
-    hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
-      if (j != i && dist_sq(p, q) <= rho2) ++count;
-      return count < min_neighbours;
-    });
-    isolated[i] = count < min_neighbours ? 1 : 0;
-  }
+  const int threads = n > 20000 ? detail::kSearchThreads : 1;
+  detail::run_parallel(threads, [&](int t) {
+    const std::size_t b = n * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
+    const std::size_t e = n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+    for (std::size_t i = b; i < e; ++i) {
+      if (!finite[i]) continue;
+      int count = 0;
+      const float* q = &local[3 * i];
+      hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
+        if (j != i && dist_sq(p, q) <= rho2) ++count;
+        return count < min_neighbours;
+      });
+      isolated[i] = count < min_neighbours ? 1 : 0;
+    }
+  });
   return isolated;
 }
 
@@ -297,7 +337,27 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
 
   // 1. Removed by the filters.
   std::vector<std::uint8_t> removed(n, 1);
+  // The filters keep the input's order (they only drop points), so the kept points are a
+  // subsequence of the input: one greedy pass matches them by exact coordinates (equal points
+  // are interchangeable: every figure below depends on coordinates only). Should a stage ever
+  // reorder points, the pass does not reach the end of kept_m and the multiset match decides.
+  bool matched = false;
   if (voxel_leaf_m <= 0.0) {
+    std::size_t j = 0;
+    const auto m = static_cast<std::size_t>(kept_m.xyz.cols());
+    for (std::size_t i = 0; i < n && j < m; ++i) {
+      if (!finite[i]) continue;
+      if (bits_of(as_read_m.col(static_cast<Eigen::Index>(i)).data()) ==
+          bits_of(kept_m.xyz.col(static_cast<Eigen::Index>(j)).data())) {
+        removed[i] = 0;
+        ++j;
+      }
+    }
+    matched = j == m;
+    if (!matched) std::fill(removed.begin(), removed.end(), std::uint8_t{1});
+  }
+  if (matched) {
+  } else if (voxel_leaf_m <= 0.0) {
     std::unordered_map<std::array<std::uint64_t, 3>, std::uint32_t, Coord3Hash> kept;
     kept.reserve(kept_m.size());
     for (Eigen::Index i = 0; i < kept_m.xyz.cols(); ++i) ++kept[bits_of(kept_m.xyz.col(i).data())];
@@ -338,7 +398,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   out.isolation_radius_m = std::max(o.isolation_radius_spacings * out.spacing_m, 1e-9);
   const VoxelHash hash(local, finite, out.isolation_radius_m);
   const std::vector<std::uint8_t> isolated =
-      isolated_flags(local, finite, out.isolation_radius_m, o.isolation_min_neighbours);
+      isolated_flags(hash, local, finite, out.isolation_radius_m, o.isolation_min_neighbours);
   for (const std::uint8_t f : isolated) out.isolated += f;
 
   // 3. Classes of every point, far points, surface lost.
@@ -357,54 +417,75 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     const int r = std::clamp(static_cast<int>(std::lround((cy - g.y0_m) / g.cell_size_m)), 0, g.rows - 1);
     return std::hypot(x - cx, y - cy) + static_cast<double>(gap_cells.at<float>(r, c)) * g.cell_size_m;
   };
-  for (std::size_t i = 0; i < n; ++i) {
-    if (!finite[i]) {
-      ++out.removed;  // the non-finite filter drops it
-      continue;
-    }
-    const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
-    const double to_box = (p - p.cwiseMax(box_lo).cwiseMin(box_hi)).norm();
-    const bool far = to_box > diag;
-    if (far) {
-      ++out.far;
-      out.far_max_distance_m = std::max(out.far_max_distance_m, to_box);
-    }
-    // Geometry against the grid.
-    double gap = 0.0;  // > tolerance: not represented
-    enum { kOn, kOff, kHidden, kNoData, kOutside } cls = kOn;
-    if (p.x() < g.x0_m || p.x() > x_max || p.y() < g.y0_m || p.y() > y_max) {
-      cls = kOutside;
-      gap = xy_gap(p.x(), p.y());
-    } else {
-      const SurfaceSample s = surface.sample(p.x(), p.y());
-      if (!s.valid) {
-        cls = kNoData;
+  // Two threads, each a contiguous half of the points with its own counts, summed after.
+  const int class_threads = n > 20000 ? detail::kSearchThreads : 1;
+  std::vector<InputCheck> part(static_cast<std::size_t>(class_threads));
+  detail::run_parallel(class_threads, [&](int t) {
+    InputCheck& pc = part[static_cast<std::size_t>(t)];
+    const std::size_t b = n * static_cast<std::size_t>(t) / static_cast<std::size_t>(class_threads);
+    const std::size_t e = n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(class_threads);
+    for (std::size_t i = b; i < e; ++i) {
+      if (!finite[i]) {
+        ++pc.removed;  // the non-finite filter drops it
+        continue;
+      }
+      const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
+      const double to_box = (p - p.cwiseMax(box_lo).cwiseMin(box_hi)).norm();
+      const bool far = to_box > diag;
+      if (far) {
+        ++pc.far;
+        pc.far_max_distance_m = std::max(pc.far_max_distance_m, to_box);
+      }
+      // Geometry against the grid.
+      double gap = 0.0;  // > tolerance: not represented
+      enum { kOn, kOff, kHidden, kNoData, kOutside } cls = kOn;
+      if (p.x() < g.x0_m || p.x() > x_max || p.y() < g.y0_m || p.y() > y_max) {
+        cls = kOutside;
         gap = xy_gap(p.x(), p.y());
       } else {
-        const double res = p.z() - s.z_m;
-        cls = res < -o.hidden_band_m ? kHidden : std::abs(res) <= o.tolerance_m ? kOn : kOff;
-        gap = std::abs(res);
-      }
-    }
-    if (removed[i]) {
-      ++out.removed;
-      if (!isolated[i] && !far && gap > o.tolerance_m) {
-        if (cls == kNoData || cls == kOutside) {
-          ++out.surface_lost;
-          out.surface_lost_max_gap_m = std::max(out.surface_lost_max_gap_m, gap);
-        } else if (cls == kOff) {
-          ++out.removed_in_front;
+        const SurfaceSample s = surface.sample(p.x(), p.y());
+        if (!s.valid) {
+          cls = kNoData;
+          gap = xy_gap(p.x(), p.y());
+        } else {
+          const double res = p.z() - s.z_m;
+          cls = res < -o.hidden_band_m ? kHidden : std::abs(res) <= o.tolerance_m ? kOn : kOff;
+          gap = std::abs(res);
         }
       }
-      continue;
+      if (removed[i]) {
+        ++pc.removed;
+        if (!isolated[i] && !far && gap > o.tolerance_m) {
+          if (cls == kNoData || cls == kOutside) {
+            ++pc.surface_lost;
+            pc.surface_lost_max_gap_m = std::max(pc.surface_lost_max_gap_m, gap);
+          } else if (cls == kOff) {
+            ++pc.removed_in_front;
+          }
+        }
+        continue;
+      }
+      switch (cls) {
+        case kOn: ++pc.on_surface; break;
+        case kOff: ++pc.off_surface; break;
+        case kHidden: ++pc.hidden; break;
+        case kNoData: ++pc.no_data; break;
+        case kOutside: ++pc.outside; break;
+      }
     }
-    switch (cls) {
-      case kOn: ++out.on_surface; break;
-      case kOff: ++out.off_surface; break;
-      case kHidden: ++out.hidden; break;
-      case kNoData: ++out.no_data; break;
-      case kOutside: ++out.outside; break;
-    }
+  });
+  for (const InputCheck& pc : part) {
+    out.removed += pc.removed;
+    out.far += pc.far;
+    out.far_max_distance_m = std::max(out.far_max_distance_m, pc.far_max_distance_m);
+    out.surface_lost += pc.surface_lost;
+    out.surface_lost_max_gap_m = std::max(out.surface_lost_max_gap_m, pc.surface_lost_max_gap_m);
+    out.removed_in_front += pc.removed_in_front;
+    out.on_surface += pc.on_surface;
+    out.off_surface += pc.off_surface;
+    out.hidden += pc.hidden;
+    out.no_data += pc.no_data;
+    out.outside += pc.outside;
   }
 
   // 4. Spikes kept: valid cells supported (within tolerance) only by isolated points.
@@ -724,7 +805,8 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   // estimate (on the cloud as read) differs from this one by about 1 %, which must not leave a
   // point the check calls isolated (the Buddha: 1.466 mm here against 1.455 mm there).
   const double radius = std::max(0.9 * o.isolation_radius_spacings * spacing, 1e-9);
-  const std::vector<std::uint8_t> isolated = isolated_flags(local, finite, radius, o.isolation_min_neighbours);
+  const std::vector<std::uint8_t> isolated =
+      isolated_flags(VoxelHash(local, finite, radius), local, finite, radius, o.isolation_min_neighbours);
   std::vector<bool> keep(n, true);
   std::size_t removed = 0;
   for (std::size_t i = 0; i < n; ++i) {

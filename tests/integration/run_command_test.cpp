@@ -5,10 +5,14 @@
 
 #include "test_paths.hpp"
 
+#include <algorithm>
+#include <array>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <string>
+#include <vector>
 
 namespace {
 
@@ -121,6 +125,65 @@ TEST(RunCommand, SetOverridesAConfigKey) {
   const json r = read_json(out / "report.json");
   EXPECT_EQ(r["grid"]["cols"].get<int>(), 64);
   EXPECT_EQ(r["friction_model"].get<std::string>(), "curvature");
+}
+
+TEST(RunCommand, AFailedVerdictExitsFourAndKeepsTheReport) {
+  // The raw bunny scan with one point 1 km above its middle and the outlier stage off: the grid
+  // gets a cell at +1 km that only that point supports. The run must end with exit code 4
+  // (docs/cli.md), name the failing reasons on stderr, and still write the report (the user
+  // reads why). Oracle: the planted point, not the program's figures.
+  const fs::path dir = hc::test::temp_dir("verdict_fail");
+  const fs::path scan = hc::test::scan_path("bunny/bun000.ply");
+  std::vector<std::array<double, 3>> pts;
+  {
+    // bun000.ply is ASCII: a header, then "x y z ..." per vertex.
+    std::ifstream in(scan);
+    std::string line;
+    long n = 0;
+    while (std::getline(in, line)) {
+      if (line.rfind("element vertex", 0) == 0) n = std::stol(line.substr(15));
+      if (line == "end_header") break;
+    }
+    ASSERT_EQ(n, 40256);
+    for (long i = 0; i < n && std::getline(in, line); ++i) {
+      std::array<double, 3> p{};
+      ASSERT_EQ(std::sscanf(line.c_str(), "%lf %lf %lf", &p[0], &p[1], &p[2]), 3) << line;
+      pts.push_back(p);
+    }
+  }
+  ASSERT_EQ(pts.size(), 40256u);
+  std::array<double, 3> lo = pts[0], hi = pts[0];
+  for (const auto& p : pts)
+    for (int a = 0; a < 3; ++a) lo[a] = std::min(lo[a], p[a]), hi[a] = std::max(hi[a], p[a]);
+  // The scan point nearest the middle of the x-y extent, raised by 1 km.
+  std::array<double, 3> top = pts[0];
+  double best = 1e300;
+  for (const auto& p : pts) {
+    const double d = std::hypot(p[0] - 0.5 * (lo[0] + hi[0]), p[1] - 0.5 * (lo[1] + hi[1]));
+    if (d < best) best = d, top = p;
+  }
+  top[2] += 1000.0;
+  const fs::path xyz = dir / "bunny_spike.xyz";
+  {
+    std::ofstream out(xyz);
+    out.precision(17);
+    for (const auto& p : pts) out << p[0] << ' ' << p[1] << ' ' << p[2] << '\n';
+    out << top[0] << ' ' << top[1] << ' ' << top[2] << '\n';
+  }
+  const fs::path out = dir / "run";
+  const Outcome o = run_app("run " + config("bunny.yaml") + " --out " + out.string() + " --quiet --set input.files=[" +
+                            xyz.string() + "] --set filters.outliers.enabled=false");
+  EXPECT_EQ(o.status, 4) << o.output;
+  EXPECT_NE(o.output.find("verdict fail"), std::string::npos) << o.output;
+  EXPECT_NE(o.output.find("spikes_kept"), std::string::npos) << o.output;
+  ASSERT_TRUE(fs::exists(out / "report.json")) << o.output;
+  const json r = read_json(out / "report.json");
+  EXPECT_EQ(r["verdict"]["status"].get<std::string>(), "fail");
+  // The same file with the outlier stage on (the default) removes the point and passes.
+  const fs::path out_ok = dir / "run_ok";
+  const Outcome ok = run_app("run " + config("bunny.yaml") + " --out " + out_ok.string() + " --quiet --set input.files=[" +
+                             xyz.string() + "]");
+  EXPECT_EQ(ok.status, 0) << ok.output;
 }
 
 }  // namespace

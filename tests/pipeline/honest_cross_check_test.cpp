@@ -305,6 +305,18 @@ TEST(InputCheck, ClassesOnAFlatGridMatchTheirConstruction) {
   EXPECT_NEAR(in.surface_lost_max_gap_m, 0.006, 1e-5);
   EXPECT_EQ(in.far, 0u);
   EXPECT_EQ(in.spikes_kept, 0u);
+
+  // The same kept points in reverse order, as a stage that reorders would leave them: the
+  // in-order match cannot pair them, the multiset match decides, and the classes are the same.
+  const std::vector<Eigen::Vector3d> reversed(kept_pts.rbegin(), kept_pts.rend());
+  const InputCheck rev = check_input(as_read.xyz, cloud_of(reversed), h, o);
+  EXPECT_EQ(rev.removed, 3u);
+  EXPECT_EQ(rev.hidden, 1u);
+  EXPECT_EQ(rev.off_surface, 1u);
+  EXPECT_EQ(rev.outside, 1u);
+  EXPECT_EQ(rev.no_data, 6u * 6u - 2u);
+  EXPECT_EQ(rev.surface_lost, 2u);
+  expect_partition(rev);
 }
 
 TEST(InputCheck, ACellKeptOnlyByAnIsolatedPointIsASpikeKept) {
