@@ -30,9 +30,12 @@
 //    more than see_through_depth_m below the splat of a neighbour's point is occluded by that
 //    disc: the disc's height replaces it (flag kCellSplatted), which closes gaps narrower than
 //    the splat radius before the ray test runs.
-//    Interpolating splats (SplatMode::kInterpolate) instead fill only EMPTY cells, with the
-//    Gaussian-weighted mean of the measured cells within the radius (normalised convolution);
-//    they never replace a measured cell, so no occlusion step. The see-through test runs after
+//    Interpolating splats (SplatMode::kInterpolate) fill EMPTY cells with the Gaussian-weighted
+//    mean of the measured cells within the radius (normalised convolution). The same occlusion
+//    step runs first: a measured cell more than see_through_depth_m below the front-most
+//    measured z within the radius is emptied and then interpolated from the front surface
+//    (without it a merged 15-view Buddha lost 18 451 cells as see-through, against 958 with
+//    discs: back-surface samples were averaged into the front). The see-through test runs after
 //    either kind of splat, on the filled grid: splatted cells bracket back-surface cells seen
 //    through a gap just as measured front cells do, and splatted cells that are themselves
 //    bracketed (an interpolated value pulled down by a back-surface point) are rejected too.
@@ -189,6 +192,7 @@ std::size_t bytes_per_cell(const ReprojectOptions& o) {
   std::size_t b = sizeof(float) + sizeof(std::uint8_t);  // height + flag
   if (o.splat_radius_cells > 0.0 && o.splat_mode == SplatMode::kInterpolate) {
     b += 2 * sizeof(float) + sizeof(std::uint32_t);  // z·mask, mask, summed-area table
+    if (o.see_through_depth_m > 0.0) b += sizeof(float) * (1 + static_cast<std::size_t>(std::floor(o.splat_radius_cells)));  // occlusion discs
   } else if (o.splat_radius_cells > 0.0) {  // splat buffer + running maxima of half-width 1..⌊r⌋
     b += sizeof(float) * (1 + static_cast<std::size_t>(std::floor(o.splat_radius_cells)));
   }
@@ -329,7 +333,8 @@ void splat_discs(const float* measured, int rows, int cols, double radius_cells,
 // mask, which is what keeps the background of a large grid cheap. Heights are taken relative
 // to one measured height so that float sums keep their precision. Rows are split between two
 // threads for large grids. Returns the number of cells filled.
-std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int cols, double radius_cells) {
+std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int cols, double radius_cells,
+                              const float* front, float depth_gap) {
   const int reach = static_cast<int>(std::floor(radius_cells));
   const std::size_t ucols = static_cast<std::size_t>(cols);
   const std::size_t cells = static_cast<std::size_t>(rows) * ucols;
@@ -394,10 +399,21 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
         const std::ptrdiff_t p = static_cast<std::ptrdiff_t>(static_cast<std::size_t>(r + reach) * upc +
                                                              static_cast<std::size_t>(c + reach));
         float num = 0.0f, den = 0.0f;
-        for (std::size_t k = 0; k < taps; ++k) {
-          const std::size_t q = static_cast<std::size_t>(p + offset[k]);
-          num += weight[k] * zm[q];
-          den += weight[k] * mask[q];
+        if (front == nullptr) {
+          for (std::size_t k = 0; k < taps; ++k) {
+            const std::size_t q = static_cast<std::size_t>(p + offset[k]);
+            num += weight[k] * zm[q];
+            den += weight[k] * mask[q];
+          }
+        } else {
+          // Only the front surface: measured cells within depth_gap of the front-most one.
+          const float lim = front[i] - z_ref - depth_gap;
+          for (std::size_t k = 0; k < taps; ++k) {
+            const std::size_t q = static_cast<std::size_t>(p + offset[k]);
+            const float m = (mask[q] > 0.0f && zm[q] >= lim) ? 1.0f : 0.0f;
+            num += m * weight[k] * zm[q];
+            den += m * weight[k];
+          }
         }
         if (den > 0.0f) {  // a measured cell in the box may still lie outside the disc
           depth[i] = z_ref + num / den;
@@ -581,7 +597,27 @@ DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, b
   std::size_t& splatted = counts.splatted;
   std::size_t& occluded = counts.occluded;
   if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kInterpolate) {
-    splatted = splat_interpolate(depth, out.flags.data(), g.rows, g.cols, options.splat_radius_cells);
+    std::vector<float> front;
+    if (see_through) {
+      // The disc rule's occlusion first: a measured cell lying more than see_through_depth_m
+      // below the front-most measured z within the radius is a back surface seen through the
+      // front one's sampling gaps (merged multi-view scans). It is emptied, and every cell is
+      // interpolated from the front surface only (measured cells within see_through_depth_m of
+      // the front-most one in its disc), so back-surface samples never enter a mean.
+      front.assign(cells, kEmpty);
+      splat_discs(depth, g.rows, g.cols, options.splat_radius_cells, front.data());
+      for (std::size_t i = 0; i < cells; ++i) {
+        if (out.flags[i] != kCellMeasured || !(front[i] > depth[i] + depth_gap)) continue;
+        depth[i] = kEmpty;
+        out.flags[i] = kCellEmpty;
+        ++occluded;
+      }
+    }
+    splatted = splat_interpolate(depth, out.flags.data(), g.rows, g.cols, options.splat_radius_cells,
+                                 see_through ? front.data() : nullptr, depth_gap);
+    // Every emptied cell has its front neighbour within the radius, so it is filled again:
+    // counted as occluded, not as a filled empty cell.
+    splatted -= std::min(splatted, occluded);
   } else if (options.splat_radius_cells > 0.0) {
     std::vector<float> splat(cells, kEmpty);
     splat_discs(depth, g.rows, g.cols, options.splat_radius_cells, splat.data());

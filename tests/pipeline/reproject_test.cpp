@@ -332,6 +332,49 @@ TEST(Reproject, InterpolatingSplatsLieOnATiltedPlaneWhereDiscsMakeTerraces) {
   RecordProperty("disc_step_dev_x_fraction", std::to_string(disc_dev_x / std::abs(step_x)));
 }
 
+// A merged multi-view scan in miniature: the front surface (the tilted plane) sampled on every
+// third node, and a back surface 20 mm behind it sampled on every other node, as the rear
+// views of a statue show through the front view's sampling gaps. Interpolating splats with
+// see-through handling must give the front plane everywhere: back samples are neither kept
+// nor averaged in, and no cell is lost as see-through. (Before the occlusion step, every back
+// node stayed a measured cell at −20 mm and the filled cells mixed both surfaces.)
+TEST(Reproject, InterpolatingSplatsKeepOnlyTheFrontOfAMergedScan) {
+  const double back_m = 0.02;
+  std::vector<Eigen::Vector3d> pts;
+  for (int j = 0; j <= 60; ++j) {
+    for (int i = 0; i <= 60; ++i) {
+      const double x = i * kLatticeCell, y = j * kLatticeCell;
+      if (i % 3 == 0 && j % 3 == 0) {
+        pts.emplace_back(x, y, lattice_plane(x, y));
+      } else {
+        pts.emplace_back(x, y, lattice_plane(x, y) - back_m);
+      }
+    }
+  }
+  ReprojectOptions o = interpolating(with_cell(kLatticeCell), 3.0);
+  o.see_through_depth_m = 0.005;
+  const auto out = reproject(cloud_of(pts), o);
+  const HeightField& z = out.value.depth;
+  const GridGeometry& g = z.geometry();
+  ASSERT_EQ(g.cols, 61);
+  ASSERT_EQ(g.rows, 61);
+  EXPECT_EQ(z.valid_count(), 61u * 61u);
+  EXPECT_EQ(count_flag(out.value, kCellMeasured), 21u * 21u);
+  EXPECT_EQ(figure(out.report, "cells_occluded_by_splat"), static_cast<double>(61 * 61 - 21 * 21));
+  EXPECT_EQ(figure(out.report, "cells_see_through"), 0.0);
+  const double slope_cell = (std::abs(kPlaneSx) + std::abs(kPlaneSy)) * kLatticeCell;
+  double max_err = 0.0, max_interior_err = 0.0;
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      const double e = std::abs(z.at(r, c) - lattice_plane(g.x_of_col(c), g.y_of_row(r)));
+      max_err = std::max(max_err, e);
+      if (r >= 3 && c >= 3 && r < g.rows - 3 && c < g.cols - 3) max_interior_err = std::max(max_interior_err, e);
+    }
+  }
+  EXPECT_LT(max_interior_err, 0.05 * slope_cell);
+  EXPECT_LT(max_err, 3.0 * slope_cell);  // one-sided means at the border, far from −20 mm
+}
+
 // Upsampling: the lattice has a point on every 3rd node; scanned on every 3rd node and
 // interpolated, the grid is the plane itself (bilinear interpolation is exact on a plane).
 TEST(Reproject, UpsampledGridIsTheCoarseScansBilinearSurface) {
@@ -561,18 +604,29 @@ TEST(Reproject, SplatOccludesNarrowGapsWithTheFrontSurface) {
   EXPECT_EQ(count_flag(r.value, kCellSplatted), 1u);
 }
 
-TEST(Reproject, SeeThroughRunsAfterInterpolatingSplats) {
-  // Interpolating splats never replace a measured cell, so the back-plane cell seen through a
-  // 1-cell gap stays measured until the see-through test, which then rejects it.
-  const TwoLayer t = two_layer({{20, 20, 20, 20}});
+TEST(Reproject, InterpolatingSplatsOccludeAndSeeThroughRunsAfter) {
+  // A back-plane cell seen through a 1-cell gap of the front plane (z = 0) lies 10 mm below the
+  // front samples within the radius: the occlusion step empties it and the front surface
+  // interpolates over it (as the discs do). A 5 × 5 gap is wider than the radius: its centre
+  // keeps the back plane until the see-through test rejects it.
+  const TwoLayer t = two_layer({{20, 20, 20, 20}, {40, 44, 40, 44}});
   ReprojectOptions o = interpolating(with_cell(t.cell), 1.5);
   o.see_through_depth_m = 0.002;
   const auto r = reproject(t.cloud, o);
-  EXPECT_TRUE(std::isnan(r.value.depth.at(20, 20)));
-  EXPECT_EQ(r.value.flags[static_cast<std::size_t>(20 * t.n + 20)], kCellSeeThrough);
-  EXPECT_EQ(count_flag(r.value, kCellSeeThrough), 1u);
-  EXPECT_EQ(count_flag(r.value, kCellSplatted), 0u);
-  EXPECT_EQ(figure(r.report, "cells_occluded_by_splat"), 0.0);
+  ASSERT_TRUE(r.value.depth.valid(20, 20));
+  EXPECT_NEAR(r.value.depth.at(20, 20), 0.0, 1e-6);
+  EXPECT_EQ(r.value.flags[static_cast<std::size_t>(20 * t.n + 20)], kCellSplatted);
+  EXPECT_TRUE(std::isnan(r.value.depth.at(42, 42)));
+  EXPECT_EQ(r.value.flags[static_cast<std::size_t>(42 * t.n + 42)], kCellSeeThrough);
+  // No cell anywhere holds the back plane (−10 mm) or a mix of both surfaces.
+  for (int row = 0; row < t.n; ++row) {
+    for (int col = 0; col < t.n; ++col) {
+      if (r.value.depth.valid(row, col)) {
+        EXPECT_NEAR(r.value.depth.at(row, col), 0.0, 1e-6) << row << "," << col;
+      }
+    }
+  }
+  EXPECT_GE(figure(r.report, "cells_occluded_by_splat"), 1.0 + 16.0);  // the 1-cell gap + the 5 × 5 gap's rim
 }
 
 // ---------------------------------------------------------------------------------------------

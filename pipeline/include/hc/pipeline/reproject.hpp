@@ -26,8 +26,12 @@ enum class SplatMode {
   /// Normalised convolution restricted to the disc: each EMPTY cell within splat_radius_cells of
   /// at least one measured cell takes the Gaussian-weighted mean (σ = radius / 2 cells, weight
   /// exp(−d² / 2σ²) over the measured cells at distance d ≤ radius) of those measured heights.
-  /// Measured cells keep their front-most z (they are never occluded by a neighbour, unlike
-  /// kDisc); cells farther than the radius from every measured cell stay no data. A weighted
+  /// Measured cells keep their front-most z, except that with see-through handling on
+  /// (see_through_depth_m > 0) a measured cell more than see_through_depth_m below the
+  /// front-most measured cell within the radius is emptied first, as kDisc occludes it, and
+  /// only measured cells within see_through_depth_m of that front-most one enter a cell's mean
+  /// (so a merged multi-view scan's back surfaces are neither kept nor averaged in). Cells
+  /// farther than the radius from every measured cell stay no data. A weighted
   /// mean is exact on a plane only where the weighted centroid of the measured cells is the
   /// cell itself (symmetric sampling); otherwise it is off by slope × that offset (at most
   /// slope × radius, at the rim of the data).
@@ -42,7 +46,9 @@ struct ReprojectOptions {
   /// empty cells and, with see-through handling on, hide measured cells lying more than
   /// see_through_depth_m behind them; they never move a measured cell otherwise.
   /// kInterpolate: empty cells within this radius of a measured cell are interpolated (see
-  /// SplatMode). Either way the filled cells are flagged kCellSplatted, and see-through
+  /// SplatMode) from the front surface only; with see-through handling on, measured cells
+  /// lying more than see_through_depth_m behind a measured cell within the radius are emptied
+  /// and interpolated too (counted in cells_occluded_by_splat). Either way the filled cells are flagged kCellSplatted, and see-through
   /// detection runs afterwards on the filled grid (splats act as occluders / bracketing cells).
   /// 0 = only the cell containing the point.
   double splat_radius_cells = 0.0;
