@@ -22,6 +22,7 @@
 #include "hc/pipeline/mesh_raster.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
 
 #include <algorithm>
 #include <array>
@@ -85,7 +86,7 @@ std::uint8_t to_byte(double v) { return static_cast<std::uint8_t>(std::clamp(std
 
 }  // namespace
 
-StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOptions& options) {
+StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOptions& options, double layer_blend_m) {
   const auto t0 = std::chrono::steady_clock::now();
   const Mesh& mesh = mesh_m.mesh;
   const std::size_t n_points = mesh_m.size(), n_tri = mesh.triangles.size();
@@ -116,6 +117,10 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
                                        static_cast<std::size_t>(mesh.texture->height))) {
     throw InputError("rasterise_mesh: the texture image " + mesh.texture->source + " has a size that does not match its pixels");
   }
+  if (!(layer_blend_m >= 0.0) || !std::isfinite(layer_blend_m)) {
+    throw ConfigError("rasterise_mesh: layer_blend_m = " + std::to_string(layer_blend_m) +
+                      ": expected a depth in metres >= 0 (0 = front-most face only)");
+  }
   const GridGeometry g = detail::grid_geometry_of(mesh_m, options);
   const std::size_t cells = g.cell_count();
   const auto cols = static_cast<std::size_t>(g.cols);
@@ -126,23 +131,27 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
   std::size_t edge_on = 0, non_finite = 0, rasterised = 0;
   const double* xyz = mesh_m.xyz.data();
   const double inv = 1.0 / g.cell_size_m;
-  for (std::size_t t = 0; t < n_tri; ++t) {
+  // Visits every node a finite, not edge-on triangle covers (top-left rule): f(i, zn, l0, l1,
+  // l2, k) with the node's index, the interpolated z, the barycentrics in counter-clockwise
+  // corner order and that order's map k to the triangle's own corners. Returns whether the
+  // triangle covered a node; counts degenerate triangles when `count` is set.
+  auto for_each_node = [&](std::size_t t, bool count, auto&& f) {
     const auto& tri = mesh.triangles[t];
     const double* q[3] = {xyz + 3 * static_cast<std::size_t>(tri[0]), xyz + 3 * static_cast<std::size_t>(tri[1]),
                           xyz + 3 * static_cast<std::size_t>(tri[2])};
     bool finite = true;
     for (const double* p : q) finite = finite && std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
     if (!finite) {
-      ++non_finite;
-      continue;
+      if (count) ++non_finite;
+      return false;
     }
     // Corner order k[] makes the triangle counter-clockwise in x-y (y up).
     int k[3] = {0, 1, 2};
     P2 v[3] = {{q[0][0], q[0][1]}, {q[1][0], q[1][1]}, {q[2][0], q[2][1]}};
     const double area = edge(v[0], v[1], v[2].x, v[2].y);
     if (area == 0.0) {
-      ++edge_on;
-      continue;
+      if (count) ++edge_on;
+      return false;
     }
     if (area < 0.0) {
       std::swap(v[1], v[2]);
@@ -173,20 +182,48 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
         const double zn = l0 * z[0] + l1 * z[1] + l2 * z[2];
         const std::size_t i = static_cast<std::size_t>(r) * cols + static_cast<std::size_t>(c);
         any = true;
-        if (zn > zbuf[i]) {
-          zbuf[i] = zn;
-          winner[i] = static_cast<std::uint32_t>(t);
-          // Barycentrics in the triangle's own corner order (1 and 2).
-          double lam[3];
-          lam[k[0]] = l0;
-          lam[k[1]] = l1;
-          lam[k[2]] = l2;
-          bary[2 * i] = static_cast<float>(lam[1]);
-          bary[2 * i + 1] = static_cast<float>(lam[2]);
-        }
+        f(i, zn, l0, l1, l2, k);
       }
     }
+    return any;
+  };
+  for (std::size_t t = 0; t < n_tri; ++t) {
+    const bool any = for_each_node(t, true, [&](std::size_t i, double zn, double l0, double l1, double l2, const int* k) {
+      if (zn > zbuf[i]) {
+        zbuf[i] = zn;
+        winner[i] = static_cast<std::uint32_t>(t);
+        // Barycentrics in the triangle's own corner order (1 and 2).
+        double lam[3];
+        lam[k[0]] = l0;
+        lam[k[1]] = l1;
+        lam[k[2]] = l2;
+        bary[2 * i] = static_cast<float>(lam[1]);
+        bary[2 * i + 1] = static_cast<float>(lam[2]);
+      }
+    });
     rasterised += any ? 1 : 0;
+  }
+  // Layer blending (organised scans of several views): the mean z of every face within
+  // layer_blend_m of the front-most one at each node, so the front surface seen by several
+  // scans is their average, not the front-most scan's (registration offsets and noise of one
+  // view would otherwise decide every node). The colour stays the front-most face's.
+  std::size_t blended = 0;
+  if (layer_blend_m > 0.0) {
+    std::vector<double> sum(cells, 0.0);
+    std::vector<std::uint16_t> count(cells, 0);
+    for (std::size_t t = 0; t < n_tri; ++t) {
+      for_each_node(t, false, [&](std::size_t i, double zn, double, double, double, const int*) {
+        if (zn >= zbuf[i] - layer_blend_m && count[i] < std::numeric_limits<std::uint16_t>::max()) {
+          sum[i] += zn;
+          ++count[i];
+        }
+      });
+    }
+    for (std::size_t i = 0; i < cells; ++i) {
+      if (count[i] < 2) continue;
+      zbuf[i] = sum[i] / count[i];
+      ++blended;
+    }
   }
 
   // Points on no triangle (an organised scan's isolated samples and the ends of cut edges; a
@@ -272,6 +309,13 @@ StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOption
   rep.figure("triangles_non_finite", static_cast<double>(non_finite));
   rep.figure("vertices_unreferenced", static_cast<double>(unreferenced));
   rep.figure("vertices_binned_as_points", static_cast<double>(binned));
+  if (layer_blend_m > 0.0) {
+    rep.figure("layer_blend_mm", layer_blend_m * 1e3);
+    rep.figure("cells_blended", static_cast<double>(blended));
+    rep.notes.emplace_back("organised scans: each node's z is the mean of the faces within " +
+                           format_number(layer_blend_m * 1e3) + " mm of the front-most one (" +
+                           std::to_string(blended) + " nodes had more than one)");
+  }
   rep.notes.emplace_back("mesh: " + std::to_string(n_tri) +
                          " triangles rasterised with a z-buffer (front-most z by barycentric interpolation at each node)");
   if (options.splat_radius_cells > 0.0 || options.see_through_depth_m > 0.0 || options.upsample_factor != 1) {

@@ -561,6 +561,57 @@ DepthGrid upsample(const DepthGrid& coarse, const GridGeometry& cg, const GridGe
   return out;
 }
 
+// The see-through test (header comment, "See-through") on a depth grid whose empty cells are
+// kEmpty: rejected cells become kEmpty and kCellSeeThrough. Returns the number rejected;
+// `candidates` gets the number of cells the window pre-selection passed to the ray test.
+std::size_t reject_see_through(float* depth, std::uint8_t* flags, const GridGeometry& g, int w, float depth_gap,
+                               std::size_t& candidates) {
+  const std::size_t cells = g.cell_count();
+  candidates = 0;
+  const auto tmp = std::make_unique_for_overwrite<float[]>(cells);
+  const auto wmax = std::make_unique_for_overwrite<float[]>(cells);
+  window_max(depth, g.rows, g.cols, w, tmp.get(), wmax.get());
+  std::vector<std::size_t> rejected;
+  static constexpr int kDirs[4][2] = {{0, 1}, {1, 0}, {1, 1}, {1, -1}};
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c);
+      const float z = depth[i];
+      if (z == kEmpty) continue;
+      const float threshold = z + depth_gap;
+      if (!(wmax[i] > threshold)) continue;
+      ++candidates;
+      int pairs = 0;
+      if (r >= w && c >= w && r + w < g.rows && c + w < g.cols) {
+        // Interior: branch-free maxima along the 8 rays.
+        for (const auto& d : kDirs) {
+          const std::ptrdiff_t step = static_cast<std::ptrdiff_t>(d[0]) * g.cols + d[1];
+          float up = kEmpty, down = kEmpty;
+          for (int k = 1; k <= w; ++k) {
+            up = std::max(up, depth[static_cast<std::ptrdiff_t>(i) + k * step]);
+            down = std::max(down, depth[static_cast<std::ptrdiff_t>(i) - k * step]);
+          }
+          pairs += (up > threshold && down > threshold) ? 1 : 0;
+        }
+      } else {
+        for (const auto& d : kDirs) {
+          if (ray_has_higher(depth, g.rows, g.cols, r, c, d[0], d[1], w, threshold) &&
+              ray_has_higher(depth, g.rows, g.cols, r, c, -d[0], -d[1], w, threshold)) {
+            ++pairs;
+          }
+        }
+      }
+      if (pairs >= kMinBracketingPairs) rejected.push_back(i);
+    }
+  }
+  // Applied after the scan so that every test saw the same (unmodified) grid.
+  for (std::size_t i : rejected) {
+    depth[i] = kEmpty;
+    flags[i] = kCellSeeThrough;
+  }
+  return rejected.size();
+}
+
 // Counts of one scan_grid call, for the stage report.
 struct ScanCounts {
   std::size_t binned = 0, splatted = 0, occluded = 0, see_through = 0, candidates = 0;
@@ -636,52 +687,9 @@ DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, b
     }
   }
 
-  std::size_t& see_through_cells = counts.see_through;
-  std::size_t& candidates = counts.candidates;
   if (see_through) {
-    const int w = options.see_through_window_cells;
-    const auto tmp = std::make_unique_for_overwrite<float[]>(cells);
-    const auto wmax = std::make_unique_for_overwrite<float[]>(cells);
-    window_max(depth, g.rows, g.cols, w, tmp.get(), wmax.get());
-    std::vector<std::size_t> rejected;
-    static constexpr int kDirs[4][2] = {{0, 1}, {1, 0}, {1, 1}, {1, -1}};
-    for (int r = 0; r < g.rows; ++r) {
-      for (int c = 0; c < g.cols; ++c) {
-        const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c);
-        const float z = depth[i];
-        if (z == kEmpty) continue;
-        const float threshold = z + depth_gap;
-        if (!(wmax[i] > threshold)) continue;
-        ++candidates;
-        int pairs = 0;
-        if (r >= w && c >= w && r + w < g.rows && c + w < g.cols) {
-          // Interior: branch-free maxima along the 8 rays.
-          for (const auto& d : kDirs) {
-            const std::ptrdiff_t step = static_cast<std::ptrdiff_t>(d[0]) * g.cols + d[1];
-            float up = kEmpty, down = kEmpty;
-            for (int k = 1; k <= w; ++k) {
-              up = std::max(up, depth[static_cast<std::ptrdiff_t>(i) + k * step]);
-              down = std::max(down, depth[static_cast<std::ptrdiff_t>(i) - k * step]);
-            }
-            pairs += (up > threshold && down > threshold) ? 1 : 0;
-          }
-        } else {
-          for (const auto& d : kDirs) {
-            if (ray_has_higher(depth, g.rows, g.cols, r, c, d[0], d[1], w, threshold) &&
-                ray_has_higher(depth, g.rows, g.cols, r, c, -d[0], -d[1], w, threshold)) {
-              ++pairs;
-            }
-          }
-        }
-        if (pairs >= kMinBracketingPairs) rejected.push_back(i);
-      }
-    }
-    // Applied after the scan so that every test saw the same (unmodified) grid.
-    for (std::size_t i : rejected) {
-      depth[i] = kEmpty;
-      out.flags[i] = kCellSeeThrough;
-    }
-    see_through_cells = rejected.size();
+    counts.see_through = reject_see_through(depth, out.flags.data(), g, options.see_through_window_cells, depth_gap,
+                                            counts.candidates);
   }
 
   // −inf (nothing) becomes NaN (no data) (empty and see-through cells are the only −inf ones).

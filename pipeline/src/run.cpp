@@ -341,7 +341,9 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
 
   // 5. Reprojection and hole filling.
   // Organised scans (row/col) meshed per scan on their own grid (grid.organised: mesh).
+  bool organised_meshed = false;
   if (config.grid.organised_mesh && cloud.has_grid_index() && !cloud.has_mesh()) {
+    organised_meshed = true;
     cloud = stage("organised_mesh", reports, progress, [&] {
       return mesh_organised_scans(std::move(cloud), config.grid.organised_max_edge_factor);
     });
@@ -350,7 +352,7 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   }
   // Meshes are rasterised (z-buffer over the faces); points are binned and splatted.
   DepthGrid grid = stage("reproject", reports, progress, [&] {
-    if (cloud.has_mesh()) return rasterise_mesh(cloud, config.grid.reproject);
+    if (cloud.has_mesh()) return rasterise_mesh(cloud, config.grid.reproject, organised_meshed ? config.grid.organised_blend_m : 0.0);
     try {
       return reproject(cloud, config.grid.reproject);
     } catch (const DegenerateInputError& e) {

@@ -296,6 +296,48 @@ TEST(MeshRaster, NodesExactlyOnSharedEdgesAndVerticesAreCovered) {
   }
 }
 
+// Layer blending (organised scans of several views): three square sheets over the unit square,
+// each two triangles, as three views of one surface: A at z = 0, B at z = 0.4 mm over the left
+// half only (x ≤ 0.5), C 10 mm behind. With layer_blend_m = 1 mm the nodes under A and B take
+// their mean, 0.2 mm; the nodes under A alone keep 0; C (beyond the blend depth) never enters.
+// Without blending the front-most sheet wins (0.4 mm on the left).
+TEST(MeshRaster, LayerBlendAveragesTheFacesNearTheFrontOnly) {
+  auto sheet = [](double x1, double z, std::vector<Eigen::Vector3d>& v, std::vector<std::array<std::uint32_t, 3>>& t) {
+    const auto b = static_cast<std::uint32_t>(v.size());
+    v.insert(v.end(), {{0, 0, z}, {x1, 0, z}, {0, 1, z}, {x1, 1, z}});
+    t.push_back({b, b + 1, b + 2});
+    t.push_back({b + 1, b + 3, b + 2});
+  };
+  std::vector<Eigen::Vector3d> v;
+  std::vector<std::array<std::uint32_t, 3>> t;
+  sheet(1.0, 0.0, v, t);
+  sheet(0.5, 0.0004, v, t);
+  sheet(1.0, -0.01, v, t);
+  const Cloud m = mesh_of(v, t);
+  const auto front = rasterise_mesh(m, with_n(21));
+  const auto blend = rasterise_mesh(m, with_n(21), 0.001);
+  const GridGeometry& g = blend.value.depth.geometry();
+  ASSERT_EQ(g.cols, 21);
+  std::size_t both = 0;
+  for (int r = 1; r + 1 < g.rows; ++r) {  // interior nodes: the outer edges follow the fill rule
+    for (int c = 1; c + 1 < g.cols; ++c) {
+      const double x = g.x_of_col(c);
+      ASSERT_TRUE(blend.value.depth.valid(r, c)) << r << "," << c;
+      if (x < 0.5 - 1e-9) {  // strictly inside B's x range: A and B both cover the node
+        ++both;
+        EXPECT_NEAR(blend.value.depth.at(r, c), 0.0002, 1e-7) << r << "," << c;
+        EXPECT_NEAR(front.value.depth.at(r, c), 0.0004, 1e-7) << r << "," << c;
+      } else if (x > 0.5 + 1e-9) {
+        EXPECT_NEAR(blend.value.depth.at(r, c), 0.0, 1e-7) << r << "," << c;
+      }
+    }
+  }
+  EXPECT_EQ(both, 9u * static_cast<std::size_t>(g.rows - 2));  // x = 0.05 … 0.45
+  EXPECT_GE(figure(blend.report, "cells_blended"), static_cast<double>(both));
+  EXPECT_THROW((void)rasterise_mesh(m, with_n(21), -0.001), ConfigError);
+  EXPECT_THROW((void)rasterise_mesh(m, with_n(21), std::numeric_limits<double>::quiet_NaN()), ConfigError);
+}
+
 TEST(MeshRaster, VertexColoursAndIntensityInterpolateBarycentrically) {
   Cloud m = mesh_of({{0, 0, 0}, {1, 0, 0.5}, {0.2, 1, 1}}, {{0, 1, 2}});
   m.rgb = {255, 0, 0, 0, 255, 0, 0, 0, 255};

@@ -58,6 +58,9 @@ struct GridConfig {
   int hole_fill_max_cells = 0;   ///< largest hole filled [cells]; 0 = off
   bool organised_mesh = false;   ///< grid.organised: mesh (organised scans meshed per scan) | splat
   double organised_max_edge_factor = 4.0;  ///< depth-jump limit / median sample spacing [-]
+  /// grid.organised_blend_m: faces within this depth [m] of the front-most one are averaged
+  /// at each node (rasterise_mesh layer_blend_m); 0 = front-most face only.
+  double organised_blend_m = 0.0;
 };
 
 struct CrossCheckConfig {

@@ -45,7 +45,13 @@ namespace hc::pipeline {
 /// Source: depth-buffer scan of Sec. 1 of the paper; edge functions and the top-left fill rule
 /// (Pineda, "A parallel algorithm for polygon rasterization", SIGGRAPH 1988); OBJ texture
 /// coordinates: Wavefront OBJ format description (vt).
-StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOptions& options);
+/// layer_blend_m (≥ 0, metres; 0 = off): each node's z becomes the mean over every face
+/// covering it whose z lies within layer_blend_m of the front-most face (figure cells_blended):
+/// for organised scans of several views, meshed per scan (mesh_organised_scans), whose
+/// surfaces overlap; not for a single closed mesh (its thin parts would be averaged with their
+/// back faces). Colour and intensity stay the front-most face's. hc::ConfigError if negative,
+/// NaN or infinite. Cost: a second pass over the triangles.
+StageResult<DepthGrid> rasterise_mesh(const Cloud& mesh_m, const ReprojectOptions& options, double layer_blend_m = 0.0);
 
 }  // namespace hc::pipeline
 
