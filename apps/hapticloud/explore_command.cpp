@@ -49,9 +49,15 @@ void add_explore_command(CLI::App& app) {
   cmd->add_option("--script", o->script,
                   "Scripted actions for tests and demos, \"FRAME ACTION ARGS; ...\": finer, coarser, level N, pan DX DY "
                   "(window widths), centre X_M Y_M, texture on|off, mu_s V, model paper|curvature, rescan AX AY AZ "
-                  "(deg, R = Rx*Ry*Rz), stereo on|off; each goes through the same path as the keys and the panel. "
+                  "(deg, R = Rx*Ry*Rz), stereo on|off, display colour|grey|texture|mu_d|error; each goes through the same path as the keys and the panel. "
                   "FRAME may be a time, '12.5s'. @FILE reads the steps from FILE (one per line or ';'-separated)");
   cmd->add_flag("--stereo", o->stereo, "Start in red/cyan anaglyph stereo");
+  cmd->add_option("--display", o->display,
+                  "Starting colours of the window and the navigation view: colour | grey | texture | mu_d | error. "
+                  "colour: the scan's own (grey when the scene has none); grey: shaded grey; texture, mu_d, error: "
+                  "a layer map of texture h, mu_d or the cross-check error through the colour map (range in the "
+                  "panel). Keys C and L switch it")
+      ->capture_default_str();
   cmd->add_flag("--hidden", o->hidden, "Do not show the window (with --screenshot or --seconds)");
   cmd->add_flag("--no-audio", o->no_audio, "No contact sounds");
 #ifdef HC_HAVE_VIEWER

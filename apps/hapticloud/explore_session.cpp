@@ -47,6 +47,10 @@ std::vector<ScriptStep> Session::check_options() {
   if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim") {
     throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
   }
+  (void)viewer::display_choice_from_string(o_.display, "explore: --display");
+  for (const ScriptStep& st : script) {
+    if (st.action == "display") (void)viewer::display_choice_from_string(st.args[0], "explore: --script display");
+  }
   if (o_.window_cells != 0 && (o_.window_cells < 2 || o_.window_cells > 4096)) {
     throw ConfigError("explore: --window-cells " + std::to_string(o_.window_cells) +
                       ": expected an integer in [2, 4096] (or 0: the scene's lod.window_cells)");
@@ -153,6 +157,7 @@ void Session::make_viewer() {
   vo.height_px = o_.height;
   vo.visible = !o_.hidden;
   vo.stereo = o_.stereo;
+  vo.display = viewer::display_choice_from_string(o_.display, "explore: --display");
   vo.mouse_drives_hip = mouse_ != nullptr;
   vo.max_force_n = servo_config_.proxy.max_force_n;
   vo.max_stiffness_n_per_m = device_->info().max_stable_stiffness_n_per_m;

@@ -51,6 +51,7 @@ struct ExploreOptions {
   std::string out = "explore-out";
   int width = 1280, height = 800;
   bool stereo = false;
+  std::string display = "colour";  ///< starting display: colour | grey | texture | mu_d | error
   bool hidden = false;
   bool no_audio = false;
   double stiffness_n_per_m = 800.0;

@@ -43,8 +43,18 @@ void Session::show_window() {
   auto layers = lod_->pyramid().window(w.level, w.row0, w.col0, w.rows, w.cols);
   auto d = std::make_shared<viewer::DisplayScene>();
   d->window = (!texture_enabled_ && layers->envelope_m.rows() > 0) ? layers->envelope_m : layers->depth_m;
+  d->window_layers.colour_rgb8 = layers->colour_rgb8;
+  d->window_layers.texture_m = layers->texture_m;
+  d->window_layers.mu_d = layers->mu_d;
+  d->window_layers.cell_error_m = layers->cell_error_m;
+  // The overview level with its layers (a coarse level: ≤ 256 samples a side, cheap to build).
   const int ov = fitting_level(*lod_, 256);
-  d->overview = lod_->pyramid().depth_level(ov)->depth_m;
+  const std::shared_ptr<const pipeline::LodLevel> overview = lod_->pyramid().level(ov);
+  d->overview = overview->depth_m;
+  d->overview_layers.colour_rgb8 = overview->colour_rgb8;
+  d->overview_layers.texture_m = overview->texture_m;
+  d->overview_layers.mu_d = overview->mu_d;
+  d->overview_layers.cell_error_m = overview->cell_error_m;
   d->workspace = w.map;
   d->level = w.level;
   d->level_count = lod_->level_count();
@@ -206,6 +216,7 @@ void Session::run_step(const ScriptStep& st) {
         Eigen::Vector3d(script_number(st, 0), script_number(st, 1), script_number(st, 2)), "xyz"));
   }
   if (a == "stereo") viewer_->set_stereo(st.args[0] == "on");
+  if (a == "display") viewer_->set_display(viewer::display_choice_from_string(st.args[0], "explore: --script display"));
 }
 
 #endif  // HC_HAVE_VIEWER

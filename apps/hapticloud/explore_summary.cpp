@@ -49,6 +49,8 @@ void Session::write_summary(const haptics::ServoStats& stats) const {
   j["fifo_granted"] = realtime_.fifo_granted;
   j["memory_locked"] = realtime_.memory_locked;
   j["mesh_quads"] = viewer_->mesh_quads();
+  j["display"] = viewer::to_string(viewer_->display());  // at the end of the session
+  j["display_note"] = viewer_->display_note();           // why it is drawn grey, or empty
   j["level"] = lod_ && lod_->has_window() ? lod_->window().level : -1;
   j["level_count"] = lod_ ? lod_->level_count() : 0;
   if (lod_ && lod_->has_window()) {

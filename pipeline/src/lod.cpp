@@ -81,12 +81,12 @@ std::vector<std::uint8_t> downsample_colour_2x(const HeightField& fine_depth, co
 
 std::size_t LodLevel::bytes() const {
   return field_bytes(depth_m) + field_bytes(envelope_m) + field_bytes(texture_m) + field_bytes(mu_d) +
-         field_bytes(mu_s) + colour_rgb8.size();
+         field_bytes(mu_s) + colour_rgb8.size() + field_bytes(cell_error_m);
 }
 
 std::size_t LodWindowLayers::bytes() const {
   return field_bytes(depth_m) + field_bytes(envelope_m) + field_bytes(texture_m) + field_bytes(mu_d) +
-         field_bytes(mu_s) + colour_rgb8.size();
+         field_bytes(mu_s) + colour_rgb8.size() + field_bytes(cell_error_m);
 }
 
 int lod_level_count(const GridGeometry& finest, int min_cells) {
@@ -237,6 +237,11 @@ LodPyramid::LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options
                      std::to_string(3 * g.cell_count()) + " (3 per sample of the depth's " + std::to_string(g.rows) +
                      " x " + std::to_string(g.cols) + ")");
   }
+  if (finest.cell_error_m.rows() > 0 && !(finest.cell_error_m.geometry() == g)) {
+    throw InputError("lod: level 0 layer 'cell_error' has " + std::to_string(finest.cell_error_m.rows()) + " x " +
+                     std::to_string(finest.cell_error_m.cols()) + " samples, expected the depth's " +
+                     std::to_string(g.rows) + " x " + std::to_string(g.cols));
+  }
   if (finest.has_layers) {
     const std::pair<const char*, const HeightField*> layers[] = {
         {"envelope", &finest.envelope_m}, {"texture", &finest.texture_m}, {"mu_d", &finest.mu_d}, {"mu_s", &finest.mu_s}};
@@ -260,6 +265,7 @@ std::shared_ptr<LodPyramid> LodPyramid::from_scene(hc::Scene&& scene, const Surf
   LodLevel l0;
   l0.depth_m = std::move(scene.layers.depth);
   l0.colour_rgb8 = std::move(scene.layers.colour_rgb8);
+  l0.cell_error_m = std::move(scene.layers.cell_error);
   if (scene.layers.has_surface_layers()) {
     l0.envelope_m = std::move(scene.layers.envelope);
     l0.texture_m = std::move(scene.layers.texture);
@@ -335,6 +341,7 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
   if (depth_only) {
     built->depth_m = depth_only->depth_m;
     built->colour_rgb8 = depth_only->colour_rgb8;
+    built->cell_error_m = depth_only->cell_error_m;
     built->depth_seconds = depth_only->depth_seconds;
   } else {
     const std::shared_ptr<const LodLevel> above = get_level(level - 1, false);
@@ -343,6 +350,9 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
     if (!above->colour_rgb8.empty()) {
       built->colour_rgb8 = downsample_colour_2x(above->depth_m, above->colour_rgb8, options_.antialias_sigma_cells,
                                                 options_.valid_fraction);
+    }
+    if (above->cell_error_m.rows() > 0) {
+      built->cell_error_m = downsample_2x(above->cell_error_m, options_.antialias_sigma_cells, options_.valid_fraction);
     }
     built->depth_seconds = seconds_since(t0);
   }
@@ -436,6 +446,7 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
   win->col0 = col0;
   win->depth_m = crop(lvl->depth_m, row0, col0, rows, cols);
   if (!lvl->colour_rgb8.empty()) win->colour_rgb8 = crop_colour(lvl->colour_rgb8, lvl->depth_m.geometry(), row0, col0, rows, cols);
+  if (lvl->cell_error_m.rows() > 0) win->cell_error_m = crop(lvl->cell_error_m, row0, col0, rows, cols);
   if (lvl->has_layers) {
     win->envelope_m = crop(lvl->envelope_m, row0, col0, rows, cols);
     win->texture_m = crop(lvl->texture_m, row0, col0, rows, cols);

@@ -14,6 +14,8 @@ Scene explore_base_layers(const Scene& s) {
   c.layers.texture = s.layers.texture;
   c.layers.mu_d = s.layers.mu_d;
   c.layers.mu_s = s.layers.mu_s;
+  c.layers.cell_error = s.layers.cell_error;
+  c.layers.colour_rgb8 = s.layers.colour_rgb8;
   c.friction_model = s.friction_model;
   return c;
 }

@@ -330,6 +330,68 @@ TEST(LodPyramid, RejectsBadOptionsNamingTheKey) {
   EXPECT_THROW(LodPyramid(std::move(empty), SurfaceLayerOptions{}, LodOptions{}), InputError);
 }
 
+TEST(LodPyramid, CrossCheckErrorGoesDownWithTheDepthAndIntoWindows) {
+  // Level 0: a plane with a square hole; the cross-check error is 2 mm on every valid sample
+  // plus a ramp of 1 µm per column. Normalised smoothing of the same mask keeps the mask (the
+  // error is valid exactly where the depth is), reproduces the constant and, away from the hole
+  // and the border, the ramp: error_L(r, c) = 2 mm + 1 µm · 2^L · c.
+  LodLevel l0;
+  l0.depth_m = grid_of(64, 64, 0.001, [](double, double) { return 0.0; });
+  l0.cell_error_m = HeightField(l0.depth_m.geometry());
+  for (int r = 0; r < 64; ++r) {
+    for (int c = 0; c < 64; ++c) {
+      if (r >= 20 && r < 40 && c >= 20 && c < 40) {
+        l0.depth_m.at(r, c) = kNoData;
+      } else {
+        l0.cell_error_m.at(r, c) = static_cast<float>(0.002 + 1e-6 * c);
+      }
+    }
+  }
+  LodOptions lo;
+  lo.min_cells = 8;
+  LodPyramid pyramid(std::move(l0), SurfaceLayerOptions{}, lo);
+  ASSERT_GE(pyramid.level_count(), 3);
+  const int reach = static_cast<int>(std::ceil(3.0 * lo.antialias_sigma_cells));
+  for (int level = 1; level < 3; ++level) {
+    const auto lvl = pyramid.depth_level(level);
+    ASSERT_EQ(lvl->cell_error_m.geometry(), lvl->depth_m.geometry()) << "level " << level;
+    const int step = 1 << level;
+    std::size_t checked = 0;
+    for (int r = 0; r < lvl->depth_m.rows(); ++r) {
+      for (int c = 0; c < lvl->depth_m.cols(); ++c) {
+        ASSERT_EQ(std::isnan(lvl->cell_error_m.at(r, c)), std::isnan(lvl->depth_m.at(r, c))) << level << ": " << r << "," << c;
+        const int fr = r * step, fc = c * step, margin = (step - 1) * reach + 1;
+        const bool clear = fr >= margin && fc >= margin && fr < 64 - margin && fc < 64 - margin &&
+                           (fr < 20 - margin || fr >= 40 + margin || fc < 20 - margin || fc >= 40 + margin);
+        if (!clear) continue;
+        ++checked;
+        EXPECT_NEAR(lvl->cell_error_m.at(r, c), 0.002 + 1e-6 * fc, 2e-7) << level << ": " << r << "," << c;
+      }
+    }
+    EXPECT_GT(checked, 0U) << "level " << level;
+  }
+  const auto win = pyramid.window(1, 3, 5, 8, 9);
+  const auto lvl1 = pyramid.depth_level(1);
+  ASSERT_EQ(win->cell_error_m.rows(), 8);
+  ASSERT_EQ(win->cell_error_m.cols(), 9);
+  for (int r = 0; r < 8; ++r) {
+    for (int c = 0; c < 9; ++c) {
+      const float a = win->cell_error_m.at(r, c), b = lvl1->cell_error_m.at(3 + r, 5 + c);
+      EXPECT_TRUE((std::isnan(a) && std::isnan(b)) || a == b) << r << "," << c;
+    }
+  }
+  // A map of another size is refused, naming the layer.
+  LodLevel bad;
+  bad.depth_m = grid_of(10, 10, 0.001, [](double, double) { return 0.0; });
+  bad.cell_error_m = grid_of(9, 10, 0.001, [](double, double) { return 0.0; });
+  try {
+    LodPyramid p(std::move(bad), SurfaceLayerOptions{}, LodOptions{});
+    FAIL() << "expected an InputError";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("cell_error"), std::string::npos) << e.what();
+  }
+}
+
 TEST(LodConfig, KeysAreReadValidatedAndResolved) {
   const std::string base = "input: {synthetic: {surface: plane}}\n";
   const RunConfig d = parse_run_config(base, "lod.yaml");

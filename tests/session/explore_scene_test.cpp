@@ -77,14 +77,22 @@ TEST(ExploreScene, TheFrictionRebuildGivesThePipelinesLayersForTheNewOptions) {
   EXPECT_EQ(kept->pyramid->level(0)->mu_d.values(), scene.layers.mu_d.values());
 }
 
-TEST(ExploreScene, BaseLayersKeepOnlyWhatAPyramidAndARebuildNeed) {
+TEST(ExploreScene, BaseLayersKeepOnlyWhatAPyramidTheViewerAndARebuildNeed) {
   Scene scene = sinusoid_scene(41, pipeline::SurfaceLayerOptions{});
   scene.layers.region_id = scene.layers.depth;
+  scene.layers.intensity = scene.layers.depth;
   scene.layers.colour_rgb8.assign(41 * 41 * 3, 7);
+  scene.layers.cell_error = HeightField(scene.geometry, 0.0005F);
   scene.model_to_grid.translate(Eigen::Vector3d(0.01, 0.02, 0.03));
   const Scene base = explore_base_layers(scene);
   EXPECT_EQ(base.layers.region_id.rows(), 0);
-  EXPECT_TRUE(base.layers.colour_rgb8.empty());
+  EXPECT_EQ(base.layers.intensity.rows(), 0);
+  // The viewer's colour and cross-check error survive (a friction rebuild starts from `base`).
+  EXPECT_EQ(base.layers.colour_rgb8, scene.layers.colour_rgb8);
+  EXPECT_EQ(base.layers.cell_error.values(), scene.layers.cell_error.values());
+  const auto rebuilt = build_explore_scene(base, pipeline::SurfaceLayerOptions{}, LodOptions{}, true);
+  EXPECT_EQ(rebuilt->pyramid->level(0)->colour_rgb8, scene.layers.colour_rgb8);
+  EXPECT_EQ(rebuilt->pyramid->level(0)->cell_error_m.values(), scene.layers.cell_error.values());
   EXPECT_TRUE(base.layers.has_surface_layers());
   EXPECT_EQ(base.layers.texture.values(), scene.layers.texture.values());
   EXPECT_TRUE(base.model_to_grid.isApprox(scene.model_to_grid));

@@ -16,6 +16,7 @@
 
 #include <filesystem>
 #include <memory>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -36,8 +37,12 @@ pipeline::Scene build_scene(const std::string& config, const std::vector<std::st
 std::shared_ptr<viewer::DisplayScene> display_of(session::LodController& lod) {
   const session::HapticWindow& w = lod.window();
   auto d = std::make_shared<viewer::DisplayScene>();
-  d->window = lod.pyramid().window(w.level, w.row0, w.col0, w.rows, w.cols)->depth_m;
-  d->overview = lod.pyramid().depth_level(lod.level_count() - 1)->depth_m;
+  const auto win = lod.pyramid().window(w.level, w.row0, w.col0, w.rows, w.cols);
+  d->window = win->depth_m;
+  d->window_layers = {win->colour_rgb8, win->texture_m, win->mu_d, win->cell_error_m};
+  const auto ov = lod.pyramid().level(lod.level_count() - 1);
+  d->overview = ov->depth_m;
+  d->overview_layers = {ov->colour_rgb8, ov->texture_m, ov->mu_d, ov->cell_error_m};
   d->workspace = w.map;
   d->level = w.level;
   d->level_count = lod.level_count();
@@ -91,6 +96,41 @@ TEST(ViewerScene, SinusoidFromThePipelineIsDrawnAndALevelSwitchChangesTheWindow)
   EXPECT_NEAR(s.view->scene()->window.cell_size_m(), 0.5 * cell1, 1e-12);
   expect_drawn_and_shaded(fine, s.view->main_view(), 0.5);
   EXPECT_GT(test::fraction_changed(coarse, fine, s.view->main_view()), 0.3);
+}
+
+TEST(ViewerScene, PipelineLayersReachTheLayerMapAtEveryLevel) {
+  // The sinusoid with its cross-check: texture, μ_d and the per-cell error go scene → pyramid →
+  // window and overview → the viewer's layer map (no colour: the synthetic surface has none).
+  pipeline::Scene scene = build_scene("sinusoid.yaml", {"grid.n=120"}, "sinusoid_layers");
+  ASSERT_GT(scene.layers.cell_error.valid_count(), 0U);
+  SceneSession s(std::move(scene), 64, 1);
+  for (const char* name : {"texture", "mu_d", "error"}) {
+    s.view->set_display(viewer::display_choice_from_string(name, "--display"));
+    for (int level : {1, 0}) {
+      if (level == 0) s.view->issue({viewer::RegionCommandType::kFiner});
+      const viewer::Image img = s.view->capture();
+      ASSERT_EQ(s.view->scene()->level, level);
+      EXPECT_TRUE(s.view->display_note().empty()) << name << ": " << s.view->display_note();
+      EXPECT_GT(s.view->window_range().hi, s.view->window_range().lo + 1e-9) << name;
+      EXPECT_GT(s.view->overview_range().hi, s.view->overview_range().lo + 1e-9) << name;
+      // The layer varies over the window, so the map's colours do: many distinct hues.
+      std::set<int> hues;
+      const viewer::PixelRect r = s.view->main_view();
+      for (int y = r.y; y < r.y + r.height; y += 4) {
+        for (int x = r.x; x < r.x + r.width; x += 4) {
+          if (test::is_background(img, x, y)) continue;
+          const int sum = std::max(1, img.at(x, y, 0) + img.at(x, y, 1) + img.at(x, y, 2));
+          hues.insert(20 * img.at(x, y, 0) / sum * 20 + 20 * img.at(x, y, 2) / sum);
+        }
+      }
+      EXPECT_GT(hues.size(), 5U) << name << " at level " << level;
+    }
+    s.view->issue({viewer::RegionCommandType::kCoarser});
+    s.view->capture();
+  }
+  s.view->set_display({viewer::DisplayMode::kColour, viewer::MapLayer::kTexture});
+  s.view->capture();
+  EXPECT_NE(s.view->display_note().find("no colour"), std::string::npos);
 }
 
 TEST(ViewerScene, BuddhaAtSmallNIsDrawnAndShaded) {

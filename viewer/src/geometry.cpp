@@ -21,7 +21,7 @@ std::uint32_t vertex_count(const MeshData& m) { return static_cast<std::uint32_t
 
 }  // namespace
 
-MeshData height_field_mesh(const HeightField& field, int max_side) {
+MeshData height_field_mesh(const HeightField& field, int max_side, const std::vector<float>* sample_rgb) {
   MeshData m;
   const int rows = field.rows(), cols = field.cols();
   if (rows < 2 || cols < 2) return m;
@@ -46,6 +46,8 @@ MeshData height_field_mesh(const HeightField& field, int max_side) {
   };
   const auto nr = static_cast<int>(rs.size()), nc = static_cast<int>(cs.size());
   m.vertices.reserve(static_cast<std::size_t>(nr) * static_cast<std::size_t>(nc) * 6);
+  const bool coloured = sample_rgb != nullptr && sample_rgb->size() == 3 * field.values().size();
+  if (coloured) m.colours.reserve(static_cast<std::size_t>(nr) * static_cast<std::size_t>(nc) * 3);
   for (int i = 0; i < nr; ++i) {
     for (int j = 0; j < nc; ++j) {
       const int r = rs[static_cast<std::size_t>(i)], c = cs[static_cast<std::size_t>(j)];
@@ -73,6 +75,10 @@ MeshData height_field_mesh(const HeightField& field, int max_side) {
         n = Eigen::Vector3d(-sx, -sy, 1.0).normalized();
       }
       push_vertex(m, p, n);
+      if (coloured) {
+        const std::size_t k = 3 * (static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(c));
+        m.colours.insert(m.colours.end(), {(*sample_rgb)[k], (*sample_rgb)[k + 1], (*sample_rgb)[k + 2]});
+      }
     }
   }
   for (int i = 0; i + 1 < nr; ++i) {

@@ -74,13 +74,15 @@ Mesh::~Mesh() { release(); }
 void Mesh::release() {
   if (ebo_ != 0) glDeleteBuffers(1, &ebo_);
   if (vbo_ != 0) glDeleteBuffers(1, &vbo_);
+  if (cbo_ != 0) glDeleteBuffers(1, &cbo_);
   if (vao_ != 0) glDeleteVertexArrays(1, &vao_);
-  vao_ = vbo_ = ebo_ = 0;
+  vao_ = vbo_ = ebo_ = cbo_ = 0;
   count_ = 0;
+  has_colours_ = false;
 }
 
 void Mesh::upload(const std::vector<float>& vertices, const std::vector<std::uint32_t>& indices, GLenum primitive,
-                  bool dynamic) {
+                  bool dynamic, const std::vector<float>& colours) {
   if (vao_ == 0) {
     glGenVertexArrays(1, &vao_);
     glGenBuffers(1, &vbo_);
@@ -102,6 +104,16 @@ void Mesh::upload(const std::vector<float>& vertices, const std::vector<std::uin
   glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(vertices.size() * sizeof(float)), vertices.data(), usage);
   glBufferData(GL_ELEMENT_ARRAY_BUFFER, static_cast<GLsizeiptr>(indices.size() * sizeof(std::uint32_t)),
                indices.data(), usage);
+  has_colours_ = !colours.empty() && colours.size() / 3 == vertices.size() / 6;
+  if (has_colours_) {
+    if (cbo_ == 0) glGenBuffers(1, &cbo_);
+    glBindBuffer(GL_ARRAY_BUFFER, cbo_);
+    glBufferData(GL_ARRAY_BUFFER, static_cast<GLsizeiptr>(colours.size() * sizeof(float)), colours.data(), usage);
+    glEnableVertexAttribArray(2);
+    glVertexAttribPointer(2, 3, GL_FLOAT, GL_FALSE, 3 * sizeof(float), nullptr);
+  } else {
+    glDisableVertexAttribArray(2);
+  }
   glBindVertexArray(0);
   count_ = indices.size();
   primitive_ = primitive;

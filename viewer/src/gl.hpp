@@ -39,7 +39,8 @@ class Program {
   GLuint id_ = 0;
 };
 
-/// Interleaved position (3 floats) + normal (3 floats) vertices with 32-bit indices.
+/// Interleaved position (3 floats) + normal (3 floats) vertices (attributes 0 and 1) with
+/// 32-bit indices, and optionally a per-vertex colour (3 floats, attribute 2, own buffer).
 class Mesh {
  public:
   Mesh() = default;
@@ -48,16 +49,19 @@ class Mesh {
   Mesh& operator=(const Mesh&) = delete;
 
   /// Uploads (replacing any earlier data). `primitive` is GL_TRIANGLES, GL_LINES, GL_POINTS ...
+  /// `colours`: empty (attribute 2 off: shaders use a uniform colour) or 3 floats per vertex.
   void upload(const std::vector<float>& vertices, const std::vector<std::uint32_t>& indices, GLenum primitive,
-              bool dynamic = false);
+              bool dynamic = false, const std::vector<float>& colours = {});
+  bool has_colours() const { return has_colours_; }
   void draw() const;
   std::size_t index_count() const { return count_; }
   bool empty() const { return count_ == 0; }
 
  private:
   void release();
-  GLuint vao_ = 0, vbo_ = 0, ebo_ = 0;
+  GLuint vao_ = 0, vbo_ = 0, ebo_ = 0, cbo_ = 0;
   std::size_t count_ = 0;
+  bool has_colours_ = false;
   GLenum primitive_ = GL_TRIANGLES;
 };
 

@@ -32,6 +32,7 @@ constexpr int kMaxOverviewSide = 128;   // navigation mesh (small: it is redrawn
 constexpr int kPanelWidthPx = 340;      // the ImGui panel's strip
 const Eigen::Vector3f kBackground(0.08F, 0.09F, 0.11F);
 const Eigen::Vector3f kStone(0.86F, 0.80F, 0.70F);
+const Eigen::Vector3f kGrey(0.80F, 0.80F, 0.80F);  // DisplayMode::kGrey and every fallback to grey
 const Eigen::Vector3f kProxyBlue(0.15F, 0.35F, 0.95F);
 const Eigen::Vector3f kHipColour(0.95F, 0.85F, 0.20F);
 const Eigen::Vector3f kForceColour(0.95F, 0.30F, 0.15F);
@@ -40,13 +41,16 @@ const Eigen::Vector3f kOutline(1.0F, 0.85F, 0.1F);
 const char* const kVertexShader = R"(#version 330 core
 layout(location = 0) in vec3 a_position;
 layout(location = 1) in vec3 a_normal;
+layout(location = 2) in vec3 a_colour;
 uniform mat4 u_mvp;
 uniform mat4 u_model;
 uniform mat3 u_normal_matrix;
 out vec3 v_normal;
 out vec3 v_world;
+out vec3 v_colour;
 void main() {
   gl_Position = u_mvp * vec4(a_position, 1.0);
+  v_colour = a_colour;
   v_normal = u_normal_matrix * a_normal;
   v_world = (u_model * vec4(a_position, 1.0)).xyz;
   gl_PointSize = 2.0;
@@ -56,7 +60,9 @@ void main() {
 const char* const kFragmentShader = R"(#version 330 core
 in vec3 v_normal;
 in vec3 v_world;
+in vec3 v_colour;
 uniform vec3 u_colour;
+uniform int u_vertex_colour;  // 1: the mesh's per-vertex colour instead of u_colour
 uniform vec3 u_light_dir;     // towards the light, world frame, unit
 uniform vec3 u_eye;           // camera position, world frame
 uniform int u_lit;            // 0: flat colour
@@ -65,7 +71,7 @@ uniform vec2 u_height_range;
 uniform int u_grey;           // 1: luminance only (anaglyph)
 out vec4 frag_colour;
 void main() {
-  vec3 c = u_colour;
+  vec3 c = u_vertex_colour == 1 ? v_colour : u_colour;
   if (u_height_colour == 1) {
     float t = clamp((v_world.z - u_height_range.x) / max(u_height_range.y - u_height_range.x, 1e-9), 0.0, 1.0);
     c = mix(vec3(0.20, 0.28, 0.50), vec3(0.95, 0.88, 0.72), t);
@@ -157,11 +163,93 @@ const std::vector<std::string>& controls_help() {
       "Ctrl+wheel   zoom",
       "Space        arm / disarm the device (forces on / off)",
       "S            red/cyan anaglyph on / off;   [ ]  eye separation",
+      "C            colours: scan colour -> shaded grey -> layer map -> scan colour",
+      "L            layer map: texture -> mu_d -> cross-check error (turns the layer map on)",
       "O            orientation tool: left drag turns the raw cloud (arcball)",
       "Enter        re-scan the cloud with that orientation (new scene, no restart)",
       "device buttons  1 finer, 2 coarser, 3 pan left, 4 pan right",
   };
   return lines;
+}
+
+DisplayChoice display_choice_from_string(const std::string& text, const std::string& what) {
+  if (text == "colour") return {DisplayMode::kColour, MapLayer::kTexture};
+  if (text == "grey") return {DisplayMode::kGrey, MapLayer::kTexture};
+  if (text == "texture") return {DisplayMode::kLayerMap, MapLayer::kTexture};
+  if (text == "mu_d") return {DisplayMode::kLayerMap, MapLayer::kMuD};
+  if (text == "error") return {DisplayMode::kLayerMap, MapLayer::kError};
+  throw ConfigError(what + " '" + text + "' is unknown (expected colour, grey, texture, mu_d or error)");
+}
+
+std::string to_string(const DisplayChoice& choice) {
+  switch (choice.mode) {
+    case DisplayMode::kColour: return "colour";
+    case DisplayMode::kGrey: return "grey";
+    case DisplayMode::kLayerMap: break;
+  }
+  switch (choice.layer) {
+    case MapLayer::kTexture: return "texture";
+    case MapLayer::kMuD: return "mu_d";
+    case MapLayer::kError: return "error";
+  }
+  return "texture";
+}
+
+std::string to_string(MapLayer layer) {
+  switch (layer) {
+    case MapLayer::kTexture: return "texture h [mm]";
+    case MapLayer::kMuD: return "mu_d [-]";
+    case MapLayer::kError: return "cross-check error [mm]";
+  }
+  return "";
+}
+
+Eigen::Vector3f layer_colour_map(double t) {
+  // The stops of the documented map (viewer.hpp), at t = 0, 0.25, 0.5, 0.75, 1.
+  static constexpr float kStops[5][3] = {
+      {0.23F, 0.18F, 0.75F}, {0.15F, 0.55F, 0.90F}, {0.20F, 0.78F, 0.55F}, {0.95F, 0.80F, 0.20F}, {0.85F, 0.15F, 0.10F}};
+  if (std::isnan(t)) return {0.5F, 0.5F, 0.5F};
+  const double u = 4.0 * std::clamp(t, 0.0, 1.0);
+  const int i = std::min(3, static_cast<int>(u));
+  const auto f = static_cast<float>(u - i);
+  return {kStops[i][0] + f * (kStops[i + 1][0] - kStops[i][0]), kStops[i][1] + f * (kStops[i + 1][1] - kStops[i][1]),
+          kStops[i][2] + f * (kStops[i + 1][2] - kStops[i][2])};
+}
+
+double LayerRange::t(double v) const {
+  if (std::isnan(v)) return v;
+  return std::clamp((v - lo) / (hi - lo), 0.0, 1.0);
+}
+
+LayerRange layer_range(const HeightField& layer, MapLayer which) {
+  std::vector<double> v;
+  v.reserve(layer.values().size());
+  for (float x : layer.values()) {
+    if (std::isfinite(x)) v.push_back(which == MapLayer::kTexture ? std::abs(static_cast<double>(x)) : static_cast<double>(x));
+  }
+  LayerRange r{0.0, 0.0};
+  if (!v.empty()) {
+    const auto quantile = [&](double q) {
+      const auto k = static_cast<std::ptrdiff_t>(std::lround(q * static_cast<double>(v.size() - 1)));
+      std::nth_element(v.begin(), v.begin() + k, v.end());
+      return v[static_cast<std::size_t>(k)];
+    };
+    switch (which) {
+      case MapLayer::kTexture: {
+        const double a = quantile(0.98);
+        r = {-a, a};
+        break;
+      }
+      case MapLayer::kMuD: {
+        const double lo = quantile(0.02);
+        r = {lo, quantile(0.98)};
+        break;
+      }
+      case MapLayer::kError: r = {0.0, quantile(0.98)}; break;
+    }
+  }
+  if (!(r.hi > r.lo)) r.hi = r.lo + 1e-12;
+  return r;
 }
 
 Eigen::Matrix4d off_axis_projection(double fov_y_rad, double aspect, double near, double far, double convergence,
@@ -202,6 +290,7 @@ Viewer::Viewer(haptics::SharedState& shared, const ViewerOptions& options, Viewe
                       " is out of range (expected (5, 120))");
   }
   stereo_ = options.stereo;
+  display_ = options.display;
   set_eye_separation(options.eye_separation);
   show_panel_ = options.show_panel;
   show_help_ = options.show_help;
@@ -299,14 +388,7 @@ void Viewer::take_pending_scene() {
   if (!next) return;
   const bool first = !scene_;
   scene_ = std::move(next);
-  MeshData w = height_field_mesh(scene_->window, kMaxMeshSide);
-  gpu_->window_mesh.upload(w.vertices, w.indices, GL_TRIANGLES);
-  gpu_->window_quads = w.quads;
-  gpu_->window_extent = extent_of(scene_->window);
-  const HeightField& ov = scene_->overview.rows() > 1 ? scene_->overview : scene_->window;
-  MeshData o = height_field_mesh(ov, kMaxOverviewSide);
-  gpu_->overview_mesh.upload(o.vertices, o.indices, GL_TRIANGLES);
-  gpu_->overview_extent = extent_of(ov);
+  rebuild_scene_meshes();
   gpu_->has_cloud = scene_->cloud_xyz_m.size() >= 3;
   if (gpu_->has_cloud) {
     std::vector<float> v;
@@ -330,6 +412,89 @@ void Viewer::take_pending_scene() {
   scene_orientation_ = scene_->orientation;
   gui_level_ = scene_->level;
   if (first && options_.mouse_drives_hip) hip_device_z_m_ = 0.0;
+}
+
+namespace {
+/// Per-sample colours (rows·cols·3 floats) of `field` under `choice`, or empty for the uniform
+/// grey; `missing` says why a colour or layer was not available, `range` gets the layer map's
+/// range.
+std::vector<float> sample_colours(const HeightField& field, const DisplayLayers& layers, const DisplayChoice& choice,
+                                  LayerRange& range, std::string& missing) {
+  const std::size_t n = field.values().size();
+  std::vector<float> rgb;
+  missing.clear();
+  if (choice.mode == DisplayMode::kColour) {
+    if (layers.colour_rgb8.size() != 3 * n || n == 0) {
+      missing = "this scene has no colour layer: drawn grey";
+      return rgb;
+    }
+    rgb.resize(3 * n);
+    for (std::size_t k = 0; k < 3 * n; ++k) rgb[k] = static_cast<float>(layers.colour_rgb8[k]) / 255.0F;
+    return rgb;
+  }
+  if (choice.mode != DisplayMode::kLayerMap) return rgb;
+  const HeightField& layer = choice.layer == MapLayer::kTexture ? layers.texture_m
+                             : choice.layer == MapLayer::kMuD   ? layers.mu_d
+                                                                : layers.cell_error_m;
+  if (layer.values().size() != n || n == 0) {
+    missing = choice.layer == MapLayer::kTexture ? "no texture layer in this scene: drawn grey"
+              : choice.layer == MapLayer::kMuD   ? "no mu_d layer in this scene: drawn grey"
+                                                 : "no cross-check error in this scene (run it with cross_check "
+                                                   "enabled): drawn grey";
+    return rgb;
+  }
+  range = layer_range(layer, choice.layer);
+  rgb.resize(3 * n);
+  for (std::size_t k = 0; k < n; ++k) {
+    const Eigen::Vector3f c = layer_colour_map(range.t(static_cast<double>(layer.data()[k])));
+    rgb[3 * k] = c.x();
+    rgb[3 * k + 1] = c.y();
+    rgb[3 * k + 2] = c.z();
+  }
+  return rgb;
+}
+}  // namespace
+
+void Viewer::rebuild_scene_meshes() {
+  display_dirty_ = false;
+  if (!scene_) return;
+  std::string missing;
+  const std::vector<float> wc = sample_colours(scene_->window, scene_->window_layers, display_, window_range_, missing);
+  display_note_ = missing;
+  MeshData w = height_field_mesh(scene_->window, kMaxMeshSide, &wc);
+  gpu_->window_mesh.upload(w.vertices, w.indices, GL_TRIANGLES, false, w.colours);
+  gpu_->window_quads = w.quads;
+  gpu_->window_extent = extent_of(scene_->window);
+  const bool own_overview = scene_->overview.rows() > 1;
+  const HeightField& ov = own_overview ? scene_->overview : scene_->window;
+  const std::vector<float> oc =
+      sample_colours(ov, own_overview ? scene_->overview_layers : scene_->window_layers, display_, overview_range_, missing);
+  MeshData o = height_field_mesh(ov, kMaxOverviewSide, &oc);
+  gpu_->overview_mesh.upload(o.vertices, o.indices, GL_TRIANGLES, false, o.colours);
+  gpu_->overview_extent = extent_of(ov);
+}
+
+void Viewer::set_display(const DisplayChoice& choice) {
+  if (choice == display_) return;
+  display_ = choice;
+  display_dirty_ = true;
+}
+
+void Viewer::cycle_display_mode() {
+  DisplayChoice c = display_;
+  c.mode = c.mode == DisplayMode::kColour ? DisplayMode::kGrey
+           : c.mode == DisplayMode::kGrey ? DisplayMode::kLayerMap
+                                          : DisplayMode::kColour;
+  set_display(c);
+}
+
+void Viewer::cycle_map_layer() {
+  DisplayChoice c = display_;
+  if (c.mode == DisplayMode::kLayerMap) {
+    c.layer = c.layer == MapLayer::kTexture ? MapLayer::kMuD : c.layer == MapLayer::kMuD ? MapLayer::kError : MapLayer::kTexture;
+  }
+  c.mode = DisplayMode::kLayerMap;
+  set_display(c);
 }
 
 void Viewer::issue(const RegionCommand& command) {
@@ -459,6 +624,8 @@ void Viewer::on_key(GLFWwindow* w, int key, int, int action, int mods) {
     case GLFW_KEY_G: if (!repeat) self->show_panel_ = !self->show_panel_; break;
     case GLFW_KEY_N: if (!repeat) self->show_navigation_ = !self->show_navigation_; break;
     case GLFW_KEY_S: if (!repeat) self->stereo_ = !self->stereo_; break;
+    case GLFW_KEY_C: if (!repeat) self->cycle_display_mode(); break;
+    case GLFW_KEY_L: if (!repeat) self->cycle_map_layer(); break;
     case GLFW_KEY_LEFT_BRACKET: self->set_eye_separation(self->eye_separation_ / 1.2); break;
     case GLFW_KEY_RIGHT_BRACKET: self->set_eye_separation(self->eye_separation_ * 1.2); break;
     case GLFW_KEY_R: if (!repeat) self->set_camera(0.0, 0.0, 1.0); break;
@@ -651,6 +818,7 @@ void Viewer::draw_main(const PixelRect& view) {
     p.set("u_light_dir", Eigen::Vector3f((to_world * Eigen::Vector3d(-0.45, 0.55, 0.70).normalized()).cast<float>()));
     p.set("u_grey", stereo_ ? 1 : 0);
     p.set("u_height_colour", 0);
+    p.set("u_vertex_colour", 0);
     const auto draw = [&](const gl::Mesh& mesh, const Eigen::Matrix4d& model, const Eigen::Vector3f& colour, bool lit) {
       p.set("u_mvp", to_f(vp * model));
       p.set("u_model", to_f(model));
@@ -672,7 +840,9 @@ void Viewer::draw_main(const PixelRect& view) {
       }
       continue;
     }
-    draw(gpu_->window_mesh, Eigen::Matrix4d::Identity(), kStone, true);
+    p.set("u_vertex_colour", gpu_->window_mesh.has_colours() ? 1 : 0);
+    draw(gpu_->window_mesh, Eigen::Matrix4d::Identity(), kGrey, true);
+    p.set("u_vertex_colour", 0);
     // Proxy, HIP and force (snapshot, grid frame).
     const Eigen::Vector3d proxy = snapshot_.proxy_m.eigen(), hip = snapshot_.hip_m.eigen();
     const Eigen::Vector3d force = snapshot_.force_n.eigen();
@@ -710,12 +880,13 @@ void Viewer::draw_navigation(const PixelRect& view) {
   p.set("u_light_dir", Eigen::Vector3f(Eigen::Vector3f(-0.45F, 0.55F, 0.70F).normalized()));
   p.set("u_grey", 0);
   p.set("u_lit", 1);
-  p.set("u_height_colour", 1);
-  const Extent& oe = gpu_->overview_extent;
-  p.set("u_height_range", Eigen::Vector2f(static_cast<float>(oe.z_min), static_cast<float>(oe.z_max)));
-  p.set("u_colour", kStone);
-  gpu_->overview_mesh.draw();
   p.set("u_height_colour", 0);
+  const Extent& oe = gpu_->overview_extent;
+  // The display mode's colours (scan colour, layer map) or grey, lit like the main view.
+  p.set("u_vertex_colour", gpu_->overview_mesh.has_colours() ? 1 : 0);
+  p.set("u_colour", kGrey);
+  gpu_->overview_mesh.draw();
+  p.set("u_vertex_colour", 0);
   // The window outline, drawn on top.
   glDisable(GL_DEPTH_TEST);
   const Extent& we = gpu_->window_extent;
@@ -849,6 +1020,49 @@ void Viewer::draw_gui() {
       }
       ImGui::EndDisabled();
     }
+    if (ImGui::CollapsingHeader("Display", ImGuiTreeNodeFlags_DefaultOpen)) {
+      DisplayChoice c = display_;
+      int mode = static_cast<int>(c.mode);
+      bool changed = ImGui::RadioButton("colour", &mode, 0);
+      ImGui::SameLine();
+      changed |= ImGui::RadioButton("grey", &mode, 1);
+      ImGui::SameLine();
+      changed |= ImGui::RadioButton("layer map", &mode, 2);
+      ImGui::SameLine();
+      ImGui::TextDisabled("C, L");
+      int layer = static_cast<int>(c.layer);
+      const char* layers[] = {"texture", "mu_d", "cross-check error"};
+      if (ImGui::Combo("layer (L)", &layer, layers, 3)) {
+        changed = true;
+        mode = static_cast<int>(DisplayMode::kLayerMap);
+      }
+      if (changed) set_display({static_cast<DisplayMode>(mode), static_cast<MapLayer>(layer)});
+      if (!display_note_.empty()) {
+        ImGui::TextColored(ImVec4(1.0F, 0.75F, 0.3F, 1.0F), "%s", display_note_.c_str());
+      } else if (display_.mode == DisplayMode::kLayerMap) {
+        // The colour map as a bar, then the ranges it spans (low end left, high end right).
+        const ImVec2 at = ImGui::GetCursorScreenPos();
+        const float width = ImGui::GetContentRegionAvail().x, height = 12.0F;
+        ImDrawList* dl = ImGui::GetWindowDrawList();
+        const auto u32 = [](double t) {
+          const Eigen::Vector3f m = layer_colour_map(t);
+          return ImGui::ColorConvertFloat4ToU32(ImVec4(m.x(), m.y(), m.z(), 1.0F));
+        };
+        for (int i = 0; i < 4; ++i) {
+          const float x0 = at.x + width * static_cast<float>(i) / 4.0F, x1 = at.x + width * static_cast<float>(i + 1) / 4.0F;
+          dl->AddRectFilledMultiColor(ImVec2(x0, at.y), ImVec2(x1, at.y + height), u32(i / 4.0), u32((i + 1) / 4.0),
+                                      u32((i + 1) / 4.0), u32(i / 4.0));
+        }
+        ImGui::Dummy(ImVec2(width, height));
+        const double k = display_.layer == MapLayer::kMuD ? 1.0 : 1e3;  // m → mm
+        ImGui::Text("%s", to_string(display_.layer).c_str());
+        ImGui::Text("window %.4g .. %.4g", k * window_range_.lo, k * window_range_.hi);
+        ImGui::Text("navigation %.4g .. %.4g", k * overview_range_.lo, k * overview_range_.hi);
+        if (display_.layer == MapLayer::kError && scene_ && scene_->level > 0) {
+          ImGui::TextWrapped("(level 0's error smoothed to this level)");
+        }
+      }
+    }
     if (ImGui::CollapsingHeader("View and sound", ImGuiTreeNodeFlags_DefaultOpen)) {
       ImGui::Checkbox("anaglyph stereo (S)", &stereo_);
       auto sep = static_cast<float>(eye_separation_);
@@ -892,6 +1106,7 @@ void Viewer::render_frame() {
   handle_input();
   if (callbacks_.on_frame) callbacks_.on_frame();
   take_pending_scene();
+  if (display_dirty_) rebuild_scene_meshes();
   haptics::ButtonEvent b;
   while (shared_.button_events.try_pop(b)) press_device_buttons(b.pressed);
   haptics::Snapshot s;

@@ -227,5 +227,49 @@ TEST(ExploreSession, UnknownDeviceIsAnErrorNamingTheChoices) {
   EXPECT_NE(r.output.find("falcon, mouse or sim"), std::string::npos) << r.output;
 }
 
+TEST(ExploreSession, BadDisplayIsAnErrorNamingTheOptionAndTheChoices) {
+  const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
+  const fs::path out = test::temp_dir("baddisplay") / "out";
+  const Result r = run_app("explore " + config.string() + " --device sim --display purple --hidden --out " + out.string());
+  EXPECT_EQ(r.status != 0, true);
+  EXPECT_NE(r.output.find("--display 'purple' is unknown (expected colour, grey, texture, mu_d or error)"),
+            std::string::npos) << r.output;
+  EXPECT_FALSE(fs::exists(out / "scan-0")) << "checked before any scene is built";
+  // --help lists the option and the keys.
+  const Result help = run_app("explore --help");
+  EXPECT_NE(help.output.find("--display"), std::string::npos) << help.output;
+  EXPECT_NE(help.output.find("colour | grey | texture | mu_d | error"), std::string::npos) << help.output;
+  EXPECT_NE(help.output.find("C            colours"), std::string::npos) << help.output;
+}
+
+TEST(ExploreSession, DisplayModesFromTheOptionAndTheScriptReachTheViewer) {
+  // A scene folder with its cross-check error map and no colour: --display starts a mode, a
+  // script step switches it (the summary records the viewer's mode and its note at the end).
+  const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
+  const fs::path dir = test::temp_dir("display");
+  const Result built = run_app("run " + config.string() + " --out " + (dir / "run").string() +
+                               " --set grid.n=120 --set lod.min_cells=30 --set lod.report=false");
+  ASSERT_EQ(built.status, 0) << built.output;
+  const std::string common = "explore " + (dir / "run" / "scene").string() +
+                             " --device sim --hidden --no-audio --frames 3 --window-cells 64 --out " +
+                             (dir / "out").string() + " --summary " + (dir / "summary.json").string() + " ";
+  const Result a = run_app(common + "--display texture --script '2 display error' --screenshot " +
+                           (dir / "error.png").string());
+  ASSERT_EQ(a.status, 0) << a.output;
+  nlohmann::json s = read_json(dir / "summary.json");
+  EXPECT_EQ(s["display"].get<std::string>(), "error");
+  EXPECT_EQ(s["display_note"].get<std::string>(), "") << "the scene's cell_error reached the viewer";
+  EXPECT_GT(fs::file_size(dir / "error.png"), 10000U);
+  // The default, colour, on a scene without colour: grey, and the note says so.
+  const Result b = run_app(common);
+  ASSERT_EQ(b.status, 0) << b.output;
+  s = read_json(dir / "summary.json");
+  EXPECT_EQ(s["display"].get<std::string>(), "colour");
+  EXPECT_NE(s["display_note"].get<std::string>().find("no colour"), std::string::npos) << s.dump();
+  const Result bad = run_app(common + "--script '1 display purple'");
+  EXPECT_NE(bad.status, 0);
+  EXPECT_NE(bad.output.find("display 'purple' is unknown"), std::string::npos) << bad.output;
+}
+
 }  // namespace
 }  // namespace hc

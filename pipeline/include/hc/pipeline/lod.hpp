@@ -38,6 +38,13 @@ struct LodLevel {
   /// the samples with valid depth, rounded to 8 bit), so it is present exactly where depth is;
   /// 0, 0, 0 where depth is no data. Built together with the depth.
   std::vector<std::uint8_t> colour_rgb8{};
+  /// Empty, or the scene's cross-check error per sample [m] (scene layer cell_error: 3-D
+  /// distance from the level-0 grid sample to its nearest input point, ≥ 0, NaN = none). Level 0
+  /// holds the scene's map; a coarser level holds level 0's map carried down by downsample_2x
+  /// with the depth's σ and valid fraction (a local weighted mean of the finer errors: where the
+  /// finest grid departs from the points, not this level's own error against them, which only
+  /// `hapticloud levels` measures). Built together with the depth.
+  HeightField cell_error_m{};
   double depth_seconds = 0.0;   ///< time to smooth and decimate from the level above [s] (0 for level 0)
   double layers_seconds = 0.0;  ///< time of compute_surface_layers for this level [s]
   /// Bytes held by the grids. Real-time: no.
@@ -52,6 +59,7 @@ struct LodWindowLayers {
   int row0 = 0, col0 = 0;
   HeightField depth_m, envelope_m, texture_m, mu_d, mu_s;
   std::vector<std::uint8_t> colour_rgb8{};  ///< the level's colour cropped (empty if it has none)
+  HeightField cell_error_m{};  ///< the level's cell_error_m cropped [m] (empty if it has none)
   std::size_t bytes() const;
 };
 
@@ -91,13 +99,13 @@ class LodPyramid {
  public:
   /// @param finest level 0; its depth must have rows, cols ≥ 2 and a valid sample; its other
   ///        fields, when has_layers, must share the depth's geometry; its colour, if any,
-  ///        must hold rows·cols·3 bytes.
+  ///        must hold rows·cols·3 bytes; its cell_error_m, if any, must share the depth's geometry.
   /// @throws hc::ConfigError for options out of range (naming the lod.* key and the value);
   ///         hc::InputError for an empty or geometry-mismatched level 0.
   LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options, const LodOptions& options);
 
   /// From a scene: moves its depth (and envelope, texture, mu_d, mu_s when all four are
-  /// present, and its colour when present) into level 0. Callers usually pass the scene's own layer_options and lod.
+  /// present, and its colour and cell_error when present) into level 0. Callers usually pass the scene's own layer_options and lod.
   /// @throws as the constructor (hc::InputError for an empty depth layer).
   static std::shared_ptr<LodPyramid> from_scene(hc::Scene&& scene, const SurfaceLayerOptions& layer_options,
                                                 const LodOptions& options);

@@ -24,7 +24,8 @@ namespace hc::session {
 /// worker that built it).
 struct ExploreScene {
   /// Level 0: geometry, model_to_grid, friction model and the layers depth, envelope, texture,
-  /// mu_d, mu_s (grid frame, metres; μ dimensionless), kept for friction rebuilds.
+  /// mu_d, mu_s, cell_error (grid frame, metres; μ dimensionless) and colour_rgb8 (when the
+  /// scene has them), kept for friction rebuilds.
   Scene base;
   std::shared_ptr<pipeline::LodPyramid> pyramid;  ///< built from `base`'s layers
   /// The view rotation the scene was scanned with (model → grid; the orientation tool's start).
@@ -34,9 +35,10 @@ struct ExploreScene {
   bool keep_window = false;  ///< same object (friction rebuild): keep the current level and window
 };
 
-/// Level 0 of `scene` with only what a pyramid and a friction rebuild need: geometry,
-/// model_to_grid, friction model and the depth, envelope, texture, mu_d and mu_s layers (no
-/// region ids, colour, intensity or metadata). Copies; any thread. Throws only std::bad_alloc.
+/// Level 0 of `scene` with only what a pyramid, the viewer and a friction rebuild need:
+/// geometry, model_to_grid, friction model and the depth, envelope, texture, mu_d, mu_s and
+/// cell_error layers and the colour (rows·cols·3 bytes; layers absent in `scene` stay absent; no
+/// region ids, intensity or metadata). Copies; any thread. Throws only std::bad_alloc.
 Scene explore_base_layers(const Scene& scene);
 
 /// The ExploreScene of `scene`: when `recompute_layers`, its envelope, texture, μ_d and μ_s (and

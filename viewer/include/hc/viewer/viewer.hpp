@@ -32,11 +32,28 @@ struct GLFWwindow;  // GLFW's window handle (GLFW headers stay in the .cpp files
 
 namespace hc::viewer {
 
+/// Per-sample layers drawn on one height field of a DisplayScene (the window or the overview).
+/// Each is empty (absent) or has exactly that field's rows × cols samples, row-major, sample
+/// (r, c) at the field's sample (r, c). Source: the level-of-detail pyramid's level or window
+/// (hc::pipeline::LodLevel / LodWindowLayers), which the app copies in.
+struct DisplayLayers {
+  /// The scan's colour, rows·cols·3 bytes, R G B (8-bit, as stored in the scene's colour.png),
+  /// or empty. Samples without depth may hold anything (they are not drawn).
+  std::vector<std::uint8_t> colour_rgb8;
+  HeightField texture_m;     ///< h = f − f_b [m] (signed), NaN = none
+  HeightField mu_d;          ///< dynamic friction coefficient μ_d [-], NaN = none
+  /// Cross-check error [m] ≥ 0: 3-D distance from a grid sample to its nearest input point
+  /// (scene layer cell_error; at a coarser level, level 0's map smoothed down), NaN = none.
+  HeightField cell_error_m;
+};
+
 /// What the viewer shows of the scene. Immutable once handed to set_scene().
 struct DisplayScene {
   HeightField window;    ///< the active haptic window: rendered heights, grid frame [m], NaN = none
   HeightField overview;  ///< the whole object at a coarse level, grid frame [m] (may be empty:
                          ///< then the window itself is the overview)
+  DisplayLayers window_layers;    ///< colour and layer maps of `window` (any may be empty)
+  DisplayLayers overview_layers;  ///< of `overview` (ignored when the overview is empty)
   haptics::WorkspaceMap workspace;  ///< device ↔ grid map of this window
   int level = 0;                    ///< LoD level of the window (0 = finest)
   int level_count = 1;              ///< levels available
@@ -66,6 +83,64 @@ struct RegionCommand {
   double dx = 0.0, dy = 0.0;     ///< kPan [window widths]
   double x_m = 0.0, y_m = 0.0;   ///< kCentreAt [m]
 };
+
+/// How the haptic window and the navigation view are coloured (key C cycles the mode, L the
+/// layer of the layer map; also in the panel and `explore --display`). Every mode is lit by
+/// the same shading, colour × (ambient + Lambert), so the shape stays readable.
+enum class DisplayMode : std::uint8_t {
+  kColour = 0,  ///< the scan's colour per vertex (grey when the scene has none: the panel says so)
+  kGrey,        ///< uniform neutral grey
+  kLayerMap,    ///< one layer (MapLayer) through layer_colour_map(), its range in the panel
+};
+
+/// The layer a DisplayMode::kLayerMap shows.
+enum class MapLayer : std::uint8_t {
+  kTexture = 0,  ///< texture h [m], range symmetric about 0: ±(98th percentile of |h|)
+  kMuD,          ///< μ_d [-], range [2nd, 98th] percentile
+  kError,        ///< cross-check error [m], range [0, 98th percentile]
+};
+
+/// A display mode and, for the layer map, its layer.
+struct DisplayChoice {
+  DisplayMode mode = DisplayMode::kColour;
+  MapLayer layer = MapLayer::kTexture;
+  bool operator==(const DisplayChoice&) const = default;
+};
+
+/// The names of `explore --display` and the --script step `display`: "colour", "grey",
+/// "texture", "mu_d", "error" (the last three: the layer map of that layer).
+/// @param what the option's name for the message (e.g. "--display").
+/// @throws hc::ConfigError "<what> '<text>' is unknown (expected colour, grey, texture, mu_d or
+///         error)". Any thread.
+DisplayChoice display_choice_from_string(const std::string& text, const std::string& what);
+/// The name of a choice (inverse of display_choice_from_string; the layer only in kLayerMap).
+std::string to_string(const DisplayChoice& choice);
+/// The layer's name with its unit, for the panel: "texture h [mm]", "mu_d [-]",
+/// "cross-check error [mm]".
+std::string to_string(MapLayer layer);
+
+/// The layer map's colour map, t ∈ [0, 1] (clamped; NaN gives the no-data grey 0.5, 0.5, 0.5)
+/// → linear RGB in [0, 1]. Piecewise linear through five stops, chosen for this project (a
+/// blue-to-red "cool to warm" ramp whose hue turns one way only, so the order of two colours
+/// is unambiguous):
+///   t = 0    (0.23, 0.18, 0.75) indigo
+///   t = 0.25 (0.15, 0.55, 0.90) blue
+///   t = 0.5  (0.20, 0.78, 0.55) green
+///   t = 0.75 (0.95, 0.80, 0.20) yellow
+///   t = 1    (0.85, 0.15, 0.10) red
+/// Real-time: yes (no allocation).
+Eigen::Vector3f layer_colour_map(double t);
+
+/// The value range a layer map spreads over [0, 1] of layer_colour_map, from the finite samples
+/// of `layer` (its unit: metres for texture and error, none for μ_d): see MapLayer for each
+/// layer's rule (percentiles by nth_element on a copy: robust to a few spikes). No finite sample
+/// gives lo = hi = 0; hi is always > lo (widened by 1e-12 of the layer's unit when equal).
+struct LayerRange {
+  double lo = 0.0, hi = 1.0;
+  /// Position of v in the range, clamped to [0, 1]; NaN stays NaN.
+  double t(double v) const;
+};
+LayerRange layer_range(const HeightField& layer, MapLayer which);
 
 /// Surface-side settings the app applies by rebuilding the haptic surface (not servo commands).
 struct SurfaceSettings {
@@ -101,6 +176,7 @@ struct ViewerOptions {
   bool vsync = true;
   double max_fps = 60.0;             ///< frame-rate cap (sleeps the UI thread) [Hz]; 0 = none
   bool stereo = false;               ///< red/cyan anaglyph (mono by default)
+  DisplayChoice display;             ///< starting display mode (colour by default)
   double eye_separation = 0.03;      ///< eye separation / convergence distance [-], (0, 0.2]
   double field_of_view_deg = 35.0;   ///< vertical field of view of the main view [deg]
   /// Mouse drives the HIP: x, y under the cursor (on the plane of the HIP), wheel for z.
@@ -182,6 +258,23 @@ class Viewer {
   /// Mouse mode without a mouse (tests): the cursor at pixel (px, py) of the window.
   void set_cursor_for_test(double px, double py);
 
+  /// The display mode (DisplayMode) and the layer map's layer; the meshes are recoloured at
+  /// the next frame. Same as the keys C / L and the panel's Display section.
+  void set_display(const DisplayChoice& choice);
+  const DisplayChoice& display() const { return display_; }
+  /// C: colour → grey → layer map → colour. L: the next layer (texture → μ_d → error), and the
+  /// layer map on.
+  void cycle_display_mode();
+  void cycle_map_layer();
+  /// What the panel says about the current display: empty, or why it differs from the choice
+  /// (e.g. "this scene has no colour layer: drawn grey", "no cross-check error in this scene").
+  const std::string& display_note() const { return display_note_; }
+  /// The current layer map's range in the window (main view) and the overview (navigation
+  /// view), in the layer's unit [m or -]; meaningful only in DisplayMode::kLayerMap with the
+  /// layer present.
+  const LayerRange& window_range() const { return window_range_; }
+  const LayerRange& overview_range() const { return overview_range_; }
+
   void set_stereo(bool on) { stereo_ = on; }
   bool stereo() const { return stereo_; }
   /// @param ratio eye separation / convergence distance, clamped to [0.001, 0.2].
@@ -216,6 +309,7 @@ class Viewer {
  private:
   struct Gpu;  // OpenGL objects (viewer.cpp)
   void take_pending_scene();
+  void rebuild_scene_meshes();
   void handle_input();
   void draw_main(const PixelRect& view);
   void draw_navigation(const PixelRect& view);
@@ -246,6 +340,10 @@ class Viewer {
   haptics::Snapshot snapshot_{};
   FrameStats frame_stats_{};
   bool stereo_ = false;
+  DisplayChoice display_;
+  bool display_dirty_ = false;   // recolour the meshes at the next frame
+  std::string display_note_;
+  LayerRange window_range_, overview_range_;
   double eye_separation_ = 0.03;
   double yaw_deg_ = 0.0, tilt_deg_ = 0.0, zoom_ = 1.0;
   bool show_panel_ = true, show_help_ = false, show_navigation_ = true;
