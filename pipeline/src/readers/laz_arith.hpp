@@ -32,6 +32,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <stdexcept>
 #include <vector>
 
 namespace hc::pipeline::detail::laz {
@@ -177,9 +178,12 @@ class ArithDecoder {
     return out;
   }
 
+  /// The next symbol of model m. kTable: the caller knows m has more than 16 symbols (so a
+  /// decoding table), which spares the test.
+  template <bool kTable = false>
   [[gnu::always_inline]] std::uint32_t symbol(SymbolModel& m) {
     std::uint32_t s, lo, hi = length_;
-    if (m.table_size_ != 0) {
+    if (kTable || m.table_size_ != 0) {
       length_ >>= SymbolModel::kShift;
       const std::uint32_t target = value_ / length_;
       std::uint32_t t = target >> m.table_shift_;
@@ -264,8 +268,9 @@ class ArithDecoder {
 /// corrector range; `contexts` independent bucket models.
 class IntDecoder {
  public:
-  IntDecoder(std::uint32_t bits = 16, std::uint32_t contexts = 1, std::uint32_t bits_high = 8)
-      : bits_high_(bits_high) {
+  /// `bits` 16 to 32 (LAZ uses 16 and 32; 0 means 32), so every bucket model has a table.
+  IntDecoder(std::uint32_t bits = 16, std::uint32_t contexts = 1) {
+    if (bits != 0 && (bits < 16 || bits > 32)) throw std::logic_error("laz::IntDecoder: bits must be 16 to 32");
     if (bits > 0 && bits < 32) {
       corr_bits_ = bits;
       range_ = 1u << bits;
@@ -277,13 +282,13 @@ class IntDecoder {
     }
     buckets_.assign(contexts, SymbolModel(corr_bits_ + 1));
     small_.resize(corr_bits_ + 1);
-    for (std::uint32_t k = 1; k <= corr_bits_; ++k) small_[k].reset(1u << (k <= bits_high_ ? k : bits_high_));
+    for (std::uint32_t k = 1; k <= corr_bits_; ++k) small_[k].reset(1u << (k <= kBitsHigh ? k : kBitsHigh));
   }
   /// Resets every model to its initial state (start of a chunk).
   void reset() {
     for (auto& b : buckets_) b.reset(corr_bits_ + 1);
     zero_ = BitModel();
-    for (std::uint32_t k = 1; k <= corr_bits_; ++k) small_[k].reset(1u << (k <= bits_high_ ? k : bits_high_));
+    for (std::uint32_t k = 1; k <= corr_bits_; ++k) small_[k].reset(1u << (k <= kBitsHigh ? k : kBitsHigh));
   }
   /// The value predicted by `pred` and coded in `context` (< contexts).
   /// Inlined into the item decoders (a few call sites each), which saves the call overhead on
@@ -306,14 +311,14 @@ class IntDecoder {
 
  private:
   [[gnu::always_inline]] std::int32_t corrector(ArithDecoder& d, SymbolModel& bucket) {
-    k_ = d.symbol(bucket);
+    k_ = d.symbol<true>(bucket);
     if (k_ == 0) return static_cast<std::int32_t>(d.bit(zero_));
     if (k_ >= 32) return static_cast<std::int32_t>(min_);
     std::uint32_t code;
-    if (k_ <= bits_high_) {
+    if (k_ <= kBitsHigh) {
       code = d.symbol(small_[k_]);
     } else {
-      const std::uint32_t low_bits = k_ - bits_high_;
+      const std::uint32_t low_bits = k_ - kBitsHigh;
       code = (d.symbol(small_[k_]) << low_bits) | d.bits(low_bits);
     }
     // In 32-bit unsigned arithmetic; the conversion to int32 wraps (C++20), as the corrector's
@@ -321,7 +326,8 @@ class IntDecoder {
     if (code >= (1u << (k_ - 1))) return static_cast<std::int32_t>(code + 1);
     return static_cast<std::int32_t>(code - ((1u << k_) - 1));
   }
-  std::uint32_t bits_high_ = 8, corr_bits_ = 16, range_ = 0;
+  static constexpr std::uint32_t kBitsHigh = 8;  // bits_high of the LAZ integer compressor
+  std::uint32_t corr_bits_ = 16, range_ = 0;
   std::int64_t min_ = 0;
   std::vector<SymbolModel> buckets_;
   BitModel zero_;

@@ -194,11 +194,11 @@ inline std::int32_t clamp8(std::int32_t v) { return v < 0 ? 0 : (v > 255 ? 255 :
 /// three 16-bit channels of the next point from `last` (the previous point's channels).
 [[gnu::always_inline]] inline void decode_rgb(ArithDecoder& d, SymbolModel& used, SymbolModel* diff, const std::uint16_t last[3],
                 std::uint16_t out[3]) {
-  const std::uint32_t s = d.symbol(used);
+  const std::uint32_t s = d.symbol<true>(used);
   const auto lo = [](std::uint16_t v) { return static_cast<std::int32_t>(v & 0xFF); };
   const auto hi = [](std::uint16_t v) { return static_cast<std::int32_t>(v >> 8); };
-  std::uint32_t r_lo = (s & 1) ? item_detail::fold8(static_cast<std::int32_t>(d.symbol(diff[0])) + lo(last[0])) : lo(last[0]);
-  std::uint32_t r_hi = (s & 2) ? item_detail::fold8(static_cast<std::int32_t>(d.symbol(diff[1])) + hi(last[0])) : hi(last[0]);
+  std::uint32_t r_lo = (s & 1) ? item_detail::fold8(static_cast<std::int32_t>(d.symbol<true>(diff[0])) + lo(last[0])) : lo(last[0]);
+  std::uint32_t r_hi = (s & 2) ? item_detail::fold8(static_cast<std::int32_t>(d.symbol<true>(diff[1])) + hi(last[0])) : hi(last[0]);
   out[0] = static_cast<std::uint16_t>(r_lo | (r_hi << 8));
   if (!(s & 64)) {
     out[1] = out[0];
@@ -207,18 +207,18 @@ inline std::int32_t clamp8(std::int32_t v) { return v < 0 ? 0 : (v > 255 ? 255 :
   }
   std::int32_t change = static_cast<std::int32_t>(r_lo) - lo(last[0]);
   std::uint32_t g_lo, b_lo, g_hi, b_hi;
-  g_lo = (s & 4) ? item_detail::fold8(static_cast<std::int32_t>(d.symbol(diff[2])) + item_detail::clamp8(change + lo(last[1]))) : lo(last[1]);
+  g_lo = (s & 4) ? item_detail::fold8(static_cast<std::int32_t>(d.symbol<true>(diff[2])) + item_detail::clamp8(change + lo(last[1]))) : lo(last[1]);
   if (s & 16) {
     const std::int32_t c = (change + (static_cast<std::int32_t>(g_lo) - lo(last[1]))) / 2;
-    b_lo = item_detail::fold8(static_cast<std::int32_t>(d.symbol(diff[4])) + item_detail::clamp8(c + lo(last[2])));
+    b_lo = item_detail::fold8(static_cast<std::int32_t>(d.symbol<true>(diff[4])) + item_detail::clamp8(c + lo(last[2])));
   } else {
     b_lo = lo(last[2]);
   }
   change = static_cast<std::int32_t>(r_hi) - hi(last[0]);
-  g_hi = (s & 8) ? item_detail::fold8(static_cast<std::int32_t>(d.symbol(diff[3])) + item_detail::clamp8(change + hi(last[1]))) : hi(last[1]);
+  g_hi = (s & 8) ? item_detail::fold8(static_cast<std::int32_t>(d.symbol<true>(diff[3])) + item_detail::clamp8(change + hi(last[1]))) : hi(last[1]);
   if (s & 32) {
     const std::int32_t c = (change + (static_cast<std::int32_t>(g_hi) - hi(last[1]))) / 2;
-    b_hi = item_detail::fold8(static_cast<std::int32_t>(d.symbol(diff[5])) + item_detail::clamp8(c + hi(last[2])));
+    b_hi = item_detail::fold8(static_cast<std::int32_t>(d.symbol<true>(diff[5])) + item_detail::clamp8(c + hi(last[2])));
   } else {
     b_hi = hi(last[2]);
   }
@@ -293,7 +293,7 @@ inline void GpsTimeDecoder::extreme(std::int32_t diff) {
     }
     return true;
   }
-  const std::uint32_t s = d.symbol(multi_);
+  const std::uint32_t s = d.symbol<true>(multi_);
   const std::uint32_t full_code = layered_ ? kMultiLimit : kMultiLimit + 1;
   if (s < kMultiLimit) {
     // One integer-decoder call site for every multiple (the decoder is inlined, so this keeps

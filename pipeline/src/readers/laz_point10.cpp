@@ -110,8 +110,8 @@ class Point10 final : public PointwiseItem {
   void decode(ArithDecoder& d, std::uint8_t* out) override { step(d, out); }
 
   [[gnu::always_inline]] void step(ArithDecoder& d, std::uint8_t* out) {
-    const std::uint32_t changed = d.symbol(changed_);
-    if (changed & 32) return_byte_value_ = d.symbol(return_byte_.at(return_byte_value_));
+    const std::uint32_t changed = d.symbol<true>(changed_);
+    if (changed & 32) return_byte_value_ = d.symbol<true>(return_byte_.at(return_byte_value_));
     const std::uint32_t r = return_byte_value_ & 7u, n = (return_byte_value_ >> 3) & 7u;
     const std::uint32_t m = kReturnClass8[n][r];
     const std::uint32_t l = n > r ? n - r : r - n;
@@ -119,12 +119,12 @@ class Point10 final : public PointwiseItem {
       last_intensity_[m] = static_cast<std::uint16_t>(intensity_.decode(d, last_intensity_[m], m < 3 ? m : 3));
     }
     intensity_out_ = last_intensity_[m];
-    if (changed & 8) class_ = d.symbol(classification_.at(class_));
+    if (changed & 8) class_ = d.symbol<true>(classification_.at(class_));
     if (changed & 4) {
       const std::uint32_t dir = (return_byte_value_ >> 6) & 1u;
-      angle_ = (d.symbol(scan_angle_[dir]) + angle_) & 0xFFu;
+      angle_ = (d.symbol<true>(scan_angle_[dir]) + angle_) & 0xFFu;
     }
-    if (changed & 2) user_ = d.symbol(user_data_.at(user_));
+    if (changed & 2) user_ = d.symbol<true>(user_data_.at(user_));
     if (changed & 1) source_ = static_cast<std::uint16_t>(source_id_.decode(d, source_, 0));
     const std::uint32_t first = n == 1;
     const std::int32_t dx = dx_.decode(d, dx_median_[m].get(), first);
@@ -206,7 +206,7 @@ class Bytes final : public PointwiseItem {
     const std::size_t n = last_.size();
     std::uint32_t* last = last_.data();
     SymbolModel* models = models_.data();
-    for (std::size_t i = 0; i < n; ++i) last[i] = (last[i] + d.symbol(models[i])) & 0xFFu;
+    for (std::size_t i = 0; i < n; ++i) last[i] = (last[i] + d.symbol<true>(models[i])) & 0xFFu;
     for (std::size_t i = 0; i < n; ++i) out[i] = static_cast<std::uint8_t>(last[i]);
   }
 
