@@ -12,6 +12,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -58,7 +59,8 @@ ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, cons
 /// read_laz.cpp: decompresses the LAZ point data of source (whose header was parsed with
 /// `compressed` = true) into header.count LAS records of header.record_length bytes, in file
 /// order, and appends a note on the compressor to header.notes. Throws hc::InputError naming
-/// the file and the offending VLR field, item, chunk or offset.
-std::string decompress_laz(const ScanSource& source, LasHeader& header);
+/// the file and the offending VLR field, item, chunk or offset. The buffer is allocated without
+/// zero-filling (every byte is written by the decoder).
+std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& header);
 
 }  // namespace hc::pipeline::detail

@@ -88,46 +88,70 @@ class ModelBank {
   std::array<std::unique_ptr<SymbolModel>, 256> models_;
 };
 
+// The item decoders keep their state in typed members (never a byte array), and write the
+// item's bytes only once per point, at the end: stores through a byte pointer may alias
+// anything, so a byte-array state would make the compiler reload every model pointer and the
+// decoder's interval after each of them. Each has an always-inlined `step` that the fused chunk
+// loop below (decode_pointwise_chunk) calls on a decoder held in local variables.
+
 class Point10 final : public PointwiseItem {
  public:
-  void seed(const std::uint8_t* raw) override { std::memcpy(last_, raw, 20); }
-  void decode(ArithDecoder& d, std::uint8_t* out) override {
-    const std::uint32_t changed = d.symbol(changed_);
-    if (changed & 32) last_[14] = static_cast<std::uint8_t>(d.symbol(return_byte_.at(last_[14])));
-    const std::uint32_t r = last_[14] & 7u, n = (last_[14] >> 3) & 7u;
+  void seed(const std::uint8_t* raw) override {
+    x_ = load<std::int32_t>(raw);
+    y_ = load<std::int32_t>(raw + 4);
+    z_out_ = load<std::int32_t>(raw + 8);
+    intensity_out_ = load<std::uint16_t>(raw + 12);
+    return_byte_value_ = raw[14];
+    class_ = raw[15];
+    angle_ = raw[16];
+    user_ = raw[17];
+    source_ = load<std::uint16_t>(raw + 18);
+  }
+  void decode(ArithDecoder& d, std::uint8_t* out) override { step(d, out); }
+
+  [[gnu::always_inline]] void step(ArithDecoder& d, std::uint8_t* out) {
+    const std::uint32_t changed = d.symbol<true>(changed_);
+    if (changed & 32) return_byte_value_ = d.symbol<true>(return_byte_.at(return_byte_value_));
+    const std::uint32_t r = return_byte_value_ & 7u, n = (return_byte_value_ >> 3) & 7u;
     const std::uint32_t m = kReturnClass8[n][r];
     const std::uint32_t l = n > r ? n - r : r - n;
     if (changed & 16) {
       last_intensity_[m] = static_cast<std::uint16_t>(intensity_.decode(d, last_intensity_[m], m < 3 ? m : 3));
     }
-    store<std::uint16_t>(last_ + 12, last_intensity_[m]);
-    if (changed & 8) last_[15] = static_cast<std::uint8_t>(d.symbol(classification_.at(last_[15])));
+    intensity_out_ = last_intensity_[m];
+    if (changed & 8) class_ = d.symbol<true>(classification_.at(class_));
     if (changed & 4) {
-      const std::uint32_t dir = (last_[14] >> 6) & 1u;
-      last_[16] = static_cast<std::uint8_t>(d.symbol(scan_angle_[dir]) + last_[16]);
+      const std::uint32_t dir = (return_byte_value_ >> 6) & 1u;
+      angle_ = (d.symbol<true>(scan_angle_[dir]) + angle_) & 0xFFu;
     }
-    if (changed & 2) last_[17] = static_cast<std::uint8_t>(d.symbol(user_data_.at(last_[17])));
-    if (changed & 1) {
-      store<std::uint16_t>(last_ + 18,
-                           static_cast<std::uint16_t>(source_id_.decode(d, load<std::uint16_t>(last_ + 18), 0)));
-    }
-    const std::int32_t dx = dx_.decode(d, dx_median_[m].get(), n == 1);
-    store<std::int32_t>(last_, static_cast<std::int32_t>(static_cast<std::uint32_t>(load<std::int32_t>(last_)) +
-                                                          static_cast<std::uint32_t>(dx)));
+    if (changed & 2) user_ = d.symbol<true>(user_data_.at(user_));
+    if (changed & 1) source_ = static_cast<std::uint16_t>(source_id_.decode(d, source_, 0));
+    const std::uint32_t first = n == 1;
+    const std::int32_t dx = dx_.decode(d, dx_median_[m].get(), first);
+    x_ = static_cast<std::int32_t>(static_cast<std::uint32_t>(x_) + static_cast<std::uint32_t>(dx));
     dx_median_[m].add(dx);
     const std::uint32_t kx = dx_.last_k();
-    const std::int32_t dy = dy_.decode(d, dy_median_[m].get(), (n == 1) + (kx < 20 ? even(kx) : 20));
-    store<std::int32_t>(last_ + 4, static_cast<std::int32_t>(static_cast<std::uint32_t>(load<std::int32_t>(last_ + 4)) +
-                                                              static_cast<std::uint32_t>(dy)));
+    const std::int32_t dy = dy_.decode(d, dy_median_[m].get(), first + (kx < 20 ? even(kx) : 20));
+    y_ = static_cast<std::int32_t>(static_cast<std::uint32_t>(y_) + static_cast<std::uint32_t>(dy));
     dy_median_[m].add(dy);
-    const std::uint32_t kz = (dx_.last_k() + dy_.last_k()) / 2;
-    last_height_[l] = z_.decode(d, last_height_[l], (n == 1) + (kz < 18 ? even(kz) : 18));
-    store<std::int32_t>(last_ + 8, last_height_[l]);
-    std::memcpy(out, last_, 20);
+    const std::uint32_t kz = (kx + dy_.last_k()) / 2;
+    z_out_ = z_.decode(d, last_height_[l], first + (kz < 18 ? even(kz) : 18));
+    last_height_[l] = z_out_;
+    store<std::int32_t>(out, x_);
+    store<std::int32_t>(out + 4, y_);
+    store<std::int32_t>(out + 8, z_out_);
+    store<std::uint16_t>(out + 12, intensity_out_);
+    out[14] = static_cast<std::uint8_t>(return_byte_value_);
+    out[15] = static_cast<std::uint8_t>(class_);
+    out[16] = static_cast<std::uint8_t>(angle_);
+    out[17] = static_cast<std::uint8_t>(user_);
+    store<std::uint16_t>(out + 18, source_);
   }
 
  private:
-  std::uint8_t last_[20] = {};
+  std::int32_t x_ = 0, y_ = 0, z_out_ = 0;
+  std::uint32_t return_byte_value_ = 0, class_ = 0, angle_ = 0, user_ = 0;
+  std::uint16_t intensity_out_ = 0, source_ = 0;
   std::uint16_t last_intensity_[16] = {};
   std::int32_t last_height_[8] = {};
   Median5 dx_median_[16], dy_median_[16];
@@ -138,14 +162,11 @@ class Point10 final : public PointwiseItem {
   IntDecoder dx_{32, 2}, dy_{32, 22}, z_{32, 20};
 };
 
-std::int32_t times(std::int64_t a, std::int32_t b) {
-  return static_cast<std::int32_t>(static_cast<std::uint32_t>(a) * static_cast<std::uint32_t>(b));
-}
-
 class GpsTime11 final : public PointwiseItem {
  public:
   void seed(const std::uint8_t* raw) override { gps_.seed(load<std::int64_t>(raw)); }
-  void decode(ArithDecoder& d, std::uint8_t* out) override {
+  void decode(ArithDecoder& d, std::uint8_t* out) override { step(d, out); }
+  [[gnu::always_inline]] void step(ArithDecoder& d, std::uint8_t* out) {
     gps_.decode(d);
     store<std::int64_t>(out, gps_.value());
   }
@@ -154,56 +175,16 @@ class GpsTime11 final : public PointwiseItem {
   GpsTimeDecoder gps_{false};
 };
 
-std::uint32_t fold8(std::int32_t v) { return static_cast<std::uint32_t>(v) & 0xFFu; }
-std::int32_t clamp8(std::int32_t v) { return v < 0 ? 0 : (v > 255 ? 255 : v); }
-
-}  // namespace
-
-/// RGB difference coding shared by RGB12 v2 and RGB14 v3 (same models and order): decodes the
-/// three 16-bit channels of the next point from `last` (the previous point's channels).
-void decode_rgb(ArithDecoder& d, SymbolModel& used, SymbolModel* diff, const std::uint16_t last[3],
-                std::uint16_t out[3]) {
-  const std::uint32_t s = d.symbol(used);
-  const auto lo = [](std::uint16_t v) { return static_cast<std::int32_t>(v & 0xFF); };
-  const auto hi = [](std::uint16_t v) { return static_cast<std::int32_t>(v >> 8); };
-  std::uint32_t r_lo = (s & 1) ? fold8(static_cast<std::int32_t>(d.symbol(diff[0])) + lo(last[0])) : lo(last[0]);
-  std::uint32_t r_hi = (s & 2) ? fold8(static_cast<std::int32_t>(d.symbol(diff[1])) + hi(last[0])) : hi(last[0]);
-  out[0] = static_cast<std::uint16_t>(r_lo | (r_hi << 8));
-  if (!(s & 64)) {
-    out[1] = out[0];
-    out[2] = out[0];
-    return;
-  }
-  std::int32_t change = static_cast<std::int32_t>(r_lo) - lo(last[0]);
-  std::uint32_t g_lo, b_lo, g_hi, b_hi;
-  g_lo = (s & 4) ? fold8(static_cast<std::int32_t>(d.symbol(diff[2])) + clamp8(change + lo(last[1]))) : lo(last[1]);
-  if (s & 16) {
-    const std::int32_t c = (change + (static_cast<std::int32_t>(g_lo) - lo(last[1]))) / 2;
-    b_lo = fold8(static_cast<std::int32_t>(d.symbol(diff[4])) + clamp8(c + lo(last[2])));
-  } else {
-    b_lo = lo(last[2]);
-  }
-  change = static_cast<std::int32_t>(r_hi) - hi(last[0]);
-  g_hi = (s & 8) ? fold8(static_cast<std::int32_t>(d.symbol(diff[3])) + clamp8(change + hi(last[1]))) : hi(last[1]);
-  if (s & 32) {
-    const std::int32_t c = (change + (static_cast<std::int32_t>(g_hi) - hi(last[1]))) / 2;
-    b_hi = fold8(static_cast<std::int32_t>(d.symbol(diff[5])) + clamp8(c + hi(last[2])));
-  } else {
-    b_hi = hi(last[2]);
-  }
-  out[1] = static_cast<std::uint16_t>(g_lo | (g_hi << 8));
-  out[2] = static_cast<std::uint16_t>(b_lo | (b_hi << 8));
-}
-
-namespace {
-
 class Rgb12 final : public PointwiseItem {
  public:
   void seed(const std::uint8_t* raw) override { std::memcpy(last_, raw, 6); }
-  void decode(ArithDecoder& d, std::uint8_t* out) override {
+  void decode(ArithDecoder& d, std::uint8_t* out) override { step(d, out); }
+  [[gnu::always_inline]] void step(ArithDecoder& d, std::uint8_t* out) {
     std::uint16_t next[3];
     decode_rgb(d, used_, diff_, last_, next);
-    std::memcpy(last_, next, 6);
+    last_[0] = next[0];
+    last_[1] = next[1];
+    last_[2] = next[2];
     std::memcpy(out, next, 6);
   }
 
@@ -217,129 +198,105 @@ class Rgb12 final : public PointwiseItem {
 class Bytes final : public PointwiseItem {
  public:
   explicit Bytes(std::size_t n) : last_(n, 0), models_(n, SymbolModel(256)) {}
-  void seed(const std::uint8_t* raw) override { std::memcpy(last_.data(), raw, last_.size()); }
-  void decode(ArithDecoder& d, std::uint8_t* out) override {
-    for (std::size_t i = 0; i < last_.size(); ++i) {
-      last_[i] = static_cast<std::uint8_t>(last_[i] + d.symbol(models_[i]));
-    }
-    std::memcpy(out, last_.data(), last_.size());
+  void seed(const std::uint8_t* raw) override {
+    for (std::size_t i = 0; i < last_.size(); ++i) last_[i] = raw[i];
+  }
+  void decode(ArithDecoder& d, std::uint8_t* out) override { step(d, out); }
+  [[gnu::always_inline]] void step(ArithDecoder& d, std::uint8_t* out) {
+    const std::size_t n = last_.size();
+    std::uint32_t* last = last_.data();
+    SymbolModel* models = models_.data();
+    for (std::size_t i = 0; i < n; ++i) last[i] = (last[i] + d.symbol<true>(models[i])) & 0xFFu;
+    for (std::size_t i = 0; i < n; ++i) out[i] = static_cast<std::uint8_t>(last[i]);
   }
 
  private:
-  std::vector<std::uint8_t> last_;
+  std::vector<std::uint32_t> last_;
   std::vector<SymbolModel> models_;
 };
 
+/// The points after the first of one chunk whose items are POINT10 [GPSTIME11] [RGB12] [BYTE]
+/// in this order (how LASzip lays out formats 0–5): one loop, no indirect calls, the
+/// arithmetic decoder in a local (registers) for the whole chunk.
+template <bool kGps, bool kRgb, bool kBytes>
+std::size_t run_chunk(Point10& p10, GpsTime11* gps, Rgb12* rgb, Bytes* extra, const std::size_t offsets[4],
+                      const std::uint8_t* begin, const std::uint8_t* end, std::uint64_t points, std::uint8_t* out,
+                      std::size_t record_length) {
+  ArithDecoder d;
+  d.start(begin, end);
+  for (std::uint64_t p = 1; p < points; ++p, out += record_length) {
+    p10.step(d, out);
+    if constexpr (kGps) gps->step(d, out + offsets[1]);
+    if constexpr (kRgb) rgb->step(d, out + offsets[2]);
+    if constexpr (kBytes) extra->step(d, out + offsets[3]);
+  }
+  return d.overrun();
+}
+
 }  // namespace
 
-// GPS time constants (LAZ spec, GPS time layer): multiples up to 500 of the last difference,
-// −1..−10 as 501..510; then (v2) 511 unchanged, 512 new full time, 513.. switch sequence, or
-// (v3, where "unchanged" is a flag of the XY layer) 511 new full time, 512.. switch sequence.
-constexpr std::uint32_t kMulti = 500;
-constexpr std::int32_t kMultiMinus = -10;
-constexpr std::uint32_t kMultiLimit = kMulti - kMultiMinus + 1;  // 511: first code that is not a multiple
-
-GpsTimeDecoder::GpsTimeDecoder(bool layered)
-    : layered_(layered), multi_(layered ? 515 : 516), zero_diff_(layered ? 5 : 6), ic_(32, 9) {}
-
-void GpsTimeDecoder::seed(std::int64_t t) {
-  for (int i = 0; i < 4; ++i) {
-    time_[i] = 0;
-    diff_[i] = 0;
-    extreme_[i] = 0;
+std::size_t decode_pointwise_chunk(const std::vector<Item>& items, const std::uint8_t* raw, std::size_t record_length,
+                                   const std::uint8_t* end, std::uint64_t points, std::uint8_t* out) {
+  if (points <= 1) return 0;
+  const std::uint8_t* begin = raw + record_length;
+  // The fused loop for the usual item order; anything else item by item through the
+  // virtual interface.
+  std::size_t at = 0, i = 0, offsets[4] = {0, 0, 0, 0};
+  bool fused = !items.empty() && items[0].type == kPoint10 && items[0].version == 2;
+  bool has[4] = {true, false, false, false};
+  const std::uint16_t order[4] = {kPoint10, kGpsTime11, kRgb12, kByte};
+  for (std::size_t slot = 0; fused && slot < 4 && i < items.size(); ++slot) {
+    if (items[i].type != order[slot]) continue;
+    if (items[i].version != 2) fused = false;
+    has[slot] = true;
+    offsets[slot] = at;
+    at += items[i].size;
+    ++i;
   }
-  time_[0] = t;
-  last_ = next_ = 0;
-}
-
-void GpsTimeDecoder::add(std::int32_t diff) {
-  time_[last_] = static_cast<std::int64_t>(static_cast<std::uint64_t>(time_[last_]) +
-                                           static_cast<std::uint64_t>(static_cast<std::int64_t>(diff)));
-}
-
-void GpsTimeDecoder::full_time(ArithDecoder& d) {
-  next_ = (next_ + 1) & 3;
-  const auto high = static_cast<std::uint32_t>(
-      ic_.decode(d, static_cast<std::int32_t>(static_cast<std::uint64_t>(time_[last_]) >> 32), 8));
-  const std::uint32_t low = d.int32();
-  time_[next_] = static_cast<std::int64_t>((static_cast<std::uint64_t>(high) << 32) | low);
-  last_ = next_;
-  diff_[last_] = 0;
-  extreme_[last_] = 0;
-}
-
-void GpsTimeDecoder::extreme(std::int32_t diff) {
-  if (++extreme_[last_] > 3) {
-    diff_[last_] = diff;
-    extreme_[last_] = 0;
+  fused = fused && i == items.size() && at == record_length;
+  if (fused) {
+    Point10 p10;
+    p10.seed(raw);
+    GpsTime11 gps;
+    Rgb12 rgb;
+    Bytes extra(has[3] ? items.back().size : 0);
+    if (has[1]) gps.seed(raw + offsets[1]);
+    if (has[2]) rgb.seed(raw + offsets[2]);
+    if (has[3]) extra.seed(raw + offsets[3]);
+    using Run = std::size_t (*)(Point10&, GpsTime11*, Rgb12*, Bytes*, const std::size_t*, const std::uint8_t*,
+                                const std::uint8_t*, std::uint64_t, std::uint8_t*, std::size_t);
+    static constexpr Run kRuns[8] = {run_chunk<false, false, false>, run_chunk<false, false, true>,
+                                     run_chunk<false, true, false>,  run_chunk<false, true, true>,
+                                     run_chunk<true, false, false>,  run_chunk<true, false, true>,
+                                     run_chunk<true, true, false>,   run_chunk<true, true, true>};
+    const Run run = kRuns[(has[1] ? 4 : 0) + (has[2] ? 2 : 0) + (has[3] ? 1 : 0)];
+    return run(p10, &gps, &rgb, &extra, offsets, begin, end, points, out, record_length);
   }
-}
-
-void GpsTimeDecoder::decode(ArithDecoder& d) {
-  // A sequence switch decodes again; a valid stream switches at most a few times per point,
-  // the bound keeps corrupt input from looping.
-  for (int guard = 0; guard < 8; ++guard) {
-    if (step(d)) return;
+  std::vector<std::unique_ptr<PointwiseItem>> dec;
+  std::vector<std::size_t> offset;
+  at = 0;
+  for (const Item& it : items) {
+    dec.push_back(make_pointwise_item(it));
+    dec.back()->seed(raw + at);
+    offset.push_back(at);
+    at += it.size;
   }
-}
-
-bool GpsTimeDecoder::step(ArithDecoder& d) {
-  const std::uint32_t base = layered_ ? 0 : 1;  // v2 spends code 0 on "unchanged"
-  if (diff_[last_] == 0) {
-    const std::uint32_t s = d.symbol(zero_diff_);
-    if (s == base) {
-      diff_[last_] = ic_.decode(d, 0, 0);
-      add(diff_[last_]);
-      extreme_[last_] = 0;
-    } else if (s == base + 1) {
-      full_time(d);
-    } else if (s > base + 1) {
-      last_ = (last_ + s - (base + 1)) & 3;
-      return false;
-    }
-    return true;
+  ArithDecoder d;
+  d.start(begin, end);
+  for (std::uint64_t p = 1; p < points; ++p, out += record_length) {
+    for (std::size_t k = 0; k < dec.size(); ++k) dec[k]->decode(d, out + offset[k]);
   }
-  const std::uint32_t s = d.symbol(multi_);
-  const std::uint32_t full_code = layered_ ? kMultiLimit : kMultiLimit + 1;
-  if (s == 1) {
-    add(ic_.decode(d, diff_[last_], 1));
-    extreme_[last_] = 0;
-  } else if (s < kMultiLimit) {
-    std::int32_t diff;
-    if (s == 0) {
-      diff = ic_.decode(d, 0, 7);
-      extreme(diff);
-    } else if (s < kMulti) {
-      diff = ic_.decode(d, times(s, diff_[last_]), s < 10 ? 2 : 3);
-    } else if (s == kMulti) {
-      diff = ic_.decode(d, times(kMulti, diff_[last_]), 4);
-      extreme(diff);
-    } else {
-      const std::int32_t f = static_cast<std::int32_t>(kMulti) - static_cast<std::int32_t>(s);
-      if (f > kMultiMinus) {
-        diff = ic_.decode(d, times(f, diff_[last_]), 5);
-      } else {
-        diff = ic_.decode(d, times(kMultiMinus, diff_[last_]), 6);
-        extreme(diff);
-      }
-    }
-    add(diff);
-  } else if (s == full_code) {
-    full_time(d);
-  } else if (s > full_code) {
-    last_ = (last_ + s - full_code) & 3;
-    return false;
-  }
-  return true;  // v2 code 511: unchanged
+  return d.overrun();
 }
 
 std::unique_ptr<PointwiseItem> make_pointwise_item(const Item& item) {
   if (item.version != 2) return nullptr;
   switch (item.type) {
-    case kPoint10: return std::make_unique<Point10>();
-    case kGpsTime11: return std::make_unique<GpsTime11>();
-    case kRgb12: return std::make_unique<Rgb12>();
-    case kByte: return std::make_unique<Bytes>(item.size);
+    // Sizes as the LAZ specification defines them: a decoder writes exactly its item's bytes.
+    case kPoint10: return item.size == 20 ? std::make_unique<Point10>() : nullptr;
+    case kGpsTime11: return item.size == 8 ? std::make_unique<GpsTime11>() : nullptr;
+    case kRgb12: return item.size == 6 ? std::make_unique<Rgb12>() : nullptr;
+    case kByte: return item.size > 0 ? std::make_unique<Bytes>(item.size) : nullptr;
     default: return nullptr;
   }
 }

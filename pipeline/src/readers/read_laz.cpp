@@ -37,6 +37,7 @@
 #include <algorithm>
 #include <cstring>
 #include <limits>
+#include <memory>
 
 namespace hc::pipeline::detail {
 
@@ -73,7 +74,7 @@ std::string compressor_name(std::uint16_t c) {
 
 }  // namespace
 
-std::string decompress_laz(const ScanSource& source, LasHeader& header) {
+std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& header) {
   const std::string& bytes = source.bytes;
   const std::string& name = source.display_name;
   const std::size_t size = bytes.size();
@@ -232,8 +233,8 @@ std::string decompress_laz(const ScanSource& source, LasHeader& header) {
   }
 
   // Decompression into LAS records.
-  std::string records(static_cast<std::size_t>(count) * record_length, '\0');
-  auto* out = reinterpret_cast<std::uint8_t*>(records.data());
+  auto records = std::make_unique_for_overwrite<char[]>(static_cast<std::size_t>(count) * record_length);
+  auto* out = reinterpret_cast<std::uint8_t*>(records.get());
   const auto* file = reinterpret_cast<const std::uint8_t*>(b);
   for (std::size_t c = 0; c < chunks.size(); ++c) {
     const Chunk& ch = chunks[c];
@@ -248,17 +249,8 @@ std::string decompress_laz(const ScanSource& source, LasHeader& header) {
     std::memcpy(out, raw, record_length);
     std::uint8_t* rec = out + record_length;
     if (!layered) {
-      std::vector<std::unique_ptr<laz::PointwiseItem>> dec;
-      for (std::size_t i = 0; i < z.items.size(); ++i) {
-        dec.push_back(laz::make_pointwise_item(z.items[i]));
-        dec.back()->seed(raw + item_offset[i]);
-      }
-      laz::ArithDecoder d;
-      if (ch.points > 1) d.start(raw + record_length, file + ch.end);
-      for (std::uint64_t p = 1; p < ch.points; ++p, rec += record_length) {
-        for (std::size_t i = 0; i < dec.size(); ++i) dec[i]->decode(d, rec + item_offset[i]);
-      }
-      if (d.overrun() > 0) chunk_fail("compressed stream ends " + std::to_string(d.overrun()) + " bytes early (truncated or corrupt)");
+      const std::size_t over = laz::decode_pointwise_chunk(z.items, raw, record_length, file + ch.end, ch.points, rec);
+      if (over > 0) chunk_fail("compressed stream ends " + std::to_string(over) + " bytes early (truncated or corrupt)");
     } else {
       std::size_t at = ch.begin + record_length;
       if (ch.end - at < 4) chunk_fail("ends before its point count (truncated?)");
@@ -318,8 +310,8 @@ std::string decompress_laz(const ScanSource& source, LasHeader& header) {
 
 ReadResult read_laz(const ScanSource& source) {
   LasHeader header = parse_las_header(source, true);
-  const std::string records = decompress_laz(source, header);
-  return decode_las_records(source, std::move(header), records.data());
+  const std::unique_ptr<char[]> records = decompress_laz(source, header);
+  return decode_las_records(source, std::move(header), records.get());
 }
 
 }  // namespace hc::pipeline::detail
