@@ -3,7 +3,8 @@ find_package(Threads REQUIRED)
 find_package(Eigen3 3.4 REQUIRED NO_MODULE)
 # Debian's PCLConfig needs MPI's C component found first (see docs/architecture.md).
 find_package(MPI REQUIRED COMPONENTS C)
-find_package(PCL 1.13 REQUIRED COMPONENTS common io kdtree search filters)
+# surface (MovingLeastSquares) and segmentation (EuclideanClusterExtraction): filters.pcl (issue 18).
+find_package(PCL 1.13 REQUIRED COMPONENTS common io kdtree search filters surface segmentation)
 find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc imgcodecs)
 find_package(yaml-cpp REQUIRED)
 find_package(CLI11 REQUIRED)

@@ -258,6 +258,14 @@ class Reader {
                       ": {…}`); remove it to use the defaults");
   }
 
+  /// "file:line" of a node inside `path`'s value (a list element, one of its keys), or the
+  /// --set form when `path` came from an override.
+  std::string where_node(const std::string& path, const YAML::Node& n) const {
+    if (overridden_.count(path)) return origin_ + " (--set " + path + ")";
+    if (n.Mark().line >= 0) return origin_ + ":" + std::to_string(n.Mark().line + 1);
+    return where(path);
+  }
+
   YAML::Node resolved() const { return resolved_; }
   void resolved_set_raw(const std::string& path, const YAML::Node& v) { resolved_set(path, v); }
 
@@ -610,6 +618,177 @@ void read_audio(Reader& r, RunConfig& c, const std::filesystem::path& base) {
   c.audio = std::move(a);
 }
 
+[[noreturn]] void pcl_fail(const Reader& r, const std::string& key, const YAML::Node& n, const std::string& what) {
+  throw ConfigError(r.where_node(key, n) + ": " + what);
+}
+
+/// filters.pcl (issue 18): an ordered list of PCL filters, each a map with `name` (the PCL
+/// class) and that class's parameters (pcl_filters.hpp, docs/config.md). Unknown names and
+/// parameters, missing required parameters and values out of range are errors naming the
+/// element's key, its line and what is allowed.
+void read_pcl_filters(Reader& r, RunConfig& c) {
+  struct Param {
+    const char* key;
+    enum Type { kNumber, kInt, kBool, kAxis, kVec3 } type;
+    double lo, hi;
+    bool lo_open;
+    bool required;
+  };
+  using T = Param::Type;
+  struct Kind {
+    const char* name;
+    PclFilterKind kind;
+    std::vector<Param> params;
+  };
+  const double kMaxInt = 2147483647.0;
+  const std::vector<Kind> kinds = {
+      {"StatisticalOutlierRemoval", PclFilterKind::kStatisticalOutlierRemoval,
+       {{"mean_k", T::kInt, 1, 1000, false, false}, {"stddev_mul", T::kNumber, 0, 100, true, false}}},
+      {"RadiusOutlierRemoval", PclFilterKind::kRadiusOutlierRemoval,
+       {{"radius_m", T::kNumber, 0, 10, true, true}, {"min_neighbors", T::kInt, 0, 1e6, false, false}}},
+      {"VoxelGrid", PclFilterKind::kVoxelGrid, {{"leaf_m", T::kNumber, 0, 10, true, true}}},
+      {"ApproximateVoxelGrid", PclFilterKind::kApproximateVoxelGrid, {{"leaf_m", T::kNumber, 0, 10, true, true}}},
+      {"UniformSampling", PclFilterKind::kUniformSampling, {{"radius_m", T::kNumber, 0, 10, true, true}}},
+      {"MovingLeastSquares", PclFilterKind::kMovingLeastSquares,
+       {{"search_radius_m", T::kNumber, 0, 10, true, true}, {"polynomial_order", T::kInt, 0, 5, false, false}}},
+      {"PassThrough", PclFilterKind::kPassThrough,
+       {{"field", T::kAxis, 0, 0, false, true},
+        {"min_m", T::kNumber, -1e6, 1e6, false, true},
+        {"max_m", T::kNumber, -1e6, 1e6, false, true},
+        {"negative", T::kBool, 0, 0, false, false}}},
+      {"CropBox", PclFilterKind::kCropBox,
+       {{"min_m", T::kVec3, -1e6, 1e6, false, true},
+        {"max_m", T::kVec3, -1e6, 1e6, false, true},
+        {"negative", T::kBool, 0, 0, false, false}}},
+      {"EuclideanClusterExtraction", PclFilterKind::kEuclideanClusterExtraction,
+       {{"tolerance_m", T::kNumber, 0, 10, true, true},
+        {"min_cluster_size", T::kInt, 1, kMaxInt, false, false},
+        {"max_cluster_size", T::kInt, 1, kMaxInt, false, false},
+        {"keep_clusters", T::kInt, 1, 1e6, false, false}}},
+  };
+  std::string all_names;
+  for (const auto& k : kinds) all_names += (all_names.empty() ? "" : ", ") + std::string(k.name);
+
+  const std::string key = "filters.pcl";
+  const auto items = r.get_map_list(key);
+  YAML::Node resolved(YAML::NodeType::Sequence);
+  for (std::size_t i = 0; i < items.size(); ++i) {
+    const YAML::Node& item = items[i];
+    const std::string at = key + "[" + std::to_string(i) + "]";
+    const YAML::Node name_node = item["name"];
+    if (!name_node.IsDefined() || !name_node.IsScalar()) {
+      pcl_fail(r, key, item, at + " lacks 'name': expected the PCL class, one of: " + all_names);
+    }
+    const std::string name = name_node.Scalar();
+    const auto kind = std::find_if(kinds.begin(), kinds.end(), [&](const Kind& k) { return name == k.name; });
+    if (kind == kinds.end()) pcl_fail(r, key, name_node, at + ".name = '" + name + "': expected one of: " + all_names);
+    std::string allowed = "name";
+    for (const auto& p : kind->params) allowed += ", " + std::string(p.key);
+    for (const auto& kv : item) {
+      const std::string k = kv.first.Scalar();
+      if (k == "name") continue;
+      const bool known = std::any_of(kind->params.begin(), kind->params.end(), [&](const Param& p) { return k == p.key; });
+      if (!known) pcl_fail(r, key, kv.first, "unknown key '" + at + "." + k + "' for " + name + " (allowed here: " + allowed + ")");
+    }
+    PclFilterSpec spec;
+    spec.kind = kind->kind;
+    spec.name = name;
+    YAML::Node out(YAML::NodeType::Map);
+    out["name"] = name;
+    for (const auto& p : kind->params) {
+      const YAML::Node v = item[p.key];
+      const std::string pk = at + "." + p.key + " (" + name + ")";
+      if (!v.IsDefined() || v.IsNull()) {
+        if (p.required) pcl_fail(r, key, item, at + " (" + name + ") lacks '" + p.key + "' (parameters: " + allowed + ")");
+        continue;
+      }
+      const std::string range = std::string(p.lo_open ? "(" : "[") + format_number(p.lo) + ", " + format_number(p.hi) + "]";
+      switch (p.type) {
+        case T::kNumber:
+        case T::kInt: {
+          double d = 0.0;
+          bool ok = v.IsScalar();
+          if (ok) {
+            try {
+              d = v.as<double>();
+            } catch (const YAML::Exception&) {
+              ok = false;
+            }
+          }
+          const bool integer = p.type == T::kInt;
+          const std::string expected = integer ? ": expected an integer in " + range : ": expected a number in " + range;
+          if (!ok) pcl_fail(r, key, v, pk + " = " + scalar_text(v) + expected);
+          if (!std::isfinite(d) || d < p.lo || d > p.hi || (p.lo_open && d == p.lo) || (integer && d != std::floor(d))) {
+            pcl_fail(r, key, v, pk + " = " + scalar_text(v) + expected);
+          }
+          const std::string n = p.key;
+          if (n == "mean_k") spec.mean_k = static_cast<int>(d);
+          else if (n == "stddev_mul") spec.stddev_mul = d;
+          else if (n == "radius_m") spec.radius_m = d;
+          else if (n == "min_neighbors") spec.min_neighbors = static_cast<int>(d);
+          else if (n == "leaf_m") spec.leaf_m = d;
+          else if (n == "search_radius_m") spec.search_radius_m = d;
+          else if (n == "polynomial_order") spec.polynomial_order = static_cast<int>(d);
+          else if (n == "min_m") spec.min_m = d;
+          else if (n == "max_m") spec.max_m = d;
+          else if (n == "tolerance_m") spec.tolerance_m = d;
+          else if (n == "min_cluster_size") spec.min_cluster_size = static_cast<int>(d);
+          else if (n == "max_cluster_size") spec.max_cluster_size = static_cast<int>(d);
+          else if (n == "keep_clusters") spec.keep_clusters = static_cast<int>(d);
+          break;
+        }
+        case T::kBool: {
+          try {
+            if (!v.IsScalar()) throw YAML::Exception(YAML::Mark::null_mark(), "");
+            spec.negative = v.as<bool>();
+          } catch (const YAML::Exception&) {
+            pcl_fail(r, key, v, pk + " = " + scalar_text(v) + ": expected true or false");
+          }
+          break;
+        }
+        case T::kAxis: {
+          if (!v.IsScalar() || (v.Scalar() != "x" && v.Scalar() != "y" && v.Scalar() != "z")) {
+            pcl_fail(r, key, v, pk + " = " + scalar_text(v) + ": expected one of: x, y, z");
+          }
+          spec.field = v.Scalar();
+          break;
+        }
+        case T::kVec3: {
+          Eigen::Vector3d x;
+          bool ok = v.IsSequence() && v.size() == 3;
+          for (std::size_t a = 0; ok && a < 3; ++a) {
+            try {
+              x[static_cast<Eigen::Index>(a)] = v[a].as<double>();
+            } catch (const YAML::Exception&) {
+              ok = false;
+            }
+          }
+          ok = ok && x.allFinite() && (x.array() >= p.lo).all() && (x.array() <= p.hi).all();
+          if (!ok) pcl_fail(r, key, v, pk + " = " + scalar_text(v) + ": expected a list of 3 numbers [x, y, z] in " + range + " m");
+          (std::string(p.key) == "min_m" ? spec.box_min_m : spec.box_max_m) = x;
+          break;
+        }
+      }
+      out[p.key] = v;
+    }
+    if (spec.kind == PclFilterKind::kPassThrough && spec.min_m > spec.max_m) {
+      pcl_fail(r, key, item["max_m"], at + ".max_m (PassThrough) = " + format_number(spec.max_m) + ": expected a number >= min_m (" +
+                                  format_number(spec.min_m) + ")");
+    }
+    if (spec.kind == PclFilterKind::kCropBox && (spec.box_max_m.array() < spec.box_min_m.array()).any()) {
+      pcl_fail(r, key, item["max_m"], at + ".max_m (CropBox): expected max_m >= min_m on every axis");
+    }
+    if (spec.kind == PclFilterKind::kEuclideanClusterExtraction && spec.max_cluster_size < spec.min_cluster_size) {
+      pcl_fail(r, key, item["max_cluster_size"], at + ".max_cluster_size (EuclideanClusterExtraction) = " +
+                                            std::to_string(spec.max_cluster_size) + ": expected an integer >= min_cluster_size (" +
+                                            std::to_string(spec.min_cluster_size) + ")");
+    }
+    c.filters.pcl.push_back(std::move(spec));
+    resolved.push_back(out);
+  }
+  if (!items.empty()) r.resolved_set_raw(key, resolved);
+}
+
 /// falcon.* (issue 5): parsed straight into hc::falcon::FalconConfig; ranges checked once, by
 /// hc::falcon::check_falcon_config, reported at the key's line.
 void read_falcon(Reader& r, RunConfig& c, const std::filesystem::path& base) {
@@ -715,6 +894,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     c.filters.crop_m = std::make_pair(lo, hi);
   }
   c.filters.voxel_m = r.get_double("filters.voxel_m", 0.0, 0.0, 10.0);
+  read_pcl_filters(r, c);
 
   // grid
   auto& g = c.grid.reproject;

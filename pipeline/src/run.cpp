@@ -10,6 +10,7 @@
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/mesh_raster.hpp"
+#include "hc/pipeline/pcl_filters.hpp"
 #include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/robust_outliers.hpp"
@@ -53,6 +54,20 @@ std::string sha256_file(const fs::path& file) {
 }
 
 namespace {
+
+/// SHA-256 of a cloud's coordinates (the 3 × N doubles as stored, little-endian on x86-64),
+/// the provenance checksum of an in-memory input.
+std::string coordinates_sha256(const Cloud& cloud) {
+  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
+  EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr);
+  EVP_DigestUpdate(ctx.get(), cloud.xyz.data(), static_cast<std::size_t>(cloud.xyz.size()) * sizeof(double));
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int len = 0;
+  EVP_DigestFinal_ex(ctx.get(), digest, &len);
+  std::ostringstream os;
+  for (unsigned int i = 0; i < len; ++i) os << std::hex << std::setw(2) << std::setfill('0') << int(digest[i]);
+  return os.str();
+}
 
 using detail::Clock;
 using detail::seconds_since;
@@ -125,6 +140,16 @@ StageResult<Cloud> skip_for_mesh(Cloud cloud, const char* key) {
   return r;
 }
 
+/// How far a filter may have moved the point that stands for an input point [m], for the honest
+/// cross-check's removal test (check_input's voxel_leaf_m): the voxel leaf, and the leaf or
+/// search radius of the filters.pcl stages that output new points; 0 when every filter only
+/// drops points (removal then judged by exact coordinates).
+double removal_displacement_m(const RunConfig& config) {
+  double d = config.filters.voxel_m;
+  for (const PclFilterSpec& spec : config.filters.pcl) d = std::max(d, pcl_filter_displacement_m(spec));
+  return d;
+}
+
 /// What ingest tells about the stored precision of the coordinates (Cloud::float32_xyz).
 struct StoredPrecision {
   bool float32 = false;
@@ -192,12 +217,20 @@ void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen
 /// `inputs` gets the input files with their checksums, `offset_m` the recentring offset.
 /// `as_read`, when given, gets a copy of the coordinates after the view transform, before any
 /// filter (24 bytes per point: 26 MB for the 1.1 M-point Buddha), for the honest cross-check.
+/// `in_memory`, when given, replaces ingest: its points (moved from) are the input, in
+/// config.input.units, and input.files, conf and synthetic are not read.
 Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& reports, const ProgressFn& progress,
                             std::vector<SceneInput>& scene_inputs, Eigen::Vector3d& offset_m,
                             StoredPrecision* precision = nullptr,
-                             Eigen::Matrix3Xd* as_read = nullptr) {
+                            Eigen::Matrix3Xd* as_read = nullptr, Cloud* in_memory = nullptr) {
   // 1. Ingest.
   Cloud cloud = stage("ingest", reports, progress, [&] {
+    if (in_memory) {
+      StageResult<Cloud> r{std::move(*in_memory), {}};
+      r.report.count_in = r.report.count_out = r.value.size();
+      r.report.notes.push_back("in-memory cloud handed to build_scene (input.files, input.conf and input.synthetic not read)");
+      return r;
+    }
     if (config.input.synthetic) return StageResult<Cloud>{generate_surface(*config.input.synthetic), {}};
     const LoadOptions load_options{config.input.las_drop_classes, config.input.as_points};
     if (config.input.conf) return load_and_merge_scans(config.input.files, *config.input.conf, load_options);
@@ -209,13 +242,17 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     bool rgb, intensity, grid_index, scan_id;
   } const ingest_attrs{cloud.has_rgb(), cloud.has_intensity(), cloud.has_grid_index(), cloud.has_scan_id()};
   const std::size_t ingest_triangles = cloud.mesh.triangles.size();
-  for (const auto& f : config.input.files) scene_inputs.push_back({f.string(), sha256_file(f)});
-  if (config.input.conf) scene_inputs.push_back({config.input.conf->string(), sha256_file(*config.input.conf)});
+  if (in_memory) {
+    scene_inputs.push_back({"(in-memory cloud, " + std::to_string(cloud.size()) + " points)", coordinates_sha256(cloud)});
+  } else {
+    for (const auto& f : config.input.files) scene_inputs.push_back({f.string(), sha256_file(f)});
+    if (config.input.conf) scene_inputs.push_back({config.input.conf->string(), sha256_file(*config.input.conf)});
+  }
 
   // 2. Units and recentring (double precision), 3. view transform.
   const double unit_m = metres_per_unit(config.input.units);
-  if (precision != nullptr && !config.input.files.empty()) {
-    *precision = stored_precision(cloud, unit_m, config.input.files.front().string());
+  if (precision != nullptr && (in_memory || !config.input.files.empty())) {
+    *precision = stored_precision(cloud, unit_m, in_memory ? std::string("in-memory cloud") : config.input.files.front().string());
   }
   cloud = stage("recentre", reports, progress,
                 [&] { return to_metres_and_recentre(std::move(cloud), unit_m, &offset_m, config.input.max_extent_m); });
@@ -235,6 +272,15 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   if (config.filters.voxel_m > 0.0) {
     cloud = stage("voxel", reports, progress, [&] {
       return mesh ? skip_for_mesh(std::move(cloud), "filters.voxel_m") : voxel_downsample(std::move(cloud), config.filters.voxel_m);
+    });
+  }
+  // filters.pcl: PCL's own classes, in the config's order, each its own stage (pcl_filters.hpp).
+  for (std::size_t i = 0; i < config.filters.pcl.size(); ++i) {
+    const PclFilterSpec& spec = config.filters.pcl[i];
+    const std::string name = "pcl:" + spec.name;
+    cloud = stage(name.c_str(), reports, progress, [&] {
+      if (mesh) return skip_for_mesh(std::move(cloud), "filters.pcl");
+      return apply_pcl_filter(std::move(cloud), spec);
     });
   }
   if (config.filters.outliers.enabled) {
@@ -325,7 +371,20 @@ Cloud prepare_points(const RunConfig& config) {
   return prepare_points_staged(config, reports, {}, inputs, offset_m);
 }
 
+namespace {
+BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const ProgressFn& progress, Cloud* in_memory);
+}  // namespace
+
 BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressFn& progress) {
+  return build_scene_impl(config, keep_cloud, progress, nullptr);
+}
+
+BuiltScene build_scene(Cloud cloud, const RunConfig& config, bool keep_cloud, const ProgressFn& progress) {
+  return build_scene_impl(config, keep_cloud, progress, &cloud);
+}
+
+namespace {
+BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const ProgressFn& progress, Cloud* in_memory) {
   const auto t_start = Clock::now();
   BuiltScene built;
   RunSummary& summary = built.summary;
@@ -336,7 +395,7 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   StoredPrecision precision;
   Eigen::Matrix3Xd as_read;  // for the honest cross-check; freed after it
   Cloud cloud = prepare_points_staged(config, reports, progress, prov.inputs, offset_m, &precision,
-                                      config.cross_check.enabled ? &as_read : nullptr);
+                                      config.cross_check.enabled ? &as_read : nullptr, in_memory);
   prov.crs = precision.crs;
 
   // 5. Reprojection and hole filling.
@@ -428,7 +487,7 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
     Honest honest = stage("honest_check", reports, progress, [&] {
       StageResult<Honest> r;
       r.value.spikes = find_grid_spikes(grid.depth, config.cross_check.honest);
-      r.value.input = check_input(as_read, cloud, grid.depth, config.cross_check.honest, config.filters.voxel_m,
+      r.value.input = check_input(as_read, cloud, grid.depth, config.cross_check.honest, removal_displacement_m(config),
                                   &r.value.spikes);
       const InputCheck& in = r.value.input;
       const GridSpikes& sp = r.value.spikes;
@@ -473,13 +532,14 @@ BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressF
   prov.config_file = config.source.string();
   prov.units = config.input.units;
   prov.recentre_offset_m = offset_m;
-  if (config.input.synthetic) prov.synthetic = to_string(config.input.synthetic->kind);
+  if (config.input.synthetic && in_memory == nullptr) prov.synthetic = to_string(config.input.synthetic->kind);
   prov.resolved_config_yaml = config.resolved_yaml;
 
   if (keep_cloud) built.cloud = std::move(cloud);
   summary.total_seconds = seconds_since(t_start);
   return built;
 }
+}  // namespace
 
 RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs::path& out_dir,
                      const ProgressFn& progress, ExistingOutput existing, const LevelTimingFn& level_timing) {

@@ -6,6 +6,7 @@
 #include "hc/audio/audio_config.hpp"
 #include "hc/falcon/falcon_config.hpp"
 #include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/pcl_filters.hpp"
 #include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/reproject.hpp"
@@ -51,6 +52,9 @@ struct FilterConfig {
   OutlierConfig outliers;
   std::optional<std::pair<Eigen::Vector3d, Eigen::Vector3d>> crop_m;  ///< min, max (grid frame)
   double voxel_m = 0.0;          ///< voxel-grid leaf [m]; 0 = off
+  /// filters.pcl: PCL filters run in this order after crop and voxel, before the outliers stage,
+  /// each its own stage "pcl:<name>" (pcl_filters.hpp). Empty = none.
+  std::vector<PclFilterSpec> pcl;
 };
 
 struct GridConfig {

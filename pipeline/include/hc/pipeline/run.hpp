@@ -55,6 +55,16 @@ struct BuiltScene {
 /// Real-time: no. Threads: stages use up to two threads internally.
 BuiltScene build_scene(const RunConfig& config, bool keep_cloud = false, const ProgressFn& progress = {});
 
+/// build_scene on a cloud in memory instead of config.input's files (issue 18: a PCL user's
+/// cloud, converted by hc::pcl): `cloud` takes the place of ingest (stage "ingest", its report
+/// noting it); input.files, input.conf and input.synthetic are not read. Everything after ingest
+/// is the file path's: `cloud` is in config.input.units and its file frame (recentred, turned
+/// by config.view, filtered, gridded), so the same points give the same scene as from a file.
+/// Provenance lists one input "(in-memory cloud, N points)" with the SHA-256 of its 3 × N
+/// doubles. Cloud::float32_xyz is honoured like a reader's flag.
+/// @throws as build_scene (an empty cloud: hc::InputError from the first stage that needs points).
+BuiltScene build_scene(Cloud cloud, const RunConfig& config, bool keep_cloud = false, const ProgressFn& progress = {});
+
 /// Fills the servo-timing columns of a levels table. The pipeline does not run servo loops;
 /// hc::session::servo_level_timing() provides one (the `hapticloud` program passes it).
 using LevelTimingFn = std::function<void(const std::shared_ptr<LodPyramid>&, std::vector<LevelRow>&)>;
