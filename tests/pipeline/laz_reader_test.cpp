@@ -241,6 +241,16 @@ TEST(LazReader, UnsupportedCompressorAndItemsAreClearErrors) {
   msg = error_of([&] { hp::load_cloud(dir / "size.laz"); });
   EXPECT_NE(msg.find("expected 34 bytes"), std::string::npos) << msg;
 
+  // GPSTIME11 declared 10 bytes and RGB12 4 (the sum still the record length): the item
+  // decoders write 8 and 6 bytes (LAZ specification), so the file is refused, not misread.
+  bad = good;
+  bad[vlr + 34 + 6 + 2] = 10;
+  bad[vlr + 34 + 12 + 2] = 4;
+  write_bytes(dir / "itemsize.laz", bad);
+  msg = error_of([&] { hp::load_cloud(dir / "itemsize.laz"); });
+  EXPECT_NE(msg.find("itemsize.laz"), std::string::npos) << msg;
+  EXPECT_NE(msg.find("GPSTIME11 version 2 (10 bytes)"), std::string::npos) << msg;
+
   // A plain LAS file named .laz has no LASzip VLR.
   write_bytes(dir / "plain.laz", read_bytes(hc::test::scan_path("scanner_samples/las/pdal-simple.las")));
   EXPECT_NE(error_of([&] { hp::load_cloud(dir / "plain.laz"); }).find("no LASzip VLR"), std::string::npos);

@@ -16,7 +16,9 @@
 ///     update period starts at (n + 6)/2 and grows ×5/4 up to 8·(n + 6); models of more than
 ///     16 symbols are decoded with a division and a lookup table (LASzip: 2^b entries, b from 3
 ///     while n > 2^(b+2)); the table is only the decoder's search aid (the symbol is fixed by
-///     the cumulative counts), so this decoder sizes it differently (2^b ≥ n) and walks it;
+///     the cumulative counts), so this decoder sizes it differently (2^b ≥ n), fills it in its
+///     own way (slot j: the largest symbol at or below the slot's first target) and walks up
+///     from it; smaller models are searched by halving the symbol range;
 ///   - raw bits: up to 19 bits at once from the interval, wider values as 16-bit halves
 ///     (low half first);
 ///   - integer compressor: correctors of `bits` bits (range 2^bits, wrapped into it); bucket
@@ -115,23 +117,21 @@ class SymbolModel {
     const std::uint32_t* counts = counts_.data();
     std::uint32_t* cdf = cdf_.data();
     std::uint32_t running = 0;
-    if (size == 0) {
-      for (std::uint32_t s = 0; s < n; ++s) {
-        cdf[s] = (unit * running) >> (31 - kShift);
-        running += counts[s];
-      }
-    } else {
+    for (std::uint32_t s = 0; s < n; ++s) {
+      cdf[s] = (unit * running) >> (31 - kShift);
+      running += counts[s];
+    }
+    if (size != 0) {
+      // Search aid: slot j names the largest symbol whose cumulative value is at most the
+      // slot's first target j·2^shift, so it lies at or below the symbol of any target in the
+      // slot; the decoder walks up from it. One merge pass over slots and symbols.
       std::uint32_t* table = table_.data();
-      std::uint32_t slot = 0;
-      for (std::uint32_t s = 0; s < n; ++s) {
-        const std::uint32_t c = (unit * running) >> (31 - kShift);
-        cdf[s] = c;
-        running += counts[s];
-        const std::uint32_t w = c >> shift;
-        while (slot < w) table[++slot] = s - 1;
+      std::uint32_t sym = 0;
+      for (std::uint32_t j = 0; j <= size; ++j) {
+        const std::uint32_t first_target = j << shift;
+        while (sym + 1 < n && cdf[sym + 1] <= first_target) ++sym;
+        table[j] = sym;
       }
-      table[0] = 0;
-      while (slot <= size) table[++slot] = n - 1;
     }
     period_ = (5 * period_) >> 2;
     const std::uint32_t longest = (n_ + 6) << 3;
@@ -200,20 +200,22 @@ class ArithDecoder {
       lo = cdf[s] * length_;
       if (s + 1 != m.n_) hi = cdf[s + 1] * length_;
     } else {
-      s = 0;
-      lo = 0;
+      // Few symbols: the symbol is the largest s with cdf[s]·length ≤ value (cdf[0] = 0);
+      // halve the candidate range [first, past) until one symbol is left.
       length_ >>= SymbolModel::kShift;
-      std::uint32_t top = m.n_, mid = top >> 1;
-      do {
-        const std::uint32_t edge = length_ * m.cdf_[mid];
-        if (edge > value_) {
-          top = mid;
-          hi = edge;
+      const std::uint32_t* cdf = m.cdf_.data();
+      std::uint32_t first = 0, past = m.n_;
+      while (past - first > 1) {
+        const std::uint32_t probe = first + ((past - first) >> 1);
+        if (cdf[probe] * length_ <= value_) {
+          first = probe;
         } else {
-          s = mid;
-          lo = edge;
+          past = probe;
         }
-      } while ((mid = (s + top) >> 1) != s);
+      }
+      s = first;
+      lo = cdf[s] * length_;
+      if (s + 1 != m.n_) hi = cdf[s + 1] * length_;
     }
     value_ -= lo;
     length_ = hi - lo;

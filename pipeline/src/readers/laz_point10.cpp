@@ -215,6 +215,10 @@ class Bytes final : public PointwiseItem {
   std::vector<SymbolModel> models_;
 };
 
+/// A stream this many bytes past its end is corrupt or truncated: decoding stops there (checked
+/// every 1024 points) instead of running the rest of a possibly huge declared count on zeros.
+constexpr std::size_t kGiveUpBytes = 16;
+
 /// The points after the first of one chunk whose items are POINT10 [GPSTIME11] [RGB12] [BYTE]
 /// in this order (how LASzip lays out formats 0–5): one loop, no indirect calls, the
 /// arithmetic decoder in a local (registers) for the whole chunk.
@@ -229,6 +233,7 @@ std::size_t run_chunk(Point10& p10, GpsTime11* gps, Rgb12* rgb, Bytes* extra, co
     if constexpr (kGps) gps->step(d, out + offsets[1]);
     if constexpr (kRgb) rgb->step(d, out + offsets[2]);
     if constexpr (kBytes) extra->step(d, out + offsets[3]);
+    if ((p & 1023u) == 0 && d.overrun() > kGiveUpBytes) break;  // the caller rejects the chunk
   }
   return d.overrun();
 }
@@ -252,6 +257,14 @@ std::size_t decode_pointwise_chunk(const std::vector<Item>& items, const std::ui
     offsets[slot] = at;
     at += items[i].size;
     ++i;
+  }
+  // The fused loop writes 20, 8 and 6 bytes for POINT10, GPSTIME11 and RGB12: only with the
+  // sizes the specification gives them (the header check rejects others; checked here too).
+  for (const Item& it : items) {
+    if ((it.type == kPoint10 && it.size != 20) || (it.type == kGpsTime11 && it.size != 8) ||
+        (it.type == kRgb12 && it.size != 6)) {
+      fused = false;
+    }
   }
   fused = fused && i == items.size() && at == record_length;
   if (fused) {
@@ -285,6 +298,7 @@ std::size_t decode_pointwise_chunk(const std::vector<Item>& items, const std::ui
   d.start(begin, end);
   for (std::uint64_t p = 1; p < points; ++p, out += record_length) {
     for (std::size_t k = 0; k < dec.size(); ++k) dec[k]->decode(d, out + offset[k]);
+    if ((p & 1023u) == 0 && d.overrun() > kGiveUpBytes) break;  // the caller rejects the chunk
   }
   return d.overrun();
 }

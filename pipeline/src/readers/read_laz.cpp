@@ -287,6 +287,11 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
         // and is set by POINT14 only when the scanner channel changes.
         std::uint32_t context = 0;
         for (std::size_t i = 0; i < dec.size(); ++i) dec[i]->decode(rec + item_offset[i], context);
+        if ((p & 1023u) == 0) {  // a corrupt layer: stop early, the check below rejects the chunk
+          std::size_t over = 0;
+          for (const auto& dd : dec) over += dd->overrun();
+          if (over > 16) break;
+        }
       }
       std::size_t over = 0;
       for (const auto& dd : dec) over += dd->overrun();
