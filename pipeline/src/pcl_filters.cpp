@@ -25,6 +25,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -37,6 +38,32 @@ using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;
 
 [[noreturn]] void bad(const PclFilterSpec& s, const std::string& param, const std::string& what) {
   throw ConfigError("filters.pcl " + s.name + "." + param + " " + what);
+}
+
+/// PCL's VoxelGrid and UniformSampling index voxels with 32-bit integers: VoxelGrid returns its
+/// input unchanged (a warning only) and UniformSampling overflows when the box holds more than
+/// 2^31 − 1 voxels. Refuse such a leaf, naming the cloud's extent and the smallest leaf allowed.
+void check_voxel_count(const PclFilterSpec& s, const char* param, double leaf_m, const PointCloudXYZ& in) {
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  for (const auto& p : in.points) {
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) continue;
+    const Eigen::Vector3d q(p.x, p.y, p.z);
+    lo = lo.cwiseMin(q);
+    hi = hi.cwiseMax(q);
+  }
+  if (!(hi.x() >= lo.x())) return;  // no finite point: PCL returns nothing
+  const Eigen::Vector3d ext = hi - lo;
+  double voxels = 1.0;
+  for (int a = 0; a < 3; ++a) voxels *= std::floor(ext[a] / leaf_m) + 1.0;
+  constexpr double kMaxVoxels = 2147483647.0;
+  if (voxels > kMaxVoxels) {
+    const double smallest = std::cbrt((ext.x() + leaf_m) * (ext.y() + leaf_m) * (ext.z() + leaf_m) / kMaxVoxels);
+    bad(s, param,
+        "= " + format_number(leaf_m) + " m: the cloud spans " + format_number(ext.x()) + " x " + format_number(ext.y()) +
+            " x " + format_number(ext.z()) + " m, " + format_number(voxels, 3) +
+            " voxels, more than PCL's 32-bit voxel index holds (2^31 - 1); expected at least about " +
+            format_number(smallest, 3) + " m, or crop first");
+  }
 }
 
 void check_positive(const PclFilterSpec& s, const char* param, double v, double hi) {
@@ -219,6 +246,7 @@ StageResult<Cloud> apply_pcl_filter(Cloud cloud, const PclFilterSpec& spec) {
       break;
     }
     case PclFilterKind::kUniformSampling: {
+      check_voxel_count(spec, "radius_m", spec.radius_m, *in);
       pcl::UniformSampling<pcl::PointXYZ> f(/*extract_removed_indices=*/true);
       f.setInputCloud(in);
       f.setRadiusSearch(spec.radius_m);
@@ -230,7 +258,7 @@ StageResult<Cloud> apply_pcl_filter(Cloud cloud, const PclFilterSpec& spec) {
       }
       if (kept.size() != out.size()) {
         // Never misalign attributes: PCL's removed list must be the complement of its output.
-        throw std::logic_error("filters.pcl UniformSampling: " + std::to_string(kept.size()) + " kept indices but " +
+        throw InputError("filters.pcl UniformSampling: " + std::to_string(kept.size()) + " kept indices but " +
                             std::to_string(out.size()) + " output points");
       }
       rep.figure("radius_mm", spec.radius_m * 1e3);
@@ -257,6 +285,7 @@ StageResult<Cloud> apply_pcl_filter(Cloud cloud, const PclFilterSpec& spec) {
     }
     case PclFilterKind::kVoxelGrid: {
       subset = false;
+      check_voxel_count(spec, "leaf_m", spec.leaf_m, *in);
       pcl::VoxelGrid<pcl::PointXYZ> f;
       f.setInputCloud(in);
       const auto leaf = static_cast<float>(spec.leaf_m);

@@ -142,11 +142,12 @@ StageResult<Cloud> skip_for_mesh(Cloud cloud, const char* key) {
 
 /// How far a filter may have moved the point that stands for an input point [m], for the honest
 /// cross-check's removal test (check_input's voxel_leaf_m): the voxel leaf, and the leaf or
-/// search radius of the filters.pcl stages that output new points; 0 when every filter only
-/// drops points (removal then judged by exact coordinates).
+/// search radius of the filters.pcl stages that output new points, summed (chained moving
+/// filters move a point by up to the sum of their reaches); 0 when every filter only drops
+/// points (removal then judged by exact coordinates).
 double removal_displacement_m(const RunConfig& config) {
   double d = config.filters.voxel_m;
-  for (const PclFilterSpec& spec : config.filters.pcl) d = std::max(d, pcl_filter_displacement_m(spec));
+  for (const PclFilterSpec& spec : config.filters.pcl) d += pcl_filter_displacement_m(spec);
   return d;
 }
 

@@ -25,6 +25,7 @@
 #include <cmath>
 #include <random>
 #include <string>
+#include <tuple>
 #include <vector>
 
 namespace {
@@ -296,6 +297,31 @@ TEST(PclFilters, BadParametersInCodeAreConfigErrorsNamingTheParameter) {
     FAIL() << "no error";
   } catch (const hc::ConfigError& e) {
     EXPECT_NE(std::string(e.what()).find("VoxelGrid.leaf_m = 0"), std::string::npos) << e.what();
+  }
+}
+
+TEST(PclFilters, LeavesBeyondPclsVoxelIndexAreRefusedNotIgnored) {
+  // Two points 2 m apart on each axis: at a 1 µm leaf the box holds (2·10^6 + 1)^3 voxels, far
+  // over PCL's 32-bit voxel index (VoxelGrid would return its input unchanged with a warning,
+  // UniformSampling would overflow). At 1 cm it holds 201^3 ≈ 8·10^6: accepted.
+  Cloud two;
+  two.xyz.resize(3, 2);
+  two.xyz.col(0) = Eigen::Vector3d(0.0, 0.0, 0.0);
+  two.xyz.col(1) = Eigen::Vector3d(2.0, 2.0, 2.0);
+  for (const auto& [kind, name, param] :
+       {std::tuple{PclFilterKind::kVoxelGrid, "VoxelGrid", "leaf_m"},
+        std::tuple{PclFilterKind::kUniformSampling, "UniformSampling", "radius_m"}}) {
+    PclFilterSpec s = spec(kind, name);
+    s.leaf_m = s.radius_m = 1e-6;
+    try {
+      (void)apply_pcl_filter(two, s);
+      ADD_FAILURE() << name << ": no error";
+    } catch (const hc::ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find(std::string(name) + "." + param), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("32-bit voxel index"), std::string::npos) << e.what();
+    }
+    s.leaf_m = s.radius_m = 0.01;
+    EXPECT_EQ(apply_pcl_filter(two, s).value.size(), 2u) << name;
   }
 }
 
