@@ -11,7 +11,7 @@
 
 #include "hc/pipeline/honest_check.hpp"
 
-#include "knn_grid.hpp"  // detail::run_parallel, kSearchThreads
+#include "knn_grid.hpp"  // detail::radix_sort, run_parallel, kSearchThreads
 
 #include "hc/common/bilinear_surface.hpp"
 #include "hc/common/error.hpp"
@@ -33,36 +33,6 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-/// Sorts keys ascending and permutes idx alike; stable (equal keys keep their input order, as
-/// the points' original order), so the result equals std::stable_sort on (key). LSD radix sort
-/// with 16-bit digits; a digit equal in every key is skipped. O(n) per digit, n + 64 Ki words
-/// of scratch: 5–10 times faster than a comparison sort of 10^6 (key, index) pairs.
-void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx) {
-  const std::size_t n = keys.size();
-  if (n < 2) return;
-  std::vector<std::uint64_t> k2(n);
-  std::vector<std::uint32_t> i2(n);
-  std::vector<std::size_t> count(std::size_t{1} << 16);
-  for (int shift = 0; shift < 64; shift += 16) {
-    std::fill(count.begin(), count.end(), 0);
-    for (const std::uint64_t k : keys) ++count[(k >> shift) & 0xFFFFu];
-    if (count[(keys[0] >> shift) & 0xFFFFu] == n) continue;  // one digit value: order unchanged
-    std::size_t sum = 0;
-    for (auto& c : count) {
-      const std::size_t here = c;
-      c = sum;
-      sum += here;
-    }
-    for (std::size_t s = 0; s < n; ++s) {
-      const std::size_t d = count[(keys[s] >> shift) & 0xFFFFu]++;
-      k2[d] = keys[s];
-      i2[d] = idx[s];
-    }
-    keys.swap(k2);
-    idx.swap(i2);
-  }
-}
-
 /// Points hashed into cubic voxels of one edge: sorted by voxel key; unique keys and the range
 /// of each. Coordinates are floats in a local frame (the caller's origin).
 class VoxelHash {
@@ -79,7 +49,7 @@ class VoxelHash {
       keys.push_back(key_of(&xyz[3 * i]));
       order.push_back(static_cast<std::uint32_t>(i));
     }
-    radix_sort(keys, order);
+    detail::radix_sort(keys, order, 64);
     index_ = std::move(order);
     pts_.resize(3 * index_.size());
     for (std::size_t s = 0; s < index_.size(); ++s) {

@@ -57,33 +57,6 @@ namespace {
 // Search radius for the next point = this point's (k+1)-th neighbour distance times this.
 constexpr float kHintFactor = 1.15f;
 
-// LSD radix sort of (key, index) pairs on the low `bits` bits of the keys.
-void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx, int bits) {
-  constexpr int kDigit = 11;
-  constexpr std::size_t kBuckets = std::size_t{1} << kDigit;
-  const std::size_t n = keys.size();
-  std::vector<std::uint64_t> k2(n);
-  std::vector<std::uint32_t> i2(n);
-  std::vector<std::size_t> count(kBuckets);
-  for (int shift = 0; shift < bits; shift += kDigit) {
-    std::fill(count.begin(), count.end(), 0);
-    for (std::size_t i = 0; i < n; ++i) ++count[(keys[i] >> shift) & (kBuckets - 1)];
-    std::size_t sum = 0;
-    for (auto& c : count) {
-      const std::size_t t = c;
-      c = sum;
-      sum += t;
-    }
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::size_t d = count[(keys[i] >> shift) & (kBuckets - 1)]++;
-      k2[d] = keys[i];
-      i2[d] = idx[i];
-    }
-    keys.swap(k2);
-    idx.swap(i2);
-  }
-}
-
 // Mean over every `stride`-th point of the number of sampled points in its cell, with the cell
 // edge scaled by sqrt(stride) so that on a surface the estimate matches the full cloud at edge
 // `cell`. This point-weighted count is what one k-NN search costs.
@@ -789,6 +762,34 @@ PointQueries::Scratch::~Scratch() = default;
 
 float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s) const {
   return impl_->mean_distance(sorted, *s.state_);
+}
+
+void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx, int bits) {
+  constexpr int kDigit = 11;
+  constexpr std::size_t kBuckets = std::size_t{1} << kDigit;
+  const std::size_t n = keys.size();
+  if (n < 2) return;
+  std::vector<std::uint64_t> k2(n);
+  std::vector<std::uint32_t> i2(n);
+  std::vector<std::size_t> count(kBuckets);
+  for (int shift = 0; shift < bits; shift += kDigit) {
+    std::fill(count.begin(), count.end(), 0);
+    for (std::size_t i = 0; i < n; ++i) ++count[(keys[i] >> shift) & (kBuckets - 1)];
+    if (count[(keys[0] >> shift) & (kBuckets - 1)] == n) continue;  // one digit value: order unchanged
+    std::size_t sum = 0;
+    for (auto& c : count) {
+      const std::size_t t = c;
+      c = sum;
+      sum += t;
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::size_t d = count[(keys[i] >> shift) & (kBuckets - 1)]++;
+      k2[d] = keys[i];
+      i2[d] = idx[i];
+    }
+    keys.swap(k2);
+    idx.swap(i2);
+  }
 }
 
 }  // namespace hc::pipeline::detail

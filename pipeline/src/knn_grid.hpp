@@ -94,6 +94,12 @@ class PointQueries {
   std::unique_ptr<Impl> impl_;
 };
 
+/// Sorts keys ascending on their low `bits` bits (1..64) and permutes idx alike; stable (equal
+/// keys keep their input order). LSD radix sort, 11-bit digits, a digit equal in every key
+/// skipped; O(n) per digit, scratch n keys + n indices. Used by the k-NN grid and the honest
+/// cross-check's voxel hash.
+void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx, int bits);
+
 /// Runs f(0) on this thread and f(1..threads-1) on new threads, then joins them.
 template <class F>
 void run_parallel(int threads, F&& f) {
