@@ -934,6 +934,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     }
   }
   c.grid.hole_fill_max_cells = static_cast<int>(r.get_int("grid.hole_fill_max_cells", 0, 0, 1 << 24));
+  c.grid.hole_fill_max_step_m = r.get_double("grid.hole_fill_max_step_m", 0.0, 0.0, 1e4);
   c.grid.organised_mesh = r.get_string("grid.organised", "splat", {"splat", "mesh"}) == "mesh";
   c.grid.organised_max_edge_factor = r.get_double("grid.organised_max_edge_factor", 4.0, 1.0, 100.0);
   c.grid.organised_blend_m = r.get_double("grid.organised_blend_m", 0.0, 0.0, 1.0);

@@ -21,6 +21,8 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstddef>
+#include <limits>
 #include <sstream>
 #include <utility>
 #include <vector>
@@ -35,11 +37,16 @@ constexpr double kMinSupport = 0.05; ///< minimum known-cell weight fraction to 
 
 }  // namespace
 
-StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells) {
+StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max_rim_step_m) {
   const auto t0 = std::chrono::steady_clock::now();
   if (max_hole_cells < 0) {
     std::ostringstream msg;
     msg << "fill_holes: max_hole_cells = " << max_hole_cells << " (expected >= 0; 0 disables)";
+    throw ConfigError(msg.str());
+  }
+  if (!(max_rim_step_m >= 0.0) || !std::isfinite(max_rim_step_m)) {
+    std::ostringstream msg;
+    msg << "fill_holes: grid.hole_fill_max_step_m = " << max_rim_step_m << " (expected a depth >= 0 [m]; 0 = no limit)";
     throw ConfigError(msg.str());
   }
   const int rows = grid.depth.rows(), cols = grid.depth.cols();
@@ -65,7 +72,7 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells) {
   rep.stage = "fill_holes";
   rep.count_in = grid.depth.valid_count();
 
-  std::size_t holes_total = 0, holes_filled = 0, cells_filled = 0, largest_filled = 0;
+  std::size_t holes_total = 0, holes_filled = 0, cells_filled = 0, largest_filled = 0, holes_at_steps = 0;
   int sweeps = 0;
   if (max_hole_cells > 0) {
     float* z = grid.depth.data();
@@ -99,6 +106,24 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells) {
         if (r + 1 < static_cast<std::size_t>(rows)) visit(i + ucols);
       }
       if (border || component.size() > static_cast<std::size_t>(max_hole_cells)) continue;
+      if (max_rim_step_m > 0.0) {
+        // The rim's depth span: the valid 8-neighbours of the hole's cells (the hole does not
+        // touch the border, so every neighbour exists).
+        float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+        for (const std::size_t i : component) {
+          for (const std::ptrdiff_t dr : {-1, 0, 1})
+            for (const std::ptrdiff_t dc : {-1, 0, 1}) {
+              const float v = z[static_cast<std::size_t>(static_cast<std::ptrdiff_t>(i) + dr * static_cast<std::ptrdiff_t>(ucols) + dc)];
+              if (std::isnan(v)) continue;
+              lo = std::min(lo, v);
+              hi = std::max(hi, v);
+            }
+        }
+        if (static_cast<double>(hi) - static_cast<double>(lo) > max_rim_step_m) {
+          ++holes_at_steps;
+          continue;
+        }
+      }
       ++holes_filled;
       largest_filled = std::max(largest_filled, component.size());
       fillable.insert(fillable.end(), component.begin(), component.end());
@@ -190,6 +215,10 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells) {
   rep.figure("holes_filled", static_cast<double>(holes_filled));
   rep.figure("cells_filled", static_cast<double>(cells_filled));
   rep.figure("largest_filled_hole_cells", static_cast<double>(largest_filled));
+  if (max_rim_step_m > 0.0) {
+    rep.figure("max_rim_step_m", max_rim_step_m);
+    rep.figure("holes_at_depth_steps", static_cast<double>(holes_at_steps));
+  }
   rep.figure("sweeps", sweeps);
   if (max_hole_cells == 0) rep.notes.emplace_back("hole filling disabled (max_hole_cells = 0)");
   result.value = std::move(grid);

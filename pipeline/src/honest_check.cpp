@@ -255,6 +255,8 @@ void check_honest_options(const HonestCheckOptions& o) {
     bad_option("spike_window_cells", o.spike_window_cells, "an odd integer in [3, 15]");
   if (!(o.spike_min_height_m > 0.0) || !std::isfinite(o.spike_min_height_m))
     bad_option("spike_min_height_m", o.spike_min_height_m, "a height > 0 [m]");
+  if (!(o.confirm_footprint_m >= 0.0) || !std::isfinite(o.confirm_footprint_m))
+    bad_option("confirm_footprint_m (grid.splat_radius_cells × cell size)", o.confirm_footprint_m, "a distance ≥ 0 [m]");
   if (!(o.spike_mad_factor > 0.0) || !std::isfinite(o.spike_mad_factor))
     bad_option("spike_mad_factor", o.spike_mad_factor, "a number > 0");
   if (o.spike_max_cells < 1 || o.spike_max_cells > 10000) bad_option("spike_max_cells", o.spike_max_cells, "an integer in [1, 10000]");
@@ -502,18 +504,24 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     }
     // 5. Spikes and pits of the grid that the scan confirms (a not isolated point within tol).
     // Within max(tolerance, spike_min_height_m): a genuine point that close means the cell does
-    // not stand more than the spike limit away from the scan.
+    // not stand more than the spike limit away from the scan. Or within the splat footprint in
+    // x-y and that close in height: the disc of a genuine point made the cell.
     if (spikes) {
       spikes->confirmed = 0;
       const double conf_m = std::max(tol, o.spike_min_height_m);
       const auto conf2 = static_cast<float>(conf_m * conf_m);
-      const int conf_reach = static_cast<int>(std::ceil(conf_m / hash.edge()));
+      const double reach_m = std::max(conf_m, o.confirm_footprint_m);
+      const auto foot2 = static_cast<float>(o.confirm_footprint_m * o.confirm_footprint_m);
+      const auto conf_z = static_cast<float>(conf_m);
+      const int conf_reach = static_cast<int>(std::ceil(reach_m / hash.edge()));
       for (const auto& rc : spikes->flagged) {
         float q[3];
         sample_local(rc[0], rc[1], q);
         bool genuine = false;
         hash.visit(q, conf_reach, [&](std::uint32_t, const float* p, std::uint32_t j) {
-          if (!isolated[j] && dist_sq(p, q) <= conf2) genuine = true;
+          if (isolated[j]) return true;
+          const float dx = p[0] - q[0], dy = p[1] - q[1];
+          if (dist_sq(p, q) <= conf2 || (dx * dx + dy * dy <= foot2 && std::abs(p[2] - q[2]) <= conf_z)) genuine = true;
           return !genuine;
         });
         spikes->confirmed += genuine;

@@ -427,7 +427,7 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
   // Scan-line corrugation of the grid (before hole filling), for the report.
   (void)stage("corrugation", reports, progress, [&] { return corrugation(grid); });
   if (config.grid.hole_fill_max_cells > 0) {
-    grid = stage("hole_fill", reports, progress, [&] { return fill_holes(std::move(grid), config.grid.hole_fill_max_cells); });
+    grid = stage("hole_fill", reports, progress, [&] { return fill_holes(std::move(grid), config.grid.hole_fill_max_cells, config.grid.hole_fill_max_step_m); });
   }
   const double unit_m = metres_per_unit(config.input.units);
   const Eigen::Affine3d model_to_grid =
@@ -487,8 +487,13 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
     };
     Honest honest = stage("honest_check", reports, progress, [&] {
       StageResult<Honest> r;
-      r.value.spikes = find_grid_spikes(grid.depth, config.cross_check.honest);
-      r.value.input = check_input(as_read, cloud, grid.depth, config.cross_check.honest, removal_displacement_m(config),
+      HonestCheckOptions honest_options = config.cross_check.honest;
+      // A splatted cell holds the front-most z of a measured cell within the disc, whose point
+      // lies up to half a cell diagonal from that cell's node.
+      honest_options.confirm_footprint_m =
+          (config.grid.reproject.splat_radius_cells + 0.5 * std::sqrt(2.0)) * grid.depth.geometry().cell_size_m;
+      r.value.spikes = find_grid_spikes(grid.depth, honest_options);
+      r.value.input = check_input(as_read, cloud, grid.depth, honest_options, removal_displacement_m(config),
                                   &r.value.spikes);
       const InputCheck& in = r.value.input;
       const GridSpikes& sp = r.value.spikes;

@@ -337,6 +337,42 @@ TEST(InputCheck, ACellKeptOnlyByAnIsolatedPointIsASpikeKept) {
   EXPECT_EQ(in.spikes_kept_cells[0][1], 10);
 }
 
+TEST(InputCheck, ASpikeDrawnFromAGenuinePointsDiscIsConfirmedOnlyAtThatPointsHeight) {
+  // Airborne lidar at about one point per cell: a tree top 40 mm up, 3.5 mm from the node in
+  // x-y, made cell (10, 10) through its splat disc. Grid: 5 mm cells, a flat lattice of points at
+  // every node; the tree top is four points 0.1 mm apart (not isolated).
+  GridGeometry g{21, 21, 0.0, 0.0, 0.005};
+  HeightField h(g, 0.0f);
+  std::vector<Eigen::Vector3d> pts;
+  for (int r = 0; r < 21; ++r)
+    for (int c = 0; c < 21; ++c) pts.emplace_back(0.005 * c, 0.005 * r, 0.0);
+  for (int k = 0; k < 4; ++k) pts.emplace_back(0.0535 + 0.0001 * (k % 2), 0.050 + 0.0001 * (k / 2), 0.040);
+  const Cloud c = cloud_of(pts);
+  auto confirmed_with = [&](float cell_z_m, double footprint_m) {
+    HeightField grid = h;
+    grid.at(10, 10) = cell_z_m;
+    HonestCheckOptions o;  // tolerance 0.5 mm, spike_min_height 2 mm: 3-D confirmation reach 2 mm
+    o.confirm_footprint_m = footprint_m;
+    GridSpikes s = find_grid_spikes(grid, o);
+    EXPECT_EQ(s.spikes, 1u);
+    const InputCheck in = check_input(c.xyz, c, grid, o, 0.0, &s);
+    EXPECT_EQ(in.isolated, 0u);
+    return s.confirmed;
+  };
+  // 3.5 mm away in x-y: beyond the 2 mm of the 3-D test, so unconfirmed without a footprint.
+  EXPECT_EQ(confirmed_with(0.040f, 0.0), 0u);
+  // A 1.5-cell disc (7.5 mm) reaches it, at the cell's height: confirmed.
+  EXPECT_EQ(confirmed_with(0.040f, 0.0075), 1u);
+  // 1.5 mm higher than the tree top: still within 2 mm, confirmed; 5 mm higher: not.
+  EXPECT_EQ(confirmed_with(0.0415f, 0.0075), 1u);
+  EXPECT_EQ(confirmed_with(0.045f, 0.0075), 0u);
+  // A disc of 3 mm does not reach 3.5 mm.
+  EXPECT_EQ(confirmed_with(0.040f, 0.003), 0u);
+  HonestCheckOptions bad;
+  bad.confirm_footprint_m = -1.0;
+  EXPECT_THROW(find_grid_spikes(h, bad), ConfigError);
+}
+
 TEST(Verdict, LevelsFollowTheLimitsAndTheStageFigures) {
   InputCheck in;
   in.points = 1000;

@@ -706,6 +706,35 @@ TEST(FillHoles, ConstantSurfaceIsFilledExactlyAndSizeLimitIsInclusive) {
   EXPECT_EQ(figure(limited.report, "holes_filled"), 2.0);
 }
 
+TEST(FillHoles, AHoleAcrossADepthStepStaysEmptyUnderARimStepLimit) {
+  // Two flat surfaces: columns 0..14 at 0.0 m (a wall), columns 15..29 at 1.4 m (an object in
+  // front). Hole A (2 x 2) sits across the step at columns 14..15; hole B (2 x 2) lies inside
+  // the front surface. Without a limit both are filled (A with a value between the surfaces);
+  // with max_rim_step_m = 0.1, A's rim spans 1.4 m and stays empty, B's spans 0 and is filled.
+  GridGeometry g{30, 30, 0.0, 0.0, 1e-2};
+  DepthGrid d{HeightField(g, 0.0f), std::vector<std::uint8_t>(g.cell_count(), kCellMeasured)};
+  for (int r = 0; r < 30; ++r)
+    for (int c = 15; c < 30; ++c) d.depth.at(r, c) = 1.4f;
+  carve(d, 10, 11, 14, 15);  // hole A: rows 10..11, columns 14..15
+  carve(d, 20, 21, 22, 23);  // hole B
+  const auto all = fill_holes(d, 16);
+  EXPECT_EQ(all.value.depth.valid_count(), g.cell_count());
+  const float a = all.value.depth.at(10, 14);
+  EXPECT_GT(a, 0.05f);  // the invented in-between surface the limit exists to prevent
+  EXPECT_LT(a, 1.35f);
+  const auto limited = fill_holes(d, 16, 0.1);
+  EXPECT_EQ(limited.value.depth.valid_count(), g.cell_count() - 4);
+  for (int r = 10; r <= 11; ++r)
+    for (int c = 14; c <= 15; ++c) EXPECT_TRUE(std::isnan(limited.value.depth.at(r, c)));
+  EXPECT_FLOAT_EQ(limited.value.depth.at(20, 22), 1.4f);
+  EXPECT_EQ(figure(limited.report, "holes_filled"), 1.0);
+  EXPECT_EQ(figure(limited.report, "holes_at_depth_steps"), 1.0);
+  // A limit above the step fills both again.
+  EXPECT_EQ(fill_holes(d, 16, 1.5).value.depth.valid_count(), g.cell_count());
+  EXPECT_THROW(fill_holes(d, 16, -0.1), ConfigError);
+  EXPECT_THROW(fill_holes(d, 16, std::numeric_limits<double>::infinity()), ConfigError);
+}
+
 TEST(FillHoles, ZeroDisablesAndNegativeIsAnError) {
   DepthGrid d = tilted_grid(10, 10, 1e-3);
   carve(d, 4, 5, 4, 5);

@@ -60,6 +60,7 @@ struct FilterConfig {
 struct GridConfig {
   ReprojectOptions reproject;    ///< N or cell size, splat radius, see-through
   int hole_fill_max_cells = 0;   ///< largest hole filled [cells]; 0 = off
+  double hole_fill_max_step_m = 0.0;  ///< holes whose rim spans more depth stay no data [m]; 0 = no limit
   bool organised_mesh = false;   ///< grid.organised: mesh (organised scans meshed per scan) | splat
   double organised_max_edge_factor = 4.0;  ///< depth-jump limit / median sample spacing [-]
   /// grid.organised_blend_m: faces within this depth [m] of the front-most one are averaged

@@ -51,6 +51,13 @@ struct HonestCheckOptions {
   double spike_min_height_m = 0.002;
   double spike_mad_factor = 6.0;
   int spike_max_cells = 25;
+  /// Horizontal reach of one point in the grid [m]: the splat disc's radius plus half a cell
+  /// diagonal ((grid.splat_radius_cells + √2/2) × cell size; run sets it, not a config key). A flagged cell
+  /// is also confirmed by a point that is not isolated, lies within this of the cell's node in
+  /// x-y and within max(tolerance_m, spike_min_height_m) of its height: the gridder drew the
+  /// cell from such a point (a tree top in airborne lidar at one point per cell). 0 = off: only
+  /// points within max(tolerance_m, spike_min_height_m) in 3-D confirm.
+  double confirm_footprint_m = 0.0;
   /// Connected groups of valid cells (8-neighbours) of at most this many cells, apart from the
   /// largest group, are islands [cells].
   int island_max_cells = 16;
@@ -125,9 +132,10 @@ struct GridSpikes {
   std::vector<GridAnomaly> worst;     ///< the largest |deviation| first, at most 10
   std::vector<std::array<int, 2>> marked;  ///< (row, col) of spike, pit and island cells, at most 1000
   std::vector<std::array<int, 2>> flagged; ///< (row, col) of every spike and pit cell
-  /// Spike and pit cells the scan confirms (check_input: a point within max(tolerance,
-  /// spike_min_height_m) that is not isolated): relief such as deep folds, not an error. The
-  /// verdict counts the others.
+  /// Spike and pit cells the scan confirms (check_input: a point that is not isolated within
+  /// max(tolerance, spike_min_height_m), or within confirm_footprint_m in x-y at the cell's
+  /// height to that distance): relief such as deep folds or trees, not an error. The verdict
+  /// counts the others.
   std::size_t confirmed = 0;
 };
 
