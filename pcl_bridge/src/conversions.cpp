@@ -79,9 +79,13 @@ void to_pcl(const Cloud& cloud, pcl::PointCloud<pcl::PointXYZRGB>& out) {
 void to_pcl(const Cloud& cloud, pcl::PointCloud<pcl::PointXYZRGBNormal>& out) {
   write_xyz(cloud, out);
   write_rgb(cloud, out);
+  const bool normals = cloud.normal.size() == 3 * out.size();
+  const bool curvature = normals && cloud.curvature.size() == out.size();
   for (std::size_t i = 0; i < out.size(); ++i) {
-    out[i].normal_x = out[i].normal_y = out[i].normal_z = 0.0f;
-    out[i].curvature = 0.0f;
+    out[i].normal_x = normals ? cloud.normal[3 * i] : 0.0f;
+    out[i].normal_y = normals ? cloud.normal[3 * i + 1] : 0.0f;
+    out[i].normal_z = normals ? cloud.normal[3 * i + 2] : 0.0f;
+    out[i].curvature = curvature ? cloud.curvature[i] : 0.0f;
   }
 }
 
@@ -103,6 +107,14 @@ Cloud from_pcl(const pcl::PointCloud<pcl::PointXYZRGB>& in) {
 Cloud from_pcl(const pcl::PointCloud<pcl::PointXYZRGBNormal>& in) {
   Cloud cloud = read_xyz(in);
   read_rgb(in, cloud);
+  cloud.normal.resize(3 * in.size());
+  cloud.curvature.resize(in.size());
+  for (std::size_t i = 0; i < in.size(); ++i) {
+    cloud.normal[3 * i] = in[i].normal_x;
+    cloud.normal[3 * i + 1] = in[i].normal_y;
+    cloud.normal[3 * i + 2] = in[i].normal_z;
+    cloud.curvature[i] = in[i].curvature;
+  }
   return cloud;
 }
 

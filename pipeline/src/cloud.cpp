@@ -50,6 +50,8 @@ void Cloud::keep_if(const std::vector<bool>& keep) {
       if (has_scan_id()) move_point(scan_id, out, i, 1);
       if (has_intensity()) move_point(intensity, out, i, 1);
       if (has_rgb()) move_point(rgb, out, i, 3);
+      if (has_normals()) move_point(normal, out, i, 3);
+      if (!curvature.empty()) move_point(curvature, out, i, 1);
       if (has_grid_index()) {
         move_point(row, out, i, 1);
         move_point(col, out, i, 1);
@@ -61,6 +63,8 @@ void Cloud::keep_if(const std::vector<bool>& keep) {
   if (has_scan_id()) scan_id.resize(out);
   if (has_intensity()) intensity.resize(out);
   if (has_rgb()) rgb.resize(3 * out);
+  if (has_normals()) normal.resize(3 * out);
+  if (!curvature.empty()) curvature.resize(out);
   if (has_grid_index()) {
     row.resize(out);
     col.resize(out);
@@ -83,6 +87,12 @@ std::vector<std::string> Cloud::append(const Cloud& other) {
   join(scan_id, other.scan_id, "scan_id");
   join(intensity, other.intensity, "intensity");
   join(rgb, other.rgb, "rgb");
+  join(normal, other.normal, "normal");
+  join(curvature, other.curvature, "curvature");
+  if (normal.empty() && !curvature.empty()) {  // curvature only travels with its normals
+    curvature.clear();
+    dropped.push_back("curvature");
+  }
   join(row, other.row, "row");
   join(col, other.col, "col");
   if (row.empty() != col.empty()) {

@@ -208,9 +208,14 @@ class Reader {
     const auto n = find(path);
     if (!n) return out;
     if (!n->IsSequence()) fail(path, "= " + scalar_text(*n) + ": expected a list");
+    std::size_t i = 0;
     for (const auto& item : *n) {
-      if (!item.IsMap()) fail(path, "has an element that is not a key: value map");
+      if (!item.IsMap()) {
+        fail(path, "has an element [" + std::to_string(i) + "] = " + scalar_text(item) +
+                       " that is not a key: value map (list indices count from 0)");
+      }
       out.push_back(item);
+      ++i;
     }
     return out;
   }
@@ -959,6 +964,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     h.spike_min_height_m = r.get_double("cross_check.spike_min_height_m", h.spike_min_height_m, 0.0, 1e6, true);
     h.spike_mad_factor = r.get_double("cross_check.spike_mad_factor", h.spike_mad_factor, 0.0, 1e6, true);
     h.spike_max_cells = static_cast<int>(r.get_int("cross_check.spike_max_cells", h.spike_max_cells, 1, 10000));
+    h.confirm_by_splat_footprint = r.get_bool("cross_check.confirm_by_splat_footprint", h.confirm_by_splat_footprint);
     h.island_max_cells = static_cast<int>(r.get_int("cross_check.island_max_cells", h.island_max_cells, 1, 1 << 30));
     h.max_spike_cells = static_cast<int>(r.get_int("cross_check.max_spike_cells", h.max_spike_cells, 0, 1 << 30));
     h.max_spike_fraction = r.get_double("cross_check.max_spike_fraction", h.max_spike_fraction, 0.0, 1.0);

@@ -186,6 +186,7 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
   report.figure("leaf_mm", leaf_m * 1e3);
   if (cloud.has_scan_id()) report.notes.push_back("scan_id dropped: a voxel centroid mixes scans");
   if (cloud.has_grid_index()) report.notes.push_back("row/col dropped: a voxel centroid has no scan grid position");
+  if (cloud.has_normals()) report.notes.push_back("normals and curvature dropped: a voxel centroid has none of its own");
   if (cloud.has_rgb() || cloud.has_intensity()) {
     // Colour and intensity: the mean over the voxel's points. Each input point's voxel is found
     // with VoxelGrid's own arithmetic (float floor(p · (1/leaf)) − min index, linear index

@@ -1,8 +1,9 @@
 // Hole filling of a depth grid by normalised convolution.
 //
 // A hole is a 4-connected component of no-data cells (empty or see-through). Components that
-// touch the grid border are background; components larger than max_hole_cells stay no data.
-// Every other hole is filled from its rim inwards: in each sweep, a hole cell whose Gaussian-
+// touch the grid border are background; components larger than max_hole_cells stay no data, and
+// so (with max_rim_step_m) do those whose rim spreads about its fitted plane as a depth step
+// does (occlusion gaps between a near and a far surface). Every other hole is filled from its rim inwards: in each sweep, a hole cell whose Gaussian-
 // weighted support of known cells (valid or already filled) reaches kMinSupport of the full
 // kernel weight gets the normalised convolution value Σ w·z / Σ w over the known cells in its
 // window (a masked Gaussian blur divided by the blurred mask, evaluated only at hole cells).
@@ -16,6 +17,9 @@
 #include "hc/pipeline/reproject.hpp"
 
 #include "hc/common/error.hpp"
+
+#include <Eigen/Core>
+#include <Eigen/Cholesky>
 
 #include <algorithm>
 #include <array>
@@ -34,6 +38,60 @@ namespace {
 constexpr double kSigmaCells = 1.0;  ///< Gaussian σ of the fill kernel [cells]
 constexpr int kRadiusCells = 3;      ///< kernel half-width, 3σ [cells]
 constexpr double kMinSupport = 0.05; ///< minimum known-cell weight fraction to fill a cell [-]
+
+/// True when the rim of a hole (its valid 8-neighbours; the hole does not touch the border, so
+/// every neighbour exists) spreads about the least-squares plane z = a + b·col + c·row through
+/// it by more than max_step_m [m]: the spread is max − min of the rim's residuals. A slope fits
+/// the plane (spread 0); a depth step of height H across the hole tilts the plane and leaves a
+/// spread of about 0.6–0.9·H (a 2 × 2 hole centred on the step: 0.63·H). A rim of fewer than 3
+/// cells, or one on a line, is judged by its depth span. `rim` is scratch space.
+bool rim_departs(const float* z, std::size_t cols, const std::vector<std::size_t>& hole, std::vector<std::size_t>& rim,
+                 double max_step_m) {
+  rim.clear();
+  for (const std::size_t i : hole) {
+    for (const std::ptrdiff_t dr : {-1, 0, 1})
+      for (const std::ptrdiff_t dc : {-1, 0, 1}) {
+        const auto j = static_cast<std::size_t>(static_cast<std::ptrdiff_t>(i) + dr * static_cast<std::ptrdiff_t>(cols) + dc);
+        if (!std::isnan(z[j])) rim.push_back(j);
+      }
+  }
+  std::sort(rim.begin(), rim.end());
+  rim.erase(std::unique(rim.begin(), rim.end()), rim.end());
+  if (rim.empty()) return false;
+  // Centred coordinates (cells) and depth, for a well-conditioned 3 × 3 normal system.
+  double mc = 0.0, mr = 0.0, mz = 0.0;
+  for (const std::size_t j : rim) {
+    mc += static_cast<double>(j % cols);
+    mr += static_cast<double>(j / cols);
+    mz += static_cast<double>(z[j]);
+  }
+  const auto n = static_cast<double>(rim.size());
+  mc /= n;
+  mr /= n;
+  mz /= n;
+  Eigen::Matrix2d a = Eigen::Matrix2d::Zero();
+  Eigen::Vector2d rhs = Eigen::Vector2d::Zero();
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (const std::size_t j : rim) {
+    const Eigen::Vector2d u(static_cast<double>(j % cols) - mc, static_cast<double>(j / cols) - mr);
+    const double dz = static_cast<double>(z[j]) - mz;
+    a += u * u.transpose();
+    rhs += u * dz;
+    lo = std::min(lo, dz);
+    hi = std::max(hi, dz);
+  }
+  // Fewer than 3 cells or all on a line: no plane; the span decides.
+  if (rim.size() < 3 || std::abs(a.determinant()) < 1e-9 * (1.0 + a.squaredNorm())) return hi - lo > max_step_m;
+  const Eigen::Vector2d slope = a.ldlt().solve(rhs);
+  double res_lo = std::numeric_limits<double>::infinity(), res_hi = -res_lo;
+  for (const std::size_t j : rim) {
+    const Eigen::Vector2d u(static_cast<double>(j % cols) - mc, static_cast<double>(j / cols) - mr);
+    const double res = static_cast<double>(z[j]) - mz - slope.dot(u);
+    res_lo = std::min(res_lo, res);
+    res_hi = std::max(res_hi, res);
+  }
+  return res_hi - res_lo > max_step_m;
+}
 
 }  // namespace
 
@@ -80,7 +138,7 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
     // Label the no-data components (4-connectivity) with an explicit stack; keep the cells of
     // the fillable ones.
     std::vector<std::uint8_t> seen(cells, 0);
-    std::vector<std::size_t> stack, component, fillable;
+    std::vector<std::size_t> stack, component, fillable, rim;
     for (std::size_t start = 0; start < cells; ++start) {
       if (seen[start] || !std::isnan(z[start])) continue;
       ++holes_total;
@@ -106,23 +164,9 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
         if (r + 1 < static_cast<std::size_t>(rows)) visit(i + ucols);
       }
       if (border || component.size() > static_cast<std::size_t>(max_hole_cells)) continue;
-      if (max_rim_step_m > 0.0) {
-        // The rim's depth span: the valid 8-neighbours of the hole's cells (the hole does not
-        // touch the border, so every neighbour exists).
-        float lo = std::numeric_limits<float>::infinity(), hi = -lo;
-        for (const std::size_t i : component) {
-          for (const std::ptrdiff_t dr : {-1, 0, 1})
-            for (const std::ptrdiff_t dc : {-1, 0, 1}) {
-              const float v = z[static_cast<std::size_t>(static_cast<std::ptrdiff_t>(i) + dr * static_cast<std::ptrdiff_t>(ucols) + dc)];
-              if (std::isnan(v)) continue;
-              lo = std::min(lo, v);
-              hi = std::max(hi, v);
-            }
-        }
-        if (static_cast<double>(hi) - static_cast<double>(lo) > max_rim_step_m) {
-          ++holes_at_steps;
-          continue;
-        }
+      if (max_rim_step_m > 0.0 && rim_departs(z, ucols, component, rim, max_rim_step_m)) {
+        ++holes_at_steps;
+        continue;
       }
       ++holes_filled;
       largest_filled = std::max(largest_filled, component.size());

@@ -16,6 +16,7 @@
 #include "hc/common/bilinear_surface.hpp"
 #include "hc/common/error.hpp"
 #include "hc/common/format.hpp"
+#include "hc/pipeline/reproject.hpp"
 
 #include <opencv2/imgproc.hpp>
 
@@ -27,6 +28,7 @@
 #include <limits>
 #include <numeric>
 #include <unordered_map>
+#include <utility>
 
 namespace hc::pipeline {
 namespace {
@@ -81,8 +83,13 @@ class VoxelHash {
   /// `reach` voxels of q's voxel, q's own voxel first; f returns false to stop.
   template <class F>
   void visit(const float* q, int reach, F&& f) const {
+    visit(q, reach, reach, std::forward<F>(f));
+  }
+  /// As visit(q, reach, f), over reach voxels each way in x and y and reach_z in z.
+  template <class F>
+  void visit(const float* q, int reach, int reach_z, F&& f) const {
     const std::int64_t cx = cell(q[0]), cy = cell(q[1]), cz = cell(q[2]);
-    const bool at_limit = std::max({std::abs(cx), std::abs(cy), std::abs(cz)}) + reach > kLimit;
+    const bool at_limit = std::max({std::abs(cx), std::abs(cy), std::abs(cz)}) + std::max(reach, reach_z) > kLimit;
     std::vector<std::uint64_t> seen;  // only at the clamp limit, where keys can repeat
     auto run = [&](std::uint64_t k) {
       if (at_limit) {
@@ -98,7 +105,7 @@ class VoxelHash {
       return true;
     };
     if (!run(pack(cx, cy, cz))) return;
-    for (int dz = -reach; dz <= reach; ++dz)
+    for (int dz = -reach_z; dz <= reach_z; ++dz)
       for (int dy = -reach; dy <= reach; ++dy)
         for (int dx = -reach; dx <= reach; ++dx) {
           if (dx == 0 && dy == 0 && dz == 0) continue;
@@ -255,8 +262,10 @@ void check_honest_options(const HonestCheckOptions& o) {
     bad_option("spike_window_cells", o.spike_window_cells, "an odd integer in [3, 15]");
   if (!(o.spike_min_height_m > 0.0) || !std::isfinite(o.spike_min_height_m))
     bad_option("spike_min_height_m", o.spike_min_height_m, "a height > 0 [m]");
-  if (!(o.confirm_footprint_m >= 0.0) || !std::isfinite(o.confirm_footprint_m))
-    bad_option("confirm_footprint_m (grid.splat_radius_cells × cell size)", o.confirm_footprint_m, "a distance ≥ 0 [m]");
+  if (!(o.confirm_footprint_m >= 0.0) || !std::isfinite(o.confirm_footprint_m)) {
+    throw ConfigError("honest cross-check: HonestCheckOptions::confirm_footprint_m = " + format_number(o.confirm_footprint_m) +
+                      ": expected a distance ≥ 0 [m] ((grid.splat_radius_cells + √2/2) × cell size, set by run)");
+  }
   if (!(o.spike_mad_factor > 0.0) || !std::isfinite(o.spike_mad_factor))
     bad_option("spike_mad_factor", o.spike_mad_factor, "a number > 0");
   if (o.spike_max_cells < 1 || o.spike_max_cells > 10000) bad_option("spike_max_cells", o.spike_max_cells, "an integer in [1, 10000]");
@@ -275,7 +284,8 @@ void check_honest_options(const HonestCheckOptions& o) {
 }
 
 InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
-                       const HonestCheckOptions& o, double voxel_leaf_m, GridSpikes* spikes) {
+                       const HonestCheckOptions& o, double voxel_leaf_m, GridSpikes* spikes,
+                       const std::vector<std::uint8_t>* cell_flags) {
   const auto t0 = Clock::now();
   check_honest_options(o);
   const GridGeometry& g = grid.geometry();
@@ -504,26 +514,39 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     }
     // 5. Spikes and pits of the grid that the scan confirms (a not isolated point within tol).
     // Within max(tolerance, spike_min_height_m): a genuine point that close means the cell does
-    // not stand more than the spike limit away from the scan. Or within the splat footprint in
-    // x-y and that close in height: the disc of a genuine point made the cell.
+    // not stand more than the spike limit away from the scan. With a footprint, a measured or
+    // splatted cell is also confirmed by a kept, not isolated point within the footprint in x-y
+    // and that close in height: the point whose disc made the cell.
     if (spikes) {
       spikes->confirmed = 0;
       const double conf_m = std::max(tol, o.spike_min_height_m);
       const auto conf2 = static_cast<float>(conf_m * conf_m);
-      const double reach_m = std::max(conf_m, o.confirm_footprint_m);
-      const auto foot2 = static_cast<float>(o.confirm_footprint_m * o.confirm_footprint_m);
       const auto conf_z = static_cast<float>(conf_m);
-      const int conf_reach = static_cast<int>(std::ceil(reach_m / hash.edge()));
+      const int conf_reach = static_cast<int>(std::ceil(conf_m / hash.edge()));
+      const bool footprint = o.confirm_footprint_m > 0.0 && cell_flags != nullptr &&
+                             cell_flags->size() == static_cast<std::size_t>(g.rows) * static_cast<std::size_t>(g.cols);
+      const auto foot2 = static_cast<float>(o.confirm_footprint_m * o.confirm_footprint_m);
+      constexpr double kMaxFootprintVoxels = 16.0;
+      const int foot_reach =
+          static_cast<int>(std::min(kMaxFootprintVoxels, std::ceil(o.confirm_footprint_m / hash.edge())));
       for (const auto& rc : spikes->flagged) {
         float q[3];
         sample_local(rc[0], rc[1], q);
         bool genuine = false;
         hash.visit(q, conf_reach, [&](std::uint32_t, const float* p, std::uint32_t j) {
-          if (isolated[j]) return true;
-          const float dx = p[0] - q[0], dy = p[1] - q[1];
-          if (dist_sq(p, q) <= conf2 || (dx * dx + dy * dy <= foot2 && std::abs(p[2] - q[2]) <= conf_z)) genuine = true;
+          if (!isolated[j] && dist_sq(p, q) <= conf2) genuine = true;
           return !genuine;
         });
+        const std::uint8_t flag =
+            footprint ? (*cell_flags)[static_cast<std::size_t>(rc[0]) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(rc[1])]
+                      : std::uint8_t{0};
+        if (!genuine && footprint && (flag == kCellMeasured || flag == kCellSplatted)) {
+          hash.visit(q, foot_reach, std::max(1, conf_reach), [&](std::uint32_t, const float* p, std::uint32_t j) {
+            const float dx = p[0] - q[0], dy = p[1] - q[1];
+            if (!isolated[j] && !removed[j] && dx * dx + dy * dy <= foot2 && std::abs(p[2] - q[2]) <= conf_z) genuine = true;
+            return !genuine;
+          });
+        }
         spikes->confirmed += genuine;
       }
     }

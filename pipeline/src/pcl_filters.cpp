@@ -2,7 +2,7 @@
 // through its public API on a pcl::PointXYZ copy of the cloud; subset filters hand back indices
 // (FilterIndices::filter(Indices&), UniformSampling's removed indices, the cluster indices), so
 // the original double points and their attributes survive; replacing filters hand back PCL's
-// points. tests/pipeline/pcl_filters_test.cpp compares every stage with the class called directly.
+// points. tests/pcl/pcl_filters_test.cpp compares every stage with the class called directly.
 
 #include "hc/pipeline/pcl_filters.hpp"
 
@@ -162,6 +162,7 @@ Cloud from_points(const Cloud& in, const PointCloudXYZ& out, StageReport& report
   item(in.has_intensity(), "intensity");
   item(in.has_scan_id(), "scan_id");
   item(in.has_grid_index(), "row/col");
+  item(in.has_normals(), "normals and curvature");
   item(in.has_mesh(), "faces");
   if (!dropped.empty()) report.notes.push_back(dropped + " dropped: this filter outputs new points");
   result.crs = in.crs;

@@ -35,16 +35,14 @@ namespace hc::pipeline {
 namespace fs = std::filesystem;
 using json = nlohmann::json;
 
-std::string sha256_file(const fs::path& file) {
-  std::ifstream in(file, std::ios::binary);
-  if (!in) throw InputError(file.string() + ": cannot open to compute its checksum");
+namespace {
+
+/// An OpenSSL SHA-256 context fed by `feed(ctx)`, as lower-case hex (64 characters).
+template <typename Feed>
+std::string sha256_hex(Feed&& feed) {
   std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
   EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr);
-  std::vector<char> buf(1 << 20);
-  while (in) {
-    in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
-    EVP_DigestUpdate(ctx.get(), buf.data(), static_cast<std::size_t>(in.gcount()));
-  }
+  feed(ctx.get());
   unsigned char digest[EVP_MAX_MD_SIZE];
   unsigned int len = 0;
   EVP_DigestFinal_ex(ctx.get(), digest, &len);
@@ -53,20 +51,28 @@ std::string sha256_file(const fs::path& file) {
   return os.str();
 }
 
+}  // namespace
+
+std::string sha256_file(const fs::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  if (!in) throw InputError(file.string() + ": cannot open to compute its checksum");
+  return sha256_hex([&](EVP_MD_CTX* ctx) {
+    std::vector<char> buf(1 << 20);
+    while (in) {
+      in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
+      EVP_DigestUpdate(ctx, buf.data(), static_cast<std::size_t>(in.gcount()));
+    }
+  });
+}
+
 namespace {
 
 /// SHA-256 of a cloud's coordinates (the 3 × N doubles as stored, little-endian on x86-64),
 /// the provenance checksum of an in-memory input.
 std::string coordinates_sha256(const Cloud& cloud) {
-  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
-  EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr);
-  EVP_DigestUpdate(ctx.get(), cloud.xyz.data(), static_cast<std::size_t>(cloud.xyz.size()) * sizeof(double));
-  unsigned char digest[EVP_MAX_MD_SIZE];
-  unsigned int len = 0;
-  EVP_DigestFinal_ex(ctx.get(), digest, &len);
-  std::ostringstream os;
-  for (unsigned int i = 0; i < len; ++i) os << std::hex << std::setw(2) << std::setfill('0') << int(digest[i]);
-  return os.str();
+  return sha256_hex([&](EVP_MD_CTX* ctx) {
+    EVP_DigestUpdate(ctx, cloud.xyz.data(), static_cast<std::size_t>(cloud.xyz.size()) * sizeof(double));
+  });
 }
 
 using detail::Clock;
@@ -228,6 +234,24 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   Cloud cloud = stage("ingest", reports, progress, [&] {
     if (in_memory) {
       StageResult<Cloud> r{std::move(*in_memory), {}};
+      const Cloud& c = r.value;
+      const std::size_t n = c.size();
+      const auto wrong = [&](const char* name, std::size_t have, std::size_t per_point) {
+        if (have != 0 && have != per_point * n) {
+          throw InputError("build_scene: the in-memory cloud has " + std::to_string(n) + " points but its " + name +
+                           " holds " + std::to_string(have) + " values (expected 0 or " + std::to_string(per_point * n) + ")");
+        }
+      };
+      wrong("intensity", c.intensity.size(), 1);
+      wrong("rgb", c.rgb.size(), 3);
+      wrong("normal", c.normal.size(), 3);
+      wrong("curvature", c.curvature.size(), 1);
+      wrong("scan_id", c.scan_id.size(), 1);
+      wrong("row", c.row.size(), 1);
+      wrong("col", c.col.size(), 1);
+      if (!c.curvature.empty() && c.normal.empty()) {
+        throw InputError("build_scene: the in-memory cloud has curvature but no normals (expected both or neither)");
+      }
       r.report.count_in = r.report.count_out = r.value.size();
       r.report.notes.push_back("in-memory cloud handed to build_scene (input.files, input.conf and input.synthetic not read)");
       return r;
@@ -240,8 +264,9 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   if (reports.back().count_out == 0) reports.back().count_out = cloud.size();
   const std::size_t ingest_index = reports.size() - 1;
   struct {
-    bool rgb, intensity, grid_index, scan_id;
-  } const ingest_attrs{cloud.has_rgb(), cloud.has_intensity(), cloud.has_grid_index(), cloud.has_scan_id()};
+    bool rgb, intensity, grid_index, scan_id, normals;
+  } const ingest_attrs{cloud.has_rgb(), cloud.has_intensity(), cloud.has_grid_index(), cloud.has_scan_id(),
+                       cloud.has_normals()};
   const std::size_t ingest_triangles = cloud.mesh.triangles.size();
   if (in_memory) {
     scene_inputs.push_back({"(in-memory cloud, " + std::to_string(cloud.size()) + " points)", coordinates_sha256(cloud)});
@@ -319,14 +344,16 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     if (ingest_attrs.intensity) item(found, "intensity");
     if (ingest_attrs.grid_index) item(found, "row/col");
     if (ingest_attrs.scan_id) item(found, "scan_id");
+    if (ingest_attrs.normals) item(found, "normals");
     if (cloud.has_rgb()) item(kept, "colour (rgb)");
     if (cloud.has_intensity()) item(kept, "intensity");
     if (cloud.has_grid_index()) item(kept, "row/col");
     if (cloud.has_scan_id()) item(kept, "scan_id");
+    if (cloud.has_normals()) item(kept, "normals");
     ingest.notes.push_back("per-point attributes found: " + (found.empty() ? std::string("none") : found) +
                            "; kept through the filters: " + (kept.empty() ? std::string("none") : kept) +
                            " (colour and intensity go to the scene's layers; row/col and scan_id are used by the grid only with "
-                           "grid.organised: mesh)");
+                           "grid.organised: mesh; normals only travel to the filtered cloud)");
     if (ingest_triangles > 0) {
       ingest.notes.push_back("mesh: " + std::to_string(ingest_triangles) + " triangles read, " +
                              std::to_string(cloud.mesh.triangles.size()) +
@@ -411,6 +438,7 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
     reports.back().notes.push_back("grid.organised: mesh, but the points carry no scanner row/col: gridded as points");
   }
   // Meshes are rasterised (z-buffer over the faces); points are binned and splatted.
+  const bool rasterised = cloud.has_mesh();
   DepthGrid grid = stage("reproject", reports, progress, [&] {
     if (cloud.has_mesh()) return rasterise_mesh(cloud, config.grid.reproject, organised_meshed ? config.grid.organised_blend_m : 0.0);
     try {
@@ -488,13 +516,23 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
     Honest honest = stage("honest_check", reports, progress, [&] {
       StageResult<Honest> r;
       HonestCheckOptions honest_options = config.cross_check.honest;
-      // A splatted cell holds the front-most z of a measured cell within the disc, whose point
-      // lies up to half a cell diagonal from that cell's node.
-      honest_options.confirm_footprint_m =
-          (config.grid.reproject.splat_radius_cells + 0.5 * std::sqrt(2.0)) * grid.depth.geometry().cell_size_m;
+      if (honest_options.confirm_by_splat_footprint && !rasterised &&
+          config.grid.reproject.splat_mode == SplatMode::kDisc) {
+        // A splatted cell holds the front-most z of a measured cell within the disc, whose point
+        // lies up to half a cell diagonal from that cell's node; radii count the scan's cells,
+        // K times the grid's when the grid is upsampled (the reproject stage's actual K).
+        double k = 1.0;
+        for (const StageReport& rep : reports) {
+          if (rep.stage != "reproject") continue;
+          for (const auto& [name, value] : rep.figures)
+            if (name == "upsample_factor" && value >= 1.0) k = value;
+        }
+        honest_options.confirm_footprint_m =
+            (config.grid.reproject.splat_radius_cells + 0.5 * std::sqrt(2.0)) * k * grid.depth.geometry().cell_size_m;
+      }
       r.value.spikes = find_grid_spikes(grid.depth, honest_options);
       r.value.input = check_input(as_read, cloud, grid.depth, honest_options, removal_displacement_m(config),
-                                  &r.value.spikes);
+                                  &r.value.spikes, &scene.layers.flags);
       const InputCheck& in = r.value.input;
       const GridSpikes& sp = r.value.spikes;
       r.report.count_in = in.points;

@@ -146,6 +146,13 @@ StageResult<Cloud> apply_view_transform(Cloud cloud, const ViewTransform& view) 
   if (!view.translation_m.allFinite()) throw ConfigError("apply_view_transform: translation_m is not finite");
   const Eigen::Affine3d m = view.matrix();
   cloud.xyz = (m.linear() * cloud.xyz).colwise() + m.translation();
+  if (cloud.has_normals()) {
+    // Normals turn with the rotation only (the scale is uniform and the translation moves
+    // positions): n' = R·n, in float as stored.
+    const Eigen::Matrix3f r = view.rotation.normalized().toRotationMatrix().cast<float>();
+    Eigen::Map<Eigen::Matrix3Xf> nrm(cloud.normal.data(), 3, static_cast<Eigen::Index>(cloud.normal.size() / 3));
+    nrm = r * nrm;
+  }
   StageReport report;
   report.stage = "transform";
   report.count_in = cloud.size();

@@ -112,7 +112,7 @@ TEST(PclConversions, CloudToPclToCloudKeepsEveryCarriedFieldBitForBit) {
     for (std::size_t i = 0; i < c.size(); ++i) {
       ASSERT_EQ(p[i].r, c.rgb[3 * i]);
       ASSERT_EQ(p[i].b, c.rgb[3 * i + 2]);
-      ASSERT_EQ(p[i].normal_x, 0.0f);
+      ASSERT_EQ(p[i].normal_x, 0.0f);  // the Cloud has no normals: written as 0
       ASSERT_EQ(p[i].curvature, 0.0f);
     }
     const Cloud back = from_pcl(p);
@@ -156,10 +156,15 @@ TEST(PclConversions, PclToCloudToPclKeepsEveryCarriedFieldBitForBit) {
 
   pcl::PointCloud<pcl::PointXYZRGBNormal> pn;
   fill_xyz(pn, 3000, rng);
+  std::normal_distribution<float> g(0.0f, 1.0f);
   for (auto& q : pn) {
     q.r = static_cast<std::uint8_t>(byte(rng));
     q.g = static_cast<std::uint8_t>(byte(rng));
     q.b = static_cast<std::uint8_t>(byte(rng));
+    q.normal_x = g(rng);  // any float (not unit, not re-estimated): carried as given
+    q.normal_y = g(rng);
+    q.normal_z = g(rng);
+    q.curvature = u(rng) / 3.0f;
   }
   pcl::PointCloud<pcl::PointXYZRGBNormal> pn2;
   to_pcl(from_pcl(pn), pn2);
@@ -170,6 +175,10 @@ TEST(PclConversions, PclToCloudToPclKeepsEveryCarriedFieldBitForBit) {
     ASSERT_EQ(bits(pn2[i].y), bits(pn[i].y));
     ASSERT_EQ(bits(pn2[i].z), bits(pn[i].z));
     ASSERT_EQ(pn2[i].rgba, pn[i].rgba);  // r, g, b and a = 255 (PCL's default alpha)
+    ASSERT_EQ(bits(pn2[i].normal_x), bits(pn[i].normal_x));
+    ASSERT_EQ(bits(pn2[i].normal_y), bits(pn[i].normal_y));
+    ASSERT_EQ(bits(pn2[i].normal_z), bits(pn[i].normal_z));
+    ASSERT_EQ(bits(pn2[i].curvature), bits(pn[i].curvature));
   }
 
   // Organised PCL clouds are read row-major.

@@ -2,6 +2,7 @@
 // and filters.pcl stages inside a run.
 #include "hc/pcl/conversions.hpp"
 
+#include "hc/common/error.hpp"
 #include "hc/pipeline/ingest.hpp"
 
 #include <gtest/gtest.h>
@@ -128,6 +129,71 @@ TEST(PclInMemory, ColourAndIntensityReachTheSceneLayers) {
   to_pcl(c, xyzi);
   const BuiltScene b = build_scene(xyzi, config_for(dir / "none.pcd"));
   ASSERT_FALSE(b.scene.layers.intensity.values().empty());
+}
+
+TEST(PclInMemory, NormalsFollowTheKeptPointsAndTurnWithTheView) {
+  // Each point's normal is set to its own file position n = p (any vector is carried as given).
+  // Through a run with a 90-degree view rotation about x and subset filters (outliers,
+  // StatisticalOutlierRemoval, UniformSampling), a kept point ends at p' = R·(p − c) + t and its
+  // normal at n' = R·p, so n' − p' = R·c − t is the same vector for every kept point. A normal
+  // left unrotated, or one that stayed with another point, breaks that.
+  const fs::path dir = hc::test::temp_dir("normals");
+  Cloud c = load_cloud(hc::test::scan_path("bunny/bun000.ply")).value;
+  pcl::PointCloud<pcl::PointXYZRGBNormal> pn;
+  to_pcl(c, pn);
+  for (std::size_t i = 0; i < pn.size(); ++i) {
+    pn[i].normal_x = pn[i].x;
+    pn[i].normal_y = pn[i].y;
+    pn[i].normal_z = pn[i].z;
+    // A per-point curvature the rotation keeps: |p|, which must stay equal to |n'| = |R·p|.
+    pn[i].curvature = std::sqrt(pn[i].x * pn[i].x + pn[i].y * pn[i].y + pn[i].z * pn[i].z);
+  }
+  const RunConfig config =
+      config_for(dir / "none.pcd", std::string(kPclStages) + "view: {rotation: {axis: [1, 0, 0], angle_deg: 90}}\n");
+  const BuiltScene built = build_scene(pn, config, /*keep_cloud=*/true);
+  ASSERT_TRUE(built.cloud.has_value());
+  const Cloud& kept = *built.cloud;
+  ASSERT_GT(kept.size(), 10000u);
+  ASSERT_LT(kept.size(), pn.size());  // the filters removed points
+  ASSERT_EQ(kept.normal.size(), 3 * kept.size());
+  ASSERT_EQ(kept.curvature.size(), kept.size());
+  const Eigen::Vector3d d0 = Eigen::Vector3d(kept.normal[0], kept.normal[1], kept.normal[2]) - kept.xyz.col(0);
+  double worst_m = 0.0;
+  for (std::size_t i = 0; i < kept.size(); ++i) {
+    const Eigen::Vector3d n(kept.normal[3 * i], kept.normal[3 * i + 1], kept.normal[3 * i + 2]);
+    worst_m = std::max(worst_m, (n - kept.xyz.col(static_cast<Eigen::Index>(i)) - d0).norm());
+    ASSERT_NEAR(kept.curvature[i], n.norm(), 1e-6) << "point " << i;  // stayed with its point
+  }
+  // Float normals of a 0.2 m object agree to about 1e-8 m; unrotated ones would differ by up to
+  // 0.1 m (n' − p' would then be (I − R)·p + R·c − t, varying with y and z).
+  EXPECT_LT(worst_m, 1e-6);
+  // to_pcl hands them back to PCL as they are.
+  pcl::PointCloud<pcl::PointXYZRGBNormal> out;
+  to_pcl(kept, out);
+  ASSERT_EQ(out.size(), kept.size());
+  EXPECT_EQ(out[out.size() - 1].normal_z, kept.normal[3 * kept.size() - 1]);
+  // A filter that makes new points drops them, with a note.
+  const BuiltScene voxel =
+      build_scene(pn, config_for(dir / "none.pcd", "  pcl:\n    - {name: VoxelGrid, leaf_m: 0.002}\n"), true);
+  ASSERT_TRUE(voxel.cloud.has_value());
+  EXPECT_FALSE(voxel.cloud->has_normals());
+  bool noted = false;
+  for (const auto& st : voxel.summary.stages)
+    for (const auto& note : st.notes) noted = noted || note.find("normals") != std::string::npos;
+  EXPECT_TRUE(noted);
+  // An in-memory cloud whose normals do not match its points is refused, naming them.
+  Cloud bad = c;
+  bad.normal.assign(3 * c.size() - 3, 0.0f);
+  try {
+    build_scene(bad, config);
+    ADD_FAILURE() << "expected an InputError";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("its normal holds " + std::to_string(3 * c.size() - 3) + " values"), std::string::npos)
+        << e.what();
+  }
+  bad.normal.clear();
+  bad.curvature.assign(c.size(), 0.0f);
+  EXPECT_THROW(build_scene(bad, config), hc::InputError);  // curvature without normals
 }
 
 }  // namespace

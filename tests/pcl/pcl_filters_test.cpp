@@ -23,9 +23,11 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <string>
 #include <tuple>
+#include <utility>
 #include <vector>
 
 namespace {
@@ -214,10 +216,14 @@ TEST(PclFilters, UniformSamplingKeepsExactlyPclsPointsInInputOrder) {
 
 TEST(PclFilters, EuclideanClusterExtractionKeepsThePclsLargestClusters) {
   const Cloud in = test_cloud();
-  for (const int keep : {1, 2}) {
+  // (keep, max_cluster_size): with a maximum of 2000 the 8100-point patch is no cluster at all,
+  // so the largest kept one is the 900-point second patch.
+  for (const auto& [keep, max_size] : {std::pair{1, std::numeric_limits<int>::max()}, std::pair{2, std::numeric_limits<int>::max()},
+                                       std::pair{1, 2000}}) {
     PclFilterSpec s = spec(PclFilterKind::kEuclideanClusterExtraction, "EuclideanClusterExtraction");
     s.tolerance_m = 0.004;
     s.min_cluster_size = 10;
+    s.max_cluster_size = max_size;
     s.keep_clusters = keep;
     const auto r = apply_pcl_filter(in, s);
     const Xyz::Ptr p = oracle_input(in);
@@ -228,14 +234,18 @@ TEST(PclFilters, EuclideanClusterExtractionKeepsThePclsLargestClusters) {
     f.setSearchMethod(tree);
     f.setClusterTolerance(0.004);
     f.setMinClusterSize(10);
+    f.setMaxClusterSize(max_size);
     std::vector<pcl::PointIndices> clusters;
     f.extract(clusters);
-    ASSERT_GE(clusters.size(), 3u);  // the patch, the second patch, the far cluster
+    ASSERT_GE(clusters.size(), max_size == 2000 ? 2u : 3u);  // the patch (unless too large), the second patch, the far cluster
+    if (max_size == 2000) {
+      EXPECT_EQ(clusters[0].indices.size(), 900u);
+    }
     Xyz expected;
     for (int c = 0; c < keep; ++c) {
       for (const auto i : clusters[static_cast<std::size_t>(c)].indices) expected.push_back((*p)[static_cast<std::size_t>(i)]);
     }
-    EXPECT_EQ(sorted(triples(r.value)), sorted(triples(expected))) << "keep " << keep;
+    EXPECT_EQ(sorted(triples(r.value)), sorted(triples(expected))) << "keep " << keep << ", max " << max_size;
     expect_points_keep_their_attributes(in, r.value);
   }
 }
@@ -271,18 +281,23 @@ TEST(PclFilters, VoxelGridsAndMlsGivePclsPointsInPclsOrder) {
   {
     PclFilterSpec s = spec(PclFilterKind::kMovingLeastSquares, "MovingLeastSquares");
     s.search_radius_m = 0.004;
-    s.polynomial_order = 2;
+    s.polynomial_order = 1;  // not PCL's default (2): a stage that ignored the order would differ
     const auto r = apply_pcl_filter(in, s);
     pcl::MovingLeastSquares<pcl::PointXYZ, pcl::PointXYZ> f;
     pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
     f.setInputCloud(oracle_input(in));
     f.setSearchMethod(tree);
     f.setSearchRadius(0.004);
-    f.setPolynomialOrder(2);
+    f.setPolynomialOrder(1);
     Xyz expected;
     f.process(expected);
     EXPECT_GT(expected.size(), in.size() / 2);
     EXPECT_EQ(triples(r.value), triples(expected));
+    // ... and PCL's default order gives other points, so the order was passed on.
+    f.setPolynomialOrder(2);
+    Xyz order2;
+    f.process(order2);
+    EXPECT_NE(triples(order2), triples(expected));
     // It smoothed: some point moved.
     const auto before = triples(*oracle_input(in));
     EXPECT_NE(sorted(before), sorted(triples(expected)));
@@ -396,6 +411,9 @@ TEST(PclFiltersConfig, ErrorsNameTheKeyTheLineAndTheAllowedValues) {
   EXPECT_NE(msg.find("expected a number >= min_m"), std::string::npos) << msg;
   msg = config_error(kMinimal + "filters:\n  pcl:\n    - {leaf_m: 1}\n");
   EXPECT_NE(msg.find("filters.pcl[0] lacks 'name'"), std::string::npos) << msg;
+  msg = config_error(kMinimal + "filters:\n  pcl:\n    - {name: VoxelGrid, leaf_m: 0.001}\n    - UniformSampling\n");
+  EXPECT_NE(msg.find("filters.pcl has an element [1] = 'UniformSampling' that is not a key: value map"), std::string::npos)
+      << msg;
   msg = config_error(kMinimal + "filters:\n  pcl: VoxelGrid\n");
   EXPECT_NE(msg.find("filters.pcl = 'VoxelGrid': expected a list"), std::string::npos) << msg;
   // From --set: named as the override.

@@ -348,14 +348,17 @@ TEST(InputCheck, ASpikeDrawnFromAGenuinePointsDiscIsConfirmedOnlyAtThatPointsHei
     for (int c = 0; c < 21; ++c) pts.emplace_back(0.005 * c, 0.005 * r, 0.0);
   for (int k = 0; k < 4; ++k) pts.emplace_back(0.0535 + 0.0001 * (k % 2), 0.050 + 0.0001 * (k / 2), 0.040);
   const Cloud c = cloud_of(pts);
-  auto confirmed_with = [&](float cell_z_m, double footprint_m) {
+  std::vector<std::uint8_t> flags(g.cell_count(), kCellMeasured);
+  auto confirmed_with = [&](float cell_z_m, double footprint_m, std::uint8_t flag = kCellSplatted,
+                            const Cloud* kept = nullptr) {
     HeightField grid = h;
     grid.at(10, 10) = cell_z_m;
+    flags[10 * 21 + 10] = flag;
     HonestCheckOptions o;  // tolerance 0.5 mm, spike_min_height 2 mm: 3-D confirmation reach 2 mm
     o.confirm_footprint_m = footprint_m;
     GridSpikes s = find_grid_spikes(grid, o);
     EXPECT_EQ(s.spikes, 1u);
-    const InputCheck in = check_input(c.xyz, c, grid, o, 0.0, &s);
+    const InputCheck in = check_input(c.xyz, kept ? *kept : c, grid, o, 0.0, &s, &flags);
     EXPECT_EQ(in.isolated, 0u);
     return s.confirmed;
   };
@@ -368,6 +371,13 @@ TEST(InputCheck, ASpikeDrawnFromAGenuinePointsDiscIsConfirmedOnlyAtThatPointsHei
   EXPECT_EQ(confirmed_with(0.045f, 0.0075), 0u);
   // A disc of 3 mm does not reach 3.5 mm.
   EXPECT_EQ(confirmed_with(0.040f, 0.003), 0u);
+  // A hole-filled cell was made by no disc: only the 3-D test may confirm it.
+  EXPECT_EQ(confirmed_with(0.040f, 0.0075, kCellFilled), 0u);
+  EXPECT_EQ(confirmed_with(0.040f, 0.0075, kCellMeasured), 1u);
+  // Tree-top points the filters removed made no cell: they do not confirm it.
+  std::vector<Eigen::Vector3d> lattice(pts.begin(), pts.end() - 4);
+  const Cloud without_top = cloud_of(lattice);
+  EXPECT_EQ(confirmed_with(0.040f, 0.0075, kCellSplatted, &without_top), 0u);
   HonestCheckOptions bad;
   bad.confirm_footprint_m = -1.0;
   EXPECT_THROW(find_grid_spikes(h, bad), ConfigError);

@@ -709,8 +709,11 @@ TEST(FillHoles, ConstantSurfaceIsFilledExactlyAndSizeLimitIsInclusive) {
 TEST(FillHoles, AHoleAcrossADepthStepStaysEmptyUnderARimStepLimit) {
   // Two flat surfaces: columns 0..14 at 0.0 m (a wall), columns 15..29 at 1.4 m (an object in
   // front). Hole A (2 x 2) sits across the step at columns 14..15; hole B (2 x 2) lies inside
-  // the front surface. Without a limit both are filled (A with a value between the surfaces);
-  // with max_rim_step_m = 0.1, A's rim spans 1.4 m and stays empty, B's spans 0 and is filled.
+  // the front surface. Without a limit both are filled (A with a value between the surfaces).
+  // A's rim: 12 cells in columns 13..16 (4, 2, 2, 4 cells) at 0, 0, 1.4, 1.4 m. By hand, the
+  // least-squares plane has mean 0.7 m and slope Σu·dz / Σu² = 9.8 / 19 m per column
+  // (u = col − 14.5), so the residuals are ±0.074 m (columns 13, 16) and ±0.442 m (14, 15): a
+  // spread of 0.884 m. B's rim is flat: spread 0.
   GridGeometry g{30, 30, 0.0, 0.0, 1e-2};
   DepthGrid d{HeightField(g, 0.0f), std::vector<std::uint8_t>(g.cell_count(), kCellMeasured)};
   for (int r = 0; r < 30; ++r)
@@ -729,8 +732,18 @@ TEST(FillHoles, AHoleAcrossADepthStepStaysEmptyUnderARimStepLimit) {
   EXPECT_FLOAT_EQ(limited.value.depth.at(20, 22), 1.4f);
   EXPECT_EQ(figure(limited.report, "holes_filled"), 1.0);
   EXPECT_EQ(figure(limited.report, "holes_at_depth_steps"), 1.0);
-  // A limit above the step fills both again.
-  EXPECT_EQ(fill_holes(d, 16, 1.5).value.depth.valid_count(), g.cell_count());
+  // Either side of the hand-computed spread of 0.884 m.
+  EXPECT_EQ(fill_holes(d, 16, 0.87).value.depth.valid_count(), g.cell_count() - 4);
+  EXPECT_EQ(fill_holes(d, 16, 0.90).value.depth.valid_count(), g.cell_count());
+  // A steep slope is one surface, not a step: its rim lies on a plane and the hole is filled,
+  // with the plane's value, however small the limit.
+  DepthGrid slope{HeightField(g, 0.0f), std::vector<std::uint8_t>(g.cell_count(), kCellMeasured)};
+  for (int r = 0; r < 30; ++r)
+    for (int c = 0; c < 30; ++c) slope.depth.at(r, c) = 0.2f * static_cast<float>(c) + 0.05f * static_cast<float>(r);
+  carve(slope, 10, 12, 10, 12);
+  const auto steep = fill_holes(slope, 16, 0.01);
+  EXPECT_EQ(steep.value.depth.valid_count(), g.cell_count());
+  EXPECT_NEAR(steep.value.depth.at(11, 11), 0.2 * 11 + 0.05 * 11, 1e-4);
   EXPECT_THROW(fill_holes(d, 16, -0.1), ConfigError);
   EXPECT_THROW(fill_holes(d, 16, std::numeric_limits<double>::infinity()), ConfigError);
 }

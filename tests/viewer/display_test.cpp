@@ -149,6 +149,15 @@ TEST(LayerRange, PercentileRulesPerLayer) {
   // No finite sample: an empty but valid range.
   const viewer::LayerRange none = viewer::layer_range(HeightField(GridGeometry{2, 2, 0, 0, 0.001}), MapLayer::kMuD);
   EXPECT_GT(none.hi, none.lo);
+  // A constant layer: texture 0 everywhere and μ_d 0.3 everywhere draw in the middle of the map;
+  // an error of 0 everywhere at its bottom (no error is the best colour).
+  HeightField flat(GridGeometry{3, 3, 0, 0, 0.001}, 0.0f);
+  EXPECT_DOUBLE_EQ(viewer::layer_range(flat, MapLayer::kTexture).t(0.0), 0.5);
+  EXPECT_DOUBLE_EQ(viewer::layer_range(flat, MapLayer::kError).t(0.0), 0.0);
+  HeightField mu_flat(GridGeometry{3, 3, 0, 0, 0.001}, 0.3f);
+  const viewer::LayerRange mu_c = viewer::layer_range(mu_flat, MapLayer::kMuD);
+  EXPECT_GT(mu_c.hi, mu_c.lo);
+  EXPECT_NEAR(mu_c.t(static_cast<double>(0.3f)), 0.5, 1e-6);
 }
 
 TEST_F(DisplayTest, ColourModeDrawsTheScansColoursAndGreyModeIsNeutral) {

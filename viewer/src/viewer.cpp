@@ -248,7 +248,16 @@ LayerRange layer_range(const HeightField& layer, MapLayer which) {
       case MapLayer::kError: r = {0.0, quantile(0.98)}; break;
     }
   }
-  if (!(r.hi > r.lo)) r.hi = r.lo + 1e-12;
+  if (!(r.hi > r.lo)) {
+    // A constant layer: the error map keeps 0 at the bottom (no error is the best colour); a
+    // constant texture (e.g. 0 everywhere) or μ_d sits in the middle of the map.
+    const double eps = std::max(1e-12, 1e-9 * std::abs(r.lo));
+    if (which == MapLayer::kError) {
+      r.hi = r.lo + eps;
+    } else {
+      r = {r.lo - eps, r.lo + eps};
+    }
+  }
   return r;
 }
 

@@ -11,7 +11,10 @@
 ///   intensity       ↔ Cloud::intensity (PointXYZI; float, exact)
 ///   r, g, b         ↔ Cloud::rgb (PointXYZRGB, PointXYZRGBNormal; 8 bit, exact)
 ///   a (alpha)       → 255 towards PCL; not kept from PCL (Cloud has no alpha)
-///   normal_x/y/z, curvature → 0 towards PCL; not kept from PCL (Cloud has no normals)
+///   normal_x/y/z    ↔ Cloud::normal (PointXYZRGBNormal; float, exact; 0 towards PCL when the
+///                     Cloud has none). The pipeline keeps them through every subset filter and
+///                     turns them with the view rotation; filters that make new points drop them
+///   curvature       ↔ Cloud::curvature (PointXYZRGBNormal; float, exact; 0 when absent)
 /// An attribute the Cloud lacks is written as 0 (intensity) or black (colour); from PCL every
 /// field the point type has is filled. scan_id, row/col and faces have no place in these point
 /// types and are not written. Organised PCL clouds (height > 1) are read row-major, point by
@@ -45,7 +48,8 @@ typename pcl::PointCloud<PointT>::Ptr to_pcl(const Cloud& cloud) {
 }
 
 /// PCL → Cloud: xyz (float widened to double, exact) and the attributes the point type carries
-/// (intensity for PointXYZI, rgb for PointXYZRGB and PointXYZRGBNormal). Cloud::float32_xyz is
+/// (intensity for PointXYZI, rgb for PointXYZRGB and PointXYZRGBNormal, and normal and curvature
+/// for PointXYZRGBNormal). Cloud::float32_xyz is
 /// set (the values carry 24 significant bits, which build_scene's precision check needs to know).
 /// Non-finite points are kept (the pipeline's non_finite stage drops them and counts them).
 /// Cost O(N). Never throws except std::bad_alloc.

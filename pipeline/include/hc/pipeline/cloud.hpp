@@ -49,6 +49,11 @@ struct Cloud {
   std::vector<std::uint8_t> rgb;       ///< empty or 3·N bytes: R G B per point, 8 bit
   std::vector<std::int32_t> row, col;  ///< organised scans (E57 rowIndex/columnIndex, PTX):
                                        ///< the point's row and column in its scan's grid
+  /// Empty or 3·N: the point's surface normal (nx ny nz, in the same frame as xyz; the view
+  /// transform rotates it, units and recentring leave it) as given by its source (today a PCL
+  /// cloud with normals, hc/pcl/conversions.hpp), not normalised or re-estimated here.
+  std::vector<float> normal;
+  std::vector<float> curvature;        ///< empty or N: PCL's surface curvature λ0/(λ0+λ1+λ2) [-], with normal
   Mesh mesh;                           ///< faces on the points (meshes), or empty
   /// True when the file stored x, y and z as 32-bit floats (PLY float/float32, PCD F 4, E57
   /// Float precision="single" without a pose), so coordinates carry 24 significant bits:
@@ -64,6 +69,7 @@ struct Cloud {
   bool has_intensity() const { return !intensity.empty(); }
   bool has_rgb() const { return !rgb.empty(); }
   bool has_grid_index() const { return !row.empty(); }
+  bool has_normals() const { return !normal.empty(); }
   bool has_mesh() const { return !mesh.empty(); }
   /// Keeps the points whose keep[i] is true, in order (every attribute follows; a triangle
   /// survives only if all three of its points do, its indices renumbered).

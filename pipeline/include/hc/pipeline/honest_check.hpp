@@ -24,6 +24,7 @@
 
 #include <array>
 #include <cstddef>
+#include <cstdint>
 #include <string>
 #include <vector>
 
@@ -51,12 +52,18 @@ struct HonestCheckOptions {
   double spike_min_height_m = 0.002;
   double spike_mad_factor = 6.0;
   int spike_max_cells = 25;
-  /// Horizontal reach of one point in the grid [m]: the splat disc's radius plus half a cell
-  /// diagonal ((grid.splat_radius_cells + √2/2) × cell size; run sets it, not a config key). A flagged cell
-  /// is also confirmed by a point that is not isolated, lies within this of the cell's node in
-  /// x-y and within max(tolerance_m, spike_min_height_m) of its height: the gridder drew the
-  /// cell from such a point (a tree top in airborne lidar at one point per cell). 0 = off: only
-  /// points within max(tolerance_m, spike_min_height_m) in 3-D confirm.
+  /// cross_check.confirm_by_splat_footprint (default off): for sparse scans of about one point
+  /// per cell (airborne lidar), where a cell's node lies far from the point whose splat disc
+  /// made it. When on, run sets confirm_footprint_m for grids splatted from points in disc mode
+  /// (not meshes, not splat_mode interpolate). Off for object scans: it would confirm a stray
+  /// point that is not isolated by the whole of its disc.
+  bool confirm_by_splat_footprint = false;
+  /// Horizontal reach of one point in the grid [m] (set by run, not a config key):
+  /// (grid.splat_radius_cells + √2/2) × cell size, the splat radius plus the half cell diagonal
+  /// between a point and its own cell's node. check_input then also confirms a flagged cell that
+  /// is measured or splatted (cell_flags) by a kept, not isolated point within this of its node
+  /// in x-y and within max(tolerance_m, spike_min_height_m) of its height: the point whose disc
+  /// made the cell. Filled and upsampled cells are confirmed only in 3-D. 0 = off.
   double confirm_footprint_m = 0.0;
   /// Connected groups of valid cells (8-neighbours) of at most this many cells, apart from the
   /// largest group, are islands [cells].
@@ -133,9 +140,9 @@ struct GridSpikes {
   std::vector<std::array<int, 2>> marked;  ///< (row, col) of spike, pit and island cells, at most 1000
   std::vector<std::array<int, 2>> flagged; ///< (row, col) of every spike and pit cell
   /// Spike and pit cells the scan confirms (check_input: a point that is not isolated within
-  /// max(tolerance, spike_min_height_m), or within confirm_footprint_m in x-y at the cell's
-  /// height to that distance): relief such as deep folds or trees, not an error. The verdict
-  /// counts the others.
+  /// max(tolerance, spike_min_height_m), or, with confirm_footprint_m, a kept one within the
+  /// footprint in x-y at the cell's height to that distance): relief such as deep folds or tree
+  /// tops, not an error. The verdict counts the others.
   std::size_t confirmed = 0;
 };
 
@@ -151,11 +158,19 @@ struct GridSpikes {
 /// distance transform of the valid mask, plus the distance to the grid's box).
 /// @throws hc::ConfigError for options out of range (names the cross_check.* key);
 ///         hc::InputError if the grid has no valid cell.
-/// Real-time: no. Threads: 1. Cost: O(N) hashing plus O(N) early-stopped neighbour counts.
-/// With `spikes` (find_grid_spikes of the same grid), also counts its confirmed cells.
+/// Real-time: no. Threads: 2 (point test and classes). Cost: O(N) hashing plus O(N)
+/// early-stopped neighbour counts, plus for each flagged spike cell a search of at most
+/// (2·16 + 1)² × (2·z + 1) hash voxels when confirm_footprint_m is set, z = the 3-D reach in
+/// voxels (at least 1; a footprint beyond 16 voxels is searched only that far: stricter, never
+/// laxer). The 3-D confirmation counts any not isolated input point, kept or removed (a fold's
+/// point the outlier filter dropped still shows the fold is there); the footprint one only kept
+/// points (a removed point made no cell).
+/// With `spikes` (find_grid_spikes of the same grid), also counts its confirmed cells;
+/// `cell_flags` (rows·cols CellFlag values of reproject.hpp, or null) says which cells the
+/// footprint may confirm (measured and splatted ones; none without flags).
 InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
                        const HonestCheckOptions& options, double voxel_leaf_m = 0.0,
-                       GridSpikes* spikes = nullptr);
+                       GridSpikes* spikes = nullptr, const std::vector<std::uint8_t>* cell_flags = nullptr);
 
 /// Spike, pit and island test of a grid (metres, NaN = no data); see HonestCheckOptions.
 /// Robust fit: median of the window's valid cells (the cell excluded), scale 1.4826·MAD (the

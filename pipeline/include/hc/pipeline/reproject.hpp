@@ -152,11 +152,14 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 /// it is off by up to slope × 2 cells, and across a depth step it invents an intermediate
 /// surface (the cross-check's cell-to-point distance shows it).
 /// @param max_hole_cells  0 disables filling.
-/// @param max_rim_step_m  a hole whose rim (the valid cells 8-adjacent to it) spans more than
-///        this in depth [m] is an occlusion gap between a near and a far surface, not a hole in
-///        one surface: it stays no data (figure holes_at_depth_steps). 0 = no limit. Filling such
-///        a gap makes cells between the two surfaces that no scan point supports (the E57 pump:
-///        a 4-cell gap filled 1.4 m in front of the wall behind it).
+/// @param max_rim_step_m  a hole whose rim (the valid cells 8-adjacent to it) spreads about the
+///        least-squares plane through it (max − min of the residuals) by more than this [m] is
+///        an occlusion gap between a near and a far surface, not a hole in one surface: it stays
+///        no data (figure holes_at_depth_steps). A slope fits the plane (spread 0) and is filled;
+///        a depth step of height H gives a spread of about 0.6–0.9·H (0.63·H for a 2 × 2 hole
+///        centred on it), so steps above about 1.1–1.6 × this are caught. 0 = no limit. Filling such a gap makes cells between the two surfaces
+///        that no scan point supports (the E57 pump: a 4-cell gap filled 1.4 m in front of the
+///        wall behind it).
 /// @throws hc::ConfigError if max_hole_cells < 0 or max_rim_step_m < 0 or not finite;
 ///         hc::InputError if flags, colour or intensity and depth disagree in size.
 ///         Real-time: no. Cost: O(rows·cols) labelling + O(filled cells · 49 · sweeps).

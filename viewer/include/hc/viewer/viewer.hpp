@@ -133,8 +133,10 @@ Eigen::Vector3f layer_colour_map(double t);
 
 /// The value range a layer map spreads over [0, 1] of layer_colour_map, from the finite samples
 /// of `layer` (its unit: metres for texture and error, none for μ_d): see MapLayer for each
-/// layer's rule (percentiles by nth_element on a copy: robust to a few spikes). No finite sample
-/// gives lo = hi = 0; hi is always > lo (widened by 1e-12 of the layer's unit when equal).
+/// layer's rule (percentiles by nth_element on a copy: robust to a few spikes). hi is always
+/// > lo: a constant layer value c (or no finite sample: c = 0) gives c ± ε for texture and μ_d
+/// (c maps to the middle, t = 0.5) and [c, c + ε] for the error (c at the bottom), with
+/// ε = max(1e-12, 1e-9·|c|) in the layer's unit.
 struct LayerRange {
   double lo = 0.0, hi = 1.0;
   /// Position of v in the range, clamped to [0, 1]; NaN stays NaN.
