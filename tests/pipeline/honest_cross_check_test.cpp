@@ -319,12 +319,18 @@ TEST(InputCheck, ClassesOnAFlatGridMatchTheirConstruction) {
   expect_partition(rev);
 }
 
+/// Points at every node of an n × n grid of `pitch` [m] at z = 0.
+std::vector<Eigen::Vector3d> node_lattice(int n, double pitch) {
+  std::vector<Eigen::Vector3d> pts;
+  for (int r = 0; r < n; ++r)
+    for (int c = 0; c < n; ++c) pts.emplace_back(pitch * c, pitch * r, 0.0);
+  return pts;
+}
+
 TEST(InputCheck, ACellKeptOnlyByAnIsolatedPointIsASpikeKept) {
   GridGeometry g{21, 21, 0.0, 0.0, 0.001};
   HeightField h(g, 0.0f);
-  std::vector<Eigen::Vector3d> pts;
-  for (int r = 0; r < 21; ++r)
-    for (int c = 0; c < 21; ++c) pts.emplace_back(0.001 * c, 0.001 * r, 0.0);
+  std::vector<Eigen::Vector3d> pts = node_lattice(21, 0.001);
   pts.emplace_back(0.010, 0.010, 0.040);  // 40 mm above the node (10, 10)
   h.at(10, 10) = 0.040f;                  // which the grid kept
   const Cloud c = cloud_of(pts);
@@ -343,9 +349,7 @@ TEST(InputCheck, ASpikeDrawnFromAGenuinePointsDiscIsConfirmedOnlyAtThatPointsHei
   // every node; the tree top is four points 0.1 mm apart (not isolated).
   GridGeometry g{21, 21, 0.0, 0.0, 0.005};
   HeightField h(g, 0.0f);
-  std::vector<Eigen::Vector3d> pts;
-  for (int r = 0; r < 21; ++r)
-    for (int c = 0; c < 21; ++c) pts.emplace_back(0.005 * c, 0.005 * r, 0.0);
+  std::vector<Eigen::Vector3d> pts = node_lattice(21, 0.005);
   for (int k = 0; k < 4; ++k) pts.emplace_back(0.0535 + 0.0001 * (k % 2), 0.050 + 0.0001 * (k / 2), 0.040);
   const Cloud c = cloud_of(pts);
   std::vector<std::uint8_t> flags(g.cell_count(), kCellMeasured);
