@@ -64,7 +64,6 @@ class VoxelHash {
     start_.push_back(static_cast<std::uint32_t>(index_.size()));
   }
 
-  static constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
   static constexpr std::int64_t kLimit = (std::int64_t{1} << 20) - 1;
 
   std::int64_t cell(float v) const {
