@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include "app_runner.hpp"
 #include "test_paths.hpp"
 
 #include <algorithm>
@@ -18,6 +19,7 @@ namespace {
 
 namespace fs = std::filesystem;
 using json = nlohmann::json;
+using hc::test::read_json;
 
 struct Outcome {
   int status = -1;
@@ -34,11 +36,6 @@ Outcome run_app(const std::string& args) {
   const int raw = pclose(p);
   o.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
   return o;
-}
-
-json read_json(const fs::path& file) {
-  std::ifstream in(file);
-  return json::parse(in);
 }
 
 std::string config(const char* name) { return (fs::path(HC_SOURCE_DIR) / "configs" / name).string(); }

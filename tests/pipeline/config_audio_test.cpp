@@ -4,6 +4,7 @@
 #include "hc/pipeline/synthetic.hpp"
 
 #include "hc/common/error.hpp"
+#include "config_error.hpp"
 
 #include <gtest/gtest.h>
 
@@ -13,17 +14,9 @@
 namespace {
 
 using hc::pipeline::parse_run_config;
+using hc::test::config_error;
 
 const std::string kInput = "input:\n  files: [scan.ply]\n";
-
-std::string error_of(const std::string& yaml) {
-  try {
-    parse_run_config(yaml, "configs/test.yaml");
-  } catch (const hc::Error& e) {
-    return e.what();
-  }
-  return "";
-}
 
 TEST(ConfigAudio, AbsentSectionMeansNoAudio) {
   const auto c = parse_run_config(kInput, "configs/test.yaml");
@@ -81,24 +74,24 @@ TEST(ConfigAudio, RegionsOfEveryShapeWithClipsNotesAndMaterials) {
 }
 
 TEST(ConfigAudio, ErrorsNameTheKeyTheValueAndTheLine) {
-  EXPECT_NE(error_of(kInput + "audio:\n  master_gain: 9\n").find("audio.master_gain = 9"), std::string::npos);
-  const std::string unknown = error_of(kInput + "audio:\n  volume: 1\n");
+  EXPECT_NE(config_error(kInput + "audio:\n  master_gain: 9\n").find("audio.master_gain = 9"), std::string::npos);
+  const std::string unknown = config_error(kInput + "audio:\n  volume: 1\n");
   EXPECT_NE(unknown.find("unknown key 'audio.volume'"), std::string::npos) << unknown;
-  const std::string note = error_of(kInput + "audio:\n  regions:\n    - {name: a, box_m: [0, 0, 1, 1], note: Do}\n");
+  const std::string note = config_error(kInput + "audio:\n  regions:\n    - {name: a, box_m: [0, 0, 1, 1], note: Do}\n");
   EXPECT_NE(note.find("audio.regions[0].note = 'Do'"), std::string::npos) << note;
   EXPECT_NE(note.find("configs/test.yaml:5"), std::string::npos) << note;
-  const std::string shape = error_of(kInput + "audio:\n  regions:\n    - {name: a}\n");
+  const std::string shape = config_error(kInput + "audio:\n  regions:\n    - {name: a}\n");
   EXPECT_NE(shape.find("exactly one of box_m, polygon_m, label"), std::string::npos) << shape;
-  const std::string box = error_of(kInput + "audio:\n  regions:\n    - {name: a, box_m: [1, 0, 0, 1]}\n");
+  const std::string box = config_error(kInput + "audio:\n  regions:\n    - {name: a, box_m: [1, 0, 0, 1]}\n");
   EXPECT_NE(box.find("x_max > x_min"), std::string::npos) << box;
-  const std::string dup = error_of(kInput + "audio:\n  regions:\n    - {name: a, box_m: [0, 0, 1, 1]}\n"
+  const std::string dup = config_error(kInput + "audio:\n  regions:\n    - {name: a, box_m: [0, 0, 1, 1]}\n"
                                             "    - {name: a, box_m: [0, 0, 1, 1]}\n");
   EXPECT_NE(dup.find("'a' twice"), std::string::npos) << dup;
-  const std::string key = error_of(kInput + "audio:\n  regions:\n    - {name: a, box_m: [0, 0, 1, 1], loud: 3}\n");
+  const std::string key = config_error(kInput + "audio:\n  regions:\n    - {name: a, box_m: [0, 0, 1, 1], loud: 3}\n");
   EXPECT_NE(key.find("unknown key 'loud'"), std::string::npos) << key;
-  const std::string label = error_of(kInput + "audio:\n  regions:\n    - {name: a, label: 2}\n");
+  const std::string label = config_error(kInput + "audio:\n  regions:\n    - {name: a, label: 2}\n");
   EXPECT_NE(label.find("label_image"), std::string::npos) << label;
-  const std::string mat = error_of(kInput + "audio:\n  slide: {material: glass}\n");
+  const std::string mat = config_error(kInput + "audio:\n  slide: {material: glass}\n");
   EXPECT_NE(mat.find("audio.slide.material = 'glass'"), std::string::npos) << mat;
 }
 

@@ -5,6 +5,7 @@
 #include <gtest/gtest.h>
 
 #include "test_paths.hpp"
+#include "config_error.hpp"
 
 #include <algorithm>
 #include <fstream>
@@ -12,17 +13,9 @@
 namespace {
 
 using hc::pipeline::parse_run_config;
+using hc::test::config_error;
 
 const std::string kMinimal = "input:\n  files: [scan.ply]\n";
-
-std::string error_of(const std::string& yaml, const std::vector<std::string>& sets = {}) {
-  try {
-    parse_run_config(yaml, "configs/test.yaml", sets);
-  } catch (const hc::Error& e) {
-    return e.what();
-  }
-  return "";
-}
 
 TEST(Config, DefaultsAreFilledAndPathsResolvedAgainstTheConfigFolder) {
   const auto c = parse_run_config(kMinimal, "configs/test.yaml");
@@ -37,46 +30,46 @@ TEST(Config, DefaultsAreFilledAndPathsResolvedAgainstTheConfigFolder) {
 }
 
 TEST(Config, UnknownKeyIsNamedWithItsLineAndTheAllowedKeys) {
-  const std::string msg = error_of(kMinimal + "grid:\n  n: 400\n  nn: 3\n");
+  const std::string msg = config_error(kMinimal + "grid:\n  n: 400\n  nn: 3\n");
   EXPECT_NE(msg.find("configs/test.yaml:5"), std::string::npos) << msg;
   EXPECT_NE(msg.find("grid.nn"), std::string::npos) << msg;
   EXPECT_NE(msg.find("cell_size_m"), std::string::npos) << msg;  // the allowed keys are listed
-  EXPECT_NE(error_of(kMinimal + "grdi: {n: 3}\n").find("unknown key 'grdi'"), std::string::npos);
+  EXPECT_NE(config_error(kMinimal + "grdi: {n: 3}\n").find("unknown key 'grdi'"), std::string::npos);
 }
 
 TEST(Config, WrongTypeAndOutOfRangeNameKeyLineValueAndRange) {
-  std::string msg = error_of(kMinimal + "grid:\n  n: lots\n");
+  std::string msg = config_error(kMinimal + "grid:\n  n: lots\n");
   EXPECT_NE(msg.find("configs/test.yaml:4"), std::string::npos) << msg;
   EXPECT_NE(msg.find("grid.n"), std::string::npos) << msg;
   EXPECT_NE(msg.find("'lots'"), std::string::npos) << msg;
   EXPECT_NE(msg.find("integer"), std::string::npos) << msg;
 
-  msg = error_of(kMinimal + "grid:\n  n: 1\n");  // N ≤ 1
+  msg = config_error(kMinimal + "grid:\n  n: 1\n");  // N ≤ 1
   EXPECT_NE(msg.find("grid.n = 1"), std::string::npos) << msg;
   EXPECT_NE(msg.find("[2, 65536]"), std::string::npos) << msg;
 
-  msg = error_of(kMinimal + "filters:\n  outliers: {std_multiplier: -1}\n");
+  msg = config_error(kMinimal + "filters:\n  outliers: {std_multiplier: -1}\n");
   EXPECT_NE(msg.find("filters.outliers.std_multiplier = -1"), std::string::npos) << msg;
   EXPECT_NE(msg.find("(0, 100]"), std::string::npos) << msg;
 
-  msg = error_of(kMinimal + "input:\n  files: [a]\n  units: inch\n");
+  msg = config_error(kMinimal + "input:\n  files: [a]\n  units: inch\n");
   EXPECT_NE(msg.find("configs/test.yaml:3: duplicate key 'input' (first given on line 1)"), std::string::npos) << msg;
-  msg = error_of("input:\n  files: [a]\n  units: inch\n");
+  msg = config_error("input:\n  files: [a]\n  units: inch\n");
   EXPECT_NE(msg.find("input.units = 'inch': expected one of: m, cm, mm"), std::string::npos) << msg;
 
-  msg = error_of(kMinimal + "layers:\n  friction: {model: magic}\n");
+  msg = config_error(kMinimal + "layers:\n  friction: {model: magic}\n");
   EXPECT_NE(msg.find("paper, curvature"), std::string::npos) << msg;
-  msg = error_of(kMinimal + "layers:\n  friction: {mu_min: 0.5, mu_max: 0.1}\n");
+  msg = config_error(kMinimal + "layers:\n  friction: {mu_min: 0.5, mu_max: 0.1}\n");
   EXPECT_NE(msg.find("layers.friction.mu_max"), std::string::npos) << msg;
 }
 
 TEST(Config, ConflictingOrMissingChoicesAreErrors) {
-  EXPECT_NE(error_of(kMinimal + "grid: {n: 100, cell_size_m: 0.001}\n").find("both n and cell_size_m"), std::string::npos);
-  EXPECT_NE(error_of("grid: {n: 100}\n").find("input.files"), std::string::npos);
-  EXPECT_NE(error_of("input:\n  files: [a.ply, b.ply]\n").find("input.conf"), std::string::npos);
-  EXPECT_NE(error_of(kMinimal + "view:\n  rotation: {axis: [0,1,0], angle_deg: 10, euler_deg: [1,2,3]}\n")
+  EXPECT_NE(config_error(kMinimal + "grid: {n: 100, cell_size_m: 0.001}\n").find("both n and cell_size_m"), std::string::npos);
+  EXPECT_NE(config_error("grid: {n: 100}\n").find("input.files"), std::string::npos);
+  EXPECT_NE(config_error("input:\n  files: [a.ply, b.ply]\n").find("input.conf"), std::string::npos);
+  EXPECT_NE(config_error(kMinimal + "view:\n  rotation: {axis: [0,1,0], angle_deg: 10, euler_deg: [1,2,3]}\n")
                 .find("mixes forms"), std::string::npos);
-  EXPECT_NE(error_of(kMinimal + "view:\n  rotation: {axis: [0,0,0], angle_deg: 10}\n").find("non-zero axis"),
+  EXPECT_NE(config_error(kMinimal + "view:\n  rotation: {axis: [0,0,0], angle_deg: 10}\n").find("non-zero axis"),
             std::string::npos);
 }
 
@@ -86,10 +79,10 @@ TEST(Config, SetOverridesApplyBeforeValidationAndAreNamedInErrors) {
   EXPECT_EQ(c.grid.reproject.grid.n_long_side, 400);
   const Eigen::Vector3d x = c.view.rotation * Eigen::Vector3d::UnitX();
   EXPECT_NEAR(x.z(), -1.0, 1e-12);  // +90° about y takes +x to −z
-  const std::string msg = error_of(kMinimal, {"grid.n=0"});
+  const std::string msg = config_error(kMinimal, {"grid.n=0"});
   EXPECT_NE(msg.find("--set grid.n"), std::string::npos) << msg;
-  EXPECT_NE(error_of(kMinimal, {"grid.n"}).find("key=value"), std::string::npos);
-  EXPECT_NE(error_of(kMinimal, {"grid.bogus=3"}).find("unknown key 'grid.bogus'"), std::string::npos);
+  EXPECT_NE(config_error(kMinimal, {"grid.n"}).find("key=value"), std::string::npos);
+  EXPECT_NE(config_error(kMinimal, {"grid.bogus=3"}).find("unknown key 'grid.bogus'"), std::string::npos);
 }
 
 TEST(Config, InvalidYamlAndMissingFileAreInputErrorsWithPosition) {
@@ -108,7 +101,7 @@ TEST(Config, StaticFrictionRegionsAreValidated) {
       "configs/test.yaml");
   ASSERT_EQ(c.layers.options.mu_s_regions.size(), 1u);
   EXPECT_DOUBLE_EQ(c.layers.options.mu_s_regions[0].mu_s, 0.4);
-  EXPECT_NE(error_of(kMinimal + "layers:\n  friction:\n    mu_s_regions:\n      - {x_min_m: 0, y_min_m: 0, x_max_m: 0.01, y_max_m: 0.02, mu: 0.4}\n")
+  EXPECT_NE(config_error(kMinimal + "layers:\n  friction:\n    mu_s_regions:\n      - {x_min_m: 0, y_min_m: 0, x_max_m: 0.01, y_max_m: 0.02, mu: 0.4}\n")
                 .find("unknown key"), std::string::npos);
 }
 
@@ -116,7 +109,7 @@ TEST(Config, SplatModeIsReadAndValidated) {
   EXPECT_EQ(parse_run_config(kMinimal, "configs/test.yaml").grid.reproject.splat_mode, hc::pipeline::SplatMode::kDisc);
   EXPECT_EQ(parse_run_config(kMinimal + "grid: {splat_mode: interpolate}\n", "configs/test.yaml").grid.reproject.splat_mode,
             hc::pipeline::SplatMode::kInterpolate);
-  EXPECT_NE(error_of(kMinimal + "grid: {splat_mode: blur}\n").find("grid.splat_mode = 'blur': expected one of: disc, interpolate"),
+  EXPECT_NE(config_error(kMinimal + "grid: {splat_mode: blur}\n").find("grid.splat_mode = 'blur': expected one of: disc, interpolate"),
             std::string::npos);
 }
 
@@ -129,7 +122,7 @@ TEST(Config, UpsampleIsOffAutoOrAFactor) {
   EXPECT_EQ(factor("grid: {upsample: auto}\n"), 0);
   EXPECT_EQ(factor("grid: {upsample: 4}\n"), 4);
   for (const std::string bad : {"0", "17", "2.5", "yes", "4x"}) {
-    EXPECT_NE(error_of(kMinimal + "grid: {upsample: " + bad + "}\n")
+    EXPECT_NE(config_error(kMinimal + "grid: {upsample: " + bad + "}\n")
                   .find("grid.upsample = '" + bad + "': expected auto, off, or an integer factor in [1, 16]"),
               std::string::npos)
         << bad;
@@ -144,9 +137,9 @@ TEST(Config, FalconSectionIsReadAndValidated) {
   EXPECT_EQ(c.falcon.max_force_n, 5.0);
   EXPECT_EQ(c.falcon.max_missed_ticks, 10);
   EXPECT_TRUE(parse_run_config(kMinimal, "configs/test.yaml").falcon.firmware_path.empty());
-  EXPECT_NE(error_of(kMinimal + "falcon: {max_force_n: 20}\n").find("falcon.max_force_n = 20: expected a number in (0, 10]"),
+  EXPECT_NE(config_error(kMinimal + "falcon: {max_force_n: 20}\n").find("falcon.max_force_n = 20: expected a number in (0, 10]"),
             std::string::npos);
-  EXPECT_NE(error_of(kMinimal + "falcon: {max_missed_ticks: 0}\n").find("falcon.max_missed_ticks = 0"), std::string::npos);
+  EXPECT_NE(config_error(kMinimal + "falcon: {max_missed_ticks: 0}\n").find("falcon.max_missed_ticks = 0"), std::string::npos);
 }
 
 TEST(Config, ShippedConfigsAllValidate) {

@@ -6,6 +6,7 @@
 #include "hc/pipeline/synthetic.hpp"
 
 #include "cloud_fixtures.hpp"
+#include "stage_figure.hpp"
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -17,6 +18,8 @@
 
 namespace hc::pipeline {
 namespace {
+
+using hc::test::figure;
 
 using hc::test::cloud_of;
 
@@ -116,14 +119,6 @@ TEST(CrossCheck, CellDistancesEqualBruteForceOnAFullGrid) {
     for (float& v : h.values()) v = static_cast<float>(uz(rng));
     expect_cells_match_brute_force(cloud_of(pts), h, 0.001);
   }
-}
-
-double figure(const StageReport& r, const std::string& name) {
-  for (const auto& [k, v] : r.figures) {
-    if (k == name) return v;
-  }
-  ADD_FAILURE() << "no figure " << name;
-  return std::nan("");
 }
 
 TEST(CrossCheck, FarSamplesEqualBruteForceThroughTheKdTrees) {

@@ -7,6 +7,7 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "test_paths.hpp"
+#include "file_bytes.hpp"
 
 #include <gtest/gtest.h>
 
@@ -24,17 +25,10 @@ namespace fs = std::filesystem;
 
 namespace {
 
+using hc::test::read_bytes;
+using hc::test::write_bytes;
+
 fs::path sample(const std::string& name) { return hc::test::scan_path("scanner_samples/e57/" + name); }
-
-std::string read_bytes(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
-}
-
-void write_bytes(const fs::path& p, const std::string& b) {
-  std::ofstream out(p, std::ios::binary);
-  out.write(b.data(), static_cast<std::streamsize>(b.size()));
-}
 
 template <class T>
 T get(const std::string& s, std::size_t at) {

@@ -6,6 +6,8 @@
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/transform.hpp"
 #include "test_paths.hpp"
+#include "stage_figure.hpp"
+#include "cloud_fixtures.hpp"
 
 #include <gtest/gtest.h>
 #include <pcl/filters/statistical_outlier_removal.h>
@@ -23,19 +25,9 @@ namespace hp = hc::pipeline;
 
 namespace {
 
-hp::Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts) {
-  hp::Cloud c;
-  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
-  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
-  return c;
-}
+using hc::test::cloud_of;
 
-double figure(const hp::StageReport& r, const std::string& name) {
-  for (const auto& [n, v] : r.figures)
-    if (n == name) return v;
-  ADD_FAILURE() << "no figure " << name << " in stage " << r.stage;
-  return std::numeric_limits<double>::quiet_NaN();
-}
+using hc::test::figure;
 
 // Indices (into `c`) of the points remove_statistical_outliers keeps. Tags each point with a
 // unique scan_id so the kept points can be traced back.

@@ -9,6 +9,7 @@
 #include <gtest/gtest.h>
 
 #include "test_paths.hpp"
+#include "stage_figure.hpp"
 
 #include <cmath>
 #include <random>
@@ -16,15 +17,9 @@
 
 namespace {
 
-using namespace hc::pipeline;
+using hc::test::figure;
 
-double figure(const StageReport& r, const std::string& name) {
-  for (const auto& [k, v] : r.figures) {
-    if (k == name) return v;
-  }
-  ADD_FAILURE() << "no figure " << name << " in stage " << r.stage;
-  return std::nan("");
-}
+using namespace hc::pipeline;
 
 Cloud append(const Cloud& c, const Eigen::Matrix3Xd& extra) {
   Cloud out;

@@ -5,6 +5,7 @@
 #include "hc/pipeline/ingest.hpp"
 #include "error_of.hpp"
 #include "test_paths.hpp"
+#include "file_bytes.hpp"
 
 #include <gtest/gtest.h>
 #include <nanoflann.hpp>
@@ -26,6 +27,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
+using hc::test::read_bytes;
+
 void write_text(const fs::path& p, const std::string& text) {
   std::ofstream out(p, std::ios::binary);
   out << text;
@@ -36,11 +39,6 @@ void write_gzip(const fs::path& p, const std::string& bytes) {
   ASSERT_NE(f, nullptr);
   ASSERT_EQ(gzwrite(f, bytes.data(), static_cast<unsigned>(bytes.size())), static_cast<int>(bytes.size()));
   gzclose(f);
-}
-
-std::string read_bytes(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
 }
 
 // Three points with georeferenced double coordinates (not representable in float).

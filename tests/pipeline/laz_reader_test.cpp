@@ -8,6 +8,7 @@
 #include "hc/pipeline/ingest.hpp"
 #include "error_of.hpp"
 #include "test_paths.hpp"
+#include "file_bytes.hpp"
 
 #include <gtest/gtest.h>
 
@@ -26,17 +27,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
-std::string read_bytes(const fs::path& p) {
-  std::ifstream in(p, std::ios::binary);
-  std::ostringstream os;
-  os << in.rdbuf();
-  return os.str();
-}
-
-void write_bytes(const fs::path& p, const std::string& bytes) {
-  std::ofstream out(p, std::ios::binary);
-  out << bytes;
-}
+using hc::test::read_bytes;
+using hc::test::write_bytes;
 
 template <class T>
 T le(const std::string& b, std::size_t at) {

@@ -10,6 +10,7 @@
 #include "hc/pipeline/transform.hpp"
 
 #include "test_paths.hpp"
+#include "stage_figure.hpp"
 #include <gtest/gtest.h>
 
 #include <opencv2/core.hpp>
@@ -27,6 +28,8 @@
 
 namespace hc::pipeline {
 namespace {
+
+using hc::test::figure;
 
 namespace fs = std::filesystem;
 
@@ -195,13 +198,6 @@ void write_text(const fs::path& p, const std::string& s) {
 
 bool has_note(const StageReport& r, const std::string& needle) {
   return std::any_of(r.notes.begin(), r.notes.end(), [&](const std::string& n) { return n.find(needle) != std::string::npos; });
-}
-
-double figure(const StageReport& r, const std::string& name) {
-  for (const auto& [k, v] : r.figures)
-    if (k == name) return v;
-  ADD_FAILURE() << "no figure " << name;
-  return std::numeric_limits<double>::quiet_NaN();
 }
 
 // ---------------------------------------------------------------------------------------------

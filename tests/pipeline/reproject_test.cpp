@@ -5,6 +5,7 @@
 #include "hc/pipeline/synthetic.hpp"
 
 #include "cloud_fixtures.hpp"
+#include "stage_figure.hpp"
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -18,6 +19,8 @@
 
 namespace hc::pipeline {
 namespace {
+
+using hc::test::figure;
 
 using hc::test::cloud_of;
 
@@ -35,14 +38,6 @@ ReprojectOptions with_cell(double cell_m) {
 
 std::size_t count_flag(const DepthGrid& g, CellFlag f) {
   return static_cast<std::size_t>(std::count(g.flags.begin(), g.flags.end(), static_cast<std::uint8_t>(f)));
-}
-
-double figure(const StageReport& r, const std::string& name) {
-  for (const auto& [k, v] : r.figures) {
-    if (k == name) return v;
-  }
-  ADD_FAILURE() << "no figure " << name;
-  return std::numeric_limits<double>::quiet_NaN();
 }
 
 // ---------------------------------------------------------------------------------------------

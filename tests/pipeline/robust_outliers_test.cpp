@@ -16,6 +16,7 @@
 #include <gtest/gtest.h>
 
 #include "test_paths.hpp"
+#include "stage_figure.hpp"
 
 #include <cmath>
 #include <cstdint>
@@ -29,6 +30,8 @@
 
 namespace {
 
+using hc::test::figure;
+
 namespace fs = std::filesystem;
 using namespace hc::pipeline;
 
@@ -39,14 +42,6 @@ const Cloud& bunny() {
     return b;
   }();
   return c;
-}
-
-double figure(const StageReport& r, const std::string& name) {
-  for (const auto& [k, v] : r.figures) {
-    if (k == name) return v;
-  }
-  ADD_FAILURE() << "no figure " << name << " in stage " << r.stage;
-  return std::nan("");
 }
 
 // The bunny with `extra` appended, tagged intensity 1 (injected).

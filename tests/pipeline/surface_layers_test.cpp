@@ -1,6 +1,7 @@
 #include "hc/pipeline/surface_layers.hpp"
 
 #include "hc/common/error.hpp"
+#include "stage_figure.hpp"
 
 #include <gtest/gtest.h>
 
@@ -13,6 +14,8 @@
 
 namespace hc::pipeline {
 namespace {
+
+using hc::test::figure;
 
 constexpr double kPi = std::numbers::pi;
 
@@ -38,14 +41,6 @@ HeightField sample(const GridGeometry& g, const std::function<double(double, dou
     }
   }
   return f;
-}
-
-double figure(const StageReport& rep, const std::string& name) {
-  for (const auto& [k, v] : rep.figures) {
-    if (k == name) return v;
-  }
-  ADD_FAILURE() << "report lacks figure " << name;
-  return std::nan("");
 }
 
 void expect_nan_pattern(const HeightField& layer, const HeightField& depth, const char* what) {

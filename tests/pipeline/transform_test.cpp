@@ -5,6 +5,7 @@
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/transform.hpp"
 #include "test_paths.hpp"
+#include "cloud_fixtures.hpp"
 
 #include <gtest/gtest.h>
 
@@ -17,6 +18,8 @@
 namespace hp = hc::pipeline;
 
 namespace {
+
+using hc::test::cloud_of;
 
 Eigen::Matrix3d rx(double deg) {
   const double c = std::cos(deg * std::numbers::pi / 180), s = std::sin(deg * std::numbers::pi / 180);
@@ -38,14 +41,6 @@ Eigen::Matrix3d rz(double deg) {
 }
 
 double max_abs_diff(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) { return (a - b).cwiseAbs().maxCoeff(); }
-
-hp::Cloud cloud_of(std::initializer_list<Eigen::Vector3d> pts) {
-  hp::Cloud c;
-  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
-  Eigen::Index i = 0;
-  for (const auto& p : pts) c.xyz.col(i++) = p;
-  return c;
-}
 
 }  // namespace
 

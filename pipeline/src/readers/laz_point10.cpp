@@ -14,8 +14,8 @@
 //     same return class m (context min(m, 3)); point source ID: integer compressor (16 bit);
 //   - m = return map[n][r] (16 classes), l = return level[n][r] = |n − r| (8 classes);
 //   - dx: integer compressor (32 bit, 2 contexts: n == 1) predicted by the median of the last 5
-//     dx of class m; dy: (32 bit, 22 contexts: (n == 1) + min(even(k_x), 20)) likewise, where
-//     k_x is the bucket of dx; z: (32 bit, 20 contexts: (n == 1) + min(even((k_x + k_y)/2), 18))
+//     dx of class m; dy: (32 bit, 22 contexts: (n == 1) + min(even_index(k_x), 20)) likewise, where
+//     k_x is the bucket of dx; z: (32 bit, 20 contexts: (n == 1) + min(even_index((k_x + k_y)/2), 18))
 //     predicted by the last z of level l.
 //   GPSTIME11 (f64 as i64 bits): four sequences of (last time, last difference); 6-symbol
 //   model when the last difference is 0 (0 same, 1 32-bit difference, 2 new 64-bit time,
@@ -28,6 +28,7 @@
 //   (clamped to 0..255), blue from the mean of red's and green's changes.
 //   BYTE (n bytes): byte i as a difference mod 256 with its own 256-symbol model.
 
+#include "byte_io.hpp"
 #include "laz_items.hpp"
 
 #include <array>
@@ -61,18 +62,6 @@ std::string item_name(std::uint16_t type) {
 
 namespace {
 
-template <class T>
-T load(const std::uint8_t* p) {
-  T v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-template <class T>
-void store(std::uint8_t* p, T v) {
-  std::memcpy(p, &v, sizeof v);
-}
-
-std::uint32_t even(std::uint32_t k) { return k & ~1u; }
 
 /// A lazily created 256-symbol model per previous byte value.
 class ModelBank {
@@ -97,15 +86,15 @@ class ModelBank {
 class Point10 final : public PointwiseItem {
  public:
   void seed(const std::uint8_t* raw) override {
-    x_ = load<std::int32_t>(raw);
-    y_ = load<std::int32_t>(raw + 4);
-    z_out_ = load<std::int32_t>(raw + 8);
-    intensity_out_ = load<std::uint16_t>(raw + 12);
+    x_ = load_le<std::int32_t>(raw);
+    y_ = load_le<std::int32_t>(raw + 4);
+    z_out_ = load_le<std::int32_t>(raw + 8);
+    intensity_out_ = load_le<std::uint16_t>(raw + 12);
     return_byte_value_ = raw[14];
     class_ = raw[15];
     angle_ = raw[16];
     user_ = raw[17];
-    source_ = load<std::uint16_t>(raw + 18);
+    source_ = load_le<std::uint16_t>(raw + 18);
   }
   void decode(ArithDecoder& d, std::uint8_t* out) override { step(d, out); }
 
@@ -131,21 +120,21 @@ class Point10 final : public PointwiseItem {
     x_ = static_cast<std::int32_t>(static_cast<std::uint32_t>(x_) + static_cast<std::uint32_t>(dx));
     dx_median_[m].add(dx);
     const std::uint32_t kx = dx_.last_k();
-    const std::int32_t dy = dy_.decode(d, dy_median_[m].get(), first + (kx < 20 ? even(kx) : 20));
+    const std::int32_t dy = dy_.decode(d, dy_median_[m].get(), first + (kx < 20 ? even_index(kx) : 20));
     y_ = static_cast<std::int32_t>(static_cast<std::uint32_t>(y_) + static_cast<std::uint32_t>(dy));
     dy_median_[m].add(dy);
     const std::uint32_t kz = (kx + dy_.last_k()) / 2;
-    z_out_ = z_.decode(d, last_height_[l], first + (kz < 18 ? even(kz) : 18));
+    z_out_ = z_.decode(d, last_height_[l], first + (kz < 18 ? even_index(kz) : 18));
     last_height_[l] = z_out_;
-    store<std::int32_t>(out, x_);
-    store<std::int32_t>(out + 4, y_);
-    store<std::int32_t>(out + 8, z_out_);
-    store<std::uint16_t>(out + 12, intensity_out_);
+    store_le<std::int32_t>(out, x_);
+    store_le<std::int32_t>(out + 4, y_);
+    store_le<std::int32_t>(out + 8, z_out_);
+    store_le<std::uint16_t>(out + 12, intensity_out_);
     out[14] = static_cast<std::uint8_t>(return_byte_value_);
     out[15] = static_cast<std::uint8_t>(class_);
     out[16] = static_cast<std::uint8_t>(angle_);
     out[17] = static_cast<std::uint8_t>(user_);
-    store<std::uint16_t>(out + 18, source_);
+    store_le<std::uint16_t>(out + 18, source_);
   }
 
  private:
@@ -164,11 +153,11 @@ class Point10 final : public PointwiseItem {
 
 class GpsTime11 final : public PointwiseItem {
  public:
-  void seed(const std::uint8_t* raw) override { gps_.seed(load<std::int64_t>(raw)); }
+  void seed(const std::uint8_t* raw) override { gps_.seed(load_le<std::int64_t>(raw)); }
   void decode(ArithDecoder& d, std::uint8_t* out) override { step(d, out); }
   [[gnu::always_inline]] void step(ArithDecoder& d, std::uint8_t* out) {
     gps_.decode(d);
-    store<std::int64_t>(out, gps_.value());
+    store_le<std::int64_t>(out, gps_.value());
   }
 
  private:

@@ -30,6 +30,7 @@
 //     (else context 0), and switching to an already used context keeps predicting from the
 //     previous context's last values — both as LASzip writes them.
 
+#include "byte_io.hpp"
 #include "laz_items.hpp"
 
 #include <array>
@@ -52,17 +53,6 @@ constexpr std::uint8_t kReturnClass16[16][16] = {
     {5, 3, 3, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 5, 5, 5}, {5, 3, 3, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 4, 5, 5},
 };
 
-template <class T>
-T load(const std::uint8_t* p) {
-  T v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
-template <class T>
-void store(std::uint8_t* p, T v) {
-  std::memcpy(p, &v, sizeof v);
-}
-std::uint32_t even(std::uint32_t k) { return k & ~1u; }
 std::int32_t wrap_add(std::int32_t a, std::int32_t b) {
   return static_cast<std::int32_t>(static_cast<std::uint32_t>(a) + static_cast<std::uint32_t>(b));
 }
@@ -81,10 +71,10 @@ struct Fields14 {
 
   static Fields14 from(const std::uint8_t* p) {
     Fields14 f;
-    f.x = load<std::int32_t>(p);
-    f.y = load<std::int32_t>(p + 4);
-    f.z = load<std::int32_t>(p + 8);
-    f.intensity = load<std::uint16_t>(p + 12);
+    f.x = load_le<std::int32_t>(p);
+    f.y = load_le<std::int32_t>(p + 4);
+    f.z = load_le<std::int32_t>(p + 8);
+    f.intensity = load_le<std::uint16_t>(p + 12);
     f.r = p[14] & 15u;
     f.n = p[14] >> 4;
     f.class_flags = p[15] & 15u;
@@ -93,23 +83,23 @@ struct Fields14 {
     f.edge = p[15] >> 7;
     f.classification = p[16];
     f.user_data = p[17];
-    f.scan_angle = load<std::int16_t>(p + 18);
-    f.source = load<std::uint16_t>(p + 20);
-    f.gps = load<std::int64_t>(p + 22);
+    f.scan_angle = load_le<std::int16_t>(p + 18);
+    f.source = load_le<std::uint16_t>(p + 20);
+    f.gps = load_le<std::int64_t>(p + 22);
     return f;
   }
   void to(std::uint8_t* p) const {
-    store(p, x);
-    store(p + 4, y);
-    store(p + 8, z);
-    store(p + 12, intensity);
+    store_le(p, x);
+    store_le(p + 4, y);
+    store_le(p + 8, z);
+    store_le(p + 12, intensity);
     p[14] = static_cast<std::uint8_t>(r | (n << 4));
     p[15] = static_cast<std::uint8_t>(class_flags | (channel << 4) | (direction << 6) | (edge << 7));
     p[16] = static_cast<std::uint8_t>(classification);
     p[17] = static_cast<std::uint8_t>(user_data);
-    store(p + 18, scan_angle);
-    store(p + 20, source);
-    store(p + 22, gps);
+    store_le(p + 18, scan_angle);
+    store_le(p + 20, source);
+    store_le(p + 22, gps);
   }
 };
 
@@ -221,12 +211,12 @@ class Point14 final : public LayeredItem {
     p.x = wrap_add(p.x, dx);
     c->dx_median[slot].add(dx);
     const std::uint32_t kx = c->dx.last_k();
-    const std::int32_t dy = c->dy.decode(xy, c->dy_median[slot].get(), (n == 1) + (kx < 20 ? even(kx) : 20));
+    const std::int32_t dy = c->dy.decode(xy, c->dy_median[slot].get(), (n == 1) + (kx < 20 ? even_index(kx) : 20));
     p.y = wrap_add(p.y, dy);
     c->dy_median[slot].add(dy);
     if (layers_[1].present) {
       const std::uint32_t kz = (c->dx.last_k() + c->dy.last_k()) / 2;
-      p.z = c->z.decode(layers_[1].d, c->last_z[l], (n == 1) + (kz < 18 ? even(kz) : 18));
+      p.z = c->z.decode(layers_[1].d, c->last_z[l], (n == 1) + (kz < 18 ? even_index(kz) : 18));
       c->last_z[l] = p.z;
     }
     if (layers_[2].present) {

@@ -5,6 +5,7 @@
 // bit-packed integer, scaled-integer and float bytestreams) of every data3D scan (§ 8.4.x,
 // Data3D, PointRecord, Pose, IntensityLimits, ColorLimits).
 
+#include "byte_io.hpp"
 #include "readers.hpp"
 #include "text_parse.hpp"
 
@@ -97,13 +98,6 @@ std::uint32_t crc32c(const unsigned char* p, std::size_t n) {
   if (hw) return crc32c_hw(p, n);
 #endif
   return crc32c_soft(p, n);
-}
-
-template <class T>
-T load_le(const unsigned char* p) {
-  T v;
-  std::memcpy(&v, p, sizeof(T));
-  return v;
 }
 
 std::string hex(std::uint64_t v) {

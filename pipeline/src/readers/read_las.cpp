@@ -20,6 +20,7 @@
 // CRS: VLR user id "LASF_Projection", record 2112 (OGC WKT) or the GeoTIFF keys 34735
 // (GeoKeyDirectoryTag, u16), 34736 (GeoDoubleParamsTag, f64), 34737 (GeoAsciiParamsTag).
 
+#include "byte_io.hpp"
 #include "las_records.hpp"
 #include "readers.hpp"
 #include "text_parse.hpp"
@@ -38,13 +39,6 @@ namespace hc::pipeline::detail {
 namespace {
 
 static_assert(std::endian::native == std::endian::little, "the LAS reader assumes a little-endian host");
-
-template <class T>
-T get(const char* p) {
-  T v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
 
 constexpr std::array<std::uint16_t, 11> kBaseRecordLength = {20, 28, 26, 34, 57, 63, 30, 36, 38, 59, 67};
 constexpr std::size_t kVlrHeader = 54;
@@ -108,7 +102,7 @@ std::string linear_unit_name(unsigned code) {
 std::string summarise_geokeys(const Vlr& dir, const Vlr* doubles, const Vlr* ascii) {
   const std::size_t n_u16 = dir.length / 2;
   if (n_u16 < 4) return "GeoTIFF key directory (VLR 34735) too short (" + std::to_string(dir.length) + " bytes)";
-  const auto u16 = [&](std::size_t i) { return get<std::uint16_t>(dir.data + 2 * i); };
+  const auto u16 = [&](std::size_t i) { return load_le<std::uint16_t>(dir.data + 2 * i); };
   const std::size_t n_keys = u16(3);
   std::string out;
   for (std::size_t k = 0; k < n_keys && 4 + 4 * k + 3 < n_u16; ++k) {
@@ -121,7 +115,7 @@ std::string summarise_geokeys(const Vlr& dir, const Vlr* doubles, const Vlr* asc
     } else if (loc == 34736 && doubles && (static_cast<std::size_t>(value) + count) * 8 <= doubles->length) {
       for (std::size_t j = 0; j < count; ++j) {
         if (j) text += ',';
-        text += fmt_g(get<double>(doubles->data + 8 * (value + j)));
+        text += fmt_g(load_le<double>(doubles->data + 8 * (value + j)));
       }
     } else if (loc == 34737 && ascii && static_cast<std::size_t>(value) + count <= ascii->length) {
       std::string s(ascii->data + value, count);
@@ -169,7 +163,7 @@ LasHeader parse_las_header(const ScanSource& source, bool compressed) {
   const std::string version = std::to_string(major) + "." + std::to_string(minor);
   if (major != 1 || minor > 4) fail("has LAS version " + version + ": expected 1.0 to 1.4");
   const std::size_t min_header = minor <= 2 ? 227 : minor == 3 ? 235 : 375;
-  const std::size_t header_size = get<std::uint16_t>(b + 94);
+  const std::size_t header_size = load_le<std::uint16_t>(b + 94);
   if (header_size < min_header) {
     fail("declares a header size of " + std::to_string(header_size) + " bytes: LAS " + version + " needs at least " +
          std::to_string(min_header));
@@ -178,10 +172,10 @@ LasHeader parse_las_header(const ScanSource& source, bool compressed) {
     fail("declares a header size of " + std::to_string(header_size) + " bytes but the file holds " +
          std::to_string(size) + " bytes");
   }
-  const std::size_t offset = get<std::uint32_t>(b + 96);
-  const std::size_t n_vlr = get<std::uint32_t>(b + 100);
+  const std::size_t offset = load_le<std::uint32_t>(b + 96);
+  const std::size_t n_vlr = load_le<std::uint32_t>(b + 100);
   const int format_byte = static_cast<unsigned char>(b[104]);
-  const std::size_t record_length = get<std::uint16_t>(b + 105);
+  const std::size_t record_length = load_le<std::uint16_t>(b + 105);
   if (!compressed && (format_byte & 0xC0)) {
     fail("has point data format byte " + std::to_string(format_byte) + " (compression bit set): compressed LAZ data; "
          "expected uncompressed LAS point data (format 0 to 10; a .laz file is read by the LAZ reader)");
@@ -194,11 +188,11 @@ LasHeader parse_las_header(const ScanSource& source, bool compressed) {
     fail("declares point records of " + std::to_string(record_length) + " bytes: point data format " +
          std::to_string(format) + " needs at least " + std::to_string(base));
   }
-  const std::uint64_t legacy_count = get<std::uint32_t>(b + 107);
+  const std::uint64_t legacy_count = load_le<std::uint32_t>(b + 107);
   std::uint64_t count = legacy_count;
   std::vector<std::string> notes;
   if (minor >= 4) {
-    const std::uint64_t count64 = get<std::uint64_t>(b + 247);
+    const std::uint64_t count64 = load_le<std::uint64_t>(b + 247);
     if (count64 == 0 && legacy_count != 0) {
       notes.push_back("LAS 1.4 header: the 64-bit point count is 0, the legacy count " + std::to_string(legacy_count) +
                       " is used");
@@ -224,8 +218,8 @@ LasHeader parse_las_header(const ScanSource& source, bool compressed) {
 
   double scale[3], shift[3];
   for (int a = 0; a < 3; ++a) {
-    scale[a] = get<double>(b + 131 + 8 * a);
-    shift[a] = get<double>(b + 155 + 8 * a);
+    scale[a] = load_le<double>(b + 131 + 8 * a);
+    shift[a] = load_le<double>(b + 155 + 8 * a);
     if (!std::isfinite(scale[a]) || scale[a] == 0.0 || !std::isfinite(shift[a])) {
       fail(std::string("has ") + "xyz"[a] + " scale " + fmt_g(scale[a]) + " and offset " + fmt_g(shift[a]) +
            ": expected a finite, non-zero scale and a finite offset");
@@ -240,7 +234,7 @@ LasHeader parse_las_header(const ScanSource& source, bool compressed) {
       fail("declares " + std::to_string(n_vlr) + " VLRs but VLR " + std::to_string(i) + " at byte " +
            std::to_string(at) + " runs past the start of the point data (byte " + std::to_string(offset) + ")");
     }
-    Vlr v{fixed_text(b + at + 2, 16), get<std::uint16_t>(b + at + 18), b + at + kVlrHeader, get<std::uint16_t>(b + at + 20)};
+    Vlr v{fixed_text(b + at + 2, 16), load_le<std::uint16_t>(b + at + 18), b + at + kVlrHeader, load_le<std::uint16_t>(b + at + 20)};
     if (at + kVlrHeader + v.length > offset) {
       fail("has VLR " + std::to_string(i) + " ('" + v.user_id + "' " + std::to_string(v.record_id) + ") of " +
            std::to_string(v.length) + " bytes at byte " + std::to_string(at) +
@@ -250,8 +244,8 @@ LasHeader parse_las_header(const ScanSource& source, bool compressed) {
     vlrs.push_back(std::move(v));
   }
   if (minor >= 4) {
-    const std::uint64_t evlr_start = get<std::uint64_t>(b + 235);
-    const std::uint64_t n_evlr = get<std::uint32_t>(b + 243);
+    const std::uint64_t evlr_start = load_le<std::uint64_t>(b + 235);
+    const std::uint64_t n_evlr = load_le<std::uint32_t>(b + 243);
     std::uint64_t e = evlr_start;
     for (std::uint64_t i = 0; i < n_evlr; ++i) {
       if (e < offset || e > size || size - e < kEvlrHeader) {
@@ -259,12 +253,12 @@ LasHeader parse_las_header(const ScanSource& source, bool compressed) {
              std::to_string(i) + " at byte " + std::to_string(e) + " lies outside the file (" + std::to_string(size) +
              " bytes)");
       }
-      const std::uint64_t len = get<std::uint64_t>(b + e + 20);
+      const std::uint64_t len = load_le<std::uint64_t>(b + e + 20);
       if (len > size - e - kEvlrHeader) {
         fail("has EVLR " + std::to_string(i) + " of " + std::to_string(len) + " bytes at byte " + std::to_string(e) +
              ", running past the end of the file (" + std::to_string(size) + " bytes)");
       }
-      vlrs.push_back({fixed_text(b + e + 2, 16), get<std::uint16_t>(b + e + 18), b + e + kEvlrHeader,
+      vlrs.push_back({fixed_text(b + e + 2, 16), load_le<std::uint16_t>(b + e + 18), b + e + kEvlrHeader,
                       static_cast<std::size_t>(len)});
       e += kEvlrHeader + len;
     }
@@ -333,13 +327,13 @@ ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, cons
       ++dropped[cls];
       continue;
     }
-    xyz[3 * k + 0] = get<std::int32_t>(p + 0) * sx + ox;
-    xyz[3 * k + 1] = get<std::int32_t>(p + 4) * sy + oy;
-    xyz[3 * k + 2] = get<std::int32_t>(p + 8) * sz + oz;
-    out_intensity[k] = static_cast<float>(get<std::uint16_t>(p + 12));
+    xyz[3 * k + 0] = load_le<std::int32_t>(p + 0) * sx + ox;
+    xyz[3 * k + 1] = load_le<std::int32_t>(p + 4) * sy + oy;
+    xyz[3 * k + 2] = load_le<std::int32_t>(p + 8) * sz + oz;
+    out_intensity[k] = static_cast<float>(load_le<std::uint16_t>(p + 12));
     if (rgb_at) {
       for (std::size_t c = 0; c < 3; ++c) {
-        const std::uint16_t v = get<std::uint16_t>(p + rgb_at + 2 * c);
+        const std::uint16_t v = load_le<std::uint16_t>(p + rgb_at + 2 * c);
         out_rgb[3 * k + c] = static_cast<std::uint8_t>(v >> 8);  // high byte; see below for 8-bit data
         rgb_max = std::max(rgb_max, v);
       }

@@ -28,6 +28,7 @@
 // The decompressed records then go through the LAS reader's field decoding (las_records.hpp),
 // so a LAZ file yields exactly what its LAS twin does.
 
+#include "byte_io.hpp"
 #include "las_records.hpp"
 #include "laz_items.hpp"
 #include "readers.hpp"
@@ -42,13 +43,6 @@
 namespace hc::pipeline::detail {
 
 namespace {
-
-template <class T>
-T get(const char* p) {
-  T v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
 
 struct LaszipVlr {
   std::uint16_t compressor = 0, coder = 0;
@@ -100,13 +94,13 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
     fail("has a LASzip VLR of " + std::to_string(zip->length) + " bytes: expected at least 34");
   }
   LaszipVlr z;
-  z.compressor = get<std::uint16_t>(zip->data + 0);
-  z.coder = get<std::uint16_t>(zip->data + 2);
+  z.compressor = load_le<std::uint16_t>(zip->data + 0);
+  z.coder = load_le<std::uint16_t>(zip->data + 2);
   z.major = static_cast<unsigned char>(zip->data[4]);
   z.minor = static_cast<unsigned char>(zip->data[5]);
-  z.revision = get<std::uint16_t>(zip->data + 6);
-  z.chunk_size = get<std::uint32_t>(zip->data + 12);
-  const std::size_t n_items = get<std::uint16_t>(zip->data + 32);
+  z.revision = load_le<std::uint16_t>(zip->data + 6);
+  z.chunk_size = load_le<std::uint32_t>(zip->data + 12);
+  const std::size_t n_items = load_le<std::uint16_t>(zip->data + 32);
   if (zip->length < 34 + 6 * n_items) {
     fail("has a LASzip VLR of " + std::to_string(zip->length) + " bytes listing " + std::to_string(n_items) +
          " items: expected " + std::to_string(34 + 6 * n_items) + " bytes");
@@ -115,7 +109,7 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
   std::string item_list;
   for (std::size_t i = 0; i < n_items; ++i) {
     const char* p = zip->data + 34 + 6 * i;
-    laz::Item it{get<std::uint16_t>(p), get<std::uint16_t>(p + 2), get<std::uint16_t>(p + 4)};
+    laz::Item it{load_le<std::uint16_t>(p), load_le<std::uint16_t>(p + 2), load_le<std::uint16_t>(p + 4)};
     item_bytes += it.size;
     item_list += (item_list.empty() ? "" : ", ") + laz::item_name(it.type) + " v" + std::to_string(it.version);
     z.items.push_back(it);
@@ -174,9 +168,9 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
     chunks.push_back({offset, size, count});
   } else {
     if (size - offset < 8) fail("ends at byte " + std::to_string(size) + " inside the chunk table offset at byte " + std::to_string(offset));
-    std::int64_t table = get<std::int64_t>(b + offset);
+    std::int64_t table = load_le<std::int64_t>(b + offset);
     if (table == -1) {
-      table = size >= 8 ? get<std::int64_t>(b + size - 8) : -1;  // written at the end by a streaming writer
+      table = size >= 8 ? load_le<std::int64_t>(b + size - 8) : -1;  // written at the end by a streaming writer
     }
     if (table < static_cast<std::int64_t>(offset + 8) || static_cast<std::uint64_t>(table) > size - 8) {
       fail("stores its chunk table offset " + std::to_string(table) + " at byte " + std::to_string(offset) +
@@ -184,8 +178,8 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
            " (file of " + std::to_string(size) + " bytes; truncated file?)");
     }
     const std::size_t t = static_cast<std::size_t>(table);
-    const std::uint32_t table_version = get<std::uint32_t>(b + t);
-    const std::uint64_t n_chunks = get<std::uint32_t>(b + t + 4);
+    const std::uint32_t table_version = load_le<std::uint32_t>(b + t);
+    const std::uint64_t n_chunks = load_le<std::uint32_t>(b + t + 4);
     if (table_version != 0) {
       fail("has chunk table version " + std::to_string(table_version) + " at byte " + std::to_string(t) +
            ": expected 0");
@@ -254,7 +248,7 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
     } else {
       std::size_t at = ch.begin + record_length;
       if (ch.end - at < 4) chunk_fail("ends before its point count (truncated?)");
-      const std::uint32_t n = get<std::uint32_t>(b + at);
+      const std::uint32_t n = load_le<std::uint32_t>(b + at);
       at += 4;
       (void)n;  // the chunk's own point count; the chunk table's count is the one used (as LASzip does)
       std::vector<std::unique_ptr<laz::LayeredItem>> dec;
@@ -264,7 +258,7 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
         std::vector<std::size_t> s(dec.back()->layer_count());
         for (auto& v : s) {
           if (ch.end - at < 4) chunk_fail("ends inside its layer sizes at byte " + std::to_string(at) + " (truncated?)");
-          v = get<std::uint32_t>(b + at);
+          v = load_le<std::uint32_t>(b + at);
           at += 4;
         }
         sizes.push_back(std::move(s));
