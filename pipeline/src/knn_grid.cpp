@@ -634,8 +634,81 @@ class GridPointQueries {
     std::vector<float> d2, near;
     SmallestK top;
     std::vector<std::pair<std::uint32_t, float>> found;
+    std::vector<std::pair<float, std::uint32_t>> pairs;  // (squared distance, input index)
     float hint = 0.0f;
   };
+
+  // The k nearest neighbours of the point at sorted position `sorted`, itself excluded, as input
+  // indices (equal distances ordered by input index, so the set does not depend on the grid):
+  // blocks of 3³, 5³ and 7³ cells, exact when the k-th distance is within the block's clearance;
+  // else the cell-centre tree bounds the k-th distance and every cell within reach is searched.
+  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out) const {
+    const float pt[3] = {g_.x[sorted], g_.y[sorted], g_.z[sorted]};
+    const std::array<std::int64_t, 3> c = {g_.index_of(pt[0], 0), g_.index_of(pt[1], 1), g_.index_of(pt[2], 2)};
+    const std::size_t k = k1_ - 1;
+    auto& cand = s.pairs;
+    auto add = [&](std::size_t pb, std::size_t pe) {
+      for (std::size_t q = pb; q < pe; ++q) {
+        if (q == sorted) continue;
+        const float dx = g_.x[q] - pt[0], dy = g_.y[q] - pt[1], dz = g_.z[q] - pt[2];
+        cand.emplace_back(dx * dx + dy * dy + dz * dz, g_.original[q]);
+      }
+    };
+    auto finish = [&] {
+      std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
+      out.clear();
+      for (std::size_t i = 0; i < k; ++i) out.push_back(cand[i].second);
+    };
+    float best_kth = std::numeric_limits<float>::infinity();
+    for (std::int64_t r = 1; r <= 3; ++r) {
+      cand.clear();
+      for (std::int64_t dz = -r; dz <= r; ++dz) {
+        for (std::int64_t dy = -r; dy <= r; ++dy) {
+          const std::int64_t iy = c[1] + dy, iz = c[2] + dz;
+          if (iy < 0 || iz < 0 || iy >= g_.n[1] || iz >= g_.n[2]) continue;
+          const std::int64_t x0 = std::max<std::int64_t>(0, c[0] - r), x1 = std::min(g_.n[0] - 1, c[0] + r);
+          const std::size_t a = lower(g_.key(x0, iy, iz)), b = lower(g_.key(x1, iy, iz) + 1);
+          if (b > a) add(g_.cell_start[a], g_.cell_start[b]);
+        }
+      }
+      if (cand.size() < k) continue;
+      std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
+      best_kth = std::min(best_kth, cand[k - 1].first);
+      if (settled(cand[k - 1].first, block_clearance(g_, c, r, pt))) {
+        finish();
+        return;
+      }
+    }
+    std::call_once(tree_once_, [&] {
+      centres_ = cell_centres(g_);
+      tree_ = std::make_unique<CellTree>(3, centres_, nanoflann::KDTreeSingleIndexAdaptorParams(16));
+    });
+    if (!std::isfinite(best_kth)) {
+      // An upper bound of the k-th distance: the nearest cells holding at least k other points.
+      for (std::size_t want = 8;; want *= 4) {
+        want = std::min(want, centres_.kdtree_get_point_count());
+        std::vector<std::uint32_t> ids(want);
+        std::vector<float> dd(want);
+        const std::size_t got = tree_->knnSearch(pt, want, ids.data(), dd.data());
+        cand.clear();
+        for (std::size_t i = 0; i < got; ++i) add(g_.cell_start[ids[i]], g_.cell_start[ids[i] + 1]);
+        if (cand.size() >= k || want == centres_.kdtree_get_point_count()) break;
+      }
+      std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
+      best_kth = cand[k - 1].first;
+    }
+    const double reach = std::sqrt(static_cast<double>(best_kth)) * (1.0 + 1e-5) + 0.8661 * g_.cell + 1e-6 * g_.cell +
+                         1e-6 * knn_.extent();
+    s.found.clear();
+    tree_->radiusSearch(pt, static_cast<float>(reach * reach), s.found, nanoflann::SearchParams(32, 0.0f, false));
+    cand.clear();
+    for (const auto& f : s.found) add(g_.cell_start[f.first], g_.cell_start[f.first + 1]);
+    if (cand.size() < k) {  // cannot happen (the bound's own points are in reach)
+      cand.clear();
+      add(0, g_.x.size());
+    }
+    finish();
+  }
 
   float mean_distance(std::uint32_t sorted, Scratch& s) const {
     const float pt[3] = {g_.x[sorted], g_.y[sorted], g_.z[sorted]};
@@ -762,6 +835,10 @@ PointQueries::Scratch::~Scratch() = default;
 
 float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s) const {
   return impl_->mean_distance(sorted, *s.state_);
+}
+
+void PointQueries::nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out) const {
+  impl_->nearest(sorted, *s.state_, out);
 }
 
 void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx, int bits) {

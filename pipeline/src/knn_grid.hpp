@@ -89,6 +89,12 @@ class PointQueries {
   /// Mean distance from the point at sorted grid position `sorted` to its k nearest neighbours.
   float mean_distance(std::uint32_t sorted, Scratch& s) const;
 
+  /// The k nearest neighbours of the point at sorted grid position `sorted`, itself excluded, as
+  /// input indices in `out` (size k; needs at least k + 1 points in the grid). Exact; equal
+  /// squared distances (float) are ordered by input index, so the set does not depend on the
+  /// grid. Blocks of 3³, 5³, 7³ cells, then the cell-centre kd-tree (as mean_distance).
+  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out) const;
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;

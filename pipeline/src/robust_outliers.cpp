@@ -134,6 +134,11 @@ class ExactDistances {
     });
     return len;
   }
+  // Input indices of the k nearest neighbours of the point at sorted position s (exact, itself
+  // excluded, equal distances ordered by input index: PointQueries::nearest).
+  void neighbours(std::uint32_t s, PointQueries::Scratch& scratch, std::vector<std::uint32_t>& out) const {
+    q_.nearest(s, scratch, out);
+  }
   float operator[](std::size_t j) const { return d_[j]; }
   std::uint32_t pos(std::size_t j) const { return pos_[j]; }
 
@@ -153,55 +158,6 @@ std::pair<std::uint32_t, std::uint32_t> cell_range(const CellGrid& g, std::int64
   const std::size_t c = g.lower(key);
   if (c >= g.cells() || g.cell_key[c] != key) return {0, 0};
   return {g.cell_start[c], g.cell_start[c + 1]};
-}
-
-// Input indices of the k nearest neighbours of the point at sorted position s (itself excluded;
-// equal distances ordered by input index, so the set does not depend on the grid), exact: blocks of (2r+1)³ cells for r = 1, 2, 4, 8, 16 until the k-th distance is
-// within the block's clearance, else all points.
-void knn_sorted(const CellGrid& g, std::uint32_t s, int k, std::vector<std::pair<float, std::uint32_t>>& cand,
-                std::vector<std::uint32_t>& out) {
-  const float pt[3] = {g.x[s], g.y[s], g.z[s]};
-  const std::array<std::int64_t, 3> c = {g.index_of(pt[0], 0), g.index_of(pt[1], 1), g.index_of(pt[2], 2)};
-  const auto k1 = static_cast<std::size_t>(k);
-  auto add = [&](std::uint32_t b, std::uint32_t e) {
-    for (std::uint32_t q = b; q < e; ++q) {
-      if (q == s) continue;
-      const float dx = g.x[q] - pt[0], dy = g.y[q] - pt[1], dz = g.z[q] - pt[2];
-      cand.emplace_back(dx * dx + dy * dy + dz * dz, g.original[q]);  // ties: by input index
-    }
-  };
-  auto finish = [&] {
-    std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k1 - 1), cand.end());
-    out.clear();
-    for (std::size_t i = 0; i < k1; ++i) out.push_back(cand[i].second);
-  };
-  for (std::int64_t r = 1; r <= 16; r *= 2) {
-    cand.clear();
-    for (std::int64_t dz = -r; dz <= r; ++dz) {
-      for (std::int64_t dy = -r; dy <= r; ++dy) {
-        const std::int64_t iy = c[1] + dy, iz = c[2] + dz;
-        if (iy < 0 || iz < 0 || iy >= g.n[1] || iz >= g.n[2]) continue;
-        const std::int64_t x0 = std::max<std::int64_t>(0, c[0] - r), x1 = std::min(g.n[0] - 1, c[0] + r);
-        const std::size_t a = g.lower(g.key(x0, iy, iz)), b = g.lower(g.key(x1, iy, iz) + 1);
-        if (b > a) add(g.cell_start[a], g.cell_start[b]);
-      }
-    }
-    if (cand.size() < k1) continue;
-    double rho = std::numeric_limits<double>::infinity();
-    for (std::size_t a = 0; a < 3; ++a) {
-      const double v = pt[a];
-      if (c[a] - r > 0) rho = std::min(rho, v - (g.lo[a] + static_cast<double>(c[a] - r) * g.cell));
-      if (c[a] + r < g.n[a] - 1) rho = std::min(rho, (g.lo[a] + static_cast<double>(c[a] + r + 1) * g.cell) - v);
-    }
-    std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k1 - 1), cand.end());
-    if (std::isinf(rho) || static_cast<double>(cand[k1 - 1].first) * (1.0 + 1e-5) <= rho * rho) {
-      finish();
-      return;
-    }
-  }
-  cand.clear();
-  add(0, static_cast<std::uint32_t>(g.x.size()));
-  finish();
 }
 
 StageReport make_report(const char* stage, std::size_t in) {
@@ -368,14 +324,14 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   {
     const int th = cand.size() >= 256 ? kSearchThreads : 1;
     run_parallel(th, [&](int t) {
-      std::vector<std::pair<float, std::uint32_t>> scratch;
+      PointQueries::Scratch scratch(k);
       std::vector<std::uint32_t> knn;
       const std::size_t b = cand.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
       const std::size_t e = cand.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
       for (std::size_t i = b; i < e; ++i) {
         const std::uint32_t s = d.pos(cand[i]);
         if (s == kNone) continue;
-        knn_sorted(g, s, k, scratch, knn);
+        d.neighbours(s, scratch, knn);
         nbrs[i].clear();
         nbrs[i] = knn;
         if (static_cast<double>(d[cand[i]]) <= d_glob) continue;

@@ -13,6 +13,7 @@
 #include "hc/pipeline/robust_outliers.hpp"
 #include "hc/pipeline/run.hpp"
 
+#include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
 
 #include "test_paths.hpp"
@@ -286,6 +287,111 @@ TEST(RobustOutliers, DensityGradientKeepsItsPoints) {
   const auto r = remove_outliers_robust(c, RobustOutlierOptions{}, FarClusterOptions{});
   const double lost = static_cast<double>(c.size() - r.value.size());
   EXPECT_LE(lost, 0.005 * static_cast<double>(c.size())) << lost << " of " << c.size();
+}
+
+// The median as the rule defines it: the middle value, or the mean of the two middle ones.
+double median_value(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const std::size_t h = v.size() / 2;
+  return v.size() % 2 ? v[h] : 0.5 * (v[h - 1] + v[h]);
+}
+
+TEST(RobustOutliers, RemovedSetIsTheRuleAppliedToEveryPointByBruteForce) {
+  // Oracle: the rule of robust_outliers.hpp evaluated by brute force in double precision (every
+  // pairwise distance, neighbours ordered by distance then input index), on a cloud made to take
+  // every search path: a wavy surface (4 000 points, 0.1 mm noise), a coherent patch at 3 %
+  // density beside it, 200 points of clutter in the box around both and three points 10 m away
+  // (their neighbours lie only on the far side of empty space).
+  std::mt19937 rng(21);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> noise(0.0, 1e-4);
+  std::vector<Eigen::Vector3d> pts;
+  auto surface = [](double x, double y) { return 0.01 * std::sin(20.0 * x) * std::cos(15.0 * y); };
+  for (int i = 0; i < 4000; ++i) {
+    const double x = 0.2 * u(rng), y = 0.2 * u(rng);
+    pts.emplace_back(x, y, surface(x, y) + noise(rng));
+  }
+  for (int i = 0; i < 120; ++i) {
+    const double x = 0.2 + 0.2 * u(rng), y = 0.2 * u(rng);
+    pts.emplace_back(x, y, surface(x, y) + noise(rng));
+  }
+  for (int i = 0; i < 200; ++i) pts.emplace_back(0.4 * u(rng), 0.2 * u(rng), -0.05 + 0.1 * u(rng));
+  for (int i = 0; i < 3; ++i) pts.emplace_back(10.0 + 2.0 * i, -7.0 * i, 3.0);
+  Cloud c;
+  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
+  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
+  c.intensity.resize(pts.size());
+  for (std::size_t i = 0; i < pts.size(); ++i) c.intensity[i] = static_cast<float>(i);  // input index
+
+  RobustOutlierOptions o;  // k 16, local_ratio 3, mad_multiplier 8, max_surface_variation 0.05
+  o.sample = pts.size();   // the median and MAD over every point
+  const auto r = remove_robust_outliers(c, o);
+
+  const std::size_t n = pts.size(), k = static_cast<std::size_t>(o.k);
+  std::vector<std::vector<std::size_t>> nb(n);
+  std::vector<double> d(n);
+  std::vector<std::pair<double, std::size_t>> all(n - 1);
+  for (std::size_t i = 0; i < n; ++i) {
+    all.clear();
+    for (std::size_t j = 0; j < n; ++j) {
+      if (j != i) all.emplace_back((pts[i] - pts[j]).squaredNorm(), j);
+    }
+    std::partial_sort(all.begin(), all.begin() + static_cast<std::ptrdiff_t>(k), all.end());
+    double sum = 0.0;
+    for (std::size_t q = 0; q < k; ++q) {
+      sum += std::sqrt(all[q].first);
+      nb[i].push_back(all[q].second);
+    }
+    d[i] = sum / static_cast<double>(k);
+  }
+  std::vector<double> logs;
+  for (const double v : d) {
+    if (v > 0.0) logs.push_back(std::log(v));
+  }
+  const auto step = [](double v) { return std::round(v * 128.0) / 128.0; };
+  const double med = step(median_value(logs));
+  for (double& v : logs) v = std::abs(v - med);
+  const double sigma = 1.4826 * step(median_value(logs));
+  const double d_med = std::exp(med);
+  const double d_glob = std::max(std::exp(med + o.mad_multiplier * sigma), o.local_ratio * d_med);
+  EXPECT_NEAR(figure(r.report, "median_knn_distance_mm"), d_med * 1e3, 1e-9);
+  EXPECT_NEAR(figure(r.report, "global_threshold_mm"), d_glob * 1e3, 1e-9);
+
+  std::vector<bool> removed(n, false);
+  std::size_t n_global = 0, n_local = 0, clutter_removed = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    bool global = false;
+    if (d[i] > d_glob) {
+      Eigen::Vector3d mean = pts[i];
+      for (const std::size_t j : nb[i]) mean += pts[j];
+      mean /= static_cast<double>(k + 1);
+      Eigen::Matrix3d cov = (pts[i] - mean) * (pts[i] - mean).transpose();
+      for (const std::size_t j : nb[i]) cov += (pts[j] - mean) * (pts[j] - mean).transpose();
+      const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvalues();
+      global = ev.sum() > 0.0 && std::max(ev(0), 0.0) / ev.sum() > o.max_surface_variation;
+    }
+    std::vector<double> nd;
+    for (const std::size_t j : nb[i]) nd.push_back(d[j]);
+    const bool local = !global && d[i] > o.local_ratio * std::max(median_value(nd), d_med);
+    removed[i] = global || local;
+    n_global += global ? 1u : 0u;
+    n_local += local ? 1u : 0u;
+    clutter_removed += removed[i] && i >= 4120 ? 1u : 0u;
+  }
+  // The case is not trivial: both tests remove points, and most of the clutter goes.
+  EXPECT_GT(n_global, 100u);
+  EXPECT_GT(n_local, 0u);
+  EXPECT_GT(clutter_removed, 150u);
+  EXPECT_EQ(figure(r.report, "removed_global"), static_cast<double>(n_global));
+  EXPECT_EQ(figure(r.report, "removed_local"), static_cast<double>(n_local));
+  std::vector<bool> kept(n, false);
+  for (const float t : r.value.intensity) kept[static_cast<std::size_t>(t)] = true;
+  std::size_t mismatches = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (kept[i] != removed[i]) continue;  // kept exactly when the rule keeps it
+    if (++mismatches <= 5) ADD_FAILURE() << "point " << i << (removed[i] ? " kept, the rule removes it" : " removed, the rule keeps it");
+  }
+  EXPECT_EQ(mismatches, 0u);
 }
 
 TEST(RobustOutliers, BadOptionsAreConfigErrors) {
