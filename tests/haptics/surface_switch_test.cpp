@@ -39,7 +39,7 @@ class PinnedDevice final : public HapticDevice {
   DeviceStatus do_write(const Vector3d&) noexcept override { return DeviceStatus::kOk; }
 };
 
-std::unique_ptr<HapticSurface> flat(double z_m) {
+std::unique_ptr<HapticSurface> flat_surface(double z_m) {
   return test::make_surface(test::make_square(41, 0.1, [z_m](double, double) { return z_m; }));
 }
 
@@ -65,7 +65,7 @@ class SurfaceSwitchPressed : public ::testing::Test {
     press(*loop_, dev, clock, shared);
     return *loop_;
   }
-  SharedState shared{flat(0.0)};
+  SharedState shared{flat_surface(0.0)};
   ManualClock clock;
   PinnedDevice dev;
   ServoConfig cfg;
@@ -115,7 +115,7 @@ TEST_F(SurfaceSwitchPressed, ForceStepIsLimitedAndRampsInWhenTheHipEndsUpInside)
   loop.set_trace(trace);
   loop.run_ticks(5, clock);
   // The new surface is 5 mm higher: the HIP ends up 7 mm inside (5.6 N).
-  shared.publish_surface(flat(0.005), WorkspaceMap{}, 2);
+  shared.publish_surface(flat_surface(0.005), WorkspaceMap{}, 2);
   loop.run_ticks(395, clock);
   ASSERT_EQ(loop.trace_size(), 400U);
   double worst_step = 0.0;
@@ -136,7 +136,7 @@ TEST_F(SurfaceSwitchPressed, ForceStepIsLimitedAndRampsInWhenTheHipEndsUpInside)
 
 TEST_F(SurfaceSwitchPressed, SmallChangesAreNotBlendedAndOldPublicationsStillWork) {
   ServoLoop& loop = start();
-  shared.publish_surface(flat(0.0002));  // without a map: the map stays
+  shared.publish_surface(flat_surface(0.0002));  // without a map: the map stays
   loop.run_ticks(1, clock);
   Snapshot s;
   ASSERT_TRUE(shared.snapshots.read(s));
@@ -205,7 +205,7 @@ TEST(SurfaceSwitch, InvalidMapsAndLimitsAreRejected) {
   SharedState shared;
   WorkspaceMap bad;
   bad.scale = 0.0;
-  EXPECT_THROW(shared.publish_surface(flat(0.0), bad, 1), ConfigError);
+  EXPECT_THROW(shared.publish_surface(flat_surface(0.0), bad, 1), ConfigError);
   EXPECT_FALSE(shared.surface_pending());
   ManualClock clock;
   PinnedDevice dev;
@@ -221,7 +221,7 @@ TEST(SurfaceSwitch, InvalidMapsAndLimitsAreRejected) {
 }
 
 TEST(SurfaceSwitch, ThreadedPublicationsWithMapsAreAdoptedInOrder) {
-  SharedState shared(flat(0.0));
+  SharedState shared(flat_surface(0.0));
   SteadyClock clock;
   PinnedDevice dev;
   dev.position = Vector3d(0.0, 0.0, -0.001);
@@ -245,7 +245,7 @@ TEST(SurfaceSwitch, ThreadedPublicationsWithMapsAreAdoptedInOrder) {
   for (std::uint64_t tag = 1; tag <= 40; ++tag) {
     WorkspaceMap m;
     m.scale = 1.0 + 0.01 * static_cast<double>(tag);
-    shared.publish_surface(flat(0.0001 * static_cast<double>(tag % 3)), m, tag);
+    shared.publish_surface(flat_surface(0.0001 * static_cast<double>(tag % 3)), m, tag);
     last = tag;
     std::this_thread::sleep_for(std::chrono::microseconds(300));
     observe();

@@ -29,7 +29,7 @@ using haptics::CommandType;
 using haptics::DeviceState;
 
 /// A sinusoid of amplitude `amp` [m], wavelength 40 mm, over a 100 mm square of n × n samples.
-std::shared_ptr<LodPyramid> sinusoid_pyramid(int n, double amp) {
+std::shared_ptr<LodPyramid> wave_pyramid(int n, double amp) {
   const double side = 0.1, cell = side / (n - 1);
   HeightField depth(GridGeometry{n, n, -side / 2, -side / 2, cell});
   const double k = 2 * std::numbers::pi / 0.04;
@@ -54,7 +54,7 @@ struct TickSeen {
 class SwapRig {
  public:
   SwapRig() {
-    lod_a = std::make_unique<LodController>(sinusoid_pyramid(121, 0.004), shared, test::controller_options(false));
+    lod_a = std::make_unique<LodController>(wave_pyramid(121, 0.004), shared, test::controller_options(false));
     // Two windows, so scene A's tag (2) differs from the first tag of scene B's controller (1).
     lod_a->set_level(1);
     const HapticWindow& w = lod_a->set_level(0);
@@ -89,7 +89,7 @@ class SwapRig {
     ++publishes;
     state_at_publish = device->state();
     force_at_publish_n = device->last_force_n().norm();
-    lod_b = std::make_unique<LodController>(sinusoid_pyramid(121, 0.002), shared, test::controller_options(false));
+    lod_b = std::make_unique<LodController>(wave_pyramid(121, 0.002), shared, test::controller_options(false));
     tag_b = lod_b->centre_window(0, 0.0, 0.0).tag;
     return tag_b;
   }
