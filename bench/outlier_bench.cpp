@@ -3,6 +3,7 @@
 // std_multiplier 2) with 2 % uniform outliers added in its bounding box (22 k points, fixed seed):
 //   BM_ExactSor          remove_statistical_outliers (method statistical, scope all)
 //   BM_RobustTest        remove_robust_outliers (the robust test alone)
+//   BM_RobustOffSurface  the robust test with off_surface_ratio 0 (off), 1.5 and 2 (default)
 //   BM_RobustAndFar      remove_outliers_robust (the robust test, then far-cluster removal: what
 //                        build_scene runs with method robust)
 // Counters: caught = injected outliers removed / injected; lost = true points removed / true
@@ -86,6 +87,20 @@ void BM_RobustTest(benchmark::State& state) {
   quality(state, kept);
 }
 
+// The robust test at off_surface_ratio = range(0) / 10 (0 = no off-surface test; the default
+// is 2.0): outliers caught against true points lost, and the exact queries it costs.
+void BM_RobustOffSurface(benchmark::State& state) {
+  if (!have_buddha(state)) return;
+  hc::pipeline::RobustOutlierOptions o;
+  o.off_surface_ratio = static_cast<double>(state.range(0)) / 10.0;
+  hc::pipeline::StageResult<Cloud> r;
+  for (auto _ : state) r = hc::pipeline::remove_robust_outliers(*cluttered(), o);
+  quality(state, r.value);
+  for (const auto& [k, v] : r.report.figures) {
+    if (k == "exact_queries" || k == "removed_off_surface") state.counters[k] = v;
+  }
+}
+
 void BM_RobustAndFar(benchmark::State& state) {
   if (!have_buddha(state)) return;
   hc::pipeline::StageResult<Cloud> r;
@@ -104,6 +119,7 @@ void BM_RobustAndFar(benchmark::State& state) {
 BENCHMARK(BM_ExactSor)->HC_OUTLIER_BENCH_SETTINGS;
 BENCHMARK(BM_RobustTest)->HC_OUTLIER_BENCH_SETTINGS;
 BENCHMARK(BM_RobustAndFar)->HC_OUTLIER_BENCH_SETTINGS;
+BENCHMARK(BM_RobustOffSurface)->Arg(0)->Arg(15)->Arg(20)->HC_OUTLIER_BENCH_SETTINGS;
 
 }  // namespace
 

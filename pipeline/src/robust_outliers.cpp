@@ -44,6 +44,10 @@ using detail::seconds_since;
 using hc::format_number;
 
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+// The off-surface test (robust_outliers.hpp): points with d_i above off_surface_ratio × d_med
+// whose k neighbours form a surface are removed when they stand off its least-squares plane by
+// more than kOffSurfaceFraction × d_i.
+constexpr double kOffSurfaceFraction = 0.5;
 
 std::uint64_t splitmix64(std::uint64_t x) {
   x += 0x9E3779B97F4A7C15ull;
@@ -184,6 +188,10 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     throw ConfigError("remove_robust_outliers: max_surface_variation = " + format_number(o.max_surface_variation) +
                       ", expected 0..1/3");
   }
+  if (!(o.off_surface_ratio == 0.0 || (o.off_surface_ratio > 1.0 && std::isfinite(o.off_surface_ratio)))) {
+    throw ConfigError("remove_robust_outliers: off_surface_ratio = " + format_number(o.off_surface_ratio) +
+                      ", expected 0 (off) or a finite value > 1");
+  }
   if (o.sample < 2) throw ConfigError("remove_robust_outliers: sample = " + std::to_string(o.sample) + ", expected at least 2");
   StageReport report = make_report("outliers", cloud.size());
   const std::vector<std::uint32_t> rows = finite_rows(cloud, "remove_robust_outliers");
@@ -224,8 +232,12 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   const double mad = step(median_of(logs));
   const double sigma = 1.4826 * mad;
   const double d_med = std::exp(med);
-  const double d_cert = o.local_ratio * d_med;
-  const double d_glob = std::max(std::exp(med + o.mad_multiplier * sigma), d_cert);
+  const double d_local = o.local_ratio * d_med;
+  const double d_glob = std::max(std::exp(med + o.mad_multiplier * sigma), d_local);
+  // Below d_cert no test can fail: the local and global tests need d_i > d_local, the
+  // off-surface test d_i > d_off.
+  const double d_off = o.off_surface_ratio > 0.0 ? o.off_surface_ratio * d_med : std::numeric_limits<double>::infinity();
+  const double d_cert = std::min(d_local, d_off);
   const double t_sample = seconds_since(t0);
 
   // 2. Counting pass: at least k other points within d_cert (own cell, then the cells of the
@@ -309,9 +321,9 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   }
   const double t_cert = seconds_since(t0);
 
-  // 3. Exact d for the rest; the candidates of both tests (d > d_cert).
+  // 3. Exact d for the rest; the candidates of the tests (d > d_cert).
   queries += d.compute(uncertain);
-  std::vector<std::uint8_t> out(n, 0);  // 1 = global, 2 = local
+  std::vector<std::uint8_t> out(n, 0);  // 1 = global, 2 = local, 3 = off surface
   std::vector<std::uint32_t> cand;
   for (const std::uint32_t j : uncertain) {
     if (static_cast<double>(d[j]) > d_cert) cand.push_back(j);
@@ -320,7 +332,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
 
   // 4. Neighbours of the candidates (exact); surface variation of those above d_glob.
   std::vector<std::vector<std::uint32_t>> nbrs(cand.size());
-  std::vector<double> variation(cand.size(), 0.0);
+  std::vector<double> variation(cand.size(), 0.0), off_plane(cand.size(), 0.0);
   {
     const int th = cand.size() >= 256 ? kSearchThreads : 1;
     run_parallel(th, [&](int t) {
@@ -334,19 +346,26 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         d.neighbours(s, scratch, knn);
         nbrs[i].clear();
         nbrs[i] = knn;
-        if (static_cast<double>(d[cand[i]]) <= d_glob) continue;
-        // Surface variation λ0 / (λ0 + λ1 + λ2) of the point and its k neighbours (Pauly et al.
-        // 2002): near 0 on a surface or a line at any density, about 1/3 in isotropic clutter.
+        // Surface variation λ0 / (λ0 + λ1 + λ2) (Pauly et al. 2002), near 0 on a surface or a line
+        // at any density, about 1/3 in isotropic clutter: above d_glob of the point and its k
+        // neighbours; below it of the neighbours alone, with the point's distance from their
+        // least-squares plane (normal = eigenvector of λ0) as a fraction of d_i.
+        const bool above = static_cast<double>(d[cand[i]]) > d_glob;
         Eigen::Vector3d mean = Eigen::Vector3d::Zero();
         auto at = [&](std::uint32_t q) { return Eigen::Vector3d(g.x[q], g.y[q], g.z[q]); };
-        mean += at(s);
+        if (above) mean += at(s);
         for (const std::uint32_t q : knn) mean += at(d.pos(q));
-        mean /= static_cast<double>(knn.size() + 1);
-        Eigen::Matrix3d cov = (at(s) - mean) * (at(s) - mean).transpose();
+        mean /= static_cast<double>(knn.size() + (above ? 1 : 0));
+        Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+        if (above) cov += (at(s) - mean) * (at(s) - mean).transpose();
         for (const std::uint32_t q : knn) cov += (at(d.pos(q)) - mean) * (at(d.pos(q)) - mean).transpose();
-        const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov, Eigen::EigenvaluesOnly).eigenvalues();
+        const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
+        const Eigen::Vector3d ev = es.eigenvalues();
         const double tr = ev.sum();
         variation[i] = tr > 0.0 ? std::max(ev(0), 0.0) / tr : 0.0;
+        if (above) continue;
+        const double di = static_cast<double>(d[cand[i]]);
+        off_plane[i] = di > 0.0 ? std::abs(es.eigenvectors().col(0).dot(at(s) - mean)) / di : 0.0;
       }
     });
   }
@@ -359,15 +378,19 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         continue;
       }
       ++n_planar;
+    } else if (static_cast<double>(d[cand[i]]) > d_off && variation[i] <= o.max_surface_variation &&
+               off_plane[i] > kOffSurfaceFraction) {
+      out[cand[i]] = 3;
+      continue;
     }
-    need.insert(need.end(), nbrs[i].begin(), nbrs[i].end());
+    if (static_cast<double>(d[cand[i]]) > d_local) need.insert(need.end(), nbrs[i].begin(), nbrs[i].end());
   }
   queries += d.compute(need);
 
   // 5. Local test against the neighbours' median distance.
-  std::size_t n_local = 0, n_global = 0, local_tests = 0;
+  std::size_t n_local = 0, n_global = 0, n_off = 0, local_tests = 0;
   for (std::size_t i = 0; i < cand.size(); ++i) {
-    if (out[cand[i]] != 0) continue;
+    if (out[cand[i]] != 0 || static_cast<double>(d[cand[i]]) <= d_local) continue;
     ++local_tests;
     std::vector<double> nd;
     nd.reserve(nbrs[i].size());
@@ -379,6 +402,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   for (std::size_t j = 0; j < n; ++j) {
     n_global += out[j] == 1 ? 1u : 0u;
     n_local += out[j] == 2 ? 1u : 0u;
+    n_off += out[j] == 3 ? 1u : 0u;
     keep[rows[j]] = out[j] == 0;
   }
   cloud.keep_if(keep);
@@ -397,9 +421,12 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   report.figure("max_surface_variation", o.max_surface_variation);
   report.figure("local_tests", static_cast<double>(local_tests));
   report.figure("coherent_above_global", static_cast<double>(n_planar));
-  report.figure("removed_robust", static_cast<double>(n_global + n_local));
+  report.figure("removed_robust", static_cast<double>(n_global + n_local + n_off));
   report.figure("removed_global", static_cast<double>(n_global));
   report.figure("removed_local", static_cast<double>(n_local));
+  report.figure("removed_off_surface", static_cast<double>(n_off));
+  report.figure("local_threshold_mm", d_local * 1e3);
+  report.figure("off_surface_ratio", o.off_surface_ratio);
   report.figure("duplicates_left_out", static_cast<double>(g.zero.size()));
   report.figure("knn_grid_cell_mm", g.cell * 1e3);
   report.figure("grid_s", t_grid);
@@ -411,7 +438,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
                          format_number(d_glob * 1e3) + " mm (median " + format_number(d_med * 1e3) + " mm, sigma(ln d) " +
                          format_number(sigma) + ") whose neighbourhood is not a surface (" + std::to_string(n_planar) +
                          " such points lie on one and were judged locally) and " + std::to_string(n_local) + " more than " +
-                         format_number(o.local_ratio) + " x sparser than their neighbours; " + std::to_string(n_certified) +
+                         format_number(o.local_ratio) + " x sparser than their neighbours and " + std::to_string(n_off) +
+                         " standing off their neighbours' surface; " + std::to_string(n_certified) +
                          " of " + std::to_string(n) + " points settled by counting");
   if (n != report.count_in) report.notes.push_back("dropped " + std::to_string(report.count_in - n) + " non-finite points");
   report.seconds = seconds_since(t0);

@@ -318,6 +318,7 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
         ro.k = oc.k;
         ro.local_ratio = oc.local_ratio;
         ro.mad_multiplier = oc.mad_multiplier;
+        ro.off_surface_ratio = oc.off_surface_ratio;
         return remove_outliers_robust(std::move(cloud), ro, oc.far_clusters);
       }
       if (config.filters.outliers.scope == OutlierScope::kFront) {

@@ -163,6 +163,26 @@ TEST(RobustOutliers, CountingPassDecidesLikeTestingEveryPoint) {
   EXPECT_GT(figure(a.report, "certified"), 0.8 * static_cast<double>(c.size()));
 }
 
+TEST(RobustOutliers, UniformClutterOfOneToFivePercentGoesAndTruePointsStay) {
+  // Oracle: the tags of the injected points. Clutter uniform in the bunny's bounding box at 1, 2
+  // and 5 %: at least 95 % of it goes, at most 0.5 % of the scan's points. Without the
+  // off-surface test more than 5 % stays (clutter within a few spacings of the surface, whose
+  // neighbours are surface points), so the case keeps testing that test.
+  for (const double share : {0.01, 0.02, 0.05}) {
+    const auto count = static_cast<std::size_t>(share * static_cast<double>(bunny().size()));
+    const Cloud c = with_extra(bunny(), uniform_in_box(count, 5));
+    const auto r = remove_outliers_robust(c, {}, {});
+    const Kept k = kept_of(r.value);
+    EXPECT_LE(static_cast<double>(k.injected), 0.05 * static_cast<double>(count)) << share << ": " << k.injected << " of " << count << " kept";
+    EXPECT_GE(static_cast<double>(k.truth), 0.995 * static_cast<double>(bunny().size())) << share;
+    EXPECT_GT(figure(r.report, "removed_off_surface"), 0.0) << share;
+    RobustOutlierOptions without;
+    without.off_surface_ratio = 0.0;
+    EXPECT_GT(static_cast<double>(kept_of(remove_outliers_robust(c, without, {}).value).injected), 0.05 * static_cast<double>(count))
+        << share;
+  }
+}
+
 TEST(RobustOutliers, FarPointLeavesTheGridIdenticalToTheCleanRun) {
   const Eigen::Vector3d lo = bunny().xyz.rowwise().minCoeff(), hi = bunny().xyz.rowwise().maxCoeff();
   const Cloud c = with_extra(bunny(), {Eigen::Vector3d(hi.x() + 1000.0, 0.5 * (lo.y() + hi.y()), 0.5 * (lo.z() + hi.z()))});
@@ -358,10 +378,11 @@ TEST(RobustOutliers, RemovedSetIsTheRuleAppliedToEveryPointByBruteForce) {
   EXPECT_NEAR(figure(r.report, "global_threshold_mm"), d_glob * 1e3, 1e-9);
 
   std::vector<bool> removed(n, false);
-  std::size_t n_global = 0, n_local = 0, clutter_removed = 0;
+  std::size_t n_global = 0, n_local = 0, n_off = 0, clutter_removed = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    bool global = false;
+    bool global = false, off = false;
     if (d[i] > d_glob) {
+      // Not on a surface: the surface variation of the point and its neighbours.
       Eigen::Vector3d mean = pts[i];
       for (const std::size_t j : nb[i]) mean += pts[j];
       mean /= static_cast<double>(k + 1);
@@ -369,21 +390,36 @@ TEST(RobustOutliers, RemovedSetIsTheRuleAppliedToEveryPointByBruteForce) {
       for (const std::size_t j : nb[i]) cov += (pts[j] - mean) * (pts[j] - mean).transpose();
       const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvalues();
       global = ev.sum() > 0.0 && std::max(ev(0), 0.0) / ev.sum() > o.max_surface_variation;
+    } else if (d[i] > 2.0 * d_med) {
+      // Off surface: the neighbours alone form a surface and the point stands off their
+      // least-squares plane by more than d_i / 2.
+      Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+      for (const std::size_t j : nb[i]) mean += pts[j];
+      mean /= static_cast<double>(k);
+      Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+      for (const std::size_t j : nb[i]) cov += (pts[j] - mean) * (pts[j] - mean).transpose();
+      const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
+      const Eigen::Vector3d ev = es.eigenvalues();
+      const double variation = ev.sum() > 0.0 ? std::max(ev(0), 0.0) / ev.sum() : 0.0;
+      off = variation <= o.max_surface_variation && std::abs(es.eigenvectors().col(0).dot(pts[i] - mean)) > 0.5 * d[i];
     }
     std::vector<double> nd;
     for (const std::size_t j : nb[i]) nd.push_back(d[j]);
-    const bool local = !global && d[i] > o.local_ratio * std::max(median_value(nd), d_med);
-    removed[i] = global || local;
+    const bool local = !global && !off && d[i] > o.local_ratio * std::max(median_value(nd), d_med);
+    removed[i] = global || local || off;
     n_global += global ? 1u : 0u;
     n_local += local ? 1u : 0u;
+    n_off += off ? 1u : 0u;
     clutter_removed += removed[i] && i >= 4120 ? 1u : 0u;
   }
   // The case is not trivial: both tests remove points, and most of the clutter goes.
   EXPECT_GT(n_global, 100u);
   EXPECT_GT(n_local, 0u);
+  EXPECT_GT(n_off, 0u);
   EXPECT_GT(clutter_removed, 150u);
   EXPECT_EQ(figure(r.report, "removed_global"), static_cast<double>(n_global));
   EXPECT_EQ(figure(r.report, "removed_local"), static_cast<double>(n_local));
+  EXPECT_EQ(figure(r.report, "removed_off_surface"), static_cast<double>(n_off));
   std::vector<bool> kept(n, false);
   for (const float t : r.value.intensity) kept[static_cast<std::size_t>(t)] = true;
   std::size_t mismatches = 0;
@@ -401,6 +437,9 @@ TEST(RobustOutliers, BadOptionsAreConfigErrors) {
   o = {};
   o.k = 0;
   EXPECT_THROW(remove_robust_outliers(bunny(), o), hc::ConfigError);
+  o = {};
+  o.off_surface_ratio = 1.0;  // 0 (off) or above 1
+  EXPECT_THROW(remove_robust_outliers(bunny(), o), hc::ConfigError);
   EXPECT_THROW(remove_far_clusters(bunny(), 0.0, FarClusterOptions{}), hc::ConfigError);
   const fs::path dir = hc::test::temp_dir("cfg");
   try {
@@ -411,6 +450,11 @@ TEST(RobustOutliers, BadOptionsAreConfigErrors) {
   }
   EXPECT_THROW(parse_run_config("input: {files: [x.ply]}\nfilters: {outliers: {scope: front}}\n", dir / "run.yaml"),
                hc::ConfigError);
+  EXPECT_THROW(parse_run_config("input: {files: [x.ply]}\nfilters: {outliers: {off_surface_ratio: 0.5}}\n", dir / "run.yaml"),
+               hc::ConfigError);
+  EXPECT_EQ(parse_run_config("input: {files: [x.ply]}\nfilters: {outliers: {off_surface_ratio: 0}}\n", dir / "run.yaml")
+                .filters.outliers.off_surface_ratio,
+            0.0);
   EXPECT_THROW(parse_run_config("input: {files: [x.ply]}\nfilters: {outliers: {far_clusters: {max_fraction: 2}}}\n",
                                 dir / "run.yaml"),
                hc::ConfigError);

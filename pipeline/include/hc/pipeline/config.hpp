@@ -45,6 +45,7 @@ struct OutlierConfig {
   OutlierMethod method = OutlierMethod::kRobust;  ///< "robust" | "statistical" (exact PCL SOR)
   double local_ratio = 3.0;      ///< robust: local test ratio [-], (1, 100]
   double mad_multiplier = 8.0;   ///< robust: global test in σ of ln d [-], (0, 100]
+  double off_surface_ratio = 2.0;  ///< robust: off-surface test above this × median d [-]; 0 = off, else (1, 100]
   FarClusterOptions far_clusters;  ///< robust: far-cluster removal (far_clusters.*)
 };
 

@@ -32,6 +32,9 @@ struct RobustOutlierOptions {
                                ///< variation λ0/(λ0+λ1+λ2) is at most this lies on a sparse
                                ///< surface and gets the local test instead [-], 0..1/3
   std::size_t sample = 50000;  ///< points whose exact k-NN distance gives the median and MAD
+  double off_surface_ratio = 2.0;  ///< the off-surface test judges points with d_i above this ×
+                               ///< d_med [-]; 0 = no off-surface test, else > 1 (lower: more
+                               ///< clutter caught near the surface, more exact queries)
 };
 
 /// Options of far-cluster removal (filters.outliers.far_clusters.*; docs/config.md).
@@ -54,7 +57,7 @@ struct FarClusterOptions {
 /// m and the MAD rounded to steps of 1/128, so that a few added points cannot move them);
 /// the median distance is d_med = exp(m). In log space a far point or a cluster 1 km away moves
 /// the median and the MAD by at most its share of the sample, never the threshold by metres.
-/// Point i is removed when either test fails:
+/// Point i is removed when any of the three tests fails:
 ///  - global: d_i > D_glob = max(exp(m + mad_multiplier·σ), local_ratio·d_med) and the point's
 ///    neighbourhood (itself and its k nearest) is not a surface: its surface variation
 ///    λ0/(λ0+λ1+λ2) (Pauly et al. 2002) exceeds max_surface_variation. Isolated clutter away from
@@ -64,9 +67,15 @@ struct FarClusterOptions {
 ///    d_ref is the median of d_j over the k nearest neighbours j of i. A sparse but coherent
 ///    region (a scan's far side at 3 % density) has neighbours as sparse as itself and stays;
 ///    a spike in front of the surface, whose neighbours lie on the surface, goes. The floor
-///    d_med keeps points of regions denser than typical (overlaps of merged views, duplicates).
-/// Speed: both tests need d_i only for points with d_i > local_ratio·d_med (below it neither
-/// test can fail). The points are sorted into a uniform grid of cubic cells (knn_grid.hpp); a
+///    d_med keeps points of regions denser than typical (overlaps of merged views, duplicates);
+///  - off surface (when off_surface_ratio > 0): off_surface_ratio·d_med < d_i <= D_glob, the
+///    k nearest neighbours alone form a surface (surface variation <= max_surface_variation) and
+///    the point stands off their least-squares plane by more than d_i / 2: clutter in the shell
+///    near the surface, where its neighbours are surface points and its density looks normal.
+///    A point of that surface lies on the plane (within noise and curvature sag), also at the
+///    edge of a scan or of a sparse region.
+/// Speed: the tests need d_i only for points with d_i > D_cert = min(local_ratio,
+/// off_surface_ratio)·d_med (below it no test can fail; off_surface_ratio 0 counts as infinite). The points are sorted into a uniform grid of cubic cells (knn_grid.hpp); a
 /// point with at least k other points within D_cert = local_ratio·d_med among its own cell
 /// (then among the cells of its 3×3×3 block within D_cert) has d_i ≤ D_cert and is kept
 /// without a k-NN query (counting, no selection). The others get the exact k-NN distance; those
@@ -77,11 +86,12 @@ struct FarClusterOptions {
 /// mad_log_knn_distance, sigma_log_knn_distance, global_threshold_mm, certify_distance_mm,
 /// certified, exact_queries, max_surface_variation, local_tests, coherent_above_global (points
 /// above D_glob on a surface, judged locally), removed_robust, removed_global, removed_local,
+/// removed_off_surface, local_threshold_mm, off_surface_ratio,
 /// duplicates_left_out, knn_grid_cell_mm and the seconds of each step (grid_s, sample_s,
 /// certify_s, exact_s, local_s). Notes: what was dropped and why.
 /// @param cloud    any frame, metres (the grid frame in build_scene); non-finite points dropped
 /// @param options  k 1..1000, local_ratio > 1, mad_multiplier > 0, max_surface_variation
-///                0..1/3, sample >= 2
+///                0..1/3, sample >= 2, off_surface_ratio 0 or > 1
 /// @throws hc::ConfigError on out-of-range options; hc::DegenerateInputError when fewer than
 ///         k + 2 finite points remain; hc::ResourceError beyond 2^32 − 2 points.
 /// Real-time: no. Threads: 2. Cost: one grid build and counting pass over all points, plus
