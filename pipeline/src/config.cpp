@@ -881,8 +881,9 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
                    : OutlierMethod::kRobust;
     o.local_ratio = r.get_double("filters.outliers.local_ratio", 3.0, 1.0, 100.0, true);
     o.mad_multiplier = r.get_double("filters.outliers.mad_multiplier", 8.0, 0.0, 100.0, true);
-    o.off_surface_ratio = r.get_double("filters.outliers.off_surface_ratio", 2.0, 0.0, 100.0);
-    if (o.off_surface_ratio > 0.0 && o.off_surface_ratio <= 1.0) {
+    // 0 (off) or (1, 100]: one message for every value outside both.
+    o.off_surface_ratio = r.get_double("filters.outliers.off_surface_ratio", 2.0, -1e300, 1e300);
+    if (!(o.off_surface_ratio == 0.0 || (o.off_surface_ratio > 1.0 && o.off_surface_ratio <= 100.0))) {
       r.fail("filters.outliers.off_surface_ratio",
              "= " + format_number(o.off_surface_ratio) + ": expected 0 (off) or a number in (1, 100]");
     }

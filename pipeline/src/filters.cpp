@@ -48,10 +48,12 @@ using detail::CellGrid;
 using detail::Clock;
 using hc::format_number;
 using detail::kSearchThreads;
+using detail::make_report;
 using detail::mean_knn_distances;
 using detail::PointQueries;
 using detail::run_parallel;
 using detail::seconds_since;
+using detail::splitmix64;
 
 // Float32 copy of the finite points, recentred on their bounding-box centre (double), so that
 // float keeps sub-micrometre resolution whatever the cloud's offset.
@@ -69,13 +71,6 @@ std::vector<float> recentred_float(const Cloud& cloud, const std::vector<std::ui
     for (Eigen::Index a = 0; a < 3; ++a) p[3 * j + static_cast<std::size_t>(a)] = static_cast<float>(c(a) - centre(a));
   }
   return p;
-}
-
-StageReport make_report(const char* stage, std::size_t in) {
-  StageReport r;
-  r.stage = stage;
-  r.count_in = in;
-  return r;
 }
 
 }  // namespace
@@ -314,17 +309,6 @@ StageResult<Cloud> remove_statistical_outliers(Cloud cloud, int k, double std_mu
   report.seconds = seconds_since(t0);
   return {std::move(cloud), std::move(report)};
 }
-
-namespace {
-
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
-
-}  // namespace
 
 StageResult<Cloud> remove_front_statistical_outliers(Cloud cloud, int k, double std_multiplier,
                                                      const ReprojectOptions& grid_options,

@@ -42,6 +42,8 @@
 #include <nanoflann.hpp>
 
 #include <algorithm>
+#include <stdexcept>
+#include <string>
 #include <array>
 #include <cmath>
 #include <cstdint>
@@ -643,6 +645,10 @@ class GridPointQueries {
   // blocks of 3³, 5³ and 7³ cells, exact when the k-th distance is within the block's clearance;
   // else the cell-centre tree bounds the k-th distance and every cell within reach is searched.
   void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out) const {
+    if (g_.x.size() < k1_) {
+      throw std::invalid_argument("PointQueries::nearest: the grid holds " + std::to_string(g_.x.size()) +
+                                  " points, k + 1 = " + std::to_string(k1_) + " needed");
+    }
     const float pt[3] = {g_.x[sorted], g_.y[sorted], g_.z[sorted]};
     const std::array<std::int64_t, 3> c = {g_.index_of(pt[0], 0), g_.index_of(pt[1], 1), g_.index_of(pt[2], 2)};
     const std::size_t k = k1_ - 1;

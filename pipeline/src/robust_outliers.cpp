@@ -2,8 +2,9 @@
 //
 // The test (remove_robust_outliers): d_i = mean distance to the k nearest neighbours; robust
 // scale from the median and MAD of ln d on a stratified sample; a point goes when d_i exceeds the
-// global bound D_glob, or local_ratio × max(median of its neighbours' d, median d). Neither test
-// can fail for d_i ≤ D_cert = local_ratio × median d, and "k other points within D_cert" proves
+// global bound D_glob, or local_ratio × max(median of its neighbours' d, median d), or when it
+// stands off the surface its neighbours form (off_surface_ratio). No test can fail for
+// d_i ≤ D_cert = min(local_ratio, off_surface_ratio) × median d, and "k other points within D_cert" proves
 // d_i ≤ D_cert by counting alone, so most points of a scan are settled in their own grid cell
 // without a k-NN query; the engine (knn_grid.hpp) answers the rest exactly.
 //
@@ -38,23 +39,18 @@ using detail::build_grid;
 using detail::CellGrid;
 using detail::Clock;
 using detail::kSearchThreads;
+using detail::make_report;
 using detail::PointQueries;
 using detail::run_parallel;
 using detail::seconds_since;
+using detail::splitmix64;
 using hc::format_number;
 
-constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+constexpr std::uint32_t kNotInGrid = std::numeric_limits<std::uint32_t>::max();
 // The off-surface test (robust_outliers.hpp): points with d_i above off_surface_ratio × d_med
 // whose k neighbours form a surface are removed when they stand off its least-squares plane by
 // more than kOffSurfaceFraction × d_i.
 constexpr double kOffSurfaceFraction = 0.5;
-
-std::uint64_t splitmix64(std::uint64_t x) {
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
 
 // Finite columns of the cloud.
 std::vector<std::uint32_t> finite_rows(const Cloud& cloud, const char* who) {
@@ -115,7 +111,7 @@ double median_of(std::vector<double> v) {
 // Exact k-NN distances of single points of a grid, cached per input index.
 class ExactDistances {
  public:
-  ExactDistances(const CellGrid& g, int k, std::size_t n) : g_(g), q_(g, k), k_(k), d_(n, -1.0f), pos_(n, kNone) {
+  ExactDistances(const CellGrid& g, int k, std::size_t n) : g_(g), q_(g, k), k_(k), d_(n, -1.0f), pos_(n, kNotInGrid) {
     for (std::size_t s = 0; s < g.original.size(); ++s) pos_[g.original[s]] = static_cast<std::uint32_t>(s);
     for (const std::uint32_t z : g.zero) d_[z] = 0.0f;  // copies left out: k others at distance 0
   }
@@ -162,13 +158,6 @@ std::pair<std::uint32_t, std::uint32_t> cell_range(const CellGrid& g, std::int64
   const std::size_t c = g.lower(key);
   if (c >= g.cells() || g.cell_key[c] != key) return {0, 0};
   return {g.cell_start[c], g.cell_start[c + 1]};
-}
-
-StageReport make_report(const char* stage, std::size_t in) {
-  StageReport r;
-  r.stage = stage;
-  r.count_in = in;
-  return r;
 }
 
 }  // namespace
@@ -330,7 +319,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   }
   const double t_exact = seconds_since(t0);
 
-  // 4. Neighbours of the candidates (exact); surface variation of those above d_glob.
+  // 4. Neighbours of the candidates (exact); surface variation (and below d_glob the distance
+  // from the neighbours' plane) of each.
   std::vector<std::vector<std::uint32_t>> nbrs(cand.size());
   std::vector<double> variation(cand.size(), 0.0), off_plane(cand.size(), 0.0);
   {
@@ -342,7 +332,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       const std::size_t e = cand.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
       for (std::size_t i = b; i < e; ++i) {
         const std::uint32_t s = d.pos(cand[i]);
-        if (s == kNone) continue;
+        if (s == kNotInGrid) continue;
         d.neighbours(s, scratch, knn);
         nbrs[i].clear();
         nbrs[i] = knn;
@@ -521,12 +511,12 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
     }
   }
   // Component statistics.
-  std::vector<std::uint32_t> comp_of_cell(keys.size(), kNone);
+  std::vector<std::uint32_t> comp_of_cell(keys.size(), kNotInGrid);
   std::vector<PointCluster> comps;
   std::vector<Eigen::Vector3d> sums;
   for (std::size_t j = 0; j < n; ++j) {
     const std::uint32_t root = find(cell_of[j]);
-    if (comp_of_cell[root] == kNone) {
+    if (comp_of_cell[root] == kNotInGrid) {
       comp_of_cell[root] = static_cast<std::uint32_t>(comps.size());
       PointCluster pc;
       pc.min_m = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());

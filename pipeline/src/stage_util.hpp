@@ -2,7 +2,11 @@
 /// @file stage_util.hpp
 /// Private helpers shared by the pipeline stages' .cpp files (not installed, not public API).
 
+#include "hc/pipeline/cloud.hpp"
+
 #include <chrono>
+#include <cstddef>
+#include <cstdint>
 #include <exception>
 #include <thread>
 #include <utility>
@@ -14,6 +18,22 @@ using Clock = std::chrono::steady_clock;
 /// Wall time [s] since t0 on the steady clock (stage reports).
 inline double seconds_since(Clock::time_point t0) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+/// An empty report of stage `stage` that received `in` points.
+inline StageReport make_report(const char* stage, std::size_t in) {
+  StageReport r;
+  r.stage = stage;
+  r.count_in = in;
+  return r;
+}
+
+/// SplitMix64 (Steele, Lea & Flood 2014): a 64-bit mix for deterministic sampling.
+inline std::uint64_t splitmix64(std::uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
 }
 
 /// Runs a() on a second thread and b() on this one, joins, then rethrows a's exception if it

@@ -8,6 +8,7 @@
 #include "hc/pipeline/scene_io.hpp"
 
 #include "test_paths.hpp"
+#include "file_bytes.hpp"
 
 #include <gtest/gtest.h>
 
@@ -19,14 +20,9 @@
 
 namespace {
 
-using namespace hc::pipeline;
+using hc::test::le;
 
-template <class T>
-T le(const std::string& b, std::size_t at) {
-  T v{};
-  std::memcpy(&v, b.data() + at, sizeof(T));  // the test machine is little-endian, as LAS is
-  return v;
-}
+using namespace hc::pipeline;
 
 /// The payload of the first VLR with user id "LASF_Projection" and record id 2112, trailing NULs removed.
 std::string wkt_from_vlr_bytes(const std::filesystem::path& las) {

@@ -27,15 +27,10 @@ namespace fs = std::filesystem;
 
 namespace {
 
+using hc::test::le;
+
 using hc::test::read_bytes;
 using hc::test::write_bytes;
-
-template <class T>
-T le(const std::string& b, std::size_t at) {
-  T v{};
-  std::memcpy(&v, b.data() + at, sizeof v);
-  return v;
-}
 
 using hc::test::error_of;
 

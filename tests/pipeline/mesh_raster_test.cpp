@@ -157,7 +157,7 @@ Cloud mesh_of(const std::vector<Eigen::Vector3d>& v, const std::vector<std::arra
   return c;
 }
 
-ReprojectOptions with_n(int n) {
+ReprojectOptions options_with_n(int n) {
   ReprojectOptions o;
   o.grid.n_long_side = n;
   return o;
@@ -216,7 +216,7 @@ TEST(MeshRaster, RandomTriangleSoupsMatchTheRayCastOracle) {
       t.push_back({b, b + 1, b + 2});
     }
     const Cloud m = mesh_of(v, t);
-    const auto r = rasterise_mesh(m, with_n(37 + trial));
+    const auto r = rasterise_mesh(m, options_with_n(37 + trial));
     const Agreement a = compare_with_oracle(m, r.value, 1e-6);
     SCOPED_TRACE("trial " + std::to_string(trial));
     EXPECT_GT(a.covered, 50u);
@@ -230,7 +230,7 @@ TEST(MeshRaster, RandomTriangleSoupsMatchTheRayCastOracle) {
 TEST(MeshRaster, ClosedSphereAndTetrahedronMatchTheOracleWithoutPinholes) {
   for (const double tilt : {0.0, 0.3, 1.1}) {
     const Cloud sphere = uv_sphere(0.05, 24, 40, tilt);
-    const auto r = rasterise_mesh(sphere, with_n(161));
+    const auto r = rasterise_mesh(sphere, options_with_n(161));
     const Agreement a = compare_with_oracle(sphere, r.value, 1e-7);
     EXPECT_GT(a.covered, 15000u);
     EXPECT_EQ(a.covered_valid, a.covered) << "tilt " << tilt;
@@ -247,7 +247,7 @@ TEST(MeshRaster, ClosedSphereAndTetrahedronMatchTheOracleWithoutPinholes) {
   }
   const Cloud tet = mesh_of({{0, 0, 0}, {1, 0.1, 0.2}, {0.3, 0.9, 0.1}, {0.4, 0.35, 0.8}},
                             {{0, 2, 1}, {0, 1, 3}, {1, 2, 3}, {2, 0, 3}});
-  const auto r = rasterise_mesh(tet, with_n(201));
+  const auto r = rasterise_mesh(tet, options_with_n(201));
   const Agreement a = compare_with_oracle(tet, r.value, 1e-7);
   EXPECT_GT(a.covered, 10000u);
   EXPECT_EQ(a.covered_valid, a.covered);
@@ -278,7 +278,7 @@ TEST(MeshRaster, NodesExactlyOnSharedEdgesAndVerticesAreCovered) {
     }
   }
   const Cloud m = mesh_of(v, t);
-  const auto r = rasterise_mesh(m, with_n(17));
+  const auto r = rasterise_mesh(m, options_with_n(17));
   const auto& g = r.value.depth.geometry();
   ASSERT_EQ(g.cols, 17);
   ASSERT_EQ(g.cell_size_m, 1.0 / 16.0);
@@ -310,8 +310,8 @@ TEST(MeshRaster, LayerBlendAveragesTheFacesNearTheFrontOnly) {
   sheet(0.5, 0.0004, v, t);
   sheet(1.0, -0.01, v, t);
   const Cloud m = mesh_of(v, t);
-  const auto front = rasterise_mesh(m, with_n(21));
-  const auto blend = rasterise_mesh(m, with_n(21), 0.001);
+  const auto front = rasterise_mesh(m, options_with_n(21));
+  const auto blend = rasterise_mesh(m, options_with_n(21), 0.001);
   const GridGeometry& g = blend.value.depth.geometry();
   ASSERT_EQ(g.cols, 21);
   std::size_t both = 0;
@@ -330,15 +330,15 @@ TEST(MeshRaster, LayerBlendAveragesTheFacesNearTheFrontOnly) {
   }
   EXPECT_EQ(both, 9u * static_cast<std::size_t>(g.rows - 2));  // x = 0.05 … 0.45
   EXPECT_GE(figure(blend.report, "cells_blended"), static_cast<double>(both));
-  EXPECT_THROW((void)rasterise_mesh(m, with_n(21), -0.001), ConfigError);
-  EXPECT_THROW((void)rasterise_mesh(m, with_n(21), std::numeric_limits<double>::quiet_NaN()), ConfigError);
+  EXPECT_THROW((void)rasterise_mesh(m, options_with_n(21), -0.001), ConfigError);
+  EXPECT_THROW((void)rasterise_mesh(m, options_with_n(21), std::numeric_limits<double>::quiet_NaN()), ConfigError);
 }
 
 TEST(MeshRaster, VertexColoursAndIntensityInterpolateBarycentrically) {
   Cloud m = mesh_of({{0, 0, 0}, {1, 0, 0.5}, {0.2, 1, 1}}, {{0, 1, 2}});
   m.rgb = {255, 0, 0, 0, 255, 0, 0, 0, 255};
   m.intensity = {0.0f, 1.0f, 0.5f};
-  const auto r = rasterise_mesh(m, with_n(23));
+  const auto r = rasterise_mesh(m, options_with_n(23));
   ASSERT_TRUE(r.value.has_colour());
   ASSERT_TRUE(r.value.has_intensity());
   const Oracle oracle(m, r.value.depth.geometry());
@@ -381,7 +381,7 @@ TEST(MeshRaster, TexturedObjGivesTheTexelColoursAtTexelCentres) {
   ASSERT_EQ(m.mesh.triangles.size(), 2u);
   ASSERT_TRUE(m.mesh.has_texture()) << ::testing::PrintToString(loaded.report.notes);
   EXPECT_TRUE(has_note(loaded.report, "polygons fan-split"));
-  const auto r = rasterise_mesh(m, with_n(9));
+  const auto r = rasterise_mesh(m, options_with_n(9));
   ASSERT_TRUE(r.value.has_colour());
   for (int rr = 1; rr < 9; rr += 2) {
     for (int c = 1; c < 9; c += 2) {
@@ -498,7 +498,7 @@ TEST(MeshRasterRealData, BunnyMeshAtN300CoversTheOracleSilhouette) {
   const auto loaded = load_cloud(hc::test::scan_path("bunny/bun_zipper_res2.ply"));
   ASSERT_EQ(loaded.value.mesh.triangles.size(), 16301u);  // the header's `element face 16301`
   const Cloud m = recentred(loaded.value);
-  const auto r = rasterise_mesh(m, with_n(300));
+  const auto r = rasterise_mesh(m, options_with_n(300));
   const Agreement a = compare_with_oracle(m, r.value, 1e-6);
   EXPECT_GT(a.covered, 40000u);
   EXPECT_EQ(a.covered_valid, a.covered);
@@ -508,7 +508,7 @@ TEST(MeshRasterRealData, BunnyMeshAtN300CoversTheOracleSilhouette) {
   EXPECT_LE(static_cast<double>(a.uncovered_valid + a.depth_off), binned) << a.max_dz;
   EXPECT_LT(binned, 100.0);
   // The vertices as points (today's path) cover a small part of the same silhouette.
-  const auto points = reproject(m, with_n(300));
+  const auto points = reproject(m, options_with_n(300));
   EXPECT_GT(figure(r.report, "cells_valid"), 5.0 * figure(points.report, "cells_valid"));
 }
 
@@ -519,7 +519,7 @@ TEST(MeshRasterRealData, TexturedMaskObjCoversAtLeast99PercentOfItsSilhouette) {
   ASSERT_TRUE(loaded.value.mesh.has_texture()) << ::testing::PrintToString(loaded.report.notes);
   EXPECT_EQ(loaded.value.mesh.texture->width, 4096);
   const Cloud m = recentred(loaded.value);
-  const auto r = rasterise_mesh(m, with_n(400));
+  const auto r = rasterise_mesh(m, options_with_n(400));
   const Agreement a = compare_with_oracle(m, r.value, 1e-6);
   EXPECT_GT(a.covered, 50000u);
   EXPECT_GE(static_cast<double>(a.covered_valid), 0.99 * static_cast<double>(a.covered));
@@ -597,7 +597,7 @@ TEST(OrganisedScans, NeighboursAreJoinedAndDepthJumpsCut) {
     EXPECT_EQ(m.value.xyz(2, t[2]), z0);
   }
   // Rasterised: both levels covered, the step's gap (one cell at 0.5 mm cells) left open.
-  const auto g = rasterise_mesh(m.value, with_n(39));
+  const auto g = rasterise_mesh(m.value, options_with_n(39));
   EXPECT_TRUE(std::isnan(g.value.depth.at(10, 19)));  // x = 9.5 mm: between the levels
   EXPECT_NEAR(g.value.depth.at(10, 21), 0.01, 1e-7);
   EXPECT_NEAR(g.value.depth.at(10, 17), 0.0, 1e-7);

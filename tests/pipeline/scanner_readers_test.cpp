@@ -31,6 +31,8 @@ namespace fs = std::filesystem;
 
 namespace {
 
+using hc::test::le;
+
 using hc::test::read_bytes;
 using hc::test::write_bytes;
 
@@ -42,13 +44,6 @@ bool has_note(const hp::StageReport& r, const std::string& text) {
 
 // ---------------------------------------------------------------------------------------------
 // LAS oracle: little-endian field reads at the offsets of the LAS 1.4 R15 header table.
-
-template <class T>
-T le(const std::string& b, std::size_t at) {
-  T v{};
-  std::memcpy(&v, b.data() + at, sizeof v);
-  return v;
-}
 
 struct LasHeader {
   int minor = 0;

@@ -75,12 +75,14 @@ struct FarClusterOptions {
 ///    A point of that surface lies on the plane (within noise and curvature sag), also at the
 ///    edge of a scan or of a sparse region.
 /// Speed: the tests need d_i only for points with d_i > D_cert = min(local_ratio,
-/// off_surface_ratio)·d_med (below it no test can fail; off_surface_ratio 0 counts as infinite). The points are sorted into a uniform grid of cubic cells (knn_grid.hpp); a
-/// point with at least k other points within D_cert = local_ratio·d_med among its own cell
-/// (then among the cells of its 3×3×3 block within D_cert) has d_i ≤ D_cert and is kept
-/// without a k-NN query (counting, no selection). The others get the exact k-NN distance; those
-/// above D_cert also get their k nearest neighbours and those neighbours' exact distances (the
-/// neighbour set breaks distance ties by input index). The removed set is
+/// off_surface_ratio)·d_med (below it no test can fail; off_surface_ratio 0 counts as
+/// infinite). The points are sorted into a uniform grid of cubic cells (knn_grid.hpp); a point
+/// with at least k other points within D_cert among its own cell (then among the cells of its
+/// 3×3×3 block within D_cert) has d_i ≤ D_cert and is kept without a k-NN query (counting, no
+/// selection). The others get the exact k-NN distance; those above D_cert also get their k
+/// nearest neighbours (the neighbour set breaks distance ties by input index), and those that
+/// reach the local test (above local_ratio·d_med, not removed by the other tests) their
+/// neighbours' exact distances. The removed set is
 /// exactly that of the rule above applied to every point, given the sample's m and σ.
 /// Report figures: k, local_ratio, mad_multiplier, sample, median_knn_distance_mm,
 /// mad_log_knn_distance, sigma_log_knn_distance, global_threshold_mm, certify_distance_mm,
