@@ -919,9 +919,10 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   }
   g.grid.max_cells = static_cast<std::size_t>(r.get_int("grid.max_cells", 64LL * 1024 * 1024, 4, 1LL << 34));
   g.splat_radius_cells = r.get_double("grid.splat_radius_cells", 0.0, 0.0, 16.0);
-  g.splat_mode = r.get_string("grid.splat_mode", "disc", {"disc", "interpolate"}) == "interpolate"
-                     ? SplatMode::kInterpolate
-                     : SplatMode::kDisc;
+  const std::string splat_mode = r.get_string("grid.splat_mode", "disc", {"disc", "interpolate", "plane"});
+  g.splat_mode = splat_mode == "interpolate" ? SplatMode::kInterpolate
+                 : splat_mode == "plane"     ? SplatMode::kPlane
+                                             : SplatMode::kDisc;
   g.see_through_depth_m = r.get_double("grid.see_through_depth_m", 0.0, 0.0, 100.0);
   g.see_through_window_cells = static_cast<int>(r.get_int("grid.see_through_window_cells", 3, 1, 64));
   {

@@ -1,6 +1,5 @@
-// Stage 5: orthographic depth scan onto a node-centred grid, with optional disc or interpolating
-// splats and
-// see-through detection. Hole filling lives in hole_fill.cpp.
+// Stage 5: orthographic depth scan onto a node-centred grid, with optional disc, interpolating
+// or plane splats and see-through detection. Hole filling lives in hole_fill.cpp.
 //
 // Design (the why, in one place):
 //  * Geometry. The grid covers the x-y bounding box of the finite points. With N given, the
@@ -39,6 +38,10 @@
 //    either kind of splat, on the filled grid: splatted cells bracket back-surface cells seen
 //    through a gap just as measured front cells do, and splatted cells that are themselves
 //    bracketed (an interpolated value pulled down by a back-surface point) are rejected too.
+//    Plane splats (SplatMode::kPlane) replace the front-most rule itself: each node takes the
+//    weighted least-squares plane through the front-surface points within the radius (see
+//    splat_planes), which averages a merged scan's views instead of letting the front-most
+//    sample of each cell decide (the ribbing of overlapping views at the cell scale).
 //    Candidate cells are pre-selected with a separable (2w+1)² max filter (a cell can only be
 //    bracketed if something in its window is higher than z + depth), so the ray test runs on a
 //    small fraction of the grid.
@@ -75,6 +78,11 @@ namespace {
 using detail::run_two;
 
 constexpr float kEmpty = -std::numeric_limits<float>::infinity();
+// Plane splats (splat_planes): when a slope is fitted along a direction, and the moments per node.
+constexpr double kPlaneMinVariance = 1e-9;  // [cells²] below this a direction has no spread
+constexpr double kPlaneMaxLeverage = 3.0;   // [standard deviations]
+// Σw, Σw·dx, Σw·dy, Σw·dx², Σw·dx·dy, Σw·dy², Σw·z, Σw·dx·z, Σw·dy·z.
+constexpr int kPlaneMoments = 9;
 constexpr int kMinBracketingPairs = 2;
 constexpr std::size_t kTwoThreadPoints = 1u << 18;  ///< clouds this large use two threads
 
@@ -166,8 +174,8 @@ void validate_options(const ReprojectOptions& o) {
     msg << "reproject: cell_size_m = " << g.cell_size_m << " (expected a finite value > 0)";
     throw ConfigError(msg.str());
   }
-  if (o.splat_mode != SplatMode::kDisc && o.splat_mode != SplatMode::kInterpolate) {
-    msg << "reproject: splat_mode = " << static_cast<int>(o.splat_mode) << " (expected kDisc or kInterpolate)";
+  if (o.splat_mode != SplatMode::kDisc && o.splat_mode != SplatMode::kInterpolate && o.splat_mode != SplatMode::kPlane) {
+    msg << "reproject: splat_mode = " << static_cast<int>(o.splat_mode) << " (expected kDisc, kInterpolate or kPlane)";
     throw ConfigError(msg.str());
   }
   if (!(o.splat_radius_cells >= 0.0) || o.splat_radius_cells > 64.0) {
@@ -193,6 +201,9 @@ std::size_t bytes_per_cell(const ReprojectOptions& o) {
   if (o.splat_radius_cells > 0.0 && o.splat_mode == SplatMode::kInterpolate) {
     b += 2 * sizeof(float) + sizeof(std::uint32_t);  // z·mask, mask, summed-area table
     if (o.see_through_depth_m > 0.0) b += sizeof(float) * (1 + static_cast<std::size_t>(std::floor(o.splat_radius_cells)));  // occlusion discs
+  } else if (o.splat_radius_cells > 0.0 && o.splat_mode == SplatMode::kPlane) {
+    b += sizeof(float) * (static_cast<std::size_t>(kPlaneMoments) + 2 +
+                          static_cast<std::size_t>(std::floor(o.splat_radius_cells + 0.7072)));  // moments, ref, discs
   } else if (o.splat_radius_cells > 0.0) {  // splat buffer + running maxima of half-width 1..⌊r⌋
     b += sizeof(float) * (1 + static_cast<std::size_t>(std::floor(o.splat_radius_cells)));
   }
@@ -434,6 +445,139 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
   return filled_a + filled_b;
 }
 
+// Weighted local planes (SplatMode::kPlane). Every node within radius_cells (exact x-y
+// distance d, in cells) of a point gathers that point with weight exp(−d² / 2σ²), σ = radius / 2,
+// when the point lies on the front surface there: z ≥ ref − depth_gap, ref = the front-most
+// measured z within radius + √2/2 cells of the node (the disc dilation of the measured grid; a
+// point's own node is at most √2/2 cells from it, so ref ≥ z of every gathered point). With
+// depth_gap ≤ 0 every point in the radius is gathered. The node then takes the value at its own
+// position of the weighted least-squares plane z = z̄ + b·(dx − x̄) + c·(dy − ȳ) through its points
+// (dx, dy the point's offset from the node in cells), i.e. z̄ − b·x̄ − c·ȳ, clamped to the
+// heights of those points ± |(b, c)| × the distance to the nearest of them. The 2 × 2 normal equations are solved by eigen-decomposition; along
+// an eigen-direction with variance under kPlaneMinVariance cells² (collinear or single points)
+// the slope is 0, so the fit falls back to the weighted mean there instead of an unbounded
+// slope. Moments are float, per node, relative to ref; they are solved in double.
+// Separable weights: exp of the row and column offsets, (2⌊r⌋+2)·2 exponentials per point.
+// Rows are split between two threads for large clouds (each thread reads every point and
+// writes only its own rows). Written: depth[i] and flags[i] of every node with weight > 0
+// (measured nodes stay kCellMeasured unless their front-most point lies more than depth_gap
+// below the plane: then kCellSplatted, counted in *occluded; empty nodes become kCellSplatted,
+// counted in the return value). Nodes with no gathered point keep their value and flag.
+
+std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const GridGeometry& g, double radius_cells,
+                         float depth_gap, bool two_threads, float* depth, std::uint8_t* flags,
+                         std::size_t* occluded) {
+  const int rows = g.rows, cols = g.cols;
+  const std::size_t ucols = static_cast<std::size_t>(cols);
+  const std::size_t cells = static_cast<std::size_t>(rows) * ucols;
+  std::vector<float> ref(cells, kEmpty);
+  splat_discs(depth, rows, cols, radius_cells + 0.7072, ref.data());
+  std::vector<float> mom(static_cast<std::size_t>(kPlaneMoments) * cells, 0.0f);
+
+  const double inv = 1.0 / g.cell_size_m;
+  const double r2 = radius_cells * radius_cells;
+  const double k_exp = -1.0 / (2.0 * 0.25 * r2);  // −1 / 2σ², σ = radius / 2
+  const int span = 2 * static_cast<int>(std::ceil(radius_cells)) + 2;
+  auto gather = [&](int r_begin, int r_end) {
+    std::vector<double> wc(static_cast<std::size_t>(span)), wr(static_cast<std::size_t>(span));
+    const double* q = p;
+    for (std::size_t i = 0; i < n; ++i, q += 3) {
+      if (!all_finite && !finite_point(q)) continue;
+      const double fx = (q[0] - g.x0_m) * inv, fy = (q[1] - g.y0_m) * inv;
+      const int r0 = std::max(r_begin, static_cast<int>(std::ceil(fy - radius_cells)));
+      const int r1 = std::min(r_end - 1, static_cast<int>(std::floor(fy + radius_cells)));
+      if (r0 > r1) continue;
+      const int c0 = std::max(0, static_cast<int>(std::ceil(fx - radius_cells)));
+      const int c1 = std::min(cols - 1, static_cast<int>(std::floor(fx + radius_cells)));
+      for (int c = c0; c <= c1; ++c) {
+        const double d = fx - c;
+        wc[static_cast<std::size_t>(c - c0)] = std::exp(k_exp * d * d);
+      }
+      for (int r = r0; r <= r1; ++r) {
+        const double d = fy - r;
+        wr[static_cast<std::size_t>(r - r0)] = std::exp(k_exp * d * d);
+      }
+      for (int r = r0; r <= r1; ++r) {
+        const double dy = fy - r;
+        for (int c = c0; c <= c1; ++c) {
+          const double dx = fx - c;
+          if (dx * dx + dy * dy > r2) continue;
+          const std::size_t j = static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c);
+          const float zr = static_cast<float>(q[2]) - ref[j];
+          if (depth_gap > 0.0f && zr < -depth_gap) continue;  // behind the front surface here
+          const float w = static_cast<float>(wc[static_cast<std::size_t>(c - c0)] * wr[static_cast<std::size_t>(r - r0)]);
+          const float x = static_cast<float>(dx), y = static_cast<float>(dy);
+          float* m = mom.data() + static_cast<std::size_t>(kPlaneMoments) * j;
+          m[0] += w;
+          m[1] += w * x;
+          m[2] += w * y;
+          m[3] += w * x * x;
+          m[4] += w * x * y;
+          m[5] += w * y * y;
+          m[6] += w * zr;
+          m[7] += w * x * zr;
+          m[8] += w * y * zr;
+        }
+      }
+    }
+  };
+  if (two_threads) {
+    const int mid = rows / 2;
+    run_two([&] { gather(mid, rows); }, [&] { gather(0, mid); });
+  } else {
+    gather(0, rows);
+  }
+  std::size_t filled = 0, hidden = 0;
+  for (std::size_t j = 0; j < cells; ++j) {
+    const float* m = mom.data() + static_cast<std::size_t>(kPlaneMoments) * j;
+    if (!(m[0] > 0.0f)) continue;
+    const double w = m[0];
+    const double xm = m[1] / w, ym = m[2] / w, zm = m[6] / w;
+    const double sxx = m[3] / w - xm * xm, sxy = m[4] / w - xm * ym, syy = m[5] / w - ym * ym;
+    const double sxz = m[7] / w - xm * zm, syz = m[8] / w - ym * zm;
+    // Slope (b, c) = S⁺·(sxz, syz) with S the 2 × 2 x-y covariance, through its eigen-
+    // decomposition S = Σ l_k·e_k·e_kᵀ. Along e_k the slope is fitted only when the node lies
+    // within kPlaneMaxLeverage standard deviations of the centroid, (e_k·x̄)² ≤ kPlaneMaxLeverage²·l_k:
+    // otherwise (a node beyond a scan line, a single point, the rim of the data) the value would
+    // be an extrapolation amplified by |e_k·x̄| / √l_k, and the slope along e_k is 0 (the
+    // weighted mean across).
+    const double half_tr = 0.5 * (sxx + syy), half_diff = 0.5 * (sxx - syy);
+    const double rad = std::sqrt(half_diff * half_diff + sxy * sxy);
+    const double l1 = half_tr + rad, l2 = half_tr - rad;  // l1 ≥ l2
+    double e1x = 1.0, e1y = 0.0;                          // unit eigenvector of l1
+    if (rad > 0.0) {
+      const double vx = half_diff + rad, vy = sxy;  // a column of S − l2·I: along e1
+      const double len = std::hypot(vx, vy);
+      if (len > 0.0) {
+        e1x = vx / len;
+        e1y = vy / len;
+      } else {  // half_diff = −rad and sxy = 0: syy > sxx, e1 is y
+        e1x = 0.0;
+        e1y = 1.0;
+      }
+    }
+    const double a1 = e1x * xm + e1y * ym, a2 = -e1y * xm + e1x * ym;     // x̄ along e1, e2
+    const double p1 = e1x * sxz + e1y * syz, p2 = -e1y * sxz + e1x * syz;  // cov(·, z) along e1, e2
+    constexpr double lev2 = kPlaneMaxLeverage * kPlaneMaxLeverage;
+    const double k1 = l1 > kPlaneMinVariance && a1 * a1 <= lev2 * l1 ? p1 / l1 : 0.0;
+    const double k2 = l2 > kPlaneMinVariance && a2 * a2 <= lev2 * l2 ? p2 / l2 : 0.0;
+    const double b = k1 * e1x - k2 * e1y, c = k1 * e1y + k2 * e1x;
+    const float z = ref[j] + static_cast<float>(zm - b * xm - c * ym);
+    if (flags[j] == kCellMeasured) {
+      if (depth_gap > 0.0f && depth[j] < z - depth_gap) {
+        flags[j] = kCellSplatted;
+        ++hidden;
+      }
+    } else {
+      flags[j] = kCellSplatted;
+      ++filled;
+    }
+    depth[j] = z;
+  }
+  *occluded = hidden;
+  return filled;
+}
+
 // Separable (2w+1)² max filter of `in` (−inf = empty) into `out`, using `tmp`.
 void window_max(const float* in, int rows, int cols, int w, float* tmp, float* out) {
   const std::size_t ncols = static_cast<std::size_t>(cols);
@@ -647,7 +791,10 @@ DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, b
   const float depth_gap = static_cast<float>(options.see_through_depth_m);
   std::size_t& splatted = counts.splatted;
   std::size_t& occluded = counts.occluded;
-  if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kInterpolate) {
+  if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kPlane) {
+    splatted = splat_planes(pts, n_points, all_finite, g, options.splat_radius_cells, see_through ? depth_gap : 0.0f,
+                            two_threads, depth, out.flags.data(), &occluded);
+  } else if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kInterpolate) {
     std::vector<float> front;
     if (see_through) {
       // The disc rule's occlusion first: a measured cell lying more than see_through_depth_m

@@ -109,7 +109,9 @@ TEST(Config, SplatModeIsReadAndValidated) {
   EXPECT_EQ(parse_run_config(kMinimal, "configs/test.yaml").grid.reproject.splat_mode, hc::pipeline::SplatMode::kDisc);
   EXPECT_EQ(parse_run_config(kMinimal + "grid: {splat_mode: interpolate}\n", "configs/test.yaml").grid.reproject.splat_mode,
             hc::pipeline::SplatMode::kInterpolate);
-  EXPECT_NE(config_error(kMinimal + "grid: {splat_mode: blur}\n").find("grid.splat_mode = 'blur': expected one of: disc, interpolate"),
+  EXPECT_EQ(parse_run_config(kMinimal + "grid: {splat_mode: plane}\n", "configs/test.yaml").grid.reproject.splat_mode,
+            hc::pipeline::SplatMode::kPlane);
+  EXPECT_NE(config_error(kMinimal + "grid: {splat_mode: blur}\n").find("grid.splat_mode = 'blur': expected one of: disc, interpolate, plane"),
             std::string::npos);
 }
 

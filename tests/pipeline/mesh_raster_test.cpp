@@ -697,5 +697,18 @@ TEST(OrganisedScansRealData, RawBuddhaScansMeshedCorrugateFiveTimesLessAndLieNea
   RecordProperty("normal_rms_mesh_mm", std::to_string(r.normal_rms_mesh));
 }
 
+// Unorganised: the merged Buddha (1.1 M points of 15 registered views, no scan grid) with the
+// example config; "mesh" in SplatVsMesh is here the plane splats.
+TEST(UnorganisedScansRealData, MergedBuddhaPlaneSplatsCorrugateFiveTimesLessWithoutLargerNormalError) {
+  (void)hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  const fs::path cfg = fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml";
+  const SplatVsMesh r = splat_vs_mesh(load_run_config(cfg, {"layers.enabled=false", "grid.splat_mode=disc"}),
+                                      load_run_config(cfg, {"layers.enabled=false", "grid.splat_mode=plane"}));
+  EXPECT_GE(r.corrugation_splat, 5.0 * r.corrugation_mesh) << r.corrugation_splat << " vs " << r.corrugation_mesh;
+  EXPECT_LE(r.normal_rms_mesh, r.normal_rms_splat) << r.normal_rms_mesh << " vs " << r.normal_rms_splat;
+  RecordProperty("corrugation_disc_um2", std::to_string(r.corrugation_splat));
+  RecordProperty("corrugation_plane_um2", std::to_string(r.corrugation_mesh));
+}
+
 }  // namespace
 }  // namespace hc::pipeline

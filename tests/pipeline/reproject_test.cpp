@@ -6,6 +6,7 @@
 
 #include "cloud_fixtures.hpp"
 #include "stage_figure.hpp"
+#include <Eigen/Eigenvalues>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -787,6 +788,243 @@ TEST(ReprojectErrors, BadGridSpecIsAConfigError) {
   win.see_through_depth_m = 0.001;
   win.see_through_window_cells = 0;
   EXPECT_NE(message_of<ConfigError>(c, win).find("see_through_window_cells"), std::string::npos);
+}
+
+// ---------------------------------------------------------------------------------------------
+// Plane splats (SplatMode::kPlane): the oracle is the analytic surface the points were drawn from.
+
+ReprojectOptions planes(ReprojectOptions o, double radius, double see_through_m = 0.0) {
+  o.splat_radius_cells = radius;
+  o.splat_mode = SplatMode::kPlane;
+  o.see_through_depth_m = see_through_m;
+  return o;
+}
+
+// `per_cell` points per 1 mm cell, uniform at random over [0, 60] mm², on z = f(x, y) + N(0, σ²).
+template <class F>
+std::vector<Eigen::Vector3d> random_samples(F f, double per_cell, double sigma_m, unsigned seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 60.0 * kLatticeCell);
+  std::normal_distribution<double> noise(0.0, sigma_m > 0.0 ? sigma_m : 1.0);
+  std::vector<Eigen::Vector3d> pts;
+  const auto n = static_cast<std::size_t>(per_cell * 60.0 * 60.0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const double x = u(rng), y = u(rng);
+    pts.emplace_back(x, y, f(x, y) + (sigma_m > 0.0 ? noise(rng) : 0.0));
+  }
+  pts.emplace_back(0.0, 0.0, f(0.0, 0.0));  // pin the box to [0, 60] mm, so nodes sit on whole mm
+  pts.emplace_back(60.0 * kLatticeCell, 60.0 * kLatticeCell, f(60.0 * kLatticeCell, 60.0 * kLatticeCell));
+  return pts;
+}
+
+// Brute-force oracle of SplatMode::kPlane's documented rule at node (r, c), in double: the
+// points within `radius` cells in x-y, on the front surface when `gap_m` > 0 (z ≥ the highest
+// front-most cell z within radius + √2/2 cells − gap), Gaussian weights (σ = radius / 2), and
+// the value at the node of the weighted least-squares plane, its slope fitted along each
+// eigenvector e of the weighted x-y covariance (Eigen's solver) with eigenvalue l only where
+// (e·x̄)² ≤ 9·l. NaN when no point qualifies.
+double plane_oracle(const Cloud& cloud, const DepthGrid& front_most, int r, int c, double radius, double gap_m) {
+  const GridGeometry& g = front_most.depth.geometry();
+  const double reach = radius + 0.7072;
+  double ref = -std::numeric_limits<double>::infinity();
+  for (int rr = 0; rr < g.rows; ++rr) {
+    for (int cc = 0; cc < g.cols; ++cc) {
+      if (!front_most.depth.valid(rr, cc) || (rr - r) * (rr - r) + (cc - c) * (cc - c) > reach * reach) continue;
+      ref = std::max(ref, static_cast<double>(front_most.depth.at(rr, cc)));
+    }
+  }
+  double sw = 0.0, sz = 0.0;
+  Eigen::Vector2d sx = Eigen::Vector2d::Zero(), sxz = Eigen::Vector2d::Zero();
+  Eigen::Matrix2d sxx = Eigen::Matrix2d::Zero();
+  const double sigma = radius / 2.0;
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const auto k = static_cast<Eigen::Index>(i);
+    const double dx = (cloud.xyz(0, k) - g.x_of_col(c)) / g.cell_size_m, dy = (cloud.xyz(1, k) - g.y_of_row(r)) / g.cell_size_m;
+    const double d2 = dx * dx + dy * dy;
+    if (d2 > radius * radius || (gap_m > 0.0 && cloud.xyz(2, k) < ref - gap_m)) continue;
+    const double w = std::exp(-d2 / (2.0 * sigma * sigma));
+    sw += w;
+    sx += w * Eigen::Vector2d(dx, dy);
+    sz += w * cloud.xyz(2, k);
+    sxx += w * Eigen::Vector2d(dx, dy) * Eigen::Vector2d(dx, dy).transpose();
+    sxz += w * Eigen::Vector2d(dx, dy) * cloud.xyz(2, k);
+  }
+  if (sw == 0.0) return std::numeric_limits<double>::quiet_NaN();
+  const Eigen::Vector2d xbar = sx / sw;
+  const double zbar = sz / sw;
+  const Eigen::Matrix2d cov = sxx / sw - xbar * xbar.transpose();
+  const Eigen::Vector2d cz = sxz / sw - xbar * zbar;
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix2d> eig(cov);
+  Eigen::Vector2d slope = Eigen::Vector2d::Zero();
+  for (int k = 0; k < 2; ++k) {
+    const double l = eig.eigenvalues()(k);
+    const Eigen::Vector2d e = eig.eigenvectors().col(k);
+    if (l > 1e-9 && std::pow(e.dot(xbar), 2) <= 9.0 * l) slope += e * (e.dot(cz) / l);
+  }
+  return zbar - slope.dot(xbar);
+}
+
+TEST(Reproject, PlaneSplatsReproduceATiltedPlaneAtEveryInteriorNodeWhereFrontMostSamplesDoNot) {
+  const Cloud cloud = cloud_of(random_samples(lattice_plane, 3.0, 0.0, 7));
+  const auto plane = reproject(cloud, planes(with_cell(kLatticeCell), 1.5));
+  const auto front = reproject(cloud, with_cell(kLatticeCell));
+  const HeightField& p = plane.value.depth;
+  const GridGeometry& g = p.geometry();
+  ASSERT_EQ(g.cols, 61);
+  ASSERT_EQ(g.rows, 61);
+  double interior_err = 0.0, rim_err = 0.0, front_err = 0.0;
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      ASSERT_TRUE(p.valid(r, c)) << r << "," << c;  // 3 points per cell: every node has one within 1.5 cells
+      const double truth = lattice_plane(g.x_of_col(c), g.y_of_row(r));
+      const double e = std::abs(p.at(r, c) - truth);
+      const bool interior = r >= 2 && c >= 2 && r <= g.rows - 3 && c <= g.cols - 3;
+      (interior ? interior_err : rim_err) = std::max(interior ? interior_err : rim_err, e);
+      if (front.value.depth.valid(r, c)) front_err = std::max(front_err, std::abs(front.value.depth.at(r, c) - truth));
+    }
+  }
+  // Float heights of ~30 mm: a few ulps (ulp 1.9e-9 m). A front-most sample lies up to half a
+  // cell diagonal from its node: up to (0.4 + 0.25)·0.5 mm off.
+  EXPECT_LT(interior_err, 2e-8);
+  EXPECT_GT(front_err, 1e-4);
+  // At the border (a corner's points lie on one side) the slope may go unfitted in a direction:
+  // the rule's value (the oracle), off the plane by less than the slope across the radius.
+  EXPECT_LT(rim_err, (std::abs(kPlaneSx) + std::abs(kPlaneSy)) * 1.5 * kLatticeCell);
+  const DepthGrid fm = front.value;
+  for (int r = 0; r < g.rows; ++r) {
+    for (int c = 0; c < g.cols; ++c) {
+      if (r >= 2 && c >= 2 && r <= g.rows - 3 && c <= g.cols - 3) continue;
+      EXPECT_NEAR(p.at(r, c), plane_oracle(cloud, fm, r, c, 1.5, 0.0), 2e-8) << r << "," << c;
+    }
+  }
+  RecordProperty("interior_err_m", std::to_string(interior_err));
+}
+
+TEST(Reproject, PlaneSplatsAverageScannerNoiseThatFrontMostSamplesBiasUpwards) {
+  const double sigma = 1e-4;  // 0.1 mm of noise on z = 0
+  const Cloud cloud = cloud_of(random_samples([](double, double) { return 0.0; }, 4.0, sigma, 11));
+  const auto plane = reproject(cloud, planes(with_cell(kLatticeCell), 1.5));
+  const auto front = reproject(cloud, with_cell(kLatticeCell));
+  double plane_ss = 0.0, front_ss = 0.0, front_sum = 0.0;
+  std::size_t n_plane = 0, n_front = 0;
+  const GridGeometry& g = plane.value.depth.geometry();
+  for (int r = 2; r <= g.rows - 3; ++r) {
+    for (int c = 2; c <= g.cols - 3; ++c) {
+      plane_ss += std::pow(plane.value.depth.at(r, c), 2);
+      ++n_plane;
+      if (!front.value.depth.valid(r, c)) continue;
+      front_ss += std::pow(front.value.depth.at(r, c), 2);
+      front_sum += front.value.depth.at(r, c);
+      ++n_front;
+    }
+  }
+  const double plane_rms = std::sqrt(plane_ss / static_cast<double>(n_plane));
+  const double front_rms = std::sqrt(front_ss / static_cast<double>(n_front));
+  // The maximum of ~4 normal samples has mean ≈ 1.03 σ; a plane through the ~28 points within
+  // 1.5 cells has a standard error near σ / √(effective count), well under σ / 2.
+  EXPECT_GT(front_sum / static_cast<double>(n_front), 0.7 * sigma);
+  EXPECT_GT(front_rms, 0.8 * sigma);
+  EXPECT_LT(plane_rms, 0.4 * sigma);
+  RecordProperty("plane_rms_over_sigma", std::to_string(plane_rms / sigma));
+  RecordProperty("front_rms_over_sigma", std::to_string(front_rms / sigma));
+}
+
+TEST(Reproject, PlaneSplatsTakeOnlyTheFrontSurfaceOfAMergedScanWithinTheSeeThroughDepth) {
+  // Front: the tilted plane, 3 points per cell. Back: 5 mm below it, 3 points per cell, as a
+  // merged scan of a thin object holds.
+  auto pts = random_samples(lattice_plane, 3.0, 0.0, 3);
+  const auto back = random_samples([](double x, double y) { return lattice_plane(x, y) - 0.005; }, 3.0, 0.0, 5);
+  pts.insert(pts.end(), back.begin(), back.end());
+  const Cloud cloud = cloud_of(pts);
+  const auto banded = reproject(cloud, planes(with_cell(kLatticeCell), 1.5, 0.002));
+  const auto blind = reproject(cloud, planes(with_cell(kLatticeCell), 1.5, 0.0));
+  const GridGeometry& g = banded.value.depth.geometry();
+  double banded_err = 0.0, blind_sum = 0.0;
+  std::size_t n = 0;
+  for (int r = 3; r <= g.rows - 4; ++r) {
+    for (int c = 3; c <= g.cols - 4; ++c) {
+      const double truth = lattice_plane(g.x_of_col(c), g.y_of_row(r));
+      if (!banded.value.depth.valid(r, c)) continue;  // see-through test (on) may drop a node
+      banded_err = std::max(banded_err, std::abs(banded.value.depth.at(r, c) - truth));
+      blind_sum += truth - blind.value.depth.at(r, c);
+      ++n;
+    }
+  }
+  ASSERT_GT(n, 3000u);
+  EXPECT_LT(banded_err, 2e-8);
+  // Node by node, the documented rule evaluated by brute force.
+  const DepthGrid fm = reproject(cloud, with_cell(kLatticeCell)).value;
+  for (int r = 0; r < g.rows; r += 3) {
+    for (int c = 0; c < g.cols; ++c) {
+      if (!banded.value.depth.valid(r, c)) continue;
+      EXPECT_NEAR(banded.value.depth.at(r, c), plane_oracle(cloud, fm, r, c, 1.5, 0.002), 2e-8) << r << "," << c;
+    }
+  }
+  // Without the band the back surface enters every plane: on average 2/3 of the way down.
+  EXPECT_GT(blind_sum / static_cast<double>(n), 0.002);
+}
+
+TEST(Reproject, PlaneSplatsOnASingleScanLineFollowItAndStayLevelAcrossIt) {
+  // One line of points at y = 20.3 mm, z rising along x: the 2 × 2 system is singular across
+  // the line; the ridge makes the cross slope 0, so nodes within the radius take the line's z.
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i <= 600; ++i) {
+    const double x = 0.1 * i * kLatticeCell;
+    pts.emplace_back(x, 20.3 * kLatticeCell, 0.01 + 0.4 * x);
+  }
+  pts.emplace_back(0.0, 0.0, 0.01);                        // sets the box; far from the line
+  pts.emplace_back(0.0, 40.0 * kLatticeCell, 0.01);
+  const Cloud cloud = cloud_of(pts);
+  const auto r = reproject(cloud, planes(with_cell(kLatticeCell), 1.5));
+  const HeightField& d = r.value.depth;
+  const GridGeometry& g = d.geometry();
+  std::size_t checked = 0;
+  double err = 0.0;
+  for (int row = 0; row < g.rows; ++row) {
+    const double dy = std::abs(g.y_of_row(row) - 20.3 * kLatticeCell) / kLatticeCell;
+    for (int c = 3; c <= g.cols - 4; ++c) {
+      if (dy > 1.5) {
+        if (row > 3 && row < g.rows - 4) {
+          EXPECT_FALSE(d.valid(row, c)) << row << "," << c;  // beyond the radius of every point
+        }
+        continue;
+      }
+      ASSERT_TRUE(d.valid(row, c)) << row << "," << c;
+      err = std::max(err, std::abs(d.at(row, c) - (0.01 + 0.4 * g.x_of_col(c))));
+      ++checked;
+    }
+  }
+  EXPECT_EQ(checked, 3u * static_cast<std::size_t>(g.cols - 6));  // rows 19, 20, 21
+  EXPECT_LT(err, 2e-8);
+}
+
+TEST(Reproject, PlaneSplatsFillExactlyTheEmptyNodesWithinTheRadiusOfAPoint) {
+  const Cloud cloud = cloud_of(random_samples(lattice_plane, 0.15, 0.0, 13));
+  const double radius = 1.2;
+  const auto r = reproject(cloud, planes(with_cell(kLatticeCell), radius));
+  const auto measured = reproject(cloud, with_cell(kLatticeCell));
+  const GridGeometry& g = r.value.depth.geometry();
+  std::size_t filled = 0;
+  for (int row = 0; row < g.rows; ++row) {
+    for (int c = 0; c < g.cols; ++c) {
+      bool near = false;  // brute force over every point
+      for (std::size_t i = 0; i < cloud.size() && !near; ++i) {
+        const double dx = (cloud.xyz(0, static_cast<Eigen::Index>(i)) - g.x_of_col(c)) / kLatticeCell;
+        const double dy = (cloud.xyz(1, static_cast<Eigen::Index>(i)) - g.y_of_row(row)) / kLatticeCell;
+        near = dx * dx + dy * dy <= radius * radius;
+      }
+      const auto i = static_cast<std::size_t>(row * g.cols + c);
+      EXPECT_EQ(r.value.depth.valid(row, c), near) << row << "," << c;
+      if (measured.value.depth.valid(row, c)) {
+        EXPECT_EQ(r.value.flags[i], kCellMeasured);
+      } else if (near) {
+        EXPECT_EQ(r.value.flags[i], kCellSplatted);
+        ++filled;
+      }
+    }
+  }
+  EXPECT_GT(filled, 500u);
+  EXPECT_EQ(figure(r.report, "cells_splat_filled_empty"), static_cast<double>(filled));
 }
 
 TEST(ReprojectErrors, OnePointAndEdgeOnCloudsAreDegenerate) {

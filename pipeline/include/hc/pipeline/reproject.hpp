@@ -36,6 +36,24 @@ enum class SplatMode {
   /// cell itself (symmetric sampling); otherwise it is off by slope × that offset (at most
   /// slope × radius, at the rim of the data).
   kInterpolate,
+  /// Weighted local planes, for unorganised and merged multi-view clouds: every node within
+  /// splat_radius_cells (exact x-y distance from the point) of at least one point takes the
+  /// value at the node of the weighted least-squares plane through those points (weight
+  /// exp(−d² / 2σ²), σ = radius / 2 cells), measured nodes included, so the noise and the
+  /// registration offsets of overlapping views average out instead of the front-most sample
+  /// deciding each node. With see_through_depth_m > 0 only points within see_through_depth_m
+  /// below the front-most measured z within radius + √2/2 cells of the node enter its plane
+  /// (the front surface); with it 0, every point in the radius does. The slope is fitted along
+  /// each principal x-y direction of the node's points (eigenvectors e_k, weighted variances
+  /// l_k of their offsets) only where the node lies within 3 standard deviations of their
+  /// weighted centroid x̄ along it, (e_k·x̄)² ≤ 9·l_k; along the others the node takes the
+  /// weighted mean (across a single scan line, at a single point, at a sparse rim), so no value
+  /// is an extrapolation that amplifies noise. Exact on a plane (up to float rounding) wherever
+  /// the slope is fitted in both directions; on a curved surface the fit averages over about σ. A measured node whose front-most point
+  /// lies more than see_through_depth_m below its plane is flagged kCellSplatted and counted in
+  /// cells_occluded_by_splat; filled empty nodes are kCellSplatted. Cost: one pass over the
+  /// points touching (2·radius + 1)² nodes each, 36 bytes of moments per cell.
+  kPlane,
 };
 
 /// Orthographic depth scan options.
