@@ -887,6 +887,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
       r.fail("filters.outliers.off_surface_ratio",
              "= " + format_number(o.off_surface_ratio) + ": expected 0 (off) or a number in (1, 100]");
     }
+    o.despike = r.get_bool("filters.outliers.despike", true);
     if (o.method == OutlierMethod::kRobust && o.scope == OutlierScope::kFront) {
       r.fail("filters.outliers.scope", "= front applies to method statistical only: expected scope all with method robust, "
                                        "or method statistical");

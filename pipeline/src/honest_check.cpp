@@ -11,6 +11,8 @@
 
 #include "hc/pipeline/honest_check.hpp"
 
+#include <Eigen/Cholesky>
+
 #include "knn_grid.hpp"  // detail::radix_sort, run_parallel, kSearchThreads
 
 #include "hc/common/bilinear_surface.hpp"
@@ -27,6 +29,8 @@
 #include <cstring>
 #include <limits>
 #include <numeric>
+#include <stdexcept>
+#include <string>
 #include <unordered_map>
 #include <utility>
 
@@ -554,6 +558,41 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   return out;
 }
 
+namespace {
+
+// Per cell (row-major), 1 where the cell belongs to an island: a group of valid cells
+// (8-connected, OpenCV's connected components) of at most max_cells cells that is not the
+// largest group. *islands = the number of such groups.
+std::vector<std::uint8_t> island_mask(const HeightField& grid, int max_cells, std::size_t* islands) {
+  const GridGeometry& g = grid.geometry();
+  cv::Mat valid(g.rows, g.cols, CV_8UC1);
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) valid.at<std::uint8_t>(r, c) = std::isnan(grid.at(r, c)) ? 0 : 255;
+  cv::Mat labels, stats, centroids;
+  const int n_labels = cv::connectedComponentsWithStats(valid, labels, stats, centroids, 8, CV_32S);
+  int largest = 0, largest_area = -1;
+  for (int l = 1; l < n_labels; ++l) {
+    const int area = stats.at<int>(l, cv::CC_STAT_AREA);
+    if (area > largest_area) largest_area = area, largest = l;
+  }
+  std::vector<std::uint8_t> is_island(static_cast<std::size_t>(std::max(n_labels, 1)), 0);
+  *islands = 0;
+  for (int l = 1; l < n_labels; ++l) {
+    if (l == largest || stats.at<int>(l, cv::CC_STAT_AREA) > max_cells) continue;
+    is_island[static_cast<std::size_t>(l)] = 1;
+    ++*islands;
+  }
+  std::vector<std::uint8_t> mask(g.cell_count(), 0);
+  if (*islands == 0) return mask;
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c)
+      mask[static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c)] =
+          is_island[static_cast<std::size_t>(labels.at<int>(r, c))];
+  return mask;
+}
+
+}  // namespace
+
 GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o) {
   check_honest_options(o);
   const GridGeometry& g = grid.geometry();
@@ -617,28 +656,12 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
   out.worst = all;
 
   // Islands: small groups of valid cells away from the largest group.
-  cv::Mat valid(g.rows, g.cols, CV_8UC1);
-  for (int r = 0; r < g.rows; ++r)
-    for (int c = 0; c < g.cols; ++c) valid.at<std::uint8_t>(r, c) = std::isnan(grid.at(r, c)) ? 0 : 255;
-  cv::Mat labels, stats, centroids;
-  const int n_labels = cv::connectedComponentsWithStats(valid, labels, stats, centroids, 8, CV_32S);
-  int largest = 0, largest_area = -1;
-  for (int l = 1; l < n_labels; ++l) {
-    const int area = stats.at<int>(l, cv::CC_STAT_AREA);
-    if (area > largest_area) largest_area = area, largest = l;
-  }
-  std::vector<std::uint8_t> is_island(static_cast<std::size_t>(std::max(n_labels, 1)), 0);
-  for (int l = 1; l < n_labels; ++l) {
-    const int area = stats.at<int>(l, cv::CC_STAT_AREA);
-    if (l == largest || area > o.island_max_cells) continue;
-    is_island[static_cast<std::size_t>(l)] = 1;
-    ++out.islands;
-    out.island_cells += static_cast<std::size_t>(area);
-  }
-  if (out.islands > 0) {
-    for (int r = 0; r < g.rows && out.marked.size() < 1000; ++r)
-      for (int c = 0; c < g.cols && out.marked.size() < 1000; ++c)
-        if (is_island[static_cast<std::size_t>(labels.at<int>(r, c))]) out.marked.push_back({r, c});
+  const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &out.islands);
+  for (std::size_t i = 0; i < island.size(); ++i) {
+    if (!island[i]) continue;
+    ++out.island_cells;
+    if (out.marked.size() < 1000)
+      out.marked.push_back({static_cast<int>(i / static_cast<std::size_t>(g.cols)), static_cast<int>(i % static_cast<std::size_t>(g.cols))});
   }
   return out;
 }
@@ -757,25 +780,30 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
   return v;
 }
 
-StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o) {
-  check_honest_options(o);
-  const auto t0 = std::chrono::steady_clock::now();
-  StageReport report;
-  report.stage = "isolated";
-  report.count_in = cloud.size();
-  const std::size_t n = cloud.size();
-  std::vector<float> local(3 * n);
-  std::vector<std::uint8_t> finite(n, 0);
-  // Recentre on the per-axis median (a far point must not cost the rest its float precision),
-  // and start the spacing search at the edge of the central 98 % box's volume per point.
-  Eigen::Vector3d centre = Eigen::Vector3d::Zero(), lo = Eigen::Vector3d::Zero(), hi = Eigen::Vector3d::Zero();
+namespace {
+
+// The cloud in float, recentred on its per-axis median (a far point must not cost the rest its
+// float precision), with finite flags and the median nearest-neighbour spacing [m] (of up to
+// 4096 evenly strided points; 0 when fewer than 2 points are finite). The spacing search starts
+// at the edge of the central 98 % box's volume per point.
+struct LocalCloud {
+  std::vector<float> local;
+  std::vector<std::uint8_t> finite;
   std::size_t n_finite = 0;
+  double spacing_m = 0.0;
+};
+
+LocalCloud local_cloud(const Cloud& cloud) {
+  LocalCloud out;
+  const std::size_t n = cloud.size();
+  out.local.assign(3 * n, 0.0f);
+  out.finite.assign(n, 0);
+  std::vector<float>& local = out.local;
+  std::vector<std::uint8_t>& finite = out.finite;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero(), lo = Eigen::Vector3d::Zero(), hi = Eigen::Vector3d::Zero();
+  std::size_t& n_finite = out.n_finite;
   for (std::size_t i = 0; i < n; ++i) n_finite += cloud.xyz.col(static_cast<Eigen::Index>(i)).allFinite() ? 1u : 0u;
-  if (n_finite < 2) {
-    report.count_out = n;
-    report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return {std::move(cloud), std::move(report)};
-  }
+  if (n_finite < 2) return out;
   for (int a = 0; a < 3; ++a) {
     std::vector<double> v;
     v.reserve(n_finite);
@@ -800,7 +828,28 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   }
   const Eigen::Vector3d ext = (hi - lo).cwiseMax(1e-9);
   const double start_edge = std::max(std::cbrt(ext.prod() / static_cast<double>(n_finite)), 1e-9);
-  const double spacing = median_spacing(local, finite, start_edge);
+  out.spacing_m = median_spacing(local, finite, start_edge);
+  return out;
+}
+
+}  // namespace
+
+StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o) {
+  check_honest_options(o);
+  const auto t0 = std::chrono::steady_clock::now();
+  StageReport report;
+  report.stage = "isolated";
+  report.count_in = cloud.size();
+  const std::size_t n = cloud.size();
+  const LocalCloud lc = local_cloud(cloud);
+  if (lc.n_finite < 2) {
+    report.count_out = n;
+    report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return {std::move(cloud), std::move(report)};
+  }
+  const std::vector<float>& local = lc.local;
+  const std::vector<std::uint8_t>& finite = lc.finite;
+  const double spacing = lc.spacing_m;
   // 10 % inside the verdict's radius: the spacing is estimated on a sample, and the check's
   // estimate (on the cloud as read) differs from this one by about 1 %, which must not leave a
   // point the check calls isolated (the Buddha: 1.466 mm here against 1.455 mm there).
@@ -823,6 +872,176 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
                          std::to_string(o.isolation_min_neighbours) + " others within " + format_number(radius * 1e3) +
                          " mm, " + format_number(o.isolation_radius_spacings) + " x the median spacing " +
                          format_number(spacing * 1e3) + " mm; cross_check.isolation_*)");
+  report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return {std::move(cloud), std::move(report)};
+}
+
+StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& o,
+                                       double reach_cells, double spacing_m) {
+  check_honest_options(o);
+  if (!(reach_cells >= 0.0) || !std::isfinite(reach_cells)) {
+    throw std::invalid_argument("remove_spike_points: reach_cells = " + std::to_string(reach_cells) +
+                                " (expected a finite value >= 0)");
+  }
+  if (!(spacing_m >= 0.0) || !std::isfinite(spacing_m)) {
+    throw std::invalid_argument("remove_spike_points: spacing_m = " + std::to_string(spacing_m) +
+                                " (expected a finite value >= 0)");
+  }
+  const auto t0 = std::chrono::steady_clock::now();
+  StageReport report;
+  report.stage = "despike";
+  report.count_in = cloud.size();
+  const GridGeometry& g = grid.geometry();
+  const int h = o.spike_window_cells / 2;
+  // Spike cells and the height of their window's plane at the node.
+  struct Target {
+    int row, col;
+    double base_m;  // the window's plane at the node [m]; NaN for an island cell
+  };
+  std::vector<Target> targets;
+  std::size_t n_spike = 0;
+  // Spike cells: more than spike_min_height_m above the least-squares plane through the other
+  // valid cells of the window (at least 3 of them). A plane, not the median: on a steep flank
+  // the window's spread hides a spike from a median and MAD test, not from the plane. In a full
+  // window the offsets are symmetric, so the plane at the node is the mean of the other cells
+  // (summed-area tables); partial windows (rims, holes) are solved.
+  const std::size_t ucols = static_cast<std::size_t>(g.cols), w1 = ucols + 1;
+  std::vector<double> sat_z((static_cast<std::size_t>(g.rows) + 1) * w1, 0.0);
+  std::vector<std::uint32_t> sat_n(sat_z.size(), 0u);
+  for (int r = 0; r < g.rows; ++r) {
+    double run_z = 0.0;
+    std::uint32_t run_n = 0;
+    for (int c = 0; c < g.cols; ++c) {
+      const float v = grid.at(r, c);
+      if (!std::isnan(v)) {
+        run_z += static_cast<double>(v);
+        ++run_n;
+      }
+      const std::size_t k = (static_cast<std::size_t>(r) + 1) * w1 + static_cast<std::size_t>(c) + 1;
+      sat_z[k] = sat_z[k - w1] + run_z;
+      sat_n[k] = sat_n[k - w1] + run_n;
+    }
+  }
+  const auto full = static_cast<std::uint32_t>((2 * h + 1) * (2 * h + 1));
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) {
+      const float z = grid.at(r, c);
+      if (std::isnan(z)) continue;
+      const std::size_t r0 = static_cast<std::size_t>(std::max(0, r - h)), r1 = static_cast<std::size_t>(std::min(g.rows, r + h + 1));
+      const std::size_t c0 = static_cast<std::size_t>(std::max(0, c - h)), c1 = static_cast<std::size_t>(std::min(g.cols, c + h + 1));
+      const std::uint32_t n_win = sat_n[r1 * w1 + c1] + sat_n[r0 * w1 + c0] - sat_n[r0 * w1 + c1] - sat_n[r1 * w1 + c0];
+      double base;
+      if (n_win == full) {
+        const double sum = sat_z[r1 * w1 + c1] + sat_z[r0 * w1 + c0] - sat_z[r0 * w1 + c1] - sat_z[r1 * w1 + c0];
+        base = (sum - static_cast<double>(z)) / static_cast<double>(full - 1);
+      } else {
+        if (n_win < 4) continue;  // the cell and at least 3 others
+        Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+        Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+        for (int rr = static_cast<int>(r0); rr < static_cast<int>(r1); ++rr)
+          for (int cc = static_cast<int>(c0); cc < static_cast<int>(c1); ++cc) {
+            const float v = grid.at(rr, cc);
+            if ((rr == r && cc == c) || std::isnan(v)) continue;
+            const Eigen::Vector3d q(1.0, cc - c, rr - r);
+            a += q * q.transpose();
+            rhs += q * (static_cast<double>(v) - static_cast<double>(z));
+          }
+        const Eigen::Vector3d coef = a.ldlt().solve(rhs);
+        if (!coef.allFinite()) continue;
+        base = static_cast<double>(z) + coef(0);  // the plane at the cell's node
+      }
+      if (static_cast<double>(z) - base <= o.spike_min_height_m) continue;
+      targets.push_back({r, c, base});
+      ++n_spike;
+    }
+  // Island cells: every point binned in one is a candidate.
+  std::size_t n_islands = 0, n_island_cells = 0;
+  {
+    const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &n_islands);
+    for (std::size_t i = 0; i < island.size(); ++i) {
+      if (!island[i]) continue;
+      targets.push_back({static_cast<int>(i / static_cast<std::size_t>(g.cols)), static_cast<int>(i % static_cast<std::size_t>(g.cols)),
+                         std::numeric_limits<double>::quiet_NaN()});
+      ++n_island_cells;
+    }
+  }
+  std::size_t candidates = 0, removed = 0;
+  if (!targets.empty()) {
+    // Points binned by nearest node (reproject's rule), as compressed rows: first[cell]..first[cell + 1].
+    const std::size_t n = cloud.size(), cells = g.cell_count();
+    const double inv = 1.0 / g.cell_size_m;
+    std::vector<std::uint32_t> cell_of(n, std::numeric_limits<std::uint32_t>::max());
+    std::vector<std::uint32_t> first(cells + 1, 0);
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto p = cloud.xyz.col(static_cast<Eigen::Index>(i));
+      if (!p.allFinite()) continue;
+      const double fc = std::floor((p.x() - g.x0_m) * inv + 0.5), fr = std::floor((p.y() - g.y0_m) * inv + 0.5);
+      if (fc < 0.0 || fr < 0.0 || fc >= g.cols || fr >= g.rows) continue;
+      cell_of[i] = static_cast<std::uint32_t>(static_cast<std::size_t>(fr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(fc));
+      ++first[cell_of[i] + 1];
+    }
+    std::partial_sum(first.begin(), first.end(), first.begin());
+    std::vector<std::uint32_t> order(first.back());
+    {
+      std::vector<std::uint32_t> fill(first.begin(), first.end() - 1);
+      for (std::size_t i = 0; i < n; ++i)
+        if (cell_of[i] != std::numeric_limits<std::uint32_t>::max()) order[fill[cell_of[i]]++] = static_cast<std::uint32_t>(i);
+    }
+    std::vector<double> radius_of(n, 0.0);  // > 0: a candidate, with its search radius [m]
+    // Search radii: 2 to 4 cells, or 2 to 4 point spacings where the scan is sparser than the grid.
+    const double rho_lo = std::max(2.0 * g.cell_size_m, 2.0 * spacing_m), rho_hi = std::max(4.0 * g.cell_size_m, 4.0 * spacing_m);
+    const int reach = static_cast<int>(std::ceil(reach_cells));
+    for (const Target& t : targets) {
+      for (int rr = std::max(0, t.row - reach); rr <= std::min(g.rows - 1, t.row + reach); ++rr)
+        for (int cc = std::max(0, t.col - reach); cc <= std::min(g.cols - 1, t.col + reach); ++cc) {
+          const std::size_t cell = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
+          for (std::uint32_t k = first[cell]; k < first[cell + 1]; ++k) {
+            const std::uint32_t i = order[k];
+            double rho = rho_hi;
+            if (std::isnan(t.base_m)) {
+              if (rr != t.row || cc != t.col) continue;  // an island's own points
+            } else {
+              const double above = cloud.xyz(2, static_cast<Eigen::Index>(i)) - t.base_m;
+              if (above <= o.spike_min_height_m) continue;
+              rho = std::clamp(0.5 * above, rho_lo, rho_hi);
+            }
+            radius_of[i] = std::max(radius_of[i], rho);
+          }
+        }
+    }
+    std::vector<bool> keep(n, true);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (radius_of[i] <= 0.0) continue;
+      ++candidates;
+      const Eigen::Vector3d p = cloud.xyz.col(static_cast<Eigen::Index>(i));
+      const double rho = radius_of[i];
+      const int span = static_cast<int>(std::ceil(rho * inv));
+      const int r0 = static_cast<int>(cell_of[i] / static_cast<std::uint32_t>(g.cols));
+      const int c0 = static_cast<int>(cell_of[i] % static_cast<std::uint32_t>(g.cols));
+      int count = 0;
+      for (int rr = std::max(0, r0 - span); rr <= std::min(g.rows - 1, r0 + span) && count < o.isolation_min_neighbours; ++rr)
+        for (int cc = std::max(0, c0 - span); cc <= std::min(g.cols - 1, c0 + span) && count < o.isolation_min_neighbours; ++cc) {
+          const std::size_t cell = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
+          for (std::uint32_t k = first[cell]; k < first[cell + 1]; ++k) {
+            const std::uint32_t j = order[k];
+            if (j != i && (cloud.xyz.col(static_cast<Eigen::Index>(j)) - p).squaredNorm() <= rho * rho) ++count;
+          }
+        }
+      if (count < o.isolation_min_neighbours) {
+        keep[i] = false;
+        ++removed;
+      }
+    }
+    if (removed > 0) cloud.keep_if(keep);
+  }
+  report.count_out = cloud.size();
+  report.figure("spike_cells", static_cast<double>(n_spike));
+  report.figure("island_cells", static_cast<double>(n_island_cells));
+  report.figure("candidates", static_cast<double>(candidates));
+  report.figure("removed_spike_points", static_cast<double>(removed));
+  report.notes.push_back("removed " + std::to_string(removed) + " of " + std::to_string(candidates) +
+                         " points standing in grid spikes or islands with fewer than " +
+                         std::to_string(o.isolation_min_neighbours) + " other points within half their height (2-4 cells or spacings)");
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return {std::move(cloud), std::move(report)};
 }

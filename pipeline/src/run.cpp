@@ -440,7 +440,7 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
   }
   // Meshes are rasterised (z-buffer over the faces); points are binned and splatted.
   const bool rasterised = cloud.has_mesh();
-  DepthGrid grid = stage("reproject", reports, progress, [&] {
+  auto grid_it = [&] {
     if (cloud.has_mesh()) return rasterise_mesh(cloud, config.grid.reproject, organised_meshed ? config.grid.organised_blend_m : 0.0);
     try {
       return reproject(cloud, config.grid.reproject);
@@ -450,7 +450,29 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
       if (far.empty()) throw;
       throw DegenerateInputError(e.what() + far);
     }
-  });
+  };
+  DepthGrid grid = stage("reproject", reports, progress, grid_it);
+  // The robust filter judges each point by its neighbours; a stray point a few millimetres in
+  // front of the surface has the surface among them. Here the grid judges it: points that make
+  // spikes or islands and have no neighbour at the spike's scale go, and the grid is made again.
+  if (!rasterised && config.filters.outliers.enabled && config.filters.outliers.method == OutlierMethod::kRobust &&
+      config.filters.outliers.despike) {
+    double k = 1.0;  // a point's disc spans splat radius × K grid cells when upsampled
+    for (const auto& [name, value] : reports.back().figures)
+      if (name == "upsample_factor" && value >= 1.0) k = value;
+    double spacing_m = 0.0;  // the isolated stage's estimate of the scan's spacing
+    for (const StageReport& rep : reports) {
+      if (rep.stage != "isolated") continue;
+      for (const auto& [name, value] : rep.figures)
+        if (name == "spacing_mm" && value > 0.0 && std::isfinite(value)) spacing_m = value * 1e-3;
+    }
+    const std::size_t before = cloud.size();
+    cloud = stage("despike", reports, progress, [&] {
+      return remove_spike_points(std::move(cloud), grid.depth, config.cross_check.honest,
+                                 std::max(1.0, config.grid.reproject.splat_radius_cells) * k, spacing_m);
+    });
+    if (cloud.size() < before) grid = stage("reproject", reports, progress, grid_it);
+  }
   check_stored_precision(precision, grid.depth.geometry().cell_size_m, config.view.matrix().rotation(), reports.back(),
                          summary.warnings);
   // Scan-line corrugation of the grid (before hole filling), for the report.

@@ -46,6 +46,9 @@ struct OutlierConfig {
   double local_ratio = 3.0;      ///< robust: local test ratio [-], (1, 100]
   double mad_multiplier = 8.0;   ///< robust: global test in σ of ln d [-], (0, 100]
   double off_surface_ratio = 2.0;  ///< robust: off-surface test above this × median d [-]; 0 = off, else (1, 100]
+  /// robust, points only: after gridding, remove the stray points that make grid spikes and
+  /// islands (remove_spike_points) and grid again
+  bool despike = true;
   FarClusterOptions far_clusters;  ///< robust: far-cluster removal (far_clusters.*)
 };
 

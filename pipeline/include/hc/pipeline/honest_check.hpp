@@ -79,7 +79,7 @@ struct HonestCheckOptions {
   double spike_allowance_max_m = 0.03;
   int max_spikes_kept_cells = 0;            ///< cells supported only by isolated points ("fail")
   int max_island_cells = 2;                 ///< island cells before "warn"
-  double max_removed_fraction = 0.10;       ///< of the input, removed by the filters ("warn")
+  double max_removed_fraction = 0.01;       ///< of the input, removed by the filters ("warn")
   double max_surface_lost_fraction = 0.005; ///< of the input, surface lost ("warn")
   double min_visible_on_surface_fraction = 0.7;  ///< on / (on + off + no-data) ("warn")
   double min_supported_fraction = 0.95;     ///< cross_check's supported fraction ("warn")
@@ -195,6 +195,31 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
 /// Source: the radius outlier test (Rusu 2009, PCL's RadiusOutlierRemoval), radius from the
 /// scan's own spacing.
 StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& options);
+
+/// Removes the stray points that make the grid's spikes and islands (a grid-level second look
+/// after the robust outlier test, which judges points by their neighbours only: clutter a few
+/// millimetres in front of a surface has that surface among its neighbours and passes). On
+/// `grid` (heights [m], NaN = no data, made from `cloud` in the same frame, metres) it runs
+/// find_grid_spikes with `options`; the candidates are the points binned (nearest node) within
+/// ⌈reach_cells⌉ cells (Chebyshev) of a spike cell that stand more than spike_min_height_m above
+/// the plane at its node, and every point binned in an island cell. A spike cell lies more than
+/// spike_min_height_m above the least-squares plane through the other valid cells of its
+/// spike_window_cells window (at least 3; in a full window, their mean). A candidate is removed when
+/// fewer than options.isolation_min_neighbours other points lie within ρ of it in 3-D, with
+/// ρ = clamp(0.5 × its height above that plane, ρ_lo, ρ_hi) for a spike and ρ_hi for an island,
+/// ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells, 4 × spacing_m) (spacing_m: the scan's
+/// median nearest-neighbour spacing, 0 if unknown; a scan sparser than the grid keeps its points): relief that stands h above its surroundings is joined to them by a sampled surface,
+/// so a sphere of radius h/2 about its top holds samples; a stray point h in front of the
+/// surface has none within h/2. Pits are not touched (they are missing data, not added data).
+/// reach_cells is the splat radius (the cells a point's disc writes). Report stage
+/// "despike", figures: spike_cells, island_cells, candidates, removed_spike_points. The caller
+/// regrids when points were removed. Cost: find_grid_spikes plus O(N) binning plus, per
+/// candidate, at most 9 × 9 cells of points.
+/// @throws hc::ConfigError for options outside their ranges (check_honest_options);
+///         std::invalid_argument if reach_cells or spacing_m is negative or not finite.
+/// Source: this project (the radius test of Rusu 2009 applied at the spike's own scale).
+StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& options,
+                                       double reach_cells, double spacing_m);
 
 
 /// One reason of a verdict: a stable code, its level and a sentence with the figures.
