@@ -946,7 +946,9 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
             a += q * q.transpose();
             rhs += q * (static_cast<double>(v) - static_cast<double>(z));
           }
-        const Eigen::Vector3d coef = a.ldlt().solve(rhs);
+        const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
+        if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) continue;  // collinear cells: no plane
+        const Eigen::Vector3d coef = ldlt.solve(rhs);
         if (!coef.allFinite()) continue;
         base = static_cast<double>(z) + coef(0);  // the plane at the cell's node
       }
@@ -966,7 +968,10 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     }
   }
   std::size_t candidates = 0, removed = 0;
-  if (!targets.empty()) {
+  const bool indexable = cloud.size() < std::numeric_limits<std::uint32_t>::max() &&
+                         g.cell_count() < std::numeric_limits<std::uint32_t>::max();
+  if (!indexable) report.notes.push_back("skipped: more than 2^32 - 1 points or cells (32-bit point and cell indices)");
+  if (!targets.empty() && indexable) {
     // Points binned by nearest node (reproject's rule), as compressed rows: first[cell]..first[cell + 1].
     const std::size_t n = cloud.size(), cells = g.cell_count();
     const double inv = 1.0 / g.cell_size_m;
@@ -998,9 +1003,9 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
           for (std::uint32_t k = first[cell]; k < first[cell + 1]; ++k) {
             const std::uint32_t i = order[k];
             double rho = rho_hi;
-            if (std::isnan(t.base_m)) {
-              if (rr != t.row || cc != t.col) continue;  // an island's own points
-            } else {
+            // A spike's points above its plane; an island's points within the reach (on an
+            // upsampled grid a stray point's nearest fine node may itself be no data).
+            if (!std::isnan(t.base_m)) {
               const double above = cloud.xyz(2, static_cast<Eigen::Index>(i)) - t.base_m;
               if (above <= o.spike_min_height_m) continue;
               rho = std::clamp(0.5 * above, rho_lo, rho_hi);

@@ -79,7 +79,7 @@ using detail::run_two;
 
 constexpr float kEmpty = -std::numeric_limits<float>::infinity();
 // Plane splats (splat_planes): when a slope is fitted along a direction, and the moments per node.
-constexpr double kPlaneMinVariance = 1e-9;  // [cells²] below this a direction has no spread
+constexpr double kPlaneMinVariance = 1e-6;  // [cells²] below this a direction has no spread (float moments)
 constexpr double kPlaneMaxLeverage = 3.0;   // [standard deviations]
 // Σw, Σw·dx, Σw·dy, Σw·dx², Σw·dx·dy, Σw·dy², Σw·z, Σw·dx·z, Σw·dy·z.
 constexpr int kPlaneMoments = 9;
@@ -452,11 +452,12 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
 // point's own node is at most √2/2 cells from it, so ref ≥ z of every gathered point). With
 // depth_gap ≤ 0 every point in the radius is gathered. The node then takes the value at its own
 // position of the weighted least-squares plane z = z̄ + b·(dx − x̄) + c·(dy − ȳ) through its points
-// (dx, dy the point's offset from the node in cells), i.e. z̄ − b·x̄ − c·ȳ, clamped to the
-// heights of those points ± |(b, c)| × the distance to the nearest of them. The 2 × 2 normal equations are solved by eigen-decomposition; along
-// an eigen-direction with variance under kPlaneMinVariance cells² (collinear or single points)
-// the slope is 0, so the fit falls back to the weighted mean there instead of an unbounded
-// slope. Moments are float, per node, relative to ref; they are solved in double.
+// (dx, dy the point's offset from the node in cells), i.e. z̄ − b·x̄ − c·ȳ. The 2 × 2 normal
+// equations are solved by eigen-decomposition; along an eigen-direction with variance under
+// kPlaneMinVariance cells² (collinear or single points), or in which the node lies more than
+// kPlaneMaxLeverage standard deviations from the points' centroid, the slope is 0, so the fit
+// takes the weighted mean there instead of extrapolating. Moments are float, per node,
+// relative to ref; they are solved in double.
 // Separable weights: exp of the row and column offsets, (2⌊r⌋+2)·2 exponentials per point.
 // Rows are split between two threads for large clouds (each thread reads every point and
 // writes only its own rows). Written: depth[i] and flags[i] of every node with weight > 0
@@ -897,6 +898,11 @@ void scan_attributes(const Cloud& cloud, bool all_finite, const GridGeometry& g,
         static_cast<int>(std::floor(std::sqrt(std::max(0.0, r2 - static_cast<double>(dr) * dr)) + 1e-9));
   }
   const double sigma = 0.5 * options.splat_radius_cells;
+  // Interpolating and plane splats: the measured nodes whose points can have reached the cell
+  // (a plane fill needs a point within the radius; its node lies up to √2/2 cells farther).
+  const double attr_radius = options.splat_radius_cells + (options.splat_mode == SplatMode::kPlane ? 0.7072 : 0.0);
+  const int attr_reach = static_cast<int>(std::floor(attr_radius));
+  const double attr_r2 = attr_radius * attr_radius;
   for (int r = 0; r < g.rows; ++r) {
     for (int c = 0; c < g.cols; ++c) {
       const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c);
@@ -920,13 +926,13 @@ void scan_attributes(const Cloud& cloud, bool all_finite, const GridGeometry& g,
       } else if (f == kCellSplatted) {
         // Interpolating splat: the Gaussian-weighted mean over the measured cells in the disc.
         double w_sum = 0.0, c_sum[3] = {0.0, 0.0, 0.0}, i_sum = 0.0;
-        for (int dr = -reach; dr <= reach; ++dr) {
+        for (int dr = -attr_reach; dr <= attr_reach; ++dr) {
           const int rr = r + dr;
           if (rr < 0 || rr >= g.rows) continue;
-          for (int dc = -reach; dc <= reach; ++dc) {
+          for (int dc = -attr_reach; dc <= attr_reach; ++dc) {
             const int cc = c + dc;
             const double d2 = static_cast<double>(dr * dr + dc * dc);
-            if (cc < 0 || cc >= g.cols || d2 > r2 || d2 == 0.0) continue;
+            if (cc < 0 || cc >= g.cols || d2 > attr_r2 || d2 == 0.0) continue;
             const std::size_t j = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
             if (winner[j] == kNoPoint) continue;
             const double w = static_cast<float>(std::exp(-d2 / (2.0 * sigma * sigma)));

@@ -452,13 +452,14 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
     }
   };
   DepthGrid grid = stage("reproject", reports, progress, grid_it);
+  std::size_t reproject_report = reports.size() - 1;  // the report of the grid in use
   // The robust filter judges each point by its neighbours; a stray point a few millimetres in
   // front of the surface has the surface among them. Here the grid judges it: points that make
   // spikes or islands and have no neighbour at the spike's scale go, and the grid is made again.
   if (!rasterised && config.filters.outliers.enabled && config.filters.outliers.method == OutlierMethod::kRobust &&
       config.filters.outliers.despike) {
     double k = 1.0;  // a point's disc spans splat radius × K grid cells when upsampled
-    for (const auto& [name, value] : reports.back().figures)
+    for (const auto& [name, value] : reports[reproject_report].figures)
       if (name == "upsample_factor" && value >= 1.0) k = value;
     double spacing_m = 0.0;  // the isolated stage's estimate of the scan's spacing
     for (const StageReport& rep : reports) {
@@ -471,10 +472,13 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
       return remove_spike_points(std::move(cloud), grid.depth, config.cross_check.honest,
                                  std::max(1.0, config.grid.reproject.splat_radius_cells) * k, spacing_m);
     });
-    if (cloud.size() < before) grid = stage("reproject", reports, progress, grid_it);
+    if (cloud.size() < before) {
+      grid = stage("reproject", reports, progress, grid_it);
+      reproject_report = reports.size() - 1;
+    }
   }
-  check_stored_precision(precision, grid.depth.geometry().cell_size_m, config.view.matrix().rotation(), reports.back(),
-                         summary.warnings);
+  check_stored_precision(precision, grid.depth.geometry().cell_size_m, config.view.matrix().rotation(),
+                         reports[reproject_report], summary.warnings);
   // Scan-line corrugation of the grid (before hole filling), for the report.
   (void)stage("corrugation", reports, progress, [&] { return corrugation(grid); });
   if (config.grid.hole_fill_max_cells > 0) {

@@ -199,22 +199,29 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 /// Removes the stray points that make the grid's spikes and islands (a grid-level second look
 /// after the robust outlier test, which judges points by their neighbours only: clutter a few
 /// millimetres in front of a surface has that surface among its neighbours and passes). On
-/// `grid` (heights [m], NaN = no data, made from `cloud` in the same frame, metres) it runs
-/// find_grid_spikes with `options`; the candidates are the points binned (nearest node) within
-/// ⌈reach_cells⌉ cells (Chebyshev) of a spike cell that stand more than spike_min_height_m above
-/// the plane at its node, and every point binned in an island cell. A spike cell lies more than
-/// spike_min_height_m above the least-squares plane through the other valid cells of its
-/// spike_window_cells window (at least 3; in a full window, their mean). A candidate is removed when
-/// fewer than options.isolation_min_neighbours other points lie within ρ of it in 3-D, with
-/// ρ = clamp(0.5 × its height above that plane, ρ_lo, ρ_hi) for a spike and ρ_hi for an island,
-/// ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells, 4 × spacing_m) (spacing_m: the scan's
-/// median nearest-neighbour spacing, 0 if unknown; a scan sparser than the grid keeps its points): relief that stands h above its surroundings is joined to them by a sampled surface,
-/// so a sphere of radius h/2 about its top holds samples; a stray point h in front of the
-/// surface has none within h/2. Pits are not touched (they are missing data, not added data).
-/// reach_cells is the splat radius (the cells a point's disc writes). Report stage
-/// "despike", figures: spike_cells, island_cells, candidates, removed_spike_points. The caller
-/// regrids when points were removed. Cost: find_grid_spikes plus O(N) binning plus, per
-/// candidate, at most 9 × 9 cells of points.
+/// `grid` (heights [m], NaN = no data, made from `cloud` in the same frame, metres):
+///  - spike cells: cells more than spike_min_height_m above the least-squares plane, at their
+///    node, through the other valid cells of their spike_window_cells window (at least 3 not on
+///    one line; in a full window, their mean). Not find_grid_spikes' median and MAD test: on a
+///    steep flank the window's spread hides a spike from that test, not from the plane;
+///  - island cells: island_mask's groups of at most island_max_cells cells apart from the
+///    largest (as find_grid_spikes);
+///  - candidates: points binned (nearest node) within ⌈reach_cells⌉ cells (Chebyshev) of a spike
+///    cell that stand more than spike_min_height_m above its plane, and every point within that
+///    reach of an island cell;
+///  - a candidate is removed when fewer than options.isolation_min_neighbours other points lie
+///    within ρ of it in 3-D, ρ = clamp(0.5 × its height above the plane, ρ_lo, ρ_hi) for a spike
+///    and ρ_hi for an island, ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells,
+///    4 × spacing_m) (spacing_m: the scan's median nearest-neighbour spacing, 0 if unknown; a
+///    scan sparser than the grid keeps its points). Relief that stands h above its
+///    surroundings is joined to them by a sampled surface, so a sphere of radius h/2 about its
+///    top holds samples; a stray point h in front of the surface has none within h/2.
+/// Pits are not touched (missing data, not added data). reach_cells is the splat radius × the
+/// upsample factor (the cells a point's disc writes). Report stage "despike", figures:
+/// spike_cells, island_cells, candidates, removed_spike_points. The caller grids again when
+/// points were removed. Skipped (with a note) for 2^32 − 1 points or cells or more. Cost: O(cells)
+/// summed-area tables plus O(N) binning plus, per candidate, the points within ρ_hi (2·⌈ρ_hi /
+/// cell⌉ + 1)² cells.
 /// @throws hc::ConfigError for options outside their ranges (check_honest_options);
 ///         std::invalid_argument if reach_cells or spacing_m is negative or not finite.
 /// Source: this project (the radius test of Rusu 2009 applied at the spike's own scale).

@@ -37,8 +37,9 @@ enum class SplatMode {
   /// slope × radius, at the rim of the data).
   kInterpolate,
   /// Weighted local planes, for unorganised and merged multi-view clouds: every node within
-  /// splat_radius_cells (exact x-y distance from the point) of at least one point takes the
-  /// value at the node of the weighted least-squares plane through those points (weight
+  /// splat_radius_cells (exact x-y distance from the point) of at least one gathered point (see
+  /// below: with see-through handling, front-surface points only) takes the value at the node
+  /// of the weighted least-squares plane through those points (weight
   /// exp(−d² / 2σ²), σ = radius / 2 cells), measured nodes included, so the noise and the
   /// registration offsets of overlapping views average out instead of the front-most sample
   /// deciding each node. With see_through_depth_m > 0 only points within see_through_depth_m
