@@ -54,6 +54,9 @@ void add_touch_command(CLI::App& app);
 /// `hapticloud levels SCENE`: speed against error per level of detail (issue 4).
 void add_levels_command(CLI::App& app);
 
+/// `hapticloud export SCENE --format ply|stl --out FILE`: the height field as a triangle mesh.
+void add_export_command(CLI::App& app);
+
 #ifdef HC_HAVE_FALCON
 /// `hapticloud devices` and `hapticloud falcon-check` (issue 5).
 void add_falcon_command(CLI::App& app);

@@ -49,6 +49,7 @@ int main(int argc, char** argv) {
   hc::app::add_run_command(app);
   hc::app::add_touch_command(app);
   hc::app::add_levels_command(app);
+  hc::app::add_export_command(app);
   hc::app::add_explore_command(app);
 #ifdef HC_HAVE_FALCON
   hc::app::add_falcon_command(app);

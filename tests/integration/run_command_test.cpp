@@ -49,6 +49,34 @@ TEST(RunCommand, VersionAndHelp) {
   EXPECT_NE(h.output.find("run"), std::string::npos);
 }
 
+TEST(ExportCommand, WritesPlyAndStlOfARunsSceneAndRefusesToOverwrite) {
+  const fs::path dir = hc::test::temp_dir("export_cmd");
+  const fs::path out = dir / "run";
+  ASSERT_EQ(run_app("run " + config("sinusoid.yaml") + " --out " + out.string() + " --quiet").status, 0);
+  const Outcome ply = run_app("export " + (out / "scene").string() + " --format ply --out " + (dir / "s.ply").string());
+  ASSERT_EQ(ply.status, 0) << ply.output;
+  EXPECT_NE(ply.output.find("triangles"), std::string::npos) << ply.output;
+  const Outcome stl = run_app("export " + (out / "scene").string() + " --format stl --out " + (dir / "s.stl").string());
+  ASSERT_EQ(stl.status, 0) << stl.output;
+  // Binary STL: 84 bytes + 50 per triangle; the sinusoid grid is fully valid, so its triangle
+  // count is 2 × (rows − 1) × (cols − 1), and the PLY's header says the same.
+  std::ifstream in(dir / "s.ply", std::ios::binary);
+  std::string line;
+  long faces = -1;
+  while (std::getline(in, line) && line != "end_header")
+    if (line.rfind("element face ", 0) == 0) faces = std::stol(line.substr(13));
+  ASSERT_GT(faces, 0);
+  EXPECT_EQ(static_cast<long>(fs::file_size(dir / "s.stl")), 84 + 50 * faces);
+  const auto before = fs::file_size(dir / "s.ply");
+  const Outcome again = run_app("export " + (out / "scene").string() + " --out " + (dir / "s.ply").string());
+  EXPECT_NE(again.status, 0);
+  EXPECT_NE(again.output.find("exists already"), std::string::npos) << again.output;
+  EXPECT_EQ(fs::file_size(dir / "s.ply"), before);
+  const Outcome bad = run_app("export " + (out / "scene").string() + " --format obj --out " + (dir / "s.obj").string());
+  EXPECT_NE(bad.status, 0);
+  EXPECT_NE(bad.output.find("expected one of: ply, stl"), std::string::npos) << bad.output;
+}
+
 TEST(RunCommand, SinusoidReportMatchesTheAnalyticSurface) {
   const fs::path out = hc::test::temp_dir("sinusoid") / "run";
   const Outcome o = run_app("run " + config("sinusoid.yaml") + " --out " + out.string());

@@ -1,0 +1,52 @@
+#pragma once
+/// Export of a scene's height field as a triangle mesh (issue "Ecosystem": PLY for viewers and
+/// mesh tools, STL for 3-D printing tactile replicas).
+
+#include "hc/common/height_field.hpp"
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+/// A triangle mesh of a height field, in the grid frame [m] (x, y of the nodes, z the height;
+/// larger z nearer the viewer). Vertices are the valid nodes in row-major order.
+struct HeightMesh {
+  std::vector<double> xyz_m;          ///< 3 per vertex
+  std::vector<std::uint8_t> rgb8;     ///< 3 per vertex, or empty (no colour layer)
+  std::vector<std::uint32_t> triangles;  ///< 3 vertex indices per triangle, counter-clockwise seen from +z
+  std::size_t vertex_count() const { return xyz_m.size() / 3; }
+  std::size_t triangle_count() const { return triangles.size() / 3; }
+};
+
+/// Two triangles per cell whose four corner nodes are valid (the cell (r, c) spans nodes
+/// (r, c), (r, c + 1), (r + 1, c + 1), (r + 1, c); split along the diagonal (r, c)–(r + 1, c + 1)),
+/// none elsewhere: no data stays open. Only nodes that are a corner of some triangle become
+/// vertices (an isolated valid node would be a vertex without a face). `colour_rgb8` is the
+/// scene's colour layer (rows·cols·3 bytes, row-major) or empty.
+/// @throws std::invalid_argument when colour_rgb8 is neither empty nor rows·cols·3 bytes;
+///         hc::ResourceError above 2^32 − 1 vertices.
+HeightMesh triangulate_height_field(const HeightField& depth, const std::vector<std::uint8_t>& colour_rgb8);
+
+/// Mesh file formats.
+enum class MeshFormat {
+  kPly,  ///< PLY 1.0 binary little-endian: vertex float x y z [uchar red green blue], face list uchar int
+  kStl,  ///< binary STL: 80-byte header, uint32 count, per triangle a float normal, 3 float vertices, uint16 0
+};
+
+/// Parses "ply" or "stl". @throws hc::ConfigError naming the value and the choices.
+MeshFormat parse_mesh_format(const std::string& name);
+
+/// Writes `mesh` to `file` (coordinates in metres as float32, the grid frame; PLY also stores
+/// `comment` lines, e.g. the recentring offset to add for the scan's frame). Written to a
+/// temporary file in the same folder and renamed into place, so no half-written file is left.
+/// Sources: PLY, Greg Turk, "The PLY Polygon File Format" (1994); STL, 3D Systems' StereoLithography
+/// Interface Specification (1989), binary form.
+/// @throws hc::InputError naming the file when it exists already (never overwritten), its folder
+///         is missing or the write fails.
+void write_mesh(const HeightMesh& mesh, const std::filesystem::path& file, MeshFormat format,
+                const std::vector<std::string>& comments = {});
+
+}  // namespace hc::pipeline

@@ -1,0 +1,189 @@
+// Height field → mesh export, read back with PCL's readers (pcl::io::loadPLYFile, PCL's own
+// PLY parser; pcl::io::loadPolygonFileSTL, through VTK): independent of the writer. The oracle
+// is the construction: which cells have four valid corners, and the node positions.
+
+#include "hc/pipeline/mesh_export.hpp"
+
+#include "hc/common/error.hpp"
+
+#include "test_paths.hpp"
+#include <gtest/gtest.h>
+#include <pcl/PolygonMesh.h>
+#include <pcl/conversions.h>
+#include <pcl/io/ply_io.h>
+#include <pcl/io/vtk_lib_io.h>
+#include <pcl/point_types.h>
+
+#include <array>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+namespace {
+
+namespace fs = std::filesystem;
+
+// 6 rows × 7 columns of 2 mm cells, z = 1 mm + 0.1·x − 0.05·y, with a no-data node at (2, 3)
+// (its 4 cells open) and a no-data row 5 except column 0 (an isolated valid node: no vertex).
+struct Fixture {
+  HeightField depth;
+  std::vector<std::uint8_t> rgb;
+  Fixture() : depth(GridGeometry{6, 7, 0.01, -0.02, 0.002}) {
+    const GridGeometry& g = depth.geometry();
+    rgb.resize(3 * g.cell_count());
+    for (int r = 0; r < g.rows; ++r)
+      for (int c = 0; c < g.cols; ++c) {
+        depth.at(r, c) = static_cast<float>(0.001 + 0.1 * g.x_of_col(c) - 0.05 * g.y_of_row(r));
+        const std::size_t i = static_cast<std::size_t>(r * g.cols + c);
+        rgb[3 * i] = static_cast<std::uint8_t>(10 * r);
+        rgb[3 * i + 1] = static_cast<std::uint8_t>(20 * c);
+        rgb[3 * i + 2] = 7;
+      }
+    depth.at(2, 3) = std::numeric_limits<float>::quiet_NaN();
+    for (int c = 1; c < g.cols; ++c) depth.at(5, c) = std::numeric_limits<float>::quiet_NaN();
+  }
+  bool quad(int r, int c) const {
+    return depth.valid(r, c) && depth.valid(r, c + 1) && depth.valid(r + 1, c) && depth.valid(r + 1, c + 1);
+  }
+};
+
+// The node (r, c) whose position a vertex has, by exact float match; (-1, -1) if none.
+std::array<int, 2> node_of(const GridGeometry& g, const HeightField& d, float x, float y, float z) {
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c)
+      if (d.valid(r, c) && static_cast<float>(g.x_of_col(c)) == x && static_cast<float>(g.y_of_row(r)) == y &&
+          d.at(r, c) == z)
+        return {r, c};
+  return {-1, -1};
+}
+
+// Checks the triangles (as node triples) against the construction: each valid quad exactly
+// twice, nothing else, counter-clockwise seen from +z.
+void expect_triangles_tile_the_valid_quads(const Fixture& f, const std::vector<std::array<std::array<int, 2>, 3>>& tris) {
+  const GridGeometry& g = f.depth.geometry();
+  std::map<std::pair<int, int>, int> per_quad;
+  for (const auto& t : tris) {
+    int r0 = 1 << 30, c0 = 1 << 30;
+    for (const auto& n : t) {
+      ASSERT_GE(n[0], 0) << "a vertex is not a valid node";
+      r0 = std::min(r0, n[0]);
+      c0 = std::min(c0, n[1]);
+    }
+    for (const auto& n : t) {
+      EXPECT_LE(n[0] - r0, 1);
+      EXPECT_LE(n[1] - c0, 1);
+    }
+    EXPECT_TRUE(f.quad(r0, c0)) << r0 << "," << c0;
+    ++per_quad[{r0, c0}];
+    // Orientation in x-y (x = column, y = row, both increasing): positive signed area.
+    const double ax = t[1][1] - t[0][1], ay = t[1][0] - t[0][0], bx = t[2][1] - t[0][1], by = t[2][0] - t[0][0];
+    EXPECT_GT(ax * by - ay * bx, 0.0);
+  }
+  std::size_t quads = 0;
+  for (int r = 0; r + 1 < g.rows; ++r)
+    for (int c = 0; c + 1 < g.cols; ++c)
+      if (f.quad(r, c)) {
+        ++quads;
+        EXPECT_EQ((per_quad[{r, c}]), 2) << r << "," << c;
+      }
+  EXPECT_EQ(tris.size(), 2 * quads);
+  EXPECT_EQ(quads, 5u * 6u - 4u - 6u);  // 30 cells less the 4 around the hole and the 6 touching row 5
+}
+
+TEST(MeshExport, PlyReadBackByPclHasTheValidNodesTheirColoursAndTwoTrianglesPerValidCell) {
+  const Fixture f;
+  const GridGeometry& g = f.depth.geometry();
+  const HeightMesh m = triangulate_height_field(f.depth, f.rgb);
+  const fs::path file = hc::test::temp_dir("mesh_export") / "grid.ply";
+  fs::remove(file);
+  write_mesh(m, file, MeshFormat::kPly, {"recentre_offset_m 1 2 3"});
+  pcl::PolygonMesh mesh;
+  ASSERT_EQ(pcl::io::loadPLYFile(file.string(), mesh), 0);
+  pcl::PointCloud<pcl::PointXYZRGB> cloud;
+  pcl::fromPCLPointCloud2(mesh.cloud, cloud);
+  // Vertices: every node that is a corner of a valid cell (the isolated node (5, 0) is not).
+  std::set<std::pair<int, int>> corners;
+  for (int r = 0; r + 1 < g.rows; ++r)
+    for (int c = 0; c + 1 < g.cols; ++c)
+      if (f.quad(r, c)) corners.insert({{r, c}, {r, c + 1}, {r + 1, c}, {r + 1, c + 1}});
+  ASSERT_EQ(cloud.size(), corners.size());
+  std::vector<std::array<int, 2>> node(cloud.size());
+  for (std::size_t v = 0; v < cloud.size(); ++v) {
+    const auto& p = cloud[v];
+    node[v] = node_of(g, f.depth, p.x, p.y, p.z);
+    ASSERT_GE(node[v][0], 0) << v;
+    EXPECT_TRUE(corners.count({node[v][0], node[v][1]}));
+    const std::size_t i = static_cast<std::size_t>(node[v][0] * g.cols + node[v][1]);
+    EXPECT_EQ(p.r, f.rgb[3 * i]);
+    EXPECT_EQ(p.g, f.rgb[3 * i + 1]);
+    EXPECT_EQ(p.b, f.rgb[3 * i + 2]);
+  }
+  std::vector<std::array<std::array<int, 2>, 3>> tris;
+  for (const auto& poly : mesh.polygons) {
+    ASSERT_EQ(poly.vertices.size(), 3u);
+    tris.push_back({node[poly.vertices[0]], node[poly.vertices[1]], node[poly.vertices[2]]});
+  }
+  expect_triangles_tile_the_valid_quads(f, tris);
+}
+
+TEST(MeshExport, StlReadBackThroughVtkHasTwoTrianglesPerValidCellFacingTheViewer) {
+  const Fixture f;
+  const GridGeometry& g = f.depth.geometry();
+  const fs::path file = hc::test::temp_dir("mesh_export") / "grid.stl";
+  fs::remove(file);
+  write_mesh(triangulate_height_field(f.depth, {}), file, MeshFormat::kStl);
+  // Binary STL size: 80 + 4 + 50 per triangle.
+  const auto tri_count = (fs::file_size(file) - 84) / 50;
+  EXPECT_EQ(fs::file_size(file), 84 + 50 * tri_count);
+  pcl::PolygonMesh mesh;
+  ASSERT_GT(pcl::io::loadPolygonFileSTL(file.string(), mesh), 0);
+  pcl::PointCloud<pcl::PointXYZ> cloud;
+  pcl::fromPCLPointCloud2(mesh.cloud, cloud);
+  std::vector<std::array<std::array<int, 2>, 3>> tris;
+  for (const auto& poly : mesh.polygons) {
+    ASSERT_EQ(poly.vertices.size(), 3u);
+    std::array<std::array<int, 2>, 3> t{};
+    for (int k = 0; k < 3; ++k) {
+      const auto& p = cloud[poly.vertices[static_cast<std::size_t>(k)]];
+      t[static_cast<std::size_t>(k)] = node_of(g, f.depth, p.x, p.y, p.z);
+    }
+    tris.push_back(t);
+  }
+  EXPECT_EQ(tris.size(), tri_count);
+  expect_triangles_tile_the_valid_quads(f, tris);
+}
+
+TEST(MeshExport, AnExistingFileIsNeverOverwrittenAndBadArgumentsAreNamed) {
+  const Fixture f;
+  const fs::path dir = hc::test::temp_dir("mesh_export_refuse");
+  const fs::path file = dir / "mine.ply";
+  { std::ofstream(file) << "the user's file"; }
+  try {
+    write_mesh(triangulate_height_field(f.depth, f.rgb), file, MeshFormat::kPly);
+    ADD_FAILURE() << "no error";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("exists already"), std::string::npos) << e.what();
+  }
+  std::ifstream in(file);
+  std::string text;
+  std::getline(in, text);
+  EXPECT_EQ(text, "the user's file");
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator{}), 1);  // no temporary left
+  EXPECT_THROW(write_mesh(triangulate_height_field(f.depth, f.rgb), dir / "no_such_folder" / "a.stl", MeshFormat::kStl),
+               hc::InputError);
+  try {
+    (void)parse_mesh_format("obj");
+    ADD_FAILURE() << "no error";
+  } catch (const hc::ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("'obj': expected one of: ply, stl"), std::string::npos) << e.what();
+  }
+  EXPECT_THROW((void)triangulate_height_field(f.depth, std::vector<std::uint8_t>(5)), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace hc::pipeline
