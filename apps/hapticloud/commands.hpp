@@ -54,7 +54,7 @@ void add_touch_command(CLI::App& app);
 /// `hapticloud levels SCENE`: speed against error per level of detail (issue 4).
 void add_levels_command(CLI::App& app);
 
-/// `hapticloud export SCENE --format ply|stl --out FILE`: the height field as a triangle mesh.
+/// `hapticloud export SCENE --format ply|stl|obj --out FILE`: the height field as a triangle mesh.
 void add_export_command(CLI::App& app);
 
 #ifdef HC_HAVE_FALCON

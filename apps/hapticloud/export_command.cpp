@@ -1,4 +1,4 @@
-// `hapticloud export SCENE --format ply|stl --out FILE`: the scene's height field as a triangle
+// `hapticloud export SCENE --format ply|stl|obj --out FILE`: the scene's height field as a triangle
 // mesh for mesh tools and 3-D printing (issue "Ecosystem"). See hc/pipeline/mesh_export.hpp.
 
 #include "commands.hpp"
@@ -46,7 +46,9 @@ void add_export_command(CLI::App& app) {
       "export", "Write a scene's height field as a triangle mesh (two triangles per cell with four valid corners; "
                 "no data stays open; grid frame, metres)");
   cmd->add_option("SCENE", opts->scene, "Scene folder written by `hapticloud run`")->required();
-  cmd->add_option("--format", opts->format, "ply (binary, with vertex colours when the scene has a colour layer) or stl (binary)")
+  cmd->add_option("--format", opts->format,
+                  "ply (binary, vertex colours when the scene has a colour layer), stl (binary), or obj (with FILE.mtl "
+                  "and FILE.png: the colour layer as a texture)")
       ->capture_default_str();
   cmd->add_option("--out", opts->out, "Mesh file to write (refused if it exists)")->required();
   cmd->callback([opts] { run_export(*opts); });

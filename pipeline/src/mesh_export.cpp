@@ -4,6 +4,10 @@
 
 #include "hc/common/error.hpp"
 
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
 #include <algorithm>
 #include <array>
 #include <bit>
@@ -69,6 +73,47 @@ void write_stl(std::ofstream& out, const HeightMesh& m) {
   }
 }
 
+void write_obj(std::ofstream& out, const HeightMesh& m, const std::vector<std::string>& comments, const std::string& mtl_name) {
+  out << "# hapticloud height field, grid frame, metres\n";
+  for (const std::string& c : comments) out << "# " << c << "\n";
+  const bool tex = !mtl_name.empty();
+  if (tex) out << "mtllib " << mtl_name << "\n";
+  out.precision(9);
+  for (std::size_t v = 0; v < m.vertex_count(); ++v)
+    out << "v " << m.xyz_m[3 * v] << " " << m.xyz_m[3 * v + 1] << " " << m.xyz_m[3 * v + 2] << "\n";
+  if (tex) {
+    for (std::size_t v = 0; v < m.vertex_count(); ++v) out << "vt " << m.uv[2 * v] << " " << m.uv[2 * v + 1] << "\n";
+    out << "usemtl colour\n";
+  }
+  for (std::size_t t = 0; t < m.triangle_count(); ++t) {
+    out << "f";
+    for (int k = 0; k < 3; ++k) {
+      const std::uint64_t i = std::uint64_t{m.triangles[3 * t + static_cast<std::size_t>(k)]} + 1;
+      out << " " << i;
+      if (tex) out << "/" << i;
+    }
+    out << "\n";
+  }
+}
+
+// Writes `body` to a temporary file beside `file`; returns its path (renamed by the caller).
+template <class Body>
+std::filesystem::path write_temporary(const std::filesystem::path& file, Body&& body) {
+  namespace fs = std::filesystem;
+  const fs::path tmp = file.parent_path() / (file.filename().string() + ".part-" + std::to_string(::getpid()));
+  std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+  if (!out) throw InputError("export: cannot create " + tmp.string());
+  body(out);
+  out.flush();
+  if (!out) {
+    out.close();
+    std::error_code ec;
+    fs::remove(tmp, ec);
+    throw InputError("export: writing " + tmp.string() + " failed (disk full?)");
+  }
+  return tmp;
+}
+
 }  // namespace
 
 HeightMesh triangulate_height_field(const HeightField& depth, const std::vector<std::uint8_t>& colour_rgb8) {
@@ -102,6 +147,21 @@ HeightMesh triangulate_height_field(const HeightField& depth, const std::vector<
       m.xyz_m.insert(m.xyz_m.end(), {g.x_of_col(c), g.y_of_row(r), static_cast<double>(depth.at(r, c))});
       if (!colour_rgb8.empty()) m.rgb8.insert(m.rgb8.end(), colour_rgb8.begin() + static_cast<std::ptrdiff_t>(3 * i), colour_rgb8.begin() + static_cast<std::ptrdiff_t>(3 * i + 3));
     }
+  if (!colour_rgb8.empty()) {
+    m.texture_rows = g.rows;
+    m.texture_cols = g.cols;
+    m.texture_rgb8.resize(3 * cells);
+    for (int r = 0; r < g.rows; ++r)  // grid row r → image row rows − 1 − r (upright)
+      std::copy_n(colour_rgb8.begin() + static_cast<std::ptrdiff_t>(3 * at(r, 0)), 3 * static_cast<std::size_t>(g.cols),
+                  m.texture_rgb8.begin() + static_cast<std::ptrdiff_t>(3 * at(g.rows - 1 - r, 0)));
+    m.uv.reserve(2 * n);
+    for (int r = 0; r < g.rows; ++r)
+      for (int c = 0; c < g.cols; ++c) {
+        if (!used[at(r, c)]) continue;
+        m.uv.push_back(static_cast<float>((c + 0.5) / g.cols));
+        m.uv.push_back(static_cast<float>((r + 0.5) / g.rows));
+      }
+  }
   for (int r = 0; r + 1 < g.rows; ++r)
     for (int c = 0; c + 1 < g.cols; ++c) {
       if (!quad_valid(r, c)) continue;
@@ -114,37 +174,65 @@ HeightMesh triangulate_height_field(const HeightField& depth, const std::vector<
 MeshFormat parse_mesh_format(const std::string& name) {
   if (name == "ply") return MeshFormat::kPly;
   if (name == "stl") return MeshFormat::kStl;
-  throw ConfigError("export --format = '" + name + "': expected one of: ply, stl");
+  if (name == "obj") return MeshFormat::kObj;
+  throw ConfigError("export --format = '" + name + "': expected one of: ply, stl, obj");
 }
 
 void write_mesh(const HeightMesh& mesh, const std::filesystem::path& file, MeshFormat format,
                 const std::vector<std::string>& comments) {
   namespace fs = std::filesystem;
   std::error_code ec;
-  if (fs::exists(file, ec)) throw InputError("export: " + file.string() + " exists already (not overwritten; choose another --out)");
-  const fs::path folder = file.has_parent_path() ? file.parent_path() : fs::path(".");
+  const fs::path target = file.has_parent_path() ? file : fs::path(".") / file;
+  const fs::path folder = target.parent_path();
   if (!fs::is_directory(folder, ec)) throw InputError("export: folder " + folder.string() + " of " + file.string() + " does not exist");
-  const fs::path tmp = folder / (file.filename().string() + ".part-" + std::to_string(::getpid()));
-  {
-    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-    if (!out) throw InputError("export: cannot create " + tmp.string());
-    if (format == MeshFormat::kPly) {
-      write_ply(out, mesh, comments);
-    } else {
-      write_stl(out, mesh);
+  const bool textured = format == MeshFormat::kObj && !mesh.texture_rgb8.empty();
+  const fs::path mtl = fs::path(target).replace_extension(".mtl"), png = fs::path(target).replace_extension(".png");
+  std::vector<fs::path> targets = {target};
+  if (textured) targets.insert(targets.end(), {mtl, png});
+  for (const fs::path& t : targets)
+    if (fs::exists(t, ec)) throw InputError("export: " + t.string() + " exists already (not overwritten; choose another --out)");
+  std::vector<std::pair<fs::path, fs::path>> done;  // temporary → target, renamed at the end
+  auto discard = [&] {
+    for (const auto& [tmp, t] : done) fs::remove(tmp, ec);
+  };
+  try {
+    if (textured) {
+      done.emplace_back(write_temporary(png, [&](std::ofstream& out) {
+        cv::Mat rgb(mesh.texture_rows, mesh.texture_cols, CV_8UC3, const_cast<std::uint8_t*>(mesh.texture_rgb8.data()));
+        cv::Mat bgr;
+        cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
+        std::vector<std::uint8_t> bytes;
+        if (!cv::imencode(".png", bgr, bytes)) throw InputError("export: cannot encode the texture " + png.string());
+        out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
+      }), png);
+      done.emplace_back(write_temporary(mtl, [&](std::ofstream& out) {
+        out << "# hapticloud colour layer\nnewmtl colour\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd "
+            << png.filename().string() << "\n";
+      }), mtl);
     }
-    out.flush();
-    if (!out) {
-      out.close();
-      fs::remove(tmp, ec);
-      throw InputError("export: writing " + tmp.string() + " failed (disk full?)");
-    }
+    done.emplace_back(write_temporary(target, [&](std::ofstream& out) {
+      if (format == MeshFormat::kPly) {
+        write_ply(out, mesh, comments);
+      } else if (format == MeshFormat::kStl) {
+        write_stl(out, mesh);
+      } else {
+        write_obj(out, mesh, comments, textured ? mtl.filename().string() : std::string());
+      }
+    }), target);
+  } catch (...) {
+    discard();
+    throw;
   }
-  fs::rename(tmp, file, ec);
-  if (ec) {
-    std::error_code ignore;
-    fs::remove(tmp, ignore);
-    throw InputError("export: cannot rename " + tmp.string() + " to " + file.string() + ": " + ec.message());
+  std::vector<fs::path> renamed;
+  for (const auto& [tmp, t] : done) {  // the mesh itself last: its companions exist when it appears
+    fs::rename(tmp, t, ec);
+    if (ec) {
+      const std::string why = ec.message();
+      discard();
+      for (const fs::path& r : renamed) fs::remove(r, ec);  // ours, written just now
+      throw InputError("export: cannot rename " + tmp.string() + " to " + t.string() + ": " + why);
+    }
+    renamed.push_back(t);
   }
 }
 

@@ -72,9 +72,9 @@ TEST(ExportCommand, WritesPlyAndStlOfARunsSceneAndRefusesToOverwrite) {
   EXPECT_NE(again.status, 0);
   EXPECT_NE(again.output.find("exists already"), std::string::npos) << again.output;
   EXPECT_EQ(fs::file_size(dir / "s.ply"), before);
-  const Outcome bad = run_app("export " + (out / "scene").string() + " --format obj --out " + (dir / "s.obj").string());
+  const Outcome bad = run_app("export " + (out / "scene").string() + " --format gltf --out " + (dir / "s.gltf").string());
   EXPECT_NE(bad.status, 0);
-  EXPECT_NE(bad.output.find("expected one of: ply, stl"), std::string::npos) << bad.output;
+  EXPECT_NE(bad.output.find("expected one of: ply, stl, obj"), std::string::npos) << bad.output;
 }
 
 TEST(RunCommand, SinusoidReportMatchesTheAnalyticSurface) {

@@ -8,8 +8,10 @@
 
 #include "test_paths.hpp"
 #include <gtest/gtest.h>
+#include <opencv2/imgcodecs.hpp>
 #include <pcl/PolygonMesh.h>
 #include <pcl/conversions.h>
+#include <pcl/io/obj_io.h>
 #include <pcl/io/ply_io.h>
 #include <pcl/io/vtk_lib_io.h>
 #include <pcl/point_types.h>
@@ -158,6 +160,52 @@ TEST(MeshExport, StlReadBackThroughVtkHasTwoTrianglesPerValidCellFacingTheViewer
   expect_triangles_tile_the_valid_quads(f, tris);
 }
 
+TEST(MeshExport, ObjReadBackByPclWithItsTextureGivesEveryVertexItsNodesColour) {
+  const Fixture f;
+  const GridGeometry& g = f.depth.geometry();
+  const fs::path dir = hc::test::temp_dir("mesh_export_obj");
+  for (const char* name : {"grid.obj", "grid.mtl", "grid.png"}) fs::remove(dir / name);
+  write_mesh(triangulate_height_field(f.depth, f.rgb), dir / "grid.obj", MeshFormat::kObj);
+  ASSERT_TRUE(fs::exists(dir / "grid.mtl"));
+  ASSERT_TRUE(fs::exists(dir / "grid.png"));
+  pcl::TextureMesh mesh;
+  ASSERT_EQ(pcl::io::loadOBJFile((dir / "grid.obj").string(), mesh), 0);
+  pcl::PointCloud<pcl::PointXYZ> cloud;
+  pcl::fromPCLPointCloud2(mesh.cloud, cloud);
+  ASSERT_EQ(mesh.tex_polygons.size(), 1u);
+  ASSERT_EQ(mesh.tex_materials.size(), 1u);
+  EXPECT_EQ(fs::path(mesh.tex_materials[0].tex_file).filename(), "grid.png");
+  // The texture read by OpenCV, sampled (nearest texel) at each vertex's (u, v), v from the
+  // image's bottom, is the colour layer at the vertex's node.
+  const cv::Mat bgr = cv::imread((dir / "grid.png").string(), cv::IMREAD_COLOR);
+  ASSERT_EQ(bgr.rows, g.rows);
+  ASSERT_EQ(bgr.cols, g.cols);
+  ASSERT_EQ(mesh.tex_coordinates.size(), 1u);
+  std::vector<std::array<std::array<int, 2>, 3>> tris;
+  ASSERT_EQ(mesh.tex_coord_indices.size(), 1u);
+  for (std::size_t t = 0; t < mesh.tex_polygons[0].size(); ++t) {
+    const auto& poly = mesh.tex_polygons[0][t];
+    ASSERT_EQ(poly.vertices.size(), 3u);
+    std::array<std::array<int, 2>, 3> tri{};
+    for (int k = 0; k < 3; ++k) {
+      const auto& p = cloud[poly.vertices[static_cast<std::size_t>(k)]];
+      const auto node = node_of(g, f.depth, p.x, p.y, p.z);  // 9 significant digits: exact in float
+      tri[static_cast<std::size_t>(k)] = node;
+      ASSERT_GE(node[0], 0);
+      const Eigen::Vector2f uv = mesh.tex_coordinates[0][mesh.tex_coord_indices[0][t].vertices[static_cast<std::size_t>(k)]];
+      const int col = static_cast<int>(std::floor(uv.x() * static_cast<float>(g.cols)));
+      const int row = g.rows - 1 - static_cast<int>(std::floor(uv.y() * static_cast<float>(g.rows)));
+      const cv::Vec3b px = bgr.at<cv::Vec3b>(row, col);
+      const std::size_t i = static_cast<std::size_t>(node[0] * g.cols + node[1]);
+      EXPECT_EQ(px[2], f.rgb[3 * i]);
+      EXPECT_EQ(px[1], f.rgb[3 * i + 1]);
+      EXPECT_EQ(px[0], f.rgb[3 * i + 2]);
+    }
+    tris.push_back(tri);
+  }
+  expect_triangles_tile_the_valid_quads(f, tris);
+}
+
 TEST(MeshExport, AnExistingFileIsNeverOverwrittenAndBadArgumentsAreNamed) {
   const Fixture f;
   const fs::path dir = hc::test::temp_dir("mesh_export_refuse");
@@ -177,10 +225,10 @@ TEST(MeshExport, AnExistingFileIsNeverOverwrittenAndBadArgumentsAreNamed) {
   EXPECT_THROW(write_mesh(triangulate_height_field(f.depth, f.rgb), dir / "no_such_folder" / "a.stl", MeshFormat::kStl),
                hc::InputError);
   try {
-    (void)parse_mesh_format("obj");
+    (void)parse_mesh_format("gltf");
     ADD_FAILURE() << "no error";
   } catch (const hc::ConfigError& e) {
-    EXPECT_NE(std::string(e.what()).find("'obj': expected one of: ply, stl"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("'gltf': expected one of: ply, stl, obj"), std::string::npos) << e.what();
   }
   EXPECT_THROW((void)triangulate_height_field(f.depth, std::vector<std::uint8_t>(5)), std::invalid_argument);
 }

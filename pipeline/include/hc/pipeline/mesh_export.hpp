@@ -17,6 +17,12 @@ struct HeightMesh {
   std::vector<double> xyz_m;          ///< 3 per vertex
   std::vector<std::uint8_t> rgb8;     ///< 3 per vertex, or empty (no colour layer)
   std::vector<std::uint32_t> triangles;  ///< 3 vertex indices per triangle, counter-clockwise seen from +z
+  /// With a colour layer: the texture image (texture_rows × texture_cols × 3 bytes, R G B, image
+  /// row 0 at the top = the grid's last row, so it shows upright) and per vertex its (u, v)
+  /// (2 per vertex; OBJ convention, v = 0 at the image's bottom) at the centre of its node's texel.
+  std::vector<std::uint8_t> texture_rgb8;
+  int texture_rows = 0, texture_cols = 0;
+  std::vector<float> uv;
   std::size_t vertex_count() const { return xyz_m.size() / 3; }
   std::size_t triangle_count() const { return triangles.size() / 3; }
 };
@@ -34,18 +40,23 @@ HeightMesh triangulate_height_field(const HeightField& depth, const std::vector<
 enum class MeshFormat {
   kPly,  ///< PLY 1.0 binary little-endian: vertex float x y z [uchar red green blue], face list uchar int
   kStl,  ///< binary STL: 80-byte header, uint32 count, per triangle a float normal, 3 float vertices, uint16 0
+  /// Wavefront OBJ (text, 1-based `v`, `vt`, `f a/a b/b c/c`); with a colour layer also FILE.mtl
+  /// (material `colour`, map_Kd) and FILE.png (the texture), beside FILE with its stem.
+  kObj,
 };
 
-/// Parses "ply" or "stl". @throws hc::ConfigError naming the value and the choices.
+/// Parses "ply", "stl" or "obj". @throws hc::ConfigError naming the value and the choices.
 MeshFormat parse_mesh_format(const std::string& name);
 
 /// Writes `mesh` to `file` (coordinates in metres as float32, the grid frame; PLY also stores
 /// `comment` lines, e.g. the recentring offset to add for the scan's frame). Written to a
 /// temporary file in the same folder and renamed into place, so no half-written file is left.
 /// Sources: PLY, Greg Turk, "The PLY Polygon File Format" (1994); STL, 3D Systems' StereoLithography
-/// Interface Specification (1989), binary form.
-/// @throws hc::InputError naming the file when it exists already (never overwritten), its folder
-///         is missing or the write fails.
+/// Interface Specification (1989), binary form; OBJ and MTL, Wavefront's Advanced Visualizer
+/// manual, appendices B1 and B2. The OBJ's companions (.mtl, .png) are checked and written the
+/// same way; the OBJ is renamed into place last.
+/// @throws hc::InputError naming the file when it (or a companion) exists already (never
+///         overwritten), its folder is missing or the write fails.
 void write_mesh(const HeightMesh& mesh, const std::filesystem::path& file, MeshFormat format,
                 const std::vector<std::string>& comments = {});
 
