@@ -35,7 +35,10 @@ void run_export(const ExportOptions& o) {
          << " (file frame; the vertices are in the grid frame, see the scene's scene.yaml)";
   pipeline::write_mesh(mesh, o.out, format, {offset.str()});
   std::cout << "export: " << mesh.vertex_count() << " vertices, " << mesh.triangle_count() << " triangles"
-            << (mesh.rgb8.empty() ? "" : ", vertex colours") << " -> " << o.out << "\n";
+            << (mesh.rgb8.empty() || format == pipeline::MeshFormat::kStl ? ""
+                : format == pipeline::MeshFormat::kPly                   ? ", vertex colours"
+                                                                         : ", texture")
+            << " -> " << o.out << "\n";
 }
 
 }  // namespace

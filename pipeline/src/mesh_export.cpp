@@ -1,4 +1,4 @@
-// Height field → triangle mesh (PLY, STL). See mesh_export.hpp.
+// Height field → triangle mesh (PLY, STL, OBJ). See mesh_export.hpp.
 
 #include "hc/pipeline/mesh_export.hpp"
 
@@ -17,6 +17,8 @@
 #include <limits>
 #include <stdexcept>
 #include <system_error>
+#include <cerrno>
+#include <sys/stat.h>
 #include <unistd.h>
 
 namespace hc::pipeline {
@@ -40,22 +42,25 @@ void write_ply(std::ofstream& out, const HeightMesh& m, const std::vector<std::s
   for (const std::string& c : comments) out << "comment " << c << "\n";
   out << "element vertex " << m.vertex_count() << "\nproperty float x\nproperty float y\nproperty float z\n";
   if (rgb) out << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
-  out << "element face " << m.triangle_count() << "\nproperty list uchar int vertex_indices\nend_header\n";
+  out << "element face " << m.triangle_count() << "\nproperty list uchar uint vertex_indices\nend_header\n";
   for (std::size_t v = 0; v < m.vertex_count(); ++v) {
     for (int a = 0; a < 3; ++a) put_le(out, static_cast<float>(m.xyz_m[3 * v + static_cast<std::size_t>(a)]));
     if (rgb) out.write(reinterpret_cast<const char*>(m.rgb8.data() + 3 * v), 3);
   }
   for (std::size_t t = 0; t < m.triangle_count(); ++t) {
     put_le(out, std::uint8_t{3});
-    for (int k = 0; k < 3; ++k) put_le(out, static_cast<std::int32_t>(m.triangles[3 * t + static_cast<std::size_t>(k)]));
+    for (int k = 0; k < 3; ++k) put_le(out, m.triangles[3 * t + static_cast<std::size_t>(k)]);
   }
 }
 
 void write_stl(std::ofstream& out, const HeightMesh& m) {
   std::array<char, 80> header{};
-  const char* text = "hapticloud height field, grid frame, metres";
+  const char* text = "hapticloud height field, grid frame, millimetres";
   std::memcpy(header.data(), text, std::strlen(text));
   out.write(header.data(), header.size());
+  if (m.triangle_count() > std::numeric_limits<std::uint32_t>::max()) {
+    throw ResourceError("export: " + std::to_string(m.triangle_count()) + " triangles (binary STL holds at most 2^32 - 1)");
+  }
   put_le(out, static_cast<std::uint32_t>(m.triangle_count()));
   for (std::size_t t = 0; t < m.triangle_count(); ++t) {
     std::array<std::array<double, 3>, 3> p{};
@@ -68,7 +73,7 @@ void write_stl(std::ofstream& out, const HeightMesh& m) {
     for (double& x : n) x = len > 0.0 ? x / len : 0.0;
     for (double x : n) put_le(out, static_cast<float>(x));
     for (const auto& q : p)
-      for (double x : q) put_le(out, static_cast<float>(x));
+      for (double x : q) put_le(out, static_cast<float>(1e3 * x));  // millimetres, as slicers read STL
     put_le(out, std::uint16_t{0});
   }
 }
@@ -96,22 +101,42 @@ void write_obj(std::ofstream& out, const HeightMesh& m, const std::vector<std::s
   }
 }
 
-// Writes `body` to a temporary file beside `file`; returns its path (renamed by the caller).
+// Writes `body` to a fresh temporary file beside `file` (created exclusively by mkstemp, a
+// random suffix, so no existing file or symlink is followed), permissions as a new file under
+// the umask; returns its path (linked into place by the caller). On any failure the temporary
+// is removed and the exception passed on.
 template <class Body>
 std::filesystem::path write_temporary(const std::filesystem::path& file, Body&& body) {
   namespace fs = std::filesystem;
-  const fs::path tmp = file.parent_path() / (file.filename().string() + ".part-" + std::to_string(::getpid()));
-  std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
-  if (!out) throw InputError("export: cannot create " + tmp.string());
-  body(out);
-  out.flush();
-  if (!out) {
-    out.close();
+  std::string name = (file.parent_path() / (file.filename().string() + ".part-XXXXXX")).string();
+  const int fd = ::mkstemp(name.data());
+  if (fd < 0) throw InputError("export: cannot create a temporary file beside " + file.string() + ": " + std::strerror(errno));
+  const mode_t mask = ::umask(0);
+  ::umask(mask);
+  (void)::fchmod(fd, static_cast<mode_t>(0666 & ~mask));
+  ::close(fd);
+  const fs::path tmp(name);
+  try {
+    std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
+    if (!out) throw InputError("export: cannot open " + tmp.string());
+    body(out);
+    out.flush();
+    if (!out) throw InputError("export: writing " + tmp.string() + " failed (disk full?)");
+  } catch (...) {
     std::error_code ec;
     fs::remove(tmp, ec);
-    throw InputError("export: writing " + tmp.string() + " failed (disk full?)");
+    throw;
   }
   return tmp;
+}
+
+// Puts `tmp` at `target` without ever replacing an existing file: link(2) fails with EEXIST
+// when the target appeared since the check. Returns false (errno set) on failure.
+bool link_into_place(const std::filesystem::path& tmp, const std::filesystem::path& target) {
+  if (::link(tmp.c_str(), target.c_str()) != 0) return false;
+  std::error_code ec;
+  std::filesystem::remove(tmp, ec);
+  return true;
 }
 
 }  // namespace
@@ -188,7 +213,12 @@ void write_mesh(const HeightMesh& mesh, const std::filesystem::path& file, MeshF
   const bool textured = format == MeshFormat::kObj && !mesh.texture_rgb8.empty();
   const fs::path mtl = fs::path(target).replace_extension(".mtl"), png = fs::path(target).replace_extension(".png");
   std::vector<fs::path> targets = {target};
-  if (textured) targets.insert(targets.end(), {mtl, png});
+  if (textured) {
+    if (target == mtl || target == png) {
+      throw InputError("export: --out " + file.string() + " would be its own texture or material file; use a .obj name");
+    }
+    targets.insert(targets.end(), {mtl, png});
+  }
   for (const fs::path& t : targets)
     if (fs::exists(t, ec)) throw InputError("export: " + t.string() + " exists already (not overwritten; choose another --out)");
   std::vector<std::pair<fs::path, fs::path>> done;  // temporary → target, renamed at the end
@@ -223,16 +253,15 @@ void write_mesh(const HeightMesh& mesh, const std::filesystem::path& file, MeshF
     discard();
     throw;
   }
-  std::vector<fs::path> renamed;
+  std::vector<fs::path> placed;
   for (const auto& [tmp, t] : done) {  // the mesh itself last: its companions exist when it appears
-    fs::rename(tmp, t, ec);
-    if (ec) {
-      const std::string why = ec.message();
+    if (!link_into_place(tmp, t)) {
+      const std::string why = errno == EEXIST ? "it exists already (not overwritten)" : std::strerror(errno);
       discard();
-      for (const fs::path& r : renamed) fs::remove(r, ec);  // ours, written just now
-      throw InputError("export: cannot rename " + tmp.string() + " to " + t.string() + ": " + why);
+      for (const fs::path& r : placed) fs::remove(r, ec);  // ours, written just now
+      throw InputError("export: cannot put " + t.string() + " in place: " + why);
     }
-    renamed.push_back(t);
+    placed.push_back(t);
   }
 }
 

@@ -17,6 +17,8 @@
 #include <pcl/point_types.h>
 
 #include <array>
+#include <cstring>
+#include <iterator>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -55,11 +57,12 @@ struct Fixture {
 };
 
 // The node (r, c) whose position a vertex has, by exact float match; (-1, -1) if none.
-std::array<int, 2> node_of(const GridGeometry& g, const HeightField& d, float x, float y, float z) {
+// `scale`: file units per metre (1000 for STL's millimetres).
+std::array<int, 2> node_of(const GridGeometry& g, const HeightField& d, float x, float y, float z, double scale = 1.0) {
   for (int r = 0; r < g.rows; ++r)
     for (int c = 0; c < g.cols; ++c)
-      if (d.valid(r, c) && static_cast<float>(g.x_of_col(c)) == x && static_cast<float>(g.y_of_row(r)) == y &&
-          d.at(r, c) == z)
+      if (d.valid(r, c) && static_cast<float>(scale * g.x_of_col(c)) == x && static_cast<float>(scale * g.y_of_row(r)) == y &&
+          static_cast<float>(scale * static_cast<double>(d.at(r, c))) == z)
         return {r, c};
   return {-1, -1};
 }
@@ -133,15 +136,26 @@ TEST(MeshExport, PlyReadBackByPclHasTheValidNodesTheirColoursAndTwoTrianglesPerV
   expect_triangles_tile_the_valid_quads(f, tris);
 }
 
-TEST(MeshExport, StlReadBackThroughVtkHasTwoTrianglesPerValidCellFacingTheViewer) {
+TEST(MeshExport, StlReadBackThroughVtkIsInMillimetresWithTwoTrianglesPerValidCellFacingTheViewer) {
   const Fixture f;
   const GridGeometry& g = f.depth.geometry();
   const fs::path file = hc::test::temp_dir("mesh_export") / "grid.stl";
   fs::remove(file);
   write_mesh(triangulate_height_field(f.depth, {}), file, MeshFormat::kStl);
-  // Binary STL size: 80 + 4 + 50 per triangle.
-  const auto tri_count = (fs::file_size(file) - 84) / 50;
-  EXPECT_EQ(fs::file_size(file), 84 + 50 * tri_count);
+  // Binary STL: 80 + 4 + 50 bytes per triangle, the count at bytes 80-83 (little-endian), and
+  // every stored normal facing the viewer (+z), read from the bytes directly.
+  std::ifstream raw(file, std::ios::binary);
+  std::vector<char> bytes((std::istreambuf_iterator<char>(raw)), std::istreambuf_iterator<char>());
+  ASSERT_GE(bytes.size(), 84u);
+  std::uint32_t tri_count = 0;
+  std::memcpy(&tri_count, bytes.data() + 80, 4);
+  EXPECT_EQ(bytes.size(), 84 + 50 * std::size_t{tri_count});
+  for (std::uint32_t t = 0; t < tri_count && 84 + 50 * std::size_t{t} + 12 <= bytes.size(); ++t) {
+    float n[3];
+    std::memcpy(n, bytes.data() + 84 + 50 * std::size_t{t}, 12);
+    EXPECT_GT(n[2], 0.0f) << t;
+    EXPECT_NEAR(n[0] * n[0] + n[1] * n[1] + n[2] * n[2], 1.0f, 1e-5f) << t;
+  }
   pcl::PolygonMesh mesh;
   ASSERT_GT(pcl::io::loadPolygonFileSTL(file.string(), mesh), 0);
   pcl::PointCloud<pcl::PointXYZ> cloud;
@@ -152,7 +166,7 @@ TEST(MeshExport, StlReadBackThroughVtkHasTwoTrianglesPerValidCellFacingTheViewer
     std::array<std::array<int, 2>, 3> t{};
     for (int k = 0; k < 3; ++k) {
       const auto& p = cloud[poly.vertices[static_cast<std::size_t>(k)]];
-      t[static_cast<std::size_t>(k)] = node_of(g, f.depth, p.x, p.y, p.z);
+      t[static_cast<std::size_t>(k)] = node_of(g, f.depth, p.x, p.y, p.z, 1000.0);  // millimetres
     }
     tris.push_back(t);
   }
@@ -231,6 +245,15 @@ TEST(MeshExport, AnExistingFileIsNeverOverwrittenAndBadArgumentsAreNamed) {
     EXPECT_NE(std::string(e.what()).find("'gltf': expected one of: ply, stl, obj"), std::string::npos) << e.what();
   }
   EXPECT_THROW((void)triangulate_height_field(f.depth, std::vector<std::uint8_t>(5)), std::invalid_argument);
+  // An OBJ whose texture name is taken: refused before anything is written.
+  { std::ofstream(dir / "tex.png") << "the user's picture"; }
+  EXPECT_THROW(write_mesh(triangulate_height_field(f.depth, f.rgb), dir / "tex.obj", MeshFormat::kObj), hc::InputError);
+  EXPECT_FALSE(fs::exists(dir / "tex.obj"));
+  EXPECT_FALSE(fs::exists(dir / "tex.mtl"));
+  EXPECT_EQ(fs::file_size(dir / "tex.png"), std::string("the user's picture").size());
+  // --out naming a companion.
+  EXPECT_THROW(write_mesh(triangulate_height_field(f.depth, f.rgb), dir / "x.png", MeshFormat::kObj), hc::InputError);
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir), fs::directory_iterator{}), 2);  // mine.ply, tex.png only
 }
 
 }  // namespace
