@@ -3,6 +3,8 @@
 
 #include "commands.hpp"
 
+#include "hc/common/error.hpp"
+#include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/mesh_export.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
@@ -22,15 +24,30 @@ struct ExportOptions {
   std::string scene;
   std::string format = "ply";
   std::string out;
+  int level = 0;
 };
 
 void run_export(const ExportOptions& o) {
   const pipeline::MeshFormat format = pipeline::parse_mesh_format(o.format);
-  const Scene scene = pipeline::load_scene(o.scene);
-  const pipeline::HeightMesh mesh = pipeline::triangulate_height_field(scene.layers.depth, scene.layers.colour_rgb8);
+  Scene scene = pipeline::load_scene(o.scene);
+  const Eigen::Vector3d d = scene.provenance.recentre_offset_m;
+  pipeline::HeightMesh mesh;
+  if (o.level == 0) {
+    mesh = pipeline::triangulate_height_field(scene.layers.depth, scene.layers.colour_rgb8);
+  } else {
+    // Level L of the scene's pyramid (its own lod options): depth and colour only.
+    const SurfaceLayerOptions layer_options = scene.layer_options;
+    const LodOptions lod = scene.lod;
+    const auto pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
+    if (o.level >= pyramid->level_count()) {
+      throw ConfigError("export --level = " + std::to_string(o.level) + ": the scene has levels 0 to " +
+                        std::to_string(pyramid->level_count() - 1));
+    }
+    const auto level = pyramid->depth_level(o.level);
+    mesh = pipeline::triangulate_height_field(level->depth_m, level->colour_rgb8);
+  }
   std::ostringstream offset;
   offset.precision(17);
-  const Eigen::Vector3d& d = scene.provenance.recentre_offset_m;
   offset << "recentre_offset_m " << d.x() << " " << d.y() << " " << d.z()
          << " (file frame; the vertices are in the grid frame, see the scene's scene.yaml)";
   pipeline::write_mesh(mesh, o.out, format, {offset.str()});
@@ -54,6 +71,9 @@ void add_export_command(CLI::App& app) {
                   "and FILE.png: the colour layer as a texture)")
       ->capture_default_str();
   cmd->add_option("--out", opts->out, "Mesh file to write (refused if it exists)")->required();
+  cmd->add_option("--level", opts->level, "Level of detail (0 = finest; each level halves the resolution, as in touch)")
+      ->capture_default_str()
+      ->check(CLI::Range(0, 30));
   cmd->callback([opts] { run_export(*opts); });
 }
 

@@ -72,6 +72,16 @@ TEST(ExportCommand, WritesPlyAndStlOfARunsSceneAndRefusesToOverwrite) {
   EXPECT_NE(again.status, 0);
   EXPECT_NE(again.output.find("exists already"), std::string::npos) << again.output;
   EXPECT_EQ(fs::file_size(dir / "s.ply"), before);
+  // Level 1 halves the resolution: about a quarter of the triangles (the rim loses a little).
+  const Outcome l1 = run_app("export " + (out / "scene").string() + " --level 1 --format stl --out " + (dir / "s1.stl").string());
+  ASSERT_EQ(l1.status, 0) << l1.output;
+  const double faces1 = (static_cast<double>(fs::file_size(dir / "s1.stl")) - 84.0) / 50.0;
+  EXPECT_GT(faces1, 0.2 * static_cast<double>(faces));
+  EXPECT_LT(faces1, 0.3 * static_cast<double>(faces));
+  const Outcome deep = run_app("export " + (out / "scene").string() + " --level 29 --out " + (dir / "s29.ply").string());
+  EXPECT_NE(deep.status, 0);
+  EXPECT_NE(deep.output.find("export --level = 29: the scene has levels 0 to"), std::string::npos) << deep.output;
+  EXPECT_FALSE(fs::exists(dir / "s29.ply"));
   const Outcome bad = run_app("export " + (out / "scene").string() + " --format gltf --out " + (dir / "s.gltf").string());
   EXPECT_NE(bad.status, 0);
   EXPECT_NE(bad.output.find("expected one of: ply, stl, obj"), std::string::npos) << bad.output;
