@@ -780,30 +780,25 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
   return v;
 }
 
-namespace {
-
-// The cloud in float, recentred on its per-axis median (a far point must not cost the rest its
-// float precision), with finite flags and the median nearest-neighbour spacing [m] (of up to
-// 4096 evenly strided points; 0 when fewer than 2 points are finite). The spacing search starts
-// at the edge of the central 98 % box's volume per point.
-struct LocalCloud {
-  std::vector<float> local;
-  std::vector<std::uint8_t> finite;
-  std::size_t n_finite = 0;
-  double spacing_m = 0.0;
-};
-
-LocalCloud local_cloud(const Cloud& cloud) {
-  LocalCloud out;
+StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o) {
+  check_honest_options(o);
+  const auto t0 = std::chrono::steady_clock::now();
+  StageReport report;
+  report.stage = "isolated";
+  report.count_in = cloud.size();
   const std::size_t n = cloud.size();
-  out.local.assign(3 * n, 0.0f);
-  out.finite.assign(n, 0);
-  std::vector<float>& local = out.local;
-  std::vector<std::uint8_t>& finite = out.finite;
+  std::vector<float> local(3 * n);
+  std::vector<std::uint8_t> finite(n, 0);
+  // Recentre on the per-axis median (a far point must not cost the rest its float precision),
+  // and start the spacing search at the edge of the central 98 % box's volume per point.
   Eigen::Vector3d centre = Eigen::Vector3d::Zero(), lo = Eigen::Vector3d::Zero(), hi = Eigen::Vector3d::Zero();
-  std::size_t& n_finite = out.n_finite;
+  std::size_t n_finite = 0;
   for (std::size_t i = 0; i < n; ++i) n_finite += cloud.xyz.col(static_cast<Eigen::Index>(i)).allFinite() ? 1u : 0u;
-  if (n_finite < 2) return out;
+  if (n_finite < 2) {
+    report.count_out = n;
+    report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    return {std::move(cloud), std::move(report)};
+  }
   for (int a = 0; a < 3; ++a) {
     std::vector<double> v;
     v.reserve(n_finite);
@@ -828,28 +823,7 @@ LocalCloud local_cloud(const Cloud& cloud) {
   }
   const Eigen::Vector3d ext = (hi - lo).cwiseMax(1e-9);
   const double start_edge = std::max(std::cbrt(ext.prod() / static_cast<double>(n_finite)), 1e-9);
-  out.spacing_m = median_spacing(local, finite, start_edge);
-  return out;
-}
-
-}  // namespace
-
-StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o) {
-  check_honest_options(o);
-  const auto t0 = std::chrono::steady_clock::now();
-  StageReport report;
-  report.stage = "isolated";
-  report.count_in = cloud.size();
-  const std::size_t n = cloud.size();
-  const LocalCloud lc = local_cloud(cloud);
-  if (lc.n_finite < 2) {
-    report.count_out = n;
-    report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-    return {std::move(cloud), std::move(report)};
-  }
-  const std::vector<float>& local = lc.local;
-  const std::vector<std::uint8_t>& finite = lc.finite;
-  const double spacing = lc.spacing_m;
+  const double spacing = median_spacing(local, finite, start_edge);
   // 10 % inside the verdict's radius: the spacing is estimated on a sample, and the check's
   // estimate (on the cloud as read) differs from this one by about 1 %, which must not leave a
   // point the check calls isolated (the Buddha: 1.466 mm here against 1.455 mm there).

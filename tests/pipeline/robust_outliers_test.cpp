@@ -9,7 +9,6 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/filters.hpp"
-#include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/robust_outliers.hpp"
 #include "hc/pipeline/run.hpp"
