@@ -1,5 +1,5 @@
 // Height field → mesh export, read back with PCL's readers (pcl::io::loadPLYFile, PCL's own
-// PLY parser; pcl::io::loadPolygonFileSTL, through VTK): independent of the writer. The oracle
+// PLY parser; VTK's vtkSTLReader for STL): independent of the writer. The oracle
 // is the construction: which cells have four valid corners, and the node positions.
 
 #include "hc/pipeline/mesh_export.hpp"
@@ -13,8 +13,11 @@
 #include <pcl/conversions.h>
 #include <pcl/io/obj_io.h>
 #include <pcl/io/ply_io.h>
-#include <pcl/io/vtk_lib_io.h>
 #include <pcl/point_types.h>
+#include <vtkCell.h>
+#include <vtkNew.h>
+#include <vtkPolyData.h>
+#include <vtkSTLReader.h>
 
 #include <array>
 #include <cstring>
@@ -156,17 +159,25 @@ TEST(MeshExport, StlReadBackThroughVtkIsInMillimetresWithTwoTrianglesPerValidCel
     EXPECT_GT(n[2], 0.0f) << t;
     EXPECT_NEAR(n[0] * n[0] + n[1] * n[1] + n[2] * n[2], 1.0f, 1e-5f) << t;
   }
-  pcl::PolygonMesh mesh;
-  ASSERT_GT(pcl::io::loadPolygonFileSTL(file.string(), mesh), 0);
-  pcl::PointCloud<pcl::PointXYZ> cloud;
-  pcl::fromPCLPointCloud2(mesh.cloud, cloud);
+  // VTK's reader directly: pcl::io::loadPolygonFileSTL frees, in our (C++17) code, a PointCloud
+  // that Debian's (C++14) libpcl allocated with Eigen's aligned malloc, an alloc-dealloc
+  // mismatch under AddressSanitizer (harmless in release, where both reach glibc's free).
+  vtkNew<vtkSTLReader> reader;
+  reader->SetFileName(file.c_str());
+  reader->Update();
+  vtkPolyData* poly = reader->GetOutput();
+  ASSERT_NE(poly, nullptr);
+  ASSERT_GT(poly->GetNumberOfCells(), 0);
   std::vector<std::array<std::array<int, 2>, 3>> tris;
-  for (const auto& poly : mesh.polygons) {
-    ASSERT_EQ(poly.vertices.size(), 3u);
+  for (vtkIdType cell = 0; cell < poly->GetNumberOfCells(); ++cell) {
+    vtkCell* tri = poly->GetCell(cell);
+    ASSERT_EQ(tri->GetNumberOfPoints(), 3);
     std::array<std::array<int, 2>, 3> t{};
     for (int k = 0; k < 3; ++k) {
-      const auto& p = cloud[poly.vertices[static_cast<std::size_t>(k)]];
-      t[static_cast<std::size_t>(k)] = node_of(g, f.depth, p.x, p.y, p.z, 1000.0);  // millimetres
+      double p[3];
+      poly->GetPoint(tri->GetPointId(k), p);
+      t[static_cast<std::size_t>(k)] = node_of(g, f.depth, static_cast<float>(p[0]), static_cast<float>(p[1]),
+                                               static_cast<float>(p[2]), 1000.0);  // millimetres
     }
     tris.push_back(t);
   }
