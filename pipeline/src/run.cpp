@@ -635,7 +635,10 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
   write_scene(scene, staging.path() / "scene");
 
   const fs::path previews = staging.path() / "previews";
-  fs::create_directories(previews);
+  // One level only: an interrupt may have removed the staging folder, which must stay removed.
+  std::error_code previews_ec;
+  fs::create_directory(previews, previews_ec);
+  if (previews_ec) throw InputError(previews.string() + ": cannot create the previews folder: " + previews_ec.message());
   const HeightField& depth = scene.depth();
   const std::string friction_name = scene.friction_model ? to_string(*scene.friction_model) : std::string();
   // Previews are independent images: two threads, one per core.

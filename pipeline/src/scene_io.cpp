@@ -203,7 +203,9 @@ void write_scene(const Scene& scene, const fs::path& scene_dir) {
   }
   std::error_code ec;
   if (fs::exists(scene_dir)) throw InputError(scene_dir.string() + ": the scene folder already exists");
-  fs::create_directories(scene_dir, ec);
+  // Not create_directories: a run's staging folder removed by the interrupt watcher must not be
+  // recreated by a write still under way (remove_live_staging_dirs).
+  fs::create_directory(scene_dir, ec);
   if (ec) throw InputError(scene_dir.string() + ": cannot create the scene folder: " + ec.message());
 
   YAML::Emitter y;
@@ -514,7 +516,8 @@ int remove_live_staging_dirs() noexcept {
         fs::remove_all(victim, ec);
         if (!fs::exists(victim, ec)) break;
       }
-      fs::remove_all(dir, ec);  // recreated by a create_directories in the meantime
+      fs::remove_all(dir, ec);  // created anew in the meantime (the writers make only subfolders,
+                                // never the staging folder itself, so this is a belt and braces)
       ++n;
     }
     g_live_staging.clear();

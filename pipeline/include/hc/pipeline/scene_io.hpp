@@ -21,14 +21,14 @@ inline constexpr int kSceneFormatVersion = 2;
 /// The scene type is hc::Scene (hc/common/scene.hpp); the pipeline names it too.
 using hc::Scene;
 
-/// Writes `scene` into the folder `scene_dir` (created; must not exist yet): one 32-bit float
+/// Writes `scene` into the folder `scene_dir` (created; must not exist yet, its parent must): one 32-bit float
 /// TIFF per present layer (`<name>.tiff`: depth, envelope, texture, mu_d, mu_s, cell_error,
 /// region_id, intensity; TIFF row 0 = grid row 0 = smallest y), `flags.png` (8-bit CellFlag
 /// codes) and `colour.png` (RGB, 8 bit) when present, and `scene.yaml` (format_version 2): grid
 /// geometry, the model→grid frame, the layer list, friction model, layer_options, lod and
 /// provenance as typed keys, and the resolved config under `resolved_config` (for the record).
 /// Callers make the write atomic by writing into a temporary folder (see StagingDir).
-/// @throws hc::InputError if the folder exists or a file cannot be written (names it and the
+/// @throws hc::InputError if the folder exists, its parent does not, or a file cannot be written (names it and the
 ///         reason); std::invalid_argument if a layer's geometry differs from scene.geometry or
 ///         the depth layer is empty.
 void write_scene(const Scene& scene, const std::filesystem::path& scene_dir);
