@@ -4,6 +4,7 @@
 #include <nlohmann/json.hpp>
 
 #include "app_runner.hpp"
+#include "float_tiff.hpp"
 #include "test_paths.hpp"
 
 #include <algorithm>
@@ -84,7 +85,59 @@ TEST(ExportCommand, WritesPlyAndStlOfARunsSceneAndRefusesToOverwrite) {
   EXPECT_FALSE(fs::exists(dir / "s29.ply"));
   const Outcome bad = run_app("export " + (out / "scene").string() + " --format gltf --out " + (dir / "s.gltf").string());
   EXPECT_NE(bad.status, 0);
-  EXPECT_NE(bad.output.find("expected one of: ply, stl, obj"), std::string::npos) << bad.output;
+  EXPECT_NE(bad.output.find("expected one of: ply, stl, obj, geotiff"), std::string::npos) << bad.output;
+}
+
+TEST(ExportCommand, GeoTiffIsTheScenesDepthUprightAndLayersAndLevelsAreChecked) {
+  const fs::path dir = hc::test::temp_dir("export_geotiff");
+  const fs::path out = dir / "run";
+  ASSERT_EQ(run_app("run " + config("sinusoid.yaml") + " --out " + out.string() + " --quiet").status, 0);
+  const Outcome o = run_app("export " + (out / "scene").string() + " --format geotiff --out " + (dir / "d.tif").string());
+  ASSERT_EQ(o.status, 0) << o.output;
+  EXPECT_NE(o.output.find("the scan's file frame"), std::string::npos) << o.output;  // sinusoid: a top view
+  // Read with libtiff, beside the scene's own depth.tiff (row 0 = smallest y): the export is the
+  // same grid upside down (row 0 = largest y), NaN where the scene has no data, and the file
+  // frame differs from the grid frame by the recentring only (m, no rotation): one constant.
+  const hc::test::FloatTiff scene = hc::test::read_float_tiff(out / "scene" / "depth.tiff");
+  const hc::test::FloatTiff geo = hc::test::read_float_tiff(dir / "d.tif");
+  ASSERT_EQ(geo.rows, scene.rows);
+  ASSERT_EQ(geo.cols, scene.cols);
+  double lo = 1e300, hi = -1e300;
+  int valid = 0;
+  for (int j = 0; j < geo.rows; ++j)
+    for (int i = 0; i < geo.cols; ++i) {
+      const float s = scene.at(geo.rows - 1 - j, i), g = geo.at(j, i);
+      ASSERT_EQ(std::isnan(s), std::isnan(g)) << j << " " << i;
+      if (std::isnan(s)) continue;
+      lo = std::min(lo, static_cast<double>(g) - s);
+      hi = std::max(hi, static_cast<double>(g) - s);
+      ++valid;
+    }
+  ASSERT_GT(valid, geo.rows * geo.cols / 2);
+  EXPECT_LT(hi - lo, 1e-6);  // float rounding of the same offset
+  // Other layers: μ_d as stored; a layer the scene lacks, an unknown layer, and a level's
+  // missing layer are errors naming it; a mesh format takes no --layer.
+  const Outcome mu = run_app("export " + (out / "scene").string() + " --format geotiff --layer mu_d --out " + (dir / "mu.tif").string());
+  ASSERT_EQ(mu.status, 0) << mu.output;
+  const hc::test::FloatTiff mu_scene = hc::test::read_float_tiff(out / "scene" / "mu_d.tiff");
+  const hc::test::FloatTiff mu_geo = hc::test::read_float_tiff(dir / "mu.tif");
+  ASSERT_EQ(mu_geo.rows, mu_scene.rows);
+  EXPECT_EQ(mu_geo.at(0, 3), mu_scene.at(mu_scene.rows - 1, 3));
+  const Outcome l1 = run_app("export " + (out / "scene").string() + " --format geotiff --level 1 --out " + (dir / "d1.tif").string());
+  ASSERT_EQ(l1.status, 0) << l1.output;
+  EXPECT_EQ(hc::test::read_float_tiff(dir / "d1.tif").cols, (scene.cols + 1) / 2);
+  const Outcome none = run_app("export " + (out / "scene").string() + " --format geotiff --layer intensity --out " + (dir / "i.tif").string());
+  EXPECT_NE(none.status, 0);
+  EXPECT_NE(none.output.find("export --layer = intensity: the scene has no such layer"), std::string::npos) << none.output;
+  const Outcome unknown = run_app("export " + (out / "scene").string() + " --format geotiff --layer height --out " + (dir / "h.tif").string());
+  EXPECT_NE(unknown.status, 0);
+  EXPECT_NE(unknown.output.find("expected one of: depth, envelope"), std::string::npos) << unknown.output;
+  const Outcome lvl = run_app("export " + (out / "scene").string() + " --format geotiff --level 1 --layer cell_error --out " + (dir / "e.tif").string());
+  EXPECT_NE(lvl.status, 0);
+  EXPECT_NE(lvl.output.find("levels above 0 hold depth"), std::string::npos) << lvl.output;
+  const Outcome mesh = run_app("export " + (out / "scene").string() + " --format ply --layer mu_d --out " + (dir / "m.ply").string());
+  EXPECT_NE(mesh.status, 0);
+  for (const char* f : {"i.tif", "h.tif", "e.tif", "m.ply"}) EXPECT_FALSE(fs::exists(dir / f)) << f;
 }
 
 TEST(RunCommand, SinusoidReportMatchesTheAnalyticSurface) {

@@ -6,7 +6,7 @@
 #include "app_runner.hpp"
 #include "test_paths.hpp"
 
-#include <tiffio.h>
+#include "float_tiff.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -94,22 +94,10 @@ Layer read_layer(const fs::path& scene, const std::string& name) {
   l.x0 = yaml_number(scene / "scene.yaml", "x0_m");
   l.y0 = yaml_number(scene / "scene.yaml", "y0_m");
   l.cell = yaml_number(scene / "scene.yaml", "cell_size_m");
-  TIFF* tif = TIFFOpen((scene / (name + ".tiff")).c_str(), "r");
-  EXPECT_NE(tif, nullptr) << name;
-  if (tif == nullptr) return l;
-  std::uint32_t w = 0, h = 0;
-  std::uint16_t bits = 0, format = 0;
-  TIFFGetField(tif, TIFFTAG_IMAGEWIDTH, &w);
-  TIFFGetField(tif, TIFFTAG_IMAGELENGTH, &h);
-  TIFFGetField(tif, TIFFTAG_BITSPERSAMPLE, &bits);
-  TIFFGetField(tif, TIFFTAG_SAMPLEFORMAT, &format);
-  EXPECT_EQ(bits, 32);
-  EXPECT_EQ(format, SAMPLEFORMAT_IEEEFP);
-  l.rows = static_cast<int>(h);
-  l.cols = static_cast<int>(w);
-  l.v.resize(static_cast<std::size_t>(w) * h);
-  for (std::uint32_t r = 0; r < h; ++r) EXPECT_EQ(TIFFReadScanline(tif, &l.v[static_cast<std::size_t>(r) * w], r), 1);
-  TIFFClose(tif);
+  hc::test::FloatTiff t = hc::test::read_float_tiff(scene / (name + ".tiff"));
+  l.rows = t.rows;
+  l.cols = t.cols;
+  l.v = std::move(t.v);
   return l;
 }
 
