@@ -9,6 +9,12 @@
 #   target_link_libraries(app PRIVATE hapticloud::pipeline)
 # `cpack --config build/release/CPackConfig.cmake` makes a Debian package of the same tree.
 # tests/install/ holds the consumer project the `install` test builds against an installed tree.
+# Only when hapticloud is the top-level project (or HC_INSTALL=ON): pulled in by another
+# project's add_subdirectory or FetchContent, it adds nothing to that project's install or package.
+option(HC_INSTALL "Install rules and the CPack package" ${PROJECT_IS_TOP_LEVEL})
+if(NOT HC_INSTALL)
+  return()
+endif()
 include(GNUInstallDirs)
 include(CMakePackageConfigHelpers)
 
@@ -59,6 +65,6 @@ set(CPACK_DEBIAN_FILE_NAME DEB-DEFAULT)
 set(CPACK_DEBIAN_PACKAGE_MAINTAINER "hapticloud developers <hapticloud@localhost>")
 set(CPACK_DEBIAN_PACKAGE_SECTION science)
 set(CPACK_DEBIAN_PACKAGE_DEPENDS
-    "libpcl-dev (>= 1.13), libopencv-dev (>= 4), libeigen3-dev (>= 3.4), libyaml-cpp-dev, libspdlog-dev, nlohmann-json3-dev, libnanoflann-dev, zlib1g-dev, libssl-dev, libpugixml-dev, libgdal-dev, libusb-1.0-0-dev, libglfw3-dev, libimgui-dev, libopenal-dev, libsndfile1-dev, libcli11-dev")
+    "libpcl-dev (>= 1.13), libopencv-dev (>= 4), libeigen3-dev (>= 3.4), libyaml-cpp-dev, libspdlog-dev, nlohmann-json3-dev, libnanoflann-dev, zlib1g-dev, libssl-dev, libpugixml-dev, libgdal-dev, libusb-1.0-0-dev, libglfw3-dev, libimgui-dev, libopenal-dev, libsndfile1-dev, pkg-config")
 set(CPACK_PACKAGING_INSTALL_PREFIX /usr)
 include(CPack)

@@ -1,6 +1,6 @@
-// `hapticloud export SCENE --format ply|stl|obj|geotiff --out FILE [--level L] [--layer NAME]`: the
-// scene's height field as a triangle mesh for mesh tools and 3-D printing, or one layer as a
-// GeoTIFF for GIS tools (issue "Ecosystem"). See hc/pipeline/mesh_export.hpp and raster_export.hpp.
+// `hapticloud export SCENE --format ply|stl|obj|geotiff --out FILE [--level L] [--window X0 Y0 X1 Y1]
+// [--layer NAME]`: the scene's height field as a triangle mesh for mesh tools and 3-D printing,
+// or one layer as a GeoTIFF for GIS tools (issue "Ecosystem"). See hc/pipeline/mesh_export.hpp and raster_export.hpp.
 
 #include "commands.hpp"
 
@@ -17,6 +17,7 @@
 #include <memory>
 #include <sstream>
 #include <string>
+#include <vector>
 
 namespace hc::app {
 
@@ -28,7 +29,14 @@ struct ExportOptions {
   std::string out;
   int level = 0;
   std::string layer = "depth";
+  std::vector<double> window;  ///< X0 Y0 X1 Y1 [m], grid frame, or empty (the whole grid)
 };
+
+// The nodes of `g` inside o.window (all of them without --window).
+pipeline::SampleWindow window_of(const ExportOptions& o, const GridGeometry& g) {
+  if (o.window.empty()) return {0, 0, g.rows, g.cols};
+  return pipeline::window_of_extent(g, o.window[0], o.window[1], o.window[2], o.window[3]);
+}
 
 // The layers a GeoTIFF can hold, with their units; `height`: z in the grid frame.
 struct RasterLayer {
@@ -88,7 +96,11 @@ void run_raster_export(const ExportOptions& o) {
   const Eigen::Affine3d model_to_grid = scene.model_to_grid;
   const std::string crs = scene.provenance.crs;
   const std::string file_units = scene.provenance.units.empty() ? std::string("file units") : scene.provenance.units;
-  const HeightField field = raster_of(std::move(scene), o.layer, o.level);
+  HeightField field = raster_of(std::move(scene), o.layer, o.level);
+  if (!o.window.empty()) {
+    const pipeline::SampleWindow w = window_of(o, field.geometry());
+    field = pipeline::crop_height_field(field, w.row0, w.col0, w.rows, w.cols);
+  }
   const pipeline::GeoTiffLayout layout = pipeline::geotiff_layout(field.geometry(), model_to_grid, layer->height);
   const std::string frame = layout.file_frame ? "the scan's file frame and units" : "the grid frame, metres";
   const std::vector<std::string> notes = pipeline::write_geotiff(
@@ -114,9 +126,17 @@ void run_export(const ExportOptions& o) {
   const pipeline::MeshFormat format = pipeline::parse_mesh_format(o.format);
   Scene scene = pipeline::load_scene(o.scene);
   const Eigen::Vector3d d = scene.provenance.recentre_offset_m;
+  // The depth and colour of the level, cropped to --window.
+  auto triangulate = [&o](const HeightField& depth, const std::vector<std::uint8_t>& colour) {
+    if (o.window.empty()) return pipeline::triangulate_height_field(depth, colour);
+    const pipeline::SampleWindow w = window_of(o, depth.geometry());
+    return pipeline::triangulate_height_field(
+        pipeline::crop_height_field(depth, w.row0, w.col0, w.rows, w.cols),
+        colour.empty() ? colour : pipeline::crop_colour(colour, depth.geometry(), w.row0, w.col0, w.rows, w.cols));
+  };
   pipeline::HeightMesh mesh;
   if (o.level == 0) {
-    mesh = pipeline::triangulate_height_field(scene.layers.depth, scene.layers.colour_rgb8);
+    mesh = triangulate(scene.layers.depth, scene.layers.colour_rgb8);
   } else {
     // Level L of the scene's pyramid (its own lod options): depth and colour only.
     const SurfaceLayerOptions layer_options = scene.layer_options;
@@ -127,7 +147,7 @@ void run_export(const ExportOptions& o) {
                         std::to_string(pyramid->level_count() - 1));
     }
     const auto level = pyramid->depth_level(o.level);
-    mesh = pipeline::triangulate_height_field(level->depth_m, level->colour_rgb8);
+    mesh = triangulate(level->depth_m, level->colour_rgb8);
   }
   std::ostringstream offset;
   offset.precision(17);
@@ -155,6 +175,10 @@ void add_export_command(CLI::App& app) {
                   "and FILE.png: the colour layer as a texture), or geotiff (float32, one layer, NaN no-data)")
       ->capture_default_str();
   cmd->add_option("--out", opts->out, "File to write (refused if it exists)")->required();
+  cmd->add_option("--window", opts->window,
+                  "X0 Y0 X1 Y1: only the nodes with X0 <= x <= X1 and Y0 <= y <= Y1 [m, grid frame: the frame of "
+                  "filters.crop and of explore's centre command]")
+      ->expected(4);
   cmd->add_option("--layer", opts->layer,
                   "geotiff only: depth, envelope, texture, mu_d, mu_s, cell_error, intensity or region_id")
       ->capture_default_str();

@@ -9,6 +9,7 @@
 #include <cmath>
 #include <limits>
 #include <sstream>
+#include <stdexcept>
 #include <utility>
 
 namespace hc::pipeline {
@@ -30,30 +31,6 @@ void validate_options(const LodOptions& o) {
   }
   if (!(o.memory_budget_mb > 0.0 && o.memory_budget_mb <= 1e6)) fail("lod.memory_budget_mb", o.memory_budget_mb, "a number in (0, 1e6]");
   if (o.window_cells < 2 || o.window_cells > 4096) fail("lod.window_cells", o.window_cells, "an integer in [2, 4096]");
-}
-
-/// Crops rows × cols samples of `src` at (row0, col0) (inside the field) into a new field.
-HeightField crop(const HeightField& src, int row0, int col0, int rows, int cols) {
-  const GridGeometry& g = src.geometry();
-  GridGeometry w{rows, cols, g.x_of_col(col0), g.y_of_row(row0), g.cell_size_m};
-  HeightField out(w);
-  out.model_to_grid = src.model_to_grid;
-  for (int r = 0; r < rows; ++r) {
-    const float* from = src.data() + static_cast<std::ptrdiff_t>(row0 + r) * g.cols + col0;
-    std::copy(from, from + cols, out.data() + static_cast<std::ptrdiff_t>(r) * cols);
-  }
-  return out;
-}
-
-/// Crops the colour bytes of the same window (3 bytes per sample).
-std::vector<std::uint8_t> crop_colour(const std::vector<std::uint8_t>& src, const GridGeometry& g, int row0, int col0,
-                                      int rows, int cols) {
-  std::vector<std::uint8_t> out(3 * static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols));
-  for (int r = 0; r < rows; ++r) {
-    const std::uint8_t* from = src.data() + 3 * (static_cast<std::ptrdiff_t>(row0 + r) * g.cols + col0);
-    std::copy(from, from + 3 * cols, out.data() + 3 * static_cast<std::ptrdiff_t>(r) * cols);
-  }
-  return out;
 }
 
 /// Colour of the next level: each channel by downsample_2x over the samples whose depth is
@@ -444,14 +421,14 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
   win->level = level;
   win->row0 = row0;
   win->col0 = col0;
-  win->depth_m = crop(lvl->depth_m, row0, col0, rows, cols);
+  win->depth_m = crop_height_field(lvl->depth_m, row0, col0, rows, cols);
   if (!lvl->colour_rgb8.empty()) win->colour_rgb8 = crop_colour(lvl->colour_rgb8, lvl->depth_m.geometry(), row0, col0, rows, cols);
-  if (lvl->cell_error_m.rows() > 0) win->cell_error_m = crop(lvl->cell_error_m, row0, col0, rows, cols);
+  if (lvl->cell_error_m.rows() > 0) win->cell_error_m = crop_height_field(lvl->cell_error_m, row0, col0, rows, cols);
   if (lvl->has_layers) {
-    win->envelope_m = crop(lvl->envelope_m, row0, col0, rows, cols);
-    win->texture_m = crop(lvl->texture_m, row0, col0, rows, cols);
-    win->mu_d = crop(lvl->mu_d, row0, col0, rows, cols);
-    win->mu_s = crop(lvl->mu_s, row0, col0, rows, cols);
+    win->envelope_m = crop_height_field(lvl->envelope_m, row0, col0, rows, cols);
+    win->texture_m = crop_height_field(lvl->texture_m, row0, col0, rows, cols);
+    win->mu_d = crop_height_field(lvl->mu_d, row0, col0, rows, cols);
+    win->mu_s = crop_height_field(lvl->mu_s, row0, col0, rows, cols);
   }
   auto entry = std::make_shared<Entry>();
   entry->is_window = true;
@@ -480,6 +457,55 @@ LodPyramid::CacheStats LodPyramid::cache_stats() const {
   s.evictions = evictions_;
   for (const auto& e : entries_) (e->is_window ? s.windows_cached : s.levels_cached) += 1;
   return s;
+}
+
+HeightField crop_height_field(const HeightField& src, int row0, int col0, int rows, int cols) {
+  const GridGeometry& g = src.geometry();
+  if (rows < 1 || cols < 1 || row0 < 0 || col0 < 0 || row0 + rows > g.rows || col0 + cols > g.cols) {
+    throw std::invalid_argument("crop_height_field: window " + std::to_string(rows) + " x " + std::to_string(cols) + " at (" +
+                                std::to_string(row0) + ", " + std::to_string(col0) + ") outside a " + std::to_string(g.rows) +
+                                " x " + std::to_string(g.cols) + " field");
+  }
+  GridGeometry w{rows, cols, g.x_of_col(col0), g.y_of_row(row0), g.cell_size_m};
+  HeightField out(w);
+  out.model_to_grid = src.model_to_grid;
+  for (int r = 0; r < rows; ++r) {
+    const float* from = src.data() + static_cast<std::ptrdiff_t>(row0 + r) * g.cols + col0;
+    std::copy(from, from + cols, out.data() + static_cast<std::ptrdiff_t>(r) * cols);
+  }
+  return out;
+}
+
+std::vector<std::uint8_t> crop_colour(const std::vector<std::uint8_t>& src, const GridGeometry& g, int row0, int col0,
+                                      int rows, int cols) {
+  std::vector<std::uint8_t> out(3 * static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols));
+  for (int r = 0; r < rows; ++r) {
+    const std::uint8_t* from = src.data() + 3 * (static_cast<std::ptrdiff_t>(row0 + r) * g.cols + col0);
+    std::copy(from, from + 3 * cols, out.data() + 3 * static_cast<std::ptrdiff_t>(r) * cols);
+  }
+  return out;
+}
+
+
+SampleWindow window_of_extent(const GridGeometry& g, double x0_m, double y0_m, double x1_m, double y1_m) {
+  if (!(x0_m < x1_m) || !(y0_m < y1_m) || !std::isfinite(x0_m) || !std::isfinite(x1_m) || !std::isfinite(y0_m) ||
+      !std::isfinite(y1_m)) {
+    throw ConfigError("window x " + format_number(x0_m) + " .. " + format_number(x1_m) + ", y " + format_number(y0_m) +
+                      " .. " + format_number(y1_m) + " m: expected finite X0 < X1 and Y0 < Y1");
+  }
+  // Nodes with x0 <= x <= x1 (a relative slack of 1e-9 cell for corners given exactly).
+  const double eps = 1e-9;
+  const int c0 = std::max(0, static_cast<int>(std::ceil(g.col_of_x(x0_m) - eps)));
+  const int c1 = std::min(g.cols - 1, static_cast<int>(std::floor(g.col_of_x(x1_m) + eps)));
+  const int r0 = std::max(0, static_cast<int>(std::ceil(g.row_of_y(y0_m) - eps)));
+  const int r1 = std::min(g.rows - 1, static_cast<int>(std::floor(g.row_of_y(y1_m) + eps)));
+  if (c1 - c0 < 1 || r1 - r0 < 1) {
+    throw ConfigError("window x " + format_number(x0_m) + " .. " + format_number(x1_m) + ", y " + format_number(y0_m) +
+                      " .. " + format_number(y1_m) + " m holds fewer than 2 x 2 nodes of the grid, which spans x " +
+                      format_number(g.x_of_col(0)) + " .. " + format_number(g.x_of_col(g.cols - 1)) + ", y " +
+                      format_number(g.y_of_row(0)) + " .. " + format_number(g.y_of_row(g.rows - 1)) + " m (grid frame)");
+  }
+  return {r0, c0, r1 - r0 + 1, c1 - c0 + 1};
 }
 
 }  // namespace hc::pipeline

@@ -80,14 +80,32 @@ std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLa
   if (fs::exists(fs::symlink_status(target, ec))) {
     throw InputError("export: " + target.string() + " exists already (not overwritten; choose another --out)");
   }
+  for (const std::string& item : metadata) {
+    const std::size_t eq = item.find('=');
+    if (eq == std::string::npos || eq == 0) throw std::invalid_argument("write_geotiff: metadata item '" + item + "' is not KEY=VALUE");
+  }
   register_gdal();
   const QuietGdal quiet;
+  // No .aux.xml side file (it would be named after the temporary): what GeoTIFF keys cannot
+  // hold is not written.
+  CPLSetThreadLocalConfigOption("GDAL_PAM_ENABLED", "NO");
+  struct RestorePam {
+    ~RestorePam() { CPLSetThreadLocalConfigOption("GDAL_PAM_ENABLED", nullptr); }
+  } restore_pam;
   std::vector<std::string> notes;
   GDALDriver* driver = GetGDALDriverManager()->GetDriverByName("GTiff");
   if (!driver) throw InputError("export: GDAL has no GTiff driver");
   const fs::path tmp = detail::create_temporary_beside(target);
+  // Removes the temporary on every way out but the successful link (exceptions included).
+  struct RemoveTemporary {
+    const fs::path& path;
+    bool keep = false;
+    ~RemoveTemporary() {
+      std::error_code e;
+      if (!keep) fs::remove(path, e);
+    }
+  } cleanup{tmp};
   auto fail = [&](const std::string& what) {
-    fs::remove(tmp, ec);
     throw InputError("export: " + what + " " + target.string() + ": " + QuietGdal::last());
   };
   {
@@ -114,7 +132,6 @@ std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLa
     }
     for (const std::string& item : metadata) {
       const std::size_t eq = item.find('=');
-      if (eq == std::string::npos || eq == 0) throw std::invalid_argument("write_geotiff: metadata item '" + item + "' is not KEY=VALUE");
       ds->SetMetadataItem(item.substr(0, eq).c_str(), item.substr(eq + 1).c_str());
     }
     GDALRasterBand* band = ds->GetRasterBand(1);
@@ -138,9 +155,9 @@ std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLa
   if (CPLGetLastErrorType() == CE_Failure) fail("GDAL failed writing");
   if (!detail::link_into_place(tmp, target)) {
     const std::string why = errno == EEXIST ? "it exists already (not overwritten)" : std::strerror(errno);
-    fs::remove(tmp, ec);
     throw InputError("export: cannot put " + target.string() + " in place: " + why);
   }
+  cleanup.keep = true;
   return notes;
 }
 

@@ -3,8 +3,8 @@
 # on the installed sinusoid config (it checks the scene against the analytic surface). Also runs
 # the installed program and makes the Debian package with cpack. Fails with the failing step's output.
 #   cmake -DHC_BINARY_DIR=... -DHC_SOURCE_DIR=... -DWORK=... -DCXX=... -DCXX_FLAGS=...
-#         -DLINKER_FLAGS=... -DBUILD_TYPE=... -DGENERATOR=... -DVERSION=... -P consumer_test.cmake
-foreach(v HC_BINARY_DIR HC_SOURCE_DIR WORK CXX GENERATOR VERSION)
+#         -DLINKER_FLAGS=... -DBUILD_TYPE=... -DGENERATOR=... -DVERSION=... -DCPACK=... -P consumer_test.cmake
+foreach(v HC_BINARY_DIR HC_SOURCE_DIR WORK CXX GENERATOR VERSION CPACK)
   if(NOT DEFINED ${v} OR "${${v}}" STREQUAL "")
     message(FATAL_ERROR "consumer_test.cmake: -D${v}=... is required")
   endif()
@@ -43,7 +43,7 @@ message(STATUS "${step_output}")
 
 # The Debian package of the same tree: its file list holds the config, a library, a header and
 # the program under /usr, and its control file the version and the -dev packages it needs.
-step("cpack -G DEB" ${CMAKE_COMMAND} -E chdir "${WORK}" cpack -G DEB --config "${HC_BINARY_DIR}/CPackConfig.cmake"
+step("cpack -G DEB" ${CMAKE_COMMAND} -E chdir "${WORK}" ${CPACK} -G DEB --config "${HC_BINARY_DIR}/CPackConfig.cmake"
      -B "${WORK}/package")
 file(GLOB debs "${WORK}/package/hapticloud_*.deb")
 list(LENGTH debs n_debs)

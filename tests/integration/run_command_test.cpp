@@ -88,7 +88,7 @@ TEST(ExportCommand, WritesPlyAndStlOfARunsSceneAndRefusesToOverwrite) {
   EXPECT_NE(bad.output.find("expected one of: ply, stl, obj, geotiff"), std::string::npos) << bad.output;
 }
 
-TEST(ExportCommand, GeoTiffIsTheScenesDepthUprightAndLayersAndLevelsAreChecked) {
+TEST(ExportCommand, GeoTiffIsTheScenesDepthUprightAndLayersLevelsAndWindowsAreChecked) {
   const fs::path dir = hc::test::temp_dir("export_geotiff");
   const fs::path out = dir / "run";
   ASSERT_EQ(run_app("run " + config("sinusoid.yaml") + " --out " + out.string() + " --quiet").status, 0);
@@ -114,7 +114,11 @@ TEST(ExportCommand, GeoTiffIsTheScenesDepthUprightAndLayersAndLevelsAreChecked) 
       ++valid;
     }
   ASSERT_GT(valid, geo.rows * geo.cols / 2);
-  EXPECT_LT(hi - lo, 1e-6);  // float rounding of the same offset
+  // The sinusoid is in metres with no view rotation: file z = grid z + the recentring's z.
+  const fs::path yaml = out / "scene" / "scene.yaml";
+  const double off_z = hc::test::yaml_number(yaml, "recentre_offset_m", 2);
+  EXPECT_NEAR(lo, off_z, 1e-7);
+  EXPECT_NEAR(hi, off_z, 1e-7);
   // Other layers: μ_d as stored; a layer the scene lacks, an unknown layer, and a level's
   // missing layer are errors naming it; a mesh format takes no --layer.
   const Outcome mu = run_app("export " + (out / "scene").string() + " --format geotiff --layer mu_d --out " + (dir / "mu.tif").string());
@@ -135,9 +139,69 @@ TEST(ExportCommand, GeoTiffIsTheScenesDepthUprightAndLayersAndLevelsAreChecked) 
   const Outcome lvl = run_app("export " + (out / "scene").string() + " --format geotiff --level 1 --layer cell_error --out " + (dir / "e.tif").string());
   EXPECT_NE(lvl.status, 0);
   EXPECT_NE(lvl.output.find("levels above 0 hold depth"), std::string::npos) << lvl.output;
+  // --window 0 0 1 1 (grid frame; the sinusoid is recentred on 0): the upper-right quadrant,
+  // i.e. the top-right block of the full, upright image.
+  const Outcome win = run_app("export " + (out / "scene").string() + " --format geotiff --window 0 0 1 1 --out " + (dir / "w.tif").string());
+  ASSERT_EQ(win.status, 0) << win.output;
+  const hc::test::FloatTiff w = hc::test::read_float_tiff(dir / "w.tif");
+  ASSERT_GT(w.rows, geo.rows / 2 - 2);
+  ASSERT_LT(w.rows, geo.rows / 2 + 2);
+  ASSERT_GT(w.cols, geo.cols / 2 - 2);
+  ASSERT_LT(w.cols, geo.cols / 2 + 2);
+  for (int j = 0; j < w.rows; ++j)
+    for (int i = 0; i < w.cols; ++i) {
+      const float a = w.at(j, i), b = geo.at(j, geo.cols - w.cols + i);
+      ASSERT_TRUE(a == b || (std::isnan(a) && std::isnan(b))) << j << " " << i;
+    }
+  const Outcome far = run_app("export " + (out / "scene").string() + " --format stl --window 5 5 6 6 --out " + (dir / "far.stl").string());
+  EXPECT_NE(far.status, 0);
+  EXPECT_NE(far.output.find("holds fewer than 2 x 2 nodes"), std::string::npos) << far.output;
   const Outcome mesh = run_app("export " + (out / "scene").string() + " --format ply --layer mu_d --out " + (dir / "m.ply").string());
   EXPECT_NE(mesh.status, 0);
-  for (const char* f : {"i.tif", "h.tif", "e.tif", "m.ply"}) EXPECT_FALSE(fs::exists(dir / f)) << f;
+  for (const char* f : {"i.tif", "h.tif", "e.tif", "m.ply", "far.stl"}) EXPECT_FALSE(fs::exists(dir / f)) << f;
+}
+
+TEST(ExportCommand, GeoTiffOfAScanInFeetIsInItsOwnFrameAndUnits) {
+  // PDAL's simple.las (Autzen, feet, about 637 000 ft east): a top view, so the GeoTIFF is in
+  // the file's frame: file = (grid + recentre offset) / 0.3048, for x, y and z alike. The
+  // oracle reads scene.yaml and the scene's depth.tiff, the GeoTIFF's tags and pixels with libtiff.
+  const fs::path dir = hc::test::temp_dir("export_geotiff_ft");
+  const fs::path out = dir / "run";
+  // The sample's verdict is warn (docs in the config), which exits 0.
+  ASSERT_EQ(run_app("run " + config("las_sample.yaml") + " --out " + out.string() + " --quiet --set lod.report=false").status, 0);
+  const Outcome o = run_app("export " + (out / "scene").string() + " --format geotiff --out " + (dir / "d.tif").string());
+  ASSERT_EQ(o.status, 0) << o.output;
+  const fs::path yaml = out / "scene" / "scene.yaml";
+  const double ft = 0.3048;
+  const double ox = hc::test::yaml_number(yaml, "recentre_offset_m", 0), oy = hc::test::yaml_number(yaml, "recentre_offset_m", 1),
+               oz = hc::test::yaml_number(yaml, "recentre_offset_m", 2);
+  ASSERT_GT(ox, 1e5);  // real map coordinates: an offset the export must put back
+  const double x0 = hc::test::yaml_number(yaml, "x0_m"), y0 = hc::test::yaml_number(yaml, "y0_m"),
+               cell = hc::test::yaml_number(yaml, "cell_size_m");
+  const hc::test::FloatTiff scene = hc::test::read_float_tiff(out / "scene" / "depth.tiff");
+  const hc::test::FloatTiff geo = hc::test::read_float_tiff(dir / "d.tif");
+  ASSERT_EQ(geo.rows, scene.rows);
+  ASSERT_EQ(geo.cols, scene.cols);
+  // GeoTIFF 1.1 (OGC 19-008r4) sec. 7.2: ModelPixelScale (Sx, Sy, Sz) and a tiepoint (I, J, K,
+  // X, Y, Z) tying the corner of pixel (0, 0) to the model (pixel-is-area).
+  const std::vector<double> scale = hc::test::read_tiff_doubles(dir / "d.tif", 33550);
+  const std::vector<double> tie = hc::test::read_tiff_doubles(dir / "d.tif", 33922);
+  ASSERT_GE(scale.size(), 2u);
+  ASSERT_GE(tie.size(), 6u);
+  EXPECT_NEAR(scale[0], cell / ft, 1e-9);
+  EXPECT_NEAR(scale[1], cell / ft, 1e-9);
+  EXPECT_NEAR(tie[3], (x0 + ox) / ft - 0.5 * cell / ft, 1e-6);
+  EXPECT_NEAR(tie[4], (y0 + (scene.rows - 1) * cell + oy) / ft + 0.5 * cell / ft, 1e-6);
+  int valid = 0;
+  for (int j = 0; j < geo.rows; ++j)
+    for (int i = 0; i < geo.cols; ++i) {
+      const float s = scene.at(geo.rows - 1 - j, i), g = geo.at(j, i);
+      ASSERT_EQ(std::isnan(s), std::isnan(g)) << j << " " << i;
+      if (std::isnan(s)) continue;
+      EXPECT_NEAR(g, (s + oz) / ft, 1e-3) << j << " " << i;  // float32 of a few hundred feet
+      ++valid;
+    }
+  EXPECT_GT(valid, 0);
 }
 
 TEST(RunCommand, SinusoidReportMatchesTheAnalyticSurface) {

@@ -79,15 +79,7 @@ struct Layer {
   }
 };
 
-double yaml_number(const fs::path& scene_yaml, const std::string& key) {
-  std::ifstream in(scene_yaml);
-  for (std::string line; std::getline(in, line);) {
-    const auto at = line.find(key + ": ");
-    if (at != std::string::npos && line.find_first_not_of(' ') == at) return std::stod(line.substr(at + key.size() + 2));
-  }
-  ADD_FAILURE() << "no " << key << " in " << scene_yaml;
-  return 0.0;
-}
+using hc::test::yaml_number;
 
 Layer read_layer(const fs::path& scene, const std::string& name) {
   Layer l;

@@ -422,3 +422,46 @@ TEST(LodConfig, KeysAreReadValidatedAndResolved) {
 
 }  // namespace
 }  // namespace hc::pipeline
+
+namespace hc::pipeline {
+namespace {
+
+// --window of `hapticloud export`: the nodes inside [X0, X1] × [Y0, Y1], by hand on a 6 × 8 grid
+// of 0.5 m cells whose node (0, 0) is at (1, −2).
+TEST(ExportWindow, NodesInsideTheExtentAndClearErrorsOutside) {
+  const GridGeometry g{6, 8, 1.0, -2.0, 0.5};
+  // x in [1.2, 2.6]: columns 1 (x = 1.5) to 3 (x = 2.5); y in [−2, −0.5]: rows 0 to 3.
+  SampleWindow w = window_of_extent(g, 1.2, -2.0, 2.6, -0.5);
+  EXPECT_EQ(w.col0, 1);
+  EXPECT_EQ(w.cols, 3);
+  EXPECT_EQ(w.row0, 0);
+  EXPECT_EQ(w.rows, 4);
+  // Beyond the grid: clipped to it.
+  w = window_of_extent(g, -100.0, -100.0, 100.0, 100.0);
+  EXPECT_EQ(w.row0, 0);
+  EXPECT_EQ(w.col0, 0);
+  EXPECT_EQ(w.rows, 6);
+  EXPECT_EQ(w.cols, 8);
+  EXPECT_THROW(window_of_extent(g, 2.0, 0.0, 1.0, 1.0), ConfigError);   // X0 > X1
+  EXPECT_THROW(window_of_extent(g, 1.1, -2.0, 1.4, 0.0), ConfigError);  // no node column inside
+  try {
+    window_of_extent(g, 10.0, 10.0, 11.0, 11.0);
+    FAIL() << "expected hc::ConfigError";
+  } catch (const ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("spans x 1 .. 4.5, y -2 .. 0.5 m"), std::string::npos) << e.what();
+  }
+  // The crop: values and geometry of the block.
+  HeightField f(g);
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) f.at(r, c) = static_cast<float>(10 * r + c);
+  const HeightField cut = crop_height_field(f, 2, 3, 2, 4);
+  EXPECT_EQ(cut.rows(), 2);
+  EXPECT_EQ(cut.cols(), 4);
+  EXPECT_DOUBLE_EQ(cut.geometry().x0_m, 2.5);
+  EXPECT_DOUBLE_EQ(cut.geometry().y0_m, -1.0);
+  EXPECT_EQ(cut.at(1, 3), 36.0f);
+  EXPECT_THROW(crop_height_field(f, 5, 0, 2, 2), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace hc::pipeline

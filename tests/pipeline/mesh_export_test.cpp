@@ -159,7 +159,7 @@ TEST(MeshExport, StlReadBackThroughVtkIsInMillimetresWithTwoTrianglesPerValidCel
     EXPECT_GT(n[2], 0.0f) << t;
     EXPECT_NEAR(n[0] * n[0] + n[1] * n[1] + n[2] * n[2], 1.0f, 1e-5f) << t;
   }
-  // VTK's reader directly: pcl::io::loadPolygonFileSTL frees, in our (C++17) code, a PointCloud
+  // VTK's reader directly: pcl::io::loadPolygonFileSTL frees, in our code (C++17 or later: aligned new), a PointCloud
   // that Debian's (C++14) libpcl allocated with Eigen's aligned malloc, an alloc-dealloc
   // mismatch under AddressSanitizer (harmless in release, where both reach glibc's free).
   vtkNew<vtkSTLReader> reader;

@@ -141,9 +141,14 @@ TEST(GeoTiffExport, NonHeightLayersKeepTheirValuesAndUnreadableCrsTextIsKept) {
   EXPECT_STREQ(d.ds->GetMetadataItem("HAPTICLOUD_CRS_TEXT"), "a local survey grid, not a CRS");
   double gt[6];
   ASSERT_EQ(d.ds->GetGeoTransform(gt), CE_None);
-  EXPECT_NEAR(gt[1], kFoot / 2.0, 1e-12);  // file units of half a metre
+  // grid = 2·file − (5, 0, 7): file = (grid + (5, 0, 7)) / 2, cells of 0.3048 / 2 file units.
+  EXPECT_NEAR(gt[1], kFoot / 2.0, 1e-12);
+  EXPECT_NEAR(gt[0], (-1.0 + 5.0) / 2.0 - kFoot / 4.0, 1e-12);
+  EXPECT_NEAR(gt[3], (2.0 + 3 * kFoot) / 2.0 + kFoot / 4.0, 1e-12);
+  EXPECT_NEAR(gt[5], -kFoot / 2.0, 1e-12);
   const cv::Mat img = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
-  EXPECT_NEAR(img.at<float>(3, 0), 0.0, 1e-7);  // grid row 0, col 0: the stored value
+  ASSERT_EQ(img.type(), CV_32FC1);
+  EXPECT_NEAR(img.at<float>(0, 4), 0.1 * 3 + 0.01 * 4, 1e-7);  // grid row 3, col 4: the stored value, not mapped
 }
 
 TEST(GeoTiffExport, AnExistingFileOrAMissingFolderIsRefusedAndNothingIsLeft) {

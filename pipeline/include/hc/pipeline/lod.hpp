@@ -86,6 +86,25 @@ GridGeometry lod_level_geometry(const GridGeometry& finest, int level);
 ///         hc::InputError for an empty grid. Real-time: no. Cost: O(rows·cols·σ).
 HeightField downsample_2x(const HeightField& fine, double sigma_cells, double valid_fraction);
 
+/// A block of samples of a grid: rows × cols starting at (row0, col0).
+struct SampleWindow {
+  int row0 = 0, col0 = 0, rows = 0, cols = 0;
+};
+
+/// The nodes of `g` with x0_m ≤ x ≤ x1_m and y0_m ≤ y ≤ y1_m (grid frame [m]), clipped to the
+/// grid. @throws hc::ConfigError naming the window when the bounds are not finite with X0 < X1
+/// and Y0 < Y1, or when it holds fewer than 2 × 2 nodes (naming the grid's extent).
+SampleWindow window_of_extent(const GridGeometry& g, double x0_m, double y0_m, double x1_m, double y1_m);
+
+/// rows × cols samples of `src` from (row0, col0) as a new field (geometry moved to the window's
+/// first sample, model_to_grid kept). @throws std::invalid_argument when the window leaves `src`.
+HeightField crop_height_field(const HeightField& src, int row0, int col0, int rows, int cols);
+
+/// The colour bytes (3 per sample, row-major, of a grid `g`) of the same window. The caller keeps
+/// the window inside `g` and `src` at 3·g.rows·g.cols bytes.
+std::vector<std::uint8_t> crop_colour(const std::vector<std::uint8_t>& src, const GridGeometry& g, int row0, int col0,
+                                      int rows, int cols);
+
 /// The pyramid and its cache. Level 0 is given (the scene's depth and, when present, its
 /// envelope, texture, μ_d and μ_s); every coarser level is built on first use from the level
 /// above (its depth by downsample_2x, its layers by compute_surface_layers with `layer_options`)

@@ -46,8 +46,11 @@ GeoTiffLayout geotiff_layout(const GridGeometry& geometry, const Eigen::Affine3d
 /// Written to an exclusively created temporary file beside `file` and hard-linked into place,
 /// so nothing existing is overwritten and no half-written file is left.
 /// Sources: GeoTIFF, OGC 19-008r4 (GeoTIFF 1.1) via GDAL's GTiff driver; GDAL raster data model.
-/// @throws hc::InputError naming the file when it exists, its folder is missing, or GDAL
-///         cannot write it (with GDAL's message); std::invalid_argument for an empty layer.
+/// Precision: float32, so heights mapped back to a georeferenced frame keep about 7 significant
+/// digits (0.12 mm at 2 km elevation), below the noise of airborne and terrestrial scans.
+/// @throws hc::InputError naming the file when it exists, its folder is missing, GDAL has no
+///         GTiff driver or cannot write it (with GDAL's message); std::invalid_argument for an
+///         empty layer or a metadata item that is not KEY=VALUE. Nothing is left on any throw.
 std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLayout& layout, const std::string& crs,
                                        const std::filesystem::path& file,
                                        const std::vector<std::string>& metadata = {});
