@@ -120,12 +120,17 @@ std::vector<std::string> write_level_previews(LodPyramid& pyramid, const std::fi
   for (int level = 0; level < pyramid.level_count(); ++level) {
     const std::string name = "lod_level_" + std::to_string(level) + ".png";
     const std::filesystem::path png = dir / name;
-    write_hillshade_preview(pyramid.depth_level(level)->depth_m, png);
+    const HeightField& depth = pyramid.depth_level(level)->depth_m;
+    std::ostringstream title;
+    title << "level " << level << ": " << depth.rows() << " x " << depth.cols() << " cells of "
+          << format_number(depth.cell_size_m() * 1e3, 3) << " mm";
+    write_hillshade_preview(depth, png, title.str());
     names.push_back(name);
     images.push_back(cv::imread(png.string(), cv::IMREAD_COLOR));
     if (images.back().empty()) throw InputError("levels: cannot read back '" + png.string() + "'");
   }
   // Side by side at one height (level 0's, at most 600 px); coarse levels keep their cells.
+  // Each panel carries its level's title strip ("level L: rows x cols cells of ... mm").
   const int height = std::min(600, images.front().rows);
   std::vector<cv::Mat> row;
   for (const cv::Mat& img : images) {

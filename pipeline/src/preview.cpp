@@ -28,6 +28,24 @@ cv::Mat present(const cv::Mat& img) {
   return big;
 }
 
+/// Width [px] of `text` in OpenCV's Hershey simplex font at `scale`, thickness 1.
+int text_width(const std::string& text, double scale) {
+  int baseline = 0;
+  return cv::getTextSize(text, cv::FONT_HERSHEY_SIMPLEX, scale, 1, &baseline).width;
+}
+
+/// `body` under a white strip of two lines, `title` (scale 0.5) and `legend` (scale 0.4),
+/// widened (white on the right) when a line is wider than the body.
+cv::Mat with_title(const cv::Mat& body, const std::string& title, const std::string& legend) {
+  const int title_h = 44;
+  const int width = std::max({body.cols, text_width(title, 0.5) + 12, text_width(legend, 0.4) + 12});
+  cv::Mat canvas(body.rows + title_h, width, CV_8UC3, cv::Scalar(255, 255, 255));
+  body.copyTo(canvas(cv::Rect(0, title_h, body.cols, body.rows)));
+  cv::putText(canvas, title, {6, 18}, cv::FONT_HERSHEY_SIMPLEX, 0.5, cv::Scalar(0, 0, 0), 1);
+  cv::putText(canvas, legend, {6, 36}, cv::FONT_HERSHEY_SIMPLEX, 0.4, cv::Scalar(0, 0, 0), 1);
+  return canvas;
+}
+
 void save(const cv::Mat& img, const std::filesystem::path& png) {
   bool ok = false;
   try {
@@ -111,9 +129,18 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   }
 
   // Legend: a vertical colour bar with range labels (clipped ends: a triangle and the true
-  // extreme), and a title strip.
-  const int bar_w = 24, margin = 110, title_h = 30, foot_h = 20;
-  cv::Mat canvas(body.rows + title_h + foot_h, body.cols + margin, CV_8UC3, cv::Scalar(255, 255, 255));
+  // extreme), and a title strip. The margin and the width fit the longest label and the title,
+  // so no text is ever cut off.
+  const int bar_w = 24, title_h = 30, foot_h = 20;
+  const std::string full_title = title + " (grey: no data; +y up)";
+  const std::string foot = "colours span the 1st-99th percentile; triangles: values beyond it";
+  const bool clipped = bar.clipped_low || bar.clipped_high;
+  int label_w = std::max({text_width(bar.hi_label, 0.35), text_width(bar.lo_label, 0.35), text_width(unit, 0.45)});
+  if (!bar.max_label.empty()) label_w = std::max(label_w, text_width(bar.max_label, 0.3));
+  if (!bar.min_label.empty()) label_w = std::max(label_w, text_width(bar.min_label, 0.3));
+  const int margin = std::max(110, 8 + bar_w + 4 + label_w + 8);
+  const int width = std::max({body.cols + margin, text_width(full_title, 0.5) + 12, clipped ? text_width(foot, 0.4) + 12 : 0});
+  cv::Mat canvas(body.rows + title_h + foot_h, width, CV_8UC3, cv::Scalar(255, 255, 255));
   body.copyTo(canvas(cv::Rect(0, title_h, body.cols, body.rows)));
   const int bar_top = title_h + 10, bar_h = std::max(2, body.rows - 20);
   cv::Mat ramp(bar_h, 1, CV_8UC1);
@@ -137,11 +164,8 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   if (!bar.max_label.empty()) cv::putText(canvas, bar.max_label, {text_x, bar_top + 22}, cv::FONT_HERSHEY_SIMPLEX, 0.3, black, 1);
   if (!bar.min_label.empty()) cv::putText(canvas, bar.min_label, {text_x, bar_top + bar_h - 14}, cv::FONT_HERSHEY_SIMPLEX, 0.3, black, 1);
   cv::putText(canvas, unit, {text_x, bar_top + bar_h / 2}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black, 1);
-  cv::putText(canvas, title + " (grey: no data; +y up)", {6, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1);
-  if (bar.clipped_low || bar.clipped_high) {
-    cv::putText(canvas, "colours span the 1st-99th percentile; triangles: values beyond it",
-                {6, title_h + body.rows + 14}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
-  }
+  cv::putText(canvas, full_title, {6, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1);
+  if (clipped) cv::putText(canvas, foot, {6, title_h + body.rows + 14}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
   save(canvas, png);
 }
 
@@ -181,7 +205,7 @@ cv::Mat hillshade_grey(const HeightField& depth_m) {
 
 }  // namespace
 
-void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::path& png) {
+void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::path& png, const std::string& title) {
   const cv::Mat grey = hillshade_grey(depth_m);
   cv::Mat shade(depth_m.rows(), depth_m.cols(), CV_8UC3, cv::Scalar(90, 90, 90));
   for (int r = 0; r < depth_m.rows(); ++r) {
@@ -191,7 +215,7 @@ void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::
       shade.at<cv::Vec3b>(r, c) = cv::Vec3b(g, g, g);
     }
   }
-  save(present(shade), png);
+  save(with_title(present(shade), title, "light from the north-west; grey: no data; +y up"), png);
 }
 
 void write_rgb_preview(const HeightField& depth_m, const std::vector<std::uint8_t>& colour_rgb8,

@@ -40,9 +40,12 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
                           const std::vector<std::array<int, 2>>& marks = {});
 
 /// Writes a hillshade of a height field (light from the north-west, 45° altitude; Horn's
-/// gradient on the real cell size). Source: standard GIS hillshade (Horn 1981).
+/// gradient on the real cell size) under a two-line title strip (44 px): `title`, then the
+/// light, "grey: no data" and "+y up" (the image widens when a line needs it). Source: standard GIS
+/// hillshade (Horn 1981).
 /// @throws hc::InputError naming the file if it cannot be written.
-void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::path& png);
+void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::path& png,
+                             const std::string& title = "hillshade");
 
 /// Writes the scan's colour per cell (`colour_rgb8`: rows·cols·3 bytes, R G B, row-major like
 /// `depth_m`); with `shaded`, each channel is multiplied by the hillshade grey level / 255 of
