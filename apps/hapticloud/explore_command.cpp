@@ -29,7 +29,11 @@ void add_explore_command(CLI::App& app) {
       "Interactive session: see, feel and hear a scene (viewer + servo loop + device). Press H in the window for the controls.");
   cmd->add_option("CONFIG_OR_SCENE", o->input, "Run config (.yaml; its scene is built first, re-scans possible) or a scene folder")
       ->required();
-  cmd->add_option("--device", o->device, "falcon | mouse | sim (a scripted path)")->capture_default_str();
+  cmd->add_option("--device", o->device, "falcon | mouse | sim (a scripted path) | replay:FILE (a --record file, "
+                                          "one sample per servo tick; docs/recording.md)")->capture_default_str();
+  cmd->add_option("--record", o->record,
+                  "Record the device's positions, buttons and the forces sent, per servo tick, to FILE (refused if "
+                  "it exists; docs/recording.md)");
   cmd->add_option("--path", o->path, "Scripted path of --device sim: raster | circle | line | press-slide | hold")
       ->capture_default_str();
   cmd->add_option("--speed", o->speed_m_per_s, "Speed of the scripted path [m/s] (device frame)")->capture_default_str()->check(finite_in(0.0, 10.0, true));

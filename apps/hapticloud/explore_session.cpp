@@ -3,6 +3,7 @@
 #include "explore_session.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/haptics/recording.hpp"
 #include "hc/haptics/simulated_device.hpp"
 #include "hc/haptics/stop_signal.hpp"
 #include "hc/session/scene_source.hpp"
@@ -44,8 +45,12 @@ std::vector<ScriptStep> Session::check_options() {
   }
   if (!o_.screenshot.empty() && o_.frames == 0 && o_.seconds == 0.0) o_.frames = 1;
   std::vector<ScriptStep> script = parse_script(script_text(o_.script));
-  if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim") {
-    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
+  const bool replay = o_.device.rfind("replay:", 0) == 0 && o_.device.size() > 7;
+  if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim" && !replay) {
+    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse, sim or replay:FILE)");
+  }
+  if (!o_.record.empty() && std::filesystem::exists(std::filesystem::symlink_status(o_.record))) {
+    throw ConfigError("explore: --record " + o_.record + " exists already (not overwritten; choose another file)");
   }
   (void)viewer::display_choice_from_string(o_.display, "explore: --display");
   for (const ScriptStep& st : script) {
@@ -93,6 +98,8 @@ void Session::start_device() {
     device_ = std::move(m);
   } else if (o_.device == "sim") {
     // Made in start_servo() once the first window's heights are known (the path's heights need them).
+  } else if (o_.device.rfind("replay:", 0) == 0) {
+    device_ = std::make_unique<haptics::TickReplayDevice>(clock_, o_.device.substr(7), haptics::SimulatedDevice::default_info());
   } else if (o_.device == "falcon") {
 #ifdef HC_HAVE_FALCON
     // The run config's falcon: section when there is one (firmware, which device, force cap).
@@ -102,7 +109,7 @@ void Session::start_device() {
     throw ConfigError("explore: --device falcon: this build has no Falcon driver (hc::falcon was not built)");
 #endif
   } else {
-    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse or sim)");
+    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse, sim or replay:FILE)");
   }
 }
 
@@ -121,14 +128,15 @@ void Session::start_servo() {
     path.speed_m_per_s = o_.speed_m_per_s;
     device_ = std::make_unique<haptics::SimulatedDevice>(clock_, path, haptics::VirtualHand{}, info);
   }
-  device_->open();
+  if (!o_.record.empty()) recorder_ = std::make_unique<haptics::RecordingDevice>(*device_, o_.record);
+  active_device().open();
   haptics::ServoConfig& cfg = servo_config_;
   cfg.realtime = haptics::realtime_mode_from_string(o_.realtime);
   cfg.workspace = w0.map;
   cfg.proxy.stiffness_n_per_m = o_.stiffness_n_per_m;
   cfg.proxy.rho = o_.rho;
   cfg.proxy.max_force_n = std::min(cfg.proxy.max_force_n, device_->info().max_force_n);
-  loop_ = std::make_unique<haptics::ServoLoop>(*device_, shared_, clock_, cfg);
+  loop_ = std::make_unique<haptics::ServoLoop>(active_device(), shared_, clock_, cfg);
   realtime_ = loop_->start();
   std::cout << "explore: device " << device_->info().name << "; servo " << cfg.rate_hz << " Hz, SCHED_FIFO "
             << (realtime_.fifo_granted ? "granted" : "not granted") << "\n";
@@ -178,7 +186,7 @@ void Session::make_viewer() {
     viewer_ = std::make_unique<viewer::Viewer>(shared_, vo, cb);
   } catch (...) {
     loop_->stop();
-    device_->close();
+    active_device().close();
     throw;
   }
 }
@@ -238,9 +246,13 @@ void Session::run() {
   if (sound_) sound_->stop();
 #endif
   const haptics::ServoStats stats = loop_->stats();
-  device_->close();
+  active_device().close();
   write_summary(stats);
   viewer_.reset();
+  if (recorder_) {
+    if (!recorder_->error().empty()) throw InputError("explore: " + recorder_->error());
+    std::cout << "explore: recorded " << recorder_->written() << " servo ticks to " << o_.record << "\n";
+  }
 }
 
 #endif  // HC_HAVE_VIEWER

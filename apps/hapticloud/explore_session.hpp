@@ -16,6 +16,7 @@
 
 #ifdef HC_HAVE_VIEWER
 #include "hc/haptics/clock.hpp"
+#include "hc/haptics/recording.hpp"
 #include "hc/haptics/servo_loop.hpp"
 #include "hc/haptics/shared_state.hpp"
 #include "hc/pipeline/config.hpp"
@@ -41,7 +42,8 @@ namespace hc::app {
 /// The options of `hapticloud explore` (see add_explore_command for each one's meaning).
 struct ExploreOptions {
   std::string input;
-  std::string device = "mouse";
+  std::string device = "mouse";  ///< falcon | mouse | sim | replay:FILE
+  std::string record;            ///< --record FILE (docs/recording.md), or empty
   std::string path = "raster";
   double speed_m_per_s = 0.03;
   std::string screenshot;
@@ -115,6 +117,9 @@ class Session {
   haptics::SharedState shared_;
   std::unique_ptr<session::LodController> lod_;
   std::unique_ptr<haptics::HapticDevice> device_;
+  std::unique_ptr<haptics::RecordingDevice> recorder_;  ///< wraps device_ with --record (declared after it)
+  /// The device the servo loop drives: the recorder when recording, else device_.
+  haptics::HapticDevice& active_device() { return recorder_ ? *recorder_ : *device_; }
   viewer::MouseDevice* mouse_ = nullptr;
   haptics::ServoConfig servo_config_;
   haptics::RealtimeReport realtime_;

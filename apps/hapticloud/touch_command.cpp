@@ -51,6 +51,8 @@ struct TouchOptions {
   int window_cells = 0;      ///< side of the haptic window [samples] (0: the scene's lod.window_cells)
   bool level_given = false;         ///< --level was on the command line (even -1)
   bool window_cells_given = false;  ///< --window-cells was on the command line
+  std::string device = "sim";       ///< sim | replay:FILE
+  std::string record;               ///< --record FILE (docs/recording.md), or empty
 };
 
 /// The session's options from the command line. @throws hc::ConfigError naming the option.
@@ -75,6 +77,18 @@ session::TouchSessionOptions session_options(const TouchOptions& o) {
   }
   if (o.synthetic.empty() && o.input.empty()) {
     throw ConfigError("touch: give a scene folder (written by `hapticloud run`) or --synthetic sinusoid");
+  }
+  if (o.device.rfind("replay:", 0) == 0 && o.device.size() > 7) {
+    s.replay_file = o.device.substr(7);
+  } else if (o.device != "sim") {
+    throw ConfigError("touch: --device '" + o.device + "' is unknown (expected sim or replay:FILE)");
+  }
+  s.record_file = o.record;
+  if (o.validate && (!s.replay_file.empty() || !s.record_file.empty())) {
+    throw ConfigError("touch: --record and --device replay:FILE are for one session, not with --validate");
+  }
+  if (!s.record_file.empty() && fs::exists(fs::symlink_status(s.record_file))) {
+    throw ConfigError("touch: --record " + o.record + " exists already (not overwritten; choose another file)");
   }
   if (o.validate && (!o.audio_out.empty() || !o.audio_live.empty())) {
     throw ConfigError("touch: --audio-out and --audio-live are for one session, not with --validate");
@@ -195,6 +209,13 @@ void add_touch_command(CLI::App& app) {
   cmd->add_flag("--validate", opts->validate,
                 "Paper's validation: the session with and without texture and friction, plots and report.md");
   cmd->add_flag("--no-hand", opts->no_hand, "Drive the device exactly along the path (no virtual hand)");
+  cmd->add_option("--device", opts->device,
+                  "sim (the scripted path through a virtual hand) or replay:FILE (a --record file played back one "
+                  "sample per servo tick; docs/recording.md)")
+      ->capture_default_str();
+  cmd->add_option("--record", opts->record,
+                  "Record the device's positions, buttons and the forces sent, per servo tick, to FILE (refused if "
+                  "it exists; docs/recording.md)");
   cmd->add_option("--audio-out", opts->audio_out,
                   "Write the session's contact sounds to this WAV file (offline, sample-accurate to the events)");
   cmd->add_option("--audio-live", opts->audio_live,

@@ -3,6 +3,7 @@
 #include "hc/common/error.hpp"
 #include "hc/common/format.hpp"
 #include "hc/haptics/haptic_surface.hpp"
+#include "hc/haptics/recording.hpp"
 #include "hc/haptics/simulated_device.hpp"
 #include "hc/pipeline/plot.hpp"
 #include "hc/pipeline/synthetic.hpp"
@@ -215,10 +216,32 @@ TouchSessionResult run_touch_session(const Scene& scene, const TouchSessionOptio
       if (hooks.on_event) hooks.on_event(e);
     }
   };
+  // The device: the scripted one or a replay, wrapped by a recorder when asked.
+  struct Devices {
+    std::unique_ptr<haptics::HapticDevice> base;
+    std::unique_ptr<haptics::RecordingDevice> recorder;
+    haptics::HapticDevice& active() { return recorder ? *recorder : *base; }
+    // Closes the device; a recording that could not be kept is an error naming why.
+    void close() {
+      active().close();
+      if (recorder && !recorder->error().empty()) throw InputError("touch: " + recorder->error());
+    }
+  };
+  const auto make_devices = [&](const haptics::Clock& clock) {
+    Devices d;
+    if (o.replay_file.empty()) {
+      d.base = std::make_unique<haptics::SimulatedDevice>(clock, path, hand, info);
+    } else {
+      d.base = std::make_unique<haptics::TickReplayDevice>(clock, o.replay_file, info);
+    }
+    if (!o.record_file.empty()) d.recorder = std::make_unique<haptics::RecordingDevice>(*d.base, o.record_file);
+    d.active().open();
+    return d;
+  };
   if (!o.realtime) {
     auto clock = std::make_unique<haptics::ManualClock>();
-    haptics::SimulatedDevice dev(*clock, path, hand, info);
-    dev.open();
+    Devices devices = make_devices(*clock);
+    haptics::HapticDevice& dev = devices.active();
     haptics::ServoLoop loop(dev, shared, *clock, cfg);
     loop.set_trace(trace);
     shared.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
@@ -244,11 +267,11 @@ TouchSessionResult run_touch_session(const Scene& scene, const TouchSessionOptio
     }
     res.stats = loop.stats();
     trace.resize(loop.trace_size());
-    dev.close();
+    devices.close();
   } else {
     haptics::SteadyClock clock;
-    haptics::SimulatedDevice dev(clock, path, hand, info);
-    dev.open();
+    Devices devices = make_devices(clock);
+    haptics::HapticDevice& dev = devices.active();
     haptics::ServoLoop loop(dev, shared, clock, cfg);
     loop.set_trace(trace);
     shared.commands.try_push(haptics::Command::of(haptics::CommandType::kArm));
@@ -270,7 +293,7 @@ TouchSessionResult run_touch_session(const Scene& scene, const TouchSessionOptio
     drain();
     res.stats = loop.stats();
     trace.resize(std::min<std::size_t>(loop.trace_size(), ticks));
-    dev.close();
+    devices.close();
   }
 
   // The rendered height under the proxy of every row, on the surface that row rendered.

@@ -9,6 +9,7 @@
 #include "float_tiff.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -220,6 +221,64 @@ TEST(TouchCommand, RasterOnARunSceneWritesTraceAndPlots) {
   std::string header;
   std::getline(trace, header);
   EXPECT_EQ(header.rfind("t_s,hip_x_m,hip_y_m,hip_z_m,proxy_x_m", 0), 0u) << header;
+}
+
+/// The rows of a --record file as numbers (parsed here, not by the program's reader): tick,
+/// time_ns, x, y, z, buttons, fx, fy, fz.
+std::vector<std::array<double, 9>> read_recording_rows(const fs::path& file) {
+  std::ifstream in(file);
+  std::string line;
+  std::getline(in, line);
+  EXPECT_EQ(line, "# hapticloud recording 1") << file;
+  std::vector<std::array<double, 9>> rows;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#' || line[0] == 't') continue;
+    std::array<double, 9> r{};
+    std::stringstream ss(line);
+    std::string f;
+    for (std::size_t k = 0; k < 9 && std::getline(ss, f, ','); ++k) r[k] = std::stod(f);
+    rows.push_back(r);
+  }
+  return rows;
+}
+
+// The proof of a recording: a scripted session recorded, then replayed through the same
+// servo path from the recording (recording again), renders every tick's force to 1e-9 N.
+TEST(TouchCommand, AReplayOfARecordedSessionRendersTheSameForces) {
+  const fs::path dir = hc::test::temp_dir("record_replay");
+  std::string log;
+  const std::string common = "touch --synthetic sinusoid --cells 200 --path raster --seconds 3 ";
+  ASSERT_EQ(run_app(common + "--out " + (dir / "a").string() + " --record " + (dir / "a.csv").string(), &log), 0) << log;
+  ASSERT_EQ(run_app(common + "--out " + (dir / "b").string() + " --device replay:" + (dir / "a.csv").string() +
+                        " --record " + (dir / "b.csv").string(), &log), 0) << log;
+  const auto a = read_recording_rows(dir / "a.csv");
+  const auto b = read_recording_rows(dir / "b.csv");
+  ASSERT_EQ(a.size(), 3000u);
+  ASSERT_EQ(b.size(), a.size());
+  double max_force = 0.0, max_diff = 0.0;
+  for (std::size_t k = 0; k < a.size(); ++k) {
+    ASSERT_EQ(a[k][0], static_cast<double>(k));
+    for (std::size_t c = 2; c < 5; ++c) ASSERT_EQ(a[k][c], b[k][c]) << "tick " << k;  // the same positions
+    for (std::size_t c = 6; c < 9; ++c) {
+      max_diff = std::max(max_diff, std::abs(a[k][c] - b[k][c]));
+      max_force = std::max(max_force, std::abs(a[k][c]));
+    }
+  }
+  EXPECT_GT(max_force, 0.5);  // the session touched the surface: the comparison is not of zeros
+  EXPECT_LE(max_diff, 1e-9);
+  // The replayed session's trace (written by the session, not the recorder) agrees too.
+  const auto ta = read_trace(dir / "a" / "trace.csv");
+  const auto tb = read_trace(dir / "b" / "trace.csv");
+  ASSERT_EQ(ta.size(), tb.size());
+  for (std::size_t k = 0; k < ta.size(); ++k)
+    for (int c = 0; c < 3; ++c) ASSERT_NEAR(ta[k].force[c], tb[k].force[c], 1e-9) << "tick " << k;
+  // An existing --record file is refused before anything runs, and left as it was.
+  const auto size = fs::file_size(dir / "a.csv");
+  EXPECT_EQ(run_app(common + "--out " + (dir / "c").string() + " --record " + (dir / "a.csv").string(), &log), 1);
+  EXPECT_NE(log.find("exists already"), std::string::npos) << log;
+  EXPECT_EQ(fs::file_size(dir / "a.csv"), size);
+  EXPECT_FALSE(fs::exists(dir / "c"));
+  EXPECT_EQ(run_app(common + "--out " + (dir / "d").string() + " --device replay:" + (dir / "missing.csv").string(), &log), 1);
 }
 
 TEST(TouchCommand, NotASceneIsAOneLineError) {

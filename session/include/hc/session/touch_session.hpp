@@ -47,6 +47,12 @@ struct TouchSessionOptions {
   bool hand = true;                 ///< false: the device sits exactly on the scripted target
   double press_m = 0.01;            ///< how far below mid height the hand aims [m] (device frame), [0, 0.5]
   double speed_m_per_s = 0.05;      ///< path speed [m/s] (device frame), (0, 10]
+  /// Device: empty = the scripted SimulatedDevice; otherwise a recording (docs/recording.md)
+  /// played back one sample per servo read (TickReplayDevice; path, hand, press and speed unused).
+  std::filesystem::path replay_file;
+  /// Record the session's device samples and forces here (RecordingDevice), or empty. Must not
+  /// exist yet.
+  std::filesystem::path record_file;
 
   /// Levels of detail: on when `levels` is true; then the servo renders a window of `level`
   /// (−1: the coarsest) whose first sample is `window_origin` (column, row; empty: centred),

@@ -1,0 +1,122 @@
+#pragma once
+/// @file recording.hpp
+/// Recorded device sessions (issue "Ecosystem"): `--record FILE` writes what a device reported
+/// and what it was sent, tick by tick; `--device replay:FILE` plays the positions and buttons
+/// back through the same servo path, one recorded sample per servo read, so a replay on the
+/// same scene with the same settings renders the same forces.
+///
+/// File format (docs/recording.md), text, one servo tick per line, numbers as %.17g so that
+/// every double reads back bit for bit:
+///
+///     # hapticloud recording 1
+///     # device: <name>; nominal_rate_hz: <rate>
+///     tick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n
+///     0,1000000,0.0012,-0.0031,0.0207,0,0,0,0
+///
+/// tick: servo read index from 0; time_ns: the device's sample time [ns]; x, y, z: end-effector
+/// position [m], device frame; buttons: bit mask; fx, fy, fz: the force sent after that read
+/// [N], device frame (after the device's clamp; nan when no force followed the read).
+///
+/// Real-time: RecordingDevice's read/write only copy into a lock-free ring (no allocation, no
+/// I/O); a writer thread drains it to the file every 20 ms. A full ring drops samples and
+/// counts them (dropped()); a recording with drops says so and cannot be replayed.
+
+#include "hc/haptics/device.hpp"
+#include "hc/haptics/clock.hpp"
+#include "hc/haptics/spsc_ring.hpp"
+
+#include <atomic>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <thread>
+#include <vector>
+
+namespace hc::haptics {
+
+/// One recorded servo tick.
+struct RecordedSample {
+  std::uint64_t tick = 0;
+  std::int64_t time_ns = 0;
+  double position_m[3] = {0, 0, 0};  ///< device frame [m]
+  std::uint32_t buttons = 0;
+  double force_n[3] = {0, 0, 0};     ///< sent after this read [N], device frame; NaN if none
+};
+
+/// Wraps a device and records every read and the force sent after it (see the file format
+/// above). The wrapper is the device the servo loop sees: its state (Open, Armed, Fault) is
+/// mirrored onto the inner device on every write, so the inner device renders what the servo
+/// sends; info() is the inner device's.
+/// The file is written to `FILE.part-<random>` beside it and put in place by close() with
+/// link(2), so an existing FILE is never replaced and an interrupted session leaves no FILE.
+class RecordingDevice final : public HapticDevice {
+ public:
+  /// `inner` must outlive this object. Nothing is opened here.
+  RecordingDevice(HapticDevice& inner, std::filesystem::path file);
+  ~RecordingDevice() override;
+
+  /// Samples written so far (after close(): all of them).
+  std::uint64_t written() const noexcept { return written_.load(std::memory_order_relaxed); }
+  /// Samples lost because the ring was full (the writer fell behind by more than 16 384 ticks).
+  std::uint64_t dropped() const noexcept { return dropped_.load(std::memory_order_relaxed); }
+  /// Empty after a successful close(); otherwise why the file is missing or incomplete.
+  const std::string& error() const noexcept { return error_; }
+
+ protected:
+  /// Opens the inner device, then creates the temporary file and starts the writer thread.
+  /// @throws hc::InputError naming FILE when it exists or its folder cannot take the file; what
+  ///         the inner device's open() throws.
+  void do_open() override;
+  /// Stops the writer, closes the inner device and puts FILE in place (error() says otherwise).
+  void do_close() noexcept override;
+  DeviceStatus do_read(DeviceReading& out) noexcept override;
+  DeviceStatus do_write(const Eigen::Vector3d& force_n) noexcept override;
+
+ private:
+  void writer_loop();
+  void push(const RecordedSample& s) noexcept;
+
+  HapticDevice& inner_;
+  std::filesystem::path file_, tmp_;
+  std::unique_ptr<SpscRing<RecordedSample, 16384>> ring_;
+  std::thread writer_;
+  std::atomic<bool> stop_{false};
+  std::atomic<std::uint64_t> written_{0}, dropped_{0};
+  RecordedSample pending_{};
+  bool has_pending_ = false;
+  std::uint64_t next_tick_ = 0;
+  std::string error_;
+  bool write_failed_ = false;  // writer thread only, read after join
+};
+
+/// Reads a recording. @throws hc::InputError naming the file and line for a missing file, a
+/// first line that is not "# hapticloud recording 1", a line that is not nine numbers, ticks
+/// that do not count up from 0 by one, or no samples.
+std::vector<RecordedSample> read_recording(const std::filesystem::path& file);
+
+/// Plays a recording back: the k-th read() returns sample k's position and buttons, its time
+/// shifted so that the first sample is at the clock's time of the first read; after the last
+/// sample the last position is held and read() returns kEndOfData. Forces written are kept
+/// (last_force_n()). info(): SimulatedDevice::default_info() unless given.
+class TickReplayDevice final : public HapticDevice {
+ public:
+  TickReplayDevice(const Clock& clock, std::filesystem::path file, DeviceInfo info);
+  std::size_t sample_count() const noexcept { return samples_.size(); }
+
+ protected:
+  /// Reads the file (read_recording). @throws as read_recording.
+  void do_open() override;
+  void do_close() noexcept override {}
+  DeviceStatus do_read(DeviceReading& out) noexcept override;
+  DeviceStatus do_write(const Eigen::Vector3d&) noexcept override { return DeviceStatus::kOk; }
+
+ private:
+  const Clock& clock_;
+  std::filesystem::path file_;
+  std::vector<RecordedSample> samples_;
+  std::size_t next_ = 0;
+  std::int64_t start_ns_ = 0;
+};
+
+}  // namespace hc::haptics

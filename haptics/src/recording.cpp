@@ -1,0 +1,213 @@
+#include "hc/haptics/recording.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <sstream>
+#include <system_error>
+#include <utility>
+
+#include <fcntl.h>
+#include <unistd.h>
+
+namespace hc::haptics {
+
+namespace {
+
+constexpr const char* kMagic = "# hapticloud recording 1";
+constexpr const char* kColumns = "tick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n";
+
+// One sample as a line of text, doubles as %.17g (they read back bit for bit).
+int format_sample(const RecordedSample& s, char* buf, std::size_t size) {
+  return std::snprintf(buf, size, "%llu,%lld,%.17g,%.17g,%.17g,%u,%.17g,%.17g,%.17g\n",
+                       static_cast<unsigned long long>(s.tick), static_cast<long long>(s.time_ns), s.position_m[0],
+                       s.position_m[1], s.position_m[2], s.buttons, s.force_n[0], s.force_n[1], s.force_n[2]);
+}
+
+}  // namespace
+
+RecordingDevice::RecordingDevice(HapticDevice& inner, std::filesystem::path file)
+    : HapticDevice(inner.info()), inner_(inner), file_(std::move(file)) {}
+
+RecordingDevice::~RecordingDevice() { close(); }
+
+void RecordingDevice::do_open() {
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (fs::exists(fs::symlink_status(file_, ec))) {
+    throw InputError("record: " + file_.string() + " exists already (not overwritten; choose another --record)");
+  }
+  const fs::path folder = file_.has_parent_path() ? file_.parent_path() : fs::path(".");
+  if (!fs::is_directory(folder, ec)) throw InputError("record: folder " + folder.string() + " of " + file_.string() + " does not exist");
+  inner_.open();
+  // The temporary: created exclusively (mkstemp), linked to FILE by close().
+  std::string name = (folder / (file_.filename().string() + ".part-XXXXXX")).string();
+  const int fd = ::mkstemp(name.data());
+  if (fd < 0) {
+    const std::string why = std::strerror(errno);
+    inner_.close();
+    throw InputError("record: cannot create a file beside " + file_.string() + ": " + why);
+  }
+  ::close(fd);
+  tmp_ = name;
+  ring_ = std::make_unique<SpscRing<RecordedSample, 16384>>();
+  stop_.store(false);
+  written_.store(0);
+  dropped_.store(0);
+  has_pending_ = false;
+  next_tick_ = 0;
+  error_.clear();
+  write_failed_ = false;
+  writer_ = std::thread([this] { writer_loop(); });
+}
+
+void RecordingDevice::writer_loop() {
+  std::ofstream out(tmp_, std::ios::binary | std::ios::trunc);
+  if (!out) {
+    write_failed_ = true;
+    return;
+  }
+  out << kMagic << "\n# device: " << info().name << "; nominal_rate_hz: " << info().nominal_rate_hz << "\n"
+      << kColumns << "\n";
+  char buf[256];
+  RecordedSample s;
+  for (;;) {
+    const bool last = stop_.load(std::memory_order_acquire);
+    while (ring_->try_pop(s)) {
+      const int n = format_sample(s, buf, sizeof buf);
+      out.write(buf, n);
+      written_.fetch_add(1, std::memory_order_relaxed);
+    }
+    if (last) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  out.flush();
+  if (!out) write_failed_ = true;
+}
+
+void RecordingDevice::push(const RecordedSample& s) noexcept {
+  if (!ring_->try_push(s)) dropped_.fetch_add(1, std::memory_order_relaxed);
+}
+
+DeviceStatus RecordingDevice::do_read(DeviceReading& out) noexcept {
+  const DeviceStatus st = inner_.read(out);
+  if (has_pending_) push(pending_);  // a read without a write: its force is NaN
+  pending_.tick = next_tick_++;
+  pending_.time_ns = out.time_ns;
+  for (int a = 0; a < 3; ++a) {
+    pending_.position_m[a] = out.position_m[a];
+    pending_.force_n[a] = std::numeric_limits<double>::quiet_NaN();
+  }
+  pending_.buttons = out.buttons;
+  has_pending_ = true;
+  return st;
+}
+
+DeviceStatus RecordingDevice::do_write(const Eigen::Vector3d& force_n) noexcept {
+  // Mirror this device's state onto the inner one, so that it renders what is sent here.
+  const DeviceState mine = state();
+  if (mine == DeviceState::kArmed && inner_.state() == DeviceState::kOpen) inner_.arm();
+  if (mine != DeviceState::kArmed && inner_.state() == DeviceState::kArmed) inner_.disarm();
+  if (mine == DeviceState::kOpen && inner_.state() == DeviceState::kFault) inner_.reset_fault();
+  const DeviceStatus st = inner_.write(force_n);
+  if (has_pending_) {
+    const Eigen::Vector3d& sent = inner_.last_force_n();
+    for (int a = 0; a < 3; ++a) pending_.force_n[a] = sent[a];
+    push(pending_);
+    has_pending_ = false;
+  }
+  return st;
+}
+
+void RecordingDevice::do_close() noexcept {
+  if (has_pending_) {
+    push(pending_);
+    has_pending_ = false;
+  }
+  if (writer_.joinable()) {
+    stop_.store(true, std::memory_order_release);
+    writer_.join();
+  }
+  inner_.close();
+  if (tmp_.empty()) return;
+  std::error_code ec;
+  if (write_failed_) {
+    error_ = "record: writing " + tmp_.string() + " failed (disk full?); no recording kept";
+  } else if (dropped_.load() > 0) {
+    error_ = "record: " + std::to_string(dropped_.load()) + " ticks were lost (the writer fell behind); no recording kept";
+  } else if (::link(tmp_.c_str(), file_.c_str()) != 0) {
+    error_ = "record: cannot put " + file_.string() + " in place: " +
+             (errno == EEXIST ? std::string("it exists already (not overwritten)") : std::string(std::strerror(errno)));
+  }
+  std::filesystem::remove(tmp_, ec);
+  tmp_.clear();
+}
+
+std::vector<RecordedSample> read_recording(const std::filesystem::path& file) {
+  std::ifstream in(file);
+  if (!in) throw InputError("replay: cannot open " + file.string());
+  std::string line;
+  if (!std::getline(in, line) || line.rfind(kMagic, 0) != 0) {
+    throw InputError("replay: " + file.string() + ":1: expected '" + std::string(kMagic) +
+                     "' (a file written by --record)");
+  }
+  std::vector<RecordedSample> out;
+  int line_no = 1;
+  while (std::getline(in, line)) {
+    ++line_no;
+    if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.empty() || line[0] == '#' || line == kColumns) continue;
+    RecordedSample s;
+    unsigned long long tick = 0;
+    long long time_ns = 0;
+    unsigned buttons = 0;
+    int used = 0;
+    const int n = std::sscanf(line.c_str(), "%llu,%lld,%lf,%lf,%lf,%u,%lf,%lf,%lf%n", &tick, &time_ns, &s.position_m[0],
+                              &s.position_m[1], &s.position_m[2], &buttons, &s.force_n[0], &s.force_n[1], &s.force_n[2],
+                              &used);
+    if (n != 9 || static_cast<std::size_t>(used) != line.size() || !std::isfinite(s.position_m[0]) ||
+        !std::isfinite(s.position_m[1]) || !std::isfinite(s.position_m[2])) {
+      throw InputError("replay: " + file.string() + ":" + std::to_string(line_no) + ": '" + line + "' is not " +
+                       kColumns + " (nine numbers, a finite position)");
+    }
+    if (tick != out.size()) {
+      throw InputError("replay: " + file.string() + ":" + std::to_string(line_no) + ": tick " + std::to_string(tick) +
+                       ", expected " + std::to_string(out.size()) + " (ticks count up from 0 by one)");
+    }
+    s.tick = tick;
+    s.time_ns = time_ns;
+    s.buttons = buttons;
+    out.push_back(s);
+  }
+  if (out.empty()) throw InputError("replay: " + file.string() + " holds no samples");
+  return out;
+}
+
+TickReplayDevice::TickReplayDevice(const Clock& clock, std::filesystem::path file, DeviceInfo info)
+    : HapticDevice(std::move(info)), clock_(clock), file_(std::move(file)) {}
+
+void TickReplayDevice::do_open() {
+  samples_ = read_recording(file_);
+  next_ = 0;
+}
+
+DeviceStatus TickReplayDevice::do_read(DeviceReading& out) noexcept {
+  if (next_ == 0) start_ns_ = clock_.now_ns();
+  const bool done = next_ >= samples_.size();
+  const RecordedSample& s = samples_[done ? samples_.size() - 1 : next_];
+  out.position_m = Eigen::Vector3d(s.position_m[0], s.position_m[1], s.position_m[2]);
+  out.buttons = s.buttons;
+  out.time_ns = start_ns_ + (s.time_ns - samples_.front().time_ns);
+  if (done) return DeviceStatus::kEndOfData;
+  ++next_;
+  return DeviceStatus::kOk;
+}
+
+}  // namespace hc::haptics

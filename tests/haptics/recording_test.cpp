@@ -1,0 +1,128 @@
+// Recorded sessions (recording.hpp): RecordingDevice against a log the test keeps itself of what
+// the inner device reported and what was sent; read_recording and TickReplayDevice against that
+// same log; the refusals. The end-to-end replay of a servo session (forces reproduced to 1e-9 N)
+// is in tests/integration/touch_command_test.cpp.
+
+#include "hc/haptics/recording.hpp"
+#include "hc/haptics/simulated_device.hpp"
+
+#include "hc/common/error.hpp"
+#include "test_paths.hpp"
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <string>
+#include <vector>
+
+namespace hc::haptics {
+namespace {
+
+namespace fs = std::filesystem;
+
+bool has_part_files(const fs::path& dir) {
+  for (const auto& e : fs::directory_iterator(dir))
+    if (e.path().filename().string().find(".part-") != std::string::npos) return true;
+  return false;
+}
+
+TEST(Recording, EveryReadAndTheClampedForceAfterItReadBackBitForBit) {
+  const fs::path dir = hc::test::temp_dir("recording");
+  const fs::path file = dir / "session.csv";
+  ManualClock clock(5'000'000);
+  ScriptedPath path;
+  path.kind = PathKind::kCircle;
+  SimulatedDevice inner(clock, path, VirtualHand{}, SimulatedDevice::default_info());
+  std::vector<DeviceReading> seen;
+  std::vector<Eigen::Vector3d> sent;
+  {
+    RecordingDevice rec(inner, file);
+    rec.open();
+    EXPECT_EQ(inner.state(), DeviceState::kOpen);
+    ASSERT_TRUE(rec.arm());
+    for (int k = 0; k < 3000; ++k) {  // more than the writer drains in one 20 ms round
+      DeviceReading r;
+      rec.read(r);
+      seen.push_back(r);
+      // A force that exceeds the 8.9 N cap every 10th tick: the recording holds what was sent.
+      const Eigen::Vector3d f(0.001 * k, -0.5, k % 10 == 0 ? 20.0 : 1.0);
+      rec.write(f);
+      EXPECT_EQ(inner.state(), DeviceState::kArmed);  // mirrored
+      sent.push_back(inner.last_force_n());
+      clock.advance_ns(1'000'000);
+    }
+    rec.close();
+    EXPECT_EQ(rec.error(), "");
+    EXPECT_EQ(rec.dropped(), 0u);
+    EXPECT_EQ(rec.written(), 3000u);
+  }
+  EXPECT_FALSE(has_part_files(dir));
+  const std::vector<RecordedSample> got = read_recording(file);
+  ASSERT_EQ(got.size(), seen.size());
+  for (std::size_t k = 0; k < got.size(); ++k) {
+    EXPECT_EQ(got[k].tick, k);
+    EXPECT_EQ(got[k].time_ns, seen[k].time_ns);
+    for (int a = 0; a < 3; ++a) {
+      EXPECT_EQ(got[k].position_m[a], seen[k].position_m[a]) << k;  // exact: %.17g
+      EXPECT_EQ(got[k].force_n[a], sent[k][a]) << k;
+    }
+    EXPECT_LE(Eigen::Vector3d(got[k].force_n[0], got[k].force_n[1], got[k].force_n[2]).norm(),
+              SimulatedDevice::default_info().max_force_n + 1e-12);
+  }
+
+  // The replay gives the same positions, one per read, its times shifted to the replay clock.
+  ManualClock replay_clock(42);
+  TickReplayDevice replay(replay_clock, file, SimulatedDevice::default_info());
+  replay.open();
+  ASSERT_EQ(replay.sample_count(), seen.size());
+  for (std::size_t k = 0; k < seen.size(); ++k) {
+    DeviceReading r;
+    ASSERT_EQ(replay.read(r), DeviceStatus::kOk) << k;
+    EXPECT_EQ(r.position_m, seen[k].position_m) << k;
+    EXPECT_EQ(r.time_ns, 42 + (seen[k].time_ns - seen[0].time_ns)) << k;
+  }
+  DeviceReading last;
+  EXPECT_EQ(replay.read(last), DeviceStatus::kEndOfData);
+  EXPECT_EQ(last.position_m, seen.back().position_m);
+}
+
+TEST(Recording, AnExistingFileIsNeverReplacedAndBadRecordingsNameTheLine) {
+  const fs::path dir = hc::test::temp_dir("recording_refuse");
+  const fs::path file = dir / "mine.csv";
+  { std::ofstream(file) << "the user's notes\n"; }
+  ManualClock clock;
+  SimulatedDevice inner(clock, ScriptedPath{}, VirtualHand{}, SimulatedDevice::default_info());
+  RecordingDevice rec(inner, file);
+  EXPECT_THROW(rec.open(), InputError);
+  EXPECT_EQ(inner.state(), DeviceState::kClosed);
+  std::ifstream in(file);
+  std::string text;
+  std::getline(in, text);
+  EXPECT_EQ(text, "the user's notes");
+  EXPECT_FALSE(has_part_files(dir));
+  RecordingDevice nowhere(inner, dir / "missing" / "r.csv");
+  EXPECT_THROW(nowhere.open(), InputError);
+
+  // Not a recording; a broken line; a tick missing.
+  EXPECT_THROW(read_recording(file), InputError);
+  const fs::path bad = dir / "bad.csv";
+  { std::ofstream(bad) << "# hapticloud recording 1\ntick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n\n0,0,0,0,0,0,0,0,0\n1,5,zero,0,0,0,0,0,0\n"; }
+  try {
+    read_recording(bad);
+    FAIL() << "expected hc::InputError";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("bad.csv:4"), std::string::npos) << e.what();
+  }
+  const fs::path gap = dir / "gap.csv";
+  { std::ofstream(gap) << "# hapticloud recording 1\n0,0,0,0,0,0,0,0,0\n2,5,0,0,0,0,0,0,0\n"; }
+  try {
+    read_recording(gap);
+    FAIL() << "expected hc::InputError";
+  } catch (const InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("tick 2, expected 1"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
+}  // namespace hc::haptics
