@@ -30,7 +30,8 @@ void add_explore_command(CLI::App& app) {
   cmd->add_option("CONFIG_OR_SCENE", o->input, "Run config (.yaml; its scene is built first, re-scans possible) or a scene folder")
       ->required();
   cmd->add_option("--device", o->device, "falcon | mouse | sim (a scripted path) | replay:FILE (a --record file, "
-                                          "one sample per servo tick; docs/recording.md)")->capture_default_str();
+                                          "one sample per servo tick; docs/recording.md) | udp:HOST:PORT (poses in, "
+                                          "forces out over UDP; docs/udp_bridge.md)")->capture_default_str();
   cmd->add_option("--record", o->record,
                   "Record the device's positions, buttons and the forces sent, per servo tick, to FILE (refused if "
                   "it exists; docs/recording.md)");

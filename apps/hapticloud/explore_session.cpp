@@ -6,6 +6,7 @@
 #include "hc/haptics/recording.hpp"
 #include "hc/haptics/simulated_device.hpp"
 #include "hc/haptics/stop_signal.hpp"
+#include "hc/haptics/udp_device.hpp"
 #include "hc/session/scene_source.hpp"
 
 #ifdef HC_HAVE_FALCON
@@ -46,8 +47,10 @@ std::vector<ScriptStep> Session::check_options() {
   if (!o_.screenshot.empty() && o_.frames == 0 && o_.seconds == 0.0) o_.frames = 1;
   std::vector<ScriptStep> script = parse_script(script_text(o_.script));
   const bool replay = o_.device.rfind("replay:", 0) == 0 && o_.device.size() > 7;
-  if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim" && !replay) {
-    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse, sim or replay:FILE)");
+  const bool udp = o_.device.rfind("udp:", 0) == 0;
+  if (udp) (void)haptics::parse_udp_address(o_.device.substr(4));
+  if (o_.device != "falcon" && o_.device != "mouse" && o_.device != "sim" && !replay && !udp) {
+    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse, sim, replay:FILE or udp:HOST:PORT)");
   }
   if (!o_.record.empty() && std::filesystem::exists(std::filesystem::symlink_status(o_.record))) {
     throw ConfigError("explore: --record " + o_.record + " exists already (not overwritten; choose another file)");
@@ -100,6 +103,13 @@ void Session::start_device() {
     // Made in start_servo() once the first window's heights are known (the path's heights need them).
   } else if (o_.device.rfind("replay:", 0) == 0) {
     device_ = std::make_unique<haptics::TickReplayDevice>(clock_, o_.device.substr(7), haptics::SimulatedDevice::default_info());
+  } else if (o_.device.rfind("udp:", 0) == 0) {
+    // A rig outside the process (docs/udp_bridge.md): Falcon-like capabilities unless its
+    // client scales to them.
+    haptics::UdpDeviceOptions uo = haptics::parse_udp_address(o_.device.substr(4));
+    uo.info = haptics::SimulatedDevice::default_info();
+    uo.info.name = "udp " + o_.device.substr(4);
+    device_ = std::make_unique<haptics::UdpDevice>(clock_, uo);
   } else if (o_.device == "falcon") {
 #ifdef HC_HAVE_FALCON
     // The run config's falcon: section when there is one (firmware, which device, force cap).
@@ -109,7 +119,7 @@ void Session::start_device() {
     throw ConfigError("explore: --device falcon: this build has no Falcon driver (hc::falcon was not built)");
 #endif
   } else {
-    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse, sim or replay:FILE)");
+    throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse, sim, replay:FILE or udp:HOST:PORT)");
   }
 }
 
