@@ -256,6 +256,7 @@ void Session::run() {
   if (sound_) sound_->stop();
 #endif
   const haptics::ServoStats stats = loop_->stats();
+  if (recorder_) recorder_->keep_on_close();  // a normal end: the recording is kept
   active_device().close();
   write_summary(stats);
   viewer_.reset();

@@ -22,13 +22,14 @@ namespace hc::haptics {
 namespace {
 
 constexpr const char* kMagic = "# hapticloud recording 1";
-constexpr const char* kColumns = "tick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n";
+constexpr const char* kColumns = "tick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n,status";
 
 // One sample as a line of text, doubles as %.17g (they read back bit for bit).
 int format_sample(const RecordedSample& s, char* buf, std::size_t size) {
-  return std::snprintf(buf, size, "%llu,%lld,%.17g,%.17g,%.17g,%u,%.17g,%.17g,%.17g\n",
+  return std::snprintf(buf, size, "%llu,%lld,%.17g,%.17g,%.17g,%u,%.17g,%.17g,%.17g,%u\n",
                        static_cast<unsigned long long>(s.tick), static_cast<long long>(s.time_ns), s.position_m[0],
-                       s.position_m[1], s.position_m[2], s.buttons, s.force_n[0], s.force_n[1], s.force_n[2]);
+                       s.position_m[1], s.position_m[2], s.buttons, s.force_n[0], s.force_n[1], s.force_n[2],
+                       static_cast<unsigned>(s.status));
 }
 
 }  // namespace
@@ -47,7 +48,7 @@ void RecordingDevice::do_open() {
   const fs::path folder = file_.has_parent_path() ? file_.parent_path() : fs::path(".");
   if (!fs::is_directory(folder, ec)) throw InputError("record: folder " + folder.string() + " of " + file_.string() + " does not exist");
   inner_.open();
-  // The temporary: created exclusively (mkstemp), linked to FILE by close().
+  // The temporary: created exclusively (mkstemp), linked to FILE by close() after keep_on_close().
   std::string name = (folder / (file_.filename().string() + ".part-XXXXXX")).string();
   const int fd = ::mkstemp(name.data());
   if (fd < 0) {
@@ -57,15 +58,23 @@ void RecordingDevice::do_open() {
   }
   ::close(fd);
   tmp_ = name;
-  ring_ = std::make_unique<SpscRing<RecordedSample, 16384>>();
-  stop_.store(false);
-  written_.store(0);
-  dropped_.store(0);
-  has_pending_ = false;
-  next_tick_ = 0;
-  error_.clear();
-  write_failed_ = false;
-  writer_ = std::thread([this] { writer_loop(); });
+  try {
+    ring_ = std::make_unique<SpscRing<RecordedSample, 16384>>();
+    stop_.store(false);
+    written_.store(0);
+    dropped_.store(0);
+    has_pending_ = false;
+    next_tick_ = 0;
+    error_.clear();
+    keep_ = false;
+    write_failed_ = false;
+    writer_ = std::thread([this] { writer_loop(); });
+  } catch (...) {
+    std::filesystem::remove(tmp_, ec);
+    tmp_.clear();
+    inner_.close();
+    throw;
+  }
 }
 
 void RecordingDevice::writer_loop() {
@@ -74,7 +83,9 @@ void RecordingDevice::writer_loop() {
     write_failed_ = true;
     return;
   }
-  out << kMagic << "\n# device: " << info().name << "; nominal_rate_hz: " << info().nominal_rate_hz << "\n"
+  out.precision(17);
+  out << kMagic << "\n# device: " << info().name << "; nominal_rate_hz: " << info().nominal_rate_hz
+      << "; max_force_n: " << info().max_force_n << "\n"
       << kColumns << "\n";
   char buf[256];
   RecordedSample s;
@@ -97,7 +108,12 @@ void RecordingDevice::push(const RecordedSample& s) noexcept {
 }
 
 DeviceStatus RecordingDevice::do_read(DeviceReading& out) noexcept {
-  const DeviceStatus st = inner_.read(out);
+  DeviceStatus st = inner_.read(out);
+  // A fault of the inner device (its own watchdog, say) must reach the servo loop; one this
+  // device put there (mirrored, awaiting the reset) must not.
+  if (inner_.state() == DeviceState::kFault && state() != DeviceState::kFault && !inner_faulted_by_mirror_) {
+    st = DeviceStatus::kIoError;
+  }
   if (has_pending_) push(pending_);  // a read without a write: its force is NaN
   pending_.tick = next_tick_++;
   pending_.time_ns = out.time_ns;
@@ -106,17 +122,23 @@ DeviceStatus RecordingDevice::do_read(DeviceReading& out) noexcept {
     pending_.force_n[a] = std::numeric_limits<double>::quiet_NaN();
   }
   pending_.buttons = out.buttons;
+  pending_.status = static_cast<std::uint8_t>(st);
   has_pending_ = true;
   return st;
 }
 
 DeviceStatus RecordingDevice::do_write(const Eigen::Vector3d& force_n) noexcept {
   // Mirror this device's state onto the inner one, so that it renders what is sent here.
+  // (this Fault → inner Fault; an explicit reset of this device, seen as Open here while the
+  // inner one is in Fault, resets it; Armed/Open follow).
   const DeviceState mine = state();
+  if (mine == DeviceState::kFault && inner_.state() != DeviceState::kFault) inner_.fault();
+  if (mine == DeviceState::kOpen && inner_.state() == DeviceState::kFault && inner_faulted_by_mirror_) inner_.reset_fault();
   if (mine == DeviceState::kArmed && inner_.state() == DeviceState::kOpen) inner_.arm();
   if (mine != DeviceState::kArmed && inner_.state() == DeviceState::kArmed) inner_.disarm();
-  if (mine == DeviceState::kOpen && inner_.state() == DeviceState::kFault) inner_.reset_fault();
-  const DeviceStatus st = inner_.write(force_n);
+  inner_faulted_by_mirror_ = inner_.state() == DeviceState::kFault && (mine == DeviceState::kFault || inner_faulted_by_mirror_);
+  DeviceStatus st = inner_.write(force_n);
+  if (st == DeviceStatus::kFault && mine != DeviceState::kFault && !inner_faulted_by_mirror_) st = DeviceStatus::kIoError;
   if (has_pending_) {
     const Eigen::Vector3d& sent = inner_.last_force_n();
     for (int a = 0; a < 3; ++a) pending_.force_n[a] = sent[a];
@@ -138,15 +160,24 @@ void RecordingDevice::do_close() noexcept {
   inner_.close();
   if (tmp_.empty()) return;
   std::error_code ec;
-  if (write_failed_) {
+  bool remove_tmp = true;
+  if (!keep_) {
+    error_ = "record: the session did not end normally; no recording kept";
+  } else if (write_failed_) {
     error_ = "record: writing " + tmp_.string() + " failed (disk full?); no recording kept";
   } else if (dropped_.load() > 0) {
     error_ = "record: " + std::to_string(dropped_.load()) + " ticks were lost (the writer fell behind); no recording kept";
   } else if (::link(tmp_.c_str(), file_.c_str()) != 0) {
-    error_ = "record: cannot put " + file_.string() + " in place: " +
-             (errno == EEXIST ? std::string("it exists already (not overwritten)") : std::string(std::strerror(errno)));
+    if (errno == EEXIST) {
+      error_ = "record: cannot put " + file_.string() + " in place: it exists already (not overwritten)";
+    } else {
+      // No hard links here (FAT, some network shares): the recording stays under its .part name.
+      error_ = "record: cannot link " + file_.string() + " (" + std::strerror(errno) + "); the recording is kept as " +
+               tmp_.string();
+      remove_tmp = false;
+    }
   }
-  std::filesystem::remove(tmp_, ec);
+  if (remove_tmp) std::filesystem::remove(tmp_, ec);
   tmp_.clear();
 }
 
@@ -167,16 +198,17 @@ std::vector<RecordedSample> read_recording(const std::filesystem::path& file) {
     RecordedSample s;
     unsigned long long tick = 0;
     long long time_ns = 0;
-    unsigned buttons = 0;
+    unsigned buttons = 0, status = 0;
     int used = 0;
-    const int n = std::sscanf(line.c_str(), "%llu,%lld,%lf,%lf,%lf,%u,%lf,%lf,%lf%n", &tick, &time_ns, &s.position_m[0],
+    const int n = std::sscanf(line.c_str(), "%llu,%lld,%lf,%lf,%lf,%u,%lf,%lf,%lf,%u%n", &tick, &time_ns, &s.position_m[0],
                               &s.position_m[1], &s.position_m[2], &buttons, &s.force_n[0], &s.force_n[1], &s.force_n[2],
-                              &used);
-    if (n != 9 || static_cast<std::size_t>(used) != line.size() || !std::isfinite(s.position_m[0]) ||
-        !std::isfinite(s.position_m[1]) || !std::isfinite(s.position_m[2])) {
+                              &status, &used);
+    if (n != 10 || static_cast<std::size_t>(used) != line.size() || !std::isfinite(s.position_m[0]) ||
+        !std::isfinite(s.position_m[1]) || !std::isfinite(s.position_m[2]) || status > 4) {
       throw InputError("replay: " + file.string() + ":" + std::to_string(line_no) + ": '" + line + "' is not " +
-                       kColumns + " (nine numbers, a finite position)");
+                       kColumns + " (ten numbers, a finite position, a status 0..4)");
     }
+    s.status = static_cast<std::uint8_t>(status);
     if (tick != out.size()) {
       throw InputError("replay: " + file.string() + ":" + std::to_string(line_no) + ": tick " + std::to_string(tick) +
                        ", expected " + std::to_string(out.size()) + " (ticks count up from 0 by one)");
@@ -190,8 +222,25 @@ std::vector<RecordedSample> read_recording(const std::filesystem::path& file) {
   return out;
 }
 
+namespace {
+
+// `info` with max_force_n from the recording's "# device: ...; max_force_n: X" line, if any.
+DeviceInfo info_from(const std::filesystem::path& file, DeviceInfo info) {
+  std::ifstream in(file);
+  std::string line;
+  for (int k = 0; k < 2 && std::getline(in, line); ++k) {
+    const std::size_t at = line.find("max_force_n: ");
+    if (at == std::string::npos) continue;
+    const double v = std::strtod(line.c_str() + at + 13, nullptr);
+    if (v > 0.0 && std::isfinite(v)) info.max_force_n = v;
+  }
+  return info;
+}
+
+}  // namespace
+
 TickReplayDevice::TickReplayDevice(const Clock& clock, std::filesystem::path file, DeviceInfo info)
-    : HapticDevice(std::move(info)), clock_(clock), file_(std::move(file)) {}
+    : HapticDevice(info_from(file, std::move(info))), clock_(clock), file_(std::move(file)) {}
 
 void TickReplayDevice::do_open() {
   samples_ = read_recording(file_);
@@ -207,7 +256,7 @@ DeviceStatus TickReplayDevice::do_read(DeviceReading& out) noexcept {
   out.time_ns = start_ns_ + (s.time_ns - samples_.front().time_ns);
   if (done) return DeviceStatus::kEndOfData;
   ++next_;
-  return DeviceStatus::kOk;
+  return static_cast<DeviceStatus>(s.status);
 }
 
 }  // namespace hc::haptics

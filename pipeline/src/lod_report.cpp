@@ -11,8 +11,6 @@
 #include "hc/pipeline/synthetic.hpp"
 #include "hc/pipeline/transform.hpp"
 
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <cmath>
@@ -115,42 +113,23 @@ std::string level_table_text(const std::vector<LevelRow>& rows) {
 }
 
 std::vector<std::string> write_level_previews(LodPyramid& pyramid, const std::filesystem::path& dir) {
-  std::vector<std::string> names;
-  std::vector<cv::Mat> images;
+  std::vector<std::string> names, titles;
+  std::vector<std::shared_ptr<const LodLevel>> levels;
   for (int level = 0; level < pyramid.level_count(); ++level) {
     const std::string name = "lod_level_" + std::to_string(level) + ".png";
-    const std::filesystem::path png = dir / name;
-    const HeightField& depth = pyramid.depth_level(level)->depth_m;
+    levels.push_back(pyramid.depth_level(level));
+    const HeightField& depth = levels.back()->depth_m;
     std::ostringstream title;
     title << "level " << level << ": " << depth.rows() << " x " << depth.cols() << " cells of "
           << format_number(depth.cell_size_m() * 1e3, 3) << " mm";
-    write_hillshade_preview(depth, png, title.str());
+    titles.push_back(title.str());
+    write_hillshade_preview(depth, dir / name, title.str());
     names.push_back(name);
-    images.push_back(cv::imread(png.string(), cv::IMREAD_COLOR));
-    if (images.back().empty()) throw InputError("levels: cannot read back '" + png.string() + "'");
   }
   // Side by side at one height (level 0's, at most 600 px); coarse levels keep their cells.
-  // Each panel carries its level's title strip ("level L: rows x cols cells of ... mm").
-  const int height = std::min(600, images.front().rows);
-  std::vector<cv::Mat> row;
-  for (const cv::Mat& img : images) {
-    cv::Mat scaled;
-    const double f = static_cast<double>(height) / img.rows;
-    cv::resize(img, scaled, cv::Size(std::max(1, static_cast<int>(std::lround(img.cols * f))), height), 0, 0,
-               f >= 1.0 ? cv::INTER_NEAREST : cv::INTER_AREA);
-    if (!row.empty()) row.push_back(cv::Mat(height, 8, CV_8UC3, cv::Scalar(255, 255, 255)));
-    row.push_back(scaled);
-  }
-  cv::Mat composite;
-  cv::hconcat(row, composite);
-  const std::filesystem::path out = dir / "lod_levels.png";
-  bool ok = false;
-  try {
-    ok = cv::imwrite(out.string(), composite, {cv::IMWRITE_PNG_COMPRESSION, 1});
-  } catch (const cv::Exception&) {
-    ok = false;
-  }
-  if (!ok) throw InputError("levels: cannot write '" + out.string() + "'");
+  std::vector<const HeightField*> fields;
+  for (const auto& l : levels) fields.push_back(&l->depth_m);
+  write_hillshades_side_by_side(fields, titles, dir / "lod_levels.png", 600);
   names.push_back("lod_levels.png");
   return names;
 }

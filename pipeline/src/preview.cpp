@@ -7,6 +7,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <stdexcept>
 #include <cmath>
 #include <cstdio>
 #include <vector>
@@ -140,9 +141,13 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   if (!bar.min_label.empty()) label_w = std::max(label_w, text_width(bar.min_label, 0.3));
   const int margin = std::max(110, 8 + bar_w + 4 + label_w + 8);
   const int width = std::max({body.cols + margin, text_width(full_title, 0.5) + 12, clipped ? text_width(foot, 0.4) + 12 : 0});
-  cv::Mat canvas(body.rows + title_h + foot_h, width, CV_8UC3, cv::Scalar(255, 255, 255));
+  // The legend needs about 100 px of height (range, extreme and unit labels): a short, wide
+  // layer gets white space below it rather than overlapping labels.
+  const int legend_h = 100;
+  const int body_h = std::max(body.rows, legend_h + 20);
+  cv::Mat canvas(body_h + title_h + foot_h, width, CV_8UC3, cv::Scalar(255, 255, 255));
   body.copyTo(canvas(cv::Rect(0, title_h, body.cols, body.rows)));
-  const int bar_top = title_h + 10, bar_h = std::max(2, body.rows - 20);
+  const int bar_top = title_h + 10, bar_h = body_h - 20;
   cv::Mat ramp(bar_h, 1, CV_8UC1);
   for (int r = 0; r < bar_h; ++r)
     ramp.at<std::uint8_t>(r, 0) = static_cast<std::uint8_t>(255 - (255 * r) / std::max(1, bar_h - 1));
@@ -165,7 +170,7 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   if (!bar.min_label.empty()) cv::putText(canvas, bar.min_label, {text_x, bar_top + bar_h - 14}, cv::FONT_HERSHEY_SIMPLEX, 0.3, black, 1);
   cv::putText(canvas, unit, {text_x, bar_top + bar_h / 2}, cv::FONT_HERSHEY_SIMPLEX, 0.45, black, 1);
   cv::putText(canvas, full_title, {6, 20}, cv::FONT_HERSHEY_SIMPLEX, 0.5, black, 1);
-  if (clipped) cv::putText(canvas, foot, {6, title_h + body.rows + 14}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
+  if (clipped) cv::putText(canvas, foot, {6, title_h + body_h + 14}, cv::FONT_HERSHEY_SIMPLEX, 0.4, black, 1);
   save(canvas, png);
 }
 
@@ -205,7 +210,12 @@ cv::Mat hillshade_grey(const HeightField& depth_m) {
 
 }  // namespace
 
-void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::path& png, const std::string& title) {
+namespace {
+
+constexpr const char* kHillshadeLegend = "light from the north-west; grey: no data; +y up";
+
+/// The hillshade image of write_hillshade_preview without its title strip (flipped, enlarged).
+cv::Mat hillshade_body(const HeightField& depth_m) {
   const cv::Mat grey = hillshade_grey(depth_m);
   cv::Mat shade(depth_m.rows(), depth_m.cols(), CV_8UC3, cv::Scalar(90, 90, 90));
   for (int r = 0; r < depth_m.rows(); ++r) {
@@ -215,7 +225,38 @@ void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::
       shade.at<cv::Vec3b>(r, c) = cv::Vec3b(g, g, g);
     }
   }
-  save(with_title(present(shade), title, "light from the north-west; grey: no data; +y up"), png);
+  return present(shade);
+}
+
+}  // namespace
+
+void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::path& png, const std::string& title) {
+  save(with_title(hillshade_body(depth_m), title, kHillshadeLegend), png);
+}
+
+void write_hillshades_side_by_side(const std::vector<const HeightField*>& fields, const std::vector<std::string>& titles,
+                                   const std::filesystem::path& png, int max_height_px) {
+  if (fields.empty() || fields.size() != titles.size()) {
+    throw std::invalid_argument("write_hillshades_side_by_side: " + std::to_string(fields.size()) + " fields, " +
+                                std::to_string(titles.size()) + " titles (expected as many, at least one)");
+  }
+  std::vector<cv::Mat> bodies;
+  for (const HeightField* f : fields) bodies.push_back(hillshade_body(*f));
+  const int height = std::min(max_height_px, bodies.front().rows);
+  std::vector<cv::Mat> row;
+  for (std::size_t i = 0; i < bodies.size(); ++i) {
+    cv::Mat scaled;
+    const double f = static_cast<double>(height) / bodies[i].rows;
+    cv::resize(bodies[i], scaled, cv::Size(std::max(1, static_cast<int>(std::lround(bodies[i].cols * f))), height), 0, 0,
+               f >= 1.0 ? cv::INTER_NEAREST : cv::INTER_AREA);
+    // The strip at full size after scaling: every title stays readable.
+    const cv::Mat panel = with_title(scaled, titles[i], i == 0 ? kHillshadeLegend : "");
+    if (!row.empty()) row.push_back(cv::Mat(panel.rows, 8, CV_8UC3, cv::Scalar(255, 255, 255)));
+    row.push_back(panel);
+  }
+  cv::Mat composite;
+  cv::hconcat(row, composite);
+  save(composite, png);
 }
 
 void write_rgb_preview(const HeightField& depth_m, const std::vector<std::uint8_t>& colour_rgb8,

@@ -221,8 +221,10 @@ TouchSessionResult run_touch_session(const Scene& scene, const TouchSessionOptio
     std::unique_ptr<haptics::HapticDevice> base;
     std::unique_ptr<haptics::RecordingDevice> recorder;
     haptics::HapticDevice& active() { return recorder ? *recorder : *base; }
-    // Closes the device; a recording that could not be kept is an error naming why.
+    // Closes the device after a normal end (an exception skips this: the destructors then
+    // close it and the recording is not kept); a recording that could not be kept is an error.
     void close() {
+      if (recorder) recorder->keep_on_close();
       active().close();
       if (recorder && !recorder->error().empty()) throw InputError("touch: " + recorder->error());
     }

@@ -52,6 +52,7 @@ TEST(Recording, EveryReadAndTheClampedForceAfterItReadBackBitForBit) {
       sent.push_back(inner.last_force_n());
       clock.advance_ns(1'000'000);
     }
+    rec.keep_on_close();
     rec.close();
     EXPECT_EQ(rec.error(), "");
     EXPECT_EQ(rec.dropped(), 0u);
@@ -107,7 +108,7 @@ TEST(Recording, AnExistingFileIsNeverReplacedAndBadRecordingsNameTheLine) {
   // Not a recording; a broken line; a tick missing.
   EXPECT_THROW(read_recording(file), InputError);
   const fs::path bad = dir / "bad.csv";
-  { std::ofstream(bad) << "# hapticloud recording 1\ntick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n\n0,0,0,0,0,0,0,0,0\n1,5,zero,0,0,0,0,0,0\n"; }
+  { std::ofstream(bad) << "# hapticloud recording 1\ntick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n,status\n0,0,0,0,0,0,0,0,0,0\n1,5,zero,0,0,0,0,0,0,0\n"; }
   try {
     read_recording(bad);
     FAIL() << "expected hc::InputError";
@@ -115,13 +116,69 @@ TEST(Recording, AnExistingFileIsNeverReplacedAndBadRecordingsNameTheLine) {
     EXPECT_NE(std::string(e.what()).find("bad.csv:4"), std::string::npos) << e.what();
   }
   const fs::path gap = dir / "gap.csv";
-  { std::ofstream(gap) << "# hapticloud recording 1\n0,0,0,0,0,0,0,0,0\n2,5,0,0,0,0,0,0,0\n"; }
+  { std::ofstream(gap) << "# hapticloud recording 1\n0,0,0,0,0,0,0,0,0,0\n2,5,0,0,0,0,0,0,0,0\n"; }
   try {
     read_recording(gap);
     FAIL() << "expected hc::InputError";
   } catch (const InputError& e) {
     EXPECT_NE(std::string(e.what()).find("tick 2, expected 1"), std::string::npos) << e.what();
   }
+}
+
+TEST(Recording, FaultsCrossTheWrapperBothWaysAndAFailedSessionKeepsNoFile) {
+  const fs::path dir = hc::test::temp_dir("recording_fault");
+  ManualClock clock;
+  SimulatedDevice inner(clock, ScriptedPath{}, VirtualHand{}, SimulatedDevice::default_info());
+  {
+    RecordingDevice rec(inner, dir / "r.csv");
+    rec.open();
+    ASSERT_TRUE(rec.arm());
+    DeviceReading r;
+    ASSERT_EQ(rec.read(r), DeviceStatus::kOk);
+    rec.write(Eigen::Vector3d(0, 0, 1));
+    EXPECT_EQ(inner.state(), DeviceState::kArmed);
+    // The wrapper faults (the servo loop's doing): the inner device follows at the next write.
+    rec.fault();
+    rec.read(r);
+    rec.write(Eigen::Vector3d(0, 0, 1));
+    EXPECT_EQ(inner.state(), DeviceState::kFault);
+    EXPECT_EQ(inner.last_force_n(), Eigen::Vector3d::Zero());
+    // An explicit reset of the wrapper resets the inner device too.
+    ASSERT_TRUE(rec.reset_fault());
+    rec.read(r);
+    rec.write(Eigen::Vector3d::Zero());
+    EXPECT_EQ(inner.state(), DeviceState::kOpen);
+    // The inner device faults by itself: the wrapper's next read says so as an I/O error.
+    ASSERT_TRUE(rec.arm());
+    rec.read(r);
+    rec.write(Eigen::Vector3d::Zero());
+    inner.fault();
+    EXPECT_EQ(rec.read(r), DeviceStatus::kIoError);
+    rec.write(Eigen::Vector3d::Zero());
+    rec.keep_on_close();
+    rec.close();
+    ASSERT_EQ(rec.error(), "");
+  }
+  // The replay gives the recorded statuses back: the I/O error at the same tick.
+  const std::vector<RecordedSample> got = read_recording(dir / "r.csv");
+  ASSERT_EQ(got.size(), 5u);
+  EXPECT_EQ(got[4].status, static_cast<std::uint8_t>(DeviceStatus::kIoError));
+  ManualClock replay_clock;
+  TickReplayDevice replay(replay_clock, dir / "r.csv", SimulatedDevice::default_info());
+  replay.open();
+  DeviceReading r;
+  for (int k = 0; k < 4; ++k) EXPECT_EQ(replay.read(r), DeviceStatus::kOk) << k;
+  EXPECT_EQ(replay.read(r), DeviceStatus::kIoError);
+
+  // A session that ends by an exception (no keep_on_close): no FILE and no temporary left.
+  {
+    RecordingDevice rec(inner, dir / "failed.csv");
+    rec.open();
+    DeviceReading x;
+    rec.read(x);
+  }  // destroyed: closed without keeping
+  EXPECT_FALSE(fs::exists(dir / "failed.csv"));
+  EXPECT_FALSE(has_part_files(dir));
 }
 
 }  // namespace

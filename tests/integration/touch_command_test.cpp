@@ -278,7 +278,9 @@ TEST(TouchCommand, AReplayOfARecordedSessionRendersTheSameForces) {
   EXPECT_NE(log.find("exists already"), std::string::npos) << log;
   EXPECT_EQ(fs::file_size(dir / "a.csv"), size);
   EXPECT_FALSE(fs::exists(dir / "c"));
+  log.clear();
   EXPECT_EQ(run_app(common + "--out " + (dir / "d").string() + " --device replay:" + (dir / "missing.csv").string(), &log), 1);
+  EXPECT_NE(log.find("missing.csv"), std::string::npos) << log;
 }
 
 TEST(TouchCommand, NotASceneIsAOneLineError) {

@@ -224,7 +224,11 @@ TEST(ExploreSession, UnknownDeviceIsAnErrorNamingTheChoices) {
   const Result r = run_app("explore " + config.string() + " --device joystick --hidden --out " +
                            test::temp_dir("bad").string());
   EXPECT_EQ(r.status != 0, true);
-  EXPECT_NE(r.output.find("falcon, mouse or sim"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("falcon, mouse, sim, replay:FILE or udp:HOST:PORT"), std::string::npos) << r.output;
+  const Result u = run_app("explore " + config.string() + " --device udp:localhost --hidden --out " +
+                           test::temp_dir("bad_udp").string());
+  EXPECT_NE(u.status, 0);
+  EXPECT_NE(u.output.find("expected HOST:PORT"), std::string::npos) << u.output;
 }
 
 TEST(ExploreSession, BadDisplayIsAnErrorNamingTheOptionAndTheChoices) {

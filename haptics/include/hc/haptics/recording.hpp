@@ -9,13 +9,19 @@
 /// every double reads back bit for bit:
 ///
 ///     # hapticloud recording 1
-///     # device: <name>; nominal_rate_hz: <rate>
-///     tick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n
-///     0,1000000,0.0012,-0.0031,0.0207,0,0,0,0
+///     # device: <name>; nominal_rate_hz: <rate>; max_force_n: <cap>
+///     tick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n,status
+///     0,1000000,0.0012,-0.0031,0.0207,0,0,0,0,0
 ///
 /// tick: servo read index from 0; time_ns: the device's sample time [ns]; x, y, z: end-effector
 /// position [m], device frame; buttons: bit mask; fx, fy, fz: the force sent after that read
-/// [N], device frame (after the device's clamp; nan when no force followed the read).
+/// [N], device frame (after the device's clamp; nan when no force followed the read); status:
+/// the read's DeviceStatus (0 ok, 3 io_error, ...), replayed as it was.
+///
+/// Exactness: the servo loop's tick interval comes from its clock (force ramp, damping, switch
+/// blending use it). On the simulated clock at the same rate (touch without --realtime) a
+/// replay renders the recorded forces exactly; on a real clock (touch --realtime, explore) the
+/// intervals jitter, so the forces agree only as closely as the two runs' timing does.
 ///
 /// Real-time: RecordingDevice's read/write only copy into a lock-free ring (no allocation, no
 /// I/O); a writer thread drains it to the file every 20 ms. A full ring drops samples and
@@ -42,14 +48,20 @@ struct RecordedSample {
   double position_m[3] = {0, 0, 0};  ///< device frame [m]
   std::uint32_t buttons = 0;
   double force_n[3] = {0, 0, 0};     ///< sent after this read [N], device frame; NaN if none
+  std::uint8_t status = 0;           ///< the read's DeviceStatus
 };
 
 /// Wraps a device and records every read and the force sent after it (see the file format
 /// above). The wrapper is the device the servo loop sees: its state (Open, Armed, Fault) is
 /// mirrored onto the inner device on every write, so the inner device renders what the servo
 /// sends; info() is the inner device's.
-/// The file is written to `FILE.part-<random>` beside it and put in place by close() with
-/// link(2), so an existing FILE is never replaced and an interrupted session leaves no FILE.
+/// The file is written to `FILE.part-<random>` beside it. close() after keep_on_close() puts
+/// it in place with link(2) (an existing FILE is never replaced; where the file system has no
+/// hard links the .part file is kept and error() names it); a close without it (an error path,
+/// the destructor) removes it, so a failed or interrupted session leaves no FILE.
+/// Faults: a fault of the inner device is reported by the next read or write as kIoError, so
+/// the servo loop faults this device; a fault of this device is copied onto the inner one; an
+/// explicit reset_fault() of this device resets the inner one at the next write.
 class RecordingDevice final : public HapticDevice {
  public:
   /// `inner` must outlive this object. Nothing is opened here.
@@ -62,6 +74,8 @@ class RecordingDevice final : public HapticDevice {
   std::uint64_t dropped() const noexcept { return dropped_.load(std::memory_order_relaxed); }
   /// Empty after a successful close(); otherwise why the file is missing or incomplete.
   const std::string& error() const noexcept { return error_; }
+  /// The session ended as it should: the next close() puts FILE in place.
+  void keep_on_close() noexcept { keep_ = true; }
 
  protected:
   /// Opens the inner device, then creates the temporary file and starts the writer thread.
@@ -87,18 +101,21 @@ class RecordingDevice final : public HapticDevice {
   bool has_pending_ = false;
   std::uint64_t next_tick_ = 0;
   std::string error_;
+  bool keep_ = false;
+  bool inner_faulted_by_mirror_ = false;  // the inner Fault came from this device's (servo thread)
   bool write_failed_ = false;  // writer thread only, read after join
 };
 
 /// Reads a recording. @throws hc::InputError naming the file and line for a missing file, a
-/// first line that is not "# hapticloud recording 1", a line that is not nine numbers, ticks
+/// first line that is not "# hapticloud recording 1", a line that is not ten numbers, ticks
 /// that do not count up from 0 by one, or no samples.
 std::vector<RecordedSample> read_recording(const std::filesystem::path& file);
 
-/// Plays a recording back: the k-th read() returns sample k's position and buttons, its time
-/// shifted so that the first sample is at the clock's time of the first read; after the last
-/// sample the last position is held and read() returns kEndOfData. Forces written are kept
-/// (last_force_n()). info(): SimulatedDevice::default_info() unless given.
+/// Plays a recording back: the k-th read() returns sample k's position, buttons and status,
+/// its time shifted so that the first sample is at the clock's time of the first read; after
+/// the last sample the last position is held and read() returns kEndOfData. Forces written are
+/// kept (last_force_n()). info(): as given, with max_force_n taken from the recording's header
+/// when it states one (so the replay clamps as the recorded device did).
 class TickReplayDevice final : public HapticDevice {
  public:
   TickReplayDevice(const Clock& clock, std::filesystem::path file, DeviceInfo info);

@@ -47,6 +47,14 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
 void write_hillshade_preview(const HeightField& depth_m, const std::filesystem::path& png,
                              const std::string& title = "hillshade");
 
+/// Writes the hillshades of `fields` side by side at one height (the first's, at most
+/// `max_height_px`; nearest-neighbour enlargement, area averaging when reduced), each under a
+/// full-size title strip from `titles` (the levels-of-detail image).
+/// @throws std::invalid_argument when the counts differ or are 0; hc::InputError naming the
+///         file if it cannot be written.
+void write_hillshades_side_by_side(const std::vector<const HeightField*>& fields, const std::vector<std::string>& titles,
+                                   const std::filesystem::path& png, int max_height_px = 600);
+
 /// Writes the scan's colour per cell (`colour_rgb8`: rows·cols·3 bytes, R G B, row-major like
 /// `depth_m`); with `shaded`, each channel is multiplied by the hillshade grey level / 255 of
 /// write_hillshade_preview (colour over hillshade). Cells whose depth is no data are grey.
