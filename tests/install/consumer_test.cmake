@@ -41,6 +41,25 @@ step("build the consumer" ${CMAKE_COMMAND} --build "${WORK}/build")
 step("run the consumer" "${WORK}/build/consumer" "${prefix}/share/hapticloud/configs/sinusoid.yaml")
 message(STATUS "${step_output}")
 
+# The Python package of the installed tree (when the build has it): importable from the prefix.
+if(DEFINED PYTHON AND NOT PYTHON STREQUAL "")
+  set(ENV{PYTHONPATH} "${prefix}/lib/python3/dist-packages")
+  # A script file: CMake would split a -c string at its semicolons.
+  file(WRITE "${WORK}/import_test.py" [=[
+import sys
+import hapticloud
+cfg = {"name": "p", "input": {"synthetic": {"surface": "plane", "half_extent_m": 0.01, "density_per_m2": 1e6}},
+       "filters": {"outliers": {"enabled": False}}, "grid": {"n": 20}, "lod": {"report": False}}
+s = hapticloud.run(cfg)
+print(hapticloud.__file__, s.rows, s.cols)
+sys.exit(0 if s.layers["depth"].shape == (s.rows, s.cols) and s.cols == 20 else 1)
+]=])
+  step("import the installed Python package" "${PYTHON}" "${WORK}/import_test.py")
+  if(NOT step_output MATCHES "${prefix}")
+    message(FATAL_ERROR "install test: the imported hapticloud is not the installed one: ${step_output}")
+  endif()
+endif()
+
 # The Debian package of the same tree: its file list holds the config, a library, a header and
 # the program under /usr, and its control file the version and the -dev packages it needs.
 step("cpack -G DEB" ${CMAKE_COMMAND} -E chdir "${WORK}" ${CPACK} -G DEB --config "${HC_BINARY_DIR}/CPackConfig.cmake"

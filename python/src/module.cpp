@@ -1,0 +1,239 @@
+// hapticloud's Python API (issue 17): the compiled part, `hapticloud._hapticloud`. The package's
+// __init__.py re-exports it with the dict-config convenience. Every array is in SI units; grids
+// are (rows, cols) with row 0 = the smallest y (the scene contract, docs/architecture.md).
+
+#include "hc/common/bilinear_surface.hpp"
+#include "hc/common/error.hpp"
+#include "hc/common/scene.hpp"
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/lod_report.hpp"
+#include "hc/pipeline/run.hpp"
+#include "hc/pipeline/scene_io.hpp"
+#include "hc/session/touch_session.hpp"
+
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+#include <pybind11/stl.h>
+#include <pybind11/stl/filesystem.h>
+
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace py = pybind11;
+
+namespace {
+
+using SceneRef = std::shared_ptr<hc::Scene>;
+
+// A read-only float32 (rows, cols) view of `field`, kept alive by `owner` (the scene).
+py::array_t<float> view(const hc::HeightField& field, const SceneRef& owner) {
+  const py::capsule keep(new SceneRef(owner), [](void* p) { delete static_cast<SceneRef*>(p); });
+  py::array_t<float> a({static_cast<py::ssize_t>(field.rows()), static_cast<py::ssize_t>(field.cols())},
+                       {static_cast<py::ssize_t>(field.cols() * sizeof(float)), static_cast<py::ssize_t>(sizeof(float))},
+                       field.data(), keep);
+  py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+  return a;
+}
+
+py::dict layers_of(const SceneRef& s) {
+  py::dict d;
+  const hc::SceneLayers& l = s->layers;
+  const std::pair<const char*, const hc::HeightField*> all[] = {
+      {"depth", &l.depth}, {"envelope", &l.envelope},     {"texture", &l.texture},     {"mu_d", &l.mu_d},
+      {"mu_s", &l.mu_s},   {"cell_error", &l.cell_error}, {"region_id", &l.region_id}, {"intensity", &l.intensity}};
+  for (const auto& [name, f] : all)
+    if (f->rows() > 0) d[name] = view(*f, s);
+  return d;
+}
+
+py::object colour_of(const SceneRef& s) {
+  const std::vector<std::uint8_t>& c = s->layers.colour_rgb8;
+  if (c.empty()) return py::none();
+  const py::capsule keep(new SceneRef(s), [](void* p) { delete static_cast<SceneRef*>(p); });
+  const auto rows = static_cast<py::ssize_t>(s->geometry.rows), cols = static_cast<py::ssize_t>(s->geometry.cols);
+  py::array_t<std::uint8_t> a({rows, cols, py::ssize_t{3}}, {cols * 3, py::ssize_t{3}, py::ssize_t{1}}, c.data(), keep);
+  py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
+  return a;
+}
+
+py::array_t<double> matrix_of(const Eigen::Affine3d& t) {
+  py::array_t<double> a({4, 4});
+  auto m = a.mutable_unchecked<2>();
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) m(r, c) = t.matrix()(r, c);
+  return a;
+}
+
+SceneRef run_config(const hc::pipeline::RunConfig& cfg, const std::optional<std::filesystem::path>& out) {
+  if (!out) return std::make_shared<hc::Scene>(hc::pipeline::build_scene(cfg).scene);
+  (void)hc::pipeline::run_pipeline(cfg, *out);
+  return std::make_shared<hc::Scene>(hc::pipeline::load_scene(*out / "scene"));
+}
+
+// A (n, 3) float64 array from the 3-vectors `get(row)` of the trace.
+template <class Get>
+py::array_t<double> columns3(const std::vector<hc::haptics::TickRecord>& t, Get get) {
+  py::array_t<double> a({static_cast<py::ssize_t>(t.size()), py::ssize_t{3}});
+  auto m = a.mutable_unchecked<2>();
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    const hc::haptics::Vec3& v = get(t[i]);
+    m(static_cast<py::ssize_t>(i), 0) = v.x;
+    m(static_cast<py::ssize_t>(i), 1) = v.y;
+    m(static_cast<py::ssize_t>(i), 2) = v.z;
+  }
+  return a;
+}
+
+}  // namespace
+
+PYBIND11_MODULE(_hapticloud, m) {
+  m.doc() = "hapticloud: Monge surfaces from scans, their haptic layers, cross-check and scripted touch sessions";
+  static py::exception<hc::Error> error(m, "Error");
+  py::register_exception_translator([](std::exception_ptr p) {
+    try {
+      if (p) std::rethrow_exception(p);
+    } catch (const hc::Error& e) {
+      error(e.what());
+    }
+  });
+
+  py::class_<hc::Scene, SceneRef>(m, "Scene",
+                                  "A scene: a Monge grid z = f(x, y) with its layers, in the grid frame (metres; "
+                                  "larger z nearer the viewer). Arrays are read-only views into the scene.")
+      .def_property_readonly("rows", [](const hc::Scene& s) { return s.geometry.rows; }, "grid rows (along y)")
+      .def_property_readonly("cols", [](const hc::Scene& s) { return s.geometry.cols; }, "grid columns (along x)")
+      .def_property_readonly("cell_size_m", [](const hc::Scene& s) { return s.geometry.cell_size_m; }, "node spacing [m]")
+      .def_property_readonly("x0_m", [](const hc::Scene& s) { return s.geometry.x0_m; }, "x of column 0 [m], grid frame")
+      .def_property_readonly("y0_m", [](const hc::Scene& s) { return s.geometry.y0_m; }, "y of row 0 [m], grid frame")
+      .def_property_readonly("model_to_grid", [](const hc::Scene& s) { return matrix_of(s.model_to_grid); },
+                             "4x4 float64: scan file coordinates (file units) -> grid frame [m]")
+      .def_property_readonly("layers", [](const SceneRef& s) { return layers_of(s); },
+                             "dict name -> float32 array (rows, cols), NaN = no data: depth [m] (grid frame z), "
+                             "envelope [m], texture [m], mu_d [-], mu_s [-], cell_error [m], region_id, intensity; "
+                             "only the layers the scene has")
+      .def_property_readonly("colour", [](const SceneRef& s) { return colour_of(s); },
+                             "uint8 array (rows, cols, 3), R G B per node, or None")
+      .def_property_readonly("units", [](const hc::Scene& s) { return s.provenance.units; }, "the scan's file units")
+      .def_property_readonly("crs", [](const hc::Scene& s) { return s.provenance.crs; }, "the scan's CRS text, or ''")
+      .def("__repr__", [](const hc::Scene& s) {
+        return "<hapticloud.Scene " + std::to_string(s.geometry.rows) + " x " + std::to_string(s.geometry.cols) +
+               " cells of " + std::to_string(s.geometry.cell_size_m * 1e3) + " mm>";
+      });
+
+  m.def("load_scene", [](const std::filesystem::path& p) { return std::make_shared<hc::Scene>(hc::pipeline::load_scene(p)); },
+        py::arg("path"), "Loads a scene folder written by `hapticloud run` (DIR/scene). Raises hapticloud.Error.");
+
+  m.def(
+      "_run_file",
+      [](const std::filesystem::path& config, const std::optional<std::filesystem::path>& out, const std::vector<std::string>& sets) {
+        return run_config(hc::pipeline::load_run_config(config, sets), out);
+      },
+      py::arg("config"), py::arg("out") = py::none(), py::arg("sets") = std::vector<std::string>{});
+  m.def(
+      "_run_text",
+      [](const std::string& text, const std::filesystem::path& origin, const std::optional<std::filesystem::path>& out,
+         const std::vector<std::string>& sets) { return run_config(hc::pipeline::parse_run_config(text, origin, sets), out); },
+      py::arg("text"), py::arg("origin"), py::arg("out") = py::none(), py::arg("sets") = std::vector<std::string>{});
+
+  m.def(
+      "sample",
+      [](const hc::Scene& s, py::array_t<double, py::array::c_style | py::array::forcecast> x,
+         py::array_t<double, py::array::c_style | py::array::forcecast> y) {
+        if (x.size() != y.size()) throw py::value_error("sample: x and y differ in size");
+        const hc::BilinearSurface surface(hc::HeightFieldView::of(s.layers.depth));
+        py::array_t<double> z(x.size()), gx(x.size()), gy(x.size());
+        auto zo = z.mutable_unchecked<1>(), gxo = gx.mutable_unchecked<1>(), gyo = gy.mutable_unchecked<1>();
+        const double* xp = x.data();
+        const double* yp = y.data();
+        for (py::ssize_t i = 0; i < x.size(); ++i) {
+          const hc::SurfaceSample r = surface.sample(xp[i], yp[i]);
+          zo(i) = r.z_m;
+          gxo(i) = r.dz_dx;
+          gyo(i) = r.dz_dy;
+        }
+        return py::make_tuple(z, gx, gy);
+      },
+      py::arg("scene"), py::arg("x"), py::arg("y"),
+      "Bilinear height and gradient of the depth layer at grid-frame points x, y [m] (arrays of one shape, "
+      "flattened): returns (z [m], dz/dx [-], dz/dy [-]) as 1-D float64 arrays; NaN where a cell corner has no data; "
+      "outside the grid the border value continues (zero slope across it).");
+
+  m.def(
+      "touch",
+      [](const hc::Scene& s, const std::string& path, double seconds, double rate_hz, double stiffness_n_per_m,
+         bool friction, double texture_gain) {
+        hc::session::TouchSessionOptions o;
+        o.path = path;
+        o.seconds = seconds;
+        o.rate_hz = rate_hz;
+        o.stiffness_n_per_m = stiffness_n_per_m;
+        o.friction = friction;
+        o.texture_gain = texture_gain;
+        hc::session::TouchSessionResult r;
+        {
+          py::gil_scoped_release release;
+          r = hc::session::run_touch_session(s, o);
+        }
+        const auto& t = r.trace;
+        py::array_t<double> time(static_cast<py::ssize_t>(t.size())), mu_d(static_cast<py::ssize_t>(t.size()));
+        py::array_t<bool> contact(static_cast<py::ssize_t>(t.size()));
+        auto tm = time.mutable_unchecked<1>();
+        auto mu = mu_d.mutable_unchecked<1>();
+        auto cm = contact.mutable_unchecked<1>();
+        for (std::size_t i = 0; i < t.size(); ++i) {
+          tm(static_cast<py::ssize_t>(i)) = t[i].t_s;
+          mu(static_cast<py::ssize_t>(i)) = t[i].mu_d;
+          cm(static_cast<py::ssize_t>(i)) = t[i].in_contact;
+        }
+        py::dict d;
+        d["t_s"] = time;
+        d["hip_m"] = columns3(t, [](const hc::haptics::TickRecord& k) -> const hc::haptics::Vec3& { return k.hip_m; });
+        d["proxy_m"] = columns3(t, [](const hc::haptics::TickRecord& k) -> const hc::haptics::Vec3& { return k.proxy_m; });
+        d["force_n"] = columns3(t, [](const hc::haptics::TickRecord& k) -> const hc::haptics::Vec3& { return k.force_n; });
+        d["in_contact"] = contact;
+        d["mu_d"] = mu_d;
+        d["surface_z_m"] = py::array_t<double>(static_cast<py::ssize_t>(r.surface_z_m.size()), r.surface_z_m.data());
+        return d;
+      },
+      py::arg("scene"), py::arg("path") = "raster", py::arg("seconds") = 2.0, py::arg("rate_hz") = 1000.0,
+      py::arg("stiffness_n_per_m") = 800.0, py::arg("friction") = true, py::arg("texture_gain") = 1.0,
+      "A scripted, headless haptic session on the scene (as `hapticloud touch`, on a simulated clock): a simulated "
+      "device follows `path` (raster, circle, line, press-slide, hold) through a virtual hand for `seconds`. Returns "
+      "a dict of per-tick arrays, grid frame, SI: t_s (n,), hip_m (n,3), proxy_m (n,3), force_n (n,3) (force on the "
+      "hand, grid axes), in_contact (n,), mu_d (n,), surface_z_m (n,) (rendered height under the proxy).");
+
+  m.def(
+      "levels",
+      [](const hc::Scene& s) {
+        hc::Scene copy = s;
+        const auto layer_options = copy.layer_options;
+        const auto lod = copy.lod;
+        auto pyramid = hc::pipeline::LodPyramid::from_scene(std::move(copy), layer_options, lod);
+        hc::pipeline::LevelTableOptions o;
+        o.cross_check = false;
+        std::vector<hc::pipeline::LevelRow> rows;
+        {
+          py::gil_scoped_release release;
+          rows = hc::pipeline::level_table(pyramid, nullptr, o);
+        }
+        py::list out;
+        for (const auto& r : rows) {
+          py::dict d;
+          d["level"] = r.level;
+          d["rows"] = r.rows;
+          d["cols"] = r.cols;
+          d["cell_size_m"] = r.cell_size_m;
+          d["valid_cells"] = r.valid_cells;
+          d["build_s"] = r.build_seconds;
+          out.append(d);
+        }
+        return out;
+      },
+      py::arg("scene"),
+      "The scene's levels of detail (its own lod options): a list of dicts, one per level from 0 (finest): level, "
+      "rows, cols, cell_size_m [m], valid_cells, build_s [s] (smoothing + decimation + layers). The cross-check "
+      "columns of `hapticloud levels` need the points and are not computed here.");
+}

@@ -1,0 +1,128 @@
+"""Tests of the Python API against oracles computed here with numpy: the analytic sinusoid the
+scene was sampled from, the bilinear formula, the device's force cap, halving levels."""
+
+import math
+import os
+import pathlib
+
+import numpy as np
+import pytest
+
+import hapticloud
+
+SOURCE = pathlib.Path(os.environ["HC_SOURCE_DIR"])
+
+# configs/sinusoid.yaml: z = A sin(2 pi x / L) sin(2 pi y / L), A = 5 mm, L = 40 mm, noise 0.02 mm.
+A, L, NOISE = 0.005, 0.04, 0.00002
+
+
+@pytest.fixture(scope="module")
+def sinusoid():
+    return hapticloud.run(SOURCE / "configs" / "sinusoid.yaml", sets=["lod.report=false"])
+
+
+def grid_xy(scene):
+    x = scene.x0_m + scene.cell_size_m * np.arange(scene.cols)
+    y = scene.y0_m + scene.cell_size_m * np.arange(scene.rows)
+    return np.meshgrid(x, y)  # (rows, cols) each
+
+
+def test_the_depth_layer_is_the_analytic_surface(sinusoid):
+    s = sinusoid
+    depth = s.layers["depth"]
+    assert depth.dtype == np.float32 and depth.shape == (s.rows, s.cols) == (200, 200)
+    assert {"depth", "envelope", "texture", "mu_d", "mu_s"} <= set(s.layers)
+    x, y = grid_xy(s)
+    # Grid frame -> the surface's own frame through the inverse of model_to_grid (recentring).
+    inv = np.linalg.inv(s.model_to_grid)
+    pts = np.stack([x.ravel(), y.ravel(), depth.astype(np.float64).ravel(), np.ones(x.size)])
+    mx, my, mz, _ = inv @ pts
+    err = mz - A * np.sin(2 * math.pi * mx / L) * np.sin(2 * math.pi * my / L)
+    valid = np.isfinite(err)
+    assert valid.mean() > 0.9
+    # A node takes the front-most sample of its cell: within the half-diagonal of the node, on a
+    # surface of slope at most 2 pi A / L, plus 5 sigma of noise.
+    bound = 2 * math.pi * A / L * math.sqrt(0.5) * s.cell_size_m + 5 * NOISE
+    assert np.abs(err[valid]).max() <= bound
+
+
+def test_layers_are_read_only_views_that_outlive_their_scene():
+    s = hapticloud.run(SOURCE / "configs" / "sinusoid.yaml", sets=["lod.report=false", "grid.n=50"])
+    d = s.layers["depth"]
+    assert not d.flags.owndata and not d.flags.writeable
+    with pytest.raises(ValueError):
+        d[0, 0] = 1.0
+    copy = d.copy()
+    del s
+    assert np.array_equal(d, copy, equal_nan=True)  # the view keeps the scene alive
+
+
+def test_sample_is_the_bilinear_interpolant_of_the_depth(sinusoid):
+    s = sinusoid
+    z = s.layers["depth"].astype(np.float64)
+    rng = np.random.default_rng(3)
+    u = rng.uniform(10, s.cols - 11, 200)
+    v = rng.uniform(10, s.rows - 11, 200)
+    x = s.x0_m + u * s.cell_size_m
+    y = s.y0_m + v * s.cell_size_m
+    h, gx, gy = hapticloud.sample(s, x, y)
+    c, r = np.floor(u).astype(int), np.floor(v).astype(int)
+    a, b = u - c, v - r
+    expect = (1 - a) * (1 - b) * z[r, c] + a * (1 - b) * z[r, c + 1] + (1 - a) * b * z[r + 1, c] + a * b * z[r + 1, c + 1]
+    expect_gx = ((1 - b) * (z[r, c + 1] - z[r, c]) + b * (z[r + 1, c + 1] - z[r + 1, c])) / s.cell_size_m
+    ok = np.isfinite(expect)
+    assert ok.sum() > 150
+    np.testing.assert_allclose(h[ok], expect[ok], atol=1e-9)
+    np.testing.assert_allclose(gx[ok], expect_gx[ok], atol=1e-6)
+    assert h.shape == gy.shape == (200,)
+
+
+def test_touch_returns_the_trace_of_a_session_that_touched_the_surface(sinusoid):
+    t = hapticloud.touch(sinusoid, path="raster", seconds=2.0)
+    n = 2000
+    assert t["t_s"].shape == (n,)
+    for key in ("hip_m", "proxy_m", "force_n"):
+        assert t[key].shape == (n, 3)
+    assert np.all(np.diff(t["t_s"]) > 0)
+    force = np.linalg.norm(t["force_n"], axis=1)
+    assert force.max() <= 8.0 + 1e-9  # touch's force cap
+    assert t["in_contact"].mean() > 0.05
+    # The proxy never sinks below the surface it rendered (the god-object constraint).
+    assert np.all(t["proxy_m"][:, 2] >= t["surface_z_m"] - 1e-6)
+
+
+def test_levels_halve_the_grid(sinusoid):
+    table = hapticloud.levels(sinusoid)
+    assert [r["level"] for r in table] == list(range(len(table)))
+    assert table[0]["rows"] == 200 and len(table) >= 2
+    for fine, coarse in zip(table, table[1:]):
+        assert coarse["rows"] == (fine["rows"] + 1) // 2
+        assert coarse["cell_size_m"] == pytest.approx(2 * fine["cell_size_m"])
+
+
+def test_run_from_a_dict_writes_the_output_when_asked(tmp_path):
+    cfg = {
+        "name": "plane",
+        "input": {"synthetic": {"surface": "tilted_plane", "half_extent_m": 0.01, "density_per_m2": 4e6,
+                                "slope_x": 0.2, "slope_y": 0.1}},
+        "filters": {"outliers": {"enabled": False}},
+        "grid": {"n": 40},
+        "lod": {"report": False},
+    }
+    out = tmp_path / "run"
+    s = hapticloud.run(cfg, out=out)
+    assert (out / "scene" / "scene.yaml").is_file() and (out / "report.md").is_file()
+    again = hapticloud.load_scene(out / "scene")
+    np.testing.assert_array_equal(again.layers["depth"], s.layers["depth"])
+    # A tilted plane z = 0.2 x + 0.1 y: the depth's slopes, by finite differences.
+    d = s.layers["depth"].astype(np.float64)
+    gx = np.nanmedian(np.diff(d, axis=1)) / s.cell_size_m
+    gy = np.nanmedian(np.diff(d, axis=0)) / s.cell_size_m
+    assert gx == pytest.approx(0.2, abs=0.01) and gy == pytest.approx(0.1, abs=0.01)
+
+
+def test_bad_input_raises_hapticloud_error_naming_it(tmp_path):
+    with pytest.raises(hapticloud.Error, match="no-such-scene"):
+        hapticloud.load_scene(tmp_path / "no-such-scene")
+    with pytest.raises(hapticloud.Error, match="grid.n"):
+        hapticloud.run(SOURCE / "configs" / "sinusoid.yaml", sets=["grid.n=-3"])
