@@ -2,6 +2,7 @@
 
 #include "hc/common/error.hpp"
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -116,12 +117,19 @@ DeviceStatus UdpDevice::do_read(DeviceReading& out) noexcept {
     socklen_t from_len = sizeof from;
     const ssize_t n = ::recvfrom(fd_, buf, sizeof buf, 0, reinterpret_cast<sockaddr*>(&from), &from_len);
     if (n < 0) break;  // EAGAIN: nothing more waiting (or an error: the watchdog decides)
+    if (static_cast<std::size_t>(n) != kDatagramBytes || std::memcmp(buf, "HCPI", 4) != 0 ||
+        get<std::uint16_t>(buf + 4) != kVersion) {
+      dropped_.fetch_add(1, std::memory_order_relaxed);
+      continue;
+    }
     const std::uint32_t seq = get<std::uint32_t>(buf + 8);
     const Eigen::Vector3d p(get<double>(buf + 24), get<double>(buf + 32), get<double>(buf + 40));
-    const bool valid = static_cast<std::size_t>(n) == kDatagramBytes && std::memcmp(buf, "HCPI", 4) == 0 &&
-                       get<std::uint16_t>(buf + 4) == kVersion && p.allFinite() &&
-                       (!have_pose_ || static_cast<std::int32_t>(seq - last_seq_) > 0);
-    if (!valid) {
+    // A pose must be newer than the last one taken, unless the sender changed or went silent
+    // past the timeout (a restarted client counts from 0 again).
+    const bool same_sender = from_len == peer_len_ && std::memcmp(&from, &peer_, from_len) == 0;
+    const bool silent = have_pose_ && static_cast<double>(now - last_rx_ns_) > o_.timeout_s * 1e9;
+    const bool newer = !have_pose_ || !same_sender || silent || static_cast<std::int32_t>(seq - last_seq_) > 0;
+    if (!p.allFinite() || !newer) {
       dropped_.fetch_add(1, std::memory_order_relaxed);
       continue;
     }
@@ -131,8 +139,8 @@ DeviceStatus UdpDevice::do_read(DeviceReading& out) noexcept {
     last_client_ns_ = get<std::int64_t>(buf + 16);
     position_m_ = p;
     last_rx_ns_ = now;
-    std::memcpy(&peer_, &from, from_len);
-    peer_len_ = from_len;
+    peer_len_ = std::min<socklen_t>(from_len, sizeof peer_);
+    std::memcpy(&peer_, &from, peer_len_);
   }
   out.position_m = position_m_;
   out.buttons = buttons_;

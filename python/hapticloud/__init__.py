@@ -31,8 +31,10 @@ def run(config, out=None, sets=()):
     Raises hapticloud.Error (naming the file, key or value) on bad input.
     """
     out = None if out is None else _os.fspath(out)
+    if isinstance(sets, str):
+        sets = [sets]
     if isinstance(config, dict):
-        # JSON is YAML: the same parser reads it.
-        origin = _os.path.join(_os.getcwd(), "python-config.yaml")
+        # JSON is YAML: the same parser reads it. Messages name the config "<dict config>".
+        origin = _os.path.join(_os.getcwd(), "<dict config>")
         return _native._run_text(_json.dumps(config), origin, out, list(sets))
     return _native._run_file(_os.fspath(config), out, list(sets))

@@ -124,19 +124,22 @@ PYBIND11_MODULE(_hapticloud, m) {
       });
 
   m.def("load_scene", [](const std::filesystem::path& p) { return std::make_shared<hc::Scene>(hc::pipeline::load_scene(p)); },
-        py::arg("path"), "Loads a scene folder written by `hapticloud run` (DIR/scene). Raises hapticloud.Error.");
+        py::arg("path"), py::call_guard<py::gil_scoped_release>(),
+        "Loads a scene folder written by `hapticloud run` (DIR/scene). Raises hapticloud.Error.");
 
   m.def(
       "_run_file",
       [](const std::filesystem::path& config, const std::optional<std::filesystem::path>& out, const std::vector<std::string>& sets) {
         return run_config(hc::pipeline::load_run_config(config, sets), out);
       },
-      py::arg("config"), py::arg("out") = py::none(), py::arg("sets") = std::vector<std::string>{});
+      py::arg("config"), py::arg("out") = py::none(), py::arg("sets") = std::vector<std::string>{},
+      py::call_guard<py::gil_scoped_release>());
   m.def(
       "_run_text",
       [](const std::string& text, const std::filesystem::path& origin, const std::optional<std::filesystem::path>& out,
          const std::vector<std::string>& sets) { return run_config(hc::pipeline::parse_run_config(text, origin, sets), out); },
-      py::arg("text"), py::arg("origin"), py::arg("out") = py::none(), py::arg("sets") = std::vector<std::string>{});
+      py::arg("text"), py::arg("origin"), py::arg("out") = py::none(), py::arg("sets") = std::vector<std::string>{},
+      py::call_guard<py::gil_scoped_release>());
 
   m.def(
       "sample",
@@ -157,8 +160,8 @@ PYBIND11_MODULE(_hapticloud, m) {
         return py::make_tuple(z, gx, gy);
       },
       py::arg("scene"), py::arg("x"), py::arg("y"),
-      "Bilinear height and gradient of the depth layer at grid-frame points x, y [m] (arrays of one shape, "
-      "flattened): returns (z [m], dz/dx [-], dz/dy [-]) as 1-D float64 arrays; NaN where a cell corner has no data; "
+      "Bilinear height and gradient of the depth layer at grid-frame points x, y [m] (array-likes of the same "
+      "size, read flattened): returns (z [m], dz/dx [-], dz/dy [-]) as 1-D float64 arrays; NaN where a cell corner has no data; "
       "outside the grid the border value continues (zero slope across it).");
 
   m.def(
@@ -208,15 +211,15 @@ PYBIND11_MODULE(_hapticloud, m) {
   m.def(
       "levels",
       [](const hc::Scene& s) {
-        hc::Scene copy = s;
-        const auto layer_options = copy.layer_options;
-        const auto lod = copy.lod;
-        auto pyramid = hc::pipeline::LodPyramid::from_scene(std::move(copy), layer_options, lod);
-        hc::pipeline::LevelTableOptions o;
-        o.cross_check = false;
         std::vector<hc::pipeline::LevelRow> rows;
         {
-          py::gil_scoped_release release;
+          py::gil_scoped_release release;  // no Python object is touched in here
+          hc::Scene copy = s;
+          const auto layer_options = copy.layer_options;
+          const auto lod = copy.lod;
+          auto pyramid = hc::pipeline::LodPyramid::from_scene(std::move(copy), layer_options, lod);
+          hc::pipeline::LevelTableOptions o;
+          o.cross_check = false;
           rows = hc::pipeline::level_table(pyramid, nullptr, o);
         }
         py::list out;

@@ -52,9 +52,15 @@ def test_layers_are_read_only_views_that_outlive_their_scene():
     assert not d.flags.owndata and not d.flags.writeable
     with pytest.raises(ValueError):
         d[0, 0] = 1.0
+    assert d.base is not None  # the capsule that owns the scene
     copy = d.copy()
     del s
-    assert np.array_equal(d, copy, equal_nan=True)  # the view keeps the scene alive
+    # Allocate and fill another scene where the first one's memory would be reused if the view
+    # did not keep it alive.
+    other = hapticloud.run(SOURCE / "configs" / "sinusoid.yaml", sets=["lod.report=false", "grid.n=50",
+                                                                      "input.synthetic.amplitude_m=0.001"])
+    assert not np.array_equal(other.layers["depth"], copy, equal_nan=True)
+    assert np.array_equal(d, copy, equal_nan=True)  # the view kept its scene alive
 
 
 def test_sample_is_the_bilinear_interpolant_of_the_depth(sinusoid):

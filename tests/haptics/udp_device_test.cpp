@@ -15,6 +15,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <chrono>
 #include <cstring>
 #include <thread>
@@ -72,6 +73,18 @@ struct Client {
   }
 };
 
+// Reads until the device has taken a pose with these buttons (datagrams on loopback arrive in
+// microseconds, but a loaded machine may take longer): at most 5 s.
+DeviceStatus read_until(UdpDevice& dev, DeviceReading& r, std::uint32_t buttons) {
+  DeviceStatus st = DeviceStatus::kOk;
+  for (int k = 0; k < 5000; ++k) {
+    st = dev.read(r);
+    if (r.buttons == buttons) break;
+    std::this_thread::sleep_for(std::chrono::milliseconds(1));
+  }
+  return st;
+}
+
 UdpDeviceOptions loopback() {
   UdpDeviceOptions o;
   o.host = "127.0.0.1";
@@ -96,11 +109,16 @@ TEST(UdpDevice, PosesInForcesOutStaleAndMalformedDatagramsDropped) {
   client.send_pose(6, 1, 0, 0.5, 0.5, 0.5);                 // older: dropped
   client.send_pose(8, 1, 0, 0.5, 0.5, 0.5, "XXXX");        // wrong magic: dropped
   client.send_pose(9, 1, 0, 0.5, 0.5, 0.5, "HCPI", 40);    // short: dropped
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  ASSERT_EQ(dev.read(r), DeviceStatus::kOk);
+  client.send_pose(10, 1, 0, NAN, 0.5, 0.5);                // non-finite: dropped
+  client.send_pose(11, 3, 0, 0.01, -0.02, 0.03);            // marks the end of the batch
+  ASSERT_EQ(read_until(dev, r, 3), DeviceStatus::kOk);
+  EXPECT_EQ(dev.poses_dropped(), 4u);
+  client.send_pose(7, 5, 123456789, 0.01, -0.02, 0.03);     // older than 11 from the same sender: dropped
+  client.send_pose(12, 5, 123456789, 0.01, -0.02, 0.03);
+  ASSERT_EQ(read_until(dev, r, 5), DeviceStatus::kOk);
   EXPECT_EQ(r.position_m, Eigen::Vector3d(0.01, -0.02, 0.03));
   EXPECT_EQ(r.buttons, 5u);
-  EXPECT_EQ(dev.poses_dropped(), 3u);
+  EXPECT_EQ(dev.poses_dropped(), 5u);
 
   // Armed: the force goes back to the client, clamped to the device's 8 N, echoing the pose.
   ASSERT_TRUE(dev.arm());
@@ -108,7 +126,7 @@ TEST(UdpDevice, PosesInForcesOutStaleAndMalformedDatagramsDropped) {
   Client::Force f = client.receive();
   ASSERT_TRUE(f.ok);
   EXPECT_EQ(f.state, static_cast<std::uint8_t>(DeviceState::kArmed));
-  EXPECT_EQ(f.echo_seq, 7u);
+  EXPECT_EQ(f.echo_seq, 12u);
   EXPECT_EQ(f.echo_t_ns, 123456789);
   EXPECT_DOUBLE_EQ(f.f[2], 8.0);
   dev.write(Eigen::Vector3d(1.0, -2.0, 0.5));
@@ -118,9 +136,11 @@ TEST(UdpDevice, PosesInForcesOutStaleAndMalformedDatagramsDropped) {
   EXPECT_DOUBLE_EQ(g.f[0], 1.0);
   EXPECT_DOUBLE_EQ(g.f[1], -2.0);
 
-  // Silence longer than the timeout: the read reports an I/O error (the servo loop then
-  // faults the device) and a faulted device sends zero force.
-  clock.advance_ns(60'000'000);
+  // Silence: still fine at 40 ms (the 50 ms timeout), an I/O error past it (the servo loop then
+  // faults the device); a faulted device sends zero force.
+  clock.advance_ns(40'000'000);
+  EXPECT_EQ(dev.read(r), DeviceStatus::kOk);
+  clock.advance_ns(20'000'000);
   EXPECT_EQ(dev.read(r), DeviceStatus::kIoError);
   dev.fault();
   dev.write(Eigen::Vector3d(3.0, 3.0, 3.0));
@@ -130,10 +150,11 @@ TEST(UdpDevice, PosesInForcesOutStaleAndMalformedDatagramsDropped) {
   EXPECT_EQ(z.f[0], 0.0);
   EXPECT_EQ(z.f[1], 0.0);
   EXPECT_EQ(z.f[2], 0.0);
-  // A new pose after the silence is taken again (the fault stays until reset).
-  client.send_pose(10, 0, 0, 0.0, 0.0, 0.0);
-  std::this_thread::sleep_for(std::chrono::milliseconds(20));
-  EXPECT_EQ(dev.read(r), DeviceStatus::kOk);
+  // After the silence a restarted client counting from 0 again is heard (the fault stays
+  // until reset).
+  client.send_pose(0, 9, 0, 0.0, 0.0, 0.0);
+  EXPECT_EQ(read_until(dev, r, 9), DeviceStatus::kOk);
+  EXPECT_EQ(r.buttons, 9u);
   EXPECT_EQ(dev.state(), DeviceState::kFault);
 }
 

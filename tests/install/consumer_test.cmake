@@ -43,7 +43,8 @@ message(STATUS "${step_output}")
 
 # The Python package of the installed tree (when the build has it): importable from the prefix.
 if(DEFINED PYTHON AND NOT PYTHON STREQUAL "")
-  set(ENV{PYTHONPATH} "${prefix}/lib/python3/dist-packages")
+  file(GLOB py_dirs "${prefix}/lib/python3*/dist-packages")
+  set(ENV{PYTHONPATH} "${py_dirs}")
   # A script file: CMake would split a -c string at its semicolons.
   file(WRITE "${WORK}/import_test.py" [=[
 import sys
@@ -70,8 +71,12 @@ if(NOT n_debs EQUAL 1)
   message(FATAL_ERROR "install test: expected one hapticloud_*.deb in ${WORK}/package, found: ${debs}")
 endif()
 step("dpkg-deb --contents" dpkg-deb --contents "${debs}")
-foreach(f ./usr/lib/cmake/hapticloud/hapticloudConfig.cmake ./usr/include/hc/pipeline/run.hpp ./usr/bin/hapticloud
-          ./usr/share/hapticloud/configs/sinusoid.yaml)
+set(deb_files ./usr/lib/cmake/hapticloud/hapticloudConfig.cmake ./usr/include/hc/pipeline/run.hpp ./usr/bin/hapticloud
+              ./usr/share/hapticloud/configs/sinusoid.yaml)
+if(DEFINED PYTHON AND NOT PYTHON STREQUAL "")
+  list(APPEND deb_files ./usr/lib/python3/dist-packages/hapticloud/__init__.py)
+endif()
+foreach(f ${deb_files})
   string(FIND "${step_output}" "${f}\n" at)
   if(at EQUAL -1)
     message(FATAL_ERROR "install test: ${debs} does not hold ${f}:\n${step_output}")

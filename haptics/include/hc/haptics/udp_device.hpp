@@ -15,8 +15,12 @@
 ///     0 char[4] "HCFO" | 4 u16 version = 1 | 6 u8 state (DeviceState) | 7 u8 reserved = 0 |
 ///     8 u32 seq (hapticloud's own, +1 per datagram) | 12 u32 echo_seq (the pose it answers) |
 ///     16 i64 echo of that pose's client time [ns] | 24 f64 fx [N] | 32 f64 fy [N] | 40 f64 fz [N]
-/// A pose whose seq is not newer than the last one taken (serial-number arithmetic, RFC 1982),
-/// of another size, magic or version, or with a non-finite position is dropped and counted.
+/// A pose whose seq is not newer than the last one taken from the same sender (serial-number
+/// arithmetic, RFC 1982; after a silence longer than the timeout or from a new sender any seq
+/// is taken, so a restarted client is heard), of another size, magic or version, or with a
+/// non-finite position is dropped and counted.
+/// Known limit: before the first pose the device reads the origin, so a session armed before
+/// the client starts sees the first pose as a jump (the force cap and the proxy bound it).
 /// The client's round-trip time is its own clock now minus the echoed client time.
 
 #include "hc/haptics/clock.hpp"
