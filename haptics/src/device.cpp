@@ -25,6 +25,7 @@ const char* to_string(DeviceStatus status) noexcept {
     case DeviceStatus::kFault: return "fault";
     case DeviceStatus::kIoError: return "io_error";
     case DeviceStatus::kEndOfData: return "end_of_data";
+    case DeviceStatus::kNoData: return "no_data";
   }
   return "unknown";
 }

@@ -204,9 +204,9 @@ std::vector<RecordedSample> read_recording(const std::filesystem::path& file) {
                               &s.position_m[1], &s.position_m[2], &buttons, &s.force_n[0], &s.force_n[1], &s.force_n[2],
                               &status, &used);
     if (n != 10 || static_cast<std::size_t>(used) != line.size() || !std::isfinite(s.position_m[0]) ||
-        !std::isfinite(s.position_m[1]) || !std::isfinite(s.position_m[2]) || status > 4) {
+        !std::isfinite(s.position_m[1]) || !std::isfinite(s.position_m[2]) || status > 5) {
       throw InputError("replay: " + file.string() + ":" + std::to_string(line_no) + ": '" + line + "' is not " +
-                       kColumns + " (ten numbers, a finite position, a status 0..4)");
+                       kColumns + " (ten numbers, a finite position, a status 0..5)");
     }
     s.status = static_cast<std::uint8_t>(status);
     if (tick != out.size()) {

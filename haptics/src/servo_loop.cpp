@@ -256,6 +256,7 @@ void ServoLoop::adopt_surface(TickFrame& frame) noexcept {
 
 bool ServoLoop::read_device(DeviceReading& reading) noexcept {
   const DeviceStatus rs = device_.read(reading);
+  if (rs == DeviceStatus::kNoData) return false;  // nothing to render yet: zero force, gate closed
   const bool read_ok = rs == DeviceStatus::kOk || rs == DeviceStatus::kEndOfData;
   if (!read_ok && rs != DeviceStatus::kFault) {
     shared_.counters.device_errors.fetch_add(1, std::memory_order_relaxed);

@@ -145,7 +145,8 @@ DeviceStatus UdpDevice::do_read(DeviceReading& out) noexcept {
   out.position_m = position_m_;
   out.buttons = buttons_;
   out.time_ns = now;
-  if (have_pose_ && static_cast<double>(now - last_rx_ns_) > o_.timeout_s * 1e9) return DeviceStatus::kIoError;
+  if (!have_pose_) return DeviceStatus::kNoData;
+  if (static_cast<double>(now - last_rx_ns_) > o_.timeout_s * 1e9) return DeviceStatus::kIoError;
   return DeviceStatus::kOk;
 }
 

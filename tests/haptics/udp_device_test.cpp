@@ -102,7 +102,7 @@ TEST(UdpDevice, PosesInForcesOutStaleAndMalformedDatagramsDropped) {
   ASSERT_GT(dev.bound_port(), 0);
   Client client(dev.bound_port());
   DeviceReading r;
-  EXPECT_EQ(dev.read(r), DeviceStatus::kOk);  // nothing yet: the origin
+  EXPECT_EQ(dev.read(r), DeviceStatus::kNoData);  // nothing yet: the origin, no data
   EXPECT_EQ(r.position_m, Eigen::Vector3d::Zero());
 
   client.send_pose(7, 5, 123456789, 0.01, -0.02, 0.03);
@@ -171,6 +171,9 @@ TEST(UdpDevice, AServoLoopFaultsTheDeviceWhenTheClientFallsSilent) {
   ServoLoop loop(dev, shared, clock, cfg);
   shared.commands.try_push(Command::of(CommandType::kArm));
   loop.start();
+  // Armed with no client yet: the reads say no_data, which renders nothing and never faults.
+  std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  EXPECT_NE(dev.state(), DeviceState::kFault);
   // 200 poses at about 1 kHz, each answered; the round trip measured on the client's clock.
   std::vector<double> rtt_us;
   for (std::uint32_t k = 1; k <= 200; ++k) {

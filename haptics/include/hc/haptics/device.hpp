@@ -25,9 +25,11 @@ enum class DeviceStatus : std::uint8_t {
   kFault,      ///< the device is in Fault (reads still work) or a non-finite force was refused
   kIoError,    ///< transport error; the supervisor decides (the servo loop faults the device)
   kEndOfData,  ///< a replay ran out of samples (the last position is held)
+  kNoData,     ///< no position yet (a network device before its first pose): the servo loop
+               ///< renders no force and keeps the contact gate closed, without faulting
 };
 
-/// "ok", "not_open", "fault", "io_error", "end_of_data". Real-time: yes.
+/// "ok", "not_open", "fault", "io_error", "end_of_data", "no_data". Real-time: yes.
 const char* to_string(DeviceStatus status) noexcept;
 
 /// Capabilities as data, in SI units.

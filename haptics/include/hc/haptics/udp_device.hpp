@@ -19,8 +19,9 @@
 /// arithmetic, RFC 1982; after a silence longer than the timeout or from a new sender any seq
 /// is taken, so a restarted client is heard), of another size, magic or version, or with a
 /// non-finite position is dropped and counted.
-/// Known limit: before the first pose the device reads the origin, so a session armed before
-/// the client starts sees the first pose as a jump (the force cap and the proxy bound it).
+/// Before the first pose the read reports kNoData: the servo loop renders no force and keeps
+/// its contact gate closed, so a session armed before its client starts does not take the
+/// first pose as a jump from the origin.
 /// The client's round-trip time is its own clock now minus the echoed client time.
 
 #include "hc/haptics/clock.hpp"
@@ -62,7 +63,7 @@ class UdpDevice final : public HapticDevice {
   void do_open() override;
   void do_close() noexcept override;
   /// Takes the newest valid pose waiting (non-blocking). Before the first pose: the origin and
-  /// kOk; afterwards, more than timeout_s without one: the last pose and kIoError.
+  /// kNoData; afterwards, more than timeout_s without one: the last pose and kIoError.
   DeviceStatus do_read(DeviceReading& out) noexcept override;
   /// Sends the force to the last pose's sender (nothing before the first pose).
   DeviceStatus do_write(const Eigen::Vector3d& force_n) noexcept override;
