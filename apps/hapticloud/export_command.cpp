@@ -49,6 +49,19 @@ constexpr RasterLayer kRasterLayers[] = {
     {"mu_s", "1", false},   {"cell_error", "m", false}, {"intensity", "as stored by the scanner", false},
     {"region_id", "1", false}};
 
+// The scene's level-of-detail pyramid (its own layer and lod options), with `level` in range.
+// @throws hc::ConfigError naming --level and the scene's level range.
+std::shared_ptr<pipeline::LodPyramid> pyramid_for_level(Scene&& scene, int level) {
+  const SurfaceLayerOptions layer_options = scene.layer_options;
+  const LodOptions lod = scene.lod;
+  auto pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
+  if (level >= pyramid->level_count()) {
+    throw ConfigError("export --level = " + std::to_string(level) + ": the scene has levels 0 to " +
+                      std::to_string(pyramid->level_count() - 1));
+  }
+  return pyramid;
+}
+
 // The layer `name` of `scene` at `level` (0: the scene's own; above: the pyramid's level, which
 // holds depth, envelope, texture, μ_d and μ_s). @throws hc::ConfigError naming the layer.
 HeightField raster_of(Scene scene, const std::string& name, int level) {
@@ -69,14 +82,8 @@ HeightField raster_of(Scene scene, const std::string& name, int level) {
     throw ConfigError("export --layer = " + name + " with --level " + std::to_string(level) +
                       ": levels above 0 hold depth, envelope, texture, mu_d and mu_s");
   }
-  const SurfaceLayerOptions layer_options = scene.layer_options;
-  const LodOptions lod = scene.lod;
   const bool has_layers = scene.layers.has_surface_layers();
-  const auto pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
-  if (level >= pyramid->level_count()) {
-    throw ConfigError("export --level = " + std::to_string(level) + ": the scene has levels 0 to " +
-                      std::to_string(pyramid->level_count() - 1));
-  }
+  const auto pyramid = pyramid_for_level(std::move(scene), level);
   if (name == "depth") return pyramid->depth_level(level)->depth_m;
   if (!has_layers) throw ConfigError("export --layer = " + name + ": the scene has no surface layers");
   const auto l = pyramid->level(level);
@@ -138,15 +145,8 @@ void run_export(const ExportOptions& o) {
   if (o.level == 0) {
     mesh = triangulate(scene.layers.depth, scene.layers.colour_rgb8);
   } else {
-    // Level L of the scene's pyramid (its own lod options): depth and colour only.
-    const SurfaceLayerOptions layer_options = scene.layer_options;
-    const LodOptions lod = scene.lod;
-    const auto pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
-    if (o.level >= pyramid->level_count()) {
-      throw ConfigError("export --level = " + std::to_string(o.level) + ": the scene has levels 0 to " +
-                        std::to_string(pyramid->level_count() - 1));
-    }
-    const auto level = pyramid->depth_level(o.level);
+    // Level L of the scene's pyramid: depth and colour only.
+    const auto level = pyramid_for_level(std::move(scene), o.level)->depth_level(o.level);
     mesh = triangulate(level->depth_m, level->colour_rgb8);
   }
   std::ostringstream offset;

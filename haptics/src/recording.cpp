@@ -1,6 +1,7 @@
 #include "hc/haptics/recording.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/common/file_output.hpp"
 
 #include <cerrno>
 #include <chrono>
@@ -48,16 +49,13 @@ void RecordingDevice::do_open() {
   const fs::path folder = file_.has_parent_path() ? file_.parent_path() : fs::path(".");
   if (!fs::is_directory(folder, ec)) throw InputError("record: folder " + folder.string() + " of " + file_.string() + " does not exist");
   inner_.open();
-  // The temporary: created exclusively (mkstemp), linked to FILE by close() after keep_on_close().
-  std::string name = (folder / (file_.filename().string() + ".part-XXXXXX")).string();
-  const int fd = ::mkstemp(name.data());
-  if (fd < 0) {
-    const std::string why = std::strerror(errno);
+  // The temporary (exclusive), linked to FILE by close() after keep_on_close().
+  try {
+    tmp_ = create_temporary_beside(file_);
+  } catch (const InputError& e) {
     inner_.close();
-    throw InputError("record: cannot create a file beside " + file_.string() + ": " + why);
+    throw InputError(std::string("record: ") + e.what());
   }
-  ::close(fd);
-  tmp_ = name;
   try {
     ring_ = std::make_unique<SpscRing<RecordedSample, 16384>>();
     stop_.store(false);
@@ -167,7 +165,7 @@ void RecordingDevice::do_close() noexcept {
     error_ = "record: writing " + tmp_.string() + " failed (disk full?); no recording kept";
   } else if (dropped_.load() > 0) {
     error_ = "record: " + std::to_string(dropped_.load()) + " ticks were lost (the writer fell behind); no recording kept";
-  } else if (::link(tmp_.c_str(), file_.c_str()) != 0) {
+  } else if (!link_into_place(tmp_, file_)) {
     if (errno == EEXIST) {
       error_ = "record: cannot put " + file_.string() + " in place: it exists already (not overwritten)";
     } else {

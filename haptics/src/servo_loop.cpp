@@ -260,7 +260,8 @@ bool ServoLoop::read_device(DeviceReading& reading) noexcept {
   const bool read_ok = rs == DeviceStatus::kOk || rs == DeviceStatus::kEndOfData;
   if (!read_ok && rs != DeviceStatus::kFault) {
     shared_.counters.device_errors.fetch_add(1, std::memory_order_relaxed);
-    device_.fault();
+    // Once: fault() also sends a zero force, which a device in Fault gets from write() anyway.
+    if (device_.state() != DeviceState::kFault) device_.fault();
   }
   return read_ok || rs == DeviceStatus::kFault;  // a device in Fault still reads
 }

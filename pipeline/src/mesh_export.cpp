@@ -2,7 +2,7 @@
 
 #include "hc/pipeline/mesh_export.hpp"
 
-#include "export_files.hpp"
+#include "hc/common/file_output.hpp"
 
 #include "hc/common/error.hpp"
 
@@ -103,13 +103,13 @@ void write_obj(std::ofstream& out, const HeightMesh& m, const std::vector<std::s
   }
 }
 
-// Writes `body` to a fresh temporary file beside `file` (detail::create_temporary_beside) and
+// Writes `body` to a fresh temporary file beside `file` (create_temporary_beside) and
 // returns its path (linked into place by the caller). On any failure the temporary is removed
 // and the exception passed on.
 template <class Body>
 std::filesystem::path write_temporary(const std::filesystem::path& file, Body&& body) {
   namespace fs = std::filesystem;
-  const fs::path tmp = detail::create_temporary_beside(file);
+  const fs::path tmp = create_temporary_beside(file);
   try {
     std::ofstream out(tmp, std::ios::binary | std::ios::trunc);
     if (!out) throw InputError("export: cannot open " + tmp.string());
@@ -124,31 +124,8 @@ std::filesystem::path write_temporary(const std::filesystem::path& file, Body&& 
   return tmp;
 }
 
-using detail::link_into_place;
-
 }  // namespace
 
-namespace detail {
-
-std::filesystem::path create_temporary_beside(const std::filesystem::path& file) {
-  std::string name = (file.parent_path() / (file.filename().string() + ".part-XXXXXX")).string();
-  const int fd = ::mkstemp(name.data());
-  if (fd < 0) throw InputError("export: cannot create a temporary file beside " + file.string() + ": " + std::strerror(errno));
-  const mode_t mask = ::umask(0);
-  ::umask(mask);
-  (void)::fchmod(fd, static_cast<mode_t>(0666 & ~mask));
-  ::close(fd);
-  return std::filesystem::path(name);
-}
-
-bool link_into_place(const std::filesystem::path& tmp, const std::filesystem::path& target) {
-  if (::link(tmp.c_str(), target.c_str()) != 0) return false;
-  std::error_code ec;
-  std::filesystem::remove(tmp, ec);
-  return true;
-}
-
-}  // namespace detail
 
 HeightMesh triangulate_height_field(const HeightField& depth, const std::vector<std::uint8_t>& colour_rgb8) {
   const GridGeometry& g = depth.geometry();

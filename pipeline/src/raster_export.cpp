@@ -2,7 +2,7 @@
 
 #include "hc/pipeline/raster_export.hpp"
 
-#include "export_files.hpp"
+#include "hc/common/file_output.hpp"
 
 #include "hc/common/error.hpp"
 
@@ -95,7 +95,7 @@ std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLa
   std::vector<std::string> notes;
   GDALDriver* driver = GetGDALDriverManager()->GetDriverByName("GTiff");
   if (!driver) throw InputError("export: GDAL has no GTiff driver");
-  const fs::path tmp = detail::create_temporary_beside(target);
+  const fs::path tmp = create_temporary_beside(target);
   // Removes the temporary on every way out but the successful link (exceptions included).
   struct RemoveTemporary {
     const fs::path& path;
@@ -153,7 +153,7 @@ std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLa
     if (CPLGetLastErrorType() == CE_Failure) fail("GDAL cannot write");
   }  // closed here
   if (CPLGetLastErrorType() == CE_Failure) fail("GDAL failed writing");
-  if (!detail::link_into_place(tmp, target)) {
+  if (!link_into_place(tmp, target)) {
     const std::string why = errno == EEXIST ? "it exists already (not overwritten)" : std::strerror(errno);
     throw InputError("export: cannot put " + target.string() + " in place: " + why);
   }

@@ -28,14 +28,19 @@ namespace {
 
 using SceneRef = std::shared_ptr<hc::Scene>;
 
-// A read-only float32 (rows, cols) view of `field`, kept alive by `owner` (the scene).
-py::array_t<float> view(const hc::HeightField& field, const SceneRef& owner) {
+// A read-only, zero-copy array over `data` (C order, `shape`), whose base keeps `owner` (the
+// scene) alive for as long as the array exists.
+template <class T>
+py::array_t<T> readonly_view(const T* data, std::vector<py::ssize_t> shape, const SceneRef& owner) {
   const py::capsule keep(new SceneRef(owner), [](void* p) { delete static_cast<SceneRef*>(p); });
-  py::array_t<float> a({static_cast<py::ssize_t>(field.rows()), static_cast<py::ssize_t>(field.cols())},
-                       {static_cast<py::ssize_t>(field.cols() * sizeof(float)), static_cast<py::ssize_t>(sizeof(float))},
-                       field.data(), keep);
+  py::array_t<T> a(std::move(shape), data, keep);
   py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
   return a;
+}
+
+// A read-only float32 (rows, cols) view of `field`, kept alive by `owner` (the scene).
+py::array_t<float> view(const hc::HeightField& field, const SceneRef& owner) {
+  return readonly_view(field.data(), {field.rows(), field.cols()}, owner);
 }
 
 py::dict layers_of(const SceneRef& s) {
@@ -52,11 +57,7 @@ py::dict layers_of(const SceneRef& s) {
 py::object colour_of(const SceneRef& s) {
   const std::vector<std::uint8_t>& c = s->layers.colour_rgb8;
   if (c.empty()) return py::none();
-  const py::capsule keep(new SceneRef(s), [](void* p) { delete static_cast<SceneRef*>(p); });
-  const auto rows = static_cast<py::ssize_t>(s->geometry.rows), cols = static_cast<py::ssize_t>(s->geometry.cols);
-  py::array_t<std::uint8_t> a({rows, cols, py::ssize_t{3}}, {cols * 3, py::ssize_t{3}, py::ssize_t{1}}, c.data(), keep);
-  py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
-  return a;
+  return readonly_view(c.data(), {s->geometry.rows, s->geometry.cols, 3}, s);
 }
 
 py::array_t<double> matrix_of(const Eigen::Affine3d& t) {

@@ -21,12 +21,6 @@ namespace {
 
 namespace fs = std::filesystem;
 
-bool has_part_files(const fs::path& dir) {
-  for (const auto& e : fs::directory_iterator(dir))
-    if (e.path().filename().string().find(".part-") != std::string::npos) return true;
-  return false;
-}
-
 TEST(Recording, EveryReadAndTheClampedForceAfterItReadBackBitForBit) {
   const fs::path dir = hc::test::temp_dir("recording");
   const fs::path file = dir / "session.csv";
@@ -58,7 +52,7 @@ TEST(Recording, EveryReadAndTheClampedForceAfterItReadBackBitForBit) {
     EXPECT_EQ(rec.dropped(), 0u);
     EXPECT_EQ(rec.written(), 3000u);
   }
-  EXPECT_FALSE(has_part_files(dir));
+  EXPECT_FALSE(hc::test::has_entry_named_with(dir, ".part-"));
   const std::vector<RecordedSample> got = read_recording(file);
   ASSERT_EQ(got.size(), seen.size());
   for (std::size_t k = 0; k < got.size(); ++k) {
@@ -101,7 +95,7 @@ TEST(Recording, AnExistingFileIsNeverReplacedAndBadRecordingsNameTheLine) {
   std::string text;
   std::getline(in, text);
   EXPECT_EQ(text, "the user's notes");
-  EXPECT_FALSE(has_part_files(dir));
+  EXPECT_FALSE(hc::test::has_entry_named_with(dir, ".part-"));
   RecordingDevice nowhere(inner, dir / "missing" / "r.csv");
   EXPECT_THROW(nowhere.open(), InputError);
 
@@ -178,7 +172,7 @@ TEST(Recording, FaultsCrossTheWrapperBothWaysAndAFailedSessionKeepsNoFile) {
     rec.read(x);
   }  // destroyed: closed without keeping
   EXPECT_FALSE(fs::exists(dir / "failed.csv"));
-  EXPECT_FALSE(has_part_files(dir));
+  EXPECT_FALSE(hc::test::has_entry_named_with(dir, ".part-"));
 }
 
 }  // namespace

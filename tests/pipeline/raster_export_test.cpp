@@ -43,12 +43,6 @@ struct Dataset {
   }
 };
 
-bool has_part_files(const fs::path& dir) {
-  for (const auto& e : fs::directory_iterator(dir))
-    if (e.path().filename().string().find(".part-") != std::string::npos) return true;
-  return false;
-}
-
 TEST(GeoTiffExport, TopViewIsInTheFileFrameUprightWithItsCrsAndNanNoData) {
   const HeightField f = fixture();
   // A scan in feet recentred by `offset` metres: grid = 0.3048·file − offset, no rotation.
@@ -59,7 +53,7 @@ TEST(GeoTiffExport, TopViewIsInTheFileFrameUprightWithItsCrsAndNanNoData) {
   const fs::path file = hc::test::temp_dir("geotiff") / "depth.tif";
   const auto notes = write_geotiff(f, layout, "EPSG:32610", file, {"HAPTICLOUD_LAYER=depth"});
   EXPECT_TRUE(notes.empty());
-  EXPECT_FALSE(has_part_files(file.parent_path()));
+  EXPECT_FALSE(hc::test::has_entry_named_with(file.parent_path(), ".part-"));
 
   Dataset d(file);
   ASSERT_TRUE(d.ds);
@@ -168,7 +162,7 @@ TEST(GeoTiffExport, AnExistingFileOrAMissingFolderIsRefusedAndNothingIsLeft) {
   std::getline(in, text);
   EXPECT_EQ(text, "the user's file");
   EXPECT_THROW(write_geotiff(f, layout, "", dir / "missing" / "d.tif"), InputError);
-  EXPECT_FALSE(has_part_files(dir));
+  EXPECT_FALSE(hc::test::has_entry_named_with(dir, ".part-"));
   EXPECT_THROW(write_geotiff(HeightField{}, layout, "", dir / "empty.tif"), std::invalid_argument);
 }
 

@@ -30,4 +30,12 @@ inline std::filesystem::path temp_dir(const std::string& name) {
   return p;
 }
 
+/// True when a file or folder in `dir` (not below it) has `text` in its name, e.g. the
+/// ".part-" of a temporary an export or a recording left behind.
+inline bool has_entry_named_with(const std::filesystem::path& dir, const std::string& text) {
+  for (const auto& e : std::filesystem::directory_iterator(dir))
+    if (e.path().filename().string().find(text) != std::string::npos) return true;
+  return false;
+}
+
 }  // namespace hc::test

@@ -1,14 +1,17 @@
 #pragma once
-// Private to hc::pipeline: how the exports (mesh_export.cpp, raster_export.cpp) put a file in
-// place without ever replacing one and without leaving a half-written file.
+/// @file file_output.hpp
+/// How hapticloud writes a file the user names (mesh and GeoTIFF exports, session recordings):
+/// into an exclusive temporary beside it, then put in place without ever replacing a file, so
+/// no half-written file is left and nothing existing is overwritten.
 
 #include <filesystem>
 
-namespace hc::pipeline::detail {
+namespace hc {
 
 /// Creates an empty file beside `file` named `<file>.part-XXXXXX` (mkstemp(3): exclusive, a
 /// random suffix, so no existing file or symlink is followed), permissions as a new file under
-/// the umask. @return its path. @throws hc::InputError naming `file` when it cannot be created.
+/// the umask. Thread-safe. @return its path. @throws hc::InputError "cannot create a temporary file beside
+/// FILE: reason" when it cannot be created (callers prefix their command).
 std::filesystem::path create_temporary_beside(const std::filesystem::path& file);
 
 /// Puts `tmp` at `target` without ever replacing an existing file (link(2) fails with EEXIST
@@ -16,4 +19,4 @@ std::filesystem::path create_temporary_beside(const std::filesystem::path& file)
 /// when the link fails (tmp is then left for the caller to remove).
 bool link_into_place(const std::filesystem::path& tmp, const std::filesystem::path& target);
 
-}  // namespace hc::pipeline::detail
+}  // namespace hc
