@@ -157,17 +157,26 @@ void Session::start_servo() {
 
 void Session::make_viewer() {
 #ifdef HC_HAVE_AUDIO
-  if (!o_.no_audio) {
+  const bool has_regions = config_ && config_->audio && !config_->audio->regions.empty();
+  if (!o_.no_audio || has_regions) {
     const auto& base = built_->base;
     const HeightField* texture = base.layers.texture.rows() > 0 ? &base.layers.texture : nullptr;
     const GridGeometry grid = base.depth().geometry();
     // The run config's audio: section (regions, materials); a scene folder gets the sliding
     // sound only.
     const audio::AudioConfig ac = config_ && config_->audio ? *config_->audio : audio::AudioConfig{};
-    sound_ = std::make_unique<audio::AudioEngine>(audio::build_audio_scene(ac, {&grid, texture}));
-    const audio::EngineReport ar = sound_->start(shared_);
-    drain_events_ = false;  // the engine reads shared_.events
-    std::cout << "explore: audio " << (ar.device_open ? ar.device : std::string("off")) << ": " << ar.detail << "\n";
+    std::shared_ptr<const audio::AudioScene> scene = audio::build_audio_scene(ac, {&grid, texture});
+    // The regions for the viewer's overlay (key A), on the grid they were rasterised on.
+    if (has_regions) {
+      region_layer_ = scene->regions.to_layer(grid);
+      for (const audio::RegionConfig& r : ac.regions) region_names_.push_back(r.name);
+    }
+    if (!o_.no_audio) {
+      sound_ = std::make_unique<audio::AudioEngine>(std::move(scene));
+      const audio::EngineReport ar = sound_->start(shared_);
+      drain_events_ = false;  // the engine reads shared_.events
+      std::cout << "explore: audio " << (ar.device_open ? ar.device : std::string("off")) << ": " << ar.detail << "\n";
+    }
   }
 #endif
   viewer::ViewerOptions vo;
@@ -175,6 +184,7 @@ void Session::make_viewer() {
   vo.height_px = o_.height;
   vo.visible = !o_.hidden;
   vo.stereo = o_.stereo;
+  vo.show_regions = o_.show_regions;
   vo.display = viewer::display_choice_from_string(o_.display, "explore: --display");
   vo.mouse_drives_hip = mouse_ != nullptr;
   vo.max_force_n = servo_config_.proxy.max_force_n;

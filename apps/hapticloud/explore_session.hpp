@@ -53,6 +53,7 @@ struct ExploreOptions {
   std::string out = "explore-out";
   int width = 1280, height = 800;
   bool stereo = false;
+  bool show_regions = false;  ///< start with the audio-region overlay on (key A)
   std::string display = "colour";  ///< starting display: colour | grey | texture | mu_d | error
   bool hidden = false;
   bool no_audio = false;
@@ -108,6 +109,8 @@ class Session {
   ExploreOptions o_;
   std::optional<pipeline::RunConfig> config_;
   std::vector<float> cloud_;
+  HeightField region_layer_;              ///< audio region per level-0 sample (overlay), or empty
+  std::vector<std::string> region_names_; ///< by region index
   pipeline::SurfaceLayerOptions layer_options_;
   pipeline::LodOptions lod_options_;
   std::shared_ptr<session::ExploreScene> built_;

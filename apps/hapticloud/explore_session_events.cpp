@@ -59,6 +59,8 @@ void Session::show_window() {
   d->level = w.level;
   d->level_count = lod_->level_count();
   d->cloud_xyz_m = cloud_;
+  d->region_id = region_layer_;
+  d->region_names = region_names_;
   d->orientation = built_->orientation;
   d->description = built_->description + ": level " + std::to_string(w.level) + " (levels 0.." +
                    std::to_string(lod_->level_count() - 1) + "), window " + std::to_string(w.cols) + "x" +

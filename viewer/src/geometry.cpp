@@ -2,6 +2,8 @@
 
 #include "geometry.hpp"
 
+#include "hc/viewer/viewer.hpp"
+
 #include <Eigen/Core>
 
 #include <algorithm>
@@ -147,6 +149,79 @@ MeshData arrow_mesh(int slices) {
     m.indices.insert(m.indices.end(), {centre, rim + j + 1, rim + j});
   }
   return m;
+}
+
+// --- audio-region outlines ------------------------------------------------------------------
+
+std::vector<RegionSegment> region_outline_segments(const HeightField& region_id) {
+  const int rows = region_id.rows(), cols = region_id.cols();
+  std::vector<RegionSegment> out;
+  if (rows <= 0 || cols <= 0) return out;
+  const GridGeometry& g = region_id.geometry();
+  const double h = 0.5 * g.cell_size_m;
+  const auto id = [&](int r, int c) -> std::int32_t {
+    if (r < 0 || c < 0 || r >= rows || c >= cols) return -1;
+    const float v = region_id.at(r, c);
+    return std::isfinite(v) && v >= 0.0F ? static_cast<std::int32_t>(std::lround(v)) : -1;
+  };
+  // Vertical boundaries at x = x(c) − h, between columns c − 1 and c (c = 0 .. cols), pieces of
+  // one row each joined along r; then horizontal ones the same way with rows and columns
+  // exchanged. `side` 0 takes the region before the boundary, 1 the one after it.
+  for (int pass = 0; pass < 2; ++pass) {
+    const bool vertical = pass == 0;
+    const int lines = vertical ? cols + 1 : rows + 1, along = vertical ? rows : cols;
+    for (int k = 0; k < lines; ++k) {
+      for (int side = 0; side < 2; ++side) {
+        std::int32_t open = -1;
+        int start = 0;
+        for (int j = 0; j <= along; ++j) {
+          std::int32_t here = -1;
+          if (j < along) {
+            const std::int32_t before = vertical ? id(j, k - 1) : id(k - 1, j);
+            const std::int32_t after = vertical ? id(j, k) : id(k, j);
+            if (before != after) here = side == 0 ? before : after;
+          }
+          if (here == open) continue;
+          if (open >= 0) {
+            RegionSegment s;
+            s.region = open;
+            if (vertical) {
+              s.x0_m = s.x1_m = g.x_of_col(k) - h;
+              s.y0_m = g.y_of_row(start) - h;
+              s.y1_m = g.y_of_row(j - 1) + h;
+            } else {
+              s.y0_m = s.y1_m = g.y_of_row(k) - h;
+              s.x0_m = g.x_of_col(start) - h;
+              s.x1_m = g.x_of_col(j - 1) + h;
+            }
+            out.push_back(s);
+          }
+          open = here;
+          start = j;
+        }
+      }
+    }
+  }
+  return out;
+}
+
+Eigen::Vector3f region_colour(std::int32_t index) {
+  // Hue in golden-angle steps from orange; saturation 0.85, value 1 (HSV → RGB).
+  const double hue = std::fmod(0.08 + 0.618033988749895 * static_cast<double>(std::max(index, 0)), 1.0) * 6.0;
+  const double s = 0.85, v = 1.0;
+  const int sector = static_cast<int>(hue) % 6;
+  const double f = hue - std::floor(hue);
+  const double p = v * (1 - s), q = v * (1 - s * f), t = v * (1 - s * (1 - f));
+  double r = v, gr = t, b = p;
+  switch (sector) {
+    case 0: r = v, gr = t, b = p; break;
+    case 1: r = q, gr = v, b = p; break;
+    case 2: r = p, gr = v, b = t; break;
+    case 3: r = p, gr = q, b = v; break;
+    case 4: r = t, gr = p, b = v; break;
+    default: r = v, gr = p, b = q; break;
+  }
+  return {static_cast<float>(r), static_cast<float>(gr), static_cast<float>(b)};
 }
 
 }  // namespace hc::viewer

@@ -13,10 +13,12 @@
 #include <imgui.h>
 #include <imgui_impl_glfw.h>
 #include <imgui_impl_opengl3.h>
+#include <imgui_internal.h>  // ImGuiWindow::DC.CursorMaxPos: the panel's layout check
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <numbers>
 #include <string>
@@ -147,6 +149,29 @@ Extent extent_of(const HeightField& f) {
 
 Eigen::Matrix4f to_f(const Eigen::Matrix4d& m) { return m.cast<float>(); }
 
+/// The outline segments clipped to [x_min, x_max] × [y_min, y_max] of `clip` (they are axis
+/// parallel, so clipping is a clamp of the varying coordinate), as GL_LINES at height z_m.
+void upload_region_lines(gl::Mesh& mesh, const std::vector<RegionSegment>& segments, const Extent& clip, double z_m) {
+  std::vector<float> v, colours;
+  std::vector<std::uint32_t> idx;
+  const auto z = static_cast<float>(z_m);
+  for (const RegionSegment& sg : segments) {
+    double x0 = sg.x0_m, x1 = sg.x1_m, y0 = sg.y0_m, y1 = sg.y1_m;
+    if (std::max(x0, x1) < clip.x_min || std::min(x0, x1) > clip.x_max) continue;
+    if (std::max(y0, y1) < clip.y_min || std::min(y0, y1) > clip.y_max) continue;
+    x0 = std::clamp(x0, clip.x_min, clip.x_max), x1 = std::clamp(x1, clip.x_min, clip.x_max);
+    y0 = std::clamp(y0, clip.y_min, clip.y_max), y1 = std::clamp(y1, clip.y_min, clip.y_max);
+    if (x0 == x1 && y0 == y1) continue;
+    const Eigen::Vector3f c = region_colour(sg.region);
+    for (const auto& [x, y] : {std::pair{x0, y0}, std::pair{x1, y1}}) {
+      v.insert(v.end(), {static_cast<float>(x), static_cast<float>(y), z, 0.0F, 0.0F, 1.0F});
+      colours.insert(colours.end(), {c.x(), c.y(), c.z()});
+      idx.push_back(static_cast<std::uint32_t>(idx.size()));
+    }
+  }
+  mesh.upload(v, idx, GL_LINES, false, colours);
+}
+
 }  // namespace
 
 const std::vector<std::string>& controls_help() {
@@ -163,6 +188,7 @@ const std::vector<std::string>& controls_help() {
       "Ctrl+wheel   zoom",
       "Space        arm / disarm the device (forces on / off)",
       "S            red/cyan anaglyph on / off;   [ ]  eye separation",
+      "A            audio regions: outlines on / off",
       "C            colours: scan colour -> shaded grey -> layer map -> scan colour",
       "L            layer map: texture -> mu_d -> cross-check error (turns the layer map on)",
       "O            orientation tool: left drag turns the raw cloud (arcball)",
@@ -283,6 +309,9 @@ struct Viewer::Gpu {
   gl::Program program;
   gl::Framebuffer target;
   gl::Mesh window_mesh, overview_mesh, sphere, arrow, outline, cloud;
+  // The audio-region outlines (GL_LINES, per-vertex colour): clipped to the window at its top
+  // height (main view), and whole at the overview's top height (navigation view).
+  gl::Mesh regions_main, regions_navigation;
   std::size_t window_quads = 0;
   Extent window_extent, overview_extent, cloud_extent;
   bool has_cloud = false;
@@ -302,6 +331,7 @@ Viewer::Viewer(haptics::SharedState& shared, const ViewerOptions& options, Viewe
   display_ = options.display;
   set_eye_separation(options.eye_separation);
   show_panel_ = options.show_panel;
+  show_regions_ = options.show_regions;
   show_help_ = options.show_help;
   show_navigation_ = options.show_navigation;
   stiffness_ = static_cast<float>(options.stiffness_n_per_m);
@@ -352,6 +382,9 @@ Viewer::Viewer(haptics::SharedState& shared, const ViewerOptions& options, Viewe
   ImGui::CreateContext();
   ImGui::GetIO().IniFilename = nullptr;
   ImGui::StyleColorsDark();
+  // A compact layout, so the whole panel fits an 800-pixel-high window without scrolling.
+  ImGui::GetStyle().ItemSpacing.y = 3.0F;
+  ImGui::GetStyle().FramePadding.y = 2.0F;
   ImGui_ImplGlfw_InitForOpenGL(window_, true);
   ImGui_ImplOpenGL3_Init("#version 330 core");
   last_frame_start_s_ = glfwGetTime();
@@ -481,7 +514,19 @@ void Viewer::rebuild_scene_meshes() {
   MeshData o = height_field_mesh(ov, kMaxOverviewSide, &oc);
   gpu_->overview_mesh.upload(o.vertices, o.indices, GL_TRIANGLES, false, o.colours);
   gpu_->overview_extent = extent_of(ov);
+  // Audio-region outlines: the window's share (its cells reach half a cell past the nodes).
+  const std::vector<RegionSegment> outline = region_outline_segments(scene_->region_id);
+  Extent clip = gpu_->window_extent;
+  const double half = 0.5 * scene_->window.geometry().cell_size_m;
+  clip.x_min -= half, clip.x_max += half, clip.y_min -= half, clip.y_max += half;
+  upload_region_lines(gpu_->regions_main, outline, clip, gpu_->window_extent.z_max);
+  Extent all;
+  all.x_min = all.y_min = -1e300;
+  all.x_max = all.y_max = 1e300;
+  upload_region_lines(gpu_->regions_navigation, outline, all, gpu_->overview_extent.z_max);
 }
+
+double Viewer::proxy_ball_radius_px(int view_height_px) { return std::max(5.0, 0.0125 * view_height_px); }
 
 void Viewer::set_display(const DisplayChoice& choice) {
   if (choice == display_) return;
@@ -633,6 +678,7 @@ void Viewer::on_key(GLFWwindow* w, int key, int, int action, int mods) {
     case GLFW_KEY_G: if (!repeat) self->show_panel_ = !self->show_panel_; break;
     case GLFW_KEY_N: if (!repeat) self->show_navigation_ = !self->show_navigation_; break;
     case GLFW_KEY_S: if (!repeat) self->stereo_ = !self->stereo_; break;
+    case GLFW_KEY_A: if (!repeat) self->show_regions_ = !self->show_regions_; break;
     case GLFW_KEY_C: if (!repeat) self->cycle_display_mode(); break;
     case GLFW_KEY_L: if (!repeat) self->cycle_map_layer(); break;
     case GLFW_KEY_LEFT_BRACKET: self->set_eye_separation(self->eye_separation_ / 1.2); break;
@@ -855,8 +901,20 @@ void Viewer::draw_main(const PixelRect& view) {
     // Proxy, HIP and force (snapshot, grid frame).
     const Eigen::Vector3d proxy = snapshot_.proxy_m.eigen(), hip = snapshot_.hip_m.eigen();
     const Eigen::Vector3d force = snapshot_.force_n.eigen();
+    if (show_regions_ && !gpu_->regions_main.empty()) {
+      // Over the mesh whatever its height: the outlines lie at the window's top height.
+      glDisable(GL_DEPTH_TEST);
+      p.set("u_vertex_colour", 1);
+      draw(gpu_->regions_main, Eigen::Matrix4d::Identity(), kGrey, false);
+      p.set("u_vertex_colour", 0);
+      glEnable(GL_DEPTH_TEST);
+    }
     if (snapshot_.tick > 0 && proxy.allFinite() && hip.allFinite()) {
-      const double ball = 0.012 * size;
+      // A constant size on screen: the world radius that projects to proxy_ball_radius_px at
+      // the proxy's distance from the eye (perspective: pixels = r·(h/2) / (d·tan(fov/2))).
+      const double depth_m = std::max(-(main_view_matrix(s) * proxy.homogeneous()).z(), 1e-9);
+      const double px_per_m = 0.5 * view.height / (depth_m * std::tan(0.5 * options_.field_of_view_deg * kDegToRad));
+      const double ball = proxy_ball_radius_px(view.height) / px_per_m;
       Eigen::Affine3d m = Eigen::Translation3d(proxy) * Eigen::Scaling(ball);
       draw(gpu_->sphere, m.matrix(), kProxyBlue, true);
       m = Eigen::Translation3d(hip) * Eigen::Scaling(0.45 * ball);
@@ -907,6 +965,11 @@ void Viewer::draw_navigation(const PixelRect& view) {
       static_cast<float>(we.x_min), static_cast<float>(we.y_max), z, 0, 0, 1};
   gpu_->outline.upload(v, {0, 1, 1, 2, 2, 3, 3, 0}, GL_LINES, true);
   p.set("u_lit", 0);
+  if (show_regions_ && !gpu_->regions_navigation.empty()) {
+    p.set("u_vertex_colour", 1);
+    gpu_->regions_navigation.draw();
+    p.set("u_vertex_colour", 0);
+  }
   p.set("u_colour", kOutline);
   gpu_->outline.draw();
   if (snapshot_.tick > 0 && snapshot_.proxy_m.eigen().allFinite()) {
@@ -951,6 +1014,16 @@ void Viewer::draw_gui() {
     ImGui::SetNextWindowPos(ImVec2(4, 4), ImGuiCond_FirstUseEver);
     ImGui::SetNextWindowSize(ImVec2(kPanelWidthPx - 8, 0), ImGuiCond_FirstUseEver);
     ImGui::Begin("hapticloud");
+    // Widgets leave room on their right for the longest label of the panel, so no label is
+    // clipped whatever the font (panel_overflow_px() measures it).
+    {
+      static constexpr const char* kLabels[] = {"angles xyz [deg]", "level (0 finest)", "stiffness [N/m]", "rho",
+                                                "mu_s", "friction model", "layer (L)", "eye separation",
+                                                "audio volume", "|F| [N]", "tick period [us]"};
+      float label_px = 0.0F;
+      for (const char* l : kLabels) label_px = std::max(label_px, ImGui::CalcTextSize(l).x);
+      ImGui::PushItemWidth(-(label_px + ImGui::GetStyle().ItemInnerSpacing.x + 1.0F));
+    }
     if (scene_) ImGui::TextWrapped("%s", scene_->description.c_str());
     if (callbacks_.status) {
       const std::string s = callbacks_.status();
@@ -1074,6 +1147,19 @@ void Viewer::draw_gui() {
     }
     if (ImGui::CollapsingHeader("View and sound", ImGuiTreeNodeFlags_DefaultOpen)) {
       ImGui::Checkbox("anaglyph stereo (S)", &stereo_);
+      ImGui::BeginDisabled(!scene_ || scene_->region_id.rows() == 0);
+      ImGui::Checkbox("audio regions (A)", &show_regions_);
+      ImGui::EndDisabled();
+      if (show_regions_ && scene_ && !scene_->region_names.empty()) {
+        for (std::size_t i = 0; i < scene_->region_names.size(); ++i) {
+          const Eigen::Vector3f c = region_colour(static_cast<std::int32_t>(i));
+          // Side by side while the next name fits on the line.
+          const float right = ImGui::GetWindowPos().x + ImGui::GetWindowContentRegionMax().x;
+          const float need = ImGui::GetStyle().ItemSpacing.x + ImGui::CalcTextSize(scene_->region_names[i].c_str()).x;
+          if (i > 0 && ImGui::GetItemRectMax().x + need <= right) ImGui::SameLine();
+          ImGui::TextColored(ImVec4(c.x(), c.y(), c.z(), 1.0F), "%s", scene_->region_names[i].c_str());
+        }
+      }
       auto sep = static_cast<float>(eye_separation_);
       if (ImGui::SliderFloat("eye separation", &sep, 0.001F, 0.2F, "%.3f")) set_eye_separation(static_cast<double>(sep));
       ImGui::BeginDisabled(!callbacks_.on_audio_volume);
@@ -1083,9 +1169,30 @@ void Viewer::draw_gui() {
       ImGui::EndDisabled();
     }
     if (ImGui::CollapsingHeader("Plots", ImGuiTreeNodeFlags_DefaultOpen)) {
-      ImGui::PlotLines("|F| [N]", force_plot_, kPlotLength, plot_head_, nullptr, 0.0F,
-                       static_cast<float>(options_.max_force_n), ImVec2(0, 50));
-      ImGui::PlotLines("tick period [us]", rate_plot_, kPlotLength, plot_head_, nullptr, 0.0F, 2000.0F, ImVec2(0, 50));
+      // Each plot with its axis values: the top and bottom of the value axis at the frame's
+      // left, the time span at its bottom right, the newest value at the top.
+      const double frame_s = frame_stats_.mean_frame_s > 0.0 ? frame_stats_.mean_frame_s : 1.0 / 60.0;
+      const auto plot = [&](const char* label, const float* values, float lo, float hi, const char* unit) {
+        const float newest = values[(plot_head_ + kPlotLength - 1) % kPlotLength];
+        char now[48];
+        std::snprintf(now, sizeof now, "%.4g %s", static_cast<double>(newest), unit);
+        const float frame_w = ImGui::CalcItemWidth();
+        ImGui::PlotLines(label, values, kPlotLength, plot_head_, now, lo, hi, ImVec2(0, 40));
+        const ImVec2 a = ImGui::GetItemRectMin();
+        const ImVec2 b(a.x + frame_w, ImGui::GetItemRectMax().y);
+        ImDrawList* dl = ImGui::GetWindowDrawList();
+        const ImU32 col = ImGui::GetColorU32(ImGuiCol_TextDisabled);
+        const float pad = ImGui::GetStyle().FramePadding.y, text_h = ImGui::GetTextLineHeight();
+        char t[32];
+        std::snprintf(t, sizeof t, "%.4g", static_cast<double>(hi));
+        dl->AddText(ImVec2(a.x + 3.0F, a.y + pad), col, t);
+        std::snprintf(t, sizeof t, "%.4g", static_cast<double>(lo));
+        dl->AddText(ImVec2(a.x + 3.0F, b.y - pad - text_h), col, t);
+        std::snprintf(t, sizeof t, "-%.1f s", frame_s * kPlotLength);
+        dl->AddText(ImVec2(b.x - 3.0F - ImGui::CalcTextSize(t).x, b.y - pad - text_h), col, t);
+      };
+      plot("|F| [N]", force_plot_, 0.0F, static_cast<float>(options_.max_force_n), "N");
+      plot("tick period [us]", rate_plot_, 0.0F, 2000.0F, "us");
       const auto& c = shared_.counters;
       ImGui::Text("ticks %llu, overruns %llu", static_cast<unsigned long long>(c.ticks.load(std::memory_order_relaxed)),
                   static_cast<unsigned long long>(c.overruns.load(std::memory_order_relaxed)));
@@ -1094,6 +1201,10 @@ void Viewer::draw_gui() {
                   1e-3 * static_cast<double>(c.worst_lateness_ns.load(std::memory_order_relaxed)));
       ImGui::Text("frame %.1f ms (mean %.1f ms)", 1e3 * frame_stats_.last_frame_s, 1e3 * frame_stats_.mean_frame_s);
     }
+    // How far the widest row reached past the inner right edge (0 when everything fits).
+    const ImGuiWindow* win = ImGui::GetCurrentWindow();
+    panel_overflow_px_ = std::max(0.0, static_cast<double>(win->DC.CursorMaxPos.x - (win->Pos.x + win->Size.x - ImGui::GetStyle().WindowPadding.x)));
+    ImGui::PopItemWidth();
     ImGui::End();
   }
   if (show_help_) {

@@ -65,7 +65,31 @@ struct DisplayScene {
   /// The rotation that made this scene's grid from the model frame (shown and edited by the
   /// orientation tool).
   Eigen::Quaterniond orientation = Eigen::Quaterniond::Identity();
+  /// Audio regions for the overlay (key A, panel "View and sound"): the region index per
+  /// sample as a float (≥ 0; NaN = no region), on any grid of the scene's frame (the app passes
+  /// the grid its region map was rasterised on: level 0's), and the regions' names by index.
+  /// Empty: no overlay.
+  HeightField region_id;
+  std::vector<std::string> region_names;
 };
+
+/// One straight piece of an audio region's outline, grid frame (x, y) [m].
+struct RegionSegment {
+  double x0_m = 0.0, y0_m = 0.0, x1_m = 0.0, y1_m = 0.0;
+  std::int32_t region = 0;  ///< index of the region whose boundary this is (the inside side's)
+};
+
+/// The outlines of the regions of `region_id` (index per sample as a float, NaN or < 0 = none):
+/// the sample cell boundaries (half a cell from each node) between a sample of region i and a
+/// sample not of region i (another region, none, or outside the raster), joined along rows and
+/// columns into maximal straight runs. A boundary between two regions gives one segment per
+/// side (each region is closed on its own). Shapes: a box of w × h samples gives 4 segments of
+/// total length 2·(w + h)·cell. Real-time: no. Cost: O(rows·cols).
+std::vector<RegionSegment> region_outline_segments(const HeightField& region_id);
+
+/// The overlay colour of region `index` (linear RGB [0, 1]): well-separated hues (golden-angle
+/// steps), bright enough to read on the stone grey and on every layer map.
+Eigen::Vector3f region_colour(std::int32_t index);
 
 /// Level-of-detail and region commands. Keys, mouse clicks in the navigation view, the GUI and
 /// device buttons all go through Viewer::issue() and reach the app as one of these.
@@ -191,6 +215,7 @@ struct ViewerOptions {
   bool friction_enabled = true;
   SurfaceSettings surface;
   double audio_volume = 0.8;
+  bool show_regions = false;         ///< the audio-region overlay (toggle with A)
 };
 
 /// An RGB image, 8 bits per channel, rows top to bottom.
@@ -277,6 +302,19 @@ class Viewer {
   const LayerRange& window_range() const { return window_range_; }
   const LayerRange& overview_range() const { return overview_range_; }
 
+  /// The audio-region overlay (key A): each region's outline in its colour (region_colour), on
+  /// top of the main view and the navigation view.
+  void set_show_regions(bool on) { show_regions_ = on; }
+  bool show_regions() const { return show_regions_; }
+  /// How far the panel's widest row (a widget with its label) reached past the panel's inner
+  /// right edge in the last frame that drew it [px]: > 0 means something was clipped; 0 when
+  /// it fits or the panel is hidden. For tests of the layout.
+  double panel_overflow_px() const { return panel_overflow_px_; }
+  /// Radius of the proxy ball on screen [px] for a main view `view_height_px` high: 1.25 % of
+  /// the height, at least 5 px, whatever the window's extent or the camera's zoom (the HIP's
+  /// ball is 0.45 of it).
+  static double proxy_ball_radius_px(int view_height_px);
+
   void set_stereo(bool on) { stereo_ = on; }
   bool stereo() const { return stereo_; }
   /// @param ratio eye separation / convergence distance, clamped to [0.001, 0.2].
@@ -348,8 +386,9 @@ class Viewer {
   LayerRange window_range_, overview_range_;
   double eye_separation_ = 0.03;
   double yaw_deg_ = 0.0, tilt_deg_ = 0.0, zoom_ = 1.0;
-  bool show_panel_ = true, show_help_ = false, show_navigation_ = true;
+  bool show_panel_ = true, show_help_ = false, show_navigation_ = true, show_regions_ = false;
   bool close_requested_ = false;
+  double panel_overflow_px_ = 0.0;
 
   // Mouse.
   double cursor_x_ = -1.0, cursor_y_ = -1.0;
