@@ -53,7 +53,8 @@ void add_explore_command(CLI::App& app) {
       ->capture_default_str();
   cmd->add_option("--script", o->script,
                   "Scripted actions for tests and demos, \"FRAME ACTION ARGS; ...\": finer, coarser, level N, pan DX DY "
-                  "(window widths), centre X_M Y_M, texture on|off, mu_s V, model paper|curvature, rescan AX AY AZ "
+                  "(window widths), centre X_M Y_M, window LEVEL COL0 ROW0, stiffness N_PER_M, texture on|off, mu_s V, "
+                  "model paper|curvature, rescan AX AY AZ "
                   "(deg, R = Rx*Ry*Rz), stereo on|off, display colour|grey|texture|mu_d|error; each goes through the same path as the keys and the panel. "
                   "FRAME may be a time, '12.5s'. @FILE reads the steps from FILE (one per line or ';'-separated)");
   cmd->add_flag("--stereo", o->stereo, "Start in red/cyan anaglyph stereo");

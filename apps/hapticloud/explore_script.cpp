@@ -27,7 +27,7 @@ std::string script_text(const std::string& arg) {
 std::vector<ScriptStep> parse_script(const std::string& text) {
   static const std::map<std::string, std::size_t> kArity = {
       {"finer", 0}, {"coarser", 0}, {"level", 1}, {"pan", 2}, {"centre", 2}, {"texture", 1},
-      {"mu_s", 1}, {"model", 1}, {"rescan", 3}, {"stereo", 1}, {"display", 1}};
+      {"mu_s", 1}, {"model", 1}, {"rescan", 3}, {"stereo", 1}, {"display", 1}, {"window", 3}, {"stiffness", 1}};
   std::vector<ScriptStep> steps;
   std::stringstream all(text);
   std::string item;
@@ -39,7 +39,7 @@ std::vector<ScriptStep> parse_script(const std::string& text) {
     const auto bad = [&](const std::string& why) {
       return ConfigError("explore: --script step '" + item + "': " + why +
                          " (expected FRAME ACTION ARGS with ACTION one of finer, coarser, level N, pan DX DY, "
-                         "centre X_M Y_M, texture on|off, mu_s V, model paper|curvature, rescan AX AY AZ, stereo on|off, "
+                         "centre X_M Y_M, window LEVEL COL0 ROW0, texture on|off, mu_s V, model paper|curvature, stiffness N_PER_M, rescan AX AY AZ, stereo on|off, "
                          "display colour|grey|texture|mu_d|error)");
     };
     // FRAME is a UI frame number (≥ 1), or a session time in seconds written with an 's'

@@ -14,15 +14,16 @@ namespace hc::app {
 struct ScriptStep {
   int frame = 0;               ///< UI frame (1 = the first), ≥ 1; 1 for a timed step
   double at_s = -1.0;          ///< session time [s] of a timed step ("12.5s"), ≥ 0; −1: frame step
-  std::string action;          ///< finer | coarser | level | pan | centre | texture | mu_s | model | rescan | stereo | display
+  std::string action;          ///< finer | coarser | level | pan | centre | window | stiffness | texture | mu_s | model | rescan | stereo | display
   std::vector<std::string> args;
 };
 
 /// Parses "FRAME ACTION [ARGS...]; ..." (frames must not decrease; empty items are skipped).
 /// FRAME may instead be a session time with an 's' suffix ("12.5s", seconds since the first
 /// frame, not decreasing); one script uses frames or times, not both.
-/// Arities: finer, coarser 0; level, texture, mu_s, model, stereo, display 1; pan, centre 2;
-/// rescan 3.
+/// Arities: finer, coarser 0; level, texture, mu_s, model, stereo, display, stiffness 1; pan, centre 2;
+/// rescan, window 3 (window LEVEL COL0 ROW0: that level, the window's first column and row, as
+/// recordings note every window change).
 /// Numbers are checked when the step runs (script_number). Any thread.
 /// @throws hc::ConfigError naming the step and the expected form.
 std::vector<ScriptStep> parse_script(const std::string& text);

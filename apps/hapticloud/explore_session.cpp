@@ -102,7 +102,9 @@ void Session::start_device() {
   } else if (o_.device == "sim") {
     // Made in start_servo() once the first window's heights are known (the path's heights need them).
   } else if (o_.device.rfind("replay:", 0) == 0) {
-    device_ = std::make_unique<haptics::TickReplayDevice>(clock_, o_.device.substr(7), haptics::SimulatedDevice::default_info());
+    auto r = std::make_unique<haptics::TickReplayDevice>(clock_, o_.device.substr(7), haptics::SimulatedDevice::default_info());
+    replay_ = r.get();
+    device_ = std::move(r);
   } else if (o_.device.rfind("udp:", 0) == 0) {
     // A rig outside the process (docs/udp_bridge.md): Falcon-like capabilities unless its
     // client scales to them.
@@ -138,9 +140,34 @@ void Session::start_servo() {
     path.speed_m_per_s = o_.speed_m_per_s;
     device_ = std::make_unique<haptics::SimulatedDevice>(clock_, path, haptics::VirtualHand{}, info);
   }
-  if (!o_.record.empty()) recorder_ = std::make_unique<haptics::RecordingDevice>(*device_, o_.record);
-  active_device().open();
   haptics::ServoConfig& cfg = servo_config_;
+  if (!o_.record.empty()) {
+    recorder_ = std::make_unique<haptics::RecordingDevice>(*device_, o_.record);
+    recorder_->watch(shared_, cfg.rate_hz);  // commands, surface switches and session actions too
+  }
+  active_device().open();
+  if (replay_ != nullptr) {
+    // The recorded session actions, played when the servo reaches their tick (run()).
+    for (const haptics::RecordedEvent& e : replay_->recording().events) {
+      // The panel's servo settings made during the recording (arm, disarm and resets are the
+      // replaying session's own).
+      using haptics::CommandType;
+      const CommandType t = e.command.type;
+      if (e.kind == haptics::RecordedEvent::Kind::kCommand &&
+          (t == CommandType::kSetStiffness || t == CommandType::kSetDamping || t == CommandType::kSetMaxForce ||
+           t == CommandType::kSetRho || t == CommandType::kSetFrictionEnabled)) {
+        replay_commands_.emplace_back(e.tick, e.command);
+      }
+      if (e.kind != haptics::RecordedEvent::Kind::kSession) continue;
+      std::vector<ScriptStep> one = parse_script("1 " + e.action);
+      if (one.size() != 1) throw InputError("explore: --device " + o_.device + ": the session action '" + e.action + "' does not parse");
+      replay_steps_.emplace_back(e.tick, std::move(one.front()));
+    }
+    if (replay_->recording().servo_rate_hz > 0.0 && replay_->recording().servo_rate_hz != cfg.rate_hz) {
+      std::cout << "explore: the recording's servo ran at " << replay_->recording().servo_rate_hz << " Hz, this one at "
+                << cfg.rate_hz << " Hz (forces follow the rate during ramps and blends)\n";
+    }
+  }
   cfg.realtime = haptics::realtime_mode_from_string(o_.realtime);
   cfg.workspace = w0.map;
   cfg.proxy.stiffness_n_per_m = o_.stiffness_n_per_m;
@@ -242,7 +269,10 @@ void Session::run() {
       break;
     }
     // A session never ends half-way through a re-scan or a swap.
-    const bool pending = busy() || next_step < script.size();
+    const bool pending = busy() || next_step < script.size() ||
+                         next_replay_step_ < replay_steps_.size() || next_replay_command_ < replay_commands_.size() ||
+                         // a replay lasts at least as long as its recording
+                         (replay_ != nullptr && shared_.counters.ticks.load(std::memory_order_relaxed) < replay_->sample_count());
     const double elapsed_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     const bool last =
         !pending && ((o_.frames > 0 && frame >= o_.frames) || (o_.seconds > 0.0 && elapsed_s >= o_.seconds));
@@ -258,6 +288,17 @@ void Session::run() {
     while (next_step < script.size() && due(script[next_step]) && !busy()) {
       run_step(script[next_step++]);
       ++script_steps_run_;
+    }
+    // A replay's recorded actions and servo settings, once the servo has reached their tick
+    // (a command waits while the command ring is full).
+    const std::uint64_t servo_tick = shared_.counters.ticks.load(std::memory_order_relaxed);
+    while (next_replay_command_ < replay_commands_.size() && replay_commands_[next_replay_command_].first <= servo_tick &&
+           shared_.commands.try_push(replay_commands_[next_replay_command_].second)) {
+      ++next_replay_command_;
+    }
+    while (next_replay_step_ < replay_steps_.size() && !busy() &&
+           replay_steps_[next_replay_step_].first <= shared_.counters.ticks.load(std::memory_order_relaxed)) {
+      run_step(replay_steps_[next_replay_step_++].second);
     }
   }
   if (job_.valid()) job_.wait();

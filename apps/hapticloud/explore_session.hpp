@@ -99,6 +99,10 @@ class Session {
   void on_surface_settings(const viewer::SurfaceSettings& s);
   void on_frame();
   void adopt(const std::shared_ptr<session::ExploreScene>& b);
+  /// A session action into the recording (--record), as a script step without the frame.
+  void note(const std::string& action);
+  /// The current window as "window LEVEL COL0 ROW0" into the recording.
+  void note_window();
   void centre_first_window();
   void run_step(const ScriptStep& st);
   std::optional<Eigen::Vector3d> anchor() const;
@@ -124,6 +128,13 @@ class Session {
   /// The device the servo loop drives: the recorder when recording, else device_.
   haptics::HapticDevice& active_device() { return recorder_ ? *recorder_ : *device_; }
   viewer::MouseDevice* mouse_ = nullptr;
+  haptics::TickReplayDevice* replay_ = nullptr;  ///< device_ with --device replay:FILE
+  /// The replay's recorded session actions with their servo ticks, and the next one to run.
+  std::vector<std::pair<std::uint64_t, ScriptStep>> replay_steps_;
+  std::size_t next_replay_step_ = 0;
+  /// The replay's recorded servo settings (stiffness, damping, force cap, ρ, friction on/off).
+  std::vector<std::pair<std::uint64_t, haptics::Command>> replay_commands_;
+  std::size_t next_replay_command_ = 0;
   haptics::ServoConfig servo_config_;
   haptics::RealtimeReport realtime_;
   std::unique_ptr<haptics::ServoLoop> loop_;

@@ -4,13 +4,16 @@
 
 #include "explore_session.hpp"
 
+#include "hc/common/error.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/transform.hpp"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <filesystem>
+#include <numbers>
 
 namespace hc::app {
 
@@ -82,11 +85,29 @@ void Session::on_region(const viewer::RegionCommand& c) {
       break;
     case viewer::RegionCommandType::kCentreAt: lod_->centre_window(w.level, c.x_m, c.y_m); break;
   }
+  note_window();
   show_window();
+}
+
+void Session::note(const std::string& action) {
+  if (recorder_) recorder_->note(action);
+}
+
+void Session::note_window() {
+  // The window itself, not the command: finer and coarser depend on the proxy's position.
+  const session::HapticWindow& w = lod_->window();
+  note("window " + std::to_string(w.level) + " " + std::to_string(w.col0) + " " + std::to_string(w.row0));
 }
 
 void Session::on_rescan(const Eigen::Quaterniond& q) {
   if (!config_ || busy()) return;
+  {
+    // R = Rx·Ry·Rz, as the script's rescan AX AY AZ [deg].
+    const Eigen::Vector3d a = q.normalized().toRotationMatrix().eulerAngles(0, 1, 2) * (180.0 / std::numbers::pi);
+    char buf[128];
+    std::snprintf(buf, sizeof buf, "rescan %.17g %.17g %.17g", a.x(), a.y(), a.z());
+    note(buf);
+  }
   pipeline::RunConfig cfg = *config_;
   cfg.view.rotation = q.normalized();
   cfg.layers.options = layer_options_;  // the friction model and μ_s chosen in the session
@@ -113,6 +134,7 @@ void Session::on_surface_settings(const viewer::SurfaceSettings& s) {
   if (s.texture_enabled != texture_enabled_) {
     // Same pyramid, new surface options: republish the window in place.
     texture_enabled_ = s.texture_enabled;
+    note(std::string("texture ") + (s.texture_enabled ? "on" : "off"));
     const session::HapticWindow w = lod_->window();
     lod_ = std::make_unique<session::LodController>(built_->pyramid, shared_, controller_options());
     lod_->set_window(w.level, w.col0, w.row0);
@@ -120,6 +142,12 @@ void Session::on_surface_settings(const viewer::SurfaceSettings& s) {
   }
   if ((model != layer_options_.friction_model || s.mu_s != layer_options_.mu_s) && !job_.valid()) {
     // Friction layers of every level change: rebuild the pyramid on a worker.
+    if (model != layer_options_.friction_model) note("model " + s.friction_model);
+    if (s.mu_s != layer_options_.mu_s) {
+      char buf[64];
+      std::snprintf(buf, sizeof buf, "mu_s %.17g", s.mu_s);
+      note(buf);
+    }
     layer_options_.friction_model = model;
     layer_options_.mu_s = s.mu_s;
     Scene base = session::explore_base_layers(built_->base);
@@ -213,9 +241,24 @@ void Session::run_step(const ScriptStep& st) {
     if (a == "model") s.friction_model = st.args[0];
     on_surface_settings(s);
   }
+  if (a == "window") {
+    if (!lod_ || swap_.busy()) return;
+    const int level = static_cast<int>(script_number(st, 0));
+    if (level < 0 || level >= lod_->level_count()) {
+      throw ConfigError("explore: step window: level " + st.args[0] + " is out of range (expected 0.." +
+                        std::to_string(lod_->level_count() - 1) + ")");
+    }
+    lod_->set_window(level, static_cast<int>(script_number(st, 1)), static_cast<int>(script_number(st, 2)));
+    note_window();
+    show_window();
+  }
   if (a == "rescan") {
     on_rescan(pipeline::rotation_from_euler(
         Eigen::Vector3d(script_number(st, 0), script_number(st, 1), script_number(st, 2)), "xyz"));
+  }
+  if (a == "stiffness") {
+    // What the panel's slider sends (the servo clamps it to the device's stable range).
+    (void)shared_.commands.try_push(haptics::Command::of(haptics::CommandType::kSetStiffness, script_number(st, 0)));
   }
   if (a == "stereo") viewer_->set_stereo(st.args[0] == "on");
   if (a == "display") viewer_->set_display(viewer::display_choice_from_string(st.args[0], "explore: --script display"));

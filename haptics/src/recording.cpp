@@ -22,7 +22,8 @@ namespace hc::haptics {
 
 namespace {
 
-constexpr const char* kMagic = "# hapticloud recording 1";
+constexpr const char* kMagic = "# hapticloud recording 2";
+constexpr const char* kMagicV1 = "# hapticloud recording 1";
 constexpr const char* kColumns = "tick,time_ns,x_m,y_m,z_m,buttons,fx_n,fy_n,fz_n,status";
 
 // One sample as a line of text, doubles as %.17g (they read back bit for bit).
@@ -39,6 +40,23 @@ RecordingDevice::RecordingDevice(HapticDevice& inner, std::filesystem::path file
     : HapticDevice(inner.info()), inner_(inner), file_(std::move(file)) {}
 
 RecordingDevice::~RecordingDevice() { close(); }
+
+void RecordingDevice::watch(SharedState& shared, double servo_rate_hz) {
+  if (!(servo_rate_hz > 0.0) || !std::isfinite(servo_rate_hz)) {
+    throw ConfigError("record: servo rate " + std::to_string(servo_rate_hz) + " Hz (expected > 0)");
+  }
+  shared.enable_servo_log();
+  shared_ = &shared;
+  servo_rate_hz_ = servo_rate_hz;
+}
+
+void RecordingDevice::note(const std::string& action) {
+  if (shared_ == nullptr || !writer_.joinable()) return;
+  std::string one_line = action;
+  for (char& c : one_line) if (c == '\n' || c == '\r') c = ' ';
+  const std::lock_guard<std::mutex> lock(notes_mutex_);
+  notes_.emplace_back(shared_->counters.ticks.load(std::memory_order_relaxed), std::move(one_line));
+}
 
 void RecordingDevice::do_open() {
   namespace fs = std::filesystem;
@@ -83,10 +101,13 @@ void RecordingDevice::writer_loop() {
   }
   out.precision(17);
   out << kMagic << "\n# device: " << info().name << "; nominal_rate_hz: " << info().nominal_rate_hz
-      << "; max_force_n: " << info().max_force_n << "\n"
-      << kColumns << "\n";
-  char buf[256];
+      << "; max_force_n: " << info().max_force_n;
+  if (servo_rate_hz_ > 0.0) out << "; servo_rate_hz: " << servo_rate_hz_;
+  out << "\n" << kColumns << "\n";
+  char buf[512];
   RecordedSample s;
+  ServoLogEntry e;
+  std::vector<std::pair<std::uint64_t, std::string>> notes;
   for (;;) {
     const bool last = stop_.load(std::memory_order_acquire);
     while (ring_->try_pop(s)) {
@@ -94,6 +115,27 @@ void RecordingDevice::writer_loop() {
       out.write(buf, n);
       written_.fetch_add(1, std::memory_order_relaxed);
     }
+    if (shared_ != nullptr && shared_->servo_log() != nullptr) {
+      while (shared_->servo_log()->try_pop(e)) {
+        int n = 0;
+        if (e.kind == ServoLogEntry::Kind::kSurface) {
+          n = std::snprintf(buf, sizeof buf, "@surface,%llu,%llu\n", static_cast<unsigned long long>(e.tick),
+                            static_cast<unsigned long long>(e.surface_tag));
+        } else {
+          const Command& c = e.command;
+          n = std::snprintf(buf, sizeof buf, "@%s,%llu,%s,%.17g,%.17g,%.17g,%.17g,%.17g\n",
+                            e.kind == ServoLogEntry::Kind::kCommand ? "command" : "rejected",
+                            static_cast<unsigned long long>(e.tick), to_string(c.type), c.a, c.b, c.c, c.d, c.e);
+        }
+        out.write(buf, n);
+      }
+    }
+    {
+      const std::lock_guard<std::mutex> lock(notes_mutex_);
+      notes.swap(notes_);
+    }
+    for (const auto& [tick, action] : notes) out << "@session," << tick << "," << action << "\n";
+    notes.clear();
     if (last) break;
     std::this_thread::sleep_for(std::chrono::milliseconds(20));
   }
@@ -165,6 +207,9 @@ void RecordingDevice::do_close() noexcept {
     error_ = "record: writing " + tmp_.string() + " failed (disk full?); no recording kept";
   } else if (dropped_.load() > 0) {
     error_ = "record: " + std::to_string(dropped_.load()) + " ticks were lost (the writer fell behind); no recording kept";
+  } else if (shared_ != nullptr && shared_->servo_log_dropped() > 0) {
+    error_ = "record: " + std::to_string(shared_->servo_log_dropped()) +
+             " servo events (commands, surface switches) were lost (the writer fell behind); no recording kept";
   } else if (!link_into_place(tmp_, file_)) {
     if (errno == EEXIST) {
       error_ = "record: cannot put " + file_.string() + " in place: it exists already (not overwritten)";
@@ -179,20 +224,87 @@ void RecordingDevice::do_close() noexcept {
   tmp_.clear();
 }
 
-std::vector<RecordedSample> read_recording(const std::filesystem::path& file) {
+namespace {
+
+[[noreturn]] void bad_line(const std::filesystem::path& file, int line_no, const std::string& line, const std::string& expected) {
+  throw InputError("replay: " + file.string() + ":" + std::to_string(line_no) + ": '" + line + "' is not " + expected);
+}
+
+// "@kind,tick,..." → an event.
+RecordedEvent parse_event(const std::filesystem::path& file, int line_no, const std::string& line) {
+  RecordedEvent ev;
+  const std::size_t c1 = line.find(',');
+  const std::size_t c2 = c1 == std::string::npos ? std::string::npos : line.find(',', c1 + 1);
+  if (c2 == std::string::npos) bad_line(file, line_no, line, "an event: @command|@rejected|@surface|@session,TICK,...");
+  const std::string kind = line.substr(1, c1 - 1), tick = line.substr(c1 + 1, c2 - c1 - 1), rest = line.substr(c2 + 1);
+  char* end = nullptr;
+  ev.tick = std::strtoull(tick.c_str(), &end, 10);
+  if (tick.empty() || *end != '\0' || tick[0] == '-') bad_line(file, line_no, line, "an event with a tick (an integer >= 0)");
+  if (kind == "session") {
+    ev.kind = RecordedEvent::Kind::kSession;
+    ev.action = rest;
+  } else if (kind == "surface") {
+    ev.kind = RecordedEvent::Kind::kSurface;
+    ev.surface_tag = std::strtoull(rest.c_str(), &end, 10);
+    if (rest.empty() || *end != '\0' || rest[0] == '-') bad_line(file, line_no, line, "@surface,TICK,TAG (integers)");
+  } else if (kind == "command" || kind == "rejected") {
+    ev.kind = kind == "command" ? RecordedEvent::Kind::kCommand : RecordedEvent::Kind::kRejected;
+    const std::size_t c3 = rest.find(',');
+    if (c3 == std::string::npos || !command_type_from_string(rest.substr(0, c3), ev.command.type)) {
+      bad_line(file, line_no, line, "@" + kind + ",TICK,NAME,a,b,c,d,e with a known command name");
+    }
+    Command& c = ev.command;
+    int used = 0;
+    const std::string nums = rest.substr(c3 + 1);
+    if (std::sscanf(nums.c_str(), "%lf,%lf,%lf,%lf,%lf%n", &c.a, &c.b, &c.c, &c.d, &c.e, &used) != 5 ||
+        static_cast<std::size_t>(used) != nums.size()) {
+      bad_line(file, line_no, line, "@" + kind + ",TICK,NAME,a,b,c,d,e (five numbers)");
+    }
+  } else {
+    bad_line(file, line_no, line, "an event: @command|@rejected|@surface|@session,TICK,...");
+  }
+  return ev;
+}
+
+double header_number(const std::string& line, const std::string& key) {
+  const std::size_t at = line.find(key + ": ");
+  if (at == std::string::npos) return 0.0;
+  const double v = std::strtod(line.c_str() + at + key.size() + 2, nullptr);
+  return v > 0.0 && std::isfinite(v) ? v : 0.0;
+}
+
+}  // namespace
+
+Recording read_recording_file(const std::filesystem::path& file) {
   std::ifstream in(file);
   if (!in) throw InputError("replay: cannot open " + file.string());
   std::string line;
-  if (!std::getline(in, line) || line.rfind(kMagic, 0) != 0) {
+  Recording rec;
+  if (!std::getline(in, line)) line.clear();
+  if (!line.empty() && line.back() == '\r') line.pop_back();
+  if (line == kMagic) {
+    rec.version = 2;
+  } else if (line == kMagicV1) {
+    rec.version = 1;
+  } else {
     throw InputError("replay: " + file.string() + ":1: expected '" + std::string(kMagic) +
-                     "' (a file written by --record)");
+                     "' (or version 1; a file written by --record)");
   }
-  std::vector<RecordedSample> out;
+  std::vector<RecordedSample>& out = rec.samples;
   int line_no = 1;
   while (std::getline(in, line)) {
     ++line_no;
     if (!line.empty() && line.back() == '\r') line.pop_back();
+    if (line.rfind("# device:", 0) == 0) {
+      rec.servo_rate_hz = header_number(line, "servo_rate_hz");
+      rec.max_force_n = header_number(line, "max_force_n");
+      continue;
+    }
     if (line.empty() || line[0] == '#' || line == kColumns) continue;
+    if (line[0] == '@') {
+      rec.events.push_back(parse_event(file, line_no, line));
+      continue;
+    }
     RecordedSample s;
     unsigned long long tick = 0;
     long long time_ns = 0;
@@ -203,8 +315,7 @@ std::vector<RecordedSample> read_recording(const std::filesystem::path& file) {
                               &status, &used);
     if (n != 10 || static_cast<std::size_t>(used) != line.size() || !std::isfinite(s.position_m[0]) ||
         !std::isfinite(s.position_m[1]) || !std::isfinite(s.position_m[2]) || status > 5) {
-      throw InputError("replay: " + file.string() + ":" + std::to_string(line_no) + ": '" + line + "' is not " +
-                       kColumns + " (ten numbers, a finite position, a status 0..5)");
+      bad_line(file, line_no, line, std::string(kColumns) + " (ten numbers, a finite position, a status 0..5)");
     }
     s.status = static_cast<std::uint8_t>(status);
     if (tick != out.size()) {
@@ -217,7 +328,11 @@ std::vector<RecordedSample> read_recording(const std::filesystem::path& file) {
     out.push_back(s);
   }
   if (out.empty()) throw InputError("replay: " + file.string() + " holds no samples");
-  return out;
+  return rec;
+}
+
+std::vector<RecordedSample> read_recording(const std::filesystem::path& file) {
+  return read_recording_file(file).samples;
 }
 
 namespace {
@@ -241,7 +356,9 @@ TickReplayDevice::TickReplayDevice(const Clock& clock, std::filesystem::path fil
     : HapticDevice(info_from(file, std::move(info))), clock_(clock), file_(std::move(file)) {}
 
 void TickReplayDevice::do_open() {
-  samples_ = read_recording(file_);
+  recording_ = read_recording_file(file_);
+  samples_ = std::move(recording_.samples);
+  recording_.samples.clear();
   next_ = 0;
 }
 

@@ -190,6 +190,7 @@ void ServoLoop::apply(const Command& c) noexcept {
   } else {
     shared_.counters.commands_rejected.fetch_add(1, std::memory_order_relaxed);
   }
+  shared_.log({tick_count_, ok ? ServoLogEntry::Kind::kCommand : ServoLogEntry::Kind::kRejected, c, 0});
 }
 
 void ServoLoop::tick() noexcept { tick_impl(0); }
@@ -244,6 +245,7 @@ void ServoLoop::adopt_surface(TickFrame& frame) noexcept {
   frame.surface = adoption.surface;
   frame.surface_tag = adoption.tag;
   if (!adoption.changed) return;
+  shared_.log({tick_count_, ServoLogEntry::Kind::kSurface, Command{}, adoption.tag});
   // Surface and map switch together (the map, when published with the surface).
   if (adoption.map != nullptr) {
     switch_map(*adoption.map);

@@ -94,4 +94,28 @@ SharedState::Adoption SharedState::adopt() noexcept {
 
 const HapticSurface* SharedState::adopt_surface() noexcept { return adopt().surface; }
 
+void SharedState::enable_servo_log() {
+  if (!log_) log_ = std::make_unique<ServoLog>();
+}
+
+namespace {
+constexpr const char* kCommandNames[] = {"arm",         "disarm",  "reset_fault",          "set_stiffness", "set_damping",
+                                         "set_max_force", "set_rho", "set_friction_enabled", "set_workspace", "stop"};
+}  // namespace
+
+const char* to_string(CommandType type) noexcept {
+  const auto i = static_cast<std::size_t>(type);
+  return i < std::size(kCommandNames) ? kCommandNames[i] : "unknown";
+}
+
+bool command_type_from_string(const std::string& name, CommandType& out) {
+  for (std::size_t i = 0; i < std::size(kCommandNames); ++i) {
+    if (name == kCommandNames[i]) {
+      out = static_cast<CommandType>(i);
+      return true;
+    }
+  }
+  return false;
+}
+
 }  // namespace hc::haptics

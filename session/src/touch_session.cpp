@@ -236,7 +236,10 @@ TouchSessionResult run_touch_session(const Scene& scene, const TouchSessionOptio
     } else {
       d.base = std::make_unique<haptics::TickReplayDevice>(clock, o.replay_file, info);
     }
-    if (!o.record_file.empty()) d.recorder = std::make_unique<haptics::RecordingDevice>(*d.base, o.record_file);
+    if (!o.record_file.empty()) {
+      d.recorder = std::make_unique<haptics::RecordingDevice>(*d.base, o.record_file);
+      d.recorder->watch(shared, o.rate_hz);  // the servo's commands and surface switches with their ticks
+    }
     d.active().open();
     return d;
   };

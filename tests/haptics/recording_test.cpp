@@ -119,6 +119,77 @@ TEST(Recording, AnExistingFileIsNeverReplacedAndBadRecordingsNameTheLine) {
   }
 }
 
+// Version 2: what the servo log and the session say is written with its tick, read back as
+// it was given, after the samples' header with the servo rate; version 1 files still read.
+TEST(Recording, EventsOfTheServoLogAndTheSessionAreWrittenWithTheirTicks) {
+  const fs::path dir = hc::test::temp_dir("recording_events");
+  ManualClock clock;
+  SimulatedDevice inner(clock, ScriptedPath{}, VirtualHand{}, SimulatedDevice::default_info());
+  SharedState shared;
+  RecordingDevice rec(inner, dir / "r.csv");
+  EXPECT_THROW(rec.watch(shared, 0.0), ConfigError);
+  rec.watch(shared, 2000.0);
+  ASSERT_NE(shared.servo_log(), nullptr);
+  rec.open();
+  const Command stiff{CommandType::kSetStiffness, 650.25, 0, 0, 0, 0};
+  const Command ws{CommandType::kSetWorkspace, 0.001, -0.002, 0.0125, 2.5, 0.1};
+  for (int k = 0; k < 10; ++k) {
+    DeviceReading r;
+    (void)rec.read(r);
+    if (k == 3) shared.log({3, ServoLogEntry::Kind::kCommand, stiff, 0});
+    if (k == 4) shared.log({4, ServoLogEntry::Kind::kRejected, ws, 0});
+    if (k == 5) shared.log({5, ServoLogEntry::Kind::kSurface, Command{}, 77});
+    if (k == 7) {
+      shared.counters.ticks.store(7);
+      rec.note("window 2 10 20");
+    }
+    (void)rec.write(Eigen::Vector3d::Zero());
+    clock.advance_ns(1000000);
+  }
+  rec.keep_on_close();
+  rec.close();
+  ASSERT_EQ(rec.error(), "");
+  const Recording got = read_recording_file(dir / "r.csv");
+  EXPECT_EQ(got.version, 2);
+  EXPECT_EQ(got.servo_rate_hz, 2000.0);
+  EXPECT_EQ(got.max_force_n, SimulatedDevice::default_info().max_force_n);
+  EXPECT_EQ(got.samples.size(), 10u);
+  ASSERT_EQ(got.events.size(), 4u);
+  EXPECT_EQ(got.events[0].kind, RecordedEvent::Kind::kCommand);
+  EXPECT_EQ(got.events[0].tick, 3u);
+  EXPECT_EQ(got.events[0].command.type, CommandType::kSetStiffness);
+  EXPECT_EQ(got.events[0].command.a, 650.25);
+  EXPECT_EQ(got.events[1].kind, RecordedEvent::Kind::kRejected);
+  EXPECT_EQ(got.events[1].command.type, CommandType::kSetWorkspace);
+  EXPECT_EQ(got.events[1].command.e, 0.1);  // %.17g: bit for bit
+  EXPECT_EQ(got.events[1].command.b, -0.002);
+  EXPECT_EQ(got.events[2].kind, RecordedEvent::Kind::kSurface);
+  EXPECT_EQ(got.events[2].tick, 5u);
+  EXPECT_EQ(got.events[2].surface_tag, 77u);
+  EXPECT_EQ(got.events[3].kind, RecordedEvent::Kind::kSession);
+  EXPECT_EQ(got.events[3].tick, 7u);
+  EXPECT_EQ(got.events[3].action, "window 2 10 20");
+  // Every command name reads back as itself.
+  for (int t = 0; t <= static_cast<int>(CommandType::kStop); ++t) {
+    CommandType back{};
+    ASSERT_TRUE(command_type_from_string(to_string(static_cast<CommandType>(t)), back));
+    EXPECT_EQ(static_cast<int>(back), t);
+  }
+  // Version 1; a malformed event names its line.
+  { std::ofstream(dir / "v1.csv") << "# hapticloud recording 1\n0,0,0,0,0,0,0,0,0,0\n"; }
+  EXPECT_EQ(read_recording_file(dir / "v1.csv").version, 1);
+  EXPECT_EQ(read_recording_file(dir / "v1.csv").servo_rate_hz, 0.0);
+  for (const std::string bad : {"@command,3,fly,0,0,0,0,0", "@command,3,arm,0,0", "@surface,x,1", "@teleport,1,2"}) {
+    { std::ofstream(dir / "bad.csv") << "# hapticloud recording 2\n0,0,0,0,0,0,0,0,0,0\n" << bad << "\n"; }
+    try {
+      (void)read_recording_file(dir / "bad.csv");
+      ADD_FAILURE() << bad << " was accepted";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("bad.csv:3"), std::string::npos) << e.what();
+    }
+  }
+}
+
 TEST(Recording, FaultsCrossTheWrapperBothWaysAndAFailedSessionKeepsNoFile) {
   const fs::path dir = hc::test::temp_dir("recording_fault");
   ManualClock clock;

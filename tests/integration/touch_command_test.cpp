@@ -225,13 +225,17 @@ TEST(TouchCommand, RasterOnARunSceneWritesTraceAndPlots) {
 
 /// The rows of a --record file as numbers (parsed here, not by the program's reader): tick,
 /// time_ns, x, y, z, buttons, fx, fy, fz.
-std::vector<std::array<double, 9>> read_recording_rows(const fs::path& file) {
+std::vector<std::array<double, 9>> read_recording_rows(const fs::path& file, std::vector<std::string>* events = nullptr) {
   std::ifstream in(file);
   std::string line;
   std::getline(in, line);
-  EXPECT_EQ(line, "# hapticloud recording 1") << file;
+  EXPECT_EQ(line, "# hapticloud recording 2") << file;
   std::vector<std::array<double, 9>> rows;
   while (std::getline(in, line)) {
+    if (!line.empty() && line[0] == '@') {
+      if (events != nullptr) events->push_back(line);
+      continue;
+    }
     if (line.empty() || line[0] == '#' || line[0] == 't') continue;
     std::array<double, 9> r{};
     std::stringstream ss(line);
@@ -281,6 +285,38 @@ TEST(TouchCommand, AReplayOfARecordedSessionRendersTheSameForces) {
   log.clear();
   EXPECT_EQ(run_app(common + "--out " + (dir / "d").string() + " --device replay:" + (dir / "missing.csv").string(), &log), 1);
   EXPECT_NE(log.find("missing.csv"), std::string::npos) << log;
+}
+
+// Version 2 records what the servo applied and adopted with the tick: the session's arm at
+// tick 0, and each scripted level switch at the tick its time falls on (T · rate, the simulated
+// clock), with the servo rate in the header.
+TEST(TouchCommand, ARecordingHoldsTheCommandsAndSurfaceSwitchesWithTheirTicks) {
+  const fs::path dir = hc::test::temp_dir("record_events");
+  std::string log;
+  ASSERT_EQ(run_app("touch --synthetic sinusoid --cells 401 --path circle --seconds 3 --rate 500 --level 2 "
+                    "--window-cells 100 --zoom-path '1:in,2:out' --out " + (dir / "a").string() + " --record " +
+                        (dir / "a.csv").string(), &log), 0) << log;
+  std::vector<std::string> events;
+  const auto rows = read_recording_rows(dir / "a.csv", &events);
+  ASSERT_EQ(rows.size(), 1500u);
+  std::ifstream in(dir / "a.csv");
+  std::string first, header;
+  std::getline(in, first);
+  std::getline(in, header);
+  EXPECT_NE(header.find("; servo_rate_hz: 500"), std::string::npos) << header;
+  std::vector<std::string> commands, surfaces;
+  for (const std::string& e : events) (e.rfind("@surface,", 0) == 0 ? surfaces : commands).push_back(e);
+  ASSERT_FALSE(commands.empty());
+  EXPECT_EQ(commands.front().rfind("@command,0,arm,", 0), 0u) << commands.front();
+  // The first window at tick 0, then two switches: 1 s and 2 s at 500 Hz are ticks 500 and
+  // 1000; three different tags.
+  ASSERT_EQ(surfaces.size(), 3u) << log;
+  EXPECT_EQ(surfaces[0].rfind("@surface,0,", 0), 0u) << surfaces[0];
+  EXPECT_EQ(surfaces[1].rfind("@surface,500,", 0), 0u) << surfaces[1];
+  EXPECT_EQ(surfaces[2].rfind("@surface,1000,", 0), 0u) << surfaces[2];
+  const auto tag = [](const std::string& e) { return e.substr(e.rfind(',') + 1); };
+  EXPECT_NE(tag(surfaces[0]), tag(surfaces[1]));
+  EXPECT_NE(tag(surfaces[1]), tag(surfaces[2]));
 }
 
 TEST(TouchCommand, NotASceneIsAOneLineError) {

@@ -8,12 +8,14 @@
 #include <nlohmann/json.hpp>
 
 #include <algorithm>
+#include <cctype>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <sys/wait.h>
 #include <string>
+#include <vector>
 
 namespace hc {
 namespace {
@@ -171,6 +173,80 @@ TEST(ExploreSession, LevelRegionAndSurfaceCommandsReachTheServoLoop) {
   EXPECT_GE(s["window"]["row0"].get<int>(), 0);
   EXPECT_LE(s["window"]["row0"].get<int>(), 100 - 64);
   EXPECT_EQ(s["swaps"].get<int>(), 0);  // none of these disarms the device
+}
+
+/// The lines of `file` that start with `prefix`.
+std::vector<std::string> lines_starting(const fs::path& file, const std::string& prefix) {
+  std::ifstream in(file);
+  std::vector<std::string> out;
+  for (std::string l; std::getline(in, l);)
+    if (l.rfind(prefix, 0) == 0) out.push_back(l);
+  return out;
+}
+
+/// "@session,TICK,ACTION" → ACTION.
+std::string action_of(const std::string& line) { return line.substr(line.find(',', 9) + 1); }
+
+// explore --record writes the session's actions (the windows they led to, surface settings)
+// with their servo ticks, besides the servo's commands and surface switches; --device
+// replay:FILE plays the positions back and re-issues the actions when the servo reaches their
+// ticks, so the replayed session ends in the same window with the same settings.
+TEST(ExploreSession, ARecordingHoldsTheSessionsActionsAndAReplayRepeatsThem) {
+  const fs::path dir = test::temp_dir("explore_record");
+  const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
+  const std::string common = "explore " + config.string() + " --hidden --no-audio --window-cells 64 --frames 40 ";
+  Result r = run_app(common + "--device sim --out " + (dir / "a").string() + " --record " + (dir / "a.csv").string() +
+                     " --summary " + (dir / "a.json").string() + " --script '3 finer; 6 pan 0.25 0; 9 texture off; 12 mu_s 0.5; 14 stiffness 512.5'");
+  ASSERT_EQ(r.status, 0) << r.output;
+  const std::vector<std::string> sa = lines_starting(dir / "a.csv", "@session,");
+  ASSERT_EQ(sa.size(), 4u) << r.output;
+  EXPECT_EQ(action_of(sa[0]).rfind("window 0 ", 0), 0u) << sa[0];  // finer: level 1 → 0
+  EXPECT_EQ(action_of(sa[1]).rfind("window 0 ", 0), 0u) << sa[1];
+  EXPECT_NE(action_of(sa[0]), action_of(sa[1])) << "the pan moved the window";
+  EXPECT_EQ(action_of(sa[2]), "texture off");
+  EXPECT_EQ(action_of(sa[3]), "mu_s 0.5");
+  EXPECT_FALSE(lines_starting(dir / "a.csv", "@surface,").empty());
+  EXPECT_FALSE(lines_starting(dir / "a.csv", "@command,").empty());
+  EXPECT_NE(lines_starting(dir / "a.csv", "# device:").at(0).find("servo_rate_hz: 1000"), std::string::npos);
+
+  r = run_app(common + "--device replay:" + (dir / "a.csv").string() + " --out " + (dir / "b").string() + " --record " +
+              (dir / "b.csv").string() + " --summary " + (dir / "b.json").string());
+  ASSERT_EQ(r.status, 0) << r.output;
+  const std::vector<std::string> sb = lines_starting(dir / "b.csv", "@session,");
+  ASSERT_EQ(sb.size(), sa.size()) << r.output;
+  for (std::size_t i = 0; i < sa.size(); ++i) EXPECT_EQ(action_of(sb[i]), action_of(sa[i]));
+  // The panel's servo setting is re-sent: the replay's servo applied it too.
+  const auto stiffness = [](const fs::path& f) {
+    std::vector<std::string> out;
+    for (const std::string& l : lines_starting(f, "@command,"))
+      if (l.find(",set_stiffness,") != std::string::npos) out.push_back(l.substr(l.find(",set_stiffness,")));
+    return out;
+  };
+  ASSERT_EQ(stiffness(dir / "a.csv").size(), 1u);
+  EXPECT_EQ(stiffness(dir / "a.csv").at(0), ",set_stiffness,512.5,0,0,0,0");
+  EXPECT_EQ(stiffness(dir / "b.csv"), stiffness(dir / "a.csv"));
+  const nlohmann::json ja = read_json(dir / "a.json"), jb = read_json(dir / "b.json");
+  EXPECT_EQ(jb["window"], ja["window"]);
+  EXPECT_EQ(jb["level"], ja["level"]);
+  EXPECT_EQ(jb["texture"], ja["texture"]);
+  EXPECT_EQ(jb["mu_s"], ja["mu_s"]);
+  // The same positions, tick by tick, as long as the recording lasts.
+  std::vector<std::string> pa = lines_starting(dir / "a.csv", ""), pb = lines_starting(dir / "b.csv", "");
+  const auto positions = [](const std::vector<std::string>& lines) {
+    std::vector<std::string> out;
+    for (const std::string& l : lines) {
+      if (l.empty() || !std::isdigit(static_cast<unsigned char>(l[0]))) continue;
+      const std::size_t c1 = l.find(','), c2 = l.find(',', c1 + 1);
+      std::size_t c5 = c2;
+      for (int k = 0; k < 3; ++k) c5 = l.find(',', c5 + 1);
+      out.push_back(l.substr(c2 + 1, c5 - c2 - 1));  // x,y,z as written
+    }
+    return out;
+  };
+  const std::vector<std::string> xa = positions(pa), xb = positions(pb);
+  ASSERT_GT(xa.size(), 100u);
+  ASSERT_GE(xb.size(), xa.size());
+  for (std::size_t k = 0; k < xa.size(); ++k) ASSERT_EQ(xb[k], xa[k]) << "tick " << k;
 }
 
 TEST(ExploreSession, ScriptErrorsNameTheStep) {

@@ -18,6 +18,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <memory>
+#include <string>
 
 namespace hc::haptics {
 
@@ -107,6 +108,26 @@ struct Command {
   }
 };
 
+/// The names of the command types ("arm", "disarm", "reset_fault", "set_stiffness",
+/// "set_damping", "set_max_force", "set_rho", "set_friction_enabled", "set_workspace", "stop"),
+/// as recordings write them. Real-time: yes.
+const char* to_string(CommandType type) noexcept;
+/// Inverse of to_string(CommandType). @return false for an unknown name.
+bool command_type_from_string(const std::string& name, CommandType& out);
+
+/// What the servo loop did at a tick, for recordings (SharedState::enable_servo_log).
+struct ServoLogEntry {
+  enum class Kind : std::uint8_t {
+    kCommand = 0,      ///< `command` was applied at the start of tick `tick`
+    kRejected,         ///< `command` was rejected (invalid) at tick `tick`
+    kSurface,          ///< the surface published with `surface_tag` was adopted at tick `tick`
+  };
+  std::uint64_t tick = 0;  ///< servo tick index, 0 = the loop's first tick (its first device read)
+  Kind kind = Kind::kCommand;
+  Command command{};
+  std::uint64_t surface_tag = 0;
+};
+
 /// Counters written by the servo thread, read by anyone (relaxed atomics).
 struct ServoCounters {
   std::atomic<std::uint64_t> ticks{0};
@@ -183,6 +204,21 @@ class SharedState {
   /// map published with it. Real-time: yes (no allocation, no free).
   Adoption adopt() noexcept;
 
+  /// The servo log (what the loop applied and adopted, tick by tick), off until enabled.
+  using ServoLog = SpscRing<ServoLogEntry, 4096>;
+  /// Turns the log on (allocates its ring); call before the servo loop starts. The servo pushes
+  /// an entry per applied or rejected command and per adopted surface; one consumer drains
+  /// servo_log() (a recorder's writer thread). A full ring drops entries and counts them in
+  /// servo_log_dropped(). Real-time: no.
+  void enable_servo_log();
+  /// The log's ring, or null while the log is off. Real-time: yes.
+  ServoLog* servo_log() noexcept { return log_.get(); }
+  std::uint64_t servo_log_dropped() const noexcept { return log_dropped_.load(std::memory_order_relaxed); }
+  /// Servo side: appends to the log when it is on. Real-time: yes.
+  void log(const ServoLogEntry& e) noexcept {
+    if (log_ && !log_->try_push(e)) log_dropped_.fetch_add(1, std::memory_order_relaxed);
+  }
+
   /// Servo side: the surface in use.
   const HapticSurface* current_surface() const noexcept { return current_ ? current_->surface : nullptr; }
 
@@ -197,6 +233,8 @@ class SharedState {
   static void destroy(const Published* p) noexcept;
   void publish(Published* p);
 
+  std::unique_ptr<ServoLog> log_;
+  std::atomic<std::uint64_t> log_dropped_{0};
   std::atomic<Published*> pending_{nullptr};
   Published* current_ = nullptr;  // owned; touched by the servo thread only
   SpscRing<Published*, kRetireCapacity> retired_;
