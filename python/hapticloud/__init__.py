@@ -13,7 +13,7 @@ row 0 at the smallest y, in the grid frame (metres, larger z nearer the viewer).
 import json as _json
 import os as _os
 
-from ._hapticloud import Error, Scene, levels, load_scene, sample, touch  # noqa: F401
+from ._hapticloud import Error, Scene, load_scene, sample, touch  # noqa: F401
 from . import _hapticloud as _native
 
 __all__ = ["Error", "Scene", "levels", "load_scene", "run", "sample", "touch"]
@@ -38,3 +38,27 @@ def run(config, out=None, sets=()):
         origin = _os.path.join(_os.getcwd(), "<dict config>")
         return _native._run_text(_json.dumps(config), origin, out, list(sets))
     return _native._run_file(_os.fspath(config), out, list(sets))
+
+
+def levels(scene, config=None, servo_ticks=3000):
+    """The speed-against-error table of the scene's levels of detail, as `hapticloud levels`.
+
+    scene: a Scene (its own lod options and layer options are used).
+    config: None, or the run config the scene was made from (a path or a dict, as for run()):
+        its points are read and each level is cross-checked against them.
+    servo_ticks: servo ticks timed per level (>= 10; 0 leaves the timing columns None).
+    Returns a list of dicts, one per level from 0 (finest), SI units: level, rows, cols,
+    cell_size_m [m], valid_cells, build_s [s] (smoothing + decimation + layers); with a config,
+    rms_m, p95_m, max_m [m] (vertical distance of the points to the level's bilinear surface),
+    points_checked and supported_fraction (samples with a point within 0.5 mm), else None;
+    mu_d_at_min_fraction and mu_d_at_max_fraction (cells at the friction clamps); with
+    servo_ticks, tick_p50_s and tick_p99_s [s] (servo tick compute on a window of the level)
+    and switch_s [s] (request to the first tick on a new window). Times are wall-clock on
+    this machine: compare them within one run, never against fixed numbers.
+    Raises hapticloud.Error naming the file, key or value on bad input.
+    """
+    if isinstance(config, dict):
+        origin = _os.path.join(_os.getcwd(), "<dict config>")
+        return _native._levels_text(scene, _json.dumps(config), origin, int(servo_ticks))
+    path = None if config is None else _os.fspath(config)
+    return _native._levels_file(scene, path, int(servo_ticks))

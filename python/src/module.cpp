@@ -8,6 +8,7 @@
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_report.hpp"
+#include "hc/session/level_timing.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/session/touch_session.hpp"
@@ -19,6 +20,7 @@
 
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -209,35 +211,66 @@ PYBIND11_MODULE(_hapticloud, m) {
       "a dict of per-tick arrays, grid frame, SI: t_s (n,), hip_m (n,3), proxy_m (n,3), force_n (n,3) (force on the "
       "hand, grid axes), in_contact (n,), mu_d (n,), surface_z_m (n,) (rendered height under the proxy).");
 
+  // levels(): the speed-against-error table of `hapticloud levels`. `config` (a parsed run
+  // config, or none) supplies the points of the cross-check; servo_ticks > 0 times the servo.
+  const auto levels = [](const hc::Scene& s, const std::optional<hc::pipeline::RunConfig>& config, int servo_ticks) {
+    if (servo_ticks < 0) {
+      throw hc::ConfigError("levels: servo_ticks " + std::to_string(servo_ticks) + " (expected 0, none, or >= 10)");
+    }
+    std::vector<hc::pipeline::LevelRow> rows;
+    {
+      py::gil_scoped_release release;  // no Python object is touched in here
+      hc::Scene copy = s;
+      const auto layer_options = copy.layer_options;
+      const auto lod = copy.lod;
+      auto pyramid = hc::pipeline::LodPyramid::from_scene(std::move(copy), layer_options, lod);
+      std::optional<hc::pipeline::Cloud> points;
+      if (config) points = hc::pipeline::prepare_points(*config);
+      hc::pipeline::LevelTableOptions o;
+      o.cross_check = points.has_value();
+      rows = hc::pipeline::level_table(pyramid, points ? &*points : nullptr, o);
+      if (servo_ticks > 0) hc::session::time_levels(pyramid, rows, servo_ticks);
+    }
+    py::list out;
+    const py::object none = py::none();
+    for (const auto& r : rows) {
+      py::dict d;
+      d["level"] = r.level;
+      d["rows"] = r.rows;
+      d["cols"] = r.cols;
+      d["cell_size_m"] = r.cell_size_m;
+      d["valid_cells"] = r.valid_cells;
+      d["build_s"] = r.build_seconds;
+      if (r.point_vertical) {
+        d["rms_m"] = 1e-3 * r.point_vertical->rms_mm;
+        d["p95_m"] = 1e-3 * r.point_vertical->p95_mm;
+        d["max_m"] = 1e-3 * r.point_vertical->max_mm;
+        d["points_checked"] = r.point_vertical->count;
+        d["supported_fraction"] = r.supported_fraction;
+      } else {
+        for (const char* k : {"rms_m", "p95_m", "max_m", "points_checked", "supported_fraction"}) d[k] = none;
+      }
+      d["mu_d_at_min_fraction"] = r.mu_d ? py::object(py::float_(r.mu_d->at_min_fraction())) : none;
+      d["mu_d_at_max_fraction"] = r.mu_d ? py::object(py::float_(r.mu_d->at_max_fraction())) : none;
+      d["tick_p50_s"] = r.timed ? py::object(py::float_(1e-9 * r.tick_p50_ns)) : none;
+      d["tick_p99_s"] = r.timed ? py::object(py::float_(1e-9 * r.tick_p99_ns)) : none;
+      d["switch_s"] = r.timed ? py::object(py::float_(1e-3 * r.switch_ms)) : none;
+      out.append(d);
+    }
+    return out;
+  };
   m.def(
-      "levels",
-      [](const hc::Scene& s) {
-        std::vector<hc::pipeline::LevelRow> rows;
-        {
-          py::gil_scoped_release release;  // no Python object is touched in here
-          hc::Scene copy = s;
-          const auto layer_options = copy.layer_options;
-          const auto lod = copy.lod;
-          auto pyramid = hc::pipeline::LodPyramid::from_scene(std::move(copy), layer_options, lod);
-          hc::pipeline::LevelTableOptions o;
-          o.cross_check = false;
-          rows = hc::pipeline::level_table(pyramid, nullptr, o);
-        }
-        py::list out;
-        for (const auto& r : rows) {
-          py::dict d;
-          d["level"] = r.level;
-          d["rows"] = r.rows;
-          d["cols"] = r.cols;
-          d["cell_size_m"] = r.cell_size_m;
-          d["valid_cells"] = r.valid_cells;
-          d["build_s"] = r.build_seconds;
-          out.append(d);
-        }
-        return out;
+      "_levels_file",
+      [levels](const hc::Scene& s, const std::optional<std::string>& config_path, int servo_ticks) {
+        std::optional<hc::pipeline::RunConfig> config;
+        if (config_path) config = hc::pipeline::load_run_config(*config_path);
+        return levels(s, config, servo_ticks);
       },
-      py::arg("scene"),
-      "The scene's levels of detail (its own lod options): a list of dicts, one per level from 0 (finest): level, "
-      "rows, cols, cell_size_m [m], valid_cells, build_s [s] (smoothing + decimation + layers). The cross-check "
-      "columns of `hapticloud levels` need the points and are not computed here.");
+      py::arg("scene"), py::arg("config"), py::arg("servo_ticks"));
+  m.def(
+      "_levels_text",
+      [levels](const hc::Scene& s, const std::string& text, const std::string& origin, int servo_ticks) {
+        return levels(s, hc::pipeline::parse_run_config(text, origin), servo_ticks);
+      },
+      py::arg("scene"), py::arg("text"), py::arg("origin"), py::arg("servo_ticks"));
 }

@@ -98,12 +98,36 @@ def test_touch_returns_the_trace_of_a_session_that_touched_the_surface(sinusoid)
 
 
 def test_levels_halve_the_grid(sinusoid):
-    table = hapticloud.levels(sinusoid)
+    table = hapticloud.levels(sinusoid, servo_ticks=0)
     assert [r["level"] for r in table] == list(range(len(table)))
     assert table[0]["rows"] == 200 and len(table) >= 2
     for fine, coarse in zip(table, table[1:]):
         assert coarse["rows"] == (fine["rows"] + 1) // 2
         assert coarse["cell_size_m"] == pytest.approx(2 * fine["cell_size_m"])
+    # Without a config there is no cross-check; without servo ticks no timing.
+    assert table[0]["rms_m"] is None and table[0]["tick_p50_s"] is None
+
+
+def test_levels_with_the_config_give_the_cross_check_and_the_servo_columns(sinusoid):
+    table = hapticloud.levels(sinusoid, config=SOURCE / "configs" / "sinusoid.yaml", servo_ticks=200)
+    k = 2 * math.pi / L
+    for r in table:
+        # Points against the level's bilinear surface, bounded from the analytic sinusoid: a
+        # node holds the front-most sample of its cell (disc splats), at most half a cell
+        # diagonal away, so off by at most the largest slope A k times h / sqrt(2); the
+        # bilinear interpolant adds at most A k^2 h^2 / 4 (curvature A k^2 along x and y,
+        # h^2 / 8 each); plus 3 sigma of the noise. The coarser levels are smoothed before
+        # decimation, which the doubled slope term covers.
+        h = r["cell_size_m"]
+        bound = 2 * A * k * h / math.sqrt(2) + A * k * k * h * h / 4 + 3 * NOISE
+        assert 0.5 * NOISE <= r["rms_m"] <= bound, (r["level"], r["rms_m"], bound)
+        assert r["p95_m"] <= r["max_m"]
+        assert r["points_checked"] > 0
+        assert 0.0 < r["supported_fraction"] <= 1.0
+        # Timing columns are measured (positive), never compared with fixed numbers.
+        assert r["tick_p50_s"] > 0 and r["tick_p99_s"] >= r["tick_p50_s"] and r["switch_s"] > 0
+    with pytest.raises(hapticloud.Error, match="servo_ticks"):
+        hapticloud.levels(sinusoid, servo_ticks=-1)
 
 
 def test_run_from_a_dict_writes_the_output_when_asked(tmp_path):
