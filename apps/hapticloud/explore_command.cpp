@@ -58,6 +58,10 @@ void add_explore_command(CLI::App& app) {
                   "(deg, R = Rx*Ry*Rz), stereo on|off, display colour|grey|texture|mu_d|error; each goes through the same path as the keys and the panel. "
                   "FRAME may be a time, '12.5s'. @FILE reads the steps from FILE (one per line or ';'-separated)");
   cmd->add_flag("--stereo", o->stereo, "Start in red/cyan anaglyph stereo");
+  cmd->add_option("--udp-timeout", o->udp_timeout_s,
+                  "--device udp: silence [s] after which the device faults (zero force until reset), (0, 10]")
+      ->capture_default_str()
+      ->check(finite_in(0.0, 10.0, true));
   cmd->add_flag("--show-regions", o->show_regions, "Start with the audio regions' outlines drawn (key A toggles them)");
   cmd->add_option("--display", o->display,
                   "Starting colours of the window and the navigation view: colour | grey | texture | mu_d | error. "

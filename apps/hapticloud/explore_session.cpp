@@ -111,7 +111,10 @@ void Session::start_device() {
     haptics::UdpDeviceOptions uo = haptics::parse_udp_address(o_.device.substr(4));
     uo.info = haptics::SimulatedDevice::default_info();
     uo.info.name = "udp " + o_.device.substr(4);
-    device_ = std::make_unique<haptics::UdpDevice>(clock_, uo);
+    uo.timeout_s = o_.udp_timeout_s;
+    auto u = std::make_unique<haptics::UdpDevice>(clock_, uo);
+    udp_ = u.get();
+    device_ = std::move(u);
   } else if (o_.device == "falcon") {
 #ifdef HC_HAVE_FALCON
     // The run config's falcon: section when there is one (firmware, which device, force cap).
@@ -146,6 +149,11 @@ void Session::start_servo() {
     recorder_->watch(shared_, cfg.rate_hz);  // commands, surface switches and session actions too
   }
   active_device().open();
+  if (udp_ != nullptr) {
+    const haptics::UdpDeviceOptions uo = haptics::parse_udp_address(o_.device.substr(4));
+    std::cout << "explore: waiting for poses on udp " << uo.host << ":" << udp_->bound_port() << " (watchdog "
+              << o_.udp_timeout_s << " s; docs/udp_bridge.md)\n";
+  }
   if (replay_ != nullptr) {
     // The recorded session actions, played when the servo reaches their tick (run()).
     for (const haptics::RecordedEvent& e : replay_->recording().events) {
@@ -311,6 +319,10 @@ void Session::run() {
   active_device().close();
   write_summary(stats);
   viewer_.reset();
+  if (udp_ != nullptr) {
+    std::cout << "explore: udp: " << udp_->poses_dropped() << " poses dropped (stale or malformed), " << udp_->sends_failed()
+              << " force datagrams not sent\n";
+  }
   if (recorder_) {
     if (!recorder_->error().empty()) throw InputError("explore: " + recorder_->error());
     std::cout << "explore: recorded " << recorder_->written() << " servo ticks to " << o_.record << "\n";

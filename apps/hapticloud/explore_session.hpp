@@ -18,6 +18,7 @@
 #include "hc/haptics/clock.hpp"
 #include "hc/haptics/recording.hpp"
 #include "hc/haptics/servo_loop.hpp"
+#include "hc/haptics/udp_device.hpp"
 #include "hc/haptics/shared_state.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/session/explore_scene.hpp"
@@ -54,6 +55,7 @@ struct ExploreOptions {
   int width = 1280, height = 800;
   bool stereo = false;
   bool show_regions = false;  ///< start with the audio-region overlay on (key A)
+  double udp_timeout_s = 0.1;  ///< --device udp: silence after which the device faults [s], (0, 10]
   std::string display = "colour";  ///< starting display: colour | grey | texture | mu_d | error
   bool hidden = false;
   bool no_audio = false;
@@ -129,6 +131,7 @@ class Session {
   haptics::HapticDevice& active_device() { return recorder_ ? *recorder_ : *device_; }
   viewer::MouseDevice* mouse_ = nullptr;
   haptics::TickReplayDevice* replay_ = nullptr;  ///< device_ with --device replay:FILE
+  haptics::UdpDevice* udp_ = nullptr;             ///< device_ with --device udp:HOST:PORT
   /// The replay's recorded session actions with their servo ticks, and the next one to run.
   std::vector<std::pair<std::uint64_t, ScriptStep>> replay_steps_;
   std::size_t next_replay_step_ = 0;

@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cctype>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iterator>
@@ -247,6 +248,26 @@ TEST(ExploreSession, ARecordingHoldsTheSessionsActionsAndAReplayRepeatsThem) {
   ASSERT_GT(xa.size(), 100u);
   ASSERT_GE(xb.size(), xa.size());
   for (std::size_t k = 0; k < xa.size(); ++k) ASSERT_EQ(xb[k], xa[k]) << "tick " << k;
+}
+
+// --device udp: the session says which port it listens on (0 = any free one) and, at the
+// end, the bridge's counters; the watchdog's time is an option, checked.
+TEST(ExploreSession, TheUdpBridgeNamesItsPortAndCounters) {
+  const fs::path dir = test::temp_dir("udp");
+  const fs::path config = fs::path(HC_SOURCE_DIR) / "configs" / "sinusoid.yaml";
+  Result r = run_app("explore " + config.string() + " --hidden --no-audio --frames 3 --device udp:127.0.0.1:0 "
+                     "--udp-timeout 0.25 --out " + (dir / "out").string());
+  ASSERT_EQ(r.status, 0) << r.output;
+  const std::size_t at = r.output.find("waiting for poses on udp 127.0.0.1:");
+  ASSERT_NE(at, std::string::npos) << r.output;
+  const int port = std::atoi(r.output.c_str() + at + std::string("waiting for poses on udp 127.0.0.1:").size());
+  EXPECT_GT(port, 0) << "the port the system chose, not 0";
+  EXPECT_NE(r.output.find("(watchdog 0.25 s"), std::string::npos) << r.output;
+  EXPECT_NE(r.output.find("udp: 0 poses dropped"), std::string::npos) << r.output;
+  r = run_app("explore " + config.string() + " --hidden --no-audio --frames 3 --device udp:127.0.0.1:0 "
+              "--udp-timeout 0 --out " + (dir / "out2").string());
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.output.find("--udp-timeout"), std::string::npos) << r.output;
 }
 
 TEST(ExploreSession, ScriptErrorsNameTheStep) {
