@@ -102,7 +102,32 @@ void Session::start_device() {
   } else if (o_.device == "sim") {
     // Made in start_servo() once the first window's heights are known (the path's heights need them).
   } else if (o_.device.rfind("replay:", 0) == 0) {
-    auto r = std::make_unique<haptics::TickReplayDevice>(clock_, o_.device.substr(7), haptics::SimulatedDevice::default_info());
+    haptics::Recording rec = haptics::read_recording_file(o_.device.substr(7));
+    // The recorded session actions, played when the servo reaches their tick (run()).
+    for (const haptics::RecordedEvent& e : rec.events) {
+      // The panel's servo settings made during the recording (arm, disarm and resets are the
+      // replaying session's own).
+      using haptics::CommandType;
+      const CommandType t = e.command.type;
+      if (e.kind == haptics::RecordedEvent::Kind::kCommand &&
+          (t == CommandType::kSetStiffness || t == CommandType::kSetDamping || t == CommandType::kSetMaxForce ||
+           t == CommandType::kSetRho || t == CommandType::kSetFrictionEnabled)) {
+        replay_commands_.emplace_back(e.tick, e.command);
+      }
+      if (e.kind != haptics::RecordedEvent::Kind::kSession) continue;
+      const std::string where = "explore: " + o_.device.substr(7) + ": @session at tick " + std::to_string(e.tick) + " '" +
+                                e.action + "'";
+      std::vector<ScriptStep> one;
+      try {
+        one = parse_script("1 " + e.action);
+      } catch (const ConfigError& err) {
+        throw InputError(where + " is not a session action (" + err.what() + ")");
+      }
+      if (one.size() != 1) throw InputError(where + ": expected one action (" + kSessionActions + ")");
+      replay_steps_.emplace_back(e.tick, std::move(one.front()));
+    }
+    replay_rate_hz_ = rec.servo_rate_hz;
+    auto r = std::make_unique<haptics::TickReplayDevice>(clock_, std::move(rec), haptics::SimulatedDevice::default_info());
     replay_ = r.get();
     device_ = std::move(r);
   } else if (o_.device.rfind("udp:", 0) == 0) {
@@ -155,24 +180,8 @@ void Session::start_servo() {
               << o_.udp_timeout_s << " s; docs/udp_bridge.md)\n";
   }
   if (replay_ != nullptr) {
-    // The recorded session actions, played when the servo reaches their tick (run()).
-    for (const haptics::RecordedEvent& e : replay_->recording().events) {
-      // The panel's servo settings made during the recording (arm, disarm and resets are the
-      // replaying session's own).
-      using haptics::CommandType;
-      const CommandType t = e.command.type;
-      if (e.kind == haptics::RecordedEvent::Kind::kCommand &&
-          (t == CommandType::kSetStiffness || t == CommandType::kSetDamping || t == CommandType::kSetMaxForce ||
-           t == CommandType::kSetRho || t == CommandType::kSetFrictionEnabled)) {
-        replay_commands_.emplace_back(e.tick, e.command);
-      }
-      if (e.kind != haptics::RecordedEvent::Kind::kSession) continue;
-      std::vector<ScriptStep> one = parse_script("1 " + e.action);
-      if (one.size() != 1) throw InputError("explore: --device " + o_.device + ": the session action '" + e.action + "' does not parse");
-      replay_steps_.emplace_back(e.tick, std::move(one.front()));
-    }
-    if (replay_->recording().servo_rate_hz > 0.0 && replay_->recording().servo_rate_hz != cfg.rate_hz) {
-      std::cout << "explore: the recording's servo ran at " << replay_->recording().servo_rate_hz << " Hz, this one at "
+    if (replay_rate_hz_ > 0.0 && replay_rate_hz_ != cfg.rate_hz) {
+      std::cout << "explore: the recording's servo ran at " << replay_rate_hz_ << " Hz, this one at "
                 << cfg.rate_hz << " Hz (forces follow the rate during ramps and blends)\n";
     }
   }
@@ -262,7 +271,19 @@ void Session::run() {
   // First window, then the device and the servo loop.
   lod_ = std::make_unique<session::LodController>(built_->pyramid, shared_, controller_options());
   centre_first_window();
+  if (!replay_steps_.empty() && replay_steps_.front().first == 0 && replay_steps_.front().second.action == "window") {
+    // A replay starts in the recording's first window (its tick-0 note), not a centred one.
+    const ScriptStep& st = replay_steps_.front().second;
+    const int level = static_cast<int>(script_number(st, 0));
+    if (level < 0 || level >= lod_->level_count()) {
+      throw InputError("explore: " + o_.device.substr(7) + ": the recording's first window is at level " + st.args[0] +
+                       ", this scene has levels 0.." + std::to_string(lod_->level_count() - 1) + " (another scene?)");
+    }
+    lod_->set_window(level, static_cast<int>(script_number(st, 1)), static_cast<int>(script_number(st, 2)));
+    ++next_replay_step_;
+  }
   start_servo();
+  note_window();  // the first window, so a replay on another scene or --window-cells is visible
   make_viewer();
   show_window();
   swap_.arm();  // retried by swap_.step() each frame while the command ring is full

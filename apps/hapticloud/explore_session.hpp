@@ -40,6 +40,9 @@
 
 namespace hc::app {
 
+/// The actions a recording's @session lines may hold (docs/recording.md).
+inline constexpr const char* kSessionActions = "window LEVEL COL0 ROW0, texture on|off, mu_s V, model NAME, rescan AX AY AZ";
+
 /// The options of `hapticloud explore` (see add_explore_command for each one's meaning).
 struct ExploreOptions {
   std::string input;
@@ -138,6 +141,7 @@ class Session {
   /// The replay's recorded servo settings (stiffness, damping, force cap, ρ, friction on/off).
   std::vector<std::pair<std::uint64_t, haptics::Command>> replay_commands_;
   std::size_t next_replay_command_ = 0;
+  double replay_rate_hz_ = 0.0;  ///< the recording's servo rate (0: not recorded)
   haptics::ServoConfig servo_config_;
   haptics::RealtimeReport realtime_;
   std::unique_ptr<haptics::ServoLoop> loop_;

@@ -355,7 +355,25 @@ DeviceInfo info_from(const std::filesystem::path& file, DeviceInfo info) {
 TickReplayDevice::TickReplayDevice(const Clock& clock, std::filesystem::path file, DeviceInfo info)
     : HapticDevice(info_from(file, std::move(info))), clock_(clock), file_(std::move(file)) {}
 
+namespace {
+DeviceInfo with_cap(DeviceInfo info, const Recording& r) {
+  if (r.max_force_n > 0.0) info.max_force_n = r.max_force_n;
+  return info;
+}
+}  // namespace
+
+TickReplayDevice::TickReplayDevice(const Clock& clock, Recording recording, DeviceInfo info)
+    : HapticDevice(with_cap(std::move(info), recording)), clock_(clock), given_(true) {
+  samples_ = std::move(recording.samples);
+  recording.samples.clear();
+  recording_ = std::move(recording);
+}
+
 void TickReplayDevice::do_open() {
+  if (given_) {
+    next_ = 0;
+    return;
+  }
   recording_ = read_recording_file(file_);
   samples_ = std::move(recording_.samples);
   recording_.samples.clear();

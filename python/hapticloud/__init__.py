@@ -5,7 +5,7 @@ row 0 at the smallest y, in the grid frame (metres, larger z nearer the viewer).
     import hapticloud
     scene = hapticloud.run("configs/sinusoid.yaml")           # or a dict, or load_scene(DIR/scene)
     z = scene.layers["depth"]                                  # float32 (rows, cols) view, NaN = no data
-    h, dzdx, dzdy = hapticloud.sample(scene, [0.0], [0.01])   # bilinear, grid frame [m]
+    h, dzdx, dzdy, normal = hapticloud.sample(scene, [0.0], [0.01])   # bilinear, grid frame [m]
     trace = hapticloud.touch(scene, path="raster", seconds=2)  # dict of per-tick numpy arrays
     table = hapticloud.levels(scene)                           # one dict per level of detail
 """
@@ -46,7 +46,7 @@ def levels(scene, config=None, servo_ticks=3000):
     scene: a Scene (its own lod options and layer options are used).
     config: None, or the run config the scene was made from (a path or a dict, as for run()):
         its points are read and each level is cross-checked against them.
-    servo_ticks: servo ticks timed per level (>= 10; 0 leaves the timing columns None).
+    servo_ticks: servo ticks timed per level (>= 10; 0 or None leaves the timing columns None).
     Returns a list of dicts, one per level from 0 (finest), SI units: level, rows, cols,
     cell_size_m [m], valid_cells, build_s [s] (smoothing + decimation + layers); with a config,
     rms_m, p95_m, max_m [m] (vertical distance of the points to the level's bilinear surface),
@@ -59,6 +59,7 @@ def levels(scene, config=None, servo_ticks=3000):
     """
     if isinstance(config, dict):
         origin = _os.path.join(_os.getcwd(), "<dict config>")
-        return _native._levels_text(scene, _json.dumps(config), origin, int(servo_ticks))
+        return _native._levels_text(scene, _json.dumps(config), origin, 0 if servo_ticks is None else int(servo_ticks))
+    servo_ticks = 0 if servo_ticks is None else int(servo_ticks)
     path = None if config is None else _os.fspath(config)
-    return _native._levels_file(scene, path, int(servo_ticks))
+    return _native._levels_file(scene, path, servo_ticks)

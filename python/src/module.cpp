@@ -18,6 +18,7 @@
 #include <pybind11/stl.h>
 #include <pybind11/stl/filesystem.h>
 
+#include <cmath>
 #include <filesystem>
 #include <memory>
 #include <optional>
@@ -151,7 +152,9 @@ PYBIND11_MODULE(_hapticloud, m) {
         if (x.size() != y.size()) throw py::value_error("sample: x and y differ in size");
         const hc::BilinearSurface surface(hc::HeightFieldView::of(s.layers.depth));
         py::array_t<double> z(x.size()), gx(x.size()), gy(x.size());
+        py::array_t<double> normal({static_cast<py::ssize_t>(x.size()), static_cast<py::ssize_t>(3)});
         auto zo = z.mutable_unchecked<1>(), gxo = gx.mutable_unchecked<1>(), gyo = gy.mutable_unchecked<1>();
+        auto no = normal.mutable_unchecked<2>();
         const double* xp = x.data();
         const double* yp = y.data();
         for (py::ssize_t i = 0; i < x.size(); ++i) {
@@ -159,13 +162,19 @@ PYBIND11_MODULE(_hapticloud, m) {
           zo(i) = r.z_m;
           gxo(i) = r.dz_dx;
           gyo(i) = r.dz_dy;
+          // The Monge surface's upward unit normal (-f_x, -f_y, 1) / |.|.
+          const double len = std::sqrt(r.dz_dx * r.dz_dx + r.dz_dy * r.dz_dy + 1.0);
+          no(i, 0) = -r.dz_dx / len;
+          no(i, 1) = -r.dz_dy / len;
+          no(i, 2) = 1.0 / len;
         }
-        return py::make_tuple(z, gx, gy);
+        return py::make_tuple(z, gx, gy, normal);
       },
       py::arg("scene"), py::arg("x"), py::arg("y"),
-      "Bilinear height and gradient of the depth layer at grid-frame points x, y [m] (array-likes of the same "
-      "size, read flattened): returns (z [m], dz/dx [-], dz/dy [-]) as 1-D float64 arrays; NaN where a cell corner has no data; "
-      "outside the grid the border value continues (zero slope across it).");
+      "Bilinear height, gradient and normal of the depth layer at grid-frame points x, y [m] (array-likes of the "
+      "same size n, read flattened): returns (z [m], dz/dx [-], dz/dy [-], normal) with z and the slopes 1-D float64 "
+      "arrays (n,) and normal (n, 3), the upward unit normal (-dz/dx, -dz/dy, 1)/|.| in the grid frame; NaN where a "
+      "cell corner has no data; outside the grid the border value continues (zero slope across it).");
 
   m.def(
       "touch",
@@ -214,8 +223,8 @@ PYBIND11_MODULE(_hapticloud, m) {
   // levels(): the speed-against-error table of `hapticloud levels`. `config` (a parsed run
   // config, or none) supplies the points of the cross-check; servo_ticks > 0 times the servo.
   const auto levels = [](const hc::Scene& s, const std::optional<hc::pipeline::RunConfig>& config, int servo_ticks) {
-    if (servo_ticks < 0) {
-      throw hc::ConfigError("levels: servo_ticks " + std::to_string(servo_ticks) + " (expected 0, none, or >= 10)");
+    if (servo_ticks < 0 || (servo_ticks > 0 && servo_ticks < 10)) {
+      throw hc::ConfigError("levels: servo_ticks " + std::to_string(servo_ticks) + " (expected 0: no timing, or >= 10)");
     }
     std::vector<hc::pipeline::LevelRow> rows;
     {

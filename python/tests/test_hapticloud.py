@@ -71,7 +71,7 @@ def test_sample_is_the_bilinear_interpolant_of_the_depth(sinusoid):
     v = rng.uniform(10, s.rows - 11, 200)
     x = s.x0_m + u * s.cell_size_m
     y = s.y0_m + v * s.cell_size_m
-    h, gx, gy = hapticloud.sample(s, x, y)
+    h, gx, gy, normal = hapticloud.sample(s, x, y)
     c, r = np.floor(u).astype(int), np.floor(v).astype(int)
     a, b = u - c, v - r
     expect = (1 - a) * (1 - b) * z[r, c] + a * (1 - b) * z[r, c + 1] + (1 - a) * b * z[r + 1, c] + a * b * z[r + 1, c + 1]
@@ -81,6 +81,13 @@ def test_sample_is_the_bilinear_interpolant_of_the_depth(sinusoid):
     np.testing.assert_allclose(h[ok], expect[ok], atol=1e-9)
     np.testing.assert_allclose(gx[ok], expect_gx[ok], atol=1e-6)
     assert h.shape == gy.shape == (200,)
+    # The normal is perpendicular to both tangents (1, 0, dz/dx) and (0, 1, dz/dy), unit, upward.
+    assert normal.shape == (200, 3)
+    n_ok = normal[ok]
+    np.testing.assert_allclose(np.linalg.norm(n_ok, axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(n_ok[:, 0] + n_ok[:, 2] * gx[ok], 0.0, atol=1e-12)
+    np.testing.assert_allclose(n_ok[:, 1] + n_ok[:, 2] * gy[ok], 0.0, atol=1e-12)
+    assert np.all(n_ok[:, 2] > 0)
 
 
 def test_touch_returns_the_trace_of_a_session_that_touched_the_surface(sinusoid):
@@ -126,8 +133,9 @@ def test_levels_with_the_config_give_the_cross_check_and_the_servo_columns(sinus
         assert 0.0 < r["supported_fraction"] <= 1.0
         # Timing columns are measured (positive), never compared with fixed numbers.
         assert r["tick_p50_s"] > 0 and r["tick_p99_s"] >= r["tick_p50_s"] and r["switch_s"] > 0
-    with pytest.raises(hapticloud.Error, match="servo_ticks"):
-        hapticloud.levels(sinusoid, servo_ticks=-1)
+    for bad in (-1, 5):
+        with pytest.raises(hapticloud.Error, match="servo_ticks"):
+            hapticloud.levels(sinusoid, servo_ticks=bad)
 
 
 def test_run_from_a_dict_writes_the_output_when_asked(tmp_path):

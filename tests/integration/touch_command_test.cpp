@@ -251,9 +251,11 @@ std::vector<std::array<double, 9>> read_recording_rows(const fs::path& file, std
 TEST(TouchCommand, AReplayOfARecordedSessionRendersTheSameForces) {
   const fs::path dir = hc::test::temp_dir("record_replay");
   std::string log;
-  const std::string common = "touch --synthetic sinusoid --cells 200 --path raster --seconds 3 ";
-  ASSERT_EQ(run_app(common + "--out " + (dir / "a").string() + " --record " + (dir / "a.csv").string(), &log), 0) << log;
-  ASSERT_EQ(run_app(common + "--out " + (dir / "b").string() + " --device replay:" + (dir / "a.csv").string() +
+  const std::string common = "touch --synthetic sinusoid --cells 200 --seconds 3 ";
+  ASSERT_EQ(run_app(common + "--path raster --out " + (dir / "a").string() + " --record " + (dir / "a.csv").string(), &log),
+            0) << log;
+  // The replay is told another path: only the recording can give it the raster's positions.
+  ASSERT_EQ(run_app(common + "--path circle --out " + (dir / "b").string() + " --device replay:" + (dir / "a.csv").string() +
                         " --record " + (dir / "b.csv").string(), &log), 0) << log;
   const auto a = read_recording_rows(dir / "a.csv");
   const auto b = read_recording_rows(dir / "b.csv");

@@ -1010,6 +1010,7 @@ void Viewer::draw_gui() {
   ImGui_ImplOpenGL3_NewFrame();
   ImGui_ImplGlfw_NewFrame();
   ImGui::NewFrame();
+  panel_overflow_px_ = 0.0;
   if (show_panel_) {
     ImGui::SetNextWindowPos(ImVec2(4, 4), ImGuiCond_FirstUseEver);
     ImGui::SetNextWindowSize(ImVec2(kPanelWidthPx - 8, 0), ImGuiCond_FirstUseEver);
@@ -1203,7 +1204,8 @@ void Viewer::draw_gui() {
     }
     // How far the widest row reached past the inner right edge (0 when everything fits).
     const ImGuiWindow* win = ImGui::GetCurrentWindow();
-    panel_overflow_px_ = std::max(0.0, static_cast<double>(win->DC.CursorMaxPos.x - (win->Pos.x + win->Size.x - ImGui::GetStyle().WindowPadding.x)));
+    panel_overflow_px_ = std::max(0.0, static_cast<double>(win->DC.CursorMaxPos.x - (win->Pos.x + win->Size.x - win->ScrollbarSizes.x -
+                                                                                 ImGui::GetStyle().WindowPadding.x)));
     ImGui::PopItemWidth();
     ImGui::End();
   }

@@ -200,12 +200,13 @@ TEST(ExploreSession, ARecordingHoldsTheSessionsActionsAndAReplayRepeatsThem) {
                      " --summary " + (dir / "a.json").string() + " --script '3 finer; 6 pan 0.25 0; 9 texture off; 12 mu_s 0.5; 14 stiffness 512.5'");
   ASSERT_EQ(r.status, 0) << r.output;
   const std::vector<std::string> sa = lines_starting(dir / "a.csv", "@session,");
-  ASSERT_EQ(sa.size(), 4u) << r.output;
-  EXPECT_EQ(action_of(sa[0]).rfind("window 0 ", 0), 0u) << sa[0];  // finer: level 1 → 0
-  EXPECT_EQ(action_of(sa[1]).rfind("window 0 ", 0), 0u) << sa[1];
-  EXPECT_NE(action_of(sa[0]), action_of(sa[1])) << "the pan moved the window";
-  EXPECT_EQ(action_of(sa[2]), "texture off");
-  EXPECT_EQ(action_of(sa[3]), "mu_s 0.5");
+  ASSERT_EQ(sa.size(), 5u) << r.output;
+  EXPECT_EQ(sa[0].rfind("@session,0,window 1 ", 0), 0u) << sa[0];  // the first window, level 1 of 0..1
+  EXPECT_EQ(action_of(sa[1]).rfind("window 0 ", 0), 0u) << sa[1];  // finer: level 1 → 0
+  EXPECT_EQ(action_of(sa[2]).rfind("window 0 ", 0), 0u) << sa[2];
+  EXPECT_NE(action_of(sa[1]), action_of(sa[2])) << "the pan moved the window";
+  EXPECT_EQ(action_of(sa[3]), "texture off");
+  EXPECT_EQ(action_of(sa[4]), "mu_s 0.5");
   EXPECT_FALSE(lines_starting(dir / "a.csv", "@surface,").empty());
   EXPECT_FALSE(lines_starting(dir / "a.csv", "@command,").empty());
   EXPECT_NE(lines_starting(dir / "a.csv", "# device:").at(0).find("servo_rate_hz: 1000"), std::string::npos);
@@ -216,6 +217,17 @@ TEST(ExploreSession, ARecordingHoldsTheSessionsActionsAndAReplayRepeatsThem) {
   const std::vector<std::string> sb = lines_starting(dir / "b.csv", "@session,");
   ASSERT_EQ(sb.size(), sa.size()) << r.output;
   for (std::size_t i = 0; i < sa.size(); ++i) EXPECT_EQ(action_of(sb[i]), action_of(sa[i]));
+  EXPECT_EQ(sb[0], sa[0]) << "the replay starts in the recorded first window, at tick 0";
+  // A recording whose action is not one: an error naming the file, the tick and the action.
+  {
+    std::ifstream in(dir / "a.csv");
+    std::ofstream bad(dir / "bad.csv");
+    for (std::string l; std::getline(in, l);) bad << l << "\n";
+    bad << "@session,5,teleport 1 2\n";
+  }
+  r = run_app(common + "--device replay:" + (dir / "bad.csv").string() + " --out " + (dir / "c").string());
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.output.find("bad.csv: @session at tick 5 'teleport 1 2'"), std::string::npos) << r.output;
   // The panel's servo setting is re-sent: the replay's servo applied it too.
   const auto stiffness = [](const fs::path& f) {
     std::vector<std::string> out;

@@ -24,7 +24,8 @@
 /// (`@command`) or rejected (`@rejected`) at the start of servo tick <tick> with its name
 /// (to_string(CommandType)) and five arguments; a surface adopted at tick <tick> with its
 /// publish tag (`@surface`); a session action (`@session`: `explore --script` syntax without
-/// the frame, e.g. "level 2", "pan 0.25 0") issued while the servo was about to run tick <tick>.
+/// the frame, e.g. "window 0 49 49", "texture off") issued while the servo was about to run
+/// tick <tick>.
 /// Version 1 files (no servo rate, no events) still read.
 ///
 /// Exactness: the servo loop's tick interval comes from its clock (force ramp, damping, switch
@@ -112,8 +113,9 @@ class RecordingDevice final : public HapticDevice {
   /// in the header. A servo log that overflowed makes the recording not kept, like lost ticks.
   void watch(SharedState& shared, double servo_rate_hz);
   /// A session action (`explore --script` syntax without the frame, one line), recorded with the
-  /// servo tick about to run (SharedState::counters.ticks). Any non-real-time thread; ignored
-  /// before watch() or when not open.
+  /// servo tick about to run (SharedState::counters.ticks). Call it from the thread that opens
+  /// and closes this device (explore: the UI thread), between open() and close(); ignored before
+  /// watch() or when not open.
   void note(const std::string& action);
 
  protected:
@@ -165,6 +167,9 @@ std::vector<RecordedSample> read_recording(const std::filesystem::path& file);
 class TickReplayDevice final : public HapticDevice {
  public:
   TickReplayDevice(const Clock& clock, std::filesystem::path file, DeviceInfo info);
+  /// The same from a recording already read (read_recording_file); open() then reads nothing.
+  /// max_force_n from the recording when it states one.
+  TickReplayDevice(const Clock& clock, Recording recording, DeviceInfo info);
   std::size_t sample_count() const noexcept { return samples_.size(); }
   /// After open(): the recording's header values and events (its samples are held apart:
   /// `recording().samples` is empty).
@@ -181,6 +186,7 @@ class TickReplayDevice final : public HapticDevice {
   const Clock& clock_;
   std::filesystem::path file_;
   Recording recording_;
+  bool given_ = false;  // constructed from a Recording: recording_ holds it, samples_ too
   std::vector<RecordedSample> samples_;
   std::size_t next_ = 0;
   std::int64_t start_ns_ = 0;
