@@ -11,6 +11,8 @@
 #include "commands.hpp"
 #include "explore_session.hpp"
 
+#include "hc/common/error.hpp"
+
 #ifdef HC_HAVE_VIEWER
 #include "hc/viewer/viewer.hpp"
 #endif
@@ -58,7 +60,7 @@ void add_explore_command(CLI::App& app) {
                   "(deg, R = Rx*Ry*Rz), stereo on|off, display colour|grey|texture|mu_d|error; each goes through the same path as the keys and the panel. "
                   "FRAME may be a time, '12.5s'. @FILE reads the steps from FILE (one per line or ';'-separated)");
   cmd->add_flag("--stereo", o->stereo, "Start in red/cyan anaglyph stereo");
-  cmd->add_option("--udp-timeout", o->udp_timeout_s,
+  CLI::Option* udp_timeout = cmd->add_option("--udp-timeout", o->udp_timeout_s,
                   "--device udp: silence [s] after which the device faults (zero force until reset), (0, 10]")
       ->capture_default_str()
       ->check(finite_in(0.0, 10.0, true));
@@ -76,7 +78,12 @@ void add_explore_command(CLI::App& app) {
   for (const std::string& line : viewer::controls_help()) controls += "  " + line + "\n";
   cmd->footer(controls);
 #endif
-  cmd->callback([o] { run_explore(*o); });
+  cmd->callback([o, udp_timeout] {
+    if (udp_timeout->count() > 0 && o->device.rfind("udp:", 0) != 0) {
+      throw ConfigError("explore: --udp-timeout applies to --device udp:HOST:PORT only (the device is '" + o->device + "')");
+    }
+    run_explore(*o);
+  });
 }
 
 }  // namespace hc::app

@@ -280,6 +280,10 @@ TEST(ExploreSession, TheUdpBridgeNamesItsPortAndCounters) {
               "--udp-timeout 0 --out " + (dir / "out2").string());
   EXPECT_NE(r.status, 0);
   EXPECT_NE(r.output.find("--udp-timeout"), std::string::npos) << r.output;
+  r = run_app("explore " + config.string() + " --hidden --no-audio --frames 3 --device sim --udp-timeout 0.5 --out " +
+              (dir / "out3").string());
+  EXPECT_NE(r.status, 0);
+  EXPECT_NE(r.output.find("--udp-timeout applies to --device udp"), std::string::npos) << r.output;
 }
 
 TEST(ExploreSession, ScriptErrorsNameTheStep) {
