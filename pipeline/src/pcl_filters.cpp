@@ -21,6 +21,8 @@
 #include <pcl/point_types.h>
 #include <pcl/search/kdtree.h>
 #include <pcl/segmentation/extract_clusters.h>
+// Instantiated here, not taken from libpcl_segmentation (not linked: pipeline/CMakeLists.txt).
+#include <pcl/segmentation/impl/extract_clusters.hpp>
 #include <pcl/surface/mls.h>
 
 #include <algorithm>
