@@ -73,12 +73,42 @@ std::vector<ScriptStep> parse_script(const std::string& text) {
   return steps;
 }
 
+namespace {
+std::string when_of(const ScriptStep& st) {
+  return st.at_s >= 0.0 ? "time " + std::to_string(st.at_s) + " s" : "frame " + std::to_string(st.frame);
+}
+}  // namespace
+
 double script_number(const ScriptStep& st, std::size_t i) {
+  double v = 0.0;
+  std::size_t used = 0;
   try {
-    return std::stod(st.args[i]);
+    v = std::stod(st.args[i], &used);
   } catch (const std::exception&) {
-    const std::string when = st.at_s >= 0.0 ? "time " + std::to_string(st.at_s) + " s" : "frame " + std::to_string(st.frame);
-    throw ConfigError("explore: --script step at " + when + ": '" + st.args[i] + "' is not a number");
+    used = 0;
+  }
+  if (used != st.args[i].size() || !std::isfinite(v)) {
+    throw ConfigError("explore: --script step at " + when_of(st) + ": '" + st.args[i] + "' is not a finite number");
+  }
+  return v;
+}
+
+int script_int(const ScriptStep& st, std::size_t i) {
+  const double v = script_number(st, i);
+  if (v != std::floor(v) || v < -1e9 || v > 1e9) {
+    throw ConfigError("explore: --script step at " + when_of(st) + ": '" + st.args[i] + "' is not an integer");
+  }
+  return static_cast<int>(v);
+}
+
+void check_script_numbers(const ScriptStep& st) {
+  const std::string& a = st.action;
+  if (a == "level") (void)script_int(st, 0);
+  if (a == "window") {
+    for (std::size_t i = 0; i < 3; ++i) (void)script_int(st, i);
+  }
+  if (a == "pan" || a == "centre" || a == "rescan" || a == "mu_s" || a == "stiffness") {
+    for (std::size_t i = 0; i < st.args.size(); ++i) (void)script_number(st, i);
   }
 }
 

@@ -34,7 +34,13 @@ std::vector<ScriptStep> parse_script(const std::string& text);
 /// @throws hc::InputError naming the file when it cannot be read.
 std::string script_text(const std::string& arg);
 
-/// Argument i of `st` as a number. @throws hc::ConfigError naming the frame and the text.
+/// Argument i of `st` as a finite number (the whole text: "2x", "nan", "inf" are refused).
+/// @throws hc::ConfigError naming the frame and the text.
 double script_number(const ScriptStep& st, std::size_t i);
+/// Argument i of `st` as an integer in [−1e9, 1e9]. @throws hc::ConfigError as script_number.
+int script_int(const ScriptStep& st, std::size_t i);
+/// Checks every number of the step as its action reads it (script_number / script_int), so a
+/// bad step is refused before the session starts. @throws hc::ConfigError as script_number.
+void check_script_numbers(const ScriptStep& st);
 
 }  // namespace hc::app

@@ -46,6 +46,7 @@ std::vector<ScriptStep> Session::check_options() {
   }
   if (!o_.screenshot.empty() && o_.frames == 0 && o_.seconds == 0.0) o_.frames = 1;
   std::vector<ScriptStep> script = parse_script(script_text(o_.script));
+  for (const ScriptStep& st : script) check_script_numbers(st);
   const bool replay = o_.device.rfind("replay:", 0) == 0 && o_.device.size() > 7;
   const bool udp = o_.device.rfind("udp:", 0) == 0;
   if (udp) (void)haptics::parse_udp_address(o_.device.substr(4));
@@ -120,12 +121,17 @@ void Session::start_device() {
       std::vector<ScriptStep> one;
       try {
         one = parse_script("1 " + e.action);
+        if (one.size() == 1) check_script_numbers(one.front());
       } catch (const ConfigError& err) {
         throw InputError(where + " is not a session action (" + err.what() + ")");
       }
       if (one.size() != 1) throw InputError(where + ": expected one action (" + kSessionActions + ")");
       replay_steps_.emplace_back(e.tick, std::move(one.front()));
     }
+    // In tick order (the file lists them in the order they were drained, nearly sorted).
+    const auto by_tick = [](const auto& a, const auto& b) { return a.first < b.first; };
+    std::stable_sort(replay_steps_.begin(), replay_steps_.end(), by_tick);
+    std::stable_sort(replay_commands_.begin(), replay_commands_.end(), by_tick);
     replay_rate_hz_ = rec.servo_rate_hz;
     auto r = std::make_unique<haptics::TickReplayDevice>(clock_, std::move(rec), haptics::SimulatedDevice::default_info());
     replay_ = r.get();
@@ -191,6 +197,9 @@ void Session::start_servo() {
   cfg.proxy.rho = o_.rho;
   cfg.proxy.max_force_n = std::min(cfg.proxy.max_force_n, device_->info().max_force_n);
   loop_ = std::make_unique<haptics::ServoLoop>(active_device(), shared_, clock_, cfg);
+  // The first window, at tick 0 (before the servo runs), so a replay starts there and a replay
+  // on another scene or --window-cells shows.
+  note_window();
   realtime_ = loop_->start();
   std::cout << "explore: device " << device_->info().name << "; servo " << cfg.rate_hz << " Hz, SCHED_FIFO "
             << (realtime_.fifo_granted ? "granted" : "not granted") << "\n";
@@ -209,10 +218,20 @@ void Session::make_viewer() {
     // The run config's audio: section (regions, materials); a scene folder gets the sliding
     // sound only.
     const audio::AudioConfig ac = config_ && config_->audio ? *config_->audio : audio::AudioConfig{};
-    std::shared_ptr<const audio::AudioScene> scene = audio::build_audio_scene(ac, {&grid, texture});
+    std::shared_ptr<const audio::AudioScene> scene;
+    if (o_.no_audio) {
+      // Only the regions of the overlay are wanted: a clip that cannot be read is no error here.
+      try {
+        scene = audio::build_audio_scene(ac, {&grid, texture});
+      } catch (const std::exception& e) {
+        std::cout << "explore: no audio-region overlay (" << e.what() << ")\n";
+      }
+    } else {
+      scene = audio::build_audio_scene(ac, {&grid, texture});
+    }
     // The regions for the viewer's overlay (key A), on the grid they were rasterised on.
-    if (has_regions) {
-      region_layer_ = scene->regions.to_layer(grid);
+    if (has_regions && scene) {
+      region_layer_ = std::make_shared<const HeightField>(scene->regions.to_layer(grid));
       for (const audio::RegionConfig& r : ac.regions) region_names_.push_back(r.name);
     }
     if (!o_.no_audio) {
@@ -274,16 +293,15 @@ void Session::run() {
   if (!replay_steps_.empty() && replay_steps_.front().first == 0 && replay_steps_.front().second.action == "window") {
     // A replay starts in the recording's first window (its tick-0 note), not a centred one.
     const ScriptStep& st = replay_steps_.front().second;
-    const int level = static_cast<int>(script_number(st, 0));
+    const int level = script_int(st, 0);
     if (level < 0 || level >= lod_->level_count()) {
       throw InputError("explore: " + o_.device.substr(7) + ": the recording's first window is at level " + st.args[0] +
                        ", this scene has levels 0.." + std::to_string(lod_->level_count() - 1) + " (another scene?)");
     }
-    lod_->set_window(level, static_cast<int>(script_number(st, 1)), static_cast<int>(script_number(st, 2)));
+    lod_->set_window(level, script_int(st, 1), script_int(st, 2));
     ++next_replay_step_;
   }
   start_servo();
-  note_window();  // the first window, so a replay on another scene or --window-cells is visible
   make_viewer();
   show_window();
   swap_.arm();  // retried by swap_.step() each frame while the command ring is full

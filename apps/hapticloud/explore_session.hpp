@@ -118,7 +118,7 @@ class Session {
   ExploreOptions o_;
   std::optional<pipeline::RunConfig> config_;
   std::vector<float> cloud_;
-  HeightField region_layer_;              ///< audio region per level-0 sample (overlay), or empty
+  std::shared_ptr<const HeightField> region_layer_;  ///< audio region per level-0 sample (overlay), or null
   std::vector<std::string> region_names_; ///< by region index
   pipeline::SurfaceLayerOptions layer_options_;
   pipeline::LodOptions lod_options_;

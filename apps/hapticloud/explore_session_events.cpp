@@ -223,7 +223,7 @@ void Session::run_step(const ScriptStep& st) {
   const std::string& a = st.action;
   if (a == "finer") viewer_->issue({RegionCommandType::kFiner});
   if (a == "coarser") viewer_->issue({RegionCommandType::kCoarser});
-  if (a == "level") viewer_->issue({RegionCommandType::kSetLevel, static_cast<int>(script_number(st, 0))});
+  if (a == "level") viewer_->issue({RegionCommandType::kSetLevel, script_int(st, 0)});
   if (a == "pan") viewer_->issue({RegionCommandType::kPan, 0, script_number(st, 0), script_number(st, 1)});
   if (a == "centre") {
     viewer::RegionCommand c{RegionCommandType::kCentreAt};
@@ -243,12 +243,12 @@ void Session::run_step(const ScriptStep& st) {
   }
   if (a == "window") {
     if (!lod_ || swap_.busy()) return;
-    const int level = static_cast<int>(script_number(st, 0));
+    const int level = script_int(st, 0);
     if (level < 0 || level >= lod_->level_count()) {
       throw ConfigError("explore: step window: level " + st.args[0] + " is out of range (expected 0.." +
                         std::to_string(lod_->level_count() - 1) + ")");
     }
-    lod_->set_window(level, static_cast<int>(script_number(st, 1)), static_cast<int>(script_number(st, 2)));
+    lod_->set_window(level, script_int(st, 1), script_int(st, 2));
     note_window();
     show_window();
   }

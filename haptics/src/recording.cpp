@@ -45,6 +45,7 @@ void RecordingDevice::watch(SharedState& shared, double servo_rate_hz) {
   if (!(servo_rate_hz > 0.0) || !std::isfinite(servo_rate_hz)) {
     throw ConfigError("record: servo rate " + std::to_string(servo_rate_hz) + " Hz (expected > 0)");
   }
+  if (writer_.joinable()) throw ConfigError("record: watch() after open(); call it before the recording starts");
   shared.enable_servo_log();
   shared_ = &shared;
   servo_rate_hz_ = servo_rate_hz;
@@ -84,6 +85,7 @@ void RecordingDevice::do_open() {
     error_.clear();
     keep_ = false;
     write_failed_ = false;
+    log_dropped_at_open_ = shared_ != nullptr ? shared_->servo_log_dropped() : 0;
     writer_ = std::thread([this] { writer_loop(); });
   } catch (...) {
     std::filesystem::remove(tmp_, ec);
@@ -207,8 +209,8 @@ void RecordingDevice::do_close() noexcept {
     error_ = "record: writing " + tmp_.string() + " failed (disk full?); no recording kept";
   } else if (dropped_.load() > 0) {
     error_ = "record: " + std::to_string(dropped_.load()) + " ticks were lost (the writer fell behind); no recording kept";
-  } else if (shared_ != nullptr && shared_->servo_log_dropped() > 0) {
-    error_ = "record: " + std::to_string(shared_->servo_log_dropped()) +
+  } else if (shared_ != nullptr && shared_->servo_log_dropped() > log_dropped_at_open_) {
+    error_ = "record: " + std::to_string(shared_->servo_log_dropped() - log_dropped_at_open_) +
              " servo events (commands, surface switches) were lost (the writer fell behind); no recording kept";
   } else if (!link_into_place(tmp_, file_)) {
     if (errno == EEXIST) {
@@ -364,6 +366,7 @@ DeviceInfo with_cap(DeviceInfo info, const Recording& r) {
 
 TickReplayDevice::TickReplayDevice(const Clock& clock, Recording recording, DeviceInfo info)
     : HapticDevice(with_cap(std::move(info), recording)), clock_(clock), given_(true) {
+  if (recording.samples.empty()) throw InputError("replay: the recording holds no samples");
   samples_ = std::move(recording.samples);
   recording.samples.clear();
   recording_ = std::move(recording);

@@ -59,7 +59,16 @@ def levels(scene, config=None, servo_ticks=3000):
     """
     if isinstance(config, dict):
         origin = _os.path.join(_os.getcwd(), "<dict config>")
-        return _native._levels_text(scene, _json.dumps(config), origin, 0 if servo_ticks is None else int(servo_ticks))
-    servo_ticks = 0 if servo_ticks is None else int(servo_ticks)
+        return _native._levels_text(scene, _json.dumps(config), origin, _ticks(servo_ticks))
+    servo_ticks = _ticks(servo_ticks)
     path = None if config is None else _os.fspath(config)
     return _native._levels_file(scene, path, servo_ticks)
+
+
+def _ticks(servo_ticks):
+    """servo_ticks as an int: None -> 0; anything not an integer in [0, 10**9] -> hapticloud.Error."""
+    if servo_ticks is None:
+        return 0
+    if isinstance(servo_ticks, bool) or not isinstance(servo_ticks, int) or not 0 <= servo_ticks <= 10**9:
+        raise Error(f"levels: servo_ticks {servo_ticks!r} (expected an integer: 0 or None for no timing, or 10..1e9)")
+    return servo_ticks

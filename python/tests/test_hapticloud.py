@@ -133,7 +133,7 @@ def test_levels_with_the_config_give_the_cross_check_and_the_servo_columns(sinus
         assert 0.0 < r["supported_fraction"] <= 1.0
         # Timing columns are measured (positive), never compared with fixed numbers.
         assert r["tick_p50_s"] > 0 and r["tick_p99_s"] >= r["tick_p50_s"] and r["switch_s"] > 0
-    for bad in (-1, 5):
+    for bad in (-1, 5, 9.9, "100"):
         with pytest.raises(hapticloud.Error, match="servo_ticks"):
             hapticloud.levels(sinusoid, servo_ticks=bad)
 

@@ -246,6 +246,31 @@ TEST(PclFilters, EuclideanClusterExtractionKeepsThePclsLargestClusters) {
       for (const auto i : clusters[static_cast<std::size_t>(c)].indices) expected.push_back((*p)[static_cast<std::size_t>(i)]);
     }
     EXPECT_EQ(sorted(triples(r.value)), sorted(triples(expected))) << "keep " << keep << ", max " << max_size;
+    // The stage's class is instantiated inside hapticloud (libpcl_segmentation is not linked),
+    // so the call above may run the same code: the kept count also comes from single-linkage
+    // components found here by brute force (union-find over every pair within the tolerance).
+    const std::size_t np = p->size();
+    std::vector<std::size_t> parent(np);
+    for (std::size_t i = 0; i < np; ++i) parent[i] = i;
+    const auto root = [&](std::size_t i) {
+      while (parent[i] != i) i = parent[i] = parent[parent[i]];
+      return i;
+    };
+    for (std::size_t i = 0; i < np; ++i) {
+      for (std::size_t j = i + 1; j < np; ++j) {
+        const float dx = (*p)[i].x - (*p)[j].x, dy = (*p)[i].y - (*p)[j].y, dz = (*p)[i].z - (*p)[j].z;
+        if (dx * dx + dy * dy + dz * dz <= 0.004F * 0.004F) parent[root(i)] = root(j);
+      }
+    }
+    std::vector<std::size_t> size_of(np, 0);
+    for (std::size_t i = 0; i < np; ++i) ++size_of[root(i)];
+    std::vector<std::size_t> sizes;
+    for (std::size_t i = 0; i < np; ++i)
+      if (parent[i] == i && size_of[i] >= 10 && size_of[i] <= static_cast<std::size_t>(max_size)) sizes.push_back(size_of[i]);
+    std::sort(sizes.rbegin(), sizes.rend());
+    std::size_t brute = 0;
+    for (int c = 0; c < keep && c < static_cast<int>(sizes.size()); ++c) brute += sizes[static_cast<std::size_t>(c)];
+    EXPECT_EQ(r.value.size(), brute) << "keep " << keep << ", max " << max_size;
     expect_points_keep_their_attributes(in, r.value);
   }
 }

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <numbers>
 #include <string>
 #include <vector>
@@ -113,7 +114,7 @@ TEST_F(OverlayTest, RegionOutlinesAreDrawnWhereTheRegionsAreOnlyWhenShown) {
   HeightField ids(f.geometry());
   for (float& v : ids.values()) v = std::numeric_limits<float>::quiet_NaN();
   paint(ids, 30, 70, 20, 60, 0.0F);
-  scene->region_id = ids;
+  scene->region_id = std::make_shared<const HeightField>(ids);
   scene->region_names = {"pillar"};
   Viewer v(shared_, test::test_options());
   v.set_scene(scene);
@@ -192,7 +193,7 @@ TEST_F(OverlayTest, ThePanelFitsEveryLabelAtTheDefaultAndTheTestSizes) {
   for (float& v : ids.values()) v = std::numeric_limits<float>::quiet_NaN();
   paint(ids, 10, 30, 10, 30, 0.0F);
   paint(ids, 30, 50, 30, 50, 1.0F);
-  scene->region_id = ids;
+  scene->region_id = std::make_shared<const HeightField>(ids);
   scene->region_names = {"main pillar", "north frieze", "lintel"};
   for (const auto& [w, h] : {std::pair{1280, 800}, std::pair{1100, 700}}) {
     viewer::ViewerOptions o = test::test_options();

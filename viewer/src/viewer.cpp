@@ -514,16 +514,26 @@ void Viewer::rebuild_scene_meshes() {
   MeshData o = height_field_mesh(ov, kMaxOverviewSide, &oc);
   gpu_->overview_mesh.upload(o.vertices, o.indices, GL_TRIANGLES, false, o.colours);
   gpu_->overview_extent = extent_of(ov);
-  // Audio-region outlines: the window's share (its cells reach half a cell past the nodes).
-  const std::vector<RegionSegment> outline = region_outline_segments(scene_->region_id);
+  // Audio-region outlines (computed once per raster): the window's share (its cells reach half
+  // a cell past the nodes), and the whole outline for the navigation view.
+  if (scene_->region_id != outline_source_) {
+    outline_source_ = scene_->region_id;
+    outline_ = outline_source_ ? region_outline_segments(*outline_source_) : std::vector<RegionSegment>{};
+    outline_uploaded_ = false;
+  }
+  const std::vector<RegionSegment>& outline = outline_;
   Extent clip = gpu_->window_extent;
   const double half = 0.5 * scene_->window.geometry().cell_size_m;
   clip.x_min -= half, clip.x_max += half, clip.y_min -= half, clip.y_max += half;
   upload_region_lines(gpu_->regions_main, outline, clip, gpu_->window_extent.z_max);
-  Extent all;
-  all.x_min = all.y_min = -1e300;
-  all.x_max = all.y_max = 1e300;
-  upload_region_lines(gpu_->regions_navigation, outline, all, gpu_->overview_extent.z_max);
+  if (!outline_uploaded_ || gpu_->overview_extent.z_max != outline_z_m_) {
+    Extent all;
+    all.x_min = all.y_min = -1e300;
+    all.x_max = all.y_max = 1e300;
+    upload_region_lines(gpu_->regions_navigation, outline, all, gpu_->overview_extent.z_max);
+    outline_uploaded_ = true;
+    outline_z_m_ = gpu_->overview_extent.z_max;
+  }
 }
 
 double Viewer::proxy_ball_radius_px(int view_height_px) { return std::max(5.0, 0.0125 * view_height_px); }
@@ -1148,7 +1158,7 @@ void Viewer::draw_gui() {
     }
     if (ImGui::CollapsingHeader("View and sound", ImGuiTreeNodeFlags_DefaultOpen)) {
       ImGui::Checkbox("anaglyph stereo (S)", &stereo_);
-      ImGui::BeginDisabled(!scene_ || scene_->region_id.rows() == 0);
+      ImGui::BeginDisabled(!scene_ || !scene_->region_id || scene_->region_id->rows() == 0);
       ImGui::Checkbox("audio regions (A)", &show_regions_);
       ImGui::EndDisabled();
       if (show_regions_ && scene_ && !scene_->region_names.empty()) {

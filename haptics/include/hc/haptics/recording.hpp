@@ -110,7 +110,10 @@ class RecordingDevice final : public HapticDevice {
   void keep_on_close() noexcept { keep_ = true; }
   /// Before open(): also record what the servo loop driving this device applies and adopts
   /// (SharedState::enable_servo_log; `shared` must outlive this object) and its rate [Hz, > 0]
-  /// in the header. A servo log that overflowed makes the recording not kept, like lost ticks.
+  /// in the header. A servo log that overflowed while this device was open makes the recording
+  /// not kept, like lost ticks.
+  /// @throws hc::ConfigError for a rate not > 0 or not finite, or when the device is open
+  ///         already (the writer thread reads what watch() sets).
   void watch(SharedState& shared, double servo_rate_hz);
   /// A session action (`explore --script` syntax without the frame, one line), recorded with the
   /// servo tick about to run (SharedState::counters.ticks). Call it from the thread that opens
@@ -147,6 +150,7 @@ class RecordingDevice final : public HapticDevice {
   bool write_failed_ = false;  // writer thread only, read after join
   SharedState* shared_ = nullptr;
   double servo_rate_hz_ = 0.0;
+  std::uint64_t log_dropped_at_open_ = 0;  // the servo log's drop count when this recording opened
   std::mutex notes_mutex_;
   std::vector<std::pair<std::uint64_t, std::string>> notes_;  // guarded by notes_mutex_
 };
@@ -169,6 +173,7 @@ class TickReplayDevice final : public HapticDevice {
   TickReplayDevice(const Clock& clock, std::filesystem::path file, DeviceInfo info);
   /// The same from a recording already read (read_recording_file); open() then reads nothing.
   /// max_force_n from the recording when it states one.
+  /// @throws hc::InputError when the recording holds no samples.
   TickReplayDevice(const Clock& clock, Recording recording, DeviceInfo info);
   std::size_t sample_count() const noexcept { return samples_.size(); }
   /// After open(): the recording's header values and events (its samples are held apart:

@@ -68,8 +68,9 @@ struct DisplayScene {
   /// Audio regions for the overlay (key A, panel "View and sound"): the region index per
   /// sample as a float (≥ 0; NaN = no region), on any grid of the scene's frame (the app passes
   /// the grid its region map was rasterised on: level 0's), and the regions' names by index.
-  /// Empty: no overlay.
-  HeightField region_id;
+  /// Null or empty: no overlay. Shared, not copied, between the scenes of one session: the
+  /// viewer outlines a raster once and reuses the outline while the pointer stays the same.
+  std::shared_ptr<const HeightField> region_id;
   std::vector<std::string> region_names;
 };
 
@@ -389,6 +390,11 @@ class Viewer {
   bool show_panel_ = true, show_help_ = false, show_navigation_ = true, show_regions_ = false;
   bool close_requested_ = false;
   double panel_overflow_px_ = 0.0;
+  // The audio-region outline of the raster outline_source_ (recomputed when it changes).
+  std::shared_ptr<const HeightField> outline_source_;
+  std::vector<RegionSegment> outline_;
+  bool outline_uploaded_ = false;  // regions_navigation holds outline_ at outline_z_m_
+  double outline_z_m_ = 0.0;
 
   // Mouse.
   double cursor_x_ = -1.0, cursor_y_ = -1.0;
