@@ -21,7 +21,10 @@
 #include <pcl/point_types.h>
 #include <pcl/search/kdtree.h>
 #include <pcl/segmentation/extract_clusters.h>
-// Instantiated here, not taken from libpcl_segmentation (not linked: pipeline/CMakeLists.txt).
+// pcl::extractEuclideanClusters is instantiated here, not taken from libpcl_segmentation (not
+// linked: pipeline/CMakeLists.txt). Only that function template: the class's extract() would
+// also instantiate OrganizedNeighbor, whose vtable copy here would then stand in for the one
+// of Debian's C++14 libpcl_search in every program linking hc::pipeline.
 #include <pcl/segmentation/impl/extract_clusters.hpp>
 #include <pcl/surface/mls.h>
 
@@ -268,16 +271,18 @@ StageResult<Cloud> apply_pcl_filter(Cloud cloud, const PclFilterSpec& spec) {
       break;
     }
     case PclFilterKind::kEuclideanClusterExtraction: {
-      pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
+      // What pcl::EuclideanClusterExtraction::extract does with a k-d tree given and no
+      // indices: the single-linkage clusters of the whole cloud, then sorted by size with
+      // PCL's own comparison, largest first (tests/pcl compare it with the class).
+      pcl::search::Search<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
       tree->setInputCloud(in);
-      pcl::EuclideanClusterExtraction<pcl::PointXYZ> f;
-      f.setInputCloud(in);
-      f.setSearchMethod(tree);
-      f.setClusterTolerance(spec.tolerance_m);
-      f.setMinClusterSize(spec.min_cluster_size);
-      f.setMaxClusterSize(spec.max_cluster_size);
       std::vector<pcl::PointIndices> clusters;
-      f.extract(clusters);  // sorted by size, largest first
+      if (!in->empty()) {
+        pcl::extractEuclideanClusters(*in, tree, static_cast<float>(spec.tolerance_m), clusters,
+                                      static_cast<unsigned int>(spec.min_cluster_size),
+                                      static_cast<unsigned int>(spec.max_cluster_size));
+      }
+      std::sort(clusters.rbegin(), clusters.rend(), pcl::comparePointClusters);
       const std::size_t n = std::min<std::size_t>(clusters.size(), static_cast<std::size_t>(spec.keep_clusters));
       for (std::size_t c = 0; c < n; ++c) kept.insert(kept.end(), clusters[c].indices.begin(), clusters[c].indices.end());
       rep.figure("tolerance_mm", spec.tolerance_m * 1e3);
