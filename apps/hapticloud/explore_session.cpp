@@ -104,34 +104,7 @@ void Session::start_device() {
     // Made in start_servo() once the first window's heights are known (the path's heights need them).
   } else if (o_.device.rfind("replay:", 0) == 0) {
     haptics::Recording rec = haptics::read_recording_file(o_.device.substr(7));
-    // The recorded session actions, played when the servo reaches their tick (run()).
-    for (const haptics::RecordedEvent& e : rec.events) {
-      // The panel's servo settings made during the recording (arm, disarm and resets are the
-      // replaying session's own).
-      using haptics::CommandType;
-      const CommandType t = e.command.type;
-      if (e.kind == haptics::RecordedEvent::Kind::kCommand &&
-          (t == CommandType::kSetStiffness || t == CommandType::kSetDamping || t == CommandType::kSetMaxForce ||
-           t == CommandType::kSetRho || t == CommandType::kSetFrictionEnabled)) {
-        replay_commands_.emplace_back(e.tick, e.command);
-      }
-      if (e.kind != haptics::RecordedEvent::Kind::kSession) continue;
-      const std::string where = "explore: " + o_.device.substr(7) + ": @session at tick " + std::to_string(e.tick) + " '" +
-                                e.action + "'";
-      std::vector<ScriptStep> one;
-      try {
-        one = parse_script("1 " + e.action);
-        if (one.size() == 1) check_script_numbers(one.front());
-      } catch (const ConfigError& err) {
-        throw InputError(where + " is not a session action (" + err.what() + ")");
-      }
-      if (one.size() != 1) throw InputError(where + ": expected one action (" + kSessionActions + ")");
-      replay_steps_.emplace_back(e.tick, std::move(one.front()));
-    }
-    // In tick order (the file lists them in the order they were drained, nearly sorted).
-    const auto by_tick = [](const auto& a, const auto& b) { return a.first < b.first; };
-    std::stable_sort(replay_steps_.begin(), replay_steps_.end(), by_tick);
-    std::stable_sort(replay_commands_.begin(), replay_commands_.end(), by_tick);
+    take_replay_events(rec);
     replay_rate_hz_ = rec.servo_rate_hz;
     auto r = std::make_unique<haptics::TickReplayDevice>(clock_, std::move(rec), haptics::SimulatedDevice::default_info());
     replay_ = r.get();
@@ -157,6 +130,37 @@ void Session::start_device() {
   } else {
     throw ConfigError("explore: --device '" + o_.device + "' is unknown (expected falcon, mouse, sim, replay:FILE or udp:HOST:PORT)");
   }
+}
+
+void Session::take_replay_events(const haptics::Recording& rec) {
+  // The recorded session actions, played when the servo reaches their tick (run()).
+  for (const haptics::RecordedEvent& e : rec.events) {
+    // The panel's servo settings made during the recording (arm, disarm and resets are the
+    // replaying session's own).
+    using haptics::CommandType;
+    const CommandType t = e.command.type;
+    if (e.kind == haptics::RecordedEvent::Kind::kCommand &&
+        (t == CommandType::kSetStiffness || t == CommandType::kSetDamping || t == CommandType::kSetMaxForce ||
+         t == CommandType::kSetRho || t == CommandType::kSetFrictionEnabled)) {
+      replay_commands_.emplace_back(e.tick, e.command);
+    }
+    if (e.kind != haptics::RecordedEvent::Kind::kSession) continue;
+    const std::string where = "explore: " + o_.device.substr(7) + ": @session at tick " + std::to_string(e.tick) + " '" +
+                              e.action + "'";
+    std::vector<ScriptStep> one;
+    try {
+      one = parse_script("1 " + e.action);
+      if (one.size() == 1) check_script_numbers(one.front());
+    } catch (const ConfigError& err) {
+      throw InputError(where + " is not a session action (" + err.what() + ")");
+    }
+    if (one.size() != 1) throw InputError(where + ": expected one action (" + kSessionActions + ")");
+    replay_steps_.emplace_back(e.tick, std::move(one.front()));
+  }
+  // In tick order (the file lists them in the order they were drained, nearly sorted).
+  const auto by_tick = [](const auto& a, const auto& b) { return a.first < b.first; };
+  std::stable_sort(replay_steps_.begin(), replay_steps_.end(), by_tick);
+  std::stable_sort(replay_commands_.begin(), replay_commands_.end(), by_tick);
 }
 
 void Session::start_servo() {
@@ -185,11 +189,9 @@ void Session::start_servo() {
     std::cout << "explore: waiting for poses on udp " << uo.host << ":" << udp_->bound_port() << " (watchdog "
               << o_.udp_timeout_s << " s; docs/udp_bridge.md)\n";
   }
-  if (replay_ != nullptr) {
-    if (replay_rate_hz_ > 0.0 && replay_rate_hz_ != cfg.rate_hz) {
-      std::cout << "explore: the recording's servo ran at " << replay_rate_hz_ << " Hz, this one at "
-                << cfg.rate_hz << " Hz (forces follow the rate during ramps and blends)\n";
-    }
+  if (replay_ != nullptr && replay_rate_hz_ > 0.0 && replay_rate_hz_ != cfg.rate_hz) {
+    std::cout << "explore: the recording's servo ran at " << replay_rate_hz_ << " Hz, this one at " << cfg.rate_hz
+              << " Hz (forces follow the rate during ramps and blends)\n";
   }
   cfg.realtime = haptics::realtime_mode_from_string(o_.realtime);
   cfg.workspace = w0.map;
@@ -292,13 +294,12 @@ void Session::run() {
   centre_first_window();
   if (!replay_steps_.empty() && replay_steps_.front().first == 0 && replay_steps_.front().second.action == "window") {
     // A replay starts in the recording's first window (its tick-0 note), not a centred one.
-    const ScriptStep& st = replay_steps_.front().second;
-    const int level = script_int(st, 0);
-    if (level < 0 || level >= lod_->level_count()) {
-      throw InputError("explore: " + o_.device.substr(7) + ": the recording's first window is at level " + st.args[0] +
-                       ", this scene has levels 0.." + std::to_string(lod_->level_count() - 1) + " (another scene?)");
+    try {
+      set_window_step(replay_steps_.front().second);
+    } catch (const ConfigError& e) {
+      throw InputError("explore: " + o_.device.substr(7) + ": the recording's first window does not fit this scene (" +
+                       e.what() + "; another scene?)");
     }
-    lod_->set_window(level, script_int(st, 1), script_int(st, 2));
     ++next_replay_step_;
   }
   start_servo();

@@ -108,6 +108,12 @@ class Session {
   void note(const std::string& action);
   /// The current window as "window LEVEL COL0 ROW0" into the recording.
   void note_window();
+  /// Sets the window of a `window LEVEL COL0 ROW0` step (no note, no display update).
+  /// @throws hc::ConfigError for a level outside the pyramid (script_int's errors too).
+  void set_window_step(const ScriptStep& st);
+  /// Takes a recording's @session actions and panel servo settings for the replay (sorted by
+  /// tick). @throws hc::InputError naming the file, the tick and the text of a bad action.
+  void take_replay_events(const haptics::Recording& rec);
   void centre_first_window();
   void run_step(const ScriptStep& st);
   std::optional<Eigen::Vector3d> anchor() const;

@@ -93,6 +93,15 @@ void Session::note(const std::string& action) {
   if (recorder_) recorder_->note(action);
 }
 
+void Session::set_window_step(const ScriptStep& st) {
+  const int level = script_int(st, 0);
+  if (level < 0 || level >= lod_->level_count()) {
+    throw ConfigError("explore: step window: level " + st.args[0] + " is out of range (expected 0.." +
+                      std::to_string(lod_->level_count() - 1) + ")");
+  }
+  lod_->set_window(level, script_int(st, 1), script_int(st, 2));
+}
+
 void Session::note_window() {
   // The window itself, not the command: finer and coarser depend on the proxy's position.
   const session::HapticWindow& w = lod_->window();
@@ -243,12 +252,7 @@ void Session::run_step(const ScriptStep& st) {
   }
   if (a == "window") {
     if (!lod_ || swap_.busy()) return;
-    const int level = script_int(st, 0);
-    if (level < 0 || level >= lod_->level_count()) {
-      throw ConfigError("explore: step window: level " + st.args[0] + " is out of range (expected 0.." +
-                        std::to_string(lod_->level_count() - 1) + ")");
-    }
-    lod_->set_window(level, script_int(st, 1), script_int(st, 2));
+    set_window_step(st);
     note_window();
     show_window();
   }

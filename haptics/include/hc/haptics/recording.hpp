@@ -181,7 +181,8 @@ class TickReplayDevice final : public HapticDevice {
   const Recording& recording() const noexcept { return recording_; }
 
  protected:
-  /// Reads the file (read_recording). @throws as read_recording.
+  /// Reads the file (read_recording_file), unless constructed from a Recording.
+  /// @throws as read_recording_file.
   void do_open() override;
   void do_close() noexcept override {}
   DeviceStatus do_read(DeviceReading& out) noexcept override;
