@@ -26,6 +26,8 @@
 #include <cctype>
 #include <chrono>
 #include <cstdio>
+#include <cstdlib>
+#include <cstring>
 #include <fstream>
 #include <iomanip>
 #include <memory>
@@ -102,16 +104,45 @@ std::string json_text(const std::string& s) {
   return out;
 }
 
-/// Runs one stage: announces it, runs it, records its report.
+/// Resets the process's resident-memory high-water mark (Linux, proc(5): writing "5" to
+/// /proc/self/clear_refs resets VmHWM). @return false when it cannot (then peak_rss() is the
+/// peak since the process started, or since the last reset).
+bool reset_peak_rss() {
+  std::FILE* f = std::fopen("/proc/self/clear_refs", "w");
+  if (!f) return false;
+  const bool ok = std::fputs("5", f) >= 0;
+  return std::fclose(f) == 0 && ok;
+}
+
+/// VmHWM of /proc/self/status [bytes]: the peak resident memory since the last reset; 0 if
+/// unreadable.
+std::size_t peak_rss() {
+  std::FILE* f = std::fopen("/proc/self/status", "r");
+  if (!f) return 0;
+  char line[256];
+  std::size_t kb = 0;
+  while (std::fgets(line, sizeof line, f)) {
+    if (std::strncmp(line, "VmHWM:", 6) == 0) {
+      kb = static_cast<std::size_t>(std::strtoull(line + 6, nullptr, 10));
+      break;
+    }
+  }
+  std::fclose(f);
+  return kb * 1024;
+}
+
+/// Runs one stage: announces it, runs it, records its report (seconds, peak memory).
 template <class F>
 auto stage(const char* name, std::vector<StageReport>& reports, const ProgressFn& progress, F&& body) {
   StageReport announce;
   announce.stage = name;
   if (progress) progress(announce, false);
+  const bool measured = reset_peak_rss();
   const auto t0 = Clock::now();
   auto result = body();
   result.report.stage = name;
   if (result.report.seconds <= 0.0) result.report.seconds = seconds_since(t0);
+  if (measured) result.report.peak_rss_bytes = peak_rss();
   reports.push_back(result.report);
   if (progress) progress(result.report, true);
   return std::move(result.value);
@@ -625,6 +656,7 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
   StageReport write_report;
   write_report.stage = "write";
   if (progress) progress(write_report, false);
+  const bool write_measured = reset_peak_rss();
   const SceneProvenance& prov = scene.provenance;
   json inputs = json::array();
   for (const SceneInput& in : prov.inputs) inputs.push_back({{"file", json_text(in.file)}, {"sha256", in.sha256}});
@@ -675,6 +707,7 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
     write_colour_preview(scene.layers.intensity, previews / "intensity.png", "scanner intensity (as stored)", "-", 1.0);
   }
   write_report.seconds = seconds_since(t_write);
+  if (write_measured) write_report.peak_rss_bytes = peak_rss();
   reports.push_back(write_report);
   if (progress) progress(write_report, true);
 
@@ -728,6 +761,7 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
   j["stages"] = json::array();
   for (const auto& s : reports) {
     json js = {{"stage", s.stage}, {"count_in", s.count_in}, {"count_out", s.count_out}, {"seconds", s.seconds}};
+    if (s.peak_rss_bytes > 0) js["peak_rss_mb"] = static_cast<double>(s.peak_rss_bytes) / 1e6;
     for (const auto& [k, v] : s.figures) js["figures"][k] = v;
     if (!s.notes.empty()) js["notes"] = s.notes;
     j["stages"].push_back(js);
@@ -831,6 +865,15 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
     md << " |\n";
   }
   md << "| **total (file to written scene and previews)** | | | **" << fmt(summary.total_seconds * 1000.0, 1) << "** | |\n\n";
+  {
+    const StageReport* peak = nullptr;
+    for (const auto& s : reports)
+      if (s.peak_rss_bytes > 0 && (!peak || s.peak_rss_bytes > peak->peak_rss_bytes)) peak = &s;
+    if (peak) {
+      md << "Peak resident memory: " << fmt(static_cast<double>(peak->peak_rss_bytes) / 1e6, 0) << " MB, in stage "
+         << peak->stage << " (per stage: `peak_rss_mb` in report.json).\n\n";
+    }
+  }
   if (summary.cross_check) {
     const CrossCheck& c = *summary.cross_check;
     md << "## Cross-check (accuracy)\n\n| measure | count | RMS (mm) | p50 | p95 | p99 | max |\n|---|---|---|---|---|---|---|\n";

@@ -30,12 +30,16 @@
 #include "text_parse.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/pipeline/point_stream.hpp"
 
 #include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <cstdio>
 #include <cstring>
+#include <filesystem>
+#include <memory>
 #include <limits>
 #include <optional>
 #include <sstream>
@@ -102,7 +106,10 @@ struct PlyLayout {
   const PlyElement& vertex() const { return elements[vertex_index]; }
 };
 
-PlyLayout parse_ply_header(const std::string& raw, const std::string& name) {
+// `file_size`: the whole file's size when `raw` holds only its beginning (a streamed read);
+// npos = raw is the whole file.
+PlyLayout parse_ply_header(const std::string& raw, const std::string& name, std::size_t file_size = std::string::npos) {
+  const std::size_t size = file_size == std::string::npos ? raw.size() : file_size;
   auto fail = [&](const std::string& what) -> InputError {
     return InputError("load_cloud: " + name + ": " + what);
   };
@@ -191,9 +198,9 @@ PlyLayout parse_ply_header(const std::string& raw, const std::string& name) {
   if (out.vertex_index == out.elements.size()) throw fail("the header declares no 'vertex' element");
   const PlyElement& vertex = out.vertex();
   if (vertex.count == 0) throw fail("the header declares 0 vertices");
-  if (vertex.count > raw.size() - out.body) {  // every vertex takes at least one byte
+  if (vertex.count > size - out.body) {  // every vertex takes at least one byte
     throw fail("truncated: the header declares " + std::to_string(vertex.count) + " vertices but only " +
-               std::to_string(raw.size() - out.body) + " bytes follow it");
+               std::to_string(size - out.body) + " bytes follow it");
   }
   for (const char* axis : {"x", "y", "z"}) {
     const auto n = std::count_if(vertex.properties.begin(), vertex.properties.end(),
@@ -335,56 +342,75 @@ std::size_t binary_vertex_offset(const std::string& raw, const PlyLayout& ply, c
   return static_cast<std::size_t>(p - begin);
 }
 
-// Fixed-stride read of binary vertex records (scalar properties only).
-Cloud read_binary_fixed(const std::string& raw, const PlyLayout& ply, std::size_t offset, const std::string& name) {
-  const PlyElement& v = ply.vertex();
-  const std::size_t stride = v.stride();
-  const std::size_t have = raw.size() > offset ? raw.size() - offset : 0;
-  if (have < stride * v.count) {
-    throw InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(v.count) +
-                     " vertices (" + std::to_string(stride * v.count) + " bytes) but only " + std::to_string(have) +
-                     " bytes of vertex data follow (" + std::to_string(have / stride) + " whole vertices)");
-  }
+// Where the coordinates and colours sit in a fixed-stride binary vertex record.
+struct FixedRecords {
+  std::size_t stride = 0;
   std::size_t field_off[6] = {0, 0, 0, 0, 0, 0};
   PlyType field_type[6] = {PlyType::kFloat32, PlyType::kFloat32, PlyType::kFloat32,
                            PlyType::kUint8,   PlyType::kUint8,   PlyType::kUint8};
-  const std::vector<int> axis_of = axes_of(v);
-  std::size_t at = 0;
-  for (std::size_t j = 0; j < v.properties.size(); ++j) {
-    if (axis_of[j] >= 0) {
-      field_off[axis_of[j]] = at;
-      field_type[axis_of[j]] = v.properties[j].type;
+  bool swap = false;
+  bool colour = false;
+  bool plain_float = false;
+
+  explicit FixedRecords(const PlyLayout& ply) {
+    const PlyElement& v = ply.vertex();
+    stride = v.stride();
+    const std::vector<int> axis_of = axes_of(v);
+    std::size_t at = 0;
+    for (std::size_t j = 0; j < v.properties.size(); ++j) {
+      if (axis_of[j] >= 0) {
+        field_off[axis_of[j]] = at;
+        field_type[axis_of[j]] = v.properties[j].type;
+      }
+      at += v.properties[j].size_bytes;
     }
-    at += v.properties[j].size_bytes;
+    swap = needs_swap(ply);
+    colour = has_colour(axis_of);
+    plain_float = !swap && field_type[0] == PlyType::kFloat32 && field_type[1] == PlyType::kFloat32 &&
+                  field_type[2] == PlyType::kFloat32;
   }
-  const bool swap = needs_swap(ply);
+
+  // Decodes n records from base into xyz (3·n doubles) and, with colour, rgb (3·n bytes).
+  void decode(const char* base, std::size_t n, double* out, std::uint8_t* rgb) const {
+    if (colour) {
+      for (std::size_t i = 0; i < n; ++i) {
+        const char* rec = base + i * stride;
+        for (std::size_t a = 0; a < 3; ++a) {
+          rgb[3 * i + a] = colour_byte(load_ply_scalar(rec + field_off[3 + a], field_type[3 + a], swap), field_type[3 + a]);
+        }
+      }
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      const char* rec = base + i * stride;
+      if (plain_float) {
+        for (std::size_t a = 0; a < 3; ++a) {
+          float f;
+          std::memcpy(&f, rec + field_off[a], sizeof f);
+          out[3 * i + a] = static_cast<double>(f);
+        }
+      } else {
+        for (std::size_t a = 0; a < 3; ++a) out[3 * i + a] = load_ply_scalar(rec + field_off[a], field_type[a], swap);
+      }
+    }
+  }
+};
+
+std::string truncated_vertices(const std::string& name, std::size_t count, std::size_t stride, std::size_t have) {
+  return "load_cloud: " + name + ": truncated: the header declares " + std::to_string(count) + " vertices (" +
+         std::to_string(stride * count) + " bytes) but only " + std::to_string(have) +
+         " bytes of vertex data follow (" + std::to_string(have / stride) + " whole vertices)";
+}
+
+// Fixed-stride read of binary vertex records (scalar properties only).
+Cloud read_binary_fixed(const std::string& raw, const PlyLayout& ply, std::size_t offset, const std::string& name) {
+  const PlyElement& v = ply.vertex();
+  const FixedRecords rec(ply);
+  const std::size_t have = raw.size() > offset ? raw.size() - offset : 0;
+  if (have < rec.stride * v.count) throw InputError(truncated_vertices(name, v.count, rec.stride, have));
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(v.count));
-  double* out = cloud.xyz.data();
-  const char* base = raw.data() + offset;
-  const bool plain_float = !swap && field_type[0] == PlyType::kFloat32 && field_type[1] == PlyType::kFloat32 &&
-                           field_type[2] == PlyType::kFloat32;
-  if (has_colour(axis_of)) {
-    cloud.rgb.resize(3 * v.count);
-    for (std::size_t i = 0; i < v.count; ++i) {
-      const char* rec = base + i * stride;
-      for (std::size_t a = 0; a < 3; ++a) {
-        cloud.rgb[3 * i + a] = colour_byte(load_ply_scalar(rec + field_off[3 + a], field_type[3 + a], swap), field_type[3 + a]);
-      }
-    }
-  }
-  for (std::size_t i = 0; i < v.count; ++i) {
-    const char* rec = base + i * stride;
-    if (plain_float) {
-      for (std::size_t a = 0; a < 3; ++a) {
-        float f;
-        std::memcpy(&f, rec + field_off[a], sizeof f);
-        out[3 * i + a] = static_cast<double>(f);
-      }
-    } else {
-      for (std::size_t a = 0; a < 3; ++a) out[3 * i + a] = load_ply_scalar(rec + field_off[a], field_type[a], swap);
-    }
-  }
+  if (rec.colour) cloud.rgb.resize(3 * v.count);
+  rec.decode(raw.data() + offset, v.count, cloud.xyz.data(), cloud.rgb.data());
   return cloud;
 }
 
@@ -784,6 +810,119 @@ ReadResult read_ply(const ScanSource& source) {
     if (after.range_grid) add_range_grid(*after.range_grid, ply, vertex.count, result.cloud, result.notes);
   }
   return result;
+}
+
+namespace {
+
+// A binary PLY read record block by record block (point_stream.hpp).
+class PlyStream final : public PointStream {
+ public:
+  PlyStream(std::FILE* f, std::string name, const PlyLayout& ply, std::size_t offset)
+      : f_(f), name_(std::move(name)), rec_(ply), total_(ply.vertex().count) {
+    notes_.push_back("PLY " + ply.format + ", " + std::to_string(total_) + " vertices (fixed-stride records streamed in chunks)");
+    if (ply.vertex_index + 1 < ply.elements.size()) {
+      notes_.push_back("elements after 'vertex' (" + ply.elements[ply.vertex_index + 1].name +
+                       ", ...) not read: a streamed scan is taken as points");
+    }
+    if (std::fseek(f_, static_cast<long>(offset), SEEK_SET) != 0) throw InputError("load_cloud: " + name_ + ": cannot seek to its vertex data");
+  }
+  ~PlyStream() override { std::fclose(f_); }
+  PlyStream(const PlyStream&) = delete;
+  PlyStream& operator=(const PlyStream&) = delete;
+
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    chunk = Cloud();
+    const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
+    if (n == 0) return false;
+    buffer_.resize(n * rec_.stride);
+    const std::size_t got = std::fread(buffer_.data(), rec_.stride, n, f_);
+    if (got != n) {
+      throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) + " of " +
+                       std::to_string(total_) + " vertices");
+    }
+    chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
+    if (rec_.colour) chunk.rgb.resize(3 * n);
+    rec_.decode(buffer_.data(), n, chunk.xyz.data(), chunk.rgb.data());
+    chunk.float32_xyz = float32_;
+    done_ += n;
+    return true;
+  }
+
+  bool float32_ = false;
+
+ private:
+  std::FILE* f_;
+  std::string name_;
+  FixedRecords rec_;
+  std::uint64_t total_ = 0, done_ = 0;
+  std::vector<char> buffer_;
+  std::vector<std::string> notes_;
+};
+
+}  // namespace
+
+std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name, bool points_only) {
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) return nullptr;
+  // The header: read until "end_header" (at most 16 MB).
+  std::string head;
+  std::size_t end_at = std::string::npos;
+  char block[65536];
+  while (end_at == std::string::npos && head.size() < (16u << 20)) {
+    const std::size_t got = std::fread(block, 1, sizeof block, f);
+    if (got == 0) break;
+    head.append(block, got);
+    const std::size_t k = head.find("end_header");
+    if (k != std::string::npos) {
+      const std::size_t nl = head.find('\n', k);
+      if (nl != std::string::npos) end_at = nl + 1;
+    }
+  }
+  std::error_code ec;
+  const std::uintmax_t file_size = std::filesystem::file_size(path, ec);
+  if (end_at == std::string::npos || ec || head.compare(0, 3, "ply") != 0) {
+    std::fclose(f);
+    return nullptr;  // not PLY as far as streaming goes: load_cloud's whole read says why
+  }
+  head.resize(end_at);
+  PlyLayout ply;
+  try {
+    ply = parse_ply_header(head, name, static_cast<std::size_t>(file_size));
+  } catch (...) {
+    std::fclose(f);
+    throw;
+  }
+  bool fixed = ply.format != "ascii";
+  std::size_t offset = ply.body;
+  for (std::size_t i = 0; fixed && i <= ply.vertex_index; ++i) {
+    fixed = !ply.elements[i].has_list();
+    if (i < ply.vertex_index) offset += ply.elements[i].stride() * ply.elements[i].count;
+  }
+  for (std::size_t i = ply.vertex_index + 1; fixed && !points_only && i < ply.elements.size(); ++i) {
+    fixed = ply.elements[i].name != "face";  // a mesh: read whole, so its faces are kept
+  }
+  if (!fixed) {
+    std::fclose(f);
+    return nullptr;
+  }
+  const PlyElement& v = ply.vertex();
+  const std::size_t have = file_size > offset ? static_cast<std::size_t>(file_size) - offset : 0;
+  if (have < v.stride() * v.count) {
+    std::fclose(f);
+    throw InputError(truncated_vertices(name, v.count, v.stride(), have));
+  }
+  auto stream = std::make_unique<PlyStream>(f, name, ply, offset);
+  int float_axes = 0;
+  const std::vector<int> axis_of = axes_of(v);
+  for (std::size_t j = 0; j < v.properties.size(); ++j) {
+    if (axis_of[j] >= 0 && v.properties[j].type == PlyType::kFloat32) ++float_axes;
+  }
+  stream->float32_ = float_axes == 3;
+  return stream;
 }
 
 }  // namespace hc::pipeline::detail

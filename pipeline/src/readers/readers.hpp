@@ -37,8 +37,10 @@
 
 #include "hc/pipeline/cloud.hpp"
 #include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/point_stream.hpp"
 
 #include <filesystem>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -71,5 +73,14 @@ ReadResult read_las(const ScanSource& source);  ///< read_las.cpp (LAS 1.0–1.4
 ReadResult read_laz(const ScanSource& source);  ///< read_laz.cpp (LAZ: LASzip compressors 1–3, formats 0–3 and 6–8; COPC as plain LAZ)
 ReadResult read_ptx(const ScanSource& source);  ///< read_ptx.cpp (Leica PTX, one or more scans)
 ReadResult read_pts(const ScanSource& source);  ///< read_pts.cpp (Leica PTS)
+
+/// read_ply.cpp: a binary PLY whose elements up to `vertex` have no lists, streamed in chunks
+/// (point_stream.hpp); nullptr when the file is not such a PLY (ascii, lists, no end_header:
+/// the caller reads it whole, and load_cloud's errors name the problem), or when it holds a
+/// `face` element and !points_only (a mesh keeps its faces). `name` is the quoted path for
+/// messages. @throws hc::InputError for a bad header or a file shorter than its
+/// header's vertex data.
+std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name,
+                                             bool points_only);
 
 }  // namespace hc::pipeline::detail

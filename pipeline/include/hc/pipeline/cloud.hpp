@@ -89,6 +89,10 @@ struct StageReport {
   std::size_t count_in = 0;
   std::size_t count_out = 0;
   double seconds = 0.0;
+  /// Peak resident memory of the process while the stage ran [bytes] (Linux: VmHWM after the
+  /// high-water mark was reset at the stage's start, proc(5) /proc/PID/clear_refs "5"); 0 when
+  /// not measured (another OS, a stage run outside run.cpp's stage helper, or no permission).
+  std::size_t peak_rss_bytes = 0;
   std::vector<std::pair<std::string, double>> figures;
   std::vector<std::string> notes;
 

@@ -1,0 +1,131 @@
+#!/usr/bin/env python3
+"""Scaling benchmark (issue 14): points per second and peak memory of `hapticloud run` on
+generated carved-wall scans (tools/relief, hc-gen-relief) of growing size.
+
+For every size and grid N it runs the program once as a child process and reads the child's own
+resource usage (wait4: peak resident set size, user and system CPU), so no sampling can miss the
+peak. The wall's scans are generated once into the scratch folder and reused by later runs (the
+generator's files depend only on size and seed); each run's output folder is removed after its
+report has been read.
+
+    python3 bench/scale.py                          # 1e6 and 1e7 points, N = 800 and 4096
+    python3 bench/scale.py --sizes 1e6,1e7,1e8 --json scale.json
+    python3 bench/scale.py --build build/release --scratch /big/disk/scale
+
+Printed: a Markdown table (docs/scale.md keeps the measured one) with, per run, wall and CPU
+seconds, peak RSS, bytes per point, M points per wall second and per CPU second, and the three
+slowest stages. Quote it with the machine's load (`uptime`): nothing else should run meanwhile.
+"""
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(HERE)
+
+# The same physical options at every size: 2 m x 1 m wall, 0.5 mm noise, 5 % back face,
+# 0.1 % outliers (the generator's defaults), gridded with plane splats and the robust filter.
+CONFIG = """name: relief_wall_{tag}
+input: {{files: [{scan}], units: m}}
+grid: {{n: {n}, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02,
+        hole_fill_max_cells: 64, upsample: auto}}
+cross_check: {{tolerance_m: 0.002}}
+layers: {{texture: {{sigma_space_cells: 3, sigma_range_m: 0.005}}}}
+"""
+
+
+def parse_count(text):
+    value = float(text)
+    if value < 1 or value != int(value):
+        raise argparse.ArgumentTypeError(f"size {text!r}: expected an integer >= 1, e.g. 1e7")
+    return int(value)
+
+
+def run_child(cmd):
+    """Runs cmd; returns (exit code, wall s, user s, sys s, peak RSS bytes, stderr text)."""
+    t0 = time.monotonic()
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    _, status, usage = os.wait4(proc.pid, 0)
+    wall = time.monotonic() - t0
+    err = proc.stderr.read().decode(errors="replace")
+    proc.stderr.close()
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    # Linux reports ru_maxrss in kilobytes.
+    return proc.returncode, wall, usage.ru_utime, usage.ru_stime, usage.ru_maxrss * 1024, err
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--build", default=os.path.join(ROOT, "build", "release"), help="build folder (release preset)")
+    ap.add_argument("--sizes", default="1e6,1e7", help="comma-separated point counts")
+    ap.add_argument("--n", default="800,4096", help="comma-separated grid sizes (cells on the long side)")
+    ap.add_argument("--scratch", default=None, help="folder for the generated scans and runs (default: BUILD/bench-scale)")
+    ap.add_argument("--json", default=None, help="also write the rows as JSON to this file")
+    ap.add_argument("--set", action="append", default=[], help="extra `hapticloud run --set` overrides")
+    args = ap.parse_args()
+
+    sizes = [parse_count(s) for s in args.sizes.split(",")]
+    grids = [int(n) for n in args.n.split(",")]
+    program = os.path.join(args.build, "apps", "hapticloud", "hapticloud")
+    generator = os.path.join(args.build, "tools", "relief", "hc-gen-relief")
+    for exe in (program, generator):
+        if not os.access(exe, os.X_OK):
+            sys.exit(f"scale.py: {exe} is missing: build the release preset first")
+    scratch = args.scratch or os.path.join(args.build, "bench-scale")
+    os.makedirs(scratch, exist_ok=True)
+
+    rows = []
+    for points in sizes:
+        scan = os.path.join(scratch, f"wall_{points}.ply")
+        if not os.path.exists(scan):
+            print(f"generating {scan} ...", file=sys.stderr)
+            subprocess.run([generator, scan, "--points", str(points), "--quiet"], check=True)
+        for n in grids:
+            tag = f"{points}_{n}"
+            config = os.path.join(scratch, f"wall_{tag}.yaml")
+            with open(config, "w") as f:
+                f.write(CONFIG.format(tag=tag, scan=os.path.basename(scan), n=n))
+            out = os.path.join(scratch, f"run_{tag}")
+            shutil.rmtree(out, ignore_errors=True)
+            cmd = [program, "run", config, "--out", out]
+            for s in args.set:
+                cmd += ["--set", s]
+            print(f"running {points} points, N = {n} ...", file=sys.stderr)
+            code, wall, user, system, rss, err = run_child(cmd)
+            row = {"points": points, "n": n, "mode": "in-core", "exit": code, "wall_s": wall, "cpu_s": user + system,
+                   "peak_rss_bytes": rss}
+            report = os.path.join(out, "report.json")
+            if os.path.exists(report):
+                with open(report) as f:
+                    stages = json.load(f)["stages"]
+                slow = sorted(stages, key=lambda s: -s["seconds"])[:3]
+                row["slowest"] = [(s["stage"], s["seconds"]) for s in slow]
+            else:
+                row["error"] = err.strip().splitlines()[-1] if err.strip() else "no report"
+            shutil.rmtree(out, ignore_errors=True)
+            rows.append(row)
+
+    print(f"load average before the last run: {os.getloadavg()[0]:.2f}; cores: {os.cpu_count()}")
+    print("| points | N | mode | wall (s) | CPU (s) | peak RSS (MB) | bytes/point | Mpts/s (wall) | Mpts/s per CPU s | slowest stages (s) |")
+    print("|---:|---:|---|---:|---:|---:|---:|---:|---:|---|")
+    for r in rows:
+        if r["exit"] != 0:
+            print(f"| {r['points']:.0e} | {r['n']} | {r['mode']} | failed (exit {r['exit']}): {r.get('error', '')} |")
+            continue
+        slow = ", ".join(f"{name} {sec:.1f}" for name, sec in r.get("slowest", []))
+        print(f"| {r['points']:.0e} | {r['n']} | {r['mode']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
+              f"{r['peak_rss_bytes'] / 1e6:.0f} | {r['peak_rss_bytes'] / r['points']:.0f} | "
+              f"{r['points'] / r['wall_s'] / 1e6:.2f} | {r['points'] / r['cpu_s'] / 1e6:.2f} | {slow} |")
+    if args.json:
+        with open(args.json, "w") as f:
+            json.dump(rows, f, indent=1)
+    return 1 if any(r["exit"] != 0 for r in rows) else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,46 @@
+#pragma once
+/// @file point_stream.hpp
+/// Reading a scan in chunks (issue 14): the passes of the tiled pipeline read the input several
+/// times and must never hold it whole.
+///
+/// Streamed natively (memory: one chunk): binary PLY (little or big endian) whose elements up to
+/// and including `vertex` have no list properties, not gzip-compressed. Elements after the vertex
+/// element (faces, range grids) are not read: a mesh is rasterised in core (mesh_raster.hpp),
+/// never tiled. Every other file is read whole by load_cloud once and handed out in chunks (the
+/// stream's notes say so), so any format load_cloud reads can be streamed, with its memory.
+
+#include "hc/pipeline/cloud.hpp"
+#include "hc/pipeline/ingest.hpp"
+
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+/// A scan file read front to back in chunks. Not thread-safe; one reader per stream.
+class PointStream {
+ public:
+  virtual ~PointStream() = default;
+  /// Points the file holds (its header's count; for a file read whole, the points read).
+  virtual std::uint64_t total_points() const = 0;
+  /// Replaces `chunk` with the next up to max_points (≥ 1) points: xyz in the file's units and
+  /// frame (double, as load_cloud gives them: float32 properties widened exactly), rgb when the
+  /// file has colour, intensity when a file read whole has it; other attributes empty. @return false when every point has been given (chunk
+  /// then empty). @throws hc::InputError naming the file if it cannot be read or ends early.
+  virtual bool next(Cloud& chunk, std::size_t max_points) = 0;
+  /// How the file is read, for the stage report (format, streamed or read whole).
+  virtual const std::vector<std::string>& notes() const = 0;
+  /// True when the file is read in chunks; false when it was read whole.
+  virtual bool streamed() const = 0;
+};
+
+/// Opens `path` for reading in chunks; see the file comment for which files stream natively.
+/// @throws hc::InputError as load_cloud does (missing file, bad header, truncated data: a
+///         streamed binary PLY's size is checked against its header when it is opened).
+std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path, const LoadOptions& options = {});
+
+}  // namespace hc::pipeline

@@ -1,0 +1,67 @@
+// Reading a scan in chunks (point_stream.hpp): binary PLY natively, anything else read whole by
+// load_cloud and handed out in slices.
+
+#include "hc/pipeline/point_stream.hpp"
+
+#include "readers/readers.hpp"
+#include "readers/text_parse.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <algorithm>
+#include <cctype>
+#include <utility>
+
+namespace hc::pipeline {
+namespace {
+
+// A cloud read whole, given out in slices.
+class WholeStream final : public PointStream {
+ public:
+  explicit WholeStream(StageResult<Cloud> read) : cloud_(std::move(read.value)), total_(cloud_.size()) {
+    notes_ = std::move(read.report.notes);
+    notes_.push_back("read whole (this format or layout is not streamed), then handed out in chunks");
+  }
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return false; }
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    chunk = Cloud();
+    const std::size_t n = std::min(std::max<std::size_t>(max_points, 1), total_ - done_);
+    if (n == 0) return false;
+    const auto first = static_cast<Eigen::Index>(done_), count = static_cast<Eigen::Index>(n);
+    chunk.xyz = cloud_.xyz.middleCols(first, count);
+    if (cloud_.has_rgb()) chunk.rgb.assign(cloud_.rgb.begin() + 3 * first, cloud_.rgb.begin() + 3 * (first + count));
+    if (cloud_.has_intensity()) {
+      chunk.intensity.assign(cloud_.intensity.begin() + first, cloud_.intensity.begin() + first + count);
+    }
+    chunk.float32_xyz = cloud_.float32_xyz;
+    done_ += n;
+    if (done_ == total_) cloud_ = Cloud();  // free it as soon as the last chunk is out
+    return true;
+  }
+
+ private:
+  Cloud cloud_;
+  std::size_t total_ = 0, done_ = 0;
+  std::vector<std::string> notes_;
+};
+
+}  // namespace
+
+std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path, const LoadOptions& options) {
+  std::string ext = path.extension().string();
+  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  std::error_code ec;
+  if (ext == ".ply" && std::filesystem::is_regular_file(path, ec)) {
+    if (auto s = detail::open_ply_stream(path, detail::quoted(path), options.as_points)) return s;
+  }
+  StageResult<Cloud> read = load_cloud(path, options);
+  if (read.value.has_mesh()) {
+    throw InputError("load_cloud: " + detail::quoted(path) + " is a mesh (" + std::to_string(read.value.mesh.triangles.size()) +
+                     " triangles): it is rasterised in core, not streamed (input.as_points: true takes its vertices)");
+  }
+  return std::make_unique<WholeStream>(std::move(read));
+}
+
+}  // namespace hc::pipeline
