@@ -158,6 +158,20 @@ Bounds merge(const Bounds& a, const Bounds& b) {
 void validate_options(const ReprojectOptions& o) {
   const GridSpec& g = o.grid;
   std::ostringstream msg;
+  if (o.window) {
+    const GridWindow& w = *o.window;
+    const int k = o.upsample_factor;
+    if (k < 1 || k > kMaxUpsampleFactor || w.rows < 2 || w.cols < 2 || w.row0 < 0 || w.col0 < 0 ||
+        w.row0 + w.rows > w.grid.rows || w.col0 + w.cols > w.grid.cols || w.row0 % k != 0 || w.col0 % k != 0 ||
+        !(w.grid.cell_size_m > 0.0)) {
+      msg << "reproject: window rows " << w.row0 << " + " << w.rows << ", cols " << w.col0 << " + " << w.cols
+          << " of a " << w.grid.rows << " x " << w.grid.cols << " grid with upsample_factor " << k
+          << " (expected a window of at least 2 x 2 nodes inside the grid, starting on a multiple of a given "
+             "upsample factor 1 to "
+          << kMaxUpsampleFactor << ")";
+      throw ConfigError(msg.str());
+    }
+  }
   if (g.n_long_side != 0 && g.cell_size_m != 0.0) {
     msg << "reproject: grid is ambiguous: n_long_side = " << g.n_long_side
         << " and cell_size_m = " << g.cell_size_m << " are both set (give exactly one)";
@@ -261,17 +275,39 @@ GridGeometry make_geometry(const Bounds& b, const ReprojectOptions& o) {
   return g;
 }
 
+// A window of a larger grid (ReprojectOptions::window): the geometry passed around keeps the
+// whole grid's origin, and node indices are computed exactly as on the whole grid, then
+// shifted by the window's first row and column (integers: exact), so a window's nodes get the
+// values the whole grid's get. Points whose node falls outside the window are skipped.
+struct NodeOffset {
+  int r = 0, c = 0;
+  bool window = false;
+};
+
 // Front-most z per cell over every finite point; returns the number of points binned.
 // Every finite point lies inside the bounding box the geometry was made from, so its fractional
 // index plus one half is in [0.25, n − 0.25): truncation is the nearest node (ties to the higher
 // index). One unsigned min per axis guards against rounding (a negative index would wrap to a
 // large unsigned value and be clamped too).
 std::size_t bin_front_most(const double* p, std::size_t n, const GridGeometry& g, bool all_finite,
-                           float* depth) {
+                           float* depth, const NodeOffset& off = {}) {
   const double inv = 1.0 / g.cell_size_m;
   const double cx = 0.5 - g.x0_m * inv, cy = 0.5 - g.y0_m * inv;
   const std::size_t cols = static_cast<std::size_t>(g.cols);
   const auto c_max = static_cast<unsigned>(g.cols - 1), r_max = static_cast<unsigned>(g.rows - 1);
+  if (off.window) {
+    std::size_t binned = 0;
+    for (std::size_t i = 0; i < n; ++i, p += 3) {
+      if (!all_finite && !finite_point(p)) continue;
+      const auto c = static_cast<unsigned>(static_cast<int>(p[0] * inv + cx) - off.c);
+      const auto r = static_cast<unsigned>(static_cast<int>(p[1] * inv + cy) - off.r);
+      if (c > c_max || r > r_max) continue;
+      float& cell = depth[static_cast<std::size_t>(r) * cols + c];
+      cell = std::max(cell, static_cast<float>(p[2]));
+      ++binned;
+    }
+    return binned;
+  }
   auto bin = [&](const double* q) {
     const unsigned c = std::min(static_cast<unsigned>(static_cast<int>(q[0] * inv + cx)), c_max);
     const unsigned r = std::min(static_cast<unsigned>(static_cast<int>(q[1] * inv + cy)), r_max);
@@ -467,7 +503,7 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
 
 std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const GridGeometry& g, double radius_cells,
                          float depth_gap, bool two_threads, float* depth, std::uint8_t* flags,
-                         std::size_t* occluded) {
+                         std::size_t* occluded, const NodeOffset& off = {}) {
   const int rows = g.rows, cols = g.cols;
   const std::size_t ucols = static_cast<std::size_t>(cols);
   const std::size_t cells = static_cast<std::size_t>(rows) * ucols;
@@ -484,7 +520,8 @@ std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const 
     const double* q = p;
     for (std::size_t i = 0; i < n; ++i, q += 3) {
       if (!all_finite && !finite_point(q)) continue;
-      const double fx = (q[0] - g.x0_m) * inv, fy = (q[1] - g.y0_m) * inv;
+      // Window: the whole grid's fractional index minus an integer offset (exact).
+      const double fx = (q[0] - g.x0_m) * inv - off.c, fy = (q[1] - g.y0_m) * inv - off.r;
       const int r0 = std::max(r_begin, static_cast<int>(std::ceil(fy - radius_cells)));
       const int r1 = std::min(r_end - 1, static_cast<int>(std::floor(fy + radius_cells)));
       if (r0 > r1) continue;
@@ -765,7 +802,7 @@ struct ScanCounts {
 // Binning, splats and see-through detection on geometry g (the whole scan at one resolution).
 DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, bool two_threads,
                     bool all_finite, const GridGeometry& g, const ReprojectOptions& options,
-                    ScanCounts& counts) {
+                    ScanCounts& counts, const NodeOffset& off = {}) {
   const std::size_t cells = g.cell_count();
   DepthGrid out;
   out.depth = HeightField(g, kEmpty);
@@ -778,13 +815,13 @@ DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, b
     run_two(
         [&] {
           std::fill_n(upper.get(), cells, kEmpty);
-          binned_upper = bin_front_most(pts + 3 * half, n_points - half, g, all_finite, upper.get());
+          binned_upper = bin_front_most(pts + 3 * half, n_points - half, g, all_finite, upper.get(), off);
         },
-        [&] { binned = bin_front_most(pts, half, g, all_finite, depth); });
+        [&] { binned = bin_front_most(pts, half, g, all_finite, depth, off); });
     for (std::size_t i = 0; i < cells; ++i) depth[i] = std::max(depth[i], upper[i]);
     binned += binned_upper;
   } else {
-    binned = bin_front_most(pts, n_points, g, all_finite, depth);
+    binned = bin_front_most(pts, n_points, g, all_finite, depth, off);
   }
   for (std::size_t i = 0; i < cells; ++i) out.flags[i] = depth[i] != kEmpty ? kCellMeasured : kCellEmpty;
 
@@ -794,7 +831,7 @@ DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, b
   std::size_t& occluded = counts.occluded;
   if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kPlane) {
     splatted = splat_planes(pts, n_points, all_finite, g, options.splat_radius_cells, see_through ? depth_gap : 0.0f,
-                            two_threads, depth, out.flags.data(), &occluded);
+                            two_threads, depth, out.flags.data(), &occluded, off);
   } else if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kInterpolate) {
     std::vector<float> front;
     if (see_through) {
@@ -855,7 +892,7 @@ constexpr std::uint32_t kNoPoint = std::numeric_limits<std::uint32_t>::max();
 // Index of the front-most point per node of g (largest float z, ties to the earliest point),
 // kNoPoint where no finite point fell; `front_z` gets that point's z (the measured grid).
 std::vector<std::uint32_t> front_most_index(const double* p, std::size_t n, const GridGeometry& g,
-                                            bool all_finite, std::vector<float>& front_z) {
+                                            bool all_finite, std::vector<float>& front_z, const NodeOffset& off = {}) {
   const std::size_t cells = g.cell_count();
   std::vector<std::uint32_t> winner(cells, kNoPoint);
   front_z.assign(cells, kEmpty);
@@ -865,8 +902,15 @@ std::vector<std::uint32_t> front_most_index(const double* p, std::size_t n, cons
   const auto c_max = static_cast<unsigned>(g.cols - 1), r_max = static_cast<unsigned>(g.rows - 1);
   for (std::size_t i = 0; i < n; ++i, p += 3) {
     if (!all_finite && !finite_point(p)) continue;
-    const unsigned c = std::min(static_cast<unsigned>(static_cast<int>(p[0] * inv + cx)), c_max);
-    const unsigned r = std::min(static_cast<unsigned>(static_cast<int>(p[1] * inv + cy)), r_max);
+    unsigned c, r;
+    if (off.window) {
+      c = static_cast<unsigned>(static_cast<int>(p[0] * inv + cx) - off.c);
+      r = static_cast<unsigned>(static_cast<int>(p[1] * inv + cy) - off.r);
+      if (c > c_max || r > r_max) continue;
+    } else {
+      c = std::min(static_cast<unsigned>(static_cast<int>(p[0] * inv + cx)), c_max);
+      r = std::min(static_cast<unsigned>(static_cast<int>(p[1] * inv + cy)), r_max);
+    }
     const std::size_t k = static_cast<std::size_t>(r) * cols + c;
     const float z = static_cast<float>(p[2]);
     if (winner[k] == kNoPoint || z > front_z[k]) {
@@ -879,11 +923,11 @@ std::vector<std::uint32_t> front_most_index(const double* p, std::size_t n, cons
 
 // Fills out.colour_rgb8 / out.intensity (whichever the cloud has) on geometry g after scan_grid.
 void scan_attributes(const Cloud& cloud, bool all_finite, const GridGeometry& g, const ReprojectOptions& options,
-                     DepthGrid& out) {
+                     DepthGrid& out, const NodeOffset& off = {}) {
   const bool rgb = cloud.has_rgb(), inten = cloud.has_intensity();
   const std::size_t cells = g.cell_count();
   std::vector<float> front_z;
-  const std::vector<std::uint32_t> winner = front_most_index(cloud.xyz.data(), cloud.size(), g, all_finite, front_z);
+  const std::vector<std::uint32_t> winner = front_most_index(cloud.xyz.data(), cloud.size(), g, all_finite, front_z, off);
   if (rgb) out.colour_rgb8.assign(3 * cells, 0);
   if (inten) out.intensity = HeightField(g, kNoData);
   auto copy_from = [&](std::size_t cell, std::uint32_t point) {
@@ -1023,7 +1067,18 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
         << " input points is finite (every point has a NaN or infinite coordinate)";
     throw InputError(msg.str());
   }
-  const GridGeometry g = make_geometry(bounds, options);
+  // A window of a given grid (the tiled pipeline), or the grid of the points' own box.
+  NodeOffset off;
+  GridGeometry g;
+  if (options.window) {
+    const GridWindow& w = *options.window;
+    g = w.grid;  // the whole grid's origin and cell: node indices as on the whole grid
+    g.rows = w.rows;
+    g.cols = w.cols;
+    off = {w.row0, w.col0, true};
+  } else {
+    g = make_geometry(bounds, options);
+  }
   const bool all_finite = bounds.finite == n_points;
   StageResult<DepthGrid> result;
   ScanCounts counts;
@@ -1046,14 +1101,27 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
     }
   }
   if (factor == 1) {
-    result.value = scan_grid(pts, n_points, half, two_threads, all_finite, g, options, counts);
-    if (attributes) scan_attributes(points_m, all_finite, g, options, result.value);
+    result.value = scan_grid(pts, n_points, half, two_threads, all_finite, g, options, counts, off);
+    if (attributes) scan_attributes(points_m, all_finite, g, options, result.value, off);
   } else {
     const GridGeometry coarse = coarse_geometry(g, factor);
-    DepthGrid scanned = scan_grid(pts, n_points, half, two_threads, all_finite, coarse, options, counts);
-    if (attributes) scan_attributes(points_m, all_finite, coarse, options, scanned);
+    const NodeOffset coarse_off{off.r / factor, off.c / factor, off.window};  // validated: multiples of K
+    DepthGrid scanned = scan_grid(pts, n_points, half, two_threads, all_finite, coarse, options, counts, coarse_off);
+    if (attributes) scan_attributes(points_m, all_finite, coarse, options, scanned, coarse_off);
     result.value = upsample(scanned, coarse, g, factor);
     if (attributes) upsample_attributes(scanned, coarse, g, factor, result.value);
+  }
+  if (off.window) {  // the window's own origin, for the layers and the scene
+    g.x0_m = options.window->grid.x_of_col(off.c);
+    g.y0_m = options.window->grid.y_of_row(off.r);
+    HeightField depth(g);
+    depth.values() = std::move(result.value.depth.values());
+    result.value.depth = std::move(depth);
+    if (result.value.has_intensity()) {
+      HeightField intensity(g);
+      intensity.values() = std::move(result.value.intensity.values());
+      result.value.intensity = std::move(intensity);
+    }
   }
   DepthGrid& out = result.value;
   const std::size_t cells = g.cell_count();
@@ -1075,7 +1143,8 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
   rep.figure("cols", g.cols);
   rep.figure("cell_size_mm", g.cell_size_m * 1e3);
   rep.figure("points_binned", static_cast<double>(binned));
-  rep.figure("points_non_finite", static_cast<double>(points_m.size() - binned));
+  rep.figure(off.window ? "points_outside_window_or_non_finite" : "points_non_finite",
+             static_cast<double>(points_m.size() - binned));
   rep.figure("cells", static_cast<double>(cells));
   rep.figure("cells_valid", static_cast<double>(valid));
   rep.figure("cells_measured", static_cast<double>(measured));
@@ -1093,6 +1162,17 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
   }
   rep.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return result;
+}
+
+}  // namespace hc::pipeline
+
+namespace hc::pipeline {
+
+int reproject_reach_cells(const ReprojectOptions& o, int k) {
+  if (k < 1) throw ConfigError("reproject_reach_cells: upsample factor " + std::to_string(k) + " (expected >= 1)");
+  const int r = static_cast<int>(std::ceil(std::max(0.0, o.splat_radius_cells)));
+  const int w = o.see_through_depth_m > 0.0 ? o.see_through_window_cells : 0;
+  return k * (2 * r + 3 + w) + k;
 }
 
 }  // namespace hc::pipeline

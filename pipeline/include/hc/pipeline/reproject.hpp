@@ -7,6 +7,7 @@
 #include "hc/pipeline/cloud.hpp"
 
 #include <cstdint>
+#include <optional>
 #include <vector>
 
 namespace hc::pipeline {
@@ -57,6 +58,14 @@ enum class SplatMode {
   kPlane,
 };
 
+/// A window of a larger grid: rows [row0, row0 + rows) and columns [col0, col0 + cols) of
+/// `grid` (the tiled pipeline, issue 14: one tile and its halo).
+struct GridWindow {
+  GridGeometry grid;  ///< the whole grid (origin, cell size, rows, cols)
+  int row0 = 0, col0 = 0;
+  int rows = 0, cols = 0;
+};
+
 /// Orthographic depth scan options.
 struct ReprojectOptions {
   GridSpec grid;
@@ -92,6 +101,16 @@ struct ReprojectOptions {
   /// point proxy. 0 (auto): the smallest K at which at least kAutoUpsampleCoverage of the
   /// nodes hit by a point have their 4 neighbours hit too (reported as upsample_coverage).
   int upsample_factor = 1;
+  /// Scan only this window of a given grid instead of a grid sized to the points' box (`grid`
+  /// is then ignored). Node indices are computed as on the whole grid and shifted by the
+  /// window's first row and column, so every node whose splats, see-through window and
+  /// upsampling reach only points given here gets the value, flag and attributes the whole
+  /// grid's reproject gives it, bit for bit, when the points come in the same order (a tile's
+  /// interior, its halo wide enough: tiling.hpp). Points whose node lies outside the window are
+  /// skipped (figure points_outside_window_or_non_finite). Needs upsample_factor ≥ 1 (the
+  /// whole grid's; auto needs every point) and row0, col0 multiples of it; the result's
+  /// geometry is the window's (origin at its first node).
+  std::optional<GridWindow> window{};
 };
 
 /// Largest upsample factor (ReprojectOptions::upsample_factor).
@@ -160,6 +179,16 @@ struct DepthGrid {
 /// Source: depth-buffer scan of Sec. 1 of the paper; front-most rule as in an OpenGL z-buffer;
 /// interpolating splats: normalised convolution (Knutsson & Westin, CVPR 1993), order 0.
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options);
+
+/// How far [fine nodes] a node's value in reproject can depend on points, for a window's halo:
+/// with r = splat_radius_cells, w = see_through_window_cells (0 when see-through handling is
+/// off) and K = upsample_factor (≥ 1), K·(2⌈r⌉ + 3 + w) + K: a plane splat gathers points
+/// within r of the node around a reference disc of radius r + √2/2 over binned nodes (half a
+/// node from their points), the see-through test reads w nodes of the filled grid each way,
+/// and upsampling reads the next coarse node. A window's nodes this far or farther inside its
+/// edge equal the whole grid's when the window got every point whose node lies inside it.
+/// @throws hc::ConfigError if K < 1.
+int reproject_reach_cells(const ReprojectOptions& options, int upsample_factor);
 
 /// Fills holes (connected no-data regions, 4-connectivity, empty or see-through) of at most
 /// max_hole_cells cells that do not touch the grid border, by normalised convolution (Gaussian
