@@ -816,7 +816,7 @@ const std::vector<std::string> kSections = {
     "input",  "input.synthetic", "view",          "view.rotation", "filters",       "filters.outliers",
     "filters.outliers.far_clusters", "filters.crop", "grid",      "cross_check",   "layers",        "layers.texture", "layers.friction",
     "audio",  "audio.limiter",   "audio.tones",   "audio.force",   "audio.slide",   "falcon",
-    "lod"};
+    "lod",    "scale"};
 
 RunConfig build(Reader& r, const std::filesystem::path& origin) {
   r.require_maps(kSections);
@@ -1059,6 +1059,19 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   c.lod.window_cells = static_cast<int>(r.get_int("lod.window_cells", c.lod.window_cells, 2, 4096));
   c.lod.report = r.get_bool("lod.report", c.lod.report);
   c.lod.report_cross_check = r.get_bool("lod.report_cross_check", c.lod.report_cross_check);
+
+  // the streaming tiled run (tiling.hpp; docs/scale.md)
+  {
+    const std::string t = r.get_string("scale.tiled", "auto", {"auto", "on", "off"});
+    c.scale.tiled = t == "on" ? ScaleConfig::Tiled::kOn : t == "off" ? ScaleConfig::Tiled::kOff : ScaleConfig::Tiled::kAuto;
+    c.scale.tiled_above_points = static_cast<std::uint64_t>(
+        r.get_int("scale.tiled_above_points", static_cast<long long>(c.scale.tiled_above_points), 1, 1LL << 50));
+    c.scale.tile_cells = static_cast<int>(r.get_int("scale.tile_cells", c.scale.tile_cells, 16, 65536));
+    c.scale.filter_halo_cells = static_cast<int>(r.get_int("scale.filter_halo_cells", c.scale.filter_halo_cells, 0, 4096));
+    c.scale.chunk_points = static_cast<std::size_t>(
+        r.get_int("scale.chunk_points", static_cast<long long>(c.scale.chunk_points), 1024, 1LL << 28));
+    if (r.has("scale.scratch")) c.scale.scratch = base / r.get_string("scale.scratch", "");
+  }
 
   r.reject_unknown_keys();
   YAML::Emitter e;

@@ -331,8 +331,6 @@ void plan(Run& run) {
 /// Phase 1 (per half of the points): (a) against f, and each point's bucket.
 void phase1_residuals_and_keys(Run& run, int h) {
   const GridGeometry& g = run.g;
-  const double x_lo = g.x0_m, x_hi = g.x_of_col(g.cols - 1);
-  const double y_lo = g.y0_m, y_hi = g.y_of_row(g.rows - 1);
   const double inv_cell = 1.0 / g.cell_size_m;
   const int split_row = run.split_row;
   Part& out = run.parts[h];
@@ -352,24 +350,17 @@ void phase1_residuals_and_keys(Run& run, int h) {
     run.key[i] = k;
     ++out.count[k];
     ++out.finite;
-    if (p[0] < x_lo || p[0] > x_hi || p[1] < y_lo || p[1] > y_hi) {
-      ++out.outside;
-      continue;
+    const PointResidual pr = point_residual(run.surface, g, p[0], p[1], p[2], run.hidden_band_m);
+    switch (pr.kind) {
+      case PointResidual::kOutside: ++out.outside; break;
+      case PointResidual::kOffSurface: ++out.off_surface; break;
+      case PointResidual::kHidden: ++out.hidden; break;
+      case PointResidual::kOnSurface:
+        ++out.on_surface;
+        out.vertical_m.push_back(pr.vertical_m);
+        out.normal_m.push_back(pr.normal_m);
+        break;
     }
-    const SurfaceSample s = run.surface.sample(p[0], p[1]);
-    if (!s.valid) {
-      ++out.off_surface;
-      continue;
-    }
-    const double residual = p[2] - s.z_m;
-    if (residual < -run.hidden_band_m) {
-      ++out.hidden;
-      continue;
-    }
-    ++out.on_surface;
-    const double n_z = 1.0 / std::sqrt(1.0 + s.dz_dx * s.dz_dx + s.dz_dy * s.dz_dy);
-    out.vertical_m.push_back(static_cast<float>(std::abs(residual)));
-    out.normal_m.push_back(static_cast<float>(std::abs(residual) * n_z));
   }
 }
 
@@ -653,6 +644,27 @@ void fill_report(const Run& run, const FarCounts& far, StageReport& rep) {
 }  // namespace
 
 ErrorStats error_stats_mm(std::vector<double> abs_errors_m) { return stats_of(abs_errors_m); }
+
+PointResidual point_residual(const BilinearSurface& surface, const GridGeometry& g, double x, double y, double z,
+                             double hidden_band_m) {
+  PointResidual r;
+  if (x < g.x0_m || x > g.x_of_col(g.cols - 1) || y < g.y0_m || y > g.y_of_row(g.rows - 1)) return r;
+  const SurfaceSample s = surface.sample(x, y);
+  if (!s.valid) {
+    r.kind = PointResidual::kOffSurface;
+    return r;
+  }
+  const double residual = z - s.z_m;
+  if (residual < -hidden_band_m) {
+    r.kind = PointResidual::kHidden;
+    return r;
+  }
+  r.kind = PointResidual::kOnSurface;
+  const double n_z = 1.0 / std::sqrt(1.0 + s.dz_dx * s.dz_dx + s.dz_dy * s.dz_dy);
+  r.vertical_m = static_cast<float>(std::abs(residual));
+  r.normal_m = static_cast<float>(std::abs(residual) * n_z);
+  return r;
+}
 
 StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& grid,
                                     double tolerance_m, double hidden_band_m) {

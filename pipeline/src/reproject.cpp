@@ -656,9 +656,8 @@ inline bool ray_has_higher(const float* depth, int rows, int cols, int r, int c,
 // Coverage of the scan on geometry g: of the nodes holding at least one point, the fraction
 // whose 4 neighbours hold one too (1 for a scan denser than the grid everywhere; about p⁴ when
 // a node is hit with probability p, so it falls fast once cells get finer than the spacing).
-double coverage_on(const double* p, std::size_t n, const GridGeometry& g, bool all_finite) {
-  const std::size_t cells = g.cell_count();
-  std::vector<std::uint8_t> hit(cells, 0);
+// Marks the node of every finite point (the binning of bin_front_most, clamped) in `hit`.
+void mark_hits(const double* p, std::size_t n, const GridGeometry& g, bool all_finite, std::uint8_t* hit) {
   const double inv = 1.0 / g.cell_size_m;
   const double cx = 0.5 - g.x0_m * inv, cy = 0.5 - g.y0_m * inv;
   const auto c_max = static_cast<unsigned>(g.cols - 1), r_max = static_cast<unsigned>(g.rows - 1);
@@ -669,6 +668,19 @@ double coverage_on(const double* p, std::size_t n, const GridGeometry& g, bool a
     const unsigned r = std::min(static_cast<unsigned>(static_cast<int>(p[1] * inv + cy)), r_max);
     hit[static_cast<std::size_t>(r) * cols + c] = 1;
   }
+}
+
+// Of the hit nodes not on the border, the fraction whose 4 neighbours are hit.
+double coverage_of_hits(const std::vector<std::uint8_t>& hit, const GridGeometry& g);
+
+double coverage_on(const double* p, std::size_t n, const GridGeometry& g, bool all_finite) {
+  std::vector<std::uint8_t> hit(g.cell_count(), 0);
+  mark_hits(p, n, g, all_finite, hit.data());
+  return coverage_of_hits(hit, g);
+}
+
+double coverage_of_hits(const std::vector<std::uint8_t>& hit, const GridGeometry& g) {
+  const std::size_t cols = static_cast<std::size_t>(g.cols);
   std::size_t occupied = 0, interior = 0;
   for (int r = 1; r + 1 < g.rows; ++r) {
     for (int c = 1; c + 1 < g.cols; ++c) {
@@ -1167,6 +1179,42 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 }  // namespace hc::pipeline
 
 namespace hc::pipeline {
+
+GridGeometry grid_geometry_for_box(double x_min, double x_max, double y_min, double y_max, std::size_t finite,
+                                   const ReprojectOptions& options) {
+  validate_options(options);
+  if (finite == 0) throw InputError("reproject: no finite input point");
+  Bounds b;
+  b.x_min = x_min;
+  b.x_max = x_max;
+  b.y_min = y_min;
+  b.y_max = y_max;
+  b.finite = finite;
+  return make_geometry(b, options);
+}
+
+UpsampleCoverage::UpsampleCoverage(const GridGeometry& g) : g_(g) {
+  for (int k = 1; k <= kMaxUpsampleFactor; ++k) {
+    const GridGeometry c = coarse_geometry(g, k);
+    if (c.cols < 3 || c.rows < 3) break;
+    coarse_.push_back(c);
+    hit_.emplace_back(c.cell_count(), 0);
+  }
+}
+
+void UpsampleCoverage::add(const double* xyz, std::size_t n) {
+  for (std::size_t k = 0; k < coarse_.size(); ++k) mark_hits(xyz, n, coarse_[k], false, hit_[k].data());
+}
+
+int UpsampleCoverage::factor(double* coverage) const {
+  // auto_upsample_factor's loop, on the hits gathered so far.
+  for (int k = 1; k <= kMaxUpsampleFactor; ++k) {
+    if (static_cast<std::size_t>(k) > coarse_.size()) return std::max(1, k - 1);
+    *coverage = coverage_of_hits(hit_[static_cast<std::size_t>(k - 1)], coarse_[static_cast<std::size_t>(k - 1)]);
+    if (*coverage >= kAutoUpsampleCoverage) return k;
+  }
+  return kMaxUpsampleFactor;
+}
 
 int reproject_reach_cells(const ReprojectOptions& o, int k) {
   if (k < 1) throw ConfigError("reproject_reach_cells: upsample factor " + std::to_string(k) + " (expected >= 1)");

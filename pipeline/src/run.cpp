@@ -1,3 +1,4 @@
+#include "run_internal.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/run.hpp"
 
@@ -17,6 +18,7 @@
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 #include "hc/pipeline/synthetic.hpp"
+#include "hc/pipeline/tiling.hpp"
 #include "hc/pipeline/transform.hpp"
 
 #include <nlohmann/json.hpp>
@@ -104,6 +106,10 @@ std::string json_text(const std::string& s) {
   return out;
 }
 
+}  // namespace
+
+namespace detail {
+
 /// Resets the process's resident-memory high-water mark (Linux, proc(5): writing "5" to
 /// /proc/self/clear_refs resets VmHWM). @return false when it cannot (then peak_rss() is the
 /// peak since the process started, or since the last reset).
@@ -131,22 +137,12 @@ std::size_t peak_rss() {
   return kb * 1024;
 }
 
-/// Runs one stage: announces it, runs it, records its report (seconds, peak memory).
-template <class F>
-auto stage(const char* name, std::vector<StageReport>& reports, const ProgressFn& progress, F&& body) {
-  StageReport announce;
-  announce.stage = name;
-  if (progress) progress(announce, false);
-  const bool measured = reset_peak_rss();
-  const auto t0 = Clock::now();
-  auto result = body();
-  result.report.stage = name;
-  if (result.report.seconds <= 0.0) result.report.seconds = seconds_since(t0);
-  if (measured) result.report.peak_rss_bytes = peak_rss();
-  reports.push_back(result.report);
-  if (progress) progress(result.report, true);
-  return std::move(result.value);
-}
+}  // namespace detail
+
+namespace {
+using detail::peak_rss;
+using detail::reset_peak_rss;
+using detail::stage;
 
 json stats_json(const ErrorStats& s) {
   return {{"count", s.count}, {"rms_mm", s.rms_mm}, {"p50_mm", s.p50_mm}, {"p95_mm", s.p95_mm},
@@ -188,17 +184,10 @@ double removal_displacement_m(const RunConfig& config) {
   return d;
 }
 
-/// What ingest tells about the stored precision of the coordinates (Cloud::float32_xyz).
-struct StoredPrecision {
-  bool float32 = false;
-  std::string file;                                  ///< the (first) input, for messages
-  std::string crs;                                   ///< Cloud::crs as read
-  Eigen::Vector3d max_abs_m = Eigen::Vector3d::Zero();  ///< largest |coordinate| per file axis [m], before recentring
-  Eigen::Vector3i distinct = Eigen::Vector3i::Zero();   ///< distinct stored values per axis, counted up to kDistinctCap
-};
-constexpr int kDistinctCap = 64;
-/// Fewer distinct stored values than this along a grid axis: the grid has collapsed.
-constexpr int kCollapsedDistinct = 16;
+}  // namespace
+
+namespace detail {
+
 
 StoredPrecision stored_precision(const Cloud& cloud, double unit_m, const std::string& file) {
   StoredPrecision p;
@@ -257,6 +246,14 @@ void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen
 /// filter (24 bytes per point: 26 MB for the 1.1 M-point Buddha), for the honest cross-check.
 /// `in_memory`, when given, replaces ingest: its points (moved from) are the input, in
 /// config.input.units, and input.files, conf and synthetic are not read.
+
+}  // namespace detail
+
+namespace {
+using detail::StoredPrecision;
+using detail::check_stored_precision;
+using detail::stored_precision;
+
 Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& reports, const ProgressFn& progress,
                             std::vector<SceneInput>& scene_inputs, Eigen::Vector3d& offset_m,
                             StoredPrecision* precision = nullptr,
@@ -424,6 +421,55 @@ std::string verdict_markdown(const RunSummary& summary) {
 
 }  // namespace
 
+namespace detail {
+
+Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::vector<StageReport>& reports,
+                                const ProgressFn& progress, const StoredPrecision& precision,
+                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built) {
+  RunSummary& summary = built.summary;
+  Scene& scene = built.scene;
+  check_stored_precision(precision, grid.depth.geometry().cell_size_m, config.view.matrix().rotation(),
+                         reports.at(grid_report), summary.warnings);
+  // Scan-line corrugation of the grid (before hole filling), for the report.
+  (void)stage("corrugation", reports, progress, [&] { return corrugation(grid); });
+  if (config.grid.hole_fill_max_cells > 0) {
+    grid = stage("hole_fill", reports, progress, [&] { return fill_holes(std::move(grid), config.grid.hole_fill_max_cells, config.grid.hole_fill_max_step_m); });
+  }
+  const double unit_m = metres_per_unit(config.input.units);
+  const Eigen::Affine3d model_to_grid =
+      config.view.matrix() * Eigen::Translation3d(-offset_m) * Eigen::Scaling(unit_m);
+  grid.depth.model_to_grid = model_to_grid;
+  summary.grid = grid.depth.geometry();
+  summary.valid_cells = grid.depth.valid_count();
+  scene.geometry = grid.depth.geometry();
+  scene.model_to_grid = model_to_grid;
+  scene.layers.flags = std::move(grid.flags);
+  // Colour and intensity of the front-most point per cell (reproject), hole-filled like depth.
+  scene.layers.colour_rgb8 = std::move(grid.colour_rgb8);
+  if (grid.has_intensity()) {
+    scene.layers.intensity = std::move(grid.intensity);
+    scene.layers.intensity.model_to_grid = model_to_grid;
+  }
+
+  // 6. Surface layers (texture, curvature, friction).
+  if (config.layers.enabled) {
+    SurfaceLayers layers = stage("surface_layers", reports, progress,
+                                 [&] { return compute_surface_layers(grid.depth, config.layers.options, config.lod.window_cells); });
+    scene.friction_model = layers.friction_model;
+    scene.layers.envelope = std::move(layers.envelope_m);
+    scene.layers.texture = std::move(layers.texture_m);
+    scene.layers.mu_d = std::move(layers.mu_d);
+    scene.layers.mu_s = std::move(layers.mu_s);
+    for (HeightField* f : {&scene.layers.envelope, &scene.layers.texture, &scene.layers.mu_d, &scene.layers.mu_s}) {
+      f->model_to_grid = model_to_grid;
+    }
+  }
+
+  return model_to_grid;
+}
+
+}  // namespace detail
+
 Cloud prepare_points(const RunConfig& config) {
   std::vector<StageReport> reports;
   std::vector<SceneInput> inputs;
@@ -436,6 +482,8 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
 }  // namespace
 
 BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressFn& progress) {
+  // Scans too large for memory: the streaming tiled run (tiling.hpp; it keeps no cloud).
+  if (runs_tiled(config)) return build_scene_tiled(config, progress);
   return build_scene_impl(config, keep_cloud, progress, nullptr);
 }
 
@@ -508,42 +556,8 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
       reproject_report = reports.size() - 1;
     }
   }
-  check_stored_precision(precision, grid.depth.geometry().cell_size_m, config.view.matrix().rotation(),
-                         reports[reproject_report], summary.warnings);
-  // Scan-line corrugation of the grid (before hole filling), for the report.
-  (void)stage("corrugation", reports, progress, [&] { return corrugation(grid); });
-  if (config.grid.hole_fill_max_cells > 0) {
-    grid = stage("hole_fill", reports, progress, [&] { return fill_holes(std::move(grid), config.grid.hole_fill_max_cells, config.grid.hole_fill_max_step_m); });
-  }
-  const double unit_m = metres_per_unit(config.input.units);
   const Eigen::Affine3d model_to_grid =
-      config.view.matrix() * Eigen::Translation3d(-offset_m) * Eigen::Scaling(unit_m);
-  grid.depth.model_to_grid = model_to_grid;
-  summary.grid = grid.depth.geometry();
-  summary.valid_cells = grid.depth.valid_count();
-  scene.geometry = grid.depth.geometry();
-  scene.model_to_grid = model_to_grid;
-  scene.layers.flags = std::move(grid.flags);
-  // Colour and intensity of the front-most point per cell (reproject), hole-filled like depth.
-  scene.layers.colour_rgb8 = std::move(grid.colour_rgb8);
-  if (grid.has_intensity()) {
-    scene.layers.intensity = std::move(grid.intensity);
-    scene.layers.intensity.model_to_grid = model_to_grid;
-  }
-
-  // 6. Surface layers (texture, curvature, friction).
-  if (config.layers.enabled) {
-    SurfaceLayers layers = stage("surface_layers", reports, progress,
-                                 [&] { return compute_surface_layers(grid.depth, config.layers.options, config.lod.window_cells); });
-    scene.friction_model = layers.friction_model;
-    scene.layers.envelope = std::move(layers.envelope_m);
-    scene.layers.texture = std::move(layers.texture_m);
-    scene.layers.mu_d = std::move(layers.mu_d);
-    scene.layers.mu_s = std::move(layers.mu_s);
-    for (HeightField* f : {&scene.layers.envelope, &scene.layers.texture, &scene.layers.mu_d, &scene.layers.mu_s}) {
-      f->model_to_grid = model_to_grid;
-    }
-  }
+      detail::scene_from_grid(grid, config, reports, progress, precision, offset_m, reproject_report, built);
 
   // 7. Cross-check.
   if (config.cross_check.enabled) {

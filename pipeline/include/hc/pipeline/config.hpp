@@ -20,6 +20,7 @@
 #include <array>
 #include <limits>
 
+#include <cstdint>
 #include <filesystem>
 #include <optional>
 #include <string>
@@ -89,6 +90,19 @@ struct LayersConfig {
   SurfaceLayerOptions options;
 };
 
+/// scale.* (issue 14, tiling.hpp): the streaming tiled run for scans too large for memory.
+struct ScaleConfig {
+  enum class Tiled { kAuto, kOn, kOff };
+  /// auto: tiled when the input is one binary PLY (streamed natively) of more than
+  /// tiled_above_points points; on: always (an error names the keys it cannot honour); off: never.
+  Tiled tiled = Tiled::kAuto;
+  std::uint64_t tiled_above_points = 50'000'000;  ///< the auto threshold, ≥ 1
+  int tile_cells = 512;           ///< tile side [grid cells], 16 to 65536 (rounded up to the upsample factor)
+  int filter_halo_cells = 32;     ///< extra halo for the per-tile outlier filters [cells], 0 to 4096
+  std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
+  std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
+};
+
 struct RunConfig {
   std::filesystem::path source;        ///< the config file it came from ("" when built in code)
   std::string name;                    ///< run name (default: the config file's stem)
@@ -105,6 +119,7 @@ struct RunConfig {
   /// (hc::falcon_config; the firmware path resolved against the config's folder).
   falcon::FalconConfig falcon;
   LodOptions lod;                      ///< levels of detail and the haptic window (lod.*, issue 4)
+  ScaleConfig scale;                   ///< the tiled run (scale.*, issue 14)
   std::string resolved_yaml;           ///< every key with the value used (defaults included)
 };
 

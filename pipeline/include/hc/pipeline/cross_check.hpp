@@ -2,10 +2,12 @@
 /// @file cross_check.hpp
 /// Stage 7: kd-tree cross-check of the bilinear surface against the input points.
 
+#include "hc/common/bilinear_surface.hpp"
 #include "hc/common/height_field.hpp"
 #include "hc/pipeline/cloud.hpp"
 
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
 namespace hc::pipeline {
@@ -42,6 +44,17 @@ struct CrossCheck {
   /// Per-cell error map [m]: (b)'s distance per valid cell, NaN elsewhere.
   HeightField cell_error_m;
 };
+
+/// Part (a) of cross_check for one finite point (x, y, z) [m, grid frame] against the bilinear
+/// surface of a grid of geometry g: outside the grid's x-y extent; off the surface (a no-data
+/// corner); hidden (more than hidden_band_m below f); or on it, with |z − f| and |z − f|·n_z
+/// (n_z = 1/√(1 + f_x² + f_y²)) as float, exactly as cross_check computes them (it calls this).
+struct PointResidual {
+  enum Kind : std::uint8_t { kOutside, kOffSurface, kHidden, kOnSurface } kind = kOutside;
+  float vertical_m = 0.0f, normal_m = 0.0f;  ///< set for kOnSurface
+};
+PointResidual point_residual(const BilinearSurface& surface, const GridGeometry& g, double x_m, double y_m, double z_m,
+                             double hidden_band_m);
 
 /// Cross-checks the grid against the points that made it (same grid frame, metres).
 /// (b) is an exact nearest-neighbour search over all finite points: the points are bucketed by

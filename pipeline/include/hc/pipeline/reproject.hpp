@@ -180,6 +180,29 @@ struct DepthGrid {
 /// interpolating splats: normalised convolution (Knutsson & Westin, CVPR 1993), order 0.
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options);
 
+/// The geometry reproject gives points whose finite points (`finite` of them, > 0) span the x-y
+/// box [x_min, x_max] × [y_min, y_max] [m] (the tiled run, whose points are never all in memory).
+/// @throws as reproject for the options and a degenerate or too large grid.
+GridGeometry grid_geometry_for_box(double x_min, double x_max, double y_min, double y_max, std::size_t finite,
+                                   const ReprojectOptions& options);
+
+/// upsample_factor 0 (auto) over points given in chunks: add() every point once, then factor()
+/// is what reproject would choose for them all on grid g (the same node coverage per factor, the
+/// same stopping rule). Memory: one byte per node of every coarse grid, about 1.65 × g's nodes.
+class UpsampleCoverage {
+ public:
+  explicit UpsampleCoverage(const GridGeometry& g);
+  /// Marks the nodes of n points (3·n doubles, x y z, grid frame [m]); non-finite ones are skipped.
+  void add(const double* xyz, std::size_t n);
+  /// The factor K, and in *coverage the coverage reached at it.
+  int factor(double* coverage) const;
+
+ private:
+  GridGeometry g_;
+  std::vector<GridGeometry> coarse_;
+  std::vector<std::vector<std::uint8_t>> hit_;
+};
+
 /// How far [fine nodes] a node's value in reproject can depend on points, for a window's halo:
 /// with r = splat_radius_cells, w = see_through_window_cells (0 when see-through handling is
 /// off) and K = upsample_factor (≥ 1), K·(2⌈r⌉ + 3 + w) + K: a plane splat gathers points

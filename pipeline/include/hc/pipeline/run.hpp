@@ -48,7 +48,9 @@ struct BuiltScene {
 };
 
 /// Runs every stage of `config` in memory: ingest → units + recentre → view transform → filters
-/// → reproject → hole fill → surface layers → cross-check. Nothing is written.
+/// → reproject → hole fill → surface layers → cross-check. Nothing is written. When
+/// runs_tiled(config) (scale.tiled; tiling.hpp) the streaming tiled run makes the scene instead:
+/// it keeps no cloud (keep_cloud is ignored) and computes no honest cross-check or verdict.
 /// @param keep_cloud keep the filtered points (grid frame, metres) in the result (for the
 ///        levels table's cross-check or a viewer's cloud preview); otherwise they are freed.
 /// @throws hc::Error subclasses from any stage (naming file, key or value).

@@ -1,0 +1,62 @@
+#pragma once
+/// @file tiling.hpp
+/// The streaming tiled run (issue 14): a scan larger than memory should hold is read in chunks
+/// (point_stream.hpp) and gridded tile by tile, each tile with a halo, so that memory is bounded
+/// by the grid, one tile's points and one chunk, not by the cloud.
+///
+/// Passes (docs/scale.md):
+///  1. plan: stream the input twice, (a) the x-y-z box of the finite points in file units (the
+///     recentring offset, as to_metres_and_recentre takes it; the stored-precision figures), (b)
+///     every point through units, recentring, view transform, non-finite and crop, exactly as the
+///     in-core stages compute them: the grid's box (the geometry reproject would make) and, for
+///     grid.upsample: auto, the node coverage at every upsample factor (UpsampleCoverage);
+///  2. spill: stream a third time and write each point (its index in the file, x y z as double in
+///     the grid frame, colour and intensity when the scan has them) to the spill file of every
+///     tile whose window (the tile plus its halo) holds its grid node;
+///  3. per tile, in order: read its points (file order), the robust outlier filter and the
+///     isolated-point filter when enabled, reproject the tile's window, despike and reproject
+///     again when enabled; copy the tile's interior into the grid; keep the filtered points;
+///  4. on the whole grid, as in core: corrugation, hole fill, surface layers;
+///  5. the kd-tree cross-check, per tile over its kept points (interior points for (a), interior
+///     cells for (b)), merged exactly: counts, maxima and the nearest-rank percentiles by a
+///     two-pass radix selection over the float values (a second read of the kept points).
+/// Spill files live in a fresh folder under scale.scratch (default: the system's temporary
+/// folder), removed when the run ends or fails; their peak size is reported (tile_spill stage).
+///
+/// What equals the in-core run: with filters.outliers disabled, the depth, flags, colour,
+/// intensity, texture, friction and cross-check (a) figures are identical bit for bit (the halo
+/// is reproject_reach_cells wide, so every node of a tile's interior sees every point it
+/// depends on, in file order); (b)'s distances agree to float rounding (each tile searches in its
+/// own float frame) and the RMS figures to the last bits (summed in another order).
+/// What does not yet: with the robust outlier filter, each tile is filtered on its own (its own
+/// robust statistics, k-NN searches cut at the halo), the isolated-point radius is the tile's,
+/// and the grid's box and upsample factor are those of the points before filtering (in core:
+/// after). The honest cross-check (input as read, grid spikes) and the verdict are not computed
+/// in a tiled run (noted in the report); the levels table has no cross-check column (no cloud).
+/// Not supported (tiled: on is an error naming the key): input.conf / several files,
+/// input.synthetic, filters.voxel_m, filters.pcl, filters.outliers other than robust,
+/// grid.organised: mesh, meshes.
+
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/run.hpp"
+
+#include <string>
+
+namespace hc::pipeline {
+
+/// Whether build_scene runs `config` tiled: scale.tiled on, or auto and the input is a single
+/// natively streamed file (point_stream.hpp) of more than scale.tiled_above_points points.
+/// @throws what opening the input throws (auto only); hc::ConfigError for tiled: on with an
+///         option the tiled run does not support (the message names the key).
+bool runs_tiled(const RunConfig& config);
+
+/// The tiled run (see the file comment): the same BuiltScene build_scene gives, without the
+/// cloud, the honest cross-check and the verdict; the report has stages tile_plan,
+/// tile_spill (spill_bytes_peak_mb, tiles, halo_cells) and tiles (per-tile sums), then the
+/// in-core stages from corrugation on.
+/// @throws hc::ConfigError as runs_tiled; hc::InputError for unreadable input or a scratch
+///         folder that cannot be written (naming it); what the stages throw.
+/// Real-time: no. Memory: the grid's layers, one tile's points and one chunk.
+BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress = {});
+
+}  // namespace hc::pipeline

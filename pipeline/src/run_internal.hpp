@@ -1,0 +1,74 @@
+#pragma once
+/// @file run_internal.hpp
+/// What the in-core run (run.cpp) shares with the tiled run (tiled_run.cpp): the stage helper,
+/// the stored-precision check and the steps from a finished depth grid to the scene's layers.
+/// Private to the pipeline (not installed, not public API).
+
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/run.hpp"
+#include "stage_util.hpp"
+
+#include <Eigen/Geometry>
+
+#include <cstddef>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline::detail {
+
+/// Resets the process's resident-memory high-water mark (Linux, proc(5): writing "5" to
+/// /proc/self/clear_refs resets VmHWM). @return false when it cannot.
+bool reset_peak_rss();
+/// VmHWM of /proc/self/status [bytes]: the peak resident memory since the last reset; 0 if
+/// unreadable.
+std::size_t peak_rss();
+
+/// Runs one stage: announces it, runs it, records its report (seconds, peak memory).
+template <class F>
+auto stage(const char* name, std::vector<StageReport>& reports, const ProgressFn& progress, F&& body) {
+  StageReport announce;
+  announce.stage = name;
+  if (progress) progress(announce, false);
+  const bool measured = reset_peak_rss();
+  const auto t0 = Clock::now();
+  auto result = body();
+  result.report.stage = name;
+  if (result.report.seconds <= 0.0) result.report.seconds = seconds_since(t0);
+  if (measured) result.report.peak_rss_bytes = peak_rss();
+  reports.push_back(result.report);
+  if (progress) progress(result.report, true);
+  return std::move(result.value);
+}
+
+
+/// What ingest tells about the stored precision of the coordinates (Cloud::float32_xyz).
+struct StoredPrecision {
+  bool float32 = false;
+  std::string file;                                  ///< the (first) input, for messages
+  std::string crs;                                   ///< Cloud::crs as read
+  Eigen::Vector3d max_abs_m = Eigen::Vector3d::Zero();  ///< largest |coordinate| per file axis [m], before recentring
+  Eigen::Vector3i distinct = Eigen::Vector3i::Zero();   ///< distinct stored values per axis, counted up to kDistinctCap
+};
+constexpr int kDistinctCap = 64;
+/// Fewer distinct stored values than this along a grid axis: the grid has collapsed.
+constexpr int kCollapsedDistinct = 16;
+
+/// The stored precision of `cloud` as read (file units; unit_m converts to metres).
+StoredPrecision stored_precision(const Cloud& cloud, double unit_m, const std::string& file);
+
+/// The float-precision check once the cell size is known (warnings, or an error naming the
+/// collapsed axis); see run.cpp.
+void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen::Matrix3d& view_rotation,
+                            StageReport& report, std::vector<std::string>& warnings);
+
+/// From a finished depth grid (reprojected, despiked) to the scene's grid layers, as the run
+/// makes them: the stored-precision check (into reports[grid_report]), corrugation, hole fill,
+/// the scene's geometry, model-to-grid transform, flags, colour and intensity, and the surface
+/// layers (config.layers). `grid` keeps the hole-filled depth (the cross-check's); built.summary
+/// gets grid and valid_cells. @return the model-to-grid transform.
+Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::vector<StageReport>& reports,
+                                const ProgressFn& progress, const StoredPrecision& precision,
+                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built);
+
+}  // namespace hc::pipeline::detail

@@ -1,0 +1,811 @@
+// The streaming tiled run (tiling.hpp, issue 14): plan, spill, per-tile gridding, the whole
+// grid's layers, and the cross-check merged over tiles.
+
+#include "hc/pipeline/tiling.hpp"
+
+#include "run_internal.hpp"
+#include "stage_util.hpp"
+
+#include "hc/common/bilinear_surface.hpp"
+#include "hc/common/error.hpp"
+#include "hc/common/units.hpp"
+#include "hc/pipeline/cross_check.hpp"
+#include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/honest_check.hpp"
+#include "hc/pipeline/point_stream.hpp"
+#include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/robust_outliers.hpp"
+#include "hc/pipeline/transform.hpp"
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cerrno>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <limits>
+#include <map>
+#include <string>
+#include <system_error>
+#include <vector>
+
+namespace hc::pipeline {
+namespace {
+
+namespace fs = std::filesystem;
+using detail::stage;
+
+// ---------------------------------------------------------------------------------------------
+// Which configs the tiled run takes.
+
+void refuse(const char* key, const std::string& why) {
+  throw ConfigError(std::string("scale.tiled: on, but ") + key + " " + why +
+                    " (the tiled run does not support it yet: docs/scale.md; set scale.tiled: off)");
+}
+
+void check_supported(const RunConfig& c) {
+  if (c.input.synthetic) refuse("input.synthetic", "is set");
+  if (c.input.conf) refuse("input.conf", "is set (a merge of several scans)");
+  if (c.input.files.size() != 1) refuse("input.files", "lists " + std::to_string(c.input.files.size()) + " files");
+  if (c.filters.voxel_m > 0.0) refuse("filters.voxel_m", "is > 0");
+  if (!c.filters.pcl.empty()) refuse("filters.pcl", "is not empty");
+  if (c.filters.outliers.enabled && c.filters.outliers.method != OutlierMethod::kRobust) {
+    refuse("filters.outliers.method", "is not robust");
+  }
+  if (c.grid.organised_mesh) refuse("grid.organised", "is mesh");
+}
+
+// ---------------------------------------------------------------------------------------------
+// The spill folder and files.
+
+// A fresh folder under `parent`, removed with its content when this goes out of scope.
+class ScratchDir {
+ public:
+  explicit ScratchDir(const fs::path& parent) {
+    std::error_code ec;
+    const fs::path base = parent.empty() ? fs::temp_directory_path(ec) : parent;
+    if (ec || !fs::is_directory(base, ec)) {
+      throw InputError("scale.scratch: " + base.string() + " is not a folder that exists (expected one for the spill files)");
+    }
+    std::string templ = (base / "hapticloud-tiles-XXXXXX").string();
+    if (!::mkdtemp(templ.data())) {
+      throw InputError("scale.scratch: cannot create a folder in " + base.string() + ": " + std::strerror(errno));
+    }
+    dir_ = templ;
+  }
+  ~ScratchDir() {
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+  ScratchDir(const ScratchDir&) = delete;
+  ScratchDir& operator=(const ScratchDir&) = delete;
+  const fs::path& path() const { return dir_; }
+
+ private:
+  fs::path dir_;
+};
+
+// What a spilled point carries.
+struct Layout {
+  bool rgb = false, intensity = false;
+  std::size_t bytes() const { return 8 + 24 + (rgb ? 3 : 0) + (intensity ? 4 : 0); }
+};
+
+// Spill files, one per tile, appended through per-tile buffers (records of Layout::bytes():
+// u64 index, x y z double, [r g b], [intensity float]).
+class Spill {
+ public:
+  Spill(fs::path dir, std::string prefix, std::size_t tiles, Layout layout)
+      : dir_(std::move(dir)), prefix_(std::move(prefix)), layout_(layout), buf_(tiles), bytes_(tiles, 0) {}
+  fs::path file(std::size_t t) const { return dir_ / (prefix_ + std::to_string(t) + ".bin"); }
+
+  void add(std::size_t t, std::uint64_t index, const double* p, const std::uint8_t* rgb, float intensity) {
+    std::vector<char>& b = buf_[t];
+    const std::size_t at = b.size();
+    b.resize(at + layout_.bytes());
+    char* q = b.data() + at;
+    std::memcpy(q, &index, 8);
+    std::memcpy(q + 8, p, 24);
+    q += 32;
+    if (layout_.rgb) {
+      std::memcpy(q, rgb, 3);
+      q += 3;
+    }
+    if (layout_.intensity) std::memcpy(q, &intensity, 4);
+    buffered_ += layout_.bytes();
+    if (b.size() >= kTileBuffer) flush(t);
+    if (buffered_ >= kTotalBuffer) flush_all();
+  }
+
+  void flush_all() {
+    for (std::size_t t = 0; t < buf_.size(); ++t) flush(t);
+  }
+
+  std::uintmax_t bytes() const {
+    std::uintmax_t s = 0;
+    for (const auto b : bytes_) s += b;
+    return s;
+  }
+
+  // Reads tile t's points back (flush first): their file indices, and the points.
+  Cloud read(std::size_t t, std::vector<std::uint64_t>& index) const {
+    Cloud c;
+    index.clear();
+    const std::size_t rec = layout_.bytes();
+    const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
+    if (n == 0) return c;
+    std::vector<char> raw(bytes_[t]);
+    std::FILE* f = std::fopen(file(t).c_str(), "rb");
+    const bool ok = f && std::fread(raw.data(), 1, raw.size(), f) == raw.size();
+    if (f) std::fclose(f);
+    if (!ok) throw InputError("tiled run: cannot read the spill file " + file(t).string());
+    c.xyz.resize(3, static_cast<Eigen::Index>(n));
+    index.resize(n);
+    if (layout_.rgb) c.rgb.resize(3 * n);
+    if (layout_.intensity) c.intensity.resize(n);
+    for (std::size_t i = 0; i < n; ++i) {
+      const char* q = raw.data() + i * rec;
+      std::memcpy(&index[i], q, 8);
+      std::memcpy(c.xyz.data() + 3 * i, q + 8, 24);
+      q += 32;
+      if (layout_.rgb) {
+        std::memcpy(c.rgb.data() + 3 * i, q, 3);
+        q += 3;
+      }
+      if (layout_.intensity) std::memcpy(&c.intensity[i], q, 4);
+    }
+    return c;
+  }
+
+  void remove(std::size_t t) {
+    std::error_code ec;
+    fs::remove(file(t), ec);
+  }
+
+ private:
+  static constexpr std::size_t kTileBuffer = 1u << 18;
+  static constexpr std::size_t kTotalBuffer = 64u << 20;
+
+  void flush(std::size_t t) {
+    std::vector<char>& b = buf_[t];
+    if (b.empty()) return;
+    std::FILE* f = std::fopen(file(t).c_str(), "ab");
+    const bool ok = f && std::fwrite(b.data(), 1, b.size(), f) == b.size();
+    const bool closed = f && std::fclose(f) == 0;
+    if (!ok || !closed) {
+      throw InputError("scale.scratch: cannot write the spill file " + file(t).string() + ": " + std::strerror(errno) +
+                       " (is the disk full?)");
+    }
+    bytes_[t] += b.size();
+    buffered_ -= b.size();
+    std::vector<char>().swap(b);
+  }
+
+  fs::path dir_;
+  std::string prefix_;
+  Layout layout_;
+  std::vector<std::vector<char>> buf_;
+  std::vector<std::uintmax_t> bytes_;
+  std::size_t buffered_ = 0;
+};
+
+// ---------------------------------------------------------------------------------------------
+// The tiles.
+
+struct Tiles {
+  GridGeometry g;
+  int k = 1;        // upsample factor
+  int size = 512;   // tile side [nodes], a multiple of k
+  int halo = 0;     // [nodes], a multiple of k
+  int tiles_r = 0, tiles_c = 0;
+
+  std::size_t count() const { return static_cast<std::size_t>(tiles_r) * static_cast<std::size_t>(tiles_c); }
+  // The tile's interior: rows [r0, r1), cols [c0, c1).
+  std::array<int, 4> interior(std::size_t t) const {
+    const int tr = static_cast<int>(t / static_cast<std::size_t>(tiles_c)), tc = static_cast<int>(t % static_cast<std::size_t>(tiles_c));
+    return {tr * size, std::min(g.rows, (tr + 1) * size), tc * size, std::min(g.cols, (tc + 1) * size)};
+  }
+  // The tile's window: its interior and halo, clipped to the grid.
+  GridWindow window(std::size_t t) const {
+    const auto [r0, r1, c0, c1] = interior(t);
+    GridWindow w;
+    w.grid = g;
+    w.row0 = std::max(0, r0 - halo);
+    w.col0 = std::max(0, c0 - halo);
+    w.rows = std::min(g.rows, r1 + halo) - w.row0;
+    w.cols = std::min(g.cols, c1 + halo) - w.col0;
+    return w;
+  }
+};
+
+int floor_div(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
+
+// The tiles whose window holds grid node (r, c): rows of tiles [tr0, tr1], columns [tc0, tc1].
+std::array<int, 4> tiles_of(const Tiles& t, int r, int c) {
+  return {std::max(0, floor_div(r - t.halo, t.size)), std::min(t.tiles_r - 1, floor_div(r + t.halo, t.size)),
+          std::max(0, floor_div(c - t.halo, t.size)), std::min(t.tiles_c - 1, floor_div(c + t.halo, t.size))};
+}
+
+// ---------------------------------------------------------------------------------------------
+// Passes over the input.
+
+// Pass 1a: box of the finite points in file units, counts, stored precision.
+struct FileBox {
+  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  Eigen::Vector3d hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  std::uint64_t points = 0, finite = 0;
+  Layout layout;
+  bool float32 = false;
+  std::array<std::vector<double>, 3> distinct;
+  Eigen::Vector3d max_abs = Eigen::Vector3d::Zero();
+};
+
+// Applies units, recentring and the view transform to a chunk, exactly as the in-core stages
+// (to_metres_and_recentre, apply_view_transform) compute them, then non-finite and crop.
+Cloud to_grid_frame(Cloud chunk, const Eigen::Vector3d& centre, double unit_m, const RunConfig& config) {
+  chunk.xyz.colwise() -= centre;
+  if (unit_m != 1.0) chunk.xyz *= unit_m;
+  chunk = apply_view_transform(std::move(chunk), config.view).value;
+  chunk = remove_non_finite(std::move(chunk)).value;
+  if (config.filters.crop_m) chunk = crop_box(std::move(chunk), config.filters.crop_m->first, config.filters.crop_m->second).value;
+  return chunk;
+}
+
+struct Percentile {
+  std::uint64_t rank;  // 0-based rank (nearest-rank rule of ErrorStats)
+  std::uint32_t high = 0;
+  std::uint64_t below = 0;  // values in lower high-bins
+  float value = 0.0f;
+};
+
+// Exact nearest-rank percentiles of a multiset of non-negative floats seen twice: pass 1 counts
+// the top 16 bits of each value's bit pattern (non-negative floats order as their bits), pass 2
+// the low 16 bits of the values in the bins holding the ranks.
+class RadixPercentiles {
+ public:
+  void pass1(float v) {
+    const std::uint32_t b = std::bit_cast<std::uint32_t>(v);
+    ++high_[b >> 16];
+    ++n_;
+    sum_sq_ += static_cast<double>(v) * static_cast<double>(v);
+    max_ = std::max(max_, v);
+  }
+  void prepare() {
+    for (const double q : {0.50, 0.95, 0.99}) {
+      Percentile p;
+      const auto k = static_cast<std::uint64_t>(std::ceil(q * static_cast<double>(n_)));
+      p.rank = std::clamp<std::uint64_t>(k, 1, std::max<std::uint64_t>(n_, 1)) - 1;
+      std::uint64_t acc = 0;
+      for (std::uint32_t h = 0; h < high_.size(); ++h) {
+        if (acc + high_[h] > p.rank) {
+          p.high = h;
+          p.below = acc;
+          break;
+        }
+        acc += high_[h];
+      }
+      ps_.push_back(p);
+      low_.emplace(p.high, std::vector<std::uint64_t>(1u << 16, 0));
+    }
+  }
+  void pass2(float v) {
+    const std::uint32_t b = std::bit_cast<std::uint32_t>(v);
+    const auto it = low_.find(b >> 16);
+    if (it != low_.end()) ++it->second[b & 0xFFFFu];
+  }
+  ErrorStats stats() {
+    ErrorStats s;
+    s.count = n_;
+    if (n_ == 0) return s;
+    double out[3];
+    for (std::size_t i = 0; i < ps_.size(); ++i) {
+      const Percentile& p = ps_[i];
+      const std::vector<std::uint64_t>& low = low_.at(p.high);
+      std::uint64_t acc = p.below;
+      std::uint32_t l = 0;
+      for (; l < low.size(); ++l) {
+        if (acc + low[l] > p.rank) break;
+        acc += low[l];
+      }
+      out[i] = static_cast<double>(std::bit_cast<float>((p.high << 16) | l)) * 1e3;
+    }
+    s.p50_mm = out[0];
+    s.p95_mm = out[1];
+    s.p99_mm = out[2];
+    s.max_mm = static_cast<double>(max_) * 1e3;
+    s.rms_mm = std::sqrt(sum_sq_ / static_cast<double>(n_)) * 1e3;
+    return s;
+  }
+
+ private:
+  std::vector<std::uint64_t> high_ = std::vector<std::uint64_t>(1u << 16, 0);
+  std::map<std::uint32_t, std::vector<std::uint64_t>> low_;
+  std::vector<Percentile> ps_;
+  std::uint64_t n_ = 0;
+  double sum_sq_ = 0.0;
+  float max_ = 0.0f;
+};
+
+// Copies rows/cols of a window grid into the whole grid.
+void copy_interior(const DepthGrid& part, const GridWindow& w, const std::array<int, 4>& in, DepthGrid& whole) {
+  const std::size_t wc = static_cast<std::size_t>(w.cols), gc = static_cast<std::size_t>(w.grid.cols);
+  for (int r = in[0]; r < in[1]; ++r) {
+    for (int c = in[2]; c < in[3]; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r - w.row0) * wc + static_cast<std::size_t>(c - w.col0);
+      const std::size_t j = static_cast<std::size_t>(r) * gc + static_cast<std::size_t>(c);
+      whole.depth.data()[j] = part.depth.data()[i];
+      whole.flags[j] = part.flags[i];
+      if (part.has_colour()) std::memcpy(whole.colour_rgb8.data() + 3 * j, part.colour_rgb8.data() + 3 * i, 3);
+      if (part.has_intensity()) whole.intensity.data()[j] = part.intensity.data()[i];
+    }
+  }
+}
+
+void add_figures(std::map<std::string, double>& sums, const StageReport& r) {
+  for (const auto& [name, v] : r.figures)
+    if (std::isfinite(v)) sums[name] += v;
+}
+
+double figure_of(const StageReport& r, const char* name, double def) {
+  for (const auto& [n, v] : r.figures)
+    if (n == name) return v;
+  return def;
+}
+
+}  // namespace
+
+bool runs_tiled(const RunConfig& config) {
+  if (config.scale.tiled == ScaleConfig::Tiled::kOff) return false;
+  if (config.scale.tiled == ScaleConfig::Tiled::kOn) {
+    check_supported(config);
+    return true;
+  }
+  if (config.input.synthetic || config.input.conf || config.input.files.size() != 1) return false;
+  const fs::path& f = config.input.files.front();
+  std::string ext = f.extension().string();
+  for (char& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+  if (ext != ".ply") return false;  // only a natively streamed file is counted without reading it
+  const auto s = open_point_stream(f, LoadOptions{config.input.las_drop_classes, config.input.as_points});
+  if (!s->streamed() || s->total_points() <= config.scale.tiled_above_points) return false;
+  try {
+    check_supported(config);
+  } catch (const ConfigError&) {
+    return false;  // auto: an option the tiled run lacks keeps the run in core
+  }
+  return true;
+}
+
+BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress) {
+  check_supported(config);
+  const auto t_start = detail::Clock::now();
+  BuiltScene built;
+  RunSummary& summary = built.summary;
+  auto& reports = summary.stages;
+  Scene& scene = built.scene;
+  const fs::path& input = config.input.files.front();
+  const LoadOptions load{config.input.las_drop_classes, config.input.as_points};
+  const std::size_t chunk_points = config.scale.chunk_points;
+  const double unit_m = metres_per_unit(config.input.units);
+
+  // 1. Plan: the file box (recentring), then the grid box and coverage in the grid frame.
+  FileBox box;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+  Tiles tiles;
+  ReprojectOptions ro = config.grid.reproject;
+  std::vector<std::string> read_notes;
+  (void)stage("tile_plan", reports, progress, [&] {
+    StageResult<int> r;
+    {
+      auto s = open_point_stream(input, load);
+      read_notes = s->notes();
+      Cloud c;
+      bool first = true;
+      while (s->next(c, chunk_points)) {
+        if (first) {
+          box.layout = {c.has_rgb(), c.has_intensity()};
+          box.float32 = c.float32_xyz;
+          first = false;
+        }
+        box.points += c.size();
+        for (Eigen::Index i = 0; i < c.xyz.cols(); ++i) {
+          const auto p = c.xyz.col(i);
+          if (!p.allFinite()) continue;
+          box.lo = box.lo.cwiseMin(p);
+          box.hi = box.hi.cwiseMax(p);
+          ++box.finite;
+          if (box.float32) {
+            for (int a = 0; a < 3; ++a) {
+              box.max_abs[a] = std::max(box.max_abs[a], std::abs(p[a]));
+              auto& seen = box.distinct[static_cast<std::size_t>(a)];
+              if (static_cast<int>(seen.size()) < detail::kDistinctCap && std::find(seen.begin(), seen.end(), p[a]) == seen.end()) {
+                seen.push_back(p[a]);
+              }
+            }
+          }
+        }
+      }
+    }
+    if (box.points == 0) throw InputError("tiled run: " + input.string() + " holds no point");
+    if (box.finite == 0) throw InputError("to_metres_and_recentre: none of the " + std::to_string(box.points) + " points has finite coordinates");
+    const Eigen::Vector3d box_m = (box.hi - box.lo) * unit_m;
+    for (int a = 0; a < 3; ++a) {
+      if (!(box_m[a] <= config.input.max_extent_m)) {
+        throw InputError("the points span " + std::to_string(box_m[a]) + " m along " + std::string(1, static_cast<char>('x' + a)) +
+                         ": more than input.max_extent_m = " + std::to_string(config.input.max_extent_m) +
+                         " m (far outliers or wrong input.units? crop them with filters.crop or raise input.max_extent_m)");
+      }
+    }
+    centre = 0.5 * (box.lo + box.hi);
+    // The grid frame's x-y box, as reproject's pass over the points takes it.
+    double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min, y_min = x_min, y_max = -x_min;
+    std::size_t kept = 0;
+    {
+      auto s = open_point_stream(input, load);
+      Cloud c;
+      while (s->next(c, chunk_points)) {
+        const Cloud g = to_grid_frame(std::move(c), centre, unit_m, config);
+        for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
+          x_min = std::min(x_min, g.xyz(0, i));
+          x_max = std::max(x_max, g.xyz(0, i));
+          y_min = std::min(y_min, g.xyz(1, i));
+          y_max = std::max(y_max, g.xyz(1, i));
+        }
+        kept += g.size();
+      }
+    }
+    tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
+    double coverage = 0.0;
+    if (ro.upsample_factor == 0) {
+      UpsampleCoverage cov(tiles.g);
+      auto s = open_point_stream(input, load);
+      Cloud c;
+      while (s->next(c, chunk_points)) {
+        const Cloud g = to_grid_frame(std::move(c), centre, unit_m, config);
+        cov.add(g.xyz.data(), g.size());
+      }
+      tiles.k = cov.factor(&coverage);
+      r.report.figure("upsample_coverage", coverage);
+    } else {
+      tiles.k = ro.upsample_factor;
+    }
+    ro.upsample_factor = tiles.k;
+    const int k = tiles.k;
+    tiles.size = (config.scale.tile_cells + k - 1) / k * k;
+    int halo = reproject_reach_cells(ro, k);
+    if (config.filters.outliers.enabled) halo += config.scale.filter_halo_cells;
+    tiles.halo = (halo + k - 1) / k * k;
+    tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
+    tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
+    r.report.count_in = box.points;
+    r.report.count_out = kept;
+    r.report.figure("rows", tiles.g.rows);
+    r.report.figure("cols", tiles.g.cols);
+    r.report.figure("upsample_factor", k);
+    r.report.figure("tiles", static_cast<double>(tiles.count()));
+    r.report.figure("tile_cells", tiles.size);
+    r.report.figure("halo_cells", tiles.halo);
+    r.report.notes = read_notes;
+    r.report.notes.push_back("passes over the input: the file box, the grid box" +
+                             std::string(config.grid.reproject.upsample_factor == 0 ? ", the upsample coverage" : "") +
+                             ", then the spill");
+    return r;
+  });
+
+  detail::StoredPrecision precision;
+  precision.float32 = box.float32;
+  precision.file = input.string();
+  for (int a = 0; a < 3; ++a) {
+    precision.max_abs_m[a] = box.max_abs[a] * unit_m;
+    precision.distinct[a] = static_cast<int>(box.distinct[static_cast<std::size_t>(a)].size());
+  }
+  const Eigen::Vector3d offset_m = centre * unit_m;
+  scene.provenance.inputs.push_back({input.string(), sha256_file(input)});
+
+  // 2. Spill every point to the tiles whose window holds its node.
+  ScratchDir scratch(config.scale.scratch);
+  Spill spill(scratch.path(), "tile_", tiles.count(), box.layout);
+  (void)stage("tile_spill", reports, progress, [&] {
+    StageResult<int> r;
+    auto s = open_point_stream(input, load);
+    Cloud c;
+    std::uint64_t index = 0, copies = 0;
+    const double inv = 1.0 / tiles.g.cell_size_m;
+    const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+    while (s->next(c, chunk_points)) {
+      const Cloud g = to_grid_frame(std::move(c), centre, unit_m, config);
+      for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++index) {
+        const double* p = g.xyz.data() + 3 * i;
+        // The node as reproject bins it (clamped to the grid).
+        const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
+        const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
+        const auto [tr0, tr1, tc0, tc1] = tiles_of(tiles, row, col);
+        const std::uint8_t* rgb = g.has_rgb() ? g.rgb.data() + 3 * i : nullptr;
+        const float inten = g.has_intensity() ? g.intensity[static_cast<std::size_t>(i)] : 0.0f;
+        for (int tr = tr0; tr <= tr1; ++tr) {
+          for (int tc = tc0; tc <= tc1; ++tc) {
+            spill.add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), index, p,
+                      rgb, inten);
+            ++copies;
+          }
+        }
+      }
+    }
+    spill.flush_all();
+    r.report.count_in = box.points;
+    r.report.count_out = index;
+    r.report.figure("points_spilled", static_cast<double>(copies));
+    r.report.figure("halo_copies_per_point", index ? static_cast<double>(copies) / static_cast<double>(index) : 0.0);
+    r.report.figure("spill_bytes_peak_mb", static_cast<double>(spill.bytes()) / 1e6);
+    r.report.notes.push_back("spill folder " + scratch.path().string() + " (removed at the end)");
+    return r;
+  });
+
+  // 3. Per tile: filters, the window's grid, its interior into the whole grid; kept points.
+  DepthGrid grid;
+  grid.depth = HeightField(tiles.g);
+  grid.flags.assign(tiles.g.cell_count(), kCellEmpty);
+  if (box.layout.rgb) grid.colour_rgb8.assign(3 * tiles.g.cell_count(), 0);
+  if (box.layout.intensity) grid.intensity = HeightField(tiles.g);
+  Spill kept(scratch.path(), "kept_", tiles.count(), box.layout);
+  std::map<std::string, double> sums;
+  (void)stage("tiles", reports, progress, [&] {
+    StageResult<int> r;
+    const OutlierConfig& oc = config.filters.outliers;
+    std::vector<std::uint64_t> index;
+    std::uint64_t in = 0, out = 0;
+    for (std::size_t t = 0; t < tiles.count(); ++t) {
+      Cloud pts = spill.read(t, index);
+      spill.remove(t);
+      in += pts.size();
+      const GridWindow w = tiles.window(t);
+      const auto inner = tiles.interior(t);
+      double spacing_m = 0.0;  // the isolated filter's estimate of the scan's spacing (despike)
+      if (oc.enabled && pts.size() > 0) {
+        RobustOutlierOptions o;
+        o.k = oc.k;
+        o.local_ratio = oc.local_ratio;
+        o.mad_multiplier = oc.mad_multiplier;
+        o.off_surface_ratio = oc.off_surface_ratio;
+        auto f1 = remove_outliers_robust(std::move(pts), o, oc.far_clusters);
+        add_figures(sums, f1.report);
+        auto f2 = remove_isolated_points(std::move(f1.value), config.cross_check.honest);
+        add_figures(sums, f2.report);
+        spacing_m = figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
+        pts = std::move(f2.value);
+      }
+      DepthGrid part;
+      if (pts.size() > 0) {
+        ReprojectOptions ow = ro;
+        ow.window = w;
+        auto rp = reproject(pts, ow);
+        add_figures(sums, rp.report);
+        part = std::move(rp.value);
+        if (oc.enabled && oc.despike && pts.size() > 0) {
+          const std::size_t before_n = pts.size();
+          auto ds = remove_spike_points(std::move(pts), part.depth, config.cross_check.honest,
+                                        std::max(1.0, ro.splat_radius_cells) * tiles.k,
+                                        std::isfinite(spacing_m) ? spacing_m : 0.0);
+          add_figures(sums, ds.report);
+          pts = std::move(ds.value);
+          if (pts.size() < before_n && pts.size() > 0) part = reproject(pts, ow).value;
+        }
+        copy_interior(part, w, inner, grid);
+      }
+      // The kept points, each marked interior (1) or halo (0) in the index field's top bit.
+      const double inv = 1.0 / tiles.g.cell_size_m;
+      const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+      for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) {
+        const double* p = pts.xyz.data() + 3 * i;
+        const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
+        const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
+        const bool interior = row >= inner[0] && row < inner[1] && col >= inner[2] && col < inner[3];
+        out += interior ? 1U : 0U;
+        kept.add(t, interior ? 1U : 0U, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
+                 pts.has_intensity() ? pts.intensity[static_cast<std::size_t>(i)] : 0.0f);
+      }
+      kept.flush_all();
+    }
+    r.report.count_in = in;
+    r.report.count_out = out;
+    for (const auto& [name, v] : sums) r.report.figure("sum_" + name, v);
+    r.report.notes.push_back(
+        config.filters.outliers.enabled
+            ? "filters.outliers (robust) and the isolated-point filter ran per tile (their statistics are the tile's; "
+              "docs/scale.md)"
+            : "no point filter: every tile's interior equals the in-core grid's");
+    return r;
+  });
+
+  // 4. The whole grid, as in core.
+  const std::size_t grid_report = reports.size() - 1;
+  const Eigen::Affine3d model_to_grid =
+      detail::scene_from_grid(grid, config, reports, progress, precision, offset_m, grid_report, built);
+
+  // 5. The cross-check, per tile, merged.
+  if (config.cross_check.enabled) {
+    summary.cross_check = stage("cross_check", reports, progress, [&] {
+      StageResult<CrossCheck> r;
+      CrossCheck& cc = r.value;
+      cc.tolerance_m = config.cross_check.tolerance_m;
+      cc.hidden_band_m = config.cross_check.hidden_band_m;
+      cc.cell_error_m = HeightField(tiles.g);
+      cc.cell_error_m.model_to_grid = model_to_grid;
+      const BilinearSurface surface(HeightFieldView::of(grid.depth));
+      RadixPercentiles vertical, normal;
+      std::vector<std::uint64_t> flag;
+      // Samples whose nearest point may lie beyond their tile's halo: found again over the
+      // interior points of every tile their search disc reaches (exact, in double).
+      struct Far {
+        int r, c;
+        double best_m;
+      };
+      std::vector<Far> unverified;
+      std::size_t researched = 0, improved = 0;
+      auto research = [&](std::vector<Far>& far) {
+        if (far.empty()) return;
+        researched = far.size();
+        const double cell = tiles.g.cell_size_m;
+        std::vector<std::uint64_t> fl;
+        for (std::size_t t = 0; t < tiles.count(); ++t) {
+          const auto in = tiles.interior(t);
+          const double x_lo = tiles.g.x_of_col(in[2]) - 0.5 * cell, x_hi = tiles.g.x_of_col(in[3] - 1) + 0.5 * cell;
+          const double y_lo = tiles.g.y_of_row(in[0]) - 0.5 * cell, y_hi = tiles.g.y_of_row(in[1] - 1) + 0.5 * cell;
+          std::vector<std::size_t> mine;
+          for (std::size_t f = 0; f < far.size(); ++f) {
+            const double qx = tiles.g.x_of_col(far[f].c), qy = tiles.g.y_of_row(far[f].r);
+            const double dx = std::max({x_lo - qx, 0.0, qx - x_hi}), dy = std::max({y_lo - qy, 0.0, qy - y_hi});
+            if (dx * dx + dy * dy <= far[f].best_m * far[f].best_m) mine.push_back(f);
+          }
+          if (mine.empty()) continue;
+          const Cloud pts = kept.read(t, fl);
+          for (const std::size_t f : mine) {
+            const double qx = tiles.g.x_of_col(far[f].c), qy = tiles.g.y_of_row(far[f].r);
+            const double qz = grid.depth.at(far[f].r, far[f].c);
+            double best = far[f].best_m * far[f].best_m;
+            for (std::size_t i = 0; i < pts.size(); ++i) {
+              if (fl[i] == 0) continue;
+              const double* p = pts.xyz.data() + 3 * i;
+              const double d2 = (p[0] - qx) * (p[0] - qx) + (p[1] - qy) * (p[1] - qy) + (p[2] - qz) * (p[2] - qz);
+              best = std::min(best, d2);
+            }
+            if (std::sqrt(best) < far[f].best_m) {
+              far[f].best_m = std::sqrt(best);
+              ++improved;
+            }
+          }
+        }
+        for (const Far& f : far) cc.cell_error_m.at(f.r, f.c) = static_cast<float>(f.best_m);
+      };
+      for (int pass = 1; pass <= 2; ++pass) {
+        for (std::size_t t = 0; t < tiles.count(); ++t) {
+          const Cloud pts = kept.read(t, flag);
+          if (pts.size() == 0) continue;
+          for (std::size_t i = 0; i < pts.size(); ++i) {
+            if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
+            const double* p = pts.xyz.data() + 3 * i;
+            const PointResidual pr = point_residual(surface, tiles.g, p[0], p[1], p[2], cc.hidden_band_m);
+            if (pass == 2) {
+              if (pr.kind == PointResidual::kOnSurface) {
+                vertical.pass2(pr.vertical_m);
+                normal.pass2(pr.normal_m);
+              }
+              continue;
+            }
+            switch (pr.kind) {
+              case PointResidual::kOutside: ++cc.points_outside; break;
+              case PointResidual::kOffSurface: ++cc.points_off_surface; break;
+              case PointResidual::kHidden: ++cc.points_hidden; break;
+              case PointResidual::kOnSurface:
+                ++cc.points_on_surface;
+                vertical.pass1(pr.vertical_m);
+                normal.pass1(pr.normal_m);
+                break;
+            }
+          }
+          if (pass == 1) {
+            // (b): the window's valid samples against the tile's kept points (halo included).
+            const GridWindow w = tiles.window(t);
+            const auto in = tiles.interior(t);
+            GridGeometry wg = tiles.g;
+            wg.rows = w.rows;
+            wg.cols = w.cols;
+            wg.x0_m = tiles.g.x_of_col(w.col0);
+            wg.y0_m = tiles.g.y_of_row(w.row0);
+            HeightField crop(wg);
+            std::size_t valid = 0;
+            for (int rr = 0; rr < w.rows; ++rr)
+              for (int c = 0; c < w.cols; ++c) {
+                crop.at(rr, c) = grid.depth.at(w.row0 + rr, w.col0 + c);
+                valid += std::isnan(crop.at(rr, c)) ? 0U : 1U;
+              }
+            if (valid == 0 || w.rows < 2 || w.cols < 2) continue;
+            const CrossCheck part = cross_check(pts, crop, cc.tolerance_m, cc.hidden_band_m).value;
+            // A point outside the window has its node outside it: at least (index distance −
+            // 1/2) cells from the query in x-y. A distance beyond that margin is re-searched
+            // over every tile's points below.
+            const double cell = tiles.g.cell_size_m;
+            for (int rr = in[0]; rr < in[1]; ++rr) {
+              for (int c = in[2]; c < in[3]; ++c) {
+                const float d = part.cell_error_m.at(rr - w.row0, c - w.col0);
+                cc.cell_error_m.at(rr, c) = d;
+                if (std::isnan(d)) continue;
+                int edge = std::numeric_limits<int>::max();
+                if (w.row0 > 0) edge = std::min(edge, rr - w.row0 + 1);
+                if (w.col0 > 0) edge = std::min(edge, c - w.col0 + 1);
+                if (w.row0 + w.rows < tiles.g.rows) edge = std::min(edge, w.row0 + w.rows - rr);
+                if (w.col0 + w.cols < tiles.g.cols) edge = std::min(edge, w.col0 + w.cols - c);
+                if (edge != std::numeric_limits<int>::max() && static_cast<double>(d) > (edge - 0.5) * cell) {
+                  unverified.push_back({rr, c, static_cast<double>(d)});
+                }
+              }
+            }
+          }
+        }
+        if (pass == 1) {
+          vertical.prepare();
+          normal.prepare();
+          research(unverified);
+        }
+      }
+      cc.point_vertical = vertical.stats();
+      cc.point_normal = normal.stats();
+      std::vector<float> cells;
+      std::size_t supported = 0, valid = 0;
+      for (std::size_t i = 0; i < tiles.g.cell_count(); ++i) {
+        if (std::isnan(grid.depth.data()[i])) continue;
+        ++valid;
+        const float d = cc.cell_error_m.data()[i];
+        if (std::isnan(d)) continue;  // a valid cell no tile's points could reach: not supported
+        cells.push_back(d);
+        supported += d <= cc.tolerance_m ? 1U : 0U;
+      }
+      std::vector<double> cd(cells.begin(), cells.end());
+      cc.cell_to_point = error_stats_mm(std::move(cd));
+      cc.supported_fraction = valid ? static_cast<double>(supported) / static_cast<double>(valid) : 0.0;
+      r.report.count_in = cc.points_on_surface + cc.points_off_surface + cc.points_hidden + cc.points_outside;
+      r.report.count_out = valid;
+      auto add = [&](const std::string& prefix, const ErrorStats& s) {
+        r.report.figure(prefix + "_count", static_cast<double>(s.count));
+        r.report.figure(prefix + "_rms_mm", s.rms_mm);
+        r.report.figure(prefix + "_p50_mm", s.p50_mm);
+        r.report.figure(prefix + "_p95_mm", s.p95_mm);
+        r.report.figure(prefix + "_p99_mm", s.p99_mm);
+        r.report.figure(prefix + "_max_mm", s.max_mm);
+      };
+      add("point_vertical", cc.point_vertical);
+      add("point_normal", cc.point_normal);
+      add("cell_to_point", cc.cell_to_point);
+      r.report.figure("points_on_surface", static_cast<double>(cc.points_on_surface));
+      r.report.figure("points_off_surface", static_cast<double>(cc.points_off_surface));
+      r.report.figure("points_hidden", static_cast<double>(cc.points_hidden));
+      r.report.figure("points_outside", static_cast<double>(cc.points_outside));
+      r.report.figure("tolerance_mm", cc.tolerance_m * 1e3);
+      r.report.figure("supported_fraction", cc.supported_fraction);
+      r.report.figure("samples_researched_across_tiles", static_cast<double>(researched));
+      r.report.figure("samples_nearer_in_another_tile", static_cast<double>(improved));
+      r.report.notes.push_back("merged over " + std::to_string(tiles.count()) +
+                               " tiles: (a) per interior point on the whole grid (exact percentiles by radix selection), "
+                               "(b) per interior cell against its tile's kept points, halo included");
+      r.report.notes.push_back("tiled run: the honest cross-check (input as read, grid spikes) and the verdict are not computed");
+      return r;
+    });
+    scene.layers.cell_error = summary.cross_check->cell_error_m;
+  }
+  scene.layers.depth = std::move(grid.depth);
+
+  scene.layer_options = config.layers.options;
+  scene.lod = config.lod;
+  SceneProvenance& prov = scene.provenance;
+  prov.tool = std::string("hapticloud ") + HC_VERSION;
+  prov.config_file = config.source.string();
+  prov.units = config.input.units;
+  prov.recentre_offset_m = offset_m;
+  prov.resolved_config_yaml = config.resolved_yaml;
+  summary.total_seconds = detail::seconds_since(t_start);
+  return built;
+}
+
+}  // namespace hc::pipeline

@@ -1,0 +1,155 @@
+// The streaming tiled run (tiling.hpp, issue 14) against the in-core run of the same config: with
+// no point filter the grid and every layer are identical bit for bit, the cross-check's (a)
+// figures equal (RMS to the last bits: another summation order) and (b)'s agree to float
+// rounding; the spill folder is removed; unsupported options are refused by name.
+
+#include "hc/common/error.hpp"
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/run.hpp"
+#include "hc/pipeline/tiling.hpp"
+#include "hc/tools/relief.hpp"
+
+#include "test_paths.hpp"
+
+#include <gtest/gtest.h>
+
+#include <bit>
+#include <cstring>
+#include <string>
+
+namespace {
+
+namespace fs = std::filesystem;
+using hc::pipeline::BuiltScene;
+using hc::pipeline::RunConfig;
+
+std::size_t differing_bits(const hc::HeightField& a, const hc::HeightField& b) {
+  EXPECT_EQ(a.geometry(), b.geometry());
+  if (a.values().size() != b.values().size()) return a.values().size() + b.values().size();
+  std::size_t n = 0;
+  for (std::size_t i = 0; i < a.values().size(); ++i) {
+    n += std::bit_cast<std::uint32_t>(a.values()[i]) != std::bit_cast<std::uint32_t>(b.values()[i]) ? 1U : 0U;
+  }
+  return n;
+}
+
+double stage_figure(const BuiltScene& b, const std::string& stage, const std::string& name) {
+  for (const auto& s : b.summary.stages)
+    if (s.stage == stage)
+      for (const auto& [n, v] : s.figures)
+        if (n == name) return v;
+  return -1.0;
+}
+
+// Both runs of one config; the tiled one with tiles of `tile` cells under `scratch`.
+void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scratch) {
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+  const BuiltScene in = hc::pipeline::build_scene(config);
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = tile;
+  config.scale.scratch = scratch;
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0) << "the grid was cut into several tiles";
+  const auto& a = in.scene.layers;
+  const auto& b = tiled.scene.layers;
+  EXPECT_EQ(differing_bits(a.depth, b.depth), 0U);
+  EXPECT_EQ(a.flags, b.flags);
+  EXPECT_EQ(a.colour_rgb8, b.colour_rgb8);
+  EXPECT_EQ(differing_bits(a.envelope, b.envelope), 0U);
+  EXPECT_EQ(differing_bits(a.texture, b.texture), 0U);
+  EXPECT_EQ(differing_bits(a.mu_d, b.mu_d), 0U);
+  EXPECT_EQ(differing_bits(a.mu_s, b.mu_s), 0U);
+  EXPECT_EQ(in.scene.model_to_grid.matrix(), tiled.scene.model_to_grid.matrix());
+  ASSERT_TRUE(in.summary.cross_check && tiled.summary.cross_check);
+  const auto& x = *in.summary.cross_check;
+  const auto& y = *tiled.summary.cross_check;
+  for (const auto& [s, t] : {std::pair{x.point_vertical, y.point_vertical}, std::pair{x.point_normal, y.point_normal}}) {
+    EXPECT_EQ(s.count, t.count);
+    EXPECT_EQ(s.p50_mm, t.p50_mm);
+    EXPECT_EQ(s.p95_mm, t.p95_mm);
+    EXPECT_EQ(s.p99_mm, t.p99_mm);
+    EXPECT_EQ(s.max_mm, t.max_mm);
+    EXPECT_NEAR(s.rms_mm, t.rms_mm, 1e-9 * s.rms_mm);
+  }
+  EXPECT_EQ(x.points_on_surface, y.points_on_surface);
+  EXPECT_EQ(x.points_hidden, y.points_hidden);
+  EXPECT_EQ(x.points_off_surface, y.points_off_surface);
+  EXPECT_EQ(x.points_outside, y.points_outside);
+  // (b): each tile searches in its own float frame: the same nearest points, distances to float
+  // rounding of the coordinates (about 1e-7 of the scene's extent).
+  EXPECT_EQ(x.cell_to_point.count, y.cell_to_point.count);
+  const double extent_mm = 1e3 * in.scene.geometry.cell_size_m * std::max(in.scene.geometry.rows, in.scene.geometry.cols);
+  for (const auto& [s, t] : {std::pair{x.cell_to_point.p50_mm, y.cell_to_point.p50_mm}, std::pair{x.cell_to_point.p95_mm, y.cell_to_point.p95_mm},
+                             std::pair{x.cell_to_point.max_mm, y.cell_to_point.max_mm}, std::pair{x.cell_to_point.rms_mm, y.cell_to_point.rms_mm}}) {
+    EXPECT_NEAR(s, t, 1e-6 * extent_mm);
+  }
+  EXPECT_NEAR(x.supported_fraction, y.supported_fraction, 1e-4);
+  std::size_t far = 0;
+  for (std::size_t i = 0; i < x.cell_error_m.values().size(); ++i) {
+    const float u = x.cell_error_m.values()[i], v = y.cell_error_m.values()[i];
+    if (std::isnan(u) != std::isnan(v) || (!std::isnan(u) && std::abs(u - v) > 1e-9 * extent_mm)) ++far;
+  }
+  EXPECT_EQ(far, 0U) << "cells whose nearest point differs";
+  // The spill folder is gone.
+  EXPECT_TRUE(fs::is_empty(scratch));
+}
+
+TEST(TiledRun, EqualsTheInCoreRunOnTheBuddhaInTilesOf64Cells) {
+  hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  RunConfig config = hc::pipeline::load_run_config(std::string(HC_SOURCE_DIR) + "/configs/happy_buddha.yaml",
+                                                   {"filters.outliers.enabled=false"});
+  expect_tiled_equals_in_core(config, 64, hc::test::temp_dir("scratch"));
+}
+
+// A generated wall with colour, read natively in chunks (binary PLY), at a grid finer than the
+// scan (an upsample factor above 1, tiles aligned to it).
+TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {
+  const fs::path dir = hc::test::temp_dir("wall");
+  hc::tools::ReliefSpec spec;
+  spec.points = 300'000;
+  spec.rgb = true;
+  spec.outlier_fraction = 0.0;
+  hc::tools::write_relief(spec, dir / "wall.ply");
+  const std::string yaml =
+      "input: {files: [wall.ply], units: m}\n"
+      "grid: {n: 900, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64, "
+      "upsample: auto}\n"
+      "cross_check: {tolerance_m: 0.002}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 4096}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml");
+  fs::create_directory(dir / "scratch");
+  expect_tiled_equals_in_core(config, 100, dir / "scratch");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = dir / "scratch";
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  EXPECT_GE(stage_figure(tiled, "tile_plan", "upsample_factor"), 2.0);
+  EXPECT_FALSE(tiled.scene.layers.colour_rgb8.empty());
+}
+
+TEST(TiledRun, AutoTakesLargeStreamedScansAndOptionsItLacksAreRefusedByName) {
+  const fs::path dir = hc::test::temp_dir("auto");
+  hc::tools::ReliefSpec spec;
+  spec.points = 20'000;
+  hc::tools::write_relief(spec, dir / "wall.ply");
+  const std::string yaml = "input: {files: [wall.ply], units: m}\ngrid: {n: 100}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml", {"scale.tiled_above_points=10000"});
+  EXPECT_TRUE(hc::pipeline::runs_tiled(config));
+  config.scale.tiled_above_points = 20'000;  // not more than the threshold
+  EXPECT_FALSE(hc::pipeline::runs_tiled(config));
+  config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml", {"scale.tiled=on", "filters.voxel_m=0.01"});
+  try {
+    hc::pipeline::build_scene(config);
+    ADD_FAILURE() << "no error";
+  } catch (const hc::ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("filters.voxel_m"), std::string::npos) << e.what();
+  }
+  // A scratch folder that does not exist is named.
+  config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml", {"scale.tiled=on", "scale.scratch=no/such/folder"});
+  try {
+    hc::pipeline::build_scene(config);
+    ADD_FAILURE() << "no error";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("no/such/folder"), std::string::npos) << e.what();
+  }
+}
+
+}  // namespace
