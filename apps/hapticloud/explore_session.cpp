@@ -88,7 +88,7 @@ void Session::load_input() {
   if (opened.config) {
     config_ = std::move(opened.config);
     config_->lod.report = false;
-    cloud_ = session::cloud_preview(*opened.cloud, config_->view, 150000);
+    if (opened.cloud) cloud_ = session::cloud_preview(*opened.cloud, config_->view, 150000);  // none from a tiled run
   }
   built_ = session::build_explore_scene(std::move(opened.scene), layer_options_, lod_options_, false);
   if (config_) built_->orientation = config_->view.rotation;

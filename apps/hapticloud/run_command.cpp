@@ -38,6 +38,7 @@ void run(const RunArgs& a) {
     }
   };
   spdlog::info("hapticloud run {} -> {}", a.config, out.string());
+  pipeline::set_stage_memory_measurement(true);  // report.json: peak_rss_mb per stage
   const pipeline::RunSummary summary = pipeline::run_pipeline(
       cfg, out, progress, a.force ? pipeline::ExistingOutput::kMoveAside : pipeline::ExistingOutput::kRefuse,
       session::servo_level_timing());

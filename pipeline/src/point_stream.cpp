@@ -18,13 +18,15 @@ namespace {
 // A cloud read whole, given out in slices.
 class WholeStream final : public PointStream {
  public:
-  explicit WholeStream(StageResult<Cloud> read) : cloud_(std::move(read.value)), total_(cloud_.size()) {
+  explicit WholeStream(StageResult<Cloud> read)
+      : cloud_(std::move(read.value)), total_(cloud_.size()), crs_(cloud_.crs) {
     notes_ = std::move(read.report.notes);
     notes_.push_back("read whole (this format or layout is not streamed), then handed out in chunks");
   }
   std::uint64_t total_points() const override { return total_; }
   const std::vector<std::string>& notes() const override { return notes_; }
   bool streamed() const override { return false; }
+  std::string crs() const override { return crs_; }
   bool next(Cloud& chunk, std::size_t max_points) override {
     chunk = Cloud();
     const std::size_t n = std::min(std::max<std::size_t>(max_points, 1), total_ - done_);
@@ -44,6 +46,7 @@ class WholeStream final : public PointStream {
  private:
   Cloud cloud_;
   std::size_t total_ = 0, done_ = 0;
+  std::string crs_;
   std::vector<std::string> notes_;
 };
 

@@ -25,6 +25,7 @@
 #include <openssl/evp.h>
 
 #include <array>
+#include <atomic>
 #include <cctype>
 #include <chrono>
 #include <cstdio>
@@ -113,7 +114,12 @@ namespace detail {
 /// Resets the process's resident-memory high-water mark (Linux, proc(5): writing "5" to
 /// /proc/self/clear_refs resets VmHWM). @return false when it cannot (then peak_rss() is the
 /// peak since the process started, or since the last reset).
+namespace {
+std::atomic<bool> g_measure_stage_memory{false};
+}  // namespace
+
 bool reset_peak_rss() {
+  if (!g_measure_stage_memory.load(std::memory_order_relaxed)) return false;
   std::FILE* f = std::fopen("/proc/self/clear_refs", "w");
   if (!f) return false;
   const bool ok = std::fputs("5", f) >= 0;
@@ -481,9 +487,13 @@ namespace {
 BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const ProgressFn& progress, Cloud* in_memory);
 }  // namespace
 
+void set_stage_memory_measurement(bool on) { detail::g_measure_stage_memory.store(on, std::memory_order_relaxed); }
+
 BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressFn& progress) {
-  // Scans too large for memory: the streaming tiled run (tiling.hpp; it keeps no cloud).
-  if (runs_tiled(config)) return build_scene_tiled(config, progress);
+  // Scans too large for memory: the streaming tiled run (tiling.hpp; it keeps no cloud, so a
+  // caller that asks for the cloud stays in core unless scale.tiled is on).
+  const bool auto_mode = config.scale.tiled == ScaleConfig::Tiled::kAuto;
+  if (!(keep_cloud && auto_mode) && runs_tiled(config)) return build_scene_tiled(config, progress);
   return build_scene_impl(config, keep_cloud, progress, nullptr);
 }
 

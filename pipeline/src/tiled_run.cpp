@@ -3,6 +3,7 @@
 
 #include "hc/pipeline/tiling.hpp"
 
+#include "readers/readers.hpp"
 #include "run_internal.hpp"
 #include "stage_util.hpp"
 
@@ -124,6 +125,21 @@ class Spill {
     for (std::size_t t = 0; t < buf_.size(); ++t) flush(t);
   }
 
+  void flush(std::size_t t) {
+    std::vector<char>& b = buf_[t];
+    if (b.empty()) return;
+    std::FILE* f = std::fopen(file(t).c_str(), "ab");
+    const bool ok = f && std::fwrite(b.data(), 1, b.size(), f) == b.size();
+    const bool closed = f && std::fclose(f) == 0;
+    if (!ok || !closed) {
+      throw InputError("scale.scratch: cannot write the spill file " + file(t).string() + ": " + std::strerror(errno) +
+                       " (is the disk full?)");
+    }
+    bytes_[t] += b.size();
+    buffered_ -= b.size();
+    std::vector<char>().swap(b);
+  }
+
   std::uintmax_t bytes() const {
     std::uintmax_t s = 0;
     for (const auto b : bytes_) s += b;
@@ -168,21 +184,6 @@ class Spill {
  private:
   static constexpr std::size_t kTileBuffer = 1u << 18;
   static constexpr std::size_t kTotalBuffer = 64u << 20;
-
-  void flush(std::size_t t) {
-    std::vector<char>& b = buf_[t];
-    if (b.empty()) return;
-    std::FILE* f = std::fopen(file(t).c_str(), "ab");
-    const bool ok = f && std::fwrite(b.data(), 1, b.size(), f) == b.size();
-    const bool closed = f && std::fclose(f) == 0;
-    if (!ok || !closed) {
-      throw InputError("scale.scratch: cannot write the spill file " + file(t).string() + ": " + std::strerror(errno) +
-                       " (is the disk full?)");
-    }
-    bytes_[t] += b.size();
-    buffered_ -= b.size();
-    std::vector<char>().swap(b);
-  }
 
   fs::path dir_;
   std::string prefix_;
@@ -344,9 +345,18 @@ void copy_interior(const DepthGrid& part, const GridWindow& w, const std::array<
   }
 }
 
+// Adds the per-tile figures that are counts or seconds (a sum of thresholds or medians over
+// tiles would mean nothing).
 void add_figures(std::map<std::string, double>& sums, const StageReport& r) {
-  for (const auto& [name, v] : r.figures)
-    if (std::isfinite(v)) sums[name] += v;
+  static const char* const kCounts[] = {"removed", "cells", "points", "candidates", "certified", "exact_queries",
+                                        "local_tests", "clusters", "far_clusters", "kept_far_clusters", "spike_cells",
+                                        "island_cells", "coherent_above_global", "duplicates_left_out"};
+  for (const auto& [name, v] : r.figures) {
+    if (!std::isfinite(v)) continue;
+    bool count = name.size() > 2 && name.compare(name.size() - 2, 2, "_s") == 0;
+    for (const char* prefix : kCounts) count = count || name.rfind(prefix, 0) == 0;
+    if (count) sums[name] += v;
+  }
 }
 
 double figure_of(const StageReport& r, const char* name, double def) {
@@ -368,8 +378,13 @@ bool runs_tiled(const RunConfig& config) {
   std::string ext = f.extension().string();
   for (char& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
   if (ext != ".ply") return false;  // only a natively streamed file is counted without reading it
-  const auto s = open_point_stream(f, LoadOptions{config.input.las_drop_classes, config.input.as_points});
-  if (!s->streamed() || s->total_points() <= config.scale.tiled_above_points) return false;
+  std::unique_ptr<PointStream> s;
+  try {
+    s = detail::open_ply_stream(f, f.string(), config.input.as_points);
+  } catch (const InputError&) {
+    return false;  // the in-core read reports the problem
+  }
+  if (!s || s->total_points() <= config.scale.tiled_above_points) return false;
   try {
     check_supported(config);
   } catch (const ConfigError&) {
@@ -396,11 +411,13 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   Tiles tiles;
   ReprojectOptions ro = config.grid.reproject;
   std::vector<std::string> read_notes;
+  std::string crs;
   (void)stage("tile_plan", reports, progress, [&] {
     StageResult<int> r;
     {
       auto s = open_point_stream(input, load);
       read_notes = s->notes();
+      crs = s->crs();
       Cloud c;
       bool first = true;
       while (s->next(c, chunk_points)) {
@@ -497,6 +514,8 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   detail::StoredPrecision precision;
   precision.float32 = box.float32;
   precision.file = input.string();
+  precision.crs = crs;
+  scene.provenance.crs = crs;
   for (int a = 0; a < 3; ++a) {
     precision.max_abs_m[a] = box.max_abs[a] * unit_m;
     precision.distinct[a] = static_cast<int>(box.distinct[static_cast<std::size_t>(a)].size());
@@ -590,11 +609,15 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
                                         std::isfinite(spacing_m) ? spacing_m : 0.0);
           add_figures(sums, ds.report);
           pts = std::move(ds.value);
-          if (pts.size() < before_n && pts.size() > 0) part = reproject(pts, ow).value;
+          if (pts.size() == 0) {
+            part = DepthGrid();  // nothing left: the tile's cells stay no data
+          } else if (pts.size() < before_n) {
+            part = reproject(pts, ow).value;
+          }
         }
-        copy_interior(part, w, inner, grid);
+        if (part.depth.rows() > 0) copy_interior(part, w, inner, grid);
       }
-      // The kept points, each marked interior (1) or halo (0) in the index field's top bit.
+      // The kept points, each marked interior (1) or halo (0) in the record's index field.
       const double inv = 1.0 / tiles.g.cell_size_m;
       const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
       for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) {
@@ -606,7 +629,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         kept.add(t, interior ? 1U : 0U, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
                  pts.has_intensity() ? pts.intensity[static_cast<std::size_t>(i)] : 0.0f);
       }
-      kept.flush_all();
+      kept.flush(t);
     }
     r.report.count_in = in;
     r.report.count_out = out;
@@ -636,8 +659,9 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       const BilinearSurface surface(HeightFieldView::of(grid.depth));
       RadixPercentiles vertical, normal;
       std::vector<std::uint64_t> flag;
-      // Samples whose nearest point may lie beyond their tile's halo: found again over the
-      // interior points of every tile their search disc reaches (exact, in double).
+      // Samples whose nearest point may lie beyond their tile's halo (judged on the tile's
+      // float distance): found again, in double, over the interior points of every tile their
+      // search disc reaches (brute force: few samples on a grid made from the points).
       struct Far {
         int r, c;
         double best_m;
@@ -677,12 +701,13 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
             }
           }
         }
-        for (const Far& f : far) cc.cell_error_m.at(f.r, f.c) = static_cast<float>(f.best_m);
+        for (const Far& f : far) {
+          if (std::isfinite(f.best_m)) cc.cell_error_m.at(f.r, f.c) = static_cast<float>(f.best_m);
+        }
       };
       for (int pass = 1; pass <= 2; ++pass) {
         for (std::size_t t = 0; t < tiles.count(); ++t) {
           const Cloud pts = kept.read(t, flag);
-          if (pts.size() == 0) continue;
           for (std::size_t i = 0; i < pts.size(); ++i) {
             if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
             const double* p = pts.xyz.data() + 3 * i;
@@ -705,7 +730,15 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
                 break;
             }
           }
-          if (pass == 1) {
+          if (pass == 1 && pts.size() == 0) {
+            // No kept point here (a tile of hole-filled cells): its valid cells are searched
+            // over the other tiles.
+            const auto in = tiles.interior(t);
+            for (int rr = in[0]; rr < in[1]; ++rr)
+              for (int c = in[2]; c < in[3]; ++c)
+                if (!std::isnan(grid.depth.at(rr, c))) unverified.push_back({rr, c, std::numeric_limits<double>::infinity()});
+          }
+          if (pass == 1 && pts.size() > 0) {
             // (b): the window's valid samples against the tile's kept points (halo included).
             const GridWindow w = tiles.window(t);
             const auto in = tiles.interior(t);
@@ -762,6 +795,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         cells.push_back(d);
         supported += d <= cc.tolerance_m ? 1U : 0U;
       }
+      if (valid == 0) throw InputError("cross_check: the grid has no valid cell (tiled run)");
       std::vector<double> cd(cells.begin(), cells.end());
       cc.cell_to_point = error_stats_mm(std::move(cd));
       cc.supported_fraction = valid ? static_cast<double>(supported) / static_cast<double>(valid) : 0.0;

@@ -818,15 +818,17 @@ namespace {
 class PlyStream final : public PointStream {
  public:
   PlyStream(std::FILE* f, std::string name, const PlyLayout& ply, std::size_t offset)
-      : f_(f), name_(std::move(name)), rec_(ply), total_(ply.vertex().count) {
+      : f_(f, &std::fclose), name_(std::move(name)), rec_(ply), total_(ply.vertex().count) {
     notes_.push_back("PLY " + ply.format + ", " + std::to_string(total_) + " vertices (fixed-stride records streamed in chunks)");
     if (ply.vertex_index + 1 < ply.elements.size()) {
       notes_.push_back("elements after 'vertex' (" + ply.elements[ply.vertex_index + 1].name +
                        ", ...) not read: a streamed scan is taken as points");
     }
-    if (std::fseek(f_, static_cast<long>(offset), SEEK_SET) != 0) throw InputError("load_cloud: " + name_ + ": cannot seek to its vertex data");
+    if (std::fseek(f_.get(), static_cast<long>(offset), SEEK_SET) != 0) {
+      throw InputError("load_cloud: " + name_ + ": cannot seek to its vertex data");
+    }
   }
-  ~PlyStream() override { std::fclose(f_); }
+  ~PlyStream() override = default;
   PlyStream(const PlyStream&) = delete;
   PlyStream& operator=(const PlyStream&) = delete;
 
@@ -839,7 +841,7 @@ class PlyStream final : public PointStream {
     const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
     if (n == 0) return false;
     buffer_.resize(n * rec_.stride);
-    const std::size_t got = std::fread(buffer_.data(), rec_.stride, n, f_);
+    const std::size_t got = std::fread(buffer_.data(), rec_.stride, n, f_.get());
     if (got != n) {
       throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) + " of " +
                        std::to_string(total_) + " vertices");
@@ -855,7 +857,7 @@ class PlyStream final : public PointStream {
   bool float32_ = false;
 
  private:
-  std::FILE* f_;
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f_;  // owned from the constructor's first line
   std::string name_;
   FixedRecords rec_;
   std::uint64_t total_ = 0, done_ = 0;

@@ -324,7 +324,7 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
     const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(chunk_points, spec.points - first));
     const unsigned t_count = static_cast<unsigned>(std::min<std::size_t>(threads, std::max<std::size_t>(1, n / 4096)));
     std::vector<SliceResult> parts(t_count);
-    std::vector<std::thread> workers;
+    std::vector<std::jthread> workers;  // joined on any exit, so a failed spawn cannot terminate
     std::vector<std::exception_ptr> errors(t_count);
     const std::size_t per = (n + t_count - 1) / t_count;
     for (unsigned t = 0; t < t_count; ++t) {
@@ -342,7 +342,7 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
         workers.emplace_back(body);
       }
     }
-    for (std::thread& w : workers) w.join();
+    for (std::jthread& w : workers) w.join();
     for (const std::exception_ptr& e : errors)
       if (e) std::rethrow_exception(e);
     for (const SliceResult& r : parts) {

@@ -36,6 +36,8 @@ class PointStream {
   virtual const std::vector<std::string>& notes() const = 0;
   /// True when the file is read in chunks; false when it was read whole.
   virtual bool streamed() const = 0;
+  /// The coordinate reference system the file declares (Cloud::crs), or empty.
+  virtual std::string crs() const { return {}; }
 };
 
 /// Opens `path` for reading in chunks; see the file comment for which files stream natively.

@@ -106,7 +106,9 @@ struct ReprojectOptions {
   /// window's first row and column, so every node whose splats, see-through window and
   /// upsampling reach only points given here gets the value, flag and attributes the whole
   /// grid's reproject gives it, bit for bit, when the points come in the same order (a tile's
-  /// interior, its halo wide enough: tiling.hpp). Points whose node lies outside the window are
+  /// interior, its halo wide enough: tiling.hpp), with disc or plane splats; interpolating
+  /// splats sum heights relative to the window's first measured cell, so there only to float
+  /// rounding. Points whose node lies outside the window are
   /// skipped (figure points_outside_window_or_non_finite). Needs upsample_factor ≥ 1 (the
   /// whole grid's; auto needs every point) and row0, col0 multiples of it; the result's
   /// geometry is the window's (origin at its first node).

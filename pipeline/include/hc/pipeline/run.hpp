@@ -47,10 +47,17 @@ struct BuiltScene {
   std::optional<Cloud> cloud;  ///< the filtered points in the grid frame [m], when kept
 };
 
+/// Per-stage peak memory (StageReport::peak_rss_bytes, report.json peak_rss_mb): off by default,
+/// because measuring it resets the whole process's resident-memory high-water mark (Linux,
+/// /proc/self/clear_refs), which a program embedding the library may read (getrusage
+/// ru_maxrss, VmHWM). `hapticloud run` turns it on. Process-wide; thread-safe.
+void set_stage_memory_measurement(bool on);
+
 /// Runs every stage of `config` in memory: ingest → units + recentre → view transform → filters
 /// → reproject → hole fill → surface layers → cross-check. Nothing is written. When
 /// runs_tiled(config) (scale.tiled; tiling.hpp) the streaming tiled run makes the scene instead:
-/// it keeps no cloud (keep_cloud is ignored) and computes no honest cross-check or verdict.
+/// it keeps no cloud and computes no honest cross-check or verdict; with keep_cloud the run stays
+/// in core unless scale.tiled is on (then no cloud is returned).
 /// @param keep_cloud keep the filtered points (grid frame, metres) in the result (for the
 ///        levels table's cross-check or a viewer's cloud preview); otherwise they are freed.
 /// @throws hc::Error subclasses from any stage (naming file, key or value).

@@ -10,8 +10,9 @@
 ///     every point through units, recentring, view transform, non-finite and crop, exactly as the
 ///     in-core stages compute them: the grid's box (the geometry reproject would make) and, for
 ///     grid.upsample: auto, the node coverage at every upsample factor (UpsampleCoverage);
-///  2. spill: stream a third time and write each point (its index in the file, x y z as double in
-///     the grid frame, colour and intensity when the scan has them) to the spill file of every
+///  2. spill: stream a third time and write each point (its rank among the points kept by the
+///     non-finite and crop filters, x y z as double in the grid frame, colour and intensity when
+///     the scan has them) to the spill file of every
 ///     tile whose window (the tile plus its halo) holds its grid node;
 ///  3. per tile, in order: read its points (file order), the robust outlier filter and the
 ///     isolated-point filter when enabled, reproject the tile's window, despike and reproject
@@ -20,11 +21,14 @@
 ///  5. the kd-tree cross-check, per tile over its kept points (interior points for (a), interior
 ///     cells for (b)), merged exactly: counts, maxima and the nearest-rank percentiles by a
 ///     two-pass radix selection over the float values (a second read of the kept points).
+/// A file that is not streamed natively (point_stream.hpp) is read whole at every pass.
 /// Spill files live in a fresh folder under scale.scratch (default: the system's temporary
 /// folder), removed when the run ends or fails; their peak size is reported (tile_spill stage).
 ///
-/// What equals the in-core run: with filters.outliers disabled, the depth, flags, colour,
-/// intensity, texture, friction and cross-check (a) figures are identical bit for bit (the halo
+/// What equals the in-core run: with filters.outliers disabled and disc or plane splats, the
+/// depth, flags, colour, intensity, texture, friction and cross-check (a) figures are identical
+/// bit for bit (interpolating splats sum heights relative to the window's first measured cell,
+/// so their values agree to float rounding only; the halo
 /// is reproject_reach_cells wide, so every node of a tile's interior sees every point it
 /// depends on, in file order); (b)'s distances agree to float rounding (each tile searches in its
 /// own float frame) and the RMS figures to the last bits (summed in another order).
