@@ -30,7 +30,17 @@ void run(const RunArgs& a) {
   const std::filesystem::path out = a.out.empty() ? std::filesystem::path("runs") / cfg.name : std::filesystem::path(a.out);
   auto progress = [&](const pipeline::StageReport& s, bool done) {
     if (!done) {
-      spdlog::debug("  {} ...", s.stage);
+      double fraction = -1.0, eta = 0.0;
+      for (const auto& [name, v] : s.figures) {
+        if (name == "progress_fraction") fraction = v;
+        if (name == "eta_s") eta = v;
+      }
+      if (fraction >= 0.0) {  // within a long stage of the tiled run
+        spdlog::info("  {} {:.0f} % ({}; about {:.0f} s left)", s.stage, 100.0 * fraction,
+                     s.notes.empty() ? std::string() : s.notes.front(), eta);
+      } else {
+        spdlog::debug("  {} ...", s.stage);
+      }
     } else {
       spdlog::info("  {}: {} -> {} in {} ms", s.stage, s.count_in, s.count_out,
                    static_cast<long>(s.seconds * 1000.0 + 0.5));

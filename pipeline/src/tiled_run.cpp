@@ -21,6 +21,7 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <chrono>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -365,6 +366,33 @@ double figure_of(const StageReport& r, const char* name, double def) {
   return def;
 }
 
+// Progress within a stage: at most about once a second, the fraction done and the time left.
+class PassProgress {
+ public:
+  PassProgress(const ProgressFn& fn, const char* stage, std::string pass, double interval_s)
+      : fn_(fn), stage_(stage), pass_(std::move(pass)), interval_s_(interval_s), t0_(detail::Clock::now()), last_(t0_) {}
+  void operator()(double fraction) {
+    if (!fn_) return;
+    const auto now = detail::Clock::now();
+    if (std::chrono::duration<double>(now - last_).count() < interval_s_ || !(fraction > 0.0)) return;
+    last_ = now;
+    const double elapsed = std::chrono::duration<double>(now - t0_).count();
+    StageReport r;
+    r.stage = stage_;
+    r.figure("progress_fraction", std::min(1.0, fraction));
+    r.figure("eta_s", elapsed * (1.0 - std::min(1.0, fraction)) / fraction);
+    r.notes.push_back(pass_);
+    fn_(r, false);
+  }
+
+ private:
+  const ProgressFn& fn_;
+  const char* stage_;
+  std::string pass_;
+  double interval_s_;
+  detail::Clock::time_point t0_, last_;
+};
+
 }  // namespace
 
 bool runs_tiled(const RunConfig& config) {
@@ -420,7 +448,10 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       crs = s->crs();
       Cloud c;
       bool first = true;
+      PassProgress tick(progress, "tile_plan", "pass 1 of 3: the file's box", config.scale.progress_interval_s);
+      const double total = static_cast<double>(std::max<std::uint64_t>(1, s->total_points()));
       while (s->next(c, chunk_points)) {
+        tick(static_cast<double>(box.points + c.size()) / total);
         if (first) {
           box.layout = {c.has_rgb(), c.has_intensity()};
           box.float32 = c.float32_xyz;
@@ -462,7 +493,11 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     {
       auto s = open_point_stream(input, load);
       Cloud c;
+      PassProgress tick(progress, "tile_plan", "pass 2 of 3: the grid's box", config.scale.progress_interval_s);
+      std::uint64_t read = 0;
       while (s->next(c, chunk_points)) {
+        read += c.size();
+        tick(static_cast<double>(read) / static_cast<double>(box.points));
         const Cloud g = to_grid_frame(std::move(c), centre, unit_m, config);
         for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
           x_min = std::min(x_min, g.xyz(0, i));
@@ -479,7 +514,11 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       UpsampleCoverage cov(tiles.g);
       auto s = open_point_stream(input, load);
       Cloud c;
+      PassProgress tick(progress, "tile_plan", "pass 2b of 3: the upsample coverage", config.scale.progress_interval_s);
+      std::uint64_t read = 0;
       while (s->next(c, chunk_points)) {
+        read += c.size();
+        tick(static_cast<double>(read) / static_cast<double>(box.points));
         const Cloud g = to_grid_frame(std::move(c), centre, unit_m, config);
         cov.add(g.xyz.data(), g.size());
       }
@@ -533,7 +572,11 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     std::uint64_t index = 0, copies = 0;
     const double inv = 1.0 / tiles.g.cell_size_m;
     const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+    PassProgress tick(progress, "tile_spill", "pass 3 of 3: the spill", config.scale.progress_interval_s);
+    std::uint64_t read = 0;
     while (s->next(c, chunk_points)) {
+      read += c.size();
+      tick(static_cast<double>(read) / static_cast<double>(box.points));
       const Cloud g = to_grid_frame(std::move(c), centre, unit_m, config);
       for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++index) {
         const double* p = g.xyz.data() + 3 * i;
@@ -575,7 +618,9 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     const OutlierConfig& oc = config.filters.outliers;
     std::vector<std::uint64_t> index;
     std::uint64_t in = 0, out = 0;
+    PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);
     for (std::size_t t = 0; t < tiles.count(); ++t) {
+      tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
       Cloud pts = spill.read(t, index);
       spill.remove(t);
       in += pts.size();
@@ -705,8 +750,10 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
           if (std::isfinite(f.best_m)) cc.cell_error_m.at(f.r, f.c) = static_cast<float>(f.best_m);
         }
       };
+      PassProgress tick(progress, "cross_check", "two passes over the tiles' kept points", config.scale.progress_interval_s);
       for (int pass = 1; pass <= 2; ++pass) {
         for (std::size_t t = 0; t < tiles.count(); ++t) {
+          tick((pass - 1 + static_cast<double>(t) / static_cast<double>(tiles.count())) / 2.0);
           const Cloud pts = kept.read(t, flag);
           for (std::size_t i = 0; i < pts.size(); ++i) {
             if (flag[i] == 0) continue;  // a halo copy: its own tile counts it

@@ -14,7 +14,10 @@
 #include <gtest/gtest.h>
 
 #include <bit>
+#include <cmath>
 #include <cstring>
+#include <map>
+#include <vector>
 #include <string>
 
 namespace {
@@ -123,6 +126,51 @@ TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {
   const BuiltScene tiled = hc::pipeline::build_scene(config);
   EXPECT_GE(stage_figure(tiled, "tile_plan", "upsample_factor"), 2.0);
   EXPECT_FALSE(tiled.scene.layers.colour_rgb8.empty());
+}
+
+// Progress within the long stages: every pass reports, fractions rise within a pass and stay in
+// [0, 1], and the time left is finite and not negative (scale.progress_interval_s: 0 reports
+// every chunk and every tile, so nothing here depends on timing).
+TEST(TiledRun, LongStagesReportTheirProgressPassByPass) {
+  const fs::path dir = hc::test::temp_dir("progress");
+  hc::tools::ReliefSpec spec;
+  spec.points = 50'000;
+  hc::tools::write_relief(spec, dir / "wall.ply");
+  const std::string yaml =
+      "input: {files: [wall.ply], units: m}\ngrid: {n: 200, upsample: auto}\n"
+      "scale: {tiled: 'on', chunk_points: 4096, tile_cells: 32, progress_interval_s: 0}\n";
+  const RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml");
+  std::map<std::string, std::vector<double>> by_pass;
+  hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
+    if (done) return;
+    double f = -1.0, eta = -1.0;
+    for (const auto& [n, v] : r.figures) {
+      if (n == "progress_fraction") f = v;
+      if (n == "eta_s") eta = v;
+    }
+    if (f < 0.0) return;  // a stage's start
+    ASSERT_FALSE(r.notes.empty());
+    EXPECT_GE(eta, 0.0);
+    EXPECT_TRUE(std::isfinite(eta));
+    by_pass[r.stage + ": " + r.notes.front()].push_back(f);
+  });
+  // 50 000 points in chunks of 4096: 13 chunks per pass; a 200 x 101 grid in 32-cell tiles: 7 x 4.
+  for (const char* pass : {"tile_plan: pass 1 of 3: the file's box", "tile_plan: pass 2 of 3: the grid's box",
+                           "tile_plan: pass 2b of 3: the upsample coverage", "tile_spill: pass 3 of 3: the spill",
+                           "tiles: the tile loop", "cross_check: two passes over the tiles' kept points"}) {
+    const auto it = by_pass.find(pass);
+    ASSERT_NE(it, by_pass.end()) << pass;
+    const std::vector<double>& f = it->second;
+    EXPECT_GE(f.size(), 10U) << pass;
+    for (std::size_t i = 0; i < f.size(); ++i) {
+      EXPECT_GT(f[i], 0.0);
+      EXPECT_LE(f[i], 1.0);
+      if (i > 0) {
+        EXPECT_GE(f[i], f[i - 1]) << pass;
+      }
+    }
+  }
+  EXPECT_DOUBLE_EQ(by_pass["tile_plan: pass 1 of 3: the file's box"].back(), 1.0);
 }
 
 TEST(TiledRun, AutoTakesLargeStreamedScansAndOptionsItLacksAreRefusedByName) {

@@ -18,7 +18,10 @@
 
 namespace hc::pipeline {
 
-/// Progress callback: called when a stage starts (done = false) and ends (done = true).
+/// Progress callback: called when a stage starts (done = false) and ends (done = true). Long
+/// stages of the tiled run (tiling.hpp) also call it while they run (done = false), at most
+/// about once a second, with the figures `progress_fraction` [0, 1] and `eta_s` (the seconds
+/// left at the rate so far) and a note naming the pass.
 using ProgressFn = std::function<void(const StageReport& stage, bool done)>;
 
 struct RunSummary {
