@@ -614,17 +614,9 @@ void fill_report(const Run& run, const FarCounts& far, StageReport& rep) {
   rep.stage = "cross_check";
   rep.count_in = run.points_m.size();
   rep.count_out = run.valid_total;
-  auto add = [&rep](const std::string& prefix, const ErrorStats& s) {
-    rep.figure(prefix + "_count", static_cast<double>(s.count));
-    rep.figure(prefix + "_rms_mm", s.rms_mm);
-    rep.figure(prefix + "_p50_mm", s.p50_mm);
-    rep.figure(prefix + "_p95_mm", s.p95_mm);
-    rep.figure(prefix + "_p99_mm", s.p99_mm);
-    rep.figure(prefix + "_max_mm", s.max_mm);
-  };
-  add("point_vertical", cc.point_vertical);
-  add("point_normal", cc.point_normal);
-  add("cell_to_point", cc.cell_to_point);
+  add_error_stats_figures(rep, "point_vertical", cc.point_vertical);
+  add_error_stats_figures(rep, "point_normal", cc.point_normal);
+  add_error_stats_figures(rep, "cell_to_point", cc.cell_to_point);
   rep.figure("points_on_surface", static_cast<double>(cc.points_on_surface));
   rep.figure("points_off_surface", static_cast<double>(cc.points_off_surface));
   rep.figure("points_hidden", static_cast<double>(cc.points_hidden));
@@ -644,6 +636,15 @@ void fill_report(const Run& run, const FarCounts& far, StageReport& rep) {
 }  // namespace
 
 ErrorStats error_stats_mm(std::vector<double> abs_errors_m) { return stats_of(abs_errors_m); }
+
+void add_error_stats_figures(StageReport& report, const std::string& prefix, const ErrorStats& s) {
+  report.figure(prefix + "_count", static_cast<double>(s.count));
+  report.figure(prefix + "_rms_mm", s.rms_mm);
+  report.figure(prefix + "_p50_mm", s.p50_mm);
+  report.figure(prefix + "_p95_mm", s.p95_mm);
+  report.figure(prefix + "_p99_mm", s.p99_mm);
+  report.figure(prefix + "_max_mm", s.max_mm);
+}
 
 PointResidual point_residual(const BilinearSurface& surface, const GridGeometry& g, double x, double y, double z,
                              double hidden_band_m) {

@@ -393,6 +393,23 @@ class PassProgress {
   detail::Clock::time_point t0_, last_;
 };
 
+// One pass over the input in the grid frame: every chunk through to_grid_frame, then `body`,
+// with the pass's progress by points read.
+template <class Body>
+void for_each_grid_chunk(const std::filesystem::path& input, const LoadOptions& load, const RunConfig& config,
+                         const Eigen::Vector3d& centre, double unit_m, std::uint64_t total_points,
+                         const ProgressFn& progress, const char* stage_name, const char* pass, Body&& body) {
+  auto s = open_point_stream(input, load);
+  Cloud c;
+  PassProgress tick(progress, stage_name, pass, config.scale.progress_interval_s);
+  std::uint64_t read = 0;
+  while (s->next(c, config.scale.chunk_points)) {
+    read += c.size();
+    tick(static_cast<double>(read) / static_cast<double>(std::max<std::uint64_t>(total_points, 1)));
+    body(to_grid_frame(std::move(c), centre, unit_m, config));
+  }
+}
+
 }  // namespace
 
 bool runs_tiled(const RunConfig& config) {
@@ -490,38 +507,22 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     // The grid frame's x-y box, as reproject's pass over the points takes it.
     double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min, y_min = x_min, y_max = -x_min;
     std::size_t kept = 0;
-    {
-      auto s = open_point_stream(input, load);
-      Cloud c;
-      PassProgress tick(progress, "tile_plan", "pass 2 of 3: the grid's box", config.scale.progress_interval_s);
-      std::uint64_t read = 0;
-      while (s->next(c, chunk_points)) {
-        read += c.size();
-        tick(static_cast<double>(read) / static_cast<double>(box.points));
-        const Cloud g = to_grid_frame(std::move(c), centre, unit_m, config);
-        for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
-          x_min = std::min(x_min, g.xyz(0, i));
-          x_max = std::max(x_max, g.xyz(0, i));
-          y_min = std::min(y_min, g.xyz(1, i));
-          y_max = std::max(y_max, g.xyz(1, i));
-        }
-        kept += g.size();
-      }
-    }
+    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, "tile_plan",
+                        "pass 2 of 3: the grid's box", [&](const Cloud& g) {
+                          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
+                            x_min = std::min(x_min, g.xyz(0, i));
+                            x_max = std::max(x_max, g.xyz(0, i));
+                            y_min = std::min(y_min, g.xyz(1, i));
+                            y_max = std::max(y_max, g.xyz(1, i));
+                          }
+                          kept += g.size();
+                        });
     tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
     double coverage = 0.0;
     if (ro.upsample_factor == 0) {
       UpsampleCoverage cov(tiles.g);
-      auto s = open_point_stream(input, load);
-      Cloud c;
-      PassProgress tick(progress, "tile_plan", "pass 2b of 3: the upsample coverage", config.scale.progress_interval_s);
-      std::uint64_t read = 0;
-      while (s->next(c, chunk_points)) {
-        read += c.size();
-        tick(static_cast<double>(read) / static_cast<double>(box.points));
-        const Cloud g = to_grid_frame(std::move(c), centre, unit_m, config);
-        cov.add(g.xyz.data(), g.size());
-      }
+      for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, "tile_plan",
+                          "pass 2b of 3: the upsample coverage", [&](const Cloud& g) { cov.add(g.xyz.data(), g.size()); });
       tiles.k = cov.factor(&coverage);
       r.report.figure("upsample_coverage", coverage);
     } else {
@@ -567,17 +568,11 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   Spill spill(scratch.path(), "tile_", tiles.count(), box.layout);
   (void)stage("tile_spill", reports, progress, [&] {
     StageResult<int> r;
-    auto s = open_point_stream(input, load);
-    Cloud c;
     std::uint64_t index = 0, copies = 0;
     const double inv = 1.0 / tiles.g.cell_size_m;
     const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
-    PassProgress tick(progress, "tile_spill", "pass 3 of 3: the spill", config.scale.progress_interval_s);
-    std::uint64_t read = 0;
-    while (s->next(c, chunk_points)) {
-      read += c.size();
-      tick(static_cast<double>(read) / static_cast<double>(box.points));
-      const Cloud g = to_grid_frame(std::move(c), centre, unit_m, config);
+    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, "tile_spill", "pass 3 of 3: the spill",
+                        [&](const Cloud& g) {
       for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++index) {
         const double* p = g.xyz.data() + 3 * i;
         // The node as reproject bins it (clamped to the grid).
@@ -594,7 +589,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
           }
         }
       }
-    }
+    });
     spill.flush_all();
     r.report.count_in = box.points;
     r.report.count_out = index;
@@ -848,17 +843,9 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       cc.supported_fraction = valid ? static_cast<double>(supported) / static_cast<double>(valid) : 0.0;
       r.report.count_in = cc.points_on_surface + cc.points_off_surface + cc.points_hidden + cc.points_outside;
       r.report.count_out = valid;
-      auto add = [&](const std::string& prefix, const ErrorStats& s) {
-        r.report.figure(prefix + "_count", static_cast<double>(s.count));
-        r.report.figure(prefix + "_rms_mm", s.rms_mm);
-        r.report.figure(prefix + "_p50_mm", s.p50_mm);
-        r.report.figure(prefix + "_p95_mm", s.p95_mm);
-        r.report.figure(prefix + "_p99_mm", s.p99_mm);
-        r.report.figure(prefix + "_max_mm", s.max_mm);
-      };
-      add("point_vertical", cc.point_vertical);
-      add("point_normal", cc.point_normal);
-      add("cell_to_point", cc.cell_to_point);
+      add_error_stats_figures(r.report, "point_vertical", cc.point_vertical);
+      add_error_stats_figures(r.report, "point_normal", cc.point_normal);
+      add_error_stats_figures(r.report, "cell_to_point", cc.cell_to_point);
       r.report.figure("points_on_surface", static_cast<double>(cc.points_on_surface));
       r.report.figure("points_off_surface", static_cast<double>(cc.points_off_surface));
       r.report.figure("points_hidden", static_cast<double>(cc.points_hidden));

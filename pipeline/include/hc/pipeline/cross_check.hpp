@@ -8,6 +8,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <string>
 #include <vector>
 
 namespace hc::pipeline {
@@ -23,6 +24,10 @@ struct ErrorStats {
 /// selection with std::nth_element, O(n); no full sort).
 /// @throws hc::InputError if a value is NaN or infinite.
 ErrorStats error_stats_mm(std::vector<double> abs_errors_m);
+
+/// Adds `prefix`_count, _rms_mm, _p50_mm, _p95_mm, _p99_mm and _max_mm to a stage report (the
+/// cross-check's figures, in core and tiled).
+void add_error_stats_figures(StageReport& report, const std::string& prefix, const ErrorStats& stats);
 
 struct CrossCheck {
   /// (a) input points inside the grid whose bilinear cell is valid: |z_p − f(x_p, y_p)|.
