@@ -93,25 +93,26 @@ class ScratchDir {
 // What a spilled point carries.
 struct Layout {
   bool rgb = false, intensity = false;
-  std::size_t bytes() const { return 8 + 24 + (rgb ? 3 : 0) + (intensity ? 4 : 0); }
+  std::size_t bytes() const { return 1 + 24 + (rgb ? 3 : 0) + (intensity ? 4 : 0); }
 };
 
 // Spill files, one per tile, appended through per-tile buffers (records of Layout::bytes():
-// u64 index, x y z double, [r g b], [intensity float]).
+// a flag byte (kept points: 1 interior, 0 halo; 0 in the first spill), x y z double, [r g b],
+// [intensity float]). Points keep the input's order within a file.
 class Spill {
  public:
   Spill(fs::path dir, std::string prefix, std::size_t tiles, Layout layout)
       : dir_(std::move(dir)), prefix_(std::move(prefix)), layout_(layout), buf_(tiles), bytes_(tiles, 0) {}
   fs::path file(std::size_t t) const { return dir_ / (prefix_ + std::to_string(t) + ".bin"); }
 
-  void add(std::size_t t, std::uint64_t index, const double* p, const std::uint8_t* rgb, float intensity) {
+  void add(std::size_t t, std::uint8_t flag, const double* p, const std::uint8_t* rgb, float intensity) {
     std::vector<char>& b = buf_[t];
     const std::size_t at = b.size();
     b.resize(at + layout_.bytes());
     char* q = b.data() + at;
-    std::memcpy(q, &index, 8);
-    std::memcpy(q + 8, p, 24);
-    q += 32;
+    q[0] = static_cast<char>(flag);
+    std::memcpy(q + 1, p, 24);
+    q += 25;
     if (layout_.rgb) {
       std::memcpy(q, rgb, 3);
       q += 3;
@@ -147,10 +148,10 @@ class Spill {
     return s;
   }
 
-  // Reads tile t's points back (flush first): their file indices, and the points.
-  Cloud read(std::size_t t, std::vector<std::uint64_t>& index) const {
+  // Reads tile t's points back (flush first): the points and their flags.
+  Cloud read(std::size_t t, std::vector<std::uint8_t>& flag) const {
     Cloud c;
-    index.clear();
+    flag.clear();
     const std::size_t rec = layout_.bytes();
     const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
     if (n == 0) return c;
@@ -160,14 +161,14 @@ class Spill {
     if (f) std::fclose(f);
     if (!ok) throw InputError("tiled run: cannot read the spill file " + file(t).string());
     c.xyz.resize(3, static_cast<Eigen::Index>(n));
-    index.resize(n);
+    flag.resize(n);
     if (layout_.rgb) c.rgb.resize(3 * n);
     if (layout_.intensity) c.intensity.resize(n);
     for (std::size_t i = 0; i < n; ++i) {
       const char* q = raw.data() + i * rec;
-      std::memcpy(&index[i], q, 8);
-      std::memcpy(c.xyz.data() + 3 * i, q + 8, 24);
-      q += 32;
+      flag[i] = static_cast<std::uint8_t>(q[0]);
+      std::memcpy(c.xyz.data() + 3 * i, q + 1, 24);
+      q += 25;
       if (layout_.rgb) {
         std::memcpy(c.rgb.data() + 3 * i, q, 3);
         q += 3;
@@ -568,12 +569,12 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   Spill spill(scratch.path(), "tile_", tiles.count(), box.layout);
   (void)stage("tile_spill", reports, progress, [&] {
     StageResult<int> r;
-    std::uint64_t index = 0, copies = 0;
+    std::uint64_t spilled = 0, copies = 0;
     const double inv = 1.0 / tiles.g.cell_size_m;
     const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
     for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, "tile_spill", "pass 3 of 3: the spill",
                         [&](const Cloud& g) {
-      for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++index) {
+      for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++spilled) {
         const double* p = g.xyz.data() + 3 * i;
         // The node as reproject bins it (clamped to the grid).
         const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
@@ -583,7 +584,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         const float inten = g.has_intensity() ? g.intensity[static_cast<std::size_t>(i)] : 0.0f;
         for (int tr = tr0; tr <= tr1; ++tr) {
           for (int tc = tc0; tc <= tc1; ++tc) {
-            spill.add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), index, p,
+            spill.add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), 0, p,
                       rgb, inten);
             ++copies;
           }
@@ -592,9 +593,9 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     });
     spill.flush_all();
     r.report.count_in = box.points;
-    r.report.count_out = index;
+    r.report.count_out = spilled;
     r.report.figure("points_spilled", static_cast<double>(copies));
-    r.report.figure("halo_copies_per_point", index ? static_cast<double>(copies) / static_cast<double>(index) : 0.0);
+    r.report.figure("halo_copies_per_point", spilled ? static_cast<double>(copies) / static_cast<double>(spilled) : 0.0);
     r.report.figure("spill_bytes_peak_mb", static_cast<double>(spill.bytes()) / 1e6);
     r.report.notes.push_back("spill folder " + scratch.path().string() + " (removed at the end)");
     return r;
@@ -611,12 +612,12 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   (void)stage("tiles", reports, progress, [&] {
     StageResult<int> r;
     const OutlierConfig& oc = config.filters.outliers;
-    std::vector<std::uint64_t> index;
+    std::vector<std::uint8_t> flags;
     std::uint64_t in = 0, out = 0;
     PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);
     for (std::size_t t = 0; t < tiles.count(); ++t) {
       tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
-      Cloud pts = spill.read(t, index);
+      Cloud pts = spill.read(t, flags);
       spill.remove(t);
       in += pts.size();
       const GridWindow w = tiles.window(t);
@@ -657,7 +658,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         }
         if (part.depth.rows() > 0) copy_interior(part, w, inner, grid);
       }
-      // The kept points, each marked interior (1) or halo (0) in the record's index field.
+      // The kept points, each marked interior (1) or halo (0).
       const double inv = 1.0 / tiles.g.cell_size_m;
       const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
       for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) {
@@ -666,7 +667,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
         const bool interior = row >= inner[0] && row < inner[1] && col >= inner[2] && col < inner[3];
         out += interior ? 1U : 0U;
-        kept.add(t, interior ? 1U : 0U, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
+        kept.add(t, interior ? std::uint8_t{1} : std::uint8_t{0}, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
                  pts.has_intensity() ? pts.intensity[static_cast<std::size_t>(i)] : 0.0f);
       }
       kept.flush(t);
@@ -698,7 +699,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       cc.cell_error_m.model_to_grid = model_to_grid;
       const BilinearSurface surface(HeightFieldView::of(grid.depth));
       RadixPercentiles vertical, normal;
-      std::vector<std::uint64_t> flag;
+      std::vector<std::uint8_t> flag;
       // Samples whose nearest point may lie beyond their tile's halo (judged on the tile's
       // float distance): found again, in double, over the interior points of every tile their
       // search disc reaches (brute force: few samples on a grid made from the points).
@@ -712,7 +713,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         if (far.empty()) return;
         researched = far.size();
         const double cell = tiles.g.cell_size_m;
-        std::vector<std::uint64_t> fl;
+        std::vector<std::uint8_t> fl;
         for (std::size_t t = 0; t < tiles.count(); ++t) {
           const auto in = tiles.interior(t);
           const double x_lo = tiles.g.x_of_col(in[2]) - 0.5 * cell, x_hi = tiles.g.x_of_col(in[3] - 1) + 0.5 * cell;

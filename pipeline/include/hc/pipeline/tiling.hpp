@@ -10,9 +10,8 @@
 ///     every point through units, recentring, view transform, non-finite and crop, exactly as the
 ///     in-core stages compute them: the grid's box (the geometry reproject would make) and, for
 ///     grid.upsample: auto, the node coverage at every upsample factor (UpsampleCoverage);
-///  2. spill: stream a third time and write each point (its rank among the points kept by the
-///     non-finite and crop filters, x y z as double in the grid frame, colour and intensity when
-///     the scan has them) to the spill file of every
+///  2. spill: stream a third time and write each point (x y z as double in the grid frame,
+///     colour and intensity when the scan has them, in the input's order) to the spill file of every
 ///     tile whose window (the tile plus its halo) holds its grid node;
 ///  3. per tile, in order: read its points (file order), the robust outlier filter and the
 ///     isolated-point filter when enabled, reproject the tile's window, despike and reproject
