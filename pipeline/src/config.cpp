@@ -1059,6 +1059,8 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   c.lod.window_cells = static_cast<int>(r.get_int("lod.window_cells", c.lod.window_cells, 2, 4096));
   c.lod.report = r.get_bool("lod.report", c.lod.report);
   c.lod.report_cross_check = r.get_bool("lod.report_cross_check", c.lod.report_cross_check);
+  c.lod.report_sample_points = static_cast<std::size_t>(
+      r.get_int("lod.report_sample_points", static_cast<long long>(c.lod.report_sample_points), 0, 1LL << 40));
 
   // the streaming tiled run (tiling.hpp; docs/scale.md)
   {

@@ -667,6 +667,58 @@ PointResidual point_residual(const BilinearSurface& surface, const GridGeometry&
   return r;
 }
 
+double supported_fraction(const Cloud& points_m, const HeightField& grid, double tolerance_m) {
+  if (!(tolerance_m > 0.0) || !std::isfinite(tolerance_m)) {
+    std::ostringstream msg;
+    msg << "supported_fraction: tolerance_m = " << tolerance_m << " (expected a finite distance > 0)";
+    throw ConfigError(msg.str());
+  }
+  const GridGeometry& g = grid.geometry();
+  const std::size_t valid = grid.valid_count();
+  if (valid == 0) {
+    std::ostringstream msg;
+    msg << "supported_fraction: the " << g.cols << " x " << g.rows << " grid has no valid cell";
+    throw InputError(msg.str());
+  }
+  const std::size_t cols = static_cast<std::size_t>(g.cols);
+  const double inv_cell = 1.0 / g.cell_size_m;
+  const double reach = tolerance_m * inv_cell;  // tolerance in cells
+  const double tol_sq = tolerance_m * tolerance_m;
+  const float* f = grid.data();
+  std::vector<std::uint8_t> marks[2];
+  auto mark = [&](std::size_t begin, std::size_t end, std::vector<std::uint8_t>& m) {
+    m.assign(g.cell_count(), 0);
+    const double* p = points_m.xyz.data() + 3 * begin;
+    for (std::size_t i = begin; i < end; ++i, p += 3) {
+      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
+      const double cx = (p[0] - g.x0_m) * inv_cell, cy = (p[1] - g.y0_m) * inv_cell;
+      // Outside the nodes' extent by more than the tolerance (also keeps the casts in range).
+      if (cx + reach < 0.0 || cx - reach > g.cols - 1 || cy + reach < 0.0 || cy - reach > g.rows - 1) continue;
+      const int c_lo = std::max(0, static_cast<int>(std::ceil(cx - reach)));
+      const int c_hi = std::min(g.cols - 1, static_cast<int>(std::floor(cx + reach)));
+      const int r_lo = std::max(0, static_cast<int>(std::ceil(cy - reach)));
+      const int r_hi = std::min(g.rows - 1, static_cast<int>(std::floor(cy + reach)));
+      for (int r = r_lo; r <= r_hi; ++r) {
+        const double dy = p[1] - g.y_of_row(r);
+        const std::size_t row = static_cast<std::size_t>(r) * cols;
+        for (int c = c_lo; c <= c_hi; ++c) {
+          const float z = f[row + static_cast<std::size_t>(c)];
+          if (std::isnan(z)) continue;
+          const double dx = p[0] - g.x_of_col(c), dz = p[2] - static_cast<double>(z);
+          if (dx * dx + dy * dy + dz * dz <= tol_sq) m[row + static_cast<std::size_t>(c)] = 1;
+        }
+      }
+    }
+  };
+  const std::size_t n = points_m.size();
+  detail::run_two([&] { mark(0, n / 2, marks[0]); }, [&] { mark(n / 2, n, marks[1]); });
+  std::size_t supported = 0;
+  for (std::size_t k = 0; k < g.cell_count(); ++k) {
+    supported += (marks[0][k] | marks[1][k]) != 0 && !std::isnan(f[k]) ? 1U : 0U;
+  }
+  return static_cast<double>(supported) / static_cast<double>(valid);
+}
+
 StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& grid,
                                     double tolerance_m, double hidden_band_m) {
   const auto t0 = detail::Clock::now();

@@ -1,6 +1,7 @@
 #include "stage_util.hpp"
 #include "hc/pipeline/lod_report.hpp"
 
+#include "hc/common/bilinear_surface.hpp"
 #include "hc/common/error.hpp"
 #include "hc/common/format.hpp"
 #include "hc/common/units.hpp"
@@ -23,10 +24,33 @@ namespace {
 
 std::string fixed(double v, int precision) { return format_number(v, precision, NumberStyle::kFixed); }
 
+/// One line per distinct sampling of the rows' cross-check (a), or "" when none was sampled.
+std::string level_sampling_note(const std::vector<LevelRow>& rows) {
+  std::ostringstream note;
+  for (const LevelRow& r : rows) {
+    if (!r.point_vertical || r.points_checked >= r.points_total) continue;
+    note << "\nLevel " << r.level << ": RMS and p95 from " << r.points_checked << " of " << r.points_total
+         << " points (evenly strided)" << (r.support_measured ? "; support over every point." : "; support not measured (it needs every point).");
+  }
+  return note.str().empty() ? std::string() : note.str() + "\n";
+}
+
 }  // namespace
 
 std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, const Cloud* points,
                                   const LevelTableOptions& options) {
+  if (options.cross_check && points != nullptr &&
+      (!(options.hidden_band_m > 0.0) || !std::isfinite(options.hidden_band_m))) {
+    std::ostringstream msg;
+    msg << "level_table: hidden_band_m = " << options.hidden_band_m << " (expected a finite distance > 0)";
+    throw ConfigError(msg.str());
+  }
+  const std::size_t n = points != nullptr ? points->size() : 0;
+  const bool whole_set = options.points_represent == 0;
+  const std::size_t total = whole_set ? n : options.points_represent;
+  const std::size_t stride = !whole_set || options.sample_points == 0 || n <= options.sample_points
+                                 ? 1
+                                 : (n + options.sample_points - 1) / options.sample_points;
   std::vector<LevelRow> rows;
   for (int level = 0; level < pyramid->level_count(); ++level) {
     LevelRow row;
@@ -44,10 +68,30 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
     if (options.cross_check && level == 0 && options.level0_cross_check) {
       row.point_vertical = options.level0_cross_check->point_vertical;
       row.supported_fraction = options.level0_cross_check->supported_fraction;
+      row.support_measured = true;
+      row.points_checked = row.points_total = total;
     } else if (options.cross_check && points != nullptr && row.valid_cells > 0 && g.rows >= 2 && g.cols >= 2) {
-      const CrossCheck c = cross_check(*points, lvl->depth_m, options.tolerance_m, options.hidden_band_m).value;
-      row.point_vertical = c.point_vertical;
-      row.supported_fraction = c.supported_fraction;
+      // (a) on every stride-th point, exactly as cross_check evaluates each one.
+      const auto t_check = detail::Clock::now();
+      const BilinearSurface surface(HeightFieldView::of(lvl->depth_m));
+      std::vector<double> vertical_m;
+      vertical_m.reserve(n / stride + 1);
+      const double* p = points->xyz.data();
+      std::size_t checked = 0;
+      for (std::size_t i = 0; i < n; i += stride, ++checked) {
+        const double* q = p + 3 * i;
+        if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
+        const PointResidual r = point_residual(surface, g, q[0], q[1], q[2], options.hidden_band_m);
+        if (r.kind == PointResidual::kOnSurface) vertical_m.push_back(static_cast<double>(r.vertical_m));
+      }
+      row.point_vertical = error_stats_mm(std::move(vertical_m));
+      row.points_checked = checked;
+      row.points_total = total;
+      if (whole_set) {
+        row.supported_fraction = supported_fraction(*points, lvl->depth_m, options.tolerance_m);
+        row.support_measured = true;
+      }
+      row.cross_check_seconds = detail::seconds_since(t_check);
     }
 
     rows.push_back(row);
@@ -64,7 +108,7 @@ std::string level_table_markdown(const std::vector<LevelRow>& rows) {
        << r.valid_cells << " | " << fixed(r.build_seconds * 1000.0, 1) << " | ";
     if (r.point_vertical) {
       md << fixed(r.point_vertical->rms_mm, 3) << " | " << fixed(r.point_vertical->p95_mm, 3) << " | "
-         << fixed(100.0 * r.supported_fraction, 1) << " % | ";
+         << (r.support_measured ? fixed(100.0 * r.supported_fraction, 1) + " %" : std::string("–")) << " | ";
     } else {
       md << "– | – | – | ";
     }
@@ -85,6 +129,7 @@ std::string level_table_markdown(const std::vector<LevelRow>& rows) {
       md << "– | – |\n";
     }
   }
+  md << level_sampling_note(rows);
   return md.str();
 }
 
@@ -98,7 +143,7 @@ std::string level_table_text(const std::vector<LevelRow>& rows) {
       << (std::to_string(r.cols) + " x " + std::to_string(r.rows)) << std::setw(10) << fixed(r.build_seconds * 1000.0, 1);
     if (r.point_vertical) {
       t << std::setw(10) << fixed(r.point_vertical->rms_mm, 3) << std::setw(10) << fixed(r.point_vertical->p95_mm, 3)
-        << std::setw(11) << (fixed(100.0 * r.supported_fraction, 1) + "%");
+        << std::setw(11) << (r.support_measured ? fixed(100.0 * r.supported_fraction, 1) + "%" : std::string("-"));
     } else {
       t << std::setw(10) << "-" << std::setw(10) << "-" << std::setw(11) << "-";
     }

@@ -752,13 +752,36 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
       }
       auto pyramid = std::make_shared<LodPyramid>(std::move(l0), config.layers.options, config.lod);
       LevelTableOptions to;
-      to.cross_check = config.lod.report_cross_check && built.cloud.has_value();
+      // Every filtered point in core; the tiled run's strided sample otherwise (no support then).
+      const Cloud* level_points = built.cloud ? &*built.cloud : built.point_sample ? &*built.point_sample : nullptr;
+      to.cross_check = config.lod.report_cross_check && level_points != nullptr;
+      if (!built.cloud && built.point_sample) to.points_represent = std::max<std::size_t>(1, built.point_sample_of);
       to.tolerance_m = config.cross_check.tolerance_m;
       to.hidden_band_m = config.cross_check.hidden_band_m;
+      to.sample_points = config.lod.report_sample_points;
       if (summary.cross_check) to.level0_cross_check = *summary.cross_check;
-      StageResult<std::vector<LevelRow>> r{level_table(pyramid, built.cloud ? &*built.cloud : nullptr, to), {}};
+      // The previews are written while the table is measured (the pyramid is thread-safe and
+      // builds each level once); the servo timing runs alone afterwards.
+      StageResult<std::vector<LevelRow>> r;
+      double previews_s = 0.0;
+      detail::run_two(
+          [&] {
+            const auto t_previews = detail::Clock::now();
+            lod_previews = write_level_previews(*pyramid, previews);
+            previews_s = detail::seconds_since(t_previews);
+          },
+          [&] { r.value = level_table(pyramid, level_points, to); });
+      double build_s = 0.0, check_s = 0.0;
+      for (const LevelRow& row : r.value) {
+        build_s += row.build_seconds;
+        check_s += row.cross_check_seconds;
+      }
+      r.report.figure("build_s", build_s);
+      r.report.figure("cross_check_s", check_s);
+      r.report.figure("previews_s", previews_s);
+      const auto t_timing = detail::Clock::now();
       if (level_timing) level_timing(pyramid, r.value);
-      lod_previews = write_level_previews(*pyramid, previews);
+      r.report.figure("servo_timing_s", detail::seconds_since(t_timing));
       r.report.count_in = summary.valid_cells;
       r.report.count_out = r.value.size();
       return r;
@@ -851,7 +874,10 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
       }
       if (r.point_vertical) {
         jr["point_vertical"] = stats_json(*r.point_vertical);
-        jr["supported_fraction"] = r.supported_fraction;
+        jr["points_checked"] = r.points_checked;
+        jr["points_total"] = r.points_total;
+        jr["sampled"] = r.points_checked < r.points_total;
+        if (r.support_measured) jr["supported_fraction"] = r.supported_fraction;
       }
       if (r.mu_d) {
         jr["mu_d"] = {{"valid", r.mu_d->valid}, {"at_min", r.mu_d->at_min}, {"at_max", r.mu_d->at_max},
@@ -962,7 +988,9 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
 RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const ProgressFn& progress,
                         ExistingOutput existing, const LevelTimingFn& level_timing) {
   check_output_target(out_dir, existing);  // refuse before hours of work, not after
-  const bool keep_cloud = config.lod.report && config.lod.report_cross_check;
+  // The levels table's cross-check wants the points; a tiled run keeps a sample of them instead
+  // (BuiltScene::point_sample), so that is no reason to stay in core.
+  const bool keep_cloud = config.lod.report && config.lod.report_cross_check && !runs_tiled(config);
   const BuiltScene built = build_scene(config, keep_cloud, progress);
   return write_run(built, config, out_dir, progress, existing, level_timing);
 }

@@ -96,6 +96,7 @@ void emit_lod_options(YAML::Emitter& y, const LodOptions& o) {
   y << YAML::Key << "window_cells" << YAML::Value << o.window_cells;
   y << YAML::Key << "report" << YAML::Value << o.report;
   y << YAML::Key << "report_cross_check" << YAML::Value << o.report_cross_check;
+  y << YAML::Key << "report_sample_points" << YAML::Value << static_cast<unsigned long long>(o.report_sample_points);
   y << YAML::EndMap;
 }
 
@@ -152,6 +153,7 @@ LodOptions parse_lod_options(const YAML::Node& n) {
   read_opt(n, "window_cells", o.window_cells);
   read_opt(n, "report", o.report);
   read_opt(n, "report_cross_check", o.report_cross_check);
+  read_opt(n, "report_sample_points", o.report_sample_points);
   return o;
 }
 

@@ -609,6 +609,13 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   if (box.layout.intensity) grid.intensity = HeightField(tiles.g);
   Spill kept(scratch.path(), "kept_", tiles.count(), box.layout);
   std::map<std::string, double> sums;
+  // The levels table's sample: every sample_stride-th interior point, in tile order.
+  const bool keep_sample = config.lod.report && config.lod.report_cross_check;
+  const std::size_t sample_points = config.lod.report_sample_points;
+  const std::size_t sample_stride =
+      sample_points == 0 ? 1 : std::max<std::size_t>(1, (box.points + sample_points - 1) / sample_points);
+  std::vector<double> sample_xyz;
+  std::size_t interior_seen = 0;
   (void)stage("tiles", reports, progress, [&] {
     StageResult<int> r;
     const OutlierConfig& oc = config.filters.outliers;
@@ -667,6 +674,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
         const bool interior = row >= inner[0] && row < inner[1] && col >= inner[2] && col < inner[3];
         out += interior ? 1U : 0U;
+        if (keep_sample && interior && interior_seen++ % sample_stride == 0) sample_xyz.insert(sample_xyz.end(), p, p + 3);
         kept.add(t, interior ? std::uint8_t{1} : std::uint8_t{0}, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
                  pts.has_intensity() ? pts.intensity[static_cast<std::size_t>(i)] : 0.0f);
       }
@@ -682,6 +690,15 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
             : "no point filter: every tile's interior equals the in-core grid's");
     return r;
   });
+
+  if (keep_sample && !sample_xyz.empty()) {
+    Cloud sample;
+    sample.xyz = Eigen::Map<const Eigen::Matrix3Xd>(sample_xyz.data(), 3,
+                                                    static_cast<Eigen::Index>(sample_xyz.size() / 3));
+    std::vector<double>().swap(sample_xyz);
+    built.point_sample = std::move(sample);
+    built.point_sample_of = interior_seen;
+  }
 
   // 4. The whole grid, as in core.
   const std::size_t grid_report = reports.size() - 1;

@@ -106,6 +106,9 @@ void expect_cells_match_brute_force(const Cloud& cloud, const HeightField& grid,
   EXPECT_NEAR(cc.cell_to_point.p99_mm, want.p99_mm, 1e-6 * want.p99_mm + 1e-6);
   EXPECT_NEAR(cc.cell_to_point.max_mm, want.max_mm, 1e-6 * want.max_mm + 1e-6);
   EXPECT_DOUBLE_EQ(cc.supported_fraction, static_cast<double>(supported) / static_cast<double>(expected.size()));
+  // The levels table's support without distances (each point marks the samples near it).
+  EXPECT_DOUBLE_EQ(supported_fraction(cloud, grid, tol_m),
+                   static_cast<double>(supported) / static_cast<double>(expected.size()));
 }
 
 TEST(CrossCheck, CellDistancesEqualBruteForceOnAFullGrid) {
@@ -175,6 +178,24 @@ TEST(CrossCheck, CellDistancesEqualBruteForceOnAReprojectedScan) {
   o.see_through_depth_m = 0.002;
   const auto grid = fill_holes(reproject(both, o).value, 20).value;
   expect_cells_match_brute_force(both, grid.depth, 2e-4);
+}
+
+TEST(CrossCheck, SupportedFractionIgnoresNonFiniteAndFarPointsAndChecksItsArguments) {
+  // Two samples; one point on each, one point 1e30 m away, one NaN, one just outside the
+  // tolerance of the first sample diagonally (in x-y and z together).
+  GridGeometry g{2, 3, 0.0, 0.0, 0.001};
+  HeightField h(g);
+  h.at(0, 0) = 0.0f;
+  h.at(1, 2) = 0.002f;
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  const double t = 3e-4, off = 1.01 * t / std::sqrt(3.0);
+  EXPECT_DOUBLE_EQ(supported_fraction(cloud_of({{0.0, 0.0, 1e-4}, {1e30, -1e30, 0.0}, {nan, 0.0, 0.0}}), h, t), 0.5);
+  EXPECT_DOUBLE_EQ(supported_fraction(cloud_of({{off, off, off}, {0.002, 0.001, 0.002 + 0.99 * t}}), h, t), 0.5);
+  EXPECT_DOUBLE_EQ(supported_fraction(cloud_of({{-off, off, -off}, {0.002, 0.001, 0.002}}), h, t), 0.5);
+  EXPECT_DOUBLE_EQ(supported_fraction(cloud_of({{0.0, 0.0, 0.0}, {0.002, 0.001, 0.002}}), h, t), 1.0);
+  EXPECT_THROW(supported_fraction(cloud_of({{0.0, 0.0, 0.0}}), h, 0.0), ConfigError);
+  EXPECT_THROW(supported_fraction(cloud_of({{0.0, 0.0, 0.0}}), h, nan), ConfigError);
+  EXPECT_THROW(supported_fraction(cloud_of({{0.0, 0.0, 0.0}}), HeightField(g), t), InputError);
 }
 
 TEST(CrossCheck, GeoreferencedXYOffsetsKeepFullPrecision) {

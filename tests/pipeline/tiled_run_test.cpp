@@ -12,6 +12,9 @@
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
+
+#include <fstream>
 
 #include <bit>
 #include <cmath>
@@ -171,6 +174,54 @@ TEST(TiledRun, LongStagesReportTheirProgressPassByPass) {
     }
   }
   EXPECT_DOUBLE_EQ(by_pass["tile_plan: pass 1 of 3: the file's box"].back(), 1.0);
+}
+
+// `hapticloud run` with the default levels table used to keep the cloud for its cross-check and
+// so stayed in core under auto. Now auto goes tiled, and the tiled run hands the table a strided
+// sample: levels >= 1 report (a) from it, as sampled, and no support; the estimate agrees with
+// the in-core table over every point (same grid: no point filter).
+TEST(TiledRun, RunWithTheLevelsTableGoesTiledUnderAutoAndSamplesTheLevels) {
+  const fs::path dir = hc::test::temp_dir("levels");
+  hc::tools::ReliefSpec spec;
+  spec.points = 60'000;
+  spec.outlier_fraction = 0.0;  // a few metre-scale outliers would make the RMS a lottery of the sample
+  hc::tools::write_relief(spec, dir / "wall.ply");
+  const std::string yaml =
+      "input: {files: [wall.ply], units: m}\ngrid: {n: 200, upsample: auto}\nfilters: {outliers: {enabled: false}}\n"
+      "scale: {tiled_above_points: 10000, tile_cells: 64}\nlod: {min_cells: 40}\n";
+  auto levels_of = [&](const std::vector<std::string>& sets, const std::string& out) {
+    const RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml", sets);
+    hc::pipeline::run_pipeline(config, dir / out);
+    std::ifstream in(dir / out / "report.json");
+    const nlohmann::json j = nlohmann::json::parse(in);
+    bool tiled = false;
+    for (const auto& s : j["stages"]) tiled = tiled || s["stage"] == "tile_plan";
+    EXPECT_EQ(tiled, out == "tiled");
+    return j["levels"];
+  };
+  const nlohmann::json tiled = levels_of({"lod.report_sample_points=6000"}, "tiled");
+  const nlohmann::json in_core = levels_of({"scale.tiled=off", "lod.report_sample_points=0"}, "in_core");
+  ASSERT_EQ(tiled.size(), in_core.size());
+  ASSERT_GE(tiled.size(), 2U);
+  for (std::size_t l = 1; l < tiled.size(); ++l) {
+    SCOPED_TRACE("level " + std::to_string(l));
+    EXPECT_TRUE(tiled[l]["sampled"].get<bool>());
+    EXPECT_FALSE(tiled[l].contains("supported_fraction"));
+    EXPECT_FALSE(in_core[l]["sampled"].get<bool>());
+    EXPECT_TRUE(in_core[l].contains("supported_fraction"));
+    const auto checked = tiled[l]["points_checked"].get<std::size_t>();
+    EXPECT_GE(checked, 4000U);
+    EXPECT_LE(checked, 6000U);
+    EXPECT_EQ(tiled[l]["points_total"].get<std::size_t>(), in_core[l]["points_total"].get<std::size_t>());
+    // The RMS is a mean: the sample's is within 15 %. The error distribution of a coarse level is
+    // lumpy around its 95th percentile (block edges), so the sample's p95 is only held between
+    // the whole set's p50 and p99.
+    const nlohmann::json& all = in_core[l]["point_vertical"];
+    const nlohmann::json& some = tiled[l]["point_vertical"];
+    EXPECT_NEAR(some["rms_mm"].get<double>(), all["rms_mm"].get<double>(), 0.15 * all["rms_mm"].get<double>());
+    EXPECT_GT(some["p95_mm"].get<double>(), all["p50_mm"].get<double>());
+    EXPECT_LT(some["p95_mm"].get<double>(), all["p99_mm"].get<double>());
+  }
 }
 
 TEST(TiledRun, AutoTakesLargeStreamedScansAndOptionsItLacksAreRefusedByName) {

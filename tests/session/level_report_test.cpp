@@ -4,6 +4,7 @@
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
+#include "hc/pipeline/cross_check.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/run.hpp"
@@ -88,6 +89,65 @@ TEST(LodReport, RunReportHasTheLevelsTableAndPreviewsAndLevelsCommandFindsThePoi
   EXPECT_NEAR(rows[0].point_vertical->rms_mm, summary.cross_check->point_vertical.rms_mm, 1e-9);
   EXPECT_NE(level_table_text(rows).find("switch_ms"), std::string::npos);
   EXPECT_NE(level_table_markdown(rows).find("| 2 |"), std::string::npos);
+}
+
+// The table's cross-check on levels >= 1: (a) on every s-th point equals cross_check of exactly
+// those points, the support equals cross_check's over every point, and a sample handed in as
+// such (the tiled run's) gives (a) from it and no support.
+TEST(LodReport, LevelsAreCrossCheckedOnAStridedSampleWithSupportOverEveryPoint) {
+  const fs::path dir = test::temp_dir("sampled");
+  const RunConfig config = parse_run_config(kSinusoid, dir / "lod.yaml");
+  const Cloud points = prepare_points(config);
+  BuiltScene built = build_scene(config);
+  auto pyramid = LodPyramid::from_scene(std::move(built.scene), config.layers.options, config.lod);
+  ASSERT_GE(pyramid->level_count(), 3);
+  const std::size_t n = points.size();
+  LevelTableOptions to;
+  to.tolerance_m = config.cross_check.tolerance_m;
+  to.hidden_band_m = config.cross_check.hidden_band_m;
+  to.sample_points = 1000;
+  const std::size_t stride = (n + 999) / 1000;
+  ASSERT_GT(stride, 10U);
+  Cloud every_sth;
+  every_sth.xyz.resize(3, static_cast<Eigen::Index>((n + stride - 1) / stride));
+  for (std::size_t i = 0, k = 0; i < n; i += stride, ++k) every_sth.xyz.col(static_cast<Eigen::Index>(k)) = points.xyz.col(static_cast<Eigen::Index>(i));
+  const auto rows = level_table(pyramid, &points, to);
+  to.points_represent = 10 * n;
+  const auto from_sample = level_table(pyramid, &every_sth, to);
+  for (int l = 0; l < pyramid->level_count(); ++l) {
+    SCOPED_TRACE("level " + std::to_string(l));
+    const HeightField& depth = pyramid->level(l)->depth_m;
+    const CrossCheck on_sample = cross_check(every_sth, depth, to.tolerance_m, to.hidden_band_m).value;
+    const CrossCheck on_all = cross_check(points, depth, to.tolerance_m, to.hidden_band_m).value;
+    const LevelRow& r = rows[static_cast<std::size_t>(l)];
+    ASSERT_TRUE(r.point_vertical.has_value());
+    EXPECT_EQ(r.points_checked, static_cast<std::size_t>(every_sth.size()));
+    EXPECT_EQ(r.points_total, n);
+    EXPECT_EQ(r.point_vertical->count, on_sample.point_vertical.count);
+    EXPECT_DOUBLE_EQ(r.point_vertical->rms_mm, on_sample.point_vertical.rms_mm);
+    EXPECT_EQ(r.point_vertical->p95_mm, on_sample.point_vertical.p95_mm);
+    EXPECT_EQ(r.point_vertical->max_mm, on_sample.point_vertical.max_mm);
+    EXPECT_TRUE(r.support_measured);
+    EXPECT_DOUBLE_EQ(r.supported_fraction, on_all.supported_fraction);
+    // A sample of 1/37 of the points estimates the RMS of all of them.
+    EXPECT_NEAR(r.point_vertical->rms_mm, on_all.point_vertical.rms_mm, 0.1 * on_all.point_vertical.rms_mm);
+    const LevelRow& q = from_sample[static_cast<std::size_t>(l)];
+    EXPECT_EQ(q.points_checked, every_sth.size());
+    EXPECT_EQ(q.points_total, 10 * n);
+    EXPECT_DOUBLE_EQ(q.point_vertical->rms_mm, on_sample.point_vertical.rms_mm);
+    EXPECT_FALSE(q.support_measured);
+  }
+  const std::string md = level_table_markdown(rows);
+  EXPECT_NE(md.find("Level 1: RMS and p95 from " + std::to_string(every_sth.size()) + " of " + std::to_string(n)),
+            std::string::npos) << md;
+  EXPECT_NE(level_table_markdown(from_sample).find("support not measured"), std::string::npos);
+  EXPECT_EQ(level_table_text(from_sample).find("%"), std::string::npos) << "no support column value";
+  // sample_points 0: every point, no note.
+  to.sample_points = 0;
+  to.points_represent = 0;
+  const auto all = level_table(pyramid, &points, to);
+  for (const LevelRow& r : all) EXPECT_EQ(r.points_checked, n);
+  EXPECT_EQ(level_table_markdown(all).find("RMS and p95 from"), std::string::npos);
 }
 
 TEST(LodReport, TheTableIsOnlyMadeWhenTheConfigAsks) {

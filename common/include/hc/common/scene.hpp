@@ -14,6 +14,7 @@
 
 #include <Eigen/Geometry>
 
+#include <cstddef>
 #include <cstdint>
 #include <optional>
 #include <string>
@@ -79,6 +80,8 @@ struct LodOptions {
   int window_cells = 200;            ///< lod.window_cells: haptic window side [samples], [2, 4096]
   bool report = true;                ///< lod.report: levels table in the run report (off for huge N)
   bool report_cross_check = true;    ///< lod.report_cross_check: cross-check every level against the points
+  std::size_t report_sample_points = 200000;  ///< lod.report_sample_points: that cross-check's (a) on
+                                     ///< every ⌈N / this⌉-th point (0 = every point); support over all
   bool operator==(const LodOptions&) const = default;
 };
 

@@ -61,6 +61,19 @@ struct PointResidual {
 PointResidual point_residual(const BilinearSurface& surface, const GridGeometry& g, double x_m, double y_m, double z_m,
                              double hidden_band_m);
 
+/// Cross-check (b)'s supported fraction alone: the fraction of valid samples of `grid` (node
+/// (r, c) at (x_of_col(c), y_of_row(r), f(r, c)), grid frame [m]) with a finite point of
+/// `points_m` within tolerance_m in 3-D, without the distances. Each point marks the samples
+/// within tolerance_m of it (those in the square of half-width tolerance_m around it in x-y),
+/// so the cost is O(N·(1 + 2·tolerance_m/cell)²) with no search structure: the levels table
+/// (lod_report.hpp) measures every level's support with it. Equals cross_check's
+/// supported_fraction up to rounding at exactly tolerance_m (cross_check compares in float in a
+/// recentred frame, this in double).
+/// @param tolerance_m  > 0 and finite [m]
+/// @throws hc::ConfigError for a bad tolerance_m; hc::InputError if the grid has no valid sample.
+/// Real-time: no. Threads: 2. Memory: two bytes per grid sample.
+double supported_fraction(const Cloud& points_m, const HeightField& grid, double tolerance_m);
+
 /// Cross-checks the grid against the points that made it (same grid frame, metres).
 /// (b) is an exact nearest-neighbour search over all finite points: the points are bucketed by
 /// grid node and searched ring by ring in grid order, with a nanoflann kd-tree over each

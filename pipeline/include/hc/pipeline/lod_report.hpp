@@ -27,6 +27,10 @@ struct LevelRow {
   double build_seconds = 0.0;   ///< smoothing + decimation + layers of this level [s] (level 0: its layers, if computed here)
   std::optional<ErrorStats> point_vertical;  ///< cross-check (a): points vs the level's bilinear surface
   double supported_fraction = 0.0;           ///< cross-check (b): samples with a point within tolerance
+  bool support_measured = false;             ///< supported_fraction was measured (it needs every point)
+  std::size_t points_checked = 0;            ///< points (a) looked at (on the surface or not) [-]
+  std::size_t points_total = 0;              ///< points of the set they were drawn from [-]; equal: no sampling
+  double cross_check_seconds = 0.0;          ///< time of this row's (a) and support [s] (0: reused or none)
   /// μ_d of the level: clamp counts and 10 bins between μ_min and μ_max (the pyramid's layer
   /// options); empty when the level has no friction layer.
   std::optional<FrictionHistogram> mu_d;
@@ -42,17 +46,30 @@ struct LevelTableOptions {
   bool cross_check = true;      ///< needs `points`
   double tolerance_m = 0.0005;
   double hidden_band_m = 0.002;
+  /// (a) on every ⌈N / sample_points⌉-th point of `points` (N of them; in their order), so a
+  /// level costs O(sample_points) for (a) whatever N; 0 = every point (lod.report_sample_points).
+  std::size_t sample_points = 200000;
+  /// When `points` is itself an evenly strided sample of a larger set (the tiled run keeps one),
+  /// that set's size: (a) uses the sample as it is and the support is not measured (it needs
+  /// every point). 0: `points` is the whole set.
+  std::size_t points_represent = 0;
   /// Level 0's cross-check when the caller has it already (the run's): reused, not recomputed.
   std::optional<CrossCheck> level0_cross_check;
 };
 
 /// Builds every level of `pyramid` (with layers) and measures its row: size, build time and the
 /// cross-check of `points` (grid frame, metres, as the grid was made from; may be null: no
-/// cross-check) against the level's bilinear surface. The servo columns (tick cost, switch time)
-/// are left unmeasured (`timed` false): the pipeline does not run servo loops; hc::session's
-/// time_levels fills them.
+/// cross-check) against the level's bilinear surface: (a) point_residual (cross_check.hpp) of
+/// every s-th point, s = ⌈N / sample_points⌉ (s = 1 when sample_points is 0 or N ≤ it), and
+/// the supported fraction over every point (supported_fraction, cross_check.hpp; not measured
+/// when `points` is a sample, options.points_represent > 0). Level 0 takes
+/// options.level0_cross_check when given (the run's exact cross-check over every point). The
+/// rows say what was sampled (points_checked of points_total). The servo columns (tick cost,
+/// switch time) are left unmeasured (`timed` false): the pipeline does not run servo loops;
+/// hc::session's time_levels fills them.
 /// @throws what building the levels or the cross-check throws. Real-time: no. Cost: every level
-/// is built and cross-checked (O(points + cells) each).
+/// is built; per level O(sample_points) residuals and an O(N) support pass with no search
+/// structure.
 std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, const Cloud* points,
                                   const LevelTableOptions& options);
 

@@ -48,6 +48,12 @@ struct BuiltScene {
   Scene scene;                 ///< typed layers and metadata (hc/common/scene.hpp)
   RunSummary summary;          ///< stage reports and the cross-check
   std::optional<Cloud> cloud;  ///< the filtered points in the grid frame [m], when kept
+  /// The tiled run, which keeps no cloud: when lod.report and lod.report_cross_check are on, an
+  /// evenly strided sample of the filtered points (every ⌈N_input / lod.report_sample_points⌉-th
+  /// interior point, in tile order; grid frame [m]) for the levels table's cross-check (a);
+  /// point_sample_of is the number of filtered points it stands for.
+  std::optional<Cloud> point_sample;
+  std::size_t point_sample_of = 0;
 };
 
 /// Per-stage peak memory (StageReport::peak_rss_bytes, report.json peak_rss_mb): off by default,
@@ -59,8 +65,9 @@ void set_stage_memory_measurement(bool on);
 /// Runs every stage of `config` in memory: ingest → units + recentre → view transform → filters
 /// → reproject → hole fill → surface layers → cross-check. Nothing is written. When
 /// runs_tiled(config) (scale.tiled; tiling.hpp) the streaming tiled run makes the scene instead:
-/// it keeps no cloud and computes no honest cross-check or verdict; with keep_cloud the run stays
-/// in core unless scale.tiled is on (then no cloud is returned).
+/// it keeps no cloud (only BuiltScene::point_sample for the levels table) and computes no honest
+/// cross-check or verdict; with keep_cloud the run stays in core unless scale.tiled is on (then
+/// no cloud is returned).
 /// @param keep_cloud keep the filtered points (grid frame, metres) in the result (for the
 ///        levels table's cross-check or a viewer's cloud preview); otherwise they are freed.
 /// @throws hc::Error subclasses from any stage (naming file, key or value).

@@ -54,7 +54,8 @@ namespace hc::pipeline {
 bool runs_tiled(const RunConfig& config);
 
 /// The tiled run (see the file comment): the same BuiltScene build_scene gives, without the
-/// cloud, the honest cross-check and the verdict; the report has stages tile_plan,
+/// cloud (a strided sample of it instead, BuiltScene::point_sample, when the config's levels
+/// table cross-checks), the honest cross-check and the verdict; the report has stages tile_plan,
 /// tile_spill (spill_bytes_peak_mb, tiles, halo_cells) and tiles (per-tile sums), then the
 /// in-core stages from corrugation on.
 /// @throws hc::ConfigError as runs_tiled; hc::InputError for unreadable input or a scratch
