@@ -90,6 +90,7 @@ void run_levels(const LevelsOptions& o) {
   const auto pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
   pipeline::LevelTableOptions to;
   to.cross_check = points.has_value();
+  to.sample_points = lod.report_sample_points;  // the scene's own (lod.report_sample_points)
   auto rows = pipeline::level_table(pyramid, points ? &*points : nullptr, to);
   session::time_levels(pyramid, rows, o.ticks);
   std::cout << "levels of " << dir.string() << " (window " << lod.window_cells << " samples; switch = request to "

@@ -84,12 +84,16 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
         const PointResidual r = point_residual(surface, g, q[0], q[1], q[2], options.hidden_band_m);
         if (r.kind == PointResidual::kOnSurface) vertical_m.push_back(static_cast<double>(r.vertical_m));
       }
-      row.point_vertical = error_stats_mm(std::move(vertical_m));
-      row.points_checked = checked;
-      row.points_total = total;
-      if (whole_set) {
-        row.supported_fraction = supported_fraction(*points, lvl->depth_m, options.tolerance_m);
-        row.support_measured = true;
+      // No evaluated point on the level's surface (no finite point at all, say): no figures, the
+      // columns show "–" (cross_check would refuse such a cloud).
+      if (!vertical_m.empty()) {
+        row.point_vertical = error_stats_mm(std::move(vertical_m));
+        row.points_checked = checked;
+        row.points_total = total;
+        if (whole_set) {
+          row.supported_fraction = supported_fraction(*points, lvl->depth_m, options.tolerance_m);
+          row.support_measured = true;
+        }
       }
       row.cross_check_seconds = detail::seconds_since(t_check);
     }
@@ -154,6 +158,7 @@ std::string level_table_text(const std::vector<LevelRow>& rows) {
       t << std::setw(13) << "-" << std::setw(12) << "-" << "-\n";
     }
   }
+  t << level_sampling_note(rows);
   return t.str();
 }
 

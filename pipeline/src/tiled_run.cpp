@@ -611,7 +611,10 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   std::map<std::string, double> sums;
   // The levels table's sample: every sample_stride-th interior point, in tile order.
   const bool keep_sample = config.lod.report && config.lod.report_cross_check;
-  const std::size_t sample_points = config.lod.report_sample_points;
+  // 0 ("every point") would hold the whole cloud in memory, which the tiled run exists to avoid:
+  // it takes the default sample instead (docs/scale.md).
+  const std::size_t sample_points =
+      config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
   const std::size_t sample_stride =
       sample_points == 0 ? 1 : std::max<std::size_t>(1, (box.points + sample_points - 1) / sample_points);
   std::vector<double> sample_xyz;

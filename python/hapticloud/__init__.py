@@ -50,7 +50,10 @@ def levels(scene, config=None, servo_ticks=3000):
     Returns a list of dicts, one per level from 0 (finest), SI units: level, rows, cols,
     cell_size_m [m], valid_cells, build_s [s] (smoothing + decimation + layers); with a config,
     rms_m, p95_m, max_m [m] (vertical distance of the points to the level's bilinear surface),
-    points_checked and supported_fraction (samples with a point within 0.5 mm), else None;
+    points_checked (points on the surface among those evaluated), supported_fraction (samples
+    with a point within 0.5 mm, over every point), points_sampled and points_total (the RMS,
+    p95 and max come from every ⌈points_total / lod.report_sample_points⌉-th point: the scene's
+    option, 200 000 by default) and sampled (points_sampled < points_total), else None;
     mu_d_at_min_fraction and mu_d_at_max_fraction (cells at the friction clamps); with
     servo_ticks, tick_p50_s and tick_p99_s [s] (servo tick compute on a window of the level)
     and switch_s [s] (request to the first tick on a new window). Times are wall-clock on

@@ -237,6 +237,7 @@ PYBIND11_MODULE(_hapticloud, m) {
       if (config) points = hc::pipeline::prepare_points(*config);
       hc::pipeline::LevelTableOptions o;
       o.cross_check = points.has_value();
+      o.sample_points = lod.report_sample_points;
       rows = hc::pipeline::level_table(pyramid, points ? &*points : nullptr, o);
       if (servo_ticks > 0) hc::session::time_levels(pyramid, rows, servo_ticks);
     }
@@ -255,9 +256,15 @@ PYBIND11_MODULE(_hapticloud, m) {
         d["p95_m"] = 1e-3 * r.point_vertical->p95_mm;
         d["max_m"] = 1e-3 * r.point_vertical->max_mm;
         d["points_checked"] = r.point_vertical->count;
-        d["supported_fraction"] = r.supported_fraction;
+        d["supported_fraction"] = r.support_measured ? py::object(py::float_(r.supported_fraction)) : none;
+        d["points_sampled"] = r.points_checked;
+        d["points_total"] = r.points_total;
+        d["sampled"] = r.points_checked < r.points_total;
       } else {
-        for (const char* k : {"rms_m", "p95_m", "max_m", "points_checked", "supported_fraction"}) d[k] = none;
+        for (const char* k : {"rms_m", "p95_m", "max_m", "points_checked", "supported_fraction", "points_sampled",
+                              "points_total", "sampled"}) {
+          d[k] = none;
+        }
       }
       d["mu_d_at_min_fraction"] = r.mu_d ? py::object(py::float_(r.mu_d->at_min_fraction())) : none;
       d["mu_d_at_max_fraction"] = r.mu_d ? py::object(py::float_(r.mu_d->at_max_fraction())) : none;

@@ -1,6 +1,7 @@
 #include "hc/session/scene_source.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/pipeline/tiling.hpp"
 #include "hc/session/level_timing.hpp"
 
 namespace hc::session {
@@ -18,7 +19,9 @@ OpenedScene open_scene_or_config(const fs::path& input, const SceneSourceOptions
     pipeline::RunConfig config = pipeline::load_run_config(input);
     if (options.lod_report) config.lod.report = *options.lod_report;
     if (!options.run_dir.empty()) pipeline::check_output_target(options.run_dir, options.existing);
-    const bool cloud_for_levels = !options.run_dir.empty() && config.lod.report && config.lod.report_cross_check;
+    // As run_pipeline: a tiled run hands the levels table a sample, so the table does not keep it in core.
+    const bool cloud_for_levels = !options.run_dir.empty() && config.lod.report && config.lod.report_cross_check &&
+                                  !pipeline::runs_tiled(config);
     pipeline::BuiltScene built = pipeline::build_scene(config, options.keep_cloud || cloud_for_levels, options.progress);
     if (!options.run_dir.empty()) {
       pipeline::write_run(built, config, options.run_dir, options.progress, options.existing, servo_level_timing());

@@ -245,6 +245,41 @@ TEST(GridSpikes, FindsExactlyThePlantedSpikeAndPitOnATiltedPlane) {
   EXPECT_NEAR(s.worst[1].deviation_m, h.at(30, 40) - plane_30_40, 2e-4);
 }
 
+// Spikes in both halves of the rows (the test runs them on two threads), two at the rows either
+// side of the split, and heights either side of spike_min_height_m (2 mm): every cell is tested,
+// the anomalies are exactly the planted ones above 2 mm, worst first.
+TEST(GridSpikes, PlantedSpikesInBothHalvesAndAtTheSplitAreFoundExactlyOnce) {
+  GridGeometry g{40, 50, 0.0, 0.0, 0.001};
+  HeightField h(g);
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) h.at(r, c) = static_cast<float>(0.3 * g.x_of_col(c) + 0.1 * g.y_of_row(r));
+  struct Plant {
+    int r, c;
+    float dz;
+    bool flagged;
+  };
+  // (The plane's window has a 1.4826·MAD of about 0.5 mm: 6 of them, about 3.1 mm, is the bar.)
+  const Plant plants[] = {{5, 7, 0.0045f, true},   {19, 20, 0.0040f, true}, {20, 30, -0.0050f, true},
+                          {35, 44, 0.0060f, true}, {10, 40, 0.0019f, false}, {30, 10, -0.0018f, false}};
+  for (const Plant& p : plants) h.at(p.r, p.c) += p.dz;
+  const GridSpikes s = find_grid_spikes(h, HonestCheckOptions{});
+  EXPECT_EQ(s.tested, static_cast<std::size_t>(g.rows * g.cols));
+  std::size_t spikes = 0, pits = 0;
+  for (const Plant& p : plants) {
+    spikes += p.flagged && p.dz > 0 ? 1U : 0U;
+    pits += p.flagged && p.dz < 0 ? 1U : 0U;
+  }
+  EXPECT_EQ(s.spikes, spikes);
+  EXPECT_EQ(s.pits, pits);
+  ASSERT_EQ(s.worst.size(), 4u);
+  const int want_rows[] = {35, 20, 5, 19}, want_cols[] = {44, 30, 7, 20};
+  for (std::size_t i = 0; i < 4; ++i) {
+    EXPECT_EQ(s.worst[i].row, want_rows[i]) << i;
+    EXPECT_EQ(s.worst[i].col, want_cols[i]) << i;
+  }
+  EXPECT_EQ(s.flagged.size(), 4u);
+}
+
 TEST(GridSpikes, IslandsAreSmallGroupsApartFromTheSurface) {
   GridGeometry g{30, 30, 0.0, 0.0, 0.001};
   HeightField h(g);

@@ -65,7 +65,8 @@ PointResidual point_residual(const BilinearSurface& surface, const GridGeometry&
 /// (r, c) at (x_of_col(c), y_of_row(r), f(r, c)), grid frame [m]) with a finite point of
 /// `points_m` within tolerance_m in 3-D, without the distances. Each point marks the samples
 /// within tolerance_m of it (those in the square of half-width tolerance_m around it in x-y),
-/// so the cost is O(N·(1 + 2·tolerance_m/cell)²) with no search structure: the levels table
+/// so the cost is O(N·(1 + 2·tolerance_m/cell)²) with no search structure (beyond 4 cells of
+/// tolerance it calls cross_check instead, whose N points must then be finite): the levels table
 /// (lod_report.hpp) measures every level's support with it. Equals cross_check's
 /// supported_fraction up to rounding at exactly tolerance_m (cross_check compares in float in a
 /// recentred frame, this in double).

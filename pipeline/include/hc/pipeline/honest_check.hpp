@@ -178,7 +178,8 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
 /// 3 valid window neighbours are not tested (the island test covers them). Islands: OpenCV
 /// connected components (8-connectivity) of the valid mask.
 /// @throws hc::ConfigError for a window < 3 or even, or non-positive limits.
-/// Real-time: no. Threads: 1. Cost: O(cells · window²).
+/// Real-time: no. Threads: 2 (halves of the rows). Cost: O(cells · window²); the median and MAD
+/// only where a neighbour differs from the cell by more than spike_min_height_m.
 GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& options);
 
 /// Removes the points the verdict calls isolated (check_input's point test, on this cloud): a

@@ -90,8 +90,9 @@ using LevelTimingFn = std::function<void(const std::shared_ptr<LodPyramid>&, std
 
 /// Writes, atomically (StagingDir), the run folder `out_dir` of a built scene:
 ///   scene/ (write_scene), previews/*.png, report.md and report.json; with `config.lod.report`,
-/// the levels table (pipeline::level_table, cross-checked against built.cloud when present and
-/// lod.report_cross_check, timed by `level_timing` when given) and its previews.
+/// the levels table (pipeline::level_table, cross-checked against built.cloud, or else
+/// built.point_sample, when lod.report_cross_check; timed by `level_timing` when given) and its
+/// previews.
 /// An existing out_dir is replaced only if it is an earlier output or an empty folder; a file or
 /// a foreign folder is refused, or kept aside with ExistingOutput::kMoveAside (see StagingDir).
 /// @return the summary with the write and levels stages appended, total_seconds = build + write.
