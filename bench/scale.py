@@ -11,6 +11,7 @@ report has been read.
     python3 bench/scale.py                          # 1e6 and 1e7 points, N = 800 and 4096
     python3 bench/scale.py --sizes 1e6,1e7,1e8 --json scale.json
     python3 bench/scale.py --build build/release --scratch /big/disk/scale
+    python3 bench/scale.py --format las --sizes 1e7 --n 800   # LAS 1.2 instead of PLY
 
 Printed: a Markdown table (docs/scale.md keeps the measured one) with, per run, wall and CPU
 seconds, peak RSS, bytes per point, M points per wall second and per CPU second, and the three
@@ -70,6 +71,8 @@ def main():
                     help="comma-separated: in-core (scale.tiled=off) and/or tiled (scale.tiled=on)")
     ap.add_argument("--tile-cells", type=int, default=256, help="scale.tile_cells of the tiled runs")
     ap.add_argument("--set", action="append", default=[], help="extra `hapticloud run --set` overrides")
+    ap.add_argument("--format", default="ply", choices=["ply", "las"],
+                    help="the generated scans' format: binary float PLY, or LAS 1.2 (point format 0)")
     args = ap.parse_args()
 
     sizes = [parse_count(s) for s in args.sizes.split(",")]
@@ -88,13 +91,13 @@ def main():
 
     rows = []
     for points in sizes:
-        scan = os.path.join(scratch, f"wall_{points}.ply")
+        scan = os.path.join(scratch, f"wall_{points}.{args.format}")
         if not os.path.exists(scan):
             print(f"generating {scan} ...", file=sys.stderr)
             subprocess.run([generator, scan, "--points", str(points), "--quiet"], check=True)
         for n in grids:
           for mode in modes:
-            tag = f"{points}_{n}_{mode}"
+            tag = f"{points}_{args.format}_{n}_{mode}"
             config = os.path.join(scratch, f"wall_{tag}.yaml")
             with open(config, "w") as f:
                 f.write(CONFIG.format(tag=tag, scan=os.path.basename(scan), n=n))
@@ -131,6 +134,7 @@ def main():
             shutil.rmtree(out, ignore_errors=True)
             rows.append(row)
 
+    print(f"scans: generated walls, {args.format.upper()}")
     print(f"load average before the last run: {os.getloadavg()[0]:.2f}; cores: {os.cpu_count()}")
     print("| points | N | mode | wall (s) | CPU (s) | peak RSS (MB) | in stage | bytes/point | spill (MB) | Mpts/s (wall) | Mpts/s per CPU s | slowest stages (s) |")
     print("|---:|---:|---|---:|---:|---:|---|---:|---:|---:|---:|---|")

@@ -4,6 +4,7 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/point_stream.hpp"
+#include "hc/tools/relief.hpp"
 
 #include "error_of.hpp"
 #include "test_paths.hpp"
@@ -119,6 +120,83 @@ TEST(PointStream, BinaryPlyStreamsTheSamePointsInAnyChunking) {
     EXPECT_NEAR(whole.xyz(0, 500), 0.5 + 1.0 / 3.0, tol);
     EXPECT_NEAR(whole.xyz(1, 1000), -1000.0, tol);
   }
+}
+
+// Every chunk with its intensity, concatenated (the LAS stream gives intensity too).
+Cloud read_with_intensity(hc::pipeline::PointStream& s, std::size_t chunk_points) {
+  Cloud all, c;
+  std::vector<double> xyz;
+  while (s.next(c, chunk_points)) {
+    EXPECT_GT(c.size(), 0U) << "a chunk handed out empty";
+    EXPECT_LE(c.size(), chunk_points);
+    xyz.insert(xyz.end(), c.xyz.data(), c.xyz.data() + c.xyz.size());
+    all.rgb.insert(all.rgb.end(), c.rgb.begin(), c.rgb.end());
+    all.intensity.insert(all.intensity.end(), c.intensity.begin(), c.intensity.end());
+  }
+  all.xyz = Eigen::Map<Eigen::Matrix3Xd>(xyz.data(), 3, static_cast<Eigen::Index>(xyz.size() / 3));
+  return all;
+}
+
+// The real LAS samples (1.0–1.4, formats with and without colour, 8- and 16-bit colour, WKT
+// and GeoTIFF-key CRS, classes dropped by default): streamed natively, every chunking gives
+// load_cloud's points, colour, intensity and CRS.
+TEST(PointStream, LasStreamsTheSamePointsColourIntensityAndCrsInAnyChunking) {
+  std::size_t with_rgb = 0, with_crs = 0;
+  for (const char* name : {"laspy-vegetation_1_3.las", "pdal-autzen_trim_7.las", "pdal-permutations_1.2_2.las",
+                           "pdal-sample_c.las", "pdal-simple.las", "pdal-test1_4.las"}) {
+    SCOPED_TRACE(name);
+    const fs::path p = hc::test::scan_path(std::string("scanner_samples/las/") + name);
+    const Cloud whole = hc::pipeline::load_cloud(p).value;
+    with_rgb += whole.has_rgb() ? 1U : 0U;
+    with_crs += whole.crs.empty() ? 0U : 1U;
+    for (const std::size_t chunk : {std::size_t{7}, std::size_t{1000}, std::size_t{1} << 20}) {
+      auto s = hc::pipeline::open_point_stream(p);
+      ASSERT_TRUE(s->streamed());
+      EXPECT_GE(s->total_points(), whole.size());
+      EXPECT_EQ(s->crs(), whole.crs);
+      const Cloud got = read_with_intensity(*s, chunk);
+      ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
+      EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
+      EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
+      EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
+    }
+  }
+  EXPECT_GE(with_rgb, 2U) << "the samples cover colour";
+  EXPECT_GE(with_crs, 1U) << "the samples cover a CRS";
+}
+
+// A generated wall with 16-bit colour, one point at a time (chunks of 1) and in chunks; a LAS
+// whose every class is dropped fails at the end of the stream as load_cloud fails; a truncated
+// one fails when it is opened, as load_cloud does.
+TEST(PointStream, LasChunkOfOneDropsAndTruncationBehaveAsTheWholeRead) {
+  const fs::path dir = hc::test::temp_dir("las");
+  hc::tools::ReliefSpec spec;
+  spec.points = 3000;
+  spec.rgb = true;
+  hc::tools::write_relief(spec, dir / "w.las");
+  const Cloud whole = hc::pipeline::load_cloud(dir / "w.las").value;
+  ASSERT_EQ(whole.size(), 3000U);
+  for (const std::size_t chunk : {std::size_t{1}, std::size_t{999}}) {
+    auto s = hc::pipeline::open_point_stream(dir / "w.las");
+    const Cloud got = read_with_intensity(*s, chunk);
+    EXPECT_TRUE(got.xyz == whole.xyz);
+    EXPECT_EQ(got.rgb, whole.rgb);
+    EXPECT_EQ(got.intensity, whole.intensity);
+  }
+  hc::pipeline::LoadOptions all_dropped;
+  all_dropped.las_drop_classes.clear();
+  for (int c = 0; c < 256; ++c) all_dropped.las_drop_classes.push_back(c);
+  const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "w.las", all_dropped); });
+  EXPECT_NE(whole_error.find("drop_classes"), std::string::npos) << whole_error;
+  EXPECT_EQ(hc::test::error_of([&] {
+              auto s = hc::pipeline::open_point_stream(dir / "w.las", all_dropped);
+              read_with_intensity(*s, 1000);
+            }),
+            whole_error);
+  fs::resize_file(dir / "w.las", fs::file_size(dir / "w.las") - 10);
+  const std::string truncated = hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "w.las"); });
+  EXPECT_NE(truncated.find("truncated"), std::string::npos) << truncated;
+  EXPECT_EQ(hc::test::error_of([&] { hc::pipeline::open_point_stream(dir / "w.las"); }), truncated);
 }
 
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {

@@ -10,10 +10,12 @@
 
 #include "readers.hpp"
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <string_view>
 #include <vector>
 
 namespace hc::pipeline::detail {
@@ -29,6 +31,8 @@ struct Vlr {
 /// The validated LAS public header (ASPRS LAS 1.4 R15 §2.4) of a LAS or LAZ file.
 struct LasHeader {
   std::string version;            ///< "1.2" etc.
+  std::string system_id;          ///< system identifier (header bytes 26–57), trailing NULs cut
+  std::string software;           ///< generating software (header bytes 58–89)
   int minor = 0;                  ///< version minor (major is 1)
   std::size_t header_size = 0;    ///< bytes
   std::size_t offset = 0;         ///< byte offset of the point data
@@ -48,6 +52,49 @@ struct LasHeader {
 /// (the LAZ reader checks its chunks against the file size). Throws hc::InputError naming the
 /// file and the offending field.
 LasHeader parse_las_header(const ScanSource& source, bool compressed);
+/// The same on the file's bytes `bytes` (a whole file in memory or mapped), `name` quoted for
+/// messages. The VLRs' `data` point into `bytes`.
+LasHeader parse_las_header(std::string_view bytes, const std::string& name, bool compressed);
+
+/// Decodes uncompressed point records (LAS 1.4 R15 tables 7–17) block by block: x y z =
+/// X·scale + offset in double (file units), intensity raw 0..65535, RGB u16 → 8 bit (the high
+/// byte, or the low byte when every kept value fits 8 bits: rgb_max decides over the whole
+/// file), the classes of LoadOptions::las_drop_classes dropped and counted. Shared by the whole
+/// read (decode_las_records) and the streamed one (open_las_stream), so both give the same points.
+class LasRecordDecoder {
+ public:
+  LasRecordDecoder(const LasHeader& header, const LoadOptions* options);
+  bool has_rgb() const { return rgb_at_ != 0; }
+  /// The largest R, G or B value of the kept records among the n at p (0 without colour).
+  std::uint16_t rgb_max(const char* p, std::size_t n) const;
+  /// Decodes the n records at p; writes the kept ones at xyz (3 per point), intensity and rgb
+  /// (3 per point, when has_rgb) from index 0. @return the number kept.
+  std::size_t decode(const char* p, std::size_t n, bool rgb_low_bytes, double* xyz, float* intensity, std::uint8_t* rgb);
+  std::uint64_t kept() const { return kept_; }
+  /// "dropped N points by classification (...)" over every decode call so far.
+  std::string dropped_note() const;
+  /// The error text (after "load_cloud: <file> ") when no record is kept.
+  static std::string nothing_kept_message(std::uint64_t count);
+
+ private:
+  std::size_t record_length_, class_at_;
+  unsigned class_mask_;
+  std::size_t rgb_at_;
+  double scale_[3] = {1, 1, 1}, shift_[3] = {0, 0, 0};
+  std::vector<int> drop_classes_;
+  std::array<bool, 256> drop_{};
+  std::array<std::uint64_t, 256> dropped_{};
+  std::uint64_t kept_ = 0;
+};
+
+/// The stage report's notes on a LAS header: version, format, record count, system and software;
+/// scale and offset; extra bytes.
+std::vector<std::string> las_format_notes(const LasHeader& header);
+/// The note on how RGB was taken (see LasRecordDecoder).
+std::string las_rgb_note(bool rgb_low_bytes);
+/// The CRS the header's VLRs declare (WKT 2112, or a summary of the GeoTIFF keys 34735–34737),
+/// or ""; appends notes on it and on other VLRs. Needs the bytes the VLRs point into.
+std::string las_crs(const LasHeader& header, std::vector<std::string>& notes);
 
 /// Decodes `header.count` uncompressed records of `header.record_length` bytes starting at
 /// `records` (LAS 1.4 R15 tables 7–17 layout) into a Cloud in file units: x y z = X·scale +

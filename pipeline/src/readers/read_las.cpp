@@ -27,12 +27,21 @@
 
 #include "hc/common/error.hpp"
 
+#include <algorithm>
 #include <array>
 #include <bit>
+#include <cstdio>
+#include <memory>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <sstream>
+#include <string_view>
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 namespace hc::pipeline::detail {
 
@@ -146,8 +155,10 @@ std::string wkt_last_unit(const std::string& wkt) {
 }  // namespace
 
 LasHeader parse_las_header(const ScanSource& source, bool compressed) {
-  const std::string& bytes = source.bytes;
-  const std::string& name = source.display_name;
+  return parse_las_header(std::string_view(source.bytes), source.display_name, compressed);
+}
+
+LasHeader parse_las_header(std::string_view bytes, const std::string& name, bool compressed) {
   const std::size_t size = bytes.size();
   const char* const b = bytes.data();
   const auto fail = [&](const std::string& what) -> void { throw InputError("load_cloud: " + name + " " + what); };
@@ -266,6 +277,8 @@ LasHeader parse_las_header(const ScanSource& source, bool compressed) {
 
   LasHeader h;
   h.version = version;
+  h.system_id = fixed_text(b + 26, 32);
+  h.software = fixed_text(b + 58, 32);
   h.minor = minor;
   h.header_size = header_size;
   h.offset = offset;
@@ -282,121 +295,106 @@ LasHeader parse_las_header(const ScanSource& source, bool compressed) {
   return h;
 }
 
-ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, const char* records) {
-  const char* const b = source.bytes.data();
-  const std::string& name = source.display_name;
-  const auto fail = [&](const std::string& what) -> void { throw InputError("load_cloud: " + name + " " + what); };
-  const std::string& version = header.version;
-  const int format = header.format;
-  const std::size_t record_length = header.record_length;
-  const std::size_t base = header.base_length;
-  const std::uint64_t count = header.count;
-  const double* const scale = header.scale;
-  const double* const shift = header.shift;
-  const std::vector<Vlr>& vlrs = header.vlrs;
-  std::vector<std::string> notes = std::move(header.notes);
-
-  // Drop table (classification codes 0..255).
-  std::array<bool, 256> drop{};
-  const std::vector<int> drop_classes = source.options ? source.options->las_drop_classes : LoadOptions{}.las_drop_classes;
-  for (int c : drop_classes) {
-    if (c >= 0 && c <= 255) drop[static_cast<std::size_t>(c)] = true;
+LasRecordDecoder::LasRecordDecoder(const LasHeader& header, const LoadOptions* options)
+    : record_length_(header.record_length),
+      class_at_(header.format <= 5 ? 15 : 16),
+      class_mask_(header.format <= 5 ? 0x1Fu : 0xFFu),
+      rgb_at_(rgb_offset(header.format)),
+      drop_classes_(options ? options->las_drop_classes : LoadOptions{}.las_drop_classes) {
+  for (int a = 0; a < 3; ++a) {
+    scale_[a] = header.scale[a];
+    shift_[a] = header.shift[a];
   }
+  for (int c : drop_classes_) {
+    if (c >= 0 && c <= 255) drop_[static_cast<std::size_t>(c)] = true;
+  }
+}
 
-  // Points.
-  const std::size_t n = static_cast<std::size_t>(count);
-  const std::size_t class_at = format <= 5 ? 15 : 16;
-  const unsigned class_mask = format <= 5 ? 0x1Fu : 0xFFu;
-  const std::size_t rgb_at = rgb_offset(format);
-  Cloud cloud;
-  cloud.xyz.resize(3, static_cast<Eigen::Index>(n));
-  cloud.intensity.resize(n);
-  cloud.rgb.resize(rgb_at ? 3 * n : 0);
-  std::uint8_t* out_rgb = cloud.rgb.data();
-  std::array<std::uint64_t, 256> dropped{};
-  std::uint16_t rgb_max = 0;
+std::uint16_t LasRecordDecoder::rgb_max(const char* p, std::size_t n) const {
+  std::uint16_t m = 0;
+  if (!rgb_at_) return m;
+  for (std::size_t i = 0; i < n; ++i, p += record_length_) {
+    if (drop_[static_cast<unsigned char>(p[class_at_]) & class_mask_]) continue;
+    for (std::size_t c = 0; c < 3; ++c) m = std::max(m, load_le<std::uint16_t>(p + rgb_at_ + 2 * c));
+  }
+  return m;
+}
+
+std::size_t LasRecordDecoder::decode(const char* p, std::size_t n, bool rgb_low_bytes, double* xyz, float* intensity,
+                                     std::uint8_t* rgb) {
   std::size_t k = 0;
-  double* xyz = cloud.xyz.data();
-  float* out_intensity = cloud.intensity.data();
   // Locals, so the compiler keeps them in registers (stores through xyz could alias the arrays).
-  const double sx = scale[0], sy = scale[1], sz = scale[2], ox = shift[0], oy = shift[1], oz = shift[2];
-  const char* p = records;
-  for (std::size_t i = 0; i < n; ++i, p += record_length) {
-    const unsigned cls = static_cast<unsigned char>(p[class_at]) & class_mask;
-    if (drop[cls]) {
-      ++dropped[cls];
+  const double sx = scale_[0], sy = scale_[1], sz = scale_[2], ox = shift_[0], oy = shift_[1], oz = shift_[2];
+  const std::size_t rgb_at = rgb_at_, low = rgb_low_bytes ? 0 : 1;  // the byte taken of each u16
+  for (std::size_t i = 0; i < n; ++i, p += record_length_) {
+    const unsigned cls = static_cast<unsigned char>(p[class_at_]) & class_mask_;
+    if (drop_[cls]) {
+      ++dropped_[cls];
       continue;
     }
     xyz[3 * k + 0] = load_le<std::int32_t>(p + 0) * sx + ox;
     xyz[3 * k + 1] = load_le<std::int32_t>(p + 4) * sy + oy;
     xyz[3 * k + 2] = load_le<std::int32_t>(p + 8) * sz + oz;
-    out_intensity[k] = static_cast<float>(load_le<std::uint16_t>(p + 12));
+    intensity[k] = static_cast<float>(load_le<std::uint16_t>(p + 12));
     if (rgb_at) {
-      for (std::size_t c = 0; c < 3; ++c) {
-        const std::uint16_t v = load_le<std::uint16_t>(p + rgb_at + 2 * c);
-        out_rgb[3 * k + c] = static_cast<std::uint8_t>(v >> 8);  // high byte; see below for 8-bit data
-        rgb_max = std::max(rgb_max, v);
-      }
+      // Little-endian u16: the high byte is the second (16-bit colour scaled to 8 bit), the low
+      // byte the first (8-bit values stored in the 16-bit fields).
+      for (std::size_t c = 0; c < 3; ++c) rgb[3 * k + c] = static_cast<std::uint8_t>(p[rgb_at + 2 * c + low]);
     }
     ++k;
   }
-  if (k < n) {  // points were dropped (conservativeResize reallocates: only when needed)
-    cloud.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
-    cloud.intensity.resize(k);
-  }
+  kept_ += k;
+  return k;
+}
 
-  notes.push_back("LAS " + version + ", point data format " + std::to_string(format) + " (" +
-                  std::to_string(record_length) + "-byte records), " + std::to_string(n) + " point records; system '" +
-                  fixed_text(b + 26, 32) + "', software '" + fixed_text(b + 58, 32) + "'");
-  notes.push_back("scale " + fmt_g(scale[0]) + " " + fmt_g(scale[1]) + " " + fmt_g(scale[2]) + ", offset " +
-                  fmt_g(shift[0]) + " " + fmt_g(shift[1]) + " " + fmt_g(shift[2]) + " (file units)");
-  if (record_length > base) {
-    notes.push_back(std::to_string(record_length - base) + " extra bytes per record (beyond format " +
-                    std::to_string(format) + "'s " + std::to_string(base) + ") skipped");
-  }
+std::string LasRecordDecoder::dropped_note() const {
   std::uint64_t n_dropped = 0;
   std::string dropped_text;
   for (std::size_t c = 0; c < 256; ++c) {
-    if (dropped[c] == 0) continue;
-    n_dropped += dropped[c];
+    if (dropped_[c] == 0) continue;
+    n_dropped += dropped_[c];
     dropped_text += (dropped_text.empty() ? "" : ", ") + std::string("class ") + std::to_string(c) + ": " +
-                    std::to_string(dropped[c]);
+                    std::to_string(dropped_[c]);
   }
-  {
-    std::string list;
-    for (int c : drop_classes) list += (list.empty() ? "" : ", ") + std::to_string(c);
-    notes.push_back("dropped " + std::to_string(n_dropped) + " points by classification (input.las.drop_classes = [" +
-                    list + "]" + (dropped_text.empty() ? "" : "; " + dropped_text) + ")");
-  }
-  if (k == 0) {
-    fail("holds " + std::to_string(n) + " points, all of a classification in input.las.drop_classes: expected "
-         "at least one point to keep");
-  }
-  if (rgb_at) {
-    cloud.rgb.resize(3 * k);
-    if (rgb_max <= 255) {
-      // Every value fits 8 bits: a second pass takes the low bytes (the high ones are all 0).
-      std::size_t j = 0;
-      p = records;
-      for (std::size_t i = 0; i < n; ++i, p += record_length) {
-        if (drop[static_cast<unsigned char>(p[class_at]) & class_mask]) continue;
-        for (std::size_t c = 0; c < 3; ++c) cloud.rgb[3 * j + c] = static_cast<std::uint8_t>(p[rgb_at + 2 * c]);
-        ++j;
-      }
-      notes.push_back("RGB kept; every value is at most 255 (8-bit values stored in the 16-bit fields), used as is");
-    } else {
-      notes.push_back("RGB kept, 16-bit scaled to 8-bit (high byte)");
-    }
-  }
-  notes.push_back("intensity kept (raw 0..65535)");
+  std::string list;
+  for (int c : drop_classes_) list += (list.empty() ? "" : ", ") + std::to_string(c);
+  return "dropped " + std::to_string(n_dropped) + " points by classification (input.las.drop_classes = [" + list + "]" +
+         (dropped_text.empty() ? "" : "; " + dropped_text) + ")";
+}
 
-  // CRS.
+std::string LasRecordDecoder::nothing_kept_message(std::uint64_t count) {
+  return "holds " + std::to_string(count) + " points, all of a classification in input.las.drop_classes: expected "
+         "at least one point to keep";
+}
+
+std::vector<std::string> las_format_notes(const LasHeader& header) {
+  std::vector<std::string> notes;
+  notes.push_back("LAS " + header.version + ", point data format " + std::to_string(header.format) + " (" +
+                  std::to_string(header.record_length) + "-byte records), " + std::to_string(header.count) +
+                  " point records; system '" + header.system_id + "', software '" + header.software + "'");
+  notes.push_back("scale " + fmt_g(header.scale[0]) + " " + fmt_g(header.scale[1]) + " " + fmt_g(header.scale[2]) +
+                  ", offset " + fmt_g(header.shift[0]) + " " + fmt_g(header.shift[1]) + " " + fmt_g(header.shift[2]) +
+                  " (file units)");
+  if (header.record_length > header.base_length) {
+    notes.push_back(std::to_string(header.record_length - header.base_length) + " extra bytes per record (beyond format " +
+                    std::to_string(header.format) + "'s " + std::to_string(header.base_length) + ") skipped");
+  }
+  return notes;
+}
+
+std::string las_rgb_note(bool rgb_low_bytes) {
+  return rgb_low_bytes ? "RGB kept; every value is at most 255 (8-bit values stored in the 16-bit fields), used as is"
+                       : "RGB kept, 16-bit scaled to 8-bit (high byte)";
+}
+
+std::string las_crs(const LasHeader& header, std::vector<std::string>& notes) {
+  std::string crs;
   const Vlr* wkt = nullptr;
   const Vlr* keys = nullptr;
   const Vlr* key_doubles = nullptr;
   const Vlr* key_ascii = nullptr;
   std::string others;
-  for (const Vlr& v : vlrs) {
+  for (const Vlr& v : header.vlrs) {
     if (v.user_id == "LASF_Projection") {
       if (v.record_id == 2112 && !wkt) wkt = &v;
       else if (v.record_id == 34735) keys = &v;
@@ -413,16 +411,44 @@ ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, cons
     const std::string unit = wkt_last_unit(text);
     if (!unit.empty()) note += " [last UNIT in the WKT: " + unit + "; check input.units]";
     notes.push_back(note);
-    cloud.crs = text;
+    crs = text;
   } else if (keys) {
     const std::string summary = summarise_geokeys(*keys, key_doubles, key_ascii);
     notes.push_back("CRS (GeoTIFF keys, VLR 34735): " + summary + " [check input.units against the linear unit]");
-    cloud.crs = "GeoTIFF keys: " + summary;
+    crs = "GeoTIFF keys: " + summary;
   } else {
     notes.push_back("no CRS record (no LASF_Projection VLR 2112 or 34735): set input.units from the data's source");
   }
-  if (!cloud.crs.empty()) notes.push_back("the CRS is carried into the scene's provenance (scene.yaml provenance.crs)");
+  if (!crs.empty()) notes.push_back("the CRS is carried into the scene's provenance (scene.yaml provenance.crs)");
   if (!others.empty()) notes.push_back("other VLRs ignored: " + others);
+  return crs;
+}
+
+ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, const char* records) {
+  const std::string& name = source.display_name;
+  std::vector<std::string> notes = std::move(header.notes);
+  LasRecordDecoder decoder(header, source.options);
+  const std::size_t n = static_cast<std::size_t>(header.count);
+  // Colour: 16-bit values scaled to 8 bit by their high byte, unless every kept value fits in
+  // 8 bits (then the low bytes, as stored).
+  const std::uint16_t rgb_max = decoder.rgb_max(records, n);
+  const bool rgb_low_bytes = decoder.has_rgb() && rgb_max <= 255;
+  Cloud cloud;
+  cloud.xyz.resize(3, static_cast<Eigen::Index>(n));
+  cloud.intensity.resize(n);
+  cloud.rgb.resize(decoder.has_rgb() ? 3 * n : 0);
+  const std::size_t k = decoder.decode(records, n, rgb_low_bytes, cloud.xyz.data(), cloud.intensity.data(), cloud.rgb.data());
+  if (k < n) {  // points were dropped (conservativeResize reallocates: only when needed)
+    cloud.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
+    cloud.intensity.resize(k);
+    if (decoder.has_rgb()) cloud.rgb.resize(3 * k);
+  }
+  for (std::string& note : las_format_notes(header)) notes.push_back(std::move(note));
+  notes.push_back(decoder.dropped_note());
+  if (k == 0) throw InputError("load_cloud: " + name + " " + LasRecordDecoder::nothing_kept_message(header.count));
+  if (decoder.has_rgb()) notes.push_back(las_rgb_note(rgb_low_bytes));
+  notes.push_back("intensity kept (raw 0..65535)");
+  cloud.crs = las_crs(header, notes);
   return {std::move(cloud), std::move(notes)};
 }
 
@@ -430,6 +456,138 @@ ReadResult read_las(const ScanSource& source) {
   LasHeader header = parse_las_header(source, false);
   const char* records = source.bytes.data() + header.offset;
   return decode_las_records(source, std::move(header), records);
+}
+
+namespace {
+
+// An uncompressed LAS file read record block by record block (point_stream.hpp).
+class LasStream final : public PointStream {
+ public:
+  LasStream(std::FILE* f, std::string name, const LasHeader& header, const LoadOptions* options,
+            std::vector<std::string> notes, std::string crs)
+      : f_(f, &std::fclose), name_(std::move(name)), decoder_(header, options), record_length_(header.record_length),
+        offset_(header.offset), total_(header.count), notes_(std::move(notes)), crs_(std::move(crs)) {
+    seek_records();
+  }
+
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+  std::string crs() const override { return crs_; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    chunk = Cloud();
+    if (!colour_decided_) decide_colour();
+    while (done_ < total_) {
+      const std::size_t n =
+          static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
+      buffer_.resize(n * record_length_);
+      const std::size_t got = std::fread(buffer_.data(), record_length_, n, f_.get());
+      if (got != n) {
+        throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) +
+                         " of " + std::to_string(total_) + " point records");
+      }
+      chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
+      chunk.intensity.resize(n);
+      chunk.rgb.resize(decoder_.has_rgb() ? 3 * n : 0);
+      const std::size_t k =
+          decoder_.decode(buffer_.data(), n, rgb_low_bytes_, chunk.xyz.data(), chunk.intensity.data(), chunk.rgb.data());
+      done_ += n;
+      if (k < n) {
+        chunk.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
+        chunk.intensity.resize(k);
+        if (decoder_.has_rgb()) chunk.rgb.resize(3 * k);
+      }
+      if (done_ == total_) {
+        notes_.push_back(decoder_.dropped_note());
+        if (decoder_.kept() == 0) throw InputError("load_cloud: " + name_ + " " + LasRecordDecoder::nothing_kept_message(total_));
+      }
+      if (k > 0) return true;
+    }
+    chunk = Cloud();
+    return false;
+  }
+
+ private:
+  void seek_records() {
+    if (fseeko(f_.get(), static_cast<off_t>(offset_), SEEK_SET) != 0) {
+      throw InputError("load_cloud: " + name_ + ": cannot seek to its point records");
+    }
+  }
+
+  // Before the first chunk (so that opening a stream to count its points stays cheap): with
+  // colour, one pass over the records decides 16- or 8-bit RGB, as the whole read does.
+  void decide_colour() {
+    colour_decided_ = true;
+    if (!decoder_.has_rgb()) return;
+    std::uint16_t rgb_max = 0;
+    for (std::uint64_t done = 0; done < total_;) {
+      const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(65536, total_ - done));
+      buffer_.resize(n * record_length_);
+      if (std::fread(buffer_.data(), record_length_, n, f_.get()) != n) {
+        throw InputError("load_cloud: " + name_ + ": truncated or unreadable in its point records");
+      }
+      rgb_max = std::max(rgb_max, decoder_.rgb_max(buffer_.data(), n));
+      done += n;
+    }
+    rgb_low_bytes_ = rgb_max <= 255;
+    notes_.push_back(las_rgb_note(rgb_low_bytes_));
+    seek_records();
+  }
+
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f_;
+  std::string name_;
+  LasRecordDecoder decoder_;
+  std::size_t record_length_, offset_;
+  std::uint64_t total_ = 0, done_ = 0;
+  bool colour_decided_ = false, rgb_low_bytes_ = false;
+  std::vector<char> buffer_;
+  std::vector<std::string> notes_;
+  std::string crs_;
+};
+
+// A read-only mapping of a whole file, released on destruction.
+struct Mapping {
+  void* data = MAP_FAILED;
+  std::size_t size = 0;
+  ~Mapping() {
+    if (data != MAP_FAILED) munmap(data, size);
+  }
+};
+
+}  // namespace
+
+std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, const std::string& name,
+                                             const LoadOptions* options) {
+  Mapping map;
+  {
+    const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) return nullptr;
+    struct stat st {};
+    if (::fstat(fd, &st) != 0 || st.st_size <= 0) {
+      ::close(fd);
+      return nullptr;
+    }
+    map.size = static_cast<std::size_t>(st.st_size);
+    map.data = ::mmap(nullptr, map.size, PROT_READ, MAP_PRIVATE, fd, 0);
+    ::close(fd);
+    if (map.data == MAP_FAILED) return nullptr;
+  }
+  // Only the header, the VLRs and the EVLRs are touched through the mapping.
+  LasHeader header = parse_las_header(std::string_view(static_cast<const char*>(map.data), map.size), name, false);
+  std::vector<std::string> notes = std::move(header.notes);
+  for (std::string& note : las_format_notes(header)) notes.push_back(std::move(note));
+  std::vector<std::string> crs_notes;
+  std::string crs = las_crs(header, crs_notes);
+  header.vlrs.clear();  // they point into the mapping
+
+  std::FILE* f = std::fopen(path.c_str(), "rb");
+  if (!f) return nullptr;
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> owned(f, &std::fclose);
+  notes.push_back("intensity kept (raw 0..65535)");
+  for (std::string& note : crs_notes) notes.push_back(std::move(note));
+  notes.push_back("point records streamed in chunks");
+  return std::make_unique<LasStream>(owned.release(), name, header, options, std::move(notes), std::move(crs));
 }
 
 }  // namespace hc::pipeline::detail

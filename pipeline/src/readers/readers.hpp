@@ -83,4 +83,14 @@ ReadResult read_pts(const ScanSource& source);  ///< read_pts.cpp (Leica PTS)
 std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name,
                                              bool points_only);
 
+/// An uncompressed LAS file (read_las.cpp) streamed in chunks of records: the same points,
+/// colour, intensity and CRS as read_las, in file order. The header and (E)VLRs are read through
+/// a read-only mapping that is released before the first chunk; with colour, one pass over the
+/// records decides 16- or 8-bit RGB (as read_las does) before the first chunk. nullptr when the
+/// file cannot be opened or mapped (load_cloud's whole read then says why). `name` is the quoted
+/// path for messages. @throws hc::InputError as read_las for a bad header or a file shorter
+/// than its records, and from next() when no record is kept or the file shrinks.
+std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, const std::string& name,
+                                             const LoadOptions* options);
+
 }  // namespace hc::pipeline::detail
