@@ -424,6 +424,8 @@ bool runs_tiled(const RunConfig& config) {
   std::string ext = f.extension().string();
   for (char& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
   if (ext != ".ply" && ext != ".las") return false;  // only a natively streamed file is counted without reading it
+  std::error_code ec;
+  if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
   std::unique_ptr<PointStream> s;
   try {
     const LoadOptions load{config.input.las_drop_classes, config.input.as_points};
@@ -464,7 +466,6 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     StageResult<int> r;
     {
       auto s = open_point_stream(input, load);
-      read_notes = s->notes();
       crs = s->crs();
       Cloud c;
       bool first = true;
@@ -495,6 +496,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
           }
         }
       }
+      read_notes = s->notes();  // after the pass: a stream may add notes as it reads (LAS: colour, dropped)
     }
     if (box.points == 0) throw InputError("tiled run: " + input.string() + " holds no point");
     if (box.finite == 0) throw InputError("to_metres_and_recentre: none of the " + std::to_string(box.points) + " points has finite coordinates");

@@ -11,6 +11,7 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <bit>
 #include <cstring>
 #include <fstream>
@@ -159,6 +160,14 @@ TEST(PointStream, LasStreamsTheSamePointsColourIntensityAndCrsInAnyChunking) {
       EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
       EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
       EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
+      // The reader's notes as the whole read gives them, in its order, then how it was read.
+      std::vector<std::string> notes = s->notes();
+      ASSERT_FALSE(notes.empty());
+      EXPECT_EQ(notes.back(), "point records streamed in chunks");
+      notes.pop_back();
+      const std::vector<std::string> all = hc::pipeline::load_cloud(p).report.notes;
+      const auto at = std::search(all.begin(), all.end(), notes.begin(), notes.end());
+      EXPECT_NE(at, all.end()) << "the stream's notes are not load_cloud's, in order";
     }
   }
   EXPECT_GE(with_rgb, 2U) << "the samples cover colour";
@@ -193,6 +202,16 @@ TEST(PointStream, LasChunkOfOneDropsAndTruncationBehaveAsTheWholeRead) {
               read_with_intensity(*s, 1000);
             }),
             whole_error);
+  // A file that shrinks after it was opened: the read fails, and so does every later call.
+  fs::copy_file(dir / "w.las", dir / "shrinks.las");
+  {
+    auto s = hc::pipeline::open_point_stream(dir / "shrinks.las");
+    fs::resize_file(dir / "shrinks.las", fs::file_size(dir / "shrinks.las") - 1000);
+    Cloud c;
+    EXPECT_THROW(s->next(c, 100), hc::InputError);
+    const std::string again = hc::test::error_of([&] { s->next(c, 100); });
+    EXPECT_NE(again.find("failed earlier"), std::string::npos) << again;
+  }
   fs::resize_file(dir / "w.las", fs::file_size(dir / "w.las") - 10);
   const std::string truncated = hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "w.las"); });
   EXPECT_NE(truncated.find("truncated"), std::string::npos) << truncated;

@@ -463,11 +463,16 @@ namespace {
 // An uncompressed LAS file read record block by record block (point_stream.hpp).
 class LasStream final : public PointStream {
  public:
-  LasStream(std::FILE* f, std::string name, const LasHeader& header, const LoadOptions* options,
-            std::vector<std::string> notes, std::string crs)
-      : f_(f, &std::fclose), name_(std::move(name)), decoder_(header, options), record_length_(header.record_length),
-        offset_(header.offset), total_(header.count), notes_(std::move(notes)), crs_(std::move(crs)) {
+  using File = std::unique_ptr<std::FILE, int (*)(std::FILE*)>;
+  // `format_notes`: las_format_notes; `crs_notes`: las_crs's. The notes are given in
+  // decode_las_records' order, the colour and dropped-class notes once they are known.
+  LasStream(File f, std::string name, const LasHeader& header, const LoadOptions* options,
+            std::vector<std::string> format_notes, std::vector<std::string> crs_notes, std::string crs)
+      : f_(std::move(f)), name_(std::move(name)), decoder_(header, options), record_length_(header.record_length),
+        offset_(header.offset), total_(header.count), format_notes_(std::move(format_notes)),
+        crs_notes_(std::move(crs_notes)), crs_(std::move(crs)) {
     seek_records();
+    assemble_notes();
   }
 
   std::uint64_t total_points() const override { return total_; }
@@ -477,32 +482,43 @@ class LasStream final : public PointStream {
 
   bool next(Cloud& chunk, std::size_t max_points) override {
     chunk = Cloud();
-    if (!colour_decided_) decide_colour();
-    while (done_ < total_) {
-      const std::size_t n =
-          static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
-      buffer_.resize(n * record_length_);
-      const std::size_t got = std::fread(buffer_.data(), record_length_, n, f_.get());
-      if (got != n) {
-        throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) +
-                         " of " + std::to_string(total_) + " point records");
+    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
+    try {
+      if (!colour_decided_) decide_colour();
+      while (done_ < total_) {
+        const std::size_t n =
+            static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
+        buffer_.resize(n * record_length_);
+        const std::size_t got = std::fread(buffer_.data(), record_length_, n, f_.get());
+        if (got != n) {
+          throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) +
+                           " of " + std::to_string(total_) + " point records");
+        }
+        chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
+        chunk.intensity.resize(n);
+        chunk.rgb.resize(decoder_.has_rgb() ? 3 * n : 0);
+        const std::size_t k =
+            decoder_.decode(buffer_.data(), n, rgb_low_bytes_, chunk.xyz.data(), chunk.intensity.data(), chunk.rgb.data());
+        done_ += n;
+        if (k < n) {
+          chunk.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
+          chunk.intensity.resize(k);
+          if (decoder_.has_rgb()) chunk.rgb.resize(3 * k);
+        }
+        if (done_ == total_) {
+          assemble_notes();
+          if (decoder_.kept() == 0) {
+            throw InputError("load_cloud: " + name_ + " " + LasRecordDecoder::nothing_kept_message(total_));
+          }
+        }
+        if (k > 0) return true;
       }
-      chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
-      chunk.intensity.resize(n);
-      chunk.rgb.resize(decoder_.has_rgb() ? 3 * n : 0);
-      const std::size_t k =
-          decoder_.decode(buffer_.data(), n, rgb_low_bytes_, chunk.xyz.data(), chunk.intensity.data(), chunk.rgb.data());
-      done_ += n;
-      if (k < n) {
-        chunk.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
-        chunk.intensity.resize(k);
-        if (decoder_.has_rgb()) chunk.rgb.resize(3 * k);
-      }
-      if (done_ == total_) {
-        notes_.push_back(decoder_.dropped_note());
-        if (decoder_.kept() == 0) throw InputError("load_cloud: " + name_ + " " + LasRecordDecoder::nothing_kept_message(total_));
-      }
-      if (k > 0) return true;
+    } catch (const std::exception& e) {
+      // The file position and the counts no longer agree: every later call fails too.
+      failed_ = true;
+      failure_ = e.what();
+      chunk = Cloud();
+      throw;
     }
     chunk = Cloud();
     return false;
@@ -518,31 +534,43 @@ class LasStream final : public PointStream {
   // Before the first chunk (so that opening a stream to count its points stays cheap): with
   // colour, one pass over the records decides 16- or 8-bit RGB, as the whole read does.
   void decide_colour() {
-    colour_decided_ = true;
-    if (!decoder_.has_rgb()) return;
-    std::uint16_t rgb_max = 0;
-    for (std::uint64_t done = 0; done < total_;) {
-      const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(65536, total_ - done));
-      buffer_.resize(n * record_length_);
-      if (std::fread(buffer_.data(), record_length_, n, f_.get()) != n) {
-        throw InputError("load_cloud: " + name_ + ": truncated or unreadable in its point records");
+    if (decoder_.has_rgb()) {
+      std::uint16_t rgb_max = 0;
+      for (std::uint64_t done = 0; done < total_;) {
+        const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(65536, total_ - done));
+        buffer_.resize(n * record_length_);
+        if (std::fread(buffer_.data(), record_length_, n, f_.get()) != n) {
+          throw InputError("load_cloud: " + name_ + ": truncated or unreadable in its point records");
+        }
+        rgb_max = std::max(rgb_max, decoder_.rgb_max(buffer_.data(), n));
+        done += n;
       }
-      rgb_max = std::max(rgb_max, decoder_.rgb_max(buffer_.data(), n));
-      done += n;
+      rgb_low_bytes_ = rgb_max <= 255;
+      seek_records();
     }
-    rgb_low_bytes_ = rgb_max <= 255;
-    notes_.push_back(las_rgb_note(rgb_low_bytes_));
-    seek_records();
+    colour_decided_ = true;
+    assemble_notes();
   }
 
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f_;
+  // decode_las_records' notes, in its order, as far as they are known.
+  void assemble_notes() {
+    notes_ = format_notes_;
+    if (done_ == total_) notes_.push_back(decoder_.dropped_note());
+    if (decoder_.has_rgb() && colour_decided_) notes_.push_back(las_rgb_note(rgb_low_bytes_));
+    notes_.push_back("intensity kept (raw 0..65535)");
+    notes_.insert(notes_.end(), crs_notes_.begin(), crs_notes_.end());
+    notes_.push_back("point records streamed in chunks");
+  }
+
+  File f_;
   std::string name_;
   LasRecordDecoder decoder_;
   std::size_t record_length_, offset_;
   std::uint64_t total_ = 0, done_ = 0;
-  bool colour_decided_ = false, rgb_low_bytes_ = false;
+  bool colour_decided_ = false, rgb_low_bytes_ = false, failed_ = false;
+  std::string failure_;
   std::vector<char> buffer_;
-  std::vector<std::string> notes_;
+  std::vector<std::string> format_notes_, crs_notes_, notes_;
   std::string crs_;
 };
 
@@ -575,19 +603,16 @@ std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, 
   }
   // Only the header, the VLRs and the EVLRs are touched through the mapping.
   LasHeader header = parse_las_header(std::string_view(static_cast<const char*>(map.data), map.size), name, false);
-  std::vector<std::string> notes = std::move(header.notes);
-  for (std::string& note : las_format_notes(header)) notes.push_back(std::move(note));
+  std::vector<std::string> format_notes = std::move(header.notes);
+  for (std::string& note : las_format_notes(header)) format_notes.push_back(std::move(note));
   std::vector<std::string> crs_notes;
   std::string crs = las_crs(header, crs_notes);
   header.vlrs.clear();  // they point into the mapping
 
-  std::FILE* f = std::fopen(path.c_str(), "rb");
+  LasStream::File f(std::fopen(path.c_str(), "rb"), &std::fclose);
   if (!f) return nullptr;
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> owned(f, &std::fclose);
-  notes.push_back("intensity kept (raw 0..65535)");
-  for (std::string& note : crs_notes) notes.push_back(std::move(note));
-  notes.push_back("point records streamed in chunks");
-  return std::make_unique<LasStream>(owned.release(), name, header, options, std::move(notes), std::move(crs));
+  return std::make_unique<LasStream>(std::move(f), name, header, options, std::move(format_notes), std::move(crs_notes),
+                                     std::move(crs));
 }
 
 }  // namespace hc::pipeline::detail
