@@ -5,7 +5,13 @@ find_package(Eigen3 3.4 REQUIRED NO_MODULE)
 find_package(MPI REQUIRED COMPONENTS C)
 # surface (MovingLeastSquares) and segmentation (EuclideanClusterExtraction): filters.pcl (issue 18).
 find_package(PCL 1.13 REQUIRED COMPONENTS common io kdtree search filters surface segmentation)
+# imgcodecs only for the tests (they read back what the pipeline writes); the pipeline itself
+# writes and reads images with libpng, libtiff and stb_image (pipeline/src/image_io.hpp).
 find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc imgcodecs)
+find_package(PNG REQUIRED)   # libpng-dev
+find_package(TIFF REQUIRED)  # libtiff-dev
+find_path(HC_STB_INCLUDE_DIR stb/stb_image.h REQUIRED)  # libstb-dev
+find_library(HC_STB_LIBRARY stb REQUIRED)
 find_package(yaml-cpp REQUIRED)
 find_package(CLI11 REQUIRED)
 find_package(spdlog REQUIRED)

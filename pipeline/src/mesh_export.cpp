@@ -1,14 +1,12 @@
 // Height field → triangle mesh (PLY, STL, OBJ). See mesh_export.hpp.
 
+#include "image_io.hpp"
 #include "hc/pipeline/mesh_export.hpp"
 
 #include "hc/common/file_output.hpp"
 
 #include "hc/common/error.hpp"
 
-#include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <array>
@@ -214,11 +212,10 @@ void write_mesh(const HeightMesh& mesh, const std::filesystem::path& file, MeshF
   try {
     if (textured) {
       done.emplace_back(write_temporary(png, [&](std::ofstream& out) {
-        cv::Mat rgb(mesh.texture_rows, mesh.texture_cols, CV_8UC3, const_cast<std::uint8_t*>(mesh.texture_rgb8.data()));
-        cv::Mat bgr;
-        cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
-        std::vector<std::uint8_t> bytes;
-        if (!cv::imencode(".png", bgr, bytes)) throw InputError("export: cannot encode the texture " + png.string());
+        std::string why;
+        const std::vector<std::uint8_t> bytes =
+            detail::encode_png(mesh.texture_rgb8.data(), mesh.texture_cols, mesh.texture_rows, detail::PixelFormat::kRgb, &why);
+        if (bytes.empty()) throw InputError("export: cannot encode the texture " + png.string() + ": " + why);
         out.write(reinterpret_cast<const char*>(bytes.data()), static_cast<std::streamsize>(bytes.size()));
       }), png);
       done.emplace_back(write_temporary(mtl, [&](std::ofstream& out) {

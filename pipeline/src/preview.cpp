@@ -1,9 +1,9 @@
+#include "image_io.hpp"
 #include "hc/common/format.hpp"
 #include "hc/pipeline/preview.hpp"
 
 #include "hc/common/error.hpp"
 
-#include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
@@ -48,14 +48,14 @@ cv::Mat with_title(const cv::Mat& body, const std::string& title, const std::str
 }
 
 void save(const cv::Mat& img, const std::filesystem::path& png) {
-  bool ok = false;
-  try {
-    // Fast zlib level: previews are for people, a few % larger files save most of the write time.
-    ok = cv::imwrite(png.string(), img, {cv::IMWRITE_PNG_COMPRESSION, 1});
-  } catch (const cv::Exception& e) {
-    throw InputError(png.string() + ": cannot write the preview: " + e.what());
+  if (img.depth() != CV_8U || (img.channels() != 1 && img.channels() != 3)) {
+    throw InputError(png.string() + ": cannot write the preview: not an 8-bit grey or colour image");
   }
-  if (!ok) throw InputError(png.string() + ": cannot write the preview");
+  // Fast zlib level: previews are for people, a few % larger files save most of the write time.
+  const std::string why = detail::write_png(png, img.ptr<std::uint8_t>(0), img.cols, img.rows,
+                                            img.channels() == 1 ? detail::PixelFormat::kGray : detail::PixelFormat::kBgr,
+                                            img.step[0], /*fast=*/true);
+  if (!why.empty()) throw InputError(png.string() + ": cannot write the preview: " + why);
 }
 
 

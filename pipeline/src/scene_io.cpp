@@ -1,11 +1,9 @@
+#include "image_io.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/core.hpp>
-#include <opencv2/imgproc.hpp>
 #include <yaml-cpp/yaml.h>
 
 #include <signal.h>
@@ -25,10 +23,6 @@ namespace fs = std::filesystem;
 
 namespace {
 
-cv::Mat as_mat(const HeightField& f) {
-  // cv::Mat over the field's memory (no copy); imwrite only reads it.
-  return cv::Mat(f.rows(), f.cols(), CV_32FC1, const_cast<float*>(f.data()));
-}
 
 /// Why writing `bytes` into `file` may have failed: "no space left" when the file system has
 /// less free than that, else the errno text (may be "Success" when OpenCV swallowed it).
@@ -43,16 +37,12 @@ std::string write_failure_reason(const fs::path& file, std::size_t bytes) {
 }
 
 void write_float_tiff(const HeightField& f, const fs::path& file) {
-  bool ok = false;
   errno = 0;
-  try {
-    ok = cv::imwrite(file.string(), as_mat(f));
-  } catch (const cv::Exception& e) {
-    throw InputError(file.string() + ": cannot write the TIFF layer: " + e.what());
-  }
-  if (!ok) {
+  const std::string why = detail::write_float_tiff(file, f.data(), f.cols(), f.rows());
+  if (!why.empty()) {
+    const std::string space = write_failure_reason(file, f.values().size() * sizeof(float));
     throw InputError(file.string() + ": cannot write the TIFF layer: " +
-                     write_failure_reason(file, f.values().size() * sizeof(float)));
+                     (space.rfind("no space", 0) == 0 ? space : why));
   }
 }
 
@@ -239,24 +229,26 @@ void write_scene(const Scene& scene, const fs::path& scene_dir) {
   });
   y << YAML::EndMap;
   if (!scene.layers.flags.empty()) {
-    const cv::Mat flags(g.rows, g.cols, CV_8UC1, const_cast<std::uint8_t*>(scene.layers.flags.data()));
     errno = 0;
-    if (!cv::imwrite((scene_dir / "flags.png").string(), flags)) {
+    const std::string why =
+        detail::write_png(scene_dir / "flags.png", scene.layers.flags.data(), g.cols, g.rows, detail::PixelFormat::kGray);
+    if (!why.empty()) {
+      const std::string space = write_failure_reason(scene_dir / "flags.png", g.cell_count());
       throw InputError((scene_dir / "flags.png").string() + ": cannot write the flags layer: " +
-                       write_failure_reason(scene_dir / "flags.png", g.cell_count()));
+                       (space.rfind("no space", 0) == 0 ? space : why));
     }
     y << YAML::Key << "flags" << YAML::Value << "flags.png";
     y << YAML::Key << "flag_codes" << YAML::Value
       << "0 empty, 1 measured, 2 splatted, 3 see-through (no data), 4 filled, 5 upsampled";
   }
   if (!scene.layers.colour_rgb8.empty()) {
-    cv::Mat rgb(g.rows, g.cols, CV_8UC3, const_cast<std::uint8_t*>(scene.layers.colour_rgb8.data()));
-    cv::Mat bgr;
-    cv::cvtColor(rgb, bgr, cv::COLOR_RGB2BGR);
     errno = 0;
-    if (!cv::imwrite((scene_dir / "colour.png").string(), bgr)) {
+    const std::string why = detail::write_png(scene_dir / "colour.png", scene.layers.colour_rgb8.data(), g.cols, g.rows,
+                                              detail::PixelFormat::kRgb);
+    if (!why.empty()) {
+      const std::string space = write_failure_reason(scene_dir / "colour.png", 3 * g.cell_count());
       throw InputError((scene_dir / "colour.png").string() + ": cannot write the colour layer: " +
-                       write_failure_reason(scene_dir / "colour.png", 3 * g.cell_count()));
+                       (space.rfind("no space", 0) == 0 ? space : why));
     }
     y << YAML::Key << "colour" << YAML::Value << "colour.png";
   }
@@ -331,40 +323,38 @@ Scene load_scene(const fs::path& scene_dir) {
       if (!entry) return;
       const fs::path file = scene_dir / entry.as<std::string>();
       if (!fs::exists(file)) throw InputError(file.string() + ": missing scene layer '" + name + "'");
-      const cv::Mat img = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
-      if (img.empty()) throw InputError(file.string() + ": missing or unreadable scene layer '" + name + "'");
-      if (img.type() != CV_32FC1 || img.rows != g.rows || img.cols != g.cols) {
-        throw InputError(file.string() + ": layer '" + name + "' is " + std::to_string(img.cols) + "x" +
-                         std::to_string(img.rows) + " (type " + std::to_string(img.type()) + "), expected " +
-                         std::to_string(g.cols) + "x" + std::to_string(g.rows) + " 32-bit float");
+      detail::FloatImage img;
+      const std::string why = detail::read_float_tiff(file, img);
+      if (!why.empty() || img.height != g.rows || img.width != g.cols) {
+        throw InputError(file.string() + ": layer '" + name + "' is " +
+                         (why.empty() ? std::to_string(img.width) + "x" + std::to_string(img.height) : why) +
+                         ", expected " + std::to_string(g.cols) + "x" + std::to_string(g.rows) + " 32-bit float");
       }
       HeightField f(g);
-      for (int r = 0; r < g.rows; ++r) {
-        const float* src = img.ptr<float>(r);
-        std::copy(src, src + g.cols, f.data() + static_cast<std::ptrdiff_t>(r) * g.cols);
-      }
+      std::copy(img.values.begin(), img.values.end(), f.data());
       f.model_to_grid = s.model_to_grid;
       out = std::move(f);
     });
     if (s.layers.depth.rows() == 0) throw InputError(meta.string() + ": the scene lists no 'depth' layer");
     if (const YAML::Node flags = root["flags"]) {
       const fs::path file = scene_dir / flags.as<std::string>();
-      const cv::Mat img = cv::imread(file.string(), cv::IMREAD_UNCHANGED);
-      if (img.empty() || img.type() != CV_8UC1 || img.rows != g.rows || img.cols != g.cols) {
-        throw InputError(file.string() + ": missing or malformed flags layer");
+      detail::Image8 img;
+      const std::string why = detail::read_png(file, detail::PixelFormat::kGray, img);
+      if (!why.empty() || img.converted || img.height != g.rows || img.width != g.cols) {
+        throw InputError(file.string() + ": missing or malformed flags layer (expected an 8-bit grey " +
+                         std::to_string(g.cols) + "x" + std::to_string(g.rows) + " PNG" + (why.empty() ? "" : "; " + why) + ")");
       }
-      s.layers.flags.assign(img.begin<std::uint8_t>(), img.end<std::uint8_t>());
+      s.layers.flags = std::move(img.pixels);
     }
     if (const YAML::Node colour = root["colour"]) {
       const fs::path file = scene_dir / colour.as<std::string>();
-      const cv::Mat img = cv::imread(file.string(), cv::IMREAD_COLOR);
-      if (img.empty() || img.type() != CV_8UC3 || img.rows != g.rows || img.cols != g.cols) {
+      detail::Image8 img;
+      const std::string why = detail::read_png(file, detail::PixelFormat::kRgb, img);
+      if (!why.empty() || img.height != g.rows || img.width != g.cols) {
         throw InputError(file.string() + ": missing or malformed colour layer (expected " + std::to_string(g.cols) +
-                         "x" + std::to_string(g.rows) + " RGB)");
+                         "x" + std::to_string(g.rows) + " RGB" + (why.empty() ? "" : "; " + why) + ")");
       }
-      cv::Mat rgb;
-      cv::cvtColor(img, rgb, cv::COLOR_BGR2RGB);
-      s.layers.colour_rgb8.assign(rgb.datastart, rgb.dataend);
+      s.layers.colour_rgb8 = std::move(img.pixels);
     }
     if (const YAML::Node fm = root["friction_model"]) s.friction_model = friction_model_from_string(fm.as<std::string>());
     s.provenance = parse_provenance(root["provenance"]);

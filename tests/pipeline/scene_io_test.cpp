@@ -7,9 +7,11 @@
 
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
+#include <gdal_priv.h>
 
 #include "test_paths.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <fstream>
 
@@ -96,6 +98,66 @@ TEST(SceneIo, FormatTwoRoundTripsEveryTypedField) {
   EXPECT_EQ(back.provenance.inputs, s.provenance.inputs);
   EXPECT_NE(back.provenance.resolved_config_yaml.find("note: test"), std::string::npos);
   EXPECT_TRUE(back.notes.empty());
+}
+
+// The layers on disk are files other readers read: OpenCV reads the float TIFFs (several
+// strips, NaN kept) and the PNGs back bit for bit; a layer rewritten as a tiled TIFF by GDAL
+// loads too; a flags PNG in colour is refused.
+TEST(SceneIo, LayerFilesAreReadBackByOtherReaders) {
+  const fs::path dir = hc::test::temp_dir("readers");
+  const hc::GridGeometry g{257, 300, 0.0, 0.0, 0.001};  // 300 floats a row: 54 rows a strip, 5 strips
+  Scene s;
+  s.geometry = g;
+  s.layers.depth = ramp(g, 1e-6f, Eigen::Affine3d::Identity());
+  s.layers.depth.at(200, 7) = hc::kNoData;
+  s.layers.flags.assign(g.cell_count(), kCellMeasured);
+  s.layers.flags[12345] = kCellFilled;
+  for (std::size_t i = 0; i < 3 * g.cell_count(); ++i) s.layers.colour_rgb8.push_back(static_cast<std::uint8_t>(i * 31 % 251));
+  write_scene(s, dir / "scene");
+  const cv::Mat depth = cv::imread((dir / "scene" / "depth.tiff").string(), cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(depth.type(), CV_32FC1);
+  ASSERT_EQ(depth.rows, g.rows);
+  ASSERT_EQ(depth.cols, g.cols);
+  hc::HeightField back(g);
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) back.at(r, c) = depth.at<float>(r, c);
+  EXPECT_TRUE(same_values(back, s.layers.depth));
+  const cv::Mat flags = cv::imread((dir / "scene" / "flags.png").string(), cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(flags.type(), CV_8UC1);
+  EXPECT_TRUE(std::equal(s.layers.flags.begin(), s.layers.flags.end(), flags.ptr<std::uint8_t>(0)));
+  const cv::Mat bgr = cv::imread((dir / "scene" / "colour.png").string(), cv::IMREAD_COLOR);
+  ASSERT_EQ(bgr.type(), CV_8UC3);
+  for (std::size_t i = 0; i < g.cell_count(); i += 997)
+    for (int k = 0; k < 3; ++k)
+      EXPECT_EQ(bgr.ptr<std::uint8_t>(0)[3 * i + static_cast<std::size_t>(2 - k)], s.layers.colour_rgb8[3 * i + static_cast<std::size_t>(k)]);
+  // A tiled TIFF (OpenCV writes none; GDAL does) in place of the depth layer.
+  {
+    GDALAllRegister();
+    GDALDriver* gtiff = GetGDALDriverManager()->GetDriverByName("GTiff");
+    ASSERT_NE(gtiff, nullptr);
+    const char* options[] = {"TILED=YES", "BLOCKXSIZE=64", "BLOCKYSIZE=32", "COMPRESS=LZW", nullptr};
+    fs::remove(dir / "scene" / "depth.tiff");
+    GDALDataset* ds = gtiff->Create((dir / "scene" / "depth.tiff").c_str(), g.cols, g.rows, 1, GDT_Float32,
+                                    const_cast<char**>(options));
+    ASSERT_NE(ds, nullptr);
+    std::vector<float> values(s.layers.depth.values().begin(), s.layers.depth.values().end());
+    ASSERT_EQ(ds->GetRasterBand(1)->RasterIO(GF_Write, 0, 0, g.cols, g.rows, values.data(), g.cols, g.rows, GDT_Float32,
+                                             0, 0),
+              CE_None);
+    GDALClose(ds);
+  }
+  const Scene loaded = load_scene(dir / "scene");
+  EXPECT_TRUE(same_values(loaded.layers.depth, s.layers.depth));
+  EXPECT_EQ(loaded.layers.flags, s.layers.flags);
+  EXPECT_EQ(loaded.layers.colour_rgb8, s.layers.colour_rgb8);
+  // A colour PNG where the grey flags belong.
+  ASSERT_TRUE(cv::imwrite((dir / "scene" / "flags.png").string(), bgr));
+  try {
+    load_scene(dir / "scene");
+    ADD_FAILURE() << "a colour flags layer was accepted";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("flags.png"), std::string::npos) << e.what();
+  }
 }
 
 TEST(SceneIo, AFormatOneFolderStillLoads) {

@@ -13,14 +13,12 @@
 // Sources: Wavefront OBJ and MTL file format descriptions (Appendix B1/B2 of the Advanced
 // Visualizer manual): vt's v axis points up the image, so v = 0 is the image's bottom row.
 
+#include "../image_io.hpp"
 #include "readers.hpp"
 #include "text_parse.hpp"
 
 #include "hc/common/error.hpp"
 
-#include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include <algorithm>
 #include <charconv>
@@ -264,27 +262,23 @@ ReadResult read_obj(const ScanSource& source) {
     return result;
   }
   const std::filesystem::path image_path = folder / image;
-  cv::Mat bgr;
-  try {
-    std::error_code ec;
-    if (std::filesystem::is_regular_file(image_path, ec)) bgr = cv::imread(image_path.string(), cv::IMREAD_COLOR);
-  } catch (const cv::Exception&) {
-    bgr.release();
-  }
-  if (bgr.empty() || bgr.type() != CV_8UC3) {
-    no_texture("the map_Kd image " + quoted(image_path) + " is missing or not readable by OpenCV");
+  Image8 img;
+  std::error_code ec;
+  const std::string why = std::filesystem::is_regular_file(image_path, ec) ? read_rgb_image(image_path, img)
+                                                                            : std::string("no such file");
+  if (!why.empty()) {
+    no_texture("the map_Kd image " + quoted(image_path) + " is missing or not readable (" + why +
+               "; PNG, JPEG, BMP, TGA, GIF, PNM are read)");
     return result;
   }
   auto tex = std::make_shared<TextureImage>();
-  tex->width = bgr.cols;
-  tex->height = bgr.rows;
+  tex->width = img.width;
+  tex->height = img.height;
   tex->source = image_path.string();
-  tex->rgb.resize(3 * static_cast<std::size_t>(bgr.cols) * static_cast<std::size_t>(bgr.rows));
-  cv::Mat rgb(bgr.rows, bgr.cols, CV_8UC3, tex->rgb.data());
-  cv::cvtColor(bgr, rgb, cv::COLOR_BGR2RGB);
+  tex->rgb = std::move(img.pixels);
   cloud.mesh.texture = std::move(tex);
-  result.notes.push_back("texture " + quoted(image_path) + " (" + std::to_string(bgr.cols) + " × " +
-                         std::to_string(bgr.rows) + ", map_Kd)");
+  result.notes.push_back("texture " + quoted(image_path) + " (" + std::to_string(img.width) + " × " +
+                         std::to_string(img.height) + ", map_Kd)");
   return result;
 }
 

@@ -1,0 +1,245 @@
+// Image files on libpng, libtiff and stb_image (image_io.hpp).
+
+#include "image_io.hpp"
+
+#include <png.h>
+#include <stb/stb_image.h>
+#include <tiffio.h>
+
+#include <algorithm>
+#include <cerrno>
+#include <cstdarg>
+#include <cstdio>
+#include <cstring>
+#include <memory>
+
+namespace hc::pipeline::detail {
+namespace {
+
+png_uint_32 png_format(PixelFormat f) {
+  switch (f) {
+    case PixelFormat::kGray: return PNG_FORMAT_GRAY;
+    case PixelFormat::kRgb: return PNG_FORMAT_RGB;
+    case PixelFormat::kBgr: return PNG_FORMAT_BGR;
+  }
+  return PNG_FORMAT_GRAY;
+}
+
+int channels_of(PixelFormat f) { return f == PixelFormat::kGray ? 1 : 3; }
+
+png_image png_image_for(int width, int height, PixelFormat format, bool fast) {
+  png_image image;
+  std::memset(&image, 0, sizeof image);
+  image.version = PNG_IMAGE_VERSION;
+  image.width = static_cast<png_uint_32>(width);
+  image.height = static_cast<png_uint_32>(height);
+  image.format = png_format(format);
+  image.flags = fast ? PNG_IMAGE_FLAG_FAST : 0;
+  return image;
+}
+
+std::string png_message(const png_image& image, const char* fallback) {
+  return image.message[0] != '\0' ? std::string(image.message) : std::string(fallback);
+}
+
+// libtiff's messages for one file, collected instead of printed (per-handle handlers, libtiff
+// 4.5: thread-safe, unlike the global ones).
+struct TiffMessages {
+  std::string error;
+  static int on_error(TIFF*, void* user, const char* module, const char* fmt, va_list ap) {
+    auto* self = static_cast<TiffMessages*>(user);
+    char text[512];
+    std::vsnprintf(text, sizeof text, fmt, ap);
+    if (self->error.empty()) self->error = std::string(module ? module : "libtiff") + ": " + text;
+    return 1;
+  }
+  static int on_warning(TIFF*, void*, const char*, const char*, va_list) { return 1; }  // not errors
+};
+
+using TiffHandle = std::unique_ptr<TIFF, void (*)(TIFF*)>;
+
+TiffHandle open_tiff(const std::filesystem::path& file, const char* mode, TiffMessages& messages) {
+  std::unique_ptr<TIFFOpenOptions, void (*)(TIFFOpenOptions*)> options(TIFFOpenOptionsAlloc(), &TIFFOpenOptionsFree);
+  TIFFOpenOptionsSetErrorHandlerExtR(options.get(), &TiffMessages::on_error, &messages);
+  TIFFOpenOptionsSetWarningHandlerExtR(options.get(), &TiffMessages::on_warning, &messages);
+  return TiffHandle(TIFFOpenExt(file.c_str(), mode, options.get()), &TIFFClose);
+}
+
+std::string tiff_failure(const TiffMessages& m, const char* fallback) {
+  if (!m.error.empty()) return m.error;
+  return errno != 0 ? std::string(std::strerror(errno)) : std::string(fallback);
+}
+
+}  // namespace
+
+std::string write_png(const std::filesystem::path& file, const std::uint8_t* pixels, int width, int height,
+                      PixelFormat format, std::size_t row_stride, bool fast) {
+  if (width < 1 || height < 1) return "an empty image";
+  png_image image = png_image_for(width, height, format, fast);
+  const auto stride = static_cast<png_int_32>(row_stride ? row_stride : static_cast<std::size_t>(width * channels_of(format)));
+  if (png_image_write_to_file(&image, file.c_str(), 0, pixels, stride, nullptr) == 0) {
+    const std::string why = png_message(image, "libpng cannot write it");
+    png_image_free(&image);
+    return why;
+  }
+  return {};
+}
+
+std::vector<std::uint8_t> encode_png(const std::uint8_t* pixels, int width, int height, PixelFormat format,
+                                     std::string* error) {
+  std::vector<std::uint8_t> bytes;
+  if (width < 1 || height < 1) {
+    *error = "an empty image";
+    return bytes;
+  }
+  png_image image = png_image_for(width, height, format, false);
+  png_alloc_size_t size = 0;
+  const auto stride = static_cast<png_int_32>(width * channels_of(format));
+  // First the size, then the bytes (libpng's two-call protocol).
+  if (png_image_write_to_memory(&image, nullptr, &size, 0, pixels, stride, nullptr) == 0) {
+    *error = png_message(image, "libpng cannot encode it");
+    png_image_free(&image);
+    return bytes;
+  }
+  bytes.resize(size);
+  if (png_image_write_to_memory(&image, bytes.data(), &size, 0, pixels, stride, nullptr) == 0) {
+    *error = png_message(image, "libpng cannot encode it");
+    png_image_free(&image);
+    bytes.clear();
+    return bytes;
+  }
+  bytes.resize(size);
+  return bytes;
+}
+
+std::string read_png(const std::filesystem::path& file, PixelFormat format, Image8& out) {
+  png_image image;
+  std::memset(&image, 0, sizeof image);
+  image.version = PNG_IMAGE_VERSION;
+  if (png_image_begin_read_from_file(&image, file.c_str()) == 0) return png_message(image, "not a PNG libpng reads");
+  const png_uint_32 requested = png_format(format == PixelFormat::kBgr ? PixelFormat::kRgb : format);
+  const bool converted = image.format != requested || (image.flags & PNG_IMAGE_FLAG_16BIT_sRGB) != 0;
+  image.format = requested;
+  out = Image8();
+  out.converted = converted;
+  out.width = static_cast<int>(image.width);
+  out.height = static_cast<int>(image.height);
+  out.channels = channels_of(format);
+  out.pixels.resize(PNG_IMAGE_SIZE(image));
+  if (png_image_finish_read(&image, nullptr, out.pixels.data(), 0, nullptr) == 0) {
+    const std::string why = png_message(image, "libpng cannot decode it");
+    png_image_free(&image);
+    out = Image8();
+    return why;
+  }
+  return {};
+}
+
+std::string read_rgb_image(const std::filesystem::path& file, Image8& out) {
+  int w = 0, h = 0, n = 0;
+  std::unique_ptr<stbi_uc, void (*)(void*)> data(stbi_load(file.c_str(), &w, &h, &n, 3), &stbi_image_free);
+  if (!data) {
+    const char* why = stbi_failure_reason();
+    return why ? std::string(why) : std::string("stb_image cannot decode it");
+  }
+  out = Image8();
+  out.width = w;
+  out.height = h;
+  out.channels = 3;
+  out.pixels.assign(data.get(), data.get() + 3 * static_cast<std::size_t>(w) * static_cast<std::size_t>(h));
+  return {};
+}
+
+std::string write_float_tiff(const std::filesystem::path& file, const float* values, int width, int height) {
+  if (width < 1 || height < 1) return "an empty layer";
+  TiffMessages messages;
+  errno = 0;
+  TiffHandle tif = open_tiff(file, "w", messages);
+  if (!tif) return tiff_failure(messages, "libtiff cannot create it");
+  TIFF* t = tif.get();
+  const auto rows_per_strip =
+      static_cast<std::uint32_t>(std::max(1, 65536 / static_cast<int>(sizeof(float) * static_cast<std::size_t>(width))));
+  const bool tags = TIFFSetField(t, TIFFTAG_IMAGEWIDTH, static_cast<std::uint32_t>(width)) &&
+                    TIFFSetField(t, TIFFTAG_IMAGELENGTH, static_cast<std::uint32_t>(height)) &&
+                    TIFFSetField(t, TIFFTAG_SAMPLESPERPIXEL, 1) && TIFFSetField(t, TIFFTAG_BITSPERSAMPLE, 32) &&
+                    TIFFSetField(t, TIFFTAG_SAMPLEFORMAT, SAMPLEFORMAT_IEEEFP) &&
+                    TIFFSetField(t, TIFFTAG_PHOTOMETRIC, PHOTOMETRIC_MINISBLACK) &&
+                    TIFFSetField(t, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG) &&
+                    TIFFSetField(t, TIFFTAG_COMPRESSION, COMPRESSION_NONE) &&
+                    TIFFSetField(t, TIFFTAG_ROWSPERSTRIP, rows_per_strip);
+  if (!tags) return tiff_failure(messages, "libtiff refused a tag");
+  // libtiff may modify the buffer it is given (byte order, codecs): each strip is copied first.
+  std::vector<float> strip;
+  for (std::uint32_t row = 0, s = 0; row < static_cast<std::uint32_t>(height); row += rows_per_strip, ++s) {
+    const std::uint32_t n = std::min(rows_per_strip, static_cast<std::uint32_t>(height) - row);
+    strip.assign(values + static_cast<std::size_t>(row) * static_cast<std::size_t>(width),
+                 values + static_cast<std::size_t>(row + n) * static_cast<std::size_t>(width));
+    errno = 0;
+    if (TIFFWriteEncodedStrip(t, s, strip.data(), static_cast<tmsize_t>(strip.size() * sizeof(float))) < 0) {
+      return tiff_failure(messages, "libtiff cannot write a strip");
+    }
+  }
+  errno = 0;
+  if (!TIFFWriteDirectory(t)) return tiff_failure(messages, "libtiff cannot write the directory");
+  TIFFFlush(t);
+  if (!messages.error.empty()) return messages.error;
+  return {};
+}
+
+std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out) {
+  TiffMessages messages;
+  errno = 0;
+  TiffHandle tif = open_tiff(file, "r", messages);
+  if (!tif) return tiff_failure(messages, "not a TIFF libtiff reads");
+  TIFF* t = tif.get();
+  std::uint32_t width = 0, height = 0;
+  std::uint16_t samples = 1, bits = 0, format = SAMPLEFORMAT_UINT, planar = PLANARCONFIG_CONTIG;
+  TIFFGetField(t, TIFFTAG_IMAGEWIDTH, &width);
+  TIFFGetField(t, TIFFTAG_IMAGELENGTH, &height);
+  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLESPERPIXEL, &samples);
+  TIFFGetFieldDefaulted(t, TIFFTAG_BITSPERSAMPLE, &bits);
+  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLEFORMAT, &format);
+  TIFFGetFieldDefaulted(t, TIFFTAG_PLANARCONFIG, &planar);
+  if (width == 0 || height == 0 || samples != 1 || bits != 32 || format != SAMPLEFORMAT_IEEEFP) {
+    return std::to_string(width) + "x" + std::to_string(height) + ", " + std::to_string(samples) + " channel(s) of " +
+           std::to_string(bits) + "-bit " + (format == SAMPLEFORMAT_IEEEFP ? "float" : "integer") + " samples";
+  }
+  out = FloatImage();
+  out.width = static_cast<int>(width);
+  out.height = static_cast<int>(height);
+  out.values.assign(static_cast<std::size_t>(width) * height, 0.0f);
+  if (TIFFIsTiled(t)) {
+    std::uint32_t tw = 0, th = 0;
+    TIFFGetField(t, TIFFTAG_TILEWIDTH, &tw);
+    TIFFGetField(t, TIFFTAG_TILELENGTH, &th);
+    if (tw == 0 || th == 0) return "tiled TIFF without tile sizes";
+    std::vector<float> tile(static_cast<std::size_t>(tw) * th);
+    for (std::uint32_t y = 0; y < height; y += th)
+      for (std::uint32_t x = 0; x < width; x += tw) {
+        if (TIFFReadTile(t, tile.data(), x, y, 0, 0) < 0) return tiff_failure(messages, "libtiff cannot read a tile");
+        for (std::uint32_t r = 0; r < th && y + r < height; ++r) {
+          const std::uint32_t n = std::min(tw, width - x);
+          std::copy_n(tile.data() + static_cast<std::size_t>(r) * tw, n,
+                      out.values.data() + static_cast<std::size_t>(y + r) * width + x);
+        }
+      }
+  } else {
+    std::uint32_t rows_per_strip = height;
+    TIFFGetFieldDefaulted(t, TIFFTAG_ROWSPERSTRIP, &rows_per_strip);
+    rows_per_strip = std::clamp<std::uint32_t>(rows_per_strip, 1, height);
+    const tstrip_t strips = TIFFNumberOfStrips(t);
+    for (tstrip_t s = 0; s < strips; ++s) {
+      const std::uint64_t row = static_cast<std::uint64_t>(s) * rows_per_strip;
+      if (row >= height) break;
+      const std::uint64_t n = std::min<std::uint64_t>(rows_per_strip, height - row);
+      const auto bytes = static_cast<tmsize_t>(n * width * sizeof(float));
+      if (TIFFReadEncodedStrip(t, s, out.values.data() + row * width, bytes) < 0) {
+        return tiff_failure(messages, "libtiff cannot read a strip");
+      }
+    }
+  }
+  if (!messages.error.empty()) return messages.error;
+  return {};
+}
+
+}  // namespace hc::pipeline::detail

@@ -1,0 +1,60 @@
+#pragma once
+// Image files of the pipeline (private to hc::pipeline, not installed): the scene's layers
+// (32-bit float TIFF, 8-bit PNG), the previews (PNG) and the textures of OBJ meshes. Written on
+// libpng, libtiff and stb_image (Debian's libpng16, libtiff6, libstb0) instead of OpenCV's image
+// codecs, whose library loads about 140 others (GDAL, GDCM, libheif, ...) and cost every
+// command about 60 ms of start-up (bench/README.md, "Start-up").
+
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline::detail {
+
+/// Channel layouts of 8-bit pixels: one byte per channel, channels interleaved, rows top to bottom.
+enum class PixelFormat { kGray, kRgb, kBgr };
+
+/// Writes an 8-bit PNG (libpng's simplified API, PNG 1.2 / ISO 15948). `row_stride` is the
+/// distance between rows in bytes (0 = width × channels). `fast`: zlib's fastest level
+/// (PNG_IMAGE_FLAG_FAST), for previews. @return "" on success, else why not (libpng's message).
+std::string write_png(const std::filesystem::path& file, const std::uint8_t* pixels, int width, int height,
+                      PixelFormat format, std::size_t row_stride = 0, bool fast = false);
+
+/// The same PNG in memory. @return the bytes; empty on failure, with *error set.
+std::vector<std::uint8_t> encode_png(const std::uint8_t* pixels, int width, int height, PixelFormat format,
+                                     std::string* error);
+
+/// An 8-bit image read from a file.
+struct Image8 {
+  int width = 0, height = 0;
+  int channels = 0;                  ///< 1 (gray) or 3 (RGB)
+  std::vector<std::uint8_t> pixels;  ///< rows top to bottom, channels interleaved
+  bool converted = false;            ///< read_png: the file's own format was another (converted)
+};
+
+/// Reads a PNG as 8-bit gray (format kGray) or RGB (kRgb) with libpng's simplified API, which
+/// converts other PNG colour types and 16-bit samples. @return "" and `out`, or why not.
+std::string read_png(const std::filesystem::path& file, PixelFormat format, Image8& out);
+
+/// Reads any image stb_image decodes (PNG, JPEG baseline and progressive, BMP, TGA, GIF, PSD,
+/// HDR, PIC, PNM) as 8-bit RGB. @return "" and `out`, or stb_image's reason.
+std::string read_rgb_image(const std::filesystem::path& file, Image8& out);
+
+/// Writes a single-channel 32-bit IEEE float TIFF (libtiff; TIFF 6.0 with SampleFormat 3),
+/// uncompressed, in strips of about 64 KiB (deflate with the floating-point predictor made the
+/// Buddha's N = 4096 scene 2.6× smaller but its write stage 1.9× slower: 1.81 s against 0.94 s,
+/// 2026-11-23). @return "" on success, else why not.
+std::string write_float_tiff(const std::filesystem::path& file, const float* values, int width, int height);
+
+/// A single-channel 32-bit float image read from a TIFF (strips or tiles, any compression
+/// libtiff decodes: the scenes written by earlier versions through OpenCV included).
+struct FloatImage {
+  int width = 0, height = 0;
+  std::vector<float> values;  ///< rows top to bottom
+};
+/// @return "" and `out`, or why not (not a TIFF, not one float channel, a libtiff error).
+std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out);
+
+}  // namespace hc::pipeline::detail
