@@ -38,6 +38,8 @@ foreach(dir common pipeline pcl_bridge haptics haptics/falcon session audio view
           FILES_MATCHING PATTERN "*.hpp" PATTERN "*.h")
 endforeach()
 install(TARGETS hapticloud RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})
+# The GeoTIFF writer module (GDAL), loaded by the pipeline on the first export.
+install(TARGETS hc_geotiff_gdal LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}/hapticloud)
 install(DIRECTORY ${PROJECT_SOURCE_DIR}/configs/ DESTINATION ${CMAKE_INSTALL_DATADIR}/hapticloud/configs
         FILES_MATCHING PATTERN "*.yaml")
 install(FILES ${PROJECT_SOURCE_DIR}/udev/99-novint-falcon.rules

@@ -119,6 +119,7 @@ void run_raster_export(const ExportOptions& o) {
             << " pixels, " << frame << (crs.empty() || !layout.file_frame ? "" : ", with the scan's CRS") << " -> "
             << o.out << "\n";
   for (const std::string& n : notes) std::cout << "export: note: " << n << "\n";
+  std::cout << "export: GeoTIFF written through " << pipeline::geotiff_module_path() << "\n";
 }
 
 void run_export(const ExportOptions& o) {

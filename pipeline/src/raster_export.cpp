@@ -1,4 +1,6 @@
-// GeoTIFF export through GDAL (raster_export.hpp).
+// GeoTIFF export through GDAL (raster_export.hpp). GDAL lives in a module loaded on the first
+// export (pipeline/gdal/geotiff_gdal.cpp, interface geotiff_module.h): every other command starts
+// without it.
 
 #include "hc/pipeline/raster_export.hpp"
 
@@ -6,17 +8,18 @@
 
 #include "hc/common/error.hpp"
 
-#include <cpl_conv.h>
-#include <cpl_error.h>
-#include <gdal_priv.h>
-#include <ogr_spatialref.h>
+#include "geotiff_module.h"
+
+#include <dlfcn.h>
 
 #include <cerrno>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <sstream>
 #include <stdexcept>
 #include <system_error>
 
@@ -24,24 +27,53 @@ namespace hc::pipeline {
 
 namespace {
 
-// GDAL's error handler for one call: collects the last failure's message instead of printing.
-struct QuietGdal {
-  QuietGdal() {
-    CPLPushErrorHandler(CPLQuietErrorHandler);
-    CPLErrorReset();
-  }
-  ~QuietGdal() { CPLPopErrorHandler(); }
-  QuietGdal(const QuietGdal&) = delete;
-  QuietGdal& operator=(const QuietGdal&) = delete;
-  static std::string last() {
-    const char* m = CPLGetLastErrorMsg();
-    return m && *m ? std::string(m) : std::string("no message from GDAL");
-  }
+// The module's file name and where it is looked for, in order: $HC_GDAL_MODULE (a file); beside
+// the binary that holds this code, then that binary's folder + HC_MODULE_DIR_FROM_BINDIR (the
+// installed tree: bin/ → lib/hapticloud/); then the build tree's folder HC_BUILD_MODULE_DIR.
+constexpr const char* kModuleName = "hc_geotiff_gdal.so";
+
+struct Module {
+  HcGeoTiffWriteFn write = nullptr;
+  std::string path;   // the file loaded
+  std::string tried;  // where it was looked for, for the error
 };
 
-void register_gdal() {
+const Module& geotiff_module() {
+  static Module module;
   static std::once_flag once;
-  std::call_once(once, [] { GDALAllRegister(); });
+  std::call_once(once, [] {
+    std::vector<std::string> candidates;
+    if (const char* env = std::getenv("HC_GDAL_MODULE"); env && *env) candidates.emplace_back(env);
+    Dl_info info{};
+    if (dladdr(reinterpret_cast<void*>(&geotiff_module), &info) != 0 && info.dli_fname) {
+      std::error_code ec;
+      const std::filesystem::path self = std::filesystem::canonical(info.dli_fname, ec);
+      if (!ec) {
+        candidates.push_back((self.parent_path() / kModuleName).string());
+        candidates.push_back((self.parent_path() / HC_MODULE_DIR_FROM_BINDIR / kModuleName).lexically_normal().string());
+      }
+    }
+    candidates.push_back((std::filesystem::path(HC_BUILD_MODULE_DIR) / kModuleName).string());
+    for (const std::string& c : candidates) {
+      module.tried += (module.tried.empty() ? "" : ", ") + c;
+      std::error_code ec;
+      if (!std::filesystem::is_regular_file(c, ec)) continue;
+      void* handle = dlopen(c.c_str(), RTLD_NOW | RTLD_LOCAL);
+      if (!handle) {
+        const char* why = dlerror();
+        module.tried += std::string(" (") + (why ? why : "dlopen failed") + ")";
+        continue;
+      }
+      module.write = reinterpret_cast<HcGeoTiffWriteFn>(dlsym(handle, HC_GEOTIFF_WRITE_SYMBOL));
+      if (module.write) {
+        module.path = c;
+        return;  // kept loaded for the rest of the process
+      }
+      module.tried += " (no symbol " + std::string(HC_GEOTIFF_WRITE_SYMBOL) + ")";
+      dlclose(handle);
+    }
+  });
+  return module;
 }
 
 }  // namespace
@@ -68,6 +100,14 @@ GeoTiffLayout geotiff_layout(const GridGeometry& g, const Eigen::Affine3d& model
   return out;
 }
 
+std::string geotiff_module_path() {
+  try {
+    return geotiff_module().path;
+  } catch (...) {
+    return {};
+  }
+}
+
 std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLayout& layout, const std::string& crs,
                                        const std::filesystem::path& file, const std::vector<std::string>& metadata) {
   namespace fs = std::filesystem;
@@ -84,17 +124,12 @@ std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLa
     const std::size_t eq = item.find('=');
     if (eq == std::string::npos || eq == 0) throw std::invalid_argument("write_geotiff: metadata item '" + item + "' is not KEY=VALUE");
   }
-  register_gdal();
-  const QuietGdal quiet;
-  // No .aux.xml side file (it would be named after the temporary): what GeoTIFF keys cannot
-  // hold is not written.
-  CPLSetThreadLocalConfigOption("GDAL_PAM_ENABLED", "NO");
-  struct RestorePam {
-    ~RestorePam() { CPLSetThreadLocalConfigOption("GDAL_PAM_ENABLED", nullptr); }
-  } restore_pam;
-  std::vector<std::string> notes;
-  GDALDriver* driver = GetGDALDriverManager()->GetDriverByName("GTiff");
-  if (!driver) throw InputError("export: GDAL has no GTiff driver");
+  const Module& module = geotiff_module();
+  if (!module.write) {
+    throw InputError("export: cannot write " + target.string() + ": the GeoTIFF writer module " + kModuleName +
+                     " (GDAL) was not found or not loaded; looked at " + module.tried +
+                     " (set HC_GDAL_MODULE to its path)");
+  }
   const fs::path tmp = create_temporary_beside(target);
   // Removes the temporary on every way out but the successful link (exceptions included).
   struct RemoveTemporary {
@@ -105,54 +140,38 @@ std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLa
       if (!keep) fs::remove(path, e);
     }
   } cleanup{tmp};
-  auto fail = [&](const std::string& what) {
-    throw InputError("export: " + what + " " + target.string() + ": " + QuietGdal::last());
-  };
-  {
-    const char* options[] = {"COMPRESS=DEFLATE", "PREDICTOR=3", nullptr};
-    std::unique_ptr<GDALDataset, void (*)(GDALDataset*)> ds(
-        driver->Create(tmp.c_str(), layer.cols(), layer.rows(), 1, GDT_Float32, const_cast<char**>(options)),
-        [](GDALDataset* d) { GDALClose(d); });
-    if (!ds) fail("GDAL cannot create");
-    double gt[6];
-    std::copy(layout.geotransform.begin(), layout.geotransform.end(), gt);
-    if (ds->SetGeoTransform(gt) != CE_None) fail("GDAL cannot set the geotransform of");
-    if (!crs.empty() && layout.file_frame) {
-      OGRSpatialReference srs;
-      const char* srs_options[] = {"ALLOW_NETWORK_ACCESS=NO", "ALLOW_FILE_ACCESS=NO", nullptr};
-      if (srs.SetFromUserInput(crs.c_str(), srs_options) == OGRERR_NONE) {
-        if (ds->SetSpatialRef(&srs) != CE_None) fail("GDAL cannot set the CRS of");
-      } else {
-        ds->SetMetadataItem("HAPTICLOUD_CRS_TEXT", crs.c_str());
-        notes.push_back("the scan's CRS text is not one GDAL reads; kept as the metadata item HAPTICLOUD_CRS_TEXT");
-        CPLErrorReset();
-      }
-    } else if (!crs.empty()) {
-      notes.push_back("the scene's view is not a top view of its scan: written in the grid frame, without the scan's CRS");
+  // Image row j = grid row rows − 1 − j (upright), values mapped to the file frame.
+  std::vector<float> pixels(static_cast<std::size_t>(layer.rows()) * static_cast<std::size_t>(layer.cols()));
+  for (int j = 0; j < layer.rows(); ++j) {
+    const int r = layer.rows() - 1 - j;
+    for (int c = 0; c < layer.cols(); ++c) {
+      const float v = layer.at(r, c);
+      pixels[static_cast<std::size_t>(j) * static_cast<std::size_t>(layer.cols()) + static_cast<std::size_t>(c)] =
+          std::isnan(v) ? v : static_cast<float>(layout.z_scale * static_cast<double>(v) + layout.z_offset);
     }
-    for (const std::string& item : metadata) {
-      const std::size_t eq = item.find('=');
-      ds->SetMetadataItem(item.substr(0, eq).c_str(), item.substr(eq + 1).c_str());
-    }
-    GDALRasterBand* band = ds->GetRasterBand(1);
-    if (band->SetNoDataValue(std::numeric_limits<double>::quiet_NaN()) != CE_None) fail("GDAL cannot set no-data in");
-    // Image row j = grid row rows − 1 − j (upright), values mapped to the file frame.
-    std::vector<float> row(static_cast<std::size_t>(layer.cols()));
-    for (int j = 0; j < layer.rows(); ++j) {
-      const int r = layer.rows() - 1 - j;
-      for (int c = 0; c < layer.cols(); ++c) {
-        const float v = layer.at(r, c);
-        row[static_cast<std::size_t>(c)] =
-            std::isnan(v) ? v : static_cast<float>(layout.z_scale * static_cast<double>(v) + layout.z_offset);
-      }
-      if (band->RasterIO(GF_Write, 0, j, layer.cols(), 1, row.data(), layer.cols(), 1, GDT_Float32, 0, 0) != CE_None) {
-        fail("GDAL cannot write");
-      }
-    }
-    ds->FlushCache(false);
-    if (CPLGetLastErrorType() == CE_Failure) fail("GDAL cannot write");
-  }  // closed here
-  if (CPLGetLastErrorType() == CE_Failure) fail("GDAL failed writing");
+  }
+  std::vector<const char*> items;
+  for (const std::string& item : metadata) items.push_back(item.c_str());
+  const std::string tmp_path = tmp.string();
+  HcGeoTiffJob job{};
+  job.abi = HC_GEOTIFF_ABI;
+  job.path = tmp_path.c_str();
+  job.cols = layer.cols();
+  job.rows = layer.rows();
+  job.pixels = pixels.data();
+  job.geotransform = layout.geotransform.data();
+  job.crs = crs.c_str();
+  job.crs_in_file_frame = layout.file_frame ? 1 : 0;
+  job.metadata = items.data();
+  job.n_metadata = items.size();
+  HcGeoTiffResult result{};
+  if (module.write(&job, &result) != 0) {
+    throw InputError("export: " + std::string(result.what) + " " + target.string() + ": " + result.detail);
+  }
+  std::vector<std::string> notes;
+  std::istringstream lines(result.notes);
+  for (std::string line; std::getline(lines, line);)
+    if (!line.empty()) notes.push_back(line);
   if (!link_into_place(tmp, target)) {
     const std::string why = errno == EEXIST ? "it exists already (not overwritten)" : std::strerror(errno);
     throw InputError("export: cannot put " + target.string() + " in place: " + why);

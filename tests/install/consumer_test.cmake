@@ -34,6 +34,17 @@ step("the installed program" "${prefix}/bin/hapticloud" --version)
 if(NOT step_output MATCHES "hapticloud")
   message(FATAL_ERROR "install test: `hapticloud --version` printed: ${step_output}")
 endif()
+# The installed program finds the installed GeoTIFF module (GDAL is loaded only to export).
+if(NOT EXISTS "${prefix}/${LIBDIR}/hapticloud/hc_geotiff_gdal.so")
+  message(FATAL_ERROR "install test: ${prefix}/${LIBDIR}/hapticloud/hc_geotiff_gdal.so was not installed")
+endif()
+step("the installed program runs a config" "${prefix}/bin/hapticloud" run "${prefix}/share/hapticloud/configs/sinusoid.yaml"
+     --out "${WORK}/run" --set lod.report=false)
+step("the installed program exports a GeoTIFF" "${prefix}/bin/hapticloud" export "${WORK}/run/scene" --format geotiff
+     --out "${WORK}/depth.tif")
+if(NOT step_output MATCHES "written through ${prefix}/${LIBDIR}/hapticloud/hc_geotiff_gdal.so")
+  message(FATAL_ERROR "install test: the installed program did not load the installed module: ${step_output}")
+endif()
 step("configure the consumer" ${CMAKE_COMMAND} -S "${HC_SOURCE_DIR}/tests/install/consumer" -B "${WORK}/build"
      -G "${GENERATOR}" "-DCMAKE_PREFIX_PATH=${prefix}" "-DCMAKE_CXX_COMPILER=${CXX}"
      "-DCMAKE_BUILD_TYPE=${BUILD_TYPE}" "-DCMAKE_CXX_FLAGS=${CXX_FLAGS}" "-DCMAKE_EXE_LINKER_FLAGS=${LINKER_FLAGS}")

@@ -55,4 +55,11 @@ std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLa
                                        const std::filesystem::path& file,
                                        const std::vector<std::string>& metadata = {});
 
+/// The GeoTIFF writer module write_geotiff loads on first use (hc_geotiff_gdal.so, which links
+/// GDAL, so that no other command loads GDAL at start-up): its path, loading it if needed, or
+/// "" when it was not found. Looked for, in order: the file $HC_GDAL_MODULE; beside the binary
+/// holding the pipeline; <that binary's folder>/<bindir → libdir/hapticloud> (the installed
+/// tree); the build tree's lib/hapticloud. Never throws.
+std::string geotiff_module_path();
+
 }  // namespace hc::pipeline
