@@ -18,6 +18,8 @@ find_package(spdlog REQUIRED)
 find_package(nlohmann_json 3 REQUIRED)
 find_package(nanoflann REQUIRED)
 find_package(ZLIB REQUIRED)
+find_package(PkgConfig REQUIRED)
+pkg_check_modules(LIBDEFLATE REQUIRED IMPORTED_TARGET libdeflate)  # libdeflate-dev: gzip inflate of scans
 find_package(OpenSSL REQUIRED COMPONENTS Crypto)
 find_package(pugixml REQUIRED)  # E57 XML section (libpugixml-dev)
 find_package(GDAL CONFIG REQUIRED)  # GeoTIFF export (libgdal-dev)

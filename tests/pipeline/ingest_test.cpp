@@ -602,6 +602,22 @@ TEST(IngestBadInput, TruncatedBinaryPly) {
   EXPECT_NE(error_of([&] { hp::load_cloud(dir / "fake.ply.gz"); }).find("not valid gzip"), std::string::npos);
 }
 
+// Concatenated gzip members (`cat a.gz b.gz`) inflate to the concatenation, also when the last
+// member, whose trailer sizes the output, is far smaller than the first (the buffer grows).
+TEST(IngestGzip, ConcatenatedMembersOfVeryDifferentSizesInflateToTheWholeFile) {
+  const fs::path dir = hc::test::temp_dir("members");
+  const std::string plain = read_bytes(hc::test::scan_path("bunny/pcl_bunny.pcd"));
+  ASSERT_GT(plain.size(), 10000U);
+  write_gzip(dir / "a.gz", plain.substr(0, plain.size() - 100));
+  write_gzip(dir / "b.gz", plain.substr(plain.size() - 100));
+  write_text(dir / "two.pcd.gz", read_bytes(dir / "a.gz") + read_bytes(dir / "b.gz"));
+  write_text(dir / "one.pcd", plain);
+  const hp::Cloud whole = hp::load_cloud(dir / "one.pcd").value;
+  const hp::Cloud two = hp::load_cloud(dir / "two.pcd.gz").value;
+  ASSERT_EQ(two.size(), whole.size());
+  EXPECT_TRUE(two.xyz == whole.xyz);
+}
+
 TEST(IngestBadInput, HeaderPromisesMoreVerticesThanTheFileHolds) {
   const fs::path dir = hc::test::temp_dir("promise");
   // Binary: 60 vertices present, 100 declared, no trailing face data.
