@@ -162,6 +162,52 @@ std::pair<std::uint32_t, std::uint32_t> cell_range(const CellGrid& g, std::int64
 
 }  // namespace
 
+std::vector<std::uint32_t> robust_sample_indices(std::size_t n, std::size_t sample) {
+  return n == 0 ? std::vector<std::uint32_t>() : stratified_sample(n, std::min(n, std::max<std::size_t>(sample, 1)));
+}
+
+std::optional<RobustScale> robust_scale_of(std::vector<double> logs) {
+  if (logs.empty()) return std::nullopt;
+  // Rounded to steps of 1/128 in ln d (0.8 %): a handful of added points (a far point, a far
+  // cluster) moves the median and the MAD by a fraction of a rank, so the rounded scale, hence
+  // every decision, stays the same (unless it lies within that fraction of a step boundary).
+  const auto step = [](double v) { return std::round(v * 128.0) / 128.0; };
+  RobustScale s;
+  s.sample = logs.size();
+  s.median_log = step(median_of(logs));
+  for (double& v : logs) v = std::abs(v - s.median_log);
+  s.mad_log = step(median_of(std::move(logs)));
+  return s;
+}
+
+std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k) {
+  if (k < 1 || k > 1000) throw ConfigError("mean_knn_distances: k = " + std::to_string(k) + ", expected 1..1000");
+  const std::vector<std::uint32_t> rows = finite_rows(cloud, "mean_knn_distances");
+  const std::size_t n = rows.size();
+  if (n < static_cast<std::size_t>(k) + 2) {
+    throw DegenerateInputError("mean_knn_distances: the cloud has " + std::to_string(n) + " finite points; k = " +
+                               std::to_string(k) + " needs at least " + std::to_string(k + 2));
+  }
+  // Row index of each listed column (the rows are the finite columns, increasing).
+  std::vector<std::uint32_t> list;
+  list.reserve(columns.size());
+  for (const std::uint32_t c : columns) {
+    const auto it = std::lower_bound(rows.begin(), rows.end(), c);
+    if (it == rows.end() || *it != c) {
+      throw InputError("mean_knn_distances: column " + std::to_string(c) + " is not a finite point of the cloud");
+    }
+    list.push_back(static_cast<std::uint32_t>(it - rows.begin()));
+  }
+  const std::vector<float> p = recentred(cloud, rows);
+  const CellGrid g = build_grid(p, n, std::min(2 * k + 1, 1000));
+  ExactDistances d(g, k, n);
+  d.compute(list);
+  std::vector<double> out;
+  out.reserve(list.size());
+  for (const std::uint32_t j : list) out.push_back(static_cast<double>(d[j]));
+  return out;
+}
+
 StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& o) {
   const auto t0 = Clock::now();
   const int k = o.k;
@@ -195,16 +241,26 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   ExactDistances d(g, k, n);
   const double t_grid = seconds_since(t0);
 
-  // 1. Robust scale from the sample: median and MAD of ln d over its points with d > 0.
-  const std::size_t m = std::min(n, o.sample);
-  const std::vector<std::uint32_t> sample = stratified_sample(n, m);
-  std::size_t queries = d.compute(sample);
-  std::vector<double> logs;
-  logs.reserve(m);
-  for (const std::uint32_t j : sample) {
-    if (d[j] > 0.0f) logs.push_back(std::log(static_cast<double>(d[j])));
+  // 1. Robust scale from the sample: median and MAD of ln d over its points with d > 0 (or the
+  // scale given: the tiled run's, reduced across its tiles).
+  std::size_t m = std::min(n, o.sample);
+  std::size_t queries = 0;
+  std::optional<RobustScale> scale = o.scale;
+  if (!scale) {
+    const std::vector<std::uint32_t> sample = stratified_sample(n, m);
+    queries = d.compute(sample);
+    std::vector<double> logs;
+    logs.reserve(m);
+    for (const std::uint32_t j : sample) {
+      if (d[j] > 0.0f) logs.push_back(std::log(static_cast<double>(d[j])));
+    }
+    scale = robust_scale_of(std::move(logs));
+  } else {
+    m = scale->sample;
+    report.notes.push_back("scale (median and MAD of ln d) given, reduced over " + std::to_string(m) +
+                           " sampled points of the whole scan");
   }
-  if (logs.empty()) {
+  if (!scale) {
     // Every sampled point has k copies of itself: nothing is sparse relative to anything.
     report.count_out = cloud.size();
     report.notes.push_back("every sampled point has k exact copies (mean k-NN distance 0): nothing removed");
@@ -212,13 +268,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     report.seconds = seconds_since(t0);
     return {std::move(cloud), std::move(report)};
   }
-  // Rounded to steps of 1/128 in ln d (0.8 %): a handful of added points (a far point, a far
-  // cluster) moves the median and the MAD by a fraction of a rank, so the rounded scale, hence
-  // every decision, stays the same (unless it lies within that fraction of a step boundary).
-  const auto step = [](double v) { return std::round(v * 128.0) / 128.0; };
-  const double med = step(median_of(logs));
-  for (double& v : logs) v = std::abs(v - med);
-  const double mad = step(median_of(logs));
+  const double med = scale->median_log;
+  const double mad = scale->mad_log;
   const double sigma = 1.4826 * mad;
   const double d_med = std::exp(med);
   const double d_local = o.local_ratio * d_med;

@@ -99,6 +99,10 @@ struct Layout {
 // Spill files, one per tile, appended through per-tile buffers (records of Layout::bytes():
 // a flag byte (kept points: 1 interior, 0 halo; 0 in the first spill), x y z double, [r g b],
 // [intensity float]). Points keep the input's order within a file.
+// Spill record flag bits: kept points carry 1 for a tile's interior (0: a halo copy); the input
+// spill marks the robust test's sampled points in their own tile.
+constexpr std::uint8_t kSampleFlag = 2;
+
 class Spill {
  public:
   Spill(fs::path dir, std::string prefix, std::size_t tiles, Layout layout)
@@ -462,6 +466,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   ReprojectOptions ro = config.grid.reproject;
   std::vector<std::string> read_notes;
   std::string crs;
+  std::uint64_t grid_points = 0;  // points after non-finite and crop: the in-core outlier stage's input
   (void)stage("tile_plan", reports, progress, [&] {
     StageResult<int> r;
     {
@@ -522,6 +527,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
                           }
                           kept += g.size();
                         });
+    grid_points = kept;
     tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
     double coverage = 0.0;
     if (ro.upsample_factor == 0) {
@@ -568,12 +574,19 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   const Eigen::Vector3d offset_m = centre * unit_m;
   scene.provenance.inputs.push_back({input.string(), sha256_file(input)});
 
-  // 2. Spill every point to the tiles whose window holds its node.
+  // 2. Spill every point to the tiles whose window holds its node. The robust test's sample
+  // (the points the in-core run samples, by their order after non-finite and crop) is marked
+  // (flag bit kSampleFlag) in the tile whose interior holds it.
+  const bool robust = config.filters.outliers.enabled && config.filters.outliers.method == OutlierMethod::kRobust;
+  const std::vector<std::uint32_t> robust_sample =
+      robust ? robust_sample_indices(static_cast<std::size_t>(grid_points), RobustOutlierOptions{}.sample)
+             : std::vector<std::uint32_t>();
   ScratchDir scratch(config.scale.scratch);
   Spill spill(scratch.path(), "tile_", tiles.count(), box.layout);
   (void)stage("tile_spill", reports, progress, [&] {
     StageResult<int> r;
     std::uint64_t spilled = 0, copies = 0;
+    std::size_t next_sample = 0;
     const double inv = 1.0 / tiles.g.cell_size_m;
     const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
     for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, "tile_spill", "pass 3 of 3: the spill",
@@ -586,9 +599,13 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         const auto [tr0, tr1, tc0, tc1] = tiles_of(tiles, row, col);
         const std::uint8_t* rgb = g.has_rgb() ? g.rgb.data() + 3 * i : nullptr;
         const float inten = g.has_intensity() ? g.intensity[static_cast<std::size_t>(i)] : 0.0f;
+        while (next_sample < robust_sample.size() && robust_sample[next_sample] < spilled) ++next_sample;
+        const bool sampled = next_sample < robust_sample.size() && robust_sample[next_sample] == spilled;
+        const int own_r = row / tiles.size, own_c = col / tiles.size;
         for (int tr = tr0; tr <= tr1; ++tr) {
           for (int tc = tc0; tc <= tc1; ++tc) {
-            spill.add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), 0, p,
+            const std::uint8_t flag = sampled && tr == own_r && tc == own_c ? kSampleFlag : std::uint8_t{0};
+            spill.add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), flag, p,
                       rgb, inten);
             ++copies;
           }
@@ -604,6 +621,44 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     r.report.notes.push_back("spill folder " + scratch.path().string() + " (removed at the end)");
     return r;
   });
+
+  // 2b. The robust test's scale over the whole scan: each tile gives the mean k-NN distance of
+  // the sampled points it owns (over its points and halo, as the in-core run's over all points),
+  // then the median and MAD of their logarithms (robust_scale_of), as in core.
+  std::optional<RobustScale> robust_scale;
+  if (robust && !robust_sample.empty()) {
+    (void)stage("tile_scale", reports, progress, [&] {
+      StageResult<int> r;
+      std::vector<double> logs;
+      logs.reserve(robust_sample.size());
+      std::vector<std::uint8_t> flags;
+      std::size_t found = 0;
+      PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
+      for (std::size_t t = 0; t < tiles.count(); ++t) {
+        tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
+        const Cloud pts = spill.read(t, flags);
+        std::vector<std::uint32_t> mine;
+        for (std::size_t i = 0; i < flags.size(); ++i)
+          if (flags[i] & kSampleFlag) mine.push_back(static_cast<std::uint32_t>(i));
+        found += mine.size();
+        if (mine.empty()) continue;
+        if (pts.size() < static_cast<std::size_t>(config.filters.outliers.k) + 2) continue;  // as in core: too few to judge
+        for (const double d : mean_knn_distances(pts, mine, config.filters.outliers.k)) {
+          if (d > 0.0) logs.push_back(std::log(d));
+        }
+      }
+      robust_scale = robust_scale_of(std::move(logs));
+      r.report.count_in = robust_sample.size();
+      r.report.count_out = found;
+      if (robust_scale) {
+        r.report.figure("median_knn_distance_mm", std::exp(robust_scale->median_log) * 1e3);
+        r.report.figure("mad_log_knn_distance", robust_scale->mad_log);
+        r.report.figure("sample", static_cast<double>(robust_scale->sample));
+      }
+      r.report.notes.push_back("the robust outlier test's scale over the whole scan, from the points the in-core run samples");
+      return r;
+    });
+  }
 
   // 3. Per tile: filters, the window's grid, its interior into the whole grid; kept points.
   DepthGrid grid;
@@ -643,6 +698,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         o.local_ratio = oc.local_ratio;
         o.mad_multiplier = oc.mad_multiplier;
         o.off_surface_ratio = oc.off_surface_ratio;
+        o.scale = robust_scale;
         auto f1 = remove_outliers_robust(std::move(pts), o, oc.far_clusters);
         add_figures(sums, f1.report);
         auto f2 = remove_isolated_points(std::move(f1.value), config.cross_check.honest);
@@ -692,8 +748,8 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     for (const auto& [name, v] : sums) r.report.figure("sum_" + name, v);
     r.report.notes.push_back(
         config.filters.outliers.enabled
-            ? "filters.outliers (robust) and the isolated-point filter ran per tile (their statistics are the tile's; "
-              "docs/scale.md)"
+            ? "filters.outliers (robust) ran per tile with the whole scan's scale (stage tile_scale); far clusters and "
+              "the isolated-point filter are judged per tile (docs/scale.md)"
             : "no point filter: every tile's interior equals the in-core grid's");
     return r;
   });

@@ -10,6 +10,8 @@
 #include <Eigen/Core>
 
 #include <cstddef>
+#include <cstdint>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -19,6 +21,14 @@ namespace hc::pipeline {
 enum class OutlierMethod {
   kRobust,       ///< remove_robust_outliers, then remove_far_clusters (the default)
   kStatistical,  ///< remove_statistical_outliers / remove_front_statistical_outliers (PCL's SOR)
+};
+
+/// The robust test's scale: the median and the MAD of ln d_i over its sample, each rounded to a
+/// step of 1/128 (see remove_robust_outliers).
+struct RobustScale {
+  double median_log = 0.0;   ///< median of ln d [ln m]
+  double mad_log = 0.0;      ///< median of |ln d − median_log| [-]
+  std::size_t sample = 0;    ///< sampled points the figures came from
 };
 
 /// Options of the robust test (filters.outliers.*; docs/config.md).
@@ -35,7 +45,27 @@ struct RobustOutlierOptions {
   double off_surface_ratio = 2.0;  ///< the off-surface test judges points with d_i above this ×
                                ///< d_med [-]; 0 = no off-surface test, else > 1 (lower: more
                                ///< clutter caught near the surface, more exact queries)
+  /// The scale, given instead of drawn from this cloud's own sample: the tiled run reduces it
+  /// across tiles (robust_scale_of over the sample points of every tile), so that every tile
+  /// judges its points by the whole scan's statistics, as the in-core run does.
+  std::optional<RobustScale> scale;
 };
+
+/// The points remove_robust_outliers samples for its scale: min(n, sample) indices into the n
+/// finite points in their order, one drawn (SplitMix64, deterministic) from each of min(n,
+/// sample) equal runs; increasing. Pure.
+std::vector<std::uint32_t> robust_sample_indices(std::size_t n, std::size_t sample);
+
+/// d_i of the listed points (columns of `cloud`, which must be finite): the mean distance to
+/// their k nearest other points of `cloud`, computed exactly as remove_robust_outliers does
+/// (float32 on coordinates recentred on the cloud's median, duplicates at distance 0). [m]
+/// @throws hc::ConfigError for k outside 1..1000; hc::DegenerateInputError when the cloud has
+///         fewer than k + 2 finite points. Threads: 2.
+std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k);
+
+/// The scale of the values ln d (d > 0) of a sample: median, then the median of the absolute
+/// deviations from it, each rounded to a step of 1/128. `logs` empty: std::nullopt.
+std::optional<RobustScale> robust_scale_of(std::vector<double> logs);
 
 /// Options of far-cluster removal (filters.outliers.far_clusters.*; docs/config.md).
 struct FarClusterOptions {
