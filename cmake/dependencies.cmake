@@ -9,7 +9,7 @@ find_package(PCL 1.13 REQUIRED COMPONENTS common io kdtree search filters surfac
 # writes and reads images with libpng, libtiff and stb_image (pipeline/src/image_io.hpp).
 find_package(OpenCV 4 REQUIRED COMPONENTS core imgproc imgcodecs)
 find_package(PNG REQUIRED)   # libpng-dev
-find_package(TIFF REQUIRED)  # libtiff-dev
+find_package(TIFF 4.5 REQUIRED)  # libtiff-dev (4.5: per-file error handlers, TIFFOpenExt)
 find_path(HC_STB_INCLUDE_DIR stb/stb_image.h REQUIRED)  # libstb-dev
 find_library(HC_STB_LIBRARY stb REQUIRED)
 find_package(yaml-cpp REQUIRED)

@@ -67,6 +67,6 @@ set(CPACK_DEBIAN_FILE_NAME DEB-DEFAULT)
 set(CPACK_DEBIAN_PACKAGE_MAINTAINER "hapticloud developers <hapticloud@localhost>")
 set(CPACK_DEBIAN_PACKAGE_SECTION science)
 set(CPACK_DEBIAN_PACKAGE_DEPENDS
-    "libpcl-dev (>= 1.13), libopencv-dev (>= 4), libeigen3-dev (>= 3.4), libyaml-cpp-dev, libspdlog-dev, nlohmann-json3-dev, libnanoflann-dev, zlib1g-dev, libssl-dev, libpugixml-dev, libgdal-dev, libusb-1.0-0-dev, libglfw3-dev, libimgui-dev, libopenal-dev, libsndfile1-dev, pkg-config, python3, python3-numpy")
+    "libpcl-dev (>= 1.13), libopencv-dev (>= 4), libeigen3-dev (>= 3.4), libyaml-cpp-dev, libspdlog-dev, nlohmann-json3-dev, libnanoflann-dev, zlib1g-dev, libdeflate-dev, libpng-dev, libtiff-dev (>= 4.5), libstb-dev, libssl-dev, libpugixml-dev, libgdal-dev, libusb-1.0-0-dev, libglfw3-dev, libimgui-dev, libopenal-dev, libsndfile1-dev, pkg-config, python3, python3-numpy")
 set(CPACK_PACKAGING_INSTALL_PREFIX /usr)
 include(CPack)

@@ -118,5 +118,9 @@ extern "C" __attribute__((visibility("default"))) int hc_geotiff_write(const HcG
     copy_text(result->what, sizeof result->what, "the GeoTIFF module failed on");
     copy_text(result->detail, sizeof result->detail, e.what());
     return 1;
+  } catch (...) {  // nothing crosses the C boundary
+    copy_text(result->what, sizeof result->what, "the GeoTIFF module failed on");
+    copy_text(result->detail, sizeof result->detail, "an unknown exception");
+    return 1;
   }
 }

@@ -118,8 +118,10 @@ std::string read_png(const std::filesystem::path& file, PixelFormat format, Imag
   image.version = PNG_IMAGE_VERSION;
   if (png_image_begin_read_from_file(&image, file.c_str()) == 0) return png_message(image, "not a PNG libpng reads");
   const png_uint_32 requested = png_format(format == PixelFormat::kBgr ? PixelFormat::kRgb : format);
-  const bool converted = image.format != requested || (image.flags & PNG_IMAGE_FLAG_16BIT_sRGB) != 0;
+  const bool converted = image.format != requested;  // colour map, alpha, 16 bit or another colour type
   image.format = requested;
+  // 16-bit samples are sRGB-encoded like 8-bit ones (not linear): scaled, not gamma-mapped.
+  image.flags |= PNG_IMAGE_FLAG_16BIT_sRGB;
   out = Image8();
   out.converted = converted;
   out.width = static_cast<int>(image.width);
@@ -154,7 +156,9 @@ std::string write_float_tiff(const std::filesystem::path& file, const float* val
   if (width < 1 || height < 1) return "an empty layer";
   TiffMessages messages;
   errno = 0;
-  TiffHandle tif = open_tiff(file, "w", messages);
+  // BigTIFF ("w8") beyond what classic TIFF's 32-bit offsets hold.
+  const bool big = static_cast<double>(width) * static_cast<double>(height) * sizeof(float) > 3.5e9;
+  TiffHandle tif = open_tiff(file, big ? "w8" : "w", messages);
   if (!tif) return tiff_failure(messages, "libtiff cannot create it");
   TIFF* t = tif.get();
   const auto rows_per_strip =
@@ -186,7 +190,7 @@ std::string write_float_tiff(const std::filesystem::path& file, const float* val
   return {};
 }
 
-std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out) {
+std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out, int expected_width, int expected_height) {
   TiffMessages messages;
   errno = 0;
   TiffHandle tif = open_tiff(file, "r", messages);
@@ -203,6 +207,9 @@ std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out) 
   if (width == 0 || height == 0 || samples != 1 || bits != 32 || format != SAMPLEFORMAT_IEEEFP) {
     return std::to_string(width) + "x" + std::to_string(height) + ", " + std::to_string(samples) + " channel(s) of " +
            std::to_string(bits) + "-bit " + (format == SAMPLEFORMAT_IEEEFP ? "float" : "integer") + " samples";
+  }
+  if (width != static_cast<std::uint32_t>(expected_width) || height != static_cast<std::uint32_t>(expected_height)) {
+    return std::to_string(width) + "x" + std::to_string(height);
   }
   out = FloatImage();
   out.width = static_cast<int>(width);

@@ -17,8 +17,8 @@ namespace hc::pipeline::detail {
 enum class PixelFormat { kGray, kRgb, kBgr };
 
 /// Writes an 8-bit PNG (libpng's simplified API, PNG 1.2 / ISO 15948). `row_stride` is the
-/// distance between rows in bytes (0 = width × channels). `fast`: zlib's fastest level
-/// (PNG_IMAGE_FLAG_FAST), for previews. @return "" on success, else why not (libpng's message).
+/// distance between rows in bytes (0 = width × channels). `fast`: libpng's PNG_IMAGE_FLAG_FAST
+/// (no row filters, a fast zlib level), for previews. @return "" on success, else why not (libpng's message).
 std::string write_png(const std::filesystem::path& file, const std::uint8_t* pixels, int width, int height,
                       PixelFormat format, std::size_t row_stride = 0, bool fast = false);
 
@@ -54,7 +54,9 @@ struct FloatImage {
   int width = 0, height = 0;
   std::vector<float> values;  ///< rows top to bottom
 };
-/// @return "" and `out`, or why not (not a TIFF, not one float channel, a libtiff error).
-std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out);
+/// `expected_width` × `expected_height` (> 0): any other size is refused before anything is
+/// allocated. @return "" and `out`, or why not (not a TIFF, not one float channel, another
+/// size, a libtiff error).
+std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out, int expected_width, int expected_height);
 
 }  // namespace hc::pipeline::detail

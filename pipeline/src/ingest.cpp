@@ -114,13 +114,14 @@ bool gunzip_libdeflate(const std::string& packed, std::size_t guess, std::string
     produced += out_used;
   }
   out.resize(produced);
+  out.shrink_to_fit();
   return true;
 }
 
 // Inflates a gzip (or zlib) stream held in memory; concatenated gzip members are all inflated.
 std::string gunzip(const std::string& packed, const std::filesystem::path& path) {
   {
-    std::size_t guess = packed.size() * 4;
+    std::size_t guess = packed.size() * 2;
     if (packed.size() >= 18) {
       std::uint32_t isize = 0;
       for (std::size_t i = 1; i <= 4; ++i) isize = (isize << 8) | static_cast<unsigned char>(packed[packed.size() - i]);

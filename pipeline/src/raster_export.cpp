@@ -44,15 +44,26 @@ const Module& geotiff_module() {
   std::call_once(once, [] {
     std::vector<std::string> candidates;
     if (const char* env = std::getenv("HC_GDAL_MODULE"); env && *env) candidates.emplace_back(env);
+    // The binary holding this code: dladdr names a shared object by its path, but the main
+    // program by argv[0] (a bare "hapticloud" when started from $PATH, which must not be
+    // resolved against the working folder): then /proc/self/exe.
+    std::vector<std::filesystem::path> binaries;
     Dl_info info{};
-    if (dladdr(reinterpret_cast<void*>(&geotiff_module), &info) != 0 && info.dli_fname) {
-      std::error_code ec;
-      const std::filesystem::path self = std::filesystem::canonical(info.dli_fname, ec);
-      if (!ec) {
-        candidates.push_back((self.parent_path() / kModuleName).string());
-        candidates.push_back((self.parent_path() / HC_MODULE_DIR_FROM_BINDIR / kModuleName).lexically_normal().string());
-      }
+    if (dladdr(reinterpret_cast<void*>(&geotiff_module), &info) != 0 && info.dli_fname &&
+        std::strchr(info.dli_fname, '/') != nullptr && info.dli_fname[0] == '/') {
+      binaries.emplace_back(info.dli_fname);
     }
+    binaries.emplace_back("/proc/self/exe");
+    for (const std::filesystem::path& b : binaries) {
+      std::error_code ec;
+      const std::filesystem::path self = std::filesystem::canonical(b, ec);
+      if (ec) continue;
+      candidates.push_back((self.parent_path() / kModuleName).string());
+      candidates.push_back((self.parent_path() / HC_MODULE_DIR_FROM_BINDIR / kModuleName).lexically_normal().string());
+    }
+    // The installed tree's own folder (a program or Python module elsewhere linking the
+    // installed library), then the build tree's.
+    candidates.push_back((std::filesystem::path(HC_INSTALL_MODULE_DIR) / kModuleName).string());
     candidates.push_back((std::filesystem::path(HC_BUILD_MODULE_DIR) / kModuleName).string());
     for (const std::string& c : candidates) {
       module.tried += (module.tried.empty() ? "" : ", ") + c;

@@ -166,14 +166,14 @@ std::vector<std::uint32_t> robust_sample_indices(std::size_t n, std::size_t samp
   return n == 0 ? std::vector<std::uint32_t>() : stratified_sample(n, std::min(n, std::max<std::size_t>(sample, 1)));
 }
 
-std::optional<RobustScale> robust_scale_of(std::vector<double> logs) {
+std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t sampled) {
   if (logs.empty()) return std::nullopt;
   // Rounded to steps of 1/128 in ln d (0.8 %): a handful of added points (a far point, a far
   // cluster) moves the median and the MAD by a fraction of a rank, so the rounded scale, hence
   // every decision, stays the same (unless it lies within that fraction of a step boundary).
   const auto step = [](double v) { return std::round(v * 128.0) / 128.0; };
   RobustScale s;
-  s.sample = logs.size();
+  s.sample = sampled;
   s.median_log = step(median_of(logs));
   for (double& v : logs) v = std::abs(v - s.median_log);
   s.mad_log = step(median_of(std::move(logs)));
@@ -254,7 +254,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     for (const std::uint32_t j : sample) {
       if (d[j] > 0.0f) logs.push_back(std::log(static_cast<double>(d[j])));
     }
-    scale = robust_scale_of(std::move(logs));
+    scale = robust_scale_of(std::move(logs), m);
   } else {
     m = scale->sample;
     report.notes.push_back("scale (median and MAD of ln d) given, reduced over " + std::to_string(m) +

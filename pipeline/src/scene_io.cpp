@@ -324,7 +324,7 @@ Scene load_scene(const fs::path& scene_dir) {
       const fs::path file = scene_dir / entry.as<std::string>();
       if (!fs::exists(file)) throw InputError(file.string() + ": missing scene layer '" + name + "'");
       detail::FloatImage img;
-      const std::string why = detail::read_float_tiff(file, img);
+      const std::string why = detail::read_float_tiff(file, img, g.cols, g.rows);
       if (!why.empty() || img.height != g.rows || img.width != g.cols) {
         throw InputError(file.string() + ": layer '" + name + "' is " +
                          (why.empty() ? std::to_string(img.width) + "x" + std::to_string(img.height) : why) +

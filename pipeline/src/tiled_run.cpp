@@ -578,9 +578,11 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   // (the points the in-core run samples, by their order after non-finite and crop) is marked
   // (flag bit kSampleFlag) in the tile whose interior holds it.
   const bool robust = config.filters.outliers.enabled && config.filters.outliers.method == OutlierMethod::kRobust;
+  // (Indices are 32-bit, as the in-core filter's: above 2^32 − 2 points each tile keeps its own scale.)
+  const bool shared_scale = robust && grid_points < std::numeric_limits<std::uint32_t>::max() - 1;
   const std::vector<std::uint32_t> robust_sample =
-      robust ? robust_sample_indices(static_cast<std::size_t>(grid_points), RobustOutlierOptions{}.sample)
-             : std::vector<std::uint32_t>();
+      shared_scale ? robust_sample_indices(static_cast<std::size_t>(grid_points), RobustOutlierOptions{}.sample)
+                   : std::vector<std::uint32_t>();
   ScratchDir scratch(config.scale.scratch);
   Spill spill(scratch.path(), "tile_", tiles.count(), box.layout);
   (void)stage("tile_spill", reports, progress, [&] {
@@ -632,7 +634,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       std::vector<double> logs;
       logs.reserve(robust_sample.size());
       std::vector<std::uint8_t> flags;
-      std::size_t found = 0;
+      std::size_t found = 0, in_small_tiles = 0;
       PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
@@ -642,20 +644,25 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
           if (flags[i] & kSampleFlag) mine.push_back(static_cast<std::uint32_t>(i));
         found += mine.size();
         if (mine.empty()) continue;
-        if (pts.size() < static_cast<std::size_t>(config.filters.outliers.k) + 2) continue;  // as in core: too few to judge
+        if (pts.size() < static_cast<std::size_t>(config.filters.outliers.k) + 2) {
+          in_small_tiles += mine.size();  // fewer than k + 2 points in the window: no k-NN distance here
+          continue;
+        }
         for (const double d : mean_knn_distances(pts, mine, config.filters.outliers.k)) {
           if (d > 0.0) logs.push_back(std::log(d));
         }
       }
-      robust_scale = robust_scale_of(std::move(logs));
+      robust_scale = robust_scale_of(std::move(logs), found - in_small_tiles);
       r.report.count_in = robust_sample.size();
       r.report.count_out = found;
+      r.report.figure("sampled_in_sparse_tiles", static_cast<double>(in_small_tiles));
       if (robust_scale) {
         r.report.figure("median_knn_distance_mm", std::exp(robust_scale->median_log) * 1e3);
         r.report.figure("mad_log_knn_distance", robust_scale->mad_log);
         r.report.figure("sample", static_cast<double>(robust_scale->sample));
       }
-      r.report.notes.push_back("the robust outlier test's scale over the whole scan, from the points the in-core run samples");
+      r.report.notes.push_back(robust_scale ? "the robust outlier test's scale over the whole scan, from the points the in-core run samples"
+                                            : "no sampled point with a k-NN distance above 0: each tile takes its own scale");
       return r;
     });
   }
@@ -682,7 +689,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     StageResult<int> r;
     const OutlierConfig& oc = config.filters.outliers;
     std::vector<std::uint8_t> flags;
-    std::uint64_t in = 0, out = 0;
+    std::uint64_t in = 0, out = 0, unjudged = 0;
     PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);
     for (std::size_t t = 0; t < tiles.count(); ++t) {
       tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
@@ -692,7 +699,11 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       const GridWindow w = tiles.window(t);
       const auto inner = tiles.interior(t);
       double spacing_m = 0.0;  // the isolated filter's estimate of the scan's spacing (despike)
-      if (oc.enabled && pts.size() > 0) {
+      // A window of fewer than k + 2 points (a corner of stray returns) cannot be judged by the
+      // k-NN tests: its points are kept as they are, counted and noted, not an error.
+      const bool judgeable = pts.size() >= static_cast<std::size_t>(oc.k) + 2;
+      if (oc.enabled && pts.size() > 0 && !judgeable) unjudged += pts.size();
+      if (oc.enabled && judgeable) {
         RobustOutlierOptions o;
         o.k = oc.k;
         o.local_ratio = oc.local_ratio;
@@ -746,6 +757,11 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     r.report.count_in = in;
     r.report.count_out = out;
     for (const auto& [name, v] : sums) r.report.figure("sum_" + name, v);
+    r.report.figure("points_in_windows_too_sparse_to_filter", static_cast<double>(unjudged));
+    if (unjudged > 0) {
+      r.report.notes.push_back(std::to_string(unjudged) + " points (halo copies included) lay in tile windows of fewer than "
+                               "k + 2 points: kept unfiltered");
+    }
     r.report.notes.push_back(
         config.filters.outliers.enabled
             ? "filters.outliers (robust) ran per tile with the whole scan's scale (stage tile_scale); far clusters and "

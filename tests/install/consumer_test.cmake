@@ -40,9 +40,12 @@ if(NOT EXISTS "${prefix}/${LIBDIR}/hapticloud/hc_geotiff_gdal.so")
 endif()
 step("the installed program runs a config" "${prefix}/bin/hapticloud" run "${prefix}/share/hapticloud/configs/sinusoid.yaml"
      --out "${WORK}/run" --set lod.report=false)
-step("the installed program exports a GeoTIFF" "${prefix}/bin/hapticloud" export "${WORK}/run/scene" --format geotiff
-     --out "${WORK}/depth.tif")
-if(NOT step_output MATCHES "written through ${prefix}/${LIBDIR}/hapticloud/hc_geotiff_gdal.so")
+# Started by name from $PATH (argv[0] is then a bare name), as users start it.
+step("the installed program exports a GeoTIFF" ${CMAKE_COMMAND} -E env "PATH=${prefix}/bin:$ENV{PATH}"
+     hapticloud export "${WORK}/run/scene" --format geotiff --out "${WORK}/depth.tif")
+file(REAL_PATH "${prefix}/${LIBDIR}/hapticloud/hc_geotiff_gdal.so" installed_module)
+string(FIND "${step_output}" "written through ${installed_module}" at)
+if(at EQUAL -1)
   message(FATAL_ERROR "install test: the installed program did not load the installed module: ${step_output}")
 endif()
 step("configure the consumer" ${CMAKE_COMMAND} -S "${HC_SOURCE_DIR}/tests/install/consumer" -B "${WORK}/build"

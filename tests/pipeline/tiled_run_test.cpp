@@ -134,6 +134,28 @@ TEST(TiledRun, TheRobustFilterJudgesEveryTileByTheWholeScansScale) {
   EXPECT_LE(differing, in.scene.layers.depth.values().size() / 1000);
 }
 
+// Three stray returns alone in a corner tile: too few points for the k-NN tests there. The run
+// keeps them, counts them and goes on (it used to stop with "needs at least k + 2 points").
+TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
+  const fs::path dir = hc::test::temp_dir("sparse");
+  {
+    std::ofstream out(dir / "patch.ply");
+    out << "ply\nformat ascii 1.0\nelement vertex " << 100 * 100 + 3
+        << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
+    for (int i = 0; i < 100; ++i)
+      for (int j = 0; j < 100; ++j) out << 0.01 * i << " " << 0.01 * j << " " << 0.001 * ((i * 7 + j * 3) % 5) << "\n";
+    out << "2.99 2.99 0\n2.995 2.99 0\n2.99 2.995 0\n";
+  }
+  const std::string yaml =
+      "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
+      "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 2}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+  config.scale.scratch = dir;
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  EXPECT_GE(stage_figure(tiled, "tiles", "points_in_windows_too_sparse_to_filter"), 3.0);
+  EXPECT_GT(tiled.scene.layers.depth.valid_count(), 0U);
+}
+
 // A generated wall with colour, read natively in chunks (binary PLY), at a grid finer than the
 // scan (an upsample factor above 1, tiles aligned to it).
 TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {

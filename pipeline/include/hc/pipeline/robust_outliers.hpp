@@ -63,9 +63,10 @@ std::vector<std::uint32_t> robust_sample_indices(std::size_t n, std::size_t samp
 ///         fewer than k + 2 finite points. Threads: 2.
 std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k);
 
-/// The scale of the values ln d (d > 0) of a sample: median, then the median of the absolute
-/// deviations from it, each rounded to a step of 1/128. `logs` empty: std::nullopt.
-std::optional<RobustScale> robust_scale_of(std::vector<double> logs);
+/// The scale of the values ln d (d > 0) of a sample of `sampled` points (those with d = 0,
+/// exact duplicates, give no value): median, then the median of the absolute deviations from
+/// it, each rounded to a step of 1/128; RobustScale::sample = sampled. `logs` empty: std::nullopt.
+std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t sampled);
 
 /// Options of far-cluster removal (filters.outliers.far_clusters.*; docs/config.md).
 struct FarClusterOptions {
