@@ -4,7 +4,10 @@
 //   BM_Baseline_PclLoadPly        PCL's loadPLYFile on the decompressed PLY (the reference reader);
 //   BM_Baseline_PclOutliers       PCL's StatisticalOutlierRemoval, k = 16, σ = 2 (the reference filter).
 // Compare medians: BM_Stage_Ingest / BM_Baseline_PclLoadPly (our ingest includes gunzip) and
-// BM_Stage_Outliers / BM_Baseline_PclOutliers. Wall time (UseRealTime), 5 repetitions; read the
+// BM_Stage_Outliers / BM_Baseline_PclOutliers. The floor (issue 16): BM_Floor_ReadAndBin, one
+// read of the file as the run reads it (load_cloud: gunzip and parse) and one front-most binning
+// pass of its points into the run's N; BM_WholeRun prints floor_ratio, its own median iteration
+// over the floor's median measured in the same process just before. Wall time (UseRealTime), 5 repetitions; read the
 // medians. Not part of ctest. Run: build/release/bench/run_bench [--benchmark_filter=...]
 
 #include "hc/pipeline/config.hpp"
@@ -24,7 +27,10 @@
 #include <pcl/point_types.h>
 #include <zlib.h>
 
+#include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <vector>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -130,18 +136,59 @@ void BM_Stage_WriteScene(benchmark::State& state) {
   fs::remove_all(dir);
 }
 
+/// The floor of a run: read the file as the run does, then bin every point's z front-most into
+/// an N-cell grid over the points' x-y box (N = the config's grid.n on the longer side). [s]
+double read_and_bin_seconds(const RunConfig& cfg) {
+  const auto t0 = std::chrono::steady_clock::now();
+  const Cloud c = load_cloud(cfg.input.files.front()).value;
+  double x0 = INFINITY, x1 = -INFINITY, y0 = INFINITY, y1 = -INFINITY;
+  const double* p = c.xyz.data();
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    x0 = std::min(x0, p[3 * i]), x1 = std::max(x1, p[3 * i]);
+    y0 = std::min(y0, p[3 * i + 1]), y1 = std::max(y1, p[3 * i + 1]);
+  }
+  const int n = cfg.grid.reproject.grid.n_long_side;
+  const double cell = std::max(x1 - x0, y1 - y0) / (n - 1);
+  const int cols = static_cast<int>((x1 - x0) / cell) + 1, rows = static_cast<int>((y1 - y0) / cell) + 1;
+  std::vector<float> z(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols), -INFINITY);
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    const int col = static_cast<int>((p[3 * i] - x0) / cell + 0.5), row = static_cast<int>((p[3 * i + 1] - y0) / cell + 0.5);
+    if (col < 0 || col >= cols || row < 0 || row >= rows) continue;
+    float& v = z[static_cast<std::size_t>(row) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(col)];
+    v = std::max(v, static_cast<float>(p[3 * i + 2]));
+  }
+  benchmark::DoNotOptimize(z.data());
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+}
+
+double median(std::vector<double> v) {
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
+
+void BM_Floor_ReadAndBin(benchmark::State& state) {
+  const RunConfig cfg = load_run_config(kConfig);
+  for (auto _ : state) benchmark::DoNotOptimize(read_and_bin_seconds(cfg));
+}
+
 /// The whole run with the config's outlier scope, or scope all / front forced (for comparison).
 void whole_run(benchmark::State& state, const std::vector<std::string>& overrides) {
   const RunConfig cfg = load_run_config(kConfig, overrides);
   const fs::path out = fs::temp_directory_path() / "hapticloud-bench-run";
+  std::vector<double> floor_s, run_s;
+  for (int i = 0; i < 3; ++i) floor_s.push_back(read_and_bin_seconds(cfg));
   double cross_rms = 0, cross_p95 = 0;
   for (auto _ : state) {
+    const auto t0 = std::chrono::steady_clock::now();
     const RunSummary s = run_pipeline(cfg, out, {}, ExistingOutput::kRefuse, hc::session::servo_level_timing());
+    run_s.push_back(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     cross_rms = s.cross_check->point_vertical.rms_mm;
     cross_p95 = s.cross_check->point_vertical.p95_mm;
   }
   state.counters["rms_mm"] = cross_rms;
   state.counters["p95_mm"] = cross_p95;
+  state.counters["floor_ms"] = 1e3 * median(floor_s);
+  state.counters["floor_ratio"] = median(run_s) / median(floor_s);
   fs::remove_all(out);
 }
 void BM_WholeRun(benchmark::State& state) { whole_run(state, {}); }
@@ -202,6 +249,7 @@ BENCHMARK(BM_Stage_HoleFill)->HC_SETTINGS;
 BENCHMARK(BM_Stage_SurfaceLayers)->HC_SETTINGS;
 BENCHMARK(BM_Stage_CrossCheck)->HC_SETTINGS;
 BENCHMARK(BM_Stage_WriteScene)->HC_SETTINGS;
+BENCHMARK(BM_Floor_ReadAndBin)->HC_SETTINGS;
 BENCHMARK(BM_WholeRun)->HC_SETTINGS;
 BENCHMARK(BM_WholeRun_ScopeAll)->HC_SETTINGS;
 BENCHMARK(BM_WholeRun_ScopeFront)->HC_SETTINGS;
