@@ -119,6 +119,9 @@ class VoxelHash {
 
   double edge() const { return edge_; }
   std::size_t size() const { return index_.size(); }
+  /// The hashed point at sorted slot s (voxel order) and its original index.
+  const float* point(std::size_t s) const { return &pts_[3 * s]; }
+  std::uint32_t original(std::size_t s) const { return index_[s]; }
 
  private:
   double edge_, inv_;
@@ -176,14 +179,17 @@ std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, const std::vecto
   const std::size_t n = finite.size();
   const auto rho2 = static_cast<float>(radius_m * radius_m);
   std::vector<std::uint8_t> isolated(n, 0);
-  const int threads = n > 20000 ? detail::kSearchThreads : 1;
+  // In the hash's voxel order (the hashed points are exactly the finite ones): consecutive
+  // queries look up the same voxels, so their searches stay in cache.
+  const std::size_t m = hash.size();
+  const int threads = m > 20000 ? detail::kSearchThreads : 1;
   detail::run_parallel(threads, [&](int t) {
-    const std::size_t b = n * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
-    const std::size_t e = n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
-    for (std::size_t i = b; i < e; ++i) {
-      if (!finite[i]) continue;
+    const std::size_t b = m * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
+    const std::size_t e = m * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+    for (std::size_t s = b; s < e; ++s) {
+      const std::uint32_t i = hash.original(s);
       int count = 0;
-      const float* q = &local[3 * i];
+      const float* q = hash.point(s);
       hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
         if (j != i && dist_sq(p, q) <= rho2) ++count;
         return count < min_neighbours;
@@ -191,6 +197,8 @@ std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, const std::vecto
       isolated[i] = count < min_neighbours ? 1 : 0;
     }
   });
+  (void)local;  // the hash holds the same coordinates
+  (void)finite;  // and exactly the finite points
   return isolated;
 }
 
