@@ -954,10 +954,27 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       r.report.notes.push_back("merged over " + std::to_string(tiles.count()) +
                                " tiles: (a) per interior point on the whole grid (exact percentiles by radix selection), "
                                "(b) per interior cell against its tile's kept points, halo included");
-      r.report.notes.push_back("tiled run: the honest cross-check (input as read, grid spikes) and the verdict are not computed");
+      r.report.notes.push_back("tiled run: the input-as-read check and the verdict are not computed (stage grid_spikes: the grid's own test)");
       return r;
     });
     scene.layers.cell_error = summary.cross_check->cell_error_m;
+
+    // 5b. The grid's own spike, pit and island test (find_grid_spikes on the whole grid, as the
+    // in-core honest check runs it). Without the input-as-read check nothing confirms a spike
+    // (confirmed stays 0) and no verdict is decided.
+    GridSpikes spikes = stage("grid_spikes", reports, progress, [&] {
+      StageResult<GridSpikes> r;
+      r.value = find_grid_spikes(grid.depth, config.cross_check.honest);
+      r.report.count_in = r.value.tested;
+      r.report.count_out = r.value.spikes + r.value.pits + r.value.island_cells;
+      r.report.figure("grid_spikes", static_cast<double>(r.value.spikes));
+      r.report.figure("grid_pits", static_cast<double>(r.value.pits));
+      r.report.figure("islands", static_cast<double>(r.value.islands));
+      r.report.figure("island_cells", static_cast<double>(r.value.island_cells));
+      r.report.notes.push_back("tiled run: the grid's own test only; no input point confirms a spike, and no verdict is decided");
+      return r;
+    });
+    summary.grid_spikes = std::move(spikes);
   }
   scene.layers.depth = std::move(grid.depth);
 

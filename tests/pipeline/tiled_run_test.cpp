@@ -132,6 +132,18 @@ TEST(TiledRun, TheRobustFilterJudgesEveryTileByTheWholeScansScale) {
   std::cout << "[ info ] depth cells differing from the in-core run: " << differing << " of "
             << in.scene.layers.depth.values().size() << "\n";
   EXPECT_LE(differing, in.scene.layers.depth.values().size() / 1000);
+  // The grid's own spike, pit and island test runs on the whole grid in both (stage grid_spikes
+  // in the tiled run): on equal depth layers, equal findings; nothing confirms them when tiled.
+  ASSERT_TRUE(in.summary.grid_spikes && tiled.summary.grid_spikes);
+  if (differing == 0) {
+    EXPECT_EQ(tiled.summary.grid_spikes->spikes, in.summary.grid_spikes->spikes);
+    EXPECT_EQ(tiled.summary.grid_spikes->pits, in.summary.grid_spikes->pits);
+    EXPECT_EQ(tiled.summary.grid_spikes->tested, in.summary.grid_spikes->tested);
+    EXPECT_EQ(tiled.summary.grid_spikes->flagged, in.summary.grid_spikes->flagged);
+  }
+  EXPECT_GT(in.summary.grid_spikes->spikes + in.summary.grid_spikes->pits, 0U) << "the Buddha's folds give a few";
+  EXPECT_EQ(tiled.summary.grid_spikes->confirmed, 0U);
+  EXPECT_FALSE(tiled.summary.verdict.has_value());
 }
 
 // Three stray returns alone in a corner tile: too few points for the k-NN tests there. The run
