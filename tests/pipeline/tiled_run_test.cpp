@@ -168,15 +168,20 @@ TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
   EXPECT_GT(tiled.scene.layers.depth.valid_count(), 0U);
 }
 
+// A generated wall of `points` points with colour and no outliers, written to `file`.
+void write_coloured_wall(const fs::path& file, std::uint64_t points) {
+  hc::tools::ReliefSpec spec;
+  spec.points = points;
+  spec.rgb = true;
+  spec.outlier_fraction = 0.0;
+  hc::tools::write_relief(spec, file);
+}
+
 // A generated wall with colour, read natively in chunks (binary PLY), at a grid finer than the
 // scan (an upsample factor above 1, tiles aligned to it).
 TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {
   const fs::path dir = hc::test::temp_dir("wall");
-  hc::tools::ReliefSpec spec;
-  spec.points = 300'000;
-  spec.rgb = true;
-  spec.outlier_fraction = 0.0;
-  hc::tools::write_relief(spec, dir / "wall.ply");
+  write_coloured_wall(dir / "wall.ply", 300'000);
   const std::string yaml =
       "input: {files: [wall.ply], units: m}\n"
       "grid: {n: 900, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64, "
@@ -196,11 +201,7 @@ TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {
 // auto counts its points from the header.
 TEST(TiledRun, EqualsTheInCoreRunOnALasWallStreamedNatively) {
   const fs::path dir = hc::test::temp_dir("las_wall");
-  hc::tools::ReliefSpec spec;
-  spec.points = 120'000;
-  spec.rgb = true;
-  spec.outlier_fraction = 0.0;
-  hc::tools::write_relief(spec, dir / "wall.las");
+  write_coloured_wall(dir / "wall.las", 120'000);
   const std::string yaml =
       "input: {files: [wall.las], units: m}\n"
       "grid: {n: 400, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64}\n"
