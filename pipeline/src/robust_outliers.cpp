@@ -24,6 +24,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <limits>
@@ -518,7 +519,8 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   auto key_of = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
     return static_cast<std::uint64_t>(x + nc[0] * (y + nc[1] * z));
   };
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(n);
+  std::vector<std::uint64_t> point_keys(n);
+  std::vector<std::uint32_t> order(n);
   for (std::size_t j = 0; j < n; ++j) {
     const auto q = cloud.xyz.col(static_cast<Eigen::Index>(rows[j]));
     std::array<std::int64_t, 3> c{};
@@ -526,14 +528,17 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
       c[static_cast<std::size_t>(a)] =
           std::clamp<std::int64_t>(static_cast<std::int64_t>((q(a) - lo(a)) / edge), 0, nc[static_cast<std::size_t>(a)] - 1);
     }
-    keyed[j] = {key_of(c[0], c[1], c[2]), static_cast<std::uint32_t>(j)};
+    point_keys[j] = key_of(c[0], c[1], c[2]);
+    order[j] = static_cast<std::uint32_t>(j);
   }
-  std::sort(keyed.begin(), keyed.end());
+  // By cell key, equal keys in point order (stable radix sort on the key's significant bits).
+  const std::uint64_t max_key = static_cast<std::uint64_t>(nc[0] * nc[1] * nc[2]);
+  detail::radix_sort(point_keys, order, std::max(1, static_cast<int>(std::bit_width(max_key))));
   std::vector<std::uint64_t> keys;
   std::vector<std::uint32_t> cell_of(n);
-  for (const auto& [key, j] : keyed) {
-    if (keys.empty() || keys.back() != key) keys.push_back(key);
-    cell_of[j] = static_cast<std::uint32_t>(keys.size() - 1);
+  for (std::size_t s = 0; s < n; ++s) {
+    if (keys.empty() || keys.back() != point_keys[s]) keys.push_back(point_keys[s]);
+    cell_of[order[s]] = static_cast<std::uint32_t>(keys.size() - 1);
   }
   // Union-find over the occupied cells, 26-neighbourhood (the 13 "forward" offsets suffice).
   std::vector<std::uint32_t> parent(keys.size());
