@@ -58,14 +58,20 @@ std::vector<std::uint32_t> robust_sample_indices(std::size_t n, std::size_t samp
 
 /// d_i of the listed points (columns of `cloud`, which must be finite): the mean distance to
 /// their k nearest other points of `cloud`, computed exactly as remove_robust_outliers does
-/// (float32 on coordinates recentred on the cloud's median, duplicates at distance 0). [m]
+/// (float32 on coordinates recentred on the cloud's median, duplicates at distance 0).
+/// @param cloud    any frame, metres; columns index it
+/// @return one distance per listed column, in their order [m]
 /// @throws hc::ConfigError for k outside 1..1000; hc::DegenerateInputError when the cloud has
-///         fewer than k + 2 finite points. Threads: 2.
+///         fewer than k + 2 finite points; hc::InputError for a column that is not a finite
+///         point. Threads: 2. Source: the statistic of Rusu et al. 2008 (PCL's
+///         StatisticalOutlierRemoval), exact k-NN on the cell grid of knn_grid.hpp.
 std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k);
 
 /// The scale of the values ln d (d > 0) of a sample of `sampled` points (those with d = 0,
 /// exact duplicates, give no value): median, then the median of the absolute deviations from
 /// it, each rounded to a step of 1/128; RobustScale::sample = sampled. `logs` empty: std::nullopt.
+/// Source: the MAD as a robust scale (Rousseeuw & Croux 1993; Leys et al. 2013). Never throws
+/// (but std::bad_alloc).
 std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t sampled);
 
 /// Options of far-cluster removal (filters.outliers.far_clusters.*; docs/config.md).
