@@ -681,8 +681,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   // it takes the default sample instead (docs/scale.md).
   const std::size_t sample_points =
       config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
-  const std::size_t sample_stride =
-      sample_points == 0 ? 1 : std::max<std::size_t>(1, (box.points + sample_points - 1) / sample_points);
+  const std::size_t sample_stride = std::max<std::size_t>(1, (box.points + sample_points - 1) / sample_points);
   std::vector<double> sample_xyz;
   std::size_t interior_seen = 0;
   (void)stage("tiles", reports, progress, [&] {
