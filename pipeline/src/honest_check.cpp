@@ -168,15 +168,13 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
   return edge;
 }
 
-/// The point test: flags[i] = 1 when finite point i has fewer than min_neighbours other points
-/// within radius_m (exact distances; counting stops at the minimum). `hash` holds the same
-/// points (local, finite) with an edge of at least radius_m. Used by check_input and
-/// remove_isolated_points, so the filter and the verdict apply one rule. Two threads, each a
-/// contiguous half of the points (each writes only its own flags).
-std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, const std::vector<float>& local,
-                                         const std::vector<std::uint8_t>& finite, double radius_m,
-                                         int min_neighbours) {
-  const std::size_t n = finite.size();
+/// The point test: flags[i] = 1 when finite point i (of n, the hashed ones) has fewer than
+/// min_neighbours other points within radius_m (exact distances; counting stops at the
+/// minimum); non-finite points, which the hash leaves out, get 0. `hash` has an edge of at least
+/// radius_m. Used by check_input and remove_isolated_points, so the filter and the verdict apply
+/// one rule. Two threads, each a contiguous half of the hash's voxel order (each writes only its
+/// own points' flags).
+std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, std::size_t n, double radius_m, int min_neighbours) {
   const auto rho2 = static_cast<float>(radius_m * radius_m);
   std::vector<std::uint8_t> isolated(n, 0);
   // In the hash's voxel order (the hashed points are exactly the finite ones): consecutive
@@ -197,8 +195,6 @@ std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, const std::vecto
       isolated[i] = count < min_neighbours ? 1 : 0;
     }
   });
-  (void)local;  // the hash holds the same coordinates
-  (void)finite;  // and exactly the finite points
   return isolated;
 }
 
@@ -392,7 +388,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   out.isolation_radius_m = std::max(o.isolation_radius_spacings * out.spacing_m, 1e-9);
   const VoxelHash hash(local, finite, out.isolation_radius_m);
   const std::vector<std::uint8_t> isolated =
-      isolated_flags(hash, local, finite, out.isolation_radius_m, o.isolation_min_neighbours);
+      isolated_flags(hash, finite.size(), out.isolation_radius_m, o.isolation_min_neighbours);
   for (const std::uint8_t f : isolated) out.isolated += f;
 
   // 3. Classes of every point, far points, surface lost.
@@ -863,7 +859,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   // point the check calls isolated (the Buddha: 1.466 mm here against 1.455 mm there).
   const double radius = std::max(0.9 * o.isolation_radius_spacings * spacing, 1e-9);
   const std::vector<std::uint8_t> isolated =
-      isolated_flags(VoxelHash(local, finite, radius), local, finite, radius, o.isolation_min_neighbours);
+      isolated_flags(VoxelHash(local, finite, radius), finite.size(), radius, o.isolation_min_neighbours);
   std::vector<bool> keep(n, true);
   std::size_t removed = 0;
   for (std::size_t i = 0; i < n; ++i) {

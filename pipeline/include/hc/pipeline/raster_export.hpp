@@ -48,8 +48,10 @@ GeoTiffLayout geotiff_layout(const GridGeometry& geometry, const Eigen::Affine3d
 /// Sources: GeoTIFF, OGC 19-008r4 (GeoTIFF 1.1) via GDAL's GTiff driver; GDAL raster data model.
 /// Precision: float32, so heights mapped back to a georeferenced frame keep about 7 significant
 /// digits (0.12 mm at 2 km elevation), below the noise of airborne and terrestrial scans.
-/// @throws hc::InputError naming the file when it exists, its folder is missing, GDAL has no
-///         GTiff driver or cannot write it (with GDAL's message); std::invalid_argument for an
+/// GDAL is loaded on the first call, from the module geotiff_module_path() names.
+/// @throws hc::InputError naming the file when it exists, its folder is missing, the GeoTIFF
+///         module cannot be found or loaded (naming where it looked), GDAL has no GTiff driver
+///         or cannot write it (with GDAL's message); std::invalid_argument for an
 ///         empty layer or a metadata item that is not KEY=VALUE. Nothing is left on any throw.
 std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLayout& layout, const std::string& crs,
                                        const std::filesystem::path& file,
@@ -58,8 +60,9 @@ std::vector<std::string> write_geotiff(const HeightField& layer, const GeoTiffLa
 /// The GeoTIFF writer module write_geotiff loads on first use (hc_geotiff_gdal.so, which links
 /// GDAL, so that no other command loads GDAL at start-up): its path, loading it if needed, or
 /// "" when it was not found. Looked for, in order: the file $HC_GDAL_MODULE; beside the binary
-/// holding the pipeline; <that binary's folder>/<bindir → libdir/hapticloud> (the installed
-/// tree); the build tree's lib/hapticloud. Never throws.
+/// holding the pipeline (by its absolute path, else /proc/self/exe) and in <that binary's
+/// folder>/<bindir → libdir/hapticloud> (an installed tree); the install prefix's
+/// libdir/hapticloud; the build tree's lib/hapticloud. Looked for once per process. Never throws.
 std::string geotiff_module_path();
 
 }  // namespace hc::pipeline
