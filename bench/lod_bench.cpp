@@ -7,7 +7,10 @@
 //    new window, with the servo thread running at 1 kHz (levels cached; the request builds the
 //    window's HapticSurface and publishes it with its map); counters: build_ms_mean = the
 //    request's own work, adopt_ms_mean = publish → adopted (waits for the next tick, ≤ 1 period
-//    plus scheduling delay: the servo thread is not SCHED_FIFO here).
+//    plus scheduling delay: the servo thread is not SCHED_FIFO here); p50_ms / p99_ms / max_ms =
+//    percentiles of request → first tick over the repetition's switches. The last argument
+//    turns the servo's wake on a published surface (ServoConfig::wake_on_surface_min_period =
+//    0.5) on (1) or off (0: adopt on deadlines only, the baseline in the same run).
 // Medians of repetitions. Run: build/release/bench/lod_bench
 
 #include "hc/haptics/servo_loop.hpp"
@@ -19,11 +22,13 @@
 
 #include <benchmark/benchmark.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <map>
 #include <memory>
 #include <thread>
+#include <vector>
 
 namespace {
 
@@ -98,6 +103,7 @@ void BM_SwitchLatency(benchmark::State& state) {
   const int n = static_cast<int>(state.range(0));
   const int level = static_cast<int>(state.range(1));
   const bool pan = state.range(2) != 0;
+  const bool wake = state.range(3) != 0;
   const LodLevel* l0 = finest(n);
   if (l0 == nullptr) {
     state.SkipWithError(("missing " + buddha_path().string() + ": run data/get-data").c_str());
@@ -131,12 +137,15 @@ void BM_SwitchLatency(benchmark::State& state) {
   cfg.rate_hz = 1000.0;
   cfg.realtime = hc::haptics::RealtimeMode::kOff;
   cfg.workspace = start.map;
+  cfg.wake_on_surface_min_period = wake ? 0.5 : 1.0;
   hc::haptics::ServoLoop loop(dev, shared, clock, cfg);
   shared.commands.try_push(hc::haptics::Command::of(hc::haptics::CommandType::kArm));
   loop.start();
   while (!lod.adopted()) std::this_thread::sleep_for(std::chrono::milliseconds(1));
   std::this_thread::sleep_for(std::chrono::milliseconds(300));  // in contact
   double adopt_sum_ms = 0.0, build_sum_ms = 0.0;
+  std::vector<double> latency_ms;
+  latency_ms.reserve(static_cast<std::size_t>(state.max_iterations));
   int dir = 1;
   std::uint64_t jitter = 12345;
   for (auto _ : state) {
@@ -150,6 +159,7 @@ void BM_SwitchLatency(benchmark::State& state) {
     while (shared.counters.surface_tag.load(std::memory_order_acquire) != tag) std::this_thread::yield();
     const auto t2 = Clock::now();
     state.SetIterationTime(std::chrono::duration<double>(t2 - t0).count());
+    latency_ms.push_back(std::chrono::duration<double, std::milli>(t2 - t0).count());
     adopt_sum_ms += std::chrono::duration<double, std::milli>(t2 - t1).count();
     build_sum_ms += std::chrono::duration<double, std::milli>(t1 - t0).count();
     dir = -dir;
@@ -161,6 +171,14 @@ void BM_SwitchLatency(benchmark::State& state) {
   loop.stop();
   state.counters["adopt_ms_mean"] = adopt_sum_ms / static_cast<double>(state.iterations());
   state.counters["build_ms_mean"] = build_sum_ms / static_cast<double>(state.iterations());
+  std::sort(latency_ms.begin(), latency_ms.end());
+  const auto pct = [&](double q) {
+    return latency_ms.empty() ? 0.0 : latency_ms[static_cast<std::size_t>(q * static_cast<double>(latency_ms.size() - 1) + 0.5)];
+  };
+  state.counters["p50_ms"] = pct(0.5);
+  state.counters["p99_ms"] = pct(0.99);
+  state.counters["max_ms"] = latency_ms.empty() ? 0.0 : latency_ms.back();
+  state.counters["wake_ticks"] = static_cast<double>(loop.stats().surface_wake_ticks);
   state.counters["window"] = lod.window_cells();
   state.counters["overruns"] = static_cast<double>(loop.stats().overruns);
 }
@@ -175,12 +193,15 @@ BENCHMARK(BM_BuildLevel)
     ->Iterations(1)
     ->UseRealTime()
     ->HC_LOD_SETTINGS;
-// N, level, pan (0: switch level ↔ level + 1 around the proxy; 1: pan by 8 samples along y).
+// N, level, pan (0: switch level ↔ level + 1 around the proxy; 1: pan by 8 samples along y),
+// wake (0: surfaces adopted on deadlines only; 1: the servo wakes for a published surface).
 BENCHMARK(BM_SwitchLatency)
-    ->ArgsProduct({{1600, 4096}, {0, 2}, {0, 1}})
-    ->Iterations(40)
+    ->ArgsProduct({{1600, 4096}, {0, 2}, {0, 1}, {0, 1}})
+    ->Iterations(200)
     ->UseManualTime()
-    ->HC_LOD_SETTINGS;
+    ->Unit(benchmark::kMillisecond)
+    ->Repetitions(3)
+    ->DisplayAggregatesOnly(true);
 
 }  // namespace
 

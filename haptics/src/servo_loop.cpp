@@ -9,9 +9,12 @@
 #include <ctime>
 #include <sstream>
 
+#include <linux/futex.h>
 #include <pthread.h>
 #include <sched.h>
 #include <sys/mman.h>
+#include <sys/syscall.h>
+#include <unistd.h>
 
 namespace hc::haptics {
 namespace {
@@ -105,6 +108,9 @@ ServoLoop::ServoLoop(HapticDevice& device, SharedState& shared, const Clock& clo
   }
   if (!(std::isfinite(config_.switch_ramp_s) && config_.switch_ramp_s >= 0.0)) {
     fail("switch_ramp_s", config_.switch_ramp_s, "a finite time >= 0 s");
+  }
+  if (!(config_.wake_on_surface_min_period >= 0.0 && config_.wake_on_surface_min_period <= 1.0)) {
+    fail("wake_on_surface_min_period", config_.wake_on_surface_min_period, "[0, 1] periods");
   }
   if (!config_.workspace.valid()) fail("workspace.scale", config_.workspace.scale, "finite > 0 with a finite origin and rotation");
   validate_proxy_params(config_.proxy);
@@ -394,7 +400,7 @@ void ServoLoop::record_stats(std::int64_t compute_ns, std::int64_t lateness_ns) 
   ServoCounters& counters = shared_.counters;
   stats_.compute.add(compute_ns);
   ++stats_.ticks;
-  if (threaded_) stats_.lateness.add(lateness_ns);
+  if (threaded_ && lateness_ns != kNoDeadline) stats_.lateness.add(lateness_ns);
   if (!threaded_ && compute_ns > period_ns_) {
     ++stats_.overruns;
     counters.overruns.fetch_add(1, std::memory_order_relaxed);
@@ -492,14 +498,27 @@ void ServoLoop::thread_main() noexcept {
     finished_.store(true, std::memory_order_release);
     return;
   }
+  const bool wake = config_.wake_on_surface_min_period < 1.0;
+  const auto min_gap_ns = static_cast<std::int64_t>(config_.wake_on_surface_min_period * static_cast<double>(period_ns_));
   std::int64_t deadline = monotonic_now_ns();
+  std::int64_t last_tick = deadline;  // the start counts as a tick for the wake's minimum gap
   while (!stop_flag_.load(std::memory_order_acquire) && !stop_requested_) {
     deadline += period_ns_;
-    const timespec ts = to_timespec(deadline);
-    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+    bool early = false;
+    if (wake) {
+      early = sleep_until_tick(deadline, last_tick + min_gap_ns);
+    } else {
+      const timespec ts = to_timespec(deadline);
+      while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+      }
     }
-    const std::int64_t wake = monotonic_now_ns();
-    tick_impl(wake - deadline);
+    const std::int64_t wake_ns = monotonic_now_ns();
+    tick_impl(early ? kNoDeadline : wake_ns - deadline);
+    last_tick = wake_ns;
+    if (early) {
+      ++stats_.surface_wake_ticks;
+      deadline = wake_ns;  // the next tick a whole period after this one
+    }
     const std::int64_t end = monotonic_now_ns();
     if (end > deadline + period_ns_) {
       ++stats_.overruns;
@@ -509,6 +528,26 @@ void ServoLoop::thread_main() noexcept {
     }
   }
   finished_.store(true, std::memory_order_release);
+}
+
+bool ServoLoop::sleep_until_tick(std::int64_t deadline_ns, std::int64_t earliest_wake_ns) noexcept {
+  // The futex word changes with every publication; reading it before testing for a surface
+  // means a publication after the test makes FUTEX_WAIT return at once (no lost wake-up).
+  auto* word = const_cast<std::uint32_t*>(reinterpret_cast<const std::uint32_t*>(&shared_.surface_signal()));
+  while (true) {
+    const std::uint32_t seen = shared_.surface_signal().load(std::memory_order_acquire);
+    if (shared_.surface_adoptable() && earliest_wake_ns < deadline_ns) {
+      const timespec ts = to_timespec(earliest_wake_ns);  // at once if already past
+      while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+      }
+      return monotonic_now_ns() < deadline_ns;
+    }
+    if (monotonic_now_ns() >= deadline_ns) return false;
+    // FUTEX_WAIT_BITSET takes an absolute timeout on CLOCK_MONOTONIC (futex(2)); it returns on
+    // a wake, a changed word (EAGAIN), a signal (EINTR) or the timeout (ETIMEDOUT).
+    const timespec ts = to_timespec(deadline_ns);
+    (void)syscall(SYS_futex, word, FUTEX_WAIT_BITSET_PRIVATE, seen, &ts, nullptr, FUTEX_BITSET_MATCH_ANY);
+  }
 }
 
 void ServoLoop::stop() noexcept {

@@ -4,6 +4,10 @@
 
 #include <sstream>
 
+#include <linux/futex.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+
 namespace hc::haptics {
 
 SharedState::SharedState(std::unique_ptr<const HapticSurface> initial) {
@@ -34,6 +38,12 @@ void SharedState::publish(Published* p) {
   Published* superseded = pending_.exchange(p, std::memory_order_acq_rel);
   if (superseded != nullptr) freed_.fetch_add(1, std::memory_order_relaxed);
   destroy(superseded);
+  // Wake a servo loop sleeping until its next deadline (futex(2), FUTEX_WAKE): it adopts the
+  // surface now, or once its minimum interval since the last tick has passed.
+  signal_.fetch_add(1, std::memory_order_release);
+  static_assert(sizeof(std::atomic<std::uint32_t>) == sizeof(std::uint32_t) &&
+                std::atomic<std::uint32_t>::is_always_lock_free);
+  (void)syscall(SYS_futex, reinterpret_cast<std::uint32_t*>(&signal_), FUTEX_WAKE_PRIVATE, 1, nullptr, nullptr, 0);
 }
 
 void SharedState::publish_surface(std::unique_ptr<const HapticSurface> surface) {

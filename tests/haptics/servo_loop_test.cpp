@@ -366,6 +366,88 @@ TEST(ServoLoop, ThreadedLoopRunsAndStops) {
   EXPECT_EQ(loop.period_ns(), 500000);
 }
 
+/// Runs a threaded loop at `rate_hz`, publishes a surface (tag 7) just after the second tick,
+/// and returns the trace up to one tick after the surface was adopted.
+std::vector<TickRecord> publish_between_ticks(double rate_hz, double wake_min_period, ServoStats& stats) {
+  SharedState shared(sinusoid_surface(50));
+  SteadyClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  dev.open();
+  ServoConfig cfg;
+  cfg.rate_hz = rate_hz;
+  cfg.realtime = RealtimeMode::kOff;
+  cfg.wake_on_surface_min_period = wake_min_period;
+  ServoLoop loop(dev, shared, clock, cfg);
+  std::vector<TickRecord> trace(64);
+  loop.set_trace(trace);
+  loop.start();
+  const auto wait_for = [](const auto& done) {
+    const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+    while (!done() && std::chrono::steady_clock::now() < give_up) std::this_thread::sleep_for(std::chrono::microseconds(200));
+  };
+  wait_for([&] { return shared.counters.ticks.load() >= 2; });
+  shared.publish_surface(sinusoid_surface(50), cfg.workspace, 7);
+  wait_for([&] { return shared.counters.surface_tag.load() == 7; });
+  const std::uint64_t adopted_at = shared.counters.ticks.load();
+  wait_for([&] { return shared.counters.ticks.load() >= adopted_at + 1; });
+  loop.stop();
+  stats = loop.stats();
+  trace.resize(loop.trace_size());
+  return trace;
+}
+
+std::size_t first_row_with_tag(const std::vector<TickRecord>& trace, std::uint32_t tag) {
+  for (std::size_t k = 0; k < trace.size(); ++k) {
+    if (trace[k].surface_tag == tag) return k;
+  }
+  return trace.size();
+}
+
+TEST(ServoLoop, APublishedSurfaceWakesTheLoopButNotSoonerThanTheMinimumGap) {
+  // 4 Hz: a period of 250 ms, so that scheduling delays cannot decide the outcome.
+  ServoStats stats;
+  const std::vector<TickRecord> trace = publish_between_ticks(4.0, 0.5, stats);
+  const std::size_t a = first_row_with_tag(trace, 7);
+  ASSERT_GE(a, 2U);
+  ASSERT_LT(a + 1, trace.size());
+  // The surface was adopted on a tick run for it, not on a deadline.
+  EXPECT_EQ(stats.surface_wake_ticks, 1U);
+  EXPECT_EQ(stats.lateness.count() + stats.surface_wake_ticks, stats.ticks);
+  // That tick came at least half a period after the one before it (lower bounds the loop
+  // guarantees: absolute sleeps never end early), and the next tick a whole period after it.
+  EXPECT_GE(trace[a].t_s - trace[a - 1].t_s, 0.125 - 1e-3);
+  EXPECT_GE(trace[a + 1].t_s - trace[a].t_s, 0.25 - 1e-3);
+}
+
+TEST(ServoLoop, WithTheWakeOffASurfaceIsAdoptedOnADeadline) {
+  ServoStats stats;
+  const std::vector<TickRecord> trace = publish_between_ticks(4.0, 1.0, stats);
+  ASSERT_LT(first_row_with_tag(trace, 7), trace.size());
+  EXPECT_EQ(stats.surface_wake_ticks, 0U);
+  EXPECT_EQ(stats.lateness.count(), stats.ticks);
+}
+
+TEST(ServoLoop, TheWakeGapOutsideZeroToOnePeriodIsAnError) {
+  SharedState shared;
+  ManualClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  for (const double bad : {-0.1, 1.5, std::numeric_limits<double>::quiet_NaN()}) {
+    ServoConfig cfg;
+    cfg.wake_on_surface_min_period = bad;
+    try {
+      ServoLoop loop(dev, shared, clock, cfg);
+      ADD_FAILURE() << "accepted wake_on_surface_min_period = " << bad;
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("wake_on_surface_min_period"), std::string::npos) << e.what();
+    }
+  }
+  for (const double good : {0.0, 1.0}) {
+    ServoConfig cfg;
+    cfg.wake_on_surface_min_period = good;
+    EXPECT_NO_THROW(ServoLoop(dev, shared, clock, cfg));
+  }
+}
+
 TEST(ServoLoop, EnforcedRealtimeEitherGetsItOrRefusesToStart) {
   SharedState shared(sinusoid_surface(50));
   SteadyClock clock;

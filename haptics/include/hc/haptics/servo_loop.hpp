@@ -3,7 +3,8 @@
 /// The haptic servo loop: every tick reads the device, maps the HIP into the grid frame, steps
 /// the proxy (proxy.hpp), writes the force, and publishes a snapshot and contact events
 /// (shared_state.hpp). Runs on its own thread at 1 kHz by default (up to 10 kHz), paced by
-/// absolute deadlines (clock_nanosleep, TIMER_ABSTIME), or without a thread "as fast as
+/// absolute deadlines (clock_nanosleep, TIMER_ABSTIME; a published surface may wake it early:
+/// ServoConfig::wake_on_surface_min_period), or without a thread "as fast as
 /// possible" on a ManualClock for tests and scripted sessions.
 /// Inside a tick nothing allocates, locks, does I/O or logs; set-up (constructor, start) may
 /// throw and allocates everything in advance. Model: libfranka's control loop (a tiny loop body,
@@ -54,6 +55,13 @@ struct ServoConfig {
   /// step and completing within switch_ramp_s or longer.
   double switch_max_force_step_n = 0.5;
   double switch_ramp_s = 0.05;           ///< shortest blend after a switch [s], ≥ 0
+  /// Threaded loop: a surface published between two ticks (a LoD switch or pan) wakes the loop,
+  /// which runs a tick at once to adopt it instead of waiting for the next deadline, but not
+  /// sooner than this many periods after the previous tick (the damping's HIP velocity divides
+  /// by that interval), and then keeps a whole period before the next tick. In [0, 1]: 1 turns
+  /// the wake off (surfaces are adopted on deadlines only), 0.5 bounds the request → first tick
+  /// wait by half a period. [periods]. Issue 16: LoD switch p99 ≤ 1 ms.
+  double wake_on_surface_min_period = 0.5;
 };
 
 /// What start() obtained.
@@ -93,7 +101,10 @@ struct ServoStats {
   std::uint64_t overruns = 0;  ///< threaded: the tick ended after the next deadline;
                                ///< as fast as possible: compute time > period
   LatencyHistogram compute;    ///< tick compute time (device read to snapshot) [ns]
-  LatencyHistogram lateness;   ///< wake-up time − deadline (period jitter; threaded only) [ns]
+  LatencyHistogram lateness;   ///< wake-up time − deadline (period jitter; threaded only,
+                               ///< deadline ticks only) [ns]
+  std::uint64_t surface_wake_ticks = 0;  ///< threaded: ticks run before their deadline to adopt a
+                                         ///< published surface (wake_on_surface_min_period)
 };
 
 /// One trace row (trivially copyable). Grid frame, SI units.
@@ -165,7 +176,13 @@ class ServoLoop {
 
   /// One tick, read → update → write, then publish: the phases below, in this order. Each is
   /// noexcept and real-time safe (no allocation, lock, I/O or log).
+  /// `lateness_ns`: wake-up − deadline, or kNoDeadline for a tick run early to adopt a surface.
   void tick_impl(std::int64_t lateness_ns) noexcept;
+  static constexpr std::int64_t kNoDeadline = -1;
+  /// Threaded loop: sleeps until `deadline_ns` (CLOCK_MONOTONIC), or, when a surface becomes
+  /// adoptable, until max(now, earliest_wake_ns) if that comes first. @return true when it woke
+  /// for a surface before the deadline.
+  bool sleep_until_tick(std::int64_t deadline_ns, std::int64_t earliest_wake_ns) noexcept;
   /// Clock time and dt of this tick; remembers the time for the next one.
   TickFrame advance_time() noexcept;
   /// Applies at most max_commands_per_tick queued commands (apply()).

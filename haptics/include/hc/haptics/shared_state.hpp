@@ -187,6 +187,16 @@ class SharedState {
   std::uint64_t surfaces_freed() const noexcept { return freed_.load(std::memory_order_relaxed); }
   /// True while a published surface waits for adoption.
   bool surface_pending() const noexcept { return pending_.load(std::memory_order_acquire) != nullptr; }
+  /// Servo side: true when the next adopt() would take a new surface (one is pending and the
+  /// retire ring has room). Real-time: yes.
+  bool surface_adoptable() const noexcept {
+    return pending_.load(std::memory_order_acquire) != nullptr && retired_.size_approx() < kRetireCapacity;
+  }
+  /// The word the threaded servo loop sleeps on between ticks (a Linux futex, FUTEX_WAIT_BITSET
+  /// with an absolute CLOCK_MONOTONIC timeout; futex(2)). Every publication increments it and
+  /// wakes the sleeper, so that the loop can adopt the surface before its next deadline
+  /// (ServoConfig::wake_on_surface_min_period). Real-time: yes (a load).
+  const std::atomic<std::uint32_t>& surface_signal() const noexcept { return signal_; }
 
   /// Servo side: adopts a pending surface if the retire ring has room (else keeps the current
   /// one and retries next tick) and returns the surface to render this tick (may be null).
@@ -236,6 +246,7 @@ class SharedState {
   std::unique_ptr<ServoLog> log_;
   std::atomic<std::uint64_t> log_dropped_{0};
   std::atomic<Published*> pending_{nullptr};
+  std::atomic<std::uint32_t> signal_{0};  // futex word: +1 per publication (surface_signal)
   Published* current_ = nullptr;  // owned; touched by the servo thread only
   SpscRing<Published*, kRetireCapacity> retired_;
   std::atomic<std::uint64_t> published_{0};  // producer side only
