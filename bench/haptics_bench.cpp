@@ -6,7 +6,12 @@
 /// surface, μ_d = 0.3, μ_s = 0.36, k = 800 N/m: a realistic servo-loop workload.
 /// BM_StepProxy gives the mean; BM_StepProxyLatency times every call (CLOCK_MONOTONIC, whose own
 /// cost is measured and reported as timer_ns) and reports p50 / p99 / p99.9 / max in ns.
-/// Aim (issue 3): mean < 0.2 µs, p99.9 < 1 µs, no growth with the grid size.
+/// BM_StepProxyBudget: the same with max_iterations = 2, 3, 4, 8 (the iteration budget per tick;
+/// what is left is carried to the next tick), each call timed; every tick is also run, untimed,
+/// from the same previous state with a budget of 1000 iterations (which converges): lag_um_* is
+/// |X_p − X_p,converged| and force_mN_* is |F − F_converged| per tick (mean, p99, max), the
+/// error the budget adds at that tick, against its time.
+/// Aim (issue 3, issue 16): mean ≤ 0.2 µs, p99.9 ≤ 1 µs, no growth with the grid size.
 
 #include "hc/haptics/haptic_surface.hpp"
 #include "hc/haptics/proxy.hpp"
@@ -195,6 +200,54 @@ void BM_StepProxyLatency(benchmark::State& state, const std::string& kind) {
   state.counters["samples"] = static_cast<double>(samples.size());
 }
 
+void BM_StepProxyBudget(benchmark::State& state, const std::string& kind) {
+  Workload* wp = workload_for(state, kind);
+  if (wp == nullptr) return;
+  Workload& w = *wp;
+  ProxyParams p;
+  p.max_iterations = static_cast<int>(state.range(1));
+  ProxyParams ref_p;
+  ref_p.max_iterations = 1000;
+  ref_p.max_step_cells = p.max_step_cells;
+  ProxyState s = warm_up(w, ref_p);
+  std::vector<std::int64_t> ns;
+  std::vector<double> lag_um, force_mn;
+  const auto n = static_cast<std::size_t>(state.max_iterations);
+  ns.reserve(n);
+  lag_um.reserve(n);
+  force_mn.reserve(n);
+  std::size_t k = 0;
+  double iterations = 0;
+  for (auto _ : state) {
+    const HipInput in{w.hip[k], 1e-3, true};
+    const ProxyState before = s;
+    const std::int64_t t0 = now_ns();
+    s = hc::haptics::step_proxy(s, in, w.surface.get(), p);
+    const std::int64_t t1 = now_ns();
+    benchmark::DoNotOptimize(s.force_n);
+    state.SetIterationTime(static_cast<double>(t1 - t0) * 1e-9);
+    const ProxyState ref = hc::haptics::step_proxy(before, in, w.surface.get(), ref_p);
+    ns.push_back(t1 - t0);
+    lag_um.push_back((s.proxy_m - ref.proxy_m).norm() * 1e6);
+    force_mn.push_back((s.force_n - ref.force_n).norm() * 1e3);
+    iterations += s.iterations;
+    k = k + 1 == w.hip.size() ? 0 : k + 1;
+  }
+  const auto stats = [&](auto& v, const std::string& name) {
+    std::sort(v.begin(), v.end());
+    double sum = 0;
+    for (const auto x : v) sum += static_cast<double>(x);
+    state.counters[name + "_mean"] = sum / static_cast<double>(v.size());
+    state.counters[name + "_p99"] = static_cast<double>(v[static_cast<std::size_t>(0.99 * static_cast<double>(v.size() - 1))]);
+    state.counters[name + "_max"] = static_cast<double>(v.back());
+  };
+  stats(lag_um, "lag_um");
+  stats(force_mn, "force_mN");
+  std::sort(ns.begin(), ns.end());
+  state.counters["p99.9_ns"] = static_cast<double>(ns[static_cast<std::size_t>(0.999 * static_cast<double>(ns.size() - 1))]);
+  state.counters["iter_per_tick"] = iterations / static_cast<double>(state.iterations());
+}
+
 BENCHMARK_CAPTURE(BM_StepProxy, sinusoid, std::string("sinusoid"))->Arg(200)->Arg(800)->Arg(4096);
 BENCHMARK_CAPTURE(BM_StepProxy, buddha, std::string("buddha"))->Arg(200)->Arg(800)->Arg(4096);
 BENCHMARK_CAPTURE(BM_StepProxyLatency, sinusoid, std::string("sinusoid"))
@@ -203,5 +256,10 @@ BENCHMARK_CAPTURE(BM_StepProxyLatency, buddha, std::string("buddha"))
     ->Arg(200)->Arg(800)->Arg(4096)->Iterations(1000000);
 
 }  // namespace
+
+BENCHMARK_CAPTURE(BM_StepProxyBudget, sinusoid, std::string("sinusoid"))
+    ->ArgsProduct({{200, 800, 4096}, {2, 3, 4, 8}})->Iterations(300000)->UseManualTime()->Unit(benchmark::kNanosecond);
+BENCHMARK_CAPTURE(BM_StepProxyBudget, buddha, std::string("buddha"))
+    ->ArgsProduct({{200, 800, 4096}, {2, 3, 4, 8}})->Iterations(300000)->UseManualTime()->Unit(benchmark::kNanosecond);
 
 BENCHMARK_MAIN();

@@ -296,7 +296,12 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
       // path, lifted by a tenth of a cell, runs through no material; else one cell.
       const SegmentHit block =
           find_first_crossing(surface, xp + guard_lift, xp + step + guard_lift, guard_cells);
-      if (block.hit || block.budget_exceeded) step *= cell / std::sqrt(step_xy2);
+      if (block.hit || block.budget_exceeded) {
+        // Up to where the lifted path first meets material (no feature lies before it), and
+        // at least one cell.
+        const double len = std::sqrt(step_xy2);
+        step *= std::max(cell, block.t * len) / len;
+      }
     }
     const double dist0_2 = vh.squaredNorm();
     const Eigen::Vector3d full_step = step;

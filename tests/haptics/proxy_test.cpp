@@ -690,6 +690,36 @@ TEST(StepProxy, NoTunnellingThroughAThinRidgeAtTwoMetresPerSecond) {
   }
 }
 
+// A step longer than one cell is checked along the tangent path lifted by a tenth of a cell;
+// when that path meets material the step is cut where it does (found analytically here), not
+// to one cell, and never beyond. A flat plane with a one-node ridge of 10 mm at x = 3 mm
+// (cells of 1 mm): the ridge's face rises from x = 2 mm by 10 mm per mm, so the lifted path
+// (z = 0.1 mm) meets it at x = 2.01 mm. One iteration (max_iterations = 1), frictionless, HIP
+// 10 mm ahead and 1 mm deep: the Eq. 5 step (9 mm) is capped to 4 cells, then cut to 2.01 mm.
+TEST(StepProxy, AGuardedLongStepStopsWhereTheLiftedPathMeetsMaterial) {
+  const double cell = 0.001;
+  const HeightField f = make_field(41, 41, cell, -20 * cell, -20 * cell, [cell](double x, double) {
+    return std::fabs(x - 3 * cell) < 0.5 * cell ? 0.010 : 0.0;
+  });
+  const auto s = test::make_surface(f);  // μ_d = μ_s = 0
+  ProxyParams p = no_ramp();
+  p.max_iterations = 1;
+  ProxyState st;
+  st.initialized = true;
+  st.in_contact = true;
+  st.proxy_m = Vector3d(0.0, 0.0005, 0.0);
+  st.hip_m = Vector3d(0.010, 0.0005, -0.001);
+  st = step_proxy(st, HipInput{st.hip_m, kDt, true}, s.get(), p);
+  ASSERT_EQ(st.iterations, 1);
+  EXPECT_TRUE(st.in_contact);
+  EXPECT_NEAR(st.proxy_m.x(), 0.00201, 1e-7);  // 2 mm + 0.1 mm / 10
+  EXPECT_NEAR(st.proxy_m.y(), 0.0005, 1e-12);
+  EXPECT_NEAR(st.proxy_m.z(), s->height(st.proxy_m.x(), st.proxy_m.y()), 1e-12);
+  // The next ticks climb no further than the ridge: the proxy stays before its crest.
+  for (int k = 0; k < 200; ++k) st = step_proxy(st, HipInput{st.hip_m, kDt, true}, s.get(), p);
+  EXPECT_LT(st.proxy_m.x(), 3 * cell);
+}
+
 TEST(StepProxy, HolesAndTheGridBorderAreAFloor) {
   HeightField f = make_field(41, 41, 0.001, -0.02, -0.02, [](double, double) { return 0.005; });
   for (int r = 15; r < 25; ++r)

@@ -26,7 +26,10 @@ struct ProxyParams {
   double damping_n_s_per_m = 0.0;    ///< b ≥ 0: F −= b·v_hip while in contact [N·s/m]
   double max_force_n = 8.0;          ///< cap on |F| [N] > 0; direction is kept when saturating
   double rho = 0.9;                  ///< ρ ∈ (0, 1] of Eq. 4–5 [-]
-  int max_iterations = 8;            ///< bound on Eq. 5 iterations per tick, ≥ 1 (the proxy resumes next tick)
+  /// Bound on Eq. 5 iterations per tick, ≥ 1; what is left is carried to the next tick (the
+  /// proxy resumes). 4 keeps the tick's p99.9 under 1 µs from 200² to 4096² cells; the lag it
+  /// adds against a converged tick is in bench/README.md (issue 16, servo tick).
+  int max_iterations = 4;
   double convergence_m = 1.0e-6;     ///< stop once the proxy is this close to where Eq. 5 leads [m]
   double max_step_cells = 4.0;       ///< bound on one iteration's xy move [cells] (> 0); see step_proxy
   bool friction_enabled = true;      ///< false: μ_d = μ_s = 0 whatever the surface holds
@@ -120,7 +123,8 @@ double friction_factor(double tangential_m, double normal_m, double mu_d) noexce
 ///   static friction: the proxy sticks while |f_t| < μ_s·|f_n| (|v_t| < μ_s·max(−n·v_h, 0));
 ///   X_p ← X_p + ρ·clamp(1 − μ_d·cot β, 0, 1)·v_t, with the xy step at most max_step_cells
 ///   cells; a step longer than one cell is taken only if the tangent path lifted by 0.1 cell
-///   crosses no material (find_first_crossing), else it is cut to one cell, which cannot pass
+///   crosses no material (find_first_crossing), else it is cut where that path first meets
+///   material (nothing lies before that point), but to no less than one cell, which cannot pass
 ///   over a one-cell spike (the spike raises a two-cell-wide zone);
 ///   then, when that leaves the surface by more than convergence_m, one Newton step along n onto
 ///   the surface, and finally exactly onto z = f(x, y); a step that would not bring the proxy
