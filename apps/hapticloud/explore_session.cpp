@@ -204,7 +204,8 @@ void Session::start_servo() {
   note_window();
   realtime_ = loop_->start();
   std::cout << "explore: device " << device_->info().name << "; servo " << cfg.rate_hz << " Hz, SCHED_FIFO "
-            << (realtime_.fifo_granted ? "granted" : "not granted") << "\n";
+            << (realtime_.fifo_granted ? "granted" : "not granted") << ", CPU wake-up latency "
+            << (realtime_.cpu_latency_pinned ? "pinned to 0" : "not pinned") << "\n";
   if (!realtime_.detail.empty()) std::cout << "explore: " << realtime_.detail << "\n";
   // The UI thread and everything it starts (Mesa's threads, workers) yield to the servo thread.
   setpriority(PRIO_PROCESS, static_cast<id_t>(gettid()), 10);

@@ -48,6 +48,7 @@ void Session::write_summary(const haptics::ServoStats& stats) const {
   j["frame_max_s"] = f.max_frame_s;
   j["fifo_granted"] = realtime_.fifo_granted;
   j["memory_locked"] = realtime_.memory_locked;
+  j["cpu_latency_pinned"] = realtime_.cpu_latency_pinned;
   j["mesh_quads"] = viewer_->mesh_quads();
   j["display"] = viewer::to_string(viewer_->display());  // at the end of the session
   j["display_note"] = viewer_->display_note();           // why it is drawn grey, or empty

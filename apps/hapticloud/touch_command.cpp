@@ -124,7 +124,8 @@ session::OpenedScene load_input(const TouchOptions& o, const fs::path& run_dir, 
 void print_realtime(const session::TouchSessionOptions& s, const session::TouchSessionResult& r) {
   if (!s.realtime) return;
   std::cout << "realtime: SCHED_FIFO " << (r.realtime.fifo_granted ? "granted" : "not granted") << ", memory "
-            << (r.realtime.memory_locked ? "locked" : "not locked") << "\n";
+            << (r.realtime.memory_locked ? "locked" : "not locked") << ", CPU wake-up latency "
+            << (r.realtime.cpu_latency_pinned ? "pinned to 0" : "not pinned") << "\n";
   if (!r.realtime.detail.empty()) std::cout << "realtime: " << r.realtime.detail << "\n";
 }
 

@@ -9,6 +9,7 @@
 #include <ctime>
 #include <sstream>
 
+#include <fcntl.h>
 #include <linux/futex.h>
 #include <pthread.h>
 #include <sched.h>
@@ -477,10 +478,24 @@ RealtimeReport ServoLoop::start() {
                 std::strerror(rc) + " (check CAP_SYS_NICE or the rtprio limit: ulimit -r, /etc/security/limits.conf)\n";
     }
   }
+  const bool refused = config_.realtime == RealtimeMode::kEnforce && !(report.fifo_granted && report.memory_locked);
+  if (config_.realtime != RealtimeMode::kOff && !refused) {
+    // PM QoS: the request holds while the file stays open (written as a binary s32 [µs]).
+    const int fd = open("/dev/cpu_dma_latency", O_WRONLY | O_CLOEXEC);
+    const std::int32_t zero_us = 0;
+    if (fd >= 0 && write(fd, &zero_us, sizeof zero_us) == static_cast<ssize_t>(sizeof zero_us)) {
+      cpu_latency_fd_ = fd;
+      report.cpu_latency_pinned = true;
+    } else {
+      detail += std::string("CPU wake-up latency request (/dev/cpu_dma_latency) refused: ") + std::strerror(errno) +
+                " (advisory; needs write access to /dev/cpu_dma_latency)\n";
+      if (fd >= 0) close(fd);
+    }
+  }
   if (!detail.empty()) detail.pop_back();
   report.detail = detail;
   memory_locked_ = report.memory_locked;
-  if (config_.realtime == RealtimeMode::kEnforce && !(report.fifo_granted && report.memory_locked)) {
+  if (refused) {
     go_.store(-1, std::memory_order_release);
     thread_.join();
     threaded_ = false;
@@ -558,6 +573,8 @@ void ServoLoop::stop() noexcept {
   (void)device_.write(Eigen::Vector3d::Zero());
   if (memory_locked_) munlockall();  // the lock was taken for the servo thread only
   memory_locked_ = false;
+  if (cpu_latency_fd_ >= 0) close(cpu_latency_fd_);  // ends the PM QoS request
+  cpu_latency_fd_ = -1;
 }
 
 }  // namespace hc::haptics

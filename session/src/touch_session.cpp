@@ -387,7 +387,9 @@ void write_touch_session(const TouchSessionResult& res, const TouchSessionOption
                  {"press", f.events_by_type[3]}, {"dropped", f.events_dropped}};
   for (auto it = extra.begin(); it != extra.end(); ++it) j[it.key()] = it.value();
   if (!res.lod_json.empty()) j["lod"] = nlohmann::ordered_json::parse(res.lod_json);
-  j["realtime"] = {{"fifo_granted", res.realtime.fifo_granted}, {"memory_locked", res.realtime.memory_locked}};
+  j["realtime"] = {{"fifo_granted", res.realtime.fifo_granted},
+                   {"memory_locked", res.realtime.memory_locked},
+                   {"cpu_latency_pinned", res.realtime.cpu_latency_pinned}};
   std::ofstream js(out / "summary.json");
   js << j.dump(2, ' ', false, nlohmann::ordered_json::error_handler_t::replace) << "\n";
   js.close();

@@ -9,6 +9,8 @@
 
 #include <chrono>
 #include <cmath>
+#include <filesystem>
+#include <string>
 #include <limits>
 #include <memory>
 #include <thread>
@@ -448,6 +450,16 @@ TEST(ServoLoop, TheWakeGapOutsideZeroToOnePeriodIsAnError) {
   }
 }
 
+/// How many of this process's file descriptors point at `path` (/proc/self/fd).
+int open_fds_to(const std::string& path) {
+  int n = 0;
+  for (const auto& e : std::filesystem::directory_iterator("/proc/self/fd")) {
+    std::error_code ec;
+    if (std::filesystem::read_symlink(e.path(), ec).string() == path) ++n;
+  }
+  return n;
+}
+
 TEST(ServoLoop, EnforcedRealtimeEitherGetsItOrRefusesToStart) {
   SharedState shared(sinusoid_surface(50));
   SteadyClock clock;
@@ -472,8 +484,13 @@ TEST(ServoLoop, EnforcedRealtimeEitherGetsItOrRefusesToStart) {
   warn.realtime = RealtimeMode::kWarn;
   ServoLoop loop2(dev, shared, clock, warn);
   const RealtimeReport rep = loop2.start();
-  EXPECT_EQ(rep.detail.empty(), rep.fifo_granted && rep.memory_locked);
+  EXPECT_EQ(rep.detail.empty(), rep.fifo_granted && rep.memory_locked && rep.cpu_latency_pinned);
+  // The CPU wake-up latency request is either held (the file open while the loop runs) or its
+  // refusal is said.
+  EXPECT_TRUE(rep.cpu_latency_pinned || rep.detail.find("/dev/cpu_dma_latency") != std::string::npos) << rep.detail;
+  EXPECT_EQ(open_fds_to("/dev/cpu_dma_latency"), rep.cpu_latency_pinned ? 1 : 0);
   loop2.stop();
+  EXPECT_EQ(open_fds_to("/dev/cpu_dma_latency"), 0);  // stop() ends the request
 }
 
 TEST(LatencyHistogram, PercentilesAndOverflow) {

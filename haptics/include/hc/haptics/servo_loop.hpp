@@ -70,6 +70,11 @@ struct RealtimeReport {
   bool fifo_granted = false;   ///< the servo thread runs SCHED_FIFO
   int priority = 0;            ///< its priority when granted
   bool memory_locked = false;  ///< mlockall(MCL_CURRENT | MCL_FUTURE) succeeded
+  /// A CPU wake-up latency of 0 µs is requested through /dev/cpu_dma_latency (Linux PM QoS,
+  /// kernel documentation "PM Quality Of Service Interface") while the loop runs, so that idle
+  /// CPUs stay out of deep idle states between ticks. Advisory: a refusal is reported in
+  /// `detail` but never stops the loop, not even under enforce.
+  bool cpu_latency_pinned = false;
   std::string detail;          ///< one line per refusal with errno text and what to check
 };
 
@@ -255,6 +260,7 @@ class ServoLoop {
   bool stop_requested_ = false;  // a kStop command (servo thread only)
   bool threaded_ = false;        // set before the thread starts, cleared after it is joined
   bool memory_locked_ = false;   // mlockall taken by start(), released by stop()
+  int cpu_latency_fd_ = -1;      // /dev/cpu_dma_latency held open by start(), closed by stop()
 };
 
 }  // namespace hc::haptics
