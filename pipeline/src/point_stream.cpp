@@ -62,6 +62,9 @@ std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path
   if (ext == ".las" && std::filesystem::is_regular_file(path, ec)) {
     if (auto s = detail::open_las_stream(path, detail::quoted(path), &options)) return s;
   }
+  if (ext == ".laz" && std::filesystem::is_regular_file(path, ec)) {
+    if (auto s = detail::open_laz_stream(path, detail::quoted(path), &options)) return s;
+  }
   StageResult<Cloud> read = load_cloud(path, options);
   if (read.value.has_mesh()) {
     throw InputError("load_cloud: " + detail::quoted(path) + " is a mesh (" + std::to_string(read.value.mesh.triangles.size()) +

@@ -218,6 +218,63 @@ TEST(PointStream, LasChunkOfOneDropsAndTruncationBehaveAsTheWholeRead) {
   EXPECT_EQ(hc::test::error_of([&] { hc::pipeline::open_point_stream(dir / "w.las"); }), truncated);
 }
 
+// LAZ, decompressed chunk by chunk: the real samples (point-wise chunked, and a layered COPC
+// file with colour) give load_cloud's points, colour, intensity, CRS and notes in any chunking.
+TEST(PointStream, LazStreamsTheSamePointsAsTheWholeReadInAnyChunking) {
+  std::size_t with_rgb = 0;
+  for (const char* name : {"pdal-simple.laz", "pdal-autzen_trim.laz", "pdal-1.2-with-color.copc.laz"}) {
+    SCOPED_TRACE(name);
+    const fs::path p = hc::test::scan_path(std::string("scanner_samples/laz/") + name);
+    const auto whole_read = hc::pipeline::load_cloud(p);
+    const Cloud& whole = whole_read.value;
+    with_rgb += whole.has_rgb() ? 1U : 0U;
+    for (const std::size_t chunk : {std::size_t{7}, std::size_t{1000}, std::size_t{1} << 20}) {
+      auto s = hc::pipeline::open_point_stream(p);
+      ASSERT_TRUE(s->streamed());
+      EXPECT_EQ(s->total_points(), whole.size());
+      EXPECT_EQ(s->crs(), whole.crs);
+      const Cloud got = read_with_intensity(*s, chunk);
+      ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
+      EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
+      EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
+      EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
+      std::vector<std::string> notes = s->notes();
+      ASSERT_FALSE(notes.empty());
+      EXPECT_EQ(notes.back(), "point records streamed in chunks");
+      notes.pop_back();
+      const std::vector<std::string>& all = whole_read.report.notes;
+      EXPECT_NE(std::search(all.begin(), all.end(), notes.begin(), notes.end()), all.end())
+          << "the stream's notes are not load_cloud's, in order";
+    }
+  }
+  EXPECT_GE(with_rgb, 1U) << "the samples cover colour";
+}
+
+// A LAZ file cut short fails when the stream is opened with load_cloud's own message (its chunk
+// table is gone); one that shrinks after opening fails in next(), and every later call fails.
+TEST(PointStream, LazTruncationFailsAsTheWholeReadAndStaysFailed) {
+  const fs::path dir = hc::test::temp_dir("laz");
+  const fs::path src = hc::test::scan_path("scanner_samples/laz/pdal-autzen_trim.laz");
+  fs::copy_file(src, dir / "cut.laz");
+  fs::resize_file(dir / "cut.laz", fs::file_size(src) / 2);
+  const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "cut.laz"); });
+  ASSERT_FALSE(whole_error.empty());
+  EXPECT_NE(whole_error.find("cut.laz"), std::string::npos) << whole_error;
+  EXPECT_EQ(hc::test::error_of([&] { hc::pipeline::open_point_stream(dir / "cut.laz"); }), whole_error);
+
+  fs::copy_file(src, dir / "shrinks.laz");
+  auto s = hc::pipeline::open_point_stream(dir / "shrinks.laz");
+  fs::resize_file(dir / "shrinks.laz", 4096);
+  Cloud c;
+  const std::string first = hc::test::error_of([&] {
+    while (s->next(c, 1000)) {
+    }
+  });
+  EXPECT_NE(first.find("truncated or unreadable in LAZ chunk"), std::string::npos) << first;
+  const std::string again = hc::test::error_of([&] { s->next(c, 100); });
+  EXPECT_NE(again.find("failed earlier"), std::string::npos) << again;
+}
+
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {
   const fs::path dir = hc::test::temp_dir("whole");
   const fs::path p = write_ply(dir, "ascii", 50, "float", false, true, /*ascii=*/true);

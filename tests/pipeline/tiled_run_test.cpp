@@ -224,6 +224,32 @@ TEST(TiledRun, EqualsTheInCoreRunOnALasWallStreamedNatively) {
   EXPECT_FALSE(tiled.scene.layers.colour_rgb8.empty());
 }
 
+// A real LAZ scan (aerial lidar, point-wise chunked), decompressed chunk by chunk at every
+// pass, gives the in-core scene too, and auto counts its points from the header.
+TEST(TiledRun, EqualsTheInCoreRunOnARealLazScanStreamedChunkByChunk) {
+  const fs::path dir = hc::test::temp_dir("laz_scan");
+  fs::copy_file(hc::test::scan_path("scanner_samples/laz/pdal-autzen_trim.laz"), dir / "autzen.laz");
+  const std::string yaml =
+      "input: {files: [autzen.laz], units: ft}\n"
+      "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 0.5, hole_fill_max_cells: 64}\n"
+      "cross_check: {tolerance_m: 0.3}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 5000}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "autzen.yaml", {"scale.tiled_above_points=10000"});
+  EXPECT_TRUE(hc::pipeline::runs_tiled(config));
+  fs::create_directory(dir / "scratch");
+  expect_tiled_equals_in_core(config, 48, dir / "scratch");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = dir / "scratch";
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  bool streamed = false, read_whole = false;
+  for (const auto& st : tiled.summary.stages)
+    for (const std::string& n : st.notes) {
+      streamed = streamed || n.find("point records streamed in chunks") != std::string::npos;
+      read_whole = read_whole || n.find("read whole") != std::string::npos;
+    }
+  EXPECT_TRUE(streamed);
+  EXPECT_FALSE(read_whole);
+}
+
 // Progress within the long stages: every pass reports, fractions rise within a pass and stay in
 // [0, 1], and the time left is finite and not negative (scale.progress_interval_s: 0 reports
 // every chunk and every tile, so nothing here depends on timing).

@@ -36,9 +36,16 @@
 #include "hc/common/error.hpp"
 
 #include <algorithm>
+#include <cerrno>
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <string_view>
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
 
 namespace hc::pipeline::detail {
 
@@ -66,14 +73,27 @@ std::string compressor_name(std::uint16_t c) {
   }
 }
 
-}  // namespace
+/// Where the chunks are and how they are coded: the LASzip VLR and the chunk table.
+struct LazLayout {
+  LaszipVlr z;
+  bool layered = false;
+  std::vector<std::size_t> item_offset;  ///< byte offset of each item in a record
+  std::vector<Chunk> chunks;
+  std::vector<std::string> notes;  ///< the compressor note, and COPC's
+};
 
-std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& header) {
-  const std::string& bytes = source.bytes;
-  const std::string& name = source.display_name;
+[[noreturn]] void laz_fail(const std::string& name, const std::string& what) {
+  throw InputError("load_cloud: " + name + " " + what);
+}
+
+/// Reads the LASzip VLR and the chunk table of a LAZ file whose header (parsed with
+/// `compressed` = true) is `header`; `bytes` is the whole file (in memory or mapped). Only the
+/// VLR, the chunk table offset and the chunk table are read. Throws hc::InputError naming the
+/// file and the VLR field, item or table entry.
+LazLayout laz_layout(std::string_view bytes, const std::string& name, const LasHeader& header) {
   const std::size_t size = bytes.size();
   const char* const b = bytes.data();
-  const auto fail = [&](const std::string& what) -> void { throw InputError("load_cloud: " + name + " " + what); };
+  const auto fail = [&](const std::string& what) { laz_fail(name, what); };
 
   const std::size_t record_length = header.record_length;
   const std::uint64_t count = header.count;
@@ -93,7 +113,8 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
   if (zip->length < 34) {
     fail("has a LASzip VLR of " + std::to_string(zip->length) + " bytes: expected at least 34");
   }
-  LaszipVlr z;
+  LazLayout L;
+  LaszipVlr& z = L.z;
   z.compressor = load_le<std::uint16_t>(zip->data + 0);
   z.coder = load_le<std::uint16_t>(zip->data + 2);
   z.major = static_cast<unsigned char>(zip->data[4]);
@@ -125,14 +146,13 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
     fail("has LASzip items (" + item_list + ") of " + std::to_string(item_bytes) + " bytes in total: expected " +
          std::to_string(record_length) + " bytes, the point record length of the header");
   }
-  const bool layered = z.compressor == 3;
-  std::vector<std::size_t> item_offset;
+  L.layered = z.compressor == 3;
   {
     std::size_t at = 0;
     for (const laz::Item& it : z.items) {
-      item_offset.push_back(at);
+      L.item_offset.push_back(at);
       at += it.size;
-      const bool ok = layered ? static_cast<bool>(laz::make_layered_item(it)) : static_cast<bool>(laz::make_pointwise_item(it));
+      const bool ok = L.layered ? static_cast<bool>(laz::make_layered_item(it)) : static_cast<bool>(laz::make_pointwise_item(it));
       if (!ok) {
         fail("uses LASzip item " + laz::item_name(it.type) + " version " + std::to_string(it.version) + " (" +
              std::to_string(it.size) + " bytes) with compressor " + compressor_name(z.compressor) +
@@ -163,7 +183,7 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
   }
 
   // Chunks.
-  std::vector<Chunk> chunks;
+  std::vector<Chunk>& chunks = L.chunks;
   if (z.compressor == 1) {
     chunks.push_back({offset, size, count});
   } else {
@@ -225,85 +245,219 @@ std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& head
            std::to_string(count) + " points: truncated or corrupt chunk table");
     }
   }
+  L.notes.push_back("LAZ: LASzip " + std::to_string(z.major) + "." + std::to_string(z.minor) + "r" +
+                    std::to_string(z.revision) + ", compressor " + compressor_name(z.compressor) + ", " +
+                    std::to_string(chunks.size()) + " chunk(s)" +
+                    (z.chunk_size == 0xFFFFFFFFu ? std::string(" of variable size")
+                                                 : " of " + std::to_string(z.chunk_size) + " points") +
+                    ", items " + item_list);
+  if (copc) {
+    L.notes.push_back("COPC file: read as plain LAZ, every chunk in file order; the COPC info and hierarchy "
+                      "records are skipped");
+  }
+  return L;
+}
 
-  // Decompression into LAS records.
-  auto records = std::make_unique_for_overwrite<char[]>(static_cast<std::size_t>(count) * record_length);
-  auto* out = reinterpret_cast<std::uint8_t*>(records.get());
-  const auto* file = reinterpret_cast<const std::uint8_t*>(b);
-  for (std::size_t c = 0; c < chunks.size(); ++c) {
-    const Chunk& ch = chunks[c];
-    const auto chunk_fail = [&](const std::string& what) {
-      fail("chunk " + std::to_string(c) + " (bytes " + std::to_string(ch.begin) + " to " + std::to_string(ch.end) +
-           ", " + std::to_string(ch.points) + " points): " + what);
-    };
-    if (ch.end - ch.begin < record_length) {
-      chunk_fail("too short for its raw first point of " + std::to_string(record_length) + " bytes (truncated?)");
-    }
-    const std::uint8_t* raw = file + ch.begin;
-    std::memcpy(out, raw, record_length);
-    std::uint8_t* rec = out + record_length;
-    if (!layered) {
-      const std::size_t over = laz::decode_pointwise_chunk(z.items, raw, record_length, file + ch.end, ch.points, rec);
-      if (over > 0) chunk_fail("compressed stream ends " + std::to_string(over) + " bytes early (truncated or corrupt)");
-    } else {
-      std::size_t at = ch.begin + record_length;
-      if (ch.end - at < 4) chunk_fail("ends before its point count (truncated?)");
-      const std::uint32_t n = load_le<std::uint32_t>(b + at);
+/// Decompresses chunk c of L into L.chunks[c].points LAS records of record_length bytes at
+/// `out`. `bytes` holds the chunk's bytes, [chunks[c].begin, chunks[c].end) of the file.
+/// Throws hc::InputError naming the file, the chunk and what is wrong.
+void decode_laz_chunk(const LazLayout& L, std::size_t c, const std::uint8_t* bytes, std::size_t record_length,
+                      std::uint8_t* out, const std::string& name) {
+  const Chunk& ch = L.chunks[c];
+  const std::size_t len = ch.end - ch.begin;
+  const auto chunk_fail = [&](const std::string& what) {
+    laz_fail(name, "chunk " + std::to_string(c) + " (bytes " + std::to_string(ch.begin) + " to " + std::to_string(ch.end) +
+                       ", " + std::to_string(ch.points) + " points): " + what);
+  };
+  if (len < record_length) {
+    chunk_fail("too short for its raw first point of " + std::to_string(record_length) + " bytes (truncated?)");
+  }
+  const std::uint8_t* raw = bytes;
+  std::memcpy(out, raw, record_length);
+  std::uint8_t* rec = out + record_length;
+  if (!L.layered) {
+    const std::size_t over = laz::decode_pointwise_chunk(L.z.items, raw, record_length, bytes + len, ch.points, rec);
+    if (over > 0) chunk_fail("compressed stream ends " + std::to_string(over) + " bytes early (truncated or corrupt)");
+    return;
+  }
+  std::size_t at = record_length;  // relative to the chunk's first byte
+  if (len - at < 4) chunk_fail("ends before its point count (truncated?)");
+  at += 4;  // the chunk's own point count; the chunk table's count is the one used (as LASzip does)
+  std::vector<std::unique_ptr<laz::LayeredItem>> dec;
+  std::vector<std::vector<std::size_t>> sizes;
+  for (const laz::Item& it : L.z.items) {
+    dec.push_back(laz::make_layered_item(it));
+    std::vector<std::size_t> s(dec.back()->layer_count());
+    for (auto& v : s) {
+      if (len - at < 4) chunk_fail("ends inside its layer sizes at byte " + std::to_string(ch.begin + at) + " (truncated?)");
+      v = load_le<std::uint32_t>(reinterpret_cast<const char*>(bytes + at));
       at += 4;
-      (void)n;  // the chunk's own point count; the chunk table's count is the one used (as LASzip does)
-      std::vector<std::unique_ptr<laz::LayeredItem>> dec;
-      std::vector<std::vector<std::size_t>> sizes;
-      for (const laz::Item& it : z.items) {
-        dec.push_back(laz::make_layered_item(it));
-        std::vector<std::size_t> s(dec.back()->layer_count());
-        for (auto& v : s) {
-          if (ch.end - at < 4) chunk_fail("ends inside its layer sizes at byte " + std::to_string(at) + " (truncated?)");
-          v = load_le<std::uint32_t>(b + at);
-          at += 4;
-        }
-        sizes.push_back(std::move(s));
+    }
+    sizes.push_back(std::move(s));
+  }
+  const std::uint32_t channel = (raw[15] >> 4) & 3u;
+  for (std::size_t i = 0; i < dec.size(); ++i) {
+    std::vector<const std::uint8_t*> data;
+    for (std::size_t n : sizes[i]) {
+      if (n > len - at) {
+        chunk_fail(laz::item_name(L.z.items[i].type) + " layer of " + std::to_string(n) + " bytes at byte " +
+                   std::to_string(ch.begin + at) + " runs past the chunk's end (truncated or corrupt)");
       }
-      const std::uint32_t channel = (raw[15] >> 4) & 3u;
-      for (std::size_t i = 0; i < dec.size(); ++i) {
-        std::vector<const std::uint8_t*> data;
-        for (std::size_t len : sizes[i]) {
-          if (len > ch.end - at) {
-            chunk_fail(laz::item_name(z.items[i].type) + " layer of " + std::to_string(len) + " bytes at byte " +
-                       std::to_string(at) + " runs past the chunk's end (truncated or corrupt)");
-          }
-          data.push_back(file + at);
-          at += len;
-        }
-        dec[i]->start(data, sizes[i], raw + item_offset[i], channel);
-      }
-      for (std::uint64_t p = 1; p < ch.points; ++p, rec += record_length) {
-        // As LASzip: the context handed to the items after POINT14 starts at 0 for every point
-        // and is set by POINT14 only when the scanner channel changes.
-        std::uint32_t context = 0;
-        for (std::size_t i = 0; i < dec.size(); ++i) dec[i]->decode(rec + item_offset[i], context);
-        if ((p & 1023u) == 0) {  // a corrupt layer: stop early, the check below rejects the chunk
-          std::size_t over = 0;
-          for (const auto& dd : dec) over += dd->overrun();
-          if (over > 16) break;
-        }
-      }
+      data.push_back(bytes + at);
+      at += n;
+    }
+    dec[i]->start(data, sizes[i], raw + L.item_offset[i], channel);
+  }
+  for (std::uint64_t p = 1; p < ch.points; ++p, rec += record_length) {
+    // As LASzip: the context handed to the items after POINT14 starts at 0 for every point
+    // and is set by POINT14 only when the scanner channel changes.
+    std::uint32_t context = 0;
+    for (std::size_t i = 0; i < dec.size(); ++i) dec[i]->decode(rec + L.item_offset[i], context);
+    if ((p & 1023u) == 0) {  // a corrupt layer: stop early, the check below rejects the chunk
       std::size_t over = 0;
       for (const auto& dd : dec) over += dd->overrun();
-      if (ch.points > 1 && over > 0) chunk_fail("compressed layers end " + std::to_string(over) + " bytes early (truncated or corrupt)");
+      if (over > 16) break;
     }
-    out += ch.points * record_length;
+  }
+  std::size_t over = 0;
+  for (const auto& dd : dec) over += dd->overrun();
+  if (ch.points > 1 && over > 0) chunk_fail("compressed layers end " + std::to_string(over) + " bytes early (truncated or corrupt)");
+}
+
+// A LAZ file decompressed chunk by chunk (point_stream.hpp): one chunk's compressed bytes and
+// records in memory at a time.
+class LazStream final : public PointStream {
+ public:
+  LazStream(int fd, std::string name, const LasHeader& header, LazLayout layout, const LoadOptions* options,
+            std::vector<std::string> format_notes, std::vector<std::string> crs_notes, std::string crs)
+      : fd_(fd), name_(std::move(name)), decoder_(header, options), layout_(std::move(layout)),
+        record_length_(header.record_length), total_(header.count), format_notes_(std::move(format_notes)),
+        crs_notes_(std::move(crs_notes)), crs_(std::move(crs)) {
+    assemble_notes();
+  }
+  ~LazStream() override { ::close(fd_); }
+  LazStream(const LazStream&) = delete;
+  LazStream& operator=(const LazStream&) = delete;
+
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+  std::string crs() const override { return crs_; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    chunk = Cloud();
+    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
+    try {
+      if (!colour_decided_) decide_colour();
+      while (done_ < total_) {
+        if (pos_ == have_) load_chunk(next_chunk_++);
+        const std::size_t n = std::min<std::size_t>(std::max<std::size_t>(max_points, 1), have_ - pos_);
+        chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
+        chunk.intensity.resize(n);
+        chunk.rgb.resize(decoder_.has_rgb() ? 3 * n : 0);
+        const std::size_t k = decoder_.decode(records_.data() + pos_ * record_length_, n, rgb_low_bytes_, chunk.xyz.data(),
+                                              chunk.intensity.data(), chunk.rgb.data());
+        pos_ += n;
+        done_ += n;
+        if (k < n) {
+          chunk.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
+          chunk.intensity.resize(k);
+          if (decoder_.has_rgb()) chunk.rgb.resize(3 * k);
+        }
+        if (done_ == total_) {
+          assemble_notes();
+          if (decoder_.kept() == 0) {
+            throw InputError("load_cloud: " + name_ + " " + LasRecordDecoder::nothing_kept_message(total_));
+          }
+        }
+        if (k > 0) return true;
+      }
+    } catch (const std::exception& e) {
+      // The chunk position and the counts no longer agree: every later call fails too.
+      failed_ = true;
+      failure_ = e.what();
+      chunk = Cloud();
+      throw;
+    }
+    chunk = Cloud();
+    return false;
   }
 
-  header.notes.push_back("LAZ: LASzip " + std::to_string(z.major) + "." + std::to_string(z.minor) + "r" +
-                         std::to_string(z.revision) + ", compressor " + compressor_name(z.compressor) + ", " +
-                         std::to_string(chunks.size()) + " chunk(s)" +
-                         (z.chunk_size == 0xFFFFFFFFu ? std::string(" of variable size")
-                                                      : " of " + std::to_string(z.chunk_size) + " points") +
-                         ", items " + item_list);
-  if (copc) {
-    header.notes.push_back("COPC file: read as plain LAZ, every chunk in file order; the COPC info and hierarchy "
-                           "records are skipped");
+ private:
+  // Reads chunk c's bytes (pread) and decompresses its records into records_.
+  void load_chunk(std::size_t c) {
+    const Chunk& ch = layout_.chunks[c];
+    const std::size_t len = ch.end - ch.begin;
+    bytes_.resize(len);
+    std::size_t got = 0;
+    while (got < len) {
+      const ssize_t r = ::pread(fd_, bytes_.data() + got, len - got, static_cast<off_t>(ch.begin + got));
+      if (r < 0 && errno == EINTR) continue;
+      if (r <= 0) {
+        throw InputError("load_cloud: " + name_ + ": truncated or unreadable in LAZ chunk " + std::to_string(c) +
+                         " (bytes " + std::to_string(ch.begin) + " to " + std::to_string(ch.end) + ")");
+      }
+      got += static_cast<std::size_t>(r);
+    }
+    records_.resize(static_cast<std::size_t>(ch.points) * record_length_);
+    decode_laz_chunk(layout_, c, reinterpret_cast<const std::uint8_t*>(bytes_.data()), record_length_, reinterpret_cast<std::uint8_t*>(records_.data()), name_);
+    have_ = static_cast<std::size_t>(ch.points);
+    pos_ = 0;
   }
+
+  // Before the first chunk: with colour, one pass over every chunk decides 16- or 8-bit RGB,
+  // as the whole read does.
+  void decide_colour() {
+    if (decoder_.has_rgb()) {
+      std::uint16_t rgb_max = 0;
+      for (std::size_t c = 0; c < layout_.chunks.size(); ++c) {
+        load_chunk(c);
+        rgb_max = std::max(rgb_max, decoder_.rgb_max(records_.data(), have_));
+      }
+      rgb_low_bytes_ = rgb_max <= 255;
+      have_ = pos_ = 0;
+    }
+    colour_decided_ = true;
+    assemble_notes();
+  }
+
+  // decode_las_records' notes, in its order, as far as they are known.
+  void assemble_notes() {
+    notes_ = format_notes_;
+    if (done_ == total_) notes_.push_back(decoder_.dropped_note());
+    if (decoder_.has_rgb() && colour_decided_) notes_.push_back(las_rgb_note(rgb_low_bytes_));
+    notes_.push_back("intensity kept (raw 0..65535)");
+    notes_.insert(notes_.end(), crs_notes_.begin(), crs_notes_.end());
+    notes_.push_back("point records streamed in chunks");
+  }
+
+  int fd_;
+  std::string name_;
+  LasRecordDecoder decoder_;
+  LazLayout layout_;
+  std::size_t record_length_;
+  std::uint64_t total_ = 0, done_ = 0;
+  std::size_t next_chunk_ = 0, have_ = 0, pos_ = 0;  // records_ holds have_ records; pos_ given out
+  bool colour_decided_ = false, rgb_low_bytes_ = false, failed_ = false;
+  std::string failure_;
+  std::vector<char> bytes_, records_;
+  std::vector<std::string> format_notes_, crs_notes_, notes_;
+  std::string crs_;
+};
+
+}  // namespace
+
+std::unique_ptr<char[]> decompress_laz(const ScanSource& source, LasHeader& header) {
+  const LazLayout L = laz_layout(source.bytes, source.display_name, header);
+  const std::size_t record_length = header.record_length;
+  auto records = std::make_unique_for_overwrite<char[]>(static_cast<std::size_t>(header.count) * record_length);
+  auto* out = reinterpret_cast<std::uint8_t*>(records.get());
+  const auto* file = reinterpret_cast<const std::uint8_t*>(source.bytes.data());
+  for (std::size_t c = 0; c < L.chunks.size(); ++c) {
+    decode_laz_chunk(L, c, file + L.chunks[c].begin, record_length, out, source.display_name);
+    out += L.chunks[c].points * record_length;
+  }
+  for (const std::string& note : L.notes) header.notes.push_back(note);
   return records;
 }
 
@@ -311,6 +465,44 @@ ReadResult read_laz(const ScanSource& source) {
   LasHeader header = parse_las_header(source, true);
   const std::unique_ptr<char[]> records = decompress_laz(source, header);
   return decode_las_records(source, std::move(header), records.get());
+}
+
+std::unique_ptr<PointStream> open_laz_stream(const std::filesystem::path& path, const std::string& name,
+                                             const LoadOptions* options) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return nullptr;
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || st.st_size <= 0) {
+    ::close(fd);
+    return nullptr;
+  }
+  const auto size = static_cast<std::size_t>(st.st_size);
+  void* map = ::mmap(nullptr, size, PROT_READ, MAP_PRIVATE, fd, 0);
+  if (map == MAP_FAILED) {
+    ::close(fd);
+    return nullptr;
+  }
+  // Only the header, the (E)VLRs and the chunk table are read through the mapping.
+  std::unique_ptr<PointStream> stream;
+  try {
+    const std::string_view bytes(static_cast<const char*>(map), size);
+    LasHeader header = parse_las_header(bytes, name, true);
+    LazLayout layout = laz_layout(bytes, name, header);
+    std::vector<std::string> format_notes = std::move(header.notes);
+    for (const std::string& note : layout.notes) format_notes.push_back(note);
+    for (std::string& note : las_format_notes(header)) format_notes.push_back(std::move(note));
+    std::vector<std::string> crs_notes;
+    std::string crs = las_crs(header, crs_notes);
+    header.vlrs.clear();  // they point into the mapping
+    stream = std::make_unique<LazStream>(fd, name, header, std::move(layout), options, std::move(format_notes),
+                                         std::move(crs_notes), std::move(crs));
+  } catch (...) {
+    ::munmap(map, size);
+    ::close(fd);
+    throw;
+  }
+  ::munmap(map, size);
+  return stream;
 }
 
 }  // namespace hc::pipeline::detail

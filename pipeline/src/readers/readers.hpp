@@ -93,4 +93,15 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
 std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, const std::string& name,
                                              const LoadOptions* options);
 
+/// A LAZ file (read_laz.cpp) decompressed and streamed chunk by chunk: the same points,
+/// colour, intensity and CRS as read_laz, in file order, with one LASzip chunk's compressed
+/// bytes and records in memory at a time (read with pread). The header, the (E)VLRs and the
+/// chunk table are read through a read-only mapping released before the stream is returned;
+/// with colour, one pass decompressing every chunk decides 16- or 8-bit RGB before the first
+/// chunk. nullptr when the file cannot be opened or mapped. @throws hc::InputError as read_laz
+/// for a bad header, LASzip VLR or chunk table when opened, and from next() for a corrupt or
+/// truncated chunk or when no record is kept (the failure is sticky).
+std::unique_ptr<PointStream> open_laz_stream(const std::filesystem::path& path, const std::string& name,
+                                             const LoadOptions* options);
+
 }  // namespace hc::pipeline::detail
