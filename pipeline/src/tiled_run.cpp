@@ -427,7 +427,9 @@ bool runs_tiled(const RunConfig& config) {
   const fs::path& f = config.input.files.front();
   std::string ext = f.extension().string();
   for (char& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
-  if (ext != ".ply" && ext != ".las" && ext != ".laz") return false;  // only a natively streamed file is counted without reading it
+  // Only a natively streamed file is counted without reading it whole (a PTX file's first look
+  // reads its lines without parsing the points).
+  if (ext != ".ply" && ext != ".las" && ext != ".laz" && ext != ".ptx") return false;
   std::error_code ec;
   if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
   std::unique_ptr<PointStream> s;
@@ -435,7 +437,8 @@ bool runs_tiled(const RunConfig& config) {
     const LoadOptions load{config.input.las_drop_classes, config.input.as_points};
     s = ext == ".ply"   ? detail::open_ply_stream(f, f.string(), config.input.as_points)
         : ext == ".las" ? detail::open_las_stream(f, f.string(), &load)
-                        : detail::open_laz_stream(f, f.string(), &load);
+        : ext == ".laz" ? detail::open_laz_stream(f, f.string(), &load)
+                        : detail::open_ptx_stream(f, f.string());
   } catch (const InputError&) {
     return false;  // the in-core read reports the problem
   }

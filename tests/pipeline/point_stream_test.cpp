@@ -15,6 +15,7 @@
 #include <bit>
 #include <cstring>
 #include <fstream>
+#include <iterator>
 #include <string>
 #include <vector>
 
@@ -273,6 +274,101 @@ TEST(PointStream, LazTruncationFailsAsTheWholeReadAndStaysFailed) {
   EXPECT_NE(first.find("truncated or unreadable in LAZ chunk"), std::string::npos) << first;
   const std::string again = hc::test::error_of([&] { s->next(c, 100); });
   EXPECT_NE(again.find("failed earlier"), std::string::npos) << again;
+}
+
+// A PTX file of two scans, 8 MB of text (more than one 4 MiB read block, so lines are carried
+// across blocks): scan 1 with colour and a transform, no-returns and blank lines, CRLF ends;
+// scan 2 without colour (so neither read keeps RGB). `bad_line`: a point line of scan 2 that
+// is replaced by text, 0 = none.
+fs::path write_ptx(const fs::path& p, std::size_t bad_line = 0) {
+  std::ofstream out(p, std::ios::binary);
+  const int cols = 300, rows = 300;
+  for (int scan = 0; scan < 2; ++scan) {
+    out << cols << "\r\n" << rows << "\r\n";
+    out << "1 2 3\r\n1 0 0\r\n0 1 0\r\n0 0 1\r\n";
+    if (scan == 0) {
+      out << "0 1 0 0\r\n-1 0 0 0\r\n0 0 1 0\r\n1 2 3 1\r\n";  // 90° about z, then moved
+    } else {
+      out << "1 0 0 0\r\n0 1 0 0\r\n0 0 1 0\r\n0 0 0 1\r\n";
+    }
+    for (int k = 0; k < cols * rows; ++k) {
+      if (scan == 1 && bad_line != 0 && static_cast<std::size_t>(k) + 1 == bad_line) {
+        out << "0.1 0.2 not-a-number 0.5\r\n";
+        continue;
+      }
+      if (k % 997 == 0) out << "\r\n";  // a blank line now and then
+      if (k % 101 == 0) {
+        out << (scan == 0 ? "0 0 0 0 0 0 0" : "0 0 0 0") << "\r\n";  // no return
+        continue;
+      }
+      out << 0.001 * (k % cols) + 0.1 * scan << ' ' << -0.002 * (k / cols) << ' ' << 0.5 + 1e-4 * (k % 17) << ' '
+          << 0.25 + 0.5 * ((k % 7) / 7.0);
+      if (scan == 0) out << ' ' << k % 256 << ' ' << (3 * k) % 256 << ' ' << 255 - k % 256;
+      out << "\r\n";
+    }
+  }
+  return p;
+}
+
+TEST(PointStream, PtxStreamsTheSamePointsAndNotesAsTheWholeRead) {
+  const fs::path dir = hc::test::temp_dir("ptx");
+  std::vector<fs::path> files = {write_ptx(dir / "two_scans.ptx")};
+  for (const char* name : {"pdal-1.2-with-color.ptx", "pdal-complex-transform.ptx", "pdal-no-color.ptx"}) {
+    files.push_back(hc::test::scan_path(std::string("scanner_samples/ptx/") + name));
+  }
+  for (const fs::path& p : files) {
+    SCOPED_TRACE(p.filename().string());
+    const auto whole_read = hc::pipeline::load_cloud(p);
+    const Cloud& whole = whole_read.value;
+    for (const std::size_t chunk : {std::size_t{1}, std::size_t{7}, std::size_t{5000}, std::size_t{1} << 20}) {
+      if (chunk == 1 && whole.size() > 10000) continue;  // one point at a time: the small samples
+      auto s = hc::pipeline::open_point_stream(p);
+      ASSERT_TRUE(s->streamed());
+      EXPECT_GE(s->total_points(), whole.size());
+      const Cloud got = read_with_intensity(*s, chunk);
+      ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
+      EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
+      EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
+      EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
+      std::vector<std::string> notes = s->notes();
+      ASSERT_FALSE(notes.empty());
+      EXPECT_EQ(notes.back(), "point lines streamed in chunks");
+      notes.pop_back();
+      EXPECT_EQ(notes, whole_read.report.notes) << "chunk " << chunk;
+    }
+  }
+  // The generated file: both scans' measured points, colour dropped (scan 2 has none).
+  const Cloud two = hc::pipeline::load_cloud(files[0]).value;
+  EXPECT_EQ(two.size(), 2U * (90000U - 892U));
+  EXPECT_FALSE(two.has_rgb());
+}
+
+// A bad point line fails in next() with load_cloud's message, and every later call fails; a file
+// that ends inside a scan fails when the stream is opened, with load_cloud's message.
+TEST(PointStream, PtxErrorsAreTheWholeReadsAndStick) {
+  const fs::path dir = hc::test::temp_dir("ptx_bad");
+  const fs::path bad = write_ptx(dir / "bad.ptx", 4321);
+  const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(bad); });
+  EXPECT_NE(whole_error.find("not-a-number"), std::string::npos) << whole_error;
+  auto s = hc::pipeline::open_point_stream(bad);
+  Cloud c;
+  EXPECT_EQ(hc::test::error_of([&] {
+              while (s->next(c, 10000)) {
+              }
+            }),
+            whole_error);
+  const std::string again = hc::test::error_of([&] { s->next(c, 10); });
+  EXPECT_NE(again.find("failed earlier"), std::string::npos) << again;
+
+  const fs::path cut = write_ptx(dir / "cut.ptx");
+  {  // cut at the end of a line, 100 kB before the end
+    std::ifstream in(cut, std::ios::binary);
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    fs::resize_file(cut, text.rfind('\n', text.size() - 100000) + 1);
+  }
+  const std::string cut_error = hc::test::error_of([&] { hc::pipeline::load_cloud(cut); });
+  EXPECT_NE(cut_error.find("the file ends after"), std::string::npos) << cut_error;
+  EXPECT_EQ(hc::test::error_of([&] { hc::pipeline::open_point_stream(cut); }), cut_error);
 }
 
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {

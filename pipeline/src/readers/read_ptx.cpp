@@ -24,8 +24,10 @@
 #include <Eigen/Core>
 
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <limits>
+#include <memory>
 
 namespace hc::pipeline::detail {
 
@@ -59,6 +61,57 @@ class Lines {
   std::size_t line_no_ = 0;
 };
 
+/// The same over a file read in blocks (for the stream): lines up to 64 MiB long; a longer one
+/// is an error (no PTX line is near that).
+class FileLines {
+ public:
+  FileLines(std::FILE* f, const std::string& name) : f_(f), name_(name) {}
+
+  bool next(const char*& b, const char*& e) {
+    for (;;) {
+      const char* nl = pos_ < buf_.size()
+                           ? static_cast<const char*>(std::memchr(buf_.data() + pos_, '\n', buf_.size() - pos_))
+                           : nullptr;
+      if (nl == nullptr && !eof_) {
+        refill();
+        continue;
+      }
+      if (pos_ >= buf_.size()) return false;  // end of the file
+      b = buf_.data() + pos_;
+      e = nl ? nl : buf_.data() + buf_.size();
+      pos_ = static_cast<std::size_t>(e - buf_.data()) + (nl ? 1 : 0);
+      ++line_no_;
+      const char* q = b;
+      while (q < e && is_space(*q)) ++q;
+      if (q < e) return true;
+    }
+  }
+  std::size_t line_no() const { return line_no_; }
+
+ private:
+  void refill() {
+    buf_.erase(0, pos_);  // keep the partial line
+    pos_ = 0;
+    if (buf_.size() > (std::size_t{64} << 20)) {
+      throw InputError("load_cloud: " + name_ + " line " + std::to_string(line_no_ + 1) + " is longer than 64 MiB");
+    }
+    const std::size_t old = buf_.size();
+    buf_.resize(old + kBlock);
+    const std::size_t got = std::fread(buf_.data() + old, 1, kBlock, f_);
+    buf_.resize(old + got);
+    if (got < kBlock) {
+      if (std::ferror(f_)) throw InputError("load_cloud: " + name_ + ": read error after line " + std::to_string(line_no_));
+      eof_ = true;
+    }
+  }
+  static constexpr std::size_t kBlock = std::size_t{4} << 20;
+  std::FILE* f_;
+  const std::string& name_;
+  std::string buf_;
+  std::size_t pos_ = 0, line_no_ = 0;
+  bool eof_ = false;
+};
+
 /// Parses up to `max` numbers of [b, e) into v; returns how many, or max + 1 if there are more
 /// or -1 (as SIZE_MAX) if a token is not a number.
 std::size_t parse_numbers(const char* b, const char* e, double* v, std::size_t max) {
@@ -79,65 +132,104 @@ std::string excerpt(const char* b, const char* e) {
   return s;
 }
 
-}  // namespace
 
-ReadResult read_ptx(const ScanSource& source) {
-  const std::string& name = source.display_name;
-  Lines lines(source.bytes);
-  const char* b = nullptr;
-  const char* e = nullptr;
-  double v[8];
+/// The PTX parser over a line source (Lines or FileLines): scan headers and point lines, in
+/// file order, handing out measured points a block at a time. Every error names the file and the
+/// line, as in the format's description above.
+template <class LineSource>
+class PtxParser {
+ public:
+  PtxParser(LineSource& lines, const std::string& name) : lines_(lines), name_(name) {}
 
-  std::vector<double> xyz;
-  std::vector<float> intensity;
-  std::vector<std::uint8_t> rgb;
-  std::vector<std::int32_t> rows_out, cols_out;
-  std::vector<std::string> notes;
-  bool all_rgb = true;
-  std::size_t scans = 0, no_return = 0;
-  float i_min = std::numeric_limits<float>::infinity(), i_max = -i_min;
-
-  const auto fail_at = [&](const std::string& what) {
-    throw InputError("load_cloud: " + name + " line " + std::to_string(lines.line_no()) + ": " + what);
-  };
-  // Reads one header line of exactly `count` numbers.
-  const auto header_line = [&](std::size_t scan, std::size_t count, const char* what) {
-    if (!lines.next(b, e)) {
-      throw InputError("load_cloud: " + name + " scan " + std::to_string(scan) + ": the file ends at line " +
-                       std::to_string(lines.line_no()) + " inside the scan header: expected " + what);
+  /// Appends up to `max` measured points (common frame) to xyz (3 per point), intensity and rgb
+  /// (3 per point when the scan has colour), and their grid row and column when rows/cols are
+  /// given. @return false once the file is done (after the last scan).
+  bool read(std::size_t max, std::vector<double>& xyz, std::vector<float>& intensity, std::vector<std::uint8_t>& rgb,
+            std::vector<std::int32_t>* rows_out, std::vector<std::int32_t>* cols_out) {
+    std::size_t given = 0;
+    while (given < max) {
+      if (i_ == n_) {
+        if (in_scan_) end_scan();
+        if (!start_scan()) return false;
+        continue;
+      }
+      const char* b = nullptr;
+      const char* e = nullptr;
+      if (!lines_.next(b, e)) {
+        throw InputError("load_cloud: " + name_ + " scan " + std::to_string(scans_) + " (header at line " +
+                         std::to_string(header_line_no_) + ") declares " + std::to_string(rows_) + " rows x " +
+                         std::to_string(columns_) + " columns = " + std::to_string(n_) +
+                         " points, but the file ends after " + std::to_string(i_) + " point lines (line " +
+                         std::to_string(lines_.line_no()) + ")");
+      }
+      const std::size_t got = parse_numbers(b, e, v_, 7);
+      if (width_ == 0 && (got == 4 || got == 7)) width_ = got;
+      if (got != width_) {
+        fail_at("scan " + std::to_string(scans_) + " point " + std::to_string(i_ + 1) + " of " + std::to_string(n_) +
+                ": expected " + (width_ ? std::to_string(width_) : std::string("4 or 7")) +
+                " numbers (x y z intensity [r g b]), found '" + excerpt(b, e) + "'");
+      }
+      const std::size_t i = i_++;
+      if (v_[0] == 0.0 && v_[1] == 0.0 && v_[2] == 0.0) {
+        ++no_return_;
+        continue;
+      }
+      Eigen::Vector3d p(v_[0], v_[1], v_[2]);
+      if (!identity_) p = rot_t_ * p + t_;
+      xyz.insert(xyz.end(), {p.x(), p.y(), p.z()});
+      const float in = static_cast<float>(v_[3]);
+      intensity.push_back(in);
+      i_min_ = std::min(i_min_, in);
+      i_max_ = std::max(i_max_, in);
+      if (width_ == 7) {
+        for (int c = 4; c < 7; ++c) {
+          if (!(v_[c] >= 0.0 && v_[c] <= 255.0)) {
+            fail_at("scan " + std::to_string(scans_) + ": colour value " + std::to_string(v_[c]) + ": expected 0 to 255");
+          }
+          rgb.push_back(static_cast<std::uint8_t>(std::lround(v_[c])));
+        }
+      }
+      if (rows_out) rows_out->push_back(static_cast<std::int32_t>(i % rows_));
+      if (cols_out) cols_out->push_back(static_cast<std::int32_t>(i / rows_));
+      ++given;
     }
-    if (parse_numbers(b, e, v, count) != count) {
-      fail_at("scan " + std::to_string(scan) + ": expected " + what + " (" + std::to_string(count) +
-              " numbers), found '" + excerpt(b, e) + "'");
-    }
-  };
+    return true;
+  }
 
-  while (lines.next(b, e)) {
-    const std::size_t scan = ++scans;
-    // columns, rows
+  /// Reads the next scan's header (the next non-blank line starts it); false at the end of the
+  /// file. Then skip_points() or read() its points.
+  bool start_scan() {
+    const char* b = nullptr;
+    const char* e = nullptr;
+    if (!lines_.next(b, e)) {
+      done_ = true;
+      return false;
+    }
+    const std::size_t scan = ++scans_;
     std::size_t dims[2] = {0, 0};
     for (int d = 0; d < 2; ++d) {
-      if (d == 1) header_line(scan, 1, "the row count");
-      const std::size_t got = parse_numbers(b, e, v, 1);
-      if (got != 1 || !(v[0] >= 1) || v[0] != std::floor(v[0]) || v[0] > 1e9) {
+      if (d == 1) header_line(scan, 1, "the row count", b, e);
+      const std::size_t got = parse_numbers(b, e, v_, 1);
+      if (got != 1 || !(v_[0] >= 1) || v_[0] != std::floor(v_[0]) || v_[0] > 1e9) {
         fail_at(std::string("scan ") + std::to_string(scan) + ": expected the " + (d == 0 ? "column" : "row") +
                 " count (one integer ≥ 1) of a PTX scan header, found '" + excerpt(b, e) + "'" +
                 (scan > 1 && d == 0 ? " (more point lines than scan " + std::to_string(scan - 1) +
                                           "'s rows × columns?)"
                                     : ""));
       }
-      dims[d] = static_cast<std::size_t>(v[0]);
+      dims[d] = static_cast<std::size_t>(v_[0]);
     }
-    const std::size_t columns = dims[0], rows = dims[1];
-    const std::size_t header_line_no = lines.line_no() - 1;
-    header_line(scan, 3, "the scanner position x y z");
-    header_line(scan, 3, "scanner axis X");
-    header_line(scan, 3, "scanner axis Y");
-    header_line(scan, 3, "scanner axis Z");
+    columns_ = dims[0];
+    rows_ = dims[1];
+    header_line_no_ = lines_.line_no() - 1;
+    header_line(scan, 3, "the scanner position x y z", b, e);
+    header_line(scan, 3, "scanner axis X", b, e);
+    header_line(scan, 3, "scanner axis Y", b, e);
+    header_line(scan, 3, "scanner axis Z", b, e);
     Eigen::Matrix4d m;
     for (int r = 0; r < 4; ++r) {
-      header_line(scan, 4, "a row of the 4x4 transform");
-      for (int c = 0; c < 4; ++c) m(r, c) = v[c];
+      header_line(scan, 4, "a row of the 4x4 transform", b, e);
+      for (int c = 0; c < 4; ++c) m(r, c) = v_[c];
     }
     if (!m.allFinite() || std::abs(m(0, 3)) > 1e-6 || std::abs(m(1, 3)) > 1e-6 || std::abs(m(2, 3)) > 1e-6 ||
         std::abs(m(3, 3) - 1.0) > 1e-6) {
@@ -145,75 +237,208 @@ ReadResult read_ptx(const ScanSource& source) {
               " " + std::to_string(m(1, 3)) + " " + std::to_string(m(2, 3)) + " " + std::to_string(m(3, 3)) +
               ": expected 0 0 0 1 (row-vector convention, translation in the last row)");
     }
-    const Eigen::Matrix3d rot_t = m.topLeftCorner<3, 3>().transpose();  // column-vector form
-    const Eigen::Vector3d t = m.block<1, 3>(3, 0).transpose();
-    const bool identity = m.isIdentity(0.0);
+    rot_t_ = m.topLeftCorner<3, 3>().transpose();  // column-vector form
+    t_ = m.block<1, 3>(3, 0).transpose();
+    identity_ = m.isIdentity(0.0);
+    n_ = columns_ * rows_;
+    i_ = 0;
+    width_ = 0;
+    in_scan_ = true;
+    return true;
+  }
 
-    const std::size_t n = columns * rows;
-    std::size_t width = 0;  // 4 or 7 values per line, fixed by the scan's first point line
-    for (std::size_t i = 0; i < n; ++i) {
-      if (!lines.next(b, e)) {
-        throw InputError("load_cloud: " + name + " scan " + std::to_string(scan) + " (header at line " +
-                         std::to_string(header_line_no) + ") declares " + std::to_string(rows) + " rows x " +
-                         std::to_string(columns) + " columns = " + std::to_string(n) +
-                         " points, but the file ends after " + std::to_string(i) + " point lines (line " +
-                         std::to_string(lines.line_no()) + ")");
+  /// After start_scan: the width (4 or 7) of the scan's first point line, and the scan's other
+  /// point lines skipped without parsing (line counts only); the scan is then ended. For the
+  /// stream's first look at the file (colour in every scan, the points it holds).
+  std::size_t skip_points() {
+    const char* b = nullptr;
+    const char* e = nullptr;
+    std::size_t width = 0;
+    for (; i_ < n_; ++i_) {
+      if (!lines_.next(b, e)) {
+        throw InputError("load_cloud: " + name_ + " scan " + std::to_string(scans_) + " (header at line " +
+                         std::to_string(header_line_no_) + ") declares " + std::to_string(rows_) + " rows x " +
+                         std::to_string(columns_) + " columns = " + std::to_string(n_) +
+                         " points, but the file ends after " + std::to_string(i_) + " point lines (line " +
+                         std::to_string(lines_.line_no()) + ")");
       }
-      const std::size_t got = parse_numbers(b, e, v, 7);
-      if (width == 0 && (got == 4 || got == 7)) width = got;
-      if (got != width) {
-        fail_at("scan " + std::to_string(scan) + " point " + std::to_string(i + 1) + " of " + std::to_string(n) +
-                ": expected " + (width ? std::to_string(width) : std::string("4 or 7")) +
-                " numbers (x y z intensity [r g b]), found '" + excerpt(b, e) + "'");
+      if (i_ == 0) {
+        const std::size_t got = parse_numbers(b, e, v_, 7);
+        width = got == 4 || got == 7 ? got : 0;
       }
-      if (v[0] == 0.0 && v[1] == 0.0 && v[2] == 0.0) {
-        ++no_return;
-        continue;
+    }
+    in_scan_ = false;
+    return width;
+  }
+
+  /// The notes so far: one per finished scan (and the summary once the file is done).
+  /// `all_rgb`: whether every scan carries colour (known once the file is done, or from a first
+  /// look); `rgb_given`: whether any colour was handed out.
+  std::vector<std::string> notes(bool all_rgb, bool rgb_given) const {
+    std::vector<std::string> out = scan_notes_;
+    if (!done_) return out;
+    if (!all_rgb && rgb_given) out.push_back("RGB dropped: only some scans carry colour");
+    out.push_back(std::to_string(scans_) + " scan(s), " + std::to_string(no_return_) +
+                  " no-return points (0 0 0) skipped; intensity kept as stored (range " + std::to_string(i_min_) +
+                  " to " + std::to_string(i_max_) + ", PTX: [0, 1])" + (all_rgb ? ", RGB kept" : "") +
+                  ", row/column kept");
+    return out;
+  }
+
+  std::size_t scans() const { return scans_; }
+  std::size_t no_return() const { return no_return_; }
+  std::size_t grid_points() const { return n_; }
+  bool done() const { return done_; }
+  /// Whether every scan read so far carried colour.
+  bool all_rgb_seen() const { return all_rgb_seen_; }
+
+ private:
+  [[noreturn]] void fail_at(const std::string& what) const {
+    throw InputError("load_cloud: " + name_ + " line " + std::to_string(lines_.line_no()) + ": " + what);
+  }
+  // Reads one header line of exactly `count` numbers into v_.
+  void header_line(std::size_t scan, std::size_t count, const char* what, const char*& b, const char*& e) {
+    if (!lines_.next(b, e)) {
+      throw InputError("load_cloud: " + name_ + " scan " + std::to_string(scan) + ": the file ends at line " +
+                       std::to_string(lines_.line_no()) + " inside the scan header: expected " + what);
+    }
+    if (parse_numbers(b, e, v_, count) != count) {
+      fail_at("scan " + std::to_string(scan) + ": expected " + what + " (" + std::to_string(count) +
+              " numbers), found '" + excerpt(b, e) + "'");
+    }
+  }
+  void end_scan() {
+    in_scan_ = false;
+    if (width_ != 7) all_rgb_seen_ = false;
+    scan_notes_.push_back("PTX scan " + std::to_string(scans_) + ": " + std::to_string(columns_) + " columns x " +
+                          std::to_string(rows_) + " rows, " + (width_ == 7 ? "x y z i r g b" : "x y z i") +
+                          (identity_ ? ", identity transform" : ", moved into the common frame by its 4x4 transform"));
+  }
+
+  LineSource& lines_;
+  const std::string& name_;
+  double v_[8] = {};
+  std::size_t scans_ = 0, no_return_ = 0;
+  std::size_t columns_ = 0, rows_ = 1, n_ = 0, i_ = 0, width_ = 0, header_line_no_ = 0;
+  bool in_scan_ = false, identity_ = true, done_ = false, all_rgb_seen_ = true;
+  Eigen::Matrix3d rot_t_ = Eigen::Matrix3d::Identity();
+  Eigen::Vector3d t_ = Eigen::Vector3d::Zero();
+  float i_min_ = std::numeric_limits<float>::infinity(), i_max_ = -std::numeric_limits<float>::infinity();
+  std::vector<std::string> scan_notes_;
+};
+
+// A PTX file read in blocks of lines (point_stream.hpp). A first look at open time reads every
+// scan header and the first point line of each scan, skipping the other lines unparsed: the
+// points the file holds and whether every scan has colour (as the whole read decides RGB at its
+// end). Then the points come scan by scan, a chunk at a time.
+class PtxStream final : public PointStream {
+ public:
+  using File = std::unique_ptr<std::FILE, int (*)(std::FILE*)>;
+  PtxStream(const std::filesystem::path& path, std::string name) : name_(std::move(name)), f_(nullptr, &std::fclose) {
+    {
+      File first(std::fopen(path.c_str(), "rb"), &std::fclose);
+      if (!first) throw InputError("load_cloud: " + name_ + ": cannot open it");
+      FileLines lines(first.get(), name_);
+      PtxParser<FileLines> look(lines, name_);
+      while (look.start_scan()) {
+        total_ += look.grid_points();
+        if (look.skip_points() != 7) all_rgb_ = false;
       }
-      Eigen::Vector3d p(v[0], v[1], v[2]);
-      if (!identity) p = rot_t * p + t;
-      xyz.insert(xyz.end(), {p.x(), p.y(), p.z()});
-      const float in = static_cast<float>(v[3]);
-      intensity.push_back(in);
-      i_min = std::min(i_min, in);
-      i_max = std::max(i_max, in);
-      if (width == 7) {
-        for (int c = 4; c < 7; ++c) {
-          if (!(v[c] >= 0.0 && v[c] <= 255.0)) {
-            fail_at("scan " + std::to_string(scan) + ": colour value " + std::to_string(v[c]) +
-                    ": expected 0 to 255");
-          }
-          rgb.push_back(static_cast<std::uint8_t>(std::lround(v[c])));
+      if (look.scans() == 0) throw InputError("load_cloud: " + name_ + " holds no PTX scan (no header line)");
+    }
+    f_.reset(std::fopen(path.c_str(), "rb"));
+    if (!f_) throw InputError("load_cloud: " + name_ + ": cannot open it");
+    lines_ = std::make_unique<FileLines>(f_.get(), name_);
+    parser_ = std::make_unique<PtxParser<FileLines>>(*lines_, name_);
+    assemble_notes();
+  }
+
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    chunk = Cloud();
+    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
+    try {
+      xyz_.clear();
+      intensity_.clear();
+      rgb_.clear();
+      const bool more = parser_->read(std::max<std::size_t>(max_points, 1), xyz_, intensity_, rgb_, nullptr, nullptr);
+      const std::size_t n = intensity_.size();
+      given_ += n;
+      rgb_given_ = rgb_given_ || !rgb_.empty();
+      if (!more) {
+        assemble_notes();
+        if (given_ == 0) {
+          throw InputError("load_cloud: " + name_ + " holds " + std::to_string(parser_->no_return()) +
+                           " grid points, all 0 0 0 (no return): expected at least one measured point");
         }
       }
-      rows_out.push_back(static_cast<std::int32_t>(i % rows));
-      cols_out.push_back(static_cast<std::int32_t>(i / rows));
+      if (n == 0) return false;
+      chunk.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz_.data(), 3, static_cast<Eigen::Index>(n));
+      chunk.intensity = intensity_;
+      if (all_rgb_) chunk.rgb = rgb_;
+      assemble_notes();
+      return true;
+    } catch (const std::exception& e) {
+      failed_ = true;  // the parser's position is undefined: every later call fails too
+      failure_ = e.what();
+      chunk = Cloud();
+      throw;
     }
-    if (width != 7) all_rgb = false;
-    notes.push_back("PTX scan " + std::to_string(scan) + ": " + std::to_string(columns) + " columns x " +
-                    std::to_string(rows) + " rows, " + (width == 7 ? "x y z i r g b" : "x y z i") +
-                    (identity ? ", identity transform" : ", moved into the common frame by its 4x4 transform"));
   }
-  if (scans == 0) throw InputError("load_cloud: " + name + " holds no PTX scan (no header line)");
+
+ private:
+  // The whole read's notes, in its order, as far as they are known; rgb_given_: some scan had
+  // colour (parsed, though not handed out when another scan lacks it).
+  void assemble_notes() {
+    notes_ = parser_->notes(all_rgb_, rgb_given_);
+    notes_.push_back("point lines streamed in chunks");
+  }
+
+  std::string name_;
+  File f_;
+  std::unique_ptr<FileLines> lines_;
+  std::unique_ptr<PtxParser<FileLines>> parser_;
+  std::uint64_t total_ = 0, given_ = 0;
+  bool all_rgb_ = true, rgb_given_ = false, failed_ = false;
+  std::string failure_;
+  std::vector<double> xyz_;
+  std::vector<float> intensity_;
+  std::vector<std::uint8_t> rgb_;
+  std::vector<std::string> notes_;
+};
+
+}  // namespace
+
+ReadResult read_ptx(const ScanSource& source) {
+  const std::string& name = source.display_name;
+  Lines lines(source.bytes);
+  PtxParser<Lines> parser(lines, name);
+  std::vector<double> xyz;
+  std::vector<float> intensity;
+  std::vector<std::uint8_t> rgb;
+  std::vector<std::int32_t> rows_out, cols_out;
+  parser.read(std::numeric_limits<std::size_t>::max(), xyz, intensity, rgb, &rows_out, &cols_out);
+  if (parser.scans() == 0) throw InputError("load_cloud: " + name + " holds no PTX scan (no header line)");
+  const bool all_rgb = parser.all_rgb_seen();
+  std::vector<std::string> notes = parser.notes(all_rgb, !rgb.empty());
 
   Cloud cloud = cloud_from(xyz);
   if (cloud.size() == 0) {
-    throw InputError("load_cloud: " + name + " holds " + std::to_string(no_return) +
+    throw InputError("load_cloud: " + name + " holds " + std::to_string(parser.no_return()) +
                      " grid points, all 0 0 0 (no return): expected at least one measured point");
   }
   cloud.intensity = std::move(intensity);
   cloud.row = std::move(rows_out);
   cloud.col = std::move(cols_out);
-  if (all_rgb) {
-    cloud.rgb = std::move(rgb);
-  } else if (!rgb.empty()) {
-    notes.push_back("RGB dropped: only some scans carry colour");
-  }
-  notes.push_back(std::to_string(scans) + " scan(s), " + std::to_string(no_return) +
-                  " no-return points (0 0 0) skipped; intensity kept as stored (range " + std::to_string(i_min) +
-                  " to " + std::to_string(i_max) + ", PTX: [0, 1])" + (all_rgb ? ", RGB kept" : "") +
-                  ", row/column kept");
+  if (all_rgb) cloud.rgb = std::move(rgb);
   return {std::move(cloud), std::move(notes)};
+}
+
+std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, const std::string& name) {
+  return std::make_unique<PtxStream>(path, name);
 }
 
 }  // namespace hc::pipeline::detail

@@ -93,6 +93,14 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
 std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, const std::string& name,
                                              const LoadOptions* options);
 
+/// A PTX file (read_ptx.cpp) read in blocks of lines: the same points, intensity, colour and
+/// notes as read_ptx (no row/column), in file order. Opening it reads every scan header and
+/// each scan's first point line, skipping the other lines unparsed, for the points the file
+/// holds (rows × columns summed, no-returns included) and whether every scan has colour (RGB is
+/// kept only then, as read_ptx decides). @throws hc::InputError as read_ptx: a bad header or a
+/// file that ends inside a scan when opened, a bad point line from next() (sticky).
+std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, const std::string& name);
+
 /// A LAZ file (read_laz.cpp) decompressed and streamed chunk by chunk: the same points,
 /// colour, intensity and CRS as read_laz, in file order, with one LASzip chunk's compressed
 /// bytes and records in memory at a time (read with pread). The header, the (E)VLRs and the
