@@ -429,7 +429,7 @@ bool runs_tiled(const RunConfig& config) {
   for (char& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
   // Only a natively streamed file is counted without reading it whole (a PTX file's first look
   // reads its lines without parsing the points).
-  if (ext != ".ply" && ext != ".las" && ext != ".laz" && ext != ".ptx") return false;
+  if (ext != ".ply" && ext != ".las" && ext != ".laz" && ext != ".ptx" && ext != ".e57") return false;
   std::error_code ec;
   if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
   std::unique_ptr<PointStream> s;
@@ -438,7 +438,8 @@ bool runs_tiled(const RunConfig& config) {
     s = ext == ".ply"   ? detail::open_ply_stream(f, f.string(), config.input.as_points)
         : ext == ".las" ? detail::open_las_stream(f, f.string(), &load)
         : ext == ".laz" ? detail::open_laz_stream(f, f.string(), &load)
-                        : detail::open_ptx_stream(f, f.string());
+        : ext == ".ptx" ? detail::open_ptx_stream(f, f.string())
+                        : detail::open_e57_stream(f, f.string());
   } catch (const InputError&) {
     return false;  // the in-core read reports the problem
   }

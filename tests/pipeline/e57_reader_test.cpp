@@ -6,6 +6,7 @@
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/point_stream.hpp"
 #include "test_paths.hpp"
 #include "file_bytes.hpp"
 
@@ -590,4 +591,116 @@ TEST(E57Reader, BytestreamShorterThanItsCountIsAnError) {
   write_bytes(p, write_e57({s}));
   const std::string e = load_error(p);
   EXPECT_NE(e.find("bytestream of field 'cartesianX' holds 80 bytes, expected 88"), std::string::npos) << e;
+}
+
+// ---- streamed scan by scan (point_stream.hpp, issue 14) -------------------------------------
+
+namespace {
+
+// Every chunk of a stream, concatenated (xyz, intensity, rgb), and the error it ended with.
+struct Streamed {
+  hc::pipeline::Cloud cloud;
+  std::string error;
+};
+
+Streamed read_stream(const fs::path& p, std::size_t chunk) {
+  Streamed out;
+  std::vector<double> xyz;
+  try {
+    auto s = hc::pipeline::open_point_stream(p);
+    EXPECT_TRUE(s->streamed());
+    hc::pipeline::Cloud c;
+    while (s->next(c, chunk)) {
+      EXPECT_LE(c.size(), chunk);
+      xyz.insert(xyz.end(), c.xyz.data(), c.xyz.data() + c.xyz.size());
+      out.cloud.intensity.insert(out.cloud.intensity.end(), c.intensity.begin(), c.intensity.end());
+      out.cloud.rgb.insert(out.cloud.rgb.end(), c.rgb.begin(), c.rgb.end());
+    }
+    out.cloud.crs = s->crs();
+    std::vector<std::string> notes = s->notes();
+    EXPECT_EQ(notes.back(), "data3D scans read one at a time");
+    notes.pop_back();
+    EXPECT_EQ(notes, hp::load_cloud(p).report.notes) << "the stream's notes are not load_cloud's";
+    // Once failed, a stream stays failed; once done, it stays done.
+    EXPECT_FALSE(s->next(c, chunk));
+  } catch (const hc::InputError& e) {
+    out.error = e.what();
+  }
+  out.cloud.xyz = Eigen::Map<Eigen::Matrix3Xd>(xyz.data(), 3, static_cast<Eigen::Index>(xyz.size() / 3));
+  return out;
+}
+
+void expect_stream_equals_whole(const fs::path& p) {
+  const hc::pipeline::Cloud whole = hp::load_cloud(p).value;
+  for (const std::size_t chunk : {std::size_t{7}, std::size_t{1000}, std::size_t{1} << 20}) {
+    const Streamed got = read_stream(p, chunk);
+    ASSERT_EQ(got.error, "") << "chunk " << chunk;
+    ASSERT_EQ(got.cloud.size(), whole.size()) << "chunk " << chunk;
+    EXPECT_TRUE(got.cloud.xyz == whole.xyz) << "chunk " << chunk;
+    EXPECT_EQ(got.cloud.intensity, whole.intensity) << "chunk " << chunk;
+    EXPECT_EQ(got.cloud.rgb, whole.rgb) << "chunk " << chunk;
+    EXPECT_EQ(got.cloud.crs, whole.crs) << "chunk " << chunk;
+  }
+}
+
+}  // namespace
+
+// Every real sample (one or several scans, cartesian and spherical, float and integer fields,
+// colour, intensity, poses, scans with different fields) gives load_cloud's points, intensity,
+// colour, CRS and notes in any chunking.
+TEST(E57Stream, EveryRealSampleStreamsAsTheWholeRead) {
+  std::size_t multi = 0, refused = 0;
+  for (const auto& e : fs::directory_iterator(hc::test::scan_path("scanner_samples/e57"))) {
+    if (e.path().extension() != ".e57") continue;
+    SCOPED_TRACE(e.path().filename().string());
+    const std::string whole_error = load_error(e.path());
+    if (whole_error != "(no error)") {  // a sample without scans: the same error from the stream
+      EXPECT_EQ(read_stream(e.path(), 1000).error, whole_error);
+      ++refused;
+      continue;
+    }
+    multi += hp::load_cloud(e.path()).value.scan_id.empty() ? 0U : 1U;
+    expect_stream_equals_whole(e.path());
+  }
+  EXPECT_GE(multi, 1U) << "the samples cover several scans";
+  EXPECT_LE(refused, 1U) << "only the sample without scans is refused";
+}
+
+// Two generated scans with poses, written in packets of 700 records: the same points.
+TEST(E57Stream, TwoPosedScansStreamAsTheWholeRead) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  SynthScan s0{Eigen::Matrix3Xd(3, 2500), {0.9, 0.1, -0.3, 0.2}, Eigen::Vector3d(1.5, -2.0, 0.25)};
+  SynthScan s1{Eigen::Matrix3Xd(3, 1700), {1, 0, 0, 0}, Eigen::Vector3d(100.0, 20.0, -3.0)};
+  for (SynthScan* s : {&s0, &s1})
+    for (Eigen::Index i = 0; i < s->local.cols(); ++i) s->local.col(i) = Eigen::Vector3d(u(rng), u(rng), u(rng));
+  const fs::path p = hc::test::temp_dir("e57_stream") / "two.e57";
+  write_bytes(p, write_e57({s0, s1}));
+  expect_stream_equals_whole(p);
+}
+
+// A bad page inside the point data, and a bytestream shorter than its count: the stream fails
+// with load_cloud's message (when opened or in next()), and a later call fails too.
+TEST(E57Stream, ErrorsAreTheWholeReadsAndStick) {
+  const fs::path dir = hc::test::temp_dir("e57_stream");
+  std::string b = read_bytes(sample("libe57-bunnyDouble.e57"));
+  b[5 * 1024 + 100] = static_cast<char>(b[5 * 1024 + 100] ^ 0x10);
+  write_bytes(dir / "flipped.e57", b);
+  SynthScan s{Eigen::Matrix3Xd::Random(3, 10), {1, 0, 0, 0}, Eigen::Vector3d::Zero(), 11};
+  write_bytes(dir / "short.e57", write_e57({s}));
+  for (const char* name : {"flipped.e57", "short.e57"}) {
+    SCOPED_TRACE(name);
+    const std::string whole = load_error(dir / name);
+    ASSERT_NE(whole, "(no error)");
+    EXPECT_EQ(read_stream(dir / name, 100).error, whole);
+  }
+  auto st = hc::pipeline::open_point_stream(dir / "short.e57");
+  hc::pipeline::Cloud c;
+  EXPECT_THROW(st->next(c, 5), hc::InputError);
+  try {
+    st->next(c, 5);
+    ADD_FAILURE() << "a failed stream went on";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("failed earlier"), std::string::npos) << e.what();
+  }
 }

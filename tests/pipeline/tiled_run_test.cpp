@@ -288,6 +288,32 @@ TEST(TiledRun, EqualsTheInCoreRunOnAPtxFileStreamedLineByLine) {
   EXPECT_FALSE(read_whole);
 }
 
+// A real E57 scan (the bunny, double coordinates), read scan by scan at every pass, gives the
+// in-core scene in tiles too; auto counts its records from the XML.
+TEST(TiledRun, EqualsTheInCoreRunOnARealE57ScanStreamedScanByScan) {
+  const fs::path dir = hc::test::temp_dir("e57_scan");
+  fs::copy_file(hc::test::scan_path("scanner_samples/e57/libe57-bunnyDouble.e57"), dir / "bunny.e57");
+  const std::string yaml =
+      "input: {files: [bunny.e57], units: m}\n"
+      "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 0.002, hole_fill_max_cells: 64}\n"
+      "cross_check: {tolerance_m: 0.001}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 3000}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "bunny.yaml", {"scale.tiled_above_points=10000"});
+  EXPECT_TRUE(hc::pipeline::runs_tiled(config));
+  fs::create_directory(dir / "scratch");
+  expect_tiled_equals_in_core(config, 48, dir / "scratch");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = dir / "scratch";
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  bool streamed = false, read_whole = false;
+  for (const auto& st : tiled.summary.stages)
+    for (const std::string& n : st.notes) {
+      streamed = streamed || n.find("data3D scans read one at a time") != std::string::npos;
+      read_whole = read_whole || n.find("read whole") != std::string::npos;
+    }
+  EXPECT_TRUE(streamed);
+  EXPECT_FALSE(read_whole);
+}
+
 // Progress within the long stages: every pass reports, fractions rise within a pass and stay in
 // [0, 1], and the time left is finite and not negative (scale.progress_interval_s: 0 reports
 // every chunk and every tile, so nothing here depends on timing).

@@ -30,6 +30,11 @@
 #include <string_view>
 #include <vector>
 
+#include <cerrno>
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #if defined(__x86_64__) && defined(__GNUC__)
 #include <nmmintrin.h>
 #define HC_E57_HW_CRC 1
@@ -113,6 +118,8 @@ std::string hex(std::uint64_t v) {
 
 class PagedFile {
  public:
+  /// The paged file held in memory: `bytes` (at least the E57 file length long; the pages of
+  /// whole page size within it are read).
   PagedFile(const std::string& bytes, std::uint64_t page, std::string name)
       : data_(reinterpret_cast<const unsigned char*>(bytes.data())),
         size_(bytes.size()),
@@ -120,6 +127,10 @@ class PagedFile {
         payload_(page - 4),
         name_(std::move(name)),
         checked_((bytes.size() + page - 1) / page, false) {}
+  /// The paged file read from `fd` (not owned) with pread, one page at a time, the first `size`
+  /// bytes of it; a page is checked every time it is read from the file.
+  PagedFile(int fd, std::uint64_t size, std::uint64_t page, std::string name)
+      : fd_(fd), size_(size), page_(page), payload_(page - 4), name_(std::move(name)), buffer_(page) {}
 
   std::uint64_t payload() const { return payload_; }
   std::uint64_t logical_size() const { return (size_ / page_) * payload_; }
@@ -138,18 +149,45 @@ class PagedFile {
     while (n > 0) {
       const std::uint64_t pg = logical / payload_;
       const std::uint64_t in = logical % payload_;
-      check_page(pg);
+      const unsigned char* p = page_data(pg);
       const std::size_t take = static_cast<std::size_t>(std::min<std::uint64_t>(n, payload_ - in));
-      std::memcpy(dst, data_ + pg * page_ + in, take);
+      std::memcpy(dst, p + in, take);
       dst += take;
       n -= take;
       logical += take;
     }
   }
 
-  void check_page(std::uint64_t pg) {
-    if (checked_[pg]) return;
-    const unsigned char* p = data_ + pg * page_;
+  /// Page pg's bytes, its checksum checked (in memory: the first time; from a file: at every read).
+  const unsigned char* page_data(std::uint64_t pg) {
+    if (data_ != nullptr) {
+      const unsigned char* p = data_ + pg * page_;
+      if (!checked_[pg]) {
+        verify(p, pg);
+        checked_[pg] = true;
+      }
+      return p;
+    }
+    if (pg != cached_) {
+      std::size_t got = 0;
+      while (got < page_) {
+        const ssize_t r = ::pread(fd_, buffer_.data() + got, page_ - got, static_cast<off_t>(pg * page_ + got));
+        if (r < 0 && errno == EINTR) continue;
+        if (r <= 0) {
+          throw InputError("load_cloud: " + name_ + ": the page at physical offset " + std::to_string(pg * page_) +
+                           " cannot be read (the file is truncated or unreadable)");
+        }
+        got += static_cast<std::size_t>(r);
+      }
+      cached_ = std::numeric_limits<std::uint64_t>::max();
+      verify(buffer_.data(), pg);
+      cached_ = pg;
+    }
+    return buffer_.data();
+  }
+
+ private:
+  void verify(const unsigned char* p, std::uint64_t pg) const {
     const std::uint32_t stored = (std::uint32_t{p[payload_]} << 24) | (std::uint32_t{p[payload_ + 1]} << 16) |
                                  (std::uint32_t{p[payload_ + 2]} << 8) | std::uint32_t{p[payload_ + 3]};
     const std::uint32_t computed = crc32c(p, payload_);
@@ -159,14 +197,15 @@ class PagedFile {
                        std::to_string(payload_) + " data bytes give " + hex(computed) +
                        " (E57 pages end in the CRC-32C of their data): the file is corrupt");
     }
-    checked_[pg] = true;
   }
 
- private:
-  const unsigned char* data_;
+  const unsigned char* data_ = nullptr;
+  int fd_ = -1;
   std::uint64_t size_, page_, payload_;
   std::string name_;
   std::vector<bool> checked_;
+  std::vector<unsigned char> buffer_;
+  std::uint64_t cached_ = std::numeric_limits<std::uint64_t>::max();
 };
 
 // ---------------------------------------------------------------------------------------------
@@ -721,6 +760,242 @@ ScanOut read_scan(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, s
   return out;
 }
 
+
+/// The E57 file header (E2807 § 7.2) of the first 48 bytes `u` of a file of `file_size` bytes,
+/// checked: signature, version 1, page size, file length (within the file, a multiple of the
+/// page size). Throws hc::InputError naming the file and the field.
+struct E57Header {
+  std::uint32_t major = 0, minor = 0;
+  std::uint64_t phys_len = 0, xml_off = 0, xml_len = 0, page = 0;
+};
+
+E57Header parse_e57_header(const unsigned char* u, std::uint64_t file_size, const std::string& name) {
+  if (file_size < 48) {
+    throw InputError("load_cloud: " + name + " is " + std::to_string(file_size) +
+                     " bytes long, shorter than the 48-byte E57 file header");
+  }
+  if (std::memcmp(u, "ASTM-E57", 8) != 0) {
+    throw InputError("load_cloud: " + name + " does not start with the E57 signature 'ASTM-E57'");
+  }
+  E57Header h;
+  h.major = load_le<std::uint32_t>(u + 8);
+  h.minor = load_le<std::uint32_t>(u + 12);
+  h.phys_len = load_le<std::uint64_t>(u + 16);
+  h.xml_off = load_le<std::uint64_t>(u + 24);
+  h.xml_len = load_le<std::uint64_t>(u + 32);
+  h.page = load_le<std::uint64_t>(u + 40);
+  if (h.major != 1) {
+    throw InputError("load_cloud: " + name + " is E57 version " + std::to_string(h.major) + "." +
+                     std::to_string(h.minor) + ", expected major version 1");
+  }
+  if (h.page < 64 || h.page > (1U << 20) || h.page % 4 != 0) {
+    throw InputError("load_cloud: " + name + ": the E57 header gives page size " + std::to_string(h.page) +
+                     ", expected 1024");
+  }
+  if (file_size < h.phys_len) {
+    throw InputError("load_cloud: " + name + " is " + std::to_string(file_size) +
+                     " bytes long but its E57 header says " + std::to_string(h.phys_len) +
+                     " bytes: the file is truncated");
+  }
+  if (h.phys_len % h.page != 0 || h.phys_len == 0) {
+    throw InputError("load_cloud: " + name + ": the E57 header gives file length " + std::to_string(h.phys_len) +
+                     ", expected a positive multiple of the page size " + std::to_string(h.page));
+  }
+  return h;
+}
+
+/// The XML tree of an E57 file and its data3D scans, with the notes of the whole read up to the
+/// first scan's. Not movable (the scans point into the document).
+struct E57Document {
+  pugi::xml_document doc;
+  pugi::xml_node root;
+  std::vector<pugi::xml_node> scans;
+  std::vector<std::string> notes;
+  std::string crs;  ///< e57Root/coordinateMetadata, trimmed; empty when absent
+};
+
+/// Reads and parses the XML section (E2807 § 8) through `file` and lists the data3D scans.
+/// Throws hc::InputError as read_e57.
+void load_e57_document(PagedFile& file, const E57Header& h, std::uint64_t file_size, const std::string& name,
+                       E57Document& d) {
+  (void)file.page_data(0);
+  d.notes.push_back("E57 version " + std::to_string(h.major) + "." + std::to_string(h.minor) + ", " +
+                    std::to_string(h.phys_len) + " bytes in pages of " + std::to_string(h.page) +
+                    " (CRC-32C checked on every page read); coordinates in metres");
+  if (file_size > h.phys_len) {
+    d.notes.push_back(std::to_string(file_size - h.phys_len) + " bytes after the E57 file length ignored");
+  }
+  std::string text(static_cast<std::size_t>(std::min<std::uint64_t>(h.xml_len, file.logical_size())), '\0');
+  if (h.xml_len > file.logical_size()) {
+    throw InputError("load_cloud: " + name + ": the XML section (" + std::to_string(h.xml_len) +
+                     " bytes) is longer than the file: the file is truncated or corrupt");
+  }
+  file.read(file.to_logical(h.xml_off), text.size(), reinterpret_cast<unsigned char*>(text.data()), "the XML section");
+  const pugi::xml_parse_result parsed = d.doc.load_buffer(text.data(), text.size(), pugi::parse_default, pugi::encoding_utf8);
+  if (!parsed) {
+    throw InputError("load_cloud: " + name + ": the XML section does not parse: " + parsed.description() +
+                     " at XML byte " + std::to_string(parsed.offset) + " (expected the E57 XML tree)");
+  }
+  d.root = d.doc.child("e57Root");
+  if (!d.root) throw InputError("load_cloud: " + name + ": the XML section has no <e57Root> element");
+
+  const pugi::xml_node data3d = d.root.child("data3D");
+  if (data3d)
+    for (const pugi::xml_node c : data3d.children("vectorChild")) d.scans.push_back(c);
+  if (d.scans.empty()) {
+    throw InputError("load_cloud: " + name + " holds no scans (data3D is " +
+                     std::string(data3d ? "empty" : "absent") + "): expected at least one data3D scan");
+  }
+  if (d.scans.size() > std::numeric_limits<std::uint16_t>::max()) {
+    throw InputError("load_cloud: " + name + " holds " + std::to_string(d.scans.size()) +
+                     " scans, more than the 65535 scan ids a cloud carries");
+  }
+  if (const pugi::xml_node images = d.root.child("images2D")) {
+    const auto n_images = static_cast<std::size_t>(std::distance(images.children("vectorChild").begin(),
+                                                                 images.children("vectorChild").end()));
+    if (n_images > 0) d.notes.push_back(std::to_string(n_images) + " images2D skipped (images are not read)");
+  }
+  d.notes.push_back(std::to_string(d.scans.size()) + " data3D scan" + (d.scans.size() == 1 ? "" : "s") +
+                    (d.scans.size() > 1 ? ", each placed by its pose into the file frame and merged" : ""));
+  // ASTM E2807 §8.4: e57Root/coordinateMetadata, a String describing the CRS (e.g. WKT).
+  if (const pugi::xml_node cm = d.root.child("coordinateMetadata")) d.crs = std::string(trim(cm.child_value()));
+}
+
+std::string crs_note(const std::string& crs) {
+  return "CRS (coordinateMetadata): " + crs + " [carried into the scene's provenance]";
+}
+
+/// Whether scan's records carry an attribute, from its prototype (as read_scan decodes them):
+/// intensity; colour (all three channels); a grid index (both); and whether its coordinates
+/// are stored single-precision in the file frame (ScanOut's float32_xyz).
+struct ScanAttributes {
+  bool intensity = false, rgb = false, row_col = false, float32 = false;
+};
+
+ScanAttributes scan_attributes(const Xml& xml, const pugi::xml_node& scan) {
+  ScanAttributes a;
+  const pugi::xml_node proto = scan.child("points").child("prototype");
+  std::vector<Field> fields;
+  if (proto) collect_fields(xml, proto, fields);
+  std::map<std::string, const Field*> at;
+  for (const Field& f : fields) at.emplace(f.name, &f);
+  const auto has = [&](const char* k) { return at.count(k) > 0; };
+  a.intensity = has("intensity");
+  a.rgb = has("colorRed") && has("colorGreen") && has("colorBlue");
+  a.row_col = has("rowIndex") && has("columnIndex");
+  const bool cart = has("cartesianX") && has("cartesianY") && has("cartesianZ");
+  const Pose pose = read_pose(xml, scan);
+  a.float32 = cart && !pose.has_rotation && !pose.has_translation && at["cartesianX"]->single &&
+              at["cartesianY"]->single && at["cartesianZ"]->single && at["cartesianX"]->kind == Field::Kind::Float;
+  return a;
+}
+
+// An E57 file read scan by scan (point_stream.hpp): pages come from the file with pread (each
+// checked), one data3D scan is decoded at a time and handed out in chunks; the attributes kept
+// are those every scan's prototype carries, as the whole read's merge keeps them.
+class E57Stream final : public PointStream {
+ public:
+  E57Stream(int fd, std::uint64_t file_size, const E57Header& h, std::string name)
+      : fd_(fd), name_(std::move(name)), xml_(name_), file_(fd, h.phys_len, h.page, name_) {
+    load_e57_document(file_, h, file_size, name_, doc_);
+    notes_ = doc_.notes;
+    // The merge of the whole read (Cloud::append), on the prototypes: an attribute some scans
+    // lack is dropped, with a note at each scan where the two sides differ.
+    bool intensity = false, rgb = false, row = false, col = false, float32 = false;
+    for (std::size_t s = 0; s < doc_.scans.size(); ++s) {
+      const ScanAttributes a = scan_attributes(xml_, doc_.scans[s]);
+      total_ += xml_.attr<std::uint64_t>(doc_.scans[s].child("points"), "recordCount", 0);
+      std::vector<std::string> dropped;
+      const auto join = [&](bool& mine, bool theirs, const char* attr) {
+        if (s == 0) {
+          mine = theirs;
+        } else if (mine != theirs) {
+          dropped.push_back(attr);
+          mine = false;
+        }
+      };
+      join(intensity, a.intensity, "intensity");
+      join(rgb, a.rgb, "rgb");
+      join(row, a.row_col, "row");
+      join(col, a.row_col, "col");
+      float32 = s == 0 ? a.float32 : (float32 || a.float32);
+      drop_notes_.push_back({});
+      for (const std::string& d : dropped) {
+        drop_notes_.back().push_back("attribute '" + d + "' dropped: not every scan carries it (at scan " +
+                                     std::to_string(s) + ")");
+      }
+    }
+    keep_intensity_ = intensity;
+    keep_rgb_ = rgb;
+    float32_ = float32;
+    notes_.push_back("data3D scans read one at a time");
+  }
+  ~E57Stream() override { ::close(fd_); }
+  E57Stream(const E57Stream&) = delete;
+  E57Stream& operator=(const E57Stream&) = delete;
+
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+  std::string crs() const override { return doc_.crs; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    chunk = Cloud();
+    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
+    try {
+      while (pos_ == scan_.size()) {
+        if (next_scan_ == doc_.scans.size()) {
+          if (given_ == 0) throw InputError("load_cloud: " + name_ + " holds no valid point in any data3D scan");
+          return false;
+        }
+        const std::size_t s = next_scan_++;
+        ScanOut one = read_scan(file_, xml_, doc_.scans[s], s, name_);
+        scan_ = std::move(one.cloud);
+        pos_ = 0;
+        notes_.pop_back();
+        notes_.insert(notes_.end(), one.notes.begin(), one.notes.end());
+        notes_.insert(notes_.end(), drop_notes_[s].begin(), drop_notes_[s].end());
+        if (next_scan_ == doc_.scans.size() && !doc_.crs.empty()) notes_.push_back(crs_note(doc_.crs));
+        notes_.push_back("data3D scans read one at a time");
+      }
+      const std::size_t n = std::min(std::max<std::size_t>(max_points, 1), scan_.size() - pos_);
+      const auto first = static_cast<Eigen::Index>(pos_), count = static_cast<Eigen::Index>(n);
+      chunk.xyz = scan_.xyz.middleCols(first, count);
+      if (keep_intensity_ && scan_.has_intensity()) {
+        chunk.intensity.assign(scan_.intensity.begin() + first, scan_.intensity.begin() + first + count);
+      }
+      if (keep_rgb_ && scan_.has_rgb()) chunk.rgb.assign(scan_.rgb.begin() + 3 * first, scan_.rgb.begin() + 3 * (first + count));
+      chunk.float32_xyz = float32_;
+      pos_ += n;
+      given_ += n;
+      if (pos_ == scan_.size()) {  // free the scan once handed out
+        scan_ = Cloud();
+        pos_ = 0;
+      }
+      return true;
+    } catch (const std::exception& e) {
+      failed_ = true;
+      failure_ = e.what();
+      chunk = Cloud();
+      throw;
+    }
+  }
+
+ private:
+  int fd_;
+  std::string name_;
+  Xml xml_;
+  PagedFile file_;
+  E57Document doc_;
+  std::vector<std::vector<std::string>> drop_notes_;  // per scan
+  std::uint64_t total_ = 0, given_ = 0;
+  std::size_t next_scan_ = 0, pos_ = 0;
+  Cloud scan_;
+  bool keep_intensity_ = false, keep_rgb_ = false, float32_ = false, failed_ = false;
+  std::string failure_;
+  std::vector<std::string> notes_;
+};
+
 }  // namespace
 
 /// Reads an E57 file (E2807 §§ 7–9) whole from memory. Output: every valid record of every
@@ -735,106 +1010,51 @@ ReadResult read_e57(const ScanSource& source) {
   const std::string& name = source.display_name;
   const std::string& bytes = source.bytes;
   const auto* u = reinterpret_cast<const unsigned char*>(bytes.data());
-  // File header, E2807 § 7.2: signature, version, lengths and offsets, page size (48 bytes).
-  if (bytes.size() < 48) {
-    throw InputError("load_cloud: " + name + " is " + std::to_string(bytes.size()) +
-                     " bytes long, shorter than the 48-byte E57 file header");
-  }
-  if (std::memcmp(u, "ASTM-E57", 8) != 0) {
-    throw InputError("load_cloud: " + name + " does not start with the E57 signature 'ASTM-E57'");
-  }
-  const auto major = load_le<std::uint32_t>(u + 8), minor = load_le<std::uint32_t>(u + 12);
-  const auto phys_len = load_le<std::uint64_t>(u + 16), xml_off = load_le<std::uint64_t>(u + 24),
-             xml_len = load_le<std::uint64_t>(u + 32), page = load_le<std::uint64_t>(u + 40);
-  if (major != 1) {
-    throw InputError("load_cloud: " + name + " is E57 version " + std::to_string(major) + "." +
-                     std::to_string(minor) + ", expected major version 1");
-  }
-  if (page < 64 || page > (1U << 20) || page % 4 != 0) {
-    throw InputError("load_cloud: " + name + ": the E57 header gives page size " + std::to_string(page) +
-                     ", expected 1024");
-  }
-  if (bytes.size() < phys_len) {
-    throw InputError("load_cloud: " + name + " is " + std::to_string(bytes.size()) +
-                     " bytes long but its E57 header says " + std::to_string(phys_len) +
-                     " bytes: the file is truncated");
-  }
-  if (phys_len % page != 0 || phys_len == 0) {
-    throw InputError("load_cloud: " + name + ": the E57 header gives file length " + std::to_string(phys_len) +
-                     ", expected a positive multiple of the page size " + std::to_string(page));
-  }
-  const std::string view = bytes.size() == phys_len ? std::string() : bytes.substr(0, phys_len);
-  PagedFile file(view.empty() ? bytes : view, page, name);
-  file.check_page(0);
-
-  std::vector<std::string> notes;
-  notes.push_back("E57 version " + std::to_string(major) + "." + std::to_string(minor) + ", " +
-                  std::to_string(phys_len) + " bytes in pages of " + std::to_string(page) +
-                  " (CRC-32C checked on every page read); coordinates in metres");
-  if (bytes.size() > phys_len) {
-    notes.push_back(std::to_string(bytes.size() - phys_len) + " bytes after the E57 file length ignored");
-  }
-
-  // XML section, E2807 § 8.
-  std::string text(static_cast<std::size_t>(std::min<std::uint64_t>(xml_len, file.logical_size())), '\0');
-  if (xml_len > file.logical_size()) {
-    throw InputError("load_cloud: " + name + ": the XML section (" + std::to_string(xml_len) +
-                     " bytes) is longer than the file: the file is truncated or corrupt");
-  }
-  file.read(file.to_logical(xml_off), text.size(), reinterpret_cast<unsigned char*>(text.data()), "the XML section");
-  pugi::xml_document doc;
-  const pugi::xml_parse_result parsed = doc.load_buffer(text.data(), text.size(), pugi::parse_default, pugi::encoding_utf8);
-  if (!parsed) {
-    throw InputError("load_cloud: " + name + ": the XML section does not parse: " + parsed.description() +
-                     " at XML byte " + std::to_string(parsed.offset) + " (expected the E57 XML tree)");
-  }
+  const E57Header h = parse_e57_header(u, bytes.size(), name);
+  const std::string view = bytes.size() == h.phys_len ? std::string() : bytes.substr(0, h.phys_len);
+  PagedFile file(view.empty() ? bytes : view, h.page, name);
+  E57Document d;
+  load_e57_document(file, h, bytes.size(), name, d);
+  std::vector<std::string> notes = std::move(d.notes);
   const Xml xml(name);
-  const pugi::xml_node root = doc.child("e57Root");
-  if (!root) throw InputError("load_cloud: " + name + ": the XML section has no <e57Root> element");
-
-  const pugi::xml_node data3d = root.child("data3D");
-  std::vector<pugi::xml_node> scans;
-  if (data3d)
-    for (const pugi::xml_node c : data3d.children("vectorChild")) scans.push_back(c);
-  if (scans.empty()) {
-    throw InputError("load_cloud: " + name + " holds no scans (data3D is " +
-                     std::string(data3d ? "empty" : "absent") + "): expected at least one data3D scan");
-  }
-  if (scans.size() > std::numeric_limits<std::uint16_t>::max()) {
-    throw InputError("load_cloud: " + name + " holds " + std::to_string(scans.size()) +
-                     " scans, more than the 65535 scan ids a cloud carries");
-  }
-  if (const pugi::xml_node images = root.child("images2D")) {
-    const auto n_images = static_cast<std::size_t>(std::distance(images.children("vectorChild").begin(),
-                                                                 images.children("vectorChild").end()));
-    if (n_images > 0) notes.push_back(std::to_string(n_images) + " images2D skipped (images are not read)");
-  }
 
   ReadResult result;
-  notes.push_back(std::to_string(scans.size()) + " data3D scan" + (scans.size() == 1 ? "" : "s") +
-                  (scans.size() > 1 ? ", each placed by its pose into the file frame and merged" : ""));
-  for (std::size_t s = 0; s < scans.size(); ++s) {
-    ScanOut one = read_scan(file, xml, scans[s], s, name);
-    if (scans.size() > 1) one.cloud.scan_id.assign(one.cloud.size(), static_cast<std::uint16_t>(s));
+  for (std::size_t s = 0; s < d.scans.size(); ++s) {
+    ScanOut one = read_scan(file, xml, d.scans[s], s, name);
+    if (d.scans.size() > 1) one.cloud.scan_id.assign(one.cloud.size(), static_cast<std::uint16_t>(s));
     notes.insert(notes.end(), one.notes.begin(), one.notes.end());
     if (result.cloud.size() == 0 && s == 0) {
       result.cloud = std::move(one.cloud);
       continue;
     }
     const std::vector<std::string> dropped = result.cloud.append(one.cloud);
-    for (const auto& d : dropped)
-      notes.push_back("attribute '" + d + "' dropped: not every scan carries it (at scan " + std::to_string(s) + ")");
+    for (const auto& dd : dropped)
+      notes.push_back("attribute '" + dd + "' dropped: not every scan carries it (at scan " + std::to_string(s) + ")");
   }
-  // ASTM E2807 §8.4: e57Root/coordinateMetadata, a String describing the CRS (e.g. WKT).
-  if (const pugi::xml_node cm = root.child("coordinateMetadata")) {
-    const std::string crs_text(trim(cm.child_value()));
-    if (!crs_text.empty()) {
-      result.cloud.crs = crs_text;
-      notes.push_back("CRS (coordinateMetadata): " + crs_text + " [carried into the scene's provenance]");
-    }
+  if (!d.crs.empty()) {
+    result.cloud.crs = d.crs;
+    notes.push_back(crs_note(d.crs));
   }
   result.notes = std::move(notes);
   return result;
+}
+
+std::unique_ptr<PointStream> open_e57_stream(const std::filesystem::path& path, const std::string& name) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return nullptr;
+  struct stat st {};
+  unsigned char u[48] = {};
+  if (::fstat(fd, &st) != 0 || st.st_size < 48 || ::pread(fd, u, 48, 0) != 48) {
+    ::close(fd);
+    return nullptr;  // load_cloud's whole read says why
+  }
+  try {
+    const E57Header h = parse_e57_header(u, static_cast<std::uint64_t>(st.st_size), name);
+    return std::make_unique<E57Stream>(fd, static_cast<std::uint64_t>(st.st_size), h, name);
+  } catch (...) {
+    ::close(fd);
+    throw;
+  }
 }
 
 }  // namespace hc::pipeline::detail

@@ -93,6 +93,15 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
 std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, const std::string& name,
                                              const LoadOptions* options);
 
+/// An E57 file (read_e57.cpp) read scan by scan: its pages read with pread and each checked
+/// (CRC-32C), one data3D scan decoded at a time (memory: the largest scan) and handed out in
+/// chunks; the same points, intensity, colour, CRS and notes as read_e57 (no scan_id or
+/// row/column). The attributes kept are decided from the scans' prototypes as read_e57's merge
+/// decides them. nullptr when the file cannot be opened or is shorter than its header.
+/// @throws hc::InputError as read_e57: a bad header or XML section when opened; a bad page,
+/// packet or bytestream from next() (sticky).
+std::unique_ptr<PointStream> open_e57_stream(const std::filesystem::path& path, const std::string& name);
+
 /// A PTX file (read_ptx.cpp) read in blocks of lines: the same points, intensity, colour and
 /// notes as read_ptx (no row/column), in file order. Opening it reads every scan header and
 /// each scan's first point line, skipping the other lines unparsed, for the points the file

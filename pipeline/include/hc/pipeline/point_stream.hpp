@@ -10,7 +10,9 @@
 /// load_cloud does); LAZ (`.laz`, one LASzip chunk decompressed at a time, the same points as
 /// load_cloud, and the same extra pass with colour); PTX (`.ptx`, lines read in blocks, the same
 /// points and notes as load_cloud without row/column; a first look at open time reads every scan
-/// header and counts the point lines). E57 and the other text formats are read whole. Elements after the vertex
+/// header and counts the point lines); E57 (`.e57`, scan by scan: one data3D scan decoded at a
+/// time, pages read and checked from the file; the same points, intensity, colour, CRS and notes
+/// as load_cloud). The other text formats are read whole. Elements after the vertex
 /// element (faces, range grids) are not read: a mesh is rasterised in core (mesh_raster.hpp),
 /// never tiled. Every other file is read whole by load_cloud once and handed out in chunks (the
 /// stream's notes say so), so any format load_cloud reads can be streamed, with its memory.
