@@ -12,6 +12,7 @@ report has been read.
     python3 bench/scale.py --sizes 1e6,1e7,1e8 --json scale.json
     python3 bench/scale.py --build build/release --scratch /big/disk/scale
     python3 bench/scale.py --format las --sizes 1e7 --n 800   # LAS 1.2 instead of PLY
+    python3 bench/scale.py --format ptx --sizes 3e6 --n 800   # PTX text (converted from the PLY)
 
 Printed: a Markdown table (docs/scale.md keeps the measured one) with, per run, wall and CPU
 seconds, peak RSS, bytes per point, M points per wall second and per CPU second, and the three
@@ -60,6 +61,31 @@ def run_child(cmd):
     return proc.returncode, wall, usage.ru_utime, usage.ru_stime, usage.ru_maxrss * 1024, err
 
 
+def ply_to_ptx(ply, ptx):
+    """One PTX scan (identity pose) of the float x y z of a binary little-endian PLY written by
+    hc-gen-relief: 1000 rows, as many columns as needed, the rest of the grid no-return lines."""
+    import array
+    with open(ply, "rb") as f:
+        header = b""
+        while not header.endswith(b"end_header\n"):
+            header += f.readline()
+        n = int(header.split(b"element vertex ")[1].split(b"\n")[0])
+        rows = 1000
+        cols = (n + rows - 1) // rows
+        tmp = ptx + ".partial"
+        with open(tmp, "w") as out:
+            out.write(f"{cols}\n{rows}\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n")
+            left = n
+            while left > 0:
+                k = min(left, 1 << 20)
+                a = array.array("f")
+                a.fromfile(f, 3 * k)
+                out.write("".join(f"{a[3*i]:.6f} {a[3*i+1]:.6f} {a[3*i+2]:.6f} 0.5\n" for i in range(k)))
+                left -= k
+            out.write("0 0 0 0\n" * (rows * cols - n))
+        os.replace(tmp, ptx)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--build", default=os.path.join(ROOT, "build", "release"), help="build folder (release preset)")
@@ -71,8 +97,9 @@ def main():
                     help="comma-separated: in-core (scale.tiled=off) and/or tiled (scale.tiled=on)")
     ap.add_argument("--tile-cells", type=int, default=256, help="scale.tile_cells of the tiled runs")
     ap.add_argument("--set", action="append", default=[], help="extra `hapticloud run --set` overrides")
-    ap.add_argument("--format", default="ply", choices=["ply", "las"],
-                    help="the generated scans' format: binary float PLY, or LAS 1.2 (point format 0)")
+    ap.add_argument("--format", default="ply", choices=["ply", "las", "ptx"],
+                    help="the generated scans' format: binary float PLY, LAS 1.2 (point format 0), or PTX "
+                         "(one scan of 1000 rows, converted here from the generated PLY)")
     args = ap.parse_args()
 
     sizes = [parse_count(s) for s in args.sizes.split(",")]
@@ -94,7 +121,13 @@ def main():
         scan = os.path.join(scratch, f"wall_{points}.{args.format}")
         if not os.path.exists(scan):
             print(f"generating {scan} ...", file=sys.stderr)
-            subprocess.run([generator, scan, "--points", str(points), "--quiet"], check=True)
+            if args.format == "ptx":
+                ply = os.path.join(scratch, f"wall_{points}.ply")
+                if not os.path.exists(ply):
+                    subprocess.run([generator, ply, "--points", str(points), "--quiet"], check=True)
+                ply_to_ptx(ply, scan)
+            else:
+                subprocess.run([generator, scan, "--points", str(points), "--quiet"], check=True)
         for n in grids:
           for mode in modes:
             tag = f"{points}_{args.format}_{n}_{mode}"
