@@ -667,8 +667,12 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
 }
 }  // namespace
 
-RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs::path& out_dir,
-                     const ProgressFn& progress, ExistingOutput existing, const LevelTimingFn& level_timing) {
+namespace {
+// write_run; with `movable` (the same scene, owned by the caller and not needed afterwards) the
+// levels pyramid takes level 0's layers from it instead of copying them (issue 14: a copy of
+// six layers is 200 MB at N = 4096).
+RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const RunConfig& config, const fs::path& out_dir,
+                          const ProgressFn& progress, ExistingOutput existing, const LevelTimingFn& level_timing) {
   const auto t_start = Clock::now();
   RunSummary summary = built.summary;
   auto& reports = summary.stages;
@@ -735,20 +739,38 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
   reports.push_back(write_report);
   if (progress) progress(write_report, true);
 
+  // What the report says of the layers, taken before level 0 may be moved into the pyramid.
+  const bool has_surface_layers = scene.layers.has_surface_layers();
+  const bool has_colour = !scene.layers.colour_rgb8.empty();
+  const bool has_intensity = !scene.layers.intensity.values().empty();
+
   // 9. Levels of detail (issue 4): speed against error per level, with previews side by side.
   std::vector<LevelRow> lod_rows;
   std::vector<std::string> lod_previews;
   if (config.lod.report) {
     lod_rows = stage("levels", reports, progress, [&] {
       LodLevel l0;
-      l0.depth_m = scene.layers.depth;
-      l0.colour_rgb8 = scene.layers.colour_rgb8;
-      if (scene.layers.has_surface_layers()) {
-        l0.envelope_m = scene.layers.envelope;
-        l0.texture_m = scene.layers.texture;
-        l0.mu_d = scene.layers.mu_d;
-        l0.mu_s = scene.layers.mu_s;
-        l0.has_layers = true;
+      if (movable != nullptr) {
+        SceneLayers& from = movable->scene.layers;
+        l0.depth_m = std::move(from.depth);
+        l0.colour_rgb8 = std::move(from.colour_rgb8);
+        if (has_surface_layers) {
+          l0.envelope_m = std::move(from.envelope);
+          l0.texture_m = std::move(from.texture);
+          l0.mu_d = std::move(from.mu_d);
+          l0.mu_s = std::move(from.mu_s);
+          l0.has_layers = true;
+        }
+      } else {
+        l0.depth_m = scene.layers.depth;
+        l0.colour_rgb8 = scene.layers.colour_rgb8;
+        if (has_surface_layers) {
+          l0.envelope_m = scene.layers.envelope;
+          l0.texture_m = scene.layers.texture;
+          l0.mu_d = scene.layers.mu_d;
+          l0.mu_s = scene.layers.mu_s;
+          l0.has_layers = true;
+        }
       }
       auto pyramid = std::make_shared<LodPyramid>(std::move(l0), config.layers.options, config.lod);
       LevelTableOptions to;
@@ -975,17 +997,28 @@ RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs:
   }
   md << "## Previews\n\n![depth](previews/depth.png)\n![hillshade](previews/hillshade.png)\n";
   if (summary.cross_check) md << "![cross-check error](previews/cross_check_error.png)\n";
-  if (scene.layers.has_surface_layers()) md << "![texture](previews/texture.png)\n![mu_d](previews/mu_d.png)\n![mu_s](previews/mu_s.png)\n";
-  if (!scene.layers.colour_rgb8.empty()) {
+  if (has_surface_layers) md << "![texture](previews/texture.png)\n![mu_d](previews/mu_d.png)\n![mu_s](previews/mu_s.png)\n";
+  if (has_colour) {
     md << "![colour (front-most point per cell)](previews/colour.png)\n![colour over hillshade](previews/colour_hillshade.png)\n";
   }
-  if (!scene.layers.intensity.values().empty()) md << "![intensity](previews/intensity.png)\n";
+  if (has_intensity) md << "![intensity](previews/intensity.png)\n";
   write_text(staging.path() / "report.md", md.str());
 
   staging.commit();
   summary.out_dir = out_dir;
   summary.moved_aside = staging.moved_aside();
   return summary;
+}
+}  // namespace
+
+RunSummary write_run(const BuiltScene& built, const RunConfig& config, const fs::path& out_dir,
+                     const ProgressFn& progress, ExistingOutput existing, const LevelTimingFn& level_timing) {
+  return write_run_impl(built, nullptr, config, out_dir, progress, existing, level_timing);
+}
+
+RunSummary write_run(BuiltScene&& built, const RunConfig& config, const fs::path& out_dir, const ProgressFn& progress,
+                     ExistingOutput existing, const LevelTimingFn& level_timing) {
+  return write_run_impl(built, &built, config, out_dir, progress, existing, level_timing);
 }
 
 RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const ProgressFn& progress,
@@ -994,8 +1027,8 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   // The levels table's cross-check wants the points; a tiled run keeps a sample of them instead
   // (BuiltScene::point_sample), so that is no reason to stay in core.
   const bool keep_cloud = config.lod.report && config.lod.report_cross_check && !runs_tiled(config);
-  const BuiltScene built = build_scene(config, keep_cloud, progress);
-  return write_run(built, config, out_dir, progress, existing, level_timing);
+  BuiltScene built = build_scene(config, keep_cloud, progress);
+  return write_run(std::move(built), config, out_dir, progress, existing, level_timing);
 }
 
 }  // namespace hc::pipeline

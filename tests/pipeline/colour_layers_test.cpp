@@ -309,6 +309,32 @@ TEST(ColourLayers, ColouredLasRunWritesColourLayerAndPreviewsAndReadsThemBack) {
   EXPECT_NE(text.str().find("previews/colour_hillshade.png"), std::string::npos);
   EXPECT_NE(text.str().find("previews/intensity.png"), std::string::npos);
   EXPECT_NE(text.str().find("per-point attributes found: colour (rgb), intensity"), std::string::npos);
+
+  // The move overload (run_pipeline's), which hands level 0's layers to the levels pyramid
+  // instead of copying them: the same scene files, the same levels table rows and the same
+  // previews named in report.md.
+  ASSERT_TRUE(config.lod.report);
+  BuiltScene moved = built;
+  write_run(std::move(moved), config, dir / "out_moved");
+  for (const auto& e : fs::directory_iterator(dir / "out" / "scene")) {
+    std::ifstream a(e.path(), std::ios::binary), b(dir / "out_moved" / "scene" / e.path().filename(), std::ios::binary);
+    std::stringstream sa, sb;
+    sa << a.rdbuf();
+    sb << b.rdbuf();
+    EXPECT_TRUE(sa.str() == sb.str()) << e.path().filename();
+  }
+  const auto picture_and_table_lines = [](const fs::path& report) {
+    std::ifstream in(report);
+    std::vector<std::string> lines;
+    for (std::string line; std::getline(in, line);) {
+      if (line.rfind("![", 0) == 0) lines.push_back(line);
+      if (line.rfind("| ", 0) == 0) lines.push_back(line.substr(0, line.find('|', 2)));  // a table row's first cell
+    }
+    return lines;
+  };
+  const std::vector<std::string> want = picture_and_table_lines(dir / "out" / "report.md");
+  EXPECT_EQ(picture_and_table_lines(dir / "out_moved" / "report.md"), want);
+  EXPECT_NE(std::find(want.begin(), want.end(), "![colour (front-most point per cell)](previews/colour.png)"), want.end());
 }
 
 TEST(ColourLayers, LevelsOfDetailSmoothColourLikeDepthAndCropItIntoWindows) {

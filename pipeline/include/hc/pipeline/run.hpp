@@ -101,6 +101,13 @@ using LevelTimingFn = std::function<void(const std::shared_ptr<LodPyramid>&, std
 RunSummary write_run(const BuiltScene& built, const RunConfig& config, const std::filesystem::path& out_dir,
                      const ProgressFn& progress = {}, ExistingOutput existing = ExistingOutput::kRefuse,
                      const LevelTimingFn& level_timing = {});
+/// The same for a scene the caller no longer needs: the levels table's pyramid takes level 0's
+/// layers (depth, colour, envelope, texture, μ_d, μ_s) from `built` instead of copying them, so
+/// `built.scene.layers` is left without them (issue 14's memory bound: six layers are about
+/// 200 MB at N = 4096). run_pipeline uses it.
+RunSummary write_run(BuiltScene&& built, const RunConfig& config, const std::filesystem::path& out_dir,
+                     const ProgressFn& progress = {}, ExistingOutput existing = ExistingOutput::kRefuse,
+                     const LevelTimingFn& level_timing = {});
 
 /// build_scene then write_run: the whole of `hapticloud run`.
 /// @throws as build_scene and write_run; the out_dir check happens before any stage runs.
