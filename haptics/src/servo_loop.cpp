@@ -110,8 +110,8 @@ ServoLoop::ServoLoop(HapticDevice& device, SharedState& shared, const Clock& clo
   if (!(std::isfinite(config_.switch_ramp_s) && config_.switch_ramp_s >= 0.0)) {
     fail("switch_ramp_s", config_.switch_ramp_s, "a finite time >= 0 s");
   }
-  if (!(config_.wake_on_surface_min_period >= 0.0 && config_.wake_on_surface_min_period <= 1.0)) {
-    fail("wake_on_surface_min_period", config_.wake_on_surface_min_period, "[0, 1] periods");
+  if (!(config_.wake_on_surface_min_period >= 0.25 && config_.wake_on_surface_min_period <= 1.0)) {
+    fail("wake_on_surface_min_period", config_.wake_on_surface_min_period, "[0.25, 1] periods");
   }
   if (!config_.workspace.valid()) fail("workspace.scale", config_.workspace.scale, "finite > 0 with a finite origin and rotation");
   validate_proxy_params(config_.proxy);
@@ -483,11 +483,13 @@ RealtimeReport ServoLoop::start() {
     // PM QoS: the request holds while the file stays open (written as a binary s32 [µs]).
     const int fd = open("/dev/cpu_dma_latency", O_WRONLY | O_CLOEXEC);
     const std::int32_t zero_us = 0;
-    if (fd >= 0 && write(fd, &zero_us, sizeof zero_us) == static_cast<ssize_t>(sizeof zero_us)) {
+    const ssize_t written = fd >= 0 ? write(fd, &zero_us, sizeof zero_us) : -1;
+    if (written == static_cast<ssize_t>(sizeof zero_us)) {
       cpu_latency_fd_ = fd;
       report.cpu_latency_pinned = true;
     } else {
-      detail += std::string("CPU wake-up latency request (/dev/cpu_dma_latency) refused: ") + std::strerror(errno) +
+      const std::string why = written >= 0 ? std::string("short write") : std::string(std::strerror(errno));
+      detail += "CPU wake-up latency request (/dev/cpu_dma_latency) refused: " + why +
                 " (advisory; needs write access to /dev/cpu_dma_latency)\n";
       if (fd >= 0) close(fd);
     }
@@ -517,10 +519,11 @@ void ServoLoop::thread_main() noexcept {
   const auto min_gap_ns = static_cast<std::int64_t>(config_.wake_on_surface_min_period * static_cast<double>(period_ns_));
   std::int64_t deadline = monotonic_now_ns();
   std::int64_t last_tick = deadline;  // the start counts as a tick for the wake's minimum gap
+  bool last_early = false;
   while (!stop_flag_.load(std::memory_order_acquire) && !stop_requested_) {
     deadline += period_ns_;
     bool early = false;
-    if (wake) {
+    if (wake && !last_early) {  // at most one early tick between two deadline ticks
       early = sleep_until_tick(deadline, last_tick + min_gap_ns);
     } else {
       const timespec ts = to_timespec(deadline);
@@ -530,6 +533,7 @@ void ServoLoop::thread_main() noexcept {
     const std::int64_t wake_ns = monotonic_now_ns();
     tick_impl(early ? kNoDeadline : wake_ns - deadline);
     last_tick = wake_ns;
+    last_early = early;
     if (early) {
       ++stats_.surface_wake_ticks;
       deadline = wake_ns;  // the next tick a whole period after this one
@@ -561,7 +565,13 @@ bool ServoLoop::sleep_until_tick(std::int64_t deadline_ns, std::int64_t earliest
     // FUTEX_WAIT_BITSET takes an absolute timeout on CLOCK_MONOTONIC (futex(2)); it returns on
     // a wake, a changed word (EAGAIN), a signal (EINTR) or the timeout (ETIMEDOUT).
     const timespec ts = to_timespec(deadline_ns);
-    (void)syscall(SYS_futex, word, FUTEX_WAIT_BITSET_PRIVATE, seen, &ts, nullptr, FUTEX_BITSET_MATCH_ANY);
+    if (syscall(SYS_futex, word, FUTEX_WAIT_BITSET_PRIVATE, seen, &ts, nullptr, FUTEX_BITSET_MATCH_ANY) != 0 &&
+        errno != EAGAIN && errno != EINTR && errno != ETIMEDOUT) {
+      // No futex (a sandbox refusing the call): sleep to the deadline as without the wake.
+      while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+      }
+      return false;
+    }
   }
 }
 

@@ -429,11 +429,44 @@ TEST(ServoLoop, WithTheWakeOffASurfaceIsAdoptedOnADeadline) {
   EXPECT_EQ(stats.lateness.count(), stats.ticks);
 }
 
-TEST(ServoLoop, TheWakeGapOutsideZeroToOnePeriodIsAnError) {
+// Publications far faster than the loop (every 20 ms at 4 Hz): one early tick at most between
+// two deadline ticks, so the loop never runs at the publication rate. Lower bounds only: every
+// interval is at least the minimum gap, and of two successive intervals one is a whole period.
+TEST(ServoLoop, SurfacesPublishedEveryHalfPeriodWakeTheLoopAtMostOnceBetweenDeadlines) {
+  SharedState shared(sinusoid_surface(20));
+  SteadyClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  dev.open();
+  ServoConfig cfg;
+  cfg.rate_hz = 4.0;
+  cfg.realtime = RealtimeMode::kOff;
+  ServoLoop loop(dev, shared, clock, cfg);
+  std::vector<TickRecord> trace(64);
+  loop.set_trace(trace);
+  loop.start();
+  for (int k = 0; k < 120; ++k) {  // 2.4 s
+    shared.publish_surface(sinusoid_surface(20), cfg.workspace, static_cast<std::uint64_t>(k + 1));
+    shared.collect_retired();
+    std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  }
+  loop.stop();
+  shared.collect_retired();
+  trace.resize(loop.trace_size());
+  ASSERT_GE(trace.size(), 6U);
+  EXPECT_GE(loop.stats().surface_wake_ticks, 2U) << "the publications did wake the loop";
+  EXPECT_LE(loop.stats().surface_wake_ticks, loop.stats().lateness.count() + 1);
+  for (std::size_t k = 2; k < trace.size(); ++k) {
+    const double a = trace[k - 1].t_s - trace[k - 2].t_s, b = trace[k].t_s - trace[k - 1].t_s;
+    EXPECT_GE(b, 0.125 - 1e-3) << "tick " << k;
+    EXPECT_GE(std::max(a, b), 0.25 - 1e-3) << "two early ticks in a row at tick " << k;
+  }
+}
+
+TEST(ServoLoop, TheWakeGapOutsideAQuarterToOnePeriodIsAnError) {
   SharedState shared;
   ManualClock clock;
   SimulatedDevice dev(clock, circle_path());
-  for (const double bad : {-0.1, 1.5, std::numeric_limits<double>::quiet_NaN()}) {
+  for (const double bad : {-0.1, 0.0, 0.2, 1.5, std::numeric_limits<double>::quiet_NaN()}) {
     ServoConfig cfg;
     cfg.wake_on_surface_min_period = bad;
     try {
@@ -443,7 +476,7 @@ TEST(ServoLoop, TheWakeGapOutsideZeroToOnePeriodIsAnError) {
       EXPECT_NE(std::string(e.what()).find("wake_on_surface_min_period"), std::string::npos) << e.what();
     }
   }
-  for (const double good : {0.0, 1.0}) {
+  for (const double good : {0.25, 1.0}) {
     ServoConfig cfg;
     cfg.wake_on_surface_min_period = good;
     EXPECT_NO_THROW(ServoLoop(dev, shared, clock, cfg));

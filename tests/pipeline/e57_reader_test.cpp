@@ -704,3 +704,22 @@ TEST(E57Stream, ErrorsAreTheWholeReadsAndStick) {
     EXPECT_NE(std::string(e.what()).find("failed earlier"), std::string::npos) << e.what();
   }
 }
+
+// Scans without records among others: the whole read's merge drops the scan ids at each scan
+// where one side has none (and takes the first non-empty scan whole); the stream's notes and
+// points say the same.
+TEST(E57Stream, EmptyScansMergeAsInTheWholeRead) {
+  const fs::path dir = hc::test::temp_dir("e57_stream");
+  SynthScan a{Eigen::Matrix3Xd::Random(3, 10), {1, 0, 0, 0}, Eigen::Vector3d::Zero()};
+  SynthScan none{Eigen::Matrix3Xd(3, 0), {1, 0, 0, 0}, Eigen::Vector3d::Zero()};
+  SynthScan b{Eigen::Matrix3Xd::Random(3, 12), {1, 0, 0, 0}, Eigen::Vector3d(5, 0, 0)};
+  write_bytes(dir / "middle.e57", write_e57({a, none, b}));
+  write_bytes(dir / "first.e57", write_e57({none, a, b}));
+  const auto middle = hp::load_cloud(dir / "middle.e57");
+  ASSERT_EQ(middle.value.size(), 22U);
+  std::size_t dropped = 0;
+  for (const std::string& n : middle.report.notes) dropped += n.find("attribute 'scan_id' dropped") != std::string::npos;
+  EXPECT_EQ(dropped, 2U) << "the oracle: at scan 1 and again at scan 2";
+  expect_stream_equals_whole(dir / "middle.e57");
+  expect_stream_equals_whole(dir / "first.e57");
+}

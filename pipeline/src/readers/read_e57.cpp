@@ -452,10 +452,11 @@ Pose read_pose(const Xml& xml, const pugi::xml_node& scan) {
 }
 
 /// Reads the bytestreams of one CompressedVector (E2807 § 9: binary section header, then packets
-/// from dataPhysicalOffset to the end of the section). Returns one byte string per field.
+/// from dataPhysicalOffset to the end of the section). Returns one byte string per field; with
+/// `only` < fields.size(), only that field's bytes are kept (the others stay empty).
 std::vector<std::string> read_bytestreams(PagedFile& file, const Xml& xml, const pugi::xml_node& points,
                                           const std::vector<Field>& fields, std::uint64_t count,
-                                          const std::string& name) {
+                                          const std::string& name, std::size_t only = SIZE_MAX) {
   std::vector<std::string> streams(fields.size());
   if (count == 0) return streams;
   const auto section_phys = xml.attr<std::uint64_t>(points, "fileOffset", 0);
@@ -479,7 +480,7 @@ std::vector<std::string> read_bytestreams(PagedFile& file, const Xml& xml, const
   }
   std::vector<std::uint64_t> needed(fields.size());
   for (std::size_t k = 0; k < fields.size(); ++k) {
-    needed[k] = fields[k].bytes_needed(count);
+    needed[k] = only == SIZE_MAX || only == k ? fields[k].bytes_needed(count) : 0;
     streams[k].reserve(needed[k] + 16);
   }
   std::vector<unsigned char> lengths;
@@ -514,9 +515,11 @@ std::vector<std::string> read_bytestreams(PagedFile& file, const Xml& xml, const
                            " (" + fields[k].name + ") of " + std::to_string(len) +
                            " bytes runs past the packet's end");
         }
-        const std::size_t old = streams[k].size();
-        streams[k].resize(old + len);
-        file.read(pos + at, len, reinterpret_cast<unsigned char*>(streams[k].data() + old), "a bytestream buffer");
+        if (only == SIZE_MAX || only == k) {
+          const std::size_t old = streams[k].size();
+          streams[k].resize(old + len);
+          file.read(pos + at, len, reinterpret_cast<unsigned char*>(streams[k].data() + old), "a bytestream buffer");
+        }
         at += len;
       }
     } else if (ph[0] != 0 && ph[0] != 2) {  // 0 index packet, 2 empty packet: skipped
@@ -890,6 +893,28 @@ ScanAttributes scan_attributes(const Xml& xml, const pugi::xml_node& scan) {
   return a;
 }
 
+/// How many records of `scan` read_scan keeps: recordCount, less those whose invalid state
+/// (cartesianInvalidState, or sphericalInvalidState for spherical coordinates) is not 0; only
+/// that field's bytestream is read. A scan read_scan will refuse counts as its recordCount (the
+/// refusal comes when it is read).
+std::uint64_t valid_records(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, const std::string& name) {
+  const pugi::xml_node points = scan.child("points");
+  const auto count = xml.attr<std::uint64_t>(points, "recordCount", 0);
+  const pugi::xml_node proto = points.child("prototype");
+  if (count == 0 || !proto || count > std::numeric_limits<std::uint32_t>::max()) return count;
+  std::vector<Field> fields;
+  collect_fields(xml, proto, fields);
+  std::map<std::string, std::size_t> at;
+  for (std::size_t k = 0; k < fields.size(); ++k) at.emplace(fields[k].name, k);
+  const bool cart = at.count("cartesianX") && at.count("cartesianY") && at.count("cartesianZ");
+  const auto state = at.find(cart ? "cartesianInvalidState" : "sphericalInvalidState");
+  if (state == at.end()) return count;
+  const std::vector<std::string> streams = read_bytestreams(file, xml, points, fields, count, name, state->second);
+  std::vector<double> v(static_cast<std::size_t>(count));
+  decode_field(fields[state->second], streams[state->second], v.size(), v.data(), 1);
+  return static_cast<std::uint64_t>(std::count(v.begin(), v.end(), 0.0));
+}
+
 // An E57 file read scan by scan (point_stream.hpp): pages come from the file with pread (each
 // checked), one data3D scan is decoded at a time and handed out in chunks; the attributes kept
 // are those every scan's prototype carries, as the whole read's merge keeps them.
@@ -899,32 +924,49 @@ class E57Stream final : public PointStream {
       : fd_(fd), name_(std::move(name)), xml_(name_), file_(fd, h.phys_len, h.page, name_) {
     load_e57_document(file_, h, file_size, name_, doc_);
     notes_ = doc_.notes;
-    // The merge of the whole read (Cloud::append), on the prototypes: an attribute some scans
-    // lack is dropped, with a note at each scan where the two sides differ.
-    bool intensity = false, rgb = false, row = false, col = false, float32 = false;
+    // The merge of the whole read (read_e57 and Cloud::append), on the prototypes and, with
+    // several scans, the records each keeps (a scan with none carries no attribute): an
+    // attribute some scans lack is dropped, with a note at each scan where the two sides differ.
+    const bool several = doc_.scans.size() > 1;
+    bool intensity = false, rgb = false, row = false, col = false, scan_id = false, float32 = false;
+    std::uint64_t merged = 0;
     for (std::size_t s = 0; s < doc_.scans.size(); ++s) {
       const ScanAttributes a = scan_attributes(xml_, doc_.scans[s]);
-      total_ += xml_.attr<std::uint64_t>(doc_.scans[s].child("points"), "recordCount", 0);
+      const std::uint64_t records = xml_.attr<std::uint64_t>(doc_.scans[s].child("points"), "recordCount", 0);
+      total_ += std::min<std::uint64_t>(records, std::numeric_limits<std::uint32_t>::max());
+      const std::uint64_t kept = several ? valid_records(file_, xml_, doc_.scans[s], name_) : records;
+      const bool some = kept > 0;
       std::vector<std::string> dropped;
-      const auto join = [&](bool& mine, bool theirs, const char* attr) {
-        if (s == 0) {
-          mine = theirs;
-        } else if (mine != theirs) {
-          dropped.push_back(attr);
-          mine = false;
-        }
-      };
-      join(intensity, a.intensity, "intensity");
-      join(rgb, a.rgb, "rgb");
-      join(row, a.row_col, "row");
-      join(col, a.row_col, "col");
-      float32 = s == 0 ? a.float32 : (float32 || a.float32);
       drop_notes_.push_back({});
-      for (const std::string& d : dropped) {
-        drop_notes_.back().push_back("attribute '" + d + "' dropped: not every scan carries it (at scan " +
-                                     std::to_string(s) + ")");
+      if (merged == 0) {  // the first scan, or everything before it was empty: taken whole
+        intensity = a.intensity && some;
+        rgb = a.rgb && some;
+        row = col = a.row_col && some;
+        scan_id = several && some;
+        float32 = a.float32;
+      } else {
+        const auto join = [&](bool& mine, bool theirs, const char* attr) {
+          if (mine != theirs) {
+            dropped.push_back(attr);
+            mine = false;
+          }
+        };
+        join(scan_id, several && some, "scan_id");
+        join(intensity, a.intensity && some, "intensity");
+        join(rgb, a.rgb && some, "rgb");
+        join(row, a.row_col && some, "row");
+        join(col, a.row_col && some, "col");
+        float32 = float32 || a.float32;
+        for (const std::string& d : dropped) {
+          drop_notes_.back().push_back("attribute '" + d + "' dropped: not every scan carries it (at scan " +
+                                       std::to_string(s) + ")");
+        }
       }
+      merged += kept;
     }
+    (void)row;
+    (void)col;
+    (void)scan_id;
     keep_intensity_ = intensity;
     keep_rgb_ = rgb;
     float32_ = float32;

@@ -58,9 +58,11 @@ struct ServoConfig {
   /// Threaded loop: a surface published between two ticks (a LoD switch or pan) wakes the loop,
   /// which runs a tick at once to adopt it instead of waiting for the next deadline, but not
   /// sooner than this many periods after the previous tick (the damping's HIP velocity divides
-  /// by that interval), and then keeps a whole period before the next tick. In [0, 1]: 1 turns
-  /// the wake off (surfaces are adopted on deadlines only), 0.5 bounds the request → first tick
-  /// wait by half a period. [periods]. Issue 16: LoD switch p99 ≤ 1 ms.
+  /// by that interval); the next deadline is then a whole period after that tick, and the tick
+  /// on it is never early again (at most one early tick between two deadline ticks, however
+  /// often surfaces are published). In [0.25, 1]: 1 turns the wake off (surfaces are adopted on
+  /// deadlines only), 0.5 bounds the request → first tick wait by half a period. [periods].
+  /// Issue 16: LoD switch p99 ≤ 1 ms. Without futex(2) the loop sleeps to its deadlines.
   double wake_on_surface_min_period = 0.5;
 };
 
