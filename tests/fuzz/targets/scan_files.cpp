@@ -1,23 +1,46 @@
 // Fuzz targets for the scan readers: the bytes as a file of the format's extension through
-// hc::pipeline::load_cloud (hc/pipeline/ingest.hpp), which dispatches on the extension. A clear
+// hc::pipeline::load_cloud (hc/pipeline/ingest.hpp), which dispatches on the extension, and
+// through open_point_stream (hc/pipeline/point_stream.hpp), read to the end in chunks. A clear
 // hc::Error is a correct answer to bad bytes; anything else (a crash, another exception, a leak,
-// a hang) is a finding.
+// a hang) is a finding, and so is a natively streamed file whose points differ from load_cloud's
+// when both accept it (reported as std::logic_error).
 #include "../fuzz_support.hpp"
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/point_stream.hpp"
 
+#include <algorithm>
+#include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace hc::fuzz {
 namespace {
 
 void scan_file(const char* extension, const std::uint8_t* data, std::size_t size) {
   const auto path = write_scratch(std::string("scan") + extension, data, size);
+  pipeline::Cloud whole;
+  bool whole_ok = false;
   try {
-    (void)pipeline::load_cloud(path);
+    whole = pipeline::load_cloud(path).value;
+    whole_ok = true;
   } catch (const hc::Error&) {
     // refused with a message naming the file and what was expected
+  }
+  try {
+    auto stream = pipeline::open_point_stream(path);
+    std::vector<double> xyz;
+    pipeline::Cloud chunk;
+    while (stream->next(chunk, 97)) xyz.insert(xyz.end(), chunk.xyz.data(), chunk.xyz.data() + chunk.xyz.size());
+    if (whole_ok && stream->streamed()) {
+      const bool same = xyz.size() == static_cast<std::size_t>(whole.xyz.size()) &&
+                        std::equal(xyz.begin(), xyz.end(), whole.xyz.data(), [](double a, double b) {
+                          return a == b || (a != a && b != b);  // NaN equals NaN here
+                        });
+      if (!same) throw std::logic_error(std::string("the stream's points differ from load_cloud's (") + extension + ")");
+    }
+  } catch (const hc::Error&) {
   }
 }
 
