@@ -371,6 +371,58 @@ TEST(PointStream, PtxErrorsAreTheWholeReadsAndStick) {
   EXPECT_EQ(hc::test::error_of([&] { hc::pipeline::open_point_stream(cut); }), cut_error);
 }
 
+// A PTX file of 64 MiB or more: its first look is kept for later streams of the unchanged file
+// (a tiled run opens it once per pass); those give the same points and count, and a file that
+// grew is looked at again.
+TEST(PointStream, ALargePtxFilesFirstLookIsReusedWhileTheFileIsUnchanged) {
+  const fs::path dir = hc::test::temp_dir("ptx_large");
+  const fs::path p = dir / "large.ptx";
+  const auto write_scan = [](std::ofstream& out, int cols, int salt) {
+    out << cols << "\n1000\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";
+    std::string block;
+    for (int k = 0; k < cols * 1000; ++k) {
+      block += std::to_string(0.001 * (k % 997) + salt) + " " + std::to_string(0.002 * (k / 997)) + " 0.5 0.25 10 20 30\n";
+      if (block.size() > (1U << 20)) {
+        out << block;
+        block.clear();
+      }
+    }
+    out << block;
+  };
+  {
+    std::ofstream out(p, std::ios::binary);
+    write_scan(out, 2000, 0);
+  }
+  ASSERT_GE(fs::file_size(p), std::uintmax_t{64} << 20);
+  const auto count = [&](std::uint64_t* total) {
+    auto s = hc::pipeline::open_point_stream(p);
+    *total = s->total_points();
+    Cloud c;
+    std::size_t n = 0, rgb = 0;
+    double sum = 0;
+    while (s->next(c, 1 << 16)) {
+      n += c.size();
+      rgb += c.rgb.size();
+      for (Eigen::Index i = 0; i < c.xyz.cols(); ++i) sum += c.xyz(0, i);
+    }
+    EXPECT_EQ(rgb, 3 * n);
+    return std::pair{n, sum};
+  };
+  std::uint64_t first_total = 0, second_total = 0, grown_total = 0;
+  const auto first = count(&first_total);
+  const auto second = count(&second_total);  // the look comes from the cache
+  EXPECT_EQ(first_total, 2000U * 1000U);
+  EXPECT_EQ(second_total, first_total);
+  EXPECT_EQ(second, first);
+  {
+    std::ofstream out(p, std::ios::binary | std::ios::app);
+    write_scan(out, 3, 7);  // a second scan: size and time change, so the file is looked at again
+  }
+  const auto grown = count(&grown_total);
+  EXPECT_EQ(grown_total, first_total + 3000U);
+  EXPECT_EQ(grown.first, first.first + 3000U);
+}
+
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {
   const fs::path dir = hc::test::temp_dir("whole");
   const fs::path p = write_ply(dir, "ascii", 50, "float", false, true, /*ascii=*/true);

@@ -106,7 +106,8 @@ std::unique_ptr<PointStream> open_e57_stream(const std::filesystem::path& path, 
 /// notes as read_ptx (no row/column), in file order. Opening it reads every scan header and
 /// each scan's first point line, skipping the other lines unparsed, for the points the file
 /// holds (rows × columns summed, no-returns included) and whether every scan has colour (RGB is
-/// kept only then, as read_ptx decides). @throws hc::InputError as read_ptx: a bad header or a
+/// kept only then, as read_ptx decides); a later stream of the same unchanged file (device,
+/// inode, size, modification time) reuses that look. @throws hc::InputError as read_ptx: a bad header or a
 /// file that ends inside a scan when opened, a bad point line from next() (sticky).
 std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, const std::string& name);
 
