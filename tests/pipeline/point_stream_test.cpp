@@ -142,6 +142,31 @@ Cloud read_with_intensity(hc::pipeline::PointStream& s, std::size_t chunk_points
 // The real LAS samples (1.0–1.4, formats with and without colour, 8- and 16-bit colour, WKT
 // and GeoTIFF-key CRS, classes dropped by default): streamed natively, every chunking gives
 // load_cloud's points, colour, intensity and CRS.
+// A natively streamed file read in chunks of 7, 1000 and 2^20 points: load_cloud's points,
+// colour, intensity and CRS, and its notes in its order followed by `how_read`.
+void expect_stream_equals_load_cloud(const fs::path& p, const std::string& how_read) {
+  const auto whole_read = hc::pipeline::load_cloud(p);
+  const Cloud& whole = whole_read.value;
+  for (const std::size_t chunk : {std::size_t{7}, std::size_t{1000}, std::size_t{1} << 20}) {
+    auto s = hc::pipeline::open_point_stream(p);
+    ASSERT_TRUE(s->streamed());
+    EXPECT_GE(s->total_points(), whole.size());
+    EXPECT_EQ(s->crs(), whole.crs);
+    const Cloud got = read_with_intensity(*s, chunk);
+    ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
+    EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
+    EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
+    EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
+    std::vector<std::string> notes = s->notes();
+    ASSERT_FALSE(notes.empty());
+    EXPECT_EQ(notes.back(), how_read);
+    notes.pop_back();
+    const std::vector<std::string>& all = whole_read.report.notes;
+    EXPECT_NE(std::search(all.begin(), all.end(), notes.begin(), notes.end()), all.end())
+        << "the stream's notes are not load_cloud's, in order";
+  }
+}
+
 TEST(PointStream, LasStreamsTheSamePointsColourIntensityAndCrsInAnyChunking) {
   std::size_t with_rgb = 0, with_crs = 0;
   for (const char* name : {"laspy-vegetation_1_3.las", "pdal-autzen_trim_7.las", "pdal-permutations_1.2_2.las",
@@ -151,25 +176,7 @@ TEST(PointStream, LasStreamsTheSamePointsColourIntensityAndCrsInAnyChunking) {
     const Cloud whole = hc::pipeline::load_cloud(p).value;
     with_rgb += whole.has_rgb() ? 1U : 0U;
     with_crs += whole.crs.empty() ? 0U : 1U;
-    for (const std::size_t chunk : {std::size_t{7}, std::size_t{1000}, std::size_t{1} << 20}) {
-      auto s = hc::pipeline::open_point_stream(p);
-      ASSERT_TRUE(s->streamed());
-      EXPECT_GE(s->total_points(), whole.size());
-      EXPECT_EQ(s->crs(), whole.crs);
-      const Cloud got = read_with_intensity(*s, chunk);
-      ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
-      EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
-      EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
-      EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
-      // The reader's notes as the whole read gives them, in its order, then how it was read.
-      std::vector<std::string> notes = s->notes();
-      ASSERT_FALSE(notes.empty());
-      EXPECT_EQ(notes.back(), "point records streamed in chunks");
-      notes.pop_back();
-      const std::vector<std::string> all = hc::pipeline::load_cloud(p).report.notes;
-      const auto at = std::search(all.begin(), all.end(), notes.begin(), notes.end());
-      EXPECT_NE(at, all.end()) << "the stream's notes are not load_cloud's, in order";
-    }
+    expect_stream_equals_load_cloud(p, "point records streamed in chunks");
   }
   EXPECT_GE(with_rgb, 2U) << "the samples cover colour";
   EXPECT_GE(with_crs, 1U) << "the samples cover a CRS";
@@ -226,27 +233,8 @@ TEST(PointStream, LazStreamsTheSamePointsAsTheWholeReadInAnyChunking) {
   for (const char* name : {"pdal-simple.laz", "pdal-autzen_trim.laz", "pdal-1.2-with-color.copc.laz"}) {
     SCOPED_TRACE(name);
     const fs::path p = hc::test::scan_path(std::string("scanner_samples/laz/") + name);
-    const auto whole_read = hc::pipeline::load_cloud(p);
-    const Cloud& whole = whole_read.value;
-    with_rgb += whole.has_rgb() ? 1U : 0U;
-    for (const std::size_t chunk : {std::size_t{7}, std::size_t{1000}, std::size_t{1} << 20}) {
-      auto s = hc::pipeline::open_point_stream(p);
-      ASSERT_TRUE(s->streamed());
-      EXPECT_EQ(s->total_points(), whole.size());
-      EXPECT_EQ(s->crs(), whole.crs);
-      const Cloud got = read_with_intensity(*s, chunk);
-      ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
-      EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
-      EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
-      EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
-      std::vector<std::string> notes = s->notes();
-      ASSERT_FALSE(notes.empty());
-      EXPECT_EQ(notes.back(), "point records streamed in chunks");
-      notes.pop_back();
-      const std::vector<std::string>& all = whole_read.report.notes;
-      EXPECT_NE(std::search(all.begin(), all.end(), notes.begin(), notes.end()), all.end())
-          << "the stream's notes are not load_cloud's, in order";
-    }
+    with_rgb += hc::pipeline::load_cloud(p).value.has_rgb() ? 1U : 0U;
+    expect_stream_equals_load_cloud(p, "point records streamed in chunks");
   }
   EXPECT_GE(with_rgb, 1U) << "the samples cover colour";
 }

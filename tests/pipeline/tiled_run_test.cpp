@@ -101,6 +101,30 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
   EXPECT_TRUE(fs::is_empty(scratch));
 }
 
+// A natively streamed input (`file` in `dir`, config `yaml`): auto takes the tiled run, which
+// gives the in-core scene in tiles of `tile` cells, and its reports say the file was streamed
+// (`streamed_note`), never read whole. Returns the tiled scene.
+BuiltScene expect_streamed_tiled_run(const fs::path& dir, const std::string& yaml, int tile,
+                                     const std::string& streamed_note, std::uint64_t tiled_above) {
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "run.yaml",
+                                                    {"scale.tiled_above_points=" + std::to_string(tiled_above)});
+  EXPECT_TRUE(hc::pipeline::runs_tiled(config));
+  fs::create_directory(dir / "scratch");
+  expect_tiled_equals_in_core(config, tile, dir / "scratch");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = dir / "scratch";
+  BuiltScene tiled = hc::pipeline::build_scene(config);
+  bool streamed = false, read_whole = false;
+  for (const auto& st : tiled.summary.stages)
+    for (const std::string& n : st.notes) {
+      streamed = streamed || n.find(streamed_note) != std::string::npos;
+      read_whole = read_whole || n.find("read whole") != std::string::npos;
+    }
+  EXPECT_TRUE(streamed);
+  EXPECT_FALSE(read_whole);
+  return tiled;
+}
+
 TEST(TiledRun, EqualsTheInCoreRunOnTheBuddhaInTilesOf64Cells) {
   hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
   RunConfig config = hc::pipeline::load_run_config(std::string(HC_SOURCE_DIR) + "/configs/happy_buddha.yaml",
@@ -206,21 +230,7 @@ TEST(TiledRun, EqualsTheInCoreRunOnALasWallStreamedNatively) {
       "input: {files: [wall.las], units: m}\n"
       "grid: {n: 400, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64}\n"
       "cross_check: {tolerance_m: 0.002}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 5000}\n";
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml", {"scale.tiled_above_points=100000"});
-  EXPECT_TRUE(hc::pipeline::runs_tiled(config));
-  fs::create_directory(dir / "scratch");
-  expect_tiled_equals_in_core(config, 64, dir / "scratch");
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.scratch = dir / "scratch";
-  const BuiltScene tiled = hc::pipeline::build_scene(config);
-  bool streamed = false, read_whole = false;
-  for (const auto& st : tiled.summary.stages)
-    for (const std::string& n : st.notes) {
-      streamed = streamed || n.find("point records streamed in chunks") != std::string::npos;
-      read_whole = read_whole || n.find("read whole") != std::string::npos;
-    }
-  EXPECT_TRUE(streamed);
-  EXPECT_FALSE(read_whole);
+  const BuiltScene tiled = expect_streamed_tiled_run(dir, yaml, 64, "point records streamed in chunks", 100000);
   EXPECT_FALSE(tiled.scene.layers.colour_rgb8.empty());
 }
 
@@ -233,21 +243,7 @@ TEST(TiledRun, EqualsTheInCoreRunOnARealLazScanStreamedChunkByChunk) {
       "input: {files: [autzen.laz], units: ft}\n"
       "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 0.5, hole_fill_max_cells: 64}\n"
       "cross_check: {tolerance_m: 0.3}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 5000}\n";
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "autzen.yaml", {"scale.tiled_above_points=10000"});
-  EXPECT_TRUE(hc::pipeline::runs_tiled(config));
-  fs::create_directory(dir / "scratch");
-  expect_tiled_equals_in_core(config, 48, dir / "scratch");
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.scratch = dir / "scratch";
-  const BuiltScene tiled = hc::pipeline::build_scene(config);
-  bool streamed = false, read_whole = false;
-  for (const auto& st : tiled.summary.stages)
-    for (const std::string& n : st.notes) {
-      streamed = streamed || n.find("point records streamed in chunks") != std::string::npos;
-      read_whole = read_whole || n.find("read whole") != std::string::npos;
-    }
-  EXPECT_TRUE(streamed);
-  EXPECT_FALSE(read_whole);
+  (void)expect_streamed_tiled_run(dir, yaml, 48, "point records streamed in chunks", 10000);
 }
 
 // A PTX file of two scans (generated: a tilted rough plate seen from above, 60 000 points per
@@ -271,21 +267,7 @@ TEST(TiledRun, EqualsTheInCoreRunOnAPtxFileStreamedLineByLine) {
       "input: {files: [plate.ptx], units: m}\n"
       "grid: {n: 400, splat_radius_cells: 1.2, see_through_depth_m: 0.005, hole_fill_max_cells: 64}\n"
       "cross_check: {tolerance_m: 0.002}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 5000}\n";
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "plate.yaml", {"scale.tiled_above_points=100000"});
-  EXPECT_TRUE(hc::pipeline::runs_tiled(config));
-  fs::create_directory(dir / "scratch");
-  expect_tiled_equals_in_core(config, 64, dir / "scratch");
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.scratch = dir / "scratch";
-  const BuiltScene tiled = hc::pipeline::build_scene(config);
-  bool streamed = false, read_whole = false;
-  for (const auto& st : tiled.summary.stages)
-    for (const std::string& n : st.notes) {
-      streamed = streamed || n.find("point lines streamed in chunks") != std::string::npos;
-      read_whole = read_whole || n.find("read whole") != std::string::npos;
-    }
-  EXPECT_TRUE(streamed);
-  EXPECT_FALSE(read_whole);
+  (void)expect_streamed_tiled_run(dir, yaml, 64, "point lines streamed in chunks", 100000);
 }
 
 // A real E57 scan (the bunny, double coordinates), read scan by scan at every pass, gives the
@@ -297,21 +279,7 @@ TEST(TiledRun, EqualsTheInCoreRunOnARealE57ScanStreamedScanByScan) {
       "input: {files: [bunny.e57], units: m}\n"
       "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 0.002, hole_fill_max_cells: 64}\n"
       "cross_check: {tolerance_m: 0.001}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 3000}\n";
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "bunny.yaml", {"scale.tiled_above_points=10000"});
-  EXPECT_TRUE(hc::pipeline::runs_tiled(config));
-  fs::create_directory(dir / "scratch");
-  expect_tiled_equals_in_core(config, 48, dir / "scratch");
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.scratch = dir / "scratch";
-  const BuiltScene tiled = hc::pipeline::build_scene(config);
-  bool streamed = false, read_whole = false;
-  for (const auto& st : tiled.summary.stages)
-    for (const std::string& n : st.notes) {
-      streamed = streamed || n.find("data3D scans read one at a time") != std::string::npos;
-      read_whole = read_whole || n.find("read whole") != std::string::npos;
-    }
-  EXPECT_TRUE(streamed);
-  EXPECT_FALSE(read_whole);
+  (void)expect_streamed_tiled_run(dir, yaml, 48, "data3D scans read one at a time", 10000);
 }
 
 // Progress within the long stages: every pass reports, fractions rise within a pass and stay in

@@ -70,6 +70,9 @@ class LasRecordDecoder {
   /// Decodes the n records at p; writes the kept ones at xyz (3 per point), intensity and rgb
   /// (3 per point, when has_rgb) from index 0. @return the number kept.
   std::size_t decode(const char* p, std::size_t n, bool rgb_low_bytes, double* xyz, float* intensity, std::uint8_t* rgb);
+  /// The same into `chunk` (replaced): xyz, intensity and rgb of the kept records. @return the
+  /// number kept (chunk.size()). Used by the streams (open_las_stream, open_laz_stream).
+  std::size_t decode_chunk(const char* p, std::size_t n, bool rgb_low_bytes, Cloud& chunk);
   std::uint64_t kept() const { return kept_; }
   /// "dropped N points by classification (...)" over every decode call so far.
   std::string dropped_note() const;

@@ -424,6 +424,19 @@ std::string las_crs(const LasHeader& header, std::vector<std::string>& notes) {
   return crs;
 }
 
+std::size_t LasRecordDecoder::decode_chunk(const char* p, std::size_t n, bool rgb_low_bytes, Cloud& chunk) {
+  chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
+  chunk.intensity.resize(n);
+  chunk.rgb.resize(has_rgb() ? 3 * n : 0);
+  const std::size_t k = decode(p, n, rgb_low_bytes, chunk.xyz.data(), chunk.intensity.data(), chunk.rgb.data());
+  if (k < n) {  // points were dropped (conservativeResize reallocates: only when needed)
+    chunk.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
+    chunk.intensity.resize(k);
+    if (has_rgb()) chunk.rgb.resize(3 * k);
+  }
+  return k;
+}
+
 ReadResult decode_las_records(const ScanSource& source, LasHeader&& header, const char* records) {
   const std::string& name = source.display_name;
   std::vector<std::string> notes = std::move(header.notes);
@@ -494,17 +507,8 @@ class LasStream final : public PointStream {
           throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) +
                            " of " + std::to_string(total_) + " point records");
         }
-        chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
-        chunk.intensity.resize(n);
-        chunk.rgb.resize(decoder_.has_rgb() ? 3 * n : 0);
-        const std::size_t k =
-            decoder_.decode(buffer_.data(), n, rgb_low_bytes_, chunk.xyz.data(), chunk.intensity.data(), chunk.rgb.data());
+        const std::size_t k = decoder_.decode_chunk(buffer_.data(), n, rgb_low_bytes_, chunk);
         done_ += n;
-        if (k < n) {
-          chunk.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
-          chunk.intensity.resize(k);
-          if (decoder_.has_rgb()) chunk.rgb.resize(3 * k);
-        }
         if (done_ == total_) {
           assemble_notes();
           if (decoder_.kept() == 0) {

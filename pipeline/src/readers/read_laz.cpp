@@ -352,18 +352,9 @@ class LazStream final : public PointStream {
       while (done_ < total_) {
         if (pos_ == have_) load_chunk(next_chunk_++);
         const std::size_t n = std::min<std::size_t>(std::max<std::size_t>(max_points, 1), have_ - pos_);
-        chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
-        chunk.intensity.resize(n);
-        chunk.rgb.resize(decoder_.has_rgb() ? 3 * n : 0);
-        const std::size_t k = decoder_.decode(records_.data() + pos_ * record_length_, n, rgb_low_bytes_, chunk.xyz.data(),
-                                              chunk.intensity.data(), chunk.rgb.data());
+        const std::size_t k = decoder_.decode_chunk(records_.data() + pos_ * record_length_, n, rgb_low_bytes_, chunk);
         pos_ += n;
         done_ += n;
-        if (k < n) {
-          chunk.xyz.conservativeResize(3, static_cast<Eigen::Index>(k));
-          chunk.intensity.resize(k);
-          if (decoder_.has_rgb()) chunk.rgb.resize(3 * k);
-        }
         if (done_ == total_) {
           assemble_notes();
           if (decoder_.kept() == 0) {

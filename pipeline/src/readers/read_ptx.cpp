@@ -160,13 +160,7 @@ class PtxParser {
       }
       const char* b = nullptr;
       const char* e = nullptr;
-      if (!lines_.next(b, e)) {
-        throw InputError("load_cloud: " + name_ + " scan " + std::to_string(scans_) + " (header at line " +
-                         std::to_string(header_line_no_) + ") declares " + std::to_string(rows_) + " rows x " +
-                         std::to_string(columns_) + " columns = " + std::to_string(n_) +
-                         " points, but the file ends after " + std::to_string(i_) + " point lines (line " +
-                         std::to_string(lines_.line_no()) + ")");
-      }
+      if (!lines_.next(b, e)) ends_inside_scan();
       const std::size_t got = parse_numbers(b, e, v_, 7);
       if (width_ == 0 && (got == 4 || got == 7)) width_ = got;
       if (got != width_) {
@@ -260,13 +254,7 @@ class PtxParser {
     const char* e = nullptr;
     std::size_t width = 0;
     for (; i_ < n_; ++i_) {
-      if (!lines_.next(b, e)) {
-        throw InputError("load_cloud: " + name_ + " scan " + std::to_string(scans_) + " (header at line " +
-                         std::to_string(header_line_no_) + ") declares " + std::to_string(rows_) + " rows x " +
-                         std::to_string(columns_) + " columns = " + std::to_string(n_) +
-                         " points, but the file ends after " + std::to_string(i_) + " point lines (line " +
-                         std::to_string(lines_.line_no()) + ")");
-      }
+      if (!lines_.next(b, e)) ends_inside_scan();
       if (i_ == 0) {
         const std::size_t got = parse_numbers(b, e, v_, 7);
         width = got == 4 || got == 7 ? got : 0;
@@ -298,6 +286,13 @@ class PtxParser {
   bool all_rgb_seen() const { return all_rgb_seen_; }
 
  private:
+  [[noreturn]] void ends_inside_scan() const {
+    throw InputError("load_cloud: " + name_ + " scan " + std::to_string(scans_) + " (header at line " +
+                     std::to_string(header_line_no_) + ") declares " + std::to_string(rows_) + " rows x " +
+                     std::to_string(columns_) + " columns = " + std::to_string(n_) +
+                     " points, but the file ends after " + std::to_string(i_) + " point lines (line " +
+                     std::to_string(lines_.line_no()) + ")");
+  }
   [[noreturn]] void fail_at(const std::string& what) const {
     throw InputError("load_cloud: " + name_ + " line " + std::to_string(lines_.line_no()) + ": " + what);
   }
