@@ -10,9 +10,12 @@
 
 #include "readers.hpp"
 
+#include "hc/pipeline/point_stream.hpp"
+
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 #include <string_view>
@@ -88,6 +91,45 @@ class LasRecordDecoder {
   std::array<bool, 256> drop_{};
   std::array<std::uint64_t, 256> dropped_{};
   std::uint64_t kept_ = 0;
+};
+
+/// The point-record streams of LAS and LAZ (open_las_stream, open_laz_stream): the decoding,
+/// the notes in decode_las_records' order, the 8- or 16-bit colour decision (one pass over every
+/// record before the first chunk, as the whole read decides it) and the sticky failure are
+/// shared; a subclass hands out the records.
+class LasRecordStream : public PointStream {
+ public:
+  /// `format_notes`: the header's notes and las_format_notes; `crs_notes`, `crs`: las_crs's.
+  LasRecordStream(std::string name, const LasHeader& header, const LoadOptions* options,
+                  std::vector<std::string> format_notes, std::vector<std::string> crs_notes, std::string crs);
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+  std::string crs() const override { return crs_; }
+  bool next(Cloud& chunk, std::size_t max_points) final;
+
+ protected:
+  /// Points `records` at the next up to `max` (≥ 1, at most the records left) records and
+  /// returns how many (≥ 1). @throws hc::InputError when they cannot be read.
+  virtual std::size_t next_records(std::size_t max, const char*& records) = 0;
+  /// Calls f(records, n) on every record once, from the first, in blocks; then the next
+  /// next_records starts again at the first record. @throws hc::InputError.
+  virtual void each_record_block(const std::function<void(const char*, std::size_t)>& f) = 0;
+
+  std::string name_;
+  std::size_t record_length_;
+  std::uint64_t total_;
+
+ private:
+  void decide_colour();
+  void assemble_notes();
+
+  LasRecordDecoder decoder_;
+  std::uint64_t done_ = 0;
+  bool colour_decided_ = false, rgb_low_bytes_ = false, failed_ = false;
+  std::string failure_;
+  std::vector<std::string> format_notes_, crs_notes_, notes_;
+  std::string crs_;
 };
 
 /// The stage report's notes on a LAS header: version, format, record count, system and software;

@@ -471,111 +471,113 @@ ReadResult read_las(const ScanSource& source) {
   return decode_las_records(source, std::move(header), records);
 }
 
+LasRecordStream::LasRecordStream(std::string name, const LasHeader& header, const LoadOptions* options,
+                                 std::vector<std::string> format_notes, std::vector<std::string> crs_notes,
+                                 std::string crs)
+    : name_(std::move(name)), record_length_(header.record_length), total_(header.count), decoder_(header, options),
+      format_notes_(std::move(format_notes)), crs_notes_(std::move(crs_notes)), crs_(std::move(crs)) {
+  assemble_notes();
+}
+
+bool LasRecordStream::next(Cloud& chunk, std::size_t max_points) {
+  chunk = Cloud();
+  if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
+  try {
+    if (!colour_decided_) decide_colour();
+    while (done_ < total_) {
+      const char* records = nullptr;
+      const std::size_t n = next_records(
+          static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_)), records);
+      const std::size_t k = decoder_.decode_chunk(records, n, rgb_low_bytes_, chunk);
+      done_ += n;
+      if (done_ == total_) {
+        assemble_notes();
+        if (decoder_.kept() == 0) throw InputError("load_cloud: " + name_ + " " + LasRecordDecoder::nothing_kept_message(total_));
+      }
+      if (k > 0) return true;
+    }
+  } catch (const std::exception& e) {
+    // The position in the file and the counts no longer agree: every later call fails too.
+    failed_ = true;
+    failure_ = e.what();
+    chunk = Cloud();
+    throw;
+  }
+  chunk = Cloud();
+  return false;
+}
+
+// Before the first chunk (so that opening a stream to count its points stays cheap).
+void LasRecordStream::decide_colour() {
+  if (decoder_.has_rgb()) {
+    std::uint16_t rgb_max = 0;
+    each_record_block([&](const char* records, std::size_t n) { rgb_max = std::max(rgb_max, decoder_.rgb_max(records, n)); });
+    rgb_low_bytes_ = rgb_max <= 255;
+  }
+  colour_decided_ = true;
+  assemble_notes();
+}
+
+// decode_las_records' notes, in its order, as far as they are known.
+void LasRecordStream::assemble_notes() {
+  notes_ = format_notes_;
+  if (done_ == total_) notes_.push_back(decoder_.dropped_note());
+  if (decoder_.has_rgb() && colour_decided_) notes_.push_back(las_rgb_note(rgb_low_bytes_));
+  notes_.push_back("intensity kept (raw 0..65535)");
+  notes_.insert(notes_.end(), crs_notes_.begin(), crs_notes_.end());
+  notes_.push_back("point records streamed in chunks");
+}
+
 namespace {
 
 // An uncompressed LAS file read record block by record block (point_stream.hpp).
-class LasStream final : public PointStream {
+class LasStream final : public LasRecordStream {
  public:
   using File = std::unique_ptr<std::FILE, int (*)(std::FILE*)>;
-  // `format_notes`: las_format_notes; `crs_notes`: las_crs's. The notes are given in
-  // decode_las_records' order, the colour and dropped-class notes once they are known.
   LasStream(File f, std::string name, const LasHeader& header, const LoadOptions* options,
             std::vector<std::string> format_notes, std::vector<std::string> crs_notes, std::string crs)
-      : f_(std::move(f)), name_(std::move(name)), decoder_(header, options), record_length_(header.record_length),
-        offset_(header.offset), total_(header.count), format_notes_(std::move(format_notes)),
-        crs_notes_(std::move(crs_notes)), crs_(std::move(crs)) {
+      : LasRecordStream(std::move(name), header, options, std::move(format_notes), std::move(crs_notes), std::move(crs)),
+        f_(std::move(f)), offset_(header.offset) {
     seek_records();
-    assemble_notes();
-  }
-
-  std::uint64_t total_points() const override { return total_; }
-  const std::vector<std::string>& notes() const override { return notes_; }
-  bool streamed() const override { return true; }
-  std::string crs() const override { return crs_; }
-
-  bool next(Cloud& chunk, std::size_t max_points) override {
-    chunk = Cloud();
-    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
-    try {
-      if (!colour_decided_) decide_colour();
-      while (done_ < total_) {
-        const std::size_t n =
-            static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
-        buffer_.resize(n * record_length_);
-        const std::size_t got = std::fread(buffer_.data(), record_length_, n, f_.get());
-        if (got != n) {
-          throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) +
-                           " of " + std::to_string(total_) + " point records");
-        }
-        const std::size_t k = decoder_.decode_chunk(buffer_.data(), n, rgb_low_bytes_, chunk);
-        done_ += n;
-        if (done_ == total_) {
-          assemble_notes();
-          if (decoder_.kept() == 0) {
-            throw InputError("load_cloud: " + name_ + " " + LasRecordDecoder::nothing_kept_message(total_));
-          }
-        }
-        if (k > 0) return true;
-      }
-    } catch (const std::exception& e) {
-      // The file position and the counts no longer agree: every later call fails too.
-      failed_ = true;
-      failure_ = e.what();
-      chunk = Cloud();
-      throw;
-    }
-    chunk = Cloud();
-    return false;
   }
 
  private:
+  std::size_t next_records(std::size_t max, const char*& records) override {
+    buffer_.resize(max * record_length_);
+    const std::size_t got = std::fread(buffer_.data(), record_length_, max, f_.get());
+    if (got != max) {
+      throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(read_ + got) +
+                       " of " + std::to_string(total_) + " point records");
+    }
+    read_ += max;
+    records = buffer_.data();
+    return max;
+  }
+
+  void each_record_block(const std::function<void(const char*, std::size_t)>& f) override {
+    for (std::uint64_t done = 0; done < total_;) {
+      const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(65536, total_ - done));
+      buffer_.resize(n * record_length_);
+      if (std::fread(buffer_.data(), record_length_, n, f_.get()) != n) {
+        throw InputError("load_cloud: " + name_ + ": truncated or unreadable in its point records");
+      }
+      f(buffer_.data(), n);
+      done += n;
+    }
+    seek_records();
+  }
+
   void seek_records() {
     if (fseeko(f_.get(), static_cast<off_t>(offset_), SEEK_SET) != 0) {
       throw InputError("load_cloud: " + name_ + ": cannot seek to its point records");
     }
-  }
-
-  // Before the first chunk (so that opening a stream to count its points stays cheap): with
-  // colour, one pass over the records decides 16- or 8-bit RGB, as the whole read does.
-  void decide_colour() {
-    if (decoder_.has_rgb()) {
-      std::uint16_t rgb_max = 0;
-      for (std::uint64_t done = 0; done < total_;) {
-        const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(65536, total_ - done));
-        buffer_.resize(n * record_length_);
-        if (std::fread(buffer_.data(), record_length_, n, f_.get()) != n) {
-          throw InputError("load_cloud: " + name_ + ": truncated or unreadable in its point records");
-        }
-        rgb_max = std::max(rgb_max, decoder_.rgb_max(buffer_.data(), n));
-        done += n;
-      }
-      rgb_low_bytes_ = rgb_max <= 255;
-      seek_records();
-    }
-    colour_decided_ = true;
-    assemble_notes();
-  }
-
-  // decode_las_records' notes, in its order, as far as they are known.
-  void assemble_notes() {
-    notes_ = format_notes_;
-    if (done_ == total_) notes_.push_back(decoder_.dropped_note());
-    if (decoder_.has_rgb() && colour_decided_) notes_.push_back(las_rgb_note(rgb_low_bytes_));
-    notes_.push_back("intensity kept (raw 0..65535)");
-    notes_.insert(notes_.end(), crs_notes_.begin(), crs_notes_.end());
-    notes_.push_back("point records streamed in chunks");
+    read_ = 0;
   }
 
   File f_;
-  std::string name_;
-  LasRecordDecoder decoder_;
-  std::size_t record_length_, offset_;
-  std::uint64_t total_ = 0, done_ = 0;
-  bool colour_decided_ = false, rgb_low_bytes_ = false, failed_ = false;
-  std::string failure_;
+  std::size_t offset_;
+  std::uint64_t read_ = 0;
   std::vector<char> buffer_;
-  std::vector<std::string> format_notes_, crs_notes_, notes_;
-  std::string crs_;
 };
 
 // A read-only mapping of a whole file, released on destruction.

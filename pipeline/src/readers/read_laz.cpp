@@ -326,55 +326,33 @@ void decode_laz_chunk(const LazLayout& L, std::size_t c, const std::uint8_t* byt
 
 // A LAZ file decompressed chunk by chunk (point_stream.hpp): one chunk's compressed bytes and
 // records in memory at a time.
-class LazStream final : public PointStream {
+class LazStream final : public LasRecordStream {
  public:
   LazStream(int fd, std::string name, const LasHeader& header, LazLayout layout, const LoadOptions* options,
             std::vector<std::string> format_notes, std::vector<std::string> crs_notes, std::string crs)
-      : fd_(fd), name_(std::move(name)), decoder_(header, options), layout_(std::move(layout)),
-        record_length_(header.record_length), total_(header.count), format_notes_(std::move(format_notes)),
-        crs_notes_(std::move(crs_notes)), crs_(std::move(crs)) {
-    assemble_notes();
-  }
+      : LasRecordStream(std::move(name), header, options, std::move(format_notes), std::move(crs_notes), std::move(crs)),
+        fd_(fd), layout_(std::move(layout)) {}
   ~LazStream() override { ::close(fd_); }
   LazStream(const LazStream&) = delete;
   LazStream& operator=(const LazStream&) = delete;
 
-  std::uint64_t total_points() const override { return total_; }
-  const std::vector<std::string>& notes() const override { return notes_; }
-  bool streamed() const override { return true; }
-  std::string crs() const override { return crs_; }
-
-  bool next(Cloud& chunk, std::size_t max_points) override {
-    chunk = Cloud();
-    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
-    try {
-      if (!colour_decided_) decide_colour();
-      while (done_ < total_) {
-        if (pos_ == have_) load_chunk(next_chunk_++);
-        const std::size_t n = std::min<std::size_t>(std::max<std::size_t>(max_points, 1), have_ - pos_);
-        const std::size_t k = decoder_.decode_chunk(records_.data() + pos_ * record_length_, n, rgb_low_bytes_, chunk);
-        pos_ += n;
-        done_ += n;
-        if (done_ == total_) {
-          assemble_notes();
-          if (decoder_.kept() == 0) {
-            throw InputError("load_cloud: " + name_ + " " + LasRecordDecoder::nothing_kept_message(total_));
-          }
-        }
-        if (k > 0) return true;
-      }
-    } catch (const std::exception& e) {
-      // The chunk position and the counts no longer agree: every later call fails too.
-      failed_ = true;
-      failure_ = e.what();
-      chunk = Cloud();
-      throw;
-    }
-    chunk = Cloud();
-    return false;
+ private:
+  std::size_t next_records(std::size_t max, const char*& records) override {
+    if (pos_ == have_) load_chunk(next_chunk_++);
+    const std::size_t n = std::min(max, have_ - pos_);
+    records = records_.data() + pos_ * record_length_;
+    pos_ += n;
+    return n;
   }
 
- private:
+  void each_record_block(const std::function<void(const char*, std::size_t)>& f) override {
+    for (std::size_t c = 0; c < layout_.chunks.size(); ++c) {
+      load_chunk(c);
+      f(records_.data(), have_);
+    }
+    have_ = pos_ = next_chunk_ = 0;
+  }
+
   // Reads chunk c's bytes (pread) and decompresses its records into records_.
   void load_chunk(std::size_t c) {
     const Chunk& ch = layout_.chunks[c];
@@ -391,49 +369,16 @@ class LazStream final : public PointStream {
       got += static_cast<std::size_t>(r);
     }
     records_.resize(static_cast<std::size_t>(ch.points) * record_length_);
-    decode_laz_chunk(layout_, c, reinterpret_cast<const std::uint8_t*>(bytes_.data()), record_length_, reinterpret_cast<std::uint8_t*>(records_.data()), name_);
+    decode_laz_chunk(layout_, c, reinterpret_cast<const std::uint8_t*>(bytes_.data()), record_length_,
+                     reinterpret_cast<std::uint8_t*>(records_.data()), name_);
     have_ = static_cast<std::size_t>(ch.points);
     pos_ = 0;
   }
 
-  // Before the first chunk: with colour, one pass over every chunk decides 16- or 8-bit RGB,
-  // as the whole read does.
-  void decide_colour() {
-    if (decoder_.has_rgb()) {
-      std::uint16_t rgb_max = 0;
-      for (std::size_t c = 0; c < layout_.chunks.size(); ++c) {
-        load_chunk(c);
-        rgb_max = std::max(rgb_max, decoder_.rgb_max(records_.data(), have_));
-      }
-      rgb_low_bytes_ = rgb_max <= 255;
-      have_ = pos_ = 0;
-    }
-    colour_decided_ = true;
-    assemble_notes();
-  }
-
-  // decode_las_records' notes, in its order, as far as they are known.
-  void assemble_notes() {
-    notes_ = format_notes_;
-    if (done_ == total_) notes_.push_back(decoder_.dropped_note());
-    if (decoder_.has_rgb() && colour_decided_) notes_.push_back(las_rgb_note(rgb_low_bytes_));
-    notes_.push_back("intensity kept (raw 0..65535)");
-    notes_.insert(notes_.end(), crs_notes_.begin(), crs_notes_.end());
-    notes_.push_back("point records streamed in chunks");
-  }
-
   int fd_;
-  std::string name_;
-  LasRecordDecoder decoder_;
   LazLayout layout_;
-  std::size_t record_length_;
-  std::uint64_t total_ = 0, done_ = 0;
   std::size_t next_chunk_ = 0, have_ = 0, pos_ = 0;  // records_ holds have_ records; pos_ given out
-  bool colour_decided_ = false, rgb_low_bytes_ = false, failed_ = false;
-  std::string failure_;
   std::vector<char> bytes_, records_;
-  std::vector<std::string> format_notes_, crs_notes_, notes_;
-  std::string crs_;
 };
 
 }  // namespace
