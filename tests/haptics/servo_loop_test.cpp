@@ -406,9 +406,10 @@ std::size_t first_row_with_tag(const std::vector<TickRecord>& trace, std::uint32
 }
 
 TEST(ServoLoop, APublishedSurfaceWakesTheLoopButNotSoonerThanTheMinimumGap) {
-  // 4 Hz: a period of 250 ms, so that scheduling delays cannot decide the outcome.
+  // 2 Hz: a period of 500 ms, so that only a scheduling delay of 250 ms could turn the wake tick
+  // into a deadline tick.
   ServoStats stats;
-  const std::vector<TickRecord> trace = publish_between_ticks(4.0, 0.5, stats);
+  const std::vector<TickRecord> trace = publish_between_ticks(2.0, 0.5, stats);
   const std::size_t a = first_row_with_tag(trace, 7);
   ASSERT_GE(a, 2U);
   ASSERT_LT(a + 1, trace.size());
@@ -417,8 +418,8 @@ TEST(ServoLoop, APublishedSurfaceWakesTheLoopButNotSoonerThanTheMinimumGap) {
   EXPECT_EQ(stats.lateness.count() + stats.surface_wake_ticks, stats.ticks);
   // That tick came at least half a period after the one before it (lower bounds the loop
   // guarantees: absolute sleeps never end early), and the next tick a whole period after it.
-  EXPECT_GE(trace[a].t_s - trace[a - 1].t_s, 0.125 - 1e-3);
-  EXPECT_GE(trace[a + 1].t_s - trace[a].t_s, 0.25 - 1e-3);
+  EXPECT_GE(trace[a].t_s - trace[a - 1].t_s, 0.25 - 1e-3);
+  EXPECT_GE(trace[a + 1].t_s - trace[a].t_s, 0.5 - 1e-3);
 }
 
 TEST(ServoLoop, WithTheWakeOffASurfaceIsAdoptedOnADeadline) {
@@ -453,7 +454,7 @@ TEST(ServoLoop, SurfacesPublishedEveryHalfPeriodWakeTheLoopAtMostOnceBetweenDead
   shared.collect_retired();
   trace.resize(loop.trace_size());
   ASSERT_GE(trace.size(), 6U);
-  EXPECT_GE(loop.stats().surface_wake_ticks, 2U) << "the publications did wake the loop";
+  EXPECT_GE(loop.stats().surface_wake_ticks, 1U) << "the publications did wake the loop";
   EXPECT_LE(loop.stats().surface_wake_ticks, loop.stats().lateness.count() + 1);
   for (std::size_t k = 2; k < trace.size(); ++k) {
     const double a = trace[k - 1].t_s - trace[k - 2].t_s, b = trace[k].t_s - trace[k - 1].t_s;
