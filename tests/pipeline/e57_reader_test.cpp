@@ -179,6 +179,7 @@ struct SynthScan {
   double q[4];             // w x y z
   Eigen::Vector3d t;
   std::size_t claimed = 0;  // recordCount written to the XML (0: the real count)
+  std::vector<std::uint8_t> state = {};  // cartesianInvalidState per point (8-bit Integer); empty: no field
 };
 
 // Writes an E57 file: header, one binary section per scan (packets of at most 700 records, with an
@@ -199,10 +200,14 @@ std::string write_e57(const std::vector<SynthScan>& scans, const std::string& xm
       put<std::uint8_t>(pk, 1);
       put<std::uint8_t>(pk, 0);
       put<std::uint16_t>(pk, 0);  // length − 1, patched below
-      put<std::uint16_t>(pk, 3);
+      const bool with_state = !sc.state.empty();
+      put<std::uint16_t>(pk, with_state ? 4 : 3);
       for (int a = 0; a < 3; ++a) put<std::uint16_t>(pk, static_cast<std::uint16_t>(8 * m));
+      if (with_state) put<std::uint16_t>(pk, static_cast<std::uint16_t>(m));
       for (int a = 0; a < 3; ++a)
         for (std::size_t i = i0; i < i0 + m; ++i) put<double>(pk, sc.local(a, static_cast<Eigen::Index>(i)));
+      if (with_state)
+        for (std::size_t i = i0; i < i0 + m; ++i) put<std::uint8_t>(pk, sc.state[i]);
       while (pk.size() % 4) pk += '\0';
       const auto l1 = static_cast<std::uint16_t>(pk.size() - 1);
       std::memcpy(pk.data() + 2, &l1, 2);
@@ -245,9 +250,10 @@ std::string write_e57(const std::vector<SynthScan>& scans, const std::string& xm
       std::snprintf(buf, sizeof buf,
                     "<points type=\"CompressedVector\" fileOffset=\"%zu\" recordCount=\"%zu\">"
                     "<prototype type=\"Structure\"><cartesianX type=\"Float\"/><cartesianY type=\"Float\"/>"
-                    "<cartesianZ type=\"Float\"/></prototype><codecs type=\"Vector\" allowHeterogeneousChildren=\"1\"/>"
+                    "<cartesianZ type=\"Float\"/>%s</prototype><codecs type=\"Vector\" allowHeterogeneousChildren=\"1\"/>"
                     "</points></vectorChild>\n",
-                    offsets[k], sc.claimed ? sc.claimed : static_cast<std::size_t>(sc.local.cols()));
+                    offsets[k], sc.claimed ? sc.claimed : static_cast<std::size_t>(sc.local.cols()),
+                    sc.state.empty() ? "" : "<cartesianInvalidState type=\"Integer\" minimum=\"0\" maximum=\"255\"/>");
       xml += buf;
     }
     xml += "</data3D>\n</e57Root>\n";
@@ -722,4 +728,22 @@ TEST(E57Stream, EmptyScansMergeAsInTheWholeRead) {
   EXPECT_EQ(dropped, 2U) << "the oracle: at scan 1 and again at scan 2";
   expect_stream_equals_whole(dir / "middle.e57");
   expect_stream_equals_whole(dir / "first.e57");
+}
+
+// A scan whose every record has invalid state 2 (no point) keeps nothing, so the whole read's
+// merge drops the scan ids at it and at the next scan; the stream counts the valid records
+// from the state bytestream alone and says the same. The third scan mixes states 0, 1 and 2.
+TEST(E57Stream, AScanWithOnlyInvalidRecordsMergesAsInTheWholeRead) {
+  const fs::path dir = hc::test::temp_dir("e57_stream");
+  SynthScan a{Eigen::Matrix3Xd::Random(3, 10), {1, 0, 0, 0}, Eigen::Vector3d::Zero(), 0, std::vector<std::uint8_t>(10, 0)};
+  SynthScan b{Eigen::Matrix3Xd::Random(3, 8), {1, 0, 0, 0}, Eigen::Vector3d::Zero(), 0, std::vector<std::uint8_t>(8, 2)};
+  SynthScan c{Eigen::Matrix3Xd::Random(3, 1500), {1, 0, 0, 0}, Eigen::Vector3d(3, 0, 0), 0, {}};
+  for (std::size_t i = 0; i < 1500; ++i) c.state.push_back(static_cast<std::uint8_t>(i % 3));
+  write_bytes(dir / "invalid.e57", write_e57({a, b, c}));
+  const auto whole = hp::load_cloud(dir / "invalid.e57");
+  ASSERT_EQ(whole.value.size(), 10U + 500U);  // scan c keeps its state-0 records only
+  std::size_t dropped = 0;
+  for (const std::string& n : whole.report.notes) dropped += n.find("attribute 'scan_id' dropped") != std::string::npos;
+  EXPECT_EQ(dropped, 2U) << "the oracle: at scan 1 and again at scan 2";
+  expect_stream_equals_whole(dir / "invalid.e57");
 }
