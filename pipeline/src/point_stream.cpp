@@ -9,6 +9,9 @@
 #include "hc/common/error.hpp"
 
 #include <algorithm>
+#include <sys/stat.h>
+#include <tuple>
+#include <mutex>
 #include <cctype>
 #include <utility>
 
@@ -51,6 +54,48 @@ class WholeStream final : public PointStream {
 };
 
 }  // namespace
+
+namespace detail {
+
+std::optional<FileKey> large_file_key(int fd) {
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || st.st_size < (off_t{64} << 20)) return std::nullopt;
+  return FileKey{static_cast<std::uint64_t>(st.st_dev), static_cast<std::uint64_t>(st.st_ino),
+                 static_cast<std::uint64_t>(st.st_size), static_cast<std::int64_t>(st.st_mtim.tv_sec),
+                 static_cast<std::int64_t>(st.st_mtim.tv_nsec)};
+}
+
+namespace {
+struct FirstPassCache {
+  std::mutex mutex;
+  std::vector<std::tuple<FileKey, std::string, std::array<std::uint64_t, 2>>> entries;  // newest last
+};
+FirstPassCache& first_pass_cache() {
+  static FirstPassCache cache;
+  return cache;
+}
+}  // namespace
+
+bool recall_first_pass(const FileKey& key, const std::string& what, std::array<std::uint64_t, 2>& values) {
+  FirstPassCache& c = first_pass_cache();
+  const std::lock_guard<std::mutex> lock(c.mutex);
+  for (const auto& [k, w, v] : c.entries) {
+    if (k == key && w == what) {
+      values = v;
+      return true;
+    }
+  }
+  return false;
+}
+
+void remember_first_pass(const FileKey& key, const std::string& what, const std::array<std::uint64_t, 2>& values) {
+  FirstPassCache& c = first_pass_cache();
+  const std::lock_guard<std::mutex> lock(c.mutex);
+  if (c.entries.size() == 16) c.entries.erase(c.entries.begin());
+  c.entries.emplace_back(key, what, values);
+}
+
+}  // namespace detail
 
 std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path, const LoadOptions& options) {
   std::string ext = path.extension().string();

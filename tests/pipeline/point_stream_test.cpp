@@ -411,6 +411,41 @@ TEST(PointStream, ALargePtxFilesFirstLookIsReusedWhileTheFileIsUnchanged) {
   EXPECT_EQ(grown.first, first.first + 3000U);
 }
 
+// A coloured LAS file of 64 MiB or more: the colour pass's result (8- or 16-bit) is kept for
+// later streams of the unchanged file; every stream gives load_cloud's colour.
+TEST(PointStream, ALargeLasFilesColourPassIsReusedAndGivesTheWholeReadsColour) {
+  const fs::path dir = hc::test::temp_dir("las_large");
+  hc::tools::ReliefSpec spec;
+  spec.points = 2'700'000;
+  spec.rgb = true;
+  hc::tools::write_relief(spec, dir / "large.las");
+  ASSERT_GE(fs::file_size(dir / "large.las"), std::uintmax_t{64} << 20);
+  {  // colour whose low bytes differ from its high bytes (the generator writes v·257): zero them,
+     // so that taking the wrong byte would show (LAS 1.2 header: point offset at byte 96, record
+     // length at 105; format 2 keeps R G B as u16 at bytes 20–25 of a record)
+    std::fstream f(dir / "large.las", std::ios::in | std::ios::out | std::ios::binary);
+    std::string bytes((std::istreambuf_iterator<char>(f)), std::istreambuf_iterator<char>());
+    std::uint32_t offset = 0;
+    std::uint16_t length = 0;
+    std::memcpy(&offset, bytes.data() + 96, 4);
+    std::memcpy(&length, bytes.data() + 105, 2);
+    ASSERT_EQ(length, 26U);
+    for (std::size_t at = offset; at + length <= bytes.size(); at += length)
+      for (int c = 0; c < 3; ++c) bytes[at + 20 + 2 * static_cast<std::size_t>(c)] = 0;
+    f.seekp(0);
+    f.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
+  }
+  const Cloud whole = hc::pipeline::load_cloud(dir / "large.las").value;
+  ASSERT_TRUE(whole.has_rgb());
+  ASSERT_NE(*std::max_element(whole.rgb.begin(), whole.rgb.end()), 0) << "the high bytes carry the colour";
+  for (int pass = 0; pass < 2; ++pass) {  // the second takes the colour decision from the first
+    auto s = hc::pipeline::open_point_stream(dir / "large.las");
+    const Cloud got = read_with_intensity(*s, 1 << 18);
+    EXPECT_EQ(got.rgb, whole.rgb) << "pass " << pass;
+    EXPECT_TRUE(got.xyz == whole.xyz) << "pass " << pass;
+  }
+}
+
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {
   const fs::path dir = hc::test::temp_dir("whole");
   const fs::path p = write_ply(dir, "ascii", 50, "float", false, true, /*ascii=*/true);

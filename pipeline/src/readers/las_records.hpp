@@ -17,6 +17,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -77,6 +78,8 @@ class LasRecordDecoder {
   /// number kept (chunk.size()). Used by the streams (open_las_stream, open_laz_stream).
   std::size_t decode_chunk(const char* p, std::size_t n, bool rgb_low_bytes, Cloud& chunk);
   std::uint64_t kept() const { return kept_; }
+  /// The classes dropped (LoadOptions::las_drop_classes as given).
+  const std::vector<int>& drop_classes() const { return drop_classes_; }
   /// "dropped N points by classification (...)" over every decode call so far.
   std::string dropped_note() const;
   /// The error text (after "load_cloud: <file> ") when no record is kept.
@@ -100,8 +103,11 @@ class LasRecordDecoder {
 class LasRecordStream : public PointStream {
  public:
   /// `format_notes`: the header's notes and las_format_notes; `crs_notes`, `crs`: las_crs's.
+  /// `key`: the file's large_file_key, under which the colour pass's result is kept for later
+  /// streams of the same unchanged file.
   LasRecordStream(std::string name, const LasHeader& header, const LoadOptions* options,
-                  std::vector<std::string> format_notes, std::vector<std::string> crs_notes, std::string crs);
+                  std::vector<std::string> format_notes, std::vector<std::string> crs_notes, std::string crs,
+                  std::optional<FileKey> key);
   std::uint64_t total_points() const override { return total_; }
   const std::vector<std::string>& notes() const override { return notes_; }
   bool streamed() const override { return true; }
@@ -125,6 +131,7 @@ class LasRecordStream : public PointStream {
   void assemble_notes();
 
   LasRecordDecoder decoder_;
+  std::optional<FileKey> key_;
   std::uint64_t done_ = 0;
   bool colour_decided_ = false, rgb_low_bytes_ = false, failed_ = false;
   std::string failure_;

@@ -473,9 +473,9 @@ ReadResult read_las(const ScanSource& source) {
 
 LasRecordStream::LasRecordStream(std::string name, const LasHeader& header, const LoadOptions* options,
                                  std::vector<std::string> format_notes, std::vector<std::string> crs_notes,
-                                 std::string crs)
+                                 std::string crs, std::optional<FileKey> key)
     : name_(std::move(name)), record_length_(header.record_length), total_(header.count), decoder_(header, options),
-      format_notes_(std::move(format_notes)), crs_notes_(std::move(crs_notes)), crs_(std::move(crs)) {
+      key_(key), format_notes_(std::move(format_notes)), crs_notes_(std::move(crs_notes)), crs_(std::move(crs)) {
   assemble_notes();
 }
 
@@ -509,10 +509,20 @@ bool LasRecordStream::next(Cloud& chunk, std::size_t max_points) {
 
 // Before the first chunk (so that opening a stream to count its points stays cheap).
 void LasRecordStream::decide_colour() {
-  if (decoder_.has_rgb()) {
+  // The drop classes change which records count: they are part of what is remembered.
+  std::string what = "las_rgb";
+  for (const int c : decoder_.drop_classes()) {
+    what.push_back(' ');
+    what += std::to_string(c);
+  }
+  std::array<std::uint64_t, 2> known{};
+  if (decoder_.has_rgb() && key_ && recall_first_pass(*key_, what, known)) {
+    rgb_low_bytes_ = known[0] != 0;
+  } else if (decoder_.has_rgb()) {
     std::uint16_t rgb_max = 0;
     each_record_block([&](const char* records, std::size_t n) { rgb_max = std::max(rgb_max, decoder_.rgb_max(records, n)); });
     rgb_low_bytes_ = rgb_max <= 255;
+    if (key_) remember_first_pass(*key_, what, {rgb_low_bytes_ ? 1U : 0U, 0U});
   }
   colour_decided_ = true;
   assemble_notes();
@@ -536,7 +546,8 @@ class LasStream final : public LasRecordStream {
   using File = std::unique_ptr<std::FILE, int (*)(std::FILE*)>;
   LasStream(File f, std::string name, const LasHeader& header, const LoadOptions* options,
             std::vector<std::string> format_notes, std::vector<std::string> crs_notes, std::string crs)
-      : LasRecordStream(std::move(name), header, options, std::move(format_notes), std::move(crs_notes), std::move(crs)),
+      : LasRecordStream(std::move(name), header, options, std::move(format_notes), std::move(crs_notes), std::move(crs),
+                        large_file_key(fileno(f.get()))),
         f_(std::move(f)), offset_(header.offset) {
     seek_records();
   }

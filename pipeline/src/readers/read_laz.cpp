@@ -330,7 +330,8 @@ class LazStream final : public LasRecordStream {
  public:
   LazStream(int fd, std::string name, const LasHeader& header, LazLayout layout, const LoadOptions* options,
             std::vector<std::string> format_notes, std::vector<std::string> crs_notes, std::string crs)
-      : LasRecordStream(std::move(name), header, options, std::move(format_notes), std::move(crs_notes), std::move(crs)),
+      : LasRecordStream(std::move(name), header, options, std::move(format_notes), std::move(crs_notes), std::move(crs),
+                        large_file_key(fd)),
         fd_(fd), layout_(std::move(layout)) {}
   ~LazStream() override { ::close(fd_); }
   LazStream(const LazStream&) = delete;

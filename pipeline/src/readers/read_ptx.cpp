@@ -28,11 +28,6 @@
 #include <cstring>
 #include <limits>
 #include <memory>
-#include <mutex>
-#include <tuple>
-#include <utility>
-
-#include <sys/stat.h>
 
 namespace hc::pipeline::detail {
 
@@ -327,44 +322,10 @@ class PtxParser {
   std::vector<std::string> scan_notes_;
 };
 
-/// Identity of a file's contents as fstat sees them: device, inode, size, modification time.
-using LookKey = std::tuple<dev_t, ino_t, off_t, time_t, long>;
-
-/// The first looks of the last few PTX files streamed (points held, colour in every scan),
-/// shared by the streams of one process under a mutex.
-struct LookCache {
-  std::mutex mutex;
-  std::vector<std::pair<LookKey, std::pair<std::uint64_t, bool>>> entries;  // newest last, at most 8
-};
-
-LookCache& look_cache() {
-  static LookCache cache;
-  return cache;
-}
-
-bool cached_look(const LookKey& key, std::uint64_t& total, bool& all_rgb) {
-  LookCache& c = look_cache();
-  const std::lock_guard<std::mutex> lock(c.mutex);
-  for (const auto& [k, v] : c.entries) {
-    if (k != key) continue;
-    total = v.first;
-    all_rgb = v.second;
-    return true;
-  }
-  return false;
-}
-
-void remember_look(const LookKey& key, std::uint64_t total, bool all_rgb) {
-  LookCache& c = look_cache();
-  const std::lock_guard<std::mutex> lock(c.mutex);
-  if (c.entries.size() == 8) c.entries.erase(c.entries.begin());
-  c.entries.push_back({key, {total, all_rgb}});
-}
-
 // A PTX file read in blocks of lines (point_stream.hpp). A first look at open time reads every
 // scan header and the first point line of each scan, skipping the other lines unparsed: the
 // points the file holds and whether every scan has colour (as the whole read decides RGB at its
-// end); later streams of the same unchanged file take it from look_cache(). Then the points come
+// end); later streams of the same unchanged large file reuse it (recall_first_pass). Then the points come
 // scan by scan, a chunk at a time.
 class PtxStream final : public PointStream {
  public:
@@ -372,22 +333,22 @@ class PtxStream final : public PointStream {
   PtxStream(const std::filesystem::path& path, std::string name) : name_(std::move(name)), f_(nullptr, &std::fclose) {
     f_.reset(std::fopen(path.c_str(), "rb"));
     if (!f_) throw InputError("load_cloud: " + name_ + ": cannot open it");
-    // The first look, or its result for this very file (device, inode, size and modification
-    // time unchanged) from an earlier stream: a tiled run opens the file once per pass.
-    struct stat st {};
-    // Only files of 64 MiB or more: the look of a small file costs little, and a file rewritten in
-    // place within one tick of the file system's coarse clock keeps its size and time.
-    const bool known = ::fstat(fileno(f_.get()), &st) == 0 && st.st_size >= (off_t{64} << 20);
-    const LookKey key{st.st_dev, st.st_ino, st.st_size, st.st_mtim.tv_sec, st.st_mtim.tv_nsec};
-    if (!(known && cached_look(key, total_, all_rgb_))) {
+    // The first look, or its result for this very file (unchanged, 64 MiB or more) from an
+    // earlier stream: a tiled run opens the file once per pass.
+    const std::optional<FileKey> key = large_file_key(fileno(f_.get()));
+    std::array<std::uint64_t, 2> look{};
+    if (key && recall_first_pass(*key, "ptx_look", look)) {
+      total_ = look[0];
+      all_rgb_ = look[1] != 0;
+    } else {
       FileLines lines(f_.get(), name_);
-      PtxParser<FileLines> look(lines, name_);
-      while (look.start_scan()) {
-        total_ += look.grid_points();
-        if (look.skip_points() != 7) all_rgb_ = false;
+      PtxParser<FileLines> first(lines, name_);
+      while (first.start_scan()) {
+        total_ += first.grid_points();
+        if (first.skip_points() != 7) all_rgb_ = false;
       }
-      if (look.scans() == 0) throw InputError("load_cloud: " + name_ + " holds no PTX scan (no header line)");
-      if (known) remember_look(key, total_, all_rgb_);
+      if (first.scans() == 0) throw InputError("load_cloud: " + name_ + " holds no PTX scan (no header line)");
+      if (key) remember_first_pass(*key, "ptx_look", {total_, all_rgb_ ? 1U : 0U});
       if (std::fseek(f_.get(), 0, SEEK_SET) != 0) throw InputError("load_cloud: " + name_ + ": cannot seek back to its start");
     }
     lines_ = std::make_unique<FileLines>(f_.get(), name_);

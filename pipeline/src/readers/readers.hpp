@@ -41,6 +41,9 @@
 
 #include <filesystem>
 #include <memory>
+#include <cstdint>
+#include <optional>
+#include <array>
 #include <string>
 #include <vector>
 
@@ -83,10 +86,27 @@ ReadResult read_pts(const ScanSource& source);  ///< read_pts.cpp (Leica PTS)
 std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name,
                                              bool points_only);
 
+/// A file's identity as fstat sees it: device, inode, size and modification time.
+struct FileKey {
+  std::uint64_t dev = 0, ino = 0, size = 0;
+  std::int64_t mtime_s = 0, mtime_ns = 0;
+  bool operator==(const FileKey&) const = default;
+};
+/// The key of the open file `fd` when it is 64 MiB or more, else nullopt: a small file is cheap
+/// to read again, and a file rewritten in place within one tick of the file system's coarse
+/// clock keeps its size and time (point_stream.cpp).
+std::optional<FileKey> large_file_key(int fd);
+/// What a stream's first pass over a large file found (`what` names the pass: "ptx_look",
+/// "las_rgb"; two numbers), kept for later streams of the same unchanged file: a tiled run opens
+/// its input once per pass. Process-wide, the last 16 entries, thread-safe (point_stream.cpp).
+bool recall_first_pass(const FileKey& key, const std::string& what, std::array<std::uint64_t, 2>& values);
+void remember_first_pass(const FileKey& key, const std::string& what, const std::array<std::uint64_t, 2>& values);
+
 /// An uncompressed LAS file (read_las.cpp) streamed in chunks of records: the same points,
 /// colour, intensity and CRS as read_las, in file order. The header and (E)VLRs are read through
 /// a read-only mapping that is released before the first chunk; with colour, one pass over the
-/// records decides 16- or 8-bit RGB (as read_las does) before the first chunk. nullptr when the
+/// records decides 16- or 8-bit RGB (as read_las does) before the first chunk, and is kept for
+/// later streams of the same unchanged file of 64 MiB or more (recall_first_pass). nullptr when the
 /// file cannot be opened or mapped (load_cloud's whole read then says why). `name` is the quoted
 /// path for messages. @throws hc::InputError as read_las for a bad header or a file shorter
 /// than its records, and from next() when no record is kept or the file shrinks.
@@ -116,7 +136,7 @@ std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, 
 /// bytes and records in memory at a time (read with pread). The header, the (E)VLRs and the
 /// chunk table are read through a read-only mapping released before the stream is returned;
 /// with colour, one pass decompressing every chunk decides 16- or 8-bit RGB before the first
-/// chunk. nullptr when the file cannot be opened or mapped. @throws hc::InputError as read_laz
+/// chunk (kept for later streams of the same unchanged file of 64 MiB or more). nullptr when the file cannot be opened or mapped. @throws hc::InputError as read_laz
 /// for a bad header, LASzip VLR or chunk table when opened, and from next() for a corrupt or
 /// truncated chunk or when no record is kept (the failure is sticky).
 std::unique_ptr<PointStream> open_laz_stream(const std::filesystem::path& path, const std::string& name,
