@@ -29,6 +29,13 @@ timespec to_timespec(std::int64_t ns) noexcept {
   return ts;
 }
 
+/// Sleeps until CLOCK_MONOTONIC reaches `ns` (absolute; at once if already past). Real-time: yes.
+void sleep_until_ns(std::int64_t ns) noexcept {
+  const timespec ts = to_timespec(ns);
+  while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
+  }
+}
+
 }  // namespace
 
 RealtimeMode realtime_mode_from_string(std::string_view name) {
@@ -526,9 +533,7 @@ void ServoLoop::thread_main() noexcept {
     if (wake && !last_early) {  // at most one early tick between two deadline ticks
       early = sleep_until_tick(deadline, last_tick + min_gap_ns);
     } else {
-      const timespec ts = to_timespec(deadline);
-      while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
-      }
+      sleep_until_ns(deadline);
     }
     const std::int64_t wake_ns = monotonic_now_ns();
     tick_impl(early ? kNoDeadline : wake_ns - deadline);
@@ -556,9 +561,7 @@ bool ServoLoop::sleep_until_tick(std::int64_t deadline_ns, std::int64_t earliest
   while (true) {
     const std::uint32_t seen = shared_.surface_signal().load(std::memory_order_acquire);
     if (shared_.surface_adoptable() && earliest_wake_ns < deadline_ns) {
-      const timespec ts = to_timespec(earliest_wake_ns);  // at once if already past
-      while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
-      }
+      sleep_until_ns(earliest_wake_ns);
       return monotonic_now_ns() < deadline_ns;
     }
     if (monotonic_now_ns() >= deadline_ns) return false;
@@ -567,9 +570,7 @@ bool ServoLoop::sleep_until_tick(std::int64_t deadline_ns, std::int64_t earliest
     const timespec ts = to_timespec(deadline_ns);
     if (syscall(SYS_futex, word, FUTEX_WAIT_BITSET_PRIVATE, seen, &ts, nullptr, FUTEX_BITSET_MATCH_ANY) != 0 &&
         errno != EAGAIN && errno != EINTR && errno != ETIMEDOUT) {
-      // No futex (a sandbox refusing the call): sleep to the deadline as without the wake.
-      while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
-      }
+      sleep_until_ns(deadline_ns);  // no futex (a sandbox refusing the call): as without the wake
       return false;
     }
   }

@@ -9,6 +9,7 @@
 #include "hc/common/error.hpp"
 
 #include <algorithm>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <tuple>
 #include <mutex>
@@ -56,6 +57,20 @@ class WholeStream final : public PointStream {
 }  // namespace
 
 namespace detail {
+
+bool FileMapping::map(int fd) {
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || st.st_size <= 0) return false;
+  void* p = ::mmap(nullptr, static_cast<std::size_t>(st.st_size), PROT_READ, MAP_PRIVATE, fd, 0);
+  if (p == MAP_FAILED) return false;
+  data = static_cast<const char*>(p);
+  size = static_cast<std::size_t>(st.st_size);
+  return true;
+}
+
+FileMapping::~FileMapping() {
+  if (data != nullptr) ::munmap(const_cast<char*>(data), size);
+}
 
 std::optional<FileKey> large_file_key(int fd) {
   struct stat st {};

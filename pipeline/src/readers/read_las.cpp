@@ -39,7 +39,6 @@
 #include <string_view>
 
 #include <fcntl.h>
-#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -591,35 +590,21 @@ class LasStream final : public LasRecordStream {
   std::vector<char> buffer_;
 };
 
-// A read-only mapping of a whole file, released on destruction.
-struct Mapping {
-  void* data = MAP_FAILED;
-  std::size_t size = 0;
-  ~Mapping() {
-    if (data != MAP_FAILED) munmap(data, size);
-  }
-};
 
 }  // namespace
 
 std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, const std::string& name,
                                              const LoadOptions* options) {
-  Mapping map;
+  FileMapping map;
   {
     const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
     if (fd < 0) return nullptr;
-    struct stat st {};
-    if (::fstat(fd, &st) != 0 || st.st_size <= 0) {
-      ::close(fd);
-      return nullptr;
-    }
-    map.size = static_cast<std::size_t>(st.st_size);
-    map.data = ::mmap(nullptr, map.size, PROT_READ, MAP_PRIVATE, fd, 0);
+    const bool mapped = map.map(fd);
     ::close(fd);
-    if (map.data == MAP_FAILED) return nullptr;
+    if (!mapped) return nullptr;
   }
   // Only the header, the VLRs and the EVLRs are touched through the mapping.
-  LasHeader header = parse_las_header(std::string_view(static_cast<const char*>(map.data), map.size), name, false);
+  LasHeader header = parse_las_header(map.bytes(), name, false);
   std::vector<std::string> format_notes = std::move(header.notes);
   for (std::string& note : las_format_notes(header)) format_notes.push_back(std::move(note));
   std::vector<std::string> crs_notes;

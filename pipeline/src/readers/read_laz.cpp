@@ -43,7 +43,6 @@
 #include <string_view>
 
 #include <fcntl.h>
-#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -408,38 +407,26 @@ std::unique_ptr<PointStream> open_laz_stream(const std::filesystem::path& path, 
                                              const LoadOptions* options) {
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) return nullptr;
-  struct stat st {};
-  if (::fstat(fd, &st) != 0 || st.st_size <= 0) {
+  FileMapping map;  // only the header, the (E)VLRs and the chunk table are read through it
+  if (!map.map(fd)) {
     ::close(fd);
     return nullptr;
   }
-  const auto size = static_cast<std::size_t>(st.st_size);
-  void* map = ::mmap(nullptr, size, PROT_READ, MAP_PRIVATE, fd, 0);
-  if (map == MAP_FAILED) {
-    ::close(fd);
-    return nullptr;
-  }
-  // Only the header, the (E)VLRs and the chunk table are read through the mapping.
-  std::unique_ptr<PointStream> stream;
   try {
-    const std::string_view bytes(static_cast<const char*>(map), size);
-    LasHeader header = parse_las_header(bytes, name, true);
-    LazLayout layout = laz_layout(bytes, name, header);
+    LasHeader header = parse_las_header(map.bytes(), name, true);
+    LazLayout layout = laz_layout(map.bytes(), name, header);
     std::vector<std::string> format_notes = std::move(header.notes);
     for (const std::string& note : layout.notes) format_notes.push_back(note);
     for (std::string& note : las_format_notes(header)) format_notes.push_back(std::move(note));
     std::vector<std::string> crs_notes;
     std::string crs = las_crs(header, crs_notes);
     header.vlrs.clear();  // they point into the mapping
-    stream = std::make_unique<LazStream>(fd, name, header, std::move(layout), options, std::move(format_notes),
-                                         std::move(crs_notes), std::move(crs));
+    return std::make_unique<LazStream>(fd, name, header, std::move(layout), options, std::move(format_notes),
+                                       std::move(crs_notes), std::move(crs));
   } catch (...) {
-    ::munmap(map, size);
     ::close(fd);
     throw;
   }
-  ::munmap(map, size);
-  return stream;
 }
 
 }  // namespace hc::pipeline::detail

@@ -41,6 +41,7 @@
 
 #include <filesystem>
 #include <memory>
+#include <string_view>
 #include <cstdint>
 #include <optional>
 #include <array>
@@ -85,6 +86,22 @@ ReadResult read_pts(const ScanSource& source);  ///< read_pts.cpp (Leica PTS)
 /// header's vertex data.
 std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name,
                                              bool points_only);
+
+/// A read-only mapping of a whole open file (mmap, MAP_PRIVATE), released on destruction; for
+/// the streams that read a header, (E)VLRs or a table through it and the bulk of the file by
+/// read calls (read_las.cpp, read_laz.cpp).
+struct FileMapping {
+  const char* data = nullptr;
+  std::size_t size = 0;
+  /// Maps the whole of `fd` (not closed here). @return false for an empty file, or when fstat
+  /// or mmap fail (the caller then falls back to the whole read, which says why).
+  bool map(int fd);
+  std::string_view bytes() const { return {data, size}; }
+  FileMapping() = default;
+  FileMapping(const FileMapping&) = delete;
+  FileMapping& operator=(const FileMapping&) = delete;
+  ~FileMapping();
+};
 
 /// A file's identity as fstat sees it: device, inode, size and modification time.
 struct FileKey {
