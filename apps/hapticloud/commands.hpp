@@ -34,7 +34,8 @@ inline CLI::Validator finite_in(double lo, double hi, bool lo_open = false) {
       "NUMBER in " + range);
 }
 
-/// `hapticloud run CONFIG.yaml [--out DIR] [--set key=value ...]`: the offline pipeline.
+/// `hapticloud run CONFIG.yaml [--out DIR] [--set key=value ...]`: the offline pipeline; also
+/// `tile-plan`, `tile-job` and `tile-merge`, the tiled run in separate processes (tiling.hpp).
 void add_run_command(CLI::App& app);
 
 /// Thrown by `run` after it wrote its output when the cross-check's verdict is "fail"; main()

@@ -5,6 +5,7 @@
 #include "hc/common/format.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
+#include "hc/pipeline/tiling.hpp"
 #include "hc/session/interrupt_cleanup.hpp"
 #include "hc/session/level_timing.hpp"
 
@@ -23,35 +24,28 @@ struct RunArgs {
   bool force = false;
 };
 
-void run(const RunArgs& a) {
-  // Before any stage starts a thread: Ctrl-C removes the unfinished output folder.
-  const session::InterruptCleanup cleanup;
-  const pipeline::RunConfig cfg = pipeline::load_run_config(a.config, a.sets);
-  const std::filesystem::path out = a.out.empty() ? std::filesystem::path("runs") / cfg.name : std::filesystem::path(a.out);
-  auto progress = [&](const pipeline::StageReport& s, bool done) {
-    if (!done) {
-      double fraction = -1.0, eta = 0.0;
-      for (const auto& [name, v] : s.figures) {
-        if (name == "progress_fraction") fraction = v;
-        if (name == "eta_s") eta = v;
-      }
-      if (fraction >= 0.0) {  // within a long stage of the tiled run
-        spdlog::info("  {} {:.0f} % ({}; about {:.0f} s left)", s.stage, 100.0 * fraction,
-                     s.notes.empty() ? std::string() : s.notes.front(), eta);
-      } else {
-        spdlog::debug("  {} ...", s.stage);
-      }
-    } else {
-      spdlog::info("  {}: {} -> {} in {} ms", s.stage, s.count_in, s.count_out,
-                   static_cast<long>(s.seconds * 1000.0 + 0.5));
-      for (const auto& note : s.notes) spdlog::debug("    {}", note);
+// Stage progress on the log: the tiled run's passes with their percentage and time left.
+void log_progress(const pipeline::StageReport& s, bool done) {
+  if (!done) {
+    double fraction = -1.0, eta = 0.0;
+    for (const auto& [name, v] : s.figures) {
+      if (name == "progress_fraction") fraction = v;
+      if (name == "eta_s") eta = v;
     }
-  };
-  spdlog::info("hapticloud run {} -> {}", a.config, out.string());
-  pipeline::set_stage_memory_measurement(true);  // report.json: peak_rss_mb per stage
-  const pipeline::RunSummary summary = pipeline::run_pipeline(
-      cfg, out, progress, a.force ? pipeline::ExistingOutput::kMoveAside : pipeline::ExistingOutput::kRefuse,
-      session::servo_level_timing());
+    if (fraction >= 0.0) {  // within a long stage of the tiled run
+      spdlog::info("  {} {:.0f} % ({}; about {:.0f} s left)", s.stage, 100.0 * fraction,
+                   s.notes.empty() ? std::string() : s.notes.front(), eta);
+    } else {
+      spdlog::debug("  {} ...", s.stage);
+    }
+  } else {
+    spdlog::info("  {}: {} -> {} in {} ms", s.stage, s.count_in, s.count_out, static_cast<long>(s.seconds * 1000.0 + 0.5));
+    for (const auto& note : s.notes) spdlog::debug("    {}", note);
+  }
+}
+
+// What `run` and `tile-merge` print of a written run; throws VerdictFailed on a failed verdict.
+void print_summary(const pipeline::RunSummary& summary, const std::filesystem::path& out) {
   if (!summary.moved_aside.empty()) {
     std::cout << "kept the earlier content of " << out.string() << " as " << summary.moved_aside.string() << "\n";
   }
@@ -87,6 +81,34 @@ void run(const RunArgs& a) {
   }
 }
 
+void run(const RunArgs& a) {
+  // Before any stage starts a thread: Ctrl-C removes the unfinished output folder.
+  const session::InterruptCleanup cleanup;
+  const pipeline::RunConfig cfg = pipeline::load_run_config(a.config, a.sets);
+  const std::filesystem::path out = a.out.empty() ? std::filesystem::path("runs") / cfg.name : std::filesystem::path(a.out);
+  spdlog::info("hapticloud run {} -> {}", a.config, out.string());
+  pipeline::set_stage_memory_measurement(true);  // report.json: peak_rss_mb per stage
+  const pipeline::RunSummary summary = pipeline::run_pipeline(
+      cfg, out, log_progress, a.force ? pipeline::ExistingOutput::kMoveAside : pipeline::ExistingOutput::kRefuse,
+      session::servo_level_timing());
+  print_summary(summary, out);
+}
+
+struct TilePlanArgs {
+  std::string config, work;
+  std::vector<std::string> sets;
+};
+
+struct TileJobArgs {
+  std::string plan;
+  std::vector<std::size_t> tiles;
+};
+
+struct TileMergeArgs {
+  std::string plan, out;
+  bool force = false;
+};
+
 }  // namespace
 
 void add_run_command(CLI::App& app) {
@@ -100,6 +122,50 @@ void add_run_command(CLI::App& app) {
                 "Write --out even if it holds something else: that is kept as <out>.replaced-<time>, never deleted");
   cmd->add_option("--set", args->sets, "Override a config key, e.g. --set grid.n=400 (repeatable)");
   cmd->callback([args] { run(*args); });
+
+  auto plan = std::make_shared<TilePlanArgs>();
+  CLI::App* pc = app.add_subcommand(
+      "tile-plan", "Plan a tiled run for tile jobs elsewhere (docs/scale.md): read the scan, spill its points into tiles "
+                   "in a work folder, write WORK/plan.json");
+  pc->add_option("config", plan->config, "Run configuration (YAML)")->required();
+  pc->add_option("--work", plan->work, "Work folder for the plan and the tiles (new or empty; on storage every job sees)")
+      ->required();
+  pc->add_option("--set", plan->sets, "Override a config key, e.g. --set grid.n=400 (repeatable)");
+  pc->callback([plan] {
+    spdlog::info("hapticloud tile-plan {} -> {}", plan->config, plan->work);
+    const auto info = pipeline::write_tile_plan(plan->config, plan->sets, plan->work, log_progress);
+    std::cout << "plan: " << info.plan_file.string() << "\ntiles: " << info.tiles << "\nspill: "
+              << hc::format_number(static_cast<double>(info.spill_bytes) / 1e6, 1, hc::NumberStyle::kFixed) << " MB\n";
+  });
+
+  auto job = std::make_shared<TileJobArgs>();
+  CLI::App* jc = app.add_subcommand(
+      "tile-job", "Process tiles of a plan (hapticloud tile-plan): filters and gridding of each tile with its halo; "
+                  "writes WORK/part_<t>.bin and WORK/kept_<t>.bin (safe to run again)");
+  jc->add_option("plan", job->plan, "The plan: WORK/plan.json")->required();
+  jc->add_option("--tiles", job->tiles, "Tile indices, e.g. --tiles 0,1,5")->required()->delimiter(',');
+  jc->callback([job] { pipeline::run_tile_jobs(job->plan, job->tiles); });
+
+  auto merge = std::make_shared<TileMergeArgs>();
+  CLI::App* mc = app.add_subcommand(
+      "tile-merge", "Merge the tile results of a plan into a scene and a report (as hapticloud run); refuses a plan "
+                    "with a tile missing");
+  mc->add_option("plan", merge->plan, "The plan: WORK/plan.json")->required();
+  mc->add_option("--out", merge->out, "Output folder (default: runs/<config name>), as for hapticloud run");
+  mc->add_flag("--force", merge->force, "As for hapticloud run: an earlier other content is kept aside, never deleted");
+  mc->callback([merge] {
+    const session::InterruptCleanup cleanup;
+    pipeline::set_stage_memory_measurement(true);
+    auto m = pipeline::merge_tile_jobs(merge->plan, log_progress);
+    const std::filesystem::path out =
+        merge->out.empty() ? std::filesystem::path("runs") / m.config.name : std::filesystem::path(merge->out);
+    spdlog::info("hapticloud tile-merge {} -> {}", merge->plan, out.string());
+    const pipeline::RunSummary summary =
+        pipeline::write_run(std::move(m.built), m.config, out, log_progress,
+                            merge->force ? pipeline::ExistingOutput::kMoveAside : pipeline::ExistingOutput::kRefuse,
+                            session::servo_level_timing());
+    print_summary(summary, out);
+  });
 }
 
 }  // namespace hc::app

@@ -30,9 +30,14 @@
 #include <filesystem>
 #include <limits>
 #include <map>
+#include <optional>
+#include <random>
 #include <string>
 #include <system_error>
 #include <vector>
+
+#include <nlohmann/json.hpp>
+#include <unistd.h>
 
 namespace hc::pipeline {
 namespace {
@@ -108,6 +113,17 @@ class Spill {
   Spill(fs::path dir, std::string prefix, std::size_t tiles, Layout layout)
       : dir_(std::move(dir)), prefix_(std::move(prefix)), layout_(layout), buf_(tiles), bytes_(tiles, 0) {}
   fs::path file(std::size_t t) const { return dir_ / (prefix_ + std::to_string(t) + ".bin"); }
+
+  // The files a plan or tile job wrote earlier (another process): each tile's size from disk
+  // (0 when its file is missing).
+  void adopt_existing() {
+    for (std::size_t t = 0; t < bytes_.size(); ++t) {
+      std::error_code ec;
+      const auto n = fs::file_size(file(t), ec);
+      bytes_[t] = ec ? 0 : n;
+    }
+  }
+  std::uintmax_t bytes(std::size_t t) const { return bytes_[t]; }
 
   void add(std::size_t t, std::uint8_t flag, const double* p, const std::uint8_t* rgb, float intensity) {
     std::vector<char>& b = buf_[t];
@@ -336,21 +352,6 @@ class RadixPercentiles {
   float max_ = 0.0f;
 };
 
-// Copies rows/cols of a window grid into the whole grid.
-void copy_interior(const DepthGrid& part, const GridWindow& w, const std::array<int, 4>& in, DepthGrid& whole) {
-  const std::size_t wc = static_cast<std::size_t>(w.cols), gc = static_cast<std::size_t>(w.grid.cols);
-  for (int r = in[0]; r < in[1]; ++r) {
-    for (int c = in[2]; c < in[3]; ++c) {
-      const std::size_t i = static_cast<std::size_t>(r - w.row0) * wc + static_cast<std::size_t>(c - w.col0);
-      const std::size_t j = static_cast<std::size_t>(r) * gc + static_cast<std::size_t>(c);
-      whole.depth.data()[j] = part.depth.data()[i];
-      whole.flags[j] = part.flags[i];
-      if (part.has_colour()) std::memcpy(whole.colour_rgb8.data() + 3 * j, part.colour_rgb8.data() + 3 * i, 3);
-      if (part.has_intensity()) whole.intensity.data()[j] = part.intensity.data()[i];
-    }
-  }
-}
-
 // Adds the per-tile figures that are counts or seconds (a sum of thresholds or medians over
 // tiles would mean nothing).
 void add_figures(std::map<std::string, double>& sums, const StageReport& r) {
@@ -452,13 +453,211 @@ bool runs_tiled(const RunConfig& config) {
   return true;
 }
 
-BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress) {
+namespace {
+
+// ---------------------------------------------------------------------------------------------
+// What the passes after the spill need: kept in memory by the in-process run, in plan.json by
+// `hapticloud tile-plan` for tile jobs in other processes (tile-job, tile-merge).
+
+struct Plan {
+  Tiles tiles;
+  Layout layout;
+  std::optional<RobustScale> robust_scale;  // the robust test's whole-scan scale (stage tile_scale)
+  std::uint64_t input_points = 0;           // points in the file (the levels sample's stride)
+  detail::StoredPrecision precision;
+  Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
+  std::string crs;
+  SceneInput input;
+  std::vector<StageReport> reports;  // tile_plan, tile_spill, tile_scale
+};
+
+// One tile's result: its interior of the grid, its figures and its share of the levels sample.
+// Its kept points are in the kept spill (kept_<t>.bin).
+struct TileOutput {
+  std::size_t tile = 0;
+  DepthGrid interior;  // the tile's interior rows × cols; empty when no point is left in it
+  std::map<std::string, double> sums;
+  std::uint64_t in = 0, out = 0, unjudged = 0;
+  // x y z [m], grid frame: the tile's stride-th, 2·stride-th, ... interior point (so no more than
+  // lod.report_sample_points in all, whatever the tiles)
+  std::vector<double> sample_xyz;
+  std::uintmax_t kept_bytes = 0;   // size of the tile's kept spill file
+  double seconds = 0.0;
+};
+
+// The levels table's sample: every sample_stride-th interior point of each tile. 0 ("every
+// point") would hold the whole cloud in memory, which the tiled run exists to avoid: it takes the
+// default sample instead (docs/scale.md).
+std::size_t sample_stride_of(const RunConfig& config, std::uint64_t input_points) {
+  const std::size_t sample_points =
+      config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
+  return std::max<std::size_t>(1, static_cast<std::size_t>((input_points + sample_points - 1) / sample_points));
+}
+
+bool keeps_sample(const RunConfig& config) { return config.lod.report && config.lod.report_cross_check; }
+
+// Step 3 for tile t (the file comment of tiling.hpp): its spilled points through the filters and
+// reproject, the interior cut out, its kept points appended to `kept` (flushed).
+TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, Spill& kept, std::size_t t) {
+  const auto t0 = detail::Clock::now();
+  const Tiles& tiles = plan.tiles;
+  ReprojectOptions ro = config.grid.reproject;
+  ro.upsample_factor = tiles.k;
+  TileOutput o;
+  o.tile = t;
+  const OutlierConfig& oc = config.filters.outliers;
+  std::vector<std::uint8_t> flags;
+  Cloud pts = spill.read(t, flags);
+  o.in = pts.size();
+  const GridWindow w = tiles.window(t);
+  const auto inner = tiles.interior(t);
+  double spacing_m = 0.0;  // the isolated filter's estimate of the scan's spacing (despike)
+  // A window of fewer than k + 2 points (a corner of stray returns) cannot be judged by the
+  // k-NN tests: its points are kept as they are, counted and noted, not an error.
+  const bool judgeable = pts.size() >= static_cast<std::size_t>(oc.k) + 2;
+  if (oc.enabled && pts.size() > 0 && !judgeable) o.unjudged = pts.size();
+  if (oc.enabled && judgeable) {
+    RobustOutlierOptions ropt;
+    ropt.k = oc.k;
+    ropt.local_ratio = oc.local_ratio;
+    ropt.mad_multiplier = oc.mad_multiplier;
+    ropt.off_surface_ratio = oc.off_surface_ratio;
+    ropt.scale = plan.robust_scale;
+    auto f1 = remove_outliers_robust(std::move(pts), ropt, oc.far_clusters);
+    add_figures(o.sums, f1.report);
+    auto f2 = remove_isolated_points(std::move(f1.value), config.cross_check.honest);
+    add_figures(o.sums, f2.report);
+    spacing_m = figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
+    pts = std::move(f2.value);
+  }
+  DepthGrid part;
+  if (pts.size() > 0) {
+    ReprojectOptions ow = ro;
+    ow.window = w;
+    auto rp = reproject(pts, ow);
+    add_figures(o.sums, rp.report);
+    part = std::move(rp.value);
+    if (oc.enabled && oc.despike) {
+      const std::size_t before_n = pts.size();
+      auto ds = remove_spike_points(std::move(pts), part.depth, config.cross_check.honest,
+                                    std::max(1.0, ro.splat_radius_cells) * tiles.k, std::isfinite(spacing_m) ? spacing_m : 0.0);
+      add_figures(o.sums, ds.report);
+      pts = std::move(ds.value);
+      if (pts.size() == 0) {
+        part = DepthGrid();  // nothing left: the tile's cells stay no data
+      } else if (pts.size() < before_n) {
+        part = reproject(pts, ow).value;
+      }
+    }
+  }
+  if (part.depth.rows() > 0) {
+    // The interior, cut out of the window.
+    GridGeometry ig = tiles.g;
+    ig.rows = inner[1] - inner[0];
+    ig.cols = inner[3] - inner[2];
+    ig.x0_m = tiles.g.x_of_col(inner[2]);
+    ig.y0_m = tiles.g.y_of_row(inner[0]);
+    DepthGrid& in = o.interior;
+    in.depth = HeightField(ig);
+    in.flags.assign(ig.cell_count(), kCellEmpty);
+    if (part.has_colour()) in.colour_rgb8.assign(3 * ig.cell_count(), 0);
+    if (part.has_intensity()) in.intensity = HeightField(ig);
+    const std::size_t wc = static_cast<std::size_t>(w.cols);
+    for (int r = 0; r < ig.rows; ++r) {
+      for (int c = 0; c < ig.cols; ++c) {
+        const std::size_t i = static_cast<std::size_t>(r + inner[0] - w.row0) * wc + static_cast<std::size_t>(c + inner[2] - w.col0);
+        const std::size_t j = static_cast<std::size_t>(r) * static_cast<std::size_t>(ig.cols) + static_cast<std::size_t>(c);
+        in.depth.data()[j] = part.depth.data()[i];
+        in.flags[j] = part.flags[i];
+        if (part.has_colour()) std::memcpy(in.colour_rgb8.data() + 3 * j, part.colour_rgb8.data() + 3 * i, 3);
+        if (part.has_intensity()) in.intensity.data()[j] = part.intensity.data()[i];
+      }
+    }
+  }
+  // The kept points, each marked interior (1) or halo (0); the levels sample from the interior.
+  const bool keep_sample = keeps_sample(config);
+  const std::size_t stride = sample_stride_of(config, plan.input_points);
+  const double inv = 1.0 / tiles.g.cell_size_m;
+  const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+  for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) {
+    const double* p = pts.xyz.data() + 3 * i;
+    const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
+    const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
+    const bool interior = row >= inner[0] && row < inner[1] && col >= inner[2] && col < inner[3];
+    if (interior && keep_sample && (o.out + 1) % stride == 0) o.sample_xyz.insert(o.sample_xyz.end(), p, p + 3);
+    o.out += interior ? 1U : 0U;
+    kept.add(t, interior ? std::uint8_t{1} : std::uint8_t{0}, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
+             pts.has_intensity() ? pts.intensity[static_cast<std::size_t>(i)] : 0.0f);
+  }
+  kept.flush(t);
+  o.kept_bytes = kept.bytes(t);
+  o.seconds = detail::seconds_since(t0);
+  return o;
+}
+
+// The tiles' results gathered: the whole grid's cells, the summed figures, the levels sample.
+struct TileMerge {
+  DepthGrid grid;
+  std::map<std::string, double> sums;
+  std::uint64_t in = 0, out = 0, unjudged = 0;
+  std::vector<double> sample_xyz;
+  double job_seconds = 0.0;
+
+  TileMerge(const Plan& plan) {
+    const GridGeometry& g = plan.tiles.g;
+    grid.depth = HeightField(g);
+    grid.flags.assign(g.cell_count(), kCellEmpty);
+    if (plan.layout.rgb) grid.colour_rgb8.assign(3 * g.cell_count(), 0);
+    if (plan.layout.intensity) grid.intensity = HeightField(g);
+  }
+
+  void add(const Tiles& tiles, TileOutput&& o) {
+    const auto inner = tiles.interior(o.tile);
+    const DepthGrid& part = o.interior;
+    if (part.depth.rows() > 0) {
+      const std::size_t pc = static_cast<std::size_t>(part.depth.cols()), gc = static_cast<std::size_t>(tiles.g.cols);
+      for (int r = inner[0]; r < inner[1]; ++r) {
+        for (int c = inner[2]; c < inner[3]; ++c) {
+          const std::size_t i = static_cast<std::size_t>(r - inner[0]) * pc + static_cast<std::size_t>(c - inner[2]);
+          const std::size_t j = static_cast<std::size_t>(r) * gc + static_cast<std::size_t>(c);
+          grid.depth.data()[j] = part.depth.data()[i];
+          grid.flags[j] = part.flags[i];
+          if (part.has_colour() && grid.has_colour()) std::memcpy(grid.colour_rgb8.data() + 3 * j, part.colour_rgb8.data() + 3 * i, 3);
+          if (part.has_intensity() && grid.has_intensity()) grid.intensity.data()[j] = part.intensity.data()[i];
+        }
+      }
+    }
+    for (const auto& [name, v] : o.sums) sums[name] += v;
+    in += o.in;
+    out += o.out;
+    unjudged += o.unjudged;
+    sample_xyz.insert(sample_xyz.end(), o.sample_xyz.begin(), o.sample_xyz.end());
+    job_seconds += o.seconds;
+  }
+
+  // The "tiles" stage's figures and notes.
+  void report(const RunConfig& config, StageReport& r) const {
+    r.count_in = in;
+    r.count_out = out;
+    for (const auto& [name, v] : sums) r.figure("sum_" + name, v);
+    r.figure("points_in_windows_too_sparse_to_filter", static_cast<double>(unjudged));
+    if (unjudged > 0) {
+      r.notes.push_back(std::to_string(unjudged) + " points (halo copies included) lay in tile windows of fewer than "
+                        "k + 2 points: kept unfiltered");
+    }
+    r.notes.push_back(config.filters.outliers.enabled
+                          ? "filters.outliers (robust) ran per tile with the whole scan's scale (stage tile_scale); far "
+                            "clusters and the isolated-point filter are judged per tile (docs/scale.md)"
+                          : "no point filter: every tile's interior equals the in-core grid's");
+  }
+};
+
+// Passes 1, 2 and 2b (the file comment of tiling.hpp): the plan, the spill into `dir`
+// (tile_<t>.bin) and the robust test's scale. Stage reports go to plan.reports.
+Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn& progress) {
   check_supported(config);
-  const auto t_start = detail::Clock::now();
-  BuiltScene built;
-  RunSummary& summary = built.summary;
-  auto& reports = summary.stages;
-  Scene& scene = built.scene;
+  Plan plan;
+  auto& reports = plan.reports;
   const fs::path& input = config.input.files.front();
   const LoadOptions load{config.input.las_drop_classes, config.input.as_points};
   const std::size_t chunk_points = config.scale.chunk_points;
@@ -571,13 +770,12 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   precision.float32 = box.float32;
   precision.file = input.string();
   precision.crs = crs;
-  scene.provenance.crs = crs;
   for (int a = 0; a < 3; ++a) {
     precision.max_abs_m[a] = box.max_abs[a] * unit_m;
     precision.distinct[a] = static_cast<int>(box.distinct[static_cast<std::size_t>(a)].size());
   }
   const Eigen::Vector3d offset_m = centre * unit_m;
-  scene.provenance.inputs.push_back({input.string(), sha256_file(input)});
+  plan.input = {input.string(), sha256_file(input)};
 
   // 2. Spill every point to the tiles whose window holds its node. The robust test's sample
   // (the points the in-core run samples, by their order after non-finite and crop) is marked
@@ -588,8 +786,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   const std::vector<std::uint32_t> robust_sample =
       shared_scale ? robust_sample_indices(static_cast<std::size_t>(grid_points), RobustOutlierOptions{}.sample)
                    : std::vector<std::uint32_t>();
-  ScratchDir scratch(config.scale.scratch);
-  Spill spill(scratch.path(), "tile_", tiles.count(), box.layout);
+  Spill spill(dir, "tile_", tiles.count(), box.layout);
   (void)stage("tile_spill", reports, progress, [&] {
     StageResult<int> r;
     std::uint64_t spilled = 0, copies = 0;
@@ -625,7 +822,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     r.report.figure("points_spilled", static_cast<double>(copies));
     r.report.figure("halo_copies_per_point", spilled ? static_cast<double>(copies) / static_cast<double>(spilled) : 0.0);
     r.report.figure("spill_bytes_peak_mb", static_cast<double>(spill.bytes()) / 1e6);
-    r.report.notes.push_back("spill folder " + scratch.path().string() + " (removed at the end)");
+    r.report.notes.push_back("spill folder " + dir.string());
     return r;
   });
 
@@ -672,121 +869,43 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     });
   }
 
-  // 3. Per tile: filters, the window's grid, its interior into the whole grid; kept points.
-  DepthGrid grid;
-  grid.depth = HeightField(tiles.g);
-  grid.flags.assign(tiles.g.cell_count(), kCellEmpty);
-  if (box.layout.rgb) grid.colour_rgb8.assign(3 * tiles.g.cell_count(), 0);
-  if (box.layout.intensity) grid.intensity = HeightField(tiles.g);
-  Spill kept(scratch.path(), "kept_", tiles.count(), box.layout);
-  std::map<std::string, double> sums;
-  // The levels table's sample: every sample_stride-th interior point, in tile order.
-  const bool keep_sample = config.lod.report && config.lod.report_cross_check;
-  // 0 ("every point") would hold the whole cloud in memory, which the tiled run exists to avoid:
-  // it takes the default sample instead (docs/scale.md).
-  const std::size_t sample_points =
-      config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
-  const std::size_t sample_stride = std::max<std::size_t>(1, (box.points + sample_points - 1) / sample_points);
-  std::vector<double> sample_xyz;
-  std::size_t interior_seen = 0;
-  (void)stage("tiles", reports, progress, [&] {
-    StageResult<int> r;
-    const OutlierConfig& oc = config.filters.outliers;
-    std::vector<std::uint8_t> flags;
-    std::uint64_t in = 0, out = 0, unjudged = 0;
-    PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);
-    for (std::size_t t = 0; t < tiles.count(); ++t) {
-      tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
-      Cloud pts = spill.read(t, flags);
-      spill.remove(t);
-      in += pts.size();
-      const GridWindow w = tiles.window(t);
-      const auto inner = tiles.interior(t);
-      double spacing_m = 0.0;  // the isolated filter's estimate of the scan's spacing (despike)
-      // A window of fewer than k + 2 points (a corner of stray returns) cannot be judged by the
-      // k-NN tests: its points are kept as they are, counted and noted, not an error.
-      const bool judgeable = pts.size() >= static_cast<std::size_t>(oc.k) + 2;
-      if (oc.enabled && pts.size() > 0 && !judgeable) unjudged += pts.size();
-      if (oc.enabled && judgeable) {
-        RobustOutlierOptions o;
-        o.k = oc.k;
-        o.local_ratio = oc.local_ratio;
-        o.mad_multiplier = oc.mad_multiplier;
-        o.off_surface_ratio = oc.off_surface_ratio;
-        o.scale = robust_scale;
-        auto f1 = remove_outliers_robust(std::move(pts), o, oc.far_clusters);
-        add_figures(sums, f1.report);
-        auto f2 = remove_isolated_points(std::move(f1.value), config.cross_check.honest);
-        add_figures(sums, f2.report);
-        spacing_m = figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
-        pts = std::move(f2.value);
-      }
-      DepthGrid part;
-      if (pts.size() > 0) {
-        ReprojectOptions ow = ro;
-        ow.window = w;
-        auto rp = reproject(pts, ow);
-        add_figures(sums, rp.report);
-        part = std::move(rp.value);
-        if (oc.enabled && oc.despike && pts.size() > 0) {
-          const std::size_t before_n = pts.size();
-          auto ds = remove_spike_points(std::move(pts), part.depth, config.cross_check.honest,
-                                        std::max(1.0, ro.splat_radius_cells) * tiles.k,
-                                        std::isfinite(spacing_m) ? spacing_m : 0.0);
-          add_figures(sums, ds.report);
-          pts = std::move(ds.value);
-          if (pts.size() == 0) {
-            part = DepthGrid();  // nothing left: the tile's cells stay no data
-          } else if (pts.size() < before_n) {
-            part = reproject(pts, ow).value;
-          }
-        }
-        if (part.depth.rows() > 0) copy_interior(part, w, inner, grid);
-      }
-      // The kept points, each marked interior (1) or halo (0).
-      const double inv = 1.0 / tiles.g.cell_size_m;
-      const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
-      for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) {
-        const double* p = pts.xyz.data() + 3 * i;
-        const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
-        const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
-        const bool interior = row >= inner[0] && row < inner[1] && col >= inner[2] && col < inner[3];
-        out += interior ? 1U : 0U;
-        if (keep_sample && interior && interior_seen++ % sample_stride == 0) sample_xyz.insert(sample_xyz.end(), p, p + 3);
-        kept.add(t, interior ? std::uint8_t{1} : std::uint8_t{0}, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
-                 pts.has_intensity() ? pts.intensity[static_cast<std::size_t>(i)] : 0.0f);
-      }
-      kept.flush(t);
-    }
-    r.report.count_in = in;
-    r.report.count_out = out;
-    for (const auto& [name, v] : sums) r.report.figure("sum_" + name, v);
-    r.report.figure("points_in_windows_too_sparse_to_filter", static_cast<double>(unjudged));
-    if (unjudged > 0) {
-      r.report.notes.push_back(std::to_string(unjudged) + " points (halo copies included) lay in tile windows of fewer than "
-                               "k + 2 points: kept unfiltered");
-    }
-    r.report.notes.push_back(
-        config.filters.outliers.enabled
-            ? "filters.outliers (robust) ran per tile with the whole scan's scale (stage tile_scale); far clusters and "
-              "the isolated-point filter are judged per tile (docs/scale.md)"
-            : "no point filter: every tile's interior equals the in-core grid's");
-    return r;
-  });
+  plan.tiles = tiles;
+  plan.layout = box.layout;
+  plan.robust_scale = robust_scale;
+  plan.input_points = box.points;
+  plan.precision = precision;
+  plan.offset_m = offset_m;
+  plan.crs = crs;
+  return plan;
+}
 
-  if (keep_sample && !sample_xyz.empty()) {
+
+// ---------------------------------------------------------------------------------------------
+// Steps 4 and 5 on the gathered tiles: the whole grid's layers and the merged cross-check.
+// `built.summary.stages` holds the plan's and the tile loop's reports.
+BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& merged, const Spill& kept, BuiltScene built,
+                        const ProgressFn& progress, detail::Clock::time_point t_start) {
+  RunSummary& summary = built.summary;
+  auto& reports = summary.stages;
+  Scene& scene = built.scene;
+  const Tiles& tiles = plan.tiles;
+  DepthGrid& grid = merged.grid;
+  const Eigen::Vector3d& offset_m = plan.offset_m;
+  scene.provenance.crs = plan.crs;
+  scene.provenance.inputs.push_back(plan.input);
+  if (keeps_sample(config) && !merged.sample_xyz.empty()) {
     Cloud sample;
-    sample.xyz = Eigen::Map<const Eigen::Matrix3Xd>(sample_xyz.data(), 3,
-                                                    static_cast<Eigen::Index>(sample_xyz.size() / 3));
-    std::vector<double>().swap(sample_xyz);
+    sample.xyz = Eigen::Map<const Eigen::Matrix3Xd>(merged.sample_xyz.data(), 3,
+                                                    static_cast<Eigen::Index>(merged.sample_xyz.size() / 3));
+    std::vector<double>().swap(merged.sample_xyz);
     built.point_sample = std::move(sample);
-    built.point_sample_of = interior_seen;
+    built.point_sample_of = merged.out;
   }
 
   // 4. The whole grid, as in core.
   const std::size_t grid_report = reports.size() - 1;
   const Eigen::Affine3d model_to_grid =
-      detail::scene_from_grid(grid, config, reports, progress, precision, offset_m, grid_report, built);
+      detail::scene_from_grid(grid, config, reports, progress, plan.precision, offset_m, grid_report, built);
 
   // 5. The cross-check, per tile, merged.
   if (config.cross_check.enabled) {
@@ -992,6 +1111,507 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   prov.resolved_config_yaml = config.resolved_yaml;
   summary.total_seconds = detail::seconds_since(t_start);
   return built;
+}
+
+// ---------------------------------------------------------------------------------------------
+// Tile jobs in other processes: plan.json, part_<t>.bin, kept_<t>.bin.
+
+constexpr const char* kPlanFormat = "hapticloud tile plan 1";
+constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '1', '\n'};
+constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
+
+// Doubles as C99 hexadecimal floats ("%a"), so every value reads back to the same bits.
+std::string hex(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%a", v);
+  return buf;
+}
+
+double unhex(const nlohmann::json& j, const fs::path& file, const char* key) {
+  if (!j.is_string()) throw InputError(file.string() + ": " + key + " is not a hexadecimal float string (a plan written by hapticloud tile-plan?)");
+  const std::string s = j.get<std::string>();
+  char* end = nullptr;
+  const double v = std::strtod(s.c_str(), &end);
+  if (end == s.c_str() || *end != '\0') throw InputError(file.string() + ": " + key + " = \"" + s + "\" is not a number");
+  return v;
+}
+
+// Writes `bytes` to `target` through a temporary file beside it and a rename, so a reader never
+// sees half of it. @throws InputError naming the file.
+void write_atomically(const fs::path& target, const std::string& bytes) {
+  const fs::path tmp = target.parent_path() / ("." + target.filename().string() + ".tmp-" + std::to_string(::getpid()));
+  std::FILE* f = std::fopen(tmp.c_str(), "wb");
+  const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
+  const bool closed = f && std::fclose(f) == 0;
+  std::error_code ec;
+  if (!ok || !closed) {
+    fs::remove(tmp, ec);
+    throw InputError("cannot write " + target.string() + ": " + std::strerror(errno) + " (is the disk full?)");
+  }
+  fs::rename(tmp, target, ec);
+  if (ec) {
+    fs::remove(tmp, ec);
+    throw InputError("cannot write " + target.string() + ": " + ec.message());
+  }
+}
+
+std::string read_file_bytes(const fs::path& file, const char* what) {
+  std::FILE* f = std::fopen(file.c_str(), "rb");
+  if (!f) throw InputError(std::string(what) + " " + file.string() + " cannot be opened: " + std::strerror(errno));
+  std::string s;
+  char buf[1 << 16];
+  std::size_t n;
+  while ((n = std::fread(buf, 1, sizeof buf, f)) > 0) s.append(buf, n);
+  const bool err = std::ferror(f) != 0;
+  std::fclose(f);
+  if (err) throw InputError(std::string(what) + " " + file.string() + " cannot be read");
+  return s;
+}
+
+// What plan.json holds besides the Plan.
+struct PlanFile {
+  Plan plan;
+  fs::path dir;
+  std::string id;  // random, 16 hex digits: a part file of another plan is refused
+  fs::path config_file;
+  std::vector<std::string> overrides;
+  std::string resolved_yaml;
+  std::vector<std::uintmax_t> spill_bytes;  // tile_<t>.bin sizes as written
+};
+
+nlohmann::json report_json(const StageReport& r) {
+  nlohmann::json figures = nlohmann::json::array();
+  for (const auto& [name, v] : r.figures) figures.push_back({name, hex(v)});
+  return {{"stage", r.stage},     {"count_in", r.count_in}, {"count_out", r.count_out}, {"seconds", hex(r.seconds)},
+          {"peak_rss_bytes", r.peak_rss_bytes}, {"figures", figures},   {"notes", r.notes}};
+}
+
+void write_plan_file(const PlanFile& pf) {
+  const Plan& p = pf.plan;
+  const Tiles& t = p.tiles;
+  nlohmann::json j;
+  j["format"] = kPlanFormat;
+  j["id"] = pf.id;
+  j["config_file"] = pf.config_file.string();
+  j["overrides"] = pf.overrides;
+  j["resolved_yaml"] = pf.resolved_yaml;
+  j["tiles"] = {{"count", t.count()},         {"rows", t.g.rows},           {"cols", t.g.cols},
+                {"x0_m", hex(t.g.x0_m)},       {"y0_m", hex(t.g.y0_m)},       {"cell_size_m", hex(t.g.cell_size_m)},
+                {"upsample_factor", t.k},     {"tile_cells", t.size},       {"halo_cells", t.halo},
+                {"tiles_r", t.tiles_r},       {"tiles_c", t.tiles_c}};
+  j["spill_bytes"] = pf.spill_bytes;
+  j["layout"] = {{"rgb", p.layout.rgb}, {"intensity", p.layout.intensity}};
+  j["robust_scale"] = p.robust_scale ? nlohmann::json{{"median_log", hex(p.robust_scale->median_log)},
+                                                      {"mad_log", hex(p.robust_scale->mad_log)},
+                                                      {"sample", p.robust_scale->sample}}
+                                     : nlohmann::json();
+  j["input_points"] = p.input_points;
+  j["precision"] = {{"float32", p.precision.float32},
+                    {"file", p.precision.file},
+                    {"crs", p.precision.crs},
+                    {"max_abs_m", {hex(p.precision.max_abs_m.x()), hex(p.precision.max_abs_m.y()), hex(p.precision.max_abs_m.z())}},
+                    {"distinct", {p.precision.distinct.x(), p.precision.distinct.y(), p.precision.distinct.z()}}};
+  j["offset_m"] = {hex(p.offset_m.x()), hex(p.offset_m.y()), hex(p.offset_m.z())};
+  j["crs"] = p.crs;
+  j["input"] = {{"file", p.input.file}, {"sha256", p.input.sha256}};
+  nlohmann::json reports = nlohmann::json::array();
+  for (const auto& r : p.reports) reports.push_back(report_json(r));
+  j["reports"] = reports;
+  write_atomically(pf.dir / "plan.json", j.dump(1) + "\n");
+}
+
+PlanFile read_plan_file(const fs::path& plan_file) {
+  const std::string text = read_file_bytes(plan_file, "the tile plan");
+  PlanFile pf;
+  pf.dir = plan_file.parent_path().empty() ? fs::path(".") : plan_file.parent_path();
+  try {
+    const nlohmann::json j = nlohmann::json::parse(text);
+    if (j.value("format", std::string()) != kPlanFormat) {
+      throw InputError(plan_file.string() + ": not a plan of this version (format is not \"" + kPlanFormat +
+                       "\"; write it with hapticloud tile-plan)");
+    }
+    pf.id = j.at("id").get<std::string>();
+    pf.config_file = j.at("config_file").get<std::string>();
+    pf.overrides = j.at("overrides").get<std::vector<std::string>>();
+    pf.resolved_yaml = j.at("resolved_yaml").get<std::string>();
+    Plan& p = pf.plan;
+    const auto& t = j.at("tiles");
+    p.tiles.g.rows = t.at("rows").get<int>();
+    p.tiles.g.cols = t.at("cols").get<int>();
+    p.tiles.g.x0_m = unhex(t.at("x0_m"), plan_file, "tiles.x0_m");
+    p.tiles.g.y0_m = unhex(t.at("y0_m"), plan_file, "tiles.y0_m");
+    p.tiles.g.cell_size_m = unhex(t.at("cell_size_m"), plan_file, "tiles.cell_size_m");
+    p.tiles.k = t.at("upsample_factor").get<int>();
+    p.tiles.size = t.at("tile_cells").get<int>();
+    p.tiles.halo = t.at("halo_cells").get<int>();
+    p.tiles.tiles_r = t.at("tiles_r").get<int>();
+    p.tiles.tiles_c = t.at("tiles_c").get<int>();
+    if (p.tiles.g.rows < 1 || p.tiles.g.cols < 1 || p.tiles.size < 1 || p.tiles.k < 1 || p.tiles.halo < 0 ||
+        p.tiles.tiles_r != (p.tiles.g.rows + p.tiles.size - 1) / p.tiles.size ||
+        p.tiles.tiles_c != (p.tiles.g.cols + p.tiles.size - 1) / p.tiles.size || !(p.tiles.g.cell_size_m > 0.0)) {
+      throw InputError(plan_file.string() + ": tiles does not describe a tiling of the grid (rows, cols, tile_cells, tiles_r, tiles_c)");
+    }
+    pf.spill_bytes = j.at("spill_bytes").get<std::vector<std::uintmax_t>>();
+    if (pf.spill_bytes.size() != p.tiles.count()) {
+      throw InputError(plan_file.string() + ": spill_bytes has " + std::to_string(pf.spill_bytes.size()) + " entries, expected " +
+                       std::to_string(p.tiles.count()) + " (one per tile)");
+    }
+    p.layout.rgb = j.at("layout").at("rgb").get<bool>();
+    p.layout.intensity = j.at("layout").at("intensity").get<bool>();
+    if (!j.at("robust_scale").is_null()) {
+      const auto& rs = j.at("robust_scale");
+      p.robust_scale = RobustScale{unhex(rs.at("median_log"), plan_file, "robust_scale.median_log"),
+                                   unhex(rs.at("mad_log"), plan_file, "robust_scale.mad_log"), rs.at("sample").get<std::size_t>()};
+    }
+    p.input_points = j.at("input_points").get<std::uint64_t>();
+    const auto& pr = j.at("precision");
+    p.precision.float32 = pr.at("float32").get<bool>();
+    p.precision.file = pr.at("file").get<std::string>();
+    p.precision.crs = pr.at("crs").get<std::string>();
+    for (int a = 0; a < 3; ++a) {
+      p.precision.max_abs_m[a] = unhex(pr.at("max_abs_m").at(static_cast<std::size_t>(a)), plan_file, "precision.max_abs_m");
+      p.precision.distinct[a] = pr.at("distinct").at(static_cast<std::size_t>(a)).get<int>();
+      p.offset_m[a] = unhex(j.at("offset_m").at(static_cast<std::size_t>(a)), plan_file, "offset_m");
+    }
+    p.crs = j.at("crs").get<std::string>();
+    p.input.file = j.at("input").at("file").get<std::string>();
+    p.input.sha256 = j.at("input").at("sha256").get<std::string>();
+    for (const auto& rj : j.at("reports")) {
+      StageReport r;
+      r.stage = rj.at("stage").get<std::string>();
+      r.count_in = rj.at("count_in").get<std::size_t>();
+      r.count_out = rj.at("count_out").get<std::size_t>();
+      r.seconds = unhex(rj.at("seconds"), plan_file, "reports[].seconds");
+      r.peak_rss_bytes = rj.at("peak_rss_bytes").get<std::size_t>();
+      for (const auto& fj : rj.at("figures")) r.figure(fj.at(0).get<std::string>(), unhex(fj.at(1), plan_file, "reports[].figures"));
+      r.notes = rj.at("notes").get<std::vector<std::string>>();
+      p.reports.push_back(std::move(r));
+    }
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(plan_file.string() + ": not a tile plan written by hapticloud tile-plan (" + e.what() + ")");
+  }
+  return pf;
+}
+
+// The run config the plan was made with; refused if its file or the overrides now resolve to
+// other values (the tiles would not fit together).
+RunConfig config_of(const PlanFile& pf, const fs::path& plan_file) {
+  RunConfig config = load_run_config(pf.config_file, pf.overrides);
+  if (config.resolved_yaml != pf.resolved_yaml) {
+    throw ConfigError(plan_file.string() + ": the config " + pf.config_file.string() +
+                      " (with the plan's --set overrides) resolves to other values than when the plan was made; make a new plan "
+                      "(hapticloud tile-plan)");
+  }
+  return config;
+}
+
+fs::path part_file(const fs::path& dir, std::size_t t) { return dir / ("part_" + std::to_string(t) + ".bin"); }
+
+template <class T>
+void put(std::string& s, const T& v) {
+  s.append(reinterpret_cast<const char*>(&v), sizeof v);
+}
+
+std::string encode_part(const std::string& plan_id, const TileOutput& o) {
+  std::string s(kPartMagic, sizeof kPartMagic);
+  s += plan_id;
+  put(s, static_cast<std::uint64_t>(o.tile));
+  put(s, o.in);
+  put(s, o.out);
+  put(s, o.unjudged);
+  put(s, static_cast<std::uint64_t>(o.kept_bytes));
+  put(s, o.seconds);
+  put(s, static_cast<std::uint64_t>(o.sums.size()));
+  for (const auto& [name, v] : o.sums) {
+    put(s, static_cast<std::uint32_t>(name.size()));
+    s += name;
+    put(s, v);
+  }
+  put(s, static_cast<std::uint64_t>(o.sample_xyz.size()));
+  s.append(reinterpret_cast<const char*>(o.sample_xyz.data()), o.sample_xyz.size() * sizeof(double));
+  const DepthGrid& g = o.interior;
+  const std::int32_t rows = g.depth.rows(), cols = g.depth.cols();
+  put(s, rows);
+  put(s, cols);
+  put(s, static_cast<std::uint8_t>(g.has_colour()));
+  put(s, static_cast<std::uint8_t>(g.has_intensity()));
+  if (rows > 0) {
+    const GridGeometry& geo = g.depth.geometry();
+    put(s, geo.x0_m);
+    put(s, geo.y0_m);
+    put(s, geo.cell_size_m);
+    s.append(reinterpret_cast<const char*>(g.depth.data()), g.depth.values().size() * sizeof(float));
+    s.append(reinterpret_cast<const char*>(g.flags.data()), g.flags.size());
+    if (g.has_colour()) s.append(reinterpret_cast<const char*>(g.colour_rgb8.data()), g.colour_rgb8.size());
+    if (g.has_intensity()) s.append(reinterpret_cast<const char*>(g.intensity.data()), g.intensity.values().size() * sizeof(float));
+  }
+  s.append(kPartEnd, sizeof kPartEnd);
+  return s;
+}
+
+class PartReader {
+ public:
+  PartReader(std::string bytes, fs::path file) : b_(std::move(bytes)), file_(std::move(file)) {}
+  void take(void* out, std::size_t n) {
+    if (n > b_.size() - at_) bad("truncated");
+    std::memcpy(out, b_.data() + at_, n);
+    at_ += n;
+  }
+  template <class T>
+  T get() {
+    T v;
+    take(&v, sizeof v);
+    return v;
+  }
+  std::string str(std::size_t n) {
+    if (n > b_.size() - at_) bad("truncated");
+    std::string s = b_.substr(at_, n);
+    at_ += n;
+    return s;
+  }
+  bool at_end() const { return at_ == b_.size(); }
+  [[noreturn]] void bad(const std::string& why) const {
+    throw InputError(file_.string() + ": " + why + " (not a complete tile result of this plan; run its tile-job again)");
+  }
+
+ private:
+  std::string b_;
+  fs::path file_;
+  std::size_t at_ = 0;
+};
+
+TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::size_t t, const Tiles& tiles) {
+  PartReader r(read_file_bytes(file, "the tile result"), file);
+  if (r.str(sizeof kPartMagic) != std::string(kPartMagic, sizeof kPartMagic)) r.bad("not a tile result");
+  if (r.str(plan_id.size()) != plan_id) r.bad("written for another plan");
+  TileOutput o;
+  o.tile = static_cast<std::size_t>(r.get<std::uint64_t>());
+  if (o.tile != t) r.bad("holds tile " + std::to_string(o.tile) + ", expected " + std::to_string(t));
+  o.in = r.get<std::uint64_t>();
+  o.out = r.get<std::uint64_t>();
+  o.unjudged = r.get<std::uint64_t>();
+  o.kept_bytes = static_cast<std::uintmax_t>(r.get<std::uint64_t>());
+  o.seconds = r.get<double>();
+  const auto n_sums = r.get<std::uint64_t>();
+  for (std::uint64_t i = 0; i < n_sums; ++i) {
+    const auto len = r.get<std::uint32_t>();
+    std::string name = r.str(len);
+    o.sums[name] = r.get<double>();
+  }
+  const auto n_sample = r.get<std::uint64_t>();
+  if (n_sample % 3 != 0 || n_sample > o.out * 3) r.bad("holds a levels sample of " + std::to_string(n_sample) + " values");
+  o.sample_xyz.resize(static_cast<std::size_t>(n_sample));
+  r.take(o.sample_xyz.data(), o.sample_xyz.size() * sizeof(double));
+  const auto rows = r.get<std::int32_t>(), cols = r.get<std::int32_t>();
+  const bool colour = r.get<std::uint8_t>() != 0, intensity = r.get<std::uint8_t>() != 0;
+  if (rows > 0) {
+    const auto in = tiles.interior(t);
+    if (rows != in[1] - in[0] || cols != in[3] - in[2]) r.bad("its grid is " + std::to_string(rows) + " x " + std::to_string(cols) + " cells, not the tile's interior");
+    GridGeometry g = tiles.g;
+    g.rows = rows;
+    g.cols = cols;
+    g.x0_m = r.get<double>();
+    g.y0_m = r.get<double>();
+    g.cell_size_m = r.get<double>();
+    DepthGrid& d = o.interior;
+    d.depth = HeightField(g);
+    r.take(d.depth.data(), g.cell_count() * sizeof(float));
+    d.flags.resize(g.cell_count());
+    r.take(d.flags.data(), d.flags.size());
+    if (colour) {
+      d.colour_rgb8.resize(3 * g.cell_count());
+      r.take(d.colour_rgb8.data(), d.colour_rgb8.size());
+    }
+    if (intensity) {
+      d.intensity = HeightField(g);
+      r.take(d.intensity.data(), g.cell_count() * sizeof(float));
+    }
+  }
+  if (r.str(sizeof kPartEnd) != std::string(kPartEnd, sizeof kPartEnd) || !r.at_end()) r.bad("its end marker is missing");
+  return o;
+}
+
+// Removes, on failure, what a tile plan created (the folder when it made it, else the files).
+class PlanCleanup {
+ public:
+  PlanCleanup(fs::path dir, bool made_dir) : dir_(std::move(dir)), made_(made_dir) {}
+  ~PlanCleanup() {
+    if (done_) return;
+    std::error_code ec;
+    if (made_) {
+      fs::remove_all(dir_, ec);
+      return;
+    }
+    for (const auto& e : fs::directory_iterator(dir_, ec)) {
+      const std::string n = e.path().filename().string();
+      if (n.rfind("tile_", 0) == 0 || n == "plan.json") fs::remove(e.path(), ec);
+    }
+  }
+  PlanCleanup(const PlanCleanup&) = delete;
+  PlanCleanup& operator=(const PlanCleanup&) = delete;
+  void keep() { done_ = true; }
+
+ private:
+  fs::path dir_;
+  bool made_;
+  bool done_ = false;
+};
+
+std::string random_id() {
+  std::random_device rd;
+  const std::uint64_t v = (static_cast<std::uint64_t>(rd()) << 32) ^ rd() ^
+                          static_cast<std::uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count());
+  char buf[17];
+  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(v));
+  return buf;
+}
+
+}  // namespace
+
+BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress) {
+  const auto t_start = detail::Clock::now();
+  ScratchDir scratch(config.scale.scratch);
+  Plan plan = plan_passes(config, scratch.path(), progress);
+  Spill spill(scratch.path(), "tile_", plan.tiles.count(), plan.layout);
+  spill.adopt_existing();
+  Spill kept(scratch.path(), "kept_", plan.tiles.count(), plan.layout);
+  BuiltScene built;
+  built.summary.stages = std::move(plan.reports);
+  TileMerge merged(plan);
+  // 3. The tile jobs, in process and in order (tile-job runs the same process_tile elsewhere).
+  (void)stage("tiles", built.summary.stages, progress, [&] {
+    StageResult<int> r;
+    PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);
+    for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
+      tick(static_cast<double>(t) / static_cast<double>(plan.tiles.count()));
+      merged.add(plan.tiles, process_tile(config, plan, spill, kept, t));
+      spill.remove(t);
+    }
+    merged.report(config, r.report);
+    return r;
+  });
+  return finish_tiled(config, plan, merged, kept, std::move(built), progress, t_start);
+}
+
+TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std::string>& overrides, const fs::path& work_dir,
+                             const ProgressFn& progress) {
+  const fs::path config_abs = fs::absolute(config_file);
+  RunConfig config = load_run_config(config_abs, overrides);
+  check_supported(config);
+  std::error_code ec;
+  bool made = false;
+  if (fs::exists(work_dir, ec)) {
+    if (!fs::is_directory(work_dir, ec) || !fs::is_empty(work_dir, ec)) {
+      throw InputError("tile plan: " + work_dir.string() + " exists and is not an empty folder (expected a new or empty folder for the plan and its tiles)");
+    }
+  } else {
+    if (!fs::create_directories(work_dir, ec) || ec) {
+      throw InputError("tile plan: cannot create the folder " + work_dir.string() + ": " + ec.message());
+    }
+    made = true;
+  }
+  PlanCleanup cleanup(work_dir, made);
+  PlanFile pf;
+  pf.dir = work_dir;
+  pf.plan = plan_passes(config, work_dir, progress);
+  pf.id = random_id();
+  pf.config_file = config_abs;
+  pf.overrides = overrides;
+  pf.resolved_yaml = config.resolved_yaml;
+  Spill spill(work_dir, "tile_", pf.plan.tiles.count(), pf.plan.layout);
+  spill.adopt_existing();
+  TilePlanInfo info;
+  for (std::size_t t = 0; t < pf.plan.tiles.count(); ++t) {
+    pf.spill_bytes.push_back(spill.bytes(t));
+    info.spill_bytes += spill.bytes(t);
+  }
+  write_plan_file(pf);
+  cleanup.keep();
+  info.plan_file = work_dir / "plan.json";
+  info.tiles = pf.plan.tiles.count();
+  return info;
+}
+
+std::size_t tile_plan_tiles(const fs::path& plan_file) { return read_plan_file(plan_file).plan.tiles.count(); }
+
+void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& tiles) {
+  const PlanFile pf = read_plan_file(plan_file);
+  const RunConfig config = config_of(pf, plan_file);
+  const Plan& plan = pf.plan;
+  for (const std::size_t t : tiles) {
+    if (t >= plan.tiles.count()) {
+      throw InputError(plan_file.string() + ": no tile " + std::to_string(t) + " (the plan has tiles 0 to " +
+                       std::to_string(plan.tiles.count() - 1) + ")");
+    }
+  }
+  Spill spill(pf.dir, "tile_", plan.tiles.count(), plan.layout);
+  spill.adopt_existing();
+  const std::string tmp_prefix = ".kept-job" + std::to_string(::getpid()) + "-";
+  Spill kept(pf.dir, tmp_prefix, plan.tiles.count(), plan.layout);
+  for (const std::size_t t : tiles) {
+    if (spill.bytes(t) != pf.spill_bytes[t]) {
+      throw InputError(spill.file(t).string() + " holds " + std::to_string(spill.bytes(t)) + " bytes, the plan wrote " +
+                       std::to_string(pf.spill_bytes[t]) + " (a missing or changed spill file: make a new plan)");
+    }
+    std::error_code ec;
+    fs::remove(kept.file(t), ec);  // a leftover of an earlier attempt of this process id
+    TileOutput o = process_tile(config, plan, spill, kept, t);
+    const fs::path kept_final = pf.dir / ("kept_" + std::to_string(t) + ".bin");
+    if (o.kept_bytes == 0) {
+      fs::remove(kept_final, ec);  // no kept point: no file (merge reads 0 bytes)
+    } else {
+      fs::rename(kept.file(t), kept_final, ec);
+      if (ec) throw InputError("tile-job: cannot move " + kept.file(t).string() + " to " + kept_final.string() + ": " + ec.message());
+    }
+    write_atomically(part_file(pf.dir, t), encode_part(pf.id, o));
+  }
+}
+
+MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progress) {
+  const auto t_start = detail::Clock::now();
+  PlanFile pf = read_plan_file(plan_file);
+  MergedTileRun m{config_of(pf, plan_file), {}};
+  const RunConfig& config = m.config;
+  Plan& plan = pf.plan;
+  std::vector<std::size_t> missing;
+  for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
+    std::error_code ec;
+    if (!fs::is_regular_file(part_file(pf.dir, t), ec)) missing.push_back(t);
+  }
+  if (!missing.empty()) {
+    std::string list;
+    for (std::size_t i = 0; i < missing.size() && i < 20; ++i) {
+      if (i) list += ",";
+      list += std::to_string(missing[i]);
+    }
+    if (missing.size() > 20) list += ",...";
+    throw InputError("tile-merge: " + plan_file.string() + ": " + std::to_string(missing.size()) + " of " +
+                     std::to_string(plan.tiles.count()) + " tiles have no result (" + list + "): run hapticloud tile-job " +
+                     plan_file.string() + " --tiles " + list + " first; no scene is made from a partial set");
+  }
+  Spill kept(pf.dir, "kept_", plan.tiles.count(), plan.layout);
+  kept.adopt_existing();
+  BuiltScene built;
+  built.summary.stages = std::move(plan.reports);
+  TileMerge merged(plan);
+  (void)stage("tiles", built.summary.stages, progress, [&] {
+    StageResult<int> r;
+    for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
+      TileOutput o = decode_part(part_file(pf.dir, t), pf.id, t, plan.tiles);
+      if (o.kept_bytes != kept.bytes(t)) {
+        throw InputError(kept.file(t).string() + " holds " + std::to_string(kept.bytes(t)) + " bytes, its tile result says " +
+                         std::to_string(o.kept_bytes) + " (run tile-job " + std::to_string(t) + " again)");
+      }
+      merged.add(plan.tiles, std::move(o));
+    }
+    merged.report(config, r.report);
+    r.report.figure("tile_job_seconds", merged.job_seconds);
+    r.report.notes.push_back("merged from the results of " + std::to_string(plan.tiles.count()) + " tile jobs (hapticloud tile-job) in " +
+                             pf.dir.string());
+    return r;
+  });
+  m.built = finish_tiled(config, plan, merged, kept, std::move(built), progress, t_start);
+  return m;
 }
 
 }  // namespace hc::pipeline

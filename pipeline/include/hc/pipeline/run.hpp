@@ -49,7 +49,7 @@ struct BuiltScene {
   RunSummary summary;          ///< stage reports and the cross-check
   std::optional<Cloud> cloud;  ///< the filtered points in the grid frame [m], when kept
   /// The tiled run, which keeps no cloud: when lod.report and lod.report_cross_check are on, an
-  /// evenly strided sample of the filtered points (every ⌈N_input / lod.report_sample_points⌉-th
+  /// evenly strided sample of the filtered points (of each tile, every ⌈N_input / lod.report_sample_points⌉-th
   /// interior point, in tile order; grid frame [m]) for the levels table's cross-check (a);
   /// point_sample_of is the number of filtered points it stands for.
   std::optional<Cloud> point_sample;

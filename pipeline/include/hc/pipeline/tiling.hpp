@@ -43,7 +43,11 @@
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
 
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
 #include <string>
+#include <vector>
 
 namespace hc::pipeline {
 
@@ -62,5 +66,66 @@ bool runs_tiled(const RunConfig& config);
 ///         folder that cannot be written (naming it); what the stages throw.
 /// Real-time: no. Memory: the grid's layers, one tile's points and one chunk.
 BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress = {});
+
+// ---------------------------------------------------------------------------------------------
+// Tile jobs in other processes or on other machines (`hapticloud tile-plan`, `tile-job`,
+// `tile-merge`; the Dask driver tools/dask/hapticloud-dask). The same three steps
+// build_scene_tiled runs in process, with their state in a work folder on storage every process
+// sees:
+//   WORK/plan.json      the plan (tiles, grid geometry bit for bit as hexadecimal floats, the
+//                       robust test's scale, the config's path, --set overrides and resolved YAML,
+//                       the plan stages' reports, each spill file's size);
+//   WORK/tile_<t>.bin   tile t's spilled points (the spill pass's records);
+//   WORK/part_<t>.bin   tile t's result: its interior of the grid, its summed figures, its share
+//                       of the levels sample (written last, through a rename: it marks the job done);
+//   WORK/kept_<t>.bin   tile t's points after the filters (the cross-check's).
+// A tile job reads only plan.json and tile_<t>.bin and writes only part_<t>.bin and
+// kept_<t>.bin, each through a temporary file and a rename, so a job can be run again (a retry
+// after a lost worker) and two attempts of one tile leave one complete result.
+
+/// What write_tile_plan made.
+struct TilePlanInfo {
+  std::filesystem::path plan_file;  ///< WORK/plan.json
+  std::size_t tiles = 0;            ///< tile jobs to run: 0 .. tiles − 1
+  std::uintmax_t spill_bytes = 0;   ///< the spill files' total size [bytes]
+};
+
+/// `hapticloud tile-plan`: passes 1, 2 and 2b of the tiled run (plan, spill, the robust test's
+/// scale) for `config_file` with `overrides` ("dotted.key=value", as load_run_config), into
+/// `work_dir` (created; or an existing empty folder), kept for tile jobs. The config is read
+/// through its absolute path, so the resolved input paths hold in every process.
+/// @throws hc::ConfigError as load_run_config, or for an option the tiled run lacks (naming the
+///         key); hc::InputError for a work_dir that exists and is not an empty folder, unreadable
+///         input, or a write that fails (what the plan wrote is removed again: the folder if it
+///         made it, else its tile_*.bin and plan.json).
+TilePlanInfo write_tile_plan(const std::filesystem::path& config_file, const std::vector<std::string>& overrides,
+                             const std::filesystem::path& work_dir, const ProgressFn& progress = {});
+
+/// The number of tiles of a plan written by write_tile_plan.
+/// @throws hc::InputError for a file that is not such a plan (naming it and the key).
+std::size_t tile_plan_tiles(const std::filesystem::path& plan_file);
+
+/// `hapticloud tile-job`: step 3 of the tiled run (filters, reprojection of the tile's window,
+/// its kept points) for each of `tiles`, writing WORK/kept_<t>.bin and WORK/part_<t>.bin.
+/// Idempotent: running a tile again gives the same bytes.
+/// @throws hc::InputError for a plan that cannot be read, a tile index outside the plan, or a
+///         spill file whose size is not the plan's (naming it); hc::ConfigError when the plan's
+///         config now resolves to other values than when the plan was made.
+/// Memory: one tile's points and its window of the grid.
+void run_tile_jobs(const std::filesystem::path& plan_file, const std::vector<std::size_t>& tiles);
+
+/// The scene of a plan whose tile jobs have all run, and the config it was made with.
+struct MergedTileRun {
+  RunConfig config;
+  BuiltScene built;
+};
+
+/// `hapticloud tile-merge`: gathers every tile's result and runs steps 4 and 5 (the whole grid's
+/// layers, the merged cross-check): the BuiltScene build_scene_tiled gives for the same config,
+/// bit for bit in its layers and cross-check counts (tests/pipeline/tile_jobs_test.cpp).
+/// @throws hc::InputError naming the tiles without a result (a partial scene is never made), a
+///         result written for another plan, truncated, or whose kept file has another size;
+///         hc::ConfigError as run_tile_jobs.
+MergedTileRun merge_tile_jobs(const std::filesystem::path& plan_file, const ProgressFn& progress = {});
 
 }  // namespace hc::pipeline

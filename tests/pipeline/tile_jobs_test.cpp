@@ -1,0 +1,203 @@
+// Tile jobs in separate steps (tiling.hpp: write_tile_plan, run_tile_jobs, merge_tile_jobs;
+// issue 14's `hapticloud tile-job`): the oracle is build_scene_tiled, the in-process run of the
+// same config. Jobs run out of order, in groups and twice give the same scene bit for bit; a
+// merge with a tile missing, a result of another plan or a changed config is refused by name;
+// a plan never writes into a folder that holds something.
+#include "hc/common/error.hpp"
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/run.hpp"
+#include "hc/pipeline/tiling.hpp"
+#include "test_paths.hpp"
+
+#include <gtest/gtest.h>
+
+#include <bit>
+#include <cstdint>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <string>
+#include <vector>
+
+namespace tile_jobs_test {
+
+namespace fs = std::filesystem;
+using hc::pipeline::BuiltScene;
+using hc::pipeline::RunConfig;
+
+std::size_t differing_bits(const hc::HeightField& a, const hc::HeightField& b) {
+  EXPECT_EQ(a.geometry(), b.geometry());
+  if (a.values().size() != b.values().size()) return a.values().size() + b.values().size();
+  std::size_t n = 0;
+  for (std::size_t i = 0; i < a.values().size(); ++i) {
+    n += std::bit_cast<std::uint32_t>(a.values()[i]) != std::bit_cast<std::uint32_t>(b.values()[i]) ? 1U : 0U;
+  }
+  return n;
+}
+
+std::string bytes_of(const fs::path& f) {
+  std::ifstream in(f, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
+const fs::path& buddha_config() {
+  static const fs::path p = fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml";
+  return p;
+}
+
+// The Buddha at N = 400 in tiles of 64 cells, the robust outlier filter on (the tiles share the
+// plan's scale), levels table with its sample.
+std::vector<std::string> buddha_overrides(const fs::path& scratch) {
+  return {"grid.n=400", "scale.tiled=on", "scale.tile_cells=64", "scale.scratch=" + scratch.string()};
+}
+
+void expect_same_scene(const BuiltScene& a, const BuiltScene& b) {
+  const auto& x = a.scene.layers;
+  const auto& y = b.scene.layers;
+  EXPECT_GT(x.depth.values().size(), 0U);
+  EXPECT_EQ(differing_bits(x.depth, y.depth), 0U);
+  EXPECT_EQ(x.flags, y.flags);
+  EXPECT_EQ(x.colour_rgb8, y.colour_rgb8);
+  EXPECT_EQ(differing_bits(x.envelope, y.envelope), 0U);
+  EXPECT_EQ(differing_bits(x.texture, y.texture), 0U);
+  EXPECT_EQ(differing_bits(x.mu_d, y.mu_d), 0U);
+  EXPECT_EQ(differing_bits(x.mu_s, y.mu_s), 0U);
+  EXPECT_EQ(differing_bits(x.cell_error, y.cell_error), 0U);
+  EXPECT_EQ(a.scene.model_to_grid.matrix(), b.scene.model_to_grid.matrix());
+  EXPECT_EQ(a.scene.provenance.recentre_offset_m, b.scene.provenance.recentre_offset_m);
+  EXPECT_EQ(a.scene.provenance.inputs, b.scene.provenance.inputs);
+  ASSERT_TRUE(a.summary.cross_check && b.summary.cross_check);
+  const auto& p = *a.summary.cross_check;
+  const auto& q = *b.summary.cross_check;
+  EXPECT_EQ(p.points_on_surface, q.points_on_surface);
+  EXPECT_EQ(p.points_off_surface, q.points_off_surface);
+  EXPECT_EQ(p.points_hidden, q.points_hidden);
+  EXPECT_EQ(p.points_outside, q.points_outside);
+  EXPECT_EQ(p.point_vertical.rms_mm, q.point_vertical.rms_mm);  // the same sums in the same order
+  EXPECT_EQ(p.point_vertical.p95_mm, q.point_vertical.p95_mm);
+  EXPECT_EQ(p.point_normal.max_mm, q.point_normal.max_mm);
+  EXPECT_EQ(p.cell_to_point.rms_mm, q.cell_to_point.rms_mm);
+  EXPECT_EQ(p.supported_fraction, q.supported_fraction);
+  ASSERT_EQ(a.point_sample.has_value(), b.point_sample.has_value());
+  if (a.point_sample) {
+    EXPECT_EQ(a.point_sample->xyz, b.point_sample->xyz);
+  }
+  EXPECT_EQ(a.point_sample_of, b.point_sample_of);
+  // The tile loop's summed figures (removed points, cells, ...) are the same.
+  auto tiles_stage = [](const BuiltScene& s) {
+    for (const auto& st : s.summary.stages) {
+      if (st.stage == "tiles") return st;
+    }
+    return hc::pipeline::StageReport{};
+  };
+  const auto ta = tiles_stage(a), tb = tiles_stage(b);
+  EXPECT_EQ(ta.count_in, tb.count_in);
+  EXPECT_EQ(ta.count_out, tb.count_out);
+  for (const auto& [name, v] : ta.figures) {
+    if ((name.size() > 2 && name.compare(name.size() - 2, 2, "_s") == 0) || name.find("seconds") != std::string::npos) continue;
+    bool found = false;
+    for (const auto& [n2, v2] : tb.figures) {
+      if (n2 == name) {
+        found = true;
+        EXPECT_EQ(v, v2) << name;
+      }
+    }
+    EXPECT_TRUE(found) << name;
+  }
+}
+
+TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
+  hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  const fs::path scratch = hc::test::temp_dir("scratch");
+  const fs::path work = hc::test::temp_dir("work") / "plan";  // created by the plan
+  const RunConfig config = hc::pipeline::load_run_config(buddha_config(), buddha_overrides(scratch));
+  const BuiltScene in_process = hc::pipeline::build_scene_tiled(config);
+
+  const auto info = hc::pipeline::write_tile_plan(buddha_config(), buddha_overrides(scratch), work);
+  ASSERT_GT(info.tiles, 8U) << "the grid is cut into many tiles";
+  EXPECT_EQ(hc::pipeline::tile_plan_tiles(info.plan_file), info.tiles);
+  EXPECT_GT(info.spill_bytes, 0U);
+  // Backwards, in groups of up to three: order and grouping must not matter.
+  for (std::size_t end = info.tiles; end > 0;) {
+    const std::size_t begin = end >= 3 ? end - 3 : 0;
+    std::vector<std::size_t> group;
+    for (std::size_t t = end; t-- > begin;) group.push_back(t);
+    hc::pipeline::run_tile_jobs(info.plan_file, group);
+    end = begin;
+  }
+  // A job run again (a retry after a lost worker) writes the same kept points (its result
+  // differs only in its timings; the merge below uses the rerun's).
+  const std::string kept = bytes_of(work / "kept_1.bin");
+  hc::pipeline::run_tile_jobs(info.plan_file, {1});
+  EXPECT_TRUE(bytes_of(work / "kept_1.bin") == kept);
+  EXPECT_FALSE(hc::test::has_entry_named_with(work, ".tmp-"));
+  EXPECT_FALSE(hc::test::has_entry_named_with(work, ".kept-job"));
+
+  const auto merged = hc::pipeline::merge_tile_jobs(info.plan_file);
+  expect_same_scene(in_process, merged.built);
+  EXPECT_EQ(merged.config.resolved_yaml, hc::pipeline::load_run_config(fs::absolute(buddha_config()), buddha_overrides(scratch)).resolved_yaml);
+
+  // A tile without a result: the merge names it and makes no scene.
+  fs::remove(work / "part_5.bin");
+  try {
+    (void)hc::pipeline::merge_tile_jobs(info.plan_file);
+    ADD_FAILURE() << "a merge with a tile missing went through";
+  } catch (const hc::InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("1 of " + std::to_string(info.tiles) + " tiles have no result (5)"), std::string::npos) << what;
+    EXPECT_NE(what.find("--tiles 5"), std::string::npos) << what;
+  }
+  // A truncated result is refused too.
+  hc::pipeline::run_tile_jobs(info.plan_file, {5});
+  {
+    const std::string whole = bytes_of(work / "part_5.bin");
+    std::ofstream(work / "part_5.bin", std::ios::binary | std::ios::trunc) << whole.substr(0, whole.size() - 10);
+  }
+  EXPECT_THROW((void)hc::pipeline::merge_tile_jobs(info.plan_file), hc::InputError);
+  EXPECT_THROW(hc::pipeline::run_tile_jobs(info.plan_file, {info.tiles}), hc::InputError);
+}
+
+TEST(TileJobs, RefusesAResultOfAnotherPlanAChangedConfigAndAFolderInUse) {
+  hc::test::scan_path("bunny/bun000.ply");
+  const fs::path dir = hc::test::temp_dir("w");
+  // A config of its own, so that it can change after the plan.
+  const fs::path cfg = dir / "bunny.yaml";
+  const std::string yaml = "name: bunny_tiles\ninput: {files: [" + hc::test::scan_path("bunny/bun000.ply").string() +
+                           "], units: m}\ngrid: {n: 200}\nscale: {tiled: on, tile_cells: 48}\n";
+  std::ofstream(cfg) << yaml;
+  const auto a = hc::pipeline::write_tile_plan(cfg, {}, dir / "a");
+  const auto b = hc::pipeline::write_tile_plan(cfg, {}, dir / "b");
+  ASSERT_GT(a.tiles, 2U);
+  std::vector<std::size_t> all;
+  for (std::size_t t = 0; t < a.tiles; ++t) all.push_back(t);
+  hc::pipeline::run_tile_jobs(a.plan_file, all);
+  hc::pipeline::run_tile_jobs(b.plan_file, all);
+  // The same config: both merge to the same scene.
+  expect_same_scene(hc::pipeline::merge_tile_jobs(a.plan_file).built, hc::pipeline::merge_tile_jobs(b.plan_file).built);
+  // A result copied from the other plan's folder.
+  fs::copy_file(dir / "a" / "part_0.bin", dir / "b" / "part_0.bin", fs::copy_options::overwrite_existing);
+  try {
+    (void)hc::pipeline::merge_tile_jobs(b.plan_file);
+    ADD_FAILURE() << "a result of another plan was merged";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("written for another plan"), std::string::npos) << e.what();
+  }
+  // The config changed since the plan: jobs and merge refuse it.
+  std::ofstream(cfg) << yaml << "cross_check: {tolerance_m: 0.002}\n";
+  EXPECT_THROW(hc::pipeline::run_tile_jobs(a.plan_file, {0}), hc::ConfigError);
+  EXPECT_THROW((void)hc::pipeline::merge_tile_jobs(a.plan_file), hc::ConfigError);
+  // A folder that holds something is not a work folder; the plan leaves it as it was.
+  fs::create_directory(dir / "mine");
+  std::ofstream(dir / "mine" / "notes.txt") << "mine";
+  EXPECT_THROW((void)hc::pipeline::write_tile_plan(cfg, {}, dir / "mine"), hc::InputError);
+  EXPECT_EQ(bytes_of(dir / "mine" / "notes.txt"), "mine");
+  EXPECT_EQ(std::distance(fs::directory_iterator(dir / "mine"), fs::directory_iterator()), 1);
+  // A plan that fails (here: an option the tiled run lacks) leaves no folder behind.
+  EXPECT_THROW((void)hc::pipeline::write_tile_plan(cfg, {"filters.voxel_m=0.001"}, dir / "c"), hc::ConfigError);
+  EXPECT_FALSE(fs::exists(dir / "c"));
+  EXPECT_THROW((void)hc::pipeline::write_tile_plan(cfg, {"input.files=[" + (dir / "none.ply").string() + "]"}, dir / "d"),
+               hc::Error);
+  EXPECT_FALSE(fs::exists(dir / "d"));
+}
+
+}  // namespace tile_jobs_test
