@@ -1584,10 +1584,11 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
       if (i) list += ",";
       list += std::to_string(missing[i]);
     }
-    if (missing.size() > 20) list += ",...";
+    const std::string what = missing.size() > 20 ? list + " and " + std::to_string(missing.size() - 20) + " more" : list;
+    const std::string todo = missing.size() > 20 ? "their tile jobs" : "hapticloud tile-job " + plan_file.string() + " --tiles " + list;
     throw InputError("tile-merge: " + plan_file.string() + ": " + std::to_string(missing.size()) + " of " +
-                     std::to_string(plan.tiles.count()) + " tiles have no result (" + list + "): run hapticloud tile-job " +
-                     plan_file.string() + " --tiles " + list + " first; no scene is made from a partial set");
+                     std::to_string(plan.tiles.count()) + " tiles have no result (" + what + "): run " + todo +
+                     " first; no scene is made from a partial set");
   }
   Spill kept(pf.dir, "kept_", plan.tiles.count(), plan.layout);
   kept.adopt_existing();

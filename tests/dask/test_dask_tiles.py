@@ -1,0 +1,155 @@
+"""The Dask driver (tools/dask/hapticloud-dask, issue 14) against the single-process tiled run.
+
+A dask-scheduler and two dask-worker processes are started on 127.0.0.1; the Buddha (N = 400,
+tiles of 64 cells, the robust outlier filter on) goes through them, and its scene folder must be
+byte for byte the one `hapticloud run` writes for the same config in one process (the oracle).
+A second run kills the worker that runs the first tile job (SIGKILL to the worker process,
+mid-job) and must still give the same scene. Needs Debian's python3-distributed
+(scripts/install-deps); its absence fails the test, it is not skipped.
+"""
+
+import filecmp
+import json
+import os
+import signal
+import stat
+import subprocess
+import sys
+import time
+
+import pytest
+
+SRC = os.environ["HC_SOURCE_DIR"]
+HAPTICLOUD = os.environ["HAPTICLOUD_BIN"]
+DRIVER = os.path.join(SRC, "tools", "dask", "hapticloud-dask")
+CONFIG = os.path.join(SRC, "configs", "happy_buddha.yaml")
+SETS = ["grid.n=400", "scale.tiled=on", "scale.tile_cells=64"]
+SCAN = os.path.join(SRC, "data", "scans", "happy_buddha", "happy_stand_merged_1099005pts.ply.gz")
+
+
+def sets():
+    out = []
+    for s in SETS:
+        out += ["--set", s]
+    return out
+
+
+def same_folder(a, b):
+    """Lists of files that differ or exist on one side only, recursively."""
+    cmp = filecmp.dircmp(a, b)
+    bad = cmp.left_only + cmp.right_only + cmp.funny_files
+    _, mismatch, errors = filecmp.cmpfiles(a, b, cmp.common_files, shallow=False)
+    bad += mismatch + errors
+    for d in cmp.common_dirs:
+        bad += [os.path.join(d, x) for x in same_folder(os.path.join(a, d), os.path.join(b, d))]
+    return bad
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory):
+    """A scheduler and two workers (one thread each) on 127.0.0.1; yields the address and the
+    cluster's log file."""
+    base = tmp_path_factory.mktemp("cluster")
+    sched_file = base / "scheduler.json"
+    procs = []
+    log = open(base / "cluster.log", "w", buffering=1)
+    try:
+        procs.append(subprocess.Popen(
+            [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1", "--port", "0",
+             "--no-dashboard", "--scheduler-file", str(sched_file)], stdout=log, stderr=log))
+        deadline = time.monotonic() + 60
+        while not sched_file.exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert sched_file.exists(), "the scheduler did not start within 60 s (see %s)" % (base / "cluster.log")
+        address = json.loads(sched_file.read_text())["address"]
+        for _ in range(2):
+            procs.append(subprocess.Popen(
+                [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads", "1", "--nworkers", "1",
+                 "--host", "127.0.0.1", "--no-dashboard", "--local-directory", str(base)], stdout=log, stderr=log))
+        from dask.distributed import Client
+        with Client(address, timeout=60) as c:
+            c.wait_for_workers(2, timeout=60)
+        yield address, base / "cluster.log"
+    finally:
+        for p in procs:
+            p.send_signal(signal.SIGTERM)
+        for p in procs:
+            try:
+                p.wait(timeout=20)
+            except subprocess.TimeoutExpired:
+                p.kill()
+        log.close()
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory):
+    """The oracle: `hapticloud run` of the same config in one process."""
+    assert os.path.exists(SCAN), "missing %s: run data/get-data" % SCAN
+    base = tmp_path_factory.mktemp("reference")
+    subprocess.run([HAPTICLOUD, "run", CONFIG, "--out", str(base / "run")] + sets(), check=True,
+                   stdout=subprocess.DEVNULL)
+    return base / "run"
+
+
+def drive(tmp, address, hapticloud=HAPTICLOUD, extra=()):
+    out = tmp / "run"
+    p = subprocess.run([sys.executable, DRIVER, CONFIG, "--out", str(out), "--scheduler", address,
+                        "--scratch", str(tmp), "--hapticloud", hapticloud] + sets() + list(extra),
+                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert p.returncode == 0, p.stdout[-3000:]
+    return out, p.stdout
+
+
+def test_two_workers_give_the_single_process_scene(cluster, reference, tmp_path):
+    out, log = drive(tmp_path, cluster[0])
+    assert "tiles in" in log
+    assert same_folder(reference / "scene", out / "scene") == []
+    ref = json.loads((reference / "report.json").read_text())
+    got = json.loads((out / "report.json").read_text())
+    assert got["cross_check"] == ref["cross_check"]
+    # The work folder the driver made under --scratch is gone.
+    assert sorted(os.listdir(tmp_path)) == ["run"]
+
+
+def test_a_worker_killed_mid_job_still_gives_the_same_scene(cluster, reference, tmp_path):
+    # A stand-in for hapticloud: the first tile job starts the real one, then SIGKILLs the worker
+    # process that runs it (its parent) and its own job, as a crashed node would. The scheduler
+    # moves the task to a worker that lives; the leftovers of the killed attempt stay behind.
+    marker = tmp_path / "killed"
+    wrapper = tmp_path / "hapticloud-killing-its-worker"
+    wrapper.write_text(
+        "#!/bin/sh\n"
+        'if [ "$1" = tile-job ] && mkdir "%s" 2>/dev/null; then\n'
+        '  "%s" "$@" & job=$!\n'
+        "  sleep 0.3\n"
+        "  kill -9 $PPID\n"
+        "  kill -9 $job\n"
+        "  exit 1\n"
+        "fi\n"
+        'exec "%s" "$@"\n' % (marker, HAPTICLOUD, HAPTICLOUD))
+    wrapper.chmod(wrapper.stat().st_mode | stat.S_IXUSR)
+    out, log = drive(tmp_path, cluster[0], hapticloud=str(wrapper), extra=["--retries", "0"])
+    assert marker.is_dir(), "no tile job ran through the killing wrapper"
+    # The worker did die (the nanny says so); with --retries 0 only the scheduler's move of the
+    # lost task to a live worker lets the run finish.
+    assert "was killed by signal 9" in cluster[1].read_text()
+    assert same_folder(reference / "scene", out / "scene") == []
+    ref = json.loads((reference / "report.json").read_text())
+    got = json.loads((out / "report.json").read_text())
+    assert got["cross_check"] == ref["cross_check"]
+
+
+def test_the_merge_refuses_a_plan_with_a_tile_missing(tmp_path):
+    # Without the cluster: a plan, all tiles but one, then the merge.
+    plan_dir = tmp_path / "plan"
+    subprocess.run([HAPTICLOUD, "tile-plan", os.path.join(SRC, "configs", "bunny.yaml"), "--work", str(plan_dir),
+                    "--set", "scale.tile_cells=64"], check=True, stdout=subprocess.DEVNULL)
+    count = json.loads((plan_dir / "plan.json").read_text())["tiles"]["count"]
+    assert count > 2
+    subprocess.run([HAPTICLOUD, "tile-job", str(plan_dir / "plan.json"), "--tiles",
+                    ",".join(str(t) for t in range(count) if t != 1)], check=True)
+    p = subprocess.run([HAPTICLOUD, "tile-merge", str(plan_dir / "plan.json"), "--out", str(tmp_path / "run")],
+                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert p.returncode != 0
+    assert "1 of %d tiles have no result (1)" % count in p.stdout
+    assert not (tmp_path / "run").exists()
