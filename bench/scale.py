@@ -94,8 +94,9 @@ def main():
     ap.add_argument("--scratch", default=None, help="folder for the generated scans and runs (default: BUILD/bench-scale)")
     ap.add_argument("--json", default=None, help="also write the rows as JSON to this file")
     ap.add_argument("--modes", default="in-core,tiled",
-                    help="comma-separated: in-core (scale.tiled=off) and/or tiled (scale.tiled=on)")
+                    help="comma-separated: in-core, tiled (hapticloud run), dask (tools/dask/hapticloud-dask, LocalCluster)")
     ap.add_argument("--tile-cells", type=int, default=256, help="scale.tile_cells of the tiled runs")
+    ap.add_argument("--dask-workers", type=int, default=2, help="LocalCluster workers of the dask mode")
     ap.add_argument("--set", action="append", default=[], help="extra `hapticloud run --set` overrides")
     ap.add_argument("--format", default="ply", choices=["ply", "las", "ptx"],
                     help="the generated scans' format: binary float PLY, LAS 1.2 (point format 0), or PTX "
@@ -106,8 +107,8 @@ def main():
     grids = [int(n) for n in args.n.split(",")]
     modes = [m for m in args.modes.split(",") if m]
     for m in modes:
-        if m not in ("in-core", "tiled"):
-            sys.exit(f"scale.py: --modes {m!r}: expected in-core or tiled")
+        if m not in ("in-core", "tiled", "dask"):
+            sys.exit(f"scale.py: --modes {m!r}: expected in-core, tiled or dask")
     program = os.path.join(args.build, "apps", "hapticloud", "hapticloud")
     generator = os.path.join(args.build, "tools", "relief", "hc-gen-relief")
     for exe in (program, generator):
@@ -136,9 +137,15 @@ def main():
                 f.write(CONFIG.format(tag=tag, scan=os.path.basename(scan), n=n))
             out = os.path.join(scratch, f"run_{tag}")
             shutil.rmtree(out, ignore_errors=True)
-            cmd = [program, "run", config, "--out", out]
-            cmd += ["--set", "scale.tiled=" + ("on" if mode == "tiled" else "off")]
-            if mode == "tiled":
+            if mode == "dask":
+                # tools/dask/hapticloud-dask on a LocalCluster of --dask-workers processes: the
+                # plan and the merge in the driver's hapticloud, the tile jobs on the workers.
+                cmd = [sys.executable, os.path.join(ROOT, "tools", "dask", "hapticloud-dask"), config, "--out", out,
+                       "--hapticloud", program, "--workers", str(args.dask_workers), "--scratch", scratch]
+            else:
+                cmd = [program, "run", config, "--out", out]
+            cmd += ["--set", "scale.tiled=" + ("off" if mode == "in-core" else "on")]
+            if mode != "in-core":
                 cmd += ["--set", f"scale.tile_cells={args.tile_cells}", "--set", f"scale.scratch={scratch}"]
             for s in args.set:
                 cmd += ["--set", s]
@@ -146,6 +153,10 @@ def main():
             code, wall, user, system, rss, err = run_child(cmd)
             row = {"points": points, "n": n, "mode": mode, "exit": code, "wall_s": wall, "cpu_s": user + system,
                    "peak_rss_bytes": rss}
+            if mode == "dask":
+                # The workers are not this child's waited descendants: their CPU time and memory
+                # are not in its rusage. Only the wall time and the merge's stages count.
+                row["cpu_s"] = float("nan")
             report = os.path.join(out, "report.json")
             if os.path.exists(report):
                 with open(report) as f:
