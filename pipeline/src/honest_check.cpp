@@ -293,29 +293,42 @@ void check_honest_options(const HonestCheckOptions& o) {
 
 InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
                        const HonestCheckOptions& o, double voxel_leaf_m, GridSpikes* spikes,
-                       const std::vector<std::uint8_t>* cell_flags) {
+                       const std::vector<std::uint8_t>* cell_flags, const InputCheckScope* scope) {
   const auto t0 = Clock::now();
   check_honest_options(o);
   const GridGeometry& g = grid.geometry();
   InputCheck out;
-  out.points = static_cast<std::size_t>(as_read_m.cols());
+  const std::size_t n = static_cast<std::size_t>(as_read_m.cols());
+  if (scope && (!scope->owned || scope->owned->size() != n || !(scope->spacing_m > 0.0))) {
+    throw std::invalid_argument("check_input: a scope needs an owned flag per point and a spacing > 0");
+  }
+  auto owns = [&](std::size_t i) { return !scope || (*scope->owned)[i] != 0; };
+  for (std::size_t i = 0; i < n; ++i) out.points += owns(i) ? 1U : 0U;
 
-  // Box of the valid samples; local frame centred on it (float keeps 1e-7 of the distance).
-  int r_lo = g.rows, r_hi = -1, c_lo = g.cols, c_hi = -1;
-  float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
-  for (int r = 0; r < g.rows; ++r)
-    for (int c = 0; c < g.cols; ++c) {
-      const float z = grid.at(r, c);
-      if (std::isnan(z)) continue;
-      r_lo = std::min(r_lo, r), r_hi = std::max(r_hi, r), c_lo = std::min(c_lo, c), c_hi = std::max(c_hi, c);
-      z_lo = std::min(z_lo, z), z_hi = std::max(z_hi, z);
-    }
-  if (r_hi < 0) throw InputError("check_input: the grid has no valid cell");
-  const Eigen::Vector3d box_lo(g.x_of_col(c_lo), g.y_of_row(r_lo), z_lo), box_hi(g.x_of_col(c_hi), g.y_of_row(r_hi), z_hi);
+  // Box of the valid samples (a tile: the whole grid's); local frame centred on it (float keeps
+  // 1e-7 of the distance; a tile: on its window, so its points stay near the origin).
+  Eigen::Vector3d box_lo, box_hi, centre;
+  if (scope) {
+    box_lo = scope->valid_lo;
+    box_hi = scope->valid_hi;
+    centre = Eigen::Vector3d(g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)), 0.5 * (box_lo.z() + box_hi.z()));
+  } else {
+    int r_lo = g.rows, r_hi = -1, c_lo = g.cols, c_hi = -1;
+    float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
+    for (int r = 0; r < g.rows; ++r)
+      for (int c = 0; c < g.cols; ++c) {
+        const float z = grid.at(r, c);
+        if (std::isnan(z)) continue;
+        r_lo = std::min(r_lo, r), r_hi = std::max(r_hi, r), c_lo = std::min(c_lo, c), c_hi = std::max(c_hi, c);
+        z_lo = std::min(z_lo, z), z_hi = std::max(z_hi, z);
+      }
+    if (r_hi < 0) throw InputError("check_input: the grid has no valid cell");
+    box_lo = Eigen::Vector3d(g.x_of_col(c_lo), g.y_of_row(r_lo), z_lo);
+    box_hi = Eigen::Vector3d(g.x_of_col(c_hi), g.y_of_row(r_hi), z_hi);
+    centre = 0.5 * (box_lo + box_hi);
+  }
   const double diag = std::max((box_hi - box_lo).norm(), g.cell_size_m);
-  const Eigen::Vector3d centre = 0.5 * (box_lo + box_hi);
 
-  const std::size_t n = out.points;
   std::vector<float> local(3 * n);
   std::vector<std::uint8_t> finite(n, 0);
   for (std::size_t i = 0; i < n; ++i) {
@@ -384,12 +397,12 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   }
 
   // 2. The point test: isolated points.
-  out.spacing_m = median_spacing(local, finite, 2.0 * g.cell_size_m);
+  out.spacing_m = scope ? scope->spacing_m : median_spacing(local, finite, 2.0 * g.cell_size_m);
   out.isolation_radius_m = std::max(o.isolation_radius_spacings * out.spacing_m, 1e-9);
   const VoxelHash hash(local, finite, out.isolation_radius_m);
   const std::vector<std::uint8_t> isolated =
       isolated_flags(hash, finite.size(), out.isolation_radius_m, o.isolation_min_neighbours);
-  for (const std::uint8_t f : isolated) out.isolated += f;
+  for (std::size_t i = 0; i < n; ++i) out.isolated += owns(i) ? isolated[i] : 0U;
 
   // 3. Classes of every point, far points, surface lost.
   cv::Mat gap_cells;  // x-y distance to the nearest valid sample [cells]
@@ -398,6 +411,9 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     for (int r = 0; r < g.rows; ++r)
       for (int c = 0; c < g.cols; ++c) not_valid.at<std::uint8_t>(r, c) = std::isnan(grid.at(r, c)) ? 255 : 0;
     cv::distanceTransform(not_valid, gap_cells, cv::DIST_L2, cv::DIST_MASK_PRECISE);
+    // A tile's window: no farther than its size (a lower bound of the whole grid's gap, which
+    // is then far above the tolerance; a window without a valid cell has no distance at all).
+    if (scope) cv::min(gap_cells, static_cast<double>(g.rows + g.cols), gap_cells);
   }
   const BilinearSurface surface(HeightFieldView::of(grid));
   const double x_max = g.x_of_col(g.cols - 1), y_max = g.y_of_row(g.rows - 1);
@@ -415,6 +431,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     const std::size_t b = n * static_cast<std::size_t>(t) / static_cast<std::size_t>(class_threads);
     const std::size_t e = n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(class_threads);
     for (std::size_t i = b; i < e; ++i) {
+      if (!owns(i)) continue;  // a halo copy: its own tile counts it
       if (!finite[i]) {
         ++pc.removed;  // the non-finite filter drops it
         continue;
@@ -496,8 +513,10 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
       const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
       const int c0 = static_cast<int>(std::lround((p.x() - g.x0_m) / g.cell_size_m));
       const int r0 = static_cast<int>(std::lround((p.y() - g.y0_m) / g.cell_size_m));
-      for (int r = std::max(0, r0 - reach_cells); r <= std::min(g.rows - 1, r0 + reach_cells); ++r)
-        for (int c = std::max(0, c0 - reach_cells); c <= std::min(g.cols - 1, c0 + reach_cells); ++c) {
+      const int rr0 = scope ? scope->cells[0] : 0, rr1 = scope ? scope->cells[1] : g.rows;
+      const int cc0 = scope ? scope->cells[2] : 0, cc1 = scope ? scope->cells[3] : g.cols;
+      for (int r = std::max(rr0, r0 - reach_cells); r <= std::min(rr1 - 1, r0 + reach_cells); ++r)
+        for (int c = std::max(cc0, c0 - reach_cells); c <= std::min(cc1 - 1, c0 + reach_cells); ++c) {
           if (std::isnan(grid.at(r, c))) continue;
           float q[3];
           sample_local(r, c, q);
@@ -1053,6 +1072,30 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
                          std::to_string(o.isolation_min_neighbours) + " other points within half their height (2-4 cells or spacings)");
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return {std::move(cloud), std::move(report)};
+}
+
+double median_point_spacing(const Eigen::Matrix3Xd& xyz_m, double start_edge_m) {
+  const std::size_t n = static_cast<std::size_t>(xyz_m.cols());
+  if (n < 2) return 0.0;
+  // The local frame of check_input: float offsets from the points' mean.
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  std::size_t m = 0;
+  for (Eigen::Index i = 0; i < xyz_m.cols(); ++i) {
+    if (!xyz_m.col(i).allFinite()) continue;
+    mean += xyz_m.col(i);
+    ++m;
+  }
+  if (m < 2) return 0.0;
+  mean /= static_cast<double>(m);
+  std::vector<float> local(3 * n, 0.0f);
+  std::vector<std::uint8_t> finite(n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const Eigen::Vector3d p = xyz_m.col(static_cast<Eigen::Index>(i));
+    if (!p.allFinite()) continue;
+    finite[i] = 1;
+    for (int a = 0; a < 3; ++a) local[3 * i + static_cast<std::size_t>(a)] = static_cast<float>(p[a] - mean[a]);
+  }
+  return median_spacing(local, finite, start_edge_m);
 }
 
 }  // namespace hc::pipeline

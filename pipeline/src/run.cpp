@@ -597,50 +597,19 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
     };
     Honest honest = stage("honest_check", reports, progress, [&] {
       StageResult<Honest> r;
-      HonestCheckOptions honest_options = config.cross_check.honest;
-      if (honest_options.confirm_by_splat_footprint && !rasterised &&
-          config.grid.reproject.splat_mode == SplatMode::kDisc) {
-        // A splatted cell holds the front-most z of a measured cell within the disc, whose point
-        // lies up to half a cell diagonal from that cell's node; radii count the scan's cells,
-        // K times the grid's when the grid is upsampled (the reproject stage's actual K).
-        double k = 1.0;
-        for (const StageReport& rep : reports) {
-          if (rep.stage != "reproject") continue;
-          for (const auto& [name, value] : rep.figures)
-            if (name == "upsample_factor" && value >= 1.0) k = value;
-        }
-        honest_options.confirm_footprint_m =
-            (config.grid.reproject.splat_radius_cells + 0.5 * std::sqrt(2.0)) * k * grid.depth.geometry().cell_size_m;
+      // The reproject stage's actual upsample factor K.
+      double k = 1.0;
+      for (const StageReport& rep : reports) {
+        if (rep.stage != "reproject") continue;
+        for (const auto& [name, value] : rep.figures)
+          if (name == "upsample_factor" && value >= 1.0) k = value;
       }
+      const HonestCheckOptions honest_options = detail::honest_options_for(config, rasterised, k, grid.depth.geometry().cell_size_m);
       r.value.spikes = find_grid_spikes(grid.depth, honest_options);
       r.value.input = check_input(as_read, cloud, grid.depth, honest_options, removal_displacement_m(config),
                                   &r.value.spikes, &scene.layers.flags);
-      const InputCheck& in = r.value.input;
-      const GridSpikes& sp = r.value.spikes;
-      r.report.count_in = in.points;
-      r.report.count_out = in.on_surface;
-      r.report.figure("input_points", static_cast<double>(in.points));
-      r.report.figure("input_on_surface_fraction", in.fraction(in.on_surface));
-      r.report.figure("input_removed_fraction", in.fraction(in.removed));
-      r.report.figure("input_hidden_fraction", in.fraction(in.hidden));
-      r.report.figure("input_no_data_fraction", in.fraction(in.no_data));
-      r.report.figure("input_off_surface_fraction", in.fraction(in.off_surface));
-      r.report.figure("input_outside_fraction", in.fraction(in.outside));
-      r.report.figure("input_far", static_cast<double>(in.far));
-      r.report.figure("input_spacing_mm", in.spacing_m * 1e3);
-      r.report.figure("isolated", static_cast<double>(in.isolated));
-      r.report.figure("surface_lost", static_cast<double>(in.surface_lost));
-      r.report.figure("surface_lost_max_gap_mm", in.surface_lost_max_gap_m * 1e3);
-      r.report.figure("removed_in_front", static_cast<double>(in.removed_in_front));
-      r.report.figure("spikes_kept", static_cast<double>(in.spikes_kept));
-      r.report.figure("grid_spikes", static_cast<double>(sp.spikes));
-      r.report.figure("grid_pits", static_cast<double>(sp.pits));
-      r.report.figure("grid_spikes_pits_confirmed", static_cast<double>(sp.confirmed));
-      r.report.figure("island_cells", static_cast<double>(sp.island_cells));
+      detail::add_honest_figures(r.value.input, r.value.spikes, r.report);
       r.report.figure("as_read_copy_mb", static_cast<double>(as_read.size() * sizeof(double)) / 1e6);
-      if (!in.removal_exact) {
-        r.report.notes.push_back("voxel filter on: a point counts as removed when no kept centroid lies within one voxel diagonal");
-      }
       return r;
     });
     double supported = summary.cross_check->supported_fraction;
@@ -1032,3 +1001,44 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
 }
 
 }  // namespace hc::pipeline
+
+namespace hc::pipeline::detail {
+
+HonestCheckOptions honest_options_for(const RunConfig& config, bool rasterised, double upsample_factor, double cell_m) {
+  HonestCheckOptions o = config.cross_check.honest;
+  if (o.confirm_by_splat_footprint && !rasterised && config.grid.reproject.splat_mode == SplatMode::kDisc) {
+    // A splatted cell holds the front-most z of a measured cell within the disc, whose point
+    // lies up to half a cell diagonal from that cell's node; radii count the scan's cells, K
+    // times the grid's when the grid is upsampled.
+    o.confirm_footprint_m = (config.grid.reproject.splat_radius_cells + 0.5 * std::sqrt(2.0)) * upsample_factor * cell_m;
+  }
+  return o;
+}
+
+void add_honest_figures(const InputCheck& in, const GridSpikes& sp, StageReport& report) {
+  report.count_in = in.points;
+  report.count_out = in.on_surface;
+  report.figure("input_points", static_cast<double>(in.points));
+  report.figure("input_on_surface_fraction", in.fraction(in.on_surface));
+  report.figure("input_removed_fraction", in.fraction(in.removed));
+  report.figure("input_hidden_fraction", in.fraction(in.hidden));
+  report.figure("input_no_data_fraction", in.fraction(in.no_data));
+  report.figure("input_off_surface_fraction", in.fraction(in.off_surface));
+  report.figure("input_outside_fraction", in.fraction(in.outside));
+  report.figure("input_far", static_cast<double>(in.far));
+  report.figure("input_spacing_mm", in.spacing_m * 1e3);
+  report.figure("isolated", static_cast<double>(in.isolated));
+  report.figure("surface_lost", static_cast<double>(in.surface_lost));
+  report.figure("surface_lost_max_gap_mm", in.surface_lost_max_gap_m * 1e3);
+  report.figure("removed_in_front", static_cast<double>(in.removed_in_front));
+  report.figure("spikes_kept", static_cast<double>(in.spikes_kept));
+  report.figure("grid_spikes", static_cast<double>(sp.spikes));
+  report.figure("grid_pits", static_cast<double>(sp.pits));
+  report.figure("grid_spikes_pits_confirmed", static_cast<double>(sp.confirmed));
+  report.figure("island_cells", static_cast<double>(sp.island_cells));
+  if (!in.removal_exact) {
+    report.notes.push_back("voxel filter on: a point counts as removed when no kept centroid lies within one voxel diagonal");
+  }
+}
+
+}  // namespace hc::pipeline::detail

@@ -6,6 +6,7 @@
 
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/run.hpp"
 #include "stage_util.hpp"
 
@@ -70,5 +71,12 @@ void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen
 Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::vector<StageReport>& reports,
                                 const ProgressFn& progress, const StoredPrecision& precision,
                                 const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built);
+
+/// cross_check.honest with the splat footprint the confirmation may use (disc splats, not a
+/// rasterised mesh): (splat_radius_cells + ½√2) × upsample_factor × cell [m]; see run.cpp.
+HonestCheckOptions honest_options_for(const RunConfig& config, bool rasterised, double upsample_factor, double cell_m);
+
+/// The honest_check stage's figures and notes from its results (in-core and tiled runs alike).
+void add_honest_figures(const InputCheck& in, const GridSpikes& spikes, StageReport& report);
 
 }  // namespace hc::pipeline::detail

@@ -22,6 +22,7 @@
 #include <array>
 #include <bit>
 #include <chrono>
+#include <cctype>
 #include <cerrno>
 #include <cmath>
 #include <cstdio>
@@ -37,6 +38,7 @@
 #include <vector>
 
 #include <nlohmann/json.hpp>
+#include <fcntl.h>
 #include <unistd.h>
 
 namespace hc::pipeline {
@@ -464,6 +466,7 @@ struct Plan {
   Layout layout;
   std::optional<RobustScale> robust_scale;  // the robust test's whole-scan scale (stage tile_scale)
   std::uint64_t input_points = 0;           // points in the file (the levels sample's stride)
+  std::uint64_t grid_points = 0;            // after non-finite and crop: the points spilled
   detail::StoredPrecision precision;
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
   std::string crs;
@@ -478,16 +481,15 @@ struct TileOutput {
   DepthGrid interior;  // the tile's interior rows × cols; empty when no point is left in it
   std::map<std::string, double> sums;
   std::uint64_t in = 0, out = 0, unjudged = 0;
-  // x y z [m], grid frame: the tile's stride-th, 2·stride-th, ... interior point (so no more than
-  // lod.report_sample_points in all, whatever the tiles)
-  std::vector<double> sample_xyz;
+  double spacing_m = 0.0;            // median nearest-neighbour spacing of the tile's input points [m]
+  std::uint64_t spacing_points = 0;  // the input points it came from (its weight)
   std::uintmax_t kept_bytes = 0;   // size of the tile's kept spill file
   double seconds = 0.0;
 };
 
-// The levels table's sample: every sample_stride-th interior point of each tile. 0 ("every
-// point") would hold the whole cloud in memory, which the tiled run exists to avoid: it takes the
-// default sample instead (docs/scale.md).
+// The levels table's sample: every sample_stride-th interior point, in tile order (read from the
+// kept points after the tile loop). 0 ("every point") would hold the whole cloud in memory, which
+// the tiled run exists to avoid: it takes the default sample instead (docs/scale.md).
 std::size_t sample_stride_of(const RunConfig& config, std::uint64_t input_points) {
   const std::size_t sample_points =
       config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
@@ -509,6 +511,11 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   std::vector<std::uint8_t> flags;
   Cloud pts = spill.read(t, flags);
   o.in = pts.size();
+  if (config.cross_check.enabled && pts.size() >= 2) {
+    // The honest check's spacing (the tiles' median weighted by points: finish_tiled).
+    o.spacing_m = median_point_spacing(pts.xyz, 2.0 * tiles.g.cell_size_m);
+    o.spacing_points = pts.size();
+  }
   const GridWindow w = tiles.window(t);
   const auto inner = tiles.interior(t);
   double spacing_m = 0.0;  // the isolated filter's estimate of the scan's spacing (despike)
@@ -575,8 +582,6 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
   }
   // The kept points, each marked interior (1) or halo (0); the levels sample from the interior.
-  const bool keep_sample = keeps_sample(config);
-  const std::size_t stride = sample_stride_of(config, plan.input_points);
   const double inv = 1.0 / tiles.g.cell_size_m;
   const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
   for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) {
@@ -584,7 +589,6 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
     const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
     const bool interior = row >= inner[0] && row < inner[1] && col >= inner[2] && col < inner[3];
-    if (interior && keep_sample && (o.out + 1) % stride == 0) o.sample_xyz.insert(o.sample_xyz.end(), p, p + 3);
     o.out += interior ? 1U : 0U;
     kept.add(t, interior ? std::uint8_t{1} : std::uint8_t{0}, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
              pts.has_intensity() ? pts.intensity[static_cast<std::size_t>(i)] : 0.0f);
@@ -600,7 +604,7 @@ struct TileMerge {
   DepthGrid grid;
   std::map<std::string, double> sums;
   std::uint64_t in = 0, out = 0, unjudged = 0;
-  std::vector<double> sample_xyz;
+  std::vector<std::pair<double, std::uint64_t>> spacings;  // each tile's spacing [m] and weight
   double job_seconds = 0.0;
 
   TileMerge(const Plan& plan) {
@@ -631,7 +635,7 @@ struct TileMerge {
     in += o.in;
     out += o.out;
     unjudged += o.unjudged;
-    sample_xyz.insert(sample_xyz.end(), o.sample_xyz.begin(), o.sample_xyz.end());
+    if (o.spacing_m > 0.0 && o.spacing_points > 0) spacings.emplace_back(o.spacing_m, o.spacing_points);
     job_seconds += o.seconds;
   }
 
@@ -873,6 +877,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   plan.layout = box.layout;
   plan.robust_scale = robust_scale;
   plan.input_points = box.points;
+  plan.grid_points = grid_points;
   plan.precision = precision;
   plan.offset_m = offset_m;
   plan.crs = crs;
@@ -883,8 +888,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
 // ---------------------------------------------------------------------------------------------
 // Steps 4 and 5 on the gathered tiles: the whole grid's layers and the merged cross-check.
 // `built.summary.stages` holds the plan's and the tile loop's reports.
-BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& merged, const Spill& kept, BuiltScene built,
-                        const ProgressFn& progress, detail::Clock::time_point t_start) {
+BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& merged, const Spill& spill, const Spill& kept,
+                        BuiltScene built, const ProgressFn& progress, detail::Clock::time_point t_start) {
   RunSummary& summary = built.summary;
   auto& reports = summary.stages;
   Scene& scene = built.scene;
@@ -893,14 +898,16 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
   const Eigen::Vector3d& offset_m = plan.offset_m;
   scene.provenance.crs = plan.crs;
   scene.provenance.inputs.push_back(plan.input);
-  if (keeps_sample(config) && !merged.sample_xyz.empty()) {
-    Cloud sample;
-    sample.xyz = Eigen::Map<const Eigen::Matrix3Xd>(merged.sample_xyz.data(), 3,
-                                                    static_cast<Eigen::Index>(merged.sample_xyz.size() / 3));
-    std::vector<double>().swap(merged.sample_xyz);
-    built.point_sample = std::move(sample);
-    built.point_sample_of = merged.out;
-  }
+  // The levels table's sample: every stride-th interior kept point in tile order, taken in the
+  // cross-check's first pass over the kept points (or a pass of its own without it).
+  const bool keep_sample = keeps_sample(config);
+  const std::size_t stride = sample_stride_of(config, plan.input_points);
+  std::vector<double> sample_xyz;
+  std::size_t interior_seen = 0;
+  bool sampled = false;
+  auto sample_point = [&](const double* p) {
+    if (interior_seen++ % stride == 0) sample_xyz.insert(sample_xyz.end(), p, p + 3);
+  };
 
   // 4. The whole grid, as in core.
   const std::size_t grid_report = reports.size() - 1;
@@ -973,6 +980,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           for (std::size_t i = 0; i < pts.size(); ++i) {
             if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
             const double* p = pts.xyz.data() + 3 * i;
+            if (pass == 1 && keep_sample) sample_point(p);
             const PointResidual pr = point_residual(surface, tiles.g, p[0], p[1], p[2], cc.hidden_band_m);
             if (pass == 2) {
               if (pr.kind == PointResidual::kOnSurface) {
@@ -1040,6 +1048,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           }
         }
         if (pass == 1) {
+          sampled = keep_sample;
           vertical.prepare();
           normal.prepare();
           research(unverified);
@@ -1077,27 +1086,155 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       r.report.notes.push_back("merged over " + std::to_string(tiles.count()) +
                                " tiles: (a) per interior point on the whole grid (exact percentiles by radix selection), "
                                "(b) per interior cell against its tile's kept points, halo included");
-      r.report.notes.push_back("tiled run: the input-as-read check and the verdict are not computed (stage grid_spikes: the grid's own test)");
       return r;
     });
     scene.layers.cell_error = summary.cross_check->cell_error_m;
 
-    // 5b. The grid's own spike, pit and island test (find_grid_spikes on the whole grid, as the
-    // in-core honest check runs it). Without the input-as-read check nothing confirms a spike
-    // (confirmed stays 0) and no verdict is decided.
-    GridSpikes spikes = stage("grid_spikes", reports, progress, [&] {
-      StageResult<GridSpikes> r;
-      r.value = find_grid_spikes(grid.depth, config.cross_check.honest);
-      r.report.count_in = r.value.tested;
-      r.report.count_out = r.value.spikes + r.value.pits + r.value.island_cells;
-      r.report.figure("grid_spikes", static_cast<double>(r.value.spikes));
-      r.report.figure("grid_pits", static_cast<double>(r.value.pits));
-      r.report.figure("islands", static_cast<double>(r.value.islands));
-      r.report.figure("island_cells", static_cast<double>(r.value.island_cells));
-      r.report.notes.push_back("tiled run: the grid's own test only; no input point confirms a spike, and no verdict is decided");
+    // 5b. The honest cross-check (honest_check.hpp), tile by tile: each tile's input points as
+    // spilled and its kept points against the whole grid's cells over its window, counting what
+    // the tile owns (InputCheckScope); the grid's own spike, pit and island test on the whole
+    // grid; then the verdict, as in core.
+    struct Honest {
+      InputCheck input;
+      GridSpikes spikes;
+    };
+    Honest honest = stage("honest_check", reports, progress, [&] {
+      StageResult<Honest> r;
+      const HonestCheckOptions options =
+          detail::honest_options_for(config, false, static_cast<double>(tiles.k), tiles.g.cell_size_m);
+      r.value.spikes = find_grid_spikes(grid.depth, options);
+      GridSpikes& spikes = r.value.spikes;
+      spikes.confirmed = 0;
+      InputCheck& in = r.value.input;
+      // The whole run's spacing: the tiles' spacings, their median weighted by points.
+      std::vector<std::pair<double, std::uint64_t>> sp = merged.spacings;
+      std::sort(sp.begin(), sp.end());
+      std::uint64_t total = 0, acc = 0;
+      for (const auto& e : sp) total += e.second;
+      double spacing_m = 0.0;
+      for (const auto& e : sp) {
+        acc += e.second;
+        if (2 * acc >= total) {
+          spacing_m = e.first;
+          break;
+        }
+      }
+      if (!(spacing_m > 0.0)) spacing_m = tiles.g.cell_size_m;  // no tile had two points: the cell
+      // The box of the whole grid's valid samples (far points).
+      InputCheckScope scope;
+      scope.spacing_m = spacing_m;
+      {
+        int r_lo = tiles.g.rows, r_hi = -1, c_lo = tiles.g.cols, c_hi = -1;
+        float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
+        for (int rr = 0; rr < tiles.g.rows; ++rr)
+          for (int c = 0; c < tiles.g.cols; ++c) {
+            const float z = grid.depth.at(rr, c);
+            if (std::isnan(z)) continue;
+            r_lo = std::min(r_lo, rr), r_hi = std::max(r_hi, rr), c_lo = std::min(c_lo, c), c_hi = std::max(c_hi, c);
+            z_lo = std::min(z_lo, z), z_hi = std::max(z_hi, z);
+          }
+        if (r_hi < 0) throw InputError("honest check: the grid has no valid cell (tiled run)");
+        scope.valid_lo = Eigen::Vector3d(tiles.g.x_of_col(c_lo), tiles.g.y_of_row(r_lo), z_lo);
+        scope.valid_hi = Eigen::Vector3d(tiles.g.x_of_col(c_hi), tiles.g.y_of_row(r_hi), z_hi);
+      }
+      // The flagged spike and pit cells by tile.
+      std::vector<std::vector<std::array<int, 2>>> flagged_in(tiles.count());
+      for (const auto& rc : spikes.flagged) {
+        flagged_in[static_cast<std::size_t>(rc[0] / tiles.size) * static_cast<std::size_t>(tiles.tiles_c) +
+                   static_cast<std::size_t>(rc[1] / tiles.size)]
+            .push_back(rc);
+      }
+      const std::vector<std::uint8_t>& flags = scene.layers.flags;
+      std::vector<std::uint8_t> fl_in, fl_kept, owned;
+      const double inv = 1.0 / tiles.g.cell_size_m;
+      const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+      PassProgress tick(progress, "honest_check", "the input as spilled against the grid, tile by tile",
+                        config.scale.progress_interval_s);
+      for (std::size_t t = 0; t < tiles.count(); ++t) {
+        tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
+        const Cloud input = spill.read(t, fl_in);
+        if (input.size() == 0) continue;
+        const Cloud kept_pts = kept.read(t, fl_kept);
+        const GridWindow w = tiles.window(t);
+        const auto inner = tiles.interior(t);
+        owned.assign(input.size(), 0);
+        for (std::size_t i = 0; i < input.size(); ++i) {
+          const double* p = input.xyz.data() + 3 * i;
+          const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
+          const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
+          owned[i] = row >= inner[0] && row < inner[1] && col >= inner[2] && col < inner[3] ? 1 : 0;
+        }
+        GridGeometry wg = tiles.g;
+        wg.rows = w.rows;
+        wg.cols = w.cols;
+        wg.x0_m = tiles.g.x_of_col(w.col0);
+        wg.y0_m = tiles.g.y_of_row(w.row0);
+        HeightField crop(wg);
+        std::vector<std::uint8_t> crop_flags(wg.cell_count());
+        for (int rr = 0; rr < w.rows; ++rr)
+          for (int c = 0; c < w.cols; ++c) {
+            crop.at(rr, c) = grid.depth.at(w.row0 + rr, w.col0 + c);
+            crop_flags[static_cast<std::size_t>(rr) * static_cast<std::size_t>(w.cols) + static_cast<std::size_t>(c)] =
+                flags[static_cast<std::size_t>(w.row0 + rr) * static_cast<std::size_t>(tiles.g.cols) + static_cast<std::size_t>(w.col0 + c)];
+          }
+        GridSpikes local;
+        for (const auto& rc : flagged_in[t]) local.flagged.push_back({rc[0] - w.row0, rc[1] - w.col0});
+        scope.owned = &owned;
+        scope.cells = {inner[0] - w.row0, inner[1] - w.row0, inner[2] - w.col0, inner[3] - w.col0};
+        const InputCheck part = check_input(input.xyz, kept_pts, crop, options, 0.0, &local, &crop_flags, &scope);
+        in.points += part.points;
+        in.removed += part.removed;
+        in.on_surface += part.on_surface;
+        in.off_surface += part.off_surface;
+        in.hidden += part.hidden;
+        in.no_data += part.no_data;
+        in.outside += part.outside;
+        in.far += part.far;
+        in.far_max_distance_m = std::max(in.far_max_distance_m, part.far_max_distance_m);
+        in.isolated += part.isolated;
+        in.surface_lost += part.surface_lost;
+        in.surface_lost_max_gap_m = std::max(in.surface_lost_max_gap_m, part.surface_lost_max_gap_m);
+        in.removed_in_front += part.removed_in_front;
+        in.spikes_kept += part.spikes_kept;
+        for (const auto& rc : part.spikes_kept_cells) {
+          if (in.spikes_kept_cells.size() < 100) in.spikes_kept_cells.push_back({rc[0] + w.row0, rc[1] + w.col0});
+        }
+        spikes.confirmed += local.confirmed;
+        in.spacing_m = part.spacing_m;
+        in.isolation_radius_m = part.isolation_radius_m;
+      }
+      // The points the plan's passes dropped (non-finite, outside filters.crop) were removed
+      // before the spill: counted as removed, not classified.
+      const std::uint64_t dropped = plan.input_points - plan.grid_points;
+      in.points += dropped;
+      in.removed += dropped;
+      if (in.spacing_m == 0.0) in.spacing_m = spacing_m;
+      detail::add_honest_figures(in, spikes, r.report);
+      r.report.figure("tiles", static_cast<double>(tiles.count()));
+      r.report.notes.push_back("tiled run: each tile's input points (as spilled: after units, recentring, view, non-finite and "
+                               "crop) and kept points against the whole grid over its window; the spacing is the tiles' "
+                               "median weighted by points; " + std::to_string(dropped) +
+                               " points dropped before the spill (non-finite, crop) count as removed");
       return r;
     });
-    summary.grid_spikes = std::move(spikes);
+    const double supported = summary.cross_check->supported_fraction;
+    summary.verdict = decide_verdict(honest.input, honest.spikes, supported, reports, config.cross_check.honest);
+    summary.input_check = std::move(honest.input);
+    summary.grid_spikes = std::move(honest.spikes);
+  }
+  if (keep_sample && !sampled) {
+    std::vector<std::uint8_t> flag;
+    for (std::size_t t = 0; t < tiles.count(); ++t) {
+      const Cloud pts = kept.read(t, flag);
+      for (std::size_t i = 0; i < pts.size(); ++i)
+        if (flag[i] != 0) sample_point(pts.xyz.data() + 3 * i);
+    }
+  }
+  if (keep_sample && !sample_xyz.empty()) {
+    Cloud sample;
+    sample.xyz = Eigen::Map<const Eigen::Matrix3Xd>(sample_xyz.data(), 3, static_cast<Eigen::Index>(sample_xyz.size() / 3));
+    built.point_sample = std::move(sample);
+    built.point_sample_of = interior_seen;
   }
   scene.layers.depth = std::move(grid.depth);
 
@@ -1136,12 +1273,24 @@ double unhex(const nlohmann::json& j, const fs::path& file, const char* key) {
   return v;
 }
 
-// Writes `bytes` to `target` through a temporary file beside it and a rename, so a reader never
-// sees half of it. @throws InputError naming the file.
+std::string random_id();
+
+// A name no other attempt uses, even on another host sharing the folder (host, process, random).
+std::string attempt_tag() {
+  char host[256] = {0};
+  if (::gethostname(host, sizeof host - 1) != 0) host[0] = '\0';
+  std::string h;
+  for (const char* c = host; *c; ++c) h.push_back(std::isalnum(static_cast<unsigned char>(*c)) ? *c : '_');
+  return h + "-" + std::to_string(::getpid()) + "-" + random_id();
+}
+
+// Writes `bytes` to `target` through a temporary file beside it (flushed to disk) and a rename,
+// so a reader never sees half of it, even after a crash. @throws InputError naming the file.
 void write_atomically(const fs::path& target, const std::string& bytes) {
-  const fs::path tmp = target.parent_path() / ("." + target.filename().string() + ".tmp-" + std::to_string(::getpid()));
+  const fs::path tmp = target.parent_path() / ("." + target.filename().string() + ".tmp-" + attempt_tag());
   std::FILE* f = std::fopen(tmp.c_str(), "wb");
-  const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
+  const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() && std::fflush(f) == 0 &&
+                  ::fsync(::fileno(f)) == 0;
   const bool closed = f && std::fclose(f) == 0;
   std::error_code ec;
   if (!ok || !closed) {
@@ -1179,6 +1328,31 @@ struct PlanFile {
   std::vector<std::uintmax_t> spill_bytes;  // tile_<t>.bin sizes as written
 };
 
+// A string that must read back byte for byte: as is when it is UTF-8, else {"hex": its bytes}.
+nlohmann::json text(const std::string& s) {
+  try {
+    (void)nlohmann::json(s).dump();
+    return s;
+  } catch (const nlohmann::json::type_error&) {
+    std::string h;
+    char b[3];
+    for (const unsigned char c : s) {
+      std::snprintf(b, sizeof b, "%02x", c);
+      h += b;
+    }
+    return nlohmann::json{{"hex", h}};
+  }
+}
+
+std::string untext(const nlohmann::json& j) {
+  if (j.is_string()) return j.get<std::string>();
+  const std::string h = j.at("hex").get<std::string>();
+  if (h.size() % 2 != 0) throw nlohmann::json::other_error::create(501, "odd hex string", &j);
+  std::string s;
+  for (std::size_t i = 0; i < h.size(); i += 2) s.push_back(static_cast<char>(std::stoi(h.substr(i, 2), nullptr, 16)));
+  return s;
+}
+
 nlohmann::json report_json(const StageReport& r) {
   nlohmann::json figures = nlohmann::json::array();
   for (const auto& [name, v] : r.figures) figures.push_back({name, hex(v)});
@@ -1192,9 +1366,10 @@ void write_plan_file(const PlanFile& pf) {
   nlohmann::json j;
   j["format"] = kPlanFormat;
   j["id"] = pf.id;
-  j["config_file"] = pf.config_file.string();
-  j["overrides"] = pf.overrides;
-  j["resolved_yaml"] = pf.resolved_yaml;
+  j["config_file"] = text(pf.config_file.string());
+  j["overrides"] = nlohmann::json::array();
+  for (const auto& o : pf.overrides) j["overrides"].push_back(text(o));
+  j["resolved_yaml"] = text(pf.resolved_yaml);
   j["tiles"] = {{"count", t.count()},         {"rows", t.g.rows},           {"cols", t.g.cols},
                 {"x0_m", hex(t.g.x0_m)},       {"y0_m", hex(t.g.y0_m)},       {"cell_size_m", hex(t.g.cell_size_m)},
                 {"upsample_factor", t.k},     {"tile_cells", t.size},       {"halo_cells", t.halo},
@@ -1206,35 +1381,42 @@ void write_plan_file(const PlanFile& pf) {
                                                       {"sample", p.robust_scale->sample}}
                                      : nlohmann::json();
   j["input_points"] = p.input_points;
+  j["grid_points"] = p.grid_points;
   j["precision"] = {{"float32", p.precision.float32},
-                    {"file", p.precision.file},
-                    {"crs", p.precision.crs},
+                    {"file", text(p.precision.file)},
+                    {"crs", text(p.precision.crs)},
                     {"max_abs_m", {hex(p.precision.max_abs_m.x()), hex(p.precision.max_abs_m.y()), hex(p.precision.max_abs_m.z())}},
                     {"distinct", {p.precision.distinct.x(), p.precision.distinct.y(), p.precision.distinct.z()}}};
   j["offset_m"] = {hex(p.offset_m.x()), hex(p.offset_m.y()), hex(p.offset_m.z())};
-  j["crs"] = p.crs;
-  j["input"] = {{"file", p.input.file}, {"sha256", p.input.sha256}};
+  j["crs"] = text(p.crs);
+  j["input"] = {{"file", text(p.input.file)}, {"sha256", p.input.sha256}};
   nlohmann::json reports = nlohmann::json::array();
   for (const auto& r : p.reports) reports.push_back(report_json(r));
   j["reports"] = reports;
-  write_atomically(pf.dir / "plan.json", j.dump(1) + "\n");
+  // Notes and figure names are for reading only: a byte that is not UTF-8 becomes U+FFFD.
+  write_atomically(pf.dir / "plan.json", j.dump(1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");
 }
 
 PlanFile read_plan_file(const fs::path& plan_file) {
-  const std::string text = read_file_bytes(plan_file, "the tile plan");
+  const std::string bytes = read_file_bytes(plan_file, "the tile plan");
+  std::string where;
   PlanFile pf;
   pf.dir = plan_file.parent_path().empty() ? fs::path(".") : plan_file.parent_path();
   try {
-    const nlohmann::json j = nlohmann::json::parse(text);
+    where = "the JSON text";
+    const nlohmann::json j = nlohmann::json::parse(bytes);
+    where = "format, id";
     if (j.value("format", std::string()) != kPlanFormat) {
       throw InputError(plan_file.string() + ": not a plan of this version (format is not \"" + kPlanFormat +
                        "\"; write it with hapticloud tile-plan)");
     }
     pf.id = j.at("id").get<std::string>();
-    pf.config_file = j.at("config_file").get<std::string>();
-    pf.overrides = j.at("overrides").get<std::vector<std::string>>();
-    pf.resolved_yaml = j.at("resolved_yaml").get<std::string>();
+    where = "config_file, overrides, resolved_yaml";
+    pf.config_file = untext(j.at("config_file"));
+    for (const auto& o : j.at("overrides")) pf.overrides.push_back(untext(o));
+    pf.resolved_yaml = untext(j.at("resolved_yaml"));
     Plan& p = pf.plan;
+    where = "tiles";
     const auto& t = j.at("tiles");
     p.tiles.g.rows = t.at("rows").get<int>();
     p.tiles.g.cols = t.at("cols").get<int>();
@@ -1251,11 +1433,13 @@ PlanFile read_plan_file(const fs::path& plan_file) {
         p.tiles.tiles_c != (p.tiles.g.cols + p.tiles.size - 1) / p.tiles.size || !(p.tiles.g.cell_size_m > 0.0)) {
       throw InputError(plan_file.string() + ": tiles does not describe a tiling of the grid (rows, cols, tile_cells, tiles_r, tiles_c)");
     }
+    where = "spill_bytes";
     pf.spill_bytes = j.at("spill_bytes").get<std::vector<std::uintmax_t>>();
     if (pf.spill_bytes.size() != p.tiles.count()) {
       throw InputError(plan_file.string() + ": spill_bytes has " + std::to_string(pf.spill_bytes.size()) + " entries, expected " +
                        std::to_string(p.tiles.count()) + " (one per tile)");
     }
+    where = "layout, robust_scale, input_points, grid_points, precision, offset_m, crs, input";
     p.layout.rgb = j.at("layout").at("rgb").get<bool>();
     p.layout.intensity = j.at("layout").at("intensity").get<bool>();
     if (!j.at("robust_scale").is_null()) {
@@ -1264,18 +1448,20 @@ PlanFile read_plan_file(const fs::path& plan_file) {
                                    unhex(rs.at("mad_log"), plan_file, "robust_scale.mad_log"), rs.at("sample").get<std::size_t>()};
     }
     p.input_points = j.at("input_points").get<std::uint64_t>();
+    p.grid_points = j.at("grid_points").get<std::uint64_t>();
     const auto& pr = j.at("precision");
     p.precision.float32 = pr.at("float32").get<bool>();
-    p.precision.file = pr.at("file").get<std::string>();
-    p.precision.crs = pr.at("crs").get<std::string>();
+    p.precision.file = untext(pr.at("file"));
+    p.precision.crs = untext(pr.at("crs"));
     for (int a = 0; a < 3; ++a) {
       p.precision.max_abs_m[a] = unhex(pr.at("max_abs_m").at(static_cast<std::size_t>(a)), plan_file, "precision.max_abs_m");
       p.precision.distinct[a] = pr.at("distinct").at(static_cast<std::size_t>(a)).get<int>();
       p.offset_m[a] = unhex(j.at("offset_m").at(static_cast<std::size_t>(a)), plan_file, "offset_m");
     }
-    p.crs = j.at("crs").get<std::string>();
-    p.input.file = j.at("input").at("file").get<std::string>();
+    p.crs = untext(j.at("crs"));
+    p.input.file = untext(j.at("input").at("file"));
     p.input.sha256 = j.at("input").at("sha256").get<std::string>();
+    where = "reports";
     for (const auto& rj : j.at("reports")) {
       StageReport r;
       r.stage = rj.at("stage").get<std::string>();
@@ -1288,7 +1474,9 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       p.reports.push_back(std::move(r));
     }
   } catch (const nlohmann::json::exception& e) {
-    throw InputError(plan_file.string() + ": not a tile plan written by hapticloud tile-plan (" + e.what() + ")");
+    throw InputError(plan_file.string() + ": " + where + ": not as hapticloud tile-plan writes it (" + e.what() + ")");
+  } catch (const std::logic_error& e) {  // std::stoi of a hex text
+    throw InputError(plan_file.string() + ": " + where + ": not as hapticloud tile-plan writes it (" + e.what() + ")");
   }
   return pf;
 }
@@ -1327,8 +1515,8 @@ std::string encode_part(const std::string& plan_id, const TileOutput& o) {
     s += name;
     put(s, v);
   }
-  put(s, static_cast<std::uint64_t>(o.sample_xyz.size()));
-  s.append(reinterpret_cast<const char*>(o.sample_xyz.data()), o.sample_xyz.size() * sizeof(double));
+  put(s, o.spacing_m);
+  put(s, o.spacing_points);
   const DepthGrid& g = o.interior;
   const std::int32_t rows = g.depth.rows(), cols = g.depth.cols();
   put(s, rows);
@@ -1398,10 +1586,8 @@ TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::si
     std::string name = r.str(len);
     o.sums[name] = r.get<double>();
   }
-  const auto n_sample = r.get<std::uint64_t>();
-  if (n_sample % 3 != 0 || n_sample > o.out * 3) r.bad("holds a levels sample of " + std::to_string(n_sample) + " values");
-  o.sample_xyz.resize(static_cast<std::size_t>(n_sample));
-  r.take(o.sample_xyz.data(), o.sample_xyz.size() * sizeof(double));
+  o.spacing_m = r.get<double>();
+  o.spacing_points = r.get<std::uint64_t>();
   const auto rows = r.get<std::int32_t>(), cols = r.get<std::int32_t>();
   const bool colour = r.get<std::uint8_t>() != 0, intensity = r.get<std::uint8_t>() != 0;
   if (rows > 0) {
@@ -1442,10 +1628,12 @@ class PlanCleanup {
       fs::remove_all(dir_, ec);
       return;
     }
-    for (const auto& e : fs::directory_iterator(dir_, ec)) {
-      const std::string n = e.path().filename().string();
-      if (n.rfind("tile_", 0) == 0 || n == "plan.json") fs::remove(e.path(), ec);
+    std::vector<fs::path> ours;
+    for (fs::directory_iterator it(dir_, ec), end; !ec && it != end; it.increment(ec)) {
+      const std::string n = it->path().filename().string();
+      if (n.rfind("tile_", 0) == 0 || n == "plan.json") ours.push_back(it->path());
     }
+    for (const auto& f : ours) fs::remove(f, ec);
   }
   PlanCleanup(const PlanCleanup&) = delete;
   PlanCleanup& operator=(const PlanCleanup&) = delete;
@@ -1485,12 +1673,12 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
       tick(static_cast<double>(t) / static_cast<double>(plan.tiles.count()));
       merged.add(plan.tiles, process_tile(config, plan, spill, kept, t));
-      spill.remove(t);
+      if (!config.cross_check.enabled) spill.remove(t);  // else the honest check reads it again
     }
     merged.report(config, r.report);
     return r;
   });
-  return finish_tiled(config, plan, merged, kept, std::move(built), progress, t_start);
+  return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
 }
 
 TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std::string>& overrides, const fs::path& work_dir,
@@ -1505,8 +1693,9 @@ TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std:
       throw InputError("tile plan: " + work_dir.string() + " exists and is not an empty folder (expected a new or empty folder for the plan and its tiles)");
     }
   } else {
-    if (!fs::create_directories(work_dir, ec) || ec) {
-      throw InputError("tile plan: cannot create the folder " + work_dir.string() + ": " + ec.message());
+    fs::create_directories(work_dir, ec);
+    if (ec || !fs::is_directory(work_dir)) {
+      throw InputError("tile plan: cannot create the folder " + work_dir.string() + (ec ? ": " + ec.message() : std::string()));
     }
     made = true;
   }
@@ -1534,7 +1723,10 @@ TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std:
 
 std::size_t tile_plan_tiles(const fs::path& plan_file) { return read_plan_file(plan_file).plan.tiles.count(); }
 
-void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& tiles) {
+void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& tiles_asked) {
+  std::vector<std::size_t> tiles = tiles_asked;  // each tile once
+  std::sort(tiles.begin(), tiles.end());
+  tiles.erase(std::unique(tiles.begin(), tiles.end()), tiles.end());
   const PlanFile pf = read_plan_file(plan_file);
   const RunConfig config = config_of(pf, plan_file);
   const Plan& plan = pf.plan;
@@ -1546,7 +1738,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
   }
   Spill spill(pf.dir, "tile_", plan.tiles.count(), plan.layout);
   spill.adopt_existing();
-  const std::string tmp_prefix = ".kept-job" + std::to_string(::getpid()) + "-";
+  const std::string tmp_prefix = ".kept-job-" + attempt_tag() + "-";
   Spill kept(pf.dir, tmp_prefix, plan.tiles.count(), plan.layout);
   for (const std::size_t t : tiles) {
     if (spill.bytes(t) != pf.spill_bytes[t]) {
@@ -1554,8 +1746,21 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
                        std::to_string(pf.spill_bytes[t]) + " (a missing or changed spill file: make a new plan)");
     }
     std::error_code ec;
-    fs::remove(kept.file(t), ec);  // a leftover of an earlier attempt of this process id
+    // This attempt's temporary kept file goes however the job ends (renamed below on success).
+    struct RemoveTemp {
+      fs::path f;
+      ~RemoveTemp() {
+        std::error_code e;
+        fs::remove(f, e);
+      }
+    } temp{kept.file(t)};
     TileOutput o = process_tile(config, plan, spill, kept, t);
+    if (o.kept_bytes > 0) {
+      const int fd = ::open(kept.file(t).c_str(), O_RDONLY);
+      const bool synced = fd >= 0 && ::fsync(fd) == 0;
+      if (fd >= 0) ::close(fd);
+      if (!synced) throw InputError("tile-job: cannot flush " + kept.file(t).string() + " to disk: " + std::strerror(errno));
+    }
     const fs::path kept_final = pf.dir / ("kept_" + std::to_string(t) + ".bin");
     if (o.kept_bytes == 0) {
       fs::remove(kept_final, ec);  // no kept point: no file (merge reads 0 bytes)
@@ -1611,7 +1816,15 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
                              pf.dir.string());
     return r;
   });
-  m.built = finish_tiled(config, plan, merged, kept, std::move(built), progress, t_start);
+  Spill spill(pf.dir, "tile_", plan.tiles.count(), plan.layout);
+  spill.adopt_existing();
+  for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
+    if (spill.bytes(t) != pf.spill_bytes[t]) {
+      throw InputError(spill.file(t).string() + " holds " + std::to_string(spill.bytes(t)) + " bytes, the plan wrote " +
+                       std::to_string(pf.spill_bytes[t]) + " (the honest check reads it; a missing or changed spill file: make a new plan)");
+    }
+  }
+  m.built = finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
   return m;
 }
 

@@ -78,6 +78,19 @@ void expect_same_scene(const BuiltScene& a, const BuiltScene& b) {
   EXPECT_EQ(p.point_normal.max_mm, q.point_normal.max_mm);
   EXPECT_EQ(p.cell_to_point.rms_mm, q.cell_to_point.rms_mm);
   EXPECT_EQ(p.supported_fraction, q.supported_fraction);
+  // The honest check and the verdict (spikes confirmed, every class of the input).
+  ASSERT_TRUE(a.summary.input_check && b.summary.input_check && a.summary.verdict && b.summary.verdict);
+  EXPECT_EQ(a.summary.verdict->status, b.summary.verdict->status);
+  const auto& u = *a.summary.input_check;
+  const auto& w = *b.summary.input_check;
+  for (const auto& [x1, x2] : {std::pair{u.points, w.points}, std::pair{u.removed, w.removed}, std::pair{u.on_surface, w.on_surface},
+                               std::pair{u.off_surface, w.off_surface}, std::pair{u.hidden, w.hidden}, std::pair{u.no_data, w.no_data},
+                               std::pair{u.outside, w.outside}, std::pair{u.isolated, w.isolated}, std::pair{u.spikes_kept, w.spikes_kept},
+                               std::pair{u.surface_lost, w.surface_lost}}) {
+    EXPECT_EQ(x1, x2);
+  }
+  EXPECT_EQ(u.spacing_m, w.spacing_m);
+  EXPECT_EQ(a.summary.grid_spikes->confirmed, b.summary.grid_spikes->confirmed);
   ASSERT_EQ(a.point_sample.has_value(), b.point_sample.has_value());
   if (a.point_sample) {
     EXPECT_EQ(a.point_sample->xyz, b.point_sample->xyz);
@@ -128,10 +141,12 @@ TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
   // A job run again (a retry after a lost worker) writes the same kept points (its result
   // differs only in its timings; the merge below uses the rerun's).
   const std::string kept = bytes_of(work / "kept_1.bin");
-  hc::pipeline::run_tile_jobs(info.plan_file, {1});
+  ASSERT_GT(kept.size(), 1000U) << "tile 1 keeps points";
+  hc::pipeline::run_tile_jobs(info.plan_file, {1, 1});  // asked twice: done once
   EXPECT_TRUE(bytes_of(work / "kept_1.bin") == kept);
   EXPECT_FALSE(hc::test::has_entry_named_with(work, ".tmp-"));
   EXPECT_FALSE(hc::test::has_entry_named_with(work, ".kept-job"));
+  EXPECT_TRUE(in_process.point_sample.has_value()) << "the levels table's sample";
 
   const auto merged = hc::pipeline::merge_tile_jobs(info.plan_file);
   expect_same_scene(in_process, merged.built);
@@ -192,6 +207,12 @@ TEST(TileJobs, RefusesAResultOfAnotherPlanAChangedConfigAndAFolderInUse) {
   EXPECT_THROW((void)hc::pipeline::write_tile_plan(cfg, {}, dir / "mine"), hc::InputError);
   EXPECT_EQ(bytes_of(dir / "mine" / "notes.txt"), "mine");
   EXPECT_EQ(std::distance(fs::directory_iterator(dir / "mine"), fs::directory_iterator()), 1);
+  // A plan that fails in an empty folder of the user's leaves the folder, empty.
+  fs::create_directory(dir / "empty");
+  EXPECT_THROW((void)hc::pipeline::write_tile_plan(cfg, {"input.files=[" + (dir / "none.ply").string() + "]"}, dir / "empty"),
+               hc::Error);
+  EXPECT_TRUE(fs::is_directory(dir / "empty"));
+  EXPECT_TRUE(fs::is_empty(dir / "empty"));
   // A plan that fails (here: an option the tiled run lacks) leaves no folder behind.
   EXPECT_THROW((void)hc::pipeline::write_tile_plan(cfg, {"filters.voxel_m=0.001"}, dir / "c"), hc::ConfigError);
   EXPECT_FALSE(fs::exists(dir / "c"));

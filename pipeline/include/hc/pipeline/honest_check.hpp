@@ -168,9 +168,40 @@ struct GridSpikes {
 /// With `spikes` (find_grid_spikes of the same grid), also counts its confirmed cells;
 /// `cell_flags` (rows·cols CellFlag values of reproject.hpp, or null) says which cells the
 /// footprint may confirm (measured and splatted ones; none without flags).
+struct InputCheckScope;
 InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
                        const HonestCheckOptions& options, double voxel_leaf_m = 0.0,
-                       GridSpikes* spikes = nullptr, const std::vector<std::uint8_t>* cell_flags = nullptr);
+                       GridSpikes* spikes = nullptr, const std::vector<std::uint8_t>* cell_flags = nullptr,
+                       const InputCheckScope* scope = nullptr);
+
+/// check_input on one tile of a tiled run (tiling.hpp): as_read_m and kept_m are the points of
+/// the tile's window (its interior and halo, as spilled), `grid` the whole grid's cells over that
+/// window, and the counts cover only what the tile owns, so that the tiles' InputChecks add up
+/// to the whole run's (points, classes, isolated, surface lost, removed in front, spikes kept;
+/// the maxima by max; spikes->confirmed by sum).
+///  - the point test, the spike searches and the confirmations see every window point (the halo
+///    is wider than their radii: docs/scale.md);
+///  - the scan's spacing and the box of the valid samples are the whole run's, given here;
+///  - a lost point's gap is measured to the nearest valid sample within the window (a gap that
+///    reaches beyond it is at least the halo, far above the tolerance, so the decision is the
+///    whole grid's; surface_lost_max_gap_m is then a lower bound);
+///  - a window without a valid cell is not an error (its points are on no data or outside).
+struct InputCheckScope {
+  /// Per point of as_read_m: 1 = the tile's (its grid node lies in the tile's interior), 0 = a
+  /// halo copy, a neighbour only. Size: as_read_m's columns.
+  const std::vector<std::uint8_t>* owned = nullptr;
+  /// The interior's cells in `grid`: rows [r0, r1), cols [c0, c1). Spikes kept are counted there.
+  std::array<int, 4> cells{};
+  double spacing_m = 0.0;  ///< the scan's median nearest-neighbour spacing [m], > 0
+  Eigen::Vector3d valid_lo = Eigen::Vector3d::Zero();  ///< box of the whole grid's valid samples [m]
+  Eigen::Vector3d valid_hi = Eigen::Vector3d::Zero();
+};
+
+/// Median nearest-neighbour distance [m] of up to 4096 evenly strided finite points of `xyz_m`
+/// (3 × N, metres; exact distances over a voxel hash whose edge starts at start_edge_m and grows
+/// ×4 until the median is within it). The spacing check_input reports; a tiled run gives each
+/// tile's and takes their median weighted by points. 0 for fewer than 2 points.
+double median_point_spacing(const Eigen::Matrix3Xd& xyz_m, double start_edge_m);
 
 /// Spike, pit and island test of a grid (metres, NaN = no data); see HonestCheckOptions.
 /// Robust fit: median of the window's valid cells (the cell excluded), scale 1.4826·MAD (the
