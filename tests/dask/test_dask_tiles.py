@@ -153,3 +153,38 @@ def test_the_merge_refuses_a_plan_with_a_tile_missing(tmp_path):
     assert p.returncode != 0
     assert "1 of %d tiles have no result (1)" % count in p.stdout
     assert not (tmp_path / "run").exists()
+
+
+def test_a_local_cluster_gives_the_single_process_scene_and_a_failing_tile_stops_the_run(tmp_path):
+    # The driver's default: a LocalCluster here (the bunny, small and quick).
+    config = os.path.join(SRC, "configs", "bunny.yaml")
+    ref = tmp_path / "ref"
+    subprocess.run([HAPTICLOUD, "run", config, "--out", str(ref), "--set", "scale.tiled=on", "--set", "scale.tile_cells=64"], check=True,
+                   stdout=subprocess.DEVNULL)
+    out = tmp_path / "run"
+    p = subprocess.run([sys.executable, DRIVER, config, "--out", str(out), "--workers", "2", "--scratch", str(tmp_path),
+                        "--hapticloud", HAPTICLOUD, "--set", "scale.tiled=on", "--set", "scale.tile_cells=64",
+                        "--tiles-per-job", "3"],
+                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert p.returncode == 0, p.stdout[-3000:]
+    assert "LocalCluster" in p.stdout
+    assert same_folder(ref / "scene", out / "scene") == []
+    # A tile job that always fails: the driver stops before the merge, names the tiles, writes
+    # no run folder and removes the work folder it made.
+    failing = tmp_path / "hapticloud-failing"
+    failing.write_text('#!/bin/sh\nif [ "$1" = tile-job ]; then echo "error: disk on fire" >&2; exit 2; fi\n'
+                       'exec "%s" "$@"\n' % HAPTICLOUD)
+    failing.chmod(failing.stat().st_mode | stat.S_IXUSR)
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    p = subprocess.run([sys.executable, DRIVER, config, "--out", str(tmp_path / "failed"), "--workers", "1",
+                        "--scratch", str(scratch), "--hapticloud", str(failing), "--retries", "1",
+                        "--set", "scale.tile_cells=64"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert p.returncode == 1, p.stdout[-3000:]
+    assert "failed after 1 retries" in p.stdout and "disk on fire" in p.stdout, p.stdout[-3000:]
+    assert not (tmp_path / "failed").exists()
+    assert os.listdir(scratch) == []
+    # --scheduler without shared storage named is refused before anything runs.
+    p = subprocess.run([sys.executable, DRIVER, config, "--out", str(tmp_path / "x"), "--scheduler", "tcp://127.0.0.1:1"],
+                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert p.returncode == 2 and "--work" in p.stdout
