@@ -65,9 +65,9 @@ void set_stage_memory_measurement(bool on);
 /// Runs every stage of `config` in memory: ingest → units + recentre → view transform → filters
 /// → reproject → hole fill → surface layers → cross-check. Nothing is written. When
 /// runs_tiled(config) (scale.tiled; tiling.hpp) the streaming tiled run makes the scene instead:
-/// it keeps no cloud (only BuiltScene::point_sample for the levels table) and computes no honest
-/// cross-check or verdict; with keep_cloud the run stays in core unless scale.tiled is on (then
-/// no cloud is returned).
+/// it keeps no cloud (only BuiltScene::point_sample for the levels table) and runs the honest
+/// cross-check tile by tile (tiling.hpp); with keep_cloud the run stays in core unless
+/// scale.tiled is on (then no cloud is returned).
 /// @param keep_cloud keep the filtered points (grid frame, metres) in the result (for the
 ///        levels table's cross-check or a viewer's cloud preview); otherwise they are freed.
 /// @throws hc::Error subclasses from any stage (naming file, key or value).

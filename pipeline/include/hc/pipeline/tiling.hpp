@@ -34,8 +34,12 @@
 /// What does not yet: with the robust outlier filter, each tile is filtered on its own (its own
 /// robust statistics, k-NN searches cut at the halo), the isolated-point radius is the tile's,
 /// and the grid's box and upsample factor are those of the points before filtering (in core:
-/// after). The honest cross-check (input as read, grid spikes) and the verdict are not computed
-/// in a tiled run (noted in the report); the levels table has no cross-check column (no cloud).
+/// after). The honest cross-check runs tile by tile (check_input with an InputCheckScope: each
+/// tile's input points as spilled and its kept points against the whole grid over its window; the
+/// spacing is the tiles' median weighted by points, not the in-core median of 4096 points, so
+/// the isolated count may differ by a few), then the verdict as in core; points dropped before the
+/// spill (non-finite, crop) count as removed without a class. The levels table's support column
+/// is missing (no cloud: a sample instead).
 /// Not supported (tiled: on is an error naming the key): input.conf / several files,
 /// input.synthetic, filters.voxel_m, filters.pcl, filters.outliers other than robust,
 /// grid.organised: mesh, meshes.
@@ -59,9 +63,11 @@ bool runs_tiled(const RunConfig& config);
 
 /// The tiled run (see the file comment): the same BuiltScene build_scene gives, without the
 /// cloud (a strided sample of it instead, BuiltScene::point_sample, when the config's levels
-/// table cross-checks), the honest cross-check and the verdict; the report has stages tile_plan,
+/// table cross-checks); the report has stages tile_plan,
 /// tile_spill (spill_bytes_peak_mb, tiles, halo_cells) and tiles (per-tile sums), then the
-/// in-core stages from corrugation on.
+/// in-core stages from corrugation on (the honest_check stage tile by tile). With the cross-check
+/// on, the input's spill files stay on disk until the honest check has read them (the spill
+/// peak is then the input's and the kept points' files together).
 /// @throws hc::ConfigError as runs_tiled; hc::InputError for unreadable input or a scratch
 ///         folder that cannot be written (naming it); what the stages throw.
 /// Real-time: no. Memory: the grid's layers, one tile's points and one chunk.
