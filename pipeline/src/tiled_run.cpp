@@ -9,6 +9,7 @@
 
 #include "hc/common/bilinear_surface.hpp"
 #include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
 #include "hc/common/units.hpp"
 #include "hc/pipeline/cross_check.hpp"
 #include "hc/pipeline/filters.hpp"
@@ -31,6 +32,8 @@
 #include <filesystem>
 #include <limits>
 #include <map>
+#include <unordered_map>
+#include <unordered_set>
 #include <optional>
 #include <random>
 #include <string>
@@ -656,6 +659,130 @@ struct TileMerge {
   }
 };
 
+// Far clusters of a whole scan on coarse cells (tiled run, step 2c): occupied cells with their
+// points' count, sum and box, single linkage between the 26 neighbours of a cell.
+class FarCells {
+ public:
+  FarCells(const Eigen::Vector3d& origin, double edge) : origin_(origin), edge_(edge), inv_(1.0 / edge) {}
+  double edge() const { return edge_; }
+
+  void add(const double* p) {
+    Cell& c = cells_[key(p)];
+    ++c.count;
+    for (int a = 0; a < 3; ++a) {
+      c.sum[a] += p[a];
+      c.lo[a] = std::min(c.lo[a], p[a]);
+      c.hi[a] = std::max(c.hi[a], p[a]);
+    }
+  }
+  // Whether p lies in a cell of a removed cluster (after components()).
+  bool holds(const double* p) const { return !far_.empty() && far_.count(key(p)) > 0; }
+
+  struct Result {
+    std::size_t clusters = 0, removed_clusters = 0, kept_far_clusters = 0;
+    std::uint64_t removed_points = 0;
+    std::vector<std::string> notes;
+  };
+  // Components; those whose box is more than far_m from the main body's and that hold at most
+  // `small` points are removed (holds() then tells their points).
+  Result components(double far_m, std::size_t small) {
+    std::vector<std::uint64_t> keys;
+    keys.reserve(cells_.size());
+    for (const auto& [k, c] : cells_) keys.push_back(k);
+    std::sort(keys.begin(), keys.end());
+    std::unordered_map<std::uint64_t, std::uint32_t> index;
+    index.reserve(keys.size());
+    for (std::uint32_t i = 0; i < keys.size(); ++i) index.emplace(keys[i], i);
+    std::vector<std::uint32_t> parent(keys.size());
+    for (std::uint32_t i = 0; i < parent.size(); ++i) parent[i] = i;
+    auto find = [&](std::uint32_t i) {
+      while (parent[i] != i) i = parent[i] = parent[parent[i]];
+      return i;
+    };
+    for (std::uint32_t i = 0; i < keys.size(); ++i) {
+      const std::int64_t x = static_cast<std::int64_t>(keys[i] >> 42), y = static_cast<std::int64_t>((keys[i] >> 21) & kMask),
+                         z = static_cast<std::int64_t>(keys[i] & kMask);
+      for (int dx = -1; dx <= 1; ++dx)
+        for (int dy = -1; dy <= 1; ++dy)
+          for (int dz = -1; dz <= 1; ++dz) {
+            if (x + dx < 0 || y + dy < 0 || z + dz < 0) continue;
+            const auto it = index.find(pack(x + dx, y + dy, z + dz));
+            if (it == index.end()) continue;
+            const std::uint32_t a = find(i), b = find(it->second);
+            if (a != b) parent[std::max(a, b)] = std::min(a, b);
+          }
+    }
+    struct Comp {
+      std::uint64_t count = 0;
+      Eigen::Vector3d sum = Eigen::Vector3d::Zero(), lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()),
+                      hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    };
+    std::map<std::uint32_t, Comp> comps;
+    for (std::uint32_t i = 0; i < keys.size(); ++i) {
+      const Cell& c = cells_.at(keys[i]);
+      Comp& k = comps[find(i)];
+      k.count += c.count;
+      k.sum += c.sum;
+      k.lo = k.lo.cwiseMin(c.lo);
+      k.hi = k.hi.cwiseMax(c.hi);
+    }
+    Result r;
+    r.clusters = comps.size();
+    if (comps.empty()) return r;
+    auto main = comps.begin();
+    for (auto it = comps.begin(); it != comps.end(); ++it)
+      if (it->second.count > main->second.count) main = it;
+    std::vector<std::uint32_t> removed_roots;
+    for (auto it = comps.begin(); it != comps.end(); ++it) {
+      if (it == main) continue;
+      const Comp& c = it->second;
+      const Eigen::Vector3d d = (c.lo - main->second.hi).cwiseMax(main->second.lo - c.hi).cwiseMax(0.0);
+      const double gap = d.norm();
+      if (!(gap > far_m)) continue;
+      const bool remove = c.count <= small;
+      (remove ? r.removed_clusters : r.kept_far_clusters) += 1;
+      if (remove) {
+        r.removed_points += c.count;
+        removed_roots.push_back(it->first);
+      }
+      if (r.notes.size() < 20) {
+        const Eigen::Vector3d m = c.sum / static_cast<double>(c.count);
+        r.notes.push_back(std::string(remove ? "removed far cluster: " : "kept far cluster (too large to remove): ") +
+                          std::to_string(c.count) + " points around (" + format_number(m.x()) + ", " + format_number(m.y()) + ", " +
+                          format_number(m.z()) + ") m, " + format_number(gap) + " m from the main body's box");
+      }
+    }
+    std::sort(removed_roots.begin(), removed_roots.end());
+    for (std::uint32_t i = 0; i < keys.size(); ++i) {
+      if (std::binary_search(removed_roots.begin(), removed_roots.end(), find(i))) far_.insert(keys[i]);
+    }
+    return r;
+  }
+
+ private:
+  static constexpr std::uint64_t kMask = (1ull << 21) - 1;
+  struct Cell {
+    std::uint64_t count = 0;
+    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  };
+  static std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
+    return (static_cast<std::uint64_t>(x) << 42) | (static_cast<std::uint64_t>(y) << 21) | static_cast<std::uint64_t>(z);
+  }
+  std::uint64_t key(const double* p) const {
+    std::int64_t c[3];
+    for (int a = 0; a < 3; ++a) {
+      c[a] = std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor((p[a] - origin_[a]) * inv_)), 0, static_cast<std::int64_t>(kMask));
+    }
+    return pack(c[0], c[1], c[2]);
+  }
+  Eigen::Vector3d origin_;
+  double edge_, inv_;
+  std::unordered_map<std::uint64_t, Cell> cells_;
+  std::unordered_set<std::uint64_t> far_;
+};
+
 // Passes 1, 2 and 2b (the file comment of tiling.hpp): the plan, the spill into `dir`
 // (tile_<t>.bin) and the robust test's scale. Stage reports go to plan.reports.
 Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn& progress) {
@@ -675,6 +802,58 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   std::vector<std::string> read_notes;
   std::string crs;
   std::uint64_t grid_points = 0;  // points after non-finite and crop: the in-core outlier stage's input
+  // The grid's geometry, upsample factor and tiles from the points in the grid frame (passes 2
+  // and 2b), leaving out those `far` holds (far clusters, when found: the grid is then made
+  // again without them, as the in-core run grids after removing them).
+  double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
+  auto lay_out = [&](const FarCells* far, StageReport& rep) {
+    const char* stage_name = far ? "tile_far_clusters" : "tile_plan";
+    ro = config.grid.reproject;
+    // The grid frame's x-y box, as reproject's pass over the points takes it.
+    double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min, y_min = x_min, y_max = -x_min;
+    std::size_t kept = 0;
+    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
+                        "pass 2 of 3: the grid's box", [&](const Cloud& g) {
+                          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
+                            if (far && far->holds(g.xyz.data() + 3 * i)) continue;
+                            x_min = std::min(x_min, g.xyz(0, i));
+                            x_max = std::max(x_max, g.xyz(0, i));
+                            y_min = std::min(y_min, g.xyz(1, i));
+                            y_max = std::max(y_max, g.xyz(1, i));
+                            z_min = std::min(z_min, g.xyz(2, i));
+                            z_max = std::max(z_max, g.xyz(2, i));
+                            ++kept;
+                          }
+                        });
+    grid_points = kept;
+    tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
+    double coverage = 0.0;
+    if (config.grid.reproject.upsample_factor == 0) {
+      UpsampleCoverage cov(tiles.g);
+      for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
+                          "pass 2b of 3: the upsample coverage", [&](const Cloud& g) {
+                            if (!far) {
+                              cov.add(g.xyz.data(), g.size());
+                              return;
+                            }
+                            for (Eigen::Index i = 0; i < g.xyz.cols(); ++i)
+                              if (!far->holds(g.xyz.data() + 3 * i)) cov.add(g.xyz.data() + 3 * i, 1);
+                          });
+      tiles.k = cov.factor(&coverage);
+      rep.figure("upsample_coverage", coverage);
+    } else {
+      tiles.k = ro.upsample_factor;
+    }
+    ro = config.grid.reproject;
+    ro.upsample_factor = tiles.k;
+    const int k = tiles.k;
+    tiles.size = (config.scale.tile_cells + k - 1) / k * k;
+    int halo = reproject_reach_cells(ro, k);
+    if (config.filters.outliers.enabled) halo += config.scale.filter_halo_cells;
+    tiles.halo = (halo + k - 1) / k * k;
+    tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
+    tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
+  };
   (void)stage("tile_plan", reports, progress, [&] {
     StageResult<int> r;
     {
@@ -722,41 +901,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       }
     }
     centre = 0.5 * (box.lo + box.hi);
-    // The grid frame's x-y box, as reproject's pass over the points takes it.
-    double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min, y_min = x_min, y_max = -x_min;
-    std::size_t kept = 0;
-    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, "tile_plan",
-                        "pass 2 of 3: the grid's box", [&](const Cloud& g) {
-                          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
-                            x_min = std::min(x_min, g.xyz(0, i));
-                            x_max = std::max(x_max, g.xyz(0, i));
-                            y_min = std::min(y_min, g.xyz(1, i));
-                            y_max = std::max(y_max, g.xyz(1, i));
-                          }
-                          kept += g.size();
-                        });
-    grid_points = kept;
-    tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
-    double coverage = 0.0;
-    if (ro.upsample_factor == 0) {
-      UpsampleCoverage cov(tiles.g);
-      for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, "tile_plan",
-                          "pass 2b of 3: the upsample coverage", [&](const Cloud& g) { cov.add(g.xyz.data(), g.size()); });
-      tiles.k = cov.factor(&coverage);
-      r.report.figure("upsample_coverage", coverage);
-    } else {
-      tiles.k = ro.upsample_factor;
-    }
-    ro.upsample_factor = tiles.k;
+    lay_out(nullptr, r.report);
     const int k = tiles.k;
-    tiles.size = (config.scale.tile_cells + k - 1) / k * k;
-    int halo = reproject_reach_cells(ro, k);
-    if (config.filters.outliers.enabled) halo += config.scale.filter_halo_cells;
-    tiles.halo = (halo + k - 1) / k * k;
-    tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
-    tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
     r.report.count_in = box.points;
-    r.report.count_out = kept;
+    r.report.count_out = grid_points;
     r.report.figure("rows", tiles.g.rows);
     r.report.figure("cols", tiles.g.cols);
     r.report.figure("upsample_factor", k);
@@ -790,43 +938,59 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   const std::vector<std::uint32_t> robust_sample =
       shared_scale ? robust_sample_indices(static_cast<std::size_t>(grid_points), RobustOutlierOptions{}.sample)
                    : std::vector<std::uint32_t>();
-  Spill spill(dir, "tile_", tiles.count(), box.layout);
-  (void)stage("tile_spill", reports, progress, [&] {
-    StageResult<int> r;
+  // The spill pass: every point (but those `far` holds) to the tiles whose window holds its node;
+  // the robust sample marked only in the first spill (its scale is computed once, on every point,
+  // as in core).
+  std::optional<Spill> spill;
+  std::size_t spill_tiles = 0;
+  auto spill_pass = [&](const FarCells* far, StageReport& rep) {
+    if (spill) {  // a second spill (without far clusters): the first one's files go first
+      for (std::size_t t = 0; t < spill_tiles; ++t) spill->remove(t);
+    }
+    spill.emplace(dir, "tile_", tiles.count(), box.layout);
+    spill_tiles = tiles.count();
     std::uint64_t spilled = 0, copies = 0;
     std::size_t next_sample = 0;
     const double inv = 1.0 / tiles.g.cell_size_m;
     const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
-    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, "tile_spill", "pass 3 of 3: the spill",
-                        [&](const Cloud& g) {
-      for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++spilled) {
+    std::uint64_t seen = 0;
+    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, far ? "tile_far_clusters" : "tile_spill",
+                        "pass 3 of 3: the spill", [&](const Cloud& g) {
+      for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++seen) {
         const double* p = g.xyz.data() + 3 * i;
+        if (far && far->holds(p)) continue;
+        ++spilled;
         // The node as reproject bins it (clamped to the grid).
         const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
         const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
         const auto [tr0, tr1, tc0, tc1] = tiles_of(tiles, row, col);
         const std::uint8_t* rgb = g.has_rgb() ? g.rgb.data() + 3 * i : nullptr;
         const float inten = g.has_intensity() ? g.intensity[static_cast<std::size_t>(i)] : 0.0f;
-        while (next_sample < robust_sample.size() && robust_sample[next_sample] < spilled) ++next_sample;
-        const bool sampled = next_sample < robust_sample.size() && robust_sample[next_sample] == spilled;
+        while (!far && next_sample < robust_sample.size() && robust_sample[next_sample] < seen) ++next_sample;
+        const bool sampled = !far && next_sample < robust_sample.size() && robust_sample[next_sample] == seen;
         const int own_r = row / tiles.size, own_c = col / tiles.size;
         for (int tr = tr0; tr <= tr1; ++tr) {
           for (int tc = tc0; tc <= tc1; ++tc) {
             const std::uint8_t flag = sampled && tr == own_r && tc == own_c ? kSampleFlag : std::uint8_t{0};
-            spill.add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), flag, p,
+            spill->add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), flag, p,
                       rgb, inten);
             ++copies;
           }
         }
       }
     });
-    spill.flush_all();
-    r.report.count_in = box.points;
-    r.report.count_out = spilled;
-    r.report.figure("points_spilled", static_cast<double>(copies));
-    r.report.figure("halo_copies_per_point", spilled ? static_cast<double>(copies) / static_cast<double>(spilled) : 0.0);
-    r.report.figure("spill_bytes_peak_mb", static_cast<double>(spill.bytes()) / 1e6);
-    r.report.notes.push_back("spill folder " + dir.string());
+    spill->flush_all();
+    rep.count_in = box.points;
+    rep.count_out = spilled;
+    rep.figure("points_spilled", static_cast<double>(copies));
+    rep.figure("halo_copies_per_point", spilled ? static_cast<double>(copies) / static_cast<double>(spilled) : 0.0);
+    rep.figure("spill_bytes_peak_mb", static_cast<double>(spill->bytes()) / 1e6);
+    rep.notes.push_back("spill folder " + dir.string());
+    return spilled;
+  };
+  (void)stage("tile_spill", reports, progress, [&] {
+    StageResult<int> r;
+    (void)spill_pass(nullptr, r.report);
     return r;
   });
 
@@ -844,7 +1008,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
-        const Cloud pts = spill.read(t, flags);
+        const Cloud pts = spill->read(t, flags);
         std::vector<std::uint32_t> mine;
         for (std::size_t i = 0; i < flags.size(); ++i)
           if (flags[i] & kSampleFlag) mine.push_back(static_cast<std::uint32_t>(i));
@@ -869,6 +1033,75 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       }
       r.report.notes.push_back(robust_scale ? "the robust outlier test's scale over the whole scan, from the points the in-core run samples"
                                             : "no sampled point with a k-NN distance above 0: each tile takes its own scale");
+      return r;
+    });
+  }
+
+  // 2c. Far clusters over the whole scan (the in-core run removes them after the robust test,
+  // before gridding; a tile alone cannot tell a passer-by 20 m away from the main body). Single
+  // linkage on coarse cells of edge E = max(link, far / (2√3)) over every spilled point: two
+  // points closer than the link always share a component, and points in cells that are not
+  // neighbours are more than E apart; a component whose box lies more than `far` from the main
+  // body's box (points up to 2√3·E = far apart may share a component: coarser than in core,
+  // never finer, so a cluster kept in core is kept here) and that is small is removed: the grid
+  // is laid out and the points spilled again without it. The scale stays the one of every point.
+  const FarClusterOptions& fco = config.filters.outliers.far_clusters;
+  if (robust && fco.enabled && robust_scale && grid_points > 0) {
+    (void)stage("tile_far_clusters", reports, progress, [&] {
+      StageResult<int> r;
+      const RobustOutlierOptions ro_defaults;
+      const OutlierConfig& oc = config.filters.outliers;
+      const double d_med = std::exp(robust_scale->median_log);
+      const double link = fco.link_m > 0.0 ? fco.link_m
+                                           : std::max(std::exp(robust_scale->median_log + oc.mad_multiplier * 1.4826 * robust_scale->mad_log),
+                                                      oc.local_ratio * d_med);
+      (void)ro_defaults;
+      const double far_d = fco.far_distance_m > 0.0 ? fco.far_distance_m : 10.0 * link;
+      const Eigen::Vector3d lo(tiles.g.x0_m - tiles.g.cell_size_m, tiles.g.y0_m - tiles.g.cell_size_m, z_min);
+      const double extent = std::max({tiles.g.cell_size_m * (tiles.g.cols + 2), tiles.g.cell_size_m * (tiles.g.rows + 2), z_max - z_min});
+      FarCells cells(lo, std::max({link, far_d / (2.0 * std::sqrt(3.0)), extent / 2097150.0}));
+      // Every point once: the copy in the tile that owns its node.
+      std::vector<std::uint8_t> flags;
+      const double inv = 1.0 / tiles.g.cell_size_m;
+      const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+      PassProgress tick(progress, "tile_far_clusters", "coarse cells of every point, tile by tile", config.scale.progress_interval_s);
+      for (std::size_t t = 0; t < tiles.count(); ++t) {
+        tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
+        const Cloud pts = spill->read(t, flags);
+        const auto in = tiles.interior(t);
+        for (std::size_t i = 0; i < pts.size(); ++i) {
+          const double* q = pts.xyz.data() + 3 * i;
+          const int col = std::clamp(static_cast<int>(q[0] * inv + cx), 0, tiles.g.cols - 1);
+          const int row = std::clamp(static_cast<int>(q[1] * inv + cy), 0, tiles.g.rows - 1);
+          if (row >= in[0] && row < in[1] && col >= in[2] && col < in[3]) cells.add(q);
+        }
+      }
+      const std::size_t small = std::max<std::size_t>(fco.max_points, static_cast<std::size_t>(fco.max_fraction * static_cast<double>(grid_points)));
+      const FarCells::Result fc = cells.components(far_d, small);
+      r.report.count_in = grid_points;
+      r.report.figure("link_mm", link * 1e3);
+      r.report.figure("far_distance_mm", far_d * 1e3);
+      r.report.figure("cell_mm", cells.edge() * 1e3);
+      r.report.figure("clusters", static_cast<double>(fc.clusters));
+      r.report.figure("far_clusters", static_cast<double>(fc.removed_clusters));
+      r.report.figure("removed_far_clusters", static_cast<double>(fc.removed_points));
+      r.report.figure("kept_far_clusters", static_cast<double>(fc.kept_far_clusters));
+      for (const std::string& n : fc.notes) r.report.notes.push_back(n);
+      if (fc.removed_points > 0) {
+        const std::uint64_t before = grid_points;
+        lay_out(&cells, r.report);
+        const std::uint64_t spilled = spill_pass(&cells, r.report);
+        r.report.notes.push_back("grid laid out and points spilled again without the far clusters: " + std::to_string(tiles.g.rows) +
+                                 " x " + std::to_string(tiles.g.cols) + " cells, " + std::to_string(tiles.count()) + " tiles");
+        r.report.count_out = spilled;
+        if (before - spilled != fc.removed_points) {
+          throw std::logic_error("tiled run: far clusters held " + std::to_string(fc.removed_points) + " points, the spill left out " +
+                                 std::to_string(before - spilled));
+        }
+      } else {
+        r.report.count_out = grid_points;
+        r.report.notes.push_back("no far cluster to remove");
+      }
       return r;
     });
   }

@@ -277,14 +277,54 @@ TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
       for (int j = 0; j < 100; ++j) out << 0.01 * i << " " << 0.01 * j << " " << 0.001 * ((i * 7 + j * 3) % 5) << "\n";
     out << "2.99 2.99 0\n2.995 2.99 0\n2.99 2.995 0\n";
   }
+  // Far-cluster removal off: on, the three returns 2.8 m from the patch are a far cluster and go
+  // before the tiles (the next test).
   const std::string yaml =
       "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
+      "filters: {outliers: {far_clusters: {enabled: false}}}\n"
       "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 2}\n";
   RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
   config.scale.scratch = dir;
   const BuiltScene tiled = hc::pipeline::build_scene(config);
   EXPECT_GE(stage_figure(tiled, "tiles", "points_in_windows_too_sparse_to_filter"), 3.0);
   EXPECT_GT(tiled.scene.layers.depth.valid_count(), 0U);
+}
+
+// A far cluster (30 stray returns 2 m beyond a 1 m patch, as a passer-by in a terrestrial scan)
+// lies in tiles of its own, where it is the main body: only the whole scan shows it is far. The
+// tiled run finds it over every point (stage tile_far_clusters), removes it and lays the grid
+// out again, so the grid is the in-core run's (which removes it before gridding), not one that
+// spans 3 m; without the stage the grid spans the cluster.
+TEST(TiledRun, AFarClusterInTilesOfItsOwnIsRemovedBeforeTheGridIsLaidOut) {
+  const fs::path dir = hc::test::temp_dir("far");
+  {
+    std::ofstream out(dir / "patch.ply");
+    out << "ply\nformat ascii 1.0\nelement vertex " << 100 * 100 + 30
+        << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
+    for (int i = 0; i < 100; ++i)
+      for (int j = 0; j < 100; ++j) out << 0.01 * i << " " << 0.01 * j << " " << 0.001 * ((i * 7 + j * 3) % 5) << "\n";
+    for (int i = 0; i < 30; ++i) out << 3.0 + 0.002 * (i % 6) << " " << 3.0 + 0.002 * (i / 6) << " " << 0.001 * (i % 3) << "\n";
+  }
+  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+  const BuiltScene in = hc::pipeline::build_scene(config);
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 32;
+  config.scale.scratch = dir;
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "removed_far_clusters"), 30.0);
+  EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "far_clusters"), 1.0);
+  EXPECT_EQ(stage_figure(in, "outliers", "removed_far_clusters"), 30.0) << "the in-core run removes the same";
+  EXPECT_EQ(tiled.scene.geometry, in.scene.geometry);
+  EXPECT_LE(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), in.scene.layers.depth.values().size() / 1000);
+  // The honest check counts them as removed.
+  ASSERT_TRUE(tiled.summary.input_check);
+  EXPECT_EQ(tiled.summary.input_check->points, 100U * 100U + 30U);
+  EXPECT_GE(tiled.summary.input_check->removed, 30U);
+  // Off, the grid spans the cluster: the case tests the stage.
+  config.filters.outliers.far_clusters.enabled = false;
+  const BuiltScene spanning = hc::pipeline::build_scene(config);
+  EXPECT_GT(spanning.scene.geometry.cell_size_m, 2.0 * in.scene.geometry.cell_size_m);
 }
 
 // A generated wall of `points` points with colour and no outliers, written to `file`.
