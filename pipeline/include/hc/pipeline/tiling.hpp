@@ -31,8 +31,10 @@
 /// is reproject_reach_cells wide, so every node of a tile's interior sees every point it
 /// depends on, in file order); (b)'s distances agree to float rounding (each tile searches in its
 /// own float frame) and the RMS figures to the last bits (summed in another order).
-/// What does not yet: with the robust outlier filter, each tile is filtered on its own (its own
-/// robust statistics, k-NN searches cut at the halo), the isolated-point radius is the tile's,
+/// With the robust outlier filter, the scale is the whole scan's (stage tile_scale) and far
+/// clusters are found over the whole scan on coarse cells (stage tile_far_clusters; the grid is
+/// then laid out and spilled again without them). What does not yet equal the in-core run: each
+/// tile's k-NN searches are cut at the halo, the isolated-point radius is the tile's,
 /// and the grid's box and upsample factor are those of the points before filtering (in core:
 /// after). The honest cross-check runs tile by tile (check_input with an InputCheckScope: each
 /// tile's input points as spilled and its kept points against the whole grid over its window; the
