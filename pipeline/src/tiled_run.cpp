@@ -112,6 +112,9 @@ struct Layout {
 // Spill record flag bits: kept points carry 1 for a tile's interior (0: a halo copy); the input
 // spill marks the robust test's sampled points in their own tile.
 constexpr std::uint8_t kSampleFlag = 2;
+// A point of a removed far cluster (tile_far_clusters): spilled for the honest check, which
+// classifies every input point, but dropped before a tile's filters and gridding.
+constexpr std::uint8_t kFarFlag = 4;
 
 class Spill {
  public:
@@ -469,7 +472,8 @@ struct Plan {
   Layout layout;
   std::optional<RobustScale> robust_scale;  // the robust test's whole-scan scale (stage tile_scale)
   std::uint64_t input_points = 0;           // points in the file (the levels sample's stride)
-  std::uint64_t grid_points = 0;            // after non-finite and crop: the points spilled
+  std::uint64_t grid_points = 0;            // after non-finite, crop and far clusters: the points gridded
+  std::uint64_t far_points = 0;             // of far clusters (tile_far_clusters), spilled marked kFarFlag
   detail::StoredPrecision precision;
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
   std::string crs;
@@ -513,6 +517,15 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   const OutlierConfig& oc = config.filters.outliers;
   std::vector<std::uint8_t> flags;
   Cloud pts = spill.read(t, flags);
+  if (plan.far_points > 0) {
+    std::vector<bool> keep(pts.size());
+    bool any = false;
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      keep[i] = (flags[i] & kFarFlag) == 0;
+      any = any || !keep[i];
+    }
+    if (any) pts.keep_if(keep);
+  }
   o.in = pts.size();
   if (config.cross_check.enabled && pts.size() >= 2) {
     // The honest check's spacing (the tiles' median weighted by points: finish_tiled).
@@ -666,15 +679,29 @@ class FarCells {
   FarCells(const Eigen::Vector3d& origin, double edge) : origin_(origin), edge_(edge), inv_(1.0 / edge) {}
   double edge() const { return edge_; }
 
-  void add(const double* p) {
-    Cell& c = cells_[key(p)];
-    ++c.count;
-    for (int a = 0; a < 3; ++a) {
-      c.sum[a] += p[a];
-      c.lo[a] = std::min(c.lo[a], p[a]);
-      c.hi[a] = std::max(c.hi[a], p[a]);
+  // The points `take` marks among `n` (x y z doubles each), sorted by cell and merged into the
+  // cells once per occupied cell (a tile's points: far fewer hash lookups than one per point).
+  void add_batch(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take) {
+    batch_.clear();
+    for (std::size_t i = 0; i < n; ++i)
+      if (take[i]) batch_.emplace_back(key(xyz + 3 * i), static_cast<std::uint32_t>(i));
+    std::sort(batch_.begin(), batch_.end());
+    for (std::size_t b = 0; b < batch_.size();) {
+      const std::uint64_t k = batch_[b].first;
+      Cell& c = cells_[k];
+      for (; b < batch_.size() && batch_[b].first == k; ++b) {
+        const double* p = xyz + 3 * static_cast<std::size_t>(batch_[b].second);
+        ++c.count;
+        for (int a = 0; a < 3; ++a) {
+          const auto v = static_cast<float>(p[a] - origin_[a]);
+          c.lo[a] = std::min(c.lo[a], v);
+          c.hi[a] = std::max(c.hi[a], v);
+        }
+      }
     }
+    std::vector<std::pair<std::uint64_t, std::uint32_t>>().swap(batch_);
   }
+
   // Whether p lies in a cell of a removed cluster (after components()).
   bool holds(const double* p) const { return !far_.empty() && far_.count(key(p)) > 0; }
 
@@ -690,9 +717,10 @@ class FarCells {
     keys.reserve(cells_.size());
     for (const auto& [k, c] : cells_) keys.push_back(k);
     std::sort(keys.begin(), keys.end());
-    std::unordered_map<std::uint64_t, std::uint32_t> index;
-    index.reserve(keys.size());
-    for (std::uint32_t i = 0; i < keys.size(); ++i) index.emplace(keys[i], i);
+    auto index_of = [&keys](std::uint64_t k) -> std::int64_t {
+      const auto it = std::lower_bound(keys.begin(), keys.end(), k);
+      return it != keys.end() && *it == k ? it - keys.begin() : -1;
+    };
     std::vector<std::uint32_t> parent(keys.size());
     for (std::uint32_t i = 0; i < parent.size(); ++i) parent[i] = i;
     auto find = [&](std::uint32_t i) {
@@ -705,67 +733,80 @@ class FarCells {
       for (int dx = -1; dx <= 1; ++dx)
         for (int dy = -1; dy <= 1; ++dy)
           for (int dz = -1; dz <= 1; ++dz) {
-            if (x + dx < 0 || y + dy < 0 || z + dz < 0) continue;
-            const auto it = index.find(pack(x + dx, y + dy, z + dz));
-            if (it == index.end()) continue;
-            const std::uint32_t a = find(i), b = find(it->second);
+            const std::int64_t nx = x + dx, ny = y + dy, nz = z + dz;
+            const auto m = static_cast<std::int64_t>(kMask);
+            if (nx < 0 || ny < 0 || nz < 0 || nx > m || ny > m || nz > m) continue;
+            const std::int64_t j = index_of(pack(nx, ny, nz));
+            if (j < 0) continue;
+            const std::uint32_t a = find(i), b = find(static_cast<std::uint32_t>(j));
             if (a != b) parent[std::max(a, b)] = std::min(a, b);
           }
     }
     struct Comp {
       std::uint64_t count = 0;
-      Eigen::Vector3d sum = Eigen::Vector3d::Zero(), lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()),
+      Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()),
                       hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
     };
-    std::map<std::uint32_t, Comp> comps;
+    // Components numbered in the order of their root cells (4 bytes per cell, a Comp per component).
+    std::vector<std::uint32_t> slot(keys.size(), 0);
+    std::vector<Comp> comps;
+    for (std::uint32_t i = 0; i < keys.size(); ++i) {
+      if (find(i) != i) continue;
+      slot[i] = static_cast<std::uint32_t>(comps.size());
+      comps.emplace_back();
+    }
     for (std::uint32_t i = 0; i < keys.size(); ++i) {
       const Cell& c = cells_.at(keys[i]);
-      Comp& k = comps[find(i)];
+      Comp& k = comps[slot[find(i)]];
       k.count += c.count;
-      k.sum += c.sum;
-      k.lo = k.lo.cwiseMin(c.lo);
-      k.hi = k.hi.cwiseMax(c.hi);
+      for (int a = 0; a < 3; ++a) {
+        k.lo[a] = std::min(k.lo[a], origin_[a] + static_cast<double>(c.lo[a]));
+        k.hi[a] = std::max(k.hi[a], origin_[a] + static_cast<double>(c.hi[a]));
+      }
     }
+    std::unordered_map<std::uint64_t, Cell>().swap(cells_);  // only far_ is needed from here on
     Result r;
     r.clusters = comps.size();
     if (comps.empty()) return r;
-    auto main = comps.begin();
-    for (auto it = comps.begin(); it != comps.end(); ++it)
-      if (it->second.count > main->second.count) main = it;
-    std::vector<std::uint32_t> removed_roots;
-    for (auto it = comps.begin(); it != comps.end(); ++it) {
-      if (it == main) continue;
-      const Comp& c = it->second;
-      const Eigen::Vector3d d = (c.lo - main->second.hi).cwiseMax(main->second.lo - c.hi).cwiseMax(0.0);
+    std::size_t main = 0;
+    for (std::size_t q = 1; q < comps.size(); ++q)
+      if (comps[q].count > comps[main].count) main = q;
+    std::vector<std::uint8_t> removed_comp(comps.size(), 0);
+    for (std::size_t q = 0; q < comps.size(); ++q) {
+      if (q == main) continue;
+      const Comp& c = comps[q];
+      const Comp& mb = comps[main];
+      const Eigen::Vector3d d = (c.lo - mb.hi).cwiseMax(mb.lo - c.hi).cwiseMax(0.0);
       const double gap = d.norm();
       if (!(gap > far_m)) continue;
       const bool remove = c.count <= small;
       (remove ? r.removed_clusters : r.kept_far_clusters) += 1;
       if (remove) {
         r.removed_points += c.count;
-        removed_roots.push_back(it->first);
+        removed_comp[q] = 1;
       }
       if (r.notes.size() < 20) {
-        const Eigen::Vector3d m = c.sum / static_cast<double>(c.count);
+        const Eigen::Vector3d m = 0.5 * (c.lo + c.hi);
         r.notes.push_back(std::string(remove ? "removed far cluster: " : "kept far cluster (too large to remove): ") +
-                          std::to_string(c.count) + " points around (" + format_number(m.x()) + ", " + format_number(m.y()) + ", " +
-                          format_number(m.z()) + ") m, " + format_number(gap) + " m from the main body's box");
+                          std::to_string(c.count) + " points in a box centred at (" + format_number(m.x()) + ", " +
+                          format_number(m.y()) + ", " + format_number(m.z()) + ") m (grid frame), " + format_number(gap) +
+                          " m from the main body's box");
       }
     }
-    std::sort(removed_roots.begin(), removed_roots.end());
     for (std::uint32_t i = 0; i < keys.size(); ++i) {
-      if (std::binary_search(removed_roots.begin(), removed_roots.end(), find(i))) far_.insert(keys[i]);
+      if (removed_comp[slot[find(i)]]) far_.insert(keys[i]);
     }
     return r;
   }
 
  private:
   static constexpr std::uint64_t kMask = (1ull << 21) - 1;
-  struct Cell {
-    std::uint64_t count = 0;
-    Eigen::Vector3d sum = Eigen::Vector3d::Zero();
-    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-    Eigen::Vector3d hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+  struct Cell {  // 28 bytes: the point count and the points' box (float offsets from the origin)
+    std::uint32_t count = 0;
+    float lo[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
+                   std::numeric_limits<float>::infinity()};
+    float hi[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
+                   -std::numeric_limits<float>::infinity()};
   };
   static std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
     return (static_cast<std::uint64_t>(x) << 42) | (static_cast<std::uint64_t>(y) << 21) | static_cast<std::uint64_t>(z);
@@ -780,6 +821,7 @@ class FarCells {
   Eigen::Vector3d origin_;
   double edge_, inv_;
   std::unordered_map<std::uint64_t, Cell> cells_;
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> batch_;
   std::unordered_set<std::uint64_t> far_;
 };
 
@@ -849,7 +891,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     const int k = tiles.k;
     tiles.size = (config.scale.tile_cells + k - 1) / k * k;
     int halo = reproject_reach_cells(ro, k);
-    if (config.filters.outliers.enabled) halo += config.scale.filter_halo_cells;
+    // The per-tile filters' k-NN searches and the honest check's point test reach beyond the
+    // grid stages' reach.
+    if (config.filters.outliers.enabled || config.cross_check.enabled) halo += config.scale.filter_halo_cells;
     tiles.halo = (halo + k - 1) / k * k;
     tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
     tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
@@ -943,10 +987,16 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   // as in core).
   std::optional<Spill> spill;
   std::size_t spill_tiles = 0;
+  std::uint64_t far_points = 0;  // spilled with kFarFlag
   auto spill_pass = [&](const FarCells* far, StageReport& rep) {
-    if (spill) {  // a second spill (without far clusters): the first one's files go first
-      for (std::size_t t = 0; t < spill_tiles; ++t) spill->remove(t);
+    if (spill) {  // a second spill (far clusters marked): the first one's files go first
+      for (std::size_t t = 0; t < spill_tiles; ++t) {
+        std::error_code ec;
+        fs::remove(spill->file(t), ec);
+        if (ec) throw InputError("tiled run: cannot remove the spill file " + spill->file(t).string() + ": " + ec.message());
+      }
     }
+    far_points = 0;
     spill.emplace(dir, "tile_", tiles.count(), box.layout);
     spill_tiles = tiles.count();
     std::uint64_t spilled = 0, copies = 0;
@@ -958,8 +1008,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
                         "pass 3 of 3: the spill", [&](const Cloud& g) {
       for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++seen) {
         const double* p = g.xyz.data() + 3 * i;
-        if (far && far->holds(p)) continue;
-        ++spilled;
+        const bool far_point = far && far->holds(p);
+        far_points += far_point ? 1U : 0U;
+        spilled += far_point ? 0U : 1U;
         // The node as reproject bins it (clamped to the grid).
         const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
         const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
@@ -971,7 +1022,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         const int own_r = row / tiles.size, own_c = col / tiles.size;
         for (int tr = tr0; tr <= tr1; ++tr) {
           for (int tc = tc0; tc <= tc1; ++tc) {
-            const std::uint8_t flag = sampled && tr == own_r && tc == own_c ? kSampleFlag : std::uint8_t{0};
+            const std::uint8_t flag = far_point ? kFarFlag : sampled && tr == own_r && tc == own_c ? kSampleFlag : std::uint8_t{0};
             spill->add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), flag, p,
                       rgb, inten);
             ++copies;
@@ -982,6 +1033,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     spill->flush_all();
     rep.count_in = box.points;
     rep.count_out = spilled;
+    if (far) rep.figure("far_points_spilled_marked", static_cast<double>(far_points));
     rep.figure("points_spilled", static_cast<double>(copies));
     rep.figure("halo_copies_per_point", spilled ? static_cast<double>(copies) / static_cast<double>(spilled) : 0.0);
     rep.figure("spill_bytes_peak_mb", static_cast<double>(spill->bytes()) / 1e6);
@@ -1059,9 +1111,11 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       const double far_d = fco.far_distance_m > 0.0 ? fco.far_distance_m : 10.0 * link;
       const Eigen::Vector3d lo(tiles.g.x0_m - tiles.g.cell_size_m, tiles.g.y0_m - tiles.g.cell_size_m, z_min);
       const double extent = std::max({tiles.g.cell_size_m * (tiles.g.cols + 2), tiles.g.cell_size_m * (tiles.g.rows + 2), z_max - z_min});
-      FarCells cells(lo, std::max({link, far_d / (2.0 * std::sqrt(3.0)), extent / 2097150.0}));
+      // E ≥ 2·link: the in-core cells (edge link) link points up to 2·link apart per axis, so its
+      // components nest in these.
+      FarCells cells(lo, std::max({2.0 * link, far_d / (2.0 * std::sqrt(3.0)), extent / 2097150.0}));
       // Every point once: the copy in the tile that owns its node.
-      std::vector<std::uint8_t> flags;
+      std::vector<std::uint8_t> flags, owned;
       const double inv = 1.0 / tiles.g.cell_size_m;
       const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
       PassProgress tick(progress, "tile_far_clusters", "coarse cells of every point, tile by tile", config.scale.progress_interval_s);
@@ -1069,12 +1123,14 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
         const Cloud pts = spill->read(t, flags);
         const auto in = tiles.interior(t);
+        owned.assign(pts.size(), 0);
         for (std::size_t i = 0; i < pts.size(); ++i) {
           const double* q = pts.xyz.data() + 3 * i;
           const int col = std::clamp(static_cast<int>(q[0] * inv + cx), 0, tiles.g.cols - 1);
           const int row = std::clamp(static_cast<int>(q[1] * inv + cy), 0, tiles.g.rows - 1);
-          if (row >= in[0] && row < in[1] && col >= in[2] && col < in[3]) cells.add(q);
+          owned[i] = row >= in[0] && row < in[1] && col >= in[2] && col < in[3] ? 1 : 0;
         }
+        cells.add_batch(pts.xyz.data(), pts.size(), owned);
       }
       const std::size_t small = std::max<std::size_t>(fco.max_points, static_cast<std::size_t>(fco.max_fraction * static_cast<double>(grid_points)));
       const FarCells::Result fc = cells.components(far_d, small);
@@ -1091,10 +1147,25 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         const std::uint64_t before = grid_points;
         lay_out(&cells, r.report);
         const std::uint64_t spilled = spill_pass(&cells, r.report);
+        // The plan's and the spill's figures describe the new layout.
+        for (StageReport& rp : reports) {
+          for (auto& [name, v] : rp.figures) {
+            if (rp.stage == "tile_plan" && name == "rows") v = tiles.g.rows;
+            if (rp.stage == "tile_plan" && name == "cols") v = tiles.g.cols;
+            if (rp.stage == "tile_plan" && name == "tiles") v = static_cast<double>(tiles.count());
+            if (rp.stage == "tile_plan" && name == "upsample_factor") v = tiles.k;
+            if (rp.stage == "tile_plan" && name == "halo_cells") v = tiles.halo;
+          }
+          if (rp.stage == "tile_plan") {
+            rp.count_out = grid_points;
+            rp.notes.push_back("rows, cols, tiles: after tile_far_clusters removed far clusters and laid the grid out again");
+          }
+        }
         r.report.notes.push_back("grid laid out and points spilled again without the far clusters: " + std::to_string(tiles.g.rows) +
                                  " x " + std::to_string(tiles.g.cols) + " cells, " + std::to_string(tiles.count()) + " tiles");
         r.report.count_out = spilled;
-        if (before - spilled != fc.removed_points) {
+        plan.far_points = far_points;
+        if (before - spilled != fc.removed_points || far_points != fc.removed_points) {
           throw std::logic_error("tiled run: far clusters held " + std::to_string(fc.removed_points) + " points, the spill left out " +
                                  std::to_string(before - spilled));
         }
@@ -1438,12 +1509,26 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       }
       // The points the plan's passes dropped (non-finite, outside filters.crop) were removed
       // before the spill: counted as removed, not classified.
-      const std::uint64_t dropped = plan.input_points - plan.grid_points;
+      const std::uint64_t dropped = plan.input_points - plan.grid_points - plan.far_points;
       in.points += dropped;
       in.removed += dropped;
       if (in.spacing_m == 0.0) in.spacing_m = spacing_m;
       detail::add_honest_figures(in, spikes, r.report);
       r.report.figure("tiles", static_cast<double>(tiles.count()));
+      // The point test and the spike searches see a tile's points within their reach only when
+      // the halo holds it.
+      const double reach_m = options.isolation_radius_spacings * spacing_m +
+                             std::max({options.tolerance_m, options.spike_min_height_m, options.confirm_footprint_m});
+      const double halo_m = tiles.halo * tiles.g.cell_size_m;
+      r.report.figure("halo_mm", halo_m * 1e3);
+      if (halo_m < reach_m) {
+        r.report.figure("halo_short_mm", (reach_m - halo_m) * 1e3);
+        r.report.notes.push_back("the tiles' halo (" + format_number(halo_m * 1e3) + " mm) is narrower than the point test's reach (" +
+                                 format_number(reach_m * 1e3) + " mm): points near a tile's edge may count as isolated; raise "
+                                 "scale.filter_halo_cells to " +
+                                 std::to_string(config.scale.filter_halo_cells +
+                                                static_cast<int>(std::ceil((reach_m - halo_m) / tiles.g.cell_size_m))));
+      }
       r.report.notes.push_back("tiled run: each tile's input points (as spilled: after units, recentring, view, non-finite and "
                                "crop) and kept points against the whole grid over its window; the spacing is the tiles' "
                                "median weighted by points; " + std::to_string(dropped) +
@@ -1615,6 +1700,7 @@ void write_plan_file(const PlanFile& pf) {
                                      : nlohmann::json();
   j["input_points"] = p.input_points;
   j["grid_points"] = p.grid_points;
+  j["far_points"] = p.far_points;
   j["precision"] = {{"float32", p.precision.float32},
                     {"file", text(p.precision.file)},
                     {"crs", text(p.precision.crs)},
@@ -1682,6 +1768,7 @@ PlanFile read_plan_file(const fs::path& plan_file) {
     }
     p.input_points = j.at("input_points").get<std::uint64_t>();
     p.grid_points = j.at("grid_points").get<std::uint64_t>();
+    p.far_points = j.at("far_points").get<std::uint64_t>();
     const auto& pr = j.at("precision");
     p.precision.float32 = pr.at("float32").get<bool>();
     p.precision.file = untext(pr.at("file"));

@@ -317,10 +317,12 @@ TEST(TiledRun, AFarClusterInTilesOfItsOwnIsRemovedBeforeTheGridIsLaidOut) {
   EXPECT_EQ(stage_figure(in, "outliers", "removed_far_clusters"), 30.0) << "the in-core run removes the same";
   EXPECT_EQ(tiled.scene.geometry, in.scene.geometry);
   EXPECT_LE(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), in.scene.layers.depth.values().size() / 1000);
-  // The honest check counts them as removed.
-  ASSERT_TRUE(tiled.summary.input_check);
+  // The honest check classifies them as the in-core one does: removed, and far.
+  ASSERT_TRUE(tiled.summary.input_check && in.summary.input_check);
   EXPECT_EQ(tiled.summary.input_check->points, 100U * 100U + 30U);
   EXPECT_GE(tiled.summary.input_check->removed, 30U);
+  EXPECT_EQ(in.summary.input_check->far, 30U);
+  EXPECT_EQ(tiled.summary.input_check->far, in.summary.input_check->far);
   // Off, the grid spans the cluster: the case tests the stage.
   config.filters.outliers.far_clusters.enabled = false;
   const BuiltScene spanning = hc::pipeline::build_scene(config);

@@ -98,7 +98,7 @@ struct ScaleConfig {
   Tiled tiled = Tiled::kAuto;
   std::uint64_t tiled_above_points = 50'000'000;  ///< the auto threshold, ≥ 1
   int tile_cells = 512;           ///< tile side [grid cells], 16 to 65536 (rounded up to the upsample factor)
-  int filter_halo_cells = 32;     ///< extra halo for the per-tile outlier filters [cells], 0 to 4096
+  int filter_halo_cells = 32;     ///< extra halo for the per-tile outlier filters and the honest check [cells], 0 to 4096
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
   double progress_interval_s = 1.0;  ///< least time between progress calls within a stage [s], 0 to 3600

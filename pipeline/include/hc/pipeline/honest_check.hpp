@@ -184,7 +184,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
 ///  - the scan's spacing and the box of the valid samples are the whole run's, given here;
 ///  - a lost point's gap is measured to the nearest valid sample within the window (a gap that
 ///    reaches beyond it is at least the halo, far above the tolerance, so the decision is the
-///    whole grid's; surface_lost_max_gap_m is then a lower bound);
+///    whole grid's; surface_lost_max_gap_m may then exceed the whole grid's);
 ///  - a window without a valid cell is not an error (its points are on no data or outside).
 struct InputCheckScope {
   /// Per point of as_read_m: 1 = the tile's (its grid node lies in the tile's interior), 0 = a
