@@ -481,19 +481,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
       }
     }
   });
-  for (const InputCheck& pc : part) {
-    out.removed += pc.removed;
-    out.far += pc.far;
-    out.far_max_distance_m = std::max(out.far_max_distance_m, pc.far_max_distance_m);
-    out.surface_lost += pc.surface_lost;
-    out.surface_lost_max_gap_m = std::max(out.surface_lost_max_gap_m, pc.surface_lost_max_gap_m);
-    out.removed_in_front += pc.removed_in_front;
-    out.on_surface += pc.on_surface;
-    out.off_surface += pc.off_surface;
-    out.hidden += pc.hidden;
-    out.no_data += pc.no_data;
-    out.outside += pc.outside;
-  }
+  for (const InputCheck& pc : part) out.add_classes(pc);  // (their points stay 0: counted above)
 
   // 4. Spikes kept: valid cells supported (within tolerance) only by isolated points.
   {

@@ -260,6 +260,21 @@ std::array<int, 4> tiles_of(const Tiles& t, int r, int c) {
           std::max(0, floor_div(c - t.halo, t.size)), std::min(t.tiles_c - 1, floor_div(c + t.halo, t.size))};
 }
 
+// owned[i] = 1 when point i's grid node (binned as reproject bins it, clamped to the grid) lies in
+// tile t's interior: the tile that counts the point (its other copies are halo).
+void owned_by(const Tiles& tiles, std::size_t t, const Cloud& pts, std::vector<std::uint8_t>& owned) {
+  const auto in = tiles.interior(t);
+  const double inv = 1.0 / tiles.g.cell_size_m;
+  const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+  owned.assign(pts.size(), 0);
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    const double* p = pts.xyz.data() + 3 * i;
+    const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
+    const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
+    owned[i] = row >= in[0] && row < in[1] && col >= in[2] && col < in[3] ? 1 : 0;
+  }
+}
+
 // ---------------------------------------------------------------------------------------------
 // Passes over the input.
 
@@ -1116,20 +1131,11 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       FarCells cells(lo, std::max({2.0 * link, far_d / (2.0 * std::sqrt(3.0)), extent / 2097150.0}));
       // Every point once: the copy in the tile that owns its node.
       std::vector<std::uint8_t> flags, owned;
-      const double inv = 1.0 / tiles.g.cell_size_m;
-      const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
       PassProgress tick(progress, "tile_far_clusters", "coarse cells of every point, tile by tile", config.scale.progress_interval_s);
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
         const Cloud pts = spill->read(t, flags);
-        const auto in = tiles.interior(t);
-        owned.assign(pts.size(), 0);
-        for (std::size_t i = 0; i < pts.size(); ++i) {
-          const double* q = pts.xyz.data() + 3 * i;
-          const int col = std::clamp(static_cast<int>(q[0] * inv + cx), 0, tiles.g.cols - 1);
-          const int row = std::clamp(static_cast<int>(q[1] * inv + cy), 0, tiles.g.rows - 1);
-          owned[i] = row >= in[0] && row < in[1] && col >= in[2] && col < in[3] ? 1 : 0;
-        }
+        owned_by(tiles, t, pts, owned);
         cells.add_batch(pts.xyz.data(), pts.size(), owned);
       }
       const std::size_t small = std::max<std::size_t>(fco.max_points, static_cast<std::size_t>(fco.max_fraction * static_cast<double>(grid_points)));
@@ -1450,8 +1456,6 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       }
       const std::vector<std::uint8_t>& flags = scene.layers.flags;
       std::vector<std::uint8_t> fl_in, fl_kept, owned;
-      const double inv = 1.0 / tiles.g.cell_size_m;
-      const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
       PassProgress tick(progress, "honest_check", "the input as spilled against the grid, tile by tile",
                         config.scale.progress_interval_s);
       for (std::size_t t = 0; t < tiles.count(); ++t) {
@@ -1461,13 +1465,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         const Cloud kept_pts = kept.read(t, fl_kept);
         const GridWindow w = tiles.window(t);
         const auto inner = tiles.interior(t);
-        owned.assign(input.size(), 0);
-        for (std::size_t i = 0; i < input.size(); ++i) {
-          const double* p = input.xyz.data() + 3 * i;
-          const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
-          const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
-          owned[i] = row >= inner[0] && row < inner[1] && col >= inner[2] && col < inner[3] ? 1 : 0;
-        }
+        owned_by(tiles, t, input, owned);
         GridGeometry wg = tiles.g;
         wg.rows = w.rows;
         wg.cols = w.cols;
@@ -1486,19 +1484,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         scope.owned = &owned;
         scope.cells = {inner[0] - w.row0, inner[1] - w.row0, inner[2] - w.col0, inner[3] - w.col0};
         const InputCheck part = check_input(input.xyz, kept_pts, crop, options, 0.0, &local, &crop_flags, &scope);
-        in.points += part.points;
-        in.removed += part.removed;
-        in.on_surface += part.on_surface;
-        in.off_surface += part.off_surface;
-        in.hidden += part.hidden;
-        in.no_data += part.no_data;
-        in.outside += part.outside;
-        in.far += part.far;
-        in.far_max_distance_m = std::max(in.far_max_distance_m, part.far_max_distance_m);
+        in.add_classes(part);
         in.isolated += part.isolated;
-        in.surface_lost += part.surface_lost;
-        in.surface_lost_max_gap_m = std::max(in.surface_lost_max_gap_m, part.surface_lost_max_gap_m);
-        in.removed_in_front += part.removed_in_front;
         in.spikes_kept += part.spikes_kept;
         for (const auto& rc : part.spikes_kept_cells) {
           if (in.spikes_kept_cells.size() < 100) in.spikes_kept_cells.push_back({rc[0] + w.row0, rc[1] + w.col0});

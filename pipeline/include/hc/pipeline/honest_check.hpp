@@ -121,6 +121,23 @@ struct InputCheck {
   double seconds = 0.0;
 
   double fraction(std::size_t n) const { return points ? static_cast<double>(n) / static_cast<double>(points) : 0.0; }
+  /// Adds the point classes and counts of a disjoint part (its points, removed, classes, far,
+  /// surface lost, removed in front; the maxima by max). Spacing, radius, isolated, spikes kept
+  /// and seconds are the caller's.
+  void add_classes(const InputCheck& part) {
+    points += part.points;
+    removed += part.removed;
+    on_surface += part.on_surface;
+    off_surface += part.off_surface;
+    hidden += part.hidden;
+    no_data += part.no_data;
+    outside += part.outside;
+    far += part.far;
+    far_max_distance_m = std::max(far_max_distance_m, part.far_max_distance_m);
+    surface_lost += part.surface_lost;
+    surface_lost_max_gap_m = std::max(surface_lost_max_gap_m, part.surface_lost_max_gap_m);
+    removed_in_front += part.removed_in_front;
+  }
 };
 
 /// One flagged grid cell: where, and how far from its window's median [m] (+ spike, − pit).
