@@ -239,6 +239,15 @@ struct Tiles {
     const int tr = static_cast<int>(t / static_cast<std::size_t>(tiles_c)), tc = static_cast<int>(t % static_cast<std::size_t>(tiles_c));
     return {tr * size, std::min(g.rows, (tr + 1) * size), tc * size, std::min(g.cols, (tc + 1) * size)};
   }
+  // The grid geometry of rows [r0, r0 + rows) and cols [c0, c0 + cols) of the whole grid.
+  GridGeometry part(int r0, int c0, int rows, int cols) const {
+    GridGeometry p = g;
+    p.rows = rows;
+    p.cols = cols;
+    p.x0_m = g.x_of_col(c0);
+    p.y0_m = g.y_of_row(r0);
+    return p;
+  }
   // The tile's window: its interior and halo, clipped to the grid.
   GridWindow window(std::size_t t) const {
     const auto [r0, r1, c0, c1] = interior(t);
@@ -590,11 +599,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   }
   if (part.depth.rows() > 0) {
     // The interior, cut out of the window.
-    GridGeometry ig = tiles.g;
-    ig.rows = inner[1] - inner[0];
-    ig.cols = inner[3] - inner[2];
-    ig.x0_m = tiles.g.x_of_col(inner[2]);
-    ig.y0_m = tiles.g.y_of_row(inner[0]);
+    const GridGeometry ig = tiles.part(inner[0], inner[2], inner[1] - inner[0], inner[3] - inner[2]);
     DepthGrid& in = o.interior;
     in.depth = HeightField(ig);
     in.flags.assign(ig.cell_count(), kCellEmpty);
@@ -1322,11 +1327,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
             // (b): the window's valid samples against the tile's kept points (halo included).
             const GridWindow w = tiles.window(t);
             const auto in = tiles.interior(t);
-            GridGeometry wg = tiles.g;
-            wg.rows = w.rows;
-            wg.cols = w.cols;
-            wg.x0_m = tiles.g.x_of_col(w.col0);
-            wg.y0_m = tiles.g.y_of_row(w.row0);
+            const GridGeometry wg = tiles.part(w.row0, w.col0, w.rows, w.cols);
             HeightField crop(wg);
             std::size_t valid = 0;
             for (int rr = 0; rr < w.rows; ++rr)
@@ -1466,11 +1467,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         const GridWindow w = tiles.window(t);
         const auto inner = tiles.interior(t);
         owned_by(tiles, t, input, owned);
-        GridGeometry wg = tiles.g;
-        wg.rows = w.rows;
-        wg.cols = w.cols;
-        wg.x0_m = tiles.g.x_of_col(w.col0);
-        wg.y0_m = tiles.g.y_of_row(w.row0);
+        const GridGeometry wg = tiles.part(w.row0, w.col0, w.rows, w.cols);
         HeightField crop(wg);
         std::vector<std::uint8_t> crop_flags(wg.cell_count());
         for (int rr = 0; rr < w.rows; ++rr)
