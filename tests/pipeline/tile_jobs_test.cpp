@@ -7,6 +7,7 @@
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/tiling.hpp"
+#include "height_field_bits.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -25,15 +26,7 @@ namespace fs = std::filesystem;
 using hc::pipeline::BuiltScene;
 using hc::pipeline::RunConfig;
 
-std::size_t differing_bits(const hc::HeightField& a, const hc::HeightField& b) {
-  EXPECT_EQ(a.geometry(), b.geometry());
-  if (a.values().size() != b.values().size()) return a.values().size() + b.values().size();
-  std::size_t n = 0;
-  for (std::size_t i = 0; i < a.values().size(); ++i) {
-    n += std::bit_cast<std::uint32_t>(a.values()[i]) != std::bit_cast<std::uint32_t>(b.values()[i]) ? 1U : 0U;
-  }
-  return n;
-}
+using hc::test::differing_bits;
 
 std::string bytes_of(const fs::path& f) {
   std::ifstream in(f, std::ios::binary);

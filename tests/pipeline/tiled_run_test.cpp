@@ -11,6 +11,7 @@
 #include "hc/pipeline/tiling.hpp"
 #include "hc/tools/relief.hpp"
 
+#include "height_field_bits.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -18,6 +19,7 @@
 
 #include <fstream>
 
+#include <array>
 #include <bit>
 #include <cmath>
 #include <cstring>
@@ -32,15 +34,7 @@ namespace fs = std::filesystem;
 using hc::pipeline::BuiltScene;
 using hc::pipeline::RunConfig;
 
-std::size_t differing_bits(const hc::HeightField& a, const hc::HeightField& b) {
-  EXPECT_EQ(a.geometry(), b.geometry());
-  if (a.values().size() != b.values().size()) return a.values().size() + b.values().size();
-  std::size_t n = 0;
-  for (std::size_t i = 0; i < a.values().size(); ++i) {
-    n += std::bit_cast<std::uint32_t>(a.values()[i]) != std::bit_cast<std::uint32_t>(b.values()[i]) ? 1U : 0U;
-  }
-  return n;
-}
+using hc::test::differing_bits;
 
 double stage_figure(const BuiltScene& b, const std::string& stage, const std::string& name) {
   for (const auto& s : b.summary.stages)
@@ -265,18 +259,22 @@ TEST(TiledRun, ClutterWithTheFilterOffFailsTheVerdictAsInCore) {
   EXPECT_GT(tiled.summary.input_check->spikes_kept, 0U);
 }
 
+// A 1 m × 1 m patch of 100 × 100 points (1 cm apart, z in 0..4 mm) and `extra` points after
+// them, as an ASCII PLY.
+void write_patch_with(const fs::path& file, const std::vector<std::array<double, 3>>& extra) {
+  std::ofstream out(file);
+  out << "ply\nformat ascii 1.0\nelement vertex " << 100 * 100 + extra.size()
+      << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
+  for (int i = 0; i < 100; ++i)
+    for (int j = 0; j < 100; ++j) out << 0.01 * i << " " << 0.01 * j << " " << 0.001 * ((i * 7 + j * 3) % 5) << "\n";
+  for (const auto& p : extra) out << p[0] << " " << p[1] << " " << p[2] << "\n";
+}
+
 // Three stray returns alone in a corner tile: too few points for the k-NN tests there. The run
 // keeps them, counts them and goes on (it used to stop with "needs at least k + 2 points").
 TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
   const fs::path dir = hc::test::temp_dir("sparse");
-  {
-    std::ofstream out(dir / "patch.ply");
-    out << "ply\nformat ascii 1.0\nelement vertex " << 100 * 100 + 3
-        << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
-    for (int i = 0; i < 100; ++i)
-      for (int j = 0; j < 100; ++j) out << 0.01 * i << " " << 0.01 * j << " " << 0.001 * ((i * 7 + j * 3) % 5) << "\n";
-    out << "2.99 2.99 0\n2.995 2.99 0\n2.99 2.995 0\n";
-  }
+  write_patch_with(dir / "patch.ply", {{2.99, 2.99, 0.0}, {2.995, 2.99, 0.0}, {2.99, 2.995, 0.0}});
   // Far-cluster removal off: on, the three returns 2.8 m from the patch are a far cluster and go
   // before the tiles (the next test).
   const std::string yaml =
@@ -297,14 +295,9 @@ TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
 // spans 3 m; without the stage the grid spans the cluster.
 TEST(TiledRun, AFarClusterInTilesOfItsOwnIsRemovedBeforeTheGridIsLaidOut) {
   const fs::path dir = hc::test::temp_dir("far");
-  {
-    std::ofstream out(dir / "patch.ply");
-    out << "ply\nformat ascii 1.0\nelement vertex " << 100 * 100 + 30
-        << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
-    for (int i = 0; i < 100; ++i)
-      for (int j = 0; j < 100; ++j) out << 0.01 * i << " " << 0.01 * j << " " << 0.001 * ((i * 7 + j * 3) % 5) << "\n";
-    for (int i = 0; i < 30; ++i) out << 3.0 + 0.002 * (i % 6) << " " << 3.0 + 0.002 * (i / 6) << " " << 0.001 * (i % 3) << "\n";
-  }
+  std::vector<std::array<double, 3>> cluster;
+  for (int i = 0; i < 30; ++i) cluster.push_back({3.0 + 0.002 * (i % 6), 3.0 + 0.002 * (i / 6), 0.001 * (i % 3)});
+  write_patch_with(dir / "patch.ply", cluster);
   const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n";
   RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
   const BuiltScene in = hc::pipeline::build_scene(config);
