@@ -112,6 +112,9 @@ session::OpenedScene load_input(const TouchOptions& o, const fs::path& run_dir, 
   }
   const fs::path p(o.input);
   session::SceneSourceOptions so;
+  // A tiled scene's levels are read from disk, window by window (issue 14).
+  so.open_stored_levels = !o.validate;
+  so.stored_window_cells = o.window_cells_given ? o.window_cells : 0;
   if (session::is_run_config(p)) {
     so.run_dir = run_dir;
     std::cout << "touch: building the scene of " << p.string() << " into " << shown_run_dir.string() << "\n";
@@ -152,7 +155,7 @@ void run_touch(const TouchOptions& o) {
       hooks = audio->start();
     }
 #endif
-    const session::TouchSessionResult r = session::run_touch_session(scene, s, hooks);
+    const session::TouchSessionResult r = session::run_touch_session(scene, s, hooks, opened.stored_levels);
     print_realtime(s, r);
 #ifdef HC_HAVE_AUDIO
     if (audio) extra_json = audio->finish(r, s.rate_hz);

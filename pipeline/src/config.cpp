@@ -1074,6 +1074,15 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
         r.get_int("scale.chunk_points", static_cast<long long>(c.scale.chunk_points), 1024, 1LL << 28));
     if (r.has("scale.scratch")) c.scale.scratch = base / r.get_string("scale.scratch", "");
     c.scale.progress_interval_s = r.get_double("scale.progress_interval_s", c.scale.progress_interval_s, 0.0, 3600.0);
+    const std::string st = r.get_string("scale.scene_tiles", "auto", {"auto", "on", "off"});
+    c.scale.scene_tiles = st == "on" ? ScaleConfig::Tiled::kOn : st == "off" ? ScaleConfig::Tiled::kOff : ScaleConfig::Tiled::kAuto;
+    c.scale.scene_tiles_above_cells = static_cast<std::uint64_t>(r.get_int(
+        "scale.scene_tiles_above_cells", static_cast<long long>(c.scale.scene_tiles_above_cells), 1, 1LL << 50));
+    c.scale.scene_tile_cells = static_cast<int>(r.get_int("scale.scene_tile_cells", c.scale.scene_tile_cells, 16, 4096));
+    if (c.scale.scene_tile_cells % 16 != 0) {
+      r.fail("scale.scene_tile_cells", "= " + std::to_string(c.scale.scene_tile_cells) +
+                                           ": expected a multiple of 16 (TIFF tiles are multiples of 16 samples)");
+    }
   }
 
   r.reject_unknown_keys();
@@ -1145,4 +1154,12 @@ RunConfig load_run_config(const std::filesystem::path& path, const std::vector<s
   return parse_run_config(ss.str(), path, overrides);
 }
 
+}  // namespace hc::pipeline
+
+namespace hc::pipeline {
+bool writes_tiled_scene(const ScaleConfig& config, const GridGeometry& grid) {
+  if (config.scene_tiles == ScaleConfig::Tiled::kOn) return true;
+  if (config.scene_tiles == ScaleConfig::Tiled::kOff) return false;
+  return static_cast<std::uint64_t>(grid.cell_count()) > config.scene_tiles_above_cells;
+}
 }  // namespace hc::pipeline

@@ -7,11 +7,14 @@
 #include <tiffio.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cerrno>
 #include <cstdarg>
 #include <cstdio>
 #include <cstring>
+#include <limits>
 #include <memory>
+#include <mutex>
 
 namespace hc::pipeline::detail {
 namespace {
@@ -223,7 +226,12 @@ std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out, 
     std::vector<float> tile(static_cast<std::size_t>(tw) * th);
     for (std::uint32_t y = 0; y < height; y += th)
       for (std::uint32_t x = 0; x < width; x += tw) {
-        if (TIFFReadTile(t, tile.data(), x, y, 0, 0) < 0) return tiff_failure(messages, "libtiff cannot read a tile");
+        // A sparse tile (no bytes: TiledTiffWriter's all-NaN tiles) is no data.
+        if (TIFFGetStrileByteCount(t, TIFFComputeTile(t, x, y, 0, 0)) == 0) {
+          std::fill(tile.begin(), tile.end(), std::numeric_limits<float>::quiet_NaN());
+        } else if (TIFFReadTile(t, tile.data(), x, y, 0, 0) < 0) {
+          return tiff_failure(messages, "libtiff cannot read a tile");
+        }
         for (std::uint32_t r = 0; r < th && y + r < height; ++r) {
           const std::uint32_t n = std::min(tw, width - x);
           std::copy_n(tile.data() + static_cast<std::size_t>(r) * tw, n,
@@ -246,6 +254,226 @@ std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out, 
     }
   }
   if (!messages.error.empty()) return messages.error;
+  return {};
+}
+
+namespace {
+bool all_nan(const float* v, std::size_t n) {
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!std::isnan(v[i])) return false;
+  }
+  return true;
+}
+}  // namespace
+
+struct TiledTiffWriter::Impl {
+  TiffMessages messages;
+  TiffHandle tif{nullptr, &TIFFClose};
+  int width = 0, height = 0, tile = 0;
+  TileSamples samples = TileSamples::kFloat32;
+  std::vector<std::uint8_t> buffer;  // libtiff may modify what it is given: each tile is copied
+  std::uint64_t bytes = 0;
+};
+
+TiledTiffWriter::TiledTiffWriter() : impl_(std::make_unique<Impl>()) {}
+TiledTiffWriter::~TiledTiffWriter() = default;
+
+std::string TiledTiffWriter::open(const std::filesystem::path& file, int width, int height, int tile,
+                                  TileSamples samples) {
+  if (width < 1 || height < 1) return "an empty layer";
+  if (tile < 16 || tile % 16 != 0) return "tile side " + std::to_string(tile) + " (expected a multiple of 16)";
+  Impl& m = *impl_;
+  m.width = width;
+  m.height = height;
+  m.tile = tile;
+  m.samples = samples;
+  const int bps = tile_sample_bytes(samples);
+  // BigTIFF ("w8") beyond what classic TIFF's 32-bit offsets hold (tiles padded to whole tiles).
+  const double padded = std::ceil(width / static_cast<double>(tile)) * tile * std::ceil(height / static_cast<double>(tile)) *
+                        tile * bps;
+  errno = 0;
+  m.tif = open_tiff(file, padded > 3.5e9 ? "w8" : "w", m.messages);
+  if (!m.tif) return tiff_failure(m.messages, "libtiff cannot create it");
+  TIFF* t = m.tif.get();
+  const bool rgb = samples == TileSamples::kRgb8;
+  const bool tags = TIFFSetField(t, TIFFTAG_IMAGEWIDTH, static_cast<std::uint32_t>(width)) &&
+                    TIFFSetField(t, TIFFTAG_IMAGELENGTH, static_cast<std::uint32_t>(height)) &&
+                    TIFFSetField(t, TIFFTAG_SAMPLESPERPIXEL, rgb ? 3 : 1) &&
+                    TIFFSetField(t, TIFFTAG_BITSPERSAMPLE, rgb ? 8 : 32) &&
+                    TIFFSetField(t, TIFFTAG_SAMPLEFORMAT, rgb ? SAMPLEFORMAT_UINT : SAMPLEFORMAT_IEEEFP) &&
+                    TIFFSetField(t, TIFFTAG_PHOTOMETRIC, rgb ? PHOTOMETRIC_RGB : PHOTOMETRIC_MINISBLACK) &&
+                    TIFFSetField(t, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG) &&
+                    TIFFSetField(t, TIFFTAG_COMPRESSION, COMPRESSION_NONE) &&
+                    TIFFSetField(t, TIFFTAG_TILEWIDTH, static_cast<std::uint32_t>(tile)) &&
+                    TIFFSetField(t, TIFFTAG_TILELENGTH, static_cast<std::uint32_t>(tile));
+  if (!tags) return tiff_failure(m.messages, "libtiff refused a tag");
+  m.buffer.resize(static_cast<std::size_t>(tile) * static_cast<std::size_t>(tile) * static_cast<std::size_t>(bps));
+  return {};
+}
+
+std::string TiledTiffWriter::write_tile(int tile_row, int tile_col, const void* data) {
+  Impl& m = *impl_;
+  if (!m.tif) return "the tiled TIFF is not open";
+  const std::size_t n = static_cast<std::size_t>(m.tile) * static_cast<std::size_t>(m.tile);
+  if (m.samples == TileSamples::kFloat32 && all_nan(static_cast<const float*>(data), n)) return {};  // sparse
+  std::memcpy(m.buffer.data(), data, m.buffer.size());
+  TIFF* t = m.tif.get();
+  const ttile_t index = TIFFComputeTile(t, static_cast<std::uint32_t>(tile_col * m.tile),
+                                        static_cast<std::uint32_t>(tile_row * m.tile), 0, 0);
+  errno = 0;
+  if (TIFFWriteEncodedTile(t, index, m.buffer.data(), static_cast<tmsize_t>(m.buffer.size())) < 0) {
+    return tiff_failure(m.messages, "libtiff cannot write a tile");
+  }
+  m.bytes += m.buffer.size();
+  return {};
+}
+
+std::string TiledTiffWriter::finish() {
+  Impl& m = *impl_;
+  if (!m.tif) return "the tiled TIFF is not open";
+  errno = 0;
+  if (!TIFFWriteDirectory(m.tif.get())) return tiff_failure(m.messages, "libtiff cannot write the directory");
+  TIFFFlush(m.tif.get());
+  m.tif.reset();
+  if (!m.messages.error.empty()) return m.messages.error;
+  return {};
+}
+
+std::uint64_t TiledTiffWriter::bytes_written() const { return impl_->bytes; }
+
+std::string write_tiled_tiff(const std::filesystem::path& file, const void* values, int width, int height, int tile,
+                             TileSamples samples) {
+  TiledTiffWriter w;
+  if (std::string why = w.open(file, width, height, tile, samples); !why.empty()) return why;
+  const auto bps = static_cast<std::size_t>(tile_sample_bytes(samples));
+  std::vector<std::uint8_t> block(static_cast<std::size_t>(tile) * static_cast<std::size_t>(tile) * bps);
+  const auto* src = static_cast<const std::uint8_t*>(values);
+  for (int tr = 0; tr * tile < height; ++tr) {
+    for (int tc = 0; tc * tile < width; ++tc) {
+      // Samples past the edge: NaN for floats (so an edge tile of no data stays sparse), 0 for RGB.
+      if (samples == TileSamples::kFloat32) {
+        std::fill_n(reinterpret_cast<float*>(block.data()), block.size() / 4, std::numeric_limits<float>::quiet_NaN());
+      } else {
+        std::fill(block.begin(), block.end(), std::uint8_t{0});
+      }
+      const int rows = std::min(tile, height - tr * tile);
+      const int cols = std::min(tile, width - tc * tile);
+      for (int r = 0; r < rows; ++r) {
+        const std::size_t from = (static_cast<std::size_t>(tr * tile + r) * static_cast<std::size_t>(width) +
+                                  static_cast<std::size_t>(tc * tile)) * bps;
+        std::memcpy(block.data() + static_cast<std::size_t>(r) * static_cast<std::size_t>(tile) * bps, src + from,
+                    static_cast<std::size_t>(cols) * bps);
+      }
+      if (std::string why = w.write_tile(tr, tc, block.data()); !why.empty()) return why;
+    }
+  }
+  return w.finish();
+}
+
+struct TiledTiffReader::Impl {
+  TiffMessages messages;
+  TiffHandle tif{nullptr, &TIFFClose};
+  int width = 0, height = 0, tile = 0;
+  TileSamples samples = TileSamples::kFloat32;
+  mutable std::mutex mutex;
+  mutable std::vector<std::uint8_t> buffer;
+  mutable std::uint64_t tiles_read = 0;
+};
+
+TiledTiffReader::TiledTiffReader() : impl_(std::make_unique<Impl>()) {}
+TiledTiffReader::~TiledTiffReader() = default;
+
+std::string TiledTiffReader::open(const std::filesystem::path& file, TileSamples samples) {
+  Impl& m = *impl_;
+  errno = 0;
+  // "O": the tile offsets and byte counts are read on demand, entry by entry (libtiff >= 4.1).
+  m.tif = open_tiff(file, "rO", m.messages);
+  if (!m.tif) return tiff_failure(m.messages, "not a TIFF libtiff reads");
+  TIFF* t = m.tif.get();
+  if (!TIFFIsTiled(t)) return "not a tiled TIFF";
+  std::uint32_t width = 0, height = 0, tw = 0, th = 0;
+  std::uint16_t spp = 1, bits = 0, format = SAMPLEFORMAT_UINT, planar = PLANARCONFIG_CONTIG;
+  TIFFGetField(t, TIFFTAG_IMAGEWIDTH, &width);
+  TIFFGetField(t, TIFFTAG_IMAGELENGTH, &height);
+  TIFFGetField(t, TIFFTAG_TILEWIDTH, &tw);
+  TIFFGetField(t, TIFFTAG_TILELENGTH, &th);
+  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLESPERPIXEL, &spp);
+  TIFFGetFieldDefaulted(t, TIFFTAG_BITSPERSAMPLE, &bits);
+  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLEFORMAT, &format);
+  TIFFGetFieldDefaulted(t, TIFFTAG_PLANARCONFIG, &planar);
+  const bool want_float = samples == TileSamples::kFloat32;
+  const bool ok = want_float ? (spp == 1 && bits == 32 && format == SAMPLEFORMAT_IEEEFP)
+                             : (spp == 3 && bits == 8 && format == SAMPLEFORMAT_UINT && planar == PLANARCONFIG_CONTIG);
+  if (!ok) {
+    return std::to_string(spp) + " channel(s) of " + std::to_string(bits) + "-bit samples (expected " +
+           (want_float ? "one 32-bit float channel" : "8-bit RGB") + ")";
+  }
+  if (width == 0 || height == 0 || tw == 0 || tw != th || width > (1u << 30) || height > (1u << 30)) {
+    return "a tiled TIFF of " + std::to_string(width) + "x" + std::to_string(height) + " in tiles of " +
+           std::to_string(tw) + "x" + std::to_string(th) + " (expected square tiles)";
+  }
+  m.width = static_cast<int>(width);
+  m.height = static_cast<int>(height);
+  m.tile = static_cast<int>(tw);
+  m.samples = samples;
+  m.buffer.resize(static_cast<std::size_t>(TIFFTileSize(t)));
+  if (m.buffer.size() < static_cast<std::size_t>(tw) * th * static_cast<std::size_t>(tile_sample_bytes(samples))) {
+    return "tile size " + std::to_string(m.buffer.size()) + " bytes is too small";
+  }
+  return {};
+}
+
+int TiledTiffReader::width() const { return impl_->width; }
+int TiledTiffReader::height() const { return impl_->height; }
+int TiledTiffReader::tile() const { return impl_->tile; }
+std::uint64_t TiledTiffReader::tiles_read() const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  return impl_->tiles_read;
+}
+
+std::string TiledTiffReader::read_region(int row0, int col0, int rows, int cols, void* out) const {
+  const Impl& m = *impl_;
+  if (!m.tif) return "the tiled TIFF is not open";
+  if (rows < 1 || cols < 1 || row0 < 0 || col0 < 0 || row0 + rows > m.height || col0 + cols > m.width) {
+    return "region " + std::to_string(rows) + "x" + std::to_string(cols) + " at (" + std::to_string(row0) + ", " +
+           std::to_string(col0) + ") outside the " + std::to_string(m.height) + "x" + std::to_string(m.width) + " image";
+  }
+  std::lock_guard<std::mutex> lock(m.mutex);
+  TIFF* t = m.tif.get();
+  const auto bps = static_cast<std::size_t>(tile_sample_bytes(m.samples));
+  auto* dst = static_cast<std::uint8_t*>(out);
+  const int tile = m.tile;
+  for (int tr = row0 / tile; tr * tile < row0 + rows; ++tr) {
+    for (int tc = col0 / tile; tc * tile < col0 + cols; ++tc) {
+      const ttile_t index = TIFFComputeTile(t, static_cast<std::uint32_t>(tc * tile), static_cast<std::uint32_t>(tr * tile), 0, 0);
+      const bool sparse = TIFFGetStrileByteCount(t, index) == 0;
+      if (!sparse) {
+        errno = 0;
+        if (TIFFReadEncodedTile(t, index, m.buffer.data(), static_cast<tmsize_t>(m.buffer.size())) < 0) {
+          return tiff_failure(m.messages, "libtiff cannot read a tile");
+        }
+        ++m.tiles_read;
+      }
+      const int r_begin = std::max(row0, tr * tile), r_end = std::min(row0 + rows, (tr + 1) * tile);
+      const int c_begin = std::max(col0, tc * tile), c_end = std::min(col0 + cols, (tc + 1) * tile);
+      const std::size_t run = static_cast<std::size_t>(c_end - c_begin) * bps;
+      for (int r = r_begin; r < r_end; ++r) {
+        std::uint8_t* to = dst + (static_cast<std::size_t>(r - row0) * static_cast<std::size_t>(cols) +
+                                  static_cast<std::size_t>(c_begin - col0)) * bps;
+        if (sparse) {
+          if (m.samples == TileSamples::kFloat32) {
+            std::fill_n(reinterpret_cast<float*>(to), run / 4, std::numeric_limits<float>::quiet_NaN());
+          } else {
+            std::memset(to, 0, run);
+          }
+        } else {
+          std::memcpy(to, m.buffer.data() + (static_cast<std::size_t>(r - tr * tile) * static_cast<std::size_t>(tile) +
+                                             static_cast<std::size_t>(c_begin - tc * tile)) * bps, run);
+        }
+      }
+    }
+  }
+  if (!m.messages.error.empty()) return m.messages.error;
   return {};
 }
 

@@ -8,6 +8,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -58,5 +59,74 @@ struct FloatImage {
 /// allocated. @return "" and `out`, or why not (not a TIFF, not one float channel, another
 /// size, a libtiff error).
 std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out, int expected_width, int expected_height);
+
+/// Samples of a tiled TIFF: one 32-bit IEEE float channel, or 8-bit RGB (3 samples, contiguous).
+enum class TileSamples { kFloat32, kRgb8 };
+
+/// Bytes per sample position of `s` (4 or 3).
+inline int tile_sample_bytes(TileSamples s) { return s == TileSamples::kFloat32 ? 4 : 3; }
+
+/// A tiled TIFF written tile by tile (TIFF 6.0 Section 15 "Tiled Images": TileWidth,
+/// TileLength, TileOffsets, TileByteCounts; libtiff's TIFFWriteEncodedTile), uncompressed;
+/// BigTIFF when the image passes 3.5 GB. A float tile whose samples are all NaN, or an RGB tile
+/// that is never written, is left sparse: its TileByteCounts entry stays 0 (the convention of
+/// GDAL's SPARSE_OK), so a scan's no-data areas cost no disk. TiledTiffReader gives NaN (float)
+/// or 0 (RGB) for such a tile. Not thread-safe (one writer per thread).
+class TiledTiffWriter {
+ public:
+  TiledTiffWriter();
+  ~TiledTiffWriter();  ///< closes the file (a file not finished is left incomplete: callers stage)
+  TiledTiffWriter(const TiledTiffWriter&) = delete;
+  TiledTiffWriter& operator=(const TiledTiffWriter&) = delete;
+  /// Creates `file` for a width × height image in tiles of tile × tile samples (tile a multiple
+  /// of 16, as the TIFF specification requires). @return "" or why not.
+  std::string open(const std::filesystem::path& file, int width, int height, int tile, TileSamples samples);
+  /// Writes tile (tile_row, tile_col): tile × tile samples, row-major (× 3 bytes for RGB);
+  /// samples beyond the image's edge are written as given and ignored by readers.
+  /// @return "" or why not.
+  std::string write_tile(int tile_row, int tile_col, const void* data);
+  /// Writes the directory and closes the file. @return "" or why not.
+  std::string finish();
+  /// Bytes of tile data written so far (sparse tiles count 0).
+  std::uint64_t bytes_written() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Writes a whole image (rows top to bottom, `values` width·height samples, × 3 bytes for RGB)
+/// as a tiled TIFF through TiledTiffWriter (sparse all-NaN float tiles). @return "" or why not.
+std::string write_tiled_tiff(const std::filesystem::path& file, const void* values, int width, int height, int tile,
+                             TileSamples samples);
+
+/// Reads rectangles of a tiled TIFF written by TiledTiffWriter (or any uncompressed or
+/// libtiff-decodable tiled TIFF of one float channel or 8-bit RGB), one tile at a time; only the
+/// tiles a rectangle touches are read. The tile offsets are loaded on demand (libtiff's "O"
+/// open mode), so opening costs the directory only, whatever the image's size.
+/// Thread-safe: calls are serialised by a mutex (libtiff handles are not shared across threads).
+class TiledTiffReader {
+ public:
+  TiledTiffReader();
+  ~TiledTiffReader();
+  TiledTiffReader(const TiledTiffReader&) = delete;
+  TiledTiffReader& operator=(const TiledTiffReader&) = delete;
+  /// Opens `file`, expecting `samples`. @return "" or why not (not a TIFF, not tiled, another
+  /// sample type, no tile sizes).
+  std::string open(const std::filesystem::path& file, TileSamples samples);
+  int width() const;
+  int height() const;
+  int tile() const;  ///< tile side [samples] (square tiles)
+  /// Copies rows × cols samples from (row0, col0) into `out` (row-major, rows·cols samples, × 3
+  /// bytes for RGB); sparse tiles read as NaN (float) or 0 (RGB). The rectangle must lie inside
+  /// the image. @return "" or why not (a libtiff read error).
+  std::string read_region(int row0, int col0, int rows, int cols, void* out) const;
+  /// Tiles with data decoded so far (sparse tiles not counted), for tests and benchmarks.
+  std::uint64_t tiles_read() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
 
 }  // namespace hc::pipeline::detail

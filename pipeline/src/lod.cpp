@@ -1,4 +1,5 @@
 #include "stage_util.hpp"
+#include "tiled_layers.hpp"
 #include "hc/pipeline/lod.hpp"
 
 #include "hc/common/error.hpp"
@@ -6,6 +7,7 @@
 #include "hc/pipeline/scene_io.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -17,6 +19,14 @@ namespace {
 
 using detail::Clock;
 using detail::seconds_since;
+
+/// "L<k>": the folder of stored level k in a tiled scene (built with append: GCC 12's -Wrestrict
+/// misfires on a literal + std::string at -O3).
+std::string level_folder_name(int level) {
+  std::string name = "L";
+  name.append(std::to_string(level));
+  return name;
+}
 
 std::size_t field_bytes(const HeightField& f) { return f.values().size() * sizeof(float); }
 
@@ -236,6 +246,120 @@ LodPyramid::LodPyramid(LodLevel finest, const SurfaceLayerOptions& layer_options
   finest_ = std::make_shared<LodLevel>(std::move(finest));
 }
 
+// The files of a tiled scene (open_stored). Readers are opened on first use; each serialises
+// its own reads, so windows of different layers or levels read in parallel.
+struct LodPyramid::Stored {
+  enum Kind { kDepth, kEnvelope, kTexture, kMuD, kMuS, kCellError, kColour, kKinds };
+  static constexpr std::array<const char*, kKinds> kNames = {"depth", "envelope", "texture", "mu_d",
+                                                            "mu_s",  "cell_error", "colour"};
+  std::filesystem::path dir;
+  Eigen::Affine3d model_to_grid = Eigen::Affine3d::Identity();
+  bool has_layers = false, has_cell_error = false, has_colour = false;
+  std::vector<GridGeometry> geometries;
+  std::mutex mutex;  // readers
+  std::vector<std::array<std::unique_ptr<detail::TiledTiffReader>, kKinds>> readers;
+
+  std::filesystem::path file(int level, int kind) const {
+    const std::string name = std::string(kNames[static_cast<std::size_t>(kind)]) + ".tiff";
+    if (level == 0) return dir / name;
+    return dir / kSceneLevelsFolder / level_folder_name(level) / name;
+  }
+  const detail::TiledTiffReader& reader(int level, int kind) {
+    std::lock_guard<std::mutex> lock(mutex);
+    auto& slot = readers[static_cast<std::size_t>(level)][static_cast<std::size_t>(kind)];
+    if (!slot) {
+      const std::filesystem::path f = file(level, kind);
+      const GridGeometry& g = geometries[static_cast<std::size_t>(level)];
+      auto r = std::make_unique<detail::TiledTiffReader>();
+      std::string why = r->open(f, kind == kColour ? detail::TileSamples::kRgb8 : detail::TileSamples::kFloat32);
+      if (why.empty() && (r->width() != g.cols || r->height() != g.rows)) {
+        why = std::to_string(r->width()) + "x" + std::to_string(r->height()) + " samples, expected level " +
+              std::to_string(level) + "'s " + std::to_string(g.cols) + "x" + std::to_string(g.rows);
+      }
+      if (!why.empty()) throw InputError(f.string() + ": stored level " + std::to_string(level) + " layer '" +
+                                         kNames[static_cast<std::size_t>(kind)] + "': " + why);
+      slot = std::move(r);
+    }
+    return *slot;
+  }
+  HeightField field(int level, int kind, int row0, int col0, int rows, int cols) {
+    const GridGeometry& g = geometries[static_cast<std::size_t>(level)];
+    HeightField out(GridGeometry{rows, cols, g.x_of_col(col0), g.y_of_row(row0), g.cell_size_m});
+    out.model_to_grid = model_to_grid;
+    const std::string why = reader(level, kind).read_region(row0, col0, rows, cols, out.data());
+    if (!why.empty()) throw InputError(file(level, kind).string() + ": " + why);
+    return out;
+  }
+  std::vector<std::uint8_t> colour(int level, int row0, int col0, int rows, int cols) {
+    std::vector<std::uint8_t> out(3 * static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols));
+    const std::string why = reader(level, kColour).read_region(row0, col0, rows, cols, out.data());
+    if (!why.empty()) throw InputError(file(level, kColour).string() + ": " + why);
+    return out;
+  }
+  std::uint64_t tiles_read() {
+    std::lock_guard<std::mutex> lock(mutex);
+    std::uint64_t n = 0;
+    for (const auto& level : readers)
+      for (const auto& r : level) n += r ? r->tiles_read() : 0;
+    return n;
+  }
+};
+
+LodPyramid::LodPyramid(std::shared_ptr<Stored> stored, const SurfaceLayerOptions& layer_options, const LodOptions& options,
+                       int level_count, const GridGeometry& finest)
+    : options_(options), layer_options_(layer_options), level_count_(level_count), stored_(std::move(stored)) {
+  validate_options(options_);
+  for (int l = 0; l < level_count_; ++l) geometries_.push_back(lod_level_geometry(finest, l));
+}
+
+std::shared_ptr<LodPyramid> LodPyramid::open_stored(const std::filesystem::path& scene_dir, const LodOptions& options) {
+  const Scene header = load_scene(scene_dir, false);
+  if (header.storage.tile_cells == 0 || header.storage.stored_levels < 1) {
+    throw InputError(scene_dir.string() + ": the scene stores no levels of detail in tiles (format_version " +
+                     std::to_string(header.format_version) +
+                     "); write it with scale.scene_tiles: on, or load it whole (load_scene)");
+  }
+  const GridGeometry& g = header.geometry;
+  if (g.rows < 2 || g.cols < 2) {
+    throw InputError(scene_dir.string() + ": the scene's grid has " + std::to_string(g.rows) + " x " +
+                     std::to_string(g.cols) + " samples: expected at least 2 x 2");
+  }
+  auto stored = std::make_shared<Stored>();
+  stored->dir = scene_dir;
+  stored->model_to_grid = header.model_to_grid;
+  const auto exists = [&](int kind) { return std::filesystem::exists(stored->file(0, kind)); };
+  stored->has_layers = exists(Stored::kEnvelope) && exists(Stored::kTexture) && exists(Stored::kMuD) && exists(Stored::kMuS);
+  stored->has_cell_error = exists(Stored::kCellError);
+  stored->has_colour = exists(Stored::kColour);
+  const int levels = std::min(header.storage.stored_levels, lod_level_count(g, 2));
+  for (int l = 0; l < levels; ++l) stored->geometries.push_back(lod_level_geometry(g, l));
+  stored->readers.resize(static_cast<std::size_t>(levels));
+  std::shared_ptr<LodPyramid> p(new LodPyramid(stored, header.layer_options, options, levels, g));
+  // The depth of every level is opened now: a missing or mis-sized level is refused at open.
+  for (int l = 0; l < levels; ++l) (void)stored->reader(l, Stored::kDepth);
+  return p;
+}
+
+std::uint64_t LodPyramid::tiles_read() const { return stored_ ? stored_->tiles_read() : 0; }
+
+std::shared_ptr<LodWindowLayers> LodPyramid::read_stored_window(int level, int row0, int col0, int rows, int cols) const {
+  Stored& st = *stored_;
+  auto win = std::make_shared<LodWindowLayers>();
+  win->level = level;
+  win->row0 = row0;
+  win->col0 = col0;
+  win->depth_m = st.field(level, Stored::kDepth, row0, col0, rows, cols);
+  if (st.has_layers) {
+    win->envelope_m = st.field(level, Stored::kEnvelope, row0, col0, rows, cols);
+    win->texture_m = st.field(level, Stored::kTexture, row0, col0, rows, cols);
+    win->mu_d = st.field(level, Stored::kMuD, row0, col0, rows, cols);
+    win->mu_s = st.field(level, Stored::kMuS, row0, col0, rows, cols);
+  }
+  if (st.has_cell_error) win->cell_error_m = st.field(level, Stored::kCellError, row0, col0, rows, cols);
+  if (st.has_colour) win->colour_rgb8 = st.colour(level, row0, col0, rows, cols);
+  return win;
+}
+
 std::shared_ptr<LodPyramid> LodPyramid::from_scene(hc::Scene&& scene, const SurfaceLayerOptions& layer_options,
                                                    const LodOptions& options) {
   if (scene.layers.depth.rows() == 0) throw InputError("lod: the scene has no depth layer");
@@ -281,7 +405,7 @@ void LodPyramid::evict_locked() {
 
 std::shared_ptr<const LodLevel> LodPyramid::cached_locked(int level, bool with_layers,
                                                           std::shared_ptr<const LodLevel>* depth_only) {
-  if (level == 0) {
+  if (level == 0 && finest_) {
     if (!with_layers || finest_->has_layers) return finest_;
     if (depth_only != nullptr) *depth_only = finest_;
     return nullptr;
@@ -320,6 +444,30 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
     built->colour_rgb8 = depth_only->colour_rgb8;
     built->cell_error_m = depth_only->cell_error_m;
     built->depth_seconds = depth_only->depth_seconds;
+  } else if (stored_) {
+    const GridGeometry& g = geometries_[static_cast<std::size_t>(level)];
+    const std::size_t per_sample = sizeof(float) * (1 + (stored_->has_layers ? 4 : 0) + (stored_->has_cell_error ? 1 : 0)) +
+                                   (stored_->has_colour ? 3 : 0);
+    const double mb = static_cast<double>(g.cell_count() * per_sample) / (1024.0 * 1024.0);
+    if (mb > options_.memory_budget_mb) {
+      throw InputError("lod: level " + std::to_string(level) + " of the stored scene " + stored_->dir.string() + " is " +
+                       std::to_string(g.rows) + " x " + std::to_string(g.cols) + " samples (" + format_number(mb) +
+                       " MB with its layers), more than lod.memory_budget_mb = " + format_number(options_.memory_budget_mb) +
+                       ": only its windows are read; choose a coarser level or raise the budget");
+    }
+    const auto t0 = Clock::now();
+    std::shared_ptr<LodWindowLayers> whole = read_stored_window(level, 0, 0, g.rows, g.cols);
+    built->depth_m = std::move(whole->depth_m);
+    built->colour_rgb8 = std::move(whole->colour_rgb8);
+    built->cell_error_m = std::move(whole->cell_error_m);
+    if (stored_->has_layers) {
+      built->envelope_m = std::move(whole->envelope_m);
+      built->texture_m = std::move(whole->texture_m);
+      built->mu_d = std::move(whole->mu_d);
+      built->mu_s = std::move(whole->mu_s);
+      built->has_layers = true;
+    }
+    built->depth_seconds = seconds_since(t0);
   } else {
     const std::shared_ptr<const LodLevel> above = get_level(level - 1, false);
     const auto t0 = Clock::now();
@@ -333,7 +481,7 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
     }
     built->depth_seconds = seconds_since(t0);
   }
-  if (with_layers) {
+  if (with_layers && !built->has_layers) {
     const auto t0 = Clock::now();
     if (built->depth_m.valid_count() > 0) {
       SurfaceLayers layers = compute_surface_layers(built->depth_m, layer_options_, options_.window_cells).value;
@@ -353,7 +501,7 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
   }
   // The level is published only once complete: a throw leaves no trace.
   std::lock_guard<std::mutex> lock(mutex_);
-  if (level == 0) {
+  if (level == 0 && !stored_) {
     finest_ = built;
     return built;
   }
@@ -381,7 +529,7 @@ std::shared_ptr<const LodLevel> LodPyramid::depth_level(int level) { return get_
 
 bool LodPyramid::is_cached(int level, bool with_layers) const {
   std::lock_guard<std::mutex> lock(mutex_);
-  if (level == 0) return !with_layers || finest_->has_layers;
+  if (level == 0 && finest_) return !with_layers || finest_->has_layers;
   for (const auto& e : entries_) {
     if (!e->is_window && e->level == level) return !with_layers || e->lvl->has_layers;
   }
@@ -413,23 +561,17 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
     std::lock_guard<std::mutex> lock(mutex_);
     if (auto hit = cached_window()) return hit;
   }
-  const std::shared_ptr<const LodLevel> lvl = get_level(level, true);  // may build (without mutex_)
+  std::shared_ptr<LodWindowLayers> win;
+  std::shared_ptr<const LodLevel> lvl;
+  if (stored_) {
+    win = read_stored_window(level, row0, col0, rows, cols);  // the tiles it overlaps (without mutex_)
+  } else {
+    lvl = get_level(level, true);  // may build (without mutex_)
+  }
   std::lock_guard<std::mutex> lock(mutex_);
   if (auto hit = cached_window()) return hit;  // cropped by another thread meanwhile
   ++misses_;
-  auto win = std::make_shared<LodWindowLayers>();
-  win->level = level;
-  win->row0 = row0;
-  win->col0 = col0;
-  win->depth_m = crop_height_field(lvl->depth_m, row0, col0, rows, cols);
-  if (!lvl->colour_rgb8.empty()) win->colour_rgb8 = crop_colour(lvl->colour_rgb8, lvl->depth_m.geometry(), row0, col0, rows, cols);
-  if (lvl->cell_error_m.rows() > 0) win->cell_error_m = crop_height_field(lvl->cell_error_m, row0, col0, rows, cols);
-  if (lvl->has_layers) {
-    win->envelope_m = crop_height_field(lvl->envelope_m, row0, col0, rows, cols);
-    win->texture_m = crop_height_field(lvl->texture_m, row0, col0, rows, cols);
-    win->mu_d = crop_height_field(lvl->mu_d, row0, col0, rows, cols);
-    win->mu_s = crop_height_field(lvl->mu_s, row0, col0, rows, cols);
-  }
+  if (!win) win = crop_window_locked(*lvl, level, row0, col0, rows, cols);
   auto entry = std::make_shared<Entry>();
   entry->is_window = true;
   entry->level = level;
@@ -446,12 +588,30 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
   return win;
 }
 
+std::shared_ptr<LodWindowLayers> LodPyramid::crop_window_locked(const LodLevel& lvl, int level, int row0, int col0,
+                                                                int rows, int cols) {
+  auto win = std::make_shared<LodWindowLayers>();
+  win->level = level;
+  win->row0 = row0;
+  win->col0 = col0;
+  win->depth_m = crop_height_field(lvl.depth_m, row0, col0, rows, cols);
+  if (!lvl.colour_rgb8.empty()) win->colour_rgb8 = crop_colour(lvl.colour_rgb8, lvl.depth_m.geometry(), row0, col0, rows, cols);
+  if (lvl.cell_error_m.rows() > 0) win->cell_error_m = crop_height_field(lvl.cell_error_m, row0, col0, rows, cols);
+  if (lvl.has_layers) {
+    win->envelope_m = crop_height_field(lvl.envelope_m, row0, col0, rows, cols);
+    win->texture_m = crop_height_field(lvl.texture_m, row0, col0, rows, cols);
+    win->mu_d = crop_height_field(lvl.mu_d, row0, col0, rows, cols);
+    win->mu_s = crop_height_field(lvl.mu_s, row0, col0, rows, cols);
+  }
+  return win;
+}
+
 LodPyramid::CacheStats LodPyramid::cache_stats() const {
   std::lock_guard<std::mutex> lock(mutex_);
   CacheStats s;
   s.bytes = bytes_;
   s.budget_bytes = static_cast<std::size_t>(options_.memory_budget_mb * 1024.0 * 1024.0);
-  s.finest_bytes = finest_->bytes();
+  s.finest_bytes = finest_ ? finest_->bytes() : 0;
   s.hits = hits_;
   s.misses = misses_;
   s.evictions = evictions_;
@@ -506,6 +666,43 @@ SampleWindow window_of_extent(const GridGeometry& g, double x0_m, double y0_m, d
                       format_number(g.y_of_row(0)) + " .. " + format_number(g.y_of_row(g.rows - 1)) + " m (grid frame)");
   }
   return {r0, c0, r1 - r0 + 1, c1 - c0 + 1};
+}
+
+std::uint64_t write_scene_levels(LodPyramid& pyramid, const std::filesystem::path& scene_dir, int tile_cells) {
+  namespace fs = std::filesystem;
+  std::uint64_t bytes = 0;
+  const fs::path root = scene_dir / kSceneLevelsFolder;
+  const auto make_dir = [](const fs::path& d) {
+    std::error_code ec;
+    // One level at a time (not create_directories): a staging folder removed by an interrupt stays removed.
+    fs::create_directory(d, ec);
+    if (ec) throw InputError(d.string() + ": cannot create the levels folder: " + ec.message());
+  };
+  if (pyramid.level_count() > 1) make_dir(root);
+  for (int l = 1; l < pyramid.level_count(); ++l) {
+    const std::shared_ptr<const LodLevel> lvl = pyramid.level(l);
+    const fs::path dir = root / level_folder_name(l);
+    make_dir(dir);
+    const GridGeometry& g = lvl->depth_m.geometry();
+    const auto write = [&](const char* name, const HeightField& f) {
+      if (f.rows() == 0) return;
+      detail::write_tiled_layer(dir / (std::string(name) + ".tiff"), f.data(), g, tile_cells, detail::TileSamples::kFloat32);
+      bytes += f.values().size() * sizeof(float);
+    };
+    write("depth", lvl->depth_m);
+    if (lvl->has_layers) {
+      write("envelope", lvl->envelope_m);
+      write("texture", lvl->texture_m);
+      write("mu_d", lvl->mu_d);
+      write("mu_s", lvl->mu_s);
+    }
+    write("cell_error", lvl->cell_error_m);
+    if (!lvl->colour_rgb8.empty()) {
+      detail::write_tiled_layer(dir / "colour.tiff", lvl->colour_rgb8.data(), g, tile_cells, detail::TileSamples::kRgb8);
+      bytes += lvl->colour_rgb8.size();
+    }
+  }
+  return bytes;
 }
 
 }  // namespace hc::pipeline

@@ -661,7 +661,11 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
                      {"recentre_offset_m", {prov.recentre_offset_m.x(), prov.recentre_offset_m.y(), prov.recentre_offset_m.z()}},
                      {"units", prov.units}};
   if (!prov.crs.empty()) provenance["crs"] = json_text(prov.crs);
-  write_scene(scene, staging.path() / "scene");
+  // The tiled scene (issue 14): level 0 in tiles now, the coarser levels after the levels stage.
+  const bool tiled_scene = writes_tiled_scene(config.scale, scene.geometry);
+  SceneStorage storage;
+  if (tiled_scene) storage = {config.scale.scene_tile_cells, lod_level_count(scene.geometry, config.lod.min_cells)};
+  write_scene(scene, staging.path() / "scene", storage);
 
   const fs::path previews = staging.path() / "previews";
   // One level only: an interrupt may have removed the staging folder, which must stay removed.
@@ -716,32 +720,40 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   // 9. Levels of detail (issue 4): speed against error per level, with previews side by side.
   std::vector<LevelRow> lod_rows;
   std::vector<std::string> lod_previews;
+  // The pyramid of the levels table and of the tiled scene's stored levels: made once, from level
+  // 0's layers (moved out of `movable`, else copied; the cross-check error too when stored).
+  std::shared_ptr<LodPyramid> pyramid;
+  const auto make_pyramid = [&] {
+    LodLevel l0;
+    if (movable != nullptr) {
+      SceneLayers& from = movable->scene.layers;
+      l0.depth_m = std::move(from.depth);
+      l0.colour_rgb8 = std::move(from.colour_rgb8);
+      if (tiled_scene) l0.cell_error_m = std::move(from.cell_error);
+      if (has_surface_layers) {
+        l0.envelope_m = std::move(from.envelope);
+        l0.texture_m = std::move(from.texture);
+        l0.mu_d = std::move(from.mu_d);
+        l0.mu_s = std::move(from.mu_s);
+        l0.has_layers = true;
+      }
+    } else {
+      l0.depth_m = scene.layers.depth;
+      l0.colour_rgb8 = scene.layers.colour_rgb8;
+      if (tiled_scene) l0.cell_error_m = scene.layers.cell_error;
+      if (has_surface_layers) {
+        l0.envelope_m = scene.layers.envelope;
+        l0.texture_m = scene.layers.texture;
+        l0.mu_d = scene.layers.mu_d;
+        l0.mu_s = scene.layers.mu_s;
+        l0.has_layers = true;
+      }
+    }
+    return std::make_shared<LodPyramid>(std::move(l0), config.layers.options, config.lod);
+  };
   if (config.lod.report) {
     lod_rows = stage("levels", reports, progress, [&] {
-      LodLevel l0;
-      if (movable != nullptr) {
-        SceneLayers& from = movable->scene.layers;
-        l0.depth_m = std::move(from.depth);
-        l0.colour_rgb8 = std::move(from.colour_rgb8);
-        if (has_surface_layers) {
-          l0.envelope_m = std::move(from.envelope);
-          l0.texture_m = std::move(from.texture);
-          l0.mu_d = std::move(from.mu_d);
-          l0.mu_s = std::move(from.mu_s);
-          l0.has_layers = true;
-        }
-      } else {
-        l0.depth_m = scene.layers.depth;
-        l0.colour_rgb8 = scene.layers.colour_rgb8;
-        if (has_surface_layers) {
-          l0.envelope_m = scene.layers.envelope;
-          l0.texture_m = scene.layers.texture;
-          l0.mu_d = scene.layers.mu_d;
-          l0.mu_s = scene.layers.mu_s;
-          l0.has_layers = true;
-        }
-      }
-      auto pyramid = std::make_shared<LodPyramid>(std::move(l0), config.layers.options, config.lod);
+      pyramid = make_pyramid();
       LevelTableOptions to;
       // Every filtered point in core; the tiled run's strided sample otherwise (no support then).
       const Cloud* level_points = built.cloud ? &*built.cloud : built.point_sample ? &*built.point_sample : nullptr;
@@ -778,6 +790,18 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
       r.report.figure("servo_timing_s", detail::seconds_since(t_timing));
       r.report.count_in = summary.valid_cells;
       r.report.count_out = r.value.size();
+      return r;
+    });
+  }
+  if (tiled_scene) {
+    stage("scene_levels", reports, progress, [&] {
+      if (!pyramid) pyramid = make_pyramid();
+      StageResult<std::uint64_t> r;
+      r.value = write_scene_levels(*pyramid, staging.path() / "scene", storage.tile_cells);
+      r.report.count_in = static_cast<std::size_t>(pyramid->level_count());
+      r.report.count_out = static_cast<std::size_t>(pyramid->level_count());
+      r.report.figure("tile_cells", storage.tile_cells);
+      r.report.figure("levels_bytes_mb", static_cast<double>(r.value) / (1024.0 * 1024.0));
       return r;
     });
   }

@@ -1,4 +1,5 @@
 #include "image_io.hpp"
+#include "tiled_layers.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
 #include "hc/common/error.hpp"
@@ -45,6 +46,22 @@ void write_float_tiff(const HeightField& f, const fs::path& file) {
                      (space.rfind("no space", 0) == 0 ? space : why));
   }
 }
+
+}  // namespace
+
+void detail::write_tiled_layer(const fs::path& file, const void* values, const GridGeometry& g, int tile_cells,
+                               TileSamples samples) {
+  errno = 0;
+  const std::string why = detail::write_tiled_tiff(file, values, g.cols, g.rows, tile_cells, samples);
+  if (!why.empty()) {
+    const std::string space =
+        write_failure_reason(file, g.cell_count() * static_cast<std::size_t>(detail::tile_sample_bytes(samples)));
+    throw InputError(file.string() + ": cannot write the tiled TIFF layer: " +
+                     (space.rfind("no space", 0) == 0 ? space : why));
+  }
+}
+
+namespace {
 
 /// The float layers of a scene in file order, with their file stems.
 template <class Layers, class F>
@@ -176,8 +193,14 @@ void write_text_file(const fs::path& file, const std::string& text) {
 
 }  // namespace
 
-void write_scene(const Scene& scene, const fs::path& scene_dir) {
+void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStorage& storage) {
   const GridGeometry& g = scene.geometry;
+  const bool tiled = storage.tile_cells != 0;
+  if (tiled && (storage.tile_cells < 16 || storage.tile_cells > 4096 || storage.tile_cells % 16 != 0)) {
+    throw std::invalid_argument("write_scene: tile side " + std::to_string(storage.tile_cells) +
+                                ": expected a multiple of 16 in [16, 4096]");
+  }
+  if (storage.stored_levels < 0) throw std::invalid_argument("write_scene: stored_levels < 0");
   if (scene.layers.depth.rows() == 0) throw std::invalid_argument("write_scene: the scene has no depth layer");
   for_each_layer(scene.layers, [&](const char* name, const HeightField& layer) {
     if (layer.rows() != 0 && !(layer.geometry() == g)) {
@@ -204,7 +227,17 @@ void write_scene(const Scene& scene, const fs::path& scene_dir) {
   y.SetDoublePrecision(17);
   y << YAML::BeginMap;
   y << YAML::Key << "format" << YAML::Value << "hapticloud-scene";
-  y << YAML::Key << "format_version" << YAML::Value << kSceneFormatVersion;
+  y << YAML::Key << "format_version" << YAML::Value << (tiled ? kTiledSceneFormatVersion : kSceneFormatVersion);
+  if (tiled) {
+    y << YAML::Key << "storage" << YAML::Value << YAML::BeginMap;
+    y << YAML::Key << "tile_cells" << YAML::Value << storage.tile_cells;
+    y << YAML::Key << "stored_levels" << YAML::Value << storage.stored_levels;
+    y << YAML::Key << "levels_folder" << YAML::Value << kSceneLevelsFolder;
+    y << YAML::Key << "layout" << YAML::Value
+      << "square tiles of tile_cells samples in every layer TIFF; tiles without bytes are no data; level k >= 1 in "
+         "levels_folder/L<k>/<layer>.tiff";
+    y << YAML::EndMap;
+  }
   y << YAML::Key << "grid" << YAML::Value << YAML::BeginMap;
   y << YAML::Key << "rows" << YAML::Value << g.rows << YAML::Key << "cols" << YAML::Value << g.cols;
   y << YAML::Key << "x0_m" << YAML::Value << g.x0_m << YAML::Key << "y0_m" << YAML::Value << g.y0_m;
@@ -225,7 +258,12 @@ void write_scene(const Scene& scene, const fs::path& scene_dir) {
   for_each_layer(scene.layers, [&](const char* name, const HeightField& layer) {
     if (layer.rows() == 0) return;
     y << YAML::Key << name << YAML::Value << (std::string(name) + ".tiff");
-    write_float_tiff(layer, scene_dir / (std::string(name) + ".tiff"));
+    const fs::path file = scene_dir / (std::string(name) + ".tiff");
+    if (tiled) {
+      detail::write_tiled_layer(file, layer.data(), g, storage.tile_cells, detail::TileSamples::kFloat32);
+    } else {
+      write_float_tiff(layer, file);
+    }
   });
   y << YAML::EndMap;
   if (!scene.layers.flags.empty()) {
@@ -241,7 +279,11 @@ void write_scene(const Scene& scene, const fs::path& scene_dir) {
     y << YAML::Key << "flag_codes" << YAML::Value
       << "0 empty, 1 measured, 2 splatted, 3 see-through (no data), 4 filled, 5 upsampled";
   }
-  if (!scene.layers.colour_rgb8.empty()) {
+  if (!scene.layers.colour_rgb8.empty() && tiled) {
+    detail::write_tiled_layer(scene_dir / "colour.tiff", scene.layers.colour_rgb8.data(), g, storage.tile_cells,
+                      detail::TileSamples::kRgb8);
+    y << YAML::Key << "colour" << YAML::Value << "colour.tiff";
+  } else if (!scene.layers.colour_rgb8.empty()) {
     errno = 0;
     const std::string why = detail::write_png(scene_dir / "colour.png", scene.layers.colour_rgb8.data(), g.cols, g.rows,
                                               detail::PixelFormat::kRgb);
@@ -269,7 +311,7 @@ void write_scene(const Scene& scene, const fs::path& scene_dir) {
   write_text_file(scene_dir / "scene.yaml", text);
 }
 
-Scene load_scene(const fs::path& scene_dir) {
+Scene load_scene(const fs::path& scene_dir, bool load_layers) {
   const fs::path meta = scene_dir / "scene.yaml";
   if (!fs::exists(meta)) {
     throw InputError(scene_dir.string() + ": not a scene folder (no scene.yaml; make one with 'hapticloud run')");
@@ -286,11 +328,25 @@ Scene load_scene(const fs::path& scene_dir) {
       throw InputError(meta.string() + ": no format_version: not a hapticloud scene");
     }
     const int version = root["format_version"].as<int>();
-    if (version != 1 && version != kSceneFormatVersion) {
-      throw InputError(meta.string() + ": format_version " + std::to_string(version) +
-                       " is not supported (expected 1 or " + std::to_string(kSceneFormatVersion) + ")");
+    if (version != 1 && version != kSceneFormatVersion && version != kTiledSceneFormatVersion) {
+      throw InputError(meta.string() + ": format_version " + std::to_string(version) + " is not supported (expected 1, " +
+                       std::to_string(kSceneFormatVersion) + " or " + std::to_string(kTiledSceneFormatVersion) + ")");
     }
     s.format_version = version;
+    if (version == kTiledSceneFormatVersion) {
+      const YAML::Node st = root["storage"];
+      if (!st || !st["tile_cells"] || !st["stored_levels"]) {
+        throw InputError(meta.string() + ": format_version 3 without storage.tile_cells and storage.stored_levels");
+      }
+      s.storage.tile_cells = st["tile_cells"].as<int>();
+      s.storage.stored_levels = st["stored_levels"].as<int>();
+      if (s.storage.tile_cells < 16 || s.storage.tile_cells > 4096 || s.storage.tile_cells % 16 != 0 ||
+          s.storage.stored_levels < 0 || s.storage.stored_levels > 64) {
+        throw InputError(meta.string() + ": storage.tile_cells " + std::to_string(s.storage.tile_cells) +
+                         " or storage.stored_levels " + std::to_string(s.storage.stored_levels) +
+                         " out of range (expected a multiple of 16 in [16, 4096] and 0..64)");
+      }
+    }
     const YAML::Node grid = root["grid"];
     GridGeometry g;
     g.rows = grid["rows"].as<int>();
@@ -323,6 +379,7 @@ Scene load_scene(const fs::path& scene_dir) {
       if (!entry) return;
       const fs::path file = scene_dir / entry.as<std::string>();
       if (!fs::exists(file)) throw InputError(file.string() + ": missing scene layer '" + name + "'");
+      if (!load_layers) return;
       detail::FloatImage img;
       const std::string why = detail::read_float_tiff(file, img, g.cols, g.rows);
       if (!why.empty() || img.height != g.rows || img.width != g.cols) {
@@ -335,8 +392,12 @@ Scene load_scene(const fs::path& scene_dir) {
       f.model_to_grid = s.model_to_grid;
       out = std::move(f);
     });
-    if (s.layers.depth.rows() == 0) throw InputError(meta.string() + ": the scene lists no 'depth' layer");
-    if (const YAML::Node flags = root["flags"]) {
+    if (!load_layers) {
+      if (!listed["depth"]) throw InputError(meta.string() + ": the scene lists no 'depth' layer");
+    } else if (s.layers.depth.rows() == 0) {
+      throw InputError(meta.string() + ": the scene lists no 'depth' layer");
+    }
+    if (const YAML::Node flags = root["flags"]; flags && load_layers) {
       const fs::path file = scene_dir / flags.as<std::string>();
       detail::Image8 img;
       const std::string why = detail::read_png(file, detail::PixelFormat::kGray, img);
@@ -346,8 +407,23 @@ Scene load_scene(const fs::path& scene_dir) {
       }
       s.layers.flags = std::move(img.pixels);
     }
-    if (const YAML::Node colour = root["colour"]) {
+    if (const YAML::Node colour = root["colour"]; colour && load_layers && fs::path(colour.as<std::string>()).extension() == ".tiff") {
       const fs::path file = scene_dir / colour.as<std::string>();
+      detail::TiledTiffReader reader;
+      std::string why = reader.open(file, detail::TileSamples::kRgb8);
+      if (why.empty() && (reader.width() != g.cols || reader.height() != g.rows)) {
+        why = std::to_string(reader.width()) + "x" + std::to_string(reader.height());
+      }
+      if (why.empty()) {
+        s.layers.colour_rgb8.resize(3 * g.cell_count());
+        why = reader.read_region(0, 0, g.rows, g.cols, s.layers.colour_rgb8.data());
+      }
+      if (!why.empty()) {
+        throw InputError(file.string() + ": missing or malformed colour layer (expected a tiled " + std::to_string(g.cols) +
+                         "x" + std::to_string(g.rows) + " RGB TIFF; " + why + ")");
+      }
+    } else if (const YAML::Node colour_png = root["colour"]; colour_png && load_layers) {
+      const fs::path file = scene_dir / colour_png.as<std::string>();
       detail::Image8 img;
       const std::string why = detail::read_png(file, detail::PixelFormat::kRgb, img);
       if (!why.empty() || img.height != g.rows || img.width != g.cols) {

@@ -127,14 +127,10 @@ std::pair<int, int> parse_window_origin(const std::string& text) {
   return {to_int(text.substr(0, comma), "--window " + text), to_int(text.substr(comma + 1), "--window " + text)};
 }
 
-LodSession::LodSession(const SceneLayers& layers, const haptics::SurfaceOptions& surface,
-                       const Eigen::Vector3d& device_half_extent_m, int level, std::optional<std::pair<int, int>> origin,
-                       std::vector<ZoomAction> actions, haptics::SharedState& shared,
-                       const pipeline::SurfaceLayerOptions& layer_options, const pipeline::LodOptions& lod)
-    : surface_options_(surface), actions_(std::move(actions)) {
-  if (level < -1) {
-    throw ConfigError("touch: --level " + std::to_string(level) + ": expected -1 (the coarsest) or a level >= 0");
-  }
+namespace {
+std::shared_ptr<pipeline::LodPyramid> pyramid_of_layers(const SceneLayers& layers,
+                                                       const pipeline::SurfaceLayerOptions& layer_options,
+                                                       const pipeline::LodOptions& lod) {
   if (layers.depth.rows() == 0) throw InputError("touch: the scene has no depth layer for levels of detail");
   pipeline::LodLevel l0;
   l0.depth_m = layers.depth;
@@ -145,7 +141,25 @@ LodSession::LodSession(const SceneLayers& layers, const haptics::SurfaceOptions&
     l0.mu_s = layers.mu_s;
     l0.has_layers = true;
   }
-  pyramid_ = std::make_shared<pipeline::LodPyramid>(std::move(l0), layer_options, lod);
+  return std::make_shared<pipeline::LodPyramid>(std::move(l0), layer_options, lod);
+}
+}  // namespace
+
+LodSession::LodSession(const SceneLayers& layers, const haptics::SurfaceOptions& surface,
+                       const Eigen::Vector3d& device_half_extent_m, int level, std::optional<std::pair<int, int>> origin,
+                       std::vector<ZoomAction> actions, haptics::SharedState& shared,
+                       const pipeline::SurfaceLayerOptions& layer_options, const pipeline::LodOptions& lod)
+    : LodSession(pyramid_of_layers(layers, layer_options, lod), surface, device_half_extent_m, level, origin,
+                 std::move(actions), shared) {}
+
+LodSession::LodSession(std::shared_ptr<pipeline::LodPyramid> pyramid, const haptics::SurfaceOptions& surface,
+                       const Eigen::Vector3d& device_half_extent_m, int level, std::optional<std::pair<int, int>> origin,
+                       std::vector<ZoomAction> actions, haptics::SharedState& shared)
+    : pyramid_(std::move(pyramid)), surface_options_(surface), actions_(std::move(actions)) {
+  if (level < -1) {
+    throw ConfigError("touch: --level " + std::to_string(level) + ": expected -1 (the coarsest) or a level >= 0");
+  }
+  if (!pyramid_) throw InputError("touch: no pyramid for levels of detail");
   LodControllerOptions co;
   co.surface = surface;
   co.device_half_extent_m = device_half_extent_m;

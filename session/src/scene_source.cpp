@@ -33,6 +33,17 @@ OpenedScene open_scene_or_config(const fs::path& input, const SceneSourceOptions
     return out;
   }
   if (fs::is_directory(input, ec) && fs::exists(input / "scene.yaml", ec)) {
+    out.description = "scene " + input.string();
+    if (options.open_stored_levels) {
+      Scene header = pipeline::load_scene(input, false);
+      if (header.storage.tile_cells > 0 && header.storage.stored_levels > 0) {
+        pipeline::LodOptions lod = header.lod;
+        if (options.stored_window_cells != 0) lod.window_cells = options.stored_window_cells;
+        out.stored_levels = pipeline::LodPyramid::open_stored(input, lod);
+        out.scene = std::move(header);
+        return out;
+      }
+    }
     out.scene = pipeline::load_scene(input);
     out.description = "scene " + input.string();
     return out;

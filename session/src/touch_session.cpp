@@ -138,10 +138,13 @@ void TouchSessionOptions::validate() const {
   }
 }
 
-TouchSessionResult run_touch_session(const Scene& scene, const TouchSessionOptions& o, const TouchSessionHooks& hooks) {
-  o.validate();
+TouchSessionResult run_touch_session(const Scene& scene, const TouchSessionOptions& options, const TouchSessionHooks& hooks,
+                                     std::shared_ptr<pipeline::LodPyramid> stored_levels) {
+  options.validate();
+  TouchSessionOptions o = options;
+  if (stored_levels) o.levels = true;  // a stored scene is rendered through its windows
   const SceneLayers& sl = scene.layers;
-  if (sl.depth.rows() == 0) throw InputError("touch: the scene has no depth layer");
+  if (sl.depth.rows() == 0 && !stored_levels) throw InputError("touch: the scene has no depth layer");
   haptics::SurfaceLayers layers;
   layers.depth = &sl.depth;
   layers.envelope = present(sl.envelope);
@@ -165,8 +168,13 @@ TouchSessionResult run_touch_session(const Scene& scene, const TouchSessionOptio
     }
     LodOptions lod_options = scene.lod;
     if (o.window_cells != 0) lod_options.window_cells = o.window_cells;
-    lod = std::make_unique<LodSession>(sl, sopt, info.workspace_half_extent_m, o.level, o.window_origin, o.zoom_path,
-                                       shared, scene.layer_options, lod_options);
+    if (stored_levels) {
+      lod = std::make_unique<LodSession>(stored_levels, sopt, info.workspace_half_extent_m, o.level, o.window_origin,
+                                         o.zoom_path, shared);
+    } else {
+      lod = std::make_unique<LodSession>(sl, sopt, info.workspace_half_extent_m, o.level, o.window_origin, o.zoom_path,
+                                         shared, scene.layer_options, lod_options);
+    }
     res.map = lod->initial().map;
     top_dev = (lod->initial().max_height_m - res.map.origin_m.z()) / res.map.scale;
   } else {

@@ -125,6 +125,17 @@ struct SceneLayers {
   }
 };
 
+/// How a scene folder stores its layers (issue 14; docs/scale.md "The tiled scene").
+struct SceneStorage {
+  /// 0: every layer one whole-grid TIFF in strips (format 2). Else the side of the square tiles
+  /// [samples] of every layer TIFF (format 3), with the coarser levels of detail stored beside.
+  int tile_cells = 0;
+  /// Levels of detail stored (level 0 in the scene folder, level k ≥ 1 in levels/L<k>/); 0 when
+  /// the folder stores level 0 only.
+  int stored_levels = 0;
+  bool operator==(const SceneStorage&) const = default;
+};
+
 /// A whole scene: geometry, frame, layers and metadata.
 struct Scene {
   GridGeometry geometry;                                     ///< shared by every layer
@@ -135,6 +146,7 @@ struct Scene {
   LodOptions lod;                               ///< the level-of-detail options of the run
   SceneProvenance provenance;
   int format_version = 0;               ///< on a loaded scene: the folder's format_version
+  SceneStorage storage;                 ///< on a loaded scene: how its folder stores the layers
   std::vector<std::string> notes;       ///< what loading assumed (e.g. defaults for an old folder)
 
   const HeightField& depth() const noexcept { return layers.depth; }

@@ -102,7 +102,16 @@ struct ScaleConfig {
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
   double progress_interval_s = 1.0;  ///< least time between progress calls within a stage [s], 0 to 3600
+  /// The tiled scene on disk (scene_io.hpp format 3, LodPyramid::open_stored): every layer in
+  /// square tiles and every level of detail stored beside level 0, so that sessions read only the
+  /// tiles of their window. auto: when level 0 has more than scene_tiles_above_cells samples.
+  Tiled scene_tiles = Tiled::kAuto;
+  std::uint64_t scene_tiles_above_cells = 4096ull * 4096ull;  ///< the auto threshold [samples], ≥ 1
+  int scene_tile_cells = 256;  ///< tile side of the scene's layer files [samples], a multiple of 16 in [16, 4096]
 };
+
+/// True when a run with `config` writes a tiled scene for a level 0 of `grid` (scale.scene_tiles).
+bool writes_tiled_scene(const ScaleConfig& config, const GridGeometry& grid);
 
 struct RunConfig {
   std::filesystem::path source;        ///< the config file it came from ("" when built in code)

@@ -12,6 +12,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <filesystem>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -129,14 +130,33 @@ class LodPyramid {
   static std::shared_ptr<LodPyramid> from_scene(hc::Scene&& scene, const SurfaceLayerOptions& layer_options,
                                                 const LodOptions& options);
 
+  /// The pyramid of a tiled scene folder (write_scene with SceneStorage::tile_cells > 0, then
+  /// write_scene_levels): every level is on disk, so nothing is built and nothing is loaded at
+  /// open but scene.yaml; each layer file's directory is read on first use, and a window reads
+  /// only the tiles it overlaps (issue 14: a 65 536 × 32 768 scene opens and switches windows in
+  /// bounded memory). `options` as in the constructor (memory_budget_mb bounds the cache of
+  /// windows and whole levels; window_cells the haptic window); the level count is the stored
+  /// one. level(L) reads a whole level only when it fits in memory_budget_mb, else it throws.
+  /// @throws hc::InputError naming the folder or file: not a tiled scene (format 3 with
+  ///         stored_levels ≥ 1), a missing or malformed layer file; hc::ConfigError for options
+  ///         out of range.
+  static std::shared_ptr<LodPyramid> open_stored(const std::filesystem::path& scene_dir, const LodOptions& options);
+  /// True for a pyramid opened by open_stored.
+  bool stored() const noexcept { return stored_ != nullptr; }
+  /// Tiles decoded from the stored layer files so far (0 for a pyramid in memory): what a
+  /// window cost on disk, for tests and benchmarks.
+  std::uint64_t tiles_read() const;
+
   int level_count() const noexcept { return level_count_; }
   /// Geometry of level L (nothing is built). @throws hc::InputError for L out of range.
   const GridGeometry& geometry(int level) const;
   const LodOptions& options() const noexcept { return options_; }
   const SurfaceLayerOptions& layer_options() const noexcept { return layer_options_; }
 
-  /// Level L with its layers, built if needed. @throws hc::InputError for L out of range, and
-  /// whatever compute_surface_layers throws. Real-time: no.
+  /// Level L with its layers, built if needed (a stored pyramid reads it from its tiles).
+  /// @throws hc::InputError for L out of range, for a stored level larger than
+  /// memory_budget_mb (naming its size: only its windows can be read), and whatever
+  /// compute_surface_layers throws. Real-time: no.
   std::shared_ptr<const LodLevel> level(int level);
   /// Level L with at least its depth (layers not computed if not cached). Real-time: no.
   std::shared_ptr<const LodLevel> depth_level(int level);
@@ -160,6 +180,12 @@ class LodPyramid {
 
  private:
   struct Entry;
+  struct Stored;
+  LodPyramid(std::shared_ptr<Stored> stored, const SurfaceLayerOptions& layer_options, const LodOptions& options,
+             int level_count, const GridGeometry& finest);
+  std::shared_ptr<LodWindowLayers> read_stored_window(int level, int row0, int col0, int rows, int cols) const;
+  static std::shared_ptr<LodWindowLayers> crop_window_locked(const LodLevel& lvl, int level, int row0, int col0, int rows,
+                                                             int cols);
   // Cached level (mutex_ held): the level, or null; *depth_only gets a cached depth-only level.
   std::shared_ptr<const LodLevel> cached_locked(int level, bool with_layers,
                                                 std::shared_ptr<const LodLevel>* depth_only);
@@ -171,7 +197,8 @@ class LodPyramid {
   SurfaceLayerOptions layer_options_;
   int level_count_ = 1;
   std::vector<GridGeometry> geometries_;
-  std::shared_ptr<LodLevel> finest_;
+  std::shared_ptr<LodLevel> finest_;  // null for a stored pyramid (level 0 is then a cache entry)
+  std::shared_ptr<Stored> stored_;    // the tiled scene's files, or null
   mutable std::mutex mutex_;          // the cache: entries_, finest_, counters
   std::recursive_mutex build_mutex_;  // one build at a time (a level builds the depth above it)
   std::vector<std::shared_ptr<Entry>> entries_;  // cached levels ≥ 1 and windows
@@ -179,5 +206,15 @@ class LodPyramid {
   std::size_t bytes_ = 0;
   std::uint64_t hits_ = 0, misses_ = 0, evictions_ = 0;
 };
+
+/// Stores levels 1 .. level_count − 1 of `pyramid` (built, with their layers, as level() builds
+/// them) as tiled TIFFs beside level 0 of a tiled scene folder: `scene_dir/levels/L<k>/` holds
+/// depth.tiff and, when the level has them, envelope, texture, mu_d, mu_s, cell_error (float) and
+/// colour.tiff (RGB); square tiles of `tile_cells` (as write_scene's storage), all-NaN tiles sparse.
+/// Levels are built and written one at a time (the pyramid's budget bounds memory).
+/// Call after write_scene(..., SceneStorage{tile_cells, pyramid.level_count()}) on the same folder.
+/// @return the bytes of tile data written. @throws hc::InputError naming a file that cannot be
+///         written (or a folder that cannot be made); what level() throws.
+std::uint64_t write_scene_levels(LodPyramid& pyramid, const std::filesystem::path& scene_dir, int tile_cells);
 
 }  // namespace hc::pipeline

@@ -15,8 +15,14 @@
 
 namespace hc::pipeline {
 
-/// Format written by write_scene. Version 1 (before the typed scene) still loads.
+/// Format written by write_scene for whole-grid layers. Version 1 (before the typed scene) still loads.
 inline constexpr int kSceneFormatVersion = 2;
+/// Format written by write_scene with tiles (SceneStorage::tile_cells > 0): the layer TIFFs are
+/// tiled, the colour is a tiled RGB TIFF (`colour.tiff`) and scene.yaml has a `storage` map
+/// (tile_cells, stored_levels, levels_folder). Readers of format 2 refuse it by its number.
+inline constexpr int kTiledSceneFormatVersion = 3;
+/// The folder of a tiled scene holding levels k ≥ 1: `<scene>/levels/L<k>/<layer>.tiff`.
+inline constexpr const char* kSceneLevelsFolder = "levels";
 
 /// The scene type is hc::Scene (hc/common/scene.hpp); the pipeline names it too.
 using hc::Scene;
@@ -31,7 +37,14 @@ using hc::Scene;
 /// @throws hc::InputError if the folder exists, its parent does not, or a file cannot be written (names it and the
 ///         reason); std::invalid_argument if a layer's geometry differs from scene.geometry or
 ///         the depth layer is empty.
-void write_scene(const Scene& scene, const std::filesystem::path& scene_dir);
+///
+/// With `storage.tile_cells` > 0 (a multiple of 16, 16..4096) every float layer is a tiled TIFF
+/// (square tiles of that side; tiles of no data only are stored without bytes), the colour is
+/// `colour.tiff` (tiled RGB), the flags stay `flags.png`, format_version is 3 and scene.yaml
+/// records `storage` (tile_cells and stored_levels: how many levels write_scene_levels, lod.hpp,
+/// will put beside level 0; the caller writes them). @throws std::invalid_argument also for a
+/// tile side that is not a multiple of 16 in [16, 4096], or stored_levels < 0.
+void write_scene(const Scene& scene, const std::filesystem::path& scene_dir, const SceneStorage& storage = {});
 
 /// Name of the marker file every output folder written through StagingDir holds: it tells a
 /// later run that the folder is hapticloud's own output and may be replaced.
@@ -97,6 +110,11 @@ bool is_hapticloud_output(const std::filesystem::path& dir);
 /// and LoD options were not recorded as typed keys, defaults are assumed and a note says so).
 /// @throws hc::InputError naming the folder or file when scene.yaml or a layer is missing or
 ///         malformed, the format version is unknown, or a layer's size disagrees with the geometry.
-Scene load_scene(const std::filesystem::path& scene_dir);
+///
+/// Format 3 (tiled) loads the same way (every tile read). With `layers` false only scene.yaml
+/// is read: geometry, frame, friction model, options, provenance and `storage`, no layer (for
+/// LodPyramid::open_stored, which reads tiles on demand); the files scene.yaml lists must still
+/// exist.
+Scene load_scene(const std::filesystem::path& scene_dir, bool layers = true);
 
 }  // namespace hc::pipeline

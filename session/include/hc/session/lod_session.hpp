@@ -67,6 +67,11 @@ class LodSession {
              std::vector<ZoomAction> actions, haptics::SharedState& shared,
              const pipeline::SurfaceLayerOptions& layer_options, const pipeline::LodOptions& lod);
 
+  /// The same on a given pyramid (a tiled scene's stored levels, LodPyramid::open_stored, or
+  /// one shared with others). @throws as above; hc::InputError for a null pyramid.
+  LodSession(std::shared_ptr<pipeline::LodPyramid> pyramid, const haptics::SurfaceOptions& surface,
+             const Eigen::Vector3d& device_half_extent_m, int level, std::optional<std::pair<int, int>> origin,
+             std::vector<ZoomAction> actions, haptics::SharedState& shared);
   const HapticWindow& initial() const { return switches_.front().window; }
   /// Session time [s] of the next scripted action (infinity when none is left).
   double next_time() const;

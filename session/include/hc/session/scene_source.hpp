@@ -8,10 +8,12 @@
 #include "hc/common/scene.hpp"
 #include "hc/pipeline/cloud.hpp"
 #include "hc/pipeline/config.hpp"
+#include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <string>
 
@@ -27,6 +29,13 @@ struct SceneSourceOptions {
   /// that build levels on demand switch it off).
   std::optional<bool> lod_report;
   pipeline::ExistingOutput existing = pipeline::ExistingOutput::kRefuse;
+  /// For a tiled scene folder that stores its levels (scene_io.hpp format 3): open them from disk
+  /// (pipeline::LodPyramid::open_stored; OpenedScene::stored_levels) and load only the scene's
+  /// metadata, not its layers (issue 14: a scene larger than memory). Other inputs load as usual.
+  bool open_stored_levels = false;
+  /// With open_stored_levels: the haptic window side [samples] of the stored pyramid (0: the
+  /// scene's lod.window_cells).
+  int stored_window_cells = 0;
   pipeline::ProgressFn progress;
 };
 
@@ -36,6 +45,9 @@ struct OpenedScene {
   std::optional<pipeline::RunConfig> config;  ///< the run config, when the input was one
   std::optional<pipeline::Cloud> cloud;       ///< the filtered points, grid frame [m], when kept
   std::string description;                    ///< for messages: config name or scene folder name
+  /// With SceneSourceOptions::open_stored_levels on a tiled scene: its levels read from disk;
+  /// `scene` then holds geometry, frame and metadata but no layer. Else null.
+  std::shared_ptr<pipeline::LodPyramid> stored_levels;
 };
 
 /// True if `input` names a run config (a regular file ending in .yaml or .yml).

@@ -115,8 +115,12 @@ struct TouchSessionResult {
 /// @throws hc::ConfigError from options.validate(), for a level or window out of the scene's
 ///         pyramid, or for a region layer with levels of detail; hc::ResourceError for more than
 ///         5e7 ticks; hc::InputError for a scene without depth. Real-time: no (it runs the loop).
+/// With `stored_levels` (a tiled scene's levels on disk, LodPyramid::open_stored; issue 14) the
+/// session renders windows of that pyramid and `scene` needs no layers: levels of detail are
+/// then always on (without --level the coarsest level is rendered).
 TouchSessionResult run_touch_session(const Scene& scene, const TouchSessionOptions& options,
-                                     const TouchSessionHooks& hooks = {});
+                                     const TouchSessionHooks& hooks = {},
+                                     std::shared_ptr<pipeline::LodPyramid> stored_levels = nullptr);
 
 /// Writes a session into the folder `dir` (made if missing): trace.csv (one row per tick:
 /// t_s from the first tick, HIP, proxy and force, contact, sticking, μ_d, μ_s, β, iterations,

@@ -1,0 +1,19 @@
+#pragma once
+// Tiled layer files of a scene (issue 14): shared by scene_io.cpp (level 0) and lod.cpp (the
+// stored levels). Private to hc::pipeline.
+
+#include "image_io.hpp"
+
+#include "hc/common/height_field.hpp"
+
+#include <filesystem>
+
+namespace hc::pipeline::detail {
+
+/// Writes one layer of grid `g` (rows·cols samples, row-major, × 3 bytes for RGB) as a tiled
+/// TIFF (write_tiled_tiff: square tiles of `tile_cells`, all-NaN tiles sparse).
+/// @throws hc::InputError naming the file and why (no space left, a libtiff error).
+void write_tiled_layer(const std::filesystem::path& file, const void* values, const GridGeometry& g, int tile_cells,
+                       TileSamples samples);
+
+}  // namespace hc::pipeline::detail
