@@ -1,0 +1,357 @@
+// The tiled scene on disk (issue 14): layer TIFFs in square tiles with sparse no-data tiles
+// (scene format 3), every level of detail stored beside level 0, and LodPyramid::open_stored,
+// which reads only the tiles a window overlaps.
+// Oracles: libtiff read directly (not through the project's readers) for the files; the
+// in-memory pyramid of the same level 0 (lod_test.cpp checks its levels against brute force)
+// for the stored levels and windows; tile counts from the window's geometry.
+
+#include "height_field_bits.hpp"
+#include "test_paths.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/run.hpp"
+#include "hc/pipeline/scene_io.hpp"
+
+#include <gtest/gtest.h>
+#include <tiffio.h>
+
+#include <array>
+#include <cmath>
+#include <set>
+#include <cstdint>
+#include <filesystem>
+#include <limits>
+#include <memory>
+#include <random>
+#include <string>
+#include <vector>
+
+namespace {
+
+namespace fs = std::filesystem;
+using hc::GridGeometry;
+using hc::HeightField;
+using hc::Scene;
+using hc::SceneStorage;
+using hc::pipeline::LodLevel;
+using hc::pipeline::LodOptions;
+using hc::pipeline::LodPyramid;
+using hc::pipeline::SurfaceLayerOptions;
+using hc::test::differing_bits;
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+/// A scene of rows × cols samples: a wavy surface with random relief, no data in the block
+/// [hole_r0, hole_r0 + hole) × [hole_c0, hole_c0 + hole) and along the last column; colour
+/// from the position; layers (envelope, texture, μ) and the cross-check error as smooth fields.
+Scene wavy_scene(int rows, int cols, int hole_r0, int hole_c0, int hole) {
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<float> noise(-1e-4f, 1e-4f);
+  Scene s;
+  s.geometry = GridGeometry{rows, cols, -0.1, -0.05, 0.001};
+  HeightField d(s.geometry), env(s.geometry), tex(s.geometry), mud(s.geometry), mus(s.geometry), err(s.geometry);
+  s.layers.colour_rgb8.assign(3 * s.geometry.cell_count(), 0);
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < cols; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(c);
+      const bool hole_cell = (r >= hole_r0 && r < hole_r0 + hole && c >= hole_c0 && c < hole_c0 + hole) || c == cols - 1;
+      const float e = static_cast<float>(0.01 * std::sin(0.05 * r) * std::cos(0.03 * c));
+      const float t = noise(rng);
+      d.data()[i] = hole_cell ? kNaN : e + t;
+      env.data()[i] = hole_cell ? kNaN : e;
+      tex.data()[i] = hole_cell ? kNaN : t;
+      mud.data()[i] = hole_cell ? kNaN : 0.3f + 0.1f * static_cast<float>(std::sin(0.2 * c));
+      mus.data()[i] = hole_cell ? kNaN : 0.4f;
+      err.data()[i] = hole_cell ? kNaN : 1e-4f * static_cast<float>(r % 7);
+      if (!hole_cell) {
+        s.layers.colour_rgb8[3 * i] = static_cast<std::uint8_t>(r % 256);
+        s.layers.colour_rgb8[3 * i + 1] = static_cast<std::uint8_t>(c % 256);
+        s.layers.colour_rgb8[3 * i + 2] = static_cast<std::uint8_t>((r + c) % 256);
+      }
+    }
+  }
+  s.layers.depth = std::move(d);
+  s.layers.envelope = std::move(env);
+  s.layers.texture = std::move(tex);
+  s.layers.mu_d = std::move(mud);
+  s.layers.mu_s = std::move(mus);
+  s.layers.cell_error = std::move(err);
+  s.lod.min_cells = 16;
+  s.lod.window_cells = 40;
+  return s;
+}
+
+std::shared_ptr<LodPyramid> memory_pyramid(const Scene& s) {
+  LodLevel l0;
+  l0.depth_m = s.layers.depth;
+  l0.envelope_m = s.layers.envelope;
+  l0.texture_m = s.layers.texture;
+  l0.mu_d = s.layers.mu_d;
+  l0.mu_s = s.layers.mu_s;
+  l0.has_layers = true;
+  l0.cell_error_m = s.layers.cell_error;
+  l0.colour_rgb8 = s.layers.colour_rgb8;
+  return std::make_shared<LodPyramid>(std::move(l0), s.layer_options, s.lod);
+}
+
+/// Writes `s` as a tiled scene with every level of its in-memory pyramid.
+fs::path write_tiled(const Scene& s, const fs::path& dir, int tile) {
+  auto mem = memory_pyramid(s);
+  const fs::path scene_dir = dir / "scene";
+  hc::pipeline::write_scene(s, scene_dir, SceneStorage{tile, mem->level_count()});
+  hc::pipeline::write_scene_levels(*mem, scene_dir, tile);
+  return scene_dir;
+}
+
+/// A tiled float TIFF read with libtiff directly: values (NaN for a tile without bytes) and
+/// the indices of the tiles without bytes.
+struct RawTiled {
+  int width = 0, height = 0, tile = 0;
+  std::vector<float> v;
+  std::vector<int> sparse;
+};
+RawTiled read_raw_tiled(const fs::path& file) {
+  RawTiled out;
+  TIFF* t = TIFFOpen(file.c_str(), "r");
+  EXPECT_NE(t, nullptr) << file;
+  if (t == nullptr) return out;
+  EXPECT_TRUE(TIFFIsTiled(t)) << file;
+  std::uint32_t w = 0, h = 0, tw = 0, th = 0;
+  TIFFGetField(t, TIFFTAG_IMAGEWIDTH, &w);
+  TIFFGetField(t, TIFFTAG_IMAGELENGTH, &h);
+  TIFFGetField(t, TIFFTAG_TILEWIDTH, &tw);
+  TIFFGetField(t, TIFFTAG_TILELENGTH, &th);
+  out.width = static_cast<int>(w);
+  out.height = static_cast<int>(h);
+  out.tile = static_cast<int>(tw);
+  EXPECT_EQ(tw, th);
+  out.v.assign(static_cast<std::size_t>(w) * h, 0.0f);
+  std::vector<float> buf(static_cast<std::size_t>(tw) * th);
+  for (std::uint32_t y = 0; y < h; y += th) {
+    for (std::uint32_t x = 0; x < w; x += tw) {
+      const auto idx = TIFFComputeTile(t, x, y, 0, 0);
+      const bool none = TIFFGetStrileByteCount(t, idx) == 0;
+      if (none) {
+        out.sparse.push_back(static_cast<int>(idx));
+        std::fill(buf.begin(), buf.end(), kNaN);
+      } else {
+        EXPECT_GE(TIFFReadTile(t, buf.data(), x, y, 0, 0), 0) << file;
+      }
+      for (std::uint32_t r = 0; r < th && y + r < h; ++r)
+        for (std::uint32_t c = 0; c < tw && x + c < w; ++c) out.v[(y + r) * w + x + c] = buf[r * tw + c];
+    }
+  }
+  TIFFClose(t);
+  return out;
+}
+
+std::size_t differing_from(const HeightField& f, const std::vector<float>& v) {
+  return differing_bits(f, [&] {
+    HeightField g(f.geometry());
+    std::copy(v.begin(), v.end(), g.data());
+    return g;
+  }());
+}
+
+TEST(TiledScene, LayersAreTiledTiffsWithNoDataTilesStoredWithoutBytesAndLoadAsTheWholeScene) {
+  // 150 × 97 with tiles of 32: partial edge tiles in both directions; the hole covers the whole
+  // tile (row 2, col 1) = samples [64, 96) × [32, 64), so that tile holds no data.
+  const Scene s = wavy_scene(150, 97, 64, 32, 32);
+  const fs::path dir = hc::test::temp_dir("scene");
+  const fs::path tiled = write_tiled(s, dir, 32);
+  hc::pipeline::write_scene(s, dir / "whole");
+
+  const RawTiled depth = read_raw_tiled(tiled / "depth.tiff");
+  ASSERT_EQ(depth.width, 97);
+  ASSERT_EQ(depth.height, 150);
+  EXPECT_EQ(depth.tile, 32);
+  EXPECT_EQ(differing_from(s.layers.depth, depth.v), 0u);
+  // Tiles are numbered row by row: 4 across (97 / 32), so tile (2, 1) is number 9; the tiles of the
+  // last column (x from 96) hold only the NaN last column and are sparse too.
+  std::vector<int> expected_sparse = {3, 7, 9, 11, 15, 19};
+  EXPECT_EQ(depth.sparse, expected_sparse);
+  for (const char* name : {"envelope", "texture", "mu_d", "mu_s", "cell_error"}) {
+    EXPECT_EQ(read_raw_tiled(tiled / (std::string(name) + ".tiff")).sparse, expected_sparse) << name;
+  }
+
+  const Scene a = hc::pipeline::load_scene(tiled);
+  const Scene b = hc::pipeline::load_scene(dir / "whole");
+  EXPECT_EQ(a.format_version, hc::pipeline::kTiledSceneFormatVersion);
+  EXPECT_EQ(b.format_version, hc::pipeline::kSceneFormatVersion);
+  EXPECT_EQ(a.storage, (SceneStorage{32, memory_pyramid(s)->level_count()}));
+  EXPECT_EQ(b.storage, SceneStorage{});
+  EXPECT_EQ(differing_bits(a.layers.depth, b.layers.depth), 0u);
+  EXPECT_EQ(differing_bits(a.layers.envelope, b.layers.envelope), 0u);
+  EXPECT_EQ(differing_bits(a.layers.texture, b.layers.texture), 0u);
+  EXPECT_EQ(differing_bits(a.layers.mu_d, b.layers.mu_d), 0u);
+  EXPECT_EQ(differing_bits(a.layers.mu_s, b.layers.mu_s), 0u);
+  EXPECT_EQ(differing_bits(a.layers.cell_error, b.layers.cell_error), 0u);
+  EXPECT_EQ(a.layers.colour_rgb8, s.layers.colour_rgb8);
+  EXPECT_EQ(a.geometry, s.geometry);
+
+  // Metadata only: no layer, the storage record.
+  const Scene h = hc::pipeline::load_scene(tiled, false);
+  EXPECT_EQ(h.layers.depth.rows(), 0);
+  EXPECT_EQ(h.geometry, s.geometry);
+  EXPECT_EQ(h.storage, a.storage);
+}
+
+TEST(TiledScene, StoredWindowsAndLevelsEqualTheInMemoryPyramidAndReadOnlyTheirTiles) {
+  const Scene s = wavy_scene(300, 211, 96, 48, 100);
+  const fs::path dir = hc::test::temp_dir("scene");
+  constexpr int kTile = 48;
+  const fs::path scene_dir = write_tiled(s, dir, kTile);
+  auto mem = memory_pyramid(s);
+  auto stored = LodPyramid::open_stored(scene_dir, s.lod);
+  ASSERT_TRUE(stored->stored());
+  ASSERT_EQ(stored->level_count(), mem->level_count());
+  ASSERT_GE(stored->level_count(), 4);
+  // The hole [96, 196) × [48, 148) covers level 0's tiles (2, 1), (2, 2), (3, 1) and (3, 2) whole:
+  // they are stored without bytes and read back as no data.
+  EXPECT_EQ(read_raw_tiled(scene_dir / "depth.tiff").sparse.size(), 4u);
+  EXPECT_EQ(stored->tiles_read(), 0u) << "opening reads directories, not tiles";
+
+  std::mt19937 rng(11);
+  const int layer_files = 7;  // depth, envelope, texture, mu_d, mu_s, cell_error, colour
+  int windows = 0;
+  std::set<std::array<int, 5>> asked;
+  for (int level = 0; level < stored->level_count(); ++level) {
+    const GridGeometry& g = stored->geometry(level);
+    ASSERT_EQ(g, mem->geometry(level)) << "level " << level;
+    for (int k = 0; k < 12; ++k) {
+      const int rows = std::min(g.rows, 2 + static_cast<int>(rng() % 60));
+      const int cols = std::min(g.cols, 2 + static_cast<int>(rng() % 60));
+      const int row0 = static_cast<int>(rng() % static_cast<unsigned>(g.rows - rows + 1));
+      const int col0 = static_cast<int>(rng() % static_cast<unsigned>(g.cols - cols + 1));
+      const std::uint64_t before = stored->tiles_read();
+      const auto w = stored->window(level, row0, col0, rows, cols);
+      const std::uint64_t read = stored->tiles_read() - before;
+      const auto m = mem->window(level, row0, col0, rows, cols);
+      SCOPED_TRACE("level " + std::to_string(level) + " window " + std::to_string(rows) + "x" + std::to_string(cols) +
+                   " at " + std::to_string(row0) + "," + std::to_string(col0));
+      EXPECT_EQ(differing_bits(w->depth_m, m->depth_m), 0u);
+      EXPECT_EQ(differing_bits(w->envelope_m, m->envelope_m), 0u);
+      EXPECT_EQ(differing_bits(w->texture_m, m->texture_m), 0u);
+      EXPECT_EQ(differing_bits(w->mu_d, m->mu_d), 0u);
+      EXPECT_EQ(differing_bits(w->mu_s, m->mu_s), 0u);
+      EXPECT_EQ(differing_bits(w->cell_error_m, m->cell_error_m), 0u);
+      EXPECT_EQ(w->colour_rgb8, m->colour_rgb8);
+      // At most the tiles the window overlaps, in each layer file (none again for a cached window).
+      const int tiles_overlapped = ((row0 + rows - 1) / kTile - row0 / kTile + 1) * ((col0 + cols - 1) / kTile - col0 / kTile + 1);
+      EXPECT_LE(read, static_cast<std::uint64_t>(tiles_overlapped * layer_files));
+      const bool repeat = !asked.insert({level, row0, col0, rows, cols}).second;
+      if (repeat) {
+        EXPECT_EQ(read, 0u) << "a window asked again comes from the cache";
+      } else {
+        EXPECT_GE(read, 1u);
+      }
+      ++windows;
+    }
+    // The whole level, from its tiles.
+    const auto a = stored->level(level);
+    const auto b = mem->level(level);
+    EXPECT_EQ(differing_bits(a->depth_m, b->depth_m), 0u) << "level " << level;
+    EXPECT_EQ(differing_bits(a->mu_d, b->mu_d), 0u) << "level " << level;
+    EXPECT_EQ(a->colour_rgb8, b->colour_rgb8) << "level " << level;
+  }
+  EXPECT_EQ(windows, 12 * stored->level_count());
+}
+
+TEST(TiledScene, ALevelLargerThanTheBudgetIsRefusedWholeButItsWindowsAreRead) {
+  const Scene s = wavy_scene(300, 211, 96, 48, 100);
+  const fs::path scene_dir = write_tiled(s, hc::test::temp_dir("scene"), 64);
+  LodOptions small = s.lod;
+  small.memory_budget_mb = 0.5;  // level 0 with its layers and colour is 300·211·27 B = 1.6 MB
+  auto stored = LodPyramid::open_stored(scene_dir, small);
+  try {
+    (void)stored->level(0);
+    FAIL() << "level 0 is larger than the budget";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("lod.memory_budget_mb"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("300 x 211"), std::string::npos) << e.what();
+  }
+  const auto w = stored->window(0, 10, 10, 40, 40);
+  EXPECT_EQ(w->depth_m.rows(), 40);
+  EXPECT_LE(stored->cache_stats().bytes, stored->cache_stats().budget_bytes);
+}
+
+TEST(TiledScene, AMissingOrForeignLevelFileAndAnUntiledSceneAreNamedErrors) {
+  const Scene s = wavy_scene(120, 90, 0, 0, 0);
+  const fs::path dir = hc::test::temp_dir("scene");
+  const fs::path scene_dir = write_tiled(s, dir, 32);
+  fs::remove(scene_dir / "levels" / "L2" / "depth.tiff");
+  try {
+    (void)LodPyramid::open_stored(scene_dir, s.lod);
+    FAIL() << "a missing level file must be refused at open";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("L2/depth.tiff"), std::string::npos) << e.what();
+  }
+  // Level 1's depth in the place of level 2's: its size is named.
+  fs::copy_file(scene_dir / "levels" / "L1" / "depth.tiff", scene_dir / "levels" / "L2" / "depth.tiff");
+  try {
+    (void)LodPyramid::open_stored(scene_dir, s.lod);
+    FAIL() << "a level file of the wrong size must be refused";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("expected level 2"), std::string::npos) << e.what();
+  }
+  hc::pipeline::write_scene(s, dir / "whole");
+  try {
+    (void)LodPyramid::open_stored(dir / "whole", s.lod);
+    FAIL() << "a format-2 scene stores no levels";
+  } catch (const hc::InputError& e) {
+    EXPECT_NE(std::string(e.what()).find("scale.scene_tiles"), std::string::npos) << e.what();
+  }
+}
+
+TEST(TiledScene, TheRunWritesATiledSceneAboveTheThresholdThatLoadsAsTheWholeOne) {
+  hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/happy_buddha.yaml";
+  const hc::pipeline::RunConfig whole_cfg = hc::pipeline::load_run_config(cfg, {"grid.n=400", "lod.report=false"});
+  const hc::pipeline::RunConfig tiled_cfg =
+      hc::pipeline::load_run_config(cfg, {"grid.n=400", "lod.report=false", "scale.scene_tiles_above_cells=1000",
+                                          "scale.scene_tile_cells=64"});
+  EXPECT_FALSE(hc::pipeline::writes_tiled_scene(whole_cfg.scale, GridGeometry{400, 400, 0, 0, 1}));
+  EXPECT_TRUE(hc::pipeline::writes_tiled_scene(tiled_cfg.scale, GridGeometry{400, 400, 0, 0, 1}));
+  const hc::pipeline::BuiltScene built = hc::pipeline::build_scene(whole_cfg);
+  const fs::path dir = hc::test::temp_dir("runs");
+  hc::pipeline::write_run(built, whole_cfg, dir / "whole");
+  hc::pipeline::write_run(built, tiled_cfg, dir / "tiled");
+  const Scene a = hc::pipeline::load_scene(dir / "tiled" / "scene");
+  const Scene b = hc::pipeline::load_scene(dir / "whole" / "scene");
+  ASSERT_EQ(a.format_version, hc::pipeline::kTiledSceneFormatVersion);
+  ASSERT_EQ(b.format_version, hc::pipeline::kSceneFormatVersion);
+  for (const auto& [x, y] : {std::pair{&a.layers.depth, &b.layers.depth}, {&a.layers.texture, &b.layers.texture},
+                             {&a.layers.mu_d, &b.layers.mu_d}, {&a.layers.cell_error, &b.layers.cell_error}}) {
+    EXPECT_EQ(differing_bits(*x, *y), 0u);
+  }
+  // The stored levels are the levels of the whole scene's pyramid.
+  auto stored = LodPyramid::open_stored(dir / "tiled" / "scene", a.lod);
+  auto mem = LodPyramid::from_scene(Scene(b), b.layer_options, b.lod);
+  ASSERT_EQ(stored->level_count(), mem->level_count());
+  EXPECT_EQ(a.storage.stored_levels, mem->level_count());
+  for (int level = 0; level < stored->level_count(); ++level) {
+    const GridGeometry& g = stored->geometry(level);
+    const auto w = stored->window(level, g.rows / 3, g.cols / 4, 200, 200);
+    const auto m = mem->window(level, g.rows / 3, g.cols / 4, 200, 200);
+    EXPECT_EQ(differing_bits(w->depth_m, m->depth_m), 0u) << "level " << level;
+    EXPECT_EQ(differing_bits(w->texture_m, m->texture_m), 0u) << "level " << level;
+    EXPECT_EQ(differing_bits(w->mu_d, m->mu_d), 0u) << "level " << level;
+    EXPECT_EQ(differing_bits(w->cell_error_m, m->cell_error_m), 0u) << "level " << level;
+  }
+}
+
+TEST(TiledScene, TileSidesThatAreNotMultiplesOfSixteenAreRefused) {
+  const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/sinusoid.yaml";
+  try {
+    (void)hc::pipeline::load_run_config(cfg, {"scale.scene_tile_cells=100"});
+    FAIL() << "100 is not a multiple of 16";
+  } catch (const hc::ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("scale.scene_tile_cells"), std::string::npos) << e.what();
+  }
+  const Scene s = wavy_scene(40, 40, 0, 0, 0);
+  EXPECT_THROW(hc::pipeline::write_scene(s, hc::test::temp_dir("x") / "scene", SceneStorage{40, 1}), std::invalid_argument);
+}
+
+}  // namespace
