@@ -20,14 +20,6 @@ namespace {
 using detail::Clock;
 using detail::seconds_since;
 
-/// "L<k>": the folder of stored level k in a tiled scene (built with append: GCC 12's -Wrestrict
-/// misfires on a literal + std::string at -O3).
-std::string level_folder_name(int level) {
-  std::string name = "L";
-  name.append(std::to_string(level));
-  return name;
-}
-
 std::size_t field_bytes(const HeightField& f) { return f.values().size() * sizeof(float); }
 
 void validate_options(const LodOptions& o) {
@@ -260,9 +252,7 @@ struct LodPyramid::Stored {
   std::vector<std::array<std::unique_ptr<detail::TiledTiffReader>, kKinds>> readers;
 
   std::filesystem::path file(int level, int kind) const {
-    const std::string name = std::string(kNames[static_cast<std::size_t>(kind)]) + ".tiff";
-    if (level == 0) return dir / name;
-    return dir / kSceneLevelsFolder / level_folder_name(level) / name;
+    return detail::stored_layer_file(dir, level, kNames[static_cast<std::size_t>(kind)]);
   }
   const detail::TiledTiffReader& reader(int level, int kind) {
     std::lock_guard<std::mutex> lock(mutex);
@@ -681,7 +671,7 @@ std::uint64_t write_scene_levels(LodPyramid& pyramid, const std::filesystem::pat
   if (pyramid.level_count() > 1) make_dir(root);
   for (int l = 1; l < pyramid.level_count(); ++l) {
     const std::shared_ptr<const LodLevel> lvl = pyramid.level(l);
-    const fs::path dir = root / level_folder_name(l);
+    const fs::path dir = detail::stored_layer_file(scene_dir, l, "depth").parent_path();
     make_dir(dir);
     const GridGeometry& g = lvl->depth_m.geometry();
     const auto write = [&](const char* name, const HeightField& f) {

@@ -3,6 +3,7 @@
 #include "hc/pipeline/scene_io.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 
 #include <yaml-cpp/yaml.h>
@@ -59,6 +60,14 @@ void detail::write_tiled_layer(const fs::path& file, const void* values, const G
     throw InputError(file.string() + ": cannot write the tiled TIFF layer: " +
                      (space.rfind("no space", 0) == 0 ? space : why));
   }
+}
+
+fs::path detail::stored_layer_file(const fs::path& scene_dir, int level, const std::string& name) {
+  if (level == 0) return scene_dir / (name + ".tiff");
+  // Built with append: GCC 12's -Wrestrict misfires on a literal + std::string at -O3.
+  std::string folder = "L";
+  folder.append(std::to_string(level));
+  return scene_dir / kSceneLevelsFolder / folder / (name + ".tiff");
 }
 
 namespace {
@@ -191,38 +200,13 @@ void write_text_file(const fs::path& file, const std::string& text) {
   }
 }
 
-}  // namespace
-
-void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStorage& storage) {
+/// scene.yaml of a scene folder: format, storage, grid, frame, the layer files (`<name>.tiff`
+/// for each of `layers`), flags and colour files (when not empty), friction model, options,
+/// provenance and the resolved config.
+std::string scene_yaml_text(const Scene& scene, const SceneStorage& storage, const std::vector<std::string>& layers,
+                            const std::string& flags_file, const std::string& colour_file) {
   const GridGeometry& g = scene.geometry;
   const bool tiled = storage.tile_cells != 0;
-  if (tiled && (storage.tile_cells < 16 || storage.tile_cells > 4096 || storage.tile_cells % 16 != 0)) {
-    throw std::invalid_argument("write_scene: tile side " + std::to_string(storage.tile_cells) +
-                                ": expected a multiple of 16 in [16, 4096]");
-  }
-  if (storage.stored_levels < 0) throw std::invalid_argument("write_scene: stored_levels < 0");
-  if (scene.layers.depth.rows() == 0) throw std::invalid_argument("write_scene: the scene has no depth layer");
-  for_each_layer(scene.layers, [&](const char* name, const HeightField& layer) {
-    if (layer.rows() != 0 && !(layer.geometry() == g)) {
-      throw std::invalid_argument(std::string("write_scene: layer '") + name +
-                                  "' has a different grid geometry than the scene");
-    }
-  });
-  if (!scene.layers.flags.empty() && scene.layers.flags.size() != g.cell_count()) {
-    throw std::invalid_argument("write_scene: flags hold " + std::to_string(scene.layers.flags.size()) +
-                                " cells, the grid " + std::to_string(g.cell_count()));
-  }
-  if (!scene.layers.colour_rgb8.empty() && scene.layers.colour_rgb8.size() != 3 * g.cell_count()) {
-    throw std::invalid_argument("write_scene: colour holds " + std::to_string(scene.layers.colour_rgb8.size()) +
-                                " bytes, expected 3 per cell (" + std::to_string(3 * g.cell_count()) + ")");
-  }
-  std::error_code ec;
-  if (fs::exists(scene_dir)) throw InputError(scene_dir.string() + ": the scene folder already exists");
-  // Not create_directories: a run's staging folder removed by the interrupt watcher must not be
-  // recreated by a write still under way (remove_live_staging_dirs).
-  fs::create_directory(scene_dir, ec);
-  if (ec) throw InputError(scene_dir.string() + ": cannot create the scene folder: " + ec.message());
-
   YAML::Emitter y;
   y.SetDoublePrecision(17);
   y << YAML::BeginMap;
@@ -255,45 +239,14 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
   }
   y << YAML::EndSeq;
   y << YAML::Key << "layers" << YAML::Value << YAML::BeginMap;
-  for_each_layer(scene.layers, [&](const char* name, const HeightField& layer) {
-    if (layer.rows() == 0) return;
-    y << YAML::Key << name << YAML::Value << (std::string(name) + ".tiff");
-    const fs::path file = scene_dir / (std::string(name) + ".tiff");
-    if (tiled) {
-      detail::write_tiled_layer(file, layer.data(), g, storage.tile_cells, detail::TileSamples::kFloat32);
-    } else {
-      write_float_tiff(layer, file);
-    }
-  });
+  for (const std::string& name : layers) y << YAML::Key << name << YAML::Value << (name + ".tiff");
   y << YAML::EndMap;
-  if (!scene.layers.flags.empty()) {
-    errno = 0;
-    const std::string why =
-        detail::write_png(scene_dir / "flags.png", scene.layers.flags.data(), g.cols, g.rows, detail::PixelFormat::kGray);
-    if (!why.empty()) {
-      const std::string space = write_failure_reason(scene_dir / "flags.png", g.cell_count());
-      throw InputError((scene_dir / "flags.png").string() + ": cannot write the flags layer: " +
-                       (space.rfind("no space", 0) == 0 ? space : why));
-    }
-    y << YAML::Key << "flags" << YAML::Value << "flags.png";
+  if (!flags_file.empty()) {
+    y << YAML::Key << "flags" << YAML::Value << flags_file;
     y << YAML::Key << "flag_codes" << YAML::Value
       << "0 empty, 1 measured, 2 splatted, 3 see-through (no data), 4 filled, 5 upsampled";
   }
-  if (!scene.layers.colour_rgb8.empty() && tiled) {
-    detail::write_tiled_layer(scene_dir / "colour.tiff", scene.layers.colour_rgb8.data(), g, storage.tile_cells,
-                      detail::TileSamples::kRgb8);
-    y << YAML::Key << "colour" << YAML::Value << "colour.tiff";
-  } else if (!scene.layers.colour_rgb8.empty()) {
-    errno = 0;
-    const std::string why = detail::write_png(scene_dir / "colour.png", scene.layers.colour_rgb8.data(), g.cols, g.rows,
-                                              detail::PixelFormat::kRgb);
-    if (!why.empty()) {
-      const std::string space = write_failure_reason(scene_dir / "colour.png", 3 * g.cell_count());
-      throw InputError((scene_dir / "colour.png").string() + ": cannot write the colour layer: " +
-                       (space.rfind("no space", 0) == 0 ? space : why));
-    }
-    y << YAML::Key << "colour" << YAML::Value << "colour.png";
-  }
+  if (!colour_file.empty()) y << YAML::Key << "colour" << YAML::Value << colour_file;
   if (scene.friction_model) y << YAML::Key << "friction_model" << YAML::Value << to_string(*scene.friction_model);
   emit_layer_options(y, scene.layer_options);
   emit_lod_options(y, scene.lod);
@@ -308,7 +261,190 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
     std::istringstream is(scene.provenance.resolved_config_yaml);
     for (std::string line; std::getline(is, line);) text += "  " + line + "\n";
   }
-  write_text_file(scene_dir / "scene.yaml", text);
+  return text;
+}
+
+}  // namespace
+
+void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStorage& storage) {
+  const GridGeometry& g = scene.geometry;
+  const bool tiled = storage.tile_cells != 0;
+  if (tiled && (storage.tile_cells < 16 || storage.tile_cells > 4096 || storage.tile_cells % 16 != 0)) {
+    throw std::invalid_argument("write_scene: tile side " + std::to_string(storage.tile_cells) +
+                                ": expected a multiple of 16 in [16, 4096]");
+  }
+  if (storage.stored_levels < 0) throw std::invalid_argument("write_scene: stored_levels < 0");
+  if (scene.layers.depth.rows() == 0) throw std::invalid_argument("write_scene: the scene has no depth layer");
+  for_each_layer(scene.layers, [&](const char* name, const HeightField& layer) {
+    if (layer.rows() != 0 && !(layer.geometry() == g)) {
+      throw std::invalid_argument(std::string("write_scene: layer '") + name +
+                                  "' has a different grid geometry than the scene");
+    }
+  });
+  if (!scene.layers.flags.empty() && scene.layers.flags.size() != g.cell_count()) {
+    throw std::invalid_argument("write_scene: flags hold " + std::to_string(scene.layers.flags.size()) +
+                                " cells, the grid " + std::to_string(g.cell_count()));
+  }
+  if (!scene.layers.colour_rgb8.empty() && scene.layers.colour_rgb8.size() != 3 * g.cell_count()) {
+    throw std::invalid_argument("write_scene: colour holds " + std::to_string(scene.layers.colour_rgb8.size()) +
+                                " bytes, expected 3 per cell (" + std::to_string(3 * g.cell_count()) + ")");
+  }
+  std::error_code ec;
+  if (fs::exists(scene_dir)) throw InputError(scene_dir.string() + ": the scene folder already exists");
+  // Not create_directories: a run's staging folder removed by the interrupt watcher must not be
+  // recreated by a write still under way (remove_live_staging_dirs).
+  fs::create_directory(scene_dir, ec);
+  if (ec) throw InputError(scene_dir.string() + ": cannot create the scene folder: " + ec.message());
+
+  std::vector<std::string> layer_files;
+  for_each_layer(scene.layers, [&](const char* name, const HeightField& layer) {
+    if (layer.rows() == 0) return;
+    layer_files.emplace_back(name);
+    const fs::path file = scene_dir / (std::string(name) + ".tiff");
+    if (tiled) {
+      detail::write_tiled_layer(file, layer.data(), g, storage.tile_cells, detail::TileSamples::kFloat32);
+    } else {
+      write_float_tiff(layer, file);
+    }
+  });
+  std::string flags_file, colour_file;
+  if (!scene.layers.flags.empty()) {
+    errno = 0;
+    const std::string why =
+        detail::write_png(scene_dir / "flags.png", scene.layers.flags.data(), g.cols, g.rows, detail::PixelFormat::kGray);
+    if (!why.empty()) {
+      const std::string space = write_failure_reason(scene_dir / "flags.png", g.cell_count());
+      throw InputError((scene_dir / "flags.png").string() + ": cannot write the flags layer: " +
+                       (space.rfind("no space", 0) == 0 ? space : why));
+    }
+    flags_file = "flags.png";
+  }
+  if (!scene.layers.colour_rgb8.empty() && tiled) {
+    detail::write_tiled_layer(scene_dir / "colour.tiff", scene.layers.colour_rgb8.data(), g, storage.tile_cells,
+                              detail::TileSamples::kRgb8);
+    colour_file = "colour.tiff";
+  } else if (!scene.layers.colour_rgb8.empty()) {
+    errno = 0;
+    const std::string why = detail::write_png(scene_dir / "colour.png", scene.layers.colour_rgb8.data(), g.cols, g.rows,
+                                              detail::PixelFormat::kRgb);
+    if (!why.empty()) {
+      const std::string space = write_failure_reason(scene_dir / "colour.png", 3 * g.cell_count());
+      throw InputError((scene_dir / "colour.png").string() + ": cannot write the colour layer: " +
+                       (space.rfind("no space", 0) == 0 ? space : why));
+    }
+    colour_file = "colour.png";
+  }
+  write_text_file(scene_dir / "scene.yaml", scene_yaml_text(scene, storage, layer_files, flags_file, colour_file));
+}
+
+struct TiledSceneWriter::Impl {
+  fs::path dir;
+  Scene header;
+  SceneStorage storage;
+  Contents contents;
+  std::vector<std::string> names;                 // layer files every level holds
+  std::vector<GridGeometry> geometries;           // per level
+  std::vector<std::vector<std::unique_ptr<detail::TiledTiffWriter>>> files;  // [level][name]
+  std::uint64_t bytes = 0;
+  bool finished = false;
+};
+
+TiledSceneWriter::TiledSceneWriter(const fs::path& scene_dir, const Scene& header, const SceneStorage& storage,
+                                   const Contents& contents)
+    : impl_(std::make_unique<Impl>()) {
+  Impl& m = *impl_;
+  const GridGeometry& g = header.geometry;
+  if (storage.tile_cells < 16 || storage.tile_cells > 4096 || storage.tile_cells % 16 != 0) {
+    throw std::invalid_argument("TiledSceneWriter: tile side " + std::to_string(storage.tile_cells) +
+                                ": expected a multiple of 16 in [16, 4096]");
+  }
+  if (g.rows < 2 || g.cols < 2 || !(g.cell_size_m > 0.0)) {
+    throw std::invalid_argument("TiledSceneWriter: level 0 must have at least 2 x 2 samples and a cell size > 0");
+  }
+  const int max_levels = lod_level_count(g, 2);
+  if (storage.stored_levels < 1 || storage.stored_levels > max_levels) {
+    throw std::invalid_argument("TiledSceneWriter: stored_levels " + std::to_string(storage.stored_levels) +
+                                ": expected 1.." + std::to_string(max_levels));
+  }
+  m.dir = scene_dir;
+  m.header = header;
+  m.header.layers = SceneLayers{};
+  m.storage = storage;
+  m.contents = contents;
+  m.names = {"depth"};
+  if (contents.surface_layers) m.names.insert(m.names.end(), {"envelope", "texture", "mu_d", "mu_s"});
+  if (contents.cell_error) m.names.emplace_back("cell_error");
+  if (contents.colour) m.names.emplace_back("colour");
+  if (fs::exists(scene_dir)) throw InputError(scene_dir.string() + ": the scene folder already exists");
+  std::error_code ec;
+  fs::create_directory(scene_dir, ec);
+  if (ec) throw InputError(scene_dir.string() + ": cannot create the scene folder: " + ec.message());
+  for (int l = 0; l < storage.stored_levels; ++l) {
+    m.geometries.push_back(lod_level_geometry(g, l));
+    const GridGeometry& lg = m.geometries.back();
+    if (l == 1) fs::create_directory(scene_dir / kSceneLevelsFolder, ec);
+    if (l >= 1 && !ec) fs::create_directory(detail::stored_layer_file(scene_dir, l, "depth").parent_path(), ec);
+    if (ec) throw InputError(scene_dir.string() + ": cannot create the folder of level " + std::to_string(l) + ": " + ec.message());
+    auto& level_files = m.files.emplace_back();
+    for (const std::string& name : m.names) {
+      const fs::path file = detail::stored_layer_file(scene_dir, l, name);
+      auto w = std::make_unique<detail::TiledTiffWriter>();
+      const std::string why = w->open(file, lg.cols, lg.rows, storage.tile_cells,
+                                      name == "colour" ? detail::TileSamples::kRgb8 : detail::TileSamples::kFloat32);
+      if (!why.empty()) throw InputError(file.string() + ": cannot create the tiled layer: " + why);
+      level_files.push_back(std::move(w));
+    }
+  }
+}
+
+TiledSceneWriter::~TiledSceneWriter() = default;
+
+const GridGeometry& TiledSceneWriter::level_geometry(int level) const {
+  if (level < 0 || level >= static_cast<int>(impl_->geometries.size())) {
+    throw std::out_of_range("TiledSceneWriter: level " + std::to_string(level) + " is not stored");
+  }
+  return impl_->geometries[static_cast<std::size_t>(level)];
+}
+
+int TiledSceneWriter::tile_cells() const noexcept { return impl_->storage.tile_cells; }
+
+void TiledSceneWriter::write_tile(int level, const std::string& layer, int tile_row, int tile_col, const void* data) {
+  Impl& m = *impl_;
+  const GridGeometry& g = level_geometry(level);
+  const auto it = std::find(m.names.begin(), m.names.end(), layer);
+  if (it == m.names.end() || m.finished) {
+    throw std::invalid_argument("TiledSceneWriter: layer '" + layer + "' is not written by this writer");
+  }
+  const int t = m.storage.tile_cells;
+  if (tile_row < 0 || tile_col < 0 || tile_row * t >= g.rows || tile_col * t >= g.cols) {
+    throw std::invalid_argument("TiledSceneWriter: tile (" + std::to_string(tile_row) + ", " + std::to_string(tile_col) +
+                                ") is outside level " + std::to_string(level));
+  }
+  auto& w = *m.files[static_cast<std::size_t>(level)][static_cast<std::size_t>(it - m.names.begin())];
+  const std::uint64_t before = w.bytes_written();
+  const std::string why = w.write_tile(tile_row, tile_col, data);
+  if (!why.empty()) throw InputError(detail::stored_layer_file(m.dir, level, layer).string() + ": " + why);
+  m.bytes += w.bytes_written() - before;
+}
+
+std::uint64_t TiledSceneWriter::finish() {
+  Impl& m = *impl_;
+  for (std::size_t l = 0; l < m.files.size(); ++l) {
+    for (std::size_t k = 0; k < m.names.size(); ++k) {
+      const std::string why = m.files[l][k]->finish();
+      if (!why.empty()) {
+        throw InputError(detail::stored_layer_file(m.dir, static_cast<int>(l), m.names[k]).string() + ": " + why);
+      }
+    }
+  }
+  std::vector<std::string> layers;
+  for (const std::string& n : m.names) {
+    if (n != "colour") layers.push_back(n);
+  }
+  write_text_file(m.dir / "scene.yaml",
+                  scene_yaml_text(m.header, m.storage, layers, "", m.contents.colour ? "colour.tiff" : ""));
+  m.finished = true;
+  return m.bytes;
 }
 
 Scene load_scene(const fs::path& scene_dir, bool load_layers) {

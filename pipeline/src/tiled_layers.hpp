@@ -7,6 +7,7 @@
 #include "hc/common/height_field.hpp"
 
 #include <filesystem>
+#include <string>
 
 namespace hc::pipeline::detail {
 
@@ -15,5 +16,9 @@ namespace hc::pipeline::detail {
 /// @throws hc::InputError naming the file and why (no space left, a libtiff error).
 void write_tiled_layer(const std::filesystem::path& file, const void* values, const GridGeometry& g, int tile_cells,
                        TileSamples samples);
+
+/// The file of layer `name` ("depth", ..., "colour") of stored level `level` in a tiled scene:
+/// `<scene>/<name>.tiff` for level 0, `<scene>/levels/L<level>/<name>.tiff` above.
+std::filesystem::path stored_layer_file(const std::filesystem::path& scene_dir, int level, const std::string& name);
 
 }  // namespace hc::pipeline::detail

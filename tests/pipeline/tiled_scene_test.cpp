@@ -342,6 +342,70 @@ TEST(TiledScene, TheRunWritesATiledSceneAboveTheThresholdThatLoadsAsTheWholeOne)
   }
 }
 
+TEST(TiledScene, ASceneWrittenTileByTileReadsAsTheSceneWrittenWhole) {
+  const Scene s = wavy_scene(200, 150, 60, 20, 50);
+  constexpr int kTile = 32;
+  const fs::path dir = hc::test::temp_dir("scene");
+  const fs::path whole = write_tiled(s, dir, kTile);
+  auto mem = memory_pyramid(s);
+  const fs::path streamed = dir / "streamed";
+  hc::pipeline::TiledSceneWriter::Contents contents;
+  contents.cell_error = true;
+  contents.colour = true;
+  hc::pipeline::TiledSceneWriter w(streamed, s, SceneStorage{kTile, mem->level_count()}, contents);
+  // Levels coarsest first and tiles in reverse order: any order is allowed.
+  for (int level = mem->level_count() - 1; level >= 0; --level) {
+    const auto lvl = mem->level(level);
+    const GridGeometry& g = w.level_geometry(level);
+    ASSERT_EQ(g, lvl->depth_m.geometry());
+    for (int tr = (g.rows - 1) / kTile; tr >= 0; --tr) {
+      for (int tc = (g.cols - 1) / kTile; tc >= 0; --tc) {
+        std::vector<float> tile(kTile * kTile, kNaN);
+        std::vector<std::uint8_t> rgb(3 * kTile * kTile, 0);
+        const auto put = [&](const char* name, const HeightField& f) {
+          std::fill(tile.begin(), tile.end(), kNaN);
+          for (int r = 0; r < kTile && tr * kTile + r < g.rows; ++r)
+            for (int c = 0; c < kTile && tc * kTile + c < g.cols; ++c) tile[r * kTile + c] = f.at(tr * kTile + r, tc * kTile + c);
+          w.write_tile(level, name, tr, tc, tile.data());
+        };
+        put("depth", lvl->depth_m);
+        put("envelope", lvl->envelope_m);
+        put("texture", lvl->texture_m);
+        put("mu_d", lvl->mu_d);
+        put("mu_s", lvl->mu_s);
+        put("cell_error", lvl->cell_error_m);
+        for (int r = 0; r < kTile && tr * kTile + r < g.rows; ++r)
+          for (int c = 0; c < kTile && tc * kTile + c < g.cols; ++c)
+            for (int k = 0; k < 3; ++k)
+              rgb[3 * (r * kTile + c) + k] =
+                  lvl->colour_rgb8[3 * (static_cast<std::size_t>(tr * kTile + r) * g.cols + tc * kTile + c) + k];
+        w.write_tile(level, "colour", tr, tc, rgb.data());
+      }
+    }
+  }
+  EXPECT_THROW(w.write_tile(0, "intensity", 0, 0, nullptr), std::invalid_argument);
+  EXPECT_THROW(w.write_tile(0, "depth", 7, 0, nullptr), std::invalid_argument);  // rows 224.. are outside
+  EXPECT_GT(w.finish(), 0u);
+
+  const Scene a = hc::pipeline::load_scene(streamed);
+  const Scene b = hc::pipeline::load_scene(whole);
+  EXPECT_EQ(a.storage, b.storage);
+  EXPECT_EQ(differing_bits(a.layers.depth, b.layers.depth), 0u);
+  EXPECT_EQ(differing_bits(a.layers.mu_d, b.layers.mu_d), 0u);
+  EXPECT_EQ(a.layers.colour_rgb8, b.layers.colour_rgb8);
+  auto x = LodPyramid::open_stored(streamed, s.lod);
+  auto y = LodPyramid::open_stored(whole, s.lod);
+  ASSERT_EQ(x->level_count(), y->level_count());
+  for (int level = 0; level < x->level_count(); ++level) {
+    const auto p = x->level(level);
+    const auto q = y->level(level);
+    EXPECT_EQ(differing_bits(p->depth_m, q->depth_m), 0u) << level;
+    EXPECT_EQ(differing_bits(p->texture_m, q->texture_m), 0u) << level;
+    EXPECT_EQ(differing_bits(p->cell_error_m, q->cell_error_m), 0u) << level;
+    EXPECT_EQ(p->colour_rgb8, q->colour_rgb8) << level;
+  }
+}
+
 TEST(TiledScene, TileSidesThatAreNotMultiplesOfSixteenAreRefused) {
   const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/sinusoid.yaml";
   try {

@@ -10,6 +10,7 @@
 #include <cstdint>
 #include <filesystem>
 #include <map>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -45,6 +46,50 @@ using hc::Scene;
 /// will put beside level 0; the caller writes them). @throws std::invalid_argument also for a
 /// tile side that is not a multiple of 16 in [16, 4096], or stored_levels < 0.
 void write_scene(const Scene& scene, const std::filesystem::path& scene_dir, const SceneStorage& storage = {});
+
+/// Writes a tiled scene folder (format 3, as write_scene with tiles and write_scene_levels) tile
+/// by tile, for a scene larger than memory (issue 14): a generator or a streaming level builder
+/// hands over one tile of one layer of one level at a time, in any order; memory holds one
+/// tile per call and the files' tile indices. Tiles never written are no data (sparse: NaN, or
+/// colour 0). Level k's geometry is lod_level_geometry(level 0, k) (lod.hpp), so
+/// LodPyramid::open_stored reads the folder. Not thread-safe.
+class TiledSceneWriter {
+ public:
+  /// What the folder holds besides depth.
+  struct Contents {
+    bool surface_layers = true;  ///< envelope, texture, mu_d, mu_s
+    bool cell_error = false;
+    bool colour = false;         ///< colour.tiff (8-bit RGB)
+  };
+  /// Creates `scene_dir` (it must not exist; its parent must) and every layer file of every
+  /// level. `header`: level 0's geometry, the frame, friction model, options and provenance (its
+  /// layers are ignored). `storage`: tile_cells a multiple of 16 in [16, 4096]; stored_levels ≥ 1
+  /// and no more than the levels whose longer side keeps ≥ 2 samples.
+  /// @throws std::invalid_argument for a bad storage; hc::InputError naming a file or folder that
+  ///         cannot be made.
+  TiledSceneWriter(const std::filesystem::path& scene_dir, const Scene& header, const SceneStorage& storage,
+                   const Contents& contents);
+  ~TiledSceneWriter();
+  TiledSceneWriter(const TiledSceneWriter&) = delete;
+  TiledSceneWriter& operator=(const TiledSceneWriter&) = delete;
+
+  /// Geometry of stored level L (grid frame). @throws std::out_of_range for L out of range.
+  const GridGeometry& level_geometry(int level) const;
+  int tile_cells() const noexcept;
+  /// Writes tile (tile_row, tile_col) of `layer` ("depth", "envelope", "texture", "mu_d", "mu_s",
+  /// "cell_error": tile_cells² floats [m or -], row-major, NaN = no data; "colour": tile_cells²·3
+  /// bytes) of level `level`. Samples past the level's edge are ignored. An all-NaN float tile is
+  /// stored without bytes. @throws std::invalid_argument for a layer the writer does not hold or a
+  /// tile outside the level; hc::InputError naming the file on a write error.
+  void write_tile(int level, const std::string& layer, int tile_row, int tile_col, const void* data);
+  /// Closes every layer file and writes scene.yaml last (a folder without it is not a scene).
+  /// @return bytes of tile data written. @throws hc::InputError naming a file on a write error.
+  std::uint64_t finish();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
 
 /// Name of the marker file every output folder written through StagingDir holds: it tells a
 /// later run that the folder is hapticloud's own output and may be replaced.
