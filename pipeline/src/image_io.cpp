@@ -387,7 +387,10 @@ std::string TiledTiffReader::open(const std::filesystem::path& file, TileSamples
   Impl& m = *impl_;
   errno = 0;
   // "O": the tile offsets and byte counts are read on demand, entry by entry (libtiff >= 4.1).
-  m.tif = open_tiff(file, "rO", m.messages);
+  // "m": no memory mapping: a mapped file's touched pages count in the process's resident memory
+  // (a session reading windows of a 10 GB layer would show them all), so tiles are read(2) into
+  // one tile buffer instead.
+  m.tif = open_tiff(file, "rOm", m.messages);
   if (!m.tif) return tiff_failure(m.messages, "not a TIFF libtiff reads");
   TIFF* t = m.tif.get();
   if (!TIFFIsTiled(t)) return "not a tiled TIFF";

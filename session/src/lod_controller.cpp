@@ -52,7 +52,8 @@ LodController::~LodController() {
 }
 
 void LodController::queue_prefetch(int level) {
-  if (!options_.prefetch_neighbours || level < 0 || level >= pyramid_->level_count()) return;
+  // A stored pyramid builds nothing: its levels are on disk and a window reads only its tiles.
+  if (!options_.prefetch_neighbours || pyramid_->stored() || level < 0 || level >= pyramid_->level_count()) return;
   if (pyramid_->is_cached(level, true)) return;
   {
     std::lock_guard<std::mutex> lock(prefetch_mutex_);
@@ -116,7 +117,9 @@ haptics::WorkspaceMap LodController::fitted_map(const HapticWindow& w, double z_
 const HapticWindow& LodController::publish(int level, int row0, int col0,
                                            const std::optional<haptics::WorkspaceMap>& map) {
   const auto t0 = Clock::now();
-  const bool was_cached = pyramid_->is_cached(level, true);
+  // A level is built before its window is cropped (timed apart); a stored level is never read
+  // whole: the window reads its own tiles.
+  const bool was_cached = pyramid_->stored() || pyramid_->is_cached(level, true);
   if (!was_cached) (void)pyramid_->level(level);
   const double level_seconds = was_cached ? 0.0 : seconds_since(t0);
   const auto t1 = Clock::now();
