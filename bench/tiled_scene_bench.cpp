@@ -4,8 +4,8 @@
 //
 //   tiled_scene_bench generate DIR [--rows 32768] [--cols 65536] [--band 4096] [--tile 256]
 //     writes DIR/scene (scene format 3) tile by tile through pipeline::TiledSceneWriter: every
-//     level of a grid of rows × cols samples of 1 mm, with the relief (a 4 mm sinusoid of 40 mm
-//     wavelength plus a 0.2 mm texture of 2 mm) and its layers in a band of `band` rows across
+//     level of a grid of rows × cols samples of 1 mm, with the relief (a 4 mm sinusoid of 43 mm
+//     wavelength plus a 0.2 mm texture of 2.7 mm) and its layers in a band of `band` rows across
 //     the middle; the rest is no data and stored as sparse tiles (so that the folder fits on the
 //     disk: a full 65 536 × 32 768 scene of five float layers is 57 GB). Every level is the
 //     analytic relief sampled at that level's nodes (envelope, texture and μ from their
@@ -82,7 +82,9 @@ int generate(const fs::path& dir, int rows, int cols, int band, int tile) {
   const auto t0 = Clock::now();
   hc::pipeline::TiledSceneWriter w(dir / "scene", header, hc::SceneStorage{tile, levels}, contents);
   const double band_y0 = 0.001 * (rows / 2 - band / 2), band_y1 = 0.001 * (rows / 2 + band / 2);
-  const double k = 2 * std::numbers::pi / 0.04, kt = 2 * std::numbers::pi / 0.002;
+  // Wavelengths incommensurate with the 1 mm cell and its powers of two, so that no level samples
+  // the texture at its zeros only.
+  const double k = 2 * std::numbers::pi / 0.043, kt = 2 * std::numbers::pi / 0.0027;
   std::vector<std::vector<float>> tiles(5, std::vector<float>(static_cast<std::size_t>(tile) * tile));
   const char* names[5] = {"depth", "envelope", "texture", "mu_d", "mu_s"};
   std::uint64_t written = 0;

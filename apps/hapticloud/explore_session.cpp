@@ -79,6 +79,9 @@ void Session::load_input() {
     so.run_dir = fs::path(o_.out) / "scan-0";
     std::cout << "explore: building the scene of " << p.string() << " into " << so.run_dir.string() << "\n";
   }
+  // A tiled scene's stored levels are read from disk, window by window (issue 14).
+  so.open_stored_levels = true;
+  so.stored_window_cells = o_.window_cells;
   session::OpenedScene opened = session::open_scene_or_config(p, so);
   // The scene's own layers.* and lod.* (as `hapticloud run` built it); --window-cells still wins.
   const int cells = lod_options_.window_cells;
@@ -90,7 +93,15 @@ void Session::load_input() {
     config_->lod.report = false;
     if (opened.cloud) cloud_ = session::cloud_preview(*opened.cloud, config_->view, 150000);  // none from a tiled run
   }
-  built_ = session::build_explore_scene(std::move(opened.scene), layer_options_, lod_options_, false);
+  if (opened.stored_levels) {
+    // Nothing is loaded whole: the base keeps the geometry and metadata, the pyramid reads tiles.
+    built_ = std::make_shared<session::ExploreScene>();
+    built_->base = std::move(opened.scene);
+    built_->pyramid = std::move(opened.stored_levels);
+    std::cout << "explore: tiled scene, " << built_->pyramid->level_count() << " stored levels read window by window\n";
+  } else {
+    built_ = session::build_explore_scene(std::move(opened.scene), layer_options_, lod_options_, false);
+  }
   if (config_) built_->orientation = config_->view.rotation;
   built_->description = config_ ? config_->name : p.filename().string();
 }
@@ -217,7 +228,7 @@ void Session::make_viewer() {
   if (!o_.no_audio || has_regions) {
     const auto& base = built_->base;
     const HeightField* texture = base.layers.texture.rows() > 0 ? &base.layers.texture : nullptr;
-    const GridGeometry grid = base.depth().geometry();
+    const GridGeometry grid = base.geometry;
     // The run config's audio: section (regions, materials); a scene folder gets the sliding
     // sound only.
     const audio::AudioConfig ac = config_ && config_->audio ? *config_->audio : audio::AudioConfig{};

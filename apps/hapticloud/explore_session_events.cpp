@@ -74,16 +74,24 @@ void Session::show_window() {
 void Session::on_region(const viewer::RegionCommand& c) {
   if (!lod_ || swap_.busy()) return;
   const session::HapticWindow& w = lod_->window();
-  switch (c.type) {
-    case viewer::RegionCommandType::kFiner: lod_->zoom_in(anchor()); break;
-    case viewer::RegionCommandType::kCoarser: lod_->zoom_out(anchor()); break;
-    case viewer::RegionCommandType::kSetLevel:
-      lod_->set_level(std::clamp(c.level, 0, lod_->level_count() - 1), anchor());
-      break;
-    case viewer::RegionCommandType::kPan:
-      lod_->pan(static_cast<int>(std::lround(c.dx * w.cols)), static_cast<int>(std::lround(c.dy * w.rows)));
-      break;
-    case viewer::RegionCommandType::kCentreAt: lod_->centre_window(w.level, c.x_m, c.y_m); break;
+  try {
+    switch (c.type) {
+      case viewer::RegionCommandType::kFiner: lod_->zoom_in(anchor()); break;
+      case viewer::RegionCommandType::kCoarser: lod_->zoom_out(anchor()); break;
+      case viewer::RegionCommandType::kSetLevel:
+        lod_->set_level(std::clamp(c.level, 0, lod_->level_count() - 1), anchor());
+        break;
+      case viewer::RegionCommandType::kPan:
+        lod_->pan(static_cast<int>(std::lround(c.dx * w.cols)), static_cast<int>(std::lround(c.dy * w.rows)));
+        break;
+      case viewer::RegionCommandType::kCentreAt: lod_->centre_window(w.level, c.x_m, c.y_m); break;
+    }
+  } catch (const InputError& e) {
+    // A window with no data (a scan's gap, the empty part of a large tiled scene) cannot be
+    // rendered: the controller published nothing, so the session keeps its window and says why.
+    status_ = std::string("kept the window: ") + e.what();
+    std::cout << "explore: " << status_ << "\n";
+    return;
   }
   note_window();
   show_window();
@@ -149,7 +157,11 @@ void Session::on_surface_settings(const viewer::SurfaceSettings& s) {
     lod_->set_window(w.level, w.col0, w.row0);
     show_window();
   }
-  if ((model != layer_options_.friction_model || s.mu_s != layer_options_.mu_s) && !job_.valid()) {
+  const bool friction_changed = model != layer_options_.friction_model || s.mu_s != layer_options_.mu_s;
+  if (friction_changed && built_->pyramid->stored()) {
+    // A stored scene's levels hold their μ layers; recomputing them needs every level in memory.
+    status_ = "the friction model and mu_s of a tiled scene are fixed (set them in the run config and run it again)";
+  } else if (friction_changed && !job_.valid()) {
     // Friction layers of every level change: rebuild the pyramid on a worker.
     if (model != layer_options_.friction_model) note("model " + s.friction_model);
     if (s.mu_s != layer_options_.mu_s) {
