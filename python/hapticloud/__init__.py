@@ -8,15 +8,17 @@ row 0 at the smallest y, in the grid frame (metres, larger z nearer the viewer).
     h, dzdx, dzdy, normal = hapticloud.sample(scene, [0.0], [0.01])   # bilinear, grid frame [m]
     trace = hapticloud.touch(scene, path="raster", seconds=2)  # dict of per-tick numpy arrays
     table = hapticloud.levels(scene)                           # one dict per level of detail
+    lv = hapticloud.open_levels("runs/big/scene")              # a tiled scene, read window by window
+    w = lv.window(level=2, row0=100, col0=300, rows=200, cols=200)   # dict of numpy views
 """
 
 import json as _json
 import os as _os
 
-from ._hapticloud import Error, Scene, load_scene, sample, touch  # noqa: F401
+from ._hapticloud import Error, Levels, Scene, load_scene, open_levels, sample, touch  # noqa: F401
 from . import _hapticloud as _native
 
-__all__ = ["Error", "Scene", "levels", "load_scene", "run", "sample", "touch"]
+__all__ = ["Error", "Levels", "Scene", "levels", "load_scene", "open_levels", "run", "sample", "touch"]
 
 
 def run(config, out=None, sets=()):

@@ -34,15 +34,16 @@ using SceneRef = std::shared_ptr<hc::Scene>;
 // A read-only, zero-copy array over `data` (C order, `shape`), whose base keeps `owner` (the
 // scene) alive for as long as the array exists.
 template <class T>
-py::array_t<T> readonly_view(const T* data, std::vector<py::ssize_t> shape, const SceneRef& owner) {
-  const py::capsule keep(new SceneRef(owner), [](void* p) { delete static_cast<SceneRef*>(p); });
+py::array_t<T> readonly_view(const T* data, std::vector<py::ssize_t> shape, std::shared_ptr<const void> owner) {
+  using Owner = std::shared_ptr<const void>;
+  const py::capsule keep(new Owner(std::move(owner)), [](void* p) { delete static_cast<Owner*>(p); });
   py::array_t<T> a(std::move(shape), data, keep);
   py::detail::array_proxy(a.ptr())->flags &= ~py::detail::npy_api::NPY_ARRAY_WRITEABLE_;
   return a;
 }
 
 // A read-only float32 (rows, cols) view of `field`, kept alive by `owner` (the scene).
-py::array_t<float> view(const hc::HeightField& field, const SceneRef& owner) {
+py::array_t<float> view(const hc::HeightField& field, std::shared_ptr<const void> owner) {
   return readonly_view(field.data(), {field.rows(), field.cols()}, owner);
 }
 
@@ -61,6 +62,30 @@ py::object colour_of(const SceneRef& s) {
   const std::vector<std::uint8_t>& c = s->layers.colour_rgb8;
   if (c.empty()) return py::none();
   return readonly_view(c.data(), {s->geometry.rows, s->geometry.cols, 3}, s);
+}
+
+using WindowRef = std::shared_ptr<const hc::pipeline::LodWindowLayers>;
+
+// A window of stored levels as a dict of read-only views kept alive by the window.
+py::dict window_dict(const WindowRef& w, double cell_size_m) {
+  py::dict d;
+  d["level"] = w->level;
+  d["row0"] = w->row0;
+  d["col0"] = w->col0;
+  d["x0_m"] = w->depth_m.geometry().x0_m;
+  d["y0_m"] = w->depth_m.geometry().y0_m;
+  d["cell_size_m"] = cell_size_m;
+  const std::pair<const char*, const hc::HeightField*> all[] = {{"depth", &w->depth_m}, {"envelope", &w->envelope_m},
+                                                                {"texture", &w->texture_m}, {"mu_d", &w->mu_d},
+                                                                {"mu_s", &w->mu_s}, {"cell_error", &w->cell_error_m}};
+  py::dict layers;
+  for (const auto& [name, f] : all)
+    if (f->rows() > 0) layers[name] = view(*f, w);
+  d["layers"] = layers;
+  d["colour"] = w->colour_rgb8.empty()
+                    ? py::object(py::none())
+                    : py::object(readonly_view(w->colour_rgb8.data(), {w->depth_m.rows(), w->depth_m.cols(), 3}, w));
+  return d;
 }
 
 py::array_t<double> matrix_of(const Eigen::Affine3d& t) {
@@ -126,6 +151,54 @@ PYBIND11_MODULE(_hapticloud, m) {
         return "<hapticloud.Scene " + std::to_string(s.geometry.rows) + " x " + std::to_string(s.geometry.cols) +
                " cells of " + std::to_string(s.geometry.cell_size_m * 1e3) + " mm>";
       });
+
+  using hc::pipeline::LodPyramid;
+  py::class_<LodPyramid, std::shared_ptr<LodPyramid>>(
+      m, "Levels",
+      "The levels of detail of a tiled scene, read from its files window by window (open_levels). Windows are "
+      "cached under the scene's lod.memory_budget_mb.")
+      .def_property_readonly("level_count", &LodPyramid::level_count, "number of levels (0 = finest)")
+      .def(
+          "geometry",
+          [](const LodPyramid& p, int level) {
+            const hc::GridGeometry& g = p.geometry(level);
+            py::dict d;
+            d["rows"] = g.rows;
+            d["cols"] = g.cols;
+            d["cell_size_m"] = g.cell_size_m;
+            d["x0_m"] = g.x0_m;
+            d["y0_m"] = g.y0_m;
+            return d;
+          },
+          py::arg("level"), "dict rows, cols, cell_size_m [m], x0_m, y0_m [m] (grid frame) of a level")
+      .def(
+          "window",
+          [](LodPyramid& p, int level, int row0, int col0, int rows, int cols) {
+            WindowRef w;
+            {
+              py::gil_scoped_release release;
+              w = p.window(level, row0, col0, rows, cols);
+            }
+            return window_dict(w, p.geometry(level).cell_size_m);
+          },
+          py::arg("level"), py::arg("row0"), py::arg("col0"), py::arg("rows"), py::arg("cols"),
+          "rows x cols samples of a level from (row0, col0), clamped into the level (as the haptic window is): a "
+          "dict with level, row0, col0 (where it landed), x0_m, y0_m, cell_size_m [m], layers (name -> read-only "
+          "float32 (rows, cols): depth, envelope, texture [m], mu_d, mu_s [-], cell_error [m], those stored; NaN = "
+          "no data) and colour (uint8 (rows, cols, 3) or None). Reads only the tiles the window overlaps.")
+      .def_property_readonly("tiles_read", &LodPyramid::tiles_read, "tiles decoded from the files so far");
+  m.def(
+      "open_levels",
+      [](const std::filesystem::path& p, std::optional<double> memory_budget_mb) {
+        const hc::Scene header = hc::pipeline::load_scene(p, false);
+        hc::LodOptions lod = header.lod;
+        if (memory_budget_mb) lod.memory_budget_mb = *memory_budget_mb;
+        return LodPyramid::open_stored(p, lod);
+      },
+      py::arg("path"), py::arg("memory_budget_mb") = py::none(), py::call_guard<py::gil_scoped_release>(),
+      "Opens the stored levels of a tiled scene folder (scene format 3: `hapticloud run` with scale.scene_tiles, "
+      "docs/scale.md) without loading its layers: a Levels object whose window() reads only the tiles it needs. "
+      "Raises hapticloud.Error for a folder that stores no levels.");
 
   m.def("load_scene", [](const std::filesystem::path& p) { return std::make_shared<hc::Scene>(hc::pipeline::load_scene(p)); },
         py::arg("path"), py::call_guard<py::gil_scoped_release>(),

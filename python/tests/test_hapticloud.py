@@ -164,3 +164,41 @@ def test_bad_input_raises_hapticloud_error_naming_it(tmp_path):
         hapticloud.load_scene(tmp_path / "no-such-scene")
     with pytest.raises(hapticloud.Error, match="grid.n"):
         hapticloud.run(SOURCE / "configs" / "sinusoid.yaml", sets=["grid.n=-3"])
+
+
+def test_open_levels_reads_windows_of_a_tiled_scene_as_slices_of_the_whole_scene(tmp_path):
+    out = tmp_path / "run"
+    whole = hapticloud.run(SOURCE / "configs" / "sinusoid.yaml", out=out,
+                           sets=["lod.report=false", "scale.scene_tiles=on", "scale.scene_tile_cells=64",
+                                 "lod.min_cells=20"])
+    lv = hapticloud.open_levels(out / "scene")
+    assert lv.level_count >= 3
+    assert lv.tiles_read == 0
+    g0 = lv.geometry(0)
+    assert (g0["rows"], g0["cols"]) == (whole.rows, whole.cols)
+    # Level 0: every window equals the numpy slice of the scene loaded whole, bit for bit.
+    for (r0, c0, n, m) in [(0, 0, 50, 70), (37, 101, 64, 64), (150, 150, 50, 50)]:
+        w = lv.window(0, r0, c0, n, m)
+        assert (w["row0"], w["col0"]) == (r0, c0)
+        for name in ("depth", "envelope", "texture", "mu_d", "mu_s"):
+            a, b = w["layers"][name], whole.layers[name][r0:r0 + n, c0:c0 + m]
+            assert a.shape == (n, m) and not a.flags.writeable
+            assert np.array_equal(a.view(np.uint32), b.view(np.uint32)), name
+        assert w["x0_m"] == pytest.approx(whole.x0_m + c0 * whole.cell_size_m, abs=1e-12)
+    # Coarser levels halve the grid, cell sizes double, and windows are clamped into the level.
+    for level in range(1, lv.level_count):
+        g = lv.geometry(level)
+        assert g["rows"] == -(-lv.geometry(level - 1)["rows"] // 2)
+        assert g["cell_size_m"] == pytest.approx(2 ** level * whole.cell_size_m)
+        w = lv.window(level, 10 ** 6, 10 ** 6, 16, 16)
+        assert (w["row0"], w["col0"]) == (g["rows"] - 16, g["cols"] - 16)
+        assert np.isfinite(w["layers"]["depth"]).any()
+    assert lv.tiles_read > 0
+    with pytest.raises(hapticloud.Error, match="scale.scene_tiles"):
+        hapticloud.open_levels(hapticloud_run_untiled(tmp_path))
+
+
+def hapticloud_run_untiled(tmp_path):
+    out = tmp_path / "untiled"
+    hapticloud.run(SOURCE / "configs" / "sinusoid.yaml", out=out, sets=["lod.report=false", "grid.n=40"])
+    return out / "scene"
