@@ -223,6 +223,8 @@ std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out, 
     TIFFGetField(t, TIFFTAG_TILEWIDTH, &tw);
     TIFFGetField(t, TIFFTAG_TILELENGTH, &th);
     if (tw == 0 || th == 0) return "tiled TIFF without tile sizes";
+    // Bounded before the tile buffer is allocated from them (TiledTiffWriter writes at most 4096).
+    if (tw > 4096 || th > 4096) return "tiles of " + std::to_string(tw) + "x" + std::to_string(th) + " (at most 4096 supported)";
     std::vector<float> tile(static_cast<std::size_t>(tw) * th);
     for (std::uint32_t y = 0; y < height; y += th)
       for (std::uint32_t x = 0; x < width; x += tw) {
@@ -411,9 +413,11 @@ std::string TiledTiffReader::open(const std::filesystem::path& file, TileSamples
     return std::to_string(spp) + " channel(s) of " + std::to_string(bits) + "-bit samples (expected " +
            (want_float ? "one 32-bit float channel" : "8-bit RGB") + ")";
   }
-  if (width == 0 || height == 0 || tw == 0 || tw != th || width > (1u << 30) || height > (1u << 30)) {
+  // Bounds before anything is allocated from them: the buffer holds one tile (at most 4096², as
+  // TiledTiffWriter writes: 64 MiB of floats).
+  if (width == 0 || height == 0 || tw == 0 || tw != th || tw > 4096 || width > (1u << 30) || height > (1u << 30)) {
     return "a tiled TIFF of " + std::to_string(width) + "x" + std::to_string(height) + " in tiles of " +
-           std::to_string(tw) + "x" + std::to_string(th) + " (expected square tiles)";
+           std::to_string(tw) + "x" + std::to_string(th) + " (expected square tiles of at most 4096 samples)";
   }
   m.width = static_cast<int>(width);
   m.height = static_cast<int>(height);

@@ -47,7 +47,7 @@ const std::vector<Target>& all_targets() {
       {"falcon_frames", &falcon_frames},
       {"e57", &e57},           {"las", &las},
       {"ptx", &ptx},           {"pts", &pts},
-      {"laz", &laz},
+      {"laz", &laz},           {"scene_tiled", &scene_tiled},
   };
   return targets;
 }

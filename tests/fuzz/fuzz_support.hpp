@@ -43,6 +43,7 @@ void scanalyze_conf(const std::uint8_t* data, std::size_t size);
 void run_config(const std::uint8_t* data, std::size_t size);
 void scene_yaml(const std::uint8_t* data, std::size_t size);
 void scene_tiff(const std::uint8_t* data, std::size_t size);
+void scene_tiled(const std::uint8_t* data, std::size_t size);
 void falcon_frames(const std::uint8_t* data, std::size_t size);
 void e57(const std::uint8_t* data, std::size_t size);
 void las(const std::uint8_t* data, std::size_t size);
