@@ -83,6 +83,7 @@ void Session::load_input() {
   so.open_stored_levels = true;
   so.stored_window_cells = o_.window_cells;
   session::OpenedScene opened = session::open_scene_or_config(p, so);
+  for (const std::string& note : opened.notes) std::cout << "explore: " << note << "\n";
   // The scene's own layers.* and lod.* (as `hapticloud run` built it); --window-cells still wins.
   const int cells = lod_options_.window_cells;
   layer_options_ = opened.scene.layer_options;

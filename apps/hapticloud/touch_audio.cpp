@@ -18,7 +18,7 @@ namespace hc::app {
 TouchAudio::TouchAudio(const std::optional<audio::AudioConfig>& spec, const Scene& scene, std::string wav_out,
                        std::string live)
     : wav_out_(std::move(wav_out)), live_name_(std::move(live)) {
-  const GridGeometry& grid = scene.layers.depth.geometry();
+  const GridGeometry& grid = scene.geometry;  // a stored scene has no layer in memory
   const HeightField* texture = scene.layers.texture.rows() > 0 ? &scene.layers.texture : nullptr;
   scene_ = audio::build_audio_scene(spec.value_or(audio::AudioConfig{}), {&grid, texture});
   if (!scene_->config.regions.empty()) region_layer_ = scene_->regions.to_layer(grid);

@@ -120,6 +120,7 @@ session::OpenedScene load_input(const TouchOptions& o, const fs::path& run_dir, 
     std::cout << "touch: building the scene of " << p.string() << " into " << shown_run_dir.string() << "\n";
   }
   session::OpenedScene opened = session::open_scene_or_config(p, so);
+  for (const std::string& note : opened.notes) std::cout << "touch: " << note << "\n";
   if (!opened.config) opened.description = "scene " + p.string();
   return opened;
 }

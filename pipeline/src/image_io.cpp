@@ -273,7 +273,6 @@ struct TiledTiffWriter::Impl {
   TiffHandle tif{nullptr, &TIFFClose};
   int width = 0, height = 0, tile = 0;
   TileSamples samples = TileSamples::kFloat32;
-  std::vector<std::uint8_t> buffer;  // libtiff may modify what it is given: each tile is copied
   std::uint64_t bytes = 0;
 };
 
@@ -283,7 +282,9 @@ TiledTiffWriter::~TiledTiffWriter() = default;
 std::string TiledTiffWriter::open(const std::filesystem::path& file, int width, int height, int tile,
                                   TileSamples samples) {
   if (width < 1 || height < 1) return "an empty layer";
-  if (tile < 16 || tile % 16 != 0) return "tile side " + std::to_string(tile) + " (expected a multiple of 16)";
+  if (tile < 16 || tile > 4096 || tile % 16 != 0) {
+    return "tile side " + std::to_string(tile) + " (expected a multiple of 16 in [16, 4096])";
+  }
   Impl& m = *impl_;
   m.width = width;
   m.height = height;
@@ -298,6 +299,10 @@ std::string TiledTiffWriter::open(const std::filesystem::path& file, int width, 
   if (!m.tif) return tiff_failure(m.messages, "libtiff cannot create it");
   TIFF* t = m.tif.get();
   const bool rgb = samples == TileSamples::kRgb8;
+  // GDAL's no-data tag is not one libtiff registers itself: an ASCII tag, one value.
+  static const TIFFFieldInfo kGdalNoData[] = {
+      {TIFFTAG_GDAL_NODATA, TIFF_VARIABLE, TIFF_VARIABLE, TIFF_ASCII, FIELD_CUSTOM, 1, 0, const_cast<char*>("GDALNoDataValue")}};
+  if (!rgb && TIFFMergeFieldInfo(t, kGdalNoData, 1) != 0) return tiff_failure(m.messages, "libtiff cannot register GDAL's no-data tag");
   const bool tags = TIFFSetField(t, TIFFTAG_IMAGEWIDTH, static_cast<std::uint32_t>(width)) &&
                     TIFFSetField(t, TIFFTAG_IMAGELENGTH, static_cast<std::uint32_t>(height)) &&
                     TIFFSetField(t, TIFFTAG_SAMPLESPERPIXEL, rgb ? 3 : 1) &&
@@ -307,9 +312,12 @@ std::string TiledTiffWriter::open(const std::filesystem::path& file, int width, 
                     TIFFSetField(t, TIFFTAG_PLANARCONFIG, PLANARCONFIG_CONTIG) &&
                     TIFFSetField(t, TIFFTAG_COMPRESSION, COMPRESSION_NONE) &&
                     TIFFSetField(t, TIFFTAG_TILEWIDTH, static_cast<std::uint32_t>(tile)) &&
-                    TIFFSetField(t, TIFFTAG_TILELENGTH, static_cast<std::uint32_t>(tile));
+                    TIFFSetField(t, TIFFTAG_TILELENGTH, static_cast<std::uint32_t>(tile)) &&
+                    // GDAL's no-data tag (42113, ASCII): GDAL and the tools on it (QGIS, rasterio)
+                    // fill a tile without bytes with this value, and mask it; without the tag they
+                    // would read 0 m there.
+                    (rgb || TIFFSetField(t, TIFFTAG_GDAL_NODATA, "nan"));
   if (!tags) return tiff_failure(m.messages, "libtiff refused a tag");
-  m.buffer.resize(static_cast<std::size_t>(tile) * static_cast<std::size_t>(tile) * static_cast<std::size_t>(bps));
   return {};
 }
 
@@ -318,15 +326,20 @@ std::string TiledTiffWriter::write_tile(int tile_row, int tile_col, const void* 
   if (!m.tif) return "the tiled TIFF is not open";
   const std::size_t n = static_cast<std::size_t>(m.tile) * static_cast<std::size_t>(m.tile);
   if (m.samples == TileSamples::kFloat32 && all_nan(static_cast<const float*>(data), n)) return {};  // sparse
-  std::memcpy(m.buffer.data(), data, m.buffer.size());
+  // One scratch tile per thread, shared by every writer (a TiledSceneWriter has a file open per
+  // layer and level): libtiff may modify the buffer it is given.
+  thread_local std::vector<std::uint8_t> scratch;
+  const std::size_t bytes = n * static_cast<std::size_t>(tile_sample_bytes(m.samples));
+  scratch.resize(bytes);
+  std::memcpy(scratch.data(), data, bytes);
   TIFF* t = m.tif.get();
   const ttile_t index = TIFFComputeTile(t, static_cast<std::uint32_t>(tile_col * m.tile),
                                         static_cast<std::uint32_t>(tile_row * m.tile), 0, 0);
   errno = 0;
-  if (TIFFWriteEncodedTile(t, index, m.buffer.data(), static_cast<tmsize_t>(m.buffer.size())) < 0) {
+  if (TIFFWriteEncodedTile(t, index, scratch.data(), static_cast<tmsize_t>(bytes)) < 0) {
     return tiff_failure(m.messages, "libtiff cannot write a tile");
   }
-  m.bytes += m.buffer.size();
+  m.bytes += bytes;
   return {};
 }
 
@@ -373,7 +386,7 @@ std::string write_tiled_tiff(const std::filesystem::path& file, const void* valu
 }
 
 struct TiledTiffReader::Impl {
-  TiffMessages messages;
+  mutable TiffMessages messages;
   TiffHandle tif{nullptr, &TIFFClose};
   int width = 0, height = 0, tile = 0;
   TileSamples samples = TileSamples::kFloat32;
@@ -446,6 +459,8 @@ std::string TiledTiffReader::read_region(int row0, int col0, int rows, int cols,
            std::to_string(col0) + ") outside the " + std::to_string(m.height) + "x" + std::to_string(m.width) + " image";
   }
   std::lock_guard<std::mutex> lock(m.mutex);
+  // Errors are this call's own: a corrupt tile read before does not fail every later window.
+  m.messages.error.clear();
   TIFF* t = m.tif.get();
   const auto bps = static_cast<std::size_t>(tile_sample_bytes(m.samples));
   auto* dst = static_cast<std::uint8_t*>(out);

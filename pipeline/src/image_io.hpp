@@ -79,7 +79,10 @@ class TiledTiffWriter {
   TiledTiffWriter(const TiledTiffWriter&) = delete;
   TiledTiffWriter& operator=(const TiledTiffWriter&) = delete;
   /// Creates `file` for a width × height image in tiles of tile × tile samples (tile a multiple
-  /// of 16, as the TIFF specification requires). @return "" or why not.
+  /// of 16, as the TIFF specification requires, at most 4096). A float file carries GDAL's
+  /// no-data tag (42113) "nan", so GDAL-based tools read tiles without bytes as no data.
+  /// Memory: libtiff's write buffer of one tile per open file; the copy each write_tile makes
+  /// is one scratch tile per thread. @return "" or why not.
   std::string open(const std::filesystem::path& file, int width, int height, int tile, TileSamples samples);
   /// Writes tile (tile_row, tile_col): tile × tile samples, row-major (× 3 bytes for RGB);
   /// samples beyond the image's edge are written as given and ignored by readers.
@@ -112,14 +115,15 @@ class TiledTiffReader {
   TiledTiffReader(const TiledTiffReader&) = delete;
   TiledTiffReader& operator=(const TiledTiffReader&) = delete;
   /// Opens `file`, expecting `samples`. @return "" or why not (not a TIFF, not tiled, another
-  /// sample type, no tile sizes).
+  /// sample type, tiles that are not square or larger than 4096 samples, an image wider or
+  /// taller than 2^30 samples). Nothing is allocated from the file's sizes before they are checked.
   std::string open(const std::filesystem::path& file, TileSamples samples);
   int width() const;
   int height() const;
   int tile() const;  ///< tile side [samples] (square tiles)
   /// Copies rows × cols samples from (row0, col0) into `out` (row-major, rows·cols samples, × 3
   /// bytes for RGB); sparse tiles read as NaN (float) or 0 (RGB). The rectangle must lie inside
-  /// the image. @return "" or why not (a libtiff read error).
+  /// the image. @return "" or why not (a libtiff read error during this call).
   std::string read_region(int row0, int col0, int rows, int cols, void* out) const;
   /// Tiles with data decoded so far (sparse tiles not counted), for tests and benchmarks.
   std::uint64_t tiles_read() const;

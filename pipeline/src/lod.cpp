@@ -252,7 +252,18 @@ struct LodPyramid::Stored {
   std::vector<std::array<std::unique_ptr<detail::TiledTiffReader>, kKinds>> readers;
 
   std::filesystem::path file(int level, int kind) const {
-    return detail::stored_layer_file(dir, level, kNames[static_cast<std::size_t>(kind)]);
+    const std::string name = kNames[static_cast<std::size_t>(kind)];
+    // Level 0's surface layers computed by the pyramid for a scene that has none (layers off in
+    // the run) are stored in levels/L0/ (write_scene_levels), so that every level has them.
+    if (level == 0 && kind >= kEnvelope && kind <= kMuS && !std::filesystem::exists(dir / (name + ".tiff"))) {
+      return dir / kSceneLevelsFolder / "L0" / (name + ".tiff");
+    }
+    return detail::stored_layer_file(dir, level, name);
+  }
+  /// Bytes per sample of a level with every layer the store holds (and the surface layers, which
+  /// a level without them would compute).
+  std::size_t bytes_per_sample() const {
+    return sizeof(float) * (5 + (has_cell_error ? 1 : 0)) + (has_colour ? 3 : 0);
   }
   const detail::TiledTiffReader& reader(int level, int kind) {
     std::lock_guard<std::mutex> lock(mutex);
@@ -325,8 +336,16 @@ std::shared_ptr<LodPyramid> LodPyramid::open_stored(const std::filesystem::path&
   for (int l = 0; l < levels; ++l) stored->geometries.push_back(lod_level_geometry(g, l));
   stored->readers.resize(static_cast<std::size_t>(levels));
   std::shared_ptr<LodPyramid> p(new LodPyramid(stored, header.layer_options, options, levels, g));
-  // The depth of every level is opened now: a missing or mis-sized level is refused at open.
-  for (int l = 0; l < levels; ++l) (void)stored->reader(l, Stored::kDepth);
+  // Every layer level 0 has is required at every level, and every file is opened now (its
+  // directory only): a missing, foreign or mis-sized file is refused at open, naming it.
+  for (int l = 0; l < levels; ++l) {
+    for (int kind = 0; kind < Stored::kKinds; ++kind) {
+      const bool present = kind == Stored::kDepth || (kind <= Stored::kMuS && stored->has_layers) ||
+                           (kind == Stored::kCellError && stored->has_cell_error) ||
+                           (kind == Stored::kColour && stored->has_colour);
+      if (present) (void)stored->reader(l, kind);
+    }
+  }
   return p;
 }
 
@@ -436,9 +455,7 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
     built->depth_seconds = depth_only->depth_seconds;
   } else if (stored_) {
     const GridGeometry& g = geometries_[static_cast<std::size_t>(level)];
-    const std::size_t per_sample = sizeof(float) * (1 + (stored_->has_layers ? 4 : 0) + (stored_->has_cell_error ? 1 : 0)) +
-                                   (stored_->has_colour ? 3 : 0);
-    const double mb = static_cast<double>(g.cell_count() * per_sample) / (1024.0 * 1024.0);
+    const double mb = static_cast<double>(g.cell_count() * stored_->bytes_per_sample()) / (1024.0 * 1024.0);
     if (mb > options_.memory_budget_mb) {
       throw InputError("lod: level " + std::to_string(level) + " of the stored scene " + stored_->dir.string() + " is " +
                        std::to_string(g.rows) + " x " + std::to_string(g.cols) + " samples (" + format_number(mb) +
@@ -554,6 +571,13 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
   std::shared_ptr<LodWindowLayers> win;
   std::shared_ptr<const LodLevel> lvl;
   if (stored_) {
+    const double mb = static_cast<double>(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols) *
+                                          stored_->bytes_per_sample()) / (1024.0 * 1024.0);
+    if (mb > options_.memory_budget_mb) {
+      throw InputError("lod: a window of " + std::to_string(rows) + " x " + std::to_string(cols) + " samples (" +
+                       format_number(mb) + " MB with its layers) is larger than lod.memory_budget_mb = " +
+                       format_number(options_.memory_budget_mb));
+    }
     win = read_stored_window(level, row0, col0, rows, cols);  // the tiles it overlaps (without mutex_)
   } else {
     lvl = get_level(level, true);  // may build (without mutex_)
@@ -668,7 +692,20 @@ std::uint64_t write_scene_levels(LodPyramid& pyramid, const std::filesystem::pat
     fs::create_directory(d, ec);
     if (ec) throw InputError(d.string() + ": cannot create the levels folder: " + ec.message());
   };
-  if (pyramid.level_count() > 1) make_dir(root);
+  make_dir(root);
+  if (!pyramid.is_cached(0, true)) {
+    // Level 0 without surface layers (layers off in the run): the pyramid computes them for its
+    // windows, so they are stored too (levels/L0/), and a stored window equals the pyramid's.
+    const std::shared_ptr<const LodLevel> l0 = pyramid.level(0);
+    const fs::path dir = root / "L0";
+    make_dir(dir);
+    const GridGeometry& g = l0->depth_m.geometry();
+    for (const auto& [name, f] : {std::pair<const char*, const HeightField*>{"envelope", &l0->envelope_m},
+                                  {"texture", &l0->texture_m}, {"mu_d", &l0->mu_d}, {"mu_s", &l0->mu_s}}) {
+      detail::write_tiled_layer(dir / (std::string(name) + ".tiff"), f->data(), g, tile_cells, detail::TileSamples::kFloat32);
+      bytes += f->values().size() * sizeof(float);
+    }
+  }
   for (int l = 1; l < pyramid.level_count(); ++l) {
     const std::shared_ptr<const LodLevel> lvl = pyramid.level(l);
     const fs::path dir = detail::stored_layer_file(scene_dir, l, "depth").parent_path();

@@ -412,7 +412,8 @@ void TiledSceneWriter::write_tile(int level, const std::string& layer, int tile_
   Impl& m = *impl_;
   const GridGeometry& g = level_geometry(level);
   const auto it = std::find(m.names.begin(), m.names.end(), layer);
-  if (it == m.names.end() || m.finished) {
+  if (m.finished) throw std::invalid_argument("TiledSceneWriter: write_tile after finish()");
+  if (it == m.names.end()) {
     throw std::invalid_argument("TiledSceneWriter: layer '" + layer + "' is not written by this writer");
   }
   const int t = m.storage.tile_cells;
@@ -543,7 +544,7 @@ Scene load_scene(const fs::path& scene_dir, bool load_layers) {
       }
       s.layers.flags = std::move(img.pixels);
     }
-    if (const YAML::Node colour = root["colour"]; colour && load_layers && fs::path(colour.as<std::string>()).extension() == ".tiff") {
+    if (const YAML::Node colour = root["colour"]; colour && load_layers && version == kTiledSceneFormatVersion) {
       const fs::path file = scene_dir / colour.as<std::string>();
       detail::TiledTiffReader reader;
       std::string why = reader.open(file, detail::TileSamples::kRgb8);

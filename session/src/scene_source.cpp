@@ -38,7 +38,14 @@ OpenedScene open_scene_or_config(const fs::path& input, const SceneSourceOptions
       Scene header = pipeline::load_scene(input, false);
       if (header.storage.tile_cells > 0 && header.storage.stored_levels > 0) {
         pipeline::LodOptions lod = header.lod;
-        if (options.stored_window_cells != 0) lod.window_cells = options.stored_window_cells;
+        if (options.stored_window_cells != 0 && options.stored_window_cells != lod.window_cells) {
+          out.notes.push_back("the stored levels' mu_d was computed for a window of " +
+                              std::to_string(lod.window_cells) + " samples; a window of " +
+                              std::to_string(options.stored_window_cells) +
+                              " changes the window only (run the scene again with lod.window_cells=" +
+                              std::to_string(options.stored_window_cells) + " for its own friction scale)");
+          lod.window_cells = options.stored_window_cells;
+        }
         out.stored_levels = pipeline::LodPyramid::open_stored(input, lod);
         out.scene = std::move(header);
         return out;

@@ -14,6 +14,7 @@
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
+#include <gdal.h>
 #include <gtest/gtest.h>
 #include <tiffio.h>
 
@@ -191,6 +192,28 @@ TEST(TiledScene, LayersAreTiledTiffsWithNoDataTilesStoredWithoutBytesAndLoadAsTh
   EXPECT_EQ(a.layers.colour_rgb8, s.layers.colour_rgb8);
   EXPECT_EQ(a.geometry, s.geometry);
 
+  // GDAL (an independent reader, as QGIS and rasterio use it) reads the no-data tile (2, 1) as
+  // NaN through the file's no-data tag, and the tile beside it as the layer.
+  GDALAllRegister();
+  GDALDatasetH ds = GDALOpen((tiled / "depth.tiff").c_str(), GA_ReadOnly);
+  ASSERT_NE(ds, nullptr);
+  GDALRasterBandH band = GDALGetRasterBand(ds, 1);
+  int has_nodata = 0;
+  EXPECT_TRUE(std::isnan(GDALGetRasterNoDataValue(band, &has_nodata)));
+  EXPECT_TRUE(has_nodata);
+  std::vector<float> block(32 * 64);
+  ASSERT_EQ(GDALRasterIO(band, GF_Read, 32, 64, 64, 32, block.data(), 64, 32, GDT_Float32, 0, 0), CE_None);
+  for (int r = 0; r < 32; ++r) {
+    for (int c = 0; c < 64; ++c) {
+      const float want = c < 32 ? kNaN : s.layers.depth.at(64 + r, 32 + c);
+      EXPECT_EQ(std::isnan(block[static_cast<std::size_t>(r * 64 + c)]), std::isnan(want)) << r << "," << c;
+      if (!std::isnan(want)) {
+        EXPECT_EQ(block[static_cast<std::size_t>(r * 64 + c)], want) << r << "," << c;
+      }
+    }
+  }
+  GDALClose(ds);
+
   // Metadata only: no layer, the storage record.
   const Scene h = hc::pipeline::load_scene(tiled, false);
   EXPECT_EQ(h.layers.depth.rows(), 0);
@@ -274,6 +297,8 @@ TEST(TiledScene, ALevelLargerThanTheBudgetIsRefusedWholeButItsWindowsAreRead) {
   }
   const auto w = stored->window(0, 10, 10, 40, 40);
   EXPECT_EQ(w->depth_m.rows(), 40);
+  // A window larger than the budget is refused too (it would read the whole level).
+  EXPECT_THROW((void)stored->window(0, 0, 0, 300, 211), hc::InputError);
   EXPECT_LE(stored->cache_stats().bytes, stored->cache_stats().budget_bytes);
 }
 
@@ -403,6 +428,32 @@ TEST(TiledScene, ASceneWrittenTileByTileReadsAsTheSceneWrittenWhole) {
     EXPECT_EQ(differing_bits(p->texture_m, q->texture_m), 0u) << level;
     EXPECT_EQ(differing_bits(p->cell_error_m, q->cell_error_m), 0u) << level;
     EXPECT_EQ(p->colour_rgb8, q->colour_rgb8) << level;
+  }
+}
+
+TEST(TiledScene, ASceneWithoutSurfaceLayersStoresTheLayersThePyramidComputesForEveryLevel) {
+  // layers.enabled: false. The in-memory pyramid computes the surface layers of every level its
+  // windows come from, level 0 included; the stored scene must give the same windows.
+  const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/sinusoid.yaml";
+  const fs::path dir = hc::test::temp_dir("run");
+  hc::pipeline::run_pipeline(hc::pipeline::load_run_config(cfg, {"layers.enabled=false", "lod.report=false",
+                                                                 "scale.scene_tiles=on", "scale.scene_tile_cells=32",
+                                                                 "lod.min_cells=20"}),
+                             dir / "out");
+  const Scene whole = hc::pipeline::load_scene(dir / "out" / "scene");
+  ASSERT_FALSE(whole.layers.has_surface_layers());
+  EXPECT_TRUE(fs::exists(dir / "out" / "scene" / "levels" / "L0" / "mu_d.tiff"));
+  auto stored = LodPyramid::open_stored(dir / "out" / "scene", whole.lod);
+  auto mem = LodPyramid::from_scene(Scene(whole), whole.layer_options, whole.lod);
+  ASSERT_EQ(stored->level_count(), mem->level_count());
+  for (int level = 0; level < stored->level_count(); ++level) {
+    const auto w = stored->window(level, 3, 5, 30, 30);
+    const auto m = mem->window(level, 3, 5, 30, 30);
+    ASSERT_GT(m->texture_m.rows(), 0) << level;
+    EXPECT_EQ(differing_bits(w->depth_m, m->depth_m), 0u) << level;
+    EXPECT_EQ(differing_bits(w->texture_m, m->texture_m), 0u) << level;
+    EXPECT_EQ(differing_bits(w->mu_d, m->mu_d), 0u) << level;
+    EXPECT_EQ(differing_bits(w->mu_s, m->mu_s), 0u) << level;
   }
 }
 

@@ -165,12 +165,15 @@ class LodPyramid {
 
   /// The window of rows × cols samples of level L at (row0, col0), clamped so that it lies
   /// inside the level (a level smaller than the window gives the whole level), cropped from the
-  /// level's layers and cached. @throws hc::InputError for L out of range or a size < 2.
+  /// level's layers (a stored pyramid: read from the tiles it overlaps) and cached.
+  /// @throws hc::InputError for L out of range or a size < 2; for a stored pyramid also for a
+  ///         window larger than memory_budget_mb and a file that cannot be read (naming it).
   std::shared_ptr<const LodWindowLayers> window(int level, int row0, int col0, int rows, int cols);
 
   /// Cache figures.
   struct CacheStats {
-    std::size_t bytes = 0;          ///< bytes of the cached entries (levels ≥ 1 and windows)
+    std::size_t bytes = 0;          ///< bytes of the cached entries (levels ≥ 1 and windows; a stored
+                                    ///< pyramid's level 0 too)
     std::size_t budget_bytes = 0;   ///< memory_budget_mb in bytes
     std::size_t finest_bytes = 0;   ///< level 0, held outside the budget
     std::uint64_t hits = 0, misses = 0, evictions = 0;
@@ -211,10 +214,14 @@ class LodPyramid {
 /// them) as tiled TIFFs beside level 0 of a tiled scene folder: `scene_dir/levels/L<k>/` holds
 /// depth.tiff and, when the level has them, envelope, texture, mu_d, mu_s, cell_error (float) and
 /// colour.tiff (RGB); square tiles of `tile_cells` (as write_scene's storage), all-NaN tiles sparse.
-/// Levels are built and written one at a time (the pyramid's budget bounds memory).
-/// Call after write_scene(..., SceneStorage{tile_cells, pyramid.level_count()}) on the same folder.
-/// @return the bytes of tile data written. @throws hc::InputError naming a file that cannot be
-///         written (or a folder that cannot be made); what level() throws.
+/// Levels are built and written one at a time (the pyramid's budget bounds memory). When level 0
+/// has no surface layers (a run with layers off), the ones the pyramid computes for it are stored
+/// in `levels/L0/`, so that a stored window equals the pyramid's at every level.
+/// Call after write_scene(..., SceneStorage{tile_cells, pyramid.level_count()}) on the same folder,
+/// with the pyramid of that scene's layers (cell_error and colour included when it has them).
+/// @return the bytes of the level grids written (tiles without bytes counted as if written).
+/// @throws hc::InputError naming a file that cannot be written (or a folder that cannot be
+///         made); what level() throws.
 std::uint64_t write_scene_levels(LodPyramid& pyramid, const std::filesystem::path& scene_dir, int tile_cells);
 
 }  // namespace hc::pipeline

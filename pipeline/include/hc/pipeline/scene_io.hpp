@@ -49,8 +49,10 @@ void write_scene(const Scene& scene, const std::filesystem::path& scene_dir, con
 
 /// Writes a tiled scene folder (format 3, as write_scene with tiles and write_scene_levels) tile
 /// by tile, for a scene larger than memory (issue 14): a generator or a streaming level builder
-/// hands over one tile of one layer of one level at a time, in any order; memory holds one
-/// tile per call and the files' tile indices. Tiles never written are no data (sparse: NaN, or
+/// hands over one tile of one layer of one level at a time, in any order. Every layer file of
+/// every level is open from construction to finish(): memory is about one tile per open file
+/// (libtiff's write buffer: 256 KB per file at 256-sample float tiles) plus the files' tile
+/// indices. Tiles never written are no data (sparse: NaN, or
 /// colour 0). Level k's geometry is lod_level_geometry(level 0, k) (lod.hpp), so
 /// LodPyramid::open_stored reads the folder. Not thread-safe.
 class TiledSceneWriter {
@@ -79,8 +81,9 @@ class TiledSceneWriter {
   /// Writes tile (tile_row, tile_col) of `layer` ("depth", "envelope", "texture", "mu_d", "mu_s",
   /// "cell_error": tile_cells² floats [m or -], row-major, NaN = no data; "colour": tile_cells²·3
   /// bytes) of level `level`. Samples past the level's edge are ignored. An all-NaN float tile is
-  /// stored without bytes. @throws std::invalid_argument for a layer the writer does not hold or a
-  /// tile outside the level; hc::InputError naming the file on a write error.
+  /// stored without bytes. @throws std::invalid_argument for a layer the writer does not hold, a
+  /// tile outside the level or a call after finish(); std::out_of_range for a level not stored;
+  /// hc::InputError naming the file on a write error.
   void write_tile(int level, const std::string& layer, int tile_row, int tile_col, const void* data);
   /// Closes every layer file and writes scene.yaml last (a folder without it is not a scene).
   /// @return bytes of tile data written. @throws hc::InputError naming a file on a write error.

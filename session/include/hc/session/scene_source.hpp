@@ -16,6 +16,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 namespace hc::session {
 
@@ -34,7 +35,9 @@ struct SceneSourceOptions {
   /// metadata, not its layers (issue 14: a scene larger than memory). Other inputs load as usual.
   bool open_stored_levels = false;
   /// With open_stored_levels: the haptic window side [samples] of the stored pyramid (0: the
-  /// scene's lod.window_cells).
+  /// scene's lod.window_cells). The stored μ_d was computed for the scene's own window (its
+  /// device scale, docs/friction.md): another side only changes the window, and
+  /// OpenedScene::notes says so.
   int stored_window_cells = 0;
   pipeline::ProgressFn progress;
 };
@@ -48,6 +51,8 @@ struct OpenedScene {
   /// With SceneSourceOptions::open_stored_levels on a tiled scene: its levels read from disk;
   /// `scene` then holds geometry, frame and metadata but no layer. Else null.
   std::shared_ptr<pipeline::LodPyramid> stored_levels;
+  /// What the caller should tell the user about how the input was opened (may be empty).
+  std::vector<std::string> notes;
 };
 
 /// True if `input` names a run config (a regular file ending in .yaml or .yml).
