@@ -2,6 +2,8 @@
 // the same depth with the new options (level 0 kept and in the pyramid), and the cloud preview
 // takes grid-frame points back to the model frame.
 
+#include "layered_sinusoid.hpp"
+
 #include "hc/pipeline/surface_layers.hpp"
 #include "hc/pipeline/transform.hpp"
 #include "hc/session/explore_scene.hpp"
@@ -15,30 +17,8 @@
 namespace hc::session {
 namespace {
 
-/// A 100 mm square scene of n × n samples: a 4 mm sinusoid (λ = 40 mm) with a 0.2 mm texture
-/// (λ = 2 mm), its surface layers computed with `options`.
-Scene sinusoid_scene(int n, const pipeline::SurfaceLayerOptions& options) {
-  const double side = 0.1, cell = side / (n - 1);
-  Scene s;
-  s.geometry = GridGeometry{n, n, -side / 2, -side / 2, cell};
-  s.layers.depth = HeightField(s.geometry);
-  const double k = 2 * std::numbers::pi / 0.04, kt = 2 * std::numbers::pi / 0.002;
-  for (int r = 0; r < n; ++r) {
-    for (int c = 0; c < n; ++c) {
-      const double x = s.geometry.x_of_col(c), y = s.geometry.y_of_row(r);
-      s.layers.depth.at(r, c) =
-          static_cast<float>(0.004 * std::sin(k * x) * std::sin(k * y) + 0.0002 * std::sin(kt * x) * std::sin(kt * y));
-    }
-  }
-  pipeline::SurfaceLayers l = pipeline::compute_surface_layers(s.depth(), options).value;
-  s.layers.envelope = l.envelope_m;
-  s.layers.texture = l.texture_m;
-  s.layers.mu_d = l.mu_d;
-  s.layers.mu_s = l.mu_s;
-  s.friction_model = l.friction_model;
-  s.layer_options = options;
-  return s;
-}
+/// The validation sinusoid with its layers for `options` (tests/support/layered_sinusoid.hpp).
+Scene sinusoid_scene(int n, const pipeline::SurfaceLayerOptions& options) { return test::layered_sinusoid(n, options); }
 
 TEST(ExploreScene, TheFrictionRebuildGivesThePipelinesLayersForTheNewOptions) {
   pipeline::SurfaceLayerOptions before;

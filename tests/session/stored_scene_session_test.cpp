@@ -3,6 +3,7 @@
 // forces, tick for tick, as the same session on the scene loaded whole into memory, across
 // scripted level switches and pans; and open_scene_or_config loads no layer for it.
 
+#include "layered_sinusoid.hpp"
 #include "test_paths.hpp"
 
 #include "hc/pipeline/lod.hpp"
@@ -21,34 +22,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-/// The paper's validation sinusoid (4 mm, λ = 40 mm) with a 0.2 mm texture (λ = 2 mm) over a
-/// 100 mm square of n × n samples, with the pipeline's surface layers.
-Scene layered_sinusoid(int n) {
-  const double side = 0.1, cell = side / (n - 1);
-  Scene s;
-  s.geometry = GridGeometry{n, n, -side / 2, -side / 2, cell};
-  s.layers.depth = HeightField(s.geometry);
-  const double k = 2 * std::numbers::pi / 0.04, kt = 2 * std::numbers::pi / 0.002;
-  for (int r = 0; r < n; ++r) {
-    for (int c = 0; c < n; ++c) {
-      const double x = s.geometry.x_of_col(c), y = s.geometry.y_of_row(r);
-      s.layers.depth.at(r, c) =
-          static_cast<float>(0.004 * std::sin(k * x) * std::sin(k * y) + 0.0002 * std::sin(kt * x) * std::sin(kt * y));
-    }
-  }
-  s.lod.window_cells = 120;
-  s.lod.min_cells = 40;
-  const pipeline::SurfaceLayers l = pipeline::compute_surface_layers(s.depth(), s.layer_options, s.lod.window_cells).value;
-  s.layers.envelope = l.envelope_m;
-  s.layers.texture = l.texture_m;
-  s.layers.mu_d = l.mu_d;
-  s.layers.mu_s = l.mu_s;
-  s.friction_model = l.friction_model;
-  return s;
-}
-
 TEST(StoredSceneSession, TouchOnStoredLevelsRendersTheForcesOfTheSceneInMemory) {
-  const Scene scene = layered_sinusoid(321);
+  pipeline::SurfaceLayerOptions options;
+  Scene scene = hc::test::layered_sinusoid(321, options, 120);
+  scene.lod.min_cells = 40;
   const fs::path dir = hc::test::temp_dir("scene") / "scene";
   auto writer = pipeline::LodPyramid::from_scene(Scene(scene), scene.layer_options, scene.lod);
   pipeline::write_scene(scene, dir, SceneStorage{64, writer->level_count()});
