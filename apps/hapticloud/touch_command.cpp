@@ -60,8 +60,17 @@ session::TouchSessionOptions session_options(const TouchOptions& o) {
   session::TouchSessionOptions s = o.s;
   s.friction = !o.no_friction;
   s.hand = !o.no_hand;
-  // Levels of detail are on when --level, --window or --zoom-path is given.
+  // Levels of detail are on when --level, --window or --zoom-path is given, and always for a
+  // tiled scene folder (its stored levels are rendered window by window; scene.yaml only is read).
   s.levels = o.level_given || !o.window.empty() || !o.zoom_path.empty();
+  if (!s.levels && !o.validate && o.synthetic.empty() && !o.input.empty() && !session::is_run_config(o.input)) {
+    std::error_code ec;
+    const fs::path dir(o.input);
+    if (fs::exists(dir / "scene.yaml", ec)) {
+      const hc::SceneStorage st = pipeline::load_scene(dir, false).storage;
+      s.levels = st.tile_cells > 0 && st.stored_levels > 0;
+    }
+  }
   if (o.window_cells_given && o.window_cells == 0) {
     throw ConfigError("touch: --window-cells 0: expected an integer in [2, 4096]");
   }

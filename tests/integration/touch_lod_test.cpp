@@ -54,6 +54,31 @@ TEST(TouchLevels, ScriptedZoomPathSwitchesWindowsWithoutLeavingTheSurface) {
   EXPECT_GT(s["contact_fraction"].get<double>(), 0.3);
 }
 
+TEST(TouchLevels, ATiledSceneIsRenderedThroughItsStoredLevelsWithoutLevelOptions) {
+  // `run` with scale.scene_tiles=on writes format 3; `touch` on it renders windows of the
+  // stored levels (the coarsest without --level), also with --window-cells alone.
+  const fs::path dir = hc::test::temp_dir("tiled");
+  std::string log;
+  ASSERT_EQ(run_app("run " + std::string(HC_SOURCE_DIR) + "/configs/sinusoid.yaml --out " + (dir / "run").string() +
+                        " --set scale.scene_tiles=on --set scale.scene_tile_cells=64 --set lod.min_cells=40 -q",
+                    &log),
+            0)
+      << log;
+  ASSERT_EQ(run_app("touch " + (dir / "run" / "scene").string() + " --seconds 1 --window-cells 64 --out " +
+                        (dir / "touch").string(),
+                    &log),
+            0)
+      << log;
+  EXPECT_NE(log.find("changes the window only"), std::string::npos) << log;  // μ_d was made for 200
+  const json s = read_json(dir / "touch" / "summary.json");
+  ASSERT_TRUE(s.contains("lod")) << log;
+  const json& first = s["lod"]["switches"][0];
+  // 200 samples, min_cells 40: levels 0 (200), 1 (100), 2 (50); the coarsest is rendered.
+  EXPECT_EQ(first["level"].get<int>(), 2);
+  EXPECT_EQ(first["cols"].get<int>(), 50);  // the level is smaller than the 64-sample window
+  EXPECT_GT(s["contact_fraction"].get<double>(), 0.1);
+}
+
 TEST(TouchLevels, BadLevelOrZoomPathIsAOneLineError) {
   const fs::path dir = hc::test::temp_dir("bad");
   std::string log;
