@@ -451,6 +451,33 @@ std::uint64_t TiledTiffReader::tiles_read() const {
   return impl_->tiles_read;
 }
 
+std::string TiledTiffReader::read_tile(int tile_row, int tile_col, void* out, bool* sparse) const {
+  const Impl& m = *impl_;
+  if (!m.tif) return "the tiled TIFF is not open";
+  if (tile_row < 0 || tile_col < 0 || tile_row >= (m.height + m.tile - 1) / m.tile ||
+      tile_col >= (m.width + m.tile - 1) / m.tile) {
+    return "tile (" + std::to_string(tile_row) + ", " + std::to_string(tile_col) + ") outside the " +
+           std::to_string(m.height) + "x" + std::to_string(m.width) + " image";
+  }
+  std::lock_guard<std::mutex> lock(m.mutex);
+  m.messages.error.clear();
+  TIFF* t = m.tif.get();
+  const ttile_t index = TIFFComputeTile(t, static_cast<std::uint32_t>(tile_col * m.tile),
+                                        static_cast<std::uint32_t>(tile_row * m.tile), 0, 0);
+  *sparse = TIFFGetStrileByteCount(t, index) == 0;
+  if (*sparse) return m.messages.error;
+  const auto bytes = static_cast<tmsize_t>(static_cast<std::size_t>(m.tile) * static_cast<std::size_t>(m.tile) *
+                                           static_cast<std::size_t>(tile_sample_bytes(m.samples)));
+  errno = 0;
+  // The tile buffer is at least this large (checked at open); decode there, then copy out.
+  if (TIFFReadEncodedTile(t, index, m.buffer.data(), static_cast<tmsize_t>(m.buffer.size())) < 0) {
+    return tiff_failure(m.messages, "libtiff cannot read a tile");
+  }
+  std::memcpy(out, m.buffer.data(), static_cast<std::size_t>(bytes));
+  ++m.tiles_read;
+  return m.messages.error;
+}
+
 std::string TiledTiffReader::read_region(int row0, int col0, int rows, int cols, void* out) const {
   const Impl& m = *impl_;
   if (!m.tif) return "the tiled TIFF is not open";

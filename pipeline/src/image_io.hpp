@@ -125,6 +125,11 @@ class TiledTiffReader {
   /// bytes for RGB); sparse tiles read as NaN (float) or 0 (RGB). The rectangle must lie inside
   /// the image. @return "" or why not (a libtiff read error during this call).
   std::string read_region(int row0, int col0, int rows, int cols, void* out) const;
+  /// Decodes tile (tile_row, tile_col) whole into `out` (tile()² samples, × 3 bytes for RGB;
+  /// samples past the image's edge as stored). A tile without bytes is not read: `*sparse` is set
+  /// and `out` is left as it is. @return "" or why not (a tile outside the image, a libtiff read
+  /// error during this call).
+  std::string read_tile(int tile_row, int tile_col, void* out, bool* sparse) const;
   /// Tiles with data decoded so far (sparse tiles not counted), for tests and benchmarks.
   std::uint64_t tiles_read() const;
 

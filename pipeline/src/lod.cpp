@@ -9,7 +9,9 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstring>
 #include <limits>
+#include <map>
 #include <sstream>
 #include <stdexcept>
 #include <utility>
@@ -287,15 +289,96 @@ struct LodPyramid::Stored {
     const GridGeometry& g = geometries[static_cast<std::size_t>(level)];
     HeightField out(GridGeometry{rows, cols, g.x_of_col(col0), g.y_of_row(row0), g.cell_size_m});
     out.model_to_grid = model_to_grid;
-    const std::string why = reader(level, kind).read_region(row0, col0, rows, cols, out.data());
-    if (!why.empty()) throw InputError(file(level, kind).string() + ": " + why);
+    region(level, kind, row0, col0, rows, cols, out.data());
     return out;
   }
   std::vector<std::uint8_t> colour(int level, int row0, int col0, int rows, int cols) {
     std::vector<std::uint8_t> out(3 * static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols));
-    const std::string why = reader(level, kColour).read_region(row0, col0, rows, cols, out.data());
-    if (!why.empty()) throw InputError(file(level, kColour).string() + ": " + why);
+    region(level, kColour, row0, col0, rows, cols, out.data());
     return out;
+  }
+
+  // The tile cache (issue 14: "the LoD cache holds tiles under its memory budget"): decoded tiles
+  // by (level, layer, tile row, tile col), least recently used evicted beyond tile_budget bytes,
+  // so windows that share tiles (a pan, a zoom back) decode each tile once. A null tile is a
+  // tile without bytes (no data).
+  using TileData = std::shared_ptr<const std::vector<std::uint8_t>>;
+  struct CachedTile {
+    TileData data;
+    std::uint64_t last_use = 0;
+  };
+  std::size_t tile_budget = 0;
+  std::mutex tile_mutex;
+  std::map<std::array<int, 4>, CachedTile> tiles;
+  std::size_t tile_bytes = 0;
+  std::uint64_t tile_clock = 0, tile_hits = 0;
+
+  TileData tile(int level, int kind, int tr, int tc) {
+    const std::array<int, 4> key{level, kind, tr, tc};
+    {
+      std::lock_guard<std::mutex> lock(tile_mutex);
+      if (auto it = tiles.find(key); it != tiles.end()) {
+        it->second.last_use = ++tile_clock;
+        ++tile_hits;
+        return it->second.data;
+      }
+    }
+    const detail::TiledTiffReader& r = reader(level, kind);
+    auto data = std::make_shared<std::vector<std::uint8_t>>(static_cast<std::size_t>(r.tile()) *
+                                                            static_cast<std::size_t>(r.tile()) *
+                                                            (kind == kColour ? 3u : sizeof(float)));
+    bool sparse = false;
+    const std::string why = r.read_tile(tr, tc, data->data(), &sparse);
+    if (!why.empty()) throw InputError(file(level, kind).string() + ": " + why);
+    TileData out = sparse ? TileData() : TileData(std::move(data));
+    std::lock_guard<std::mutex> lock(tile_mutex);
+    auto [it, inserted] = tiles.try_emplace(key);
+    if (inserted) {
+      it->second.data = out;
+      tile_bytes += out ? out->size() : 0;
+    }
+    it->second.last_use = ++tile_clock;
+    while (tile_bytes > tile_budget && tiles.size() > 1) {
+      auto victim = tiles.end();
+      for (auto v = tiles.begin(); v != tiles.end(); ++v) {
+        if (v->second.last_use == tile_clock) continue;  // never the tile just asked for
+        if (victim == tiles.end() || v->second.last_use < victim->second.last_use) victim = v;
+      }
+      if (victim == tiles.end()) break;
+      tile_bytes -= victim->second.data ? victim->second.data->size() : 0;
+      tiles.erase(victim);
+    }
+    return it->second.data;
+  }
+
+  // rows × cols samples of a level's layer from (row0, col0) into `out` (row-major; × 3 bytes for
+  // colour), from the cached tiles: NaN (float) or 0 (colour) where a tile has no bytes.
+  void region(int level, int kind, int row0, int col0, int rows, int cols, void* out) {
+    const int t = reader(level, kind).tile();
+    const std::size_t bps = kind == kColour ? 3u : sizeof(float);
+    auto* dst = static_cast<std::uint8_t*>(out);
+    for (int tr = row0 / t; tr * t < row0 + rows; ++tr) {
+      for (int tc = col0 / t; tc * t < col0 + cols; ++tc) {
+        const TileData data = tile(level, kind, tr, tc);
+        const int r_begin = std::max(row0, tr * t), r_end = std::min(row0 + rows, (tr + 1) * t);
+        const int c_begin = std::max(col0, tc * t), c_end = std::min(col0 + cols, (tc + 1) * t);
+        const std::size_t run = static_cast<std::size_t>(c_end - c_begin) * bps;
+        for (int r = r_begin; r < r_end; ++r) {
+          std::uint8_t* to = dst + (static_cast<std::size_t>(r - row0) * static_cast<std::size_t>(cols) +
+                                    static_cast<std::size_t>(c_begin - col0)) * bps;
+          if (!data) {
+            if (kind == kColour) {
+              std::memset(to, 0, run);
+            } else {
+              std::fill_n(reinterpret_cast<float*>(to), run / sizeof(float), std::numeric_limits<float>::quiet_NaN());
+            }
+          } else {
+            std::memcpy(to, data->data() + (static_cast<std::size_t>(r - tr * t) * static_cast<std::size_t>(t) +
+                                            static_cast<std::size_t>(c_begin - tc * t)) * bps, run);
+          }
+        }
+      }
+    }
   }
   std::uint64_t tiles_read() {
     std::lock_guard<std::mutex> lock(mutex);
@@ -327,6 +410,8 @@ std::shared_ptr<LodPyramid> LodPyramid::open_stored(const std::filesystem::path&
   }
   auto stored = std::make_shared<Stored>();
   stored->dir = scene_dir;
+  // A quarter of the budget for decoded tiles, the rest for windows and whole levels.
+  stored->tile_budget = static_cast<std::size_t>(options.memory_budget_mb * 1024.0 * 1024.0 / 4.0);
   stored->model_to_grid = header.model_to_grid;
   const auto exists = [&](int kind) { return std::filesystem::exists(stored->file(0, kind)); };
   stored->has_layers = exists(Stored::kEnvelope) && exists(Stored::kTexture) && exists(Stored::kMuD) && exists(Stored::kMuS);
@@ -396,8 +481,13 @@ const GridGeometry& LodPyramid::geometry(int level) const {
 
 void LodPyramid::touch_locked(Entry& e) { e.last_use = ++clock_; }
 
+double LodPyramid::entry_budget_mb() const noexcept {
+  // A stored pyramid gives a quarter of the budget to its decoded tiles (Stored::tile_budget).
+  return stored_ ? 0.75 * options_.memory_budget_mb : options_.memory_budget_mb;
+}
+
 void LodPyramid::evict_locked() {
-  const auto budget = static_cast<std::size_t>(options_.memory_budget_mb * 1024.0 * 1024.0);
+  const auto budget = static_cast<std::size_t>(entry_budget_mb() * 1024.0 * 1024.0);
   while (bytes_ > budget && entries_.size() > 1) {
     // Least recently used, but never the entry touched last (the one just built or returned).
     auto victim = entries_.end();
@@ -456,11 +546,12 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
   } else if (stored_) {
     const GridGeometry& g = geometries_[static_cast<std::size_t>(level)];
     const double mb = static_cast<double>(g.cell_count() * stored_->bytes_per_sample()) / (1024.0 * 1024.0);
-    if (mb > options_.memory_budget_mb) {
+    if (mb > entry_budget_mb()) {
       throw InputError("lod: level " + std::to_string(level) + " of the stored scene " + stored_->dir.string() + " is " +
                        std::to_string(g.rows) + " x " + std::to_string(g.cols) + " samples (" + format_number(mb) +
-                       " MB with its layers), more than lod.memory_budget_mb = " + format_number(options_.memory_budget_mb) +
-                       ": only its windows are read; choose a coarser level or raise the budget");
+                       " MB with its layers), more than 3/4 of lod.memory_budget_mb = " +
+                       format_number(options_.memory_budget_mb) +
+                       " (the rest holds decoded tiles): only its windows are read; choose a coarser level or raise the budget");
     }
     const auto t0 = Clock::now();
     std::shared_ptr<LodWindowLayers> whole = read_stored_window(level, 0, 0, g.rows, g.cols);
@@ -573,10 +664,10 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
   if (stored_) {
     const double mb = static_cast<double>(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols) *
                                           stored_->bytes_per_sample()) / (1024.0 * 1024.0);
-    if (mb > options_.memory_budget_mb) {
+    if (mb > entry_budget_mb()) {
       throw InputError("lod: a window of " + std::to_string(rows) + " x " + std::to_string(cols) + " samples (" +
-                       format_number(mb) + " MB with its layers) is larger than lod.memory_budget_mb = " +
-                       format_number(options_.memory_budget_mb));
+                       format_number(mb) + " MB with its layers) is larger than 3/4 of lod.memory_budget_mb = " +
+                       format_number(options_.memory_budget_mb) + " (the rest holds decoded tiles)");
     }
     win = read_stored_window(level, row0, col0, rows, cols);  // the tiles it overlaps (without mutex_)
   } else {
@@ -630,6 +721,12 @@ LodPyramid::CacheStats LodPyramid::cache_stats() const {
   s.misses = misses_;
   s.evictions = evictions_;
   for (const auto& e : entries_) (e->is_window ? s.windows_cached : s.levels_cached) += 1;
+  if (stored_) {
+    std::lock_guard<std::mutex> tiles_lock(stored_->tile_mutex);
+    s.tile_bytes = stored_->tile_bytes;
+    s.tiles_cached = static_cast<int>(stored_->tiles.size());
+    s.tile_hits = stored_->tile_hits;
+  }
   return s;
 }
 

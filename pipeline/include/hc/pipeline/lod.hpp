@@ -134,9 +134,11 @@ class LodPyramid {
   /// write_scene_levels): every level is on disk, so nothing is built and nothing is loaded at
   /// open but scene.yaml; each layer file's directory is read on first use, and a window reads
   /// only the tiles it overlaps (issue 14: a 65 536 × 32 768 scene opens and switches windows in
-  /// bounded memory). `options` as in the constructor (memory_budget_mb bounds the cache of
-  /// windows and whole levels; window_cells the haptic window); the level count is the stored
-  /// one. level(L) reads a whole level only when it fits in memory_budget_mb, else it throws.
+  /// bounded memory). `options` as in the constructor: memory_budget_mb bounds the cache, a
+  /// quarter of it for decoded tiles (shared by the windows that overlap them: a pan decodes only
+  /// the tiles it adds), the rest for windows and whole levels; window_cells the haptic window.
+  /// The level count is the stored one. level(L) reads a whole level only when it fits in that
+  /// rest, else it throws.
   /// @throws hc::InputError naming the folder or file: not a tiled scene (format 3 with
   ///         stored_levels ≥ 1), a missing or malformed layer file; hc::ConfigError for options
   ///         out of range.
@@ -178,6 +180,11 @@ class LodPyramid {
     std::size_t finest_bytes = 0;   ///< level 0, held outside the budget
     std::uint64_t hits = 0, misses = 0, evictions = 0;
     int levels_cached = 0, windows_cached = 0;
+    /// A stored pyramid's decoded tiles (a quarter of the budget; windows and levels get the
+    /// rest, so bytes + tile_bytes stays within budget_bytes, up to one entry each just added).
+    std::size_t tile_bytes = 0;
+    int tiles_cached = 0;
+    std::uint64_t tile_hits = 0;  ///< tiles a window took from the cache instead of the file
   };
   CacheStats cache_stats() const;
 
@@ -187,6 +194,7 @@ class LodPyramid {
   LodPyramid(std::shared_ptr<Stored> stored, const SurfaceLayerOptions& layer_options, const LodOptions& options,
              int level_count, const GridGeometry& finest);
   std::shared_ptr<LodWindowLayers> read_stored_window(int level, int row0, int col0, int rows, int cols) const;
+  double entry_budget_mb() const noexcept;  // the share of memory_budget_mb for windows and levels
   static std::shared_ptr<LodWindowLayers> crop_window_locked(const LodLevel& lvl, int level, int row0, int col0, int rows,
                                                              int cols);
   // Cached level (mutex_ held): the level, or null; *depth_only gets a cached depth-only level.
