@@ -172,10 +172,13 @@ int open_and_switch(const fs::path& dir, int switches, unsigned seed, bool drop,
               switches, first_s * 1e3, percentile(times, 0.5) * 1e3, percentile(times, 0.99) * 1e3,
               percentile(times, 1.0) * 1e3);
   const auto stats = pyramid->cache_stats();
-  std::printf("tiles read %llu; cache %.1f MB of %.1f MB, %d windows, %llu evictions; peak RSS %.1f MB\n",
-              static_cast<unsigned long long>(pyramid->tiles_read()), static_cast<double>(stats.bytes) / 1048576.0,
-              static_cast<double>(stats.budget_bytes) / 1048576.0, stats.windows_cached,
-              static_cast<unsigned long long>(stats.evictions), peak_rss_mb());
+  std::printf("tiles decoded %llu, taken from the cache %llu; cache %.1f MB of windows (%d) + %.1f MB of tiles (%d) of "
+              "%.1f MB, %llu window evictions; peak RSS %.1f MB\n",
+              static_cast<unsigned long long>(pyramid->tiles_read()), static_cast<unsigned long long>(stats.tile_hits),
+              static_cast<double>(stats.bytes) / 1048576.0, stats.windows_cached,
+              static_cast<double>(stats.tile_bytes) / 1048576.0, stats.tiles_cached,
+              static_cast<double>(stats.budget_bytes) / 1048576.0, static_cast<unsigned long long>(stats.evictions),
+              peak_rss_mb());
   return 0;
 }
 
