@@ -2,7 +2,8 @@
 // switching to any window takes under 1 s and 500 MB"). Two steps, each its own process, so the
 // second's peak memory is the session's alone:
 //
-//   tiled_scene_bench generate DIR [--rows 32768] [--cols 65536] [--band 4096] [--tile 256]
+//   tiled_scene_bench generate DIR [--rows 32768] [--cols 65536] [--band 4096] [--tile 256] [--colour]
+//                              [--min-cells 64] [--window-cells 200]
 //     writes DIR/scene (scene format 3) tile by tile through pipeline::TiledSceneWriter: every
 //     level of a grid of rows × cols samples of 1 mm, with the relief (a 4 mm sinusoid of 43 mm
 //     wavelength plus a 0.2 mm texture of 2.7 mm) and its layers in a band of `band` rows across
@@ -10,7 +11,8 @@
 //     disk: a full 65 536 × 32 768 scene of five float layers is 57 GB). Every level is the
 //     analytic relief sampled at that level's nodes (envelope, texture and μ from their
 //     formulas), not a pyramid built from level 0: building 2^31 samples' levels needs the
-//     streaming level builder, which does not exist yet (docs/scale.md).
+//     streaming level builder, which does not exist yet (docs/scale.md). --colour adds a colour
+//     and a cross-check error layer (tests/fuzz/scene_tiled_base was made with it, small).
 //   tiled_scene_bench open DIR [--switches 300] [--seed 1] [--drop-caches] [--budget-mb M]
 //     opens DIR/scene with LodPyramid::open_stored and makes `switches` random requests through
 //     session::LodController::set_window (a random level, a window centred in the band): each
@@ -70,14 +72,18 @@ bool has_flag(int argc, char** argv, const std::string& name) {
   return false;
 }
 
-int generate(const fs::path& dir, int rows, int cols, int band, int tile) {
+int generate(const fs::path& dir, int rows, int cols, int band, int tile, bool colour, int min_cells, int window_cells) {
   hc::Scene header;
   header.geometry = hc::GridGeometry{rows, cols, 0.0, 0.0, 0.001};
   header.friction_model = hc::FrictionModel::kPaper;
   header.provenance.tool = "tiled_scene_bench";
   header.provenance.synthetic = "analytic relief in a band of " + std::to_string(band) + " rows";
+  header.lod.min_cells = min_cells;
+  header.lod.window_cells = window_cells;
   const int levels = hc::pipeline::lod_level_count(header.geometry, header.lod.min_cells);
   hc::pipeline::TiledSceneWriter::Contents contents;
+  contents.cell_error = colour;
+  contents.colour = colour;
   fs::create_directories(dir);
   const auto t0 = Clock::now();
   hc::pipeline::TiledSceneWriter w(dir / "scene", header, hc::SceneStorage{tile, levels}, contents);
@@ -85,7 +91,8 @@ int generate(const fs::path& dir, int rows, int cols, int band, int tile) {
   // Wavelengths incommensurate with the 1 mm cell and its powers of two, so that no level samples
   // the texture at its zeros only.
   const double k = 2 * std::numbers::pi / 0.043, kt = 2 * std::numbers::pi / 0.0027;
-  std::vector<std::vector<float>> tiles(5, std::vector<float>(static_cast<std::size_t>(tile) * tile));
+  std::vector<std::vector<float>> tiles(6, std::vector<float>(static_cast<std::size_t>(tile) * tile));
+  std::vector<std::uint8_t> rgb(3 * static_cast<std::size_t>(tile) * tile);
   const char* names[5] = {"depth", "envelope", "texture", "mu_d", "mu_s"};
   std::uint64_t written = 0;
   for (int level = 0; level < levels; ++level) {
@@ -108,9 +115,17 @@ int generate(const fs::path& dir, int rows, int cols, int band, int tile) {
             tiles[2][i] = in_band ? static_cast<float>(t) : nan;
             tiles[3][i] = in_band ? static_cast<float>(0.2 + 0.6 * std::abs(std::sin(kt * x))) : nan;
             tiles[4][i] = in_band ? 0.3f : nan;
+            tiles[5][i] = in_band ? static_cast<float>(1e-4 * (1.0 + std::sin(k * y))) : nan;  // cross-check error [m]
+            rgb[3 * i] = in_band ? static_cast<std::uint8_t>(128 + 120 * std::sin(k * x)) : 0;
+            rgb[3 * i + 1] = in_band ? static_cast<std::uint8_t>(128 + 120 * std::cos(k * y)) : 0;
+            rgb[3 * i + 2] = in_band ? 90 : 0;
           }
         }
         for (int l = 0; l < 5; ++l) w.write_tile(level, names[l], tr, tc, tiles[static_cast<std::size_t>(l)].data());
+        if (colour) {
+          w.write_tile(level, "cell_error", tr, tc, tiles[5].data());
+          w.write_tile(level, "colour", tr, tc, rgb.data());
+        }
       }
     }
   }
@@ -186,14 +201,16 @@ int open_and_switch(const fs::path& dir, int switches, unsigned seed, bool drop,
 
 int main(int argc, char** argv) {
   if (argc < 3 || (std::string(argv[1]) != "generate" && std::string(argv[1]) != "open")) {
-    std::cerr << "usage: tiled_scene_bench generate DIR [--rows R] [--cols C] [--band B] [--tile T]\n"
+    std::cerr << "usage: tiled_scene_bench generate DIR [--rows R] [--cols C] [--band B] [--tile T] [--colour] [--min-cells M]\n"
+                 "                                  [--window-cells W]\n"
                  "       tiled_scene_bench open DIR [--switches N] [--seed S] [--drop-caches] [--budget-mb M]\n";
     return 2;
   }
   try {
     if (std::string(argv[1]) == "generate") {
       return generate(argv[2], arg_int(argc, argv, "--rows", 32768), arg_int(argc, argv, "--cols", 65536),
-                      arg_int(argc, argv, "--band", 4096), arg_int(argc, argv, "--tile", 256));
+                      arg_int(argc, argv, "--band", 4096), arg_int(argc, argv, "--tile", 256), has_flag(argc, argv, "--colour"),
+                      arg_int(argc, argv, "--min-cells", 64), arg_int(argc, argv, "--window-cells", 200));
     }
     return open_and_switch(argv[2], arg_int(argc, argv, "--switches", 300),
                            static_cast<unsigned>(arg_int(argc, argv, "--seed", 1)), has_flag(argc, argv, "--drop-caches"),

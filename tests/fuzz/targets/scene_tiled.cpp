@@ -1,7 +1,8 @@
-// Fuzz target: one file of a tiled scene folder (format 3; scene.yaml valid) through load_scene
-// and LodPyramid::open_stored with window reads at every level: a tiled float TIFF layer of any
-// level, or the flags PNG. The first byte picks the file (modulo their number, in name order),
-// the rest is its content.
+// Fuzz target: one file of a tiled scene folder (format 3, scene.yaml valid; made by
+// `tiled_scene_bench generate DIR --rows 40 --cols 44 --band 30 --tile 16 --colour --min-cells 8
+// --window-cells 24`) through load_scene and LodPyramid::open_stored with window reads at every
+// level: any tiled TIFF of any level (float layers, the cross-check error and the colour). The
+// first byte picks the file (modulo their number, in name order), the rest is its content.
 #include "scene_common.hpp"
 
 namespace hc::fuzz {
