@@ -27,6 +27,7 @@
 #include <memory>
 #include <random>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace {
@@ -487,6 +488,53 @@ TEST(TiledScene, ASceneWithoutSurfaceLayersStoresTheLayersThePyramidComputesForE
     EXPECT_EQ(differing_bits(w->mu_d, m->mu_d), 0u) << level;
     EXPECT_EQ(differing_bits(w->mu_s, m->mu_s), 0u) << level;
   }
+}
+
+// Suite LodPyramid, so that CI's ThreadSanitizer stage (.ci/run) runs it: two threads read windows
+// of one stored pyramid at once, with budgets small enough that tiles and windows are evicted
+// while the other thread uses them; every window equals the in-memory pyramid's.
+TEST(LodPyramid, StoredWindowsReadFromTwoThreadsUnderEvictionEqualTheInMemoryOnes) {
+  const Scene s = wavy_scene(300, 211, 96, 48, 100);
+  const fs::path scene_dir = write_tiled(s, hc::test::temp_dir("scene"), 48);
+  LodOptions small = s.lod;
+  small.memory_budget_mb = 1.5;  // tiles 0.375 MB (about 40 float tiles), windows 1.125 MB
+  auto stored = LodPyramid::open_stored(scene_dir, small);
+  struct Request {
+    int level, row0, col0, rows, cols;
+    std::shared_ptr<const hc::pipeline::LodWindowLayers> got;
+  };
+  const auto requests = [&](unsigned seed) {
+    std::mt19937 rng(seed);
+    std::vector<Request> out;
+    for (int i = 0; i < 150; ++i) {
+      const int level = static_cast<int>(rng() % static_cast<unsigned>(stored->level_count()));
+      const GridGeometry& g = stored->geometry(level);
+      const int rows = std::min(g.rows, 2 + static_cast<int>(rng() % 50));
+      const int cols = std::min(g.cols, 2 + static_cast<int>(rng() % 50));
+      out.push_back({level, static_cast<int>(rng() % static_cast<unsigned>(g.rows - rows + 1)),
+                     static_cast<int>(rng() % static_cast<unsigned>(g.cols - cols + 1)), rows, cols, nullptr});
+    }
+    return out;
+  };
+  std::vector<Request> a = requests(21), b = requests(22);
+  const auto run = [&](std::vector<Request>& list) {
+    for (Request& r : list) r.got = stored->window(r.level, r.row0, r.col0, r.rows, r.cols);
+  };
+  std::thread other([&] { run(b); });
+  run(a);
+  other.join();
+  auto mem = memory_pyramid(s);
+  for (const auto* list : {&a, &b}) {
+    for (const Request& r : *list) {
+      const auto m = mem->window(r.level, r.row0, r.col0, r.rows, r.cols);
+      ASSERT_EQ(differing_bits(r.got->depth_m, m->depth_m), 0u) << r.level << " " << r.row0 << "," << r.col0;
+      ASSERT_EQ(differing_bits(r.got->texture_m, m->texture_m), 0u);
+      ASSERT_EQ(r.got->colour_rgb8, m->colour_rgb8);
+    }
+  }
+  const auto stats = stored->cache_stats();
+  EXPECT_GT(stats.evictions, 0u) << "the window budget must have been exceeded for the test to mean anything";
+  EXPECT_LE(stats.tile_bytes, static_cast<std::size_t>(0.375 * 1024 * 1024) + 48 * 48 * 4);
 }
 
 TEST(TiledScene, TileSidesThatAreNotMultiplesOfSixteenAreRefused) {
