@@ -451,6 +451,30 @@ std::uint64_t TiledTiffReader::tiles_read() const {
   return impl_->tiles_read;
 }
 
+void copy_tile_part(const std::uint8_t* tile_data, int tile_row, int tile_col, int tile, TileSamples samples, int row0,
+                    int col0, int rows, int cols, void* out) {
+  const auto bps = static_cast<std::size_t>(tile_sample_bytes(samples));
+  auto* dst = static_cast<std::uint8_t*>(out);
+  const int r_begin = std::max(row0, tile_row * tile), r_end = std::min(row0 + rows, (tile_row + 1) * tile);
+  const int c_begin = std::max(col0, tile_col * tile), c_end = std::min(col0 + cols, (tile_col + 1) * tile);
+  if (r_begin >= r_end || c_begin >= c_end) return;
+  const std::size_t run = static_cast<std::size_t>(c_end - c_begin) * bps;
+  for (int r = r_begin; r < r_end; ++r) {
+    std::uint8_t* to = dst + (static_cast<std::size_t>(r - row0) * static_cast<std::size_t>(cols) +
+                              static_cast<std::size_t>(c_begin - col0)) * bps;
+    if (tile_data == nullptr) {
+      if (samples == TileSamples::kFloat32) {
+        std::fill_n(reinterpret_cast<float*>(to), run / sizeof(float), std::numeric_limits<float>::quiet_NaN());
+      } else {
+        std::memset(to, 0, run);
+      }
+    } else {
+      std::memcpy(to, tile_data + (static_cast<std::size_t>(r - tile_row * tile) * static_cast<std::size_t>(tile) +
+                                   static_cast<std::size_t>(c_begin - tile_col * tile)) * bps, run);
+    }
+  }
+}
+
 std::string TiledTiffReader::read_tile(int tile_row, int tile_col, void* out, bool* sparse) const {
   const Impl& m = *impl_;
   if (!m.tif) return "the tiled TIFF is not open";
@@ -489,8 +513,6 @@ std::string TiledTiffReader::read_region(int row0, int col0, int rows, int cols,
   // Errors are this call's own: a corrupt tile read before does not fail every later window.
   m.messages.error.clear();
   TIFF* t = m.tif.get();
-  const auto bps = static_cast<std::size_t>(tile_sample_bytes(m.samples));
-  auto* dst = static_cast<std::uint8_t*>(out);
   const int tile = m.tile;
   for (int tr = row0 / tile; tr * tile < row0 + rows; ++tr) {
     for (int tc = col0 / tile; tc * tile < col0 + cols; ++tc) {
@@ -503,23 +525,7 @@ std::string TiledTiffReader::read_region(int row0, int col0, int rows, int cols,
         }
         ++m.tiles_read;
       }
-      const int r_begin = std::max(row0, tr * tile), r_end = std::min(row0 + rows, (tr + 1) * tile);
-      const int c_begin = std::max(col0, tc * tile), c_end = std::min(col0 + cols, (tc + 1) * tile);
-      const std::size_t run = static_cast<std::size_t>(c_end - c_begin) * bps;
-      for (int r = r_begin; r < r_end; ++r) {
-        std::uint8_t* to = dst + (static_cast<std::size_t>(r - row0) * static_cast<std::size_t>(cols) +
-                                  static_cast<std::size_t>(c_begin - col0)) * bps;
-        if (sparse) {
-          if (m.samples == TileSamples::kFloat32) {
-            std::fill_n(reinterpret_cast<float*>(to), run / 4, std::numeric_limits<float>::quiet_NaN());
-          } else {
-            std::memset(to, 0, run);
-          }
-        } else {
-          std::memcpy(to, m.buffer.data() + (static_cast<std::size_t>(r - tr * tile) * static_cast<std::size_t>(tile) +
-                                             static_cast<std::size_t>(c_begin - tc * tile)) * bps, run);
-        }
-      }
+      copy_tile_part(sparse ? nullptr : m.buffer.data(), tr, tc, tile, m.samples, row0, col0, rows, cols, out);
     }
   }
   if (!m.messages.error.empty()) return m.messages.error;

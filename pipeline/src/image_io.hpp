@@ -98,6 +98,14 @@ class TiledTiffWriter {
   std::unique_ptr<Impl> impl_;
 };
 
+/// Copies the part of tile (tile_row, tile_col) of a tiled image that falls inside the rows × cols
+/// rectangle at (row0, col0) into `out` (row-major, rows·cols samples of `samples`). `tile_data`
+/// holds the tile's tile² samples, row-major, or is null for a tile without bytes: NaN (float) or
+/// 0 (RGB) are written instead. The assembly step shared by TiledTiffReader::read_region and
+/// the stored pyramid's tile cache. The caller passes only tiles that overlap the rectangle.
+void copy_tile_part(const std::uint8_t* tile_data, int tile_row, int tile_col, int tile, TileSamples samples, int row0,
+                    int col0, int rows, int cols, void* out);
+
 /// Writes a whole image (rows top to bottom, `values` width·height samples, × 3 bytes for RGB)
 /// as a tiled TIFF through TiledTiffWriter (sparse all-NaN float tiles). @return "" or why not.
 std::string write_tiled_tiff(const std::filesystem::path& file, const void* values, int width, int height, int tile,

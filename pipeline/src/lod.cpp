@@ -355,28 +355,11 @@ struct LodPyramid::Stored {
   // colour), from the cached tiles: NaN (float) or 0 (colour) where a tile has no bytes.
   void region(int level, int kind, int row0, int col0, int rows, int cols, void* out) {
     const int t = reader(level, kind).tile();
-    const std::size_t bps = kind == kColour ? 3u : sizeof(float);
-    auto* dst = static_cast<std::uint8_t*>(out);
+    const auto samples = kind == kColour ? detail::TileSamples::kRgb8 : detail::TileSamples::kFloat32;
     for (int tr = row0 / t; tr * t < row0 + rows; ++tr) {
       for (int tc = col0 / t; tc * t < col0 + cols; ++tc) {
         const TileData data = tile(level, kind, tr, tc);
-        const int r_begin = std::max(row0, tr * t), r_end = std::min(row0 + rows, (tr + 1) * t);
-        const int c_begin = std::max(col0, tc * t), c_end = std::min(col0 + cols, (tc + 1) * t);
-        const std::size_t run = static_cast<std::size_t>(c_end - c_begin) * bps;
-        for (int r = r_begin; r < r_end; ++r) {
-          std::uint8_t* to = dst + (static_cast<std::size_t>(r - row0) * static_cast<std::size_t>(cols) +
-                                    static_cast<std::size_t>(c_begin - col0)) * bps;
-          if (!data) {
-            if (kind == kColour) {
-              std::memset(to, 0, run);
-            } else {
-              std::fill_n(reinterpret_cast<float*>(to), run / sizeof(float), std::numeric_limits<float>::quiet_NaN());
-            }
-          } else {
-            std::memcpy(to, data->data() + (static_cast<std::size_t>(r - tr * t) * static_cast<std::size_t>(t) +
-                                            static_cast<std::size_t>(c_begin - tc * t)) * bps, run);
-          }
-        }
+        detail::copy_tile_part(data ? data->data() : nullptr, tr, tc, t, samples, row0, col0, rows, cols, out);
       }
     }
   }
