@@ -436,9 +436,10 @@ std::string TiledTiffReader::open(const std::filesystem::path& file, TileSamples
   m.height = static_cast<int>(height);
   m.tile = static_cast<int>(tw);
   m.samples = samples;
-  m.buffer.resize(static_cast<std::size_t>(TIFFTileSize(t)));
-  if (m.buffer.size() < static_cast<std::size_t>(tw) * th * static_cast<std::size_t>(tile_sample_bytes(samples))) {
-    return "tile size " + std::to_string(m.buffer.size()) + " bytes is too small";
+  // Allocated by read_region on first use (read_tile decodes into its caller's buffer).
+  if (static_cast<std::size_t>(TIFFTileSize(t)) != static_cast<std::size_t>(tw) * th * static_cast<std::size_t>(tile_sample_bytes(samples))) {
+    return "tile size " + std::to_string(TIFFTileSize(t)) + " bytes (expected " +
+           std::to_string(static_cast<std::size_t>(tw) * th * static_cast<std::size_t>(tile_sample_bytes(samples))) + ")";
   }
   return {};
 }
@@ -493,11 +494,14 @@ std::string TiledTiffReader::read_tile(int tile_row, int tile_col, void* out, bo
   const auto bytes = static_cast<tmsize_t>(static_cast<std::size_t>(m.tile) * static_cast<std::size_t>(m.tile) *
                                            static_cast<std::size_t>(tile_sample_bytes(m.samples)));
   errno = 0;
-  // The tile buffer is at least this large (checked at open); decode there, then copy out.
-  if (TIFFReadEncodedTile(t, index, m.buffer.data(), static_cast<tmsize_t>(m.buffer.size())) < 0) {
-    return tiff_failure(m.messages, "libtiff cannot read a tile");
+  // Straight into the caller's tile (TIFFTileSize equals `bytes` for square tiles of one float or
+  // three 8-bit samples, checked at open); a short decode is an error, never stale bytes.
+  const tmsize_t got = TIFFReadEncodedTile(t, index, out, bytes);
+  if (got < 0) return tiff_failure(m.messages, "libtiff cannot read a tile");
+  if (got != bytes) {
+    return "tile (" + std::to_string(tile_row) + ", " + std::to_string(tile_col) + ") decoded to " + std::to_string(got) +
+           " bytes, expected " + std::to_string(bytes);
   }
-  std::memcpy(out, m.buffer.data(), static_cast<std::size_t>(bytes));
   ++m.tiles_read;
   return m.messages.error;
 }
@@ -514,6 +518,7 @@ std::string TiledTiffReader::read_region(int row0, int col0, int rows, int cols,
   m.messages.error.clear();
   TIFF* t = m.tif.get();
   const int tile = m.tile;
+  if (m.buffer.empty()) m.buffer.resize(static_cast<std::size_t>(TIFFTileSize(t)));
   for (int tr = row0 / tile; tr * tile < row0 + rows; ++tr) {
     for (int tc = col0 / tile; tc * tile < col0 + cols; ++tc) {
       const ttile_t index = TIFFComputeTile(t, static_cast<std::uint32_t>(tc * tile), static_cast<std::uint32_t>(tr * tile), 0, 0);

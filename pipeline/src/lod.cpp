@@ -11,6 +11,7 @@
 #include <cmath>
 #include <cstring>
 #include <limits>
+#include <list>
 #include <map>
 #include <sstream>
 #include <stdexcept>
@@ -285,16 +286,26 @@ struct LodPyramid::Stored {
     }
     return *slot;
   }
-  HeightField field(int level, int kind, int row0, int col0, int rows, int cols) {
+  // A window through the tile cache (`cached`), or a whole level straight from the files, so that
+  // reading the navigation view's level does not flush the tiles the windows use.
+  void read_into(int level, int kind, int row0, int col0, int rows, int cols, void* out, bool cached) {
+    if (cached) {
+      region(level, kind, row0, col0, rows, cols, out);
+      return;
+    }
+    const std::string why = reader(level, kind).read_region(row0, col0, rows, cols, out);
+    if (!why.empty()) throw InputError(file(level, kind).string() + ": " + why);
+  }
+  HeightField field(int level, int kind, int row0, int col0, int rows, int cols, bool cached) {
     const GridGeometry& g = geometries[static_cast<std::size_t>(level)];
     HeightField out(GridGeometry{rows, cols, g.x_of_col(col0), g.y_of_row(row0), g.cell_size_m});
     out.model_to_grid = model_to_grid;
-    region(level, kind, row0, col0, rows, cols, out.data());
+    read_into(level, kind, row0, col0, rows, cols, out.data(), cached);
     return out;
   }
-  std::vector<std::uint8_t> colour(int level, int row0, int col0, int rows, int cols) {
+  std::vector<std::uint8_t> colour(int level, int row0, int col0, int rows, int cols, bool cached) {
     std::vector<std::uint8_t> out(3 * static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols));
-    region(level, kColour, row0, col0, rows, cols, out.data());
+    read_into(level, kColour, row0, col0, rows, cols, out.data(), cached);
     return out;
   }
 
@@ -303,24 +314,24 @@ struct LodPyramid::Stored {
   // so windows that share tiles (a pan, a zoom back) decode each tile once. A null tile is a
   // tile without bytes (no data).
   using TileData = std::shared_ptr<const std::vector<std::uint8_t>>;
-  struct CachedTile {
-    TileData data;
-    std::uint64_t last_use = 0;
-  };
+  using TileKey = std::array<int, 4>;
   std::size_t tile_budget = 0;
   std::mutex tile_mutex;
-  std::map<std::array<int, 4>, CachedTile> tiles;
+  std::list<std::pair<TileKey, TileData>> tile_lru;  // most recently used first
+  std::map<TileKey, std::list<std::pair<TileKey, TileData>>::iterator> tiles;
   std::size_t tile_bytes = 0;
-  std::uint64_t tile_clock = 0, tile_hits = 0;
+  std::uint64_t tile_hits = 0;
 
+  // Only tiles with data are cached (a tile without bytes is told by one byte-count lookup);
+  // O(log n) per lookup and insert, O(1) per eviction.
   TileData tile(int level, int kind, int tr, int tc) {
-    const std::array<int, 4> key{level, kind, tr, tc};
+    const TileKey key{level, kind, tr, tc};
     {
       std::lock_guard<std::mutex> lock(tile_mutex);
       if (auto it = tiles.find(key); it != tiles.end()) {
-        it->second.last_use = ++tile_clock;
+        tile_lru.splice(tile_lru.begin(), tile_lru, it->second);
         ++tile_hits;
-        return it->second.data;
+        return it->second->second;
       }
     }
     const detail::TiledTiffReader& r = reader(level, kind);
@@ -330,31 +341,29 @@ struct LodPyramid::Stored {
     bool sparse = false;
     const std::string why = r.read_tile(tr, tc, data->data(), &sparse);
     if (!why.empty()) throw InputError(file(level, kind).string() + ": " + why);
-    TileData out = sparse ? TileData() : TileData(std::move(data));
+    if (sparse) return nullptr;
+    TileData out(std::move(data));
     std::lock_guard<std::mutex> lock(tile_mutex);
-    auto [it, inserted] = tiles.try_emplace(key);
-    if (inserted) {
-      it->second.data = out;
-      tile_bytes += out ? out->size() : 0;
+    if (auto it = tiles.find(key); it != tiles.end()) return it->second->second;  // read by another thread meanwhile
+    tile_lru.emplace_front(key, out);
+    tiles.emplace(key, tile_lru.begin());
+    tile_bytes += out->size();
+    while (tile_bytes > tile_budget && tile_lru.size() > 1) {  // never the tile just read
+      tile_bytes -= tile_lru.back().second->size();
+      tiles.erase(tile_lru.back().first);
+      tile_lru.pop_back();
     }
-    it->second.last_use = ++tile_clock;
-    while (tile_bytes > tile_budget && tiles.size() > 1) {
-      auto victim = tiles.end();
-      for (auto v = tiles.begin(); v != tiles.end(); ++v) {
-        if (v->second.last_use == tile_clock) continue;  // never the tile just asked for
-        if (victim == tiles.end() || v->second.last_use < victim->second.last_use) victim = v;
-      }
-      if (victim == tiles.end()) break;
-      tile_bytes -= victim->second.data ? victim->second.data->size() : 0;
-      tiles.erase(victim);
-    }
-    return it->second.data;
+    return out;
   }
 
   // rows × cols samples of a level's layer from (row0, col0) into `out` (row-major; × 3 bytes for
   // colour), from the cached tiles: NaN (float) or 0 (colour) where a tile has no bytes.
   void region(int level, int kind, int row0, int col0, int rows, int cols, void* out) {
-    const int t = reader(level, kind).tile();
+    const detail::TiledTiffReader& r = reader(level, kind);
+    if (rows < 1 || cols < 1 || row0 < 0 || col0 < 0 || row0 + rows > r.height() || col0 + cols > r.width()) {
+      throw std::logic_error("lod: stored region outside level " + std::to_string(level));
+    }
+    const int t = r.tile();
     const auto samples = kind == kColour ? detail::TileSamples::kRgb8 : detail::TileSamples::kFloat32;
     for (int tr = row0 / t; tr * t < row0 + rows; ++tr) {
       for (int tc = col0 / t; tc * t < col0 + cols; ++tc) {
@@ -419,21 +428,22 @@ std::shared_ptr<LodPyramid> LodPyramid::open_stored(const std::filesystem::path&
 
 std::uint64_t LodPyramid::tiles_read() const { return stored_ ? stored_->tiles_read() : 0; }
 
-std::shared_ptr<LodWindowLayers> LodPyramid::read_stored_window(int level, int row0, int col0, int rows, int cols) const {
+std::shared_ptr<LodWindowLayers> LodPyramid::read_stored_window(int level, int row0, int col0, int rows, int cols,
+                                                                bool cached) const {
   Stored& st = *stored_;
   auto win = std::make_shared<LodWindowLayers>();
   win->level = level;
   win->row0 = row0;
   win->col0 = col0;
-  win->depth_m = st.field(level, Stored::kDepth, row0, col0, rows, cols);
+  win->depth_m = st.field(level, Stored::kDepth, row0, col0, rows, cols, cached);
   if (st.has_layers) {
-    win->envelope_m = st.field(level, Stored::kEnvelope, row0, col0, rows, cols);
-    win->texture_m = st.field(level, Stored::kTexture, row0, col0, rows, cols);
-    win->mu_d = st.field(level, Stored::kMuD, row0, col0, rows, cols);
-    win->mu_s = st.field(level, Stored::kMuS, row0, col0, rows, cols);
+    win->envelope_m = st.field(level, Stored::kEnvelope, row0, col0, rows, cols, cached);
+    win->texture_m = st.field(level, Stored::kTexture, row0, col0, rows, cols, cached);
+    win->mu_d = st.field(level, Stored::kMuD, row0, col0, rows, cols, cached);
+    win->mu_s = st.field(level, Stored::kMuS, row0, col0, rows, cols, cached);
   }
-  if (st.has_cell_error) win->cell_error_m = st.field(level, Stored::kCellError, row0, col0, rows, cols);
-  if (st.has_colour) win->colour_rgb8 = st.colour(level, row0, col0, rows, cols);
+  if (st.has_cell_error) win->cell_error_m = st.field(level, Stored::kCellError, row0, col0, rows, cols, cached);
+  if (st.has_colour) win->colour_rgb8 = st.colour(level, row0, col0, rows, cols, cached);
   return win;
 }
 
@@ -537,7 +547,9 @@ std::shared_ptr<const LodLevel> LodPyramid::get_level(int level, bool with_layer
                        " (the rest holds decoded tiles): only its windows are read; choose a coarser level or raise the budget");
     }
     const auto t0 = Clock::now();
-    std::shared_ptr<LodWindowLayers> whole = read_stored_window(level, 0, 0, g.rows, g.cols);
+    // Straight from the files: a whole level read through the tile cache would flush the tiles
+    // the windows use.
+    std::shared_ptr<LodWindowLayers> whole = read_stored_window(level, 0, 0, g.rows, g.cols, false);
     built->depth_m = std::move(whole->depth_m);
     built->colour_rgb8 = std::move(whole->colour_rgb8);
     built->cell_error_m = std::move(whole->cell_error_m);
@@ -652,7 +664,7 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
                        format_number(mb) + " MB with its layers) is larger than 3/4 of lod.memory_budget_mb = " +
                        format_number(options_.memory_budget_mb) + " (the rest holds decoded tiles)");
     }
-    win = read_stored_window(level, row0, col0, rows, cols);  // the tiles it overlaps (without mutex_)
+    win = read_stored_window(level, row0, col0, rows, cols, true);  // its tiles, cached (without mutex_)
   } else {
     lvl = get_level(level, true);  // may build (without mutex_)
   }

@@ -155,9 +155,9 @@ class LodPyramid {
   const LodOptions& options() const noexcept { return options_; }
   const SurfaceLayerOptions& layer_options() const noexcept { return layer_options_; }
 
-  /// Level L with its layers, built if needed (a stored pyramid reads it from its tiles).
-  /// @throws hc::InputError for L out of range, for a stored level larger than
-  /// memory_budget_mb (naming its size: only its windows can be read), and whatever
+  /// Level L with its layers, built if needed (a stored pyramid reads it from its files, not
+  /// through the tile cache). @throws hc::InputError for L out of range, for a stored level
+  /// larger than 3/4 of memory_budget_mb (naming its size: only its windows can be read), and whatever
   /// compute_surface_layers throws. Real-time: no.
   std::shared_ptr<const LodLevel> level(int level);
   /// Level L with at least its depth (layers not computed if not cached). Real-time: no.
@@ -169,7 +169,7 @@ class LodPyramid {
   /// inside the level (a level smaller than the window gives the whole level), cropped from the
   /// level's layers (a stored pyramid: read from the tiles it overlaps) and cached.
   /// @throws hc::InputError for L out of range or a size < 2; for a stored pyramid also for a
-  ///         window larger than memory_budget_mb and a file that cannot be read (naming it).
+  ///         window larger than 3/4 of memory_budget_mb and a file that cannot be read (naming it).
   std::shared_ptr<const LodWindowLayers> window(int level, int row0, int col0, int rows, int cols);
 
   /// Cache figures.
@@ -180,8 +180,9 @@ class LodPyramid {
     std::size_t finest_bytes = 0;   ///< level 0, held outside the budget
     std::uint64_t hits = 0, misses = 0, evictions = 0;
     int levels_cached = 0, windows_cached = 0;
-    /// A stored pyramid's decoded tiles (a quarter of the budget; windows and levels get the
-    /// rest, so bytes + tile_bytes stays within budget_bytes, up to one entry each just added).
+    /// A stored pyramid's decoded tiles with data (a quarter of the budget; windows and levels get
+    /// the rest). bytes + tile_bytes stays within budget_bytes up to the entry just added; memory
+    /// also holds the entry being read and entries callers still hold after eviction.
     std::size_t tile_bytes = 0;
     int tiles_cached = 0;
     std::uint64_t tile_hits = 0;  ///< tiles a window took from the cache instead of the file
@@ -193,7 +194,8 @@ class LodPyramid {
   struct Stored;
   LodPyramid(std::shared_ptr<Stored> stored, const SurfaceLayerOptions& layer_options, const LodOptions& options,
              int level_count, const GridGeometry& finest);
-  std::shared_ptr<LodWindowLayers> read_stored_window(int level, int row0, int col0, int rows, int cols) const;
+  std::shared_ptr<LodWindowLayers> read_stored_window(int level, int row0, int col0, int rows, int cols,
+                                                      bool cached) const;
   double entry_budget_mb() const noexcept;  // the share of memory_budget_mb for windows and levels
   static std::shared_ptr<LodWindowLayers> crop_window_locked(const LodLevel& lvl, int level, int row0, int col0, int rows,
                                                              int cols);
