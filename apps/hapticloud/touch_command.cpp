@@ -67,8 +67,7 @@ session::TouchSessionOptions session_options(const TouchOptions& o) {
     std::error_code ec;
     const fs::path dir(o.input);
     if (fs::exists(dir / "scene.yaml", ec)) {
-      const hc::SceneStorage st = pipeline::load_scene(dir, false).storage;
-      s.levels = st.tile_cells > 0 && st.stored_levels > 0;
+      s.levels = pipeline::load_scene(dir, false).storage.stores_levels();
     }
   }
   if (o.window_cells_given && o.window_cells == 0) {

@@ -68,6 +68,22 @@ TiffHandle open_tiff(const std::filesystem::path& file, const char* mode, TiffMe
   return TiffHandle(TIFFOpenExt(file.c_str(), mode, options.get()), &TIFFClose);
 }
 
+// The image layout tags of a TIFF, with libtiff's defaults where a tag is absent.
+struct TiffLayout {
+  std::uint32_t width = 0, height = 0;
+  std::uint16_t samples = 1, bits = 0, format = SAMPLEFORMAT_UINT, planar = PLANARCONFIG_CONTIG;
+};
+TiffLayout layout_of(TIFF* t) {
+  TiffLayout l;
+  TIFFGetField(t, TIFFTAG_IMAGEWIDTH, &l.width);
+  TIFFGetField(t, TIFFTAG_IMAGELENGTH, &l.height);
+  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLESPERPIXEL, &l.samples);
+  TIFFGetFieldDefaulted(t, TIFFTAG_BITSPERSAMPLE, &l.bits);
+  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLEFORMAT, &l.format);
+  TIFFGetFieldDefaulted(t, TIFFTAG_PLANARCONFIG, &l.planar);
+  return l;
+}
+
 std::string tiff_failure(const TiffMessages& m, const char* fallback) {
   if (!m.error.empty()) return m.error;
   return errno != 0 ? std::string(std::strerror(errno)) : std::string(fallback);
@@ -199,14 +215,9 @@ std::string read_float_tiff(const std::filesystem::path& file, FloatImage& out, 
   TiffHandle tif = open_tiff(file, "r", messages);
   if (!tif) return tiff_failure(messages, "not a TIFF libtiff reads");
   TIFF* t = tif.get();
-  std::uint32_t width = 0, height = 0;
-  std::uint16_t samples = 1, bits = 0, format = SAMPLEFORMAT_UINT, planar = PLANARCONFIG_CONTIG;
-  TIFFGetField(t, TIFFTAG_IMAGEWIDTH, &width);
-  TIFFGetField(t, TIFFTAG_IMAGELENGTH, &height);
-  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLESPERPIXEL, &samples);
-  TIFFGetFieldDefaulted(t, TIFFTAG_BITSPERSAMPLE, &bits);
-  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLEFORMAT, &format);
-  TIFFGetFieldDefaulted(t, TIFFTAG_PLANARCONFIG, &planar);
+  const TiffLayout layout = layout_of(t);
+  const std::uint32_t width = layout.width, height = layout.height;
+  const std::uint16_t samples = layout.samples, bits = layout.bits, format = layout.format;
   if (width == 0 || height == 0 || samples != 1 || bits != 32 || format != SAMPLEFORMAT_IEEEFP) {
     return std::to_string(width) + "x" + std::to_string(height) + ", " + std::to_string(samples) + " channel(s) of " +
            std::to_string(bits) + "-bit " + (format == SAMPLEFORMAT_IEEEFP ? "float" : "integer") + " samples";
@@ -409,16 +420,12 @@ std::string TiledTiffReader::open(const std::filesystem::path& file, TileSamples
   if (!m.tif) return tiff_failure(m.messages, "not a TIFF libtiff reads");
   TIFF* t = m.tif.get();
   if (!TIFFIsTiled(t)) return "not a tiled TIFF";
-  std::uint32_t width = 0, height = 0, tw = 0, th = 0;
-  std::uint16_t spp = 1, bits = 0, format = SAMPLEFORMAT_UINT, planar = PLANARCONFIG_CONTIG;
-  TIFFGetField(t, TIFFTAG_IMAGEWIDTH, &width);
-  TIFFGetField(t, TIFFTAG_IMAGELENGTH, &height);
+  const TiffLayout layout = layout_of(t);
+  const std::uint32_t width = layout.width, height = layout.height;
+  const std::uint16_t spp = layout.samples, bits = layout.bits, format = layout.format, planar = layout.planar;
+  std::uint32_t tw = 0, th = 0;
   TIFFGetField(t, TIFFTAG_TILEWIDTH, &tw);
   TIFFGetField(t, TIFFTAG_TILELENGTH, &th);
-  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLESPERPIXEL, &spp);
-  TIFFGetFieldDefaulted(t, TIFFTAG_BITSPERSAMPLE, &bits);
-  TIFFGetFieldDefaulted(t, TIFFTAG_SAMPLEFORMAT, &format);
-  TIFFGetFieldDefaulted(t, TIFFTAG_PLANARCONFIG, &planar);
   const bool want_float = samples == TileSamples::kFloat32;
   const bool ok = want_float ? (spp == 1 && bits == 32 && format == SAMPLEFORMAT_IEEEFP)
                              : (spp == 3 && bits == 8 && format == SAMPLEFORMAT_UINT && planar == PLANARCONFIG_CONTIG);

@@ -390,7 +390,7 @@ LodPyramid::LodPyramid(std::shared_ptr<Stored> stored, const SurfaceLayerOptions
 
 std::shared_ptr<LodPyramid> LodPyramid::open_stored(const std::filesystem::path& scene_dir, const LodOptions& options) {
   const Scene header = load_scene(scene_dir, false);
-  if (header.storage.tile_cells == 0 || header.storage.stored_levels < 1) {
+  if (!header.storage.stores_levels()) {
     throw InputError(scene_dir.string() + ": the scene stores no levels of detail in tiles (format_version " +
                      std::to_string(header.format_version) +
                      "); write it with scale.scene_tiles: on, or load it whole (load_scene)");

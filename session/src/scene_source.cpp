@@ -36,7 +36,7 @@ OpenedScene open_scene_or_config(const fs::path& input, const SceneSourceOptions
     out.description = "scene " + input.string();
     if (options.open_stored_levels) {
       Scene header = pipeline::load_scene(input, false);
-      if (header.storage.tile_cells > 0 && header.storage.stored_levels > 0) {
+      if (header.storage.stores_levels()) {
         pipeline::LodOptions lod = header.lod;
         if (options.stored_window_cells != 0 && options.stored_window_cells != lod.window_cells) {
           out.notes.push_back("the stored levels' mu_d was computed for a window of " +

@@ -133,6 +133,8 @@ struct SceneStorage {
   /// Levels of detail stored (level 0 in the scene folder, level k ≥ 1 in levels/L<k>/); 0 when
   /// the folder stores level 0 only.
   int stored_levels = 0;
+  /// True when the folder is tiled and stores its levels (LodPyramid::open_stored can open it).
+  bool stores_levels() const noexcept { return tile_cells > 0 && stored_levels > 0; }
   bool operator==(const SceneStorage&) const = default;
 };
 
