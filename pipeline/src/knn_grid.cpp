@@ -91,6 +91,19 @@ double load_estimate(const std::vector<float>& p, std::size_t count, double cell
 // Builds the grid. `p` holds 3·count floats (x, y, z interleaved). The cell edge is chosen so
 // that a point's cell holds about 0.85·(k+1) points (then most points' k+1 nearest neighbours
 // lie in their 3×3×3 block); it only affects speed, never the result.
+std::vector<std::uint32_t> dense_lower_table(const CellGrid& g) {
+  std::vector<std::uint32_t> lower;
+  const auto total = static_cast<std::uint64_t>(g.n[0] * g.n[1] * g.n[2]);
+  if (total > 16u * static_cast<std::uint64_t>(g.x.size()) + 4096u) return lower;
+  lower.resize(static_cast<std::size_t>(total) + 1);
+  std::size_t c = 0;
+  for (std::uint64_t key = 0; key <= total; ++key) {
+    while (c < g.cells() && g.cell_key[c] < key) ++c;
+    lower[static_cast<std::size_t>(key)] = static_cast<std::uint32_t>(c);
+  }
+  return lower;
+}
+
 CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
   CellGrid g;
   std::array<double, 3> hi{};
@@ -131,10 +144,39 @@ CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
     keys[i] = g.key(g.index_of(p[3 * i], 0), g.index_of(p[3 * i + 1], 1), g.index_of(p[3 * i + 2], 2));
     g.original[i] = static_cast<std::uint32_t>(i);
   }
+  // Points by cell, stable (input order within a cell): a counting sort over the keys when the
+  // grid has at most 4 cells per point, else a radix sort. occupied[c] and cell_first[c] are the c-th
+  // occupied cell's key and first sorted position (cell_first has one more entry: count).
   const auto total = static_cast<std::uint64_t>(g.n[0] * g.n[1] * g.n[2]);
-  int bits = 1;
-  while (bits < 64 && (std::uint64_t{1} << bits) < total) ++bits;
-  radix_sort(keys, g.original, bits);
+  std::vector<std::uint64_t> occupied;
+  std::vector<std::uint32_t> cell_first;
+  if (total <= 4u * static_cast<std::uint64_t>(count) + 4096u) {
+    std::vector<std::uint32_t> at(static_cast<std::size_t>(total), 0);
+    for (std::size_t i = 0; i < count; ++i) ++at[static_cast<std::size_t>(keys[i])];
+    std::uint32_t run = 0;
+    for (std::size_t key = 0; key < at.size(); ++key) {
+      const std::uint32_t h = at[key];
+      if (h != 0) {
+        occupied.push_back(key);
+        cell_first.push_back(run);
+      }
+      at[key] = run;
+      run += h;
+    }
+    for (std::size_t i = 0; i < count; ++i) g.original[at[static_cast<std::size_t>(keys[i])]++] = static_cast<std::uint32_t>(i);
+  } else {
+    int bits = 1;
+    while (bits < 64 && (std::uint64_t{1} << bits) < total) ++bits;
+    radix_sort(keys, g.original, bits);
+    for (std::size_t i = 0; i < count; ++i) {
+      if (i == 0 || keys[i] != keys[i - 1]) {
+        occupied.push_back(keys[i]);
+        cell_first.push_back(static_cast<std::uint32_t>(i));
+      }
+    }
+  }
+  cell_first.push_back(static_cast<std::uint32_t>(count));
+  keys = {};
 
   // Copy the points in cell order. In a crowded cell, points at exactly the same location are
   // sorted together and only k+1 copies of each location are kept: a further copy can never be
@@ -156,12 +198,11 @@ CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
   std::vector<std::uint32_t> kept;
   kept.reserve(count);
   double load = 0.0;
-  for (std::size_t i = 0; i < count;) {
-    std::size_t j = i + 1;
-    while (j < count && keys[j] == keys[i]) ++j;
+  for (std::size_t oc = 0; oc < occupied.size(); ++oc) {
+    const std::size_t i = cell_first[oc], j = cell_first[oc + 1];
     const bool crowd = j - i > crowded;
     if (crowd) std::sort(g.original.begin() + static_cast<std::ptrdiff_t>(i), g.original.begin() + static_cast<std::ptrdiff_t>(j), before);
-    g.cell_key.push_back(keys[i]);
+    g.cell_key.push_back(occupied[oc]);
     g.cell_start.push_back(static_cast<std::uint32_t>(kept.size()));
     const std::size_t first = kept.size();
     std::size_t run = 0;
@@ -179,7 +220,6 @@ CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
     }
     const auto n = static_cast<double>(kept.size() - first);
     load += n * n;
-    i = j;
   }
   g.original.swap(kept);
   g.load = load / static_cast<double>(std::max<std::size_t>(g.original.size(), 1));
@@ -618,17 +658,8 @@ namespace {
 // (built once, on first need), as in stages B and C.
 class GridPointQueries {
  public:
-  GridPointQueries(const CellGrid& g, int k) : g_(g), knn_(g, k), k1_(static_cast<std::size_t>(k + 1)) {
-    const auto total = static_cast<std::uint64_t>(g.n[0] * g.n[1] * g.n[2]);
-    if (total <= 16u * static_cast<std::uint64_t>(g.x.size()) + 4096u) {
-      lower_.resize(static_cast<std::size_t>(total) + 1);
-      std::size_t c = 0;
-      for (std::uint64_t key = 0; key <= total; ++key) {
-        while (c < g.cells() && g.cell_key[c] < key) ++c;
-        lower_[static_cast<std::size_t>(key)] = static_cast<std::uint32_t>(c);
-      }
-    }
-  }
+  GridPointQueries(const CellGrid& g, int k)
+      : g_(g), knn_(g, k), k1_(static_cast<std::size_t>(k + 1)), lower_(dense_lower_table(g)) {}
 
   // Per-thread buffers and search radius.
   struct Scratch {
@@ -637,6 +668,7 @@ class GridPointQueries {
     SmallestK top;
     std::vector<std::pair<std::uint32_t, float>> found;
     std::vector<std::pair<float, std::uint32_t>> pairs;  // (squared distance, input index)
+    std::vector<std::uint32_t> pos;                      // sorted positions of d2's entries (nearest)
     float hint = 0.0f;
   };
 
@@ -667,20 +699,40 @@ class GridPointQueries {
     };
     float best_kth = std::numeric_limits<float>::infinity();
     for (std::int64_t r = 1; r <= 3; ++r) {
-      cand.clear();
+      // Squared distances of the block's points (itself left out) and their sorted positions;
+      // the k-th smallest value tau by a float selection; pairs (d², input index) only for the
+      // points within tau, where the ties are ordered by index.
+      std::size_t m = 0;
       for (std::int64_t dz = -r; dz <= r; ++dz) {
         for (std::int64_t dy = -r; dy <= r; ++dy) {
           const std::int64_t iy = c[1] + dy, iz = c[2] + dz;
           if (iy < 0 || iz < 0 || iy >= g_.n[1] || iz >= g_.n[2]) continue;
           const std::int64_t x0 = std::max<std::int64_t>(0, c[0] - r), x1 = std::min(g_.n[0] - 1, c[0] + r);
           const std::size_t a = lower(g_.key(x0, iy, iz)), b = lower(g_.key(x1, iy, iz) + 1);
-          if (b > a) add(g_.cell_start[a], g_.cell_start[b]);
+          if (b <= a) continue;
+          const std::size_t pb = g_.cell_start[a], pe = g_.cell_start[b];
+          if (s.d2.size() < m + (pe - pb)) {
+            s.d2.resize(2 * (m + (pe - pb)));
+            s.pos.resize(s.d2.size());
+          }
+          for (std::size_t q = pb; q < pe; ++q) {
+            const float dx = g_.x[q] - pt[0], dy2 = g_.y[q] - pt[1], dz2 = g_.z[q] - pt[2];
+            s.d2[m] = dx * dx + dy2 * dy2 + dz2 * dz2;
+            s.pos[m] = static_cast<std::uint32_t>(q);
+            m += q == sorted ? 0u : 1u;
+          }
         }
       }
-      if (cand.size() < k) continue;
-      std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
-      best_kth = std::min(best_kth, cand[k - 1].first);
-      if (settled(cand[k - 1].first, block_clearance(g_, c, r, pt))) {
+      if (m < k) continue;
+      s.near.assign(s.d2.begin(), s.d2.begin() + static_cast<std::ptrdiff_t>(m));
+      std::nth_element(s.near.begin(), s.near.begin() + static_cast<std::ptrdiff_t>(k - 1), s.near.end());
+      const float tau = s.near[k - 1];
+      best_kth = std::min(best_kth, tau);
+      if (settled(tau, block_clearance(g_, c, r, pt))) {
+        cand.clear();
+        for (std::size_t i = 0; i < m; ++i) {
+          if (s.d2[i] <= tau) cand.emplace_back(s.d2[i], g_.original[s.pos[i]]);
+        }
         finish();
         return;
       }
@@ -715,6 +767,8 @@ class GridPointQueries {
     }
     finish();
   }
+
+  const std::vector<std::uint32_t>& lower_table() const { return lower_; }
 
   float mean_distance(std::uint32_t sorted, Scratch& s) const {
     const float pt[3] = {g_.x[sorted], g_.y[sorted], g_.z[sorted]};
@@ -838,6 +892,8 @@ PointQueries::~PointQueries() = default;
 
 PointQueries::Scratch::Scratch(int k) : state_(std::make_unique<State>(k)) {}
 PointQueries::Scratch::~Scratch() = default;
+
+const std::vector<std::uint32_t>& PointQueries::lower_table() const { return impl_->lower_table(); }
 
 float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s) const {
   return impl_->mean_distance(sorted, *s.state_);

@@ -14,6 +14,7 @@
 #include <cstdint>
 #include <memory>
 #include <thread>
+#include <utility>
 #include <vector>
 
 namespace hc::pipeline::detail {
@@ -50,6 +51,23 @@ struct CellGrid {
     return static_cast<std::size_t>(std::lower_bound(cell_key.begin(), cell_key.end(), k) - cell_key.begin());
   }
 };
+
+/// Dense table of CellGrid::lower: entry `key` (0..n0·n1·n2) is the first occupied cell with a
+/// key >= `key`, so a cell is found in O(1). Empty when the grid has more than 16 cells per point
+/// (plus 4096): callers then use CellGrid::lower (a binary search). 4 bytes per entry.
+std::vector<std::uint32_t> dense_lower_table(const CellGrid& g);
+
+/// Sorted-position range [first, last) of the points of the cell at integer coordinates
+/// (ix, iy, iz) of `g`; empty when the cell lies outside the grid or holds no point. `table` is
+/// g's dense_lower_table: O(1), or a binary search when it is empty.
+inline std::pair<std::uint32_t, std::uint32_t> cell_points(const CellGrid& g, const std::vector<std::uint32_t>& table,
+                                                           std::int64_t ix, std::int64_t iy, std::int64_t iz) {
+  if (ix < 0 || iy < 0 || iz < 0 || ix >= g.n[0] || iy >= g.n[1] || iz >= g.n[2]) return {0, 0};
+  const std::uint64_t key = g.key(ix, iy, iz);
+  const std::size_t c = table.empty() ? g.lower(key) : table[static_cast<std::size_t>(key)];
+  if (c >= g.cells() || g.cell_key[c] != key) return {0, 0};
+  return {g.cell_start[c], g.cell_start[c + 1]};
+}
 
 /// Builds the grid over `count` points (`p` holds 3·count floats, x, y, z interleaved). The cell
 /// edge is chosen so that a point's cell holds about 0.85·(k+1) points; it only affects speed,
@@ -88,6 +106,9 @@ class PointQueries {
 
   /// Mean distance from the point at sorted grid position `sorted` to its k nearest neighbours.
   float mean_distance(std::uint32_t sorted, Scratch& s) const;
+
+  /// The grid's dense_lower_table (built once by the constructor; empty on very sparse grids).
+  const std::vector<std::uint32_t>& lower_table() const;
 
   /// The k nearest neighbours of the point at sorted grid position `sorted`, itself excluded, as
   /// input indices in `out` (size k; needs at least k + 1 points in the grid). Exact; equal

@@ -48,6 +48,14 @@ using detail::splitmix64;
 using hc::format_number;
 
 constexpr std::uint32_t kNotInGrid = std::numeric_limits<std::uint32_t>::max();
+
+// AVX2 and baseline copies of a hot function, picked at load time (GCC/Clang function
+// multiversioning, x86-64 ELF only).
+#if defined(__x86_64__) && defined(__ELF__) && (defined(__GNUC__) || defined(__clang__)) && !defined(__SANITIZE_THREAD__)
+#define HC_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
+#else
+#define HC_SIMD_CLONES
+#endif
 // The off-surface test (robust_outliers.hpp): points with d_i above off_surface_ratio × d_med
 // whose k neighbours form a surface are removed when they stand off its least-squares plane by
 // more than kOffSurfaceFraction × d_i.
@@ -141,6 +149,7 @@ class ExactDistances {
     q_.nearest(s, scratch, out);
   }
   float operator[](std::size_t j) const { return d_[j]; }
+  const PointQueries& queries() const { return q_; }
   std::uint32_t pos(std::size_t j) const { return pos_[j]; }
 
  private:
@@ -152,13 +161,92 @@ class ExactDistances {
   std::vector<std::pair<std::uint32_t, std::uint32_t>> order_;
 };
 
-// Point range [first, last) of the occupied cell at (ix, iy, iz), empty if none.
-std::pair<std::uint32_t, std::uint32_t> cell_range(const CellGrid& g, std::int64_t ix, std::int64_t iy, std::int64_t iz) {
-  if (ix < 0 || iy < 0 || iz < 0 || ix >= g.n[0] || iy >= g.n[1] || iz >= g.n[2]) return {0, 0};
-  const std::uint64_t key = g.key(ix, iy, iz);
-  const std::size_t c = g.lower(key);
-  if (c >= g.cells() || g.cell_key[c] != key) return {0, 0};
-  return {g.cell_start[c], g.cell_start[c + 1]};
+// The counting pass of remove_robust_outliers over the cells [cb, ce): certified[s] = 1 for the
+// sorted points s with at least need_count points (itself included) within squared distance
+// cert2 (own cell, then the cells of the 3×3×3 block that come within reach, nearest first,
+// stopping at need_count); 0 otherwise. Compiled also for AVX2 where the compiler can (the
+// distance loops vectorise 8 wide), chosen at load time by the CPU.
+HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const PointQueries& queries, float cert2, std::uint32_t need_count,
+                                        std::size_t cb, std::size_t ce, std::uint8_t* certified) {
+  // The 3×3×3 block's point ranges, by (dx + 1) + 3 (dy + 1) + 9 (dz + 1).
+  std::array<std::pair<std::uint32_t, std::uint32_t>, 27> block{};
+  std::array<std::pair<float, std::uint8_t>, 26> order{};  // (squared gap, block) within reach
+  std::vector<std::uint32_t> own;
+  const std::vector<std::uint32_t>& table = queries.lower_table();
+  const auto edge = static_cast<float>(g.cell);
+  for (std::size_t ci = cb; ci < ce; ++ci) {
+    const std::uint32_t pb = g.cell_start[ci], pe = g.cell_start[ci + 1];
+    own.assign(pe - pb, 0);
+    bool all = true;
+    for (std::uint32_t a = pb; a < pe; ++a) {
+      const float x = g.x[a], y = g.y[a], z = g.z[a];
+      std::uint32_t cnt = 0;
+      for (std::uint32_t b = pb; b < pe; ++b) {
+        const float dx = g.x[b] - x, dy = g.y[b] - y, dz = g.z[b] - z;
+        cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
+      }
+      own[a - pb] = cnt;
+      const bool ok = cnt >= need_count;
+      certified[a] = ok ? 1 : 0;
+      all = all && ok;
+    }
+    if (all) continue;
+    const auto c = g.coords(g.cell_key[ci]);
+    for (std::int64_t dz = -1; dz <= 1; ++dz) {
+      for (std::int64_t dy = -1; dy <= 1; ++dy) {
+        for (std::int64_t dx = -1; dx <= 1; ++dx) {
+          block[static_cast<std::size_t>((dx + 1) + 3 * (dy + 1) + 9 * (dz + 1))] =
+              detail::cell_points(g, table, c[0] + dx, c[1] + dy, c[2] + dz);
+        }
+      }
+    }
+    const float cell_lo[3] = {static_cast<float>(g.lo[0] + static_cast<double>(c[0]) * g.cell),
+                              static_cast<float>(g.lo[1] + static_cast<double>(c[1]) * g.cell),
+                              static_cast<float>(g.lo[2] + static_cast<double>(c[2]) * g.cell)};
+    for (std::uint32_t a = pb; a < pe; ++a) {
+      if (certified[a]) continue;
+      const float pt[3] = {g.x[a], g.y[a], g.z[a]};
+      // Per axis, the offsets whose cells come within d_cert: 0, and -1 or +1 when the point
+      // lies within d_cert of that face (squared distance to the face as the gap term). The
+      // gaps are only a shortcut: a cell skipped by rounding costs a certificate, never a
+      // wrong one (only counted points certify).
+      std::array<std::array<std::pair<int, float>, 3>, 3> axis{};
+      std::array<std::size_t, 3> na{};
+      for (std::size_t ax = 0; ax < 3; ++ax) {
+        const float u = pt[ax] - cell_lo[ax], w = edge - u;
+        axis[ax][na[ax]++] = {0, 0.0f};
+        if (u * u <= cert2) axis[ax][na[ax]++] = {-1, u * u};
+        if (w * w <= cert2) axis[ax][na[ax]++] = {1, w * w};
+      }
+      std::size_t reach = 0;
+      for (std::size_t iz = 0; iz < na[2]; ++iz) {
+        for (std::size_t iy = 0; iy < na[1]; ++iy) {
+          for (std::size_t ix = 0; ix < na[0]; ++ix) {
+            if (ix == 0 && iy == 0 && iz == 0) continue;
+            const float gap2 = axis[0][ix].second + axis[1][iy].second + axis[2][iz].second;
+            const auto q = static_cast<std::uint8_t>((axis[0][ix].first + 1) + 3 * (axis[1][iy].first + 1) +
+                                                     9 * (axis[2][iz].first + 1));
+            if (gap2 > cert2 || block[q].second <= block[q].first) continue;
+            std::size_t at = reach++;
+            while (at > 0 && order[at - 1].first > gap2) {
+              order[at] = order[at - 1];
+              --at;
+            }
+            order[at] = {gap2, q};
+          }
+        }
+      }
+      std::uint32_t cnt = own[a - pb];
+      for (std::size_t r = 0; r < reach && cnt < need_count; ++r) {
+        const auto& bl = block[order[r].second];
+        for (std::uint32_t b = bl.first; b < bl.second; ++b) {
+          const float dx = g.x[b] - pt[0], dy = g.y[b] - pt[1], dz = g.z[b] - pt[2];
+          cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
+        }
+      }
+      certified[a] = cnt >= need_count ? 1 : 0;
+    }
+  }
 }
 
 }  // namespace
@@ -237,8 +325,10 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
                                std::to_string(k) + " needs at least " + std::to_string(k + 2));
   }
   const std::vector<float> p = recentred(cloud, rows);
-  // Cells of about 0.85·(2k+2) points: the counting pass mostly settles a point in its own cell.
-  const CellGrid g = build_grid(p, n, std::min(2 * k + 1, 1000));
+  // Cells of about 0.85·(3k+2) points: larger cells settle more points in their own cell by
+  // counting, smaller ones make the exact queries cheaper; on the Buddha (k = 16) 2k+1 and 4k+1
+  // cost about 10 % and 2 % more CPU than 3k+1 (outlier_bench, BM_RobustAndFar/0).
+  const CellGrid g = build_grid(p, n, std::min(7 * k / 2 + 1, 1000));
   ExactDistances d(g, k, n);
   const double t_grid = seconds_since(t0);
 
@@ -282,74 +372,17 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   const double t_sample = seconds_since(t0);
 
   // 2. Counting pass: at least k other points within d_cert (own cell, then the cells of the
-  // 3×3×3 block that come within d_cert) prove d_i <= d_cert. Cells split in two halves.
+  // 3×3×3 block that come within d_cert, nearest first, stopping at k + 1) prove d_i <= d_cert.
+  // Cells split in two halves.
   const auto cert2 = static_cast<float>(d_cert * d_cert * (1.0 - 1e-5));
   const std::size_t cells = g.cells();
+  const auto need_count = static_cast<std::uint32_t>(k) + 1;  // the point itself counts once
   std::vector<std::uint8_t> certified(g.original.size(), 0);
   run_parallel(cells > 64 ? kSearchThreads : 1, [&](int t) {
     const int th = cells > 64 ? kSearchThreads : 1;
     const std::size_t cb = cells * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
     const std::size_t ce = cells * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
-    std::array<std::pair<std::uint32_t, std::uint32_t>, 27> block{};
-    std::array<std::array<std::int64_t, 3>, 27> offs{};
-    for (std::size_t ci = cb; ci < ce; ++ci) {
-      const std::uint32_t pb = g.cell_start[ci], pe = g.cell_start[ci + 1];
-      bool all = true;
-      for (std::uint32_t a = pb; a < pe; ++a) {
-        const float x = g.x[a], y = g.y[a], z = g.z[a];
-        std::uint32_t cnt = 0;
-        for (std::uint32_t b = pb; b < pe; ++b) {
-          const float dx = g.x[b] - x, dy = g.y[b] - y, dz = g.z[b] - z;
-          cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
-        }
-        const bool ok = cnt >= static_cast<std::uint32_t>(k) + 1;  // the point itself counts once
-        certified[a] = ok ? 1 : 0;
-        all = all && ok;
-      }
-      if (all) continue;
-      const auto c = g.coords(g.cell_key[ci]);
-      std::size_t nb = 0;
-      for (std::int64_t dz = -1; dz <= 1; ++dz) {
-        for (std::int64_t dy = -1; dy <= 1; ++dy) {
-          for (std::int64_t dx = -1; dx <= 1; ++dx) {
-            if (dx == 0 && dy == 0 && dz == 0) continue;
-            const auto r = cell_range(g, c[0] + dx, c[1] + dy, c[2] + dz);
-            if (r.second > r.first) {
-              block[nb] = r;
-              offs[nb] = {dx, dy, dz};
-              ++nb;
-            }
-          }
-        }
-      }
-      const double lo[3] = {g.lo[0] + static_cast<double>(c[0]) * g.cell, g.lo[1] + static_cast<double>(c[1]) * g.cell,
-                            g.lo[2] + static_cast<double>(c[2]) * g.cell};
-      for (std::uint32_t a = pb; a < pe; ++a) {
-        if (certified[a]) continue;
-        const float pt[3] = {g.x[a], g.y[a], g.z[a]};
-        std::uint32_t cnt = 0;
-        for (std::uint32_t b = pb; b < pe; ++b) {
-          const float dx = g.x[b] - pt[0], dy = g.y[b] - pt[1], dz = g.z[b] - pt[2];
-          cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
-        }
-        for (std::size_t q = 0; q < nb && cnt <= static_cast<std::uint32_t>(k); ++q) {
-          // Skip a neighbour cell farther than d_cert from the point.
-          double gap2 = 0.0;
-          for (std::size_t ax = 0; ax < 3; ++ax) {
-            const double v = pt[ax];
-            const double cl = lo[ax] + static_cast<double>(offs[q][ax]) * g.cell;
-            const double gap = v < cl ? cl - v : (v > cl + g.cell ? v - cl - g.cell : 0.0);
-            gap2 += gap * gap;
-          }
-          if (gap2 > static_cast<double>(cert2)) continue;
-          for (std::uint32_t b = block[q].first; b < block[q].second; ++b) {
-            const float dx = g.x[b] - pt[0], dy = g.y[b] - pt[1], dz = g.z[b] - pt[2];
-            cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
-          }
-        }
-        certified[a] = cnt >= static_cast<std::uint32_t>(k) + 1 ? 1 : 0;
-      }
-    }
+    certify_by_counting(g, d.queries(), cert2, need_count, cb, ce, certified.data());
   });
   std::vector<std::uint32_t> uncertain;
   std::size_t n_certified = g.zero.size();
@@ -507,39 +540,68 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   const std::vector<std::uint32_t> rows = finite_rows(cloud, "find_far_clusters");
   const std::size_t n = rows.size();
   if (n == 0) throw InputError("find_far_clusters: the cloud has no finite points");
-  Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
+  const double* xyz = cloud.xyz.data();  // column-major 3 × N: point i at xyz[3i .. 3i+2]
+  std::array<double, 3> lo{}, hi{};
+  lo.fill(std::numeric_limits<double>::infinity());
+  hi.fill(-std::numeric_limits<double>::infinity());
   for (const std::uint32_t i : rows) {
-    lo = lo.cwiseMin(cloud.xyz.col(static_cast<Eigen::Index>(i)));
-    hi = hi.cwiseMax(cloud.xyz.col(static_cast<Eigen::Index>(i)));
+    for (std::size_t a = 0; a < 3; ++a) {
+      lo[a] = std::min(lo[a], xyz[3 * static_cast<std::size_t>(i) + a]);
+      hi[a] = std::max(hi[a], xyz[3 * static_cast<std::size_t>(i) + a]);
+    }
   }
   // Cells of edge >= link (at most 2^21 per axis: keys fit 63 bits).
-  const double edge = std::max(link_m, (hi - lo).maxCoeff() / 2097150.0);
+  const double edge = std::max({link_m, (hi[0] - lo[0]) / 2097150.0, (hi[1] - lo[1]) / 2097150.0, (hi[2] - lo[2]) / 2097150.0});
   std::array<std::int64_t, 3> nc{};
-  for (int a = 0; a < 3; ++a) nc[static_cast<std::size_t>(a)] = static_cast<std::int64_t>((hi(a) - lo(a)) / edge) + 1;
+  for (std::size_t a = 0; a < 3; ++a) nc[a] = static_cast<std::int64_t>((hi[a] - lo[a]) / edge) + 1;
   auto key_of = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
     return static_cast<std::uint64_t>(x + nc[0] * (y + nc[1] * z));
   };
+  // A point's cell: floor((q - lo) / edge) per axis, by a multiplication (an index one off at a
+  // cell boundary still joins every pair closer than the link: they stay in adjacent cells).
+  const double inv_edge = 1.0 / edge;
   std::vector<std::uint64_t> point_keys(n);
-  std::vector<std::uint32_t> order(n);
   for (std::size_t j = 0; j < n; ++j) {
-    const auto q = cloud.xyz.col(static_cast<Eigen::Index>(rows[j]));
+    const double* q = xyz + 3 * static_cast<std::size_t>(rows[j]);
     std::array<std::int64_t, 3> c{};
-    for (int a = 0; a < 3; ++a) {
-      c[static_cast<std::size_t>(a)] =
-          std::clamp<std::int64_t>(static_cast<std::int64_t>((q(a) - lo(a)) / edge), 0, nc[static_cast<std::size_t>(a)] - 1);
+    for (std::size_t a = 0; a < 3; ++a) {
+      c[a] = std::clamp<std::int64_t>(static_cast<std::int64_t>((q[a] - lo[a]) * inv_edge), 0, nc[a] - 1);
     }
     point_keys[j] = key_of(c[0], c[1], c[2]);
-    order[j] = static_cast<std::uint32_t>(j);
   }
-  // By cell key, equal keys in point order (stable radix sort on the key's significant bits).
+  // Occupied cells: cell_of[j] is point j's cell id, keys[id] its key; cell_at(key) finds a
+  // cell's id (kNotInGrid if unoccupied). Dense table of ids when the box has at most 4 cells
+  // per point (ids in order of first point), else the sorted keys (stable radix sort, binary
+  // search).
   const std::uint64_t max_key = static_cast<std::uint64_t>(nc[0] * nc[1] * nc[2]);
-  detail::radix_sort(point_keys, order, std::max(1, static_cast<int>(std::bit_width(max_key))));
   std::vector<std::uint64_t> keys;
   std::vector<std::uint32_t> cell_of(n);
-  for (std::size_t s = 0; s < n; ++s) {
-    if (keys.empty() || keys.back() != point_keys[s]) keys.push_back(point_keys[s]);
-    cell_of[order[s]] = static_cast<std::uint32_t>(keys.size() - 1);
+  std::vector<std::uint32_t> dense;
+  if (max_key <= 4u * static_cast<std::uint64_t>(n) + 4096u) {
+    dense.assign(static_cast<std::size_t>(max_key), kNotInGrid);
+    for (std::size_t j = 0; j < n; ++j) {
+      std::uint32_t& id = dense[static_cast<std::size_t>(point_keys[j])];
+      if (id == kNotInGrid) {
+        id = static_cast<std::uint32_t>(keys.size());
+        keys.push_back(point_keys[j]);
+      }
+      cell_of[j] = id;
+    }
+  } else {
+    std::vector<std::uint32_t> order(n);
+    std::iota(order.begin(), order.end(), 0u);
+    detail::radix_sort(point_keys, order, std::max(1, static_cast<int>(std::bit_width(max_key))));
+    for (std::size_t s = 0; s < n; ++s) {
+      if (keys.empty() || keys.back() != point_keys[s]) keys.push_back(point_keys[s]);
+      cell_of[order[s]] = static_cast<std::uint32_t>(keys.size() - 1);
+    }
   }
+  point_keys = {};
+  auto cell_at = [&](std::uint64_t key) -> std::uint32_t {
+    if (!dense.empty()) return dense[static_cast<std::size_t>(key)];
+    const auto it = std::lower_bound(keys.begin(), keys.end(), key);
+    return it == keys.end() || *it != key ? kNotInGrid : static_cast<std::uint32_t>(it - keys.begin());
+  };
   // Union-find over the occupied cells, 26-neighbourhood (the 13 "forward" offsets suffice).
   std::vector<std::uint32_t> parent(keys.size());
   std::iota(parent.begin(), parent.end(), 0u);
@@ -552,26 +614,28 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   };
   for (std::size_t c = 0; c < keys.size(); ++c) {
     const auto s = static_cast<std::int64_t>(keys[c]);
-    const std::array<std::int64_t, 3> xyz = {s % nc[0], (s / nc[0]) % nc[1], s / (nc[0] * nc[1])};
+    const std::array<std::int64_t, 3> cc = {s % nc[0], (s / nc[0]) % nc[1], s / (nc[0] * nc[1])};
     for (std::int64_t dz = 0; dz <= 1; ++dz) {
       for (std::int64_t dy = dz == 0 ? 0 : -1; dy <= 1; ++dy) {
         for (std::int64_t dx = (dz == 0 && dy == 0) ? 1 : -1; dx <= 1; ++dx) {
-          const std::int64_t x = xyz[0] + dx, y = xyz[1] + dy, z = xyz[2] + dz;
+          const std::int64_t x = cc[0] + dx, y = cc[1] + dy, z = cc[2] + dz;
           if (x < 0 || y < 0 || x >= nc[0] || y >= nc[1] || z >= nc[2]) continue;
-          const auto it = std::lower_bound(keys.begin(), keys.end(), key_of(x, y, z));
-          if (it == keys.end() || *it != key_of(x, y, z)) continue;
-          const std::uint32_t a = find(static_cast<std::uint32_t>(c)), b = find(static_cast<std::uint32_t>(it - keys.begin()));
+          const std::uint32_t other = cell_at(key_of(x, y, z));
+          if (other == kNotInGrid) continue;
+          const std::uint32_t a = find(static_cast<std::uint32_t>(c)), b = find(other);
           if (a != b) parent[std::max(a, b)] = std::min(a, b);
         }
       }
     }
   }
-  // Component statistics.
+  // Component statistics, components created in the order of their first point.
+  std::vector<std::uint32_t> root_of(keys.size());
+  for (std::size_t c = 0; c < keys.size(); ++c) root_of[c] = find(static_cast<std::uint32_t>(c));
   std::vector<std::uint32_t> comp_of_cell(keys.size(), kNotInGrid);
   std::vector<PointCluster> comps;
   std::vector<Eigen::Vector3d> sums;
   for (std::size_t j = 0; j < n; ++j) {
-    const std::uint32_t root = find(cell_of[j]);
+    const std::uint32_t root = root_of[cell_of[j]];
     if (comp_of_cell[root] == kNotInGrid) {
       comp_of_cell[root] = static_cast<std::uint32_t>(comps.size());
       PointCluster pc;
@@ -581,7 +645,7 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
       sums.emplace_back(Eigen::Vector3d::Zero());
     }
     PointCluster& pc = comps[comp_of_cell[root]];
-    const Eigen::Vector3d q = cloud.xyz.col(static_cast<Eigen::Index>(rows[j]));
+    const Eigen::Map<const Eigen::Vector3d> q(xyz + 3 * static_cast<std::size_t>(rows[j]));
     ++pc.count;
     sums[comp_of_cell[root]] += q;
     pc.min_m = pc.min_m.cwiseMin(q);
@@ -605,8 +669,14 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   }
   if (removed_rows) {
     removed_rows->clear();
-    for (std::size_t j = 0; j < n; ++j) {
-      if (comps[comp_of_cell[find(cell_of[j])]].removed) removed_rows->push_back(rows[j]);
+    std::vector<std::uint8_t> cell_removed(keys.size(), 0);
+    bool any = false;
+    for (std::size_t c = 0; c < keys.size(); ++c) {
+      cell_removed[c] = comps[comp_of_cell[root_of[c]]].removed ? 1 : 0;
+      any = any || cell_removed[c] != 0;
+    }
+    for (std::size_t j = 0; any && j < n; ++j) {
+      if (cell_removed[cell_of[j]] != 0) removed_rows->push_back(rows[j]);
     }
   }
   return result;
@@ -676,6 +746,7 @@ StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOption
     }
     if (!(link > 0.0)) link = 1e-3;  // every point a copy of another: any positive link
     auto fc = remove_far_clusters(std::move(robust.value), link, far);
+    report.figure("far_s", fc.report.seconds);
     robust.value = std::move(fc.value);
     for (auto& f : fc.report.figures) report.figures.push_back(std::move(f));
     for (auto& s : fc.report.notes) report.notes.push_back(std::move(s));
