@@ -444,12 +444,30 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       }
     });
   }
-  std::size_t n_planar = 0;
+  // A point above D_glob lies on no surface when its own neighbourhood is none, or when more
+  // than half of its k neighbours are such points (above D_glob, their neighbourhood no surface):
+  // 17 points of isotropic clutter now and then happen to lie near a plane, the clutter around
+  // them does not. Every point above D_glob is a candidate (D_glob >= D_cert).
+  std::vector<std::uint32_t> cand_of(n, kNotInGrid);
+  for (std::size_t i = 0; i < cand.size(); ++i) cand_of[cand[i]] = static_cast<std::uint32_t>(i);
+  auto scattered = [&](std::uint32_t j) {
+    if (!(static_cast<double>(d[j]) > d_glob)) return false;
+    const std::uint32_t ci = cand_of[j];
+    return ci != kNotInGrid && variation[ci] > o.max_surface_variation;
+  };
+  std::size_t n_planar = 0, n_among_scattered = 0;
   std::vector<std::uint32_t> need;
   for (std::size_t i = 0; i < cand.size(); ++i) {
     if (static_cast<double>(d[cand[i]]) > d_glob) {
       if (variation[i] > o.max_surface_variation) {
         out[cand[i]] = 1;
+        continue;
+      }
+      std::size_t among = 0;
+      for (const std::uint32_t j : nbrs[i]) among += scattered(j) ? 1u : 0u;
+      if (2 * among > nbrs[i].size()) {
+        out[cand[i]] = 1;
+        ++n_among_scattered;
         continue;
       }
       ++n_planar;
@@ -496,6 +514,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   report.figure("max_surface_variation", o.max_surface_variation);
   report.figure("local_tests", static_cast<double>(local_tests));
   report.figure("coherent_above_global", static_cast<double>(n_planar));
+  report.figure("planar_among_scattered", static_cast<double>(n_among_scattered));
   report.figure("removed_robust", static_cast<double>(n_global + n_local + n_off));
   report.figure("removed_global", static_cast<double>(n_global));
   report.figure("removed_local", static_cast<double>(n_local));
@@ -511,8 +530,9 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   report.figure("local_s", seconds_since(t0) - t_exact);
   report.notes.push_back("robust: removed " + std::to_string(n_global) + " points with mean k-NN distance above " +
                          format_number(d_glob * 1e3) + " mm (median " + format_number(d_med * 1e3) + " mm, sigma(ln d) " +
-                         format_number(sigma) + ") whose neighbourhood is not a surface (" + std::to_string(n_planar) +
-                         " such points lie on one and were judged locally) and " + std::to_string(n_local) + " more than " +
+                         format_number(sigma) + ") whose neighbourhood is not a surface (" +
+                         std::to_string(n_among_scattered) + " of them on a chance plane among such points; " +
+                         std::to_string(n_planar) + " such points lie on a surface and were judged locally) and " + std::to_string(n_local) + " more than " +
                          format_number(o.local_ratio) + " x sparser than their neighbours and " + std::to_string(n_off) +
                          " standing off their neighbours' surface; " + std::to_string(n_certified) +
                          " of " + std::to_string(n) + " points settled by counting");

@@ -377,19 +377,29 @@ TEST(RobustOutliers, RemovedSetIsTheRuleAppliedToEveryPointByBruteForce) {
   EXPECT_NEAR(figure(r.report, "median_knn_distance_mm"), d_med * 1e3, 1e-9);
   EXPECT_NEAR(figure(r.report, "global_threshold_mm"), d_glob * 1e3, 1e-9);
 
+  // Above D_glob: "scattered" when the point and its neighbours are not a surface (their surface
+  // variation exceeds the limit).
+  std::vector<bool> scattered(n, false);
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!(d[i] > d_glob)) continue;
+    Eigen::Vector3d mean = pts[i];
+    for (const std::size_t j : nb[i]) mean += pts[j];
+    mean /= static_cast<double>(k + 1);
+    Eigen::Matrix3d cov = (pts[i] - mean) * (pts[i] - mean).transpose();
+    for (const std::size_t j : nb[i]) cov += (pts[j] - mean) * (pts[j] - mean).transpose();
+    const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvalues();
+    scattered[i] = ev.sum() > 0.0 && std::max(ev(0), 0.0) / ev.sum() > o.max_surface_variation;
+  }
   std::vector<bool> removed(n, false);
-  std::size_t n_global = 0, n_local = 0, n_off = 0, clutter_removed = 0;
+  std::size_t n_global = 0, n_local = 0, n_off = 0, clutter_removed = 0, n_among = 0;
   for (std::size_t i = 0; i < n; ++i) {
     bool global = false, off = false;
     if (d[i] > d_glob) {
-      // Not on a surface: the surface variation of the point and its neighbours.
-      Eigen::Vector3d mean = pts[i];
-      for (const std::size_t j : nb[i]) mean += pts[j];
-      mean /= static_cast<double>(k + 1);
-      Eigen::Matrix3d cov = (pts[i] - mean) * (pts[i] - mean).transpose();
-      for (const std::size_t j : nb[i]) cov += (pts[j] - mean) * (pts[j] - mean).transpose();
-      const Eigen::Vector3d ev = Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d>(cov).eigenvalues();
-      global = ev.sum() > 0.0 && std::max(ev(0), 0.0) / ev.sum() > o.max_surface_variation;
+      // Not on a surface: scattered itself, or more than half of its k nearest are.
+      std::size_t among = 0;
+      for (const std::size_t j : nb[i]) among += scattered[j] ? 1u : 0u;
+      global = scattered[i] || 2 * among > k;
+      n_among += !scattered[i] && 2 * among > k ? 1u : 0u;
     } else if (d[i] > o.off_surface_ratio * d_med) {
       // Off surface: the neighbours alone form a surface and the point stands off their
       // least-squares plane by more than d_i / 2.
@@ -417,7 +427,9 @@ TEST(RobustOutliers, RemovedSetIsTheRuleAppliedToEveryPointByBruteForce) {
   EXPECT_GT(n_local, 0u);
   EXPECT_GT(n_off, 0u);
   EXPECT_GT(clutter_removed, 150u);
+  EXPECT_GT(n_among, 0u);  // clutter on a chance plane among clutter: the neighbours' rule applies
   EXPECT_EQ(figure(r.report, "removed_global"), static_cast<double>(n_global));
+  EXPECT_EQ(figure(r.report, "planar_among_scattered"), static_cast<double>(n_among));
   EXPECT_EQ(figure(r.report, "removed_local"), static_cast<double>(n_local));
   EXPECT_EQ(figure(r.report, "removed_off_surface"), static_cast<double>(n_off));
   std::vector<bool> kept(n, false);

@@ -99,8 +99,11 @@ struct FarClusterOptions {
 /// Point i is removed when any of the three tests fails:
 ///  - global: d_i > D_glob = max(exp(m + mad_multiplier·σ), local_ratio·d_med) and the point's
 ///    neighbourhood (itself and its k nearest) is not a surface: its surface variation
-///    λ0/(λ0+λ1+λ2) (Pauly et al. 2002) exceeds max_surface_variation. Isolated clutter away from
-///    the surface goes; a sparse but coherent surface (near 0) gets only the local test;
+///    λ0/(λ0+λ1+λ2) (Pauly et al. 2002) exceeds max_surface_variation, or more than half of its
+///    k nearest are such points themselves (above D_glob, no surface): 17 points of isotropic
+///    clutter now and then lie near a plane by chance, the clutter around them does not.
+///    Isolated clutter away from the surface goes; a sparse but coherent surface (near 0, its
+///    neighbours too) gets only the local test;
 ///  - local (the local-density idea of LOF, Breunig et al. 2000, with the neighbours' median as
 ///    the reference, as in LoOP, Kriegel et al. 2009): d_i > local_ratio·max(d_ref, d_med), where
 ///    d_ref is the median of d_j over the k nearest neighbours j of i. A sparse but coherent
@@ -127,7 +130,8 @@ struct FarClusterOptions {
 /// Report figures: k, local_ratio, mad_multiplier, sample, median_knn_distance_mm,
 /// mad_log_knn_distance, sigma_log_knn_distance, global_threshold_mm, certify_distance_mm,
 /// certified, exact_queries, max_surface_variation, local_tests, coherent_above_global (points
-/// above D_glob on a surface, judged locally), removed_robust, removed_global, removed_local,
+/// above D_glob on a surface, judged locally), planar_among_scattered (points above D_glob on a
+/// chance plane among clutter: removed by the global test), removed_robust, removed_global, removed_local,
 /// removed_off_surface, local_threshold_mm, off_surface_ratio,
 /// duplicates_left_out, knn_grid_cell_mm and the seconds of each step (grid_s, sample_s,
 /// certify_s, exact_s, local_s). Notes: what was dropped and why.
