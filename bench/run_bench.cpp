@@ -192,8 +192,12 @@ void whole_run(benchmark::State& state, const std::vector<std::string>& override
   fs::remove_all(out);
 }
 void BM_WholeRun(benchmark::State& state) { whole_run(state, {}); }
-void BM_WholeRun_ScopeAll(benchmark::State& state) { whole_run(state, {"filters.outliers.scope=all"}); }
-void BM_WholeRun_ScopeFront(benchmark::State& state) { whole_run(state, {"filters.outliers.scope=front"}); }
+void BM_WholeRun_ScopeAll(benchmark::State& state) {
+  whole_run(state, {"filters.outliers.method=statistical", "filters.outliers.scope=all"});  // exact SOR
+}
+void BM_WholeRun_ScopeFront(benchmark::State& state) {
+  whole_run(state, {"filters.outliers.method=statistical", "filters.outliers.scope=front"});  // front: statistical only
+}
 
 /// Decompresses the .ply.gz once into a temporary .ply for PCL's reader.
 fs::path plain_ply() {
