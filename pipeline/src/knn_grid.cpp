@@ -88,9 +88,6 @@ double load_estimate(const std::vector<float>& p, std::size_t count, double cell
 
 }  // namespace
 
-// Builds the grid. `p` holds 3·count floats (x, y, z interleaved). The cell edge is chosen so
-// that a point's cell holds about 0.85·(k+1) points (then most points' k+1 nearest neighbours
-// lie in their 3×3×3 block); it only affects speed, never the result.
 std::vector<std::uint32_t> dense_lower_table(const CellGrid& g) {
   std::vector<std::uint32_t> lower;
   const auto total = static_cast<std::uint64_t>(g.n[0] * g.n[1] * g.n[2]);
@@ -104,6 +101,9 @@ std::vector<std::uint32_t> dense_lower_table(const CellGrid& g) {
   return lower;
 }
 
+// Builds the grid. `p` holds 3·count floats (x, y, z interleaved). The cell edge is chosen so
+// that a point's cell holds about 0.85·(k+1) points (then most points' k+1 nearest neighbours
+// lie in their 3×3×3 block); it only affects speed, never the result.
 CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
   CellGrid g;
   std::array<double, 3> hi{};
@@ -696,6 +696,7 @@ class GridPointQueries {
       std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
       out.clear();
       for (std::size_t i = 0; i < k; ++i) out.push_back(cand[i].second);
+      std::sort(out.begin(), out.end());  // by input index: sums over them do not depend on the grid
     };
     float best_kth = std::numeric_limits<float>::infinity();
     for (std::int64_t r = 1; r <= 3; ++r) {
@@ -711,10 +712,8 @@ class GridPointQueries {
           const std::size_t a = lower(g_.key(x0, iy, iz)), b = lower(g_.key(x1, iy, iz) + 1);
           if (b <= a) continue;
           const std::size_t pb = g_.cell_start[a], pe = g_.cell_start[b];
-          if (s.d2.size() < m + (pe - pb)) {
-            s.d2.resize(2 * (m + (pe - pb)));
-            s.pos.resize(s.d2.size());
-          }
+          if (s.d2.size() < m + (pe - pb)) s.d2.resize(2 * (m + (pe - pb)));
+          if (s.pos.size() < m + (pe - pb)) s.pos.resize(2 * (m + (pe - pb)));
           for (std::size_t q = pb; q < pe; ++q) {
             const float dx = g_.x[q] - pt[0], dy2 = g_.y[q] - pt[1], dz2 = g_.z[q] - pt[2];
             s.d2[m] = dx * dx + dy2 * dy2 + dz2 * dz2;

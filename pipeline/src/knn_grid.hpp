@@ -111,7 +111,7 @@ class PointQueries {
   const std::vector<std::uint32_t>& lower_table() const;
 
   /// The k nearest neighbours of the point at sorted grid position `sorted`, itself excluded, as
-  /// input indices in `out` (size k; needs at least k + 1 points in the grid). Exact; equal
+  /// input indices in `out`, ascending (size k; needs at least k + 1 points in the grid). Exact; equal
   /// squared distances (float) are ordered by input index, so the set does not depend on the
   /// grid. Blocks of 3³, 5³, 7³ cells, then the cell-centre kd-tree (as mean_distance).
   /// @throws std::invalid_argument when the grid holds fewer than k + 1 points.

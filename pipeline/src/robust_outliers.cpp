@@ -51,7 +51,15 @@ constexpr std::uint32_t kNotInGrid = std::numeric_limits<std::uint32_t>::max();
 
 // AVX2 and baseline copies of a hot function, picked at load time (GCC/Clang function
 // multiversioning, x86-64 ELF only).
-#if defined(__x86_64__) && defined(__ELF__) && (defined(__GNUC__) || defined(__clang__)) && !defined(__SANITIZE_THREAD__)
+// glibc only (ifunc); not under ThreadSanitizer, whose runtime is not up when the ifunc resolver
+// runs (GCC says so by __SANITIZE_THREAD__, Clang by __has_feature).
+#if defined(__has_feature)
+#if __has_feature(thread_sanitizer)
+#define HC_NO_SIMD_CLONES 1
+#endif
+#endif
+#if defined(__x86_64__) && defined(__ELF__) && defined(__GLIBC__) && (defined(__GNUC__) || defined(__clang__)) && \
+    !defined(__SANITIZE_THREAD__) && !defined(HC_NO_SIMD_CLONES)
 #define HC_SIMD_CLONES __attribute__((target_clones("avx2", "default")))
 #else
 #define HC_SIMD_CLONES
@@ -328,7 +336,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   // Cells of about 0.85·(3k+2) points: larger cells settle more points in their own cell by
   // counting, smaller ones make the exact queries cheaper; on the Buddha (k = 16) 2k+1 and 4k+1
   // cost about 10 % and 2 % more CPU than 3k+1 (outlier_bench, BM_RobustAndFar/0).
-  const CellGrid g = build_grid(p, n, std::min(7 * k / 2 + 1, 1000));
+  const CellGrid g = build_grid(p, n, std::min(3 * k + 1, 1000));
   ExactDistances d(g, k, n);
   const double t_grid = seconds_since(t0);
 
@@ -820,3 +828,6 @@ std::string describe_far_points(const Cloud& cloud) {
 }
 
 }  // namespace hc::pipeline
+
+#undef HC_SIMD_CLONES
+#undef HC_NO_SIMD_CLONES

@@ -316,12 +316,14 @@ double median_value(std::vector<double> v) {
   return v.size() % 2 ? v[h] : 0.5 * (v[h - 1] + v[h]);
 }
 
-TEST(RobustOutliers, RemovedSetIsTheRuleAppliedToEveryPointByBruteForce) {
-  // Oracle: the rule of robust_outliers.hpp evaluated by brute force in double precision (every
-  // pairwise distance, neighbours ordered by distance then input index), on a cloud made to take
-  // every search path: a wavy surface (4 000 points, 0.1 mm noise), a coherent patch at 3 %
-  // density beside it, 200 points of clutter in the box around both and three points 10 m away
-  // (their neighbours lie only on the far side of empty space).
+// Oracle: the rule of robust_outliers.hpp evaluated by brute force in double precision (every
+// pairwise distance, neighbours ordered by distance then input index), on a cloud made to take
+// every search path: a wavy surface (4 000 points, 0.1 mm noise), a coherent patch at 3 %
+// density beside it, 200 points of clutter in the box around both and, with `far_points`, three
+// points 10 m away (their neighbours lie only on the far side of empty space; the grid then has
+// many cells per point: sorted keys and binary searches; without them a dense key table and a
+// counting sort).
+void expect_rule_by_brute_force(bool far_points) {
   std::mt19937 rng(21);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   std::normal_distribution<double> noise(0.0, 1e-4);
@@ -336,7 +338,9 @@ TEST(RobustOutliers, RemovedSetIsTheRuleAppliedToEveryPointByBruteForce) {
     pts.emplace_back(x, y, surface(x, y) + noise(rng));
   }
   for (int i = 0; i < 200; ++i) pts.emplace_back(0.4 * u(rng), 0.2 * u(rng), -0.05 + 0.1 * u(rng));
-  for (int i = 0; i < 3; ++i) pts.emplace_back(10.0 + 2.0 * i, -7.0 * i, 3.0);
+  if (far_points) {
+    for (int i = 0; i < 3; ++i) pts.emplace_back(10.0 + 2.0 * i, -7.0 * i, 3.0);
+  }
   Cloud c;
   c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
   for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
@@ -442,6 +446,10 @@ TEST(RobustOutliers, RemovedSetIsTheRuleAppliedToEveryPointByBruteForce) {
   EXPECT_EQ(mismatches, 0u);
 }
 
+TEST(RobustOutliers, RemovedSetIsTheRuleAppliedToEveryPointByBruteForce) { expect_rule_by_brute_force(true); }
+
+TEST(RobustOutliers, RemovedSetIsTheRuleByBruteForceOnACompactBox) { expect_rule_by_brute_force(false); }
+
 TEST(RobustOutliers, BadOptionsAreConfigErrors) {
   RobustOutlierOptions o;
   o.local_ratio = 1.0;
@@ -495,6 +503,37 @@ TEST(FarClusters, ComponentsMatchBruteForceSingleLinkage) {
   EXPECT_FALSE(fc.others[1].removed);  // 10 cm: not far at far_distance_m = 1
   const auto r = remove_far_clusters(c, 0.02, o);
   EXPECT_EQ(r.value.size(), 303u);
+}
+
+TEST(FarClusters, CompactBoxGivesTheSameKnownAnswer) {
+  // The same known answer in a box of few cells per point (40 × 10 × 5.5 cm at 2 cm: 504 cells
+  // for 308 points), where the cells are found in a dense table instead of sorted keys: a 10 cm
+  // square of 300 points, 5 points 30 cm away (far at far_distance_m = 0.2) and 3 points 5 cm
+  // above it (not far). Listed first in the input: the far points, so component order by first
+  // point differs from order by size.
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 5; ++i) pts.emplace_back(0.4 - 0.001 * i, 0.0, 0.0);                 // 30 cm away
+  for (int i = 0; i < 300; ++i) pts.emplace_back(u(rng) * 0.1, u(rng) * 0.1, 0.0);        // main body
+  for (int i = 0; i < 3; ++i) pts.emplace_back(0.05, 0.05, 0.05 + 0.001 * i);             // 5 cm above
+  Cloud c;
+  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
+  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
+  FarClusterOptions o;
+  o.far_distance_m = 0.2;
+  const FarClusters fc = find_far_clusters(c, 0.02, o);
+  EXPECT_EQ(fc.main_body.count, 300u);
+  ASSERT_EQ(fc.others.size(), 2u);
+  EXPECT_EQ(fc.others[0].count, 5u);
+  EXPECT_TRUE(fc.others[0].removed);
+  EXPECT_NEAR(fc.others[0].gap_m, 0.4 - 0.004 - 0.1, 0.01);
+  EXPECT_NEAR(fc.others[0].centroid_m.x(), 0.398, 1e-12);
+  EXPECT_EQ(fc.others[1].count, 3u);
+  EXPECT_FALSE(fc.others[1].removed);
+  const auto r = remove_far_clusters(c, 0.02, o);
+  ASSERT_EQ(r.value.size(), 303u);
+  for (Eigen::Index i = 0; i < r.value.xyz.cols(); ++i) EXPECT_LT(r.value.xyz(0, i), 0.2) << i;  // the far five went
 }
 
 }  // namespace

@@ -100,7 +100,7 @@ struct FarClusterOptions {
 ///  - global: d_i > D_glob = max(exp(m + mad_multiplier·σ), local_ratio·d_med) and the point's
 ///    neighbourhood (itself and its k nearest) is not a surface: its surface variation
 ///    λ0/(λ0+λ1+λ2) (Pauly et al. 2002) exceeds max_surface_variation, or more than half of its
-///    k nearest are such points themselves (above D_glob, no surface): 17 points of isotropic
+///    k nearest are such points themselves (above D_glob, no surface): k + 1 points of isotropic
 ///    clutter now and then lie near a plane by chance, the clutter around them does not.
 ///    Isolated clutter away from the surface goes; a sparse but coherent surface (near 0, its
 ///    neighbours too) gets only the local test;
@@ -165,7 +165,8 @@ struct FarClusters {
 /// small and far (see remove_far_clusters). Two points closer than link_m always share a
 /// component; the components are unions of grid cells of edge ≥ link_m linked with their 26
 /// neighbours, so points up to 2√3 cell edges apart may share one too (a coarser linking, never
-/// a finer one). Cost O(N) plus a sort of the occupied cells. Non-finite points are ignored.
+/// a finer one). Cost O(N): cells found in a dense table, or O(N log N) by sorted keys when the box has
+/// more than 4 cells per point. Non-finite points are ignored.
 /// @param link_m  > 0 [m]; far_distance_m in `options` (0 = 10·link_m) and max_points /
 ///                max_fraction decide `removed`.
 /// @throws hc::ConfigError if link_m <= 0 or not finite; hc::InputError if no point is finite.
