@@ -153,14 +153,26 @@ TEST(RobustOutliers, CleanBunnyLosesAtMostHalfAPercent) {
 TEST(RobustOutliers, CountingPassDecidesLikeTestingEveryPoint) {
   // Property: the removed set does not depend on how many points the counting pass settles. With
   // a huge sample every point gets an exact distance in step 1, so nothing is left to counting.
+  // Both runs judge by the same scale: `all` draws it from every point, `fast` is given it (its
+  // own sample, smaller than the cloud, could round to another).
   Cloud c = with_extra(bunny(), uniform_in_box(800, 3));
   RobustOutlierOptions fast, all;
   all.sample = c.size();
+  std::vector<std::uint32_t> every(c.size());
+  for (std::size_t i = 0; i < every.size(); ++i) every[i] = static_cast<std::uint32_t>(i);
+  std::vector<double> logs;
+  for (const double d : mean_knn_distances(c, every, fast.k)) {
+    if (d > 0.0) logs.push_back(std::log(d));
+  }
+  fast.scale = robust_scale_of(std::move(logs), c.size());
+  ASSERT_TRUE(fast.scale.has_value());
   const auto a = remove_robust_outliers(c, fast);
   const auto b = remove_robust_outliers(c, all);
   ASSERT_EQ(a.value.size(), b.value.size());
   EXPECT_EQ(a.value.xyz, b.value.xyz);
   EXPECT_GT(figure(a.report, "certified"), 0.8 * static_cast<double>(c.size()));
+  EXPECT_EQ(figure(a.report, "median_knn_distance_mm"), figure(b.report, "median_knn_distance_mm"));
+  EXPECT_EQ(figure(a.report, "mad_log_knn_distance"), figure(b.report, "mad_log_knn_distance"));
 }
 
 TEST(RobustOutliers, UniformClutterOfOneToFivePercentGoesAndTruePointsStay) {
