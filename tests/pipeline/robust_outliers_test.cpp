@@ -492,6 +492,14 @@ TEST(RobustOutliers, BadOptionsAreConfigErrors) {
                hc::ConfigError);
 }
 
+// A cloud of the given points (no attributes).
+Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts) {
+  Cloud c;
+  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
+  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
+  return c;
+}
+
 TEST(FarClusters, ComponentsMatchBruteForceSingleLinkage) {
   // Known answer: a 10 cm square of 300 points (mean spacing 6 mm, linked at 2 cm), 5 points 5 m
   // away and 3 points 15 cm above it.
@@ -501,9 +509,7 @@ TEST(FarClusters, ComponentsMatchBruteForceSingleLinkage) {
   for (int i = 0; i < 300; ++i) pts.emplace_back(u(rng) * 0.1, u(rng) * 0.1, 0.0);        // main body
   for (int i = 0; i < 5; ++i) pts.emplace_back(5.0 + 0.001 * i, 0.0, 0.0);                 // 5 m away
   for (int i = 0; i < 3; ++i) pts.emplace_back(0.05, 0.05, 0.0 + 0.15 + 0.001 * i);        // 10 cm above
-  Cloud c;
-  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
-  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
+  const Cloud c = cloud_of(pts);
   FarClusterOptions o;
   o.far_distance_m = 1.0;
   const FarClusters fc = find_far_clusters(c, 0.02, o);
@@ -529,9 +535,7 @@ TEST(FarClusters, CompactBoxGivesTheSameKnownAnswer) {
   for (int i = 0; i < 5; ++i) pts.emplace_back(0.4 - 0.001 * i, 0.0, 0.0);                 // 30 cm away
   for (int i = 0; i < 300; ++i) pts.emplace_back(u(rng) * 0.1, u(rng) * 0.1, 0.0);        // main body
   for (int i = 0; i < 3; ++i) pts.emplace_back(0.05, 0.05, 0.05 + 0.001 * i);             // 5 cm above
-  Cloud c;
-  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
-  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
+  const Cloud c = cloud_of(pts);
   FarClusterOptions o;
   o.far_distance_m = 0.2;
   const FarClusters fc = find_far_clusters(c, 0.02, o);
