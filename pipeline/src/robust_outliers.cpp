@@ -50,9 +50,8 @@ using hc::format_number;
 constexpr std::uint32_t kNotInGrid = std::numeric_limits<std::uint32_t>::max();
 
 // AVX2 and baseline copies of a hot function, picked at load time (GCC/Clang function
-// multiversioning, x86-64 ELF only).
-// glibc only (ifunc); not under ThreadSanitizer, whose runtime is not up when the ifunc resolver
-// runs (GCC says so by __SANITIZE_THREAD__, Clang by __has_feature).
+// multiversioning: x86-64, ELF, glibc's ifunc). Not under ThreadSanitizer, whose runtime is not
+// up when the ifunc resolver runs (GCC says so by __SANITIZE_THREAD__, Clang by __has_feature).
 #if defined(__has_feature)
 #if __has_feature(thread_sanitizer)
 #define HC_NO_SIMD_CLONES 1
@@ -64,6 +63,7 @@ constexpr std::uint32_t kNotInGrid = std::numeric_limits<std::uint32_t>::max();
 #else
 #define HC_SIMD_CLONES
 #endif
+
 // The off-surface test (robust_outliers.hpp): points with d_i above off_surface_ratio × d_med
 // whose k neighbours form a surface are removed when they stand off its least-squares plane by
 // more than kOffSurfaceFraction × d_i.
