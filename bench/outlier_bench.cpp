@@ -61,8 +61,12 @@ const Cloud* cluttered(int percent = 2) {
     out->intensity.resize(static_cast<std::size_t>(n + extra), 1.0f);
     return out;
   };
-  static const std::unique_ptr<Cloud> clean = make(0.0), two = make(0.02);
-  return percent == 0 ? clean.get() : two.get();
+  if (percent == 0) {
+    static const std::unique_ptr<Cloud> clean = make(0.0);
+    return clean.get();
+  }
+  static const std::unique_ptr<Cloud> two = make(0.02);
+  return two.get();
 }
 
 bool have_buddha(benchmark::State& state) {

@@ -172,15 +172,14 @@ class ExactDistances {
 // The counting pass of remove_robust_outliers over the cells [cb, ce): certified[s] = 1 for the
 // sorted points s with at least need_count points (itself included) within squared distance
 // cert2 (own cell, then the cells of the 3×3×3 block that come within reach, nearest first,
-// stopping at need_count); 0 otherwise. Compiled also for AVX2 where the compiler can (the
+// stopping at need_count); 0 otherwise. `table` is g's dense_lower_table (or empty). Compiled also for AVX2 where the compiler can (the
 // distance loops vectorise 8 wide), chosen at load time by the CPU.
-HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const PointQueries& queries, float cert2, std::uint32_t need_count,
-                                        std::size_t cb, std::size_t ce, std::uint8_t* certified) {
+HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const std::vector<std::uint32_t>& table, float cert2,
+                                        std::uint32_t need_count, std::size_t cb, std::size_t ce, std::uint8_t* certified) {
   // The 3×3×3 block's point ranges, by (dx + 1) + 3 (dy + 1) + 9 (dz + 1).
   std::array<std::pair<std::uint32_t, std::uint32_t>, 27> block{};
   std::array<std::pair<float, std::uint8_t>, 26> order{};  // (squared gap, block) within reach
   std::vector<std::uint32_t> own;
-  const std::vector<std::uint32_t>& table = queries.lower_table();
   const auto edge = static_cast<float>(g.cell);
   for (std::size_t ci = cb; ci < ce; ++ci) {
     const std::uint32_t pb = g.cell_start[ci], pe = g.cell_start[ci + 1];
@@ -390,7 +389,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     const int th = cells > 64 ? kSearchThreads : 1;
     const std::size_t cb = cells * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
     const std::size_t ce = cells * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
-    certify_by_counting(g, d.queries(), cert2, need_count, cb, ce, certified.data());
+    certify_by_counting(g, d.queries().lower_table(), cert2, need_count, cb, ce, certified.data());
   });
   std::vector<std::uint32_t> uncertain;
   std::size_t n_certified = g.zero.size();
@@ -454,8 +453,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   }
   // A point above D_glob lies on no surface when its own neighbourhood is none, or when more
   // than half of its k neighbours are such points (above D_glob, their neighbourhood no surface):
-  // 17 points of isotropic clutter now and then happen to lie near a plane, the clutter around
-  // them does not. Every point above D_glob is a candidate (D_glob >= D_cert).
+  // k + 1 points of isotropic clutter now and then happen to lie near a plane, the clutter
+  // around them does not. Every point above D_glob is a candidate (D_glob >= D_cert).
   std::vector<std::uint32_t> cand_of(n, kNotInGrid);
   for (std::size_t i = 0; i < cand.size(); ++i) cand_of[cand[i]] = static_cast<std::uint32_t>(i);
   auto scattered = [&](std::uint32_t j) {

@@ -500,6 +500,23 @@ Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts) {
   return c;
 }
 
+// The known answer of both far-cluster cases: a 10 cm square of 300 points at x, y in [0, 0.1] m
+// (the main body), 5 points `gap_m` from it (far: listed first among the others and removed)
+// and 3 points above it (not far: kept). remove_far_clusters keeps 303 points, none at x >= 0.2.
+void expect_body_far_five_and_three_above(const Cloud& c, const FarClusterOptions& o, double gap_m) {
+  const FarClusters fc = find_far_clusters(c, 0.02, o);
+  EXPECT_EQ(fc.main_body.count, 300u);
+  ASSERT_EQ(fc.others.size(), 2u);
+  EXPECT_EQ(fc.others[0].count, 5u);
+  EXPECT_TRUE(fc.others[0].removed);
+  EXPECT_NEAR(fc.others[0].gap_m, gap_m, 0.01);
+  EXPECT_EQ(fc.others[1].count, 3u);
+  EXPECT_FALSE(fc.others[1].removed);  // not far at o.far_distance_m
+  const auto r = remove_far_clusters(c, 0.02, o);
+  ASSERT_EQ(r.value.size(), 303u);
+  for (Eigen::Index i = 0; i < r.value.xyz.cols(); ++i) EXPECT_LT(r.value.xyz(0, i), 0.2) << i;  // the far five went
+}
+
 TEST(FarClusters, ComponentsMatchBruteForceSingleLinkage) {
   // Known answer: a 10 cm square of 300 points (mean spacing 6 mm, linked at 2 cm), 5 points 5 m
   // away and 3 points 15 cm above it.
@@ -511,16 +528,8 @@ TEST(FarClusters, ComponentsMatchBruteForceSingleLinkage) {
   for (int i = 0; i < 3; ++i) pts.emplace_back(0.05, 0.05, 0.0 + 0.15 + 0.001 * i);        // 10 cm above
   const Cloud c = cloud_of(pts);
   FarClusterOptions o;
-  o.far_distance_m = 1.0;
-  const FarClusters fc = find_far_clusters(c, 0.02, o);
-  EXPECT_EQ(fc.main_body.count, 300u);
-  ASSERT_EQ(fc.others.size(), 2u);
-  EXPECT_EQ(fc.others[0].count, 5u);
-  EXPECT_TRUE(fc.others[0].removed);
-  EXPECT_NEAR(fc.others[0].gap_m, 5.0 - 0.1, 0.01);
-  EXPECT_FALSE(fc.others[1].removed);  // 10 cm: not far at far_distance_m = 1
-  const auto r = remove_far_clusters(c, 0.02, o);
-  EXPECT_EQ(r.value.size(), 303u);
+  o.far_distance_m = 1.0;  // the 3 points 15 cm above: not far
+  expect_body_far_five_and_three_above(c, o, 5.0 - 0.1);
 }
 
 TEST(FarClusters, CompactBoxGivesTheSameKnownAnswer) {
@@ -538,18 +547,8 @@ TEST(FarClusters, CompactBoxGivesTheSameKnownAnswer) {
   const Cloud c = cloud_of(pts);
   FarClusterOptions o;
   o.far_distance_m = 0.2;
-  const FarClusters fc = find_far_clusters(c, 0.02, o);
-  EXPECT_EQ(fc.main_body.count, 300u);
-  ASSERT_EQ(fc.others.size(), 2u);
-  EXPECT_EQ(fc.others[0].count, 5u);
-  EXPECT_TRUE(fc.others[0].removed);
-  EXPECT_NEAR(fc.others[0].gap_m, 0.4 - 0.004 - 0.1, 0.01);
-  EXPECT_NEAR(fc.others[0].centroid_m.x(), 0.398, 1e-12);
-  EXPECT_EQ(fc.others[1].count, 3u);
-  EXPECT_FALSE(fc.others[1].removed);
-  const auto r = remove_far_clusters(c, 0.02, o);
-  ASSERT_EQ(r.value.size(), 303u);
-  for (Eigen::Index i = 0; i < r.value.xyz.cols(); ++i) EXPECT_LT(r.value.xyz(0, i), 0.2) << i;  // the far five went
+  expect_body_far_five_and_three_above(c, o, 0.4 - 0.004 - 0.1);
+  EXPECT_NEAR(find_far_clusters(c, 0.02, o).others.at(0).centroid_m.x(), 0.398, 1e-12);
 }
 
 }  // namespace

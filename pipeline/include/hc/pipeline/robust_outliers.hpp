@@ -122,17 +122,17 @@ struct FarClusterOptions {
 /// with at least k other points within D_cert among its own cell (then among the cells of its
 /// 3×3×3 block within D_cert, nearest first) has d_i ≤ D_cert and is kept without a k-NN query
 /// (counting, no selection; cells of about 0.85·(3k+2) points, where counting and the exact
-/// queries cost least together on the Buddha). The others get the exact k-NN distance; those above D_cert also get their k
-/// nearest neighbours (the neighbour set breaks distance ties by input index), and those that
-/// reach the local test (above local_ratio·d_med, not removed by the other tests) their
-/// neighbours' exact distances. The removed set is
-/// exactly that of the rule above applied to every point, given the sample's m and σ.
+/// queries cost least together on the Buddha). The others get the exact k-NN distance; those
+/// above D_cert also get their k nearest neighbours (the neighbour set breaks distance ties by
+/// input index), and those that reach the local test (above local_ratio·d_med, not removed by
+/// the other tests) their neighbours' exact distances. The removed set is exactly that of the
+/// rule above applied to every point, given the sample's m and σ.
 /// Report figures: k, local_ratio, mad_multiplier, sample, median_knn_distance_mm,
 /// mad_log_knn_distance, sigma_log_knn_distance, global_threshold_mm, certify_distance_mm,
 /// certified, exact_queries, max_surface_variation, local_tests, coherent_above_global (points
 /// above D_glob on a surface, judged locally), planar_among_scattered (points above D_glob on a
-/// chance plane among clutter: removed by the global test), removed_robust, removed_global, removed_local,
-/// removed_off_surface, local_threshold_mm, off_surface_ratio,
+/// chance plane among clutter: removed by the global test), removed_robust, removed_global,
+/// removed_local, removed_off_surface, local_threshold_mm, off_surface_ratio,
 /// duplicates_left_out, knn_grid_cell_mm and the seconds of each step (grid_s, sample_s,
 /// certify_s, exact_s, local_s). Notes: what was dropped and why.
 /// @param cloud    any frame, metres (the grid frame in build_scene); non-finite points dropped
@@ -165,8 +165,8 @@ struct FarClusters {
 /// small and far (see remove_far_clusters). Two points closer than link_m always share a
 /// component; the components are unions of grid cells of edge ≥ link_m linked with their 26
 /// neighbours, so points up to 2√3 cell edges apart may share one too (a coarser linking, never
-/// a finer one). Cost O(N): cells found in a dense table, or O(N log N) by sorted keys when the box has
-/// more than 4 cells per point. Non-finite points are ignored.
+/// a finer one). Cost O(N): cells found in a dense table, or by sorted keys (radix sort, binary
+/// searches) when the box has more than 4 cells per point. Non-finite points are ignored.
 /// @param link_m  > 0 [m]; far_distance_m in `options` (0 = 10·link_m) and max_points /
 ///                max_fraction decide `removed`.
 /// @throws hc::ConfigError if link_m <= 0 or not finite; hc::InputError if no point is finite.
