@@ -30,6 +30,7 @@
 #include <cstring>
 #include <limits>
 #include <numeric>
+#include <optional>
 #include <stdexcept>
 #include <string>
 #include <unordered_map>
@@ -248,6 +249,51 @@ bool part_of_large_surface(const HeightField& grid, int r0, int c0, double step_
       }
   }
   return false;
+}
+
+/// The least-squares plane z = a + b·dc + c·dr (dc, dr: cell offsets) through the valid cells
+/// of the (2h+1)² window about (r, c), the cell itself excluded, fitted once, then again
+/// without the cells more than trim_m above the first plane; its height at the cell's node
+/// [m]. nullopt when a fit has fewer than 3 cells or they lie on one line.
+std::optional<double> trimmed_plane_at(const HeightField& grid, int r, int c, int h, double trim_m) {
+  const int rows = grid.rows(), cols = grid.cols();
+  const auto z0 = static_cast<double>(grid.at(r, c));
+  std::optional<Eigen::Vector3d> plane;
+  for (int pass = 0; pass < 2; ++pass) {
+    Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+    int used = 0;
+    for (int rr = std::max(0, r - h); rr <= std::min(rows - 1, r + h); ++rr)
+      for (int cc = std::max(0, c - h); cc <= std::min(cols - 1, c + h); ++cc) {
+        const float v = grid.at(rr, cc);
+        if ((rr == r && cc == c) || std::isnan(v)) continue;
+        const Eigen::Vector3d q(1.0, cc - c, rr - r);
+        const double dz = static_cast<double>(v) - z0;
+        if (plane && dz - plane->dot(q) > trim_m) continue;
+        a += q * q.transpose();
+        rhs += q * dz;
+        ++used;
+      }
+    if (used < 3) return std::nullopt;
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
+    if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) return std::nullopt;
+    const Eigen::Vector3d coef = ldlt.solve(rhs);
+    if (!coef.allFinite()) return std::nullopt;
+    plane = coef;
+  }
+  return z0 + (*plane)(0);
+}
+
+/// Whether the valid cell (r, c) stands more than height_m above every valid 8-neighbour (at
+/// least one): a peak one cell wide.
+bool lone_peak(const HeightField& grid, int r, int c, double height_m) {
+  float top = -std::numeric_limits<float>::infinity();
+  for (int rr = std::max(0, r - 1); rr <= std::min(grid.rows() - 1, r + 1); ++rr)
+    for (int cc = std::max(0, c - 1); cc <= std::min(grid.cols() - 1, c + 1); ++cc) {
+      const float v = grid.at(rr, cc);
+      if ((rr != r || cc != c) && !std::isnan(v)) top = std::max(top, v);
+    }
+  return static_cast<double>(grid.at(r, c)) - static_cast<double>(top) > height_m;
 }
 
 [[noreturn]] void bad_option(const std::string& key, double value, const std::string& expected) {
@@ -908,6 +954,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
   struct Target {
     int row, col;
     double base_m;  // the window's plane at the node [m]; NaN for an island cell
+    double min_above_m;  // a candidate stands more than this above base_m [m]
   };
   std::vector<Target> targets;
   std::size_t n_spike = 0;
@@ -963,8 +1010,27 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
         if (!coef.allFinite()) continue;
         base = static_cast<double>(z) + coef(0);  // the plane at the cell's node
       }
-      if (static_cast<double>(z) - base <= o.spike_min_height_m) continue;
-      targets.push_back({r, c, base});
+      // A point's splat raises the cells around its own with it, and they pull the plane up: a
+      // stray just over spike_min_height_m in front shows only about 2/3 of it above a full
+      // 5 × 5 window's mean. Where the cell stands more than half the height above the plane (and
+      // not more than the height), the plane is fitted again without the window's cells more than
+      // half the height above the first one. A trimmed fit only there: on the steep flanks at a
+      // silhouette, where cells stand above the plane anyway, it would call true points spikes.
+      const double half = 0.5 * o.spike_min_height_m;
+      const double above_plane = static_cast<double>(z) - base;
+      if (above_plane > half && above_plane <= o.spike_min_height_m) {
+        if (const auto trimmed = trimmed_plane_at(grid, r, c, h, half)) base = *trimmed;
+      }
+      // A cell more than half the height above the plane and above each of its 8 neighbours is a
+      // peak one cell wide (a stray the splat did not spread: its neighbours have points of their
+      // own): its points more than half the height above the plane are candidates, so that a
+      // stray at the spike height that the plane's curvature error hides is still judged.
+      double min_above = o.spike_min_height_m;
+      if (static_cast<double>(z) - base <= o.spike_min_height_m) {
+        if (static_cast<double>(z) - base <= half || !lone_peak(grid, r, c, half)) continue;
+        min_above = half;
+      }
+      targets.push_back({r, c, base, min_above});
       ++n_spike;
     }
   // Island cells: every point binned in one is a candidate.
@@ -974,7 +1040,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     for (std::size_t i = 0; i < island.size(); ++i) {
       if (!island[i]) continue;
       targets.push_back({static_cast<int>(i / static_cast<std::size_t>(g.cols)), static_cast<int>(i % static_cast<std::size_t>(g.cols)),
-                         std::numeric_limits<double>::quiet_NaN()});
+                         std::numeric_limits<double>::quiet_NaN(), 0.0});
       ++n_island_cells;
     }
   }
@@ -1018,7 +1084,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
             // upsampled grid a stray point's nearest fine node may itself be no data).
             if (!std::isnan(t.base_m)) {
               const double above = cloud.xyz(2, static_cast<Eigen::Index>(i)) - t.base_m;
-              if (above <= o.spike_min_height_m) continue;
+              if (above <= t.min_above_m) continue;
               rho = std::clamp(0.5 * above, rho_lo, rho_hi);
             }
             radius_of[i] = std::max(radius_of[i], rho);

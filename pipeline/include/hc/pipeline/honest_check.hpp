@@ -249,15 +249,21 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 /// after the robust outlier test, which judges points by their neighbours only: clutter a few
 /// millimetres in front of a surface has that surface among its neighbours and passes). On
 /// `grid` (heights [m], NaN = no data, made from `cloud` in the same frame, metres):
-///  - spike cells: cells more than spike_min_height_m above the least-squares plane, at their
+///  - spike cells: cells more than h = spike_min_height_m above the least-squares plane, at their
 ///    node, through the other valid cells of their spike_window_cells window (at least 3 not on
 ///    one line; in a full window, their mean). Not find_grid_spikes' median and MAD test: on a
-///    steep flank the window's spread hides a spike from that test, not from the plane;
+///    steep flank the window's spread hides a spike from that test, not from the plane. A cell
+///    between h/2 and h above that plane is judged against the plane fitted again without the
+///    window's cells more than h/2 above the first (a stray's splat raises its neighbours and
+///    they lift the plane);
+///  - lone peaks: cells more than h/2 above their (trimmed) plane and more than h/2 above each
+///    valid 8-neighbour (a stray whose splat did not spread; the plane's curvature error can
+///    hide a stray just over h);
 ///  - island cells: island_mask's groups of at most island_max_cells cells apart from the
 ///    largest (as find_grid_spikes);
 ///  - candidates: points binned (nearest node) within ⌈reach_cells⌉ cells (Chebyshev) of a spike
-///    cell that stand more than spike_min_height_m above its plane, and every point within that
-///    reach of an island cell;
+///    cell that stand more than h above its plane (a lone peak's: more than h/2), and every point
+///    within that reach of an island cell;
 ///  - a candidate is removed when fewer than options.isolation_min_neighbours other points lie
 ///    within ρ of it in 3-D, ρ = clamp(0.5 × its height above the plane, ρ_lo, ρ_hi) for a spike
 ///    and ρ_hi for an island, ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells,
@@ -267,7 +273,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 ///    top holds samples; a stray point h in front of the surface has none within h/2.
 /// Pits are not touched (missing data, not added data). reach_cells is the splat radius × the
 /// upsample factor (the cells a point's disc writes). Report stage "despike", figures:
-/// spike_cells, island_cells, candidates, removed_spike_points. The caller grids again when
+/// spike_cells (lone peaks included), island_cells, candidates, removed_spike_points. The caller grids again when
 /// points were removed. Skipped (with a note) for 2^32 − 1 points or cells or more. Cost: O(cells)
 /// summed-area tables plus O(N) binning plus, per candidate, the points within ρ_hi (2·⌈ρ_hi /
 /// cell⌉ + 1)² cells.
