@@ -48,6 +48,34 @@ class VoxelHash {
   VoxelHash(const std::vector<float>& xyz, const std::vector<std::uint8_t>& finite, double edge_m)
       : edge_(edge_m), inv_(1.0 / edge_m) {
     const std::size_t n = finite.size();
+    // The box of occupied cells (cell() is monotone, so the cells of the coordinates' extremes).
+    // Keys are linear indices in it, x slowest then y then z: the order of the coordinates, so
+    // the sort's result does not depend on the key's form, and the radix sort sorts only as many
+    // bits as the box has cells (about 20 instead of 63 for a scan).
+    float lo_f[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
+                     std::numeric_limits<float>::infinity()};
+    float hi_f[3] = {-lo_f[0], -lo_f[0], -lo_f[0]};
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!finite[i]) continue;
+      for (std::size_t a = 0; a < 3; ++a) {
+        lo_f[a] = std::min(lo_f[a], xyz[3 * i + a]);
+        hi_f[a] = std::max(hi_f[a], xyz[3 * i + a]);
+      }
+    }
+    int bits = 64;
+    if (lo_f[0] <= hi_f[0]) {
+      double cells = 1.0;
+      for (std::size_t a = 0; a < 3; ++a) {
+        lo_[a] = cell(lo_f[a]);
+        dim_[a] = cell(hi_f[a]) - lo_[a] + 1;
+        cells *= static_cast<double>(dim_[a]);
+      }
+      if (cells < 0x1p62) {
+        linear_ = true;
+        bits = 1;
+        while (bits < 62 && static_cast<double>(std::uint64_t{1} << bits) < cells) ++bits;
+      }
+    }
     std::vector<std::uint64_t> keys;
     std::vector<std::uint32_t> order;
     keys.reserve(n);
@@ -57,7 +85,7 @@ class VoxelHash {
       keys.push_back(key_of(&xyz[3 * i]));
       order.push_back(static_cast<std::uint32_t>(i));
     }
-    detail::radix_sort(keys, order, 64);
+    detail::radix_sort(keys, order, bits);
     index_ = std::move(order);
     pts_.resize(3 * index_.size());
     for (std::size_t s = 0; s < index_.size(); ++s) {
@@ -71,15 +99,24 @@ class VoxelHash {
   }
 
   static constexpr std::int64_t kLimit = (std::int64_t{1} << 20) - 1;
+  static constexpr std::uint64_t kAbsent = ~std::uint64_t{0};  ///< a key no hashed point has
 
   std::int64_t cell(float v) const {
     const double c = std::floor(static_cast<double>(v) * inv_);
     return static_cast<std::int64_t>(std::clamp(c, -static_cast<double>(kLimit), static_cast<double>(kLimit)));
   }
-  static std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
-    auto u = [](std::int64_t v) {
-      return static_cast<std::uint64_t>(std::clamp(v, -kLimit, kLimit) + kLimit + 1);
-    };
+  /// The key of cell (x, y, z), each coordinate clamped to ±kLimit (so keys repeat beyond it):
+  /// the linear index in the occupied box, or kAbsent outside it; without the box (more than
+  /// 2^62 cells), 21 bits per coordinate.
+  std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) const {
+    x = std::clamp(x, -kLimit, kLimit), y = std::clamp(y, -kLimit, kLimit), z = std::clamp(z, -kLimit, kLimit);
+    if (linear_) {
+      x -= lo_[0], y -= lo_[1], z -= lo_[2];
+      if (x < 0 || y < 0 || z < 0 || x >= dim_[0] || y >= dim_[1] || z >= dim_[2]) return kAbsent;
+      return (static_cast<std::uint64_t>(x) * static_cast<std::uint64_t>(dim_[1]) + static_cast<std::uint64_t>(y)) *
+                 static_cast<std::uint64_t>(dim_[2]) + static_cast<std::uint64_t>(z);
+    }
+    auto u = [](std::int64_t v) { return static_cast<std::uint64_t>(v + kLimit + 1); };
     return (u(x) << 42) | (u(y) << 21) | u(z);
   }
   std::uint64_t key_of(const float* p) const { return pack(cell(p[0]), cell(p[1]), cell(p[2])); }
@@ -97,6 +134,7 @@ class VoxelHash {
     const bool at_limit = std::max({std::abs(cx), std::abs(cy), std::abs(cz)}) + std::max(reach, reach_z) > kLimit;
     std::vector<std::uint64_t> seen;  // only at the clamp limit, where keys can repeat
     auto run = [&](std::uint64_t k) {
+      if (k == kAbsent) return true;
       if (at_limit) {
         if (std::find(seen.begin(), seen.end(), k) != seen.end()) return true;
         seen.push_back(k);
@@ -126,6 +164,8 @@ class VoxelHash {
 
  private:
   double edge_, inv_;
+  bool linear_ = false;           // keys are linear indices in the box lo_ + [0, dim_)
+  std::int64_t lo_[3] = {0, 0, 0}, dim_[3] = {1, 1, 1};
   std::vector<std::uint64_t> keys_;
   std::vector<std::uint32_t> start_, index_;
   std::vector<float> pts_;
