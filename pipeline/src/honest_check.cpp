@@ -160,6 +160,9 @@ class VoxelHash {
   std::size_t size() const { return index_.size(); }
   /// The hashed point at sorted slot s (voxel order) and its original index.
   const float* point(std::size_t s) const { return &pts_[3 * s]; }
+  /// Occupied voxels, in key order; voxel v holds slots first_slot(v) .. first_slot(v + 1) − 1.
+  std::size_t voxels() const { return keys_.size(); }
+  std::size_t first_slot(std::size_t v) const { return start_[v]; }
   std::uint32_t original(std::size_t s) const { return index_[s]; }
 
  private:
@@ -219,21 +222,32 @@ std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, std::size_t n, d
   const auto rho2 = static_cast<float>(radius_m * radius_m);
   std::vector<std::uint8_t> isolated(n, 0);
   // In the hash's voxel order (the hashed points are exactly the finite ones): consecutive
-  // queries look up the same voxels, so their searches stay in cache.
-  const std::size_t m = hash.size();
-  const int threads = m > 20000 ? detail::kSearchThreads : 1;
+  // queries look up the same voxels, so their searches stay in cache. A point's own voxel is
+  // counted first without a key search; most points have enough neighbours there, and the
+  // others are counted again over all 27 voxels.
+  const std::size_t voxels = hash.voxels();
+  const int threads = hash.size() > 20000 ? detail::kSearchThreads : 1;
   detail::run_parallel(threads, [&](int t) {
-    const std::size_t b = m * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
-    const std::size_t e = m * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
-    for (std::size_t s = b; s < e; ++s) {
-      const std::uint32_t i = hash.original(s);
-      int count = 0;
-      const float* q = hash.point(s);
-      hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
-        if (j != i && dist_sq(p, q) <= rho2) ++count;
-        return count < min_neighbours;
-      });
-      isolated[i] = count < min_neighbours ? 1 : 0;
+    const std::size_t vb = voxels * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
+    const std::size_t ve = voxels * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+    for (std::size_t v = vb; v < ve; ++v) {
+      const std::size_t first = hash.first_slot(v), last = hash.first_slot(v + 1);
+      for (std::size_t s = first; s < last; ++s) {
+        const std::uint32_t i = hash.original(s);
+        const float* q = hash.point(s);
+        int count = 0;
+        for (std::size_t o = first; o < last && count < min_neighbours; ++o) {
+          if (o != s && dist_sq(hash.point(o), q) <= rho2) ++count;
+        }
+        if (count < min_neighbours) {
+          count = 0;
+          hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
+            if (j != i && dist_sq(p, q) <= rho2) ++count;
+            return count < min_neighbours;
+          });
+        }
+        isolated[i] = count < min_neighbours ? 1 : 0;
+      }
     }
   });
   return isolated;
@@ -922,12 +936,15 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
     report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     return {std::move(cloud), std::move(report)};
   }
+  // The quantiles of at most about 2^16 evenly strided finite points: they only place the local
+  // frame and the first guess of the spacing search.
+  const std::size_t stride = std::max<std::size_t>(1, n_finite >> 16);
   for (int a = 0; a < 3; ++a) {
     std::vector<double> v;
-    v.reserve(n_finite);
-    for (std::size_t i = 0; i < n; ++i) {
+    v.reserve(n_finite / stride + 1);
+    for (std::size_t i = 0, seen = 0; i < n; ++i) {
       const auto c = cloud.xyz.col(static_cast<Eigen::Index>(i));
-      if (c.allFinite()) v.push_back(c[a]);
+      if (c.allFinite() && seen++ % stride == 0) v.push_back(c[a]);
     }
     auto at = [&v](double q) {
       auto it = v.begin() + static_cast<std::ptrdiff_t>(q * static_cast<double>(v.size() - 1));
