@@ -41,6 +41,14 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
+/// ⌊v⌋ for a finite v (NaN and ±∞ pass through std::floor): truncation corrected for
+/// negatives, inline, where std::floor is a library call on the baseline x86-64 target.
+inline double floor_of(double v) noexcept {
+  if (!(std::abs(v) < 0x1p62)) return std::floor(v);
+  const auto t = static_cast<double>(static_cast<std::int64_t>(v));
+  return t > v ? t - 1.0 : t;
+}
+
 /// Points hashed into cubic voxels of one edge: sorted by voxel key; unique keys and the range
 /// of each. Coordinates are floats in a local frame (the caller's origin).
 class VoxelHash {
@@ -160,12 +168,11 @@ class VoxelHash {
   static constexpr std::int64_t kLimit = (std::int64_t{1} << 20) - 1;
   static constexpr std::uint64_t kAbsent = ~std::uint64_t{0};  ///< a key no hashed point has
 
-  /// ⌊v / edge⌋ clamped to ±kLimit (v finite). Truncation corrected for negatives, not
-  /// std::floor: a library call on the baseline x86-64 target, and a third of the build.
+  /// ⌊v / edge⌋ clamped to ±kLimit (v finite). floor_of, not std::floor: that was a third of
+  /// the build.
   std::int64_t cell(float v) const {
-    const double c = std::clamp(static_cast<double>(v) * inv_, -static_cast<double>(kLimit), static_cast<double>(kLimit));
-    const auto t = static_cast<std::int64_t>(c);
-    return static_cast<double>(t) > c ? t - 1 : t;
+    return static_cast<std::int64_t>(
+        floor_of(std::clamp(static_cast<double>(v) * inv_, -static_cast<double>(kLimit), static_cast<double>(kLimit))));
   }
   /// The key of cell (x, y, z), each coordinate clamped to ±kLimit (so keys repeat beyond it):
   /// the linear index in the occupied box, or kAbsent outside it; without the box (more than
@@ -1139,7 +1146,13 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     }
   }
   const auto full = static_cast<std::uint32_t>((2 * h + 1) * (2 * h + 1));
-  for (int r = 0; r < g.rows; ++r)
+  // Two threads, each a contiguous half of the rows with its own list, joined in row order.
+  const int scan_threads = g.cell_count() > (std::size_t{1} << 16) ? detail::kSearchThreads : 1;
+  std::vector<std::vector<Target>> found(static_cast<std::size_t>(scan_threads));
+  detail::run_parallel(scan_threads, [&](int t) {
+  std::vector<Target>& out = found[static_cast<std::size_t>(t)];
+  const int row_b = g.rows * t / scan_threads, row_e = g.rows * (t + 1) / scan_threads;
+  for (int r = row_b; r < row_e; ++r)
     for (int c = 0; c < g.cols; ++c) {
       const float z = grid.at(r, c);
       if (std::isnan(z)) continue;
@@ -1188,9 +1201,13 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
         if (static_cast<double>(z) - base <= half || !lone_peak(grid, r, c, half)) continue;
         min_above = half;
       }
-      targets.push_back({r, c, base, min_above});
-      ++n_spike;
+      out.push_back({r, c, base, min_above});
     }
+  });
+  for (const auto& part : found) {
+    targets.insert(targets.end(), part.begin(), part.end());
+    n_spike += part.size();
+  }
   // Island cells: every point binned in one is a candidate.
   std::size_t n_islands = 0, n_island_cells = 0;
   {
@@ -1215,7 +1232,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     for (std::size_t i = 0; i < n; ++i) {
       const auto p = cloud.xyz.col(static_cast<Eigen::Index>(i));
       if (!p.allFinite()) continue;
-      const double fc = std::floor((p.x() - g.x0_m) * inv + 0.5), fr = std::floor((p.y() - g.y0_m) * inv + 0.5);
+      const double fc = floor_of((p.x() - g.x0_m) * inv + 0.5), fr = floor_of((p.y() - g.y0_m) * inv + 0.5);
       if (fc < 0.0 || fr < 0.0 || fc >= g.cols || fr >= g.rows) continue;
       cell_of[i] = static_cast<std::uint32_t>(static_cast<std::size_t>(fr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(fc));
       ++first[cell_of[i] + 1];
@@ -1249,28 +1266,41 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
           }
         }
     }
-    std::vector<bool> keep(n, true);
+    std::vector<std::uint32_t> cand;
     for (std::size_t i = 0; i < n; ++i) {
-      if (radius_of[i] <= 0.0) continue;
-      ++candidates;
-      const Eigen::Vector3d p = cloud.xyz.col(static_cast<Eigen::Index>(i));
-      const double rho = radius_of[i];
-      const int span = static_cast<int>(std::ceil(rho * inv));
-      const int r0 = static_cast<int>(cell_of[i] / static_cast<std::uint32_t>(g.cols));
-      const int c0 = static_cast<int>(cell_of[i] % static_cast<std::uint32_t>(g.cols));
-      int count = 0;
-      for (int rr = std::max(0, r0 - span); rr <= std::min(g.rows - 1, r0 + span) && count < o.isolation_min_neighbours; ++rr)
-        for (int cc = std::max(0, c0 - span); cc <= std::min(g.cols - 1, c0 + span) && count < o.isolation_min_neighbours; ++cc) {
-          const std::size_t cell = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
-          for (std::uint32_t k = first[cell]; k < first[cell + 1]; ++k) {
-            const std::uint32_t j = order[k];
-            if (j != i && (cloud.xyz.col(static_cast<Eigen::Index>(j)) - p).squaredNorm() <= rho * rho) ++count;
+      if (radius_of[i] > 0.0) cand.push_back(static_cast<std::uint32_t>(i));
+    }
+    candidates = cand.size();
+    // Two threads, each a contiguous half of the candidates (each writes only their verdicts).
+    std::vector<std::uint8_t> stray(cand.size(), 0);
+    detail::run_parallel(cand.size() > 4096 ? detail::kSearchThreads : 1, [&](int t) {
+      const int threads = cand.size() > 4096 ? detail::kSearchThreads : 1;
+      const std::size_t b = cand.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
+      const std::size_t e = cand.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+      for (std::size_t ci = b; ci < e; ++ci) {
+        const std::uint32_t i = cand[ci];
+        const Eigen::Vector3d p = cloud.xyz.col(static_cast<Eigen::Index>(i));
+        const double rho = radius_of[i];
+        const int span = static_cast<int>(std::ceil(rho * inv));
+        const int r0 = static_cast<int>(cell_of[i] / static_cast<std::uint32_t>(g.cols));
+        const int c0 = static_cast<int>(cell_of[i] % static_cast<std::uint32_t>(g.cols));
+        int count = 0;
+        for (int rr = std::max(0, r0 - span); rr <= std::min(g.rows - 1, r0 + span) && count < o.isolation_min_neighbours; ++rr)
+          for (int cc = std::max(0, c0 - span); cc <= std::min(g.cols - 1, c0 + span) && count < o.isolation_min_neighbours; ++cc) {
+            const std::size_t cell = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
+            for (std::uint32_t k = first[cell]; k < first[cell + 1]; ++k) {
+              const std::uint32_t j = order[k];
+              if (j != i && (cloud.xyz.col(static_cast<Eigen::Index>(j)) - p).squaredNorm() <= rho * rho) ++count;
+            }
           }
-        }
-      if (count < o.isolation_min_neighbours) {
-        keep[i] = false;
-        ++removed;
+        stray[ci] = count < o.isolation_min_neighbours ? 1 : 0;
       }
+    });
+    std::vector<bool> keep(n, true);
+    for (std::size_t ci = 0; ci < cand.size(); ++ci) {
+      if (!stray[ci]) continue;
+      keep[cand[ci]] = false;
+      ++removed;
     }
     if (removed > 0) cloud.keep_if(keep);
   }
