@@ -341,11 +341,11 @@ void phase1_residuals_and_keys(Run& run, int h) {
       run.key[i] = kSkip;
       continue;
     }
-    const int c = std::clamp(static_cast<int>(std::floor((p[0] - g.x0_m) * inv_cell + 0.5)), 0, g.cols - 1);
+    const int c = std::clamp(static_cast<int>(detail::floor_of((p[0] - g.x0_m) * inv_cell + 0.5)), 0, g.cols - 1);
     // Rows follow the exact y split, so that each thread's rows hold exactly its tree's points.
     const int r = p[1] < run.y_split
-                      ? std::clamp(static_cast<int>(std::floor((p[1] - g.y0_m) * inv_cell + 0.5)), 0, split_row - 1)
-                      : std::clamp(static_cast<int>(std::floor((p[1] - g.y0_m) * inv_cell + 0.5)), split_row, g.rows - 1);
+                      ? std::clamp(static_cast<int>(detail::floor_of((p[1] - g.y0_m) * inv_cell + 0.5)), 0, split_row - 1)
+                      : std::clamp(static_cast<int>(detail::floor_of((p[1] - g.y0_m) * inv_cell + 0.5)), split_row, g.rows - 1);
     const auto k = static_cast<std::uint32_t>(static_cast<std::size_t>(r) * run.ucols + static_cast<std::size_t>(c));
     run.key[i] = k;
     ++out.count[k];
@@ -700,10 +700,10 @@ double supported_fraction(const Cloud& points_m, const HeightField& grid, double
       // Outside the nodes' extent by more than the tolerance (also keeps the casts in range).
       if (cx + reach < 0.0 || cx - reach > g.cols - 1 || cy + reach < 0.0 || cy - reach > g.rows - 1) continue;
       const double last_col = g.cols - 1, last_row = g.rows - 1;  // clamped in double: casts in range
-      const int c_lo = static_cast<int>(std::clamp(std::ceil(cx - reach), 0.0, last_col));
-      const int c_hi = static_cast<int>(std::clamp(std::floor(cx + reach), 0.0, last_col));
-      const int r_lo = static_cast<int>(std::clamp(std::ceil(cy - reach), 0.0, last_row));
-      const int r_hi = static_cast<int>(std::clamp(std::floor(cy + reach), 0.0, last_row));
+      const int c_lo = static_cast<int>(std::clamp(detail::ceil_of(cx - reach), 0.0, last_col));
+      const int c_hi = static_cast<int>(std::clamp(detail::floor_of(cx + reach), 0.0, last_col));
+      const int r_lo = static_cast<int>(std::clamp(detail::ceil_of(cy - reach), 0.0, last_row));
+      const int r_hi = static_cast<int>(std::clamp(detail::floor_of(cy + reach), 0.0, last_row));
       for (int r = r_lo; r <= r_hi; ++r) {
         const double dy = p[1] - g.y_of_row(r);
         const std::size_t row = static_cast<std::size_t>(r) * cols;

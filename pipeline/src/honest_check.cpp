@@ -41,13 +41,7 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 
-/// ⌊v⌋ for a finite v (NaN and ±∞ pass through std::floor): truncation corrected for
-/// negatives, inline, where std::floor is a library call on the baseline x86-64 target.
-inline double floor_of(double v) noexcept {
-  if (!(std::abs(v) < 0x1p62)) return std::floor(v);
-  const auto t = static_cast<double>(static_cast<std::int64_t>(v));
-  return t > v ? t - 1.0 : t;
-}
+using detail::floor_of;
 
 /// Points hashed into cubic voxels of one edge: sorted by voxel key; unique keys and the range
 /// of each. Coordinates are floats in a local frame (the caller's origin).
