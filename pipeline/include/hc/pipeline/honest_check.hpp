@@ -215,7 +215,8 @@ struct InputCheckScope {
 };
 
 /// Median nearest-neighbour distance [m] of up to 4096 evenly strided finite points of `xyz_m`
-/// (3 × N, metres; exact distances over a voxel hash whose edge starts at start_edge_m and grows
+/// (3 × N, metres; exact distances to the points in the 3 × 3 × 3 voxels about each sample,
+/// collected in one pass over all points, the voxel edge starting at start_edge_m and growing
 /// ×4 until the median is within it). The spacing check_input reports; a tiled run gives each
 /// tile's and takes their median weighted by points. 0 for fewer than 2 points.
 double median_point_spacing(const Eigen::Matrix3Xd& xyz_m, double start_edge_m);
