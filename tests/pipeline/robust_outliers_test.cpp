@@ -615,7 +615,8 @@ TEST(RobustOutliers, DespikeRemovesClutterThatTheNeighbourTestsKeepInFrontOfTheS
   // grid-level step removes what reaches the grid. Measured (bun000, N = 300, 2026-11-23), cells
   // > 2 mm above the clean grid where clutter stands, at 1 / 2 / 5 % clutter: 3 / 10 / 33
   // without the step, 0 / 0 / 1 with it (cells of the scan's own points: 0 / 0 / 5 without,
-  // 0 / 0 / 1 with). Before the trimmed plane and the lone peaks: 0 / 2 / 7 cells in all.
+  // 0 / 0 / 1 with). Before the trimmed plane and the lone peaks: 0 / 2 / 6 clutter cells and
+  // 0 / 0 / 1 of the scan (this test fails there at 2 and 5 %).
   // The one clutter cell left at 5 % (row 90, col 269) is a stray 1–1.5 mm from three rim points
   // of a steep flank at a depth edge: 4.7 mm above the clean grid vertically, but it and the rim
   // points are each other's neighbours, so the point test keeps them (the clean run's despike
