@@ -92,16 +92,12 @@ class VoxelHash {
       // Two threads, each a contiguous half of the points with its own counts; a cell's slots
       // hold the first half's points before the second's, so the order is the serial one.
       const int threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
-      auto part = [&](int t) {
-        return std::pair{n * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads),
-                         n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads)};
-      };
       std::vector<std::uint32_t> key32(n, 0);
       std::vector<std::vector<std::uint32_t>> next(static_cast<std::size_t>(threads));
       detail::run_parallel(threads, [&](int t) {
         std::vector<std::uint32_t>& count = next[static_cast<std::size_t>(t)];
         count.assign(cells_, 0);
-        const auto [b, e] = part(t);
+        const auto [b, e] = detail::share_of(n, t, threads);
         for (std::size_t i = b; i < e; ++i) {
           if (!finite[i]) continue;
           key32[i] = static_cast<std::uint32_t>(key_of(&xyz[3 * i]));
@@ -123,7 +119,7 @@ class VoxelHash {
       index_.resize(n_finite);
       detail::run_parallel(threads, [&](int t) {
         std::vector<std::uint32_t>& slot_of = next[static_cast<std::size_t>(t)];
-        const auto [b, e] = part(t);
+        const auto [b, e] = detail::share_of(n, t, threads);
         for (std::size_t i = b; i < e; ++i) {
           if (!finite[i]) continue;
           const std::uint32_t slot = slot_of[key32[i]]++;
@@ -137,16 +133,14 @@ class VoxelHash {
       const int threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
       std::vector<std::size_t> offset(static_cast<std::size_t>(threads) + 1, 0);
       for (int t = 0; t < threads; ++t) {
-        const std::size_t b = n * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
-        const std::size_t e = n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+        const auto [b, e] = detail::share_of(n, t, threads);
         offset[static_cast<std::size_t>(t) + 1] = offset[static_cast<std::size_t>(t)] +
             static_cast<std::size_t>(std::count(finite.begin() + static_cast<std::ptrdiff_t>(b), finite.begin() + static_cast<std::ptrdiff_t>(e), std::uint8_t{1}));
       }
       std::vector<std::uint32_t> order(n_finite);
       keys.resize(n_finite);
       detail::run_parallel(threads, [&](int t) {
-        const std::size_t b = n * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
-        const std::size_t e = n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+        const auto [b, e] = detail::share_of(n, t, threads);
         std::size_t o = offset[static_cast<std::size_t>(t)];
         for (std::size_t i = b; i < e; ++i) {
           if (!finite[i]) continue;
@@ -169,8 +163,7 @@ class VoxelHash {
     const std::size_t m = index_.size();
     const int gather_threads = m > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
     detail::run_parallel(gather_threads, [&](int t) {
-      const std::size_t b = m * static_cast<std::size_t>(t) / static_cast<std::size_t>(gather_threads);
-      const std::size_t e = m * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(gather_threads);
+      const auto [b, e] = detail::share_of(m, t, gather_threads);
       for (std::size_t s = b; s < e; ++s) {
         std::memcpy(&pts_[3 * s], &xyz[3 * static_cast<std::size_t>(index_[s])], 3 * sizeof(float));
       }
@@ -189,12 +182,19 @@ class VoxelHash {
   static constexpr std::size_t kCountingSortCells = std::size_t{1} << 21;
   static constexpr std::uint64_t kAbsent = ~std::uint64_t{0};  ///< a key no hashed point has
 
-  /// ⌊v / edge⌋ clamped to ±kLimit (v finite). floor_of, not std::floor: that was a third of
-  /// the build.
-  std::int64_t cell(float v) const {
-    return static_cast<std::int64_t>(
-        floor_of(std::clamp(static_cast<double>(v) * inv_, -static_cast<double>(kLimit), static_cast<double>(kLimit))));
+  /// ⌊v · inv_edge⌋ clamped to ±kLimit (v finite): a voxel coordinate. floor_of, not
+  /// std::floor: that was a third of the build.
+  static std::int64_t cell_index(float v, double inv_edge) {
+    return static_cast<std::int64_t>(floor_of(
+        std::clamp(static_cast<double>(v) * inv_edge, -static_cast<double>(kLimit), static_cast<double>(kLimit))));
   }
+  /// Voxel (x, y, z), each clamped to ±kLimit (so keys repeat beyond it), in 21 bits each: keys
+  /// in the order of the coordinates, x slowest.
+  static std::uint64_t pack21(std::int64_t x, std::int64_t y, std::int64_t z) {
+    auto u = [](std::int64_t v) { return static_cast<std::uint64_t>(std::clamp(v, -kLimit, kLimit) + kLimit + 1); };
+    return (u(x) << 42) | (u(y) << 21) | u(z);
+  }
+  std::int64_t cell(float v) const { return cell_index(v, inv_); }
   /// The key of cell (x, y, z), each coordinate clamped to ±kLimit (so keys repeat beyond it):
   /// the linear index in the occupied box, or kAbsent outside it; without the box (more than
   /// 2^62 cells), 21 bits per coordinate.
@@ -206,8 +206,7 @@ class VoxelHash {
       return (static_cast<std::uint64_t>(x) * static_cast<std::uint64_t>(dim_[1]) + static_cast<std::uint64_t>(y)) *
                  static_cast<std::uint64_t>(dim_[2]) + static_cast<std::uint64_t>(z);
     }
-    auto u = [](std::int64_t v) { return static_cast<std::uint64_t>(v + kLimit + 1); };
-    return (u(x) << 42) | (u(y) << 21) | u(z);
+    return pack21(x, y, z);
   }
   std::uint64_t key_of(const float* p) const { return pack(cell(p[0]), cell(p[1]), cell(p[2])); }
 
@@ -295,18 +294,11 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
     if (seen++ % stride == 0) sample.push_back(static_cast<std::uint32_t>(i));
   }
   if (sample.empty()) return 0.0;
-  const std::int64_t kLimit = VoxelHash::kLimit;
-  auto pack = [kLimit](std::int64_t x, std::int64_t y, std::int64_t z) {
-    auto u = [kLimit](std::int64_t v) { return static_cast<std::uint64_t>(std::clamp(v, -kLimit, kLimit) + kLimit + 1); };
-    return (u(x) << 42) | (u(y) << 21) | u(z);
-  };
+  const auto pack = VoxelHash::pack21;
   double edge = start_edge_m;
   for (int attempt = 0; attempt < 8; ++attempt, edge *= 4.0) {
     const double inv = 1.0 / edge;
-    auto cell = [inv, kLimit](float v) {
-      return static_cast<std::int64_t>(
-          floor_of(std::clamp(static_cast<double>(v) * inv, -static_cast<double>(kLimit), static_cast<double>(kLimit))));
-    };
+    auto cell = [inv](float v) { return VoxelHash::cell_index(v, inv); };
     auto key_of = [&](const float* p) { return pack(cell(p[0]), cell(p[1]), cell(p[2])); };
     // Each sample's 27 voxel keys (repeats at the clamp limit removed), and all of them.
     std::vector<std::array<std::uint64_t, 27>> around(sample.size());
@@ -350,8 +342,7 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
     const int threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
     std::vector<std::vector<std::pair<std::uint32_t, std::uint32_t>>> found(static_cast<std::size_t>(threads));
     detail::run_parallel(threads, [&](int t) {
-      const std::size_t b = n * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
-      const std::size_t e = n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+      const auto [b, e] = detail::share_of(n, t, threads);
       auto& out = found[static_cast<std::size_t>(t)];
       for (std::size_t i = b; i < e; ++i) {
         if (!finite[i]) continue;
@@ -392,33 +383,6 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
   return edge;
 }
 
-/// cbrt(volume / count) of the box between the 1st and 99th percentiles of each coordinate of
-/// the finite points (xyz: 3 floats per point) [the coordinates' unit], from at most about 2^16
-/// evenly strided points; 0 when fewer than 2 are finite.
-double central_box_edge(const std::vector<float>& xyz, const std::vector<std::uint8_t>& finite) {
-  std::size_t n_finite = 0;
-  for (auto f : finite) n_finite += f;
-  if (n_finite < 2) return 0.0;
-  const std::size_t stride = std::max<std::size_t>(1, n_finite >> 16);
-  double volume = 1.0;
-  std::vector<float> v;
-  v.reserve(n_finite / stride + 1);
-  for (std::size_t a = 0; a < 3; ++a) {
-    v.clear();
-    for (std::size_t i = 0, seen = 0; i < finite.size(); ++i) {
-      if (finite[i] && seen++ % stride == 0) v.push_back(xyz[3 * i + a]);
-    }
-    auto at = [&v](double q) {
-      auto it = v.begin() + static_cast<std::ptrdiff_t>(q * static_cast<double>(v.size() - 1));
-      std::nth_element(v.begin(), it, v.end());
-      return static_cast<double>(*it);
-    };
-    const double lo = at(0.01), hi = at(0.99);
-    volume *= std::max(hi - lo, 1e-9);
-  }
-  return std::cbrt(volume / static_cast<double>(n_finite));
-}
-
 /// The point test: flags[i] = 1 when finite point i (of n, the hashed ones) has fewer than
 /// min_neighbours other points within radius_m (exact distances; counting stops at the
 /// minimum); non-finite points, which the hash leaves out, get 0. `hash` has an edge of at least
@@ -435,8 +399,7 @@ std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, std::size_t n, d
   const std::size_t voxels = hash.voxels();
   const int threads = hash.size() > 20000 ? detail::kSearchThreads : 1;
   detail::run_parallel(threads, [&](int t) {
-    const std::size_t vb = voxels * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
-    const std::size_t ve = voxels * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+    const auto [vb, ve] = detail::share_of(voxels, t, threads);
     for (std::size_t v = vb; v < ve; ++v) {
       const std::size_t first = hash.first_slot(v), last = hash.first_slot(v + 1);
       for (std::size_t s = first; s < last; ++s) {
@@ -704,10 +667,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   }
 
   // 2. The point test: isolated points.
-  // The spacing search starts at least at the edge of the central 98 % box's volume per point:
-  // its hash then has about one cell per point (a table, not a search; the median is the same
-  // from any edge at least as large as it).
-  out.spacing_m = scope ? scope->spacing_m : median_spacing(local, finite, std::max(2.0 * g.cell_size_m, central_box_edge(local, finite)));
+  out.spacing_m = scope ? scope->spacing_m : median_spacing(local, finite, 2.0 * g.cell_size_m);
   out.isolation_radius_m = std::max(o.isolation_radius_spacings * out.spacing_m, 1e-9);
   const VoxelHash hash(local, finite, out.isolation_radius_m);
   const std::vector<std::uint8_t> isolated =
@@ -738,8 +698,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   std::vector<InputCheck> part(static_cast<std::size_t>(class_threads));
   detail::run_parallel(class_threads, [&](int t) {
     InputCheck& pc = part[static_cast<std::size_t>(t)];
-    const std::size_t b = n * static_cast<std::size_t>(t) / static_cast<std::size_t>(class_threads);
-    const std::size_t e = n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(class_threads);
+    const auto [b, e] = detail::share_of(n, t, class_threads);
     for (std::size_t i = b; i < e; ++i) {
       if (!owns(i)) continue;  // a halo copy: its own tile counts it
       if (!finite[i]) {
@@ -1248,63 +1207,66 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     }
   }
   const auto full = static_cast<std::uint32_t>((2 * h + 1) * (2 * h + 1));
+  // A valid cell's target, if it is a spike cell or a lone peak.
+  auto judge = [&](int r, int c) -> std::optional<Target> {
+    const float z = grid.at(r, c);
+    if (std::isnan(z)) return std::nullopt;
+    const std::size_t r0 = static_cast<std::size_t>(std::max(0, r - h)), r1 = static_cast<std::size_t>(std::min(g.rows, r + h + 1));
+    const std::size_t c0 = static_cast<std::size_t>(std::max(0, c - h)), c1 = static_cast<std::size_t>(std::min(g.cols, c + h + 1));
+    const std::uint32_t n_win = sat_n[r1 * w1 + c1] + sat_n[r0 * w1 + c0] - sat_n[r0 * w1 + c1] - sat_n[r1 * w1 + c0];
+    double base;
+    if (n_win == full) {
+      const double sum = sat_z[r1 * w1 + c1] + sat_z[r0 * w1 + c0] - sat_z[r0 * w1 + c1] - sat_z[r1 * w1 + c0];
+      base = (sum - static_cast<double>(z)) / static_cast<double>(full - 1);
+    } else {
+      if (n_win < 4) return std::nullopt;  // the cell and at least 3 others
+      Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
+      Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+      for (int rr = static_cast<int>(r0); rr < static_cast<int>(r1); ++rr)
+        for (int cc = static_cast<int>(c0); cc < static_cast<int>(c1); ++cc) {
+          const float v = grid.at(rr, cc);
+          if ((rr == r && cc == c) || std::isnan(v)) continue;
+          const Eigen::Vector3d q(1.0, cc - c, rr - r);
+          a += q * q.transpose();
+          rhs += q * (static_cast<double>(v) - static_cast<double>(z));
+        }
+      const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
+      if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) return std::nullopt;  // collinear cells: no plane
+      const Eigen::Vector3d coef = ldlt.solve(rhs);
+      if (!coef.allFinite()) return std::nullopt;
+      base = static_cast<double>(z) + coef(0);  // the plane at the cell's node
+    }
+    // A point's splat raises the cells around its own with it, and they pull the plane up: a
+    // stray just over spike_min_height_m in front shows only about 2/3 of it above a full
+    // 5 × 5 window's mean. Where the cell stands more than half the height above the plane (and
+    // not more than the height), the plane is fitted again without the window's cells more than
+    // half the height above the first one. A trimmed fit only there: on the steep flanks at a
+    // silhouette, where cells stand above the plane anyway, it would call true points spikes.
+    const double half = 0.5 * o.spike_min_height_m;
+    const double above_plane = static_cast<double>(z) - base;
+    if (above_plane > half && above_plane <= o.spike_min_height_m) {
+      if (const auto trimmed = trimmed_plane_at(grid, r, c, h, half)) base = *trimmed;
+    }
+    // A cell more than half the height above the plane and above each of its 8 neighbours is a
+    // peak one cell wide (a stray the splat did not spread: its neighbours have points of their
+    // own): its points more than half the height above the plane are candidates, so that a
+    // stray at the spike height that the plane's curvature error hides is still judged.
+    double min_above = o.spike_min_height_m;
+    if (static_cast<double>(z) - base <= o.spike_min_height_m) {
+      if (static_cast<double>(z) - base <= half || !lone_peak(grid, r, c, half)) return std::nullopt;
+      min_above = half;
+    }
+    return Target{r, c, base, min_above};
+  };
   // Two threads, each a contiguous half of the rows with its own list, joined in row order.
   const int scan_threads = g.cell_count() > (std::size_t{1} << 16) ? detail::kSearchThreads : 1;
   std::vector<std::vector<Target>> found(static_cast<std::size_t>(scan_threads));
   detail::run_parallel(scan_threads, [&](int t) {
-  std::vector<Target>& out = found[static_cast<std::size_t>(t)];
-  const int row_b = g.rows * t / scan_threads, row_e = g.rows * (t + 1) / scan_threads;
-  for (int r = row_b; r < row_e; ++r)
-    for (int c = 0; c < g.cols; ++c) {
-      const float z = grid.at(r, c);
-      if (std::isnan(z)) continue;
-      const std::size_t r0 = static_cast<std::size_t>(std::max(0, r - h)), r1 = static_cast<std::size_t>(std::min(g.rows, r + h + 1));
-      const std::size_t c0 = static_cast<std::size_t>(std::max(0, c - h)), c1 = static_cast<std::size_t>(std::min(g.cols, c + h + 1));
-      const std::uint32_t n_win = sat_n[r1 * w1 + c1] + sat_n[r0 * w1 + c0] - sat_n[r0 * w1 + c1] - sat_n[r1 * w1 + c0];
-      double base;
-      if (n_win == full) {
-        const double sum = sat_z[r1 * w1 + c1] + sat_z[r0 * w1 + c0] - sat_z[r0 * w1 + c1] - sat_z[r1 * w1 + c0];
-        base = (sum - static_cast<double>(z)) / static_cast<double>(full - 1);
-      } else {
-        if (n_win < 4) continue;  // the cell and at least 3 others
-        Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
-        Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
-        for (int rr = static_cast<int>(r0); rr < static_cast<int>(r1); ++rr)
-          for (int cc = static_cast<int>(c0); cc < static_cast<int>(c1); ++cc) {
-            const float v = grid.at(rr, cc);
-            if ((rr == r && cc == c) || std::isnan(v)) continue;
-            const Eigen::Vector3d q(1.0, cc - c, rr - r);
-            a += q * q.transpose();
-            rhs += q * (static_cast<double>(v) - static_cast<double>(z));
-          }
-        const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
-        if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) continue;  // collinear cells: no plane
-        const Eigen::Vector3d coef = ldlt.solve(rhs);
-        if (!coef.allFinite()) continue;
-        base = static_cast<double>(z) + coef(0);  // the plane at the cell's node
+    const int row_b = g.rows * t / scan_threads, row_e = g.rows * (t + 1) / scan_threads;
+    for (int r = row_b; r < row_e; ++r)
+      for (int c = 0; c < g.cols; ++c) {
+        if (auto target = judge(r, c)) found[static_cast<std::size_t>(t)].push_back(*target);
       }
-      // A point's splat raises the cells around its own with it, and they pull the plane up: a
-      // stray just over spike_min_height_m in front shows only about 2/3 of it above a full
-      // 5 × 5 window's mean. Where the cell stands more than half the height above the plane (and
-      // not more than the height), the plane is fitted again without the window's cells more than
-      // half the height above the first one. A trimmed fit only there: on the steep flanks at a
-      // silhouette, where cells stand above the plane anyway, it would call true points spikes.
-      const double half = 0.5 * o.spike_min_height_m;
-      const double above_plane = static_cast<double>(z) - base;
-      if (above_plane > half && above_plane <= o.spike_min_height_m) {
-        if (const auto trimmed = trimmed_plane_at(grid, r, c, h, half)) base = *trimmed;
-      }
-      // A cell more than half the height above the plane and above each of its 8 neighbours is a
-      // peak one cell wide (a stray the splat did not spread: its neighbours have points of their
-      // own): its points more than half the height above the plane are candidates, so that a
-      // stray at the spike height that the plane's curvature error hides is still judged.
-      double min_above = o.spike_min_height_m;
-      if (static_cast<double>(z) - base <= o.spike_min_height_m) {
-        if (static_cast<double>(z) - base <= half || !lone_peak(grid, r, c, half)) continue;
-        min_above = half;
-      }
-      out.push_back({r, c, base, min_above});
-    }
   });
   for (const auto& part : found) {
     targets.insert(targets.end(), part.begin(), part.end());
@@ -1375,10 +1337,9 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     candidates = cand.size();
     // Two threads, each a contiguous half of the candidates (each writes only their verdicts).
     std::vector<std::uint8_t> stray(cand.size(), 0);
-    detail::run_parallel(cand.size() > 4096 ? detail::kSearchThreads : 1, [&](int t) {
-      const int threads = cand.size() > 4096 ? detail::kSearchThreads : 1;
-      const std::size_t b = cand.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
-      const std::size_t e = cand.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+    const int test_threads = cand.size() > 4096 ? detail::kSearchThreads : 1;
+    detail::run_parallel(test_threads, [&](int t) {
+      const auto [b, e] = detail::share_of(cand.size(), t, test_threads);
       for (std::size_t ci = b; ci < e; ++ci) {
         const std::uint32_t i = cand[ci];
         const Eigen::Vector3d p = cloud.xyz.col(static_cast<Eigen::Index>(i));

@@ -140,10 +140,9 @@ CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
 
   std::vector<std::uint64_t> keys(count);
   g.original.resize(count);
-  run_parallel(count > (std::size_t{1} << 17) ? kSearchThreads : 1, [&](int t) {
-    const int threads = count > (std::size_t{1} << 17) ? kSearchThreads : 1;
-    const std::size_t b = count * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
-    const std::size_t e = count * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+  const int key_threads = count > (std::size_t{1} << 17) ? kSearchThreads : 1;
+  run_parallel(key_threads, [&](int t) {
+    const auto [b, e] = share_of(count, t, key_threads);
     for (std::size_t i = b; i < e; ++i) {
       keys[i] = g.key(g.index_of(p[3 * i], 0), g.index_of(p[3 * i + 1], 1), g.index_of(p[3 * i + 2], 2));
       g.original[i] = static_cast<std::uint32_t>(i);
@@ -244,8 +243,7 @@ CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
   }
   const int copy_threads = count > (std::size_t{1} << 17) ? kSearchThreads : 1;
   run_parallel(copy_threads, [&](int t) {
-    const std::size_t cb = cells * static_cast<std::size_t>(t) / static_cast<std::size_t>(copy_threads);
-    const std::size_t ce = cells * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(copy_threads);
+    const auto [cb, ce] = share_of(cells, t, copy_threads);
     for (std::size_t oc = cb; oc < ce; ++oc) {
       const std::uint32_t* from = crowd[oc] ? &crowd_kept[crowd_at[oc]] : &g.original[cell_first[oc]];
       for (std::size_t q = start[oc], f = 0; q < start[oc + 1]; ++q, ++f) {
@@ -612,8 +610,7 @@ std::vector<float> mean_knn_distances(const std::vector<float>& p, std::size_t c
     const SortedPoints pts{&g};
     const PointTree tree(3, pts, nanoflann::KDTreeSingleIndexAdaptorParams(16));
     run_parallel(threads, [&](int t) {
-      const std::size_t b = kept * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads);
-      const std::size_t e = kept * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads);
+      const auto [b, e] = share_of(kept, t, threads);
       std::vector<std::uint32_t> idx(k1);
       std::vector<float> d2(k1);
       SmallestK top(k + 1);
@@ -649,8 +646,7 @@ std::vector<float> mean_knn_distances(const std::vector<float>& p, std::size_t c
                          std::vector<std::vector<std::uint32_t>>* left) {
       const int th = work.size() > 2000 ? threads : 1;
       run_parallel(th, [&](int t) {
-        const std::size_t b = work.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
-        const std::size_t e = work.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
+        const auto [b, e] = share_of(work.size(), t, th);
         const std::vector<std::uint32_t> part(work.begin() + static_cast<std::ptrdiff_t>(b),
                                               work.begin() + static_cast<std::ptrdiff_t>(e));
         knn.stages_bc(part, mean_sorted, tree, centres, left ? &(*left)[static_cast<std::size_t>(t)] : nullptr);

@@ -128,6 +128,13 @@ class PointQueries {
 /// cross-check's voxel hash.
 void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx, int bits);
 
+/// Thread t's contiguous share [first, last) of n items split among `threads` (the shares tile
+/// [0, n) in order, so results written per share keep the serial order).
+inline std::pair<std::size_t, std::size_t> share_of(std::size_t n, int t, int threads) {
+  return {n * static_cast<std::size_t>(t) / static_cast<std::size_t>(threads),
+          n * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(threads)};
+}
+
 /// Runs f(0) on this thread and f(1..threads-1) on new threads, then joins them.
 template <class F>
 void run_parallel(int threads, F&& f) {
