@@ -262,19 +262,22 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 ///    hide a stray just over h);
 ///  - island cells: island_mask's groups of at most island_max_cells cells apart from the
 ///    largest (as find_grid_spikes);
+///  - rim cells: the other valid cells with a no-data cell or the grid's border among their 8
+///    neighbours (a stray just beyond a silhouette or a hole's edge extends the surface there
+///    without standing above it);
 ///  - candidates: points binned (nearest node) within ⌈reach_cells⌉ cells (Chebyshev) of a spike
-///    cell that stand more than h above its plane (a lone peak's: more than h/2), and every point
-///    within that reach of an island cell;
+///    cell that stand more than h above its plane (a lone peak's: more than h/2), every point
+///    within that reach of an island cell, and every point binned in a rim cell;
 ///  - a candidate is removed when fewer than options.isolation_min_neighbours other points lie
 ///    within ρ of it in 3-D, ρ = clamp(0.5 × its height above the plane, ρ_lo, ρ_hi) for a spike
-///    and ρ_hi for an island, ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells,
+///    and ρ_hi for an island or a rim, ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells,
 ///    4 × spacing_m) (spacing_m: the scan's median nearest-neighbour spacing, 0 if unknown; a
 ///    scan sparser than the grid keeps its points). Relief that stands h above its
 ///    surroundings is joined to them by a sampled surface, so a sphere of radius h/2 about its
 ///    top holds samples; a stray point h in front of the surface has none within h/2.
 /// Pits are not touched (missing data, not added data). reach_cells is the splat radius × the
 /// upsample factor (the cells a point's disc writes). Report stage "despike", figures:
-/// spike_cells (lone peaks included), island_cells, candidates, removed_spike_points. The caller grids again when
+/// spike_cells (lone peaks included), rim_cells, island_cells, candidates, removed_spike_points. The caller grids again when
 /// points were removed. Skipped (with a note) for 2^32 − 1 points or cells or more. Cost: O(cells)
 /// summed-area tables plus O(N) binning plus, per candidate, the points within ρ_hi (2·⌈ρ_hi /
 /// cell⌉ + 1)² cells.
