@@ -8,6 +8,8 @@
 //                        build_scene runs with method robust) with P % clutter (0: the clean Buddha)
 //   BM_PointStages/P     the same, then the isolated-point stage (the run's point stages before
 //                        the grid)
+//   BM_RunPointStages    build_scene with configs/happy_buddha.yaml on the 2 % cloud: every stage
+//                        that removes points, the grid's despike step included (one run)
 // Counters: caught = injected outliers removed / injected; caught_beyond_2mm = the same for the
 // injected points farther than 2 mm from every true point (clutter_beyond_2mm of them; the
 // nearer ones lie within the scan's noise and spacing of its surface); lost = true points
@@ -15,10 +17,12 @@
 // (MeasureProcessCPUTime), 5 repetitions; read the medians. Not part of ctest.
 // Run: build/<dir>/bench/outlier_bench [--benchmark_filter=...]
 
+#include "hc/pipeline/config.hpp"
 #include "hc/pipeline/filters.hpp"
 #include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/robust_outliers.hpp"
+#include "hc/pipeline/run.hpp"
 #include "hc/pipeline/transform.hpp"
 
 #include <benchmark/benchmark.h>
@@ -226,6 +230,27 @@ void BM_PointStages(benchmark::State& state) {
   state.counters["removed_isolated"] = isolated;
 }
 
+// Every point stage of the run, despike included: build_scene on the cluttered Buddha in memory
+// with configs/happy_buddha.yaml (surface layers, cross-check and levels table off: they remove
+// no points). The kept cloud is shifted back into the cluttered cloud's frame for the counters.
+void BM_RunPointStages(benchmark::State& state) {
+  if (!have_buddha(state)) return;
+  hc::pipeline::RunConfig config = hc::pipeline::load_run_config(
+      std::filesystem::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml",
+      {"layers.enabled=false", "cross_check.enabled=false", "lod.report=false"});
+  Cloud kept;
+  double despiked = 0;
+  for (auto _ : state) {
+    hc::pipeline::BuiltScene b = hc::pipeline::build_scene(*cluttered(2), config, true);
+    kept = std::move(*b.cloud);
+    kept.xyz.colwise() += b.scene.provenance.recentre_offset_m;
+    for (const auto& st : b.summary.stages)
+      if (st.stage == "despike") despiked = static_cast<double>(st.count_in - st.count_out);
+  }
+  quality(state, kept, 2);
+  state.counters["removed_despike"] = despiked;
+}
+
 #define HC_OUTLIER_BENCH_SETTINGS \
   Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime()->Repetitions(5)->Iterations(1)
 
@@ -234,6 +259,7 @@ BENCHMARK(BM_RobustTest)->HC_OUTLIER_BENCH_SETTINGS;
 BENCHMARK(BM_RobustAndFar)->Arg(0)->Arg(2)->HC_OUTLIER_BENCH_SETTINGS;
 BENCHMARK(BM_RobustOffSurface)->Arg(0)->Arg(15)->Arg(20)->HC_OUTLIER_BENCH_SETTINGS;
 BENCHMARK(BM_PointStages)->Arg(0)->Arg(2)->HC_OUTLIER_BENCH_SETTINGS;
+BENCHMARK(BM_RunPointStages)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
 
 }  // namespace
 
