@@ -955,7 +955,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   // cross-check
   c.cross_check.enabled = r.get_bool("cross_check.enabled", true);
   c.cross_check.tolerance_m = r.get_double("cross_check.tolerance_m", 0.0005, 0.0, 1.0, true);
-  c.cross_check.compare_naive = r.get_bool("cross_check.compare_naive", true);
+  c.cross_check.compare_naive = r.get_bool("cross_check.compare_naive", false);
   c.cross_check.hidden_band_m = r.get_double("cross_check.hidden_band_m", 0.002, 0.0, 10.0, true);
   {  // the honest cross-check and the verdict (honest_check.hpp)
     HonestCheckOptions& h = c.cross_check.honest;

@@ -27,6 +27,9 @@ TEST(Config, DefaultsAreFilledAndPathsResolvedAgainstTheConfigFolder) {
   EXPECT_EQ(c.filters.outliers.k, 16);
   EXPECT_NE(c.resolved_yaml.find("n: 800"), std::string::npos) << c.resolved_yaml;
   EXPECT_NE(c.resolved_yaml.find("std_multiplier: 2"), std::string::npos);
+  // The naive grid's comparison is a report extra (a third gridding): by request only.
+  EXPECT_FALSE(c.cross_check.compare_naive);
+  EXPECT_TRUE(parse_run_config(kMinimal + "cross_check: {compare_naive: true}\n", "configs/test.yaml").cross_check.compare_naive);
 }
 
 TEST(Config, UnknownKeyIsNamedWithItsLineAndTheAllowedKeys) {

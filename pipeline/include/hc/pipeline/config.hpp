@@ -77,7 +77,7 @@ struct CrossCheckConfig {
   bool enabled = true;
   double tolerance_m = 0.0005;   ///< a cell is supported if a point lies within this [m]
   double hidden_band_m = 0.002;  ///< (a) uses points at most this far below the surface [m]
-  bool compare_naive = true;     ///< also grid naively (front-most only) and cross-check that,
+  bool compare_naive = false;    ///< also grid naively (front-most only) and cross-check that,
                                  ///< so the report shows what see-through handling, splats and
                                  ///< hole filling change
   /// The honest cross-check's tests and the verdict's limits (cross_check.* keys; its
