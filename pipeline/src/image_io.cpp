@@ -30,14 +30,13 @@ png_uint_32 png_format(PixelFormat f) {
 
 int channels_of(PixelFormat f) { return f == PixelFormat::kGray ? 1 : 3; }
 
-png_image png_image_for(int width, int height, PixelFormat format, bool fast) {
+png_image png_image_for(int width, int height, PixelFormat format) {
   png_image image;
   std::memset(&image, 0, sizeof image);
   image.version = PNG_IMAGE_VERSION;
   image.width = static_cast<png_uint_32>(width);
   image.height = static_cast<png_uint_32>(height);
   image.format = png_format(format);
-  image.flags = fast ? PNG_IMAGE_FLAG_FAST : 0;
   return image;
 }
 
@@ -89,12 +88,65 @@ std::string tiff_failure(const TiffMessages& m, const char* fallback) {
   return errno != 0 ? std::string(std::strerror(errno)) : std::string(fallback);
 }
 
+// libpng's error message for one write, kept for the caller (libpng then longjmps back).
+struct PngError {
+  char text[256] = "libpng cannot write it";
+};
+void on_png_error(png_structp png, png_const_charp message) {
+  auto* e = static_cast<PngError*>(png_get_error_ptr(png));
+  std::snprintf(e->text, sizeof e->text, "%s", message ? message : "libpng error");
+  png_longjmp(png, 1);
+}
+void on_png_warning(png_structp, png_const_charp) {}  // not errors
+
+// The previews' PNG writer (libpng's full API): zlib level 1 and no row filters, about half the
+// time of the simplified API's PNG_IMAGE_FLAG_FAST for files about 10 % larger (a 330 × 844
+// hillshade: 15.2 → 6.9 ms, 238 → 261 kB). Only trivially destructible objects live between
+// setjmp and the writes (libpng longjmps on error). Returns 0 or a message in *error.
+int write_png_level1(std::FILE* fp, const std::uint8_t* pixels, int width, int height, PixelFormat format,
+                     std::size_t stride, PngError* error) {
+  png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, error, &on_png_error, &on_png_warning);
+  if (png == nullptr) return 1;
+  png_infop info = png_create_info_struct(png);
+  if (info == nullptr) {
+    png_destroy_write_struct(&png, nullptr);
+    return 1;
+  }
+  if (setjmp(png_jmpbuf(png))) {
+    png_destroy_write_struct(&png, &info);
+    return 1;
+  }
+  png_init_io(png, fp);
+  png_set_IHDR(png, info, static_cast<png_uint_32>(width), static_cast<png_uint_32>(height), 8,
+               format == PixelFormat::kGray ? PNG_COLOR_TYPE_GRAY : PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
+               PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
+  png_set_filter(png, PNG_FILTER_TYPE_BASE, PNG_FILTER_NONE);
+  png_set_compression_level(png, 1);
+  png_write_info(png, info);
+  if (format == PixelFormat::kBgr) png_set_bgr(png);
+  for (int r = 0; r < height; ++r) png_write_row(png, pixels + static_cast<std::size_t>(r) * stride);
+  png_write_end(png, info);
+  png_destroy_write_struct(&png, &info);
+  return 0;
+}
+
 }  // namespace
 
 std::string write_png(const std::filesystem::path& file, const std::uint8_t* pixels, int width, int height,
                       PixelFormat format, std::size_t row_stride, bool fast) {
   if (width < 1 || height < 1) return "an empty image";
-  png_image image = png_image_for(width, height, format, fast);
+  if (fast) {
+    const std::size_t stride = row_stride ? row_stride : static_cast<std::size_t>(width * channels_of(format));
+    std::FILE* fp = std::fopen(file.c_str(), "wb");
+    if (fp == nullptr) return std::strerror(errno);
+    PngError error;
+    const int failed = write_png_level1(fp, pixels, width, height, format, stride, &error);
+    const bool closed = std::fclose(fp) == 0;
+    if (failed) return error.text;
+    if (!closed) return std::string("closing the file: ") + std::strerror(errno);
+    return {};
+  }
+  png_image image = png_image_for(width, height, format);
   const auto stride = static_cast<png_int_32>(row_stride ? row_stride : static_cast<std::size_t>(width * channels_of(format)));
   if (png_image_write_to_file(&image, file.c_str(), 0, pixels, stride, nullptr) == 0) {
     const std::string why = png_message(image, "libpng cannot write it");
@@ -111,7 +163,7 @@ std::vector<std::uint8_t> encode_png(const std::uint8_t* pixels, int width, int 
     *error = "an empty image";
     return bytes;
   }
-  png_image image = png_image_for(width, height, format, false);
+  png_image image = png_image_for(width, height, format);
   png_alloc_size_t size = 0;
   const auto stride = static_cast<png_int_32>(width * channels_of(format));
   // First the size, then the bytes (libpng's two-call protocol).

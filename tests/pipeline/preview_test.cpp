@@ -8,8 +8,12 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
+#include <cmath>
+#include <cstdint>
 #include <filesystem>
+#include <random>
 #include <string>
+#include <vector>
 
 namespace hc::pipeline {
 namespace {
@@ -108,6 +112,53 @@ TEST(Previews, HillshadeHasATitleStripThatWidensTheImageWhenNeeded) {
   EXPECT_GT(img.cols, 400);  // widened for the title
   EXPECT_TRUE(has_ink(img, 0, 44));
   EXPECT_TRUE(column_is_white(img, img.cols - 1, 0, img.rows));
+}
+
+TEST(Previews, TheFastPngWriterKeepsEveryPixel) {
+  // Oracle: the colour layer itself, read back by OpenCV's PNG decoder. write_rgb_preview draws
+  // a cell's colour unchanged (not shaded) and no-data cells grey (90), flipped so that row 0 is
+  // at the bottom; a grid of 700 × 301 cells (wider than the preview minimum) is not scaled. The
+  // previews' writer (zlib level 1, no row filters, libpng's full API) must round-trip it, noise
+  // and flat runs alike, with an odd width (no row padding).
+  const int rows = 301, cols = 700;
+  HeightField depth(GridGeometry{rows, cols, 0.0, 0.0, 0.001});
+  std::vector<std::uint8_t> rgb(static_cast<std::size_t>(rows * cols * 3));
+  std::mt19937 rng(3);
+  std::uniform_int_distribution<int> byte(0, 255);
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c) {
+      const std::size_t k = static_cast<std::size_t>(r * cols + c);
+      depth.values()[k] = (r * 7 + c) % 13 == 0 ? std::nanf("") : 0.0f;
+      for (int ch = 0; ch < 3; ++ch) rgb[3 * k + static_cast<std::size_t>(ch)] = static_cast<std::uint8_t>(c < 350 ? byte(rng) : r % 256);
+    }
+  const fs::path png = hc::test::temp_dir("preview_roundtrip") / "rgb.png";
+  write_rgb_preview(depth, rgb, png, false);
+  const cv::Mat img = cv::imread(png.string(), cv::IMREAD_COLOR);
+  ASSERT_EQ(img.rows, rows);
+  ASSERT_EQ(img.cols, cols);
+  std::size_t wrong = 0;
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c) {
+      const std::size_t k = static_cast<std::size_t>(r * cols + c);
+      const cv::Vec3b p = img.at<cv::Vec3b>(rows - 1 - r, c);
+      const bool grey = std::isnan(depth.values()[k]);
+      const cv::Vec3b want = grey ? cv::Vec3b(90, 90, 90) : cv::Vec3b(rgb[3 * k + 2], rgb[3 * k + 1], rgb[3 * k]);
+      wrong += p != want;
+    }
+  EXPECT_EQ(wrong, 0u);
+}
+
+TEST(Previews, AnUnwritablePreviewIsNamedInTheError) {
+  HeightField depth(GridGeometry{4, 4, 0.0, 0.0, 0.001});
+  const std::vector<std::uint8_t> rgb(48, 7);
+  const fs::path png = hc::test::temp_dir("preview_unwritable") / "no_such_folder" / "rgb.png";
+  try {
+    write_rgb_preview(depth, rgb, png, false);
+    FAIL() << "written into a missing folder";
+  } catch (const std::exception& e) {
+    EXPECT_NE(std::string(e.what()).find(png.string()), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("No such file"), std::string::npos) << e.what();
+  }
 }
 
 }  // namespace
