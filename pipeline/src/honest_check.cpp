@@ -510,16 +510,6 @@ std::optional<double> trimmed_plane_at(const HeightField& grid, int r, int c, in
 
 /// Whether the valid cell (r, c) stands more than height_m above every valid 8-neighbour (at
 /// least one): a peak one cell wide.
-// True when a valid cell has a no-data cell or the grid's border among its 8 neighbours.
-bool rim_cell(const HeightField& grid, int r, int c) {
-  const GridGeometry& g = grid.geometry();
-  for (int rr = r - 1; rr <= r + 1; ++rr)
-    for (int cc = c - 1; cc <= c + 1; ++cc) {
-      if (rr < 0 || cc < 0 || rr >= g.rows || cc >= g.cols || std::isnan(grid.at(rr, cc))) return true;
-    }
-  return false;
-}
-
 bool lone_peak(const HeightField& grid, int r, int c, double height_m) {
   float top = -std::numeric_limits<float>::infinity();
   for (int rr = std::max(0, r - 1); rr <= std::min(grid.rows() - 1, r + 1); ++rr)
@@ -528,6 +518,18 @@ bool lone_peak(const HeightField& grid, int r, int c, double height_m) {
       if ((rr != r || cc != c) && !std::isnan(v)) top = std::max(top, v);
     }
   return static_cast<double>(grid.at(r, c)) - static_cast<double>(top) > height_m;
+}
+
+/// Whether the cell (r, c) has a no-data cell among its 8 neighbours inside the grid: the rim
+/// of the surface (a silhouette, a hole's edge). The grid's border is not a rim: a window of a
+/// tiled run has one that the whole grid does not.
+bool rim_cell(const HeightField& grid, int r, int c) {
+  const GridGeometry& g = grid.geometry();
+  for (int rr = std::max(0, r - 1); rr <= std::min(g.rows - 1, r + 1); ++rr)
+    for (int cc = std::max(0, c - 1); cc <= std::min(g.cols - 1, c + 1); ++cc) {
+      if (std::isnan(grid.at(rr, cc))) return true;
+    }
+  return false;
 }
 
 [[noreturn]] void bad_option(const std::string& key, double value, const std::string& expected) {
@@ -1191,7 +1193,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     int row, col;
     double base_m;  // the window's plane at the node [m]; NaN for an island cell
     double min_above_m;  // a candidate stands more than this above base_m [m]
-    bool own_cell = false;  // a rim cell: only its own points are candidates
+    bool rim = false;  // a rim cell (base_m NaN: every point within the reach is a candidate)
   };
   std::vector<Target> targets;
   std::size_t n_spike = 0;
@@ -1218,10 +1220,25 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     }
   }
   const auto full = static_cast<std::uint32_t>((2 * h + 1) * (2 * h + 1));
-  // A valid cell's target, if it is a spike cell or a lone peak.
+  // Island cells: every point within the reach of one is a candidate (found first, so that an
+  // island's cells are not judged again as rim cells).
+  std::size_t n_islands = 0, n_island_cells = 0;
+  const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &n_islands);
+  // A valid cell's target, if it is a spike cell, a lone peak or a rim cell.
   auto judge = [&](int r, int c) -> std::optional<Target> {
     const float z = grid.at(r, c);
     if (std::isnan(z)) return std::nullopt;
+    if (island[static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c)]) return std::nullopt;
+    // A cell at the surface's rim (a silhouette, a hole's edge) that is not a spike cell or a
+    // lone peak: the points within the reach are judged, so that a stray just beyond the rim,
+    // which extends the surface there without standing above it, is (uniform clutter on the
+    // bunny left 4 such cells 2.1–2.6 mm from every scan point at 1 %). Within the reach, not
+    // only its own cell: with a splat radius of 1.5 cells or more a stray's disc covers its
+    // cell's 8 neighbours, and the rim lies further out.
+    const auto rim_or_nothing = [&]() -> std::optional<Target> {
+      if (!rim_cell(grid, r, c)) return std::nullopt;
+      return Target{r, c, std::numeric_limits<double>::quiet_NaN(), 0.0, true};
+    };
     const std::size_t r0 = static_cast<std::size_t>(std::max(0, r - h)), r1 = static_cast<std::size_t>(std::min(g.rows, r + h + 1));
     const std::size_t c0 = static_cast<std::size_t>(std::max(0, c - h)), c1 = static_cast<std::size_t>(std::min(g.cols, c + h + 1));
     const std::uint32_t n_win = sat_n[r1 * w1 + c1] + sat_n[r0 * w1 + c0] - sat_n[r0 * w1 + c1] - sat_n[r1 * w1 + c0];
@@ -1230,7 +1247,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
       const double sum = sat_z[r1 * w1 + c1] + sat_z[r0 * w1 + c0] - sat_z[r0 * w1 + c1] - sat_z[r1 * w1 + c0];
       base = (sum - static_cast<double>(z)) / static_cast<double>(full - 1);
     } else {
-      if (n_win < 4) return std::nullopt;  // the cell and at least 3 others
+      if (n_win < 4) return rim_or_nothing();  // the cell and at least 3 others
       Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
       Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
       for (int rr = static_cast<int>(r0); rr < static_cast<int>(r1); ++rr)
@@ -1242,9 +1259,9 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
           rhs += q * (static_cast<double>(v) - static_cast<double>(z));
         }
       const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
-      if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) return std::nullopt;  // collinear cells: no plane
+      if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) return rim_or_nothing();  // collinear cells: no plane
       const Eigen::Vector3d coef = ldlt.solve(rhs);
-      if (!coef.allFinite()) return std::nullopt;
+      if (!coef.allFinite()) return rim_or_nothing();
       base = static_cast<double>(z) + coef(0);  // the plane at the cell's node
     }
     // A point's splat raises the cells around its own with it, and they pull the plane up: a
@@ -1262,16 +1279,9 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     // peak one cell wide (a stray the splat did not spread: its neighbours have points of their
     // own): its points more than half the height above the plane are candidates, so that a
     // stray at the spike height that the plane's curvature error hides is still judged.
-    // Otherwise a cell at the surface's rim (a silhouette, a hole's edge, the grid's border)
-    // has its own points judged: a stray just beyond the rim extends the surface there without
-    // standing above it (uniform clutter on the bunny left 4 such cells 2.1–2.6 mm from every
-    // scan point at 1 %).
     double min_above = o.spike_min_height_m;
     if (static_cast<double>(z) - base <= o.spike_min_height_m) {
-      if (static_cast<double>(z) - base <= half || !lone_peak(grid, r, c, half)) {
-        if (!rim_cell(grid, r, c)) return std::nullopt;
-        return Target{r, c, std::numeric_limits<double>::quiet_NaN(), 0.0, true};
-      }
+      if (static_cast<double>(z) - base <= half || !lone_peak(grid, r, c, half)) return rim_or_nothing();
       min_above = half;
     }
     return Target{r, c, base, min_above};
@@ -1289,18 +1299,12 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
   std::size_t n_rim = 0;
   for (const auto& part : found) {
     targets.insert(targets.end(), part.begin(), part.end());
-    for (const Target& t : part) (t.own_cell ? n_rim : n_spike) += 1;
+    for (const Target& t : part) (t.rim ? n_rim : n_spike) += 1;
   }
-  // Island cells: every point binned in one is a candidate.
-  std::size_t n_islands = 0, n_island_cells = 0;
-  {
-    const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &n_islands);
-    for (std::size_t i = 0; i < island.size(); ++i) {
-      if (!island[i]) continue;
-      targets.push_back({static_cast<int>(i / static_cast<std::size_t>(g.cols)), static_cast<int>(i % static_cast<std::size_t>(g.cols)),
-                         std::numeric_limits<double>::quiet_NaN(), 0.0});
-      ++n_island_cells;
-    }
+  for (std::size_t i = 0; i < island.size(); ++i) {
+    if (!island[i]) continue;
+    targets.push_back({static_cast<int>(i / ucols), static_cast<int>(i % ucols), std::numeric_limits<double>::quiet_NaN(), 0.0});
+    ++n_island_cells;
   }
   std::size_t candidates = 0, removed = 0;
   const bool indexable = cloud.size() < std::numeric_limits<std::uint32_t>::max() &&
@@ -1328,30 +1332,41 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
         if (cell_of[i] != std::numeric_limits<std::uint32_t>::max()) order[fill[cell_of[i]]++] = static_cast<std::uint32_t>(i);
     }
     std::vector<double> radius_of(n, 0.0);  // > 0: a candidate, with its search radius [m]
+    std::vector<std::uint8_t> rim_only(n, 0);  // within the reach of a rim cell
     // Search radii: 2 to 4 cells, or 2 to 4 point spacings where the scan is sparser than the grid.
     const double rho_lo = std::max(2.0 * g.cell_size_m, 2.0 * spacing_m), rho_hi = std::max(4.0 * g.cell_size_m, 4.0 * spacing_m);
     const int reach_all = static_cast<int>(std::ceil(reach_cells));
+    // A stray's disc (radius reach_cells) reaches a cell that borders no data within
+    // ⌈reach_cells − 1⌉ cells of the stray's own (0 for a radius of one cell).
+    const int reach_rim = std::max(0, static_cast<int>(std::ceil(reach_cells - 1.0)));
     for (const Target& t : targets) {
-      const int reach = t.own_cell ? 0 : reach_all;
+      const int reach = t.rim ? reach_rim : reach_all;
       for (int rr = std::max(0, t.row - reach); rr <= std::min(g.rows - 1, t.row + reach); ++rr)
         for (int cc = std::max(0, t.col - reach); cc <= std::min(g.cols - 1, t.col + reach); ++cc) {
           const std::size_t cell = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
           for (std::uint32_t k = first[cell]; k < first[cell + 1]; ++k) {
             const std::uint32_t i = order[k];
             double rho = rho_hi;
-            // A spike's points above its plane; an island's points within the reach (on an
+            // A spike's points above its plane; an island's or a rim's points within the reach (on an
             // upsampled grid a stray point's nearest fine node may itself be no data).
             if (!std::isnan(t.base_m)) {
               const double above = cloud.xyz(2, static_cast<Eigen::Index>(i)) - t.base_m;
               if (above <= t.min_above_m) continue;
               rho = std::clamp(0.5 * above, rho_lo, rho_hi);
             }
-            radius_of[i] = std::max(radius_of[i], rho);
+            if (t.rim) {
+              rim_only[i] = 1;
+            } else {
+              radius_of[i] = std::max(radius_of[i], rho);
+            }
           }
         }
     }
+    // A point near a rim takes ρ_hi only if no spike or island made it a candidate: the larger
+    // radius would let a stray beside a silhouette find its neighbours.
     std::vector<std::uint32_t> cand;
     for (std::size_t i = 0; i < n; ++i) {
+      if (radius_of[i] == 0.0 && rim_only[i]) radius_of[i] = rho_hi;
       if (radius_of[i] > 0.0) cand.push_back(static_cast<std::uint32_t>(i));
     }
     candidates = cand.size();

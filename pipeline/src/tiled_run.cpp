@@ -389,7 +389,7 @@ class RadixPercentiles {
 void add_figures(std::map<std::string, double>& sums, const StageReport& r) {
   static const char* const kCounts[] = {"removed", "cells", "points", "candidates", "certified", "exact_queries",
                                         "local_tests", "clusters", "far_clusters", "kept_far_clusters", "spike_cells",
-                                        "island_cells", "coherent_above_global", "duplicates_left_out"};
+                                        "rim_cells", "island_cells", "coherent_above_global", "duplicates_left_out"};
   for (const auto& [name, v] : r.figures) {
     if (!std::isfinite(v)) continue;
     bool count = name.size() > 2 && name.compare(name.size() - 2, 2, "_s") == 0;

@@ -241,7 +241,7 @@ FarCells cells_far_from_the_points(const BuiltScene& b, double limit_m) {
   return out;
 }
 
-TEST(HonestCrossCheck, BuddhaConfigPassesAndNoCellStandsASpikeHeightFromTheScan) {
+TEST(HonestCrossCheck, BuddhaConfigPassesAndNoCellStandsASpikeHeightFromTheKeptPoints) {
   // Oracle: a k-d tree over the kept points. With the shipped config (occlusion gaps left empty:
   // grid.hole_fill_max_step_m) every valid node lies within the spike height (2 mm) of a kept
   // point, and the grid's spike and pit test flags nothing the scan does not confirm. Without the
@@ -392,6 +392,37 @@ TEST(DespikeGrid, RemovesStraysInFrontAndInTheBackgroundAndKeepsDenseRelief) {
   // The hill's top cells are judged (spikes of their window's plane) and kept: their points
   // have neighbours within half their height.
   EXPECT_GT(hc::test::figure(r.report, "spike_cells"), 4.0);
+}
+
+TEST(DespikeGrid, RemovesAStrayJustBeyondASilhouetteAtEverySplatRadius) {
+  // A tilted plane sampled every 0.25 mm on x in [0, 30] and [45, 50] mm (the gap between is no
+  // data) and one stray 1.3 cells (0.65 mm) beyond the silhouette at x = 30 mm, 2.5 mm behind
+  // the plane: 2.58 mm from every surface point, beyond ρ_hi (4 cells = 2 mm). It stands above
+  // nothing, so no spike test sees it; it extends the surface into the gap. At every splat
+  // radius it goes and every surface point stays. With only a rim cell's own points judged, it
+  // stayed from a radius of 1.5 cells on (its disc covers its cell's 8 neighbours).
+  auto plane = [](double x, double y) { return 0.1 * x + 0.05 * y; };
+  std::vector<Eigen::Vector3d> pts;
+  for (int j = 0; j <= 120; ++j)
+    for (int i = 0; i <= 200; ++i) {
+      const double x = 0.00025 * i;
+      if (x > 0.030 + 1e-9 && x < 0.045 - 1e-9) continue;
+      const double y = 0.00025 * j;
+      pts.emplace_back(x, y, plane(x, y));
+    }
+  const std::size_t n_surface = pts.size();
+  pts.emplace_back(0.03065, 0.015, plane(0.03065, 0.015) - 0.0025);
+  const Cloud cloud = cloud_of(pts);
+  for (const double radius : {1.0, 1.2, 1.5, 2.0, 3.0}) {
+    ReprojectOptions ro;
+    ro.grid.cell_size_m = 0.0005;
+    ro.splat_radius_cells = radius;
+    const DepthGrid grid = reproject(cloud, ro).value;
+    const auto r = remove_spike_points(cloud, grid.depth, HonestCheckOptions{}, std::max(1.0, radius), 0.00025);
+    ASSERT_EQ(r.value.size(), n_surface) << "radius " << radius << ": removed " << cloud.size() - r.value.size();
+    EXPECT_EQ(r.value.xyz, cloud.xyz.leftCols(static_cast<Eigen::Index>(n_surface))) << radius;
+    EXPECT_GT(hc::test::figure(r.report, "rim_cells"), 0.0) << radius;
+  }
 }
 
 TEST(InputCheck, ClassesOnAFlatGridMatchTheirConstruction) {

@@ -689,8 +689,8 @@ TEST(OrganisedScansRealData, RawBuddhaScansMeshedCorrugateFiveTimesLess) {
   // KNOWN GAP (issue "A surface you can trust"): the points-to-surface RMS along the normal
   // grows here (0.264 → 0.361 mm at N = 800): strips of the front surface narrower than a cell
   // at silhouettes cover no node, so their points float above the bilinear surface, where the
-  // splats' 1.2-cell dilation covered them. The grid-to-points RMS is larger too (0.131 against
-  // 0.162 mm, 2026-11-23). It was smaller (0.199 against 0.162 mm) only while the splat grid's
+  // splats' 1.2-cell dilation covered them. The grid-to-points RMS is larger too (splat 0.131 mm,
+  // mesh 0.162 mm, 2026-11-23). It was smaller (splat 0.199 mm) only while the splat grid's
   // hole filling bridged occlusion gaps (the config's grid.hole_fill_max_step_m now leaves
   // them empty). Recorded, not asserted, until the rasteriser handles sub-cell strips
   // (conservative coverage).

@@ -599,13 +599,13 @@ Above cells_above(const BuiltScene& clean, const BuiltScene& b) {
       }
   }
   static const hc::test::KdOracle scan(bunny().xyz);
-  const Eigen::Vector3d offset = b.scene.provenance.recentre_offset_m;  // grid frame -> file frame
+  const Eigen::Affine3d grid_to_file = b.scene.model_to_grid.inverse();
   Above out;
   for (std::size_t i = 0; i < va.size(); ++i) {
     if (std::isnan(vb[i])) continue;
     const auto row = static_cast<double>(i / static_cast<std::size_t>(g.cols)), col = static_cast<double>(i % static_cast<std::size_t>(g.cols));
     const Eigen::Vector3d node(g.x0_m + col * g.cell_size_m, g.y0_m + row * g.cell_size_m, double(vb[i]));
-    if (scan.nearest(node + offset) > 0.002) ++out.proud;
+    if (scan.nearest(grid_to_file * node) > 0.002) ++out.proud;
     if (std::isnan(va[i])) {
       ++out.extra;
     } else if (double(vb[i]) + dz - double(va[i]) > 0.002) {

@@ -8,20 +8,26 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <memory>
 
 namespace hc::test {
 
 /// Distances from query points to the nearest of a fixed set of points.
 /// @param points 3 × n, any frame and unit (queries in the same); kept by reference, so it must
-///        outlive the oracle. n ≥ 1.
+///        outlive the oracle.
 class KdOracle {
  public:
   explicit KdOracle(const Eigen::Matrix3Xd& points)
       : adaptor_{&points}, tree_(std::make_unique<Tree>(3, adaptor_, nanoflann::KDTreeSingleIndexAdaptorParams(16))) {}
+  // The tree refers to this object's adaptor: not copyable or movable.
+  KdOracle(const KdOracle&) = delete;
+  KdOracle& operator=(const KdOracle&) = delete;
 
-  /// Euclidean distance from q to the nearest point, in the points' unit.
+  /// Euclidean distance from q to the nearest point, in the points' unit; infinity when there
+  /// are no points (so that a test of "near a point" cannot pass on an empty set).
   double nearest(const Eigen::Vector3d& q) const {
+    if (adaptor_.p->cols() == 0) return std::numeric_limits<double>::infinity();
     std::uint32_t idx = 0;
     double d2 = 0.0;
     tree_->knnSearch(q.data(), 1, &idx, &d2);

@@ -70,9 +70,9 @@ struct HonestCheckOptions {
   int island_max_cells = 16;
   // Verdict limits (decide_verdict).
   int max_spike_cells = 0;                  ///< unconfirmed spike + pit cells allowed before "fail"
-  /// ... or this fraction of the tested cells, whichever allows more: a merged multi-view scan's
-  /// deepest folds give a few unconfirmed pits (the Buddha at N = 800: 43 of about 196 000
-  /// cells, 2.2e-4, on 2026-11-22; whether they are hole-filled cells across a fold is open).
+  /// ... or this fraction of the tested cells, whichever allows more. The merged Buddha at
+  /// N = 800 had 29 unconfirmed spike and pit cells (1.5e-4), every one a hole-filled cell
+  /// bridging an occlusion gap in a fold; with grid.hole_fill_max_step_m (as its config) none.
   double max_spike_fraction = 5e-4;
   /// The fraction applies only while no spike among the worst listed cells (GridSpikes::worst)
   /// stands above its window by more than this [m]; pits (folds) do not cancel it.
@@ -262,15 +262,18 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 ///    hide a stray just over h);
 ///  - island cells: island_mask's groups of at most island_max_cells cells apart from the
 ///    largest (as find_grid_spikes);
-///  - rim cells: the other valid cells with a no-data cell or the grid's border among their 8
-///    neighbours (a stray just beyond a silhouette or a hole's edge extends the surface there
-///    without standing above it);
+///  - rim cells: the other valid cells, islands excepted, with a no-data cell among their 8
+///    neighbours inside the grid (a stray just beyond a silhouette or a hole's edge extends the
+///    surface there without standing above it; the grid's border is not a rim, so a tiled
+///    run's window judges what the whole grid does);
 ///  - candidates: points binned (nearest node) within ⌈reach_cells⌉ cells (Chebyshev) of a spike
 ///    cell that stand more than h above its plane (a lone peak's: more than h/2), every point
-///    within that reach of an island cell, and every point binned in a rim cell;
+///    within that reach of an island cell, and every point within ⌈reach_cells − 1⌉ cells of a
+///    rim cell (a stray's disc reaches a cell that borders no data that near);
 ///  - a candidate is removed when fewer than options.isolation_min_neighbours other points lie
 ///    within ρ of it in 3-D, ρ = clamp(0.5 × its height above the plane, ρ_lo, ρ_hi) for a spike
-///    and ρ_hi for an island or a rim, ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells,
+///    and ρ_hi for an island or a rim (a spike's or an island's radius wins where targets
+///    overlap), ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells,
 ///    4 × spacing_m) (spacing_m: the scan's median nearest-neighbour spacing, 0 if unknown; a
 ///    scan sparser than the grid keeps its points). Relief that stands h above its
 ///    surroundings is joined to them by a sampled surface, so a sphere of radius h/2 about its
