@@ -1172,11 +1172,15 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 }
 
 StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& o,
-                                       double reach_cells, double spacing_m) {
+                                       double reach_cells, double spacing_m, double upsample_factor) {
   check_honest_options(o);
   if (!(reach_cells >= 0.0) || !std::isfinite(reach_cells)) {
     throw std::invalid_argument("remove_spike_points: reach_cells = " + std::to_string(reach_cells) +
                                 " (expected a finite value >= 0)");
+  }
+  if (!(upsample_factor >= 1.0) || !std::isfinite(upsample_factor)) {
+    throw std::invalid_argument("remove_spike_points: upsample_factor = " + std::to_string(upsample_factor) +
+                                " (expected a finite value >= 1)");
   }
   if (!(spacing_m >= 0.0) || !std::isfinite(spacing_m)) {
     throw std::invalid_argument("remove_spike_points: spacing_m = " + std::to_string(spacing_m) +
@@ -1335,6 +1339,10 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     std::vector<std::uint8_t> rim_only(n, 0);  // within the reach of a rim cell
     // Search radii: 2 to 4 cells, or 2 to 4 point spacings where the scan is sparser than the grid.
     const double rho_lo = std::max(2.0 * g.cell_size_m, 2.0 * spacing_m), rho_hi = std::max(4.0 * g.cell_size_m, 4.0 * spacing_m);
+    // A rim's radius in scan cells: on an upsampled grid 4 grid cells are a fraction of the
+    // scan's spacing, and a sparse silhouette's true points would go (the Buddha at N = 4096,
+    // K = 5: 836 points with ρ_hi, 93 with this).
+    const double rho_rim = std::max(4.0 * upsample_factor * g.cell_size_m, 4.0 * spacing_m);
     const int reach_all = static_cast<int>(std::ceil(reach_cells));
     // A stray's disc (radius reach_cells) reaches a cell that borders no data within
     // ⌈reach_cells − 1⌉ cells of the stray's own (0 for a radius of one cell).
@@ -1366,7 +1374,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     // radius would let a stray beside a silhouette find its neighbours.
     std::vector<std::uint32_t> cand;
     for (std::size_t i = 0; i < n; ++i) {
-      if (radius_of[i] == 0.0 && rim_only[i]) radius_of[i] = rho_hi;
+      if (radius_of[i] == 0.0 && rim_only[i]) radius_of[i] = rho_rim;
       if (radius_of[i] > 0.0) cand.push_back(static_cast<std::uint32_t>(i));
     }
     candidates = cand.size();

@@ -559,7 +559,7 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
     const std::size_t before = cloud.size();
     cloud = stage("despike", reports, progress, [&] {
       return remove_spike_points(std::move(cloud), grid.depth, config.cross_check.honest,
-                                 std::max(1.0, config.grid.reproject.splat_radius_cells) * k, spacing_m);
+                                 std::max(1.0, config.grid.reproject.splat_radius_cells) * k, spacing_m, k);
     });
     if (cloud.size() < before) {
       grid = stage("reproject", reports, progress, grid_it);

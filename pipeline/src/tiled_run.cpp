@@ -587,7 +587,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     if (oc.enabled && oc.despike) {
       const std::size_t before_n = pts.size();
       auto ds = remove_spike_points(std::move(pts), part.depth, config.cross_check.honest,
-                                    std::max(1.0, ro.splat_radius_cells) * tiles.k, std::isfinite(spacing_m) ? spacing_m : 0.0);
+                                    std::max(1.0, ro.splat_radius_cells) * tiles.k, std::isfinite(spacing_m) ? spacing_m : 0.0,
+                                    tiles.k);
       add_figures(o.sums, ds.report);
       pts = std::move(ds.value);
       if (pts.size() == 0) {

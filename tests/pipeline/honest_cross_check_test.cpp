@@ -423,6 +423,10 @@ TEST(DespikeGrid, RemovesAStrayJustBeyondASilhouetteAtEverySplatRadius) {
     EXPECT_EQ(r.value.xyz, cloud.xyz.leftCols(static_cast<Eigen::Index>(n_surface))) << radius;
     EXPECT_GT(hc::test::figure(r.report, "rim_cells"), 0.0) << radius;
   }
+  ReprojectOptions ro;
+  ro.grid.cell_size_m = 0.0005;
+  const DepthGrid grid = reproject(cloud, ro).value;
+  EXPECT_THROW(remove_spike_points(cloud, grid.depth, HonestCheckOptions{}, 1.0, 0.00025, 0.5), std::invalid_argument);
 }
 
 TEST(InputCheck, ClassesOnAFlatGridMatchTheirConstruction) {

@@ -272,14 +272,15 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 ///    rim cell (a stray's disc reaches a cell that borders no data that near);
 ///  - a candidate is removed when fewer than options.isolation_min_neighbours other points lie
 ///    within ρ of it in 3-D, ρ = clamp(0.5 × its height above the plane, ρ_lo, ρ_hi) for a spike
-///    and ρ_hi for an island or a rim (a spike's or an island's radius wins where targets
-///    overlap), ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells,
+///    and ρ_hi for an island, ρ_rim = max(4 scan cells, 4 × spacing_m) for a rim (a scan cell
+///    is upsample_factor grid cells: the rim's test does not tighten on an upsampled grid; a
+///    spike's or an island's radius wins where targets overlap), ρ_lo = max(2 cells, 2 × spacing_m), ρ_hi = max(4 cells,
 ///    4 × spacing_m) (spacing_m: the scan's median nearest-neighbour spacing, 0 if unknown; a
 ///    scan sparser than the grid keeps its points). Relief that stands h above its
 ///    surroundings is joined to them by a sampled surface, so a sphere of radius h/2 about its
 ///    top holds samples; a stray point h in front of the surface has none within h/2.
 /// Pits are not touched (missing data, not added data). reach_cells is the splat radius × the
-/// upsample factor (the cells a point's disc writes). Report stage "despike", figures:
+/// upsample factor (the cells a point's disc writes); upsample_factor ≥ 1 is that factor. Report stage "despike", figures:
 /// spike_cells (lone peaks included), rim_cells, island_cells, candidates, removed_spike_points. The caller grids again when
 /// points were removed. Skipped (with a note) for 2^32 − 1 points or cells or more. Cost: O(cells)
 /// summed-area tables plus O(N) binning plus, per candidate, the points within ρ_hi (2·⌈ρ_hi /
@@ -288,7 +289,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 ///         std::invalid_argument if reach_cells or spacing_m is negative or not finite.
 /// Source: this project (the radius test of Rusu 2009 applied at the spike's own scale).
 StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& options,
-                                       double reach_cells, double spacing_m);
+                                       double reach_cells, double spacing_m, double upsample_factor = 1.0);
 
 
 /// One reason of a verdict: a stable code, its level and a sentence with the figures.
