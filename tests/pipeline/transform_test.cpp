@@ -11,6 +11,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <fstream>
 #include <limits>
 #include <numbers>
@@ -151,4 +152,17 @@ TEST(ViewTransform, RotatesThenScalesThenTranslates) {
   EXPECT_EQ(r.report.count_out, 2u);
   v.scale = 0.0;
   EXPECT_THROW(hp::apply_view_transform(cloud_of({{1, 0, 3}}), v), hc::ConfigError);
+}
+
+TEST(ViewTransform, TheIdentityLeavesEveryPointAsItIsAndATinyTurnDoesNot) {
+  const hp::Cloud in = cloud_of({{1.25, -0.0, 3e-300}, {0.1, std::numeric_limits<double>::infinity(), 2}});
+  hp::ViewTransform v;
+  v.rotation = hp::rotation_from_axis_angle({0, 1, 0}, 0);  // the Buddha config's front view
+  const auto r = hp::apply_view_transform(in, v);
+  // Bit for bit, the −0 and the point beside an infinity included.
+  EXPECT_EQ(std::memcmp(r.value.xyz.data(), in.xyz.data(), sizeof(double) * 6), 0);
+  v.rotation = hp::rotation_from_axis_angle({0, 0, 1}, 1e-3);
+  const auto t = hp::apply_view_transform(in, v);
+  EXPECT_NE(t.value.xyz(1, 0), 0.0);  // x turns into y: the transform ran
+  EXPECT_NEAR(t.value.xyz(1, 0), 1.25 * std::sin(1e-3 * std::acos(-1.0) / 180.0), 1e-18);
 }

@@ -52,7 +52,8 @@ Eigen::Quaterniond rotation_from_euler(const Eigen::Vector3d& angles_deg, const 
 /// Unit quaternion (w, x, y, z) normalised. @throws hc::ConfigError if its norm is near zero.
 Eigen::Quaterniond rotation_from_quaternion(double w, double x, double y, double z);
 
-/// Applies p ← scale·R·p + t to every point. Real-time: no. Cost O(N).
+/// Applies p ← scale·R·p + t to every point (and n ← R·n to normals). Real-time: no. Cost O(N);
+/// none when the transform is exactly the identity (the points are then returned unchanged).
 StageResult<Cloud> apply_view_transform(Cloud cloud, const ViewTransform& view);
 
 }  // namespace hc::pipeline
