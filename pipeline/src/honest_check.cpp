@@ -1195,9 +1195,9 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
   // Spike cells and the height of their window's plane at the node.
   struct Target {
     int row, col;
-    double base_m;  // the window's plane at the node [m]; NaN for an island cell
+    double base_m;  // the window's plane at the node [m]; NaN for an island or a rim cell
     double min_above_m;  // a candidate stands more than this above base_m [m]
-    bool rim = false;  // a rim cell (base_m NaN: every point within the reach is a candidate)
+    bool rim = false;  // a rim cell: every point within reach_rim is a candidate (radius ρ_rim)
   };
   std::vector<Target> targets;
   std::size_t n_spike = 0;
@@ -1354,24 +1354,24 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
           const std::size_t cell = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
           for (std::uint32_t k = first[cell]; k < first[cell + 1]; ++k) {
             const std::uint32_t i = order[k];
+            if (t.rim) {
+              rim_only[i] = 1;
+              continue;
+            }
             double rho = rho_hi;
-            // A spike's points above its plane; an island's or a rim's points within the reach (on an
+            // A spike's points above its plane; an island's points within the reach (on an
             // upsampled grid a stray point's nearest fine node may itself be no data).
             if (!std::isnan(t.base_m)) {
               const double above = cloud.xyz(2, static_cast<Eigen::Index>(i)) - t.base_m;
               if (above <= t.min_above_m) continue;
               rho = std::clamp(0.5 * above, rho_lo, rho_hi);
             }
-            if (t.rim) {
-              rim_only[i] = 1;
-            } else {
-              radius_of[i] = std::max(radius_of[i], rho);
-            }
+            radius_of[i] = std::max(radius_of[i], rho);
           }
         }
     }
-    // A point near a rim takes ρ_hi only if no spike or island made it a candidate: the larger
-    // radius would let a stray beside a silhouette find its neighbours.
+    // A point near a rim takes ρ_rim only if no spike or island made it a candidate: a larger
+    // radius than a spike's would let a stray beside a silhouette find its neighbours.
     std::vector<std::uint32_t> cand;
     for (std::size_t i = 0; i < n; ++i) {
       if (radius_of[i] == 0.0 && rim_only[i]) radius_of[i] = rho_rim;

@@ -286,7 +286,8 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 /// summed-area tables plus O(N) binning plus, per candidate, the points within ρ_hi (2·⌈ρ_hi /
 /// cell⌉ + 1)² cells.
 /// @throws hc::ConfigError for options outside their ranges (check_honest_options);
-///         std::invalid_argument if reach_cells or spacing_m is negative or not finite.
+///         std::invalid_argument if reach_cells or spacing_m is negative or not finite, or
+///         upsample_factor is below 1 or not finite.
 /// Source: this project (the radius test of Rusu 2009 applied at the spike's own scale).
 StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& options,
                                        double reach_cells, double spacing_m, double upsample_factor = 1.0);
