@@ -10,6 +10,11 @@
 //                        the grid)
 //   BM_RunPointStages    build_scene with configs/happy_buddha.yaml on the 2 % cloud: every stage
 //                        that removes points, the grid's despike step included (one run)
+//   BM_MedianSpacing/M   median_point_spacing (the isolated stage's and the honest check's
+//                        spacing) on a generated wall of M million points in random order (2 m ×
+//                        1 m, 3 mm relief, 0.5 mm noise: bench/scale.py's walls), start edge 5 mm
+//                        (twice the cell at N = 800); against BM_SpacingFloor/M, one pass that
+//                        converts the same points to floats (the stage's first step)
 // Counters: caught = injected outliers removed / injected; caught_beyond_2mm = the same for the
 // injected points farther than 2 mm from every true point (clutter_beyond_2mm of them; the
 // nearer ones lie within the scan's noise and spacing of its surface); lost = true points
@@ -251,6 +256,42 @@ void BM_RunPointStages(benchmark::State& state) {
   state.counters["removed_despike"] = despiked;
 }
 
+/// M million points on a 2 m × 1 m wall (x, y uniform; z = 3 mm relief + 0.5 mm noise), in
+/// random order, as the generated scans of bench/scale.py come; cached per M.
+const Eigen::Matrix3Xd& generated_wall(int millions) {
+  static std::vector<std::pair<int, std::unique_ptr<Eigen::Matrix3Xd>>> cache;
+  for (const auto& [m, w] : cache)
+    if (m == millions) return *w;
+  const auto n = static_cast<Eigen::Index>(millions) * 1000000;
+  auto w = std::make_unique<Eigen::Matrix3Xd>(3, n);
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> ux(-1.0, 1.0), uy(-0.5, 0.5);
+  std::normal_distribution<double> noise(0.0, 0.5e-3);
+  for (Eigen::Index i = 0; i < n; ++i) {
+    const double x = ux(rng), y = uy(rng);
+    (*w)(0, i) = x, (*w)(1, i) = y, (*w)(2, i) = 3e-3 * std::sin(40.0 * x) * std::cos(30.0 * y) + noise(rng);
+  }
+  cache.emplace_back(millions, std::move(w));
+  return *cache.back().second;
+}
+
+void BM_MedianSpacing(benchmark::State& state) {
+  const Eigen::Matrix3Xd& wall = generated_wall(static_cast<int>(state.range(0)));
+  double spacing = 0.0;
+  for (auto _ : state) spacing = hc::pipeline::median_point_spacing(wall, 5e-3);
+  state.counters["spacing_mm"] = spacing * 1e3;
+}
+
+void BM_SpacingFloor(benchmark::State& state) {
+  const Eigen::Matrix3Xd& wall = generated_wall(static_cast<int>(state.range(0)));
+  for (auto _ : state) {
+    std::vector<float> local(static_cast<std::size_t>(3 * wall.cols()));
+    for (Eigen::Index i = 0; i < wall.cols(); ++i)
+      for (int a = 0; a < 3; ++a) local[static_cast<std::size_t>(3 * i + a)] = static_cast<float>(wall(a, i));
+    benchmark::DoNotOptimize(local.data());
+  }
+}
+
 #define HC_OUTLIER_BENCH_SETTINGS \
   Unit(benchmark::kMillisecond)->MeasureProcessCPUTime()->UseRealTime()->Repetitions(5)->Iterations(1)
 
@@ -260,6 +301,8 @@ BENCHMARK(BM_RobustAndFar)->Arg(0)->Arg(2)->HC_OUTLIER_BENCH_SETTINGS;
 BENCHMARK(BM_RobustOffSurface)->Arg(0)->Arg(15)->Arg(20)->HC_OUTLIER_BENCH_SETTINGS;
 BENCHMARK(BM_PointStages)->Arg(0)->Arg(2)->HC_OUTLIER_BENCH_SETTINGS;
 BENCHMARK(BM_RunPointStages)->Unit(benchmark::kMillisecond)->UseRealTime()->Iterations(1);
+BENCHMARK(BM_SpacingFloor)->Arg(1)->Arg(10)->HC_OUTLIER_BENCH_SETTINGS;
+BENCHMARK(BM_MedianSpacing)->Arg(1)->Arg(10)->HC_OUTLIER_BENCH_SETTINGS;
 
 }  // namespace
 

@@ -612,18 +612,31 @@ TEST(HonestCheckConfig, KeysAreReadAndCheckedByName) {
 
 
 // median_point_spacing against brute force: the same strided sample (every ⌈N / 4096⌉-th finite
-// point, here N = 9000 → every 2nd), each one's nearest neighbour over all points by a full
-// scan, the median as nth_element places it. Clouds: a noisy plane with clutter, and the same
-// with a point 1 km away (cells beyond the voxel keys' clamp limit); start edges far below the
-// spacing (the edge must grow) and far above it.
+// point: every 2nd of the plane's 9000, every 9th of the cube's 40 000), each one's nearest
+// neighbour over all points by a full scan, the median as nth_element places it. Clouds: a
+// noisy plane with clutter, and the same with a point 1 km away (cells beyond the voxel keys'
+// clamp limit); a 0.1 m cube filled at random, where the pilot's guess at a 0.05 m start edge
+// (which assumes a surface, spacing ≈ edge / √count: 1.4 mm) is below the spacing (1.6 mm) and
+// the edge must grow after it. Start edges far below the spacing (the edge must grow) and far
+// above it (the pilot shrinks it).
 TEST(MedianPointSpacing, EqualsTheBruteForceMedianOfTheStridedSample) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> u(0.0, 1.0);
-  std::vector<Eigen::Vector3d> pts;
-  for (int i = 0; i < 8900; ++i) pts.emplace_back(0.1 * u(rng), 0.1 * u(rng), 0.0005 * u(rng));
-  for (int i = 0; i < 99; ++i) pts.emplace_back(0.1 * u(rng), 0.1 * u(rng), 0.05 * u(rng));
-  for (const bool far : {false, true}) {
-    pts.emplace_back(far ? 1000.0 : 0.05, 0.05, 0.01);
+  std::vector<Eigen::Vector3d> plane, cube;
+  for (int i = 0; i < 8900; ++i) plane.emplace_back(0.1 * u(rng), 0.1 * u(rng), 0.0005 * u(rng));
+  for (int i = 0; i < 99; ++i) plane.emplace_back(0.1 * u(rng), 0.1 * u(rng), 0.05 * u(rng));
+  for (int i = 0; i < 40000; ++i) cube.emplace_back(0.1 * u(rng), 0.1 * u(rng), 0.1 * u(rng));
+  struct Case {
+    std::vector<Eigen::Vector3d> pts;
+    std::string name;
+  };
+  std::vector<Case> cases;
+  plane.emplace_back(0.05, 0.05, 0.01);
+  cases.push_back({plane, "plane"});
+  plane.back() = Eigen::Vector3d(1000.0, 0.05, 0.01);
+  cases.push_back({plane, "plane and a point 1 km away"});
+  cases.push_back({cube, "cube"});
+  for (const auto& [pts, name] : cases) {
     Eigen::Matrix3Xd xyz(3, static_cast<Eigen::Index>(pts.size()));
     for (std::size_t i = 0; i < pts.size(); ++i) xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
     const std::size_t stride = std::max<std::size_t>(1, pts.size() / 4096);
@@ -637,13 +650,11 @@ TEST(MedianPointSpacing, EqualsTheBruteForceMedianOfTheStridedSample) {
     }
     auto mid = nn.begin() + static_cast<std::ptrdiff_t>(nn.size() / 2);
     std::nth_element(nn.begin(), mid, nn.end());
-    for (const double start : {1e-6, 1e-4, 0.05}) {
+    for (const double start : {1e-6, 1e-4, 0.05, 0.1}) {
       // The function works in floats about the points' mean (at most about 0.12 m away here,
       // the far point aside): agreement to float rounding, 1e-8 m.
-      EXPECT_NEAR(median_point_spacing(xyz, start), *mid, 1e-7)
-          << "far " << far << ", start edge " << start;
+      EXPECT_NEAR(median_point_spacing(xyz, start), *mid, 1e-7) << name << ", start edge " << start;
     }
-    pts.pop_back();
   }
 }
 
