@@ -30,6 +30,8 @@
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/transform.hpp"
 
+#include "generated_wall.hpp"
+
 #include <benchmark/benchmark.h>
 #include <nanoflann.hpp>
 
@@ -256,24 +258,7 @@ void BM_RunPointStages(benchmark::State& state) {
   state.counters["removed_despike"] = despiked;
 }
 
-/// M million points on a 2 m × 1 m wall (x, y uniform; z = 3 mm relief + 0.5 mm noise), in
-/// random order, as the generated scans of bench/scale.py come; cached per M.
-const Eigen::Matrix3Xd& generated_wall(int millions) {
-  static std::vector<std::pair<int, std::unique_ptr<Eigen::Matrix3Xd>>> cache;
-  for (const auto& [m, w] : cache)
-    if (m == millions) return *w;
-  const auto n = static_cast<Eigen::Index>(millions) * 1000000;
-  auto w = std::make_unique<Eigen::Matrix3Xd>(3, n);
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<double> ux(-1.0, 1.0), uy(-0.5, 0.5);
-  std::normal_distribution<double> noise(0.0, 0.5e-3);
-  for (Eigen::Index i = 0; i < n; ++i) {
-    const double x = ux(rng), y = uy(rng);
-    (*w)(0, i) = x, (*w)(1, i) = y, (*w)(2, i) = 3e-3 * std::sin(40.0 * x) * std::cos(30.0 * y) + noise(rng);
-  }
-  cache.emplace_back(millions, std::move(w));
-  return *cache.back().second;
-}
+using hc::bench::generated_wall;
 
 void BM_MedianSpacing(benchmark::State& state) {
   const Eigen::Matrix3Xd& wall = generated_wall(static_cast<int>(state.range(0)));

@@ -7,6 +7,10 @@
 //   BM_FillHoles   hole filling of the handled grid;
 //   BM_CrossCheck  the cross-check of the naive grid and of the handled, filled grid, with the
 //                  error figures as counters so that speed sits beside error.
+//   BM_ReprojectWall/M  plane splats (radius 1.2 cells, see-through 20 mm: bench/scale.py's
+//                  options) at N = 800 on a generated wall of M million points in random order
+//                  (generated_wall.hpp), against BM_BinningWall/M, the naive reprojection
+//                  (front-most binning only) of the same points (the floor).
 // Each at N = 200, 400, 800 and 1600 cells along the statue's height. Options are scaled so that
 // they mean the same physical sizes at every N: splat radius 0.3 mm (just above the scans' point
 // spacing; 1.2 cells at N = 800, none below 1 cell), see-through depth 2 mm over a ±0.75 mm
@@ -18,6 +22,8 @@
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/transform.hpp"
+
+#include "generated_wall.hpp"
 
 #include <benchmark/benchmark.h>
 
@@ -197,6 +203,42 @@ void grid_sizes_and_modes(benchmark::internal::Benchmark* b) {
   }
 }
 
+/// The generated wall as a Cloud (points only), cached per M.
+const Cloud& wall_cloud(int millions) {
+  static std::vector<std::pair<int, std::unique_ptr<Cloud>>> cache;
+  for (const auto& [m, c] : cache)
+    if (m == millions) return *c;
+  auto c = std::make_unique<Cloud>();
+  c->xyz = hc::bench::generated_wall(millions);
+  cache.emplace_back(millions, std::move(c));
+  return *cache.back().second;
+}
+
+void BM_ReprojectWall(benchmark::State& state) {
+  const Cloud& wall = wall_cloud(static_cast<int>(state.range(0)));
+  ReprojectOptions o = naive_options(800);
+  o.splat_radius_cells = 1.2;
+  o.splat_mode = hc::pipeline::SplatMode::kPlane;
+  o.see_through_depth_m = 0.02;
+  hc::pipeline::StageResult<DepthGrid> r;
+  for (auto _ : state) {
+    r = hc::pipeline::reproject(wall, o);
+    benchmark::DoNotOptimize(r.value.depth.data());
+  }
+  state.counters["cells_valid"] = figure(r.report, "cells_valid");
+}
+
+void BM_BinningWall(benchmark::State& state) {
+  const Cloud& wall = wall_cloud(static_cast<int>(state.range(0)));
+  const ReprojectOptions o = naive_options(800);
+  hc::pipeline::StageResult<DepthGrid> r;
+  for (auto _ : state) {
+    r = hc::pipeline::reproject(wall, o);
+    benchmark::DoNotOptimize(r.value.depth.data());
+  }
+  state.counters["cells_valid"] = figure(r.report, "cells_valid");
+}
+
 #define HC_BENCH_SETTINGS \
   Unit(benchmark::kMillisecond)->UseRealTime()->Repetitions(5)->DisplayAggregatesOnly(true)
 
@@ -204,6 +246,8 @@ BENCHMARK(BM_Binning)->Apply(grid_sizes)->HC_BENCH_SETTINGS;
 BENCHMARK(BM_Reproject)->Apply(grid_sizes_and_modes)->HC_BENCH_SETTINGS;
 BENCHMARK(BM_FillHoles)->Apply(grid_sizes)->HC_BENCH_SETTINGS;
 BENCHMARK(BM_CrossCheck)->Apply(grid_sizes_and_modes)->HC_BENCH_SETTINGS;
+BENCHMARK(BM_BinningWall)->Arg(1)->Arg(10)->HC_BENCH_SETTINGS->MeasureProcessCPUTime();
+BENCHMARK(BM_ReprojectWall)->Arg(1)->Arg(10)->HC_BENCH_SETTINGS->MeasureProcessCPUTime();
 
 }  // namespace
 
