@@ -941,22 +941,39 @@ void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& id
   if (n < 2) return;
   std::vector<std::uint64_t> k2(n);
   std::vector<std::uint32_t> i2(n);
-  std::vector<std::size_t> count(kBuckets);
+  // Per digit: each thread counts its contiguous share; bucket d of thread t starts after
+  // buckets < d of every thread and bucket d of threads < t, so the scatter (each thread its
+  // own share, in order) is stable, as one thread's would be.
+  const int threads = n > (std::size_t{1} << 17) ? kSearchThreads : 1;
+  std::vector<std::vector<std::size_t>> count(static_cast<std::size_t>(threads), std::vector<std::size_t>(kBuckets));
   for (int shift = 0; shift < bits; shift += kDigit) {
-    std::fill(count.begin(), count.end(), 0);
-    for (std::size_t i = 0; i < n; ++i) ++count[(keys[i] >> shift) & (kBuckets - 1)];
-    if (count[(keys[0] >> shift) & (kBuckets - 1)] == n) continue;  // one digit value: order unchanged
+    run_parallel(threads, [&](int t) {
+      auto& c = count[static_cast<std::size_t>(t)];
+      std::fill(c.begin(), c.end(), 0);
+      const auto [b, e] = share_of(n, t, threads);
+      for (std::size_t i = b; i < e; ++i) ++c[(keys[i] >> shift) & (kBuckets - 1)];
+    });
+    const std::size_t first_digit = (keys[0] >> shift) & (kBuckets - 1);
+    std::size_t in_first = 0;
+    for (const auto& c : count) in_first += c[first_digit];
+    if (in_first == n) continue;  // one digit value: order unchanged
     std::size_t sum = 0;
-    for (auto& c : count) {
-      const std::size_t t = c;
-      c = sum;
-      sum += t;
+    for (std::size_t d = 0; d < kBuckets; ++d) {
+      for (auto& c : count) {
+        const std::size_t here = c[d];
+        c[d] = sum;
+        sum += here;
+      }
     }
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::size_t d = count[(keys[i] >> shift) & (kBuckets - 1)]++;
-      k2[d] = keys[i];
-      i2[d] = idx[i];
-    }
+    run_parallel(threads, [&](int t) {
+      auto& c = count[static_cast<std::size_t>(t)];
+      const auto [b, e] = share_of(n, t, threads);
+      for (std::size_t i = b; i < e; ++i) {
+        const std::size_t d = c[(keys[i] >> shift) & (kBuckets - 1)]++;
+        k2[d] = keys[i];
+        i2[d] = idx[i];
+      }
+    });
     keys.swap(k2);
     idx.swap(i2);
   }

@@ -122,10 +122,11 @@ class PointQueries {
   std::unique_ptr<Impl> impl_;
 };
 
-/// Sorts keys ascending on their low `bits` bits (1..64) and permutes idx alike; stable (equal
+/// Sorts keys (each below 2^bits, bits 1..64) ascending and permutes idx alike; stable (equal
 /// keys keep their input order). LSD radix sort, 11-bit digits, a digit equal in every key
-/// skipped; O(n) per digit, scratch n keys + n indices. Used by the k-NN grid and the honest
-/// cross-check's voxel hash.
+/// skipped; O(n) per digit, scratch n keys + n indices; two threads above 2^17 keys (each
+/// counts and scatters a contiguous share; the result is the one-thread sort's). Used by the
+/// k-NN grid and the honest cross-check's voxel hash.
 void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx, int bits);
 
 /// Thread t's contiguous share [first, last) of n items split among `threads` (the shares tile
