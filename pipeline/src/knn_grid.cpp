@@ -729,7 +729,9 @@ class GridPointQueries {
       out.clear();
       for (std::size_t i = 0; i < k; ++i) out.push_back(cand[i].second);
       std::sort(out.begin(), out.end());  // by input index: sums over them do not depend on the grid
+      s.hint = std::sqrt(cand[k - 1].first) * kHintFactor;
     };
+    if (s.hint > 0.0f && nearest_by_hint(sorted, pt, s, out)) return;
     float best_kth = std::numeric_limits<float>::infinity();
     for (std::int64_t r = 1; r <= 3; ++r) {
       // Squared distances of the block's points (itself left out) and their sorted positions;
@@ -800,6 +802,60 @@ class GridPointQueries {
   }
 
   const std::vector<std::uint32_t>& lower_table() const { return lower_; }
+
+  // nearest's first try: the points within tau = the hint (the previous query's k-th distance,
+  // × kHintFactor) of the point. Every point within tau lies in the cells whose index range
+  // covers [pt − tau, pt + tau] on each axis (index_of is monotone), at most 7 a side; those
+  // within t2 < tau² are kept. When at least k others are, the k-th smallest squared distance
+  // among them is the true one, every point within it was kept, and the pairs within it give
+  // `out` exactly as the block search does (ties by input index). The block search selects over
+  // every point of 3³, 5³ or 7³ cells: on the 10^7-point wall (cells of about 42 points for the
+  // counting pass), a sparse back face's query needed the 5³ block with the dense front face in
+  // it, thousands of candidates for 16 neighbours. Returns false (nothing written) when fewer
+  // than k points lie within tau.
+  bool nearest_by_hint(std::uint32_t sorted, const float* pt, Scratch& s, std::vector<std::uint32_t>& out) const {
+    const std::size_t k = k1_ - 1;
+    const double tau = s.hint;
+    std::array<std::int64_t, 3> lo{}, hi{};
+    for (int a = 0; a < 3; ++a) {
+      const auto u = static_cast<std::size_t>(a);
+      lo[u] = g_.index_of(static_cast<double>(pt[a]) - tau, a);
+      hi[u] = g_.index_of(static_cast<double>(pt[a]) + tau, a);
+      if (hi[u] - lo[u] > 6) return false;
+    }
+    const auto t2 = static_cast<float>(tau * tau * (1.0 - 1e-5));
+    std::size_t m = 0;  // points within t2 (itself left out): squared distance and sorted position
+    for (std::int64_t iz = lo[2]; iz <= hi[2]; ++iz) {
+      for (std::int64_t iy = lo[1]; iy <= hi[1]; ++iy) {
+        const std::size_t a = lower(g_.key(lo[0], iy, iz)), b = lower(g_.key(hi[0], iy, iz) + 1);
+        if (b <= a) continue;
+        const std::size_t pb = g_.cell_start[a], pe = g_.cell_start[b];
+        if (s.d2.size() < m + (pe - pb)) s.d2.resize(2 * (m + (pe - pb)));
+        if (s.pos.size() < m + (pe - pb)) s.pos.resize(2 * (m + (pe - pb)));
+        for (std::size_t q = pb; q < pe; ++q) {
+          const float dx = g_.x[q] - pt[0], dy = g_.y[q] - pt[1], dz = g_.z[q] - pt[2];
+          s.d2[m] = dx * dx + dy * dy + dz * dz;
+          s.pos[m] = static_cast<std::uint32_t>(q);
+          m += q != sorted && s.d2[m] <= t2 ? 1u : 0u;
+        }
+      }
+    }
+    if (m < k) return false;
+    s.near.assign(s.d2.begin(), s.d2.begin() + static_cast<std::ptrdiff_t>(m));
+    std::nth_element(s.near.begin(), s.near.begin() + static_cast<std::ptrdiff_t>(k - 1), s.near.end());
+    const float kth = s.near[k - 1];
+    auto& cand = s.pairs;
+    cand.clear();
+    for (std::size_t i = 0; i < m; ++i) {
+      if (s.d2[i] <= kth) cand.emplace_back(s.d2[i], g_.original[s.pos[i]]);
+    }
+    std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
+    out.clear();
+    for (std::size_t i = 0; i < k; ++i) out.push_back(cand[i].second);
+    std::sort(out.begin(), out.end());
+    s.hint = std::sqrt(kth) * kHintFactor;
+    return true;
+  }
 
   float mean_distance(std::uint32_t sorted, Scratch& s) const {
     const float pt[3] = {g_.x[sorted], g_.y[sorted], g_.z[sorted]};

@@ -29,6 +29,7 @@
 #include <cstdint>
 #include <limits>
 #include <numeric>
+#include <span>
 #include <string>
 #include <vector>
 
@@ -151,10 +152,48 @@ class ExactDistances {
     });
     return len;
   }
-  // Input indices of the k nearest neighbours of the point at sorted position s (exact, itself
-  // excluded, equal distances ordered by input index: PointQueries::nearest).
-  void neighbours(std::uint32_t s, PointQueries::Scratch& scratch, std::vector<std::uint32_t>& out) const {
-    q_.nearest(s, scratch, out);
+  // The k nearest neighbours of the listed input indices (distinct, all in the grid): nb[i·k ..
+  // i·k + k) are list[i]'s (PointQueries::nearest), and d is set from them where not known yet.
+  // That is the value mean_distance gives: the same float squared distances (the same operands
+  // in the same order), their square roots summed in double in ascending order (PCL's order;
+  // mean_distance's sum is exact in any order unless they span more than 2^19). One search per
+  // point serves both the exact d of step 3 and the neighbourhood of step 4. Grid order, two
+  // threads if long. Returns how many d were not known (the queries compute() would have run).
+  std::size_t compute_with_neighbours(const std::vector<std::uint32_t>& list, std::vector<std::uint32_t>& nb) {
+    const auto k = static_cast<std::size_t>(k_);
+    nb.assign(list.size() * k, 0);
+    std::vector<std::pair<std::uint32_t, std::uint32_t>> order(list.size());  // (sorted position, i)
+    std::size_t unknown = 0;
+    for (std::size_t i = 0; i < list.size(); ++i) {
+      order[i] = {pos_[list[i]], static_cast<std::uint32_t>(i)};
+      unknown += d_[list[i]] < 0.0f ? 1U : 0U;
+    }
+    std::sort(order.begin(), order.end());
+    const std::size_t len = order.size();
+    const int th = len >= 4096 ? kSearchThreads : 1;
+    run_parallel(th, [&](int t) {
+      PointQueries::Scratch scratch(k_);
+      std::vector<std::uint32_t> knn;
+      std::vector<float> root(k);
+      const auto [b, e] = detail::share_of(len, t, th);
+      for (std::size_t o = b; o < e; ++o) {
+        const auto [s, i] = order[o];
+        q_.nearest(s, scratch, knn);
+        std::copy(knn.begin(), knn.end(), nb.begin() + static_cast<std::ptrdiff_t>(i * k));
+        const std::uint32_t j = list[i];
+        if (d_[j] >= 0.0f) continue;
+        for (std::size_t a = 0; a < k; ++a) {
+          const std::uint32_t q = pos_[knn[a]];
+          const float dx = g_.x[q] - g_.x[s], dy = g_.y[q] - g_.y[s], dz = g_.z[q] - g_.z[s];
+          root[a] = std::sqrt(dx * dx + dy * dy + dz * dz);
+        }
+        std::sort(root.begin(), root.end());
+        double sum = 0.0;
+        for (const float r : root) sum += r;
+        d_[j] = static_cast<float>(sum / static_cast<double>(k));
+      }
+    });
+    return unknown;
   }
   float operator[](std::size_t j) const { return d_[j]; }
   const PointQueries& queries() const { return q_; }
@@ -402,45 +441,54 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   }
   const double t_cert = seconds_since(t0);
 
-  // 3. Exact d for the rest; the candidates of the tests (d > d_cert).
-  queries += d.compute(uncertain);
+  // 3. Exact d for the rest, with their k nearest neighbours (step 4 needs them for the
+  // candidates, which are nearly all of these); the candidates of the tests (d > d_cert).
+  std::vector<std::uint32_t> uncertain_nb;  // k per uncertain point
+  queries += d.compute_with_neighbours(uncertain, uncertain_nb);
   std::vector<std::uint8_t> out(n, 0);  // 1 = global, 2 = local, 3 = off surface
   std::vector<std::uint32_t> cand;
-  for (const std::uint32_t j : uncertain) {
-    if (static_cast<double>(d[j]) > d_cert) cand.push_back(j);
+  std::vector<std::size_t> cand_at;  // each candidate's place in uncertain
+  for (std::size_t u = 0; u < uncertain.size(); ++u) {
+    if (static_cast<double>(d[uncertain[u]]) > d_cert) {
+      cand.push_back(uncertain[u]);
+      cand_at.push_back(u);
+    }
   }
   const double t_exact = seconds_since(t0);
 
   // 4. Neighbours of the candidates (exact); surface variation (and below d_glob the distance
   // from the neighbours' plane) of each.
-  std::vector<std::vector<std::uint32_t>> nbrs(cand.size());
+  const auto uk = static_cast<std::size_t>(k);
+  // Candidate i's k neighbours (input indices, ascending).
+  auto nbrs = [&](std::size_t i) {
+    const std::uint32_t* first = uncertain_nb.data() + cand_at[i] * uk;
+    return std::span<const std::uint32_t>(first, uk);
+  };
   std::vector<double> variation(cand.size(), 0.0), off_plane(cand.size(), 0.0);
   {
     const int th = cand.size() >= 256 ? kSearchThreads : 1;
     run_parallel(th, [&](int t) {
-      PointQueries::Scratch scratch(k);
-      std::vector<std::uint32_t> knn;
+      std::vector<Eigen::Vector3d> around(uk + 1);
       const std::size_t b = cand.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
       const std::size_t e = cand.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
       for (std::size_t i = b; i < e; ++i) {
         const std::uint32_t s = d.pos(cand[i]);
-        if (s == kNotInGrid) continue;
-        d.neighbours(s, scratch, knn);
-        nbrs[i].clear();
-        nbrs[i] = knn;
+        const std::span<const std::uint32_t> knn = nbrs(i);
         // Surface variation λ0 / (λ0 + λ1 + λ2) (Pauly et al. 2002), near 0 on a surface or a line
         // at any density, about 1/3 in isotropic clutter: above d_glob of the point and its k
         // neighbours; below it of the neighbours alone, with the point's distance from their
         // least-squares plane (normal = eigenvector of λ0) as a fraction of d_i.
         const bool above = static_cast<double>(d[cand[i]]) > d_glob;
-        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
         auto at = [&](std::uint32_t q) { return Eigen::Vector3d(g.x[q], g.y[q], g.z[q]); };
-        if (above) mean += at(s);
-        for (const std::uint32_t q : knn) mean += at(d.pos(q));
-        mean /= static_cast<double>(knn.size() + (above ? 1 : 0));
+        // The point (above d_glob) and its neighbours, gathered once.
+        std::size_t held = 0;
+        if (above) around[held++] = at(s);
+        for (const std::uint32_t q : knn) around[held++] = at(d.pos(q));
+        Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+        for (std::size_t a = 0; a < held; ++a) mean += around[a];
+        mean /= static_cast<double>(held);
         Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-        if (above) cov += (at(s) - mean) * (at(s) - mean).transpose();
-        for (const std::uint32_t q : knn) cov += (at(d.pos(q)) - mean) * (at(d.pos(q)) - mean).transpose();
+        for (std::size_t a = 0; a < held; ++a) cov += (around[a] - mean) * (around[a] - mean).transpose();
         const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(cov);
         const Eigen::Vector3d ev = es.eigenvalues();
         const double tr = ev.sum();
@@ -471,8 +519,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         continue;
       }
       std::size_t among = 0;
-      for (const std::uint32_t j : nbrs[i]) among += scattered(j) ? 1u : 0u;
-      if (2 * among > nbrs[i].size()) {
+      for (const std::uint32_t j : nbrs(i)) among += scattered(j) ? 1u : 0u;
+      if (2 * among > uk) {
         out[cand[i]] = 1;
         ++n_among_scattered;
         continue;
@@ -483,7 +531,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       out[cand[i]] = 3;
       continue;
     }
-    if (static_cast<double>(d[cand[i]]) > d_local) need.insert(need.end(), nbrs[i].begin(), nbrs[i].end());
+    if (static_cast<double>(d[cand[i]]) > d_local) need.insert(need.end(), nbrs(i).begin(), nbrs(i).end());
   }
   queries += d.compute(need);
 
@@ -493,8 +541,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     if (out[cand[i]] != 0 || static_cast<double>(d[cand[i]]) <= d_local) continue;
     ++local_tests;
     std::vector<double> nd;
-    nd.reserve(nbrs[i].size());
-    for (const std::uint32_t j : nbrs[i]) nd.push_back(d[j]);
+    nd.reserve(uk);
+    for (const std::uint32_t j : nbrs(i)) nd.push_back(d[j]);
     const double ref = std::max(median_of(std::move(nd)), d_med);
     if (static_cast<double>(d[cand[i]]) > o.local_ratio * ref) out[cand[i]] = 2;
   }
