@@ -83,13 +83,15 @@ void print_summary(const pipeline::RunSummary& summary, const std::filesystem::p
   }
 }
 
-/// An in-core run's stages each allocate and free arrays of every point (10⁷ points: 40–240 MB
-/// each). glibc serves blocks above its mmap threshold (at most 32 MB by default) with fresh
-/// mappings, so every stage faulted in and zeroed its pages again: 1.8 s of system time in a
-/// 10⁷-point run of 8.4 s. Served from the heap and not trimmed, freed pages are reused: system
-/// time 0.7 s, wall 7.3 s (bench/README.md). The process then keeps its peak until it exits,
-/// which a batch run does at once; the tiled run, whose point is a bounded footprint, keeps the
-/// default. Source: mallopt(3), M_MMAP_THRESHOLD and M_TRIM_THRESHOLD.
+/// The batch commands' stages each allocate and free arrays of every point (10⁷ points: 40–240
+/// MB each) or of every point of a tile. glibc serves blocks above its mmap threshold (at most
+/// 32 MB by default) with fresh mappings, so every stage faulted in and zeroed its pages again:
+/// 1.8 s of system time in a 10⁷-point run in core of 8.4 s, 4.4 s in the same wall tiled
+/// (18.2 s). Served from the heap and not trimmed, freed pages are reused: 0.7 s and 1.2 s of
+/// system time, the runs 7.3 s and 14.6 s. The process keeps its peak resident until it exits
+/// (a batch command does at once); the peak itself barely moves, since freed blocks are reused
+/// (10⁷ wall: in core 1285 → 1383 MB, tiled 432 → 438 MB). Source: mallopt(3),
+/// M_MMAP_THRESHOLD and M_TRIM_THRESHOLD. Sessions (touch, explore) keep glibc's default.
 void keep_freed_memory_for_reuse() {
   constexpr int kOneGiB = 1 << 30;
   if (mallopt(M_MMAP_THRESHOLD, kOneGiB) != 1 || mallopt(M_TRIM_THRESHOLD, kOneGiB) != 1) {
@@ -103,7 +105,7 @@ void run(const RunArgs& a) {
   const pipeline::RunConfig cfg = pipeline::load_run_config(a.config, a.sets);
   const std::filesystem::path out = a.out.empty() ? std::filesystem::path("runs") / cfg.name : std::filesystem::path(a.out);
   spdlog::info("hapticloud run {} -> {}", a.config, out.string());
-  if (!pipeline::runs_tiled(cfg)) keep_freed_memory_for_reuse();
+  keep_freed_memory_for_reuse();
   pipeline::set_stage_memory_measurement(true);  // report.json: peak_rss_mb per stage
   const pipeline::RunSummary summary = pipeline::run_pipeline(
       cfg, out, log_progress, a.force ? pipeline::ExistingOutput::kMoveAside : pipeline::ExistingOutput::kRefuse,
@@ -149,6 +151,7 @@ void add_run_command(CLI::App& app) {
       ->required();
   pc->add_option("--set", plan->sets, "Override a config key, e.g. --set grid.n=400 (repeatable)");
   pc->callback([plan] {
+    keep_freed_memory_for_reuse();
     spdlog::info("hapticloud tile-plan {} -> {}", plan->config, plan->work);
     const auto info = pipeline::write_tile_plan(plan->config, plan->sets, plan->work, log_progress);
     std::cout << "plan: " << info.plan_file.string() << "\ntiles: " << info.tiles << "\nspill: "
@@ -161,7 +164,10 @@ void add_run_command(CLI::App& app) {
                   "writes WORK/part_<t>.bin and WORK/kept_<t>.bin (safe to run again)");
   jc->add_option("plan", job->plan, "The plan: WORK/plan.json")->required();
   jc->add_option("--tiles", job->tiles, "Tile indices, e.g. --tiles 0,1,5")->required()->delimiter(',');
-  jc->callback([job] { pipeline::run_tile_jobs(job->plan, job->tiles); });
+  jc->callback([job] {
+    keep_freed_memory_for_reuse();
+    pipeline::run_tile_jobs(job->plan, job->tiles);
+  });
 
   auto merge = std::make_shared<TileMergeArgs>();
   CLI::App* mc = app.add_subcommand(
@@ -171,6 +177,7 @@ void add_run_command(CLI::App& app) {
   mc->add_option("--out", merge->out, "Output folder (default: runs/<config name>), as for hapticloud run");
   mc->add_flag("--force", merge->force, "As for hapticloud run: an earlier other content is kept aside, never deleted");
   mc->callback([merge] {
+    keep_freed_memory_for_reuse();
     const session::InterruptCleanup cleanup;
     pipeline::set_stage_memory_measurement(true);
     auto m = pipeline::merge_tile_jobs(merge->plan, log_progress);
