@@ -745,15 +745,7 @@ class GridPointQueries {
           const std::int64_t x0 = std::max<std::int64_t>(0, c[0] - r), x1 = std::min(g_.n[0] - 1, c[0] + r);
           const std::size_t a = lower(g_.key(x0, iy, iz)), b = lower(g_.key(x1, iy, iz) + 1);
           if (b <= a) continue;
-          const std::size_t pb = g_.cell_start[a], pe = g_.cell_start[b];
-          if (s.d2.size() < m + (pe - pb)) s.d2.resize(2 * (m + (pe - pb)));
-          if (s.pos.size() < m + (pe - pb)) s.pos.resize(2 * (m + (pe - pb)));
-          for (std::size_t q = pb; q < pe; ++q) {
-            const float dx = g_.x[q] - pt[0], dy2 = g_.y[q] - pt[1], dz2 = g_.z[q] - pt[2];
-            s.d2[m] = dx * dx + dy2 * dy2 + dz2 * dz2;
-            s.pos[m] = static_cast<std::uint32_t>(q);
-            m += q == sorted ? 0u : 1u;
-          }
+          m = gather_run(g_.cell_start[a], g_.cell_start[b], pt, sorted, std::numeric_limits<float>::infinity(), s, m);
         }
       }
       if (m < k) continue;
@@ -803,6 +795,21 @@ class GridPointQueries {
 
   const std::vector<std::uint32_t>& lower_table() const { return lower_; }
 
+  // Appends the points at sorted positions [pb, pe), `sorted` left out, whose float squared
+  // distance to pt is at most t2, to s.d2 and s.pos from entry m; returns the new count.
+  std::size_t gather_run(std::size_t pb, std::size_t pe, const float* pt, std::uint32_t sorted, float t2, Scratch& s,
+                         std::size_t m) const {
+    if (s.d2.size() < m + (pe - pb)) s.d2.resize(2 * (m + (pe - pb)));
+    if (s.pos.size() < m + (pe - pb)) s.pos.resize(2 * (m + (pe - pb)));
+    for (std::size_t q = pb; q < pe; ++q) {
+      const float dx = g_.x[q] - pt[0], dy = g_.y[q] - pt[1], dz = g_.z[q] - pt[2];
+      s.d2[m] = dx * dx + dy * dy + dz * dz;
+      s.pos[m] = static_cast<std::uint32_t>(q);
+      m += q != sorted && s.d2[m] <= t2 ? 1u : 0u;
+    }
+    return m;
+  }
+
   // nearest's first try: the points within tau = the hint (the previous query's k-th distance,
   // × kHintFactor) of the point. Every point within tau lies in the cells whose index range
   // covers [pt − tau, pt + tau] on each axis (index_of is monotone), at most 7 a side; those
@@ -829,15 +836,7 @@ class GridPointQueries {
       for (std::int64_t iy = lo[1]; iy <= hi[1]; ++iy) {
         const std::size_t a = lower(g_.key(lo[0], iy, iz)), b = lower(g_.key(hi[0], iy, iz) + 1);
         if (b <= a) continue;
-        const std::size_t pb = g_.cell_start[a], pe = g_.cell_start[b];
-        if (s.d2.size() < m + (pe - pb)) s.d2.resize(2 * (m + (pe - pb)));
-        if (s.pos.size() < m + (pe - pb)) s.pos.resize(2 * (m + (pe - pb)));
-        for (std::size_t q = pb; q < pe; ++q) {
-          const float dx = g_.x[q] - pt[0], dy = g_.y[q] - pt[1], dz = g_.z[q] - pt[2];
-          s.d2[m] = dx * dx + dy * dy + dz * dz;
-          s.pos[m] = static_cast<std::uint32_t>(q);
-          m += q != sorted && s.d2[m] <= t2 ? 1u : 0u;
-        }
+        m = gather_run(g_.cell_start[a], g_.cell_start[b], pt, sorted, t2, s, m);
       }
     }
     if (m < k) return false;
