@@ -11,7 +11,9 @@
 
 #include <spdlog/spdlog.h>
 
+#ifdef __GLIBC__
 #include <malloc.h>
+#endif
 
 #include <iostream>
 #include <memory>
@@ -85,18 +87,26 @@ void print_summary(const pipeline::RunSummary& summary, const std::filesystem::p
 
 /// The batch commands' stages each allocate and free arrays of every point (10⁷ points: 40–240
 /// MB each) or of every point of a tile. glibc serves blocks above its mmap threshold (at most
-/// 32 MB by default) with fresh mappings, so every stage faulted in and zeroed its pages again:
-/// 1.8 s of system time in a 10⁷-point run in core of 8.4 s, 4.4 s in the same wall tiled
-/// (18.2 s). Served from the heap and not trimmed, freed pages are reused: 0.7 s and 1.2 s of
-/// system time, the runs 7.3 s and 14.6 s. The process keeps its peak resident until it exits
-/// (a batch command does at once); the peak itself barely moves, since freed blocks are reused
-/// (10⁷ wall: in core 1285 → 1383 MB, tiled 432 → 438 MB). Source: mallopt(3),
-/// M_MMAP_THRESHOLD and M_TRIM_THRESHOLD. Sessions (touch, explore) keep glibc's default.
+/// 32 MB by its dynamic default) with fresh mappings, so every stage faulted in and zeroed its
+/// pages again: 1.8 s of system time in a 10⁷-point run in core. Served from the heap and not
+/// trimmed, freed pages are reused: 0.7 s, the run 8.2–8.5 → 7.1–7.2 s wall; tiled, 18.8 →
+/// 15.0 s (bench/README.md, "the point stages on a wall in no order"). The process keeps its
+/// peak resident until it exits (a batch command does at once); the peak itself moves little,
+/// since freed blocks are reused (10⁷ wall: in core 1285 → 1383 MB, tiled 431 → 441 MB), but
+/// each stage's `peak_rss_mb` now includes the memory kept from the stages before it.
+/// glibc 2.36 (Debian 12) takes thresholds up to 1 GiB; a C library that refuses one or has no
+/// mallopt keeps its default. Source: mallopt(3), M_MMAP_THRESHOLD and M_TRIM_THRESHOLD.
+/// Sessions (touch, explore) keep the default.
 void keep_freed_memory_for_reuse() {
+#ifdef __GLIBC__
   constexpr int kOneGiB = 1 << 30;
-  if (mallopt(M_MMAP_THRESHOLD, kOneGiB) != 1 || mallopt(M_TRIM_THRESHOLD, kOneGiB) != 1) {
-    spdlog::debug("mallopt refused the in-core run's thresholds; the default allocation policy stays");
+  const bool mmap_set = mallopt(M_MMAP_THRESHOLD, kOneGiB) == 1;
+  const bool trim_set = mallopt(M_TRIM_THRESHOLD, kOneGiB) == 1;
+  if (!mmap_set || !trim_set) {
+    spdlog::debug("mallopt: M_MMAP_THRESHOLD {}, M_TRIM_THRESHOLD {}: the C library's default stays for what it refused",
+                  mmap_set ? "set" : "refused", trim_set ? "set" : "refused");
   }
+#endif
 }
 
 void run(const RunArgs& a) {

@@ -340,9 +340,10 @@ class WantedKeys {
 /// The edge: a pilot pass counts the points c in each sample's own voxel of edge start_edge_m;
 /// on a surface the spacing is about e / √c, so e starts at twice the median of that (at most
 /// start_edge_m) and grows 4-fold until the median is within it, up to start_edge_m · 4⁷ (the
-/// range before the pilot). A start edge 12 spacings wide (a 10⁷-point wall at N = 800) put
-/// half of all points in the wanted voxels and a thousand candidates about each sample: 0.77 s
-/// of CPU against 0.1 s now (outlier_bench BM_MedianSpacing).
+/// range before the pilot); when the median is not within that either, start_edge_m · 4⁸ (a
+/// lower bound of it). A start edge 12 spacings wide (a 10⁷-point wall at N = 800) put half of
+/// all points in the wanted voxels and a thousand candidates about each sample: 0.77 s of CPU
+/// against 0.36 s now (outlier_bench BM_MedianSpacing/10). start_edge_m: finite, > 0.
 double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint8_t>& finite, double start_edge_m) {
   std::vector<std::uint32_t> sample;
   const std::size_t n = finite.size();
@@ -452,7 +453,8 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
     }
     auto mid = nn.begin() + static_cast<std::ptrdiff_t>(nn.size() / 2);
     std::nth_element(nn.begin(), mid, nn.end());
-    if (*mid <= edge || edge >= max_edge) return *mid <= edge ? *mid : edge;
+    if (*mid <= edge) return *mid;
+    if (edge >= max_edge) return 4.0 * max_edge;  // never within reach: start_edge_m · 4⁸, as before the pilot
   }
 }
 
@@ -1497,6 +1499,10 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
 }
 
 double median_point_spacing(const Eigen::Matrix3Xd& xyz_m, double start_edge_m) {
+  if (!std::isfinite(start_edge_m) || !(start_edge_m > 0.0)) {
+    throw ConfigError("median_point_spacing: start_edge_m = " + format_number(start_edge_m) +
+                      " (expected a finite voxel edge > 0 m)");
+  }
   const std::size_t n = static_cast<std::size_t>(xyz_m.cols());
   if (n < 2) return 0.0;
   // The local frame of check_input: float offsets from the points' mean.

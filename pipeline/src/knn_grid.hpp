@@ -113,7 +113,10 @@ class PointQueries {
   /// The k nearest neighbours of the point at sorted grid position `sorted`, itself excluded, as
   /// input indices in `out`, ascending (size k; needs at least k + 1 points in the grid). Exact; equal
   /// squared distances (float) are ordered by input index, so the set does not depend on the
-  /// grid. Blocks of 3³, 5³, 7³ cells, then the cell-centre kd-tree (as mean_distance).
+  /// grid. First the points within the Scratch's hint (the k-th distance of its previous query
+  /// × 1.15; queries in grid order make it a good one) over the cells that cover them; when
+  /// fewer than k lie there, blocks of 3³, 5³, 7³ cells, then the cell-centre kd-tree (as
+  /// mean_distance). Either way the same set.
   /// @throws std::invalid_argument when the grid holds fewer than k + 1 points.
   void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out) const;
 

@@ -159,7 +159,10 @@ class ExactDistances {
   //  - d by mean_distance, then the neighbours by nearest when d > d_min;
   //  - the neighbours first, and d from their float squared distances (the same operands in the
   //    same order as mean_distance's), the square roots summed in double in ascending order
-  //    (PCL's order; mean_distance's sum is exact in any order unless they span more than 2^19).
+  //    (PCL's order). The two agree bit for bit unless the k distances span more than 2^19,
+  //    where a double sum of floats is no longer exact in any order (mean_distance's own order
+  //    then depends on its search path too): a duplicate point beside neighbours 10^6 times
+  //    farther, for example.
   // Each thread takes the second while more than half of its points so far needed neighbours
   // (on the 10^7-point wall, 94 % of them: one search instead of two; on the Buddha few, and
   // nearest costs more than mean_distance). Returns how many d were not known.

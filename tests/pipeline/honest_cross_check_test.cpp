@@ -618,7 +618,8 @@ TEST(HonestCheckConfig, KeysAreReadAndCheckedByName) {
 // clamp limit); a 0.1 m cube filled at random, where the pilot's guess at a 0.05 m start edge
 // (which assumes a surface, spacing ≈ edge / √count: 1.4 mm) is below the spacing (1.6 mm) and
 // the edge must grow after it. Start edges far below the spacing (the edge must grow) and far
-// above it (the pilot shrinks it).
+// above it (the pilot shrinks it); a pair out of reach of every edge, and start edges that are
+// not lengths.
 TEST(MedianPointSpacing, EqualsTheBruteForceMedianOfTheStridedSample) {
   std::mt19937 rng(7);
   std::uniform_real_distribution<double> u(0.0, 1.0);
@@ -654,6 +655,20 @@ TEST(MedianPointSpacing, EqualsTheBruteForceMedianOfTheStridedSample) {
       // The function works in floats about the points' mean (at most about 0.12 m away here,
       // the far point aside): agreement to float rounding, 1e-8 m.
       EXPECT_NEAR(median_point_spacing(xyz, start), *mid, 1e-7) << name << ", start edge " << start;
+    }
+  }
+  // Out of reach: two points 1 km apart from a 2 mm start edge. The median (1 km) never fits
+  // within 2 mm · 4⁷ = 32.8 m, and the documented lower bound 2 mm · 4⁸ = 131 m comes back.
+  Eigen::Matrix3Xd pair(3, 2);
+  pair << 0.0, 1000.0, 0.0, 0.0, 0.0, 0.0;
+  EXPECT_DOUBLE_EQ(median_point_spacing(pair, 0.002), 0.002 * 65536.0);
+  // A start edge that is not a finite length > 0 is refused by name (a NaN edge never fits).
+  for (const double bad : {0.0, -1.0, std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::infinity()}) {
+    try {
+      (void)median_point_spacing(pair, bad);
+      ADD_FAILURE() << "start edge " << bad << " was accepted";
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("start_edge_m"), std::string::npos) << e.what();
     }
   }
 }

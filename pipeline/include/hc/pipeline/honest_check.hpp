@@ -216,9 +216,13 @@ struct InputCheckScope {
 
 /// Median nearest-neighbour distance [m] of up to 4096 evenly strided finite points of `xyz_m`
 /// (3 × N, metres; exact distances to the points in the 3 × 3 × 3 voxels about each sample,
-/// collected in one pass over all points, the voxel edge starting at start_edge_m and growing
-/// ×4 until the median is within it). The spacing check_input reports; a tiled run gives each
-/// tile's and takes their median weighted by points. 0 for fewer than 2 points.
+/// collected in one pass over all points). The voxel edge: a pilot pass at start_edge_m counts
+/// the points in each sample's voxel and starts at about twice the spacing that suggests (at
+/// most start_edge_m); it grows ×4 until the median is within it, up to start_edge_m · 4⁷; the
+/// result does not depend on the edge. When the median is not within start_edge_m · 4⁷ either,
+/// returns start_edge_m · 4⁸ (a lower bound). The spacing check_input reports; a tiled run gives
+/// each tile's and takes their median weighted by points. 0 for fewer than 2 finite points.
+/// @throws hc::ConfigError when start_edge_m is not finite and > 0.
 double median_point_spacing(const Eigen::Matrix3Xd& xyz_m, double start_edge_m);
 
 /// Spike, pit and island test of a grid (metres, NaN = no data); see HonestCheckOptions.
