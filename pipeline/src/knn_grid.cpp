@@ -708,7 +708,7 @@ class GridPointQueries {
   // indices (equal distances ordered by input index, so the set does not depend on the grid):
   // blocks of 3³, 5³ and 7³ cells, exact when the k-th distance is within the block's clearance;
   // else the cell-centre tree bounds the k-th distance and every cell within reach is searched.
-  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out) const {
+  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d = nullptr) const {
     if (g_.x.size() < k1_) {
       throw std::invalid_argument("PointQueries::nearest: the grid holds " + std::to_string(g_.x.size()) +
                                   " points, k + 1 = " + std::to_string(k1_) + " needed");
@@ -724,14 +724,8 @@ class GridPointQueries {
         cand.emplace_back(dx * dx + dy * dy + dz * dz, g_.original[q]);
       }
     };
-    auto finish = [&] {
-      std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
-      out.clear();
-      for (std::size_t i = 0; i < k; ++i) out.push_back(cand[i].second);
-      std::sort(out.begin(), out.end());  // by input index: sums over them do not depend on the grid
-      s.hint = std::sqrt(cand[k - 1].first) * kHintFactor;
-    };
-    if (s.hint > 0.0f && nearest_by_hint(sorted, pt, s, out)) return;
+    auto finish = [&] { take_nearest(s, out, mean_d); };
+    if (s.hint > 0.0f && nearest_by_hint(sorted, pt, s, out, mean_d)) return;
     float best_kth = std::numeric_limits<float>::infinity();
     for (std::int64_t r = 1; r <= 3; ++r) {
       // Squared distances of the block's points (itself left out) and their sorted positions;
@@ -820,7 +814,8 @@ class GridPointQueries {
   // counting pass), a sparse back face's query needed the 5³ block with the dense front face in
   // it, thousands of candidates for 16 neighbours. Returns false (nothing written) when fewer
   // than k points lie within tau.
-  bool nearest_by_hint(std::uint32_t sorted, const float* pt, Scratch& s, std::vector<std::uint32_t>& out) const {
+  bool nearest_by_hint(std::uint32_t sorted, const float* pt, Scratch& s, std::vector<std::uint32_t>& out,
+                       float* mean_d) const {
     const std::size_t k = k1_ - 1;
     const double tau = s.hint;
     std::array<std::int64_t, 3> lo{}, hi{};
@@ -848,12 +843,32 @@ class GridPointQueries {
     for (std::size_t i = 0; i < m; ++i) {
       if (s.d2[i] <= kth) cand.emplace_back(s.d2[i], g_.original[s.pos[i]]);
     }
+    take_nearest(s, out, mean_d);
+    return true;
+  }
+
+  // The k smallest of s.pairs (squared distance, input index; at least k, holding every point
+  // within the k-th distance) into `out`, ascending by input index (sums over them do not depend
+  // on the grid); the hint for the next query; and, when mean_d is given, the mean of the k
+  // distances as mean_distance computes it: float square roots of the same float squared
+  // distances, summed in double in ascending order (PCL's order) and divided by k.
+  // mean_distance sums in its selection's order: the same value unless the distances span more
+  // than 2^19, where a double sum of floats stops being exact in every order.
+  void take_nearest(Scratch& s, std::vector<std::uint32_t>& out, float* mean_d) const {
+    const std::size_t k = k1_ - 1;
+    auto& cand = s.pairs;
     std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
     out.clear();
     for (std::size_t i = 0; i < k; ++i) out.push_back(cand[i].second);
     std::sort(out.begin(), out.end());
-    s.hint = std::sqrt(kth) * kHintFactor;
-    return true;
+    s.hint = std::sqrt(cand[k - 1].first) * kHintFactor;
+    if (mean_d == nullptr) return;
+    s.near.resize(k);
+    for (std::size_t i = 0; i < k; ++i) s.near[i] = std::sqrt(cand[i].first);
+    std::sort(s.near.begin(), s.near.begin() + static_cast<std::ptrdiff_t>(k));
+    double sum = 0.0;
+    for (std::size_t i = 0; i < k; ++i) sum += s.near[i];
+    *mean_d = static_cast<float>(sum / static_cast<double>(k));
   }
 
   float mean_distance(std::uint32_t sorted, Scratch& s) const {
@@ -985,8 +1000,8 @@ float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s) const {
   return impl_->mean_distance(sorted, *s.state_);
 }
 
-void PointQueries::nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out) const {
-  impl_->nearest(sorted, *s.state_, out);
+void PointQueries::nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d) const {
+  impl_->nearest(sorted, *s.state_, out, mean_d);
 }
 
 void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx, int bits) {

@@ -116,9 +116,12 @@ class PointQueries {
   /// grid. First the points within the Scratch's hint (the k-th distance of its previous query
   /// × 1.15; queries in grid order make it a good one) over the cells that cover them; when
   /// fewer than k lie there, blocks of 3³, 5³, 7³ cells, then the cell-centre kd-tree (as
-  /// mean_distance). Either way the same set.
+  /// mean_distance). Either way the same set. With mean_d, also the mean distance to them, which
+  /// equals mean_distance's value (the same float squared distances and square roots; summed in
+  /// ascending order, so equal unless they span more than 2^19: then a double sum of floats is
+  /// not exact in every order).
   /// @throws std::invalid_argument when the grid holds fewer than k + 1 points.
-  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out) const;
+  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d = nullptr) const;
 
  private:
   struct Impl;

@@ -157,12 +157,11 @@ class ExactDistances {
   // (PointQueries::nearest; the others' entries stay 0). In grid order, so that each search's
   // k-th distance is a good hint for the next. Per point, two ways to the same values:
   //  - d by mean_distance, then the neighbours by nearest when d > d_min;
-  //  - the neighbours first, and d from their float squared distances (the same operands in the
-  //    same order as mean_distance's), the square roots summed in double in ascending order
-  //    (PCL's order). The two agree bit for bit unless the k distances span more than 2^19,
-  //    where a double sum of floats is no longer exact in any order (mean_distance's own order
-  //    then depends on its search path too): a duplicate point beside neighbours 10^6 times
-  //    farther, for example.
+  //  - the neighbours first, with d from the same search (PointQueries::nearest's mean_d: the
+  //    same float squared distances, summed in ascending order). The two agree bit for bit
+  //    unless the k distances span more than 2^19, where a double sum of floats is no longer
+  //    exact in every order (mean_distance's own order then depends on its search path too): a
+  //    duplicate point beside neighbours 10^6 times farther, for example.
   // Each thread takes the second while more than half of its points so far needed neighbours
   // (on the 10^7-point wall, 94 % of them: one search instead of two; on the Buddha few, and
   // nearest costs more than mean_distance). Returns how many d were not known.
@@ -181,7 +180,6 @@ class ExactDistances {
     run_parallel(th, [&](int t) {
       PointQueries::Scratch scratch(k_);
       std::vector<std::uint32_t> knn;
-      std::vector<float> root(k);
       std::size_t done = 0, wanted = 0;  // points so far, and those that needed neighbours
       const auto [b, e] = detail::share_of(len, t, th);
       for (std::size_t at = b; at < e; ++at, ++done) {
@@ -189,18 +187,9 @@ class ExactDistances {
         const std::uint32_t j = list[i];
         auto store = [&] { std::copy(knn.begin(), knn.end(), nb.begin() + static_cast<std::ptrdiff_t>(i * k)); };
         if (2 * wanted > done) {  // neighbours first
-          q_.nearest(s, scratch, knn);
-          if (d_[j] < 0.0f) {
-            for (std::size_t a = 0; a < k; ++a) {
-              const std::uint32_t q = pos_[knn[a]];
-              const float dx = g_.x[q] - g_.x[s], dy = g_.y[q] - g_.y[s], dz = g_.z[q] - g_.z[s];
-              root[a] = std::sqrt(dx * dx + dy * dy + dz * dz);
-            }
-            std::sort(root.begin(), root.end());
-            double sum = 0.0;
-            for (const float r : root) sum += r;
-            d_[j] = static_cast<float>(sum / static_cast<double>(k));
-          }
+          float mean_d = 0.0f;
+          q_.nearest(s, scratch, knn, &mean_d);
+          if (d_[j] < 0.0f) d_[j] = mean_d;
           if (static_cast<double>(d_[j]) > d_min) {
             store();
             ++wanted;

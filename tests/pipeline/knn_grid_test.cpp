@@ -10,7 +10,9 @@
 // made to take every path: a dense lattice (equal distances everywhere: ties ordered by input
 // index) with a sparse layer 4 mm behind it, whose neighbourhoods reach past the 3³ block into
 // the dense layer, queried in grid order (the hint of the query before serves, or fails and the
-// block search runs).
+// block search runs). Its mean distance (the robust filter's d when it searches the neighbours
+// first) against the full scan's k smallest, summed in ascending order, and against
+// mean_distance's, bit for bit.
 
 #include "knn_grid.hpp"
 
@@ -82,12 +84,14 @@ TEST(PointQueriesNearest, EqualsAFullScanWithTiesByInputIndex) {
   constexpr int k = 16;
   const hc::pipeline::detail::CellGrid g = hc::pipeline::detail::build_grid(q, n, k);
   const hc::pipeline::detail::PointQueries queries(g, k);
-  hc::pipeline::detail::PointQueries::Scratch scratch(k);
-  std::size_t wrong = 0;
+  hc::pipeline::detail::PointQueries::Scratch scratch(k), other(k);
+  std::size_t wrong = 0, wrong_mean = 0, unlike_mean_distance = 0;
   std::vector<std::uint32_t> got;
   for (std::uint32_t s = 0; s < g.original.size(); ++s) {
     const std::uint32_t i = g.original[s];
-    queries.nearest(s, scratch, got);
+    float mean_d = -1.0f;
+    queries.nearest(s, scratch, got, &mean_d);
+    unlike_mean_distance += mean_d != queries.mean_distance(s, other) ? 1U : 0U;
     std::vector<std::pair<float, std::uint32_t>> all;
     for (std::uint32_t j = 0; j < n; ++j) {
       if (j == i) continue;
@@ -96,11 +100,18 @@ TEST(PointQueriesNearest, EqualsAFullScanWithTiesByInputIndex) {
     }
     std::partial_sort(all.begin(), all.begin() + k, all.end());
     std::vector<std::uint32_t> want;
-    for (int a = 0; a < k; ++a) want.push_back(all[static_cast<std::size_t>(a)].second);
+    double sum = 0.0;  // ascending: PCL's order
+    for (int a = 0; a < k; ++a) {
+      want.push_back(all[static_cast<std::size_t>(a)].second);
+      sum += std::sqrt(all[static_cast<std::size_t>(a)].first);
+    }
     std::sort(want.begin(), want.end());
     wrong += got != want ? 1U : 0U;
+    wrong_mean += mean_d != static_cast<float>(sum / k) ? 1U : 0U;
   }
   EXPECT_EQ(wrong, 0U) << "of " << n << " queries";
+  EXPECT_EQ(wrong_mean, 0U) << "mean distances unlike the full scan's, of " << n;
+  EXPECT_EQ(unlike_mean_distance, 0U) << "mean distances unlike mean_distance's, of " << n;
 }
 
 }  // namespace

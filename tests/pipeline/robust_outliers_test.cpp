@@ -165,8 +165,20 @@ TEST(RobustOutliers, CountingPassDecidesLikeTestingEveryPoint) {
   // Property: the removed set does not depend on how many points the counting pass settles. With
   // a huge sample every point gets an exact distance in step 1, so nothing is left to counting.
   // Both runs judge by the same scale: `all` draws it from every point, `fast` is given it (its
-  // own sample, smaller than the cloud, could round to another).
-  Cloud c = with_extra(bunny(), uniform_in_box(800, 3));
+  // own sample, smaller than the cloud, could round to another). Clouds: the bunny with 800
+  // points of clutter; and a plane with a sparse layer 1 cm in front of it (a quarter of the
+  // points at a tenth of the density), whose points the counting pass leaves by the thousand.
+  Cloud layered;
+  {
+    std::mt19937 rng(13);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::vector<Eigen::Vector3d> pts;
+    for (int i = 0; i < 20000; ++i) pts.emplace_back(0.2 * u(rng), 0.2 * u(rng), 0.0002 * u(rng));
+    for (int i = 0; i < 8000; ++i) pts.emplace_back(0.2 * u(rng), 0.2 * u(rng), 0.01 + 0.004 * u(rng));
+    layered.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
+    for (std::size_t i = 0; i < pts.size(); ++i) layered.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
+  }
+  for (const Cloud& c : {with_extra(bunny(), uniform_in_box(800, 3)), layered}) {
   RobustOutlierOptions fast, all;
   all.sample = c.size();
   std::vector<std::uint32_t> every(c.size());
@@ -181,9 +193,10 @@ TEST(RobustOutliers, CountingPassDecidesLikeTestingEveryPoint) {
   const auto b = remove_robust_outliers(c, all);
   ASSERT_EQ(a.value.size(), b.value.size());
   EXPECT_EQ(a.value.xyz, b.value.xyz);
-  EXPECT_GT(figure(a.report, "certified"), 0.8 * static_cast<double>(c.size()));
+  EXPECT_GT(figure(a.report, "certified"), 0.7 * static_cast<double>(c.size()));
   EXPECT_EQ(figure(a.report, "median_knn_distance_mm"), figure(b.report, "median_knn_distance_mm"));
   EXPECT_EQ(figure(a.report, "mad_log_knn_distance"), figure(b.report, "mad_log_knn_distance"));
+  }
 }
 
 TEST(RobustOutliers, UniformClutterOfOneToFivePercentGoesAndTruePointsStay) {
