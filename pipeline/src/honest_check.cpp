@@ -362,8 +362,8 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
                                VoxelHash::cell_index(p[2], inv));
     };
   };
-  // Calls f(w, i) for every finite point i whose key (key_of) is wanted key w, from `threads`
-  // threads over contiguous shares of the points; f(t, w, i) gets the thread's number.
+  // Calls f(t, w, i) for every finite point i whose key (key_of) is wanted key w, t being the
+  // calling thread's number (of `threads`, each over a contiguous share of the points).
   auto pass = [&](const WantedKeys& table, auto key_of, auto&& f) {
     detail::run_parallel(threads, [&](int t) {
       const auto [b, e] = detail::share_of(n, t, threads);

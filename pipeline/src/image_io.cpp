@@ -15,6 +15,7 @@
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <system_error>
 
 namespace hc::pipeline::detail {
 namespace {
@@ -142,9 +143,13 @@ std::string write_png(const std::filesystem::path& file, const std::uint8_t* pix
     PngError error;
     const int failed = write_png_level1(fp, pixels, width, height, format, stride, &error);
     const bool closed = std::fclose(fp) == 0;
+    const int close_errno = errno;
+    if (!failed && closed) return {};
+    // Nothing half-written is left, as png_image_write_to_file removes its file on failure.
+    std::error_code ec;
+    if (std::filesystem::is_regular_file(file, ec)) std::filesystem::remove(file, ec);
     if (failed) return error.text;
-    if (!closed) return std::string("closing the file: ") + std::strerror(errno);
-    return {};
+    return std::string("closing the file: ") + std::strerror(close_errno);
   }
   png_image image = png_image_for(width, height, format);
   const auto stride = static_cast<png_int_32>(row_stride ? row_stride : static_cast<std::size_t>(width * channels_of(format)));

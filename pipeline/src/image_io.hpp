@@ -20,8 +20,8 @@ enum class PixelFormat { kGray, kRgb, kBgr };
 /// Writes an 8-bit PNG (libpng's simplified API, PNG 1.2 / ISO 15948). `row_stride` is the
 /// distance between rows in bytes (0 = width × channels). `fast`, for previews: no row filters
 /// and zlib level 1 (libpng's full API; about half the time of the simplified API's
-/// PNG_IMAGE_FLAG_FAST, files about 10 % larger). @return "" on success, else why not (libpng's
-/// message, or the system's for the file).
+/// PNG_IMAGE_FLAG_FAST, files about 10 % larger). A write that fails removes its file, either
+/// way. @return "" on success, else why not (libpng's message, or the system's for the file).
 std::string write_png(const std::filesystem::path& file, const std::uint8_t* pixels, int width, int height,
                       PixelFormat format, std::size_t row_stride = 0, bool fast = false);
 

@@ -706,8 +706,9 @@ class GridPointQueries {
 
   // The k nearest neighbours of the point at sorted position `sorted`, itself excluded, as input
   // indices (equal distances ordered by input index, so the set does not depend on the grid):
-  // blocks of 3³, 5³ and 7³ cells, exact when the k-th distance is within the block's clearance;
-  // else the cell-centre tree bounds the k-th distance and every cell within reach is searched.
+  // first the points within the hint (nearest_by_hint); else blocks of 3³, 5³ and 7³ cells,
+  // exact when the k-th distance is within the block's clearance; else the cell-centre tree
+  // bounds the k-th distance and every cell within reach is searched.
   void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d = nullptr) const {
     if (g_.x.size() < k1_) {
       throw std::invalid_argument("PointQueries::nearest: the grid holds " + std::to_string(g_.x.size()) +

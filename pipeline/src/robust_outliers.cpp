@@ -129,7 +129,7 @@ double median_of(std::vector<double> v) {
 // Exact k-NN distances of single points of a grid, cached per input index.
 class ExactDistances {
  public:
-  ExactDistances(const CellGrid& g, int k, std::size_t n) : g_(g), q_(g, k), k_(k), d_(n, -1.0f), pos_(n, kNotInGrid) {
+  ExactDistances(const CellGrid& g, int k, std::size_t n) : q_(g, k), k_(k), d_(n, -1.0f), pos_(n, kNotInGrid) {
     for (std::size_t s = 0; s < g.original.size(); ++s) pos_[g.original[s]] = static_cast<std::uint32_t>(s);
     for (const std::uint32_t z : g.zero) d_[z] = 0.0f;  // copies left out: k others at distance 0
   }
@@ -210,7 +210,6 @@ class ExactDistances {
   std::uint32_t pos(std::size_t j) const { return pos_[j]; }
 
  private:
-  const CellGrid& g_;
   PointQueries q_;
   int k_;
   std::vector<float> d_;

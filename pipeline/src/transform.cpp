@@ -150,13 +150,15 @@ StageResult<Cloud> apply_view_transform(Cloud cloud, const ViewTransform& view) 
   // +0, and one beside an infinite coordinate into NaN; the non_finite stage drops such points
   // either way.
   const bool identity = m.linear() == Eigen::Matrix3d::Identity() && m.translation() == Eigen::Vector3d::Zero();
-  if (!identity) cloud.xyz = (m.linear() * cloud.xyz).colwise() + m.translation();
-  if (cloud.has_normals() && !identity) {
-    // Normals turn with the rotation only (the scale is uniform and the translation moves
-    // positions): n' = R·n, in float as stored.
-    const Eigen::Matrix3f r = view.rotation.normalized().toRotationMatrix().cast<float>();
-    Eigen::Map<Eigen::Matrix3Xf> nrm(cloud.normal.data(), 3, static_cast<Eigen::Index>(cloud.normal.size() / 3));
-    nrm = r * nrm;
+  if (!identity) {
+    cloud.xyz = (m.linear() * cloud.xyz).colwise() + m.translation();
+    if (cloud.has_normals()) {
+      // Normals turn with the rotation only (the scale is uniform and the translation moves
+      // positions): n' = R·n, in float as stored.
+      const Eigen::Matrix3f r = view.rotation.normalized().toRotationMatrix().cast<float>();
+      Eigen::Map<Eigen::Matrix3Xf> nrm(cloud.normal.data(), 3, static_cast<Eigen::Index>(cloud.normal.size() / 3));
+      nrm = r * nrm;
+    }
   }
   StageReport report;
   report.stage = "transform";

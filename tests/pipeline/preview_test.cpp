@@ -8,7 +8,11 @@
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
 
+#include <sys/resource.h>
+
+#include <algorithm>
 #include <cmath>
+#include <csignal>
 #include <cstdint>
 #include <filesystem>
 #include <random>
@@ -159,6 +163,37 @@ TEST(Previews, AnUnwritablePreviewIsNamedInTheError) {
     EXPECT_NE(std::string(e.what()).find(png.string()), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("No such file"), std::string::npos) << e.what();
   }
+}
+
+TEST(Previews, AFailedWriteLeavesNoFile) {
+  // A file-size limit of 2 000 bytes, with SIGXFSZ ignored, makes write(2) fail with EFBIG part
+  // way through a 700 × 301 preview of noise (about 300 kB): libpng reports the short write, and
+  // the half-written file must be gone (as png_image_write_to_file removes its own). The limit
+  // is this test process's alone (ctest runs each test in its own process) and is restored.
+  const int rows = 301, cols = 700;
+  HeightField depth(GridGeometry{rows, cols, 0.0, 0.0, 0.001});
+  std::vector<std::uint8_t> rgb(static_cast<std::size_t>(rows * cols * 3));
+  std::mt19937 rng(5);
+  std::uniform_int_distribution<int> byte(0, 255);
+  for (auto& v : rgb) v = static_cast<std::uint8_t>(byte(rng));
+  std::fill(depth.values().begin(), depth.values().end(), 0.0f);
+  const fs::path png = hc::test::temp_dir("preview_fails") / "rgb.png";
+  rlimit old{};
+  ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &old), 0);
+  const auto old_handler = std::signal(SIGXFSZ, SIG_IGN);
+  rlimit small = old;
+  small.rlim_cur = 2000;
+  ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+  std::string error;
+  try {
+    write_rgb_preview(depth, rgb, png, false);
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  setrlimit(RLIMIT_FSIZE, &old);
+  std::signal(SIGXFSZ, old_handler);
+  EXPECT_NE(error.find(png.string()), std::string::npos) << "no error naming the file: " << error;
+  EXPECT_FALSE(fs::exists(png)) << "a half-written preview was left";
 }
 
 }  // namespace
