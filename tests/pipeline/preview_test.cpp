@@ -10,7 +10,6 @@
 
 #include <sys/resource.h>
 
-#include <algorithm>
 #include <cmath>
 #include <csignal>
 #include <cstdint>
@@ -118,23 +117,34 @@ TEST(Previews, HillshadeHasATitleStripThatWidensTheImageWhenNeeded) {
   EXPECT_TRUE(column_is_white(img, img.cols - 1, 0, img.rows));
 }
 
+/// A 301 × 700 grid (wider than the preview minimum, so not scaled; an odd width, so no row
+/// padding) with a no-data cell in every 13th, and its colour layer: noise in the left half,
+/// flat runs in the right (about 300 kB as a preview).
+struct ColourGrid {
+  static constexpr int rows = 301, cols = 700;
+  HeightField depth{GridGeometry{rows, cols, 0.0, 0.0, 0.001}};
+  std::vector<std::uint8_t> rgb = std::vector<std::uint8_t>(static_cast<std::size_t>(rows * cols * 3));
+  ColourGrid() {
+    std::mt19937 rng(3);
+    std::uniform_int_distribution<int> byte(0, 255);
+    for (int r = 0; r < rows; ++r)
+      for (int c = 0; c < cols; ++c) {
+        const std::size_t k = static_cast<std::size_t>(r * cols + c);
+        depth.values()[k] = (r * 7 + c) % 13 == 0 ? std::nanf("") : 0.0f;
+        for (int ch = 0; ch < 3; ++ch) rgb[3 * k + static_cast<std::size_t>(ch)] = static_cast<std::uint8_t>(c < 350 ? byte(rng) : r % 256);
+      }
+  }
+};
+
 TEST(Previews, TheFastPngWriterKeepsEveryPixel) {
   // Oracle: the colour layer itself, read back by OpenCV's PNG decoder. write_rgb_preview draws
   // a cell's colour unchanged (not shaded) and no-data cells grey (90), flipped so that row 0 is
-  // at the bottom; a grid of 700 × 301 cells (wider than the preview minimum) is not scaled. The
-  // previews' writer (zlib level 1, no row filters, libpng's full API) must round-trip it, noise
-  // and flat runs alike, with an odd width (no row padding).
-  const int rows = 301, cols = 700;
-  HeightField depth(GridGeometry{rows, cols, 0.0, 0.0, 0.001});
-  std::vector<std::uint8_t> rgb(static_cast<std::size_t>(rows * cols * 3));
-  std::mt19937 rng(3);
-  std::uniform_int_distribution<int> byte(0, 255);
-  for (int r = 0; r < rows; ++r)
-    for (int c = 0; c < cols; ++c) {
-      const std::size_t k = static_cast<std::size_t>(r * cols + c);
-      depth.values()[k] = (r * 7 + c) % 13 == 0 ? std::nanf("") : 0.0f;
-      for (int ch = 0; ch < 3; ++ch) rgb[3 * k + static_cast<std::size_t>(ch)] = static_cast<std::uint8_t>(c < 350 ? byte(rng) : r % 256);
-    }
+  // at the bottom. The previews' writer (zlib level 1, no row filters, libpng's full API) must
+  // round-trip it, noise and flat runs alike.
+  const ColourGrid grid;
+  const int rows = ColourGrid::rows, cols = ColourGrid::cols;
+  const HeightField& depth = grid.depth;
+  const std::vector<std::uint8_t>& rgb = grid.rgb;
   const fs::path png = hc::test::temp_dir("preview_roundtrip") / "rgb.png";
   write_rgb_preview(depth, rgb, png, false);
   const cv::Mat img = cv::imread(png.string(), cv::IMREAD_COLOR);
@@ -167,16 +177,10 @@ TEST(Previews, AnUnwritablePreviewIsNamedInTheError) {
 
 TEST(Previews, AFailedWriteLeavesNoFile) {
   // A file-size limit of 2 000 bytes, with SIGXFSZ ignored, makes write(2) fail with EFBIG part
-  // way through a 700 × 301 preview of noise (about 300 kB): libpng reports the short write, and
-  // the half-written file must be gone (as png_image_write_to_file removes its own). The limit
-  // is this test process's alone (ctest runs each test in its own process) and is restored.
-  const int rows = 301, cols = 700;
-  HeightField depth(GridGeometry{rows, cols, 0.0, 0.0, 0.001});
-  std::vector<std::uint8_t> rgb(static_cast<std::size_t>(rows * cols * 3));
-  std::mt19937 rng(5);
-  std::uniform_int_distribution<int> byte(0, 255);
-  for (auto& v : rgb) v = static_cast<std::uint8_t>(byte(rng));
-  std::fill(depth.values().begin(), depth.values().end(), 0.0f);
+  // way through the ColourGrid's preview (about 300 kB): libpng reports the short write, and the
+  // half-written file must be gone (as png_image_write_to_file removes its own). The limit is
+  // this test process's alone (ctest runs each test in its own process) and is restored.
+  const ColourGrid grid;
   const fs::path png = hc::test::temp_dir("preview_fails") / "rgb.png";
   rlimit old{};
   ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &old), 0);
@@ -186,7 +190,7 @@ TEST(Previews, AFailedWriteLeavesNoFile) {
   ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
   std::string error;
   try {
-    write_rgb_preview(depth, rgb, png, false);
+    write_rgb_preview(grid.depth, grid.rgb, png, false);
   } catch (const std::exception& e) {
     error = e.what();
   }
