@@ -183,7 +183,7 @@ class ExactDistances {
       std::size_t done = 0, wanted = 0;  // points so far, and those that needed neighbours
       const auto [b, e] = detail::share_of(len, t, th);
       for (std::size_t at = b; at < e; ++at, ++done) {
-        const auto [s, i] = order[at];
+        const std::uint32_t s = order[at].first, i = order[at].second;  // not a binding: clang 14 cannot capture one
         const std::uint32_t j = list[i];
         auto store = [&] { std::copy(knn.begin(), knn.end(), nb.begin() + static_cast<std::ptrdiff_t>(i * k)); };
         if (2 * wanted > done) {  // neighbours first
