@@ -1,6 +1,8 @@
 /// Per-tick compute of the haptic renderer (proxy + friction + force, i.e. one step_proxy call)
 /// on grids of 200², 800² and 4096² cells: the paper's validation sinusoid with a fine texture,
-/// and the real Happy Buddha scan reprojected at the same sizes (data/scans, via the pipeline).
+/// and the real Happy Buddha scan reprojected at the same sizes (data/scans, via the pipeline),
+/// as depth alone (`buddha`) and with the surface stage's envelope, texture and μ_d / μ_s maps
+/// (`buddha_layers`, what a session renders: every contact iteration reads the maps).
 ///
 /// The HIP slides on a closed circle (r = 15 mm, 1 s per loop at 1 kHz), pressed 1.5 mm into the
 /// surface, μ_d = 0.3, μ_s = 0.36, k = 800 N/m: a realistic servo-loop workload.
@@ -17,6 +19,7 @@
 #include "hc/haptics/proxy.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/reproject.hpp"
+#include "hc/pipeline/surface_layers.hpp"
 
 #include <benchmark/benchmark.h>
 
@@ -46,6 +49,7 @@ double sinusoid(double x, double y) {
 
 struct Workload {
   std::unique_ptr<HeightField> depth;
+  std::unique_ptr<hc::pipeline::SurfaceLayers> layers;  // buddha_layers: envelope, texture, μ_d, μ_s
   std::unique_ptr<HapticSurface> surface;
   std::vector<Eigen::Vector3d> hip;  // one closed loop, 1000 ticks
   std::string error;
@@ -82,7 +86,9 @@ Workload make_sinusoid(int n) {
   return w;
 }
 
-Workload make_buddha(int n) {
+/// with_layers: the surface stage's envelope, texture and μ_d / μ_s maps (default options), as a
+/// session renders a scene; otherwise the depth alone with constant μ_d, μ_s.
+Workload make_buddha(int n, bool with_layers) {
   Workload w;
   const auto path = std::filesystem::path(HC_SOURCE_DIR) / "data" / "scans" / "happy_buddha" /
                     "happy_stand_merged_1099005pts.ply.gz";
@@ -98,6 +104,14 @@ Workload make_buddha(int n) {
     w.depth = std::make_unique<HeightField>(std::move(grid.depth));
     hc::haptics::SurfaceLayers layers;
     layers.depth = w.depth.get();
+    if (with_layers) {
+      w.layers = std::make_unique<hc::pipeline::SurfaceLayers>(
+          hc::pipeline::compute_surface_layers(*w.depth, hc::pipeline::SurfaceLayerOptions{}).value);
+      layers.envelope = &w.layers->envelope_m;
+      layers.texture = &w.layers->texture_m;
+      layers.mu_d = &w.layers->mu_d;
+      layers.mu_s = &w.layers->mu_s;
+    }
     w.surface = std::make_unique<HapticSurface>(layers, friction_options());
     const hc::GridGeometry& g = w.depth->geometry();
     // A circle on the statue's body, a little above the middle of the grid.
@@ -112,7 +126,7 @@ Workload& workload(const std::string& kind, int n) {
   static std::map<std::pair<std::string, int>, Workload> cache;
   auto it = cache.find({kind, n});
   if (it == cache.end()) {
-    it = cache.emplace(std::make_pair(kind, n), kind == "buddha" ? make_buddha(n) : make_sinusoid(n)).first;
+    it = cache.emplace(std::make_pair(kind, n), kind == "sinusoid" ? make_sinusoid(n) : make_buddha(n, kind == "buddha_layers")).first;
   }
   return it->second;
 }
@@ -250,9 +264,12 @@ void BM_StepProxyBudget(benchmark::State& state, const std::string& kind) {
 
 BENCHMARK_CAPTURE(BM_StepProxy, sinusoid, std::string("sinusoid"))->Arg(200)->Arg(800)->Arg(4096);
 BENCHMARK_CAPTURE(BM_StepProxy, buddha, std::string("buddha"))->Arg(200)->Arg(800)->Arg(4096);
+BENCHMARK_CAPTURE(BM_StepProxy, buddha_layers, std::string("buddha_layers"))->Arg(200)->Arg(800)->Arg(4096);
 BENCHMARK_CAPTURE(BM_StepProxyLatency, sinusoid, std::string("sinusoid"))
     ->Arg(200)->Arg(800)->Arg(4096)->Iterations(1000000);
 BENCHMARK_CAPTURE(BM_StepProxyLatency, buddha, std::string("buddha"))
+    ->Arg(200)->Arg(800)->Arg(4096)->Iterations(1000000);
+BENCHMARK_CAPTURE(BM_StepProxyLatency, buddha_layers, std::string("buddha_layers"))
     ->Arg(200)->Arg(800)->Arg(4096)->Iterations(1000000);
 
 }  // namespace

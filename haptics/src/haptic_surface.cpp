@@ -182,28 +182,25 @@ HapticSurface::NodeBuffer HapticSurface::allocate_nodes(std::size_t count, float
   return buffer;
 }
 
-double HapticSurface::bilinear_layer(const float* layer, double x_m, double y_m) const noexcept {
-  const GridGeometry& g = padded_geometry_;
-  double cu = (x_m - g.x0_m) / g.cell_size_m;
-  double cv = (y_m - g.y0_m) / g.cell_size_m;
-  if (!(cu == cu) || !(cv == cv)) return layer[0];
-  cu = std::clamp(cu, 0.0, static_cast<double>(g.cols - 1));
-  cv = std::clamp(cv, 0.0, static_cast<double>(g.rows - 1));
-  const int i = std::min(static_cast<int>(cu), g.cols - 2);
-  const int j = std::min(static_cast<int>(cv), g.rows - 2);
+FrictionSample HapticSurface::friction_from_maps(double x_m, double y_m) const noexcept {
+  // The cell and weights as sample() finds them (multiplication by 1/cell, clamped to the
+  // padded grid, NaN to its first node), computed once for both layers.
+  double cu = (x_m - x0_m_) * inv_cell_;
+  double cv = (y_m - y0_m_) * inv_cell_;
+  if (!(cu >= 0.0 && cu <= max_u_)) cu = cu > max_u_ ? max_u_ : 0.0;
+  if (!(cv >= 0.0 && cv <= max_v_)) cv = cv > max_v_ ? max_v_ : 0.0;
+  const int i = std::min(static_cast<int>(cu), last_i_);
+  const int j = std::min(static_cast<int>(cv), last_j_);
   const double u = cu - i;
   const double v = cv - j;
-  const std::size_t k = static_cast<std::size_t>(j) * static_cast<std::size_t>(g.cols) +
-                        static_cast<std::size_t>(i);
-  const std::size_t stride = static_cast<std::size_t>(g.cols);
-  return (1 - u) * (1 - v) * layer[k] + u * (1 - v) * layer[k + 1] + (1 - u) * v * layer[k + stride] +
-         u * v * layer[k + stride + 1];
-}
-
-FrictionSample HapticSurface::friction_from_maps(double x_m, double y_m) const noexcept {
+  const std::ptrdiff_t k = static_cast<std::ptrdiff_t>(j) * stride_ + i;
+  const auto at = [&](const float* layer) {
+    const float* r0 = layer + k;
+    return (1 - u) * (1 - v) * r0[0] + u * (1 - v) * r0[1] + (1 - u) * v * r0[stride_] + u * v * r0[stride_ + 1];
+  };
   FrictionSample f{options_.default_mu_d, options_.default_mu_s};
-  if (mu_d_) f.mu_d = bilinear_layer(mu_d_.get(), x_m, y_m);
-  if (mu_s_) f.mu_s = bilinear_layer(mu_s_.get(), x_m, y_m);
+  if (mu_d_) f.mu_d = at(mu_d_.get());
+  if (mu_s_) f.mu_s = at(mu_s_.get());
   return f;
 }
 

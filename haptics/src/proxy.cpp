@@ -2,6 +2,8 @@
 
 #include "hc/common/error.hpp"
 
+#include <Eigen/Geometry>
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -17,26 +19,28 @@ constexpr double kInf = std::numeric_limits<double>::infinity();
 
 /// First s ∈ [0, L] where G(s) = C + B·s + A·s² drops below −kBelowTol, G(0) = C.
 /// On success writes the root of G = 0 where G decreases (the entry into the solid).
+/// The tests that reject a cell (most cells of a walk) use no division: the vertex
+/// s_v = −B/(2A) is compared by its numerator, and G(s_v) = C − B²/(4A) by 4A·G(s_v).
 bool first_drop(double A, double B, double C, double L, double& s_out) noexcept {
   if (C < -kBelowTol) {
     s_out = 0.0;
     return true;
   }
   C = std::max(C, 0.0);
-  double lo = 0.0;
-  double hi = L;
   // Restrict [lo, hi] to where G decreases, so that it holds exactly one downward root.
+  bool vertex_lo = false, vertex_hi = false;  // lo / hi is the vertex s_v
   if (A > 0.0) {
-    const double sv = -B / (2.0 * A);
-    if (!(sv > 0.0)) return false;  // G increasing on [0, L]
-    if (sv < L) hi = sv;
+    if (!(-B > 0.0)) return false;        // s_v ≤ 0: G increasing on [0, L]
+    vertex_hi = -B < 2.0 * A * L;         // s_v < L
   } else if (A < 0.0) {
-    const double sv = -B / (2.0 * A);
-    if (!(sv < L)) return false;  // G increasing on [0, L]
-    if (sv > 0.0) lo = sv;
+    if (!(-B > 2.0 * A * L)) return false;  // s_v ≥ L: G increasing on [0, L]
+    vertex_lo = B > 0.0;                    // s_v > 0
   }
-  const double g_hi = C + hi * (B + A * hi);
-  if (!(g_hi < -kBelowTol)) return false;
+  // G at hi < −kBelowTol; at the vertex (A > 0): C − B²/(4A) < −tol ⇔ 4AC − B² < −4A·tol.
+  const bool drops = vertex_hi ? 4.0 * A * C - B * B < -4.0 * A * kBelowTol : C + L * (B + A * L) < -kBelowTol;
+  if (!drops) return false;
+  const double lo = vertex_lo ? -B / (2.0 * A) : 0.0;
+  const double hi = vertex_hi ? -B / (2.0 * A) : L;
   // The decreasing root is (−B − √D)/(2A) = 2C/(−B + √D); pick the cancellation-free form.
   const double sq = std::sqrt(std::max(B * B - 4.0 * A * C, 0.0));
   double r = 0.0;
@@ -66,14 +70,15 @@ bool floor_drop(double az, double dz, double floor_m, double t0, double t1, doub
   return true;
 }
 
-void clip_slab(double p, double d, double lo, double hi, double& t_in, double& t_out,
+/// Clips [t_in, t_out] to where p + t·d lies in [lo, hi]; inv_d = 1/d (unused when d = 0).
+void clip_slab(double p, double d, double inv_d, double lo, double hi, double& t_in, double& t_out,
                bool& empty) noexcept {
   if (d == 0.0) {
     if (p < lo || p > hi) empty = true;
     return;
   }
-  double t0 = (lo - p) / d;
-  double t1 = (hi - p) / d;
+  double t0 = (lo - p) * inv_d;
+  double t1 = (hi - p) * inv_d;
   if (t0 > t1) std::swap(t0, t1);
   t_in = std::max(t_in, t0);
   t_out = std::min(t_out, t1);
@@ -115,7 +120,7 @@ CellExit cell_exit(const GridGeometry& g, const Eigen::Vector3d& p, const Eigen:
 bool on_line_heading_across(const GridGeometry& g, const Eigen::Vector3d& p,
                             const Eigen::Vector3d& d) noexcept {
   const CellExit e = cell_exit(g, p, d);
-  return e.axis >= 0 && e.t * std::hypot(d.x(), d.y()) <= 1.0e-6 * g.cell_size_m;
+  return e.axis >= 0 && e.t * std::sqrt(d.x() * d.x() + d.y() * d.y()) <= 1.0e-6 * g.cell_size_m;
 }
 
 /// A candidate proxy position: (x, y) of c put exactly on the surface; taken (written to xp,
@@ -199,7 +204,7 @@ bool kink_fallback(const HapticSurface& surface, const Eigen::Vector3d& xh, doub
   if (take_if_closer(surface, xh, xp + step, dist0_2, xp, sp)) return true;  // 1
   const CellExit exit = cell_exit(surface.geometry(), xp, step);
   if (exit.axis < 0) return false;  // the step stays in the cell: nothing to add
-  const double step_xy = std::hypot(step.x(), step.y());
+  const double step_xy = std::sqrt(step.x() * step.x() + step.y() * step.y());  // no overflow: metres
   if (exit.t * step_xy > 1.0e-6 * cell) {
     return take_if_closer(surface, xh, xp + exit.t * step, dist0_2, xp, sp);  // 2
   }
@@ -237,6 +242,95 @@ bool kink_fallback(const HapticSurface& surface, const Eigen::Vector3d& xh, doub
   return exit.corner && crease_slide(surface, xh, 1 - exit.axis, mu_d, p, xp, sp);
 }
 
+/// find_first_crossing() without its point (hit.point_m is left at zero): the walk and t, hit,
+/// cells_visited and budget_exceeded. The proxy's guard needs only t, and the point's height
+/// would cost a surface sample.
+SegmentHit walk_segment(const HapticSurface& surface, const Eigen::Vector3d& a,
+                        const Eigen::Vector3d& b, int max_cells) noexcept {
+  SegmentHit hit;
+  const GridGeometry& g = surface.geometry();
+  const double inv_cs = 1.0 / g.cell_size_m;
+  const double ua = (a.x() - g.x0_m) * inv_cs;
+  const double va = (a.y() - g.y0_m) * inv_cs;
+  const double du = (b.x() - a.x()) * inv_cs;
+  const double dv = (b.y() - a.y()) * inv_cs;
+  const double dz = b.z() - a.z();
+  const double max_u = static_cast<double>(g.cols - 1);
+  const double max_v = static_cast<double>(g.rows - 1);
+  const double floor_m = surface.floor_m();
+
+  const auto finish = [&](double t, bool is_hit) {
+    hit.hit = is_hit;
+    hit.t = t;
+    return hit;
+  };
+
+  double t_in = 0.0;
+  double t_out = 1.0;
+  bool empty = false;
+  // Where the walk leaves cell column i / row j: t = (i + 1 − u_a)/du (or (i − u_a)/du), with
+  // one division per call instead of two per cell.
+  const double inv_du = du != 0.0 ? 1.0 / du : 0.0;
+  const double inv_dv = dv != 0.0 ? 1.0 / dv : 0.0;
+  clip_slab(ua, du, inv_du, 0.0, max_u, t_in, t_out, empty);
+  clip_slab(va, dv, inv_dv, 0.0, max_v, t_in, t_out, empty);
+  if (t_in > t_out) empty = true;
+  double t_hit = 0.0;
+  if (empty) {
+    if (floor_drop(a.z(), dz, floor_m, 0.0, 1.0, t_hit)) return finish(t_hit, true);
+    return finish(1.0, false);
+  }
+  if (t_in > 0.0 && floor_drop(a.z(), dz, floor_m, 0.0, t_in, t_hit)) return finish(t_hit, true);
+
+  // 2-D DDA over the padded grid's cells on [t_in, t_out].
+  double t = t_in;
+  const double u0 = ua + du * t;
+  const double v0 = va + dv * t;
+  int i = static_cast<int>(std::floor(u0));
+  int j = static_cast<int>(std::floor(v0));
+  if (du < 0.0 && u0 == static_cast<double>(i)) --i;  // leaving a grid line towards −u
+  if (dv < 0.0 && v0 == static_cast<double>(j)) --j;
+  i = std::clamp(i, 0, g.cols - 2);
+  j = std::clamp(j, 0, g.rows - 2);
+  const int si = du > 0.0 ? 1 : -1;
+  const int sj = dv > 0.0 ? 1 : -1;
+  const double off_u = du > 0.0 ? 1.0 : 0.0, off_v = dv > 0.0 ? 1.0 : 0.0;  // the far line's offset
+  const float* base = &surface.bilinear().view().data[0];
+  const std::ptrdiff_t stride = surface.bilinear().view().row_stride;
+  while (true) {
+    if (hit.cells_visited >= max_cells) {
+      hit.budget_exceeded = true;
+      return finish(t, false);
+    }
+    ++hit.cells_visited;
+    const double tu = du != 0.0 ? (i + off_u - ua) * inv_du : kInf;
+    const double tv = dv != 0.0 ? (j + off_v - va) * inv_dv : kInf;
+    const double t_exit = std::max(t, std::min({tu, tv, t_out}));
+    const float* r0 = base + static_cast<std::ptrdiff_t>(j) * stride + i;
+    const double z00 = r0[0], z10 = r0[1], z01 = r0[stride], z11 = r0[stride + 1];
+    const double e = z10 - z00;
+    const double gg = z01 - z00;
+    const double h = z00 - z10 - z01 + z11;
+    const double uu = ua + du * t - i;
+    const double vv = va + dv * t - j;
+    // G(s) = z(t + s) − f(u(t + s), v(t + s)) = C + B·s + A·s² inside this cell.
+    const double C = (a.z() + dz * t) - (z00 + e * uu + gg * vv + h * uu * vv);
+    const double B = dz - (e * du + gg * dv + h * (uu * dv + vv * du));
+    const double A = -h * du * dv;
+    double s = 0.0;
+    if (first_drop(A, B, C, t_exit - t, s)) return finish(t + s, true);
+    if (t_exit >= t_out) break;
+    // Branch-free: which line a diagonal walk meets next follows no pattern a predictor learns.
+    const bool step_u = tu <= tv;
+    i += step_u ? si : 0;
+    j += step_u ? 0 : sj;
+    if (i < 0 || i > g.cols - 2 || j < 0 || j > g.rows - 2) break;
+    t = t_exit;
+  }
+  if (t_out < 1.0 && floor_drop(a.z(), dz, floor_m, t_out, 1.0, t_hit)) return finish(t_hit, true);
+  return finish(1.0, false);
+}
+
 /// Eq. 3–5 iterations with static friction; xp and sp (the sample at xp) are updated in place.
 /// Uses the unnormalised normal m = (−f_x, −f_y, 1), q = |m|², so that n = m/√q, n·v_h = m·v_h/√q
 /// and (n·v_h)·n = (m·v_h/q)·m: one division and one square root per iteration.
@@ -253,26 +347,28 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
   if (p.friction_enabled) mu = surface.friction(xp.x(), xp.y());
   const Eigen::Vector3d x_start = xp;
   bool friction_limited = false;
-  double last_t2 = 0.0, last_q = 1.0, last_mv = 0.0;
+  double last_w2 = 0.0, last_q = 1.0, last_mv = 0.0;
   for (int k = 0; k < p.max_iterations; ++k) {
     const Eigen::Vector3d m(-sp.dz_dx, -sp.dz_dy, 1.0);  // normal, unnormalised
     const double q = m.squaredNorm();
     const Eigen::Vector3d vh = xh - xp;                   // Eq. 3: v_h = X_h − X_p
     const double mv = m.dot(vh);                          // √q·(n·v_h) = −√q·f_n/k
-    const Eigen::Vector3d vt = vh - (mv / q) * m;          // Eq. 3: v_t = v_h − (n·v_h) n
-    const double t2 = vt.squaredNorm();                   // |v_t|² ∝ |f_t|²
-    last_t2 = t2;
+    // q·|v_t|² = |m × v_h|² (Lagrange's identity): the tangential share without waiting for the
+    // division mv/q, which runs beside the square root and the friction factor's division.
+    const double w2 = m.cross(vh).squaredNorm();          // q·|v_t|² ∝ |f_t|²
+    last_w2 = w2;
     last_q = q;
     last_mv = mv;
     if (k == 0 && s.sticking) {
       // Static friction holds while |f_t| < μ_s·|f_n| (Sec. 3.2), with f_n > 0 (pressing).
-      if (mv < 0.0 && t2 * q < mu.mu_s * mu.mu_s * mv * mv) break;
+      if (mv < 0.0 && w2 < mu.mu_s * mu.mu_s * mv * mv) break;
       s.sticking = false;
     }
-    // Eq. 5 friction factor 1 − μ_d·cot β, cot β = f_n/|f_t| = −mv/√(q·t2), clamped to [0, 1].
-    // friction_factor() depends on tangential and normal only through their ratio, so both are
-    // given scaled by √q (√(q·t2) = √q·|v_t|, −mv = √q·(−n·v_h)): no division by √q needed.
-    const double factor = friction_factor(std::sqrt(q * t2), -mv, mu.mu_d);
+    // Eq. 5 friction factor 1 − μ_d·cot β, cot β = f_n/|f_t| = −mv/√(q·|v_t|²), clamped to
+    // [0, 1]. friction_factor() depends on tangential and normal only through their ratio, so
+    // both are given scaled by √q (√w2 = √q·|v_t|, −mv = √q·(−n·v_h)).
+    const double factor = friction_factor(std::sqrt(w2), -mv, mu.mu_d);
+    const Eigen::Vector3d vt = vh - (mv / q) * m;          // Eq. 3: v_t = v_h − (n·v_h) n
     if (factor <= 0.0) {
       // Inside the dynamic friction cone: the proxy stops. If it has not moved at all this
       // tick it is at rest, and static friction takes over.
@@ -280,8 +376,8 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
       break;
     }
     // Converged when the proxy is within tolerance of where Eq. 5 is heading (the friction-cone
-    // equilibrium), whatever ρ: factor·|v_t| is that distance.
-    if (factor * factor * t2 < conv2) {
+    // equilibrium), whatever ρ: factor·|v_t| is that distance (factor²·w2 < conv²·q).
+    if (factor * factor * w2 < conv2 * q) {
       friction_limited = factor < 1.0;
       break;
     }
@@ -295,7 +391,7 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
       // A step over more than one cell could jump a thin feature: take it only if the tangent
       // path, lifted by a tenth of a cell, runs through no material; else one cell.
       const SegmentHit block =
-          find_first_crossing(surface, xp + guard_lift, xp + step + guard_lift, guard_cells);
+          walk_segment(surface, xp + guard_lift, xp + step + guard_lift, guard_cells);
       if (block.hit || block.budget_exceeded) {
         // Up to where the lifted path first meets material (no feature lies before it), and
         // at least one cell.
@@ -338,8 +434,9 @@ void contact_iterations(const HapticSurface& surface, const Eigen::Vector3d& xh,
   }
   // At rest on the dynamic friction cone for a whole tick: static friction takes over.
   if (friction_limited && (xp - x_start).squaredNorm() < conv2) s.sticking = true;
-  s.tangential_m = std::sqrt(last_t2);
-  s.normal_m = -last_mv / std::sqrt(last_q);
+  const double sqrt_q = std::sqrt(last_q);
+  s.tangential_m = std::sqrt(last_w2) / sqrt_q;
+  s.normal_m = -last_mv / sqrt_q;
   s.mu_d = mu.mu_d;
   s.mu_s = mu.mu_s;
 }
@@ -372,96 +469,12 @@ void validate_proxy_params(const ProxyParams& p) {
   if (p.max_cells_per_tick < 1) fail("max_cells_per_tick", p.max_cells_per_tick, "an integer >= 1");
 }
 
-double friction_factor(double tangential_m, double normal_m, double mu_d) noexcept {
-  if (!(mu_d > 0.0) || !(normal_m > 0.0)) return 1.0;  // no friction, or β ≥ 90°
-  const double resist = mu_d * normal_m;               // μ_d·|f_n| in length units
-  if (!(tangential_m > resist)) return 0.0;            // β → 0 or inside the friction cone
-  return std::clamp(1.0 - resist / tangential_m, 0.0, 1.0);
-}
-
 SegmentHit find_first_crossing(const HapticSurface& surface, const Eigen::Vector3d& a,
                                const Eigen::Vector3d& b, int max_cells) noexcept {
-  SegmentHit hit;
-  hit.point_m = b;
-  const GridGeometry& g = surface.geometry();
-  const double cs = g.cell_size_m;
-  const double ua = (a.x() - g.x0_m) / cs;
-  const double va = (a.y() - g.y0_m) / cs;
-  const double du = (b.x() - a.x()) / cs;
-  const double dv = (b.y() - a.y()) / cs;
-  const double dz = b.z() - a.z();
-  const double max_u = static_cast<double>(g.cols - 1);
-  const double max_v = static_cast<double>(g.rows - 1);
-  const double floor_m = surface.floor_m();
-
-  const auto finish = [&](double t, bool is_hit) {
-    hit.hit = is_hit;
-    hit.t = t;
-    hit.point_m = a + t * (b - a);
-    if (is_hit) hit.point_m.z() = surface.height(hit.point_m.x(), hit.point_m.y());
-    return hit;
-  };
-
-  double t_in = 0.0;
-  double t_out = 1.0;
-  bool empty = false;
-  clip_slab(ua, du, 0.0, max_u, t_in, t_out, empty);
-  clip_slab(va, dv, 0.0, max_v, t_in, t_out, empty);
-  if (t_in > t_out) empty = true;
-  double t_hit = 0.0;
-  if (empty) {
-    if (floor_drop(a.z(), dz, floor_m, 0.0, 1.0, t_hit)) return finish(t_hit, true);
-    return finish(1.0, false);
-  }
-  if (t_in > 0.0 && floor_drop(a.z(), dz, floor_m, 0.0, t_in, t_hit)) return finish(t_hit, true);
-
-  // 2-D DDA over the padded grid's cells on [t_in, t_out].
-  double t = t_in;
-  const double u0 = ua + du * t;
-  const double v0 = va + dv * t;
-  int i = static_cast<int>(std::floor(u0));
-  int j = static_cast<int>(std::floor(v0));
-  if (du < 0.0 && u0 == static_cast<double>(i)) --i;  // leaving a grid line towards −u
-  if (dv < 0.0 && v0 == static_cast<double>(j)) --j;
-  i = std::clamp(i, 0, g.cols - 2);
-  j = std::clamp(j, 0, g.rows - 2);
-  const int si = du > 0.0 ? 1 : -1;
-  const int sj = dv > 0.0 ? 1 : -1;
-  const float* base = &surface.bilinear().view().data[0];
-  const std::ptrdiff_t stride = surface.bilinear().view().row_stride;
-  while (true) {
-    if (hit.cells_visited >= max_cells) {
-      hit.budget_exceeded = true;
-      return finish(t, false);
-    }
-    ++hit.cells_visited;
-    const double tu = du > 0.0 ? (i + 1 - ua) / du : (du < 0.0 ? (i - ua) / du : kInf);
-    const double tv = dv > 0.0 ? (j + 1 - va) / dv : (dv < 0.0 ? (j - va) / dv : kInf);
-    const double t_exit = std::max(t, std::min({tu, tv, t_out}));
-    const float* r0 = base + static_cast<std::ptrdiff_t>(j) * stride + i;
-    const double z00 = r0[0], z10 = r0[1], z01 = r0[stride], z11 = r0[stride + 1];
-    const double e = z10 - z00;
-    const double gg = z01 - z00;
-    const double h = z00 - z10 - z01 + z11;
-    const double uu = ua + du * t - i;
-    const double vv = va + dv * t - j;
-    // G(s) = z(t + s) − f(u(t + s), v(t + s)) = C + B·s + A·s² inside this cell.
-    const double C = (a.z() + dz * t) - (z00 + e * uu + gg * vv + h * uu * vv);
-    const double B = dz - (e * du + gg * dv + h * (uu * dv + vv * du));
-    const double A = -h * du * dv;
-    double s = 0.0;
-    if (first_drop(A, B, C, t_exit - t, s)) return finish(t + s, true);
-    if (t_exit >= t_out) break;
-    if (tu <= tv) {
-      i += si;
-    } else {
-      j += sj;
-    }
-    if (i < 0 || i > g.cols - 2 || j < 0 || j > g.rows - 2) break;
-    t = t_exit;
-  }
-  if (t_out < 1.0 && floor_drop(a.z(), dz, floor_m, t_out, 1.0, t_hit)) return finish(t_hit, true);
-  return finish(1.0, false);
+  SegmentHit hit = walk_segment(surface, a, b, max_cells);
+  hit.point_m = a + hit.t * (b - a);
+  if (hit.hit) hit.point_m.z() = surface.height(hit.point_m.x(), hit.point_m.y());
+  return hit;
 }
 
 ProxyState step_proxy(const ProxyState& previous, const HipInput& hip,

@@ -14,6 +14,7 @@
 
 #include <Eigen/Core>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 
@@ -108,8 +109,14 @@ SegmentHit find_first_crossing(const HapticSurface& surface, const Eigen::Vector
 ///        [m] (> 0 when the HIP is below the tangent plane); cot β = normal_m / tangential_m.
 /// β → 0 (tangential_m → 0 with normal_m > 0) gives 0; β = 90° gives 1; β > 90° gives 1.
 /// step_proxy() uses it for every Eq. 5 step (contact iterations, kink fallback, crease slide).
-/// Real-time: yes. Source: paper Eq. 5 and the text before it.
-double friction_factor(double tangential_m, double normal_m, double mu_d) noexcept;
+/// Real-time: yes (inline: every contact iteration calls it). Source: paper Eq. 5 and the text
+/// before it.
+inline double friction_factor(double tangential_m, double normal_m, double mu_d) noexcept {
+  if (!(mu_d > 0.0) || !(normal_m > 0.0)) return 1.0;  // no friction, or β ≥ 90°
+  const double resist = mu_d * normal_m;               // μ_d·|f_n| in length units
+  if (!(tangential_m > resist)) return 0.0;            // β → 0 or inside the friction cone
+  return std::clamp(1.0 - resist / tangential_m, 0.0, 1.0);
+}
 
 /// One servo tick of the proxy and the force stage.
 ///
