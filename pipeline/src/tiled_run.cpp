@@ -3,6 +3,7 @@
 
 #include "hc/pipeline/tiling.hpp"
 
+#include "knn_grid.hpp"
 #include "readers/readers.hpp"
 #include "run_internal.hpp"
 #include "stage_util.hpp"
@@ -174,6 +175,32 @@ class Spill {
     std::uintmax_t s = 0;
     for (const auto b : bytes_) s += b;
     return s;
+  }
+
+  // Rewrites the flag byte of every record of tile t's file in place (flush first):
+  // flag = mark(point's x y z); the records and their order stay. Used when a second spill would
+  // write the same records in the same order with other flags (tile_far_clusters).
+  template <class Mark>
+  void remark(std::size_t t, Mark&& mark) const {
+    const std::size_t rec = layout_.bytes();
+    const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
+    if (n == 0) return;
+    std::vector<char> raw(bytes_[t]);
+    std::FILE* f = std::fopen(file(t).c_str(), "r+b");
+    bool ok = f && std::fread(raw.data(), 1, raw.size(), f) == raw.size();
+    if (ok) {
+      double p[3];
+      for (std::size_t i = 0; i < n; ++i) {
+        char* q = raw.data() + i * rec;
+        std::memcpy(p, q + 1, 24);
+        q[0] = static_cast<char>(mark(static_cast<const double*>(p)));
+      }
+      ok = std::fseek(f, 0, SEEK_SET) == 0 && std::fwrite(raw.data(), 1, raw.size(), f) == raw.size();
+    }
+    const bool closed = f && std::fclose(f) == 0;
+    if (!ok || !closed) {
+      throw InputError("scale.scratch: cannot rewrite the spill file " + file(t).string() + ": " + std::strerror(errno));
+    }
   }
 
   // Reads tile t's points back (flush first): the points and their flags.
@@ -703,15 +730,19 @@ class FarCells {
   // The points `take` marks among `n` (x y z doubles each), sorted by cell and merged into the
   // cells once per occupied cell (a tile's points: far fewer hash lookups than one per point).
   void add_batch(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take) {
-    batch_.clear();
-    for (std::size_t i = 0; i < n; ++i)
-      if (take[i]) batch_.emplace_back(key(xyz + 3 * i), static_cast<std::uint32_t>(i));
-    std::sort(batch_.begin(), batch_.end());
-    for (std::size_t b = 0; b < batch_.size();) {
-      const std::uint64_t k = batch_[b].first;
+    std::vector<std::uint64_t> keys;
+    std::vector<std::uint32_t> idx;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!take[i]) continue;
+      keys.push_back(key(xyz + 3 * i));
+      idx.push_back(static_cast<std::uint32_t>(i));
+    }
+    detail::radix_sort(keys, idx, 63);  // stable: a cell's points in input order, as a pair sort gave
+    for (std::size_t b = 0; b < keys.size();) {
+      const std::uint64_t k = keys[b];
       Cell& c = cells_[k];
-      for (; b < batch_.size() && batch_[b].first == k; ++b) {
-        const double* p = xyz + 3 * static_cast<std::size_t>(batch_[b].second);
+      for (; b < keys.size() && keys[b] == k; ++b) {
+        const double* p = xyz + 3 * static_cast<std::size_t>(idx[b]);
         ++c.count;
         for (int a = 0; a < 3; ++a) {
           const auto v = static_cast<float>(p[a] - origin_[a]);
@@ -720,11 +751,17 @@ class FarCells {
         }
       }
     }
-    std::vector<std::pair<std::uint64_t, std::uint32_t>>().swap(batch_);
   }
 
-  // Whether p lies in a cell of a removed cluster (after components()).
-  bool holds(const double* p) const { return !far_.empty() && far_.count(key(p)) > 0; }
+  // A bit per hash of the key first: most points lie in kept cells, and a set lookup per
+  // point was a tenth of the stage.
+  bool holds(const double* p) const {
+    if (far_.empty()) return false;
+    const std::uint64_t k = key(p);
+    const std::uint64_t b = filter_bit(k);
+    if (((far_filter_[b >> 6] >> (b & 63)) & 1U) == 0) return false;
+    return far_.count(k) > 0;
+  }
 
   struct Result {
     std::size_t clusters = 0, removed_clusters = 0, kept_far_clusters = 0;
@@ -815,7 +852,11 @@ class FarCells {
       }
     }
     for (std::uint32_t i = 0; i < keys.size(); ++i) {
-      if (removed_comp[slot[find(i)]]) far_.insert(keys[i]);
+      if (removed_comp[slot[find(i)]]) {
+        far_.insert(keys[i]);
+        const std::uint64_t b = filter_bit(keys[i]);
+        far_filter_[b >> 6] |= std::uint64_t{1} << (b & 63);
+      }
     }
     return r;
   }
@@ -842,8 +883,10 @@ class FarCells {
   Eigen::Vector3d origin_;
   double edge_, inv_;
   std::unordered_map<std::uint64_t, Cell> cells_;
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> batch_;
+  static constexpr int kFilterBits = 20;  // 128 KiB
+  static std::uint64_t filter_bit(std::uint64_t k) { return (k * 0x9E3779B97F4A7C15ULL) >> (64 - kFilterBits); }
   std::unordered_set<std::uint64_t> far_;
+  std::vector<std::uint64_t> far_filter_ = std::vector<std::uint64_t>(std::size_t{1} << (kFilterBits - 6), 0);
 };
 
 // Passes 1, 2 and 2b (the file comment of tiling.hpp): the plan, the spill into `dir`
@@ -1157,8 +1200,82 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       for (const std::string& n : fc.notes) r.report.notes.push_back(n);
       if (fc.removed_points > 0) {
         const std::uint64_t before = grid_points;
-        lay_out(&cells, r.report);
-        const std::uint64_t spilled = spill_pass(&cells, r.report);
+        // Most far clusters (stray returns in front of or behind the surface) leave the grid's
+        // x-y box, and so the layout, as it was. Then a second spill would write the same
+        // records in the same order (the same tiles of the same points), only with other
+        // flags: kFarFlag on far points, 0 on the rest (the sample marks served tile_scale).
+        // So the records are re-marked in place, and the box and upsample coverage without the
+        // far points are taken from each point's copy in its own tile; only when the layout
+        // changes are the points spilled again from the input (3 passes over it).
+        const GridGeometry old_g = tiles.g;
+        const int old_k = tiles.k;
+        double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min, y_min = x_min, y_max = -x_min;
+        std::uint64_t kept = 0, far_owned = 0, copies = 0;
+        std::optional<UpsampleCoverage> cov;
+        if (config.grid.reproject.upsample_factor == 0) cov.emplace(old_g);
+        std::vector<double> own_kept;  // a tile's kept points, for the coverage in one batch
+        const double inv = 1.0 / old_g.cell_size_m;
+        const double cx = 0.5 - old_g.x0_m * inv, cy = 0.5 - old_g.y0_m * inv;
+        PassProgress tick2(progress, "tile_far_clusters", "far points re-marked in the spill, tile by tile", config.scale.progress_interval_s);
+        for (std::size_t t = 0; t < tiles.count(); ++t) {
+          tick2(static_cast<double>(t) / static_cast<double>(tiles.count()));
+          const auto in = tiles.interior(t);
+          own_kept.clear();
+          spill->remark(t, [&](const double* p) {
+            ++copies;
+            const bool far_point = cells.holds(p);
+            const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, old_g.cols - 1);
+            const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, old_g.rows - 1);
+            if (row >= in[0] && row < in[1] && col >= in[2] && col < in[3]) {  // the point's own copy
+              if (far_point) {
+                ++far_owned;
+              } else {
+                ++kept;
+                x_min = std::min(x_min, p[0]);
+                x_max = std::max(x_max, p[0]);
+                y_min = std::min(y_min, p[1]);
+                y_max = std::max(y_max, p[1]);
+                if (cov) {
+                  own_kept.insert(own_kept.end(), p, p + 3);
+                  if (own_kept.size() >= (std::size_t{3} << 20)) {  // bounded: at most 2^20 points held
+                    cov->add(own_kept.data(), own_kept.size() / 3);
+                    own_kept.clear();
+                  }
+                }
+              }
+            }
+            return far_point ? kFarFlag : std::uint8_t{0};
+          });
+          if (cov) cov->add(own_kept.data(), own_kept.size() / 3);
+        }
+        bool same_layout = kept > 0;
+        if (same_layout) {
+          ro = config.grid.reproject;
+          const GridGeometry new_g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
+          same_layout = new_g.rows == old_g.rows && new_g.cols == old_g.cols && new_g.x0_m == old_g.x0_m &&
+                        new_g.y0_m == old_g.y0_m && new_g.cell_size_m == old_g.cell_size_m;
+          if (same_layout && cov) {
+            double coverage = 0.0;
+            same_layout = cov->factor(&coverage) == old_k;
+            r.report.figure("upsample_coverage", coverage);
+          }
+          ro.upsample_factor = old_k;
+        }
+        std::uint64_t spilled = kept;
+        if (same_layout) {
+          grid_points = kept;
+          far_points = far_owned;
+          r.report.figure("second_spill", 0.0);
+          r.report.figure("far_points_spilled_marked", static_cast<double>(far_points));
+          r.report.figure("points_spilled", static_cast<double>(copies));
+          r.report.figure("halo_copies_per_point", kept ? static_cast<double>(copies) / static_cast<double>(kept) : 0.0);
+          r.report.figure("spill_bytes_peak_mb", static_cast<double>(spill->bytes()) / 1e6);
+          r.report.notes.push_back("the grid's layout is unchanged without the far clusters: their points were re-marked in the spill files, not spilled again");
+        } else {
+          r.report.figure("second_spill", 1.0);
+          lay_out(&cells, r.report);
+          spilled = spill_pass(&cells, r.report);
+        }
         // The plan's and the spill's figures describe the new layout.
         for (StageReport& rp : reports) {
           for (auto& [name, v] : rp.figures) {
@@ -1170,11 +1287,13 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           }
           if (rp.stage == "tile_plan") {
             rp.count_out = grid_points;
-            rp.notes.push_back("rows, cols, tiles: after tile_far_clusters removed far clusters and laid the grid out again");
+            if (!same_layout) rp.notes.push_back("rows, cols, tiles: after tile_far_clusters removed far clusters and laid the grid out again");
           }
         }
-        r.report.notes.push_back("grid laid out and points spilled again without the far clusters: " + std::to_string(tiles.g.rows) +
-                                 " x " + std::to_string(tiles.g.cols) + " cells, " + std::to_string(tiles.count()) + " tiles");
+        if (!same_layout) {
+          r.report.notes.push_back("grid laid out and points spilled again without the far clusters: " + std::to_string(tiles.g.rows) +
+                                   " x " + std::to_string(tiles.g.cols) + " cells, " + std::to_string(tiles.count()) + " tiles");
+        }
         r.report.count_out = spilled;
         plan.far_points = far_points;
         if (before - spilled != fc.removed_points || far_points != fc.removed_points) {
