@@ -183,8 +183,9 @@ HapticSurface::NodeBuffer HapticSurface::allocate_nodes(std::size_t count, float
 }
 
 FrictionSample HapticSurface::friction_from_maps(double x_m, double y_m) const noexcept {
-  // The cell and weights as sample() finds them (multiplication by 1/cell, clamped to the
-  // padded grid, NaN to its first node), computed once for both layers.
+  // The cell and weights as sample() finds them (multiplication by 1/cell, each coordinate
+  // clamped to the padded grid, a NaN one to 0: the padding, which holds the default), computed
+  // once for both layers.
   double cu = (x_m - x0_m_) * inv_cell_;
   double cv = (y_m - y0_m_) * inv_cell_;
   if (!(cu >= 0.0 && cu <= max_u_)) cu = cu > max_u_ ? max_u_ : 0.0;

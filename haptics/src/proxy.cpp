@@ -252,8 +252,10 @@ SegmentHit walk_segment(const HapticSurface& surface, const Eigen::Vector3d& a,
   const double inv_cs = 1.0 / g.cell_size_m;
   const double ua = (a.x() - g.x0_m) * inv_cs;
   const double va = (a.y() - g.y0_m) * inv_cs;
-  const double du = (b.x() - a.x()) * inv_cs;
-  const double dv = (b.y() - a.y()) * inv_cs;
+  // A move below DBL_MIN cells is none: its reciprocal would be infinite, and 0·inf NaN.
+  const auto flush = [](double d) { return std::fabs(d) < std::numeric_limits<double>::min() ? 0.0 : d; };
+  const double du = flush((b.x() - a.x()) * inv_cs);
+  const double dv = flush((b.y() - a.y()) * inv_cs);
   const double dz = b.z() - a.z();
   const double max_u = static_cast<double>(g.cols - 1);
   const double max_v = static_cast<double>(g.rows - 1);

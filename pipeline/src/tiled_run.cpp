@@ -186,6 +186,7 @@ class Spill {
     const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
     if (n == 0) return;
     std::vector<char> raw(bytes_[t]);
+    errno = 0;
     std::FILE* f = std::fopen(file(t).c_str(), "r+b");
     bool ok = f && std::fread(raw.data(), 1, raw.size(), f) == raw.size();
     if (ok) {
@@ -197,9 +198,11 @@ class Spill {
       }
       ok = std::fseek(f, 0, SEEK_SET) == 0 && std::fwrite(raw.data(), 1, raw.size(), f) == raw.size();
     }
+    const int err = errno;
     const bool closed = f && std::fclose(f) == 0;
     if (!ok || !closed) {
-      throw InputError("scale.scratch: cannot rewrite the spill file " + file(t).string() + ": " + std::strerror(errno));
+      throw InputError("scale.scratch: cannot rewrite the " + std::to_string(raw.size()) + " bytes of the spill file " +
+                       file(t).string() + (err != 0 ? std::string(": ") + std::strerror(err) : std::string()) + " (is the disk full?)");
     }
   }
 
@@ -1257,7 +1260,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           if (same_layout && cov) {
             double coverage = 0.0;
             same_layout = cov->factor(&coverage) == old_k;
-            r.report.figure("upsample_coverage", coverage);
+            if (same_layout) r.report.figure("upsample_coverage", coverage);  // else lay_out reports it
           }
           ro.upsample_factor = old_k;
         }
@@ -1265,11 +1268,13 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         if (same_layout) {
           grid_points = kept;
           far_points = far_owned;
+          r.report.count_in = box.points;  // as spill_pass reports it
           r.report.figure("second_spill", 0.0);
           r.report.figure("far_points_spilled_marked", static_cast<double>(far_points));
           r.report.figure("points_spilled", static_cast<double>(copies));
           r.report.figure("halo_copies_per_point", kept ? static_cast<double>(copies) / static_cast<double>(kept) : 0.0);
           r.report.figure("spill_bytes_peak_mb", static_cast<double>(spill->bytes()) / 1e6);
+          r.report.notes.push_back("spill folder " + dir.string());
           r.report.notes.push_back("the grid's layout is unchanged without the far clusters: their points were re-marked in the spill files, not spilled again");
         } else {
           r.report.figure("second_spill", 1.0);

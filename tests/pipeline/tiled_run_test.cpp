@@ -334,31 +334,39 @@ TEST(TiledRun, AFarClusterBehindTheSurfaceIsReMarkedInTheSpillNotSpilledAgain) {
   std::vector<std::array<double, 3>> cluster;
   for (int i = 0; i < 30; ++i) cluster.push_back({0.5 + 0.002 * (i % 6), 0.5 + 0.002 * (i / 6), -2.0 + 0.001 * (i % 3)});
   write_patch_with(dir / "patch.ply", cluster);
-  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n";
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
-  const BuiltScene in = hc::pipeline::build_scene(config);
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.tile_cells = 32;
-  config.scale.scratch = dir;
-  const BuiltScene tiled = hc::pipeline::build_scene(config);
-  ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0);
-  EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "removed_far_clusters"), 30.0);
-  EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "second_spill"), 0.0) << "the box is unchanged: no second spill";
-  EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "far_points_spilled_marked"), 30.0);
-  // Marked far, the cluster never reaches a tile's filters (unmarked, each tile holding it would
-  // remove it again as a far cluster of its own, and the scene would not show the difference).
-  EXPECT_EQ(stage_figure(tiled, "tiles", "sum_removed_far_clusters"), 0.0);
-  EXPECT_EQ(stage_figure(in, "outliers", "removed_far_clusters"), 30.0) << "the in-core run removes the same";
-  EXPECT_EQ(tiled.scene.geometry, in.scene.geometry);
-  EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
-  EXPECT_EQ(differing_bits(in.scene.layers.texture, tiled.scene.layers.texture), 0U);
-  ASSERT_TRUE(tiled.summary.input_check && in.summary.input_check);
-  EXPECT_EQ(tiled.summary.input_check->points, 100U * 100U + 30U);
-  EXPECT_EQ(in.summary.input_check->far, 30U);
-  EXPECT_EQ(tiled.summary.input_check->far, in.summary.input_check->far);
-  EXPECT_EQ(tiled.summary.input_check->removed, in.summary.input_check->removed);
-  // The spill folder is gone after the run.
-  for (const auto& e : fs::directory_iterator(dir)) EXPECT_EQ(e.path().filename().string().rfind("hapticloud-tiles-", 0), std::string::npos) << e.path();
+  // With a fixed upsample factor (the default, off) and with `auto`, whose coverage is then
+  // taken from the re-marked spill.
+  for (const std::string upsample : {"off", "auto"}) {
+    SCOPED_TRACE("grid.upsample " + upsample);
+    const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0, upsample: " + upsample + "}\n";
+    RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+    const BuiltScene in = hc::pipeline::build_scene(config);
+    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+    config.scale.tile_cells = 32;
+    config.scale.scratch = dir;
+    const BuiltScene tiled = hc::pipeline::build_scene(config);
+    if (upsample == "auto") {
+      EXPECT_GT(stage_figure(tiled, "tile_far_clusters", "upsample_coverage"), 0.0);
+    }
+    ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0);
+    EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "removed_far_clusters"), 30.0);
+    EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "second_spill"), 0.0) << "the box is unchanged: no second spill";
+    EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "far_points_spilled_marked"), 30.0);
+    // Marked far, the cluster never reaches a tile's filters (unmarked, each tile holding it would
+    // remove it again as a far cluster of its own, and the scene would not show the difference).
+    EXPECT_EQ(stage_figure(tiled, "tiles", "sum_removed_far_clusters"), 0.0);
+    EXPECT_EQ(stage_figure(in, "outliers", "removed_far_clusters"), 30.0) << "the in-core run removes the same";
+    EXPECT_EQ(tiled.scene.geometry, in.scene.geometry);
+    EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
+    EXPECT_EQ(differing_bits(in.scene.layers.texture, tiled.scene.layers.texture), 0U);
+    ASSERT_TRUE(tiled.summary.input_check && in.summary.input_check);
+    EXPECT_EQ(tiled.summary.input_check->points, 100U * 100U + 30U);
+    EXPECT_EQ(in.summary.input_check->far, 30U);
+    EXPECT_EQ(tiled.summary.input_check->far, in.summary.input_check->far);
+    EXPECT_EQ(tiled.summary.input_check->removed, in.summary.input_check->removed);
+    // The spill folder is gone after the run.
+    for (const auto& e : fs::directory_iterator(dir)) EXPECT_EQ(e.path().filename().string().rfind("hapticloud-tiles-", 0), std::string::npos) << e.path();
+  }
 }
 
 // A generated wall of `points` points with colour and no outliers, written to `file`.
