@@ -39,6 +39,7 @@
 //   * Float in a local frame centred on the grid, so float keeps ~1e-7 relative precision even
 //     for coordinates far from the origin. nanoflann's squared distances never leave this file.
 
+#include "run_internal.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/cross_check.hpp"
 
@@ -235,6 +236,7 @@ struct Run {
   int split_row = 1;    ///< rows [0, split_row) belong to the lower half
   double y_split = 0;   ///< y of the boundary between the halves [m]
   BilinearSurface surface;
+  bool point_residuals = true;  ///< (a) too; false: (b) only (cross_check_cell_errors)
   Part parts[2];
   std::vector<std::uint32_t> key;    ///< cell of each point, kSkip if not finite
   std::vector<std::uint32_t> first;  ///< bucket k = sorted points [first[k], first[k+1])
@@ -350,6 +352,7 @@ void phase1_residuals_and_keys(Run& run, int h) {
     run.key[i] = k;
     ++out.count[k];
     ++out.finite;
+    if (!run.point_residuals) continue;
     const PointResidual pr = point_residual(run.surface, g, p[0], p[1], p[2], run.hidden_band_m);
     switch (pr.kind) {
       case PointResidual::kOutside: ++out.outside; break;
@@ -725,12 +728,15 @@ double supported_fraction(const Cloud& points_m, const HeightField& grid, double
   return static_cast<double>(supported) / static_cast<double>(valid);
 }
 
-StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& grid,
-                                    double tolerance_m, double hidden_band_m) {
+namespace {
+
+StageResult<CrossCheck> run_cross_check(const Cloud& points_m, const HeightField& grid, double tolerance_m,
+                                        double hidden_band_m, bool point_residuals) {
   const auto t0 = detail::Clock::now();
   check_arguments(points_m, grid, tolerance_m, hidden_band_m);
   StageResult<CrossCheck> result;
   Run run(points_m, grid, tolerance_m, hidden_band_m, result.value);
+  run.point_residuals = point_residuals;
   plan(run);
   on_both_halves(run, phase1_residuals_and_keys);  // (a), and each point's bucket
   bucket_offsets(run);
@@ -746,5 +752,21 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
   result.report.seconds = detail::seconds_since(t0);
   return result;
 }
+
+}  // namespace
+
+StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& grid,
+                                    double tolerance_m, double hidden_band_m) {
+  return run_cross_check(points_m, grid, tolerance_m, hidden_band_m, true);
+}
+
+namespace detail {
+
+StageResult<CrossCheck> cross_check_cell_errors(const Cloud& points_m, const HeightField& grid, double tolerance_m,
+                                                double hidden_band_m) {
+  return run_cross_check(points_m, grid, tolerance_m, hidden_band_m, false);
+}
+
+}  // namespace detail
 
 }  // namespace hc::pipeline

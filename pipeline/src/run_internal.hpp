@@ -5,6 +5,7 @@
 /// Private to the pipeline (not installed, not public API).
 
 #include "hc/pipeline/config.hpp"
+#include "hc/pipeline/cross_check.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/run.hpp"
@@ -17,6 +18,14 @@
 #include <vector>
 
 namespace hc::pipeline::detail {
+
+/// cross_check() without its point-to-surface part (a): the same cell-to-point search (b), so
+/// `cell_error_m`, `cell_to_point` and `supported_fraction` equal cross_check()'s bit for bit,
+/// while the point counts by kind are 0 and point_vertical / point_normal empty. For the tiled
+/// run, which measures (a) once over every tile's interior points and needs each window's cell
+/// errors only. Arguments and errors as cross_check() (cross_check.hpp).
+StageResult<CrossCheck> cross_check_cell_errors(const Cloud& points_m, const HeightField& grid, double tolerance_m,
+                                                double hidden_band_m);
 
 /// Resets the process's resident-memory high-water mark (Linux, proc(5): writing "5" to
 /// /proc/self/clear_refs resets VmHWM). @return false when it cannot.

@@ -122,6 +122,7 @@ class Spill {
   Spill(fs::path dir, std::string prefix, std::size_t tiles, Layout layout)
       : dir_(std::move(dir)), prefix_(std::move(prefix)), layout_(layout), buf_(tiles), bytes_(tiles, 0) {}
   fs::path file(std::size_t t) const { return dir_ / (prefix_ + std::to_string(t) + ".bin"); }
+  const fs::path& dir() const { return dir_; }
 
   // The files a plan or tile job wrote earlier (another process): each tile's size from disk
   // (0 when its file is missing).
@@ -349,6 +350,69 @@ struct Percentile {
 // Exact nearest-rank percentiles of a multiset of non-negative floats seen twice: pass 1 counts
 // the top 16 bits of each value's bit pattern (non-negative floats order as their bits), pass 2
 // the low 16 bits of the values in the bins holding the ranks.
+// The cross-check's on-surface residuals (vertical, normal; float pairs) of the first pass over
+// the kept points, in a scratch file, so that the second pass of the exact percentiles reads
+// 8 bytes a point instead of the kept points (25 or more) and computing every residual again.
+// The file is removed when the object goes, whatever happened.
+class ResidualFile {
+ public:
+  explicit ResidualFile(fs::path file) : file_(std::move(file)) {}
+  ResidualFile(const ResidualFile&) = delete;
+  ResidualFile& operator=(const ResidualFile&) = delete;
+  ~ResidualFile() {
+    if (f_) std::fclose(f_);
+    std::error_code ec;
+    fs::remove(file_, ec);
+  }
+  void put(float vertical_m, float normal_m) {
+    buf_.push_back(vertical_m);
+    buf_.push_back(normal_m);
+    if (buf_.size() >= kBuffer) flush();
+  }
+  // Ends writing; then each(f) calls f(vertical, normal) for every pair in order.
+  template <class F>
+  void each(F&& f) {
+    flush();
+    if (f_ && std::fclose(f_) != 0) fail("write");
+    f_ = nullptr;
+    if (written_ == 0) return;
+    f_ = std::fopen(file_.c_str(), "rb");
+    if (!f_) fail("read");
+    std::uint64_t left = written_;
+    while (left > 0) {
+      const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(left, kBuffer));
+      buf_.resize(n);
+      if (std::fread(buf_.data(), sizeof(float), n, f_) != n) fail("read");
+      for (std::size_t i = 0; i + 1 < n; i += 2) f(buf_[i], buf_[i + 1]);
+      left -= n;
+    }
+    buf_.clear();
+  }
+
+ private:
+  static constexpr std::size_t kBuffer = std::size_t{1} << 18;  // floats (even): 1 MiB
+  void flush() {
+    if (buf_.empty()) return;
+    if (!f_) {
+      errno = 0;
+      f_ = std::fopen(file_.c_str(), "wb");
+      if (!f_) fail("write");
+    }
+    if (std::fwrite(buf_.data(), sizeof(float), buf_.size(), f_) != buf_.size()) fail("write");
+    written_ += buf_.size();
+    buf_.clear();
+  }
+  [[noreturn]] void fail(const char* what) const {
+    const int err = errno;
+    throw InputError("scale.scratch: cannot " + std::string(what) + " the cross-check's residual file " + file_.string() +
+                     (err != 0 ? std::string(": ") + std::strerror(err) : std::string()) + " (is the disk full?)");
+  }
+  fs::path file_;
+  std::FILE* f_ = nullptr;
+  std::vector<float> buf_;
+  std::uint64_t written_ = 0;  // floats
+};
+
 class RadixPercentiles {
  public:
   void pass1(float v) {
@@ -1412,23 +1476,17 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           if (std::isfinite(f.best_m)) cc.cell_error_m.at(f.r, f.c) = static_cast<float>(f.best_m);
         }
       };
-      PassProgress tick(progress, "cross_check", "two passes over the tiles' kept points", config.scale.progress_interval_s);
-      for (int pass = 1; pass <= 2; ++pass) {
+      PassProgress tick(progress, "cross_check", "the tiles' kept points, then their residuals again", config.scale.progress_interval_s);
+      ResidualFile residuals(kept.dir() / "cross_check_residuals.bin");
+      {  // the first pass over the kept points
         for (std::size_t t = 0; t < tiles.count(); ++t) {
-          tick((pass - 1 + static_cast<double>(t) / static_cast<double>(tiles.count())) / 2.0);
+          tick(0.9 * static_cast<double>(t) / static_cast<double>(tiles.count()));
           const Cloud pts = kept.read(t, flag);
           for (std::size_t i = 0; i < pts.size(); ++i) {
             if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
             const double* p = pts.xyz.data() + 3 * i;
-            if (pass == 1 && keep_sample) sample_point(p);
+            if (keep_sample) sample_point(p);
             const PointResidual pr = point_residual(surface, tiles.g, p[0], p[1], p[2], cc.hidden_band_m);
-            if (pass == 2) {
-              if (pr.kind == PointResidual::kOnSurface) {
-                vertical.pass2(pr.vertical_m);
-                normal.pass2(pr.normal_m);
-              }
-              continue;
-            }
             switch (pr.kind) {
               case PointResidual::kOutside: ++cc.points_outside; break;
               case PointResidual::kOffSurface: ++cc.points_off_surface; break;
@@ -1437,10 +1495,11 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
                 ++cc.points_on_surface;
                 vertical.pass1(pr.vertical_m);
                 normal.pass1(pr.normal_m);
+                residuals.put(pr.vertical_m, pr.normal_m);
                 break;
             }
           }
-          if (pass == 1 && pts.size() == 0) {
+          if (pts.size() == 0) {
             // No kept point here (a tile of hole-filled cells): its valid cells are searched
             // over the other tiles.
             const auto in = tiles.interior(t);
@@ -1448,7 +1507,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
               for (int c = in[2]; c < in[3]; ++c)
                 if (!std::isnan(grid.depth.at(rr, c))) unverified.push_back({rr, c, std::numeric_limits<double>::infinity()});
           }
-          if (pass == 1 && pts.size() > 0) {
+          if (pts.size() > 0) {
             // (b): the window's valid samples against the tile's kept points (halo included).
             const GridWindow w = tiles.window(t);
             const auto in = tiles.interior(t);
@@ -1461,7 +1520,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
                 valid += std::isnan(crop.at(rr, c)) ? 0U : 1U;
               }
             if (valid == 0 || w.rows < 2 || w.cols < 2) continue;
-            const CrossCheck part = cross_check(pts, crop, cc.tolerance_m, cc.hidden_band_m).value;
+            const CrossCheck part = detail::cross_check_cell_errors(pts, crop, cc.tolerance_m, cc.hidden_band_m).value;
             // A point outside the window has its node outside it: at least (index distance −
             // 1/2) cells from the query in x-y. A distance beyond that margin is re-searched
             // over every tile's points below.
@@ -1483,13 +1542,17 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
             }
           }
         }
-        if (pass == 1) {
-          sampled = keep_sample;
-          vertical.prepare();
-          normal.prepare();
-          research(unverified);
-        }
+        sampled = keep_sample;
+        vertical.prepare();
+        normal.prepare();
+        research(unverified);
       }
+      tick(0.9);
+      // The second pass of the exact percentiles, over the first pass's residuals.
+      residuals.each([&](float v, float nrm) {
+        vertical.pass2(v);
+        normal.pass2(nrm);
+      });
       cc.point_vertical = vertical.stats();
       cc.point_normal = normal.stats();
       std::vector<float> cells;
