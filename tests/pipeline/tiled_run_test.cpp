@@ -488,7 +488,7 @@ TEST(TiledRun, LongStagesReportTheirProgressPassByPass) {
   // 50 000 points in chunks of 4096: 13 chunks per pass; a 200 x 101 grid in 32-cell tiles: 7 x 4.
   for (const char* pass : {"tile_plan: pass 1 of 3: the file's box", "tile_plan: pass 2 of 3: the grid's box",
                            "tile_plan: pass 2b of 3: the upsample coverage", "tile_spill: pass 3 of 3: the spill",
-                           "tiles: the tile loop", "cross_check: two passes over the tiles' kept points"}) {
+                           "tiles: the tile loop", "cross_check: the tiles' kept points, then their residuals again"}) {
     const auto it = by_pass.find(pass);
     ASSERT_NE(it, by_pass.end()) << pass;
     const std::vector<double>& f = it->second;
