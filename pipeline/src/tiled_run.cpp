@@ -178,8 +178,9 @@ class Spill {
     return s;
   }
 
-  // Rewrites the flag byte of every record of tile t's file in place (flush first):
-  // flag = mark(point's x y z); the records and their order stay. Used when a second spill would
+  // Re-marks tile t's records in place (flush first): each record's flag byte becomes
+  // mark(point's x y z); the records and their order stay. Only the bytes that change are
+  // written (a far point, a sample mark dropped), not the file. Used when a second spill would
   // write the same records in the same order with other flags (tile_far_clusters).
   template <class Mark>
   void remark(std::size_t t, Mark&& mark) const {
@@ -188,21 +189,25 @@ class Spill {
     if (n == 0) return;
     std::vector<char> raw(bytes_[t]);
     errno = 0;
-    std::FILE* f = std::fopen(file(t).c_str(), "r+b");
-    bool ok = f && std::fread(raw.data(), 1, raw.size(), f) == raw.size();
-    if (ok) {
-      double p[3];
-      for (std::size_t i = 0; i < n; ++i) {
-        char* q = raw.data() + i * rec;
-        std::memcpy(p, q + 1, 24);
-        q[0] = static_cast<char>(mark(static_cast<const double*>(p)));
-      }
-      ok = std::fseek(f, 0, SEEK_SET) == 0 && std::fwrite(raw.data(), 1, raw.size(), f) == raw.size();
+    const int fd = ::open(file(t).c_str(), O_RDWR | O_CLOEXEC);
+    std::size_t got = 0;
+    while (fd >= 0 && got < raw.size()) {
+      const ssize_t r = ::pread(fd, raw.data() + got, raw.size() - got, static_cast<off_t>(got));
+      if (r <= 0) break;
+      got += static_cast<std::size_t>(r);
+    }
+    bool ok = fd >= 0 && got == raw.size();
+    double p[3];
+    for (std::size_t i = 0; ok && i < n; ++i) {
+      const char* q = raw.data() + i * rec;
+      std::memcpy(p, q + 1, 24);
+      const char flag = static_cast<char>(mark(static_cast<const double*>(p)));
+      if (flag != q[0]) ok = ::pwrite(fd, &flag, 1, static_cast<off_t>(i * rec)) == 1;
     }
     const int err = errno;
-    const bool closed = f && std::fclose(f) == 0;
+    const bool closed = fd >= 0 && ::close(fd) == 0;
     if (!ok || !closed) {
-      throw InputError("scale.scratch: cannot rewrite the " + std::to_string(raw.size()) + " bytes of the spill file " +
+      throw InputError("scale.scratch: cannot re-mark the " + std::to_string(raw.size()) + " bytes of the spill file " +
                        file(t).string() + (err != 0 ? std::string(": ") + std::strerror(err) : std::string()) + " (is the disk full?)");
     }
   }
