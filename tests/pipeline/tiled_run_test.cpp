@@ -272,6 +272,22 @@ void write_patch_with(const fs::path& file, const std::vector<std::array<double,
   for (const auto& p : extra) out << p[0] << " " << p[1] << " " << p[2] << "\n";
 }
 
+// One config (YAML, files relative to dir) run in core and then tiled in tiles of `tile_cells`
+// with the spill under dir; `config` is left in its tiled form.
+struct InCoreAndTiled {
+  RunConfig config;
+  BuiltScene in, tiled;
+};
+InCoreAndTiled in_core_and_tiled(const fs::path& dir, const std::string& yaml, int tile_cells) {
+  InCoreAndTiled r{hc::pipeline::parse_run_config(yaml, dir / "patch.yaml"), {}, {}};
+  r.in = hc::pipeline::build_scene(r.config);
+  r.config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  r.config.scale.tile_cells = tile_cells;
+  r.config.scale.scratch = dir;
+  r.tiled = hc::pipeline::build_scene(r.config);
+  return r;
+}
+
 // Three stray returns alone in a corner tile: too few points for the k-NN tests there. The run
 // keeps them, counts them and goes on (it used to stop with "needs at least k + 2 points").
 TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
@@ -300,13 +316,8 @@ TEST(TiledRun, AFarClusterInTilesOfItsOwnIsRemovedBeforeTheGridIsLaidOut) {
   std::vector<std::array<double, 3>> cluster;
   for (int i = 0; i < 30; ++i) cluster.push_back({3.0 + 0.002 * (i % 6), 3.0 + 0.002 * (i / 6), 0.001 * (i % 3)});
   write_patch_with(dir / "patch.ply", cluster);
-  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n";
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
-  const BuiltScene in = hc::pipeline::build_scene(config);
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.tile_cells = 32;
-  config.scale.scratch = dir;
-  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  auto [config, in, tiled] =
+      in_core_and_tiled(dir, "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n", 32);
   EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "removed_far_clusters"), 30.0);
   EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "far_clusters"), 1.0);
   EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "second_spill"), 1.0) << "the cluster spans the box: a new layout";
@@ -338,13 +349,8 @@ TEST(TiledRun, AFarClusterBehindTheSurfaceIsReMarkedInTheSpillNotSpilledAgain) {
   // taken from the re-marked spill.
   for (const std::string upsample : {"off", "auto"}) {
     SCOPED_TRACE("grid.upsample " + upsample);
-    const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0, upsample: " + upsample + "}\n";
-    RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
-    const BuiltScene in = hc::pipeline::build_scene(config);
-    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-    config.scale.tile_cells = 32;
-    config.scale.scratch = dir;
-    const BuiltScene tiled = hc::pipeline::build_scene(config);
+    const auto [config, in, tiled] = in_core_and_tiled(
+        dir, "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0, upsample: " + upsample + "}\n", 32);
     if (upsample == "auto") {
       EXPECT_GT(stage_figure(tiled, "tile_far_clusters", "upsample_coverage"), 0.0);
     }
