@@ -984,25 +984,51 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   // and 2b), leaving out those `far` holds (far clusters, when found: the grid is then made
   // again without them, as the in-core run grids after removing them).
   double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
+  bool grid_box_from_file = false;  // the last lay_out took the grid's box from the file box
   auto lay_out = [&](const FarCells* far, StageReport& rep) {
     const char* stage_name = far ? "tile_far_clusters" : "tile_plan";
     ro = config.grid.reproject;
     // The grid frame's x-y box, as reproject's pass over the points takes it.
     double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min, y_min = x_min, y_max = -x_min;
     std::size_t kept = 0;
-    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
-                        "pass 2 of 3: the grid's box", [&](const Cloud& g) {
-                          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
-                            if (far && far->holds(g.xyz.data() + 3 * i)) continue;
-                            x_min = std::min(x_min, g.xyz(0, i));
-                            x_max = std::max(x_max, g.xyz(0, i));
-                            y_min = std::min(y_min, g.xyz(1, i));
-                            y_max = std::max(y_max, g.xyz(1, i));
-                            z_min = std::min(z_min, g.xyz(2, i));
-                            z_max = std::max(z_max, g.xyz(2, i));
-                            ++kept;
-                          }
-                        });
+    // Without a view turn or a crop, the grid frame is the file's, recentred and scaled per axis:
+    // (v − centre)·unit rounds monotonically, so the box of the points in the grid frame is the
+    // file box's corners taken through the same arithmetic as to_grid_frame, bit for bit, and
+    // the pass over the input is not needed. (The file box holds the finite points, the ones
+    // remove_non_finite keeps; max_extent_m rules out an overflow to infinity.)
+    const Eigen::Affine3d view_m = config.view.matrix();
+    const bool file_frame = !far && !config.filters.crop_m && view_m.linear() == Eigen::Matrix3d::Identity() &&
+                            view_m.translation() == Eigen::Vector3d::Zero();
+    if (file_frame) {
+      const auto to_grid = [&](double v, int a) {
+        double w = v - centre[a];
+        if (unit_m != 1.0) w *= unit_m;
+        return w;
+      };
+      x_min = to_grid(box.lo.x(), 0);
+      x_max = to_grid(box.hi.x(), 0);
+      y_min = to_grid(box.lo.y(), 1);
+      y_max = to_grid(box.hi.y(), 1);
+      z_min = std::min(z_min, to_grid(box.lo.z(), 2));
+      z_max = std::max(z_max, to_grid(box.hi.z(), 2));
+      kept = box.finite;
+    }
+    grid_box_from_file = file_frame;
+    if (!file_frame) {
+      for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
+                          "pass 2 of 3: the grid's box", [&](const Cloud& g) {
+                            for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
+                              if (far && far->holds(g.xyz.data() + 3 * i)) continue;
+                              x_min = std::min(x_min, g.xyz(0, i));
+                              x_max = std::max(x_max, g.xyz(0, i));
+                              y_min = std::min(y_min, g.xyz(1, i));
+                              y_max = std::max(y_max, g.xyz(1, i));
+                              z_min = std::min(z_min, g.xyz(2, i));
+                              z_max = std::max(z_max, g.xyz(2, i));
+                              ++kept;
+                            }
+                          });
+    }
     grid_points = kept;
     tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
     double coverage = 0.0;
@@ -1092,9 +1118,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     r.report.figure("tile_cells", tiles.size);
     r.report.figure("halo_cells", tiles.halo);
     r.report.notes = read_notes;
-    r.report.notes.push_back("passes over the input: the file box, the grid box" +
-                             std::string(config.grid.reproject.upsample_factor == 0 ? ", the upsample coverage" : "") +
-                             ", then the spill");
+    r.report.notes.push_back(std::string("passes over the input: the file box, ") +
+                             (grid_box_from_file ? "" : "the grid box, ") +
+                             (config.grid.reproject.upsample_factor == 0 ? "the upsample coverage, " : "") + "then the spill" +
+                             (grid_box_from_file ? " (the grid's box is the file box's, recentred: no view turn, no crop)" : ""));
     return r;
   });
 

@@ -460,6 +460,9 @@ TEST(TiledRun, EqualsTheInCoreRunOnARealE57ScanStreamedScanByScan) {
   fs::copy_file(hc::test::scan_path("scanner_samples/e57/libe57-bunnyDouble.e57"), dir / "bunny.e57");
   const std::string yaml =
       "input: {files: [bunny.e57], units: m}\n"
+      // Turned, so that the grid's box comes from its own pass over the points (the other
+      // equality tests take it from the file box).
+      "view: {rotation: {axis: [1, 0, 0], angle_deg: 20}}\n"
       "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 0.002, hole_fill_max_cells: 64}\n"
       "cross_check: {tolerance_m: 0.001}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 3000}\n";
   (void)expect_streamed_tiled_run(dir, yaml, 48, "data3D scans read one at a time", 10000);
@@ -475,6 +478,9 @@ TEST(TiledRun, LongStagesReportTheirProgressPassByPass) {
   hc::tools::write_relief(spec, dir / "wall.ply");
   const std::string yaml =
       "input: {files: [wall.ply], units: m}\ngrid: {n: 200, upsample: auto}\n"
+      // A turned view: the grid's box then needs its own pass over the input (without a turn or
+      // a crop it is the file box's, and that pass is left out).
+      "view: {rotation: {axis: [0, 0, 1], angle_deg: 30}}\n"
       "scale: {tiled: 'on', chunk_points: 4096, tile_cells: 32, progress_interval_s: 0}\n";
   const RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml");
   std::map<std::string, std::vector<double>> by_pass;
