@@ -991,14 +991,17 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     // The grid frame's x-y box, as reproject's pass over the points takes it.
     double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min, y_min = x_min, y_max = -x_min;
     std::size_t kept = 0;
-    // Without a view turn or a crop, the grid frame is the file's, recentred and scaled per axis:
+    // With the identity view transform (no turn, no translation, scale 1; apply_view_transform's
+    // own test) and no crop, the grid frame is the file's, recentred and scaled per axis:
     // (v − centre)·unit rounds monotonically, so the box of the points in the grid frame is the
     // file box's corners taken through the same arithmetic as to_grid_frame, bit for bit, and
-    // the pass over the input is not needed. (The file box holds the finite points, the ones
-    // remove_non_finite keeps; max_extent_m rules out an overflow to infinity.)
+    // the pass over the input is not needed. The file box holds the finite points, the ones
+    // remove_non_finite keeps: with a finite centre, input.max_extent_m (at most 1e9 m) keeps
+    // every such point finite in the grid frame. (An infinite centre, from coordinates near the
+    // double range, takes the pass, which finds no finite point and says so.)
     const Eigen::Affine3d view_m = config.view.matrix();
-    const bool file_frame = !far && !config.filters.crop_m && view_m.linear() == Eigen::Matrix3d::Identity() &&
-                            view_m.translation() == Eigen::Vector3d::Zero();
+    const bool file_frame = !far && !config.filters.crop_m && centre.allFinite() &&
+                            view_m.linear() == Eigen::Matrix3d::Identity() && view_m.translation() == Eigen::Vector3d::Zero();
     if (file_frame) {
       const auto to_grid = [&](double v, int a) {
         double w = v - centre[a];
@@ -1121,7 +1124,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     r.report.notes.push_back(std::string("passes over the input: the file box, ") +
                              (grid_box_from_file ? "" : "the grid box, ") +
                              (config.grid.reproject.upsample_factor == 0 ? "the upsample coverage, " : "") + "then the spill" +
-                             (grid_box_from_file ? " (the grid's box is the file box's, recentred: no view turn, no crop)" : ""));
+                             (grid_box_from_file ? " (the grid's box is the file box's, recentred: identity view, no crop)" : ""));
     return r;
   });
 

@@ -25,6 +25,7 @@
 #include <cmath>
 #include <cstring>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <vector>
 #include <string>
@@ -344,6 +345,11 @@ TEST(TiledRun, AFarClusterBehindTheSurfaceIsReMarkedInTheSpillNotSpilledAgain) {
   const fs::path dir = hc::test::temp_dir("far_behind");
   std::vector<std::array<double, 3>> cluster;
   for (int i = 0; i < 30; ++i) cluster.push_back({0.5 + 0.002 * (i % 6), 0.5 + 0.002 * (i / 6), -2.0 + 0.001 * (i % 3)});
+  // And two returns without a position (NaN), which the plan's file box leaves out: the grid's
+  // box is taken from that box here (identity view, no crop), so its point count must be the
+  // in-core run's.
+  cluster.push_back({std::numeric_limits<double>::quiet_NaN(), 0.5, 0.0});
+  cluster.push_back({0.5, 0.5, std::numeric_limits<double>::quiet_NaN()});
   write_patch_with(dir / "patch.ply", cluster);
   // With a fixed upsample factor (the default, off) and with `auto`, whose coverage is then
   // taken from the re-marked spill.
@@ -355,6 +361,10 @@ TEST(TiledRun, AFarClusterBehindTheSurfaceIsReMarkedInTheSpillNotSpilledAgain) {
       EXPECT_GT(stage_figure(tiled, "tile_far_clusters", "upsample_coverage"), 0.0);
     }
     ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0);
+    bool box_from_file = false;
+    for (const auto& st : tiled.summary.stages)
+      for (const std::string& n : st.notes) box_from_file = box_from_file || n.find("the grid's box is the file box's") != std::string::npos;
+    EXPECT_TRUE(box_from_file) << "identity view, no crop: the grid's box without a pass of its own";
     EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "removed_far_clusters"), 30.0);
     EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "second_spill"), 0.0) << "the box is unchanged: no second spill";
     EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "far_points_spilled_marked"), 30.0);
@@ -366,7 +376,17 @@ TEST(TiledRun, AFarClusterBehindTheSurfaceIsReMarkedInTheSpillNotSpilledAgain) {
     EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
     EXPECT_EQ(differing_bits(in.scene.layers.texture, tiled.scene.layers.texture), 0U);
     ASSERT_TRUE(tiled.summary.input_check && in.summary.input_check);
-    EXPECT_EQ(tiled.summary.input_check->points, 100U * 100U + 30U);
+    EXPECT_EQ(tiled.summary.input_check->points, in.summary.input_check->points);
+    // The points the plan counts (from the file box) are those the in-core run keeps after
+    // dropping the non-finite ones, 100 × 100 + 30; the plan's count is reported after the far
+    // clusters' 30 went.
+    const auto count_out = [](const BuiltScene& b, const char* stage) {
+      for (const auto& st : b.summary.stages)
+        if (st.stage == stage) return static_cast<double>(st.count_out);
+      return -1.0;
+    };
+    EXPECT_EQ(count_out(in, "non_finite"), 100.0 * 100.0 + 30.0);
+    EXPECT_EQ(count_out(tiled, "tile_plan"), count_out(in, "non_finite") - 30.0);
     EXPECT_EQ(in.summary.input_check->far, 30U);
     EXPECT_EQ(tiled.summary.input_check->far, in.summary.input_check->far);
     EXPECT_EQ(tiled.summary.input_check->removed, in.summary.input_check->removed);
