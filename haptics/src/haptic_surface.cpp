@@ -183,20 +183,11 @@ HapticSurface::NodeBuffer HapticSurface::allocate_nodes(std::size_t count, float
 }
 
 FrictionSample HapticSurface::friction_from_maps(double x_m, double y_m) const noexcept {
-  // The cell and weights as sample() finds them (multiplication by 1/cell, each coordinate
-  // clamped to the padded grid, a NaN one to 0: the padding, which holds the default), computed
-  // once for both layers.
-  double cu = (x_m - x0_m_) * inv_cell_;
-  double cv = (y_m - y0_m_) * inv_cell_;
-  if (!(cu >= 0.0 && cu <= max_u_)) cu = cu > max_u_ ? max_u_ : 0.0;
-  if (!(cv >= 0.0 && cv <= max_v_)) cv = cv > max_v_ ? max_v_ : 0.0;
-  const int i = std::min(static_cast<int>(cu), last_i_);
-  const int j = std::min(static_cast<int>(cv), last_j_);
-  const double u = cu - i;
-  const double v = cv - j;
-  const std::ptrdiff_t k = static_cast<std::ptrdiff_t>(j) * stride_ + i;
+  // The cell as sample() finds it, once for both layers.
+  const CellAt c = locate(x_m, y_m);
+  const double u = c.u, v = c.v;
   const auto at = [&](const float* layer) {
-    const float* r0 = layer + k;
+    const float* r0 = layer + c.offset;
     return (1 - u) * (1 - v) * r0[0] + u * (1 - v) * r0[1] + (1 - u) * v * r0[stride_] + u * v * r0[stride_ + 1];
   };
   FrictionSample f{options_.default_mu_d, options_.default_mu_s};

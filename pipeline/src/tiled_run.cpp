@@ -305,19 +305,29 @@ std::array<int, 4> tiles_of(const Tiles& t, int r, int c) {
           std::max(0, floor_div(c - t.halo, t.size)), std::min(t.tiles_c - 1, floor_div(c + t.halo, t.size))};
 }
 
-// owned[i] = 1 when point i's grid node (binned as reproject bins it, clamped to the grid) lies in
-// tile t's interior: the tile that counts the point (its other copies are halo).
+// A point's grid node as reproject bins it (nearest node, clamped to the grid): what decides
+// the tiles a point is spilled to, and which of them owns it.
+struct NodeBinner {
+  explicit NodeBinner(const GridGeometry& g)
+      : inv(1.0 / g.cell_size_m), cx(0.5 - g.x0_m * inv), cy(0.5 - g.y0_m * inv), rows(g.rows), cols(g.cols) {}
+  int row(const double* p) const { return std::clamp(static_cast<int>(p[1] * inv + cy), 0, rows - 1); }
+  int col(const double* p) const { return std::clamp(static_cast<int>(p[0] * inv + cx), 0, cols - 1); }
+  // Whether p's node lies in `in` = Tiles::interior(t): tile t owns the point.
+  bool inside(const double* p, const std::array<int, 4>& in) const {
+    const int r = row(p), c = col(p);
+    return r >= in[0] && r < in[1] && c >= in[2] && c < in[3];
+  }
+  double inv, cx, cy;
+  int rows, cols;
+};
+
+// owned[i] = 1 when point i's grid node lies in tile t's interior: the tile that counts the
+// point (its other copies are halo).
 void owned_by(const Tiles& tiles, std::size_t t, const Cloud& pts, std::vector<std::uint8_t>& owned) {
   const auto in = tiles.interior(t);
-  const double inv = 1.0 / tiles.g.cell_size_m;
-  const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+  const NodeBinner node(tiles.g);
   owned.assign(pts.size(), 0);
-  for (std::size_t i = 0; i < pts.size(); ++i) {
-    const double* p = pts.xyz.data() + 3 * i;
-    const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
-    const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
-    owned[i] = row >= in[0] && row < in[1] && col >= in[2] && col < in[3] ? 1 : 0;
-  }
+  for (std::size_t i = 0; i < pts.size(); ++i) owned[i] = node.inside(pts.xyz.data() + 3 * i, in) ? 1 : 0;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -352,9 +362,6 @@ struct Percentile {
   float value = 0.0f;
 };
 
-// Exact nearest-rank percentiles of a multiset of non-negative floats seen twice: pass 1 counts
-// the top 16 bits of each value's bit pattern (non-negative floats order as their bits), pass 2
-// the low 16 bits of the values in the bins holding the ranks.
 // The cross-check's on-surface residuals (vertical, normal; float pairs) of the first pass over
 // the kept points, in a scratch file, so that the second pass of the exact percentiles reads
 // 8 bytes a point instead of the kept points (25 or more) and computing every residual again.
@@ -418,6 +425,9 @@ class ResidualFile {
   std::uint64_t written_ = 0;  // floats
 };
 
+// Exact nearest-rank percentiles of a multiset of non-negative floats seen twice: pass 1 counts
+// the top 16 bits of each value's bit pattern (non-negative floats order as their bits), pass 2
+// the low 16 bits of the values in the bins holding the ranks.
 class RadixPercentiles {
  public:
   void pass1(float v) {
@@ -718,13 +728,10 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
   }
   // The kept points, each marked interior (1) or halo (0); the levels sample from the interior.
-  const double inv = 1.0 / tiles.g.cell_size_m;
-  const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+  const NodeBinner node(tiles.g);
   for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) {
     const double* p = pts.xyz.data() + 3 * i;
-    const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
-    const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
-    const bool interior = row >= inner[0] && row < inner[1] && col >= inner[2] && col < inner[3];
+    const bool interior = node.inside(p, inner);
     o.out += interior ? 1U : 0U;
     kept.add(t, interior ? std::uint8_t{1} : std::uint8_t{0}, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
              pts.has_intensity() ? pts.intensity[static_cast<std::size_t>(i)] : 0.0f);
@@ -991,17 +998,15 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     // The grid frame's x-y box, as reproject's pass over the points takes it.
     double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min, y_min = x_min, y_max = -x_min;
     std::size_t kept = 0;
-    // With the identity view transform (no turn, no translation, scale 1; apply_view_transform's
-    // own test) and no crop, the grid frame is the file's, recentred and scaled per axis:
+    // With the identity view transform (ViewTransform::is_identity, which apply_view_transform
+    // skips) and no crop, the grid frame is the file's, recentred and scaled per axis:
     // (v − centre)·unit rounds monotonically, so the box of the points in the grid frame is the
     // file box's corners taken through the same arithmetic as to_grid_frame, bit for bit, and
     // the pass over the input is not needed. The file box holds the finite points, the ones
     // remove_non_finite keeps: with a finite centre, input.max_extent_m (at most 1e9 m) keeps
     // every such point finite in the grid frame. (An infinite centre, from coordinates near the
     // double range, takes the pass, which finds no finite point and says so.)
-    const Eigen::Affine3d view_m = config.view.matrix();
-    const bool file_frame = !far && !config.filters.crop_m && centre.allFinite() &&
-                            view_m.linear() == Eigen::Matrix3d::Identity() && view_m.translation() == Eigen::Vector3d::Zero();
+    const bool file_frame = !far && !config.filters.crop_m && centre.allFinite() && config.view.is_identity();
     if (file_frame) {
       const auto to_grid = [&](double v, int a) {
         double w = v - centre[a];
@@ -1167,8 +1172,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     spill_tiles = tiles.count();
     std::uint64_t spilled = 0, copies = 0;
     std::size_t next_sample = 0;
-    const double inv = 1.0 / tiles.g.cell_size_m;
-    const double cx = 0.5 - tiles.g.x0_m * inv, cy = 0.5 - tiles.g.y0_m * inv;
+    const NodeBinner node(tiles.g);
     std::uint64_t seen = 0;
     for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, far ? "tile_far_clusters" : "tile_spill",
                         "pass 3 of 3: the spill", [&](const Cloud& g) {
@@ -1177,9 +1181,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         const bool far_point = far && far->holds(p);
         far_points += far_point ? 1U : 0U;
         spilled += far_point ? 0U : 1U;
-        // The node as reproject bins it (clamped to the grid).
-        const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, tiles.g.cols - 1);
-        const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, tiles.g.rows - 1);
+        const int row = node.row(p), col = node.col(p);
         const auto [tr0, tr1, tc0, tc1] = tiles_of(tiles, row, col);
         const std::uint8_t* rgb = g.has_rgb() ? g.rgb.data() + 3 * i : nullptr;
         const float inten = g.has_intensity() ? g.intensity[static_cast<std::size_t>(i)] : 0.0f;
@@ -1316,8 +1318,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         std::optional<UpsampleCoverage> cov;
         if (config.grid.reproject.upsample_factor == 0) cov.emplace(old_g);
         std::vector<double> own_kept;  // a tile's kept points, for the coverage in one batch
-        const double inv = 1.0 / old_g.cell_size_m;
-        const double cx = 0.5 - old_g.x0_m * inv, cy = 0.5 - old_g.y0_m * inv;
+        const NodeBinner node(old_g);
         PassProgress tick2(progress, "tile_far_clusters", "far points re-marked in the spill, tile by tile", config.scale.progress_interval_s);
         for (std::size_t t = 0; t < tiles.count(); ++t) {
           tick2(static_cast<double>(t) / static_cast<double>(tiles.count()));
@@ -1326,9 +1327,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           spill->remark(t, [&](const double* p) {
             ++copies;
             const bool far_point = cells.holds(p);
-            const int col = std::clamp(static_cast<int>(p[0] * inv + cx), 0, old_g.cols - 1);
-            const int row = std::clamp(static_cast<int>(p[1] * inv + cy), 0, old_g.rows - 1);
-            if (row >= in[0] && row < in[1] && col >= in[2] && col < in[3]) {  // the point's own copy
+            if (node.inside(p, in)) {  // the point's own copy
               if (far_point) {
                 ++far_owned;
               } else {
@@ -1513,75 +1512,74 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       };
       PassProgress tick(progress, "cross_check", "the tiles' kept points, then their residuals again", config.scale.progress_interval_s);
       ResidualFile residuals(kept.dir() / "cross_check_residuals.bin");
-      {  // the first pass over the kept points
-        for (std::size_t t = 0; t < tiles.count(); ++t) {
-          tick(0.9 * static_cast<double>(t) / static_cast<double>(tiles.count()));
-          const Cloud pts = kept.read(t, flag);
-          for (std::size_t i = 0; i < pts.size(); ++i) {
-            if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
-            const double* p = pts.xyz.data() + 3 * i;
-            if (keep_sample) sample_point(p);
-            const PointResidual pr = point_residual(surface, tiles.g, p[0], p[1], p[2], cc.hidden_band_m);
-            switch (pr.kind) {
-              case PointResidual::kOutside: ++cc.points_outside; break;
-              case PointResidual::kOffSurface: ++cc.points_off_surface; break;
-              case PointResidual::kHidden: ++cc.points_hidden; break;
-              case PointResidual::kOnSurface:
-                ++cc.points_on_surface;
-                vertical.pass1(pr.vertical_m);
-                normal.pass1(pr.normal_m);
-                residuals.put(pr.vertical_m, pr.normal_m);
-                break;
+      // The first pass over the kept points.
+      for (std::size_t t = 0; t < tiles.count(); ++t) {
+        tick(0.9 * static_cast<double>(t) / static_cast<double>(tiles.count()));
+        const Cloud pts = kept.read(t, flag);
+        for (std::size_t i = 0; i < pts.size(); ++i) {
+          if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
+          const double* p = pts.xyz.data() + 3 * i;
+          if (keep_sample) sample_point(p);
+          const PointResidual pr = point_residual(surface, tiles.g, p[0], p[1], p[2], cc.hidden_band_m);
+          switch (pr.kind) {
+            case PointResidual::kOutside: ++cc.points_outside; break;
+            case PointResidual::kOffSurface: ++cc.points_off_surface; break;
+            case PointResidual::kHidden: ++cc.points_hidden; break;
+            case PointResidual::kOnSurface:
+              ++cc.points_on_surface;
+              vertical.pass1(pr.vertical_m);
+              normal.pass1(pr.normal_m);
+              residuals.put(pr.vertical_m, pr.normal_m);
+              break;
+          }
+        }
+        if (pts.size() == 0) {
+          // No kept point here (a tile of hole-filled cells): its valid cells are searched
+          // over the other tiles.
+          const auto in = tiles.interior(t);
+          for (int rr = in[0]; rr < in[1]; ++rr)
+            for (int c = in[2]; c < in[3]; ++c)
+              if (!std::isnan(grid.depth.at(rr, c))) unverified.push_back({rr, c, std::numeric_limits<double>::infinity()});
+        }
+        if (pts.size() > 0) {
+          // (b): the window's valid samples against the tile's kept points (halo included).
+          const GridWindow w = tiles.window(t);
+          const auto in = tiles.interior(t);
+          const GridGeometry wg = tiles.part(w.row0, w.col0, w.rows, w.cols);
+          HeightField crop(wg);
+          std::size_t valid = 0;
+          for (int rr = 0; rr < w.rows; ++rr)
+            for (int c = 0; c < w.cols; ++c) {
+              crop.at(rr, c) = grid.depth.at(w.row0 + rr, w.col0 + c);
+              valid += std::isnan(crop.at(rr, c)) ? 0U : 1U;
             }
-          }
-          if (pts.size() == 0) {
-            // No kept point here (a tile of hole-filled cells): its valid cells are searched
-            // over the other tiles.
-            const auto in = tiles.interior(t);
-            for (int rr = in[0]; rr < in[1]; ++rr)
-              for (int c = in[2]; c < in[3]; ++c)
-                if (!std::isnan(grid.depth.at(rr, c))) unverified.push_back({rr, c, std::numeric_limits<double>::infinity()});
-          }
-          if (pts.size() > 0) {
-            // (b): the window's valid samples against the tile's kept points (halo included).
-            const GridWindow w = tiles.window(t);
-            const auto in = tiles.interior(t);
-            const GridGeometry wg = tiles.part(w.row0, w.col0, w.rows, w.cols);
-            HeightField crop(wg);
-            std::size_t valid = 0;
-            for (int rr = 0; rr < w.rows; ++rr)
-              for (int c = 0; c < w.cols; ++c) {
-                crop.at(rr, c) = grid.depth.at(w.row0 + rr, w.col0 + c);
-                valid += std::isnan(crop.at(rr, c)) ? 0U : 1U;
-              }
-            if (valid == 0 || w.rows < 2 || w.cols < 2) continue;
-            const CrossCheck part = detail::cross_check_cell_errors(pts, crop, cc.tolerance_m, cc.hidden_band_m).value;
-            // A point outside the window has its node outside it: at least (index distance −
-            // 1/2) cells from the query in x-y. A distance beyond that margin is re-searched
-            // over every tile's points below.
-            const double cell = tiles.g.cell_size_m;
-            for (int rr = in[0]; rr < in[1]; ++rr) {
-              for (int c = in[2]; c < in[3]; ++c) {
-                const float d = part.cell_error_m.at(rr - w.row0, c - w.col0);
-                cc.cell_error_m.at(rr, c) = d;
-                if (std::isnan(d)) continue;
-                int edge = std::numeric_limits<int>::max();
-                if (w.row0 > 0) edge = std::min(edge, rr - w.row0 + 1);
-                if (w.col0 > 0) edge = std::min(edge, c - w.col0 + 1);
-                if (w.row0 + w.rows < tiles.g.rows) edge = std::min(edge, w.row0 + w.rows - rr);
-                if (w.col0 + w.cols < tiles.g.cols) edge = std::min(edge, w.col0 + w.cols - c);
-                if (edge != std::numeric_limits<int>::max() && static_cast<double>(d) > (edge - 0.5) * cell) {
-                  unverified.push_back({rr, c, static_cast<double>(d)});
-                }
+          if (valid == 0 || w.rows < 2 || w.cols < 2) continue;
+          const CrossCheck part = detail::cross_check_cell_errors(pts, crop, cc.tolerance_m, cc.hidden_band_m).value;
+          // A point outside the window has its node outside it: at least (index distance −
+          // 1/2) cells from the query in x-y. A distance beyond that margin is re-searched
+          // over every tile's points below.
+          const double cell = tiles.g.cell_size_m;
+          for (int rr = in[0]; rr < in[1]; ++rr) {
+            for (int c = in[2]; c < in[3]; ++c) {
+              const float d = part.cell_error_m.at(rr - w.row0, c - w.col0);
+              cc.cell_error_m.at(rr, c) = d;
+              if (std::isnan(d)) continue;
+              int edge = std::numeric_limits<int>::max();
+              if (w.row0 > 0) edge = std::min(edge, rr - w.row0 + 1);
+              if (w.col0 > 0) edge = std::min(edge, c - w.col0 + 1);
+              if (w.row0 + w.rows < tiles.g.rows) edge = std::min(edge, w.row0 + w.rows - rr);
+              if (w.col0 + w.cols < tiles.g.cols) edge = std::min(edge, w.col0 + w.cols - c);
+              if (edge != std::numeric_limits<int>::max() && static_cast<double>(d) > (edge - 0.5) * cell) {
+                unverified.push_back({rr, c, static_cast<double>(d)});
               }
             }
           }
         }
-        sampled = keep_sample;
-        vertical.prepare();
-        normal.prepare();
-        research(unverified);
       }
+      sampled = keep_sample;
+      vertical.prepare();
+      normal.prepare();
+      research(unverified);
       tick(0.9);
       // The second pass of the exact percentiles, over the first pass's residuals.
       residuals.each([&](float v, float nrm) {

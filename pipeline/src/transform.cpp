@@ -99,6 +99,11 @@ Eigen::Affine3d ViewTransform::matrix() const {
   return m;
 }
 
+bool ViewTransform::is_identity() const {
+  const Eigen::Affine3d m = matrix();
+  return m.linear() == Eigen::Matrix3d::Identity() && m.translation() == Eigen::Vector3d::Zero();
+}
+
 Eigen::Quaterniond rotation_from_axis_angle(const Eigen::Vector3d& axis, double angle_deg) {
   const double n = axis.norm();
   if (!std::isfinite(n) || n < 1e-12) {
@@ -149,8 +154,7 @@ StageResult<Cloud> apply_view_transform(Cloud cloud, const ViewTransform& view) 
   // points (15 ms of the merged Buddha's run). The product would turn a coordinate of −0 into
   // +0, and one beside an infinite coordinate into NaN; the non_finite stage drops such points
   // either way.
-  const bool identity = m.linear() == Eigen::Matrix3d::Identity() && m.translation() == Eigen::Vector3d::Zero();
-  if (!identity) {
+  if (!view.is_identity()) {
     cloud.xyz = (m.linear() * cloud.xyz).colwise() + m.translation();
     if (cloud.has_normals()) {
       // Normals turn with the rotation only (the scale is uniform and the translation moves

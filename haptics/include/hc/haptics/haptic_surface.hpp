@@ -74,27 +74,17 @@ class HapticSurface {
   /// The same bilinear interpolant and border rule as hc::BilinearSurface over the padded grid
   /// (equal to it up to rounding; tested), written inline without divisions or NaN checks
   /// because the servo loop calls it several times per tick (always inlined: as a call it was a
-  /// tenth of a tick). On a shared cell edge the
-  /// gradient is that of the cell with the larger index. Real-time: yes. Cost: O(1).
+  /// tenth of a tick). On a shared cell edge the gradient is that of the cell with the larger
+  /// index. Real-time: yes. Cost: O(1).
   [[gnu::always_inline]] SurfaceSample sample(double x_m, double y_m) const noexcept {
-    double cu = (x_m - x0_m_) * inv_cell_;
-    double cv = (y_m - y0_m_) * inv_cell_;
-    const bool inside_u = cu >= 0.0 && cu <= max_u_;  // false for NaN too
-    const bool inside_v = cv >= 0.0 && cv <= max_v_;
-    if (!inside_u) cu = cu > max_u_ ? max_u_ : 0.0;
-    if (!inside_v) cv = cv > max_v_ ? max_v_ : 0.0;
-    int i = static_cast<int>(cu);
-    int j = static_cast<int>(cv);
-    if (i > last_i_) i = last_i_;
-    if (j > last_j_) j = last_j_;
-    const double u = cu - i;
-    const double v = cv - j;
-    const float* r0 = data_ + static_cast<std::ptrdiff_t>(j) * stride_ + i;
+    const CellAt c = locate(x_m, y_m);
+    const double u = c.u, v = c.v;
+    const float* r0 = data_ + c.offset;
     const double z00 = r0[0], z10 = r0[1], z01 = r0[stride_], z11 = r0[stride_ + 1];
     SurfaceSample s;
     s.z_m = (1 - u) * (1 - v) * z00 + u * (1 - v) * z10 + (1 - u) * v * z01 + u * v * z11;
-    s.dz_dx = inside_u ? ((1 - v) * (z10 - z00) + v * (z11 - z01)) * inv_cell_ : 0.0;
-    s.dz_dy = inside_v ? ((1 - u) * (z01 - z00) + u * (z11 - z10)) * inv_cell_ : 0.0;
+    s.dz_dx = c.inside_u ? ((1 - v) * (z10 - z00) + v * (z11 - z01)) * inv_cell_ : 0.0;
+    s.dz_dy = c.inside_v ? ((1 - u) * (z01 - z00) + u * (z11 - z10)) * inv_cell_ : 0.0;
     s.valid = true;
     return s;
   }
@@ -144,6 +134,28 @@ class HapticSurface {
   static NodeBuffer allocate_nodes(std::size_t count, float fill);
 
   FrictionSample friction_from_maps(double x_m, double y_m) const noexcept;
+
+  /// The padded grid's cell holding (x_m, y_m) and the point's place in it, for every layer
+  /// (they share the padded geometry): each coordinate clamped to the grid (a NaN one to 0, the
+  /// padding), the cell's lower-left node at `offset` (row-major, stride_), u, v ∈ [0, 1].
+  struct CellAt {
+    std::ptrdiff_t offset;
+    double u, v;
+    bool inside_u, inside_v;  ///< the coordinate lay within the grid (else it was clamped)
+  };
+  [[gnu::always_inline]] CellAt locate(double x_m, double y_m) const noexcept {
+    double cu = (x_m - x0_m_) * inv_cell_;
+    double cv = (y_m - y0_m_) * inv_cell_;
+    const bool inside_u = cu >= 0.0 && cu <= max_u_;  // false for NaN too
+    const bool inside_v = cv >= 0.0 && cv <= max_v_;
+    if (!inside_u) cu = cu > max_u_ ? max_u_ : 0.0;
+    if (!inside_v) cv = cv > max_v_ ? max_v_ : 0.0;
+    int i = static_cast<int>(cu);
+    int j = static_cast<int>(cv);
+    if (i > last_i_) i = last_i_;
+    if (j > last_j_) j = last_j_;
+    return {static_cast<std::ptrdiff_t>(j) * stride_ + i, cu - i, cv - j, inside_u, inside_v};
+  }
 
   // Hot-path copies of the padded grid's geometry.
   const float* data_ = nullptr;

@@ -39,6 +39,10 @@ struct ViewTransform {
   double scale = 1.0;  ///< [-], > 0
 
   Eigen::Affine3d matrix() const;
+  /// True when matrix() is exactly the identity (linear part I, translation 0: no turn, scale 1,
+  /// no move), so that applying it would change no coordinate; apply_view_transform then makes
+  /// no pass over the points, and the tiled run's plan takes the grid's box from the file's.
+  bool is_identity() const;
 };
 
 /// Rotation of angle_deg about `axis` (any non-zero length). @throws hc::ConfigError on a zero axis.
