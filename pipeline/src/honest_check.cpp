@@ -1247,8 +1247,10 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 }
 
 StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& o,
-                                       double reach_cells, double spacing_m, double upsample_factor) {
+                                       double reach_cells, double spacing_m, double upsample_factor,
+                                       RemovedPoints* removed_points) {
   check_honest_options(o);
+  if (removed_points != nullptr) *removed_points = RemovedPoints{};
   if (!(reach_cells >= 0.0) || !std::isfinite(reach_cells)) {
     throw std::invalid_argument("remove_spike_points: reach_cells = " + std::to_string(reach_cells) +
                                 " (expected a finite value >= 0)");
@@ -1482,6 +1484,14 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
       if (!stray[ci]) continue;
       keep[cand[ci]] = false;
       ++removed;
+    }
+    if (removed > 0 && removed_points != nullptr) {
+      for (std::size_t i = 0; i < n; ++i) {
+        if (keep[i]) continue;
+        removed_points->at.push_back(i);
+        const auto p = cloud.xyz.col(static_cast<Eigen::Index>(i));
+        removed_points->xyz.insert(removed_points->xyz.end(), {p[0], p[1], p[2]});
+      }
     }
     if (removed > 0) cloud.keep_if(keep);
   }

@@ -557,12 +557,23 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
         if (name == "spacing_mm" && value > 0.0 && std::isfinite(value)) spacing_m = value * 1e-3;
     }
     const std::size_t before = cloud.size();
+    RemovedPoints removed;
     cloud = stage("despike", reports, progress, [&] {
       return remove_spike_points(std::move(cloud), grid.depth, config.cross_check.honest,
-                                 std::max(1.0, config.grid.reproject.splat_radius_cells) * k, spacing_m, k);
+                                 std::max(1.0, config.grid.reproject.splat_radius_cells) * k, spacing_m, k, &removed);
     });
     if (cloud.size() < before) {
-      grid = stage("reproject", reports, progress, grid_it);
+      // Made again only about the removed points (the same grid and figures as a whole reproject).
+      const StageReport had = reports[reproject_report];
+      grid = stage("reproject", reports, progress, [&] {
+        try {
+          return reproject_after_removal(cloud, removed, StageResult<DepthGrid>{std::move(grid), had}, config.grid.reproject);
+        } catch (const DegenerateInputError& e) {
+          const std::string far = describe_far_points(cloud);
+          if (far.empty()) throw;
+          throw DegenerateInputError(e.what() + far);
+        }
+      });
       reproject_report = reports.size() - 1;
     }
   }

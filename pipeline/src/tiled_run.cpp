@@ -695,15 +695,17 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     part = std::move(rp.value);
     if (oc.enabled && oc.despike) {
       const std::size_t before_n = pts.size();
+      RemovedPoints removed;
       auto ds = remove_spike_points(std::move(pts), part.depth, config.cross_check.honest,
                                     std::max(1.0, ro.splat_radius_cells) * tiles.k, std::isfinite(spacing_m) ? spacing_m : 0.0,
-                                    tiles.k);
+                                    tiles.k, &removed);
       add_figures(o.sums, ds.report);
       pts = std::move(ds.value);
       if (pts.size() == 0) {
         part = DepthGrid();  // nothing left: the tile's cells stay no data
       } else if (pts.size() < before_n) {
-        part = reproject(pts, ow).value;
+        // Made again only about the removed points (the window's grid bit for bit).
+        part = reproject_after_removal(pts, removed, StageResult<DepthGrid>{std::move(part), rp.report}, ow).value;
       }
     }
   }

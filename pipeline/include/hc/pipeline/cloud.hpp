@@ -82,6 +82,14 @@ struct Cloud {
   std::vector<std::string> append(const Cloud& other);
 };
 
+/// Points a stage took out of a cloud, kept for a later stage that updates what it made from
+/// the cloud before (reproject_after_removal): their coordinates and their places in that cloud.
+struct RemovedPoints {
+  std::vector<double> xyz;      ///< 3 per point: x y z [m] in the cloud's frame
+  std::vector<std::size_t> at;  ///< each point's column in the cloud before the removal, increasing
+  std::size_t size() const { return at.size(); }
+};
+
 /// What one stage did: counts in and out, wall time, named figures and free-text notes.
 /// Figures carry their unit in the name (for example "rms_mm").
 struct StageReport {

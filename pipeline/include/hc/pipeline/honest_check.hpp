@@ -286,7 +286,8 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 /// Pits are not touched (missing data, not added data). reach_cells is the splat radius × the
 /// upsample factor (the cells a point's disc writes); upsample_factor ≥ 1 is that factor. Report stage "despike", figures:
 /// spike_cells (lone peaks included), rim_cells, island_cells, candidates, removed_spike_points. The caller grids again when
-/// points were removed. Skipped (with a note) for 2^32 − 1 points or cells or more. Cost: O(cells)
+/// points were removed (reproject_after_removal, given `removed`: the removed points' coordinates and
+/// columns, when not null). Skipped (with a note) for 2^32 − 1 points or cells or more. Cost: O(cells)
 /// summed-area tables plus O(N) binning plus, per candidate, the points within ρ_hi (2·⌈ρ_hi /
 /// cell⌉ + 1)² cells.
 /// @throws hc::ConfigError for options outside their ranges (check_honest_options);
@@ -294,7 +295,8 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 ///         upsample_factor is below 1 or not finite.
 /// Source: this project (the radius test of Rusu 2009 applied at the spike's own scale).
 StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& options,
-                                       double reach_cells, double spacing_m, double upsample_factor = 1.0);
+                                       double reach_cells, double spacing_m, double upsample_factor = 1.0,
+                                       RemovedPoints* removed = nullptr);
 
 
 /// One reason of a verdict: a stable code, its level and a sentence with the figures.

@@ -182,6 +182,36 @@ struct DepthGrid {
 /// interpolating splats: normalised convolution (Knutsson & Westin, CVPR 1993), order 0.
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options);
 
+/// reproject(points_m, options) after points were removed, made again only about them: the
+/// nodes within reach of a removed point's node (reproject_reach_cells, plus one node) are
+/// scanned again in a window (ReprojectOptions::window) that holds every point whose node lies
+/// within that reach of them, and copied into `before`'s grid; every other node's value depends
+/// on none of the removed points. The result equals reproject(points_m, options) bit for bit
+/// (depth, flags, colour, intensity) and so do its report's figures: cell counts are taken again
+/// from the flags, and the scan's event counts (cells_splat_filled_empty, cells_occluded_by_splat,
+/// cells_see_through, see_through_candidates) are corrected by each window's count with and
+/// without the removed points, counted only over the nodes made again. A note says how many
+/// nodes were made again.
+/// It falls back to reproject(points_m, options) (and says why in a note) when the grid's box or
+/// the auto upsample factor changes, with interpolating splats (which sum heights relative to a
+/// window's first cell), for more than 4096 removed points, or when the windows would cover over
+/// a third of the grid.
+/// @param points_m  the cloud after the removal: the cloud `before` was made from without the
+///        removed points, the rest in their order (as Cloud::keep_if leaves them).
+/// @param removed   the removed points' coordinates and their columns in the cloud before
+///        (RemovedPoints; remove_spike_points fills one).
+/// @param before    reproject's result and report for the cloud before the removal, with the
+///        same options (a window's, when options.window is set).
+/// @throws what reproject throws; std::invalid_argument when `removed` is malformed (not 3
+///         coordinates per point, columns not increasing or beyond the cloud before) or
+///         `before` does not have the window's size.
+/// Real-time: no. Cost: one pass over the points (their box; the coverage with upsample auto;
+/// their windows) + O(removed points × (2·reach + 3)² nodes), against reproject's two passes
+/// and O(rows·cols). Threads: as reproject.
+/// Source: this project (the locality the tiled run relies on, tiling.hpp).
+StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const RemovedPoints& removed,
+                                               StageResult<DepthGrid> before, const ReprojectOptions& options);
+
 /// The geometry reproject gives points whose finite points (`finite` of them, > 0) span the x-y
 /// box [x_min, x_max] × [y_min, y_max] [m] (the tiled run, whose points are never all in memory).
 /// @throws as reproject for the options and a degenerate or too large grid.
