@@ -38,8 +38,10 @@ foreach(dir common pipeline pcl_bridge haptics haptics/falcon session audio view
           FILES_MATCHING PATTERN "*.hpp" PATTERN "*.h")
 endforeach()
 install(TARGETS hapticloud RUNTIME DESTINATION ${CMAKE_INSTALL_BINDIR})
-# The GeoTIFF writer module (GDAL), loaded by the pipeline on the first export.
+# The GeoTIFF writer module (GDAL), loaded by the pipeline on the first export, and the PCL module
+# (the PCD reader, filters.voxel_m, filters.pcl), loaded when a run first needs PCL.
 install(TARGETS hc_geotiff_gdal LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}/hapticloud)
+install(TARGETS hc_pcl_module LIBRARY DESTINATION ${CMAKE_INSTALL_LIBDIR}/hapticloud)
 install(DIRECTORY ${PROJECT_SOURCE_DIR}/configs/ DESTINATION ${CMAKE_INSTALL_DATADIR}/hapticloud/configs
         FILES_MATCHING PATTERN "*.yaml")
 install(FILES ${PROJECT_SOURCE_DIR}/udev/99-novint-falcon.rules

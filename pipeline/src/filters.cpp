@@ -22,14 +22,12 @@
 
 #include "hc/common/format.hpp"
 #include "knn_grid.hpp"
+#include "modules.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/filters.hpp"
 
 #include "hc/common/error.hpp"
 
-#include <pcl/filters/voxel_grid.h>
-#include <pcl/point_cloud.h>
-#include <pcl/point_types.h>
 
 #include <algorithm>
 #include <array>
@@ -128,18 +126,18 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
     throw ConfigError("voxel_downsample: leaf = " + format_number(leaf_m) + " m, expected a finite value > 0");
   }
   StageReport report = make_report("voxel", cloud.size());
-  pcl::PointCloud<pcl::PointXYZ>::Ptr in(new pcl::PointCloud<pcl::PointXYZ>);
-  in->reserve(cloud.size());
+  std::vector<float> in;  // the finite points as float, x y z each (pcl::PointXYZ)
+  in.reserve(3 * cloud.size());
   Eigen::Vector3f lo = Eigen::Vector3f::Constant(std::numeric_limits<float>::infinity());
   Eigen::Vector3f hi = -lo;
   for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
     if (!cloud.xyz.col(i).allFinite()) continue;
     const Eigen::Vector3f p = cloud.xyz.col(i).cast<float>();
-    in->push_back(pcl::PointXYZ(p.x(), p.y(), p.z()));
+    in.insert(in.end(), {p.x(), p.y(), p.z()});
     lo = lo.cwiseMin(p);
     hi = hi.cwiseMax(p);
   }
-  if (in->empty()) throw InputError("voxel_downsample: the cloud has no finite points");
+  if (in.empty()) throw InputError("voxel_downsample: the cloud has no finite points");
   // PCL's VoxelGrid indexes voxels with 32-bit ints; beyond that it only warns and returns the
   // input unchanged. Check with its own arithmetic and say so instead.
   const float inv = static_cast<float>(1.0 / leaf_m);
@@ -167,15 +165,25 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
                       format_number(std::max(min_leaf, std::max({ext.x(), ext.y(), ext.z()}) / 1.0e9)) +
                       " m, or recentre the cloud first)");
   }
-  pcl::VoxelGrid<pcl::PointXYZ> grid;
-  grid.setInputCloud(in);
-  grid.setLeafSize(static_cast<float>(leaf_m), static_cast<float>(leaf_m), static_cast<float>(leaf_m));
-  pcl::PointCloud<pcl::PointXYZ> out;
-  grid.filter(out);
+  // pcl::VoxelGrid<pcl::PointXYZ> in the PCL module (modules.hpp).
+  const detail::PclModule& pcl = detail::pcl_module("filters.voxel_m");
+  HcPclFilterJob job{};
+  job.abi = HC_PCL_ABI;
+  job.kind = HC_PCL_VOXEL_GRID;
+  job.xyz = in.data();
+  job.n = in.size() / 3;
+  job.leaf_m = leaf_m;
+  HcPclFilterResult res{};
+  const int rc = pcl.filter(&job, &res);
+  std::vector<float> out_xyz(res.xyz, res.xyz + 3 * res.n_out);
+  pcl.free(res.xyz);
+  pcl.free(res.kept);
+  if (rc != 0) throw InputError(std::string("voxel_downsample: ") + res.what + ": " + res.detail);
+  const std::size_t n_out = res.n_out;
   Cloud result;
-  result.xyz.resize(3, static_cast<Eigen::Index>(out.size()));
-  for (std::size_t i = 0; i < out.size(); ++i) {
-    result.xyz.col(static_cast<Eigen::Index>(i)) = out[i].getVector3fMap().cast<double>();
+  result.xyz.resize(3, static_cast<Eigen::Index>(n_out));
+  for (std::size_t i = 0; i < n_out; ++i) {
+    for (int a = 0; a < 3; ++a) result.xyz(a, static_cast<Eigen::Index>(i)) = static_cast<double>(out_xyz[3 * i + static_cast<std::size_t>(a)]);
   }
   report.count_out = result.size();
   report.figure("leaf_mm", leaf_m * 1e3);
@@ -196,7 +204,7 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
       div_b[a] = static_cast<int>(std::floor(hi[a] * inv_leaf)) - min_b[a] + 1;
     }
     std::vector<std::pair<std::int64_t, std::size_t>> keyed;  // (voxel index, input point)
-    keyed.reserve(in->size());
+    keyed.reserve(in.size() / 3);
     for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
       if (!cloud.xyz.col(i).allFinite()) continue;
       const Eigen::Vector3f p = cloud.xyz.col(i).cast<float>();
@@ -210,14 +218,14 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
     std::stable_sort(keyed.begin(), keyed.end(),
                      [](const auto& a, const auto& b) { return a.first < b.first; });
     const bool rgb = cloud.has_rgb(), inten = cloud.has_intensity();
-    std::vector<std::uint8_t> rgb_out(rgb ? 3 * out.size() : 0);
-    std::vector<float> int_out(inten ? out.size() : 0);
+    std::vector<std::uint8_t> rgb_out(rgb ? 3 * n_out : 0);
+    std::vector<float> int_out(inten ? n_out : 0);
     bool ok = true;
     std::size_t voxel = 0;
     for (std::size_t b = 0; b < keyed.size() && ok; ++voxel) {
       std::size_t e = b;
       while (e < keyed.size() && keyed[e].first == keyed[b].first) ++e;
-      if (voxel >= out.size()) {
+      if (voxel >= n_out) {
         ok = false;
         break;
       }
@@ -243,7 +251,7 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
       if (inten) int_out[voxel] = static_cast<float>(i_sum / n);
       b = e;
     }
-    if (ok && voxel == out.size()) {
+    if (ok && voxel == n_out) {
       result.rgb = std::move(rgb_out);
       result.intensity = std::move(int_out);
       report.notes.push_back(std::string("per voxel mean of") + (rgb ? " colour (rgb)" : "") + (inten ? " intensity" : ""));

@@ -1,5 +1,6 @@
 // filters.pcl (issue 18): PCL's own filter classes as pipeline stages. Every class is called
-// through its public API on a pcl::PointXYZ copy of the cloud; subset filters hand back indices
+// through its public API on a pcl::PointXYZ copy of the cloud, in the PCL module hc_pcl.so
+// (pipeline/pcl/pcl_module.cpp, loaded on first use: modules.hpp); subset filters hand back indices
 // (FilterIndices::filter(Indices&), UniformSampling's removed indices, the cluster indices), so
 // the original double points and their attributes survive; replacing filters hand back PCL's
 // points. tests/pcl/pcl_filters_test.cpp compares every stage with the class called directly.
@@ -8,25 +9,8 @@
 
 #include "hc/common/error.hpp"
 #include "hc/common/format.hpp"
+#include "modules.hpp"
 #include "stage_util.hpp"
-
-#include <pcl/filters/approximate_voxel_grid.h>
-#include <pcl/filters/crop_box.h>
-#include <pcl/filters/passthrough.h>
-#include <pcl/filters/radius_outlier_removal.h>
-#include <pcl/filters/statistical_outlier_removal.h>
-#include <pcl/filters/uniform_sampling.h>
-#include <pcl/filters/voxel_grid.h>
-#include <pcl/point_cloud.h>
-#include <pcl/point_types.h>
-#include <pcl/search/kdtree.h>
-#include <pcl/segmentation/extract_clusters.h>
-// pcl::extractEuclideanClusters is instantiated here, not taken from libpcl_segmentation (not
-// linked: pipeline/CMakeLists.txt). Only that function template: the class's extract() would
-// also instantiate OrganizedNeighbor, whose vtable copy here would then stand in for the one
-// of Debian's C++14 libpcl_search in every program linking hc::pipeline.
-#include <pcl/segmentation/impl/extract_clusters.hpp>
-#include <pcl/surface/mls.h>
 
 #include <algorithm>
 #include <cmath>
@@ -39,8 +23,6 @@ namespace hc::pipeline {
 
 namespace {
 
-using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;
-
 [[noreturn]] void bad(const PclFilterSpec& s, const std::string& param, const std::string& what) {
   throw ConfigError("filters.pcl " + s.name + "." + param + " " + what);
 }
@@ -48,11 +30,11 @@ using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;
 /// PCL's VoxelGrid and UniformSampling index voxels with 32-bit integers: VoxelGrid returns its
 /// input unchanged (a warning only) and UniformSampling overflows when the box holds more than
 /// 2^31 − 1 voxels. Refuse such a leaf, naming the cloud's extent and the smallest leaf allowed.
-void check_voxel_count(const PclFilterSpec& s, const char* param, double leaf_m, const PointCloudXYZ& in) {
+void check_voxel_count(const PclFilterSpec& s, const char* param, double leaf_m, const std::vector<float>& in) {
   Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), hi = -lo;
-  for (const auto& p : in.points) {
-    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) continue;
-    const Eigen::Vector3d q(p.x, p.y, p.z);
+  for (std::size_t i = 0; i + 2 < in.size(); i += 3) {
+    const Eigen::Vector3d q(in[i], in[i + 1], in[i + 2]);
+    if (!q.allFinite()) continue;
     lo = lo.cwiseMin(q);
     hi = hi.cwiseMax(q);
   }
@@ -128,36 +110,35 @@ void check_spec(const PclFilterSpec& s) {
   }
 }
 
-/// Float copy of the finite points; rows[i] = the cloud column of PCL point i.
-PointCloudXYZ::Ptr to_xyz(const Cloud& cloud, std::vector<std::uint32_t>& rows) {
-  PointCloudXYZ::Ptr out(new PointCloudXYZ);
-  out->reserve(cloud.size());
+/// Float copy of the finite points (x y z each); rows[i] = the cloud column of PCL point i.
+std::vector<float> to_xyz(const Cloud& cloud, std::vector<std::uint32_t>& rows) {
+  std::vector<float> out;
+  out.reserve(3 * cloud.size());
   rows.reserve(cloud.size());
   for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
     const Eigen::Vector3f p = cloud.xyz.col(i).cast<float>();
     if (!p.allFinite()) continue;
-    out->push_back(pcl::PointXYZ(p.x(), p.y(), p.z()));
+    out.insert(out.end(), {p.x(), p.y(), p.z()});
     rows.push_back(static_cast<std::uint32_t>(i));
   }
-  out->is_dense = true;
   return out;
 }
 
 /// The cloud restricted to the PCL points `kept` (indices into the PCL cloud), in input order.
-Cloud keep_indices(Cloud cloud, const std::vector<std::uint32_t>& rows, pcl::Indices kept) {
+Cloud keep_indices(Cloud cloud, const std::vector<std::uint32_t>& rows, std::vector<std::uint32_t> kept) {
   std::sort(kept.begin(), kept.end());
   std::vector<bool> keep(cloud.size(), false);
-  for (const auto k : kept) keep[rows[static_cast<std::size_t>(k)]] = true;
+  for (const auto k : kept) keep[rows[k]] = true;
   cloud.keep_if(keep);
   return cloud;
 }
 
 /// A cloud of PCL's output points; attributes dropped (named in the report's notes).
-Cloud from_points(const Cloud& in, const PointCloudXYZ& out, StageReport& report) {
+Cloud from_points(const Cloud& in, const float* out, std::size_t n_out, StageReport& report) {
   Cloud result;
-  result.xyz.resize(3, static_cast<Eigen::Index>(out.size()));
-  for (std::size_t i = 0; i < out.size(); ++i) {
-    result.xyz.col(static_cast<Eigen::Index>(i)) = out[i].getVector3fMap().cast<double>();
+  result.xyz.resize(3, static_cast<Eigen::Index>(n_out));
+  for (std::size_t i = 0; i < n_out; ++i) {
+    for (int a = 0; a < 3; ++a) result.xyz(a, static_cast<Eigen::Index>(i)) = static_cast<double>(out[3 * i + static_cast<std::size_t>(a)]);
   }
   std::string dropped;
   auto item = [&](bool has, const char* what) {
@@ -201,136 +182,95 @@ StageResult<Cloud> apply_pcl_filter(Cloud cloud, const PclFilterSpec& spec) {
   rep.stage = "pcl:" + spec.name;
   rep.count_in = cloud.size();
   std::vector<std::uint32_t> rows;
-  const PointCloudXYZ::Ptr in = to_xyz(cloud, rows);
-  if (in->empty()) throw InputError("filters.pcl " + spec.name + ": the cloud has no finite points to filter");
-  if (in->size() != cloud.size()) {
-    rep.notes.push_back(std::to_string(cloud.size() - in->size()) + " non-finite points dropped before the filter");
+  const std::vector<float> in = to_xyz(cloud, rows);
+  if (in.empty()) throw InputError("filters.pcl " + spec.name + ": the cloud has no finite points to filter");
+  if (rows.size() != cloud.size()) {
+    rep.notes.push_back(std::to_string(cloud.size() - rows.size()) + " non-finite points dropped before the filter");
   }
-  pcl::Indices kept;
-  bool subset = true;
-  PointCloudXYZ out;
+  if (spec.kind == PclFilterKind::kUniformSampling) check_voxel_count(spec, "radius_m", spec.radius_m, in);
+  if (spec.kind == PclFilterKind::kVoxelGrid) check_voxel_count(spec, "leaf_m", spec.leaf_m, in);
+  const detail::PclModule& pcl = detail::pcl_module("filters.pcl " + spec.name);
+  HcPclFilterJob job{};
+  job.abi = HC_PCL_ABI;
+  job.kind = static_cast<int>(spec.kind);
+  job.xyz = in.data();
+  job.n = rows.size();
+  job.mean_k = spec.mean_k;
+  job.stddev_mul = spec.stddev_mul;
+  job.radius_m = spec.radius_m;
+  job.min_neighbors = spec.min_neighbors;
+  job.leaf_m = spec.leaf_m;
+  job.search_radius_m = spec.search_radius_m;
+  job.polynomial_order = spec.polynomial_order;
+  job.field = spec.field.empty() ? 'z' : spec.field[0];
+  job.min_m = spec.min_m;
+  job.max_m = spec.max_m;
+  for (int a = 0; a < 3; ++a) {
+    job.box_min_m[a] = spec.box_min_m[a];
+    job.box_max_m[a] = spec.box_max_m[a];
+  }
+  job.negative = spec.negative ? 1 : 0;
+  job.tolerance_m = spec.tolerance_m;
+  job.min_cluster_size = spec.min_cluster_size;
+  job.max_cluster_size = spec.max_cluster_size;
+  job.keep_clusters = spec.keep_clusters;
+  HcPclFilterResult res{};
+  const int rc = pcl.filter(&job, &res);
+  // The module's buffers, released on every way out.
+  struct Release {
+    const detail::PclModule& m;
+    HcPclFilterResult& r;
+    ~Release() {
+      m.free(r.kept);
+      m.free(r.xyz);
+    }
+  } release{pcl, res};
+  if (rc != 0) throw InputError("filters.pcl " + spec.name + ": " + res.what + ": " + res.detail);
   switch (spec.kind) {
-    case PclFilterKind::kStatisticalOutlierRemoval: {
-      pcl::StatisticalOutlierRemoval<pcl::PointXYZ> f;
-      f.setInputCloud(in);
-      f.setMeanK(spec.mean_k);
-      f.setStddevMulThresh(spec.stddev_mul);
-      f.filter(kept);
+    case PclFilterKind::kStatisticalOutlierRemoval:
       rep.figure("mean_k", spec.mean_k);
       rep.figure("stddev_mul", spec.stddev_mul);
       break;
-    }
-    case PclFilterKind::kRadiusOutlierRemoval: {
-      pcl::RadiusOutlierRemoval<pcl::PointXYZ> f;
-      f.setInputCloud(in);
-      f.setRadiusSearch(spec.radius_m);
-      f.setMinNeighborsInRadius(spec.min_neighbors);
-      f.filter(kept);
+    case PclFilterKind::kRadiusOutlierRemoval:
       rep.figure("radius_mm", spec.radius_m * 1e3);
       rep.figure("min_neighbors", spec.min_neighbors);
       break;
-    }
-    case PclFilterKind::kPassThrough: {
-      pcl::PassThrough<pcl::PointXYZ> f;
-      f.setInputCloud(in);
-      f.setFilterFieldName(spec.field);
-      f.setFilterLimits(static_cast<float>(spec.min_m), static_cast<float>(spec.max_m));
-      f.setNegative(spec.negative);
-      f.filter(kept);
+    case PclFilterKind::kPassThrough:
       rep.figure("min_mm", spec.min_m * 1e3);
       rep.figure("max_mm", spec.max_m * 1e3);
       break;
-    }
-    case PclFilterKind::kCropBox: {
-      pcl::CropBox<pcl::PointXYZ> f;
-      f.setInputCloud(in);
-      const Eigen::Vector3f lo = spec.box_min_m.cast<float>(), hi = spec.box_max_m.cast<float>();
-      f.setMin(Eigen::Vector4f(lo.x(), lo.y(), lo.z(), 1.0f));
-      f.setMax(Eigen::Vector4f(hi.x(), hi.y(), hi.z(), 1.0f));
-      f.setNegative(spec.negative);
-      f.filter(kept);
+    case PclFilterKind::kCropBox:
       break;
-    }
-    case PclFilterKind::kUniformSampling: {
-      check_voxel_count(spec, "radius_m", spec.radius_m, *in);
-      pcl::UniformSampling<pcl::PointXYZ> f(/*extract_removed_indices=*/true);
-      f.setInputCloud(in);
-      f.setRadiusSearch(spec.radius_m);
-      f.filter(out);
-      std::vector<bool> removed(in->size(), false);
-      for (const auto i : *f.getRemovedIndices()) removed[static_cast<std::size_t>(i)] = true;
-      for (std::size_t i = 0; i < in->size(); ++i) {
-        if (!removed[i]) kept.push_back(static_cast<pcl::index_t>(i));
-      }
-      if (kept.size() != out.size()) {
-        // Never misalign attributes: PCL's removed list must be the complement of its output.
-        throw InputError("filters.pcl UniformSampling: " + std::to_string(kept.size()) + " kept indices but " +
-                            std::to_string(out.size()) + " output points");
-      }
+    case PclFilterKind::kUniformSampling:
       rep.figure("radius_mm", spec.radius_m * 1e3);
       break;
-    }
     case PclFilterKind::kEuclideanClusterExtraction: {
-      // What pcl::EuclideanClusterExtraction::extract does with a k-d tree given and no
-      // indices: the single-linkage clusters of the whole cloud, then sorted by size with
-      // PCL's own comparison, largest first (tests/pcl compare it with the class).
-      pcl::search::Search<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
-      tree->setInputCloud(in);
-      std::vector<pcl::PointIndices> clusters;
-      if (!in->empty()) {
-        pcl::extractEuclideanClusters(*in, tree, static_cast<float>(spec.tolerance_m), clusters,
-                                      static_cast<unsigned int>(spec.min_cluster_size),
-                                      static_cast<unsigned int>(spec.max_cluster_size));
-      }
-      std::sort(clusters.rbegin(), clusters.rend(), pcl::comparePointClusters);
-      const std::size_t n = std::min<std::size_t>(clusters.size(), static_cast<std::size_t>(spec.keep_clusters));
-      for (std::size_t c = 0; c < n; ++c) kept.insert(kept.end(), clusters[c].indices.begin(), clusters[c].indices.end());
+      const std::size_t n = std::min<std::size_t>(res.clusters, static_cast<std::size_t>(spec.keep_clusters));
       rep.figure("tolerance_mm", spec.tolerance_m * 1e3);
-      rep.figure("clusters", static_cast<double>(clusters.size()));
+      rep.figure("clusters", static_cast<double>(res.clusters));
       rep.figure("clusters_kept", static_cast<double>(n));
-      if (clusters.empty()) rep.notes.push_back("no cluster within [min_cluster_size, max_cluster_size]: every point removed");
+      if (res.clusters == 0) rep.notes.push_back("no cluster within [min_cluster_size, max_cluster_size]: every point removed");
       break;
     }
-    case PclFilterKind::kVoxelGrid: {
-      subset = false;
-      check_voxel_count(spec, "leaf_m", spec.leaf_m, *in);
-      pcl::VoxelGrid<pcl::PointXYZ> f;
-      f.setInputCloud(in);
-      const auto leaf = static_cast<float>(spec.leaf_m);
-      f.setLeafSize(leaf, leaf, leaf);
-      f.filter(out);
+    case PclFilterKind::kVoxelGrid:
+    case PclFilterKind::kApproximateVoxelGrid:
       rep.figure("leaf_mm", spec.leaf_m * 1e3);
       break;
-    }
-    case PclFilterKind::kApproximateVoxelGrid: {
-      subset = false;
-      pcl::ApproximateVoxelGrid<pcl::PointXYZ> f;
-      f.setInputCloud(in);
-      const auto leaf = static_cast<float>(spec.leaf_m);
-      f.setLeafSize(leaf, leaf, leaf);
-      f.filter(out);
-      rep.figure("leaf_mm", spec.leaf_m * 1e3);
-      break;
-    }
-    case PclFilterKind::kMovingLeastSquares: {
-      subset = false;
-      pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
-      pcl::MovingLeastSquares<pcl::PointXYZ, pcl::PointXYZ> f;
-      f.setInputCloud(in);
-      f.setSearchMethod(tree);
-      f.setSearchRadius(spec.search_radius_m);
-      f.setPolynomialOrder(spec.polynomial_order);
-      f.setComputeNormals(false);
-      f.process(out);
+    case PclFilterKind::kMovingLeastSquares:
       rep.figure("search_radius_mm", spec.search_radius_m * 1e3);
       rep.figure("polynomial_order", spec.polynomial_order);
       break;
-    }
   }
-  if (subset) {
-    r.value = keep_indices(std::move(cloud), rows, std::move(kept));
+  if (res.subset) {
+    for (std::size_t i = 0; i < res.n_kept; ++i) {
+      if (res.kept[i] >= rows.size()) {
+        throw InputError("filters.pcl " + spec.name + ": PCL returned index " + std::to_string(res.kept[i]) + " for " +
+                         std::to_string(rows.size()) + " points");
+      }
+    }
+    r.value = keep_indices(std::move(cloud), rows, std::vector<std::uint32_t>(res.kept, res.kept + res.n_kept));
   } else {
-    r.value = from_points(cloud, out, rep);
+    r.value = from_points(cloud, res.xyz, res.n_out, rep);
   }
   rep.count_out = r.value.size();
   rep.seconds = detail::seconds_since(t0);

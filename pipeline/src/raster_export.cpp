@@ -9,6 +9,7 @@
 #include "hc/common/error.hpp"
 
 #include "geotiff_module.h"
+#include "modules.hpp"
 
 #include <dlfcn.h>
 
@@ -27,9 +28,7 @@ namespace hc::pipeline {
 
 namespace {
 
-// The module's file name and where it is looked for, in order: $HC_GDAL_MODULE (a file); beside
-// the binary that holds this code, then that binary's folder + HC_MODULE_DIR_FROM_BINDIR (the
-// installed tree: bin/ → lib/hapticloud/); then the build tree's folder HC_BUILD_MODULE_DIR.
+// The module's file name; where it is looked for: detail::load_module ($HC_GDAL_MODULE first).
 constexpr const char* kModuleName = "hc_geotiff_gdal.so";
 
 struct Module {
@@ -42,47 +41,11 @@ const Module& geotiff_module() {
   static Module module;
   static std::once_flag once;
   std::call_once(once, [] {
-    std::vector<std::string> candidates;
-    if (const char* env = std::getenv("HC_GDAL_MODULE"); env && *env) candidates.emplace_back(env);
-    // The binary holding this code: dladdr names a shared object by its path, but the main
-    // program by argv[0] (a bare "hapticloud" when started from $PATH, which must not be
-    // resolved against the working folder): then /proc/self/exe.
-    std::vector<std::filesystem::path> binaries;
-    Dl_info info{};
-    if (dladdr(reinterpret_cast<void*>(&geotiff_module), &info) != 0 && info.dli_fname &&
-        std::strchr(info.dli_fname, '/') != nullptr && info.dli_fname[0] == '/') {
-      binaries.emplace_back(info.dli_fname);
-    }
-    binaries.emplace_back("/proc/self/exe");
-    for (const std::filesystem::path& b : binaries) {
-      std::error_code ec;
-      const std::filesystem::path self = std::filesystem::canonical(b, ec);
-      if (ec) continue;
-      candidates.push_back((self.parent_path() / kModuleName).string());
-      candidates.push_back((self.parent_path() / HC_MODULE_DIR_FROM_BINDIR / kModuleName).lexically_normal().string());
-    }
-    // The installed tree's own folder (a program or Python module elsewhere linking the
-    // installed library), then the build tree's.
-    candidates.push_back((std::filesystem::path(HC_INSTALL_MODULE_DIR) / kModuleName).string());
-    candidates.push_back((std::filesystem::path(HC_BUILD_MODULE_DIR) / kModuleName).string());
-    for (const std::string& c : candidates) {
-      module.tried += (module.tried.empty() ? "" : ", ") + c;
-      std::error_code ec;
-      if (!std::filesystem::is_regular_file(c, ec)) continue;
-      void* handle = dlopen(c.c_str(), RTLD_NOW | RTLD_LOCAL);
-      if (!handle) {
-        const char* why = dlerror();
-        module.tried += std::string(" (") + (why ? why : "dlopen failed") + ")";
-        continue;
-      }
-      module.write = reinterpret_cast<HcGeoTiffWriteFn>(dlsym(handle, HC_GEOTIFF_WRITE_SYMBOL));
-      if (module.write) {
-        module.path = c;
-        return;  // kept loaded for the rest of the process
-      }
-      module.tried += " (no symbol " + std::string(HC_GEOTIFF_WRITE_SYMBOL) + ")";
-      dlclose(handle);
-    }
+    const detail::LoadedModule m = detail::load_module(kModuleName, "HC_GDAL_MODULE", HC_GEOTIFF_WRITE_SYMBOL);
+    module.tried = m.tried;
+    if (!m.handle) return;
+    module.write = reinterpret_cast<HcGeoTiffWriteFn>(dlsym(m.handle, HC_GEOTIFF_WRITE_SYMBOL));
+    module.path = m.path;
   });
   return module;
 }

@@ -3,7 +3,8 @@
 // ASCII token silently); a DATA binary body is then read here directly (PCL crashed on a fuzzed
 // binary file with a sound header), while PCL parses ascii and binary_compressed bodies into a
 // pcl::PCLPointCloud2, whose fields keep their declared type (float64 stays double), and x, y, z
-// are copied into a Cloud.
+// are copied into a Cloud. PCL runs in the PCL module hc_pcl.so (pipeline/pcl/pcl_module.cpp,
+// loaded on the first PCD that needs it: modules.hpp).
 //
 // PCL's readers take a file name only. Data that exists only in memory (a decompressed .gz) is
 // handed over through an anonymous memory file (memfd_create) opened as /proc/self/fd/N:
@@ -14,12 +15,10 @@
 #include "readers.hpp"
 #include "text_parse.hpp"
 
+#include "../modules.hpp"
+
 #include "hc/common/error.hpp"
 #include "hc/pipeline/cloud.hpp"
-
-#include <pcl/PCLPointCloud2.h>
-#include <pcl/exceptions.h>
-#include <pcl/io/pcd_io.h>
 
 #include <sys/mman.h>
 #include <unistd.h>
@@ -85,79 +84,25 @@ double read_as_double(const std::uint8_t* p) {
   return static_cast<double>(v);
 }
 
-double read_field(const std::uint8_t* p, std::uint8_t datatype) {
-  switch (datatype) {
-    case pcl::PCLPointField::INT8: return read_as_double<std::int8_t>(p);
-    case pcl::PCLPointField::UINT8: return read_as_double<std::uint8_t>(p);
-    case pcl::PCLPointField::INT16: return read_as_double<std::int16_t>(p);
-    case pcl::PCLPointField::UINT16: return read_as_double<std::uint16_t>(p);
-    case pcl::PCLPointField::INT32: return read_as_double<std::int32_t>(p);
-    case pcl::PCLPointField::UINT32: return read_as_double<std::uint32_t>(p);
-    case pcl::PCLPointField::FLOAT32: return read_as_double<float>(p);
-    case pcl::PCLPointField::FLOAT64: return read_as_double<double>(p);
-    default: return std::numeric_limits<double>::quiet_NaN();
+Cloud read_with_pcl(const std::string& bytes, const std::filesystem::path& original_path, bool from_memory, const std::string& display_name) {
+  const PclModule& pcl = pcl_module("load_cloud: " + display_name + " (a PCD file with an ascii or binary_compressed body)");
+  HcPcdResult res{};
+  int rc = 0;
+  if (from_memory) {
+    const MemoryFile file(bytes, display_name);
+    rc = pcl.read_pcd(file.path().c_str(), display_name.c_str(), &res);
+  } else {
+    rc = pcl.read_pcd(original_path.string().c_str(), display_name.c_str(), &res);
   }
-}
-
-// Copies x, y, z of every point of a PCLPointCloud2 into a Cloud, in each field's own type.
-Cloud to_cloud(const pcl::PCLPointCloud2& pc, const std::string& display_name) {
-  const pcl::PCLPointField* f[3] = {nullptr, nullptr, nullptr};
-  const char* names[3] = {"x", "y", "z"};
-  for (const auto& field : pc.fields) {
-    for (int a = 0; a < 3; ++a) {
-      if (field.name == names[a]) f[a] = &field;
-    }
-  }
-  for (int a = 0; a < 3; ++a) {
-    if (!f[a]) throw InputError("load_cloud: " + display_name + " has no '" + names[a] + "' field");
-    if (f[a]->datatype < pcl::PCLPointField::INT8 || f[a]->datatype > pcl::PCLPointField::FLOAT64) {
-      throw InputError("load_cloud: " + display_name + ": field '" + names[a] + "' has an unsupported type");
-    }
-  }
-  const std::size_t n = static_cast<std::size_t>(pc.width) * pc.height;
-  if (pc.data.size() < n * pc.point_step) {
-    throw InputError("load_cloud: " + display_name + ": PCL returned " + std::to_string(pc.data.size()) +
-                     " bytes for " + std::to_string(n) + " points (file truncated?)");
+  if (rc != 0) {
+    pcl.free(res.xyz);
+    throw InputError(res.detail);
   }
   Cloud cloud;
-  cloud.xyz.resize(3, static_cast<Eigen::Index>(n));
-  const std::uint8_t* base = pc.data.data();
-  const bool all_float = f[0]->datatype == pcl::PCLPointField::FLOAT32 &&
-                         f[1]->datatype == pcl::PCLPointField::FLOAT32 &&
-                         f[2]->datatype == pcl::PCLPointField::FLOAT32;
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::uint8_t* p = base + i * pc.point_step;
-    const Eigen::Index col = static_cast<Eigen::Index>(i);
-    if (all_float) {
-      cloud.xyz(0, col) = read_as_double<float>(p + f[0]->offset);
-      cloud.xyz(1, col) = read_as_double<float>(p + f[1]->offset);
-      cloud.xyz(2, col) = read_as_double<float>(p + f[2]->offset);
-    } else {
-      for (int a = 0; a < 3; ++a) cloud.xyz(a, col) = read_field(p + f[a]->offset, f[a]->datatype);
-    }
-  }
+  cloud.xyz.resize(3, static_cast<Eigen::Index>(res.n));
+  if (res.n > 0) std::memcpy(cloud.xyz.data(), res.xyz, 3 * res.n * sizeof(double));
+  pcl.free(res.xyz);
   return cloud;
-}
-
-Cloud read_with_pcl(const std::string& bytes, const std::filesystem::path& original_path, bool from_memory, const std::string& display_name) {
-  pcl::PCLPointCloud2 pc;
-  int rc = -1;
-  try {
-    pcl::PCDReader reader;
-    if (from_memory) {
-      const MemoryFile file(bytes, display_name);
-      rc = reader.read(file.path(), pc);
-    } else {
-      rc = reader.read(original_path.string(), pc);
-    }
-  } catch (const std::exception& e) {
-    throw InputError("load_cloud: " + display_name + ": PCL's PCD reader failed: " + e.what());
-  }
-  if (rc < 0) {
-    throw InputError("load_cloud: " + display_name +
-                     ": PCL's PCD reader rejected the file (malformed header or data; its message is above)");
-  }
-  return to_cloud(pc, display_name);
 }
 
 // PCD header check. PCL's PCDReader crashes on some malformed files (a garbage file without

@@ -1,0 +1,309 @@
+// The PCL module hc_pcl.so (interface pipeline/src/pcl_module.h): PCL's PCD reader and filter
+// classes behind a C interface, loaded by hc::pipeline on first use so that no other command
+// pays PCL's start-up. Each entry point catches every exception; nothing C++ crosses the
+// boundary. The host (pcl_filters.cpp, filters.cpp, readers/read_pcd.cpp) checks the parameters,
+// copies the points in and maps the result back onto its cloud.
+
+#include "pcl_module.h"
+
+#include <pcl/PCLPointCloud2.h>
+#include <pcl/exceptions.h>
+#include <pcl/filters/approximate_voxel_grid.h>
+#include <pcl/filters/crop_box.h>
+#include <pcl/filters/passthrough.h>
+#include <pcl/filters/radius_outlier_removal.h>
+#include <pcl/filters/statistical_outlier_removal.h>
+#include <pcl/filters/uniform_sampling.h>
+#include <pcl/filters/voxel_grid.h>
+#include <pcl/io/pcd_io.h>
+#include <pcl/point_cloud.h>
+#include <pcl/point_types.h>
+#include <pcl/search/kdtree.h>
+#include <pcl/segmentation/extract_clusters.h>
+// pcl::extractEuclideanClusters is instantiated here, not taken from libpcl_segmentation (not
+// linked). Only that function template: the class's extract() would also instantiate
+// OrganizedNeighbor, whose vtable copy here would then stand in for the one of Debian's C++14
+// libpcl_search.
+#include <pcl/segmentation/impl/extract_clusters.hpp>
+#include <pcl/surface/mls.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <exception>
+#include <limits>
+#include <string>
+#include <vector>
+
+namespace {
+
+using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;
+
+void put(char* out, std::size_t size, const std::string& text) {
+  std::snprintf(out, size, "%s", text.c_str());
+}
+
+template <class T>
+T* copy_out(const std::vector<T>& v) {
+  if (v.empty()) return nullptr;
+  auto* p = static_cast<T*>(std::malloc(v.size() * sizeof(T)));
+  if (p == nullptr) throw std::bad_alloc();
+  std::memcpy(p, v.data(), v.size() * sizeof(T));
+  return p;
+}
+
+template <class T>
+double read_as_double(const std::uint8_t* p) {
+  T v;
+  std::memcpy(&v, p, sizeof(T));
+  return static_cast<double>(v);
+}
+
+double read_field(const std::uint8_t* p, std::uint8_t datatype) {
+  switch (datatype) {
+    case pcl::PCLPointField::INT8: return read_as_double<std::int8_t>(p);
+    case pcl::PCLPointField::UINT8: return read_as_double<std::uint8_t>(p);
+    case pcl::PCLPointField::INT16: return read_as_double<std::int16_t>(p);
+    case pcl::PCLPointField::UINT16: return read_as_double<std::uint16_t>(p);
+    case pcl::PCLPointField::INT32: return read_as_double<std::int32_t>(p);
+    case pcl::PCLPointField::UINT32: return read_as_double<std::uint32_t>(p);
+    case pcl::PCLPointField::FLOAT32: return read_as_double<float>(p);
+    case pcl::PCLPointField::FLOAT64: return read_as_double<double>(p);
+    default: return std::numeric_limits<double>::quiet_NaN();
+  }
+}
+
+// x, y, z of every point of a PCLPointCloud2, each field in its own type; an error message
+// (empty on success).
+std::string to_xyz(const pcl::PCLPointCloud2& pc, const std::string& name, std::vector<double>& xyz) {
+  const pcl::PCLPointField* f[3] = {nullptr, nullptr, nullptr};
+  const char* names[3] = {"x", "y", "z"};
+  for (const auto& field : pc.fields) {
+    for (int a = 0; a < 3; ++a) {
+      if (field.name == names[a]) f[a] = &field;
+    }
+  }
+  for (int a = 0; a < 3; ++a) {
+    if (!f[a]) return "load_cloud: " + name + " has no '" + names[a] + "' field";
+    if (f[a]->datatype < pcl::PCLPointField::INT8 || f[a]->datatype > pcl::PCLPointField::FLOAT64) {
+      return "load_cloud: " + name + ": field '" + names[a] + "' has an unsupported type";
+    }
+  }
+  const std::size_t n = static_cast<std::size_t>(pc.width) * pc.height;
+  if (pc.data.size() < n * pc.point_step) {
+    return "load_cloud: " + name + ": PCL returned " + std::to_string(pc.data.size()) + " bytes for " +
+           std::to_string(n) + " points (file truncated?)";
+  }
+  xyz.resize(3 * n);
+  const std::uint8_t* base = pc.data.data();
+  const bool all_float = f[0]->datatype == pcl::PCLPointField::FLOAT32 && f[1]->datatype == pcl::PCLPointField::FLOAT32 &&
+                         f[2]->datatype == pcl::PCLPointField::FLOAT32;
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint8_t* p = base + i * pc.point_step;
+    for (int a = 0; a < 3; ++a) {
+      xyz[3 * i + static_cast<std::size_t>(a)] =
+          all_float ? read_as_double<float>(p + f[a]->offset) : read_field(p + f[a]->offset, f[a]->datatype);
+    }
+  }
+  return {};
+}
+
+// The filter of the job; the kept indices (subset filters) or the new points in `out`.
+void run_filter(const HcPclFilterJob& job, const PointCloudXYZ::Ptr& in, HcPclFilterResult& result,
+                std::vector<std::uint32_t>& kept_out, PointCloudXYZ& out) {
+  pcl::Indices kept;
+  result.subset = 1;
+  switch (job.kind) {
+    case HC_PCL_STATISTICAL_OUTLIER_REMOVAL: {
+      pcl::StatisticalOutlierRemoval<pcl::PointXYZ> f;
+      f.setInputCloud(in);
+      f.setMeanK(job.mean_k);
+      f.setStddevMulThresh(job.stddev_mul);
+      f.filter(kept);
+      break;
+    }
+    case HC_PCL_RADIUS_OUTLIER_REMOVAL: {
+      pcl::RadiusOutlierRemoval<pcl::PointXYZ> f;
+      f.setInputCloud(in);
+      f.setRadiusSearch(job.radius_m);
+      f.setMinNeighborsInRadius(job.min_neighbors);
+      f.filter(kept);
+      break;
+    }
+    case HC_PCL_PASS_THROUGH: {
+      pcl::PassThrough<pcl::PointXYZ> f;
+      f.setInputCloud(in);
+      f.setFilterFieldName(std::string(1, job.field));
+      f.setFilterLimits(static_cast<float>(job.min_m), static_cast<float>(job.max_m));
+      f.setNegative(job.negative != 0);
+      f.filter(kept);
+      break;
+    }
+    case HC_PCL_CROP_BOX: {
+      pcl::CropBox<pcl::PointXYZ> f;
+      f.setInputCloud(in);
+      f.setMin(Eigen::Vector4f(static_cast<float>(job.box_min_m[0]), static_cast<float>(job.box_min_m[1]),
+                               static_cast<float>(job.box_min_m[2]), 1.0f));
+      f.setMax(Eigen::Vector4f(static_cast<float>(job.box_max_m[0]), static_cast<float>(job.box_max_m[1]),
+                               static_cast<float>(job.box_max_m[2]), 1.0f));
+      f.setNegative(job.negative != 0);
+      f.filter(kept);
+      break;
+    }
+    case HC_PCL_UNIFORM_SAMPLING: {
+      pcl::UniformSampling<pcl::PointXYZ> f(/*extract_removed_indices=*/true);
+      f.setInputCloud(in);
+      f.setRadiusSearch(job.radius_m);
+      f.filter(out);
+      std::vector<bool> removed(in->size(), false);
+      for (const auto i : *f.getRemovedIndices()) removed[static_cast<std::size_t>(i)] = true;
+      for (std::size_t i = 0; i < in->size(); ++i) {
+        if (!removed[i]) kept.push_back(static_cast<pcl::index_t>(i));
+      }
+      if (kept.size() != out.size()) {
+        // Never misalign attributes: PCL's removed list must be the complement of its output.
+        throw std::runtime_error(std::to_string(kept.size()) + " kept indices but " + std::to_string(out.size()) +
+                                 " output points");
+      }
+      break;
+    }
+    case HC_PCL_EUCLIDEAN_CLUSTER_EXTRACTION: {
+      // What pcl::EuclideanClusterExtraction::extract does with a k-d tree given and no
+      // indices: the single-linkage clusters of the whole cloud, then sorted by size with
+      // PCL's own comparison, largest first (tests/pcl compare it with the class).
+      pcl::search::Search<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
+      tree->setInputCloud(in);
+      std::vector<pcl::PointIndices> clusters;
+      if (!in->empty()) {
+        pcl::extractEuclideanClusters(*in, tree, static_cast<float>(job.tolerance_m), clusters,
+                                      static_cast<unsigned int>(job.min_cluster_size),
+                                      static_cast<unsigned int>(job.max_cluster_size));
+      }
+      std::sort(clusters.rbegin(), clusters.rend(), pcl::comparePointClusters);
+      const std::size_t n = std::min<std::size_t>(clusters.size(), static_cast<std::size_t>(job.keep_clusters));
+      for (std::size_t c = 0; c < n; ++c) kept.insert(kept.end(), clusters[c].indices.begin(), clusters[c].indices.end());
+      result.clusters = clusters.size();
+      break;
+    }
+    case HC_PCL_VOXEL_GRID: {
+      result.subset = 0;
+      pcl::VoxelGrid<pcl::PointXYZ> f;
+      f.setInputCloud(in);
+      const auto leaf = static_cast<float>(job.leaf_m);
+      f.setLeafSize(leaf, leaf, leaf);
+      f.filter(out);
+      break;
+    }
+    case HC_PCL_APPROXIMATE_VOXEL_GRID: {
+      result.subset = 0;
+      pcl::ApproximateVoxelGrid<pcl::PointXYZ> f;
+      f.setInputCloud(in);
+      const auto leaf = static_cast<float>(job.leaf_m);
+      f.setLeafSize(leaf, leaf, leaf);
+      f.filter(out);
+      break;
+    }
+    case HC_PCL_MOVING_LEAST_SQUARES: {
+      result.subset = 0;
+      pcl::search::KdTree<pcl::PointXYZ>::Ptr tree(new pcl::search::KdTree<pcl::PointXYZ>);
+      pcl::MovingLeastSquares<pcl::PointXYZ, pcl::PointXYZ> f;
+      f.setInputCloud(in);
+      f.setSearchMethod(tree);
+      f.setSearchRadius(job.search_radius_m);
+      f.setPolynomialOrder(job.polynomial_order);
+      f.setComputeNormals(false);
+      f.process(out);
+      break;
+    }
+    default:
+      throw std::invalid_argument("unknown filter kind " + std::to_string(job.kind));
+  }
+  kept_out.assign(kept.begin(), kept.end());
+}
+
+}  // namespace
+
+extern "C" __attribute__((visibility("default"))) int hc_pcl_filter(const HcPclFilterJob* job, HcPclFilterResult* result) {
+  if (job == nullptr || result == nullptr) return 1;
+  *result = HcPclFilterResult{};
+  if (job->abi != HC_PCL_ABI) {
+    put(result->what, sizeof result->what, "ABI mismatch");
+    put(result->detail, sizeof result->detail, "the module speaks ABI " + std::to_string(HC_PCL_ABI) + ", the host " +
+                                                   std::to_string(job->abi));
+    return 1;
+  }
+  try {
+    PointCloudXYZ::Ptr in(new PointCloudXYZ);
+    in->resize(job->n);
+    for (std::size_t i = 0; i < job->n; ++i) (*in)[i] = pcl::PointXYZ(job->xyz[3 * i], job->xyz[3 * i + 1], job->xyz[3 * i + 2]);
+    in->is_dense = true;
+    std::vector<std::uint32_t> kept;
+    PointCloudXYZ out;
+    run_filter(*job, in, *result, kept, out);
+    if (result->subset) {
+      result->kept = copy_out(kept);
+      result->n_kept = kept.size();
+    } else {
+      std::vector<float> xyz(3 * out.size());
+      for (std::size_t i = 0; i < out.size(); ++i) {
+        xyz[3 * i] = out[i].x;
+        xyz[3 * i + 1] = out[i].y;
+        xyz[3 * i + 2] = out[i].z;
+      }
+      result->xyz = copy_out(xyz);
+      result->n_out = out.size();
+    }
+    return 0;
+  } catch (const std::exception& e) {
+    std::free(result->kept);
+    std::free(result->xyz);
+    result->kept = nullptr;
+    result->xyz = nullptr;
+    put(result->what, sizeof result->what, "PCL failed");
+    put(result->detail, sizeof result->detail, e.what());
+  } catch (...) {
+    put(result->what, sizeof result->what, "PCL failed");
+    put(result->detail, sizeof result->detail, "an unknown exception");
+  }
+  return 1;
+}
+
+extern "C" __attribute__((visibility("default"))) int hc_pcl_read_pcd(const char* path, const char* display_name,
+                                                                     HcPcdResult* result) {
+  if (path == nullptr || display_name == nullptr || result == nullptr) return 1;
+  *result = HcPcdResult{};
+  const std::string name = display_name;
+  try {
+    pcl::PCLPointCloud2 pc;
+    int rc = -1;
+    try {
+      pcl::PCDReader reader;
+      rc = reader.read(path, pc);
+    } catch (const std::exception& e) {
+      put(result->detail, sizeof result->detail, "load_cloud: " + name + ": PCL's PCD reader failed: " + e.what());
+      return 1;
+    }
+    if (rc < 0) {
+      put(result->detail, sizeof result->detail,
+          "load_cloud: " + name + ": PCL's PCD reader rejected the file (malformed header or data; its message is above)");
+      return 1;
+    }
+    std::vector<double> xyz;
+    const std::string why = to_xyz(pc, name, xyz);
+    if (!why.empty()) {
+      put(result->detail, sizeof result->detail, why);
+      return 1;
+    }
+    result->xyz = copy_out(xyz);
+    result->n = xyz.size() / 3;
+    return 0;
+  } catch (const std::exception& e) {
+    put(result->detail, sizeof result->detail, "load_cloud: " + name + ": " + e.what());
+  } catch (...) {
+    put(result->detail, sizeof result->detail, "load_cloud: " + name + ": an unknown exception in the PCL module");
+  }
+  return 1;
+}
+
+extern "C" __attribute__((visibility("default"))) void hc_pcl_free(void* p) { std::free(p); }
