@@ -711,10 +711,12 @@ double supported_fraction(const Cloud& points_m, const HeightField& grid, double
         const double dy = p[1] - g.y_of_row(r);
         const std::size_t row = static_cast<std::size_t>(r) * cols;
         for (int c = c_lo; c <= c_hi; ++c) {
-          const float z = f[row + static_cast<std::size_t>(c)];
+          const std::size_t k = row + static_cast<std::size_t>(c);
+          if (m[k] != 0) continue;  // supported already: a dense scan marks most samples early
+          const float z = f[k];
           if (std::isnan(z)) continue;
           const double dx = p[0] - g.x_of_col(c), dz = p[2] - static_cast<double>(z);
-          if (dx * dx + dy * dy + dz * dz <= tol_sq) m[row + static_cast<std::size_t>(c)] = 1;
+          if (dx * dx + dy * dy + dz * dz <= tol_sq) m[k] = 1;
         }
       }
     }
