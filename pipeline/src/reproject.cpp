@@ -1506,10 +1506,14 @@ GridGeometry grid_geometry_for_box(double x_min, double x_max, double y_min, dou
   return make_geometry(b, options);
 }
 
-UpsampleCoverage::UpsampleCoverage(const GridGeometry& g) : g_(g) {
-  for (int k = 1; k <= kMaxUpsampleFactor; ++k) {
+UpsampleCoverage::UpsampleCoverage(const GridGeometry& g, int k_first, int k_last) : g_(g), k_first_(k_first), k_last_(k_last) {
+  if (k_first < 1 || k_last < k_first || k_last > kMaxUpsampleFactor) {
+    throw std::invalid_argument("UpsampleCoverage: factors " + std::to_string(k_first) + " to " + std::to_string(k_last) +
+                                " (expected 1 <= first <= last <= " + std::to_string(kMaxUpsampleFactor) + ")");
+  }
+  for (int k = k_first; k <= k_last; ++k) {
     const GridGeometry c = coarse_geometry(g, k);
-    if (c.cols < 3 || c.rows < 3) break;
+    if (c.cols < 3 || c.rows < 3) break;  // and every larger factor's grid
     coarse_.push_back(c);
     hit_.emplace_back(c.cell_count(), 0);
   }
@@ -1520,13 +1524,15 @@ void UpsampleCoverage::add(const double* xyz, std::size_t n) {
 }
 
 int UpsampleCoverage::factor(double* coverage) const {
-  // auto_upsample_factor's loop, on the hits gathered so far.
-  for (int k = 1; k <= kMaxUpsampleFactor; ++k) {
-    if (static_cast<std::size_t>(k) > coarse_.size()) return std::max(1, k - 1);
-    *coverage = coverage_of_hits(hit_[static_cast<std::size_t>(k - 1)], coarse_[static_cast<std::size_t>(k - 1)]);
+  // auto_upsample_factor's loop from k_first on (the factors below it rejected already), on the
+  // hits gathered so far.
+  for (int k = k_first_; k <= k_last_; ++k) {
+    const std::size_t at = static_cast<std::size_t>(k - k_first_);
+    if (at >= coarse_.size()) return std::max(1, k - 1);  // this factor's grid is too small
+    *coverage = coverage_of_hits(hit_[at], coarse_[at]);
     if (*coverage >= kAutoUpsampleCoverage) return k;
   }
-  return kMaxUpsampleFactor;
+  return k_last_ == kMaxUpsampleFactor ? kMaxUpsampleFactor : 0;
 }
 
 int reproject_reach_cells(const ReprojectOptions& o, int k) {

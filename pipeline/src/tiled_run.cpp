@@ -994,6 +994,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   // again without them, as the in-core run grids after removing them).
   double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
   bool grid_box_from_file = false;  // the last lay_out took the grid's box from the file box
+  int coverage_passes = 0;  // over the input, for the upsample factor (lay_out)
   auto lay_out = [&](const FarCells* far, StageReport& rep) {
     const char* stage_name = far ? "tile_far_clusters" : "tile_plan";
     ro = config.grid.reproject;
@@ -1043,17 +1044,27 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
     double coverage = 0.0;
     if (config.grid.reproject.upsample_factor == 0) {
-      UpsampleCoverage cov(tiles.g);
-      for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
-                          "pass 2b of 3: the upsample coverage", [&](const Cloud& g) {
-                            if (!far) {
-                              cov.add(g.xyz.data(), g.size());
-                              return;
-                            }
-                            for (Eigen::Index i = 0; i < g.xyz.cols(); ++i)
-                              if (!far->holds(g.xyz.data() + 3 * i)) cov.add(g.xyz.data() + 3 * i, 1);
-                          });
-      tiles.k = cov.factor(&coverage);
+      // Factors 1 and 2 first (a scan as dense as its grid stops there); the rest, 3 to
+      // kMaxUpsampleFactor, in one more pass only when both fail. Each factor's coverage is its
+      // own grid's, so the factor is the one a single pass over all factors gives.
+      const auto coverage_pass = [&](int k_first, int k_last, const char* what) {
+        UpsampleCoverage cov(tiles.g, k_first, k_last);
+        for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name, what, [&](const Cloud& g) {
+          if (!far) {
+            cov.add(g.xyz.data(), g.size());
+            return;
+          }
+          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i)
+            if (!far->holds(g.xyz.data() + 3 * i)) cov.add(g.xyz.data() + 3 * i, 1);
+        });
+        return cov.factor(&coverage);
+      };
+      tiles.k = coverage_pass(1, 2, "pass 2b of 3: the upsample coverage");
+      coverage_passes = 1;
+      if (tiles.k == 0) {
+        tiles.k = coverage_pass(3, kMaxUpsampleFactor, "pass 2c of 3: the upsample coverage, factors 3 and more");
+        coverage_passes = 2;
+      }
       rep.figure("upsample_coverage", coverage);
     } else {
       tiles.k = ro.upsample_factor;
@@ -1130,7 +1141,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     r.report.notes = read_notes;
     r.report.notes.push_back(std::string("passes over the input: the file box, ") +
                              (grid_box_from_file ? "" : "the grid box, ") +
-                             (config.grid.reproject.upsample_factor == 0 ? "the upsample coverage, " : "") + "then the spill" +
+                             (coverage_passes == 2   ? "the upsample coverage for factors 1 and 2, again for 3 and more, "
+                              : coverage_passes == 1 ? "the upsample coverage, "
+                                                     : "") +
+                             "then the spill" +
                              (grid_box_from_file ? " (the grid's box is the file box's, recentred: identity view, no crop)" : ""));
     return r;
   });

@@ -46,6 +46,15 @@ double stage_figure(const BuiltScene& b, const std::string& stage, const std::st
   return -1.0;
 }
 
+// True when a note of the stage holds `text`.
+bool has_note(const BuiltScene& b, const std::string& stage, const std::string& text) {
+  for (const auto& s : b.summary.stages)
+    if (s.stage == stage)
+      for (const auto& note : s.notes)
+        if (note.find(text) != std::string::npos) return true;
+  return false;
+}
+
 // Both runs of one config; the tiled one with tiles of `tile` cells under `scratch`.
 void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scratch) {
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
@@ -405,13 +414,13 @@ void write_coloured_wall(const fs::path& file, std::uint64_t points) {
 }
 
 // A generated wall with colour, read natively in chunks (binary PLY), at a grid finer than the
-// scan (an upsample factor above 1, tiles aligned to it).
+// scan (an upsample factor above 2, tiles aligned to it; the plan's second coverage pass).
 TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {
   const fs::path dir = hc::test::temp_dir("wall");
   write_coloured_wall(dir / "wall.ply", 300'000);
   const std::string yaml =
       "input: {files: [wall.ply], units: m}\n"
-      "grid: {n: 900, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64, "
+      "grid: {n: 1400, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64, "
       "upsample: auto}\n"
       "cross_check: {tolerance_m: 0.002}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 4096}\n";
   RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml");
@@ -420,7 +429,8 @@ TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
   config.scale.scratch = dir / "scratch";
   const BuiltScene tiled = hc::pipeline::build_scene(config);
-  EXPECT_GE(stage_figure(tiled, "tile_plan", "upsample_factor"), 2.0);
+  EXPECT_GE(stage_figure(tiled, "tile_plan", "upsample_factor"), 3.0);
+  EXPECT_TRUE(has_note(tiled, "tile_plan", "the upsample coverage for factors 1 and 2, again for 3 and more"));
   EXPECT_FALSE(tiled.scene.layers.colour_rgb8.empty());
 }
 

@@ -220,17 +220,25 @@ GridGeometry grid_geometry_for_box(double x_min, double x_max, double y_min, dou
 
 /// upsample_factor 0 (auto) over points given in chunks: add() every point once, then factor()
 /// is what reproject would choose for them all on grid g (the same node coverage per factor, the
-/// same stopping rule). Memory: one byte per node of every coarse grid, about 1.65 × g's nodes.
+/// same stopping rule). It tracks the factors k_first to k_last only, so that a streamed run can
+/// decide the common factors (1 and 2) in one pass and read the points again for the rest only
+/// when those fail (each factor's coverage comes from its own nodes, so the split changes
+/// nothing). Memory: one byte per node of each tracked factor's grid (g's nodes / K²).
 class UpsampleCoverage {
  public:
-  explicit UpsampleCoverage(const GridGeometry& g);
+  /// @throws std::invalid_argument unless 1 ≤ k_first ≤ k_last ≤ kMaxUpsampleFactor.
+  explicit UpsampleCoverage(const GridGeometry& g, int k_first = 1, int k_last = kMaxUpsampleFactor);
   /// Marks the nodes of n points (3·n doubles, x y z, grid frame [m]); non-finite ones are skipped.
   void add(const double* xyz, std::size_t n);
-  /// The factor K, and in *coverage the coverage reached at it.
+  /// The factor K, and in *coverage the coverage reached at it; 0 when none of the tracked
+  /// factors is chosen and larger ones remain (k_last < kMaxUpsampleFactor): track those next.
+  /// The factors below k_first must have been rejected already (their coverage below
+  /// kAutoUpsampleCoverage).
   int factor(double* coverage) const;
 
  private:
   GridGeometry g_;
+  int k_first_ = 1, k_last_ = kMaxUpsampleFactor;
   std::vector<GridGeometry> coarse_;
   std::vector<std::vector<std::uint8_t>> hit_;
 };

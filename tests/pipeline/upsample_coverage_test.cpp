@@ -1,0 +1,73 @@
+// UpsampleCoverage (reproject.hpp) over a range of factors: the tiled run's plan decides factors
+// 1 and 2 in one pass and reads the points again for 3 and more only when both fail. The oracle
+// is reproject's own auto factor (auto_upsample_factor over the whole cloud in memory).
+
+#include "hc/pipeline/reproject.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+#include <set>
+#include <stdexcept>
+#include <string>
+
+namespace upsample_coverage_test {
+
+using hc::pipeline::Cloud;
+using hc::pipeline::ReprojectOptions;
+using hc::pipeline::UpsampleCoverage;
+
+double figure(const hc::pipeline::StageReport& r, const std::string& name) {
+  for (const auto& [k, v] : r.figures)
+    if (k == name) return v;
+  ADD_FAILURE() << "no figure " << name;
+  return NAN;
+}
+
+TEST(UpsampleCoverage, TwoPassesOverRangesChooseReprojectsFactorAtEveryDensity) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  int second_pass = 0;
+  std::set<int> factors;
+  for (const std::size_t n : {200000u, 40000u, 12000u, 5000u, 2500u, 1200u}) {
+    Cloud c;
+    c.xyz.resize(3, static_cast<Eigen::Index>(n));
+    for (std::size_t i = 0; i < n; ++i) c.xyz.col(static_cast<Eigen::Index>(i)) << u(rng), 0.5 * u(rng), 0.01 * u(rng);
+    ReprojectOptions o;
+    o.grid.n_long_side = 301;
+    o.upsample_factor = 0;
+    const auto whole = hc::pipeline::reproject(c, o);
+    const int want = static_cast<int>(figure(whole.report, "upsample_factor"));
+    factors.insert(want);
+    const hc::GridGeometry& g = whole.value.depth.geometry();
+    // In chunks, as the plan streams them.
+    const auto run = [&](int first, int last, double* coverage) {
+      UpsampleCoverage cov(g, first, last);
+      for (std::size_t at = 0; at < n; at += 777) cov.add(c.xyz.data() + 3 * at, std::min<std::size_t>(777, n - at));
+      return cov.factor(coverage);
+    };
+    double coverage = 0.0;
+    int got = run(1, 2, &coverage);
+    if (got == 0) {
+      ++second_pass;
+      got = run(3, hc::pipeline::kMaxUpsampleFactor, &coverage);
+    }
+    EXPECT_EQ(got, want) << n << " points";
+    EXPECT_EQ(coverage, figure(whole.report, "upsample_coverage")) << n << " points";
+    double one_pass = 0.0;
+    EXPECT_EQ(run(1, hc::pipeline::kMaxUpsampleFactor, &one_pass), want);
+    EXPECT_EQ(one_pass, coverage);
+  }
+  EXPECT_GT(second_pass, 0);           // the second pass was needed and taken
+  EXPECT_GE(factors.size(), 3U);       // factors 1, 2 and beyond among the densities
+}
+
+TEST(UpsampleCoverage, RejectsAnEmptyOrReversedRange) {
+  hc::GridGeometry g{100, 100, 0.0, 0.0, 0.01};
+  EXPECT_THROW(UpsampleCoverage(g, 0, 2), std::invalid_argument);
+  EXPECT_THROW(UpsampleCoverage(g, 3, 2), std::invalid_argument);
+  EXPECT_THROW(UpsampleCoverage(g, 1, hc::pipeline::kMaxUpsampleFactor + 1), std::invalid_argument);
+}
+
+}  // namespace upsample_coverage_test
