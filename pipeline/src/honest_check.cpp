@@ -1467,15 +1467,29 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
         const int span = static_cast<int>(std::ceil(rho * inv));
         const int r0 = static_cast<int>(cell_of[i] / static_cast<std::uint32_t>(g.cols));
         const int c0 = static_cast<int>(cell_of[i] % static_cast<std::uint32_t>(g.cols));
+        // The cells in rings about the point's own (Chebyshev distance 0, 1, ..., span), nearest
+        // first, until the count is reached: the verdict is the same in any order, and a point on
+        // the surface usually finds its neighbours in its own cell.
         int count = 0;
-        for (int rr = std::max(0, r0 - span); rr <= std::min(g.rows - 1, r0 + span) && count < o.isolation_min_neighbours; ++rr)
-          for (int cc = std::max(0, c0 - span); cc <= std::min(g.cols - 1, c0 + span) && count < o.isolation_min_neighbours; ++cc) {
-            const std::size_t cell = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
-            for (std::uint32_t k = first[cell]; k < first[cell + 1]; ++k) {
-              const std::uint32_t j = order[k];
-              if (j != i && (cloud.xyz.col(static_cast<Eigen::Index>(j)) - p).squaredNorm() <= rho * rho) ++count;
+        const auto visit = [&](int rr, int cc) {
+          const std::size_t cell = static_cast<std::size_t>(rr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(cc);
+          for (std::uint32_t k = first[cell]; k < first[cell + 1]; ++k) {
+            const std::uint32_t j = order[k];
+            if (j != i && (cloud.xyz.col(static_cast<Eigen::Index>(j)) - p).squaredNorm() <= rho * rho) ++count;
+          }
+        };
+        visit(r0, c0);
+        for (int d = 1; d <= span && count < o.isolation_min_neighbours; ++d) {
+          const int c_lo = std::max(0, c0 - d), c_hi = std::min(g.cols - 1, c0 + d);
+          for (int rr = std::max(0, r0 - d); rr <= std::min(g.rows - 1, r0 + d); ++rr) {
+            if (rr == r0 - d || rr == r0 + d) {
+              for (int cc = c_lo; cc <= c_hi; ++cc) visit(rr, cc);  // the ring's top or bottom row
+            } else {
+              if (c0 - d >= 0) visit(rr, c0 - d);  // its sides
+              if (c0 + d < g.cols) visit(rr, c0 + d);
             }
           }
+        }
         stray[ci] = count < o.isolation_min_neighbours ? 1 : 0;
       }
     });
