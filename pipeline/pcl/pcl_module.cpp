@@ -40,8 +40,13 @@ namespace {
 
 using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;
 
-void put(char* out, std::size_t size, const std::string& text) {
+void put(char* out, std::size_t size, const std::string& text) noexcept {
   std::snprintf(out, size, "%s", text.c_str());
+}
+
+// For the catch blocks: no allocation, so nothing can throw out of an entry point.
+void put_c(char* out, std::size_t size, const char* a, const char* b = "") noexcept {
+  std::snprintf(out, size, "%s%s", a, b);
 }
 
 template <class T>
@@ -228,9 +233,8 @@ extern "C" __attribute__((visibility("default"))) int hc_pcl_filter(const HcPclF
   if (job == nullptr || result == nullptr) return 1;
   *result = HcPclFilterResult{};
   if (job->abi != HC_PCL_ABI) {
-    put(result->what, sizeof result->what, "ABI mismatch");
-    put(result->detail, sizeof result->detail, "the module speaks ABI " + std::to_string(HC_PCL_ABI) + ", the host " +
-                                                   std::to_string(job->abi));
+    put_c(result->what, sizeof result->what, "ABI mismatch");
+    std::snprintf(result->detail, sizeof result->detail, "the module speaks ABI %d, the host %d", HC_PCL_ABI, job->abi);
     return 1;
   }
   try {
@@ -260,21 +264,30 @@ extern "C" __attribute__((visibility("default"))) int hc_pcl_filter(const HcPclF
     std::free(result->xyz);
     result->kept = nullptr;
     result->xyz = nullptr;
-    put(result->what, sizeof result->what, "PCL failed");
-    put(result->detail, sizeof result->detail, e.what());
+    put_c(result->what, sizeof result->what, "PCL failed");
+    put_c(result->detail, sizeof result->detail, e.what());
   } catch (...) {
-    put(result->what, sizeof result->what, "PCL failed");
-    put(result->detail, sizeof result->detail, "an unknown exception");
+    std::free(result->kept);
+    std::free(result->xyz);
+    result->kept = nullptr;
+    result->xyz = nullptr;
+    put_c(result->what, sizeof result->what, "PCL failed");
+    put_c(result->detail, sizeof result->detail, "an unknown exception");
   }
   return 1;
 }
 
-extern "C" __attribute__((visibility("default"))) int hc_pcl_read_pcd(const char* path, const char* display_name,
+extern "C" __attribute__((visibility("default"))) int hc_pcl_read_pcd(int abi, const char* path, const char* display_name,
                                                                      HcPcdResult* result) {
   if (path == nullptr || display_name == nullptr || result == nullptr) return 1;
   *result = HcPcdResult{};
-  const std::string name = display_name;
+  if (abi != HC_PCL_ABI) {
+    std::snprintf(result->detail, sizeof result->detail, "load_cloud: %s: the PCL module speaks ABI %d, the host %d",
+                  display_name, HC_PCL_ABI, abi);
+    return 1;
+  }
   try {
+    const std::string name = display_name;
     pcl::PCLPointCloud2 pc;
     int rc = -1;
     try {
@@ -299,9 +312,13 @@ extern "C" __attribute__((visibility("default"))) int hc_pcl_read_pcd(const char
     result->n = xyz.size() / 3;
     return 0;
   } catch (const std::exception& e) {
-    put(result->detail, sizeof result->detail, "load_cloud: " + name + ": " + e.what());
+    std::free(result->xyz);
+    result->xyz = nullptr;
+    std::snprintf(result->detail, sizeof result->detail, "load_cloud: %s: %s", display_name, e.what());
   } catch (...) {
-    put(result->detail, sizeof result->detail, "load_cloud: " + name + ": an unknown exception in the PCL module");
+    std::free(result->xyz);
+    result->xyz = nullptr;
+    std::snprintf(result->detail, sizeof result->detail, "load_cloud: %s: an unknown exception in the PCL module", display_name);
   }
   return 1;
 }

@@ -175,15 +175,21 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
   job.leaf_m = leaf_m;
   HcPclFilterResult res{};
   const int rc = pcl.filter(&job, &res);
-  std::vector<float> out_xyz(res.xyz, res.xyz + 3 * res.n_out);
-  pcl.free(res.xyz);
-  pcl.free(res.kept);
+  // The module's buffers, released on every way out (an allocation below may throw).
+  struct Release {
+    const detail::PclModule& m;
+    HcPclFilterResult& r;
+    ~Release() {
+      m.free(r.kept);
+      m.free(r.xyz);
+    }
+  } release{pcl, res};
   if (rc != 0) throw InputError(std::string("voxel_downsample: ") + res.what + ": " + res.detail);
   const std::size_t n_out = res.n_out;
   Cloud result;
   result.xyz.resize(3, static_cast<Eigen::Index>(n_out));
   for (std::size_t i = 0; i < n_out; ++i) {
-    for (int a = 0; a < 3; ++a) result.xyz(a, static_cast<Eigen::Index>(i)) = static_cast<double>(out_xyz[3 * i + static_cast<std::size_t>(a)]);
+    for (int a = 0; a < 3; ++a) result.xyz(a, static_cast<Eigen::Index>(i)) = static_cast<double>(res.xyz[3 * i + static_cast<std::size_t>(a)]);
   }
   report.count_out = result.size();
   report.figure("leaf_mm", leaf_m * 1e3);

@@ -14,7 +14,7 @@
 
 namespace hc::pipeline::detail {
 
-LoadedModule load_module(const char* file_name, const char* env_var, const char* symbol) {
+LoadedModule load_module(const char* file_name, const char* env_var, std::initializer_list<const char*> symbols) {
   LoadedModule module;
   std::vector<std::string> candidates;
   if (const char* env = std::getenv(env_var); env && *env) candidates.emplace_back(env);
@@ -49,12 +49,15 @@ LoadedModule load_module(const char* file_name, const char* env_var, const char*
       module.tried += std::string(" (") + (why ? why : "dlopen failed") + ")";
       continue;
     }
-    if (dlsym(handle, symbol) != nullptr) {
+    const char* missing = nullptr;
+    for (const char* symbol : symbols)
+      if (missing == nullptr && dlsym(handle, symbol) == nullptr) missing = symbol;
+    if (missing == nullptr) {
       module.handle = handle;
       module.path = c;
       return module;  // kept loaded for the rest of the process
     }
-    module.tried += " (no symbol " + std::string(symbol) + ")";
+    module.tried += " (no symbol " + std::string(missing) + ")";
     dlclose(handle);
   }
   return module;
@@ -65,19 +68,13 @@ const PclModule& pcl_module(const std::string& who) {
   static std::string tried;
   static std::once_flag once;
   std::call_once(once, [] {
-    const LoadedModule m = load_module("hc_pcl.so", "HC_PCL_MODULE", HC_PCL_FILTER_SYMBOL);
+    const LoadedModule m =
+        load_module("hc_pcl.so", "HC_PCL_MODULE", {HC_PCL_FILTER_SYMBOL, HC_PCL_READ_PCD_SYMBOL, HC_PCL_FREE_SYMBOL});
     tried = m.tried;
     if (!m.handle) return;
-    auto filter = reinterpret_cast<HcPclFilterFn>(dlsym(m.handle, HC_PCL_FILTER_SYMBOL));
-    auto read_pcd = reinterpret_cast<HcPclReadPcdFn>(dlsym(m.handle, HC_PCL_READ_PCD_SYMBOL));
-    auto release = reinterpret_cast<HcPclFreeFn>(dlsym(m.handle, HC_PCL_FREE_SYMBOL));
-    if (!filter || !read_pcd || !release) {
-      tried += " (" + m.path + " lacks " HC_PCL_READ_PCD_SYMBOL " or " HC_PCL_FREE_SYMBOL ")";
-      return;
-    }
-    module.filter = filter;
-    module.read_pcd = read_pcd;
-    module.free = release;
+    module.filter = reinterpret_cast<HcPclFilterFn>(dlsym(m.handle, HC_PCL_FILTER_SYMBOL));
+    module.read_pcd = reinterpret_cast<HcPclReadPcdFn>(dlsym(m.handle, HC_PCL_READ_PCD_SYMBOL));
+    module.free = reinterpret_cast<HcPclFreeFn>(dlsym(m.handle, HC_PCL_FREE_SYMBOL));
     module.path = m.path;
   });
   if (!module.filter) {

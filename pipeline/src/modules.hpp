@@ -5,6 +5,7 @@
 
 #include "pcl_module.h"
 
+#include <initializer_list>
 #include <string>
 
 namespace hc::pipeline::detail {
@@ -17,12 +18,12 @@ struct LoadedModule {
 };
 
 /// Looks for the module file `file_name` and loads it (RTLD_NOW | RTLD_LOCAL), accepting the
-/// first candidate that exports `symbol`. Candidates, in order: $`env_var` (a file); beside the
+/// first candidate that exports every one of `symbols` (a stale or foreign file is passed over). Candidates, in order: $`env_var` (a file); beside the
 /// binary that holds this code (dladdr, else /proc/self/exe), then that binary's folder +
 /// HC_MODULE_DIR_FROM_BINDIR (the installed tree: bin/ → lib/hapticloud/); the installed
 /// module folder; the build tree's. Never throws; thread-safe when each caller serialises its
 /// own first call (std::call_once).
-LoadedModule load_module(const char* file_name, const char* env_var, const char* symbol);
+LoadedModule load_module(const char* file_name, const char* env_var, std::initializer_list<const char*> symbols);
 
 /// The PCL module's entry points (pcl_module.h), loaded on the first call.
 struct PclModule {

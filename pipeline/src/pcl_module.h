@@ -14,7 +14,7 @@
 extern "C" {
 #endif
 
-#define HC_PCL_ABI 1
+#define HC_PCL_ABI 2
 
 /* The PCL filter classes (hc::pipeline::PclFilterKind, in its order). */
 enum HcPclFilterKind {
@@ -78,9 +78,9 @@ typedef struct HcPcdResult {
   char detail[1024];
 } HcPcdResult;
 
-/* Returns 0 on success, else non-zero with `result->detail` set; `display_name` names the file
- * in messages. */
-typedef int (*HcPclReadPcdFn)(const char* path, const char* display_name, HcPcdResult* result);
+/* Returns 0 on success, else non-zero with `result->detail` set; `abi` is HC_PCL_ABI (a module of
+ * another ABI refuses); `display_name` names the file in messages. */
+typedef int (*HcPclReadPcdFn)(int abi, const char* path, const char* display_name, HcPcdResult* result);
 #define HC_PCL_READ_PCD_SYMBOL "hc_pcl_read_pcd"
 
 /* Releases what the module allocated (HcPclFilterResult::kept / xyz, HcPcdResult::xyz). */

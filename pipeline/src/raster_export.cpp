@@ -41,7 +41,7 @@ const Module& geotiff_module() {
   static Module module;
   static std::once_flag once;
   std::call_once(once, [] {
-    const detail::LoadedModule m = detail::load_module(kModuleName, "HC_GDAL_MODULE", HC_GEOTIFF_WRITE_SYMBOL);
+    const detail::LoadedModule m = detail::load_module(kModuleName, "HC_GDAL_MODULE", {HC_GEOTIFF_WRITE_SYMBOL});
     module.tried = m.tried;
     if (!m.handle) return;
     module.write = reinterpret_cast<HcGeoTiffWriteFn>(dlsym(m.handle, HC_GEOTIFF_WRITE_SYMBOL));

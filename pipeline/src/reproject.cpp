@@ -1261,6 +1261,7 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
     return whole("interpolating splats sum heights relative to a window's first cell, so a window is not bit for bit the grid");
   }
   if (m > 4096) return whole("more than 4096 points removed");
+  if (n >= std::numeric_limits<std::uint32_t>::max()) return whole("2^32 - 1 points or more (the windows list points by 32-bit column)");
 
   // The whole grid and the factor, as reproject would make them from these points.
   const double* pts = points_m.xyz.data();
@@ -1517,6 +1518,10 @@ UpsampleCoverage::UpsampleCoverage(const GridGeometry& g, int k_first, int k_las
     coarse_.push_back(c);
     hit_.emplace_back(c.cell_count(), 0);
   }
+  if (k_last < kMaxUpsampleFactor) {
+    const GridGeometry next = coarse_geometry(g, k_last + 1);
+    next_too_small_ = next.cols < 3 || next.rows < 3;
+  }
 }
 
 void UpsampleCoverage::add(const double* xyz, std::size_t n) {
@@ -1532,7 +1537,8 @@ int UpsampleCoverage::factor(double* coverage) const {
     *coverage = coverage_of_hits(hit_[at], coarse_[at]);
     if (*coverage >= kAutoUpsampleCoverage) return k;
   }
-  return k_last_ == kMaxUpsampleFactor ? kMaxUpsampleFactor : 0;
+  if (k_last_ == kMaxUpsampleFactor) return kMaxUpsampleFactor;
+  return next_too_small_ ? k_last_ : 0;  // the next factor's grid too small: k_last, as one pass gives
 }
 
 int reproject_reach_cells(const ReprojectOptions& o, int k) {

@@ -32,18 +32,22 @@ using hc::pipeline::StageResult;
 
 std::uint32_t bits(float v) { return std::bit_cast<std::uint32_t>(v); }
 
-// A carved relief (1 m × 0.5 m) scanned at random positions with noise, colour and intensity:
+// A carved relief (1 m × 0.4775 m, two corner points fix the box) scanned at random positions
+// with noise, colour and intensity:
 // a back face 40 mm behind it seen through sparse gaps (see-through events), an empty disc in the
 // middle (splat fills at its rim), stray points in front (spikes), and two non-finite points.
 Cloud relief(std::size_t n, std::uint32_t seed) {
   std::mt19937 rng(seed);
-  std::uniform_real_distribution<double> ux(0.0, 1.0), uy(0.0, 0.5), u01(0.0, 1.0);
+  std::uniform_real_distribution<double> ux(0.0, 1.0), uy(0.0, 0.4775), u01(0.0, 1.0);
   std::normal_distribution<double> noise(0.0, 0.0005);
-  std::vector<double> xyz;
+  // The box's corners, so that with n_long_side 602 the grid has 602 × 288 nodes: 601 and 287
+  // intervals, multiples of neither 2 nor 3, so an upsampled scan has a coarse node past the
+  // grid's last row and column.
+  std::vector<double> xyz = {0.0, 0.0, 0.0, 1.0, 0.4775, 0.0};
   Cloud c;
   for (std::size_t i = 0; i < n; ++i) {
     const double x = ux(rng), y = uy(rng);
-    if (std::hypot(x - 0.5, y - 0.25) < 0.04) continue;  // a hole
+    if (std::hypot(x - 0.5, y - 0.24) < 0.04) continue;  // a hole
     double z = 0.01 * std::sin(20.0 * x) * std::cos(15.0 * y) + noise(rng);
     const double pick = u01(rng);
     if (pick < 0.03) z -= 0.04;        // the back face, through the front's gaps
@@ -110,7 +114,7 @@ bool made_locally(const StageReport& r) {
 
 ReprojectOptions options(SplatMode mode, int upsample) {
   ReprojectOptions o;
-  o.grid.n_long_side = 601;
+  o.grid.n_long_side = 602;
   o.splat_radius_cells = 1.5;
   o.splat_mode = mode;
   o.see_through_depth_m = 0.02;
@@ -169,6 +173,9 @@ TEST(ReprojectAfterRemoval, EqualsAWholeReprojectForPlaneAndDiscSplatsAtEveryUps
     for (const int upsample : {1, 2, 3, 0}) {
       const ReprojectOptions o = options(mode, upsample);
       const auto before = hc::pipeline::reproject(cloud, o);
+      const hc::GridGeometry& g = before.value.depth.geometry();
+      ASSERT_EQ(g.cols, 602);
+      ASSERT_EQ(g.rows, 288);
       for (const std::size_t count : {std::size_t{1}, std::size_t{8}}) {
         const std::string what = std::string(mode == SplatMode::kPlane ? "plane" : "disc") + ", upsample " +
                                  std::to_string(upsample) + ", " + std::to_string(count) + " random points";
@@ -215,24 +222,39 @@ TEST(ReprojectAfterRemoval, RemovingStraysChangesTheGridAndStillMatches) {
 
 TEST(ReprojectAfterRemoval, EqualsTheWindowsOwnReprojectInATile) {
   const Cloud cloud = relief(500000, 9);
-  for (const int k : {1, 2}) {
+  for (const int k : {1, 2, 3}) {
+    SCOPED_TRACE("upsample " + std::to_string(k));
     ReprojectOptions o = options(SplatMode::kPlane, k);
     const auto whole = hc::pipeline::reproject(cloud, o);
     GridWindow w;
     w.grid = whole.value.depth.geometry();
-    w.row0 = 20 * k;
-    w.col0 = 30 * k;
+    // With k = 3, a "whole grid" 40 columns short of the points: points (and removed points)
+    // beyond its last column, which a window skips but does not clamp.
+    if (k == 3) w.grid.cols -= 40;
+    w.row0 = k == 3 ? 0 : 20 * k;  // with k = 3 the whole (short) grid: a window of it would be
+    w.col0 = k == 3 ? 0 : 30 * k;  // mostly halo at that reach, and fall back
     w.rows = std::min(200, w.grid.rows - w.row0);
     w.cols = w.grid.cols - w.col0;  // reaches the grid's last column
     o.window = w;
     const auto before = hc::pipeline::reproject(cloud, o);
     RemovedPoints removed;
     // Random points, and points near the window's edges (inside and outside).
-    std::vector<std::size_t> gone = pick(cloud, 3, 23, w.grid, false);
-    for (std::size_t i = 0; i < cloud.size() && gone.size() < 6; ++i) {
+    std::vector<std::size_t> gone = pick(cloud, k == 3 ? 1 : 3, 23, w.grid, false);
+    for (std::size_t i = 0; i < cloud.size() && gone.size() < (k == 3 ? 2U : 6U); ++i) {
       const auto p = cloud.xyz.col(static_cast<Eigen::Index>(i));
       const double fr = (p[1] - w.grid.y0_m) / w.grid.cell_size_m - w.row0;
       if (p.allFinite() && std::abs(fr) < 2.0 && p[0] > w.grid.x_of_col(w.col0 + 10) && p[0] < 0.99) gone.push_back(i);
+    }
+    if (k == 3) {  // two points beyond the whole grid's last column
+      int beyond = 0;
+      for (std::size_t i = 0; i < cloud.size() && beyond < 2; ++i) {
+        const auto p = cloud.xyz.col(static_cast<Eigen::Index>(i));
+        if (p.allFinite() && p[0] > w.grid.x_of_col(w.grid.cols + 5) && p[0] < 0.99 && p[1] > 0.01 && p[1] < 0.46) {
+          gone.push_back(i);
+          ++beyond;
+        }
+      }
+      ASSERT_EQ(beyond, 2);
     }
     std::sort(gone.begin(), gone.end());
     gone.erase(std::unique(gone.begin(), gone.end()), gone.end());

@@ -63,6 +63,31 @@ TEST(UpsampleCoverage, TwoPassesOverRangesChooseReprojectsFactorAtEveryDensity) 
   EXPECT_GE(factors.size(), 3U);       // factors 1, 2 and beyond among the densities
 }
 
+TEST(UpsampleCoverage, AGridTooSmallForFactorThreeIsDecidedInTheFirstPass) {
+  // 40 × 4 nodes: factor 3's grid has 2 rows, so reproject stops at factor 2 whatever the
+  // coverage; the first pass must say so instead of asking for a second one.
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  Cloud c;
+  c.xyz.resize(3, 12);
+  c.xyz.col(0) << 0.0, 0.0, 0.0;
+  c.xyz.col(1) << 1.0, 0.075, 0.0;
+  for (Eigen::Index i = 2; i < 12; ++i) c.xyz.col(i) << u(rng), 0.075 * u(rng), 0.0;
+  ReprojectOptions o;
+  o.grid.n_long_side = 40;
+  o.upsample_factor = 0;
+  const auto whole = hc::pipeline::reproject(c, o);
+  const hc::GridGeometry& g = whole.value.depth.geometry();
+  ASSERT_EQ(g.rows, 4);
+  const int want = static_cast<int>(figure(whole.report, "upsample_factor"));
+  ASSERT_EQ(want, 2);  // sparse: neither 1 nor 2 reaches the coverage, 3 is too small
+  UpsampleCoverage first(g, 1, 2);
+  first.add(c.xyz.data(), 12);
+  double coverage = 0.0;
+  EXPECT_EQ(first.factor(&coverage), want);
+  EXPECT_EQ(coverage, figure(whole.report, "upsample_coverage"));
+}
+
 TEST(UpsampleCoverage, RejectsAnEmptyOrReversedRange) {
   hc::GridGeometry g{100, 100, 0.0, 0.0, 0.01};
   EXPECT_THROW(UpsampleCoverage(g, 0, 2), std::invalid_argument);

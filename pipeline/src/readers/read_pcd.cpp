@@ -29,6 +29,7 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <memory>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -87,21 +88,20 @@ double read_as_double(const std::uint8_t* p) {
 Cloud read_with_pcl(const std::string& bytes, const std::filesystem::path& original_path, bool from_memory, const std::string& display_name) {
   const PclModule& pcl = pcl_module("load_cloud: " + display_name + " (a PCD file with an ascii or binary_compressed body)");
   HcPcdResult res{};
+  // The module's buffer, released on every way out (an allocation below may throw).
+  const auto release = [&pcl](double* p) { pcl.free(p); };
   int rc = 0;
   if (from_memory) {
     const MemoryFile file(bytes, display_name);
-    rc = pcl.read_pcd(file.path().c_str(), display_name.c_str(), &res);
+    rc = pcl.read_pcd(HC_PCL_ABI, file.path().c_str(), display_name.c_str(), &res);
   } else {
-    rc = pcl.read_pcd(original_path.string().c_str(), display_name.c_str(), &res);
+    rc = pcl.read_pcd(HC_PCL_ABI, original_path.string().c_str(), display_name.c_str(), &res);
   }
-  if (rc != 0) {
-    pcl.free(res.xyz);
-    throw InputError(res.detail);
-  }
+  const std::unique_ptr<double, decltype(release)> owned(res.xyz, release);
+  if (rc != 0) throw InputError(res.detail);
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(res.n));
   if (res.n > 0) std::memcpy(cloud.xyz.data(), res.xyz, 3 * res.n * sizeof(double));
-  pcl.free(res.xyz);
   return cloud;
 }
 

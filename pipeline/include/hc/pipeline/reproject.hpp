@@ -205,9 +205,11 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 /// @throws what reproject throws; std::invalid_argument when `removed` is malformed (not 3
 ///         coordinates per point, columns not increasing or beyond the cloud before) or
 ///         `before` does not have the window's size.
-/// Real-time: no. Cost: one pass over the points (their box; the coverage with upsample auto;
-/// their windows) + O(removed points × (2·reach + 3)² nodes), against reproject's two passes
-/// and O(rows·cols). Threads: as reproject.
+/// Real-time: no. Cost: three passes over the points (their box; the coverage with upsample
+/// auto; their windows) + O(removed points × (2·reach + 3)² nodes) + O(rows·cols) to count the
+/// flags, against reproject's two passes and its O(rows·cols) scan. Threads: as reproject.
+/// Falls back to the whole grid for 2^32 − 1 points or more (windows list points by 32-bit
+/// column).
 /// Source: this project (the locality the tiled run relies on, tiling.hpp).
 StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const RemovedPoints& removed,
                                                StageResult<DepthGrid> before, const ReprojectOptions& options);
@@ -231,7 +233,8 @@ class UpsampleCoverage {
   /// Marks the nodes of n points (3·n doubles, x y z, grid frame [m]); non-finite ones are skipped.
   void add(const double* xyz, std::size_t n);
   /// The factor K, and in *coverage the coverage reached at it; 0 when none of the tracked
-  /// factors is chosen and larger ones remain (k_last < kMaxUpsampleFactor): track those next.
+  /// factors is chosen and larger ones remain (k_last < kMaxUpsampleFactor and factor
+  /// k_last + 1's grid has at least 3 nodes along each side): track those next.
   /// The factors below k_first must have been rejected already (their coverage below
   /// kAutoUpsampleCoverage).
   int factor(double* coverage) const;
@@ -239,6 +242,7 @@ class UpsampleCoverage {
  private:
   GridGeometry g_;
   int k_first_ = 1, k_last_ = kMaxUpsampleFactor;
+  bool next_too_small_ = false;  // factor k_last + 1's grid has fewer than 3 nodes along a side
   std::vector<GridGeometry> coarse_;
   std::vector<std::vector<std::uint8_t>> hit_;
 };
