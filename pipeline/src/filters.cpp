@@ -175,15 +175,7 @@ StageResult<Cloud> voxel_downsample(Cloud cloud, double leaf_m) {
   job.leaf_m = leaf_m;
   HcPclFilterResult res{};
   const int rc = pcl.filter(&job, &res);
-  // The module's buffers, released on every way out (an allocation below may throw).
-  struct Release {
-    const detail::PclModule& m;
-    HcPclFilterResult& r;
-    ~Release() {
-      m.free(r.kept);
-      m.free(r.xyz);
-    }
-  } release{pcl, res};
+  const detail::PclFilterResultGuard release{pcl, res};  // an allocation below may throw
   if (rc != 0) throw InputError(std::string("voxel_downsample: ") + res.what + ": " + res.detail);
   const std::size_t n_out = res.n_out;
   Cloud result;

@@ -32,6 +32,17 @@ struct PclModule {
   HcPclFreeFn free = nullptr;
   std::string path;
 };
+/// Releases a filter result's buffers (HcPclFilterResult::kept, ::xyz) when it goes out of
+/// scope, on every way out.
+struct PclFilterResultGuard {
+  const PclModule& module;
+  HcPclFilterResult& result;
+  ~PclFilterResultGuard() {
+    module.free(result.kept);
+    module.free(result.xyz);
+  }
+};
+
 /// The PCL module, loaded once per process.
 /// @throws hc::InputError when it cannot be found or loaded, naming `who` (the stage or file
 ///         that needs PCL), where it looked and the variable HC_PCL_MODULE that names it.

@@ -216,15 +216,7 @@ StageResult<Cloud> apply_pcl_filter(Cloud cloud, const PclFilterSpec& spec) {
   job.keep_clusters = spec.keep_clusters;
   HcPclFilterResult res{};
   const int rc = pcl.filter(&job, &res);
-  // The module's buffers, released on every way out.
-  struct Release {
-    const detail::PclModule& m;
-    HcPclFilterResult& r;
-    ~Release() {
-      m.free(r.kept);
-      m.free(r.xyz);
-    }
-  } release{pcl, res};
+  const detail::PclFilterResultGuard release{pcl, res};  // the module's buffers, on every way out
   if (rc != 0) throw InputError("filters.pcl " + spec.name + ": " + res.what + ": " + res.detail);
   switch (spec.kind) {
     case PclFilterKind::kStatisticalOutlierRemoval:

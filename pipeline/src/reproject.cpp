@@ -821,6 +821,21 @@ std::size_t reject_see_through(float* depth, std::uint8_t* flags, const GridGeom
   return counted;
 }
 
+// The final grid's cells by flag: measured, splatted and upsampled (valid is their sum).
+struct FlagCounts {
+  std::size_t measured = 0, splatted = 0, upsampled = 0;
+  std::size_t valid() const { return measured + splatted + upsampled; }
+};
+FlagCounts count_flags(const std::vector<std::uint8_t>& flags) {
+  FlagCounts n;
+  for (const std::uint8_t f : flags) {
+    n.measured += f == kCellMeasured ? 1U : 0U;
+    n.splatted += f == kCellSplatted ? 1U : 0U;
+    n.upsampled += f == kCellUpsampled ? 1U : 0U;
+  }
+  return n;
+}
+
 // Counts of one scan_grid call, for the stage report.
 struct ScanCounts {
   std::size_t binned = 0, splatted = 0, occluded = 0, see_through = 0, candidates = 0;
@@ -1157,13 +1172,9 @@ StageResult<DepthGrid> reproject_counted(const Cloud& points_m, const ReprojectO
   }
   DepthGrid& out = result.value;
   const std::size_t cells = g.cell_count();
-  std::size_t measured = 0, splat_final = 0, upsampled = 0;
-  for (std::size_t i = 0; i < cells; ++i) {
-    measured += out.flags[i] == kCellMeasured ? 1U : 0U;
-    splat_final += out.flags[i] == kCellSplatted ? 1U : 0U;
-    upsampled += out.flags[i] == kCellUpsampled ? 1U : 0U;
-  }
-  const std::size_t valid = measured + splat_final + upsampled;
+  const FlagCounts by_flag = count_flags(out.flags);
+  const std::size_t measured = by_flag.measured, splat_final = by_flag.splatted, upsampled = by_flag.upsampled;
+  const std::size_t valid = by_flag.valid();
   const std::size_t binned = counts.binned, splatted = counts.splatted, occluded = counts.occluded;
   const std::size_t see_through_cells = counts.see_through, candidates = counts.candidates;
 
@@ -1459,13 +1470,9 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
   // the windows' differences.
   StageReport& rep = before.report;
   const std::size_t cells = grid.flags.size();
-  std::size_t measured = 0, splat_final = 0, upsampled = 0;
-  for (std::size_t i = 0; i < cells; ++i) {
-    measured += grid.flags[i] == kCellMeasured ? 1U : 0U;
-    splat_final += grid.flags[i] == kCellSplatted ? 1U : 0U;
-    upsampled += grid.flags[i] == kCellUpsampled ? 1U : 0U;
-  }
-  const std::size_t valid = measured + splat_final + upsampled;
+  const FlagCounts by_flag = count_flags(grid.flags);
+  const std::size_t measured = by_flag.measured, splat_final = by_flag.splatted, upsampled = by_flag.upsampled;
+  const std::size_t valid = by_flag.valid();
   const double binned = window_mode ? figure_named(rep, "points_binned", 0.0) - static_cast<double>(removed_binned)
                                     : static_cast<double>(bounds.finite);
   const auto shifted = [&](const char* name, long long delta) {
