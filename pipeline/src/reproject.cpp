@@ -94,19 +94,6 @@ struct Bounds {
   std::size_t finite = 0;
 };
 
-// The scan-grid cells [r0, r1] × [c0, c1] (inclusive) whose events ScanCounts counts (cells
-// filled or occluded by splats, see-through cells and candidates); every cell by default.
-// reproject_after_removal counts a window's events only where they equal the whole grid's.
-struct CountBox {
-  int r0 = 0, r1 = std::numeric_limits<int>::max(), c0 = 0, c1 = std::numeric_limits<int>::max();
-  bool every = true;
-  bool holds(std::size_t j, std::size_t cols) const {
-    if (every) return true;
-    const auto r = static_cast<std::ptrdiff_t>(j / cols), c = static_cast<std::ptrdiff_t>(j % cols);
-    return r >= r0 && r <= r1 && c >= c0 && c <= c1;
-  }
-};
-
 bool finite_point(const double* p) {
   return std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]);
 }
@@ -516,7 +503,7 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
 
 std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const GridGeometry& g, double radius_cells,
                          float depth_gap, bool two_threads, float* depth, std::uint8_t* flags,
-                         std::size_t* occluded, const NodeOffset& off = {}, const CountBox& box = {}) {
+                         std::size_t* occluded, const NodeOffset& off = {}) {
   const int rows = g.rows, cols = g.cols;
   const std::size_t ucols = static_cast<std::size_t>(cols);
   const std::size_t cells = static_cast<std::size_t>(rows) * ucols;
@@ -617,11 +604,11 @@ std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const 
     if (flags[j] == kCellMeasured) {
       if (depth_gap > 0.0f && depth[j] < z - depth_gap) {
         flags[j] = kCellSplatted;
-        hidden += box.holds(j, ucols) ? 1U : 0U;
+        ++hidden;
       }
     } else {
       flags[j] = kCellSplatted;
-      filled += box.holds(j, ucols) ? 1U : 0U;
+      ++filled;
     }
     depth[j] = z;
   }
@@ -772,7 +759,7 @@ DepthGrid upsample(const DepthGrid& coarse, const GridGeometry& cg, const GridGe
 // kEmpty: rejected cells become kEmpty and kCellSeeThrough. Returns the number rejected;
 // `candidates` gets the number of cells the window pre-selection passed to the ray test.
 std::size_t reject_see_through(float* depth, std::uint8_t* flags, const GridGeometry& g, int w, float depth_gap,
-                               std::size_t& candidates, const CountBox& box = {}) {
+                               std::size_t& candidates) {
   const std::size_t cells = g.cell_count();
   candidates = 0;
   const auto tmp = std::make_unique_for_overwrite<float[]>(cells);
@@ -787,7 +774,7 @@ std::size_t reject_see_through(float* depth, std::uint8_t* flags, const GridGeom
       if (z == kEmpty) continue;
       const float threshold = z + depth_gap;
       if (!(wmax[i] > threshold)) continue;
-      candidates += box.holds(i, static_cast<std::size_t>(g.cols)) ? 1U : 0U;
+      ++candidates;
       int pairs = 0;
       if (r >= w && c >= w && r + w < g.rows && c + w < g.cols) {
         // Interior: branch-free maxima along the 8 rays.
@@ -816,9 +803,7 @@ std::size_t reject_see_through(float* depth, std::uint8_t* flags, const GridGeom
     depth[i] = kEmpty;
     flags[i] = kCellSeeThrough;
   }
-  std::size_t counted = 0;
-  for (std::size_t i : rejected) counted += box.holds(i, static_cast<std::size_t>(g.cols)) ? 1U : 0U;
-  return counted;
+  return rejected.size();
 }
 
 // The final grid's cells by flag: measured, splatted and upsampled (valid is their sum).
@@ -844,7 +829,7 @@ struct ScanCounts {
 // Binning, splats and see-through detection on geometry g (the whole scan at one resolution).
 DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, bool two_threads,
                     bool all_finite, const GridGeometry& g, const ReprojectOptions& options,
-                    ScanCounts& counts, const NodeOffset& off = {}, const CountBox& box = {}) {
+                    ScanCounts& counts, const NodeOffset& off = {}) {
   const std::size_t cells = g.cell_count();
   DepthGrid out;
   out.depth = HeightField(g, kEmpty);
@@ -873,7 +858,7 @@ DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, b
   std::size_t& occluded = counts.occluded;
   if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kPlane) {
     splatted = splat_planes(pts, n_points, all_finite, g, options.splat_radius_cells, see_through ? depth_gap : 0.0f,
-                            two_threads, depth, out.flags.data(), &occluded, off, box);
+                            two_threads, depth, out.flags.data(), &occluded, off);
   } else if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kInterpolate) {
     std::vector<float> front;
     if (see_through) {
@@ -905,18 +890,18 @@ DepthGrid scan_grid(const double* pts, std::size_t n_points, std::size_t half, b
       if (depth[i] == kEmpty) {
         depth[i] = s;
         out.flags[i] = kCellSplatted;
-        splatted += box.holds(i, static_cast<std::size_t>(g.cols)) ? 1U : 0U;
+        ++splatted;
       } else if (see_through && s > depth[i] + depth_gap) {
         depth[i] = s;  // the measured point is hidden behind a neighbour's disc
         out.flags[i] = kCellSplatted;
-        occluded += box.holds(i, static_cast<std::size_t>(g.cols)) ? 1U : 0U;
+        ++occluded;
       }
     }
   }
 
   if (see_through) {
     counts.see_through = reject_see_through(depth, out.flags.data(), g, options.see_through_window_cells, depth_gap,
-                                            counts.candidates, box);
+                                            counts.candidates);
   }
 
   // −inf (nothing) becomes NaN (no data) (empty and see-through cells are the only −inf ones).
@@ -1087,10 +1072,16 @@ void upsample_attributes(const DepthGrid& coarse, const GridGeometry& cg, const 
 
 namespace {
 
-// reproject, counting the scan's events (ScanCounts) only in `box` (scan-grid cells: the coarse
-// grid's when upsampled, window coordinates) and returning them in *counts_out when given.
-StageResult<DepthGrid> reproject_counted(const Cloud& points_m, const ReprojectOptions& options, const CountBox& box,
-                                         ScanCounts* counts_out) {
+// The x-y bounds of the finite points, on two threads for large clouds (each half of them).
+Bounds bounds_of(const double* pts, std::size_t n) {
+  if (n < kTwoThreadPoints) return finite_bounds(pts, n);
+  Bounds lower, upper;
+  run_two([&] { upper = finite_bounds(pts + 3 * (n / 2), n - n / 2); }, [&] { lower = finite_bounds(pts, n / 2); });
+  return merge(lower, upper);
+}
+
+// reproject, returning the scan's event counts (ScanCounts) in *counts_out when given.
+StageResult<DepthGrid> reproject_counted(const Cloud& points_m, const ReprojectOptions& options, ScanCounts* counts_out) {
   const auto t0 = std::chrono::steady_clock::now();
   validate_options(options);
   // The two passes over the points (bounds, binning) run on two threads for large clouds; each
@@ -1099,15 +1090,7 @@ StageResult<DepthGrid> reproject_counted(const Cloud& points_m, const ReprojectO
   const std::size_t n_points = points_m.size();
   const bool two_threads = n_points >= kTwoThreadPoints;
   const std::size_t half = two_threads ? n_points / 2 : n_points;
-  Bounds bounds;
-  if (two_threads) {
-    Bounds upper;
-    run_two([&] { upper = finite_bounds(pts + 3 * half, n_points - half); },
-            [&] { bounds = finite_bounds(pts, half); });
-    bounds = merge(bounds, upper);
-  } else {
-    bounds = finite_bounds(pts, n_points);
-  }
+  const Bounds bounds = bounds_of(pts, n_points);
   if (bounds.finite == 0) {
     std::ostringstream msg;
     msg << "reproject: none of the " << points_m.size()
@@ -1148,12 +1131,12 @@ StageResult<DepthGrid> reproject_counted(const Cloud& points_m, const ReprojectO
     }
   }
   if (factor == 1) {
-    result.value = scan_grid(pts, n_points, half, two_threads, all_finite, g, options, counts, off, box);
+    result.value = scan_grid(pts, n_points, half, two_threads, all_finite, g, options, counts, off);
     if (attributes) scan_attributes(points_m, all_finite, g, options, result.value, off);
   } else {
     const GridGeometry coarse = coarse_geometry(g, factor);
     const NodeOffset coarse_off{off.r / factor, off.c / factor, off.window};  // validated: multiples of K
-    DepthGrid scanned = scan_grid(pts, n_points, half, two_threads, all_finite, coarse, options, counts, coarse_off, box);
+    DepthGrid scanned = scan_grid(pts, n_points, half, two_threads, all_finite, coarse, options, counts, coarse_off);
     if (attributes) scan_attributes(points_m, all_finite, coarse, options, scanned, coarse_off);
     result.value = upsample(scanned, coarse, g, factor);
     if (attributes) upsample_attributes(scanned, coarse, g, factor, result.value);
@@ -1211,7 +1194,7 @@ StageResult<DepthGrid> reproject_counted(const Cloud& points_m, const ReprojectO
 }  // namespace
 
 StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& options) {
-  return reproject_counted(points_m, options, CountBox{}, nullptr);
+  return reproject_counted(points_m, options, nullptr);
 }
 
 namespace {
@@ -1227,22 +1210,6 @@ struct NodeBox {
     return static_cast<std::size_t>(std::max(0, r1 - r0 + 1)) * static_cast<std::size_t>(std::max(0, c1 - c0 + 1));
   }
 };
-
-double figure_named(const StageReport& rep, const std::string& name, double fallback) {
-  for (const auto& [key, value] : rep.figures)
-    if (key == name) return value;
-  return fallback;
-}
-
-void set_figure(StageReport& rep, const std::string& name, double value) {
-  for (auto& [key, v] : rep.figures) {
-    if (key == name) {
-      v = value;
-      return;
-    }
-  }
-  rep.figure(name, value);
-}
 
 }  // namespace
 
@@ -1276,14 +1243,7 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
 
   // The whole grid and the factor, as reproject would make them from these points.
   const double* pts = points_m.xyz.data();
-  Bounds bounds;
-  if (n >= kTwoThreadPoints) {
-    Bounds upper;
-    run_two([&] { upper = finite_bounds(pts + 3 * (n / 2), n - n / 2); }, [&] { bounds = finite_bounds(pts, n / 2); });
-    bounds = merge(bounds, upper);
-  } else {
-    bounds = finite_bounds(pts, n);
-  }
+  const Bounds bounds = bounds_of(pts, n);
   if (bounds.finite == 0) return whole("no finite point is left");
   const bool all_finite = bounds.finite == n;
   const GridGeometry& had = before.value.depth.geometry();
@@ -1306,7 +1266,7 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
     g = make_geometry(bounds, options);
     if (!(g == had)) return whole("the points' box, hence the grid, changed");
     k = options.upsample_factor == 0 ? auto_upsample_factor(pts, n, g, all_finite, &coverage) : options.upsample_factor;
-    if (k != static_cast<int>(figure_named(before.report, "upsample_factor", 0.0))) return whole("the upsample factor changed");
+    if (k != static_cast<int>(detail::figure_of(before.report, "upsample_factor", 0.0))) return whole("the upsample factor changed");
   }
   const int fine_rows = had.rows, fine_cols = had.cols;
   // Work in the whole grid's coarse nodes (the nodes the scan runs on; the fine ones when K = 1).
@@ -1345,17 +1305,23 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
     const NodeBox u = NodeBox{r, r, c, c}.grown(rc + 1, base);
     if (u.r0 <= u.r1 && u.c0 <= u.c1) boxes.push_back(u);  // else beyond the reach of the grid held
   }
-  // Overlapping boxes merged (their events would be counted twice), until none overlap.
+  // Overlapping boxes merged, until none overlap: each node is made again (and its events
+  // counted) once, and a removed point within another box's gather belongs to that box, so a
+  // window's events outside its box are the same with and without its removed points.
   for (bool merged = true; merged;) {
     merged = false;
-    for (std::size_t a = 0; a < boxes.size() && !merged; ++a) {
-      for (std::size_t b = a + 1; b < boxes.size(); ++b) {
-        if (!boxes[a].overlaps(boxes[b])) continue;
+    for (std::size_t a = 0; a < boxes.size(); ++a) {
+      for (std::size_t b = a + 1; b < boxes.size();) {
+        if (!boxes[a].overlaps(boxes[b])) {
+          ++b;
+          continue;
+        }
         boxes[a] = {std::min(boxes[a].r0, boxes[b].r0), std::max(boxes[a].r1, boxes[b].r1),
                     std::min(boxes[a].c0, boxes[b].c0), std::max(boxes[a].c1, boxes[b].c1)};
-        boxes.erase(boxes.begin() + static_cast<std::ptrdiff_t>(b));
+        boxes[b] = boxes.back();
+        boxes.pop_back();
+        b = a + 1;  // box a grew: check the rest again
         merged = true;
-        break;
       }
     }
   }
@@ -1420,12 +1386,12 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
     win.rows = std::min(wb.r1 * k, base_r0 + fine_rows - 1) - win.row0 + 1;
     win.cols = std::min(wb.c1 * k, base_c0 + fine_cols - 1) - win.col0 + 1;
     wo.window = win;
-    const CountBox count{ub.r0 - wb.r0, ub.r1 - wb.r0, ub.c0 - wb.c0, ub.c1 - wb.c0, false};
+    // The window's events with and without its removed points differ only within its box.
     ScanCounts was, now;
     {
       Cloud old;
       old.xyz = Eigen::Map<const Eigen::Matrix3Xd>(before_of[b].data(), 3, static_cast<Eigen::Index>(before_of[b].size() / 3));
-      (void)reproject_counted(old, wo, count, &was);
+      (void)reproject_counted(old, wo, &was);
     }
     DepthGrid part;
     const std::vector<std::uint32_t>& cols = after_of[b];
@@ -1439,7 +1405,7 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
         if (rgb) std::copy_n(points_m.rgb.data() + 3 * static_cast<std::size_t>(cols[q]), 3, cur.rgb.data() + 3 * q);
         if (inten) cur.intensity[q] = points_m.intensity[cols[q]];
       }
-      part = reproject_counted(cur, wo, count, &now).value;
+      part = reproject_counted(cur, wo, &now).value;
     }
     d_filled += static_cast<long long>(now.splatted) - static_cast<long long>(was.splatted);
     d_occluded += static_cast<long long>(now.occluded) - static_cast<long long>(was.occluded);
@@ -1473,23 +1439,23 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
   const FlagCounts by_flag = count_flags(grid.flags);
   const std::size_t measured = by_flag.measured, splat_final = by_flag.splatted, upsampled = by_flag.upsampled;
   const std::size_t valid = by_flag.valid();
-  const double binned = window_mode ? figure_named(rep, "points_binned", 0.0) - static_cast<double>(removed_binned)
+  const double binned = window_mode ? detail::figure_of(rep, "points_binned", 0.0) - static_cast<double>(removed_binned)
                                     : static_cast<double>(bounds.finite);
   const auto shifted = [&](const char* name, long long delta) {
-    set_figure(rep, name, figure_named(rep, name, 0.0) + static_cast<double>(delta));
+    detail::set_figure(rep, name, detail::figure_of(rep, name, 0.0) + static_cast<double>(delta));
   };
   rep.count_in = n;
   rep.count_out = valid;
-  set_figure(rep, "points_binned", binned);
-  set_figure(rep, window_mode ? "points_outside_window_or_non_finite" : "points_non_finite", static_cast<double>(n) - binned);
-  set_figure(rep, "cells_valid", static_cast<double>(valid));
-  set_figure(rep, "cells_measured", static_cast<double>(measured));
-  set_figure(rep, "cells_splatted", static_cast<double>(splat_final));
+  detail::set_figure(rep, "points_binned", binned);
+  detail::set_figure(rep, window_mode ? "points_outside_window_or_non_finite" : "points_non_finite", static_cast<double>(n) - binned);
+  detail::set_figure(rep, "cells_valid", static_cast<double>(valid));
+  detail::set_figure(rep, "cells_measured", static_cast<double>(measured));
+  detail::set_figure(rep, "cells_splatted", static_cast<double>(splat_final));
   shifted("cells_splat_filled_empty", d_filled);
   shifted("cells_occluded_by_splat", d_occluded);
   shifted("cells_see_through", d_see_through);
-  set_figure(rep, "cells_upsampled", static_cast<double>(upsampled));
-  if (options.upsample_factor == 0) set_figure(rep, "upsample_coverage", coverage);
+  detail::set_figure(rep, "cells_upsampled", static_cast<double>(upsampled));
+  if (options.upsample_factor == 0) detail::set_figure(rep, "upsample_coverage", coverage);
   shifted("see_through_candidates", d_candidates);
   rep.notes.push_back("made again only about the " + std::to_string(m) + " removed points: " + std::to_string(windows.size()) +
                       " windows, " + std::to_string(remade) + " of " + std::to_string(cells) + " nodes");

@@ -529,16 +529,20 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
   }
   // Meshes are rasterised (z-buffer over the faces); points are binned and splatted.
   const bool rasterised = cloud.has_mesh();
-  auto grid_it = [&] {
-    if (cloud.has_mesh()) return rasterise_mesh(cloud, config.grid.reproject, organised_meshed ? config.grid.organised_blend_m : 0.0);
+  // Gridding that names the far points stretching the grid (a passer-by, a distant wall), if any,
+  // when the grid degenerates.
+  auto naming_far_points = [&](auto&& grid_points) {
     try {
-      return reproject(cloud, config.grid.reproject);
+      return grid_points();
     } catch (const DegenerateInputError& e) {
-      // Name the far points that stretch the grid (a passer-by, a distant wall), if any.
       const std::string far = describe_far_points(cloud);
       if (far.empty()) throw;
       throw DegenerateInputError(e.what() + far);
     }
+  };
+  auto grid_it = [&] {
+    if (cloud.has_mesh()) return rasterise_mesh(cloud, config.grid.reproject, organised_meshed ? config.grid.organised_blend_m : 0.0);
+    return naming_far_points([&] { return reproject(cloud, config.grid.reproject); });
   };
   DepthGrid grid = stage("reproject", reports, progress, grid_it);
   std::size_t reproject_report = reports.size() - 1;  // the report of the grid in use
@@ -566,13 +570,9 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
       // Made again only about the removed points (the same grid and figures as a whole reproject).
       const StageReport had = reports[reproject_report];
       grid = stage("reproject", reports, progress, [&] {
-        try {
+        return naming_far_points([&] {
           return reproject_after_removal(cloud, removed, StageResult<DepthGrid>{std::move(grid), had}, config.grid.reproject);
-        } catch (const DegenerateInputError& e) {
-          const std::string far = describe_far_points(cloud);
-          if (far.empty()) throw;
-          throw DegenerateInputError(e.what() + far);
-        }
+        });
       });
       reproject_report = reports.size() - 1;
     }

@@ -9,6 +9,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <exception>
+#include <string>
 #include <thread>
 #include <utility>
 
@@ -43,6 +44,24 @@ inline StageReport make_report(const char* stage, std::size_t in) {
   r.stage = stage;
   r.count_in = in;
   return r;
+}
+
+/// The value of the report's first figure called `name`, or `fallback` when it has none.
+inline double figure_of(const StageReport& r, const std::string& name, double fallback) {
+  for (const auto& [n, v] : r.figures)
+    if (n == name) return v;
+  return fallback;
+}
+
+/// Sets the report's first figure called `name` to `value`, or appends it.
+inline void set_figure(StageReport& r, const std::string& name, double value) {
+  for (auto& [n, v] : r.figures) {
+    if (n == name) {
+      v = value;
+      return;
+    }
+  }
+  r.figure(name, value);
 }
 
 /// SplitMix64 (Steele, Lea & Flood 2014): a 64-bit mix for deterministic sampling.

@@ -507,12 +507,6 @@ void add_figures(std::map<std::string, double>& sums, const StageReport& r) {
   }
 }
 
-double figure_of(const StageReport& r, const char* name, double def) {
-  for (const auto& [n, v] : r.figures)
-    if (n == name) return v;
-  return def;
-}
-
 // Progress within a stage: at most about once a second, the fraction done and the time left.
 class PassProgress {
  public:
@@ -683,7 +677,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     add_figures(o.sums, f1.report);
     auto f2 = remove_isolated_points(std::move(f1.value), config.cross_check.honest);
     add_figures(o.sums, f2.report);
-    spacing_m = figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
+    spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
     pts = std::move(f2.value);
   }
   DepthGrid part;

@@ -190,8 +190,9 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 /// (depth, flags, colour, intensity) and so do its report's figures: cell counts are taken again
 /// from the flags, and the scan's event counts (cells_splat_filled_empty, cells_occluded_by_splat,
 /// cells_see_through, see_through_candidates) are corrected by each window's count with and
-/// without the removed points, counted only over the nodes made again. A note says how many
-/// nodes were made again.
+/// without the removed points (the two differ only on the nodes made again: the window reaches
+/// one reach beyond them, and boxes that overlap are merged). A note says how many nodes were
+/// made again.
 /// It falls back to reproject(points_m, options) (and says why in a note) when the grid's box or
 /// the auto upsample factor changes, with interpolating splats (which sum heights relative to a
 /// window's first cell), for more than 4096 removed points, or when the windows would cover over
