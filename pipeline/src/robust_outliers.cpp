@@ -352,7 +352,7 @@ std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std
   return out;
 }
 
-StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& o) {
+StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& o, RobustVerdicts* verdicts) {
   const auto t0 = Clock::now();
   const int k = o.k;
   if (k < 1 || k > 1000) throw ConfigError("remove_robust_outliers: k = " + std::to_string(k) + ", expected 1..1000");
@@ -411,6 +411,15 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     report.count_out = cloud.size();
     report.notes.push_back("every sampled point has k exact copies (mean k-NN distance 0): nothing removed");
     report.figure("removed_robust", 0.0);
+    if (o.tile) {
+      report.figure("halo_shortfall_mm", 0.0);
+      report.figure("points_judged_past_halo", 0.0);
+    }
+    if (verdicts) {
+      *verdicts = RobustVerdicts{};
+      verdicts->verdict.assign(cloud.size(), 4);
+      for (const std::uint32_t r : rows) verdicts->verdict[r] = 0;
+    }
     report.seconds = seconds_since(t0);
     return {std::move(cloud), std::move(report)};
   }
@@ -555,12 +564,50 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     const double ref = std::max(median_of(std::move(nd)), d_med);
     if (static_cast<double>(d[cand[i]]) > o.local_ratio * ref) out[cand[i]] = 2;
   }
+  // 6. A tile's searches against its window (options.tile; see the header).
+  if (verdicts) verdicts->past_halo.clear();
+  double shortfall_m = 0.0;
+  std::size_t past_halo = 0;
+  if (o.tile) {
+    const auto& win = o.tile->window_m;
+    const auto& dec = o.tile->decides_m;
+    auto xyz = [&](std::uint32_t j) { return cloud.xyz.col(static_cast<Eigen::Index>(rows[j])); };
+    // xy distance to the window's open sides (an infinite side is none).
+    auto margin = [&](const Eigen::Vector3d& q) {
+      return std::min({q.x() - win[0], win[1] - q.x(), q.y() - win[2], win[3] - q.y()});
+    };
+    for (std::size_t i = 0; i < cand.size(); ++i) {
+      const Eigen::Vector3d x = xyz(cand[i]);
+      if (!(x.x() >= dec[0] && x.x() < dec[1] && x.y() >= dec[2] && x.y() < dec[3])) continue;
+      double r = 0.0;
+      for (const std::uint32_t j : nbrs(i)) r = std::max(r, (xyz(j) - x).norm());
+      // The searches ran in float32: a relative slack of 1e-5 on the distances.
+      r *= 1.0 + 1e-5;
+      double excess = r - margin(x);
+      if (static_cast<double>(d[cand[i]]) > d_local) {
+        for (const std::uint32_t j : nbrs(i)) {
+          const Eigen::Vector3d xj = xyz(j);
+          excess = std::max(excess, (xj - x).norm() * (1.0 + 1e-5) + r - margin(xj));
+        }
+      }
+      if (excess >= 0.0) {
+        ++past_halo;
+        shortfall_m = std::max(shortfall_m, excess);
+        if (verdicts) verdicts->past_halo.push_back(rows[cand[i]]);
+      }
+    }
+  }
+  if (verdicts) std::sort(verdicts->past_halo.begin(), verdicts->past_halo.end());
   std::vector<bool> keep(cloud.size(), false);
   for (std::size_t j = 0; j < n; ++j) {
     n_global += out[j] == 1 ? 1u : 0u;
     n_local += out[j] == 2 ? 1u : 0u;
     n_off += out[j] == 3 ? 1u : 0u;
     keep[rows[j]] = out[j] == 0;
+  }
+  if (verdicts) {
+    verdicts->verdict.assign(cloud.size(), 4);
+    for (std::size_t j = 0; j < n; ++j) verdicts->verdict[rows[j]] = out[j];
   }
   cloud.keep_if(keep);
   report.count_out = cloud.size();
@@ -587,6 +634,10 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   report.figure("off_surface_ratio", o.off_surface_ratio);
   report.figure("duplicates_left_out", static_cast<double>(g.zero.size()));
   report.figure("knn_grid_cell_mm", g.cell * 1e3);
+  if (o.tile) {
+    report.figure("halo_shortfall_mm", shortfall_m * 1e3);
+    report.figure("points_judged_past_halo", static_cast<double>(past_halo));
+  }
   report.figure("grid_s", t_grid);
   report.figure("sample_s", t_sample - t_grid);
   report.figure("certify_s", t_cert - t_sample);
@@ -817,9 +868,13 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
 }
 
 StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOptions& options, const FarClusterOptions& far) {
+  return remove_far_clusters_after(remove_robust_outliers(std::move(cloud), options), far);
+}
+
+StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far) {
   const auto t0 = Clock::now();
-  auto robust = remove_robust_outliers(std::move(cloud), options);
   StageReport report = std::move(robust.report);
+  const double robust_s = report.seconds;
   auto removed = static_cast<double>(report.count_in - robust.value.size());
   if (far.enabled && robust.value.size() > 0) {
     double link = far.link_m;
@@ -840,7 +895,7 @@ StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOption
   }
   report.figure("removed", removed);
   report.count_out = robust.value.size();
-  report.seconds = seconds_since(t0);
+  report.seconds = robust_s + seconds_since(t0);
   return {std::move(robust.value), std::move(report)};
 }
 

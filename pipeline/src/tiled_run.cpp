@@ -284,6 +284,14 @@ struct Tiles {
     p.y0_m = g.y_of_row(r0);
     return p;
   }
+  // The xy box [m] {x_min, x_max, y_min, y_max} of the points NodeBinner puts on nodes rows
+  // [r0, r1), cols [c0, c1) (each node's cell reaches half a cell either side); a side at the
+  // grid's edge, or beyond it, is at ±infinity (the binner clamps points beyond it to the edge).
+  std::array<double, 4> box_m(int r0, int r1, int c0, int c1) const {
+    const double inf = std::numeric_limits<double>::infinity();
+    return {c0 <= 0 ? -inf : g.x_of_col(c0 - 0.5), c1 >= g.cols ? inf : g.x_of_col(c1 - 0.5),
+            r0 <= 0 ? -inf : g.y_of_row(r0 - 0.5), r1 >= g.rows ? inf : g.y_of_row(r1 - 0.5)};
+  }
   // The tile's window: its interior and halo, clipped to the grid.
   GridWindow window(std::size_t t) const {
     const auto [r0, r1, c0, c1] = interior(t);
@@ -632,6 +640,102 @@ std::size_t sample_stride_of(const RunConfig& config, std::uint64_t input_points
 
 bool keeps_sample(const RunConfig& config) { return config.lod.report && config.lod.report_cross_check; }
 
+// How far a tile's window may be widened for the robust test's strays (process_tile), in tiles.
+constexpr int kMaxWidenedTiles = 2;
+
+// Per spilled point: true unless it belongs to a far cluster (kFarFlag).
+std::vector<bool> not_far(const std::vector<std::uint8_t>& flags) {
+  std::vector<bool> keep(flags.size());
+  for (std::size_t i = 0; i < flags.size(); ++i) keep[i] = (flags[i] & kFarFlag) == 0;
+  return keep;
+}
+
+// Appends b's points to a (the same attributes: both read from spills of one layout).
+void append(Cloud& a, const Cloud& b) {
+  const Eigen::Index na = a.xyz.cols(), nb = b.xyz.cols();
+  if (nb == 0) return;
+  a.xyz.conservativeResize(3, na + nb);
+  a.xyz.rightCols(nb) = b.xyz;
+  a.rgb.insert(a.rgb.end(), b.rgb.begin(), b.rgb.end());
+  a.intensity.insert(a.intensity.end(), b.intensity.begin(), b.intensity.end());
+}
+
+// The points on nodes of window `wide` but not of tile t's window `w` (inside wide), each once: from the spill
+// of the tile that owns it (its node in that tile's interior), far clusters left out; in tile
+// order, each tile's in spill order.
+Cloud points_around(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const GridWindow& wide) {
+  const Tiles& tiles = plan.tiles;
+  const NodeBinner node(tiles.g);
+  Cloud out;
+  std::vector<std::uint8_t> flags;
+  const int tr0 = wide.row0 / tiles.size, tr1 = (wide.row0 + wide.rows - 1) / tiles.size;
+  const int tc0 = wide.col0 / tiles.size, tc1 = (wide.col0 + wide.cols - 1) / tiles.size;
+  for (int tr = tr0; tr <= tr1; ++tr) {
+    for (int tc = tc0; tc <= tc1; ++tc) {
+      const std::size_t u = static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc);
+      if (u == t) continue;  // its interior lies inside w
+      const auto in = tiles.interior(u);
+      Cloud c = spill.read(u, flags);
+      std::vector<bool> keep(c.size());
+      for (std::size_t i = 0; i < c.size(); ++i) {
+        const double* p = c.xyz.data() + 3 * i;
+        const int r = node.row(p), col = node.col(p);
+        const bool owned = r >= in[0] && r < in[1] && col >= in[2] && col < in[3];
+        const bool in_wide = r >= wide.row0 && r < wide.row0 + wide.rows && col >= wide.col0 && col < wide.col0 + wide.cols;
+        const bool in_w = r >= w.row0 && r < w.row0 + w.rows && col >= w.col0 && col < w.col0 + w.cols;
+        keep[i] = owned && in_wide && !in_w && (flags[i] & kFarFlag) == 0;
+      }
+      c.keep_if(keep);
+      append(out, c);
+    }
+  }
+  return out;
+}
+
+// The robust test's verdicts of the points `pts` of tile t's window w when the test over them
+// alone (its report `first`) found searches that could end past the window (RobustVerdicts::
+// past_halo): the test again, with the whole scan's scale, over a window widened by the
+// shortfall (halo_shortfall_mm) with the points of the neighbouring tiles that fall in it, until
+// no search that decides a point of the tile leaves it; rv.verdict then holds those verdicts for
+// pts. Returns the widening [nodes]. Throws InputError, naming the stage, the tile and the key,
+// when it would reach more than kMaxWidenedTiles tiles past the window.
+int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const RobustOutlierOptions& ropt,
+                    const Cloud& pts, const StageReport& first, RobustVerdicts& rv, int filter_halo_cells) {
+  const Tiles& tiles = plan.tiles;
+  RobustOutlierOptions wo = ropt;
+  double short_m = detail::figure_of(first, "halo_shortfall_mm", 0.0) * 1e-3;
+  int widened = 0;
+  for (int pass = 0;; ++pass) {
+    const int add = static_cast<int>(std::ceil(short_m / tiles.g.cell_size_m)) + 1;
+    widened += add;
+    if (widened > kMaxWidenedTiles * tiles.size || pass == 8) {
+      const auto inner = tiles.interior(t);
+      throw InputError("tiled run, tile " + std::to_string(t) + " (grid rows " + std::to_string(inner[0]) + ".." +
+                       std::to_string(inner[1] - 1) + ", cols " + std::to_string(inner[2]) + ".." + std::to_string(inner[3] - 1) +
+                       "): stage outliers (filters.outliers, robust): the k-NN searches of " + std::to_string(rv.past_halo.size()) +
+                       " points reach " + format_number(short_m * 1e3) + " mm past the tile's window even widened by " +
+                       std::to_string(widened - add) + " cells (the limit is " + std::to_string(kMaxWidenedTiles) + " tiles of " +
+                       std::to_string(tiles.size) + " cells): raise scale.filter_halo_cells (now " + std::to_string(filter_halo_cells) +
+                       ") by at least " + std::to_string(widened) + ", crop the strays (filters.crop) or run in core (scale.tiled: off)");
+    }
+    GridWindow wide = w;
+    wide.row0 = std::max(0, w.row0 - widened);
+    wide.col0 = std::max(0, w.col0 - widened);
+    wide.rows = std::min(tiles.g.rows, w.row0 + w.rows + widened) - wide.row0;
+    wide.cols = std::min(tiles.g.cols, w.col0 + w.cols + widened) - wide.col0;
+    Cloud all = pts;
+    append(all, points_around(plan, spill, t, w, wide));
+    wo.tile->window_m = tiles.box_m(wide.row0, wide.row0 + wide.rows, wide.col0, wide.col0 + wide.cols);
+    RobustVerdicts wv;
+    const auto again = remove_robust_outliers(std::move(all), wo, &wv);
+    short_m = detail::figure_of(again.report, "halo_shortfall_mm", 0.0) * 1e-3;
+    if (!(short_m > 0.0)) {
+      std::copy(wv.verdict.begin(), wv.verdict.begin() + static_cast<std::ptrdiff_t>(pts.size()), rv.verdict.begin());
+      return widened;
+    }
+  }
+}
+
 // Step 3 for tile t (the file comment of tiling.hpp): its spilled points through the filters and
 // reproject, the interior cut out, its kept points appended to `kept` (flushed).
 TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, Spill& kept, std::size_t t) {
@@ -644,15 +748,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   const OutlierConfig& oc = config.filters.outliers;
   std::vector<std::uint8_t> flags;
   Cloud pts = spill.read(t, flags);
-  if (plan.far_points > 0) {
-    std::vector<bool> keep(pts.size());
-    bool any = false;
-    for (std::size_t i = 0; i < pts.size(); ++i) {
-      keep[i] = (flags[i] & kFarFlag) == 0;
-      any = any || !keep[i];
-    }
-    if (any) pts.keep_if(keep);
-  }
+  if (plan.far_points > 0) pts.keep_if(not_far(flags));
   o.in = pts.size();
   if (config.cross_check.enabled && pts.size() >= 2) {
     // The honest check's spacing (the tiles' median weighted by points: finish_tiled).
@@ -673,11 +769,65 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     ropt.mad_multiplier = oc.mad_multiplier;
     ropt.off_surface_ratio = oc.off_surface_ratio;
     ropt.scale = plan.robust_scale;
-    auto f1 = remove_outliers_robust(std::move(pts), ropt, oc.far_clusters);
-    add_figures(o.sums, f1.report);
-    auto f2 = remove_isolated_points(std::move(f1.value), config.cross_check.honest);
+    // The window holds every point within the halo; the verdicts kept are those of the points
+    // the grid stages see from the interior (the halo less the filters' share). Where a search
+    // that decides one of them could end past the window (a stray whose k nearest lie farther
+    // than the halo is wide), the test runs again over a window widened by the shortfall, with
+    // the points of the neighbouring tiles that fall in it: every verdict kept is then the
+    // whole scan's (RobustOutlierOptions::tile).
+    const int grid_reach = std::max(0, tiles.halo - config.scale.filter_halo_cells);
+    ropt.tile = RobustOutlierOptions::TileBounds{
+        tiles.box_m(w.row0, w.row0 + w.rows, w.col0, w.col0 + w.cols),
+        tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach)};
+    RobustVerdicts rv;
+    auto f1 = remove_robust_outliers(std::move(pts), ropt, &rv);
+    const std::size_t past_halo = rv.past_halo.size();
+    int widened = 0;  // cells added to each side of the window
+    if (past_halo > 0) {
+      pts = spill.read(t, flags);
+      if (plan.far_points > 0) pts.keep_if(not_far(flags));
+      widened = judge_past_halo(plan, spill, t, w, ropt, pts, f1.report, rv, config.scale.filter_halo_cells);
+      // The tile's points with the verdicts, and the removal counts of those (the work counts,
+      // certified and exact_queries, are the first pass's).
+      std::vector<bool> keep(pts.size());
+      std::array<std::size_t, 5> by{};
+      for (std::size_t i = 0; i < pts.size(); ++i) {
+        keep[i] = rv.verdict[i] == 0;
+        ++by[std::min<std::size_t>(rv.verdict[i], 4)];
+      }
+      pts.keep_if(keep);
+      f1.value = std::move(pts);
+      f1.report.count_out = f1.value.size();
+      detail::set_figure(f1.report, "removed_global", static_cast<double>(by[1]));
+      detail::set_figure(f1.report, "removed_local", static_cast<double>(by[2]));
+      detail::set_figure(f1.report, "removed_off_surface", static_cast<double>(by[3]));
+      detail::set_figure(f1.report, "removed_robust", static_cast<double>(by[1] + by[2] + by[3]));
+    }
+    if (widened > 0) {
+      o.sums["robust_windows_widened"] += 1.0;
+      o.sums["robust_widened_cells"] += widened;
+    }
+    auto f1f = remove_far_clusters_after(std::move(f1), oc.far_clusters);
+    add_figures(o.sums, f1f.report);
+    auto& f1v = f1f.value;
+    auto f2 = remove_isolated_points(std::move(f1v), config.cross_check.honest);
     add_figures(o.sums, f2.report);
     spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
+    // The isolated-point count and the despike's 3-D count search at most this far about a point
+    // (remove_isolated_points; remove_spike_points: at most max(4 scan cells, 4 spacings)); for
+    // the points the tile decides, that must stay inside the window.
+    const double cell_m = tiles.g.cell_size_m;
+    const double reach_m = std::max(detail::figure_of(f2.report, "isolation_radius_mm", 0.0) * 1e-3,
+                                    oc.despike ? 4.0 * std::max(spacing_m, tiles.k * cell_m) : 0.0);
+    const double room_m = (tiles.halo - grid_reach - 0.5) * cell_m;
+    if (std::isfinite(reach_m) && reach_m > room_m) {
+      throw ConfigError("tiled run, tile " + std::to_string(t) + ": stages isolated and despike search up to " +
+                        format_number(reach_m * 1e3) + " mm about a point (" + format_number(spacing_m * 1e3) +
+                        " mm spacing), more than the " + format_number(room_m * 1e3) +
+                        " mm the halo holds beyond the cells the tile decides: raise scale.filter_halo_cells (now " +
+                        std::to_string(config.scale.filter_halo_cells) + ") to at least " +
+                        std::to_string(static_cast<int>(std::ceil(reach_m / cell_m + 0.5))));
+    }
     pts = std::move(f2.value);
   }
   DepthGrid part;

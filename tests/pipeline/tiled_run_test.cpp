@@ -308,12 +308,96 @@ TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
   const std::string yaml =
       "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
       "filters: {outliers: {far_clusters: {enabled: false}}}\n"
-      "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 2}\n";
+      "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 7}\n";
   RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
   config.scale.scratch = dir;
   const BuiltScene tiled = hc::pipeline::build_scene(config);
   EXPECT_GE(stage_figure(tiled, "tiles", "points_in_windows_too_sparse_to_filter"), 3.0);
   EXPECT_GT(tiled.scene.layers.depth.valid_count(), 0U);
+}
+
+// A 1 m plane at 10 mm spacing (z = 0), less a disc of 20 cm radius about (hole_x_m, 0.5), plus
+// `extra` points.
+void write_plane_with_hole(const fs::path& file, double hole_x_m, const std::vector<std::array<double, 3>>& extra) {
+  std::vector<std::array<double, 3>> pts;
+  for (int i = 0; i < 100; ++i) {
+    for (int j = 0; j < 100; ++j) {
+      const double x = 0.01 * i, y = 0.01 * j;
+      if (std::hypot(x - hole_x_m, y - 0.5) > 0.2) pts.push_back({x, y, 0.0});
+    }
+  }
+  pts.insert(pts.end(), extra.begin(), extra.end());
+  std::ofstream out(file);
+  out << "ply\nformat ascii 1.0\nelement vertex " << pts.size()
+      << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
+  out.precision(17);
+  for (const auto& p : pts) out << p[0] << " " << p[1] << " " << p[2] << "\n";
+}
+
+// The robust test's k nearest neighbours of a point the tile decides may lie past the tile's
+// window. Here a group of 8 points sits at the edge of a tile's interior in a hole of the plane,
+// and its other nearest points, a cluster of 20, lie just past that tile's window (in the next
+// tile). The whole scan: the group's mean 16-NN distance is about 35 mm, under the local
+// threshold (3 x 16.6 mm), so it stays. Its own tile alone: its other neighbours are the plane
+// beyond the hole, 20 cm away, and the local test would remove it. The tile sees that its searches
+// leave the window, widens the window by the shortfall with the next tiles' points, and the grid
+// equals the in-core one bit for bit.
+TEST(TiledRun, TheRobustTestWidensAWindowItsSearchesWouldLeave) {
+  const fs::path dir = hc::test::temp_dir("widen");
+  const std::string yaml =
+      "input: {files: [plane.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
+      "filters: {outliers: {despike: false}}\ncross_check: {isolation_radius_spacings: 2}\n"
+      "scale: {tile_cells: 40, filter_halo_cells: 5}\n";
+  // The layout (grid and halo) from the plane alone: the group and the cluster lie inside its box.
+  write_plane_with_hole(dir / "plane.ply", 0.4, {});
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "plane.yaml");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = dir;
+  const BuiltScene layout = hc::pipeline::build_scene(config);
+  const hc::GridGeometry g = layout.scene.layers.depth.geometry();
+  const double halo = stage_figure(layout, "tile_plan", "halo_cells");
+  ASSERT_EQ(g.cols, 200);
+  ASSERT_GT(halo, 3.0);
+  // x_b: the edge between the interiors of tile columns 1 and 2 (node columns 79 and 80); the
+  // left tile's window ends halo cells further. In the file's frame: the grid frame is recentred
+  // on the centre of the points' box, (0.495, 0.495, 0).
+  const double c = 0.495;
+  const double x_b = g.x_of_col(79.5) + c, x_e = g.x_of_col(79.5 + halo) + c;
+  std::vector<std::array<double, 3>> extra;
+  for (int a = 0; a < 2; ++a)
+    for (int b = 0; b < 4; ++b) extra.push_back({x_b - 0.0015 - 0.0015 * a, 0.5 - 0.00225 + 0.0015 * b, 0.0});
+  for (int a = 0; a < 4; ++a)
+    for (int b = 0; b < 5; ++b) extra.push_back({x_e + 0.0005 + 0.0015 * a, 0.496 + 0.002 * b, 0.0});
+  write_plane_with_hole(dir / "plane.ply", x_b, extra);
+  auto [tiled_config, in, tiled] = in_core_and_tiled(dir, yaml, 40);
+  ASSERT_EQ(in.scene.layers.depth.geometry(), g) << "the group and the cluster left the layout as it was";
+  ASSERT_EQ(stage_figure(in, "tile_plan", "tiles"), -1.0) << "the first run is in core";
+  ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0);
+  // In core the group stays: the node under it holds its depth.
+  const int group_row = static_cast<int>(std::lround(g.row_of_y(0.5 - c))), group_col = 79;
+  ASSERT_TRUE(in.scene.layers.depth.valid(group_row, group_col));
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_windows_widened"), 1.0);
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_points_judged_past_halo"), 8.0);
+  EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
+  EXPECT_TRUE(tiled.scene.layers.depth.valid(group_row, group_col));
+}
+
+// Too narrow a halo for the isolated-point and despike searches is an error naming the key.
+TEST(TiledRun, AHaloNarrowerThanThePointSearchesIsAnErrorNamingTheKey) {
+  const fs::path dir = hc::test::temp_dir("narrow");
+  write_patch_with(dir / "patch.ply", {});
+  RunConfig config = hc::pipeline::parse_run_config(
+      "input: {files: [patch.ply], units: m}\ngrid: {n: 200}\nscale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 2}\n",
+      dir / "patch.yaml");
+  config.scale.scratch = dir;
+  try {
+    (void)hc::pipeline::build_scene(config);
+    ADD_FAILURE() << "expected a ConfigError";
+  } catch (const hc::ConfigError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("scale.filter_halo_cells"), std::string::npos) << what;
+    EXPECT_NE(what.find("isolated"), std::string::npos) << what;
+  }
 }
 
 // A far cluster (30 stray returns 2 m beyond a 1 m patch, as a passer-by in a terrestrial scan)

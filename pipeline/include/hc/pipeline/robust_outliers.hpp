@@ -9,6 +9,7 @@
 
 #include <Eigen/Core>
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <optional>
@@ -51,6 +52,28 @@ struct RobustOutlierOptions {
   /// across tiles (robust_scale_of over the sample points of every tile), so that every tile
   /// judges its points by the whole scan's statistics, as the in-core run does.
   std::optional<RobustScale> scale;
+  /// A tiled run's tile (tiled_run.cpp), in the cloud's frame [m], each box {x_min, x_max,
+  /// y_min, y_max}: `window_m` holds every point of the scan whose xy falls inside it (the
+  /// tile's window with its halo; a side at ±infinity where the window meets the grid's edge,
+  /// beyond which no point was left out), `decides_m` the points whose verdict the tile keeps
+  /// (those within the grid stages' reach of its interior). Given, the test measures how far
+  /// the searches that decide those points could reach past the window (the report figures
+  /// halo_shortfall_mm and points_judged_past_halo; see remove_robust_outliers).
+  struct TileBounds {
+    std::array<double, 4> window_m{};
+    std::array<double, 4> decides_m{};
+  };
+  std::optional<TileBounds> tile;
+};
+
+/// What remove_robust_outliers can tell its caller besides the kept points.
+struct RobustVerdicts {
+  /// One per input column, in input order: 0 kept, 1 removed by the global test, 2 by the local
+  /// test, 3 by the off-surface test, 4 not finite (dropped).
+  std::vector<std::uint8_t> verdict;
+  /// Tiles (RobustOutlierOptions::tile): the candidates in decides_m whose searches could end
+  /// past the window (input columns, ascending).
+  std::vector<std::uint32_t> past_halo;
 };
 
 /// The points remove_robust_outliers samples for its scale: min(n, sample) indices into the n
@@ -127,6 +150,15 @@ struct FarClusterOptions {
 /// input index), and those that reach the local test (above local_ratio·d_med, not removed by
 /// the other tests) their neighbours' exact distances. The removed set is exactly that of the
 /// rule above applied to every point, given the sample's m and σ.
+/// Tiles (options.tile given): a point's verdict depends on its k nearest neighbours and, when
+/// its d_i exceeds local_ratio·d_med, on theirs. The tile's searches equal the whole scan's when
+/// each ends inside the window: for each candidate i in `decides_m` (certified points and
+/// candidates of the whole scan are candidates of the tile too, since the tile's d_i is never
+/// smaller), r_i (its k-th neighbour's distance) is at most its xy distance to the window's open
+/// sides, m_i, and above local_ratio·d_med so is |x_j − x_i| + r_i for each neighbour j against
+/// m_j (the k points i and N(i) \ {j} lie within that distance of j). The largest excess over
+/// the candidates is halo_shortfall_mm (0: every verdict equals the whole scan's, given the same
+/// scale and float rounding); points_judged_past_halo counts the candidates with an excess.
 /// Report figures: k, local_ratio, mad_multiplier, sample, median_knn_distance_mm,
 /// mad_log_knn_distance, sigma_log_knn_distance, global_threshold_mm, certify_distance_mm,
 /// certified, exact_queries, max_surface_variation, local_tests, coherent_above_global (points
@@ -142,7 +174,9 @@ struct FarClusterOptions {
 ///         k + 2 finite points remain; hc::ResourceError beyond 2^32 − 2 points.
 /// Real-time: no. Threads: 2. Cost: one grid build and counting pass over all points, plus
 /// (sample + uncertified + their neighbours) exact k-NN queries.
-StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& options);
+/// @param verdicts when given, filled (RobustVerdicts)
+StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& options,
+                                          RobustVerdicts* verdicts = nullptr);
 
 /// A connected component of the cloud at a linking distance (remove_far_clusters).
 struct PointCluster {
@@ -193,6 +227,13 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
 /// Throws what the two steps throw.
 StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOptions& options,
                                           const FarClusterOptions& far);
+
+/// The second step of remove_outliers_robust on the result of remove_robust_outliers (as
+/// remove_outliers_robust runs it): far-cluster removal at far.link_m or the robust report's
+/// global_threshold_mm, the report extended. For a caller that runs the robust test itself
+/// (the tiled run, which may run it again over a widened window). Throws what
+/// remove_far_clusters throws.
+StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far);
 
 /// One line for an error message when a cloud's grid is degenerate: the clusters far from the
 /// main body (count, centroid, gap; at most five) and a filters.crop box around the main body,
