@@ -441,8 +441,24 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   const auto cert2 = static_cast<float>(d_cert * d_cert * (1.0 - 1e-5));
   const std::size_t cells = g.cells();
   const auto need_count = static_cast<std::uint32_t>(k) + 1;  // the point itself counts once
-  std::vector<std::uint8_t> certified(g.original.size(), 0);
-  run_parallel(cells > 64 ? kSearchThreads : 1, [&](int t) {
+  // Judging listed points only (options.judge_only): no counting, the listed are the uncertain.
+  const bool judging = !o.judge_only.empty();
+  std::vector<std::uint8_t> judged(judging ? n : 0, 0);
+  if (judging) {
+    if (!o.scale) throw ConfigError("remove_robust_outliers: judge_only needs the scale given (options.scale)");
+    std::vector<std::uint32_t> finite_of(cloud.size(), kNotInGrid);
+    for (std::size_t j = 0; j < n; ++j) finite_of[rows[j]] = static_cast<std::uint32_t>(j);
+    for (const std::uint32_t c : o.judge_only) {
+      if (c >= cloud.size() || finite_of[c] == kNotInGrid) {
+        throw InputError("remove_robust_outliers: judge_only lists column " + std::to_string(c) + ", not a finite point of the " +
+                         std::to_string(cloud.size()) + "-point cloud");
+      }
+      judged[finite_of[c]] = 1;
+    }
+  }
+  std::vector<std::uint8_t> certified(g.original.size(), judging ? 1 : 0);
+  for (std::size_t s = 0; judging && s < certified.size(); ++s) certified[s] = judged[g.original[s]] ? 0 : 1;
+  if (!judging) run_parallel(cells > 64 ? kSearchThreads : 1, [&](int t) {
     const int th = cells > 64 ? kSearchThreads : 1;
     const std::size_t cb = cells * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
     const std::size_t ce = cells * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
@@ -463,6 +479,24 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   // neighbours (step 4's neighbourhoods).
   std::vector<std::uint32_t> uncertain_nb;  // k per uncertain point (candidates only)
   queries += d.compute_with_neighbours(uncertain, d_cert, uncertain_nb);
+  if (judging) {
+    // The chance-plane test of a listed point asks whether its neighbours are scattered
+    // candidates: they are judged as candidates too (their own verdicts are not reported).
+    std::vector<std::uint32_t> more;
+    for (std::size_t u = 0; u < uncertain.size(); ++u) {
+      if (!(static_cast<double>(d[uncertain[u]]) > d_cert)) continue;
+      for (std::size_t a = 0; a < static_cast<std::size_t>(k); ++a) {
+        const std::uint32_t j = uncertain_nb[u * static_cast<std::size_t>(k) + a];
+        if (!judged[j] && d.pos(j) != kNotInGrid) more.push_back(j);
+      }
+    }
+    std::sort(more.begin(), more.end());
+    more.erase(std::unique(more.begin(), more.end()), more.end());
+    std::vector<std::uint32_t> more_nb;
+    queries += d.compute_with_neighbours(more, d_cert, more_nb);
+    uncertain.insert(uncertain.end(), more.begin(), more.end());
+    uncertain_nb.insert(uncertain_nb.end(), more_nb.begin(), more_nb.end());
+  }
   std::vector<std::uint8_t> out(n, 0);  // 1 = global, 2 = local, 3 = off surface
   std::vector<std::uint32_t> cand;
   std::vector<std::size_t> cand_at;  // each candidate's place in uncertain
@@ -578,13 +612,17 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     };
     for (std::size_t i = 0; i < cand.size(); ++i) {
       const Eigen::Vector3d x = xyz(cand[i]);
-      if (!(x.x() >= dec[0] && x.x() < dec[1] && x.y() >= dec[2] && x.y() < dec[3])) continue;
+      if (judging ? !judged[cand[i]] : !(x.x() >= dec[0] && x.x() < dec[1] && x.y() >= dec[2] && x.y() < dec[3])) continue;
       double r = 0.0;
       for (const std::uint32_t j : nbrs(i)) r = std::max(r, (xyz(j) - x).norm());
       // The searches ran in float32: a relative slack of 1e-5 on the distances.
       r *= 1.0 + 1e-5;
       double excess = r - margin(x);
-      if (static_cast<double>(d[cand[i]]) > d_local) {
+      // The neighbours' searches count where the verdict used them: the chance-plane and local
+      // tests (not a removal by the point's own surface variation or off-surface distance).
+      const double di = static_cast<double>(d[cand[i]]);
+      const bool own = (di > d_glob && variation[i] > o.max_surface_variation) || out[cand[i]] == 3;
+      if (di > d_local && !own) {
         for (const std::uint32_t j : nbrs(i)) {
           const Eigen::Vector3d xj = xyz(j);
           excess = std::max(excess, (xj - x).norm() * (1.0 + 1e-5) + r - margin(xj));
@@ -607,9 +645,9 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   }
   if (verdicts) {
     verdicts->verdict.assign(cloud.size(), 4);
-    for (std::size_t j = 0; j < n; ++j) verdicts->verdict[rows[j]] = out[j];
+    for (std::size_t j = 0; j < n; ++j) verdicts->verdict[rows[j]] = judging && !judged[j] ? 0 : out[j];
   }
-  cloud.keep_if(keep);
+  if (!judging) cloud.keep_if(keep);  // judging: the verdicts carry the result
   report.count_out = cloud.size();
   report.figure("k", k);
   report.figure("local_ratio", o.local_ratio);

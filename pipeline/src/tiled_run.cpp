@@ -692,17 +692,19 @@ Cloud points_around(const Plan& plan, const Spill& spill, std::size_t t, const G
   return out;
 }
 
-// The robust test's verdicts of the points `pts` of tile t's window w when the test over them
-// alone (its report `first`) found searches that could end past the window (RobustVerdicts::
-// past_halo): the test again, with the whole scan's scale, over a window widened by the
-// shortfall (halo_shortfall_mm) with the points of the neighbouring tiles that fall in it, until
-// no search that decides a point of the tile leaves it; rv.verdict then holds those verdicts for
-// pts. Returns the widening [nodes]. Throws InputError, naming the stage, the tile and the key,
-// when it would reach more than kMaxWidenedTiles tiles past the window.
+// The robust test's verdicts of the points of tile t's window w whose searches could end past
+// it (rv.past_halo, from the test over the window's points `pts`, its report `first`): judged
+// again (RobustOutlierOptions::judge_only, with the whole scan's scale) over the window widened
+// by the shortfall (halo_shortfall_mm) with the points of the neighbouring tiles that fall in
+// it, widened again until none of their searches leaves it; rv.verdict updated for them. pts
+// comes back as it was. Returns the widening [nodes]. Throws InputError, naming the stage, the
+// tile and the key, when it would reach more than kMaxWidenedTiles tiles past the window.
 int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const RobustOutlierOptions& ropt,
-                    const Cloud& pts, const StageReport& first, RobustVerdicts& rv, int filter_halo_cells) {
+                    Cloud& pts, const StageReport& first, RobustVerdicts& rv, int filter_halo_cells) {
   const Tiles& tiles = plan.tiles;
+  const auto n0 = static_cast<Eigen::Index>(pts.size());
   RobustOutlierOptions wo = ropt;
+  wo.judge_only = rv.past_halo;
   double short_m = detail::figure_of(first, "halo_shortfall_mm", 0.0) * 1e-3;
   int widened = 0;
   for (int pass = 0;; ++pass) {
@@ -723,14 +725,18 @@ int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const G
     wide.col0 = std::max(0, w.col0 - widened);
     wide.rows = std::min(tiles.g.rows, w.row0 + w.rows + widened) - wide.row0;
     wide.cols = std::min(tiles.g.cols, w.col0 + w.cols + widened) - wide.col0;
-    Cloud all = pts;
-    append(all, points_around(plan, spill, t, w, wide));
+    // The window's points first, in their order (the listed columns stay theirs), then the rest.
+    append(pts, points_around(plan, spill, t, w, wide));
     wo.tile->window_m = tiles.box_m(wide.row0, wide.row0 + wide.rows, wide.col0, wide.col0 + wide.cols);
     RobustVerdicts wv;
-    const auto again = remove_robust_outliers(std::move(all), wo, &wv);
+    auto again = remove_robust_outliers(std::move(pts), wo, &wv);
+    pts = std::move(again.value);
+    pts.xyz.conservativeResize(3, n0);
+    if (pts.has_rgb()) pts.rgb.resize(3 * static_cast<std::size_t>(n0));
+    if (pts.has_intensity()) pts.intensity.resize(static_cast<std::size_t>(n0));
     short_m = detail::figure_of(again.report, "halo_shortfall_mm", 0.0) * 1e-3;
     if (!(short_m > 0.0)) {
-      std::copy(wv.verdict.begin(), wv.verdict.begin() + static_cast<std::ptrdiff_t>(pts.size()), rv.verdict.begin());
+      for (const std::uint32_t c : rv.past_halo) rv.verdict[c] = wv.verdict[c];
       return widened;
     }
   }

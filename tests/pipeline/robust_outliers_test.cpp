@@ -199,6 +199,48 @@ TEST(RobustOutliers, CountingPassDecidesLikeTestingEveryPoint) {
   }
 }
 
+// judge_only (the tiled run's second look): each listed point gets the verdict the whole test
+// gives it; the oracle is the whole test's verdict vector on the same cloud and scale, over a
+// list of removed and kept points, certified ones among them.
+TEST(RobustOutliers, JudgingListedPointsGivesTheWholeTestsVerdicts) {
+  const Cloud c = with_extra(bunny(), uniform_in_box(800, 3));
+  RobustOutlierOptions o;
+  hc::pipeline::RobustVerdicts whole;
+  const auto first = remove_robust_outliers(c, o, &whole);
+  o.scale = hc::pipeline::RobustScale{std::log(figure(first.report, "median_knn_distance_mm") * 1e-3),
+                                      figure(first.report, "mad_log_knn_distance"), o.sample};
+  // The scale as the report rounds it can differ from the one used in its last digits: the
+  // oracle is the whole test with the very scale given.
+  (void)remove_robust_outliers(c, o, &whole);
+  std::vector<std::uint32_t> removed, kept;
+  for (std::uint32_t i = 0; i < whole.verdict.size(); ++i) (whole.verdict[i] != 0 ? removed : kept).push_back(i);
+  ASSERT_GT(removed.size(), 100U);
+  for (std::size_t i = 0; i < removed.size(); i += 3) o.judge_only.push_back(removed[i]);
+  for (std::size_t i = 0; i < kept.size(); i += 97) o.judge_only.push_back(kept[i]);
+  std::sort(o.judge_only.begin(), o.judge_only.end());
+  hc::pipeline::RobustVerdicts part;
+  const auto judged = remove_robust_outliers(c, o, &part);
+  EXPECT_EQ(judged.value.size(), c.size()) << "judging leaves the cloud as it was";
+  std::size_t listed_removed = 0;
+  std::vector<bool> listed(c.size(), false);
+  for (const std::uint32_t j : o.judge_only) {
+    listed[j] = true;
+    EXPECT_EQ(part.verdict[j], whole.verdict[j]) << "column " << j;
+    listed_removed += whole.verdict[j] != 0 ? 1U : 0U;
+  }
+  EXPECT_GT(listed_removed, 30U);
+  for (std::size_t j = 0; j < c.size(); ++j) {
+    if (!listed[j]) {
+      ASSERT_EQ(part.verdict[j], 0) << "an unlisted point is not judged";
+    }
+  }
+  o.judge_only = {static_cast<std::uint32_t>(c.size())};
+  EXPECT_THROW(remove_robust_outliers(c, o), hc::InputError);
+  o.judge_only = {0};
+  o.scale.reset();
+  EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError);
+}
+
 TEST(RobustOutliers, UniformClutterOfOneToFivePercentGoesAndTruePointsStay) {
   // Oracle: the tags of the injected points. Clutter uniform in the bunny's bounding box at 1, 2
   // and 5 %: at least 95 % of it goes, at most 0.5 % of the scan's points. Without the

@@ -64,6 +64,13 @@ struct RobustOutlierOptions {
     std::array<double, 4> decides_m{};
   };
   std::optional<TileBounds> tile;
+  /// Judge only these input columns (finite points), with `scale` given: no counting pass, each
+  /// listed point gets its exact d_i and its verdict (the one the whole test gives it: the
+  /// counting only spares queries); every other point's verdict is 0, and the cloud comes back
+  /// unchanged (the verdicts carry the result). With `tile`,
+  /// the listed points are those checked against the window (decides_m is not used). The tiled
+  /// run's second look at the points whose searches could leave its window.
+  std::vector<std::uint32_t> judge_only;
 };
 
 /// What remove_robust_outliers can tell its caller besides the kept points.
@@ -155,10 +162,13 @@ struct FarClusterOptions {
 /// each ends inside the window: for each candidate i in `decides_m` (certified points and
 /// candidates of the whole scan are candidates of the tile too, since the tile's d_i is never
 /// smaller), r_i (its k-th neighbour's distance) is at most its xy distance to the window's open
-/// sides, m_i, and above local_ratio·d_med so is |x_j − x_i| + r_i for each neighbour j against
-/// m_j (the k points i and N(i) \ {j} lie within that distance of j). The largest excess over
-/// the candidates is halo_shortfall_mm (0: every verdict equals the whole scan's, given the same
-/// scale and float rounding); points_judged_past_halo counts the candidates with an excess.
+/// sides, m_i, and where the verdict used the neighbours (the chance-plane and local tests: above
+/// local_ratio·d_med, not removed by its own surface variation or off-surface distance) so is
+/// |x_j − x_i| + r_i for each neighbour j against m_j (the k points i and N(i) \ {j} lie within
+/// that distance of j). The largest excess over the candidates is halo_shortfall_mm (0: every
+/// verdict equals the whole scan's, given the same scale and float rounding);
+/// points_judged_past_halo counts the candidates with an excess (RobustVerdicts::past_halo
+/// lists them).
 /// Report figures: k, local_ratio, mad_multiplier, sample, median_knn_distance_mm,
 /// mad_log_knn_distance, sigma_log_knn_distance, global_threshold_mm, certify_distance_mm,
 /// certified, exact_queries, max_surface_variation, local_tests, coherent_above_global (points
