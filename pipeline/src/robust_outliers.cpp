@@ -372,6 +372,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
                       ", expected 0 (off) or a finite value > 1");
   }
   if (o.sample < 2) throw ConfigError("remove_robust_outliers: sample = " + std::to_string(o.sample) + ", expected at least 2");
+  const bool judging = !o.judge_only.empty();
+  if (judging && !o.scale) throw ConfigError("remove_robust_outliers: judge_only needs the scale given (options.scale)");
   StageReport report = make_report("outliers", cloud.size());
   const std::vector<std::uint32_t> rows = finite_rows(cloud, "remove_robust_outliers");
   const std::size_t n = rows.size();
@@ -442,10 +444,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   const std::size_t cells = g.cells();
   const auto need_count = static_cast<std::uint32_t>(k) + 1;  // the point itself counts once
   // Judging listed points only (options.judge_only): no counting, the listed are the uncertain.
-  const bool judging = !o.judge_only.empty();
   std::vector<std::uint8_t> judged(judging ? n : 0, 0);
   if (judging) {
-    if (!o.scale) throw ConfigError("remove_robust_outliers: judge_only needs the scale given (options.scale)");
     std::vector<std::uint32_t> finite_of(cloud.size(), kNotInGrid);
     for (std::size_t j = 0; j < n; ++j) finite_of[rows[j]] = static_cast<std::uint32_t>(j);
     for (const std::uint32_t c : o.judge_only) {
@@ -583,14 +583,16 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       out[cand[i]] = 3;
       continue;
     }
-    if (static_cast<double>(d[cand[i]]) > d_local) need.insert(need.end(), nbrs(i).begin(), nbrs(i).end());
+    if (static_cast<double>(d[cand[i]]) > d_local && (!judging || judged[cand[i]])) {
+      need.insert(need.end(), nbrs(i).begin(), nbrs(i).end());
+    }
   }
   queries += d.compute(need);
 
   // 5. Local test against the neighbours' median distance.
   std::size_t n_local = 0, n_global = 0, n_off = 0, local_tests = 0;
   for (std::size_t i = 0; i < cand.size(); ++i) {
-    if (out[cand[i]] != 0 || static_cast<double>(d[cand[i]]) <= d_local) continue;
+    if (out[cand[i]] != 0 || static_cast<double>(d[cand[i]]) <= d_local || (judging && !judged[cand[i]])) continue;
     ++local_tests;
     std::vector<double> nd;
     nd.reserve(uk);
@@ -606,6 +608,11 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     const auto& win = o.tile->window_m;
     const auto& dec = o.tile->decides_m;
     auto xyz = [&](std::uint32_t j) { return cloud.xyz.col(static_cast<Eigen::Index>(rows[j])); };
+    // The searches ran in float32 on recentred coordinates: a relative slack of 1e-5 on their
+    // distances, and an absolute one of 8 float steps of the largest recentred coordinate.
+    float max_abs = 0.0f;
+    for (const float v : p) max_abs = std::max(max_abs, std::abs(v));
+    const double slack_m = 8.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * static_cast<double>(max_abs);
     // xy distance to the window's open sides (an infinite side is none).
     auto margin = [&](const Eigen::Vector3d& q) {
       return std::min({q.x() - win[0], win[1] - q.x(), q.y() - win[2], win[3] - q.y()});
@@ -615,8 +622,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       if (judging ? !judged[cand[i]] : !(x.x() >= dec[0] && x.x() < dec[1] && x.y() >= dec[2] && x.y() < dec[3])) continue;
       double r = 0.0;
       for (const std::uint32_t j : nbrs(i)) r = std::max(r, (xyz(j) - x).norm());
-      // The searches ran in float32: a relative slack of 1e-5 on the distances.
-      r *= 1.0 + 1e-5;
+      r = r * (1.0 + 1e-5) + slack_m;
       double excess = r - margin(x);
       // The neighbours' searches count where the verdict used them: the chance-plane and local
       // tests (not a removal by the point's own surface variation or off-surface distance).
@@ -625,7 +631,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       if (di > d_local && !own) {
         for (const std::uint32_t j : nbrs(i)) {
           const Eigen::Vector3d xj = xyz(j);
-          excess = std::max(excess, (xj - x).norm() * (1.0 + 1e-5) + r - margin(xj));
+          excess = std::max(excess, (xj - x).norm() * (1.0 + 1e-5) + slack_m + r - margin(xj));
         }
       }
       if (excess >= 0.0) {

@@ -292,6 +292,9 @@ struct Tiles {
     return {c0 <= 0 ? -inf : g.x_of_col(c0 - 0.5), c1 >= g.cols ? inf : g.x_of_col(c1 - 0.5),
             r0 <= 0 ? -inf : g.y_of_row(r0 - 0.5), r1 >= g.rows ? inf : g.y_of_row(r1 - 0.5)};
   }
+  // How many rows (or columns) of tiles away process_tile may read another tile's spill: its
+  // window widened by up to kMaxWidenedTiles tiles (judge_past_halo).
+  int far_rows() const;
   // The tile's window: its interior and halo, clipped to the grid.
   GridWindow window(std::size_t t) const {
     const auto [r0, r1, c0, c1] = interior(t);
@@ -643,6 +646,8 @@ bool keeps_sample(const RunConfig& config) { return config.lod.report && config.
 // How far a tile's window may be widened for the robust test's strays (process_tile), in tiles.
 constexpr int kMaxWidenedTiles = 2;
 
+int Tiles::far_rows() const { return kMaxWidenedTiles + (halo + size - 1) / size; }
+
 // Per spilled point: true unless it belongs to a far cluster (kFarFlag).
 std::vector<bool> not_far(const std::vector<std::uint8_t>& flags) {
   std::vector<bool> keep(flags.size());
@@ -707,19 +712,23 @@ int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const G
   wo.judge_only = rv.past_halo;
   double short_m = detail::figure_of(first, "halo_shortfall_mm", 0.0) * 1e-3;
   int widened = 0;
+  const int limit = kMaxWidenedTiles * tiles.size;
   for (int pass = 0;; ++pass) {
-    const int add = static_cast<int>(std::ceil(short_m / tiles.g.cell_size_m)) + 1;
-    widened += add;
-    if (widened > kMaxWidenedTiles * tiles.size || pass == 8) {
+    // In double first: a stray kilometres away must not overflow the cell count.
+    const double add = std::ceil(short_m / tiles.g.cell_size_m) + 1.0;
+    if (static_cast<double>(widened) + add > limit || pass == 8) {
       const auto inner = tiles.interior(t);
       throw InputError("tiled run, tile " + std::to_string(t) + " (grid rows " + std::to_string(inner[0]) + ".." +
                        std::to_string(inner[1] - 1) + ", cols " + std::to_string(inner[2]) + ".." + std::to_string(inner[3] - 1) +
                        "): stage outliers (filters.outliers, robust): the k-NN searches of " + std::to_string(rv.past_halo.size()) +
-                       " points reach " + format_number(short_m * 1e3) + " mm past the tile's window even widened by " +
-                       std::to_string(widened - add) + " cells (the limit is " + std::to_string(kMaxWidenedTiles) + " tiles of " +
-                       std::to_string(tiles.size) + " cells): raise scale.filter_halo_cells (now " + std::to_string(filter_halo_cells) +
-                       ") by at least " + std::to_string(widened) + ", crop the strays (filters.crop) or run in core (scale.tiled: off)");
+                       " points reach " + format_number(short_m * 1e3) + " mm past the tile's window widened by " +
+                       std::to_string(widened) + " cells" +
+                       (pass == 8 ? std::string(" after 8 widenings") : " (the limit is " + std::to_string(limit) + " cells, " +
+                                                                          std::to_string(kMaxWidenedTiles) + " tiles)") +
+                       ": raise scale.filter_halo_cells (now " + std::to_string(filter_halo_cells) + "), crop the strays " +
+                       "(filters.crop) or run in core (scale.tiled: off)");
     }
+    widened += static_cast<int>(add);
     GridWindow wide = w;
     wide.row0 = std::max(0, w.row0 - widened);
     wide.col0 = std::max(0, w.col0 - widened);
@@ -781,10 +790,13 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     // than the halo is wide), the test runs again over a window widened by the shortfall, with
     // the points of the neighbouring tiles that fall in it: every verdict kept is then the
     // whole scan's (RobustOutlierOptions::tile).
+    // (Without the plan's scale, every sampled point a copy of others, the test removes nothing.)
     const int grid_reach = std::max(0, tiles.halo - config.scale.filter_halo_cells);
-    ropt.tile = RobustOutlierOptions::TileBounds{
-        tiles.box_m(w.row0, w.row0 + w.rows, w.col0, w.col0 + w.cols),
-        tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach)};
+    if (plan.robust_scale) {
+      ropt.tile = RobustOutlierOptions::TileBounds{
+          tiles.box_m(w.row0, w.row0 + w.rows, w.col0, w.col0 + w.cols),
+          tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach)};
+    }
     RobustVerdicts rv;
     auto f1 = remove_robust_outliers(std::move(pts), ropt, &rv);
     const std::size_t past_halo = rv.past_halo.size();
@@ -827,7 +839,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
                                     oc.despike ? 4.0 * std::max(spacing_m, tiles.k * cell_m) : 0.0);
     const double room_m = (tiles.halo - grid_reach - 0.5) * cell_m;
     if (std::isfinite(reach_m) && reach_m > room_m) {
-      throw ConfigError("tiled run, tile " + std::to_string(t) + ": stages isolated and despike search up to " +
+      throw ConfigError("tiled run, tile " + std::to_string(t) + ": " +
+                        (oc.despike ? "stages isolated and despike search" : "stage isolated searches") + " up to " +
                         format_number(reach_m * 1e3) + " mm about a point (" + format_number(spacing_m * 1e3) +
                         " mm spacing), more than the " + format_number(room_m * 1e3) +
                         " mm the halo holds beyond the cells the tile decides: raise scale.filter_halo_cells (now " +
@@ -2361,10 +2374,24 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   (void)stage("tiles", built.summary.stages, progress, [&] {
     StageResult<int> r;
     PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);
-    for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
-      tick(static_cast<double>(t) / static_cast<double>(plan.tiles.count()));
-      merged.add(plan.tiles, process_tile(config, plan, spill, kept, t));
-      if (!config.cross_check.enabled) spill.remove(t);  // else the honest check reads it again
+    // Without the honest check a tile's spill goes once no later tile can read it: the robust
+    // test's second look reads the tiles up to far_rows() rows of tiles away (else the honest
+    // check reads every spill again after the loop).
+    const Tiles& tiles = plan.tiles;
+    const auto per_row = static_cast<std::size_t>(tiles.tiles_c);
+    const int far = tiles.far_rows();
+    for (std::size_t t = 0; t < tiles.count(); ++t) {
+      tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
+      merged.add(tiles, process_tile(config, plan, spill, kept, t));
+      const int done_row = static_cast<int>(t / per_row);
+      if (!config.cross_check.enabled && (t + 1) % per_row == 0 && done_row - far >= 0) {
+        for (std::size_t u = 0; u < per_row; ++u) spill.remove(static_cast<std::size_t>(done_row - far) * per_row + u);
+      }
+    }
+    if (!config.cross_check.enabled) {
+      const int rows = tiles.tiles_r;
+      for (int row = std::max(0, rows - far); row < rows; ++row)
+        for (std::size_t u = 0; u < per_row; ++u) spill.remove(static_cast<std::size_t>(row) * per_row + u);
     }
     merged.report(config, r.report);
     return r;
@@ -2431,11 +2458,14 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
   spill.adopt_existing();
   const std::string tmp_prefix = ".kept-job-" + attempt_tag() + "-";
   Spill kept(pf.dir, tmp_prefix, plan.tiles.count(), plan.layout);
-  for (const std::size_t t : tiles) {
+  // Every spill file, not only the jobs' own: a tile's robust test may read its neighbours'.
+  for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
     if (spill.bytes(t) != pf.spill_bytes[t]) {
       throw InputError(spill.file(t).string() + " holds " + std::to_string(spill.bytes(t)) + " bytes, the plan wrote " +
                        std::to_string(pf.spill_bytes[t]) + " (a missing or changed spill file: make a new plan)");
     }
+  }
+  for (const std::size_t t : tiles) {
     std::error_code ec;
     // This attempt's temporary kept file goes however the job ends (renamed below on success).
     struct RemoveTemp {

@@ -28,6 +28,8 @@
 #include <limits>
 #include <algorithm>
 #include <random>
+#include <set>
+#include <iostream>
 #include <string>
 #include <vector>
 
@@ -239,6 +241,56 @@ TEST(RobustOutliers, JudgingListedPointsGivesTheWholeTestsVerdicts) {
   o.judge_only = {0};
   o.scale.reset();
   EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError);
+}
+
+// The tile check's promise (RobustOutlierOptions::tile): a point in decides_m whose verdict
+// over the window's points alone differs from the whole cloud's is listed in past_halo. Oracle:
+// the whole test over the whole cloud with the same scale. Windows of several sizes and
+// margins over the cluttered bunny (its clutter: points whose searches reach far).
+TEST(RobustOutliers, ATilesVerdictThatDiffersFromTheWholeCloudsIsListedAsPastItsHalo) {
+  const Cloud c = with_extra(bunny(), uniform_in_box(800, 3));
+  RobustOutlierOptions o;
+  hc::pipeline::RobustVerdicts whole;
+  const auto first = remove_robust_outliers(c, o, &whole);
+  o.scale = hc::pipeline::RobustScale{std::log(figure(first.report, "median_knn_distance_mm") * 1e-3),
+                                      figure(first.report, "mad_log_knn_distance"), o.sample};
+  (void)remove_robust_outliers(c, o, &whole);
+  const Eigen::Vector3d lo = c.xyz.rowwise().minCoeff(), hi = c.xyz.rowwise().maxCoeff(), ext = hi - lo;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::size_t differing = 0, decided = 0, listed_total = 0;
+  for (int trial = 0; trial < 200; ++trial) {
+    const double x0 = lo.x() + 0.8 * ext.x() * u(rng), y0 = lo.y() + 0.8 * ext.y() * u(rng);
+    const double x1 = x0 + ext.x() * (0.1 + 0.3 * u(rng)), y1 = y0 + ext.y() * (0.1 + 0.3 * u(rng));
+    const double m = ext.x() * (0.002 + 0.02 * u(rng));
+    RobustOutlierOptions to = o;
+    to.tile = RobustOutlierOptions::TileBounds{{x0, x1, y0, y1}, {x0 + m, x1 - m, y0 + m, y1 - m}};
+    std::vector<bool> in(c.size());
+    std::vector<std::uint32_t> of;  // the window's points' columns in c
+    for (std::size_t i = 0; i < c.size(); ++i) {
+      const auto p = c.xyz.col(static_cast<Eigen::Index>(i));
+      in[i] = p.x() >= x0 && p.x() < x1 && p.y() >= y0 && p.y() < y1;
+      if (in[i]) of.push_back(static_cast<std::uint32_t>(i));
+    }
+    Cloud window = c;
+    window.keep_if(in);
+    if (window.size() < 100) continue;
+    hc::pipeline::RobustVerdicts part;
+    (void)remove_robust_outliers(window, to, &part);
+    const std::set<std::uint32_t> listed(part.past_halo.begin(), part.past_halo.end());
+    listed_total += listed.size();
+    for (std::size_t i = 0; i < window.size(); ++i) {
+      const auto p = window.xyz.col(static_cast<Eigen::Index>(i));
+      if (!(p.x() >= x0 + m && p.x() < x1 - m && p.y() >= y0 + m && p.y() < y1 - m)) continue;
+      ++decided;
+      if (part.verdict[i] == whole.verdict[of[i]]) continue;
+      ++differing;
+      EXPECT_TRUE(listed.count(static_cast<std::uint32_t>(i))) << "trial " << trial << ": point " << of[i] << " ("
+                                                                << p.transpose() << ") differs but is not listed";
+    }
+  }
+  std::cout << "[ info ] decided " << decided << ", differing " << differing << ", listed " << listed_total << "\n";
+  EXPECT_GT(differing, 0U) << "no window changed a verdict: the test would not see a broken check";
 }
 
 TEST(RobustOutliers, UniformClutterOfOneToFivePercentGoesAndTruePointsStay) {

@@ -58,7 +58,11 @@ struct RobustOutlierOptions {
   /// beyond which no point was left out), `decides_m` the points whose verdict the tile keeps
   /// (those within the grid stages' reach of its interior). Given, the test measures how far
   /// the searches that decide those points could reach past the window (the report figures
-  /// halo_shortfall_mm and points_judged_past_halo; see remove_robust_outliers).
+  /// halo_shortfall_mm and points_judged_past_halo; see remove_robust_outliers). What it does
+  /// not cover: the tiled run leaves far-cluster points (removed over the whole scan first) out
+  /// of every tile, where in core they are neighbours in this test; and the verdicts of points
+  /// between decides_m and the window's edge, which the isolated-point and despike counts of
+  /// decided points see, are not checked (docs/scale.md).
   struct TileBounds {
     std::array<double, 4> window_m{};
     std::array<double, 4> decides_m{};

@@ -87,7 +87,9 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
 //   WORK/part_<t>.bin   tile t's result: its interior of the grid, its summed figures, its share
 //                       of the levels sample (written last, through a rename: it marks the job done);
 //   WORK/kept_<t>.bin   tile t's points after the filters (the cross-check's).
-// A tile job reads only plan.json and tile_<t>.bin and writes only part_<t>.bin and
+// A tile job reads only plan.json and tile_<t>.bin (and, where the robust test's searches leave
+// tile t's window, the spill files of the tiles about it; every spill file's size is checked
+// against the plan first) and writes only part_<t>.bin and
 // kept_<t>.bin, each through a temporary file and a rename, so a job can be run again (a retry
 // after a lost worker) and two attempts of one tile leave one complete result.
 
