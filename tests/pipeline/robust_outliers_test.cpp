@@ -201,19 +201,29 @@ TEST(RobustOutliers, CountingPassDecidesLikeTestingEveryPoint) {
   }
 }
 
+// The cluttered bunny (800 uniform points in its box), the options with the scale of its whole
+// test given, and that test's verdict for every point (the oracle of the tile tests below).
+struct JudgedBunny {
+  Cloud c;
+  RobustOutlierOptions o;
+  hc::pipeline::RobustVerdicts whole;
+};
+JudgedBunny judged_cluttered_bunny() {
+  JudgedBunny b{with_extra(bunny(), uniform_in_box(800, 3)), {}, {}};
+  const auto first = remove_robust_outliers(b.c, b.o);
+  b.o.scale = hc::pipeline::RobustScale{std::log(figure(first.report, "median_knn_distance_mm") * 1e-3),
+                                        figure(first.report, "mad_log_knn_distance"), b.o.sample};
+  // The scale as the report rounds it can differ from the one used in its last digits: the
+  // oracle is the whole test with the very scale given.
+  (void)remove_robust_outliers(b.c, b.o, &b.whole);
+  return b;
+}
+
 // judge_only (the tiled run's second look): each listed point gets the verdict the whole test
 // gives it; the oracle is the whole test's verdict vector on the same cloud and scale, over a
 // list of removed and kept points, certified ones among them.
 TEST(RobustOutliers, JudgingListedPointsGivesTheWholeTestsVerdicts) {
-  const Cloud c = with_extra(bunny(), uniform_in_box(800, 3));
-  RobustOutlierOptions o;
-  hc::pipeline::RobustVerdicts whole;
-  const auto first = remove_robust_outliers(c, o, &whole);
-  o.scale = hc::pipeline::RobustScale{std::log(figure(first.report, "median_knn_distance_mm") * 1e-3),
-                                      figure(first.report, "mad_log_knn_distance"), o.sample};
-  // The scale as the report rounds it can differ from the one used in its last digits: the
-  // oracle is the whole test with the very scale given.
-  (void)remove_robust_outliers(c, o, &whole);
+  auto [c, o, whole] = judged_cluttered_bunny();
   std::vector<std::uint32_t> removed, kept;
   for (std::uint32_t i = 0; i < whole.verdict.size(); ++i) (whole.verdict[i] != 0 ? removed : kept).push_back(i);
   ASSERT_GT(removed.size(), 100U);
@@ -248,13 +258,7 @@ TEST(RobustOutliers, JudgingListedPointsGivesTheWholeTestsVerdicts) {
 // the whole test over the whole cloud with the same scale. Windows of several sizes and
 // margins over the cluttered bunny (its clutter: points whose searches reach far).
 TEST(RobustOutliers, ATilesVerdictThatDiffersFromTheWholeCloudsIsListedAsPastItsHalo) {
-  const Cloud c = with_extra(bunny(), uniform_in_box(800, 3));
-  RobustOutlierOptions o;
-  hc::pipeline::RobustVerdicts whole;
-  const auto first = remove_robust_outliers(c, o, &whole);
-  o.scale = hc::pipeline::RobustScale{std::log(figure(first.report, "median_knn_distance_mm") * 1e-3),
-                                      figure(first.report, "mad_log_knn_distance"), o.sample};
-  (void)remove_robust_outliers(c, o, &whole);
+  const auto [c, o, whole] = judged_cluttered_bunny();
   const Eigen::Vector3d lo = c.xyz.rowwise().minCoeff(), hi = c.xyz.rowwise().maxCoeff(), ext = hi - lo;
   std::mt19937 rng(5);
   std::uniform_real_distribution<double> u(0.0, 1.0);
