@@ -1173,8 +1173,9 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
   return v;
 }
 
-StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o) {
+StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o, RemovedPoints* removed_points) {
   check_honest_options(o);
+  if (removed_points != nullptr) *removed_points = RemovedPoints{};
   const auto t0 = std::chrono::steady_clock::now();
   StageReport report;
   report.stage = "isolated";
@@ -1232,6 +1233,11 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
     if (!isolated[i]) continue;
     keep[i] = false;
     ++removed;
+    if (removed_points != nullptr) {
+      const auto c = cloud.xyz.col(static_cast<Eigen::Index>(i));
+      removed_points->xyz.insert(removed_points->xyz.end(), {c.x(), c.y(), c.z()});
+      removed_points->at.push_back(i);
+    }
   }
   if (removed > 0) cloud.keep_if(keep);
   report.count_out = cloud.size();

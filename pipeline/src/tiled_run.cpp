@@ -751,6 +751,31 @@ int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const G
   }
 }
 
+// The isolated-point and despike tests count a point's neighbours within a radius: a point a
+// tile keeps is kept over the whole scan too (more points, more neighbours), a point it removes
+// is removed there too unless its radius reaches past the window. Throws ConfigError, naming
+// the stage, the tile and scale.filter_halo_cells with the value needed, when a removed point
+// in the decided region (b.decides_m) lies within reach_m of the window's open sides.
+void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierOptions::TileBounds& b, const RemovedPoints& removed,
+                         double reach_m, const char* stage, double spacing_m, int filter_halo_cells) {
+  const auto& d = b.decides_m;
+  const auto& win = b.window_m;
+  std::size_t n = 0;
+  for (std::size_t i = 0; i < removed.size(); ++i) {
+    const double x = removed.xyz[3 * i], y = removed.xyz[3 * i + 1];
+    if (!(x >= d[0] && x < d[1] && y >= d[2] && y < d[3])) continue;
+    n += std::min({x - win[0], win[1] - x, y - win[2], win[3] - y}) <= reach_m ? 1U : 0U;
+  }
+  if (n == 0) return;
+  const double cell_m = tiles.g.cell_size_m;
+  throw ConfigError("tiled run, tile " + std::to_string(t) + ": stage " + stage + " removed " + std::to_string(n) +
+                    " points whose neighbour count (within " + format_number(reach_m * 1e3) + " mm; spacing " +
+                    format_number(spacing_m * 1e3) + " mm) reaches past the tile's window, so the whole scan may keep them: "
+                    "raise scale.filter_halo_cells (now " + std::to_string(filter_halo_cells) + ") to at least " +
+                    std::to_string(static_cast<int>(std::ceil(std::min(reach_m / cell_m, 1e6) + 0.5))) +
+                    " (the halo then holds the search beyond the cells the tile decides)");
+}
+
 // Step 3 for tile t (the file comment of tiling.hpp): its spilled points through the filters and
 // reproject, the interior cut out, its kept points appended to `kept` (flushed).
 TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, Spill& kept, std::size_t t) {
@@ -772,6 +797,12 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   }
   const GridWindow w = tiles.window(t);
   const auto inner = tiles.interior(t);
+  // The window holds every point within the halo; the verdicts kept are those of the points
+  // the grid stages see from the interior (the halo less the filters' share).
+  const int grid_reach = std::max(0, tiles.halo - config.scale.filter_halo_cells);
+  const RobustOutlierOptions::TileBounds bounds{
+      tiles.box_m(w.row0, w.row0 + w.rows, w.col0, w.col0 + w.cols),
+      tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach)};
   double spacing_m = 0.0;  // the isolated filter's estimate of the scan's spacing (despike)
   // A window of fewer than k + 2 points (a corner of stray returns) cannot be judged by the
   // k-NN tests: its points are kept as they are, counted and noted, not an error.
@@ -784,19 +815,12 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     ropt.mad_multiplier = oc.mad_multiplier;
     ropt.off_surface_ratio = oc.off_surface_ratio;
     ropt.scale = plan.robust_scale;
-    // The window holds every point within the halo; the verdicts kept are those of the points
-    // the grid stages see from the interior (the halo less the filters' share). Where a search
-    // that decides one of them could end past the window (a stray whose k nearest lie farther
-    // than the halo is wide), the test runs again over a window widened by the shortfall, with
-    // the points of the neighbouring tiles that fall in it: every verdict kept is then the
-    // whole scan's (RobustOutlierOptions::tile).
-    // (Without the plan's scale, every sampled point a copy of others, the test removes nothing.)
-    const int grid_reach = std::max(0, tiles.halo - config.scale.filter_halo_cells);
-    if (plan.robust_scale) {
-      ropt.tile = RobustOutlierOptions::TileBounds{
-          tiles.box_m(w.row0, w.row0 + w.rows, w.col0, w.col0 + w.cols),
-          tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach)};
-    }
+    // Where a search that decides a verdict the tile keeps could end past the window (a stray
+    // whose k nearest lie farther than the halo is wide), the point is judged again over a window
+    // widened by the shortfall, with the points of the neighbouring tiles that fall in it: every
+    // verdict kept is then the whole scan's (RobustOutlierOptions::tile). (Without the plan's
+    // scale, every sampled point a copy of others, the test removes nothing.)
+    if (plan.robust_scale) ropt.tile = bounds;
     RobustVerdicts rv;
     auto f1 = remove_robust_outliers(std::move(pts), ropt, &rv);
     const std::size_t past_halo = rv.past_halo.size();
@@ -828,25 +852,14 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     auto f1f = remove_far_clusters_after(std::move(f1), oc.far_clusters);
     add_figures(o.sums, f1f.report);
     auto& f1v = f1f.value;
-    auto f2 = remove_isolated_points(std::move(f1v), config.cross_check.honest);
+    RemovedPoints isolated;
+    auto f2 = remove_isolated_points(std::move(f1v), config.cross_check.honest, &isolated);
     add_figures(o.sums, f2.report);
     spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
-    // The isolated-point count and the despike's 3-D count search at most this far about a point
-    // (remove_isolated_points; remove_spike_points: at most max(4 scan cells, 4 spacings)); for
-    // the points the tile decides, that must stay inside the window.
-    const double cell_m = tiles.g.cell_size_m;
-    const double reach_m = std::max(detail::figure_of(f2.report, "isolation_radius_mm", 0.0) * 1e-3,
-                                    oc.despike ? 4.0 * std::max(spacing_m, tiles.k * cell_m) : 0.0);
-    const double room_m = (tiles.halo - grid_reach - 0.5) * cell_m;
-    if (std::isfinite(reach_m) && reach_m > room_m) {
-      throw ConfigError("tiled run, tile " + std::to_string(t) + ": " +
-                        (oc.despike ? "stages isolated and despike search" : "stage isolated searches") + " up to " +
-                        format_number(reach_m * 1e3) + " mm about a point (" + format_number(spacing_m * 1e3) +
-                        " mm spacing), more than the " + format_number(room_m * 1e3) +
-                        " mm the halo holds beyond the cells the tile decides: raise scale.filter_halo_cells (now " +
-                        std::to_string(config.scale.filter_halo_cells) + ") to at least " +
-                        std::to_string(static_cast<int>(std::ceil(reach_m / cell_m + 0.5))));
-    }
+    // A point the tile keeps is kept over the whole scan too (more points, more neighbours); a
+    // removed one is removed there too unless its radius reaches past the window.
+    check_within_window(tiles, t, bounds, isolated, detail::figure_of(f2.report, "isolation_radius_mm", 0.0) * 1e-3,
+                        "isolated", spacing_m, config.scale.filter_halo_cells);
     pts = std::move(f2.value);
   }
   DepthGrid part;
@@ -863,6 +876,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
                                     std::max(1.0, ro.splat_radius_cells) * tiles.k, std::isfinite(spacing_m) ? spacing_m : 0.0,
                                     tiles.k, &removed);
       add_figures(o.sums, ds.report);
+      // The despike's 3-D count searches at most max(4 scan cells, 4 spacings) about a point.
+      check_within_window(tiles, t, bounds, removed, 4.0 * std::max(spacing_m, tiles.k * tiles.g.cell_size_m), "despike",
+                          spacing_m, config.scale.filter_halo_cells);
       pts = std::move(ds.value);
       if (pts.size() == 0) {
         part = DepthGrid();  // nothing left: the tile's cells stay no data

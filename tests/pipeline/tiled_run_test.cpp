@@ -388,13 +388,23 @@ TEST(TiledRun, TheRobustTestWidensAWindowItsSearchesWouldLeave) {
   EXPECT_EQ(differing_bits(in.scene.layers.depth, unchecked.scene.layers.depth), 0U);
 }
 
-// Too narrow a halo for the isolated-point and despike searches is an error naming the key.
+// A point the isolated-point test removes within its radius of the window's edge might be kept
+// over the whole scan: an error naming the key. On the 10 mm patch with a 2-cell filter halo
+// (10 mm) and 200 neighbours wanted within 9 spacings (90 mm, about 250 points in the open), the
+// points near a window's edge have too few in their tile; over the whole patch only its own rim
+// does (at the grid's edge, where no point is missing: no error for those).
 TEST(TiledRun, AHaloNarrowerThanThePointSearchesIsAnErrorNamingTheKey) {
   const fs::path dir = hc::test::temp_dir("narrow");
   write_patch_with(dir / "patch.ply", {});
-  RunConfig config = hc::pipeline::parse_run_config(
-      "input: {files: [patch.ply], units: m}\ngrid: {n: 200}\nscale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 2}\n",
-      dir / "patch.yaml");
+  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200}\n"
+                           "cross_check: {isolation_min_neighbours: 200}\nfilters: {outliers: {despike: false}}\n";
+  // The same patch with a wide halo runs (the search fits).
+  RunConfig wide = hc::pipeline::parse_run_config(yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 24}\n",
+                                                  dir / "patch.yaml");
+  wide.scale.scratch = dir;
+  EXPECT_NO_THROW((void)hc::pipeline::build_scene(wide));
+  RunConfig config = hc::pipeline::parse_run_config(yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 2}\n",
+                                                    dir / "patch.yaml");
   config.scale.scratch = dir;
   try {
     (void)hc::pipeline::build_scene(config);

@@ -245,10 +245,13 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
 /// Frame and units: the cloud's (grid frame, metres). Report figures: spacing_mm,
 /// isolation_radius_mm, removed_isolated. Cost O(N) (a voxel hash of the radius, counting
 /// stops at the minimum). Non-finite points are kept (the non_finite stage drops them).
+/// @param removed_points when given, set to the removed points (coordinates and columns in
+///        `cloud`): the tiled run checks that none lay within the radius of its window's edge.
 /// @throws hc::ConfigError for options outside their ranges (check_honest_options).
 /// Source: the radius outlier test (Rusu 2009, PCL's RadiusOutlierRemoval), radius from the
 /// scan's own spacing.
-StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& options);
+StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& options,
+                                          RemovedPoints* removed_points = nullptr);
 
 /// Removes the stray points that make the grid's spikes and islands (a grid-level second look
 /// after the robust outlier test, which judges points by their neighbours only: clutter a few
