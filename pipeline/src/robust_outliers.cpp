@@ -374,6 +374,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   if (o.sample < 2) throw ConfigError("remove_robust_outliers: sample = " + std::to_string(o.sample) + ", expected at least 2");
   const bool judging = !o.judge_only.empty();
   if (judging && !o.scale) throw ConfigError("remove_robust_outliers: judge_only needs the scale given (options.scale)");
+  if (verdicts) *verdicts = RobustVerdicts{};
   StageReport report = make_report("outliers", cloud.size());
   const std::vector<std::uint32_t> rows = finite_rows(cloud, "remove_robust_outliers");
   const std::size_t n = rows.size();
@@ -418,7 +419,6 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       report.figure("points_judged_past_halo", 0.0);
     }
     if (verdicts) {
-      *verdicts = RobustVerdicts{};
       verdicts->verdict.assign(cloud.size(), 4);
       for (const std::uint32_t r : rows) verdicts->verdict[r] = 0;
     }
@@ -601,7 +601,6 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     if (static_cast<double>(d[cand[i]]) > o.local_ratio * ref) out[cand[i]] = 2;
   }
   // 6. A tile's searches against its window (options.tile; see the header).
-  if (verdicts) verdicts->past_halo.clear();
   double shortfall_m = 0.0;
   std::size_t past_halo = 0;
   if (o.tile) {

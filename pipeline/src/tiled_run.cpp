@@ -262,6 +262,9 @@ class Spill {
 // ---------------------------------------------------------------------------------------------
 // The tiles.
 
+// How far a tile's window may be widened for the robust test's strays (process_tile), in tiles.
+constexpr int kMaxWidenedTiles = 2;
+
 struct Tiles {
   GridGeometry g;
   int k = 1;        // upsample factor
@@ -292,18 +295,21 @@ struct Tiles {
     return {c0 <= 0 ? -inf : g.x_of_col(c0 - 0.5), c1 >= g.cols ? inf : g.x_of_col(c1 - 0.5),
             r0 <= 0 ? -inf : g.y_of_row(r0 - 0.5), r1 >= g.rows ? inf : g.y_of_row(r1 - 0.5)};
   }
+  // The same box for a window's nodes.
+  std::array<double, 4> box_m(const GridWindow& w) const { return box_m(w.row0, w.row0 + w.rows, w.col0, w.col0 + w.cols); }
   // How many rows (or columns) of tiles away process_tile may read another tile's spill: its
   // window widened by up to kMaxWidenedTiles tiles (judge_past_halo).
-  int far_rows() const;
-  // The tile's window: its interior and halo, clipped to the grid.
-  GridWindow window(std::size_t t) const {
+  int far_rows() const { return kMaxWidenedTiles + (halo + size - 1) / size; }
+  // The tile's window: its interior and halo (widened by `extra` nodes), clipped to the grid.
+  GridWindow window(std::size_t t, int extra = 0) const {
     const auto [r0, r1, c0, c1] = interior(t);
+    const int reach = halo + extra;
     GridWindow w;
     w.grid = g;
-    w.row0 = std::max(0, r0 - halo);
-    w.col0 = std::max(0, c0 - halo);
-    w.rows = std::min(g.rows, r1 + halo) - w.row0;
-    w.cols = std::min(g.cols, c1 + halo) - w.col0;
+    w.row0 = std::max(0, r0 - reach);
+    w.col0 = std::max(0, c0 - reach);
+    w.rows = std::min(g.rows, r1 + reach) - w.row0;
+    w.cols = std::min(g.cols, c1 + reach) - w.col0;
     return w;
   }
 };
@@ -643,16 +649,19 @@ std::size_t sample_stride_of(const RunConfig& config, std::uint64_t input_points
 
 bool keeps_sample(const RunConfig& config) { return config.lod.report && config.lod.report_cross_check; }
 
-// How far a tile's window may be widened for the robust test's strays (process_tile), in tiles.
-constexpr int kMaxWidenedTiles = 2;
-
-int Tiles::far_rows() const { return kMaxWidenedTiles + (halo + size - 1) / size; }
-
 // Per spilled point: true unless it belongs to a far cluster (kFarFlag).
 std::vector<bool> not_far(const std::vector<std::uint8_t>& flags) {
   std::vector<bool> keep(flags.size());
   for (std::size_t i = 0; i < flags.size(); ++i) keep[i] = (flags[i] & kFarFlag) == 0;
   return keep;
+}
+
+// Tile t's spilled points without the far clusters' (kFarFlag, when the plan found any); `flags`
+// receives the spill's flag bytes.
+Cloud read_tile_points(const Plan& plan, const Spill& spill, std::size_t t, std::vector<std::uint8_t>& flags) {
+  Cloud pts = spill.read(t, flags);
+  if (plan.far_points > 0) pts.keep_if(not_far(flags));
+  return pts;
 }
 
 // Appends b's points to a (the same attributes: both read from spills of one layout).
@@ -729,14 +738,10 @@ int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const G
                        "(filters.crop) or run in core (scale.tiled: off)");
     }
     widened += static_cast<int>(add);
-    GridWindow wide = w;
-    wide.row0 = std::max(0, w.row0 - widened);
-    wide.col0 = std::max(0, w.col0 - widened);
-    wide.rows = std::min(tiles.g.rows, w.row0 + w.rows + widened) - wide.row0;
-    wide.cols = std::min(tiles.g.cols, w.col0 + w.cols + widened) - wide.col0;
+    const GridWindow wide = tiles.window(t, widened);
     // The window's points first, in their order (the listed columns stay theirs), then the rest.
     append(pts, points_around(plan, spill, t, w, wide));
-    wo.tile->window_m = tiles.box_m(wide.row0, wide.row0 + wide.rows, wide.col0, wide.col0 + wide.cols);
+    wo.tile->window_m = tiles.box_m(wide);
     RobustVerdicts wv;
     auto again = remove_robust_outliers(std::move(pts), wo, &wv);
     pts = std::move(again.value);
@@ -787,8 +792,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   o.tile = t;
   const OutlierConfig& oc = config.filters.outliers;
   std::vector<std::uint8_t> flags;
-  Cloud pts = spill.read(t, flags);
-  if (plan.far_points > 0) pts.keep_if(not_far(flags));
+  Cloud pts = read_tile_points(plan, spill, t, flags);
   o.in = pts.size();
   if (config.cross_check.enabled && pts.size() >= 2) {
     // The honest check's spacing (the tiles' median weighted by points: finish_tiled).
@@ -801,7 +805,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   // the grid stages see from the interior (the halo less the filters' share).
   const int grid_reach = std::max(0, tiles.halo - config.scale.filter_halo_cells);
   const RobustOutlierOptions::TileBounds bounds{
-      tiles.box_m(w.row0, w.row0 + w.rows, w.col0, w.col0 + w.cols),
+      tiles.box_m(w),
       tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach)};
   double spacing_m = 0.0;  // the isolated filter's estimate of the scan's spacing (despike)
   // A window of fewer than k + 2 points (a corner of stray returns) cannot be judged by the
@@ -823,11 +827,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     if (plan.robust_scale) ropt.tile = bounds;
     RobustVerdicts rv;
     auto f1 = remove_robust_outliers(std::move(pts), ropt, &rv);
-    const std::size_t past_halo = rv.past_halo.size();
     int widened = 0;  // cells added to each side of the window
-    if (past_halo > 0) {
-      pts = spill.read(t, flags);
-      if (plan.far_points > 0) pts.keep_if(not_far(flags));
+    if (!rv.past_halo.empty()) {
+      pts = read_tile_points(plan, spill, t, flags);
       widened = judge_past_halo(plan, spill, t, w, ropt, pts, f1.report, rv, config.scale.filter_halo_cells);
       // The tile's points with the verdicts, and the removal counts of those (the work counts,
       // certified and exact_queries, are the first pass's).
@@ -851,9 +853,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     auto f1f = remove_far_clusters_after(std::move(f1), oc.far_clusters);
     add_figures(o.sums, f1f.report);
-    auto& f1v = f1f.value;
     RemovedPoints isolated;
-    auto f2 = remove_isolated_points(std::move(f1v), config.cross_check.honest, &isolated);
+    auto f2 = remove_isolated_points(std::move(f1f.value), config.cross_check.honest, &isolated);
     add_figures(o.sums, f2.report);
     spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
     // A point the tile keeps is kept over the whole scan too (more points, more neighbours); a
@@ -2396,19 +2397,17 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     const Tiles& tiles = plan.tiles;
     const auto per_row = static_cast<std::size_t>(tiles.tiles_c);
     const int far = tiles.far_rows();
+    const bool drop = !config.cross_check.enabled;
+    auto remove_row = [&](int row) {
+      for (std::size_t u = 0; u < per_row; ++u) spill.remove(static_cast<std::size_t>(row) * per_row + u);
+    };
     for (std::size_t t = 0; t < tiles.count(); ++t) {
       tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
       merged.add(tiles, process_tile(config, plan, spill, kept, t));
       const int done_row = static_cast<int>(t / per_row);
-      if (!config.cross_check.enabled && (t + 1) % per_row == 0 && done_row - far >= 0) {
-        for (std::size_t u = 0; u < per_row; ++u) spill.remove(static_cast<std::size_t>(done_row - far) * per_row + u);
-      }
+      if (drop && (t + 1) % per_row == 0 && done_row >= far) remove_row(done_row - far);
     }
-    if (!config.cross_check.enabled) {
-      const int rows = tiles.tiles_r;
-      for (int row = std::max(0, rows - far); row < rows; ++row)
-        for (std::size_t u = 0; u < per_row; ++u) spill.remove(static_cast<std::size_t>(row) * per_row + u);
-    }
+    for (int row = std::max(0, tiles.tiles_r - far); drop && row < tiles.tiles_r; ++row) remove_row(row);
     merged.report(config, r.report);
     return r;
   });

@@ -185,10 +185,13 @@ struct FarClusterOptions {
 /// @param options  k 1..1000, local_ratio > 1, mad_multiplier > 0, max_surface_variation
 ///                0..1/3, sample >= 2, off_surface_ratio 0 or > 1
 /// @throws hc::ConfigError on out-of-range options; hc::DegenerateInputError when fewer than
-///         k + 2 finite points remain; hc::ResourceError beyond 2^32 − 2 points.
+///         k + 2 finite points remain; hc::ResourceError beyond 2^32 − 2 points; with
+///         judge_only, hc::ConfigError when `scale` is not given and hc::InputError for a listed
+///         column that is not a finite point of the cloud.
 /// Real-time: no. Threads: 2. Cost: one grid build and counting pass over all points, plus
-/// (sample + uncertified + their neighbours) exact k-NN queries.
-/// @param verdicts when given, filled (RobustVerdicts)
+/// (sample + uncertified + their neighbours) exact k-NN queries (judge_only: no counting pass;
+/// the listed points, their neighbours and those neighbours' neighbours).
+/// @param verdicts when given, filled (RobustVerdicts; its previous content is discarded)
 StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& options,
                                           RobustVerdicts* verdicts = nullptr);
 
