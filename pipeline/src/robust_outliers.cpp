@@ -612,9 +612,18 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     float max_abs = 0.0f;
     for (const float v : p) max_abs = std::max(max_abs, std::abs(v));
     const double slack_m = 8.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * static_cast<double>(max_abs);
-    // xy distance to the window's open sides (an infinite side is none).
+    std::vector<std::array<double, 4>> reach;  // candidate i's balls (RobustVerdicts::reach_m)
+    PointQueries::Scratch scratch(k);
+    std::vector<std::uint32_t> knn_j;
+    // How far a search about q may reach and stay where the cloud is complete: the xy distance
+    // to the window's open sides (an infinite side is none), or the most any complete ball
+    // leaves about q.
+    const auto& balls = o.tile->complete_m;
     auto margin = [&](const Eigen::Vector3d& q) {
-      return std::min({q.x() - win[0], win[1] - q.x(), q.y() - win[2], win[3] - q.y()});
+      if (balls.empty()) return std::min({q.x() - win[0], win[1] - q.x(), q.y() - win[2], win[3] - q.y()});
+      double best = -std::numeric_limits<double>::infinity();
+      for (const auto& b : balls) best = std::max(best, b[3] - (q - Eigen::Vector3d(b[0], b[1], b[2])).norm());
+      return best;
     };
     for (std::size_t i = 0; i < cand.size(); ++i) {
       const Eigen::Vector3d x = xyz(cand[i]);
@@ -623,20 +632,41 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       for (const std::uint32_t j : nbrs(i)) r = std::max(r, (xyz(j) - x).norm());
       r = r * (1.0 + 1e-5) + slack_m;
       double excess = r - margin(x);
+      reach.clear();
+      reach.push_back({x.x(), x.y(), x.z(), r});
       // The neighbours' searches count where the verdict used them: the chance-plane and local
       // tests (not a removal by the point's own surface variation or off-surface distance).
+      // Neighbour j's k-th distance r_j is at most |x_j − x_i| + r_i, and at most k·d_j (d_j, the
+      // mean of its k distances, known: every neighbour of a candidate that reaches the local
+      // test, and every candidate; an unknown d_j is certified by counting, below D_cert), and
+      // where both reach past the margin, at most its k-th distance here.
       const double di = static_cast<double>(d[cand[i]]);
       const bool own = (di > d_glob && variation[i] > o.max_surface_variation) || out[cand[i]] == 3;
       if (di > d_local && !own) {
         for (const std::uint32_t j : nbrs(i)) {
           const Eigen::Vector3d xj = xyz(j);
-          excess = std::max(excess, (xj - x).norm() * (1.0 + 1e-5) + slack_m + r - margin(xj));
+          double rj = (xj - x).norm() * (1.0 + 1e-5) + slack_m + r;
+          if (d[j] >= 0.0f) rj = std::min(rj, static_cast<double>(k) * static_cast<double>(d[j]) * (1.0 + 1e-5) + slack_m);
+          const double mj = margin(xj);
+          if (rj >= mj && d.pos(j) != kNotInGrid) {
+            // Short of the bounds: j's own k-th distance here (one search; an upper bound of the
+            // whole scan's).
+            d.queries().nearest(d.pos(j), scratch, knn_j);
+            double own_r = 0.0;
+            for (const std::uint32_t q : knn_j) own_r = std::max(own_r, (xyz(q) - xj).norm());
+            rj = std::min(rj, own_r * (1.0 + 1e-5) + slack_m);
+          }
+          excess = std::max(excess, rj - mj);
+          reach.push_back({xj.x(), xj.y(), xj.z(), rj});
         }
       }
       if (excess >= 0.0) {
         ++past_halo;
         shortfall_m = std::max(shortfall_m, excess);
-        if (verdicts) verdicts->past_halo.push_back(rows[cand[i]]);
+        if (verdicts) {
+          verdicts->past_halo.push_back(rows[cand[i]]);
+          verdicts->reach_m.insert(verdicts->reach_m.end(), reach.begin(), reach.end());
+        }
       }
     }
   }

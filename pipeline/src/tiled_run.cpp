@@ -806,7 +806,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   const int grid_reach = std::max(0, tiles.halo - config.scale.filter_halo_cells);
   const RobustOutlierOptions::TileBounds bounds{
       tiles.box_m(w),
-      tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach)};
+      tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach), {}};
   double spacing_m = 0.0;  // the isolated filter's estimate of the scan's spacing (despike)
   // A window of fewer than k + 2 points (a corner of stray returns) cannot be judged by the
   // k-NN tests: its points are kept as they are, counted and noted, not an error.

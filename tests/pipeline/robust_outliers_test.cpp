@@ -268,7 +268,7 @@ TEST(RobustOutliers, ATilesVerdictThatDiffersFromTheWholeCloudsIsListedAsPastIts
     const double x1 = x0 + ext.x() * (0.1 + 0.3 * u(rng)), y1 = y0 + ext.y() * (0.1 + 0.3 * u(rng));
     const double m = ext.x() * (0.002 + 0.02 * u(rng));
     RobustOutlierOptions to = o;
-    to.tile = RobustOutlierOptions::TileBounds{{x0, x1, y0, y1}, {x0 + m, x1 - m, y0 + m, y1 - m}};
+    to.tile = RobustOutlierOptions::TileBounds{{x0, x1, y0, y1}, {x0 + m, x1 - m, y0 + m, y1 - m}, {}};
     std::vector<bool> in(c.size());
     std::vector<std::uint32_t> of;  // the window's points' columns in c
     for (std::size_t i = 0; i < c.size(); ++i) {
@@ -295,6 +295,58 @@ TEST(RobustOutliers, ATilesVerdictThatDiffersFromTheWholeCloudsIsListedAsPastIts
   }
   std::cout << "[ info ] decided " << decided << ", differing " << differing << ", listed " << listed_total << "\n";
   EXPECT_GT(differing, 0U) << "no window changed a verdict: the test would not see a broken check";
+}
+
+// The check's neighbour term, on a case built by hand (mm below; the cloud in metres). k = 4,
+// the scale given (d_med = 1 mm, a global threshold of about 140 m: only the local test acts),
+// no off-surface test: a point i is removed when d_i > 3·max(median of its neighbours' d, 1 mm).
+// The window is x < 0. i = (-20, 0, 0); its 4 nearest, J = (-2, ±1.5, 0) and (-2, ±4.5, 0), lie
+// 18.06 and 18.55 mm away (d_i = 18.3 mm; r_i = 18.55 inside its 20 mm margin). In the window
+// each j of J has the other three and i as its 4 nearest (d_j 7.5 and 9.1 mm): 18.3 < 3·8.3,
+// i is kept. Past the window, 25 points at x = 0.5, y = -6..6 step 0.5 bring each j's 4 nearest
+// within about 2.7 mm (median d_j about 2.6): over the whole cloud 18.3 > 3·2.6, i is removed,
+// with the same 4 neighbours (the row is 20.5 mm from it). Only the neighbours' searches leave
+// the window: the check must list i for them. A far point (-200, 0, 0) makes the window 6 points.
+TEST(RobustOutliers, ANeighboursSearchPastTheWindowListsThePoint) {
+  std::vector<Eigen::Vector3d> mm = {{-20, 0, 0}, {-2, 1.5, 0}, {-2, -1.5, 0}, {-2, 4.5, 0}, {-2, -4.5, 0}, {-200, 0, 0}};
+  const std::size_t in_window = mm.size();
+  for (int a = 0; a <= 24; ++a) mm.emplace_back(0.5, -6.0 + 0.5 * a, 0.0);
+  Cloud whole;
+  whole.xyz.resize(3, static_cast<Eigen::Index>(mm.size()));
+  for (std::size_t i = 0; i < mm.size(); ++i) whole.xyz.col(static_cast<Eigen::Index>(i)) = mm[i] * 1e-3;
+  RobustOutlierOptions o;
+  o.k = 4;
+  o.off_surface_ratio = 0.0;
+  o.scale = hc::pipeline::RobustScale{std::log(1e-3), 1.0, 100};
+  hc::pipeline::RobustVerdicts all;
+  (void)remove_robust_outliers(whole, o, &all);
+  ASSERT_EQ(all.verdict[0], 2) << "over the whole cloud i is a local outlier (hand computation above)";
+
+  Cloud window = whole;
+  std::vector<bool> in(whole.size(), false);
+  for (std::size_t i = 0; i < in_window; ++i) in[i] = true;
+  window.keep_if(in);
+  const double inf = std::numeric_limits<double>::infinity();
+  RobustOutlierOptions to = o;
+  to.tile = RobustOutlierOptions::TileBounds{{-inf, 0.0, -inf, inf}, {-inf, -0.010, -inf, inf}, {}};
+  hc::pipeline::RobustVerdicts part;
+  const auto r = remove_robust_outliers(window, to, &part);
+  ASSERT_EQ(part.verdict[0], 0) << "over the window alone i is kept (hand computation above)";
+  EXPECT_TRUE(std::find(part.past_halo.begin(), part.past_halo.end(), 0U) != part.past_halo.end())
+      << "i's verdict differs from the whole cloud's through its neighbours' searches, but it is not listed";
+  // Its own ball (r_i about 18.55 mm) and its neighbours' (their 4th nearest here, i at about 18 mm).
+  ASSERT_FALSE(part.reach_m.empty());
+  EXPECT_NEAR(part.reach_m[0][3], 18.55e-3, 0.01e-3);
+  EXPECT_GT(figure(r.report, "halo_shortfall_mm"), 15.0);
+
+  // Complete in balls that hold the row past the window (the second look's set), i is removed.
+  RobustOutlierOptions again = o;
+  again.tile = RobustOutlierOptions::TileBounds{{}, {}, {{-20e-3, 0.0, 0.0, 40e-3}}};
+  again.judge_only = {0};
+  hc::pipeline::RobustVerdicts second;
+  (void)remove_robust_outliers(whole, again, &second);
+  EXPECT_EQ(second.verdict[0], 2);
+  EXPECT_TRUE(second.past_halo.empty()) << "every search of i and its neighbours lies inside the 40 mm ball";
 }
 
 TEST(RobustOutliers, UniformClutterOfOneToFivePercentGoesAndTruePointsStay) {

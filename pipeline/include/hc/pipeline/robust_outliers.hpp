@@ -66,6 +66,11 @@ struct RobustOutlierOptions {
   struct TileBounds {
     std::array<double, 4> window_m{};
     std::array<double, 4> decides_m{};
+    /// When not empty, the cloud is complete in these balls instead of the window: it holds
+    /// every point of the scan within one of them ({x, y, z, radius} [m], 3-D distance), and a
+    /// search is checked against them (window_m is not used). The tiled run's second look
+    /// (judge_only) gathers the points of such balls from the neighbouring tiles.
+    std::vector<std::array<double, 4>> complete_m;
   };
   std::optional<TileBounds> tile;
   /// Judge only these input columns (finite points), with `scale` given: no counting pass, each
@@ -85,6 +90,10 @@ struct RobustVerdicts {
   /// Tiles (RobustOutlierOptions::tile): the candidates in decides_m whose searches could end
   /// past the window (input columns, ascending).
   std::vector<std::uint32_t> past_halo;
+  /// For the past_halo points: the balls ({x, y, z, radius} [m]) in which a set must hold
+  /// every point of the scan for their verdicts to be the whole scan's: each point's k-NN ball
+  /// and, where its verdict used them, its neighbours' (radii upper bounds, with the slack).
+  std::vector<std::array<double, 4>> reach_m;
 };
 
 /// The points remove_robust_outliers samples for its scale: min(n, sample) indices into the n
@@ -168,8 +177,10 @@ struct FarClusterOptions {
 /// smaller), r_i (its k-th neighbour's distance) is at most its xy distance to the window's open
 /// sides, m_i, and where the verdict used the neighbours (the chance-plane and local tests: above
 /// local_ratio·d_med, not removed by its own surface variation or off-surface distance) so is
-/// |x_j − x_i| + r_i for each neighbour j against m_j (the k points i and N(i) \ {j} lie within
-/// that distance of j). The largest excess over the candidates is halo_shortfall_mm (0: every
+/// r_j for each neighbour j against m_j, where r_j is bounded by min(|x_j − x_i| + r_i, k·d_j)
+/// (the k points i and N(i) \ {j} lie within the first of j; the k-th of k distances is at most
+/// their sum). With TileBounds::complete_m, m is the largest of R − |x − c| over its balls (a
+/// ball about x of that radius lies inside one of them). The largest excess over the candidates is halo_shortfall_mm (0: every
 /// verdict equals the whole scan's, given the same scale and float rounding);
 /// points_judged_past_halo counts the candidates with an excess (RobustVerdicts::past_halo
 /// lists them).
