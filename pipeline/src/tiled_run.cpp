@@ -242,6 +242,38 @@ class Spill {
     return c;
   }
 
+  std::size_t record_bytes() const { return layout_.bytes(); }
+  // Reads tile t's records back in chunks of about 4 MB (flush first), without holding the
+  // file: fn(flag, x y z [3], rgb [3] or nullptr, intensity) for each, in file order.
+  template <class Fn>
+  void scan(std::size_t t, Fn&& fn) const {
+    const std::size_t rec = layout_.bytes();
+    const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
+    if (n == 0) return;
+    std::FILE* f = std::fopen(file(t).c_str(), "rb");
+    if (!f) throw InputError("tiled run: cannot read the spill file " + file(t).string());
+    const std::size_t per = std::max<std::size_t>(1, (4u << 20) / rec);
+    std::vector<char> raw(per * rec);
+    double p[3];
+    float intensity = 0.0f;
+    for (std::size_t done = 0; done < n;) {
+      const std::size_t m = std::min(per, n - done);
+      if (std::fread(raw.data(), 1, m * rec, f) != m * rec) {
+        std::fclose(f);
+        throw InputError("tiled run: cannot read the spill file " + file(t).string());
+      }
+      for (std::size_t i = 0; i < m; ++i) {
+        const char* q = raw.data() + i * rec;
+        std::memcpy(p, q + 1, 24);
+        const char* rgb = layout_.rgb ? q + 25 : nullptr;
+        if (layout_.intensity) std::memcpy(&intensity, q + 25 + (layout_.rgb ? 3 : 0), 4);
+        fn(static_cast<std::uint8_t>(q[0]), static_cast<const double*>(p), reinterpret_cast<const std::uint8_t*>(rgb), intensity);
+      }
+      done += m;
+    }
+    std::fclose(f);
+  }
+
   void remove(std::size_t t) {
     std::error_code ec;
     fs::remove(file(t), ec);
@@ -262,7 +294,7 @@ class Spill {
 // ---------------------------------------------------------------------------------------------
 // The tiles.
 
-// How far a tile's window may be widened for the robust test's strays (process_tile), in tiles.
+// How far past a tile's window the robust test's second look may gather points (judge_past_halo), in tiles.
 constexpr int kMaxWidenedTiles = 2;
 
 struct Tiles {
@@ -297,13 +329,13 @@ struct Tiles {
   }
   // The same box for a window's nodes.
   std::array<double, 4> box_m(const GridWindow& w) const { return box_m(w.row0, w.row0 + w.rows, w.col0, w.col0 + w.cols); }
-  // How many rows (or columns) of tiles away process_tile may read another tile's spill: its
-  // window widened by up to kMaxWidenedTiles tiles (judge_past_halo).
+  // How many rows (or columns) of tiles away process_tile may read another tile's spill: up to
+  // kMaxWidenedTiles tiles past its window (judge_past_halo).
   int far_rows() const { return kMaxWidenedTiles + (halo + size - 1) / size; }
-  // The tile's window: its interior and halo (widened by `extra` nodes), clipped to the grid.
-  GridWindow window(std::size_t t, int extra = 0) const {
+  // The tile's window: its interior and halo, clipped to the grid.
+  GridWindow window(std::size_t t) const {
     const auto [r0, r1, c0, c1] = interior(t);
-    const int reach = halo + extra;
+    const int reach = halo;
     GridWindow w;
     w.grid = g;
     w.row0 = std::max(0, r0 - reach);
@@ -674,85 +706,181 @@ void append(Cloud& a, const Cloud& b) {
   a.intensity.insert(a.intensity.end(), b.intensity.begin(), b.intensity.end());
 }
 
-// The points on nodes of window `wide` but not of tile t's window `w` (inside wide), each once: from the spill
-// of the tile that owns it (its node in that tile's interior), far clusters left out; in tile
-// order, each tile's in spill order.
-Cloud points_around(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const GridWindow& wide) {
+// A ball {x, y, z, radius} [m] in the grid frame (RobustVerdicts::reach_m).
+using Ball = std::array<double, 4>;
+
+// Balls sorted into an xy grid of at most 128 × 128 cells over their bounding box, for testing
+// many points against them.
+class BallSet {
+ public:
+  explicit BallSet(const std::vector<Ball>& balls) : balls_(balls) {
+    const double inf = std::numeric_limits<double>::infinity();
+    box_ = {inf, -inf, inf, -inf};
+    for (const Ball& b : balls_) {
+      box_ = {std::min(box_[0], b[0] - b[3]), std::max(box_[1], b[0] + b[3]), std::min(box_[2], b[1] - b[3]),
+              std::max(box_[3], b[1] + b[3])};
+    }
+    if (balls_.empty()) return;
+    cell_ = std::max({(box_[1] - box_[0]) / kSide, (box_[3] - box_[2]) / kSide, 1e-9});
+    at_.resize(static_cast<std::size_t>(kSide * kSide));
+    for (std::size_t i = 0; i < balls_.size(); ++i) {
+      const Ball& b = balls_[i];
+      for (int r = cell_of(b[1] - b[3], 2); r <= cell_of(b[1] + b[3], 2); ++r) {
+        for (int c = cell_of(b[0] - b[3], 0); c <= cell_of(b[0] + b[3], 0); ++c) at_[index(r, c)].push_back(static_cast<std::uint32_t>(i));
+      }
+    }
+  }
+  // Whether p (x, y, z [m]) lies in one of the balls (distance at most the radius).
+  bool contains(const double* p) const {
+    if (!(p[0] >= box_[0] && p[0] <= box_[1] && p[1] >= box_[2] && p[1] <= box_[3])) return false;
+    for (const std::uint32_t i : at_[index(cell_of(p[1], 2), cell_of(p[0], 0))]) {
+      const Ball& b = balls_[i];
+      const double dx = p[0] - b[0], dy = p[1] - b[1], dz = p[2] - b[2];
+      if (dx * dx + dy * dy + dz * dz <= b[3] * b[3]) return true;
+    }
+    return false;
+  }
+  // The balls' xy bounding box {x_min, x_max, y_min, y_max} [m].
+  const std::array<double, 4>& box_m() const { return box_; }
+  // Whether a ball's xy disk meets the xy box b {x_min, x_max, y_min, y_max} [m] (sides may be
+  // infinite).
+  bool meets(const std::array<double, 4>& b) const {
+    for (const Ball& s : balls_) {
+      const double dx = std::max({b[0] - s[0], s[0] - b[1], 0.0}), dy = std::max({b[2] - s[1], s[1] - b[3], 0.0});
+      if (dx * dx + dy * dy <= s[3] * s[3]) return true;
+    }
+    return false;
+  }
+
+ private:
+  static constexpr int kSide = 128;
+  // The cell of coordinate v along x (a = 0) or y (a = 2), clamped to the grid.
+  int cell_of(double v, int a) const { return std::clamp(static_cast<int>((v - box_[static_cast<std::size_t>(a)]) / cell_), 0, kSide - 1); }
+  static std::size_t index(int r, int c) { return static_cast<std::size_t>(r) * kSide + static_cast<std::size_t>(c); }
+  std::vector<Ball> balls_;
+  std::array<double, 4> box_{};
+  double cell_ = 1.0;
+  std::vector<std::vector<std::uint32_t>> at_;
+};
+
+// The points of the scan inside `balls`, each once: those of tile t's window points `pts` (all
+// of them when the balls hold fewer than `at_least`), then those the neighbouring tiles own
+// outside t's window `w`, from their spills, far clusters left out; in tile order, each tile's
+// in spill order. at[i] = the gathered column of pts' column i (kNone: not gathered); `scanned`
+// grows by the records read from the other tiles' spills.
+constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
+Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const Cloud& pts,
+                      const BallSet& balls, std::size_t at_least, std::vector<std::uint32_t>& at, double& scanned) {
   const Tiles& tiles = plan.tiles;
   const NodeBinner node(tiles.g);
-  Cloud out;
-  std::vector<std::uint8_t> flags;
-  const int tr0 = wide.row0 / tiles.size, tr1 = (wide.row0 + wide.rows - 1) / tiles.size;
-  const int tc0 = wide.col0 / tiles.size, tc1 = (wide.col0 + wide.cols - 1) / tiles.size;
+  std::vector<bool> keep(pts.size());
+  std::size_t held = 0;
+  for (std::size_t i = 0; i < pts.size(); ++i) held += (keep[i] = balls.contains(pts.xyz.data() + 3 * i)) ? 1U : 0U;
+  if (held < at_least) keep.assign(pts.size(), true);
+  Cloud out = pts;
+  out.keep_if(keep);
+  at.assign(pts.size(), kNone);
+  for (std::size_t i = 0, j = 0; i < pts.size(); ++i) at[i] = keep[i] ? static_cast<std::uint32_t>(j++) : kNone;
+  // The tiles whose interior may hold a point of the balls.
+  const auto& bb = balls.box_m();
+  const double lo_x[3] = {bb[0], bb[2], 0.0}, hi_x[3] = {bb[1], bb[3], 0.0};
+  const int tr0 = node.row(lo_x) / tiles.size, tr1 = node.row(hi_x) / tiles.size;
+  const int tc0 = node.col(lo_x) / tiles.size, tc1 = node.col(hi_x) / tiles.size;
+  std::vector<double> xyz;
+  std::vector<std::uint8_t> rgb;
+  std::vector<float> intensity;
   for (int tr = tr0; tr <= tr1; ++tr) {
     for (int tc = tc0; tc <= tc1; ++tc) {
       const std::size_t u = static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc);
       if (u == t) continue;  // its interior lies inside w
       const auto in = tiles.interior(u);
-      Cloud c = spill.read(u, flags);
-      std::vector<bool> keep(c.size());
-      for (std::size_t i = 0; i < c.size(); ++i) {
-        const double* p = c.xyz.data() + 3 * i;
+      if (!balls.meets(tiles.box_m(in[0], in[1], in[2], in[3]))) continue;
+      scanned += static_cast<double>(spill.bytes(u) / spill.record_bytes());
+      spill.scan(u, [&](std::uint8_t flag, const double* p, const std::uint8_t* c3, float v) {
+        if ((flag & kFarFlag) != 0 || !balls.contains(p)) return;
         const int r = node.row(p), col = node.col(p);
         const bool owned = r >= in[0] && r < in[1] && col >= in[2] && col < in[3];
-        const bool in_wide = r >= wide.row0 && r < wide.row0 + wide.rows && col >= wide.col0 && col < wide.col0 + wide.cols;
         const bool in_w = r >= w.row0 && r < w.row0 + w.rows && col >= w.col0 && col < w.col0 + w.cols;
-        keep[i] = owned && in_wide && !in_w && (flags[i] & kFarFlag) == 0;
-      }
-      c.keep_if(keep);
-      append(out, c);
+        if (!owned || in_w) return;
+        xyz.insert(xyz.end(), p, p + 3);
+        if (pts.has_rgb()) rgb.insert(rgb.end(), c3, c3 + 3);
+        if (pts.has_intensity()) intensity.push_back(v);
+      });
     }
   }
+  Cloud more;
+  more.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz.data(), 3, static_cast<Eigen::Index>(xyz.size() / 3));
+  more.rgb = std::move(rgb);
+  more.intensity = std::move(intensity);
+  append(out, more);
   return out;
 }
 
 // The robust test's verdicts of the points of tile t's window w whose searches could end past
-// it (rv.past_halo, from the test over the window's points `pts`, its report `first`): judged
-// again (RobustOutlierOptions::judge_only, with the whole scan's scale) over the window widened
-// by the shortfall (halo_shortfall_mm) with the points of the neighbouring tiles that fall in
-// it, widened again until none of their searches leaves it; rv.verdict updated for them. pts
-// comes back as it was. Returns the widening [nodes]. Throws InputError, naming the stage, the
-// tile and the key, when it would reach more than kMaxWidenedTiles tiles past the window.
+// it (rv.past_halo, from the test over the window's points `pts`): judged again
+// (RobustOutlierOptions::judge_only, with the whole scan's scale) over the points of the scan in
+// the balls their verdicts need complete (rv.reach_m: each point's k-NN ball and, where the
+// verdict used them, its neighbours', radii bounded by the first look's searches), gathered from
+// the window and the neighbouring tiles' spills; gathered again, with the balls the second look
+// adds, until no search of theirs leaves them. rv.verdict updated for them. Returns how far the
+// balls reach past the window [nodes]. Throws InputError, naming the stage, the tile and the
+// key, when that is more than kMaxWidenedTiles tiles, or after 8 gatherings. Adds to `sums`:
+// robust_spill_points_scanned (records read from other tiles' spills), robust_points_gathered.
 int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const RobustOutlierOptions& ropt,
-                    Cloud& pts, const StageReport& first, RobustVerdicts& rv, int filter_halo_cells) {
+                    const Cloud& pts, RobustVerdicts& rv, int filter_halo_cells, std::map<std::string, double>& sums) {
   const Tiles& tiles = plan.tiles;
-  const auto n0 = static_cast<Eigen::Index>(pts.size());
-  RobustOutlierOptions wo = ropt;
-  wo.judge_only = rv.past_halo;
-  double short_m = detail::figure_of(first, "halo_shortfall_mm", 0.0) * 1e-3;
+  const auto box = tiles.box_m(w);
+  // The balls gathered a little wider than asked: the second look's own float slack (8 float
+  // steps of its largest recentred coordinate, at most twice the largest grid coordinate here)
+  // must not list a point again for rounding alone.
+  double coord_m = 0.0;
+  for (const double v : box) coord_m = std::isfinite(v) ? std::max(coord_m, std::abs(v)) : coord_m;
+  for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) coord_m = std::max(coord_m, pts.xyz.col(i).cwiseAbs().maxCoeff());
+  auto padded = [&](std::vector<Ball> add, std::vector<Ball>& to) {
+    for (Ball& b : add) {
+      coord_m = std::max({coord_m, std::abs(b[0]) + b[3], std::abs(b[1]) + b[3], std::abs(b[2]) + b[3]});
+      b[3] = b[3] * (1.0 + 1e-4) + 64.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * coord_m;
+      to.push_back(b);
+    }
+  };
+  std::vector<Ball> balls;
+  padded(rv.reach_m, balls);
   int widened = 0;
   const int limit = kMaxWidenedTiles * tiles.size;
   for (int pass = 0;; ++pass) {
+    // How far past the window's open sides the balls reach (an infinite side: none).
+    double past_m = 0.0;
+    for (const Ball& b : balls) {
+      past_m = std::max({past_m, box[0] - (b[0] - b[3]), b[0] + b[3] - box[1], box[2] - (b[1] - b[3]), b[1] + b[3] - box[3]});
+    }
     // In double first: a stray kilometres away must not overflow the cell count.
-    const double add = std::ceil(short_m / tiles.g.cell_size_m) + 1.0;
-    if (static_cast<double>(widened) + add > limit || pass == 8) {
+    const double cells = std::ceil(past_m / tiles.g.cell_size_m);
+    if (cells > limit || pass == 8) {
       const auto inner = tiles.interior(t);
       throw InputError("tiled run, tile " + std::to_string(t) + " (grid rows " + std::to_string(inner[0]) + ".." +
                        std::to_string(inner[1] - 1) + ", cols " + std::to_string(inner[2]) + ".." + std::to_string(inner[3] - 1) +
                        "): stage outliers (filters.outliers, robust): the k-NN searches of " + std::to_string(rv.past_halo.size()) +
-                       " points reach " + format_number(short_m * 1e3) + " mm past the tile's window widened by " +
-                       std::to_string(widened) + " cells" +
-                       (pass == 8 ? std::string(" after 8 widenings") : " (the limit is " + std::to_string(limit) + " cells, " +
-                                                                          std::to_string(kMaxWidenedTiles) + " tiles)") +
+                       " points reach " + format_number(past_m * 1e3) + " mm past the tile's window" +
+                       (pass == 8 ? std::string(" after 8 gatherings") : " (the limit is " + std::to_string(limit) + " cells, " +
+                                                                           std::to_string(kMaxWidenedTiles) + " tiles)") +
                        ": raise scale.filter_halo_cells (now " + std::to_string(filter_halo_cells) + "), crop the strays " +
                        "(filters.crop) or run in core (scale.tiled: off)");
     }
-    widened += static_cast<int>(add);
-    const GridWindow wide = tiles.window(t, widened);
-    // The window's points first, in their order (the listed columns stay theirs), then the rest.
-    append(pts, points_around(plan, spill, t, w, wide));
-    wo.tile->window_m = tiles.box_m(wide);
+    widened = std::max(widened, static_cast<int>(cells));
+    std::vector<std::uint32_t> at;
+    Cloud near = points_in_balls(plan, spill, t, w, pts, BallSet(balls), static_cast<std::size_t>(ropt.k) + 2, at, sums["robust_spill_points_scanned"]);
+    sums["robust_points_gathered"] += static_cast<double>(near.size());
+    RobustOutlierOptions wo = ropt;
+    wo.tile->complete_m = balls;
+    wo.judge_only.clear();
+    for (const std::uint32_t c : rv.past_halo) wo.judge_only.push_back(at[c]);
     RobustVerdicts wv;
-    auto again = remove_robust_outliers(std::move(pts), wo, &wv);
-    pts = std::move(again.value);
-    pts.xyz.conservativeResize(3, n0);
-    if (pts.has_rgb()) pts.rgb.resize(3 * static_cast<std::size_t>(n0));
-    if (pts.has_intensity()) pts.intensity.resize(static_cast<std::size_t>(n0));
-    short_m = detail::figure_of(again.report, "halo_shortfall_mm", 0.0) * 1e-3;
-    if (!(short_m > 0.0)) {
-      for (const std::uint32_t c : rv.past_halo) rv.verdict[c] = wv.verdict[c];
+    remove_robust_outliers(std::move(near), wo, &wv);
+    if (wv.past_halo.empty()) {
+      for (std::size_t a = 0; a < rv.past_halo.size(); ++a) rv.verdict[rv.past_halo[a]] = wv.verdict[wo.judge_only[a]];
       return widened;
     }
+    padded(std::move(wv.reach_m), balls);
   }
 }
 
@@ -820,17 +948,19 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     ropt.off_surface_ratio = oc.off_surface_ratio;
     ropt.scale = plan.robust_scale;
     // Where a search that decides a verdict the tile keeps could end past the window (a stray
-    // whose k nearest lie farther than the halo is wide), the point is judged again over a window
-    // widened by the shortfall, with the points of the neighbouring tiles that fall in it: every
-    // verdict kept is then the whole scan's (RobustOutlierOptions::tile). (Without the plan's
-    // scale, every sampled point a copy of others, the test removes nothing.)
+    // whose k nearest lie farther than the halo is wide), the point is judged again over the
+    // scan's points in the balls its verdict needs, gathered from the window and the
+    // neighbouring tiles' spills: every verdict kept is then the whole scan's
+    // (RobustOutlierOptions::tile, judge_past_halo). (Without the plan's scale, every sampled
+    // point a copy of others, the test removes nothing.)
     if (plan.robust_scale) ropt.tile = bounds;
     RobustVerdicts rv;
     auto f1 = remove_robust_outliers(std::move(pts), ropt, &rv);
-    int widened = 0;  // cells added to each side of the window
     if (!rv.past_halo.empty()) {
+      f1.value = Cloud();  // replaced below: not held beside the window's points again
       pts = read_tile_points(plan, spill, t, flags);
-      widened = judge_past_halo(plan, spill, t, w, ropt, pts, f1.report, rv, config.scale.filter_halo_cells);
+      o.sums["robust_windows_widened"] += 1.0;
+      o.sums["robust_widened_cells"] += judge_past_halo(plan, spill, t, w, ropt, pts, rv, config.scale.filter_halo_cells, o.sums);
       // The tile's points with the verdicts, and the removal counts of those (the work counts,
       // certified and exact_queries, are the first pass's).
       std::vector<bool> keep(pts.size());
@@ -846,10 +976,6 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       detail::set_figure(f1.report, "removed_local", static_cast<double>(by[2]));
       detail::set_figure(f1.report, "removed_off_surface", static_cast<double>(by[3]));
       detail::set_figure(f1.report, "removed_robust", static_cast<double>(by[1] + by[2] + by[3]));
-    }
-    if (widened > 0) {
-      o.sums["robust_windows_widened"] += 1.0;
-      o.sums["robust_widened_cells"] += widened;
     }
     auto f1f = remove_far_clusters_after(std::move(f1), oc.far_clusters);
     add_figures(o.sums, f1f.report);

@@ -259,7 +259,7 @@ StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOption
 /// The second step of remove_outliers_robust on the result of remove_robust_outliers (as
 /// remove_outliers_robust runs it): far-cluster removal at far.link_m or the robust report's
 /// global_threshold_mm, the report extended. For a caller that runs the robust test itself
-/// (the tiled run, which may run it again over a widened window). Throws what
+/// (the tiled run, which may judge points again over gathered points). Throws what
 /// remove_far_clusters throws.
 StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far);
 
