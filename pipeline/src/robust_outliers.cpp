@@ -14,6 +14,7 @@
 
 #include "hc/pipeline/robust_outliers.hpp"
 
+#include "ball_set.hpp"
 #include "knn_grid.hpp"
 #include "stage_util.hpp"
 
@@ -37,6 +38,7 @@ namespace hc::pipeline {
 
 namespace {
 
+using detail::BallSet;
 using detail::build_grid;
 using detail::CellGrid;
 using detail::Clock;
@@ -372,6 +374,15 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
                       ", expected 0 (off) or a finite value > 1");
   }
   if (o.sample < 2) throw ConfigError("remove_robust_outliers: sample = " + std::to_string(o.sample) + ", expected at least 2");
+  if (o.tile) {
+    for (const auto& b : o.tile->complete_m) {
+      if (!(std::isfinite(b[0]) && std::isfinite(b[1]) && std::isfinite(b[2]) && b[3] >= 0.0 && std::isfinite(b[3]))) {
+        throw ConfigError("remove_robust_outliers: tile.complete_m holds the ball {" + format_number(b[0]) + ", " +
+                          format_number(b[1]) + ", " + format_number(b[2]) + ", " + format_number(b[3]) +
+                          "}, expected a finite centre and a finite radius >= 0");
+      }
+    }
+  }
   const bool judging = !o.judge_only.empty();
   if (judging && !o.scale) throw ConfigError("remove_robust_outliers: judge_only needs the scale given (options.scale)");
   if (verdicts) *verdicts = RobustVerdicts{};
@@ -618,12 +629,10 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     // How far a search about q may reach and stay where the cloud is complete: the xy distance
     // to the window's open sides (an infinite side is none), or the most any complete ball
     // leaves about q.
-    const auto& balls = o.tile->complete_m;
+    const BallSet balls(o.tile->complete_m);
     auto margin = [&](const Eigen::Vector3d& q) {
       if (balls.empty()) return std::min({q.x() - win[0], win[1] - q.x(), q.y() - win[2], win[3] - q.y()});
-      double best = -std::numeric_limits<double>::infinity();
-      for (const auto& b : balls) best = std::max(best, b[3] - (q - Eigen::Vector3d(b[0], b[1], b[2])).norm());
-      return best;
+      return balls.margin(q.data());
     };
     for (std::size_t i = 0; i < cand.size(); ++i) {
       const Eigen::Vector3d x = xyz(cand[i]);

@@ -3,6 +3,7 @@
 
 #include "hc/pipeline/tiling.hpp"
 
+#include "ball_set.hpp"
 #include "knn_grid.hpp"
 #include "readers/readers.hpp"
 #include "run_internal.hpp"
@@ -32,6 +33,8 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <memory>
+#include <numeric>
 #include <map>
 #include <unordered_map>
 #include <unordered_set>
@@ -250,7 +253,8 @@ class Spill {
     const std::size_t rec = layout_.bytes();
     const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
     if (n == 0) return;
-    std::FILE* f = std::fopen(file(t).c_str(), "rb");
+    const std::unique_ptr<std::FILE, int (*)(std::FILE*)> file_closed(std::fopen(file(t).c_str(), "rb"), &std::fclose);
+    std::FILE* f = file_closed.get();
     if (!f) throw InputError("tiled run: cannot read the spill file " + file(t).string());
     const std::size_t per = std::max<std::size_t>(1, (4u << 20) / rec);
     std::vector<char> raw(per * rec);
@@ -258,10 +262,7 @@ class Spill {
     float intensity = 0.0f;
     for (std::size_t done = 0; done < n;) {
       const std::size_t m = std::min(per, n - done);
-      if (std::fread(raw.data(), 1, m * rec, f) != m * rec) {
-        std::fclose(f);
-        throw InputError("tiled run: cannot read the spill file " + file(t).string());
-      }
+      if (std::fread(raw.data(), 1, m * rec, f) != m * rec) throw InputError("tiled run: cannot read the spill file " + file(t).string());
       for (std::size_t i = 0; i < m; ++i) {
         const char* q = raw.data() + i * rec;
         std::memcpy(p, q + 1, 24);
@@ -271,7 +272,6 @@ class Spill {
       }
       done += m;
     }
-    std::fclose(f);
   }
 
   void remove(std::size_t t) {
@@ -696,99 +696,34 @@ Cloud read_tile_points(const Plan& plan, const Spill& spill, std::size_t t, std:
   return pts;
 }
 
-// Appends b's points to a (the same attributes: both read from spills of one layout).
-void append(Cloud& a, const Cloud& b) {
-  const Eigen::Index na = a.xyz.cols(), nb = b.xyz.cols();
-  if (nb == 0) return;
-  a.xyz.conservativeResize(3, na + nb);
-  a.xyz.rightCols(nb) = b.xyz;
-  a.rgb.insert(a.rgb.end(), b.rgb.begin(), b.rgb.end());
-  a.intensity.insert(a.intensity.end(), b.intensity.begin(), b.intensity.end());
-}
-
 // A ball {x, y, z, radius} [m] in the grid frame (RobustVerdicts::reach_m).
-using Ball = std::array<double, 4>;
+using Ball = detail::BallSet::Ball;
+using detail::BallSet;
 
-// Balls sorted into an xy grid of at most 128 × 128 cells over their bounding box, for testing
-// many points against them.
-class BallSet {
- public:
-  explicit BallSet(const std::vector<Ball>& balls) : balls_(balls) {
-    const double inf = std::numeric_limits<double>::infinity();
-    box_ = {inf, -inf, inf, -inf};
-    for (const Ball& b : balls_) {
-      box_ = {std::min(box_[0], b[0] - b[3]), std::max(box_[1], b[0] + b[3]), std::min(box_[2], b[1] - b[3]),
-              std::max(box_[3], b[1] + b[3])};
-    }
-    if (balls_.empty()) return;
-    cell_ = std::max({(box_[1] - box_[0]) / kSide, (box_[3] - box_[2]) / kSide, 1e-9});
-    at_.resize(static_cast<std::size_t>(kSide * kSide));
-    for (std::size_t i = 0; i < balls_.size(); ++i) {
-      const Ball& b = balls_[i];
-      for (int r = cell_of(b[1] - b[3], 2); r <= cell_of(b[1] + b[3], 2); ++r) {
-        for (int c = cell_of(b[0] - b[3], 0); c <= cell_of(b[0] + b[3], 0); ++c) at_[index(r, c)].push_back(static_cast<std::uint32_t>(i));
-      }
-    }
-  }
-  // Whether p (x, y, z [m]) lies in one of the balls (distance at most the radius).
-  bool contains(const double* p) const {
-    if (!(p[0] >= box_[0] && p[0] <= box_[1] && p[1] >= box_[2] && p[1] <= box_[3])) return false;
-    for (const std::uint32_t i : at_[index(cell_of(p[1], 2), cell_of(p[0], 0))]) {
-      const Ball& b = balls_[i];
-      const double dx = p[0] - b[0], dy = p[1] - b[1], dz = p[2] - b[2];
-      if (dx * dx + dy * dy + dz * dz <= b[3] * b[3]) return true;
-    }
-    return false;
-  }
-  // The balls' xy bounding box {x_min, x_max, y_min, y_max} [m].
-  const std::array<double, 4>& box_m() const { return box_; }
-  // Whether a ball's xy disk meets the xy box b {x_min, x_max, y_min, y_max} [m] (sides may be
-  // infinite).
-  bool meets(const std::array<double, 4>& b) const {
-    for (const Ball& s : balls_) {
-      const double dx = std::max({b[0] - s[0], s[0] - b[1], 0.0}), dy = std::max({b[2] - s[1], s[1] - b[3], 0.0});
-      if (dx * dx + dy * dy <= s[3] * s[3]) return true;
-    }
-    return false;
-  }
-
- private:
-  static constexpr int kSide = 128;
-  // The cell of coordinate v along x (a = 0) or y (a = 2), clamped to the grid.
-  int cell_of(double v, int a) const { return std::clamp(static_cast<int>((v - box_[static_cast<std::size_t>(a)]) / cell_), 0, kSide - 1); }
-  static std::size_t index(int r, int c) { return static_cast<std::size_t>(r) * kSide + static_cast<std::size_t>(c); }
-  std::vector<Ball> balls_;
-  std::array<double, 4> box_{};
-  double cell_ = 1.0;
-  std::vector<std::vector<std::uint32_t>> at_;
-};
-
-// The points of the scan inside `balls`, each once: those of tile t's window points `pts` (all
-// of them when the balls hold fewer than `at_least`), then those the neighbouring tiles own
-// outside t's window `w`, from their spills, far clusters left out; in tile order, each tile's
-// in spill order. at[i] = the gathered column of pts' column i (kNone: not gathered); `scanned`
-// grows by the records read from the other tiles' spills.
+// The points of the scan inside `balls`, each once: those of tile t's window points `pts`, then
+// those the neighbouring tiles own outside t's window `w`, from their spills, far clusters left
+// out; in tile order, each tile's in spill order; all of pts' points instead of those inside the
+// balls when the whole set would otherwise hold fewer than `at_least`. at[i] = the gathered
+// column of pts' column i (kNone: not gathered); `scanned` grows by the records read from the
+// other tiles' spills.
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
 Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const Cloud& pts,
                       const BallSet& balls, std::size_t at_least, std::vector<std::uint32_t>& at, double& scanned) {
   const Tiles& tiles = plan.tiles;
   const NodeBinner node(tiles.g);
-  std::vector<bool> keep(pts.size());
-  std::size_t held = 0;
-  for (std::size_t i = 0; i < pts.size(); ++i) held += (keep[i] = balls.contains(pts.xyz.data() + 3 * i)) ? 1U : 0U;
-  if (held < at_least) keep.assign(pts.size(), true);
-  Cloud out = pts;
-  out.keep_if(keep);
-  at.assign(pts.size(), kNone);
-  for (std::size_t i = 0, j = 0; i < pts.size(); ++i) at[i] = keep[i] ? static_cast<std::uint32_t>(j++) : kNone;
-  // The tiles whose interior may hold a point of the balls.
+  std::vector<std::uint32_t> own;  // pts' columns inside the balls
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    if (balls.contains(pts.xyz.data() + 3 * i)) own.push_back(static_cast<std::uint32_t>(i));
+  }
+  // The other tiles' points: those whose interior a ball meets.
+  std::vector<double> xyz;
+  std::vector<std::uint8_t> rgb;
+  std::vector<float> intensity;
+  if (balls.empty()) throw std::logic_error("points_in_balls: no balls");
   const auto& bb = balls.box_m();
   const double lo_x[3] = {bb[0], bb[2], 0.0}, hi_x[3] = {bb[1], bb[3], 0.0};
   const int tr0 = node.row(lo_x) / tiles.size, tr1 = node.row(hi_x) / tiles.size;
   const int tc0 = node.col(lo_x) / tiles.size, tc1 = node.col(hi_x) / tiles.size;
-  std::vector<double> xyz;
-  std::vector<std::uint8_t> rgb;
-  std::vector<float> intensity;
   for (int tr = tr0; tr <= tr1; ++tr) {
     for (int tc = tc0; tc <= tc1; ++tc) {
       const std::size_t u = static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc);
@@ -808,11 +743,28 @@ Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const
       });
     }
   }
-  Cloud more;
-  more.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz.data(), 3, static_cast<Eigen::Index>(xyz.size() / 3));
-  more.rgb = std::move(rgb);
-  more.intensity = std::move(intensity);
-  append(out, more);
+  const std::size_t more = xyz.size() / 3;
+  if (own.size() + more < at_least) {
+    own.resize(pts.size());
+    std::iota(own.begin(), own.end(), 0U);
+  }
+  // The set, built once at its size.
+  const std::size_t n = own.size() + more;
+  Cloud out;
+  out.xyz.resize(3, static_cast<Eigen::Index>(n));
+  if (pts.has_rgb()) out.rgb.resize(3 * n);
+  if (pts.has_intensity()) out.intensity.resize(n);
+  at.assign(pts.size(), kNone);
+  for (std::size_t j = 0; j < own.size(); ++j) {
+    const std::size_t i = own[j];
+    at[i] = static_cast<std::uint32_t>(j);
+    out.xyz.col(static_cast<Eigen::Index>(j)) = pts.xyz.col(static_cast<Eigen::Index>(i));
+    if (pts.has_rgb()) std::copy_n(pts.rgb.begin() + static_cast<std::ptrdiff_t>(3 * i), 3, out.rgb.begin() + static_cast<std::ptrdiff_t>(3 * j));
+    if (pts.has_intensity()) out.intensity[j] = pts.intensity[i];
+  }
+  std::copy(xyz.begin(), xyz.end(), out.xyz.data() + 3 * own.size());
+  std::copy(rgb.begin(), rgb.end(), out.rgb.begin() + static_cast<std::ptrdiff_t>(3 * own.size()));
+  std::copy(intensity.begin(), intensity.end(), out.intensity.begin() + static_cast<std::ptrdiff_t>(own.size()));
   return out;
 }
 
@@ -836,18 +788,17 @@ int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const G
   double coord_m = 0.0;
   for (const double v : box) coord_m = std::isfinite(v) ? std::max(coord_m, std::abs(v)) : coord_m;
   for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) coord_m = std::max(coord_m, pts.xyz.col(i).cwiseAbs().maxCoeff());
-  auto padded = [&](std::vector<Ball> add, std::vector<Ball>& to) {
-    for (Ball& b : add) {
-      coord_m = std::max({coord_m, std::abs(b[0]) + b[3], std::abs(b[1]) + b[3], std::abs(b[2]) + b[3]});
-      b[3] = b[3] * (1.0 + 1e-4) + 64.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * coord_m;
-      to.push_back(b);
-    }
+  std::vector<Ball> asked = rv.reach_m;  // as the searches gave them
+  std::vector<Ball> balls;               // padded, every pass by the largest coordinate so far
+  auto pad = [&] {
+    for (const Ball& b : asked) coord_m = std::max({coord_m, std::abs(b[0]) + b[3], std::abs(b[1]) + b[3], std::abs(b[2]) + b[3]});
+    balls = asked;
+    for (Ball& b : balls) b[3] = b[3] * (1.0 + 1e-4) + 64.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * coord_m;
   };
-  std::vector<Ball> balls;
-  padded(rv.reach_m, balls);
   int widened = 0;
   const int limit = kMaxWidenedTiles * tiles.size;
   for (int pass = 0;; ++pass) {
+    pad();
     // How far past the window's open sides the balls reach (an infinite side: none).
     double past_m = 0.0;
     for (const Ball& b : balls) {
@@ -880,7 +831,7 @@ int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const G
       for (std::size_t a = 0; a < rv.past_halo.size(); ++a) rv.verdict[rv.past_halo[a]] = wv.verdict[wo.judge_only[a]];
       return widened;
     }
-    padded(std::move(wv.reach_m), balls);
+    asked.insert(asked.end(), wv.reach_m.begin(), wv.reach_m.end());
   }
 }
 

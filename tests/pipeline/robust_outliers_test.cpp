@@ -334,9 +334,17 @@ TEST(RobustOutliers, ANeighboursSearchPastTheWindowListsThePoint) {
   ASSERT_EQ(part.verdict[0], 0) << "over the window alone i is kept (hand computation above)";
   EXPECT_TRUE(std::find(part.past_halo.begin(), part.past_halo.end(), 0U) != part.past_halo.end())
       << "i's verdict differs from the whole cloud's through its neighbours' searches, but it is not listed";
-  // Its own ball (r_i about 18.55 mm) and its neighbours' (their 4th nearest here, i at about 18 mm).
-  ASSERT_FALSE(part.reach_m.empty());
-  EXPECT_NEAR(part.reach_m[0][3], 18.55e-3, 0.01e-3);
+  // Among the balls: i's own (r_i = |(18, 4.5)| = 18.55 mm) and each neighbour's (its 4th nearest
+  // here, i, 18.06 or 18.55 mm away).
+  auto ball_at = [&](const Eigen::Vector3d& c_mm) {
+    for (const auto& b : part.reach_m) {
+      if ((Eigen::Vector3d(b[0], b[1], b[2]) - c_mm * 1e-3).norm() < 1e-9) return b[3];
+    }
+    return -1.0;
+  };
+  EXPECT_NEAR(ball_at(mm[0]), std::hypot(18.0, 4.5) * 1e-3, 0.01e-3);
+  EXPECT_NEAR(ball_at(mm[1]), std::hypot(18.0, 1.5) * 1e-3, 0.01e-3);
+  EXPECT_NEAR(ball_at(mm[3]), std::hypot(18.0, 4.5) * 1e-3, 0.01e-3);
   EXPECT_GT(figure(r.report, "halo_shortfall_mm"), 15.0);
 
   // Complete in balls that hold the row past the window (the second look's set), i is removed.

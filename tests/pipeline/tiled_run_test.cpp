@@ -340,9 +340,9 @@ void write_plane_with_hole(const fs::path& file, double hole_x_m, const std::vec
 // tile). The whole scan: the group's mean 16-NN distance is about 35 mm, under the local
 // threshold (3 x 16.6 mm), so it stays. Its own tile alone: its other neighbours are the plane
 // beyond the hole, 20 cm away, and the local test would remove it. The tile sees that its searches
-// leave the window, widens the window by the shortfall with the next tiles' points, and the grid
-// equals the in-core one bit for bit.
-TEST(TiledRun, TheRobustTestWidensAWindowItsSearchesWouldLeave) {
+// leave the window, judges the group again over the points in the balls its searches need,
+// gathered from the next tiles' spills, and the grid equals the in-core one bit for bit.
+TEST(TiledRun, TheRobustTestJudgesAgainPointsWhoseSearchesLeaveTheWindow) {
   const fs::path dir = hc::test::temp_dir("widen");
   const std::string yaml =
       "input: {files: [plane.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
@@ -378,10 +378,14 @@ TEST(TiledRun, TheRobustTestWidensAWindowItsSearchesWouldLeave) {
   ASSERT_TRUE(in.scene.layers.depth.valid(group_row, group_col));
   EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_windows_widened"), 1.0);
   EXPECT_GE(stage_figure(tiled, "tiles", "sum_points_judged_past_halo"), 8.0);
+  // The cluster came from the next tile's spill (20 points past the window), and not the whole
+  // of the tiles read: only the points inside the balls.
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_points_gathered"), 8.0 + 20.0);
+  EXPECT_LT(stage_figure(tiled, "tiles", "sum_robust_points_gathered"), stage_figure(tiled, "tiles", "sum_robust_spill_points_scanned"));
   EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
   EXPECT_TRUE(tiled.scene.layers.depth.valid(group_row, group_col));
   // Without the honest check, spills go during the tile loop: not before the later tiles that
-  // may read them have run (the widened window reads the tiles above and to the left).
+  // may read them have run (the second look reads the spills of the tiles around).
   tiled_config.cross_check.enabled = false;
   const BuiltScene unchecked = hc::pipeline::build_scene(tiled_config);
   EXPECT_GE(stage_figure(unchecked, "tiles", "sum_robust_windows_widened"), 1.0);

@@ -87,12 +87,15 @@ struct RobustVerdicts {
   /// One per input column, in input order: 0 kept, 1 removed by the global test, 2 by the local
   /// test, 3 by the off-surface test, 4 not finite (dropped).
   std::vector<std::uint8_t> verdict;
-  /// Tiles (RobustOutlierOptions::tile): the candidates in decides_m whose searches could end
-  /// past the window (input columns, ascending).
+  /// Tiles (RobustOutlierOptions::tile): the candidates in decides_m (with judge_only: the
+  /// listed points) whose searches could end past the window or the complete balls (input
+  /// columns, ascending).
   std::vector<std::uint32_t> past_halo;
-  /// For the past_halo points: the balls ({x, y, z, radius} [m]) in which a set must hold
-  /// every point of the scan for their verdicts to be the whole scan's: each point's k-NN ball
-  /// and, where its verdict used them, its neighbours' (radii upper bounds, with the slack).
+  /// For the past_halo points together, one flat set (not aligned with past_halo; 1 or k + 1
+  /// balls per point, in no promised order): the balls ({x, y, z, radius} [m]) in which a set
+  /// must hold every point of the scan for their verdicts to be the whole scan's, each point's
+  /// k-NN ball and, where its verdict used them, its neighbours' (radii upper bounds, with the
+  /// slack).
   std::vector<std::array<double, 4>> reach_m;
 };
 
@@ -179,8 +182,11 @@ struct FarClusterOptions {
 /// local_ratio·d_med, not removed by its own surface variation or off-surface distance) so is
 /// r_j for each neighbour j against m_j, where r_j is bounded by min(|x_j − x_i| + r_i, k·d_j)
 /// (the k points i and N(i) \ {j} lie within the first of j; the k-th of k distances is at most
-/// their sum). With TileBounds::complete_m, m is the largest of R − |x − c| over its balls (a
-/// ball about x of that radius lies inside one of them). The largest excess over the candidates is halo_shortfall_mm (0: every
+/// their sum) and, where that bound reaches m_j, by j's own k-th distance in this cloud (one
+/// more k-NN search). With TileBounds::complete_m, m is the largest of R − |x − c| over its balls (a
+/// ball about x of that radius lies inside one of them; 0 when none does). Distance ties at the
+/// k-th neighbour are broken by input index, which a tile's order need not share with the
+/// whole scan's: such a tie is not listed. The largest excess over the candidates is halo_shortfall_mm (0: every
 /// verdict equals the whole scan's, given the same scale and float rounding);
 /// points_judged_past_halo counts the candidates with an excess (RobustVerdicts::past_halo
 /// lists them).
@@ -195,13 +201,16 @@ struct FarClusterOptions {
 /// @param cloud    any frame, metres (the grid frame in build_scene); non-finite points dropped
 /// @param options  k 1..1000, local_ratio > 1, mad_multiplier > 0, max_surface_variation
 ///                0..1/3, sample >= 2, off_surface_ratio 0 or > 1
-/// @throws hc::ConfigError on out-of-range options; hc::DegenerateInputError when fewer than
+/// @throws hc::ConfigError on out-of-range options (and a complete ball with a non-finite
+///         centre or radius, or a negative radius); hc::DegenerateInputError when fewer than
 ///         k + 2 finite points remain; hc::ResourceError beyond 2^32 − 2 points; with
 ///         judge_only, hc::ConfigError when `scale` is not given and hc::InputError for a listed
 ///         column that is not a finite point of the cloud.
 /// Real-time: no. Threads: 2. Cost: one grid build and counting pass over all points, plus
 /// (sample + uncertified + their neighbours) exact k-NN queries (judge_only: no counting pass;
-/// the listed points, their neighbours and those neighbours' neighbours).
+/// the listed points, their neighbours and those neighbours' neighbours); with `tile`, one more
+/// query per neighbour of a checked candidate whose first bounds reach past the margin, and the
+/// complete balls indexed in an xy grid.
 /// @param verdicts when given, filled (RobustVerdicts; its previous content is discarded)
 StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& options,
                                           RobustVerdicts* verdicts = nullptr);
