@@ -634,12 +634,16 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       if (balls.empty()) return std::min({q.x() - win[0], win[1] - q.x(), q.y() - win[2], win[3] - q.y()});
       return balls.margin(q.data());
     };
+    // The k-th distance of a search about c that found `knn`, with the slack.
+    auto kth = [&](const Eigen::Vector3d& c, std::span<const std::uint32_t> knn) {
+      double r = 0.0;
+      for (const std::uint32_t q : knn) r = std::max(r, (xyz(q) - c).norm());
+      return r * (1.0 + 1e-5) + slack_m;
+    };
     for (std::size_t i = 0; i < cand.size(); ++i) {
       const Eigen::Vector3d x = xyz(cand[i]);
       if (judging ? !judged[cand[i]] : !(x.x() >= dec[0] && x.x() < dec[1] && x.y() >= dec[2] && x.y() < dec[3])) continue;
-      double r = 0.0;
-      for (const std::uint32_t j : nbrs(i)) r = std::max(r, (xyz(j) - x).norm());
-      r = r * (1.0 + 1e-5) + slack_m;
+      const double r = kth(x, nbrs(i));
       double excess = r - margin(x);
       reach.clear();
       reach.push_back({x.x(), x.y(), x.z(), r});
@@ -661,9 +665,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
             // Short of the bounds: j's own k-th distance here (one search; an upper bound of the
             // whole scan's).
             d.queries().nearest(d.pos(j), scratch, knn_j);
-            double own_r = 0.0;
-            for (const std::uint32_t q : knn_j) own_r = std::max(own_r, (xyz(q) - xj).norm());
-            rj = std::min(rj, own_r * (1.0 + 1e-5) + slack_m);
+            rj = std::min(rj, kth(xj, knn_j));
           }
           excess = std::max(excess, rj - mj);
           reach.push_back({xj.x(), xj.y(), xj.z(), rj});

@@ -215,49 +215,41 @@ class Spill {
     }
   }
 
-  // Reads tile t's points back (flush first): the points and their flags.
+  // Records in tile t's file (flush first).
+  std::size_t records(std::size_t t) const { return static_cast<std::size_t>(bytes_[t] / layout_.bytes()); }
+
+  // Reads tile t's points back (flush first): the points and their flags, in file order.
   Cloud read(std::size_t t, std::vector<std::uint8_t>& flag) const {
     Cloud c;
-    flag.clear();
-    const std::size_t rec = layout_.bytes();
-    const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
+    const std::size_t n = records(t);
+    flag.assign(n, 0);
     if (n == 0) return c;
-    std::vector<char> raw(bytes_[t]);
-    std::FILE* f = std::fopen(file(t).c_str(), "rb");
-    const bool ok = f && std::fread(raw.data(), 1, raw.size(), f) == raw.size();
-    if (f) std::fclose(f);
-    if (!ok) throw InputError("tiled run: cannot read the spill file " + file(t).string());
     c.xyz.resize(3, static_cast<Eigen::Index>(n));
-    flag.resize(n);
     if (layout_.rgb) c.rgb.resize(3 * n);
     if (layout_.intensity) c.intensity.resize(n);
-    for (std::size_t i = 0; i < n; ++i) {
-      const char* q = raw.data() + i * rec;
-      flag[i] = static_cast<std::uint8_t>(q[0]);
-      std::memcpy(c.xyz.data() + 3 * i, q + 1, 24);
-      q += 25;
-      if (layout_.rgb) {
-        std::memcpy(c.rgb.data() + 3 * i, q, 3);
-        q += 3;
-      }
-      if (layout_.intensity) std::memcpy(&c.intensity[i], q, 4);
-    }
+    std::size_t i = 0;
+    scan(t, [&](std::uint8_t f, const double* p, const std::uint8_t* rgb, float v) {
+      flag[i] = f;
+      std::memcpy(c.xyz.data() + 3 * i, p, 24);
+      if (rgb != nullptr) std::memcpy(c.rgb.data() + 3 * i, rgb, 3);
+      if (layout_.intensity) c.intensity[i] = v;
+      ++i;
+    });
     return c;
   }
 
-  std::size_t record_bytes() const { return layout_.bytes(); }
   // Reads tile t's records back in chunks of about 4 MB (flush first), without holding the
   // file: fn(flag, x y z [3], rgb [3] or nullptr, intensity) for each, in file order.
   template <class Fn>
   void scan(std::size_t t, Fn&& fn) const {
     const std::size_t rec = layout_.bytes();
-    const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
+    const std::size_t n = records(t);
     if (n == 0) return;
     const std::unique_ptr<std::FILE, int (*)(std::FILE*)> file_closed(std::fopen(file(t).c_str(), "rb"), &std::fclose);
     std::FILE* f = file_closed.get();
     if (!f) throw InputError("tiled run: cannot read the spill file " + file(t).string());
     const std::size_t per = std::max<std::size_t>(1, (4u << 20) / rec);
-    std::vector<char> raw(per * rec);
+    std::vector<char> raw(std::min(per, n) * rec);
     double p[3];
     float intensity = 0.0f;
     for (std::size_t done = 0; done < n;) {
@@ -335,13 +327,12 @@ struct Tiles {
   // The tile's window: its interior and halo, clipped to the grid.
   GridWindow window(std::size_t t) const {
     const auto [r0, r1, c0, c1] = interior(t);
-    const int reach = halo;
     GridWindow w;
     w.grid = g;
-    w.row0 = std::max(0, r0 - reach);
-    w.col0 = std::max(0, c0 - reach);
-    w.rows = std::min(g.rows, r1 + reach) - w.row0;
-    w.cols = std::min(g.cols, c1 + reach) - w.col0;
+    w.row0 = std::max(0, r0 - halo);
+    w.col0 = std::max(0, c0 - halo);
+    w.rows = std::min(g.rows, r1 + halo) - w.row0;
+    w.cols = std::min(g.cols, c1 + halo) - w.col0;
     return w;
   }
 };
@@ -681,18 +672,14 @@ std::size_t sample_stride_of(const RunConfig& config, std::uint64_t input_points
 
 bool keeps_sample(const RunConfig& config) { return config.lod.report && config.lod.report_cross_check; }
 
-// Per spilled point: true unless it belongs to a far cluster (kFarFlag).
-std::vector<bool> not_far(const std::vector<std::uint8_t>& flags) {
-  std::vector<bool> keep(flags.size());
-  for (std::size_t i = 0; i < flags.size(); ++i) keep[i] = (flags[i] & kFarFlag) == 0;
-  return keep;
-}
-
 // Tile t's spilled points without the far clusters' (kFarFlag, when the plan found any); `flags`
 // receives the spill's flag bytes.
 Cloud read_tile_points(const Plan& plan, const Spill& spill, std::size_t t, std::vector<std::uint8_t>& flags) {
   Cloud pts = spill.read(t, flags);
-  if (plan.far_points > 0) pts.keep_if(not_far(flags));
+  if (plan.far_points == 0) return pts;
+  std::vector<bool> keep(flags.size());
+  for (std::size_t i = 0; i < flags.size(); ++i) keep[i] = (flags[i] & kFarFlag) == 0;
+  pts.keep_if(keep);
   return pts;
 }
 
@@ -709,6 +696,7 @@ using detail::BallSet;
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
 Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const Cloud& pts,
                       const BallSet& balls, std::size_t at_least, std::vector<std::uint32_t>& at, double& scanned) {
+  if (balls.empty()) throw std::logic_error("points_in_balls: no balls");
   const Tiles& tiles = plan.tiles;
   const NodeBinner node(tiles.g);
   std::vector<std::uint32_t> own;  // pts' columns inside the balls
@@ -719,7 +707,6 @@ Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const
   std::vector<double> xyz;
   std::vector<std::uint8_t> rgb;
   std::vector<float> intensity;
-  if (balls.empty()) throw std::logic_error("points_in_balls: no balls");
   const auto& bb = balls.box_m();
   const double lo_x[3] = {bb[0], bb[2], 0.0}, hi_x[3] = {bb[1], bb[3], 0.0};
   const int tr0 = node.row(lo_x) / tiles.size, tr1 = node.row(hi_x) / tiles.size;
@@ -730,7 +717,7 @@ Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const
       if (u == t) continue;  // its interior lies inside w
       const auto in = tiles.interior(u);
       if (!balls.meets(tiles.box_m(in[0], in[1], in[2], in[3]))) continue;
-      scanned += static_cast<double>(spill.bytes(u) / spill.record_bytes());
+      scanned += static_cast<double>(spill.records(u));
       spill.scan(u, [&](std::uint8_t flag, const double* p, const std::uint8_t* c3, float v) {
         if ((flag & kFarFlag) != 0 || !balls.contains(p)) return;
         const int r = node.row(p), col = node.col(p);
