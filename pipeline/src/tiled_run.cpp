@@ -1912,6 +1912,25 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         }
       }
       if (!(spacing_m > 0.0)) spacing_m = tiles.g.cell_size_m;  // no tile had two points: the cell
+      // The point test and the spike searches see a tile's points within their reach only when
+      // the halo holds it: a search that would leave it is an error before any tile is checked
+      // (issue 14), not an edge where points count as isolated.
+      const double reach_m = options.isolation_radius_spacings * spacing_m +
+                             std::max({options.tolerance_m, options.spike_min_height_m, options.confirm_footprint_m});
+      const double halo_m = tiles.halo * tiles.g.cell_size_m;
+      r.report.figure("halo_mm", halo_m * 1e3);
+      r.report.figure("reach_mm", reach_m * 1e3);
+      if (halo_m < reach_m) {
+        throw ConfigError("tiled run, stage honest_check: the tiles' halo (" + format_number(halo_m * 1e3) +
+                          " mm) is narrower than the point test's and spike searches' reach (" + format_number(reach_m * 1e3) +
+                          " mm: cross_check.isolation_radius_spacings " + format_number(options.isolation_radius_spacings) +
+                          " x the scan's spacing " + format_number(spacing_m * 1e3) +
+                          " mm, plus the larger of the tolerance and the spike height), so points near a tile's edge would "
+                          "be judged without all their neighbours: raise scale.filter_halo_cells (now " +
+                          std::to_string(config.scale.filter_halo_cells) + ") to at least " +
+                          std::to_string(config.scale.filter_halo_cells +
+                                         static_cast<int>(std::ceil((reach_m - halo_m) / tiles.g.cell_size_m))));
+      }
       // The box of the whole grid's valid samples (far points).
       InputCheckScope scope;
       scope.spacing_m = spacing_m;
@@ -1980,20 +1999,6 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       if (in.spacing_m == 0.0) in.spacing_m = spacing_m;
       detail::add_honest_figures(in, spikes, r.report);
       r.report.figure("tiles", static_cast<double>(tiles.count()));
-      // The point test and the spike searches see a tile's points within their reach only when
-      // the halo holds it.
-      const double reach_m = options.isolation_radius_spacings * spacing_m +
-                             std::max({options.tolerance_m, options.spike_min_height_m, options.confirm_footprint_m});
-      const double halo_m = tiles.halo * tiles.g.cell_size_m;
-      r.report.figure("halo_mm", halo_m * 1e3);
-      if (halo_m < reach_m) {
-        r.report.figure("halo_short_mm", (reach_m - halo_m) * 1e3);
-        r.report.notes.push_back("the tiles' halo (" + format_number(halo_m * 1e3) + " mm) is narrower than the point test's reach (" +
-                                 format_number(reach_m * 1e3) + " mm): points near a tile's edge may count as isolated; raise "
-                                 "scale.filter_halo_cells to " +
-                                 std::to_string(config.scale.filter_halo_cells +
-                                                static_cast<int>(std::ceil((reach_m - halo_m) / tiles.g.cell_size_m))));
-      }
       r.report.notes.push_back("tiled run: each tile's input points (as spilled: after units, recentring, view, non-finite and "
                                "crop) and kept points against the whole grid over its window; the spacing is the tiles' "
                                "median weighted by points; " + std::to_string(dropped) +
