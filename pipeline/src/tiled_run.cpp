@@ -764,7 +764,8 @@ Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const
 // adds, until no search of theirs leaves them. rv.verdict updated for them. Returns how far the
 // balls reach past the window [nodes]. Throws InputError, naming the stage, the tile and the
 // key, when that is more than kMaxWidenedTiles tiles, or after 8 gatherings. Adds to `sums`:
-// robust_spill_points_scanned (records read from other tiles' spills), robust_points_gathered.
+// robust_spill_points_scanned (records read from other tiles' spills), robust_points_gathered,
+// robust_gatherings (one per gathering: more than one where the second look added balls).
 int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const RobustOutlierOptions& ropt,
                     const Cloud& pts, RobustVerdicts& rv, int filter_halo_cells, std::map<std::string, double>& sums) {
   const Tiles& tiles = plan.tiles;
@@ -808,6 +809,7 @@ int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const G
     std::vector<std::uint32_t> at;
     Cloud near = points_in_balls(plan, spill, t, w, pts, BallSet(balls), static_cast<std::size_t>(ropt.k) + 2, at, sums["robust_spill_points_scanned"]);
     sums["robust_points_gathered"] += static_cast<double>(near.size());
+    sums["robust_gatherings"] += 1.0;
     RobustOutlierOptions wo = ropt;
     wo.tile->complete_m = balls;
     wo.judge_only.clear();

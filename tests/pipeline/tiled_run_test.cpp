@@ -227,19 +227,16 @@ TEST(TiledRun, TheHonestCheckClassifiesEveryPointAsInCore) {
             << in.summary.verdict->status << "\n";
 }
 
-// The case the issue names: clutter that reaches the grid. Uniform clutter (2 % of the points in
-// the bunny's box) with the filter off: the in-core verdict fails on spikes; the tiled one must
-// too, for the same reasons, never a clean pass.
-TEST(TiledRun, ClutterWithTheFilterOffFailsTheVerdictAsInCore) {
-  const fs::path dir = hc::test::temp_dir("clutter");
+// The bunny's first scan (bun000, 40 256 points) with uniform clutter in its box (2 % more
+// points, a fixed pseudo-random sequence), written to dir/cluttered.ply as an ASCII PLY (the
+// tiled run reads one file). Returns the file.
+fs::path write_cluttered_bunny(const fs::path& dir) {
   const fs::path bunny = hc::test::scan_path("bunny/bun000.ply");
-  const std::string yaml = "input: {files: [" + bunny.string() + "], units: m}\ngrid: {n: 200}\nfilters: {outliers: {enabled: false}}\n";
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "run.yaml");
-  // The clutter: appended to a copy of the scan as an ASCII PLY (the tiled run reads one file).
   hc::pipeline::Cloud c = hc::pipeline::load_cloud(bunny).value;
   const Eigen::Vector3d lo = c.xyz.rowwise().minCoeff(), hi = c.xyz.rowwise().maxCoeff();
   const Eigen::Index n = c.xyz.cols(), extra = n / 50;
-  std::ofstream out(dir / "cluttered.ply");
+  const fs::path file = dir / "cluttered.ply";
+  std::ofstream out(file);
   out << "ply\nformat ascii 1.0\nelement vertex " << n + extra << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
   out.precision(17);
   for (Eigen::Index i = 0; i < n; ++i) out << c.xyz(0, i) << " " << c.xyz(1, i) << " " << c.xyz(2, i) << "\n";
@@ -252,8 +249,17 @@ TEST(TiledRun, ClutterWithTheFilterOffFailsTheVerdictAsInCore) {
     const double u = uniform(), v = uniform(), w = uniform();
     out << lo.x() + u * (hi.x() - lo.x()) << " " << lo.y() + v * (hi.y() - lo.y()) << " " << lo.z() + w * (hi.z() - lo.z()) << "\n";
   }
-  out.close();
-  config.input.files = {dir / "cluttered.ply"};
+  return file;
+}
+
+// The case the issue names: clutter that reaches the grid. Uniform clutter (2 % of the points in
+// the bunny's box) with the filter off: the in-core verdict fails on spikes; the tiled one must
+// too, for the same reasons, never a clean pass.
+TEST(TiledRun, ClutterWithTheFilterOffFailsTheVerdictAsInCore) {
+  const fs::path dir = hc::test::temp_dir("clutter");
+  const std::string yaml = "input: {files: [cluttered.ply], units: m}\ngrid: {n: 200}\nfilters: {outliers: {enabled: false}}\n";
+  write_cluttered_bunny(dir);
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "run.yaml");
   const BuiltScene in = hc::pipeline::build_scene(config);
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
   config.scale.tile_cells = 48;
@@ -269,6 +275,62 @@ TEST(TiledRun, ClutterWithTheFilterOffFailsTheVerdictAsInCore) {
     }
   }
   EXPECT_GT(tiled.summary.input_check->spikes_kept, 0U);
+}
+
+// The same clutter with the robust filter on, in 64-cell tiles (50 mm) with a 16-cell filter
+// halo: a clutter point in the empty box has its 16 nearest tens of millimetres away, past its
+// tile's window, so hundreds of points are judged again over points gathered from the tiles
+// around, and where the second look's own searches (new neighbours from those tiles) leave its
+// balls, it gathers again. Oracle: the in-core run; the grid and the kept points' classes equal
+// it. (Here the second look changes no verdict: a clutter point the window removes is removed
+// over the whole scan too, and the grid stays equal with the gathering from other tiles cut out;
+// TheRobustTestJudgesAgainPointsWhoseSearchesLeaveTheWindow is the case where it matters. This
+// one runs the second look at scale, gathering more than once.) In 48-cell tiles with an 8-cell
+// halo the balls reach more than two tiles (75 mm) past a window: an error naming the key.
+TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
+  const fs::path dir = hc::test::temp_dir("clutter_robust");
+  write_cluttered_bunny(dir);
+  const std::string yaml = "input: {files: [cluttered.ply], units: m}\ngrid: {n: 200}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "run.yaml");
+  ASSERT_TRUE(config.filters.outliers.enabled);
+  const BuiltScene in = hc::pipeline::build_scene(config);
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 64;
+  config.scale.filter_halo_cells = 16;
+  config.scale.scratch = dir;
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 8.0);
+  EXPECT_GT(stage_figure(in, "outliers", "removed"), 500.0) << "the filter removes most of the 805 clutter points";
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_points_judged_past_halo"), 100.0);
+  const double windows = stage_figure(tiled, "tiles", "sum_robust_windows_widened");
+  EXPECT_GE(windows, 4.0);
+  EXPECT_GT(stage_figure(tiled, "tiles", "sum_robust_gatherings"), windows) << "some tile gathered more than once";
+  EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
+  EXPECT_EQ(in.scene.layers.flags, tiled.scene.layers.flags);
+  // The kept points, classified against the grid: the same set gives the same counts.
+  ASSERT_TRUE(in.summary.cross_check && tiled.summary.cross_check);
+  const auto& x = *in.summary.cross_check;
+  const auto& y = *tiled.summary.cross_check;
+  EXPECT_EQ(x.point_vertical.count, y.point_vertical.count);
+  EXPECT_EQ(x.points_on_surface, y.points_on_surface);
+  EXPECT_EQ(x.points_off_surface, y.points_off_surface);
+  EXPECT_EQ(x.points_hidden, y.points_hidden);
+  EXPECT_EQ(x.points_outside, y.points_outside);
+  config.scale.tile_cells = 48;
+  config.scale.filter_halo_cells = 8;
+  try {
+    (void)hc::pipeline::build_scene(config);
+    ADD_FAILURE() << "expected an InputError";
+  } catch (const hc::InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("stage outliers"), std::string::npos) << what;
+    EXPECT_NE(what.find("past the tile's window"), std::string::npos) << what;
+    EXPECT_NE(what.find("2 tiles"), std::string::npos) << what;
+    EXPECT_NE(what.find("scale.filter_halo_cells (now 8)"), std::string::npos) << what;
+  }
+  std::size_t entries = 0;
+  for (const auto& e : fs::directory_iterator(dir)) entries += e.path().filename() != "cluttered.ply" ? 1U : 0U;
+  EXPECT_EQ(entries, 0U) << "the spill folder is removed on the error";
 }
 
 // A 1 m × 1 m patch of 100 × 100 points (1 cm apart, z in 0..4 mm) and `extra` points after
