@@ -289,6 +289,17 @@ class Spill {
 // How far past a tile's window the robust test's second look may gather points (judge_past_halo), in tiles.
 constexpr int kMaxWidenedTiles = 2;
 
+// A tile's halo [nodes] with upsample factor k and scale.filter_halo_cells = filter_cells: the
+// grid stages' reach (reproject_reach_cells), plus filter_cells for the per-tile filters' k-NN
+// searches and the honest check's point test when either runs, rounded up to a multiple of k.
+int tile_halo(const RunConfig& config, int k, int filter_cells) {
+  ReprojectOptions ro = config.grid.reproject;
+  ro.upsample_factor = k;
+  int halo = reproject_reach_cells(ro, k);
+  if (config.filters.outliers.enabled || config.cross_check.enabled) halo += filter_cells;
+  return (halo + k - 1) / k * k;
+}
+
 struct Tiles {
   GridGeometry g;
   int k = 1;        // upsample factor
@@ -1319,11 +1330,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     ro.upsample_factor = tiles.k;
     const int k = tiles.k;
     tiles.size = (config.scale.tile_cells + k - 1) / k * k;
-    int halo = reproject_reach_cells(ro, k);
-    // The per-tile filters' k-NN searches and the honest check's point test reach beyond the
-    // grid stages' reach.
-    if (config.filters.outliers.enabled || config.cross_check.enabled) halo += config.scale.filter_halo_cells;
-    tiles.halo = (halo + k - 1) / k * k;
+    tiles.halo = tile_halo(config, k, config.scale.filter_halo_cells);
     tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
     tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
   };
@@ -1896,9 +1903,6 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       StageResult<Honest> r;
       const HonestCheckOptions options =
           detail::honest_options_for(config, false, static_cast<double>(tiles.k), tiles.g.cell_size_m);
-      r.value.spikes = find_grid_spikes(grid.depth, options);
-      GridSpikes& spikes = r.value.spikes;
-      spikes.confirmed = 0;
       InputCheck& in = r.value.input;
       // The whole run's spacing: the tiles' spacings, their median weighted by points.
       std::vector<std::pair<double, std::uint64_t>> sp = merged.spacings;
@@ -1915,24 +1919,38 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       }
       if (!(spacing_m > 0.0)) spacing_m = tiles.g.cell_size_m;  // no tile had two points: the cell
       // The point test and the spike searches see a tile's points within their reach only when
-      // the halo holds it: a search that would leave it is an error before any tile is checked
-      // (issue 14), not an edge where points count as isolated.
+      // the halo holds it: a search that would leave it is an error (issue 14), not an edge where
+      // points count as isolated. The spacing is known only once every tile has run, so this
+      // comes after the tile loop (or, with tile jobs, at the merge), before the check's own work.
       const double reach_m = options.isolation_radius_spacings * spacing_m +
                              std::max({options.tolerance_m, options.spike_min_height_m, options.confirm_footprint_m});
-      const double halo_m = tiles.halo * tiles.g.cell_size_m;
+      const double cell_m = tiles.g.cell_size_m;
+      const double halo_m = tiles.halo * cell_m;
       r.report.figure("halo_mm", halo_m * 1e3);
       r.report.figure("reach_mm", reach_m * 1e3);
       if (halo_m < reach_m) {
-        throw ConfigError("tiled run, stage honest_check: the tiles' halo (" + format_number(halo_m * 1e3) +
-                          " mm) is narrower than the point test's and spike searches' reach (" + format_number(reach_m * 1e3) +
-                          " mm: cross_check.isolation_radius_spacings " + format_number(options.isolation_radius_spacings) +
-                          " x the scan's spacing " + format_number(spacing_m * 1e3) +
-                          " mm, plus the larger of the tolerance and the spike height), so points near a tile's edge would "
-                          "be judged without all their neighbours: raise scale.filter_halo_cells (now " +
-                          std::to_string(config.scale.filter_halo_cells) + ") to at least " +
-                          std::to_string(config.scale.filter_halo_cells +
-                                         static_cast<int>(std::ceil((reach_m - halo_m) / tiles.g.cell_size_m))));
+        // The least scale.filter_halo_cells whose halo (rounded up to a multiple of the upsample
+        // factor) holds the reach, if the key's range has one.
+        int needed = -1;
+        for (int f = config.scale.filter_halo_cells + 1; f <= 4096 && needed < 0; ++f) {
+          if (tile_halo(config, tiles.k, f) * cell_m >= reach_m) needed = f;
+        }
+        throw ConfigError(
+            "tiled run, stage honest_check: the tiles' halo (" + format_number(halo_m * 1e3) + " mm, " +
+            std::to_string(tiles.halo) + " cells) is narrower than the point test's and spike searches' reach (" +
+            format_number(reach_m * 1e3) + " mm: cross_check.isolation_radius_spacings " +
+            format_number(options.isolation_radius_spacings) + " x the scan's spacing " + format_number(spacing_m * 1e3) +
+            " mm, plus the largest of the tolerance, the spike height and the confirmation footprint), so points near a "
+            "tile's edge would be judged without all their neighbours: " +
+            (needed > 0 ? "raise scale.filter_halo_cells (now " + std::to_string(config.scale.filter_halo_cells) + ") to at least " +
+                              std::to_string(needed) + " (the spacing is measured on the tiles' windows, which a wider halo changes a little)"
+                        : "no scale.filter_halo_cells up to 4096 is enough: use a coarser grid (grid.n), grid.upsample, or a "
+                          "smaller cross_check.isolation_radius_spacings") +
+            "; with tile jobs, make a new plan with it and run its jobs again");
       }
+      r.value.spikes = find_grid_spikes(grid.depth, options);
+      GridSpikes& spikes = r.value.spikes;
+      spikes.confirmed = 0;
       // The box of the whole grid's valid samples (far points).
       InputCheckScope scope;
       scope.spacing_m = spacing_m;

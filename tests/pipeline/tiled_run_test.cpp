@@ -484,43 +484,46 @@ TEST(TiledRun, AHaloNarrowerThanThePointSearchesIsAnErrorNamingTheKey) {
 
 // The honest check's point test counts a point's neighbours within 10 spacings (about 102 mm on
 // the patch, whose points are 10 mm apart in x-y) and its spike searches reach the 2 mm spike
-// height further: a halo of 2 + the grid stages' cells (5 mm each) cannot hold that, and the stage
-// says so by name before it checks a tile, with the value needed. Oracle: the value the error
-// names runs, and its halo then holds the reach; one cell less is refused again.
+// height further: a halo of a few filter cells plus the grid stages' (5 mm each) cannot hold
+// that, and the stage says so by name, with the value needed. Oracle: the value the error names
+// runs; one cell less is refused again; also with an upsample factor of 2 and an odd start, where
+// the halo is rounded up to a multiple of 2.
 TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   const fs::path dir = hc::test::temp_dir("narrow_honest");
   write_patch_with(dir / "patch.ply", {});
-  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200}\nfilters: {outliers: {enabled: false}}\n";
-  const auto run_with = [&](int filter_halo_cells) {
-    RunConfig config = hc::pipeline::parse_run_config(
-        yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: " + std::to_string(filter_halo_cells) + "}\n",
-        dir / "patch.yaml");
-    config.scale.scratch = dir;
-    return hc::pipeline::build_scene(config);
-  };
-  int needed = 0;
-  try {
-    (void)run_with(2);
-    ADD_FAILURE() << "expected a ConfigError";
-  } catch (const hc::ConfigError& e) {
-    const std::string what = e.what();
-    EXPECT_NE(what.find("honest_check"), std::string::npos) << what;
-    const std::string key = "raise scale.filter_halo_cells (now 2) to at least ";
-    const auto at = what.find(key);
-    ASSERT_NE(at, std::string::npos) << what;
-    needed = std::stoi(what.substr(at + key.size()));
+  for (const auto& [grid, start] : {std::pair<std::string, int>{"{n: 200}", 2}, std::pair<std::string, int>{"{n: 200, upsample: 2}", 3}}) {
+    SCOPED_TRACE(grid);
+    const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: " + grid + "\nfilters: {outliers: {enabled: false}}\n";
+    const auto run_with = [&](int filter_halo_cells) {
+      RunConfig config = hc::pipeline::parse_run_config(
+          yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: " + std::to_string(filter_halo_cells) + "}\n",
+          dir / "patch.yaml");
+      config.scale.scratch = dir;
+      return hc::pipeline::build_scene(config);
+    };
+    int needed = 0;
+    try {
+      (void)run_with(start);
+      ADD_FAILURE() << "expected a ConfigError";
+    } catch (const hc::ConfigError& e) {
+      const std::string what = e.what();
+      EXPECT_NE(what.find("honest_check"), std::string::npos) << what;
+      const std::string key = "raise scale.filter_halo_cells (now " + std::to_string(start) + ") to at least ";
+      const auto at = what.find(key);
+      ASSERT_NE(at, std::string::npos) << what;
+      needed = std::stoi(what.substr(at + key.size()));
+    }
+    std::size_t entries = 0;
+    for (const auto& e : fs::directory_iterator(dir)) entries += e.path().filename() != "patch.ply" ? 1U : 0U;
+    EXPECT_EQ(entries, 0U) << "the spill folder is removed on the error";
+    ASSERT_GT(needed, start);
+    const BuiltScene ok = run_with(needed);
+    // The spacing: a point's nearest neighbour is the next one along x, 10 mm away and 2 mm apart
+    // in z (the patch's heights step by 7 mm modulo 5 mm along x).
+    EXPECT_NEAR(stage_figure(ok, "honest_check", "reach_mm"), 10.0 * std::sqrt(10.0 * 10.0 + 2.0 * 2.0) + 2.0, 0.01)
+        << "10 spacings + the 2 mm spike height";
+    EXPECT_THROW((void)run_with(needed - 1), hc::ConfigError);
   }
-  std::size_t entries = 0;
-  for (const auto& e : fs::directory_iterator(dir)) entries += e.path().filename() != "patch.ply" ? 1U : 0U;
-  EXPECT_EQ(entries, 0U) << "the spill folder is removed on the error";
-  ASSERT_GT(needed, 2);
-  const BuiltScene ok = run_with(needed);
-  EXPECT_GE(stage_figure(ok, "honest_check", "halo_mm"), stage_figure(ok, "honest_check", "reach_mm"));
-  // The spacing: a point's nearest neighbour is the next one along x, 10 mm away and 2 mm apart
-  // in z (the patch's heights step by 7 mm modulo 5 mm along x).
-  EXPECT_NEAR(stage_figure(ok, "honest_check", "reach_mm"), 10.0 * std::sqrt(10.0 * 10.0 + 2.0 * 2.0) + 2.0, 0.01)
-      << "10 spacings + the 2 mm spike height";
-  EXPECT_THROW((void)run_with(needed - 1), hc::ConfigError);
 }
 
 // A far cluster (30 stray returns 2 m beyond a 1 m patch, as a passer-by in a terrestrial scan)
