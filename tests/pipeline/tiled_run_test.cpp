@@ -55,6 +55,26 @@ bool has_note(const BuiltScene& b, const std::string& stage, const std::string& 
   return false;
 }
 
+// The message of the E that build_scene(config) throws; a test failure and "" when it throws
+// nothing (any other exception propagates and fails the test).
+template <class E>
+std::string error_of(const RunConfig& config) {
+  try {
+    (void)hc::pipeline::build_scene(config);
+  } catch (const E& e) {
+    return e.what();
+  }
+  ADD_FAILURE() << "expected an exception";
+  return "";
+}
+
+// How many entries of `dir` are not named `keep` (what a run left in its scratch folder).
+std::size_t entries_besides(const fs::path& dir, const std::string& keep) {
+  std::size_t n = 0;
+  for (const auto& e : fs::directory_iterator(dir)) n += e.path().filename() != keep ? 1U : 0U;
+  return n;
+}
+
 // Both runs of one config; the tiled one with tiles of `tile` cells under `scratch`.
 void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scratch) {
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
@@ -318,19 +338,12 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   EXPECT_EQ(x.points_outside, y.points_outside);
   config.scale.tile_cells = 48;
   config.scale.filter_halo_cells = 8;
-  try {
-    (void)hc::pipeline::build_scene(config);
-    ADD_FAILURE() << "expected an InputError";
-  } catch (const hc::InputError& e) {
-    const std::string what = e.what();
-    EXPECT_NE(what.find("stage outliers"), std::string::npos) << what;
-    EXPECT_NE(what.find("past the tile's window"), std::string::npos) << what;
-    EXPECT_NE(what.find("2 tiles"), std::string::npos) << what;
-    EXPECT_NE(what.find("scale.filter_halo_cells (now 8)"), std::string::npos) << what;
-  }
-  std::size_t entries = 0;
-  for (const auto& e : fs::directory_iterator(dir)) entries += e.path().filename() != "cluttered.ply" ? 1U : 0U;
-  EXPECT_EQ(entries, 0U) << "the spill folder is removed on the error";
+  const std::string what = error_of<hc::InputError>(config);
+  EXPECT_NE(what.find("stage outliers"), std::string::npos) << what;
+  EXPECT_NE(what.find("past the tile's window"), std::string::npos) << what;
+  EXPECT_NE(what.find("2 tiles"), std::string::npos) << what;
+  EXPECT_NE(what.find("scale.filter_halo_cells (now 8)"), std::string::npos) << what;
+  EXPECT_EQ(entries_besides(dir, "cluttered.ply"), 0U) << "the spill folder is removed on the error";
 }
 
 // A 1 m × 1 m patch of 100 × 100 points (1 cm apart, z in 0..4 mm) and `extra` points after
@@ -472,14 +485,9 @@ TEST(TiledRun, AHaloNarrowerThanThePointSearchesIsAnErrorNamingTheKey) {
   RunConfig config = hc::pipeline::parse_run_config(yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 2}\n",
                                                     dir / "patch.yaml");
   config.scale.scratch = dir;
-  try {
-    (void)hc::pipeline::build_scene(config);
-    ADD_FAILURE() << "expected a ConfigError";
-  } catch (const hc::ConfigError& e) {
-    const std::string what = e.what();
-    EXPECT_NE(what.find("scale.filter_halo_cells"), std::string::npos) << what;
-    EXPECT_NE(what.find("isolated"), std::string::npos) << what;
-  }
+  const std::string what = error_of<hc::ConfigError>(config);
+  EXPECT_NE(what.find("scale.filter_halo_cells"), std::string::npos) << what;
+  EXPECT_NE(what.find("isolated"), std::string::npos) << what;
 }
 
 // The honest check's point test counts a point's neighbours within 10 spacings (about 102 mm on
@@ -494,35 +502,27 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   for (const auto& [grid, start] : {std::pair<std::string, int>{"{n: 200}", 2}, std::pair<std::string, int>{"{n: 200, upsample: 2}", 3}}) {
     SCOPED_TRACE(grid);
     const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: " + grid + "\nfilters: {outliers: {enabled: false}}\n";
-    const auto run_with = [&](int filter_halo_cells) {
+    const auto config_with = [&](int filter_halo_cells) {
       RunConfig config = hc::pipeline::parse_run_config(
           yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: " + std::to_string(filter_halo_cells) + "}\n",
           dir / "patch.yaml");
       config.scale.scratch = dir;
-      return hc::pipeline::build_scene(config);
+      return config;
     };
-    int needed = 0;
-    try {
-      (void)run_with(start);
-      ADD_FAILURE() << "expected a ConfigError";
-    } catch (const hc::ConfigError& e) {
-      const std::string what = e.what();
-      EXPECT_NE(what.find("honest_check"), std::string::npos) << what;
-      const std::string key = "raise scale.filter_halo_cells (now " + std::to_string(start) + ") to at least ";
-      const auto at = what.find(key);
-      ASSERT_NE(at, std::string::npos) << what;
-      needed = std::stoi(what.substr(at + key.size()));
-    }
-    std::size_t entries = 0;
-    for (const auto& e : fs::directory_iterator(dir)) entries += e.path().filename() != "patch.ply" ? 1U : 0U;
-    EXPECT_EQ(entries, 0U) << "the spill folder is removed on the error";
+    const std::string what = error_of<hc::ConfigError>(config_with(start));
+    EXPECT_NE(what.find("honest_check"), std::string::npos) << what;
+    const std::string key = "raise scale.filter_halo_cells (now " + std::to_string(start) + ") to at least ";
+    const auto at = what.find(key);
+    ASSERT_NE(at, std::string::npos) << what;
+    const int needed = std::stoi(what.substr(at + key.size()));
+    EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "the spill folder is removed on the error";
     ASSERT_GT(needed, start);
-    const BuiltScene ok = run_with(needed);
+    const BuiltScene ok = hc::pipeline::build_scene(config_with(needed));
     // The spacing: a point's nearest neighbour is the next one along x, 10 mm away and 2 mm apart
     // in z (the patch's heights step by 7 mm modulo 5 mm along x).
     EXPECT_NEAR(stage_figure(ok, "honest_check", "reach_mm"), 10.0 * std::sqrt(10.0 * 10.0 + 2.0 * 2.0) + 2.0, 0.01)
         << "10 spacings + the 2 mm spike height";
-    EXPECT_THROW((void)run_with(needed - 1), hc::ConfigError);
+    EXPECT_THROW((void)hc::pipeline::build_scene(config_with(needed - 1)), hc::ConfigError);
   }
 }
 
@@ -815,20 +815,12 @@ TEST(TiledRun, AutoTakesLargeStreamedScansAndOptionsItLacksAreRefusedByName) {
   config.scale.tiled_above_points = 20'000;  // not more than the threshold
   EXPECT_FALSE(hc::pipeline::runs_tiled(config));
   config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml", {"scale.tiled=on", "filters.voxel_m=0.01"});
-  try {
-    hc::pipeline::build_scene(config);
-    ADD_FAILURE() << "no error";
-  } catch (const hc::ConfigError& e) {
-    EXPECT_NE(std::string(e.what()).find("filters.voxel_m"), std::string::npos) << e.what();
-  }
+  const std::string voxel = error_of<hc::ConfigError>(config);
+  EXPECT_NE(voxel.find("filters.voxel_m"), std::string::npos) << voxel;
   // A scratch folder that does not exist is named.
   config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml", {"scale.tiled=on", "scale.scratch=no/such/folder"});
-  try {
-    hc::pipeline::build_scene(config);
-    ADD_FAILURE() << "no error";
-  } catch (const hc::InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("no/such/folder"), std::string::npos) << e.what();
-  }
+  const std::string scratch = error_of<hc::InputError>(config);
+  EXPECT_NE(scratch.find("no/such/folder"), std::string::npos) << scratch;
 }
 
 }  // namespace
