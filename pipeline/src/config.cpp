@@ -1073,6 +1073,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     c.scale.chunk_points = static_cast<std::size_t>(
         r.get_int("scale.chunk_points", static_cast<long long>(c.scale.chunk_points), 1024, 1LL << 28));
     if (r.has("scale.scratch")) c.scale.scratch = base / r.get_string("scale.scratch", "");
+    c.scale.block_copies = r.get_bool("scale.block_copies", c.scale.block_copies);
     c.scale.progress_interval_s = r.get_double("scale.progress_interval_s", c.scale.progress_interval_s, 0.0, 3600.0);
     const std::string st = r.get_string("scale.scene_tiles", "auto", {"auto", "on", "off"});
     c.scale.scene_tiles = st == "on" ? ScaleConfig::Tiled::kOn : st == "off" ? ScaleConfig::Tiled::kOff : ScaleConfig::Tiled::kAuto;

@@ -137,6 +137,7 @@ class Spill {
     }
   }
   std::uintmax_t bytes(std::size_t t) const { return bytes_[t]; }
+  const Layout& layout() const { return layout_; }
 
   void add(std::size_t t, std::uint8_t flag, const double* p, const std::uint8_t* rgb, float intensity) {
     std::vector<char>& b = buf_[t];
@@ -698,15 +699,238 @@ Cloud read_tile_points(const Plan& plan, const Spill& spill, std::size_t t, std:
 using Ball = detail::BallSet::Ball;
 using detail::BallSet;
 
+std::string attempt_tag();
+
+// Other tiles' spills for the robust test's second look (judge_past_halo, points_in_balls), read
+// by block. A spill keeps the input's order, and a scan in no order (the generated walls)
+// scatters the points of any part of a tile over its whole file, so each gathering read every
+// record of every tile its balls meet: at 10^8 points, about twelve whole spills per tile. Here
+// the first gathering that needs tile u reads u's spill as before and, in the same pass, copies
+// the records a gathering can take (the points u owns, node in its interior, outside removed far
+// clusters) by block of its interior (blocks of block_nodes() × block_nodes() nodes, at most
+// kSide × kSide), each record followed by its number in the spill. The copy is written in chunks
+// of one block each, in spill order within a block; a later gathering reads only the chunks of
+// the blocks its balls meet and puts the points back in spill order. Disk: the owned records of
+// the tiles a gathering needed (28 to 35 bytes a point), less those drop() removed; memory: one
+// 64 KiB buffer per block while a copy is made. The copies live in a folder of this object's
+// own in the spill's folder (tile jobs run side by side on shared storage), made with the first
+// copy, removed with its content when this goes, whatever happened.
+class BlockCopies {
+ public:
+  static constexpr int kSide = 8;
+
+  // on = false (scale.block_copies): every call reads u's whole spill, nothing is copied.
+  BlockCopies(const Spill& spill, const Tiles& tiles, bool on)
+      : spill_(spill), tiles_(tiles), node_(tiles.g), tile_(tiles.count()), on_(on) {}
+  ~BlockCopies() {
+    if (dir_.empty()) return;
+    std::error_code ec;
+    fs::remove_all(dir_, ec);
+  }
+  BlockCopies(const BlockCopies&) = delete;
+  BlockCopies& operator=(const BlockCopies&) = delete;
+
+  // Side of a block [nodes].
+  int block_nodes() const { return std::max(1, (tiles_.size + kSide - 1) / kSide); }
+
+  // fn(x y z [3], rgb [3] or nullptr, intensity, record number in u's spill) for u's records a
+  // gathering can take: every one, in spill order, when u's copy is made (the first call for u,
+  // or the first after drop(u)); after that those in the blocks `balls` meet, block by block
+  // (the caller tests each point and restores the order). `sums`: robust_spill_points_scanned
+  // grows by the records read (spill or copy), robust_block_records_read by those read from a
+  // copy, robust_block_copies, robust_block_records_copied and robust_block_copy_mb by a copy
+  // made. A spill of 2^32 records or more, or any with scale.block_copies false, is read whole
+  // every time, without a copy.
+  // @throws InputError naming the file when a copy cannot be written or read.
+  template <class Fn>
+  void scan(std::size_t u, const BallSet& balls, std::map<std::string, double>& sums, Fn&& fn) {
+    Tile& tl = tile_[u];
+    if (!tl.made) {
+      make(u, sums, fn);
+      return;
+    }
+    const std::size_t crec = copy_record_bytes();
+    const int fd = ::open(file(u).c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd < 0) throw InputError("tiled run: cannot read the block copy " + file(u).string() + ": " + std::strerror(errno));
+    const struct Closer {
+      int fd;
+      ~Closer() { ::close(fd); }
+    } closer{fd};
+    const Layout& lay = spill_.layout();
+    std::vector<char> raw;
+    double p[3];
+    float v = 0.0f;
+    std::uint32_t rec = 0;
+    for (std::size_t b = 0; b < tl.chunks.size(); ++b) {
+      if (tl.chunks[b].empty() || !balls.meets(block_box(u, b))) continue;
+      for (const Chunk& ch : tl.chunks[b]) {
+        sums["robust_spill_points_scanned"] += static_cast<double>(ch.records);
+        sums["robust_block_records_read"] += static_cast<double>(ch.records);
+        raw.resize(ch.records * crec);
+        if (!read_at(fd, raw.data(), raw.size(), ch.first * crec)) {
+          throw InputError("tiled run: cannot read the block copy " + file(u).string() + " (" + std::strerror(errno) + ")");
+        }
+        for (std::size_t i = 0; i < ch.records; ++i) {
+          const char* q = raw.data() + i * crec;
+          std::memcpy(p, q, 24);
+          const char* c3 = lay.rgb ? q + 24 : nullptr;
+          if (lay.intensity) std::memcpy(&v, q + 24 + (lay.rgb ? 3 : 0), 4);
+          std::memcpy(&rec, q + crec - 4, 4);
+          fn(static_cast<const double*>(p), reinterpret_cast<const std::uint8_t*>(c3), v, rec);
+        }
+      }
+    }
+  }
+
+  // Removes u's copy: no later gathering reads u (made again if one does).
+  void drop(std::size_t u) {
+    Tile& tl = tile_[u];
+    if (!tl.made) return;
+    std::error_code ec;
+    fs::remove(file(u), ec);
+    on_disk_ -= tl.bytes;
+    tl = Tile{};
+  }
+
+  // The most bytes the copies held on disk at once.
+  std::uint64_t peak_bytes() const { return peak_; }
+
+ private:
+  static constexpr std::size_t kBlockBuffer = 64u << 10;
+
+  struct Chunk {
+    std::uint64_t first = 0;  // first record in the copy
+    std::size_t records = 0;
+  };
+  struct Tile {
+    bool made = false;
+    std::uint64_t bytes = 0;                 // the copy's size
+    std::vector<std::vector<Chunk>> chunks;  // per block, in spill order
+  };
+
+  std::size_t copy_record_bytes() const {
+    const Layout& lay = spill_.layout();
+    return 24 + (lay.rgb ? 3 : 0) + (lay.intensity ? 4 : 0) + 4;
+  }
+  fs::path file(std::size_t u) const { return dir_ / ("blocks_" + std::to_string(u) + ".bin"); }
+
+  // The xy box [m] of the points NodeBinner puts on block b of tile u's interior.
+  std::array<double, 4> block_box(std::size_t u, std::size_t b) const {
+    const auto in = tiles_.interior(u);
+    const int bn = block_nodes(), br = static_cast<int>(b / kSide), bc = static_cast<int>(b % kSide);
+    return tiles_.box_m(in[0] + br * bn, std::min(in[1], in[0] + (br + 1) * bn), in[2] + bc * bn, std::min(in[3], in[2] + (bc + 1) * bn));
+  }
+
+  static bool read_at(int fd, char* to, std::size_t bytes, std::uint64_t at) {
+    std::size_t got = 0;
+    while (got < bytes) {
+      const ssize_t r = ::pread(fd, to + got, bytes - got, static_cast<off_t>(at + got));
+      if (r <= 0) return false;
+      got += static_cast<std::size_t>(r);
+    }
+    return true;
+  }
+
+  // One pass over u's spill: fn for each record a gathering can take, each copied into its
+  // block's buffer, a full buffer appended to the copy as one chunk.
+  template <class Fn>
+  void make(std::size_t u, std::map<std::string, double>& sums, Fn& fn) {
+    Tile& tl = tile_[u];
+    const std::size_t n = spill_.records(u);
+    sums["robust_spill_points_scanned"] += static_cast<double>(n);
+    const bool copy = on_ && n <= std::numeric_limits<std::uint32_t>::max();
+    if (copy && dir_.empty()) {
+      const fs::path d = spill_.dir() / (".blocks-" + attempt_tag());
+      std::error_code ec;
+      if (!fs::create_directory(d, ec) || ec) {
+        throw InputError("tiled run: cannot create the folder " + d.string() + " for the second look's block copies" +
+                         (ec ? ": " + ec.message() : std::string()) + " (is the disk full? scale.block_copies: false makes none)");
+      }
+      dir_ = d;
+    }
+    const std::size_t crec = copy_record_bytes();
+    const Layout& lay = spill_.layout();
+    int fd = -1;
+    if (copy) {
+      fd = ::open(file(u).c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+      if (fd < 0) throw InputError("tiled run: cannot write the block copy " + file(u).string() + ": " + std::strerror(errno));
+    }
+    const struct Closer {
+      int fd;
+      ~Closer() {
+        if (fd >= 0) ::close(fd);
+      }
+    } closer{fd};
+    std::vector<std::vector<Chunk>> chunks(static_cast<std::size_t>(kSide * kSide));
+    std::vector<std::vector<char>> buf(chunks.size());
+    std::uint64_t end = 0;  // records in the copy
+    const auto flush = [&](std::size_t b) {
+      std::vector<char>& x = buf[b];
+      if (x.empty()) return;
+      std::size_t put = 0;
+      while (put < x.size()) {
+        const ssize_t w = ::pwrite(fd, x.data() + put, x.size() - put, static_cast<off_t>(end * crec + put));
+        if (w <= 0) {
+          throw InputError("tiled run: cannot write the block copy " + file(u).string() + ": " + std::strerror(errno) +
+                           " (is the disk full? scale.block_copies: false makes none)");
+        }
+        put += static_cast<std::size_t>(w);
+      }
+      chunks[b].push_back({end, x.size() / crec});
+      end += x.size() / crec;
+      x.clear();
+    };
+    const auto in = tiles_.interior(u);
+    const int bn = block_nodes();
+    std::uint32_t rec = 0;
+    spill_.scan(u, [&](std::uint8_t flag, const double* p, const std::uint8_t* c3, float v) {
+      const std::uint32_t i = rec++;
+      if ((flag & kFarFlag) != 0) return;
+      const int r = node_.row(p), c = node_.col(p);
+      if (r < in[0] || r >= in[1] || c < in[2] || c >= in[3]) return;
+      fn(p, c3, v, i);
+      if (!copy) return;
+      const std::size_t b = static_cast<std::size_t>((r - in[0]) / bn) * kSide + static_cast<std::size_t>((c - in[2]) / bn);
+      std::vector<char>& x = buf[b];
+      const std::size_t at = x.size();
+      x.resize(at + crec);
+      char* q = x.data() + at;
+      std::memcpy(q, p, 24);
+      if (lay.rgb) std::memcpy(q + 24, c3, 3);
+      if (lay.intensity) std::memcpy(q + 24 + (lay.rgb ? 3 : 0), &v, 4);
+      std::memcpy(q + crec - 4, &i, 4);
+      if (x.size() >= kBlockBuffer) flush(b);
+    });
+    if (!copy) return;
+    for (std::size_t b = 0; b < buf.size(); ++b) flush(b);
+    tl.chunks = std::move(chunks);
+    tl.made = true;
+    tl.bytes = end * crec;
+    on_disk_ += tl.bytes;
+    peak_ = std::max(peak_, on_disk_);
+    sums["robust_block_copies"] += 1.0;
+    sums["robust_block_records_copied"] += static_cast<double>(end);
+    sums["robust_block_copy_mb"] += static_cast<double>(end * crec) / 1e6;
+  }
+
+  const Spill& spill_;
+  const Tiles& tiles_;
+  NodeBinner node_;
+  std::vector<Tile> tile_;
+  bool on_;
+  fs::path dir_;
+  std::uint64_t on_disk_ = 0, peak_ = 0;  // bytes
+};
+
 // The points of the scan inside `balls`, each once: those of tile t's window points `pts`, then
-// those the neighbouring tiles own outside t's window `w`, from their spills, far clusters left
-// out; in tile order, each tile's in spill order; all of pts' points instead of those inside the
-// balls when the whole set would otherwise hold fewer than `at_least`. at[i] = the gathered
-// column of pts' column i (kNone: not gathered); `scanned` grows by the records read from the
-// other tiles' spills.
+// those the neighbouring tiles own outside t's window `w`, from their spills (through `blocks`),
+// far clusters left out; in tile order, each tile's in spill order; all of pts' points instead
+// of those inside the balls when the whole set would otherwise hold fewer than `at_least`.
+// at[i] = the gathered column of pts' column i (kNone: not gathered); `sums` as
+// BlockCopies::scan.
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
-Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const Cloud& pts,
-                      const BallSet& balls, std::size_t at_least, std::vector<std::uint32_t>& at, double& scanned) {
+Cloud points_in_balls(const Plan& plan, BlockCopies& blocks, std::size_t t, const GridWindow& w, const Cloud& pts,
+                      const BallSet& balls, std::size_t at_least, std::vector<std::uint32_t>& at, std::map<std::string, double>& sums) {
   if (balls.empty()) throw std::logic_error("points_in_balls: no balls");
   const Tiles& tiles = plan.tiles;
   const NodeBinner node(tiles.g);
@@ -722,23 +946,33 @@ Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const
   const double lo_x[3] = {bb[0], bb[2], 0.0}, hi_x[3] = {bb[1], bb[3], 0.0};
   const int tr0 = node.row(lo_x) / tiles.size, tr1 = node.row(hi_x) / tiles.size;
   const int tc0 = node.col(lo_x) / tiles.size, tc1 = node.col(hi_x) / tiles.size;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> order;  // (record in u's spill, taken) of tile u's points
   for (int tr = tr0; tr <= tr1; ++tr) {
     for (int tc = tc0; tc <= tc1; ++tc) {
       const std::size_t u = static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc);
       if (u == t) continue;  // its interior lies inside w
       const auto in = tiles.interior(u);
       if (!balls.meets(tiles.box_m(in[0], in[1], in[2], in[3]))) continue;
-      scanned += static_cast<double>(spill.records(u));
-      spill.scan(u, [&](std::uint8_t flag, const double* p, const std::uint8_t* c3, float v) {
-        if ((flag & kFarFlag) != 0 || !balls.contains(p)) return;
+      // u's points taken here, then appended in spill order (a copy's blocks give them by block).
+      std::vector<double> u_xyz;
+      std::vector<std::uint8_t> u_rgb;
+      std::vector<float> u_intensity;
+      order.clear();
+      blocks.scan(u, balls, sums, [&](const double* p, const std::uint8_t* c3, float v, std::uint32_t rec) {
+        if (!balls.contains(p)) return;
         const int r = node.row(p), col = node.col(p);
-        const bool owned = r >= in[0] && r < in[1] && col >= in[2] && col < in[3];
-        const bool in_w = r >= w.row0 && r < w.row0 + w.rows && col >= w.col0 && col < w.col0 + w.cols;
-        if (!owned || in_w) return;
-        xyz.insert(xyz.end(), p, p + 3);
-        if (pts.has_rgb()) rgb.insert(rgb.end(), c3, c3 + 3);
-        if (pts.has_intensity()) intensity.push_back(v);
+        if (r >= w.row0 && r < w.row0 + w.rows && col >= w.col0 && col < w.col0 + w.cols) return;
+        order.emplace_back(rec, static_cast<std::uint32_t>(order.size()));
+        u_xyz.insert(u_xyz.end(), p, p + 3);
+        if (pts.has_rgb()) u_rgb.insert(u_rgb.end(), c3, c3 + 3);
+        if (pts.has_intensity()) u_intensity.push_back(v);
       });
+      std::sort(order.begin(), order.end());
+      for (const auto& [rec, k] : order) {
+        xyz.insert(xyz.end(), u_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(k), u_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(k) + 3);
+        if (pts.has_rgb()) rgb.insert(rgb.end(), u_rgb.begin() + 3 * static_cast<std::ptrdiff_t>(k), u_rgb.begin() + 3 * static_cast<std::ptrdiff_t>(k) + 3);
+        if (pts.has_intensity()) intensity.push_back(u_intensity[k]);
+      }
     }
   }
   const std::size_t more = xyz.size() / 3;
@@ -775,9 +1009,12 @@ Cloud points_in_balls(const Plan& plan, const Spill& spill, std::size_t t, const
 // adds, until no search of theirs leaves them. rv.verdict updated for them. Returns how far the
 // balls reach past the window [nodes]. Throws InputError, naming the stage, the tile and the
 // key, when that is more than kMaxWidenedTiles tiles, or after 8 gatherings. Adds to `sums`:
-// robust_spill_points_scanned (records read from other tiles' spills), robust_points_gathered,
-// robust_gatherings (one per gathering: more than one where the second look added balls).
-int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const GridWindow& w, const RobustOutlierOptions& ropt,
+// robust_spill_points_scanned (records read from other tiles' spills and their block copies),
+// robust_block_records_read, robust_block_copies, robust_block_records_copied and
+// robust_block_copy_mb (BlockCopies), robust_points_gathered, robust_gatherings (one per
+// gathering: more than one where the second look added balls), robust_gather_s and
+// robust_judge_again_s (their times).
+int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const GridWindow& w, const RobustOutlierOptions& ropt,
                     const Cloud& pts, RobustVerdicts& rv, int filter_halo_cells, std::map<std::string, double>& sums) {
   const Tiles& tiles = plan.tiles;
   const auto box = tiles.box_m(w);
@@ -818,15 +1055,19 @@ int judge_past_halo(const Plan& plan, const Spill& spill, std::size_t t, const G
     }
     widened = std::max(widened, static_cast<int>(cells));
     std::vector<std::uint32_t> at;
-    Cloud near = points_in_balls(plan, spill, t, w, pts, BallSet(balls), static_cast<std::size_t>(ropt.k) + 2, at, sums["robust_spill_points_scanned"]);
+    const auto t_gather = detail::Clock::now();
+    Cloud near = points_in_balls(plan, blocks, t, w, pts, BallSet(balls), static_cast<std::size_t>(ropt.k) + 2, at, sums);
+    sums["robust_gather_s"] += detail::seconds_since(t_gather);
     sums["robust_points_gathered"] += static_cast<double>(near.size());
     sums["robust_gatherings"] += 1.0;
+    const auto t_judge = detail::Clock::now();
     RobustOutlierOptions wo = ropt;
     wo.tile->complete_m = balls;
     wo.judge_only.clear();
     for (const std::uint32_t c : rv.past_halo) wo.judge_only.push_back(at[c]);
     RobustVerdicts wv;
     remove_robust_outliers(std::move(near), wo, &wv);
+    sums["robust_judge_again_s"] += detail::seconds_since(t_judge);
     if (wv.past_halo.empty()) {
       for (std::size_t a = 0; a < rv.past_halo.size(); ++a) rv.verdict[rv.past_halo[a]] = wv.verdict[wo.judge_only[a]];
       return widened;
@@ -862,7 +1103,7 @@ void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierO
 
 // Step 3 for tile t (the file comment of tiling.hpp): its spilled points through the filters and
 // reproject, the interior cut out, its kept points appended to `kept` (flushed).
-TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, Spill& kept, std::size_t t) {
+TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, BlockCopies& blocks, Spill& kept, std::size_t t) {
   const auto t0 = detail::Clock::now();
   const Tiles& tiles = plan.tiles;
   ReprojectOptions ro = config.grid.reproject;
@@ -911,7 +1152,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       f1.value = Cloud();  // replaced below: not held beside the window's points again
       pts = read_tile_points(plan, spill, t, flags);
       o.sums["robust_windows_widened"] += 1.0;
-      o.sums["robust_widened_cells"] += judge_past_halo(plan, spill, t, w, ropt, pts, rv, config.scale.filter_halo_cells, o.sums);
+      o.sums["robust_widened_cells"] += judge_past_halo(plan, blocks, t, w, ropt, pts, rv, config.scale.filter_halo_cells, o.sums);
       // The tile's points with the verdicts, and the removal counts of those (the work counts,
       // certified and exact_queries, are the first pass's).
       std::vector<bool> keep(pts.size());
@@ -2487,17 +2728,23 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     const auto per_row = static_cast<std::size_t>(tiles.tiles_c);
     const int far = tiles.far_rows();
     const bool drop = !config.cross_check.enabled;
+    BlockCopies blocks(spill, tiles, config.scale.block_copies);  // dropped as the spills would be, honest check or not
     auto remove_row = [&](int row) {
-      for (std::size_t u = 0; u < per_row; ++u) spill.remove(static_cast<std::size_t>(row) * per_row + u);
+      for (std::size_t u = 0; u < per_row; ++u) {
+        const std::size_t v = static_cast<std::size_t>(row) * per_row + u;
+        blocks.drop(v);
+        if (drop) spill.remove(v);
+      }
     };
     for (std::size_t t = 0; t < tiles.count(); ++t) {
       tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
-      merged.add(tiles, process_tile(config, plan, spill, kept, t));
+      merged.add(tiles, process_tile(config, plan, spill, blocks, kept, t));
       const int done_row = static_cast<int>(t / per_row);
-      if (drop && (t + 1) % per_row == 0 && done_row >= far) remove_row(done_row - far);
+      if ((t + 1) % per_row == 0 && done_row >= far) remove_row(done_row - far);
     }
-    for (int row = std::max(0, tiles.tiles_r - far); drop && row < tiles.tiles_r; ++row) remove_row(row);
+    for (int row = std::max(0, tiles.tiles_r - far); row < tiles.tiles_r; ++row) remove_row(row);
     merged.report(config, r.report);
+    r.report.figure("block_copies_peak_mb", static_cast<double>(blocks.peak_bytes()) / 1e6);
     return r;
   });
   return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
@@ -2569,6 +2816,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
                        std::to_string(pf.spill_bytes[t]) + " (a missing or changed spill file: make a new plan)");
     }
   }
+  BlockCopies blocks(spill, plan.tiles, config.scale.block_copies);  // this job's own, removed when it ends
   for (const std::size_t t : tiles) {
     std::error_code ec;
     // This attempt's temporary kept file goes however the job ends (renamed below on success).
@@ -2579,7 +2827,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
         fs::remove(f, e);
       }
     } temp{kept.file(t)};
-    TileOutput o = process_tile(config, plan, spill, kept, t);
+    TileOutput o = process_tile(config, plan, spill, blocks, kept, t);
     if (o.kept_bytes > 0) {
       const int fd = ::open(kept.file(t).c_str(), O_RDONLY);
       const bool synced = fd >= 0 && ::fsync(fd) == 0;

@@ -99,8 +99,15 @@ void expect_same_scene(const BuiltScene& a, const BuiltScene& b) {
   const auto ta = tiles_stage(a), tb = tiles_stage(b);
   EXPECT_EQ(ta.count_in, tb.count_in);
   EXPECT_EQ(ta.count_out, tb.count_out);
+  // Not the work of the second look's block copies: a process copies a tile the first time one
+  // of its own tiles gathers from it, so what it reads and copies depends on the tiles it ran.
+  const auto copies_work = [](const std::string& name) {
+    return name.find("block_cop") != std::string::npos || name.find("block_records") != std::string::npos ||
+           name == "sum_robust_spill_points_scanned";
+  };
   for (const auto& [name, v] : ta.figures) {
     if ((name.size() > 2 && name.compare(name.size() - 2, 2, "_s") == 0) || name.find("seconds") != std::string::npos) continue;
+    if (copies_work(name)) continue;
     bool found = false;
     for (const auto& [n2, v2] : tb.figures) {
       if (n2 == name) {

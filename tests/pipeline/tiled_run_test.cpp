@@ -391,14 +391,17 @@ TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
   EXPECT_GT(tiled.scene.layers.depth.valid_count(), 0U);
 }
 
-// A 1 m plane at 10 mm spacing (z = 0), less a disc of 20 cm radius about (hole_x_m, 0.5), plus
-// `extra` points.
-void write_plane_with_hole(const fs::path& file, double hole_x_m, const std::vector<std::array<double, 3>>& extra) {
+// A 1 m plane at 10 mm spacing (z = 0), less the discs `holes` (x, y, radius [m]), plus `extra`
+// points.
+void write_plane_with_holes(const fs::path& file, const std::vector<std::array<double, 3>>& holes,
+                            const std::vector<std::array<double, 3>>& extra) {
   std::vector<std::array<double, 3>> pts;
   for (int i = 0; i < 100; ++i) {
     for (int j = 0; j < 100; ++j) {
       const double x = 0.01 * i, y = 0.01 * j;
-      if (std::hypot(x - hole_x_m, y - 0.5) > 0.2) pts.push_back({x, y, 0.0});
+      if (std::all_of(holes.begin(), holes.end(), [&](const auto& h) { return std::hypot(x - h[0], y - h[1]) > h[2]; })) {
+        pts.push_back({x, y, 0.0});
+      }
     }
   }
   pts.insert(pts.end(), extra.begin(), extra.end());
@@ -407,6 +410,11 @@ void write_plane_with_hole(const fs::path& file, double hole_x_m, const std::vec
       << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
   out.precision(17);
   for (const auto& p : pts) out << p[0] << " " << p[1] << " " << p[2] << "\n";
+}
+
+// The plane with a hole of 20 cm radius about (hole_x_m, 0.5).
+void write_plane_with_hole(const fs::path& file, double hole_x_m, const std::vector<std::array<double, 3>>& extra) {
+  write_plane_with_holes(file, {{hole_x_m, 0.5, 0.2}}, extra);
 }
 
 // The robust test's k nearest neighbours of a point the tile decides may lie past the tile's
@@ -465,6 +473,79 @@ TEST(TiledRun, TheRobustTestJudgesAgainPointsWhoseSearchesLeaveTheWindow) {
   const BuiltScene unchecked = hc::pipeline::build_scene(tiled_config);
   EXPECT_GE(stage_figure(unchecked, "tiles", "sum_robust_windows_widened"), 1.0);
   EXPECT_EQ(differing_bits(in.scene.layers.depth, unchecked.scene.layers.depth), 0U);
+}
+
+// The second look reads a tile it has read before from that tile's block copy: only the blocks
+// the balls meet, the points put back in spill order. The scene of the test above with a second
+// group and cluster, the same layout turned a quarter: group 2 at the top edge of tile (3, 2)'s
+// interior (tile row 3, column 2; 40-cell tiles), cluster 2 just past that tile's window, in
+// tile (2, 2), which holds cluster 1 too. Tile (2, 1) gathers cluster 1 from tile (2, 2)'s
+// spill, copying it by block; tile (3, 2) then gathers cluster 2 from that copy. Oracle: the
+// in-core run, where group 2 stays (its tile alone would remove it).
+TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
+  const fs::path dir = hc::test::temp_dir("blocks");
+  const std::string yaml =
+      "input: {files: [plane.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
+      "filters: {outliers: {despike: false}}\ncross_check: {isolation_radius_spacings: 2}\n"
+      "scale: {tile_cells: 40, filter_halo_cells: 5}\n";
+  write_plane_with_hole(dir / "plane.ply", 0.4, {});
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "plane.yaml");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = dir;
+  const BuiltScene layout = hc::pipeline::build_scene(config);
+  const hc::GridGeometry g = layout.scene.layers.depth.geometry();
+  const double halo = stage_figure(layout, "tile_plan", "halo_cells");
+  ASSERT_EQ(g.rows, 200);
+  ASSERT_GT(halo, 3.0);
+  const double c = 0.495;  // the grid frame's origin in the file's frame (x and y)
+  const double x_b = g.x_of_col(79.5) + c, x_e = g.x_of_col(79.5 + halo) + c;
+  // Rows: the edge between tile rows 2 and 3 (node rows 119 and 120); tile row 3's window begins
+  // halo rows before it. s: the sign of y along the rows.
+  const double s = g.y_of_row(120.0) > g.y_of_row(119.0) ? 1.0 : -1.0;
+  const double y_b = g.y_of_row(119.5) + c, y_e = g.y_of_row(119.5 - halo) + c;
+  std::vector<std::array<double, 3>> extra;
+  for (int a = 0; a < 2; ++a)
+    for (int b = 0; b < 4; ++b) extra.push_back({x_b - 0.0015 - 0.0015 * a, 0.5 - 0.00225 + 0.0015 * b, 0.0});
+  for (int a = 0; a < 4; ++a)
+    for (int b = 0; b < 5; ++b) extra.push_back({x_e + 0.0005 + 0.0015 * a, 0.496 + 0.002 * b, 0.0});
+  for (int a = 0; a < 2; ++a)
+    for (int b = 0; b < 4; ++b) extra.push_back({0.45 - 0.00225 + 0.0015 * b, y_b + s * (0.0015 + 0.0015 * a), 0.0});
+  for (int a = 0; a < 4; ++a)
+    for (int b = 0; b < 5; ++b) extra.push_back({0.446 + 0.002 * b, y_e - s * (0.0005 + 0.0015 * a), 0.0});
+  // A second hole, of 10 cm radius about group 2, so that its other nearest points are cluster
+  // 2's, and its tile's first look (plane points 10 cm away) asks for balls about 10 cm across:
+  // they meet the blocks of tile (2, 2) within 10 cm of its edge, not those beyond.
+  write_plane_with_holes(dir / "plane.ply", {{0.4, 0.5, 0.2}, {0.45, y_b, 0.1}}, extra);
+  auto [tiled_config, in, tiled] = in_core_and_tiled(dir, yaml, 40);
+  ASSERT_EQ(in.scene.layers.depth.geometry(), g) << "the groups and the clusters left the layout as it was";
+  ASSERT_EQ(stage_figure(tiled, "tile_plan", "tiles"), 25.0);
+  // Group 2's node, in tile (3, 2): kept in core (without cluster 2 the in-core run removes it:
+  // checked by hand).
+  const int row2 = 120, col2 = static_cast<int>(std::lround(g.col_of_x(0.45 - c)));
+  ASSERT_GE(col2, 80);
+  ASSERT_LT(col2, 120);
+  ASSERT_TRUE(in.scene.layers.depth.valid(row2, col2));
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_windows_widened"), 2.0);
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_points_judged_past_halo"), 16.0);
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0);
+  // Cluster 2 (20 points) came from a copy, and only a small part of the copies was read (the
+  // balls, about 40 mm across, meet a few blocks of 5 nodes, 25 mm).
+  const double read = stage_figure(tiled, "tiles", "sum_robust_block_records_read");
+  EXPECT_GE(read, 20.0);
+  EXPECT_LT(read, 0.25 * stage_figure(tiled, "tiles", "sum_robust_block_records_copied"));
+  EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
+  EXPECT_TRUE(tiled.scene.layers.depth.valid(row2, col2));
+  EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "no spill or block copy is left behind";
+  // Oracle for the gathering itself: without copies (scale.block_copies: false) every gathering
+  // reads the whole spills; the same points are gathered, and the same points judged and removed.
+  tiled_config.scale.block_copies = false;
+  const BuiltScene whole = hc::pipeline::build_scene(tiled_config);
+  EXPECT_EQ(stage_figure(whole, "tiles", "sum_robust_block_copies"), -1.0) << "no copy made";
+  for (const char* name : {"sum_robust_points_gathered", "sum_robust_gatherings", "sum_points_judged_past_halo", "sum_removed_robust"}) {
+    EXPECT_EQ(stage_figure(tiled, "tiles", name), stage_figure(whole, "tiles", name)) << name;
+  }
+  EXPECT_GT(stage_figure(whole, "tiles", "sum_robust_spill_points_scanned"), stage_figure(tiled, "tiles", "sum_robust_spill_points_scanned"));
+  EXPECT_EQ(differing_bits(whole.scene.layers.depth, tiled.scene.layers.depth), 0U);
 }
 
 // A point the isolated-point test removes within its radius of the window's edge might be kept

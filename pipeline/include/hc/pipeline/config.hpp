@@ -101,6 +101,10 @@ struct ScaleConfig {
   int filter_halo_cells = 32;     ///< extra halo for the per-tile outlier filters and the honest check [cells], 0 to 4096
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
+  /// The robust test's second look copies a neighbouring tile's points by block the first time
+  /// it reads them, so later gatherings read only the blocks their balls meet (docs/scale.md);
+  /// false: every gathering reads the whole spill files (no extra scratch disk).
+  bool block_copies = true;
   double progress_interval_s = 1.0;  ///< least time between progress calls within a stage [s], 0 to 3600
   /// The tiled scene on disk (scene_io.hpp format 3, LodPyramid::open_stored): every layer in
   /// square tiles and every level of detail stored beside level 0, so that sessions read only the
