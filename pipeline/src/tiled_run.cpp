@@ -705,23 +705,29 @@ std::string attempt_tag();
 // by block. A spill keeps the input's order, and a scan in no order (the generated walls)
 // scatters the points of any part of a tile over its whole file, so each gathering read every
 // record of every tile its balls meet: at 10^8 points, about twelve whole spills per tile. Here
-// the first gathering that needs tile u reads u's spill as before and, in the same pass, copies
-// the records a gathering can take (the points u owns, node in its interior, outside removed far
-// clusters) by block of its interior (blocks of block_nodes() × block_nodes() nodes, at most
-// kSide × kSide), each record followed by its number in the spill. The copy is written in chunks
-// of one block each, in spill order within a block; a later gathering reads only the chunks of
-// the blocks its balls meet and puts the points back in spill order. Disk: the owned records of
-// the tiles a gathering needed (28 to 35 bytes a point), less those drop() removed; memory: one
-// 64 KiB buffer per block while a copy is made. The copies live in a folder of this object's
-// own in the spill's folder (tile jobs run side by side on shared storage), made with the first
-// copy, removed with its content when this goes, whatever happened.
+// the copy_from-th gathering of this process that needs tile u reads u's spill as before and, in
+// the same pass, copies the records a gathering can take (the points u owns, node in its
+// interior, outside removed far clusters) by block of its interior (blocks of block_nodes() ×
+// block_nodes() nodes, at most kSide × kSide), each record followed by its number in the spill.
+// The copy is written in chunks of one block each, in spill order within a block; a later
+// gathering reads only the chunks of the blocks its balls meet and puts the points back in spill
+// order. The in-process loop copies on the first read (every tile is read again by the tiles
+// around it); a tile job on the second (it runs few tiles, and a copy read by no other
+// gathering is only disk written). Disk: the owned records of the tiles copied (28 to 35 bytes a
+// point), less those drop() removed, per process; memory: one 64 KiB buffer per block while a
+// copy is made. The copies live in a folder of this object's own in the spill's folder (tile
+// jobs run side by side on shared storage), made with the first copy, removed with its content
+// when this goes, whatever happened (a process killed outright leaves it: `.blocks-*`). A copy
+// that cannot be written (a full disk) is removed and no more are made: the gatherings read
+// whole spills, as with scale.block_copies false (figure robust_block_copy_failures).
 class BlockCopies {
  public:
   static constexpr int kSide = 8;
 
   // on = false (scale.block_copies): every call reads u's whole spill, nothing is copied.
-  BlockCopies(const Spill& spill, const Tiles& tiles, bool on)
-      : spill_(spill), tiles_(tiles), node_(tiles.g), tile_(tiles.count()), on_(on) {}
+  // copy_from: the read of a tile (1: the first) that copies it.
+  BlockCopies(const Spill& spill, const Tiles& tiles, bool on, int copy_from)
+      : spill_(spill), tiles_(tiles), node_(tiles.g), tile_(tiles.count()), on_(on), copy_from_(copy_from) {}
   ~BlockCopies() {
     if (dir_.empty()) return;
     std::error_code ec;
@@ -734,18 +740,19 @@ class BlockCopies {
   int block_nodes() const { return std::max(1, (tiles_.size + kSide - 1) / kSide); }
 
   // fn(x y z [3], rgb [3] or nullptr, intensity, record number in u's spill) for u's records a
-  // gathering can take: every one, in spill order, when u's copy is made (the first call for u,
-  // or the first after drop(u)); after that those in the blocks `balls` meet, block by block
-  // (the caller tests each point and restores the order). `sums`: robust_spill_points_scanned
-  // grows by the records read (spill or copy), robust_block_records_read by those read from a
-  // copy, robust_block_copies, robust_block_records_copied and robust_block_copy_mb by a copy
-  // made. A spill of 2^32 records or more, or any with scale.block_copies false, is read whole
-  // every time, without a copy.
-  // @throws InputError naming the file when a copy cannot be written or read.
+  // gathering can take: every one, in spill order, while u has no copy (the call that makes it
+  // included); after that those in the blocks `balls` meets, block by block (the caller tests
+  // each point and restores the order). `sums`: robust_spill_points_scanned grows by the records
+  // read (spill or copy), robust_block_records_read by those read from a copy,
+  // robust_block_copies, robust_block_records_copied and robust_block_copy_mb by a copy made,
+  // robust_block_copy_failures by a copy that could not be written. A spill of 2^32 records or
+  // more is read whole every time, without a copy. @throws InputError naming the file when a
+  // copy made cannot be read back.
   template <class Fn>
   void scan(std::size_t u, const BallSet& balls, std::map<std::string, double>& sums, Fn&& fn) {
     Tile& tl = tile_[u];
     if (!tl.made) {
+      ++tl.reads;
       make(u, sums, fn);
       return;
     }
@@ -776,7 +783,7 @@ class BlockCopies {
           const char* c3 = lay.rgb ? q + 24 : nullptr;
           if (lay.intensity) std::memcpy(&v, q + 24 + (lay.rgb ? 3 : 0), 4);
           std::memcpy(&rec, q + crec - 4, 4);
-          fn(static_cast<const double*>(p), reinterpret_cast<const std::uint8_t*>(c3), v, rec);
+          fn(static_cast<const double*>(p), reinterpret_cast<const std::uint8_t*>(c3), v, std::uint64_t{rec});
         }
       }
     }
@@ -804,6 +811,7 @@ class BlockCopies {
   };
   struct Tile {
     bool made = false;
+    int reads = 0;                           // whole reads of its spill so far
     std::uint64_t bytes = 0;                 // the copy's size
     std::vector<std::vector<Chunk>> chunks;  // per block, in spill order
   };
@@ -814,11 +822,20 @@ class BlockCopies {
   }
   fs::path file(std::size_t u) const { return dir_ / ("blocks_" + std::to_string(u) + ".bin"); }
 
-  // The xy box [m] of the points NodeBinner puts on block b of tile u's interior.
+  // The xy box [m] of the points NodeBinner puts on block b of tile u's interior, each finite
+  // side a millionth of a cell wider: the binner rounds p·(1/cell) + c where the box rounds
+  // x0 + (c − ½)·cell, and a point one rounding step outside its block's box must still be read.
   std::array<double, 4> block_box(std::size_t u, std::size_t b) const {
     const auto in = tiles_.interior(u);
     const int bn = block_nodes(), br = static_cast<int>(b / kSide), bc = static_cast<int>(b % kSide);
-    return tiles_.box_m(in[0] + br * bn, std::min(in[1], in[0] + (br + 1) * bn), in[2] + bc * bn, std::min(in[3], in[2] + (bc + 1) * bn));
+    auto box = tiles_.box_m(in[0] + br * bn, std::min(in[1], in[0] + (br + 1) * bn), in[2] + bc * bn,
+                            std::min(in[3], in[2] + (bc + 1) * bn));
+    const double slack = 1e-6 * tiles_.g.cell_size_m;
+    box[0] -= slack;
+    box[1] += slack;
+    box[2] -= slack;
+    box[3] += slack;
+    return box;
   }
 
   static bool read_at(int fd, char* to, std::size_t bytes, std::uint64_t at) {
@@ -831,50 +848,47 @@ class BlockCopies {
     return true;
   }
 
-  // One pass over u's spill: fn for each record a gathering can take, each copied into its
-  // block's buffer, a full buffer appended to the copy as one chunk.
+  // One pass over u's spill: fn for each record a gathering can take, each copied (when this
+  // read copies) into its block's buffer, a full buffer appended to the copy as one chunk.
   template <class Fn>
   void make(std::size_t u, std::map<std::string, double>& sums, Fn& fn) {
     Tile& tl = tile_[u];
     const std::size_t n = spill_.records(u);
     sums["robust_spill_points_scanned"] += static_cast<double>(n);
-    const bool copy = on_ && n <= std::numeric_limits<std::uint32_t>::max();
+    bool copy = on_ && tl.reads >= copy_from_ && n <= std::numeric_limits<std::uint32_t>::max();
     if (copy && dir_.empty()) {
       const fs::path d = spill_.dir() / (".blocks-" + attempt_tag());
       std::error_code ec;
-      if (!fs::create_directory(d, ec) || ec) {
-        throw InputError("tiled run: cannot create the folder " + d.string() + " for the second look's block copies" +
-                         (ec ? ": " + ec.message() : std::string()) + " (is the disk full? scale.block_copies: false makes none)");
+      if (fs::create_directory(d, ec) && !ec) {
+        dir_ = d;
+      } else {
+        fail(sums);
+        copy = false;
       }
-      dir_ = d;
     }
     const std::size_t crec = copy_record_bytes();
     const Layout& lay = spill_.layout();
     int fd = -1;
     if (copy) {
       fd = ::open(file(u).c_str(), O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
-      if (fd < 0) throw InputError("tiled run: cannot write the block copy " + file(u).string() + ": " + std::strerror(errno));
-    }
-    const struct Closer {
-      int fd;
-      ~Closer() {
-        if (fd >= 0) ::close(fd);
+      if (fd < 0) {
+        fail(sums);
+        copy = false;
       }
-    } closer{fd};
+    }
     std::vector<std::vector<Chunk>> chunks(static_cast<std::size_t>(kSide * kSide));
     std::vector<std::vector<char>> buf(chunks.size());
     std::uint64_t end = 0;  // records in the copy
+    bool written = true;    // every chunk so far
     const auto flush = [&](std::size_t b) {
       std::vector<char>& x = buf[b];
+      if (!written) x.clear();
       if (x.empty()) return;
       std::size_t put = 0;
-      while (put < x.size()) {
+      while (written && put < x.size()) {
         const ssize_t w = ::pwrite(fd, x.data() + put, x.size() - put, static_cast<off_t>(end * crec + put));
-        if (w <= 0) {
-          throw InputError("tiled run: cannot write the block copy " + file(u).string() + ": " + std::strerror(errno) +
-                           " (is the disk full? scale.block_copies: false makes none)");
-        }
-        put += static_cast<std::size_t>(w);
+        if (w <= 0) written = false;
+        put += w > 0 ? static_cast<std::size_t>(w) : 0;
       }
       chunks[b].push_back({end, x.size() / crec});
       end += x.size() / crec;
@@ -882,9 +896,9 @@ class BlockCopies {
     };
     const auto in = tiles_.interior(u);
     const int bn = block_nodes();
-    std::uint32_t rec = 0;
+    std::uint64_t rec = 0;
     spill_.scan(u, [&](std::uint8_t flag, const double* p, const std::uint8_t* c3, float v) {
-      const std::uint32_t i = rec++;
+      const std::uint64_t i = rec++;
       if ((flag & kFarFlag) != 0) return;
       const int r = node_.row(p), c = node_.col(p);
       if (r < in[0] || r >= in[1] || c < in[2] || c >= in[3]) return;
@@ -898,11 +912,20 @@ class BlockCopies {
       std::memcpy(q, p, 24);
       if (lay.rgb) std::memcpy(q + 24, c3, 3);
       if (lay.intensity) std::memcpy(q + 24 + (lay.rgb ? 3 : 0), &v, 4);
-      std::memcpy(q + crec - 4, &i, 4);
+      const auto i32 = static_cast<std::uint32_t>(i);
+      std::memcpy(q + crec - 4, &i32, 4);
       if (x.size() >= kBlockBuffer) flush(b);
     });
     if (!copy) return;
     for (std::size_t b = 0; b < buf.size(); ++b) flush(b);
+    // A write the disk refuses may show only at close (NFS, quotas).
+    if (::close(fd) != 0) written = false;
+    if (!written) {
+      std::error_code ec;
+      fs::remove(file(u), ec);
+      fail(sums);
+      return;
+    }
     tl.chunks = std::move(chunks);
     tl.made = true;
     tl.bytes = end * crec;
@@ -910,7 +933,13 @@ class BlockCopies {
     peak_ = std::max(peak_, on_disk_);
     sums["robust_block_copies"] += 1.0;
     sums["robust_block_records_copied"] += static_cast<double>(end);
-    sums["robust_block_copy_mb"] += static_cast<double>(end * crec) / 1e6;
+    sums["robust_block_copy_mb"] += static_cast<double>(tl.bytes) / 1e6;
+  }
+
+  // A copy (or its folder) could not be written: no more copies.
+  void fail(std::map<std::string, double>& sums) {
+    on_ = false;
+    sums["robust_block_copy_failures"] += 1.0;
   }
 
   const Spill& spill_;
@@ -918,6 +947,7 @@ class BlockCopies {
   NodeBinner node_;
   std::vector<Tile> tile_;
   bool on_;
+  int copy_from_;
   fs::path dir_;
   std::uint64_t on_disk_ = 0, peak_ = 0;  // bytes
 };
@@ -946,19 +976,23 @@ Cloud points_in_balls(const Plan& plan, BlockCopies& blocks, std::size_t t, cons
   const double lo_x[3] = {bb[0], bb[2], 0.0}, hi_x[3] = {bb[1], bb[3], 0.0};
   const int tr0 = node.row(lo_x) / tiles.size, tr1 = node.row(hi_x) / tiles.size;
   const int tc0 = node.col(lo_x) / tiles.size, tc1 = node.col(hi_x) / tiles.size;
-  std::vector<std::pair<std::uint32_t, std::uint32_t>> order;  // (record in u's spill, taken) of tile u's points
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> order;  // (record in u's spill, taken) of tile u's points
   for (int tr = tr0; tr <= tr1; ++tr) {
     for (int tc = tc0; tc <= tc1; ++tc) {
       const std::size_t u = static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc);
       if (u == t) continue;  // its interior lies inside w
       const auto in = tiles.interior(u);
-      if (!balls.meets(tiles.box_m(in[0], in[1], in[2], in[3]))) continue;
+      // The interior's box a millionth of a cell wider (BlockCopies::block_box says why).
+      auto box = tiles.box_m(in[0], in[1], in[2], in[3]);
+      const double slack = 1e-6 * tiles.g.cell_size_m;
+      box = {box[0] - slack, box[1] + slack, box[2] - slack, box[3] + slack};
+      if (!balls.meets(box)) continue;
       // u's points taken here, then appended in spill order (a copy's blocks give them by block).
       std::vector<double> u_xyz;
       std::vector<std::uint8_t> u_rgb;
       std::vector<float> u_intensity;
       order.clear();
-      blocks.scan(u, balls, sums, [&](const double* p, const std::uint8_t* c3, float v, std::uint32_t rec) {
+      blocks.scan(u, balls, sums, [&](const double* p, const std::uint8_t* c3, float v, std::uint64_t rec) {
         if (!balls.contains(p)) return;
         const int r = node.row(p), col = node.col(p);
         if (r >= w.row0 && r < w.row0 + w.rows && col >= w.col0 && col < w.col0 + w.cols) return;
@@ -2728,7 +2762,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     const auto per_row = static_cast<std::size_t>(tiles.tiles_c);
     const int far = tiles.far_rows();
     const bool drop = !config.cross_check.enabled;
-    BlockCopies blocks(spill, tiles, config.scale.block_copies);  // dropped as the spills would be, honest check or not
+    BlockCopies blocks(spill, tiles, config.scale.block_copies, 1);  // dropped as the spills would be, honest check or not
     auto remove_row = [&](int row) {
       for (std::size_t u = 0; u < per_row; ++u) {
         const std::size_t v = static_cast<std::size_t>(row) * per_row + u;
@@ -2816,8 +2850,15 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
                        std::to_string(pf.spill_bytes[t]) + " (a missing or changed spill file: make a new plan)");
     }
   }
-  BlockCopies blocks(spill, plan.tiles, config.scale.block_copies);  // this job's own, removed when it ends
+  // This job's own copies, made on a tile's second read, dropped as its tiles (in order) pass the
+  // rows no later tile of the job reads, removed when it ends.
+  BlockCopies blocks(spill, plan.tiles, config.scale.block_copies, 2);
+  const auto per_row = static_cast<std::size_t>(plan.tiles.tiles_c);
+  const auto far = static_cast<std::size_t>(plan.tiles.far_rows());
+  std::size_t kept_from = 0;  // copies of tiles before this one are gone
   for (const std::size_t t : tiles) {
+    const std::size_t row = t / per_row;
+    for (; row > far && kept_from < (row - far) * per_row; ++kept_from) blocks.drop(kept_from);
     std::error_code ec;
     // This attempt's temporary kept file goes however the job ends (renamed below on success).
     struct RemoveTemp {

@@ -499,22 +499,22 @@ TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
   ASSERT_GT(halo, 3.0);
   const double c = 0.495;  // the grid frame's origin in the file's frame (x and y)
   const double x_b = g.x_of_col(79.5) + c, x_e = g.x_of_col(79.5 + halo) + c;
-  // Rows: the edge between tile rows 2 and 3 (node rows 119 and 120); tile row 3's window begins
-  // halo rows before it. s: the sign of y along the rows.
-  const double s = g.y_of_row(120.0) > g.y_of_row(119.0) ? 1.0 : -1.0;
+  // Rows: the edge between tile rows 2 and 3 (node rows 119 and 120; y grows with the row);
+  // tile row 3's window begins halo rows before it.
   const double y_b = g.y_of_row(119.5) + c, y_e = g.y_of_row(119.5 - halo) + c;
+  ASSERT_GT(y_e + 0.1, y_b) << "the halo is less than 10 cm";
   std::vector<std::array<double, 3>> extra;
   for (int a = 0; a < 2; ++a)
     for (int b = 0; b < 4; ++b) extra.push_back({x_b - 0.0015 - 0.0015 * a, 0.5 - 0.00225 + 0.0015 * b, 0.0});
   for (int a = 0; a < 4; ++a)
     for (int b = 0; b < 5; ++b) extra.push_back({x_e + 0.0005 + 0.0015 * a, 0.496 + 0.002 * b, 0.0});
   for (int a = 0; a < 2; ++a)
-    for (int b = 0; b < 4; ++b) extra.push_back({0.45 - 0.00225 + 0.0015 * b, y_b + s * (0.0015 + 0.0015 * a), 0.0});
+    for (int b = 0; b < 4; ++b) extra.push_back({0.45 - 0.00225 + 0.0015 * b, y_b + 0.0015 + 0.0015 * a, 0.0});
   for (int a = 0; a < 4; ++a)
-    for (int b = 0; b < 5; ++b) extra.push_back({0.446 + 0.002 * b, y_e - s * (0.0005 + 0.0015 * a), 0.0});
+    for (int b = 0; b < 5; ++b) extra.push_back({0.446 + 0.002 * b, y_e - 0.0005 - 0.0015 * a, 0.0});
   // A second hole, of 10 cm radius about group 2, so that its other nearest points are cluster
-  // 2's, and its tile's first look (plane points 10 cm away) asks for balls about 10 cm across:
-  // they meet the blocks of tile (2, 2) within 10 cm of its edge, not those beyond.
+  // 2's, and its tile's first look (plane points 10 cm away) asks for balls of about 10 cm
+  // radius: they meet the blocks of tile (2, 2) within 10 cm of its edge, not those beyond.
   write_plane_with_holes(dir / "plane.ply", {{0.4, 0.5, 0.2}, {0.45, y_b, 0.1}}, extra);
   auto [tiled_config, in, tiled] = in_core_and_tiled(dir, yaml, 40);
   ASSERT_EQ(in.scene.layers.depth.geometry(), g) << "the groups and the clusters left the layout as it was";
@@ -528,8 +528,9 @@ TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
   EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_windows_widened"), 2.0);
   EXPECT_GE(stage_figure(tiled, "tiles", "sum_points_judged_past_halo"), 16.0);
   EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0);
-  // Cluster 2 (20 points) came from a copy, and only a small part of the copies was read (the
-  // balls, about 40 mm across, meet a few blocks of 5 nodes, 25 mm).
+  // Cluster 2 (20 points) came from a copy, and only a small part of the copies was read (group
+  // 2's balls, about 10 cm in radius, meet the blocks of 5 nodes, 25 mm, near tile (2, 2)'s
+  // edge).
   const double read = stage_figure(tiled, "tiles", "sum_robust_block_records_read");
   EXPECT_GE(read, 20.0);
   EXPECT_LT(read, 0.25 * stage_figure(tiled, "tiles", "sum_robust_block_records_copied"));
