@@ -18,8 +18,9 @@ namespace hc::pipeline::detail {
 /// 256 cells, in each cell its xy box meets of a coarse grid of 16 × 16 cells over the same box
 /// (the large balls: a stray's own search, and its neighbours'). A query reads its cell's list
 /// and its coarse cell's. A ball inside another is left out. Memory: at most 256 entries per
-/// ball. Non-finite balls are refused by the caller. (Until 2026-11-24 the large balls were in one list every query read: at 10^8
-/// points, hundreds of them for each of the 274 M records a tiled run's second look read.)
+/// ball. Non-finite balls are refused by the caller. (Until 2026-11-24 the large balls were in
+/// one list every query read: at 10^8 points, hundreds of them for each of the 274 M records a
+/// tiled run's second look read.)
 class BallSet {
  public:
   using Ball = std::array<double, 4>;
@@ -39,7 +40,8 @@ class BallSet {
     // ball asked by several strays, are often inside another.
     std::vector<std::uint32_t> order(balls.size());
     for (std::uint32_t i = 0; i < order.size(); ++i) order[i] = i;
-    std::stable_sort(order.begin(), order.end(), [&](std::uint32_t x, std::uint32_t y) { return balls[x][3] > balls[y][3]; });
+    std::stable_sort(order.begin(), order.end(),
+                     [&](std::uint32_t x, std::uint32_t y) { return balls[x][3] > balls[y][3]; });
     for (const std::uint32_t o : order) {
       const Ball& b = balls[o];
       // A ball that holds b holds its centre in its xy box: it is listed in the centre's cells.
@@ -50,8 +52,12 @@ class BallSet {
         if (dx == 0.0 && dy == 0.0 && dz == 0.0) return b[3] <= a[3];  // the same centre: exact
         return b[3] + std::sqrt(dx * dx + dy * dy + dz * dz) <= a[3] * (1.0 - 1e-12);
       };
-      if (std::any_of(at_[index(rc, cc)].begin(), at_[index(rc, cc)].end(), inside)) continue;
-      if (!coarse_.empty() && std::any_of(coarse_[coarse_index(rc, cc)].begin(), coarse_[coarse_index(rc, cc)].end(), inside)) continue;
+      const auto& fine = at_[index(rc, cc)];
+      if (std::any_of(fine.begin(), fine.end(), inside)) continue;
+      if (!coarse_.empty()) {
+        const auto& large = coarse_[coarse_index(rc, cc)];
+        if (std::any_of(large.begin(), large.end(), inside)) continue;
+      }
       const auto i = static_cast<std::uint32_t>(balls_.size());
       balls_.push_back(b);
       const int r0 = cell_of(b[1] - b[3], 2), r1 = cell_of(b[1] + b[3], 2);
