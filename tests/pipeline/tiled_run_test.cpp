@@ -417,6 +417,30 @@ void write_plane_with_hole(const fs::path& file, double hole_x_m, const std::vec
   write_plane_with_holes(file, {{hole_x_m, 0.5, 0.2}}, extra);
 }
 
+// The config of the plane-with-holes tests (40-cell tiles, a 5-cell filter halo) and the layout
+// its tiled run gives the plane with one hole and nothing else: the grid and the tiles' halo
+// [cells]. The groups and clusters the tests add lie inside the plane's box, so the layout stays.
+struct HoleLayout {
+  std::string yaml;
+  hc::GridGeometry g;
+  double halo = 0.0;
+};
+HoleLayout hole_plane_layout(const fs::path& dir) {
+  HoleLayout l;
+  l.yaml =
+      "input: {files: [plane.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
+      "filters: {outliers: {despike: false}}\ncross_check: {isolation_radius_spacings: 2}\n"
+      "scale: {tile_cells: 40, filter_halo_cells: 5}\n";
+  write_plane_with_hole(dir / "plane.ply", 0.4, {});
+  RunConfig config = hc::pipeline::parse_run_config(l.yaml, dir / "plane.yaml");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = dir;
+  const BuiltScene layout = hc::pipeline::build_scene(config);
+  l.g = layout.scene.layers.depth.geometry();
+  l.halo = stage_figure(layout, "tile_plan", "halo_cells");
+  return l;
+}
+
 // The robust test's k nearest neighbours of a point the tile decides may lie past the tile's
 // window. Here a group of 8 points sits at the edge of a tile's interior in a hole of the plane,
 // and its other nearest points, a cluster of 20, lie just past that tile's window (in the next
@@ -427,18 +451,8 @@ void write_plane_with_hole(const fs::path& file, double hole_x_m, const std::vec
 // gathered from the next tiles' spills, and the grid equals the in-core one bit for bit.
 TEST(TiledRun, TheRobustTestJudgesAgainPointsWhoseSearchesLeaveTheWindow) {
   const fs::path dir = hc::test::temp_dir("widen");
-  const std::string yaml =
-      "input: {files: [plane.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
-      "filters: {outliers: {despike: false}}\ncross_check: {isolation_radius_spacings: 2}\n"
-      "scale: {tile_cells: 40, filter_halo_cells: 5}\n";
   // The layout (grid and halo) from the plane alone: the group and the cluster lie inside its box.
-  write_plane_with_hole(dir / "plane.ply", 0.4, {});
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "plane.yaml");
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.scratch = dir;
-  const BuiltScene layout = hc::pipeline::build_scene(config);
-  const hc::GridGeometry g = layout.scene.layers.depth.geometry();
-  const double halo = stage_figure(layout, "tile_plan", "halo_cells");
+  const auto [yaml, g, halo] = hole_plane_layout(dir);
   ASSERT_EQ(g.cols, 200);
   ASSERT_GT(halo, 3.0);
   // x_b: the edge between the interiors of tile columns 1 and 2 (node columns 79 and 80); the
@@ -484,17 +498,7 @@ TEST(TiledRun, TheRobustTestJudgesAgainPointsWhoseSearchesLeaveTheWindow) {
 // in-core run, where group 2 stays (its tile alone would remove it).
 TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
   const fs::path dir = hc::test::temp_dir("blocks");
-  const std::string yaml =
-      "input: {files: [plane.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
-      "filters: {outliers: {despike: false}}\ncross_check: {isolation_radius_spacings: 2}\n"
-      "scale: {tile_cells: 40, filter_halo_cells: 5}\n";
-  write_plane_with_hole(dir / "plane.ply", 0.4, {});
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "plane.yaml");
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.scratch = dir;
-  const BuiltScene layout = hc::pipeline::build_scene(config);
-  const hc::GridGeometry g = layout.scene.layers.depth.geometry();
-  const double halo = stage_figure(layout, "tile_plan", "halo_cells");
+  const auto [yaml, g, halo] = hole_plane_layout(dir);
   ASSERT_EQ(g.rows, 200);
   ASSERT_GT(halo, 3.0);
   const double c = 0.495;  // the grid frame's origin in the file's frame (x and y)
