@@ -107,7 +107,23 @@ class ScratchDir {
 // What a spilled point carries.
 struct Layout {
   bool rgb = false, intensity = false;
-  std::size_t bytes() const { return 1 + 24 + (rgb ? 3 : 0) + (intensity ? 4 : 0); }
+  // A point's bytes: x y z double, [r g b], [intensity float].
+  std::size_t point_bytes() const { return 24 + (rgb ? 3 : 0) + (intensity ? 4 : 0); }
+  // A spill record's: a flag byte, then the point's.
+  std::size_t bytes() const { return 1 + point_bytes(); }
+  // Writes a point's bytes at q (rgb3 read only with rgb).
+  void put(char* q, const double* p, const std::uint8_t* rgb3, float v) const {
+    std::memcpy(q, p, 24);
+    if (rgb) std::memcpy(q + 24, rgb3, 3);
+    if (intensity) std::memcpy(q + 24 + (rgb ? 3 : 0), &v, 4);
+  }
+  // Reads a point's bytes at q: x y z into p, the intensity into v (untouched without it);
+  // returns the r g b bytes' address, nullptr without colour.
+  const std::uint8_t* get(const char* q, double* p, float& v) const {
+    std::memcpy(p, q, 24);
+    if (intensity) std::memcpy(&v, q + 24 + (rgb ? 3 : 0), 4);
+    return rgb ? reinterpret_cast<const std::uint8_t*>(q + 24) : nullptr;
+  }
 };
 
 // Spill files, one per tile, appended through per-tile buffers (records of Layout::bytes():
@@ -145,13 +161,7 @@ class Spill {
     b.resize(at + layout_.bytes());
     char* q = b.data() + at;
     q[0] = static_cast<char>(flag);
-    std::memcpy(q + 1, p, 24);
-    q += 25;
-    if (layout_.rgb) {
-      std::memcpy(q, rgb, 3);
-      q += 3;
-    }
-    if (layout_.intensity) std::memcpy(q, &intensity, 4);
+    layout_.put(q + 1, p, rgb, intensity);
     buffered_ += layout_.bytes();
     if (b.size() >= kTileBuffer) flush(t);
     if (buffered_ >= kTotalBuffer) flush_all();
@@ -258,10 +268,8 @@ class Spill {
       if (std::fread(raw.data(), 1, m * rec, f) != m * rec) throw InputError("tiled run: cannot read the spill file " + file(t).string());
       for (std::size_t i = 0; i < m; ++i) {
         const char* q = raw.data() + i * rec;
-        std::memcpy(p, q + 1, 24);
-        const char* rgb = layout_.rgb ? q + 25 : nullptr;
-        if (layout_.intensity) std::memcpy(&intensity, q + 25 + (layout_.rgb ? 3 : 0), 4);
-        fn(static_cast<std::uint8_t>(q[0]), static_cast<const double*>(p), reinterpret_cast<const std::uint8_t*>(rgb), intensity);
+        const std::uint8_t* rgb = layout_.get(q + 1, p, intensity);
+        fn(static_cast<std::uint8_t>(q[0]), static_cast<const double*>(p), rgb, intensity);
       }
       done += m;
     }
@@ -333,6 +341,14 @@ struct Tiles {
   }
   // The same box for a window's nodes.
   std::array<double, 4> box_m(const GridWindow& w) const { return box_m(w.row0, w.row0 + w.rows, w.col0, w.col0 + w.cols); }
+  // box_m with each finite side a millionth of a cell wider: the box of nodes whose points a
+  // reader must not miss. NodeBinner rounds p·(1/cell) + c where box_m rounds x0 + (c − ½)·cell,
+  // so a point may lie one rounding step outside its nodes' box_m.
+  std::array<double, 4> reading_box_m(int r0, int r1, int c0, int c1) const {
+    const auto b = box_m(r0, r1, c0, c1);
+    const double slack = 1e-6 * g.cell_size_m;
+    return {b[0] - slack, b[1] + slack, b[2] - slack, b[3] + slack};
+  }
   // How many rows (or columns) of tiles away process_tile may read another tile's spill: up to
   // kMaxWidenedTiles tiles past its window (judge_past_halo).
   int far_rows() const { return kMaxWidenedTiles + (halo + size - 1) / size; }
@@ -779,11 +795,9 @@ class BlockCopies {
         }
         for (std::size_t i = 0; i < ch.records; ++i) {
           const char* q = raw.data() + i * crec;
-          std::memcpy(p, q, 24);
-          const char* c3 = lay.rgb ? q + 24 : nullptr;
-          if (lay.intensity) std::memcpy(&v, q + 24 + (lay.rgb ? 3 : 0), 4);
+          const std::uint8_t* c3 = lay.get(q, p, v);
           std::memcpy(&rec, q + crec - 4, 4);
-          fn(static_cast<const double*>(p), reinterpret_cast<const std::uint8_t*>(c3), v, std::uint64_t{rec});
+          fn(static_cast<const double*>(p), c3, v, std::uint64_t{rec});
         }
       }
     }
@@ -816,26 +830,16 @@ class BlockCopies {
     std::vector<std::vector<Chunk>> chunks;  // per block, in spill order
   };
 
-  std::size_t copy_record_bytes() const {
-    const Layout& lay = spill_.layout();
-    return 24 + (lay.rgb ? 3 : 0) + (lay.intensity ? 4 : 0) + 4;
-  }
+  // A copy's record: the point's bytes, then its record number in the spill (uint32).
+  std::size_t copy_record_bytes() const { return spill_.layout().point_bytes() + 4; }
   fs::path file(std::size_t u) const { return dir_ / ("blocks_" + std::to_string(u) + ".bin"); }
 
-  // The xy box [m] of the points NodeBinner puts on block b of tile u's interior, each finite
-  // side a millionth of a cell wider: the binner rounds p·(1/cell) + c where the box rounds
-  // x0 + (c − ½)·cell, and a point one rounding step outside its block's box must still be read.
+  // The xy box [m] of the points NodeBinner puts on block b of tile u's interior (Tiles::reading_box_m).
   std::array<double, 4> block_box(std::size_t u, std::size_t b) const {
     const auto in = tiles_.interior(u);
     const int bn = block_nodes(), br = static_cast<int>(b / kSide), bc = static_cast<int>(b % kSide);
-    auto box = tiles_.box_m(in[0] + br * bn, std::min(in[1], in[0] + (br + 1) * bn), in[2] + bc * bn,
-                            std::min(in[3], in[2] + (bc + 1) * bn));
-    const double slack = 1e-6 * tiles_.g.cell_size_m;
-    box[0] -= slack;
-    box[1] += slack;
-    box[2] -= slack;
-    box[3] += slack;
-    return box;
+    return tiles_.reading_box_m(in[0] + br * bn, std::min(in[1], in[0] + (br + 1) * bn), in[2] + bc * bn,
+                                std::min(in[3], in[2] + (bc + 1) * bn));
   }
 
   static bool read_at(int fd, char* to, std::size_t bytes, std::uint64_t at) {
@@ -909,9 +913,7 @@ class BlockCopies {
       const std::size_t at = x.size();
       x.resize(at + crec);
       char* q = x.data() + at;
-      std::memcpy(q, p, 24);
-      if (lay.rgb) std::memcpy(q + 24, c3, 3);
-      if (lay.intensity) std::memcpy(q + 24 + (lay.rgb ? 3 : 0), &v, 4);
+      lay.put(q, p, c3, v);
       const auto i32 = static_cast<std::uint32_t>(i);
       std::memcpy(q + crec - 4, &i32, 4);
       if (x.size() >= kBlockBuffer) flush(b);
@@ -982,11 +984,7 @@ Cloud points_in_balls(const Plan& plan, BlockCopies& blocks, std::size_t t, cons
       const std::size_t u = static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc);
       if (u == t) continue;  // its interior lies inside w
       const auto in = tiles.interior(u);
-      // The interior's box a millionth of a cell wider (BlockCopies::block_box says why).
-      auto box = tiles.box_m(in[0], in[1], in[2], in[3]);
-      const double slack = 1e-6 * tiles.g.cell_size_m;
-      box = {box[0] - slack, box[1] + slack, box[2] - slack, box[3] + slack};
-      if (!balls.meets(box)) continue;
+      if (!balls.meets(tiles.reading_box_m(in[0], in[1], in[2], in[3]))) continue;
       // u's points taken here, then appended in spill order (a copy's blocks give them by block).
       std::vector<double> u_xyz;
       std::vector<std::uint8_t> u_rgb;
