@@ -2884,6 +2884,66 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
   }
 }
 
+namespace {
+
+// What tile jobs killed outright (SIGKILL, a lost node, the OOM killer) leave in the plan's
+// folder, removed by a merge that found every tile's result: their block copies (`.blocks-<tag>/`
+// folders), temporary kept files (`.kept-job-<tag>-*`) and temporary results
+// (`.<file>.tmp-<tag>`), where <tag> is attempt_tag(). The plan's folder holds only what
+// hapticloud wrote (tile-plan takes a new or empty folder), and these names are made nowhere
+// else; a folder or file of any other name is left alone. An attempt still running (a duplicate
+// of a finished tile) loses its scratch and fails, which loses nothing: its tile has a result.
+// Figures into `report` (only when something was removed): stale_scratch_removed (entries),
+// stale_scratch_mb (their bytes / 10^6); a note names up to five of them.
+void remove_stale_scratch(const fs::path& dir, StageReport& report) {
+  std::vector<fs::path> stale;
+  std::error_code ec;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    std::error_code kind;
+    const bool is_dir = it->is_directory(kind) && !it->is_symlink(kind);
+    const bool is_file = it->is_regular_file(kind);
+    if ((is_dir && name.rfind(".blocks-", 0) == 0) ||
+        (is_file && (name.rfind(".kept-job-", 0) == 0 || (name.size() > 1 && name[0] == '.' && name.find(".tmp-") != std::string::npos))))
+      stale.push_back(it->path());
+  }
+  if (stale.empty()) return;
+  std::sort(stale.begin(), stale.end());
+  std::uintmax_t bytes = 0;
+  std::size_t removed = 0;
+  std::string names;
+  for (const fs::path& p : stale) {
+    std::uintmax_t b = 0;
+    std::error_code size_ec;
+    if (fs::is_directory(p, size_ec)) {
+      for (fs::recursive_directory_iterator it(p, size_ec), end; !size_ec && it != end; it.increment(size_ec)) {
+        std::error_code file_ec;
+        if (it->is_regular_file(file_ec)) {
+          const std::uintmax_t f = it->file_size(file_ec);
+          if (!file_ec) b += f;
+        }
+      }
+    } else {
+      b = fs::file_size(p, size_ec);
+      if (size_ec) b = 0;
+    }
+    ec.clear();
+    if (fs::remove_all(p, ec) == static_cast<std::uintmax_t>(-1) || ec) {
+      report.notes.push_back("could not remove " + p.string() + ", left by a killed tile job: " + ec.message());
+      continue;
+    }
+    bytes += b;
+    if (removed++ < 5) names += (names.empty() ? "" : ", ") + p.filename().string();
+  }
+  if (removed == 0) return;
+  report.figure("stale_scratch_removed", static_cast<double>(removed));
+  report.figure("stale_scratch_mb", static_cast<double>(bytes) / 1e6);
+  report.notes.push_back("removed " + std::to_string(removed) + " entries (" + format_number(static_cast<double>(bytes) / 1e6) +
+                         " MB) that killed tile jobs left in " + dir.string() + ": " + names + (removed > 5 ? ", ..." : ""));
+}
+
+}  // namespace
+
 MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progress) {
   const auto t_start = detail::Clock::now();
   PlanFile pf = read_plan_file(plan_file);
@@ -2924,6 +2984,8 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
     }
     merged.report(config, r.report);
     r.report.figure("tile_job_seconds", merged.job_seconds);
+    // Every tile has its result: the scratch of attempts that were killed is of no use to anyone.
+    remove_stale_scratch(pf.dir, r.report);
     r.report.notes.push_back("merged from the results of " + std::to_string(plan.tiles.count()) + " tile jobs (hapticloud tile-job) in " +
                              pf.dir.string());
     return r;
