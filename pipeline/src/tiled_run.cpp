@@ -46,6 +46,7 @@
 
 #include <nlohmann/json.hpp>
 #include <fcntl.h>
+#include <signal.h>
 #include <unistd.h>
 
 namespace hc::pipeline {
@@ -2868,6 +2869,16 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
     } temp{kept.file(t)};
     TileOutput o = process_tile(config, plan, spill, blocks, kept, t);
     if (o.kept_bytes > 0) {
+      // The file must hold every kept record: a merge that found this tile done may have removed
+      // it as a killed attempt's (another host's), and a later flush made it again with only the
+      // rest. Such a file is not moved over the tile's good one.
+      const std::uintmax_t on_disk = fs::file_size(kept.file(t), ec);
+      if (ec || on_disk != o.kept_bytes) {
+        throw InputError("tile-job: " + kept.file(t).string() + " holds " + (ec ? std::string("nothing") : std::to_string(on_disk) + " bytes") +
+                         ", the tile kept " + std::to_string(o.kept_bytes) +
+                         " (removed or changed by another process, such as a tile-merge that found tile " + std::to_string(t) +
+                         " done): not moved to kept_" + std::to_string(t) + ".bin");
+      }
       const int fd = ::open(kept.file(t).c_str(), O_RDONLY);
       const bool synced = fd >= 0 && ::fsync(fd) == 0;
       if (fd >= 0) ::close(fd);
@@ -2886,26 +2897,82 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
 
 namespace {
 
+// The host and process of an attempt_tag() at the start of `s` ("<host>-<pid>-<16 hex digits>",
+// the host with every character but letters and digits made '_'); `rest` gets what follows it.
+// false when `s` does not start with such a tag.
+bool parse_attempt_tag(const std::string& s, std::string& host, long& pid, std::string& rest) {
+  const std::size_t d1 = s.find('-');
+  if (d1 == std::string::npos) return false;
+  const std::size_t d2 = s.find('-', d1 + 1);
+  if (d2 == std::string::npos || d2 == d1 + 1 || d2 - d1 - 1 > 10 || s.size() < d2 + 17) return false;
+  host = s.substr(0, d1);
+  for (const char c : host)
+    if (!std::isalnum(static_cast<unsigned char>(c)) && c != '_') return false;
+  for (std::size_t i = d1 + 1; i < d2; ++i)
+    if (!std::isdigit(static_cast<unsigned char>(s[i]))) return false;
+  for (std::size_t i = d2 + 1; i < d2 + 17; ++i)
+    if (!std::isxdigit(static_cast<unsigned char>(s[i]))) return false;
+  pid = std::stol(s.substr(d1 + 1, d2 - d1 - 1));
+  rest = s.substr(d2 + 17);
+  return true;
+}
+
+bool all_digits(const std::string& s) {
+  return !s.empty() && std::all_of(s.begin(), s.end(), [](char c) { return std::isdigit(static_cast<unsigned char>(c)) != 0; });
+}
+
 // What tile jobs killed outright (SIGKILL, a lost node, the OOM killer) leave in the plan's
-// folder, removed by a merge that found every tile's result: their block copies (`.blocks-<tag>/`
-// folders), temporary kept files (`.kept-job-<tag>-*`) and temporary results
-// (`.<file>.tmp-<tag>`), where <tag> is attempt_tag(). The plan's folder holds only what
-// hapticloud wrote (tile-plan takes a new or empty folder), and these names are made nowhere
-// else; a folder or file of any other name is left alone. An attempt still running (a duplicate
-// of a finished tile) loses its scratch and fails, which loses nothing: its tile has a result.
-// Figures into `report` (only when something was removed): stale_scratch_removed (entries),
-// stale_scratch_mb (their bytes / 10^6); a note names up to five of them.
+// folder, removed by a merge that found every tile's result: their block copies
+// (`.blocks-<tag>/` folders), temporary kept files (`.kept-job-<tag>-<t>.bin`) and temporary
+// results (`.part_<t>.bin.tmp-<tag>`, `.plan.json.tmp-<tag>`), <tag> an attempt_tag(). Only
+// entries of exactly these names (and kinds: no symbolic link) go; the plan's folder holds only
+// what hapticloud wrote (tile-plan takes a new or empty folder). An entry whose tag names this
+// host and a process that is alive is left (a duplicate attempt still running). One of another
+// host's is removed: its attempt is a duplicate of a tile that has a result, and it fails
+// without harm (tile-job checks its kept file's size before moving it). Figures into `report`
+// (only when something was removed): stale_scratch_removed (entries), stale_scratch_mb (their
+// bytes / 10^6); a note names up to five of them, and one names what could not go.
 void remove_stale_scratch(const fs::path& dir, StageReport& report) {
+  const std::string me = [] {
+    const std::string tag = attempt_tag();
+    return tag.substr(0, tag.find('-'));
+  }();
   std::vector<fs::path> stale;
+  std::size_t running = 0;
   std::error_code ec;
   for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
     const std::string name = it->path().filename().string();
     std::error_code kind;
-    const bool is_dir = it->is_directory(kind) && !it->is_symlink(kind);
-    const bool is_file = it->is_regular_file(kind);
-    if ((is_dir && name.rfind(".blocks-", 0) == 0) ||
-        (is_file && (name.rfind(".kept-job-", 0) == 0 || (name.size() > 1 && name[0] == '.' && name.find(".tmp-") != std::string::npos))))
-      stale.push_back(it->path());
+    const fs::file_status st = it->symlink_status(kind);
+    if (kind) continue;
+    const bool is_dir = fs::is_directory(st), is_file = fs::is_regular_file(st);
+    std::string host, rest;
+    long pid = 0;
+    bool ours = false;
+    if (is_dir && name.rfind(".blocks-", 0) == 0) {
+      ours = parse_attempt_tag(name.substr(8), host, pid, rest) && rest.empty();
+    } else if (is_file && name.rfind(".kept-job-", 0) == 0) {
+      ours = parse_attempt_tag(name.substr(10), host, pid, rest) && rest.size() > 5 && rest[0] == '-' &&
+             rest.compare(rest.size() - 4, 4, ".bin") == 0 && all_digits(rest.substr(1, rest.size() - 5));
+    } else if (is_file && name.rfind(".", 0) == 0) {
+      const std::size_t tmp = name.find(".bin.tmp-");
+      if (name.rfind(".plan.json.tmp-", 0) == 0) {
+        ours = parse_attempt_tag(name.substr(15), host, pid, rest) && rest.empty();
+      } else if (name.rfind(".part_", 0) == 0 && tmp != std::string::npos && all_digits(name.substr(6, tmp - 6))) {
+        ours = parse_attempt_tag(name.substr(tmp + 9), host, pid, rest) && rest.empty();
+      }
+    }
+    if (!ours) continue;
+    if (host == me && pid > 0 && (::kill(static_cast<pid_t>(pid), 0) == 0 || errno == EPERM)) {
+      ++running;  // a running attempt's (or a reused process number's): left
+      continue;
+    }
+    stale.push_back(it->path());
+  }
+  if (ec) report.notes.push_back("could not list " + dir.string() + " for scratch killed tile jobs left: " + ec.message());
+  if (running > 0) {
+    report.notes.push_back(std::to_string(running) + " scratch entries of processes still running on this host left in " +
+                           dir.string());
   }
   if (stale.empty()) return;
   std::sort(stale.begin(), stale.end());
@@ -2928,10 +2995,12 @@ void remove_stale_scratch(const fs::path& dir, StageReport& report) {
       if (size_ec) b = 0;
     }
     ec.clear();
-    if (fs::remove_all(p, ec) == static_cast<std::uintmax_t>(-1) || ec) {
+    const std::uintmax_t gone = fs::remove_all(p, ec);
+    if (ec || gone == static_cast<std::uintmax_t>(-1)) {
       report.notes.push_back("could not remove " + p.string() + ", left by a killed tile job: " + ec.message());
       continue;
     }
+    if (gone == 0) continue;  // gone meanwhile (its attempt moved or removed it)
     bytes += b;
     if (removed++ < 5) names += (names.empty() ? "" : ", ") + p.filename().string();
   }
