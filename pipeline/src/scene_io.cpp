@@ -1,4 +1,5 @@
 #include "image_io.hpp"
+#include "stage_util.hpp"
 #include "tiled_layers.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
@@ -640,7 +641,7 @@ void remove_stale_siblings(const fs::path& target) {
       if (digits == 0 || rest.empty()) continue;
       const long pid = std::stol(rest.substr(0, digits));
       if (pid <= 0 || pid == static_cast<long>(::getpid())) continue;
-      const bool gone = ::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH;
+      const bool gone = detail::process_gone(pid);
       std::error_code ec2;
       if (gone && fs::is_regular_file(it->path() / kOutputMarkerFile, ec2)) fs::remove_all(it->path(), ec2);
     }

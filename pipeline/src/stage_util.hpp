@@ -4,6 +4,9 @@
 
 #include "hc/pipeline/cloud.hpp"
 
+#include <signal.h>
+
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstddef>
@@ -71,6 +74,10 @@ inline std::uint64_t splitmix64(std::uint64_t x) {
   x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
   return x ^ (x >> 31);
 }
+
+/// Whether no process `pid` (> 0) exists on this host: kill(pid, 0) fails with ESRCH (POSIX
+/// kill(2); a process of another user, EPERM, exists). For scratch named by process number.
+inline bool process_gone(long pid) { return ::kill(static_cast<pid_t>(pid), 0) != 0 && errno == ESRCH; }
 
 /// Runs a() on a second thread and b() on this one, joins, then rethrows a's exception if it
 /// threw, else b's. Used by stages that split their work in two (the machines have two cores).

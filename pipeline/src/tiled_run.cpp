@@ -41,6 +41,7 @@
 #include <optional>
 #include <random>
 #include <string>
+#include <string_view>
 #include <system_error>
 #include <vector>
 
@@ -717,6 +718,11 @@ using Ball = detail::BallSet::Ball;
 using detail::BallSet;
 
 std::string attempt_tag();
+// The scratch a process makes beside spill files or in a plan's folder, named with its
+// attempt_tag() (remove_stale_scratch recognises them by these names):
+constexpr std::string_view kBlocksPrefix = ".blocks-";     // + tag: BlockCopies' folder
+constexpr std::string_view kKeptJobPrefix = ".kept-job-";  // + tag + "-<t>.bin": a tile job's temporary kept files
+constexpr std::string_view kTmpInfix = ".tmp-";            // "." + file + this + tag: write_atomically's temporary
 
 // Other tiles' spills for the robust test's second look (judge_past_halo, points_in_balls), read
 // by block. A spill keeps the input's order, and a scan in no order (the generated walls)
@@ -862,7 +868,7 @@ class BlockCopies {
     sums["robust_spill_points_scanned"] += static_cast<double>(n);
     bool copy = on_ && tl.reads >= copy_from_ && n <= std::numeric_limits<std::uint32_t>::max();
     if (copy && dir_.empty()) {
-      const fs::path d = spill_.dir() / (".blocks-" + attempt_tag());
+      const fs::path d = spill_.dir() / (std::string(kBlocksPrefix) + attempt_tag());
       std::error_code ec;
       if (fs::create_directory(d, ec) && !ec) {
         dir_ = d;
@@ -2357,19 +2363,22 @@ double unhex(const nlohmann::json& j, const fs::path& file, const char* key) {
 
 std::string random_id();
 
-// A name no other attempt uses, even on another host sharing the folder (host, process, random).
-std::string attempt_tag() {
+// This host's name with every character but letters and digits made '_' (empty when unknown).
+std::string host_tag() {
   char host[256] = {0};
   if (::gethostname(host, sizeof host - 1) != 0) host[0] = '\0';
   std::string h;
   for (const char* c = host; *c; ++c) h.push_back(std::isalnum(static_cast<unsigned char>(*c)) ? *c : '_');
-  return h + "-" + std::to_string(::getpid()) + "-" + random_id();
+  return h;
 }
+
+// A name no other attempt uses, even on another host sharing the folder (host, process, random).
+std::string attempt_tag() { return host_tag() + "-" + std::to_string(::getpid()) + "-" + random_id(); }
 
 // Writes `bytes` to `target` through a temporary file beside it (flushed to disk) and a rename,
 // so a reader never sees half of it, even after a crash. @throws InputError naming the file.
 void write_atomically(const fs::path& target, const std::string& bytes) {
-  const fs::path tmp = target.parent_path() / ("." + target.filename().string() + ".tmp-" + attempt_tag());
+  const fs::path tmp = target.parent_path() / ("." + target.filename().string() + std::string(kTmpInfix) + attempt_tag());
   std::FILE* f = std::fopen(tmp.c_str(), "wb");
   const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() && std::fflush(f) == 0 &&
                   ::fsync(::fileno(f)) == 0;
@@ -2840,7 +2849,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
   }
   Spill spill(pf.dir, "tile_", plan.tiles.count(), plan.layout);
   spill.adopt_existing();
-  const std::string tmp_prefix = ".kept-job-" + attempt_tag() + "-";
+  const std::string tmp_prefix = std::string(kKeptJobPrefix) + attempt_tag() + "-";
   Spill kept(pf.dir, tmp_prefix, plan.tiles.count(), plan.layout);
   // Every spill file, not only the jobs' own: a tile's robust test may read its neighbours'.
   for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
@@ -2933,10 +2942,7 @@ bool all_digits(const std::string& s) {
 // (only when something was removed): stale_scratch_removed (entries), stale_scratch_mb (their
 // bytes / 10^6); a note names up to five of them, and one names what could not go.
 void remove_stale_scratch(const fs::path& dir, StageReport& report) {
-  const std::string me = [] {
-    const std::string tag = attempt_tag();
-    return tag.substr(0, tag.find('-'));
-  }();
+  const std::string me = host_tag();
   std::vector<fs::path> stale;
   std::size_t running = 0;
   std::error_code ec;
@@ -2949,21 +2955,24 @@ void remove_stale_scratch(const fs::path& dir, StageReport& report) {
     std::string host, rest;
     long pid = 0;
     bool ours = false;
-    if (is_dir && name.rfind(".blocks-", 0) == 0) {
-      ours = parse_attempt_tag(name.substr(8), host, pid, rest) && rest.empty();
-    } else if (is_file && name.rfind(".kept-job-", 0) == 0) {
-      ours = parse_attempt_tag(name.substr(10), host, pid, rest) && rest.size() > 5 && rest[0] == '-' &&
-             rest.compare(rest.size() - 4, 4, ".bin") == 0 && all_digits(rest.substr(1, rest.size() - 5));
-    } else if (is_file && name.rfind(".", 0) == 0) {
-      const std::size_t tmp = name.find(".bin.tmp-");
-      if (name.rfind(".plan.json.tmp-", 0) == 0) {
-        ours = parse_attempt_tag(name.substr(15), host, pid, rest) && rest.empty();
-      } else if (name.rfind(".part_", 0) == 0 && tmp != std::string::npos && all_digits(name.substr(6, tmp - 6))) {
-        ours = parse_attempt_tag(name.substr(tmp + 9), host, pid, rest) && rest.empty();
-      }
+    const auto tag_after = [&](std::string_view head) {
+      return name.rfind(head, 0) == 0 && parse_attempt_tag(name.substr(head.size()), host, pid, rest);
+    };
+    const std::string plan_tmp = ".plan.json" + std::string(kTmpInfix);
+    const std::size_t part_tmp = name.find(".bin" + std::string(kTmpInfix));  // .part_<t>.bin.tmp-<tag>
+    if (is_dir) {
+      ours = tag_after(kBlocksPrefix) && rest.empty();
+    } else if (is_file && tag_after(kKeptJobPrefix)) {  // -<t>.bin after the tag
+      ours = rest.size() > 5 && rest[0] == '-' && rest.compare(rest.size() - 4, 4, ".bin") == 0 &&
+             all_digits(rest.substr(1, rest.size() - 5));
+    } else if (is_file && tag_after(plan_tmp)) {
+      ours = rest.empty();
+    } else if (is_file && name.rfind(".part_", 0) == 0 && part_tmp != std::string::npos &&
+               all_digits(name.substr(6, part_tmp - 6))) {
+      ours = parse_attempt_tag(name.substr(part_tmp + 4 + kTmpInfix.size()), host, pid, rest) && rest.empty();
     }
     if (!ours) continue;
-    if (host == me && pid > 0 && (::kill(static_cast<pid_t>(pid), 0) == 0 || errno == EPERM)) {
+    if (host == me && pid > 0 && !detail::process_gone(pid)) {
       ++running;  // a running attempt's (or a reused process number's): left
       continue;
     }
