@@ -693,12 +693,16 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
 
   std::vector<float> local(3 * n);
   std::vector<std::uint8_t> finite(n, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
-    if (!p.allFinite()) continue;
-    finite[i] = 1;
-    for (int a = 0; a < 3; ++a) local[3 * i + static_cast<std::size_t>(a)] = static_cast<float>(p[a] - centre[a]);
-  }
+  const int copy_threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
+  detail::run_parallel(copy_threads, [&](int t) {
+    const auto [b, e] = detail::share_of(n, t, copy_threads);
+    for (std::size_t i = b; i < e; ++i) {
+      const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
+      if (!p.allFinite()) continue;
+      finite[i] = 1;
+      for (int a = 0; a < 3; ++a) local[3 * i + static_cast<std::size_t>(a)] = static_cast<float>(p[a] - centre[a]);
+    }
+  });
 
   // 1. Removed by the filters.
   std::vector<std::uint8_t> removed(n, 1);
@@ -1421,13 +1425,19 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     const double inv = 1.0 / g.cell_size_m;
     std::vector<std::uint32_t> cell_of(n, std::numeric_limits<std::uint32_t>::max());
     std::vector<std::uint32_t> first(cells + 1, 0);
+    const int bin_threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
+    detail::run_parallel(bin_threads, [&](int t) {
+      const auto [b, e] = detail::share_of(n, t, bin_threads);
+      for (std::size_t i = b; i < e; ++i) {
+        const auto p = cloud.xyz.col(static_cast<Eigen::Index>(i));
+        if (!p.allFinite()) continue;
+        const double fc = floor_of((p.x() - g.x0_m) * inv + 0.5), fr = floor_of((p.y() - g.y0_m) * inv + 0.5);
+        if (fc < 0.0 || fr < 0.0 || fc >= g.cols || fr >= g.rows) continue;
+        cell_of[i] = static_cast<std::uint32_t>(static_cast<std::size_t>(fr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(fc));
+      }
+    });
     for (std::size_t i = 0; i < n; ++i) {
-      const auto p = cloud.xyz.col(static_cast<Eigen::Index>(i));
-      if (!p.allFinite()) continue;
-      const double fc = floor_of((p.x() - g.x0_m) * inv + 0.5), fr = floor_of((p.y() - g.y0_m) * inv + 0.5);
-      if (fc < 0.0 || fr < 0.0 || fc >= g.cols || fr >= g.rows) continue;
-      cell_of[i] = static_cast<std::uint32_t>(static_cast<std::size_t>(fr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(fc));
-      ++first[cell_of[i] + 1];
+      if (cell_of[i] != std::numeric_limits<std::uint32_t>::max()) ++first[cell_of[i] + 1];
     }
     std::partial_sum(first.begin(), first.end(), first.begin());
     std::vector<std::uint32_t> order(first.back());
