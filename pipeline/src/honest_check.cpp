@@ -289,21 +289,25 @@ class WantedKeys {
  public:
   static constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
 
-  /// keys: distinct.
+  /// keys: any, repeats allowed; the distinct ones are numbered 0, 1, ... in order of first
+  /// appearance (size() of them).
   explicit WantedKeys(const std::vector<std::uint64_t>& keys) {
     while ((std::size_t{1} << bits_) < 2 * keys.size()) ++bits_;
     mask_ = (std::size_t{1} << bits_) - 1;
     slots_.assign(mask_ + 1, Slot{0, kNone});
     filter_.assign(((mask_ + 1) * 4 + 63) / 64, 0);
-    for (std::size_t w = 0; w < keys.size(); ++w) {
-      const std::uint64_t h = mix(keys[w]);
+    for (const std::uint64_t key : keys) {
+      const std::uint64_t h = mix(key);
       std::size_t i = home(h);
-      while (slots_[i].index != kNone) i = (i + 1) & mask_;
-      slots_[i] = Slot{keys[w], static_cast<std::uint32_t>(w)};
+      while (slots_[i].index != kNone && slots_[i].key != key) i = (i + 1) & mask_;
+      if (slots_[i].index != kNone) continue;  // a repeat
+      slots_[i] = Slot{key, static_cast<std::uint32_t>(size_++)};
       const std::size_t b = filter_bit(h);
       filter_[b >> 6] |= std::uint64_t{1} << (b & 63);
     }
   }
+  /// The number of distinct keys.
+  std::size_t size() const { return size_; }
   /// The index of `key` in the constructor's keys, or kNone.
   std::uint32_t find(std::uint64_t key) const {
     const std::uint64_t h = mix(key);
@@ -325,6 +329,7 @@ class WantedKeys {
   std::size_t filter_bit(std::uint64_t h) const { return static_cast<std::size_t>(h >> (62 - bits_)); }
   int bits_ = 4;
   std::size_t mask_ = 0;
+  std::size_t size_ = 0;
   std::vector<Slot> slots_;
   std::vector<std::uint64_t> filter_;
 };
@@ -386,11 +391,8 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
     const auto key_of = key_fn(start_edge_m);
     std::vector<std::uint64_t> own(sample.size());
     for (std::size_t k = 0; k < sample.size(); ++k) own[k] = key_of(&xyz[3 * static_cast<std::size_t>(sample[k])]);
-    std::vector<std::uint64_t> wanted = own;
-    std::sort(wanted.begin(), wanted.end());
-    wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
-    const WantedKeys table(wanted);
-    std::vector<std::vector<std::uint32_t>> count(static_cast<std::size_t>(threads), std::vector<std::uint32_t>(wanted.size(), 0));
+    const WantedKeys table(own);
+    std::vector<std::vector<std::uint32_t>> count(static_cast<std::size_t>(threads), std::vector<std::uint32_t>(table.size(), 0));
     pass(table, key_of, [&](int t, std::uint32_t w, std::uint32_t) { ++count[static_cast<std::size_t>(t)][w]; });
     std::vector<double> guess(sample.size());
     for (std::size_t k = 0; k < sample.size(); ++k) {
@@ -405,57 +407,54 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
   }
   for (;; edge = std::min(4.0 * edge, max_edge)) {
     const auto key_of = key_fn(edge);
-    // Each sample's 27 voxel keys (repeats at the clamp limit removed), and all of them.
-    std::vector<std::array<std::uint64_t, 27>> around(sample.size());
-    std::vector<std::uint8_t> around_n(sample.size(), 0);
-    std::vector<std::uint64_t> wanted;
-    wanted.reserve(27 * sample.size());
+    // Each sample's 27 voxel keys, all of them in one list (27 per sample: a key repeated at the
+    // clamp limit only visits a voxel twice, which leaves a minimum as it is; the table keeps
+    // each key once, so no sort is needed).
+    std::vector<std::uint64_t> wanted(27 * sample.size());
     const double inv = 1.0 / edge;
     for (std::size_t k = 0; k < sample.size(); ++k) {
       const float* q = &xyz[3 * static_cast<std::size_t>(sample[k])];
       const std::int64_t cx = VoxelHash::cell_index(q[0], inv), cy = VoxelHash::cell_index(q[1], inv),
                          cz = VoxelHash::cell_index(q[2], inv);
-      auto& keys = around[k];
+      std::uint64_t* keys = &wanted[27 * k];
       std::size_t m = 0;
       for (int dz = -1; dz <= 1; ++dz)
         for (int dy = -1; dy <= 1; ++dy)
           for (int dx = -1; dx <= 1; ++dx) keys[m++] = VoxelHash::pack21(cx + dx, cy + dy, cz + dz);
-      std::sort(keys.begin(), keys.end());
-      m = static_cast<std::size_t>(std::unique(keys.begin(), keys.end()) - keys.begin());
-      around_n[k] = static_cast<std::uint8_t>(m);
-      wanted.insert(wanted.end(), keys.begin(), keys.begin() + static_cast<std::ptrdiff_t>(m));
     }
-    std::sort(wanted.begin(), wanted.end());
-    wanted.erase(std::unique(wanted.begin(), wanted.end()), wanted.end());
     const WantedKeys table(wanted);
     // The points in wanted voxels: (voxel, point) pairs per thread, then grouped by voxel.
     std::vector<std::vector<std::pair<std::uint32_t, std::uint32_t>>> found(static_cast<std::size_t>(threads));
     pass(table, key_of, [&](int t, std::uint32_t w, std::uint32_t i) { found[static_cast<std::size_t>(t)].emplace_back(w, i); });
-    std::vector<std::uint32_t> first(wanted.size() + 1, 0);
+    std::vector<std::uint32_t> first(table.size() + 1, 0);
     for (const auto& part : found)
       for (const auto& [w, i] : part) ++first[w + 1];
-    for (std::size_t w = 0; w < wanted.size(); ++w) first[w + 1] += first[w];
+    for (std::size_t w = 0; w < table.size(); ++w) first[w + 1] += first[w];
     std::vector<std::uint32_t> members(first.back());
     {
       std::vector<std::uint32_t> fill(first.begin(), first.end() - 1);
       for (const auto& part : found)
         for (const auto& [w, i] : part) members[fill[w]++] = i;
     }
-    std::vector<double> nn;
-    nn.reserve(sample.size());
-    for (std::size_t k = 0; k < sample.size(); ++k) {
-      const std::uint32_t i = sample[k];
-      const float* q = &xyz[3 * static_cast<std::size_t>(i)];
-      float best = std::numeric_limits<float>::infinity();
-      for (std::size_t a = 0; a < around_n[k]; ++a) {
-        const std::uint32_t w = table.find(around[k][a]);
-        for (std::uint32_t m = first[w]; m < first[w + 1]; ++m) {
-          const std::uint32_t j = members[m];
-          if (j != i) best = std::min(best, dist_sq(&xyz[3 * static_cast<std::size_t>(j)], q));
+    // Each sample's nearest distance, the samples shared by the threads (each writes its own).
+    std::vector<double> nn(sample.size());
+    const int nn_threads = sample.size() > 1024 ? threads : 1;
+    detail::run_parallel(nn_threads, [&](int t) {
+      const auto [kb, ke] = detail::share_of(sample.size(), t, nn_threads);
+      for (std::size_t k = kb; k < ke; ++k) {
+        const std::uint32_t i = sample[k];
+        const float* q = &xyz[3 * static_cast<std::size_t>(i)];
+        float best = std::numeric_limits<float>::infinity();
+        for (std::size_t a = 0; a < 27; ++a) {
+          const std::uint32_t w = table.find(wanted[27 * k + a]);
+          for (std::uint32_t m = first[w]; m < first[w + 1]; ++m) {
+            const std::uint32_t j = members[m];
+            if (j != i) best = std::min(best, dist_sq(&xyz[3 * static_cast<std::size_t>(j)], q));
+          }
         }
+        nn[k] = std::sqrt(static_cast<double>(best));  // exact when ≤ edge
       }
-      nn.push_back(std::sqrt(static_cast<double>(best)));  // exact when ≤ edge
-    }
+    });
     auto mid = nn.begin() + static_cast<std::ptrdiff_t>(nn.size() / 2);
     std::nth_element(nn.begin(), mid, nn.end());
     if (*mid <= edge) return *mid;
