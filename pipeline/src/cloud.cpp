@@ -7,10 +7,13 @@ namespace hc::pipeline {
 
 namespace {
 
-/// Moves element i to slot out in a per-point attribute with `stride` values per point.
+/// Moves the points [from, from + count) to slot `to` (≤ from) in a per-point attribute with
+/// `stride` values per point (one memmove: the ranges may overlap).
 template <class T>
-void move_point(std::vector<T>& v, std::size_t out, std::size_t i, std::size_t stride) {
-  for (std::size_t k = 0; k < stride; ++k) v[out * stride + k] = v[i * stride + k];
+void move_run(std::vector<T>& v, std::size_t to, std::size_t from, std::size_t count, std::size_t stride) {
+  if (v.empty() || to == from || count == 0) return;
+  std::copy(v.begin() + static_cast<std::ptrdiff_t>(from * stride), v.begin() + static_cast<std::ptrdiff_t>((from + count) * stride),
+            v.begin() + static_cast<std::ptrdiff_t>(to * stride));
 }
 
 }  // namespace
@@ -42,22 +45,32 @@ void Cloud::keep_if(const std::vector<bool>& keep) {
     mesh.triangles.resize(t_out);
     if (uv) mesh.corner_uv.resize(6 * t_out);
   }
+  // Runs of kept points moved as blocks (a filter removes few points: a handful of runs).
+  const std::size_t n = size();
+  double* p = xyz.data();
   std::size_t out = 0;
-  for (std::size_t i = 0; i < size(); ++i) {
-    if (!keep[i]) continue;
+  for (std::size_t i = 0; i < n;) {
+    if (!keep[i]) {
+      ++i;
+      continue;
+    }
+    std::size_t j = i + 1;
+    while (j < n && keep[j]) ++j;
+    const std::size_t count = j - i;
     if (out != i) {
-      xyz.col(static_cast<Eigen::Index>(out)) = xyz.col(static_cast<Eigen::Index>(i));
-      if (has_scan_id()) move_point(scan_id, out, i, 1);
-      if (has_intensity()) move_point(intensity, out, i, 1);
-      if (has_rgb()) move_point(rgb, out, i, 3);
-      if (has_normals()) move_point(normal, out, i, 3);
-      if (!curvature.empty()) move_point(curvature, out, i, 1);
+      std::copy(p + 3 * i, p + 3 * j, p + 3 * out);  // to ≤ from: a forward copy
+      move_run(scan_id, out, i, count, 1);
+      move_run(intensity, out, i, count, 1);
+      move_run(rgb, out, i, count, 3);
+      move_run(normal, out, i, count, 3);
+      move_run(curvature, out, i, count, 1);
       if (has_grid_index()) {
-        move_point(row, out, i, 1);
-        move_point(col, out, i, 1);
+        move_run(row, out, i, count, 1);
+        move_run(col, out, i, count, 1);
       }
     }
-    ++out;
+    out += count;
+    i = j;
   }
   xyz.conservativeResize(Eigen::NoChange, static_cast<Eigen::Index>(out));
   if (has_scan_id()) scan_id.resize(out);

@@ -288,3 +288,74 @@ TEST(StatisticalOutliers, DropsNonFinitePointsAndKeepsScanIdsAligned) {
   EXPECT_EQ(std::count(r.value.scan_id.begin(), r.value.scan_id.end(), 9), 0);
   EXPECT_EQ(r.value.scan_id.size(), r.value.size());
 }
+
+namespace filters_keep_if {
+
+// Cloud::keep_if moves runs of kept points as blocks; oracle: a cloud built point by point from
+// the kept points of a copy, every attribute with it. Masks: none kept, all kept, the first and
+// last removed, single and long runs, random.
+TEST(CloudKeepIf, KeepsEveryAttributeOfTheKeptPointsInOrder) {
+  std::mt19937 rng(7);
+  const std::size_t n = 997;
+  hp::Cloud c;
+  c.xyz.resize(3, static_cast<Eigen::Index>(n));
+  for (std::size_t i = 0; i < n; ++i) {
+    c.xyz.col(static_cast<Eigen::Index>(i)) = Eigen::Vector3d(static_cast<double>(i), 0.5 * static_cast<double>(i), -1.0 * static_cast<double>(i));
+    c.scan_id.push_back(static_cast<std::uint16_t>(i % 7));
+    c.intensity.push_back(static_cast<float>(i) * 0.25f);
+    for (int k = 0; k < 3; ++k) {
+      c.rgb.push_back(static_cast<std::uint8_t>((i * 3 + static_cast<std::size_t>(k)) % 251));
+      c.normal.push_back(static_cast<float>(i) + 0.1f * static_cast<float>(k));
+    }
+    c.curvature.push_back(static_cast<float>(i) * 1e-3f);
+    c.row.push_back(static_cast<std::int32_t>(i / 31));
+    c.col.push_back(static_cast<std::int32_t>(i % 31));
+  }
+  std::vector<std::vector<bool>> masks;
+  masks.emplace_back(n, false);
+  masks.emplace_back(n, true);
+  std::vector<bool> ends(n, true);
+  ends.front() = ends.back() = false;
+  masks.push_back(ends);
+  std::vector<bool> alternate(n);
+  for (std::size_t i = 0; i < n; ++i) alternate[i] = i % 2 == 0;
+  masks.push_back(alternate);
+  for (double p : {0.01, 0.5, 0.99}) {
+    std::bernoulli_distribution keep(p);
+    std::vector<bool> m(n);
+    for (std::size_t i = 0; i < n; ++i) m[i] = keep(rng);
+    masks.push_back(m);
+  }
+  for (std::size_t mi = 0; mi < masks.size(); ++mi) {
+    const std::vector<bool>& mask = masks[mi];
+    hp::Cloud got = c;
+    got.keep_if(mask);
+    std::size_t out = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (!mask[i]) continue;
+      ASSERT_LT(out, got.size()) << "mask " << mi;
+      const auto o = static_cast<Eigen::Index>(out);
+      EXPECT_EQ(got.xyz.col(o), c.xyz.col(static_cast<Eigen::Index>(i))) << "mask " << mi << " point " << i;
+      EXPECT_EQ(got.scan_id[out], c.scan_id[i]);
+      EXPECT_EQ(got.intensity[out], c.intensity[i]);
+      for (std::size_t k = 0; k < 3; ++k) {
+        EXPECT_EQ(got.rgb[3 * out + k], c.rgb[3 * i + k]);
+        EXPECT_EQ(got.normal[3 * out + k], c.normal[3 * i + k]);
+      }
+      EXPECT_EQ(got.curvature[out], c.curvature[i]);
+      EXPECT_EQ(got.row[out], c.row[i]);
+      EXPECT_EQ(got.col[out], c.col[i]);
+      ++out;
+    }
+    EXPECT_EQ(got.size(), out) << "mask " << mi;
+    EXPECT_EQ(got.scan_id.size(), out);
+    EXPECT_EQ(got.intensity.size(), out);
+    EXPECT_EQ(got.rgb.size(), 3 * out);
+    EXPECT_EQ(got.normal.size(), 3 * out);
+    EXPECT_EQ(got.curvature.size(), out);
+    EXPECT_EQ(got.row.size(), out);
+    EXPECT_EQ(got.col.size(), out);
+  }
+}
+
+}  // namespace filters_keep_if
