@@ -675,7 +675,14 @@ double coverage_of_hits(const std::vector<std::uint8_t>& hit, const GridGeometry
 
 double coverage_on(const double* p, std::size_t n, const GridGeometry& g, bool all_finite) {
   std::vector<std::uint8_t> hit(g.cell_count(), 0);
-  mark_hits(p, n, g, all_finite, hit.data());
+  if (n < kTwoThreadPoints) {
+    mark_hits(p, n, g, all_finite, hit.data());
+  } else {  // each half of the points marks its own array; the marks are joined (OR) after
+    std::vector<std::uint8_t> upper(hit.size(), 0);
+    run_two([&] { mark_hits(p + 3 * (n / 2), n - n / 2, g, all_finite, upper.data()); },
+            [&] { mark_hits(p, n / 2, g, all_finite, hit.data()); });
+    for (std::size_t i = 0; i < hit.size(); ++i) hit[i] |= upper[i];
+  }
   return coverage_of_hits(hit, g);
 }
 
@@ -1356,20 +1363,46 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
       if (c >= gather[b].c0 && c <= gather[b].c1) add(b);
     }
   };
-  std::size_t next = 0;  // the next removed point
-  const auto removed_point = [&](std::size_t ri) {
-    const double* p = &removed.xyz[3 * ri];
-    place(p, [&](std::uint32_t b) { before_of[b].insert(before_of[b].end(), p, p + 3); });
+  // The points [i0, i1) and the removed points [r0, r1) that stood among them (removed point r
+  // stood before point at[r] − r; those past the last point come at the end), into lists of
+  // their own; two halves on two threads, joined in order after.
+  using Lists = std::pair<std::vector<std::vector<std::uint32_t>>, std::vector<std::vector<double>>>;
+  const auto collect = [&](std::size_t i0, std::size_t i1, std::size_t r0, std::size_t r1, Lists& out) {
+    auto& after = out.first;  // named references, not a structured binding: lambdas capture them
+    auto& before_xyz = out.second;
+    after.resize(windows.size());
+    before_xyz.resize(windows.size());
+    const auto removed_point = [&](std::size_t ri) {
+      const double* p = &removed.xyz[3 * ri];
+      place(p, [&](std::uint32_t b) { before_xyz[b].insert(before_xyz[b].end(), p, p + 3); });
+    };
+    std::size_t next = r0;  // the next removed point
+    for (std::size_t i = i0; i < i1; ++i) {
+      while (next < r1 && removed.at[next] == i + next) removed_point(next++);
+      const double* p = pts + 3 * i;
+      place(p, [&](std::uint32_t b) {
+        after[b].push_back(static_cast<std::uint32_t>(i));
+        before_xyz[b].insert(before_xyz[b].end(), p, p + 3);
+      });
+    }
+    while (next < r1) removed_point(next++);
   };
-  for (std::size_t i = 0; i < n; ++i) {
-    while (next < m && removed.at[next] == i + next) removed_point(next++);
-    const double* p = pts + 3 * i;
-    place(p, [&](std::uint32_t b) {
-      after_of[b].push_back(static_cast<std::uint32_t>(i));
-      before_of[b].insert(before_of[b].end(), p, p + 3);
-    });
+  const std::size_t mid = n >= kTwoThreadPoints ? n / 2 : n;
+  std::size_t r_mid = 0;  // the first removed point that stood at or after point mid
+  while (r_mid < m && removed.at[r_mid] - r_mid < mid) ++r_mid;
+  Lists lower, upper;
+  if (mid < n) {
+    run_two([&] { collect(mid, n, r_mid, m, upper); }, [&] { collect(0, mid, 0, r_mid, lower); });
+  } else {
+    collect(0, n, 0, r_mid, lower);
+    collect(n, n, r_mid, m, upper);
   }
-  while (next < m) removed_point(next++);
+  for (std::size_t b = 0; b < windows.size(); ++b) {
+    after_of[b] = std::move(lower.first[b]);
+    after_of[b].insert(after_of[b].end(), upper.first[b].begin(), upper.first[b].end());
+    before_of[b] = std::move(lower.second[b]);
+    before_of[b].insert(before_of[b].end(), upper.second[b].begin(), upper.second[b].end());
+  }
 
   DepthGrid& grid = before.value;
   long long d_filled = 0, d_occluded = 0, d_see_through = 0, d_candidates = 0;

@@ -195,6 +195,43 @@ TEST(ReprojectAfterRemoval, EqualsAWholeReprojectForPlaneAndDiscSplatsAtEveryUps
   EXPECT_EQ(local_runs, 8);
 }
 
+// The points are gathered into the windows on two threads, each a half of the remaining points
+// with the removed points that stood among them: removed points just before, at and after the
+// split (a run of 9 about the middle, which puts removed points on both sides of it and one
+// exactly at it) and the cloud's last point (one past every remaining point).
+TEST(ReprojectAfterRemoval, PointsRemovedAtTheThreadSplitAndAtTheEndMatch) {
+  Cloud cloud = relief(400000, 5);
+  // The last point a stray 30 mm in front: its splat makes events (cells it fills or occludes)
+  // that the grid before its removal counted, so leaving it out of the windows' scan before the
+  // removal changes the figures.
+  cloud.xyz(2, static_cast<Eigen::Index>(cloud.size() - 1)) += 0.03;
+  const ReprojectOptions o = options(SplatMode::kPlane, 1);
+  const auto before = hc::pipeline::reproject(cloud, o);
+  const std::size_t c = cloud.size();
+  ASSERT_GE(c, std::size_t{1} << 18);  // the two-thread gathering (2^18 points and more)
+  std::vector<std::size_t> gone;
+  for (std::size_t i = c / 2 - 8; i <= c / 2 + 8; i += 2) gone.push_back(i);
+  gone.push_back(c - 1);
+  for (const std::size_t i : gone) ASSERT_TRUE(cloud.xyz.col(static_cast<Eigen::Index>(i)).allFinite());
+  RemovedPoints removed;
+  const Cloud after = without(cloud, gone, removed);
+  // The split is at half the remaining points; some removed points stood before it, one at it.
+  const std::size_t mid = after.size() / 2;
+  std::size_t below = 0, at = 0, above = 0;
+  for (std::size_t r = 0; r < removed.size(); ++r) {
+    const std::size_t stood_before = removed.at[r] - r;
+    below += stood_before < mid ? 1U : 0U;
+    at += stood_before == mid ? 1U : 0U;
+    above += stood_before > mid ? 1U : 0U;
+  }
+  EXPECT_GT(below, 0U);
+  EXPECT_EQ(at, 1U);
+  EXPECT_GT(above, 1U);
+  const auto got = hc::pipeline::reproject_after_removal(after, removed, before, o);
+  EXPECT_TRUE(made_locally(got.report));
+  expect_same(got, hc::pipeline::reproject(after, o), "removed about the split and at the end");
+}
+
 TEST(ReprojectAfterRemoval, RemovingStraysChangesTheGridAndStillMatches) {
   // Guards against a test that passes because nothing changed: the strays in front make cells
   // that their removal changes.
