@@ -308,7 +308,8 @@ class WantedKeys {
   }
   /// The number of distinct keys.
   std::size_t size() const { return size_; }
-  /// The index of `key` in the constructor's keys, or kNone.
+  /// The number of `key` among the constructor's distinct keys (0 .. size() − 1, in order of
+  /// first appearance), or kNone.
   std::uint32_t find(std::uint64_t key) const {
     const std::uint64_t h = mix(key);
     const std::size_t b = filter_bit(h);

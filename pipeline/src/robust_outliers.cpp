@@ -761,7 +761,9 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   if (n == 0) throw InputError("find_far_clusters: the cloud has no finite points");
   const double* xyz = cloud.xyz.data();  // column-major 3 × N: point i at xyz[3i .. 3i+2]
   // The per-point passes on two threads, each a contiguous share of the points (the step was
-  // serial: 27 ms of the Buddha's outlier stage); every result is as the serial passes made it.
+  // serial: 27 ms of the Buddha's outlier stage). Box, keys, cells, components, counts and
+  // boxes are exactly the serial passes'; a centroid's coordinate sum is the sum of the two
+  // shares' sums (its last bits may differ from one running sum; it is only reported).
   const int threads = n > (std::size_t{1} << 17) ? kSearchThreads : 1;
   std::array<double, 3> lo{}, hi{};
   lo.fill(std::numeric_limits<double>::infinity());
@@ -884,14 +886,17 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   PointCluster empty;
   empty.min_m = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
   empty.max_m = -empty.min_m;
-  // Count, box and coordinate sum per component, per thread; summed in thread order after.
-  std::vector<std::vector<PointCluster>> part_comps(static_cast<std::size_t>(threads), std::vector<PointCluster>(n_comps, empty));
-  std::vector<std::vector<Eigen::Vector3d>> part_sums(static_cast<std::size_t>(threads),
+  // Count, box and coordinate sum per component, per thread; summed in thread order after. One
+  // thread when there are many components (a scattered cloud): each thread's copy of them would
+  // cost more than it saves.
+  const int stat_threads = n_comps <= 4096 ? threads : 1;
+  std::vector<std::vector<PointCluster>> part_comps(static_cast<std::size_t>(stat_threads), std::vector<PointCluster>(n_comps, empty));
+  std::vector<std::vector<Eigen::Vector3d>> part_sums(static_cast<std::size_t>(stat_threads),
                                                       std::vector<Eigen::Vector3d>(n_comps, Eigen::Vector3d::Zero()));
-  run_parallel(threads, [&](int t) {
+  run_parallel(stat_threads, [&](int t) {
     std::vector<PointCluster>& cs = part_comps[static_cast<std::size_t>(t)];
     std::vector<Eigen::Vector3d>& ss = part_sums[static_cast<std::size_t>(t)];
-    const auto [b, e] = detail::share_of(n, t, threads);
+    const auto [b, e] = detail::share_of(n, t, stat_threads);
     for (std::size_t j = b; j < e; ++j) {
       const std::uint32_t id = comp_of_cell[root_of[cell_of[j]]];
       PointCluster& pc = cs[id];

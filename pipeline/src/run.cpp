@@ -60,16 +60,27 @@ std::string sha256_hex(Feed&& feed) {
 
 }  // namespace
 
-std::string sha256_file(const fs::path& file) {
+namespace {
+
+/// sha256_file that gives up between 1 MiB reads once `stop` is set (its result is then
+/// meaningless): the checksums hashed beside an ingest that failed must not hold up its error.
+std::string sha256_file_until(const fs::path& file, const std::atomic<bool>& stop) {
   std::ifstream in(file, std::ios::binary);
   if (!in) throw InputError(file.string() + ": cannot open to compute its checksum");
   return sha256_hex([&](EVP_MD_CTX* ctx) {
     std::vector<char> buf(1 << 20);
-    while (in) {
+    while (in && !stop.load(std::memory_order_relaxed)) {
       in.read(buf.data(), static_cast<std::streamsize>(buf.size()));
       EVP_DigestUpdate(ctx, buf.data(), static_cast<std::size_t>(in.gcount()));
     }
   });
+}
+
+}  // namespace
+
+std::string sha256_file(const fs::path& file) {
+  const std::atomic<bool> never{false};
+  return sha256_file_until(file, never);
 }
 
 namespace {
@@ -265,7 +276,8 @@ void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen
 /// `as_read`, when given, gets a copy of the coordinates after the view transform, before any
 /// filter (24 bytes per point: 26 MB for the 1.1 M-point Buddha), for the honest cross-check.
 /// `in_memory`, when given, replaces ingest: its points (moved from) are the input, in
-/// config.input.units, and input.files, conf and synthetic are not read.
+/// config.input.units, and input.files, conf and synthetic are not read. The input files'
+/// SHA-256 is computed on a second thread while ingest runs (given up if ingest throws).
 
 }  // namespace detail
 
@@ -280,15 +292,24 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
                             Eigen::Matrix3Xd* as_read = nullptr, Cloud* in_memory = nullptr) {
   // The input files' checksums (provenance) on a thread of their own while ingest inflates and
   // parses on this one: ingest is serial, and hashing the Buddha's 12 MB took 6 ms after it.
+  // Should ingest throw, `stop` (set by the guard, destroyed before the future) makes the
+  // hashing give up at its next 1 MiB read, so the error is not held up by a full read.
+  std::atomic<bool> stop_hashing{false};
   std::future<std::vector<SceneInput>> checksums;
   if (!in_memory) {
-    checksums = std::async(std::launch::async, [&config] {
+    checksums = std::async(std::launch::async, [&config, &stop_hashing] {
       std::vector<SceneInput> sums;
-      for (const auto& f : config.input.files) sums.push_back({f.string(), sha256_file(f)});
-      if (config.input.conf) sums.push_back({config.input.conf->string(), sha256_file(*config.input.conf)});
+      for (const auto& f : config.input.files) sums.push_back({f.string(), sha256_file_until(f, stop_hashing)});
+      if (config.input.conf) {
+        sums.push_back({config.input.conf->string(), sha256_file_until(*config.input.conf, stop_hashing)});
+      }
       return sums;
     });
   }
+  struct StopOnExit {
+    std::atomic<bool>& stop;
+    ~StopOnExit() { stop.store(true, std::memory_order_relaxed); }
+  } const stop_on_exit{stop_hashing};
   // 1. Ingest.
   Cloud cloud = stage("ingest", reports, progress, [&] {
     if (in_memory) {
