@@ -335,6 +335,27 @@ class WantedKeys {
   std::vector<std::uint64_t> filter_;
 };
 
+/// The points of a 3 × N matrix (x y z per column, metres) as float offsets from `centre_m`,
+/// 3·N interleaved in `local` (0 for a non-finite point), and `finite` (N flags, 1 when all
+/// three coordinates are finite): the local frame of the point tests (float keeps 1e-7 of the
+/// distance from the centre). Two threads above 2^17 points, each a contiguous share. No errors.
+void local_floats(const Eigen::Matrix3Xd& xyz_m, const Eigen::Vector3d& centre_m, std::vector<float>& local,
+                  std::vector<std::uint8_t>& finite) {
+  const auto n = static_cast<std::size_t>(xyz_m.cols());
+  local.assign(3 * n, 0.0f);
+  finite.assign(n, 0);
+  const int threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
+  detail::run_parallel(threads, [&](int t) {
+    const auto [b, e] = detail::share_of(n, t, threads);
+    for (std::size_t i = b; i < e; ++i) {
+      const Eigen::Vector3d p = xyz_m.col(static_cast<Eigen::Index>(i));
+      if (!p.allFinite()) continue;
+      finite[i] = 1;
+      for (int a = 0; a < 3; ++a) local[3 * i + static_cast<std::size_t>(a)] = static_cast<float>(p[a] - centre_m[a]);
+    }
+  });
+}
+
 /// Median nearest-neighbour distance [m] of up to 4096 evenly strided finite points, each
 /// point's nearest among the finite points in the 3 × 3 × 3 voxels (edge e) about its own (the
 /// voxels of VoxelHash: coordinates clamped at ±kLimit cells). Exact when the median is at most
@@ -691,18 +712,9 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   }
   const double diag = std::max((box_hi - box_lo).norm(), g.cell_size_m);
 
-  std::vector<float> local(3 * n);
-  std::vector<std::uint8_t> finite(n, 0);
-  const int copy_threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
-  detail::run_parallel(copy_threads, [&](int t) {
-    const auto [b, e] = detail::share_of(n, t, copy_threads);
-    for (std::size_t i = b; i < e; ++i) {
-      const Eigen::Vector3d p = as_read_m.col(static_cast<Eigen::Index>(i));
-      if (!p.allFinite()) continue;
-      finite[i] = 1;
-      for (int a = 0; a < 3; ++a) local[3 * i + static_cast<std::size_t>(a)] = static_cast<float>(p[a] - centre[a]);
-    }
-  });
+  std::vector<float> local;
+  std::vector<std::uint8_t> finite;
+  local_floats(as_read_m, centre, local, finite);
 
   // 1. Removed by the filters.
   std::vector<std::uint8_t> removed(n, 1);
@@ -1190,7 +1202,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   report.stage = "isolated";
   report.count_in = cloud.size();
   const std::size_t n = cloud.size();
-  std::vector<float> local(3 * n);
+  std::vector<float> local;
   std::vector<std::uint8_t> finite(n, 0);
   // Recentre on the per-axis median (a far point must not cost the rest its float precision),
   // and start the spacing search at the edge of the central 98 % box's volume per point.
@@ -1230,16 +1242,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
     lo[e] = at(0.01);
     hi[e] = at(0.99);
   }
-  const int copy_threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
-  detail::run_parallel(copy_threads, [&](int t) {
-    const auto [b, e] = detail::share_of(n, t, copy_threads);
-    for (std::size_t i = b; i < e; ++i) {
-      if (!finite[i]) continue;
-      for (std::size_t a = 0; a < 3; ++a) {
-        local[3 * i + a] = static_cast<float>(xyz[3 * i + a] - centre[static_cast<Eigen::Index>(a)]);
-      }
-    }
-  });
+  local_floats(cloud.xyz, centre, local, finite);  // the same flags again, and the copy
   const Eigen::Vector3d ext = (hi - lo).cwiseMax(1e-9);
   const double start_edge = std::max(std::cbrt(ext.prod() / static_cast<double>(n_finite)), 1e-9);
   const double spacing = median_spacing(local, finite, start_edge);
@@ -1573,14 +1576,9 @@ double median_point_spacing(const Eigen::Matrix3Xd& xyz_m, double start_edge_m) 
   }
   if (m < 2) return 0.0;
   mean /= static_cast<double>(m);
-  std::vector<float> local(3 * n, 0.0f);
-  std::vector<std::uint8_t> finite(n, 0);
-  for (std::size_t i = 0; i < n; ++i) {
-    const Eigen::Vector3d p = xyz_m.col(static_cast<Eigen::Index>(i));
-    if (!p.allFinite()) continue;
-    finite[i] = 1;
-    for (int a = 0; a < 3; ++a) local[3 * i + static_cast<std::size_t>(a)] = static_cast<float>(p[a] - mean[a]);
-  }
+  std::vector<float> local;
+  std::vector<std::uint8_t> finite;
+  local_floats(xyz_m, mean, local, finite);
   return median_spacing(local, finite, start_edge_m);
 }
 

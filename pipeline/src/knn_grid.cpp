@@ -112,34 +112,14 @@ std::vector<std::uint32_t> dense_lower_table(const CellGrid& g) {
 // lie in their 3×3×3 block); it only affects speed, never the result.
 CellGrid build_grid(const std::vector<float>& p, std::size_t count, int k) {
   CellGrid g;
+  // The box (float coordinates widened exactly), on two threads above 2^17 points.
   std::array<double, 3> hi{};
-  for (int a = 0; a < 3; ++a) {
-    g.lo[static_cast<std::size_t>(a)] = std::numeric_limits<double>::infinity();
-    hi[static_cast<std::size_t>(a)] = -std::numeric_limits<double>::infinity();
-  }
-  {  // the box, on two threads above 2^17 points (each a contiguous share)
+  {
     const int box_threads = count > (std::size_t{1} << 17) ? kSearchThreads : 1;
-    std::vector<std::array<float, 6>> part(static_cast<std::size_t>(box_threads));
-    run_parallel(box_threads, [&](int t) {
-      std::array<float, 6> box{};
-      for (std::size_t a = 0; a < 3; ++a) {
-        box[a] = std::numeric_limits<float>::infinity();
-        box[3 + a] = -std::numeric_limits<float>::infinity();
-      }
-      const auto [b, e] = share_of(count, t, box_threads);
-      for (std::size_t i = b; i < e; ++i) {
-        for (std::size_t a = 0; a < 3; ++a) {
-          box[a] = std::min(box[a], p[3 * i + a]);
-          box[3 + a] = std::max(box[3 + a], p[3 * i + a]);
-        }
-      }
-      part[static_cast<std::size_t>(t)] = box;
-    });
-    for (const auto& box : part) {
-      for (std::size_t a = 0; a < 3; ++a) {
-        g.lo[a] = std::min(g.lo[a], static_cast<double>(box[a]));
-        hi[a] = std::max(hi[a], static_cast<double>(box[3 + a]));
-      }
+    const auto [flo, fhi] = parallel_box<float>(count, box_threads, [&p](std::size_t i) { return &p[3 * i]; });
+    for (std::size_t a = 0; a < 3; ++a) {
+      g.lo[a] = static_cast<double>(flo[a]);
+      hi[a] = static_cast<double>(fhi[a]);
     }
   }
   const double ex = hi[0] - g.lo[0], ey = hi[1] - g.lo[1], ez = hi[2] - g.lo[2];

@@ -12,6 +12,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <memory>
 #include <thread>
 #include <utility>
@@ -149,6 +150,39 @@ void run_parallel(int threads, F&& f) {
   for (int t = 1; t < threads; ++t) pool.emplace_back(f, t);
   f(0);
   for (auto& th : pool) th.join();
+}
+
+/// Per-axis box {lo, hi} of n points, `point(i)` giving point i's x, y, z (a pointer to 3 values
+/// of type T, in the caller's unit and frame), each of `threads` threads over its share_of the
+/// points, the shares' boxes joined after. A NaN coordinate is passed over, as a serial
+/// std::min / std::max loop passes over it; n = 0 gives lo = +inf, hi = −inf. No errors.
+template <class T, class PointFn>
+std::pair<std::array<T, 3>, std::array<T, 3>> parallel_box(std::size_t n, int threads, PointFn&& point) {
+  using Box = std::pair<std::array<T, 3>, std::array<T, 3>>;
+  Box empty;
+  empty.first.fill(std::numeric_limits<T>::infinity());
+  empty.second.fill(-std::numeric_limits<T>::infinity());
+  std::vector<Box> part(static_cast<std::size_t>(threads), empty);
+  run_parallel(threads, [&](int t) {
+    Box box = empty;
+    const auto [b, e] = share_of(n, t, threads);
+    for (std::size_t i = b; i < e; ++i) {
+      const T* q = point(i);
+      for (std::size_t a = 0; a < 3; ++a) {
+        box.first[a] = std::min(box.first[a], q[a]);
+        box.second[a] = std::max(box.second[a], q[a]);
+      }
+    }
+    part[static_cast<std::size_t>(t)] = box;
+  });
+  Box all = empty;
+  for (const Box& box : part) {
+    for (std::size_t a = 0; a < 3; ++a) {
+      all.first[a] = std::min(all.first[a], box.first[a]);
+      all.second[a] = std::max(all.second[a], box.second[a]);
+    }
+  }
+  return all;
 }
 
 }  // namespace hc::pipeline::detail

@@ -765,34 +765,10 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   // boxes are exactly the serial passes'; a centroid's coordinate sum is the sum of the two
   // shares' sums (its last bits may differ from one running sum; it is only reported).
   const int threads = n > (std::size_t{1} << 17) ? kSearchThreads : 1;
-  std::array<double, 3> lo{}, hi{};
-  lo.fill(std::numeric_limits<double>::infinity());
-  hi.fill(-std::numeric_limits<double>::infinity());
-  {
-    std::vector<std::array<double, 6>> part(static_cast<std::size_t>(threads));
-    run_parallel(threads, [&](int t) {
-      std::array<double, 6> box{};
-      for (std::size_t a = 0; a < 3; ++a) {
-        box[a] = std::numeric_limits<double>::infinity();
-        box[3 + a] = -std::numeric_limits<double>::infinity();
-      }
-      const auto [b, e] = detail::share_of(n, t, threads);
-      for (std::size_t j = b; j < e; ++j) {
-        const double* q = xyz + 3 * static_cast<std::size_t>(rows[j]);
-        for (std::size_t a = 0; a < 3; ++a) {
-          box[a] = std::min(box[a], q[a]);
-          box[3 + a] = std::max(box[3 + a], q[a]);
-        }
-      }
-      part[static_cast<std::size_t>(t)] = box;
-    });
-    for (const auto& box : part) {
-      for (std::size_t a = 0; a < 3; ++a) {
-        lo[a] = std::min(lo[a], box[a]);
-        hi[a] = std::max(hi[a], box[3 + a]);
-      }
-    }
-  }
+  const auto box = detail::parallel_box<double>(
+      n, threads, [&](std::size_t j) { return xyz + 3 * static_cast<std::size_t>(rows[j]); });
+  const std::array<double, 3>& lo = box.first;  // named references: the lambdas below capture them
+  const std::array<double, 3>& hi = box.second;
   // Cells of edge >= link (at most 2^21 per axis: keys fit 63 bits).
   const double edge = std::max({link_m, (hi[0] - lo[0]) / 2097150.0, (hi[1] - lo[1]) / 2097150.0, (hi[2] - lo[2]) / 2097150.0});
   std::array<std::int64_t, 3> nc{};
