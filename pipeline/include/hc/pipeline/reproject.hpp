@@ -211,12 +211,11 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 /// flags, against reproject's two passes and its O(rows·cols) scan. Threads: as reproject.
 /// Falls back to the whole grid for 2^32 − 1 points or more (windows list points by 32-bit
 /// column).
-/// Known defect (found 2026-11-24, cause not yet found): on the tests' generated relief
-/// (relief(400000, 5), plane splats, K = 1), removing 9 points about the middle of the cloud
-/// with one of them raised 30 mm in front, and the last point raised likewise, left the grid
-/// bit for bit equal to a whole reproject but four event counts off (cells_occluded_by_splat
-/// 8123 against 8128, cells_see_through 393 / 401, cells_splat_filled_empty 16602 / 16601,
-/// see_through_candidates 67696 / 67718); the grid itself is not affected.
+/// Precondition not checked: `removed` holds the coordinates the points had when `before` was
+/// made. The windows' scan before the removal is made from them, so with other coordinates the
+/// grid still comes out right (it depends on the remaining points only) but the event counts are
+/// corrected by the wrong difference. (A known defect documented on 2026-11-24 was this: the
+/// test had moved a point after making `before`.)
 /// Source: this project (the locality the tiled run relies on, tiling.hpp).
 StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const RemovedPoints& removed,
                                                StageResult<DepthGrid> before, const ReprojectOptions& options);
