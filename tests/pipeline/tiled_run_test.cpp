@@ -22,6 +22,7 @@
 
 #include <array>
 #include <bit>
+#include <csignal>
 #include <cmath>
 #include <cstring>
 #include <iostream>
@@ -29,6 +30,8 @@
 #include <map>
 #include <vector>
 #include <string>
+
+#include <sys/resource.h>
 
 namespace {
 
@@ -489,24 +492,18 @@ TEST(TiledRun, TheRobustTestJudgesAgainPointsWhoseSearchesLeaveTheWindow) {
   EXPECT_EQ(differing_bits(in.scene.layers.depth, unchecked.scene.layers.depth), 0U);
 }
 
-// The second look reads a tile it has read before from that tile's block copy: only the blocks
-// the balls meet, the points put back in spill order. The scene of the test above with a second
-// group and cluster, the same layout turned a quarter: group 2 at the top edge of tile (3, 2)'s
-// interior (tile row 3, column 2; 40-cell tiles), cluster 2 just past that tile's window, in
-// tile (2, 2), which holds cluster 1 too. Tile (2, 1) gathers cluster 1 from tile (2, 2)'s
-// spill, copying it by block; tile (3, 2) then gathers cluster 2 from that copy. Oracle: the
-// in-core run, where group 2 stays (its tile alone would remove it).
-TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
-  const fs::path dir = hc::test::temp_dir("blocks");
-  const auto [yaml, g, halo] = hole_plane_layout(dir);
-  ASSERT_EQ(g.rows, 200);
-  ASSERT_GT(halo, 3.0);
+// The scene of TiledRun.ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet (two groups, each with a cluster past its tile's window, both
+// clusters in tile (2, 2)) written to dir/plane.ply; the layout of hole_plane_layout(dir).
+HoleLayout write_two_group_plane(const fs::path& dir) {
+  HoleLayout l = hole_plane_layout(dir);
+  const hc::GridGeometry& g = l.g;
+  const double halo = l.halo;
   const double c = 0.495;  // the grid frame's origin in the file's frame (x and y)
   const double x_b = g.x_of_col(79.5) + c, x_e = g.x_of_col(79.5 + halo) + c;
   // Rows: the edge between tile rows 2 and 3 (node rows 119 and 120; y grows with the row);
   // tile row 3's window begins halo rows before it.
   const double y_b = g.y_of_row(119.5) + c, y_e = g.y_of_row(119.5 - halo) + c;
-  ASSERT_GT(y_e + 0.1, y_b) << "the halo is less than 10 cm";
+  EXPECT_GT(y_e + 0.1, y_b) << "the halo is less than 10 cm";
   std::vector<std::array<double, 3>> extra;
   for (int a = 0; a < 2; ++a)
     for (int b = 0; b < 4; ++b) extra.push_back({x_b - 0.0015 - 0.0015 * a, 0.5 - 0.00225 + 0.0015 * b, 0.0});
@@ -520,6 +517,22 @@ TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
   // 2's, and its tile's first look (plane points 10 cm away) asks for balls of about 10 cm
   // radius: they meet the blocks of tile (2, 2) within 10 cm of its edge, not those beyond.
   write_plane_with_holes(dir / "plane.ply", {{0.4, 0.5, 0.2}, {0.45, y_b, 0.1}}, extra);
+  return l;
+}
+
+// The second look reads a tile it has read before from that tile's block copy: only the blocks
+// the balls meet, the points put back in spill order. The scene of the test above with a second
+// group and cluster, the same layout turned a quarter: group 2 at the top edge of tile (3, 2)'s
+// interior (tile row 3, column 2; 40-cell tiles), cluster 2 just past that tile's window, in
+// tile (2, 2), which holds cluster 1 too. Tile (2, 1) gathers cluster 1 from tile (2, 2)'s
+// spill, copying it by block; tile (3, 2) then gathers cluster 2 from that copy. Oracle: the
+// in-core run, where group 2 stays (its tile alone would remove it).
+TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
+  const fs::path dir = hc::test::temp_dir("blocks");
+  const auto [yaml, g, halo] = write_two_group_plane(dir);
+  ASSERT_EQ(g.rows, 200);
+  ASSERT_GT(halo, 3.0);
+  const double c = 0.495;
   auto [tiled_config, in, tiled] = in_core_and_tiled(dir, yaml, 40);
   ASSERT_EQ(in.scene.layers.depth.geometry(), g) << "the groups and the clusters left the layout as it was";
   ASSERT_EQ(stage_figure(tiled, "tile_plan", "tiles"), 25.0);
@@ -551,6 +564,140 @@ TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
   }
   EXPECT_GT(stage_figure(whole, "tiles", "sum_robust_spill_points_scanned"), stage_figure(tiled, "tiles", "sum_robust_spill_points_scanned"));
   EXPECT_EQ(differing_bits(whole.scene.layers.depth, tiled.scene.layers.depth), 0U);
+}
+
+// A full disk, simulated with RLIMIT_FSIZE (a write that would make a file larger than the limit
+// fails with EFBIG and raises SIGXFSZ; the limit is this test process's alone, as ctest runs each
+// test in a process of its own). While the limit is set to 0, the next write that extends a file
+// fails; the handler below then lifts the limit again, so that exactly one write fails.
+rlimit g_fsize_saved{};
+volatile std::sig_atomic_t g_fsize_refusals = 0;
+void lift_file_size_limit(int) {
+  g_fsize_refusals = g_fsize_refusals + 1;
+  setrlimit(RLIMIT_FSIZE, &g_fsize_saved);  // a system call: safe in a signal handler
+}
+// Sets the limit to `bytes` with `handler` for SIGXFSZ (SIG_IGN or lift_file_size_limit), and
+// restores both when it goes, whatever the run did.
+class FileSizeLimit {
+ public:
+  FileSizeLimit() {
+    getrlimit(RLIMIT_FSIZE, &g_fsize_saved);
+    old_ = std::signal(SIGXFSZ, SIG_DFL);
+    std::signal(SIGXFSZ, old_);
+  }
+  ~FileSizeLimit() {
+    setrlimit(RLIMIT_FSIZE, &g_fsize_saved);
+    std::signal(SIGXFSZ, old_);
+  }
+  FileSizeLimit(const FileSizeLimit&) = delete;
+  FileSizeLimit& operator=(const FileSizeLimit&) = delete;
+  void set(rlim_t bytes, void (*handler)(int)) {
+    std::signal(SIGXFSZ, handler);
+    rlimit r = g_fsize_saved;
+    r.rlim_cur = bytes;
+    setrlimit(RLIMIT_FSIZE, &r);
+  }
+
+ private:
+  void (*old_)(int) = SIG_DFL;
+};
+
+// The block copies' files under `dir` (those in `.blocks-*` folders, which lie in the run's
+// scratch folder inside it).
+std::size_t block_copy_files(const fs::path& dir) {
+  std::size_t n = 0;
+  for (const auto& e : fs::recursive_directory_iterator(dir)) {
+    if (e.is_regular_file() && e.path().parent_path().filename().string().rfind(".blocks-", 0) == 0) ++n;
+  }
+  return n;
+}
+
+// A block copy the disk refuses (BlockCopies: "a copy that cannot be written is removed and no
+// more are made") must not fail the run: the scene of the test above, the first copy's write
+// refused. Oracle: the same run with scale.block_copies false, whose gatherings read whole
+// spills: the same points scanned, gathered, judged and removed, and the in-core grid. The first
+// run (no limit) finds the tile whose gathering makes the first copy: tile (2, 1), as the test
+// above describes. Mutations: a copy left on disk after the failure, or copies made after it,
+// fail the checks at the ticks; a failure that stopped the run fails the build.
+TEST(TiledRun, ABlockCopyTheDiskRefusesIsRemovedAndTheGatheringsReadWholeSpills) {
+  const fs::path dir = hc::test::temp_dir("blocks_full_disk");
+  const auto [yaml, g, halo] = write_two_group_plane(dir);
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "plane.yaml");
+  const BuiltScene in = hc::pipeline::build_scene(config);
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 40;
+  config.scale.scratch = dir;
+  config.scale.progress_interval_s = 0.0;
+  // The tile about to run at a tick of the tile loop (ticks come before tiles 1 ... 24).
+  const auto tile_at = [](const hc::pipeline::StageReport& r) {
+    if (r.stage != "tiles") return -1;
+    for (const auto& [n, v] : r.figures)
+      if (n == "progress_fraction") return static_cast<int>(std::lround(25.0 * v));
+    return -1;
+  };
+  int first_copy_tile = -1;
+  (void)hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
+    const int t = tile_at(r);
+    if (done || t < 0 || first_copy_tile >= 0) return;
+    if (block_copy_files(dir) > 0) first_copy_tile = t - 1;
+  });
+  ASSERT_EQ(first_copy_tile, 2 * 5 + 1) << "tile (2, 1) makes the first copy";
+
+  g_fsize_refusals = 0;
+  std::vector<std::size_t> copies_after;  // block copy files at each tick after the refusal
+  BuiltScene refused;
+  {
+    FileSizeLimit limit;
+    refused = hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
+      const int t = tile_at(r);
+      if (done || t < 0) return;
+      if (t == first_copy_tile) limit.set(0, lift_file_size_limit);
+      if (t > first_copy_tile) copies_after.push_back(block_copy_files(dir));
+    });
+  }
+  EXPECT_EQ(g_fsize_refusals, 1) << "one write was refused";
+  ASSERT_FALSE(copies_after.empty());
+  for (std::size_t i = 0; i < copies_after.size(); ++i) EXPECT_EQ(copies_after[i], 0U) << "tick " << i << " after the refusal";
+  EXPECT_EQ(stage_figure(refused, "tiles", "sum_robust_block_copy_failures"), 1.0);
+  EXPECT_LE(stage_figure(refused, "tiles", "sum_robust_block_copies"), 0.0) << "no copy made";
+  EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "no spill or block copy is left behind";
+
+  config.scale.block_copies = false;
+  const BuiltScene whole = hc::pipeline::build_scene(config);
+  EXPECT_GE(stage_figure(whole, "tiles", "sum_robust_gatherings"), 2.0);
+  for (const char* name : {"sum_robust_spill_points_scanned", "sum_robust_points_gathered", "sum_robust_gatherings",
+                           "sum_points_judged_past_halo", "sum_removed_robust"}) {
+    EXPECT_EQ(stage_figure(refused, "tiles", name), stage_figure(whole, "tiles", name)) << name;
+  }
+  EXPECT_EQ(differing_bits(in.scene.layers.depth, refused.scene.layers.depth), 0U);
+}
+
+// A spill file the disk refuses (a 1 kB file-size limit, SIGXFSZ ignored: every tile's spill is
+// about 5 kB) stops the run with an error naming the file and what may be wrong, and the scratch
+// folder with the spills written so far goes.
+TEST(TiledRun, ASpillTheDiskRefusesStopsTheRunNamingTheFileAndLeavesNothing) {
+  const fs::path dir = hc::test::temp_dir("spill_full_disk");
+  const HoleLayout layout = hole_plane_layout(dir);
+  RunConfig config = hc::pipeline::parse_run_config(layout.yaml, dir / "plane.yaml");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = dir;
+  std::string what;
+  {
+    FileSizeLimit limit;
+    limit.set(1024, SIG_IGN);
+    try {
+      (void)hc::pipeline::build_scene(config);
+    } catch (const hc::InputError& e) {
+      what = e.what();
+    }
+  }
+  EXPECT_NE(what.find("cannot write the spill file " + dir.string()), std::string::npos) << what;
+  EXPECT_NE(what.find("File too large"), std::string::npos) << what;
+  EXPECT_NE(what.find("is the disk full?"), std::string::npos) << what;
+  EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "the scratch folder is removed on the error";
+  // The same run without the limit goes through (the failure was the limit's).
+  EXPECT_NO_THROW((void)hc::pipeline::build_scene(config));
+  EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U);
 }
 
 // A point the isolated-point test removes within its radius of the window's edge might be kept
