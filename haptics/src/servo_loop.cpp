@@ -30,6 +30,13 @@ timespec to_timespec(std::int64_t ns) noexcept {
 }
 
 /// Sleeps until CLOCK_MONOTONIC reaches `ns` (absolute; at once if already past). Real-time: yes.
+// A spin-wait hint (x86 PAUSE: less power, no memory-order mis-speculation on exit).
+inline void cpu_relax() noexcept {
+#if defined(__x86_64__) || defined(__i386__)
+  __builtin_ia32_pause();
+#endif
+}
+
 void sleep_until_ns(std::int64_t ns) noexcept {
   const timespec ts = to_timespec(ns);
   while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
@@ -119,6 +126,9 @@ ServoLoop::ServoLoop(HapticDevice& device, SharedState& shared, const Clock& clo
   }
   if (!(config_.wake_on_surface_min_period >= 0.25 && config_.wake_on_surface_min_period <= 1.0)) {
     fail("wake_on_surface_min_period", config_.wake_on_surface_min_period, "[0.25, 1] periods");
+  }
+  if (!(config_.warm_up_ns >= 0 && static_cast<double>(config_.warm_up_ns) <= 0.25e9 / config_.rate_hz)) {
+    fail("warm_up_ns", static_cast<double>(config_.warm_up_ns), "[0, a quarter of the period] ns");
   }
   if (!config_.workspace.valid()) fail("workspace.scale", config_.workspace.scale, "finite > 0 with a finite origin and rotation");
   validate_proxy_params(config_.proxy);
@@ -258,6 +268,7 @@ void ServoLoop::adopt_surface(TickFrame& frame) noexcept {
   const SharedState::Adoption adoption = shared_.adopt();
   frame.surface = adoption.surface;
   frame.surface_tag = adoption.tag;
+  surface_in_use_ = adoption.surface;
   if (!adoption.changed) return;
   shared_.log({tick_count_, ServoLogEntry::Kind::kSurface, Command{}, adoption.tag});
   // Surface and map switch together (the map, when published with the surface).
@@ -303,7 +314,10 @@ void ServoLoop::update_proxy(const DeviceReading& reading, bool have_reading, co
   }
   const HipInput in{config_.workspace.to_grid(reading.position_m), frame.dt_s,
                     device_.state() == DeviceState::kArmed};
+  const bool had_hip = state_.initialized;
+  const Eigen::Vector3d hip_before = state_.hip_m;
   state_ = step_proxy(state_, in, frame.surface, grid_params_);
+  hip_step_m_ = had_hip && state_.initialized ? Eigen::Vector3d(state_.hip_m - hip_before) : Eigen::Vector3d::Zero();
   if (state_.status == ProxyStatus::kNonFiniteInput) {
     shared_.counters.nonfinite_inputs.fetch_add(1, std::memory_order_relaxed);
     device_.fault();
@@ -527,13 +541,20 @@ void ServoLoop::thread_main() noexcept {
   std::int64_t deadline = monotonic_now_ns();
   std::int64_t last_tick = deadline;  // the start counts as a tick for the wake's minimum gap
   bool last_early = false;
+  const std::int64_t warm_ns = config_.warm_up_ns;
   while (!stop_flag_.load(std::memory_order_acquire) && !stop_requested_) {
     deadline += period_ns_;
     bool early = false;
+    // Asleep until warm_ns before the deadline (a surface published before then may wake it
+    // for an early tick), then the caches warmed and a spin to the deadline.
     if (wake && !last_early) {  // at most one early tick between two deadline ticks
-      early = sleep_until_tick(deadline, last_tick + min_gap_ns);
+      early = sleep_until_tick(deadline - warm_ns, last_tick + min_gap_ns);
     } else {
-      sleep_until_ns(deadline);
+      sleep_until_ns(deadline - warm_ns);
+    }
+    if (!early && warm_ns > 0) {
+      warm_up();
+      while (monotonic_now_ns() < deadline) cpu_relax();
     }
     const std::int64_t wake_ns = monotonic_now_ns();
     tick_impl(early ? kNoDeadline : wake_ns - deadline);
@@ -552,6 +573,13 @@ void ServoLoop::thread_main() noexcept {
     }
   }
   finished_.store(true, std::memory_order_release);
+}
+
+void ServoLoop::warm_up() noexcept {
+  if (surface_in_use_ == nullptr || !state_.initialized) return;
+  // The HIP where it will be if it keeps its last step: the real step then walks the same cells.
+  const HipInput in{state_.hip_m + hip_step_m_, static_cast<double>(period_ns_) * 1e-9, device_.state() == DeviceState::kArmed};
+  warm_sink_ = step_proxy(state_, in, surface_in_use_, grid_params_).proxy_m.z();
 }
 
 bool ServoLoop::sleep_until_tick(std::int64_t deadline_ns, std::int64_t earliest_wake_ns) noexcept {

@@ -10,9 +10,11 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
-#include <string>
+#include <cstdint>
 #include <limits>
 #include <memory>
+#include <string>
+#include <utility>
 #include <thread>
 #include <vector>
 
@@ -480,6 +482,59 @@ TEST(ServoLoop, TheWakeGapOutsideAQuarterToOnePeriodIsAnError) {
   for (const double good : {0.25, 1.0}) {
     ServoConfig cfg;
     cfg.wake_on_surface_min_period = good;
+    EXPECT_NO_THROW(ServoLoop(dev, shared, clock, cfg));
+  }
+}
+
+// The cache warm-up before each deadline (ServoConfig::warm_up_ns) must not move the tick: the
+// thread wakes warm_up_ns early, but the tick (and the device read) waits for the deadline. At
+// 4 Hz with a 60 ms warm-up (a quarter period is 62.5 ms), every deadline tick starts no sooner
+// than its deadline: the first a whole period after the start, the rest a period apart (lower
+// bounds only: absolute sleeps and the spin never end early). A loop that ran the tick when the
+// warm-up begins would start it 60 ms early.
+TEST(ServoLoop, TheWarmUpBeforeADeadlineDoesNotMoveTheTick) {
+  SharedState shared(sinusoid_surface(20));
+  SteadyClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  dev.open();
+  ServoConfig cfg;
+  cfg.rate_hz = 4.0;
+  cfg.realtime = RealtimeMode::kOff;
+  cfg.wake_on_surface_min_period = 1.0;  // deadline ticks only
+  cfg.warm_up_ns = 60'000'000;
+  ServoLoop loop(dev, shared, clock, cfg);
+  std::vector<TickRecord> trace(8);
+  loop.set_trace(trace);
+  const double t0_s = static_cast<double>(clock.now_ns()) * 1e-9;
+  loop.start();
+  while (loop.trace_size() < 4) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  loop.stop();
+  trace.resize(loop.trace_size());
+  ASSERT_GE(trace.size(), 4U);
+  EXPECT_GE(trace[0].t_s - t0_s, 0.25 - 1e-4) << "the first tick came before its deadline";
+  for (std::size_t k = 1; k < trace.size(); ++k) EXPECT_GE(trace[k].t_s - trace[k - 1].t_s, 0.25 - 1e-4) << "tick " << k;
+  EXPECT_EQ(loop.stats().lateness.count(), loop.stats().ticks) << "deadline ticks only";
+}
+
+TEST(ServoLoop, AWarmUpOutsideZeroToAQuarterPeriodIsAnError) {
+  SharedState shared;
+  ManualClock clock;
+  SimulatedDevice dev(clock, circle_path());
+  for (const auto& [rate_hz, bad] : {std::pair<double, std::int64_t>{1000.0, -1}, {1000.0, 250'001}, {10000.0, 25'001}}) {
+    ServoConfig cfg;
+    cfg.rate_hz = rate_hz;
+    cfg.warm_up_ns = bad;
+    try {
+      ServoLoop loop(dev, shared, clock, cfg);
+      ADD_FAILURE() << "accepted warm_up_ns = " << bad << " at " << rate_hz << " Hz";
+    } catch (const ConfigError& e) {
+      EXPECT_NE(std::string(e.what()).find("warm_up_ns"), std::string::npos) << e.what();
+    }
+  }
+  for (const auto& [rate_hz, good] : {std::pair<double, std::int64_t>{1000.0, 0}, {1000.0, 250'000}, {10000.0, 20'000}}) {
+    ServoConfig cfg;
+    cfg.rate_hz = rate_hz;
+    cfg.warm_up_ns = good;
     EXPECT_NO_THROW(ServoLoop(dev, shared, clock, cfg));
   }
 }

@@ -64,6 +64,16 @@ struct ServoConfig {
   /// deadlines only), 0.5 bounds the request → first tick wait by half a period. [periods].
   /// Issue 16: LoD switch p99 ≤ 1 ms. Without futex(2) the loop sleeps to its deadlines.
   double wake_on_surface_min_period = 0.5;
+  /// Threaded loop: the thread wakes this long before each deadline, brings back into the CPU
+  /// caches what the tick will use (warm_up(): a dry step of the proxy on a copy of its state,
+  /// to the HIP extrapolated by its last step, on the surface in use: the step's code and the
+  /// cells it walks), and spins to the deadline. After the ~1 ms sleep a core that ran other work (the
+  /// viewer, Mesa's llvmpipe, the hypervisor) has lost those lines, and each costs about 0.1 µs
+  /// from memory: on the 2-core VM a tick's compute p99.9 was 3–4 µs without it (bench/README,
+  /// issue 16, "the servo tick after a sleep"). The device is read only at the deadline, so the
+  /// read → write time shrinks, not just the figure. Cost: this much CPU per period (2 % of a
+  /// core at 20 µs and 1 kHz). 0 turns it off. In [0, a quarter period] [ns].
+  std::int64_t warm_up_ns = 20000;
 };
 
 /// What start() obtained.
@@ -230,6 +240,10 @@ class ServoLoop {
   /// parameters follow the scale, and the force blend starts (see switch_max_force_step_n).
   void switch_map(const WorkspaceMap& next) noexcept;
   void thread_main() noexcept;
+  /// Threaded loop, before a deadline tick (ServoConfig::warm_up_ns): a dry step_proxy on a copy
+  /// of the state, to the HIP extrapolated by its last step, on the surface in use; its result is
+  /// dropped, and nothing the tick reads changes. Real-time: yes (step_proxy's cost).
+  void warm_up() noexcept;
 
   HapticDevice& device_;
   SharedState& shared_;
@@ -254,6 +268,11 @@ class ServoLoop {
   double slide_from_s_ = 0.0;
   int ticks_since_slide_ = 0;
   std::uint32_t prev_buttons_ = 0;  // buttons at the previous good read (button events)
+  // The surface the last tick rendered (owned by shared_ until the servo adopts another, so
+  // valid between ticks on the servo thread), for warm_up(); and where warm_up() drops its step.
+  const HapticSurface* surface_in_use_ = nullptr;
+  double warm_sink_ = 0.0;
+  Eigen::Vector3d hip_step_m_ = Eigen::Vector3d::Zero();  // the HIP's change over the last tick, grid frame [m]
 
   std::thread thread_;
   std::atomic<int> go_{0};  // 0 wait, 1 run, −1 abandon
