@@ -444,6 +444,21 @@ HoleLayout hole_plane_layout(const fs::path& dir) {
   return l;
 }
 
+// Group 1 (8 points just inside the edge between the interiors of tile columns 1 and 2, node
+// column 79, about y = 0.5 m) and cluster 1 (20 points just past the left tile's window, halo
+// cells further), in the file's frame, for the layout `g` and halo [cells] of hole_plane_layout.
+// The grid frame is recentred on the centre of the plane's box, (0.495, 0.495, 0).
+std::vector<std::array<double, 3>> group_and_cluster_1(const hc::GridGeometry& g, double halo) {
+  const double c = 0.495;
+  const double x_b = g.x_of_col(79.5) + c, x_e = g.x_of_col(79.5 + halo) + c;
+  std::vector<std::array<double, 3>> extra;
+  for (int a = 0; a < 2; ++a)
+    for (int b = 0; b < 4; ++b) extra.push_back({x_b - 0.0015 - 0.0015 * a, 0.5 - 0.00225 + 0.0015 * b, 0.0});
+  for (int a = 0; a < 4; ++a)
+    for (int b = 0; b < 5; ++b) extra.push_back({x_e + 0.0005 + 0.0015 * a, 0.496 + 0.002 * b, 0.0});
+  return extra;
+}
+
 // The robust test's k nearest neighbours of a point the tile decides may lie past the tile's
 // window. Here a group of 8 points sits at the edge of a tile's interior in a hole of the plane,
 // and its other nearest points, a cluster of 20, lie just past that tile's window (in the next
@@ -458,17 +473,11 @@ TEST(TiledRun, TheRobustTestJudgesAgainPointsWhoseSearchesLeaveTheWindow) {
   const auto [yaml, g, halo] = hole_plane_layout(dir);
   ASSERT_EQ(g.cols, 200);
   ASSERT_GT(halo, 3.0);
-  // x_b: the edge between the interiors of tile columns 1 and 2 (node columns 79 and 80); the
-  // left tile's window ends halo cells further. In the file's frame: the grid frame is recentred
-  // on the centre of the points' box, (0.495, 0.495, 0).
+  // x_b: the edge between the interiors of tile columns 1 and 2 (node columns 79 and 80), in
+  // the file's frame; the hole is centred on it.
   const double c = 0.495;
-  const double x_b = g.x_of_col(79.5) + c, x_e = g.x_of_col(79.5 + halo) + c;
-  std::vector<std::array<double, 3>> extra;
-  for (int a = 0; a < 2; ++a)
-    for (int b = 0; b < 4; ++b) extra.push_back({x_b - 0.0015 - 0.0015 * a, 0.5 - 0.00225 + 0.0015 * b, 0.0});
-  for (int a = 0; a < 4; ++a)
-    for (int b = 0; b < 5; ++b) extra.push_back({x_e + 0.0005 + 0.0015 * a, 0.496 + 0.002 * b, 0.0});
-  write_plane_with_hole(dir / "plane.ply", x_b, extra);
+  const double x_b = g.x_of_col(79.5) + c;
+  write_plane_with_hole(dir / "plane.ply", x_b, group_and_cluster_1(g, halo));
   auto [tiled_config, in, tiled] = in_core_and_tiled(dir, yaml, 40);
   ASSERT_EQ(in.scene.layers.depth.geometry(), g) << "the group and the cluster left the layout as it was";
   ASSERT_EQ(stage_figure(in, "tile_plan", "tiles"), -1.0) << "the first run is in core";
@@ -499,16 +508,11 @@ HoleLayout write_two_group_plane(const fs::path& dir) {
   const hc::GridGeometry& g = l.g;
   const double halo = l.halo;
   const double c = 0.495;  // the grid frame's origin in the file's frame (x and y)
-  const double x_b = g.x_of_col(79.5) + c, x_e = g.x_of_col(79.5 + halo) + c;
   // Rows: the edge between tile rows 2 and 3 (node rows 119 and 120; y grows with the row);
   // tile row 3's window begins halo rows before it.
   const double y_b = g.y_of_row(119.5) + c, y_e = g.y_of_row(119.5 - halo) + c;
   EXPECT_GT(y_e + 0.1, y_b) << "the halo is less than 10 cm";
-  std::vector<std::array<double, 3>> extra;
-  for (int a = 0; a < 2; ++a)
-    for (int b = 0; b < 4; ++b) extra.push_back({x_b - 0.0015 - 0.0015 * a, 0.5 - 0.00225 + 0.0015 * b, 0.0});
-  for (int a = 0; a < 4; ++a)
-    for (int b = 0; b < 5; ++b) extra.push_back({x_e + 0.0005 + 0.0015 * a, 0.496 + 0.002 * b, 0.0});
+  std::vector<std::array<double, 3>> extra = group_and_cluster_1(g, halo);
   for (int a = 0; a < 2; ++a)
     for (int b = 0; b < 4; ++b) extra.push_back({0.45 - 0.00225 + 0.0015 * b, y_b + 0.0015 + 0.0015 * a, 0.0});
   for (int a = 0; a < 4; ++a)
