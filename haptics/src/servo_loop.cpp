@@ -29,14 +29,17 @@ timespec to_timespec(std::int64_t ns) noexcept {
   return ts;
 }
 
-/// Sleeps until CLOCK_MONOTONIC reaches `ns` (absolute; at once if already past). Real-time: yes.
-// A spin-wait hint (x86 PAUSE: less power, no memory-order mis-speculation on exit).
+// A spin-wait hint (x86 PAUSE, AArch64 YIELD: less power, and on x86 no memory-order
+// mis-speculation when the spin ends).
 inline void cpu_relax() noexcept {
 #if defined(__x86_64__) || defined(__i386__)
   __builtin_ia32_pause();
+#elif defined(__aarch64__)
+  __asm__ volatile("yield");
 #endif
 }
 
+/// Sleeps until CLOCK_MONOTONIC reaches `ns` (absolute; at once if already past). Real-time: yes.
 void sleep_until_ns(std::int64_t ns) noexcept {
   const timespec ts = to_timespec(ns);
   while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, nullptr) == EINTR) {
@@ -167,6 +170,7 @@ void ServoLoop::switch_map(const WorkspaceMap& next) noexcept {
     slide_from_m_ = next.to_grid(old.to_device(slide_from_m_));
   }
   config_.workspace = next;
+  hip_step_m_.setZero();  // a step in the old map's frame
   update_grid_params();
   // Blend from the force sent last; ended at once in the tick if the new force is close to it.
   blend_from_n_ = last_device_force_n_;
@@ -268,7 +272,6 @@ void ServoLoop::adopt_surface(TickFrame& frame) noexcept {
   const SharedState::Adoption adoption = shared_.adopt();
   frame.surface = adoption.surface;
   frame.surface_tag = adoption.tag;
-  surface_in_use_ = adoption.surface;
   if (!adoption.changed) return;
   shared_.log({tick_count_, ServoLogEntry::Kind::kSurface, Command{}, adoption.tag});
   // Surface and map switch together (the map, when published with the surface).
@@ -307,6 +310,7 @@ void ServoLoop::publish_buttons(const DeviceReading& reading, const TickFrame& f
 
 void ServoLoop::update_proxy(const DeviceReading& reading, bool have_reading, const TickFrame& frame) noexcept {
   if (!have_reading) {
+    hip_step_m_.setZero();
     state_.force_n.setZero();
     state_.gate_open = false;
     state_.ramp = 0.0;
@@ -552,12 +556,17 @@ void ServoLoop::thread_main() noexcept {
     } else {
       sleep_until_ns(deadline - warm_ns);
     }
+    const std::int64_t woke_ns = monotonic_now_ns();
+    // Also when the wake came after the deadline: the tick starts later by the step, but its
+    // read → write time is what the warm-up shortens.
     if (!early && warm_ns > 0) {
       warm_up();
       while (monotonic_now_ns() < deadline) cpu_relax();
     }
     const std::int64_t wake_ns = monotonic_now_ns();
-    tick_impl(early ? kNoDeadline : wake_ns - deadline);
+    // Lateness: the wake-up against the time it was asked for (the scheduler's jitter), as
+    // without the warm-up, not the spin's end against the deadline.
+    tick_impl(early ? kNoDeadline : woke_ns - (deadline - warm_ns));
     last_tick = wake_ns;
     last_early = early;
     if (early) {
@@ -576,10 +585,14 @@ void ServoLoop::thread_main() noexcept {
 }
 
 void ServoLoop::warm_up() noexcept {
-  if (surface_in_use_ == nullptr || !state_.initialized) return;
+  ++stats_.warm_ups;
+  // The surface the last tick adopted: only this thread adopts, and the producer frees a
+  // surface only after the servo has retired it.
+  const HapticSurface* surface = shared_.current_surface();
+  if (surface == nullptr || !state_.initialized) return;
   // The HIP where it will be if it keeps its last step: the real step then walks the same cells.
   const HipInput in{state_.hip_m + hip_step_m_, static_cast<double>(period_ns_) * 1e-9, device_.state() == DeviceState::kArmed};
-  warm_sink_ = step_proxy(state_, in, surface_in_use_, grid_params_).proxy_m.z();
+  warm_sink_ = step_proxy(state_, in, surface, grid_params_).proxy_m.z();
 }
 
 bool ServoLoop::sleep_until_tick(std::int64_t deadline_ns, std::int64_t earliest_wake_ns) noexcept {

@@ -11,6 +11,7 @@
 #include <cmath>
 #include <filesystem>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <memory>
 #include <string>
@@ -488,10 +489,10 @@ TEST(ServoLoop, TheWakeGapOutsideAQuarterToOnePeriodIsAnError) {
 
 // The cache warm-up before each deadline (ServoConfig::warm_up_ns) must not move the tick: the
 // thread wakes warm_up_ns early, but the tick (and the device read) waits for the deadline. At
-// 4 Hz with a 60 ms warm-up (a quarter period is 62.5 ms), every deadline tick starts no sooner
-// than its deadline: the first a whole period after the start, the rest a period apart (lower
-// bounds only: absolute sleeps and the spin never end early). A loop that ran the tick when the
-// warm-up begins would start it 60 ms early.
+// 4 Hz with a 60 ms warm-up (a quarter period is 62.5 ms), tick k starts no sooner than its
+// deadline, (k + 1) periods after the start (a lower bound: absolute sleeps and the spin never
+// end early, and a missed deadline only moves the next ones later). A loop that ran the tick
+// when the warm-up begins would start every tick 60 ms early.
 TEST(ServoLoop, TheWarmUpBeforeADeadlineDoesNotMoveTheTick) {
   SharedState shared(sinusoid_surface(20));
   SteadyClock clock;
@@ -507,13 +508,60 @@ TEST(ServoLoop, TheWarmUpBeforeADeadlineDoesNotMoveTheTick) {
   loop.set_trace(trace);
   const double t0_s = static_cast<double>(clock.now_ns()) * 1e-9;
   loop.start();
-  while (loop.trace_size() < 4) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (shared.counters.ticks.load() < 4 && std::chrono::steady_clock::now() < give_up) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
   loop.stop();
   trace.resize(loop.trace_size());
   ASSERT_GE(trace.size(), 4U);
-  EXPECT_GE(trace[0].t_s - t0_s, 0.25 - 1e-4) << "the first tick came before its deadline";
-  for (std::size_t k = 1; k < trace.size(); ++k) EXPECT_GE(trace[k].t_s - trace[k - 1].t_s, 0.25 - 1e-4) << "tick " << k;
+  for (std::size_t k = 0; k < trace.size(); ++k) {
+    EXPECT_GE(trace[k].t_s - t0_s, 0.25 * static_cast<double>(k + 1) - 1e-4) << "tick " << k << " came before its deadline";
+  }
   EXPECT_EQ(loop.stats().lateness.count(), loop.stats().ticks) << "deadline ticks only";
+  EXPECT_GE(loop.stats().warm_ups, 1U) << "the warm-up ran";
+}
+
+// warm_up() is dry: the ticks of a loop that runs it before every tick equal, bit for bit, those
+// of a loop that does not (the same scripted hand on the same surface, ManualClock). It steps the
+// proxy on a sinusoid with texture and friction, so a warm-up that wrote its step back (or moved
+// the HIP) would change the trace.
+TEST(ServoLoop, TheWarmUpChangesNoTick) {
+  const auto run = [](bool warm) {
+    SharedState shared(sinusoid_surface(50));
+    ManualClock clock;
+    SimulatedDevice dev(clock, circle_path());
+    dev.open();
+    ServoLoop loop(dev, shared, clock, ServoConfig{});
+    std::vector<TickRecord> trace(3000);
+    loop.set_trace(trace);
+    EXPECT_TRUE(shared.commands.try_push(Command::of(CommandType::kArm)));
+    for (int k = 0; k < 3000; ++k) {
+      if (warm) loop.warm_up();
+      loop.run_ticks(1, clock);
+    }
+    EXPECT_EQ(loop.stats().warm_ups, warm ? 3000U : 0U);
+    trace.resize(loop.trace_size());
+    return trace;
+  };
+  const std::vector<TickRecord> plain = run(false), warmed = run(true);
+  ASSERT_EQ(plain.size(), 3000U);
+  ASSERT_EQ(warmed.size(), plain.size());
+  std::size_t contact = 0, differ = 0;
+  for (std::size_t k = 0; k < plain.size(); ++k) {
+    contact += plain[k].in_contact ? 1U : 0U;
+    const TickRecord &a = plain[k], &b = warmed[k];  // every field but the measured compute_ns
+    const auto same = [](const auto& x, const auto& y) { return std::memcmp(&x, &y, sizeof x) == 0; };
+    const bool equal = same(a.t_s, b.t_s) && same(a.hip_m.x, b.hip_m.x) && same(a.hip_m.y, b.hip_m.y) && same(a.hip_m.z, b.hip_m.z) &&
+                       same(a.proxy_m.x, b.proxy_m.x) && same(a.proxy_m.y, b.proxy_m.y) && same(a.proxy_m.z, b.proxy_m.z) &&
+                       same(a.force_n.x, b.force_n.x) && same(a.force_n.y, b.force_n.y) && same(a.force_n.z, b.force_n.z) &&
+                       same(a.mu_d, b.mu_d) && same(a.mu_s, b.mu_s) && same(a.beta_rad, b.beta_rad) && a.iterations == b.iterations &&
+                       a.in_contact == b.in_contact && a.sticking == b.sticking && a.device_state == b.device_state &&
+                       a.surface_tag == b.surface_tag;
+    differ += equal ? 0U : 1U;
+  }
+  EXPECT_GT(contact, 1000U) << "the proxy was on the surface";
+  EXPECT_EQ(differ, 0U);
 }
 
 TEST(ServoLoop, AWarmUpOutsideZeroToAQuarterPeriodIsAnError) {

@@ -22,6 +22,7 @@
 
 #include <array>
 #include <bit>
+#include <cerrno>
 #include <csignal>
 #include <cmath>
 #include <cstring>
@@ -577,33 +578,41 @@ TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
 rlimit g_fsize_saved{};
 volatile std::sig_atomic_t g_fsize_refusals = 0;
 void lift_file_size_limit(int) {
+  const int saved_errno = errno;
   g_fsize_refusals = g_fsize_refusals + 1;
-  setrlimit(RLIMIT_FSIZE, &g_fsize_saved);  // a system call: safe in a signal handler
+  // setrlimit is not on POSIX's async-signal-safe list; on Linux with glibc it is a bare
+  // system call, which is what this test relies on.
+  setrlimit(RLIMIT_FSIZE, &g_fsize_saved);
+  errno = saved_errno;
 }
 // Sets the limit to `bytes` with `handler` for SIGXFSZ (SIG_IGN or lift_file_size_limit), and
-// restores both when it goes, whatever the run did.
+// restores both when it goes, whatever the run did. ok() is false (and nothing was changed) when
+// the current limit or handler could not be read.
 class FileSizeLimit {
  public:
-  FileSizeLimit() {
-    getrlimit(RLIMIT_FSIZE, &g_fsize_saved);
-    old_ = std::signal(SIGXFSZ, SIG_DFL);
-    std::signal(SIGXFSZ, old_);
-  }
+  FileSizeLimit() { ok_ = getrlimit(RLIMIT_FSIZE, &g_fsize_saved) == 0 && sigaction(SIGXFSZ, nullptr, &old_) == 0; }
   ~FileSizeLimit() {
+    if (!ok_) return;
     setrlimit(RLIMIT_FSIZE, &g_fsize_saved);
-    std::signal(SIGXFSZ, old_);
+    sigaction(SIGXFSZ, &old_, nullptr);
   }
   FileSizeLimit(const FileSizeLimit&) = delete;
   FileSizeLimit& operator=(const FileSizeLimit&) = delete;
-  void set(rlim_t bytes, void (*handler)(int)) {
-    std::signal(SIGXFSZ, handler);
+  bool ok() const { return ok_; }
+  // False when the handler or the limit could not be set.
+  bool set(rlim_t bytes, void (*handler)(int)) {
+    if (!ok_) return false;
+    struct sigaction act {};
+    act.sa_handler = handler;
+    sigemptyset(&act.sa_mask);
     rlimit r = g_fsize_saved;
     r.rlim_cur = bytes;
-    setrlimit(RLIMIT_FSIZE, &r);
+    return sigaction(SIGXFSZ, &act, nullptr) == 0 && setrlimit(RLIMIT_FSIZE, &r) == 0;
   }
 
  private:
-  void (*old_)(int) = SIG_DFL;
+  bool ok_ = false;
+  struct sigaction old_ {};
 };
 
 // The block copies' files under `dir` (those in `.blocks-*` folders, which lie in the run's
@@ -622,7 +631,8 @@ std::size_t block_copy_files(const fs::path& dir) {
 // spills: the same points scanned, gathered, judged and removed, and the in-core grid. The first
 // run (no limit) finds the tile whose gathering makes the first copy: tile (2, 1), as the test
 // above describes. Mutations: a copy left on disk after the failure, or copies made after it,
-// fail the checks at the ticks; a failure that stopped the run fails the build.
+// fail the checks at the ticks; a failure that stopped the run fails the test (build_scene
+// throws).
 TEST(TiledRun, ABlockCopyTheDiskRefusesIsRemovedAndTheGatheringsReadWholeSpills) {
   const fs::path dir = hc::test::temp_dir("blocks_full_disk");
   const auto [yaml, g, halo] = write_two_group_plane(dir);
@@ -632,7 +642,7 @@ TEST(TiledRun, ABlockCopyTheDiskRefusesIsRemovedAndTheGatheringsReadWholeSpills)
   config.scale.tile_cells = 40;
   config.scale.scratch = dir;
   config.scale.progress_interval_s = 0.0;
-  // The tile about to run at a tick of the tile loop (ticks come before tiles 1 ... 24).
+  // The tile about to run at a tick of the tile loop (ticks come before tiles 1 ... 24 of 25).
   const auto tile_at = [](const hc::pipeline::StageReport& r) {
     if (r.stage != "tiles") return -1;
     for (const auto& [n, v] : r.figures)
@@ -640,11 +650,12 @@ TEST(TiledRun, ABlockCopyTheDiskRefusesIsRemovedAndTheGatheringsReadWholeSpills)
     return -1;
   };
   int first_copy_tile = -1;
-  (void)hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
+  const BuiltScene free_run = hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
     const int t = tile_at(r);
     if (done || t < 0 || first_copy_tile >= 0) return;
     if (block_copy_files(dir) > 0) first_copy_tile = t - 1;
   });
+  ASSERT_EQ(stage_figure(free_run, "tile_plan", "tiles"), 25.0);
   ASSERT_EQ(first_copy_tile, 2 * 5 + 1) << "tile (2, 1) makes the first copy";
 
   g_fsize_refusals = 0;
@@ -652,12 +663,15 @@ TEST(TiledRun, ABlockCopyTheDiskRefusesIsRemovedAndTheGatheringsReadWholeSpills)
   BuiltScene refused;
   {
     FileSizeLimit limit;
+    ASSERT_TRUE(limit.ok()) << "cannot read RLIMIT_FSIZE or the SIGXFSZ handler";
+    bool set = false;
     refused = hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
       const int t = tile_at(r);
       if (done || t < 0) return;
-      if (t == first_copy_tile) limit.set(0, lift_file_size_limit);
+      if (t == first_copy_tile) set = limit.set(0, lift_file_size_limit);
       if (t > first_copy_tile) copies_after.push_back(block_copy_files(dir));
     });
+    ASSERT_TRUE(set) << "cannot set RLIMIT_FSIZE or the SIGXFSZ handler";
   }
   EXPECT_EQ(g_fsize_refusals, 1) << "one write was refused";
   ASSERT_FALSE(copies_after.empty());
@@ -688,7 +702,7 @@ TEST(TiledRun, ASpillTheDiskRefusesStopsTheRunNamingTheFileAndLeavesNothing) {
   std::string what;
   {
     FileSizeLimit limit;
-    limit.set(1024, SIG_IGN);
+    ASSERT_TRUE(limit.set(1024, SIG_IGN)) << "cannot set RLIMIT_FSIZE or the SIGXFSZ handler";
     try {
       (void)hc::pipeline::build_scene(config);
     } catch (const hc::InputError& e) {

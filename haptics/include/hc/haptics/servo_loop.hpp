@@ -66,13 +66,17 @@ struct ServoConfig {
   double wake_on_surface_min_period = 0.5;
   /// Threaded loop: the thread wakes this long before each deadline, brings back into the CPU
   /// caches what the tick will use (warm_up(): a dry step of the proxy on a copy of its state,
-  /// to the HIP extrapolated by its last step, on the surface in use: the step's code and the
-  /// cells it walks), and spins to the deadline. After the ~1 ms sleep a core that ran other work (the
-  /// viewer, Mesa's llvmpipe, the hypervisor) has lost those lines, and each costs about 0.1 µs
-  /// from memory: on the 2-core VM a tick's compute p99.9 was 3–4 µs without it (bench/README,
-  /// issue 16, "the servo tick after a sleep"). The device is read only at the deadline, so the
-  /// read → write time shrinks, not just the figure. Cost: this much CPU per period (2 % of a
-  /// core at 20 µs and 1 kHz). 0 turns it off. In [0, a quarter period] [ns].
+  /// towards the HIP extrapolated by its last step, on the surface in use: the step's code and
+  /// the cells it walks), and spins to the deadline. After the ~1 ms sleep a core that ran other
+  /// work (the viewer, Mesa's llvmpipe, the hypervisor) has lost those lines, and each costs
+  /// about 0.1 µs from memory: on the 2-core VM a session's tick compute p99.9 went from
+  /// 3.5–5.2 µs to 2.2–2.9 µs (bench/README, issue 16, "the servo tick after a sleep"). The device
+  /// is read only at the deadline, so the read → write time shrinks, not just the figure. It
+  /// runs also when the wake comes after the deadline (the read then waits for one step), not
+  /// before an early tick for a published surface; with warm_up_ns ≥
+  /// (1 − wake_on_surface_min_period) periods no tick is early.
+  /// Cost: a busy SCHED_FIFO spin of this much per period (2 % of a core at 20 µs and 1 kHz,
+  /// 20 % at 10 kHz). 0 turns it off. In [0, a quarter period] [ns].
   std::int64_t warm_up_ns = 20000;
 };
 
@@ -118,10 +122,13 @@ struct ServoStats {
   std::uint64_t overruns = 0;  ///< threaded: the tick ended after the next deadline;
                                ///< as fast as possible: compute time > period
   LatencyHistogram compute;    ///< tick compute time (device read to snapshot) [ns]
-  LatencyHistogram lateness;   ///< wake-up time − deadline (period jitter; threaded only,
+  LatencyHistogram lateness;   ///< wake-up time − the time asked for: the deadline, less
+                               ///< ServoConfig::warm_up_ns (period jitter; threaded only,
                                ///< deadline ticks only) [ns]
   std::uint64_t surface_wake_ticks = 0;  ///< threaded: ticks run before their deadline to adopt a
                                          ///< published surface (wake_on_surface_min_period)
+  std::uint64_t warm_ups = 0;  ///< warm_up() calls (threaded: one before each deadline tick,
+                               ///< ServoConfig::warm_up_ns)
 };
 
 /// One trace row (trivially copyable). Grid frame, SI units.
@@ -166,6 +173,13 @@ class ServoLoop {
   void run_ticks(std::uint64_t n, ManualClock& clock);
   /// One tick at the clock's current time, on this thread. Real-time: yes.
   void tick() noexcept;
+  /// What the threaded loop runs before each deadline tick (ServoConfig::warm_up_ns): a dry
+  /// step_proxy on a copy of the state, towards the HIP extrapolated by its last step, on the
+  /// surface in use; the result is dropped and nothing a tick reads changes (only
+  /// stats().warm_ups counts it), so the ticks come out the same with or without it. Public so
+  /// that a test can check that on a ManualClock; not while the threaded loop runs.
+  /// Real-time: yes (one step_proxy).
+  void warm_up() noexcept;
 
   /// Trace rows are written to `rows` (caller-owned) one per tick until it is full.
   /// Call before start() / run_ticks(). Real-time: yes.
@@ -240,10 +254,6 @@ class ServoLoop {
   /// parameters follow the scale, and the force blend starts (see switch_max_force_step_n).
   void switch_map(const WorkspaceMap& next) noexcept;
   void thread_main() noexcept;
-  /// Threaded loop, before a deadline tick (ServoConfig::warm_up_ns): a dry step_proxy on a copy
-  /// of the state, to the HIP extrapolated by its last step, on the surface in use; its result is
-  /// dropped, and nothing the tick reads changes. Real-time: yes (step_proxy's cost).
-  void warm_up() noexcept;
 
   HapticDevice& device_;
   SharedState& shared_;
@@ -268,10 +278,7 @@ class ServoLoop {
   double slide_from_s_ = 0.0;
   int ticks_since_slide_ = 0;
   std::uint32_t prev_buttons_ = 0;  // buttons at the previous good read (button events)
-  // The surface the last tick rendered (owned by shared_ until the servo adopts another, so
-  // valid between ticks on the servo thread), for warm_up(); and where warm_up() drops its step.
-  const HapticSurface* surface_in_use_ = nullptr;
-  double warm_sink_ = 0.0;
+  double warm_sink_ = 0.0;  // where warm_up() drops its step
   Eigen::Vector3d hip_step_m_ = Eigen::Vector3d::Zero();  // the HIP's change over the last tick, grid frame [m]
 
   std::thread thread_;

@@ -212,10 +212,11 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 /// Falls back to the whole grid for 2^32 − 1 points or more (windows list points by 32-bit
 /// column).
 /// Precondition not checked: `removed` holds the coordinates the points had when `before` was
-/// made. The windows' scan before the removal is made from them, so with other coordinates the
-/// grid still comes out right (it depends on the remaining points only) but the event counts are
-/// corrected by the wrong difference. (A known defect documented on 2026-11-24 was this: the
-/// test had moved a point after making `before`.)
+/// made. The nodes made again are found from them, and the windows' scan before the removal is
+/// made from them, so with other coordinates the result is wrong: the event counts always, and
+/// the grid too unless each point's x and y stay in the same coarse node (only its z changed).
+/// (The known defect documented on 2026-11-24 was this: the test had raised a point after
+/// making `before`.)
 /// Source: this project (the locality the tiled run relies on, tiling.hpp).
 StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const RemovedPoints& removed,
                                                StageResult<DepthGrid> before, const ReprojectOptions& options);
