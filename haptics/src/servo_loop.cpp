@@ -557,13 +557,13 @@ void ServoLoop::thread_main() noexcept {
       sleep_until_ns(deadline - warm_ns);
     }
     const std::int64_t woke_ns = monotonic_now_ns();
+    std::int64_t wake_ns = woke_ns;  // when the tick starts
     // Also when the wake came after the deadline: the tick starts later by the step, but its
     // read → write time is what the warm-up shortens.
     if (!early && warm_ns > 0) {
       warm_up();
-      while (monotonic_now_ns() < deadline) cpu_relax();
+      while ((wake_ns = monotonic_now_ns()) < deadline) cpu_relax();
     }
-    const std::int64_t wake_ns = monotonic_now_ns();
     // Lateness: the wake-up against the time it was asked for (the scheduler's jitter), as
     // without the warm-up, not the spin's end against the deadline.
     tick_impl(early ? kNoDeadline : woke_ns - (deadline - warm_ns));

@@ -177,8 +177,10 @@ class ServoLoop {
   /// step_proxy on a copy of the state, towards the HIP extrapolated by its last step, on the
   /// surface in use; the result is dropped and nothing a tick reads changes (only
   /// stats().warm_ups counts it), so the ticks come out the same with or without it. Public so
-  /// that a test can check that on a ManualClock; not while the threaded loop runs.
-  /// Real-time: yes (one step_proxy).
+  /// that a test can check that on a ManualClock; not while the threaded loop runs. No errors
+  /// (without a surface or before the first HIP it only counts itself).
+  /// Real-time: yes (one step_proxy). Source: this project (cache warming before a deadline,
+  /// measured in bench/README, issue 16, "the servo tick after a sleep").
   void warm_up() noexcept;
 
   /// Trace rows are written to `rows` (caller-owned) one per tick until it is full.
