@@ -36,7 +36,8 @@ TEST(Interrupt, SigtermDuringTheWriteRemovesTheStagingFolder) {
   const std::string out = (dir / "out").string();
   // N = 1600 with the levels table: the write stage (scene, previews, levels) lasts long enough
   // to be caught by polling; the folder only exists during it.
-  std::vector<std::string> args = {HC_APP, "run", config, "--out", out, "-q", "--set", "grid.n=1600"};
+  std::vector<std::string> args = {HC_APP,         "run",           config, "--out", out, "-q", "--set", "grid.n=1600",
+                                   "--set",        "lod.report=true"};
   std::vector<char*> argv;
   for (auto& a : args) argv.push_back(a.data());
   argv.push_back(nullptr);

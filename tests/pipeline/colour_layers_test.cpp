@@ -269,7 +269,7 @@ TEST(ColourLayers, ColouredLasRunWritesColourLayerAndPreviewsAndReadsThemBack) {
   const fs::path dir = hc::test::temp_dir("las");
   const fs::path las = hc::test::scan_path("scanner_samples/las/pdal-simple.las");
   const RunConfig config = parse_run_config("input: {files: [" + las.string() + "]}\n"
-                                            "grid: {n: 80, hole_fill_max_cells: 8}\n",
+                                            "grid: {n: 80, hole_fill_max_cells: 8}\nlod: {report: true}\n",
                                             dir / "run.yaml");
   const BuiltScene built = build_scene(config, false);
   ASSERT_FALSE(built.scene.layers.colour_rgb8.empty());

@@ -41,7 +41,7 @@ const fs::path& buddha_config() {
 // The Buddha at N = 400 in tiles of 64 cells, the robust outlier filter on (the tiles share the
 // plan's scale), levels table with its sample.
 std::vector<std::string> buddha_overrides(const fs::path& scratch) {
-  return {"grid.n=400", "scale.tiled=on", "scale.tile_cells=64", "scale.scratch=" + scratch.string()};
+  return {"grid.n=400", "scale.tiled=on", "scale.tile_cells=64", "scale.scratch=" + scratch.string(), "lod.report=true"};
 }
 
 void expect_same_scene(const BuiltScene& a, const BuiltScene& b) {

@@ -1019,7 +1019,7 @@ TEST(TiledRun, RunWithTheLevelsTableGoesTiledUnderAutoAndSamplesTheLevels) {
   hc::tools::write_relief(spec, dir / "wall.ply");
   const std::string yaml =
       "input: {files: [wall.ply], units: m}\ngrid: {n: 200, upsample: auto}\nfilters: {outliers: {enabled: false}}\n"
-      "scale: {tiled_above_points: 10000, tile_cells: 64}\nlod: {min_cells: 40}\n";
+      "scale: {tiled_above_points: 10000, tile_cells: 64}\nlod: {min_cells: 40, report: true}\n";
   auto levels_of = [&](const std::vector<std::string>& sets, const std::string& out) {
     const RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml", sets);
     hc::pipeline::run_pipeline(config, dir / out);

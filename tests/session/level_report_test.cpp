@@ -18,6 +18,10 @@
 #include <nlohmann/json.hpp>
 
 #include <fstream>
+#include <iterator>
+#include <string>
+#include <utility>
+#include <vector>
 
 namespace hc::pipeline {
 namespace {
@@ -29,7 +33,7 @@ const char* kSinusoid =
     "wavelength_m: 0.008, seed: 3}}\n"
     "filters: {outliers: {enabled: false}}\n"
     "grid: {n: 160, splat_radius_cells: 1.0}\n"
-    "lod: {min_cells: 20, window_cells: 64}\n";
+    "lod: {min_cells: 20, window_cells: 64, report: true}\n";
 
 TEST(LodReport, RunReportHasTheLevelsTableAndPreviewsAndLevelsCommandFindsThePoints) {
   const fs::path dir = test::temp_dir("run");
@@ -150,15 +154,30 @@ TEST(LodReport, LevelsAreCrossCheckedOnAStridedSampleWithSupportOverEveryPoint) 
   EXPECT_EQ(level_table_markdown(all).find("RMS and p95 from"), std::string::npos);
 }
 
+// Off by the override, and off when the config does not name lod.report (the table is made by
+// request since issue 16: `hapticloud levels SCENE` or lod.report: true).
 TEST(LodReport, TheTableIsOnlyMadeWhenTheConfigAsks) {
   const fs::path dir = test::temp_dir("off");
-  const RunConfig config = parse_run_config(std::string(kSinusoid) + "", dir / "lod.yaml", {"lod.report=false"});
-  run_pipeline(config, dir / "out");
-  std::ifstream js(dir / "out" / "report.json");
-  const nlohmann::json j = nlohmann::json::parse(js);
-  EXPECT_FALSE(j.contains("levels"));
-  EXPECT_FALSE(fs::exists(dir / "out" / "previews" / "lod_levels.png"));
-  for (const auto& s : j["stages"]) EXPECT_NE(s["stage"].get<std::string>(), "levels");
+  std::string unnamed = kSinusoid;
+  const std::string key = ", report: true";
+  const auto at = unnamed.find(key);
+  ASSERT_NE(at, std::string::npos);
+  unnamed.erase(at, key.size());
+  const std::vector<std::pair<std::string, RunConfig>> configs = {
+      {"override", parse_run_config(kSinusoid, dir / "lod.yaml", {"lod.report=false"})},
+      {"default", parse_run_config(unnamed, dir / "lod.yaml")}};
+  for (const auto& [name, config] : configs) {
+    EXPECT_FALSE(config.lod.report) << name;
+    run_pipeline(config, dir / name);
+    std::ifstream js(dir / name / "report.json");
+    const nlohmann::json j = nlohmann::json::parse(js);
+    EXPECT_FALSE(j.contains("levels")) << name;
+    EXPECT_FALSE(fs::exists(dir / name / "previews" / "lod_levels.png")) << name;
+    for (const auto& s : j["stages"]) EXPECT_NE(s["stage"].get<std::string>(), "levels") << name;
+    std::ifstream md(dir / name / "report.md");
+    const std::string text((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(text.find("## Levels of detail"), std::string::npos) << name;
+  }
 }
 
 }  // namespace

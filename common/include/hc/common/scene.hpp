@@ -78,7 +78,8 @@ struct LodOptions {
   double memory_budget_mb = 512.0;   ///< lod.memory_budget_mb: bound on the cache of built levels
                                      ///< and windows [MiB] (the finest level is held outside it), (0, 1e6]
   int window_cells = 200;            ///< lod.window_cells: haptic window side [samples], [2, 4096]
-  bool report = true;                ///< lod.report: levels table in the run report (off for huge N)
+  bool report = false;               ///< lod.report: levels table in the run report, by request
+                                     ///< (`hapticloud levels SCENE` makes it for a written scene)
   bool report_cross_check = true;    ///< lod.report_cross_check: cross-check every level against the points
   std::size_t report_sample_points = 200000;  ///< lod.report_sample_points: that cross-check's (a) on
                                      ///< every ⌈N / this⌉-th point (0 = every point); support over all
