@@ -33,6 +33,7 @@
 #include <cstdlib>
 #include <cstring>
 #include <fstream>
+#include <functional>
 #include <future>
 #include <iomanip>
 #include <memory>
@@ -721,8 +722,6 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   const bool tiled_scene = writes_tiled_scene(config.scale, scene.geometry);
   SceneStorage storage;
   if (tiled_scene) storage = {config.scale.scene_tile_cells, lod_level_count(scene.geometry, config.lod.min_cells)};
-  write_scene(scene, staging.path() / "scene", storage);
-
   const fs::path previews = staging.path() / "previews";
   // One level only: an interrupt may have removed the staging folder, which must stay removed.
   std::error_code previews_ec;
@@ -730,39 +729,49 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   if (previews_ec) throw InputError(previews.string() + ": cannot create the previews folder: " + previews_ec.message());
   const HeightField& depth = scene.depth();
   const std::string friction_name = scene.friction_model ? to_string(*scene.friction_model) : std::string();
-  // Previews are independent images: two threads, one per core.
-  detail::run_two(
-      [&] {
-        write_colour_preview(depth, previews / "depth.png", "depth z", "mm", 1000.0);
-        write_hillshade_preview(depth, previews / "hillshade.png");
-        if (summary.cross_check) {
-          // Marked: the grid's spikes, pits and islands, and the cells kept only by isolated points.
-          std::vector<std::array<int, 2>> marks;
-          if (summary.grid_spikes) marks = summary.grid_spikes->marked;
-          if (summary.input_check) {
-            marks.insert(marks.end(), summary.input_check->spikes_kept_cells.begin(),
-                         summary.input_check->spikes_kept_cells.end());
-          }
-          write_colour_preview(summary.cross_check->cell_error_m, previews / "cross_check_error.png",
-                               marks.empty() ? "cross-check: grid sample to nearest point"
-                                             : "cross-check: grid sample to nearest point (circles: spikes, pits, islands)",
-                               "mm", 1000.0, marks);
-        }
-      },
-      [&] {
-        if (!scene.layers.has_surface_layers()) return;
-        write_colour_preview(scene.layers.texture, previews / "texture.png", "texture h = f - f_b", "mm", 1000.0);
-        write_colour_preview(scene.layers.mu_d, previews / "mu_d.png",
-                             "dynamic friction mu_d (" + friction_name + ")", "-", 1.0);
-        write_colour_preview(scene.layers.mu_s, previews / "mu_s.png", "static friction mu_s", "-", 1.0);
-      });
+  // The scene's files and the previews are independent files: two threads take them in turn,
+  // the scene first (the longest), then the previews (each writes its own PNG).
+  std::vector<std::function<void()>> files;
+  files.emplace_back([&] { write_scene(scene, staging.path() / "scene", storage); });
   if (!scene.layers.colour_rgb8.empty()) {
-    detail::run_two([&] { write_rgb_preview(depth, scene.layers.colour_rgb8, previews / "colour.png", false); },
-                    [&] { write_rgb_preview(depth, scene.layers.colour_rgb8, previews / "colour_hillshade.png", true); });
+    files.emplace_back([&] { write_rgb_preview(depth, scene.layers.colour_rgb8, previews / "colour.png", false); });
+    files.emplace_back([&] { write_rgb_preview(depth, scene.layers.colour_rgb8, previews / "colour_hillshade.png", true); });
+  }
+  if (summary.cross_check) {
+    files.emplace_back([&] {
+      // Marked: the grid's spikes, pits and islands, and the cells kept only by isolated points.
+      std::vector<std::array<int, 2>> marks;
+      if (summary.grid_spikes) marks = summary.grid_spikes->marked;
+      if (summary.input_check) {
+        marks.insert(marks.end(), summary.input_check->spikes_kept_cells.begin(),
+                     summary.input_check->spikes_kept_cells.end());
+      }
+      write_colour_preview(summary.cross_check->cell_error_m, previews / "cross_check_error.png",
+                           marks.empty() ? "cross-check: grid sample to nearest point"
+                                         : "cross-check: grid sample to nearest point (circles: spikes, pits, islands)",
+                           "mm", 1000.0, marks);
+    });
+  }
+  files.emplace_back([&] { write_colour_preview(depth, previews / "depth.png", "depth z", "mm", 1000.0); });
+  files.emplace_back([&] { write_hillshade_preview(depth, previews / "hillshade.png"); });
+  if (scene.layers.has_surface_layers()) {
+    files.emplace_back([&] {
+      write_colour_preview(scene.layers.texture, previews / "texture.png", "texture h = f - f_b", "mm", 1000.0);
+    });
+    files.emplace_back([&] {
+      write_colour_preview(scene.layers.mu_d, previews / "mu_d.png", "dynamic friction mu_d (" + friction_name + ")",
+                           "-", 1.0);
+    });
+    files.emplace_back([&] {
+      write_colour_preview(scene.layers.mu_s, previews / "mu_s.png", "static friction mu_s", "-", 1.0);
+    });
   }
   if (!scene.layers.intensity.values().empty()) {
-    write_colour_preview(scene.layers.intensity, previews / "intensity.png", "scanner intensity (as stored)", "-", 1.0);
+    files.emplace_back([&] {
+      write_colour_preview(scene.layers.intensity, previews / "intensity.png", "scanner intensity (as stored)", "-", 1.0);
+    });
   }
+  detail::run_tasks_on_two(files);
   write_report.seconds = seconds_since(t_write);
   if (write_measured) write_report.peak_rss_bytes = peak_rss();
   reports.push_back(write_report);

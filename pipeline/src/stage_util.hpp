@@ -11,10 +11,13 @@
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <atomic>
 #include <exception>
+#include <functional>
 #include <string>
 #include <thread>
 #include <utility>
+#include <vector>
 
 namespace hc::pipeline::detail {
 
@@ -99,6 +102,30 @@ void run_two(A&& a, B&& b) {
   worker.join();
   if (error_a) std::rethrow_exception(error_a);
   if (error_b) std::rethrow_exception(error_b);
+}
+
+/// Runs independent tasks on two threads (this one and a second), each taking the next task
+/// not yet taken, in the list's order: put the longest first. After a task throws, no further
+/// task is started (those running finish); then the exception of the task earliest in the list
+/// that threw is rethrown. An empty list returns at once.
+inline void run_tasks_on_two(const std::vector<std::function<void()>>& tasks) {
+  if (tasks.empty()) return;
+  std::atomic<std::size_t> next{0};
+  std::atomic<bool> failed{false};
+  std::vector<std::exception_ptr> errors(tasks.size());
+  auto work = [&] {
+    for (std::size_t k; !failed.load(std::memory_order_acquire) && (k = next.fetch_add(1)) < tasks.size();) {
+      try {
+        tasks[k]();
+      } catch (...) {
+        errors[k] = std::current_exception();
+        failed.store(true, std::memory_order_release);
+      }
+    }
+  };
+  run_two(work, work);
+  for (const std::exception_ptr& e : errors)
+    if (e) std::rethrow_exception(e);
 }
 
 }  // namespace hc::pipeline::detail
