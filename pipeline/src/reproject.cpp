@@ -496,7 +496,7 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
 // relative to ref; they are solved in double.
 // Separable weights: exp of the row and column offsets, (2⌊r⌋+2)·2 exponentials per point.
 // Rows are split between two threads for large clouds (each thread reads every point and
-// writes only its own rows). Written: depth[i] and flags[i] of every node with weight > 0
+// writes only its own rows), and so are the nodes whose planes are then solved. Written: depth[i] and flags[i] of every node with weight > 0
 // (measured nodes stay kCellMeasured unless their front-most point lies more than depth_gap
 // below the plane: then kCellSplatted, counted in *occluded; empty nodes become kCellSplatted,
 // counted in the return value). Nodes with no gathered point keep their value and flag.
@@ -565,52 +565,64 @@ std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const 
   } else {
     gather(0, rows);
   }
-  std::size_t filled = 0, hidden = 0;
-  for (std::size_t j = 0; j < cells; ++j) {
-    const float* m = mom.data() + static_cast<std::size_t>(kPlaneMoments) * j;
-    if (!(m[0] > 0.0f)) continue;
-    const double w = m[0];
-    const double xm = m[1] / w, ym = m[2] / w, zm = m[6] / w;
-    const double sxx = m[3] / w - xm * xm, sxy = m[4] / w - xm * ym, syy = m[5] / w - ym * ym;
-    const double sxz = m[7] / w - xm * zm, syz = m[8] / w - ym * zm;
-    // Slope (b, c) = S⁺·(sxz, syz) with S the 2 × 2 x-y covariance, through its eigen-
-    // decomposition S = Σ l_k·e_k·e_kᵀ. Along e_k the slope is fitted only when the node lies
-    // within kPlaneMaxLeverage standard deviations of the centroid, (e_k·x̄)² ≤ kPlaneMaxLeverage²·l_k:
-    // otherwise (a node beyond a scan line, a single point, the rim of the data) the value would
-    // be an extrapolation amplified by |e_k·x̄| / √l_k, and the slope along e_k is 0 (the
-    // weighted mean across).
-    const double half_tr = 0.5 * (sxx + syy), half_diff = 0.5 * (sxx - syy);
-    const double rad = std::sqrt(half_diff * half_diff + sxy * sxy);
-    const double l1 = half_tr + rad, l2 = half_tr - rad;  // l1 ≥ l2
-    double e1x = 1.0, e1y = 0.0;                          // unit eigenvector of l1
-    if (rad > 0.0) {
-      const double vx = half_diff + rad, vy = sxy;  // a column of S − l2·I: along e1
-      const double len = std::hypot(vx, vy);
-      if (len > 0.0) {
-        e1x = vx / len;
-        e1y = vy / len;
-      } else {  // half_diff = −rad and sxy = 0: syy > sxx, e1 is y
-        e1x = 0.0;
-        e1y = 1.0;
+  // Each node's plane is solved from its own moments: on two threads, each a contiguous half of
+  // the nodes with its own counts (the same values as one thread).
+  auto solve = [&](std::size_t j_begin, std::size_t j_end, std::size_t& filled, std::size_t& hidden) {
+    for (std::size_t j = j_begin; j < j_end; ++j) {
+      const float* m = mom.data() + static_cast<std::size_t>(kPlaneMoments) * j;
+      if (!(m[0] > 0.0f)) continue;
+      const double w = m[0];
+      const double xm = m[1] / w, ym = m[2] / w, zm = m[6] / w;
+      const double sxx = m[3] / w - xm * xm, sxy = m[4] / w - xm * ym, syy = m[5] / w - ym * ym;
+      const double sxz = m[7] / w - xm * zm, syz = m[8] / w - ym * zm;
+      // Slope (b, c) = S⁺·(sxz, syz) with S the 2 × 2 x-y covariance, through its eigen-
+      // decomposition S = Σ l_k·e_k·e_kᵀ. Along e_k the slope is fitted only when the node lies
+      // within kPlaneMaxLeverage standard deviations of the centroid, (e_k·x̄)² ≤ kPlaneMaxLeverage²·l_k:
+      // otherwise (a node beyond a scan line, a single point, the rim of the data) the value would
+      // be an extrapolation amplified by |e_k·x̄| / √l_k, and the slope along e_k is 0 (the
+      // weighted mean across).
+      const double half_tr = 0.5 * (sxx + syy), half_diff = 0.5 * (sxx - syy);
+      const double rad = std::sqrt(half_diff * half_diff + sxy * sxy);
+      const double l1 = half_tr + rad, l2 = half_tr - rad;  // l1 ≥ l2
+      double e1x = 1.0, e1y = 0.0;                          // unit eigenvector of l1
+      if (rad > 0.0) {
+        const double vx = half_diff + rad, vy = sxy;  // a column of S − l2·I: along e1
+        const double len = std::hypot(vx, vy);
+        if (len > 0.0) {
+          e1x = vx / len;
+          e1y = vy / len;
+        } else {  // half_diff = −rad and sxy = 0: syy > sxx, e1 is y
+          e1x = 0.0;
+          e1y = 1.0;
+        }
       }
-    }
-    const double a1 = e1x * xm + e1y * ym, a2 = -e1y * xm + e1x * ym;     // x̄ along e1, e2
-    const double p1 = e1x * sxz + e1y * syz, p2 = -e1y * sxz + e1x * syz;  // cov(·, z) along e1, e2
-    constexpr double lev2 = kPlaneMaxLeverage * kPlaneMaxLeverage;
-    const double k1 = l1 > kPlaneMinVariance && a1 * a1 <= lev2 * l1 ? p1 / l1 : 0.0;
-    const double k2 = l2 > kPlaneMinVariance && a2 * a2 <= lev2 * l2 ? p2 / l2 : 0.0;
-    const double b = k1 * e1x - k2 * e1y, c = k1 * e1y + k2 * e1x;
-    const float z = ref[j] + static_cast<float>(zm - b * xm - c * ym);
-    if (flags[j] == kCellMeasured) {
-      if (depth_gap > 0.0f && depth[j] < z - depth_gap) {
+      const double a1 = e1x * xm + e1y * ym, a2 = -e1y * xm + e1x * ym;     // x̄ along e1, e2
+      const double p1 = e1x * sxz + e1y * syz, p2 = -e1y * sxz + e1x * syz;  // cov(·, z) along e1, e2
+      constexpr double lev2 = kPlaneMaxLeverage * kPlaneMaxLeverage;
+      const double k1 = l1 > kPlaneMinVariance && a1 * a1 <= lev2 * l1 ? p1 / l1 : 0.0;
+      const double k2 = l2 > kPlaneMinVariance && a2 * a2 <= lev2 * l2 ? p2 / l2 : 0.0;
+      const double b = k1 * e1x - k2 * e1y, c = k1 * e1y + k2 * e1x;
+      const float z = ref[j] + static_cast<float>(zm - b * xm - c * ym);
+      if (flags[j] == kCellMeasured) {
+        if (depth_gap > 0.0f && depth[j] < z - depth_gap) {
+          flags[j] = kCellSplatted;
+          ++hidden;
+        }
+      } else {
         flags[j] = kCellSplatted;
-        ++hidden;
+        ++filled;
       }
-    } else {
-      flags[j] = kCellSplatted;
-      ++filled;
+      depth[j] = z;
     }
-    depth[j] = z;
+  };
+  std::size_t filled = 0, hidden = 0;
+  if (two_threads) {
+    std::size_t filled_b = 0, hidden_b = 0;
+    run_two([&] { solve(cells / 2, cells, filled_b, hidden_b); }, [&] { solve(0, cells / 2, filled, hidden); });
+    filled += filled_b;
+    hidden += hidden_b;
+  } else {
+    solve(0, cells, filled, hidden);
   }
   *occluded = hidden;
   return filled;
