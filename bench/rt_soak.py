@@ -32,7 +32,8 @@ import os
 import shutil
 import subprocess
 import sys
-import tempfile
+
+from soak_common import emit, hapticloud_exe, work_folder  # bench/soak_common.py, beside this file
 
 
 def steal_ticks():
@@ -86,9 +87,7 @@ def main():
     ap.add_argument("--out", help="also write the JSON figures here")
     a = ap.parse_args()
 
-    exe = os.path.join(a.build, "apps", "hapticloud", "hapticloud")
-    if not os.access(exe, os.X_OK):
-        sys.exit(f"rt_soak: {exe} not found: build the release preset first")
+    exe = hapticloud_exe(a.build, "rt_soak")
     sessions = [s for s in a.sessions.split(",") if s]
     for s in sessions:
         if s not in ("touch", "explore"):
@@ -103,13 +102,7 @@ def main():
             sys.exit("rt_soak: explore needs a display: set DISPLAY or install xvfb (scripts/install-deps)")
     seconds = a.minutes * 60.0
 
-    tmp_obj = None
-    if a.keep:
-        work = a.keep
-        os.makedirs(work, exist_ok=True)
-    else:
-        tmp_obj = tempfile.TemporaryDirectory(prefix="hc-rt-soak-")
-        work = tmp_obj.name
+    work, tmp_obj = work_folder(a.keep, "hc-rt-soak-")
     scene = a.scene
     if not scene:
         run_dir = os.path.join(work, "scene-run")
@@ -157,11 +150,7 @@ def main():
             r["floor"] = floor_figures(floor_json)
         results[name] = r
 
-    text = json.dumps(results, indent=2)
-    print(text)
-    if a.out:
-        with open(a.out, "w") as f:
-            f.write(text + "\n")
+    emit(results, a.out)
     if tmp_obj:
         tmp_obj.cleanup()
 

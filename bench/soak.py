@@ -23,11 +23,13 @@ import argparse
 import json
 import os
 import random
+import shutil
 import subprocess
 import sys
-import tempfile
 import threading
 import time
+
+from soak_common import emit, hapticloud_exe, work_folder  # bench/soak_common.py, beside this file
 
 
 def rss_kib(pid):
@@ -143,18 +145,10 @@ def main():
     ap.add_argument("--keep", help="folder for the work files (default: a temporary folder, removed)")
     ap.add_argument("--out", help="also write the JSON figures here")
     a = ap.parse_args()
-    exe = os.path.join(a.build, "apps", "hapticloud", "hapticloud")
-    if not os.access(exe, os.X_OK):
-        sys.exit(f"soak: {exe} not found: build the release preset first")
+    exe = hapticloud_exe(a.build, "soak")
     seconds = a.minutes * 60.0
     rng = random.Random(a.seed)
-    tmp_obj = None
-    if a.keep:
-        work = a.keep
-        os.makedirs(work, exist_ok=True)
-    else:
-        tmp_obj = tempfile.TemporaryDirectory(prefix="hc-soak-")
-        work = tmp_obj.name
+    work, tmp_obj = work_folder(a.keep, "hc-soak-")
 
     scene_run = os.path.join(work, "scene-run")
     subprocess.run([exe, "-q", "run", a.config, "--out", scene_run], check=True)
@@ -171,6 +165,12 @@ def main():
     explore_cmd = [exe, "explore", scene, "--device", "sim", "--hidden", "--no-audio", "--seconds", str(seconds),
                    "--script", "@" + script, "--summary", explore_summary,
                    "--out", os.path.join(work, "explore-out")]
+    if not os.environ.get("DISPLAY"):
+        # A hidden window still needs an X server: a virtual one (Xvfb), as the tests use.
+        xvfb = shutil.which("xvfb-run")
+        if xvfb is None:
+            sys.exit("soak: explore needs a display: set DISPLAY or install xvfb (scripts/install-deps)")
+        explore_cmd = [xvfb, "-a", "-s", "-screen 0 1280x800x24"] + explore_cmd
 
     results = {}
 
@@ -208,11 +208,7 @@ def main():
     results["settings"] = {"minutes": a.minutes, "config": a.config, "period_s": a.period_s,
                            "seed": a.seed,
                            "load_avg_at_end": os.getloadavg()}
-    text = json.dumps(results, indent=2)
-    print(text)
-    if a.out:
-        with open(a.out, "w") as f:
-            f.write(text + "\n")
+    emit(results, a.out)
     if tmp_obj:
         tmp_obj.cleanup()
 
