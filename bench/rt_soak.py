@@ -11,7 +11,9 @@ Beside each session runs the floor (on unless --no-floor): `cyclictest` (Debian'
 one SCHED_FIFO thread per CPU, pinned to it, at priority 70 (below the servo's 80), waking every
 1000 us and doing nothing else. A wake-up it sees late by more than a period is the machine's
 (the hypervisor stalling that virtual CPU, an interrupt storm), not the tick's: the servo's
-overruns are to be read against it.
+overruns are to be read against it. The floor starts with the session's process, so its window
+also covers the session's start-up (scene load, the X server) and ends that much before the
+session's last tick.
 
 Reported (JSON on stdout, and --out FILE if given), per session:
   - ticks, overruns (ServoStats: the tick ended after the next deadline), tick compute time
@@ -44,9 +46,10 @@ def steal_ticks():
 
 
 def floor_command(seconds, json_path):
+    """cyclictest's command line for `seconds` (at least 1: its -D 0 means "run forever")."""
     # -t -a: one thread per CPU, each pinned to its CPU (a stall of one virtual CPU shows on
     # that CPU's thread only, and the servo thread may run on either).
-    return ["cyclictest", "-m", "-q", "-p", "70", "-i", "1000", "-t", "-a", "-D", f"{int(seconds)}s",
+    return ["cyclictest", "-m", "-q", "-p", "70", "-i", "1000", "-t", "-a", "-D", f"{max(1, round(seconds))}s",
             "-h", "20000", f"--json={json_path}"]
 
 
@@ -62,9 +65,10 @@ def floor_figures(json_path):
         f = {"cpu": t.get("cpu"), "cycles": t.get("cycles", 0), "max_us": t.get("max", 0), "late_500us": 0,
              "late_1000us": 0}
         for us, count in t.get("histogram", {}).items():
-            if int(us) > 500:
+            # Bucket k holds latencies in [k, k + 1) us.
+            if int(us) >= 500:
                 f["late_500us"] += count
-            if int(us) > 1000:
+            if int(us) >= 1000:
                 f["late_1000us"] += count
         # Samples beyond the histogram's 20 000 us: cycles minus the histogram's total.
         over = max(0, f["cycles"] - sum(t.get("histogram", {}).values()))
@@ -100,6 +104,8 @@ def main():
         xvfb = shutil.which("xvfb-run")
         if xvfb is None:
             sys.exit("rt_soak: explore needs a display: set DISPLAY or install xvfb (scripts/install-deps)")
+    if not a.minutes > 0:
+        sys.exit(f"rt_soak: --minutes {a.minutes}: expected a length above 0")
     seconds = a.minutes * 60.0
 
     work, tmp_obj = work_folder(a.keep, "hc-rt-soak-")
@@ -124,14 +130,20 @@ def main():
             if xvfb:
                 cmd = [xvfb, "-a", "-s", "-screen 0 1280x800x24"] + cmd
         floor_json = os.path.join(work, name + "-floor.json")
+        floor_log = os.path.join(work, name + "-floor.log")
+        for stale in (summary, floor_json):  # left by an earlier run in a --keep folder
+            if os.path.exists(stale):
+                os.remove(stale)
         steal0 = steal_ticks()
         fl = None
         if floor:
-            fl = subprocess.Popen(floor_command(seconds, floor_json), stdout=subprocess.DEVNULL,
-                                  stderr=subprocess.STDOUT)
+            with open(floor_log, "w") as flog:
+                fl = subprocess.Popen(floor_command(seconds, floor_json), stdout=flog, stderr=subprocess.STDOUT)
         with open(log_path, "w") as log:
             rc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode
         if fl is not None:
+            if rc != 0:
+                fl.terminate()  # the session failed (e.g. no SCHED_FIFO): no floor to wait for
             fl.wait()
         r = {"exit": rc, "steal_s": (steal_ticks() - steal0) / os.sysconf("SC_CLK_TCK"),
              "load_avg_at_end": os.getloadavg()}
@@ -148,6 +160,10 @@ def main():
                 r.update({k: s.get(k) for k in ("frames", "frame_mean_s", "display", "status")})
         if floor:
             r["floor"] = floor_figures(floor_json)
+            r["floor"]["exit"] = fl.returncode
+            if fl.returncode != 0:
+                with open(floor_log) as f:
+                    r["floor"]["log_tail"] = f.read()[-2000:]
         results[name] = r
 
     emit(results, a.out)

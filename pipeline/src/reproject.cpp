@@ -496,7 +496,9 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
 // relative to ref; they are solved in double.
 // Separable weights: exp of the row and column offsets, (2⌊r⌋+2)·2 exponentials per point.
 // Rows are split between two threads for large clouds (each thread reads every point and
-// writes only its own rows), and so are the nodes whose planes are then solved. Written: depth[i] and flags[i] of every node with weight > 0
+// writes only its own rows). The plane solve is split too: each thread solves a contiguous half
+// of the nodes, writes only their depth and flags and counts its own filled and occluded nodes;
+// the counts are summed, so the results equal one thread's. Written: depth[i] and flags[i] of every node with weight > 0
 // (measured nodes stay kCellMeasured unless their front-most point lies more than depth_gap
 // below the plane: then kCellSplatted, counted in *occluded; empty nodes become kCellSplatted,
 // counted in the return value). Nodes with no gathered point keep their value and flag.

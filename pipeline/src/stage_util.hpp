@@ -105,16 +105,19 @@ void run_two(A&& a, B&& b) {
 }
 
 /// Runs independent tasks on two threads (this one and a second), each taking the next task
-/// not yet taken, in the list's order: put the longest first. After a task throws, no further
-/// task is started (those running finish); then the exception of the task earliest in the list
-/// that threw is rethrown. An empty list returns at once.
+/// not yet taken, in the list's order: put the longest first. After a task throws, each thread
+/// starts no task once it has seen the failure (the other may already have taken one more);
+/// running tasks finish, then the exception of the task earliest in the list that threw is
+/// rethrown. An empty list returns at once.
 inline void run_tasks_on_two(const std::vector<std::function<void()>>& tasks) {
   if (tasks.empty()) return;
   std::atomic<std::size_t> next{0};
   std::atomic<bool> failed{false};
   std::vector<std::exception_ptr> errors(tasks.size());
   auto work = [&] {
-    for (std::size_t k; !failed.load(std::memory_order_acquire) && (k = next.fetch_add(1)) < tasks.size();) {
+    while (!failed.load(std::memory_order_acquire)) {
+      const std::size_t k = next.fetch_add(1);
+      if (k >= tasks.size()) break;
       try {
         tasks[k]();
       } catch (...) {

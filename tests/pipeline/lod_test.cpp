@@ -397,16 +397,18 @@ TEST(LodConfig, KeysAreReadValidatedAndResolved) {
   const RunConfig d = parse_run_config(base, "lod.yaml");
   EXPECT_EQ(d.lod.window_cells, 200);
   EXPECT_EQ(d.lod.min_cells, 64);
+  EXPECT_FALSE(d.lod.report) << "the levels table is made by request";
+  EXPECT_TRUE(d.lod.report_cross_check);
   EXPECT_NE(d.resolved_yaml.find("memory_budget_mb"), std::string::npos);
   const RunConfig c = parse_run_config(base + "lod: {min_cells: 32, valid_fraction: 0.75, antialias_sigma_cells: 1.5, "
-                                              "memory_budget_mb: 64, window_cells: 150, report: false, report_cross_check: false}\n",
+                                              "memory_budget_mb: 64, window_cells: 150, report: true, report_cross_check: false}\n",
                                        "lod.yaml");
   EXPECT_EQ(c.lod.min_cells, 32);
   EXPECT_DOUBLE_EQ(c.lod.valid_fraction, 0.75);
   EXPECT_DOUBLE_EQ(c.lod.antialias_sigma_cells, 1.5);
   EXPECT_DOUBLE_EQ(c.lod.memory_budget_mb, 64.0);
   EXPECT_EQ(c.lod.window_cells, 150);
-  EXPECT_FALSE(c.lod.report);
+  EXPECT_TRUE(c.lod.report);
   EXPECT_FALSE(c.lod.report_cross_check);
   for (const char* bad : {"lod: {valid_fraction: 0}", "lod: {valid_fraction: 1.5}", "lod: {window_cells: 1}",
                           "lod: {min_cells: 1}", "lod: {memory_budget_mb: 0}", "lod: {antialias_sigma_cells: 9}",

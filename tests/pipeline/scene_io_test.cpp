@@ -63,7 +63,7 @@ TEST(SceneIo, FormatTwoRoundTripsEveryTypedField) {
   s.lod.min_cells = 20;
   s.lod.window_cells = 64;
   s.lod.valid_fraction = 0.3;
-  s.lod.report = false;
+  s.lod.report = true;  // not the default: the round trip must carry it
   s.provenance.tool = "hapticloud test";
   s.provenance.config_file = "configs/x.yaml";
   s.provenance.units = "mm";
