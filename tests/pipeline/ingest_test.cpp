@@ -253,6 +253,51 @@ TEST(Ingest, ReadsBigEndianBinaryPlyWithMixedTypes) {
   EXPECT_EQ(r.value.xyz.col(1), Eigen::Vector3d(-2.5, 42, 300));
 }
 
+// Above 2^17 vertices the fixed-stride read decodes two halves of the records on two threads.
+// A big-endian file of 200 001 vertices (odd: the halves differ in size) with mixed types and
+// 8-bit colour, each vertex's values a function of its index: every coordinate and colour byte
+// is the one written, on both sides of the split.
+TEST(Ingest, ABigBinaryPlyWithColourIsReadWholeOnBothHalves) {
+  const fs::path dir = hc::test::temp_dir("big_be");
+  constexpr int kVertices = 200001;
+  std::string s = "ply\nformat binary_big_endian 1.0\nelement vertex " + std::to_string(kVertices) +
+                  "\nproperty double x\nproperty int y\nproperty short z\nproperty uchar red\nproperty uchar green"
+                  "\nproperty uchar blue\nend_header\n";
+  auto put = [&](auto v) {
+    char b[sizeof v];
+    std::memcpy(b, &v, sizeof v);
+    if constexpr (std::endian::native == std::endian::little) std::reverse(b, b + sizeof v);
+    s.append(b, sizeof v);
+  };
+  auto x_of = [](int i) { return 1000.25 + 0.5 * i; };
+  auto y_of = [](int i) { return static_cast<std::int32_t>(-3 * i); };
+  auto z_of = [](int i) { return static_cast<std::int16_t>(i % 30000 - 15000); };
+  for (int i = 0; i < kVertices; ++i) {
+    put(x_of(i));
+    put(y_of(i));
+    put(z_of(i));
+    put(static_cast<std::uint8_t>(i & 0xff));
+    put(static_cast<std::uint8_t>((i >> 8) & 0xff));
+    put(static_cast<std::uint8_t>(255 - (i & 0xff)));
+  }
+  write_text(dir / "big.ply", s);
+  const auto r = hp::load_cloud(dir / "big.ply");
+  ASSERT_EQ(r.value.size(), static_cast<std::size_t>(kVertices));
+  ASSERT_EQ(r.value.rgb.size(), 3U * kVertices);
+  std::size_t wrong_xyz = 0, wrong_rgb = 0;
+  for (int i = 0; i < kVertices; ++i) {
+    const Eigen::Vector3d want(x_of(i), y_of(i), z_of(i));
+    wrong_xyz += r.value.xyz.col(i) == want ? 0U : 1U;
+    const auto k = 3 * static_cast<std::size_t>(i);
+    wrong_rgb += r.value.rgb[k] == (i & 0xff) && r.value.rgb[k + 1] == ((i >> 8) & 0xff) &&
+                         r.value.rgb[k + 2] == 255 - (i & 0xff)
+                     ? 0U
+                     : 1U;
+  }
+  EXPECT_EQ(wrong_xyz, 0U);
+  EXPECT_EQ(wrong_rgb, 0U);
+}
+
 TEST(Ingest, ReadsOldVersionPcd) {
   const auto r = hp::load_cloud(hc::test::scan_path("bunny/pcl_bunny.pcd"));
   ASSERT_EQ(r.value.size(), 397u);

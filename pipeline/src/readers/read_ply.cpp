@@ -44,6 +44,7 @@
 #include <optional>
 #include <sstream>
 #include <string>
+#include <thread>
 #include <utility>
 #include <vector>
 
@@ -410,7 +411,19 @@ Cloud read_binary_fixed(const std::string& raw, const PlyLayout& ply, std::size_
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(v.count));
   if (rec.colour) cloud.rgb.resize(3 * v.count);
-  rec.decode(raw.data() + offset, v.count, cloud.xyz.data(), cloud.rgb.data());
+  // Above 2^17 records on two threads, each decoding a contiguous half of the records into its
+  // own half of the arrays (and taking its own half of the page faults): the same values.
+  const std::size_t half = v.count > (std::size_t{1} << 17) ? v.count / 2 : 0;
+  const char* const base = raw.data() + offset;
+  std::uint8_t* const rgb = rec.colour ? cloud.rgb.data() : nullptr;
+  std::thread upper;
+  if (half > 0) {
+    upper = std::thread([&] {
+      rec.decode(base + half * rec.stride, v.count - half, cloud.xyz.data() + 3 * half, rgb ? rgb + 3 * half : nullptr);
+    });
+  }
+  rec.decode(base, half > 0 ? half : v.count, cloud.xyz.data(), rgb);
+  if (upper.joinable()) upper.join();
   return cloud;
 }
 
