@@ -77,6 +77,15 @@ std::string float_ply_binary(int n, int declared) {
 
 using hc::test::error_of;
 
+// Appends the bytes of v to s, most significant first (PLY binary_big_endian).
+template <class T>
+void append_big_endian(std::string& s, T v) {
+  char b[sizeof v];
+  std::memcpy(b, &v, sizeof v);
+  if constexpr (std::endian::native == std::endian::little) std::reverse(b, b + sizeof v);
+  s.append(b, sizeof v);
+}
+
 // Median distance from each point of `a` to its nearest neighbour in `b`, over the points
 // whose nearest neighbour lies within `overlap_m` (the overlap of two views).
 struct Overlap {
@@ -231,12 +240,7 @@ TEST(Ingest, ReadsBigEndianBinaryPlyWithMixedTypes) {
   std::string s = "ply\nformat binary_big_endian 1.0\nelement camera 1\nproperty float f\n"
                   "element vertex 2\nproperty short z\nproperty uchar r\nproperty double x\nproperty int y\n"
                   "end_header\n";
-  auto put = [&](auto v) {
-    char b[sizeof v];
-    std::memcpy(b, &v, sizeof v);
-    if constexpr (std::endian::native == std::endian::little) std::reverse(b, b + sizeof v);
-    s.append(b, sizeof v);
-  };
+  auto put = [&](auto v) { append_big_endian(s, v); };
   put(1.5f);
   put(std::int16_t{-7});
   put(std::uint8_t{200});
@@ -263,12 +267,7 @@ TEST(Ingest, ABigBinaryPlyWithColourIsReadWholeOnBothHalves) {
   std::string s = "ply\nformat binary_big_endian 1.0\nelement vertex " + std::to_string(kVertices) +
                   "\nproperty double x\nproperty int y\nproperty short z\nproperty uchar red\nproperty uchar green"
                   "\nproperty uchar blue\nend_header\n";
-  auto put = [&](auto v) {
-    char b[sizeof v];
-    std::memcpy(b, &v, sizeof v);
-    if constexpr (std::endian::native == std::endian::little) std::reverse(b, b + sizeof v);
-    s.append(b, sizeof v);
-  };
+  auto put = [&](auto v) { append_big_endian(s, v); };
   auto x_of = [](int i) { return 1000.25 + 0.5 * i; };
   auto y_of = [](int i) { return static_cast<std::int32_t>(-3 * i); };
   auto z_of = [](int i) { return static_cast<std::int16_t>(i % 30000 - 15000); };
