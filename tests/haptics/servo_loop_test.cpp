@@ -32,6 +32,14 @@ std::unique_ptr<const HapticSurface> sinusoid_surface(int n = 200) {
   return test::make_surface(f, opt);
 }
 
+// Polls `done` every 200 µs until it holds or 20 s have passed (a threaded loop's progress; the
+// assertions after the wait decide, the bound only keeps a broken loop from hanging the suite).
+template <class Done>
+void wait_until(const Done& done) {
+  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(20);
+  while (!done() && std::chrono::steady_clock::now() < give_up) std::this_thread::sleep_for(std::chrono::microseconds(200));
+}
+
 ScriptedPath circle_path() {
   ScriptedPath p;
   p.kind = PathKind::kCircle;
@@ -345,56 +353,54 @@ TEST(ServoLoop, NewSurfaceIsAdoptedAtATickBoundaryAndTheOldOneRetired) {
   }
 }
 
-TEST(ServoLoop, ThreadedLoopRunsAndStops) {
-  SharedState shared(sinusoid_surface(50));
+// The parts of a threaded loop on the steady clock: a sinusoid of n² cells, the scripted circle
+// (device open), `rate_hz`, no real-time scheduling; the test sets the rest of `cfg`.
+struct ThreadedRig {
+  ThreadedRig(int n, double rate_hz) : shared(sinusoid_surface(n)), dev(clock, circle_path()) {
+    dev.open();
+    cfg.rate_hz = rate_hz;
+    cfg.realtime = RealtimeMode::kOff;
+  }
+  SharedState shared;
   SteadyClock clock;
-  SimulatedDevice dev(clock, circle_path());
-  dev.open();
+  SimulatedDevice dev;
   ServoConfig cfg;
-  cfg.rate_hz = 2000;
-  cfg.realtime = RealtimeMode::kOff;
-  ServoLoop loop(dev, shared, clock, cfg);
-  shared.commands.try_push(Command::of(CommandType::kArm));
+};
+
+TEST(ServoLoop, ThreadedLoopRunsAndStops) {
+  ThreadedRig rig(50, 2000);
+  ServoLoop loop(rig.dev, rig.shared, rig.clock, rig.cfg);
+  rig.shared.commands.try_push(Command::of(CommandType::kArm));
   const RealtimeReport rep = loop.start();
   EXPECT_FALSE(rep.fifo_granted);
   EXPECT_FALSE(rep.memory_locked);
   EXPECT_TRUE(loop.running());
   EXPECT_THROW(loop.start(), ConfigError);
-  while (shared.counters.ticks.load() < 300) std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  wait_until([&] { return rig.shared.counters.ticks.load() >= 300; });
   Snapshot snap;
-  EXPECT_TRUE(shared.snapshots.read(snap));
+  EXPECT_TRUE(rig.shared.snapshots.read(snap));
   loop.stop();
   EXPECT_FALSE(loop.running());
   EXPECT_GE(loop.stats().ticks, 300U);
   EXPECT_EQ(loop.stats().lateness.count(), loop.stats().ticks);
-  EXPECT_EQ(dev.last_force_n(), Vector3d::Zero());  // stop() leaves zero force
+  EXPECT_EQ(rig.dev.last_force_n(), Vector3d::Zero());  // stop() leaves zero force
   EXPECT_EQ(loop.period_ns(), 500000);
 }
 
 /// Runs a threaded loop at `rate_hz`, publishes a surface (tag 7) just after the second tick,
 /// and returns the trace up to one tick after the surface was adopted.
 std::vector<TickRecord> publish_between_ticks(double rate_hz, double wake_min_period, ServoStats& stats) {
-  SharedState shared(sinusoid_surface(50));
-  SteadyClock clock;
-  SimulatedDevice dev(clock, circle_path());
-  dev.open();
-  ServoConfig cfg;
-  cfg.rate_hz = rate_hz;
-  cfg.realtime = RealtimeMode::kOff;
-  cfg.wake_on_surface_min_period = wake_min_period;
-  ServoLoop loop(dev, shared, clock, cfg);
+  ThreadedRig rig(50, rate_hz);
+  rig.cfg.wake_on_surface_min_period = wake_min_period;
+  ServoLoop loop(rig.dev, rig.shared, rig.clock, rig.cfg);
   std::vector<TickRecord> trace(64);
   loop.set_trace(trace);
   loop.start();
-  const auto wait_for = [](const auto& done) {
-    const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(20);
-    while (!done() && std::chrono::steady_clock::now() < give_up) std::this_thread::sleep_for(std::chrono::microseconds(200));
-  };
-  wait_for([&] { return shared.counters.ticks.load() >= 2; });
-  shared.publish_surface(sinusoid_surface(50), cfg.workspace, 7);
-  wait_for([&] { return shared.counters.surface_tag.load() == 7; });
-  const std::uint64_t adopted_at = shared.counters.ticks.load();
-  wait_for([&] { return shared.counters.ticks.load() >= adopted_at + 1; });
+  wait_until([&] { return rig.shared.counters.ticks.load() >= 2; });
+  rig.shared.publish_surface(sinusoid_surface(50), rig.cfg.workspace, 7);
+  wait_until([&] { return rig.shared.counters.surface_tag.load() == 7; });
+  const std::uint64_t adopted_at = rig.shared.counters.ticks.load();
+  wait_until([&] { return rig.shared.counters.ticks.load() >= adopted_at + 1; });
   loop.stop();
   stats = loop.stats();
   trace.resize(loop.trace_size());
@@ -494,24 +500,15 @@ TEST(ServoLoop, TheWakeGapOutsideAQuarterToOnePeriodIsAnError) {
 // end early, and a missed deadline only moves the next ones later). A loop that ran the tick
 // when the warm-up begins would start every tick 60 ms early.
 TEST(ServoLoop, TheWarmUpBeforeADeadlineDoesNotMoveTheTick) {
-  SharedState shared(sinusoid_surface(20));
-  SteadyClock clock;
-  SimulatedDevice dev(clock, circle_path());
-  dev.open();
-  ServoConfig cfg;
-  cfg.rate_hz = 4.0;
-  cfg.realtime = RealtimeMode::kOff;
-  cfg.wake_on_surface_min_period = 1.0;  // deadline ticks only
-  cfg.warm_up_ns = 60'000'000;
-  ServoLoop loop(dev, shared, clock, cfg);
+  ThreadedRig rig(20, 4.0);
+  rig.cfg.wake_on_surface_min_period = 1.0;  // deadline ticks only
+  rig.cfg.warm_up_ns = 60'000'000;
+  ServoLoop loop(rig.dev, rig.shared, rig.clock, rig.cfg);
   std::vector<TickRecord> trace(8);
   loop.set_trace(trace);
-  const double t0_s = static_cast<double>(clock.now_ns()) * 1e-9;
+  const double t0_s = static_cast<double>(rig.clock.now_ns()) * 1e-9;
   loop.start();
-  const auto give_up = std::chrono::steady_clock::now() + std::chrono::seconds(20);
-  while (shared.counters.ticks.load() < 4 && std::chrono::steady_clock::now() < give_up) {
-    std::this_thread::sleep_for(std::chrono::milliseconds(5));
-  }
+  wait_until([&] { return rig.shared.counters.ticks.load() >= 4; });
   loop.stop();
   trace.resize(loop.trace_size());
   ASSERT_GE(trace.size(), 4U);

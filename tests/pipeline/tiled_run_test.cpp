@@ -445,6 +445,15 @@ HoleLayout hole_plane_layout(const fs::path& dir) {
   return l;
 }
 
+// Appends na × nb points at z = 0 to `out`: point (a, b) at origin + a·step_a + b·step_b
+// (x, y in the file's frame [m]). The groups and clusters of the plane-with-holes tests.
+void add_lattice(std::vector<std::array<double, 3>>& out, std::array<double, 2> origin, int na,
+                 std::array<double, 2> step_a, int nb, std::array<double, 2> step_b) {
+  for (int a = 0; a < na; ++a)
+    for (int b = 0; b < nb; ++b)
+      out.push_back({origin[0] + a * step_a[0] + b * step_b[0], origin[1] + a * step_a[1] + b * step_b[1], 0.0});
+}
+
 // Group 1 (8 points just inside the edge between the interiors of tile columns 1 and 2, node
 // column 79, about y = 0.5 m) and cluster 1 (20 points just past the left tile's window, halo
 // cells further), in the file's frame, for the layout `g` and halo [cells] of hole_plane_layout.
@@ -453,10 +462,8 @@ std::vector<std::array<double, 3>> group_and_cluster_1(const hc::GridGeometry& g
   const double c = 0.495;
   const double x_b = g.x_of_col(79.5) + c, x_e = g.x_of_col(79.5 + halo) + c;
   std::vector<std::array<double, 3>> extra;
-  for (int a = 0; a < 2; ++a)
-    for (int b = 0; b < 4; ++b) extra.push_back({x_b - 0.0015 - 0.0015 * a, 0.5 - 0.00225 + 0.0015 * b, 0.0});
-  for (int a = 0; a < 4; ++a)
-    for (int b = 0; b < 5; ++b) extra.push_back({x_e + 0.0005 + 0.0015 * a, 0.496 + 0.002 * b, 0.0});
+  add_lattice(extra, {x_b - 0.0015, 0.5 - 0.00225}, 2, {-0.0015, 0.0}, 4, {0.0, 0.0015});
+  add_lattice(extra, {x_e + 0.0005, 0.496}, 4, {0.0015, 0.0}, 5, {0.0, 0.002});
   return extra;
 }
 
@@ -514,10 +521,8 @@ HoleLayout write_two_group_plane(const fs::path& dir) {
   const double y_b = g.y_of_row(119.5) + c, y_e = g.y_of_row(119.5 - halo) + c;
   EXPECT_GT(y_e + 0.1, y_b) << "the halo is less than 10 cm";
   std::vector<std::array<double, 3>> extra = group_and_cluster_1(g, halo);
-  for (int a = 0; a < 2; ++a)
-    for (int b = 0; b < 4; ++b) extra.push_back({0.45 - 0.00225 + 0.0015 * b, y_b + 0.0015 + 0.0015 * a, 0.0});
-  for (int a = 0; a < 4; ++a)
-    for (int b = 0; b < 5; ++b) extra.push_back({0.446 + 0.002 * b, y_e - 0.0005 - 0.0015 * a, 0.0});
+  add_lattice(extra, {0.45 - 0.00225, y_b + 0.0015}, 2, {0.0, 0.0015}, 4, {0.0015, 0.0});
+  add_lattice(extra, {0.446, y_e - 0.0005}, 4, {0.0, -0.0015}, 5, {0.002, 0.0});
   // A second hole, of 10 cm radius about group 2, so that its other nearest points are cluster
   // 2's, and its tile's first look (plane points 10 cm away) asks for balls of about 10 cm
   // radius: they meet the blocks of tile (2, 2) within 10 cm of its edge, not those beyond.

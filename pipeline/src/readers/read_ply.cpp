@@ -28,6 +28,7 @@
 
 #include "readers.hpp"
 #include "text_parse.hpp"
+#include "../stage_util.hpp"
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/point_stream.hpp"
@@ -44,7 +45,6 @@
 #include <optional>
 #include <sstream>
 #include <string>
-#include <thread>
 #include <utility>
 #include <vector>
 
@@ -413,17 +413,16 @@ Cloud read_binary_fixed(const std::string& raw, const PlyLayout& ply, std::size_
   if (rec.colour) cloud.rgb.resize(3 * v.count);
   // Above 2^17 records on two threads, each decoding a contiguous half of the records into its
   // own half of the arrays (and taking its own half of the page faults): the same values.
-  const std::size_t half = v.count > (std::size_t{1} << 17) ? v.count / 2 : 0;
   const char* const base = raw.data() + offset;
+  double* const xyz = cloud.xyz.data();
   std::uint8_t* const rgb = rec.colour ? cloud.rgb.data() : nullptr;
-  std::thread upper;
-  if (half > 0) {
-    upper = std::thread([&] {
-      rec.decode(base + half * rec.stride, v.count - half, cloud.xyz.data() + 3 * half, rgb ? rgb + 3 * half : nullptr);
-    });
+  if (v.count > (std::size_t{1} << 17)) {
+    const std::size_t half = v.count / 2;
+    run_two([&] { rec.decode(base + half * rec.stride, v.count - half, xyz + 3 * half, rgb ? rgb + 3 * half : nullptr); },
+            [&] { rec.decode(base, half, xyz, rgb); });
+  } else {
+    rec.decode(base, v.count, xyz, rgb);
   }
-  rec.decode(base, half > 0 ? half : v.count, cloud.xyz.data(), rgb);
-  if (upper.joinable()) upper.join();
   return cloud;
 }
 
