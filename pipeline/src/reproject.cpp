@@ -65,6 +65,7 @@
 #include <chrono>
 #include <cmath>
 #include <exception>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <sstream>
@@ -1419,9 +1420,16 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
   }
 
   DepthGrid& grid = before.value;
-  long long d_filled = 0, d_occluded = 0, d_see_through = 0, d_candidates = 0;
-  std::size_t remade = 0;
-  for (std::size_t b = 0; b < windows.size(); ++b) {
+  // Each window is made again on its own: its box U is disjoint from every other window's, and
+  // only U's nodes are written, so two threads take the windows in turn; the event differences
+  // and node counts are integer sums per window, added after in window order.
+  struct WindowSums {
+    long long filled = 0, occluded = 0, see_through = 0, candidates = 0;
+    std::size_t remade = 0;
+  };
+  std::vector<WindowSums> sums(windows.size());
+  const auto remake_window = [&](std::size_t b) {
+    WindowSums& sum = sums[b];
     const NodeBox& wb = windows[b];
     const NodeBox& ub = boxes[b];
     ReprojectOptions wo = options;
@@ -1454,10 +1462,10 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
       }
       part = reproject_counted(cur, wo, &now).value;
     }
-    d_filled += static_cast<long long>(now.splatted) - static_cast<long long>(was.splatted);
-    d_occluded += static_cast<long long>(now.occluded) - static_cast<long long>(was.occluded);
-    d_see_through += static_cast<long long>(now.see_through) - static_cast<long long>(was.see_through);
-    d_candidates += static_cast<long long>(now.candidates) - static_cast<long long>(was.candidates);
+    sum.filled = static_cast<long long>(now.splatted) - static_cast<long long>(was.splatted);
+    sum.occluded = static_cast<long long>(now.occluded) - static_cast<long long>(was.occluded);
+    sum.see_through = static_cast<long long>(now.see_through) - static_cast<long long>(was.see_through);
+    sum.candidates = static_cast<long long>(now.candidates) - static_cast<long long>(was.candidates);
     // U's fine nodes (its coarse nodes and the fine ones up to the next), within the grid held.
     const int fr0 = ub.r0 * k, fc0 = ub.c0 * k;
     const int fr1 = std::min(ub.r1 * k + k - 1, base_r0 + fine_rows - 1), fc1 = std::min(ub.c1 * k + k - 1, base_c0 + fine_cols - 1);
@@ -1474,9 +1482,26 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
           for (int ch = 0; ch < 3; ++ch) grid.colour_rgb8[3 * o + static_cast<std::size_t>(ch)] = any ? part.colour_rgb8[3 * i + static_cast<std::size_t>(ch)] : std::uint8_t{0};
         }
         if (grid.has_intensity()) grid.intensity.data()[o] = any ? part.intensity.data()[i] : kNoData;
-        ++remade;
+        ++sum.remade;
       }
     }
+  };
+  std::vector<std::function<void()>> tasks;
+  tasks.reserve(windows.size());
+  for (std::size_t b = 0; b < windows.size(); ++b) tasks.emplace_back([&remake_window, b] { remake_window(b); });
+  if (tasks.size() > 1) {
+    detail::run_tasks_on_two(tasks);
+  } else {
+    for (const auto& task : tasks) task();
+  }
+  long long d_filled = 0, d_occluded = 0, d_see_through = 0, d_candidates = 0;
+  std::size_t remade = 0;
+  for (const WindowSums& sum : sums) {
+    d_filled += sum.filled;
+    d_occluded += sum.occluded;
+    d_see_through += sum.see_through;
+    d_candidates += sum.candidates;
+    remade += sum.remade;
   }
 
   // The report reproject would give: the counts of the cells again, the events corrected by

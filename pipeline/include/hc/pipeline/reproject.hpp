@@ -208,7 +208,9 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 ///         `before` does not have the window's size.
 /// Real-time: no. Cost: three passes over the points (their box; the coverage with upsample
 /// auto; their windows) + O(removed points × (2·reach + 3)² nodes) + O(rows·cols) to count the
-/// flags, against reproject's two passes and its O(rows·cols) scan. Threads: as reproject.
+/// flags, against reproject's two passes and its O(rows·cols) scan. Threads: the gathering as
+/// reproject; the windows are made again on two threads, taking them in turn (each writes only
+/// its own nodes; the results equal one thread's).
 /// Falls back to the whole grid for 2^32 − 1 points or more (windows list points by 32-bit
 /// column).
 /// Precondition not checked: `removed` holds the coordinates the points had when `before` was
