@@ -1424,8 +1424,8 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
   // only U's nodes are written, so two threads take the windows in turn; the event differences
   // and node counts are integer sums per window, added after in window order.
   struct WindowSums {
-    long long filled = 0, occluded = 0, see_through = 0, candidates = 0;
-    std::size_t remade = 0;
+    long long filled = 0, occluded = 0, see_through = 0, candidates = 0;  ///< event differences [nodes]
+    std::size_t remade = 0;                                                ///< U's fine nodes written
   };
   std::vector<WindowSums> sums(windows.size());
   const auto remake_window = [&](std::size_t b) {

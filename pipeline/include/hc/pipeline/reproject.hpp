@@ -210,7 +210,8 @@ StageResult<DepthGrid> reproject(const Cloud& points_m, const ReprojectOptions& 
 /// auto; their windows) + O(removed points × (2·reach + 3)² nodes) + O(rows·cols) to count the
 /// flags, against reproject's two passes and its O(rows·cols) scan. Threads: the gathering as
 /// reproject; the windows are made again on two threads, taking them in turn (each writes only
-/// its own nodes; the results equal one thread's).
+/// its own nodes; the results equal one thread's; a window of 2^18 points or more is gridded on
+/// two threads of its own, as reproject grids such a cloud).
 /// Falls back to the whole grid for 2^32 − 1 points or more (windows list points by 32-bit
 /// column).
 /// Precondition not checked: `removed` holds the coordinates the points had when `before` was
