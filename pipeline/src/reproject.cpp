@@ -1489,11 +1489,7 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
   std::vector<std::function<void()>> tasks;
   tasks.reserve(windows.size());
   for (std::size_t b = 0; b < windows.size(); ++b) tasks.emplace_back([&remake_window, b] { remake_window(b); });
-  if (tasks.size() > 1) {
-    detail::run_tasks_on_two(tasks);
-  } else {
-    for (const auto& task : tasks) task();
-  }
+  detail::run_tasks_on_two(tasks);
   long long d_filled = 0, d_occluded = 0, d_see_through = 0, d_candidates = 0;
   std::size_t remade = 0;
   for (const WindowSums& sum : sums) {

@@ -108,9 +108,14 @@ void run_two(A&& a, B&& b) {
 /// not yet taken, in the list's order: put the longest first. After a task throws, each thread
 /// starts no task once it has seen the failure (the other may already have taken one more);
 /// running tasks finish, then the exception of the task earliest in the list that threw is
-/// rethrown. An empty list returns at once.
+/// rethrown. An empty list returns at once; a single task runs on this thread (no second thread
+/// is started, its exception passes through).
 inline void run_tasks_on_two(const std::vector<std::function<void()>>& tasks) {
   if (tasks.empty()) return;
+  if (tasks.size() == 1) {
+    tasks.front()();
+    return;
+  }
   std::atomic<std::size_t> next{0};
   std::atomic<bool> failed{false};
   std::vector<std::exception_ptr> errors(tasks.size());

@@ -3,9 +3,9 @@
 //
 // Every task runs exactly once (counted per task, 1000 tasks), on two threads (the first task
 // waits until another thread has taken one: a single thread would leave one id); an empty list
-// returns; after a task throws, the exception rethrown is the one of the task earliest in the
-// list among those that threw, whichever finished first, and no task after a failure is started
-// once both threads have seen it.
+// returns; a single task runs on the calling thread; after a task throws, the exception rethrown
+// is the one of the task earliest in the list among those that threw, whichever finished first,
+// and no task after a failure is started once both threads have seen it.
 
 #include "stage_util.hpp"
 
@@ -55,6 +55,19 @@ TEST(RunTasksOnTwo, RunsEveryTaskOnceOnBothThreads) {
   for (int k = 0; k < kTasks; ++k) EXPECT_EQ(runs[static_cast<std::size_t>(k)].load(), 1) << "task " << k;
   EXPECT_EQ(threads.size(), 2U) << "one thread took every task";
   EXPECT_NO_THROW(run_tasks_on_two({}));
+}
+
+// A single task runs once, on the calling thread, and its exception reaches the caller.
+TEST(RunTasksOnTwo, ASingleTaskRunsOnTheCallingThread) {
+  std::thread::id ran_on;
+  int runs = 0;
+  run_tasks_on_two({[&] {
+    ran_on = std::this_thread::get_id();
+    ++runs;
+  }});
+  EXPECT_EQ(runs, 1);
+  EXPECT_EQ(ran_on, std::this_thread::get_id());
+  EXPECT_THROW(run_tasks_on_two({[] { throw std::runtime_error("the only task"); }}), std::runtime_error);
 }
 
 TEST(RunTasksOnTwo, RethrowsTheEarliestTaskInTheListThatThrewAndStartsNoneAfter) {
