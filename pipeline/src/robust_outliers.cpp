@@ -745,7 +745,7 @@ namespace {
 // find_far_clusters; `removed_rows`, when given, receives the cloud columns of the removed
 // clusters' points.
 FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarClusterOptions& o,
-                              std::vector<std::uint32_t>* removed_rows) {
+                              std::vector<std::uint32_t>* removed_rows, const FarClusterScope* scope) {
   if (!(link_m > 0.0) || !std::isfinite(link_m)) {
     throw ConfigError("find_far_clusters: link distance = " + format_number(link_m) + " m, expected a finite value > 0");
   }
@@ -901,13 +901,30 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   FarClusters result;
   result.link_m = link_m;
   result.far_distance_m = o.far_distance_m > 0.0 ? o.far_distance_m : 10.0 * link_m;
-  result.main_body = comps[rank.front()];
-  const double small = std::max(static_cast<double>(o.max_points), o.max_fraction * static_cast<double>(n));
-  for (std::size_t i = 1; i < comps.size(); ++i) {
+  if (scope != nullptr) {  // the whole scan's main body; every component of the part judged
+    result.main_body.min_m = scope->main_body_min_m;
+    result.main_body.max_m = scope->main_body_max_m;
+    result.main_body.centroid_m = 0.5 * (scope->main_body_min_m + scope->main_body_max_m);
+  } else {
+    result.main_body = comps[rank.front()];
+  }
+  const double small =
+      std::max(static_cast<double>(o.max_points), o.max_fraction * static_cast<double>(scope != nullptr ? scope->points : n));
+  // A point linked to a cluster lies less than two cell edges from it per axis (adjacent cells;
+  // a millionth of an edge more for the index's rounding at a cell boundary).
+  const double reach = 2.0 * edge * (1.0 + 1e-6);
+  for (std::size_t i = scope != nullptr ? 0 : 1; i < comps.size(); ++i) {
     PointCluster& pc = comps[rank[i]];
     const Eigen::Vector3d gap = (result.main_body.min_m - pc.max_m).cwiseMax(pc.min_m - result.main_body.max_m).cwiseMax(0.0);
     pc.gap_m = gap.norm();
     pc.removed = static_cast<double>(pc.count) <= small && pc.gap_m > result.far_distance_m;
+    if (pc.removed && scope != nullptr) {
+      const auto& b = scope->complete_xy_m;
+      const bool complete =
+          pc.min_m.x() - reach >= b[0] && pc.max_m.x() + reach <= b[1] && pc.min_m.y() - reach >= b[2] && pc.max_m.y() + reach <= b[3];
+      pc.undecided = !complete;
+      pc.removed = complete;
+    }
     result.others.push_back(pc);
   }
   if (removed_rows) {
@@ -927,8 +944,8 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
 
 }  // namespace
 
-FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarClusterOptions& o) {
-  return far_clusters_impl(cloud, link_m, o, nullptr);
+FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarClusterOptions& o, const FarClusterScope* scope) {
+  return far_clusters_impl(cloud, link_m, o, nullptr, scope);
 }
 
 namespace {
@@ -940,15 +957,16 @@ std::string describe(const PointCluster& c) {
 
 }  // namespace
 
-StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& o) {
+StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& o, const FarClusterScope* scope) {
   const auto t0 = Clock::now();
   StageReport report = make_report("far_clusters", cloud.size());
   std::vector<std::uint32_t> gone;
-  const FarClusters fc = far_clusters_impl(cloud, link_m, o, &gone);
-  std::size_t removed_clusters = 0, kept_far = 0;
+  const FarClusters fc = far_clusters_impl(cloud, link_m, o, &gone, scope);
+  std::size_t removed_clusters = 0, kept_far = 0, undecided = 0;
   for (const auto& c : fc.others) {
     removed_clusters += c.removed ? 1u : 0u;
-    kept_far += !c.removed && c.gap_m > fc.far_distance_m ? 1u : 0u;
+    undecided += c.undecided ? 1u : 0u;
+    kept_far += !c.removed && !c.undecided && c.gap_m > fc.far_distance_m ? 1u : 0u;
   }
   if (!gone.empty()) {
     std::vector<bool> keep(cloud.size(), true);
@@ -962,6 +980,7 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
   report.figure("far_clusters", static_cast<double>(removed_clusters));
   report.figure("removed_far_clusters", static_cast<double>(report.count_in - report.count_out));
   report.figure("kept_far_clusters", static_cast<double>(kept_far));
+  if (scope != nullptr) report.figure("undecided_far_clusters", static_cast<double>(undecided));
   std::size_t listed = 0;
   for (const auto& c : fc.others) {
     if (!c.removed && !(c.gap_m > fc.far_distance_m)) continue;
@@ -969,7 +988,10 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
       report.notes.push_back("... and more far clusters");
       break;
     }
-    report.notes.push_back(std::string(c.removed ? "removed far cluster: " : "kept far cluster (too large to remove): ") + describe(c));
+    report.notes.push_back(std::string(c.removed     ? "removed far cluster: "
+                                       : c.undecided ? "kept far cluster (it may continue past the part of the scan held): "
+                                                     : "kept far cluster (too large to remove): ") +
+                           describe(c));
   }
   report.seconds = seconds_since(t0);
   return {std::move(cloud), std::move(report)};
@@ -979,7 +1001,7 @@ StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOption
   return remove_far_clusters_after(remove_robust_outliers(std::move(cloud), options), far);
 }
 
-StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far) {
+StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far, const FarClusterScope* scope) {
   const auto t0 = Clock::now();
   StageReport report = std::move(robust.report);
   const double robust_s = report.seconds;
@@ -992,7 +1014,7 @@ StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const Fa
       }
     }
     if (!(link > 0.0)) link = 1e-3;  // every point a copy of another: any positive link
-    auto fc = remove_far_clusters(std::move(robust.value), link, far);
+    auto fc = remove_far_clusters(std::move(robust.value), link, far, scope);
     report.figure("far_s", fc.report.seconds);
     robust.value = std::move(fc.value);
     for (auto& f : fc.report.figures) report.figures.push_back(std::move(f));

@@ -567,7 +567,7 @@ class RadixPercentiles {
 // tiles would mean nothing).
 void add_figures(std::map<std::string, double>& sums, const StageReport& r) {
   static const char* const kCounts[] = {"removed", "cells", "points", "candidates", "certified", "exact_queries",
-                                        "local_tests", "clusters", "far_clusters", "kept_far_clusters", "spike_cells",
+                                        "local_tests", "clusters", "far_clusters", "kept_far_clusters", "undecided_far_clusters", "spike_cells",
                                         "rim_cells", "island_cells", "coherent_above_global", "duplicates_left_out"};
   for (const auto& [name, v] : r.figures) {
     if (!std::isfinite(v)) continue;
@@ -671,6 +671,10 @@ struct Plan {
   std::uint64_t input_points = 0;           // points in the file (the levels sample's stride)
   std::uint64_t grid_points = 0;            // after non-finite, crop and far clusters: the points gridded
   std::uint64_t far_points = 0;             // of far clusters (tile_far_clusters), spilled marked kFarFlag
+  // The whole scan's main body's box (the grid frame, tile_far_clusters' largest component),
+  // against which each tile judges its own far clusters (FarClusterScope); none when that stage
+  // did not run.
+  std::optional<std::array<Eigen::Vector3d, 2>> far_main_box_m;
   detail::StoredPrecision precision;
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
   std::string crs;
@@ -1208,7 +1212,22 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       detail::set_figure(f1.report, "removed_off_surface", static_cast<double>(by[3]));
       detail::set_figure(f1.report, "removed_robust", static_cast<double>(by[1] + by[2] + by[3]));
     }
-    auto f1f = remove_far_clusters_after(std::move(f1), oc.far_clusters);
+    // Far clusters among the tile's points, judged against the whole scan's main body and point
+    // count, and removed only where the tile holds all of them and every point that could link
+    // to them with the whole scan's verdicts (its decided region): a fragment of the object cut
+    // off by the window is never far, and no removal rests on the window's edge. Without the
+    // whole scan's main body (tile_far_clusters did not run: no robust scale), none are looked for.
+    FarClusterOptions fco = oc.far_clusters;
+    FarClusterScope far_scope;
+    if (plan.far_main_box_m) {
+      far_scope.main_body_min_m = (*plan.far_main_box_m)[0];
+      far_scope.main_body_max_m = (*plan.far_main_box_m)[1];
+      far_scope.points = static_cast<std::size_t>(plan.grid_points);
+      far_scope.complete_xy_m = bounds.decides_m;
+    } else {
+      fco.enabled = false;
+    }
+    auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope);
     add_figures(o.sums, f1f.report);
     RemovedPoints isolated;
     auto f2 = remove_isolated_points(std::move(f1f.value), config.cross_check.honest, &isolated);
@@ -1384,6 +1403,7 @@ class FarCells {
   struct Result {
     std::size_t clusters = 0, removed_clusters = 0, kept_far_clusters = 0;
     std::uint64_t removed_points = 0;
+    Eigen::Vector3d main_lo = Eigen::Vector3d::Zero(), main_hi = Eigen::Vector3d::Zero();  // the main body's box [m]
     std::vector<std::string> notes;
   };
   // Components; those whose box is more than far_m from the main body's and that hold at most
@@ -1447,6 +1467,8 @@ class FarCells {
     std::size_t main = 0;
     for (std::size_t q = 1; q < comps.size(); ++q)
       if (comps[q].count > comps[main].count) main = q;
+    r.main_lo = comps[main].lo;
+    r.main_hi = comps[main].hi;
     std::vector<std::uint8_t> removed_comp(comps.size(), 0);
     for (std::size_t q = 0; q < comps.size(); ++q) {
       if (q == main) continue;
@@ -1851,6 +1873,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       r.report.figure("removed_far_clusters", static_cast<double>(fc.removed_points));
       r.report.figure("kept_far_clusters", static_cast<double>(fc.kept_far_clusters));
       for (const std::string& n : fc.notes) r.report.notes.push_back(n);
+      if (fc.clusters > 0) {
+        // The cells keep their points' boxes as float offsets from the origin: a millionth of
+        // the extent wider, the box holds every point of the main body.
+        const Eigen::Vector3d slack = Eigen::Vector3d::Constant(1e-6 * extent);
+        plan.far_main_box_m = std::array<Eigen::Vector3d, 2>{fc.main_lo - slack, fc.main_hi + slack};
+      }
       if (fc.removed_points > 0) {
         const std::uint64_t before = grid_points;
         // Most far clusters (stray returns in front of or behind the surface) leave the grid's
@@ -2341,7 +2369,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 // ---------------------------------------------------------------------------------------------
 // Tile jobs in other processes: plan.json, part_<t>.bin, kept_<t>.bin.
 
-constexpr const char* kPlanFormat = "hapticloud tile plan 1";
+constexpr const char* kPlanFormat = "hapticloud tile plan 2";
 constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '1', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
 
@@ -2474,6 +2502,10 @@ void write_plan_file(const PlanFile& pf) {
   j["input_points"] = p.input_points;
   j["grid_points"] = p.grid_points;
   j["far_points"] = p.far_points;
+  j["far_main_box_m"] = p.far_main_box_m ? nlohmann::json{hex((*p.far_main_box_m)[0].x()), hex((*p.far_main_box_m)[0].y()),
+                                                           hex((*p.far_main_box_m)[0].z()), hex((*p.far_main_box_m)[1].x()),
+                                                           hex((*p.far_main_box_m)[1].y()), hex((*p.far_main_box_m)[1].z())}
+                                         : nlohmann::json();
   j["precision"] = {{"float32", p.precision.float32},
                     {"file", text(p.precision.file)},
                     {"crs", text(p.precision.crs)},
@@ -2531,7 +2563,7 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       throw InputError(plan_file.string() + ": spill_bytes has " + std::to_string(pf.spill_bytes.size()) + " entries, expected " +
                        std::to_string(p.tiles.count()) + " (one per tile)");
     }
-    where = "layout, robust_scale, input_points, grid_points, precision, offset_m, crs, input";
+    where = "layout, robust_scale, input_points, grid_points, far_points, far_main_box_m, precision, offset_m, crs, input";
     p.layout.rgb = j.at("layout").at("rgb").get<bool>();
     p.layout.intensity = j.at("layout").at("intensity").get<bool>();
     if (!j.at("robust_scale").is_null()) {
@@ -2542,6 +2574,13 @@ PlanFile read_plan_file(const fs::path& plan_file) {
     p.input_points = j.at("input_points").get<std::uint64_t>();
     p.grid_points = j.at("grid_points").get<std::uint64_t>();
     p.far_points = j.at("far_points").get<std::uint64_t>();
+    if (!j.at("far_main_box_m").is_null()) {
+      const auto& b = j.at("far_main_box_m");
+      if (!b.is_array() || b.size() != 6) throw InputError(plan_file.string() + ": far_main_box_m is not 6 numbers (x, y, z min, then max)");
+      std::array<Eigen::Vector3d, 2> box;
+      for (std::size_t i = 0; i < 6; ++i) box[i / 3][static_cast<Eigen::Index>(i % 3)] = unhex(b.at(i), plan_file, "far_main_box_m");
+      p.far_main_box_m = box;
+    }
     const auto& pr = j.at("precision");
     p.precision.float32 = pr.at("float32").get<bool>();
     p.precision.file = untext(pr.at("file"));

@@ -728,6 +728,77 @@ TEST(FarClusters, CompactBoxGivesTheSameKnownAnswer) {
   EXPECT_NEAR(find_far_clusters(c, 0.02, o).others.at(0).centroid_m.x(), 0.398, 1e-12);
 }
 
+// A part of a scan (FarClusterScope): a 10 cm square of 300 points (z = 0, the part's largest
+// component), 5 points 50 cm above its middle (P) and 5 points 20 cm beside it (Q, x 0.3 to
+// 0.304). Linked at 2 cm, far beyond 10 cm. The known answers by construction:
+// - alone (no scope) P and Q are far from the square, the part's main body: both removed;
+// - with the whole scan's main body box holding all three (a statue whose other parts link
+//   them outside the part), nothing is far: all kept, every component listed with gap 0;
+// - with a main body box that is the square's, both far; Q's box grown by two cell edges (4 cm)
+//   reaches x = 0.344, so a complete box ending at x = 0.33 leaves Q undecided (kept) and P
+//   removed; one ending at x = 0.36 removes both;
+// - N of the size limit is the scope's: max_points 4, max_fraction 0.01 and 1000 points give 10
+//   (both small: removed); 100 points give 4 (both too large: kept far).
+TEST(FarClusters, AScopeJudgesEveryComponentAgainstTheWholeScansMainBodyAndRemovesOnlyCompleteOnes) {
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 300; ++i) pts.emplace_back(u(rng) * 0.1, u(rng) * 0.1, 0.0);
+  for (int i = 0; i < 5; ++i) pts.emplace_back(0.05, 0.05 + 0.001 * i, 0.5);   // P
+  for (int i = 0; i < 5; ++i) pts.emplace_back(0.3 + 0.001 * i, 0.05, 0.0);   // Q
+  const Cloud c = cloud_of(pts);
+  FarClusterOptions o;
+  o.far_distance_m = 0.1;
+  const auto kept_points = [&](const FarClusterScope* s) { return remove_far_clusters(c, 0.02, o, s).value.size(); };
+  EXPECT_EQ(kept_points(nullptr), 300U);
+
+  FarClusterScope whole;
+  whole.main_body_min_m = Eigen::Vector3d(0.0, 0.0, 0.0);
+  whole.main_body_max_m = Eigen::Vector3d(1.0, 1.0, 1.0);
+  whole.points = 100000;
+  const FarClusters in_body = find_far_clusters(c, 0.02, o, &whole);
+  ASSERT_EQ(in_body.others.size(), 3U) << "with a scope every component is judged, the part's largest too";
+  for (const PointCluster& pc : in_body.others) {
+    EXPECT_EQ(pc.gap_m, 0.0);
+    EXPECT_FALSE(pc.removed || pc.undecided);
+  }
+  EXPECT_EQ(in_body.main_body.count, 0U);
+  EXPECT_EQ(in_body.main_body.max_m, whole.main_body_max_m);
+  EXPECT_EQ(kept_points(&whole), 310U);
+
+  FarClusterScope square = whole;
+  square.main_body_min_m = Eigen::Vector3d(0.0, 0.0, -0.01);
+  square.main_body_max_m = Eigen::Vector3d(0.1, 0.1, 0.01);
+  square.complete_xy_m = {-1.0, 0.33, -1.0, 1.0};
+  const auto r = remove_far_clusters(c, 0.02, o, &square);
+  EXPECT_EQ(r.value.size(), 305U);
+  for (Eigen::Index i = 0; i < r.value.xyz.cols(); ++i) EXPECT_LT(r.value.xyz(2, i), 0.4) << "P went";
+  EXPECT_EQ(figure(r.report, "far_clusters"), 1.0);
+  EXPECT_EQ(figure(r.report, "undecided_far_clusters"), 1.0);
+  EXPECT_EQ(figure(r.report, "kept_far_clusters"), 0.0);
+  const FarClusters at_edge = find_far_clusters(c, 0.02, o, &square);
+  ASSERT_EQ(at_edge.others.size(), 3U);
+  std::size_t undecided = 0;
+  for (const PointCluster& pc : at_edge.others) {
+    if (!pc.undecided) continue;
+    ++undecided;
+    EXPECT_NEAR(pc.min_m.x(), 0.3, 1e-12) << "Q is the undecided one";
+    EXPECT_FALSE(pc.removed);
+  }
+  EXPECT_EQ(undecided, 1U);
+  square.complete_xy_m[1] = 0.36;
+  EXPECT_EQ(kept_points(&square), 300U);
+  EXPECT_EQ(figure(remove_far_clusters(c, 0.02, o, &square).report, "undecided_far_clusters"), 0.0);
+
+  o.max_points = 4;
+  square.points = 1000;
+  EXPECT_EQ(kept_points(&square), 300U) << "10 points are small";
+  square.points = 100;
+  const auto large = remove_far_clusters(c, 0.02, o, &square);
+  EXPECT_EQ(large.value.size(), 310U) << "4 points are small: P and Q are not";
+  EXPECT_EQ(figure(large.report, "kept_far_clusters"), 2.0);
+}
+
 }  // namespace
 namespace {
 

@@ -166,7 +166,7 @@ TEST(TiledRun, EqualsTheInCoreRunOnTheBuddhaInTilesOf64Cells) {
 // With the robust outlier filter on, every tile judges its points by the whole scan's scale: the
 // median and MAD of ln d over the very points the in-core run samples (each tile gives those it
 // owns, their k-NN over its points and halo), so the scale equals the in-core run's exactly.
-// Far clusters and isolated points are still judged per tile, so the grids may differ in a few
+// The isolated-point radius and the despike spacing still come from each tile's own sample, so the grids may differ in a few
 // cells (docs/scale.md).
 TEST(TiledRun, TheRobustFilterJudgesEveryTileByTheWholeScansScale) {
   hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
@@ -868,6 +868,58 @@ TEST(TiledRun, AFarClusterBehindTheSurfaceIsReMarkedInTheSpillNotSpilledAgain) {
     // The spill folder is gone after the run.
     for (const auto& e : fs::directory_iterator(dir)) EXPECT_EQ(e.path().filename().string().rfind("hapticloud-tiles-", 0), std::string::npos) << e.path();
   }
+}
+
+// A plate of 8 × 8 points (1 cm apart) floating 30 cm above the middle of the patch, with a
+// wall 50 cm high (100 × 50 points, 1 cm apart) standing on the patch's edge at x = 0: the
+// scan's main body (patch and wall) spans the plate's height, so in core the plate is not far
+// (its box lies inside the main body's) and stays, and the grid shows it. A tile holding the
+// plate holds only the patch about it: judged against its own largest component the plate was
+// 30 cm (more than the far distance) from it and went (each tile's far clusters, before
+// FarClusterScope). Now each tile judges its clusters against the whole scan's main body and
+// keeps the plate: the depth equals the in-core one bit for bit. The point filters' other
+// per-tile steps (despike) are off, so the far-cluster step alone decides.
+TEST(TiledRun, AClusterFarFromItsTilesPointsButInsideTheScansMainBodyIsKeptAsInCore) {
+  const fs::path dir = hc::test::temp_dir("far_in_body");
+  std::vector<std::array<double, 3>> extra;
+  for (int i = 0; i < 100; ++i)
+    for (int k = 1; k <= 50; ++k) extra.push_back({0.0, 0.01 * i, 0.01 * k});
+  for (int i = 0; i < 8; ++i)
+    for (int j = 0; j < 8; ++j) extra.push_back({0.52 + 0.01 * i, 0.52 + 0.01 * j, 0.3});
+  write_patch_with(dir / "patch.ply", extra);
+  const auto [config, in, tiled] = in_core_and_tiled(
+      dir, "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
+      "filters: {outliers: {despike: false, far_clusters: {link_m: 0.015}}}\n",
+      32);
+  ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 16.0);
+  // The far distance is below the plate's height above the patch: a tile judging by its own
+  // points would find the plate far.
+  ASSERT_LT(stage_figure(in, "outliers", "far_distance_mm"), 300.0);
+  EXPECT_EQ(stage_figure(in, "outliers", "removed_far_clusters"), 0.0);
+  EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "removed_far_clusters"), 0.0);
+  EXPECT_EQ(stage_figure(tiled, "tiles", "sum_removed_far_clusters"), 0.0);
+  EXPECT_EQ(stage_figure(tiled, "tiles", "sum_undecided_far_clusters"), 0.0);
+  // The plate is in the in-core grid: 30 cm above the patch at (0.555, 0.555), against the
+  // patch alone at (0.3, 0.3) (file frame; the grid frame is the file's less the recentring
+  // offset, so heights are compared, not taken).
+  const hc::GridGeometry& g = in.scene.geometry;
+  const Eigen::Vector3d off = in.scene.provenance.recentre_offset_m;
+  // The highest valid sample within two cells (the points are 1 cm apart, the cells 5 mm).
+  const auto depth_at = [&](double x, double y) {
+    const int col = static_cast<int>(std::lround(g.col_of_x(x - off.x())));
+    const int row = static_cast<int>(std::lround(g.row_of_y(y - off.y())));
+    double top = std::numeric_limits<double>::quiet_NaN();
+    for (int r = std::max(0, row - 2); r <= std::min(g.rows - 1, row + 2); ++r)
+      for (int c = std::max(0, col - 2); c <= std::min(g.cols - 1, col + 2); ++c) {
+        const double z = in.scene.layers.depth.at(r, c);
+        if (std::isfinite(z) && !(z <= top)) top = z;
+      }
+    return top;
+  };
+  EXPECT_NEAR(depth_at(0.555, 0.555) - depth_at(0.3, 0.3), 0.3, 0.01);
+  EXPECT_EQ(tiled.scene.geometry, in.scene.geometry);
+  EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
+  EXPECT_EQ(differing_bits(in.scene.layers.texture, tiled.scene.layers.texture), 0U);
 }
 
 // A generated wall of `points` points with colour and no outliers, written to `file`.

@@ -12,6 +12,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <optional>
 #include <string>
 #include <vector>
@@ -222,14 +223,42 @@ struct PointCluster {
   Eigen::Vector3d min_m{0, 0, 0}, max_m{0, 0, 0};  ///< bounding box [m]
   double gap_m = 0.0;                 ///< distance from its box to the main body's box [m]
   bool removed = false;               ///< small and far: removed by remove_far_clusters
+  /// With a FarClusterScope: small and far, but within two cell edges of the scope's
+  /// complete_xy_m sides (it may continue past them, where the cloud is not the whole scan's):
+  /// not removed.
+  bool undecided = false;
+};
+
+/// What a caller that holds part of a scan (the tiled run's tile window) tells far-cluster
+/// removal, so that every cluster it removes is one the whole scan's run removes too, and none
+/// is removed on the strength of the part's edge. Without it, the cloud is the whole scan.
+struct FarClusterScope {
+  /// The whole scan's main body's bounding box, in the cloud's frame [m]: gaps are measured to
+  /// it instead of to the part's largest component (a fragment of a statue cut off by a tile's
+  /// edge is then never far), and every component of the part is judged, its largest too. The
+  /// tiled run passes the box of the largest component of its whole-scan pass on coarse cells
+  /// (stage tile_far_clusters), which holds the in-core main body's box.
+  Eigen::Vector3d main_body_min_m{0, 0, 0}, main_body_max_m{0, 0, 0};
+  /// N in max(max_points, max_fraction·N): the whole scan's points [-].
+  std::size_t points = 0;
+  /// The x-y box {x_min, x_max, y_min, y_max} [m] (an infinite side: none) in which the cloud
+  /// holds every point of the scan with its final verdicts (the tile's decided region, where
+  /// the robust test's verdicts are the whole scan's). A small, far cluster is removed only
+  /// when its box grown by two cell edges (the farthest a linked point can lie per axis) stays
+  /// inside it; otherwise it is kept and marked undecided. Columns in z: no z bound.
+  std::array<double, 4> complete_xy_m{-std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+                                      -std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity()};
 };
 
 /// The clusters of a cloud other than its main body.
 struct FarClusters {
   double link_m = 0.0;          ///< linking distance used [m]
   double far_distance_m = 0.0;  ///< "far" beyond this gap [m]
-  PointCluster main_body;       ///< the largest component
-  std::vector<PointCluster> others;  ///< every other component, largest first
+  /// The largest component; with a FarClusterScope, the scope's main body box (count 0,
+  /// centroid its centre), the whole scan's.
+  PointCluster main_body;
+  /// Every other component, largest first; with a scope, every component.
+  std::vector<PointCluster> others;
 };
 
 /// Connected components of the finite points at linking distance link_m, and which of them are
@@ -240,21 +269,28 @@ struct FarClusters {
 /// searches) when the box has more than 4 cells per point. Non-finite points are ignored.
 /// @param link_m  > 0 [m]; far_distance_m in `options` (0 = 10·link_m) and max_points /
 ///                max_fraction decide `removed`.
+/// @param scope   when given, the cloud is part of a scan (FarClusterScope): gaps to its main
+///                body box, N its points, removal only of clusters complete in its box.
 /// @throws hc::ConfigError if link_m <= 0 or not finite; hc::InputError if no point is finite.
-FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarClusterOptions& options);
+FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarClusterOptions& options,
+                              const FarClusterScope* scope = nullptr);
 
 /// Removes the clusters that are both small (at most max(max_points, max_fraction·N) points) and
 /// far (the gap between their bounding box and the main body's exceeds far_distance_m) — a
 /// passer-by, a distant wall, stray returns far behind the object in a terrestrial scan. The
 /// main body is the component with the most points. Each removed cluster is reported (count,
 /// centroid, gap) in a note; figures: link_mm, far_distance_mm, clusters, far_clusters,
-/// removed_far_clusters (points), kept_far_clusters (far but too large: still in the cloud).
+/// removed_far_clusters (points), kept_far_clusters (far but too large: still in the cloud);
+/// with a scope also undecided_far_clusters (small and far, kept at the scope's edge: see
+/// FarClusterScope).
 /// @param link_m  linking distance [m], > 0 (build_scene: options.link_m, or when 0 the robust
 ///                test's global threshold distance, the largest mean k-NN distance it keeps)
+/// @param scope   see find_far_clusters (the tiled run's tiles); nullptr: the whole scan
 /// @throws hc::ConfigError on a bad link_m or options; hc::InputError on a cloud without finite
 ///         points. Source: single-linkage connected components (Euclidean cluster extraction,
 ///         Rusu 2009, Sec. 6.2) on a cell grid.
-StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& options);
+StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& options,
+                                       const FarClusterScope* scope = nullptr);
 
 /// The outliers stage of method robust: remove_robust_outliers, then (when far.enabled)
 /// remove_far_clusters at far.link_m, or when that is 0 at the robust test's global threshold
@@ -268,9 +304,10 @@ StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOption
 /// The second step of remove_outliers_robust on the result of remove_robust_outliers (as
 /// remove_outliers_robust runs it): far-cluster removal at far.link_m or the robust report's
 /// global_threshold_mm, the report extended. For a caller that runs the robust test itself
-/// (the tiled run, which may judge points again over gathered points). Throws what
-/// remove_far_clusters throws.
-StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far);
+/// (the tiled run, which may judge points again over gathered points, and passes its tile's
+/// `scope`). Throws what remove_far_clusters throws.
+StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far,
+                                             const FarClusterScope* scope = nullptr);
 
 /// One line for an error message when a cloud's grid is degenerate: the clusters far from the
 /// main body (count, centroid, gap; at most five) and a filters.crop box around the main body,
