@@ -1194,8 +1194,12 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
   return v;
 }
 
-StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o, RemovedPoints* removed_points) {
+StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o, RemovedPoints* removed_points,
+                                          double given_spacing_m) {
   check_honest_options(o);
+  if (!std::isfinite(given_spacing_m)) {
+    throw ConfigError("remove_isolated_points: spacing_m = " + format_number(given_spacing_m) + ", expected a finite value (0: estimate)");
+  }
   if (removed_points != nullptr) *removed_points = RemovedPoints{};
   const auto t0 = std::chrono::steady_clock::now();
   StageReport report;
@@ -1245,7 +1249,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   local_floats(cloud.xyz, centre, local, finite);  // the same flags again, and the copy
   const Eigen::Vector3d ext = (hi - lo).cwiseMax(1e-9);
   const double start_edge = std::max(std::cbrt(ext.prod() / static_cast<double>(n_finite)), 1e-9);
-  const double spacing = median_spacing(local, finite, start_edge);
+  const double spacing = given_spacing_m > 0.0 ? given_spacing_m : median_spacing(local, finite, start_edge);
   // 10 % inside the verdict's radius: the spacing is estimated on a sample, and the check's
   // estimate (on the cloud as read) differs from this one by about 1 %, which must not leave a
   // point the check calls isolated (the Buddha: 1.466 mm here against 1.455 mm there).
@@ -1272,7 +1276,8 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   report.notes.push_back("removed " + std::to_string(removed) + " isolated points (fewer than " +
                          std::to_string(o.isolation_min_neighbours) + " others within " + format_number(radius * 1e3) +
                          " mm, " + format_number(o.isolation_radius_spacings) + " x the median spacing " +
-                         format_number(spacing * 1e3) + " mm; cross_check.isolation_*)");
+                         format_number(spacing * 1e3) +
+                         (given_spacing_m > 0.0 ? " mm of the robust test's sample" : " mm") + "; cross_check.isolation_*)");
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return {std::move(cloud), std::move(report)};
 }

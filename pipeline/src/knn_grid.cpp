@@ -284,6 +284,21 @@ class SmallestK {
   }
   // The (k+1)-th smallest squared distance.
   float kth() const { return top_[k1_ - 1]; }
+  // The distance to the nearest point other than the query itself: the second smallest of the
+  // k+1 (the query's own zero is the smallest; 0 when the query has a copy).
+  float nearest_other() const {
+    float a = std::numeric_limits<float>::infinity(), b = a;  // smallest, second smallest
+    for (std::size_t j = 0; j < k1_; ++j) {
+      const float v = top_[j];
+      if (v < a) {
+        b = a;
+        a = v;
+      } else if (v < b) {
+        b = v;
+      }
+    }
+    return std::sqrt(b);
+  }
   // Mean distance to the k nearest neighbours other than the point itself, as PCL computes it
   // (the query's own zero distance adds nothing). Each square root is a float and there are at
   // most 1001 of them, so their double sum is exact in any order unless they span more than
@@ -877,6 +892,12 @@ class GridPointQueries {
     *mean_d = static_cast<float>(sum / static_cast<double>(k));
   }
 
+  float mean_distance(std::uint32_t sorted, Scratch& s, float* nearest) const {
+    const float d = mean_distance(sorted, s);
+    if (nearest != nullptr) *nearest = s.top.nearest_other();  // the search's k+1 left in s.top
+    return d;
+  }
+
   float mean_distance(std::uint32_t sorted, Scratch& s) const {
     const float pt[3] = {g_.x[sorted], g_.y[sorted], g_.z[sorted]};
     const std::array<std::int64_t, 3> c = {g_.index_of(pt[0], 0), g_.index_of(pt[1], 1), g_.index_of(pt[2], 2)};
@@ -1002,8 +1023,8 @@ PointQueries::Scratch::~Scratch() = default;
 
 const std::vector<std::uint32_t>& PointQueries::lower_table() const { return impl_->lower_table(); }
 
-float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s) const {
-  return impl_->mean_distance(sorted, *s.state_);
+float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s, float* nearest_m) const {
+  return impl_->mean_distance(sorted, *s.state_, nearest_m);
 }
 
 void PointQueries::nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d) const {

@@ -106,7 +106,9 @@ class PointQueries {
   };
 
   /// Mean distance from the point at sorted grid position `sorted` to its k nearest neighbours.
-  float mean_distance(std::uint32_t sorted, Scratch& s) const;
+  /// `nearest_m`, when given, receives the distance to the nearest of them (the same float
+  /// squared distance's square root; 0 when the point has a copy in the grid).
+  float mean_distance(std::uint32_t sorted, Scratch& s, float* nearest_m = nullptr) const;
 
   /// The grid's dense_lower_table (built once by the constructor; empty on very sparse grids).
   const std::vector<std::uint32_t>& lower_table() const;

@@ -135,23 +135,36 @@ class ExactDistances {
     for (std::size_t s = 0; s < g.original.size(); ++s) pos_[g.original[s]] = static_cast<std::uint32_t>(s);
     for (const std::uint32_t z : g.zero) d_[z] = 0.0f;  // copies left out: k others at distance 0
   }
-  // Computes d for the listed input indices not known yet (grid order, two threads if long).
-  // Returns how many queries ran.
-  std::size_t compute(const std::vector<std::uint32_t>& list) {
+  // Computes d for the listed input indices not known yet (grid order, two threads if long);
+  // with `nearest`, also each listed point's distance to its nearest other point, in list
+  // order, from the same searches (0 for a copy left out of the grid or a point with a copy in
+  // it; a point whose d was known is searched again). Returns how many queries ran.
+  std::size_t compute(const std::vector<std::uint32_t>& list, std::vector<float>* nearest = nullptr) {
     order_.clear();
     for (const std::uint32_t j : list) {
-      if (d_[j] < 0.0f) order_.emplace_back(pos_[j], j);
+      if (d_[j] < 0.0f || (nearest != nullptr && pos_[j] != kNotInGrid)) order_.emplace_back(pos_[j], j);
     }
     std::sort(order_.begin(), order_.end());
     order_.erase(std::unique(order_.begin(), order_.end()), order_.end());
     const std::size_t len = order_.size();
     const int th = len >= 4096 ? kSearchThreads : 1;
+    std::vector<float> near(nearest != nullptr ? len : 0, 0.0f);  // by order_ entry
     run_parallel(th, [&](int t) {
       PointQueries::Scratch s(k_);
       const std::size_t b = len * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
       const std::size_t e = len * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
-      for (std::size_t i = b; i < e; ++i) d_[order_[i].second] = q_.mean_distance(order_[i].first, s);
+      for (std::size_t i = b; i < e; ++i) {
+        d_[order_[i].second] = q_.mean_distance(order_[i].first, s, nearest != nullptr ? &near[i] : nullptr);
+      }
     });
+    if (nearest != nullptr) {
+      nearest->assign(list.size(), 0.0f);
+      for (std::size_t i = 0; i < list.size(); ++i) {
+        const std::pair<std::uint32_t, std::uint32_t> key{pos_[list[i]], list[i]};
+        const auto it = std::lower_bound(order_.begin(), order_.end(), key);
+        if (it != order_.end() && *it == key) (*nearest)[i] = near[static_cast<std::size_t>(it - order_.begin())];
+      }
+    }
     return len;
   }
   // Exact d of the listed input indices (distinct, all in the grid) not known yet, as compute();
@@ -312,7 +325,7 @@ std::vector<std::uint32_t> robust_sample_indices(std::size_t n, std::size_t samp
   return n == 0 ? std::vector<std::uint32_t>() : stratified_sample(n, std::min(n, std::max<std::size_t>(sample, 1)));
 }
 
-std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t sampled) {
+std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t sampled, std::vector<double> nearest_logs) {
   if (logs.empty()) return std::nullopt;
   // Rounded to steps of 1/128 in ln d (0.8 %): a handful of added points (a far point, a far
   // cluster) moves the median and the MAD by a fraction of a rank, so the rounded scale, hence
@@ -323,10 +336,12 @@ std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t
   s.median_log = step(median_of(logs));
   for (double& v : logs) v = std::abs(v - s.median_log);
   s.mad_log = step(median_of(std::move(logs)));
+  if (!nearest_logs.empty()) s.spacing_m = std::exp(step(median_of(std::move(nearest_logs))));
   return s;
 }
 
-std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k) {
+std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
+                                       std::vector<double>* nearest_m) {
   if (k < 1 || k > 1000) throw ConfigError("mean_knn_distances: k = " + std::to_string(k) + ", expected 1..1000");
   const std::vector<std::uint32_t> rows = finite_rows(cloud, "mean_knn_distances");
   const std::size_t n = rows.size();
@@ -347,10 +362,12 @@ std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std
   const std::vector<float> p = recentred(cloud, rows);
   const CellGrid g = build_grid(p, n, std::min(2 * k + 1, 1000));
   ExactDistances d(g, k, n);
-  d.compute(list);
+  std::vector<float> near;
+  d.compute(list, nearest_m != nullptr ? &near : nullptr);
   std::vector<double> out;
   out.reserve(list.size());
   for (const std::uint32_t j : list) out.push_back(static_cast<double>(d[j]));
+  if (nearest_m != nullptr) nearest_m->assign(near.begin(), near.end());
   return out;
 }
 
@@ -408,13 +425,18 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   std::optional<RobustScale> scale = o.scale;
   if (!scale) {
     const std::vector<std::uint32_t> sample = stratified_sample(n, m);
-    queries = d.compute(sample);
-    std::vector<double> logs;
+    std::vector<float> near;
+    queries = d.compute(sample, &near);
+    std::vector<double> logs, nearest_logs;
     logs.reserve(m);
+    nearest_logs.reserve(m);
     for (const std::uint32_t j : sample) {
       if (d[j] > 0.0f) logs.push_back(std::log(static_cast<double>(d[j])));
     }
-    scale = robust_scale_of(std::move(logs), m);
+    for (const float v : near) {
+      if (v > 0.0f) nearest_logs.push_back(std::log(static_cast<double>(v)));
+    }
+    scale = robust_scale_of(std::move(logs), m, std::move(nearest_logs));
   } else {
     m = scale->sample;
     report.notes.push_back("scale (median and MAD of ln d) given, reduced over " + std::to_string(m) +
@@ -700,6 +722,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   report.figure("mad_multiplier", o.mad_multiplier);
   report.figure("sample", static_cast<double>(m));
   report.figure("median_knn_distance_mm", d_med * 1e3);
+  if (scale->spacing_m > 0.0) report.figure("sample_spacing_mm", scale->spacing_m * 1e3);
   report.figure("mad_log_knn_distance", mad);
   report.figure("sigma_log_knn_distance", sigma);
   report.figure("global_threshold_mm", d_glob * 1e3);

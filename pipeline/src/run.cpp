@@ -411,8 +411,14 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     // The robust test keeps coherent sparse regions; stray points with almost no neighbour at
     // the scan's own spacing go here, by the same rule the verdict uses for "spikes kept".
     if (!mesh && config.filters.outliers.method == OutlierMethod::kRobust) {
-      cloud = stage("isolated", reports, progress,
-                    [&] { return remove_isolated_points(std::move(cloud), config.cross_check.honest); });
+      // At the spacing the robust test's sample measured (a tiled run's tiles take the same).
+      double sample_spacing_m = 0.0;
+      for (const StageReport& r : reports) {
+        if (r.stage == "outliers") sample_spacing_m = detail::figure_of(r, "sample_spacing_mm", 0.0) * 1e-3;
+      }
+      cloud = stage("isolated", reports, progress, [&] {
+        return remove_isolated_points(std::move(cloud), config.cross_check.honest, nullptr, sample_spacing_m);
+      });
     }
   }
 

@@ -1230,7 +1230,10 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope);
     add_figures(o.sums, f1f.report);
     RemovedPoints isolated;
-    auto f2 = remove_isolated_points(std::move(f1f.value), config.cross_check.honest, &isolated);
+    // The spacing of the whole scan's robust sample, as in core (the robust report's figure,
+    // read back alike in both runs), not the window's own estimate.
+    auto f2 = remove_isolated_points(std::move(f1f.value), config.cross_check.honest, &isolated,
+                                     detail::figure_of(f1f.report, "sample_spacing_mm", 0.0) * 1e-3);
     add_figures(o.sums, f2.report);
     spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
     // A point the tile keeps is kept over the whole scan too (more points, more neighbours); a
@@ -1792,8 +1795,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   if (robust && !robust_sample.empty()) {
     (void)stage("tile_scale", reports, progress, [&] {
       StageResult<int> r;
-      std::vector<double> logs;
+      std::vector<double> logs, nearest_logs, nearest;
       logs.reserve(robust_sample.size());
+      nearest_logs.reserve(robust_sample.size());
       std::vector<std::uint8_t> flags;
       std::size_t found = 0, in_small_tiles = 0;
       PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
@@ -1809,11 +1813,14 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           in_small_tiles += mine.size();  // fewer than k + 2 points in the window: no k-NN distance here
           continue;
         }
-        for (const double d : mean_knn_distances(pts, mine, config.filters.outliers.k)) {
+        for (const double d : mean_knn_distances(pts, mine, config.filters.outliers.k, &nearest)) {
           if (d > 0.0) logs.push_back(std::log(d));
         }
+        for (const double d : nearest) {
+          if (d > 0.0) nearest_logs.push_back(std::log(d));
+        }
       }
-      robust_scale = robust_scale_of(std::move(logs), found - in_small_tiles);
+      robust_scale = robust_scale_of(std::move(logs), found - in_small_tiles, std::move(nearest_logs));
       r.report.count_in = robust_sample.size();
       r.report.count_out = found;
       r.report.figure("sampled_in_sparse_tiles", static_cast<double>(in_small_tiles));
@@ -1821,6 +1828,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         r.report.figure("median_knn_distance_mm", std::exp(robust_scale->median_log) * 1e3);
         r.report.figure("mad_log_knn_distance", robust_scale->mad_log);
         r.report.figure("sample", static_cast<double>(robust_scale->sample));
+        if (robust_scale->spacing_m > 0.0) r.report.figure("sample_spacing_mm", robust_scale->spacing_m * 1e3);
       }
       r.report.notes.push_back(robust_scale ? "the robust outlier test's scale over the whole scan, from the points the in-core run samples"
                                             : "no sampled point with a k-NN distance above 0: each tile takes its own scale");
@@ -2497,7 +2505,8 @@ void write_plan_file(const PlanFile& pf) {
   j["layout"] = {{"rgb", p.layout.rgb}, {"intensity", p.layout.intensity}};
   j["robust_scale"] = p.robust_scale ? nlohmann::json{{"median_log", hex(p.robust_scale->median_log)},
                                                       {"mad_log", hex(p.robust_scale->mad_log)},
-                                                      {"sample", p.robust_scale->sample}}
+                                                      {"sample", p.robust_scale->sample},
+                                                      {"spacing_m", hex(p.robust_scale->spacing_m)}}
                                      : nlohmann::json();
   j["input_points"] = p.input_points;
   j["grid_points"] = p.grid_points;
@@ -2569,7 +2578,8 @@ PlanFile read_plan_file(const fs::path& plan_file) {
     if (!j.at("robust_scale").is_null()) {
       const auto& rs = j.at("robust_scale");
       p.robust_scale = RobustScale{unhex(rs.at("median_log"), plan_file, "robust_scale.median_log"),
-                                   unhex(rs.at("mad_log"), plan_file, "robust_scale.mad_log"), rs.at("sample").get<std::size_t>()};
+                                   unhex(rs.at("mad_log"), plan_file, "robust_scale.mad_log"), rs.at("sample").get<std::size_t>(),
+                                   unhex(rs.at("spacing_m"), plan_file, "robust_scale.spacing_m")};
     }
     p.input_points = j.at("input_points").get<std::uint64_t>();
     p.grid_points = j.at("grid_points").get<std::uint64_t>();

@@ -9,6 +9,7 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/filters.hpp"
+#include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/robust_outliers.hpp"
 #include "hc/pipeline/run.hpp"
@@ -199,6 +200,86 @@ TEST(RobustOutliers, CountingPassDecidesLikeTestingEveryPoint) {
   EXPECT_EQ(figure(a.report, "median_knn_distance_mm"), figure(b.report, "median_knn_distance_mm"));
   EXPECT_EQ(figure(a.report, "mad_log_knn_distance"), figure(b.report, "mad_log_knn_distance"));
   }
+}
+
+Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts);  // below
+
+// The scan's spacing (RobustScale::spacing_m), which the isolated-point filter takes in both
+// runs: the sampled points' nearest-point distances from the k-NN searches against brute force
+// in double (float coordinates: 1e-5 relative), an exact copy at 0; their median, rounded to a
+// step of 1/128 in ln, against robust_scale_of; with every point sampled, the in-core test's
+// figure is that number.
+TEST(RobustOutliers, TheSamplesNearestDistancesGiveTheScansSpacing) {
+  Cloud c = bunny();
+  const auto n0 = static_cast<std::size_t>(c.xyz.cols());
+  c.xyz.conservativeResize(3, c.xyz.cols() + 1);
+  c.xyz.col(c.xyz.cols() - 1) = c.xyz.col(7);  // an exact copy of point 7
+  std::vector<std::uint32_t> list;
+  for (std::uint32_t i = 0; i < n0; i += 37) list.push_back(i);
+  list.push_back(static_cast<std::uint32_t>(n0));
+  std::vector<double> nearest;
+  (void)mean_knn_distances(c, list, 16, &nearest);
+  ASSERT_EQ(nearest.size(), list.size());
+  std::vector<double> logs;
+  for (std::size_t q = 0; q < list.size(); ++q) {
+    const Eigen::Vector3d p = c.xyz.col(list[q]);
+    double best = std::numeric_limits<double>::infinity();
+    for (Eigen::Index j = 0; j < c.xyz.cols(); ++j) {
+      if (j != static_cast<Eigen::Index>(list[q])) best = std::min(best, (c.xyz.col(j) - p).norm());
+    }
+    if (list[q] == 7 || list[q] == n0) {
+      EXPECT_EQ(nearest[q], 0.0) << "a point with a copy";
+    } else {
+      EXPECT_NEAR(nearest[q], best, 1e-5 * best + 1e-9) << list[q];
+    }
+    if (nearest[q] > 0.0) logs.push_back(std::log(nearest[q]));
+  }
+  std::vector<double> sorted = logs;
+  std::sort(sorted.begin(), sorted.end());
+  ASSERT_GT(sorted.size(), 2U);
+  const std::size_t h = sorted.size() / 2;
+  const double median = sorted.size() % 2 == 1 ? sorted[h] : 0.5 * (sorted[h - 1] + sorted[h]);
+  const double want = std::exp(std::round(median * 128.0) / 128.0);
+  const auto scale = robust_scale_of({std::log(0.001)}, list.size(), logs);
+  ASSERT_TRUE(scale.has_value());
+  EXPECT_EQ(scale->spacing_m, want);
+  EXPECT_EQ(robust_scale_of({std::log(0.001)}, 1)->spacing_m, 0.0) << "no nearest distances: unknown";
+  // The in-core test with every point sampled: its figure is the spacing of all points.
+  RobustOutlierOptions all;
+  all.sample = c.size();
+  std::vector<std::uint32_t> every(c.size());
+  for (std::size_t i = 0; i < every.size(); ++i) every[i] = static_cast<std::uint32_t>(i);
+  std::vector<double> near_all, d_logs, near_logs;
+  for (const double d : mean_knn_distances(c, every, all.k, &near_all)) {
+    if (d > 0.0) d_logs.push_back(std::log(d));
+  }
+  for (const double d : near_all) {
+    if (d > 0.0) near_logs.push_back(std::log(d));
+  }
+  const auto whole = robust_scale_of(std::move(d_logs), c.size(), std::move(near_logs));
+  EXPECT_EQ(figure(remove_robust_outliers(c, all).report, "sample_spacing_mm"), whole->spacing_m * 1e3);
+}
+
+// remove_isolated_points at a given spacing: a plane of 2 mm spacing and one point 5 cm above
+// its middle. The radius is 0.9 × 10 × the spacing: at 1 mm (9 mm) the plane's points have
+// dozens of neighbours and the point none, so it alone goes; at 1 cm (9 cm) it has the plane's
+// points and stays; the figure is the spacing given. A spacing that is not finite is refused.
+TEST(RobustOutliers, TheIsolatedFilterTakesTheSpacingItIsGiven) {
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 30; ++i)
+    for (int j = 0; j < 30; ++j) pts.emplace_back(0.002 * i, 0.002 * j, 0.0);
+  pts.emplace_back(0.03, 0.03, 0.05);
+  const Cloud c = cloud_of(pts);
+  const hc::pipeline::HonestCheckOptions o;
+  ASSERT_EQ(o.isolation_radius_spacings, 10.0);
+  const auto fine = remove_isolated_points(c, o, nullptr, 0.001);
+  EXPECT_EQ(figure(fine.report, "spacing_mm"), 1.0);
+  EXPECT_EQ(fine.value.size(), 900U);
+  for (Eigen::Index i = 0; i < fine.value.xyz.cols(); ++i) EXPECT_EQ(fine.value.xyz(2, i), 0.0);
+  const auto coarse = remove_isolated_points(c, o, nullptr, 0.01);
+  EXPECT_EQ(figure(coarse.report, "spacing_mm"), 10.0);
+  EXPECT_EQ(coarse.value.size(), 901U);
+  EXPECT_THROW(remove_isolated_points(c, o, nullptr, std::numeric_limits<double>::quiet_NaN()), hc::ConfigError);
 }
 
 // The cluttered bunny (800 uniform points in its box), the options with the scale of its whole

@@ -247,11 +247,16 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
 /// stops at the minimum). Non-finite points are kept (the non_finite stage drops them).
 /// @param removed_points when given, set to the removed points (coordinates and columns in
 ///        `cloud`): the tiled run checks that none lay within the radius of its window's edge.
-/// @throws hc::ConfigError for options outside their ranges (check_honest_options).
+/// @param spacing_m when > 0, the spacing to use instead of this cloud's own estimate [m]:
+///        build_scene passes the robust test's (RobustScale::spacing_m, figure
+///        sample_spacing_mm), measured on the whole scan before that test, so that the tiled
+///        run's tiles, which each hold a window of the scan, use the very same number.
+/// @throws hc::ConfigError for options outside their ranges (check_honest_options), or a
+///         spacing_m that is not finite.
 /// Source: the radius outlier test (Rusu 2009, PCL's RadiusOutlierRemoval), radius from the
 /// scan's own spacing.
 StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& options,
-                                          RemovedPoints* removed_points = nullptr);
+                                          RemovedPoints* removed_points = nullptr, double spacing_m = 0.0);
 
 /// Removes the stray points that make the grid's spikes and islands (a grid-level second look
 /// after the robust outlier test, which judges points by their neighbours only: clutter a few

@@ -31,6 +31,12 @@ struct RobustScale {
   double median_log = 0.0;   ///< median of ln d [ln m]
   double mad_log = 0.0;      ///< median of |ln d − median_log| [-]
   std::size_t sample = 0;    ///< sampled points the figures came from
+  /// The scan's spacing: the median distance of the sampled points to their nearest other
+  /// point (exact copies give no value), rounded as median_log to a step of 1/128 in ln [m];
+  /// 0 when no sampled point has a nearest point at a distance > 0. The isolated-point filter
+  /// takes it (remove_isolated_points), so that a tiled run's tiles and the in-core run use one
+  /// number.
+  double spacing_m = 0.0;
 };
 
 /// Options of the robust test (filters.outliers.*; docs/config.md).
@@ -109,19 +115,26 @@ std::vector<std::uint32_t> robust_sample_indices(std::size_t n, std::size_t samp
 /// their k nearest other points of `cloud`, computed exactly as remove_robust_outliers does
 /// (float32 on coordinates recentred on the cloud's median, duplicates at distance 0).
 /// @param cloud    any frame, metres; columns index it
+/// @param nearest_m when given, filled with each listed point's distance to its nearest other
+///                 point [m] (0 for a point with an exact copy), as remove_robust_outliers
+///                 measures it for RobustScale::spacing_m
 /// @return one distance per listed column, in their order [m]
 /// @throws hc::ConfigError for k outside 1..1000; hc::DegenerateInputError when the cloud has
 ///         fewer than k + 2 finite points; hc::InputError for a column that is not a finite
 ///         point. Threads: 2. Source: the statistic of Rusu et al. 2008 (PCL's
 ///         StatisticalOutlierRemoval), exact k-NN on the cell grid of knn_grid.hpp.
-std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k);
+std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
+                                       std::vector<double>* nearest_m = nullptr);
 
 /// The scale of the values ln d (d > 0) of a sample of `sampled` points (those with d = 0,
 /// exact duplicates, give no value): median, then the median of the absolute deviations from
 /// it, each rounded to a step of 1/128; RobustScale::sample = sampled. `logs` empty: std::nullopt.
+/// `nearest_logs`: ln of the sampled points' nearest-point distances (those > 0); their median,
+/// rounded alike, gives RobustScale::spacing_m (0 when empty).
 /// Source: the MAD as a robust scale (Rousseeuw & Croux 1993; Leys et al. 2013). Never throws
 /// (but std::bad_alloc).
-std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t sampled);
+std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t sampled,
+                                           std::vector<double> nearest_logs = {});
 
 /// Options of far-cluster removal (filters.outliers.far_clusters.*; docs/config.md).
 struct FarClusterOptions {
