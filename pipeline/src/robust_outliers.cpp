@@ -154,7 +154,9 @@ class ExactDistances {
       const std::size_t b = len * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
       const std::size_t e = len * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
       for (std::size_t i = b; i < e; ++i) {
-        d_[order_[i].second] = q_.mean_distance(order_[i].first, s, nearest != nullptr ? &near[i] : nullptr);
+        const std::uint32_t j = order_[i].second;
+        const float d = q_.mean_distance(order_[i].first, s, nearest != nullptr ? &near[i] : nullptr);
+        if (d_[j] < 0.0f) d_[j] = d;  // a d known before stays as it was
       }
     });
     if (nearest != nullptr) {
@@ -768,7 +770,7 @@ namespace {
 // find_far_clusters; `removed_rows`, when given, receives the cloud columns of the removed
 // clusters' points.
 FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarClusterOptions& o,
-                              std::vector<std::uint32_t>* removed_rows, const FarClusterScope* scope) {
+                              std::vector<std::uint32_t>* removed_rows, const FarClusterScope* scope, std::size_t size_points) {
   if (!(link_m > 0.0) || !std::isfinite(link_m)) {
     throw ConfigError("find_far_clusters: link distance = " + format_number(link_m) + " m, expected a finite value > 0");
   }
@@ -931,8 +933,8 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   } else {
     result.main_body = comps[rank.front()];
   }
-  const double small =
-      std::max(static_cast<double>(o.max_points), o.max_fraction * static_cast<double>(scope != nullptr ? scope->points : n));
+  const std::size_t n_size = scope != nullptr ? scope->points : size_points > 0 ? size_points : n;  // N of the size limit
+  const double small = std::max(static_cast<double>(o.max_points), o.max_fraction * static_cast<double>(n_size));
   // A point linked to a cluster lies less than two cell edges from it per axis (adjacent cells;
   // a millionth of an edge more for the index's rounding at a cell boundary).
   const double reach = 2.0 * edge * (1.0 + 1e-6);
@@ -968,7 +970,7 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
 }  // namespace
 
 FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarClusterOptions& o, const FarClusterScope* scope) {
-  return far_clusters_impl(cloud, link_m, o, nullptr, scope);
+  return far_clusters_impl(cloud, link_m, o, nullptr, scope, 0);
 }
 
 namespace {
@@ -980,11 +982,12 @@ std::string describe(const PointCluster& c) {
 
 }  // namespace
 
-StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& o, const FarClusterScope* scope) {
+StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& o, const FarClusterScope* scope,
+                                       std::size_t size_points) {
   const auto t0 = Clock::now();
   StageReport report = make_report("far_clusters", cloud.size());
   std::vector<std::uint32_t> gone;
-  const FarClusters fc = far_clusters_impl(cloud, link_m, o, &gone, scope);
+  const FarClusters fc = far_clusters_impl(cloud, link_m, o, &gone, scope, size_points);
   std::size_t removed_clusters = 0, kept_far = 0, undecided = 0;
   for (const auto& c : fc.others) {
     removed_clusters += c.removed ? 1u : 0u;
@@ -1037,7 +1040,9 @@ StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const Fa
       }
     }
     if (!(link > 0.0)) link = 1e-3;  // every point a copy of another: any positive link
-    auto fc = remove_far_clusters(std::move(robust.value), link, far, scope);
+    // N of the size limit: the points the robust test was given (after non-finite and crop), a
+    // number a tiled run knows before its tiles run (it cannot know the count after the test).
+    auto fc = remove_far_clusters(std::move(robust.value), link, far, scope, report.count_in);
     report.figure("far_s", fc.report.seconds);
     robust.value = std::move(fc.value);
     for (auto& f : fc.report.figures) report.figures.push_back(std::move(f));

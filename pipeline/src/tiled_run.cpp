@@ -675,6 +675,7 @@ struct Plan {
   // against which each tile judges its own far clusters (FarClusterScope); none when that stage
   // did not run.
   std::optional<std::array<Eigen::Vector3d, 2>> far_main_box_m;
+  std::uint64_t far_size_points = 0;  // N of the far clusters' size limit: the points after non-finite and crop
   detail::StoredPrecision precision;
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
   std::string crs;
@@ -1222,7 +1223,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     if (plan.far_main_box_m) {
       far_scope.main_body_min_m = (*plan.far_main_box_m)[0];
       far_scope.main_body_max_m = (*plan.far_main_box_m)[1];
-      far_scope.points = static_cast<std::size_t>(plan.grid_points);
+      far_scope.points = static_cast<std::size_t>(plan.far_size_points);
       far_scope.complete_xy_m = bounds.decides_m;
     } else {
       fco.enabled = false;
@@ -1881,6 +1882,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       r.report.figure("removed_far_clusters", static_cast<double>(fc.removed_points));
       r.report.figure("kept_far_clusters", static_cast<double>(fc.kept_far_clusters));
       for (const std::string& n : fc.notes) r.report.notes.push_back(n);
+      plan.far_size_points = grid_points;  // before the far clusters go: as in core (remove_far_clusters_after)
       if (fc.clusters > 0) {
         // The cells keep their points' boxes as float offsets from the origin: a millionth of
         // the extent wider, the box holds every point of the main body.
@@ -2515,6 +2517,7 @@ void write_plan_file(const PlanFile& pf) {
                                                            hex((*p.far_main_box_m)[0].z()), hex((*p.far_main_box_m)[1].x()),
                                                            hex((*p.far_main_box_m)[1].y()), hex((*p.far_main_box_m)[1].z())}
                                          : nlohmann::json();
+  j["far_size_points"] = p.far_size_points;
   j["precision"] = {{"float32", p.precision.float32},
                     {"file", text(p.precision.file)},
                     {"crs", text(p.precision.crs)},
@@ -2572,7 +2575,7 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       throw InputError(plan_file.string() + ": spill_bytes has " + std::to_string(pf.spill_bytes.size()) + " entries, expected " +
                        std::to_string(p.tiles.count()) + " (one per tile)");
     }
-    where = "layout, robust_scale, input_points, grid_points, far_points, far_main_box_m, precision, offset_m, crs, input";
+    where = "layout, robust_scale, input_points, grid_points, far_points, far_main_box_m, far_size_points, precision, offset_m, crs, input";
     p.layout.rgb = j.at("layout").at("rgb").get<bool>();
     p.layout.intensity = j.at("layout").at("intensity").get<bool>();
     if (!j.at("robust_scale").is_null()) {
@@ -2580,6 +2583,10 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       p.robust_scale = RobustScale{unhex(rs.at("median_log"), plan_file, "robust_scale.median_log"),
                                    unhex(rs.at("mad_log"), plan_file, "robust_scale.mad_log"), rs.at("sample").get<std::size_t>(),
                                    unhex(rs.at("spacing_m"), plan_file, "robust_scale.spacing_m")};
+      if (!std::isfinite(p.robust_scale->spacing_m) || p.robust_scale->spacing_m < 0.0) {
+        throw InputError(plan_file.string() + ": robust_scale.spacing_m is " + format_number(p.robust_scale->spacing_m) +
+                         ", expected a finite spacing >= 0 [m] (0: unknown)");
+      }
     }
     p.input_points = j.at("input_points").get<std::uint64_t>();
     p.grid_points = j.at("grid_points").get<std::uint64_t>();
@@ -2588,9 +2595,18 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       const auto& b = j.at("far_main_box_m");
       if (!b.is_array() || b.size() != 6) throw InputError(plan_file.string() + ": far_main_box_m is not 6 numbers (x, y, z min, then max)");
       std::array<Eigen::Vector3d, 2> box;
-      for (std::size_t i = 0; i < 6; ++i) box[i / 3][static_cast<Eigen::Index>(i % 3)] = unhex(b.at(i), plan_file, "far_main_box_m");
+      for (std::size_t i = 0; i < 6; ++i) {
+        const std::string key = "far_main_box_m[" + std::to_string(i) + "]";
+        const double v = unhex(b.at(i), plan_file, key.c_str());
+        if (!std::isfinite(v)) throw InputError(plan_file.string() + ": " + key + " is " + format_number(v) + ", expected a finite coordinate [m]");
+        box[i / 3][static_cast<Eigen::Index>(i % 3)] = v;
+      }
+      if (!(box[0].array() <= box[1].array()).all()) {
+        throw InputError(plan_file.string() + ": far_main_box_m has a minimum above its maximum (expected x, y, z min, then max)");
+      }
       p.far_main_box_m = box;
     }
+    p.far_size_points = j.at("far_size_points").get<std::uint64_t>();
     const auto& pr = j.at("precision");
     p.precision.float32 = pr.at("float32").get<bool>();
     p.precision.file = untext(pr.at("file"));

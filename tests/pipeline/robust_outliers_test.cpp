@@ -206,19 +206,27 @@ Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts);  // below
 
 // The scan's spacing (RobustScale::spacing_m), which the isolated-point filter takes in both
 // runs: the sampled points' nearest-point distances from the k-NN searches against brute force
-// in double (float coordinates: 1e-5 relative), an exact copy at 0; their median, rounded to a
-// step of 1/128 in ln, against robust_scale_of; with every point sampled, the in-core test's
-// figure is that number.
+// in double (float coordinates: 1e-5 relative); a point with one exact copy, and one with k + 2
+// (left out of the search grid), at 0; a point listed twice gets its distance twice. Their
+// median, rounded to a step of 1/128 in ln, against robust_scale_of; with every point sampled,
+// the in-core test's figure is that number.
 TEST(RobustOutliers, TheSamplesNearestDistancesGiveTheScansSpacing) {
-  Cloud c = bunny();
-  const auto n0 = static_cast<std::size_t>(c.xyz.cols());
-  c.xyz.conservativeResize(3, c.xyz.cols() + 1);
-  c.xyz.col(c.xyz.cols() - 1) = c.xyz.col(7);  // an exact copy of point 7
+  const int k = 16;
+  std::vector<Eigen::Vector3d> pts;  // the bunny's positions (no attributes), then the copies
+  for (Eigen::Index i = 0; i < bunny().xyz.cols(); ++i) pts.emplace_back(bunny().xyz.col(i));
+  const std::size_t n0 = pts.size();
+  pts.push_back(pts[7]);                                   // an exact copy of point 7
+  for (int q = 0; q < k + 2; ++q) pts.push_back(pts[11]);  // k + 2 copies of point 11
+  const Cloud c = cloud_of(pts);
+  const auto has_copy = [&](std::uint32_t i) { return i == 7 || i == 11 || i >= n0; };
   std::vector<std::uint32_t> list;
   for (std::uint32_t i = 0; i < n0; i += 37) list.push_back(i);
+  list.push_back(11);
   list.push_back(static_cast<std::uint32_t>(n0));
+  list.push_back(static_cast<std::uint32_t>(n0) + 3);
+  list.push_back(list[1]);  // listed twice
   std::vector<double> nearest;
-  (void)mean_knn_distances(c, list, 16, &nearest);
+  (void)mean_knn_distances(c, list, k, &nearest);
   ASSERT_EQ(nearest.size(), list.size());
   std::vector<double> logs;
   for (std::size_t q = 0; q < list.size(); ++q) {
@@ -227,8 +235,9 @@ TEST(RobustOutliers, TheSamplesNearestDistancesGiveTheScansSpacing) {
     for (Eigen::Index j = 0; j < c.xyz.cols(); ++j) {
       if (j != static_cast<Eigen::Index>(list[q])) best = std::min(best, (c.xyz.col(j) - p).norm());
     }
-    if (list[q] == 7 || list[q] == n0) {
-      EXPECT_EQ(nearest[q], 0.0) << "a point with a copy";
+    if (has_copy(list[q])) {
+      EXPECT_EQ(best, 0.0);
+      EXPECT_EQ(nearest[q], 0.0) << "a point with a copy: " << list[q];
     } else {
       EXPECT_NEAR(nearest[q], best, 1e-5 * best + 1e-9) << list[q];
     }

@@ -252,7 +252,7 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
 ///        sample_spacing_mm), measured on the whole scan before that test, so that the tiled
 ///        run's tiles, which each hold a window of the scan, use the very same number.
 /// @throws hc::ConfigError for options outside their ranges (check_honest_options), or a
-///         spacing_m that is not finite.
+///         spacing_m that is negative or not finite.
 /// Source: the radius outlier test (Rusu 2009, PCL's RadiusOutlierRemoval), radius from the
 /// scan's own spacing.
 StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& options,

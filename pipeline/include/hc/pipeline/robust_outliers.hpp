@@ -252,7 +252,8 @@ struct FarClusterScope {
   /// tiled run passes the box of the largest component of its whole-scan pass on coarse cells
   /// (stage tile_far_clusters), which holds the in-core main body's box.
   Eigen::Vector3d main_body_min_m{0, 0, 0}, main_body_max_m{0, 0, 0};
-  /// N in max(max_points, max_fraction·N): the whole scan's points [-].
+  /// N in max(max_points, max_fraction·N): the whole scan's points before the robust test
+  /// (after non-finite and crop), as remove_far_clusters_after takes it in core [-].
   std::size_t points = 0;
   /// The x-y box {x_min, x_max, y_min, y_max} [m] (an infinite side: none) in which the cloud
   /// holds every point of the scan with its final verdicts (the tile's decided region, where
@@ -299,11 +300,13 @@ FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarCluste
 /// @param link_m  linking distance [m], > 0 (build_scene: options.link_m, or when 0 the robust
 ///                test's global threshold distance, the largest mean k-NN distance it keeps)
 /// @param scope   see find_far_clusters (the tiled run's tiles); nullptr: the whole scan
+/// @param size_points N of the size limit when > 0 and no scope is given (remove_far_clusters_after:
+///                the points the robust test was given); 0: the cloud's finite points
 /// @throws hc::ConfigError on a bad link_m or options; hc::InputError on a cloud without finite
 ///         points. Source: single-linkage connected components (Euclidean cluster extraction,
 ///         Rusu 2009, Sec. 6.2) on a cell grid.
 StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& options,
-                                       const FarClusterScope* scope = nullptr);
+                                       const FarClusterScope* scope = nullptr, std::size_t size_points = 0);
 
 /// The outliers stage of method robust: remove_robust_outliers, then (when far.enabled)
 /// remove_far_clusters at far.link_m, or when that is 0 at the robust test's global threshold
@@ -316,7 +319,8 @@ StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOption
 
 /// The second step of remove_outliers_robust on the result of remove_robust_outliers (as
 /// remove_outliers_robust runs it): far-cluster removal at far.link_m or the robust report's
-/// global_threshold_mm, the report extended. For a caller that runs the robust test itself
+/// global_threshold_mm, the report extended. N of the size limit is the robust report's
+/// count_in (the points the test was given), which a tiled run knows before its tiles run. For a caller that runs the robust test itself
 /// (the tiled run, which may judge points again over gathered points, and passes its tile's
 /// `scope`). Throws what remove_far_clusters throws.
 StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far,
