@@ -892,10 +892,13 @@ TEST(TiledRun, AClusterFarFromItsTilesPointsButInsideTheScansMainBodyIsKeptAsInC
   for (int i = 0; i < 8; ++i)
     for (int j = 0; j < 8; ++j) extra.push_back({0.52 + 0.01 * i, 0.52 + 0.01 * j, 0.3});
   write_patch_with(dir / "patch.ply", extra);
-  const auto [config, in, tiled] = in_core_and_tiled(
+  // Named, not a structured binding: the lambda below reads `in` (clang 14 cannot capture one).
+  const InCoreAndTiled both = in_core_and_tiled(
       dir, "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
       "filters: {outliers: {despike: false, far_clusters: {link_m: 0.015}}}\n",
       32);
+  const BuiltScene& in = both.in;
+  const BuiltScene& tiled = both.tiled;
   ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 16.0);
   // The far distance is below the plate's height above the patch: a tile judging by its own
   // points would find the plate far.
