@@ -732,12 +732,14 @@ TEST(TiledRun, ASpillTheDiskRefusesStopsTheRunNamingTheFileAndLeavesNothing) {
 // over the whole scan: an error naming the key. On the 10 mm patch with a 2-cell filter halo
 // (10 mm) and 200 neighbours wanted within 9 spacings (90 mm, about 250 points in the open), the
 // points near a window's edge have too few in their tile; over the whole patch only its own rim
-// does (at the grid's edge, where no point is missing: no error for those).
+// does (at the grid's edge, where no point is missing: no error for those). The cross-check is
+// off: its own reach (10 spacings) would refuse the 2-cell halo before the tile loop (the next
+// test), and this one is about the filter's search.
 TEST(TiledRun, AHaloNarrowerThanThePointSearchesIsAnErrorNamingTheKey) {
   const fs::path dir = hc::test::temp_dir("narrow");
   write_patch_with(dir / "patch.ply", {});
   const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200}\n"
-                           "cross_check: {isolation_min_neighbours: 200}\nfilters: {outliers: {despike: false}}\n";
+                           "cross_check: {enabled: false, isolation_min_neighbours: 200}\nfilters: {outliers: {despike: false}}\n";
   // The same patch with a wide halo runs (the search fits).
   RunConfig wide = hc::pipeline::parse_run_config(yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 24}\n",
                                                   dir / "patch.yaml");
@@ -785,6 +787,37 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
         << "10 spacings + the 2 mm spike height";
     EXPECT_THROW((void)hc::pipeline::build_scene(config_with(needed - 1)), hc::ConfigError);
   }
+  // With the robust filter on, its sample's spacing (tile_scale) is known before the tile loop:
+  // a halo short of the reach even at 0.9 x that spacing is refused there, before any tile runs,
+  // naming a value that holds the reach at 1.1 x it; that value runs.
+  const std::string robust = "input: {files: [patch.ply], units: m}\ngrid: {n: 200}\n";
+  const auto robust_with = [&](int filter_halo_cells) {
+    RunConfig config = hc::pipeline::parse_run_config(
+        robust + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: " + std::to_string(filter_halo_cells) + "}\n",
+        dir / "patch.yaml");
+    config.scale.scratch = dir;
+    return config;
+  };
+  std::vector<std::string> stages_started;
+  std::string what;
+  try {
+    (void)hc::pipeline::build_scene(robust_with(2), false,
+                                    [&](const hc::pipeline::StageReport& st, bool done) { if (!done) stages_started.push_back(st.stage); });
+    FAIL() << "a 2-cell halo ran";
+  } catch (const hc::ConfigError& e) {
+    what = e.what();
+  }
+  EXPECT_NE(what.find("stage tile_scale"), std::string::npos) << what;
+  EXPECT_NE(what.find("before the tile loop"), std::string::npos) << what;
+  EXPECT_EQ(std::count(stages_started.begin(), stages_started.end(), std::string("tiles")), 0) << "no tile ran";
+  EXPECT_GT(std::count(stages_started.begin(), stages_started.end(), std::string("tile_scale")), 0);
+  const std::string key = "raise scale.filter_halo_cells (now 2) to at least ";
+  const auto at = what.find(key);
+  ASSERT_NE(at, std::string::npos) << what;
+  const int needed = std::stoi(what.substr(at + key.size()));
+  EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "the spill folder is removed on the error";
+  const BuiltScene ok = hc::pipeline::build_scene(robust_with(needed));
+  EXPECT_GE(stage_figure(ok, "honest_check", "halo_mm"), stage_figure(ok, "honest_check", "reach_mm"));
 }
 
 // A far cluster (30 stray returns 2 m beyond a 1 m patch, as a passer-by in a terrestrial scan)
