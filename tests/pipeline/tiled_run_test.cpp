@@ -762,16 +762,18 @@ TEST(TiledRun, AHaloNarrowerThanThePointSearchesIsAnErrorNamingTheKey) {
 TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   const fs::path dir = hc::test::temp_dir("narrow_honest");
   write_patch_with(dir / "patch.ply", {});
+  // The patch's config `yaml` tiled in 32-cell tiles with the given filter halo, spilling in dir.
+  const auto tiled_with = [&dir](const std::string& yaml, int filter_halo_cells) {
+    RunConfig config = hc::pipeline::parse_run_config(
+        yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: " + std::to_string(filter_halo_cells) + "}\n",
+        dir / "patch.yaml");
+    config.scale.scratch = dir;
+    return config;
+  };
   for (const auto& [grid, start] : {std::pair<std::string, int>{"{n: 200}", 2}, std::pair<std::string, int>{"{n: 200, upsample: 2}", 3}}) {
     SCOPED_TRACE(grid);
     const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: " + grid + "\nfilters: {outliers: {enabled: false}}\n";
-    const auto config_with = [&](int filter_halo_cells) {
-      RunConfig config = hc::pipeline::parse_run_config(
-          yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: " + std::to_string(filter_halo_cells) + "}\n",
-          dir / "patch.yaml");
-      config.scale.scratch = dir;
-      return config;
-    };
+    const auto config_with = [&](int filter_halo_cells) { return tiled_with(yaml, filter_halo_cells); };
     const std::string what = error_of<hc::ConfigError>(config_with(start));
     EXPECT_NE(what.find("honest_check"), std::string::npos) << what;
     const std::string key = "raise scale.filter_halo_cells (now " + std::to_string(start) + ") to at least ";
@@ -790,13 +792,8 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   // With the robust filter on, its sample's spacing (tile_scale) is known before the tile loop:
   // a halo short of the reach even at 0.9 x that spacing is refused there, before any tile runs,
   // naming a value that holds the reach at 1.1 x it; that value runs.
-  const std::string robust = "input: {files: [patch.ply], units: m}\ngrid: {n: 200}\n";
   const auto robust_with = [&](int filter_halo_cells) {
-    RunConfig config = hc::pipeline::parse_run_config(
-        robust + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: " + std::to_string(filter_halo_cells) + "}\n",
-        dir / "patch.yaml");
-    config.scale.scratch = dir;
-    return config;
+    return tiled_with("input: {files: [patch.ply], units: m}\ngrid: {n: 200}\n", filter_halo_cells);
   };
   std::vector<std::string> stages_started;
   std::string what;
