@@ -373,7 +373,8 @@ std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std
   return out;
 }
 
-StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& o, RobustVerdicts* verdicts) {
+StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& o, RobustVerdicts* verdicts,
+                                          RobustScale* scale_used) {
   const auto t0 = Clock::now();
   const int k = o.k;
   if (k < 1 || k > 1000) throw ConfigError("remove_robust_outliers: k = " + std::to_string(k) + ", expected 1..1000");
@@ -444,6 +445,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     report.notes.push_back("scale (median and MAD of ln d) given, reduced over " + std::to_string(m) +
                            " sampled points of the whole scan");
   }
+  if (scale && scale_used != nullptr) *scale_used = *scale;
   if (!scale) {
     // Every sampled point has k copies of itself: nothing is sparse relative to anything.
     report.count_out = cloud.size();
@@ -1023,8 +1025,9 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
   return {std::move(cloud), std::move(report)};
 }
 
-StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOptions& options, const FarClusterOptions& far) {
-  return remove_far_clusters_after(remove_robust_outliers(std::move(cloud), options), far);
+StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOptions& options, const FarClusterOptions& far,
+                                          RobustScale* scale_used) {
+  return remove_far_clusters_after(remove_robust_outliers(std::move(cloud), options, nullptr, scale_used), far);
 }
 
 StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far, const FarClusterScope* scope) {

@@ -290,7 +290,7 @@ using detail::stored_precision;
 Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& reports, const ProgressFn& progress,
                             std::vector<SceneInput>& scene_inputs, Eigen::Vector3d& offset_m,
                             StoredPrecision* precision = nullptr,
-                            Eigen::Matrix3Xd* as_read = nullptr, Cloud* in_memory = nullptr) {
+                            Eigen::Matrix3Xd* as_read = nullptr, Cloud* in_memory = nullptr, double* sample_spacing_m = nullptr) {
   // The input files' checksums (provenance) on a thread of their own while ingest inflates and
   // parses on this one: ingest is serial, and hashing the Buddha's 12 MB took 6 ms after it.
   // Should ingest throw, `stop` (set by the guard, destroyed before the future) makes the
@@ -390,6 +390,7 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     });
   }
   if (config.filters.outliers.enabled) {
+    RobustScale robust_scale;  // the robust test's (spacing_m 0 until it has one)
     cloud = stage("outliers", reports, progress, [&] {
       if (mesh) return skip_for_mesh(std::move(cloud), "filters.outliers");
       const OutlierConfig& oc = config.filters.outliers;
@@ -399,7 +400,7 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
         ro.local_ratio = oc.local_ratio;
         ro.mad_multiplier = oc.mad_multiplier;
         ro.off_surface_ratio = oc.off_surface_ratio;
-        return remove_outliers_robust(std::move(cloud), ro, oc.far_clusters);
+        return remove_outliers_robust(std::move(cloud), ro, oc.far_clusters, &robust_scale);
       }
       if (config.filters.outliers.scope == OutlierScope::kFront) {
         return remove_front_statistical_outliers(std::move(cloud), config.filters.outliers.k,
@@ -412,13 +413,10 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     // the scan's own spacing go here, by the same rule the verdict uses for "spikes kept".
     if (!mesh && config.filters.outliers.method == OutlierMethod::kRobust) {
       // At the spacing the robust test's sample measured (a tiled run's tiles take the same).
-      double sample_spacing_m = 0.0;
-      for (const StageReport& r : reports) {
-        if (r.stage == "outliers") sample_spacing_m = detail::figure_of(r, "sample_spacing_mm", 0.0) * 1e-3;
-      }
       cloud = stage("isolated", reports, progress, [&] {
-        return remove_isolated_points(std::move(cloud), config.cross_check.honest, nullptr, sample_spacing_m);
+        return remove_isolated_points(std::move(cloud), config.cross_check.honest, nullptr, robust_scale.spacing_m);
       });
+      if (sample_spacing_m != nullptr) *sample_spacing_m = robust_scale.spacing_m;
     }
   }
 
@@ -564,8 +562,9 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
   StoredPrecision precision;
   Eigen::Matrix3Xd as_read;  // for the honest cross-check; freed after it
+  double sample_spacing_m = 0.0;  // the robust test's sample's (0: it did not run)
   Cloud cloud = prepare_points_staged(config, reports, progress, prov.inputs, offset_m, &precision,
-                                      config.cross_check.enabled ? &as_read : nullptr, in_memory);
+                                      config.cross_check.enabled ? &as_read : nullptr, in_memory, &sample_spacing_m);
   prov.crs = precision.crs;
 
   // 5. Reprojection and hole filling.
@@ -667,7 +666,9 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
         for (const auto& [name, value] : rep.figures)
           if (name == "upsample_factor" && value >= 1.0) k = value;
       }
-      const HonestCheckOptions honest_options = detail::honest_options_for(config, rasterised, k, grid.depth.geometry().cell_size_m);
+      HonestCheckOptions honest_options = detail::honest_options_for(config, rasterised, k, grid.depth.geometry().cell_size_m);
+      // The scan's spacing of the robust test's sample, when it ran (the tiled run's too).
+      honest_options.spacing_m = sample_spacing_m;
       r.value.spikes = find_grid_spikes(grid.depth, honest_options);
       r.value.input = check_input(as_read, cloud, grid.depth, honest_options, removal_displacement_m(config),
                                   &r.value.spikes, &scene.layers.flags);

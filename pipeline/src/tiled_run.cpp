@@ -1158,8 +1158,11 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   std::vector<std::uint8_t> flags;
   Cloud pts = read_tile_points(plan, spill, t, flags);
   o.in = pts.size();
-  if (config.cross_check.enabled && pts.size() >= 2) {
-    // The honest check's spacing (the tiles' median weighted by points: finish_tiled).
+  // The robust test's sample's spacing (stage tile_scale; 0 without the robust filter): the
+  // isolated filter's and the honest check's, as in core.
+  const double sample_spacing_m = plan.robust_scale ? plan.robust_scale->spacing_m : 0.0;
+  if (config.cross_check.enabled && pts.size() >= 2 && !(sample_spacing_m > 0.0)) {
+    // Without it, the honest check's spacing is the tiles' median weighted by points (finish_tiled).
     o.spacing_m = median_point_spacing(pts.xyz, 2.0 * tiles.g.cell_size_m);
     o.spacing_points = pts.size();
   }
@@ -1233,8 +1236,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     RemovedPoints isolated;
     // The spacing of the whole scan's robust sample, as in core (the robust report's figure,
     // read back alike in both runs), not the window's own estimate.
-    auto f2 = remove_isolated_points(std::move(f1f.value), config.cross_check.honest, &isolated,
-                                     detail::figure_of(f1f.report, "sample_spacing_mm", 0.0) * 1e-3);
+    auto f2 = remove_isolated_points(std::move(f1f.value), config.cross_check.honest, &isolated, sample_spacing_m);
     add_figures(o.sums, f2.report);
     spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
     // A point the tile keeps is kept over the whole scan too (more points, more neighbours); a
@@ -2035,16 +2037,13 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     });
   }
 
-  // The honest check's halo, early: its spacing is the tiles' (known once every tile has run),
-  // but the robust sample's (tile_scale) lies within a few per cent of it (the Buddha: 0.1466 mm
-  // against 0.1476 mm). A halo short of the reach even at 0.9 × that spacing would only be
-  // refused after the whole tile loop: it is refused here, naming a value that holds the reach
-  // at 1.1 × it. A halo between the two goes on to the check after the loop.
-  if (config.cross_check.enabled && robust_scale && robust_scale->spacing_m > 0.0) {
+  // The honest check's halo, before the tile loop: with the robust filter on, the check's
+  // spacing is the robust test's sample's (stage tile_scale), known now, so a halo short of its
+  // reach is refused here rather than after the whole tile loop (or, with tile jobs, at the
+  // merge). Without it, the check after the loop decides on the tiles' median.
+  if (const double s = robust_scale ? robust_scale->spacing_m : 0.0; config.cross_check.enabled && s > 0.0) {
     const HonestCheckOptions options = detail::honest_options_for(config, false, static_cast<double>(tiles.k), tiles.g.cell_size_m);
-    check_honest_halo(config, tiles, options, 0.9 * robust_scale->spacing_m, 1.1 * robust_scale->spacing_m, "tile_scale",
-                      "0.9 x the robust test's sample's, sample_spacing_mm " + format_number(robust_scale->spacing_m * 1e3) +
-                          "; checked before the tile loop");
+    check_honest_halo(config, tiles, options, s, s, "tile_scale", "the robust test's sample's; checked before the tile loop");
   }
 
   plan.tiles = tiles;
@@ -2271,7 +2270,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       const HonestCheckOptions options =
           detail::honest_options_for(config, false, static_cast<double>(tiles.k), tiles.g.cell_size_m);
       InputCheck& in = r.value.input;
-      // The whole run's spacing: the tiles' spacings, their median weighted by points.
+      // The whole run's spacing: the robust test's sample's, as in core; without the robust
+      // filter, the tiles' spacings, their median weighted by points.
       std::vector<std::pair<double, std::uint64_t>> sp = merged.spacings;
       std::sort(sp.begin(), sp.end());
       std::uint64_t total = 0, acc = 0;
@@ -2284,6 +2284,9 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           break;
         }
       }
+      const double sampled_m = plan.robust_scale ? plan.robust_scale->spacing_m : 0.0;
+      const bool from_sample = sampled_m > 0.0;
+      if (from_sample) spacing_m = sampled_m;
       if (!(spacing_m > 0.0)) spacing_m = tiles.g.cell_size_m;  // no tile had two points: the cell
       // The point test and the spike searches see a tile's points within their reach only when
       // the halo holds it: a search that would leave it is an error (issue 14), not an edge where
@@ -2292,7 +2295,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       const double reach_m = honest_reach_m(options, spacing_m);
       r.report.figure("halo_mm", tiles.halo * tiles.g.cell_size_m * 1e3);
       r.report.figure("reach_mm", reach_m * 1e3);
-      check_honest_halo(config, tiles, options, spacing_m, spacing_m, "honest_check", "the tiles' median");
+      check_honest_halo(config, tiles, options, spacing_m, spacing_m, "honest_check",
+                        from_sample ? "the robust test's sample's" : "the tiles' median");
       r.value.spikes = find_grid_spikes(grid.depth, options);
       GridSpikes& spikes = r.value.spikes;
       spikes.confirmed = 0;

@@ -31,6 +31,7 @@
 #include <map>
 #include <vector>
 #include <string>
+#include <tuple>
 
 #include <sys/resource.h>
 
@@ -214,8 +215,20 @@ TEST(TiledRun, TheRobustFilterJudgesEveryTileByTheWholeScansScale) {
             << "; spikes_kept " << in.summary.input_check->spikes_kept << " / " << tiled.summary.input_check->spikes_kept << "\n";
   EXPECT_EQ(tiled.summary.verdict->status, in.summary.verdict->status);
   EXPECT_EQ(tiled.summary.input_check->points, in.summary.input_check->points);
-  EXPECT_NEAR(static_cast<double>(tiled.summary.grid_spikes->confirmed), static_cast<double>(in.summary.grid_spikes->confirmed),
-              0.05 * static_cast<double>(in.summary.grid_spikes->spikes + in.summary.grid_spikes->pits) + 1.0);
+  // Both check at the robust sample's spacing: the point test is the same test, and on equal
+  // grids every point's class is the in-core one.
+  EXPECT_EQ(tiled.summary.input_check->spacing_m, in.summary.input_check->spacing_m);
+  EXPECT_EQ(in.summary.input_check->spacing_m * 1e3, stage_figure(in, "outliers", "sample_spacing_mm"));
+  const auto& a = *in.summary.input_check;
+  const auto& b = *tiled.summary.input_check;
+  for (const auto& [name, x, y] : {std::tuple{"removed", a.removed, b.removed}, std::tuple{"on_surface", a.on_surface, b.on_surface},
+                                   std::tuple{"off_surface", a.off_surface, b.off_surface}, std::tuple{"hidden", a.hidden, b.hidden},
+                                   std::tuple{"no_data", a.no_data, b.no_data}, std::tuple{"outside", a.outside, b.outside},
+                                   std::tuple{"isolated", a.isolated, b.isolated}, std::tuple{"spikes_kept", a.spikes_kept, b.spikes_kept},
+                                   std::tuple{"surface_lost", a.surface_lost, b.surface_lost}}) {
+    EXPECT_EQ(y, x) << name;
+  }
+  EXPECT_EQ(tiled.summary.grid_spikes->confirmed, in.summary.grid_spikes->confirmed);
 }
 
 // The honest cross-check in a tiled run (each tile's input and kept points against the whole
@@ -789,9 +802,9 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
         << "10 spacings + the 2 mm spike height";
     EXPECT_THROW((void)hc::pipeline::build_scene(config_with(needed - 1)), hc::ConfigError);
   }
-  // With the robust filter on, its sample's spacing (tile_scale) is known before the tile loop:
-  // a halo short of the reach even at 0.9 x that spacing is refused there, before any tile runs,
-  // naming a value that holds the reach at 1.1 x it; that value runs.
+  // With the robust filter on, the check's spacing is the robust test's sample's (tile_scale),
+  // known before the tile loop: a halo short of the reach is refused there, before any tile
+  // runs; the value it names runs, and its halo holds the reach the check reports.
   const auto robust_with = [&](int filter_halo_cells) {
     return tiled_with("input: {files: [patch.ply], units: m}\ngrid: {n: 200}\n", filter_halo_cells);
   };
@@ -815,6 +828,9 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "the spill folder is removed on the error";
   const BuiltScene ok = hc::pipeline::build_scene(robust_with(needed));
   EXPECT_GE(stage_figure(ok, "honest_check", "halo_mm"), stage_figure(ok, "honest_check", "reach_mm"));
+  EXPECT_THROW((void)hc::pipeline::build_scene(robust_with(needed - 1)), hc::ConfigError);
+  ASSERT_TRUE(ok.summary.input_check);
+  EXPECT_EQ(ok.summary.input_check->spacing_m * 1e3, stage_figure(ok, "tile_scale", "sample_spacing_mm"));
 }
 
 // A far cluster (30 stray returns 2 m beyond a 1 m patch, as a passer-by in a terrestrial scan)

@@ -65,6 +65,10 @@ struct HonestCheckOptions {
   /// in x-y and within max(tolerance_m, spike_min_height_m) of its height: the point whose disc
   /// made the cell. Filled and upsampled cells are confirmed only in 3-D. 0 = off.
   double confirm_footprint_m = 0.0;
+  /// The scan's spacing when known [m] (set by run, not a config key): the robust outlier
+  /// test's sample's (RobustScale::spacing_m), so that a tiled run and the in-core run judge
+  /// with one number. 0: check_input estimates it from the points as read (median_spacing).
+  double spacing_m = 0.0;
   /// Connected groups of valid cells (8-neighbours) of at most this many cells, apart from the
   /// largest group, are islands [cells].
   int island_max_cells = 16;

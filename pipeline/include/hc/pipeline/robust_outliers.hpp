@@ -226,8 +226,10 @@ struct FarClusterOptions {
 /// query per neighbour of a checked candidate whose first bounds reach past the margin, and the
 /// complete balls indexed in an xy grid.
 /// @param verdicts when given, filled (RobustVerdicts; its previous content is discarded)
+/// @param scale_used when given, set to the scale the test used (computed, or options.scale)
+///        when there was one; left as it was when every sampled point has k copies
 StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& options,
-                                          RobustVerdicts* verdicts = nullptr);
+                                          RobustVerdicts* verdicts = nullptr, RobustScale* scale_used = nullptr);
 
 /// A connected component of the cloud at a linking distance (remove_far_clusters).
 struct PointCluster {
@@ -313,9 +315,10 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
 /// distance D_glob (every kept point has its nearest neighbour within D_glob, since the nearest
 /// distance is at most the mean k-NN distance). One report with both steps' figures and notes;
 /// "removed" = removed_robust + removed_far_clusters; far_s = the far-cluster step's seconds.
-/// Throws what the two steps throw.
+/// `scale_used` as in remove_robust_outliers (build_scene takes its spacing_m for the isolated
+/// filter and the honest check). Throws what the two steps throw.
 StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOptions& options,
-                                          const FarClusterOptions& far);
+                                          const FarClusterOptions& far, RobustScale* scale_used = nullptr);
 
 /// The second step of remove_outliers_robust on the result of remove_robust_outliers (as
 /// remove_outliers_robust runs it): far-cluster removal at far.link_m or the robust report's
