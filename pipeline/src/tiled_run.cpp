@@ -1234,8 +1234,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope);
     add_figures(o.sums, f1f.report);
     RemovedPoints isolated;
-    // The spacing of the whole scan's robust sample, as in core (the robust report's figure,
-    // read back alike in both runs), not the window's own estimate.
+    // The spacing of the whole scan's robust sample (the plan's RobustScale, the number the
+    // in-core run uses), not the window's own estimate.
     auto f2 = remove_isolated_points(std::move(f1f.value), config.cross_check.honest, &isolated, sample_spacing_m);
     add_figures(o.sums, f2.report);
     spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
