@@ -647,7 +647,10 @@ void check_honest_options(const HonestCheckOptions& o) {
   if (!(o.hidden_band_m > 0.0) || !std::isfinite(o.hidden_band_m)) bad_option("hidden_band_m", o.hidden_band_m, "a distance > 0 [m]");
   if (!(o.isolation_radius_spacings >= 1.0 && o.isolation_radius_spacings <= 1000.0))
     bad_option("isolation_radius_spacings", o.isolation_radius_spacings, "a number in [1, 1000]");
-  if (!(o.spacing_m >= 0.0) || !std::isfinite(o.spacing_m)) bad_option("spacing_m", o.spacing_m, "a spacing >= 0 [m] (0: estimate it)");
+  if (!(o.spacing_m >= 0.0) || !std::isfinite(o.spacing_m)) {
+    throw ConfigError("HonestCheckOptions::spacing_m (set by the run, not a config key) = " + format_number(o.spacing_m) +
+                      ": expected a spacing >= 0 [m] (0: estimate it)");
+  }
   if (o.isolation_min_neighbours < 1 || o.isolation_min_neighbours > 1000)
     bad_option("isolation_min_neighbours", o.isolation_min_neighbours, "an integer in [1, 1000]");
   if (o.spike_window_cells < 3 || o.spike_window_cells > 15 || o.spike_window_cells % 2 == 0)

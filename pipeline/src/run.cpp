@@ -668,7 +668,9 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
       }
       HonestCheckOptions honest_options = detail::honest_options_for(config, rasterised, k, grid.depth.geometry().cell_size_m);
       // The scan's spacing of the robust test's sample, when it ran (the tiled run's too).
-      honest_options.spacing_m = sample_spacing_m;
+      // Not when a voxel or PCL filter thinned the cloud before the robust test: its spacing
+      // is then the thinned cloud's, and the check tests the points as read.
+      honest_options.spacing_m = config.filters.voxel_m > 0.0 || !config.filters.pcl.empty() ? 0.0 : sample_spacing_m;
       r.value.spikes = find_grid_spikes(grid.depth, honest_options);
       r.value.input = check_input(as_read, cloud, grid.depth, honest_options, removal_displacement_m(config),
                                   &r.value.spikes, &scene.layers.flags);

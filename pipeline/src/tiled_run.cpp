@@ -1566,7 +1566,7 @@ void check_honest_halo(const RunConfig& config, const Tiles& tiles, const Honest
       "), plus the largest of the tolerance, the spike height and the confirmation footprint), so points near a "
       "tile's edge would be judged without all their neighbours: " +
       (needed > 0 ? "raise scale.filter_halo_cells (now " + std::to_string(config.scale.filter_halo_cells) + ") to at least " +
-                        std::to_string(needed) + " (the spacing is measured on the tiles' windows, which a wider halo changes a little)"
+                        std::to_string(needed)
                   : "no scale.filter_halo_cells up to 4096 is enough: use a coarser grid (grid.n), grid.upsample, or a "
                     "smaller cross_check.isolation_radius_spacings") +
       "; with tile jobs, make a new plan with it and run its jobs again");
@@ -2290,13 +2290,15 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       if (!(spacing_m > 0.0)) spacing_m = tiles.g.cell_size_m;  // no tile had two points: the cell
       // The point test and the spike searches see a tile's points within their reach only when
       // the halo holds it: a search that would leave it is an error (issue 14), not an edge where
-      // points count as isolated. The spacing is known only once every tile has run, so this
-      // comes after the tile loop (or, with tile jobs, at the merge), before the check's own work.
+      // points count as isolated. With the robust filter on, plan_passes checked this already
+      // (the spacing is the robust sample's); without it, the spacing is known only once every
+      // tile has run, so it comes here (or, with tile jobs, at the merge).
       const double reach_m = honest_reach_m(options, spacing_m);
       r.report.figure("halo_mm", tiles.halo * tiles.g.cell_size_m * 1e3);
       r.report.figure("reach_mm", reach_m * 1e3);
       check_honest_halo(config, tiles, options, spacing_m, spacing_m, "honest_check",
-                        from_sample ? "the robust test's sample's" : "the tiles' median");
+                        from_sample ? "the robust test's sample's"
+                                    : "the tiles' median, measured on their windows, which a wider halo changes a little");
       r.value.spikes = find_grid_spikes(grid.depth, options);
       GridSpikes& spikes = r.value.spikes;
       spikes.confirmed = 0;

@@ -266,7 +266,21 @@ TEST(RobustOutliers, TheSamplesNearestDistancesGiveTheScansSpacing) {
     if (d > 0.0) near_logs.push_back(std::log(d));
   }
   const auto whole = robust_scale_of(std::move(d_logs), c.size(), std::move(near_logs));
-  EXPECT_EQ(figure(remove_robust_outliers(c, all).report, "sample_spacing_mm"), whole->spacing_m * 1e3);
+  RobustScale used;
+  EXPECT_EQ(figure(remove_robust_outliers(c, all, nullptr, &used).report, "sample_spacing_mm"), whole->spacing_m * 1e3);
+  EXPECT_EQ(used.spacing_m, whole->spacing_m) << "the scale used, handed out";
+  // A scale given is the one handed out; every sampled point with k copies: none, left as it was.
+  RobustOutlierOptions given = all;
+  given.scale = RobustScale{std::log(0.002), 0.25, 7, 0.0015};
+  RobustScale out;
+  (void)remove_robust_outliers(c, given, nullptr, &out);
+  EXPECT_EQ(out.spacing_m, 0.0015);
+  EXPECT_EQ(out.sample, 7U);
+  std::vector<Eigen::Vector3d> copies(40, Eigen::Vector3d(0.1, 0.2, 0.3));
+  RobustScale untouched{1.0, 2.0, 3, 4.0};
+  (void)remove_robust_outliers(cloud_of(copies), RobustOutlierOptions{}, nullptr, &untouched);
+  EXPECT_EQ(untouched.spacing_m, 4.0);
+  EXPECT_EQ(untouched.sample, 3U);
 }
 
 // remove_isolated_points at a given spacing: a plane of 2 mm spacing and one point 5 cm above

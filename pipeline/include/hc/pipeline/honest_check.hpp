@@ -108,7 +108,7 @@ struct InputCheck {
   /// points by centroids: a point then counts as removed when no kept point lies within one
   /// voxel diagonal).
   bool removal_exact = true;
-  double spacing_m = 0.0;           ///< median nearest-neighbour distance of the input [m]
+  double spacing_m = 0.0;           ///< the scan's spacing the point test used [m] (HonestCheckOptions::spacing_m, or the estimate)
   double isolation_radius_m = 0.0;  ///< radius of the point test [m]
   std::size_t isolated = 0;         ///< points the point test flags
   /// Removed points that are not isolated, not far, and lie over no-data cells or outside the
@@ -173,7 +173,8 @@ struct GridSpikes {
 /// filter's leaf (0 = off; see InputCheck::removal_exact).
 /// Method: the point test counts, for every input point, the other points within the isolation
 /// radius (a hash of cubic voxels of that edge, exact distances, stopping at the minimum); the
-/// spacing is the median nearest-neighbour distance of up to 4096 evenly strided points.
+/// spacing is options.spacing_m when > 0 (the run's: the robust test's sample's), else the
+/// scope's, else the median nearest-neighbour distance of up to 4096 evenly strided points.
 /// Removal is an exact match of coordinates (a hash multiset of the kept points). The gap of a
 /// lost point over no data or outside is its x-y distance to the nearest valid sample (OpenCV
 /// distance transform of the valid mask, plus the distance to the grid's box).

@@ -34,12 +34,12 @@
 /// With the robust outlier filter, the scale is the whole scan's (stage tile_scale) and far
 /// clusters are found over the whole scan on coarse cells (stage tile_far_clusters; the grid is
 /// then laid out and spilled again without them). What does not yet equal the in-core run: each
-/// tile's k-NN searches are cut at the halo, the isolated-point radius is the tile's,
-/// and the grid's box and upsample factor are those of the points before filtering (in core:
+/// tile's k-NN searches are cut at the halo (points whose searches leave it are judged again),
+/// far clusters joined to the main body only through others are kept, and the grid's box and upsample factor are those of the points before filtering (in core:
 /// after). The honest cross-check runs tile by tile (check_input with an InputCheckScope: each
 /// tile's input points as spilled and its kept points against the whole grid over its window; the
-/// spacing is the tiles' median weighted by points, not the in-core median of 4096 points, so
-/// the isolated count may differ by a few), then the verdict as in core; points dropped before the
+/// spacing is the robust sample's as in core, or without the robust filter the tiles' median
+/// weighted by points, where the isolated count may differ by a few), then the verdict as in core; points dropped before the
 /// spill (non-finite, crop) count as removed without a class. The levels table's support column
 /// is missing (no cloud: a sample instead).
 /// Not supported (tiled: on is an error naming the key): input.conf / several files,
