@@ -1200,13 +1200,8 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
   return v;
 }
 
-StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o, RemovedPoints* removed_points,
-                                          double given_spacing_m) {
+StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o, RemovedPoints* removed_points) {
   check_honest_options(o);
-  if (!std::isfinite(given_spacing_m) || given_spacing_m < 0.0) {
-    throw ConfigError("remove_isolated_points: spacing_m = " + format_number(given_spacing_m) +
-                      " m, expected a finite value >= 0 (0: estimate it from the cloud)");
-  }
   if (removed_points != nullptr) *removed_points = RemovedPoints{};
   const auto t0 = std::chrono::steady_clock::now();
   StageReport report;
@@ -1256,7 +1251,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   local_floats(cloud.xyz, centre, local, finite);  // the same flags again, and the copy
   const Eigen::Vector3d ext = (hi - lo).cwiseMax(1e-9);
   const double start_edge = std::max(std::cbrt(ext.prod() / static_cast<double>(n_finite)), 1e-9);
-  const double spacing = given_spacing_m > 0.0 ? given_spacing_m : median_spacing(local, finite, start_edge);
+  const double spacing = o.spacing_m > 0.0 ? o.spacing_m : median_spacing(local, finite, start_edge);
   // 10 % inside the verdict's radius: the spacing is estimated on a sample (the robust test's,
   // when given: its sampled points' nearest-point distances before that test), and the check's
   // estimate (on the cloud as read) differs from it by a few per cent, which must not leave a
@@ -1285,7 +1280,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
                          std::to_string(o.isolation_min_neighbours) + " others within " + format_number(radius * 1e3) +
                          " mm, " + format_number(o.isolation_radius_spacings) + " x the median spacing " +
                          format_number(spacing * 1e3) +
-                         (given_spacing_m > 0.0 ? " mm of the robust test's sample" : " mm") + "; cross_check.isolation_*)");
+                         (o.spacing_m > 0.0 ? " mm of the robust test's sample" : " mm") + "; cross_check.isolation_*)");
   report.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return {std::move(cloud), std::move(report)};
 }

@@ -413,9 +413,9 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     // the scan's own spacing go here, by the same rule the verdict uses for "spikes kept".
     if (!mesh && config.filters.outliers.method == OutlierMethod::kRobust) {
       // At the spacing the robust test's sample measured (a tiled run's tiles take the same).
-      cloud = stage("isolated", reports, progress, [&] {
-        return remove_isolated_points(std::move(cloud), config.cross_check.honest, nullptr, robust_scale.spacing_m);
-      });
+      HonestCheckOptions isolation = config.cross_check.honest;
+      isolation.spacing_m = robust_scale.spacing_m;
+      cloud = stage("isolated", reports, progress, [&] { return remove_isolated_points(std::move(cloud), isolation); });
       if (sample_spacing_m != nullptr) *sample_spacing_m = robust_scale.spacing_m;
     }
   }

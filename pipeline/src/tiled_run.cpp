@@ -1236,7 +1236,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     RemovedPoints isolated;
     // The spacing of the whole scan's robust sample (the plan's RobustScale, the number the
     // in-core run uses), not the window's own estimate.
-    auto f2 = remove_isolated_points(std::move(f1f.value), config.cross_check.honest, &isolated, sample_spacing_m);
+    HonestCheckOptions isolation = config.cross_check.honest;
+    isolation.spacing_m = sample_spacing_m;
+    auto f2 = remove_isolated_points(std::move(f1f.value), isolation, &isolated);
     add_figures(o.sums, f2.report);
     spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
     // A point the tile keeps is kept over the whole scan too (more points, more neighbours); a
@@ -1544,19 +1546,18 @@ double honest_reach_m(const HonestCheckOptions& o, double spacing_m) {
 
 // Throws the error naming `stage` and scale.filter_halo_cells when the tiles' halo is narrower
 // than the honest check's reach at `spacing_m` (`spacing_what` says where that spacing comes
-// from); the value it names is the least whose halo holds the reach at `suggest_spacing_m`.
+// from), with the least value whose halo holds the reach.
 void check_honest_halo(const RunConfig& config, const Tiles& tiles, const HonestCheckOptions& options, double spacing_m,
-                       double suggest_spacing_m, const char* stage, const std::string& spacing_what) {
+                       const char* stage, const std::string& spacing_what) {
   const double reach_m = honest_reach_m(options, spacing_m);
   const double cell_m = tiles.g.cell_size_m;
   const double halo_m = tiles.halo * cell_m;
   if (!(halo_m < reach_m)) return;
   // The least scale.filter_halo_cells whose halo (rounded up to a multiple of the upsample
   // factor) holds the reach, if the key's range has one.
-  const double suggest_reach_m = std::max(reach_m, honest_reach_m(options, suggest_spacing_m));
   int needed = -1;
   for (int f = config.scale.filter_halo_cells + 1; f <= 4096 && needed < 0; ++f) {
-    if (tile_halo(config, tiles.k, f) * cell_m >= suggest_reach_m) needed = f;
+    if (tile_halo(config, tiles.k, f) * cell_m >= reach_m) needed = f;
   }
   throw ConfigError(
       std::string("tiled run, stage ") + stage + ": the tiles' halo (" + format_number(halo_m * 1e3) + " mm, " +
@@ -2043,7 +2044,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   // merge). Without it, the check after the loop decides on the tiles' median.
   if (const double s = robust_scale ? robust_scale->spacing_m : 0.0; config.cross_check.enabled && s > 0.0) {
     const HonestCheckOptions options = detail::honest_options_for(config, false, static_cast<double>(tiles.k), tiles.g.cell_size_m);
-    check_honest_halo(config, tiles, options, s, s, "tile_scale", "the robust test's sample's; checked before the tile loop");
+    check_honest_halo(config, tiles, options, s, "tile_scale", "the robust test's sample's; checked before the tile loop");
   }
 
   plan.tiles = tiles;
@@ -2272,21 +2273,21 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       InputCheck& in = r.value.input;
       // The whole run's spacing: the robust test's sample's, as in core; without the robust
       // filter, the tiles' spacings, their median weighted by points.
-      std::vector<std::pair<double, std::uint64_t>> sp = merged.spacings;
-      std::sort(sp.begin(), sp.end());
-      std::uint64_t total = 0, acc = 0;
-      for (const auto& e : sp) total += e.second;
-      double spacing_m = 0.0;
-      for (const auto& e : sp) {
-        acc += e.second;
-        if (2 * acc >= total) {
-          spacing_m = e.first;
-          break;
+      double spacing_m = plan.robust_scale ? plan.robust_scale->spacing_m : 0.0;
+      const bool from_sample = spacing_m > 0.0;
+      if (!from_sample) {
+        std::vector<std::pair<double, std::uint64_t>> sp = merged.spacings;
+        std::sort(sp.begin(), sp.end());
+        std::uint64_t total = 0, acc = 0;
+        for (const auto& e : sp) total += e.second;
+        for (const auto& e : sp) {
+          acc += e.second;
+          if (2 * acc >= total) {
+            spacing_m = e.first;
+            break;
+          }
         }
       }
-      const double sampled_m = plan.robust_scale ? plan.robust_scale->spacing_m : 0.0;
-      const bool from_sample = sampled_m > 0.0;
-      if (from_sample) spacing_m = sampled_m;
       if (!(spacing_m > 0.0)) spacing_m = tiles.g.cell_size_m;  // no tile had two points: the cell
       // The point test and the spike searches see a tile's points within their reach only when
       // the halo holds it: a search that would leave it is an error (issue 14), not an edge where
@@ -2296,7 +2297,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       const double reach_m = honest_reach_m(options, spacing_m);
       r.report.figure("halo_mm", tiles.halo * tiles.g.cell_size_m * 1e3);
       r.report.figure("reach_mm", reach_m * 1e3);
-      check_honest_halo(config, tiles, options, spacing_m, spacing_m, "honest_check",
+      check_honest_halo(config, tiles, options, spacing_m, "honest_check",
                         from_sample ? "the robust test's sample's"
                                     : "the tiles' median, measured on their windows, which a wider halo changes a little");
       r.value.spikes = find_grid_spikes(grid.depth, options);

@@ -286,23 +286,29 @@ TEST(RobustOutliers, TheSamplesNearestDistancesGiveTheScansSpacing) {
 // remove_isolated_points at a given spacing: a plane of 2 mm spacing and one point 5 cm above
 // its middle. The radius is 0.9 × 10 × the spacing: at 1 mm (9 mm) the plane's points have
 // dozens of neighbours and the point none, so it alone goes; at 1 cm (9 cm) it has the plane's
-// points and stays; the figure is the spacing given. A spacing that is not finite is refused.
+// points and stays; the figure is the spacing given (HonestCheckOptions::spacing_m). A spacing
+// that is not finite, or negative, is refused.
 TEST(RobustOutliers, TheIsolatedFilterTakesTheSpacingItIsGiven) {
   std::vector<Eigen::Vector3d> pts;
   for (int i = 0; i < 30; ++i)
     for (int j = 0; j < 30; ++j) pts.emplace_back(0.002 * i, 0.002 * j, 0.0);
   pts.emplace_back(0.03, 0.03, 0.05);
   const Cloud c = cloud_of(pts);
-  const hc::pipeline::HonestCheckOptions o;
+  hc::pipeline::HonestCheckOptions o;
   ASSERT_EQ(o.isolation_radius_spacings, 10.0);
-  const auto fine = remove_isolated_points(c, o, nullptr, 0.001);
+  o.spacing_m = 0.001;
+  const auto fine = remove_isolated_points(c, o);
   EXPECT_EQ(figure(fine.report, "spacing_mm"), 1.0);
   EXPECT_EQ(fine.value.size(), 900U);
   for (Eigen::Index i = 0; i < fine.value.xyz.cols(); ++i) EXPECT_EQ(fine.value.xyz(2, i), 0.0);
-  const auto coarse = remove_isolated_points(c, o, nullptr, 0.01);
+  o.spacing_m = 0.01;
+  const auto coarse = remove_isolated_points(c, o);
   EXPECT_EQ(figure(coarse.report, "spacing_mm"), 10.0);
   EXPECT_EQ(coarse.value.size(), 901U);
-  EXPECT_THROW(remove_isolated_points(c, o, nullptr, std::numeric_limits<double>::quiet_NaN()), hc::ConfigError);
+  o.spacing_m = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_THROW(remove_isolated_points(c, o), hc::ConfigError);
+  o.spacing_m = -0.001;
+  EXPECT_THROW(remove_isolated_points(c, o), hc::ConfigError);
 }
 
 // The cluttered bunny (800 uniform points in its box), the options with the scale of its whole

@@ -67,7 +67,8 @@ struct HonestCheckOptions {
   double confirm_footprint_m = 0.0;
   /// The scan's spacing when known [m] (set by run, not a config key): the robust outlier
   /// test's sample's (RobustScale::spacing_m), so that a tiled run and the in-core run judge
-  /// with one number. 0: check_input estimates it from the points as read (median_spacing).
+  /// with one number. 0: check_input and remove_isolated_points estimate it from their points
+  /// (median_spacing).
   double spacing_m = 0.0;
   /// Connected groups of valid cells (8-neighbours) of at most this many cells, apart from the
   /// largest group, are islands [cells].
@@ -250,18 +251,18 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
 /// Frame and units: the cloud's (grid frame, metres). Report figures: spacing_mm,
 /// isolation_radius_mm, removed_isolated. Cost O(N) (a voxel hash of the radius, counting
 /// stops at the minimum). Non-finite points are kept (the non_finite stage drops them).
+/// The spacing is options.spacing_m when > 0 instead of this cloud's own estimate: build_scene
+/// passes the robust test's (RobustScale::spacing_m), measured on the whole scan before that
+/// test, so that the tiled run's tiles, which each hold a window of the scan, use the very same
+/// number.
 /// @param removed_points when given, set to the removed points (coordinates and columns in
 ///        `cloud`): the tiled run checks that none lay within the radius of its window's edge.
-/// @param spacing_m when > 0, the spacing to use instead of this cloud's own estimate [m]:
-///        build_scene passes the robust test's (RobustScale::spacing_m, figure
-///        sample_spacing_mm), measured on the whole scan before that test, so that the tiled
-///        run's tiles, which each hold a window of the scan, use the very same number.
-/// @throws hc::ConfigError for options outside their ranges (check_honest_options), or a
-///         spacing_m that is negative or not finite.
+/// @throws hc::ConfigError for options outside their ranges (check_honest_options; a
+///         spacing_m that is negative or not finite among them).
 /// Source: the radius outlier test (Rusu 2009, PCL's RadiusOutlierRemoval), radius from the
 /// scan's own spacing.
 StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& options,
-                                          RemovedPoints* removed_points = nullptr, double spacing_m = 0.0);
+                                          RemovedPoints* removed_points = nullptr);
 
 /// Removes the stray points that make the grid's spikes and islands (a grid-level second look
 /// after the robust outlier test, which judges points by their neighbours only: clutter a few
