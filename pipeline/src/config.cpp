@@ -1069,7 +1069,22 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     c.scale.tiled_above_points = static_cast<std::uint64_t>(
         r.get_int("scale.tiled_above_points", static_cast<long long>(c.scale.tiled_above_points), 1, 1LL << 50));
     c.scale.tile_cells = static_cast<int>(r.get_int("scale.tile_cells", c.scale.tile_cells, 16, 65536));
-    c.scale.filter_halo_cells = static_cast<int>(r.get_int("scale.filter_halo_cells", c.scale.filter_halo_cells, 0, 4096));
+    {
+      const std::string fh = r.get_string("scale.filter_halo_cells", "auto");
+      if (fh == "auto") {
+        c.scale.filter_halo_cells = ScaleConfig::kAutoFilterHalo;
+      } else {
+        std::size_t used = 0;
+        int f = -1;
+        try {
+          f = std::stoi(fh, &used);
+        } catch (const std::exception&) {
+          used = 0;
+        }
+        if (used != fh.size() || f < 0 || f > 4096) r.fail("scale.filter_halo_cells", "= '" + fh + "': expected auto or an integer in [0, 4096]");
+        c.scale.filter_halo_cells = f;
+      }
+    }
     c.scale.chunk_points = static_cast<std::size_t>(
         r.get_int("scale.chunk_points", static_cast<long long>(c.scale.chunk_points), 1024, 1LL << 28));
     if (r.has("scale.scratch")) c.scale.scratch = base / r.get_string("scale.scratch", "");

@@ -311,11 +311,45 @@ int tile_halo(const RunConfig& config, int k, int filter_cells) {
   return (halo + k - 1) / k * k;
 }
 
+// The honest check's reach about a point [m] at the scan's spacing `spacing_m`: the point test's
+// radius (cross_check.isolation_radius_spacings spacings) plus the spike searches' (the largest
+// of the tolerance, the spike height and the confirmation footprint).
+double honest_reach_m(const HonestCheckOptions& o, double spacing_m) {
+  return o.isolation_radius_spacings * spacing_m + std::max({o.tolerance_m, o.spike_min_height_m, o.confirm_footprint_m});
+}
+
+// The least filter halo [cells] (scale.filter_halo_cells: auto) whose tiles hold the per-tile
+// filters' and the honest check's searches at the scan's spacing `spacing_m` on a grid of
+// `cell_m` cells with upsample factor k: the band between a tile's decided region and its
+// window's edge (tile_halo − reproject_reach_cells, at least the value) wider than the isolated
+// filter's radius (0.9 × cross_check.isolation_radius_spacings spacings, remove_isolated_points)
+// and the despike's count search (4 × max(spacing, k cells), remove_spike_points), and the whole
+// halo at least the honest check's reach (honest_reach_m), each with 1 % and one cell to spare.
+// -1 when no value up to 4096 is enough (then the checks name the key). Without the outlier
+// filter and the cross-check no filter halo is added (tile_halo), and 0 is returned.
+int auto_filter_halo_cells(const RunConfig& config, int k, double cell_m, double spacing_m) {
+  if (!config.filters.outliers.enabled && !config.cross_check.enabled) return 0;
+  const HonestCheckOptions o = detail::honest_options_for(config, false, static_cast<double>(k), cell_m);
+  const double filters_m = config.filters.outliers.enabled
+                               ? std::max(0.9 * o.isolation_radius_spacings * spacing_m, 4.0 * std::max(spacing_m, k * cell_m))
+                               : 0.0;
+  const double honest_m = config.cross_check.enabled ? honest_reach_m(o, spacing_m) : 0.0;
+  ReprojectOptions ro = config.grid.reproject;
+  ro.upsample_factor = k;
+  const int grid_reach = reproject_reach_cells(ro, k);
+  for (int f = 0; f <= 4096; ++f) {
+    const int halo = tile_halo(config, k, f);
+    if ((halo - grid_reach) * cell_m >= 1.01 * filters_m + cell_m && halo * cell_m >= 1.01 * honest_m + cell_m) return f;
+  }
+  return -1;
+}
+
 struct Tiles {
   GridGeometry g;
   int k = 1;        // upsample factor
   int size = 512;   // tile side [nodes], a multiple of k
-  int halo = 0;     // [nodes], a multiple of k
+  int halo = 0;     // [nodes], a multiple of k: tile_halo(config, k, filter)
+  int filter = 0;   // the filters' share of it [cells]: scale.filter_halo_cells, or the value auto chose
   int tiles_r = 0, tiles_c = 0;
 
   std::size_t count() const { return static_cast<std::size_t>(tiles_r) * static_cast<std::size_t>(tiles_c); }
@@ -366,6 +400,12 @@ struct Tiles {
     return w;
   }
 };
+
+// scale.filter_halo_cells as the errors name it: the value, or "auto, which chose" the tiles'.
+std::string filter_halo_now(const RunConfig& config, const Tiles& tiles) {
+  return config.scale.filter_halo_cells == ScaleConfig::kAutoFilterHalo ? "auto, which chose " + std::to_string(tiles.filter)
+                                                                        : std::to_string(config.scale.filter_halo_cells);
+}
 
 int floor_div(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
 
@@ -1059,7 +1099,7 @@ Cloud points_in_balls(const Plan& plan, BlockCopies& blocks, std::size_t t, cons
 // gathering: more than one where the second look added balls), robust_gather_s and
 // robust_judge_again_s (their times).
 int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const GridWindow& w, const RobustOutlierOptions& ropt,
-                    const Cloud& pts, RobustVerdicts& rv, int filter_halo_cells, std::map<std::string, double>& sums) {
+                    const Cloud& pts, RobustVerdicts& rv, const std::string& filter_halo_now, std::map<std::string, double>& sums) {
   const Tiles& tiles = plan.tiles;
   const auto box = tiles.box_m(w);
   // The balls gathered a little wider than asked: the second look's own float slack (8 float
@@ -1094,7 +1134,7 @@ int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const 
                        " points reach " + format_number(past_m * 1e3) + " mm past the tile's window" +
                        (pass == 8 ? std::string(" after 8 gatherings") : " (the limit is " + std::to_string(limit) + " cells, " +
                                                                            std::to_string(kMaxWidenedTiles) + " tiles)") +
-                       ": raise scale.filter_halo_cells (now " + std::to_string(filter_halo_cells) + "), crop the strays " +
+                       ": raise scale.filter_halo_cells (now " + filter_halo_now + "), crop the strays " +
                        "(filters.crop) or run in core (scale.tiled: off)");
     }
     widened = std::max(widened, static_cast<int>(cells));
@@ -1126,7 +1166,7 @@ int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const 
 // the stage, the tile and scale.filter_halo_cells with the value needed, when a removed point
 // in the decided region (b.decides_m) lies within reach_m of the window's open sides.
 void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierOptions::TileBounds& b, const RemovedPoints& removed,
-                         double reach_m, const char* stage, double spacing_m, int filter_halo_cells) {
+                         double reach_m, const char* stage, double spacing_m, const std::string& filter_halo_now) {
   const auto& d = b.decides_m;
   const auto& win = b.window_m;
   std::size_t n = 0;
@@ -1140,7 +1180,7 @@ void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierO
   throw ConfigError("tiled run, tile " + std::to_string(t) + ": stage " + stage + " removed " + std::to_string(n) +
                     " points whose neighbour count (within " + format_number(reach_m * 1e3) + " mm; spacing " +
                     format_number(spacing_m * 1e3) + " mm) reaches past the tile's window, so the whole scan may keep them: "
-                    "raise scale.filter_halo_cells (now " + std::to_string(filter_halo_cells) + ") to at least " +
+                    "raise scale.filter_halo_cells (now " + filter_halo_now + ") to at least " +
                     std::to_string(static_cast<int>(std::ceil(std::min(reach_m / cell_m, 1e6) + 0.5))) +
                     " (the halo then holds the search beyond the cells the tile decides)");
 }
@@ -1170,7 +1210,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   const auto inner = tiles.interior(t);
   // The window holds every point within the halo; the verdicts kept are those of the points
   // the grid stages see from the interior (the halo less the filters' share).
-  const int grid_reach = std::max(0, tiles.halo - config.scale.filter_halo_cells);
+  const int grid_reach = std::max(0, tiles.halo - tiles.filter);
   const RobustOutlierOptions::TileBounds bounds{
       tiles.box_m(w),
       tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach), {}};
@@ -1199,7 +1239,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       f1.value = Cloud();  // replaced below: not held beside the window's points again
       pts = read_tile_points(plan, spill, t, flags);
       o.sums["robust_windows_widened"] += 1.0;
-      o.sums["robust_widened_cells"] += judge_past_halo(plan, blocks, t, w, ropt, pts, rv, config.scale.filter_halo_cells, o.sums);
+      o.sums["robust_widened_cells"] += judge_past_halo(plan, blocks, t, w, ropt, pts, rv, filter_halo_now(config, tiles), o.sums);
       // The tile's points with the verdicts, and the removal counts of those (the work counts,
       // certified and exact_queries, are the first pass's).
       std::vector<bool> keep(pts.size());
@@ -1244,7 +1284,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     // A point the tile keeps is kept over the whole scan too (more points, more neighbours); a
     // removed one is removed there too unless its radius reaches past the window.
     check_within_window(tiles, t, bounds, isolated, detail::figure_of(f2.report, "isolation_radius_mm", 0.0) * 1e-3,
-                        "isolated", spacing_m, config.scale.filter_halo_cells);
+                        "isolated", spacing_m, filter_halo_now(config, tiles));
     pts = std::move(f2.value);
   }
   DepthGrid part;
@@ -1263,7 +1303,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       add_figures(o.sums, ds.report);
       // The despike's 3-D count searches at most max(4 scan cells, 4 spacings) about a point.
       check_within_window(tiles, t, bounds, removed, 4.0 * std::max(spacing_m, tiles.k * tiles.g.cell_size_m), "despike",
-                          spacing_m, config.scale.filter_halo_cells);
+                          spacing_m, filter_halo_now(config, tiles));
       pts = std::move(ds.value);
       if (pts.size() == 0) {
         part = DepthGrid();  // nothing left: the tile's cells stay no data
@@ -1537,13 +1577,6 @@ class FarCells {
   std::vector<std::uint64_t> far_filter_ = std::vector<std::uint64_t>(std::size_t{1} << (kFilterBits - 6), 0);
 };
 
-// The honest check's reach about a point [m] at the scan's spacing `spacing_m`: the point test's
-// radius (cross_check.isolation_radius_spacings spacings) plus the spike searches' (the largest
-// of the tolerance, the spike height and the confirmation footprint).
-double honest_reach_m(const HonestCheckOptions& o, double spacing_m) {
-  return o.isolation_radius_spacings * spacing_m + std::max({o.tolerance_m, o.spike_min_height_m, o.confirm_footprint_m});
-}
-
 // Throws the error naming `stage` and scale.filter_halo_cells when the tiles' halo is narrower
 // than the honest check's reach at `spacing_m` (`spacing_what` says where that spacing comes
 // from), with the least value whose halo holds the reach.
@@ -1556,7 +1589,7 @@ void check_honest_halo(const RunConfig& config, const Tiles& tiles, const Honest
   // The least scale.filter_halo_cells whose halo (rounded up to a multiple of the upsample
   // factor) holds the reach, if the key's range has one.
   int needed = -1;
-  for (int f = config.scale.filter_halo_cells + 1; f <= 4096 && needed < 0; ++f) {
+  for (int f = tiles.filter + 1; f <= 4096 && needed < 0; ++f) {
     if (tile_halo(config, tiles.k, f) * cell_m >= reach_m) needed = f;
   }
   throw ConfigError(
@@ -1566,7 +1599,7 @@ void check_honest_halo(const RunConfig& config, const Tiles& tiles, const Honest
       " x the scan's spacing " + format_number(spacing_m * 1e3) + " mm (" + spacing_what +
       "), plus the largest of the tolerance, the spike height and the confirmation footprint), so points near a "
       "tile's edge would be judged without all their neighbours: " +
-      (needed > 0 ? "raise scale.filter_halo_cells (now " + std::to_string(config.scale.filter_halo_cells) + ") to at least " +
+      (needed > 0 ? "raise scale.filter_halo_cells (now " + filter_halo_now(config, tiles) + ") to at least " +
                         std::to_string(needed)
                   : "no scale.filter_halo_cells up to 4096 is enough: use a coarser grid (grid.n), grid.upsample, or a "
                     "smaller cross_check.isolation_radius_spacings") +
@@ -1597,6 +1630,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   // again without them, as the in-core run grids after removing them).
   double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
   bool grid_box_from_file = false;  // the last lay_out took the grid's box from the file box
+  const bool robust = config.filters.outliers.enabled && config.filters.outliers.method == OutlierMethod::kRobust;
+  // scale.filter_halo_cells: auto: the spacing it takes, the estimate at tile_plan, then the
+  // robust sample's from stage tile_scale on (0: not known).
+  double spacing_estimate_m = 0.0, sample_spacing_m = 0.0;
   int coverage_passes = 0;  // over the input, for the upsample factor (lay_out)
   auto lay_out = [&](const FarCells* far, StageReport& rep) {
     const char* stage_name = far ? "tile_far_clusters" : "tile_plan";
@@ -1676,7 +1713,25 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     ro.upsample_factor = tiles.k;
     const int k = tiles.k;
     tiles.size = (config.scale.tile_cells + k - 1) / k * k;
-    tiles.halo = tile_halo(config, k, config.scale.filter_halo_cells);
+    if (config.scale.filter_halo_cells != ScaleConfig::kAutoFilterHalo) {
+      tiles.filter = config.scale.filter_halo_cells;
+    } else if (sample_spacing_m > 0.0) {
+      // auto, the robust sample's spacing known (a layout after tile_far_clusters)
+      tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, sample_spacing_m);
+    } else {
+      // auto at tile_plan: from an estimate of the scan's spacing, the x-y box's area per point
+      // (a surface that fills its box; slopes, back sides and holes make the true spacing
+      // larger or smaller), half as large again; stage tile_scale widens the halo, and spills
+      // the points again, when the robust sample's spacing needs more. Without the robust
+      // filter (no sample) the check after the tile loop decides, so the halo keeps the former
+      // fixed default, 32, at least.
+      const double area_m2 = std::max(0.0, x_max - x_min) * std::max(0.0, y_max - y_min);
+      spacing_estimate_m = kept > 0 && area_m2 > 0.0 ? std::sqrt(area_m2 / static_cast<double>(kept)) : 0.0;
+      tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, 1.5 * spacing_estimate_m);
+      if (!robust) tiles.filter = std::max(tiles.filter, 32);
+    }
+    if (tiles.filter < 0) tiles.filter = 4096;  // no value is enough: the halo checks name the key
+    tiles.halo = tile_halo(config, k, tiles.filter);
     tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
     tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
   };
@@ -1737,6 +1792,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     r.report.figure("tiles", static_cast<double>(tiles.count()));
     r.report.figure("tile_cells", tiles.size);
     r.report.figure("halo_cells", tiles.halo);
+    r.report.figure("filter_halo_cells", tiles.filter);
+    if (spacing_estimate_m > 0.0) r.report.figure("spacing_estimate_mm", spacing_estimate_m * 1e3);
     r.report.notes = read_notes;
     r.report.notes.push_back(std::string("passes over the input: the file box, ") +
                              (grid_box_from_file ? "" : "the grid box, ") +
@@ -1762,7 +1819,6 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   // 2. Spill every point to the tiles whose window holds its node. The robust test's sample
   // (the points the in-core run samples, by their order after non-finite and crop) is marked
   // (flag bit kSampleFlag) in the tile whose interior holds it.
-  const bool robust = config.filters.outliers.enabled && config.filters.outliers.method == OutlierMethod::kRobust;
   // (Indices are 32-bit, as the in-core filter's: above 2^32 − 2 points each tile keeps its own scale.)
   const bool shared_scale = robust && grid_points < std::numeric_limits<std::uint32_t>::max() - 1;
   const std::vector<std::uint32_t> robust_sample =
@@ -1873,6 +1929,34 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       }
       r.report.notes.push_back(robust_scale ? "the robust outlier test's scale over the whole scan, from the points the in-core run samples"
                                             : "no sampled point with a k-NN distance above 0: each tile takes its own scale");
+      // scale.filter_halo_cells: auto: the halo the sample's spacing needs; where tile_plan's
+      // estimate gave less, the points are spilled again with it (a wider one is kept).
+      if (config.scale.filter_halo_cells == ScaleConfig::kAutoFilterHalo && robust_scale && robust_scale->spacing_m > 0.0) {
+        sample_spacing_m = robust_scale->spacing_m;
+        int needed = auto_filter_halo_cells(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m);
+        if (needed < 0) needed = 4096;  // no value is enough: the halo checks name the key
+        r.report.figure("filter_halo_cells_needed", needed);
+        if (needed > tiles.filter) {
+          const int planned = tiles.filter;
+          tiles.filter = needed;
+          tiles.halo = tile_halo(config, tiles.k, tiles.filter);
+          StageReport again;
+          (void)spill_pass(nullptr, again);
+          for (const char* f : {"points_spilled", "halo_copies_per_point", "spill_bytes_peak_mb"})
+            r.report.figure(std::string("second_spill_") + f, detail::figure_of(again, f, 0.0));
+          r.report.notes.push_back("scale.filter_halo_cells auto: the sample's spacing needs " + std::to_string(needed) +
+                                   " cells, tile_plan's estimate gave " + std::to_string(planned) +
+                                   ": the points were spilled again with the wider halo");
+          for (StageReport& rp : reports) {
+            if (rp.stage != "tile_plan") continue;
+            detail::set_figure(rp, "halo_cells", tiles.halo);
+            detail::set_figure(rp, "filter_halo_cells", tiles.filter);
+            rp.notes.push_back("halo_cells, filter_halo_cells: widened at tile_scale for the robust sample's spacing");
+          }
+        }
+        r.report.figure("filter_halo_cells", tiles.filter);
+        r.report.figure("halo_cells", tiles.halo);
+      }
       return r;
     });
   }
@@ -2014,6 +2098,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
             if (rp.stage == "tile_plan" && name == "tiles") v = static_cast<double>(tiles.count());
             if (rp.stage == "tile_plan" && name == "upsample_factor") v = tiles.k;
             if (rp.stage == "tile_plan" && name == "halo_cells") v = tiles.halo;
+            if (rp.stage == "tile_plan" && name == "filter_halo_cells") v = tiles.filter;
           }
           if (rp.stage == "tile_plan") {
             rp.count_out = grid_points;
@@ -2413,7 +2498,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 // ---------------------------------------------------------------------------------------------
 // Tile jobs in other processes: plan.json, part_<t>.bin, kept_<t>.bin.
 
-constexpr const char* kPlanFormat = "hapticloud tile plan 2";
+constexpr const char* kPlanFormat = "hapticloud tile plan 3";
 constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '1', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
 
@@ -2536,7 +2621,7 @@ void write_plan_file(const PlanFile& pf) {
   j["tiles"] = {{"count", t.count()},         {"rows", t.g.rows},           {"cols", t.g.cols},
                 {"x0_m", hex(t.g.x0_m)},       {"y0_m", hex(t.g.y0_m)},       {"cell_size_m", hex(t.g.cell_size_m)},
                 {"upsample_factor", t.k},     {"tile_cells", t.size},       {"halo_cells", t.halo},
-                {"tiles_r", t.tiles_r},       {"tiles_c", t.tiles_c}};
+                {"filter_halo_cells", t.filter}, {"tiles_r", t.tiles_r},    {"tiles_c", t.tiles_c}};
   j["spill_bytes"] = pf.spill_bytes;
   j["layout"] = {{"rgb", p.layout.rgb}, {"intensity", p.layout.intensity}};
   j["robust_scale"] = p.robust_scale ? nlohmann::json{{"median_log", hex(p.robust_scale->median_log)},
@@ -2596,12 +2681,14 @@ PlanFile read_plan_file(const fs::path& plan_file) {
     p.tiles.k = t.at("upsample_factor").get<int>();
     p.tiles.size = t.at("tile_cells").get<int>();
     p.tiles.halo = t.at("halo_cells").get<int>();
+    p.tiles.filter = t.at("filter_halo_cells").get<int>();
     p.tiles.tiles_r = t.at("tiles_r").get<int>();
     p.tiles.tiles_c = t.at("tiles_c").get<int>();
     if (p.tiles.g.rows < 1 || p.tiles.g.cols < 1 || p.tiles.size < 1 || p.tiles.k < 1 || p.tiles.halo < 0 ||
+        p.tiles.filter < 0 || p.tiles.filter > p.tiles.halo ||
         p.tiles.tiles_r != (p.tiles.g.rows + p.tiles.size - 1) / p.tiles.size ||
         p.tiles.tiles_c != (p.tiles.g.cols + p.tiles.size - 1) / p.tiles.size || !(p.tiles.g.cell_size_m > 0.0)) {
-      throw InputError(plan_file.string() + ": tiles does not describe a tiling of the grid (rows, cols, tile_cells, tiles_r, tiles_c)");
+      throw InputError(plan_file.string() + ": tiles does not describe a tiling of the grid (rows, cols, tile_cells, tiles_r, tiles_c, halo_cells, filter_halo_cells: at least 0 and at most halo_cells)");
     }
     where = "spill_bytes";
     pf.spill_bytes = j.at("spill_bytes").get<std::vector<std::uintmax_t>>();

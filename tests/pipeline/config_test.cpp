@@ -134,6 +134,22 @@ TEST(Config, UpsampleIsOffAutoOrAFactor) {
   }
 }
 
+TEST(Config, FilterHaloIsAutoOrACellCount) {
+  const auto cells = [](const std::string& extra) {
+    return parse_run_config(kMinimal + extra, "configs/test.yaml").scale.filter_halo_cells;
+  };
+  EXPECT_EQ(cells(""), hc::pipeline::ScaleConfig::kAutoFilterHalo) << "auto is the default";
+  EXPECT_EQ(cells("scale: {filter_halo_cells: auto}\n"), hc::pipeline::ScaleConfig::kAutoFilterHalo);
+  EXPECT_EQ(cells("scale: {filter_halo_cells: 0}\n"), 0);
+  EXPECT_EQ(cells("scale: {filter_halo_cells: 4096}\n"), 4096);
+  for (const std::string bad : {"-1", "4097", "2.5", "yes", "8c"}) {
+    EXPECT_NE(config_error(kMinimal + "scale: {filter_halo_cells: " + bad + "}\n")
+                  .find("scale.filter_halo_cells = '" + bad + "': expected auto or an integer in [0, 4096]"),
+              std::string::npos)
+        << bad;
+  }
+}
+
 TEST(Config, FalconSectionIsReadAndValidated) {
   const auto c = parse_run_config(kMinimal + "falcon: {firmware: fw/falcon.bin, index: 1, max_force_n: 5}\n",
                                   "configs/test.yaml");

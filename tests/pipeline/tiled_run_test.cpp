@@ -832,6 +832,55 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   EXPECT_EQ(ok.summary.input_check->spacing_m * 1e3, stage_figure(ok, "tile_scale", "sample_spacing_mm"));
 }
 
+// scale.filter_halo_cells: auto (the default) plans the halo from an estimate of the scan's
+// spacing (the x-y box's area per point, half as large again) and, once the robust sample gives
+// the spacing (stage tile_scale), spills the points again when that needs a wider halo. Four
+// copies of the 10 mm patch stacked 30 mm apart in z put four times the points over the same
+// box: the estimate (5 mm, 7.5 mm with the margin) is short of the patch's spacing (10.2 mm).
+// Oracles: the auto run equals the in-core run bit for bit (200 neighbours wanted within 9
+// spacings, so the isolated filter removes some points); the planned halo was narrower than
+// the isolated filter's radius in core, the widened one is not and holds the honest check's
+// reach it reports.
+TEST(TiledRun, AnAutoFilterHaloShortOfTheSamplesSpacingIsWidenedAndThePointsSpilledAgain) {
+  const fs::path dir = hc::test::temp_dir("auto_halo");
+  std::vector<std::array<double, 3>> layers;
+  for (int l = 1; l < 4; ++l)
+    for (int i = 0; i < 100; ++i)
+      for (int j = 0; j < 100; ++j) layers.push_back({0.01 * i, 0.01 * j, 0.03 * l + 0.001 * ((i * 7 + j * 3) % 5)});
+  write_patch_with(dir / "patch.ply", layers);
+  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 100}\n"
+                           "cross_check: {isolation_min_neighbours: 200}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+  ASSERT_EQ(config.scale.filter_halo_cells, hc::pipeline::ScaleConfig::kAutoFilterHalo) << "auto is the default";
+  fs::create_directory(dir / "scratch");
+  expect_tiled_equals_in_core(config, 32, dir / "scratch");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 32;
+  config.scale.scratch = dir / "scratch";
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  EXPECT_NEAR(stage_figure(tiled, "tile_plan", "spacing_estimate_mm"), 990.0 / 200.0, 1e-6) << "0.99 m squared over 40 000 points";
+  EXPECT_NEAR(stage_figure(tiled, "tile_scale", "sample_spacing_mm"), std::sqrt(10.0 * 10.0 + 2.0 * 2.0), 0.1);
+  const double filter = stage_figure(tiled, "tile_scale", "filter_halo_cells");
+  EXPECT_EQ(filter, stage_figure(tiled, "tile_scale", "filter_halo_cells_needed"));
+  EXPECT_EQ(filter, stage_figure(tiled, "tile_plan", "filter_halo_cells")) << "the plan's figure describes the halo used";
+  EXPECT_GT(stage_figure(tiled, "tile_scale", "second_spill_points_spilled"), 4.0 * 100 * 100) << "spilled again";
+  const double cell_mm = 1e3 * tiled.scene.geometry.cell_size_m;
+  EXPECT_GE(stage_figure(tiled, "tile_scale", "halo_cells") * cell_mm, stage_figure(tiled, "honest_check", "reach_mm"));
+  // The halo planned from the estimate was too narrow: its filter band (k = 1: the filter
+  // cells) is short of the isolated filter's radius in core, the widened one holds it.
+  const std::string key = "tile_plan's estimate gave ";
+  std::string planned;
+  for (const auto& st : tiled.summary.stages)
+    for (const std::string& n : st.notes)
+      if (st.stage == "tile_scale" && n.find(key) != std::string::npos) planned = n.substr(n.find(key) + key.size());
+  ASSERT_FALSE(planned.empty()) << "tile_scale notes the second spill";
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+  const double radius_mm = stage_figure(hc::pipeline::build_scene(config), "isolated", "isolation_radius_mm");
+  ASSERT_GT(radius_mm, 0.0);
+  EXPECT_LT(std::stoi(planned) * cell_mm, radius_mm);
+  EXPECT_GE(filter * cell_mm, radius_mm);
+}
+
 // A far cluster (30 stray returns 2 m beyond a 1 m patch, as a passer-by in a terrestrial scan)
 // lies in tiles of its own, where it is the main body: only the whole scan shows it is far. The
 // tiled run finds it over every point (stage tile_far_clusters), removes it and lays the grid

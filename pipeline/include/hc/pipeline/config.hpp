@@ -98,7 +98,13 @@ struct ScaleConfig {
   Tiled tiled = Tiled::kAuto;
   std::uint64_t tiled_above_points = 50'000'000;  ///< the auto threshold, ≥ 1
   int tile_cells = 512;           ///< tile side [grid cells], 16 to 65536 (rounded up to the upsample factor)
-  int filter_halo_cells = 32;     ///< extra halo for the per-tile outlier filters and the honest check [cells], 0 to 4096
+  /// scale.filter_halo_cells: auto, the halo from the scan's spacing (tiled_run.cpp,
+  /// auto_filter_halo_cells).
+  static constexpr int kAutoFilterHalo = -1;
+  /// Extra halo for the per-tile outlier filters and the honest check [cells], 0 to 4096, or
+  /// kAutoFilterHalo: the least that holds their searches at the scan's spacing (an estimate at
+  /// tile_plan, the robust sample's at tile_scale, the points spilled again when it is wider).
+  int filter_halo_cells = kAutoFilterHalo;
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
   /// The robust test's second look copies a neighbouring tile's points by block the first time
