@@ -11,6 +11,7 @@
 #include <fstream>
 #include <limits>
 #include <map>
+#include <optional>
 #include <set>
 #include <sstream>
 #include <utility>
@@ -24,6 +25,19 @@ std::vector<std::string> split_dotted(const std::string& path) {
   std::string part;
   while (std::getline(ss, part, '.')) parts.push_back(part);
   return parts;
+}
+
+// The integer `text` spells whole (std::stoi, nothing left over), or nothing.
+std::optional<int> whole_int(const std::string& text) {
+  std::size_t used = 0;
+  int v = 0;
+  try {
+    v = std::stoi(text, &used);
+  } catch (const std::exception&) {
+    return std::nullopt;
+  }
+  if (used != text.size()) return std::nullopt;
+  return v;
 }
 
 std::string scalar_text(const YAML::Node& n) {
@@ -935,15 +949,9 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     } else if (up == "off") {
       g.upsample_factor = 1;
     } else {
-      std::size_t used = 0;
-      int k = -1;
-      try {
-        k = std::stoi(up, &used);
-      } catch (const std::exception&) {
-        used = 0;
-      }
-      if (used != up.size() || k < 1 || k > kMaxUpsampleFactor) r.fail("grid.upsample", "= '" + up + "': " + expected);
-      g.upsample_factor = k;
+      const std::optional<int> k = whole_int(up);
+      if (!k || *k < 1 || *k > kMaxUpsampleFactor) r.fail("grid.upsample", "= '" + up + "': " + expected);
+      g.upsample_factor = *k;
     }
   }
   c.grid.hole_fill_max_cells = static_cast<int>(r.get_int("grid.hole_fill_max_cells", 0, 0, 1 << 24));
@@ -1074,15 +1082,9 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
       if (fh == "auto") {
         c.scale.filter_halo_cells = ScaleConfig::kAutoFilterHalo;
       } else {
-        std::size_t used = 0;
-        int f = -1;
-        try {
-          f = std::stoi(fh, &used);
-        } catch (const std::exception&) {
-          used = 0;
-        }
-        if (used != fh.size() || f < 0 || f > 4096) r.fail("scale.filter_halo_cells", "= '" + fh + "': expected auto or an integer in [0, 4096]");
-        c.scale.filter_halo_cells = f;
+        const std::optional<int> f = whole_int(fh);
+        if (!f || *f < 0 || *f > 4096) r.fail("scale.filter_halo_cells", "= '" + fh + "': expected auto or an integer in [0, 4096]");
+        c.scale.filter_halo_cells = *f;
       }
     }
     c.scale.chunk_points = static_cast<std::size_t>(
