@@ -303,11 +303,15 @@ constexpr int kMaxWidenedTiles = 2;
 // A tile's halo [nodes] with upsample factor k and scale.filter_halo_cells = filter_cells: the
 // grid stages' reach (reproject_reach_cells), plus filter_cells for the per-tile filters' k-NN
 // searches and the honest check's point test when either runs, rounded up to a multiple of k.
+// Whether the tiles' halo holds a filter share (scale.filter_halo_cells): when the outlier
+// filter or the cross-check runs.
+bool filter_halo_added(const RunConfig& config) { return config.filters.outliers.enabled || config.cross_check.enabled; }
+
 int tile_halo(const RunConfig& config, int k, int filter_cells) {
   ReprojectOptions ro = config.grid.reproject;
   ro.upsample_factor = k;
   int halo = reproject_reach_cells(ro, k);
-  if (config.filters.outliers.enabled || config.cross_check.enabled) halo += filter_cells;
+  if (filter_halo_added(config)) halo += filter_cells;
   return (halo + k - 1) / k * k;
 }
 
@@ -321,25 +325,22 @@ double honest_reach_m(const HonestCheckOptions& o, double spacing_m) {
 // The least filter halo [cells] (scale.filter_halo_cells: auto) whose tiles hold the per-tile
 // filters' and the honest check's searches at the scan's spacing `spacing_m` on a grid of
 // `cell_m` cells with upsample factor k: the band between a tile's decided region and its
-// window's edge (tile_halo − reproject_reach_cells, at least the value) wider than the isolated
-// filter's radius (0.9 × cross_check.isolation_radius_spacings spacings, remove_isolated_points)
-// and the despike's count search (4 × max(spacing, k cells), remove_spike_points), and the whole
-// halo at least the honest check's reach (honest_reach_m), each with 1 % and one cell to spare.
-// -1 when no value up to 4096 is enough (then the checks name the key). Without the outlier
-// filter and the cross-check no filter halo is added (tile_halo), and 0 is returned.
+// window's edge (the value itself: process_tile's decided region is the halo less it, which
+// check_within_window tests) wider than the isolated filter's radius (0.9 ×
+// cross_check.isolation_radius_spacings spacings, remove_isolated_points) and the despike's
+// count search (4 × max(spacing, k cells), remove_spike_points), and the whole halo
+// (tile_halo, check_honest_halo) at least the honest check's reach (honest_reach_m), each with
+// 1 % and one cell to spare. -1 when no value up to 4096 is enough. Without the outlier filter
+// and the cross-check no filter halo is added (tile_halo): 0.
 int auto_filter_halo_cells(const RunConfig& config, int k, double cell_m, double spacing_m) {
-  if (!config.filters.outliers.enabled && !config.cross_check.enabled) return 0;
+  if (!filter_halo_added(config)) return 0;
   const HonestCheckOptions o = detail::honest_options_for(config, false, static_cast<double>(k), cell_m);
   const double filters_m = config.filters.outliers.enabled
                                ? std::max(0.9 * o.isolation_radius_spacings * spacing_m, 4.0 * std::max(spacing_m, k * cell_m))
                                : 0.0;
   const double honest_m = config.cross_check.enabled ? honest_reach_m(o, spacing_m) : 0.0;
-  ReprojectOptions ro = config.grid.reproject;
-  ro.upsample_factor = k;
-  const int grid_reach = reproject_reach_cells(ro, k);
   for (int f = 0; f <= 4096; ++f) {
-    const int halo = tile_halo(config, k, f);
-    if ((halo - grid_reach) * cell_m >= 1.01 * filters_m + cell_m && halo * cell_m >= 1.01 * honest_m + cell_m) return f;
+    if (f * cell_m >= 1.01 * filters_m + cell_m && tile_halo(config, k, f) * cell_m >= 1.01 * honest_m + cell_m) return f;
   }
   return -1;
 }
@@ -1099,7 +1100,7 @@ Cloud points_in_balls(const Plan& plan, BlockCopies& blocks, std::size_t t, cons
 // gathering: more than one where the second look added balls), robust_gather_s and
 // robust_judge_again_s (their times).
 int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const GridWindow& w, const RobustOutlierOptions& ropt,
-                    const Cloud& pts, RobustVerdicts& rv, const std::string& filter_halo_now, std::map<std::string, double>& sums) {
+                    const Cloud& pts, RobustVerdicts& rv, const std::string& halo_now, std::map<std::string, double>& sums) {
   const Tiles& tiles = plan.tiles;
   const auto box = tiles.box_m(w);
   // The balls gathered a little wider than asked: the second look's own float slack (8 float
@@ -1134,7 +1135,7 @@ int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const 
                        " points reach " + format_number(past_m * 1e3) + " mm past the tile's window" +
                        (pass == 8 ? std::string(" after 8 gatherings") : " (the limit is " + std::to_string(limit) + " cells, " +
                                                                            std::to_string(kMaxWidenedTiles) + " tiles)") +
-                       ": raise scale.filter_halo_cells (now " + filter_halo_now + "), crop the strays " +
+                       ": raise scale.filter_halo_cells (now " + halo_now + "), crop the strays " +
                        "(filters.crop) or run in core (scale.tiled: off)");
     }
     widened = std::max(widened, static_cast<int>(cells));
@@ -1166,7 +1167,7 @@ int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const 
 // the stage, the tile and scale.filter_halo_cells with the value needed, when a removed point
 // in the decided region (b.decides_m) lies within reach_m of the window's open sides.
 void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierOptions::TileBounds& b, const RemovedPoints& removed,
-                         double reach_m, const char* stage, double spacing_m, const std::string& filter_halo_now) {
+                         double reach_m, const char* stage, double spacing_m, const std::string& halo_now) {
   const auto& d = b.decides_m;
   const auto& win = b.window_m;
   std::size_t n = 0;
@@ -1180,7 +1181,7 @@ void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierO
   throw ConfigError("tiled run, tile " + std::to_string(t) + ": stage " + stage + " removed " + std::to_string(n) +
                     " points whose neighbour count (within " + format_number(reach_m * 1e3) + " mm; spacing " +
                     format_number(spacing_m * 1e3) + " mm) reaches past the tile's window, so the whole scan may keep them: "
-                    "raise scale.filter_halo_cells (now " + filter_halo_now + ") to at least " +
+                    "raise scale.filter_halo_cells (now " + halo_now + ") to at least " +
                     std::to_string(static_cast<int>(std::ceil(std::min(reach_m / cell_m, 1e6) + 0.5))) +
                     " (the halo then holds the search beyond the cells the tile decides)");
 }
@@ -1631,6 +1632,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   double z_min = std::numeric_limits<double>::infinity(), z_max = -z_min;
   bool grid_box_from_file = false;  // the last lay_out took the grid's box from the file box
   const bool robust = config.filters.outliers.enabled && config.filters.outliers.method == OutlierMethod::kRobust;
+  // Whether stage tile_scale will give the robust sample's scale, for `points` after
+  // non-finite and crop (the in-core filter's indices are 32-bit: above 2^32 − 2 points each
+  // tile keeps its own scale).
+  const auto sample_to_come = [robust](std::uint64_t points) { return robust && points < std::numeric_limits<std::uint32_t>::max() - 1; };
   // scale.filter_halo_cells: auto: the spacing it takes, the estimate at tile_plan, then the
   // robust sample's from stage tile_scale on (0: not known).
   double spacing_estimate_m = 0.0, sample_spacing_m = 0.0;
@@ -1713,7 +1718,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     ro.upsample_factor = tiles.k;
     const int k = tiles.k;
     tiles.size = (config.scale.tile_cells + k - 1) / k * k;
-    if (config.scale.filter_halo_cells != ScaleConfig::kAutoFilterHalo) {
+    if (!filter_halo_added(config)) {
+      tiles.filter = 0;  // no filter share in the halo (tile_halo), whatever the key says
+    } else if (config.scale.filter_halo_cells != ScaleConfig::kAutoFilterHalo) {
       tiles.filter = config.scale.filter_halo_cells;
     } else if (sample_spacing_m > 0.0) {
       // auto, the robust sample's spacing known (a layout after tile_far_clusters)
@@ -1722,15 +1729,27 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       // auto at tile_plan: from an estimate of the scan's spacing, the x-y box's area per point
       // (a surface that fills its box; slopes, back sides and holes make the true spacing
       // larger or smaller), half as large again; stage tile_scale widens the halo, and spills
-      // the points again, when the robust sample's spacing needs more. Without the robust
-      // filter (no sample) the check after the tile loop decides, so the halo keeps the former
-      // fixed default, 32, at least.
+      // the points again, when the robust sample's spacing needs more. Without a robust sample
+      // (no robust filter, or more than 2^32 − 2 points: each tile its own scale) nothing
+      // corrects it before the tile loop, so the halo keeps the former fixed default, 32, at
+      // least.
       const double area_m2 = std::max(0.0, x_max - x_min) * std::max(0.0, y_max - y_min);
       spacing_estimate_m = kept > 0 && area_m2 > 0.0 ? std::sqrt(area_m2 / static_cast<double>(kept)) : 0.0;
       tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, 1.5 * spacing_estimate_m);
-      if (!robust) tiles.filter = std::max(tiles.filter, 32);
+      if (tiles.filter < 0) {
+        throw ConfigError("tiled run, stage " + std::string(stage_name) + ": scale.filter_halo_cells auto: no halo up to 4096 cells " +
+                          "holds the filters' and the honest check's searches at the scan's estimated spacing " +
+                          format_number(spacing_estimate_m * 1e3) + " mm (the grid's cells: " + format_number(tiles.g.cell_size_m * 1e3) +
+                          " mm): use a coarser grid (grid.n), grid.upsample, or a smaller cross_check.isolation_radius_spacings");
+      }
+      if (!sample_to_come(kept)) tiles.filter = std::max(tiles.filter, 32);
     }
-    if (tiles.filter < 0) tiles.filter = 4096;  // no value is enough: the halo checks name the key
+    if (tiles.filter < 0) {
+      throw ConfigError("tiled run, stage " + std::string(stage_name) + ": scale.filter_halo_cells auto: no halo up to 4096 cells " +
+                        "holds the filters' and the honest check's searches at the robust sample's spacing " +
+                        format_number(sample_spacing_m * 1e3) + " mm (the grid's cells: " + format_number(tiles.g.cell_size_m * 1e3) +
+                        " mm): use a coarser grid (grid.n), grid.upsample, or a smaller cross_check.isolation_radius_spacings");
+    }
     tiles.halo = tile_halo(config, k, tiles.filter);
     tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
     tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
@@ -1819,8 +1838,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   // 2. Spill every point to the tiles whose window holds its node. The robust test's sample
   // (the points the in-core run samples, by their order after non-finite and crop) is marked
   // (flag bit kSampleFlag) in the tile whose interior holds it.
-  // (Indices are 32-bit, as the in-core filter's: above 2^32 − 2 points each tile keeps its own scale.)
-  const bool shared_scale = robust && grid_points < std::numeric_limits<std::uint32_t>::max() - 1;
+  const bool shared_scale = sample_to_come(grid_points);
   const std::vector<std::uint32_t> robust_sample =
       shared_scale ? robust_sample_indices(static_cast<std::size_t>(grid_points), RobustOutlierOptions{}.sample)
                    : std::vector<std::uint32_t>();
@@ -1830,7 +1848,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   std::optional<Spill> spill;
   std::size_t spill_tiles = 0;
   std::uint64_t far_points = 0;  // spilled with kFarFlag
-  auto spill_pass = [&](const FarCells* far, StageReport& rep) {
+  auto spill_pass = [&](const FarCells* far, StageReport& rep, const char* stage_name) {
     if (spill) {  // a second spill (far clusters marked): the first one's files go first
       for (std::size_t t = 0; t < spill_tiles; ++t) {
         std::error_code ec;
@@ -1845,7 +1863,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     std::size_t next_sample = 0;
     const NodeBinner node(tiles.g);
     std::uint64_t seen = 0;
-    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, far ? "tile_far_clusters" : "tile_spill",
+    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
                         "pass 3 of 3: the spill", [&](const Cloud& g) {
       for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++seen) {
         const double* p = g.xyz.data() + 3 * i;
@@ -1881,7 +1899,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   };
   (void)stage("tile_spill", reports, progress, [&] {
     StageResult<int> r;
-    (void)spill_pass(nullptr, r.report);
+    (void)spill_pass(nullptr, r.report, "tile_spill");
     return r;
   });
 
@@ -1892,32 +1910,83 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   if (robust && !robust_sample.empty()) {
     (void)stage("tile_scale", reports, progress, [&] {
       StageResult<int> r;
-      std::vector<double> logs, nearest_logs, nearest;
-      logs.reserve(robust_sample.size());
-      nearest_logs.reserve(robust_sample.size());
-      std::vector<std::uint8_t> flags;
+      const int k = config.filters.outliers.k;
       std::size_t found = 0, in_small_tiles = 0;
-      PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
-      for (std::size_t t = 0; t < tiles.count(); ++t) {
-        tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
-        const Cloud pts = spill->read(t, flags);
-        std::vector<std::uint32_t> mine;
-        for (std::size_t i = 0; i < flags.size(); ++i)
-          if (flags[i] & kSampleFlag) mine.push_back(static_cast<std::uint32_t>(i));
-        found += mine.size();
-        if (mine.empty()) continue;
-        if (pts.size() < static_cast<std::size_t>(config.filters.outliers.k) + 2) {
-          in_small_tiles += mine.size();  // fewer than k + 2 points in the window: no k-NN distance here
-          continue;
+      // The scale from the sampled points' k-NN distances over their tiles' windows (the spill
+      // as it is).
+      const auto scale_from_spill = [&] {
+        std::vector<double> logs, nearest_logs, nearest;
+        logs.reserve(robust_sample.size());
+        nearest_logs.reserve(robust_sample.size());
+        std::vector<std::uint8_t> flags;
+        found = in_small_tiles = 0;
+        PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
+        for (std::size_t t = 0; t < tiles.count(); ++t) {
+          tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
+          const Cloud pts = spill->read(t, flags);
+          std::vector<std::uint32_t> mine;
+          for (std::size_t i = 0; i < flags.size(); ++i)
+            if (flags[i] & kSampleFlag) mine.push_back(static_cast<std::uint32_t>(i));
+          found += mine.size();
+          if (mine.empty()) continue;
+          if (pts.size() < static_cast<std::size_t>(k) + 2) {
+            in_small_tiles += mine.size();  // fewer than k + 2 points in the window: no k-NN distance here
+            continue;
+          }
+          for (const double d : mean_knn_distances(pts, mine, k, &nearest)) {
+            if (d > 0.0) logs.push_back(std::log(d));
+          }
+          for (const double d : nearest) {
+            if (d > 0.0) nearest_logs.push_back(std::log(d));
+          }
         }
-        for (const double d : mean_knn_distances(pts, mine, config.filters.outliers.k, &nearest)) {
-          if (d > 0.0) logs.push_back(std::log(d));
+        return robust_scale_of(std::move(logs), found - in_small_tiles, std::move(nearest_logs));
+      };
+      robust_scale = scale_from_spill();
+      // scale.filter_halo_cells: auto: the halo the sample's spacing needs (without one, the
+      // former fixed default, 32, at least); where tile_plan's estimate gave less, the points
+      // are spilled again with it and the scale taken again over the new windows (a wider halo
+      // is kept).
+      if (config.scale.filter_halo_cells == ScaleConfig::kAutoFilterHalo && filter_halo_added(config)) {
+        for (int pass = 0; pass < 3; ++pass) {
+          sample_spacing_m = robust_scale ? robust_scale->spacing_m : 0.0;
+          const int needed = sample_spacing_m > 0.0 ? auto_filter_halo_cells(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m)
+                                                    : std::max(tiles.filter, 32);
+          if (needed < 0) {
+            throw ConfigError("tiled run, stage tile_scale: scale.filter_halo_cells auto: no halo up to 4096 cells holds the "
+                              "filters' and the honest check's searches at the robust sample's spacing " +
+                              format_number(sample_spacing_m * 1e3) + " mm (the grid's cells: " + format_number(tiles.g.cell_size_m * 1e3) +
+                              " mm): use a coarser grid (grid.n), grid.upsample, or a smaller cross_check.isolation_radius_spacings");
+          }
+          r.report.figure("filter_halo_cells_needed", needed);
+          if (needed <= tiles.filter) break;
+          const int planned = tiles.filter;
+          tiles.filter = needed;
+          tiles.halo = tile_halo(config, tiles.k, tiles.filter);
+          StageReport again;
+          (void)spill_pass(nullptr, again, "tile_scale");
+          r.report.figure("second_spill", 1.0);
+          r.report.notes.push_back("scale.filter_halo_cells auto: the sample's spacing needs " + std::to_string(needed) + " cells, " +
+                                   (pass == 0 ? "tile_plan's estimate gave " : "the halo had ") + std::to_string(planned) +
+                                   ": the points were spilled again with the wider halo and the scale taken again");
+          // The plan's and the spill's figures describe the halo in use.
+          for (StageReport& rp : reports) {
+            if (rp.stage == "tile_plan") {
+              detail::set_figure(rp, "halo_cells", tiles.halo);
+              detail::set_figure(rp, "filter_halo_cells", tiles.filter);
+              if (pass == 0) rp.notes.push_back("halo_cells, filter_halo_cells: widened at tile_scale for the robust sample's spacing");
+            }
+            if (rp.stage == "tile_spill") {
+              for (const char* f : {"points_spilled", "halo_copies_per_point", "spill_bytes_peak_mb"})
+                detail::set_figure(rp, f, detail::figure_of(again, f, 0.0));
+              if (pass == 0) rp.notes.push_back("points_spilled, halo_copies_per_point, spill_bytes_peak_mb: of the spill again at tile_scale");
+            }
+          }
+          robust_scale = scale_from_spill();
         }
-        for (const double d : nearest) {
-          if (d > 0.0) nearest_logs.push_back(std::log(d));
-        }
+        r.report.figure("filter_halo_cells", tiles.filter);
+        r.report.figure("halo_cells", tiles.halo);
       }
-      robust_scale = robust_scale_of(std::move(logs), found - in_small_tiles, std::move(nearest_logs));
       r.report.count_in = robust_sample.size();
       r.report.count_out = found;
       r.report.figure("sampled_in_sparse_tiles", static_cast<double>(in_small_tiles));
@@ -1929,34 +1998,6 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       }
       r.report.notes.push_back(robust_scale ? "the robust outlier test's scale over the whole scan, from the points the in-core run samples"
                                             : "no sampled point with a k-NN distance above 0: each tile takes its own scale");
-      // scale.filter_halo_cells: auto: the halo the sample's spacing needs; where tile_plan's
-      // estimate gave less, the points are spilled again with it (a wider one is kept).
-      if (config.scale.filter_halo_cells == ScaleConfig::kAutoFilterHalo && robust_scale && robust_scale->spacing_m > 0.0) {
-        sample_spacing_m = robust_scale->spacing_m;
-        int needed = auto_filter_halo_cells(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m);
-        if (needed < 0) needed = 4096;  // no value is enough: the halo checks name the key
-        r.report.figure("filter_halo_cells_needed", needed);
-        if (needed > tiles.filter) {
-          const int planned = tiles.filter;
-          tiles.filter = needed;
-          tiles.halo = tile_halo(config, tiles.k, tiles.filter);
-          StageReport again;
-          (void)spill_pass(nullptr, again);
-          for (const char* f : {"points_spilled", "halo_copies_per_point", "spill_bytes_peak_mb"})
-            r.report.figure(std::string("second_spill_") + f, detail::figure_of(again, f, 0.0));
-          r.report.notes.push_back("scale.filter_halo_cells auto: the sample's spacing needs " + std::to_string(needed) +
-                                   " cells, tile_plan's estimate gave " + std::to_string(planned) +
-                                   ": the points were spilled again with the wider halo");
-          for (StageReport& rp : reports) {
-            if (rp.stage != "tile_plan") continue;
-            detail::set_figure(rp, "halo_cells", tiles.halo);
-            detail::set_figure(rp, "filter_halo_cells", tiles.filter);
-            rp.notes.push_back("halo_cells, filter_halo_cells: widened at tile_scale for the robust sample's spacing");
-          }
-        }
-        r.report.figure("filter_halo_cells", tiles.filter);
-        r.report.figure("halo_cells", tiles.halo);
-      }
       return r;
     });
   }
@@ -2088,7 +2129,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         } else {
           r.report.figure("second_spill", 1.0);
           lay_out(&cells, r.report);
-          spilled = spill_pass(&cells, r.report);
+          spilled = spill_pass(&cells, r.report, "tile_far_clusters");
         }
         // The plan's and the spill's figures describe the new layout.
         for (StageReport& rp : reports) {
