@@ -1200,6 +1200,14 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
   return v;
 }
 
+double isolated_filter_radius_m(const HonestCheckOptions& options, double spacing_m) {
+  return std::max(0.9 * options.isolation_radius_spacings * spacing_m, 1e-9);
+}
+
+double despike_search_radius_m(double cell_m, double upsample_factor, double spacing_m) {
+  return std::max(4.0 * upsample_factor * cell_m, 4.0 * spacing_m);
+}
+
 StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o, RemovedPoints* removed_points) {
   check_honest_options(o);
   if (removed_points != nullptr) *removed_points = RemovedPoints{};
@@ -1256,7 +1264,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   // when given: its sampled points' nearest-point distances before that test), and the check's
   // estimate (on the cloud as read) differs from it by a few per cent, which must not leave a
   // point the check calls isolated (the Buddha: 0.1466 mm given against 0.1455 mm there).
-  const double radius = std::max(0.9 * o.isolation_radius_spacings * spacing, 1e-9);
+  const double radius = isolated_filter_radius_m(o, spacing);
   const std::vector<std::uint8_t> isolated =
       isolated_flags(VoxelHash(local, finite, radius), finite.size(), radius, o.isolation_min_neighbours);
   std::vector<bool> keep(n, true);
@@ -1464,7 +1472,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     // A rim's radius in scan cells: on an upsampled grid 4 grid cells are a fraction of the
     // scan's spacing, and a sparse silhouette's true points would go (the Buddha at N = 4096,
     // K = 5: 836 points with ρ_hi, 93 with this).
-    const double rho_rim = std::max(4.0 * upsample_factor * g.cell_size_m, 4.0 * spacing_m);
+    const double rho_rim = despike_search_radius_m(g.cell_size_m, upsample_factor, spacing_m);
     const int reach_all = static_cast<int>(std::ceil(reach_cells));
     // A stray's disc (radius reach_cells) reaches a cell that borders no data within
     // ⌈reach_cells − 1⌉ cells of the stray's own (0 for a radius of one cell).

@@ -300,13 +300,13 @@ class Spill {
 // How far past a tile's window the robust test's second look may gather points (judge_past_halo), in tiles.
 constexpr int kMaxWidenedTiles = 2;
 
-// A tile's halo [nodes] with upsample factor k and scale.filter_halo_cells = filter_cells: the
-// grid stages' reach (reproject_reach_cells), plus filter_cells for the per-tile filters' k-NN
-// searches and the honest check's point test when either runs, rounded up to a multiple of k.
 // Whether the tiles' halo holds a filter share (scale.filter_halo_cells): when the outlier
 // filter or the cross-check runs.
 bool filter_halo_added(const RunConfig& config) { return config.filters.outliers.enabled || config.cross_check.enabled; }
 
+// A tile's halo [nodes] with upsample factor k and scale.filter_halo_cells = filter_cells: the
+// grid stages' reach (reproject_reach_cells), plus filter_cells for the per-tile filters' k-NN
+// searches and the honest check's point test when either runs, rounded up to a multiple of k.
 int tile_halo(const RunConfig& config, int k, int filter_cells) {
   ReprojectOptions ro = config.grid.reproject;
   ro.upsample_factor = k;
@@ -326,23 +326,32 @@ double honest_reach_m(const HonestCheckOptions& o, double spacing_m) {
 // filters' and the honest check's searches at the scan's spacing `spacing_m` on a grid of
 // `cell_m` cells with upsample factor k: the band between a tile's decided region and its
 // window's edge (the value itself: process_tile's decided region is the halo less it, which
-// check_within_window tests) wider than the isolated filter's radius (0.9 ×
-// cross_check.isolation_radius_spacings spacings, remove_isolated_points) and the despike's
-// count search (4 × max(spacing, k cells), remove_spike_points), and the whole halo
+// check_within_window tests) wider than the isolated filter's radius (isolated_filter_radius_m)
+// and the despike's widest count search (despike_search_radius_m), and the whole halo
 // (tile_halo, check_honest_halo) at least the honest check's reach (honest_reach_m), each with
 // 1 % and one cell to spare. -1 when no value up to 4096 is enough. Without the outlier filter
 // and the cross-check no filter halo is added (tile_halo): 0.
 int auto_filter_halo_cells(const RunConfig& config, int k, double cell_m, double spacing_m) {
   if (!filter_halo_added(config)) return 0;
   const HonestCheckOptions o = detail::honest_options_for(config, false, static_cast<double>(k), cell_m);
-  const double filters_m = config.filters.outliers.enabled
-                               ? std::max(0.9 * o.isolation_radius_spacings * spacing_m, 4.0 * std::max(spacing_m, k * cell_m))
-                               : 0.0;
+  const double filters_m =
+      config.filters.outliers.enabled
+          ? std::max(isolated_filter_radius_m(o, spacing_m), despike_search_radius_m(cell_m, static_cast<double>(k), spacing_m))
+          : 0.0;
   const double honest_m = config.cross_check.enabled ? honest_reach_m(o, spacing_m) : 0.0;
   for (int f = 0; f <= 4096; ++f) {
     if (f * cell_m >= 1.01 * filters_m + cell_m && tile_halo(config, k, f) * cell_m >= 1.01 * honest_m + cell_m) return f;
   }
   return -1;
+}
+
+// The error when auto_filter_halo_cells finds no value: naming the stage, the key and the
+// spacing it took (`what`: "estimated", "the robust sample's").
+ConfigError no_filter_halo_error(const std::string& stage, const std::string& what, double spacing_m, double cell_m) {
+  return ConfigError("tiled run, stage " + stage + ": scale.filter_halo_cells auto: no halo up to 4096 cells holds the filters' "
+                     "and the honest check's searches at the scan's spacing " + format_number(spacing_m * 1e3) + " mm (" + what +
+                     "; the grid's cells: " + format_number(cell_m * 1e3) +
+                     " mm): use a coarser grid (grid.n), grid.upsample, or a smaller cross_check.isolation_radius_spacings");
 }
 
 struct Tiles {
@@ -1303,7 +1312,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
                                     tiles.k, &removed);
       add_figures(o.sums, ds.report);
       // The despike's 3-D count searches at most max(4 scan cells, 4 spacings) about a point.
-      check_within_window(tiles, t, bounds, removed, 4.0 * std::max(spacing_m, tiles.k * tiles.g.cell_size_m), "despike",
+      check_within_window(tiles, t, bounds, removed,
+                          despike_search_radius_m(tiles.g.cell_size_m, static_cast<double>(tiles.k), spacing_m), "despike",
                           spacing_m, filter_halo_now(config, tiles));
       pts = std::move(ds.value);
       if (pts.size() == 0) {
@@ -1736,20 +1746,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       const double area_m2 = std::max(0.0, x_max - x_min) * std::max(0.0, y_max - y_min);
       spacing_estimate_m = kept > 0 && area_m2 > 0.0 ? std::sqrt(area_m2 / static_cast<double>(kept)) : 0.0;
       tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, 1.5 * spacing_estimate_m);
-      if (tiles.filter < 0) {
-        throw ConfigError("tiled run, stage " + std::string(stage_name) + ": scale.filter_halo_cells auto: no halo up to 4096 cells " +
-                          "holds the filters' and the honest check's searches at the scan's estimated spacing " +
-                          format_number(spacing_estimate_m * 1e3) + " mm (the grid's cells: " + format_number(tiles.g.cell_size_m * 1e3) +
-                          " mm): use a coarser grid (grid.n), grid.upsample, or a smaller cross_check.isolation_radius_spacings");
-      }
+      if (tiles.filter < 0) throw no_filter_halo_error(stage_name, "estimated", spacing_estimate_m, tiles.g.cell_size_m);
       if (!sample_to_come(kept)) tiles.filter = std::max(tiles.filter, 32);
     }
-    if (tiles.filter < 0) {
-      throw ConfigError("tiled run, stage " + std::string(stage_name) + ": scale.filter_halo_cells auto: no halo up to 4096 cells " +
-                        "holds the filters' and the honest check's searches at the robust sample's spacing " +
-                        format_number(sample_spacing_m * 1e3) + " mm (the grid's cells: " + format_number(tiles.g.cell_size_m * 1e3) +
-                        " mm): use a coarser grid (grid.n), grid.upsample, or a smaller cross_check.isolation_radius_spacings");
-    }
+    if (tiles.filter < 0) throw no_filter_halo_error(stage_name, "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
     tiles.halo = tile_halo(config, k, tiles.filter);
     tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
     tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
@@ -1952,12 +1952,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           sample_spacing_m = robust_scale ? robust_scale->spacing_m : 0.0;
           const int needed = sample_spacing_m > 0.0 ? auto_filter_halo_cells(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m)
                                                     : std::max(tiles.filter, 32);
-          if (needed < 0) {
-            throw ConfigError("tiled run, stage tile_scale: scale.filter_halo_cells auto: no halo up to 4096 cells holds the "
-                              "filters' and the honest check's searches at the robust sample's spacing " +
-                              format_number(sample_spacing_m * 1e3) + " mm (the grid's cells: " + format_number(tiles.g.cell_size_m * 1e3) +
-                              " mm): use a coarser grid (grid.n), grid.upsample, or a smaller cross_check.isolation_radius_spacings");
-          }
+          if (needed < 0) throw no_filter_halo_error("tile_scale", "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
           r.report.figure("filter_halo_cells_needed", needed);
           if (needed <= tiles.filter) break;
           const int planned = tiles.filter;

@@ -264,6 +264,13 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
 StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& options,
                                           RemovedPoints* removed_points = nullptr);
 
+/// remove_isolated_points' search radius [m] at the scan's spacing `spacing_m` [m]: 0.9 ×
+/// options.isolation_radius_spacings × spacing_m (10 % inside check_input's verdict radius, so
+/// that a spacing estimated a few per cent apart never removes a point the check would keep),
+/// at least 1e-9 m. The tiled run sizes its halo with it. No validation (the callers check the
+/// options). Source: this project.
+double isolated_filter_radius_m(const HonestCheckOptions& options, double spacing_m);
+
 /// Removes the stray points that make the grid's spikes and islands (a grid-level second look
 /// after the robust outlier test, which judges points by their neighbours only: clutter a few
 /// millimetres in front of a surface has that surface among its neighbours and passes). On
@@ -311,6 +318,12 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& options,
                                        double reach_cells, double spacing_m, double upsample_factor = 1.0,
                                        RemovedPoints* removed = nullptr);
+
+/// The widest of remove_spike_points' neighbour searches [m], ρ_rim = max(4 × upsample_factor ×
+/// cell_m, 4 × spacing_m) (it bounds ρ_lo and ρ_hi), for a grid of cell_m [m] cells upsampled by
+/// upsample_factor (≥ 1) over a scan of spacing spacing_m [m] (0 if unknown): the tiled run sizes
+/// its halo with it and checks removed points against it. No validation. Source: this project.
+double despike_search_radius_m(double cell_m, double upsample_factor, double spacing_m);
 
 
 /// One reason of a verdict: a stable code, its level and a sentence with the figures.
