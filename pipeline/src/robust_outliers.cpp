@@ -652,6 +652,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     std::vector<std::array<double, 4>> reach;  // candidate i's balls (RobustVerdicts::reach_m)
     PointQueries::Scratch scratch(k);
     std::vector<std::uint32_t> knn_j;
+    std::vector<std::uint8_t> searched;  // per neighbour of candidate i: its ball from its own search
     // How far a search about q may reach and stay where the cloud is complete: the xy distance
     // to the window's open sides (an infinite side is none), or the most any complete ball
     // leaves about q.
@@ -681,18 +682,21 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       // where both reach past the margin, at most its k-th distance here.
       const double di = static_cast<double>(d[cand[i]]);
       const bool own = (di > d_glob && variation[i] > o.max_surface_variation) || out[cand[i]] == 3;
+      searched.clear();
       if (di > d_local && !own) {
         for (const std::uint32_t j : nbrs(i)) {
           const Eigen::Vector3d xj = xyz(j);
           double rj = (xj - x).norm() * (1.0 + 1e-5) + slack_m + r;
           if (d[j] >= 0.0f) rj = std::min(rj, static_cast<double>(k) * static_cast<double>(d[j]) * (1.0 + 1e-5) + slack_m);
           const double mj = margin(xj);
-          if (rj >= mj && d.pos(j) != kNotInGrid) {
+          const bool search = rj >= mj && d.pos(j) != kNotInGrid;
+          if (search) {
             // Short of the bounds: j's own k-th distance here (one search; an upper bound of the
             // whole scan's).
             d.queries().nearest(d.pos(j), scratch, knn_j);
             rj = std::min(rj, kth(xj, knn_j));
           }
+          searched.push_back(search || d.pos(j) == kNotInGrid ? 1 : 0);
           excess = std::max(excess, rj - mj);
           reach.push_back({xj.x(), xj.y(), xj.z(), rj});
         }
@@ -700,6 +704,16 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       if (excess >= 0.0) {
         ++past_halo;
         shortfall_m = std::max(shortfall_m, excess);
+        // The balls go to a gathering, which reads every point inside them: the neighbours'
+        // balls the bounds kept within the margin are narrowed by their own search here too
+        // (the bounds |x_j − x_i| + r_i and k·d_j can be several times the k-th distance, and a
+        // ball twice as wide as needed about a stray above a surface holds a wide disc of it).
+        for (std::size_t a = 0; a < searched.size(); ++a) {
+          if (searched[a]) continue;
+          const std::uint32_t j = nbrs(i)[a];
+          d.queries().nearest(d.pos(j), scratch, knn_j);
+          reach[a + 1][3] = std::min(reach[a + 1][3], kth(xyz(j), knn_j));
+        }
         if (verdicts) {
           verdicts->past_halo.push_back(rows[cand[i]]);
           verdicts->reach_m.insert(verdicts->reach_m.end(), reach.begin(), reach.end());

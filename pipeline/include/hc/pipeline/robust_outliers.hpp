@@ -102,7 +102,9 @@ struct RobustVerdicts {
   /// balls per point, in no promised order): the balls ({x, y, z, radius} [m]) in which a set
   /// must hold every point of the scan for their verdicts to be the whole scan's, each point's
   /// k-NN ball and, where its verdict used them, its neighbours' (radii upper bounds, with the
-  /// slack).
+  /// slack: the k-th distance of the point's own search in this cloud, never shorter than the
+  /// whole scan's, except for a point left out of the searches as a duplicate, whose ball keeps
+  /// the bound; a ball too small would only make the second look list the point again).
   std::vector<std::array<double, 4>> reach_m;
 };
 
@@ -223,8 +225,9 @@ struct FarClusterOptions {
 /// Real-time: no. Threads: 2. Cost: one grid build and counting pass over all points, plus
 /// (sample + uncertified + their neighbours) exact k-NN queries (judge_only: no counting pass;
 /// the listed points, their neighbours and those neighbours' neighbours); with `tile`, one more
-/// query per neighbour of a checked candidate whose first bounds reach past the margin, and the
-/// complete balls indexed in an xy grid.
+/// query per neighbour of a checked candidate whose first bounds reach past the margin or that
+/// is listed (its neighbours' balls then narrowed from the bounds to their k-th distances), and
+/// the complete balls indexed in an xy grid.
 /// @param verdicts when given, filled (RobustVerdicts; its previous content is discarded)
 /// @param scale_used when given, set to the scale the test used (computed, or options.scale)
 ///        when there was one; left as it was when every sampled point has k copies
