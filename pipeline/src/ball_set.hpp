@@ -15,17 +15,21 @@ namespace hc::pipeline::detail {
 
 /// Balls {x, y, z, radius} [m] (any one frame) in an xy grid of 128 × 128 cells over their
 /// bounding box. A ball is listed in each cell its xy box meets, or, when that would be more than
-/// 256 cells, in each cell its xy box meets of a coarse grid of 16 × 16 cells over the same box
-/// (the large balls: a stray's own search, and its neighbours'). A query reads its cell's list
-/// and its coarse cell's. A ball inside another is left out. Memory: at most 256 entries per
-/// ball. Non-finite balls are refused by the caller. (Until 2026-11-24 the large balls were in
+/// 256 cells and the lists already hold 2^22 entries, in each cell its xy box meets of a coarse
+/// grid of 16 × 16 cells over the same box (the large balls: a stray's own search, and its
+/// neighbours'; a query tests every large ball of its coarse cell, so the fine lists take as
+/// many as the budget allows, largest first). A query reads its cell's list and its coarse
+/// cell's. A ball inside another is left out. Memory: at most 2^22 entries plus 256 a ball.
+/// Non-finite balls are refused by the caller. (Until 2026-11-24 the large balls were in
 /// one list every query read: at 10^8 points, hundreds of them for each of the 274 M records a
 /// tiled run's second look read.)
 class BallSet {
  public:
   using Ball = std::array<double, 4>;
 
-  explicit BallSet(const std::vector<Ball>& balls) {
+  /// fine_budget: the entries the fine lists may hold before large balls go by coarse cell (the
+  /// tests lower it to reach that path).
+  explicit BallSet(const std::vector<Ball>& balls, std::size_t fine_budget = kFineBudget) {
     const double inf = std::numeric_limits<double>::infinity();
     box_ = {inf, -inf, inf, -inf};
     for (const Ball& b : balls) {
@@ -34,6 +38,7 @@ class BallSet {
     }
     if (balls.empty()) return;
     cell_ = std::max({(box_[1] - box_[0]) / kSide, (box_[3] - box_[2]) / kSide, 1e-9});
+    inv_cell_ = 1.0 / cell_;
     at_.resize(static_cast<std::size_t>(kSide) * kSide);
     // Largest first; a ball inside one kept (with a margin over rounding) adds nothing to
     // contains, margin or meets and is left out: the balls of a stray's neighbours, and the same
@@ -42,6 +47,7 @@ class BallSet {
     for (std::uint32_t i = 0; i < order.size(); ++i) order[i] = i;
     std::stable_sort(order.begin(), order.end(),
                      [&](std::uint32_t x, std::uint32_t y) { return balls[x][3] > balls[y][3]; });
+    std::size_t listed = 0;  // entries in at_
     for (const std::uint32_t o : order) {
       const Ball& b = balls[o];
       // A ball that holds b holds its centre in its xy box: it is listed in the centre's cells.
@@ -62,7 +68,8 @@ class BallSet {
       balls_.push_back(b);
       const int r0 = cell_of(b[1] - b[3], 2), r1 = cell_of(b[1] + b[3], 2);
       const int c0 = cell_of(b[0] - b[3], 0), c1 = cell_of(b[0] + b[3], 0);
-      if ((r1 - r0 + 1) * (c1 - c0 + 1) > kMaxCellsPerBall) {
+      const auto cells = static_cast<std::size_t>(r1 - r0 + 1) * static_cast<std::size_t>(c1 - c0 + 1);
+      if (cells > kMaxCellsPerBall && listed + cells > fine_budget) {
         if (coarse_.empty()) coarse_.resize(static_cast<std::size_t>(kCoarse) * kCoarse);
         for (int r = r0 / kPerCoarse; r <= r1 / kPerCoarse; ++r) {
           for (int c = c0 / kPerCoarse; c <= c1 / kPerCoarse; ++c) {
@@ -71,10 +78,15 @@ class BallSet {
         }
         continue;
       }
+      listed += cells;
       for (int r = r0; r <= r1; ++r) {
         for (int c = c0; c <= c1; ++c) at_[index(r, c)].push_back(i);
       }
     }
+    flatten(at_, fine_at_, fine_);
+    flatten(coarse_, coarse_at_, coarse_flat_);
+    std::vector<std::vector<std::uint32_t>>().swap(at_);
+    std::vector<std::vector<std::uint32_t>>().swap(coarse_);
   }
 
   /// The balls kept (those inside another left out).
@@ -91,12 +103,16 @@ class BallSet {
       return dx * dx + dy * dy + dz * dz <= b[3] * b[3];
     };
     const int r = cell_of(p[1], 2), c = cell_of(p[0], 0);
-    for (const std::uint32_t i : at_[index(r, c)]) {
-      if (in(i)) return true;
+    const std::size_t f = index(r, c);
+    for (std::uint32_t k = fine_at_[f]; k < fine_at_[f + 1]; ++k) {
+      if (in(fine_[k])) return true;
     }
-    if (coarse_.empty()) return false;
-    const auto& large = coarse_[coarse_index(r, c)];
-    return std::any_of(large.begin(), large.end(), in);
+    if (coarse_flat_.empty()) return false;
+    const std::size_t g = coarse_index(r, c);
+    for (std::uint32_t k = coarse_at_[g]; k < coarse_at_[g + 1]; ++k) {
+      if (in(coarse_flat_[k])) return true;
+    }
+    return false;
   }
 
   /// The largest R − |p − c| over the balls whose xy box holds p's xy [m]: the radius of a ball
@@ -111,9 +127,11 @@ class BallSet {
       best = std::max(best, b[3] - std::sqrt(dx * dx + dy * dy + dz * dz));
     };
     const int r = cell_of(p[1], 2), c = cell_of(p[0], 0);
-    for (const std::uint32_t i : at_[index(r, c)]) take(i);
-    if (!coarse_.empty()) {
-      for (const std::uint32_t i : coarse_[coarse_index(r, c)]) take(i);
+    const std::size_t f = index(r, c);
+    for (std::uint32_t k = fine_at_[f]; k < fine_at_[f + 1]; ++k) take(fine_[k]);
+    if (!coarse_flat_.empty()) {
+      const std::size_t g = coarse_index(r, c);
+      for (std::uint32_t k = coarse_at_[g]; k < coarse_at_[g + 1]; ++k) take(coarse_flat_[k]);
     }
     return best;
   }
@@ -121,9 +139,17 @@ class BallSet {
   /// Whether a ball's xy disk meets the xy box b {x_min, x_max, y_min, y_max} [m] (sides may be
   /// infinite).
   bool meets(const std::array<double, 4>& b) const {
+    const double inf = std::numeric_limits<double>::infinity();
+    return meets(std::array<double, 6>{b[0], b[1], b[2], b[3], -inf, inf});
+  }
+
+  /// Whether a ball meets the box b {x_min, x_max, y_min, y_max, z_min, z_max} [m] (sides may be
+  /// infinite).
+  bool meets(const std::array<double, 6>& b) const {
     for (const Ball& s : balls_) {
       const double dx = std::max({b[0] - s[0], s[0] - b[1], 0.0}), dy = std::max({b[2] - s[1], s[1] - b[3], 0.0});
-      if (dx * dx + dy * dy <= s[3] * s[3]) return true;
+      const double dz = std::max({b[4] - s[2], s[2] - b[5], 0.0});
+      if (dx * dx + dy * dy + dz * dz <= s[3] * s[3]) return true;
     }
     return false;
   }
@@ -135,11 +161,25 @@ class BallSet {
   static constexpr int kSide = 128;
   static constexpr int kCoarse = 16;
   static constexpr int kPerCoarse = kSide / kCoarse;  // cells per coarse cell, each way
-  static constexpr int kMaxCellsPerBall = 256;
-  // The cell of coordinate v along x (a = 0) or y (a = 2), clamped to the grid.
+  // A ball of more cells than this is listed by coarse cell once the fine lists hold kFineBudget
+  // entries (16 MiB).
+  static constexpr std::size_t kMaxCellsPerBall = 256;
+  static constexpr std::size_t kFineBudget = std::size_t{1} << 22;
+  // The cell of coordinate v along x (a = 0) or y (a = 2), clamped to the grid: non-decreasing
+  // in v (a subtraction and a multiplication by a positive number), so a point in a ball's xy
+  // box falls in a cell between those of the box's sides.
   int cell_of(double v, int a) const {
-    const double c = (v - box_[static_cast<std::size_t>(a)]) / cell_;
+    const double c = (v - box_[static_cast<std::size_t>(a)]) * inv_cell_;
     return c < 0.0 ? 0 : c >= kSide - 1 ? kSide - 1 : static_cast<int>(c);
+  }
+  // Lists per cell as offsets (cells + 1) and one flat array.
+  static void flatten(const std::vector<std::vector<std::uint32_t>>& lists, std::vector<std::uint32_t>& at,
+                      std::vector<std::uint32_t>& flat) {
+    at.assign(lists.size() + 1, 0);
+    for (std::size_t i = 0; i < lists.size(); ++i) at[i + 1] = at[i] + static_cast<std::uint32_t>(lists[i].size());
+    flat.clear();
+    flat.reserve(at.back());
+    for (const auto& l : lists) flat.insert(flat.end(), l.begin(), l.end());
   }
   static std::size_t index(int r, int c) { return static_cast<std::size_t>(r) * kSide + static_cast<std::size_t>(c); }
   // The coarse cell of cell (r, c).
@@ -150,8 +190,35 @@ class BallSet {
   std::vector<Ball> balls_;
   std::array<double, 4> box_{};
   double cell_ = 1.0;
-  std::vector<std::vector<std::uint32_t>> at_;
-  std::vector<std::vector<std::uint32_t>> coarse_;  // the large balls by coarse cell (empty: none)
+  double inv_cell_ = 1.0;
+  // The balls by cell, and the large ones by coarse cell, while the constructor adds them.
+  std::vector<std::vector<std::uint32_t>> at_, coarse_;
+  // The same lists flattened (queries read these): cell i's balls are fine_[fine_at_[i]] ..
+  // fine_[fine_at_[i + 1] - 1]; coarse_flat_ empty when no ball is large.
+  std::vector<std::uint32_t> fine_at_, fine_, coarse_at_, coarse_flat_;
+};
+
+/// Slabs of z of one height: the tiled run's block copies (tiled_run.cpp, BlockCopies) file a
+/// block's records by slab, so that a gathering reads only the slabs its balls meet
+/// (BallSet::meets with a box of six sides). Pure.
+struct ZSlabs {
+  static constexpr std::int32_t kEnd = 1 << 30;  ///< the clamp: slabs ±kEnd are open-ended
+  double height_m = 1.0;                        ///< > 0 and finite [m]
+
+  /// The slab of a finite z [m]: floor(z / height_m), clamped to [−kEnd, kEnd].
+  std::int32_t of(double z) const {
+    return static_cast<std::int32_t>(std::clamp(std::floor(z / height_m), -static_cast<double>(kEnd), static_cast<double>(kEnd)));
+  }
+
+  /// {lo, hi} [m] holding every finite z whose slab is s: s·h and (s + 1)·h, each widened by a
+  /// millionth of the height and 1e-12 of its own size (the division's and product's rounding);
+  /// −∞ for slab −kEnd, +∞ for kEnd.
+  std::array<double, 2> range(std::int32_t s) const {
+    const double inf = std::numeric_limits<double>::infinity();
+    const double lo = s * height_m, hi = lo + height_m;
+    return {s <= -kEnd ? -inf : lo - 1e-6 * height_m - 1e-12 * std::abs(lo),
+            s >= kEnd ? inf : hi + 1e-6 * height_m + 1e-12 * std::abs(hi)};
+  }
 };
 
 }  // namespace hc::pipeline::detail

@@ -38,10 +38,11 @@ double brute_margin(const std::vector<Ball>& balls, const double* p) {
   return best;
 }
 
-bool brute_meets(const std::vector<Ball>& balls, const std::array<double, 4>& box) {
+bool brute_meets(const std::vector<Ball>& balls, const std::array<double, 6>& box) {
   return std::any_of(balls.begin(), balls.end(), [&](const Ball& s) {
     const double dx = std::max({box[0] - s[0], s[0] - box[1], 0.0}), dy = std::max({box[2] - s[1], s[1] - box[3], 0.0});
-    return dx * dx + dy * dy <= s[3] * s[3];
+    const double dz = std::max({box[4] - s[2], s[2] - box[5], 0.0});
+    return dx * dx + dy * dy + dz * dz <= s[3] * s[3];
   });
 }
 
@@ -84,12 +85,14 @@ std::size_t brute_kept(const std::vector<Ball>& balls) {
   return n;
 }
 
+// Every query against brute force, with the default budget of fine entries and with none (every
+// ball of more than 256 cells then listed by coarse cell).
 TEST(BallSet, AgreesWithBruteForceAndLeavesOutBallsInsideOthers) {
   std::mt19937 rng(20261124);
   std::uniform_real_distribution<double> u(-0.1, 1.1), z(-0.2, 0.2), side(0.0, 0.05);
-  for (int round = 0; round < 20; ++round) {
-    const std::vector<Ball> balls = random_balls(rng, 10 + 15 * round);
-    const BallSet set(balls);
+  for (int round = 0; round < 40; ++round) {
+    const std::vector<Ball> balls = random_balls(rng, 10 + 15 * (round / 2));
+    const BallSet set = round % 2 == 0 ? BallSet(balls) : BallSet(balls, 0);
     EXPECT_EQ(set.size(), brute_kept(balls)) << "the nested and repeated balls are left out";
     ASSERT_LT(brute_kept(balls), balls.size());
     for (int q = 0; q < 4000; ++q) {
@@ -111,7 +114,11 @@ TEST(BallSet, AgreesWithBruteForceAndLeavesOutBallsInsideOthers) {
       if (q % 5 == 2) box[1] = inf;
       if (q % 5 == 3) box[2] = -inf;
       if (q % 5 == 4) box[3] = inf;
-      ASSERT_EQ(set.meets(box), brute_meets(balls, box));
+      ASSERT_EQ(set.meets(box), brute_meets(balls, {box[0], box[1], box[2], box[3], -inf, inf}));
+      // A slab of the box (BlockCopies' blocks by z), open below or above now and then.
+      const double z0 = z(rng);
+      const std::array<double, 6> slab{box[0], box[1], box[2], box[3], q % 7 == 1 ? -inf : z0, q % 7 == 2 ? inf : z0 + side(rng)};
+      ASSERT_EQ(set.meets(slab), brute_meets(balls, slab));
     }
   }
 }
@@ -131,4 +138,30 @@ TEST(BallSet, OneBallAndNoBall) {
 }
 
 }  // namespace
+// ZSlabs: every z lies in its slab's range, and the range is one slab tall (within its slack), so
+// a ball that meets no slab's range holds none of its points. Oracle: the definition,
+// floor(z / h), checked on boundaries, far values and both clamped ends.
+TEST(ZSlabs, EveryZLiesInItsSlabsRange) {
+  std::mt19937 rng(20261125);
+  for (const double h : {1e-6, 3.1e-4, 0.0155, 0.25, 7.0}) {
+    const hc::pipeline::detail::ZSlabs slabs{h};
+    std::uniform_real_distribution<double> near(-40.0 * h, 40.0 * h), far(-1e4, 1e4);
+    std::vector<double> zs = {0.0, -0.0, h, -h, 3.0 * h, -7.0 * h, 1e300, -1e300, std::nextafter(h, 0.0), std::nextafter(-h, 0.0)};
+    for (int i = 0; i < 20000; ++i) zs.push_back(i % 2 == 0 ? near(rng) : far(rng));
+    for (int i = -50; i <= 50; ++i) zs.push_back(i * h);  // on the boundaries, as the product rounds
+    for (const double z : zs) {
+      const std::int32_t s = slabs.of(z);
+      const auto r = slabs.range(s);
+      ASSERT_LE(r[0], z) << "h " << h << " z " << z << " slab " << s;
+      ASSERT_GE(r[1], z) << "h " << h << " z " << z << " slab " << s;
+      if (std::abs(z) < 1e3 * h) {
+        EXPECT_EQ(s, static_cast<std::int32_t>(std::floor(z / h)));
+        EXPECT_LT(r[1] - r[0], 1.001 * h) << "one slab tall";
+      }
+    }
+    EXPECT_EQ(slabs.range(-hc::pipeline::detail::ZSlabs::kEnd)[0], -std::numeric_limits<double>::infinity());
+    EXPECT_EQ(slabs.range(hc::pipeline::detail::ZSlabs::kEnd)[1], std::numeric_limits<double>::infinity());
+  }
+}
+
 }  // namespace ball_set_test
