@@ -786,21 +786,23 @@ constexpr std::string_view kTmpInfix = ".tmp-";            // "." + file + this 
 // the copy_from-th gathering of this process that needs tile u reads u's spill as before and, in
 // the same pass, copies the records a gathering can take (the points u owns, node in its
 // interior, outside removed far clusters) by block of its interior (blocks of block_nodes() ×
-// block_nodes() nodes, at most kSide × kSide), each record followed by its number in the spill.
-// The copy is written in chunks of one block each, in spill order within a block; a later
-// gathering reads only the chunks of the blocks its balls meet and puts the points back in spill
-// order. The in-process loop copies on the first read (every tile is read again by the tiles
-// around it); a tile job on the second (it runs few tiles, and a copy read by no other
-// gathering is only disk written). Disk: the owned records of the tiles copied (28 to 35 bytes a
-// point), less those drop() removed, per process; memory: one 64 KiB buffer per block while a
-// copy is made. The copies live in a folder of this object's own in the spill's folder (tile
+// block_nodes() nodes, at most kSide × kSide) and, within a block, by slab of z as tall as the
+// block is wide (slabs(): a stray's ball above a surface meets the surface's block but not its
+// slab), each record followed by its number in the spill. The copy is written in chunks of one
+// slab each, in spill order within a slab; a later gathering reads only the chunks of the slabs
+// its balls meet and puts the points back in spill order. The in-process loop copies on the
+// first read (every tile is read again by the tiles around it); a tile job on the second (it
+// runs few tiles, and a copy read by no other gathering is only disk written). Disk: the owned
+// records of the tiles copied (28 to 35 bytes a point), less those drop() removed, per process;
+// memory: up to one 32 KiB buffer per slab met while a copy is made (a few slabs a block on a
+// surface, the strays' slabs holding few records). The copies live in a folder of this object's own in the spill's folder (tile
 // jobs run side by side on shared storage), made with the first copy, removed with its content
 // when this goes, whatever happened (a process killed outright leaves it: `.blocks-*`). A copy
 // that cannot be written (a full disk) is removed and no more are made: the gatherings read
 // whole spills, as with scale.block_copies false (figure robust_block_copy_failures).
 class BlockCopies {
  public:
-  static constexpr int kSide = 8;
+  static constexpr int kSide = 16;
 
   // on = false (scale.block_copies): every call reads u's whole spill, nothing is copied.
   // copy_from: the read of a tile (1: the first) that copies it.
@@ -846,9 +848,13 @@ class BlockCopies {
     double p[3];
     float v = 0.0f;
     std::uint32_t rec = 0;
-    for (std::size_t b = 0; b < tl.chunks.size(); ++b) {
-      if (tl.chunks[b].empty() || !balls.meets(block_box(u, b))) continue;
-      for (const Chunk& ch : tl.chunks[b]) {
+    for (std::size_t b = 0; b < tl.blocks.size(); ++b) {
+      if (tl.blocks[b].empty()) continue;
+      const auto xy = block_box(u, b);
+      if (!balls.meets(xy)) continue;
+      for (const Slab& sl : tl.blocks[b]) {
+        if (!balls.meets(slab_box(xy, sl.z))) continue;
+        for (const Chunk& ch : sl.chunks) {
         sums["robust_spill_points_scanned"] += static_cast<double>(ch.records);
         sums["robust_block_records_read"] += static_cast<double>(ch.records);
         raw.resize(ch.records * crec);
@@ -860,6 +866,7 @@ class BlockCopies {
           const std::uint8_t* c3 = lay.get(q, p, v);
           std::memcpy(&rec, q + crec - 4, 4);
           fn(static_cast<const double*>(p), c3, v, std::uint64_t{rec});
+        }
         }
       }
     }
@@ -879,17 +886,22 @@ class BlockCopies {
   std::uint64_t peak_bytes() const { return peak_; }
 
  private:
-  static constexpr std::size_t kBlockBuffer = 64u << 10;
+  static constexpr std::size_t kBlockBuffer = 32u << 10;
 
   struct Chunk {
     std::uint64_t first = 0;  // first record in the copy
     std::size_t records = 0;
   };
+  // The records of a block in slab z (slabs()).
+  struct Slab {
+    std::int32_t z = 0;
+    std::vector<Chunk> chunks;  // in spill order
+  };
   struct Tile {
     bool made = false;
-    int reads = 0;                           // whole reads of its spill so far
-    std::uint64_t bytes = 0;                 // the copy's size
-    std::vector<std::vector<Chunk>> chunks;  // per block, in spill order
+    int reads = 0;                          // whole reads of its spill so far
+    std::uint64_t bytes = 0;                // the copy's size
+    std::vector<std::vector<Slab>> blocks;  // per block, its slabs in the order first met
   };
 
   // A copy's record: the point's bytes, then its record number in the spill (uint32).
@@ -902,6 +914,14 @@ class BlockCopies {
     const int bn = block_nodes(), br = static_cast<int>(b / kSide), bc = static_cast<int>(b % kSide);
     return tiles_.reading_box_m(in[0] + br * bn, std::min(in[1], in[0] + (br + 1) * bn), in[2] + bc * bn,
                                 std::min(in[3], in[2] + (bc + 1) * bn));
+  }
+
+  // A block's slabs are as tall as the block is wide (at least a micrometre).
+  detail::ZSlabs slabs() const { return {std::max(1e-6, block_nodes() * tiles_.g.cell_size_m)}; }
+  // The box of block `xy`'s records in slab z.
+  std::array<double, 6> slab_box(const std::array<double, 4>& xy, std::int32_t z) const {
+    const auto r = slabs().range(z);
+    return {xy[0], xy[1], xy[2], xy[3], r[0], r[1]};
   }
 
   static bool read_at(int fd, char* to, std::size_t bytes, std::uint64_t at) {
@@ -942,12 +962,13 @@ class BlockCopies {
         copy = false;
       }
     }
-    std::vector<std::vector<Chunk>> chunks(static_cast<std::size_t>(kSide * kSide));
-    std::vector<std::vector<char>> buf(chunks.size());
+    std::vector<std::vector<Slab>> blocks(static_cast<std::size_t>(kSide * kSide));
+    std::vector<std::vector<std::vector<char>>> buf(blocks.size());  // per block, per slab
+    std::vector<std::size_t> last(blocks.size(), 0);                  // per block, the slab last written
     std::uint64_t end = 0;  // records in the copy
     bool written = true;    // every chunk so far
-    const auto flush = [&](std::size_t b) {
-      std::vector<char>& x = buf[b];
+    const auto flush = [&](std::size_t b, std::size_t z) {
+      std::vector<char>& x = buf[b][z];
       if (!written) x.clear();
       if (x.empty()) return;
       std::size_t put = 0;
@@ -956,12 +977,13 @@ class BlockCopies {
         if (w <= 0) written = false;
         put += w > 0 ? static_cast<std::size_t>(w) : 0;
       }
-      chunks[b].push_back({end, x.size() / crec});
+      blocks[b][z].chunks.push_back({end, x.size() / crec});
       end += x.size() / crec;
       x.clear();
     };
     const auto in = tiles_.interior(u);
     const int bn = block_nodes();
+    const detail::ZSlabs zslabs = slabs();
     std::uint64_t rec = 0;
     spill_.scan(u, [&](std::uint8_t flag, const double* p, const std::uint8_t* c3, float v) {
       const std::uint64_t i = rec++;
@@ -971,17 +993,31 @@ class BlockCopies {
       fn(p, c3, v, i);
       if (!copy) return;
       const std::size_t b = static_cast<std::size_t>((r - in[0]) / bn) * kSide + static_cast<std::size_t>((c - in[2]) / bn);
-      std::vector<char>& x = buf[b];
+      const std::int32_t zs = zslabs.of(p[2]);
+      std::vector<Slab>& slabs = blocks[b];
+      std::size_t z = last[b];
+      if (z >= slabs.size() || slabs[z].z != zs) {
+        z = 0;
+        while (z < slabs.size() && slabs[z].z != zs) ++z;
+        if (z == slabs.size()) {
+          slabs.push_back({zs, {}});
+          buf[b].emplace_back();
+        }
+        last[b] = z;
+      }
+      std::vector<char>& x = buf[b][z];
       const std::size_t at = x.size();
       x.resize(at + crec);
       char* q = x.data() + at;
       lay.put(q, p, c3, v);
       const auto i32 = static_cast<std::uint32_t>(i);
       std::memcpy(q + crec - 4, &i32, 4);
-      if (x.size() >= kBlockBuffer) flush(b);
+      if (x.size() >= kBlockBuffer) flush(b, z);
     });
     if (!copy) return;
-    for (std::size_t b = 0; b < buf.size(); ++b) flush(b);
+    for (std::size_t b = 0; b < buf.size(); ++b) {
+      for (std::size_t z = 0; z < buf[b].size(); ++z) flush(b, z);
+    }
     // A write the disk refuses may show only at close (NFS, quotas).
     if (::close(fd) != 0) written = false;
     if (!written) {
@@ -990,7 +1026,7 @@ class BlockCopies {
       fail(sums);
       return;
     }
-    tl.chunks = std::move(chunks);
+    tl.blocks = std::move(blocks);
     tl.made = true;
     tl.bytes = end * crec;
     on_disk_ += tl.bytes;
@@ -1016,98 +1052,196 @@ class BlockCopies {
   std::uint64_t on_disk_ = 0, peak_ = 0;  // bytes
 };
 
-// The points of the scan inside `balls`, each once: those of tile t's window points `pts`, then
-// those the neighbouring tiles own outside t's window `w`, from their spills (through `blocks`),
-// far clusters left out; in tile order, each tile's in spill order; all of pts' points instead
-// of those inside the balls when the whole set would otherwise hold fewer than `at_least`.
-// at[i] = the gathered column of pts' column i (kNone: not gathered); `sums` as
-// BlockCopies::scan.
+// The points of the scan a tile's second look gathers (judge_past_halo), gathering by gathering:
+// each add() takes the points inside its balls that no earlier add's balls hold (those were
+// taken then), from tile t's window points `pts` and, outside t's window `w`, from the tiles
+// that own them (their spills, through `blocks`; far clusters left out). Each point is taken
+// once. pts is held by reference and must outlive this.
 constexpr std::uint32_t kNone = std::numeric_limits<std::uint32_t>::max();
-Cloud points_in_balls(const Plan& plan, BlockCopies& blocks, std::size_t t, const GridWindow& w, const Cloud& pts,
-                      const BallSet& balls, std::size_t at_least, std::vector<std::uint32_t>& at, std::map<std::string, double>& sums) {
-  if (balls.empty()) throw std::logic_error("points_in_balls: no balls");
-  const Tiles& tiles = plan.tiles;
-  const NodeBinner node(tiles.g);
-  std::vector<std::uint32_t> own;  // pts' columns inside the balls
-  for (std::size_t i = 0; i < pts.size(); ++i) {
-    if (balls.contains(pts.xyz.data() + 3 * i)) own.push_back(static_cast<std::uint32_t>(i));
-  }
-  // The other tiles' points: those whose interior a ball meets.
-  std::vector<double> xyz;
-  std::vector<std::uint8_t> rgb;
-  std::vector<float> intensity;
-  const auto& bb = balls.box_m();
-  const double lo_x[3] = {bb[0], bb[2], 0.0}, hi_x[3] = {bb[1], bb[3], 0.0};
-  const int tr0 = node.row(lo_x) / tiles.size, tr1 = node.row(hi_x) / tiles.size;
-  const int tc0 = node.col(lo_x) / tiles.size, tc1 = node.col(hi_x) / tiles.size;
-  std::vector<std::pair<std::uint64_t, std::uint32_t>> order;  // (record in u's spill, taken) of tile u's points
-  for (int tr = tr0; tr <= tr1; ++tr) {
-    for (int tc = tc0; tc <= tc1; ++tc) {
-      const std::size_t u = static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc);
-      if (u == t) continue;  // its interior lies inside w
-      const auto in = tiles.interior(u);
-      if (!balls.meets(tiles.reading_box_m(in[0], in[1], in[2], in[3]))) continue;
-      // u's points taken here, then appended in spill order (a copy's blocks give them by block).
-      std::vector<double> u_xyz;
-      std::vector<std::uint8_t> u_rgb;
-      std::vector<float> u_intensity;
-      order.clear();
-      blocks.scan(u, balls, sums, [&](const double* p, const std::uint8_t* c3, float v, std::uint64_t rec) {
-        if (!balls.contains(p)) return;
-        const int r = node.row(p), col = node.col(p);
-        if (r >= w.row0 && r < w.row0 + w.rows && col >= w.col0 && col < w.col0 + w.cols) return;
-        order.emplace_back(rec, static_cast<std::uint32_t>(order.size()));
-        u_xyz.insert(u_xyz.end(), p, p + 3);
-        if (pts.has_rgb()) u_rgb.insert(u_rgb.end(), c3, c3 + 3);
-        if (pts.has_intensity()) u_intensity.push_back(v);
-      });
-      std::sort(order.begin(), order.end());
-      for (const auto& [rec, k] : order) {
-        xyz.insert(xyz.end(), u_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(k), u_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(k) + 3);
-        if (pts.has_rgb()) rgb.insert(rgb.end(), u_rgb.begin() + 3 * static_cast<std::ptrdiff_t>(k), u_rgb.begin() + 3 * static_cast<std::ptrdiff_t>(k) + 3);
-        if (pts.has_intensity()) intensity.push_back(u_intensity[k]);
+class Gathering {
+ public:
+  Gathering(const Plan& plan, BlockCopies& blocks, std::size_t t, const GridWindow& w, const Cloud& pts)
+      : tiles_(plan.tiles), blocks_(blocks), t_(t), w_(w), pts_(pts) {}
+
+  // Takes the points inside `balls` ({x, y, z, radius} [m], the grid frame, not empty) and
+  // inside none of the earlier adds' balls. `sums` as BlockCopies::scan.
+  void add(const std::vector<Ball>& balls, std::map<std::string, double>& sums) {
+    if (balls.empty()) throw std::logic_error("Gathering::add: no balls");
+    const BallSet now(balls), before(before_);
+    const NodeBinner node(tiles_.g);
+    // The window's points.
+    std::vector<std::uint32_t> own;
+    for (std::size_t i = 0; i < pts_.size(); ++i) {
+      const double* p = pts_.xyz.data() + 3 * i;
+      if (now.contains(p) && !before.contains(p)) own.push_back(static_cast<std::uint32_t>(i));
+    }
+    const auto mid = static_cast<std::ptrdiff_t>(own_.size());
+    own_.insert(own_.end(), own.begin(), own.end());
+    std::inplace_merge(own_.begin(), own_.begin() + mid, own_.end());
+    own_.erase(std::unique(own_.begin(), own_.end()), own_.end());  // none when `before` held every earlier ball
+    // The other tiles' points: those outside w, so inside a ball whose xy box leaves w's box (a
+    // millionth of a cell narrower: NodeBinner may put a point a rounding step outside its
+    // node's box on that node), read from the tiles whose interior such a ball meets.
+    const auto wb = tiles_.box_m(w_);
+    const double slack = 1e-6 * tiles_.g.cell_size_m;
+    std::vector<Ball> leaving;
+    for (const Ball& b : balls) {
+      if (b[0] - b[3] <= wb[0] + slack || b[0] + b[3] >= wb[1] - slack || b[1] - b[3] <= wb[2] + slack || b[1] + b[3] >= wb[3] - slack) {
+        leaving.push_back(b);
       }
     }
+    before_.insert(before_.end(), balls.begin(), balls.end());
+    if (leaving.empty()) return;
+    const BallSet out(leaving);
+    const auto& bb = out.box_m();
+    const double lo_x[3] = {bb[0], bb[2], 0.0}, hi_x[3] = {bb[1], bb[3], 0.0};
+    const int tr0 = node.row(lo_x) / tiles_.size, tr1 = node.row(hi_x) / tiles_.size;
+    const int tc0 = node.col(lo_x) / tiles_.size, tc1 = node.col(hi_x) / tiles_.size;
+    const bool rgb = pts_.has_rgb(), intensity = pts_.has_intensity();
+    // The points taken here, in (tile, record) order, merged into those taken before after.
+    std::vector<Taken> keys;
+    std::vector<double> xyz;
+    std::vector<std::uint8_t> rgb3;
+    std::vector<float> value;
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> order;  // (record in u's spill, taken) of tile u's points
+    std::vector<double> u_xyz;
+    std::vector<std::uint8_t> u_rgb;
+    std::vector<float> u_value;
+    for (int tr = tr0; tr <= tr1; ++tr) {
+      for (int tc = tc0; tc <= tc1; ++tc) {
+        const std::size_t u = static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles_.tiles_c) + static_cast<std::size_t>(tc);
+        if (u == t_) continue;  // its interior lies inside w
+        const auto in = tiles_.interior(u);
+        if (!out.meets(tiles_.reading_box_m(in[0], in[1], in[2], in[3]))) continue;
+        // u's points taken here, then appended in spill order (a copy's blocks give them by block).
+        u_xyz.clear();
+        u_rgb.clear();
+        u_value.clear();
+        order.clear();
+        blocks_.scan(u, out, sums, [&](const double* p, const std::uint8_t* c3, float v, std::uint64_t rec) {
+          if (!out.contains(p) || before.contains(p)) return;
+          const int r = node.row(p), col = node.col(p);
+          if (r >= w_.row0 && r < w_.row0 + w_.rows && col >= w_.col0 && col < w_.col0 + w_.cols) return;
+          order.emplace_back(rec, static_cast<std::uint32_t>(order.size()));
+          u_xyz.insert(u_xyz.end(), p, p + 3);
+          if (rgb) u_rgb.insert(u_rgb.end(), c3, c3 + 3);
+          if (intensity) u_value.push_back(v);
+        });
+        std::sort(order.begin(), order.end());
+        for (const auto& [rec, k] : order) {
+          keys.push_back({u, rec});
+          xyz.insert(xyz.end(), u_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(k), u_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(k) + 3);
+          if (rgb) rgb3.insert(rgb3.end(), u_rgb.begin() + 3 * static_cast<std::ptrdiff_t>(k), u_rgb.begin() + 3 * static_cast<std::ptrdiff_t>(k) + 3);
+          if (intensity) value.push_back(u_value[k]);
+        }
+      }
+    }
+    merge(keys, xyz, rgb3, value);
   }
-  const std::size_t more = xyz.size() / 3;
-  if (own.size() + more < at_least) {
-    own.resize(pts.size());
-    std::iota(own.begin(), own.end(), 0U);
+
+  // The points taken so far.
+  std::size_t size() const { return own_.size() + keys_.size(); }
+
+  // The set: pts' points taken (ascending), then the other tiles' (tile order, each tile's in
+  // spill order); all of pts' points instead of those taken when the set would otherwise hold
+  // fewer than `at_least`. at[i] = the set's column of pts' column i (kNone: not in it).
+  Cloud cloud(std::size_t at_least, std::vector<std::uint32_t>& at) const {
+    std::vector<std::uint32_t> all;
+    const std::vector<std::uint32_t>* own = &own_;
+    if (own_.size() + keys_.size() < at_least) {
+      all.resize(pts_.size());
+      std::iota(all.begin(), all.end(), 0U);
+      own = &all;
+    }
+    const std::size_t n = own->size() + keys_.size();
+    Cloud c;
+    c.xyz.resize(3, static_cast<Eigen::Index>(n));
+    if (pts_.has_rgb()) c.rgb.resize(3 * n);
+    if (pts_.has_intensity()) c.intensity.resize(n);
+    at.assign(pts_.size(), kNone);
+    for (std::size_t j = 0; j < own->size(); ++j) {
+      const std::size_t i = (*own)[j];
+      at[i] = static_cast<std::uint32_t>(j);
+      c.xyz.col(static_cast<Eigen::Index>(j)) = pts_.xyz.col(static_cast<Eigen::Index>(i));
+      if (pts_.has_rgb()) std::copy_n(pts_.rgb.begin() + static_cast<std::ptrdiff_t>(3 * i), 3, c.rgb.begin() + static_cast<std::ptrdiff_t>(3 * j));
+      if (pts_.has_intensity()) c.intensity[j] = pts_.intensity[i];
+    }
+    std::copy(xyz_.begin(), xyz_.end(), c.xyz.data() + 3 * own->size());
+    std::copy(rgb_.begin(), rgb_.end(), c.rgb.begin() + static_cast<std::ptrdiff_t>(3 * own->size()));
+    std::copy(intensity_.begin(), intensity_.end(), c.intensity.begin() + static_cast<std::ptrdiff_t>(own->size()));
+    return c;
   }
-  // The set, built once at its size.
-  const std::size_t n = own.size() + more;
-  Cloud out;
-  out.xyz.resize(3, static_cast<Eigen::Index>(n));
-  if (pts.has_rgb()) out.rgb.resize(3 * n);
-  if (pts.has_intensity()) out.intensity.resize(n);
-  at.assign(pts.size(), kNone);
-  for (std::size_t j = 0; j < own.size(); ++j) {
-    const std::size_t i = own[j];
-    at[i] = static_cast<std::uint32_t>(j);
-    out.xyz.col(static_cast<Eigen::Index>(j)) = pts.xyz.col(static_cast<Eigen::Index>(i));
-    if (pts.has_rgb()) std::copy_n(pts.rgb.begin() + static_cast<std::ptrdiff_t>(3 * i), 3, out.rgb.begin() + static_cast<std::ptrdiff_t>(3 * j));
-    if (pts.has_intensity()) out.intensity[j] = pts.intensity[i];
+
+ private:
+  struct Taken {
+    std::uint64_t tile, rec;
+    bool operator<(const Taken& o) const { return tile != o.tile ? tile < o.tile : rec < o.rec; }
+  };
+
+  // Merges the points taken by one add (sorted) into those taken before, each point once.
+  void merge(const std::vector<Taken>& keys, const std::vector<double>& xyz, const std::vector<std::uint8_t>& rgb,
+             const std::vector<float>& value) {
+    if (keys.empty()) return;
+    std::vector<Taken> k;
+    std::vector<double> x;
+    std::vector<std::uint8_t> c;
+    std::vector<float> v;
+    const std::size_t n = keys_.size() + keys.size();
+    k.reserve(n);
+    x.reserve(3 * n);
+    const bool has_rgb = pts_.has_rgb(), has_value = pts_.has_intensity();
+    std::size_t a = 0, b = 0;
+    const auto take = [&](const std::vector<Taken>& ks, const std::vector<double>& xs, const std::vector<std::uint8_t>& cs,
+                          const std::vector<float>& vs, std::size_t& i) {
+      k.push_back(ks[i]);
+      x.insert(x.end(), xs.begin() + 3 * static_cast<std::ptrdiff_t>(i), xs.begin() + 3 * static_cast<std::ptrdiff_t>(i) + 3);
+      if (has_rgb) c.insert(c.end(), cs.begin() + 3 * static_cast<std::ptrdiff_t>(i), cs.begin() + 3 * static_cast<std::ptrdiff_t>(i) + 3);
+      if (has_value) v.push_back(vs[i]);
+      ++i;
+    };
+    while (a < keys_.size() || b < keys.size()) {
+      if (b == keys.size() || (a < keys_.size() && keys_[a] < keys[b])) {
+        take(keys_, xyz_, rgb_, intensity_, a);
+      } else if (a < keys_.size() && !(keys[b] < keys_[a])) {
+        ++b;  // taken before (none when `before` held every earlier ball): once
+      } else {
+        take(keys, xyz, rgb, value, b);
+      }
+    }
+    keys_ = std::move(k);
+    xyz_ = std::move(x);
+    rgb_ = std::move(c);
+    intensity_ = std::move(v);
   }
-  std::copy(xyz.begin(), xyz.end(), out.xyz.data() + 3 * own.size());
-  std::copy(rgb.begin(), rgb.end(), out.rgb.begin() + static_cast<std::ptrdiff_t>(3 * own.size()));
-  std::copy(intensity.begin(), intensity.end(), out.intensity.begin() + static_cast<std::ptrdiff_t>(own.size()));
-  return out;
-}
+
+  const Tiles& tiles_;
+  BlockCopies& blocks_;
+  std::size_t t_;
+  GridWindow w_;
+  const Cloud& pts_;
+  std::vector<Ball> before_;        // the balls of earlier adds
+  std::vector<std::uint32_t> own_;  // pts' columns taken, ascending
+  std::vector<Taken> keys_;         // the other tiles' points taken, ascending
+  std::vector<double> xyz_;         // theirs, with keys_
+  std::vector<std::uint8_t> rgb_;
+  std::vector<float> intensity_;
+};
 
 // The robust test's verdicts of the points of tile t's window w whose searches could end past
 // it (rv.past_halo, from the test over the window's points `pts`): judged again
 // (RobustOutlierOptions::judge_only, with the whole scan's scale) over the points of the scan in
 // the balls their verdicts need complete (rv.reach_m: each point's k-NN ball and, where the
 // verdict used them, its neighbours', radii bounded by the first look's searches), gathered from
-// the window and the neighbouring tiles' spills; gathered again, with the balls the second look
-// adds, until no search of theirs leaves them. rv.verdict updated for them. Returns how far the
+// the window and the neighbouring tiles' spills (Gathering); the balls the second look adds are
+// gathered in turn (only their points outside the balls before) and the points judged again,
+// until no search of theirs leaves the balls. rv.verdict updated for them. Returns how far the
 // balls reach past the window [nodes]. Throws InputError, naming the stage, the tile and the
 // key, when that is more than kMaxWidenedTiles tiles, or after 8 gatherings. Adds to `sums`:
 // robust_spill_points_scanned (records read from other tiles' spills and their block copies),
 // robust_block_records_read, robust_block_copies, robust_block_records_copied and
-// robust_block_copy_mb (BlockCopies), robust_points_gathered, robust_gatherings (one per
-// gathering: more than one where the second look added balls), robust_gather_s and
-// robust_judge_again_s (their times).
+// robust_block_copy_mb (BlockCopies), robust_points_gathered (each point once per window),
+// robust_gatherings (one per gathering: more than one where the second look added balls),
+// robust_gather_s and robust_judge_again_s (their times).
 int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const GridWindow& w, const RobustOutlierOptions& ropt,
                     const Cloud& pts, RobustVerdicts& rv, const std::string& halo_now, std::map<std::string, double>& sums) {
   const Tiles& tiles = plan.tiles;
@@ -1118,16 +1252,20 @@ int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const 
   double coord_m = 0.0;
   for (const double v : box) coord_m = std::isfinite(v) ? std::max(coord_m, std::abs(v)) : coord_m;
   for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) coord_m = std::max(coord_m, pts.xyz.col(i).cwiseAbs().maxCoeff());
-  std::vector<Ball> asked = rv.reach_m;  // as the searches gave them
-  std::vector<Ball> balls;               // padded, every pass by the largest coordinate so far
+  std::vector<Ball> asked = rv.reach_m;  // as the searches gave them, this gathering's
+  std::vector<Ball> balls;               // every gathering's, padded by the largest coordinate then
   auto pad = [&] {
     for (const Ball& b : asked) coord_m = std::max({coord_m, std::abs(b[0]) + b[3], std::abs(b[1]) + b[3], std::abs(b[2]) + b[3]});
-    balls = asked;
-    for (Ball& b : balls) b[3] = b[3] * (1.0 + 1e-4) + 64.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * coord_m;
+    for (Ball b : asked) {
+      b[3] = b[3] * (1.0 + 1e-4) + 64.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * coord_m;
+      balls.push_back(b);
+    }
   };
   int widened = 0;
   const int limit = kMaxWidenedTiles * tiles.size;
+  Gathering gathered(plan, blocks, t, w, pts);
   for (int pass = 0;; ++pass) {
+    const std::size_t first = balls.size();
     pad();
     // How far past the window's open sides the balls reach (an infinite side: none).
     double past_m = 0.0;
@@ -1150,9 +1288,11 @@ int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const 
     widened = std::max(widened, static_cast<int>(cells));
     std::vector<std::uint32_t> at;
     const auto t_gather = detail::Clock::now();
-    Cloud near = points_in_balls(plan, blocks, t, w, pts, BallSet(balls), static_cast<std::size_t>(ropt.k) + 2, at, sums);
+    const std::size_t had = gathered.size();
+    gathered.add(std::vector<Ball>(balls.begin() + static_cast<std::ptrdiff_t>(first), balls.end()), sums);
+    Cloud near = gathered.cloud(static_cast<std::size_t>(ropt.k) + 2, at);
     sums["robust_gather_s"] += detail::seconds_since(t_gather);
-    sums["robust_points_gathered"] += static_cast<double>(near.size());
+    sums["robust_points_gathered"] += static_cast<double>(gathered.size() - had);
     sums["robust_gatherings"] += 1.0;
     const auto t_judge = detail::Clock::now();
     RobustOutlierOptions wo = ropt;
@@ -1166,7 +1306,7 @@ int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const 
       for (std::size_t a = 0; a < rv.past_halo.size(); ++a) rv.verdict[rv.past_halo[a]] = wv.verdict[wo.judge_only[a]];
       return widened;
     }
-    asked.insert(asked.end(), wv.reach_m.begin(), wv.reach_m.end());
+    asked = std::move(wv.reach_m);
   }
 }
 
