@@ -1563,29 +1563,57 @@ class FarCells {
   FarCells(const Eigen::Vector3d& origin, double edge) : origin_(origin), edge_(edge), inv_(1.0 / edge) {}
   double edge() const { return edge_; }
 
-  // The points `take` marks among `n` (x y z doubles each), sorted by cell and merged into the
-  // cells once per occupied cell (a tile's points: far fewer hash lookups than one per point).
+  // The points `take` marks among `n` (x y z doubles each), summed per cell in a table of this
+  // batch's own (open addressing, at most half full) and merged into the cells once per occupied
+  // cell: far fewer lookups in cells_ than one per point, and no sort (a cell's count and box do
+  // not depend on the order of its points).
   void add_batch(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take) {
-    std::vector<std::uint64_t> keys;
-    std::vector<std::uint32_t> idx;
+    constexpr std::uint64_t kEmpty = ~std::uint64_t{0};  // no packed key has the top bit
+    int log2 = 10;
+    std::vector<std::uint64_t> keys(std::size_t{1} << log2, kEmpty);
+    std::vector<Cell> sum(keys.size());
+    std::size_t used = 0;
+    const auto slot = [&](std::uint64_t k) {
+      const std::size_t mask = keys.size() - 1;
+      std::size_t s = static_cast<std::size_t>((k * 0x9E3779B97F4A7C15ULL) >> (64 - log2));
+      while (keys[s] != kEmpty && keys[s] != k) s = (s + 1) & mask;
+      return s;
+    };
+    const auto add = [](Cell& c, const float* v, std::uint32_t count, const float* hi) {
+      c.count += count;
+      for (int a = 0; a < 3; ++a) {
+        c.lo[a] = std::min(c.lo[a], v[a]);
+        c.hi[a] = std::max(c.hi[a], hi[a]);
+      }
+    };
     for (std::size_t i = 0; i < n; ++i) {
       if (!take[i]) continue;
-      keys.push_back(key(xyz + 3 * i));
-      idx.push_back(static_cast<std::uint32_t>(i));
-    }
-    detail::radix_sort(keys, idx, 63);  // stable: a cell's points in input order, as a pair sort gave
-    for (std::size_t b = 0; b < keys.size();) {
-      const std::uint64_t k = keys[b];
-      Cell& c = cells_[k];
-      for (; b < keys.size() && keys[b] == k; ++b) {
-        const double* p = xyz + 3 * static_cast<std::size_t>(idx[b]);
-        ++c.count;
-        for (int a = 0; a < 3; ++a) {
-          const auto v = static_cast<float>(p[a] - origin_[a]);
-          c.lo[a] = std::min(c.lo[a], v);
-          c.hi[a] = std::max(c.hi[a], v);
+      const double* p = xyz + 3 * i;
+      const std::uint64_t k = key(p);
+      std::size_t s = slot(k);
+      if (keys[s] == kEmpty) {
+        if (2 * (used + 1) > keys.size()) {  // twice the table, the cells so far placed again
+          std::vector<std::uint64_t> old_keys(std::size_t{1} << ++log2, kEmpty);
+          std::vector<Cell> old_sum(old_keys.size());
+          old_keys.swap(keys);
+          old_sum.swap(sum);
+          for (std::size_t j = 0; j < old_keys.size(); ++j) {
+            if (old_keys[j] == kEmpty) continue;
+            const std::size_t t = slot(old_keys[j]);
+            keys[t] = old_keys[j];
+            sum[t] = old_sum[j];
+          }
+          s = slot(k);
         }
+        keys[s] = k;
+        ++used;
       }
+      float v[3];
+      for (int a = 0; a < 3; ++a) v[a] = static_cast<float>(p[a] - origin_[a]);
+      add(sum[s], v, 1, v);
+    }
+    for (std::size_t s = 0; s < keys.size(); ++s) {
+      if (keys[s] != kEmpty) add(cells_[keys[s]], sum[s].lo, sum[s].count, sum[s].hi);
     }
   }
 
