@@ -13,6 +13,14 @@
 
 namespace hc::pipeline::detail {
 
+/// Whether ball s {x, y, z, radius} meets the box b {x_min, x_max, y_min, y_max, z_min, z_max}
+/// (the same frame, metres; sides may be infinite): the box's nearest point within the radius.
+inline bool ball_meets(const std::array<double, 4>& s, const std::array<double, 6>& b) {
+  const double dx = std::max({b[0] - s[0], s[0] - b[1], 0.0}), dy = std::max({b[2] - s[1], s[1] - b[3], 0.0});
+  const double dz = std::max({b[4] - s[2], s[2] - b[5], 0.0});
+  return dx * dx + dy * dy + dz * dz <= s[3] * s[3];
+}
+
 /// Balls {x, y, z, radius} [m] (any one frame) in an xy grid of 128 × 128 cells over their
 /// bounding box. A ball is listed in each cell its xy box meets, or, when that would be more than
 /// 256 cells and the lists already hold 2^22 entries, in each cell its xy box meets of a coarse
@@ -91,6 +99,7 @@ class BallSet {
 
   /// The balls kept (those inside another left out).
   std::size_t size() const { return balls_.size(); }
+  const std::vector<Ball>& balls() const { return balls_; }
 
   bool empty() const { return balls_.empty(); }
 
@@ -104,12 +113,12 @@ class BallSet {
     };
     const int r = cell_of(p[1], 2), c = cell_of(p[0], 0);
     const std::size_t f = index(r, c);
-    for (std::uint32_t k = fine_at_[f]; k < fine_at_[f + 1]; ++k) {
+    for (std::size_t k = fine_at_[f]; k < fine_at_[f + 1]; ++k) {
       if (in(fine_[k])) return true;
     }
     if (coarse_flat_.empty()) return false;
     const std::size_t g = coarse_index(r, c);
-    for (std::uint32_t k = coarse_at_[g]; k < coarse_at_[g + 1]; ++k) {
+    for (std::size_t k = coarse_at_[g]; k < coarse_at_[g + 1]; ++k) {
       if (in(coarse_flat_[k])) return true;
     }
     return false;
@@ -128,10 +137,10 @@ class BallSet {
     };
     const int r = cell_of(p[1], 2), c = cell_of(p[0], 0);
     const std::size_t f = index(r, c);
-    for (std::uint32_t k = fine_at_[f]; k < fine_at_[f + 1]; ++k) take(fine_[k]);
+    for (std::size_t k = fine_at_[f]; k < fine_at_[f + 1]; ++k) take(fine_[k]);
     if (!coarse_flat_.empty()) {
       const std::size_t g = coarse_index(r, c);
-      for (std::uint32_t k = coarse_at_[g]; k < coarse_at_[g + 1]; ++k) take(coarse_flat_[k]);
+      for (std::size_t k = coarse_at_[g]; k < coarse_at_[g + 1]; ++k) take(coarse_flat_[k]);
     }
     return best;
   }
@@ -146,12 +155,7 @@ class BallSet {
   /// Whether a ball meets the box b {x_min, x_max, y_min, y_max, z_min, z_max} [m] (sides may be
   /// infinite).
   bool meets(const std::array<double, 6>& b) const {
-    for (const Ball& s : balls_) {
-      const double dx = std::max({b[0] - s[0], s[0] - b[1], 0.0}), dy = std::max({b[2] - s[1], s[1] - b[3], 0.0});
-      const double dz = std::max({b[4] - s[2], s[2] - b[5], 0.0});
-      if (dx * dx + dy * dy + dz * dz <= s[3] * s[3]) return true;
-    }
-    return false;
+    return std::any_of(balls_.begin(), balls_.end(), [&](const Ball& s) { return ball_meets(s, b); });
   }
 
   /// The balls' xy bounding box {x_min, x_max, y_min, y_max} [m] (+inf, −inf when empty).
@@ -173,10 +177,10 @@ class BallSet {
     return c < 0.0 ? 0 : c >= kSide - 1 ? kSide - 1 : static_cast<int>(c);
   }
   // Lists per cell as offsets (cells + 1) and one flat array.
-  static void flatten(const std::vector<std::vector<std::uint32_t>>& lists, std::vector<std::uint32_t>& at,
+  static void flatten(const std::vector<std::vector<std::uint32_t>>& lists, std::vector<std::size_t>& at,
                       std::vector<std::uint32_t>& flat) {
     at.assign(lists.size() + 1, 0);
-    for (std::size_t i = 0; i < lists.size(); ++i) at[i + 1] = at[i] + static_cast<std::uint32_t>(lists[i].size());
+    for (std::size_t i = 0; i < lists.size(); ++i) at[i + 1] = at[i] + lists[i].size();
     flat.clear();
     flat.reserve(at.back());
     for (const auto& l : lists) flat.insert(flat.end(), l.begin(), l.end());
@@ -195,7 +199,8 @@ class BallSet {
   std::vector<std::vector<std::uint32_t>> at_, coarse_;
   // The same lists flattened (queries read these): cell i's balls are fine_[fine_at_[i]] ..
   // fine_[fine_at_[i + 1] - 1]; coarse_flat_ empty when no ball is large.
-  std::vector<std::uint32_t> fine_at_, fine_, coarse_at_, coarse_flat_;
+  std::vector<std::size_t> fine_at_, coarse_at_;
+  std::vector<std::uint32_t> fine_, coarse_flat_;
 };
 
 /// Slabs of z of one height: the tiled run's block copies (tiled_run.cpp, BlockCopies) file a

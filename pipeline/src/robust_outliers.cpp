@@ -32,6 +32,7 @@
 #include <numeric>
 #include <span>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 namespace hc::pipeline {
@@ -653,6 +654,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     PointQueries::Scratch scratch(k);
     std::vector<std::uint32_t> knn_j;
     std::vector<std::uint8_t> searched;  // per neighbour of candidate i: its ball from its own search
+    std::unordered_map<std::uint32_t, double> narrowed;  // a listed point's neighbour's k-th distance, by its own search
     // How far a search about q may reach and stay where the cloud is complete: the xy distance
     // to the window's open sides (an infinite side is none), or the most any complete ball
     // leaves about q.
@@ -708,11 +710,15 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         // balls the bounds kept within the margin are narrowed by their own search here too
         // (the bounds |x_j − x_i| + r_i and k·d_j can be several times the k-th distance, and a
         // ball twice as wide as needed about a stray above a surface holds a wide disc of it).
-        for (std::size_t a = 0; a < searched.size(); ++a) {
+        for (std::size_t a = 0; verdicts && a < searched.size(); ++a) {
           if (searched[a]) continue;
           const std::uint32_t j = nbrs(i)[a];
-          d.queries().nearest(d.pos(j), scratch, knn_j);
-          reach[a + 1][3] = std::min(reach[a + 1][3], kth(xyz(j), knn_j));
+          auto [it, fresh] = narrowed.try_emplace(j, 0.0);
+          if (fresh) {
+            d.queries().nearest(d.pos(j), scratch, knn_j);
+            it->second = kth(xyz(j), knn_j);
+          }
+          reach[a + 1][3] = std::min(reach[a + 1][3], it->second);
         }
         if (verdicts) {
           verdicts->past_halo.push_back(rows[cand[i]]);

@@ -4,6 +4,7 @@
 #include "hc/pipeline/tiling.hpp"
 
 #include "ball_set.hpp"
+#include "wanted_keys.hpp"
 #include "knn_grid.hpp"
 #include "readers/readers.hpp"
 #include "run_internal.hpp"
@@ -779,7 +780,7 @@ constexpr std::string_view kBlocksPrefix = ".blocks-";     // + tag: BlockCopies
 constexpr std::string_view kKeptJobPrefix = ".kept-job-";  // + tag + "-<t>.bin": a tile job's temporary kept files
 constexpr std::string_view kTmpInfix = ".tmp-";            // "." + file + this + tag: write_atomically's temporary
 
-// Other tiles' spills for the robust test's second look (judge_past_halo, points_in_balls), read
+// Other tiles' spills for the robust test's second look (judge_past_halo, Gathering), read
 // by block. A spill keeps the input's order, and a scan in no order (the generated walls)
 // scatters the points of any part of a tile over its whole file, so each gathering read every
 // record of every tile its balls meet: at 10^8 points, about twelve whole spills per tile. Here
@@ -794,8 +795,7 @@ constexpr std::string_view kTmpInfix = ".tmp-";            // "." + file + this 
 // first read (every tile is read again by the tiles around it); a tile job on the second (it
 // runs few tiles, and a copy read by no other gathering is only disk written). Disk: the owned
 // records of the tiles copied (28 to 35 bytes a point), less those drop() removed, per process;
-// memory: up to one 32 KiB buffer per slab met while a copy is made (a few slabs a block on a
-// surface, the strays' slabs holding few records). The copies live in a folder of this object's own in the spill's folder (tile
+// memory: at most kMaxHeld (32 MiB) of slab buffers while a copy is made. The copies live in a folder of this object's own in the spill's folder (tile
 // jobs run side by side on shared storage), made with the first copy, removed with its content
 // when this goes, whatever happened (a process killed outright leaves it: `.blocks-*`). A copy
 // that cannot be written (a full disk) is removed and no more are made: the gatherings read
@@ -821,7 +821,7 @@ class BlockCopies {
 
   // fn(x y z [3], rgb [3] or nullptr, intensity, record number in u's spill) for u's records a
   // gathering can take: every one, in spill order, while u has no copy (the call that makes it
-  // included); after that those in the blocks `balls` meets, block by block (the caller tests
+  // included); after that those in the slabs `balls` meets, slab by slab (the caller tests
   // each point and restores the order). `sums`: robust_spill_points_scanned grows by the records
   // read (spill or copy), robust_block_records_read by those read from a copy,
   // robust_block_copies, robust_block_records_copied and robust_block_copy_mb by a copy made,
@@ -848,12 +848,21 @@ class BlockCopies {
     double p[3];
     float v = 0.0f;
     std::uint32_t rec = 0;
+    std::vector<Ball> near_block;  // the balls that meet a block's xy box
     for (std::size_t b = 0; b < tl.blocks.size(); ++b) {
       if (tl.blocks[b].empty()) continue;
       const auto xy = block_box(u, b);
-      if (!balls.meets(xy)) continue;
+      near_block.clear();
+      for (const Ball& s : balls.balls()) {
+        if (detail::ball_meets(s, {xy[0], xy[1], xy[2], xy[3], -std::numeric_limits<double>::infinity(),
+                                   std::numeric_limits<double>::infinity()})) {
+          near_block.push_back(s);
+        }
+      }
+      if (near_block.empty()) continue;
       for (const Slab& sl : tl.blocks[b]) {
-        if (!balls.meets(slab_box(xy, sl.z))) continue;
+        const auto box = slab_box(xy, sl.z);
+        if (std::none_of(near_block.begin(), near_block.end(), [&](const Ball& s) { return detail::ball_meets(s, box); })) continue;
         for (const Chunk& ch : sl.chunks) {
         sums["robust_spill_points_scanned"] += static_cast<double>(ch.records);
         sums["robust_block_records_read"] += static_cast<double>(ch.records);
@@ -887,6 +896,9 @@ class BlockCopies {
 
  private:
   static constexpr std::size_t kBlockBuffer = 32u << 10;
+  // The most memory make()'s slab buffers hold at once [bytes]: a scan tall in z (a statue, a
+  // column) has dozens of slabs in a block, each buffer up to about twice kBlockBuffer.
+  static constexpr std::size_t kMaxHeld = 32u << 20;
 
   struct Chunk {
     std::uint64_t first = 0;  // first record in the copy
@@ -935,7 +947,8 @@ class BlockCopies {
   }
 
   // One pass over u's spill: fn for each record a gathering can take, each copied (when this
-  // read copies) into its block's buffer, a full buffer appended to the copy as one chunk.
+  // read copies) into its slab's buffer, a full buffer appended to the copy as one chunk (every
+  // buffer, and their memory freed, when they hold more than kMaxHeld).
   template <class Fn>
   void make(std::size_t u, std::map<std::string, double>& sums, Fn& fn) {
     Tile& tl = tile_[u];
@@ -984,6 +997,7 @@ class BlockCopies {
     const auto in = tiles_.interior(u);
     const int bn = block_nodes();
     const detail::ZSlabs zslabs = slabs();
+    std::size_t held = 0;  // the buffers' memory [bytes]
     std::uint64_t rec = 0;
     spill_.scan(u, [&](std::uint8_t flag, const double* p, const std::uint8_t* c3, float v) {
       const std::uint64_t i = rec++;
@@ -994,25 +1008,35 @@ class BlockCopies {
       if (!copy) return;
       const std::size_t b = static_cast<std::size_t>((r - in[0]) / bn) * kSide + static_cast<std::size_t>((c - in[2]) / bn);
       const std::int32_t zs = zslabs.of(p[2]);
-      std::vector<Slab>& slabs = blocks[b];
+      std::vector<Slab>& in_block = blocks[b];
       std::size_t z = last[b];
-      if (z >= slabs.size() || slabs[z].z != zs) {
+      if (z >= in_block.size() || in_block[z].z != zs) {
         z = 0;
-        while (z < slabs.size() && slabs[z].z != zs) ++z;
-        if (z == slabs.size()) {
-          slabs.push_back({zs, {}});
+        while (z < in_block.size() && in_block[z].z != zs) ++z;
+        if (z == in_block.size()) {
+          in_block.push_back({zs, {}});
           buf[b].emplace_back();
         }
         last[b] = z;
       }
       std::vector<char>& x = buf[b][z];
-      const std::size_t at = x.size();
+      const std::size_t at = x.size(), had = x.capacity();
       x.resize(at + crec);
+      held += x.capacity() - had;
       char* q = x.data() + at;
       lay.put(q, p, c3, v);
       const auto i32 = static_cast<std::uint32_t>(i);
       std::memcpy(q + crec - 4, &i32, 4);
-      if (x.size() >= kBlockBuffer) flush(b, z);
+      if (x.size() >= kBlockBuffer) flush(b, z);  // its memory kept for the slab's next records
+      if (held > kMaxHeld) {  // every buffer written out and freed: the copy's memory stays bounded
+        for (std::size_t bb = 0; bb < buf.size(); ++bb) {
+          for (std::size_t zz = 0; zz < buf[bb].size(); ++zz) {
+            flush(bb, zz);
+            std::vector<char>().swap(buf[bb][zz]);
+          }
+        }
+        held = 0;
+      }
     });
     if (!copy) return;
     for (std::size_t b = 0; b < buf.size(); ++b) {
@@ -1252,21 +1276,28 @@ int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const 
   double coord_m = 0.0;
   for (const double v : box) coord_m = std::isfinite(v) ? std::max(coord_m, std::abs(v)) : coord_m;
   for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) coord_m = std::max(coord_m, pts.xyz.col(i).cwiseAbs().maxCoeff());
-  std::vector<Ball> asked = rv.reach_m;  // as the searches gave them, this gathering's
-  std::vector<Ball> balls;               // every gathering's, padded by the largest coordinate then
+  std::vector<Ball> asked = rv.reach_m;  // as the searches gave them, every gathering's
+  std::vector<Ball> balls;               // the same, padded by the largest coordinate so far
+  // Pads the balls asked since the last call; all of them again when the largest coordinate grew
+  // (each ball's pad is then the one a single gathering of every ball would give). Returns the
+  // first ball the next gathering must take (the ones before it were gathered with the same pad).
   auto pad = [&] {
+    const double before = coord_m;
     for (const Ball& b : asked) coord_m = std::max({coord_m, std::abs(b[0]) + b[3], std::abs(b[1]) + b[3], std::abs(b[2]) + b[3]});
-    for (Ball b : asked) {
+    const std::size_t from = coord_m > before ? 0 : balls.size();
+    balls.resize(from);
+    for (std::size_t i = from; i < asked.size(); ++i) {
+      Ball b = asked[i];
       b[3] = b[3] * (1.0 + 1e-4) + 64.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * coord_m;
       balls.push_back(b);
     }
+    return from;
   };
   int widened = 0;
   const int limit = kMaxWidenedTiles * tiles.size;
   Gathering gathered(plan, blocks, t, w, pts);
   for (int pass = 0;; ++pass) {
-    const std::size_t first = balls.size();
-    pad();
+    const std::size_t first = pad();
     // How far past the window's open sides the balls reach (an infinite side: none).
     double past_m = 0.0;
     for (const Ball& b : balls) {
@@ -1306,7 +1337,7 @@ int judge_past_halo(const Plan& plan, BlockCopies& blocks, std::size_t t, const 
       for (std::size_t a = 0; a < rv.past_halo.size(); ++a) rv.verdict[rv.past_halo[a]] = wv.verdict[wo.judge_only[a]];
       return widened;
     }
-    asked = std::move(wv.reach_m);
+    asked.insert(asked.end(), wv.reach_m.begin(), wv.reach_m.end());
   }
 }
 
@@ -1563,57 +1594,47 @@ class FarCells {
   FarCells(const Eigen::Vector3d& origin, double edge) : origin_(origin), edge_(edge), inv_(1.0 / edge) {}
   double edge() const { return edge_; }
 
-  // The points `take` marks among `n` (x y z doubles each), summed per cell in a table of this
-  // batch's own (open addressing, at most half full) and merged into the cells once per occupied
-  // cell: far fewer lookups in cells_ than one per point, and no sort (a cell's count and box do
-  // not depend on the order of its points).
+  // The points `take` marks among `n` (x y z doubles each), summed per cell over runs of 2^16
+  // points (detail::WantedKeys numbers a run's cells: 2 MiB) and merged into the cells once per
+  // cell a run holds: far fewer lookups in cells_ than one per point, and no sort (a cell's
+  // count and box do not depend on the order of its points).
   void add_batch(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take) {
-    constexpr std::uint64_t kEmpty = ~std::uint64_t{0};  // no packed key has the top bit
-    int log2 = 10;
-    std::vector<std::uint64_t> keys(std::size_t{1} << log2, kEmpty);
-    std::vector<Cell> sum(keys.size());
-    std::size_t used = 0;
-    const auto slot = [&](std::uint64_t k) {
-      const std::size_t mask = keys.size() - 1;
-      std::size_t s = static_cast<std::size_t>((k * 0x9E3779B97F4A7C15ULL) >> (64 - log2));
-      while (keys[s] != kEmpty && keys[s] != k) s = (s + 1) & mask;
-      return s;
-    };
-    const auto add = [](Cell& c, const float* v, std::uint32_t count, const float* hi) {
-      c.count += count;
-      for (int a = 0; a < 3; ++a) {
-        c.lo[a] = std::min(c.lo[a], v[a]);
-        c.hi[a] = std::max(c.hi[a], hi[a]);
+    constexpr std::size_t kRun = std::size_t{1} << 16;
+    std::vector<std::uint64_t> keys;
+    std::vector<std::uint32_t> at;  // the run's points
+    std::vector<Cell> sum;
+    std::vector<std::uint64_t> key_of;
+    for (std::size_t first = 0; first < n; first += kRun) {
+      keys.clear();
+      at.clear();
+      for (std::size_t i = first; i < std::min(n, first + kRun); ++i) {
+        if (!take[i]) continue;
+        keys.push_back(key(xyz + 3 * i));
+        at.push_back(static_cast<std::uint32_t>(i - first));
       }
-    };
-    for (std::size_t i = 0; i < n; ++i) {
-      if (!take[i]) continue;
-      const double* p = xyz + 3 * i;
-      const std::uint64_t k = key(p);
-      std::size_t s = slot(k);
-      if (keys[s] == kEmpty) {
-        if (2 * (used + 1) > keys.size()) {  // twice the table, the cells so far placed again
-          std::vector<std::uint64_t> old_keys(std::size_t{1} << ++log2, kEmpty);
-          std::vector<Cell> old_sum(old_keys.size());
-          old_keys.swap(keys);
-          old_sum.swap(sum);
-          for (std::size_t j = 0; j < old_keys.size(); ++j) {
-            if (old_keys[j] == kEmpty) continue;
-            const std::size_t t = slot(old_keys[j]);
-            keys[t] = old_keys[j];
-            sum[t] = old_sum[j];
-          }
-          s = slot(k);
+      const detail::WantedKeys cell(keys);
+      sum.assign(cell.size(), Cell{});
+      key_of.resize(cell.size());
+      for (std::size_t j = 0; j < keys.size(); ++j) {
+        const std::uint32_t m = cell.find(keys[j]);
+        key_of[m] = keys[j];
+        Cell& c = sum[m];
+        ++c.count;
+        const double* p = xyz + 3 * (first + at[j]);
+        for (int a = 0; a < 3; ++a) {
+          const auto v = static_cast<float>(p[a] - origin_[a]);
+          c.lo[a] = std::min(c.lo[a], v);
+          c.hi[a] = std::max(c.hi[a], v);
         }
-        keys[s] = k;
-        ++used;
       }
-      float v[3];
-      for (int a = 0; a < 3; ++a) v[a] = static_cast<float>(p[a] - origin_[a]);
-      add(sum[s], v, 1, v);
-    }
-    for (std::size_t s = 0; s < keys.size(); ++s) {
-      if (keys[s] != kEmpty) add(cells_[keys[s]], sum[s].lo, sum[s].count, sum[s].hi);
+      for (std::size_t m = 0; m < sum.size(); ++m) {
+        Cell& c = cells_[key_of[m]];
+        c.count += sum[m].count;
+        for (int a = 0; a < 3; ++a) {
+          c.lo[a] = std::min(c.lo[a], sum[m].lo[a]);
+          c.hi[a] = std::max(c.hi[a], sum[m].hi[a]);
+        }
+      }
     }
   }
 

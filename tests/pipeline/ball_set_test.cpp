@@ -85,14 +85,15 @@ std::size_t brute_kept(const std::vector<Ball>& balls) {
   return n;
 }
 
-// Every query against brute force, with the default budget of fine entries and with none (every
-// ball of more than 256 cells then listed by coarse cell).
+// Every query against brute force, with the default budget of fine entries (every ball listed
+// by fine cell in these sets), with none (every ball of more than 256 cells listed by coarse
+// cell) and with one that runs out part way (the largest by fine cell, the rest by coarse).
 TEST(BallSet, AgreesWithBruteForceAndLeavesOutBallsInsideOthers) {
   std::mt19937 rng(20261124);
   std::uniform_real_distribution<double> u(-0.1, 1.1), z(-0.2, 0.2), side(0.0, 0.05);
-  for (int round = 0; round < 40; ++round) {
-    const std::vector<Ball> balls = random_balls(rng, 10 + 15 * (round / 2));
-    const BallSet set = round % 2 == 0 ? BallSet(balls) : BallSet(balls, 0);
+  for (int round = 0; round < 60; ++round) {
+    const std::vector<Ball> balls = random_balls(rng, 10 + 15 * (round / 3));
+    const BallSet set = round % 3 == 0 ? BallSet(balls) : BallSet(balls, round % 3 == 1 ? 0 : 3000);
     EXPECT_EQ(set.size(), brute_kept(balls)) << "the nested and repeated balls are left out";
     ASSERT_LT(brute_kept(balls), balls.size());
     for (int q = 0; q < 4000; ++q) {
