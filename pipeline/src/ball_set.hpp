@@ -2,7 +2,8 @@
 // Balls indexed by an xy grid: which contains a point, and how far a search about a point may
 // reach and stay inside one of them. The robust test's tile check against the balls where a set
 // is complete (RobustOutlierOptions::TileBounds::complete_m) and the tiled run's gathering of
-// the points inside them (tiled_run.cpp, judge_past_halo) share it.
+// the points inside them (tiled_run.cpp, judge_past_halo) share it; the gathering's block copies
+// file their records by slab of z (ZSlabs) and read the slabs a ball meets (ball_meets).
 
 #include <algorithm>
 #include <array>
