@@ -926,6 +926,37 @@ TEST(TiledRun, AFarClusterInTilesOfItsOwnIsRemovedBeforeTheGridIsLaidOut) {
 // back side or a reflection) leaves the grid's x-y box as it was: the tiled run re-marks its
 // points in the first spill's files instead of reading the input again, and the scene and the
 // honest check's classification are the in-core run's.
+// The main body's box the plan keeps for the tiles' far-cluster step (plan.json far_main_box_m,
+// from tile_far_clusters' coarse cells, whose boxes are float offsets): it holds the whole patch
+// and is no wider than the patch's own extent, 0.99 × 0.99 × 0.004 m, by more than its slack
+// (a millionth of the 2 m extent each side, and float rounding). Oracle: the patch's points as
+// written; the cluster 2 m behind it is not part of the box. A cell box's upper side taken
+// from its lower one shrinks the box by up to a coarse cell and fails it.
+TEST(TiledRun, ThePlansMainBodyBoxIsThePatchsBox) {
+  const fs::path dir = hc::test::temp_dir("far_box");
+  std::vector<std::array<double, 3>> cluster;
+  for (int i = 0; i < 30; ++i) cluster.push_back({0.5 + 0.002 * (i % 6), 0.5 + 0.002 * (i / 6), -2.0 + 0.001 * (i % 3)});
+  write_patch_with(dir / "patch.ply", cluster);
+  {
+    std::ofstream yaml(dir / "patch.yaml");
+    yaml << "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n";
+  }
+  const auto info = hc::pipeline::write_tile_plan(dir / "patch.yaml", {"scale.tile_cells=32", "scale.scratch=" + dir.string()}, dir / "plan");
+  std::ifstream in(info.plan_file);
+  const nlohmann::json plan = nlohmann::json::parse(in);
+  ASSERT_TRUE(plan.contains("far_main_box_m"));
+  const nlohmann::json& box = plan.at("far_main_box_m");
+  ASSERT_TRUE(box.is_array());
+  ASSERT_EQ(box.size(), 6U);
+  const double extent[3] = {0.99, 0.99, 0.004};
+  for (int a = 0; a < 3; ++a) {
+    const double lo = std::strtod(box.at(static_cast<std::size_t>(a)).get<std::string>().c_str(), nullptr);
+    const double hi = std::strtod(box.at(static_cast<std::size_t>(a) + 3).get<std::string>().c_str(), nullptr);
+    EXPECT_GE(hi - lo, extent[a] - 1e-9) << "axis " << a << ": the box holds the patch";
+    EXPECT_LE(hi - lo, extent[a] + 1e-5) << "axis " << a << ": and is no wider than its slack";
+  }
+}
+
 TEST(TiledRun, AFarClusterBehindTheSurfaceIsReMarkedInTheSpillNotSpilledAgain) {
   const fs::path dir = hc::test::temp_dir("far_behind");
   std::vector<std::array<double, 3>> cluster;
