@@ -1121,50 +1121,35 @@ class Gathering {
     const double lo_x[3] = {bb[0], bb[2], 0.0}, hi_x[3] = {bb[1], bb[3], 0.0};
     const int tr0 = node.row(lo_x) / tiles_.size, tr1 = node.row(hi_x) / tiles_.size;
     const int tc0 = node.col(lo_x) / tiles_.size, tc1 = node.col(hi_x) / tiles_.size;
-    const bool rgb = pts_.has_rgb(), intensity = pts_.has_intensity();
-    // The points taken here, in (tile, record) order, merged into those taken before after.
-    std::vector<Taken> keys;
-    std::vector<double> xyz;
-    std::vector<std::uint8_t> rgb3;
-    std::vector<float> value;
-    std::vector<std::pair<std::uint64_t, std::uint32_t>> order;  // (record in u's spill, taken) of tile u's points
-    std::vector<double> u_xyz;
-    std::vector<std::uint8_t> u_rgb;
-    std::vector<float> u_value;
+    // The points taken here, sorted by (tile, record), then merged into those taken before.
+    std::vector<Taken> taken;
     for (int tr = tr0; tr <= tr1; ++tr) {
       for (int tc = tc0; tc <= tc1; ++tc) {
         const std::size_t u = static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles_.tiles_c) + static_cast<std::size_t>(tc);
         if (u == t_) continue;  // its interior lies inside w
         const auto in = tiles_.interior(u);
         if (!out.meets(tiles_.reading_box_m(in[0], in[1], in[2], in[3]))) continue;
-        // u's points taken here, then appended in spill order (a copy's blocks give them by block).
-        u_xyz.clear();
-        u_rgb.clear();
-        u_value.clear();
-        order.clear();
         blocks_.scan(u, out, sums, [&](const double* p, const std::uint8_t* c3, float v, std::uint64_t rec) {
           if (!out.contains(p) || before.contains(p)) return;
           const int r = node.row(p), col = node.col(p);
           if (r >= w_.row0 && r < w_.row0 + w_.rows && col >= w_.col0 && col < w_.col0 + w_.cols) return;
-          order.emplace_back(rec, static_cast<std::uint32_t>(order.size()));
-          u_xyz.insert(u_xyz.end(), p, p + 3);
-          if (rgb) u_rgb.insert(u_rgb.end(), c3, c3 + 3);
-          if (intensity) u_value.push_back(v);
+          Taken k{u, rec, {p[0], p[1], p[2]}, {0, 0, 0}, v};
+          if (c3 != nullptr) std::copy_n(c3, 3, k.rgb.begin());
+          taken.push_back(k);
         });
-        std::sort(order.begin(), order.end());
-        for (const auto& [rec, k] : order) {
-          keys.push_back({u, rec});
-          xyz.insert(xyz.end(), u_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(k), u_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(k) + 3);
-          if (rgb) rgb3.insert(rgb3.end(), u_rgb.begin() + 3 * static_cast<std::ptrdiff_t>(k), u_rgb.begin() + 3 * static_cast<std::ptrdiff_t>(k) + 3);
-          if (intensity) value.push_back(u_value[k]);
-        }
       }
     }
-    merge(keys, xyz, rgb3, value);
+    std::sort(taken.begin(), taken.end());  // a copy's blocks give a tile's points by slab
+    const auto mid_taken = static_cast<std::ptrdiff_t>(taken_.size());
+    taken_.insert(taken_.end(), taken.begin(), taken.end());
+    std::inplace_merge(taken_.begin(), taken_.begin() + mid_taken, taken_.end());
+    // None when `before` held every earlier ball: each point once all the same.
+    taken_.erase(std::unique(taken_.begin(), taken_.end(), [](const Taken& x, const Taken& y) { return !(x < y) && !(y < x); }),
+                 taken_.end());
   }
 
   // The points taken so far.
-  std::size_t size() const { return own_.size() + keys_.size(); }
+  std::size_t size() const { return own_.size() + taken_.size(); }
 
   // The set: pts' points taken (ascending), then the other tiles' (tile order, each tile's in
   // spill order); all of pts' points instead of those taken when the set would otherwise hold
@@ -1172,12 +1157,12 @@ class Gathering {
   Cloud cloud(std::size_t at_least, std::vector<std::uint32_t>& at) const {
     std::vector<std::uint32_t> all;
     const std::vector<std::uint32_t>* own = &own_;
-    if (own_.size() + keys_.size() < at_least) {
+    if (own_.size() + taken_.size() < at_least) {
       all.resize(pts_.size());
       std::iota(all.begin(), all.end(), 0U);
       own = &all;
     }
-    const std::size_t n = own->size() + keys_.size();
+    const std::size_t n = own->size() + taken_.size();
     Cloud c;
     c.xyz.resize(3, static_cast<Eigen::Index>(n));
     if (pts_.has_rgb()) c.rgb.resize(3 * n);
@@ -1190,53 +1175,25 @@ class Gathering {
       if (pts_.has_rgb()) std::copy_n(pts_.rgb.begin() + static_cast<std::ptrdiff_t>(3 * i), 3, c.rgb.begin() + static_cast<std::ptrdiff_t>(3 * j));
       if (pts_.has_intensity()) c.intensity[j] = pts_.intensity[i];
     }
-    std::copy(xyz_.begin(), xyz_.end(), c.xyz.data() + 3 * own->size());
-    std::copy(rgb_.begin(), rgb_.end(), c.rgb.begin() + static_cast<std::ptrdiff_t>(3 * own->size()));
-    std::copy(intensity_.begin(), intensity_.end(), c.intensity.begin() + static_cast<std::ptrdiff_t>(own->size()));
+    for (std::size_t m = 0; m < taken_.size(); ++m) {
+      const std::size_t j = own->size() + m;
+      const Taken& k = taken_[m];
+      std::copy(k.xyz.begin(), k.xyz.end(), c.xyz.data() + 3 * j);
+      if (pts_.has_rgb()) std::copy(k.rgb.begin(), k.rgb.end(), c.rgb.begin() + static_cast<std::ptrdiff_t>(3 * j));
+      if (pts_.has_intensity()) c.intensity[j] = k.value;
+    }
     return c;
   }
 
  private:
+  // Another tile's point taken: where it is in its tile's spill, and the point.
   struct Taken {
     std::uint64_t tile, rec;
+    std::array<double, 3> xyz;
+    std::array<std::uint8_t, 3> rgb;  // 0 without colour
+    float value;                      // the intensity (unset without it)
     bool operator<(const Taken& o) const { return tile != o.tile ? tile < o.tile : rec < o.rec; }
   };
-
-  // Merges the points taken by one add (sorted) into those taken before, each point once.
-  void merge(const std::vector<Taken>& keys, const std::vector<double>& xyz, const std::vector<std::uint8_t>& rgb,
-             const std::vector<float>& value) {
-    if (keys.empty()) return;
-    std::vector<Taken> k;
-    std::vector<double> x;
-    std::vector<std::uint8_t> c;
-    std::vector<float> v;
-    const std::size_t n = keys_.size() + keys.size();
-    k.reserve(n);
-    x.reserve(3 * n);
-    const bool has_rgb = pts_.has_rgb(), has_value = pts_.has_intensity();
-    std::size_t a = 0, b = 0;
-    const auto take = [&](const std::vector<Taken>& ks, const std::vector<double>& xs, const std::vector<std::uint8_t>& cs,
-                          const std::vector<float>& vs, std::size_t& i) {
-      k.push_back(ks[i]);
-      x.insert(x.end(), xs.begin() + 3 * static_cast<std::ptrdiff_t>(i), xs.begin() + 3 * static_cast<std::ptrdiff_t>(i) + 3);
-      if (has_rgb) c.insert(c.end(), cs.begin() + 3 * static_cast<std::ptrdiff_t>(i), cs.begin() + 3 * static_cast<std::ptrdiff_t>(i) + 3);
-      if (has_value) v.push_back(vs[i]);
-      ++i;
-    };
-    while (a < keys_.size() || b < keys.size()) {
-      if (b == keys.size() || (a < keys_.size() && keys_[a] < keys[b])) {
-        take(keys_, xyz_, rgb_, intensity_, a);
-      } else if (a < keys_.size() && !(keys[b] < keys_[a])) {
-        ++b;  // taken before (none when `before` held every earlier ball): once
-      } else {
-        take(keys, xyz, rgb, value, b);
-      }
-    }
-    keys_ = std::move(k);
-    xyz_ = std::move(x);
-    rgb_ = std::move(c);
-    intensity_ = std::move(v);
-  }
 
   const Tiles& tiles_;
   BlockCopies& blocks_;
@@ -1245,10 +1202,7 @@ class Gathering {
   const Cloud& pts_;
   std::vector<Ball> before_;        // the balls of earlier adds
   std::vector<std::uint32_t> own_;  // pts' columns taken, ascending
-  std::vector<Taken> keys_;         // the other tiles' points taken, ascending
-  std::vector<double> xyz_;         // theirs, with keys_
-  std::vector<std::uint8_t> rgb_;
-  std::vector<float> intensity_;
+  std::vector<Taken> taken_;        // the other tiles' points taken, by (tile, record)
 };
 
 // The robust test's verdicts of the points of tile t's window w whose searches could end past
