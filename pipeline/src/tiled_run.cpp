@@ -210,6 +210,7 @@ class Spill {
     std::size_t got = 0;
     while (fd >= 0 && got < raw.size()) {
       const ssize_t r = ::pread(fd, raw.data() + got, raw.size() - got, static_cast<off_t>(got));
+      if (r < 0 && errno == EINTR) continue;  // a signal came before any byte: read again
       if (r <= 0) break;
       got += static_cast<std::size_t>(r);
     }
@@ -219,7 +220,11 @@ class Spill {
       const char* q = raw.data() + i * rec;
       std::memcpy(p, q + 1, 24);
       const char flag = static_cast<char>(mark(static_cast<const double*>(p)));
-      if (flag != q[0]) ok = ::pwrite(fd, &flag, 1, static_cast<off_t>(i * rec)) == 1;
+      if (flag == q[0]) continue;
+      ssize_t w;
+      do w = ::pwrite(fd, &flag, 1, static_cast<off_t>(i * rec));
+      while (w < 0 && errno == EINTR);
+      ok = w == 1;
     }
     const int err = errno;
     const bool closed = fd >= 0 && ::close(fd) == 0;
@@ -940,6 +945,7 @@ class BlockCopies {
     std::size_t got = 0;
     while (got < bytes) {
       const ssize_t r = ::pread(fd, to + got, bytes - got, static_cast<off_t>(at + got));
+      if (r < 0 && errno == EINTR) continue;
       if (r <= 0) return false;
       got += static_cast<std::size_t>(r);
     }
@@ -987,6 +993,7 @@ class BlockCopies {
       std::size_t put = 0;
       while (written && put < x.size()) {
         const ssize_t w = ::pwrite(fd, x.data() + put, x.size() - put, static_cast<off_t>(end * crec + put));
+        if (w < 0 && errno == EINTR) continue;
         if (w <= 0) written = false;
         put += w > 0 ? static_cast<std::size_t>(w) : 0;
       }

@@ -7,6 +7,8 @@
 #include <algorithm>
 #include <fstream>
 #include <functional>
+#include <iterator>
+#include <map>
 #include <stdexcept>
 
 namespace hc::fuzz {
@@ -14,19 +16,50 @@ namespace {
 
 namespace fs = std::filesystem;
 
+/// The bytes of `file`, read through a stream (which retries reads a signal interrupts).
+std::string read_bytes(const fs::path& file) {
+  std::ifstream in(file, std::ios::binary);
+  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (!in.good() && !in.eof()) throw std::runtime_error("hc fuzz: cannot read " + file.string());
+  return bytes;
+}
+
+/// Writes `size` bytes to `file`, replacing it, through a stream (which retries writes a signal
+/// interrupts).
+void write_bytes(const fs::path& file, const char* data, std::size_t size) {
+  std::ofstream out(file, std::ios::binary | std::ios::trunc);
+  out.write(data, static_cast<std::streamsize>(size));
+  out.close();
+  if (!out) throw std::runtime_error("hc fuzz: cannot write " + file.string());
+}
+
 /// A copy of a base scene folder in the scratch folder, and the image files it holds (paths
 /// relative to it, sorted: an input byte maps to one file).
+///
+/// Files are copied through streams from bytes held in memory, not with std::filesystem::copy:
+/// libFuzzer's timer signal (SIGALRM, installed without SA_RESTART) interrupts the kernel copy
+/// that libstdc++ uses, and copy_file then throws "Interrupted system call" instead of retrying.
 struct SceneCopy {
   fs::path base, dir;
   std::vector<std::string> images;
+  std::map<std::string, std::string> image_bytes;  ///< the base's bytes of each image file
   std::string replaced;
 
   SceneCopy(const fs::path& base_dir, const std::string& name) : base(base_dir), dir(scratch_dir() / name) {
     fs::create_directories(dir);
-    fs::copy(base, dir, fs::copy_options::recursive | fs::copy_options::overwrite_existing);
     for (const auto& e : fs::recursive_directory_iterator(base)) {
+      const fs::path rel = fs::relative(e.path(), base);
+      if (e.is_directory()) {
+        fs::create_directories(dir / rel);
+        continue;
+      }
+      std::string bytes = read_bytes(e.path());
+      write_bytes(dir / rel, bytes.data(), bytes.size());
       const auto ext = e.path().extension();
-      if (ext == ".tif" || ext == ".tiff" || ext == ".png") images.push_back(fs::relative(e.path(), base).string());
+      if (ext == ".tif" || ext == ".tiff" || ext == ".png") {
+        images.push_back(rel.string());
+        image_bytes.emplace(rel.string(), std::move(bytes));
+      }
     }
     std::sort(images.begin(), images.end());
     if (images.empty()) throw std::runtime_error("hc fuzz: no image file in " + base.string());
@@ -34,13 +67,12 @@ struct SceneCopy {
 
   /// Writes `data` over `file` (restoring the file the previous call replaced), then runs `use`.
   void with(const std::string& file, const std::uint8_t* data, std::size_t size, const std::function<void()>& use) {
-    if (!replaced.empty()) fs::copy_file(base / replaced, dir / replaced, fs::copy_options::overwrite_existing);
-    replaced = file;
-    {
-      std::ofstream out(dir / file, std::ios::binary | std::ios::trunc);
-      out.write(reinterpret_cast<const char*>(data), static_cast<std::streamsize>(size));
-      if (!out) throw std::runtime_error("hc fuzz: cannot write " + (dir / file).string());
+    if (!replaced.empty()) {
+      const std::string& original = image_bytes.at(replaced);
+      write_bytes(dir / replaced, original.data(), original.size());
     }
+    replaced = file;
+    write_bytes(dir / file, reinterpret_cast<const char*>(data), size);
     try {
       use();
     } catch (const hc::Error&) {
