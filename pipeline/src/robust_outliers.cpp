@@ -16,7 +16,9 @@
 
 #include "ball_set.hpp"
 #include "knn_grid.hpp"
+#include "near_knn.hpp"
 #include "stage_util.hpp"
+#include "wanted_keys.hpp"
 
 #include "hc/common/error.hpp"
 #include "hc/common/format.hpp"
@@ -30,6 +32,7 @@
 #include <cstdint>
 #include <limits>
 #include <numeric>
+#include <optional>
 #include <span>
 #include <string>
 #include <unordered_map>
@@ -86,27 +89,36 @@ std::vector<std::uint32_t> finite_rows(const Cloud& cloud, const char* who) {
   return rows;
 }
 
-// Float32 copy of the given points, recentred (in double) on the per-axis median of a sample of
-// at most 4096 of them: the bulk of the cloud keeps float's sub-micrometre resolution even when a
-// far point or cluster 1 km away stretches the bounding box (its own coordinates lose precision,
-// which cannot matter: it is far from everything).
-std::vector<float> recentred(const Cloud& cloud, const std::vector<std::uint32_t>& rows) {
+// The centre recentred() uses: the per-axis median of a sample of at most 4096 of the rows.
+Eigen::Vector3d sample_centre(const Cloud& cloud, const std::vector<std::uint32_t>& rows) {
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-  if (!rows.empty()) {
-    const std::size_t m = std::min<std::size_t>(rows.size(), 4096);
-    std::vector<double> v(m);
-    for (Eigen::Index a = 0; a < 3; ++a) {
-      for (std::size_t j = 0; j < m; ++j) v[j] = cloud.xyz(a, static_cast<Eigen::Index>(rows[j * rows.size() / m]));
-      std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(m / 2), v.end());
-      centre(a) = v[m / 2];
-    }
+  if (rows.empty()) return centre;
+  const std::size_t m = std::min<std::size_t>(rows.size(), 4096);
+  std::vector<double> v(m);
+  for (Eigen::Index a = 0; a < 3; ++a) {
+    for (std::size_t j = 0; j < m; ++j) v[j] = cloud.xyz(a, static_cast<Eigen::Index>(rows[j * rows.size() / m]));
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(m / 2), v.end());
+    centre(a) = v[m / 2];
   }
+  return centre;
+}
+
+// The float32 coordinates of column `col` recentred on `centre` (the subtraction in double).
+inline void recentre_point(const Cloud& cloud, std::uint32_t col, const Eigen::Vector3d& centre, float* out) {
+  for (Eigen::Index a = 0; a < 3; ++a) {
+    out[a] = static_cast<float>(cloud.xyz(a, static_cast<Eigen::Index>(col)) - centre(a));
+  }
+}
+
+// Float32 copy of the given points, recentred (in double) on the per-axis median of a sample of
+// at most 4096 of them (sample_centre): the bulk of the cloud keeps float's sub-micrometre
+// resolution even when a far point or cluster 1 km away stretches the bounding box (its own
+// coordinates lose precision, which cannot matter: it is far from everything).
+std::vector<float> recentred(const Cloud& cloud, const std::vector<std::uint32_t>& rows,
+                             const std::optional<Eigen::Vector3d>& centre_given = std::nullopt) {
+  const Eigen::Vector3d centre = centre_given ? *centre_given : sample_centre(cloud, rows);
   std::vector<float> p(3 * rows.size());
-  for (std::size_t j = 0; j < rows.size(); ++j) {
-    for (Eigen::Index a = 0; a < 3; ++a) {
-      p[3 * j + static_cast<std::size_t>(a)] = static_cast<float>(cloud.xyz(a, static_cast<Eigen::Index>(rows[j])) - centre(a));
-    }
-  }
+  for (std::size_t j = 0; j < rows.size(); ++j) recentre_point(cloud, rows[j], centre, p.data() + 3 * j);
   return p;
 }
 
@@ -343,8 +355,181 @@ std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t
   return s;
 }
 
-std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
-                                       std::vector<double>* nearest_m) {
+namespace detail {
+
+namespace {
+
+// The listed points are searched among a subset (near_rows) when they are at most this
+// fraction of the cloud: a listed point's block holds some hundreds of points.
+constexpr std::size_t kNearRatio = 1024;
+
+// Rows (positions in `rows`, increasing) of the subset mean_knn_distances_of searches for the
+// listed rows `list` (positions in `rows`): the union of the settled points' blocks and of the
+// other listed points' balls (near_knn.hpp); empty when the cell size cannot be had. Distances
+// are taken in double on the float coordinates the grid search uses; a bound is widened by
+// a relative 1e-5 over the float search's rounding (about 1e-7), a block's clearance narrowed
+// by a millionth of a cell over the cell arithmetic's.
+std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::uint32_t>& rows,
+                                     const std::vector<std::uint32_t>& list, int k, const Eigen::Vector3d& centre,
+                                     NearSearch& how) {
+  const std::size_t n = rows.size();
+  const auto k1 = static_cast<std::size_t>(k) + 1;
+  // The stratified sample of sample_centre (at most 4096 rows): its 1 %–99 % box per axis gives
+  // the cell edge (about k + 1 points on the box's largest face; a far point does not stretch
+  // it), and its points a bound of any listed point's k-th distance (any k + 1 points bound it).
+  const std::size_t m = std::min<std::size_t>(n, 4096);
+  std::vector<float> sample(3 * m);
+  for (std::size_t j = 0; j < m; ++j) recentre_point(cloud, rows[j * n / m], centre, sample.data() + 3 * j);
+  std::array<double, 3> ext{};
+  {
+    std::vector<double> v(m);
+    for (std::size_t a = 0; a < 3; ++a) {
+      for (std::size_t j = 0; j < m; ++j) v[j] = sample[3 * j + a];
+      std::sort(v.begin(), v.end());
+      ext[a] = (v[m - 1 - m / 100] - v[m / 100]) / 0.98;
+    }
+  }
+  const double face = std::max({ext[0] * ext[1], ext[0] * ext[2], ext[1] * ext[2]});
+  const double edge = std::sqrt(face * static_cast<double>(k1) / static_cast<double>(n));
+  if (!(edge > 0.0) || !std::isfinite(edge)) return {};
+  constexpr double kWiden = 1.0 + 1e-5;
+  std::vector<double> d2;
+  // The (k + 1)-th smallest of d2 (at least k + 1 entries), as a widened distance bound.
+  const auto bound = [&](std::vector<double>& v) {
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(k1 - 1), v.end());
+    return std::sqrt(v[k1 - 1]) * kWiden;
+  };
+  const auto dist2 = [](const float* a, const float* b) {
+    double s2 = 0.0;
+    for (std::size_t i = 0; i < 3; ++i) {
+      const double d = static_cast<double>(a[i]) - static_cast<double>(b[i]);
+      s2 += d * d;
+    }
+    return s2;
+  };
+  // A cell's integer coordinates fit 21 bits each about the centre; a point farther out than
+  // 2^20 − 2 cells has none (a listed one is searched by ball).
+  constexpr std::int64_t kHalf = std::int64_t{1} << 20;
+  const auto cell_of = [&](const float* pf, std::array<std::int64_t, 3>& c) {
+    for (std::size_t a = 0; a < 3; ++a) {
+      const double f = std::floor(static_cast<double>(pf[a]) / edge);
+      if (!(std::abs(f) < static_cast<double>(kHalf - 2))) return false;
+      c[a] = static_cast<std::int64_t>(f);
+    }
+    return true;
+  };
+  const auto key_of = [&](const std::array<std::int64_t, 3>& c, std::int64_t dx, std::int64_t dy, std::int64_t dz) {
+    return static_cast<std::uint64_t>(c[0] + dx + kHalf) | (static_cast<std::uint64_t>(c[1] + dy + kHalf) << 21) |
+           (static_cast<std::uint64_t>(c[2] + dz + kHalf) << 42);
+  };
+  std::vector<std::uint32_t> listed = list;
+  std::sort(listed.begin(), listed.end());
+  listed.erase(std::unique(listed.begin(), listed.end()), listed.end());
+  // The 27 cells about each listed point.
+  std::vector<std::array<float, 3>> at(listed.size());
+  std::vector<std::array<std::int64_t, 3>> cell(listed.size());
+  std::vector<std::uint8_t> keyed(listed.size(), 0);
+  std::vector<std::uint64_t> keys;
+  for (std::size_t q = 0; q < listed.size(); ++q) {
+    recentre_point(cloud, rows[listed[q]], centre, at[q].data());
+    keyed[q] = cell_of(at[q].data(), cell[q]) ? 1 : 0;
+    if (keyed[q] == 0) continue;
+    for (std::int64_t dz = -1; dz <= 1; ++dz) {
+      for (std::int64_t dy = -1; dy <= 1; ++dy) {
+        for (std::int64_t dx = -1; dx <= 1; ++dx) keys.push_back(key_of(cell[q], dx, dy, dz));
+      }
+    }
+  }
+  const WantedKeys wanted(keys);
+  // One pass over the cloud: the points in those cells, grouped by cell (a counting sort;
+  // increasing rows within a cell).
+  std::vector<std::uint32_t> hit_cell, hit_row;
+  std::vector<float> hit_xyz;
+  float pf[3];
+  std::array<std::int64_t, 3> c{};
+  for (std::size_t j = 0; j < n && wanted.size() > 0; ++j) {
+    recentre_point(cloud, rows[j], centre, pf);
+    if (!cell_of(pf, c)) continue;
+    const std::uint32_t w = wanted.find(key_of(c, 0, 0, 0));
+    if (w == WantedKeys::kNone) continue;
+    hit_cell.push_back(w);
+    hit_row.push_back(static_cast<std::uint32_t>(j));
+    hit_xyz.insert(hit_xyz.end(), pf, pf + 3);
+  }
+  std::vector<std::uint32_t> first(wanted.size() + 1, 0);
+  for (const std::uint32_t w : hit_cell) ++first[w + 1];
+  for (std::size_t w = 0; w < wanted.size(); ++w) first[w + 1] += first[w];
+  std::vector<std::uint32_t> member(hit_cell.size());
+  std::vector<float> member_xyz(hit_xyz.size());
+  {
+    std::vector<std::uint32_t> put(first.begin(), first.end() - 1);
+    for (std::size_t h = 0; h < hit_cell.size(); ++h) {
+      const std::uint32_t to = put[hit_cell[h]]++;
+      member[to] = hit_row[h];
+      std::copy_n(hit_xyz.begin() + static_cast<std::ptrdiff_t>(3 * h), 3, member_xyz.begin() + static_cast<std::ptrdiff_t>(3 * to));
+    }
+  }
+  // Each listed point: settled by its block when the block holds k + 1 points within a bound
+  // that stays inside it; else searched in a ball of the smaller of the block's bound (with k
+  // + 1 points) and the sample's.
+  std::vector<std::uint32_t> chosen;
+  std::vector<BallSet::Ball> balls;
+  for (std::size_t q = 0; q < listed.size(); ++q) {
+    double r = std::numeric_limits<double>::infinity();
+    if (keyed[q] != 0) {
+      d2.clear();
+      std::array<std::uint32_t, 27> block{};
+      std::size_t b = 0;
+      for (std::int64_t dz = -1; dz <= 1; ++dz) {
+        for (std::int64_t dy = -1; dy <= 1; ++dy) {
+          for (std::int64_t dx = -1; dx <= 1; ++dx) {
+            const std::uint32_t w = wanted.find(key_of(cell[q], dx, dy, dz));
+            block[b++] = w;
+            for (std::uint32_t i = first[w]; i < first[w + 1]; ++i) d2.push_back(dist2(member_xyz.data() + 3 * i, at[q].data()));
+          }
+        }
+      }
+      if (d2.size() >= k1) {
+        r = bound(d2);
+        double clearance = std::numeric_limits<double>::infinity();
+        for (std::size_t a = 0; a < 3; ++a) {
+          const double lo = static_cast<double>(cell[q][a] - 1) * edge, hi = static_cast<double>(cell[q][a] + 2) * edge;
+          clearance = std::min({clearance, static_cast<double>(at[q][a]) - lo, hi - static_cast<double>(at[q][a])});
+        }
+        if (r + 1e-6 * edge < clearance) {
+          for (const std::uint32_t w : block) chosen.insert(chosen.end(), member.begin() + first[w], member.begin() + first[w + 1]);
+          continue;
+        }
+      }
+    }
+    if (m >= k1) {
+      d2.clear();
+      for (std::size_t j = 0; j < m; ++j) d2.push_back(dist2(sample.data() + 3 * j, at[q].data()));
+      r = std::min(r, bound(d2));
+    }
+    if (!std::isfinite(r)) return {};
+    balls.push_back({at[q][0], at[q][1], at[q][2], r});
+  }
+  how.balls = balls.size();
+  if (!balls.empty()) {
+    // A second pass: the points in the balls.
+    const BallSet set(balls);
+    double pd[3];
+    for (std::size_t j = 0; j < n; ++j) {
+      recentre_point(cloud, rows[j], centre, pf);
+      for (std::size_t a = 0; a < 3; ++a) pd[a] = pf[a];
+      if (set.contains(pd)) chosen.push_back(static_cast<std::uint32_t>(j));
+    }
+  }
+  std::sort(chosen.begin(), chosen.end());
+  chosen.erase(std::unique(chosen.begin(), chosen.end()), chosen.end());
+  return chosen;
+}
+
+}  // namespace
+
+std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
+                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how) {
   if (k < 1 || k > 1000) throw ConfigError("mean_knn_distances: k = " + std::to_string(k) + ", expected 1..1000");
   const std::vector<std::uint32_t> rows = finite_rows(cloud, "mean_knn_distances");
   const std::size_t n = rows.size();
@@ -362,9 +547,24 @@ std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std
     }
     list.push_back(static_cast<std::uint32_t>(it - rows.begin()));
   }
-  const std::vector<float> p = recentred(cloud, rows);
-  const CellGrid g = build_grid(p, n, std::min(2 * k + 1, 1000));
-  ExactDistances d(g, k, n);
+  NearSearch searched;
+  const Eigen::Vector3d centre = sample_centre(cloud, rows);
+  std::vector<std::uint32_t> subset;
+  if (near_only && !list.empty() && list.size() * kNearRatio <= n) subset = near_rows(cloud, rows, list, k, centre, searched);
+  // The searched points: the subset's (their columns, in order) or every finite one.
+  std::vector<std::uint32_t> searched_columns;
+  if (subset.size() >= static_cast<std::size_t>(k) + 2 && subset.size() <= n / 2) {
+    searched.near = true;
+    searched.subset_points = subset.size();
+    searched_columns.reserve(subset.size());
+    for (const std::uint32_t j : subset) searched_columns.push_back(rows[j]);
+    for (std::uint32_t& j : list) j = static_cast<std::uint32_t>(std::lower_bound(subset.begin(), subset.end(), j) - subset.begin());
+  }
+  const std::vector<std::uint32_t>& cols = searched.near ? searched_columns : rows;
+  if (how != nullptr) *how = searched;
+  const std::vector<float> p = recentred(cloud, cols, centre);
+  const CellGrid g = build_grid(p, cols.size(), std::min(2 * k + 1, 1000));
+  ExactDistances d(g, k, cols.size());
   std::vector<float> near;
   d.compute(list, nearest_m != nullptr ? &near : nullptr);
   std::vector<double> out;
@@ -372,6 +572,13 @@ std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std
   for (const std::uint32_t j : list) out.push_back(static_cast<double>(d[j]));
   if (nearest_m != nullptr) nearest_m->assign(near.begin(), near.end());
   return out;
+}
+
+}  // namespace detail
+
+std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
+                                       std::vector<double>* nearest_m) {
+  return detail::mean_knn_distances_of(cloud, columns, k, nearest_m, true, nullptr);
 }
 
 StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOptions& o, RobustVerdicts* verdicts,

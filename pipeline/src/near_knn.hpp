@@ -1,0 +1,37 @@
+#pragma once
+// The exact mean k-NN distances of a few listed points of a large cloud, searched only among the
+// points near them (robust_outliers.cpp; the tiled run's stage tile_scale lists about 500
+// sampled points of a window of millions).
+
+#include "hc/pipeline/cloud.hpp"
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+namespace hc::pipeline::detail {
+
+/// How mean_knn_distances_of searched.
+struct NearSearch {
+  bool near = false;              ///< the listed points were searched among a subset of the cloud
+  std::size_t balls = 0;          ///< listed points (distinct) whose subset share is a ball
+  std::size_t subset_points = 0;  ///< the subset's points (0 without one)
+};
+
+/// hc::pipeline::mean_knn_distances (robust_outliers.hpp: shapes, units, errors, result), with
+/// the search among the points near the listed ones when `near_only` and the listed points are
+/// few (at most 1/1024 of the finite points). Cubic cells are sized for about k + 1 points on
+/// the largest face of the cloud's 1 %–99 % box (of a sample of 4096 points). A listed point
+/// whose block of 3 × 3 × 3 cells about its own holds k + 1 points within a distance that stays
+/// inside the block takes the block; any other takes the ball of the smallest such distance
+/// its block or the sample gives (k + 1 points always bound the k-th neighbour's distance). The
+/// union then holds every point within each listed point's k-th distance, and the grid search
+/// over it (the same centre and float coordinates, a sum that does not depend on order, copies
+/// at distance 0 alike) gives the same bits as over the whole cloud. The whole cloud is
+/// searched when the union holds more than half of it. `how`, when given, says which.
+/// Cost: one pass over the cloud, two with a ball, then the grid search over the subset.
+/// Threads: 2 (the grid search).
+std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
+                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how);
+
+}  // namespace hc::pipeline::detail

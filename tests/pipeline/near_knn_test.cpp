@@ -1,0 +1,163 @@
+// The mean k-NN distances of a few listed points searched among the points near them
+// (near_knn.hpp) against the search over the whole cloud, bit for bit, and against brute force
+// in double (float coordinates: 1e-5 relative).
+
+#include "near_knn.hpp"
+
+#include "hc/pipeline/robust_outliers.hpp"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <random>
+#include <string>
+#include <vector>
+
+namespace {
+
+using hc::pipeline::Cloud;
+using hc::pipeline::detail::mean_knn_distances_of;
+using hc::pipeline::detail::NearSearch;
+
+Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts) {
+  Cloud c;
+  c.xyz.resize(3, static_cast<Eigen::Index>(pts.size()));
+  for (std::size_t i = 0; i < pts.size(); ++i) c.xyz.col(static_cast<Eigen::Index>(i)) = pts[i];
+  return c;
+}
+
+// Mean distance to the k nearest other points and the nearest other point's distance, by brute
+// force in double.
+std::pair<double, double> brute(const Cloud& c, std::uint32_t q, int k) {
+  std::vector<double> d;
+  for (Eigen::Index j = 0; j < c.xyz.cols(); ++j) {
+    if (j != static_cast<Eigen::Index>(q)) d.push_back((c.xyz.col(j) - c.xyz.col(q)).norm());
+  }
+  std::nth_element(d.begin(), d.begin() + (k - 1), d.end());
+  std::sort(d.begin(), d.begin() + k);
+  double s = 0.0;
+  for (int i = 0; i < k; ++i) s += d[static_cast<std::size_t>(i)];
+  return {s / k, d[0]};
+}
+
+// A relief 1 m × 0.5 m (≈ 0.12 mm apart at 300 000 points) far from the origin (a survey's
+// frame), with what a scan holds: noise, strays up to 30 mm above the surface, a stack of
+// 40 copies of one point, a sparse strip (a fiftieth of the density), a small cluster 3 m away.
+struct Scene {
+  Cloud cloud;
+  std::vector<std::uint32_t> list;  // what the tests list: of every kind, and points at the edge
+  std::uint32_t far = 0;            // a point of the far cluster
+};
+
+Scene relief(std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::normal_distribution<double> noise(0.0, 5e-5);
+  const Eigen::Vector3d origin(412345.0, 5012345.0, 120.0);
+  std::vector<Eigen::Vector3d> pts;
+  const auto surface = [&](double x, double y) {
+    const double z = 0.004 * std::sin(30.0 * x) * std::cos(20.0 * y) + noise(rng);
+    return Eigen::Vector3d(origin.x() + x, origin.y() + y, origin.z() + z);
+  };
+  Scene s;
+  for (int i = 0; i < 300000; ++i) {
+    const double x = u(rng), y = 0.5 * u(rng);
+    if (x > 0.6 && x < 0.62 && u(rng) > 0.02) continue;  // the sparse strip
+    pts.push_back(surface(x, y));
+  }
+  const std::size_t surface_points = pts.size();
+  for (int i = 0; i < 60; ++i) {
+    Eigen::Vector3d p = surface(u(rng), 0.5 * u(rng));
+    p.z() += 0.002 + 0.028 * u(rng);
+    pts.push_back(p);
+  }
+  const Eigen::Vector3d stacked = pts[1234];
+  for (int i = 0; i < 40; ++i) pts.push_back(stacked);
+  const std::size_t cluster = pts.size();
+  for (int i = 0; i < 30; ++i) {
+    const double x = 3.0 + 0.01 * u(rng), y = 0.2 + 0.01 * u(rng), z = 0.01 * u(rng);
+    pts.emplace_back(origin.x() + x, origin.y() + y, origin.z() + z);
+  }
+  s.cloud = cloud_of(pts);
+  for (std::uint32_t i = 0; i < surface_points; i += 4001) s.list.push_back(i);
+  for (std::size_t i = surface_points; i < surface_points + 60; i += 3) s.list.push_back(static_cast<std::uint32_t>(i));
+  s.list.push_back(1234);
+  s.list.push_back(static_cast<std::uint32_t>(surface_points + 75));  // a copy in the stack
+  // The strip's points, and those nearest the relief's four edges.
+  std::uint32_t edge[4] = {0, 0, 0, 0};
+  for (std::uint32_t i = 0; i < surface_points; ++i) {
+    const Eigen::Vector3d p = pts[i] - origin;
+    if (p.x() > 0.6 && p.x() < 0.62 && i % 11 == 0) s.list.push_back(i);
+    if (p.x() < (pts[edge[0]] - origin).x()) edge[0] = i;
+    if (p.x() > (pts[edge[1]] - origin).x()) edge[1] = i;
+    if (p.y() < (pts[edge[2]] - origin).y()) edge[2] = i;
+    if (p.y() > (pts[edge[3]] - origin).y()) edge[3] = i;
+  }
+  s.list.insert(s.list.end(), edge, edge + 4);
+  s.list.push_back(s.list[5]);  // listed twice
+  s.far = static_cast<std::uint32_t>(cluster + 7);
+  return s;
+}
+
+// The near search takes a subset of a relief for listed points of every kind (on the relief, in
+// the sparse strip, at the edges, strays up to 30 mm above it, copies), and its distances and
+// nearest distances equal the whole cloud's search bit for bit, and brute force in double (the
+// search's float coordinates are 0.03 µm apart at 0.5 m from the centre: 2e-7 m).
+TEST(NearKnn, SameBitsAsTheWholeCloudsSearch) {
+  for (const std::uint32_t seed : {1u, 2u}) {
+    const Scene s = relief(seed);
+    for (const int k : {8, 16}) {
+      NearSearch near, whole;
+      std::vector<double> nn_near, nn_whole;
+      const auto a = mean_knn_distances_of(s.cloud, s.list, k, &nn_near, true, &near);
+      const auto b = mean_knn_distances_of(s.cloud, s.list, k, &nn_whole, false, &whole);
+      ASSERT_TRUE(near.near) << "seed " << seed << ", k " << k;
+      EXPECT_FALSE(whole.near);
+      // About 40 blocks, and 30 balls of 6–35 mm on a relief of 0.6 points per mm²: a tenth.
+      EXPECT_LT(near.subset_points, s.cloud.size() / 5) << "a subset, not the cloud";
+      EXPECT_GT(near.balls, 0U) << "the strays above the relief are searched by ball";
+      ASSERT_EQ(a.size(), s.list.size());
+      ASSERT_EQ(nn_near.size(), s.list.size());
+      for (std::size_t q = 0; q < s.list.size(); ++q) {
+        EXPECT_EQ(a[q], b[q]) << "point " << s.list[q] << ", k " << k;
+        EXPECT_EQ(nn_near[q], nn_whole[q]) << "point " << s.list[q] << ", k " << k;
+      }
+      for (std::size_t q = 0; q < s.list.size(); q += 7) {
+        const auto [mean, nearest] = brute(s.cloud, s.list[q], k);
+        EXPECT_NEAR(a[q], mean, 1e-6 * mean + 2e-7) << "point " << s.list[q];
+        EXPECT_NEAR(nn_near[q], nearest, 1e-6 * nearest + 2e-7) << "point " << s.list[q];
+      }
+      // The public function takes the near search.
+      EXPECT_EQ(hc::pipeline::mean_knn_distances(s.cloud, s.list, k), a);
+    }
+  }
+}
+
+// A listed point whose k-th neighbour is far (one of a cluster of 30 points 3 m away, k = 40:
+// 11 of its neighbours lie on the relief): its ball holds much of the relief, and the result
+// is the whole cloud's, as brute force gives it. With more listed points than 1/1024 of the
+// cloud, the whole cloud is searched without a subset.
+TEST(NearKnn, FarNeighboursAndManyListedPoints) {
+  const Scene s = relief(3);
+  std::vector<std::uint32_t> list = s.list;
+  list.push_back(s.far);
+  NearSearch near, whole;
+  const auto a = mean_knn_distances_of(s.cloud, list, 40, nullptr, true, &near);
+  const auto b = mean_knn_distances_of(s.cloud, list, 40, nullptr, false, &whole);
+  EXPECT_GT(near.balls, 0U);
+  EXPECT_EQ(a, b);
+  const double far_mean = brute(s.cloud, s.far, 40).first;
+  EXPECT_GT(far_mean, 0.5) << "11 of its 40 neighbours are on the relief, 3 m away";
+  EXPECT_NEAR(a.back(), far_mean, 1e-6 * far_mean);
+  std::vector<std::uint32_t> many;
+  for (std::uint32_t i = 0; i < 2000; ++i) many.push_back(i * 97);
+  (void)mean_knn_distances_of(s.cloud, many, 16, nullptr, true, &near);
+  EXPECT_FALSE(near.near);
+  EXPECT_EQ(near.balls, 0U);
+  EXPECT_EQ(near.subset_points, 0U);
+}
+
+}  // namespace
