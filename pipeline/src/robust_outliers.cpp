@@ -410,11 +410,13 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
   // A cell's integer coordinates fit 21 bits each about the centre; a point farther out than
   // 2^20 − 2 cells has none (a listed one is searched by ball).
   constexpr std::int64_t kHalf = std::int64_t{1} << 20;
+  const double inv_edge = 1.0 / edge;
   const auto cell_of = [&](const float* pf, std::array<std::int64_t, 3>& c) {
     for (std::size_t a = 0; a < 3; ++a) {
-      const double f = std::floor(static_cast<double>(pf[a]) / edge);
+      const double f = static_cast<double>(pf[a]) * inv_edge;
       if (!(std::abs(f) < static_cast<double>(kHalf - 2))) return false;
-      c[a] = static_cast<std::int64_t>(f);
+      const auto i = static_cast<std::int64_t>(f);  // toward zero, then down: floor, without a libm call
+      c[a] = i - (f < static_cast<double>(i) ? 1 : 0);
     }
     return true;
   };
@@ -441,20 +443,36 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
     }
   }
   const WantedKeys wanted(keys);
-  // One pass over the cloud: the points in those cells, grouped by cell (a counting sort;
-  // increasing rows within a cell).
+  // One pass over the cloud (two threads, each a contiguous share): the points in those cells,
+  // then grouped by cell (a counting sort; increasing rows within a cell).
+  const int threads = n > (std::size_t{1} << 17) ? kSearchThreads : 1;
+  std::vector<std::vector<std::uint32_t>> hit_cells(static_cast<std::size_t>(threads)), hit_rows(hit_cells.size());
+  std::vector<std::vector<float>> hit_xyzs(hit_cells.size());
+  if (wanted.size() > 0) {
+    run_parallel(threads, [&](int t) {
+      auto& hc = hit_cells[static_cast<std::size_t>(t)];
+      auto& hr = hit_rows[static_cast<std::size_t>(t)];
+      auto& hx = hit_xyzs[static_cast<std::size_t>(t)];
+      const auto [jb, je] = detail::share_of(n, t, threads);
+      float pt[3];
+      std::array<std::int64_t, 3> ct{};
+      for (std::size_t j = jb; j < je; ++j) {
+        recentre_point(cloud, rows[j], centre, pt);
+        if (!cell_of(pt, ct)) continue;
+        const std::uint32_t w = wanted.find(key_of(ct, 0, 0, 0));
+        if (w == WantedKeys::kNone) continue;
+        hc.push_back(w);
+        hr.push_back(static_cast<std::uint32_t>(j));
+        hx.insert(hx.end(), pt, pt + 3);
+      }
+    });
+  }
   std::vector<std::uint32_t> hit_cell, hit_row;
   std::vector<float> hit_xyz;
-  float pf[3];
-  std::array<std::int64_t, 3> c{};
-  for (std::size_t j = 0; j < n && wanted.size() > 0; ++j) {
-    recentre_point(cloud, rows[j], centre, pf);
-    if (!cell_of(pf, c)) continue;
-    const std::uint32_t w = wanted.find(key_of(c, 0, 0, 0));
-    if (w == WantedKeys::kNone) continue;
-    hit_cell.push_back(w);
-    hit_row.push_back(static_cast<std::uint32_t>(j));
-    hit_xyz.insert(hit_xyz.end(), pf, pf + 3);
+  for (std::size_t t = 0; t < hit_cells.size(); ++t) {
+    hit_cell.insert(hit_cell.end(), hit_cells[t].begin(), hit_cells[t].end());
+    hit_row.insert(hit_row.end(), hit_rows[t].begin(), hit_rows[t].end());
+    hit_xyz.insert(hit_xyz.end(), hit_xyzs[t].begin(), hit_xyzs[t].end());
   }
   std::vector<std::uint32_t> first(wanted.size() + 1, 0);
   for (const std::uint32_t w : hit_cell) ++first[w + 1];
@@ -512,14 +530,20 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
   }
   how.balls = balls.size();
   if (!balls.empty()) {
-    // A second pass: the points in the balls.
+    // A second pass (two threads, each a contiguous share): the points in the balls.
     const BallSet set(balls);
-    double pd[3];
-    for (std::size_t j = 0; j < n; ++j) {
-      recentre_point(cloud, rows[j], centre, pf);
-      for (std::size_t a = 0; a < 3; ++a) pd[a] = pf[a];
-      if (set.contains(pd)) chosen.push_back(static_cast<std::uint32_t>(j));
-    }
+    std::vector<std::vector<std::uint32_t>> in_balls(static_cast<std::size_t>(threads));
+    run_parallel(threads, [&](int t) {
+      const auto [jb, je] = detail::share_of(n, t, threads);
+      float pt[3];
+      double pd[3];
+      for (std::size_t j = jb; j < je; ++j) {
+        recentre_point(cloud, rows[j], centre, pt);
+        for (std::size_t a = 0; a < 3; ++a) pd[a] = pt[a];
+        if (set.contains(pd)) in_balls[static_cast<std::size_t>(t)].push_back(static_cast<std::uint32_t>(j));
+      }
+    });
+    for (const auto& v : in_balls) chosen.insert(chosen.end(), v.begin(), v.end());
   }
   std::sort(chosen.begin(), chosen.end());
   chosen.erase(std::unique(chosen.begin(), chosen.end()), chosen.end());
