@@ -2213,7 +2213,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         double x_min = std::numeric_limits<double>::infinity(), x_max = -x_min, y_min = x_min, y_max = -x_min;
         std::uint64_t kept = 0, far_owned = 0, copies = 0;
         std::optional<UpsampleCoverage> cov;
-        if (config.grid.reproject.upsample_factor == 0) cov.emplace(old_g);
+        // Auto upsampling: the layout stays only if the factor stays old_k, the first factor
+        // whose coverage reaches kAutoUpsampleCoverage; that needs the coverages of factors 1 to
+        // old_k, not of larger ones (factor() returns another value exactly when the full
+        // range's search would). Coverage is not monotone in the points (an isolated hit lowers
+        // it), so the smaller factors are tracked again.
+        if (config.grid.reproject.upsample_factor == 0) cov.emplace(old_g, 1, old_k);
         std::vector<double> own_kept;  // a tile's kept points, for the coverage in one batch
         const NodeBinner node(old_g);
         PassProgress tick2(progress, "tile_far_clusters", "far points re-marked in the spill, tile by tile", config.scale.progress_interval_s);
