@@ -7,8 +7,8 @@
 #include <algorithm>
 #include <fstream>
 #include <functional>
-#include <iterator>
 #include <map>
+#include <sstream>
 #include <stdexcept>
 
 namespace hc::fuzz {
@@ -16,16 +16,19 @@ namespace {
 
 namespace fs = std::filesystem;
 
-/// The bytes of `file`, read through a stream (which retries reads a signal interrupts).
+/// The bytes of `file`, read through a stream (libstdc++'s file streams retry a read a signal
+/// interrupts).
 std::string read_bytes(const fs::path& file) {
   std::ifstream in(file, std::ios::binary);
-  std::string bytes((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
-  if (!in.good() && !in.eof()) throw std::runtime_error("hc fuzz: cannot read " + file.string());
-  return bytes;
+  if (!in) throw std::runtime_error("hc fuzz: cannot open " + file.string());
+  std::ostringstream bytes;
+  bytes << in.rdbuf();
+  if (in.bad() || !bytes) throw std::runtime_error("hc fuzz: cannot read " + file.string());
+  return bytes.str();
 }
 
-/// Writes `size` bytes to `file`, replacing it, through a stream (which retries writes a signal
-/// interrupts).
+/// Writes `size` bytes to `file`, replacing it, through a stream (libstdc++'s file streams
+/// retry a write a signal interrupts).
 void write_bytes(const fs::path& file, const char* data, std::size_t size) {
   std::ofstream out(file, std::ios::binary | std::ios::trunc);
   out.write(data, static_cast<std::streamsize>(size));
@@ -39,10 +42,11 @@ void write_bytes(const fs::path& file, const char* data, std::size_t size) {
 /// Files are copied through streams from bytes held in memory, not with std::filesystem::copy:
 /// libFuzzer's timer signal (SIGALRM, installed without SA_RESTART) interrupts the kernel copy
 /// that libstdc++ uses, and copy_file then throws "Interrupted system call" instead of retrying.
+/// Every file's bytes are kept: any of them (an image, scene.yaml) may be the one replaced.
 struct SceneCopy {
   fs::path base, dir;
   std::vector<std::string> images;
-  std::map<std::string, std::string> image_bytes;  ///< the base's bytes of each image file
+  std::map<std::string, std::string> base_bytes;  ///< the base's bytes of each file (relative path)
   std::string replaced;
 
   SceneCopy(const fs::path& base_dir, const std::string& name) : base(base_dir), dir(scratch_dir() / name) {
@@ -56,10 +60,8 @@ struct SceneCopy {
       std::string bytes = read_bytes(e.path());
       write_bytes(dir / rel, bytes.data(), bytes.size());
       const auto ext = e.path().extension();
-      if (ext == ".tif" || ext == ".tiff" || ext == ".png") {
-        images.push_back(rel.string());
-        image_bytes.emplace(rel.string(), std::move(bytes));
-      }
+      if (ext == ".tif" || ext == ".tiff" || ext == ".png") images.push_back(rel.string());
+      base_bytes.emplace(rel.string(), std::move(bytes));
     }
     std::sort(images.begin(), images.end());
     if (images.empty()) throw std::runtime_error("hc fuzz: no image file in " + base.string());
@@ -67,8 +69,9 @@ struct SceneCopy {
 
   /// Writes `data` over `file` (restoring the file the previous call replaced), then runs `use`.
   void with(const std::string& file, const std::uint8_t* data, std::size_t size, const std::function<void()>& use) {
+    if (base_bytes.count(file) == 0) throw std::logic_error("hc fuzz: " + file + " is not a file of " + base.string());
     if (!replaced.empty()) {
-      const std::string& original = image_bytes.at(replaced);
+      const std::string& original = base_bytes.at(replaced);
       write_bytes(dir / replaced, original.data(), original.size());
     }
     replaced = file;
