@@ -1,7 +1,7 @@
 #pragma once
 // The exact mean k-NN distances of a few listed points of a large cloud, searched only among the
-// points near them (robust_outliers.cpp; the tiled run's stage tile_scale lists about 500
-// sampled points of a window of millions).
+// points near them (robust_outliers.cpp; the tiled run's stage tile_scale lists about 600
+// sampled points of a window of 3.4 M on the 10^8 wall).
 
 #include "hc/pipeline/cloud.hpp"
 
@@ -14,6 +14,7 @@ namespace hc::pipeline::detail {
 /// How mean_knn_distances_of searched.
 struct NearSearch {
   bool near = false;              ///< the listed points were searched among a subset of the cloud
+  std::size_t blocks = 0;         ///< listed points (distinct) whose subset share is their block
   std::size_t balls = 0;          ///< listed points (distinct) whose subset share is a ball
   std::size_t subset_points = 0;  ///< the subset's points (0 without one)
 };
@@ -26,11 +27,15 @@ struct NearSearch {
 /// inside the block takes the block; any other takes the ball of the smallest such distance
 /// its block or the sample gives (k + 1 points always bound the k-th neighbour's distance). The
 /// union then holds every point within each listed point's k-th distance, and the grid search
-/// over it (the same centre and float coordinates, a sum that does not depend on order, copies
-/// at distance 0 alike) gives the same bits as over the whole cloud. The whole cloud is
-/// searched when the union holds more than half of it. `how`, when given, says which.
-/// Cost: one pass over the cloud, two with a ball, then the grid search over the subset.
-/// Threads: 2 (the grid search).
+/// over it (the same centre and float coordinates, copies at distance 0 alike) gives the same
+/// result as over the whole cloud: the same k distances, summed in double. That sum is exact in
+/// any order, hence the same bits, unless the k distances span more than 2^19 in magnitude
+/// (knn_grid.cpp, SmallestK::mean_distance), where the whole cloud's own result already
+/// depends on the search's order. The whole cloud is searched when the union holds more than
+/// half of it or fewer than k + 2 points, when the cells cannot be sized (the sampled points on
+/// one line or at one point) or a bound is not finite. `how`, when given, says which.
+/// Cost: one pass over the cloud, two with a ball (each on two threads), then the grid search
+/// over the subset (two threads).
 std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
                                           std::vector<double>* nearest_m, bool near_only, NearSearch* how);
 

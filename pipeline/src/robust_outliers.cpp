@@ -365,7 +365,8 @@ constexpr std::size_t kNearRatio = 1024;
 
 // Rows (positions in `rows`, increasing) of the subset mean_knn_distances_of searches for the
 // listed rows `list` (positions in `rows`): the union of the settled points' blocks and of the
-// other listed points' balls (near_knn.hpp); empty when the cell size cannot be had. Distances
+// other listed points' balls (near_knn.hpp); empty when the cell size cannot be had or a bound
+// is not finite. Distances
 // are taken in double on the float coordinates the grid search uses; a bound is widened by
 // a relative 1e-5 over the float search's rounding (about 1e-7), a block's clearance narrowed
 // by a millionth of a cell over the cell arithmetic's.
@@ -407,16 +408,17 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
     }
     return s2;
   };
-  // A cell's integer coordinates fit 21 bits each about the centre; a point farther out than
-  // 2^20 − 2 cells has none (a listed one is searched by ball).
+  // A cell's integer coordinates fit 21 bits each about the centre ([−2^20, 2^20)). A point of
+  // the cloud farther out than 2^20 − 1 cells has none; a listed point needs 3 cells more
+  // (else it is searched by ball), so every cell of its block lies where every point has one.
   constexpr std::int64_t kHalf = std::int64_t{1} << 20;
+  constexpr double kCloudReach = static_cast<double>(kHalf - 1), kListedReach = static_cast<double>(kHalf - 4);
   const double inv_edge = 1.0 / edge;
-  const auto cell_of = [&](const float* pf, std::array<std::int64_t, 3>& c) {
+  const auto cell_of = [&](const float* pf, double reach, std::array<std::int64_t, 3>& c) {
     for (std::size_t a = 0; a < 3; ++a) {
       const double f = static_cast<double>(pf[a]) * inv_edge;
-      if (!(std::abs(f) < static_cast<double>(kHalf - 2))) return false;
-      const auto i = static_cast<std::int64_t>(f);  // toward zero, then down: floor, without a libm call
-      c[a] = i - (f < static_cast<double>(i) ? 1 : 0);
+      if (!(std::abs(f) < reach)) return false;
+      c[a] = static_cast<std::int64_t>(detail::floor_of(f));
     }
     return true;
   };
@@ -434,7 +436,7 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
   std::vector<std::uint64_t> keys;
   for (std::size_t q = 0; q < listed.size(); ++q) {
     recentre_point(cloud, rows[listed[q]], centre, at[q].data());
-    keyed[q] = cell_of(at[q].data(), cell[q]) ? 1 : 0;
+    keyed[q] = cell_of(at[q].data(), kListedReach, cell[q]) ? 1 : 0;
     if (keyed[q] == 0) continue;
     for (std::int64_t dz = -1; dz <= 1; ++dz) {
       for (std::int64_t dy = -1; dy <= 1; ++dy) {
@@ -458,7 +460,7 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
       std::array<std::int64_t, 3> ct{};
       for (std::size_t j = jb; j < je; ++j) {
         recentre_point(cloud, rows[j], centre, pt);
-        if (!cell_of(pt, ct)) continue;
+        if (!cell_of(pt, kCloudReach, ct)) continue;
         const std::uint32_t w = wanted.find(key_of(ct, 0, 0, 0));
         if (w == WantedKeys::kNone) continue;
         hc.push_back(w);
@@ -484,7 +486,7 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
     for (std::size_t h = 0; h < hit_cell.size(); ++h) {
       const std::uint32_t to = put[hit_cell[h]]++;
       member[to] = hit_row[h];
-      std::copy_n(hit_xyz.begin() + static_cast<std::ptrdiff_t>(3 * h), 3, member_xyz.begin() + static_cast<std::ptrdiff_t>(3 * to));
+      std::copy_n(hit_xyz.begin() + static_cast<std::ptrdiff_t>(3 * h), 3, member_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(to));
     }
   }
   // Each listed point: settled by its block when the block holds k + 1 points within a bound
@@ -503,7 +505,7 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
           for (std::int64_t dx = -1; dx <= 1; ++dx) {
             const std::uint32_t w = wanted.find(key_of(cell[q], dx, dy, dz));
             block[b++] = w;
-            for (std::uint32_t i = first[w]; i < first[w + 1]; ++i) d2.push_back(dist2(member_xyz.data() + 3 * i, at[q].data()));
+            for (std::size_t i = first[w]; i < first[w + 1]; ++i) d2.push_back(dist2(member_xyz.data() + 3 * i, at[q].data()));
           }
         }
       }
@@ -516,6 +518,7 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
         }
         if (r + 1e-6 * edge < clearance) {
           for (const std::uint32_t w : block) chosen.insert(chosen.end(), member.begin() + first[w], member.begin() + first[w + 1]);
+          ++how.blocks;
           continue;
         }
       }

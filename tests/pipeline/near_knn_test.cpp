@@ -12,6 +12,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <utility>
 #include <random>
 #include <string>
 #include <vector>
@@ -34,7 +35,7 @@ Cloud cloud_of(const std::vector<Eigen::Vector3d>& pts) {
 std::pair<double, double> brute(const Cloud& c, std::uint32_t q, int k) {
   std::vector<double> d;
   for (Eigen::Index j = 0; j < c.xyz.cols(); ++j) {
-    if (j != static_cast<Eigen::Index>(q)) d.push_back((c.xyz.col(j) - c.xyz.col(q)).norm());
+    if (j != static_cast<Eigen::Index>(q) && c.xyz.col(j).allFinite()) d.push_back((c.xyz.col(j) - c.xyz.col(q)).norm());
   }
   std::nth_element(d.begin(), d.begin() + (k - 1), d.end());
   std::sort(d.begin(), d.begin() + k);
@@ -43,16 +44,18 @@ std::pair<double, double> brute(const Cloud& c, std::uint32_t q, int k) {
   return {s / k, d[0]};
 }
 
-// A relief 1 m × 0.5 m (≈ 0.12 mm apart at 300 000 points) far from the origin (a survey's
-// frame), with what a scan holds: noise, strays up to 30 mm above the surface, a stack of
-// 40 copies of one point, a sparse strip (a fiftieth of the density), a small cluster 3 m away.
+// A relief 1 m × 0.5 m (`count` points: 0.6 per mm² at 300 000) far from the origin (a
+// survey's frame), with what a scan holds: noise, strays up to 30 mm above the surface, a stack
+// of 600 copies of one point (more than build_grid keeps in a crowded cell), a sparse strip (a
+// fiftieth of the density), a small cluster 3 m away, and non-finite points among them (so
+// that columns and finite rows differ).
 struct Scene {
   Cloud cloud;
   std::vector<std::uint32_t> list;  // what the tests list: of every kind, and points at the edge
   std::uint32_t far = 0;            // a point of the far cluster
 };
 
-Scene relief(std::uint32_t seed) {
+Scene relief(std::uint32_t seed, int count = 300000) {
   std::mt19937 rng(seed);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   std::normal_distribution<double> noise(0.0, 5e-5);
@@ -63,7 +66,10 @@ Scene relief(std::uint32_t seed) {
     return Eigen::Vector3d(origin.x() + x, origin.y() + y, origin.z() + z);
   };
   Scene s;
-  for (int i = 0; i < 300000; ++i) {
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  for (int i = 0; i < 3; ++i) pts.emplace_back(nan, 0.0, 0.0);
+  for (int i = 0; i < count; ++i) {
+    if (i % 50000 == 17) pts.emplace_back(origin.x(), nan, origin.z());
     const double x = u(rng), y = 0.5 * u(rng);
     if (x > 0.6 && x < 0.62 && u(rng) > 0.02) continue;  // the sparse strip
     pts.push_back(surface(x, y));
@@ -75,20 +81,24 @@ Scene relief(std::uint32_t seed) {
     pts.push_back(p);
   }
   const Eigen::Vector3d stacked = pts[1234];
-  for (int i = 0; i < 40; ++i) pts.push_back(stacked);
+  for (int i = 0; i < 600; ++i) pts.push_back(stacked);
   const std::size_t cluster = pts.size();
   for (int i = 0; i < 30; ++i) {
     const double x = 3.0 + 0.01 * u(rng), y = 0.2 + 0.01 * u(rng), z = 0.01 * u(rng);
     pts.emplace_back(origin.x() + x, origin.y() + y, origin.z() + z);
   }
   s.cloud = cloud_of(pts);
-  for (std::uint32_t i = 0; i < surface_points; i += 4001) s.list.push_back(i);
+  for (std::uint32_t i = 3; i < surface_points; i += 4001) {
+    if (pts[i].allFinite()) s.list.push_back(i);
+  }
   for (std::size_t i = surface_points; i < surface_points + 60; i += 3) s.list.push_back(static_cast<std::uint32_t>(i));
   s.list.push_back(1234);
-  s.list.push_back(static_cast<std::uint32_t>(surface_points + 75));  // a copy in the stack
+  s.list.push_back(static_cast<std::uint32_t>(surface_points + 75));   // a copy in the stack
+  s.list.push_back(static_cast<std::uint32_t>(surface_points + 655));  // the last copy
   // The strip's points, and those nearest the relief's four edges.
-  std::uint32_t edge[4] = {0, 0, 0, 0};
-  for (std::uint32_t i = 0; i < surface_points; ++i) {
+  std::uint32_t edge[4] = {3, 3, 3, 3};
+  for (std::uint32_t i = 3; i < surface_points; ++i) {
+    if (!pts[i].allFinite()) continue;
     const Eigen::Vector3d p = pts[i] - origin;
     if (p.x() > 0.6 && p.x() < 0.62 && i % 11 == 0) s.list.push_back(i);
     if (p.x() < (pts[edge[0]] - origin).x()) edge[0] = i;
@@ -99,6 +109,7 @@ Scene relief(std::uint32_t seed) {
   s.list.insert(s.list.end(), edge, edge + 4);
   s.list.push_back(s.list[5]);  // listed twice
   s.far = static_cast<std::uint32_t>(cluster + 7);
+  EXPECT_TRUE(pts[1234].allFinite());
   return s;
 }
 
@@ -107,18 +118,21 @@ Scene relief(std::uint32_t seed) {
 // nearest distances equal the whole cloud's search bit for bit, and brute force in double (the
 // search's float coordinates are 0.03 µm apart at 0.5 m from the centre: 2e-7 m).
 TEST(NearKnn, SameBitsAsTheWholeCloudsSearch) {
-  for (const std::uint32_t seed : {1u, 2u}) {
-    const Scene s = relief(seed);
+  // 300 000 points: the passes on two threads; 100 000: on one (at most 2^17 points).
+  for (const auto& [seed, count] : {std::pair{1u, 300000}, std::pair{2u, 300000}, std::pair{3u, 100000}}) {
+    const Scene s = relief(seed, count);
     for (const int k : {8, 16}) {
       NearSearch near, whole;
       std::vector<double> nn_near, nn_whole;
       const auto a = mean_knn_distances_of(s.cloud, s.list, k, &nn_near, true, &near);
       const auto b = mean_knn_distances_of(s.cloud, s.list, k, &nn_whole, false, &whole);
       ASSERT_TRUE(near.near) << "seed " << seed << ", k " << k;
+      ASSERT_EQ(s.list.size() * 1024 <= s.cloud.size(), true) << "few enough listed points for the near search";
       EXPECT_FALSE(whole.near);
       // About 40 blocks, and 30 balls of 6–35 mm on a relief of 0.6 points per mm²: a tenth.
       EXPECT_LT(near.subset_points, s.cloud.size() / 5) << "a subset, not the cloud";
       EXPECT_GT(near.balls, 0U) << "the strays above the relief are searched by ball";
+      EXPECT_GT(near.blocks, 2 * near.balls) << "the points on the relief, by block";
       ASSERT_EQ(a.size(), s.list.size());
       ASSERT_EQ(nn_near.size(), s.list.size());
       for (std::size_t q = 0; q < s.list.size(); ++q) {
@@ -141,7 +155,7 @@ TEST(NearKnn, SameBitsAsTheWholeCloudsSearch) {
 // is the whole cloud's, as brute force gives it. With more listed points than 1/1024 of the
 // cloud, the whole cloud is searched without a subset.
 TEST(NearKnn, FarNeighboursAndManyListedPoints) {
-  const Scene s = relief(3);
+  const Scene s = relief(4);
   std::vector<std::uint32_t> list = s.list;
   list.push_back(s.far);
   NearSearch near, whole;
@@ -153,7 +167,9 @@ TEST(NearKnn, FarNeighboursAndManyListedPoints) {
   EXPECT_GT(far_mean, 0.5) << "11 of its 40 neighbours are on the relief, 3 m away";
   EXPECT_NEAR(a.back(), far_mean, 1e-6 * far_mean);
   std::vector<std::uint32_t> many;
-  for (std::uint32_t i = 0; i < 2000; ++i) many.push_back(i * 97);
+  for (std::uint32_t i = 0; many.size() < 2000; ++i) {
+    if (s.cloud.xyz.col(i * 97 + 3).allFinite()) many.push_back(i * 97 + 3);
+  }
   (void)mean_knn_distances_of(s.cloud, many, 16, nullptr, true, &near);
   EXPECT_FALSE(near.near);
   EXPECT_EQ(near.balls, 0U);
