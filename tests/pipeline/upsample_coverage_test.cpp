@@ -63,6 +63,42 @@ TEST(UpsampleCoverage, TwoPassesOverRangesChooseReprojectsFactorAtEveryDensity) 
   EXPECT_GE(factors.size(), 3U);       // factors 1, 2 and beyond among the densities
 }
 
+// The tiled run's far-cluster pass asks only whether the factor is still K (the plan's): the
+// range 1..K answers K exactly when reproject's own auto factor (the oracle: the whole cloud in
+// memory) is K, for every K, at densities whose factors are 1 to 16, and on a grid of 19 nodes
+// across, where the sparsest clouds stop at a factor whose next one's grid is too small (12 and
+// 25 points: without that rule, factor() answers 0 and this test fails).
+TEST(UpsampleCoverage, FactorsOneToKAnswerKExactlyWhenTheWholeRangeDoes) {
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::set<int> seen;
+  for (const int side : {301, 19}) {
+    for (const std::size_t n : {200000u, 12000u, 2500u, 1200u, 300u, 60u, 25u, 12u}) {
+      Cloud c;
+      c.xyz.resize(3, static_cast<Eigen::Index>(n));
+      for (std::size_t i = 0; i < n; ++i) c.xyz.col(static_cast<Eigen::Index>(i)) << u(rng), 0.5 * u(rng), 0.01 * u(rng);
+      ReprojectOptions o;
+      o.grid.n_long_side = side;
+      o.upsample_factor = 0;
+      const auto whole = hc::pipeline::reproject(c, o);
+      const int want = static_cast<int>(figure(whole.report, "upsample_factor"));
+      seen.insert(want);
+      const hc::GridGeometry& g = whole.value.depth.geometry();
+      for (int k = 1; k <= hc::pipeline::kMaxUpsampleFactor; ++k) {
+        UpsampleCoverage cov(g, 1, k);
+        cov.add(c.xyz.data(), n);
+        double coverage = 0.0;
+        const int got = cov.factor(&coverage);
+        EXPECT_EQ(got == k, want == k) << side << " nodes, " << n << " points, range 1.." << k << ": " << got << ", whole " << want;
+        if (want == k) {
+          EXPECT_EQ(coverage, figure(whole.report, "upsample_coverage"));
+        }
+      }
+    }
+  }
+  EXPECT_GE(seen.size(), 5U);  // factors 1, 3, 5 and beyond among the densities
+}
+
 TEST(UpsampleCoverage, AGridTooSmallForFactorThreeIsDecidedInTheFirstPass) {
   // 40 × 4 nodes: factor 3's grid has 2 rows, so reproject stops at factor 2 whatever the
   // coverage; the first pass must say so instead of asking for a second one.
