@@ -624,6 +624,8 @@ fs::path free_sibling(const fs::path& base, const std::string& suffix) {
 /// Staging folders of the StagingDirs alive in this process.
 std::mutex g_live_mutex;
 std::set<std::string> g_live_staging;
+/// Scratch folders registered by their owners (register_live_scratch_dir).
+std::set<std::string> g_live_scratch;
 
 /// Removes `<target>.partial-<pid>[-k]` and `<target>.old-<pid>[-k]` siblings whose process is
 /// gone and that hold the output marker (so they are ours). Best effort; never throws.
@@ -706,11 +708,26 @@ StagingDir::StagingDir(fs::path target, ExistingOutput existing) : target_(std::
   }
 }
 
+void register_live_scratch_dir(const fs::path& dir) {
+  std::lock_guard<std::mutex> lock(g_live_mutex);
+  g_live_scratch.insert(dir.string());
+}
+
+void unregister_live_scratch_dir(const fs::path& dir) noexcept {
+  try {
+    std::lock_guard<std::mutex> lock(g_live_mutex);
+    g_live_scratch.erase(dir.string());
+  } catch (...) {
+  }
+}
+
 int remove_live_staging_dirs() noexcept {
   int n = 0;
   try {
     std::lock_guard<std::mutex> lock(g_live_mutex);
-    for (const std::string& dir : g_live_staging) {
+    std::set<std::string> all = g_live_staging;
+    all.insert(g_live_scratch.begin(), g_live_scratch.end());
+    for (const std::string& dir : all) {
       // Another thread may still be writing into it: move it out of the way first (its next
       // file then fails to open), then remove it, retrying while files still appear in it.
       std::error_code ec;
@@ -727,6 +744,7 @@ int remove_live_staging_dirs() noexcept {
       ++n;
     }
     g_live_staging.clear();
+    g_live_scratch.clear();
   } catch (...) {
   }
   return n;

@@ -20,6 +20,7 @@
 #include "hc/pipeline/point_stream.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/robust_outliers.hpp"
+#include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/transform.hpp"
 
 #include <algorithm>
@@ -94,8 +95,16 @@ class ScratchDir {
       throw InputError("scale.scratch: cannot create a folder in " + base.string() + ": " + std::strerror(errno));
     }
     dir_ = templ;
+    // SIGINT/SIGTERM during the run (hapticloud's signal watcher) removes it too.
+    try {
+      register_live_scratch_dir(dir_);
+    } catch (...) {
+      fs::remove(dir_, ec);
+      throw;
+    }
   }
   ~ScratchDir() {
+    unregister_live_scratch_dir(dir_);
     std::error_code ec;
     fs::remove_all(dir_, ec);
   }

@@ -1,5 +1,6 @@
 // Issue 15: SIGTERM (or Ctrl-C) while `hapticloud run` writes its output leaves no
 // `<out>.partial-<pid>` behind, and stale ones of dead processes are removed by the next run.
+// Issue 14: nor does it leave a tiled run's spill folder in scale.scratch.
 
 #include <gtest/gtest.h>
 
@@ -57,6 +58,46 @@ TEST(Interrupt, SigtermDuringTheWriteRemovesTheStagingFolder) {
   ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
   EXPECT_EQ(WEXITSTATUS(status), 128 + SIGTERM);
   EXPECT_FALSE(has_partial(dir));
+  EXPECT_FALSE(fs::exists(dir / "out"));
+}
+
+// The spill folder (`hapticloud-tiles-*` in scale.scratch) holds the tiled run's spill files
+// while it runs; SIGINT in the tile loop removes it with everything in it.
+TEST(Interrupt, SigintDuringATiledRunRemovesTheSpillFolder) {
+  const fs::path dir = hc::test::temp_dir("sigint-tiled");
+  const fs::path scratch = dir / "scratch";
+  fs::create_directories(scratch);
+  const std::string config = (fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml").string();
+  const std::string out = (dir / "out").string();
+  std::vector<std::string> args = {HC_APP, "run", config, "--out", out, "-q", "--set", "scale.tiled=on", "--set", "scale.tile_cells=64",
+                                   "--set", "scale.scratch=" + scratch.string()};
+  std::vector<char*> argv;
+  for (auto& a : args) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  // A spill file of a tile past the first in the spill folder: the tile loop is under way.
+  const auto spilling = [&] {
+    std::error_code ec;
+    for (const auto& d : fs::directory_iterator(scratch, ec)) {
+      if (fs::exists(d.path() / "kept_1.bin", ec)) return true;
+    }
+    return false;
+  };
+  pid_t pid = 0;
+  ASSERT_EQ(posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ), 0);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(300);
+  bool seen = false;
+  int status = 0;
+  while (!seen && std::chrono::steady_clock::now() < deadline) {
+    if (waitpid(pid, &status, WNOHANG) == pid) break;  // finished before we saw it
+    seen = spilling();
+    if (!seen) std::this_thread::sleep_for(std::chrono::milliseconds(2));
+  }
+  ASSERT_TRUE(seen) << "the tile loop's files never appeared in " << scratch << " (the run ended or took over 300 s)";
+  ASSERT_EQ(kill(pid, SIGINT), 0);
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
+  EXPECT_EQ(WEXITSTATUS(status), 128 + SIGINT);
+  EXPECT_TRUE(fs::is_empty(scratch)) << "left in the scratch folder: " << fs::directory_iterator(scratch)->path();
   EXPECT_FALSE(fs::exists(dir / "out"));
 }
 

@@ -145,11 +145,19 @@ class StagingDir {
 /// @throws hc::InputError naming the target and suggesting --force.
 bool check_output_target(const std::filesystem::path& target, ExistingOutput existing);
 
-/// Removes the staging folders of every StagingDir alive in this process (for a signal watcher
-/// thread: SIGINT/SIGTERM during a run must not leave `<out>.partial-<pid>` behind). Not
+/// Removes the staging folders of every StagingDir alive in this process, and the scratch
+/// folders registered with register_live_scratch_dir (for a signal watcher thread: SIGINT/SIGTERM
+/// during a run must not leave `<out>.partial-<pid>` or a tiled run's spill files behind). Not
 /// async-signal-safe: call it from a normal thread (sigwait), not from a signal handler.
 /// @return how many were removed. Never throws.
 int remove_live_staging_dirs() noexcept;
+
+/// Registers `dir`, a scratch folder this process created and owns whole (the tiled run's
+/// `hapticloud-tiles-*` spill folder under scale.scratch), for remove_live_staging_dirs;
+/// unregister_live_scratch_dir before removing it. @throws std::bad_alloc only.
+void register_live_scratch_dir(const std::filesystem::path& dir);
+/// Undoes register_live_scratch_dir (nothing when `dir` is not registered). Never throws.
+void unregister_live_scratch_dir(const std::filesystem::path& dir) noexcept;
 
 /// True if `dir` is an output folder hapticloud wrote (see StagingDir). Never throws.
 bool is_hapticloud_output(const std::filesystem::path& dir);
