@@ -393,19 +393,14 @@ double median_spacing(const std::vector<float>& xyz, const std::vector<std::uint
           for (int dx = -1; dx <= 1; ++dx) keys[m++] = VoxelHash::pack21(cx + dx, cy + dy, cz + dz);
     }
     const WantedKeys table(wanted);
-    // The points in wanted voxels: (voxel, point) pairs per thread, then grouped by voxel.
-    std::vector<std::vector<std::pair<std::uint32_t, std::uint32_t>>> found(static_cast<std::size_t>(threads));
-    pass(table, key_of, [&](int t, std::uint32_t w, std::uint32_t i) { found[static_cast<std::size_t>(t)].emplace_back(w, i); });
-    std::vector<std::uint32_t> first(table.size() + 1, 0);
-    for (const auto& part : found)
-      for (const auto& [w, i] : part) ++first[w + 1];
-    for (std::size_t w = 0; w < table.size(); ++w) first[w + 1] += first[w];
-    std::vector<std::uint32_t> members(first.back());
-    {
-      std::vector<std::uint32_t> fill(first.begin(), first.end() - 1);
-      for (const auto& part : found)
-        for (const auto& [w, i] : part) members[fill[w]++] = i;
-    }
+    // The points in wanted voxels, grouped by voxel.
+    const detail::KeyGroups groups = detail::group_by_wanted_key(n, table, threads, [&](std::size_t i, std::uint64_t& key) {
+      if (!finite[i]) return false;
+      key = key_of(&xyz[3 * i]);
+      return true;
+    });
+    const std::vector<std::uint32_t>& first = groups.first;
+    const std::vector<std::uint32_t>& members = groups.members;
     // Each sample's nearest distance, the samples shared by the threads (each writes its own).
     std::vector<double> nn(sample.size());
     const int nn_threads = sample.size() > 1024 ? threads : 1;

@@ -44,6 +44,8 @@ namespace {
 
 using detail::BallSet;
 using detail::build_grid;
+using detail::group_by_wanted_key;
+using detail::KeyGroups;
 using detail::CellGrid;
 using detail::Clock;
 using detail::kSearchThreads;
@@ -445,55 +447,24 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
     }
   }
   const WantedKeys wanted(keys);
-  // One pass over the cloud (two threads, each a contiguous share): the points in those cells,
-  // then grouped by cell (a counting sort; increasing rows within a cell).
+  // One pass over the cloud (two threads): the points in those cells, grouped by cell.
   const int threads = n > (std::size_t{1} << 17) ? kSearchThreads : 1;
-  std::vector<std::vector<std::uint32_t>> hit_cells(static_cast<std::size_t>(threads)), hit_rows(hit_cells.size());
-  std::vector<std::vector<float>> hit_xyzs(hit_cells.size());
-  if (wanted.size() > 0) {
-    run_parallel(threads, [&](int t) {
-      auto& hc = hit_cells[static_cast<std::size_t>(t)];
-      auto& hr = hit_rows[static_cast<std::size_t>(t)];
-      auto& hx = hit_xyzs[static_cast<std::size_t>(t)];
-      const auto [jb, je] = detail::share_of(n, t, threads);
-      float pt[3];
-      std::array<std::int64_t, 3> ct{};
-      for (std::size_t j = jb; j < je; ++j) {
-        recentre_point(cloud, rows[j], centre, pt);
-        if (!cell_of(pt, kCloudReach, ct)) continue;
-        const std::uint32_t w = wanted.find(key_of(ct, 0, 0, 0));
-        if (w == WantedKeys::kNone) continue;
-        hc.push_back(w);
-        hr.push_back(static_cast<std::uint32_t>(j));
-        hx.insert(hx.end(), pt, pt + 3);
-      }
-    });
-  }
-  std::vector<std::uint32_t> hit_cell, hit_row;
-  std::vector<float> hit_xyz;
-  for (std::size_t t = 0; t < hit_cells.size(); ++t) {
-    hit_cell.insert(hit_cell.end(), hit_cells[t].begin(), hit_cells[t].end());
-    hit_row.insert(hit_row.end(), hit_rows[t].begin(), hit_rows[t].end());
-    hit_xyz.insert(hit_xyz.end(), hit_xyzs[t].begin(), hit_xyzs[t].end());
-  }
-  std::vector<std::uint32_t> first(wanted.size() + 1, 0);
-  for (const std::uint32_t w : hit_cell) ++first[w + 1];
-  for (std::size_t w = 0; w < wanted.size(); ++w) first[w + 1] += first[w];
-  std::vector<std::uint32_t> member(hit_cell.size());
-  std::vector<float> member_xyz(hit_xyz.size());
-  {
-    std::vector<std::uint32_t> put(first.begin(), first.end() - 1);
-    for (std::size_t h = 0; h < hit_cell.size(); ++h) {
-      const std::uint32_t to = put[hit_cell[h]]++;
-      member[to] = hit_row[h];
-      std::copy_n(hit_xyz.begin() + static_cast<std::ptrdiff_t>(3 * h), 3, member_xyz.begin() + 3 * static_cast<std::ptrdiff_t>(to));
-    }
-  }
+  const KeyGroups cells_held = group_by_wanted_key(n, wanted, threads, [&](std::size_t j, std::uint64_t& key) {
+    float pt[3];
+    std::array<std::int64_t, 3> ct{};
+    recentre_point(cloud, rows[j], centre, pt);
+    if (!cell_of(pt, kCloudReach, ct)) return false;
+    key = key_of(ct, 0, 0, 0);
+    return true;
+  });
+  const std::vector<std::uint32_t>& first = cells_held.first;
+  const std::vector<std::uint32_t>& member = cells_held.members;
   // Each listed point: settled by its block when the block holds k + 1 points within a bound
   // that stays inside it; else searched in a ball of the smaller of the block's bound (with k
   // + 1 points) and the sample's.
   std::vector<std::uint32_t> chosen;
   std::vector<BallSet::Ball> balls;
+  float pf[3];
   for (std::size_t q = 0; q < listed.size(); ++q) {
     double r = std::numeric_limits<double>::infinity();
     if (keyed[q] != 0) {
@@ -505,7 +476,10 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
           for (std::int64_t dx = -1; dx <= 1; ++dx) {
             const std::uint32_t w = wanted.find(key_of(cell[q], dx, dy, dz));
             block[b++] = w;
-            for (std::size_t i = first[w]; i < first[w + 1]; ++i) d2.push_back(dist2(member_xyz.data() + 3 * i, at[q].data()));
+            for (std::size_t i = first[w]; i < first[w + 1]; ++i) {
+              recentre_point(cloud, rows[member[i]], centre, pf);
+              d2.push_back(dist2(pf, at[q].data()));
+            }
           }
         }
       }

@@ -1,11 +1,15 @@
 #pragma once
 // A fixed set of 64-bit keys numbered in order of first appearance: the honest check's wanted
-// voxels (honest_check.cpp) and the tiled run's far-cluster cells of a tile (tiled_run.cpp,
-// FarCells::add_batch) look their points' keys up in it.
+// voxels (honest_check.cpp), the tiled run's far-cluster cells of a tile (tiled_run.cpp,
+// FarCells::add_batch) and the cells about a few listed points (robust_outliers.cpp,
+// near_rows) look their points' keys up in it; group_by_wanted_key gathers the points by key.
+
+#include "knn_grid.hpp"  // run_parallel, share_of
 
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <utility>
 #include <vector>
 
 namespace hc::pipeline::detail {
@@ -63,5 +67,42 @@ class WantedKeys {
   std::vector<Slot> slots_;
   std::vector<std::uint64_t> filter_;
 };
+
+/// Points grouped by wanted key (group_by_wanted_key): members[first[w] .. first[w + 1]) are the
+/// points, ascending, whose key is the wanted key numbered w; first has size() + 1 entries.
+struct KeyGroups {
+  std::vector<std::uint32_t> first;
+  std::vector<std::uint32_t> members;
+};
+
+/// One pass over points 0 .. n − 1 (n < 2^32) on `threads` threads, each a contiguous share:
+/// key_of(i, key) gives point i's key (false: it has none, as a non-finite point), and the
+/// points whose key `wanted` holds are grouped by its number (a counting sort). key_of is
+/// called from every thread at once, so it must not write shared state. No errors (but
+/// std::bad_alloc).
+template <class KeyOf>
+KeyGroups group_by_wanted_key(std::size_t n, const WantedKeys& wanted, int threads, KeyOf&& key_of) {
+  std::vector<std::vector<std::pair<std::uint32_t, std::uint32_t>>> found(static_cast<std::size_t>(threads));
+  run_parallel(threads, [&](int t) {
+    auto& mine = found[static_cast<std::size_t>(t)];
+    const auto [b, e] = share_of(n, t, threads);
+    std::uint64_t key = 0;
+    for (std::size_t i = b; i < e; ++i) {
+      if (!key_of(i, key)) continue;
+      const std::uint32_t w = wanted.find(key);
+      if (w != WantedKeys::kNone) mine.emplace_back(w, static_cast<std::uint32_t>(i));
+    }
+  });
+  KeyGroups g;
+  g.first.assign(wanted.size() + 1, 0);
+  for (const auto& part : found)
+    for (const auto& [w, i] : part) ++g.first[w + 1];
+  for (std::size_t w = 0; w < wanted.size(); ++w) g.first[w + 1] += g.first[w];
+  g.members.resize(g.first.back());
+  std::vector<std::uint32_t> fill(g.first.begin(), g.first.end() - 1);
+  for (const auto& part : found)  // the shares in order, each ascending: members ascend per key
+    for (const auto& [w, i] : part) g.members[fill[w]++] = i;
+  return g;
+}
 
 }  // namespace hc::pipeline::detail

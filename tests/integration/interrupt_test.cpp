@@ -31,30 +31,40 @@ bool has_partial(const fs::path& dir) {
   return false;
 }
 
+// Starts the app with `args` (after the program name), waits until `seen()` (polling), sends
+// `signo` and returns the exit status (waitpid's). A failed assertion when the run ends, or
+// takes over 300 s, before seen(): `what` names what never appeared.
+template <class Seen>
+void interrupt_when(const std::vector<std::string>& args, Seen&& seen, int signo, const std::string& what, int& status) {
+  std::vector<std::string> all = {HC_APP};
+  all.insert(all.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (auto& a : all) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  pid_t pid = 0;
+  ASSERT_EQ(posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ), 0);
+  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(300);
+  bool appeared = false;
+  while (!appeared && std::chrono::steady_clock::now() < deadline) {
+    if (waitpid(pid, &status, WNOHANG) == pid) break;  // finished before we saw it
+    appeared = seen();
+    if (!appeared) std::this_thread::sleep_for(std::chrono::microseconds(500));
+  }
+  ASSERT_TRUE(appeared) << what << " never appeared (the run ended or took over 300 s)";
+  ASSERT_EQ(kill(pid, signo), 0);
+  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+}
+
 TEST(Interrupt, SigtermDuringTheWriteRemovesTheStagingFolder) {
   const fs::path dir = hc::test::temp_dir("sigterm");
   const std::string config = (fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml").string();
   const std::string out = (dir / "out").string();
   // N = 1600 with the levels table: the write stage (scene, previews, levels) lasts long enough
   // to be caught by polling; the folder only exists during it.
-  std::vector<std::string> args = {HC_APP,         "run",           config, "--out", out, "-q", "--set", "grid.n=1600",
-                                   "--set",        "lod.report=true"};
-  std::vector<char*> argv;
-  for (auto& a : args) argv.push_back(a.data());
-  argv.push_back(nullptr);
-  pid_t pid = 0;
-  ASSERT_EQ(posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ), 0);
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(300);
-  bool seen = false;
   int status = 0;
-  while (!seen && std::chrono::steady_clock::now() < deadline) {
-    if (waitpid(pid, &status, WNOHANG) == pid) break;  // finished before we saw it
-    seen = has_partial(dir);
-    if (!seen) std::this_thread::sleep_for(std::chrono::microseconds(500));
-  }
-  ASSERT_TRUE(seen) << "the run's staging folder never appeared (the run ended or took over 300 s)";
-  ASSERT_EQ(kill(pid, SIGTERM), 0);
-  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  interrupt_when({"run", config, "--out", out, "-q", "--set", "grid.n=1600", "--set", "lod.report=true"},
+                 [&] { return has_partial(dir); }, SIGTERM, "the run's staging folder", status);
+  if (HasFatalFailure()) return;
   ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
   EXPECT_EQ(WEXITSTATUS(status), 128 + SIGTERM);
   EXPECT_FALSE(has_partial(dir));
@@ -69,11 +79,6 @@ TEST(Interrupt, SigintDuringATiledRunRemovesTheSpillFolder) {
   fs::create_directories(scratch);
   const std::string config = (fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml").string();
   const std::string out = (dir / "out").string();
-  std::vector<std::string> args = {HC_APP, "run", config, "--out", out, "-q", "--set", "scale.tiled=on", "--set", "scale.tile_cells=64",
-                                   "--set", "scale.scratch=" + scratch.string()};
-  std::vector<char*> argv;
-  for (auto& a : args) argv.push_back(a.data());
-  argv.push_back(nullptr);
   // A spill file of a tile past the first in the spill folder: the tile loop is under way.
   const auto spilling = [&] {
     std::error_code ec;
@@ -82,19 +87,11 @@ TEST(Interrupt, SigintDuringATiledRunRemovesTheSpillFolder) {
     }
     return false;
   };
-  pid_t pid = 0;
-  ASSERT_EQ(posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ), 0);
-  const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(300);
-  bool seen = false;
   int status = 0;
-  while (!seen && std::chrono::steady_clock::now() < deadline) {
-    if (waitpid(pid, &status, WNOHANG) == pid) break;  // finished before we saw it
-    seen = spilling();
-    if (!seen) std::this_thread::sleep_for(std::chrono::milliseconds(2));
-  }
-  ASSERT_TRUE(seen) << "the tile loop's files never appeared in " << scratch << " (the run ended or took over 300 s)";
-  ASSERT_EQ(kill(pid, SIGINT), 0);
-  ASSERT_EQ(waitpid(pid, &status, 0), pid);
+  interrupt_when({"run", config, "--out", out, "-q", "--set", "scale.tiled=on", "--set", "scale.tile_cells=64", "--set",
+                  "scale.scratch=" + scratch.string()},
+                 spilling, SIGINT, "the tile loop's files in " + scratch.string(), status);
+  if (HasFatalFailure()) return;
   ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
   EXPECT_EQ(WEXITSTATUS(status), 128 + SIGINT);
   EXPECT_TRUE(fs::is_empty(scratch)) << "left in the scratch folder: " << fs::directory_iterator(scratch)->path();
