@@ -309,6 +309,125 @@ class Spill {
   std::size_t buffered_ = 0;
 };
 
+// Which of a tile's spilled records the tile kept, one file per tile (kept_<t>.bin): a byte per
+// record of its spill (tile_<t>.bin), in the spill's order: kNotKept (removed by a filter, or a
+// removed far cluster's), kInterior (kept, its node in the tile's interior) or kHalo (kept, a
+// halo copy: its own tile counts it). A tile that kept no point has no file. The kept points are
+// read back from the spill through it. (Until 2026-11-25 they were a second spill of their own,
+// 25 or more bytes a point: at 10^8 points 2.6 GB written and read back, where the mask is
+// 0.11 GB.) The spill must therefore stay until the last read.
+class KeptMask {
+ public:
+  static constexpr std::uint8_t kNotKept = 0, kInterior = 1, kHalo = 2;
+
+  // Files dir/<prefix><t>.bin over the records of `spill` (held by reference).
+  KeptMask(fs::path dir, std::string prefix, const Spill& spill, std::size_t tiles)
+      : dir_(std::move(dir)), prefix_(std::move(prefix)), spill_(spill), bytes_(tiles, 0) {}
+  fs::path file(std::size_t t) const { return dir_ / (prefix_ + std::to_string(t) + ".bin"); }
+  const fs::path& dir() const { return dir_; }
+
+  // The masks tile jobs wrote (another process): each tile's size from disk (0 when missing).
+  void adopt_existing() {
+    for (std::size_t t = 0; t < bytes_.size(); ++t) {
+      std::error_code ec;
+      const auto n = fs::file_size(file(t), ec);
+      bytes_[t] = ec ? 0 : n;
+    }
+  }
+  // The size of tile t's file [bytes]: its spill's records, or 0 when it kept nothing.
+  std::uintmax_t bytes(std::size_t t) const { return bytes_[t]; }
+
+  // Writes tile t's mask (one entry per record of its spill); no file when it keeps nothing.
+  // @throws InputError naming the file when it cannot be written (the disk full).
+  void write(std::size_t t, const std::vector<std::uint8_t>& mask) {
+    if (std::none_of(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; })) {
+      bytes_[t] = 0;
+      return;
+    }
+    std::FILE* f = std::fopen(file(t).c_str(), "wb");
+    const bool ok = f && std::fwrite(mask.data(), 1, mask.size(), f) == mask.size();
+    const bool closed = f && std::fclose(f) == 0;
+    if (!ok || !closed) {
+      throw InputError("scale.scratch: cannot write the kept-point mask " + file(t).string() + ": " + std::strerror(errno) +
+                       " (is the disk full?)");
+    }
+    bytes_[t] = mask.size();
+  }
+
+  // Tile t's kept points, in spill order, read from its spill; flag[i] = 1 for the interior's,
+  // 0 for halo copies. @throws InputError naming the file when the mask cannot be read or does
+  // not hold one byte per spill record.
+  Cloud read(std::size_t t, std::vector<std::uint8_t>& flag) const {
+    const std::vector<std::uint8_t> mask = load(t);
+    Cloud c;
+    const std::size_t n = static_cast<std::size_t>(std::count_if(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; }));
+    flag.assign(n, 0);
+    if (n == 0) return c;
+    const Layout& lay = spill_.layout();
+    c.xyz.resize(3, static_cast<Eigen::Index>(n));
+    if (lay.rgb) c.rgb.resize(3 * n);
+    if (lay.intensity) c.intensity.resize(n);
+    std::size_t rec = 0, i = 0;
+    spill_.scan(t, [&](std::uint8_t, const double* p, const std::uint8_t* rgb, float v) {
+      const std::uint8_t m = mask[rec++];
+      if (m == kNotKept) return;
+      flag[i] = m == kInterior ? 1 : 0;
+      std::memcpy(c.xyz.data() + 3 * i, p, 24);
+      if (rgb != nullptr) std::memcpy(c.rgb.data() + 3 * i, rgb, 3);
+      if (lay.intensity) c.intensity[i] = v;
+      ++i;
+    });
+    return c;
+  }
+
+  // The same from `spilled`, tile t's spill already read (Spill::read: every record, in order).
+  Cloud select(std::size_t t, const Cloud& spilled, std::vector<std::uint8_t>& flag) const {
+    const std::vector<std::uint8_t> mask = load(t);
+    if (spilled.size() != mask.size()) throw std::logic_error("KeptMask::select: not tile " + std::to_string(t) + "'s spill");
+    const std::size_t n = static_cast<std::size_t>(std::count_if(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; }));
+    flag.assign(n, 0);
+    Cloud c;
+    if (n == 0) return c;
+    c.xyz.resize(3, static_cast<Eigen::Index>(n));
+    if (spilled.has_rgb()) c.rgb.resize(3 * n);
+    if (spilled.has_intensity()) c.intensity.resize(n);
+    for (std::size_t r = 0, i = 0; r < mask.size(); ++r) {
+      if (mask[r] == kNotKept) continue;
+      flag[i] = mask[r] == kInterior ? 1 : 0;
+      std::memcpy(c.xyz.data() + 3 * i, spilled.xyz.data() + 3 * r, 24);
+      if (spilled.has_rgb()) std::memcpy(c.rgb.data() + 3 * i, spilled.rgb.data() + 3 * r, 3);
+      if (spilled.has_intensity()) c.intensity[i] = spilled.intensity[r];
+      ++i;
+    }
+    return c;
+  }
+
+ private:
+  // Tile t's mask: its file's bytes, or every record kNotKept when it has none.
+  std::vector<std::uint8_t> load(std::size_t t) const {
+    const std::size_t n = spill_.records(t);
+    std::vector<std::uint8_t> mask(n, kNotKept);
+    if (bytes_[t] == 0) return mask;
+    if (bytes_[t] != n) {
+      throw InputError("tiled run: the kept-point mask " + file(t).string() + " holds " + std::to_string(bytes_[t]) +
+                       " bytes, expected one per record of " + spill_.file(t).string() + " (" + std::to_string(n) + ")");
+    }
+    std::FILE* f = std::fopen(file(t).c_str(), "rb");
+    const bool ok = f && std::fread(mask.data(), 1, n, f) == n;
+    if (f) std::fclose(f);
+    if (!ok) throw InputError("tiled run: cannot read the kept-point mask " + file(t).string());
+    for (const std::uint8_t m : mask) {
+      if (m > kHalo) throw InputError("tiled run: the kept-point mask " + file(t).string() + " holds the byte " + std::to_string(m) + " (expected 0, 1 or 2)");
+    }
+    return mask;
+  }
+
+  fs::path dir_;
+  std::string prefix_;
+  const Spill& spill_;
+  std::vector<std::uintmax_t> bytes_;
+};
+
 // ---------------------------------------------------------------------------------------------
 // The tiles.
 
@@ -1338,7 +1457,7 @@ void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierO
 
 // Step 3 for tile t (the file comment of tiling.hpp): its spilled points through the filters and
 // reproject, the interior cut out, its kept points appended to `kept` (flushed).
-TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, BlockCopies& blocks, Spill& kept, std::size_t t) {
+TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, BlockCopies& blocks, KeptMask& kept, std::size_t t) {
   const auto t0 = detail::Clock::now();
   const Tiles& tiles = plan.tiles;
   ReprojectOptions ro = config.grid.reproject;
@@ -1485,16 +1604,32 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       }
     }
   }
-  // The kept points, each marked interior (1) or halo (0); the levels sample from the interior.
+  // The kept points' records in the spill, each marked interior or halo (the levels sample from
+  // the interior): the filters only remove points, so pts is a subsequence of the window's
+  // points (the spill's records less the far clusters', as read_tile_points reads them) with
+  // the same bytes, and the first record equal to the next kept point is its record (a point
+  // equal to an earlier one in every byte reads back the same).
   const NodeBinner node(tiles.g);
-  for (Eigen::Index i = 0; i < pts.xyz.cols(); ++i) {
-    const double* p = pts.xyz.data() + 3 * i;
-    const bool interior = node.inside(p, inner);
-    o.out += interior ? 1U : 0U;
-    kept.add(t, interior ? std::uint8_t{1} : std::uint8_t{0}, p, pts.has_rgb() ? pts.rgb.data() + 3 * i : nullptr,
-             pts.has_intensity() ? pts.intensity[static_cast<std::size_t>(i)] : 0.0f);
+  std::vector<std::uint8_t> mask(spill.records(t), KeptMask::kNotKept);
+  if (pts.size() > 0) {
+    std::size_t rec = 0, j = 0;
+    spill.scan(t, [&](std::uint8_t flag, const double* p, const std::uint8_t* rgb, float v) {
+      const std::size_t i = rec++;
+      if (j == pts.size() || (plan.far_points != 0 && (flag & kFarFlag) != 0)) return;
+      if (std::memcmp(p, pts.xyz.data() + 3 * j, 24) != 0) return;
+      if (rgb != nullptr && std::memcmp(rgb, pts.rgb.data() + 3 * j, 3) != 0) return;
+      if (pts.has_intensity() && std::memcmp(&v, pts.intensity.data() + j, 4) != 0) return;
+      const bool interior = node.inside(p, inner);
+      o.out += interior ? 1U : 0U;
+      mask[i] = interior ? KeptMask::kInterior : KeptMask::kHalo;
+      ++j;
+    });
+    if (j != pts.size()) {
+      throw std::logic_error("process_tile: tile " + std::to_string(t) + ": " + std::to_string(pts.size() - j) +
+                             " kept points are not records of its spill");
+    }
   }
-  kept.flush(t);
+  kept.write(t, mask);
   o.kept_bytes = kept.bytes(t);
   o.seconds = detail::seconds_since(t0);
   return o;
@@ -2347,7 +2482,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
 // ---------------------------------------------------------------------------------------------
 // Steps 4 and 5 on the gathered tiles: the whole grid's layers and the merged cross-check.
 // `built.summary.stages` holds the plan's and the tile loop's reports.
-BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& merged, const Spill& spill, const Spill& kept,
+BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& merged, const Spill& spill, const KeptMask& kept,
                         BuiltScene built, const ProgressFn& progress, detail::Clock::time_point t_start) {
   RunSummary& summary = built.summary;
   auto& reports = summary.stages;
@@ -2620,7 +2755,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
         const Cloud input = spill.read(t, fl_in);
         if (input.size() == 0) continue;
-        const Cloud kept_pts = kept.read(t, fl_kept);
+        const Cloud kept_pts = kept.select(t, input, fl_kept);  // through the mask, not read again
         const GridWindow w = tiles.window(t);
         const auto inner = tiles.interior(t);
         owned_by(tiles, t, input, owned);
@@ -2699,7 +2834,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 // Tile jobs in other processes: plan.json, part_<t>.bin, kept_<t>.bin.
 
 constexpr const char* kPlanFormat = "hapticloud tile plan 3";
-constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '1', '\n'};
+// 2: kept_<t>.bin is a mask over the spill (KeptMask), not the kept points.
+constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '2', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
 
 // Doubles as C99 hexadecimal floats ("%a"), so every value reads back to the same bits.
@@ -3141,7 +3277,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   Plan plan = plan_passes(config, scratch.path(), progress);
   Spill spill(scratch.path(), "tile_", plan.tiles.count(), plan.layout);
   spill.adopt_existing();
-  Spill kept(scratch.path(), "kept_", plan.tiles.count(), plan.layout);
+  KeptMask kept(scratch.path(), "kept_", spill, plan.tiles.count());
   BuiltScene built;
   built.summary.stages = std::move(plan.reports);
   TileMerge merged(plan);
@@ -3149,13 +3285,14 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   (void)stage("tiles", built.summary.stages, progress, [&] {
     StageResult<int> r;
     PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);
-    // Without the honest check a tile's spill goes once no later tile can read it: the robust
-    // test's second look reads the tiles up to far_rows() rows of tiles away (else the honest
-    // check reads every spill again after the loop).
+    // When nothing reads the kept points after the loop (no cross-check, no levels sample), a
+    // tile's spill goes once no later tile can read it: the robust test's second look reads the
+    // tiles up to far_rows() rows of tiles away (else the kept points are read through the
+    // spills after the loop, and the honest check reads them too).
     const Tiles& tiles = plan.tiles;
     const auto per_row = static_cast<std::size_t>(tiles.tiles_c);
     const int far = tiles.far_rows();
-    const bool drop = !config.cross_check.enabled;
+    const bool drop = !config.cross_check.enabled && !keeps_sample(config);
     BlockCopies blocks(spill, tiles, config.scale.block_copies, 1);  // dropped as the spills would be, honest check or not
     auto remove_row = [&](int row) {
       for (std::size_t u = 0; u < per_row; ++u) {
@@ -3236,7 +3373,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
   Spill spill(pf.dir, "tile_", plan.tiles.count(), plan.layout);
   spill.adopt_existing();
   const std::string tmp_prefix = std::string(kKeptJobPrefix) + attempt_tag() + "-";
-  Spill kept(pf.dir, tmp_prefix, plan.tiles.count(), plan.layout);
+  KeptMask kept(pf.dir, tmp_prefix, spill, plan.tiles.count());
   // Every spill file, not only the jobs' own: a tile's robust test may read its neighbours'.
   for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
     if (spill.bytes(t) != pf.spill_bytes[t]) {
@@ -3431,7 +3568,9 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
                      std::to_string(plan.tiles.count()) + " tiles have no result (" + what + "): run " + todo +
                      " first; no scene is made from a partial set");
   }
-  Spill kept(pf.dir, "kept_", plan.tiles.count(), plan.layout);
+  Spill spill(pf.dir, "tile_", plan.tiles.count(), plan.layout);
+  spill.adopt_existing();
+  KeptMask kept(pf.dir, "kept_", spill, plan.tiles.count());
   kept.adopt_existing();
   BuiltScene built;
   built.summary.stages = std::move(plan.reports);
@@ -3454,12 +3593,10 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
                              pf.dir.string());
     return r;
   });
-  Spill spill(pf.dir, "tile_", plan.tiles.count(), plan.layout);
-  spill.adopt_existing();
   for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
     if (spill.bytes(t) != pf.spill_bytes[t]) {
       throw InputError(spill.file(t).string() + " holds " + std::to_string(spill.bytes(t)) + " bytes, the plan wrote " +
-                       std::to_string(pf.spill_bytes[t]) + " (the honest check reads it; a missing or changed spill file: make a new plan)");
+                       std::to_string(pf.spill_bytes[t]) + " (the kept points and the honest check read it; a missing or changed spill file: make a new plan)");
     }
   }
   m.built = finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);

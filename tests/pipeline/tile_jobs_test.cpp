@@ -10,6 +10,7 @@
 #include "height_field_bits.hpp"
 #include "test_paths.hpp"
 
+#include <algorithm>
 #include <gtest/gtest.h>
 
 #include <bit>
@@ -150,6 +151,24 @@ TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
 
   const auto merged = hc::pipeline::merge_tile_jobs(info.plan_file);
   expect_same_scene(in_process, merged.built);
+  // kept_1.bin marks tile 1's spilled records (a byte each: 0 removed, 1 interior, 2 halo copy);
+  // one changed into something else is refused, naming the file, not read as a verdict.
+  EXPECT_EQ(fs::file_size(work / "tile_1.bin") % kept.size(), 0U) << "a byte per spilled record";
+  EXPECT_TRUE(std::all_of(kept.begin(), kept.end(), [](char m) { return m >= 0 && m <= 2; }));
+  {
+    std::string changed = kept;
+    changed[kept.size() / 2] = 7;
+    std::ofstream(work / "kept_1.bin", std::ios::binary | std::ios::trunc) << changed;
+    try {
+      (void)hc::pipeline::merge_tile_jobs(info.plan_file);
+      ADD_FAILURE() << "a changed kept-point mask was merged";
+    } catch (const hc::InputError& e) {
+      const std::string what = e.what();
+      EXPECT_NE(what.find("kept_1.bin"), std::string::npos) << what;
+      EXPECT_NE(what.find("holds the byte 7"), std::string::npos) << what;
+    }
+    std::ofstream(work / "kept_1.bin", std::ios::binary | std::ios::trunc) << kept;
+  }
   EXPECT_EQ(merged.config.resolved_yaml, hc::pipeline::load_run_config(fs::absolute(buddha_config()), buddha_overrides(scratch)).resolved_yaml);
 
   // A tile without a result: the merge names it and makes no scene.

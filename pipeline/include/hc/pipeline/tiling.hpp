@@ -86,7 +86,9 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
 //   WORK/tile_<t>.bin   tile t's spilled points (the spill pass's records);
 //   WORK/part_<t>.bin   tile t's result: its interior of the grid, its summed figures, its share
 //                       of the levels sample (written last, through a rename: it marks the job done);
-//   WORK/kept_<t>.bin   tile t's points after the filters (the cross-check's).
+//   WORK/kept_<t>.bin   which of tile t's spilled records it kept after the filters (the
+//                       cross-check's points): a byte per record of tile_<t>.bin, 0 removed,
+//                       1 interior, 2 halo copy; no file when it kept none.
 // A tile job reads only plan.json and tile_<t>.bin (and, where the robust test's searches leave
 // tile t's window, the spill files of the tiles about it; every spill file's size is checked
 // against the plan first) and writes only part_<t>.bin and
@@ -116,7 +118,8 @@ TilePlanInfo write_tile_plan(const std::filesystem::path& config_file, const std
 std::size_t tile_plan_tiles(const std::filesystem::path& plan_file);
 
 /// `hapticloud tile-job`: step 3 of the tiled run (filters, reprojection of the tile's window,
-/// its kept points) for each of `tiles`, writing WORK/kept_<t>.bin and WORK/part_<t>.bin.
+/// which of its spilled records it keeps) for each of `tiles`, writing WORK/kept_<t>.bin and
+/// WORK/part_<t>.bin.
 /// Idempotent: running a tile again gives the same bytes.
 /// @throws hc::InputError for a plan that cannot be read, a tile index outside the plan, or a
 ///         spill file whose size is not the plan's (naming it); hc::ConfigError when the plan's
@@ -134,8 +137,9 @@ struct MergedTileRun {
 /// layers, the merged cross-check): the BuiltScene build_scene_tiled gives for the same config,
 /// bit for bit in its layers and cross-check counts (tests/pipeline/tile_jobs_test.cpp).
 /// @throws hc::InputError naming the tiles without a result (a partial scene is never made), a
-///         result written for another plan, truncated, or whose kept file has another size;
-///         hc::ConfigError as run_tile_jobs.
+///         result written for another plan or by another version, truncated, or whose kept file
+///         has another size or a byte that is not 0, 1 or 2; a spill file whose size is not the
+///         plan's; hc::ConfigError as run_tile_jobs.
 MergedTileRun merge_tile_jobs(const std::filesystem::path& plan_file, const ProgressFn& progress = {});
 
 }  // namespace hc::pipeline
