@@ -148,10 +148,10 @@ constexpr std::uint8_t kSampleFlag = 2;
 // classifies every input point, but dropped before a tile's filters and gridding.
 constexpr std::uint8_t kFarFlag = 4;
 
-class Spill {
+// A file per tile, dir/<prefix><t>.bin, and each one's size (Spill, KeptMask).
+class TileFiles {
  public:
-  Spill(fs::path dir, std::string prefix, std::size_t tiles, Layout layout)
-      : dir_(std::move(dir)), prefix_(std::move(prefix)), layout_(layout), buf_(tiles), bytes_(tiles, 0) {}
+  TileFiles(fs::path dir, std::string prefix, std::size_t tiles) : dir_(std::move(dir)), prefix_(std::move(prefix)), bytes_(tiles, 0) {}
   fs::path file(std::size_t t) const { return dir_ / (prefix_ + std::to_string(t) + ".bin"); }
   const fs::path& dir() const { return dir_; }
 
@@ -164,7 +164,33 @@ class Spill {
       bytes_[t] = ec ? 0 : n;
     }
   }
+  // Tile t's file's size [bytes].
   std::uintmax_t bytes(std::size_t t) const { return bytes_[t]; }
+
+ protected:
+  // Writes (mode "wb") or appends ("ab") n bytes to tile t's file and adds them to its size.
+  // @throws InputError naming the file and `what` it holds when the write fails (the disk full).
+  void put(std::size_t t, const char* mode, const void* data, std::size_t n, const char* what) {
+    std::FILE* f = std::fopen(file(t).c_str(), mode);
+    const bool ok = f && std::fwrite(data, 1, n, f) == n;
+    const bool closed = f && std::fclose(f) == 0;
+    if (!ok || !closed) {
+      throw InputError(std::string("scale.scratch: cannot write the ") + what + " " + file(t).string() + ": " + std::strerror(errno) +
+                       " (is the disk full?)");
+    }
+    bytes_[t] += n;
+  }
+
+  fs::path dir_;
+  std::string prefix_;
+  std::vector<std::uintmax_t> bytes_;
+};
+
+class Spill : public TileFiles {
+ public:
+  Spill(fs::path dir, std::string prefix, std::size_t tiles, Layout layout)
+      : TileFiles(std::move(dir), std::move(prefix), tiles), layout_(layout), buf_(tiles) {}
+  using TileFiles::bytes;
   const Layout& layout() const { return layout_; }
 
   void add(std::size_t t, std::uint8_t flag, const double* p, const std::uint8_t* rgb, float intensity) {
@@ -186,14 +212,7 @@ class Spill {
   void flush(std::size_t t) {
     std::vector<char>& b = buf_[t];
     if (b.empty()) return;
-    std::FILE* f = std::fopen(file(t).c_str(), "ab");
-    const bool ok = f && std::fwrite(b.data(), 1, b.size(), f) == b.size();
-    const bool closed = f && std::fclose(f) == 0;
-    if (!ok || !closed) {
-      throw InputError("scale.scratch: cannot write the spill file " + file(t).string() + ": " + std::strerror(errno) +
-                       " (is the disk full?)");
-    }
-    bytes_[t] += b.size();
+    put(t, "ab", b.data(), b.size(), "spill file");
     buffered_ -= b.size();
     std::vector<char>().swap(b);
   }
@@ -248,21 +267,31 @@ class Spill {
 
   // Reads tile t's points back (flush first): the points and their flags, in file order.
   Cloud read(std::size_t t, std::vector<std::uint8_t>& flag) const {
+    return read_taken(t, records(t), [](std::size_t, std::uint8_t f) { return static_cast<int>(f); }, flag);
+  }
+
+  // Reads the n records of tile t for which take(record number, flag byte) is 0 or more (flush
+  // first): the points, in file order, and flag[i] = take's value for the i-th.
+  template <class Take>
+  Cloud read_taken(std::size_t t, std::size_t n, Take&& take, std::vector<std::uint8_t>& flag) const {
     Cloud c;
-    const std::size_t n = records(t);
     flag.assign(n, 0);
     if (n == 0) return c;
     c.xyz.resize(3, static_cast<Eigen::Index>(n));
     if (layout_.rgb) c.rgb.resize(3 * n);
     if (layout_.intensity) c.intensity.resize(n);
-    std::size_t i = 0;
+    std::size_t rec = 0, i = 0;
     scan(t, [&](std::uint8_t f, const double* p, const std::uint8_t* rgb, float v) {
-      flag[i] = f;
+      const int k = take(rec++, f);
+      if (k < 0) return;
+      if (i == n) throw std::logic_error("Spill::read_taken: more records taken than " + std::to_string(n));
+      flag[i] = static_cast<std::uint8_t>(k);
       std::memcpy(c.xyz.data() + 3 * i, p, 24);
       if (rgb != nullptr) std::memcpy(c.rgb.data() + 3 * i, rgb, 3);
       if (layout_.intensity) c.intensity[i] = v;
       ++i;
     });
+    if (i != n) throw std::logic_error("Spill::read_taken: " + std::to_string(i) + " records taken, not " + std::to_string(n));
     return c;
   }
 
@@ -301,11 +330,8 @@ class Spill {
   static constexpr std::size_t kTileBuffer = 1u << 18;
   static constexpr std::size_t kTotalBuffer = 64u << 20;
 
-  fs::path dir_;
-  std::string prefix_;
   Layout layout_;
   std::vector<std::vector<char>> buf_;
-  std::vector<std::uintmax_t> bytes_;
   std::size_t buffered_ = 0;
 };
 
@@ -316,42 +342,21 @@ class Spill {
 // read back from the spill through it. (Until 2026-11-25 they were a second spill of their own,
 // 25 or more bytes a point: at 10^8 points 2.6 GB written and read back, where the mask is
 // 0.11 GB.) The spill must therefore stay until the last read.
-class KeptMask {
+class KeptMask : public TileFiles {
  public:
   static constexpr std::uint8_t kNotKept = 0, kInterior = 1, kHalo = 2;
 
-  // Files dir/<prefix><t>.bin over the records of `spill` (held by reference).
+  // Files dir/<prefix><t>.bin over the records of `spill` (held by reference); a file's size
+  // (bytes(t)) is its spill's records, or 0 when the tile kept nothing.
   KeptMask(fs::path dir, std::string prefix, const Spill& spill, std::size_t tiles)
-      : dir_(std::move(dir)), prefix_(std::move(prefix)), spill_(spill), bytes_(tiles, 0) {}
-  fs::path file(std::size_t t) const { return dir_ / (prefix_ + std::to_string(t) + ".bin"); }
-  const fs::path& dir() const { return dir_; }
-
-  // The masks tile jobs wrote (another process): each tile's size from disk (0 when missing).
-  void adopt_existing() {
-    for (std::size_t t = 0; t < bytes_.size(); ++t) {
-      std::error_code ec;
-      const auto n = fs::file_size(file(t), ec);
-      bytes_[t] = ec ? 0 : n;
-    }
-  }
-  // The size of tile t's file [bytes]: its spill's records, or 0 when it kept nothing.
-  std::uintmax_t bytes(std::size_t t) const { return bytes_[t]; }
+      : TileFiles(std::move(dir), std::move(prefix), tiles), spill_(spill) {}
 
   // Writes tile t's mask (one entry per record of its spill); no file when it keeps nothing.
   // @throws InputError naming the file when it cannot be written (the disk full).
   void write(std::size_t t, const std::vector<std::uint8_t>& mask) {
-    if (std::none_of(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; })) {
-      bytes_[t] = 0;
-      return;
-    }
-    std::FILE* f = std::fopen(file(t).c_str(), "wb");
-    const bool ok = f && std::fwrite(mask.data(), 1, mask.size(), f) == mask.size();
-    const bool closed = f && std::fclose(f) == 0;
-    if (!ok || !closed) {
-      throw InputError("scale.scratch: cannot write the kept-point mask " + file(t).string() + ": " + std::strerror(errno) +
-                       " (is the disk full?)");
-    }
-    bytes_[t] = mask.size();
+    bytes_[t] = 0;
+    if (std::none_of(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; })) return;
+    put(t, "wb", mask.data(), mask.size(), "kept-point mask");
   }
 
   // Tile t's kept points, in spill order, read from its spill; flag[i] = 1 for the interior's,
@@ -359,25 +364,9 @@ class KeptMask {
   // not hold one byte per spill record.
   Cloud read(std::size_t t, std::vector<std::uint8_t>& flag) const {
     const std::vector<std::uint8_t> mask = load(t);
-    Cloud c;
     const std::size_t n = static_cast<std::size_t>(std::count_if(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; }));
-    flag.assign(n, 0);
-    if (n == 0) return c;
-    const Layout& lay = spill_.layout();
-    c.xyz.resize(3, static_cast<Eigen::Index>(n));
-    if (lay.rgb) c.rgb.resize(3 * n);
-    if (lay.intensity) c.intensity.resize(n);
-    std::size_t rec = 0, i = 0;
-    spill_.scan(t, [&](std::uint8_t, const double* p, const std::uint8_t* rgb, float v) {
-      const std::uint8_t m = mask[rec++];
-      if (m == kNotKept) return;
-      flag[i] = m == kInterior ? 1 : 0;
-      std::memcpy(c.xyz.data() + 3 * i, p, 24);
-      if (rgb != nullptr) std::memcpy(c.rgb.data() + 3 * i, rgb, 3);
-      if (lay.intensity) c.intensity[i] = v;
-      ++i;
-    });
-    return c;
+    return spill_.read_taken(
+        t, n, [&](std::size_t rec, std::uint8_t) { return mask[rec] == kNotKept ? -1 : mask[rec] == kInterior ? 1 : 0; }, flag);
   }
 
   // The same from `spilled`, tile t's spill already read (Spill::read: every record, in order).
@@ -422,10 +411,7 @@ class KeptMask {
     return mask;
   }
 
-  fs::path dir_;
-  std::string prefix_;
   const Spill& spill_;
-  std::vector<std::uintmax_t> bytes_;
 };
 
 // ---------------------------------------------------------------------------------------------
