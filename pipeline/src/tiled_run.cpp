@@ -854,7 +854,7 @@ struct Plan {
 };
 
 // One tile's result: its interior of the grid, its figures and its share of the levels sample.
-// Its kept points are in the kept spill (kept_<t>.bin).
+// Which of its spilled records it kept is in its kept-point mask (kept_<t>.bin, KeptMask).
 struct TileOutput {
   std::size_t tile = 0;
   DepthGrid interior;  // the tile's interior rows × cols; empty when no point is left in it
@@ -862,7 +862,7 @@ struct TileOutput {
   std::uint64_t in = 0, out = 0, unjudged = 0;
   double spacing_m = 0.0;            // median nearest-neighbour spacing of the tile's input points [m]
   std::uint64_t spacing_points = 0;  // the input points it came from (its weight)
-  std::uintmax_t kept_bytes = 0;   // size of the tile's kept spill file
+  std::uintmax_t kept_bytes = 0;   // size of the tile's kept-point mask file (0: none kept, no file)
   double seconds = 0.0;
 };
 
@@ -3171,7 +3171,12 @@ class PartReader {
 
 TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::size_t t, const Tiles& tiles) {
   PartReader r(read_file_bytes(file, "the tile result"), file);
-  if (r.str(sizeof kPartMagic) != std::string(kPartMagic, sizeof kPartMagic)) r.bad("not a tile result");
+  const std::string magic = r.str(sizeof kPartMagic);
+  if (magic != std::string(kPartMagic, sizeof kPartMagic)) {
+    r.bad(magic.rfind("HCTILEPART", 0) == 0 ? "a tile result of another hapticloud version (" + magic.substr(0, sizeof kPartMagic - 1) +
+                                                  ", expected " + std::string(kPartMagic, sizeof kPartMagic - 1) + ")"
+                                            : std::string("not a tile result"));
+  }
   if (r.str(plan_id.size()) != plan_id) r.bad("written for another plan");
   TileOutput o;
   o.tile = static_cast<std::size_t>(r.get<std::uint64_t>());
@@ -3387,9 +3392,8 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
     } temp{kept.file(t)};
     TileOutput o = process_tile(config, plan, spill, blocks, kept, t);
     if (o.kept_bytes > 0) {
-      // The file must hold every kept record: a merge that found this tile done may have removed
-      // it as a killed attempt's (another host's), and a later flush made it again with only the
-      // rest. Such a file is not moved over the tile's good one.
+      // The file must be there, whole: a merge that found this tile done may have removed it as a
+      // killed attempt's (another host's). Such an attempt's file is not moved over the tile's.
       const std::uintmax_t on_disk = fs::file_size(kept.file(t), ec);
       if (ec || on_disk != o.kept_bytes) {
         throw InputError("tile-job: " + kept.file(t).string() + " holds " + (ec ? std::string("nothing") : std::to_string(on_disk) + " bytes") +

@@ -181,6 +181,22 @@ TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
     EXPECT_NE(what.find("1 of " + std::to_string(info.tiles) + " tiles have no result (5)"), std::string::npos) << what;
     EXPECT_NE(what.find("--tiles 5"), std::string::npos) << what;
   }
+  // A result of the version before (whose kept files held the points) is refused as such.
+  hc::pipeline::run_tile_jobs(info.plan_file, {5});
+  {
+    std::string older = bytes_of(work / "part_5.bin");
+    ASSERT_EQ(older.substr(0, 11), "HCTILEPART2");
+    older[10] = '1';
+    std::ofstream(work / "part_5.bin", std::ios::binary | std::ios::trunc) << older;
+    try {
+      (void)hc::pipeline::merge_tile_jobs(info.plan_file);
+      ADD_FAILURE() << "a result of another version was merged";
+    } catch (const hc::InputError& e) {
+      const std::string what = e.what();
+      EXPECT_NE(what.find("part_5.bin: a tile result of another hapticloud version (HCTILEPART1, expected HCTILEPART2)"),
+                std::string::npos) << what;
+    }
+  }
   // A truncated result is refused too.
   hc::pipeline::run_tile_jobs(info.plan_file, {5});
   {
