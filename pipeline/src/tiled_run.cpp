@@ -139,10 +139,9 @@ struct Layout {
 };
 
 // Spill files, one per tile, appended through per-tile buffers (records of Layout::bytes():
-// a flag byte (kept points: 1 interior, 0 halo; 0 in the first spill), x y z double, [r g b],
-// [intensity float]). Points keep the input's order within a file.
-// Spill record flag bits: kept points carry 1 for a tile's interior (0: a halo copy); the input
-// spill marks the robust test's sampled points in their own tile.
+// a flag byte, x y z double, [r g b], [intensity float]). Points keep the input's order within
+// a file. Spill record flag bits: the robust test's sampled points in their own tile, and the
+// points of removed far clusters.
 constexpr std::uint8_t kSampleFlag = 2;
 // A point of a removed far cluster (tile_far_clusters): spilled for the honest check, which
 // classifies every input point, but dropped before a tile's filters and gridding.
@@ -401,12 +400,19 @@ class KeptMask : public TileFiles {
       throw InputError("tiled run: the kept-point mask " + file(t).string() + " holds " + std::to_string(bytes_[t]) +
                        " bytes, expected one per record of " + spill_.file(t).string() + " (" + std::to_string(n) + ")");
     }
+    errno = 0;
     std::FILE* f = std::fopen(file(t).c_str(), "rb");
     const bool ok = f && std::fread(mask.data(), 1, n, f) == n;
     if (f) std::fclose(f);
-    if (!ok) throw InputError("tiled run: cannot read the kept-point mask " + file(t).string());
-    for (const std::uint8_t m : mask) {
-      if (m > kHalo) throw InputError("tiled run: the kept-point mask " + file(t).string() + " holds the byte " + std::to_string(m) + " (expected 0, 1 or 2)");
+    if (!ok) {
+      throw InputError("tiled run: cannot read the " + std::to_string(n) + " bytes of the kept-point mask " + file(t).string() +
+                       (errno != 0 ? std::string(": ") + std::strerror(errno) : std::string()));
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      if (mask[i] > kHalo) {
+        throw InputError("tiled run: the kept-point mask " + file(t).string() + " holds the byte " + std::to_string(mask[i]) +
+                         " at offset " + std::to_string(i) + " (expected 0, 1 or 2: run tile-job " + std::to_string(t) + " again, or the run)");
+      }
     }
     return mask;
   }
@@ -1442,7 +1448,7 @@ void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierO
 }
 
 // Step 3 for tile t (the file comment of tiling.hpp): its spilled points through the filters and
-// reproject, the interior cut out, its kept points appended to `kept` (flushed).
+// reproject, the interior cut out, which of its spilled records it kept written to `kept`.
 TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, BlockCopies& blocks, KeptMask& kept, std::size_t t) {
   const auto t0 = detail::Clock::now();
   const Tiles& tiles = plan.tiles;
@@ -3397,7 +3403,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
       const std::uintmax_t on_disk = fs::file_size(kept.file(t), ec);
       if (ec || on_disk != o.kept_bytes) {
         throw InputError("tile-job: " + kept.file(t).string() + " holds " + (ec ? std::string("nothing") : std::to_string(on_disk) + " bytes") +
-                         ", the tile kept " + std::to_string(o.kept_bytes) +
+                         ", the tile's mask has " + std::to_string(o.kept_bytes) +
                          " (removed or changed by another process, such as a tile-merge that found tile " + std::to_string(t) +
                          " done): not moved to kept_" + std::to_string(t) + ".bin");
       }

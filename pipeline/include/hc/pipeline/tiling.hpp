@@ -68,8 +68,9 @@ bool runs_tiled(const RunConfig& config);
 /// table cross-checks); the report has stages tile_plan,
 /// tile_spill (spill_bytes_peak_mb, tiles, halo_cells) and tiles (per-tile sums), then the
 /// in-core stages from corrugation on (the honest_check stage tile by tile). With the cross-check
-/// on, the input's spill files stay on disk until the honest check has read them (the spill
-/// peak is then the input's and the kept points' files together).
+/// or the levels sample on, the input's spill files stay on disk until the kept points have been
+/// read through them and the honest check has read them (the spill peak is then the input's
+/// files and the kept-point masks, a byte a record, together).
 /// @throws hc::ConfigError as runs_tiled; hc::InputError for unreadable input or a scratch
 ///         folder that cannot be written (naming it); what the stages throw.
 /// Real-time: no. Memory: the grid's layers, one tile's points and one chunk.
