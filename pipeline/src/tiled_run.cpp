@@ -859,7 +859,8 @@ struct Plan {
   std::vector<StageReport> reports;  // tile_plan, tile_spill, tile_scale
 };
 
-// One tile's result: its interior of the grid, its figures and its share of the levels sample.
+// One tile's result: its interior of the grid and its figures (the levels sample is read from
+// the kept points after the loop).
 // Which of its spilled records it kept is in its kept-point mask (kept_<t>.bin, KeptMask).
 struct TileOutput {
   std::size_t tile = 0;

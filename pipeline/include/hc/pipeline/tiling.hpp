@@ -85,8 +85,8 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
 //                       robust test's scale, the config's path, --set overrides and resolved YAML,
 //                       the plan stages' reports, each spill file's size);
 //   WORK/tile_<t>.bin   tile t's spilled points (the spill pass's records);
-//   WORK/part_<t>.bin   tile t's result: its interior of the grid, its summed figures, its share
-//                       of the levels sample (written last, through a rename: it marks the job done);
+//   WORK/part_<t>.bin   tile t's result: its interior of the grid and its summed figures
+//                       (written last, through a rename: it marks the job done);
 //   WORK/kept_<t>.bin   which of tile t's spilled records it kept after the filters (the
 //                       cross-check's points): a byte per record of tile_<t>.bin, 0 removed,
 //                       1 interior, 2 halo copy; no file when it kept none.
