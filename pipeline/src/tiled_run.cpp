@@ -4,6 +4,7 @@
 #include "hc/pipeline/tiling.hpp"
 
 #include "ball_set.hpp"
+#include "posix_io.hpp"
 #include "wanted_keys.hpp"
 #include "knn_grid.hpp"
 #include "readers/readers.hpp"
@@ -234,24 +235,13 @@ class Spill : public TileFiles {
     std::vector<char> raw(bytes_[t]);
     errno = 0;
     const int fd = ::open(file(t).c_str(), O_RDWR | O_CLOEXEC);
-    std::size_t got = 0;
-    while (fd >= 0 && got < raw.size()) {
-      const ssize_t r = ::pread(fd, raw.data() + got, raw.size() - got, static_cast<off_t>(got));
-      if (r < 0 && errno == EINTR) continue;  // a signal came before any byte: read again
-      if (r <= 0) break;
-      got += static_cast<std::size_t>(r);
-    }
-    bool ok = fd >= 0 && got == raw.size();
+    bool ok = fd >= 0 && detail::pread_full(fd, raw.data(), raw.size(), 0);
     double p[3];
     for (std::size_t i = 0; ok && i < n; ++i) {
       const char* q = raw.data() + i * rec;
       std::memcpy(p, q + 1, 24);
       const char flag = static_cast<char>(mark(static_cast<const double*>(p)));
-      if (flag == q[0]) continue;
-      ssize_t w;
-      do w = ::pwrite(fd, &flag, 1, static_cast<off_t>(i * rec));
-      while (w < 0 && errno == EINTR);
-      ok = w == 1;
+      if (flag != q[0]) ok = detail::pwrite_full(fd, &flag, 1, i * rec);
     }
     const int err = errno;
     const bool closed = fd >= 0 && ::close(fd) == 0;
@@ -354,7 +344,7 @@ class KeptMask : public TileFiles {
   // @throws InputError naming the file when it cannot be written (the disk full).
   void write(std::size_t t, const std::vector<std::uint8_t>& mask) {
     bytes_[t] = 0;
-    if (std::none_of(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; })) return;
+    if (kept(mask) == 0) return;
     put(t, "wb", mask.data(), mask.size(), "kept-point mask");
   }
 
@@ -363,16 +353,14 @@ class KeptMask : public TileFiles {
   // not hold one byte per spill record.
   Cloud read(std::size_t t, std::vector<std::uint8_t>& flag) const {
     const std::vector<std::uint8_t> mask = load(t);
-    const std::size_t n = static_cast<std::size_t>(std::count_if(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; }));
-    return spill_.read_taken(
-        t, n, [&](std::size_t rec, std::uint8_t) { return mask[rec] == kNotKept ? -1 : mask[rec] == kInterior ? 1 : 0; }, flag);
+    return spill_.read_taken(t, kept(mask), [&](std::size_t rec, std::uint8_t) { return flag_of(mask[rec]); }, flag);
   }
 
   // The same from `spilled`, tile t's spill already read (Spill::read: every record, in order).
   Cloud select(std::size_t t, const Cloud& spilled, std::vector<std::uint8_t>& flag) const {
     const std::vector<std::uint8_t> mask = load(t);
     if (spilled.size() != mask.size()) throw std::logic_error("KeptMask::select: not tile " + std::to_string(t) + "'s spill");
-    const std::size_t n = static_cast<std::size_t>(std::count_if(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; }));
+    const std::size_t n = kept(mask);
     flag.assign(n, 0);
     Cloud c;
     if (n == 0) return c;
@@ -380,8 +368,9 @@ class KeptMask : public TileFiles {
     if (spilled.has_rgb()) c.rgb.resize(3 * n);
     if (spilled.has_intensity()) c.intensity.resize(n);
     for (std::size_t r = 0, i = 0; r < mask.size(); ++r) {
-      if (mask[r] == kNotKept) continue;
-      flag[i] = mask[r] == kInterior ? 1 : 0;
+      const int f = flag_of(mask[r]);
+      if (f < 0) continue;
+      flag[i] = static_cast<std::uint8_t>(f);
       std::memcpy(c.xyz.data() + 3 * i, spilled.xyz.data() + 3 * r, 24);
       if (spilled.has_rgb()) std::memcpy(c.rgb.data() + 3 * i, spilled.rgb.data() + 3 * r, 3);
       if (spilled.has_intensity()) c.intensity[i] = spilled.intensity[r];
@@ -391,6 +380,13 @@ class KeptMask : public TileFiles {
   }
 
  private:
+  // The records a mask keeps.
+  static std::size_t kept(const std::vector<std::uint8_t>& mask) {
+    return static_cast<std::size_t>(std::count_if(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; }));
+  }
+  // A mask entry as a kept point's flag (1 interior, 0 halo), or −1 when not kept.
+  static int flag_of(std::uint8_t m) { return m == kNotKept ? -1 : m == kInterior ? 1 : 0; }
+
   // Tile t's mask: its file's bytes, or every record kNotKept when it has none.
   std::vector<std::uint8_t> load(std::size_t t) const {
     const std::size_t n = spill_.records(t);
@@ -993,7 +989,7 @@ class BlockCopies {
         sums["robust_spill_points_scanned"] += static_cast<double>(ch.records);
         sums["robust_block_records_read"] += static_cast<double>(ch.records);
         raw.resize(ch.records * crec);
-        if (!read_at(fd, raw.data(), raw.size(), ch.first * crec)) {
+        if (!detail::pread_full(fd, raw.data(), raw.size(), ch.first * crec)) {
           throw InputError("tiled run: cannot read the block copy " + file(u).string() + " (" + std::strerror(errno) + ")");
         }
         for (std::size_t i = 0; i < ch.records; ++i) {
@@ -1062,17 +1058,6 @@ class BlockCopies {
     return {xy[0], xy[1], xy[2], xy[3], r[0], r[1]};
   }
 
-  static bool read_at(int fd, char* to, std::size_t bytes, std::uint64_t at) {
-    std::size_t got = 0;
-    while (got < bytes) {
-      const ssize_t r = ::pread(fd, to + got, bytes - got, static_cast<off_t>(at + got));
-      if (r < 0 && errno == EINTR) continue;
-      if (r <= 0) return false;
-      got += static_cast<std::size_t>(r);
-    }
-    return true;
-  }
-
   // One pass over u's spill: fn for each record a gathering can take, each copied (when this
   // read copies) into its slab's buffer, a full buffer appended to the copy as one chunk (every
   // buffer, and their memory freed, when they hold more than kMaxHeld).
@@ -1111,13 +1096,7 @@ class BlockCopies {
       std::vector<char>& x = buf[b][z];
       if (!written) x.clear();
       if (x.empty()) return;
-      std::size_t put = 0;
-      while (written && put < x.size()) {
-        const ssize_t w = ::pwrite(fd, x.data() + put, x.size() - put, static_cast<off_t>(end * crec + put));
-        if (w < 0 && errno == EINTR) continue;
-        if (w <= 0) written = false;
-        put += w > 0 ? static_cast<std::size_t>(w) : 0;
-      }
+      written = detail::pwrite_full(fd, x.data(), x.size(), end * crec);
       blocks[b][z].chunks.push_back({end, x.size() / crec});
       end += x.size() / crec;
       x.clear();

@@ -29,6 +29,18 @@ using hc::pipeline::RunConfig;
 
 using hc::test::differing_bits;
 
+// The InputError message of merging `plan_file`, which must refuse it; "" (a failure added)
+// when the merge goes through.
+std::string merge_refusal(const fs::path& plan_file, const char* what_went_through) {
+  try {
+    (void)hc::pipeline::merge_tile_jobs(plan_file);
+  } catch (const hc::InputError& e) {
+    return e.what();
+  }
+  ADD_FAILURE() << what_went_through << " was merged";
+  return "";
+}
+
 std::string bytes_of(const fs::path& f) {
   std::ifstream in(f, std::ios::binary);
   return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
@@ -159,25 +171,17 @@ TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
     std::string changed = kept;
     changed[kept.size() / 2] = 7;
     std::ofstream(work / "kept_1.bin", std::ios::binary | std::ios::trunc) << changed;
-    try {
-      (void)hc::pipeline::merge_tile_jobs(info.plan_file);
-      ADD_FAILURE() << "a changed kept-point mask was merged";
-    } catch (const hc::InputError& e) {
-      const std::string what = e.what();
-      EXPECT_NE(what.find("kept_1.bin"), std::string::npos) << what;
-      EXPECT_NE(what.find("holds the byte 7"), std::string::npos) << what;
-    }
+    const std::string what = merge_refusal(info.plan_file, "a changed kept-point mask");
+    EXPECT_NE(what.find("kept_1.bin"), std::string::npos) << what;
+    EXPECT_NE(what.find("holds the byte 7"), std::string::npos) << what;
     std::ofstream(work / "kept_1.bin", std::ios::binary | std::ios::trunc) << kept;
   }
   EXPECT_EQ(merged.config.resolved_yaml, hc::pipeline::load_run_config(fs::absolute(buddha_config()), buddha_overrides(scratch)).resolved_yaml);
 
   // A tile without a result: the merge names it and makes no scene.
   fs::remove(work / "part_5.bin");
-  try {
-    (void)hc::pipeline::merge_tile_jobs(info.plan_file);
-    ADD_FAILURE() << "a merge with a tile missing went through";
-  } catch (const hc::InputError& e) {
-    const std::string what = e.what();
+  {
+    const std::string what = merge_refusal(info.plan_file, "a set with a tile missing");
     EXPECT_NE(what.find("1 of " + std::to_string(info.tiles) + " tiles have no result (5)"), std::string::npos) << what;
     EXPECT_NE(what.find("--tiles 5"), std::string::npos) << what;
   }
@@ -188,14 +192,9 @@ TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
     ASSERT_EQ(older.substr(0, 11), "HCTILEPART2");
     older[10] = '1';
     std::ofstream(work / "part_5.bin", std::ios::binary | std::ios::trunc) << older;
-    try {
-      (void)hc::pipeline::merge_tile_jobs(info.plan_file);
-      ADD_FAILURE() << "a result of another version was merged";
-    } catch (const hc::InputError& e) {
-      const std::string what = e.what();
-      EXPECT_NE(what.find("part_5.bin: a tile result of another hapticloud version (HCTILEPART1, expected HCTILEPART2)"),
-                std::string::npos) << what;
-    }
+    const std::string what = merge_refusal(info.plan_file, "a result of another version");
+    EXPECT_NE(what.find("part_5.bin: a tile result of another hapticloud version (HCTILEPART1, expected HCTILEPART2)"),
+              std::string::npos) << what;
   }
   // A truncated result is refused too.
   hc::pipeline::run_tile_jobs(info.plan_file, {5});
@@ -226,11 +225,9 @@ TEST(TileJobs, RefusesAResultOfAnotherPlanAChangedConfigAndAFolderInUse) {
   expect_same_scene(hc::pipeline::merge_tile_jobs(a.plan_file).built, hc::pipeline::merge_tile_jobs(b.plan_file).built);
   // A result copied from the other plan's folder.
   fs::copy_file(dir / "a" / "part_0.bin", dir / "b" / "part_0.bin", fs::copy_options::overwrite_existing);
-  try {
-    (void)hc::pipeline::merge_tile_jobs(b.plan_file);
-    ADD_FAILURE() << "a result of another plan was merged";
-  } catch (const hc::InputError& e) {
-    EXPECT_NE(std::string(e.what()).find("written for another plan"), std::string::npos) << e.what();
+  {
+    const std::string what = merge_refusal(b.plan_file, "a result of another plan");
+    EXPECT_NE(what.find("written for another plan"), std::string::npos) << what;
   }
   // The config changed since the plan: jobs and merge refuse it.
   std::ofstream(cfg) << yaml << "cross_check: {tolerance_m: 0.002}\n";

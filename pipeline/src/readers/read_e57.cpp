@@ -6,6 +6,7 @@
 // Data3D, PointRecord, Pose, IntensityLimits, ColorLimits).
 
 #include "byte_io.hpp"
+#include "../posix_io.hpp"
 #include "readers.hpp"
 #include "text_parse.hpp"
 
@@ -169,15 +170,9 @@ class PagedFile {
       return p;
     }
     if (pg != cached_) {
-      std::size_t got = 0;
-      while (got < page_) {
-        const ssize_t r = ::pread(fd_, buffer_.data() + got, page_ - got, static_cast<off_t>(pg * page_ + got));
-        if (r < 0 && errno == EINTR) continue;
-        if (r <= 0) {
-          throw InputError("load_cloud: " + name_ + ": the page at physical offset " + std::to_string(pg * page_) +
-                           " cannot be read (the file is truncated or unreadable)");
-        }
-        got += static_cast<std::size_t>(r);
+      if (!pread_full(fd_, buffer_.data(), page_, pg * page_)) {
+        throw InputError("load_cloud: " + name_ + ": the page at physical offset " + std::to_string(pg * page_) +
+                         " cannot be read (the file is truncated or unreadable)");
       }
       cached_ = std::numeric_limits<std::uint64_t>::max();
       verify(buffer_.data(), pg);

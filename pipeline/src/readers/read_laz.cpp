@@ -31,6 +31,7 @@
 #include "byte_io.hpp"
 #include "las_records.hpp"
 #include "laz_items.hpp"
+#include "../posix_io.hpp"
 #include "readers.hpp"
 
 #include "hc/common/error.hpp"
@@ -358,15 +359,9 @@ class LazStream final : public LasRecordStream {
     const Chunk& ch = layout_.chunks[c];
     const std::size_t len = ch.end - ch.begin;
     bytes_.resize(len);
-    std::size_t got = 0;
-    while (got < len) {
-      const ssize_t r = ::pread(fd_, bytes_.data() + got, len - got, static_cast<off_t>(ch.begin + got));
-      if (r < 0 && errno == EINTR) continue;
-      if (r <= 0) {
-        throw InputError("load_cloud: " + name_ + ": truncated or unreadable in LAZ chunk " + std::to_string(c) +
-                         " (bytes " + std::to_string(ch.begin) + " to " + std::to_string(ch.end) + ")");
-      }
-      got += static_cast<std::size_t>(r);
+    if (!pread_full(fd_, bytes_.data(), len, ch.begin)) {
+      throw InputError("load_cloud: " + name_ + ": truncated or unreadable in LAZ chunk " + std::to_string(c) + " (bytes " +
+                       std::to_string(ch.begin) + " to " + std::to_string(ch.end) + ")");
     }
     records_.resize(static_cast<std::size_t>(ch.points) * record_length_);
     decode_laz_chunk(layout_, c, reinterpret_cast<const std::uint8_t*>(bytes_.data()), record_length_,
