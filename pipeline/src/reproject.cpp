@@ -496,8 +496,9 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
 // takes the weighted mean there instead of extrapolating. Moments are float, per node,
 // relative to ref; they are solved in double.
 // Separable weights: exp of the row and column offsets, (2⌊r⌋+2)·2 exponentials per point.
-// Rows are split between two threads for large clouds (each thread reads every point and
-// writes only its own rows). The plane solve is split too: each thread solves a contiguous half
+// The points are taken in row order (⌊fy⌋, then input order; see the sort below). Rows are
+// split between two threads for large clouds (each thread reads the points whose disc can meet
+// its rows and writes only its own rows). The plane solve is split too: each thread solves a contiguous half
 // of the nodes, writes only their depth and flags and counts its own filled and occluded nodes;
 // the counts are summed, so the results equal one thread's. Written: depth[i] and flags[i] of every node with weight > 0
 // (measured nodes stay kCellMeasured unless their front-most point lies more than depth_gap
@@ -518,11 +519,53 @@ std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const 
   const double r2 = radius_cells * radius_cells;
   const double k_exp = -1.0 / (2.0 * 0.25 * r2);  // −1 / 2σ², σ = radius / 2
   const int span = 2 * static_cast<int>(std::ceil(radius_cells)) + 2;
-  auto gather = [&](int r_begin, int r_end) {
-    std::vector<double> wc(static_cast<std::size_t>(span)), wr(static_cast<std::size_t>(span));
+  // The points in row order: by ⌊fy⌋ (the whole grid's row, less the window's integer offset),
+  // in input order within a row (a counting sort of their indices, 8 bytes a point while it
+  // runs), so that the moments a point adds to lie in the rows just written. In input order a
+  // scan in no order (the generated walls) adds to nodes anywhere in the grid: a cache miss
+  // per row of its disc once the moments (36 bytes a node) outgrow the cache, which made this
+  // loop the reprojection's largest cost. A node's sum takes its points in (⌊fy⌋, input)
+  // order: a tile's window holds the whole scan's points in their order, and ⌊fy⌋ differs from
+  // the whole grid's by the window's integer offset, so the tiled run's sums are the in-core
+  // run's bit for bit. Points whose disc meets no row are left out. (Until 2026-11-25 the
+  // points were taken in input order: sums in another order, equal to within float rounding.)
+  const int reach = static_cast<int>(std::ceil(radius_cells));
+  const int row_lo = -reach - 1;                                           // the first ⌊fy⌋ kept
+  const auto nrow = static_cast<std::size_t>(rows + 2 * reach + 2);        // ⌊fy⌋ in [row_lo, rows + reach]
+  if (n > std::numeric_limits<std::uint32_t>::max()) {
+    throw ResourceError("reproject: splat_mode plane orders at most 2^32 - 1 points by row, got " + std::to_string(n));
+  }
+  std::vector<std::uint32_t> row_start(nrow + 1, 0), order;
+  {
+    std::vector<std::int32_t> key(n);
     const double* q = p;
     for (std::size_t i = 0; i < n; ++i, q += 3) {
+      key[i] = -1;
       if (!all_finite && !finite_point(q)) continue;
+      const double fy = (q[1] - g.y0_m) * inv - off.r;
+      if (!(fy >= -radius_cells - 1.0 && fy <= rows + radius_cells)) continue;  // no row within reach
+      const int k = static_cast<int>(std::floor(fy)) - row_lo;
+      if (k < 0 || static_cast<std::size_t>(k) >= nrow) continue;
+      key[i] = k;
+      ++row_start[static_cast<std::size_t>(k) + 1];
+    }
+    for (std::size_t k = 0; k < nrow; ++k) row_start[k + 1] += row_start[k];
+    order.resize(row_start[nrow]);
+    std::vector<std::uint32_t> at(row_start.begin(), row_start.end() - 1);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (key[i] >= 0) order[at[static_cast<std::size_t>(key[i])]++] = static_cast<std::uint32_t>(i);
+    }
+  }
+  auto gather = [&](int r_begin, int r_end) {
+    std::vector<double> wc(static_cast<std::size_t>(span)), wr(static_cast<std::size_t>(span));
+    // The rows of points whose disc can meet rows [r_begin, r_end).
+    const auto first = static_cast<std::size_t>(std::clamp(r_begin - reach - 1 - row_lo, 0, static_cast<int>(nrow)));
+    const auto last = static_cast<std::size_t>(std::clamp(r_end + reach - row_lo, 0, static_cast<int>(nrow)));
+    const std::uint32_t ob = row_start[first], oe = row_start[last];
+    constexpr std::uint32_t kAhead = 32;  // prefetch distance [points]
+    for (std::uint32_t o = ob; o < oe; ++o) {
+      if (o + kAhead < oe) __builtin_prefetch(p + 3 * static_cast<std::size_t>(order[o + kAhead]));
+      const double* q = p + 3 * static_cast<std::size_t>(order[o]);
       // Window: the whole grid's fractional index minus an integer offset (exact).
       const double fx = (q[0] - g.x0_m) * inv - off.c, fy = (q[1] - g.y0_m) * inv - off.r;
       const int r0 = std::max(r_begin, static_cast<int>(std::ceil(fy - radius_cells)));
