@@ -522,14 +522,17 @@ std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const 
   const double k_exp = -1.0 / (2.0 * 0.25 * r2);  // −1 / 2σ², σ = radius / 2
   const int span = 2 * static_cast<int>(std::ceil(radius_cells)) + 2;
   // The points in row order: by ⌊fy⌋ (the whole grid's row, less the window's integer offset),
-  // in input order within a row (a counting sort of their indices, 8 bytes a point while it
-  // runs), so that the moments a point adds to lie in the rows just written. In input order a
+  // in input order within a row (a counting sort of their indices: 8 bytes a point while it
+  // runs, `order`'s 4 kept through the gathering), so that the moments a point adds to lie in
+  // the rows just written. In input order a
   // scan in no order (the generated walls) adds to nodes anywhere in the grid: a cache miss
   // per row of its disc once the moments (36 bytes a node) outgrow the cache, which made this
   // loop the reprojection's largest cost. A node's sum takes its points in (⌊fy⌋, input)
-  // order: a tile's window holds the whole scan's points in their order, and ⌊fy⌋ differs from
-  // the whole grid's by the window's integer offset, so the tiled run's sums are the in-core
-  // run's bit for bit. Points whose disc meets no row are left out. (Until 2026-11-25 the
+  // order: a tile's window holds the whole scan's points in their order, and for every point
+  // that reaches a node the tiled run compares ⌊fy⌋ differs from the whole grid's by the
+  // window's integer offset (the subtraction is exact there), so the tiled run's sums are the
+  // in-core run's bit for bit. Points more than the radius and a cell outside the rows are left
+  // out (they reach no row). (Until 2026-11-25 the
   // points were taken in input order: sums in another order, equal to within float rounding.)
   const int reach = static_cast<int>(std::ceil(radius_cells));
   const int row_lo = -reach - 1;                                           // the first ⌊fy⌋ kept

@@ -53,8 +53,11 @@ enum class SplatMode {
   /// is an extrapolation that amplifies noise. Exact on a plane (up to float rounding) wherever
   /// the slope is fitted in both directions; on a curved surface the fit averages over about σ. A measured node whose front-most point
   /// lies more than see_through_depth_m below its plane is flagged kCellSplatted and counted in
-  /// cells_occluded_by_splat; filled empty nodes are kCellSplatted. Cost: one pass over the
-  /// points touching (2·radius + 1)² nodes each, 36 bytes of moments per cell.
+  /// cells_occluded_by_splat; filled empty nodes are kCellSplatted. Cost: a counting sort of
+  /// the points' indices by row (8 bytes a point while it runs, 4 kept through the pass), then
+  /// one pass over the points in that order touching (2·radius + 1)² nodes each, 36 bytes of
+  /// moments per cell. A node sums its points in (row, input) order, so a window's sums equal
+  /// the whole grid's (the tiled run).
   kPlane,
 };
 
@@ -167,7 +170,8 @@ struct DepthGrid {
 ///         cells_valid, cells_measured, cells_splatted, cells_occluded_by_splat,
 ///         cells_see_through.
 /// @throws hc::InputError if there is no finite point or rgb / intensity are not 3·N / N
-///         long; hc::ResourceError for 2^32 − 1 points or more with rgb or intensity;
+///         long; hc::ResourceError for 2^32 − 1 points or more with rgb or intensity, or
+///         more than 2^32 − 1 with plane splats;
 ///         hc::DegenerateInputError if the grid would have fewer than 2 samples along a side
 ///         (a single x-y position, all points on a line, e.g. a cloud edge-on to the view, or all points in one cell);
 ///         hc::ConfigError if n_long_side ≤ 1, neither or both of n_long_side and cell_size_m
