@@ -549,10 +549,8 @@ std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const 
       if (!all_finite && !finite_point(q)) continue;
       const double fy = (q[1] - g.y0_m) * inv - off.r;
       if (!(fy >= -radius_cells - 1.0 && fy <= rows + radius_cells)) continue;  // no row within reach
-      const int k = static_cast<int>(std::floor(fy)) - row_lo;
-      if (k < 0 || static_cast<std::size_t>(k) >= nrow) continue;
-      key[i] = k;
-      ++row_start[static_cast<std::size_t>(k) + 1];
+      key[i] = static_cast<std::int32_t>(std::floor(fy)) - row_lo;                // in [0, nrow) by the test above
+      ++row_start[static_cast<std::size_t>(key[i]) + 1];
     }
     for (std::size_t k = 0; k < nrow; ++k) row_start[k + 1] += row_start[k];
     order.resize(row_start[nrow]);
@@ -563,10 +561,10 @@ std::size_t splat_planes(const double* p, std::size_t n, bool all_finite, const 
   }
   auto gather = [&](int r_begin, int r_end) {
     std::vector<float> wc(static_cast<std::size_t>(span)), wr(static_cast<std::size_t>(span));
-    // The rows of points whose disc can meet rows [r_begin, r_end).
-    const auto first = static_cast<std::size_t>(std::clamp(r_begin - reach - 1 - row_lo, 0, static_cast<int>(nrow)));
-    const auto last = static_cast<std::size_t>(std::clamp(r_end + reach - row_lo, 0, static_cast<int>(nrow)));
-    const std::uint32_t ob = row_start[first], oe = row_start[last];
+    // The points whose disc can meet rows [r_begin, r_end): ⌊fy⌋ in [r_begin − reach − 1,
+    // r_end + reach), within [row_lo, rows + reach] since 0 ≤ r_begin ≤ r_end ≤ rows.
+    const std::uint32_t ob = row_start[static_cast<std::size_t>(r_begin - reach - 1 - row_lo)];
+    const std::uint32_t oe = row_start[static_cast<std::size_t>(r_end + reach - row_lo)];
     constexpr std::uint32_t kAhead = 32;  // prefetch distance [points]
     for (std::uint32_t o = ob; o < oe; ++o) {
       if (o + kAhead < oe) __builtin_prefetch(p + 3 * static_cast<std::size_t>(order[o + kAhead]));
