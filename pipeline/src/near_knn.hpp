@@ -39,4 +39,17 @@ struct NearSearch {
 std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
                                           std::vector<double>* nearest_m, bool near_only, NearSearch* how);
 
+/// The same over points given as float coordinates: xyz holds x y z [m] of point j at
+/// xyz[3j .. 3j + 2] (any frame: the search takes them as they are, without recentring, so the
+/// caller recentres them near the points that matter: float's resolution is about 6e-8 of the
+/// distance from the origin); `list`: points j (0 .. xyz.size() / 3 − 1), repeats allowed. The
+/// result's order and units, the near search, `nearest_m` and `how` as above; each listed
+/// point's distances are those over every point given (the tiled run's stage tile_scale: a
+/// tile's window as read from its spill). Errors: hc::ConfigError for k outside 1..1000;
+/// hc::InputError for xyz.size() not a multiple of 3, a non-finite coordinate or a listed
+/// point out of range; hc::DegenerateInputError for fewer than k + 2 points; hc::ResourceError
+/// beyond 2^32 − 2 points.
+std::vector<double> mean_knn_distances_of(const std::vector<float>& xyz, const std::vector<std::uint32_t>& list, int k,
+                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how);
+
 }  // namespace hc::pipeline::detail

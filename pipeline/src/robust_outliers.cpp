@@ -372,17 +372,17 @@ constexpr std::size_t kNearRatio = 1024;
 // are taken in double on the float coordinates the grid search uses; a bound is widened by
 // a relative 1e-5 over the float search's rounding (about 1e-7), a block's clearance narrowed
 // by a millionth of a cell over the cell arithmetic's.
-std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::uint32_t>& rows,
-                                     const std::vector<std::uint32_t>& list, int k, const Eigen::Vector3d& centre,
-                                     NearSearch& how) {
-  const std::size_t n = rows.size();
+// Src: the points' float coordinates by row (CloudRows, FloatRows): size(), get(j, out[3]).
+template <class Src>
+std::vector<std::uint32_t> near_rows(const Src& src, const std::vector<std::uint32_t>& list, int k, NearSearch& how) {
+  const std::size_t n = src.size();
   const auto k1 = static_cast<std::size_t>(k) + 1;
   // The stratified sample of sample_centre (at most 4096 rows): its 1 %–99 % box per axis gives
   // the cell edge (about k + 1 points on the box's largest face; a far point does not stretch
   // it), and its points a bound of any listed point's k-th distance (any k + 1 points bound it).
   const std::size_t m = std::min<std::size_t>(n, 4096);
   std::vector<float> sample(3 * m);
-  for (std::size_t j = 0; j < m; ++j) recentre_point(cloud, rows[j * n / m], centre, sample.data() + 3 * j);
+  for (std::size_t j = 0; j < m; ++j) src.get(j * n / m, sample.data() + 3 * j);
   std::array<double, 3> ext{};
   {
     std::vector<double> v(m);
@@ -437,7 +437,7 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
   std::vector<std::uint8_t> keyed(listed.size(), 0);
   std::vector<std::uint64_t> keys;
   for (std::size_t q = 0; q < listed.size(); ++q) {
-    recentre_point(cloud, rows[listed[q]], centre, at[q].data());
+    src.get(listed[q], at[q].data());
     keyed[q] = cell_of(at[q].data(), kListedReach, cell[q]) ? 1 : 0;
     if (keyed[q] == 0) continue;
     for (std::int64_t dz = -1; dz <= 1; ++dz) {
@@ -452,7 +452,7 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
   const KeyGroups cells_held = group_by_wanted_key(n, wanted, threads, [&](std::size_t j, std::uint64_t& key) {
     float pt[3];
     std::array<std::int64_t, 3> ct{};
-    recentre_point(cloud, rows[j], centre, pt);
+    src.get(j, pt);
     if (!cell_of(pt, kCloudReach, ct)) return false;
     key = key_of(ct, 0, 0, 0);
     return true;
@@ -477,7 +477,7 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
             const std::uint32_t w = wanted.find(key_of(cell[q], dx, dy, dz));
             block[b++] = w;
             for (std::size_t i = first[w]; i < first[w + 1]; ++i) {
-              recentre_point(cloud, rows[member[i]], centre, pf);
+              src.get(member[i], pf);
               d2.push_back(dist2(pf, at[q].data()));
             }
           }
@@ -515,7 +515,7 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
       float pt[3];
       double pd[3];
       for (std::size_t j = jb; j < je; ++j) {
-        recentre_point(cloud, rows[j], centre, pt);
+        src.get(j, pt);
         for (std::size_t a = 0; a < 3; ++a) pd[a] = pt[a];
         if (set.contains(pd)) in_balls[static_cast<std::size_t>(t)].push_back(static_cast<std::uint32_t>(j));
       }
@@ -527,17 +527,77 @@ std::vector<std::uint32_t> near_rows(const Cloud& cloud, const std::vector<std::
   return chosen;
 }
 
-}  // namespace
+// The rows of a cloud as near_rows and knn_of_listed read them: finite columns `rows`, float
+// coordinates recentred (in double) on `centre` (recentre_point).
+struct CloudRows {
+  const Cloud& cloud;
+  const std::vector<std::uint32_t>& rows;
+  const Eigen::Vector3d& centre;
+  std::size_t size() const { return rows.size(); }
+  void get(std::size_t j, float* out) const { recentre_point(cloud, rows[j], centre, out); }
+};
 
-std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
-                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how) {
+// Float coordinates given as they are (x y z of row j at p[3j]).
+struct FloatRows {
+  const float* p;
+  std::size_t n;
+  std::size_t size() const { return n; }
+  void get(std::size_t j, float* out) const {
+    out[0] = p[3 * j];
+    out[1] = p[3 * j + 1];
+    out[2] = p[3 * j + 2];
+  }
+};
+
+// The mean k-NN distances of the listed rows `list` (positions in src, at least k + 2 rows)
+// over src, and their nearest distances when nearest_m is given: near_knn.hpp.
+template <class Src>
+std::vector<double> knn_of_listed(const Src& src, std::vector<std::uint32_t> list, int k, std::vector<double>* nearest_m,
+                                  bool near_only, NearSearch* how) {
+  const std::size_t n = src.size();
+  NearSearch searched;
+  std::vector<std::uint32_t> subset;
+  if (near_only && !list.empty() && list.size() * kNearRatio <= n) subset = near_rows(src, list, k, searched);
+  // The searched points: the subset's (in order) or every one.
+  const bool near = subset.size() >= static_cast<std::size_t>(k) + 2 && subset.size() <= n / 2;
+  const std::size_t count = near ? subset.size() : n;
+  if (near) {
+    searched.near = true;
+    searched.subset_points = subset.size();
+    for (std::uint32_t& j : list) j = static_cast<std::uint32_t>(std::lower_bound(subset.begin(), subset.end(), j) - subset.begin());
+  }
+  if (how != nullptr) *how = searched;
+  std::vector<float> p(3 * count);
+  for (std::size_t j = 0; j < count; ++j) src.get(near ? subset[j] : j, p.data() + 3 * j);
+  const CellGrid g = build_grid(p, count, std::min(2 * k + 1, 1000));
+  ExactDistances d(g, k, count);
+  std::vector<float> near_d;
+  d.compute(list, nearest_m != nullptr ? &near_d : nullptr);
+  std::vector<double> out;
+  out.reserve(list.size());
+  for (const std::uint32_t j : list) out.push_back(static_cast<double>(d[j]));
+  if (nearest_m != nullptr) nearest_m->assign(near_d.begin(), near_d.end());
+  return out;
+}
+
+void check_knn_k(int k) {
   if (k < 1 || k > 1000) throw ConfigError("mean_knn_distances: k = " + std::to_string(k) + ", expected 1..1000");
-  const std::vector<std::uint32_t> rows = finite_rows(cloud, "mean_knn_distances");
-  const std::size_t n = rows.size();
+}
+
+void check_knn_count(std::size_t n, int k) {
   if (n < static_cast<std::size_t>(k) + 2) {
     throw DegenerateInputError("mean_knn_distances: the cloud has " + std::to_string(n) + " finite points; k = " +
                                std::to_string(k) + " needs at least " + std::to_string(k + 2));
   }
+}
+
+}  // namespace
+
+std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
+                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how) {
+  check_knn_k(k);
+  const std::vector<std::uint32_t> rows = finite_rows(cloud, "mean_knn_distances");
+  check_knn_count(rows.size(), k);
   // Row index of each listed column (the rows are the finite columns, increasing).
   std::vector<std::uint32_t> list;
   list.reserve(columns.size());
@@ -548,31 +608,30 @@ std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<
     }
     list.push_back(static_cast<std::uint32_t>(it - rows.begin()));
   }
-  NearSearch searched;
   const Eigen::Vector3d centre = sample_centre(cloud, rows);
-  std::vector<std::uint32_t> subset;
-  if (near_only && !list.empty() && list.size() * kNearRatio <= n) subset = near_rows(cloud, rows, list, k, centre, searched);
-  // The searched points: the subset's (their columns, in order) or every finite one.
-  std::vector<std::uint32_t> searched_columns;
-  if (subset.size() >= static_cast<std::size_t>(k) + 2 && subset.size() <= n / 2) {
-    searched.near = true;
-    searched.subset_points = subset.size();
-    searched_columns.reserve(subset.size());
-    for (const std::uint32_t j : subset) searched_columns.push_back(rows[j]);
-    for (std::uint32_t& j : list) j = static_cast<std::uint32_t>(std::lower_bound(subset.begin(), subset.end(), j) - subset.begin());
+  return knn_of_listed(CloudRows{cloud, rows, centre}, std::move(list), k, nearest_m, near_only, how);
+}
+
+std::vector<double> mean_knn_distances_of(const std::vector<float>& xyz, const std::vector<std::uint32_t>& list, int k,
+                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how) {
+  check_knn_k(k);
+  if (xyz.size() % 3 != 0) {
+    throw InputError("mean_knn_distances: " + std::to_string(xyz.size()) + " float coordinates, expected a multiple of 3");
   }
-  const std::vector<std::uint32_t>& cols = searched.near ? searched_columns : rows;
-  if (how != nullptr) *how = searched;
-  const std::vector<float> p = recentred(cloud, cols, centre);
-  const CellGrid g = build_grid(p, cols.size(), std::min(2 * k + 1, 1000));
-  ExactDistances d(g, k, cols.size());
-  std::vector<float> near;
-  d.compute(list, nearest_m != nullptr ? &near : nullptr);
-  std::vector<double> out;
-  out.reserve(list.size());
-  for (const std::uint32_t j : list) out.push_back(static_cast<double>(d[j]));
-  if (nearest_m != nullptr) nearest_m->assign(near.begin(), near.end());
-  return out;
+  const std::size_t n = xyz.size() / 3;
+  if (n > std::numeric_limits<std::uint32_t>::max() - 1) {
+    throw ResourceError("mean_knn_distances: " + std::to_string(n) + " points, at most 4294967294 supported");
+  }
+  check_knn_count(n, k);
+  for (std::size_t j = 0; j < xyz.size(); ++j) {
+    if (!std::isfinite(xyz[j])) {
+      throw InputError("mean_knn_distances: point " + std::to_string(j / 3) + " has a non-finite coordinate, expected finite points");
+    }
+  }
+  for (const std::uint32_t j : list) {
+    if (j >= n) throw InputError("mean_knn_distances: row " + std::to_string(j) + " listed, expected < " + std::to_string(n));
+  }
+  return knn_of_listed(FloatRows{xyz.data(), n}, list, k, nearest_m, near_only, how);
 }
 
 }  // namespace detail

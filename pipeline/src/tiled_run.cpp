@@ -7,6 +7,7 @@
 #include "posix_io.hpp"
 #include "wanted_keys.hpp"
 #include "knn_grid.hpp"
+#include "near_knn.hpp"
 #include "readers/readers.hpp"
 #include "run_internal.hpp"
 #include "stage_util.hpp"
@@ -570,6 +571,48 @@ void owned_by(const Tiles& tiles, std::size_t t, const Cloud& pts, std::vector<s
   const NodeBinner node(tiles.g);
   owned.assign(pts.size(), 0);
   for (std::size_t i = 0; i < pts.size(); ++i) owned[i] = node.inside(pts.xyz.data() + 3 * i, in) ? 1 : 0;
+}
+
+// Tile t's spilled points (its window) as float x y z [m] for the k-NN search of stage
+// tile_scale (detail::mean_knn_distances_of over floats), in file order, about a centre near
+// them: the window's xy centre and the median z of its first 4096 records (float's resolution is
+// about 6e-8 of the distance from it: at 10 m, 0.6 µm; a stray farther out loses its own
+// precision only). sampled: the records flagged kSampleFlag (their positions). xyz and sampled
+// are reused buffers. (Until 2026-11-25 the window was read as a Cloud of doubles, recentred
+// and converted on each pass of the search: at 10^8 points, 112 M records.)
+void read_window_floats(const Spill& spill, const Tiles& tiles, std::size_t t, std::vector<float>& xyz,
+                        std::vector<std::uint32_t>& sampled) {
+  const std::size_t n = spill.records(t);
+  xyz.resize(3 * n);
+  sampled.clear();
+  const GridWindow w = tiles.window(t);
+  double centre[3] = {tiles.g.x_of_col(w.col0 + 0.5 * (w.cols - 1)), tiles.g.y_of_row(w.row0 + 0.5 * (w.rows - 1)), 0.0};
+  constexpr std::size_t kHeld = 4096;
+  std::vector<double> held;  // the first kHeld records' x y z, until the z centre is known
+  held.reserve(3 * std::min(n, kHeld));
+  std::size_t i = 0;
+  const auto put = [&](std::size_t j, const double* p) {
+    for (std::size_t a = 0; a < 3; ++a) xyz[3 * j + a] = static_cast<float>(p[a] - centre[a]);
+  };
+  const auto settle = [&] {
+    std::vector<double> z;
+    for (std::size_t j = 2; j < held.size(); j += 3) z.push_back(held[j]);
+    if (!z.empty()) {
+      std::nth_element(z.begin(), z.begin() + static_cast<std::ptrdiff_t>(z.size() / 2), z.end());
+      centre[2] = z[z.size() / 2];
+    }
+    for (std::size_t j = 0; 3 * j < held.size(); ++j) put(j, held.data() + 3 * j);
+  };
+  spill.scan(t, [&](std::uint8_t flag, const double* p, const std::uint8_t*, float) {
+    if (flag & kSampleFlag) sampled.push_back(static_cast<std::uint32_t>(i));
+    if (i < kHeld) {
+      held.insert(held.end(), p, p + 3);
+      if (i + 1 == std::min(n, kHeld)) settle();
+    } else {
+      put(i, p);
+    }
+    ++i;
+  });
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -2184,22 +2227,20 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         std::vector<double> logs, nearest_logs, nearest;
         logs.reserve(robust_sample.size());
         nearest_logs.reserve(robust_sample.size());
-        std::vector<std::uint8_t> flags;
+        std::vector<float> xyz;  // reused: a window's points as floats (read_window_floats)
+        std::vector<std::uint32_t> mine;
         found = in_small_tiles = 0;
         PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
         for (std::size_t t = 0; t < tiles.count(); ++t) {
           tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
-          const Cloud pts = spill->read(t, flags);
-          std::vector<std::uint32_t> mine;
-          for (std::size_t i = 0; i < flags.size(); ++i)
-            if (flags[i] & kSampleFlag) mine.push_back(static_cast<std::uint32_t>(i));
+          read_window_floats(*spill, tiles, t, xyz, mine);
           found += mine.size();
           if (mine.empty()) continue;
-          if (pts.size() < static_cast<std::size_t>(k) + 2) {
+          if (xyz.size() / 3 < static_cast<std::size_t>(k) + 2) {
             in_small_tiles += mine.size();  // fewer than k + 2 points in the window: no k-NN distance here
             continue;
           }
-          for (const double d : mean_knn_distances(pts, mine, k, &nearest)) {
+          for (const double d : detail::mean_knn_distances_of(xyz, mine, k, &nearest, true, nullptr)) {
             if (d > 0.0) logs.push_back(std::log(d));
           }
           for (const double d : nearest) {

@@ -150,6 +150,82 @@ TEST(NearKnn, SameBitsAsTheWholeCloudsSearch) {
   }
 }
 
+// A wall's two sides: a relief of 400 000 points, and 10 cm behind it a back side twenty times
+// sparser (what a scanner sees past an open edge), as on the generated 10^8 wall. The cells are
+// sized for the front, so a back-side point's block holds too few points and it is searched in
+// a ball; the distances equal the whole cloud's search bit for bit, and brute force, for the
+// cloud and for the same points given as floats (the tiled run's stage tile_scale).
+TEST(NearKnn, SparseBackSideAndFloatPoints) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 400000; ++i) {
+    const double x = 0.5 * u(rng), y = 0.5 * u(rng);
+    pts.emplace_back(x, y, 0.003 * std::sin(40.0 * x) * std::cos(25.0 * y));
+  }
+  const auto front = static_cast<std::uint32_t>(pts.size());
+  for (int i = 0; i < 20000; ++i) pts.emplace_back(0.5 * u(rng), 0.5 * u(rng), -0.1 + 1e-4 * u(rng));
+  const Cloud c = cloud_of(pts);
+  std::vector<std::uint32_t> list;
+  for (std::uint32_t i = 5; i < front; i += 4000) list.push_back(i);
+  std::vector<std::uint32_t> back;
+  for (std::uint32_t i = front + 3; i < pts.size(); i += 700) back.push_back(i);
+  list.insert(list.end(), back.begin(), back.end());
+  const int k = 8;
+  NearSearch near, whole;
+  std::vector<double> nn_near, nn_whole;
+  const auto a = mean_knn_distances_of(c, list, k, &nn_near, true, &near);
+  const auto b = mean_knn_distances_of(c, list, k, &nn_whole, false, &whole);
+  ASSERT_TRUE(near.near);
+  EXPECT_GE(near.balls, back.size() / 2) << "most back-side points by ball";
+  EXPECT_LT(near.subset_points, c.size() / 10) << "a subset, not the cloud";
+  EXPECT_EQ(a, b);
+  EXPECT_EQ(nn_near, nn_whole);
+  for (std::size_t q = 0; q < list.size(); q += 3) {
+    const auto [mean, nearest] = brute(c, list[q], k);
+    EXPECT_NEAR(a[q], mean, 1e-6 * mean + 2e-7) << "point " << list[q];
+    EXPECT_NEAR(nn_near[q], nearest, 1e-6 * nearest + 2e-7) << "point " << list[q];
+  }
+  // The same points as floats (the tiled run's form): the same distances.
+  std::vector<float> xyz;
+  for (const auto& p : pts) {
+    for (int ax = 0; ax < 3; ++ax) xyz.push_back(static_cast<float>(p[ax]));
+  }
+  NearSearch near_f;
+  std::vector<double> nn_f;
+  const auto f = mean_knn_distances_of(xyz, list, k, &nn_f, true, &near_f);
+  const auto fw = mean_knn_distances_of(xyz, list, k, nullptr, false, nullptr);
+  EXPECT_TRUE(near_f.near);
+  EXPECT_EQ(f, fw) << "near and whole search over the floats";
+  for (std::size_t q = 0; q < list.size(); q += 3) {
+    const auto [mean, nearest] = brute(c, list[q], k);
+    EXPECT_NEAR(f[q], mean, 1e-6 * mean + 2e-7) << "point " << list[q];
+    EXPECT_NEAR(nn_f[q], nearest, 1e-6 * nearest + 2e-7) << "point " << list[q];
+  }
+}
+
+// Bad float input is refused with the value named.
+TEST(NearKnn, FloatInputRefused) {
+  std::vector<float> xyz(3 * 20, 0.0f);
+  for (std::size_t j = 0; j < xyz.size(); ++j) xyz[j] = static_cast<float>(j);
+  const auto message = [&](const std::vector<float>& p, std::vector<std::uint32_t> list) {
+    try {
+      (void)mean_knn_distances_of(p, list, 4, nullptr, true, nullptr);
+    } catch (const std::exception& e) {
+      return std::string(e.what());
+    }
+    return std::string("no error");
+  };
+  EXPECT_NE(message(xyz, {20}).find("row 20 listed, expected < 20"), std::string::npos);
+  std::vector<float> bad = xyz;
+  bad[3 * 7 + 1] = std::numeric_limits<float>::quiet_NaN();
+  EXPECT_NE(message(bad, {1}).find("point 7 has a non-finite coordinate"), std::string::npos);
+  bad = xyz;
+  bad.pop_back();
+  EXPECT_NE(message(bad, {1}).find("59 float coordinates, expected a multiple of 3"), std::string::npos);
+  EXPECT_NE(message(std::vector<float>(xyz.begin(), xyz.begin() + 15), {1}).find("k = 4 needs at least 6"), std::string::npos);
+}
+
 // A listed point whose k-th neighbour is far (one of a cluster of 30 points 3 m away, k = 40:
 // 11 of its neighbours lie on the relief): its ball holds much of the relief, and the result
 // is the whole cloud's, as brute force gives it. With more listed points than 1/1024 of the
