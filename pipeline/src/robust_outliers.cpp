@@ -91,7 +91,8 @@ std::vector<std::uint32_t> finite_rows(const Cloud& cloud, const char* who) {
   return rows;
 }
 
-// The centre recentred() uses: the per-axis median of a sample of at most 4096 of the rows.
+// The centre recentred() and mean_knn_distances_of over a Cloud use: the per-axis median of a
+// sample of at most 4096 of the rows.
 Eigen::Vector3d sample_centre(const Cloud& cloud, const std::vector<std::uint32_t>& rows) {
   Eigen::Vector3d centre = Eigen::Vector3d::Zero();
   if (rows.empty()) return centre;
@@ -116,9 +117,8 @@ inline void recentre_point(const Cloud& cloud, std::uint32_t col, const Eigen::V
 // at most 4096 of them (sample_centre): the bulk of the cloud keeps float's sub-micrometre
 // resolution even when a far point or cluster 1 km away stretches the bounding box (its own
 // coordinates lose precision, which cannot matter: it is far from everything).
-std::vector<float> recentred(const Cloud& cloud, const std::vector<std::uint32_t>& rows,
-                             const std::optional<Eigen::Vector3d>& centre_given = std::nullopt) {
-  const Eigen::Vector3d centre = centre_given ? *centre_given : sample_centre(cloud, rows);
+std::vector<float> recentred(const Cloud& cloud, const std::vector<std::uint32_t>& rows) {
+  const Eigen::Vector3d centre = sample_centre(cloud, rows);
   std::vector<float> p(3 * rows.size());
   for (std::size_t j = 0; j < rows.size(); ++j) recentre_point(cloud, rows[j], centre, p.data() + 3 * j);
   return p;
@@ -365,8 +365,8 @@ namespace {
 // fraction of the cloud: a listed point's block holds some hundreds of points.
 constexpr std::size_t kNearRatio = 1024;
 
-// Rows (positions in `rows`, increasing) of the subset mean_knn_distances_of searches for the
-// listed rows `list` (positions in `rows`): the union of the settled points' blocks and of the
+// Rows (positions in src, increasing) of the subset mean_knn_distances_of searches for the
+// listed rows `list` (positions in src): the union of the settled points' blocks and of the
 // other listed points' balls (near_knn.hpp); empty when the cell size cannot be had or a bound
 // is not finite. Distances
 // are taken in double on the float coordinates the grid search uses; a bound is widened by
@@ -377,7 +377,7 @@ template <class Src>
 std::vector<std::uint32_t> near_rows(const Src& src, const std::vector<std::uint32_t>& list, int k, NearSearch& how) {
   const std::size_t n = src.size();
   const auto k1 = static_cast<std::size_t>(k) + 1;
-  // The stratified sample of sample_centre (at most 4096 rows): its 1 %–99 % box per axis gives
+  // A sample of at most 4096 rows (positions j·n/m; over a Cloud, sample_centre's): its 1 %–99 % box per axis gives
   // the cell edge (about k + 1 points on the box's largest face; a far point does not stretch
   // it), and its points a bound of any listed point's k-th distance (any k + 1 points bound it).
   const std::size_t m = std::min<std::size_t>(n, 4096);
@@ -584,9 +584,10 @@ void check_knn_k(int k) {
   if (k < 1 || k > 1000) throw ConfigError("mean_knn_distances: k = " + std::to_string(k) + ", expected 1..1000");
 }
 
-void check_knn_count(std::size_t n, int k) {
+// what: "finite points" (a Cloud's) or "points" (floats, all finite by then).
+void check_knn_count(std::size_t n, int k, const char* what) {
   if (n < static_cast<std::size_t>(k) + 2) {
-    throw DegenerateInputError("mean_knn_distances: the cloud has " + std::to_string(n) + " finite points; k = " +
+    throw DegenerateInputError("mean_knn_distances: the cloud has " + std::to_string(n) + " " + what + "; k = " +
                                std::to_string(k) + " needs at least " + std::to_string(k + 2));
   }
 }
@@ -597,7 +598,7 @@ std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<
                                           std::vector<double>* nearest_m, bool near_only, NearSearch* how) {
   check_knn_k(k);
   const std::vector<std::uint32_t> rows = finite_rows(cloud, "mean_knn_distances");
-  check_knn_count(rows.size(), k);
+  check_knn_count(rows.size(), k, "finite points");
   // Row index of each listed column (the rows are the finite columns, increasing).
   std::vector<std::uint32_t> list;
   list.reserve(columns.size());
@@ -622,12 +623,12 @@ std::vector<double> mean_knn_distances_of(const std::vector<float>& xyz, const s
   if (n > std::numeric_limits<std::uint32_t>::max() - 1) {
     throw ResourceError("mean_knn_distances: " + std::to_string(n) + " points, at most 4294967294 supported");
   }
-  check_knn_count(n, k);
   for (std::size_t j = 0; j < xyz.size(); ++j) {
     if (!std::isfinite(xyz[j])) {
       throw InputError("mean_knn_distances: point " + std::to_string(j / 3) + " has a non-finite coordinate, expected finite points");
     }
   }
+  check_knn_count(n, k, "points");
   for (const std::uint32_t j : list) {
     if (j >= n) throw InputError("mean_knn_distances: row " + std::to_string(j) + " listed, expected < " + std::to_string(n));
   }

@@ -35,8 +35,8 @@ inline double seconds_since(Clock::time_point t0) {
 /// go to the library). The correction is an integer subtraction of the comparison, without a
 /// branch: written as a conditional, GCC 12 branched on it, and on values of either sign
 /// (coordinates about a centre) the branch mispredicted on about half of them (until
-/// 2026-11-25: the tiled run's stage tile_scale spent 3.7 CPU s at 10^8 points in its one
-/// pass of cell keys).
+/// 2026-11-25 it was part of the 3.7 CPU s the tiled run's stage tile_scale spent at 10^8
+/// points in its pass of cell keys).
 inline double floor_of(double v) noexcept {
   if (!(std::abs(v) < 0x1p52)) return std::floor(v);
   const auto i = static_cast<std::int64_t>(v);

@@ -575,11 +575,15 @@ void owned_by(const Tiles& tiles, std::size_t t, const Cloud& pts, std::vector<s
 
 // Tile t's spilled points (its window) as float x y z [m] for the k-NN search of stage
 // tile_scale (detail::mean_knn_distances_of over floats), in file order, about a centre near
-// them: the window's xy centre and the median z of its first 4096 records (float's resolution is
-// about 6e-8 of the distance from it: at 10 m, 0.6 µm; a stray farther out loses its own
-// precision only). sampled: the records flagged kSampleFlag (their positions). xyz and sampled
-// are reused buffers. (Until 2026-11-25 the window was read as a Cloud of doubles, recentred
-// and converted on each pass of the search: at 10^8 points, 112 M records.)
+// them: the window's xy centre (grid frame) and the median z of its first 4096 records in file
+// order. Float's resolution is about 6e-8 of the distance from that centre: within the window's
+// xy extent (a tile and its halo) and a z span of 10 m, better than 0.6 µm; points far from the
+// first records' height lose precision in proportion. sampled: the records flagged kSampleFlag
+// (their positions in file order). xyz (3 floats a record) and sampled are reused buffers.
+// @throws InputError naming the spill file when it cannot be read (Spill::scan), or naming the
+//         tile and the record when a coordinate about the centre overflows float.
+// (Until 2026-11-25 the window was read as a Cloud of doubles, recentred and converted on each
+// pass of the search: at 10^8 points, 112 M records.)
 void read_window_floats(const Spill& spill, const Tiles& tiles, std::size_t t, std::vector<float>& xyz,
                         std::vector<std::uint32_t>& sampled) {
   const std::size_t n = spill.records(t);
@@ -592,7 +596,14 @@ void read_window_floats(const Spill& spill, const Tiles& tiles, std::size_t t, s
   held.reserve(3 * std::min(n, kHeld));
   std::size_t i = 0;
   const auto put = [&](std::size_t j, const double* p) {
-    for (std::size_t a = 0; a < 3; ++a) xyz[3 * j + a] = static_cast<float>(p[a] - centre[a]);
+    for (std::size_t a = 0; a < 3; ++a) {
+      const double v = p[a] - centre[a];
+      if (!(std::abs(v) <= static_cast<double>(std::numeric_limits<float>::max()))) {
+        throw InputError("tiled run: tile " + std::to_string(t) + "'s record " + std::to_string(j) + " of " +
+                         spill.file(t).string() + " lies " + format_number(v) + " m from the window's centre, beyond float's range");
+      }
+      xyz[3 * j + a] = static_cast<float>(v);
+    }
   };
   const auto settle = [&] {
     std::vector<double> z;

@@ -4,6 +4,7 @@
 
 #include "near_knn.hpp"
 
+#include "hc/common/error.hpp"
 #include "hc/pipeline/robust_outliers.hpp"
 
 #include <gtest/gtest.h>
@@ -193,10 +194,15 @@ TEST(NearKnn, SparseBackSideAndFloatPoints) {
   }
   NearSearch near_f;
   std::vector<double> nn_f;
+  NearSearch whole_f;
+  std::vector<double> nn_fw;
   const auto f = mean_knn_distances_of(xyz, list, k, &nn_f, true, &near_f);
-  const auto fw = mean_knn_distances_of(xyz, list, k, nullptr, false, nullptr);
+  const auto fw = mean_knn_distances_of(xyz, list, k, &nn_fw, false, &whole_f);
   EXPECT_TRUE(near_f.near);
+  EXPECT_FALSE(whole_f.near);
+  EXPECT_GE(near_f.balls, back.size() / 2) << "the back side by ball over the floats too";
   EXPECT_EQ(f, fw) << "near and whole search over the floats";
+  EXPECT_EQ(nn_f, nn_fw) << "near and whole search over the floats";
   for (std::size_t q = 0; q < list.size(); q += 3) {
     const auto [mean, nearest] = brute(c, list[q], k);
     EXPECT_NEAR(f[q], mean, 1e-6 * mean + 2e-7) << "point " << list[q];
@@ -223,7 +229,18 @@ TEST(NearKnn, FloatInputRefused) {
   bad = xyz;
   bad.pop_back();
   EXPECT_NE(message(bad, {1}).find("59 float coordinates, expected a multiple of 3"), std::string::npos);
-  EXPECT_NE(message(std::vector<float>(xyz.begin(), xyz.begin() + 15), {1}).find("k = 4 needs at least 6"), std::string::npos);
+  EXPECT_NE(message(std::vector<float>(xyz.begin(), xyz.begin() + 15), {1}).find("5 points; k = 4 needs at least 6"),
+            std::string::npos);
+  // The kinds of error (hc/common/error.hpp).
+  bad = xyz;
+  bad[5] = std::numeric_limits<float>::infinity();
+  EXPECT_THROW((void)mean_knn_distances_of(bad, {1}, 4, nullptr, true, nullptr), hc::InputError);
+  EXPECT_THROW((void)mean_knn_distances_of(xyz, {20}, 4, nullptr, true, nullptr), hc::InputError);
+  EXPECT_THROW((void)mean_knn_distances_of(std::vector<float>(xyz.begin(), xyz.begin() + 15), {1}, 4, nullptr, true, nullptr),
+               hc::DegenerateInputError);
+  for (const int k : {0, 1001}) {
+    EXPECT_THROW((void)mean_knn_distances_of(xyz, {1}, k, nullptr, true, nullptr), hc::ConfigError) << "k = " << k;
+  }
 }
 
 // A listed point whose k-th neighbour is far (one of a cluster of 30 points 3 m away, k = 40:
