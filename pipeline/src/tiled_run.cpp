@@ -140,6 +140,32 @@ struct Layout {
   }
 };
 
+// A Cloud of the n points `each` emits, in its order, with colour and intensity where rgb and
+// intensity say so: each(emit) calls emit(flag, x y z [3], r g b [3] or nullptr, intensity)
+// once a point, and flag[i] = the i-th's flag (Spill::read_taken, KeptMask::select).
+// @throws std::logic_error when `each` emits another number of points than n (a caller's bug).
+template <class Each>
+Cloud cloud_of_records(std::size_t n, bool rgb, bool intensity, std::vector<std::uint8_t>& flag, Each&& each) {
+  Cloud c;
+  flag.assign(n, 0);
+  if (n > 0) {
+    c.xyz.resize(3, static_cast<Eigen::Index>(n));
+    if (rgb) c.rgb.resize(3 * n);
+    if (intensity) c.intensity.resize(n);
+  }
+  std::size_t i = 0;
+  each([&](std::uint8_t f, const double* p, const std::uint8_t* c3, float v) {
+    if (i == n) throw std::logic_error("cloud_of_records: more points than " + std::to_string(n));
+    flag[i] = f;
+    std::memcpy(c.xyz.data() + 3 * i, p, 24);
+    if (rgb) std::memcpy(c.rgb.data() + 3 * i, c3, 3);
+    if (intensity) c.intensity[i] = v;
+    ++i;
+  });
+  if (i != n) throw std::logic_error("cloud_of_records: " + std::to_string(i) + " points, not " + std::to_string(n));
+  return c;
+}
+
 // Spill files, one per tile, appended through per-tile buffers (records of Layout::bytes():
 // a flag byte, x y z double, [r g b], [intensity float]). Points keep the input's order within
 // a file. Spill record flag bits: the robust test's sampled points in their own tile, and the
@@ -264,25 +290,14 @@ class Spill : public TileFiles {
   // first): the points, in file order, and flag[i] = take's value for the i-th.
   template <class Take>
   Cloud read_taken(std::size_t t, std::size_t n, Take&& take, std::vector<std::uint8_t>& flag) const {
-    Cloud c;
-    flag.assign(n, 0);
-    if (n == 0) return c;
-    c.xyz.resize(3, static_cast<Eigen::Index>(n));
-    if (layout_.rgb) c.rgb.resize(3 * n);
-    if (layout_.intensity) c.intensity.resize(n);
-    std::size_t rec = 0, i = 0;
-    scan(t, [&](std::uint8_t f, const double* p, const std::uint8_t* rgb, float v) {
-      const int k = take(rec++, f);
-      if (k < 0) return;
-      if (i == n) throw std::logic_error("Spill::read_taken: more records taken than " + std::to_string(n));
-      flag[i] = static_cast<std::uint8_t>(k);
-      std::memcpy(c.xyz.data() + 3 * i, p, 24);
-      if (rgb != nullptr) std::memcpy(c.rgb.data() + 3 * i, rgb, 3);
-      if (layout_.intensity) c.intensity[i] = v;
-      ++i;
+    return cloud_of_records(n, layout_.rgb, layout_.intensity, flag, [&](auto&& emit) {
+      if (n == 0) return;
+      std::size_t rec = 0;
+      scan(t, [&](std::uint8_t f, const double* p, const std::uint8_t* rgb, float v) {
+        const int k = take(rec++, f);
+        if (k >= 0) emit(static_cast<std::uint8_t>(k), p, rgb, v);
+      });
     });
-    if (i != n) throw std::logic_error("Spill::read_taken: " + std::to_string(i) + " records taken, not " + std::to_string(n));
-    return c;
   }
 
   // Reads tile t's records back in chunks of about 4 MB (flush first), without holding the
@@ -361,23 +376,16 @@ class KeptMask : public TileFiles {
   Cloud select(std::size_t t, const Cloud& spilled, std::vector<std::uint8_t>& flag) const {
     const std::vector<std::uint8_t> mask = load(t);
     if (spilled.size() != mask.size()) throw std::logic_error("KeptMask::select: not tile " + std::to_string(t) + "'s spill");
-    const std::size_t n = kept(mask);
-    flag.assign(n, 0);
-    Cloud c;
-    if (n == 0) return c;
-    c.xyz.resize(3, static_cast<Eigen::Index>(n));
-    if (spilled.has_rgb()) c.rgb.resize(3 * n);
-    if (spilled.has_intensity()) c.intensity.resize(n);
-    for (std::size_t r = 0, i = 0; r < mask.size(); ++r) {
-      const int f = flag_of(mask[r]);
-      if (f < 0) continue;
-      flag[i] = static_cast<std::uint8_t>(f);
-      std::memcpy(c.xyz.data() + 3 * i, spilled.xyz.data() + 3 * r, 24);
-      if (spilled.has_rgb()) std::memcpy(c.rgb.data() + 3 * i, spilled.rgb.data() + 3 * r, 3);
-      if (spilled.has_intensity()) c.intensity[i] = spilled.intensity[r];
-      ++i;
-    }
-    return c;
+    const bool rgb = spilled.has_rgb(), intensity = spilled.has_intensity();
+    return cloud_of_records(kept(mask), rgb, intensity, flag, [&](auto&& emit) {
+      for (std::size_t r = 0; r < mask.size(); ++r) {
+        const int f = flag_of(mask[r]);
+        if (f >= 0) {
+          emit(static_cast<std::uint8_t>(f), spilled.xyz.data() + 3 * r, rgb ? spilled.rgb.data() + 3 * r : nullptr,
+               intensity ? spilled.intensity[r] : 0.0f);
+        }
+      }
+    });
   }
 
  private:
