@@ -118,25 +118,119 @@ class ScratchDir {
   fs::path dir_;
 };
 
+// A spilled point's x y z kept as the input file's own float32 coordinates (the reader stores
+// float32 x y z: FileBox::float32), 12 bytes instead of the grid frame's 24. Reading takes them
+// to the grid frame with to_grid_frame's arithmetic, operation for operation: x − centre, then
+// × unit_m when that is not 1 (to_metres_and_recentre), then, when the view is not the identity
+// (ViewTransform::is_identity), the view's linear part L and translation t as apply_view_transform's
+// Eigen product sums them (Eigen 3.4, SSE2: rows 0 and 1 as one packet, (p0 + p1) + p2; row 2
+// alone, p0 + (p1 + p2); pk = L(i, k)·s_k), then + t. So a record reads back the doubles the
+// in-core stages compute. Spill::add checks that for every point it writes (Layout::put), and
+// the spill pass runs again in doubles when one fails (another Eigen, another summing).
+struct FileFloats {
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();       // [file units] what to_grid_frame subtracts
+  double unit_m = 1.0;                                     // [m per file unit] (input.units)
+  bool turned = false;                                     // the view is not the identity
+  Eigen::Matrix3d linear = Eigen::Matrix3d::Identity();    // the view's matrix().linear() (scale · R)
+  Eigen::Vector3d translation_m = Eigen::Vector3d::Zero();  // the view's translation [m]
+  Eigen::Matrix3d inverse = Eigen::Matrix3d::Identity();   // linear's inverse (to_file's estimate only)
+
+  // The frame of a run: the box centre [file units], input.units [m per unit] and the view.
+  static FileFloats of(const Eigen::Vector3d& centre, double unit_m, const ViewTransform& view) {
+    FileFloats f;
+    f.centre = centre;
+    f.unit_m = unit_m;
+    f.turned = !view.is_identity();
+    if (f.turned) {
+      const Eigen::Affine3d m = view.matrix();
+      f.linear = m.linear();
+      f.translation_m = m.translation();
+      f.inverse = f.linear.inverse();
+    }
+    return f;
+  }
+
+  // The file's x y z [3] to the grid frame [m] g [3].
+  void to_grid(const float* f, double* g) const {
+    double s[3];
+    for (int a = 0; a < 3; ++a) {
+      s[a] = static_cast<double>(f[a]) - centre[a];
+      if (unit_m != 1.0) s[a] *= unit_m;
+    }
+    if (!turned) {
+      std::copy_n(s, 3, g);
+      return;
+    }
+    double p[3][3];
+    for (int i = 0; i < 3; ++i) {
+      for (int k = 0; k < 3; ++k) p[i][k] = linear(i, k) * s[k];
+    }
+    g[0] = (p[0][0] + p[0][1]) + p[0][2] + translation_m[0];
+    g[1] = (p[1][0] + p[1][1]) + p[1][2] + translation_m[1];
+    g[2] = p[2][0] + (p[2][1] + p[2][2]) + translation_m[2];
+  }
+
+  // The float x y z [3] whose to_grid is nearest g [3] [m]: g taken back through the inverse
+  // and rounded; the caller checks that to_grid gives g back (Layout::put).
+  void to_file(const double* g, float* f) const {
+    Eigen::Vector3d s(g[0], g[1], g[2]);
+    if (turned) s = inverse * (s - translation_m);
+    for (int a = 0; a < 3; ++a) f[a] = static_cast<float>(s[a] / unit_m + centre[a]);
+  }
+};
+
 // What a spilled point carries.
 struct Layout {
   bool rgb = false, intensity = false;
-  // A point's bytes: x y z double, [r g b], [intensity float].
-  std::size_t point_bytes() const { return 24 + (rgb ? 3 : 0) + (intensity ? 4 : 0); }
+  std::optional<FileFloats> floats;  // x y z as the file's floats; none: as the grid frame's doubles
+  // x y z's bytes: 3 floats or 3 doubles.
+  std::size_t xyz_bytes() const { return floats ? 12 : 24; }
+  // A point's bytes: x y z, [r g b], [intensity float].
+  std::size_t point_bytes() const { return xyz_bytes() + (rgb ? 3 : 0) + (intensity ? 4 : 0); }
   // A spill record's: a flag byte, then the point's.
   std::size_t bytes() const { return 1 + point_bytes(); }
-  // Writes a point's bytes at q (rgb3 read only with rgb).
-  void put(char* q, const double* p, const std::uint8_t* rgb3, float v) const {
-    std::memcpy(q, p, 24);
-    if (rgb) std::memcpy(q + 24, rgb3, 3);
-    if (intensity) std::memcpy(q + 24 + (rgb ? 3 : 0), &v, 4);
+  // Writes a point's bytes at q (x y z in the grid frame [m]; rgb3 read only with rgb). Returns
+  // whether they read back as p (always in doubles; in floats, when p came from the file's
+  // floats through to_grid_frame).
+  bool put(char* q, const double* p, const std::uint8_t* rgb3, float v) const {
+    bool exact = true;
+    if (floats) {
+      float f[3];
+      double back[3];
+      floats->to_file(p, f);
+      // The floats from memory, as a reader gets them: GCC 12.2's SLP vectorizer at -O3 drops
+      // the rounding to float of two lanes of such a double -> float -> double round trip
+      // (bench/README, seventeenth session: a 20-line program shows it), and the check would
+      // then compare p with itself or, as here, fail for a point that reads back exactly.
+      asm volatile("" : : "r"(f) : "memory");
+      floats->to_grid(f, back);
+      exact = std::memcmp(back, p, 24) == 0;
+      std::memcpy(q, f, 12);
+    } else {
+      std::memcpy(q, p, 24);
+    }
+    const std::size_t xb = xyz_bytes();
+    if (rgb) std::memcpy(q + xb, rgb3, 3);
+    if (intensity) std::memcpy(q + xb + (rgb ? 3 : 0), &v, 4);
+    return exact;
+  }
+  // Reads a point's x y z at q into p [3] (the grid frame [m]).
+  void xyz(const char* q, double* p) const {
+    if (floats) {
+      float f[3];
+      std::memcpy(f, q, 12);
+      floats->to_grid(f, p);
+    } else {
+      std::memcpy(p, q, 24);
+    }
   }
   // Reads a point's bytes at q: x y z into p, the intensity into v (untouched without it);
   // returns the r g b bytes' address, nullptr without colour.
   const std::uint8_t* get(const char* q, double* p, float& v) const {
-    std::memcpy(p, q, 24);
-    if (intensity) std::memcpy(&v, q + 24 + (rgb ? 3 : 0), 4);
-    return rgb ? reinterpret_cast<const std::uint8_t*>(q + 24) : nullptr;
+    xyz(q, p);
+    const std::size_t xb = xyz_bytes();
+    if (intensity) std::memcpy(&v, q + xb + (rgb ? 3 : 0), 4);
+    return rgb ? reinterpret_cast<const std::uint8_t*>(q + xb) : nullptr;
   }
 };
 
@@ -167,7 +261,7 @@ Cloud cloud_of_records(std::size_t n, bool rgb, bool intensity, std::vector<std:
 }
 
 // Spill files, one per tile, appended through per-tile buffers (records of Layout::bytes():
-// a flag byte, x y z double, [r g b], [intensity float]). Points keep the input's order within
+// a flag byte, x y z (the file's floats or the grid frame's doubles), [r g b], [intensity float]). Points keep the input's order within
 // a file. Spill record flag bits: the robust test's sampled points in their own tile, and the
 // points of removed far clusters.
 constexpr std::uint8_t kSampleFlag = 2;
@@ -226,7 +320,11 @@ class Spill : public TileFiles {
     b.resize(at + layout_.bytes());
     char* q = b.data() + at;
     q[0] = static_cast<char>(flag);
-    layout_.put(q + 1, p, rgb, intensity);
+    if (!layout_.put(q + 1, p, rgb, intensity) && inexact_ == 0) {
+      inexact_ = 1 + written_;
+      std::memcpy(inexact_at_, p, 24);
+    }
+    ++written_;
     buffered_ += layout_.bytes();
     if (b.size() >= kTileBuffer) flush(t);
     if (buffered_ >= kTotalBuffer) flush_all();
@@ -250,6 +348,12 @@ class Spill : public TileFiles {
     return s;
   }
 
+  // With x y z as the file's floats: 0 when every record added so far reads back as the point
+  // given, else 1 + the number (in the order of add(), halo copies counted) of the first that
+  // does not, whose grid-frame x y z [m] inexact_at() gives.
+  std::uint64_t inexact() const { return inexact_; }
+  const double* inexact_at() const { return inexact_at_; }
+
   // Re-marks tile t's records in place (flush first): each record's flag byte becomes
   // mark(point's x y z); the records and their order stay. Only the bytes that change are
   // written (a far point, a sample mark dropped), not the file. Used when a second spill would
@@ -266,7 +370,7 @@ class Spill : public TileFiles {
     double p[3];
     for (std::size_t i = 0; ok && i < n; ++i) {
       const char* q = raw.data() + i * rec;
-      std::memcpy(p, q + 1, 24);
+      layout_.xyz(q + 1, p);
       const char flag = static_cast<char>(mark(static_cast<const double*>(p)));
       if (flag != q[0]) ok = detail::pwrite_full(fd, &flag, 1, i * rec);
     }
@@ -301,9 +405,22 @@ class Spill : public TileFiles {
   }
 
   // Reads tile t's records back in chunks of about 4 MB (flush first), without holding the
-  // file: fn(flag, x y z [3], rgb [3] or nullptr, intensity) for each, in file order.
+  // file: fn(flag, x y z [3] (the grid frame [m]), rgb [3] or nullptr, intensity) for each, in
+  // file order.
   template <class Fn>
   void scan(std::size_t t, Fn&& fn) const {
+    double p[3];
+    float intensity = 0.0f;
+    scan_records(t, [&](const char* q) {
+      const std::uint8_t* rgb = layout_.get(q + 1, p, intensity);
+      fn(static_cast<std::uint8_t>(q[0]), static_cast<const double*>(p), rgb, intensity);
+    });
+  }
+
+  // As scan, but fn(record) gets each record's bytes (Layout::bytes(): the flag, then the point's
+  // as Layout::get reads them).
+  template <class Fn>
+  void scan_records(std::size_t t, Fn&& fn) const {
     const std::size_t rec = layout_.bytes();
     const std::size_t n = records(t);
     if (n == 0) return;
@@ -312,16 +429,10 @@ class Spill : public TileFiles {
     if (!f) throw InputError("tiled run: cannot read the spill file " + file(t).string());
     const std::size_t per = std::max<std::size_t>(1, (4u << 20) / rec);
     std::vector<char> raw(std::min(per, n) * rec);
-    double p[3];
-    float intensity = 0.0f;
     for (std::size_t done = 0; done < n;) {
       const std::size_t m = std::min(per, n - done);
       if (std::fread(raw.data(), 1, m * rec, f) != m * rec) throw InputError("tiled run: cannot read the spill file " + file(t).string());
-      for (std::size_t i = 0; i < m; ++i) {
-        const char* q = raw.data() + i * rec;
-        const std::uint8_t* rgb = layout_.get(q + 1, p, intensity);
-        fn(static_cast<std::uint8_t>(q[0]), static_cast<const double*>(p), rgb, intensity);
-      }
+      for (std::size_t i = 0; i < m; ++i) fn(static_cast<const char*>(raw.data() + i * rec));
       done += m;
     }
   }
@@ -338,6 +449,8 @@ class Spill : public TileFiles {
   Layout layout_;
   std::vector<std::vector<char>> buf_;
   std::size_t buffered_ = 0;
+  std::uint64_t written_ = 0, inexact_ = 0;
+  double inexact_at_[3] = {0.0, 0.0, 0.0};
 };
 
 // Which of a tile's spilled records the tile kept, one file per tile (kept_<t>.bin): a byte per
@@ -978,8 +1091,10 @@ constexpr std::string_view kTmpInfix = ".tmp-";            // "." + file + this 
 // its balls meet and puts the points back in spill order. The in-process loop copies on the
 // first read (every tile is read again by the tiles around it); a tile job on the second (it
 // runs few tiles, and a copy read by no other gathering is only disk written). Disk: the owned
-// records of the tiles copied (28 to 35 bytes a point), less those drop() removed, per process;
-// memory: at most kMaxHeld (32 MiB) of slab buffers while a copy is made. The copies live in a folder of this object's own in the spill's folder (tile
+// records of the tiles copied (the spill's bytes for a point, then 4: 16 to 23 bytes with x y z
+// as the file's floats, 28 to 35 as doubles; Layout), less those drop() removed, per process;
+// memory: at most kMaxHeld (32 MiB) of slab buffers while a copy is made. The copies live in a
+// folder of this object's own in the spill's folder (tile
 // jobs run side by side on shared storage), made with the first copy, removed with its content
 // when this goes, whatever happened (a process killed outright leaves it: `.blocks-*`). A copy
 // that cannot be written (a full disk) is removed and no more are made: the gatherings read
@@ -1168,12 +1283,16 @@ class BlockCopies {
     const detail::ZSlabs zslabs = slabs();
     std::size_t held = 0;  // the buffers' memory [bytes]
     std::uint64_t rec = 0;
-    spill_.scan(u, [&](std::uint8_t flag, const double* p, const std::uint8_t* c3, float v) {
+    const std::size_t pb = lay.point_bytes();
+    double p[3];
+    float v = 0.0f;
+    spill_.scan_records(u, [&](const char* record) {
       const std::uint64_t i = rec++;
-      if ((flag & kFarFlag) != 0) return;
+      if ((static_cast<std::uint8_t>(record[0]) & kFarFlag) != 0) return;
+      const std::uint8_t* c3 = lay.get(record + 1, p, v);
       const int r = node_.row(p), c = node_.col(p);
       if (r < in[0] || r >= in[1] || c < in[2] || c >= in[3]) return;
-      fn(p, c3, v, i);
+      fn(static_cast<const double*>(p), c3, v, i);
       if (!copy) return;
       const std::size_t b = static_cast<std::size_t>((r - in[0]) / bn) * kSide + static_cast<std::size_t>((c - in[2]) / bn);
       const std::int32_t zs = zslabs.of(p[2]);
@@ -1193,7 +1312,7 @@ class BlockCopies {
       x.resize(at + crec);
       held += x.capacity() - had;
       char* q = x.data() + at;
-      lay.put(q, p, c3, v);
+      std::memcpy(q, record + 1, pb);  // the spill's bytes: Layout::get reads them back alike
       const auto i32 = static_cast<std::uint32_t>(i);
       std::memcpy(q + crec - 4, &i32, 4);
       if (x.size() >= kBlockBuffer) flush(b, z);  // its memory kept for the slab's next records
@@ -2094,7 +2213,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       while (s->next(c, chunk_points)) {
         tick(static_cast<double>(box.points + c.size()) / total);
         if (first) {
-          box.layout = {c.has_rgb(), c.has_intensity()};
+          box.layout = {c.has_rgb(), c.has_intensity(), std::nullopt};
           box.float32 = c.float32_xyz;
           first = false;
         }
@@ -2129,6 +2248,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       }
     }
     centre = 0.5 * (box.lo + box.hi);
+    // The spill keeps a float file's own x y z: half the bytes (FileFloats).
+    if (box.float32) box.layout.floats = FileFloats::of(centre, unit_m, config.view);
     lay_out(nullptr, r.report);
     const int k = tiles.k;
     r.report.count_in = box.points;
@@ -2177,46 +2298,58 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   std::size_t spill_tiles = 0;
   std::uint64_t far_points = 0;  // spilled with kFarFlag
   auto spill_pass = [&](const FarCells* far, StageReport& rep, const char* stage_name) {
-    if (spill) {  // a second spill (far clusters marked): the first one's files go first
-      for (std::size_t t = 0; t < spill_tiles; ++t) {
-        std::error_code ec;
-        fs::remove(spill->file(t), ec);
-        if (ec) throw InputError("tiled run: cannot remove the spill file " + spill->file(t).string() + ": " + ec.message());
-      }
-    }
-    far_points = 0;
-    spill.emplace(dir, "tile_", tiles.count(), box.layout);
-    spill_tiles = tiles.count();
     std::uint64_t spilled = 0, copies = 0;
-    std::size_t next_sample = 0;
-    const NodeBinner node(tiles.g);
-    std::uint64_t seen = 0;
-    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
-                        "pass 3 of 3: the spill", [&](const Cloud& g) {
-      for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++seen) {
-        const double* p = g.xyz.data() + 3 * i;
-        const bool far_point = far && far->holds(p);
-        far_points += far_point ? 1U : 0U;
-        spilled += far_point ? 0U : 1U;
-        const int row = node.row(p), col = node.col(p);
-        const auto [tr0, tr1, tc0, tc1] = tiles_of(tiles, row, col);
-        const std::uint8_t* rgb = g.has_rgb() ? g.rgb.data() + 3 * i : nullptr;
-        const float inten = g.has_intensity() ? g.intensity[static_cast<std::size_t>(i)] : 0.0f;
-        while (!far && next_sample < robust_sample.size() && robust_sample[next_sample] < seen) ++next_sample;
-        const bool sampled = !far && next_sample < robust_sample.size() && robust_sample[next_sample] == seen;
-        const int own_r = row / tiles.size, own_c = col / tiles.size;
-        for (int tr = tr0; tr <= tr1; ++tr) {
-          for (int tc = tc0; tc <= tc1; ++tc) {
-            const std::uint8_t flag = far_point ? kFarFlag : sampled && tr == own_r && tc == own_c ? kSampleFlag : std::uint8_t{0};
-            spill->add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), flag, p,
-                      rgb, inten);
-            ++copies;
-          }
+    for (;;) {
+      if (spill) {  // a second spill (far clusters marked): the first one's files go first
+        for (std::size_t t = 0; t < spill_tiles; ++t) {
+          std::error_code ec;
+          fs::remove(spill->file(t), ec);
+          if (ec) throw InputError("tiled run: cannot remove the spill file " + spill->file(t).string() + ": " + ec.message());
         }
       }
-    });
-    spill->flush_all();
+      far_points = 0;
+      spill.emplace(dir, "tile_", tiles.count(), box.layout);
+      spill_tiles = tiles.count();
+      spilled = copies = 0;
+      std::size_t next_sample = 0;
+      const NodeBinner node(tiles.g);
+      std::uint64_t seen = 0;
+      for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
+                          "pass 3 of 3: the spill", [&](const Cloud& g) {
+        for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++seen) {
+          const double* p = g.xyz.data() + 3 * i;
+          const bool far_point = far && far->holds(p);
+          far_points += far_point ? 1U : 0U;
+          spilled += far_point ? 0U : 1U;
+          const int row = node.row(p), col = node.col(p);
+          const auto [tr0, tr1, tc0, tc1] = tiles_of(tiles, row, col);
+          const std::uint8_t* rgb = g.has_rgb() ? g.rgb.data() + 3 * i : nullptr;
+          const float inten = g.has_intensity() ? g.intensity[static_cast<std::size_t>(i)] : 0.0f;
+          while (!far && next_sample < robust_sample.size() && robust_sample[next_sample] < seen) ++next_sample;
+          const bool sampled = !far && next_sample < robust_sample.size() && robust_sample[next_sample] == seen;
+          const int own_r = row / tiles.size, own_c = col / tiles.size;
+          for (int tr = tr0; tr <= tr1; ++tr) {
+            for (int tc = tc0; tc <= tc1; ++tc) {
+              const std::uint8_t flag = far_point ? kFarFlag : sampled && tr == own_r && tc == own_c ? kSampleFlag : std::uint8_t{0};
+              spill->add(static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc), flag, p,
+                        rgb, inten);
+              ++copies;
+            }
+          }
+        }
+      });
+      spill->flush_all();
+      if (spill->inexact() == 0) break;
+      // A point whose file floats do not give its grid coordinates back (FileFloats): the
+      // pass again, in doubles (its files go first).
+      const double* q = spill->inexact_at();
+      rep.notes.push_back("the spill holds x y z as doubles: its record " + std::to_string(spill->inexact() - 1) +
+                          " (counting from 0 in the order written), at (" + format_number(q[0]) + ", " + format_number(q[1]) + ", " +
+                          format_number(q[2]) + ") m in the grid frame, did not come back from the file's floats bit for bit");
+      box.layout.floats.reset();
+    }
     rep.count_in = box.points;
+    rep.figure("spill_xyz_floats", box.layout.floats ? 1.0 : 0.0);
     rep.count_out = spilled;
     if (far) rep.figure("far_points_spilled_marked", static_cast<double>(far_points));
     rep.figure("points_spilled", static_cast<double>(copies));
@@ -2991,7 +3124,16 @@ void write_plan_file(const PlanFile& pf) {
                 {"upsample_factor", t.k},     {"tile_cells", t.size},       {"halo_cells", t.halo},
                 {"filter_halo_cells", t.filter}, {"tiles_r", t.tiles_r},    {"tiles_c", t.tiles_c}};
   j["spill_bytes"] = pf.spill_bytes;
-  j["layout"] = {{"rgb", p.layout.rgb}, {"intensity", p.layout.intensity}};
+  j["layout"] = {{"rgb", p.layout.rgb}, {"intensity", p.layout.intensity}, {"xyz_floats", nullptr}};
+  if (const auto& ff = p.layout.floats) {
+    auto& x = j["layout"]["xyz_floats"];
+    x["centre"] = {hex(ff->centre.x()), hex(ff->centre.y()), hex(ff->centre.z())};
+    x["unit_m"] = hex(ff->unit_m);
+    x["turned"] = ff->turned;
+    x["linear"] = nlohmann::json::array();
+    for (int i = 0; i < 9; ++i) x["linear"].push_back(hex(ff->linear(i / 3, i % 3)));
+    x["translation_m"] = {hex(ff->translation_m.x()), hex(ff->translation_m.y()), hex(ff->translation_m.z())};
+  }
   j["robust_scale"] = p.robust_scale ? nlohmann::json{{"median_log", hex(p.robust_scale->median_log)},
                                                       {"mad_log", hex(p.robust_scale->mad_log)},
                                                       {"sample", p.robust_scale->sample},
@@ -3067,6 +3209,30 @@ PlanFile read_plan_file(const fs::path& plan_file) {
     where = "layout, robust_scale, input_points, grid_points, far_points, far_main_box_m, far_size_points, precision, offset_m, crs, input";
     p.layout.rgb = j.at("layout").at("rgb").get<bool>();
     p.layout.intensity = j.at("layout").at("intensity").get<bool>();
+    if (const auto& x = j.at("layout").at("xyz_floats"); !x.is_null()) {
+      const std::string was = where;
+      where = "layout.xyz_floats (centre, unit_m, turned, linear, translation_m)";
+      FileFloats ff;
+      const auto number = [&](const nlohmann::json& v, const std::string& key) {
+        const double d = unhex(v, plan_file, key.c_str());
+        if (!std::isfinite(d)) throw InputError(plan_file.string() + ": " + key + " is " + format_number(d) + ", expected a finite number");
+        return d;
+      };
+      for (int a = 0; a < 3; ++a) {
+        const auto i = static_cast<std::size_t>(a);
+        ff.centre[a] = number(x.at("centre").at(i), "layout.xyz_floats.centre[" + std::to_string(a) + "]");
+        ff.translation_m[a] = number(x.at("translation_m").at(i), "layout.xyz_floats.translation_m[" + std::to_string(a) + "]");
+      }
+      ff.unit_m = number(x.at("unit_m"), "layout.xyz_floats.unit_m");
+      if (!(ff.unit_m > 0.0)) throw InputError(plan_file.string() + ": layout.xyz_floats.unit_m is " + format_number(ff.unit_m) + ", expected > 0 [m per file unit]");
+      ff.turned = x.at("turned").get<bool>();
+      for (int i = 0; i < 9; ++i) {
+        ff.linear(i / 3, i % 3) = number(x.at("linear").at(static_cast<std::size_t>(i)), "layout.xyz_floats.linear[" + std::to_string(i) + "]");
+      }
+      ff.inverse = ff.linear.inverse();
+      p.layout.floats = ff;
+      where = was;
+    }
     if (!j.at("robust_scale").is_null()) {
       const auto& rs = j.at("robust_scale");
       p.robust_scale = RobustScale{unhex(rs.at("median_log"), plan_file, "robust_scale.median_log"),

@@ -1160,6 +1160,105 @@ TEST(TiledRun, EqualsTheInCoreRunOnARealE57ScanStreamedScanByScan) {
   (void)expect_streamed_tiled_run(dir, yaml, 48, "data3D scans read one at a time", 10000);
 }
 
+// `pts` (file units) to a binary little-endian PLY of float x y z, as written.
+void write_float_ply(const fs::path& file, const std::vector<std::array<float, 3>>& pts) {
+  std::ofstream out(file, std::ios::binary);
+  out << "ply\nformat binary_little_endian 1.0\nelement vertex " << pts.size()
+      << "\nproperty float x\nproperty float y\nproperty float z\nend_header\n";
+  for (const auto& p : pts) out.write(reinterpret_cast<const char*>(p.data()), 12);
+}
+
+// The first n points of the generated wall (back side included; outliers with outlier_fraction,
+// as ReliefSpec's) [m].
+std::vector<std::array<double, 3>> wall_points(std::uint64_t n, double outlier_fraction) {
+  hc::tools::ReliefSpec spec;
+  spec.points = n;
+  spec.outlier_fraction = outlier_fraction;
+  std::vector<std::array<double, 3>> pts;
+  for (std::uint64_t i = 0; i < n; ++i) {
+    const auto q = hc::tools::relief_point(spec, i);
+    pts.push_back({q.x_m, q.y_m, q.z_m});
+  }
+  return pts;
+}
+
+// A float scan's spill keeps the file's own floats (a flag byte and 12 bytes a point, not 24 of
+// grid-frame doubles) and reads them back as the doubles the in-core run computes: in mm
+// (input.units, a scale of 0.001), under a turned view (without the robust test: turned, the
+// points it removes at the box's edge would narrow the in-core grid's box and not the tiled one's,
+// docs/scale.md), and unturned with the robust test, whose second look reads other tiles' block
+// copies of those floats. Oracle: the in-core run, bit for bit; the record size from the format
+// (flag + 3 floats, no colour).
+TEST(TiledRun, AFloatScanIsSpilledAsItsOwnFloatsAndReadBackAsTheInCoreRunsDoubles) {
+  const fs::path dir = hc::test::temp_dir("float_spill");
+  std::vector<std::array<float, 3>> mm;
+  for (const auto& p : wall_points(60'000, 0.001)) {
+    mm.push_back({static_cast<float>(1e3 * p[0]), static_cast<float>(1e3 * p[1]), static_cast<float>(1e3 * p[2])});
+  }
+  write_float_ply(dir / "wall.ply", mm);
+  fs::create_directory(dir / "scratch");
+  for (const bool turned : {true, false}) {
+    SCOPED_TRACE(turned ? "turned, no robust test" : "unturned, the robust test");
+    const std::string yaml =
+        "input: {files: [wall.ply], units: mm}\n" +
+        std::string(turned ? "view: {rotation: {axis: [1, 1, 0.2], angle_deg: 25}}\nfilters: {outliers: {enabled: false}}\n" : "") +
+        "grid: {n: 300, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64}\n"
+        "cross_check: {tolerance_m: 0.002}\nscale: {chunk_points: 7000}\n";
+    RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml");
+    expect_tiled_equals_in_core(config, 48, dir / "scratch");
+    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+    config.scale.tile_cells = 48;
+    config.scale.scratch = dir / "scratch";
+    const BuiltScene tiled = hc::pipeline::build_scene(config);
+    EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_xyz_floats"), 1.0);
+    EXPECT_FALSE(has_note(tiled, "tile_spill", "the spill holds x y z as doubles"));
+    EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_bytes_peak_mb") * 1e6, 13.0 * stage_figure(tiled, "tile_spill", "points_spilled"));
+    if (!turned) {
+      EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0) << "the second look copied a tile's floats by block";
+      EXPECT_GT(stage_figure(tiled, "tiles", "sum_robust_block_records_read"), 0.0) << "and read them back";
+      // Oracle for the copies: without them every gathering reads the whole spills.
+      config.scale.block_copies = false;
+      const BuiltScene whole = hc::pipeline::build_scene(config);
+      for (const char* name : {"sum_robust_points_gathered", "sum_robust_gatherings", "sum_points_judged_past_halo", "sum_removed_robust"}) {
+        EXPECT_EQ(stage_figure(tiled, "tiles", name), stage_figure(whole, "tiles", name)) << name;
+      }
+    }
+  }
+}
+
+// A float scan with a coordinate of −0 where the box is centred on 0: the grid frame keeps the
+// sign (−0 − 0 = −0) but the float taken back from it is +0, which reads back as +0, so the spill
+// pass runs again in doubles and says why. Oracle: the in-core run, bit for bit; the record size
+// from the format (flag + 3 doubles).
+TEST(TiledRun, AScanWhoseFloatsDoNotGiveTheGridFrameBackIsSpilledInDoubles) {
+  const fs::path dir = hc::test::temp_dir("double_spill");
+  std::vector<std::array<float, 3>> m;
+  float half = 0.0f;
+  for (const auto& p : wall_points(30'000, 0.001)) {
+    m.push_back({static_cast<float>(p[0]), static_cast<float>(p[1]), static_cast<float>(p[2])});
+    half = std::max(half, std::abs(m.back()[0]));
+  }
+  m[0][0] = -half;  // the box's x from -half to half: its centre 0
+  m[1][0] = half;
+  m[m.size() / 2][0] = -0.0f;
+  write_float_ply(dir / "wall.ply", m);
+  const std::string yaml =
+      "input: {files: [wall.ply], units: m}\n"
+      "grid: {n: 200, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64}\n"
+      "cross_check: {tolerance_m: 0.002}\nscale: {chunk_points: 5000}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml");
+  fs::create_directory(dir / "scratch");
+  expect_tiled_equals_in_core(config, 40, dir / "scratch");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 40;
+  config.scale.scratch = dir / "scratch";
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_xyz_floats"), 0.0);
+  EXPECT_TRUE(has_note(tiled, "tile_spill", "the spill holds x y z as doubles"));
+  EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_bytes_peak_mb") * 1e6, 25.0 * stage_figure(tiled, "tile_spill", "points_spilled"));
+  EXPECT_TRUE(fs::is_empty(dir / "scratch")) << "the float spill's files went when the pass ran again";
+}
+
 // Progress within the long stages: every pass reports, fractions rise within a pass and stay in
 // [0, 1], and the time left is finite and not negative (scale.progress_interval_s: 0 reports
 // every chunk and every tile, so nothing here depends on timing).
