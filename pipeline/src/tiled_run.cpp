@@ -173,9 +173,15 @@ struct FileFloats {
   // The float x y z [3] whose to_grid is nearest g [3] [m]: g taken back through the inverse
   // and rounded; the caller checks that to_grid gives g back (Layout::put).
   void to_file(const double* g, float* f) const {
-    Eigen::Vector3d s(g[0], g[1], g[2]);
-    if (turned) s = inverse * (s - translation_m);
-    for (int a = 0; a < 3; ++a) f[a] = static_cast<float>(s[a] / unit_m + centre[a]);
+    double s[3] = {g[0], g[1], g[2]};
+    if (turned) {
+      const Eigen::Vector3d v = inverse * (Eigen::Vector3d(g[0], g[1], g[2]) - translation_m);
+      std::copy_n(v.data(), 3, s);
+    }
+    for (int a = 0; a < 3; ++a) {
+      if (unit_m != 1.0) s[a] /= unit_m;
+      f[a] = static_cast<float>(s[a] + centre[a]);
+    }
   }
 };
 
