@@ -320,17 +320,20 @@ class Spill : public TileFiles {
   using TileFiles::bytes;
   const Layout& layout() const { return layout_; }
 
+  // Appends a record to tile t's file (through its buffer): the flag, x y z [3] (the grid frame
+  // [m]), rgb [3] (read with colour only), intensity. @throws NotFloats when the layout holds the
+  // file's floats and p does not read back from them bit for bit (nothing of the point is
+  // buffered); InputError naming the file when a buffer's write fails (TileFiles::put).
   void add(std::size_t t, std::uint8_t flag, const double* p, const std::uint8_t* rgb, float intensity) {
     std::vector<char>& b = buf_[t];
     const std::size_t at = b.size();
     b.resize(at + layout_.bytes());
     char* q = b.data() + at;
     q[0] = static_cast<char>(flag);
-    if (!layout_.put(q + 1, p, rgb, intensity) && inexact_ == 0) {
-      inexact_ = 1 + written_;
-      std::memcpy(inexact_at_, p, 24);
+    if (!layout_.put(q + 1, p, rgb, intensity)) {
+      b.resize(at);
+      throw NotFloats{{p[0], p[1], p[2]}};
     }
-    ++written_;
     buffered_ += layout_.bytes();
     if (b.size() >= kTileBuffer) flush(t);
     if (buffered_ >= kTotalBuffer) flush_all();
@@ -354,11 +357,11 @@ class Spill : public TileFiles {
     return s;
   }
 
-  // With x y z as the file's floats: 0 when every record added so far reads back as the point
-  // given, else 1 + the number (in the order of add(), halo copies counted) of the first that
-  // does not, whose grid-frame x y z [m] inexact_at() gives.
-  std::uint64_t inexact() const { return inexact_; }
-  const double* inexact_at() const { return inexact_at_; }
+  // What add() throws when the layout holds the file's floats and a point does not read back
+  // from them bit for bit: its grid-frame x y z [m] (the spill pass then runs in doubles).
+  struct NotFloats {
+    std::array<double, 3> xyz_m;
+  };
 
   // Re-marks tile t's records in place (flush first): each record's flag byte becomes
   // mark(point's x y z); the records and their order stay. Only the bytes that change are
@@ -455,8 +458,6 @@ class Spill : public TileFiles {
   Layout layout_;
   std::vector<std::vector<char>> buf_;
   std::size_t buffered_ = 0;
-  std::uint64_t written_ = 0, inexact_ = 0;
-  double inexact_at_[3] = {0.0, 0.0, 0.0};
 };
 
 // Which of a tile's spilled records the tile kept, one file per tile (kept_<t>.bin): a byte per
@@ -787,7 +788,7 @@ struct Percentile {
 
 // The cross-check's on-surface residuals (vertical, normal; float pairs) of the first pass over
 // the kept points, in a scratch file, so that the second pass of the exact percentiles reads
-// 8 bytes a point instead of the kept points (25 or more) and computing every residual again.
+// 8 bytes a point instead of the kept points (13 or more, Layout) and computing every residual again.
 // The file is removed when the object goes, whatever happened.
 class ResidualFile {
  public:
@@ -2320,6 +2321,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       std::size_t next_sample = 0;
       const NodeBinner node(tiles.g);
       std::uint64_t seen = 0;
+      try {
       for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
                           "pass 3 of 3: the spill", [&](const Cloud& g) {
         for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++seen) {
@@ -2344,15 +2346,18 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           }
         }
       });
+      } catch (const Spill::NotFloats& e) {
+        // A point whose file floats do not give its grid coordinates back (FileFloats): the
+        // pass again, in doubles (the files written so far go first).
+        rep.notes.push_back("the spill holds x y z as doubles: point " + std::to_string(seen) +
+                            " (counting from 0 after non-finite points and the crop), at (" + format_number(e.xyz_m[0]) + ", " +
+                            format_number(e.xyz_m[1]) + ", " + format_number(e.xyz_m[2]) +
+                            ") m in the grid frame, does not come back from the file's floats bit for bit");
+        box.layout.floats.reset();
+        continue;
+      }
       spill->flush_all();
-      if (spill->inexact() == 0) break;
-      // A point whose file floats do not give its grid coordinates back (FileFloats): the
-      // pass again, in doubles (its files go first).
-      const double* q = spill->inexact_at();
-      rep.notes.push_back("the spill holds x y z as doubles: its record " + std::to_string(spill->inexact() - 1) +
-                          " (counting from 0 in the order written), at (" + format_number(q[0]) + ", " + format_number(q[1]) + ", " +
-                          format_number(q[2]) + ") m in the grid frame, did not come back from the file's floats bit for bit");
-      box.layout.floats.reset();
+      break;
     }
     rep.count_in = box.points;
     rep.figure("spill_xyz_floats", box.layout.floats ? 1.0 : 0.0);
@@ -3004,7 +3009,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 // ---------------------------------------------------------------------------------------------
 // Tile jobs in other processes: plan.json, part_<t>.bin, kept_<t>.bin.
 
-constexpr const char* kPlanFormat = "hapticloud tile plan 3";
+// 4: layout.xyz_floats, and spill records of the file's floats when it is set (FileFloats).
+constexpr const char* kPlanFormat = "hapticloud tile plan 4";
 // 2: kept_<t>.bin is a mask over the spill (KeptMask), not the kept points.
 constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '2', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
@@ -3232,6 +3238,9 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       ff.unit_m = number(x.at("unit_m"), "layout.xyz_floats.unit_m");
       if (!(ff.unit_m > 0.0)) throw InputError(plan_file.string() + ": layout.xyz_floats.unit_m is " + format_number(ff.unit_m) + ", expected > 0 [m per file unit]");
       ff.turned = x.at("turned").get<bool>();
+      if (!x.at("linear").is_array() || x.at("linear").size() != 9) {
+        throw InputError(plan_file.string() + ": layout.xyz_floats.linear is not 9 numbers (the view's linear part, row by row)");
+      }
       for (int i = 0; i < 9; ++i) {
         ff.linear(i / 3, i % 3) = number(x.at("linear").at(static_cast<std::size_t>(i)), "layout.xyz_floats.linear[" + std::to_string(i) + "]");
       }

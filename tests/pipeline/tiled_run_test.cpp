@@ -30,6 +30,7 @@
 #include <iostream>
 #include <limits>
 #include <map>
+#include <numeric>
 #include <vector>
 #include <string>
 #include <tuple>
@@ -1212,8 +1213,26 @@ TEST(TiledRun, AFloatScanIsSpilledAsItsOwnFloatsAndReadBackAsTheInCoreRunsDouble
     const BuiltScene tiled = hc::pipeline::build_scene(config);
     EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_xyz_floats"), 1.0);
     EXPECT_FALSE(has_note(tiled, "tile_spill", "the spill holds x y z as doubles"));
-    EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_bytes_peak_mb") * 1e6, 13.0 * stage_figure(tiled, "tile_spill", "points_spilled"));
-    if (!turned) {
+    EXPECT_NEAR(stage_figure(tiled, "tile_spill", "spill_bytes_peak_mb") * 1e6, 13.0 * stage_figure(tiled, "tile_spill", "points_spilled"), 0.5);
+    if (turned) {
+      // Tile jobs in this process read the frame from plan.json (layout.xyz_floats): the merged
+      // scene is the in-process one.
+      {
+        std::ofstream(dir / "wall.yaml") << yaml;
+      }
+      const auto info = hc::pipeline::write_tile_plan(dir / "wall.yaml", {"scale.tiled=on", "scale.tile_cells=48"}, dir / "work");
+      std::vector<std::size_t> all(info.tiles);
+      std::iota(all.begin(), all.end(), std::size_t{0});
+      hc::pipeline::run_tile_jobs(info.plan_file, all);
+      const auto merged = hc::pipeline::merge_tile_jobs(info.plan_file);
+      const auto& a = tiled.scene.layers;
+      const auto& b = merged.built.scene.layers;
+      EXPECT_EQ(differing_bits(a.depth, b.depth), 0U);
+      EXPECT_EQ(differing_bits(a.texture, b.texture), 0U);
+      EXPECT_EQ(differing_bits(a.mu_s, b.mu_s), 0U);
+      EXPECT_EQ(differing_bits(a.cell_error, b.cell_error), 0U);
+      fs::remove_all(dir / "work");
+    } else {
       EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0) << "the second look copied a tile's floats by block";
       EXPECT_GT(stage_figure(tiled, "tiles", "sum_robust_block_records_read"), 0.0) << "and read them back";
       // Oracle for the copies: without them every gathering reads the whole spills.
@@ -1228,7 +1247,7 @@ TEST(TiledRun, AFloatScanIsSpilledAsItsOwnFloatsAndReadBackAsTheInCoreRunsDouble
 
 // A float scan with a coordinate of −0 where the box is centred on 0: the grid frame keeps the
 // sign (−0 − 0 = −0) but the float taken back from it is +0, which reads back as +0, so the spill
-// pass runs again in doubles and says why. Oracle: the in-core run, bit for bit; the record size
+// pass stops there and runs again in doubles, saying why. Oracle: the in-core run, bit for bit; the record size
 // from the format (flag + 3 doubles).
 TEST(TiledRun, AScanWhoseFloatsDoNotGiveTheGridFrameBackIsSpilledInDoubles) {
   const fs::path dir = hc::test::temp_dir("double_spill");
@@ -1255,8 +1274,7 @@ TEST(TiledRun, AScanWhoseFloatsDoNotGiveTheGridFrameBackIsSpilledInDoubles) {
   const BuiltScene tiled = hc::pipeline::build_scene(config);
   EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_xyz_floats"), 0.0);
   EXPECT_TRUE(has_note(tiled, "tile_spill", "the spill holds x y z as doubles"));
-  EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_bytes_peak_mb") * 1e6, 25.0 * stage_figure(tiled, "tile_spill", "points_spilled"));
-  EXPECT_TRUE(fs::is_empty(dir / "scratch")) << "the float spill's files went when the pass ran again";
+  EXPECT_NEAR(stage_figure(tiled, "tile_spill", "spill_bytes_peak_mb") * 1e6, 25.0 * stage_figure(tiled, "tile_spill", "points_spilled"), 0.5);
 }
 
 // Progress within the long stages: every pass reports, fractions rise within a pass and stay in
