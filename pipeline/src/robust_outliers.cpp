@@ -251,14 +251,14 @@ class ExactDistances {
 
 // The counting pass of remove_robust_outliers over the cells [cb, ce): certified[s] = 1 for the
 // sorted points s with at least need_count points (itself included) within squared distance
-// cert2 (own cell, then the cells of the 3×3×3 block that come within reach, nearest first,
-// stopping at need_count); 0 otherwise. `table` is g's dense_lower_table (or empty). Compiled also for AVX2 where the compiler can (the
+// cert2 (own cell, then the cells of the 3×3×3 block that come within reach: faces, edges, then
+// corners, stopping at need_count); 0 otherwise. `table` is g's dense_lower_table (or empty). Compiled also for AVX2 where the compiler can (the
 // distance loops vectorise 8 wide), chosen at load time by the CPU.
 HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const std::vector<std::uint32_t>& table, float cert2,
                                         std::uint32_t need_count, std::size_t cb, std::size_t ce, std::uint8_t* certified) {
   // The 3×3×3 block's point ranges, by (dx + 1) + 3 (dy + 1) + 9 (dz + 1).
   std::array<std::pair<std::uint32_t, std::uint32_t>, 27> block{};
-  std::array<std::pair<float, std::uint8_t>, 26> order{};  // (squared gap, block) within reach
+  std::array<std::array<std::uint8_t, 12>, 3> by_class{};  // blocks within reach: faces, edges, corners
   std::vector<std::uint32_t> own;
   const auto edge = static_cast<float>(g.cell);
   for (std::size_t ci = cb; ci < ce; ++ci) {
@@ -305,30 +305,33 @@ HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const std::vector<std
         if (u * u <= cert2) axis[ax][na[ax]++] = {-1, u * u};
         if (w * w <= cert2) axis[ax][na[ax]++] = {1, w * w};
       }
-      std::size_t reach = 0;
+      // The cells within reach (gap ≤ d_cert, not empty) by how many axes they are offset
+      // along: the 6 face cells first, then the 12 edge cells, then the 8 corners. Each edge
+      // cell's gap is at least its faces', each corner's at least its edges', so the nearest come
+      // about first without a sort; the order only decides when the count stops at need_count,
+      // never the verdict (every cell within reach is counted until then).
+      std::array<std::size_t, 3> reach{};
       for (std::size_t iz = 0; iz < na[2]; ++iz) {
         for (std::size_t iy = 0; iy < na[1]; ++iy) {
           for (std::size_t ix = 0; ix < na[0]; ++ix) {
-            if (ix == 0 && iy == 0 && iz == 0) continue;
+            const std::size_t off = (ix != 0 ? 1u : 0u) + (iy != 0 ? 1u : 0u) + (iz != 0 ? 1u : 0u);
+            if (off == 0) continue;
             const float gap2 = axis[0][ix].second + axis[1][iy].second + axis[2][iz].second;
             const auto q = static_cast<std::uint8_t>((axis[0][ix].first + 1) + 3 * (axis[1][iy].first + 1) +
                                                      9 * (axis[2][iz].first + 1));
             if (gap2 > cert2 || block[q].second <= block[q].first) continue;
-            std::size_t at = reach++;
-            while (at > 0 && order[at - 1].first > gap2) {
-              order[at] = order[at - 1];
-              --at;
-            }
-            order[at] = {gap2, q};
+            by_class[off - 1][reach[off - 1]++] = q;
           }
         }
       }
       std::uint32_t cnt = own[a - pb];
-      for (std::size_t r = 0; r < reach && cnt < need_count; ++r) {
-        const auto& bl = block[order[r].second];
-        for (std::uint32_t b = bl.first; b < bl.second; ++b) {
-          const float dx = g.x[b] - pt[0], dy = g.y[b] - pt[1], dz = g.z[b] - pt[2];
-          cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
+      for (std::size_t cls = 0; cls < 3 && cnt < need_count; ++cls) {
+        for (std::size_t r = 0; r < reach[cls] && cnt < need_count; ++r) {
+          const auto& bl = block[by_class[cls][r]];
+          for (std::uint32_t b = bl.first; b < bl.second; ++b) {
+            const float dx = g.x[b] - pt[0], dy = g.y[b] - pt[1], dz = g.z[b] - pt[2];
+            cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
+          }
         }
       }
       certified[a] = cnt >= need_count ? 1 : 0;
@@ -744,7 +747,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   const double t_sample = seconds_since(t0);
 
   // 2. Counting pass: at least k other points within d_cert (own cell, then the cells of the
-  // 3×3×3 block that come within d_cert, nearest first, stopping at k + 1) prove d_i <= d_cert.
+  // 3×3×3 block that come within d_cert, faces before edges before corners, stopping at k + 1)
+  // prove d_i <= d_cert.
   // Cells split in two halves.
   const auto cert2 = static_cast<float>(d_cert * d_cert * (1.0 - 1e-5));
   const std::size_t cells = g.cells();
