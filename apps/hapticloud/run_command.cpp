@@ -161,6 +161,8 @@ void add_run_command(CLI::App& app) {
       ->required();
   pc->add_option("--set", plan->sets, "Override a config key, e.g. --set grid.n=400 (repeatable)");
   pc->callback([plan] {
+    // Before any thread starts: Ctrl-C removes the plan's spill files (or the folder it made).
+    const session::InterruptCleanup cleanup;
     keep_freed_memory_for_reuse();
     spdlog::info("hapticloud tile-plan {} -> {}", plan->config, plan->work);
     const auto info = pipeline::write_tile_plan(plan->config, plan->sets, plan->work, log_progress);
@@ -175,6 +177,8 @@ void add_run_command(CLI::App& app) {
   jc->add_option("plan", job->plan, "The plan: WORK/plan.json")->required();
   jc->add_option("--tiles", job->tiles, "Tile indices, e.g. --tiles 0,1,5")->required()->delimiter(',');
   jc->callback([job] {
+    // Before any thread starts: Ctrl-C removes the job's block copies and temporary files.
+    const session::InterruptCleanup cleanup;
     keep_freed_memory_for_reuse();
     pipeline::run_tile_jobs(job->plan, job->tiles);
   });

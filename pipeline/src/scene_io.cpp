@@ -16,10 +16,13 @@
 #include <cstring>
 #include <ctime>
 #include <fstream>
+#include <algorithm>
+#include <map>
 #include <mutex>
 #include <set>
 #include <sstream>
 #include <stdexcept>
+#include <vector>
 
 namespace hc::pipeline {
 namespace fs = std::filesystem;
@@ -624,8 +627,10 @@ fs::path free_sibling(const fs::path& base, const std::string& suffix) {
 /// Staging folders of the StagingDirs alive in this process.
 std::mutex g_live_mutex;
 std::set<std::string> g_live_staging;
-/// Scratch folders registered by their owners (register_live_scratch_dir).
+/// Scratch folders and files registered by their owners (register_live_scratch_dir).
 std::set<std::string> g_live_scratch;
+/// Folders whose entries with these name prefixes are scratch (register_live_scratch_entries).
+std::map<std::string, std::vector<std::string>> g_live_entries;
 
 /// Removes `<target>.partial-<pid>[-k]` and `<target>.old-<pid>[-k]` siblings whose process is
 /// gone and that hold the output marker (so they are ours). Best effort; never throws.
@@ -708,15 +713,28 @@ StagingDir::StagingDir(fs::path target, ExistingOutput existing) : target_(std::
   }
 }
 
-void register_live_scratch_dir(const fs::path& dir) {
+void register_live_scratch_dir(const fs::path& path) {
   std::lock_guard<std::mutex> lock(g_live_mutex);
-  g_live_scratch.insert(dir.string());
+  g_live_scratch.insert(path.string());
 }
 
-void unregister_live_scratch_dir(const fs::path& dir) noexcept {
+void unregister_live_scratch_dir(const fs::path& path) noexcept {
   try {
     std::lock_guard<std::mutex> lock(g_live_mutex);
-    g_live_scratch.erase(dir.string());
+    g_live_scratch.erase(path.string());
+  } catch (...) {
+  }
+}
+
+void register_live_scratch_entries(const fs::path& dir, const std::vector<std::string>& prefixes) {
+  std::lock_guard<std::mutex> lock(g_live_mutex);
+  g_live_entries[dir.string()] = prefixes;
+}
+
+void unregister_live_scratch_entries(const fs::path& dir) noexcept {
+  try {
+    std::lock_guard<std::mutex> lock(g_live_mutex);
+    g_live_entries.erase(dir.string());
   } catch (...) {
   }
 }
@@ -743,8 +761,26 @@ int remove_live_staging_dirs() noexcept {
                                 // never the staging folder itself, so this is a belt and braces)
       ++n;
     }
+    // Registered entries of a folder that stays (the user's): those whose names start with a
+    // registered prefix, again while new ones appear (a writer may still be creating them).
+    for (const auto& [dir, prefixes] : g_live_entries) {
+      for (int attempt = 0; attempt < 50; ++attempt) {
+        std::vector<fs::path> ours;
+        std::error_code ec;
+        for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+          const std::string name = it->path().filename().string();
+          if (std::any_of(prefixes.begin(), prefixes.end(), [&](const std::string& p) { return name.rfind(p, 0) == 0; })) {
+            ours.push_back(it->path());
+          }
+        }
+        if (ours.empty()) break;
+        for (const fs::path& e : ours) fs::remove_all(e, ec);
+      }
+      ++n;
+    }
     g_live_staging.clear();
     g_live_scratch.clear();
+    g_live_entries.clear();
   } catch (...) {
   }
   return n;

@@ -1116,6 +1116,7 @@ class BlockCopies {
       : spill_(spill), tiles_(tiles), node_(tiles.g), tile_(tiles.count()), on_(on), copy_from_(copy_from) {}
   ~BlockCopies() {
     if (dir_.empty()) return;
+    unregister_live_scratch_dir(dir_);
     std::error_code ec;
     fs::remove_all(dir_, ec);
   }
@@ -1254,9 +1255,12 @@ class BlockCopies {
     if (copy && dir_.empty()) {
       const fs::path d = spill_.dir() / (std::string(kBlocksPrefix) + attempt_tag());
       std::error_code ec;
+      // Registered before it exists: SIGINT/SIGTERM (hapticloud's signal watcher) removes it.
+      register_live_scratch_dir(d);
       if (fs::create_directory(d, ec) && !ec) {
         dir_ = d;
       } else {
+        unregister_live_scratch_dir(d);
         fail(sums);
         copy = false;
       }
@@ -3049,6 +3053,12 @@ std::string attempt_tag() { return host_tag() + "-" + std::to_string(::getpid())
 // so a reader never sees half of it, even after a crash. @throws InputError naming the file.
 void write_atomically(const fs::path& target, const std::string& bytes) {
   const fs::path tmp = target.parent_path() / ("." + target.filename().string() + std::string(kTmpInfix) + attempt_tag());
+  // SIGINT/SIGTERM (hapticloud's signal watcher) removes the temporary while it is written.
+  register_live_scratch_dir(tmp);
+  const struct Unregister {
+    const fs::path& p;
+    ~Unregister() { unregister_live_scratch_dir(p); }
+  } unregister{tmp};
   std::FILE* f = std::fopen(tmp.c_str(), "wb");
   const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() && std::fflush(f) == 0 &&
                   ::fsync(::fileno(f)) == 0;
@@ -3453,8 +3463,17 @@ TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::si
 // Removes, on failure, what a tile plan created (the folder when it made it, else the files).
 class PlanCleanup {
  public:
-  PlanCleanup(fs::path dir, bool made_dir) : dir_(std::move(dir)), made_(made_dir) {}
+  // SIGINT/SIGTERM (hapticloud's signal watcher) removes the same: the folder when this made it,
+  // else the entries the plan writes (tile_<t>.bin, plan.json and its temporary).
+  PlanCleanup(fs::path dir, bool made_dir) : dir_(std::move(dir)), made_(made_dir) {
+    if (made_) {
+      register_live_scratch_dir(dir_);
+    } else {
+      register_live_scratch_entries(dir_, {"tile_", "plan.json", ".plan.json"});
+    }
+  }
   ~PlanCleanup() {
+    unregister();
     if (done_) return;
     std::error_code ec;
     if (made_) {
@@ -3470,9 +3489,20 @@ class PlanCleanup {
   }
   PlanCleanup(const PlanCleanup&) = delete;
   PlanCleanup& operator=(const PlanCleanup&) = delete;
-  void keep() { done_ = true; }
+  void keep() {
+    unregister();
+    done_ = true;
+  }
 
  private:
+  void unregister() noexcept {
+    if (made_) {
+      unregister_live_scratch_dir(dir_);
+    } else {
+      unregister_live_scratch_entries(dir_);
+    }
+  }
+
   fs::path dir_;
   bool made_;
   bool done_ = false;
@@ -3610,12 +3640,17 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
     for (; row > far && kept_from < (row - far) * per_row; ++kept_from) blocks.drop(kept_from);
     std::error_code ec;
     // This attempt's temporary kept file goes however the job ends (renamed below on success).
+    // SIGINT/SIGTERM (hapticloud's signal watcher) removes it too.
     struct RemoveTemp {
       fs::path f;
+      explicit RemoveTemp(fs::path p) : f(std::move(p)) { register_live_scratch_dir(f); }
       ~RemoveTemp() {
+        unregister_live_scratch_dir(f);
         std::error_code e;
         fs::remove(f, e);
       }
+      RemoveTemp(const RemoveTemp&) = delete;
+      RemoveTemp& operator=(const RemoveTemp&) = delete;
     } temp{kept.file(t)};
     TileOutput o = process_tile(config, plan, spill, blocks, kept, t);
     if (o.kept_bytes > 0) {

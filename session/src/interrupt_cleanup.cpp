@@ -36,7 +36,7 @@ InterruptCleanup::InterruptCleanup() {
         if (done_.load()) return;  // the destructor's wake-up
         const int removed = pipeline::remove_live_staging_dirs();
         const std::string line = std::string("hapticloud: interrupted by ") + (signo == SIGINT ? "SIGINT" : "SIGTERM") +
-                                 "; removed " + std::to_string(removed) + " unfinished output folder(s)\n";
+                                 "; removed " + std::to_string(removed) + " unfinished output or scratch item(s)\n";
         const ssize_t written = ::write(STDERR_FILENO, line.data(), line.size());
         (void)written;
         ::_exit(128 + signo);

@@ -1,6 +1,7 @@
 // Issue 15: SIGTERM (or Ctrl-C) while `hapticloud run` writes its output leaves no
 // `<out>.partial-<pid>` behind, and stale ones of dead processes are removed by the next run.
-// Issue 14: nor does it leave a tiled run's spill folder in scale.scratch.
+// Issue 14: nor does it leave a tiled run's spill folder in scale.scratch, a tile plan's spill
+// files, or a tile job's block copies and temporary files.
 
 #include <gtest/gtest.h>
 
@@ -14,6 +15,7 @@
 #include <chrono>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <string>
 #include <thread>
 #include <vector>
@@ -53,6 +55,30 @@ void interrupt_when(const std::vector<std::string>& args, Seen&& seen, int signo
   ASSERT_TRUE(appeared) << what << " never appeared (the run ended or took over 300 s)";
   ASSERT_EQ(kill(pid, signo), 0);
   ASSERT_EQ(waitpid(pid, &status, 0), pid);
+}
+
+// Runs the app with `args` to its end; returns its exit status (waitpid's).
+int run_app(const std::vector<std::string>& args) {
+  std::vector<std::string> all = {HC_APP};
+  all.insert(all.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (auto& a : all) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  pid_t pid = 0;
+  if (posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ) != 0) return -1;
+  int status = 0;
+  return waitpid(pid, &status, 0) == pid ? status : -1;
+}
+
+// The entries of `dir` whose names start with `prefix` or contain `infix` (empty: not tested).
+std::vector<std::string> entries_like(const fs::path& dir, const std::string& prefix, const std::string& infix = "") {
+  std::vector<std::string> found;
+  std::error_code ec;
+  for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+    const std::string n = it->path().filename().string();
+    if ((!prefix.empty() && n.rfind(prefix, 0) == 0) || (!infix.empty() && n.find(infix) != std::string::npos)) found.push_back(n);
+  }
+  return found;
 }
 
 TEST(Interrupt, SigtermDuringTheWriteRemovesTheStagingFolder) {
@@ -96,6 +122,61 @@ TEST(Interrupt, SigintDuringATiledRunRemovesTheSpillFolder) {
   EXPECT_EQ(WEXITSTATUS(status), 128 + SIGINT);
   EXPECT_TRUE(fs::is_empty(scratch)) << "left in the scratch folder: " << fs::directory_iterator(scratch)->path();
   EXPECT_FALSE(fs::exists(dir / "out"));
+}
+
+// `hapticloud tile-plan` into a folder that existed (empty, the user's): SIGINT while it spills
+// removes the spill files it wrote, and keeps the folder.
+TEST(Interrupt, SigintDuringATilePlanRemovesItsSpillFilesAndKeepsTheFolder) {
+  const fs::path dir = hc::test::temp_dir("sigint-plan");
+  const fs::path work = dir / "work";
+  fs::create_directories(work);
+  const std::string config = (fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml").string();
+  int status = 0;
+  interrupt_when({"tile-plan", config, "--work", work.string(), "-q", "--set", "scale.tile_cells=64"},
+                 [&] { return !entries_like(work, "tile_").empty() && !fs::exists(work / "plan.json"); }, SIGINT,
+                 "a spill file in " + work.string() + " before plan.json", status);
+  if (HasFatalFailure()) return;
+  ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
+  EXPECT_EQ(WEXITSTATUS(status), 128 + SIGINT);
+  ASSERT_TRUE(fs::is_directory(work)) << "the user's folder went";
+  EXPECT_TRUE(fs::is_empty(work)) << "left in the work folder: " << fs::directory_iterator(work)->path();
+}
+
+// `hapticloud tile-job` over every tile of a plan: SIGINT while its block copies are on disk
+// (a `.blocks-*` folder: the second look reads a neighbour's spill a second time) removes them
+// and its temporary kept file, and leaves the plan's files as they were, so the job can run again.
+TEST(Interrupt, SigintDuringATileJobRemovesItsScratchAndKeepsThePlan) {
+  const fs::path dir = hc::test::temp_dir("sigint-job");
+  const fs::path work = dir / "work";
+  const std::string config = (fs::path(HC_SOURCE_DIR) / "configs" / "happy_buddha.yaml").string();
+  const int planned = run_app({"tile-plan", config, "--work", work.string(), "-q", "--set", "scale.tile_cells=64"});
+  ASSERT_TRUE(WIFEXITED(planned) && WEXITSTATUS(planned) == 0) << "tile-plan failed: status " << planned;
+  std::map<std::string, std::uintmax_t> plan_files;  // name -> size
+  for (const auto& e : fs::directory_iterator(work)) plan_files[e.path().filename().string()] = fs::file_size(e.path());
+  const std::size_t tiles = entries_like(work, "tile_").size();
+  ASSERT_GT(tiles, 4U);
+  std::string all;
+  for (std::size_t t = 0; t < tiles; ++t) all += (t ? "," : "") + std::to_string(t);
+  int status = 0;
+  interrupt_when({"tile-job", (work / "plan.json").string(), "--tiles", all, "-q"},
+                 [&] { return !entries_like(work, ".blocks-").empty(); }, SIGINT, "a .blocks-* folder in " + work.string(),
+                 status);
+  if (HasFatalFailure()) return;
+  ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
+  EXPECT_EQ(WEXITSTATUS(status), 128 + SIGINT);
+  EXPECT_TRUE(entries_like(work, ".blocks-").empty()) << "the block copies' folder was left";
+  EXPECT_TRUE(entries_like(work, ".kept-job-").empty()) << "a temporary kept file was left";
+  EXPECT_TRUE(entries_like(work, "", ".tmp-").empty()) << "a part file's temporary was left";
+  for (const auto& [name, size] : plan_files) {
+    std::error_code ec;
+    EXPECT_EQ(fs::file_size(work / name, ec), size) << name << (ec ? " is gone" : " changed");
+  }
+  // What is left besides the plan is finished tiles' results only: a part file and its mask.
+  for (const auto& e : fs::directory_iterator(work)) {
+    const std::string n = e.path().filename().string();
+    if (plan_files.count(n)) continue;
+    EXPECT_TRUE(n.rfind("part_", 0) == 0 || n.rfind("kept_", 0) == 0) << "left: " << n;
+  }
 }
 
 }  // namespace

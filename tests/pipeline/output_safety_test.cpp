@@ -15,9 +15,11 @@
 #include <signal.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
 #include <iterator>
 #include <string>
@@ -195,6 +197,44 @@ TEST(OutputSafety, LiveStagingFoldersCanBeRemovedByASignalWatcher) {
   EXPECT_EQ(remove_live_staging_dirs(), 2);
   EXPECT_FALSE(fs::exists(a.path()));
   EXPECT_FALSE(fs::exists(b.path()));
+}
+
+// Scratch a signal watcher removes besides staging folders: a registered file, and the entries of
+// a folder that stays (a tile plan's files in the user's work folder) whose names start with a
+// registered prefix; what is unregistered, or matches no prefix, stays.
+TEST(OutputSafety, RegisteredScratchFilesAndEntriesAreRemovedByASignalWatcher) {
+  const fs::path dir = hc::test::temp_dir("live-scratch");
+  const fs::path work = dir / "work";
+  fs::create_directories(work / "tile_sub");
+  for (const char* n : {"tile_0.bin", "tile_12.bin", "plan.json", ".plan.json.tmp-x", "notes.txt", "my_tile_0.bin"}) {
+    std::ofstream(work / n) << "x";
+  }
+  std::ofstream(work / "tile_sub" / "a") << "x";
+  const fs::path file = dir / ".part_3.bin.tmp-y", kept_file = dir / "kept.bin";
+  std::ofstream(file) << "x";
+  std::ofstream(kept_file) << "x";
+  const fs::path other = dir / "other";
+  fs::create_directories(other);
+  std::ofstream(other / "tile_1.bin") << "x";
+  register_live_scratch_entries(work, {"tile_", "plan.json", ".plan.json"});
+  register_live_scratch_entries(other, {"tile_"});
+  unregister_live_scratch_entries(other);
+  register_live_scratch_dir(file);
+  register_live_scratch_dir(kept_file);
+  unregister_live_scratch_dir(kept_file);
+  EXPECT_EQ(remove_live_staging_dirs(), 2);
+  EXPECT_FALSE(fs::exists(file));
+  EXPECT_TRUE(fs::exists(kept_file));
+  EXPECT_TRUE(fs::exists(other / "tile_1.bin"));
+  ASSERT_TRUE(fs::is_directory(work));
+  std::vector<std::string> left;
+  for (const auto& e : fs::directory_iterator(work)) left.push_back(e.path().filename().string());
+  std::sort(left.begin(), left.end());
+  EXPECT_EQ(left, (std::vector<std::string>{"my_tile_0.bin", "notes.txt"}));
+  // Acted on once: the registrations are gone.
+  std::ofstream(work / "tile_5.bin") << "x";
+  EXPECT_EQ(remove_live_staging_dirs(), 0);
+  EXPECT_TRUE(fs::exists(work / "tile_5.bin"));
 }
 
 }  // namespace

@@ -145,19 +145,30 @@ class StagingDir {
 /// @throws hc::InputError naming the target and suggesting --force.
 bool check_output_target(const std::filesystem::path& target, ExistingOutput existing);
 
-/// Removes the staging folders of every StagingDir alive in this process, and the scratch
-/// folders registered with register_live_scratch_dir (for a signal watcher thread: SIGINT/SIGTERM
-/// during a run must not leave `<out>.partial-<pid>` or a tiled run's spill files behind). Not
-/// async-signal-safe: call it from a normal thread (sigwait), not from a signal handler.
-/// @return how many were removed. Never throws.
+/// Removes the staging folders of every StagingDir alive in this process, the scratch folders
+/// and files registered with register_live_scratch_dir, and the entries registered with
+/// register_live_scratch_entries (for a signal watcher thread: SIGINT/SIGTERM during a run, a
+/// tile plan or a tile job must not leave `<out>.partial-<pid>`, spill files, block copies or
+/// temporary files behind). Not async-signal-safe: call it from a normal thread (sigwait), not
+/// from a signal handler.
+/// @return how many registrations were acted on. Never throws.
 int remove_live_staging_dirs() noexcept;
 
-/// Registers `dir`, a scratch folder this process created and owns whole (the tiled run's
-/// `hapticloud-tiles-*` spill folder under scale.scratch), for remove_live_staging_dirs;
-/// unregister_live_scratch_dir before removing it. @throws std::bad_alloc only.
-void register_live_scratch_dir(const std::filesystem::path& dir);
-/// Undoes register_live_scratch_dir (nothing when `dir` is not registered). Never throws.
-void unregister_live_scratch_dir(const std::filesystem::path& dir) noexcept;
+/// Registers `path`, a scratch folder or file this process created and owns whole (the tiled
+/// run's `hapticloud-tiles-*` spill folder under scale.scratch, a tile job's `.blocks-*` folder
+/// or temporary kept file, a write_atomically temporary), for remove_live_staging_dirs;
+/// unregister_live_scratch_dir before removing or renaming it. @throws std::bad_alloc only.
+void register_live_scratch_dir(const std::filesystem::path& path);
+/// Undoes register_live_scratch_dir (nothing when `path` is not registered). Never throws.
+void unregister_live_scratch_dir(const std::filesystem::path& path) noexcept;
+
+/// Registers the entries of folder `dir` (not the folder: it may be the user's) whose names
+/// start with one of `prefixes`, for remove_live_staging_dirs: `hapticloud tile-plan` into a
+/// folder that existed (empty) registers its own files (`tile_`, `plan.json`, `.plan.json`).
+/// A second call for the same `dir` replaces the prefixes. @throws std::bad_alloc only.
+void register_live_scratch_entries(const std::filesystem::path& dir, const std::vector<std::string>& prefixes);
+/// Undoes register_live_scratch_entries for `dir`. Never throws.
+void unregister_live_scratch_entries(const std::filesystem::path& dir) noexcept;
 
 /// True if `dir` is an output folder hapticloud wrote (see StagingDir). Never throws.
 bool is_hapticloud_output(const std::filesystem::path& dir);

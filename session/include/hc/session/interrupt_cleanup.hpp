@@ -1,8 +1,10 @@
 #pragma once
 /// @file interrupt_cleanup.hpp
-/// Ctrl-C (SIGINT) or SIGTERM during a command that writes an output folder: the staging folders
-/// of the live pipeline::StagingDirs are removed, a line says so, and the process exits with
-/// 128 + the signal number, so no `<out>.partial-<pid>` is left behind.
+/// Ctrl-C (SIGINT) or SIGTERM during a command that writes an output folder or scratch (`run`,
+/// `tile-plan`, `tile-job`, `tile-merge`): the staging folders of the live pipeline::StagingDirs
+/// and the scratch registered with pipeline::register_live_scratch_dir / _entries are removed, a
+/// line says so, and the process exits with 128 + the signal number, so no `<out>.partial-<pid>`,
+/// spill file, block copy or temporary file is left behind.
 
 #include <atomic>
 #include <thread>
