@@ -751,7 +751,9 @@ class GridPointQueries {
     for (std::int64_t r = 1; r <= 3; ++r) {
       // Squared distances of the block's points (itself left out) and their sorted positions;
       // the k-th smallest value tau by a float selection; pairs (d², input index) only for the
-      // points within tau, where the ties are ordered by index.
+      // points within tau, where the ties are ordered by index. From the second block on, only
+      // the points within the smaller block's k-th distance are kept: it already holds k of them,
+      // so the k-th smallest, and every point within it, are the same as over the whole block.
       std::size_t m = 0;
       for (std::int64_t dz = -r; dz <= r; ++dz) {
         for (std::int64_t dy = -r; dy <= r; ++dy) {
@@ -760,7 +762,7 @@ class GridPointQueries {
           const std::int64_t x0 = std::max<std::int64_t>(0, c[0] - r), x1 = std::min(g_.n[0] - 1, c[0] + r);
           const std::size_t a = lower(g_.key(x0, iy, iz)), b = lower(g_.key(x1, iy, iz) + 1);
           if (b <= a) continue;
-          m = gather_run(g_.cell_start[a], g_.cell_start[b], pt, sorted, std::numeric_limits<float>::infinity(), s, m);
+          m = gather_run(g_.cell_start[a], g_.cell_start[b], pt, sorted, best_kth, s, m);
         }
       }
       if (m < k) continue;
