@@ -713,44 +713,63 @@ StagingDir::StagingDir(fs::path target, ExistingOutput existing) : target_(std::
   }
 }
 
+namespace {
+// A registered path as the registry keeps it: without a trailing separator ("work/" and "work"
+// are one folder, and "work/" + ".removing" would name a folder inside it).
+std::string live_key(const fs::path& path) {
+  const fs::path p = path.filename().empty() && path.has_parent_path() ? path.parent_path() : path;
+  return p.string();
+}
+}  // namespace
+
 void register_live_scratch_dir(const fs::path& path) {
   std::lock_guard<std::mutex> lock(g_live_mutex);
-  g_live_scratch.insert(path.string());
+  g_live_scratch.insert(live_key(path));
 }
 
 void unregister_live_scratch_dir(const fs::path& path) noexcept {
   try {
     std::lock_guard<std::mutex> lock(g_live_mutex);
-    g_live_scratch.erase(path.string());
+    g_live_scratch.erase(live_key(path));
   } catch (...) {
   }
 }
 
 void register_live_scratch_entries(const fs::path& dir, const std::vector<std::string>& prefixes) {
   std::lock_guard<std::mutex> lock(g_live_mutex);
-  g_live_entries[dir.string()] = prefixes;
+  g_live_entries[live_key(dir)] = prefixes;
 }
 
 void unregister_live_scratch_entries(const fs::path& dir) noexcept {
   try {
     std::lock_guard<std::mutex> lock(g_live_mutex);
-    g_live_entries.erase(dir.string());
+    g_live_entries.erase(live_key(dir));
   } catch (...) {
   }
 }
 
-int remove_live_staging_dirs() noexcept {
+std::FILE* open_live_scratch_file(const fs::path& file, const char* mode) {
+  std::lock_guard<std::mutex> lock(g_live_mutex);
+  return std::fopen(file.c_str(), mode);
+}
+
+void rename_live_scratch(const fs::path& from, const fs::path& to, std::error_code& ec) {
+  std::lock_guard<std::mutex> lock(g_live_mutex);
+  g_live_scratch.erase(live_key(from));
+  fs::rename(from, to, ec);
+}
+
+int remove_live_staging_dirs(bool final) noexcept {
   int n = 0;
+  std::unique_lock<std::mutex> lock(g_live_mutex);
   try {
-    std::lock_guard<std::mutex> lock(g_live_mutex);
     std::set<std::string> all = g_live_staging;
     all.insert(g_live_scratch.begin(), g_live_scratch.end());
     for (const std::string& dir : all) {
       // Another thread may still be writing into it: move it out of the way first (its next
       // file then fails to open), then remove it, retrying while files still appear in it.
       std::error_code ec;
-      fs::path trash = dir;
-      trash += ".removing";
+      const fs::path trash = free_sibling(dir, ".removing-" + std::to_string(::getpid()));
       fs::rename(dir, trash, ec);
       const fs::path victim = ec ? fs::path(dir) : trash;
       for (int attempt = 0; attempt < 50; ++attempt) {
@@ -762,7 +781,8 @@ int remove_live_staging_dirs() noexcept {
       ++n;
     }
     // Registered entries of a folder that stays (the user's): those whose names start with a
-    // registered prefix, again while new ones appear (a writer may still be creating them).
+    // registered prefix. Files are created under this lock (open_live_scratch_file), so none
+    // appears while it is held; the scan is repeated all the same while it finds any.
     for (const auto& [dir, prefixes] : g_live_entries) {
       for (int attempt = 0; attempt < 50; ++attempt) {
         std::vector<fs::path> ours;
@@ -783,6 +803,7 @@ int remove_live_staging_dirs() noexcept {
     g_live_entries.clear();
   } catch (...) {
   }
+  if (final) (void)lock.release();  // held until _exit: nothing is created or moved after this
   return n;
 }
 

@@ -298,7 +298,8 @@ class TileFiles {
   // Writes (mode "wb") or appends ("ab") n bytes to tile t's file and adds them to its size.
   // @throws InputError naming the file and `what` it holds when the write fails (the disk full).
   void put(std::size_t t, const char* mode, const void* data, std::size_t n, const char* what) {
-    std::FILE* f = std::fopen(file(t).c_str(), mode);
+    // Under the clean-up's lock: a signal's clean-up never races with a file's creation.
+    std::FILE* f = open_live_scratch_file(file(t), mode);
     const bool ok = f && std::fwrite(data, 1, n, f) == n;
     const bool closed = f && std::fclose(f) == 0;
     if (!ok || !closed) {
@@ -792,11 +793,13 @@ struct Percentile {
 // The file is removed when the object goes, whatever happened.
 class ResidualFile {
  public:
-  explicit ResidualFile(fs::path file) : file_(std::move(file)) {}
+  // Registered for SIGINT/SIGTERM's clean-up (the merge writes it in the plan's folder).
+  explicit ResidualFile(fs::path file) : file_(std::move(file)) { register_live_scratch_dir(file_); }
   ResidualFile(const ResidualFile&) = delete;
   ResidualFile& operator=(const ResidualFile&) = delete;
   ~ResidualFile() {
     if (f_) std::fclose(f_);
+    unregister_live_scratch_dir(file_);
     std::error_code ec;
     fs::remove(file_, ec);
   }
@@ -831,7 +834,7 @@ class ResidualFile {
     if (buf_.empty()) return;
     if (!f_) {
       errno = 0;
-      f_ = std::fopen(file_.c_str(), "wb");
+      f_ = open_live_scratch_file(file_, "wb");
       if (!f_) fail("write");
     }
     if (std::fwrite(buf_.data(), sizeof(float), buf_.size(), f_) != buf_.size()) fail("write");
@@ -2311,7 +2314,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   auto spill_pass = [&](const FarCells* far, StageReport& rep, const char* stage_name) {
     std::uint64_t spilled = 0, copies = 0;
     for (;;) {
-      if (spill) {  // a second spill (far clusters marked): the first one's files go first
+      if (spill) {  // a pass again (far clusters marked, or in doubles after a float pass stopped): the earlier files go first
         for (std::size_t t = 0; t < spill_tiles; ++t) {
           std::error_code ec;
           fs::remove(spill->file(t), ec);
@@ -3059,7 +3062,7 @@ void write_atomically(const fs::path& target, const std::string& bytes) {
     const fs::path& p;
     ~Unregister() { unregister_live_scratch_dir(p); }
   } unregister{tmp};
-  std::FILE* f = std::fopen(tmp.c_str(), "wb");
+  std::FILE* f = open_live_scratch_file(tmp, "wb");
   const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() && std::fflush(f) == 0 &&
                   ::fsync(::fileno(f)) == 0;
   const bool closed = f && std::fclose(f) == 0;
@@ -3068,10 +3071,11 @@ void write_atomically(const fs::path& target, const std::string& bytes) {
     fs::remove(tmp, ec);
     throw InputError("cannot write " + target.string() + ": " + std::strerror(errno) + " (is the disk full?)");
   }
-  fs::rename(tmp, target, ec);
+  rename_live_scratch(tmp, target, ec);
   if (ec) {
+    const std::string why = ec.message();
     fs::remove(tmp, ec);
-    throw InputError("cannot write " + target.string() + ": " + ec.message());
+    throw InputError("cannot write " + target.string() + ": " + why);
   }
 }
 
@@ -3575,8 +3579,11 @@ TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std:
       throw InputError("tile plan: " + work_dir.string() + " exists and is not an empty folder (expected a new or empty folder for the plan and its tiles)");
     }
   } else {
+    // Registered before it exists: SIGINT/SIGTERM while it is made removes it too.
+    register_live_scratch_dir(work_dir);
     fs::create_directories(work_dir, ec);
     if (ec || !fs::is_directory(work_dir)) {
+      unregister_live_scratch_dir(work_dir);
       throw InputError("tile plan: cannot create the folder " + work_dir.string() + (ec ? ": " + ec.message() : std::string()));
     }
     made = true;
@@ -3672,7 +3679,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
     if (o.kept_bytes == 0) {
       fs::remove(kept_final, ec);  // no kept point: no file (merge reads 0 bytes)
     } else {
-      fs::rename(kept.file(t), kept_final, ec);
+      rename_live_scratch(kept.file(t), kept_final, ec);
       if (ec) throw InputError("tile-job: cannot move " + kept.file(t).string() + " to " + kept_final.string() + ": " + ec.message());
     }
     write_atomically(part_file(pf.dir, t), encode_part(pf.id, o));

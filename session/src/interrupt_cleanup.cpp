@@ -34,7 +34,7 @@ InterruptCleanup::InterruptCleanup() {
         int signo = 0;
         if (sigwait(&set, &signo) != 0) continue;
         if (done_.load()) return;  // the destructor's wake-up
-        const int removed = pipeline::remove_live_staging_dirs();
+        const int removed = pipeline::remove_live_staging_dirs(true);  // final: the lock stays held until _exit
         const std::string line = std::string("hapticloud: interrupted by ") + (signo == SIGINT ? "SIGINT" : "SIGTERM") +
                                  "; removed " + std::to_string(removed) + " unfinished output or scratch item(s)\n";
         const ssize_t written = ::write(STDERR_FILENO, line.data(), line.size());

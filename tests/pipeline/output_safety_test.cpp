@@ -13,9 +13,12 @@
 #include "test_paths.hpp"
 
 #include <signal.h>
+#include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
+#include <chrono>
 #include <cerrno>
 
 #include <cstdio>
@@ -23,6 +26,7 @@
 #include <fstream>
 #include <iterator>
 #include <string>
+#include <thread>
 #include <vector>
 
 namespace {
@@ -235,6 +239,42 @@ TEST(OutputSafety, RegisteredScratchFilesAndEntriesAreRemovedByASignalWatcher) {
   std::ofstream(work / "tile_5.bin") << "x";
   EXPECT_EQ(remove_live_staging_dirs(), 0);
   EXPECT_TRUE(fs::exists(work / "tile_5.bin"));
+}
+
+// The signal watcher's clean-up is final: after it, a scratch file is neither created nor renamed
+// into place (the calls wait for the process to end), so nothing appears behind it. Run in a
+// child process, whose lock stays held until it exits.
+TEST(OutputSafety, AfterAFinalCleanUpNoScratchFileIsCreatedOrMoved) {
+  const fs::path dir = hc::test::temp_dir("final-cleanup");
+  const fs::path late = dir / "tile_7.bin", src = dir / ".plan.json.tmp-x", moved = dir / "plan.json";
+  std::ofstream(src) << "x";
+  const pid_t pid = ::fork();
+  ASSERT_GE(pid, 0);
+  if (pid == 0) {
+    register_live_scratch_dir(dir / "gone");
+    (void)remove_live_staging_dirs(true);
+    std::atomic<int> returned{0};
+    std::thread opener([&] {
+      if (std::FILE* f = open_live_scratch_file(late, "wb")) std::fclose(f);
+      ++returned;
+    });
+    std::thread mover([&] {
+      std::error_code ec;
+      rename_live_scratch(src, moved, ec);
+      ++returned;
+    });
+    opener.detach();
+    mover.detach();
+    std::this_thread::sleep_for(std::chrono::milliseconds(300));
+    ::_exit(returned.load() == 0 ? 0 : 1);
+  }
+  int status = 0;
+  ASSERT_EQ(::waitpid(pid, &status, 0), pid);
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 0) << "a call returned after the final clean-up";
+  EXPECT_FALSE(fs::exists(late));
+  EXPECT_TRUE(fs::exists(src));
+  EXPECT_FALSE(fs::exists(moved));
 }
 
 }  // namespace

@@ -1274,6 +1274,8 @@ TEST(TiledRun, AScanWhoseFloatsDoNotGiveTheGridFrameBackIsSpilledInDoubles) {
   const BuiltScene tiled = hc::pipeline::build_scene(config);
   EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_xyz_floats"), 0.0);
   EXPECT_TRUE(has_note(tiled, "tile_spill", "the spill holds x y z as doubles"));
+  // The note names the point: all are finite and none is cropped, so its index is m's.
+  EXPECT_TRUE(has_note(tiled, "tile_spill", "point " + std::to_string(m.size() / 2) + " (counting from 0"));
   EXPECT_NEAR(stage_figure(tiled, "tile_spill", "spill_bytes_peak_mb") * 1e6, 25.0 * stage_figure(tiled, "tile_spill", "points_spilled"), 0.5);
 }
 

@@ -182,7 +182,7 @@ struct FarClusterOptions {
 /// off_surface_ratio)·d_med (below it no test can fail; off_surface_ratio 0 counts as
 /// infinite). The points are sorted into a uniform grid of cubic cells (knn_grid.hpp); a point
 /// with at least k other points within D_cert among its own cell (then among the cells of its
-/// 3×3×3 block within D_cert, nearest first) has d_i ≤ D_cert and is kept without a k-NN query
+/// 3×3×3 block within D_cert: faces, edges, then corners) has d_i ≤ D_cert and is kept without a k-NN query
 /// (counting, no selection; cells of about 0.85·(3k+2) points, where counting and the exact
 /// queries cost least together on the Buddha). The others get the exact k-NN distance; those
 /// above D_cert also get their k nearest neighbours (the neighbour set breaks distance ties by

@@ -8,6 +8,7 @@
 #include "hc/common/scene.hpp"
 
 #include <cstdint>
+#include <cstdio>
 #include <filesystem>
 #include <map>
 #include <memory>
@@ -149,18 +150,35 @@ bool check_output_target(const std::filesystem::path& target, ExistingOutput exi
 /// and files registered with register_live_scratch_dir, and the entries registered with
 /// register_live_scratch_entries (for a signal watcher thread: SIGINT/SIGTERM during a run, a
 /// tile plan or a tile job must not leave `<out>.partial-<pid>`, spill files, block copies or
-/// temporary files behind). Not async-signal-safe: call it from a normal thread (sigwait), not
-/// from a signal handler.
+/// temporary files behind). A folder is first renamed aside (a fresh `<folder>.removing-<pid>`
+/// name), so that a writer's next file in it fails to open.
+/// `final` (the watcher, which then _exit()s): the registry's lock is never released again, so
+/// every later register_*, unregister_*, open_live_scratch_file and rename_live_scratch waits
+/// until the process ends: nothing is created or renamed into place after the clean-up.
+/// Not async-signal-safe: call it from a normal thread (sigwait), not from a signal handler.
 /// @return how many registrations were acted on. Never throws.
-int remove_live_staging_dirs() noexcept;
+int remove_live_staging_dirs(bool final = false) noexcept;
 
-/// Registers `path`, a scratch folder or file this process created and owns whole (the tiled
-/// run's `hapticloud-tiles-*` spill folder under scale.scratch, a tile job's `.blocks-*` folder
-/// or temporary kept file, a write_atomically temporary), for remove_live_staging_dirs;
-/// unregister_live_scratch_dir before removing or renaming it. @throws std::bad_alloc only.
+/// Registers `path`, a scratch folder or file this process owns whole, before it exists (the
+/// tiled run's `hapticloud-tiles-*` spill folder under scale.scratch, a tile job's `.blocks-*`
+/// folder or temporary kept file, a write_atomically temporary, the cross-check's residual file),
+/// for remove_live_staging_dirs; unregister_live_scratch_dir before removing it, and move it
+/// with rename_live_scratch. A trailing separator is ignored. @throws std::bad_alloc only.
 void register_live_scratch_dir(const std::filesystem::path& path);
-/// Undoes register_live_scratch_dir (nothing when `path` is not registered). Never throws.
+/// Undoes register_live_scratch_dir (nothing when `path` is not registered). Never throws
+/// (waits for the process to end once a final clean-up has begun).
 void unregister_live_scratch_dir(const std::filesystem::path& path) noexcept;
+
+/// std::fopen(file, mode) under the registry's lock: a scratch file (one registered, or an entry
+/// of registered prefix) is never created after a final clean-up has scanned for it (the call
+/// then waits for the process to end). What is written to it afterwards through the FILE*
+/// goes to a removed file. @return fopen's result (nullptr and errno on failure).
+std::FILE* open_live_scratch_file(const std::filesystem::path& file, const char* mode);
+
+/// Unregisters `from` (register_live_scratch_dir) and renames it to `to` under the registry's
+/// lock, so that a final clean-up never races with the rename (once one has begun this waits
+/// for the process to end). `ec` gets the rename's error. Never throws (but std::bad_alloc).
+void rename_live_scratch(const std::filesystem::path& from, const std::filesystem::path& to, std::error_code& ec);
 
 /// Registers the entries of folder `dir` (not the folder: it may be the user's) whose names
 /// start with one of `prefixes`, for remove_live_staging_dirs: `hapticloud tile-plan` into a
