@@ -831,7 +831,7 @@ class GridPointQueries {
   // × kHintFactor) of the point. Every point within tau lies in the cells whose index range
   // covers [pt − tau, pt + tau] on each axis (index_of is monotone), at most 7 a side; those
   // within t2 < tau² are kept. When at least k others are, the k-th smallest squared distance
-  // among them is the true one, every point within it was kept, and the pairs within it give
+  // among them is the true one, every point within it was kept, and the k smallest pairs give
   // `out` exactly as the block search does (ties by input index). The block search selects over
   // every point of 3³, 5³ or 7³ cells: on the 10^7-point wall (cells of about 42 points for the
   // counting pass), a sparse back face's query needed the 5³ block with the dense front face in
@@ -858,14 +858,13 @@ class GridPointQueries {
       }
     }
     if (m < k) return false;
-    s.near.assign(s.d2.begin(), s.d2.begin() + static_cast<std::ptrdiff_t>(m));
-    std::nth_element(s.near.begin(), s.near.begin() + static_cast<std::ptrdiff_t>(k - 1), s.near.end());
-    const float kth = s.near[k - 1];
+    // Every point within tau is a candidate: take_nearest selects the k smallest (d², index)
+    // pairs among them, which are those within the k-th distance, ties by index (a first
+    // selection of the k-th distance over the floats would only shorten this list to the
+    // points within it, about k of the m ≈ 1.3 k here).
     auto& cand = s.pairs;
     cand.clear();
-    for (std::size_t i = 0; i < m; ++i) {
-      if (s.d2[i] <= kth) cand.emplace_back(s.d2[i], g_.original[s.pos[i]]);
-    }
+    for (std::size_t i = 0; i < m; ++i) cand.emplace_back(s.d2[i], g_.original[s.pos[i]]);
     take_nearest(s, out, mean_d);
     return true;
   }
