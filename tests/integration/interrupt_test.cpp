@@ -33,18 +33,24 @@ bool has_partial(const fs::path& dir) {
   return false;
 }
 
-// Starts the app with `args` (after the program name), waits until `seen()` (polling), sends
-// `signo` and returns the exit status (waitpid's). A failed assertion when the run ends, or
-// takes over 300 s, before seen(): `what` names what never appeared.
-template <class Seen>
-void interrupt_when(const std::vector<std::string>& args, Seen&& seen, int signo, const std::string& what, int& status) {
+// Starts the app with `args` (after the program name); its pid, or -1 when it cannot start.
+pid_t spawn_app(const std::vector<std::string>& args) {
   std::vector<std::string> all = {HC_APP};
   all.insert(all.end(), args.begin(), args.end());
   std::vector<char*> argv;
   for (auto& a : all) argv.push_back(a.data());
   argv.push_back(nullptr);
   pid_t pid = 0;
-  ASSERT_EQ(posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ), 0);
+  return posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ) == 0 ? pid : -1;
+}
+
+// Starts the app with `args` (after the program name), waits until `seen()` (polling), sends
+// `signo` and returns the exit status (waitpid's). A failed assertion when the run ends, or
+// takes over 300 s, before seen(): `what` names what never appeared.
+template <class Seen>
+void interrupt_when(const std::vector<std::string>& args, Seen&& seen, int signo, const std::string& what, int& status) {
+  const pid_t pid = spawn_app(args);
+  ASSERT_GT(pid, 0) << "cannot start " << HC_APP;
   const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(300);
   bool appeared = false;
   while (!appeared && std::chrono::steady_clock::now() < deadline) {
@@ -59,13 +65,8 @@ void interrupt_when(const std::vector<std::string>& args, Seen&& seen, int signo
 
 // Runs the app with `args` to its end; returns its exit status (waitpid's).
 int run_app(const std::vector<std::string>& args) {
-  std::vector<std::string> all = {HC_APP};
-  all.insert(all.end(), args.begin(), args.end());
-  std::vector<char*> argv;
-  for (auto& a : all) argv.push_back(a.data());
-  argv.push_back(nullptr);
-  pid_t pid = 0;
-  if (posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ) != 0) return -1;
+  const pid_t pid = spawn_app(args);
+  if (pid <= 0) return -1;
   int status = 0;
   return waitpid(pid, &status, 0) == pid ? status : -1;
 }
