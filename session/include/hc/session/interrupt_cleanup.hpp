@@ -15,8 +15,9 @@ namespace hc::session {
 
 /// While alive, SIGINT and SIGTERM are blocked in the constructing thread (and in every thread it
 /// starts afterwards, which inherit the mask) and taken by a watcher thread (sigwait), which on a
-/// signal calls pipeline::remove_live_staging_dirs(), prints one line to stderr and _exit()s
-/// with 128 + signo. Construct it in the main thread BEFORE any other thread starts (threads
+/// signal calls pipeline::remove_live_staging_dirs(true) (final: the registry's lock stays held,
+/// so no other thread creates or renames a scratch file after it), prints one line to stderr and
+/// _exit()s with 128 + signo. Construct it in the main thread BEFORE any other thread starts (threads
 /// started earlier keep their mask and may take the signal with its default action).
 /// Not for sessions with a servo loop: they have their own stop flag (hc/haptics/stop_signal.hpp).
 /// @throws hc::ResourceError if the mask cannot be set or the thread cannot start.
