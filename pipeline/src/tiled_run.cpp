@@ -3038,6 +3038,22 @@ double unhex(const nlohmann::json& j, const fs::path& file, const char* key) {
   return v;
 }
 
+// Probe points for a float spill's frame (plan.json layout.xyz_floats.check): 16 float x y z
+// [file units] about the frame's centre, spread over ±2^10 units with every fraction bit of the
+// float used (SplitMix64, fixed seeds), so that an arithmetic that rounds otherwise (an FMA, a
+// compiler or Eigen that sums the view in another order) gives another double for some of them.
+std::vector<std::array<float, 3>> xyz_floats_probes(const FileFloats& ff) {
+  std::vector<std::array<float, 3>> out(16);
+  for (std::size_t i = 0; i < out.size(); ++i) {
+    for (std::size_t a = 0; a < 3; ++a) {
+      const std::uint64_t h = detail::splitmix64(0x5EEDu + 3 * i + a);
+      const double offset = (static_cast<double>(h >> 11) * 0x1p-53 - 0.5) * 2048.0;  // [-1024, 1024)
+      out[i][a] = static_cast<float>(ff.centre[static_cast<Eigen::Index>(a)] + offset);
+    }
+  }
+  return out;
+}
+
 std::string random_id();
 
 // This host's name with every character but letters and digits made '_' (empty when unknown).
@@ -3159,6 +3175,14 @@ void write_plan_file(const PlanFile& pf) {
     x["linear"] = nlohmann::json::array();
     for (int i = 0; i < 9; ++i) x["linear"].push_back(hex(ff->linear(i / 3, i % 3)));
     x["translation_m"] = {hex(ff->translation_m.x()), hex(ff->translation_m.y()), hex(ff->translation_m.z())};
+    // The plan's own arithmetic on probe points: a job or merge of another build that takes the
+    // spill's floats to other doubles refuses the plan (read_plan_file).
+    x["check"] = nlohmann::json::array();
+    for (const auto& f : xyz_floats_probes(*ff)) {
+      double g[3];
+      ff->to_grid(f.data(), g);
+      x["check"].push_back({hex(f[0]), hex(f[1]), hex(f[2]), hex(g[0]), hex(g[1]), hex(g[2])});
+    }
   }
   j["robust_scale"] = p.robust_scale ? nlohmann::json{{"median_log", hex(p.robust_scale->median_log)},
                                                       {"mad_log", hex(p.robust_scale->mad_log)},
@@ -3237,7 +3261,7 @@ PlanFile read_plan_file(const fs::path& plan_file) {
     p.layout.intensity = j.at("layout").at("intensity").get<bool>();
     if (const auto& x = j.at("layout").at("xyz_floats"); !x.is_null()) {
       const std::string was = where;
-      where = "layout.xyz_floats (centre, unit_m, turned, linear, translation_m)";
+      where = "layout.xyz_floats (centre, unit_m, turned, linear, translation_m, check)";
       FileFloats ff;
       const auto number = [&](const nlohmann::json& v, const std::string& key) {
         const double d = unhex(v, plan_file, key.c_str());
@@ -3259,6 +3283,40 @@ PlanFile read_plan_file(const fs::path& plan_file) {
         ff.linear(i / 3, i % 3) = number(x.at("linear").at(static_cast<std::size_t>(i)), "layout.xyz_floats.linear[" + std::to_string(i) + "]");
       }
       ff.inverse = ff.linear.inverse();
+      // This build must take the spill's floats to the grid frame as the plan's build did, bit
+      // for bit (the spill was checked against the plan's in-core arithmetic, not this one's).
+      const std::vector<std::array<float, 3>> probes = xyz_floats_probes(ff);
+      const auto& check = x.at("check");
+      if (!check.is_array() || check.size() != probes.size()) {
+        throw InputError(plan_file.string() + ": layout.xyz_floats.check is not " + std::to_string(probes.size()) +
+                         " probe points (a plan written by another hapticloud version? write it again with tile-plan)");
+      }
+      for (std::size_t i = 0; i < probes.size(); ++i) {
+        const std::string key = "layout.xyz_floats.check[" + std::to_string(i) + "]";
+        if (!check[i].is_array() || check[i].size() != 6) throw InputError(plan_file.string() + ": " + key + " is not 6 numbers (x y z, then the grid frame's)");
+        double want[6];
+        for (std::size_t c = 0; c < 6; ++c) want[c] = unhex(check[i][c], plan_file, key.c_str());
+        double got[3];
+        ff.to_grid(probes[i].data(), got);
+        const bool same_probe = want[0] == static_cast<double>(probes[i][0]) && want[1] == static_cast<double>(probes[i][1]) &&
+                                want[2] == static_cast<double>(probes[i][2]);
+        const bool same_frame = std::bit_cast<std::uint64_t>(got[0]) == std::bit_cast<std::uint64_t>(want[3]) &&
+                                std::bit_cast<std::uint64_t>(got[1]) == std::bit_cast<std::uint64_t>(want[4]) &&
+                                std::bit_cast<std::uint64_t>(got[2]) == std::bit_cast<std::uint64_t>(want[5]);
+        const std::string fix = ": the spill would read back as other points; run tile-job and tile-merge with the build that "
+                                "wrote the plan (this is hapticloud " + std::string(HC_VERSION) + "), or write the plan again with this one";
+        if (!same_probe) {
+          throw InputError(plan_file.string() + ": " + key + " probes the float point (" + hex(want[0]) + ", " + hex(want[1]) + ", " +
+                           hex(want[2]) + "), where this build makes (" + hex(probes[i][0]) + ", " + hex(probes[i][1]) + ", " +
+                           hex(probes[i][2]) + ")" + fix);
+        }
+        if (!same_frame) {
+          throw InputError(plan_file.string() + ": " + key + ": this build takes the float point (" + hex(want[0]) + ", " + hex(want[1]) +
+                           ", " + hex(want[2]) + ") to (" + hex(got[0]) + ", " + hex(got[1]) + ", " + hex(got[2]) +
+                           ") m in the grid frame, where the plan's build took it to (" + hex(want[3]) + ", " + hex(want[4]) + ", " +
+                           hex(want[5]) + ")" + fix);
+        }
+      }
       p.layout.floats = ff;
       where = was;
     }

@@ -26,6 +26,8 @@
 #include <cerrno>
 #include <csignal>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <iostream>
 #include <limits>
@@ -1231,6 +1233,29 @@ TEST(TiledRun, AFloatScanIsSpilledAsItsOwnFloatsAndReadBackAsTheInCoreRunsDouble
       EXPECT_EQ(differing_bits(a.texture, b.texture), 0U);
       EXPECT_EQ(differing_bits(a.mu_s, b.mu_s), 0U);
       EXPECT_EQ(differing_bits(a.cell_error, b.cell_error), 0U);
+      // A build that takes the floats to the grid frame otherwise (simulated: one probe's
+      // recorded double one step away, as an FMA would round it) refuses the plan by the key.
+      nlohmann::json plan;
+      {
+        std::ifstream in(info.plan_file);
+        plan = nlohmann::json::parse(in);
+      }
+      auto& check = plan.at("layout").at("xyz_floats").at("check");
+      ASSERT_EQ(check.size(), 16U);
+      const double g = std::strtod(check[3][4].get<std::string>().c_str(), nullptr);
+      char moved[64];
+      std::snprintf(moved, sizeof moved, "%a", std::nextafter(g, 1e300));
+      check[3][4] = moved;
+      {
+        std::ofstream(info.plan_file) << plan.dump(1);
+      }
+      try {
+        hc::pipeline::run_tile_jobs(info.plan_file, {0});
+        ADD_FAILURE() << "a plan whose probe this build does not reproduce was taken";
+      } catch (const hc::InputError& e) {
+        EXPECT_NE(std::string(e.what()).find("layout.xyz_floats.check[3]"), std::string::npos) << e.what();
+        EXPECT_NE(std::string(e.what()).find("the build that wrote the plan"), std::string::npos) << e.what();
+      }
       fs::remove_all(dir / "work");
     } else {
       EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0) << "the second look copied a tile's floats by block";
