@@ -748,6 +748,14 @@ void unregister_live_scratch_entries(const fs::path& dir) noexcept {
   }
 }
 
+LiveScratchFile::LiveScratchFile(fs::path file) : file_(std::move(file)) { register_live_scratch_dir(file_); }
+
+LiveScratchFile::~LiveScratchFile() {
+  unregister_live_scratch_dir(file_);
+  std::error_code ec;
+  fs::remove(file_, ec);
+}
+
 std::FILE* open_live_scratch_file(const fs::path& file, const char* mode) {
   std::lock_guard<std::mutex> lock(g_live_mutex);
   return std::fopen(file.c_str(), mode);
@@ -781,21 +789,18 @@ int remove_live_staging_dirs(bool final) noexcept {
       ++n;
     }
     // Registered entries of a folder that stays (the user's): those whose names start with a
-    // registered prefix. Files are created under this lock (open_live_scratch_file), so none
-    // appears while it is held; the scan is repeated all the same while it finds any.
+    // registered prefix. Files are created and renamed under this lock (open_live_scratch_file,
+    // rename_live_scratch), so none appears while it is held: one scan finds them all.
     for (const auto& [dir, prefixes] : g_live_entries) {
-      for (int attempt = 0; attempt < 50; ++attempt) {
-        std::vector<fs::path> ours;
-        std::error_code ec;
-        for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
-          const std::string name = it->path().filename().string();
-          if (std::any_of(prefixes.begin(), prefixes.end(), [&](const std::string& p) { return name.rfind(p, 0) == 0; })) {
-            ours.push_back(it->path());
-          }
+      std::vector<fs::path> ours;
+      std::error_code ec;
+      for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
+        const std::string name = it->path().filename().string();
+        if (std::any_of(prefixes.begin(), prefixes.end(), [&](const std::string& p) { return name.rfind(p, 0) == 0; })) {
+          ours.push_back(it->path());
         }
-        if (ours.empty()) break;
-        for (const fs::path& e : ours) fs::remove_all(e, ec);
       }
+      for (const fs::path& e : ours) fs::remove_all(e, ec);
       ++n;
     }
     g_live_staging.clear();

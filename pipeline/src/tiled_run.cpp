@@ -794,14 +794,11 @@ struct Percentile {
 class ResidualFile {
  public:
   // Registered for SIGINT/SIGTERM's clean-up (the merge writes it in the plan's folder).
-  explicit ResidualFile(fs::path file) : file_(std::move(file)) { register_live_scratch_dir(file_); }
+  explicit ResidualFile(fs::path file) : file_(std::move(file)) {}
   ResidualFile(const ResidualFile&) = delete;
   ResidualFile& operator=(const ResidualFile&) = delete;
   ~ResidualFile() {
-    if (f_) std::fclose(f_);
-    unregister_live_scratch_dir(file_);
-    std::error_code ec;
-    fs::remove(file_, ec);
+    if (f_) std::fclose(f_);  // then file_ removes the file
   }
   void put(float vertical_m, float normal_m) {
     buf_.push_back(vertical_m);
@@ -815,7 +812,7 @@ class ResidualFile {
     if (f_ && std::fclose(f_) != 0) fail("write");
     f_ = nullptr;
     if (written_ == 0) return;
-    f_ = std::fopen(file_.c_str(), "rb");
+    f_ = std::fopen(file_.path().c_str(), "rb");
     if (!f_) fail("read");
     std::uint64_t left = written_;
     while (left > 0) {
@@ -834,7 +831,7 @@ class ResidualFile {
     if (buf_.empty()) return;
     if (!f_) {
       errno = 0;
-      f_ = open_live_scratch_file(file_, "wb");
+      f_ = open_live_scratch_file(file_.path(), "wb");
       if (!f_) fail("write");
     }
     if (std::fwrite(buf_.data(), sizeof(float), buf_.size(), f_) != buf_.size()) fail("write");
@@ -843,10 +840,10 @@ class ResidualFile {
   }
   [[noreturn]] void fail(const char* what) const {
     const int err = errno;
-    throw InputError("scale.scratch: cannot " + std::string(what) + " the cross-check's residual file " + file_.string() +
+    throw InputError("scale.scratch: cannot " + std::string(what) + " the cross-check's residual file " + file_.path().string() +
                      (err != 0 ? std::string(": ") + std::strerror(err) : std::string()) + " (is the disk full?)");
   }
-  fs::path file_;
+  LiveScratchFile file_;  // registered for the signal clean-up; removed when this goes
   std::FILE* f_ = nullptr;
   std::vector<float> buf_;
   std::uint64_t written_ = 0;  // floats
@@ -3072,27 +3069,20 @@ std::string attempt_tag() { return host_tag() + "-" + std::to_string(::getpid())
 // so a reader never sees half of it, even after a crash. @throws InputError naming the file.
 void write_atomically(const fs::path& target, const std::string& bytes) {
   const fs::path tmp = target.parent_path() / ("." + target.filename().string() + std::string(kTmpInfix) + attempt_tag());
-  // SIGINT/SIGTERM (hapticloud's signal watcher) removes the temporary while it is written.
-  register_live_scratch_dir(tmp);
-  const struct Unregister {
-    const fs::path& p;
-    ~Unregister() { unregister_live_scratch_dir(p); }
-  } unregister{tmp};
+  // Removed however this ends (after the rename, nothing is left to remove); SIGINT/SIGTERM
+  // (hapticloud's signal watcher) removes it while it is written.
+  const LiveScratchFile temp(tmp);
   std::FILE* f = open_live_scratch_file(tmp, "wb");
   const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size() && std::fflush(f) == 0 &&
                   ::fsync(::fileno(f)) == 0;
+  const int err = errno;
   const bool closed = f && std::fclose(f) == 0;
-  std::error_code ec;
   if (!ok || !closed) {
-    fs::remove(tmp, ec);
-    throw InputError("cannot write " + target.string() + ": " + std::strerror(errno) + " (is the disk full?)");
+    throw InputError("cannot write " + target.string() + ": " + std::strerror(ok ? errno : err) + " (is the disk full?)");
   }
+  std::error_code ec;
   rename_live_scratch(tmp, target, ec);
-  if (ec) {
-    const std::string why = ec.message();
-    fs::remove(tmp, ec);
-    throw InputError("cannot write " + target.string() + ": " + why);
-  }
+  if (ec) throw InputError("cannot write " + target.string() + ": " + ec.message());
 }
 
 std::string read_file_bytes(const fs::path& file, const char* what) {
@@ -3704,19 +3694,9 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
     const std::size_t row = t / per_row;
     for (; row > far && kept_from < (row - far) * per_row; ++kept_from) blocks.drop(kept_from);
     std::error_code ec;
-    // This attempt's temporary kept file goes however the job ends (renamed below on success).
-    // SIGINT/SIGTERM (hapticloud's signal watcher) removes it too.
-    struct RemoveTemp {
-      fs::path f;
-      explicit RemoveTemp(fs::path p) : f(std::move(p)) { register_live_scratch_dir(f); }
-      ~RemoveTemp() {
-        unregister_live_scratch_dir(f);
-        std::error_code e;
-        fs::remove(f, e);
-      }
-      RemoveTemp(const RemoveTemp&) = delete;
-      RemoveTemp& operator=(const RemoveTemp&) = delete;
-    } temp{kept.file(t)};
+    // This attempt's temporary kept file goes however the job ends (renamed below on success),
+    // and on SIGINT/SIGTERM (hapticloud's signal watcher).
+    const LiveScratchFile temp(kept.file(t));
     TileOutput o = process_tile(config, plan, spill, blocks, kept, t);
     if (o.kept_bytes > 0) {
       // The file must be there, whole: a merge that found this tile done may have removed it as a

@@ -84,14 +84,17 @@ std::size_t entries_besides(const fs::path& dir, const std::string& keep) {
   return n;
 }
 
-// Both runs of one config; the tiled one with tiles of `tile` cells under `scratch`.
-void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scratch) {
+// Both runs of one config; the tiled one with tiles of `tile` cells under `scratch`, handed back
+// in tiled_out when given (config itself is left as it was).
+void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scratch, BuiltScene* tiled_out = nullptr) {
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
   const BuiltScene in = hc::pipeline::build_scene(config);
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
   config.scale.tile_cells = tile;
   config.scale.scratch = scratch;
-  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  BuiltScene local;
+  BuiltScene& tiled = tiled_out != nullptr ? *tiled_out : local;
+  tiled = hc::pipeline::build_scene(config);
   ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0) << "the grid was cut into several tiles";
   const auto& a = in.scene.layers;
   const auto& b = tiled.scene.layers;
@@ -856,11 +859,9 @@ TEST(TiledRun, AnAutoFilterHaloShortOfTheSamplesSpacingIsWidenedAndThePointsSpil
   RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
   ASSERT_EQ(config.scale.filter_halo_cells, hc::pipeline::ScaleConfig::kAutoFilterHalo) << "auto is the default";
   fs::create_directory(dir / "scratch");
-  expect_tiled_equals_in_core(config, 32, dir / "scratch");
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.tile_cells = 32;
-  config.scale.scratch = dir / "scratch";
-  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  BuiltScene tiled;
+  expect_tiled_equals_in_core(config, 32, dir / "scratch", &tiled);
+  if (HasFatalFailure()) return;
   EXPECT_NEAR(stage_figure(tiled, "tile_plan", "spacing_estimate_mm"), 990.0 / 200.0, 1e-6) << "0.99 m squared over 40 000 points";
   EXPECT_NEAR(stage_figure(tiled, "tile_scale", "sample_spacing_mm"), std::sqrt(10.0 * 10.0 + 2.0 * 2.0), 0.1);
   const double filter = stage_figure(tiled, "tile_scale", "filter_halo_cells");
@@ -888,6 +889,8 @@ TEST(TiledRun, AnAutoFilterHaloShortOfTheSamplesSpacingIsWidenedAndThePointsSpil
   config.cross_check.enabled = false;
   config.scale.filter_halo_cells = 32;
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 32;
+  config.scale.scratch = dir / "scratch";
   const BuiltScene bare = hc::pipeline::build_scene(config);
   EXPECT_EQ(stage_figure(bare, "tile_plan", "filter_halo_cells"), 0.0);
   hc::pipeline::ReprojectOptions ro = config.grid.reproject;
@@ -1208,11 +1211,9 @@ TEST(TiledRun, AFloatScanIsSpilledAsItsOwnFloatsAndReadBackAsTheInCoreRunsDouble
         "grid: {n: 300, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64}\n"
         "cross_check: {tolerance_m: 0.002}\nscale: {chunk_points: 7000}\n";
     RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml");
-    expect_tiled_equals_in_core(config, 48, dir / "scratch");
-    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-    config.scale.tile_cells = 48;
-    config.scale.scratch = dir / "scratch";
-    const BuiltScene tiled = hc::pipeline::build_scene(config);
+    BuiltScene tiled;
+    expect_tiled_equals_in_core(config, 48, dir / "scratch", &tiled);
+    if (HasFatalFailure()) return;
     EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_xyz_floats"), 1.0);
     EXPECT_FALSE(has_note(tiled, "tile_spill", "the spill holds x y z as doubles"));
     EXPECT_NEAR(stage_figure(tiled, "tile_spill", "spill_bytes_peak_mb") * 1e6, 13.0 * stage_figure(tiled, "tile_spill", "points_spilled"), 0.5);
@@ -1261,6 +1262,9 @@ TEST(TiledRun, AFloatScanIsSpilledAsItsOwnFloatsAndReadBackAsTheInCoreRunsDouble
       EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0) << "the second look copied a tile's floats by block";
       EXPECT_GT(stage_figure(tiled, "tiles", "sum_robust_block_records_read"), 0.0) << "and read them back";
       // Oracle for the copies: without them every gathering reads the whole spills.
+      config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+      config.scale.tile_cells = 48;
+      config.scale.scratch = dir / "scratch";
       config.scale.block_copies = false;
       const BuiltScene whole = hc::pipeline::build_scene(config);
       for (const char* name : {"sum_robust_points_gathered", "sum_robust_gatherings", "sum_points_judged_past_halo", "sum_removed_robust"}) {
@@ -1292,11 +1296,9 @@ TEST(TiledRun, AScanWhoseFloatsDoNotGiveTheGridFrameBackIsSpilledInDoubles) {
       "cross_check: {tolerance_m: 0.002}\nscale: {chunk_points: 5000}\n";
   RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml");
   fs::create_directory(dir / "scratch");
-  expect_tiled_equals_in_core(config, 40, dir / "scratch");
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.tile_cells = 40;
-  config.scale.scratch = dir / "scratch";
-  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  BuiltScene tiled;
+  expect_tiled_equals_in_core(config, 40, dir / "scratch", &tiled);
+  if (HasFatalFailure()) return;
   EXPECT_EQ(stage_figure(tiled, "tile_spill", "spill_xyz_floats"), 0.0);
   EXPECT_TRUE(has_note(tiled, "tile_spill", "the spill holds x y z as doubles"));
   // The note names the point: all are finite and none is cropped, so its index is m's.

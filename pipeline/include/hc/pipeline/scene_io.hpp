@@ -169,6 +169,23 @@ void register_live_scratch_dir(const std::filesystem::path& path);
 /// (waits for the process to end once a final clean-up has begun).
 void unregister_live_scratch_dir(const std::filesystem::path& path) noexcept;
 
+/// A scratch file of this process's, registered for the signal clean-up while this lives
+/// (register_live_scratch_dir, before the file exists) and removed when it goes, whatever
+/// happened (nothing is removed once rename_live_scratch has moved it to its final name).
+/// Users: a tile job's temporary kept file, write_atomically's temporary, the cross-check's
+/// residual file. @throws std::bad_alloc only.
+class LiveScratchFile {
+ public:
+  explicit LiveScratchFile(std::filesystem::path file);
+  ~LiveScratchFile();  ///< unregisters, then removes the file (errors ignored)
+  LiveScratchFile(const LiveScratchFile&) = delete;
+  LiveScratchFile& operator=(const LiveScratchFile&) = delete;
+  const std::filesystem::path& path() const { return file_; }
+
+ private:
+  std::filesystem::path file_;
+};
+
 /// std::fopen(file, mode) under the registry's lock: a scratch file (one registered, or an entry
 /// of registered prefix) is never created after a final clean-up has scanned for it (the call
 /// then waits for the process to end). What is written to it afterwards through the FILE*
