@@ -1223,6 +1223,24 @@ class BlockCopies {
     std::vector<std::vector<Slab>> blocks;  // per block, its slabs in the order first met
   };
 
+  // A slab's records not yet written: bytes [0, size) of data, which holds cap; grows by
+  // doubling without filling (a std::vector<char>'s resize per record was a fifth of make()).
+  struct Buffer {
+    std::unique_ptr<char[]> data;
+    std::size_t size = 0, cap = 0;
+    // Room for `need` bytes; returns the bytes it added.
+    std::size_t reserve(std::size_t need) {
+      if (need <= cap) return 0;
+      const std::size_t grown = std::max({need, 2 * cap, std::size_t{256}});
+      std::unique_ptr<char[]> d(new char[grown]);
+      if (size > 0) std::memcpy(d.get(), data.get(), size);
+      data = std::move(d);
+      const std::size_t added = grown - cap;
+      cap = grown;
+      return added;
+    }
+  };
+
   // A copy's record: the point's bytes, then its record number in the spill (uint32).
   std::size_t copy_record_bytes() const { return spill_.layout().point_bytes() + 4; }
   fs::path file(std::size_t u) const { return dir_ / ("blocks_" + std::to_string(u) + ".bin"); }
@@ -1276,18 +1294,18 @@ class BlockCopies {
       }
     }
     std::vector<std::vector<Slab>> blocks(static_cast<std::size_t>(kSide * kSide));
-    std::vector<std::vector<std::vector<char>>> buf(blocks.size());  // per block, per slab
+    std::vector<std::vector<Buffer>> buf(blocks.size());  // per block, per slab
     std::vector<std::size_t> last(blocks.size(), 0);                  // per block, the slab last written
     std::uint64_t end = 0;  // records in the copy
     bool written = true;    // every chunk so far
     const auto flush = [&](std::size_t b, std::size_t z) {
-      std::vector<char>& x = buf[b][z];
-      if (!written) x.clear();
-      if (x.empty()) return;
-      written = detail::pwrite_full(fd, x.data(), x.size(), end * crec);
-      blocks[b][z].chunks.push_back({end, x.size() / crec});
-      end += x.size() / crec;
-      x.clear();
+      Buffer& x = buf[b][z];
+      if (!written) x.size = 0;
+      if (x.size == 0) return;
+      written = detail::pwrite_full(fd, x.data.get(), x.size, end * crec);
+      blocks[b][z].chunks.push_back({end, x.size / crec});
+      end += x.size / crec;
+      x.size = 0;
     };
     const auto in = tiles_.interior(u);
     const int bn = block_nodes();
@@ -1318,20 +1336,19 @@ class BlockCopies {
         }
         last[b] = z;
       }
-      std::vector<char>& x = buf[b][z];
-      const std::size_t at = x.size(), had = x.capacity();
-      x.resize(at + crec);
-      held += x.capacity() - had;
-      char* q = x.data() + at;
+      Buffer& x = buf[b][z];
+      held += x.reserve(x.size + crec);
+      char* q = x.data.get() + x.size;
+      x.size += crec;
       std::memcpy(q, record + 1, pb);  // the spill's bytes: Layout::get reads them back alike
       const auto i32 = static_cast<std::uint32_t>(i);
       std::memcpy(q + crec - 4, &i32, 4);
-      if (x.size() >= kBlockBuffer) flush(b, z);  // its memory kept for the slab's next records
+      if (x.size >= kBlockBuffer) flush(b, z);  // its memory kept for the slab's next records
       if (held > kMaxHeld) {  // every buffer written out and freed: the copy's memory stays bounded
         for (std::size_t bb = 0; bb < buf.size(); ++bb) {
           for (std::size_t zz = 0; zz < buf[bb].size(); ++zz) {
             flush(bb, zz);
-            std::vector<char>().swap(buf[bb][zz]);
+            buf[bb][zz] = Buffer{};
           }
         }
         held = 0;
@@ -2324,6 +2341,17 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       spilled = copies = 0;
       std::size_t next_sample = 0;
       const NodeBinner node(tiles.g);
+      // Per row and per column of nodes: the first and last tile whose window holds it
+      // (tiles_of) and the tile that owns it, looked up rather than divided per point.
+      const auto spans = [&](int nodes, bool rows) {
+        std::vector<std::array<int, 3>> v(static_cast<std::size_t>(nodes));
+        for (int i = 0; i < nodes; ++i) {
+          const auto tt = rows ? tiles_of(tiles, i, 0) : tiles_of(tiles, 0, i);
+          v[static_cast<std::size_t>(i)] = rows ? std::array<int, 3>{tt[0], tt[1], i / tiles.size} : std::array<int, 3>{tt[2], tt[3], i / tiles.size};
+        }
+        return v;
+      };
+      const std::vector<std::array<int, 3>> row_tiles = spans(tiles.g.rows, true), col_tiles = spans(tiles.g.cols, false);
       std::uint64_t seen = 0;
       try {
       for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
@@ -2333,13 +2361,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           const bool far_point = far && far->holds(p);
           far_points += far_point ? 1U : 0U;
           spilled += far_point ? 0U : 1U;
-          const int row = node.row(p), col = node.col(p);
-          const auto [tr0, tr1, tc0, tc1] = tiles_of(tiles, row, col);
+          const auto [tr0, tr1, own_r] = row_tiles[static_cast<std::size_t>(node.row(p))];
+          const auto [tc0, tc1, own_c] = col_tiles[static_cast<std::size_t>(node.col(p))];
           const std::uint8_t* rgb = g.has_rgb() ? g.rgb.data() + 3 * i : nullptr;
           const float inten = g.has_intensity() ? g.intensity[static_cast<std::size_t>(i)] : 0.0f;
           while (!far && next_sample < robust_sample.size() && robust_sample[next_sample] < seen) ++next_sample;
           const bool sampled = !far && next_sample < robust_sample.size() && robust_sample[next_sample] == seen;
-          const int own_r = row / tiles.size, own_c = col / tiles.size;
           for (int tr = tr0; tr <= tr1; ++tr) {
             for (int tc = tc0; tc <= tc1; ++tc) {
               const std::uint8_t flag = far_point ? kFarFlag : sampled && tr == own_r && tc == own_c ? kSampleFlag : std::uint8_t{0};
