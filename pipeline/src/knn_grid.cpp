@@ -303,6 +303,8 @@ class SmallestK {
   // (the query's own zero distance adds nothing). Each square root is a float and there are at
   // most 1001 of them, so their double sum is exact in any order unless they span more than
   // 2^19 in magnitude: the result matches PCL's ascending-order sum.
+  // Copies the k+1 smallest squared distances (unordered) to out[0..k+1).
+  void copy_to(float* out) const { std::copy_n(top_, k1_, out); }
   float mean_distance() const {
     double sum = 0.0;
     for (std::size_t j = 0; j < k1_; ++j) sum += std::sqrt(top_[j]);
@@ -893,9 +895,10 @@ class GridPointQueries {
     *mean_d = static_cast<float>(sum / static_cast<double>(k));
   }
 
-  float mean_distance(std::uint32_t sorted, Scratch& s, float* nearest) const {
+  float mean_distance(std::uint32_t sorted, Scratch& s, float* nearest, float* top_d2) const {
     const float d = mean_distance(sorted, s);
     if (nearest != nullptr) *nearest = s.top.nearest_other();  // the search's k+1 left in s.top
+    if (top_d2 != nullptr) s.top.copy_to(top_d2);
     return d;
   }
 
@@ -1024,8 +1027,8 @@ PointQueries::Scratch::~Scratch() = default;
 
 const std::vector<std::uint32_t>& PointQueries::lower_table() const { return impl_->lower_table(); }
 
-float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s, float* nearest_m) const {
-  return impl_->mean_distance(sorted, *s.state_, nearest_m);
+float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s, float* nearest_m, float* top_d2) const {
+  return impl_->mean_distance(sorted, *s.state_, nearest_m, top_d2);
 }
 
 void PointQueries::nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d) const {

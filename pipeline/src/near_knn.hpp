@@ -45,11 +45,15 @@ std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<
 /// distance from the origin); `list`: points j (0 .. xyz.size() / 3 − 1), repeats allowed. The
 /// result's order and units, the near search, `nearest_m` and `how` as above; each listed
 /// point's distances are those over every point given (the tiled run's stage tile_scale: a
-/// tile's window as read from its spill). Errors: hc::ConfigError for k outside 1..1000;
+/// tile's window as read from its spill). `top_d2`, when given, receives each listed point's
+/// k + 1 smallest squared distances [m²] over the points given (its own 0 among them,
+/// unordered; PointQueries::mean_distance) at (*top_d2)[i·(k + 1) .. i·(k + 1) + k] for list
+/// entry i, all 0 for a point with k copies. Errors: hc::ConfigError for k outside 1..1000;
 /// hc::InputError for xyz.size() not a multiple of 3, a non-finite coordinate or a listed
 /// point out of range; hc::DegenerateInputError for fewer than k + 2 points; hc::ResourceError
 /// beyond 2^32 − 2 points.
 std::vector<double> mean_knn_distances_of(const std::vector<float>& xyz, const std::vector<std::uint32_t>& list, int k,
-                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how);
+                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how,
+                                          std::vector<float>* top_d2 = nullptr);
 
 }  // namespace hc::pipeline::detail

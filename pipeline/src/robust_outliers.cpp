@@ -153,33 +153,45 @@ class ExactDistances {
   // Computes d for the listed input indices not known yet (grid order, two threads if long);
   // with `nearest`, also each listed point's distance to its nearest other point, in list
   // order, from the same searches (0 for a copy left out of the grid or a point with a copy in
-  // it; a point whose d was known is searched again). Returns how many queries ran.
-  std::size_t compute(const std::vector<std::uint32_t>& list, std::vector<float>* nearest = nullptr) {
+  // it; a point whose d was known is searched again). With `top_d2`, likewise each listed
+  // point's k + 1 smallest squared distances (PointQueries::mean_distance), at
+  // (*top_d2)[i·(k + 1) ..] for list entry i (all 0 for a copy left out of the grid). Returns how
+  // many queries ran.
+  std::size_t compute(const std::vector<std::uint32_t>& list, std::vector<float>* nearest = nullptr,
+                      std::vector<float>* top_d2 = nullptr) {
+    const bool each = nearest != nullptr || top_d2 != nullptr;  // every listed point searched
+    const auto k1 = static_cast<std::size_t>(k_) + 1;
     order_.clear();
     for (const std::uint32_t j : list) {
-      if (d_[j] < 0.0f || (nearest != nullptr && pos_[j] != kNotInGrid)) order_.emplace_back(pos_[j], j);
+      if (d_[j] < 0.0f || (each && pos_[j] != kNotInGrid)) order_.emplace_back(pos_[j], j);
     }
     std::sort(order_.begin(), order_.end());
     order_.erase(std::unique(order_.begin(), order_.end()), order_.end());
     const std::size_t len = order_.size();
     const int th = len >= 4096 ? kSearchThreads : 1;
     std::vector<float> near(nearest != nullptr ? len : 0, 0.0f);  // by order_ entry
+    std::vector<float> top(top_d2 != nullptr ? len * k1 : 0, 0.0f);  // by order_ entry, k + 1 each
     run_parallel(th, [&](int t) {
       PointQueries::Scratch s(k_);
       const std::size_t b = len * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
       const std::size_t e = len * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
       for (std::size_t i = b; i < e; ++i) {
         const std::uint32_t j = order_[i].second;
-        const float d = q_.mean_distance(order_[i].first, s, nearest != nullptr ? &near[i] : nullptr);
+        const float d = q_.mean_distance(order_[i].first, s, nearest != nullptr ? &near[i] : nullptr,
+                                         top_d2 != nullptr ? top.data() + i * k1 : nullptr);
         if (d_[j] < 0.0f) d_[j] = d;  // a d known before stays as it was
       }
     });
-    if (nearest != nullptr) {
-      nearest->assign(list.size(), 0.0f);
+    if (nearest != nullptr) nearest->assign(list.size(), 0.0f);
+    if (top_d2 != nullptr) top_d2->assign(list.size() * k1, 0.0f);
+    if (each) {
       for (std::size_t i = 0; i < list.size(); ++i) {
         const std::pair<std::uint32_t, std::uint32_t> key{pos_[list[i]], list[i]};
         const auto it = std::lower_bound(order_.begin(), order_.end(), key);
-        if (it != order_.end() && *it == key) (*nearest)[i] = near[static_cast<std::size_t>(it - order_.begin())];
+        if (it == order_.end() || *it != key) continue;  // a copy left out of the grid: 0
+        const auto at = static_cast<std::size_t>(it - order_.begin());
+        if (nearest != nullptr) (*nearest)[i] = near[at];
+        if (top_d2 != nullptr) std::copy_n(top.begin() + static_cast<std::ptrdiff_t>(at * k1), k1, top_d2->begin() + static_cast<std::ptrdiff_t>(i * k1));
       }
     }
     return len;
@@ -345,12 +357,45 @@ std::vector<std::uint32_t> robust_sample_indices(std::size_t n, std::size_t samp
   return n == 0 ? std::vector<std::uint32_t>() : stratified_sample(n, std::min(n, std::max<std::size_t>(sample, 1)));
 }
 
+namespace {
+// The scale's figures are rounded to steps of 1/128 in ln d (0.8 %): a handful of added points
+// (a far point, a far cluster) moves the median and the MAD by a fraction of a rank, so the
+// rounded scale, hence every decision, stays the same (unless it lies within that fraction of
+// a step boundary).
+double scale_step(double v) { return std::round(v * 128.0) / 128.0; }
+
+// Whether the medians of the lower and of the upper bounds round to the same step (false for a
+// NaN: NaN compares unequal).
+bool median_fixed(const std::vector<std::array<double, 2>>& b) {
+  std::vector<double> lo(b.size()), hi(b.size());
+  for (std::size_t i = 0; i < b.size(); ++i) {
+    lo[i] = b[i][0];
+    hi[i] = b[i][1];
+  }
+  return scale_step(median_of(std::move(lo))) == scale_step(median_of(std::move(hi)));
+}
+}  // namespace
+
+bool robust_scale_fixed(const std::vector<std::array<double, 2>>& log_d, const std::vector<std::array<double, 2>>& log_nearest) {
+  if (!log_nearest.empty() && !median_fixed(log_nearest)) return false;
+  if (log_d.empty()) return true;
+  if (!median_fixed(log_d)) return false;
+  std::vector<double> hi(log_d.size());
+  for (std::size_t i = 0; i < log_d.size(); ++i) hi[i] = log_d[i][1];
+  const double m = scale_step(median_of(std::move(hi)));  // the median, fixed
+  // |v − m| over v in [lo, hi]: 0 when m lies inside, else the nearer end; at most the farther
+  // end. A value left out (−∞..+∞) gives 0..+∞, which brackets its absence as for the median.
+  std::vector<std::array<double, 2>> dev(log_d.size());
+  for (std::size_t i = 0; i < log_d.size(); ++i) {
+    const double a = std::abs(log_d[i][0] - m), b = std::abs(log_d[i][1] - m);
+    dev[i] = {log_d[i][0] <= m && m <= log_d[i][1] ? 0.0 : std::min(a, b), std::max(a, b)};
+  }
+  return median_fixed(dev);
+}
+
 std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t sampled, std::vector<double> nearest_logs) {
   if (logs.empty()) return std::nullopt;
-  // Rounded to steps of 1/128 in ln d (0.8 %): a handful of added points (a far point, a far
-  // cluster) moves the median and the MAD by a fraction of a rank, so the rounded scale, hence
-  // every decision, stays the same (unless it lies within that fraction of a step boundary).
-  const auto step = [](double v) { return std::round(v * 128.0) / 128.0; };
+  const auto step = scale_step;
   RobustScale s;
   s.sample = sampled;
   s.median_log = step(median_of(logs));
@@ -556,7 +601,7 @@ struct FloatRows {
 // over src, and their nearest distances when nearest_m is given: near_knn.hpp.
 template <class Src>
 std::vector<double> knn_of_listed(const Src& src, std::vector<std::uint32_t> list, int k, std::vector<double>* nearest_m,
-                                  bool near_only, NearSearch* how) {
+                                  bool near_only, NearSearch* how, std::vector<float>* top_d2 = nullptr) {
   const std::size_t n = src.size();
   NearSearch searched;
   std::vector<std::uint32_t> subset;
@@ -575,7 +620,7 @@ std::vector<double> knn_of_listed(const Src& src, std::vector<std::uint32_t> lis
   const CellGrid g = build_grid(p, count, std::min(2 * k + 1, 1000));
   ExactDistances d(g, k, count);
   std::vector<float> near_d;
-  d.compute(list, nearest_m != nullptr ? &near_d : nullptr);
+  d.compute(list, nearest_m != nullptr ? &near_d : nullptr, top_d2);
   std::vector<double> out;
   out.reserve(list.size());
   for (const std::uint32_t j : list) out.push_back(static_cast<double>(d[j]));
@@ -617,7 +662,8 @@ std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<
 }
 
 std::vector<double> mean_knn_distances_of(const std::vector<float>& xyz, const std::vector<std::uint32_t>& list, int k,
-                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how) {
+                                          std::vector<double>* nearest_m, bool near_only, NearSearch* how,
+                                          std::vector<float>* top_d2) {
   check_knn_k(k);
   if (xyz.size() % 3 != 0) {
     throw InputError("mean_knn_distances: " + std::to_string(xyz.size()) + " float coordinates, expected a multiple of 3");
@@ -635,7 +681,7 @@ std::vector<double> mean_knn_distances_of(const std::vector<float>& xyz, const s
   for (const std::uint32_t j : list) {
     if (j >= n) throw InputError("mean_knn_distances: row " + std::to_string(j) + " listed, expected < " + std::to_string(n));
   }
-  return knn_of_listed(FloatRows{xyz.data(), n}, list, k, nearest_m, near_only, how);
+  return knn_of_listed(FloatRows{xyz.data(), n}, list, k, nearest_m, near_only, how, top_d2);
 }
 
 }  // namespace detail

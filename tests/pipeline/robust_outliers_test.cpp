@@ -21,6 +21,7 @@
 #include "test_paths.hpp"
 #include "stage_figure.hpp"
 
+#include <array>
 #include <cmath>
 #include <cstdint>
 #include <fstream>
@@ -28,6 +29,7 @@
 #include <functional>
 #include <limits>
 #include <algorithm>
+#include <optional>
 #include <random>
 #include <set>
 #include <iostream>
@@ -288,6 +290,81 @@ TEST(RobustOutliers, TheSamplesNearestDistancesGiveTheScansSpacing) {
 // dozens of neighbours and the point none, so it alone goes; at 1 cm (9 cm) it has the plane's
 // points and stays; the figure is the spacing given (HonestCheckOptions::spacing_m). A spacing
 // that is not finite, or negative, is refused.
+// robust_scale_fixed (the tiled run's tile_scale: a window's k-NN searches bound d where they
+// reach past it) against its definition: when it says the scale is fixed, robust_scale_of gives
+// the same median, MAD and spacing for every concrete choice of values within the bounds. The
+// oracle is robust_scale_of itself on 300 random draws per case (each bound's ends, values
+// between, and for an unknown value its absence or a value anywhere). The cases put the values
+// close to a rounding step and widen a random share of them downwards, as a window's truncated
+// searches do; the test also requires both answers to occur, so it keeps testing something.
+TEST(RobustScaleFixed, EveryDrawWithinTheBoundsGivesTheSameScaleWhenItSaysFixed) {
+  using hc::pipeline::robust_scale_fixed;
+  using hc::pipeline::robust_scale_of;
+  using Bounds = std::vector<std::array<double, 2>>;
+  std::mt19937_64 rng(20261125);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  const double inf = std::numeric_limits<double>::infinity();
+  int fixed_cases = 0, open_cases = 0;
+  for (int c = 0; c < 400; ++c) {
+    const auto n = static_cast<std::size_t>(5 + rng() % 300);
+    // Values about a step boundary (ln d = -7 + 0.5/128), spread by 0..3 steps.
+    const double centre = -7.0 + 0.5 / 128.0 + (u(rng) - 0.5) * 0.02, spread = u(rng) * 3.0 / 128.0;
+    const double widened = u(rng) * 0.3, unknown = u(rng) < 0.3 ? u(rng) * 0.05 : 0.0, depth = u(rng) * 4.0 / 128.0;
+    const auto make = [&](double offset) {
+      Bounds b(n);
+      for (auto& x : b) {
+        const double v = centre + offset + (u(rng) - 0.5) * spread + (u(rng) < 0.05 ? u(rng) * 2.0 : 0.0);  // a few strays
+        if (u(rng) < unknown) {
+          x = {-inf, inf};
+        } else if (u(rng) < widened) {
+          x = {v - u(rng) * depth, v};
+        } else {
+          x = {v, v};
+        }
+      }
+      return b;
+    };
+    const Bounds d = make(0.0), near = make(-0.7);
+    const bool fixed = robust_scale_fixed(d, near);
+    (fixed ? fixed_cases : open_cases)++;
+    if (!fixed) continue;
+    // A draw: each value at its lower end, its upper end or between; an unknown one left out or
+    // anywhere in ±3 about the centre.
+    const auto draw = [&](const Bounds& b, int mode) {
+      std::vector<double> v;
+      for (const auto& x : b) {
+        if (std::isinf(x[0])) {
+          if (u(rng) < 0.5) v.push_back(centre + (u(rng) - 0.5) * 6.0);
+          continue;
+        }
+        const double t = mode == 0 ? 0.0 : mode == 1 ? 1.0 : u(rng);
+        v.push_back(x[0] + t * (x[1] - x[0]));
+      }
+      return v;
+    };
+    std::optional<hc::pipeline::RobustScale> first;
+    for (int k = 0; k < 300; ++k) {
+      const int mode = k < 2 ? k : 2;
+      const auto s = robust_scale_of(draw(d, mode), n, draw(near, mode));
+      ASSERT_TRUE(s.has_value());
+      if (!first) {
+        first = s;
+        continue;
+      }
+      ASSERT_EQ(s->median_log, first->median_log) << "case " << c << ", draw " << k;
+      ASSERT_EQ(s->mad_log, first->mad_log) << "case " << c << ", draw " << k;
+      ASSERT_EQ(s->spacing_m, first->spacing_m) << "case " << c << ", draw " << k;
+    }
+  }
+  EXPECT_GT(fixed_cases, 40);
+  EXPECT_GT(open_cases, 40);
+  // Bounds that are all points fix the scale; one NaN bound does not.
+  EXPECT_TRUE(robust_scale_fixed({{-7.0, -7.0}, {-6.0, -6.0}, {-5.0, -5.0}}, {}));
+  EXPECT_FALSE(robust_scale_fixed({{std::nan(""), -7.0}}, {}));
+  // Half the values unknown: nothing is fixed.
+  EXPECT_FALSE(robust_scale_fixed({{-7.0, -7.0}, {-inf, inf}}, {}));
+}
+
 TEST(RobustOutliers, TheIsolatedFilterTakesTheSpacingItIsGiven) {
   std::vector<Eigen::Vector3d> pts;
   for (int i = 0; i < 30; ++i)

@@ -138,6 +138,21 @@ std::vector<double> mean_knn_distances(const Cloud& cloud, const std::vector<std
 std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t sampled,
                                            std::vector<double> nearest_logs = {});
 
+/// Whether robust_scale_of gives one and the same median_log, mad_log and spacing_m for every
+/// choice of sampled values within bounds: `log_d[i]` = {lo, hi} holds ln d of sampled point i
+/// (lo = hi where d is known; lo = −∞ and hi = +∞ where nothing is known of it, not even whether
+/// d > 0), `log_nearest[i]` likewise ln of its nearest-point distance. Used by the tiled run's
+/// stage tile_scale, whose k-NN searches over a tile's window give d only as an upper bound
+/// where a search reaches past the window. Every order statistic is non-decreasing in each
+/// value, so the median lies between the medians of the lower and of the upper bounds; given
+/// the median rounded, each absolute deviation is bounded alike; a value left out (d = 0) lies
+/// between one at −∞ and one at +∞ for a median. True when both bounds round to the same
+/// step, for the median, the MAD about it and the nearest distances' median (an empty list
+/// fixes its figure: no value either way); false otherwise, a NaN bound included. Cost:
+/// O(n) (selection). Never throws (but std::bad_alloc).
+bool robust_scale_fixed(const std::vector<std::array<double, 2>>& log_d,
+                        const std::vector<std::array<double, 2>>& log_nearest);
+
 /// Options of far-cluster removal (filters.outliers.far_clusters.*; docs/config.md).
 struct FarClusterOptions {
   bool enabled = true;
