@@ -709,12 +709,13 @@ void owned_by(const Tiles& tiles, std::size_t t, const Cloud& pts, std::vector<s
 // xy extent (a tile and its halo) and a z span of 10 m, better than 0.6 µm; points far from the
 // first records' height lose precision in proportion. sampled: the records flagged kSampleFlag
 // (their positions in file order). xyz (3 floats a record) and sampled are reused buffers.
+// Returns the centre [m] (grid frame): point j lies at centre + xyz[3j .. 3j + 2].
 // @throws InputError naming the spill file when it cannot be read (Spill::scan), or naming the
 //         tile and the record when a coordinate about the centre overflows float.
 // (Until 2026-11-25 the window was read as a Cloud of doubles, recentred and converted on each
 // pass of the search: at 10^8 points, 112 M records.)
-void read_window_floats(const Spill& spill, const Tiles& tiles, std::size_t t, std::vector<float>& xyz,
-                        std::vector<std::uint32_t>& sampled) {
+std::array<double, 3> read_window_floats(const Spill& spill, const Tiles& tiles, std::size_t t, std::vector<float>& xyz,
+                                         std::vector<std::uint32_t>& sampled) {
   const std::size_t n = spill.records(t);
   xyz.resize(3 * n);
   sampled.clear();
@@ -753,6 +754,7 @@ void read_window_floats(const Spill& spill, const Tiles& tiles, std::size_t t, s
     }
     ++i;
   });
+  return {centre[0], centre[1], centre[2]};
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -2415,33 +2417,89 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       StageResult<int> r;
       const int k = config.filters.outliers.k;
       std::size_t found = 0, in_small_tiles = 0;
+      // The sampled points whose search reached past their window, and by how much at most [m];
+      // the bounds of every sampled point's ln d and ln nearest (robust_scale_fixed).
+      std::size_t past_window = 0;
+      double past_window_m = 0.0;
+      std::vector<std::array<double, 2>> log_bounds, nearest_bounds;
       // The scale from the sampled points' k-NN distances over their tiles' windows (the spill
-      // as it is).
+      // as it is). A point's search over its window gives its true k + 1 nearest when the
+      // (k + 1)-th lies closer than any point outside the window: closer than its xy clearance b
+      // to the window's box (points outside it lie beyond, less a rounding step: NodeBinner).
+      // Otherwise each true j-th distance D_j lies in [min(d_j, b), d_j] (d_j: the window's;
+      // a point past b can only stand in for a farther one), so d (their mean) and the nearest
+      // distance are known to within bounds; robust_scale_fixed tells whether the scale can
+      // depend on where in them the in-core run's values lie.
       const auto scale_from_spill = [&] {
         std::vector<double> logs, nearest_logs, nearest;
         logs.reserve(robust_sample.size());
         nearest_logs.reserve(robust_sample.size());
-        std::vector<float> xyz;  // reused: a window's points as floats (read_window_floats)
+        log_bounds.clear();
+        nearest_bounds.clear();
+        std::vector<float> xyz, top_d2;  // reused: a window's points as floats (read_window_floats)
         std::vector<std::uint32_t> mine;
-        found = in_small_tiles = 0;
+        found = in_small_tiles = past_window = 0;
+        past_window_m = 0.0;
+        const auto k1 = static_cast<std::size_t>(k) + 1;
+        const double inf = std::numeric_limits<double>::infinity();
+        // A thousandth of a cell off the clearance: NodeBinner's rounding step (a millionth of a
+        // cell, Tiles::reading_box_m) and the floats' (under a micrometre about the centre).
+        const double slack_m = 1e-3 * tiles.g.cell_size_m;
         PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
         for (std::size_t t = 0; t < tiles.count(); ++t) {
           tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
-          read_window_floats(*spill, tiles, t, xyz, mine);
+          const auto wc = read_window_floats(*spill, tiles, t, xyz, mine);
           found += mine.size();
           if (mine.empty()) continue;
-          if (xyz.size() / 3 < static_cast<std::size_t>(k) + 2) {
+          if (xyz.size() / 3 < k1 + 1) {
             in_small_tiles += mine.size();  // fewer than k + 2 points in the window: no k-NN distance here
+            for (std::size_t i = 0; i < mine.size(); ++i) {
+              log_bounds.push_back({-inf, inf});  // unknown, in core even whether d > 0
+              nearest_bounds.push_back({-inf, inf});
+            }
             continue;
           }
-          for (const double d : detail::mean_knn_distances_of(xyz, mine, k, &nearest, true, nullptr)) {
-            if (d > 0.0) logs.push_back(std::log(d));
-          }
-          for (const double d : nearest) {
-            if (d > 0.0) nearest_logs.push_back(std::log(d));
+          const auto wb = tiles.box_m(tiles.window(t));
+          const auto d = detail::mean_knn_distances_of(xyz, mine, k, &nearest, true, nullptr, &top_d2);
+          for (std::size_t i = 0; i < mine.size(); ++i) {
+            const double x = wc[0] + static_cast<double>(xyz[3 * mine[i]]), y = wc[1] + static_cast<double>(xyz[3 * mine[i] + 1]);
+            const double b = std::max(0.0, std::min({x - wb[0], wb[1] - x, y - wb[2], wb[3] - y}) - slack_m);
+            const float* d2 = top_d2.data() + i * k1;
+            double sum = 0.0, reach = 0.0;
+            for (std::size_t j = 0; j < k1; ++j) {
+              const auto dj = static_cast<double>(std::sqrt(d2[j]));
+              sum += std::min(dj, b);
+              reach = std::max(reach, dj);
+            }
+            // An exact copy of the point (d = 0, nearest = 0) has its copies in its window too:
+            // no value, here as in core.
+            const bool complete = reach < b;
+            if (!complete) {
+              ++past_window;
+              past_window_m = std::max(past_window_m, reach - b);
+            }
+            if (d[i] > 0.0) {
+              logs.push_back(std::log(d[i]));
+              log_bounds.push_back({complete ? logs.back() : std::log(std::min(d[i], sum / static_cast<double>(k))), logs.back()});
+            }
+            if (nearest[i] > 0.0) {
+              nearest_logs.push_back(std::log(nearest[i]));
+              nearest_bounds.push_back({std::log(std::min(nearest[i], b)), nearest_logs.back()});
+            }
           }
         }
         return robust_scale_of(std::move(logs), found - in_small_tiles, std::move(nearest_logs));
+      };
+      // Throws when the windows leave the scale open (see scale_from_spill).
+      const auto check_fixed = [&] {
+        if (!robust_scale || robust_scale_fixed(log_bounds, nearest_bounds)) return;
+        const int needed = tiles.filter + static_cast<int>(std::ceil(past_window_m / tiles.g.cell_size_m)) + 1;
+        throw ConfigError("tiled run, stage tile_scale: " + std::to_string(past_window) + " of the robust test's " +
+                          std::to_string(found) + " sampled points have k-NN searches that reach past their tile's window (by up " +
+                          "to " + format_number(past_window_m * 1e3) + " mm), and with their distances only bounded the scale " +
+                          "(median and MAD of ln d, and the spacing) could differ from the in-core run's: set " +
+                          "scale.filter_halo_cells (now " + filter_halo_now(config, tiles) + ") to at least " +
+                          std::to_string(needed) + ", or use larger tiles (scale.tile_cells)");
       };
       robust_scale = scale_from_spill();
       // scale.filter_halo_cells: auto: the halo the sample's spacing needs (without one, the
@@ -2483,6 +2541,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         r.report.figure("filter_halo_cells", tiles.filter);
         r.report.figure("halo_cells", tiles.halo);
       }
+      check_fixed();
+      r.report.figure("sampled_past_window", static_cast<double>(past_window));
+      r.report.figure("sampled_past_window_max_mm", past_window_m * 1e3);
       r.report.count_in = robust_sample.size();
       r.report.count_out = found;
       r.report.figure("sampled_in_sparse_tiles", static_cast<double>(in_small_tiles));

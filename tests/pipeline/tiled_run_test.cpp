@@ -773,6 +773,47 @@ TEST(TiledRun, AHaloNarrowerThanThePointSearchesIsAnErrorNamingTheKey) {
   EXPECT_NE(what.find("isolated"), std::string::npos) << what;
 }
 
+// Stage tile_scale takes the robust test's sampled points' k-NN distances over their tiles'
+// windows. With k = 40 on the 10 mm patch (searches of about 36 mm) and a filter halo of 2 cells
+// (5 mm each) beside the grid stages' own, a fifth of the sampled points' searches reach past
+// their window, where a point's distance is only bounded, and the bounds leave the scale's
+// rounding step open: the stage stops, naming itself, the key and a value. Oracle: the value it
+// names passes the stage (a later stage may still want more: the isolated filter here, whose
+// error names its own stage); the default (auto) runs and gives the in-core run's scale.
+TEST(TiledRun, ASampleWhoseSearchesLeaveTheirWindowsAndCouldMoveTheScaleIsAnErrorNamingTheKey) {
+  const fs::path dir = hc::test::temp_dir("scale_past_window");
+  write_patch_with(dir / "patch.ply", {});
+  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 200}\n"
+                           "cross_check: {enabled: false}\nfilters: {outliers: {k: 40, despike: false}}\n";
+  const auto with_halo = [&](const std::string& halo) {
+    RunConfig c = hc::pipeline::parse_run_config(yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: " + halo + "}\n",
+                                                 dir / "patch.yaml");
+    c.scale.scratch = dir;
+    return c;
+  };
+  const std::string what = error_of<hc::ConfigError>(with_halo("2"));
+  EXPECT_NE(what.find("stage tile_scale"), std::string::npos) << what;
+  const std::string key = "scale.filter_halo_cells (now 2) to at least ";
+  const auto at = what.find(key);
+  ASSERT_NE(at, std::string::npos) << what;
+  const int needed = std::stoi(what.substr(at + key.size()));
+  EXPECT_GT(needed, 2);
+  try {
+    (void)hc::pipeline::build_scene(with_halo(std::to_string(needed)));
+  } catch (const hc::ConfigError& e) {
+    EXPECT_EQ(std::string(e.what()).find("tile_scale"), std::string::npos) << e.what();
+  }
+  EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "the spill folder is removed on the error";
+  // auto: the halo holds the searches; the scale is the in-core run's.
+  RunConfig in_core = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+  const BuiltScene in = hc::pipeline::build_scene(in_core);
+  const BuiltScene tiled = hc::pipeline::build_scene(with_halo("auto"));
+  EXPECT_EQ(stage_figure(tiled, "tile_scale", "sampled_past_window"), 0.0);
+  EXPECT_EQ(stage_figure(tiled, "tile_scale", "median_knn_distance_mm"), stage_figure(in, "outliers", "median_knn_distance_mm"));
+  EXPECT_EQ(stage_figure(tiled, "tile_scale", "mad_log_knn_distance"), stage_figure(in, "outliers", "mad_log_knn_distance"));
+  EXPECT_EQ(stage_figure(tiled, "tile_scale", "sample_spacing_mm"), stage_figure(in, "outliers", "sample_spacing_mm"));
+}
+
 // The honest check's point test counts a point's neighbours within 10 spacings (about 102 mm on
 // the patch, whose points are 10 mm apart in x-y) and its spike searches reach the 2 mm spike
 // height further: a halo of a few filter cells plus the grid stages' (5 mm each) cannot hold
