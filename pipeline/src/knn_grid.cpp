@@ -299,12 +299,12 @@ class SmallestK {
     }
     return std::sqrt(b);
   }
+  // Copies the k+1 smallest squared distances (unordered) to out[0..k+1).
+  void copy_to(float* out) const { std::copy_n(top_, k1_, out); }
   // Mean distance to the k nearest neighbours other than the point itself, as PCL computes it
   // (the query's own zero distance adds nothing). Each square root is a float and there are at
   // most 1001 of them, so their double sum is exact in any order unless they span more than
   // 2^19 in magnitude: the result matches PCL's ascending-order sum.
-  // Copies the k+1 smallest squared distances (unordered) to out[0..k+1).
-  void copy_to(float* out) const { std::copy_n(top_, k1_, out); }
   float mean_distance() const {
     double sum = 0.0;
     for (std::size_t j = 0; j < k1_; ++j) sum += std::sqrt(top_[j]);

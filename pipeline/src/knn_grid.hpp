@@ -109,8 +109,8 @@ class PointQueries {
   /// `nearest_m`, when given, receives the distance to the nearest of them (the same float
   /// squared distance's square root; 0 when the point has a copy in the grid). `top_d2`, when
   /// given (k + 1 floats), receives the search's k + 1 smallest squared distances [m²], the
-  /// point's own 0 among them, unordered: the (k + 1)-th is the radius of the ball the mean
-  /// depends on (the tiled run's tile_scale bounds a window's truncated searches with them).
+  /// point's own 0 among them, unordered: the largest of them is the squared radius of the ball
+  /// the mean depends on (the tiled run's tile_scale bounds a window's truncated searches with them).
   float mean_distance(std::uint32_t sorted, Scratch& s, float* nearest_m = nullptr, float* top_d2 = nullptr) const;
 
   /// The grid's dense_lower_table (built once by the constructor; empty on very sparse grids).

@@ -377,6 +377,12 @@ bool median_fixed(const std::vector<std::array<double, 2>>& b) {
 }  // namespace
 
 bool robust_scale_fixed(const std::vector<std::array<double, 2>>& log_d, const std::vector<std::array<double, 2>>& log_nearest) {
+  // A NaN bound: no order (and nth_element's ordering would be broken).
+  for (const auto* b : {&log_d, &log_nearest}) {
+    for (const auto& x : *b) {
+      if (std::isnan(x[0]) || std::isnan(x[1])) return false;
+    }
+  }
   if (!log_nearest.empty() && !median_fixed(log_nearest)) return false;
   if (log_d.empty()) return true;
   if (!median_fixed(log_d)) return false;

@@ -2490,16 +2490,35 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         }
         return robust_scale_of(std::move(logs), found - in_small_tiles, std::move(nearest_logs));
       };
+      // The least filter halo [cells] whose windows hold the farthest sampled search seen (the
+      // halo grows by its excess, one node to spare; tile_halo rounds to the upsample factor);
+      // -1 when none up to 4096 does, 0 when every search stayed inside.
+      const auto filter_for_searches = [&] {
+        if (past_window == 0) return 0;
+        const double want = tiles.halo + std::ceil(past_window_m / tiles.g.cell_size_m) + 1.0;
+        for (int f = tiles.filter + 1; f <= 4096; ++f) {
+          if (tile_halo(config, tiles.k, f) >= want) return f;
+        }
+        return -1;
+      };
       // Throws when the windows leave the scale open (see scale_from_spill).
       const auto check_fixed = [&] {
-        if (!robust_scale || robust_scale_fixed(log_bounds, nearest_bounds)) return;
-        const int needed = tiles.filter + static_cast<int>(std::ceil(past_window_m / tiles.g.cell_size_m)) + 1;
-        throw ConfigError("tiled run, stage tile_scale: " + std::to_string(past_window) + " of the robust test's " +
-                          std::to_string(found) + " sampled points have k-NN searches that reach past their tile's window (by up " +
-                          "to " + format_number(past_window_m * 1e3) + " mm), and with their distances only bounded the scale " +
-                          "(median and MAD of ln d, and the spacing) could differ from the in-core run's: set " +
-                          "scale.filter_halo_cells (now " + filter_halo_now(config, tiles) + ") to at least " +
-                          std::to_string(needed) + ", or use larger tiles (scale.tile_cells)");
+        if (robust_scale_fixed(log_bounds, nearest_bounds)) return;
+        const int needed = filter_for_searches();
+        std::string what = "tiled run, stage tile_scale: the robust test's scale (median and MAD of ln d, and the spacing) could "
+                           "differ from the in-core run's: of its " + std::to_string(found) + " sampled points, ";
+        if (past_window > 0) {
+          what += std::to_string(past_window) + " have k-NN searches that reach past their tile's window (by up to " +
+                  format_number(past_window_m * 1e3) + " mm), where their distances are only bounded";
+        }
+        if (in_small_tiles > 0) {
+          what += std::string(past_window > 0 ? ", and " : "") + std::to_string(in_small_tiles) +
+                  " lie in windows of fewer than k + 2 points, where they have no distance";
+        }
+        what += ": set scale.filter_halo_cells (now " + filter_halo_now(config, tiles) + ")" +
+                (needed > 0 ? " to at least " + std::to_string(needed) : std::string(" higher")) +
+                ", or use larger tiles (scale.tile_cells)";
+        throw ConfigError(what);
       };
       robust_scale = scale_from_spill();
       // scale.filter_halo_cells: auto: the halo the sample's spacing needs (without one, the
@@ -2509,9 +2528,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       if (config.scale.filter_halo_cells == ScaleConfig::kAutoFilterHalo && filter_halo_added(config)) {
         for (int pass = 0; pass < 3; ++pass) {
           sample_spacing_m = robust_scale ? robust_scale->spacing_m : 0.0;
-          const int needed = sample_spacing_m > 0.0 ? auto_filter_halo_cells(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m)
-                                                    : std::max(tiles.filter, 32);
+          int needed = sample_spacing_m > 0.0 ? auto_filter_halo_cells(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m)
+                                              : std::max(tiles.filter, 32);
           if (needed < 0) throw no_filter_halo_error("tile_scale", "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
+          // The sampled points' own searches, where they leave the scale open (check_fixed
+          // names the key when no halo up to 4096 holds them, or after the last pass).
+          if (!robust_scale_fixed(log_bounds, nearest_bounds)) needed = std::max(needed, filter_for_searches());
           r.report.figure("filter_halo_cells_needed", needed);
           if (needed <= tiles.filter) break;
           const int planned = tiles.filter;
@@ -2520,7 +2542,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           StageReport again;
           (void)spill_pass(nullptr, again, "tile_scale");
           r.report.figure("second_spill", 1.0);
-          r.report.notes.push_back("scale.filter_halo_cells auto: the sample's spacing needs " + std::to_string(needed) + " cells, " +
+          r.report.notes.push_back("scale.filter_halo_cells auto: the sample's spacing or k-NN searches need " + std::to_string(needed) + " cells, " +
                                    (pass == 0 ? "tile_plan's estimate gave " : "the halo had ") + std::to_string(planned) +
                                    ": the points were spilled again with the wider halo and the scale taken again");
           // The plan's and the spill's figures describe the halo in use.

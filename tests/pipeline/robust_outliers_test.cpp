@@ -285,16 +285,12 @@ TEST(RobustOutliers, TheSamplesNearestDistancesGiveTheScansSpacing) {
   EXPECT_EQ(untouched.sample, 3U);
 }
 
-// remove_isolated_points at a given spacing: a plane of 2 mm spacing and one point 5 cm above
-// its middle. The radius is 0.9 × 10 × the spacing: at 1 mm (9 mm) the plane's points have
-// dozens of neighbours and the point none, so it alone goes; at 1 cm (9 cm) it has the plane's
-// points and stays; the figure is the spacing given (HonestCheckOptions::spacing_m). A spacing
-// that is not finite, or negative, is refused.
 // robust_scale_fixed (the tiled run's tile_scale: a window's k-NN searches bound d where they
 // reach past it) against its definition: when it says the scale is fixed, robust_scale_of gives
 // the same median, MAD and spacing for every concrete choice of values within the bounds. The
-// oracle is robust_scale_of itself on 300 random draws per case (each bound's ends, values
-// between, and for an unknown value its absence or a value anywhere). The cases put the values
+// oracle is robust_scale_of itself on 300 draws per case: every value at its lower end, at its
+// upper end, at the end farthest from and at the point nearest to the case's median (the MAD's
+// extremes), then at random (an unknown value absent, or anywhere). The cases put the values
 // close to a rounding step and widen a random share of them downwards, as a window's truncated
 // searches do; the test also requires both answers to occur, so it keeps testing something.
 TEST(RobustScaleFixed, EveryDrawWithinTheBoundsGivesTheSameScaleWhenItSaysFixed) {
@@ -328,23 +324,38 @@ TEST(RobustScaleFixed, EveryDrawWithinTheBoundsGivesTheSameScaleWhenItSaysFixed)
     const bool fixed = robust_scale_fixed(d, near);
     (fixed ? fixed_cases : open_cases)++;
     if (!fixed) continue;
-    // A draw: each value at its lower end, its upper end or between; an unknown one left out or
-    // anywhere in ±3 about the centre.
+    // The median the scale takes when fixed (the upper ends' median, rounded as robust_scale_of
+    // rounds it), for the MAD's extreme draws.
+    std::vector<double> ends;
+    for (const auto& x : d) ends.push_back(x[1]);
+    std::nth_element(ends.begin(), ends.begin() + static_cast<std::ptrdiff_t>(ends.size() / 2), ends.end());
+    const double m = robust_scale_of(ends, n)->median_log;
+    // A draw: mode 0, each value at its lower end; 1, its upper end; 2, the end farther from m;
+    // 3, the point nearest m; else at random between. An unknown value is left out or lies
+    // anywhere in ±3 about the centre (modes 0-3: at ∓ or ±3, or left out).
     const auto draw = [&](const Bounds& b, int mode) {
       std::vector<double> v;
       for (const auto& x : b) {
         if (std::isinf(x[0])) {
-          if (u(rng) < 0.5) v.push_back(centre + (u(rng) - 0.5) * 6.0);
+          if (mode == 0 || mode == 2) v.push_back(centre - 3.0);
+          if (mode == 1) v.push_back(centre + 3.0);
+          if (mode >= 4 && u(rng) < 0.5) v.push_back(centre + (u(rng) - 0.5) * 6.0);
           continue;
         }
-        const double t = mode == 0 ? 0.0 : mode == 1 ? 1.0 : u(rng);
-        v.push_back(x[0] + t * (x[1] - x[0]));
+        if (mode == 2) {
+          v.push_back(std::abs(x[0] - m) > std::abs(x[1] - m) ? x[0] : x[1]);
+        } else if (mode == 3) {
+          v.push_back(std::clamp(m, x[0], x[1]));
+        } else {
+          const double t = mode == 0 ? 0.0 : mode == 1 ? 1.0 : u(rng);
+          v.push_back(x[0] + t * (x[1] - x[0]));
+        }
       }
       return v;
     };
     std::optional<hc::pipeline::RobustScale> first;
     for (int k = 0; k < 300; ++k) {
-      const int mode = k < 2 ? k : 2;
+      const int mode = std::min(k, 4);
       const auto s = robust_scale_of(draw(d, mode), n, draw(near, mode));
       ASSERT_TRUE(s.has_value());
       if (!first) {
@@ -361,10 +372,16 @@ TEST(RobustScaleFixed, EveryDrawWithinTheBoundsGivesTheSameScaleWhenItSaysFixed)
   // Bounds that are all points fix the scale; one NaN bound does not.
   EXPECT_TRUE(robust_scale_fixed({{-7.0, -7.0}, {-6.0, -6.0}, {-5.0, -5.0}}, {}));
   EXPECT_FALSE(robust_scale_fixed({{std::nan(""), -7.0}}, {}));
+  EXPECT_FALSE(robust_scale_fixed({{-7.0, -7.0}, {-7.0, std::nan("")}, {-6.0, -6.0}}, {})) << "a NaN among others";
   // Half the values unknown: nothing is fixed.
   EXPECT_FALSE(robust_scale_fixed({{-7.0, -7.0}, {-inf, inf}}, {}));
 }
 
+// remove_isolated_points at a given spacing: a plane of 2 mm spacing and one point 5 cm above
+// its middle. The radius is 0.9 × 10 × the spacing: at 1 mm (9 mm) the plane's points have
+// dozens of neighbours and the point none, so it alone goes; at 1 cm (9 cm) it has the plane's
+// points and stays; the figure is the spacing given (HonestCheckOptions::spacing_m). A spacing
+// that is not finite, or negative, is refused.
 TEST(RobustOutliers, TheIsolatedFilterTakesTheSpacingItIsGiven) {
   std::vector<Eigen::Vector3d> pts;
   for (int i = 0; i < 30; ++i)

@@ -814,6 +814,25 @@ TEST(TiledRun, ASampleWhoseSearchesLeaveTheirWindowsAndCouldMoveTheScaleIsAnErro
   EXPECT_EQ(stage_figure(tiled, "tile_scale", "sample_spacing_mm"), stage_figure(in, "outliers", "sample_spacing_mm"));
 }
 
+// The production case: strays 15-17 cm above the patch, beside the tiles' edges, whose k-NN
+// searches reach far past any window, with the surface's own searches inside it (a fixed
+// 20-cell filter halo, as the isolated filter needs here). Their distances are only bounded,
+// but far above the median, so the stage goes on (no error) and the scale is the in-core run's
+// (every point is sampled: the patch has fewer points than the sample).
+TEST(TiledRun, StraysWhoseSearchesLeaveTheirWindowsLeaveTheScaleAsInCore) {
+  const fs::path dir = hc::test::temp_dir("scale_strays");
+  write_patch_with(dir / "patch.ply", {{0.155, 0.5, 0.16}, {0.5, 0.155, 0.17}, {0.165, 0.165, 0.15}, {0.475, 0.33, 0.16}});
+  const auto r = in_core_and_tiled(dir,
+                                   "input: {files: [patch.ply], units: m}\ngrid: {n: 200}\ncross_check: {enabled: false}\n"
+                                   "filters: {outliers: {despike: false}}\nscale: {filter_halo_cells: 20}\n",
+                                   32);
+  EXPECT_GE(stage_figure(r.tiled, "tile_scale", "sampled_past_window"), 4.0);
+  EXPECT_GT(stage_figure(r.tiled, "tile_scale", "sampled_past_window_max_mm"), 10.0);
+  for (const char* f : {"median_knn_distance_mm", "mad_log_knn_distance", "sample_spacing_mm"}) {
+    EXPECT_EQ(stage_figure(r.tiled, "tile_scale", f), stage_figure(r.in, "outliers", f)) << f;
+  }
+}
+
 // The honest check's point test counts a point's neighbours within 10 spacings (about 102 mm on
 // the patch, whose points are 10 mm apart in x-y) and its spike searches reach the 2 mm spike
 // height further: a halo of a few filter cells plus the grid stages' (5 mm each) cannot hold
