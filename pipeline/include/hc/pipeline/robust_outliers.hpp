@@ -149,7 +149,9 @@ std::optional<RobustScale> robust_scale_of(std::vector<double> logs, std::size_t
 /// between one at −∞ and one at +∞ for a median. True when both bounds round to the same
 /// step, for the median, the MAD about it and the nearest distances' median (an empty list
 /// fixes its figure: no value either way); false otherwise, a NaN bound included. Cost:
-/// O(n) (selection). Never throws (but std::bad_alloc).
+/// O(n) (selection). Never throws (but std::bad_alloc). Source: order statistics are monotone
+/// in each argument (David & Nagaraja, Order Statistics, 3rd ed., 2003, §1.1); the derivation
+/// and the tiled run's bounds: docs/scale.md, "Searches past the window".
 bool robust_scale_fixed(const std::vector<std::array<double, 2>>& log_d,
                         const std::vector<std::array<double, 2>>& log_nearest);
 
