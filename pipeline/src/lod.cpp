@@ -95,35 +95,37 @@ GridGeometry lod_level_geometry(const GridGeometry& finest, int level) {
   return g;
 }
 
-HeightField downsample_2x(const HeightField& fine, double sigma_cells, double valid_fraction) {
+namespace {
+
+void check_downsample_options(double sigma_cells, double valid_fraction) {
   if (!(sigma_cells >= 0.5 && sigma_cells <= 4.0)) {
     throw ConfigError("lod: lod.antialias_sigma_cells = " + format_number(sigma_cells) + ": expected a number in [0.5, 4]");
   }
   if (!(valid_fraction > 0.0 && valid_fraction <= 1.0)) {
     throw ConfigError("lod: lod.valid_fraction = " + format_number(valid_fraction) + ": expected a number in (0, 1]");
   }
-  const GridGeometry& fg = fine.geometry();
-  if (fg.rows < 1 || fg.cols < 1 || fine.values().size() != fg.cell_count()) {
-    throw InputError("lod: cannot decimate an empty grid (" + std::to_string(fg.rows) + " x " +
-                     std::to_string(fg.cols) + " samples)");
-  }
-  const GridGeometry cg = lod_level_geometry(fg, 1);
-  HeightField coarse(cg);
-  coarse.model_to_grid = fine.model_to_grid;
+}
 
-  // Reference height: sums relative to it keep float resolution far below a micrometre.
-  double ref = 0.0;
-  std::size_t n_valid = 0;
-  for (float v : fine.values()) {
-    if (std::isfinite(v)) {
-      ref += v;
-      ++n_valid;
-    }
-  }
-  if (n_valid == 0) return coarse;  // all no data
-  ref /= static_cast<double>(n_valid);
+}  // namespace
 
-  const int radius = static_cast<int>(std::ceil(3.0 * sigma_cells));
+int downsample_2x_radius_cells(double sigma_cells) { return static_cast<int>(std::ceil(3.0 * sigma_cells)); }
+
+void downsample_2x_block(const float* fine, const SampleWindow& fine_window, int fine_rows, int fine_cols, double ref,
+                         double sigma_cells, double valid_fraction, const SampleWindow& out_block, float* out) {
+  check_downsample_options(sigma_cells, valid_fraction);
+  const int radius = downsample_2x_radius_cells(sigma_cells);
+  const int crows = (fine_rows + 1) / 2, ccols = (fine_cols + 1) / 2;
+  // The fine samples the block's kernels reach, clipped to the grid, must lie in the window.
+  const int need_r0 = std::max(0, 2 * out_block.row0 - radius);
+  const int need_r1 = std::min(fine_rows - 1, 2 * (out_block.row0 + out_block.rows - 1) + radius);
+  const int need_c0 = std::max(0, 2 * out_block.col0 - radius);
+  const int need_c1 = std::min(fine_cols - 1, 2 * (out_block.col0 + out_block.cols - 1) + radius);
+  if (out_block.rows < 1 || out_block.cols < 1 || out_block.row0 < 0 || out_block.col0 < 0 ||
+      out_block.row0 + out_block.rows > crows || out_block.col0 + out_block.cols > ccols ||
+      fine_window.row0 > need_r0 || fine_window.col0 > need_c0 || fine_window.row0 + fine_window.rows - 1 < need_r1 ||
+      fine_window.col0 + fine_window.cols - 1 < need_c1) {
+    throw std::invalid_argument("downsample_2x_block: the window does not hold the block's kernels, or the block leaves the level");
+  }
   std::vector<double> w(static_cast<std::size_t>(2 * radius + 1));
   for (int k = -radius; k <= radius; ++k) {
     w[static_cast<std::size_t>(k + radius)] = std::exp(-0.5 * k * k / (sigma_cells * sigma_cells));
@@ -137,58 +139,96 @@ HeightField downsample_2x(const HeightField& fine, double sigma_cells, double va
     }
     return s;
   };
-  std::vector<double> inside_col(static_cast<std::size_t>(cg.cols)), inside_row(static_cast<std::size_t>(cg.rows));
-  for (int c = 0; c < cg.cols; ++c) inside_col[static_cast<std::size_t>(c)] = inside_weight(2 * c, fg.cols);
-  for (int r = 0; r < cg.rows; ++r) inside_row[static_cast<std::size_t>(r)] = inside_weight(2 * r, fg.rows);
+  const int bc = out_block.cols, br = out_block.rows;
+  std::vector<double> inside_col(static_cast<std::size_t>(bc)), inside_row(static_cast<std::size_t>(br));
+  for (int c = 0; c < bc; ++c) inside_col[static_cast<std::size_t>(c)] = inside_weight(2 * (out_block.col0 + c), fine_cols);
+  for (int r = 0; r < br; ++r) inside_row[static_cast<std::size_t>(r)] = inside_weight(2 * (out_block.row0 + r), fine_rows);
 
-  // Horizontal pass at the coarse columns, every fine row: S = Σ w·m·(z − ref), W = Σ w·m.
-  const std::size_t hn = static_cast<std::size_t>(fg.rows) * static_cast<std::size_t>(cg.cols);
+  // Horizontal pass at the block's coarse columns, every fine row it needs: S = Σ w·m·(z − ref),
+  // W = Σ w·m (rounded to float, as every block and the whole grid do).
+  const int hrows = need_r1 - need_r0 + 1;
+  const std::size_t hn = static_cast<std::size_t>(hrows) * static_cast<std::size_t>(bc);
   std::vector<float> hs(hn), hw(hn);
-  const auto horizontal = [&](int r_begin, int r_end) {
-    for (int r = r_begin; r < r_end; ++r) {
-      const float* row = fine.data() + static_cast<std::ptrdiff_t>(r) * fg.cols;
-      float* os = hs.data() + static_cast<std::ptrdiff_t>(r) * cg.cols;
-      float* ow = hw.data() + static_cast<std::ptrdiff_t>(r) * cg.cols;
-      for (int c = 0; c < cg.cols; ++c) {
-        const int lo = std::max(0, 2 * c - radius), hi = std::min(fg.cols - 1, 2 * c + radius);
-        double s = 0.0, sw = 0.0;
-        for (int i = lo; i <= hi; ++i) {
-          const float v = row[i];
-          if (std::isnan(v)) continue;
-          const double wk = w[static_cast<std::size_t>(i - 2 * c + radius)];
-          s += wk * (static_cast<double>(v) - ref);
-          sw += wk;
-        }
-        os[c] = static_cast<float>(s);
-        ow[c] = static_cast<float>(sw);
+  for (int r = need_r0; r <= need_r1; ++r) {
+    const float* row = fine + static_cast<std::ptrdiff_t>(r - fine_window.row0) * fine_window.cols - fine_window.col0;
+    float* os = hs.data() + static_cast<std::ptrdiff_t>(r - need_r0) * bc;
+    float* ow = hw.data() + static_cast<std::ptrdiff_t>(r - need_r0) * bc;
+    for (int c = 0; c < bc; ++c) {
+      const int cc = 2 * (out_block.col0 + c);
+      const int lo = std::max(0, cc - radius), hi = std::min(fine_cols - 1, cc + radius);
+      double s = 0.0, sw = 0.0;
+      for (int i = lo; i <= hi; ++i) {
+        const float v = row[i];
+        if (std::isnan(v)) continue;
+        const double wk = w[static_cast<std::size_t>(i - cc + radius)];
+        s += wk * (static_cast<double>(v) - ref);
+        sw += wk;
       }
+      os[c] = static_cast<float>(s);
+      ow[c] = static_cast<float>(sw);
     }
-  };
-  // Vertical pass at the coarse rows.
-  const auto vertical = [&](int r_begin, int r_end) {
-    for (int r = r_begin; r < r_end; ++r) {
-      const int lo = std::max(0, 2 * r - radius), hi = std::min(fg.rows - 1, 2 * r + radius);
-      float* out = coarse.data() + static_cast<std::ptrdiff_t>(r) * cg.cols;
-      for (int c = 0; c < cg.cols; ++c) {
-        double s = 0.0, sw = 0.0;
-        for (int i = lo; i <= hi; ++i) {
-          const double wk = w[static_cast<std::size_t>(i - 2 * r + radius)];
-          const std::size_t k = static_cast<std::size_t>(i) * static_cast<std::size_t>(cg.cols) + static_cast<std::size_t>(c);
-          s += wk * hs[k];
-          sw += wk * hw[k];
-        }
-        const double full = inside_row[static_cast<std::size_t>(r)] * inside_col[static_cast<std::size_t>(c)];
-        out[c] = sw > 0.0 && sw >= valid_fraction * full * (1.0 - 1e-6) ? static_cast<float>(ref + s / sw) : kNoData;
+  }
+  // Vertical pass at the block's coarse rows.
+  for (int r = 0; r < br; ++r) {
+    const int rr = 2 * (out_block.row0 + r);
+    const int lo = std::max(0, rr - radius), hi = std::min(fine_rows - 1, rr + radius);
+    float* o = out + static_cast<std::ptrdiff_t>(r) * bc;
+    for (int c = 0; c < bc; ++c) {
+      double s = 0.0, sw = 0.0;
+      for (int i = lo; i <= hi; ++i) {
+        const double wk = w[static_cast<std::size_t>(i - rr + radius)];
+        const std::size_t k = static_cast<std::size_t>(i - need_r0) * static_cast<std::size_t>(bc) + static_cast<std::size_t>(c);
+        s += wk * hs[k];
+        sw += wk * hw[k];
       }
+      const double full = inside_row[static_cast<std::size_t>(r)] * inside_col[static_cast<std::size_t>(c)];
+      o[c] = sw > 0.0 && sw >= valid_fraction * full * (1.0 - 1e-6) ? static_cast<float>(ref + s / sw) : kNoData;
     }
+  }
+}
+
+double downsample_2x_reference(const float* values, std::size_t count, double sum_before, std::size_t count_before,
+                               std::size_t* count_after, double* sum_after) {
+  double ref = sum_before;
+  std::size_t n = count_before;
+  for (std::size_t i = 0; i < count; ++i) {
+    if (std::isfinite(values[i])) {
+      ref += values[i];
+      ++n;
+    }
+  }
+  if (count_after) *count_after = n;
+  if (sum_after) *sum_after = ref;
+  return n > 0 ? ref / static_cast<double>(n) : 0.0;
+}
+
+HeightField downsample_2x(const HeightField& fine, double sigma_cells, double valid_fraction) {
+  check_downsample_options(sigma_cells, valid_fraction);
+  const GridGeometry& fg = fine.geometry();
+  if (fg.rows < 1 || fg.cols < 1 || fine.values().size() != fg.cell_count()) {
+    throw InputError("lod: cannot decimate an empty grid (" + std::to_string(fg.rows) + " x " +
+                     std::to_string(fg.cols) + " samples)");
+  }
+  const GridGeometry cg = lod_level_geometry(fg, 1);
+  HeightField coarse(cg);
+  coarse.model_to_grid = fine.model_to_grid;
+
+  // Reference height: sums relative to it keep float resolution far below a micrometre.
+  std::size_t n_valid = 0;
+  const double ref = downsample_2x_reference(fine.data(), fine.values().size(), 0.0, 0, &n_valid, nullptr);
+  if (n_valid == 0) return coarse;  // all no data
+
+  const SampleWindow whole{0, 0, fg.rows, fg.cols};
+  const int mid = cg.rows / 2;
+  const auto half = [&](int r0, int r1) {
+    if (r1 <= r0) return;
+    downsample_2x_block(fine.data(), whole, fg.rows, fg.cols, ref, sigma_cells, valid_fraction,
+                        SampleWindow{r0, 0, r1 - r0, cg.cols}, coarse.data() + static_cast<std::ptrdiff_t>(r0) * cg.cols);
   };
-  const int mid_f = fg.rows / 2, mid_c = cg.rows / 2;
   if (fine.values().size() >= (std::size_t{1} << 18)) {
-    detail::run_two([&] { horizontal(0, mid_f); }, [&] { horizontal(mid_f, fg.rows); });
-    detail::run_two([&] { vertical(0, mid_c); }, [&] { vertical(mid_c, cg.rows); });
+    detail::run_two([&] { half(0, mid); }, [&] { half(mid, cg.rows); });
   } else {
-    horizontal(0, fg.rows);
-    vertical(0, cg.rows);
+    half(0, cg.rows);
   }
   return coarse;
 }

@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <limits>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -93,21 +94,33 @@ struct EnvelopeResult {
   int diameter_cells = 0;
 };
 
+/// The bilateral filter's padded input (fill_for_envelope).
+struct FillResult {
+  cv::Mat value;                 ///< (rows + 2r) × (cols + 2r) CV_32F
+  std::size_t filled_cells = 0;  ///< no-data cells within reach of data given an extrapolation
+  double seconds = 0.0;
+  int radius_cells = 0;          ///< r
+};
+
 /// Largest |value| the fill clamps to: far inside float's range, so differences stay finite.
 constexpr double kFloatRangeLimit = 1e30;
 /// Largest depth range [m] handed to cv::bilateralFilter (a whole site is ≤ 10 km, see
 /// input.max_extent_m); its range table is built in float from max − min.
 constexpr double kMaxEnvelopeRangeM = 1e6;
 
-/// Bilateral envelope of (f − ref) where `valid` marks data. See compute_surface_layers' comment.
-EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const SurfaceLayerOptions& o) {
-  EnvelopeResult out;
+/// The bilateral filter's input: (f − ref) padded by the window radius r on every side, where
+/// every no-data cell (padding included) holds an extrapolated value. See compute_surface_layers'
+/// comment. `band`, when given, is the level-wide {min, max} of the valid values (a block of a
+/// larger grid, surface_layers_block) instead of the block's own: the extrapolations are
+/// clamped to the band around them, so a block computes what the whole grid computes.
+FillResult fill_for_envelope(const cv::Mat& f, const cv::Mat& valid, const SurfaceLayerOptions& o,
+                             const float* band) {
+  FillResult out;
   const auto t0 = Clock::now();
   const int r = window_radius_cells(o.sigma_space_cells);
-  out.diameter_cells = 2 * r + 1;
+  out.radius_cells = r;
   const int rows = f.rows + 2 * r;
   const int cols = f.cols + 2 * r;
-  const cv::Rect inner(r, r, f.cols, f.rows);
 
   // Padded value, mask and minmod gradient (metres per cell) images; zero where no data.
   cv::Mat value(rows, cols, CV_32F, cv::Scalar(0));
@@ -148,6 +161,10 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
       gyrow[cc] = slope(v, fu && oku[cc] ? fu + cc : nullptr, fd && okd[cc] ? fd + cc : nullptr);
     }
   }
+  if (band) {
+    vmin = band[0];
+    vmax = band[1];
+  }
 
   // Smooth the gradient a little over valid cells only (normalised 5-tap Gaussian, σ = 1 cell):
   // exact gradients of a plane stay exact, single-cell noise is damped before it is extrapolated.
@@ -163,6 +180,7 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
   //   fill(q) = f(p) + ∇f(p)·(q − p),
   // exact on planes; taking one nearest cell (not an average) keeps the fill from blending the
   // two sides of a depth step. Nearest cells from OpenCV's labelled distance transform.
+  const cv::Rect inner(r, r, f.cols, f.rows);
   cv::Mat features(rows, cols, CV_8U, cv::Scalar(255));
   features(inner).setTo(cv::Scalar(0), valid);
   cv::Mat dist, labels;
@@ -185,7 +203,6 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
   const float lo = static_cast<float>(std::max(static_cast<double>(vmin) - span, -kFloatRangeLimit));
   const float hi = static_cast<float>(std::min(static_cast<double>(vmax) + span, kFloatRangeLimit));
   const float reach = static_cast<float>(r) * 1.5f + 1.0f;  // beyond this no window sees the cell
-  float fmin = vmin, fmax = vmax;
   float* const val = value.ptr<float>();
   const float* const sm = bm.ptr<float>();
   const float* const sgx = bgx.ptr<float>();
@@ -205,12 +222,38 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
         ++out.filled_cells;
       }
       val[rr * cols + cc] = v;
-      fmin = std::min(fmin, v);
-      fmax = std::max(fmax, v);
     }
   }
-  out.fill_seconds = seconds_since(t0);
+  out.value = std::move(value);
+  out.seconds = seconds_since(t0);
+  return out;
+}
 
+/// Bilateral envelope of the filled input `fill` (fill_for_envelope) over its inner rows × cols
+/// (f − ref; f_b − ref at valid cells, other cells undefined). `range`, when given, is the
+/// level-wide {min, max} of the whole grid's filled input: the block's values are clamped to it
+/// and the two are put in a row beyond every inner window's reach, so OpenCV's range table (built
+/// from the image's min and max) is the whole grid's.
+EnvelopeResult filter_envelope(FillResult&& fill, int inner_rows, int inner_cols, const SurfaceLayerOptions& o,
+                               const float* range) {
+  EnvelopeResult out;
+  const int r = fill.radius_cells;
+  out.diameter_cells = 2 * r + 1;
+  out.filled_cells = fill.filled_cells;
+  out.fill_seconds = fill.seconds;
+  cv::Mat value = std::move(fill.value);
+  if (range) {
+    cv::Mat grown(value.rows + 1, value.cols, CV_32F);
+    cv::Mat body = grown.rowRange(0, value.rows);
+    cv::min(cv::max(value, range[0]), range[1], body);
+    float* extra = grown.ptr<float>(value.rows);
+    std::fill(extra, extra + value.cols, range[0]);
+    extra[value.cols - 1] = range[1];
+    value = grown;
+  }
+  double dmin = 0.0, dmax = 0.0;
+  cv::minMaxLoc(value, &dmin, &dmax);
+  const float fmin = static_cast<float>(dmin), fmax = static_cast<float>(dmax);
   // OpenCV's bilateral filter builds its range table from (max − min) in float; a range that
   // overflows it, or leaves too little precision for sigma_range, makes it read out of bounds.
   const double value_range = static_cast<double>(fmax) - fmin;
@@ -226,10 +269,15 @@ EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const 
   cv::Mat filtered;
   cv::bilateralFilter(value, filtered, out.diameter_cells, o.sigma_range_m, o.sigma_space_cells,
                       cv::BORDER_REPLICATE);
-  out.envelope = filtered(inner).clone();
+  out.envelope = filtered(cv::Rect(r, r, inner_cols, inner_rows)).clone();
   out.filter_seconds = seconds_since(t1);
   out.lut_bin_m = static_cast<double>(fmax - fmin) / 4096.0;
   return out;
+}
+
+/// Bilateral envelope of (f − ref) where `valid` marks data. See compute_surface_layers' comment.
+EnvelopeResult bilateral_envelope(const cv::Mat& f, const cv::Mat& valid, const SurfaceLayerOptions& o) {
+  return filter_envelope(fill_for_envelope(f, valid, o, nullptr), f.rows, f.cols, o, nullptr);
 }
 
 /// First (and second) derivative along one axis at index i of n, step `stride` in `v`, spacing
@@ -321,6 +369,140 @@ FrictionHistogram friction_histogram(const HeightField& mu_d, double mu_min, dou
     }
   }
   return h;
+}
+
+double friction_s(float mean_per_m, float gaussian_per_m2, double sigma) {
+  const double H = mean_per_m / sigma;
+  const double K = gaussian_per_m2 / (sigma * sigma);
+  // H [1/m] and K [1/m²] are added as numbers in SI (scene or device metres), as the paper prints it.
+  return std::sqrt(H * H + K * K);
+}
+
+double friction_mu_d(double s, double s_ref, const SurfaceLayerOptions& options) {
+  const double mu_min = options.mu_min;
+  const double mu_max = options.mu_max;
+  const double R = options.workspace_radius_m;
+  double mu;
+  if (options.friction_scale == FrictionScale::kLevelMedian) {
+    const double sh = s_ref > 0.0 ? s / s_ref : 0.0;  // ŝ, dimensionless
+    if (options.friction_model == FrictionModel::kPaper) {
+      // μ = √(μ_min μ_max)/ŝ ≥ μ_max ⇔ ŝ·μ_max ≤ √(μ_min μ_max) (covers ŝ = 0 without dividing).
+      const double mu_mid = std::sqrt(mu_min * mu_max);
+      mu = (sh * mu_max <= mu_mid) ? mu_max : std::max(mu_min, mu_mid / sh);
+    } else {
+      mu = std::min(mu_max, mu_min + 0.5 * (mu_max - mu_min) * sh);
+    }
+  } else if (options.friction_model == FrictionModel::kPaper) {
+    // 1/(R·s) ≥ μ_max ⇔ R·s·μ_max ≤ 1 (also covers s = 0 without dividing by zero).
+    mu = (R * s * mu_max <= 1.0) ? mu_max : std::max(mu_min, 1.0 / (R * s));
+  } else {
+    mu = std::min(mu_max, mu_min + options.curvature_gain_m * s);
+  }
+  if (!std::isfinite(mu)) mu = options.friction_model == FrictionModel::kPaper ? mu_min : mu_max;
+  return mu;
+}
+
+double friction_mu_s(double x_m, double y_m, const SurfaceLayerOptions& options) {
+  double mu = options.mu_s;
+  for (const StaticFrictionRegion& reg : options.mu_s_regions) {
+    if (x_m >= reg.x_min_m && x_m <= reg.x_max_m && y_m >= reg.y_min_m && y_m <= reg.y_max_m) mu = reg.mu_s;
+  }
+  return mu;
+}
+
+double friction_sigma(const SurfaceLayerOptions& options, int window_cells, double cell_size_m) {
+  return options.friction_scale == FrictionScale::kScene
+             ? 1.0
+             : device_scale(options.workspace_radius_m, window_cells, cell_size_m);
+}
+
+double friction_s_floor(const SurfaceLayerOptions& options) {
+  return options.mu_max > 0.0 ? 1.0 / (options.workspace_radius_m * options.mu_max) : 0.0;
+}
+
+int surface_layers_radius_cells(const SurfaceLayerOptions& options) {
+  return window_radius_cells(options.sigma_space_cells);
+}
+
+int surface_layers_halo_cells(const SurfaceLayerOptions& options) {
+  validate(options);
+  const int r = window_radius_cells(options.sigma_space_cells);
+  // Curvature stencils (4) + the bilateral window (r) + the reach of a fill whose nearest valid
+  // cell is found by the 5 × 5 chamfer transform (within 1.5 r + 1, chamfer ≤ 1.1 × Euclidean)
+  // + the smoothed gradient at that cell (3) + the chamfer mask (2) + one for rounding.
+  return 4 + r + static_cast<int>(std::ceil(1.1 * (1.5 * r + 1.0))) + 6;
+}
+
+SurfaceLayerBlock surface_layers_block(const float* depth_m, const SampleWindow& window, const GridGeometry& level,
+                                       const SampleWindow& inner, const SurfaceLayerLevelValues& values, bool fill_only,
+                                       const SurfaceLayerOptions& options, int window_cells) {
+  validate(options);
+  const int wr = window.rows, wc = window.cols;
+  if (wr < 1 || wc < 1 || window.row0 < 0 || window.col0 < 0 || window.row0 + wr > level.rows ||
+      window.col0 + wc > level.cols || inner.row0 < window.row0 || inner.col0 < window.col0 || inner.rows < 1 ||
+      inner.cols < 1 || inner.row0 + inner.rows > window.row0 + wr || inner.col0 + inner.cols > window.col0 + wc) {
+    throw std::invalid_argument("surface_layers_block: the inner block must lie in the window and the window in the level");
+  }
+  const double ref = values.ref_m;
+  cv::Mat fm(wr, wc, CV_32F);
+  cv::Mat valid(wr, wc, CV_8U);
+  for (int r = 0; r < wr; ++r) {
+    for (int c = 0; c < wc; ++c) {
+      const float v = depth_m[static_cast<std::size_t>(r) * static_cast<std::size_t>(wc) + static_cast<std::size_t>(c)];
+      const bool ok = !std::isnan(v);
+      valid.at<std::uint8_t>(r, c) = ok ? 1 : 0;
+      fm.at<float>(r, c) = ok ? static_cast<float>(static_cast<double>(v) - ref) : 0.0f;
+    }
+  }
+  SurfaceLayerBlock out;
+  out.rows = inner.rows;
+  out.cols = inner.cols;
+  FillResult fill = fill_for_envelope(fm, valid, options, values.band_m);
+  const int rad = fill.radius_cells;
+  if (fill_only) {
+    // The cells this block owns in the whole grid's padded input: its inner cells, and the
+    // padding beside them where they touch the level's edge.
+    int p_r0 = inner.row0 - window.row0 + rad, p_c0 = inner.col0 - window.col0 + rad;
+    int p_r1 = p_r0 + inner.rows, p_c1 = p_c0 + inner.cols;
+    if (inner.row0 == 0) p_r0 -= rad;
+    if (inner.col0 == 0) p_c0 -= rad;
+    if (inner.row0 + inner.rows == level.rows) p_r1 += rad;
+    if (inner.col0 + inner.cols == level.cols) p_c1 += rad;
+    double lo = values.band_m[0], hi = values.band_m[1];
+    cv::minMaxLoc(fill.value(cv::Range(p_r0, p_r1), cv::Range(p_c0, p_c1)), &lo, &hi);
+    out.fill_min_m = std::min(static_cast<float>(lo), values.band_m[0]);
+    out.fill_max_m = std::max(static_cast<float>(hi), values.band_m[1]);
+    return out;
+  }
+  const EnvelopeResult env = filter_envelope(std::move(fill), wr, wc, options, values.fill_range_m);
+  GridGeometry wg = level;
+  wg.rows = wr;
+  wg.cols = wc;
+  HeightField texture(wg);
+  for (int r = 0; r < wr; ++r) {
+    for (int c = 0; c < wc; ++c) {
+      if (valid.at<std::uint8_t>(r, c) == 0) continue;
+      texture.at(r, c) = fm.at<float>(r, c) - env.envelope.at<float>(r, c);
+    }
+  }
+  const Curvature curv = compute_curvature(texture);
+  const double sigma = friction_sigma(options, window_cells, level.cell_size_m);
+  const std::size_t n = static_cast<std::size_t>(inner.rows) * static_cast<std::size_t>(inner.cols);
+  out.envelope_m.assign(n, kNoData);
+  out.texture_m.assign(n, kNoData);
+  out.s.assign(n, -1.0);
+  const int dr = inner.row0 - window.row0, dc = inner.col0 - window.col0;
+  for (int r = 0; r < inner.rows; ++r) {
+    for (int c = 0; c < inner.cols; ++c) {
+      if (valid.at<std::uint8_t>(r + dr, c + dc) == 0) continue;
+      const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(inner.cols) + static_cast<std::size_t>(c);
+      const float fb = env.envelope.at<float>(r + dr, c + dc);
+      out.envelope_m[i] = static_cast<float>(static_cast<double>(fb) + ref);
+      out.texture_m[i] = texture.at(r + dr, c + dc);
+      out.s[i] = friction_s(curv.mean_per_m.at(r + dr, c + dc), curv.gaussian_per_m2.at(r + dr, c + dc), sigma);
+    }
+  }
+  return out;
 }
 
 Curvature compute_curvature(const HeightField& surface_m) {
@@ -472,16 +654,13 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   const double R = options.workspace_radius_m;
   const FrictionScale fscale = options.friction_scale;
   // σ: device metres per grid metre (1 for `scene`): H_dev = H/σ [1/m], K_dev = K/σ² [1/m²].
-  const double sigma = fscale == FrictionScale::kScene ? 1.0 : device_scale(R, window_cells, g.cell_size_m);
+  const double sigma = friction_sigma(options, window_cells, g.cell_size_m);
   std::vector<double> s_values(n, 0.0);
   std::vector<double> s_positive;
   if (fscale == FrictionScale::kLevelMedian) s_positive.reserve(valid_cells);
   for (std::size_t i = 0; i < n; ++i) {
     if (std::isnan(f[i])) continue;
-    const double H = L.mean_curvature_per_m.data()[i] / sigma;
-    const double K = L.gaussian_curvature_per_m2.data()[i] / (sigma * sigma);
-    // H [1/m] and K [1/m²] are added as numbers in SI (scene or device metres), as the paper prints it.
-    const double s = std::sqrt(H * H + K * K);
+    const double s = friction_s(L.mean_curvature_per_m.data()[i], L.gaussian_curvature_per_m2.data()[i], sigma);
     s_values[i] = s;
     if (fscale == FrictionScale::kLevelMedian && s > 0.0 && std::isfinite(s)) s_positive.push_back(s);
   }
@@ -490,7 +669,7 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   // maps to μ_max. A texture whose median is below it is flat to the hand (float rounding on a
   // plane, say) and is not stretched over the whole friction range.
   double s_ref = 0.0, s_median = 0.0;
-  const double s_floor = mu_max > 0.0 ? 1.0 / (R * mu_max) : 0.0;
+  const double s_floor = friction_s_floor(options);
   if (!s_positive.empty()) {
     const auto mid_s = s_positive.begin() + static_cast<std::ptrdiff_t>(s_positive.size() / 2);
     std::nth_element(s_positive.begin(), mid_s, s_positive.end());
@@ -502,24 +681,7 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   mu_values.reserve(valid_cells);
   for (std::size_t i = 0; i < n; ++i) {
     if (std::isnan(f[i])) continue;
-    double mu;
-    if (fscale == FrictionScale::kLevelMedian) {
-      const double sh = s_ref > 0.0 ? s_values[i] / s_ref : 0.0;  // ŝ, dimensionless
-      if (options.friction_model == FrictionModel::kPaper) {
-        // μ = √(μ_min μ_max)/ŝ ≥ μ_max ⇔ ŝ·μ_max ≤ √(μ_min μ_max) (covers ŝ = 0 without dividing).
-        const double mu_mid = std::sqrt(mu_min * mu_max);
-        mu = (sh * mu_max <= mu_mid) ? mu_max : std::max(mu_min, mu_mid / sh);
-      } else {
-        mu = std::min(mu_max, mu_min + 0.5 * (mu_max - mu_min) * sh);
-      }
-    } else if (options.friction_model == FrictionModel::kPaper) {
-      // 1/(R·s) ≥ μ_max ⇔ R·s·μ_max ≤ 1 (also covers s = 0 without dividing by zero).
-      const double s = s_values[i];
-      mu = (R * s * mu_max <= 1.0) ? mu_max : std::max(mu_min, 1.0 / (R * s));
-    } else {
-      mu = std::min(mu_max, mu_min + options.curvature_gain_m * s_values[i]);
-    }
-    if (!std::isfinite(mu)) mu = options.friction_model == FrictionModel::kPaper ? mu_min : mu_max;
+    const double mu = friction_mu_d(s_values[i], s_ref, options);
     at_min += mu <= mu_min ? 1U : 0U;
     at_max += mu >= mu_max ? 1U : 0U;
     L.mu_d.data()[i] = static_cast<float>(mu);
@@ -529,12 +691,7 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
     const double y = g.y_of_row(r);
     for (int c = 0; c < g.cols; ++c) {
       if (valid.at<std::uint8_t>(r, c) == 0) continue;
-      const double x = g.x_of_col(c);
-      double mu = options.mu_s;
-      for (const StaticFrictionRegion& reg : options.mu_s_regions) {
-        if (x >= reg.x_min_m && x <= reg.x_max_m && y >= reg.y_min_m && y <= reg.y_max_m) mu = reg.mu_s;
-      }
-      L.mu_s.at(r, c) = static_cast<float>(mu);
+      L.mu_s.at(r, c) = static_cast<float>(friction_mu_s(g.x_of_col(c), y, options));
     }
   }
   const double friction_seconds = seconds_since(t_fric);

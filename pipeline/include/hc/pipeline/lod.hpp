@@ -87,10 +87,31 @@ GridGeometry lod_level_geometry(const GridGeometry& finest, int level);
 ///         hc::InputError for an empty grid. Real-time: no. Cost: O(rows·cols·σ).
 HeightField downsample_2x(const HeightField& fine, double sigma_cells, double valid_fraction);
 
-/// A block of samples of a grid: rows × cols starting at (row0, col0).
-struct SampleWindow {
-  int row0 = 0, col0 = 0, rows = 0, cols = 0;
-};
+/// SampleWindow (a block of samples of a grid) is declared in surface_layers.hpp.
+
+/// Radius ⌈3σ⌉ [fine samples] of downsample_2x's kernel.
+int downsample_2x_radius_cells(double sigma_cells);
+
+/// downsample_2x's reference height [m]: the mean of the finite values, summed in double in the
+/// order given. For a grid read in pieces (row-major order kept), pass the running sum and count
+/// of the pieces before (0, 0 for the first) and take them back from *sum_after, *count_after.
+/// @return the mean of all finite values so far (0 when there is none).
+double downsample_2x_reference(const float* values, std::size_t count, double sum_before, std::size_t count_before,
+                               std::size_t* count_after, double* sum_after);
+
+/// downsample_2x for a block of the coarse level (issue 14, a level built tile by tile):
+/// `out_block` of the coarse grid of a fine grid of fine_rows × fine_cols samples, from
+/// `fine` = fine_window.rows × fine_window.cols fine samples (row-major, NaN = no data) at
+/// (fine_window.row0, fine_window.col0), which must hold every fine sample the block's kernels
+/// reach (fine rows 2·row0 − radius … 2·(row0 + rows − 1) + radius clipped to the grid, likewise
+/// columns; radius = downsample_2x_radius_cells). `ref` must be the whole fine grid's
+/// downsample_2x_reference. Writes out_block.rows × out_block.cols values (row-major) to `out`,
+/// equal bit for bit to the same samples of downsample_2x on the whole grid.
+/// @throws hc::ConfigError as downsample_2x; std::invalid_argument when the window misses a
+///         kernel sample or the block leaves the coarse grid.
+void downsample_2x_block(const float* fine, const SampleWindow& fine_window, int fine_rows, int fine_cols, double ref,
+                         double sigma_cells, double valid_fraction, const SampleWindow& out_block, float* out);
+
 
 /// The nodes of `g` with x0_m ≤ x ≤ x1_m and y0_m ≤ y ≤ y1_m (grid frame [m]), clipped to the
 /// grid. @throws hc::ConfigError naming the window when the bounds are not finite with X0 < X1

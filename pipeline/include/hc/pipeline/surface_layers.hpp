@@ -77,6 +77,75 @@ struct Curvature {
 };
 Curvature compute_curvature(const HeightField& surface_m);
 
+/// A block of samples of a grid: rows × cols starting at sample (row0, col0).
+struct SampleWindow {
+  int row0 = 0, col0 = 0, rows = 0, cols = 0;
+};
+
+/// s = √(H² + K²) with H [1/m] and K [1/m²] taken in units of σ device metres per grid metre
+/// (H/σ, K/σ²): the curvature magnitude the friction maps read (paper Sec. 3.2, docs/friction.md).
+double friction_s(float mean_per_m, float gaussian_per_m2, double sigma);
+/// σ of friction_s: 1 for friction_scale `scene`, else device_scale(R, window_cells, cell size).
+/// @throws hc::ConfigError as device_scale.
+double friction_sigma(const SurfaceLayerOptions& options, int window_cells, double cell_size_m);
+/// The flatness floor of `level_median`'s reference, 1/(R·μ_max) [device units] (0 for μ_max = 0).
+double friction_s_floor(const SurfaceLayerOptions& options);
+/// μ_d [-] of one cell from its s and, for `level_median`, the level's reference s_ref =
+/// max(median of s over the cells with s > 0, friction_s_floor) (else unused): the paper's
+/// 1/(R·s) or the curvature model, clamped to [μ_min, μ_max] (docs/friction.md).
+double friction_mu_d(double s, double s_ref, const SurfaceLayerOptions& options);
+/// μ_s [-] at grid-frame point (x, y) [m]: options.mu_s, or the last of mu_s_regions holding it.
+double friction_mu_s(double x_m, double y_m, const SurfaceLayerOptions& options);
+
+/// The level-wide values compute_surface_layers takes from its whole grid, which a block of the
+/// grid (surface_layers_block) cannot see. For a block to equal the whole grid's layers bit for
+/// bit (the streaming level builder, level_builder.hpp) they must be the whole grid's.
+struct SurfaceLayerLevelValues {
+  /// Mean of the valid depths [m], summed in double in row-major order (as compute_surface_layers).
+  double ref_m = 0.0;
+  /// {min, max} over the valid cells of float(depth − ref_m) [m].
+  float band_m[2] = {0.0f, 0.0f};
+  /// {min, max} of the bilateral filter's whole filled input (depth − ref_m) [m]: the reduction
+  /// of every block's fill_min_m / fill_max_m from a first pass with fill_only.
+  float fill_range_m[2] = {0.0f, 0.0f};
+};
+
+/// What surface_layers_block computes for its inner block.
+struct SurfaceLayerBlock {
+  int rows = 0, cols = 0;                 ///< the inner block
+  std::vector<float> envelope_m, texture_m;  ///< rows·cols, row-major [m], NaN = no data
+  /// rows·cols values of friction_s (σ of the level, ≥ 0), −1 = no data; μ_d follows from them and the
+  /// level's s_ref (friction_mu_d).
+  std::vector<double> s;
+  /// fill_only: {min, max} [m, relative to ref_m] of the filled input over the cells the block
+  /// owns (its inner cells, and the filter's padding beside them at the level's edges), at
+  /// least band_m.
+  float fill_min_m = 0.0f, fill_max_m = 0.0f;
+};
+
+/// Halo [cells] around a block that surface_layers_block needs for its inner cells to equal the
+/// whole grid's: the curvature stencils, the bilateral window ⌈2σ_s⌉ and the reach of the hole
+/// fill's nearest-cell search. @throws hc::ConfigError for invalid options.
+int surface_layers_halo_cells(const SurfaceLayerOptions& options);
+/// The bilateral window's radius ⌈2σ_s⌉ (at least 1) [cells]: the padding of its input.
+int surface_layers_radius_cells(const SurfaceLayerOptions& options);
+
+/// compute_surface_layers on a block of a larger grid (issue 14, a level built tile by tile):
+/// `depth_m` holds window.rows × window.cols samples (row-major, NaN = no data) of the level at
+/// (window.row0, window.col0); `level` is the level's geometry; `inner` lies in the window, at
+/// least surface_layers_halo_cells from every window edge that is not the level's edge. The
+/// inner block's envelope, texture and s then equal compute_surface_layers' on the whole level
+/// bit for bit, provided `values` are the whole level's and the window's first column is a
+/// multiple of 64 with its padded width (cols + 2⌈2σ_s⌉) a multiple of 64 unless it ends at the
+/// level's right edge (OpenCV's SIMD loops then treat every inner column as the whole grid's
+/// run does). With `fill_only` only the fill range of the owned cells is computed (a first pass
+/// for values.fill_range_m). Not real-time; OpenCV threads.
+/// @throws std::invalid_argument for blocks outside the level; hc::ConfigError for options;
+///         hc::InputError when fill_range_m spans more than the bilateral envelope can filter.
+SurfaceLayerBlock surface_layers_block(const float* depth_m, const SampleWindow& window, const GridGeometry& level,
+                                       const SampleWindow& inner, const SurfaceLayerLevelValues& values,
+                                       bool fill_only, const SurfaceLayerOptions& options, int window_cells);
+
 /// Computes the layers from a depth grid (metres, NaN = no data).
 /// No-data cells neither spread NaN nor bias their valid neighbours: before cv::bilateralFilter
 /// (window radius ⌈2σ_s⌉ cells) every no-data cell, and a margin of that width around the grid,

@@ -1,0 +1,57 @@
+#pragma once
+/// @file level_builder.hpp
+/// The streaming level builder (issue 14, "a tiled scene"): the coarser levels of detail of a
+/// tiled scene folder made tile by tile from the stored level above, in memory bounded by a
+/// tile, its halo and one row of tiles, not by the grid. Equal bit for bit to the in-memory
+/// pyramid (LodPyramid, lod.hpp) and so to write_scene_levels. docs/scale.md, "The tiled scene".
+
+#include "hc/common/height_field.hpp"
+
+#include <cstddef>
+#include <cstdint>
+#include <filesystem>
+#include <functional>
+#include <string>
+#include <vector>
+
+namespace hc::pipeline {
+
+/// What build_stored_levels did.
+struct StoredLevelsReport {
+  int levels_built = 0;         ///< levels k ≥ 1 written (stored_levels − 1)
+  bool level0_layers = false;   ///< level 0 had no surface layers: they were computed into levels/L0/
+  std::uint64_t bytes = 0;      ///< bytes of tile data written (tiles without bytes count 0)
+  std::uint64_t scratch_bytes = 0;  ///< largest scratch file (each level's s, 8 bytes a sample) [bytes]
+  /// Largest buffers held at once [bytes]: one row of tiles of the level above for its mean
+  /// heights, or one block with its halo and the working images of the layers.
+  std::size_t peak_buffer_bytes = 0;
+  double seconds = 0.0;
+  /// Per level built (index k − 1, or k for a level 0 given layers): seconds of the depth pass
+  /// (mean heights, decimation) and of the layers (mean, fill range, envelope, median, friction).
+  std::vector<double> depth_seconds, layers_seconds;
+};
+
+/// Progress: (what, fraction done in [0, 1]) after every row of tiles.
+using LevelProgress = std::function<void(const std::string& what, double fraction)>;
+
+/// Writes levels 1 .. stored_levels − 1 of the tiled scene folder `scene_dir` (format 3, as
+/// write_scene with SceneStorage{tile_cells, stored_levels}), whose level 0 is on disk and whose
+/// `levels/` folder does not exist yet, into `levels/L<k>/` (depth, envelope, texture, mu_d,
+/// mu_s and, when level 0 has them, cell_error and colour; square tiles of the scene's
+/// tile_cells, all-NaN tiles sparse). Level 0 without surface layers gets them in `levels/L0/`.
+/// The levels are those LodPyramid builds from the scene's layers with the scene's
+/// layer_options and lod options (scene.yaml), bit for bit: level k's depth, colour and error by
+/// downsample_2x_block from level k − 1's stored tiles plus the kernel's halo; its layers by
+/// surface_layers_block from level k's stored depth plus surface_layers_halo_cells, with the
+/// level-wide values read in passes over the stored tiles (mean heights in row-major order,
+/// the fill range, and the exact median of s for `level_median` by radix selection over a
+/// scratch file of s in `scratch_dir`, removed at the end). Each level is read and written
+/// once or a few times; nothing holds a whole level.
+/// On an error the `levels/` folder it made is removed (the scene folder is otherwise untouched).
+/// @throws hc::InputError naming the folder or file: not a tiled scene, `levels/` already there,
+///         a layer file that cannot be read or written, a scratch file that cannot be made;
+///         hc::ConfigError for the scene's options out of range.
+StoredLevelsReport build_stored_levels(const std::filesystem::path& scene_dir, const std::filesystem::path& scratch_dir,
+                                       const LevelProgress& progress = {});
+
+}  // namespace hc::pipeline

@@ -1,0 +1,576 @@
+#include "hc/pipeline/level_builder.hpp"
+
+#include "image_io.hpp"
+#include "stage_util.hpp"
+#include "tiled_layers.hpp"
+
+#include "hc/common/error.hpp"
+#include "hc/common/format.hpp"
+#include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/scene_io.hpp"
+#include "hc/pipeline/surface_layers.hpp"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <memory>
+#include <optional>
+
+namespace hc::pipeline {
+
+namespace {
+
+namespace fs = std::filesystem;
+using detail::Clock;
+using detail::seconds_since;
+using detail::TiledTiffReader;
+using detail::TiledTiffWriter;
+using detail::TileSamples;
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+void check(const std::string& why, const fs::path& file, const char* what) {
+  if (!why.empty()) throw InputError(file.string() + ": " + what + ": " + why);
+}
+
+/// A stored layer opened for reading.
+struct LayerIn {
+  fs::path file;
+  TiledTiffReader reader;
+  TileSamples samples = TileSamples::kFloat32;
+  void open(const fs::path& f, TileSamples s, const GridGeometry& g) {
+    file = f;
+    samples = s;
+    check(reader.open(f, s), f, "cannot read the tiled layer");
+    if (reader.width() != g.cols || reader.height() != g.rows) {
+      throw InputError(f.string() + ": the tiled layer holds " + std::to_string(reader.height()) + " x " +
+                       std::to_string(reader.width()) + " samples: expected " + std::to_string(g.rows) + " x " +
+                       std::to_string(g.cols) + " (the level's grid)");
+    }
+  }
+  void read(const SampleWindow& w, void* out) const {
+    check(reader.read_region(w.row0, w.col0, w.rows, w.cols, out), file, "cannot read the tiled layer");
+  }
+};
+
+/// A layer of the level being built, written tile by tile.
+struct LayerOut {
+  fs::path file;
+  TiledTiffWriter writer;
+  void open(const fs::path& f, const GridGeometry& g, int tile, TileSamples s) {
+    file = f;
+    check(writer.open(f, g.cols, g.rows, tile, s), f, "cannot create the tiled layer");
+  }
+  void write(int tr, int tc, const void* data) { check(writer.write_tile(tr, tc, data), file, "cannot write a tile"); }
+  std::uint64_t finish() {
+    check(writer.finish(), file, "cannot finish the tiled layer");
+    return writer.bytes_written();
+  }
+};
+
+/// The scratch file of a level's s values: one tile² block of doubles per tile, tile order.
+class ScratchFile {
+ public:
+  ScratchFile(const fs::path& dir, int level) {
+    std::error_code ec;
+    fs::create_directories(dir, ec);
+    path_ = dir / ("hapticloud-levels-s-" + std::to_string(::getpid()) + "-L" + std::to_string(level) + ".bin");
+    fd_ = ::open(path_.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
+    if (fd_ < 0) {
+      throw InputError(path_.string() + ": cannot create the level builder's scratch file (scale.scratch): " +
+                       std::strerror(errno));
+    }
+  }
+  ~ScratchFile() {
+    if (fd_ >= 0) ::close(fd_);
+    std::error_code ec;
+    fs::remove(path_, ec);
+  }
+  ScratchFile(const ScratchFile&) = delete;
+  ScratchFile& operator=(const ScratchFile&) = delete;
+  void write(std::uint64_t offset, const void* data, std::size_t bytes) {
+    const char* p = static_cast<const char*>(data);
+    while (bytes > 0) {
+      const ssize_t n = ::pwrite(fd_, p, bytes, static_cast<off_t>(offset));
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) throw InputError(path_.string() + ": cannot write the scratch file: " + std::strerror(errno));
+      p += n;
+      offset += static_cast<std::uint64_t>(n);
+      bytes -= static_cast<std::size_t>(n);
+      size_ = std::max(size_, offset);
+    }
+  }
+  void read(std::uint64_t offset, void* data, std::size_t bytes) const {
+    char* p = static_cast<char*>(data);
+    while (bytes > 0) {
+      const ssize_t n = ::pread(fd_, p, bytes, static_cast<off_t>(offset));
+      if (n < 0 && errno == EINTR) continue;
+      if (n <= 0) throw InputError(path_.string() + ": cannot read the scratch file back: " + std::strerror(errno));
+      p += n;
+      offset += static_cast<std::uint64_t>(n);
+      bytes -= static_cast<std::size_t>(n);
+    }
+  }
+  std::uint64_t size() const { return size_; }
+
+ private:
+  fs::path path_;
+  int fd_ = -1;
+  std::uint64_t size_ = 0;
+};
+
+/// Tiles of a level: the inner block of tile (tr, tc).
+struct TileGrid {
+  int tile = 0, rows = 0, cols = 0, tile_rows = 0, tile_cols = 0;
+  TileGrid(const GridGeometry& g, int t) : tile(t), rows(g.rows), cols(g.cols) {
+    tile_rows = (g.rows + t - 1) / t;
+    tile_cols = (g.cols + t - 1) / t;
+  }
+  SampleWindow block(int tr, int tc) const {
+    const int r0 = tr * tile, c0 = tc * tile;
+    return {r0, c0, std::min(tile, rows - r0), std::min(tile, cols - c0)};
+  }
+  std::size_t count() const { return static_cast<std::size_t>(tile_rows) * static_cast<std::size_t>(tile_cols); }
+};
+
+/// Copies a block (rows × cols, row-major) into a tile² buffer (rest `fill`).
+template <class T>
+void to_tile(const T* block, int rows, int cols, int tile, int channels, T fill, std::vector<T>& buf) {
+  buf.assign(static_cast<std::size_t>(tile) * static_cast<std::size_t>(tile) * static_cast<std::size_t>(channels), fill);
+  for (int r = 0; r < rows; ++r) {
+    std::copy_n(block + static_cast<std::ptrdiff_t>(r) * cols * channels, static_cast<std::size_t>(cols) * static_cast<std::size_t>(channels),
+                buf.data() + static_cast<std::ptrdiff_t>(r) * tile * channels);
+  }
+}
+
+/// The exact element of rank `rank` (0-based) among the positive finite s values of the scratch
+/// file (radix selection on the bit patterns, which order like the values for positive doubles).
+double select_positive_s(const ScratchFile& file, std::uint64_t values, std::uint64_t rank, std::size_t* peak) {
+  constexpr std::size_t kChunk = std::size_t{1} << 20;
+  constexpr std::uint64_t kCollect = std::uint64_t{1} << 22;
+  std::vector<double> buf(std::min<std::uint64_t>(kChunk, values));
+  const auto scan = [&](auto&& visit) {
+    for (std::uint64_t at = 0; at < values; at += kChunk) {
+      const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(kChunk, values - at));
+      file.read(at * sizeof(double), buf.data(), n * sizeof(double));
+      for (std::size_t i = 0; i < n; ++i) {
+        const double s = buf[i];
+        if (!(s > 0.0) || !std::isfinite(s)) continue;
+        std::uint64_t key;
+        std::memcpy(&key, &s, sizeof key);
+        visit(key);
+      }
+    }
+  };
+  std::uint64_t prefix = 0, in_bucket = std::numeric_limits<std::uint64_t>::max();
+  int known = 0;  // leading bits fixed
+  const auto matches = [&](std::uint64_t key) { return known == 0 || (key >> (64 - known)) == prefix; };
+  while (true) {
+    if (in_bucket <= kCollect || known == 64) {
+      std::vector<std::uint64_t> keys;
+      scan([&](std::uint64_t key) {
+        if (matches(key)) keys.push_back(key);
+      });
+      *peak = std::max(*peak, buf.size() * sizeof(double) + keys.size() * sizeof(std::uint64_t));
+      const auto mid = keys.begin() + static_cast<std::ptrdiff_t>(rank);
+      std::nth_element(keys.begin(), mid, keys.end());
+      double s;
+      std::memcpy(&s, &*mid, sizeof s);
+      return s;
+    }
+    std::vector<std::uint64_t> hist(std::size_t{1} << 16, 0);
+    const int shift = 64 - known - 16;
+    scan([&](std::uint64_t key) {
+      if (matches(key)) ++hist[static_cast<std::size_t>((key >> shift) & 0xFFFFu)];
+    });
+    std::uint64_t below = 0;
+    std::size_t b = 0;
+    while (below + hist[b] <= rank) below += hist[b++];
+    rank -= below;
+    in_bucket = hist[b];
+    prefix = (prefix << 16) | b;
+    known += 16;
+  }
+}
+
+class Builder {
+ public:
+  Builder(const fs::path& scene_dir, const fs::path& scratch, const LevelProgress& progress)
+      : dir_(scene_dir), scratch_(scratch), progress_(progress) {
+    scene_ = load_scene(scene_dir, false);
+    if (!scene_.storage.stores_levels()) {
+      throw InputError(scene_dir.string() + ": not a tiled scene that stores its levels (format 3 with storage "
+                       "tile_cells and stored_levels; write it with scale.scene_tiles on)");
+    }
+    tile_ = scene_.storage.tile_cells;
+    levels_ = scene_.storage.stored_levels;
+    has_layers_ = fs::exists(dir_ / "envelope.tiff") && fs::exists(dir_ / "texture.tiff") &&
+                  fs::exists(dir_ / "mu_d.tiff") && fs::exists(dir_ / "mu_s.tiff");
+    has_colour_ = fs::exists(dir_ / "colour.tiff");
+    has_error_ = fs::exists(dir_ / "cell_error.tiff");
+    for (int l = 0; l < levels_; ++l) geometry_.push_back(lod_level_geometry(scene_.geometry, l));
+  }
+
+  StoredLevelsReport run() {
+    const auto t0 = Clock::now();
+    const fs::path root = dir_ / kSceneLevelsFolder;
+    if (fs::exists(root)) {
+      throw InputError(root.string() + ": the levels folder already exists: expected a scene whose levels are not built yet");
+    }
+    std::error_code ec;
+    fs::create_directory(root, ec);
+    if (ec) throw InputError(root.string() + ": cannot create the levels folder: " + ec.message());
+    struct Remove {
+      fs::path dir;
+      bool keep = false;
+      ~Remove() {
+        std::error_code e;
+        if (!keep) fs::remove_all(dir, e);
+      }
+    } guard{root};
+    if (!has_layers_) {
+      make_dir(0);
+      report_.level0_layers = true;
+      report_.depth_seconds.push_back(0.0);
+      const auto tl = Clock::now();
+      build_layers(0);
+      report_.layers_seconds.push_back(seconds_since(tl));
+    }
+    for (int k = 1; k < levels_; ++k) {
+      make_dir(k);
+      const auto td = Clock::now();
+      build_depth(k);
+      report_.depth_seconds.push_back(seconds_since(td));
+      const auto tl = Clock::now();
+      build_layers(k);
+      report_.layers_seconds.push_back(seconds_since(tl));
+      ++report_.levels_built;
+    }
+    guard.keep = true;
+    report_.seconds = seconds_since(t0);
+    return report_;
+  }
+
+ private:
+  void make_dir(int level) {
+    const fs::path d = level == 0 ? dir_ / kSceneLevelsFolder / "L0" : detail::stored_layer_file(dir_, level, "depth").parent_path();
+    std::error_code ec;
+    fs::create_directory(d, ec);
+    if (ec) throw InputError(d.string() + ": cannot create the folder of level " + std::to_string(level) + ": " + ec.message());
+  }
+  /// A layer file of a level; level 0's computed layers go to levels/L0/ (as write_scene_levels).
+  fs::path file(int level, const std::string& name) const {
+    if (level == 0 && !has_layers_ && (name == "envelope" || name == "texture" || name == "mu_d" || name == "mu_s")) {
+      return dir_ / kSceneLevelsFolder / "L0" / (name + ".tiff");
+    }
+    return detail::stored_layer_file(dir_, level, name);
+  }
+  void note_buffer(std::size_t bytes) { report_.peak_buffer_bytes = std::max(report_.peak_buffer_bytes, bytes); }
+  void tell(const std::string& what, double fraction) const {
+    if (progress_) progress_(what, fraction);
+  }
+
+  /// Level k's depth, colour and cell error from level k − 1's stored tiles.
+  void build_depth(int k) {
+    const GridGeometry& fg = geometry_[static_cast<std::size_t>(k - 1)];
+    const GridGeometry& cg = geometry_[static_cast<std::size_t>(k)];
+    const LodOptions& lod = scene_.lod;
+    LayerIn depth_in, colour_in, error_in;
+    depth_in.open(file(k - 1, "depth"), TileSamples::kFloat32, fg);
+    if (has_colour_) colour_in.open(file(k - 1, "colour"), TileSamples::kRgb8, fg);
+    if (has_error_) error_in.open(file(k - 1, "cell_error"), TileSamples::kFloat32, fg);
+
+    // Mean heights of level k − 1 (downsample_2x's references), summed in row-major order.
+    double depth_sum = 0.0, error_sum = 0.0;
+    std::array<double, 3> rgb_sum{0.0, 0.0, 0.0};
+    std::size_t depth_n = 0, error_n = 0, rgb_n = 0;
+    {
+      const TileGrid strips(fg, tile_);
+      std::vector<float> d, e, ch;
+      std::vector<std::uint8_t> rgb;
+      for (int tr = 0; tr < strips.tile_rows; ++tr) {
+        const SampleWindow w{tr * tile_, 0, std::min(tile_, fg.rows - tr * tile_), fg.cols};
+        const std::size_t n = static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols);
+        d.resize(n);
+        depth_in.read(w, d.data());
+        downsample_2x_reference(d.data(), n, depth_sum, depth_n, &depth_n, &depth_sum);
+        if (has_colour_) {
+          rgb.resize(3 * n);
+          colour_in.read(w, rgb.data());
+          ch.resize(n);
+          std::size_t m = 0;
+          for (std::size_t c = 0; c < 3; ++c) {
+            m = 0;
+            for (std::size_t i = 0; i < n; ++i) {
+              if (!std::isnan(d[i])) ch[m++] = rgb[3 * i + c];
+            }
+            std::size_t unused = 0;
+            downsample_2x_reference(ch.data(), m, rgb_sum[c], rgb_n, &unused, &rgb_sum[c]);
+          }
+          rgb_n += m;
+        }
+        if (has_error_) {
+          e.resize(n);
+          error_in.read(w, e.data());
+          downsample_2x_reference(e.data(), n, error_sum, error_n, &error_n, &error_sum);
+        }
+        note_buffer(n * (2 * sizeof(float) + 3 + sizeof(float)));
+      }
+    }
+    const double depth_ref = depth_n > 0 ? depth_sum / static_cast<double>(depth_n) : 0.0;
+    const double error_ref = error_n > 0 ? error_sum / static_cast<double>(error_n) : 0.0;
+    std::array<double, 3> rgb_ref{};
+    for (std::size_t c = 0; c < 3; ++c) rgb_ref[c] = rgb_n > 0 ? rgb_sum[c] / static_cast<double>(rgb_n) : 0.0;
+
+    LayerOut depth_out, colour_out, error_out;
+    depth_out.open(file(k, "depth"), cg, tile_, TileSamples::kFloat32);
+    if (has_colour_) colour_out.open(file(k, "colour"), cg, tile_, TileSamples::kRgb8);
+    if (has_error_) error_out.open(file(k, "cell_error"), cg, tile_, TileSamples::kFloat32);
+    const double sigma = lod.antialias_sigma_cells, vf = lod.valid_fraction;
+    const int rad = downsample_2x_radius_cells(sigma);
+    const TileGrid tiles(cg, tile_);
+    if (depth_n > 0) {
+      std::vector<float> fine, fine_e, chan, block, block_c, tile_f;
+      std::vector<std::uint8_t> fine_rgb, block_rgb, tile_rgb;
+      for (int tr = 0; tr < tiles.tile_rows; ++tr) {
+        for (int tc = 0; tc < tiles.tile_cols; ++tc) {
+          const SampleWindow b = tiles.block(tr, tc);
+          const int r0 = std::max(0, 2 * b.row0 - rad), r1 = std::min(fg.rows - 1, 2 * (b.row0 + b.rows - 1) + rad);
+          const int c0 = std::max(0, 2 * b.col0 - rad), c1 = std::min(fg.cols - 1, 2 * (b.col0 + b.cols - 1) + rad);
+          const SampleWindow w{r0, c0, r1 - r0 + 1, c1 - c0 + 1};
+          const std::size_t n = static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols);
+          const std::size_t bn = static_cast<std::size_t>(b.rows) * static_cast<std::size_t>(b.cols);
+          fine.resize(n);
+          depth_in.read(w, fine.data());
+          block.resize(bn);
+          downsample_2x_block(fine.data(), w, fg.rows, fg.cols, depth_ref, sigma, vf, b, block.data());
+          to_tile(block.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+          depth_out.write(tr, tc, tile_f.data());
+          if (has_colour_) {
+            fine_rgb.resize(3 * n);
+            colour_in.read(w, fine_rgb.data());
+            chan.resize(n);
+            block_c.resize(bn);
+            block_rgb.assign(3 * bn, 0);
+            for (std::size_t c = 0; c < 3; ++c) {
+              if (rgb_n == 0) break;
+              for (std::size_t i = 0; i < n; ++i) chan[i] = std::isnan(fine[i]) ? kNaN : static_cast<float>(fine_rgb[3 * i + c]);
+              downsample_2x_block(chan.data(), w, fg.rows, fg.cols, rgb_ref[c], sigma, vf, b, block_c.data());
+              for (std::size_t i = 0; i < bn; ++i) {
+                const float v = block_c[i];
+                if (!std::isnan(v)) block_rgb[3 * i + c] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+              }
+            }
+            to_tile(block_rgb.data(), b.rows, b.cols, tile_, 3, std::uint8_t{0}, tile_rgb);
+            colour_out.write(tr, tc, tile_rgb.data());
+          }
+          if (has_error_ && error_n > 0) {
+            fine_e.resize(n);
+            error_in.read(w, fine_e.data());
+            block_c.resize(bn);
+            downsample_2x_block(fine_e.data(), w, fg.rows, fg.cols, error_ref, sigma, vf, b, block_c.data());
+            to_tile(block_c.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+            error_out.write(tr, tc, tile_f.data());
+          }
+          note_buffer(n * (3 * sizeof(float) + 3) + bn * (2 * sizeof(float) + 3));
+        }
+        tell("level " + std::to_string(k) + " depth", static_cast<double>(tr + 1) / tiles.tile_rows);
+      }
+    }
+    report_.bytes += depth_out.finish();
+    if (has_colour_) report_.bytes += colour_out.finish();
+    if (has_error_) report_.bytes += error_out.finish();
+  }
+
+  /// The window a layer block reads: the block plus the halo, clipped to the level, its first
+  /// column a multiple of 64 and its padded width a multiple of 64 unless it ends at the level's
+  /// right edge (surface_layers_block's conditions).
+  SampleWindow layer_window(const SampleWindow& b, const GridGeometry& g, int halo, int rad) const {
+    const int r0 = std::max(0, b.row0 - halo), r1 = std::min(g.rows, b.row0 + b.rows + halo);
+    int c0 = std::max(0, b.col0 - halo);
+    c0 -= c0 % 64;
+    int c1 = b.col0 + b.cols + halo;
+    if (c1 >= g.cols) {
+      c1 = g.cols;
+    } else {
+      const int padded = ((c1 - c0 + 2 * rad + 63) / 64) * 64;
+      c1 = std::min(g.cols, c0 + padded - 2 * rad);
+    }
+    return {r0, c0, r1 - r0, c1 - c0};
+  }
+
+  /// The surface layers of level k from its stored depth (compute_surface_layers, tile by tile).
+  void build_layers(int k) {
+    const GridGeometry& g = geometry_[static_cast<std::size_t>(k)];
+    const SurfaceLayerOptions& opt = scene_.layer_options;
+    const int window_cells = scene_.lod.window_cells;
+    const std::string name = "level " + std::to_string(k);
+    LayerIn depth_in;
+    depth_in.open(file(k, "depth"), TileSamples::kFloat32, g);
+    LayerOut env_out, tex_out, mud_out, mus_out;
+    env_out.open(file(k, "envelope"), g, tile_, TileSamples::kFloat32);
+    tex_out.open(file(k, "texture"), g, tile_, TileSamples::kFloat32);
+    mud_out.open(file(k, "mu_d"), g, tile_, TileSamples::kFloat32);
+    mus_out.open(file(k, "mu_s"), g, tile_, TileSamples::kFloat32);
+    const auto finish = [&] {
+      for (LayerOut* o : {&env_out, &tex_out, &mud_out, &mus_out}) report_.bytes += o->finish();
+    };
+
+    // The mean height and the band of valid values, in row-major order (compute_surface_layers).
+    double sum = 0.0;
+    std::size_t valid = 0;
+    float vmin = std::numeric_limits<float>::max(), vmax = std::numeric_limits<float>::lowest();
+    {
+      std::vector<float> d;
+      for (int r0 = 0; r0 < g.rows; r0 += tile_) {
+        const SampleWindow w{r0, 0, std::min(tile_, g.rows - r0), g.cols};
+        d.resize(static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols));
+        depth_in.read(w, d.data());
+        for (std::size_t i = 0; i < d.size(); ++i) {
+          const float v = d[i];
+          if (std::isnan(v)) continue;
+          if (std::isinf(v)) {
+            throw InputError(depth_in.file.string() + ": sample (" + std::to_string(r0 + static_cast<int>(i / static_cast<std::size_t>(g.cols))) + ", " +
+                             std::to_string(i % static_cast<std::size_t>(g.cols)) +
+                             ") is infinite: expected a finite height in metres or NaN (no data)");
+          }
+          ++valid;
+          sum += v;
+          vmin = std::min(vmin, v);
+          vmax = std::max(vmax, v);
+        }
+        note_buffer(d.size() * sizeof(float));
+      }
+    }
+    if (valid == 0) {  // as the pyramid: every layer no data
+      finish();
+      return;
+    }
+    SurfaceLayerLevelValues values;
+    values.ref_m = sum / static_cast<double>(valid);
+    values.band_m[0] = static_cast<float>(static_cast<double>(vmin) - values.ref_m);
+    values.band_m[1] = static_cast<float>(static_cast<double>(vmax) - values.ref_m);
+    const int halo = surface_layers_halo_cells(opt);
+    const int rad = surface_layers_radius_cells(opt);
+    const TileGrid tiles(g, tile_);
+    std::vector<float> win;
+    const auto read_window = [&](const SampleWindow& b) {
+      const SampleWindow w = layer_window(b, g, halo, rad);
+      win.resize(static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols));
+      depth_in.read(w, win.data());
+      // The window and about 14 working images of its padded size (fill, filter, curvature).
+      note_buffer(static_cast<std::size_t>(w.rows + 2 * rad + 1) * static_cast<std::size_t>(w.cols + 2 * rad) * 14 * 4);
+      return w;
+    };
+
+    // Pass 1: the range of the bilateral filter's whole filled input.
+    float fmin = values.band_m[0], fmax = values.band_m[1];
+    for (int tr = 0; tr < tiles.tile_rows; ++tr) {
+      for (int tc = 0; tc < tiles.tile_cols; ++tc) {
+        const SampleWindow b = tiles.block(tr, tc);
+        const SampleWindow w = read_window(b);
+        const SurfaceLayerBlock fb = surface_layers_block(win.data(), w, g, b, values, true, opt, window_cells);
+        fmin = std::min(fmin, fb.fill_min_m);
+        fmax = std::max(fmax, fb.fill_max_m);
+      }
+      tell(name + " layers (fill range)", static_cast<double>(tr + 1) / tiles.tile_rows);
+    }
+    values.fill_range_m[0] = fmin;
+    values.fill_range_m[1] = fmax;
+
+    // Pass 2: envelope and texture written; s to the scratch file.
+    ScratchFile scratch(scratch_, k);
+    const std::size_t tile_n = static_cast<std::size_t>(tile_) * static_cast<std::size_t>(tile_);
+    std::uint64_t positive = 0;
+    std::vector<float> tile_f;
+    std::vector<double> tile_s;
+    for (int tr = 0; tr < tiles.tile_rows; ++tr) {
+      for (int tc = 0; tc < tiles.tile_cols; ++tc) {
+        const SampleWindow b = tiles.block(tr, tc);
+        const SampleWindow w = read_window(b);
+        const SurfaceLayerBlock lb = surface_layers_block(win.data(), w, g, b, values, false, opt, window_cells);
+        to_tile(lb.envelope_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+        env_out.write(tr, tc, tile_f.data());
+        to_tile(lb.texture_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+        tex_out.write(tr, tc, tile_f.data());
+        to_tile(lb.s.data(), b.rows, b.cols, tile_, 1, -1.0, tile_s);
+        for (double s : lb.s) positive += s > 0.0 && std::isfinite(s) ? 1U : 0U;
+        const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
+                                    static_cast<std::uint64_t>(tc);
+        scratch.write(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
+      }
+      tell(name + " layers (envelope)", static_cast<double>(tr + 1) / tiles.tile_rows);
+    }
+    report_.scratch_bytes = std::max(report_.scratch_bytes, scratch.size());
+
+    // The reference of `level_median`: the exact median of s over the cells with s > 0.
+    double s_ref = 0.0;
+    if (opt.friction_scale == FrictionScale::kLevelMedian) {
+      double s_median = 0.0;
+      if (positive > 0) {
+        std::size_t peak = 0;
+        s_median = select_positive_s(scratch, tiles.count() * tile_n, positive / 2, &peak);
+        note_buffer(peak);
+      }
+      s_ref = std::max(s_median, friction_s_floor(opt));
+    }
+
+    // Pass 3: μ_d and μ_s.
+    std::vector<float> mu(tile_n);
+    for (int tr = 0; tr < tiles.tile_rows; ++tr) {
+      for (int tc = 0; tc < tiles.tile_cols; ++tc) {
+        const SampleWindow b = tiles.block(tr, tc);
+        const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
+                                    static_cast<std::uint64_t>(tc);
+        tile_s.resize(tile_n);
+        scratch.read(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
+        std::fill(mu.begin(), mu.end(), kNaN);
+        for (int r = 0; r < b.rows; ++r) {
+          for (int c = 0; c < b.cols; ++c) {
+            const double s = tile_s[static_cast<std::size_t>(r) * static_cast<std::size_t>(tile_) + static_cast<std::size_t>(c)];
+            if (s == -1.0) continue;  // no data
+            mu[static_cast<std::size_t>(r) * static_cast<std::size_t>(tile_) + static_cast<std::size_t>(c)] =
+                static_cast<float>(friction_mu_d(s, s_ref, opt));
+          }
+        }
+        mud_out.write(tr, tc, mu.data());
+        std::fill(mu.begin(), mu.end(), kNaN);
+        for (int r = 0; r < b.rows; ++r) {
+          const double y = g.y_of_row(b.row0 + r);
+          for (int c = 0; c < b.cols; ++c) {
+            const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(tile_) + static_cast<std::size_t>(c);
+            if (tile_s[i] == -1.0) continue;
+            mu[i] = static_cast<float>(friction_mu_s(g.x_of_col(b.col0 + c), y, opt));
+          }
+        }
+        mus_out.write(tr, tc, mu.data());
+      }
+      tell(name + " layers (friction)", static_cast<double>(tr + 1) / tiles.tile_rows);
+    }
+    finish();
+  }
+
+  fs::path dir_, scratch_;
+  LevelProgress progress_;
+  Scene scene_;
+  int tile_ = 0, levels_ = 0;
+  bool has_layers_ = false, has_colour_ = false, has_error_ = false;
+  std::vector<GridGeometry> geometry_;
+  StoredLevelsReport report_;
+};
+
+}  // namespace
+
+StoredLevelsReport build_stored_levels(const fs::path& scene_dir, const fs::path& scratch_dir,
+                                       const LevelProgress& progress) {
+  Builder b(scene_dir, scratch_dir, progress);
+  return b.run();
+}
+
+}  // namespace hc::pipeline
