@@ -348,11 +348,15 @@ class Builder {
           const std::size_t bn = static_cast<std::size_t>(b.rows) * static_cast<std::size_t>(b.cols);
           fine.resize(n);
           depth_in.read(w, fine.data());
+          // A window without depth leaves the depth and colour tiles sparse (no data, colour 0).
+          const bool no_depth = std::all_of(fine.begin(), fine.end(), [](float v) { return std::isnan(v); });
           block.resize(bn);
-          downsample_2x_block(fine.data(), w, fg.rows, fg.cols, depth_ref, sigma, vf, b, block.data());
-          to_tile(block.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
-          depth_out.write(tr, tc, tile_f.data());
-          if (has_colour_) {
+          if (!no_depth) {
+            downsample_2x_block(fine.data(), w, fg.rows, fg.cols, depth_ref, sigma, vf, b, block.data());
+            to_tile(block.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+            depth_out.write(tr, tc, tile_f.data());
+          }
+          if (has_colour_ && !no_depth) {
             fine_rgb.resize(3 * n);
             colour_in.read(w, fine_rgb.data());
             chan.resize(n);
@@ -460,10 +464,12 @@ class Builder {
     const int rad = surface_layers_radius_cells(opt);
     const TileGrid tiles(g, tile_);
     std::vector<float> win;
+    bool empty = false;  // the last window read holds no valid sample
     const auto read_window = [&](const SampleWindow& b) {
       const SampleWindow w = layer_window(b, g, halo, rad);
       win.resize(static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols));
       depth_in.read(w, win.data());
+      empty = std::all_of(win.begin(), win.end(), [](float v) { return std::isnan(v); });
       // The window and about 14 working images of its padded size (fill, filter, curvature).
       note_buffer(static_cast<std::size_t>(w.rows + 2 * rad + 1) * static_cast<std::size_t>(w.cols + 2 * rad) * 14 * 4);
       return w;
@@ -475,6 +481,9 @@ class Builder {
       for (int tc = 0; tc < tiles.tile_cols; ++tc) {
         const SampleWindow b = tiles.block(tr, tc);
         const SampleWindow w = read_window(b);
+        // No valid sample within the halo: every cell the block owns is beyond the fill's reach,
+        // where it holds a valid value, so it cannot widen the range.
+        if (empty) continue;
         const SurfaceLayerBlock fb = surface_layers_block(win.data(), w, g, b, values, true, opt, window_cells);
         fmin = std::min(fmin, fb.fill_min_m);
         fmax = std::max(fmax, fb.fill_max_m);
@@ -494,6 +503,13 @@ class Builder {
       for (int tc = 0; tc < tiles.tile_cols; ++tc) {
         const SampleWindow b = tiles.block(tr, tc);
         const SampleWindow w = read_window(b);
+        const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
+                                    static_cast<std::uint64_t>(tc);
+        if (empty) {  // no data: the layer tiles stay sparse
+          tile_s.assign(tile_n, -1.0);
+          scratch.write(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
+          continue;
+        }
         const SurfaceLayerBlock lb = surface_layers_block(win.data(), w, g, b, values, false, opt, window_cells);
         to_tile(lb.envelope_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
         env_out.write(tr, tc, tile_f.data());
@@ -501,8 +517,6 @@ class Builder {
         tex_out.write(tr, tc, tile_f.data());
         to_tile(lb.s.data(), b.rows, b.cols, tile_, 1, -1.0, tile_s);
         for (double s : lb.s) positive += s > 0.0 && std::isfinite(s) ? 1U : 0U;
-        const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
-                                    static_cast<std::uint64_t>(tc);
         scratch.write(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
       }
       tell(name + " layers (envelope)", static_cast<double>(tr + 1) / tiles.tile_rows);
@@ -530,6 +544,7 @@ class Builder {
                                     static_cast<std::uint64_t>(tc);
         tile_s.resize(tile_n);
         scratch.read(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
+        if (std::all_of(tile_s.begin(), tile_s.end(), [](double v) { return v == -1.0; })) continue;  // sparse
         std::fill(mu.begin(), mu.end(), kNaN);
         for (int r = 0; r < b.rows; ++r) {
           for (int c = 0; c < b.cols; ++c) {

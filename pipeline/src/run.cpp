@@ -8,6 +8,7 @@
 #include "hc/pipeline/filters.hpp"
 #include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/level_builder.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/mesh_raster.hpp"
@@ -868,14 +869,27 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
     });
   }
   if (tiled_scene) {
+    // The streaming level builder (level_builder.hpp): every coarser level made tile by tile from
+    // the stored level above, in memory bounded by a tile and its halo (the in-memory pyramid's
+    // levels, bit for bit).
     stage("scene_levels", reports, progress, [&] {
-      if (!pyramid) pyramid = make_pyramid();
       StageResult<std::uint64_t> r;
-      r.value = write_scene_levels(*pyramid, staging.path() / "scene", storage.tile_cells);
-      r.report.count_in = static_cast<std::size_t>(pyramid->level_count());
-      r.report.count_out = static_cast<std::size_t>(pyramid->level_count());
+      std::error_code ec;
+      const fs::path scratch = config.scale.scratch.empty() ? fs::temp_directory_path(ec) : config.scale.scratch;
+      const StoredLevelsReport built_levels = build_stored_levels(staging.path() / "scene", scratch);
+      r.value = built_levels.bytes;
+      r.report.count_in = static_cast<std::size_t>(storage.stored_levels);
+      r.report.count_out = static_cast<std::size_t>(storage.stored_levels);
       r.report.figure("tile_cells", storage.tile_cells);
       r.report.figure("levels_bytes_mb", static_cast<double>(r.value) / (1024.0 * 1024.0));
+      r.report.figure("peak_buffer_mb", static_cast<double>(built_levels.peak_buffer_bytes) / (1024.0 * 1024.0));
+      r.report.figure("scratch_mb", static_cast<double>(built_levels.scratch_bytes) / (1024.0 * 1024.0));
+      double depth_s = 0.0, layers_s = 0.0;
+      for (double v : built_levels.depth_seconds) depth_s += v;
+      for (double v : built_levels.layers_seconds) layers_s += v;
+      r.report.figure("depth_s", depth_s);
+      r.report.figure("layers_s", layers_s);
+      r.report.notes.push_back("levels built tile by tile from the stored level above (streaming level builder)");
       return r;
     });
   }
