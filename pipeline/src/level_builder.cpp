@@ -151,14 +151,15 @@ void to_tile(const T* block, int rows, int cols, int tile, int channels, T fill,
 
 /// The exact element of rank `rank` (0-based) among the positive finite s values of the scratch
 /// file (radix selection on the bit patterns, which order like the values for positive doubles).
-double select_positive_s(const ScratchFile& file, std::uint64_t values, std::uint64_t rank, std::size_t* peak) {
-  constexpr std::size_t kChunk = std::size_t{1} << 20;
+/// `blocks`: the byte offsets of the blocks of `block_values` doubles that hold data.
+double select_positive_s(const ScratchFile& file, const std::vector<std::uint64_t>& blocks, std::size_t block_values,
+                         std::uint64_t rank, std::size_t* peak) {
   constexpr std::uint64_t kCollect = std::uint64_t{1} << 22;
-  std::vector<double> buf(std::min<std::uint64_t>(kChunk, values));
+  std::vector<double> buf(block_values);
   const auto scan = [&](auto&& visit) {
-    for (std::uint64_t at = 0; at < values; at += kChunk) {
-      const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(kChunk, values - at));
-      file.read(at * sizeof(double), buf.data(), n * sizeof(double));
+    for (const std::uint64_t at : blocks) {
+      const std::size_t n = block_values;
+      file.read(at, buf.data(), n * sizeof(double));
       for (std::size_t i = 0; i < n; ++i) {
         const double s = buf[i];
         if (!(s > 0.0) || !std::isfinite(s)) continue;
@@ -497,6 +498,7 @@ class Builder {
     ScratchFile scratch(scratch_, k);
     const std::size_t tile_n = static_cast<std::size_t>(tile_) * static_cast<std::size_t>(tile_);
     std::uint64_t positive = 0;
+    std::vector<std::uint64_t> with_data;  // tiles written to the scratch file, in tile order
     std::vector<float> tile_f;
     std::vector<double> tile_s;
     for (int tr = 0; tr < tiles.tile_rows; ++tr) {
@@ -505,11 +507,7 @@ class Builder {
         const SampleWindow w = read_window(b);
         const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
                                     static_cast<std::uint64_t>(tc);
-        if (empty) {  // no data: the layer tiles stay sparse
-          tile_s.assign(tile_n, -1.0);
-          scratch.write(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
-          continue;
-        }
+        if (empty) continue;  // no data: the layer tiles stay sparse, and nothing goes to the scratch file
         const SurfaceLayerBlock lb = surface_layers_block(win.data(), w, g, b, values, false, opt, window_cells);
         to_tile(lb.envelope_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
         env_out.write(tr, tc, tile_f.data());
@@ -518,10 +516,11 @@ class Builder {
         to_tile(lb.s.data(), b.rows, b.cols, tile_, 1, -1.0, tile_s);
         for (double s : lb.s) positive += s > 0.0 && std::isfinite(s) ? 1U : 0U;
         scratch.write(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
+        with_data.push_back(index);
       }
       tell(name + " layers (envelope)", static_cast<double>(tr + 1) / tiles.tile_rows);
     }
-    report_.scratch_bytes = std::max(report_.scratch_bytes, scratch.size());
+    report_.scratch_bytes = std::max<std::uint64_t>(report_.scratch_bytes, with_data.size() * tile_n * sizeof(double));
 
     // The reference of `level_median`: the exact median of s over the cells with s > 0.
     double s_ref = 0.0;
@@ -529,7 +528,9 @@ class Builder {
       double s_median = 0.0;
       if (positive > 0) {
         std::size_t peak = 0;
-        s_median = select_positive_s(scratch, tiles.count() * tile_n, positive / 2, &peak);
+        std::vector<std::uint64_t> offsets(with_data.size());
+        for (std::size_t i = 0; i < with_data.size(); ++i) offsets[i] = with_data[i] * tile_n * sizeof(double);
+        s_median = select_positive_s(scratch, offsets, tile_n, positive / 2, &peak);
         note_buffer(peak);
       }
       s_ref = std::max(s_median, friction_s_floor(opt));
@@ -537,14 +538,16 @@ class Builder {
 
     // Pass 3: μ_d and μ_s.
     std::vector<float> mu(tile_n);
+    std::size_t next = 0;
     for (int tr = 0; tr < tiles.tile_rows; ++tr) {
       for (int tc = 0; tc < tiles.tile_cols; ++tc) {
         const SampleWindow b = tiles.block(tr, tc);
         const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
                                     static_cast<std::uint64_t>(tc);
+        if (next == with_data.size() || with_data[next] != index) continue;  // no data: sparse
+        ++next;
         tile_s.resize(tile_n);
         scratch.read(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
-        if (std::all_of(tile_s.begin(), tile_s.end(), [](double v) { return v == -1.0; })) continue;  // sparse
         std::fill(mu.begin(), mu.end(), kNaN);
         for (int r = 0; r < b.rows; ++r) {
           for (int c = 0; c < b.cols; ++c) {

@@ -40,7 +40,9 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 /// rows × cols samples of a relief that is hard on the tiles: carved grooves, a 5 cm cliff
 /// along a diagonal, noise of 0.3 mm, no data in two blocks that straddle tile corners and
 /// in a ragged band (scan shadows), colour from the position and a cross-check error field.
-hc::Scene hard_scene(int rows, int cols, bool layers) {
+/// `void_corner`: no data in the last 100 rows' first 130 columns too (tiles whose windows hold
+/// no sample, which the builder leaves sparse without computing them).
+hc::Scene hard_scene(int rows, int cols, bool layers, bool void_corner = false) {
   std::mt19937 rng(11);
   std::normal_distribution<float> noise(0.0f, 3e-4f);
   hc::Scene s;
@@ -51,7 +53,8 @@ hc::Scene hard_scene(int rows, int cols, bool layers) {
     for (int c = 0; c < cols; ++c) {
       const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(c);
       const bool hole = (r >= 40 && r < 75 && c >= 50 && c < 90) || (r >= 150 && r < 170 && c >= 200 && c < 300) ||
-                        (std::abs(c - 2 * r + 100) < 3 + (r * 7 % 5));
+                        (std::abs(c - 2 * r + 100) < 3 + (r * 7 % 5)) ||
+                        (void_corner && r >= rows - 100 && c < 130);
       if (hole) continue;
       const double groove = 0.004 * std::sin(0.31 * c) * std::sin(0.17 * r);
       const double cliff = c > r + 60 ? 0.05 : 0.0;
@@ -132,7 +135,7 @@ TEST(LevelBuilder, LevelsBuiltTileByTileEqualTheInMemoryPyramidBitForBit) {
 TEST(LevelBuilder, ASceneWithoutLayersGetsLevelZerosLayersAndOtherFrictionOptionsHold) {
   // Layers off in the run: level 0's layers are computed into levels/L0; the curvature
   // friction model in scene units and static-friction regions across tile edges.
-  hc::Scene s = hard_scene(190, 260, false);
+  hc::Scene s = hard_scene(190, 260, false, true);
   s.layer_options.friction_model = hc::FrictionModel::kCurvature;
   s.layer_options.friction_scale = hc::FrictionScale::kScene;
   s.layer_options.mu_s_regions = {{-0.19, 0.12, -0.1, 0.2, 0.9}, {-0.15, 0.15, 0.0, 0.25, 0.1}};

@@ -21,7 +21,8 @@ struct StoredLevelsReport {
   int levels_built = 0;         ///< levels k ≥ 1 written (stored_levels − 1)
   bool level0_layers = false;   ///< level 0 had no surface layers: they were computed into levels/L0/
   std::uint64_t bytes = 0;      ///< bytes of tile data written (tiles without bytes count 0)
-  std::uint64_t scratch_bytes = 0;  ///< largest scratch file (each level's s, 8 bytes a sample) [bytes]
+  /// Largest scratch file on disk [bytes]: a level's s, 8 bytes a sample, for its tiles with data only.
+  std::uint64_t scratch_bytes = 0;
   /// Largest buffers held at once [bytes]: one row of tiles of the level above for its mean
   /// heights, or one block with its halo and the working images of the layers.
   std::size_t peak_buffer_bytes = 0;
