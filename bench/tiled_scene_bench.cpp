@@ -10,9 +10,13 @@
 //     the middle; the rest is no data and stored as sparse tiles (so that the folder fits on the
 //     disk: a full 65 536 × 32 768 scene of five float layers is 57 GB). Every level is the
 //     analytic relief sampled at that level's nodes (envelope, texture and μ from their
-//     formulas), not a pyramid built from level 0: building 2^31 samples' levels needs the
-//     streaming level builder, which does not exist yet (docs/scale.md). --colour adds a colour
+//     formulas), not a pyramid built from level 0 (for that: --level0-only, then `build`). --colour adds a colour
 //     and a cross-check error layer (tests/fuzz/scene_tiled_base was made with it, small).
+//     --level0-only writes level 0 alone (scene.yaml still names every level) for `build`.
+//   tiled_scene_bench build DIR
+//     builds the levels of DIR/scene (made with --level0-only) from level 0 with the streaming
+//     level builder (pipeline::build_stored_levels), scratch in DIR/scratch; prints the time per
+//     level, the bytes written, the builder's largest buffers and the peak resident memory.
 //   tiled_scene_bench open DIR [--switches 300] [--seed 1] [--drop-caches] [--budget-mb M]
 //     opens DIR/scene with LodPyramid::open_stored and makes `switches` random requests through
 //     session::LodController::set_window (a random level, a window centred in the band): each
@@ -25,6 +29,7 @@
 
 #include "hc/common/scene.hpp"
 #include "hc/haptics/shared_state.hpp"
+#include "hc/pipeline/level_builder.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/session/lod_controller.hpp"
@@ -72,7 +77,8 @@ bool has_flag(int argc, char** argv, const std::string& name) {
   return false;
 }
 
-int generate(const fs::path& dir, int rows, int cols, int band, int tile, bool colour, int min_cells, int window_cells) {
+int generate(const fs::path& dir, int rows, int cols, int band, int tile, bool colour, int min_cells, int window_cells,
+             bool level0_only) {
   hc::Scene header;
   header.geometry = hc::GridGeometry{rows, cols, 0.0, 0.0, 0.001};
   header.friction_model = hc::FrictionModel::kPaper;
@@ -95,7 +101,7 @@ int generate(const fs::path& dir, int rows, int cols, int band, int tile, bool c
   std::vector<std::uint8_t> rgb(3 * static_cast<std::size_t>(tile) * tile);
   const char* names[5] = {"depth", "envelope", "texture", "mu_d", "mu_s"};
   std::uint64_t written = 0;
-  for (int level = 0; level < levels; ++level) {
+  for (int level = 0; level < (level0_only ? 1 : levels); ++level) {
     const hc::GridGeometry& g = w.level_geometry(level);
     for (int tr = 0; tr * tile < g.rows; ++tr) {
       const double ty0 = g.y_of_row(tr * tile), ty1 = g.y_of_row(std::min(g.rows - 1, (tr + 1) * tile - 1));
@@ -130,8 +136,23 @@ int generate(const fs::path& dir, int rows, int cols, int band, int tile, bool c
     }
   }
   written = w.finish();
+  if (level0_only) fs::remove_all(dir / "scene" / hc::pipeline::kSceneLevelsFolder);  // empty files: `build` makes them
   std::printf("generate: %d x %d samples, %d levels, band of %d rows, tiles of %d: %.1f GB of tiles in %.1f s\n", rows,
               cols, levels, band, tile, static_cast<double>(written) / 1e9, seconds_since(t0));
+  return 0;
+}
+
+/// Builds the levels of a scene generated with --level0-only with the streaming level builder.
+int build(const fs::path& dir) {
+  const auto t0 = Clock::now();
+  const hc::pipeline::StoredLevelsReport r = hc::pipeline::build_stored_levels(dir / "scene", dir / "scratch");
+  std::printf("build: %d levels in %.1f s, %.2f GB of tiles, peak buffers %.1f MB, scratch %.2f GB, peak RSS %.0f MB\n",
+              r.levels_built, seconds_since(t0), static_cast<double>(r.bytes) / 1e9,
+              static_cast<double>(r.peak_buffer_bytes) / (1024.0 * 1024.0), static_cast<double>(r.scratch_bytes) / 1e9,
+              peak_rss_mb());
+  for (std::size_t k = 0; k < r.depth_seconds.size(); ++k) {
+    std::printf("  level %zu: depth %.2f s, layers %.2f s\n", k + 1, r.depth_seconds[k], r.layers_seconds[k]);
+  }
   return 0;
 }
 
@@ -200,9 +221,10 @@ int open_and_switch(const fs::path& dir, int switches, unsigned seed, bool drop,
 }  // namespace
 
 int main(int argc, char** argv) {
-  if (argc < 3 || (std::string(argv[1]) != "generate" && std::string(argv[1]) != "open")) {
+  if (argc < 3 || (std::string(argv[1]) != "generate" && std::string(argv[1]) != "open" && std::string(argv[1]) != "build")) {
     std::cerr << "usage: tiled_scene_bench generate DIR [--rows R] [--cols C] [--band B] [--tile T] [--colour] [--min-cells M]\n"
-                 "                                  [--window-cells W]\n"
+                 "                                  [--window-cells W] [--level0-only]\n"
+                 "       tiled_scene_bench build DIR\n"
                  "       tiled_scene_bench open DIR [--switches N] [--seed S] [--drop-caches] [--budget-mb M]\n";
     return 2;
   }
@@ -210,7 +232,11 @@ int main(int argc, char** argv) {
     if (std::string(argv[1]) == "generate") {
       return generate(argv[2], arg_int(argc, argv, "--rows", 32768), arg_int(argc, argv, "--cols", 65536),
                       arg_int(argc, argv, "--band", 4096), arg_int(argc, argv, "--tile", 256), has_flag(argc, argv, "--colour"),
-                      arg_int(argc, argv, "--min-cells", 64), arg_int(argc, argv, "--window-cells", 200));
+                      arg_int(argc, argv, "--min-cells", 64), arg_int(argc, argv, "--window-cells", 200),
+                      has_flag(argc, argv, "--level0-only"));
+    }
+    if (std::string(argv[1]) == "build") {
+      return build(argv[2]);
     }
     return open_and_switch(argv[2], arg_int(argc, argv, "--switches", 300),
                            static_cast<unsigned>(arg_int(argc, argv, "--seed", 1)), has_flag(argc, argv, "--drop-caches"),
