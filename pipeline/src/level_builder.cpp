@@ -1,6 +1,7 @@
 #include "hc/pipeline/level_builder.hpp"
 
 #include "image_io.hpp"
+#include "posix_io.hpp"
 #include "stage_util.hpp"
 #include "tiled_layers.hpp"
 
@@ -10,17 +11,15 @@
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 
-#include <fcntl.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <array>
 #include <cerrno>
 #include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <limits>
-#include <memory>
-#include <optional>
 
 namespace hc::pipeline {
 
@@ -75,54 +74,36 @@ struct LayerOut {
 };
 
 /// The scratch file of a level's s values: one tile² block of doubles per tile, tile order.
+/// Registered for the signal clean-up while it lives and removed when it goes (LiveScratchFile).
 class ScratchFile {
  public:
-  ScratchFile(const fs::path& dir, int level) {
+  ScratchFile(const fs::path& dir, int level)
+      : live_(dir / ("hapticloud-levels-s-" + std::to_string(::getpid()) + "-L" + std::to_string(level) + ".bin")) {
     std::error_code ec;
     fs::create_directories(dir, ec);
-    path_ = dir / ("hapticloud-levels-s-" + std::to_string(::getpid()) + "-L" + std::to_string(level) + ".bin");
-    fd_ = ::open(path_.c_str(), O_RDWR | O_CREAT | O_TRUNC | O_CLOEXEC, 0600);
-    if (fd_ < 0) {
-      throw InputError(path_.string() + ": cannot create the level builder's scratch file (scale.scratch): " +
+    file_ = open_live_scratch_file(live_.path(), "w+b");
+    if (file_ == nullptr) {
+      throw InputError(live_.path().string() + ": cannot create the level builder's scratch file (scale.scratch): " +
                        std::strerror(errno));
     }
   }
-  ~ScratchFile() {
-    if (fd_ >= 0) ::close(fd_);
-    std::error_code ec;
-    fs::remove(path_, ec);
-  }
+  ~ScratchFile() { std::fclose(file_); }  // before live_ removes the file
   ScratchFile(const ScratchFile&) = delete;
   ScratchFile& operator=(const ScratchFile&) = delete;
   void write(std::uint64_t offset, const void* data, std::size_t bytes) {
-    const char* p = static_cast<const char*>(data);
-    while (bytes > 0) {
-      const ssize_t n = ::pwrite(fd_, p, bytes, static_cast<off_t>(offset));
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) throw InputError(path_.string() + ": cannot write the scratch file: " + std::strerror(errno));
-      p += n;
-      offset += static_cast<std::uint64_t>(n);
-      bytes -= static_cast<std::size_t>(n);
-      size_ = std::max(size_, offset);
+    if (!detail::pwrite_full(::fileno(file_), data, bytes, offset)) {
+      throw InputError(live_.path().string() + ": cannot write the scratch file: " + std::strerror(errno));
     }
   }
   void read(std::uint64_t offset, void* data, std::size_t bytes) const {
-    char* p = static_cast<char*>(data);
-    while (bytes > 0) {
-      const ssize_t n = ::pread(fd_, p, bytes, static_cast<off_t>(offset));
-      if (n < 0 && errno == EINTR) continue;
-      if (n <= 0) throw InputError(path_.string() + ": cannot read the scratch file back: " + std::strerror(errno));
-      p += n;
-      offset += static_cast<std::uint64_t>(n);
-      bytes -= static_cast<std::size_t>(n);
+    if (!detail::pread_full(::fileno(file_), data, bytes, offset)) {
+      throw InputError(live_.path().string() + ": cannot read the scratch file back: " + std::strerror(errno));
     }
   }
-  std::uint64_t size() const { return size_; }
 
  private:
-  fs::path path_;
-  int fd_ = -1;
-  std::uint64_t size_ = 0;
+  LiveScratchFile live_;
+  std::FILE* file_ = nullptr;
 };
 
 /// Tiles of a level: the inner block of tile (tr, tc).
@@ -136,7 +117,6 @@ struct TileGrid {
     const int r0 = tr * tile, c0 = tc * tile;
     return {r0, c0, std::min(tile, rows - r0), std::min(tile, cols - c0)};
   }
-  std::size_t count() const { return static_cast<std::size_t>(tile_rows) * static_cast<std::size_t>(tile_cols); }
 };
 
 /// Copies a block (rows × cols, row-major) into a tile² buffer (rest `fill`).
@@ -293,35 +273,31 @@ class Builder {
     std::size_t depth_n = 0, error_n = 0, rgb_n = 0;
     {
       const TileGrid strips(fg, tile_);
-      std::vector<float> d, e, ch;
+      std::vector<float> d, e;
       std::vector<std::uint8_t> rgb;
       for (int tr = 0; tr < strips.tile_rows; ++tr) {
         const SampleWindow w{tr * tile_, 0, std::min(tile_, fg.rows - tr * tile_), fg.cols};
         const std::size_t n = static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols);
         d.resize(n);
         depth_in.read(w, d.data());
-        downsample_2x_reference(d.data(), n, depth_sum, depth_n, &depth_n, &depth_sum);
+        add_finite_values(d.data(), n, depth_sum, depth_n);
         if (has_colour_) {
+          // Each channel's mean over the samples with depth, as downsample_colour_2x's
+          // downsample_2x sums it (the channel's values as floats, row-major).
           rgb.resize(3 * n);
           colour_in.read(w, rgb.data());
-          ch.resize(n);
-          std::size_t m = 0;
-          for (std::size_t c = 0; c < 3; ++c) {
-            m = 0;
-            for (std::size_t i = 0; i < n; ++i) {
-              if (!std::isnan(d[i])) ch[m++] = rgb[3 * i + c];
-            }
-            std::size_t unused = 0;
-            downsample_2x_reference(ch.data(), m, rgb_sum[c], rgb_n, &unused, &rgb_sum[c]);
+          for (std::size_t i = 0; i < n; ++i) {
+            if (std::isnan(d[i])) continue;
+            for (std::size_t c = 0; c < 3; ++c) rgb_sum[c] += static_cast<float>(rgb[3 * i + c]);
+            ++rgb_n;
           }
-          rgb_n += m;
         }
         if (has_error_) {
           e.resize(n);
           error_in.read(w, e.data());
-          downsample_2x_reference(e.data(), n, error_sum, error_n, &error_n, &error_sum);
+          add_finite_values(e.data(), n, error_sum, error_n);
         }
-        note_buffer(n * (2 * sizeof(float) + 3 + sizeof(float)));
+        note_buffer(n * (2 * sizeof(float) + 3));  // depth, error, colour
       }
     }
     const double depth_ref = depth_n > 0 ? depth_sum / static_cast<double>(depth_n) : 0.0;

@@ -187,19 +187,13 @@ void downsample_2x_block(const float* fine, const SampleWindow& fine_window, int
   }
 }
 
-double downsample_2x_reference(const float* values, std::size_t count, double sum_before, std::size_t count_before,
-                               std::size_t* count_after, double* sum_after) {
-  double ref = sum_before;
-  std::size_t n = count_before;
+void add_finite_values(const float* values, std::size_t count, double& sum, std::size_t& finite) {
   for (std::size_t i = 0; i < count; ++i) {
     if (std::isfinite(values[i])) {
-      ref += values[i];
-      ++n;
+      sum += values[i];
+      ++finite;
     }
   }
-  if (count_after) *count_after = n;
-  if (sum_after) *sum_after = ref;
-  return n > 0 ? ref / static_cast<double>(n) : 0.0;
 }
 
 HeightField downsample_2x(const HeightField& fine, double sigma_cells, double valid_fraction) {
@@ -214,9 +208,11 @@ HeightField downsample_2x(const HeightField& fine, double sigma_cells, double va
   coarse.model_to_grid = fine.model_to_grid;
 
   // Reference height: sums relative to it keep float resolution far below a micrometre.
+  double sum = 0.0;
   std::size_t n_valid = 0;
-  const double ref = downsample_2x_reference(fine.data(), fine.values().size(), 0.0, 0, &n_valid, nullptr);
+  add_finite_values(fine.data(), fine.values().size(), sum, n_valid);
   if (n_valid == 0) return coarse;  // all no data
+  const double ref = sum / static_cast<double>(n_valid);
 
   const SampleWindow whole{0, 0, fg.rows, fg.cols};
   const int mid = cg.rows / 2;

@@ -92,12 +92,10 @@ HeightField downsample_2x(const HeightField& fine, double sigma_cells, double va
 /// Radius ⌈3σ⌉ [fine samples] of downsample_2x's kernel.
 int downsample_2x_radius_cells(double sigma_cells);
 
-/// downsample_2x's reference height [m]: the mean of the finite values, summed in double in the
-/// order given. For a grid read in pieces (row-major order kept), pass the running sum and count
-/// of the pieces before (0, 0 for the first) and take them back from *sum_after, *count_after.
-/// @return the mean of all finite values so far (0 when there is none).
-double downsample_2x_reference(const float* values, std::size_t count, double sum_before, std::size_t count_before,
-                               std::size_t* count_after, double* sum_after);
+/// Adds the finite values among `count` floats to `sum` (in double, in the order given) and
+/// counts them in `finite`. downsample_2x's reference height [m] is sum / finite over its whole
+/// grid in row-major order; a grid read in row-major pieces gives the same bits.
+void add_finite_values(const float* values, std::size_t count, double& sum, std::size_t& finite);
 
 /// downsample_2x for a block of the coarse level (issue 14, a level built tile by tile):
 /// `out_block` of the coarse grid of a fine grid of fine_rows × fine_cols samples, from
@@ -105,7 +103,7 @@ double downsample_2x_reference(const float* values, std::size_t count, double su
 /// (fine_window.row0, fine_window.col0), which must hold every fine sample the block's kernels
 /// reach (fine rows 2·row0 − radius … 2·(row0 + rows − 1) + radius clipped to the grid, likewise
 /// columns; radius = downsample_2x_radius_cells). `ref` must be the whole fine grid's
-/// downsample_2x_reference. Writes out_block.rows × out_block.cols values (row-major) to `out`,
+/// reference height (add_finite_values). Writes out_block.rows × out_block.cols values (row-major) to `out`,
 /// equal bit for bit to the same samples of downsample_2x on the whole grid.
 /// @throws hc::ConfigError as downsample_2x; std::invalid_argument when the window misses a
 ///         kernel sample or the block leaves the coarse grid.
