@@ -7,6 +7,7 @@
 
 #include "hc/common/error.hpp"
 #include "hc/common/format.hpp"
+#include "hc/pipeline/exact_sum.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/surface_layers.hpp"
@@ -180,6 +181,54 @@ double select_positive_s(const ScratchFile& file, const std::vector<std::uint64_
   }
 }
 
+/// A level's level-wide values, summed exactly (ExactFloatSum) so that its tiles give them in any
+/// order: the mean heights downsample_2x takes as references (depth; each colour channel over
+/// the samples with depth, as downsample_colour_2x sums them; the cell error) and the band of
+/// valid depths compute_surface_layers takes.
+struct LevelStats {
+  ExactFloatSum depth_sum, error_sum;
+  std::size_t depth_n = 0, error_n = 0, rgb_n = 0;
+  std::array<double, 3> rgb_sum{0.0, 0.0, 0.0};  // integers below 2^53: exact in any order
+  float vmin = std::numeric_limits<float>::max(), vmax = std::numeric_limits<float>::lowest();
+
+  /// Adds a block of n samples: depth (with colour when given) and error, each when not nullptr.
+  void add(const float* depth, const std::uint8_t* rgb, const float* error, std::size_t n) {
+    for (std::size_t i = 0; depth != nullptr && i < n; ++i) {
+      const float v = depth[i];
+      if (std::isnan(v)) continue;
+      depth_sum.add(v);
+      ++depth_n;
+      vmin = std::min(vmin, v);
+      vmax = std::max(vmax, v);
+      if (rgb != nullptr) {
+        for (std::size_t c = 0; c < 3; ++c) rgb_sum[c] += static_cast<float>(rgb[3 * i + c]);
+        ++rgb_n;
+      }
+    }
+    if (error != nullptr) add_finite_values(error, n, error_sum, error_n);
+  }
+  double depth_ref() const { return depth_n > 0 ? depth_sum.value() / static_cast<double>(depth_n) : 0.0; }
+  double error_ref() const { return error_n > 0 ? error_sum.value() / static_cast<double>(error_n) : 0.0; }
+  double rgb_ref(std::size_t c) const { return rgb_n > 0 ? rgb_sum[c] / static_cast<double>(rgb_n) : 0.0; }
+};
+
+/// Runs work(0, i) and work(1, i + 1) for i = 0, 2, 4, … < count on two threads (each worker
+/// keeps its own readers and buffers), then emit(i) and emit(i + 1) in order on this thread, so
+/// that tiles are written in order and at most two are held.
+template <class Work, class Emit>
+void pairs_on_two(int count, Work&& work, Emit&& emit) {
+  for (int i = 0; i < count; i += 2) {
+    if (i + 1 < count) {
+      detail::run_two([&] { work(1, i + 1); }, [&] { work(0, i); });
+      emit(i);
+      emit(i + 1);
+    } else {
+      work(0, i);
+      emit(i);
+    }
+  }
+}
+
 class Builder {
  public:
   Builder(const fs::path& scene_dir, const fs::path& scratch, const LevelProgress& progress)
@@ -215,21 +264,24 @@ class Builder {
         if (!keep) fs::remove_all(dir, e);
       }
     } guard{root};
+    // Level 0's level-wide values, in one pass over its tiles; each coarser level's come from the
+    // pass that writes it.
+    LevelStats stats = level0_stats();
     if (!has_layers_) {
       make_dir(0);
       report_.level0_layers = true;
       report_.depth_seconds.push_back(0.0);
       const auto tl = Clock::now();
-      build_layers(0);
+      build_layers(0, stats);
       report_.layers_seconds.push_back(seconds_since(tl));
     }
     for (int k = 1; k < levels_; ++k) {
       make_dir(k);
       const auto td = Clock::now();
-      build_depth(k);
+      stats = build_depth(k, stats);
       report_.depth_seconds.push_back(seconds_since(td));
       const auto tl = Clock::now();
-      build_layers(k);
+      build_layers(k, stats);
       report_.layers_seconds.push_back(seconds_since(tl));
       ++report_.levels_built;
     }
@@ -257,54 +309,71 @@ class Builder {
     if (progress_) progress_(what, fraction);
   }
 
-  /// Level k's depth, colour and cell error from level k − 1's stored tiles.
-  void build_depth(int k) {
-    const GridGeometry& fg = geometry_[static_cast<std::size_t>(k - 1)];
-    const GridGeometry& cg = geometry_[static_cast<std::size_t>(k)];
-    const LodOptions& lod = scene_.lod;
+  /// Level 0's level-wide values, tile by tile. @throws hc::InputError for an infinite depth.
+  LevelStats level0_stats() {
+    const GridGeometry& g = geometry_[0];
     LayerIn depth_in, colour_in, error_in;
-    depth_in.open(file(k - 1, "depth"), TileSamples::kFloat32, fg);
-    if (has_colour_) colour_in.open(file(k - 1, "colour"), TileSamples::kRgb8, fg);
-    if (has_error_) error_in.open(file(k - 1, "cell_error"), TileSamples::kFloat32, fg);
-
-    // Mean heights of level k − 1 (downsample_2x's references), summed in row-major order.
-    double depth_sum = 0.0, error_sum = 0.0;
-    std::array<double, 3> rgb_sum{0.0, 0.0, 0.0};
-    std::size_t depth_n = 0, error_n = 0, rgb_n = 0;
-    {
-      const TileGrid strips(fg, tile_);
-      std::vector<float> d, e;
-      std::vector<std::uint8_t> rgb;
-      for (int tr = 0; tr < strips.tile_rows; ++tr) {
-        const SampleWindow w{tr * tile_, 0, std::min(tile_, fg.rows - tr * tile_), fg.cols};
-        const std::size_t n = static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols);
+    depth_in.open(file(0, "depth"), TileSamples::kFloat32, g);
+    if (has_colour_) colour_in.open(file(0, "colour"), TileSamples::kRgb8, g);
+    if (has_error_) error_in.open(file(0, "cell_error"), TileSamples::kFloat32, g);
+    LevelStats stats;
+    const TileGrid tiles(g, tile_);
+    std::vector<float> d, e;
+    std::vector<std::uint8_t> rgb;
+    for (int tr = 0; tr < tiles.tile_rows; ++tr) {
+      for (int tc = 0; tc < tiles.tile_cols; ++tc) {
+        const SampleWindow b = tiles.block(tr, tc);
+        const std::size_t n = static_cast<std::size_t>(b.rows) * static_cast<std::size_t>(b.cols);
         d.resize(n);
-        depth_in.read(w, d.data());
-        add_finite_values(d.data(), n, depth_sum, depth_n);
-        if (has_colour_) {
-          // Each channel's mean over the samples with depth, as downsample_colour_2x's
-          // downsample_2x sums it (the channel's values as floats, row-major).
-          rgb.resize(3 * n);
-          colour_in.read(w, rgb.data());
-          for (std::size_t i = 0; i < n; ++i) {
-            if (std::isnan(d[i])) continue;
-            for (std::size_t c = 0; c < 3; ++c) rgb_sum[c] += static_cast<float>(rgb[3 * i + c]);
-            ++rgb_n;
+        depth_in.read(b, d.data());
+        for (std::size_t i = 0; i < n; ++i) {
+          if (std::isinf(d[i])) {
+            throw InputError(depth_in.file.string() + ": sample (" +
+                             std::to_string(b.row0 + static_cast<int>(i / static_cast<std::size_t>(b.cols))) + ", " +
+                             std::to_string(b.col0 + static_cast<int>(i % static_cast<std::size_t>(b.cols))) +
+                             ") is infinite: expected a finite height in metres or NaN (no data)");
           }
+        }
+        if (has_colour_) {
+          rgb.resize(3 * n);
+          colour_in.read(b, rgb.data());
         }
         if (has_error_) {
           e.resize(n);
-          error_in.read(w, e.data());
-          add_finite_values(e.data(), n, error_sum, error_n);
+          error_in.read(b, e.data());
         }
-        note_buffer(n * (2 * sizeof(float) + 3));  // depth, error, colour
+        stats.add(d.data(), has_colour_ ? rgb.data() : nullptr, has_error_ ? e.data() : nullptr, n);
+        note_buffer(n * (2 * sizeof(float) + 3));
       }
+      tell("level 0 mean heights", static_cast<double>(tr + 1) / tiles.tile_rows);
     }
-    const double depth_ref = depth_n > 0 ? depth_sum / static_cast<double>(depth_n) : 0.0;
-    const double error_ref = error_n > 0 ? error_sum / static_cast<double>(error_n) : 0.0;
-    std::array<double, 3> rgb_ref{};
-    for (std::size_t c = 0; c < 3; ++c) rgb_ref[c] = rgb_n > 0 ? rgb_sum[c] / static_cast<double>(rgb_n) : 0.0;
+    return stats;
+  }
 
+  /// Level k's depth, colour and cell error from level k − 1's stored tiles, whose level-wide
+  /// values are `fine`. @return level k's level-wide values (of the samples written).
+  LevelStats build_depth(int k, const LevelStats& fine) {
+    const GridGeometry& fg = geometry_[static_cast<std::size_t>(k - 1)];
+    const GridGeometry& cg = geometry_[static_cast<std::size_t>(k)];
+    const LodOptions& lod = scene_.lod;
+    const double depth_ref = fine.depth_ref(), error_ref = fine.error_ref();
+    const std::array<double, 3> rgb_ref{fine.rgb_ref(0), fine.rgb_ref(1), fine.rgb_ref(2)};
+    const bool colour = has_colour_ && fine.rgb_n > 0, error = has_error_ && fine.error_n > 0;
+
+    // Each worker: its own readers of level k − 1 and its buffers; the block it made last.
+    struct Worker {
+      LayerIn depth_in, colour_in, error_in;
+      std::vector<float> fine, fine_e, chan, block, block_c, block_e;
+      std::vector<std::uint8_t> fine_rgb, block_rgb;
+      bool no_depth = true;
+      SampleWindow b{};
+    };
+    std::array<Worker, 2> workers;
+    for (Worker& w : workers) {
+      w.depth_in.open(file(k - 1, "depth"), TileSamples::kFloat32, fg);
+      if (has_colour_) w.colour_in.open(file(k - 1, "colour"), TileSamples::kRgb8, fg);
+      if (has_error_) w.error_in.open(file(k - 1, "cell_error"), TileSamples::kFloat32, fg);
+    }
     LayerOut depth_out, colour_out, error_out;
     depth_out.open(file(k, "depth"), cg, tile_, TileSamples::kFloat32);
     if (has_colour_) colour_out.open(file(k, "colour"), cg, tile_, TileSamples::kRgb8);
@@ -312,61 +381,80 @@ class Builder {
     const double sigma = lod.antialias_sigma_cells, vf = lod.valid_fraction;
     const int rad = downsample_2x_radius_cells(sigma);
     const TileGrid tiles(cg, tile_);
-    if (depth_n > 0) {
-      std::vector<float> fine, fine_e, chan, block, block_c, tile_f;
-      std::vector<std::uint8_t> fine_rgb, block_rgb, tile_rgb;
+    LevelStats coarse;
+    if (fine.depth_n > 0) {
+      std::vector<float> tile_f;
+      std::vector<std::uint8_t> tile_rgb;
       for (int tr = 0; tr < tiles.tile_rows; ++tr) {
-        for (int tc = 0; tc < tiles.tile_cols; ++tc) {
+        const auto work = [&](int wi, int tc) {
+          Worker& w = workers[static_cast<std::size_t>(wi)];
           const SampleWindow b = tiles.block(tr, tc);
+          w.b = b;
           const int r0 = std::max(0, 2 * b.row0 - rad), r1 = std::min(fg.rows - 1, 2 * (b.row0 + b.rows - 1) + rad);
           const int c0 = std::max(0, 2 * b.col0 - rad), c1 = std::min(fg.cols - 1, 2 * (b.col0 + b.cols - 1) + rad);
-          const SampleWindow w{r0, c0, r1 - r0 + 1, c1 - c0 + 1};
-          const std::size_t n = static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols);
+          const SampleWindow win{r0, c0, r1 - r0 + 1, c1 - c0 + 1};
+          const std::size_t n = static_cast<std::size_t>(win.rows) * static_cast<std::size_t>(win.cols);
           const std::size_t bn = static_cast<std::size_t>(b.rows) * static_cast<std::size_t>(b.cols);
-          fine.resize(n);
-          depth_in.read(w, fine.data());
+          w.fine.resize(n);
+          w.depth_in.read(win, w.fine.data());
           // A window without depth leaves the depth and colour tiles sparse (no data, colour 0).
-          const bool no_depth = std::all_of(fine.begin(), fine.end(), [](float v) { return std::isnan(v); });
-          block.resize(bn);
-          if (!no_depth) {
-            downsample_2x_block(fine.data(), w, fg.rows, fg.cols, depth_ref, sigma, vf, b, block.data());
-            to_tile(block.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
-            depth_out.write(tr, tc, tile_f.data());
+          w.no_depth = std::all_of(w.fine.begin(), w.fine.end(), [](float v) { return std::isnan(v); });
+          if (error) {  // the error layer is decimated on its own, as downsample_2x does it
+            w.fine_e.resize(n);
+            w.error_in.read(win, w.fine_e.data());
+            w.block_e.resize(bn);
+            downsample_2x_block(w.fine_e.data(), win, fg.rows, fg.cols, error_ref, sigma, vf, b, w.block_e.data());
           }
-          if (has_colour_ && !no_depth) {
-            fine_rgb.resize(3 * n);
-            colour_in.read(w, fine_rgb.data());
-            chan.resize(n);
-            block_c.resize(bn);
-            block_rgb.assign(3 * bn, 0);
-            for (std::size_t c = 0; c < 3; ++c) {
-              if (rgb_n == 0) break;
-              for (std::size_t i = 0; i < n; ++i) chan[i] = std::isnan(fine[i]) ? kNaN : static_cast<float>(fine_rgb[3 * i + c]);
-              downsample_2x_block(chan.data(), w, fg.rows, fg.cols, rgb_ref[c], sigma, vf, b, block_c.data());
-              for (std::size_t i = 0; i < bn; ++i) {
-                const float v = block_c[i];
-                if (!std::isnan(v)) block_rgb[3 * i + c] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+          if (w.no_depth) return;
+          w.block.resize(bn);
+          downsample_2x_block(w.fine.data(), win, fg.rows, fg.cols, depth_ref, sigma, vf, b, w.block.data());
+          if (has_colour_) {
+            w.block_rgb.assign(3 * bn, 0);
+            if (colour) {
+              w.fine_rgb.resize(3 * n);
+              w.colour_in.read(win, w.fine_rgb.data());
+              w.chan.resize(n);
+              w.block_c.resize(bn);
+              for (std::size_t c = 0; c < 3; ++c) {
+                for (std::size_t i = 0; i < n; ++i) w.chan[i] = std::isnan(w.fine[i]) ? kNaN : static_cast<float>(w.fine_rgb[3 * i + c]);
+                downsample_2x_block(w.chan.data(), win, fg.rows, fg.cols, rgb_ref[c], sigma, vf, b, w.block_c.data());
+                for (std::size_t i = 0; i < bn; ++i) {
+                  const float v = w.block_c[i];
+                  if (!std::isnan(v)) w.block_rgb[3 * i + c] = static_cast<std::uint8_t>(std::clamp(std::lround(v), 0L, 255L));
+                }
               }
             }
-            to_tile(block_rgb.data(), b.rows, b.cols, tile_, 3, std::uint8_t{0}, tile_rgb);
+          }
+        };
+        const auto emit = [&](int tc) {
+          const Worker& w = workers[static_cast<std::size_t>(tc % 2)];
+          const SampleWindow& b = w.b;
+          const std::size_t bn = static_cast<std::size_t>(b.rows) * static_cast<std::size_t>(b.cols);
+          if (error) {
+            to_tile(w.block_e.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+            error_out.write(tr, tc, tile_f.data());
+            coarse.add(nullptr, nullptr, w.block_e.data(), bn);
+          }
+          if (w.no_depth) return;  // the depth and colour tiles stay sparse
+          to_tile(w.block.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+          depth_out.write(tr, tc, tile_f.data());
+          if (has_colour_) {
+            to_tile(w.block_rgb.data(), b.rows, b.cols, tile_, 3, std::uint8_t{0}, tile_rgb);
             colour_out.write(tr, tc, tile_rgb.data());
           }
-          if (has_error_ && error_n > 0) {
-            fine_e.resize(n);
-            error_in.read(w, fine_e.data());
-            block_c.resize(bn);
-            downsample_2x_block(fine_e.data(), w, fg.rows, fg.cols, error_ref, sigma, vf, b, block_c.data());
-            to_tile(block_c.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
-            error_out.write(tr, tc, tile_f.data());
-          }
-          note_buffer(n * (3 * sizeof(float) + 3) + bn * (2 * sizeof(float) + 3));
-        }
+          coarse.add(w.block.data(), has_colour_ ? w.block_rgb.data() : nullptr, nullptr, bn);
+        };
+        pairs_on_two(tiles.tile_cols, work, emit);
+        const SampleWindow b = tiles.block(tr, 0);
+        const std::size_t n = static_cast<std::size_t>(2 * b.rows + 2 * rad + 1) * static_cast<std::size_t>(2 * tile_ + 2 * rad + 1);
+        note_buffer(2 * (n * (3 * sizeof(float) + 3) + static_cast<std::size_t>(tile_) * static_cast<std::size_t>(tile_) * (3 * sizeof(float) + 3)));
         tell("level " + std::to_string(k) + " depth", static_cast<double>(tr + 1) / tiles.tile_rows);
       }
     }
     report_.bytes += depth_out.finish();
     if (has_colour_) report_.bytes += colour_out.finish();
     if (has_error_) report_.bytes += error_out.finish();
+    return coarse;
   }
 
   /// The window a layer block reads: the block plus the halo, clipped to the level, its first
@@ -386,14 +474,13 @@ class Builder {
     return {r0, c0, r1 - r0, c1 - c0};
   }
 
-  /// The surface layers of level k from its stored depth (compute_surface_layers, tile by tile).
-  void build_layers(int k) {
+  /// The surface layers of level k from its stored depth, whose level-wide values are `stats`
+  /// (compute_surface_layers, tile by tile).
+  void build_layers(int k, const LevelStats& stats) {
     const GridGeometry& g = geometry_[static_cast<std::size_t>(k)];
     const SurfaceLayerOptions& opt = scene_.layer_options;
     const int window_cells = scene_.lod.window_cells;
     const std::string name = "level " + std::to_string(k);
-    LayerIn depth_in;
-    depth_in.open(file(k, "depth"), TileSamples::kFloat32, g);
     LayerOut env_out, tex_out, mud_out, mus_out;
     env_out.open(file(k, "envelope"), g, tile_, TileSamples::kFloat32);
     tex_out.open(file(k, "texture"), g, tile_, TileSamples::kFloat32);
@@ -402,69 +489,62 @@ class Builder {
     const auto finish = [&] {
       for (LayerOut* o : {&env_out, &tex_out, &mud_out, &mus_out}) report_.bytes += o->finish();
     };
-
-    // The mean height and the band of valid values, in row-major order (compute_surface_layers).
-    double sum = 0.0;
-    std::size_t valid = 0;
-    float vmin = std::numeric_limits<float>::max(), vmax = std::numeric_limits<float>::lowest();
-    {
-      std::vector<float> d;
-      for (int r0 = 0; r0 < g.rows; r0 += tile_) {
-        const SampleWindow w{r0, 0, std::min(tile_, g.rows - r0), g.cols};
-        d.resize(static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols));
-        depth_in.read(w, d.data());
-        for (std::size_t i = 0; i < d.size(); ++i) {
-          const float v = d[i];
-          if (std::isnan(v)) continue;
-          if (std::isinf(v)) {
-            throw InputError(depth_in.file.string() + ": sample (" + std::to_string(r0 + static_cast<int>(i / static_cast<std::size_t>(g.cols))) + ", " +
-                             std::to_string(i % static_cast<std::size_t>(g.cols)) +
-                             ") is infinite: expected a finite height in metres or NaN (no data)");
-          }
-          ++valid;
-          sum += v;
-          vmin = std::min(vmin, v);
-          vmax = std::max(vmax, v);
-        }
-        note_buffer(d.size() * sizeof(float));
-      }
-    }
-    if (valid == 0) {  // as the pyramid: every layer no data
+    if (stats.depth_n == 0) {  // as the pyramid: every layer no data
       finish();
       return;
     }
     SurfaceLayerLevelValues values;
-    values.ref_m = sum / static_cast<double>(valid);
-    values.band_m[0] = static_cast<float>(static_cast<double>(vmin) - values.ref_m);
-    values.band_m[1] = static_cast<float>(static_cast<double>(vmax) - values.ref_m);
+    values.ref_m = stats.depth_ref();
+    values.band_m[0] = static_cast<float>(static_cast<double>(stats.vmin) - values.ref_m);
+    values.band_m[1] = static_cast<float>(static_cast<double>(stats.vmax) - values.ref_m);
     const int halo = surface_layers_halo_cells(opt);
     const int rad = surface_layers_radius_cells(opt);
     const TileGrid tiles(g, tile_);
-    std::vector<float> win;
-    bool empty = false;  // the last window read holds no valid sample
-    const auto read_window = [&](const SampleWindow& b) {
-      const SampleWindow w = layer_window(b, g, halo, rad);
-      win.resize(static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols));
-      depth_in.read(w, win.data());
-      empty = std::all_of(win.begin(), win.end(), [](float v) { return std::isnan(v); });
-      // The window and about 14 working images of its padded size (fill, filter, curvature).
-      note_buffer(static_cast<std::size_t>(w.rows + 2 * rad + 1) * static_cast<std::size_t>(w.cols + 2 * rad) * 14 * 4);
-      return w;
+
+    // Each worker: its own reader of level k's depth, its window and the block it made last.
+    struct Worker {
+      LayerIn depth_in;
+      std::vector<float> win;
+      bool empty = true;  // the window holds no valid sample
+      SampleWindow b{};
+      SurfaceLayerBlock out;
     };
+    std::array<Worker, 2> workers;
+    for (Worker& w : workers) w.depth_in.open(file(k, "depth"), TileSamples::kFloat32, g);
+    const auto read_window = [&](Worker& w, int tr, int tc) {
+      w.b = tiles.block(tr, tc);
+      const SampleWindow win = layer_window(w.b, g, halo, rad);
+      w.win.resize(static_cast<std::size_t>(win.rows) * static_cast<std::size_t>(win.cols));
+      w.depth_in.read(win, w.win.data());
+      w.empty = std::all_of(w.win.begin(), w.win.end(), [](float v) { return std::isnan(v); });
+      return win;
+    };
+    {
+      // Two windows and about 14 working images of their padded size (fill, filter, curvature).
+      const SampleWindow win = layer_window(tiles.block(0, 0), g, halo, rad);
+      note_buffer(2 * static_cast<std::size_t>(std::min(g.rows, tile_ + 2 * halo) + 2 * rad + 1) *
+                  static_cast<std::size_t>(std::min(g.cols, tile_ + 2 * halo + 64) + 2 * rad) * 14 * 4);
+      static_cast<void>(win);
+    }
 
     // Pass 1: the range of the bilateral filter's whole filled input.
     float fmin = values.band_m[0], fmax = values.band_m[1];
     for (int tr = 0; tr < tiles.tile_rows; ++tr) {
-      for (int tc = 0; tc < tiles.tile_cols; ++tc) {
-        const SampleWindow b = tiles.block(tr, tc);
-        const SampleWindow w = read_window(b);
-        // No valid sample within the halo: every cell the block owns is beyond the fill's reach,
-        // where it holds a valid value, so it cannot widen the range.
-        if (empty) continue;
-        const SurfaceLayerBlock fb = surface_layers_block(win.data(), w, g, b, values, true, opt, window_cells);
-        fmin = std::min(fmin, fb.fill_min_m);
-        fmax = std::max(fmax, fb.fill_max_m);
-      }
+      pairs_on_two(
+          tiles.tile_cols,
+          [&](int wi, int tc) {
+            Worker& w = workers[static_cast<std::size_t>(wi)];
+            const SampleWindow win = read_window(w, tr, tc);
+            // No valid sample within the halo: every cell the block owns is beyond the fill's
+            // reach, where it holds a valid value, so it cannot widen the range.
+            if (!w.empty) w.out = surface_layers_block(w.win.data(), win, g, w.b, values, true, opt, window_cells);
+          },
+          [&](int tc) {
+            const Worker& w = workers[static_cast<std::size_t>(tc % 2)];
+            if (w.empty) return;
+            fmin = std::min(fmin, w.out.fill_min_m);
+            fmax = std::max(fmax, w.out.fill_max_m);
+          });
       tell(name + " layers (fill range)", static_cast<double>(tr + 1) / tiles.tile_rows);
     }
     values.fill_range_m[0] = fmin;
@@ -478,22 +558,28 @@ class Builder {
     std::vector<float> tile_f;
     std::vector<double> tile_s;
     for (int tr = 0; tr < tiles.tile_rows; ++tr) {
-      for (int tc = 0; tc < tiles.tile_cols; ++tc) {
-        const SampleWindow b = tiles.block(tr, tc);
-        const SampleWindow w = read_window(b);
-        const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
-                                    static_cast<std::uint64_t>(tc);
-        if (empty) continue;  // no data: the layer tiles stay sparse, and nothing goes to the scratch file
-        const SurfaceLayerBlock lb = surface_layers_block(win.data(), w, g, b, values, false, opt, window_cells);
-        to_tile(lb.envelope_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
-        env_out.write(tr, tc, tile_f.data());
-        to_tile(lb.texture_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
-        tex_out.write(tr, tc, tile_f.data());
-        to_tile(lb.s.data(), b.rows, b.cols, tile_, 1, -1.0, tile_s);
-        for (double s : lb.s) positive += s > 0.0 && std::isfinite(s) ? 1U : 0U;
-        scratch.write(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
-        with_data.push_back(index);
-      }
+      pairs_on_two(
+          tiles.tile_cols,
+          [&](int wi, int tc) {
+            Worker& w = workers[static_cast<std::size_t>(wi)];
+            const SampleWindow win = read_window(w, tr, tc);
+            if (!w.empty) w.out = surface_layers_block(w.win.data(), win, g, w.b, values, false, opt, window_cells);
+          },
+          [&](int tc) {
+            const Worker& w = workers[static_cast<std::size_t>(tc % 2)];
+            if (w.empty) return;  // no data: the layer tiles stay sparse, and nothing goes to the scratch file
+            const SampleWindow& b = w.b;
+            const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
+                                        static_cast<std::uint64_t>(tc);
+            to_tile(w.out.envelope_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+            env_out.write(tr, tc, tile_f.data());
+            to_tile(w.out.texture_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+            tex_out.write(tr, tc, tile_f.data());
+            to_tile(w.out.s.data(), b.rows, b.cols, tile_, 1, -1.0, tile_s);
+            for (double s : w.out.s) positive += s > 0.0 && std::isfinite(s) ? 1U : 0U;
+            scratch.write(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
+            with_data.push_back(index);
+          });
       tell(name + " layers (envelope)", static_cast<double>(tr + 1) / tiles.tile_rows);
     }
     report_.scratch_bytes = std::max<std::uint64_t>(report_.scratch_bytes, with_data.size() * tile_n * sizeof(double));

@@ -187,10 +187,10 @@ void downsample_2x_block(const float* fine, const SampleWindow& fine_window, int
   }
 }
 
-void add_finite_values(const float* values, std::size_t count, double& sum, std::size_t& finite) {
+void add_finite_values(const float* values, std::size_t count, ExactFloatSum& sum, std::size_t& finite) {
   for (std::size_t i = 0; i < count; ++i) {
     if (std::isfinite(values[i])) {
-      sum += values[i];
+      sum.add(values[i]);
       ++finite;
     }
   }
@@ -207,12 +207,13 @@ HeightField downsample_2x(const HeightField& fine, double sigma_cells, double va
   HeightField coarse(cg);
   coarse.model_to_grid = fine.model_to_grid;
 
-  // Reference height: sums relative to it keep float resolution far below a micrometre.
-  double sum = 0.0;
+  // Reference height: sums relative to it keep float resolution far below a micrometre. The
+  // mean is exact (ExactFloatSum), so a level built tile by tile gets the same bits.
+  ExactFloatSum sum;
   std::size_t n_valid = 0;
   add_finite_values(fine.data(), fine.values().size(), sum, n_valid);
   if (n_valid == 0) return coarse;  // all no data
-  const double ref = sum / static_cast<double>(n_valid);
+  const double ref = sum.value() / static_cast<double>(n_valid);
 
   const SampleWindow whole{0, 0, fg.rows, fg.cols};
   const int mid = cg.rows / 2;

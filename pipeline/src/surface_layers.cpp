@@ -1,6 +1,7 @@
 #include "hc/common/format.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/surface_layers.hpp"
+#include "hc/pipeline/exact_sum.hpp"
 
 #include "hc/common/error.hpp"
 
@@ -588,7 +589,7 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   const std::size_t n = g.cell_count();
   const float* f = depth_m.data();
   std::size_t valid_cells = 0;
-  double sum = 0.0;
+  ExactFloatSum sum;  // exact: a level's blocks (surface_layers_block) get the same mean
   for (std::size_t i = 0; i < n; ++i) {
     if (std::isnan(f[i])) continue;
     if (std::isinf(f[i])) {
@@ -597,14 +598,14 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
                        ") is infinite: expected a finite height in metres or NaN (no data)");
     }
     ++valid_cells;
-    sum += f[i];
+    sum.add(f[i]);
   }
   if (valid_cells == 0) {
     throw InputError("surface layers: the depth grid (" + std::to_string(g.rows) + " × " + std::to_string(g.cols) +
                      " cells) has no valid cell: expected at least one finite height");
   }
   // Work relative to the mean height so float keeps sub-micrometre resolution.
-  const double ref = sum / static_cast<double>(valid_cells);
+  const double ref = sum.value() / static_cast<double>(valid_cells);
   cv::Mat fm(g.rows, g.cols, CV_32F);
   cv::Mat valid(g.rows, g.cols, CV_8U);
   for (int r = 0; r < g.rows; ++r) {

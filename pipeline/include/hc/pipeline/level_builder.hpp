@@ -1,8 +1,8 @@
 #pragma once
 /// @file level_builder.hpp
 /// The streaming level builder (issue 14, "a tiled scene"): the coarser levels of detail of a
-/// tiled scene folder made tile by tile from the stored level above, in memory bounded by a
-/// tile, its halo and one row of tiles, not by the grid. Equal bit for bit to the in-memory
+/// tiled scene folder made tile by tile from the stored level above, in memory bounded by two
+/// tiles and their halos (two threads), not by the grid. Equal bit for bit to the in-memory
 /// pyramid (LodPyramid, lod.hpp) and so to write_scene_levels. docs/scale.md, "The tiled scene".
 
 #include "hc/common/height_field.hpp"
@@ -23,8 +23,8 @@ struct StoredLevelsReport {
   std::uint64_t bytes = 0;      ///< bytes of tile data written (tiles without bytes count 0)
   /// Largest scratch file on disk [bytes]: a level's s, 8 bytes a sample, for its tiles with data only.
   std::uint64_t scratch_bytes = 0;
-  /// Largest buffers held at once [bytes]: one row of tiles of the level above for its mean
-  /// heights, or one block with its halo and the working images of the layers.
+  /// Largest buffers held at once [bytes]: two blocks with their halos (one per thread) and the
+  /// working images of the layers, or the median's candidates (at most 4 M doubles).
   std::size_t peak_buffer_bytes = 0;
   double seconds = 0.0;
   /// Per level built (index k − 1, or k for a level 0 given layers): seconds of the depth pass
@@ -44,13 +44,16 @@ using LevelProgress = std::function<void(const std::string& what, double fractio
 /// layer_options and lod options (scene.yaml), bit for bit: level k's depth, colour and error by
 /// downsample_2x_block from level k − 1's stored tiles plus the kernel's halo; its layers by
 /// surface_layers_block from level k's stored depth plus surface_layers_halo_cells, with the
-/// level-wide values read in passes over the stored tiles (mean heights in row-major order,
-/// the fill range, and the exact median of s for `level_median` by radix selection over a
-/// scratch file of s in `scratch_dir`, removed at the end). Each level is read and written
-/// once or a few times; nothing holds a whole level.
+/// level-wide values: the mean heights and the band of valid depths (exact sums, ExactFloatSum:
+/// level 0's in one pass over its tiles, every coarser level's while its tiles are written), the
+/// fill range (a pass over the blocks), and the exact median of s for `level_median` (radix
+/// selection over a scratch file of s in `scratch_dir`, removed at the end). Two threads make
+/// pairs of tiles of a row; the tiles are written in order. Each level is read and written once
+/// or a few times; nothing holds a whole level or a row of it.
 /// On an error the `levels/` folder it made is removed (the scene folder is otherwise untouched).
 /// @throws hc::InputError naming the folder or file: not a tiled scene, `levels/` already there,
-///         a layer file that cannot be read or written, a scratch file that cannot be made;
+///         a layer file that cannot be read or written, an infinite level-0 depth (naming the sample),
+///         a scratch file that cannot be made;
 ///         hc::ConfigError for the scene's options out of range.
 StoredLevelsReport build_stored_levels(const std::filesystem::path& scene_dir, const std::filesystem::path& scratch_dir,
                                        const LevelProgress& progress = {});

@@ -8,6 +8,7 @@
 /// budget (docs/lod.md). No OpenCV, PCL or yaml-cpp in this header.
 
 #include "hc/common/height_field.hpp"
+#include "hc/pipeline/exact_sum.hpp"
 #include "hc/pipeline/surface_layers.hpp"
 
 #include <cstddef>
@@ -92,10 +93,10 @@ HeightField downsample_2x(const HeightField& fine, double sigma_cells, double va
 /// Radius ⌈3σ⌉ [fine samples] of downsample_2x's kernel.
 int downsample_2x_radius_cells(double sigma_cells);
 
-/// Adds the finite values among `count` floats to `sum` (in double, in the order given) and
-/// counts them in `finite`. downsample_2x's reference height [m] is sum / finite over its whole
-/// grid in row-major order; a grid read in row-major pieces gives the same bits.
-void add_finite_values(const float* values, std::size_t count, double& sum, std::size_t& finite);
+/// Adds the finite values among `count` floats to `sum` (exactly: ExactFloatSum) and counts them
+/// in `finite`. downsample_2x's reference height [m] is sum.value() / finite over its whole grid;
+/// the grid's pieces (tiles, in any order or split between threads) give the same bits.
+void add_finite_values(const float* values, std::size_t count, ExactFloatSum& sum, std::size_t& finite);
 
 /// downsample_2x for a block of the coarse level (issue 14, a level built tile by tile):
 /// `out_block` of the coarse grid of a fine grid of fine_rows × fine_cols samples, from

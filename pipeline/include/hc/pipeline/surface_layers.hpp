@@ -101,7 +101,8 @@ double friction_mu_s(double x_m, double y_m, const SurfaceLayerOptions& options)
 /// grid (surface_layers_block) cannot see. For a block to equal the whole grid's layers bit for
 /// bit (the streaming level builder, level_builder.hpp) they must be the whole grid's.
 struct SurfaceLayerLevelValues {
-  /// Mean of the valid depths [m], summed in double in row-major order (as compute_surface_layers).
+  /// Mean of the valid depths [m]: their exact sum (ExactFloatSum) rounded, over their count (as
+  /// compute_surface_layers).
   double ref_m = 0.0;
   /// {min, max} over the valid cells of float(depth − ref_m) [m].
   float band_m[2] = {0.0f, 0.0f};
