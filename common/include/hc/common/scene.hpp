@@ -75,7 +75,7 @@ struct LodOptions {
                                      ///< fraction of the weight of its fine samples inside the grid, (0, 1]
   double antialias_sigma_cells = 1.0;///< lod.antialias_sigma_cells: Gaussian σ of the smoothing
                                      ///< before each 2× decimation [fine samples], [0.5, 4]
-  double memory_budget_mb = 512.0;   ///< lod.memory_budget_mb: bound on the cache of built levels
+  double memory_budget_mb = 384.0;   ///< lod.memory_budget_mb: bound on the cache of built levels
                                      ///< and windows [MiB] (the finest level is held outside it), (0, 1e6]
   int window_cells = 200;            ///< lod.window_cells: haptic window side [samples], [2, 4096]
   bool report = false;               ///< lod.report: levels table in the run report, by request
