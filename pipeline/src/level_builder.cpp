@@ -207,6 +207,17 @@ struct LevelStats {
     }
     if (error != nullptr) add_finite_values(error, n, error_sum, error_n);
   }
+  /// Adds another part's values (exact: as if its samples had been added here).
+  void merge(const LevelStats& o) {
+    depth_sum.merge(o.depth_sum);
+    error_sum.merge(o.error_sum);
+    depth_n += o.depth_n;
+    error_n += o.error_n;
+    rgb_n += o.rgb_n;
+    for (std::size_t c = 0; c < 3; ++c) rgb_sum[c] += o.rgb_sum[c];
+    vmin = std::min(vmin, o.vmin);
+    vmax = std::max(vmax, o.vmax);
+  }
   double depth_ref() const { return depth_n > 0 ? depth_sum.value() / static_cast<double>(depth_n) : 0.0; }
   double error_ref() const { return error_n > 0 ? error_sum.value() / static_cast<double>(error_n) : 0.0; }
   double rgb_ref(std::size_t c) const { return rgb_n > 0 ? rgb_sum[c] / static_cast<double>(rgb_n) : 0.0; }
@@ -309,44 +320,56 @@ class Builder {
     if (progress_) progress_(what, fraction);
   }
 
-  /// Level 0's level-wide values, tile by tile. @throws hc::InputError for an infinite depth.
+  /// Level 0's level-wide values, tile by tile (pairs on two threads, merged exactly).
+  /// @throws hc::InputError for an infinite depth, naming the file and the sample.
   LevelStats level0_stats() {
     const GridGeometry& g = geometry_[0];
-    LayerIn depth_in, colour_in, error_in;
-    depth_in.open(file(0, "depth"), TileSamples::kFloat32, g);
-    if (has_colour_) colour_in.open(file(0, "colour"), TileSamples::kRgb8, g);
-    if (has_error_) error_in.open(file(0, "cell_error"), TileSamples::kFloat32, g);
+    struct Worker {
+      LayerIn depth_in, colour_in, error_in;
+      std::vector<float> d, e;
+      std::vector<std::uint8_t> rgb;
+      LevelStats part;
+    };
+    std::array<Worker, 2> workers;
+    for (Worker& w : workers) {
+      w.depth_in.open(file(0, "depth"), TileSamples::kFloat32, g);
+      if (has_colour_) w.colour_in.open(file(0, "colour"), TileSamples::kRgb8, g);
+      if (has_error_) w.error_in.open(file(0, "cell_error"), TileSamples::kFloat32, g);
+    }
     LevelStats stats;
     const TileGrid tiles(g, tile_);
-    std::vector<float> d, e;
-    std::vector<std::uint8_t> rgb;
     for (int tr = 0; tr < tiles.tile_rows; ++tr) {
-      for (int tc = 0; tc < tiles.tile_cols; ++tc) {
-        const SampleWindow b = tiles.block(tr, tc);
-        const std::size_t n = static_cast<std::size_t>(b.rows) * static_cast<std::size_t>(b.cols);
-        d.resize(n);
-        depth_in.read(b, d.data());
-        for (std::size_t i = 0; i < n; ++i) {
-          if (std::isinf(d[i])) {
-            throw InputError(depth_in.file.string() + ": sample (" +
-                             std::to_string(b.row0 + static_cast<int>(i / static_cast<std::size_t>(b.cols))) + ", " +
-                             std::to_string(b.col0 + static_cast<int>(i % static_cast<std::size_t>(b.cols))) +
-                             ") is infinite: expected a finite height in metres or NaN (no data)");
-          }
-        }
-        if (has_colour_) {
-          rgb.resize(3 * n);
-          colour_in.read(b, rgb.data());
-        }
-        if (has_error_) {
-          e.resize(n);
-          error_in.read(b, e.data());
-        }
-        stats.add(d.data(), has_colour_ ? rgb.data() : nullptr, has_error_ ? e.data() : nullptr, n);
-        note_buffer(n * (2 * sizeof(float) + 3));
-      }
+      pairs_on_two(
+          tiles.tile_cols,
+          [&](int wi, int tc) {
+            Worker& w = workers[static_cast<std::size_t>(wi)];
+            const SampleWindow b = tiles.block(tr, tc);
+            const std::size_t n = static_cast<std::size_t>(b.rows) * static_cast<std::size_t>(b.cols);
+            w.d.resize(n);
+            w.depth_in.read(b, w.d.data());
+            for (std::size_t i = 0; i < n; ++i) {
+              if (std::isinf(w.d[i])) {
+                throw InputError(w.depth_in.file.string() + ": sample (" +
+                                 std::to_string(b.row0 + static_cast<int>(i / static_cast<std::size_t>(b.cols))) + ", " +
+                                 std::to_string(b.col0 + static_cast<int>(i % static_cast<std::size_t>(b.cols))) +
+                                 ") is infinite: expected a finite height in metres or NaN (no data)");
+              }
+            }
+            if (has_colour_) {
+              w.rgb.resize(3 * n);
+              w.colour_in.read(b, w.rgb.data());
+            }
+            if (has_error_) {
+              w.e.resize(n);
+              w.error_in.read(b, w.e.data());
+            }
+            w.part = LevelStats{};
+            w.part.add(w.d.data(), has_colour_ ? w.rgb.data() : nullptr, has_error_ ? w.e.data() : nullptr, n);
+          },
+          [&](int tc) { stats.merge(workers[static_cast<std::size_t>(tc % 2)].part); });
       tell("level 0 mean heights", static_cast<double>(tr + 1) / tiles.tile_rows);
     }
+    note_buffer(2 * static_cast<std::size_t>(tile_) * static_cast<std::size_t>(tile_) * (2 * sizeof(float) + 3));
     return stats;
   }
 

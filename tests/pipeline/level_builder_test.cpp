@@ -194,6 +194,21 @@ TEST(LevelBuilder, BuiltLevelsAndAFailedBuildAreNamedAndLeaveNoLevelsFolder) {
   }
   EXPECT_FALSE(fs::exists(other / "levels"));
 
+  // An infinite height in level 0 (a scene no run writes, edited by hand): named by sample.
+  hc::Scene inf = s;
+  inf.layers.depth.at(37, 101) = std::numeric_limits<float>::infinity();
+  fs::create_directory(dir / "inf");
+  const fs::path inf_dir = write_level0(inf, dir / "inf", 32, levels);
+  try {
+    hc::pipeline::build_stored_levels(inf_dir, dir / "scratch");
+    ADD_FAILURE() << "an infinite depth was accepted";
+  } catch (const hc::InputError& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("depth.tiff"), std::string::npos) << what;
+    EXPECT_NE(what.find("(37, 101) is infinite"), std::string::npos) << what;
+  }
+  EXPECT_FALSE(fs::exists(inf_dir / "levels"));
+
   // A scene written whole (format 2) has no tiles to build from.
   const fs::path whole = dir / "whole";
   hc::pipeline::write_scene(s, whole);
