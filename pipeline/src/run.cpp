@@ -876,7 +876,27 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
       StageResult<std::uint64_t> r;
       std::error_code ec;
       const fs::path scratch = config.scale.scratch.empty() ? fs::temp_directory_path(ec) : config.scale.scratch;
-      const StoredLevelsReport built_levels = build_stored_levels(staging.path() / "scene", scratch);
+      // The builder's passes (level k's depth, its layers' fill range, envelope and friction),
+      // each with its fraction and time left, at most once per scale.progress_interval_s.
+      std::string pass;
+      auto pass_t0 = Clock::now(), last = pass_t0;
+      const LevelProgress tell = [&](const std::string& what, double fraction) {
+        if (!progress) return;
+        const auto now = Clock::now();
+        if (what != pass) {
+          pass = what;
+          pass_t0 = now;
+        }
+        if (seconds_since(last) < config.scale.progress_interval_s || !(fraction > 0.0)) return;
+        last = now;
+        StageReport p;
+        p.stage = "scene_levels";
+        p.figure("progress_fraction", std::min(1.0, fraction));
+        p.figure("eta_s", seconds_since(pass_t0) * (1.0 - std::min(1.0, fraction)) / fraction);
+        p.notes.push_back(what + ", this pass");
+        progress(p, false);
+      };
+      const StoredLevelsReport built_levels = build_stored_levels(staging.path() / "scene", scratch, tell);
       r.value = built_levels.bytes;
       r.report.count_in = static_cast<std::size_t>(storage.stored_levels);
       r.report.count_out = static_cast<std::size_t>(storage.stored_levels);
