@@ -542,34 +542,35 @@ class Builder {
       w.empty = std::all_of(w.win.begin(), w.win.end(), [](float v) { return std::isnan(v); });
       return win;
     };
-    {
-      // Two windows and about 14 working images of their padded size (fill, filter, curvature).
-      const SampleWindow win = layer_window(tiles.block(0, 0), g, halo, rad);
-      note_buffer(2 * static_cast<std::size_t>(std::min(g.rows, tile_ + 2 * halo) + 2 * rad + 1) *
-                  static_cast<std::size_t>(std::min(g.cols, tile_ + 2 * halo + 64) + 2 * rad) * 14 * 4);
-      static_cast<void>(win);
-    }
+    // Two windows and about 14 working images of their padded size (fill, filter, curvature).
+    note_buffer(2 * static_cast<std::size_t>(std::min(g.rows, tile_ + 2 * halo) + 2 * rad + 1) *
+                static_cast<std::size_t>(std::min(g.cols, tile_ + 2 * halo + 64) + 2 * rad) * 14 * 4);
+    // One pass of surface_layers_block over the level's tiles, pairs on two threads, then
+    // emit(tile row, tile column, worker) in order for the tiles whose window holds data (an empty
+    // window's cells are beyond the fill's reach and have no layers: its tiles stay sparse).
+    const auto block_pass = [&](bool fill_only, const std::string& what, auto&& emit) {
+      for (int tr = 0; tr < tiles.tile_rows; ++tr) {
+        pairs_on_two(
+            tiles.tile_cols,
+            [&](int wi, int tc) {
+              Worker& w = workers[static_cast<std::size_t>(wi)];
+              const SampleWindow win = read_window(w, tr, tc);
+              if (!w.empty) w.out = surface_layers_block(w.win.data(), win, g, w.b, values, fill_only, opt, window_cells);
+            },
+            [&](int tc) {
+              const Worker& w = workers[static_cast<std::size_t>(tc % 2)];
+              if (!w.empty) emit(tr, tc, w);
+            });
+        tell(name + " layers (" + what + ")", static_cast<double>(tr + 1) / tiles.tile_rows);
+      }
+    };
 
     // Pass 1: the range of the bilateral filter's whole filled input.
     float fmin = values.band_m[0], fmax = values.band_m[1];
-    for (int tr = 0; tr < tiles.tile_rows; ++tr) {
-      pairs_on_two(
-          tiles.tile_cols,
-          [&](int wi, int tc) {
-            Worker& w = workers[static_cast<std::size_t>(wi)];
-            const SampleWindow win = read_window(w, tr, tc);
-            // No valid sample within the halo: every cell the block owns is beyond the fill's
-            // reach, where it holds a valid value, so it cannot widen the range.
-            if (!w.empty) w.out = surface_layers_block(w.win.data(), win, g, w.b, values, true, opt, window_cells);
-          },
-          [&](int tc) {
-            const Worker& w = workers[static_cast<std::size_t>(tc % 2)];
-            if (w.empty) return;
-            fmin = std::min(fmin, w.out.fill_min_m);
-            fmax = std::max(fmax, w.out.fill_max_m);
-          });
-      tell(name + " layers (fill range)", static_cast<double>(tr + 1) / tiles.tile_rows);
-    }
+    block_pass(true, "fill range", [&](int, int, const Worker& w) {
+      fmin = std::min(fmin, w.out.fill_min_m);
+      fmax = std::max(fmax, w.out.fill_max_m);
+    });
     values.fill_range_m[0] = fmin;
     values.fill_range_m[1] = fmax;
 
@@ -580,31 +581,19 @@ class Builder {
     std::vector<std::uint64_t> with_data;  // tiles written to the scratch file, in tile order
     std::vector<float> tile_f;
     std::vector<double> tile_s;
-    for (int tr = 0; tr < tiles.tile_rows; ++tr) {
-      pairs_on_two(
-          tiles.tile_cols,
-          [&](int wi, int tc) {
-            Worker& w = workers[static_cast<std::size_t>(wi)];
-            const SampleWindow win = read_window(w, tr, tc);
-            if (!w.empty) w.out = surface_layers_block(w.win.data(), win, g, w.b, values, false, opt, window_cells);
-          },
-          [&](int tc) {
-            const Worker& w = workers[static_cast<std::size_t>(tc % 2)];
-            if (w.empty) return;  // no data: the layer tiles stay sparse, and nothing goes to the scratch file
-            const SampleWindow& b = w.b;
-            const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
-                                        static_cast<std::uint64_t>(tc);
-            to_tile(w.out.envelope_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
-            env_out.write(tr, tc, tile_f.data());
-            to_tile(w.out.texture_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
-            tex_out.write(tr, tc, tile_f.data());
-            to_tile(w.out.s.data(), b.rows, b.cols, tile_, 1, -1.0, tile_s);
-            for (double s : w.out.s) positive += s > 0.0 && std::isfinite(s) ? 1U : 0U;
-            scratch.write(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
-            with_data.push_back(index);
-          });
-      tell(name + " layers (envelope)", static_cast<double>(tr + 1) / tiles.tile_rows);
-    }
+    block_pass(false, "envelope", [&](int tr, int tc, const Worker& w) {
+      const SampleWindow& b = w.b;
+      const std::uint64_t index = static_cast<std::uint64_t>(tr) * static_cast<std::uint64_t>(tiles.tile_cols) +
+                                  static_cast<std::uint64_t>(tc);
+      to_tile(w.out.envelope_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+      env_out.write(tr, tc, tile_f.data());
+      to_tile(w.out.texture_m.data(), b.rows, b.cols, tile_, 1, kNaN, tile_f);
+      tex_out.write(tr, tc, tile_f.data());
+      to_tile(w.out.s.data(), b.rows, b.cols, tile_, 1, -1.0, tile_s);
+      for (double s : w.out.s) positive += s > 0.0 && std::isfinite(s) ? 1U : 0U;
+      scratch.write(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
+      with_data.push_back(index);
+    });
     report_.scratch_bytes = std::max<std::uint64_t>(report_.scratch_bytes, with_data.size() * tile_n * sizeof(double));
 
     // The reference of `level_median`: the exact median of s over the cells with s > 0.

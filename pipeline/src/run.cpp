@@ -38,6 +38,7 @@
 #include <future>
 #include <iomanip>
 #include <memory>
+#include <optional>
 #include <sstream>
 
 namespace hc::pipeline {
@@ -879,22 +880,13 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
       // The builder's passes (level k's depth, its layers' fill range, envelope and friction),
       // each with its fraction and time left, at most once per scale.progress_interval_s.
       std::string pass;
-      auto pass_t0 = Clock::now(), last = pass_t0;
+      std::optional<detail::PassProgress> tick;
       const LevelProgress tell = [&](const std::string& what, double fraction) {
-        if (!progress) return;
-        const auto now = Clock::now();
         if (what != pass) {
           pass = what;
-          pass_t0 = now;
+          tick.emplace(progress, "scene_levels", what + ", this pass", config.scale.progress_interval_s);
         }
-        if (seconds_since(last) < config.scale.progress_interval_s || !(fraction > 0.0)) return;
-        last = now;
-        StageReport p;
-        p.stage = "scene_levels";
-        p.figure("progress_fraction", std::min(1.0, fraction));
-        p.figure("eta_s", seconds_since(pass_t0) * (1.0 - std::min(1.0, fraction)) / fraction);
-        p.notes.push_back(what + ", this pass");
-        progress(p, false);
+        (*tick)(fraction);
       };
       const StoredLevelsReport built_levels = build_stored_levels(staging.path() / "scene", scratch, tell);
       r.value = built_levels.bytes;

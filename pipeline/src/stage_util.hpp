@@ -6,6 +6,8 @@
 
 #include <signal.h>
 
+#include <algorithm>
+
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -47,6 +49,36 @@ inline double ceil_of(double v) noexcept {
   const auto i = static_cast<std::int64_t>(v);
   return static_cast<double>(i + static_cast<std::int64_t>(static_cast<double>(i) < v));
 }
+
+/// Progress within a stage (the tiled run's passes, the level builder's): at most once per
+/// `interval_s` [s], a StageReport of `stage` with figures progress_fraction (in [0, 1]) and
+/// eta_s (the time left at the pass's mean rate [s]) and the note `pass`, given to `fn` with
+/// done = false. `fn` (a ProgressFn, run.hpp) is held by reference and must outlive this.
+class PassProgress {
+ public:
+  PassProgress(const std::function<void(const StageReport&, bool)>& fn, const char* stage, std::string pass, double interval_s)
+      : fn_(fn), stage_(stage), pass_(std::move(pass)), interval_s_(interval_s), t0_(detail::Clock::now()), last_(t0_) {}
+  void operator()(double fraction) {
+    if (!fn_) return;
+    const auto now = detail::Clock::now();
+    if (std::chrono::duration<double>(now - last_).count() < interval_s_ || !(fraction > 0.0)) return;
+    last_ = now;
+    const double elapsed = std::chrono::duration<double>(now - t0_).count();
+    StageReport r;
+    r.stage = stage_;
+    r.figure("progress_fraction", std::min(1.0, fraction));
+    r.figure("eta_s", elapsed * (1.0 - std::min(1.0, fraction)) / fraction);
+    r.notes.push_back(pass_);
+    fn_(r, false);
+  }
+
+ private:
+  const std::function<void(const StageReport&, bool)>& fn_;
+  const char* stage_;
+  std::string pass_;
+  double interval_s_;
+  detail::Clock::time_point t0_, last_;
+};
 
 /// An empty report of stage `stage` that received `in` points.
 inline StageReport make_report(const char* stage, std::size_t in) {

@@ -933,33 +933,6 @@ void add_figures(std::map<std::string, double>& sums, const StageReport& r) {
   }
 }
 
-// Progress within a stage: at most about once a second, the fraction done and the time left.
-class PassProgress {
- public:
-  PassProgress(const ProgressFn& fn, const char* stage, std::string pass, double interval_s)
-      : fn_(fn), stage_(stage), pass_(std::move(pass)), interval_s_(interval_s), t0_(detail::Clock::now()), last_(t0_) {}
-  void operator()(double fraction) {
-    if (!fn_) return;
-    const auto now = detail::Clock::now();
-    if (std::chrono::duration<double>(now - last_).count() < interval_s_ || !(fraction > 0.0)) return;
-    last_ = now;
-    const double elapsed = std::chrono::duration<double>(now - t0_).count();
-    StageReport r;
-    r.stage = stage_;
-    r.figure("progress_fraction", std::min(1.0, fraction));
-    r.figure("eta_s", elapsed * (1.0 - std::min(1.0, fraction)) / fraction);
-    r.notes.push_back(pass_);
-    fn_(r, false);
-  }
-
- private:
-  const ProgressFn& fn_;
-  const char* stage_;
-  std::string pass_;
-  double interval_s_;
-  detail::Clock::time_point t0_, last_;
-};
-
 // One pass over the input in the grid frame: every chunk through to_grid_frame, then `body`,
 // with the pass's progress by points read.
 template <class Body>
@@ -968,7 +941,7 @@ void for_each_grid_chunk(const std::filesystem::path& input, const LoadOptions& 
                          const ProgressFn& progress, const char* stage_name, const char* pass, Body&& body) {
   auto s = open_point_stream(input, load);
   Cloud c;
-  PassProgress tick(progress, stage_name, pass, config.scale.progress_interval_s);
+  detail::PassProgress tick(progress, stage_name, pass, config.scale.progress_interval_s);
   std::uint64_t read = 0;
   while (s->next(c, config.scale.chunk_points)) {
     read += c.size();
@@ -2238,7 +2211,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       crs = s->crs();
       Cloud c;
       bool first = true;
-      PassProgress tick(progress, "tile_plan", "pass 1 of 3: the file's box", config.scale.progress_interval_s);
+      detail::PassProgress tick(progress, "tile_plan", "pass 1 of 3: the file's box", config.scale.progress_interval_s);
       const double total = static_cast<double>(std::max<std::uint64_t>(1, s->total_points()));
       while (s->next(c, chunk_points)) {
         tick(static_cast<double>(box.points + c.size()) / total);
@@ -2445,7 +2418,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         // A thousandth of a cell off the clearance: NodeBinner's rounding step (a millionth of a
         // cell, Tiles::reading_box_m) and the floats' (under a micrometre about the centre).
         const double slack_m = 1e-3 * tiles.g.cell_size_m;
-        PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
+        detail::PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
         for (std::size_t t = 0; t < tiles.count(); ++t) {
           tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
           const auto wc = read_window_floats(*spill, tiles, t, xyz, mine);
@@ -2608,7 +2581,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       FarCells cells(lo, std::max({2.0 * link, far_d / (2.0 * std::sqrt(3.0)), extent / 2097150.0}));
       // Every point once: the copy in the tile that owns its node.
       std::vector<std::uint8_t> flags, owned;
-      PassProgress tick(progress, "tile_far_clusters", "coarse cells of every point, tile by tile", config.scale.progress_interval_s);
+      detail::PassProgress tick(progress, "tile_far_clusters", "coarse cells of every point, tile by tile", config.scale.progress_interval_s);
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
         const Cloud pts = spill->read(t, flags);
@@ -2655,7 +2628,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         if (config.grid.reproject.upsample_factor == 0) cov.emplace(old_g, 1, old_k);
         std::vector<double> own_kept;  // a tile's kept points, for the coverage in one batch
         const NodeBinner node(old_g);
-        PassProgress tick2(progress, "tile_far_clusters", "far points re-marked in the spill, tile by tile", config.scale.progress_interval_s);
+        detail::PassProgress tick2(progress, "tile_far_clusters", "far points re-marked in the spill, tile by tile", config.scale.progress_interval_s);
         for (std::size_t t = 0; t < tiles.count(); ++t) {
           tick2(static_cast<double>(t) / static_cast<double>(tiles.count()));
           const auto in = tiles.interior(t);
@@ -2856,7 +2829,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           if (std::isfinite(f.best_m)) cc.cell_error_m.at(f.r, f.c) = static_cast<float>(f.best_m);
         }
       };
-      PassProgress tick(progress, "cross_check", "the tiles' kept points, then their residuals again", config.scale.progress_interval_s);
+      detail::PassProgress tick(progress, "cross_check", "the tiles' kept points, then their residuals again", config.scale.progress_interval_s);
       ResidualFile residuals(kept.dir() / "cross_check_residuals.bin");
       // The first pass over the kept points.
       for (std::size_t t = 0; t < tiles.count(); ++t) {
@@ -3039,7 +3012,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       }
       const std::vector<std::uint8_t>& flags = scene.layers.flags;
       std::vector<std::uint8_t> fl_in, fl_kept, owned;
-      PassProgress tick(progress, "honest_check", "the input as spilled against the grid, tile by tile",
+      detail::PassProgress tick(progress, "honest_check", "the input as spilled against the grid, tile by tile",
                         config.scale.progress_interval_s);
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
@@ -3694,7 +3667,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   // 3. The tile jobs, in process and in order (tile-job runs the same process_tile elsewhere).
   (void)stage("tiles", built.summary.stages, progress, [&] {
     StageResult<int> r;
-    PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);
+    detail::PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);
     // When nothing reads the kept points after the loop (no cross-check, no levels sample), a
     // tile's spill goes once no later tile can read it: the robust test's second look reads the
     // tiles up to far_rows() rows of tiles away (else the kept points are read through the
