@@ -639,6 +639,7 @@ void fill_report(const Run& run, const FarCounts& far, StageReport& rep) {
 }  // namespace
 
 ErrorStats error_stats_mm(std::vector<double> abs_errors_m) { return stats_of(abs_errors_m); }
+ErrorStats error_stats_mm_of_floats(std::vector<float> abs_errors_m) { return stats_of(abs_errors_m); }
 
 void add_error_stats_figures(StageReport& report, const std::string& prefix, const ErrorStats& s) {
   report.figure(prefix + "_count", static_cast<double>(s.count));

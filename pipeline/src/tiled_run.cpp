@@ -2907,7 +2907,14 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       });
       cc.point_vertical = vertical.stats();
       cc.point_normal = normal.stats();
+      // The supported cells' errors, as floats (error_stats_mm_of_floats: no double copy,
+      // 4 bytes a cell; reserved, so no growth leaves twice that).
+      std::size_t with_error = 0;
+      for (std::size_t i = 0; i < tiles.g.cell_count(); ++i) {
+        with_error += !std::isnan(grid.depth.data()[i]) && !std::isnan(cc.cell_error_m.data()[i]) ? 1U : 0U;
+      }
       std::vector<float> cells;
+      cells.reserve(with_error);
       std::size_t supported = 0, valid = 0;
       for (std::size_t i = 0; i < tiles.g.cell_count(); ++i) {
         if (std::isnan(grid.depth.data()[i])) continue;
@@ -2918,8 +2925,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         supported += d <= cc.tolerance_m ? 1U : 0U;
       }
       if (valid == 0) throw InputError("cross_check: the grid has no valid cell (tiled run)");
-      std::vector<double> cd(cells.begin(), cells.end());
-      cc.cell_to_point = error_stats_mm(std::move(cd));
+      cc.cell_to_point = error_stats_mm_of_floats(std::move(cells));
       cc.supported_fraction = valid ? static_cast<double>(supported) / static_cast<double>(valid) : 0.0;
       r.report.count_in = cc.points_on_surface + cc.points_off_surface + cc.points_hidden + cc.points_outside;
       r.report.count_out = valid;

@@ -61,6 +61,29 @@ TEST(ErrorStats, MatchesAFullSortAndTakesAbsoluteValues) {
   EXPECT_DOUBLE_EQ(s.max_mm, 100.0);
 }
 
+TEST(ErrorStats, FloatValuesGiveTheStatsOfTheirDoubles) {
+  // error_stats_mm_of_floats (the tiled cross-check's cells) against a full sort of the same
+  // values as doubles, exactly: the floats convert without rounding.
+  std::mt19937_64 rng(3);
+  std::exponential_distribution<float> e(800.0f);
+  for (std::size_t size : {1u, 7u, 1000u, 54321u}) {
+    std::vector<float> v(size);
+    for (float& x : v) x = (rng() & 1U) != 0U ? e(rng) : -e(rng);
+    std::vector<double> a;
+    for (float x : v) a.push_back(std::abs(static_cast<double>(x)));
+    const ErrorStats s = hc::pipeline::error_stats_mm_of_floats(v);
+    ASSERT_EQ(s.count, a.size());
+    EXPECT_EQ(s.p50_mm, rank_of_sorted(a, 0.50) * 1e3);
+    EXPECT_EQ(s.p95_mm, rank_of_sorted(a, 0.95) * 1e3);
+    EXPECT_EQ(s.p99_mm, rank_of_sorted(a, 0.99) * 1e3);
+    EXPECT_EQ(s.max_mm, *std::max_element(a.begin(), a.end()) * 1e3);
+    double sum_sq = 0.0;
+    for (double x : a) sum_sq += x * x;
+    EXPECT_EQ(s.rms_mm, std::sqrt(sum_sq / static_cast<double>(a.size())) * 1e3);
+  }
+  EXPECT_THROW(hc::pipeline::error_stats_mm_of_floats({1e-3f, std::numeric_limits<float>::infinity()}), InputError);
+}
+
 TEST(ErrorStats, EmptyGivesZerosAndNaNIsAnError) {
   const ErrorStats s = error_stats_mm({});
   EXPECT_EQ(s.count, 0u);
