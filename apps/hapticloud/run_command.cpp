@@ -194,7 +194,8 @@ void add_run_command(CLI::App& app) {
     keep_freed_memory_for_reuse();
     const session::InterruptCleanup cleanup;
     pipeline::set_stage_memory_measurement(true);
-    auto m = pipeline::merge_tile_jobs(merge->plan, log_progress);
+    // Level 0's surface layers made tile by tile in the tiled scene, as hapticloud run does.
+    auto m = pipeline::merge_tile_jobs(merge->plan, log_progress, pipeline::SurfaceLayersAt::kSceneLevels);
     const std::filesystem::path out =
         merge->out.empty() ? std::filesystem::path("runs") / m.config.name : std::filesystem::path(merge->out);
     spdlog::info("hapticloud tile-merge {} -> {}", merge->plan, out.string());

@@ -242,8 +242,8 @@ void pairs_on_two(int count, Work&& work, Emit&& emit) {
 
 class Builder {
  public:
-  Builder(const fs::path& scene_dir, const fs::path& scratch, const LevelProgress& progress)
-      : dir_(scene_dir), scratch_(scratch), progress_(progress) {
+  Builder(const fs::path& scene_dir, const fs::path& scratch, const LevelProgress& progress, Level0Layers level0)
+      : dir_(scene_dir), scratch_(scratch), progress_(progress), level0_(level0) {
     scene_ = load_scene(scene_dir, false);
     if (!scene_.storage.stores_levels()) {
       throw InputError(scene_dir.string() + ": not a tiled scene that stores its levels (format 3 with storage "
@@ -275,11 +275,30 @@ class Builder {
         if (!keep) fs::remove_all(dir, e);
       }
     } guard{root};
+    // Level 0's layer files written into the scene folder (Level0Layers::kSceneFolder), removed
+    // on an error like the levels folder.
+    struct RemoveFiles {
+      std::vector<fs::path> files;
+      bool keep = false;
+      ~RemoveFiles() {
+        std::error_code e;
+        if (!keep)
+          for (const fs::path& f : files) fs::remove(f, e);
+      }
+    } root_files;
     // Level 0's level-wide values, in one pass over its tiles; each coarser level's come from the
     // pass that writes it.
     LevelStats stats = level0_stats();
     if (!has_layers_) {
-      make_dir(0);
+      if (level0_ == Level0Layers::kLevelsFolder) {
+        make_dir(0);
+      } else {
+        for (const char* name : {"envelope", "texture", "mu_d", "mu_s"}) {
+          const fs::path f = file(0, name);
+          if (fs::exists(f)) throw InputError(f.string() + ": exists, but level 0's other surface layers do not: expected all four or none");
+          root_files.files.push_back(f);
+        }
+      }
       report_.level0_layers = true;
       report_.depth_seconds.push_back(0.0);
       const auto tl = Clock::now();
@@ -296,7 +315,9 @@ class Builder {
       report_.layers_seconds.push_back(seconds_since(tl));
       ++report_.levels_built;
     }
+    if (report_.level0_layers && level0_ == Level0Layers::kSceneFolder) add_level0_surface_layers(dir_);
     guard.keep = true;
+    root_files.keep = true;
     report_.seconds = seconds_since(t0);
     return report_;
   }
@@ -308,9 +329,11 @@ class Builder {
     fs::create_directory(d, ec);
     if (ec) throw InputError(d.string() + ": cannot create the folder of level " + std::to_string(level) + ": " + ec.message());
   }
-  /// A layer file of a level; level 0's computed layers go to levels/L0/ (as write_scene_levels).
+  /// A layer file of a level; level 0's computed layers go to levels/L0/ (as write_scene_levels)
+  /// or, with Level0Layers::kSceneFolder, beside depth.tiff.
   fs::path file(int level, const std::string& name) const {
-    if (level == 0 && !has_layers_ && (name == "envelope" || name == "texture" || name == "mu_d" || name == "mu_s")) {
+    if (level == 0 && !has_layers_ && level0_ == Level0Layers::kLevelsFolder &&
+        (name == "envelope" || name == "texture" || name == "mu_d" || name == "mu_s")) {
       return dir_ / kSceneLevelsFolder / "L0" / (name + ".tiff");
     }
     return detail::stored_layer_file(dir_, level, name);
@@ -650,6 +673,7 @@ class Builder {
 
   fs::path dir_, scratch_;
   LevelProgress progress_;
+  Level0Layers level0_;
   Scene scene_;
   int tile_ = 0, levels_ = 0;
   bool has_layers_ = false, has_colour_ = false, has_error_ = false;
@@ -660,8 +684,8 @@ class Builder {
 }  // namespace
 
 StoredLevelsReport build_stored_levels(const fs::path& scene_dir, const fs::path& scratch_dir,
-                                       const LevelProgress& progress) {
-  Builder b(scene_dir, scratch_dir, progress);
+                                       const LevelProgress& progress, Level0Layers level0) {
+  Builder b(scene_dir, scratch_dir, progress, level0);
   return b.run();
 }
 

@@ -1,5 +1,7 @@
+#include "image_io.hpp"
 #include "run_internal.hpp"
 #include "stage_util.hpp"
+#include "tiled_layers.hpp"
 #include "hc/pipeline/run.hpp"
 
 #include "hc/common/error.hpp"
@@ -450,6 +452,25 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   return cloud;
 }
 
+/// Level 0's float layer `name` of the tiled scene folder `scene_dir` (grid `g`), read whole.
+/// @throws hc::InputError naming the file when it is missing, not a tiled float TIFF of g's size
+///         or unreadable.
+HeightField read_level0_layer(const fs::path& scene_dir, const std::string& name, const GridGeometry& g) {
+  const fs::path file = detail::stored_layer_file(scene_dir, 0, name);
+  detail::TiledTiffReader reader;
+  std::string why = reader.open(file, detail::TileSamples::kFloat32);
+  if (why.empty() && (reader.width() != g.cols || reader.height() != g.rows)) {
+    why = std::to_string(reader.width()) + "x" + std::to_string(reader.height());
+  }
+  HeightField f(g);
+  if (why.empty()) why = reader.read_region(0, 0, g.rows, g.cols, f.data());
+  if (!why.empty()) {
+    throw InputError(file.string() + ": cannot read level 0's layer '" + name + "' (expected a tiled " +
+                     std::to_string(g.cols) + "x" + std::to_string(g.rows) + " float TIFF; " + why + ")");
+  }
+  return f;
+}
+
 /// The report's summary: the verdict, the input's classes and every reason (report.md, top).
 std::string verdict_markdown(const RunSummary& summary) {
   std::ostringstream md;
@@ -509,8 +530,17 @@ Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::v
     scene.layers.intensity.model_to_grid = model_to_grid;
   }
 
-  // 6. Surface layers (texture, curvature, friction).
-  if (config.layers.enabled) {
+  // 6. Surface layers (texture, curvature, friction): here on the whole grid, or left to the
+  // tiled scene's level builder in write_run (SurfaceLayersAt::kSceneLevels: a tiled scene
+  // without the levels table, whose pyramid would hold level 0's layers anyway).
+  if (built.surface_layers_at == SurfaceLayersAt::kSceneLevels &&
+      !(config.layers.enabled && writes_tiled_scene(config.scale, scene.geometry) && !config.lod.report)) {
+    built.surface_layers_at = SurfaceLayersAt::kMemory;
+  }
+  if (built.surface_layers_at == SurfaceLayersAt::kSceneLevels) {
+    // What compute_surface_layers records; the layers themselves come in stage scene_levels.
+    scene.friction_model = config.layers.options.friction_model;
+  } else if (config.layers.enabled) {
     SurfaceLayers layers = stage("surface_layers", reports, progress,
                                  [&] { return compute_surface_layers(grid.depth, config.layers.options, config.lod.window_cells); });
     scene.friction_model = layers.friction_model;
@@ -541,11 +571,17 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
 
 void set_stage_memory_measurement(bool on) { detail::g_measure_stage_memory.store(on, std::memory_order_relaxed); }
 
-BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressFn& progress) {
-  // Scans too large for memory: the streaming tiled run (tiling.hpp; it keeps no cloud, so a
-  // caller that asks for the cloud stays in core unless scale.tiled is on).
+namespace {
+/// build_scene's choice: scans too large for memory take the streaming tiled run (tiling.hpp;
+/// it keeps no cloud, so a caller that asks for the cloud stays in core unless scale.tiled is on).
+bool takes_tiled_run(const RunConfig& config, bool keep_cloud) {
   const bool auto_mode = config.scale.tiled == ScaleConfig::Tiled::kAuto;
-  if (!(keep_cloud && auto_mode) && runs_tiled(config)) return build_scene_tiled(config, progress);
+  return !(keep_cloud && auto_mode) && runs_tiled(config);
+}
+}  // namespace
+
+BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressFn& progress) {
+  if (takes_tiled_run(config, keep_cloud)) return build_scene_tiled(config, progress);
   return build_scene_impl(config, keep_cloud, progress, nullptr);
 }
 
@@ -711,9 +747,19 @@ namespace {
 RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const RunConfig& config, const fs::path& out_dir,
                           const ProgressFn& progress, ExistingOutput existing, const LevelTimingFn& level_timing) {
   const auto t_start = Clock::now();
-  RunSummary summary = built.summary;
+  const double built_seconds = built.summary.total_seconds;
+  // Moved from `movable` (it aliases `built`): its cross-check error grid is not copied.
+  RunSummary summary = movable != nullptr ? std::move(movable->summary) : built.summary;
   auto& reports = summary.stages;
   const Scene& scene = built.scene;
+  // Level 0's surface layers left to stage scene_levels (SurfaceLayersAt::kSceneLevels): only
+  // into the tiled scene without the levels table it was built for.
+  const bool layers_by_builder = built.surface_layers_at == SurfaceLayersAt::kSceneLevels;
+  if (layers_by_builder && (!writes_tiled_scene(config.scale, scene.geometry) || config.lod.report)) {
+    throw std::invalid_argument(
+        "write_run: the scene's surface layers were left to the tiled scene's level builder, but this config "
+        "writes no tiled scene or asks for the levels table (lod.report): build it with SurfaceLayersAt::kMemory");
+  }
   StagingDir staging(out_dir, existing);
 
   // 8. Scene, previews and report, all inside the staging folder.
@@ -789,9 +835,20 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   if (progress) progress(write_report, true);
 
   // What the report says of the layers, taken before level 0 may be moved into the pyramid.
-  const bool has_surface_layers = scene.layers.has_surface_layers();
+  const bool has_surface_layers = scene.layers.has_surface_layers() || layers_by_builder;
   const bool has_colour = !scene.layers.colour_rgb8.empty();
   const bool has_intensity = !scene.layers.intensity.values().empty();
+  // A tiled scene without the levels table reads nothing of level 0's grids from here on (the
+  // level builder reads the stored tiles; the report wants the flags' counts only): a movable
+  // scene lets them go before stage scene_levels (issue 14: 16-40 bytes a cell).
+  if (movable != nullptr && tiled_scene && !config.lod.report) {
+    SceneLayers& l = movable->scene.layers;
+    for (HeightField* f : {&l.depth, &l.envelope, &l.texture, &l.mu_d, &l.mu_s, &l.cell_error, &l.region_id, &l.intensity}) {
+      *f = HeightField();
+    }
+    std::vector<std::uint8_t>().swap(l.colour_rgb8);
+    if (summary.cross_check) summary.cross_check->cell_error_m = HeightField();
+  }
 
   // 9. Levels of detail (issue 4): speed against error per level, with previews side by side.
   std::vector<LevelRow> lod_rows;
@@ -888,7 +945,24 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
         }
         (*tick)(fraction);
       };
-      const StoredLevelsReport built_levels = build_stored_levels(staging.path() / "scene", scratch, tell);
+      const fs::path scene_dir = staging.path() / "scene";
+      const StoredLevelsReport built_levels = build_stored_levels(
+          scene_dir, scratch, tell, layers_by_builder ? Level0Layers::kSceneFolder : Level0Layers::kLevelsFolder);
+      if (layers_by_builder) {
+        // Level 0's layers were never in memory: their previews from the files just written,
+        // one layer at a time (the write stage's, the same pictures).
+        const auto t_previews = Clock::now();
+        write_colour_preview(read_level0_layer(scene_dir, "texture", scene.geometry), previews / "texture.png",
+                             "texture h = f - f_b", "mm", 1000.0);
+        write_colour_preview(read_level0_layer(scene_dir, "mu_d", scene.geometry), previews / "mu_d.png",
+                             "dynamic friction mu_d (" + friction_name + ")", "-", 1.0);
+        write_colour_preview(read_level0_layer(scene_dir, "mu_s", scene.geometry), previews / "mu_s.png",
+                             "static friction mu_s", "-", 1.0);
+        if (built_levels.level0_layers) r.report.figure("level0_layers_s", built_levels.layers_seconds.at(0));
+        r.report.figure("level0_previews_s", seconds_since(t_previews));
+        r.report.notes.push_back("level 0's surface layers made here tile by tile from the stored depth (no whole-grid "
+                                 "surface_layers stage; SurfaceLayersAt::kSceneLevels)");
+      }
       r.value = built_levels.bytes;
       r.report.count_in = static_cast<std::size_t>(storage.stored_levels);
       r.report.count_out = static_cast<std::size_t>(storage.stored_levels);
@@ -905,7 +979,7 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
       return r;
     });
   }
-  summary.total_seconds = built.summary.total_seconds + seconds_since(t_start);
+  summary.total_seconds = built_seconds + seconds_since(t_start);
 
   // Report: JSON for machines, Markdown for people; both from the same figures.
   const GridGeometry& g = summary.grid;
@@ -1120,7 +1194,11 @@ RunSummary run_pipeline(const RunConfig& config, const fs::path& out_dir, const 
   // The levels table's cross-check wants the points; a tiled run keeps a sample of them instead
   // (BuiltScene::point_sample), so that is no reason to stay in core.
   const bool keep_cloud = config.lod.report && config.lod.report_cross_check && !runs_tiled(config);
-  BuiltScene built = build_scene(config, keep_cloud, progress);
+  // A tiled run leaves level 0's surface layers to stage scene_levels when it writes a tiled
+  // scene (SurfaceLayersAt): build_scene, with that request.
+  BuiltScene built = takes_tiled_run(config, keep_cloud)
+                         ? build_scene_tiled(config, progress, SurfaceLayersAt::kSceneLevels)
+                         : build_scene(config, keep_cloud, progress);
   return write_run(std::move(built), config, out_dir, progress, existing, level_timing);
 }
 

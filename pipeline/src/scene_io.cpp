@@ -12,6 +12,7 @@
 #include <signal.h>
 #include <unistd.h>
 
+#include <array>
 #include <cerrno>
 #include <cstring>
 #include <ctime>
@@ -339,6 +340,64 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
     colour_file = "colour.png";
   }
   write_text_file(scene_dir / "scene.yaml", scene_yaml_text(scene, storage, layer_files, flags_file, colour_file));
+}
+
+void add_level0_surface_layers(const fs::path& scene_dir) {
+  const fs::path meta = scene_dir / "scene.yaml";
+  Scene s = load_scene(scene_dir, false);  // checks the format and that every listed file is there
+  if (s.storage.tile_cells == 0) {
+    throw InputError(meta.string() + ": not a tiled scene (format 3): level 0's surface layers are added to tiled scenes only");
+  }
+  static const std::array<const char*, 4> kSurface = {"envelope", "texture", "mu_d", "mu_s"};
+  for (const char* name : kSurface) {
+    const fs::path file = scene_dir / (std::string(name) + ".tiff");
+    if (!fs::exists(file)) throw InputError(file.string() + ": missing: level 0's surface layer '" + name + "' was not written");
+  }
+  std::string text;
+  {
+    std::ifstream in(meta, std::ios::binary);
+    std::ostringstream ss;
+    ss << in.rdbuf();
+    text = ss.str();
+  }
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    throw InputError(meta.string() + ": not valid YAML: " + e.what());
+  }
+  // The layers listed, in write_scene's order, and the four surface layers.
+  std::vector<std::string> layer_files;
+  const YAML::Node listed = root["layers"];
+  for_each_layer(s.layers, [&](const char* name, const HeightField&) {
+    const bool surface = std::find_if(kSurface.begin(), kSurface.end(),
+                                      [&](const char* n) { return std::strcmp(n, name) == 0; }) != kSurface.end();
+    if (surface || listed[name]) layer_files.emplace_back(name);
+  });
+  const std::string flags_file = root["flags"] ? root["flags"].as<std::string>() : std::string();
+  const std::string colour_file = root["colour"] ? root["colour"].as<std::string>() : std::string();
+  // The model the layers were made with (compute_surface_layers records the options' model).
+  if (!s.friction_model) s.friction_model = s.layer_options.friction_model;
+  // The resolved config as written (scene_yaml_text indents each line by two spaces), not as
+  // re-emitted by the parser.
+  const std::string marker = "\nresolved_config:\n";
+  s.provenance.resolved_config_yaml.clear();
+  if (const std::size_t at = text.find(marker); at != std::string::npos) {
+    std::istringstream is(text.substr(at + marker.size()));
+    for (std::string line; std::getline(is, line);) {
+      s.provenance.resolved_config_yaml += (line.rfind("  ", 0) == 0 ? line.substr(2) : line) + "\n";
+    }
+  }
+  // Replaced in one rename: a reader sees the old list or the new one, never half a file.
+  const fs::path partial = scene_dir / "scene.yaml.partial";
+  write_text_file(partial, scene_yaml_text(s, s.storage, layer_files, flags_file, colour_file));
+  std::error_code ec;
+  fs::rename(partial, meta, ec);
+  if (ec) {
+    std::error_code ignored;
+    fs::remove(partial, ignored);
+    throw InputError(meta.string() + ": cannot replace it: " + ec.message());
+  }
 }
 
 struct TiledSceneWriter::Impl {

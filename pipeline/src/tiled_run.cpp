@@ -3660,7 +3660,7 @@ std::string random_id() {
 
 }  // namespace
 
-BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress) {
+BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers) {
   const auto t_start = detail::Clock::now();
   ScratchDir scratch(config.scale.scratch);
   Plan plan = plan_passes(config, scratch.path(), progress);
@@ -3668,6 +3668,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   spill.adopt_existing();
   KeptMask kept(scratch.path(), "kept_", spill, plan.tiles.count());
   BuiltScene built;
+  built.surface_layers_at = layers;  // asked for; scene_from_grid says what it did
   built.summary.stages = std::move(plan.reports);
   TileMerge merged(plan);
   // 3. The tile jobs, in process and in order (tile-job runs the same process_tile elsewhere).
@@ -3931,7 +3932,7 @@ void remove_stale_scratch(const fs::path& dir, StageReport& report) {
 
 }  // namespace
 
-MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progress) {
+MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progress, SurfaceLayersAt layers) {
   const auto t_start = detail::Clock::now();
   PlanFile pf = read_plan_file(plan_file);
   MergedTileRun m{config_of(pf, plan_file), {}};
@@ -3959,6 +3960,7 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
   KeptMask kept(pf.dir, "kept_", spill, plan.tiles.count());
   kept.adopt_existing();
   BuiltScene built;
+  built.surface_layers_at = layers;  // asked for; scene_from_grid says what it did
   built.summary.stages = std::move(plan.reports);
   TileMerge merged(plan);
   (void)stage("tiles", built.summary.stages, progress, [&] {

@@ -152,6 +152,63 @@ TEST(LevelBuilder, ASceneWithoutLayersGetsLevelZerosLayersAndOtherFrictionOption
   expect_levels_equal(scene_dir, s);
 }
 
+TEST(LevelBuilder, LevelZerosLayersIntoTheSceneFolderAreListedAndEqualTheWholeGridsAndAFailureLeavesNone) {
+  // Level0Layers::kSceneFolder: level 0's layers beside depth.tiff, listed in scene.yaml. Oracle:
+  // compute_surface_layers on the whole level 0 in memory (hard_scene with layers), and the same
+  // scene written whole by write_scene (its scene.yaml, byte for byte).
+  const hc::Scene with = hard_scene(190, 260, true);
+  hc::Scene without = hard_scene(190, 260, false);
+  without.friction_model = with.layer_options.friction_model;  // as a run that left the layers to the builder
+  without.provenance.resolved_config_yaml = "name: relief\ngrid:\n  n: 260  # cells\n";
+  hc::Scene with_prov = with;
+  with_prov.friction_model = with.layer_options.friction_model;
+  with_prov.provenance = without.provenance;
+  const fs::path dir = hc::test::temp_dir("level0_root");
+  const int levels = hc::pipeline::lod_level_count(with.geometry, with.lod.min_cells);
+  for (const char* sub : {"failing", "built", "whole"}) fs::create_directories(dir / sub);
+
+  // A scratch "folder" that is a file: the build stops at level 0's median, after its layer files
+  // were opened, and neither levels/ nor any of them stays; scene.yaml is as written.
+  const fs::path failing = write_level0(without, dir / "failing", 32, levels);
+  const std::string yaml_before = [&] {
+    std::ifstream in(failing / "scene.yaml");
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  }();
+  std::ofstream(dir / "a_file") << "not a folder";
+  EXPECT_THROW(hc::pipeline::build_stored_levels(failing, dir / "a_file", {},
+                                                 hc::pipeline::Level0Layers::kSceneFolder),
+               hc::InputError);
+  EXPECT_FALSE(fs::exists(failing / "levels"));
+  for (const char* name : {"envelope.tiff", "texture.tiff", "mu_d.tiff", "mu_s.tiff"}) EXPECT_FALSE(fs::exists(failing / name)) << name;
+  {
+    std::ifstream in(failing / "scene.yaml");
+    EXPECT_EQ(std::string(std::istreambuf_iterator<char>(in), {}), yaml_before);
+  }
+
+  const fs::path scene_dir = write_level0(without, dir / "built", 32, levels);
+  fs::create_directories(dir / "scratch");
+  const hc::pipeline::StoredLevelsReport rep =
+      hc::pipeline::build_stored_levels(scene_dir, dir / "scratch", {}, hc::pipeline::Level0Layers::kSceneFolder);
+  EXPECT_TRUE(rep.level0_layers);
+  EXPECT_FALSE(fs::exists(scene_dir / "levels" / "L0"));
+  const hc::Scene loaded = hc::pipeline::load_scene(scene_dir);
+  ASSERT_TRUE(loaded.layers.has_surface_layers());
+  EXPECT_EQ(differing_bits(loaded.layers.envelope, with.layers.envelope), 0u);
+  EXPECT_EQ(differing_bits(loaded.layers.texture, with.layers.texture), 0u);
+  EXPECT_EQ(differing_bits(loaded.layers.mu_d, with.layers.mu_d), 0u);
+  EXPECT_EQ(differing_bits(loaded.layers.mu_s, with.layers.mu_s), 0u);
+  EXPECT_GT(loaded.layers.texture.valid_count(), 30'000u);
+  // scene.yaml is the one write_scene writes for the scene with its layers.
+  const fs::path whole = write_level0(with_prov, dir / "whole", 32, levels);
+  const auto text = [](const fs::path& f) {
+    std::ifstream in(f);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  EXPECT_EQ(text(scene_dir / "scene.yaml"), text(whole / "scene.yaml"));
+  EXPECT_NE(text(scene_dir / "scene.yaml").find("  n: 260  # cells"), std::string::npos);  // the config's text kept
+  expect_levels_equal(scene_dir, with);
+}
+
 TEST(LevelBuilder, TheBuddhaScenesLevelsEqualTheInMemoryPyramid) {
   hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
   const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/happy_buddha.yaml";

@@ -6,6 +6,8 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/honest_check.hpp"
+#include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/robust_outliers.hpp"
@@ -1160,6 +1162,102 @@ TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {
   EXPECT_GE(stage_figure(tiled, "tile_plan", "upsample_factor"), 3.0);
   EXPECT_TRUE(has_note(tiled, "tile_plan", "the upsample coverage for factors 1 and 2, again for 3 and more"));
   EXPECT_FALSE(tiled.scene.layers.colour_rgb8.empty());
+}
+
+// Level 0's surface layers left to the tiled scene's level builder (SurfaceLayersAt::kSceneLevels,
+// what run_pipeline asks a tiled run for): the run keeps none in memory, yet its folder holds the
+// layers the whole grid's compute_surface_layers gives. Oracle: the same tiled run with its
+// layers in memory (stage surface_layers, whole grid) written by write_run: every layer, every
+// stored level, scene.yaml and every preview must be the same.
+TEST(TiledRun, LevelZerosLayersMadeByTheLevelBuilderEqualTheWholeGridsAndTheSceneFolderIsTheSame) {
+  const fs::path dir = hc::test::temp_dir("deferred");
+  write_coloured_wall(dir / "wall.ply", 120'000);
+  const std::string yaml =
+      "input: {files: [wall.ply], units: m}\n"
+      "grid: {n: 500, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64}\n"
+      "cross_check: {tolerance_m: 0.002}\nfilters: {outliers: {enabled: false}}\n"
+      "layers: {texture: {sigma_space_cells: 2.5, sigma_range_m: 0.004}}\n"
+      "lod: {min_cells: 40}\n";
+  fs::create_directory(dir / "scratch");
+  const RunConfig config = hc::pipeline::parse_run_config(
+      yaml, dir / "wall.yaml",
+      {"scale.tiled=on", "scale.tile_cells=96", "scale.scene_tiles=on", "scale.scene_tile_cells=48",
+       "scale.scratch=" + (dir / "scratch").string()});
+  using hc::pipeline::SurfaceLayersAt;
+
+  const BuiltScene in_memory = hc::pipeline::build_scene(config);
+  ASSERT_EQ(in_memory.surface_layers_at, SurfaceLayersAt::kMemory);
+  ASSERT_TRUE(in_memory.scene.layers.has_surface_layers());
+  hc::pipeline::write_run(in_memory, config, dir / "memory");
+
+  BuiltScene deferred = hc::pipeline::build_scene_tiled(config, {}, SurfaceLayersAt::kSceneLevels);
+  ASSERT_EQ(deferred.surface_layers_at, SurfaceLayersAt::kSceneLevels);
+  EXPECT_FALSE(deferred.scene.layers.has_surface_layers());
+  EXPECT_EQ(deferred.scene.friction_model, in_memory.scene.friction_model);
+  for (const auto& r : deferred.summary.stages) EXPECT_NE(r.stage, "surface_layers");
+  // Written with another config (no tiled scene) it is refused before anything is made.
+  RunConfig untiled = config;
+  untiled.scale.scene_tiles = hc::pipeline::ScaleConfig::Tiled::kOff;
+  EXPECT_THROW(hc::pipeline::write_run(deferred, untiled, dir / "refused"), std::invalid_argument);
+  EXPECT_FALSE(fs::exists(dir / "refused"));
+  hc::pipeline::write_run(std::move(deferred), config, dir / "builder");
+
+  const fs::path a = dir / "builder", b = dir / "memory";
+  const hc::Scene sa = hc::pipeline::load_scene(a / "scene"), sb = hc::pipeline::load_scene(b / "scene");
+  ASSERT_TRUE(sa.layers.has_surface_layers());
+  for (const auto& [x, y, name] : {std::tuple{&sa.layers.depth, &sb.layers.depth, "depth"},
+                                   {&sa.layers.envelope, &sb.layers.envelope, "envelope"},
+                                   {&sa.layers.texture, &sb.layers.texture, "texture"},
+                                   {&sa.layers.mu_d, &sb.layers.mu_d, "mu_d"},
+                                   {&sa.layers.mu_s, &sb.layers.mu_s, "mu_s"},
+                                   {&sa.layers.cell_error, &sb.layers.cell_error, "cell_error"}}) {
+    EXPECT_EQ(differing_bits(*x, *y), 0U) << name;
+  }
+  EXPECT_GT(sa.layers.texture.valid_count(), 10'000U);  // the comparison saw data
+  EXPECT_FALSE(fs::exists(a / "scene" / "levels" / "L0"));  // level 0's layers are in level 0's folder
+  EXPECT_FALSE(fs::exists(a / "scene" / "scene.yaml.partial"));
+  const auto bytes = [](const fs::path& f) {
+    std::ifstream in(f, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  EXPECT_EQ(bytes(a / "scene" / "scene.yaml"), bytes(b / "scene" / "scene.yaml"));
+  for (const char* png : {"texture.png", "mu_d.png", "mu_s.png", "depth.png", "colour.png", "cross_check_error.png"}) {
+    ASSERT_TRUE(fs::exists(a / "previews" / png)) << png;
+    EXPECT_EQ(bytes(a / "previews" / png), bytes(b / "previews" / png)) << png;
+  }
+  // Every stored level, read back through the pyramid.
+  auto pa = hc::pipeline::LodPyramid::open_stored(a / "scene", sa.lod);
+  auto pb = hc::pipeline::LodPyramid::open_stored(b / "scene", sb.lod);
+  ASSERT_EQ(pa->level_count(), pb->level_count());
+  ASSERT_GE(pa->level_count(), 3);
+  for (int level = 0; level < pa->level_count(); ++level) {
+    const auto x = pa->level(level);
+    const auto y = pb->level(level);
+    EXPECT_EQ(differing_bits(x->texture_m, y->texture_m), 0U) << level;
+    EXPECT_EQ(differing_bits(x->mu_d, y->mu_d), 0U) << level;
+    EXPECT_EQ(differing_bits(x->mu_s, y->mu_s), 0U) << level;
+    EXPECT_EQ(differing_bits(x->envelope_m, y->envelope_m), 0U) << level;
+  }
+  // The report: no whole-grid layers stage; stage scene_levels made them.
+  const nlohmann::json ja = nlohmann::json::parse(bytes(a / "report.json")), jb = nlohmann::json::parse(bytes(b / "report.json"));
+  const auto stage_of = [](const nlohmann::json& j, const std::string& name) {
+    for (const nlohmann::json& s : j["stages"]) {
+      if (s["stage"] == name) return s;
+    }
+    return nlohmann::json();
+  };
+  EXPECT_TRUE(stage_of(ja, "surface_layers").is_null());
+  EXPECT_FALSE(stage_of(jb, "surface_layers").is_null());
+  ASSERT_FALSE(stage_of(ja, "scene_levels").is_null());
+  EXPECT_TRUE(stage_of(ja, "scene_levels")["figures"].contains("level0_layers_s")) << stage_of(ja, "scene_levels").dump();
+  EXPECT_FALSE(stage_of(jb, "scene_levels")["figures"].contains("level0_layers_s"));
+
+  // With the levels table on, whose pyramid holds level 0's layers anyway, they stay in memory.
+  RunConfig with_table = config;
+  with_table.lod.report = true;
+  const BuiltScene kept = hc::pipeline::build_scene_tiled(with_table, {}, SurfaceLayersAt::kSceneLevels);
+  EXPECT_EQ(kept.surface_layers_at, SurfaceLayersAt::kMemory);
+  EXPECT_EQ(differing_bits(kept.scene.layers.texture, in_memory.scene.layers.texture), 0U);
 }
 
 // A LAS wall (streamed natively, not read whole at every pass) gives the in-core scene too, and

@@ -19,7 +19,7 @@ namespace hc::pipeline {
 /// What build_stored_levels did.
 struct StoredLevelsReport {
   int levels_built = 0;         ///< levels k ≥ 1 written (stored_levels − 1)
-  bool level0_layers = false;   ///< level 0 had no surface layers: they were computed into levels/L0/
+  bool level0_layers = false;   ///< level 0 had no surface layers: they were computed (where Level0Layers says)
   std::uint64_t bytes = 0;      ///< bytes of tile data written (tiles without bytes count 0)
   /// Largest scratch file on disk [bytes]: a level's s, 8 bytes a sample, for its tiles with data only.
   std::uint64_t scratch_bytes = 0;
@@ -34,6 +34,17 @@ struct StoredLevelsReport {
 
 /// Progress: (what, fraction done in [0, 1]) after every row of tiles.
 using LevelProgress = std::function<void(const std::string& what, double fraction)>;
+
+/// Where build_stored_levels puts the surface layers it computes for a level 0 that has none.
+enum class Level0Layers {
+  /// `levels/L0/<name>.tiff`, beside the coarser levels; level 0's own files and scene.yaml are
+  /// left as written (a scene made with layers off: LodPyramid::open_stored reads them there).
+  kLevelsFolder,
+  /// `<name>.tiff` beside depth.tiff, listed in scene.yaml (add_level0_surface_layers,
+  /// scene_io.hpp): the scene is then the one write_scene writes from a scene with its layers
+  /// (a tiled run that left level 0's layers to the builder: SurfaceLayersAt, run.hpp).
+  kSceneFolder,
+};
 
 /// Writes levels 1 .. stored_levels − 1 of the tiled scene folder `scene_dir` (format 3, as
 /// write_scene with SceneStorage{tile_cells, stored_levels}), whose level 0 is on disk and whose
@@ -50,12 +61,16 @@ using LevelProgress = std::function<void(const std::string& what, double fractio
 /// selection over a scratch file of s in `scratch_dir`, removed at the end). Two threads make
 /// pairs of tiles of a row; the tiles are written in order. Each level is read and written once
 /// or a few times; nothing holds a whole level or a row of it.
-/// On an error the `levels/` folder it made is removed (the scene folder is otherwise untouched).
+/// With `level0` kSceneFolder a level 0 without surface layers gets them in the scene folder
+/// itself and listed in scene.yaml (see Level0Layers); the files equal those of kLevelsFolder.
+/// On an error the `levels/` folder it made is removed, and so are level 0's layer files it
+/// wrote in the scene folder (scene.yaml is then unchanged; the folder is otherwise untouched).
 /// @throws hc::InputError naming the folder or file: not a tiled scene, `levels/` already there,
 ///         a layer file that cannot be read or written, an infinite level-0 depth (naming the sample),
 ///         a scratch file that cannot be made;
 ///         hc::ConfigError for the scene's options out of range.
 StoredLevelsReport build_stored_levels(const std::filesystem::path& scene_dir, const std::filesystem::path& scratch_dir,
-                                       const LevelProgress& progress = {});
+                                       const LevelProgress& progress = {},
+                                       Level0Layers level0 = Level0Layers::kLevelsFolder);
 
 }  // namespace hc::pipeline

@@ -44,8 +44,26 @@ struct RunSummary {
 };
 
 /// A scene built in memory, with what the report needs.
+/// Where a run makes level 0's surface layers (envelope, texture, μ_d, μ_s; issue 14).
+enum class SurfaceLayersAt {
+  /// Stage surface_layers, on the whole grid in memory, into BuiltScene::scene (every run but
+  /// the one below).
+  kMemory,
+  /// Not in memory: write_run's stage scene_levels makes them tile by tile from the stored
+  /// depth (build_stored_levels with Level0Layers::kSceneFolder, level_builder.hpp), bit for
+  /// bit the same files. Only for a tiled run (build_scene_tiled, merge_tile_jobs) that
+  /// write_run will store as a tiled scene (writes_tiled_scene) without the levels table
+  /// (lod.report off, which would hold level 0's layers anyway); run_pipeline and
+  /// `hapticloud tile-merge` ask for it.
+  kSceneLevels,
+};
+
 struct BuiltScene {
   Scene scene;                 ///< typed layers and metadata (hc/common/scene.hpp)
+  /// kSceneLevels: `scene` has no surface layers (its friction_model is set) and write_run
+  /// makes them in the scene folder; such a scene must be written with the config it was built
+  /// with. kMemory otherwise (the layers are in `scene` when config.layers is on).
+  SurfaceLayersAt surface_layers_at = SurfaceLayersAt::kMemory;
   RunSummary summary;          ///< stage reports and the cross-check
   std::optional<Cloud> cloud;  ///< the filtered points in the grid frame [m], when kept
   /// The tiled run, which keeps no cloud: when lod.report and lod.report_cross_check are on, an
@@ -95,21 +113,30 @@ using LevelTimingFn = std::function<void(const std::shared_ptr<LodPyramid>&, std
 /// previews.
 /// An existing out_dir is replaced only if it is an earlier output or an empty folder; a file or
 /// a foreign folder is refused, or kept aside with ExistingOutput::kMoveAside (see StagingDir).
+/// A tiled scene (writes_tiled_scene) gets its levels in stage scene_levels (build_stored_levels);
+/// a scene built with SurfaceLayersAt::kSceneLevels gets level 0's surface layers there too,
+/// and their previews from the stored files.
 /// @return the summary with the write and levels stages appended, total_seconds = build + write.
 /// @throws hc::InputError for a refused out_dir (before anything is written) or a file that
-///         cannot be written; on a throw nothing is left at out_dir that was not there before.
+///         cannot be written; on a throw nothing is left at out_dir that was not there before;
+///         std::invalid_argument (before anything is written) for a kSceneLevels scene and a
+///         config that writes no tiled scene or asks for the levels table.
 RunSummary write_run(const BuiltScene& built, const RunConfig& config, const std::filesystem::path& out_dir,
                      const ProgressFn& progress = {}, ExistingOutput existing = ExistingOutput::kRefuse,
                      const LevelTimingFn& level_timing = {});
 /// The same for a scene the caller no longer needs: the levels table's pyramid takes level 0's
 /// layers (depth, colour, envelope, texture, μ_d, μ_s) from `built` instead of copying them, so
 /// `built.scene.layers` is left without them (issue 14's memory bound: six layers are about
-/// 200 MB at N = 4096). run_pipeline uses it.
+/// 200 MB at N = 4096); the summary is moved out of `built` too. Writing a tiled scene without
+/// the levels table, it lets level 0's grids (not the flags) and the summary's cross-check
+/// error grid go after the write stage, before stage scene_levels. run_pipeline uses it.
 RunSummary write_run(BuiltScene&& built, const RunConfig& config, const std::filesystem::path& out_dir,
                      const ProgressFn& progress = {}, ExistingOutput existing = ExistingOutput::kRefuse,
                      const LevelTimingFn& level_timing = {});
 
-/// build_scene then write_run: the whole of `hapticloud run`.
+/// build_scene then write_run: the whole of `hapticloud run`. A tiled run is asked for
+/// SurfaceLayersAt::kSceneLevels: writing a tiled scene without the levels table, level 0's
+/// surface layers are made tile by tile in stage scene_levels, never whole in memory.
 /// @throws as build_scene and write_run; the out_dir check happens before any stage runs.
 RunSummary run_pipeline(const RunConfig& config, const std::filesystem::path& out_dir,
                         const ProgressFn& progress = {},

@@ -48,6 +48,16 @@ using hc::Scene;
 /// tile side that is not a multiple of 16 in [16, 4096], or stored_levels < 0.
 void write_scene(const Scene& scene, const std::filesystem::path& scene_dir, const SceneStorage& storage = {});
 
+/// Lists level 0's surface layers (envelope, texture, mu_d, mu_s: `<name>.tiff` beside
+/// depth.tiff) in scene.yaml of the tiled scene folder `scene_dir`, after they were written there
+/// following write_scene (issue 14: build_stored_levels with Level0Layers::kSceneFolder, for a run
+/// that kept none in memory). scene.yaml is written again from what it held (the other layers,
+/// flags, colour, options, provenance and the resolved config's text unchanged), with
+/// `friction_model` set to layer_options' when it was absent, into `scene.yaml.partial` renamed
+/// over it. @throws hc::InputError naming the file: not a tiled scene (format 3), one of the four
+/// files missing, scene.yaml unreadable or malformed, or it cannot be replaced.
+void add_level0_surface_layers(const std::filesystem::path& scene_dir);
+
 /// Writes a tiled scene folder (format 3, as write_scene with tiles and write_scene_levels) tile
 /// by tile, for a scene larger than memory (issue 14): a generator or a streaming level builder
 /// hands over one tile of one layer of one level at a time, in any order. Every layer file of

@@ -73,8 +73,12 @@ bool runs_tiled(const RunConfig& config);
 /// files and the kept-point masks, a byte a record, together).
 /// @throws hc::ConfigError as runs_tiled; hc::InputError for unreadable input or a scratch
 ///         folder that cannot be written (naming it); what the stages throw.
+/// With `layers` SurfaceLayersAt::kSceneLevels (run.hpp) and a scene write_run will store tiled
+/// without the levels table, level 0's surface layers are left to write_run's level builder
+/// (no stage surface_layers; BuiltScene::surface_layers_at says which happened).
 /// Real-time: no. Memory: the grid's layers, one tile's points and one chunk.
-BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress = {});
+BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress = {},
+                             SurfaceLayersAt layers = SurfaceLayersAt::kMemory);
 
 // ---------------------------------------------------------------------------------------------
 // Tile jobs in other processes or on other machines (`hapticloud tile-plan`, `tile-job`,
@@ -141,6 +145,8 @@ struct MergedTileRun {
 ///         result written for another plan or by another version, truncated, or whose kept file
 ///         has another size or a byte that is not 0, 1 or 2; a spill file whose size is not the
 ///         plan's; hc::ConfigError as run_tile_jobs.
-MergedTileRun merge_tile_jobs(const std::filesystem::path& plan_file, const ProgressFn& progress = {});
+/// `layers` as build_scene_tiled's.
+MergedTileRun merge_tile_jobs(const std::filesystem::path& plan_file, const ProgressFn& progress = {},
+                              SurfaceLayersAt layers = SurfaceLayersAt::kMemory);
 
 }  // namespace hc::pipeline
