@@ -6,6 +6,7 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
+#include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/tiling.hpp"
 #include "height_field_bits.hpp"
 #include "test_paths.hpp"
@@ -205,6 +206,39 @@ TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
   }
   EXPECT_THROW((void)hc::pipeline::merge_tile_jobs(info.plan_file), hc::InputError);
   EXPECT_THROW(hc::pipeline::run_tile_jobs(info.plan_file, {info.tiles}), hc::InputError);
+}
+
+TEST(TileJobs, AMergeIntoATiledSceneLeavesLevelZerosLayersToTheLevelBuilderAndWritesTheSameScene) {
+  // `hapticloud tile-merge` asks for SurfaceLayersAt::kSceneLevels: with a tiled scene and no
+  // levels table, level 0's layers are made in stage scene_levels. Oracle: the same merge with
+  // its layers in memory (the whole grid's compute_surface_layers), written the same way.
+  hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  const fs::path scratch = hc::test::temp_dir("scratch");
+  const fs::path dir = hc::test::temp_dir("merge_tiled");
+  std::vector<std::string> overrides = {"grid.n=300", "scale.tiled=on", "scale.tile_cells=64",
+                                        "scale.scratch=" + scratch.string(), "scale.scene_tiles=on",
+                                        "scale.scene_tile_cells=32", "lod.min_cells=30"};
+  const auto info = hc::pipeline::write_tile_plan(buddha_config(), overrides, dir / "plan");
+  std::vector<std::size_t> all(info.tiles);
+  for (std::size_t t = 0; t < info.tiles; ++t) all[t] = t;
+  hc::pipeline::run_tile_jobs(info.plan_file, all);
+  auto deferred = hc::pipeline::merge_tile_jobs(info.plan_file, {}, hc::pipeline::SurfaceLayersAt::kSceneLevels);
+  ASSERT_EQ(deferred.built.surface_layers_at, hc::pipeline::SurfaceLayersAt::kSceneLevels);
+  EXPECT_FALSE(deferred.built.scene.layers.has_surface_layers());
+  hc::pipeline::write_run(std::move(deferred.built), deferred.config, dir / "builder");
+  const auto in_memory = hc::pipeline::merge_tile_jobs(info.plan_file);
+  ASSERT_TRUE(in_memory.built.scene.layers.has_surface_layers());
+  hc::pipeline::write_run(in_memory.built, in_memory.config, dir / "memory");
+  const hc::Scene a = hc::pipeline::load_scene(dir / "builder" / "scene");
+  const hc::Scene b = hc::pipeline::load_scene(dir / "memory" / "scene");
+  ASSERT_TRUE(a.layers.has_surface_layers());
+  EXPECT_EQ(differing_bits(a.layers.texture, in_memory.built.scene.layers.texture), 0U);
+  EXPECT_EQ(differing_bits(a.layers.envelope, b.layers.envelope), 0U);
+  EXPECT_EQ(differing_bits(a.layers.mu_d, b.layers.mu_d), 0U);
+  EXPECT_EQ(differing_bits(a.layers.mu_s, b.layers.mu_s), 0U);
+  EXPECT_GT(a.layers.texture.valid_count(), 5000U);
+  EXPECT_EQ(bytes_of(dir / "builder" / "scene" / "scene.yaml"), bytes_of(dir / "memory" / "scene" / "scene.yaml"));
+  EXPECT_EQ(bytes_of(dir / "builder" / "previews" / "mu_d.png"), bytes_of(dir / "memory" / "previews" / "mu_d.png"));
 }
 
 TEST(TileJobs, RefusesAResultOfAnotherPlanAChangedConfigAndAFolderInUse) {
