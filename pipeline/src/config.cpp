@@ -1101,6 +1101,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
       r.fail("scale.scene_tile_cells", "= " + std::to_string(c.scale.scene_tile_cells) +
                                            ": expected a multiple of 16 (TIFF tiles are multiples of 16 samples)");
     }
+    c.scale.preview_max_side = static_cast<int>(r.get_int("scale.preview_max_side", c.scale.preview_max_side, 64, 65536));
   }
 
   r.reject_unknown_keys();

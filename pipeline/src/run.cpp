@@ -452,23 +452,122 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   return cloud;
 }
 
-/// Level 0's float layer `name` of the tiled scene folder `scene_dir` (grid `g`), read whole.
-/// @throws hc::InputError naming the file when it is missing, not a tiled float TIFF of g's size
-///         or unreadable.
-HeightField read_level0_layer(const fs::path& scene_dir, const std::string& name, const GridGeometry& g) {
-  const fs::path file = detail::stored_layer_file(scene_dir, 0, name);
+/// Layer `name` of stored level `level` of the tiled scene folder `scene_dir` (grid `g`, that
+/// level's), read whole into `out` (g.cell_count() floats, or × 3 bytes for `samples` kRgb8).
+/// @throws hc::InputError naming the file when it is missing, not a tiled TIFF of g's size and
+///         sample type, or unreadable.
+void read_stored_layer(const fs::path& scene_dir, int level, const std::string& name, const GridGeometry& g,
+                       detail::TileSamples samples, void* out) {
+  const fs::path file = detail::stored_layer_file(scene_dir, level, name);
   detail::TiledTiffReader reader;
-  std::string why = reader.open(file, detail::TileSamples::kFloat32);
+  std::string why = reader.open(file, samples);
   if (why.empty() && (reader.width() != g.cols || reader.height() != g.rows)) {
     why = std::to_string(reader.width()) + "x" + std::to_string(reader.height());
   }
-  HeightField f(g);
-  if (why.empty()) why = reader.read_region(0, 0, g.rows, g.cols, f.data());
+  if (why.empty()) why = reader.read_region(0, 0, g.rows, g.cols, out);
   if (!why.empty()) {
-    throw InputError(file.string() + ": cannot read level 0's layer '" + name + "' (expected a tiled " +
-                     std::to_string(g.cols) + "x" + std::to_string(g.rows) + " float TIFF; " + why + ")");
+    throw InputError(file.string() + ": cannot read level " + std::to_string(level) + "'s layer '" + name +
+                     "' (expected a tiled " + std::to_string(g.cols) + "x" + std::to_string(g.rows) +
+                     (samples == detail::TileSamples::kRgb8 ? " RGB" : " float") + " TIFF; " + why + ")");
   }
-  return f;
+}
+
+/// The run folder's previews (previews/*.png) of one level: its layers in memory (level 0 as
+/// built) or in a tiled scene's files (read when each preview is drawn, one layer at a time).
+struct PreviewLevel {
+  int level = 0;
+  GridGeometry g;
+  fs::path scene_dir;  ///< stored layers (empty: in memory)
+  const HeightField *depth = nullptr, *cell_error = nullptr, *texture = nullptr, *mu_d = nullptr, *mu_s = nullptr;
+  const std::vector<std::uint8_t>* colour = nullptr;
+  bool stored_colour = false, stored_error = false, stored_layers = false;
+
+  /// Calls f with layer `name` (the in-memory one, or read from level `level`'s file).
+  template <class F>
+  void with(const char* name, const HeightField* in_memory, F&& f) const {
+    if (in_memory != nullptr) return f(*in_memory);
+    HeightField read(g);
+    read_stored_layer(scene_dir, level, name, g, detail::TileSamples::kFloat32, read.data());
+    f(read);
+  }
+  /// " (level k, 1 sample : 2^k cells)" for a level above 0, else "".
+  std::string title_suffix() const {
+    return level == 0 ? std::string() : " (level " + std::to_string(level) + ", 1 sample : " + std::to_string(1 << level) + " cells)";
+  }
+};
+
+/// Adds to `tasks` the previews `wanted` of `pl` into `dir`: depth, hillshade, colour (and over
+/// the hillshade), the cross-check error with `marks` (level-0 (row, col), moved to the level),
+/// texture, mu_d and mu_s; `friction_name` titles mu_d.
+struct PreviewKinds {
+  bool depth = false, colour = false, cell_error = false, surface_layers = false;
+};
+void add_previews(std::vector<std::function<void()>>& tasks, const PreviewLevel& pl, const PreviewKinds& wanted,
+                  const fs::path& dir, const std::vector<std::array<int, 2>>& marks, const std::string& friction_name) {
+  const std::string sfx = pl.title_suffix();
+  if (wanted.colour) {
+    for (const bool shaded : {false, true}) {
+      tasks.emplace_back([&pl, dir, shaded] {
+        pl.with("depth", pl.depth, [&](const HeightField& d) {
+          if (pl.colour != nullptr) return write_rgb_preview(d, *pl.colour, dir / (shaded ? "colour_hillshade.png" : "colour.png"), shaded);
+          std::vector<std::uint8_t> rgb(3 * pl.g.cell_count());
+          read_stored_layer(pl.scene_dir, pl.level, "colour", pl.g, detail::TileSamples::kRgb8, rgb.data());
+          write_rgb_preview(d, rgb, dir / (shaded ? "colour_hillshade.png" : "colour.png"), shaded);
+        });
+      });
+    }
+  }
+  if (wanted.cell_error) {
+    tasks.emplace_back([&pl, dir, sfx, marks] {
+      std::vector<std::array<int, 2>> at;
+      for (const auto& m : marks) {
+        // Level k's sample j sits on level 0's sample j * 2^k (lod_level_geometry): the nearest.
+        const int half = pl.level == 0 ? 0 : 1 << (pl.level - 1);
+        at.push_back({std::min(pl.g.rows - 1, (m[0] + half) >> pl.level), std::min(pl.g.cols - 1, (m[1] + half) >> pl.level)});
+      }
+      pl.with("cell_error", pl.cell_error, [&](const HeightField& e) {
+        write_colour_preview(e, dir / "cross_check_error.png",
+                             (at.empty() ? std::string("cross-check: grid sample to nearest point")
+                                         : std::string("cross-check: grid sample to nearest point (circles: spikes, pits, islands)")) + sfx,
+                             "mm", 1000.0, at);
+      });
+    });
+  }
+  if (wanted.depth) {
+    tasks.emplace_back([&pl, dir, sfx] {
+      pl.with("depth", pl.depth, [&](const HeightField& d) { write_colour_preview(d, dir / "depth.png", "depth z" + sfx, "mm", 1000.0); });
+    });
+    tasks.emplace_back([&pl, dir] {
+      pl.with("depth", pl.depth, [&](const HeightField& d) { write_hillshade_preview(d, dir / "hillshade.png"); });
+    });
+  }
+  if (wanted.surface_layers) {
+    tasks.emplace_back([&pl, dir, sfx] {
+      pl.with("texture", pl.texture, [&](const HeightField& f) {
+        write_colour_preview(f, dir / "texture.png", "texture h = f - f_b" + sfx, "mm", 1000.0);
+      });
+    });
+    tasks.emplace_back([&pl, dir, sfx, friction_name] {
+      pl.with("mu_d", pl.mu_d, [&](const HeightField& f) {
+        write_colour_preview(f, dir / "mu_d.png", "dynamic friction mu_d (" + friction_name + ")" + sfx, "-", 1.0);
+      });
+    });
+    tasks.emplace_back([&pl, dir, sfx] {
+      pl.with("mu_s", pl.mu_s, [&](const HeightField& f) { write_colour_preview(f, dir / "mu_s.png", "static friction mu_s" + sfx, "-", 1.0); });
+    });
+  }
+}
+
+/// The level a tiled scene's previews are drawn from: 0 when level 0's longer side is at most
+/// `max_side` samples, else the finest level that fits, or the coarsest of `stored_levels`.
+int preview_level_of(const GridGeometry& g0, int stored_levels, int max_side) {
+  int level = 0;
+  while (level + 1 < stored_levels) {
+    const GridGeometry g = lod_level_geometry(g0, level);
+    if (std::max(g.rows, g.cols) <= max_side) break;
+    ++level;
+  }
+  return level;
 }
 
 /// The report's summary: the verdict, the input's classes and every reason (report.md, top).
@@ -786,46 +885,49 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   if (previews_ec) throw InputError(previews.string() + ": cannot create the previews folder: " + previews_ec.message());
   const HeightField& depth = scene.depth();
   const std::string friction_name = scene.friction_model ? to_string(*scene.friction_model) : std::string();
+  // Previews: of level 0 in memory here; of a stored level after stage scene_levels when level
+  // 0 is wider than scale.preview_max_side (preview_level > 0), and of level 0's surface layers
+  // there when the level builder makes them (layers_by_builder).
+  const int preview_level = tiled_scene ? preview_level_of(scene.geometry, storage.stored_levels, config.scale.preview_max_side) : 0;
+  // Marked on the cross-check preview: the grid's spikes, pits and islands, and the cells kept
+  // only by isolated points (level 0's rows and columns).
+  std::vector<std::array<int, 2>> marks;
+  if (summary.grid_spikes) marks = summary.grid_spikes->marked;
+  if (summary.input_check) {
+    marks.insert(marks.end(), summary.input_check->spikes_kept_cells.begin(), summary.input_check->spikes_kept_cells.end());
+  }
+  PreviewLevel level0_previews;
+  level0_previews.g = scene.geometry;
+  level0_previews.depth = &depth;
+  level0_previews.colour = &scene.layers.colour_rgb8;
+  if (summary.cross_check) level0_previews.cell_error = &summary.cross_check->cell_error_m;
+  level0_previews.texture = &scene.layers.texture;
+  level0_previews.mu_d = &scene.layers.mu_d;
+  level0_previews.mu_s = &scene.layers.mu_s;
+  PreviewKinds now;
+  if (preview_level == 0) {
+    now.depth = true;
+    now.colour = !scene.layers.colour_rgb8.empty();
+    now.cell_error = summary.cross_check.has_value();
+    now.surface_layers = scene.layers.has_surface_layers();
+  }
   // The scene's files and the previews are independent files: two threads take them in turn,
   // the scene first (the longest), then the previews (each writes its own PNG).
   std::vector<std::function<void()>> files;
   files.emplace_back([&] { write_scene(scene, staging.path() / "scene", storage); });
-  if (!scene.layers.colour_rgb8.empty()) {
-    files.emplace_back([&] { write_rgb_preview(depth, scene.layers.colour_rgb8, previews / "colour.png", false); });
-    files.emplace_back([&] { write_rgb_preview(depth, scene.layers.colour_rgb8, previews / "colour_hillshade.png", true); });
-  }
-  if (summary.cross_check) {
-    files.emplace_back([&] {
-      // Marked: the grid's spikes, pits and islands, and the cells kept only by isolated points.
-      std::vector<std::array<int, 2>> marks;
-      if (summary.grid_spikes) marks = summary.grid_spikes->marked;
-      if (summary.input_check) {
-        marks.insert(marks.end(), summary.input_check->spikes_kept_cells.begin(),
-                     summary.input_check->spikes_kept_cells.end());
-      }
-      write_colour_preview(summary.cross_check->cell_error_m, previews / "cross_check_error.png",
-                           marks.empty() ? "cross-check: grid sample to nearest point"
-                                         : "cross-check: grid sample to nearest point (circles: spikes, pits, islands)",
-                           "mm", 1000.0, marks);
-    });
-  }
-  files.emplace_back([&] { write_colour_preview(depth, previews / "depth.png", "depth z", "mm", 1000.0); });
-  files.emplace_back([&] { write_hillshade_preview(depth, previews / "hillshade.png"); });
-  if (scene.layers.has_surface_layers()) {
-    files.emplace_back([&] {
-      write_colour_preview(scene.layers.texture, previews / "texture.png", "texture h = f - f_b", "mm", 1000.0);
-    });
-    files.emplace_back([&] {
-      write_colour_preview(scene.layers.mu_d, previews / "mu_d.png", "dynamic friction mu_d (" + friction_name + ")",
-                           "-", 1.0);
-    });
-    files.emplace_back([&] {
-      write_colour_preview(scene.layers.mu_s, previews / "mu_s.png", "static friction mu_s", "-", 1.0);
-    });
-  }
+  add_previews(files, level0_previews, now, previews, marks, friction_name);
   if (!scene.layers.intensity.values().empty()) {
     files.emplace_back([&] {
-      write_colour_preview(scene.layers.intensity, previews / "intensity.png", "scanner intensity (as stored)", "-", 1.0);
+      // Not stored in the levels: level 0's, one sample in 2^k along each axis for a level k.
+      if (preview_level == 0) {
+        return write_colour_preview(scene.layers.intensity, previews / "intensity.png", "scanner intensity (as stored)", "-", 1.0);
+      }
+      const GridGeometry g = lod_level_geometry(scene.geometry, preview_level);
+      HeightField every(g);
+      for (int r = 0; r < g.rows; ++r)
+        for (int c = 0; c < g.cols; ++c) every.at(r, c) = scene.layers.intensity.at(r << preview_level, c << preview_level);
+      write_colour_preview(every, previews / "intensity.png",
+                           "scanner intensity (as stored; every " + std::to_string(1 << preview_level) + "th sample)", "-", 1.0);
     });
   }
   detail::run_tasks_on_two(files);
@@ -948,20 +1050,37 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
       const fs::path scene_dir = staging.path() / "scene";
       const StoredLevelsReport built_levels = build_stored_levels(
           scene_dir, scratch, tell, layers_by_builder ? Level0Layers::kSceneFolder : Level0Layers::kLevelsFolder);
-      if (layers_by_builder) {
-        // Level 0's layers were never in memory: their previews from the files just written,
-        // one layer at a time (the write stage's, the same pictures).
-        const auto t_previews = Clock::now();
-        write_colour_preview(read_level0_layer(scene_dir, "texture", scene.geometry), previews / "texture.png",
-                             "texture h = f - f_b", "mm", 1000.0);
-        write_colour_preview(read_level0_layer(scene_dir, "mu_d", scene.geometry), previews / "mu_d.png",
-                             "dynamic friction mu_d (" + friction_name + ")", "-", 1.0);
-        write_colour_preview(read_level0_layer(scene_dir, "mu_s", scene.geometry), previews / "mu_s.png",
-                             "static friction mu_s", "-", 1.0);
-        if (built_levels.level0_layers) r.report.figure("level0_layers_s", built_levels.layers_seconds.at(0));
-        r.report.figure("level0_previews_s", seconds_since(t_previews));
+      if (layers_by_builder && built_levels.level0_layers) {
+        r.report.figure("level0_layers_s", built_levels.layers_seconds.at(0));
         r.report.notes.push_back("level 0's surface layers made here tile by tile from the stored depth (no whole-grid "
                                  "surface_layers stage; SurfaceLayersAt::kSceneLevels)");
+      }
+      if (preview_level > 0 || layers_by_builder) {
+        // Previews from the stored files, the level's layers read one at a time: level
+        // preview_level's every preview, or level 0's surface layers, which were never in memory.
+        const auto t_previews = Clock::now();
+        PreviewLevel stored;
+        stored.level = preview_level;
+        stored.g = lod_level_geometry(scene.geometry, preview_level);
+        stored.scene_dir = scene_dir;
+        PreviewKinds later;
+        later.surface_layers = has_surface_layers;
+        if (preview_level > 0) {
+          later.depth = true;
+          later.colour = has_colour;
+          later.cell_error = summary.cross_check.has_value() && fs::exists(detail::stored_layer_file(scene_dir, preview_level, "cell_error"));
+        }
+        std::vector<std::function<void()>> tasks;
+        add_previews(tasks, stored, later, previews, marks, friction_name);
+        detail::run_tasks_on_two(tasks);
+        r.report.figure("previews_level", preview_level);
+        r.report.figure("previews_s", seconds_since(t_previews));
+        if (preview_level > 0) {
+          r.report.notes.push_back("previews drawn from stored level " + std::to_string(preview_level) + " (" +
+                                   std::to_string(stored.g.cols) + " x " + std::to_string(stored.g.rows) +
+                                   "): level 0 is wider than scale.preview_max_side = " +
+                                   std::to_string(config.scale.preview_max_side) + " samples");
+        }
       }
       r.value = built_levels.bytes;
       r.report.count_in = static_cast<std::size_t>(storage.stored_levels);

@@ -7,6 +7,7 @@
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/reproject.hpp"
@@ -1251,6 +1252,24 @@ TEST(TiledRun, LevelZerosLayersMadeByTheLevelBuilderEqualTheWholeGridsAndTheScen
   ASSERT_FALSE(stage_of(ja, "scene_levels").is_null());
   EXPECT_TRUE(stage_of(ja, "scene_levels")["figures"].contains("level0_layers_s")) << stage_of(ja, "scene_levels").dump();
   EXPECT_FALSE(stage_of(jb, "scene_levels")["figures"].contains("level0_layers_s"));
+
+  // Previews capped below level 0's width come from the stored level that fits, colour too
+  // (read from the level's colour.tiff): the in-memory pyramid's level drawn the same way.
+  RunConfig capped = config;
+  capped.scale.preview_max_side = 150;
+  hc::pipeline::write_run(in_memory, capped, dir / "capped");
+  int k = 0;
+  while (std::max(hc::pipeline::lod_level_geometry(sb.geometry, k).rows, hc::pipeline::lod_level_geometry(sb.geometry, k).cols) > 150) ++k;
+  ASSERT_GE(k, 1);
+  const auto lk = hc::pipeline::LodPyramid::from_scene(hc::Scene(sb), sb.layer_options, sb.lod)->level(k);
+  ASSERT_FALSE(lk->colour_rgb8.empty());
+  fs::create_directory(dir / "oracle");
+  hc::pipeline::write_rgb_preview(lk->depth_m, lk->colour_rgb8, dir / "oracle" / "colour.png", false);
+  hc::pipeline::write_rgb_preview(lk->depth_m, lk->colour_rgb8, dir / "oracle" / "colour_hillshade.png", true);
+  for (const char* png : {"colour.png", "colour_hillshade.png"}) {
+    EXPECT_EQ(bytes(dir / "capped" / "previews" / png), bytes(dir / "oracle" / png)) << png;
+    EXPECT_NE(bytes(dir / "capped" / "previews" / png), bytes(b / "previews" / png)) << png;  // not level 0's
+  }
 
   // With the levels table on, whose pyramid holds level 0's layers anyway, they stay in memory.
   RunConfig with_table = config;

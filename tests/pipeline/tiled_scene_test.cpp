@@ -11,11 +11,13 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
 #include <gdal.h>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 #include <tiffio.h>
 
 #include <array>
@@ -23,6 +25,7 @@
 #include <set>
 #include <cstdint>
 #include <filesystem>
+#include <fstream>
 #include <limits>
 #include <memory>
 #include <random>
@@ -488,6 +491,59 @@ TEST(TiledScene, ASceneWithoutSurfaceLayersStoresTheLayersThePyramidComputesForE
     EXPECT_EQ(differing_bits(w->mu_d, m->mu_d), 0u) << level;
     EXPECT_EQ(differing_bits(w->mu_s, m->mu_s), 0u) << level;
   }
+}
+
+TEST(TiledScene, PreviewsOfALevelZeroWiderThanTheCapAreTheStoredLevelsThatFits) {
+  // scale.preview_max_side = 64 on the 200-sample sinusoid: levels 200, 100, 50, 25; the
+  // previews must be those of level 2 (the finest within 64), drawn from the in-memory pyramid
+  // of the same scene (LodPyramid::from_scene, which lod_test checks against brute force).
+  const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/sinusoid.yaml";
+  const fs::path dir = hc::test::temp_dir("capped");
+  hc::pipeline::run_pipeline(hc::pipeline::load_run_config(cfg, {"lod.report=false", "scale.scene_tiles=on",
+                                                                 "scale.scene_tile_cells=32", "lod.min_cells=20",
+                                                                 "scale.preview_max_side=64"}),
+                             dir / "out");
+  const Scene whole = hc::pipeline::load_scene(dir / "out" / "scene");
+  ASSERT_EQ(whole.geometry.cols, 200);
+  int expected = 0;
+  while (std::max(hc::pipeline::lod_level_geometry(whole.geometry, expected).rows,
+                  hc::pipeline::lod_level_geometry(whole.geometry, expected).cols) > 64) {
+    ++expected;
+  }
+  ASSERT_EQ(expected, 2);
+  auto mem = LodPyramid::from_scene(Scene(whole), whole.layer_options, whole.lod);
+  const auto level = mem->level(expected);
+  ASSERT_EQ(level->depth_m.cols(), 50);
+  const fs::path oracle = dir / "oracle";
+  fs::create_directory(oracle);
+  const std::string sfx = " (level 2, 1 sample : 4 cells)";
+  hc::pipeline::write_colour_preview(level->depth_m, oracle / "depth.png", "depth z" + sfx, "mm", 1000.0);
+  hc::pipeline::write_colour_preview(level->texture_m, oracle / "texture.png", "texture h = f - f_b" + sfx, "mm", 1000.0);
+  hc::pipeline::write_colour_preview(level->mu_s, oracle / "mu_s.png", "static friction mu_s" + sfx, "-", 1.0);
+  hc::pipeline::write_colour_preview(level->cell_error_m, oracle / "cross_check_error.png",
+                                     "cross-check: grid sample to nearest point" + sfx, "mm", 1000.0);
+  hc::pipeline::write_hillshade_preview(level->depth_m, oracle / "hillshade.png");
+  const auto bytes = [](const fs::path& f) {
+    std::ifstream in(f, std::ios::binary);
+    return std::string(std::istreambuf_iterator<char>(in), {});
+  };
+  for (const char* png : {"depth.png", "texture.png", "mu_s.png", "cross_check_error.png", "hillshade.png"}) {
+    ASSERT_TRUE(fs::exists(dir / "out" / "previews" / png)) << png;
+    EXPECT_EQ(bytes(dir / "out" / "previews" / png), bytes(oracle / png)) << png;
+  }
+  // Level 0's own preview differs (the check above can fail).
+  hc::pipeline::write_colour_preview(whole.layers.depth, oracle / "depth0.png", "depth z", "mm", 1000.0);
+  EXPECT_NE(bytes(dir / "out" / "previews" / "depth.png"), bytes(oracle / "depth0.png"));
+  // The report names the level.
+  std::ifstream report_in(dir / "out" / "report.json");
+  const auto report = nlohmann::json::parse(report_in);
+  bool named = false;
+  for (const auto& st : report["stages"]) {
+    if (st["stage"] != "scene_levels") continue;
+    EXPECT_EQ(st["figures"]["previews_level"].get<double>(), 2.0);
+    for (const auto& n : st["notes"]) named = named || n.get<std::string>().find("stored level 2 (50 x 50)") != std::string::npos;
+  }
+  EXPECT_TRUE(named) << report.dump();
 }
 
 // Suite LodPyramid, so that CI's ThreadSanitizer stage (.ci/run) runs it: two threads read windows

@@ -118,6 +118,11 @@ struct ScaleConfig {
   Tiled scene_tiles = Tiled::kAuto;
   std::uint64_t scene_tiles_above_cells = 4096ull * 4096ull;  ///< the auto threshold [samples], ≥ 1
   int scene_tile_cells = 256;  ///< tile side of the scene's layer files [samples], a multiple of 16 in [16, 4096]
+  /// A tiled scene's previews: drawn from the finest stored level whose longer side is at most
+  /// this many samples [samples], 64 to 65536 (level 0 when it fits; else after stage
+  /// scene_levels, from that level's files, so a preview never holds more than about this
+  /// side squared).
+  int preview_max_side = 4096;
 };
 
 /// True when a run with `config` writes a tiled scene for a level 0 of `grid` (scale.scene_tiles).
