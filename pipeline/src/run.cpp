@@ -473,14 +473,13 @@ void read_stored_layer(const fs::path& scene_dir, int level, const std::string& 
 }
 
 /// The run folder's previews (previews/*.png) of one level: its layers in memory (level 0 as
-/// built) or in a tiled scene's files (read when each preview is drawn, one layer at a time).
+/// built) or in a tiled scene's files (read when each preview is drawn).
 struct PreviewLevel {
   int level = 0;
   GridGeometry g;
   fs::path scene_dir;  ///< stored layers (empty: in memory)
   const HeightField *depth = nullptr, *cell_error = nullptr, *texture = nullptr, *mu_d = nullptr, *mu_s = nullptr;
   const std::vector<std::uint8_t>* colour = nullptr;
-  bool stored_colour = false, stored_error = false, stored_layers = false;
 
   /// Calls f with layer `name` (the in-memory one, or read from level `level`'s file).
   template <class F>
@@ -496,12 +495,16 @@ struct PreviewLevel {
   }
 };
 
-/// Adds to `tasks` the previews `wanted` of `pl` into `dir`: depth, hillshade, colour (and over
-/// the hillshade), the cross-check error with `marks` (level-0 (row, col), moved to the level),
-/// texture, mu_d and mu_s; `friction_name` titles mu_d.
+/// Which previews add_previews draws: depth (and its hillshade), colour (plain and over the
+/// hillshade), the cross-check error, the surface layers (texture, mu_d, mu_s).
 struct PreviewKinds {
   bool depth = false, colour = false, cell_error = false, surface_layers = false;
 };
+
+/// Adds to `tasks` one task per preview `wanted` of `pl` into `dir` (each reads the layers it
+/// draws when it runs, so two tasks on two threads hold two layers): the cross-check error with
+/// `marks` (level-0 (row, col), moved to the level's nearest sample); `friction_name` titles
+/// mu_d. `pl` must outlive the tasks. @throws (when run) hc::InputError from the reads and writes.
 void add_previews(std::vector<std::function<void()>>& tasks, const PreviewLevel& pl, const PreviewKinds& wanted,
                   const fs::path& dir, const std::vector<std::array<int, 2>>& marks, const std::string& friction_name) {
   const std::string sfx = pl.title_suffix();
@@ -1056,7 +1059,7 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
                                  "surface_layers stage; SurfaceLayersAt::kSceneLevels)");
       }
       if (preview_level > 0 || layers_by_builder) {
-        // Previews from the stored files, the level's layers read one at a time: level
+        // Previews from the stored files, each task reading its layers (two at a time): level
         // preview_level's every preview, or level 0's surface layers, which were never in memory.
         const auto t_previews = Clock::now();
         PreviewLevel stored;
