@@ -849,19 +849,20 @@ namespace {
 RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const RunConfig& config, const fs::path& out_dir,
                           const ProgressFn& progress, ExistingOutput existing, const LevelTimingFn& level_timing) {
   const auto t_start = Clock::now();
-  const double built_seconds = built.summary.total_seconds;
-  // Moved from `movable` (it aliases `built`): its cross-check error grid is not copied.
-  RunSummary summary = movable != nullptr ? std::move(movable->summary) : built.summary;
-  auto& reports = summary.stages;
   const Scene& scene = built.scene;
   // Level 0's surface layers left to stage scene_levels (SurfaceLayersAt::kSceneLevels): only
-  // into the tiled scene without the levels table it was built for.
+  // into the tiled scene without the levels table it was built for (checked before anything
+  // is moved out of `movable`).
   const bool layers_by_builder = built.surface_layers_at == SurfaceLayersAt::kSceneLevels;
   if (layers_by_builder && (!writes_tiled_scene(config.scale, scene.geometry) || config.lod.report)) {
     throw std::invalid_argument(
         "write_run: the scene's surface layers were left to the tiled scene's level builder, but this config "
         "writes no tiled scene or asks for the levels table (lod.report): build it with SurfaceLayersAt::kMemory");
   }
+  const double built_seconds = built.summary.total_seconds;
+  // Moved from `movable` (it aliases `built`): its cross-check error grid is not copied.
+  RunSummary summary = movable != nullptr ? std::move(movable->summary) : built.summary;
+  auto& reports = summary.stages;
   StagingDir staging(out_dir, existing);
 
   // 8. Scene, previews and report, all inside the staging folder.
@@ -930,7 +931,9 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
       for (int r = 0; r < g.rows; ++r)
         for (int c = 0; c < g.cols; ++c) every.at(r, c) = scene.layers.intensity.at(r << preview_level, c << preview_level);
       write_colour_preview(every, previews / "intensity.png",
-                           "scanner intensity (as stored; every " + std::to_string(1 << preview_level) + "th sample)", "-", 1.0);
+                           "scanner intensity (as stored; level 0's every " + std::to_string(1 << preview_level) +
+                               " samples, on level " + std::to_string(preview_level) + ")",
+                           "-", 1.0);
     });
   }
   detail::run_tasks_on_two(files);

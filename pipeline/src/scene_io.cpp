@@ -358,24 +358,27 @@ void add_level0_surface_layers(const fs::path& scene_dir) {
     std::ifstream in(meta, std::ios::binary);
     std::ostringstream ss;
     ss << in.rdbuf();
+    if (!in || !ss) throw InputError(meta.string() + ": cannot read it back: " + std::strerror(errno));
     text = ss.str();
   }
-  YAML::Node root;
-  try {
-    root = YAML::Load(text);
-  } catch (const YAML::Exception& e) {
-    throw InputError(meta.string() + ": not valid YAML: " + e.what());
-  }
-  // The layers listed, in write_scene's order, and the four surface layers.
+  // The layers listed, in write_scene's order, and the four surface layers; the flags and
+  // colour files as named.
   std::vector<std::string> layer_files;
-  const YAML::Node listed = root["layers"];
-  for_each_layer(s.layers, [&](const char* name, const HeightField&) {
-    const bool surface = std::find_if(kSurface.begin(), kSurface.end(),
-                                      [&](const char* n) { return std::strcmp(n, name) == 0; }) != kSurface.end();
-    if (surface || listed[name]) layer_files.emplace_back(name);
-  });
-  const std::string flags_file = root["flags"] ? root["flags"].as<std::string>() : std::string();
-  const std::string colour_file = root["colour"] ? root["colour"].as<std::string>() : std::string();
+  std::string flags_file, colour_file;
+  try {
+    const YAML::Node root = YAML::Load(text);
+    const YAML::Node listed = root["layers"];
+    if (!listed || !listed.IsMap() || !listed["depth"]) throw InputError(meta.string() + ": no 'layers' map with 'depth'");
+    for_each_layer(s.layers, [&](const char* name, const HeightField&) {
+      const bool surface = std::find_if(kSurface.begin(), kSurface.end(),
+                                        [&](const char* n) { return std::strcmp(n, name) == 0; }) != kSurface.end();
+      if (surface || listed[name]) layer_files.emplace_back(name);
+    });
+    if (root["flags"]) flags_file = root["flags"].as<std::string>();
+    if (root["colour"]) colour_file = root["colour"].as<std::string>();
+  } catch (const YAML::Exception& e) {
+    throw InputError(meta.string() + ": malformed scene metadata: " + e.what());
+  }
   // The model the layers were made with (compute_surface_layers records the options' model).
   if (!s.friction_model) s.friction_model = s.layer_options.friction_model;
   // The resolved config as written (scene_yaml_text indents each line by two spaces), not as
@@ -388,16 +391,22 @@ void add_level0_surface_layers(const fs::path& scene_dir) {
       s.provenance.resolved_config_yaml += (line.rfind("  ", 0) == 0 ? line.substr(2) : line) + "\n";
     }
   }
-  // Replaced in one rename: a reader sees the old list or the new one, never half a file.
+  // Replaced in one rename: a reader sees the old list or the new one, never half a file; a
+  // failed write or rename leaves no partial file.
   const fs::path partial = scene_dir / "scene.yaml.partial";
+  struct RemovePartial {
+    const fs::path& file;
+    bool keep = false;
+    ~RemovePartial() {
+      std::error_code ignored;
+      if (!keep) fs::remove(file, ignored);
+    }
+  } guard{partial};
   write_text_file(partial, scene_yaml_text(s, s.storage, layer_files, flags_file, colour_file));
   std::error_code ec;
   fs::rename(partial, meta, ec);
-  if (ec) {
-    std::error_code ignored;
-    fs::remove(partial, ignored);
-    throw InputError(meta.string() + ": cannot replace it: " + ec.message());
-  }
+  if (ec) throw InputError(meta.string() + ": cannot replace it: " + ec.message());
+  guard.keep = true;
 }
 
 struct TiledSceneWriter::Impl {

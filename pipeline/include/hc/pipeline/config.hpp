@@ -120,8 +120,8 @@ struct ScaleConfig {
   int scene_tile_cells = 256;  ///< tile side of the scene's layer files [samples], a multiple of 16 in [16, 4096]
   /// A tiled scene's previews: drawn from the finest stored level whose longer side is at most
   /// this many samples [samples], 64 to 65536 (level 0 when it fits; else after stage
-  /// scene_levels, from that level's files, so a preview never holds more than about this
-  /// side squared).
+  /// scene_levels, from that level's files, so a preview holds about this side squared; when
+  /// lod.min_cells stops the stored levels above it, the coarsest stored level).
   int preview_max_side = 4096;
 };
 

@@ -26,7 +26,9 @@ using ProgressFn = std::function<void(const StageReport& stage, bool done)>;
 
 struct RunSummary {
   std::vector<StageReport> stages;
-  std::optional<CrossCheck> cross_check;  ///< when enabled (cell_error_m holds the map)
+  /// When enabled; cell_error_m holds the map, except in the summary write_run(BuiltScene&&)
+  /// returns for a tiled scene without the levels table (its grid is freed before scene_levels).
+  std::optional<CrossCheck> cross_check;
   std::optional<CrossCheck> naive_cross_check;  ///< the naive front-most grid's, when compared
   /// The honest cross-check (when the cross-check is enabled): the grid against the input as
   /// read, the grid's spikes, pits and islands, and the verdict (honest_check.hpp).
@@ -43,7 +45,6 @@ struct RunSummary {
   std::filesystem::path moved_aside;      ///< where a foreign out_dir was kept (--force), or empty
 };
 
-/// A scene built in memory, with what the report needs.
 /// Where a run makes level 0's surface layers (envelope, texture, μ_d, μ_s; issue 14).
 enum class SurfaceLayersAt {
   /// Stage surface_layers, on the whole grid in memory, into BuiltScene::scene (every run but
@@ -58,6 +59,7 @@ enum class SurfaceLayersAt {
   kSceneLevels,
 };
 
+/// A scene built in memory, with what the report needs.
 struct BuiltScene {
   Scene scene;                 ///< typed layers and metadata (hc/common/scene.hpp)
   /// kSceneLevels: `scene` has no surface layers (its friction_model is set) and write_run
