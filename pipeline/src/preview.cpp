@@ -284,4 +284,18 @@ void write_rgb_preview(const HeightField& depth_m, const std::vector<std::uint8_
   save(present(img), png);
 }
 
+std::vector<std::array<int, 2>> marks_on_level(const std::vector<std::array<int, 2>>& marks, int level,
+                                               const GridGeometry& level_grid) {
+  if (level < 0 || level > 30) throw std::invalid_argument("marks_on_level: level " + std::to_string(level) + " outside [0, 30]");
+  std::vector<std::array<int, 2>> at;
+  at.reserve(marks.size());
+  const long long half = level == 0 ? 0 : 1LL << (level - 1);
+  for (const auto& m : marks) {
+    // (i + 2^(k-1)) >> k rounds i / 2^k to the nearest integer, a half up.
+    const auto near = [&](int i, int last) { return static_cast<int>(std::min<long long>(last, (i + half) >> level)); };
+    at.push_back({near(m[0], level_grid.rows - 1), near(m[1], level_grid.cols - 1)});
+  }
+  return at;
+}
+
 }  // namespace hc::pipeline

@@ -522,12 +522,7 @@ void add_previews(std::vector<std::function<void()>>& tasks, const PreviewLevel&
   }
   if (wanted.cell_error) {
     tasks.emplace_back([&pl, dir, sfx, marks] {
-      std::vector<std::array<int, 2>> at;
-      for (const auto& m : marks) {
-        // Level k's sample j sits on level 0's sample j * 2^k (lod_level_geometry): the nearest.
-        const int half = pl.level == 0 ? 0 : 1 << (pl.level - 1);
-        at.push_back({std::min(pl.g.rows - 1, (m[0] + half) >> pl.level), std::min(pl.g.cols - 1, (m[1] + half) >> pl.level)});
-      }
+      const std::vector<std::array<int, 2>> at = marks_on_level(marks, pl.level, pl.g);
       pl.with("cell_error", pl.cell_error, [&](const HeightField& e) {
         write_colour_preview(e, dir / "cross_check_error.png",
                              (at.empty() ? std::string("cross-check: grid sample to nearest point")

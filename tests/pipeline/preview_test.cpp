@@ -2,6 +2,7 @@
 // the image itself: ink (any non-white pixel) never touches the right border of the canvas,
 // and the title strip holds ink.
 
+#include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/preview.hpp"
 
 #include "test_paths.hpp"
@@ -10,6 +11,7 @@
 
 #include <sys/resource.h>
 
+#include <array>
 #include <cmath>
 #include <csignal>
 #include <cstdint>
@@ -38,6 +40,33 @@ bool has_ink(const cv::Mat& img, int row_begin, int row_end) {
       if (p[0] < 128 && p[1] < 128 && p[2] < 128) return true;
     }
   return false;
+}
+
+TEST(Previews, MarksMoveToTheNearestSampleOfALevel) {
+  // Oracle: brute force over the level's samples j, whose level-0 index is j * 2^k
+  // (lod_level_geometry), the least |j * 2^k - i|, a tie to the larger j.
+  const GridGeometry g0{301, 517, -0.2, 0.1, 0.001};
+  std::mt19937 rng(5);
+  std::vector<std::array<int, 2>> marks = {{0, 0}, {300, 516}, {1, 1}, {2, 3}, {299, 515}};
+  for (int i = 0; i < 200; ++i) marks.push_back({static_cast<int>(rng() % 301), static_cast<int>(rng() % 517)});
+  EXPECT_EQ(marks_on_level(marks, 0, g0), marks);
+  for (int k = 1; k <= 5; ++k) {
+    const GridGeometry gk = lod_level_geometry(g0, k);
+    const auto nearest = [&](int i, int n) {
+      int best = 0;
+      for (int j = 1; j < n; ++j) {
+        if (std::abs(j * (1 << k) - i) <= std::abs(best * (1 << k) - i)) best = j;
+      }
+      return best;
+    };
+    const auto at = marks_on_level(marks, k, gk);
+    ASSERT_EQ(at.size(), marks.size());
+    for (std::size_t m = 0; m < marks.size(); ++m) {
+      EXPECT_EQ(at[m][0], nearest(marks[m][0], gk.rows)) << "level " << k << " row " << marks[m][0];
+      EXPECT_EQ(at[m][1], nearest(marks[m][1], gk.cols)) << "level " << k << " col " << marks[m][1];
+    }
+  }
+  EXPECT_THROW(marks_on_level(marks, 31, g0), std::invalid_argument);
 }
 
 TEST(Previews, LongColourBarLabelsAndTitlesAreNeverCutOff) {

@@ -546,6 +546,60 @@ TEST(TiledScene, PreviewsOfALevelZeroWiderThanTheCapAreTheStoredLevelsThatFits) 
   EXPECT_TRUE(named) << report.dump();
 }
 
+TEST(TiledScene, StageSceneLevelsReportsEveryPassOfTheLevelBuilderWithItsFraction) {
+  // run_pipeline's progress callback during stage scene_levels (scale.progress_interval_s = 0:
+  // every row of tiles): every pass the builder makes (level 0's means; per level k ≥ 1 its
+  // depth and its layers' fill range, envelope and friction) is named with ", this pass", its
+  // fractions rise to 1, and all of them come before the stage's end.
+  const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/sinusoid.yaml";
+  const fs::path dir = hc::test::temp_dir("progress");
+  struct Call {
+    std::string note;
+    double fraction = 0.0;
+    bool done = false;
+  };
+  std::vector<Call> calls;
+  hc::pipeline::run_pipeline(
+      hc::pipeline::load_run_config(cfg, {"lod.report=false", "scale.scene_tiles=on", "scale.scene_tile_cells=32",
+                                          "lod.min_cells=20", "scale.progress_interval_s=0"}),
+      dir / "out", [&](const hc::pipeline::StageReport& r, bool done) {
+        if (r.stage != "scene_levels") return;
+        Call c;
+        c.done = done;
+        if (!done && !r.notes.empty()) {
+          c.note = r.notes.front();
+          for (const auto& [name, value] : r.figures)
+            if (name == "progress_fraction") c.fraction = value;
+        }
+        calls.push_back(c);
+      });
+  ASSERT_FALSE(calls.empty());
+  EXPECT_TRUE(calls.back().done);
+  const Scene whole = hc::pipeline::load_scene(dir / "out" / "scene");
+  const int levels = whole.storage.stored_levels;
+  ASSERT_EQ(levels, 4);  // 200, 100, 50, 25 samples
+  std::vector<std::string> passes = {"level 0 mean heights"};
+  for (int k = 1; k < levels; ++k) {
+    for (const char* p : {" depth", " layers (fill range)", " layers (envelope)", " layers (friction)"}) {
+      passes.push_back("level " + std::to_string(k) + p);
+    }
+  }
+  for (const std::string& pass : passes) {
+    const std::string note = pass + ", this pass";
+    double last = 0.0;
+    std::size_t seen = 0;
+    for (std::size_t i = 0; i + 1 < calls.size(); ++i) {
+      if (calls[i].note != note) continue;
+      EXPECT_FALSE(calls[i].done);
+      EXPECT_GE(calls[i].fraction, last) << note;
+      last = calls[i].fraction;
+      ++seen;
+    }
+    EXPECT_GT(seen, 0U) << note << " was not reported";
+    EXPECT_DOUBLE_EQ(last, 1.0) << note;
+  }
+}
+
 // Suite LodPyramid, so that CI's ThreadSanitizer stage (.ci/run) runs it: two threads read windows
 // of one stored pyramid at once, with budgets small enough that tiles and windows are evicted
 // while the other thread uses them; every window equals the in-memory pyramid's.

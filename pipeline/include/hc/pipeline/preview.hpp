@@ -35,6 +35,14 @@ ColourBar colour_bar(const HeightField& layer, double scale);
 /// `marks` (row, col) are circled in magenta (spikes, pits, islands). Grids smaller than 400 px
 /// on their long side are enlarged (nearest neighbour).
 /// @throws hc::InputError naming the file if it cannot be written.
+/// Marks given on level 0 ((row, col) samples) moved to level `level` of the level-of-detail
+/// pyramid, whose grid is `level_grid` (lod_level_geometry: level k's sample j lies on level
+/// 0's sample j·2^k): the nearest level-k sample, a tie to the larger index, clamped to the
+/// level's last row and column. Level 0 returns the marks unchanged. Shapes: one output per
+/// input mark. @throws std::invalid_argument for a level outside [0, 30].
+std::vector<std::array<int, 2>> marks_on_level(const std::vector<std::array<int, 2>>& marks, int level,
+                                               const GridGeometry& level_grid);
+
 void write_colour_preview(const HeightField& layer, const std::filesystem::path& png,
                           const std::string& title, const std::string& unit, double scale,
                           const std::vector<std::array<int, 2>>& marks = {});
