@@ -267,25 +267,17 @@ class Builder {
     std::error_code ec;
     fs::create_directory(root, ec);
     if (ec) throw InputError(root.string() + ": cannot create the levels folder: " + ec.message());
+    // Removed on an error: the levels folder, and level 0's layer files written into the scene
+    // folder (Level0Layers::kSceneFolder).
     struct Remove {
-      fs::path dir;
+      std::vector<fs::path> made;
       bool keep = false;
       ~Remove() {
         std::error_code e;
-        if (!keep) fs::remove_all(dir, e);
-      }
-    } guard{root};
-    // Level 0's layer files written into the scene folder (Level0Layers::kSceneFolder), removed
-    // on an error like the levels folder.
-    struct RemoveFiles {
-      std::vector<fs::path> files;
-      bool keep = false;
-      ~RemoveFiles() {
-        std::error_code e;
         if (!keep)
-          for (const fs::path& f : files) fs::remove(f, e);
+          for (const fs::path& p : made) fs::remove_all(p, e);
       }
-    } root_files;
+    } guard{{root}};
     // Level 0's level-wide values, in one pass over its tiles; each coarser level's come from the
     // pass that writes it.
     LevelStats stats = level0_stats();
@@ -296,7 +288,7 @@ class Builder {
         for (const char* name : {"envelope", "texture", "mu_d", "mu_s"}) {
           const fs::path f = file(0, name);
           if (fs::exists(f)) throw InputError(f.string() + ": exists, but level 0's other surface layers do not: expected all four or none");
-          root_files.files.push_back(f);
+          guard.made.push_back(f);
         }
       }
       report_.level0_layers = true;
@@ -317,7 +309,6 @@ class Builder {
     }
     if (report_.level0_layers && level0_ == Level0Layers::kSceneFolder) add_level0_surface_layers(dir_);
     guard.keep = true;
-    root_files.keep = true;
     report_.seconds = seconds_since(t0);
     return report_;
   }
@@ -329,7 +320,7 @@ class Builder {
     fs::create_directory(d, ec);
     if (ec) throw InputError(d.string() + ": cannot create the folder of level " + std::to_string(level) + ": " + ec.message());
   }
-  /// A layer file of a level; level 0's computed layers go to levels/L0/ (as write_scene_levels)
+  /// A layer file of a level; level 0's computed layers go to levels/L0/ (where LodPyramid::open_stored reads them)
   /// or, with Level0Layers::kSceneFolder, beside depth.tiff.
   fs::path file(int level, const std::string& name) const {
     if (level == 0 && !has_layers_ && level0_ == Level0Layers::kLevelsFolder &&
@@ -634,7 +625,7 @@ class Builder {
     }
 
     // Pass 3: μ_d and μ_s.
-    std::vector<float> mu(tile_n);
+    std::vector<float> mu_d(tile_n), mu_s(tile_n);
     std::size_t next = 0;
     for (int tr = 0; tr < tiles.tile_rows; ++tr) {
       for (int tc = 0; tc < tiles.tile_cols; ++tc) {
@@ -645,26 +636,19 @@ class Builder {
         ++next;
         tile_s.resize(tile_n);
         scratch.read(index * tile_n * sizeof(double), tile_s.data(), tile_n * sizeof(double));
-        std::fill(mu.begin(), mu.end(), kNaN);
-        for (int r = 0; r < b.rows; ++r) {
-          for (int c = 0; c < b.cols; ++c) {
-            const double s = tile_s[static_cast<std::size_t>(r) * static_cast<std::size_t>(tile_) + static_cast<std::size_t>(c)];
-            if (s == -1.0) continue;  // no data
-            mu[static_cast<std::size_t>(r) * static_cast<std::size_t>(tile_) + static_cast<std::size_t>(c)] =
-                static_cast<float>(friction_mu_d(s, s_ref, opt));
-          }
-        }
-        mud_out.write(tr, tc, mu.data());
-        std::fill(mu.begin(), mu.end(), kNaN);
+        std::fill(mu_d.begin(), mu_d.end(), kNaN);
+        std::fill(mu_s.begin(), mu_s.end(), kNaN);
         for (int r = 0; r < b.rows; ++r) {
           const double y = g.y_of_row(b.row0 + r);
           for (int c = 0; c < b.cols; ++c) {
             const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(tile_) + static_cast<std::size_t>(c);
-            if (tile_s[i] == -1.0) continue;
-            mu[i] = static_cast<float>(friction_mu_s(g.x_of_col(b.col0 + c), y, opt));
+            if (tile_s[i] == -1.0) continue;  // no data
+            mu_d[i] = static_cast<float>(friction_mu_d(tile_s[i], s_ref, opt));
+            mu_s[i] = static_cast<float>(friction_mu_s(g.x_of_col(b.col0 + c), y, opt));
           }
         }
-        mus_out.write(tr, tc, mu.data());
+        mud_out.write(tr, tc, mu_d.data());
+        mus_out.write(tr, tc, mu_s.data());
       }
       tell(name + " layers (friction)", static_cast<double>(tr + 1) / tiles.tile_rows);
     }

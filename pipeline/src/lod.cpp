@@ -294,7 +294,7 @@ struct LodPyramid::Stored {
   std::filesystem::path file(int level, int kind) const {
     const std::string name = kNames[static_cast<std::size_t>(kind)];
     // Level 0's surface layers computed by the pyramid for a scene that has none (layers off in
-    // the run) are stored in levels/L0/ (write_scene_levels), so that every level has them.
+    // the run) are stored in levels/L0/ (build_stored_levels), so that every level has them.
     if (level == 0 && kind >= kEnvelope && kind <= kMuS && !std::filesystem::exists(dir / (name + ".tiff"))) {
       return dir / kSceneLevelsFolder / "L0" / (name + ".tiff");
     }
@@ -809,56 +809,6 @@ SampleWindow window_of_extent(const GridGeometry& g, double x0_m, double y0_m, d
                       format_number(g.y_of_row(0)) + " .. " + format_number(g.y_of_row(g.rows - 1)) + " m (grid frame)");
   }
   return {r0, c0, r1 - r0 + 1, c1 - c0 + 1};
-}
-
-std::uint64_t write_scene_levels(LodPyramid& pyramid, const std::filesystem::path& scene_dir, int tile_cells) {
-  namespace fs = std::filesystem;
-  std::uint64_t bytes = 0;
-  const fs::path root = scene_dir / kSceneLevelsFolder;
-  const auto make_dir = [](const fs::path& d) {
-    std::error_code ec;
-    // One level at a time (not create_directories): a staging folder removed by an interrupt stays removed.
-    fs::create_directory(d, ec);
-    if (ec) throw InputError(d.string() + ": cannot create the levels folder: " + ec.message());
-  };
-  make_dir(root);
-  if (!pyramid.is_cached(0, true)) {
-    // Level 0 without surface layers (layers off in the run): the pyramid computes them for its
-    // windows, so they are stored too (levels/L0/), and a stored window equals the pyramid's.
-    const std::shared_ptr<const LodLevel> l0 = pyramid.level(0);
-    const fs::path dir = root / "L0";
-    make_dir(dir);
-    const GridGeometry& g = l0->depth_m.geometry();
-    for (const auto& [name, f] : {std::pair<const char*, const HeightField*>{"envelope", &l0->envelope_m},
-                                  {"texture", &l0->texture_m}, {"mu_d", &l0->mu_d}, {"mu_s", &l0->mu_s}}) {
-      detail::write_tiled_layer(dir / (std::string(name) + ".tiff"), f->data(), g, tile_cells, detail::TileSamples::kFloat32);
-      bytes += f->values().size() * sizeof(float);
-    }
-  }
-  for (int l = 1; l < pyramid.level_count(); ++l) {
-    const std::shared_ptr<const LodLevel> lvl = pyramid.level(l);
-    const fs::path dir = detail::stored_layer_file(scene_dir, l, "depth").parent_path();
-    make_dir(dir);
-    const GridGeometry& g = lvl->depth_m.geometry();
-    const auto write = [&](const char* name, const HeightField& f) {
-      if (f.rows() == 0) return;
-      detail::write_tiled_layer(dir / (std::string(name) + ".tiff"), f.data(), g, tile_cells, detail::TileSamples::kFloat32);
-      bytes += f.values().size() * sizeof(float);
-    };
-    write("depth", lvl->depth_m);
-    if (lvl->has_layers) {
-      write("envelope", lvl->envelope_m);
-      write("texture", lvl->texture_m);
-      write("mu_d", lvl->mu_d);
-      write("mu_s", lvl->mu_s);
-    }
-    write("cell_error", lvl->cell_error_m);
-    if (!lvl->colour_rgb8.empty()) {
-      detail::write_tiled_layer(dir / "colour.tiff", lvl->colour_rgb8.data(), g, tile_cells, detail::TileSamples::kRgb8);
-      bytes += lvl->colour_rgb8.size();
-    }
-  }
-  return bytes;
 }
 
 }  // namespace hc::pipeline

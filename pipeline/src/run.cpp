@@ -1,4 +1,3 @@
-#include "image_io.hpp"
 #include "run_internal.hpp"
 #include "stage_util.hpp"
 #include "tiled_layers.hpp"
@@ -459,12 +458,7 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
 void read_stored_layer(const fs::path& scene_dir, int level, const std::string& name, const GridGeometry& g,
                        detail::TileSamples samples, void* out) {
   const fs::path file = detail::stored_layer_file(scene_dir, level, name);
-  detail::TiledTiffReader reader;
-  std::string why = reader.open(file, samples);
-  if (why.empty() && (reader.width() != g.cols || reader.height() != g.rows)) {
-    why = std::to_string(reader.width()) + "x" + std::to_string(reader.height());
-  }
-  if (why.empty()) why = reader.read_region(0, 0, g.rows, g.cols, out);
+  const std::string why = detail::read_tiled_layer(file, g, samples, [out] { return out; });
   if (!why.empty()) {
     throw InputError(file.string() + ": cannot read level " + std::to_string(level) + "'s layer '" + name +
                      "' (expected a tiled " + std::to_string(g.cols) + "x" + std::to_string(g.rows) +
@@ -556,6 +550,13 @@ void add_previews(std::vector<std::function<void()>>& tasks, const PreviewLevel&
   }
 }
 
+/// Whether write_run's stage scene_levels can make level 0's surface layers for `config` and a
+/// level 0 of grid `g` (SurfaceLayersAt::kSceneLevels): layers on, a tiled scene, and no levels
+/// table (whose in-memory pyramid holds level 0's layers anyway).
+bool level0_layers_by_builder(const RunConfig& config, const GridGeometry& g) {
+  return config.layers.enabled && writes_tiled_scene(config.scale, g) && !config.lod.report;
+}
+
 /// The level a tiled scene's previews are drawn from: 0 when level 0's longer side is at most
 /// `max_side` samples, else the finest level that fits, or the coarsest of `stored_levels`.
 int preview_level_of(const GridGeometry& g0, int stored_levels, int max_side) {
@@ -630,10 +631,7 @@ Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::v
   // 6. Surface layers (texture, curvature, friction): here on the whole grid, or left to the
   // tiled scene's level builder in write_run (SurfaceLayersAt::kSceneLevels: a tiled scene
   // without the levels table, whose pyramid would hold level 0's layers anyway).
-  if (built.surface_layers_at == SurfaceLayersAt::kSceneLevels &&
-      !(config.layers.enabled && writes_tiled_scene(config.scale, scene.geometry) && !config.lod.report)) {
-    built.surface_layers_at = SurfaceLayersAt::kMemory;
-  }
+  if (!level0_layers_by_builder(config, scene.geometry)) built.surface_layers_at = SurfaceLayersAt::kMemory;
   if (built.surface_layers_at == SurfaceLayersAt::kSceneLevels) {
     // What compute_surface_layers records; the layers themselves come in stage scene_levels.
     scene.friction_model = config.layers.options.friction_model;
@@ -849,10 +847,11 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   // into the tiled scene without the levels table it was built for (checked before anything
   // is moved out of `movable`).
   const bool layers_by_builder = built.surface_layers_at == SurfaceLayersAt::kSceneLevels;
-  if (layers_by_builder && (!writes_tiled_scene(config.scale, scene.geometry) || config.lod.report)) {
+  if (layers_by_builder && !level0_layers_by_builder(config, scene.geometry)) {
     throw std::invalid_argument(
         "write_run: the scene's surface layers were left to the tiled scene's level builder, but this config "
-        "writes no tiled scene or asks for the levels table (lod.report): build it with SurfaceLayersAt::kMemory");
+        "has layers off, writes no tiled scene or asks for the levels table (lod.report): build it with "
+        "SurfaceLayersAt::kMemory");
   }
   const double built_seconds = built.summary.total_seconds;
   // Moved from `movable` (it aliases `built`): its cross-check error grid is not copied.

@@ -67,6 +67,17 @@ void detail::write_tiled_layer(const fs::path& file, const void* values, const G
   }
 }
 
+std::string detail::read_tiled_layer(const fs::path& file, const GridGeometry& g, TileSamples samples,
+                                     const std::function<void*()>& buffer) {
+  TiledTiffReader reader;
+  std::string why = reader.open(file, samples);
+  if (why.empty() && (reader.width() != g.cols || reader.height() != g.rows)) {
+    why = std::to_string(reader.width()) + "x" + std::to_string(reader.height());
+  }
+  if (why.empty()) why = reader.read_region(0, 0, g.rows, g.cols, buffer());
+  return why;
+}
+
 fs::path detail::stored_layer_file(const fs::path& scene_dir, int level, const std::string& name) {
   if (level == 0) return scene_dir / (name + ".tiff");
   // Built with append: GCC 12's -Wrestrict misfires on a literal + std::string at -O3.
@@ -391,22 +402,8 @@ void add_level0_surface_layers(const fs::path& scene_dir) {
       s.provenance.resolved_config_yaml += (line.rfind("  ", 0) == 0 ? line.substr(2) : line) + "\n";
     }
   }
-  // Replaced in one rename: a reader sees the old list or the new one, never half a file; a
-  // failed write or rename leaves no partial file.
-  const fs::path partial = scene_dir / "scene.yaml.partial";
-  struct RemovePartial {
-    const fs::path& file;
-    bool keep = false;
-    ~RemovePartial() {
-      std::error_code ignored;
-      if (!keep) fs::remove(file, ignored);
-    }
-  } guard{partial};
-  write_text_file(partial, scene_yaml_text(s, s.storage, layer_files, flags_file, colour_file));
-  std::error_code ec;
-  fs::rename(partial, meta, ec);
-  if (ec) throw InputError(meta.string() + ": cannot replace it: " + ec.message());
-  guard.keep = true;
+  // Replaced in one rename: a reader sees the old list or the new one, never half a file.
+  detail::write_atomically(meta, scene_yaml_text(s, s.storage, layer_files, flags_file, colour_file));
 }
 
 struct TiledSceneWriter::Impl {
@@ -618,15 +615,10 @@ Scene load_scene(const fs::path& scene_dir, bool load_layers) {
     }
     if (const YAML::Node colour = root["colour"]; colour && load_layers && version == kTiledSceneFormatVersion) {
       const fs::path file = scene_dir / colour.as<std::string>();
-      detail::TiledTiffReader reader;
-      std::string why = reader.open(file, detail::TileSamples::kRgb8);
-      if (why.empty() && (reader.width() != g.cols || reader.height() != g.rows)) {
-        why = std::to_string(reader.width()) + "x" + std::to_string(reader.height());
-      }
-      if (why.empty()) {
-        s.layers.colour_rgb8.resize(3 * g.cell_count());
-        why = reader.read_region(0, 0, g.rows, g.cols, s.layers.colour_rgb8.data());
-      }
+      const std::string why = detail::read_tiled_layer(file, g, detail::TileSamples::kRgb8, [&] {
+        s.layers.colour_rgb8.resize(3 * g.cell_count());  // only once the file is known to be g's size
+        return static_cast<void*>(s.layers.colour_rgb8.data());
+      });
       if (!why.empty()) {
         throw InputError(file.string() + ": missing or malformed colour layer (expected a tiled " + std::to_string(g.cols) +
                          "x" + std::to_string(g.rows) + " RGB TIFF; " + why + ")");

@@ -15,6 +15,7 @@
 #include <cstdint>
 #include <atomic>
 #include <exception>
+#include <filesystem>
 #include <functional>
 #include <string>
 #include <thread>
@@ -79,6 +80,14 @@ class PassProgress {
   double interval_s_;
   detail::Clock::time_point t0_, last_;
 };
+
+/// Writes `bytes` to the file `target` whole or not at all: into a temporary beside it
+/// ("." + its name + ".tmp-<host>-<pid>-<random>", registered for the signal clean-up, flushed
+/// to disk with fsync) renamed over it (rename(2): a reader sees the old file or the new one),
+/// the temporary removed however this ends. Used for a plan's files (tiled_run.cpp, where it is
+/// defined, and whose stale-scratch clean-up knows the temporary's name) and scene.yaml's
+/// rewrite (add_level0_surface_layers). @throws hc::InputError "cannot write TARGET: reason".
+void write_atomically(const std::filesystem::path& target, const std::string& bytes);
 
 /// An empty report of stage `stage` that received `in` points.
 inline StageReport make_report(const char* stage, std::size_t in) {

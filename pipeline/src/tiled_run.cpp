@@ -3154,9 +3154,9 @@ std::string host_tag() {
 // A name no other attempt uses, even on another host sharing the folder (host, process, random).
 std::string attempt_tag() { return host_tag() + "-" + std::to_string(::getpid()) + "-" + random_id(); }
 
-// Writes `bytes` to `target` through a temporary file beside it (flushed to disk) and a rename,
-// so a reader never sees half of it, even after a crash. @throws InputError naming the file.
-void write_atomically(const fs::path& target, const std::string& bytes) {
+}  // namespace
+
+void detail::write_atomically(const fs::path& target, const std::string& bytes) {
   const fs::path tmp = target.parent_path() / ("." + target.filename().string() + std::string(kTmpInfix) + attempt_tag());
   // Removed however this ends (after the rename, nothing is left to remove); SIGINT/SIGTERM
   // (hapticloud's signal watcher) removes it while it is written.
@@ -3173,6 +3173,8 @@ void write_atomically(const fs::path& target, const std::string& bytes) {
   rename_live_scratch(tmp, target, ec);
   if (ec) throw InputError("cannot write " + target.string() + ": " + ec.message());
 }
+
+namespace {
 
 std::string read_file_bytes(const fs::path& file, const char* what) {
   std::FILE* f = std::fopen(file.c_str(), "rb");
@@ -3288,7 +3290,7 @@ void write_plan_file(const PlanFile& pf) {
   for (const auto& r : p.reports) reports.push_back(report_json(r));
   j["reports"] = reports;
   // Notes and figure names are for reading only: a byte that is not UTF-8 becomes U+FFFD.
-  write_atomically(pf.dir / "plan.json", j.dump(1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");
+  detail::write_atomically(pf.dir / "plan.json", j.dump(1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");
 }
 
 PlanFile read_plan_file(const fs::path& plan_file) {
@@ -3810,7 +3812,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
       rename_live_scratch(kept.file(t), kept_final, ec);
       if (ec) throw InputError("tile-job: cannot move " + kept.file(t).string() + " to " + kept_final.string() + ": " + ec.message());
     }
-    write_atomically(part_file(pf.dir, t), encode_part(pf.id, o));
+    detail::write_atomically(part_file(pf.dir, t), encode_part(pf.id, o));
   }
 }
 

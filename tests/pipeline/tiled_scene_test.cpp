@@ -10,6 +10,7 @@
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
+#include "hc/pipeline/level_builder.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/run.hpp"
@@ -101,12 +102,12 @@ std::shared_ptr<LodPyramid> memory_pyramid(const Scene& s) {
   return std::make_shared<LodPyramid>(std::move(l0), s.layer_options, s.lod);
 }
 
-/// Writes `s` as a tiled scene with every level of its in-memory pyramid.
+/// Writes `s` as a tiled scene with every level of its pyramid (the streaming level builder,
+/// which level_builder_test checks bit for bit against the in-memory pyramid).
 fs::path write_tiled(const Scene& s, const fs::path& dir, int tile) {
-  auto mem = memory_pyramid(s);
   const fs::path scene_dir = dir / "scene";
-  hc::pipeline::write_scene(s, scene_dir, SceneStorage{tile, mem->level_count()});
-  hc::pipeline::write_scene_levels(*mem, scene_dir, tile);
+  hc::pipeline::write_scene(s, scene_dir, SceneStorage{tile, hc::pipeline::lod_level_count(s.geometry, s.lod.min_cells)});
+  (void)hc::pipeline::build_stored_levels(scene_dir, dir / "scratch");
   return scene_dir;
 }
 

@@ -6,6 +6,7 @@
 #include "layered_sinusoid.hpp"
 #include "test_paths.hpp"
 
+#include "hc/pipeline/level_builder.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/surface_layers.hpp"
@@ -27,9 +28,8 @@ TEST(StoredSceneSession, TouchOnStoredLevelsRendersTheForcesOfTheSceneInMemory) 
   Scene scene = hc::test::layered_sinusoid(321, options, 120);
   scene.lod.min_cells = 40;
   const fs::path dir = hc::test::temp_dir("scene") / "scene";
-  auto writer = pipeline::LodPyramid::from_scene(Scene(scene), scene.layer_options, scene.lod);
-  pipeline::write_scene(scene, dir, SceneStorage{64, writer->level_count()});
-  pipeline::write_scene_levels(*writer, dir, 64);
+  pipeline::write_scene(scene, dir, SceneStorage{64, pipeline::lod_level_count(scene.geometry, scene.lod.min_cells)});
+  (void)pipeline::build_stored_levels(dir, dir.parent_path() / "scratch");
 
   SceneSourceOptions so;
   so.open_stored_levels = true;

@@ -3,7 +3,7 @@
 /// The streaming level builder (issue 14, "a tiled scene"): the coarser levels of detail of a
 /// tiled scene folder made tile by tile from the stored level above, in memory bounded by two
 /// tiles and their halos (two threads), not by the grid. Equal bit for bit to the in-memory
-/// pyramid (LodPyramid, lod.hpp) and so to write_scene_levels. docs/scale.md, "The tiled scene".
+/// pyramid (LodPyramid, lod.hpp). docs/scale.md, "The tiled scene".
 
 #include "hc/common/height_field.hpp"
 

@@ -151,7 +151,7 @@ class LodPyramid {
                                                 const LodOptions& options);
 
   /// The pyramid of a tiled scene folder (write_scene with SceneStorage::tile_cells > 0, then
-  /// write_scene_levels): every level is on disk, so nothing is built and nothing is loaded at
+  /// build_stored_levels, level_builder.hpp): every level is on disk, so nothing is built and nothing is loaded at
   /// open but scene.yaml; each layer file's directory is read on first use, and a window reads
   /// only the tiles it overlaps (issue 14: a 65 536 × 32 768 scene opens and switches windows in
   /// bounded memory). `options` as in the constructor: memory_budget_mb bounds the cache, a
@@ -239,19 +239,5 @@ class LodPyramid {
   std::size_t bytes_ = 0;
   std::uint64_t hits_ = 0, misses_ = 0, evictions_ = 0;
 };
-
-/// Stores levels 1 .. level_count − 1 of `pyramid` (built, with their layers, as level() builds
-/// them) as tiled TIFFs beside level 0 of a tiled scene folder: `scene_dir/levels/L<k>/` holds
-/// depth.tiff and, when the level has them, envelope, texture, mu_d, mu_s, cell_error (float) and
-/// colour.tiff (RGB); square tiles of `tile_cells` (as write_scene's storage), all-NaN tiles sparse.
-/// Levels are built and written one at a time (the pyramid's budget bounds memory). When level 0
-/// has no surface layers (a run with layers off), the ones the pyramid computes for it are stored
-/// in `levels/L0/`, so that a stored window equals the pyramid's at every level.
-/// Call after write_scene(..., SceneStorage{tile_cells, pyramid.level_count()}) on the same folder,
-/// with the pyramid of that scene's layers (cell_error and colour included when it has them).
-/// @return the bytes of the level grids written (tiles without bytes counted as if written).
-/// @throws hc::InputError naming a file that cannot be written (or a folder that cannot be
-///         made); what level() throws.
-std::uint64_t write_scene_levels(LodPyramid& pyramid, const std::filesystem::path& scene_dir, int tile_cells);
 
 }  // namespace hc::pipeline

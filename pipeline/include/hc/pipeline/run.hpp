@@ -122,7 +122,7 @@ using LevelTimingFn = std::function<void(const std::shared_ptr<LodPyramid>&, std
 /// @throws hc::InputError for a refused out_dir (before anything is written) or a file that
 ///         cannot be written; on a throw nothing is left at out_dir that was not there before;
 ///         std::invalid_argument (before anything is written) for a kSceneLevels scene and a
-///         config that writes no tiled scene or asks for the levels table.
+///         config that has layers off, writes no tiled scene or asks for the levels table.
 RunSummary write_run(const BuiltScene& built, const RunConfig& config, const std::filesystem::path& out_dir,
                      const ProgressFn& progress = {}, ExistingOutput existing = ExistingOutput::kRefuse,
                      const LevelTimingFn& level_timing = {});

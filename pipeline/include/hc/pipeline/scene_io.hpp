@@ -43,8 +43,8 @@ using hc::Scene;
 /// With `storage.tile_cells` > 0 (a multiple of 16, 16..4096) every float layer is a tiled TIFF
 /// (square tiles of that side; tiles of no data only are stored without bytes), the colour is
 /// `colour.tiff` (tiled RGB), the flags stay `flags.png`, format_version is 3 and scene.yaml
-/// records `storage` (tile_cells and stored_levels: how many levels write_scene_levels, lod.hpp,
-/// will put beside level 0; the caller writes them). @throws std::invalid_argument also for a
+/// records `storage` (tile_cells and stored_levels: how many levels build_stored_levels,
+/// level_builder.hpp, will put beside level 0; the caller makes them). @throws std::invalid_argument also for a
 /// tile side that is not a multiple of 16 in [16, 4096], or stored_levels < 0.
 void write_scene(const Scene& scene, const std::filesystem::path& scene_dir, const SceneStorage& storage = {});
 
@@ -53,12 +53,13 @@ void write_scene(const Scene& scene, const std::filesystem::path& scene_dir, con
 /// following write_scene (issue 14: build_stored_levels with Level0Layers::kSceneFolder, for a run
 /// that kept none in memory). scene.yaml is written again from what it held (the other layers,
 /// flags, colour, options, provenance and the resolved config's text unchanged), with
-/// `friction_model` set to layer_options' when it was absent, into `scene.yaml.partial` renamed
-/// over it. @throws hc::InputError naming the file: not a tiled scene (format 3), one of the four
-/// files missing, scene.yaml unreadable or malformed, or it cannot be replaced.
+/// `friction_model` set to layer_options' when it was absent, through a temporary file renamed
+/// over it (no half-written scene.yaml is ever seen or left). @throws hc::InputError naming the
+/// file: not a tiled scene (format 3), one of the four files missing, scene.yaml unreadable or
+/// malformed, or it cannot be replaced.
 void add_level0_surface_layers(const std::filesystem::path& scene_dir);
 
-/// Writes a tiled scene folder (format 3, as write_scene with tiles and write_scene_levels) tile
+/// Writes a tiled scene folder (format 3, as write_scene with tiles and build_stored_levels) tile
 /// by tile, for a scene larger than memory (issue 14): a generator or a streaming level builder
 /// hands over one tile of one layer of one level at a time, in any order. Every layer file of
 /// every level is open from construction to finish(): memory is about one tile per open file
