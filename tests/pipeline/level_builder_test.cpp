@@ -5,6 +5,7 @@
 // and analytic surfaces). Every stored level must equal it bit for bit.
 
 #include "height_field_bits.hpp"
+#include "file_bytes.hpp"
 #include "test_paths.hpp"
 
 #include "hc/common/error.hpp"
@@ -170,20 +171,14 @@ TEST(LevelBuilder, LevelZerosLayersIntoTheSceneFolderAreListedAndEqualTheWholeGr
   // A scratch "folder" that is a file: the build stops at level 0's median, after its layer files
   // were opened, and neither levels/ nor any of them stays; scene.yaml is as written.
   const fs::path failing = write_level0(without, dir / "failing", 32, levels);
-  const std::string yaml_before = [&] {
-    std::ifstream in(failing / "scene.yaml");
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  }();
+  const std::string yaml_before = hc::test::read_bytes(failing / "scene.yaml");
   std::ofstream(dir / "a_file") << "not a folder";
   EXPECT_THROW(hc::pipeline::build_stored_levels(failing, dir / "a_file", {},
                                                  hc::pipeline::Level0Layers::kSceneFolder),
                hc::InputError);
   EXPECT_FALSE(fs::exists(failing / "levels"));
   for (const char* name : {"envelope.tiff", "texture.tiff", "mu_d.tiff", "mu_s.tiff"}) EXPECT_FALSE(fs::exists(failing / name)) << name;
-  {
-    std::ifstream in(failing / "scene.yaml");
-    EXPECT_EQ(std::string(std::istreambuf_iterator<char>(in), {}), yaml_before);
-  }
+  EXPECT_EQ(hc::test::read_bytes(failing / "scene.yaml"), yaml_before);
 
   const fs::path scene_dir = write_level0(without, dir / "built", 32, levels);
   fs::create_directories(dir / "scratch");
@@ -200,12 +195,8 @@ TEST(LevelBuilder, LevelZerosLayersIntoTheSceneFolderAreListedAndEqualTheWholeGr
   EXPECT_GT(loaded.layers.texture.valid_count(), 30'000u);
   // scene.yaml is the one write_scene writes for the scene with its layers.
   const fs::path whole = write_level0(with_prov, dir / "whole", 32, levels);
-  const auto text = [](const fs::path& f) {
-    std::ifstream in(f);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  };
-  EXPECT_EQ(text(scene_dir / "scene.yaml"), text(whole / "scene.yaml"));
-  EXPECT_NE(text(scene_dir / "scene.yaml").find("  n: 260  # cells"), std::string::npos);  // the config's text kept
+  EXPECT_EQ(hc::test::read_bytes(scene_dir / "scene.yaml"), hc::test::read_bytes(whole / "scene.yaml"));
+  EXPECT_NE(hc::test::read_bytes(scene_dir / "scene.yaml").find("  n: 260  # cells"), std::string::npos);  // the config's text kept
   expect_levels_equal(scene_dir, with);
 }
 

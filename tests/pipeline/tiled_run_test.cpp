@@ -17,6 +17,7 @@
 #include "hc/tools/relief.hpp"
 
 #include "height_field_bits.hpp"
+#include "file_bytes.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -1217,14 +1218,10 @@ TEST(TiledRun, LevelZerosLayersMadeByTheLevelBuilderEqualTheWholeGridsAndTheScen
   EXPECT_GT(sa.layers.texture.valid_count(), 10'000U);  // the comparison saw data
   EXPECT_FALSE(fs::exists(a / "scene" / "levels" / "L0"));  // level 0's layers are in level 0's folder
   EXPECT_FALSE(hc::test::has_entry_named_with(a / "scene", ".tmp-"));  // scene.yaml's rewrite left no temporary
-  const auto bytes = [](const fs::path& f) {
-    std::ifstream in(f, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  };
-  EXPECT_EQ(bytes(a / "scene" / "scene.yaml"), bytes(b / "scene" / "scene.yaml"));
+  EXPECT_EQ(hc::test::read_bytes(a / "scene" / "scene.yaml"), hc::test::read_bytes(b / "scene" / "scene.yaml"));
   for (const char* png : {"texture.png", "mu_d.png", "mu_s.png", "depth.png", "colour.png", "cross_check_error.png"}) {
     ASSERT_TRUE(fs::exists(a / "previews" / png)) << png;
-    EXPECT_EQ(bytes(a / "previews" / png), bytes(b / "previews" / png)) << png;
+    EXPECT_EQ(hc::test::read_bytes(a / "previews" / png), hc::test::read_bytes(b / "previews" / png)) << png;
   }
   // Every stored level, read back through the pyramid.
   auto pa = hc::pipeline::LodPyramid::open_stored(a / "scene", sa.lod);
@@ -1240,7 +1237,7 @@ TEST(TiledRun, LevelZerosLayersMadeByTheLevelBuilderEqualTheWholeGridsAndTheScen
     EXPECT_EQ(differing_bits(x->envelope_m, y->envelope_m), 0U) << level;
   }
   // The report: no whole-grid layers stage; stage scene_levels made them.
-  const nlohmann::json ja = nlohmann::json::parse(bytes(a / "report.json")), jb = nlohmann::json::parse(bytes(b / "report.json"));
+  const nlohmann::json ja = nlohmann::json::parse(hc::test::read_bytes(a / "report.json")), jb = nlohmann::json::parse(hc::test::read_bytes(b / "report.json"));
   const auto stage_of = [](const nlohmann::json& j, const std::string& name) {
     for (const nlohmann::json& s : j["stages"]) {
       if (s["stage"] == name) return s;
@@ -1267,8 +1264,8 @@ TEST(TiledRun, LevelZerosLayersMadeByTheLevelBuilderEqualTheWholeGridsAndTheScen
   hc::pipeline::write_rgb_preview(lk->depth_m, lk->colour_rgb8, dir / "oracle" / "colour.png", false);
   hc::pipeline::write_rgb_preview(lk->depth_m, lk->colour_rgb8, dir / "oracle" / "colour_hillshade.png", true);
   for (const char* png : {"colour.png", "colour_hillshade.png"}) {
-    EXPECT_EQ(bytes(dir / "capped" / "previews" / png), bytes(dir / "oracle" / png)) << png;
-    EXPECT_NE(bytes(dir / "capped" / "previews" / png), bytes(b / "previews" / png)) << png;  // not level 0's
+    EXPECT_EQ(hc::test::read_bytes(dir / "capped" / "previews" / png), hc::test::read_bytes(dir / "oracle" / png)) << png;
+    EXPECT_NE(hc::test::read_bytes(dir / "capped" / "previews" / png), hc::test::read_bytes(b / "previews" / png)) << png;  // not level 0's
   }
 
   // With the levels table on, whose pyramid holds level 0's layers anyway, they stay in memory.

@@ -6,6 +6,7 @@
 // for the stored levels and windows; tile counts from the window's geometry.
 
 #include "height_field_bits.hpp"
+#include "file_bytes.hpp"
 #include "test_paths.hpp"
 
 #include "hc/common/error.hpp"
@@ -524,17 +525,13 @@ TEST(TiledScene, PreviewsOfALevelZeroWiderThanTheCapAreTheStoredLevelsThatFits) 
   hc::pipeline::write_colour_preview(level->cell_error_m, oracle / "cross_check_error.png",
                                      "cross-check: grid sample to nearest point" + sfx, "mm", 1000.0);
   hc::pipeline::write_hillshade_preview(level->depth_m, oracle / "hillshade.png");
-  const auto bytes = [](const fs::path& f) {
-    std::ifstream in(f, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  };
   for (const char* png : {"depth.png", "texture.png", "mu_s.png", "cross_check_error.png", "hillshade.png"}) {
     ASSERT_TRUE(fs::exists(dir / "out" / "previews" / png)) << png;
-    EXPECT_EQ(bytes(dir / "out" / "previews" / png), bytes(oracle / png)) << png;
+    EXPECT_EQ(hc::test::read_bytes(dir / "out" / "previews" / png), hc::test::read_bytes(oracle / png)) << png;
   }
   // Level 0's own preview differs (the check above can fail).
   hc::pipeline::write_colour_preview(whole.layers.depth, oracle / "depth0.png", "depth z", "mm", 1000.0);
-  EXPECT_NE(bytes(dir / "out" / "previews" / "depth.png"), bytes(oracle / "depth0.png"));
+  EXPECT_NE(hc::test::read_bytes(dir / "out" / "previews" / "depth.png"), hc::test::read_bytes(oracle / "depth0.png"));
   // The report names the level.
   std::ifstream report_in(dir / "out" / "report.json");
   const auto report = nlohmann::json::parse(report_in);
