@@ -517,11 +517,13 @@ void add_previews(std::vector<std::function<void()>>& tasks, const PreviewLevel&
   if (wanted.cell_error) {
     tasks.emplace_back([&pl, dir, sfx, marks] {
       const std::vector<std::array<int, 2>> at = marks_on_level(marks, pl.level, pl.g);
+      // Above level 0 the stored error is level 0's averaged by the anti-aliasing kernel
+      // (LodLevel::cell_error_m), so a one-cell spike shows weaker than it is: the title says so.
+      const std::string what = pl.level == 0 ? std::string("cross-check: grid sample to nearest point")
+                                             : std::string("cross-check: grid sample to nearest point, level 0's averaged");
       pl.with("cell_error", pl.cell_error, [&](const HeightField& e) {
         write_colour_preview(e, dir / "cross_check_error.png",
-                             (at.empty() ? std::string("cross-check: grid sample to nearest point")
-                                         : std::string("cross-check: grid sample to nearest point (circles: spikes, pits, islands)")) + sfx,
-                             "mm", 1000.0, at);
+                             (at.empty() ? what : what + " (circles: spikes, pits, islands)") + sfx, "mm", 1000.0, at);
       });
     });
   }
@@ -529,8 +531,8 @@ void add_previews(std::vector<std::function<void()>>& tasks, const PreviewLevel&
     tasks.emplace_back([&pl, dir, sfx] {
       pl.with("depth", pl.depth, [&](const HeightField& d) { write_colour_preview(d, dir / "depth.png", "depth z" + sfx, "mm", 1000.0); });
     });
-    tasks.emplace_back([&pl, dir] {
-      pl.with("depth", pl.depth, [&](const HeightField& d) { write_hillshade_preview(d, dir / "hillshade.png"); });
+    tasks.emplace_back([&pl, dir, sfx] {
+      pl.with("depth", pl.depth, [&](const HeightField& d) { write_hillshade_preview(d, dir / "hillshade.png", "hillshade" + sfx); });
     });
   }
   if (wanted.surface_layers) {
@@ -854,10 +856,11 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
         "SurfaceLayersAt::kMemory");
   }
   const double built_seconds = built.summary.total_seconds;
+  // The output folder first: a refused one must leave the caller's scene whole.
+  StagingDir staging(out_dir, existing);
   // Moved from `movable` (it aliases `built`): its cross-check error grid is not copied.
   RunSummary summary = movable != nullptr ? std::move(movable->summary) : built.summary;
   auto& reports = summary.stages;
-  StagingDir staging(out_dir, existing);
 
   // 8. Scene, previews and report, all inside the staging folder.
   const auto t_write = Clock::now();
@@ -1282,7 +1285,10 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
     md << "\n\n![all levels side by side](previews/" << lod_previews.back() << ")\n\n";
   }
   md << "## Previews\n\n![depth](previews/depth.png)\n![hillshade](previews/hillshade.png)\n";
-  if (summary.cross_check) md << "![cross-check error](previews/cross_check_error.png)\n";
+  // Linked only when drawn: a tiled scene's capped preview needs the stored level's error layer.
+  if (summary.cross_check && fs::exists(staging.path() / "previews" / "cross_check_error.png")) {
+    md << "![cross-check error](previews/cross_check_error.png)\n";
+  }
   if (has_surface_layers) md << "![texture](previews/texture.png)\n![mu_d](previews/mu_d.png)\n![mu_s](previews/mu_s.png)\n";
   if (has_colour) {
     md << "![colour (front-most point per cell)](previews/colour.png)\n![colour over hillshade](previews/colour_hillshade.png)\n";

@@ -237,8 +237,11 @@ TEST(TileJobs, AMergeIntoATiledSceneLeavesLevelZerosLayersToTheLevelBuilderAndWr
   EXPECT_EQ(differing_bits(a.layers.mu_d, b.layers.mu_d), 0U);
   EXPECT_EQ(differing_bits(a.layers.mu_s, b.layers.mu_s), 0U);
   EXPECT_GT(a.layers.texture.valid_count(), 5000U);
-  EXPECT_EQ(bytes_of(dir / "builder" / "scene" / "scene.yaml"), bytes_of(dir / "memory" / "scene" / "scene.yaml"));
-  EXPECT_EQ(bytes_of(dir / "builder" / "previews" / "mu_d.png"), bytes_of(dir / "memory" / "previews" / "mu_d.png"));
+  for (const char* f : {"scene/scene.yaml", "previews/texture.png", "previews/mu_d.png", "previews/mu_s.png"}) {
+    ASSERT_TRUE(fs::exists(dir / "builder" / f)) << f;  // bytes_of reads a missing file as ""
+    ASSERT_TRUE(fs::exists(dir / "memory" / f)) << f;
+    EXPECT_EQ(bytes_of(dir / "builder" / f), bytes_of(dir / "memory" / f)) << f;
+  }
 }
 
 TEST(TileJobs, RefusesAResultOfAnotherPlanAChangedConfigAndAFolderInUse) {

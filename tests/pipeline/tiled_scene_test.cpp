@@ -523,8 +523,8 @@ TEST(TiledScene, PreviewsOfALevelZeroWiderThanTheCapAreTheStoredLevelsThatFits) 
   hc::pipeline::write_colour_preview(level->texture_m, oracle / "texture.png", "texture h = f - f_b" + sfx, "mm", 1000.0);
   hc::pipeline::write_colour_preview(level->mu_s, oracle / "mu_s.png", "static friction mu_s" + sfx, "-", 1.0);
   hc::pipeline::write_colour_preview(level->cell_error_m, oracle / "cross_check_error.png",
-                                     "cross-check: grid sample to nearest point" + sfx, "mm", 1000.0);
-  hc::pipeline::write_hillshade_preview(level->depth_m, oracle / "hillshade.png");
+                                     "cross-check: grid sample to nearest point, level 0's averaged" + sfx, "mm", 1000.0);
+  hc::pipeline::write_hillshade_preview(level->depth_m, oracle / "hillshade.png", "hillshade" + sfx);
   for (const char* png : {"depth.png", "texture.png", "mu_s.png", "cross_check_error.png", "hillshade.png"}) {
     ASSERT_TRUE(fs::exists(dir / "out" / "previews" / png)) << png;
     EXPECT_EQ(hc::test::read_bytes(dir / "out" / "previews" / png), hc::test::read_bytes(oracle / png)) << png;

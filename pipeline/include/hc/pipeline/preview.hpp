@@ -29,12 +29,6 @@ struct ColourBar {
 /// "500000.00" and "500000.10", not "5e+05" twice. Thread-safe.
 ColourBar colour_bar(const HeightField& layer, double scale);
 
-/// Writes `layer` colour-mapped (turbo) between its 1st and 99th percentile (colour_bar), with a
-/// legend bar labelled in `unit` after multiplying values by `scale` (e.g. 1000 for metres → mm);
-/// clipped ends are marked by a triangle on the bar and labelled with the true min / max.
-/// `marks` (row, col) are circled in magenta (spikes, pits, islands). Grids smaller than 400 px
-/// on their long side are enlarged (nearest neighbour).
-/// @throws hc::InputError naming the file if it cannot be written.
 /// Marks given on level 0 ((row, col) samples) moved to level `level` of the level-of-detail
 /// pyramid, whose grid is `level_grid` (lod_level_geometry: level k's sample j lies on level
 /// 0's sample j·2^k): the nearest level-k sample, a tie to the larger index, clamped to the
@@ -43,6 +37,12 @@ ColourBar colour_bar(const HeightField& layer, double scale);
 std::vector<std::array<int, 2>> marks_on_level(const std::vector<std::array<int, 2>>& marks, int level,
                                                const GridGeometry& level_grid);
 
+/// Writes `layer` colour-mapped (turbo) between its 1st and 99th percentile (colour_bar), with a
+/// legend bar labelled in `unit` after multiplying values by `scale` (e.g. 1000 for metres → mm);
+/// clipped ends are marked by a triangle on the bar and labelled with the true min / max.
+/// `marks` (row, col) are circled in magenta (spikes, pits, islands). Grids smaller than 400 px
+/// on their long side are enlarged (nearest neighbour).
+/// @throws hc::InputError naming the file if it cannot be written.
 void write_colour_preview(const HeightField& layer, const std::filesystem::path& png,
                           const std::string& title, const std::string& unit, double scale,
                           const std::vector<std::array<int, 2>>& marks = {});
