@@ -1077,6 +1077,11 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     c.scale.tiled_above_points = static_cast<std::uint64_t>(
         r.get_int("scale.tiled_above_points", static_cast<long long>(c.scale.tiled_above_points), 1, 1LL << 50));
     c.scale.tile_cells = static_cast<int>(r.get_int("scale.tile_cells", c.scale.tile_cells, 16, 65536));
+    c.scale.tile_max_points = static_cast<std::uint64_t>(
+        r.get_int("scale.tile_max_points", static_cast<long long>(c.scale.tile_max_points), 0, 1LL << 40));
+    if (c.scale.tile_max_points > 0 && c.scale.tile_max_points < 1000) {
+      r.fail("scale.tile_max_points", "= " + std::to_string(c.scale.tile_max_points) + ": expected 0 (no bound) or at least 1000");
+    }
     {
       const std::string fh = r.get_string("scale.filter_halo_cells", "auto");
       if (fh == "auto") {

@@ -693,6 +693,77 @@ struct NodeBinner {
   int rows, cols;
 };
 
+// Points per block of b × b grid nodes (NodeBinner's nodes; b chosen so that the table has at
+// most 2048 blocks along a side, 32 MB of counts at most), for the tile side (choose_tile_side):
+// a window's points are at most the sum of the blocks it meets, from a summed-area table.
+class BlockCounts {
+ public:
+  explicit BlockCounts(const GridGeometry& g)
+      : node_(g), b_(std::max(1, (std::max(g.rows, g.cols) + 2047) / 2048)), br_((g.rows + b_ - 1) / b_), bc_((g.cols + b_ - 1) / b_),
+        n_(static_cast<std::size_t>(br_) * static_cast<std::size_t>(bc_), 0) {}
+  // Counts the point at p (grid frame [m], 3 doubles).
+  void add(const double* p) {
+    ++n_[static_cast<std::size_t>(node_.row(p) / b_) * static_cast<std::size_t>(bc_) + static_cast<std::size_t>(node_.col(p) / b_)];
+  }
+  // After the last add: the summed-area table (sums() reads it).
+  void finish() {
+    sat_.assign(static_cast<std::size_t>(br_ + 1) * static_cast<std::size_t>(bc_ + 1), 0);
+    const auto at = [&](int r, int c) -> std::uint64_t& { return sat_[static_cast<std::size_t>(r) * static_cast<std::size_t>(bc_ + 1) + static_cast<std::size_t>(c)]; };
+    for (int r = 0; r < br_; ++r)
+      for (int c = 0; c < bc_; ++c)
+        at(r + 1, c + 1) = n_[static_cast<std::size_t>(r) * static_cast<std::size_t>(bc_) + static_cast<std::size_t>(c)] + at(r, c + 1) + at(r + 1, c) - at(r, c);
+    std::vector<std::uint64_t>().swap(n_);
+  }
+  // At least the points on nodes rows [r0, r1), cols [c0, c1) (the blocks that window meets).
+  std::uint64_t at_most(int r0, int r1, int c0, int c1) const {
+    const int R0 = r0 / b_, R1 = (r1 + b_ - 1) / b_, C0 = c0 / b_, C1 = (c1 + b_ - 1) / b_;
+    const auto at = [&](int r, int c) { return sat_[static_cast<std::size_t>(r) * static_cast<std::size_t>(bc_ + 1) + static_cast<std::size_t>(c)]; };
+    return at(R1, C1) - at(R0, C1) - at(R1, C0) + at(R0, C0);
+  }
+
+ private:
+  NodeBinner node_;
+  int b_, br_, bc_;
+  std::vector<std::uint64_t> n_, sat_;
+};
+
+// The tile side for scale.tile_max_points (issue 14: a tile's memory bounded by its points, not
+// by its cells alone): `configured` (scale.tile_cells, a multiple of k) when no window of tiles
+// that size (the tile and `halo` nodes about it, clipped to the grid) holds more than
+// `max_points` by `counts`; else the largest multiple of k found by bisection below it whose
+// windows all do, but not below `floor_side` (a multiple of k), which is taken when none does.
+// Returns {side, the most points a window of that side can hold by the counts}.
+std::pair<int, std::uint64_t> choose_tile_side(const BlockCounts& counts, const GridGeometry& g, int configured, int k, int halo,
+                                               int floor_side, std::uint64_t max_points) {
+  const auto most = [&](int side) {
+    std::uint64_t m = 0;
+    for (int r = 0; r < g.rows; r += side) {
+      for (int c = 0; c < g.cols; c += side) {
+        m = std::max(m, counts.at_most(std::max(0, r - halo), std::min(g.rows, r + side + halo), std::max(0, c - halo),
+                                       std::min(g.cols, c + side + halo)));
+      }
+    }
+    return m;
+  };
+  const std::uint64_t at_configured = most(configured);
+  if (at_configured <= max_points || configured <= floor_side) return {configured, at_configured};
+  // Multiples of k: lo fits or is the floor, hi does not fit.
+  int lo = floor_side / k, hi = configured / k;
+  std::uint64_t at_lo = most(lo * k);
+  if (at_lo > max_points) return {lo * k, at_lo};
+  while (hi - lo > 1) {
+    const int mid = lo + (hi - lo) / 2;
+    const std::uint64_t m = most(mid * k);
+    if (m <= max_points) {
+      lo = mid;
+      at_lo = m;
+    } else {
+      hi = mid;
+    }
+  }
+  return {lo * k, at_lo};
+}
+
 // owned[i] = 1 when point i's grid node lies in tile t's interior: the tile that counts the
 // point (its other copies are halo).
 void owned_by(const Tiles& tiles, std::size_t t, const Cloud& pts, std::vector<std::uint8_t>& owned) {
@@ -2100,6 +2171,13 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   // robust sample's from stage tile_scale on (0: not known).
   double spacing_estimate_m = 0.0, sample_spacing_m = 0.0;
   int coverage_passes = 0;  // over the input, for the upsample factor (lay_out)
+  // scale.tile_max_points (lay_out): the side scale.tile_cells gave (a multiple of the upsample
+  // factor), whether a pass of its own counted the points per block, and the most points a
+  // window of the chosen side can hold by those counts (0: not counted: the scan holds at most
+  // scale.tile_max_points points, or the bound is off).
+  int configured_side = 0;
+  bool count_pass = false;
+  std::uint64_t window_points_bound = 0;
   auto lay_out = [&](const FarCells* far, StageReport& rep) {
     const char* stage_name = far ? "tile_far_clusters" : "tile_plan";
     ro = config.grid.reproject;
@@ -2147,6 +2225,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     }
     grid_points = kept;
     tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
+    // Points per block for the tile side, counted with the first coverage pass when there is one.
+    std::optional<BlockCounts> counts;
+    if (config.scale.tile_max_points > 0 && kept > config.scale.tile_max_points) counts.emplace(tiles.g);
+    bool counted = false;
     double coverage = 0.0;
     if (config.grid.reproject.upsample_factor == 0) {
       // Factors 1 and 2 first (a scan as dense as its grid stops there); the rest, 3 to
@@ -2154,14 +2236,21 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       // own grid's, so the factor is the one a single pass over all factors gives.
       const auto coverage_pass = [&](int k_first, int k_last, const char* what) {
         UpsampleCoverage cov(tiles.g, k_first, k_last);
+        const bool count = counts && !counted;
         for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name, what, [&](const Cloud& g) {
           if (!far) {
             cov.add(g.xyz.data(), g.size());
+            if (count)
+              for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
             return;
           }
-          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i)
-            if (!far->holds(g.xyz.data() + 3 * i)) cov.add(g.xyz.data() + 3 * i, 1);
+          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
+            if (far->holds(g.xyz.data() + 3 * i)) continue;
+            cov.add(g.xyz.data() + 3 * i, 1);
+            if (count) counts->add(g.xyz.data() + 3 * i);
+          }
         });
+        counted = counted || count;
         return cov.factor(&coverage);
       };
       tiles.k = coverage_pass(1, 2, "pass 2b of 3: the upsample coverage");
@@ -2201,6 +2290,35 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     }
     if (tiles.filter < 0) throw no_filter_halo_error(stage_name, "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
     tiles.halo = tile_halo(config, k, tiles.filter);
+    // scale.tile_max_points: tiles small enough that no window holds more points than that
+    // (each tile's memory is its window's points), down to the halo's side.
+    configured_side = tiles.size;
+    window_points_bound = 0;
+    if (counts) {
+      if (!counted) {
+        count_pass = true;
+        for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
+                            "pass 2d of 3: the points per block, for the tile size", [&](const Cloud& g) {
+                              for (Eigen::Index i = 0; i < g.xyz.cols(); ++i)
+                                if (!far || !far->holds(g.xyz.data() + 3 * i)) counts->add(g.xyz.data() + 3 * i);
+                            });
+      }
+      counts->finish();
+      const int floor_side = std::min(tiles.size, (std::max(16, tiles.halo) + k - 1) / k * k);
+      const auto [side, most] = choose_tile_side(*counts, tiles.g, tiles.size, k, tiles.halo, floor_side, config.scale.tile_max_points);
+      tiles.size = side;
+      window_points_bound = most;
+      if (side < configured_side) {
+        rep.notes.push_back("tiles of " + std::to_string(side) + " cells, not scale.tile_cells' " + std::to_string(configured_side) +
+                            ", so that no window (tile and halo) holds more than scale.tile_max_points = " +
+                            std::to_string(config.scale.tile_max_points) + " points (at most " + std::to_string(most) + " by the plan's count)");
+      }
+      if (most > config.scale.tile_max_points) {
+        rep.notes.push_back("the densest window holds up to " + std::to_string(most) + " points even in tiles of " + std::to_string(side) +
+                            " cells (no smaller than the halo, " + std::to_string(tiles.halo) +
+                            " cells), more than scale.tile_max_points: the tile loop's memory follows that window");
+      }
+    }
     tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
     tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
   };
@@ -2262,16 +2380,17 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     r.report.figure("upsample_factor", k);
     r.report.figure("tiles", static_cast<double>(tiles.count()));
     r.report.figure("tile_cells", tiles.size);
+    if (window_points_bound > 0) r.report.figure("window_points_bound", static_cast<double>(window_points_bound));
     r.report.figure("halo_cells", tiles.halo);
     r.report.figure("filter_halo_cells", tiles.filter);
     if (spacing_estimate_m > 0.0) r.report.figure("spacing_estimate_mm", spacing_estimate_m * 1e3);
-    r.report.notes = read_notes;
+    r.report.notes.insert(r.report.notes.begin(), read_notes.begin(), read_notes.end());
     r.report.notes.push_back(std::string("passes over the input: the file box, ") +
                              (grid_box_from_file ? "" : "the grid box, ") +
                              (coverage_passes == 2   ? "the upsample coverage for factors 1 and 2, again for 3 and more, "
                               : coverage_passes == 1 ? "the upsample coverage, "
                                                      : "") +
-                             "then the spill" +
+                             (count_pass ? "the points per block for the tile size, " : "") + "then the spill" +
                              (grid_box_from_file ? " (the grid's box is the file box's, recentred: identity view, no crop)" : ""));
     return r;
   });
@@ -2372,6 +2491,11 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     rep.figure("points_spilled", static_cast<double>(copies));
     rep.figure("halo_copies_per_point", spilled ? static_cast<double>(copies) / static_cast<double>(spilled) : 0.0);
     rep.figure("spill_bytes_peak_mb", static_cast<double>(spill->bytes()) / 1e6);
+    // The largest window's points as spilled (halo copies and far points included): what a
+    // tile holds (scale.tile_max_points bounds it through the plan's count).
+    std::size_t most_records = 0;
+    for (std::size_t t = 0; t < spill_tiles; ++t) most_records = std::max(most_records, spill->records(t));
+    rep.figure("window_points_max", static_cast<double>(most_records));
     rep.notes.push_back("spill folder " + dir.string());
     return spilled;
   };
@@ -2526,7 +2650,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
               if (pass == 0) rp.notes.push_back("halo_cells, filter_halo_cells: widened at tile_scale for the robust sample's spacing");
             }
             if (rp.stage == "tile_spill") {
-              for (const char* f : {"points_spilled", "halo_copies_per_point", "spill_bytes_peak_mb"})
+              for (const char* f : {"points_spilled", "halo_copies_per_point", "spill_bytes_peak_mb", "window_points_max"})
                 detail::set_figure(rp, f, detail::figure_of(again, f, 0.0));
               if (pass == 0) rp.notes.push_back("points_spilled, halo_copies_per_point, spill_bytes_peak_mb: of the spill again at tile_scale");
             }
@@ -2697,6 +2821,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
             if (rp.stage == "tile_plan" && name == "upsample_factor") v = tiles.k;
             if (rp.stage == "tile_plan" && name == "halo_cells") v = tiles.halo;
             if (rp.stage == "tile_plan" && name == "filter_halo_cells") v = tiles.filter;
+            if (rp.stage == "tile_plan" && name == "tile_cells") v = tiles.size;
+            if (rp.stage == "tile_plan" && name == "window_points_bound") v = static_cast<double>(window_points_bound);
           }
           if (rp.stage == "tile_plan") {
             rp.count_out = grid_points;

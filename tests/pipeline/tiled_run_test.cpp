@@ -175,6 +175,54 @@ TEST(TiledRun, EqualsTheInCoreRunOnTheBuddhaInTilesOf64Cells) {
   expect_tiled_equals_in_core(config, 64, hc::test::temp_dir("scratch"));
 }
 
+// scale.tile_max_points: where a window of scale.tile_cells would hold more points, the plan
+// takes smaller tiles. Oracles: the spill's own record counts (every window's points as written,
+// not the plan's block count), the in-core run (the scene is the same bit for bit whatever the
+// tiles), and the same run without the bound (the configured side, two tiles).
+TEST(TiledRun, TilesShrinkSoThatNoWindowHoldsMoreThanTileMaxPoints) {
+  hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/happy_buddha.yaml";
+  RunConfig config = hc::pipeline::load_run_config(cfg, {"filters.outliers.enabled=false", "scale.tile_max_points=250000"});
+  const fs::path scratch = hc::test::temp_dir("scratch");
+  BuiltScene tiled;
+  expect_tiled_equals_in_core(config, 512, scratch, &tiled);  // asserts more than 4 tiles
+  const double side = stage_figure(tiled, "tile_plan", "tile_cells");
+  const double most = stage_figure(tiled, "tile_spill", "window_points_max");
+  EXPECT_LT(side, 512.0);
+  EXPECT_GT(side, stage_figure(tiled, "tile_plan", "halo_cells"));
+  EXPECT_GT(most, 125000.0) << "the tiles are not needlessly small";
+  EXPECT_LE(most, 250000.0) << "a window holds more than scale.tile_max_points";
+  EXPECT_GE(stage_figure(tiled, "tile_plan", "window_points_bound"), most) << "the plan's count bounds every window";
+  EXPECT_TRUE(has_note(tiled, "tile_plan", "not scale.tile_cells' 512"));
+  EXPECT_FALSE(has_note(tiled, "tile_plan", "the densest window holds up to"));
+
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 512;
+  config.scale.scratch = scratch;
+  // A bound no tile as wide as the halo (43 cells here) meets: tiles of the halo's side, and a
+  // note that the densest window still holds more.
+  config.scale.tile_max_points = 100000;
+  const BuiltScene tight = hc::pipeline::build_scene(config);
+  EXPECT_EQ(stage_figure(tight, "tile_plan", "tile_cells"), stage_figure(tight, "tile_plan", "halo_cells"));
+  EXPECT_GT(stage_figure(tight, "tile_spill", "window_points_max"), 100000.0);
+  EXPECT_TRUE(has_note(tight, "tile_plan", "the densest window holds up to"));
+
+  // Without the bound: the configured side, and windows of far more points.
+  config.scale.tile_max_points = 0;
+  const BuiltScene whole = hc::pipeline::build_scene(config);
+  EXPECT_EQ(stage_figure(whole, "tile_plan", "tile_cells"), 512.0);
+  EXPECT_GT(stage_figure(whole, "tile_spill", "window_points_max"), 400000.0);
+  EXPECT_LT(stage_figure(whole, "tile_plan", "window_points_bound"), 0.0) << "no count without the bound";
+
+  // Out of range: named.
+  try {
+    (void)hc::pipeline::load_run_config(cfg, {"scale.tile_max_points=5"});
+    ADD_FAILURE() << "scale.tile_max_points=5 was taken";
+  } catch (const hc::ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("scale.tile_max_points"), std::string::npos) << e.what();
+  }
+}
+
 // With the robust outlier filter on, every tile judges its points by the whole scan's scale: the
 // median and MAD of ln d over the very points the in-core run samples (each tile gives those it
 // owns, their k-NN over its points and halo), so the scale equals the in-core run's exactly; so

@@ -97,7 +97,12 @@ struct ScaleConfig {
   /// tiled_above_points points; on: always (an error names the keys it cannot honour); off: never.
   Tiled tiled = Tiled::kAuto;
   std::uint64_t tiled_above_points = 50'000'000;  ///< the auto threshold, ≥ 1
-  int tile_cells = 512;           ///< tile side [grid cells], 16 to 65536 (rounded up to the upsample factor)
+  int tile_cells = 512;           ///< largest tile side [grid cells], 16 to 65536 (rounded up to the upsample factor)
+  /// The most points a tile's window (tile and halo) may hold [points], 0 (no bound) or 1000 to
+  /// 2^40: where a window of tile_cells would hold more (a dense scan on a coarse grid), the
+  /// plan counts the points per block of cells and takes smaller tiles, down to the halo's side
+  /// (tiled_run.cpp, choose_tile_side). The tile loop holds about 150 bytes a window point.
+  std::uint64_t tile_max_points = 4'000'000;
   /// scale.filter_halo_cells: auto, the halo from the scan's spacing (tiled_run.cpp,
   /// auto_filter_halo_cells).
   static constexpr int kAutoFilterHalo = -1;
