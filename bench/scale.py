@@ -13,6 +13,8 @@ report has been read.
     python3 bench/scale.py --build build/release --scratch /big/disk/scale
     python3 bench/scale.py --format las --sizes 1e7 --n 800   # LAS 1.2 instead of PLY
     python3 bench/scale.py --format ptx --sizes 3e6 --n 800   # PTX text (converted from the PLY)
+    python3 bench/scale.py --sizes 1e6,1e7,1e8 --json scale.json --plot docs/images/scale.png
+    python3 bench/scale.py --plot-from a.json,b.json --plot docs/images/scale.png   # redraw, no run
 
 Printed: a Markdown table (docs/scale.md keeps the measured one) with, per run, wall and CPU
 seconds, peak RSS, bytes per point, M points per wall second and per CPU second, and the three
@@ -49,13 +51,18 @@ def parse_count(text):
 
 
 def run_child(cmd):
-    """Runs cmd; returns (exit code, wall s, user s, sys s, peak RSS bytes, stderr text)."""
-    t0 = time.monotonic()
-    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-    _, status, usage = os.wait4(proc.pid, 0)
-    wall = time.monotonic() - t0
-    err = proc.stderr.read().decode(errors="replace")
-    proc.stderr.close()
+    """Runs cmd; returns (exit code, wall s, user s, sys s, peak RSS bytes, stderr text).
+    The child's stderr (its progress lines) goes to a temporary file, not a pipe: a pipe read only
+    after the child ends fills (64 KiB, about 700 progress lines) and stalls a long run's child in
+    its next write, which then counts in its wall time."""
+    import tempfile
+    with tempfile.TemporaryFile() as err_file:
+        t0 = time.monotonic()
+        proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=err_file)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.monotonic() - t0
+        err_file.seek(0)
+        err = err_file.read().decode(errors="replace")
     proc.returncode = os.waitstatus_to_exitcode(status)
     # Linux reports ru_maxrss in kilobytes.
     return proc.returncode, wall, usage.ru_utime, usage.ru_stime, usage.ru_maxrss * 1024, err
@@ -86,6 +93,68 @@ def ply_to_ptx(ply, ptx):
         os.replace(tmp, ptx)
 
 
+def plot_rows(rows, png, title):
+    """Draws rows (as printed; failed rows left out) with gnuplot (Debian package gnuplot-nox, which
+    the project's pipeline plots use too) into png: M input points per CPU second against the
+    point count, and peak RSS against the point count, one line per mode and grid N, with issue
+    14's aims (1 M points per CPU second; 1 GB at 10^8 points, N = 4096) drawn as dashed lines.
+    Writes png.partial and renames it, so a failed plot leaves no half-written file."""
+    import tempfile
+    ok = [r for r in rows if "slowest" in r and r.get("cpu_s") == r.get("cpu_s")]
+    series = {}
+    for r in ok:
+        series.setdefault((r["mode"], r["n"]), []).append(r)
+    if not series:
+        raise SystemExit("scale.py: --plot: no successful run to plot")
+    with tempfile.TemporaryDirectory() as tmp:
+        data = os.path.join(tmp, "rows.dat")
+        names = []
+        with open(data, "w") as f:
+            for (mode, n), rs in sorted(series.items()):
+                names.append(f"{mode}, N = {n}")
+                for r in sorted(rs, key=lambda r: r["points"]):
+                    f.write(f"{r['points']} {r['points'] / r['cpu_s'] / 1e6:.6g} {r['peak_rss_bytes'] / 1e6:.6g}\n")
+                f.write("\n\n")
+        lo = min(r["points"] for r in ok) / 2
+        hi = max(r["points"] for r in ok) * 2
+        partial = png + ".partial"
+        def plots(col):
+            return ", ".join(f"'{data}' index {i} using 1:{col} with linespoints lw 2 pt {5 + 2 * (i % 4)} "
+                             f"title '{name}'" for i, name in enumerate(names))
+        script = f"""set terminal pngcairo size 1200,600 noenhanced font ',11'
+set output '{partial}'
+set multiplot layout 1,2 title '{title}'
+set logscale x
+set xrange [{lo}:{hi}]
+set format x '10^%L'
+set xlabel 'input points'
+set grid
+set key below maxrows 3
+set title 'throughput'
+set ylabel 'M input points per CPU second (user + system)'
+set yrange [0:*]
+set offsets graph 0, graph 0, graph 0.1, graph 0
+plot {plots(2)}, 1 with lines dt 2 lc rgb 'black' title 'aim: 1 M per CPU second'
+set title 'peak memory'
+set ylabel 'peak RSS (MB)'
+set logscale y
+set yrange [*:*]
+set offsets graph 0, graph 0, graph 0, graph 0
+set format y '%g'
+plot {plots(3)}, 1000 with lines dt 2 lc rgb 'black' title 'aim: 1 GB (10^8 points, N = 4096)'
+unset multiplot
+"""
+        gp = os.path.join(tmp, "scale.gp")
+        with open(gp, "w") as f:
+            f.write(script)
+        res = subprocess.run(["gnuplot", gp], capture_output=True, text=True)
+        if res.returncode != 0 or not os.path.exists(partial):
+            if os.path.exists(partial):
+                os.remove(partial)
+            raise SystemExit(f"scale.py: gnuplot failed drawing {png}: {res.stderr.strip()}")
+        os.replace(partial, png)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--build", default=os.path.join(ROOT, "build", "release"), help="build folder (release preset)")
@@ -101,7 +170,20 @@ def main():
     ap.add_argument("--format", default="ply", choices=["ply", "las", "ptx"],
                     help="the generated scans' format: binary float PLY, LAS 1.2 (point format 0), or PTX "
                          "(one scan of 1000 rows, converted here from the generated PLY)")
+    ap.add_argument("--plot", default=None, help="also draw the rows with gnuplot into this PNG (throughput and peak RSS)")
+    ap.add_argument("--plot-from", default=None,
+                    help="draw --plot from these --json files (comma-separated) of earlier runs instead of running anything")
+    ap.add_argument("--plot-title", default="hapticloud run on generated walls", help="the plot's title")
     args = ap.parse_args()
+    if args.plot_from:
+        if not args.plot:
+            sys.exit("scale.py: --plot-from needs --plot PNG")
+        rows = []
+        for name in args.plot_from.split(","):
+            with open(name) as f:
+                rows += json.load(f)
+        plot_rows(rows, args.plot, args.plot_title)
+        return 0
 
     sizes = [parse_count(s) for s in args.sizes.split(",")]
     grids = [int(n) for n in args.n.split(",")]
@@ -194,6 +276,8 @@ def main():
     if args.json:
         with open(args.json, "w") as f:
             json.dump(rows, f, indent=1)
+    if args.plot:
+        plot_rows(rows, args.plot, args.plot_title)
     # A run that wrote its report counts even when its verdict failed (exit 3).
     return 1 if any("slowest" not in r for r in rows) else 0
 
