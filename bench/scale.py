@@ -170,6 +170,8 @@ def main():
     ap.add_argument("--format", default="ply", choices=["ply", "las", "ptx"],
                     help="the generated scans' format: binary float PLY, LAS 1.2 (point format 0), or PTX "
                          "(one scan of 1000 rows, converted here from the generated PLY)")
+    ap.add_argument("--keep-reports", default=None,
+                    help="copy each run's report.json (every stage's figures and peak_rss_mb) into this folder as report_<tag>.json")
     ap.add_argument("--plot", default=None, help="also draw the rows with gnuplot into this PNG (throughput and peak RSS)")
     ap.add_argument("--plot-from", default=None,
                     help="draw --plot from these --json files (comma-separated) of earlier runs instead of running anything")
@@ -241,6 +243,9 @@ def main():
                 row["cpu_s"] = float("nan")
             report = os.path.join(out, "report.json")
             if os.path.exists(report):
+                if args.keep_reports:
+                    os.makedirs(args.keep_reports, exist_ok=True)
+                    shutil.copyfile(report, os.path.join(args.keep_reports, f"report_{tag}.json"))
                 with open(report) as f:
                     stages = json.load(f)["stages"]
                 slow = sorted(stages, key=lambda s: -s["seconds"])[:3]
