@@ -505,11 +505,12 @@ void add_previews(std::vector<std::function<void()>>& tasks, const PreviewLevel&
   if (wanted.colour) {
     for (const bool shaded : {false, true}) {
       tasks.emplace_back([&pl, dir, shaded] {
+        const fs::path png = dir / (shaded ? "colour_hillshade.png" : "colour.png");
         pl.with("depth", pl.depth, [&](const HeightField& d) {
-          if (pl.colour != nullptr) return write_rgb_preview(d, *pl.colour, dir / (shaded ? "colour_hillshade.png" : "colour.png"), shaded);
+          if (pl.colour != nullptr) return write_rgb_preview(d, *pl.colour, png, shaded);
           std::vector<std::uint8_t> rgb(3 * pl.g.cell_count());
           read_stored_layer(pl.scene_dir, pl.level, "colour", pl.g, detail::TileSamples::kRgb8, rgb.data());
-          write_rgb_preview(d, rgb, dir / (shaded ? "colour_hillshade.png" : "colour.png"), shaded);
+          write_rgb_preview(d, rgb, png, shaded);
         });
       });
     }
