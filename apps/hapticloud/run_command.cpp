@@ -90,10 +90,13 @@ void print_summary(const pipeline::RunSummary& summary, const std::filesystem::p
 /// 32 MB by its dynamic default) with fresh mappings, so every stage faulted in and zeroed its
 /// pages again: 1.8 s of system time in a 10⁷-point run in core. Served from the heap and not
 /// trimmed, freed pages are reused: 0.7 s, the run 8.2–8.5 → 7.1–7.2 s wall; tiled, 18.8 →
-/// 15.0 s (bench/README.md, "the point stages on a wall in no order"). The process keeps its
-/// peak resident until it exits (a batch command does at once); the peak itself moves little,
-/// since freed blocks are reused (10⁷ wall: in core 1285 → 1383 MB, tiled 431 → 441 MB), but
-/// each stage's `peak_rss_mb` now includes the memory kept from the stages before it.
+/// 15.0 s (bench/README.md, "the point stages on a wall in no order"). In core the process
+/// keeps its peak resident until it exits (a batch command does at once); the peak itself moves
+/// little, since freed blocks are reused (10⁷ wall: 1285 → 1383 MB), but each stage's
+/// `peak_rss_mb` includes the memory kept from the stages before it. The tiled run gives each
+/// stage's freed heap back when the stage ends (detail::StageHeapRelease, pipeline/src/
+/// run_internal.hpp): its stages free a window's worth, and kept, the fragments of many
+/// windows added up (10⁷ wall at N = 4096: 652 → 524 MB, docs/scale.md).
 /// glibc 2.36 (Debian 12) takes thresholds up to 1 GiB; a C library that refuses one or has no
 /// mallopt keeps its default. Source: mallopt(3), M_MMAP_THRESHOLD and M_TRIM_THRESHOLD.
 /// Sessions (touch, explore) keep the default.

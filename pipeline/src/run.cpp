@@ -26,6 +26,10 @@
 #include <nlohmann/json.hpp>
 #include <openssl/evp.h>
 
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
+
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -141,6 +145,19 @@ bool reset_peak_rss() {
   if (!f) return false;
   const bool ok = std::fputs("5", f) >= 0;
   return std::fclose(f) == 0 && ok;
+}
+
+namespace {
+std::atomic<int> g_heap_release_holders{0};
+}  // namespace
+
+StageHeapRelease::StageHeapRelease() { g_heap_release_holders.fetch_add(1, std::memory_order_relaxed); }
+StageHeapRelease::~StageHeapRelease() { g_heap_release_holders.fetch_sub(1, std::memory_order_relaxed); }
+
+void release_freed_heap_if_asked() {
+#ifdef __GLIBC__
+  if (g_heap_release_holders.load(std::memory_order_relaxed) > 0) (void)malloc_trim(0);
+#endif
 }
 
 /// VmHWM of /proc/self/status [bytes]: the peak resident memory since the last reset; 0 if
@@ -857,6 +874,8 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
         "SurfaceLayersAt::kMemory");
   }
   const double built_seconds = built.summary.total_seconds;
+  std::optional<detail::StageHeapRelease> heap_release;
+  if (built.from_tiled_run) heap_release.emplace();
   // The output folder first: a refused one must leave the caller's scene whole.
   StagingDir staging(out_dir, existing);
   // Moved from `movable` (it aliases `built`): its cross-check error grid is not copied.
@@ -937,6 +956,7 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   detail::run_tasks_on_two(files);
   write_report.seconds = seconds_since(t_write);
   if (write_measured) write_report.peak_rss_bytes = peak_rss();
+  detail::release_freed_heap_if_asked();
   reports.push_back(write_report);
   if (progress) progress(write_report, true);
 

@@ -34,6 +34,27 @@ bool reset_peak_rss();
 /// unreadable.
 std::size_t peak_rss();
 
+/// Gives the heap's free pages back to the system (glibc malloc_trim(0), malloc(3): the free
+/// pages of every arena, not only the top) when a StageHeapRelease is alive in the process;
+/// else, or without glibc, nothing. Called by stage() and the write stage when they end.
+/// `hapticloud run` keeps freed heap for reuse (mallopt thresholds of 1 GiB, run_command.cpp),
+/// so without this a tiled run's resident size would be the sum of every stage's high-water
+/// and the fragments between (10⁷ wall, N = 4096: 652 MB, 524 MB with it, docs/scale.md).
+void release_freed_heap_if_asked();
+
+/// While alive, every stage's end gives freed heap back (release_freed_heap_if_asked). The
+/// tiled run holds one: its stages free what they used (a tile's window, a pass's tables), so
+/// the next stage starts from the memory it keeps, and a refault costs one window's pages. The
+/// in-core run does not: its stages allocate arrays of every point, which freeing and faulting
+/// in again would cost (1.8 s of system time at 10⁷ points). Nests; thread-safe.
+class StageHeapRelease {
+ public:
+  StageHeapRelease();
+  ~StageHeapRelease();
+  StageHeapRelease(const StageHeapRelease&) = delete;
+  StageHeapRelease& operator=(const StageHeapRelease&) = delete;
+};
+
 /// Runs one stage: announces it, runs it, records its report (seconds, peak memory).
 template <class F>
 auto stage(const char* name, std::vector<StageReport>& reports, const ProgressFn& progress, F&& body) {
@@ -46,6 +67,7 @@ auto stage(const char* name, std::vector<StageReport>& reports, const ProgressFn
   result.report.stage = name;
   if (result.report.seconds <= 0.0) result.report.seconds = seconds_since(t0);
   if (measured) result.report.peak_rss_bytes = peak_rss();
+  release_freed_heap_if_asked();
   reports.push_back(result.report);
   if (progress) progress(result.report, true);
   return std::move(result.value);

@@ -3790,6 +3790,7 @@ std::string random_id() {
 
 BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers) {
   const auto t_start = detail::Clock::now();
+  const detail::StageHeapRelease heap_release;  // each stage's freed heap back when it ends
   ScratchDir scratch(config.scale.scratch);
   Plan plan = plan_passes(config, scratch.path(), progress);
   Spill spill(scratch.path(), "tile_", plan.tiles.count(), plan.layout);
@@ -3797,6 +3798,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   KeptMask kept(scratch.path(), "kept_", spill, plan.tiles.count());
   BuiltScene built;
   built.surface_layers_at = layers;  // asked for; scene_from_grid says what it did
+  built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
   TileMerge merged(plan);
   // 3. The tile jobs, in process and in order (tile-job runs the same process_tile elsewhere).
@@ -4062,6 +4064,7 @@ void remove_stale_scratch(const fs::path& dir, StageReport& report) {
 
 MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progress, SurfaceLayersAt layers) {
   const auto t_start = detail::Clock::now();
+  const detail::StageHeapRelease heap_release;  // as build_scene_tiled
   PlanFile pf = read_plan_file(plan_file);
   MergedTileRun m{config_of(pf, plan_file), {}};
   const RunConfig& config = m.config;
@@ -4089,6 +4092,7 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
   kept.adopt_existing();
   BuiltScene built;
   built.surface_layers_at = layers;  // asked for; scene_from_grid says what it did
+  built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
   TileMerge merged(plan);
   (void)stage("tiles", built.summary.stages, progress, [&] {

@@ -100,6 +100,9 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
   BuiltScene& tiled = tiled_out != nullptr ? *tiled_out : local;
   tiled = hc::pipeline::build_scene(config);
   ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0) << "the grid was cut into several tiles";
+  // write_run gives freed heap back after each stage of the tiled run's scene only.
+  EXPECT_FALSE(in.from_tiled_run);
+  EXPECT_TRUE(tiled.from_tiled_run);
   const auto& a = in.scene.layers;
   const auto& b = tiled.scene.layers;
   EXPECT_EQ(differing_bits(a.depth, b.depth), 0U);
