@@ -30,6 +30,8 @@
 #include <malloc.h>
 #endif
 
+#include <unistd.h>
+
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -158,6 +160,28 @@ void release_freed_heap_if_asked() {
 #ifdef __GLIBC__
   if (g_heap_release_holders.load(std::memory_order_relaxed) > 0) (void)malloc_trim(0);
 #endif
+}
+
+std::size_t resident_bytes() {
+  std::FILE* f = std::fopen("/proc/self/statm", "r");
+  if (!f) return 0;
+  unsigned long long size_pages = 0, resident_pages = 0;
+  const int got = std::fscanf(f, "%llu %llu", &size_pages, &resident_pages);
+  std::fclose(f);
+  const long page = sysconf(_SC_PAGESIZE);
+  return got == 2 && page > 0 ? static_cast<std::size_t>(resident_pages) * static_cast<std::size_t>(page) : 0;
+}
+
+TileHeapBudget::TileHeapBudget(std::size_t budget_bytes) : budget_(budget_bytes), base_(resident_bytes()) {}
+
+bool TileHeapBudget::before_tile() {
+  if (g_heap_release_holders.load(std::memory_order_relaxed) <= 0) return false;
+  const std::size_t now = resident_bytes();
+  if (now == 0 || now <= base_ + budget_) return false;
+  release_freed_heap_if_asked();
+  base_ = resident_bytes();
+  ++releases_;
+  return true;
 }
 
 /// VmHWM of /proc/self/status [bytes]: the peak resident memory since the last reset; 0 if

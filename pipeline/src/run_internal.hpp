@@ -42,6 +42,30 @@ std::size_t peak_rss();
 /// and the fragments between (10⁷ wall, N = 4096: 652 MB, 524 MB with it, docs/scale.md).
 void release_freed_heap_if_asked();
 
+/// The process's resident size [bytes] (/proc/self/statm, proc(5)); 0 when unreadable.
+std::size_t resident_bytes();
+
+/// For a loop over tiles: gives freed heap back before a tile when the resident size has grown
+/// more than `budget_bytes` past what it was after the last release (or at construction). A
+/// tile's window needs about its points × kBytesPerWindowPoint; freed and kept, the windows'
+/// fragments add up with the tiles (10⁹ points, 392 tiles: 1.4 GB resident for about 50 MB in
+/// use between tiles), while a release before every tile costs its pages again (10⁸ points at
+/// N = 4096: system time 6–7 → 15 s). Gives back only while a StageHeapRelease is alive.
+class TileHeapBudget {
+ public:
+  /// About what the tile loop holds per window point [bytes] (docs/config.md, scale.tile_max_points).
+  static constexpr std::size_t kBytesPerWindowPoint = 150;
+  explicit TileHeapBudget(std::size_t budget_bytes);
+  /// Before each tile. @return whether it gave freed heap back.
+  bool before_tile();
+  std::size_t releases() const { return releases_; }
+
+ private:
+  std::size_t budget_;
+  std::size_t base_;
+  std::size_t releases_ = 0;
+};
+
 /// While alive, every stage's end gives freed heap back (release_freed_heap_if_asked). The
 /// tiled run holds one: its stages free what they used (a tile's window, a pass's tables), so
 /// the next stage starts from the memory it keeps, and a refault costs one window's pages. The

@@ -1981,6 +1981,7 @@ class FarCells {
   }
 
   struct Result {
+    std::size_t cells = 0;  // occupied coarse cells: the table grows with them (about 90 bytes each)
     std::size_t clusters = 0, removed_clusters = 0, kept_far_clusters = 0;
     std::uint64_t removed_points = 0;
     Eigen::Vector3d main_lo = Eigen::Vector3d::Zero(), main_hi = Eigen::Vector3d::Zero();  // the main body's box [m]
@@ -2042,6 +2043,7 @@ class FarCells {
     }
     std::unordered_map<std::uint64_t, Cell>().swap(cells_);  // only far_ is needed from here on
     Result r;
+    r.cells = keys.size();
     r.clusters = comps.size();
     if (comps.empty()) return r;
     std::size_t main = 0;
@@ -2718,6 +2720,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       r.report.figure("link_mm", link * 1e3);
       r.report.figure("far_distance_mm", far_d * 1e3);
       r.report.figure("cell_mm", cells.edge() * 1e3);
+      r.report.figure("cells", static_cast<double>(fc.cells));
       r.report.figure("clusters", static_cast<double>(fc.clusters));
       r.report.figure("far_clusters", static_cast<double>(fc.removed_clusters));
       r.report.figure("removed_far_clusters", static_cast<double>(fc.removed_points));
@@ -2867,6 +2870,14 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   return plan;
 }
 
+
+// The heap a tile loop may keep past what it holds between tiles: the largest window's points
+// (the spill's records) at detail::TileHeapBudget::kBytesPerWindowPoint.
+std::size_t window_heap_budget(const Spill& spill, std::size_t tile_count) {
+  std::size_t most = 0;
+  for (std::size_t t = 0; t < tile_count; ++t) most = std::max(most, spill.records(t));
+  return most * detail::TileHeapBudget::kBytesPerWindowPoint;
+}
 
 // ---------------------------------------------------------------------------------------------
 // Steps 4 and 5 on the gathered tiles: the whole grid's layers and the merged cross-check.
@@ -3146,8 +3157,10 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       std::vector<std::uint8_t> fl_in, fl_kept, owned;
       detail::PassProgress tick(progress, "honest_check", "the input as spilled against the grid, tile by tile",
                         config.scale.progress_interval_s);
+      detail::TileHeapBudget heap(window_heap_budget(spill, tiles.count()));  // as the tile loop
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
+        (void)heap.before_tile();
         const Cloud input = spill.read(t, fl_in);
         if (input.size() == 0) continue;
         const Cloud kept_pts = kept.select(t, input, fl_kept);  // through the mask, not read again
@@ -3821,8 +3834,11 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         if (drop) spill.remove(v);
       }
     };
+    // Freed heap back when the tiles before left more than a window's worth (TileHeapBudget).
+    detail::TileHeapBudget heap(window_heap_budget(spill, tiles.count()));
     for (std::size_t t = 0; t < tiles.count(); ++t) {
       tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
+      (void)heap.before_tile();
       merged.add(tiles, process_tile(config, plan, spill, blocks, kept, t));
       const int done_row = static_cast<int>(t / per_row);
       if ((t + 1) % per_row == 0 && done_row >= far) remove_row(done_row - far);
@@ -3830,6 +3846,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     for (int row = std::max(0, tiles.tiles_r - far); row < tiles.tiles_r; ++row) remove_row(row);
     merged.report(config, r.report);
     r.report.figure("block_copies_peak_mb", static_cast<double>(blocks.peak_bytes()) / 1e6);
+    r.report.figure("heap_releases", static_cast<double>(heap.releases()));
     return r;
   });
   return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
@@ -3881,6 +3898,7 @@ TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std:
 std::size_t tile_plan_tiles(const fs::path& plan_file) { return read_plan_file(plan_file).plan.tiles.count(); }
 
 void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& tiles_asked) {
+  const detail::StageHeapRelease heap_release;  // each tile's freed heap back, as in the tile loop
   std::vector<std::size_t> tiles = tiles_asked;  // each tile once
   std::sort(tiles.begin(), tiles.end());
   tiles.erase(std::unique(tiles.begin(), tiles.end()), tiles.end());
@@ -3910,6 +3928,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
   const auto per_row = static_cast<std::size_t>(plan.tiles.tiles_c);
   const auto far = static_cast<std::size_t>(plan.tiles.far_rows());
   std::size_t kept_from = 0;  // copies of tiles before this one are gone
+  detail::TileHeapBudget heap(window_heap_budget(spill, plan.tiles.count()));
   for (const std::size_t t : tiles) {
     const std::size_t row = t / per_row;
     for (; row > far && kept_from < (row - far) * per_row; ++kept_from) blocks.drop(kept_from);
@@ -3917,6 +3936,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
     // This attempt's temporary kept file goes however the job ends (renamed below on success),
     // and on SIGINT/SIGTERM (hapticloud's signal watcher).
     const LiveScratchFile temp(kept.file(t));
+    (void)heap.before_tile();  // as the tile loop of build_scene_tiled
     TileOutput o = process_tile(config, plan, spill, blocks, kept, t);
     if (o.kept_bytes > 0) {
       // The file must be there, whole: a merge that found this tile done may have removed it as a

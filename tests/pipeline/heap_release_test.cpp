@@ -1,6 +1,7 @@
 // detail::StageHeapRelease and release_freed_heap_if_asked (run_internal.hpp): the tiled run's
 // stages give freed heap back to the system when they end; nothing is given back without a
-// holder, and holders nest.
+// holder, and holders nest. detail::TileHeapBudget gives it back before a tile only when the
+// resident size grew past its budget since the last release, and only with a holder.
 //
 // Oracle: the process's resident size from the kernel (/proc/self/statm, proc(5)), around a
 // 256 MiB block taken from the heap, touched and freed under `hapticloud run`'s malloc policy
@@ -98,6 +99,58 @@ TEST(StageHeapRelease, GivesFreedHeapBackOnlyWhileHeld) {
   EXPECT_GT(kept_again, after_release + kBlock - kSlack);
 
   // The process's default policy back for the tests after this one (glibc's defaults, fixed).
+  (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
+  (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
+  malloc_trim(0);
+#endif
+}
+
+TEST(TileHeapBudget, GivesBackOnlyPastItsBudgetAndWithAHolder) {
+#if defined(HC_TEST_SANITIZED)
+  GTEST_SKIP() << "not run under a sanitizer: its allocator keeps freed blocks in a quarantine, not the heap";
+#elif !defined(__GLIBC__)
+  GTEST_SKIP() << "not run: needs glibc's malloc (mallopt, malloc_trim)";
+#else
+  using hc::pipeline::detail::resident_bytes;
+  using hc::pipeline::detail::TileHeapBudget;
+  constexpr std::size_t kBlock = std::size_t{256} << 20;
+  constexpr std::size_t kSlack = std::size_t{32} << 20;
+  ASSERT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
+  ASSERT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
+  // resident_bytes agrees with this test's own reading of /proc/self/statm.
+  const std::size_t r0 = resident_bytes(), r1 = ::hc::pipeline::heap_release_test::resident_bytes();
+  EXPECT_LT(r0 > r1 ? r0 - r1 : r1 - r0, kSlack);
+
+  {
+    // Without a holder: the budget is passed, nothing is given back.
+    TileHeapBudget budget(std::size_t{64} << 20);
+    touch_and_free(kBlock);
+    const std::size_t kept = resident_bytes();
+    EXPECT_FALSE(budget.before_tile());
+    EXPECT_GT(resident_bytes(), kept - kSlack);
+    EXPECT_EQ(budget.releases(), 0U);
+  }
+  const StageHeapRelease holder;
+  malloc_trim(0);
+  {
+    // Within a budget larger than what was freed: kept for the next tile.
+    TileHeapBudget budget(std::size_t{512} << 20);
+    touch_and_free(kBlock);
+    const std::size_t kept = resident_bytes();
+    EXPECT_FALSE(budget.before_tile());
+    EXPECT_GT(resident_bytes(), kept - kSlack);
+  }
+  malloc_trim(0);
+  {
+    // Past a smaller budget: given back, counted; then the resident size is the new base.
+    TileHeapBudget budget(std::size_t{64} << 20);
+    touch_and_free(kBlock);
+    const std::size_t kept = resident_bytes();
+    EXPECT_TRUE(budget.before_tile());
+    EXPECT_LT(resident_bytes(), kept - kBlock + kSlack);
+    EXPECT_EQ(budget.releases(), 1U);
+    EXPECT_FALSE(budget.before_tile()) << "nothing grew since the release";
+  }
   (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
   (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
   malloc_trim(0);
