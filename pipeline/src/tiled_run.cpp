@@ -2229,7 +2229,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
     // Points per block for the tile side, counted with the first coverage pass when there is one.
     std::optional<BlockCounts> counts;
-    if (config.scale.tile_max_points > 0 && kept > config.scale.tile_max_points) counts.emplace(tiles.g);
+    if (config.scale.tile_max_points > 0 && box.points > config.scale.tile_max_points) counts.emplace(tiles.g);
     bool counted = false;
     double coverage = 0.0;
     if (config.grid.reproject.upsample_factor == 0) {
@@ -2247,9 +2247,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
             return;
           }
           for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
+            // Far points too: the spill keeps them (marked) in the windows of their clamped nodes.
+            if (count) counts->add(g.xyz.data() + 3 * i);
             if (far->holds(g.xyz.data() + 3 * i)) continue;
             cov.add(g.xyz.data() + 3 * i, 1);
-            if (count) counts->add(g.xyz.data() + 3 * i);
           }
         });
         counted = counted || count;
@@ -2301,8 +2302,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         count_pass = true;
         for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
                             "pass 2d of 3: the points per block, for the tile size", [&](const Cloud& g) {
-                              for (Eigen::Index i = 0; i < g.xyz.cols(); ++i)
-                                if (!far || !far->holds(g.xyz.data() + 3 * i)) counts->add(g.xyz.data() + 3 * i);
+                              // Far points too, as the coverage pass counts them.
+                              for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
                             });
       }
       counts->finish();

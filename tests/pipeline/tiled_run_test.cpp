@@ -1043,6 +1043,36 @@ TEST(TiledRun, AFarClusterInTilesOfItsOwnIsRemovedBeforeTheGridIsLaidOut) {
   EXPECT_GT(spanning.scene.geometry.cell_size_m, 2.0 * in.scene.geometry.cell_size_m);
 }
 
+// scale.tile_max_points when a far cluster changes the layout: the second spill keeps the far
+// points (marked) in the windows of the nodes they clamp to, so the plan's count takes them
+// too. 5000 returns 2 m beyond the 10 000-point patch (a far cluster, with
+// far_clusters.max_points raised to 20 000) all clamp to the corner node nearest them. With a
+// bound of 4000 points, 64-cell tiles fit the patch alone (about 3400 points in a window), not
+// the corner window with the far points: the tiles shrink to the halo's side and the plan says
+// the corner window still holds more. Oracle: the spill's own record counts
+// (window_points_max), which the plan's bound must not be below; a count without the far points
+// kept 64-cell tiles and a bound under them.
+TEST(TiledRun, TheTileBoundCountsTheFarPointsTheSecondSpillKeeps) {
+  const fs::path dir = hc::test::temp_dir("far_bound");
+  std::vector<std::array<double, 3>> cluster;
+  for (int i = 0; i < 5000; ++i) cluster.push_back({3.0 + 0.002 * (i % 50), 3.0 + 0.002 * (i / 50), 0.001 * (i % 3)});
+  write_patch_with(dir / "patch.ply", cluster);
+  RunConfig config = hc::pipeline::parse_run_config("input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n",
+                                                    dir / "patch.yaml",
+                                                    {"scale.tile_max_points=4000", "filters.outliers.far_clusters.max_points=20000"});
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 64;
+  config.scale.scratch = dir;
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  ASSERT_EQ(stage_figure(tiled, "tile_far_clusters", "removed_far_clusters"), 5000.0);
+  ASSERT_EQ(stage_figure(tiled, "tile_far_clusters", "second_spill"), 1.0) << "the case needs a new layout";
+  const double most = stage_figure(tiled, "tile_far_clusters", "window_points_max");
+  EXPECT_GT(most, 5000.0) << "the corner window holds the far points";
+  EXPECT_GE(stage_figure(tiled, "tile_plan", "window_points_bound"), most) << "the plan's count bounds every window";
+  EXPECT_EQ(stage_figure(tiled, "tile_plan", "tile_cells"), stage_figure(tiled, "tile_plan", "halo_cells"));
+  EXPECT_TRUE(has_note(tiled, "tile_far_clusters", "the densest window holds up to"));
+}
+
 // A far cluster behind the surface (30 returns 2 m below the middle of the patch, a wall's
 // back side or a reflection) leaves the grid's x-y box as it was: the tiled run re-marks its
 // points in the first spill's files instead of reading the input again, and the scene and the
