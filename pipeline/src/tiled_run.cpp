@@ -2930,6 +2930,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       };
       std::vector<Far> unverified;
       std::size_t researched = 0, improved = 0;
+      // Freed heap back past a window's worth before a tile's points are read (TileHeapBudget).
+      detail::TileHeapBudget heap(window_heap_budget(spill, tiles.count()));
       auto research = [&](std::vector<Far>& far) {
         if (far.empty()) return;
         researched = far.size();
@@ -2946,6 +2948,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
             if (dx * dx + dy * dy <= far[f].best_m * far[f].best_m) mine.push_back(f);
           }
           if (mine.empty()) continue;
+          (void)heap.before_tile();
           const Cloud pts = kept.read(t, fl);
           for (const std::size_t f : mine) {
             const double qx = tiles.g.x_of_col(far[f].c), qy = tiles.g.y_of_row(far[f].r);
@@ -2972,6 +2975,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       // The first pass over the kept points.
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(0.9 * static_cast<double>(t) / static_cast<double>(tiles.count()));
+        (void)heap.before_tile();
         const Cloud pts = kept.read(t, flag);
         for (std::size_t i = 0; i < pts.size(); ++i) {
           if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
