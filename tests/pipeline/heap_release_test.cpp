@@ -3,7 +3,7 @@
 // holder, and holders nest. detail::TileHeapBudget gives it back before a tile only when the
 // resident size grew past its budget since the last release, and only with a holder.
 //
-// Oracle: the process's resident size from the kernel (/proc/self/statm, proc(5)), around a
+// Oracle: the process's resident size from the kernel (VmRSS of /proc/self/status, proc(5)), around a
 // 256 MiB block taken from the heap, touched and freed under `hapticloud run`'s malloc policy
 // (mallopt M_MMAP_THRESHOLD and M_TRIM_THRESHOLD of 1 GiB: freed heap is kept). glibc only; a
 // sanitizer's allocator keeps freed memory in its own quarantine, so the test says so and skips.
@@ -15,11 +15,13 @@
 #include <cstddef>
 #include <cstdio>
 #include <cstring>
+#include <fstream>
+#include <limits>
 #include <memory>
+#include <string>
 
 #ifdef __GLIBC__
 #include <malloc.h>
-#include <unistd.h>
 #endif
 
 #if defined(__SANITIZE_ADDRESS__) || defined(__SANITIZE_THREAD__)
@@ -37,14 +39,20 @@ using hc::pipeline::detail::release_freed_heap_if_asked;
 using hc::pipeline::detail::StageHeapRelease;
 
 #ifdef __GLIBC__
-// Resident size [bytes] (/proc/self/statm's second field, in pages); 0 if unreadable.
+// Resident size [bytes] as the kernel's status file gives it (VmRSS of /proc/self/status, in
+// kB): a reading of its own, not the library's (statm); 0 if unreadable.
 std::size_t resident_bytes() {
-  std::FILE* f = std::fopen("/proc/self/statm", "r");
-  if (!f) return 0;
-  unsigned long long size = 0, resident = 0;
-  const int got = std::fscanf(f, "%llu %llu", &size, &resident);
-  std::fclose(f);
-  return got == 2 ? static_cast<std::size_t>(resident) * static_cast<std::size_t>(sysconf(_SC_PAGESIZE)) : 0;
+  std::ifstream status("/proc/self/status");
+  std::string key;
+  while (status >> key) {
+    if (key == "VmRSS:") {
+      std::size_t kb = 0;
+      status >> kb;
+      return kb * 1024;
+    }
+    status.ignore(std::numeric_limits<std::streamsize>::max(), '\n');
+  }
+  return 0;
 }
 
 // Takes `bytes` from the heap, writes every page and frees it: the block's pages stay resident
@@ -68,7 +76,7 @@ TEST(StageHeapRelease, GivesFreedHeapBackOnlyWhileHeld) {
   constexpr std::size_t kSlack = std::size_t{32} << 20;  // other allocations, page tables
   ASSERT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
   ASSERT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
-  ASSERT_GT(resident_bytes(), 0U) << "/proc/self/statm unreadable";
+  ASSERT_GT(resident_bytes(), 0U) << "/proc/self/status has no VmRSS";
 
   // The premise: freed, the block stays resident.
   const std::size_t before = resident_bytes();
@@ -117,7 +125,7 @@ TEST(TileHeapBudget, GivesBackOnlyPastItsBudgetAndWithAHolder) {
   constexpr std::size_t kSlack = std::size_t{32} << 20;
   ASSERT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
   ASSERT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
-  // resident_bytes agrees with this test's own reading of /proc/self/statm.
+  // The library's reading (statm) agrees with this test's own (status).
   const std::size_t r0 = resident_bytes(), r1 = ::hc::pipeline::heap_release_test::resident_bytes();
   EXPECT_LT(r0 > r1 ? r0 - r1 : r1 - r0, kSlack);
 
