@@ -38,7 +38,7 @@ namespace {
 using hc::pipeline::detail::release_freed_heap_if_asked;
 using hc::pipeline::detail::StageHeapRelease;
 
-#ifdef __GLIBC__
+#if defined(__GLIBC__) && !defined(HC_TEST_SANITIZED)  // the tests below use them only then
 // Resident size [bytes] as the kernel's status file gives it (VmRSS of /proc/self/status, in
 // kB): a reading of its own, not the library's (statm); 0 if unreadable.
 std::size_t resident_bytes() {
