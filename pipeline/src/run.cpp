@@ -30,8 +30,6 @@
 #include <malloc.h>
 #endif
 
-#include <unistd.h>
-
 #include <algorithm>
 #include <array>
 #include <atomic>
@@ -162,44 +160,45 @@ void release_freed_heap_if_asked() {
 #endif
 }
 
-std::size_t resident_bytes() {
-  std::FILE* f = std::fopen("/proc/self/statm", "r");
-  if (!f) return 0;
-  unsigned long long size_pages = 0, resident_pages = 0;
-  const int got = std::fscanf(f, "%llu %llu", &size_pages, &resident_pages);
-  std::fclose(f);
-  const long page = sysconf(_SC_PAGESIZE);
-  return got == 2 && page > 0 ? static_cast<std::size_t>(resident_pages) * static_cast<std::size_t>(page) : 0;
-}
-
 TileHeapBudget::TileHeapBudget(std::size_t budget_bytes) : budget_(budget_bytes), base_(resident_bytes()) {}
 
 bool TileHeapBudget::before_tile() {
   if (g_heap_release_holders.load(std::memory_order_relaxed) <= 0) return false;
   const std::size_t now = resident_bytes();
   if (now == 0 || now <= base_ + budget_) return false;
-  release_freed_heap_if_asked();
+#ifdef __GLIBC__
+  (void)malloc_trim(0);
+#endif
   base_ = resident_bytes();
   ++releases_;
   return true;
 }
 
-/// VmHWM of /proc/self/status [bytes]: the peak resident memory since the last reset; 0 if
-/// unreadable.
-std::size_t peak_rss() {
+namespace {
+/// The field `key` (e.g. "VmHWM:", with its colon) of /proc/self/status, given there in kB
+/// (proc(5)), in bytes; 0 if unreadable or absent.
+std::size_t status_field_bytes(const char* key) {
   std::FILE* f = std::fopen("/proc/self/status", "r");
   if (!f) return 0;
+  const std::size_t len = std::strlen(key);
   char line[256];
   std::size_t kb = 0;
   while (std::fgets(line, sizeof line, f)) {
-    if (std::strncmp(line, "VmHWM:", 6) == 0) {
-      kb = static_cast<std::size_t>(std::strtoull(line + 6, nullptr, 10));
+    if (std::strncmp(line, key, len) == 0) {
+      kb = static_cast<std::size_t>(std::strtoull(line + len, nullptr, 10));
       break;
     }
   }
   std::fclose(f);
   return kb * 1024;
 }
+}  // namespace
+
+/// VmHWM of /proc/self/status [bytes]: the peak resident memory since the last reset; 0 if
+/// unreadable.
+std::size_t peak_rss() { return status_field_bytes("VmHWM:"); }
+
+std::size_t resident_bytes() { return status_field_bytes("VmRSS:"); }
 
 }  // namespace detail
 

@@ -42,7 +42,7 @@ std::size_t peak_rss();
 /// and the fragments between (10⁷ wall, N = 4096: 652 MB, 524 MB with it, docs/scale.md).
 void release_freed_heap_if_asked();
 
-/// The process's resident size [bytes] (/proc/self/statm, proc(5)); 0 when unreadable.
+/// The process's resident size [bytes] (VmRSS of /proc/self/status, proc(5)); 0 when unreadable.
 std::size_t resident_bytes();
 
 /// For a loop over tiles: gives freed heap back before a tile when the resident size has grown
@@ -51,12 +51,17 @@ std::size_t resident_bytes();
 /// fragments add up with the tiles (10⁹ points, 392 tiles: 1.4 GB resident for about 50 MB in
 /// use between tiles), while a release before every tile costs its pages again (10⁸ points at
 /// N = 4096: system time 6–7 → 15 s). Gives back only while a StageHeapRelease is alive.
+/// Not thread-safe (one per loop); throws nothing. Source: malloc_trim(3), proc(5);
+/// measurements in docs/scale.md ("10⁹ points under 1 GB").
 class TileHeapBudget {
  public:
   /// About what the tile loop holds per window point [bytes] (docs/config.md, scale.tile_max_points).
   static constexpr std::size_t kBytesPerWindowPoint = 150;
+  /// `budget_bytes` [bytes]; the resident size now is the first base.
   explicit TileHeapBudget(std::size_t budget_bytes);
-  /// Before each tile. @return whether it gave freed heap back.
+  /// Before each tile: releases when the resident size exceeds the base by more than the
+  /// budget, then takes the resident size after the release as the base. @return whether it
+  /// gave freed heap back.
   bool before_tile();
   std::size_t releases() const { return releases_; }
 

@@ -68,7 +68,7 @@ struct BuiltScene {
   SurfaceLayersAt surface_layers_at = SurfaceLayersAt::kMemory;
   /// Made by the tiled run (build_scene_tiled, merge_tile_jobs): write_run then gives each of
   /// its stages' freed heap back to the system when it ends, as the tiled run's stages do
-  /// (docs/scale.md, "freed heap between stages"); the in-core run keeps it for reuse.
+  /// (docs/scale.md, "10⁹ points under 1 GB"); the in-core run keeps it for reuse.
   bool from_tiled_run = false;
   RunSummary summary;          ///< stage reports and the cross-check
   std::optional<Cloud> cloud;  ///< the filtered points in the grid frame [m], when kept
