@@ -4,6 +4,7 @@
 #include "hc/pipeline/tiling.hpp"
 
 #include "ball_set.hpp"
+#include "far_cells.hpp"
 #include "posix_io.hpp"
 #include "wanted_keys.hpp"
 #include "knn_grid.hpp"
@@ -58,6 +59,7 @@ namespace hc::pipeline {
 namespace {
 
 namespace fs = std::filesystem;
+using detail::FarCells;
 using detail::stage;
 
 // ---------------------------------------------------------------------------------------------
@@ -1919,198 +1921,6 @@ struct TileMerge {
   }
 };
 
-// Far clusters of a whole scan on coarse cells (tiled run, step 2c): occupied cells with their
-// points' count, sum and box, single linkage between the 26 neighbours of a cell.
-class FarCells {
- public:
-  FarCells(const Eigen::Vector3d& origin, double edge) : origin_(origin), edge_(edge), inv_(1.0 / edge) {}
-  double edge() const { return edge_; }
-
-  // The points `take` marks among `n` (x y z doubles each), summed per cell over runs of 2^16
-  // points (detail::WantedKeys numbers a run's cells: 2 MiB) and merged into the cells once per
-  // cell a run holds: far fewer lookups in cells_ than one per point, and no sort (a cell's
-  // count and box do not depend on the order of its points).
-  void add_batch(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take) {
-    constexpr std::size_t kRun = std::size_t{1} << 16;
-    std::vector<std::uint64_t> keys;
-    std::vector<std::uint32_t> at;  // the run's points
-    std::vector<Cell> sum;
-    std::vector<std::uint64_t> key_of;
-    for (std::size_t first = 0; first < n; first += kRun) {
-      keys.clear();
-      at.clear();
-      for (std::size_t i = first; i < std::min(n, first + kRun); ++i) {
-        if (!take[i]) continue;
-        keys.push_back(key(xyz + 3 * i));
-        at.push_back(static_cast<std::uint32_t>(i - first));
-      }
-      const detail::WantedKeys cell(keys);
-      sum.assign(cell.size(), Cell{});
-      key_of.resize(cell.size());
-      for (std::size_t j = 0; j < keys.size(); ++j) {
-        const std::uint32_t m = cell.find(keys[j]);
-        key_of[m] = keys[j];
-        Cell& c = sum[m];
-        ++c.count;
-        const double* p = xyz + 3 * (first + at[j]);
-        for (int a = 0; a < 3; ++a) {
-          const auto v = static_cast<float>(p[a] - origin_[a]);
-          c.lo[a] = std::min(c.lo[a], v);
-          c.hi[a] = std::max(c.hi[a], v);
-        }
-      }
-      for (std::size_t m = 0; m < sum.size(); ++m) {
-        Cell& c = cells_[key_of[m]];
-        c.count += sum[m].count;
-        for (int a = 0; a < 3; ++a) {
-          c.lo[a] = std::min(c.lo[a], sum[m].lo[a]);
-          c.hi[a] = std::max(c.hi[a], sum[m].hi[a]);
-        }
-      }
-    }
-  }
-
-  // A bit per hash of the key first: most points lie in kept cells, and a set lookup per
-  // point was a tenth of the stage.
-  bool holds(const double* p) const {
-    if (far_.empty()) return false;
-    const std::uint64_t k = key(p);
-    const std::uint64_t b = filter_bit(k);
-    if (((far_filter_[b >> 6] >> (b & 63)) & 1U) == 0) return false;
-    return far_.count(k) > 0;
-  }
-
-  struct Result {
-    std::size_t cells = 0;  // occupied coarse cells: the table grows with them (about 90 bytes each)
-    std::size_t clusters = 0, removed_clusters = 0, kept_far_clusters = 0;
-    std::uint64_t removed_points = 0;
-    Eigen::Vector3d main_lo = Eigen::Vector3d::Zero(), main_hi = Eigen::Vector3d::Zero();  // the main body's box [m]
-    std::vector<std::string> notes;
-  };
-  // Components; those whose box is more than far_m from the main body's and that hold at most
-  // `small` points are removed (holds() then tells their points).
-  Result components(double far_m, std::size_t small) {
-    std::vector<std::uint64_t> keys;
-    keys.reserve(cells_.size());
-    for (const auto& [k, c] : cells_) keys.push_back(k);
-    std::sort(keys.begin(), keys.end());
-    auto index_of = [&keys](std::uint64_t k) -> std::int64_t {
-      const auto it = std::lower_bound(keys.begin(), keys.end(), k);
-      return it != keys.end() && *it == k ? it - keys.begin() : -1;
-    };
-    std::vector<std::uint32_t> parent(keys.size());
-    for (std::uint32_t i = 0; i < parent.size(); ++i) parent[i] = i;
-    auto find = [&](std::uint32_t i) {
-      while (parent[i] != i) i = parent[i] = parent[parent[i]];
-      return i;
-    };
-    for (std::uint32_t i = 0; i < keys.size(); ++i) {
-      const std::int64_t x = static_cast<std::int64_t>(keys[i] >> 42), y = static_cast<std::int64_t>((keys[i] >> 21) & kMask),
-                         z = static_cast<std::int64_t>(keys[i] & kMask);
-      for (int dx = -1; dx <= 1; ++dx)
-        for (int dy = -1; dy <= 1; ++dy)
-          for (int dz = -1; dz <= 1; ++dz) {
-            const std::int64_t nx = x + dx, ny = y + dy, nz = z + dz;
-            const auto m = static_cast<std::int64_t>(kMask);
-            if (nx < 0 || ny < 0 || nz < 0 || nx > m || ny > m || nz > m) continue;
-            const std::int64_t j = index_of(pack(nx, ny, nz));
-            if (j < 0) continue;
-            const std::uint32_t a = find(i), b = find(static_cast<std::uint32_t>(j));
-            if (a != b) parent[std::max(a, b)] = std::min(a, b);
-          }
-    }
-    struct Comp {
-      std::uint64_t count = 0;
-      Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()),
-                      hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-    };
-    // Components numbered in the order of their root cells (4 bytes per cell, a Comp per component).
-    std::vector<std::uint32_t> slot(keys.size(), 0);
-    std::vector<Comp> comps;
-    for (std::uint32_t i = 0; i < keys.size(); ++i) {
-      if (find(i) != i) continue;
-      slot[i] = static_cast<std::uint32_t>(comps.size());
-      comps.emplace_back();
-    }
-    for (std::uint32_t i = 0; i < keys.size(); ++i) {
-      const Cell& c = cells_.at(keys[i]);
-      Comp& k = comps[slot[find(i)]];
-      k.count += c.count;
-      for (int a = 0; a < 3; ++a) {
-        k.lo[a] = std::min(k.lo[a], origin_[a] + static_cast<double>(c.lo[a]));
-        k.hi[a] = std::max(k.hi[a], origin_[a] + static_cast<double>(c.hi[a]));
-      }
-    }
-    std::unordered_map<std::uint64_t, Cell>().swap(cells_);  // only far_ is needed from here on
-    Result r;
-    r.cells = keys.size();
-    r.clusters = comps.size();
-    if (comps.empty()) return r;
-    std::size_t main = 0;
-    for (std::size_t q = 1; q < comps.size(); ++q)
-      if (comps[q].count > comps[main].count) main = q;
-    r.main_lo = comps[main].lo;
-    r.main_hi = comps[main].hi;
-    std::vector<std::uint8_t> removed_comp(comps.size(), 0);
-    for (std::size_t q = 0; q < comps.size(); ++q) {
-      if (q == main) continue;
-      const Comp& c = comps[q];
-      const Comp& mb = comps[main];
-      const Eigen::Vector3d d = (c.lo - mb.hi).cwiseMax(mb.lo - c.hi).cwiseMax(0.0);
-      const double gap = d.norm();
-      if (!(gap > far_m)) continue;
-      const bool remove = c.count <= small;
-      (remove ? r.removed_clusters : r.kept_far_clusters) += 1;
-      if (remove) {
-        r.removed_points += c.count;
-        removed_comp[q] = 1;
-      }
-      if (r.notes.size() < 20) {
-        const Eigen::Vector3d m = 0.5 * (c.lo + c.hi);
-        r.notes.push_back(std::string(remove ? "removed far cluster: " : "kept far cluster (too large to remove): ") +
-                          std::to_string(c.count) + " points in a box centred at (" + format_number(m.x()) + ", " +
-                          format_number(m.y()) + ", " + format_number(m.z()) + ") m (grid frame), " + format_number(gap) +
-                          " m from the main body's box");
-      }
-    }
-    for (std::uint32_t i = 0; i < keys.size(); ++i) {
-      if (removed_comp[slot[find(i)]]) {
-        far_.insert(keys[i]);
-        const std::uint64_t b = filter_bit(keys[i]);
-        far_filter_[b >> 6] |= std::uint64_t{1} << (b & 63);
-      }
-    }
-    return r;
-  }
-
- private:
-  static constexpr std::uint64_t kMask = (1ull << 21) - 1;
-  struct Cell {  // 28 bytes: the point count and the points' box (float offsets from the origin)
-    std::uint32_t count = 0;
-    float lo[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
-                   std::numeric_limits<float>::infinity()};
-    float hi[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
-                   -std::numeric_limits<float>::infinity()};
-  };
-  static std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
-    return (static_cast<std::uint64_t>(x) << 42) | (static_cast<std::uint64_t>(y) << 21) | static_cast<std::uint64_t>(z);
-  }
-  std::uint64_t key(const double* p) const {
-    std::int64_t c[3];
-    for (int a = 0; a < 3; ++a) {
-      c[a] = std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor((p[a] - origin_[a]) * inv_)), 0, static_cast<std::int64_t>(kMask));
-    }
-    return pack(c[0], c[1], c[2]);
-  }
-  Eigen::Vector3d origin_;
-  double edge_, inv_;
-  std::unordered_map<std::uint64_t, Cell> cells_;
-  static constexpr int kFilterBits = 20;  // 128 KiB
-  static std::uint64_t filter_bit(std::uint64_t k) { return (k * 0x9E3779B97F4A7C15ULL) >> (64 - kFilterBits); }
-  std::unordered_set<std::uint64_t> far_;
-  std::vector<std::uint64_t> far_filter_ = std::vector<std::uint64_t>(std::size_t{1} << (kFilterBits - 6), 0);
-};
-
 // Throws the error naming `stage` and scale.filter_halo_cells when the tiles' halo is narrower
 // than the honest check's reach at `spacing_m` (`spacing_what` says where that spacing comes
 // from), with the least value whose halo holds the reach.
@@ -2705,23 +2515,27 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       const double extent = std::max({tiles.g.cell_size_m * (tiles.g.cols + 2), tiles.g.cell_size_m * (tiles.g.rows + 2), z_max - z_min});
       // E ≥ 2·link: the in-core cells (edge link) link points up to 2·link apart per axis, so its
       // components nest in these.
-      FarCells cells(lo, std::max({2.0 * link, far_d / (2.0 * std::sqrt(3.0)), extent / 2097150.0}));
-      // Every point once: the copy in the tile that owns its node.
+      const std::size_t small = std::max<std::size_t>(fco.max_points, static_cast<std::size_t>(fco.max_fraction * static_cast<double>(grid_points)));
+      FarCells cells(lo, std::max({2.0 * link, far_d / (2.0 * std::sqrt(3.0)), extent / 2097150.0}), small);
+      // Every point once: the copy in the tile that owns its node; tiles row by row, as
+      // FarCells joins them (far_cells.hpp: a tile's cells, then the frontier, are held).
       std::vector<std::uint8_t> flags, owned;
       detail::PassProgress tick(progress, "tile_far_clusters", "coarse cells of every point, tile by tile", config.scale.progress_interval_s);
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
         const Cloud pts = spill->read(t, flags);
         owned_by(tiles, t, pts, owned);
-        cells.add_batch(pts.xyz.data(), pts.size(), owned);
+        cells.add_tile(pts.xyz.data(), pts.size(), owned, static_cast<int>(t / static_cast<std::size_t>(tiles.tiles_c)));
       }
-      const std::size_t small = std::max<std::size_t>(fco.max_points, static_cast<std::size_t>(fco.max_fraction * static_cast<double>(grid_points)));
-      const FarCells::Result fc = cells.components(far_d, small);
+      const FarCells::Result fc = cells.components(far_d);
       r.report.count_in = grid_points;
       r.report.figure("link_mm", link * 1e3);
       r.report.figure("far_distance_mm", far_d * 1e3);
       r.report.figure("cell_mm", cells.edge() * 1e3);
       r.report.figure("cells", static_cast<double>(fc.cells));
+      r.report.figure("frontier_cells_peak", static_cast<double>(fc.frontier_cells_peak));
+      r.report.figure("tile_components", static_cast<double>(fc.components_peak));
+      r.report.figure("listed_cells_peak", static_cast<double>(fc.listed_cells_peak));
       r.report.figure("clusters", static_cast<double>(fc.clusters));
       r.report.figure("far_clusters", static_cast<double>(fc.removed_clusters));
       r.report.figure("removed_far_clusters", static_cast<double>(fc.removed_points));

@@ -1,7 +1,7 @@
 #pragma once
 // A fixed set of 64-bit keys numbered in order of first appearance: the honest check's wanted
-// voxels (honest_check.cpp), the tiled run's far-cluster cells of a tile (tiled_run.cpp,
-// FarCells::add_batch) and the cells about a few listed points (robust_outliers.cpp,
+// voxels (honest_check.cpp), the tiled run's far-cluster cells of a tile (far_cells.cpp,
+// FarCells::add_tile) and the cells about a few listed points (robust_outliers.cpp,
 // near_rows) look their points' keys up in it; group_by_wanted_key gathers the points by key.
 
 #include "knn_grid.hpp"  // run_parallel, share_of

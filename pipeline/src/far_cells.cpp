@@ -1,0 +1,290 @@
+// Far clusters found tile by tile (far_cells.hpp).
+
+#include "far_cells.hpp"
+
+#include "wanted_keys.hpp"
+
+#include "hc/common/format.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <stdexcept>
+
+namespace hc::pipeline::detail {
+
+namespace {
+
+std::uint64_t pack(std::int64_t x, std::int64_t y, std::int64_t z) {
+  return (static_cast<std::uint64_t>(x) << 42) | (static_cast<std::uint64_t>(y) << 21) | static_cast<std::uint64_t>(z);
+}
+constexpr std::int64_t kMax = (std::int64_t{1} << 21) - 1;
+std::int64_t x_of(std::uint64_t k) { return static_cast<std::int64_t>(k >> 42); }
+std::int64_t y_of(std::uint64_t k) { return static_cast<std::int64_t>((k >> 21) & static_cast<std::uint64_t>(kMax)); }
+std::int64_t z_of(std::uint64_t k) { return static_cast<std::int64_t>(k & static_cast<std::uint64_t>(kMax)); }
+
+}  // namespace
+
+FarCells::FarCells(const Eigen::Vector3d& origin_m, double edge_m, std::uint64_t small_points)
+    : origin_(origin_m), edge_(edge_m), inv_(1.0 / edge_m), small_(small_points),
+      far_filter_(std::size_t{1} << (kFilterBits - 6), 0) {
+  if (!(std::isfinite(edge_m) && edge_m > 0.0)) {
+    throw std::invalid_argument("FarCells: the cells' edge must be finite and positive, got " + format_number(edge_m) + " m");
+  }
+}
+
+std::uint64_t FarCells::key(const double* p) const {
+  std::int64_t c[3];
+  for (int a = 0; a < 3; ++a) {
+    c[a] = std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor((p[a] - origin_[a]) * inv_)), 0, kMax);
+  }
+  return pack(c[0], c[1], c[2]);
+}
+
+std::uint32_t FarCells::find(std::uint32_t a) {
+  while (parent_[a] != a) a = parent_[a] = parent_[parent_[a]];
+  return a;
+}
+
+void FarCells::join(std::uint32_t a, std::uint32_t b) {
+  std::uint32_t ra = find(a), rb = find(b);
+  if (ra == rb) return;
+  // The root keeps the longer list, so a key is copied O(log) times at most.
+  if (listed_cells_[ra].size() < listed_cells_[rb].size()) std::swap(ra, rb);
+  parent_[rb] = ra;
+  Comp& x = comps_[ra];
+  const Comp& y = comps_[rb];
+  x.count += y.count;
+  x.least_key = std::min(x.least_key, y.least_key);
+  for (int i = 0; i < 3; ++i) {
+    x.lo[i] = std::min(x.lo[i], y.lo[i]);
+    x.hi[i] = std::max(x.hi[i], y.hi[i]);
+  }
+  std::vector<std::uint64_t>& keep = listed_cells_[ra];
+  std::vector<std::uint64_t>& gone = listed_cells_[rb];
+  if (x.count <= small_) {
+    keep.insert(keep.end(), gone.begin(), gone.end());
+  } else {  // too large to be removed: neither list is needed
+    listed_ -= keep.size() + gone.size();
+    std::vector<std::uint64_t>().swap(keep);
+  }
+  std::vector<std::uint64_t>().swap(gone);
+}
+
+void FarCells::evict_before_row() {
+  // Every cell of a later row has a y index >= y_seen_max_ (the class comment): a frontier cell
+  // below y_seen_max_ - 1 can neighbour none of them.
+  if (!any_ || y_seen_max_ < 2) return;
+  const std::uint64_t least = y_seen_max_ - 1;
+  for (auto it = frontier_.begin(); it != frontier_.end();) {
+    if (static_cast<std::uint64_t>(y_of(it->first)) < least) {
+      it = frontier_.erase(it);
+    } else {
+      ++it;
+    }
+  }
+}
+
+void FarCells::add_tile(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take, int tile_row) {
+  if (done_) throw std::logic_error("FarCells::add_tile after components()");
+  if (tile_row < row_) {
+    throw std::logic_error("FarCells::add_tile: tile row " + std::to_string(tile_row) + " after row " + std::to_string(row_) +
+                           " (tiles must come row by row)");
+  }
+  if (tile_row > row_) {
+    evict_before_row();
+    row_ = tile_row;
+  }
+
+  // The tile's cells, summed per run of 2^16 points (2 MiB of keys) first.
+  tile_.clear();
+  {
+    constexpr std::size_t kRun = std::size_t{1} << 16;
+    std::vector<std::uint64_t> keys;
+    std::vector<std::uint32_t> at;  // the run's points
+    std::vector<Cell> sum;
+    std::vector<std::uint64_t> key_of;
+    for (std::size_t first = 0; first < n; first += kRun) {
+      keys.clear();
+      at.clear();
+      for (std::size_t i = first; i < std::min(n, first + kRun); ++i) {
+        if (!take[i]) continue;
+        keys.push_back(key(xyz + 3 * i));
+        at.push_back(static_cast<std::uint32_t>(i - first));
+      }
+      const WantedKeys cell(keys);
+      sum.assign(cell.size(), Cell{});
+      key_of.resize(cell.size());
+      for (std::size_t j = 0; j < keys.size(); ++j) {
+        const std::uint32_t m = cell.find(keys[j]);
+        key_of[m] = keys[j];
+        Cell& c = sum[m];
+        ++c.count;
+        const double* p = xyz + 3 * (first + at[j]);
+        for (int a = 0; a < 3; ++a) {
+          const auto v = static_cast<float>(p[a] - origin_[a]);
+          c.lo[a] = std::min(c.lo[a], v);
+          c.hi[a] = std::max(c.hi[a], v);
+        }
+      }
+      for (std::size_t m = 0; m < sum.size(); ++m) {
+        Cell& c = tile_[key_of[m]];
+        c.count += sum[m].count;
+        for (int a = 0; a < 3; ++a) {
+          c.lo[a] = std::min(c.lo[a], sum[m].lo[a]);
+          c.hi[a] = std::max(c.hi[a], sum[m].hi[a]);
+        }
+      }
+    }
+  }
+  if (tile_.empty()) return;
+
+  // The tile's components: its cells in key order, linked to their 13 neighbours of larger key
+  // (a pair of neighbours is one link, seen from its smaller key).
+  std::vector<std::uint64_t> keys;
+  keys.reserve(tile_.size());
+  for (const auto& [k, c] : tile_) keys.push_back(k);
+  std::sort(keys.begin(), keys.end());
+  const auto index_of = [&keys](std::uint64_t k) -> std::int64_t {
+    const auto it = std::lower_bound(keys.begin(), keys.end(), k);
+    return it != keys.end() && *it == k ? it - keys.begin() : -1;
+  };
+  std::vector<std::uint32_t> lp(keys.size());
+  std::iota(lp.begin(), lp.end(), 0U);
+  const auto lfind = [&lp](std::uint32_t i) {
+    while (lp[i] != i) i = lp[i] = lp[lp[i]];
+    return i;
+  };
+  std::int64_t x_lo = kMax, x_hi = 0, y_lo = kMax, y_hi = 0;
+  for (std::uint32_t i = 0; i < keys.size(); ++i) {
+    const std::int64_t x = x_of(keys[i]), y = y_of(keys[i]), z = z_of(keys[i]);
+    x_lo = std::min(x_lo, x);
+    x_hi = std::max(x_hi, x);
+    y_lo = std::min(y_lo, y);
+    y_hi = std::max(y_hi, y);
+    for (int dx = 0; dx <= 1; ++dx)
+      for (int dy = dx ? -1 : 0; dy <= 1; ++dy)
+        for (int dz = (dx || dy) ? -1 : 1; dz <= 1; ++dz) {
+          const std::int64_t nx = x + dx, ny = y + dy, nz = z + dz;
+          if (nx > kMax || ny < 0 || ny > kMax || nz < 0 || nz > kMax) continue;
+          const std::int64_t j = index_of(pack(nx, ny, nz));
+          if (j < 0) continue;
+          const std::uint32_t a = lfind(i), b = lfind(static_cast<std::uint32_t>(j));
+          if (a != b) lp[std::max(a, b)] = std::min(a, b);  // the root is the least index: the least key
+        }
+  }
+  // One component number per tile component, numbered at its root (its least key, met first).
+  std::vector<std::uint32_t> label(keys.size());
+  for (std::uint32_t i = 0; i < keys.size(); ++i) {
+    const std::uint32_t root = lfind(i);
+    if (root == i) {
+      label[i] = static_cast<std::uint32_t>(parent_.size());
+      parent_.push_back(label[i]);
+      comps_.emplace_back();
+      listed_cells_.emplace_back();
+      comps_.back().least_key = keys[i];
+    } else {
+      label[i] = label[root];
+    }
+    const Cell& c = tile_.at(keys[i]);
+    Comp& q = comps_[label[i]];
+    q.count += c.count;
+    for (int a = 0; a < 3; ++a) {
+      q.lo[a] = std::min(q.lo[a], origin_[a] + static_cast<double>(c.lo[a]));
+      q.hi[a] = std::max(q.hi[a], origin_[a] + static_cast<double>(c.hi[a]));
+    }
+  }
+  for (std::uint32_t i = 0; i < keys.size(); ++i) {
+    if (comps_[label[i]].count <= small_) {
+      listed_cells_[label[i]].push_back(keys[i]);
+      ++listed_;
+    }
+  }
+
+  // Links to earlier tiles: only a cell within one index of the tile's least x or y index can
+  // neighbour one (the class comment); the same key is the same cell, cut by a tile's edge.
+  std::size_t repeats = 0;
+  for (std::uint32_t i = 0; i < keys.size(); ++i) {
+    const std::int64_t x = x_of(keys[i]), y = y_of(keys[i]), z = z_of(keys[i]);
+    if (x > x_lo + 1 && y > y_lo + 1) continue;
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz) {
+          const std::int64_t nx = x + dx, ny = y + dy, nz = z + dz;
+          if (nx < 0 || ny < 0 || nz < 0 || nx > kMax || ny > kMax || nz > kMax) continue;
+          const auto it = frontier_.find(pack(nx, ny, nz));
+          if (it == frontier_.end()) continue;
+          if (dx == 0 && dy == 0 && dz == 0) ++repeats;
+          join(label[i], it->second);
+        }
+  }
+  cells_ += keys.size() - repeats;
+
+  // The frontier: the cells within one index of the tile's largest x or y index.
+  for (std::uint32_t i = 0; i < keys.size(); ++i) {
+    if (x_of(keys[i]) < x_hi - 1 && y_of(keys[i]) < y_hi - 1) continue;
+    const auto [it, added] = frontier_.emplace(keys[i], label[i]);
+    if (!added) join(it->second, label[i]);
+  }
+  y_seen_max_ = any_ ? std::max<std::uint64_t>(y_seen_max_, static_cast<std::uint64_t>(y_hi)) : static_cast<std::uint64_t>(y_hi);
+  any_ = true;
+  stats_.frontier_cells_peak = std::max(stats_.frontier_cells_peak, frontier_.size());
+  stats_.components_peak = parent_.size();
+  stats_.listed_cells_peak = std::max(stats_.listed_cells_peak, listed_);
+}
+
+FarCells::Result FarCells::components(double far_m) {
+  if (done_) throw std::logic_error("FarCells::components called twice");
+  done_ = true;
+  std::unordered_map<std::uint64_t, Cell>().swap(tile_);
+  std::unordered_map<std::uint64_t, std::uint32_t>().swap(frontier_);
+  Result r = stats_;
+  r.cells = cells_;
+  std::vector<std::uint32_t> roots;
+  for (std::uint32_t l = 0; l < parent_.size(); ++l)
+    if (find(l) == l) roots.push_back(l);
+  std::sort(roots.begin(), roots.end(), [this](std::uint32_t a, std::uint32_t b) { return comps_[a].least_key < comps_[b].least_key; });
+  r.clusters = roots.size();
+  if (!roots.empty()) {
+    const auto box = [this](std::uint32_t q, bool hi) {
+      const double* v = hi ? comps_[q].hi : comps_[q].lo;
+      return Eigen::Vector3d(v[0], v[1], v[2]);
+    };
+    std::uint32_t main = roots[0];
+    for (const std::uint32_t q : roots)
+      if (comps_[q].count > comps_[main].count) main = q;
+    r.main_lo = box(main, false);
+    r.main_hi = box(main, true);
+    for (const std::uint32_t q : roots) {
+      if (q == main) continue;
+      const Eigen::Vector3d lo = box(q, false), hi = box(q, true);
+      const Eigen::Vector3d d = (lo - r.main_hi).cwiseMax(r.main_lo - hi).cwiseMax(0.0);
+      const double gap = d.norm();
+      if (!(gap > far_m)) continue;
+      const std::uint64_t count = comps_[q].count;
+      const bool remove = count <= small_;
+      (remove ? r.removed_clusters : r.kept_far_clusters) += 1;
+      if (remove) {
+        r.removed_points += count;
+        for (const std::uint64_t k : listed_cells_[q]) {
+          far_.insert(k);
+          const std::uint64_t b = filter_bit(k);
+          far_filter_[b >> 6] |= std::uint64_t{1} << (b & 63);
+        }
+      }
+      if (r.notes.size() < 20) {
+        const Eigen::Vector3d m = 0.5 * (lo + hi);
+        r.notes.push_back(std::string(remove ? "removed far cluster: " : "kept far cluster (too large to remove): ") +
+                          std::to_string(count) + " points in a box centred at (" + format_number(m.x()) + ", " +
+                          format_number(m.y()) + ", " + format_number(m.z()) + ") m (grid frame), " + format_number(gap) +
+                          " m from the main body's box");
+      }
+    }
+  }
+  std::vector<std::uint32_t>().swap(parent_);
+  std::vector<Comp>().swap(comps_);
+  std::vector<std::vector<std::uint64_t>>().swap(listed_cells_);
+  return r;
+}
+
+}  // namespace hc::pipeline::detail

@@ -1,0 +1,145 @@
+#pragma once
+// Far clusters of a whole scan, found tile by tile in memory bounded by a tile (the tiled run's
+// stage tile_far_clusters, tiled_run.cpp; issue 14: "memory bounded by the grid tile and the
+// chunk size, not by the cloud").
+//
+// The clusters are the connected components of the occupied coarse cells (edge E, the grid
+// frame) under 26-neighbour adjacency: single linkage, as robust_outliers.cpp's
+// remove_far_clusters does in core on cells of the linking distance. Until 2026-11-26 the stage
+// kept every occupied cell of the scan in one table (about 95 bytes a cell: 2.77 M cells and
+// 383 MB at 10^9 points) and joined them at the end. Now each tile's cells are joined among
+// themselves, then to the cells that earlier tiles left on their far sides (the frontier), and
+// dropped; a component keeps only its count, box and least cell key, and, while it is small
+// enough to be removed, the keys of its cells. The components, their order and every figure
+// are the same as one table's would be (tests/pipeline/far_cells_test.cpp checks it against a
+// whole-scan flood fill).
+
+#include <Eigen/Core>
+
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+#include <string>
+#include <unordered_map>
+#include <unordered_set>
+#include <vector>
+
+namespace hc::pipeline::detail {
+
+/// Far clusters on coarse cells, fed one tile's points at a time.
+///
+/// Cells: cell (i, j, l) holds the points p (grid frame [m]) with floor((p − origin)/E) =
+/// (i, j, l) per axis, each index clamped to [0, 2^21 − 1]. Two cells are linked when their
+/// indices differ by at most 1 on every axis.
+///
+/// The tiles' contract (Tiles::interior in tiled_run.cpp meets it): add_tile is called once per
+/// tile in row-major order (tile_row never decreases); the points a tile takes are the ones its
+/// interior owns, each point of the scan taken by exactly one tile; every point of a later tile
+/// of the same row has a larger x, and every point of a later row a larger y, than every point
+/// of the earlier tiles (or an equal coordinate that floors to the same cell index; strict order
+/// of the node indices gives this, since the nearest-node binning and the flooring are
+/// monotone). Then a cell that neighbours a cell of a later tile lies within one index of its
+/// own tile's largest x or y index, which is what the frontier keeps, and a cell of a tile
+/// neighbours an earlier tile's cell only within one index of its own tile's smallest x or y
+/// index, which is what is looked up.
+///
+/// Memory: one tile's cells (28 bytes each), the frontier (two rows of tiles' far sides, 16
+/// bytes a cell), and 100 bytes per component plus 8 bytes per cell of each component of at
+/// most `small_points` points (a far cluster that may be removed). Not thread-safe.
+class FarCells {
+ public:
+  /// origin_m: the corner of cell (0, 0, 0), grid frame [m]. edge_m: E [m], > 0.
+  /// small_points: a component of at most this many points may be removed (max(max_points,
+  /// max_fraction × points), FarClusterOptions); its cells' keys are kept until it grows past it.
+  /// @throws std::invalid_argument when edge_m is not finite and positive.
+  FarCells(const Eigen::Vector3d& origin_m, double edge_m, std::uint64_t small_points);
+
+  /// E [m].
+  double edge() const { return edge_; }
+
+  /// Adds the points of one tile: xyz holds n points as x y z doubles [m] (grid frame); the
+  /// ones with take[i] != 0 are the tile's own (take.size() >= n). tile_row: the tile's row of
+  /// tiles (0, 1, ...; non-decreasing over the calls, see the class comment).
+  /// Per 2^16 points the run's cells are summed first (detail::WantedKeys), so the tile's table
+  /// is looked up once per cell a run holds, not once per point.
+  /// @throws std::logic_error when tile_row decreases or after components().
+  void add_tile(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take, int tile_row);
+
+  /// What components() found.
+  struct Result {
+    std::size_t cells = 0;     ///< occupied coarse cells (distinct)
+    std::size_t clusters = 0;  ///< components
+    std::size_t removed_clusters = 0, kept_far_clusters = 0;
+    std::uint64_t removed_points = 0;
+    Eigen::Vector3d main_lo = Eigen::Vector3d::Zero(), main_hi = Eigen::Vector3d::Zero();  ///< the main body's box [m]
+    std::vector<std::string> notes;  ///< the first 20 far clusters, in order of their least cell key
+    // How much the tile-by-tile joining held (stage figures).
+    std::size_t frontier_cells_peak = 0;  ///< most cells in the frontier at once
+    std::size_t components_peak = 0;      ///< components numbered (tile-local ones, before joining)
+    std::size_t listed_cells_peak = 0;    ///< most cell keys kept for small components at once
+  };
+
+  /// After the last add_tile: the components. The main body is the component of most points
+  /// (the first in order of least cell key on a tie). A component other than it whose box lies
+  /// more than far_m [m] from the main body's box (Euclidean distance between the boxes) is far;
+  /// a far one of at most small_points points is removed (holds() then tells its points), a
+  /// larger one is kept and noted. Boxes are the points' boxes, kept per cell as float offsets
+  /// from the origin. Same rule as remove_far_clusters (robust_outliers.hpp).
+  /// @throws std::logic_error when called twice.
+  Result components(double far_m);
+
+  /// Whether the point at p (3 doubles, grid frame [m]) lies in a removed cluster's cell
+  /// (false before components()). A bitmap over a hash of the key answers most points.
+  bool holds(const double* p) const {
+    if (far_.empty()) return false;
+    const std::uint64_t k = key(p);
+    const std::uint64_t b = filter_bit(k);
+    if (((far_filter_[b >> 6] >> (b & 63)) & 1U) == 0) return false;
+    return far_.count(k) > 0;
+  }
+
+  /// The cell key of the point at p (x index << 42 | y << 21 | z, each clamped to [0, 2^21 − 1]).
+  std::uint64_t key(const double* p) const;
+
+ private:
+  static constexpr std::uint64_t kMask = (std::uint64_t{1} << 21) - 1;
+  struct Cell {  // 28 bytes: the point count and the points' box (float offsets from the origin)
+    std::uint32_t count = 0;
+    float lo[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
+                   std::numeric_limits<float>::infinity()};
+    float hi[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
+                   -std::numeric_limits<float>::infinity()};
+  };
+  struct Comp {  // a component's summary, valid at its root
+    std::uint64_t count = 0;
+    std::uint64_t least_key = std::numeric_limits<std::uint64_t>::max();
+    double lo[3] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+                    std::numeric_limits<double>::infinity()};
+    double hi[3] = {-std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+                    -std::numeric_limits<double>::infinity()};
+  };
+  std::uint32_t find(std::uint32_t a);
+  void join(std::uint32_t a, std::uint32_t b);
+  void evict_before_row();
+
+  Eigen::Vector3d origin_;
+  double edge_, inv_;
+  std::uint64_t small_;
+  bool done_ = false;
+  int row_ = 0;
+  std::uint64_t y_seen_max_ = 0;  // the largest y index of any cell added so far
+  bool any_ = false;
+  std::size_t cells_ = 0, listed_ = 0;
+  Result stats_;
+  std::unordered_map<std::uint64_t, Cell> tile_;          // the current tile's cells
+  std::unordered_map<std::uint64_t, std::uint32_t> frontier_;  // cell key -> component
+  std::vector<std::uint32_t> parent_;
+  std::vector<Comp> comps_;
+  std::vector<std::vector<std::uint64_t>> listed_cells_;  // per root of at most small_ points
+  static constexpr int kFilterBits = 20;                 // 128 KiB
+  static std::uint64_t filter_bit(std::uint64_t k) { return (k * 0x9E3779B97F4A7C15ULL) >> (64 - kFilterBits); }
+  std::unordered_set<std::uint64_t> far_;
+  std::vector<std::uint64_t> far_filter_;
+};
+
+}  // namespace hc::pipeline::detail
