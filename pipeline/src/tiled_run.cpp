@@ -1990,6 +1990,28 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   int configured_side = 0;
   bool count_pass = false;
   std::uint64_t window_points_bound = 0;
+  // The points per block of the last layout (lay_out), kept until tile_scale: a halo widened
+  // there chooses the tile side again with them (choose_side). At most 2049² counts, 33 MB.
+  std::optional<BlockCounts> counts;
+  auto choose_side = [&](StageReport& rep) {
+    const int k = tiles.k;
+    const int floor_side = std::min(configured_side, (std::max(16, tiles.halo) + k - 1) / k * k);
+    const auto [side, most] = choose_tile_side(*counts, tiles.g, configured_side, k, tiles.halo, floor_side, config.scale.tile_max_points);
+    tiles.size = side;
+    window_points_bound = most;
+    if (side < configured_side) {
+      rep.notes.push_back("tiles of " + std::to_string(side) + " cells, not scale.tile_cells' " + std::to_string(configured_side) +
+                          ", so that no window (tile and halo) holds more than scale.tile_max_points = " +
+                          std::to_string(config.scale.tile_max_points) + " points (at most " + std::to_string(most) + " by the plan's count)");
+    }
+    if (most > config.scale.tile_max_points) {
+      rep.notes.push_back("the densest window holds up to " + std::to_string(most) + " points even in tiles of " + std::to_string(side) +
+                          " cells (no smaller than the halo, " + std::to_string(tiles.halo) +
+                          " cells), more than scale.tile_max_points: the tile loop's memory follows that window");
+    }
+    tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
+    tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
+  };
   auto lay_out = [&](const FarCells* far, StageReport& rep) {
     const char* stage_name = far ? "tile_far_clusters" : "tile_plan";
     ro = config.grid.reproject;
@@ -2038,7 +2060,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     grid_points = kept;
     tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
     // Points per block for the tile side, counted with the first coverage pass when there is one.
-    std::optional<BlockCounts> counts;
+    counts.reset();
     if (config.scale.tile_max_points > 0 && box.points > config.scale.tile_max_points) counts.emplace(tiles.g);
     bool counted = false;
     double coverage = 0.0;
@@ -2117,23 +2139,11 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
                             });
       }
       counts->finish();
-      const int floor_side = std::min(tiles.size, (std::max(16, tiles.halo) + k - 1) / k * k);
-      const auto [side, most] = choose_tile_side(*counts, tiles.g, tiles.size, k, tiles.halo, floor_side, config.scale.tile_max_points);
-      tiles.size = side;
-      window_points_bound = most;
-      if (side < configured_side) {
-        rep.notes.push_back("tiles of " + std::to_string(side) + " cells, not scale.tile_cells' " + std::to_string(configured_side) +
-                            ", so that no window (tile and halo) holds more than scale.tile_max_points = " +
-                            std::to_string(config.scale.tile_max_points) + " points (at most " + std::to_string(most) + " by the plan's count)");
-      }
-      if (most > config.scale.tile_max_points) {
-        rep.notes.push_back("the densest window holds up to " + std::to_string(most) + " points even in tiles of " + std::to_string(side) +
-                            " cells (no smaller than the halo, " + std::to_string(tiles.halo) +
-                            " cells), more than scale.tile_max_points: the tile loop's memory follows that window");
-      }
+      choose_side(rep);
+    } else {
+      tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
+      tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
     }
-    tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
-    tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
   };
   (void)stage("tile_plan", reports, progress, [&] {
     StageResult<int> r;
@@ -2449,6 +2459,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           const int planned = tiles.filter;
           tiles.filter = needed;
           tiles.halo = tile_halo(config, tiles.k, tiles.filter);
+          // scale.tile_max_points: the wider halo widens every window; the side is chosen
+          // again from the plan's counts (smaller tiles, or the same).
+          const int side_before = tiles.size;
+          if (counts) choose_side(r.report);
           StageReport again;
           (void)spill_pass(nullptr, again, "tile_scale");
           r.report.figure("second_spill", 1.0);
@@ -2461,6 +2475,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
               detail::set_figure(rp, "halo_cells", tiles.halo);
               detail::set_figure(rp, "filter_halo_cells", tiles.filter);
               if (pass == 0) rp.notes.push_back("halo_cells, filter_halo_cells: widened at tile_scale for the robust sample's spacing");
+              if (tiles.size != side_before) {
+                detail::set_figure(rp, "tile_cells", tiles.size);
+                detail::set_figure(rp, "tiles", static_cast<double>(tiles.count()));
+                rp.notes.push_back("tile_cells, tiles: chosen again at tile_scale for the wider halo (scale.tile_max_points)");
+              }
+              if (counts) detail::set_figure(rp, "window_points_bound", static_cast<double>(window_points_bound));
             }
             if (rp.stage == "tile_spill") {
               for (const char* f : {"points_spilled", "halo_copies_per_point", "spill_bytes_peak_mb", "window_points_max"})

@@ -954,6 +954,46 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   EXPECT_EQ(ok.summary.input_check->spacing_m * 1e3, stage_figure(ok, "tile_scale", "sample_spacing_mm"));
 }
 
+// A halo that tile_scale widens widens every window: the tile side is chosen again for
+// scale.tile_max_points (until 2026-11-26 the plan's side stayed, and windows could hold more
+// than the bound by the wider halo). The patch of the test below, whose planned halo is too
+// narrow: run first without the bound, where 32-cell tiles with the widened halo hold W points
+// at most; then with a bound of W − 1. The plan's narrower halo fits 32-cell tiles under it;
+// the widened one does not, so the side must shrink, every window keep within the bound, and
+// the scene still equal the in-core one.
+TEST(TiledRun, AHaloWidenedAtTileScaleChoosesTheTileSideAgain) {
+  const fs::path dir = hc::test::temp_dir("auto_halo_bound");
+  std::vector<std::array<double, 3>> layers;
+  for (int l = 1; l < 4; ++l)
+    for (int i = 0; i < 100; ++i)
+      for (int j = 0; j < 100; ++j) layers.push_back({0.01 * i, 0.01 * j, 0.03 * l + 0.001 * ((i * 7 + j * 3) % 5)});
+  write_patch_with(dir / "patch.ply", layers);
+  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 100}\n"
+                           "cross_check: {isolation_min_neighbours: 200}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+  fs::create_directory(dir / "scratch");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 32;
+  config.scale.scratch = dir / "scratch";
+  config.scale.tile_max_points = 0;
+  const BuiltScene unbounded = hc::pipeline::build_scene(config);
+  ASSERT_EQ(stage_figure(unbounded, "tile_scale", "second_spill"), 1.0) << "the case needs a widened halo";
+  ASSERT_EQ(stage_figure(unbounded, "tile_plan", "tile_cells"), 32.0);
+  const double widest = stage_figure(unbounded, "tile_spill", "window_points_max");
+  ASSERT_GT(widest, 1000.0);
+
+  config.scale.tile_max_points = static_cast<std::uint64_t>(widest) - 1;
+  BuiltScene tiled;
+  expect_tiled_equals_in_core(config, 32, dir / "scratch", &tiled);
+  if (HasFatalFailure()) return;
+  EXPECT_EQ(stage_figure(tiled, "tile_scale", "second_spill"), 1.0);
+  EXPECT_LT(stage_figure(tiled, "tile_plan", "tile_cells"), 32.0) << "the side was chosen again";
+  EXPECT_TRUE(has_note(tiled, "tile_plan", "chosen again at tile_scale"));
+  EXPECT_LE(stage_figure(tiled, "tile_spill", "window_points_max"), widest - 1) << "a window holds more than scale.tile_max_points";
+  EXPECT_GE(stage_figure(tiled, "tile_plan", "window_points_bound"), stage_figure(tiled, "tile_spill", "window_points_max"))
+      << "the plan's count bounds every window";
+}
+
 // scale.filter_halo_cells: auto (the default) plans the halo from an estimate of the scan's
 // spacing (the x-y box's area per point, half as large again) and, once the robust sample gives
 // the spacing (stage tile_scale), spills the points again when that needs a wider halo. Four
