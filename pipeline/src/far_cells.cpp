@@ -85,58 +85,69 @@ void FarCells::evict_before_row() {
   }
 }
 
-void FarCells::add_tile(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take, int tile_row) {
-  if (done_) throw std::logic_error("FarCells::add_tile after components()");
+void FarCells::begin_tile(int tile_row) {
+  if (done_) throw std::logic_error("FarCells::begin_tile after components()");
+  if (in_tile_) throw std::logic_error("FarCells::begin_tile: the tile before was not ended");
   if (tile_row < row_) {
-    throw std::logic_error("FarCells::add_tile: tile row " + std::to_string(tile_row) + " after row " + std::to_string(row_) +
+    throw std::logic_error("FarCells::begin_tile: tile row " + std::to_string(tile_row) + " after row " + std::to_string(row_) +
                            " (tiles must come row by row)");
   }
   if (tile_row > row_) {
     evict_before_row();
     row_ = tile_row;
   }
-
-  // The tile's cells, summed per run of 2^16 points (2 MiB of keys) first.
   tile_.clear();
-  {
-    constexpr std::size_t kRun = std::size_t{1} << 16;
-    std::vector<std::uint64_t> keys;
-    std::vector<std::uint32_t> at;  // the run's points
-    std::vector<Cell> sum;
-    std::vector<std::uint64_t> key_of;
-    for (std::size_t first = 0; first < n; first += kRun) {
-      keys.clear();
-      at.clear();
-      for (std::size_t i = first; i < std::min(n, first + kRun); ++i) {
-        if (!take[i]) continue;
-        keys.push_back(key(xyz + 3 * i));
-        at.push_back(static_cast<std::uint32_t>(i - first));
+  in_tile_ = true;
+}
+
+void FarCells::add_points(const double* xyz, std::size_t n) {
+  if (!in_tile_) throw std::logic_error("FarCells::add_points outside a tile");
+  constexpr std::size_t kRun = std::size_t{1} << 16;
+  std::vector<std::uint64_t> keys;
+  std::vector<Cell> sum;
+  std::vector<std::uint64_t> key_of;
+  for (std::size_t first = 0; first < n; first += kRun) {
+    const std::size_t m = std::min(n, first + kRun) - first;
+    keys.resize(m);
+    for (std::size_t i = 0; i < m; ++i) keys[i] = key(xyz + 3 * (first + i));
+    const WantedKeys cell(keys);
+    sum.assign(cell.size(), Cell{});
+    key_of.resize(cell.size());
+    for (std::size_t j = 0; j < m; ++j) {
+      const std::uint32_t c_at = cell.find(keys[j]);
+      key_of[c_at] = keys[j];
+      Cell& c = sum[c_at];
+      ++c.count;
+      const double* p = xyz + 3 * (first + j);
+      for (int a = 0; a < 3; ++a) {
+        const auto v = static_cast<float>(p[a] - origin_[a]);
+        c.lo[a] = std::min(c.lo[a], v);
+        c.hi[a] = std::max(c.hi[a], v);
       }
-      const WantedKeys cell(keys);
-      sum.assign(cell.size(), Cell{});
-      key_of.resize(cell.size());
-      for (std::size_t j = 0; j < keys.size(); ++j) {
-        const std::uint32_t m = cell.find(keys[j]);
-        key_of[m] = keys[j];
-        Cell& c = sum[m];
-        ++c.count;
-        const double* p = xyz + 3 * (first + at[j]);
-        for (int a = 0; a < 3; ++a) {
-          const auto v = static_cast<float>(p[a] - origin_[a]);
-          c.lo[a] = std::min(c.lo[a], v);
-          c.hi[a] = std::max(c.hi[a], v);
-        }
-      }
-      for (std::size_t m = 0; m < sum.size(); ++m) {
-        Cell& c = tile_[key_of[m]];
-        c.count += sum[m].count;
-        for (int a = 0; a < 3; ++a) {
-          c.lo[a] = std::min(c.lo[a], sum[m].lo[a]);
-          c.hi[a] = std::max(c.hi[a], sum[m].hi[a]);
-        }
+    }
+    for (std::size_t q = 0; q < sum.size(); ++q) {
+      Cell& c = tile_[key_of[q]];
+      c.count += sum[q].count;
+      for (int a = 0; a < 3; ++a) {
+        c.lo[a] = std::min(c.lo[a], sum[q].lo[a]);
+        c.hi[a] = std::max(c.hi[a], sum[q].hi[a]);
       }
     }
   }
+}
+
+void FarCells::add_tile(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take, int tile_row) {
+  begin_tile(tile_row);
+  std::vector<double> own;
+  for (std::size_t i = 0; i < n; ++i)
+    if (take[i]) own.insert(own.end(), xyz + 3 * i, xyz + 3 * i + 3);
+  add_points(own.data(), own.size() / 3);
+  end_tile();
+}
+
+void FarCells::end_tile() {
+  if (!in_tile_) throw std::logic_error("FarCells::end_tile outside a tile");
+  in_tile_ = false;
   if (tile_.empty()) return;
 
   // The tile's components: its cells in key order, linked to their 13 neighbours of larger key
@@ -235,6 +246,7 @@ void FarCells::add_tile(const double* xyz, std::size_t n, const std::vector<std:
 
 FarCells::Result FarCells::components(double far_m) {
   if (done_) throw std::logic_error("FarCells::components called twice");
+  if (in_tile_) throw std::logic_error("FarCells::components: the last tile was not ended");
   done_ = true;
   std::unordered_map<std::uint64_t, Cell>().swap(tile_);
   std::unordered_map<std::uint64_t, std::uint32_t>().swap(frontier_);

@@ -57,12 +57,20 @@ class FarCells {
   /// E [m].
   double edge() const { return edge_; }
 
-  /// Adds the points of one tile: xyz holds n points as x y z doubles [m] (grid frame); the
-  /// ones with take[i] != 0 are the tile's own (take.size() >= n). tile_row: the tile's row of
-  /// tiles (0, 1, ...; non-decreasing over the calls, see the class comment).
-  /// Per 2^16 points the run's cells are summed first (detail::WantedKeys), so the tile's table
-  /// is looked up once per cell a run holds, not once per point.
-  /// @throws std::logic_error when tile_row decreases or after components().
+  /// A tile, streamed: begin_tile, add_points for its own points in any number of batches,
+  /// end_tile. tile_row: the tile's row of tiles (0, 1, ...; non-decreasing over the tiles, see
+  /// the class comment). Only the tile's cells are held until end_tile, not its points.
+  /// @throws std::logic_error when tile_row decreases, a tile is begun twice or not begun, or
+  ///         after components().
+  void begin_tile(int tile_row);
+  /// xyz: n points of the tile as x y z doubles [m] (grid frame), all the tile's own. Per 2^16
+  /// points the batch's cells are summed first (detail::WantedKeys), so the tile's table is
+  /// looked up once per cell a batch holds, not once per point.
+  void add_points(const double* xyz, std::size_t n);
+  /// Joins the tile's cells among themselves and to the frontier, and keeps its far sides.
+  void end_tile();
+  /// A whole tile at once: begin_tile, add_points of the points with take[i] != 0 among the n
+  /// of xyz (take.size() >= n), end_tile.
   void add_tile(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take, int tile_row);
 
   /// What components() found.
@@ -125,7 +133,7 @@ class FarCells {
   Eigen::Vector3d origin_;
   double edge_, inv_;
   std::uint64_t small_;
-  bool done_ = false;
+  bool done_ = false, in_tile_ = false;
   int row_ = 0;
   std::uint64_t y_seen_max_ = 0;  // the largest y index of any cell added so far
   bool any_ = false;

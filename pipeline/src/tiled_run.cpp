@@ -2538,14 +2538,28 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       const std::size_t small = std::max<std::size_t>(fco.max_points, static_cast<std::size_t>(fco.max_fraction * static_cast<double>(grid_points)));
       FarCells cells(lo, std::max({2.0 * link, far_d / (2.0 * std::sqrt(3.0)), extent / 2097150.0}), small);
       // Every point once: the copy in the tile that owns its node; tiles row by row, as
-      // FarCells joins them (far_cells.hpp: a tile's cells, then the frontier, are held).
-      std::vector<std::uint8_t> flags, owned;
+      // FarCells joins them, each streamed from its spill in batches of 2^16 points (far_cells.hpp:
+      // a tile's cells, then the frontier, are held, not a tile's points).
       detail::PassProgress tick(progress, "tile_far_clusters", "coarse cells of every point, tile by tile", config.scale.progress_interval_s);
+      const NodeBinner owner(tiles.g);
+      constexpr std::size_t kBatch = std::size_t{1} << 16;
+      std::vector<double> batch;
+      batch.reserve(3 * kBatch);
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
-        const Cloud pts = spill->read(t, flags);
-        owned_by(tiles, t, pts, owned);
-        cells.add_tile(pts.xyz.data(), pts.size(), owned, static_cast<int>(t / static_cast<std::size_t>(tiles.tiles_c)));
+        const auto in = tiles.interior(t);
+        cells.begin_tile(static_cast<int>(t / static_cast<std::size_t>(tiles.tiles_c)));
+        spill->scan(t, [&](std::uint8_t, const double* p, const std::uint8_t*, float) {
+          if (!owner.inside(p, in)) return;  // a halo copy: its own tile takes it
+          batch.insert(batch.end(), p, p + 3);
+          if (batch.size() == 3 * kBatch) {
+            cells.add_points(batch.data(), kBatch);
+            batch.clear();
+          }
+        });
+        cells.add_points(batch.data(), batch.size() / 3);
+        batch.clear();
+        cells.end_tile();
       }
       const FarCells::Result fc = cells.components(far_d);
       r.report.count_in = grid_points;
