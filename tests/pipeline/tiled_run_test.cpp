@@ -954,6 +954,20 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   EXPECT_EQ(ok.summary.input_check->spacing_m * 1e3, stage_figure(ok, "tile_scale", "sample_spacing_mm"));
 }
 
+// The patch and three copies of it stacked 30 mm apart in z (dir/patch.ply), on a 100-node
+// grid, with the isolated filter wanting 200 neighbours: tile_plan's spacing estimate from the
+// x-y box is short of the patch's own, so tile_scale widens the halo (the two tests below).
+RunConfig stacked_patch_config(const fs::path& dir) {
+  std::vector<std::array<double, 3>> layers;
+  for (int l = 1; l < 4; ++l)
+    for (int i = 0; i < 100; ++i)
+      for (int j = 0; j < 100; ++j) layers.push_back({0.01 * i, 0.01 * j, 0.03 * l + 0.001 * ((i * 7 + j * 3) % 5)});
+  write_patch_with(dir / "patch.ply", layers);
+  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 100}\n"
+                           "cross_check: {isolation_min_neighbours: 200}\n";
+  return hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+}
+
 // A halo that tile_scale widens widens every window: the tile side is chosen again for
 // scale.tile_max_points (until 2026-11-26 the plan's side stayed, and windows could hold more
 // than the bound by the wider halo). The patch of the test below, whose planned halo is too
@@ -963,14 +977,7 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
 // the scene still equal the in-core one.
 TEST(TiledRun, AHaloWidenedAtTileScaleChoosesTheTileSideAgain) {
   const fs::path dir = hc::test::temp_dir("auto_halo_bound");
-  std::vector<std::array<double, 3>> layers;
-  for (int l = 1; l < 4; ++l)
-    for (int i = 0; i < 100; ++i)
-      for (int j = 0; j < 100; ++j) layers.push_back({0.01 * i, 0.01 * j, 0.03 * l + 0.001 * ((i * 7 + j * 3) % 5)});
-  write_patch_with(dir / "patch.ply", layers);
-  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 100}\n"
-                           "cross_check: {isolation_min_neighbours: 200}\n";
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+  RunConfig config = stacked_patch_config(dir);
   fs::create_directory(dir / "scratch");
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
   config.scale.tile_cells = 32;
@@ -1004,14 +1011,7 @@ TEST(TiledRun, AHaloWidenedAtTileScaleChoosesTheTileSideAgain) {
 // the isolated filter's radius in core, the widened one is not.
 TEST(TiledRun, AnAutoFilterHaloShortOfTheSamplesSpacingIsWidenedAndThePointsSpilledAgain) {
   const fs::path dir = hc::test::temp_dir("auto_halo");
-  std::vector<std::array<double, 3>> layers;
-  for (int l = 1; l < 4; ++l)
-    for (int i = 0; i < 100; ++i)
-      for (int j = 0; j < 100; ++j) layers.push_back({0.01 * i, 0.01 * j, 0.03 * l + 0.001 * ((i * 7 + j * 3) % 5)});
-  write_patch_with(dir / "patch.ply", layers);
-  const std::string yaml = "input: {files: [patch.ply], units: m}\ngrid: {n: 100}\n"
-                           "cross_check: {isolation_min_neighbours: 200}\n";
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+  RunConfig config = stacked_patch_config(dir);
   ASSERT_EQ(config.scale.filter_halo_cells, hc::pipeline::ScaleConfig::kAutoFilterHalo) << "auto is the default";
   fs::create_directory(dir / "scratch");
   BuiltScene tiled;
