@@ -43,9 +43,10 @@ namespace hc::pipeline::detail {
 /// neighbours an earlier tile's cell only within one index of its own tile's smallest x or y
 /// index, which is what is looked up.
 ///
-/// Memory: one tile's cells (28 bytes each), the frontier (two rows of tiles' far sides, 16
-/// bytes a cell), and 100 bytes per component plus 8 bytes per cell of each component of at
-/// most `small_points` points (a far cluster that may be removed). Not thread-safe.
+/// Memory: one tile's cells (a hash-map node each, about 60 bytes), the frontier (about two rows
+/// of tiles' far sides, about 40 bytes a cell), about 100 bytes per component and 8 bytes per
+/// cell of each component of at most `small_points` points (a far cluster that may be removed);
+/// no point is held. Not thread-safe.
 class FarCells {
  public:
   /// origin_m: the corner of cell (0, 0, 0), grid frame [m]. edge_m: E [m], > 0.
