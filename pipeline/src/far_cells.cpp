@@ -74,7 +74,7 @@ void FarCells::join(std::uint32_t a, std::uint32_t b) {
 void FarCells::evict_before_row() {
   // Every cell of a later row has a y index >= y_seen_max_ (the class comment): a frontier cell
   // below y_seen_max_ - 1 can neighbour none of them.
-  if (!any_ || y_seen_max_ < 2) return;
+  if (y_seen_max_ < 2) return;
   const std::uint64_t least = y_seen_max_ - 1;
   for (auto it = frontier_.begin(); it != frontier_.end();) {
     if (static_cast<std::uint64_t>(y_of(it->first)) < least) {
@@ -134,15 +134,6 @@ void FarCells::add_points(const double* xyz, std::size_t n) {
       }
     }
   }
-}
-
-void FarCells::add_tile(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take, int tile_row) {
-  begin_tile(tile_row);
-  std::vector<double> own;
-  for (std::size_t i = 0; i < n; ++i)
-    if (take[i]) own.insert(own.end(), xyz + 3 * i, xyz + 3 * i + 3);
-  add_points(own.data(), own.size() / 3);
-  end_tile();
 }
 
 void FarCells::end_tile() {
@@ -237,10 +228,9 @@ void FarCells::end_tile() {
     const auto [it, added] = frontier_.emplace(keys[i], label[i]);
     if (!added) join(it->second, label[i]);
   }
-  y_seen_max_ = any_ ? std::max<std::uint64_t>(y_seen_max_, static_cast<std::uint64_t>(y_hi)) : static_cast<std::uint64_t>(y_hi);
-  any_ = true;
+  y_seen_max_ = std::max<std::uint64_t>(y_seen_max_, static_cast<std::uint64_t>(y_hi));
   stats_.frontier_cells_peak = std::max(stats_.frontier_cells_peak, frontier_.size());
-  stats_.components_peak = parent_.size();
+  stats_.tile_components = parent_.size();
   stats_.listed_cells_peak = std::max(stats_.listed_cells_peak, listed_);
 }
 

@@ -32,9 +32,10 @@ namespace hc::pipeline::detail {
 /// (i, j, l) per axis, each index clamped to [0, 2^21 − 1]. Two cells are linked when their
 /// indices differ by at most 1 on every axis.
 ///
-/// The tiles' contract (Tiles::interior in tiled_run.cpp meets it): add_tile is called once per
-/// tile in row-major order (tile_row never decreases); the points a tile takes are the ones its
-/// interior owns, each point of the scan taken by exactly one tile; every point of a later tile
+/// The tiles' contract (Tiles::interior in tiled_run.cpp meets it): each tile is fed once
+/// (begin_tile, add_points, end_tile) in row-major order (tile_row never decreases); the points
+/// added to a tile are the ones its interior owns, each point of the scan added to exactly one
+/// tile; every point of a later tile
 /// of the same row has a larger x, and every point of a later row a larger y, than every point
 /// of the earlier tiles (or an equal coordinate that floors to the same cell index; strict order
 /// of the node indices gives this, since the nearest-node binning and the flooring are
@@ -70,9 +71,6 @@ class FarCells {
   void add_points(const double* xyz, std::size_t n);
   /// Joins the tile's cells among themselves and to the frontier, and keeps its far sides.
   void end_tile();
-  /// A whole tile at once: begin_tile, add_points of the points with take[i] != 0 among the n
-  /// of xyz (take.size() >= n), end_tile.
-  void add_tile(const double* xyz, std::size_t n, const std::vector<std::uint8_t>& take, int tile_row);
 
   /// What components() found.
   struct Result {
@@ -84,11 +82,11 @@ class FarCells {
     std::vector<std::string> notes;  ///< the first 20 far clusters, in order of their least cell key
     // How much the tile-by-tile joining held (stage figures).
     std::size_t frontier_cells_peak = 0;  ///< most cells in the frontier at once
-    std::size_t components_peak = 0;      ///< components numbered (tile-local ones, before joining)
+    std::size_t tile_components = 0;      ///< components numbered (the tiles' own, before joining)
     std::size_t listed_cells_peak = 0;    ///< most cell keys kept for small components at once
   };
 
-  /// After the last add_tile: the components. The main body is the component of most points
+  /// After the last end_tile: the components. The main body is the component of most points
   /// (the first in order of least cell key on a tie). A component other than it whose box lies
   /// more than far_m [m] from the main body's box (Euclidean distance between the boxes) is far;
   /// a far one of at most small_points points is removed (holds() then tells its points), a
@@ -107,10 +105,9 @@ class FarCells {
     return far_.count(k) > 0;
   }
 
-  /// The cell key of the point at p (x index << 42 | y << 21 | z, each clamped to [0, 2^21 − 1]).
-  std::uint64_t key(const double* p) const;
-
  private:
+  // The cell key of the point at p (x index << 42 | y << 21 | z, each clamped to [0, 2^21 − 1]).
+  std::uint64_t key(const double* p) const;
   static constexpr std::uint64_t kMask = (std::uint64_t{1} << 21) - 1;
   struct Cell {  // 28 bytes: the point count and the points' box (float offsets from the origin)
     std::uint32_t count = 0;
@@ -137,7 +134,6 @@ class FarCells {
   bool done_ = false, in_tile_ = false;
   int row_ = 0;
   std::uint64_t y_seen_max_ = 0;  // the largest y index of any cell added so far
-  bool any_ = false;
   std::size_t cells_ = 0, listed_ = 0;
   Result stats_;
   std::unordered_map<std::uint64_t, Cell> tile_;          // the current tile's cells

@@ -617,6 +617,12 @@ struct Tiles {
   int tiles_r = 0, tiles_c = 0;
 
   std::size_t count() const { return static_cast<std::size_t>(tiles_r) * static_cast<std::size_t>(tiles_c); }
+  // Tiles of `side` nodes over g: size, and the rows and columns of tiles that cover it.
+  void cut(int side) {
+    size = side;
+    tiles_r = (g.rows + size - 1) / size;
+    tiles_c = (g.cols + size - 1) / size;
+  }
   // The tile's interior: rows [r0, r1), cols [c0, c1).
   std::array<int, 4> interior(std::size_t t) const {
     const int tr = static_cast<int>(t / static_cast<std::size_t>(tiles_c)), tc = static_cast<int>(t % static_cast<std::size_t>(tiles_c));
@@ -1997,7 +2003,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     const int k = tiles.k;
     const int floor_side = std::min(configured_side, (std::max(16, tiles.halo) + k - 1) / k * k);
     const auto [side, most] = choose_tile_side(*counts, tiles.g, configured_side, k, tiles.halo, floor_side, config.scale.tile_max_points);
-    tiles.size = side;
+    tiles.cut(side);
     window_points_bound = most;
     if (side < configured_side) {
       rep.notes.push_back("tiles of " + std::to_string(side) + " cells, not scale.tile_cells' " + std::to_string(configured_side) +
@@ -2009,8 +2015,6 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
                           " cells (no smaller than the halo, " + std::to_string(tiles.halo) +
                           " cells), more than scale.tile_max_points: the tile loop's memory follows that window");
     }
-    tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
-    tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
   };
   auto lay_out = [&](const FarCells* far, StageReport& rep) {
     const char* stage_name = far ? "tile_far_clusters" : "tile_plan";
@@ -2141,8 +2145,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       counts->finish();
       choose_side(rep);
     } else {
-      tiles.tiles_r = (tiles.g.rows + tiles.size - 1) / tiles.size;
-      tiles.tiles_c = (tiles.g.cols + tiles.size - 1) / tiles.size;
+      tiles.cut(tiles.size);
     }
   };
   (void)stage("tile_plan", reports, progress, [&] {
@@ -2568,7 +2571,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       r.report.figure("cell_mm", cells.edge() * 1e3);
       r.report.figure("cells", static_cast<double>(fc.cells));
       r.report.figure("frontier_cells_peak", static_cast<double>(fc.frontier_cells_peak));
-      r.report.figure("tile_components", static_cast<double>(fc.components_peak));
+      r.report.figure("tile_components", static_cast<double>(fc.tile_components));
       r.report.figure("listed_cells_peak", static_cast<double>(fc.listed_cells_peak));
       r.report.figure("clusters", static_cast<double>(fc.clusters));
       r.report.figure("far_clusters", static_cast<double>(fc.removed_clusters));

@@ -9,8 +9,8 @@
 // where four tiles meet; a U whose two arms lie in different tile columns and meet only in the
 // last row of tiles (one cluster, known only after the last row); a large far cluster (kept,
 // noted); a small cluster near the wall (not far); isolated far points; points clamped to the
-// first cell index; pairs of points across a tile edge that cuts a cell. Each tile also gets
-// its halo's points, not taken. Run with cells much smaller than a tile and with cells larger
+// first cell index; pairs of points across a tile edge that cuts a cell. Each tile's points
+// come shuffled, in three batches. Run with cells much smaller than a tile and with cells larger
 // than a tile (a cell's neighbours then lie two tiles away, which the frontier's eviction must
 // allow for). Each bound of the frontier and of the look-up, narrowed by one index, fails a
 // test here (checked by hand, 2026-11-26).
@@ -203,27 +203,24 @@ Oracle flood_fill(const Scene& s, const Eigen::Vector3d& origin, double edge, st
 
 // ---- The tile-by-tile run, as the tiled run feeds it. ----
 
-// Tiles row by row, each with its own points (taken) and its halo's within halo_m (not taken),
-// in a shuffled order.
-void feed_tiles(const Scene& s, FarCells& cells, double halo_m) {
+// Tiles row by row, as the tiled run feeds them: each tile's own points, shuffled, in three
+// batches of add_points.
+void feed_tiles(const Scene& s, FarCells& cells) {
   std::mt19937_64 rng(7);
   for (int r = 0; r < kTilesR; ++r) {
     for (int c = 0; c < kTilesC; ++c) {
-      std::vector<std::pair<Eigen::Vector3d, std::uint8_t>> window;
-      for (const Eigen::Vector3d& p : s.points) {
-        const bool own = tile_row(p) == r && tile_col(p) == c;
-        const bool near = p.x() > c * kTile - halo_m && p.x() < (c + 1) * kTile + halo_m && p.y() > r * kTile - halo_m &&
-                          p.y() < (r + 1) * kTile + halo_m;
-        if (own || near) window.emplace_back(p, own ? 1 : 0);
-      }
-      std::shuffle(window.begin(), window.end(), rng);
+      std::vector<Eigen::Vector3d> own;
+      for (const Eigen::Vector3d& p : s.points)
+        if (tile_row(p) == r && tile_col(p) == c) own.push_back(p);
+      std::shuffle(own.begin(), own.end(), rng);
       std::vector<double> xyz;
-      std::vector<std::uint8_t> take;
-      for (const auto& [p, own] : window) {
-        xyz.insert(xyz.end(), {p.x(), p.y(), p.z()});
-        take.push_back(own);
-      }
-      cells.add_tile(xyz.data(), window.size(), take, r);
+      for (const Eigen::Vector3d& p : own) xyz.insert(xyz.end(), {p.x(), p.y(), p.z()});
+      cells.begin_tile(r);
+      const std::size_t n = own.size(), cut1 = n / 3, cut2 = 2 * n / 3;
+      cells.add_points(xyz.data(), cut1);
+      cells.add_points(xyz.data() + 3 * cut1, cut2 - cut1);
+      cells.add_points(xyz.data() + 3 * cut2, n - cut2);
+      cells.end_tile();
     }
   }
 }
@@ -234,7 +231,7 @@ void expect_same_as_flood_fill(double edge, double far_m, std::uint64_t small) {
   const Oracle o = flood_fill(s, origin, edge, small, far_m);
 
   FarCells cells(origin, edge, small);
-  feed_tiles(s, cells, 0.03);
+  feed_tiles(s, cells);
   const FarCells::Result fc = cells.components(far_m);
 
   SCOPED_TRACE("edge " + format_number(edge) + " m");
@@ -265,7 +262,7 @@ TEST(FarCells, TileByTileFindsTheWholeScansComponentsWithCellsSmallerThanATile) 
   // clusters); B is far and kept.
   const Scene s = carved_wall_with_clusters();
   FarCells cells(kOrigin, 0.01, 1000);
-  feed_tiles(s, cells, 0.0);
+  feed_tiles(s, cells);
   const FarCells::Result fc = cells.components(0.1);
   EXPECT_EQ(fc.kept_far_clusters, 1U);
   EXPECT_EQ(fc.removed_clusters, 1U + 1U + 12U + 4U + 2U);
@@ -283,11 +280,16 @@ TEST(FarCells, TileByTileFindsTheWholeScansComponentsWithCellsLargerThanATile) {
 TEST(FarCells, RefusesTilesOutOfRowOrderAndABadEdge) {
   FarCells cells(Eigen::Vector3d::Zero(), 0.01, 10);
   const double p[3] = {0.0, 0.0, 0.0};
-  const std::vector<std::uint8_t> take{1};
-  cells.add_tile(p, 1, take, 1);
-  EXPECT_THROW(cells.add_tile(p, 1, take, 0), std::logic_error);
+  EXPECT_THROW(cells.add_points(p, 1), std::logic_error) << "points outside a tile";
+  EXPECT_THROW(cells.end_tile(), std::logic_error) << "no tile begun";
+  cells.begin_tile(1);
+  EXPECT_THROW(cells.begin_tile(1), std::logic_error) << "the tile before not ended";
+  cells.add_points(p, 1);
+  EXPECT_THROW((void)cells.components(1.0), std::logic_error) << "the last tile not ended";
+  cells.end_tile();
+  EXPECT_THROW(cells.begin_tile(0), std::logic_error) << "a row before the last";
   (void)cells.components(1.0);
-  EXPECT_THROW(cells.add_tile(p, 1, take, 1), std::logic_error);
+  EXPECT_THROW(cells.begin_tile(1), std::logic_error) << "after components()";
   EXPECT_THROW(FarCells(Eigen::Vector3d::Zero(), 0.0, 10), std::invalid_argument);
   EXPECT_THROW(FarCells(Eigen::Vector3d::Zero(), std::nan(""), 10), std::invalid_argument);
 }
