@@ -1010,6 +1010,18 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     for (std::size_t i = 0; i < cand.size(); ++i) {
       const Eigen::Vector3d x = xyz(cand[i]);
       if (judging ? !judged[cand[i]] : !(x.x() >= dec[0] && x.x() < dec[1] && x.y() >= dec[2] && x.y() < dec[3])) continue;
+      if (balls.empty()) {
+        // Far inside the window, no search of the verdict can leave it, and the point's and its
+        // neighbours' searches are not bounded one by one (a random read of k neighbours each,
+        // the larger part of this step on a dense scan). The point's k-th distance r is at most
+        // k·d_i (the largest of k distances is at most their sum), widened here well beyond the
+        // float searches' rounding and the slack; a neighbour j lies within r of it, so its
+        // bound below is at most 2r plus the slack, and its margin (the distance to the
+        // window's open sides, which moves by at most |x_j − x_i|) at least margin(x) − r. Every
+        // excess is then below 0, as the full test would find.
+        const double r_ub = (static_cast<double>(k) * static_cast<double>(d[cand[i]]) * 1.001 + 4.0 * slack_m) * 1.001 + slack_m;
+        if (3.01 * r_ub + 4.0 * slack_m < margin(x)) continue;
+      }
       const double r = kth(x, nbrs(i));
       double excess = r - margin(x);
       reach.clear();

@@ -561,6 +561,37 @@ TEST(RobustOutliers, ANeighboursSearchPastTheWindowListsThePoint) {
   EXPECT_TRUE(second.past_halo.empty()) << "every search of i and its neighbours lies inside the 40 mm ball";
 }
 
+// The check's shortcut for points far inside the window (k·d_i bounds the point's k-th
+// distance, and a neighbour's search reaches at most 2·r_i past it) must not skip a point a
+// neighbour's search lists. Built so that k·d_i is almost r_i: k = 4, the local test only (as
+// above), i with three points 0.01 mm from it and its fourth neighbour j = i + (20, 0, 0) mm,
+// toward the window's open side x = 0 (r_i = 20.0 mm, d_i = 5.0075 mm > 3 mm: a candidate of the
+// local test). j's own 4 nearest are i's cluster, 20 mm away, so its search reaches 20 mm: past
+// its margin when i lies at x = −38 mm (j's margin 18 mm; i listed), inside it at x = −42 mm
+// (j's margin 22 mm; i's own search, 20 mm, inside its 42 mm; not listed). Oracle: that hand
+// computation. A far point at x = −300 mm makes the six points k = 4 needs. A shortcut that
+// trusted a bound under 1.9·r_i skips i at −38 mm.
+TEST(RobustOutliers, APointFarInsideItsWindowIsListedWhenANeighboursSearchLeavesIt) {
+  for (const double xi_mm : {-38.0, -42.0}) {
+    const std::vector<Eigen::Vector3d> mm = {{xi_mm, 0, 0},    {xi_mm, 0.01, 0},     {xi_mm, -0.01, 0},
+                                             {xi_mm, 0, 0.01}, {xi_mm + 20.0, 0, 0}, {-300, 0, 0}};
+    Cloud window;
+    window.xyz.resize(3, static_cast<Eigen::Index>(mm.size()));
+    for (std::size_t i = 0; i < mm.size(); ++i) window.xyz.col(static_cast<Eigen::Index>(i)) = mm[i] * 1e-3;
+    RobustOutlierOptions o;
+    o.k = 4;
+    o.off_surface_ratio = 0.0;
+    o.scale = hc::pipeline::RobustScale{std::log(1e-3), 1.0, 100};
+    const double inf = std::numeric_limits<double>::infinity();
+    o.tile = RobustOutlierOptions::TileBounds{{-inf, 0.0, -inf, inf}, {-inf, -0.010, -inf, inf}, {}};
+    hc::pipeline::RobustVerdicts part;
+    (void)remove_robust_outliers(window, o, &part);
+    const bool listed = std::find(part.past_halo.begin(), part.past_halo.end(), 0U) != part.past_halo.end();
+    EXPECT_EQ(listed, xi_mm > -40.0) << "i at x = " << xi_mm << " mm: j's search reaches " << (xi_mm > -40.0 ? "past" : "inside")
+                                     << " its margin";
+  }
+}
+
 TEST(RobustOutliers, UniformClutterOfOneToFivePercentGoesAndTruePointsStay) {
   // Oracle: the tags of the injected points. Clutter uniform in the bunny's bounding box at 1, 2
   // and 5 %: at least 95 % of it goes, at most 0.5 % of the scan's points. Without the
