@@ -629,8 +629,9 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   const GridGeometry& g = grid.geometry();
   InputCheck out;
   const std::size_t n = static_cast<std::size_t>(as_read_m.cols());
-  if (scope && (!scope->owned || scope->owned->size() != n || !(scope->spacing_m > 0.0))) {
-    throw std::invalid_argument("check_input: a scope needs an owned flag per point and a spacing > 0");
+  if (scope && (!scope->owned || scope->owned->size() != n || !(scope->spacing_m > 0.0) ||
+                (scope->removed && scope->removed->size() != n))) {
+    throw std::invalid_argument("check_input: a scope needs an owned flag per point (and a removed flag, if any) and a spacing > 0");
   }
   auto owns = [&](std::size_t i) { return !scope || (*scope->owned)[i] != 0; };
   for (std::size_t i = 0; i < n; ++i) out.points += owns(i) ? 1U : 0U;
@@ -670,7 +671,11 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   // are interchangeable: every figure below depends on coordinates only). Should a stage ever
   // reorder points, the pass does not reach the end of kept_m and the multiset match decides.
   bool matched = false;
-  if (voxel_leaf_m <= 0.0) {
+  if (scope && scope->removed) {
+    // Known per point (a tiled run's kept-point mask); a non-finite point is removed regardless.
+    for (std::size_t i = 0; i < n; ++i) removed[i] = finite[i] && (*scope->removed)[i] == 0 ? 0 : 1;
+    matched = true;
+  } else if (voxel_leaf_m <= 0.0) {
     std::size_t j = 0;
     const auto m = static_cast<std::size_t>(kept_m.xyz.cols());
     for (std::size_t i = 0; i < n && j < m; ++i) {

@@ -495,20 +495,12 @@ class KeptMask : public TileFiles {
     return spill_.read_taken(t, kept(mask), [&](std::size_t rec, std::uint8_t) { return flag_of(mask[rec]); }, flag);
   }
 
-  // The same from `spilled`, tile t's spill already read (Spill::read: every record, in order).
-  Cloud select(std::size_t t, const Cloud& spilled, std::vector<std::uint8_t>& flag) const {
+  // removed[r] = 1 for tile t's spill records it did not keep, 0 for those it kept (interior
+  // and halo alike); one entry per record. @throws as read().
+  void removed(std::size_t t, std::vector<std::uint8_t>& removed) const {
     const std::vector<std::uint8_t> mask = load(t);
-    if (spilled.size() != mask.size()) throw std::logic_error("KeptMask::select: not tile " + std::to_string(t) + "'s spill");
-    const bool rgb = spilled.has_rgb(), intensity = spilled.has_intensity();
-    return cloud_of_records(kept(mask), rgb, intensity, flag, [&](auto&& emit) {
-      for (std::size_t r = 0; r < mask.size(); ++r) {
-        const int f = flag_of(mask[r]);
-        if (f >= 0) {
-          emit(static_cast<std::uint8_t>(f), spilled.xyz.data() + 3 * r, rgb ? spilled.rgb.data() + 3 * r : nullptr,
-               intensity ? spilled.intensity[r] : 0.0f);
-        }
-      }
-    });
+    removed.resize(mask.size());
+    for (std::size_t r = 0; r < mask.size(); ++r) removed[r] = mask[r] == kNotKept ? 1 : 0;
   }
 
  private:
@@ -3010,7 +3002,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
             .push_back(rc);
       }
       const std::vector<std::uint8_t>& flags = scene.layers.flags;
-      std::vector<std::uint8_t> fl_in, fl_kept, owned;
+      std::vector<std::uint8_t> fl_in, removed, owned;
       detail::PassProgress tick(progress, "honest_check", "the input as spilled against the grid, tile by tile",
                         config.scale.progress_interval_s);
       detail::TileHeapBudget heap(window_heap_budget(spill, tiles.count()));  // as the tile loop
@@ -3019,7 +3011,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         (void)heap.before_tile();
         const Cloud input = spill.read(t, fl_in);
         if (input.size() == 0) continue;
-        const Cloud kept_pts = kept.select(t, input, fl_kept);  // through the mask, not read again
+        kept.removed(t, removed);  // the mask, instead of a copy of the kept points matched back
         const GridWindow w = tiles.window(t);
         const auto inner = tiles.interior(t);
         owned_by(tiles, t, input, owned);
@@ -3035,8 +3027,9 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         GridSpikes local;
         for (const auto& rc : flagged_in[t]) local.flagged.push_back({rc[0] - w.row0, rc[1] - w.col0});
         scope.owned = &owned;
+        scope.removed = &removed;
         scope.cells = {inner[0] - w.row0, inner[1] - w.row0, inner[2] - w.col0, inner[3] - w.col0};
-        const InputCheck part = check_input(input.xyz, kept_pts, crop, options, 0.0, &local, &crop_flags, &scope);
+        const InputCheck part = check_input(input.xyz, Cloud{}, crop, options, 0.0, &local, &crop_flags, &scope);
         in.add_classes(part);
         in.isolated += part.isolated;
         in.spikes_kept += part.spikes_kept;

@@ -487,6 +487,36 @@ TEST(InputCheck, ClassesOnAFlatGridMatchTheirConstruction) {
   EXPECT_EQ(rev.no_data, 6u * 6u - 2u);
   EXPECT_EQ(rev.surface_lost, 2u);
   expect_partition(rev);
+
+  // The removed points flagged instead (InputCheckScope::removed, a tiled run's kept-point
+  // mask), no kept points given, one tile owning every point over the whole grid: the same
+  // classes. The scope's box of valid samples is the grid's, nodes (0, 0) to (20, 20) less the
+  // no-data corner: x and y 0 to 20 mm, z 0.
+  std::vector<std::uint8_t> owned(all.size(), 1), removed(all.size(), 0);
+  removed[lost_a] = removed[lost_b] = removed[lattice + 2] = 1;
+  hc::pipeline::InputCheckScope scope;
+  scope.owned = &owned;
+  scope.removed = &removed;
+  scope.cells = {0, g.rows, 0, g.cols};
+  scope.spacing_m = in.spacing_m;
+  scope.valid_lo = Eigen::Vector3d(0.0, 0.0, 0.0);
+  scope.valid_hi = Eigen::Vector3d(0.020, 0.020, 0.0);
+  const InputCheck flagged = check_input(as_read.xyz, Cloud{}, h, o, 0.0, nullptr, nullptr, &scope);
+  EXPECT_EQ(flagged.points, all.size());
+  EXPECT_EQ(flagged.removed, 3u);
+  EXPECT_EQ(flagged.hidden, 1u);
+  EXPECT_EQ(flagged.off_surface, 1u);
+  EXPECT_EQ(flagged.outside, 1u);
+  EXPECT_EQ(flagged.no_data, 6u * 6u - 2u);
+  EXPECT_EQ(flagged.on_surface, lattice - 36u);
+  EXPECT_EQ(flagged.isolated, 1u);
+  EXPECT_EQ(flagged.surface_lost, 2u);
+  EXPECT_NEAR(flagged.surface_lost_max_gap_m, 0.006, 1e-5);
+  expect_partition(flagged);
+  std::vector<std::uint8_t> short_flags(all.size() - 1, 0);
+  scope.removed = &short_flags;
+  EXPECT_THROW(check_input(as_read.xyz, Cloud{}, h, o, 0.0, nullptr, nullptr, &scope), std::invalid_argument)
+      << "a removed flag per point";
 }
 
 /// Points at every node of an n × n grid of `pitch` [m] at z = 0.

@@ -213,6 +213,11 @@ struct InputCheckScope {
   /// Per point of as_read_m: 1 = the tile's (its grid node lies in the tile's interior), 0 = a
   /// halo copy, a neighbour only. Size: as_read_m's columns.
   const std::vector<std::uint8_t>* owned = nullptr;
+  /// Optional, per point of as_read_m: 1 = removed by the filters, 0 = kept (a tiled run knows
+  /// this from its kept-point mask). When given, kept_m is not read (it may be empty) and not
+  /// matched to as_read_m by coordinates: the figures are the same (they depend on coordinates
+  /// only), without a copy of the kept points. Size: as_read_m's columns.
+  const std::vector<std::uint8_t>* removed = nullptr;
   /// The interior's cells in `grid`: rows [r0, r1), cols [c0, c1). Spikes kept are counted there.
   std::array<int, 4> cells{};
   double spacing_m = 0.0;  ///< the scan's median nearest-neighbour spacing [m], > 0
