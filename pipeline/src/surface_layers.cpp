@@ -617,18 +617,17 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
     }
   }
 
-  const EnvelopeResult env = bilateral_envelope(fm, valid, options);
+  EnvelopeResult env = bilateral_envelope(fm, valid, options);
 
+  // Each working array goes as soon as it is used up, and the friction maps come after the
+  // curvature: a whole grid's layers peaked at about 53 bytes a sample with every array alive to
+  // the end (446 MB at 4096 × 2049, 2026-11-26), about 36 now; the values are the same.
   StageResult<SurfaceLayers> result;
   SurfaceLayers& L = result.value;
   L.friction_model = options.friction_model;
   L.envelope_m = HeightField(g);
   L.texture_m = HeightField(g);
-  L.mu_d = HeightField(g);
-  L.mu_s = HeightField(g);
-  for (HeightField* layer : {&L.envelope_m, &L.texture_m, &L.mu_d, &L.mu_s}) {
-    layer->model_to_grid = depth_m.model_to_grid;
-  }
+  for (HeightField* layer : {&L.envelope_m, &L.texture_m}) layer->model_to_grid = depth_m.model_to_grid;
   double sum_h2 = 0.0, max_abs_h = 0.0;
   for (int r = 0; r < g.rows; ++r) {
     for (int c = 0; c < g.cols; ++c) {
@@ -641,6 +640,9 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
       max_abs_h = std::max(max_abs_h, std::abs(static_cast<double>(h)));
     }
   }
+  fm.release();
+  valid.release();
+  env.envelope.release();
 
   const auto t_curv = Clock::now();
   Curvature curv = compute_curvature(L.texture_m);
@@ -656,14 +658,18 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   const FrictionScale fscale = options.friction_scale;
   // σ: device metres per grid metre (1 for `scene`): H_dev = H/σ [1/m], K_dev = K/σ² [1/m²].
   const double sigma = friction_sigma(options, window_cells, g.cell_size_m);
-  std::vector<double> s_values(n, 0.0);
+  // s of cell i (computed again where needed instead of kept: 8 bytes a sample).
+  const auto s_of = [&](std::size_t i) {
+    return friction_s(L.mean_curvature_per_m.data()[i], L.gaussian_curvature_per_m2.data()[i], sigma);
+  };
   std::vector<double> s_positive;
-  if (fscale == FrictionScale::kLevelMedian) s_positive.reserve(valid_cells);
-  for (std::size_t i = 0; i < n; ++i) {
-    if (std::isnan(f[i])) continue;
-    const double s = friction_s(L.mean_curvature_per_m.data()[i], L.gaussian_curvature_per_m2.data()[i], sigma);
-    s_values[i] = s;
-    if (fscale == FrictionScale::kLevelMedian && s > 0.0 && std::isfinite(s)) s_positive.push_back(s);
+  if (fscale == FrictionScale::kLevelMedian) {
+    s_positive.reserve(valid_cells);
+    for (std::size_t i = 0; i < n; ++i) {
+      if (std::isnan(f[i])) continue;
+      const double s = s_of(i);
+      if (s > 0.0 && std::isfinite(s)) s_positive.push_back(s);
+    }
   }
   // Reference for `level_median`: the median of s over the cells with s > 0, but never below
   // the flatness floor 1/(R·μ_max) [device units]: the curvature that the paper's own formula
@@ -677,12 +683,16 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
     s_median = *mid_s;
   }
   if (fscale == FrictionScale::kLevelMedian) s_ref = std::max(s_median, s_floor);
+  std::vector<double>().swap(s_positive);
+  L.mu_d = HeightField(g);
+  L.mu_s = HeightField(g);
+  for (HeightField* layer : {&L.mu_d, &L.mu_s}) layer->model_to_grid = depth_m.model_to_grid;
   std::size_t at_min = 0, at_max = 0;
   std::vector<float> mu_values;
   mu_values.reserve(valid_cells);
   for (std::size_t i = 0; i < n; ++i) {
     if (std::isnan(f[i])) continue;
-    const double mu = friction_mu_d(s_values[i], s_ref, options);
+    const double mu = friction_mu_d(s_of(i), s_ref, options);
     at_min += mu <= mu_min ? 1U : 0U;
     at_max += mu >= mu_max ? 1U : 0U;
     L.mu_d.data()[i] = static_cast<float>(mu);
@@ -691,7 +701,7 @@ StageResult<SurfaceLayers> compute_surface_layers(const HeightField& depth_m,
   for (int r = 0; r < g.rows; ++r) {
     const double y = g.y_of_row(r);
     for (int c = 0; c < g.cols; ++c) {
-      if (valid.at<std::uint8_t>(r, c) == 0) continue;
+      if (std::isnan(depth_m.at(r, c))) continue;
       L.mu_s.at(r, c) = static_cast<float>(friction_mu_s(g.x_of_col(c), y, options));
     }
   }
