@@ -645,7 +645,8 @@ namespace detail {
 
 Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::vector<StageReport>& reports,
                                 const ProgressFn& progress, const StoredPrecision& precision,
-                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built) {
+                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built,
+                                bool layers_now) {
   RunSummary& summary = built.summary;
   Scene& scene = built.scene;
   check_stored_precision(precision, grid.depth.geometry().cell_size_m, config.view.matrix().rotation(),
@@ -671,16 +672,31 @@ Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::v
     scene.layers.intensity.model_to_grid = model_to_grid;
   }
 
-  // 6. Surface layers (texture, curvature, friction): here on the whole grid, or left to the
-  // tiled scene's level builder in write_run (SurfaceLayersAt::kSceneLevels: a tiled scene
-  // without the levels table, whose pyramid would hold level 0's layers anyway).
+  if (layers_now) scene_surface_layers(grid.depth, config, reports, progress, built);
+  return model_to_grid;
+}
+
+void scene_surface_layers(const HeightField& depth, const RunConfig& config, std::vector<StageReport>& reports,
+                          const ProgressFn& progress, BuiltScene& built) {
+  Scene& scene = built.scene;
+  const Eigen::Affine3d& model_to_grid = depth.model_to_grid;
+  // 6. Surface layers (texture, curvature, friction): here on the whole grid (in core right
+  // after the hole fill; a tiled run after its checks), or left to the tiled scene's level
+  // builder in write_run (SurfaceLayersAt::kSceneLevels: a tiled scene without the levels
+  // table, whose pyramid would hold level 0's layers anyway).
   if (!level0_layers_by_builder(config, scene.geometry)) built.surface_layers_at = SurfaceLayersAt::kMemory;
   if (built.surface_layers_at == SurfaceLayersAt::kSceneLevels) {
     // What compute_surface_layers records; the layers themselves come in stage scene_levels.
     scene.friction_model = config.layers.options.friction_model;
   } else if (config.layers.enabled) {
-    SurfaceLayers layers = stage("surface_layers", reports, progress,
-                                 [&] { return compute_surface_layers(grid.depth, config.layers.options, config.lod.window_cells); });
+    // The curvature maps (8 bytes a sample) go inside the stage, so that its end gives their
+    // heap back: the scene does not keep them.
+    SurfaceLayers layers = stage("surface_layers", reports, progress, [&] {
+      auto r = compute_surface_layers(depth, config.layers.options, config.lod.window_cells);
+      r.value.mean_curvature_per_m = HeightField();
+      r.value.gaussian_curvature_per_m2 = HeightField();
+      return r;
+    });
     scene.friction_model = layers.friction_model;
     scene.layers.envelope = std::move(layers.envelope_m);
     scene.layers.texture = std::move(layers.texture_m);
@@ -690,8 +706,6 @@ Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::v
       f->model_to_grid = model_to_grid;
     }
   }
-
-  return model_to_grid;
 }
 
 }  // namespace detail

@@ -126,11 +126,22 @@ void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen
 /// From a finished depth grid (reprojected, despiked) to the scene's grid layers, as the run
 /// makes them: the stored-precision check (into reports[grid_report]), corrugation, hole fill,
 /// the scene's geometry, model-to-grid transform, flags, colour and intensity, and the surface
-/// layers (config.layers). `grid` keeps the hole-filled depth (the cross-check's); built.summary
-/// gets grid and valid_cells. @return the model-to-grid transform.
+/// layers (config.layers; with layers_now false the caller runs scene_surface_layers later).
+/// `grid` keeps the hole-filled depth (the cross-check's); built.summary gets grid and
+/// valid_cells. @return the model-to-grid transform.
 Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::vector<StageReport>& reports,
                                 const ProgressFn& progress, const StoredPrecision& precision,
-                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built);
+                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built,
+                                bool layers_now = true);
+
+/// Stage surface_layers (envelope, texture, μ_d, μ_s of compute_surface_layers) on `depth`, the
+/// scene's hole-filled level 0 (its model_to_grid set, as scene_from_grid leaves it), into
+/// built.scene; or, for a scene whose level 0 the level builder will make them for
+/// (SurfaceLayersAt::kSceneLevels), only the friction model. The tiled run calls it after its
+/// checks, which do not read the layers: their 16 bytes a sample are then not held beside the
+/// checks' windows (the run's peak stage at 10^8 and 10^9 points, 2026-11-26).
+void scene_surface_layers(const HeightField& depth, const RunConfig& config, std::vector<StageReport>& reports,
+                          const ProgressFn& progress, BuiltScene& built);
 
 /// cross_check.honest with the splat footprint the confirmation may use (disc splats, not a
 /// rasterised mesh): (splat_radius_cells + ½√2) × upsample_factor × cell [m]; see run.cpp.

@@ -2724,7 +2724,7 @@ std::size_t window_heap_budget(const Spill& spill, std::size_t tile_count) {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Steps 4 and 5 on the gathered tiles: the whole grid's layers and the merged cross-check.
+// Steps 4 to 6 on the gathered tiles: the whole grid, the merged cross-check, the surface layers.
 // `built.summary.stages` holds the plan's and the tile loop's reports.
 BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& merged, const Spill& spill, const KeptMask& kept,
                         BuiltScene built, const ProgressFn& progress, detail::Clock::time_point t_start) {
@@ -2747,10 +2747,11 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
     if (interior_seen++ % stride == 0) sample_xyz.insert(sample_xyz.end(), p, p + 3);
   };
 
-  // 4. The whole grid, as in core.
+  // 4. The whole grid, as in core; its surface layers after the checks (step 6), which do not
+  // read them, so that their 16 bytes a sample are not held beside the checks' windows.
   const std::size_t grid_report = reports.size() - 1;
   const Eigen::Affine3d model_to_grid =
-      detail::scene_from_grid(grid, config, reports, progress, plan.precision, offset_m, grid_report, built);
+      detail::scene_from_grid(grid, config, reports, progress, plan.precision, offset_m, grid_report, built, false);
 
   // 5. The cross-check, per tile, merged.
   if (config.cross_check.enabled) {
@@ -3059,6 +3060,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
     summary.input_check = std::move(honest.input);
     summary.grid_spikes = std::move(honest.spikes);
   }
+  // 6. The surface layers of the whole grid (or, for a tiled scene, left to its level builder).
+  detail::scene_surface_layers(grid.depth, config, reports, progress, built);
   if (keep_sample && !sampled) {
     std::vector<std::uint8_t> flag;
     for (std::size_t t = 0; t < tiles.count(); ++t) {
