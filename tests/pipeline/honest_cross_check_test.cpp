@@ -456,37 +456,35 @@ TEST(InputCheck, ClassesOnAFlatGridMatchTheirConstruction) {
   HonestCheckOptions o;
   o.tolerance_m = 0.0005;
   o.hidden_band_m = 0.002;
+  // The classes by construction, however the removed points are found.
+  const auto expect_classes = [&](const InputCheck& c, const char* how) {
+    SCOPED_TRACE(how);
+    EXPECT_EQ(c.points, all.size());
+    EXPECT_EQ(c.removed, 3u);
+    EXPECT_EQ(c.hidden, 1u);
+    EXPECT_EQ(c.off_surface, 1u);
+    EXPECT_EQ(c.outside, 1u);
+    // No data: the bilinear cell of a centre point (c + ½, r + ½) has corners c, c + 1 and r, r + 1,
+    // so it touches the corner when c ≥ 14 and r ≥ 14: 6 x 6 points, minus the two removed ones.
+    EXPECT_EQ(c.no_data, 6u * 6u - 2u);
+    EXPECT_EQ(c.on_surface, lattice - 36u);
+    expect_partition(c);
+    EXPECT_EQ(c.isolated, 1u);
+    EXPECT_EQ(c.surface_lost, 2u);
+    // The lost point (19.5, 19.5) mm is binned to node (20, 20); the nearest valid nodes are
+    // (14, 20) and (20, 14): 6 mm.
+    EXPECT_NEAR(c.surface_lost_max_gap_m, 0.006, 1e-5);
+    EXPECT_EQ(c.far, 0u);
+    EXPECT_EQ(c.spikes_kept, 0u);
+  };
   const InputCheck in = check_input(as_read.xyz, kept, h, o);
-  EXPECT_EQ(in.points, all.size());
-  EXPECT_EQ(in.removed, 3u);
-  EXPECT_EQ(in.hidden, 1u);
-  EXPECT_EQ(in.off_surface, 1u);
-  EXPECT_EQ(in.outside, 1u);
-  // No data: the bilinear cell of a centre point (c + ½, r + ½) has corners c, c + 1 and r, r + 1,
-  // so it touches the corner when c ≥ 14 and r ≥ 14: 6 x 6 points, minus the two removed ones.
-  EXPECT_EQ(in.no_data, 6u * 6u - 2u);
-  EXPECT_EQ(in.on_surface, lattice - 36u);
-  expect_partition(in);
+  expect_classes(in, "kept points matched in order");
   EXPECT_NEAR(in.spacing_m, 0.001, 1e-6);
-  EXPECT_EQ(in.isolated, 1u);
-  EXPECT_EQ(in.surface_lost, 2u);
-  // The lost point (19.5, 19.5) mm is binned to node (20, 20); the nearest valid nodes are
-  // (14, 20) and (20, 14): 6 mm.
-  EXPECT_NEAR(in.surface_lost_max_gap_m, 0.006, 1e-5);
-  EXPECT_EQ(in.far, 0u);
-  EXPECT_EQ(in.spikes_kept, 0u);
 
   // The same kept points in reverse order, as a stage that reorders would leave them: the
   // in-order match cannot pair them, the multiset match decides, and the classes are the same.
   const std::vector<Eigen::Vector3d> reversed(kept_pts.rbegin(), kept_pts.rend());
-  const InputCheck rev = check_input(as_read.xyz, cloud_of(reversed), h, o);
-  EXPECT_EQ(rev.removed, 3u);
-  EXPECT_EQ(rev.hidden, 1u);
-  EXPECT_EQ(rev.off_surface, 1u);
-  EXPECT_EQ(rev.outside, 1u);
-  EXPECT_EQ(rev.no_data, 6u * 6u - 2u);
-  EXPECT_EQ(rev.surface_lost, 2u);
-  expect_partition(rev);
+  expect_classes(check_input(as_read.xyz, cloud_of(reversed), h, o), "kept points reversed: the multiset match");
 
   // The removed points flagged instead (InputCheckScope::removed, a tiled run's kept-point
   // mask), no kept points given, one tile owning every point over the whole grid: the same
@@ -501,18 +499,7 @@ TEST(InputCheck, ClassesOnAFlatGridMatchTheirConstruction) {
   scope.spacing_m = in.spacing_m;
   scope.valid_lo = Eigen::Vector3d(0.0, 0.0, 0.0);
   scope.valid_hi = Eigen::Vector3d(0.020, 0.020, 0.0);
-  const InputCheck flagged = check_input(as_read.xyz, Cloud{}, h, o, 0.0, nullptr, nullptr, &scope);
-  EXPECT_EQ(flagged.points, all.size());
-  EXPECT_EQ(flagged.removed, 3u);
-  EXPECT_EQ(flagged.hidden, 1u);
-  EXPECT_EQ(flagged.off_surface, 1u);
-  EXPECT_EQ(flagged.outside, 1u);
-  EXPECT_EQ(flagged.no_data, 6u * 6u - 2u);
-  EXPECT_EQ(flagged.on_surface, lattice - 36u);
-  EXPECT_EQ(flagged.isolated, 1u);
-  EXPECT_EQ(flagged.surface_lost, 2u);
-  EXPECT_NEAR(flagged.surface_lost_max_gap_m, 0.006, 1e-5);
-  expect_partition(flagged);
+  expect_classes(check_input(as_read.xyz, Cloud{}, h, o, 0.0, nullptr, nullptr, &scope), "removed points flagged");
   std::vector<std::uint8_t> short_flags(all.size() - 1, 0);
   scope.removed = &short_flags;
   EXPECT_THROW(check_input(as_read.xyz, Cloud{}, h, o, 0.0, nullptr, nullptr, &scope), std::invalid_argument)

@@ -501,6 +501,22 @@ TEST(RobustOutliers, ATilesVerdictThatDiffersFromTheWholeCloudsIsListedAsPastIts
   EXPECT_GT(differing, 0U) << "no window changed a verdict: the test would not see a broken check";
 }
 
+// The hand-built cases below: points given in millimetres, as a cloud in metres; and the test
+// they share, k = 4 with the scale given (d_med = 1 mm, a global threshold of about 140 m: only
+// the local test acts) and no off-surface test.
+Cloud cloud_of_mm(const std::vector<Eigen::Vector3d>& mm) {
+  std::vector<Eigen::Vector3d> m;
+  for (const Eigen::Vector3d& p : mm) m.push_back(p * 1e-3);
+  return cloud_of(m);
+}
+RobustOutlierOptions local_test_only_k4() {
+  RobustOutlierOptions o;
+  o.k = 4;
+  o.off_surface_ratio = 0.0;
+  o.scale = hc::pipeline::RobustScale{std::log(1e-3), 1.0, 100};
+  return o;
+}
+
 // The check's neighbour term, on a case built by hand (mm below; the cloud in metres). k = 4,
 // the scale given (d_med = 1 mm, a global threshold of about 140 m: only the local test acts),
 // no off-surface test: a point i is removed when d_i > 3·max(median of its neighbours' d, 1 mm).
@@ -515,13 +531,8 @@ TEST(RobustOutliers, ANeighboursSearchPastTheWindowListsThePoint) {
   std::vector<Eigen::Vector3d> mm = {{-20, 0, 0}, {-2, 1.5, 0}, {-2, -1.5, 0}, {-2, 4.5, 0}, {-2, -4.5, 0}, {-200, 0, 0}};
   const std::size_t in_window = mm.size();
   for (int a = 0; a <= 24; ++a) mm.emplace_back(0.5, -6.0 + 0.5 * a, 0.0);
-  Cloud whole;
-  whole.xyz.resize(3, static_cast<Eigen::Index>(mm.size()));
-  for (std::size_t i = 0; i < mm.size(); ++i) whole.xyz.col(static_cast<Eigen::Index>(i)) = mm[i] * 1e-3;
-  RobustOutlierOptions o;
-  o.k = 4;
-  o.off_surface_ratio = 0.0;
-  o.scale = hc::pipeline::RobustScale{std::log(1e-3), 1.0, 100};
+  const Cloud whole = cloud_of_mm(mm);
+  const RobustOutlierOptions o = local_test_only_k4();
   hc::pipeline::RobustVerdicts all;
   (void)remove_robust_outliers(whole, o, &all);
   ASSERT_EQ(all.verdict[0], 2) << "over the whole cloud i is a local outlier (hand computation above)";
@@ -575,13 +586,8 @@ TEST(RobustOutliers, APointFarInsideItsWindowIsListedWhenANeighboursSearchLeaves
   for (const double xi_mm : {-38.0, -42.0}) {
     const std::vector<Eigen::Vector3d> mm = {{xi_mm, 0, 0},    {xi_mm, 0.01, 0},     {xi_mm, -0.01, 0},
                                              {xi_mm, 0, 0.01}, {xi_mm + 20.0, 0, 0}, {-300, 0, 0}};
-    Cloud window;
-    window.xyz.resize(3, static_cast<Eigen::Index>(mm.size()));
-    for (std::size_t i = 0; i < mm.size(); ++i) window.xyz.col(static_cast<Eigen::Index>(i)) = mm[i] * 1e-3;
-    RobustOutlierOptions o;
-    o.k = 4;
-    o.off_surface_ratio = 0.0;
-    o.scale = hc::pipeline::RobustScale{std::log(1e-3), 1.0, 100};
+    const Cloud window = cloud_of_mm(mm);
+    RobustOutlierOptions o = local_test_only_k4();
     const double inf = std::numeric_limits<double>::infinity();
     o.tile = RobustOutlierOptions::TileBounds{{-inf, 0.0, -inf, inf}, {-inf, -0.010, -inf, inf}, {}};
     hc::pipeline::RobustVerdicts part;
