@@ -2931,7 +2931,6 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
                                "(b) per interior cell against its tile's kept points, halo included");
       return r;
     });
-    scene.layers.cell_error = summary.cross_check->cell_error_m;
 
     // 5b. The honest cross-check (honest_check.hpp), tile by tile: each tile's input points as
     // spilled and its kept points against the whole grid's cells over its window, counting what
@@ -3060,8 +3059,10 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
     summary.input_check = std::move(honest.input);
     summary.grid_spikes = std::move(honest.spikes);
   }
-  // 6. The surface layers of the whole grid (or, for a tiled scene, left to its level builder).
+  // 6. The surface layers of the whole grid (or, for a tiled scene, left to its level builder);
+  // then the scene's copy of the cross-check's error map, not held through the stages before.
   detail::scene_surface_layers(grid.depth, config, reports, progress, built);
+  if (summary.cross_check) scene.layers.cell_error = summary.cross_check->cell_error_m;
   if (keep_sample && !sampled) {
     std::vector<std::uint8_t> flag;
     for (std::size_t t = 0; t < tiles.count(); ++t) {
