@@ -679,7 +679,6 @@ Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::v
 void scene_surface_layers(const HeightField& depth, const RunConfig& config, std::vector<StageReport>& reports,
                           const ProgressFn& progress, BuiltScene& built) {
   Scene& scene = built.scene;
-  const Eigen::Affine3d& model_to_grid = depth.model_to_grid;
   // 6. Surface layers (texture, curvature, friction): here on the whole grid (in core right
   // after the hole fill; a tiled run after its checks), or left to the tiled scene's level
   // builder in write_run (SurfaceLayersAt::kSceneLevels: a tiled scene without the levels
@@ -701,10 +700,7 @@ void scene_surface_layers(const HeightField& depth, const RunConfig& config, std
     scene.layers.envelope = std::move(layers.envelope_m);
     scene.layers.texture = std::move(layers.texture_m);
     scene.layers.mu_d = std::move(layers.mu_d);
-    scene.layers.mu_s = std::move(layers.mu_s);
-    for (HeightField* f : {&scene.layers.envelope, &scene.layers.texture, &scene.layers.mu_d, &scene.layers.mu_s}) {
-      f->model_to_grid = model_to_grid;
-    }
+    scene.layers.mu_s = std::move(layers.mu_s);  // each with depth's model_to_grid (compute_surface_layers)
   }
 }
 

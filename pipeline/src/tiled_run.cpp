@@ -495,12 +495,12 @@ class KeptMask : public TileFiles {
     return spill_.read_taken(t, kept(mask), [&](std::size_t rec, std::uint8_t) { return flag_of(mask[rec]); }, flag);
   }
 
-  // removed[r] = 1 for tile t's spill records it did not keep, 0 for those it kept (interior
-  // and halo alike); one entry per record. @throws as read().
-  void removed(std::size_t t, std::vector<std::uint8_t>& removed) const {
+  // out[r] = 1 for tile t's spill records it did not keep, 0 for those it kept (interior and
+  // halo alike); one entry per record. @throws as read().
+  void removed(std::size_t t, std::vector<std::uint8_t>& out) const {
     const std::vector<std::uint8_t> mask = load(t);
-    removed.resize(mask.size());
-    for (std::size_t r = 0; r < mask.size(); ++r) removed[r] = mask[r] == kNotKept ? 1 : 0;
+    out.resize(mask.size());
+    for (std::size_t r = 0; r < mask.size(); ++r) out[r] = mask[r] == kNotKept ? 1 : 0;
   }
 
  private:
@@ -2933,9 +2933,9 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
     });
 
     // 5b. The honest cross-check (honest_check.hpp), tile by tile: each tile's input points as
-    // spilled and its kept points against the whole grid's cells over its window, counting what
-    // the tile owns (InputCheckScope); the grid's own spike, pit and island test on the whole
-    // grid; then the verdict, as in core.
+    // spilled (those it removed flagged from its kept-point mask) against the whole grid's cells
+    // over its window, counting what the tile owns (InputCheckScope); the grid's own spike, pit
+    // and island test on the whole grid; then the verdict, as in core.
     struct Honest {
       InputCheck input;
       GridSpikes spikes;
