@@ -25,6 +25,7 @@
 
 #include <nlohmann/json.hpp>
 #include <openssl/evp.h>
+#include <sys/resource.h>
 
 #ifdef __GLIBC__
 #include <malloc.h>
@@ -199,6 +200,13 @@ std::size_t status_field_bytes(const char* key) {
 std::size_t peak_rss() { return status_field_bytes("VmHWM:"); }
 
 std::size_t resident_bytes() { return status_field_bytes("VmRSS:"); }
+
+double process_cpu_seconds() {
+  rusage u{};
+  if (getrusage(RUSAGE_SELF, &u) != 0) return 0.0;
+  auto s = [](const timeval& t) { return static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_usec); };
+  return s(u.ru_utime) + s(u.ru_stime);
+}
 
 }  // namespace detail
 
@@ -921,6 +929,7 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   write_report.stage = "write";
   if (progress) progress(write_report, false);
   const bool write_measured = reset_peak_rss();
+  const double write_cpu0 = detail::process_cpu_seconds();
   const SceneProvenance& prov = scene.provenance;
   json inputs = json::array();
   for (const SceneInput& in : prov.inputs) inputs.push_back({{"file", json_text(in.file)}, {"sha256", in.sha256}});
@@ -988,6 +997,7 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   }
   detail::run_tasks_on_two(files);
   write_report.seconds = seconds_since(t_write);
+  write_report.cpu_seconds = detail::process_cpu_seconds() - write_cpu0;
   if (write_measured) write_report.peak_rss_bytes = peak_rss();
   detail::release_freed_heap_if_asked();
   reports.push_back(write_report);
@@ -1176,6 +1186,7 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   j["stages"] = json::array();
   for (const auto& s : reports) {
     json js = {{"stage", s.stage}, {"count_in", s.count_in}, {"count_out", s.count_out}, {"seconds", s.seconds}};
+    if (s.cpu_seconds > 0.0) js["cpu_seconds"] = s.cpu_seconds;
     if (s.peak_rss_bytes > 0) js["peak_rss_mb"] = static_cast<double>(s.peak_rss_bytes) / 1e6;
     for (const auto& [k, v] : s.figures) js["figures"][k] = v;
     if (!s.notes.empty()) js["notes"] = s.notes;

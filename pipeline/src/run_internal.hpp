@@ -42,6 +42,10 @@ std::size_t peak_rss();
 /// and the fragments between (10⁷ wall, N = 4096: 652 MB, 524 MB with it, docs/scale.md).
 void release_freed_heap_if_asked();
 
+/// CPU time the process has used so far, user plus system over all threads [s] (getrusage(2),
+/// RUSAGE_SELF); 0 when unavailable. Differences of two calls time a stage's CPU.
+double process_cpu_seconds();
+
 /// The process's resident size [bytes] (VmRSS of /proc/self/status, proc(5)); 0 when unreadable.
 std::size_t resident_bytes();
 
@@ -84,7 +88,7 @@ class StageHeapRelease {
   StageHeapRelease& operator=(const StageHeapRelease&) = delete;
 };
 
-/// Runs one stage: announces it, runs it, records its report (seconds, peak memory).
+/// Runs one stage: announces it, runs it, records its report (seconds, CPU seconds, peak memory).
 template <class F>
 auto stage(const char* name, std::vector<StageReport>& reports, const ProgressFn& progress, F&& body) {
   StageReport announce;
@@ -92,9 +96,11 @@ auto stage(const char* name, std::vector<StageReport>& reports, const ProgressFn
   if (progress) progress(announce, false);
   const bool measured = reset_peak_rss();
   const auto t0 = Clock::now();
+  const double cpu0 = process_cpu_seconds();
   auto result = body();
   result.report.stage = name;
   if (result.report.seconds <= 0.0) result.report.seconds = seconds_since(t0);
+  result.report.cpu_seconds = process_cpu_seconds() - cpu0;
   if (measured) result.report.peak_rss_bytes = peak_rss();
   release_freed_heap_if_asked();
   reports.push_back(result.report);

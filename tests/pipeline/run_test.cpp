@@ -8,6 +8,10 @@
 
 #include "test_paths.hpp"
 
+#include <sys/resource.h>
+
+#include <nlohmann/json.hpp>
+
 #include <cmath>
 #include <cstdio>
 #include <fstream>
@@ -62,6 +66,47 @@ TEST(RunPipeline, GeoreferencedOffsetsGiveTheSameGridWithinOneMicrometre) {
   // The frame records the offset, so grid points map back to georeferenced coordinates.
   const Eigen::Vector3d back = far.depth().model_to_grid.inverse() * Eigen::Vector3d(0, 0, 0);
   EXPECT_NEAR(back.x(), 452311.25 + (near.depth().model_to_grid.inverse() * Eigen::Vector3d::Zero()).x(), 1e-6);
+}
+
+/// User plus system CPU time of this process so far [s] (getrusage(2)), measured here and not
+/// by the code under test.
+double own_cpu_seconds() {
+  rusage u{};
+  EXPECT_EQ(getrusage(RUSAGE_SELF, &u), 0);
+  auto s = [](const timeval& t) { return static_cast<double>(t.tv_sec) + 1e-6 * static_cast<double>(t.tv_usec); };
+  return s(u.ru_utime) + s(u.ru_stime);
+}
+
+TEST(RunPipeline, StagesCpuSecondsAddUpToAtMostTheRunsOwnAndAreInTheReport) {
+  const fs::path dir = hc::test::temp_dir("cpu");
+  const Cloud bunny = load_cloud(hc::test::scan_path("bunny/bun000.ply")).value;
+  write_xyz(bunny, dir / "in.xyz", Eigen::Vector3d::Zero());
+  const double before = own_cpu_seconds();
+  const RunSummary summary = run_pipeline(xyz_config(dir / "in.xyz"), dir / "out");
+  const double spent = own_cpu_seconds() - before;
+  // Each stage's figure is the process's CPU over that stage alone: the stages run one after
+  // another inside the call, so together they cannot exceed what the call cost (a figure taken
+  // as the process's running total instead of a difference would exceed it at once), and they
+  // cover most of it (only the config's checks and the summary lie between them).
+  double sum = 0.0;
+  for (const StageReport& s : summary.stages) {
+    EXPECT_GE(s.cpu_seconds, 0.0) << s.stage;
+    sum += s.cpu_seconds;
+  }
+  EXPECT_GT(sum, 0.0);
+  EXPECT_LE(sum, spent + 1e-3);
+  EXPECT_GE(sum, 0.5 * spent);
+  std::ifstream f(dir / "out" / "report.json");
+  const auto j = nlohmann::json::parse(f);
+  ASSERT_EQ(j["stages"].size(), summary.stages.size());
+  for (std::size_t i = 0; i < summary.stages.size(); ++i) {
+    const double v = summary.stages[i].cpu_seconds;
+    if (v > 0.0) {
+      EXPECT_DOUBLE_EQ(j["stages"][i]["cpu_seconds"].get<double>(), v) << summary.stages[i].stage;
+    } else {
+      EXPECT_FALSE(j["stages"][i].contains("cpu_seconds")) << summary.stages[i].stage;
+    }
+  }
 }
 
 TEST(RunPipeline, AFailedRunLeavesNothingAndKeepsTheEarlierOutput) {

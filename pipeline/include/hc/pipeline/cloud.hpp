@@ -101,6 +101,11 @@ struct StageReport {
   /// high-water mark was reset at the stage's start, proc(5) /proc/PID/clear_refs "5"); 0 when
   /// not measured (another OS, a stage run outside run.cpp's stage helper, or no permission).
   std::size_t peak_rss_bytes = 0;
+  /// CPU time of the whole process while the stage ran, user plus system, over all its threads
+  /// [s] (getrusage(2) RUSAGE_SELF at the stage's start and end); 0 when not measured (a stage
+  /// run outside run.cpp's stage helper). Against `seconds`, it tells how many cores the stage
+  /// kept busy; summed, what a run costs a shared machine.
+  double cpu_seconds = 0.0;
   std::vector<std::pair<std::string, double>> figures;
   std::vector<std::string> notes;
 
