@@ -34,6 +34,21 @@ inline CLI::Validator finite_in(double lo, double hi, bool lo_open = false) {
       "NUMBER in " + range);
 }
 
+/// For the batch commands (run, tile-plan, tile-job, tile-merge; the first argument that is not
+/// a flag names it): starts the program again in place (execv(3) of /proc/self/exe, the same
+/// arguments and process) with glibc's tunable glibc.malloc.hugetlb=1 added to GLIBC_TUNABLES,
+/// so that malloc asks for transparent huge pages (madvise(MADV_HUGEPAGE)) on the memory it
+/// takes from the system. The point stages read windows of millions of points in no order; with
+/// 4 KiB pages most of those reads also miss the TLB (10⁸-point wall, N = 4096, tiled: CPU
+/// 141–143 s → 133–134 s, docs/scale.md). Only where it can act: Linux with glibc ≥ 2.35 (older
+/// ones have no such tunable) and transparent huge pages in mode madvise (mode always gives them
+/// already, never refuses them); not when GLIBC_TUNABLES names glibc.malloc.hugetlb already (set
+/// by the user, or by this call before the exec), nor when HAPTICLOUD_HEAP_HUGE_PAGES=off. When
+/// the exec fails, the environment is put back and the program goes on as it was. Call first in
+/// main(), before any thread or file is opened. Source: glibc manual, "Memory Allocation
+/// Tunables" (glibc.malloc.hugetlb); the kernel's admin-guide/mm/transhuge.rst.
+void reexec_with_heap_huge_pages(int argc, char** argv);
+
 /// `hapticloud run CONFIG.yaml [--out DIR] [--set key=value ...]`: the offline pipeline; also
 /// `tile-plan`, `tile-job` and `tile-merge`, the tiled run in separate processes (tiling.hpp).
 void add_run_command(CLI::App& app);

@@ -35,6 +35,7 @@ void set_up_logging(int verbosity) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  hc::app::reexec_with_heap_huge_pages(argc, argv);  // before any thread or file: it may start the program again
   CLI::App app{"hapticloud: explore scanned heritage objects by touch, sight and sound.\n"
                "Turns point clouds into Monge grids z = f(x, y) and renders them haptically."};
   app.set_version_flag("--version", std::string("hapticloud ") + HC_VERSION);

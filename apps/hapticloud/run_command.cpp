@@ -12,11 +12,19 @@
 #include <spdlog/spdlog.h>
 
 #ifdef __GLIBC__
+#include <gnu/libc-version.h>
 #include <malloc.h>
 #endif
+#include <unistd.h>
 
+#include <climits>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
 #include <iostream>
 #include <memory>
+#include <optional>
 
 namespace hc::app {
 namespace {
@@ -142,6 +150,49 @@ struct TileMergeArgs {
 };
 
 }  // namespace
+
+void reexec_with_heap_huge_pages(int argc, char** argv) {
+#if defined(__linux__) && defined(__GLIBC__)
+  const char* sub = nullptr;
+  for (int i = 1; i < argc && argv[i] != nullptr; ++i) {
+    if (argv[i][0] != '-') {
+      sub = argv[i];
+      break;
+    }
+  }
+  if (sub == nullptr) return;
+  const std::string name = sub;
+  if (name != "run" && name != "tile-plan" && name != "tile-job" && name != "tile-merge") return;
+  const char* off = std::getenv("HAPTICLOUD_HEAP_HUGE_PAGES");
+  if (off != nullptr && std::strcmp(off, "off") == 0) return;
+  const char* before = std::getenv("GLIBC_TUNABLES");
+  if (before != nullptr && std::strstr(before, "glibc.malloc.hugetlb") != nullptr) return;
+  int major = 0, minor = 0;
+  if (std::sscanf(gnu_get_libc_version(), "%d.%d", &major, &minor) != 2 || major < 2 || (major == 2 && minor < 35)) return;
+  std::string mode;
+  std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), mode);
+  if (mode.find("[madvise]") == std::string::npos) return;
+  // The program's own path (readlink: under a tool that runs it, such as valgrind, the path of
+  // the program run, not the tool's).
+  char exe[PATH_MAX];
+  const ssize_t len = readlink("/proc/self/exe", exe, sizeof exe - 1);
+  if (len <= 0) return;
+  exe[len] = '\0';
+  const std::optional<std::string> kept = before != nullptr ? std::optional<std::string>(before) : std::nullopt;
+  const std::string value = kept && !kept->empty() ? *kept + ":glibc.malloc.hugetlb=1" : "glibc.malloc.hugetlb=1";
+  if (setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
+  execv(exe, argv);
+  // Not started again: the environment as it was, so that it tells the truth about this process.
+  if (kept) {
+    (void)setenv("GLIBC_TUNABLES", kept->c_str(), 1);
+  } else {
+    (void)unsetenv("GLIBC_TUNABLES");
+  }
+#else
+  (void)argc;
+  (void)argv;
+#endif
+}
 
 void add_run_command(CLI::App& app) {
   auto args = std::make_shared<RunArgs>();

@@ -1180,6 +1180,11 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   j["tool"] = std::string("hapticloud ") + HC_VERSION;
   j["config_file"] = json_text(config.source.string());
   j["provenance"] = provenance;
+  // What the C library's allocator was asked for (hapticloud run adds glibc.malloc.hugetlb=1
+  // where it helps, apps/hapticloud/commands.hpp): it moves the run's CPU time by several per
+  // cent, so a report's times are read with it.
+  const char* tunables = std::getenv("GLIBC_TUNABLES");
+  j["process"] = {{"glibc_tunables", json_text(tunables != nullptr ? tunables : "")}};
   j["grid"] = {{"rows", g.rows}, {"cols", g.cols}, {"cell_size_m", g.cell_size_m}, {"x0_m", g.x0_m},
                {"y0_m", g.y0_m}, {"valid_cells", summary.valid_cells}, {"filled_cells", n_filled},
                {"see_through_cells", n_see_through}, {"splatted_cells", n_splatted}};

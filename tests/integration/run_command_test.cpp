@@ -3,6 +3,8 @@
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 
+#include <gnu/libc-version.h>
+
 #include "app_runner.hpp"
 #include "float_tiff.hpp"
 #include "test_paths.hpp"
@@ -27,8 +29,12 @@ struct Outcome {
   std::string output;  // stdout and stderr together
 };
 
-Outcome run_app(const std::string& args) {
-  const std::string cmd = std::string(HC_APP) + " " + args + " 2>&1";
+Outcome run_app_env(const std::string& env, const std::string& args);
+Outcome run_app(const std::string& args) { return run_app_env("", args); }
+
+/// As run_app, with `env` (a shell prefix such as "env -u X Y=1 ") before the program.
+Outcome run_app_env(const std::string& env, const std::string& args) {
+  const std::string cmd = env + std::string(HC_APP) + " " + args + " 2>&1";
   Outcome o;
   std::FILE* p = popen(cmd.c_str(), "r");
   if (!p) return o;
@@ -202,6 +208,34 @@ TEST(ExportCommand, GeoTiffOfAScanInFeetIsInItsOwnFrameAndUnits) {
       ++valid;
     }
   EXPECT_GT(valid, 0);
+}
+
+// The environment `hapticloud run` ran in, as its report records it (report.json, process).
+std::string tunables_of_run(const std::string& env, const fs::path& out) {
+  const Outcome o = run_app_env(env, "run " + config("sinusoid.yaml") + " --out " + out.string() + " --quiet --set grid.n=64");
+  EXPECT_EQ(o.status, 0) << o.output;
+  if (o.status != 0) return "?";
+  return read_json(out / "report.json")["process"]["glibc_tunables"].get<std::string>();
+}
+
+TEST(RunCommand, BatchRunsAskGlibcForHugePagesWhereTheKernelAndLibraryCanGiveThem) {
+  // The oracle: what this machine offers, read here, not by the program. The tunable exists from
+  // glibc 2.35; transparent huge pages in mode madvise are given only to memory advised for them.
+  int major = 0, minor = 0;
+  ASSERT_EQ(std::sscanf(gnu_get_libc_version(), "%d.%d", &major, &minor), 2);
+  std::string mode;
+  std::getline(std::ifstream("/sys/kernel/mm/transparent_hugepage/enabled"), mode);
+  const bool acts = (major > 2 || (major == 2 && minor >= 35)) && mode.find("[madvise]") != std::string::npos;
+  std::printf("glibc %d.%d, transparent_hugepage/enabled: '%s': the program %s\n", major, minor, mode.c_str(),
+              acts ? "adds the tunable" : "leaves the environment as it is");
+  const fs::path dir = hc::test::temp_dir("huge_pages");
+  const std::string clean = "env -u GLIBC_TUNABLES -u HAPTICLOUD_HEAP_HUGE_PAGES ";
+  EXPECT_EQ(tunables_of_run(clean, dir / "default"), acts ? "glibc.malloc.hugetlb=1" : "");
+  // The user's own tunables are kept, and a choice of theirs for this one is not overridden.
+  EXPECT_EQ(tunables_of_run(clean + "GLIBC_TUNABLES=glibc.malloc.perturb=0 ", dir / "kept"),
+            acts ? "glibc.malloc.perturb=0:glibc.malloc.hugetlb=1" : "glibc.malloc.perturb=0");
+  EXPECT_EQ(tunables_of_run(clean + "GLIBC_TUNABLES=glibc.malloc.hugetlb=0 ", dir / "theirs"), "glibc.malloc.hugetlb=0");
+  EXPECT_EQ(tunables_of_run(clean + "HAPTICLOUD_HEAP_HUGE_PAGES=off ", dir / "off"), "");
 }
 
 TEST(RunCommand, SinusoidReportMatchesTheAnalyticSurface) {
