@@ -40,7 +40,7 @@ inline CLI::Validator finite_in(double lo, double hi, bool lo_open = false) {
 /// so that malloc asks for transparent huge pages (madvise(MADV_HUGEPAGE)) on the memory it
 /// takes from the system. The point stages read windows of millions of points in no order; with
 /// 4 KiB pages most of those reads also miss the TLB (10⁸-point wall, N = 4096, tiled: CPU
-/// 141–143 s → 133–134 s, docs/scale.md). Only where it can act: Linux with glibc ≥ 2.35 (older
+/// 141–144 s → 133–137 s over two pairs of rounds, docs/scale.md). Only where it can act: Linux with glibc ≥ 2.35 (older
 /// ones have no such tunable) and transparent huge pages in mode madvise (mode always gives them
 /// already, never refuses them); not when GLIBC_TUNABLES names glibc.malloc.hugetlb already (set
 /// by the user, or by this call before the exec), nor when HAPTICLOUD_HEAP_HUGE_PAGES=off. When
