@@ -18,7 +18,8 @@ report has been read.
 
 Printed: a Markdown table (docs/scale.md keeps the measured one) with, per run, wall and CPU
 seconds, peak RSS, bytes per point, M points per wall second and per CPU second, and the three
-slowest stages. Quote it with the machine's load (`uptime`): nothing else should run meanwhile.
+slowest stages (wall seconds, with their CPU seconds), and the glibc tunables the runs had.
+Quote it with the machine's load (`uptime`): nothing else should run meanwhile.
 """
 
 import argparse
@@ -198,7 +199,9 @@ def main():
     for exe in (program, generator):
         if not os.access(exe, os.X_OK):
             sys.exit(f"scale.py: {exe} is missing: build the release preset first")
-    scratch = args.scratch or os.path.join(args.build, "bench-scale")
+    # Absolute: the config written there names it (scale.scratch), and the program resolves a
+    # relative path in a config against the config's own folder.
+    scratch = os.path.abspath(args.scratch or os.path.join(args.build, "bench-scale"))
     os.makedirs(scratch, exist_ok=True)
 
     rows = []
@@ -249,7 +252,10 @@ def main():
                 with open(report) as f:
                     stages = json.load(f)["stages"]
                 slow = sorted(stages, key=lambda s: -s["seconds"])[:3]
-                row["slowest"] = [(s["stage"], s["seconds"]) for s in slow]
+                # Wall seconds, and the stage's CPU seconds where the report gives them (0 before).
+                row["slowest"] = [(s["stage"], s["seconds"], s.get("cpu_seconds", 0.0)) for s in slow]
+                with open(report) as f:
+                    row["glibc_tunables"] = json.load(f).get("process", {}).get("glibc_tunables", "")
                 # The program resets the high-water mark at every stage (per-stage peaks in the
                 # report), so the child's ru_maxrss covers only the time since the last reset:
                 # the run's peak is the larger of it and every stage's own.
@@ -267,13 +273,17 @@ def main():
 
     print(f"scans: generated walls, {args.format.upper()}")
     print(f"load average before the last run: {os.getloadavg()[0]:.2f}; cores: {os.cpu_count()}")
+    tunables = sorted({r.get("glibc_tunables", "") for r in rows if "slowest" in r})
+    print("GLIBC_TUNABLES of the runs (hapticloud adds glibc.malloc.hugetlb=1 where it helps): " +
+          (", ".join(f"'{t}'" for t in tunables) if tunables else "none reported"))
     print("| points | N | mode | wall (s) | CPU (s) | peak RSS (MB) | in stage | bytes/point | spill (MB) | Mpts/s (wall) | Mpts/s per CPU s | slowest stages (s) |")
     print("|---:|---:|---|---:|---:|---:|---|---:|---:|---:|---:|---|")
     for r in rows:
         if "slowest" not in r:
             print(f"| {r['points']:.0e} | {r['n']} | {r['mode']} | failed (exit {r['exit']}): {r.get('error', '')} |")
             continue
-        slow = ", ".join(f"{name} {sec:.1f}" for name, sec in r.get("slowest", []))
+        slow = ", ".join(f"{name} {sec:.1f}" + (f" ({cpu:.1f} CPU)" if cpu > 0 else "")
+                         for name, sec, cpu in (tuple(e) + (0.0,) * (3 - len(e)) for e in r.get("slowest", [])))
         print(f"| {r['points']:.0e} | {r['n']} | {r['mode']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
               f"{r['peak_rss_bytes'] / 1e6:.0f} | {r.get('peak_stage', '?')} | {r['peak_rss_bytes'] / r['points']:.0f} | "
               f"{r.get('spill_mb', 0.0):.0f} | "
