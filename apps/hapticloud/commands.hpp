@@ -40,13 +40,17 @@ inline CLI::Validator finite_in(double lo, double hi, bool lo_open = false) {
 /// so that malloc asks for transparent huge pages (madvise(MADV_HUGEPAGE)) on the memory it
 /// takes from the system. The point stages read windows of millions of points in no order; with
 /// 4 KiB pages most of those reads also miss the TLB (10⁸-point wall, N = 4096, tiled: CPU
-/// 141–144 s → 133–137 s over two pairs of rounds, docs/scale.md). Only where it can act: Linux with glibc ≥ 2.35 (older
-/// ones have no such tunable) and transparent huge pages in mode madvise (mode always gives them
-/// already, never refuses them); not when GLIBC_TUNABLES names glibc.malloc.hugetlb already (set
-/// by the user, or by this call before the exec), nor when HAPTICLOUD_HEAP_HUGE_PAGES=off. When
-/// the exec fails, the environment is put back and the program goes on as it was. Call first in
-/// main(), before any thread or file is opened. Source: glibc manual, "Memory Allocation
-/// Tunables" (glibc.malloc.hugetlb); the kernel's admin-guide/mm/transhuge.rst.
+/// 141–144 s → 133–137 s over two pairs of rounds, docs/scale.md).
+/// Only where it can act: Linux with glibc ≥ 2.35 (older ones have no such tunable) and
+/// transparent huge pages in mode madvise (mode always gives them already, never refuses them).
+/// Not when GLIBC_TUNABLES names glibc.malloc.hugetlb already (the user's choice), nor when
+/// HAPTICLOUD_HEAP_HUGE_PAGES=off, nor in secure-execution mode (set-user-ID or file
+/// capabilities: glibc erases the tunable there). The program started again knows it by
+/// HAPTICLOUD_HEAP_HUGE_PAGES_STARTED, which it removes from its environment at once: it starts
+/// again at most once and passes nothing on. When the exec fails, the environment is put back
+/// and the program goes on as it was. Call first in main(), before any thread or file is
+/// opened. Source: glibc manual, "Memory Allocation Tunables" (glibc.malloc.hugetlb); the
+/// kernel's admin-guide/mm/transhuge.rst; getauxval(3) (AT_SECURE).
 void reexec_with_heap_huge_pages(int argc, char** argv);
 
 /// `hapticloud run CONFIG.yaml [--out DIR] [--set key=value ...]`: the offline pipeline; also

@@ -15,6 +15,7 @@
 #include <gnu/libc-version.h>
 #include <malloc.h>
 #endif
+#include <sys/auxv.h>
 #include <unistd.h>
 
 #include <climits>
@@ -153,6 +154,16 @@ struct TileMergeArgs {
 
 void reexec_with_heap_huge_pages(int argc, char** argv) {
 #if defined(__linux__) && defined(__GLIBC__)
+  // Started again by this call: once is all (the marker is not passed on to children).
+  constexpr const char* kStarted = "HAPTICLOUD_HEAP_HUGE_PAGES_STARTED";
+  if (std::getenv(kStarted) != nullptr) {
+    (void)unsetenv(kStarted);
+    return;
+  }
+  // In secure-execution mode (set-user-ID, or file capabilities such as cap_sys_nice for the
+  // servo loop) glibc erases this tunable from the environment: no use, and without the marker
+  // a loop of starts.
+  if (getauxval(AT_SECURE) != 0) return;
   const char* sub = nullptr;
   for (int i = 1; i < argc && argv[i] != nullptr; ++i) {
     if (argv[i][0] != '-') {
@@ -181,7 +192,16 @@ void reexec_with_heap_huge_pages(int argc, char** argv) {
   const std::optional<std::string> kept = before != nullptr ? std::optional<std::string>(before) : std::nullopt;
   const std::string value = kept && !kept->empty() ? *kept + ":glibc.malloc.hugetlb=1" : "glibc.malloc.hugetlb=1";
   if (setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
+  if (setenv(kStarted, "1", 1) != 0) {
+    if (kept) {
+      (void)setenv("GLIBC_TUNABLES", kept->c_str(), 1);
+    } else {
+      (void)unsetenv("GLIBC_TUNABLES");
+    }
+    return;
+  }
   execv(exe, argv);
+  (void)unsetenv(kStarted);
   // Not started again: the environment as it was, so that it tells the truth about this process.
   if (kept) {
     (void)setenv("GLIBC_TUNABLES", kept->c_str(), 1);

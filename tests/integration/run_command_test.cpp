@@ -229,13 +229,15 @@ TEST(RunCommand, BatchRunsAskGlibcForHugePagesWhereTheKernelAndLibraryCanGiveThe
   std::printf("glibc %d.%d, transparent_hugepage/enabled: '%s': the program %s\n", major, minor, mode.c_str(),
               acts ? "adds the tunable" : "leaves the environment as it is");
   const fs::path dir = hc::test::temp_dir("huge_pages");
-  const std::string clean = "env -u GLIBC_TUNABLES -u HAPTICLOUD_HEAP_HUGE_PAGES ";
+  const std::string clean = "env -u GLIBC_TUNABLES -u HAPTICLOUD_HEAP_HUGE_PAGES -u HAPTICLOUD_HEAP_HUGE_PAGES_STARTED ";
   EXPECT_EQ(tunables_of_run(clean, dir / "default"), acts ? "glibc.malloc.hugetlb=1" : "");
   // The user's own tunables are kept, and a choice of theirs for this one is not overridden.
   EXPECT_EQ(tunables_of_run(clean + "GLIBC_TUNABLES=glibc.malloc.perturb=0 ", dir / "kept"),
             acts ? "glibc.malloc.perturb=0:glibc.malloc.hugetlb=1" : "glibc.malloc.perturb=0");
   EXPECT_EQ(tunables_of_run(clean + "GLIBC_TUNABLES=glibc.malloc.hugetlb=0 ", dir / "theirs"), "glibc.malloc.hugetlb=0");
   EXPECT_EQ(tunables_of_run(clean + "HAPTICLOUD_HEAP_HUGE_PAGES=off ", dir / "off"), "");
+  // A process that says it was started again already (the loop guard) starts no more.
+  EXPECT_EQ(tunables_of_run(clean + "HAPTICLOUD_HEAP_HUGE_PAGES_STARTED=1 ", dir / "started"), "");
 }
 
 TEST(RunCommand, SinusoidReportMatchesTheAnalyticSurface) {
