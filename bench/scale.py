@@ -250,12 +250,12 @@ def main():
                     os.makedirs(args.keep_reports, exist_ok=True)
                     shutil.copyfile(report, os.path.join(args.keep_reports, f"report_{tag}.json"))
                 with open(report) as f:
-                    stages = json.load(f)["stages"]
+                    doc = json.load(f)
+                stages = doc["stages"]
+                row["glibc_tunables"] = doc.get("process", {}).get("glibc_tunables", "")
                 slow = sorted(stages, key=lambda s: -s["seconds"])[:3]
                 # Wall seconds, and the stage's CPU seconds where the report gives them (0 before).
                 row["slowest"] = [(s["stage"], s["seconds"], s.get("cpu_seconds", 0.0)) for s in slow]
-                with open(report) as f:
-                    row["glibc_tunables"] = json.load(f).get("process", {}).get("glibc_tunables", "")
                 # The program resets the high-water mark at every stage (per-stage peaks in the
                 # report), so the child's ru_maxrss covers only the time since the last reset:
                 # the run's peak is the larger of it and every stage's own.
@@ -283,7 +283,7 @@ def main():
             print(f"| {r['points']:.0e} | {r['n']} | {r['mode']} | failed (exit {r['exit']}): {r.get('error', '')} |")
             continue
         slow = ", ".join(f"{name} {sec:.1f}" + (f" ({cpu:.1f} CPU)" if cpu > 0 else "")
-                         for name, sec, cpu in (tuple(e) + (0.0,) * (3 - len(e)) for e in r.get("slowest", [])))
+                         for name, sec, cpu in r.get("slowest", []))
         print(f"| {r['points']:.0e} | {r['n']} | {r['mode']} | {r['wall_s']:.1f} | {r['cpu_s']:.1f} | "
               f"{r['peak_rss_bytes'] / 1e6:.0f} | {r.get('peak_stage', '?')} | {r['peak_rss_bytes'] / r['points']:.0f} | "
               f"{r.get('spill_mb', 0.0):.0f} | "

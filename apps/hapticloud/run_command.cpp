@@ -190,24 +190,22 @@ void reexec_with_heap_huge_pages(int argc, char** argv) {
   if (len <= 0) return;
   exe[len] = '\0';
   const std::optional<std::string> kept = before != nullptr ? std::optional<std::string>(before) : std::nullopt;
-  const std::string value = kept && !kept->empty() ? *kept + ":glibc.malloc.hugetlb=1" : "glibc.malloc.hugetlb=1";
-  if (setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0) return;
-  if (setenv(kStarted, "1", 1) != 0) {
+  // Not started again: the environment as it was, so that it tells the truth about this process.
+  const auto put_back = [&] {
+    (void)unsetenv(kStarted);
     if (kept) {
       (void)setenv("GLIBC_TUNABLES", kept->c_str(), 1);
     } else {
       (void)unsetenv("GLIBC_TUNABLES");
     }
+  };
+  const std::string value = kept && !kept->empty() ? *kept + ":glibc.malloc.hugetlb=1" : "glibc.malloc.hugetlb=1";
+  if (setenv("GLIBC_TUNABLES", value.c_str(), 1) != 0 || setenv(kStarted, "1", 1) != 0) {
+    put_back();
     return;
   }
   execv(exe, argv);
-  (void)unsetenv(kStarted);
-  // Not started again: the environment as it was, so that it tells the truth about this process.
-  if (kept) {
-    (void)setenv("GLIBC_TUNABLES", kept->c_str(), 1);
-  } else {
-    (void)unsetenv("GLIBC_TUNABLES");
-  }
+  put_back();
 #else
   (void)argc;
   (void)argv;

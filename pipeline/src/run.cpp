@@ -653,8 +653,7 @@ namespace detail {
 
 Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::vector<StageReport>& reports,
                                 const ProgressFn& progress, const StoredPrecision& precision,
-                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built,
-                                bool layers_now) {
+                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built) {
   RunSummary& summary = built.summary;
   Scene& scene = built.scene;
   check_stored_precision(precision, grid.depth.geometry().cell_size_m, config.view.matrix().rotation(),
@@ -680,7 +679,6 @@ Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::v
     scene.layers.intensity.model_to_grid = model_to_grid;
   }
 
-  if (layers_now) scene_surface_layers(grid.depth, config, reports, progress, built);
   return model_to_grid;
 }
 
@@ -824,6 +822,7 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
   }
   const Eigen::Affine3d model_to_grid =
       detail::scene_from_grid(grid, config, reports, progress, precision, offset_m, reproject_report, built);
+  detail::scene_surface_layers(grid.depth, config, reports, progress, built);
 
   // 7. Cross-check.
   if (config.cross_check.enabled) {

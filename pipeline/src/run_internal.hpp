@@ -131,14 +131,13 @@ void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen
 
 /// From a finished depth grid (reprojected, despiked) to the scene's grid layers, as the run
 /// makes them: the stored-precision check (into reports[grid_report]), corrugation, hole fill,
-/// the scene's geometry, model-to-grid transform, flags, colour and intensity, and the surface
-/// layers (config.layers; with layers_now false the caller runs scene_surface_layers later).
+/// the scene's geometry, model-to-grid transform, flags, colour and intensity; the surface layers
+/// are the caller's next step (scene_surface_layers: in core at once, tiled after the checks).
 /// `grid` keeps the hole-filled depth (the cross-check's); built.summary gets grid and
 /// valid_cells. @return the model-to-grid transform.
 Eigen::Affine3d scene_from_grid(DepthGrid& grid, const RunConfig& config, std::vector<StageReport>& reports,
                                 const ProgressFn& progress, const StoredPrecision& precision,
-                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built,
-                                bool layers_now = true);
+                                const Eigen::Vector3d& offset_m, std::size_t grid_report, BuiltScene& built);
 
 /// Stage surface_layers (envelope, texture, μ_d, μ_s of compute_surface_layers) on `depth`, the
 /// scene's hole-filled level 0 (its model_to_grid set, as scene_from_grid leaves it), into

@@ -2751,7 +2751,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
   // read them, so that their 16 bytes a sample are not held beside the checks' windows.
   const std::size_t grid_report = reports.size() - 1;
   const Eigen::Affine3d model_to_grid =
-      detail::scene_from_grid(grid, config, reports, progress, plan.precision, offset_m, grid_report, built, false);
+      detail::scene_from_grid(grid, config, reports, progress, plan.precision, offset_m, grid_report, built);
 
   // 5. The cross-check, per tile, merged.
   if (config.cross_check.enabled) {
@@ -3663,7 +3663,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   spill.adopt_existing();
   KeptMask kept(scratch.path(), "kept_", spill, plan.tiles.count());
   BuiltScene built;
-  built.surface_layers_at = layers;  // asked for; scene_from_grid says what it did
+  built.surface_layers_at = layers;  // asked for; scene_surface_layers says what it did
   built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
   TileMerge merged(plan);
@@ -3964,7 +3964,7 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
   KeptMask kept(pf.dir, "kept_", spill, plan.tiles.count());
   kept.adopt_existing();
   BuiltScene built;
-  built.surface_layers_at = layers;  // asked for; scene_from_grid says what it did
+  built.surface_layers_at = layers;  // asked for; scene_surface_layers says what it did
   built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
   TileMerge merged(plan);

@@ -29,21 +29,14 @@ struct Outcome {
   std::string output;  // stdout and stderr together
 };
 
-Outcome run_app_env(const std::string& env, const std::string& args);
-Outcome run_app(const std::string& args) { return run_app_env("", args); }
-
-/// As run_app, with `env` (a shell prefix such as "env -u X Y=1 ") before the program.
+/// The program with `args`, after `env` (a shell prefix such as "env -u X Y=1 ", or "").
 Outcome run_app_env(const std::string& env, const std::string& args) {
-  const std::string cmd = env + std::string(HC_APP) + " " + args + " 2>&1";
   Outcome o;
-  std::FILE* p = popen(cmd.c_str(), "r");
-  if (!p) return o;
-  char buf[4096];
-  while (std::fgets(buf, sizeof buf, p)) o.output += buf;
-  const int raw = pclose(p);
-  o.status = WIFEXITED(raw) ? WEXITSTATUS(raw) : -1;
+  o.status = hc::test::run_app(args, &o.output, env);
   return o;
 }
+
+Outcome run_app(const std::string& args) { return run_app_env("", args); }
 
 std::string config(const char* name) { return (fs::path(HC_SOURCE_DIR) / "configs" / name).string(); }
 

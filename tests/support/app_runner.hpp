@@ -16,8 +16,9 @@ namespace hc::test {
 
 /// Runs `hapticloud ARGS` through the shell, appends its stdout and stderr to *output and
 /// returns its exit status (−1 if it could not be started or did not exit normally).
-inline int run_app(const std::string& args, std::string* output) {
-  const std::string cmd = std::string(HC_APP) + " " + args + " 2>&1";
+/// `env_prefix` goes before the program on the command line (e.g. "env -u X Y=1 ").
+inline int run_app(const std::string& args, std::string* output, const std::string& env_prefix = "") {
+  const std::string cmd = env_prefix + std::string(HC_APP) + " " + args + " 2>&1";
   std::FILE* p = popen(cmd.c_str(), "r");
   if (!p) return -1;
   char buf[4096];
