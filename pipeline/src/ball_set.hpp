@@ -28,7 +28,9 @@ inline bool ball_meets(const std::array<double, 4>& s, const std::array<double, 
 /// grid of 16 × 16 cells over the same box (the large balls: a stray's own search, and its
 /// neighbours'; a query tests every large ball of its coarse cell, so the fine lists take as
 /// many as the budget allows, largest first). A query reads its cell's list and its coarse
-/// cell's. A ball inside another is left out. Memory: at most 2^22 entries plus 256 a ball.
+/// cell's, each only when the query's z lies in the list's z span over its cell (a stray's
+/// large ball above a surface lists the surface's cells, not its points). A ball inside another
+/// is left out. Memory: at most 2^22 entries plus 256 a ball, and 16 bytes a cell (272 KiB).
 /// Non-finite balls are refused by the caller. (Until 2026-11-24 the large balls were in
 /// one list every query read: at 10^8 points, hundreds of them for each of the 274 M records a
 /// tiled run's second look read.)
@@ -94,6 +96,10 @@ class BallSet {
     }
     flatten(at_, fine_at_, fine_);
     flatten(coarse_, coarse_at_, coarse_flat_);
+    // Each list's z span over its cell (the query's first test): a stray's ball above a surface
+    // covers the surface's cells in x-y but not its points' z.
+    fine_z_ = z_spans(at_, 1);
+    coarse_z_ = z_spans(coarse_, kPerCoarse);
     std::vector<std::vector<std::uint32_t>>().swap(at_);
     std::vector<std::vector<std::uint32_t>>().swap(coarse_);
   }
@@ -114,11 +120,14 @@ class BallSet {
     };
     const int r = cell_of(p[1], 2), c = cell_of(p[0], 0);
     const std::size_t f = index(r, c);
-    for (std::size_t k = fine_at_[f]; k < fine_at_[f + 1]; ++k) {
-      if (in(fine_[k])) return true;
+    if (p[2] >= fine_z_[f][0] && p[2] <= fine_z_[f][1]) {
+      for (std::size_t k = fine_at_[f]; k < fine_at_[f + 1]; ++k) {
+        if (in(fine_[k])) return true;
+      }
     }
     if (coarse_flat_.empty()) return false;
     const std::size_t g = coarse_index(r, c);
+    if (!(p[2] >= coarse_z_[g][0] && p[2] <= coarse_z_[g][1])) return false;
     for (std::size_t k = coarse_at_[g]; k < coarse_at_[g + 1]; ++k) {
       if (in(coarse_flat_[k])) return true;
     }
@@ -187,6 +196,37 @@ class BallSet {
     for (const auto& l : lists) flat.insert(flat.end(), l.begin(), l.end());
   }
   static std::size_t index(int r, int c) { return static_cast<std::size_t>(r) * kSide + static_cast<std::size_t>(c); }
+  // Per list of `lists` (a side × side grid of cells of `per` fine cells each way: the fine grid
+  // or the coarse one), the z span {lo, hi} [m] of its balls over the cell's x-y rectangle: every
+  // z of a point that contains() finds in one of them and that cell_of puts in the cell lies in
+  // it; {+inf, −inf} for an empty list. The rectangle is widened by a millionth of a fine cell and
+  // 1e-12 of its coordinates (cell_of's rounding), the grid's outer cells to infinity (cell_of
+  // clamps), and the span by a millionth of the radius and 1e-12 of the centre's z and radius
+  // (the rounding of contains' squared distance, whose error is a few units in the last place of
+  // R², so of √(1e-15)·R in z).
+  std::vector<std::array<double, 2>> z_spans(const std::vector<std::vector<std::uint32_t>>& lists, int per) const {
+    const double inf = std::numeric_limits<double>::infinity();
+    std::vector<std::array<double, 2>> z(lists.size(), std::array<double, 2>{inf, -inf});
+    const int side = kSide / per;
+    const auto sides = [&](int i, int a) {
+      const double lo = box_[static_cast<std::size_t>(a)] + static_cast<double>(i * per) * cell_;
+      const double hi = box_[static_cast<std::size_t>(a)] + static_cast<double>((i + 1) * per) * cell_;
+      const double pad = 1e-6 * cell_ + 1e-12 * (std::abs(lo) + std::abs(hi));
+      return std::array<double, 2>{i == 0 ? -inf : lo - pad, i == side - 1 ? inf : hi + pad};
+    };
+    for (std::size_t l = 0; l < lists.size(); ++l) {
+      if (lists[l].empty()) continue;
+      const auto ys = sides(static_cast<int>(l) / side, 2), xs = sides(static_cast<int>(l) % side, 0);
+      for (const std::uint32_t i : lists[l]) {
+        const Ball& b = balls_[i];
+        const double dx = std::max({xs[0] - b[0], b[0] - xs[1], 0.0}), dy = std::max({ys[0] - b[1], b[1] - ys[1], 0.0});
+        const double half = std::sqrt(std::max(0.0, b[3] * b[3] - (dx * dx + dy * dy)));
+        const double pad = 1e-6 * b[3] + 1e-12 * (std::abs(b[2]) + b[3]);
+        z[l] = {std::min(z[l][0], b[2] - half - pad), std::max(z[l][1], b[2] + half + pad)};
+      }
+    }
+    return z;
+  }
   // The coarse cell of cell (r, c).
   static std::size_t coarse_index(int r, int c) {
     return static_cast<std::size_t>(r / kPerCoarse) * kCoarse + static_cast<std::size_t>(c / kPerCoarse);
@@ -202,6 +242,8 @@ class BallSet {
   // fine_[fine_at_[i + 1] - 1]; coarse_flat_ empty when no ball is large.
   std::vector<std::size_t> fine_at_, coarse_at_;
   std::vector<std::uint32_t> fine_, coarse_flat_;
+  // Per fine and per coarse cell, its list's z span (z_spans): a query outside it skips the list.
+  std::vector<std::array<double, 2>> fine_z_, coarse_z_;
 };
 
 /// Slabs of z of one height: the tiled run's block copies (tiled_run.cpp, BlockCopies) file a

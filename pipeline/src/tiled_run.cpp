@@ -1217,6 +1217,8 @@ class BlockCopies {
         const auto box = slab_box(xy, sl.z);
         if (std::none_of(near_block.begin(), near_block.end(), [&](const Ball& s) { return detail::ball_meets(s, box); })) continue;
         for (const Chunk& ch : sl.chunks) {
+        // The chunk's own box: a ball that misses it holds none of its records.
+        if (std::none_of(near_block.begin(), near_block.end(), [&](const Ball& s) { return detail::ball_meets(s, ch.box_m); })) continue;
         sums["robust_spill_points_scanned"] += static_cast<double>(ch.records);
         sums["robust_block_records_read"] += static_cast<double>(ch.records);
         raw.resize(ch.records * crec);
@@ -1256,6 +1258,10 @@ class BlockCopies {
   struct Chunk {
     std::uint64_t first = 0;  // first record in the copy
     std::size_t records = 0;
+    // The box of its records' coordinates as Layout::get gives them {x_min, x_max, y_min, y_max,
+    // z_min, z_max} [m, the grid frame]: ball_meets of a ball that holds one of them is true
+    // (its rounding is monotonic in the box's sides).
+    std::array<double, 6> box_m{};
   };
   // The records of a block in slab z (slabs()).
   struct Slab {
@@ -1274,6 +1280,18 @@ class BlockCopies {
   struct Buffer {
     std::unique_ptr<char[]> data;
     std::size_t size = 0, cap = 0;
+    // The box of the records held (Chunk::box_m); empty (+inf, −inf) when none.
+    std::array<double, 6> box_m = empty_box();
+    static std::array<double, 6> empty_box() {
+      const double inf = std::numeric_limits<double>::infinity();
+      return {inf, -inf, inf, -inf, inf, -inf};
+    }
+    void hold(const double* p) {
+      for (int a = 0; a < 3; ++a) {
+        box_m[static_cast<std::size_t>(2 * a)] = std::min(box_m[static_cast<std::size_t>(2 * a)], p[a]);
+        box_m[static_cast<std::size_t>(2 * a + 1)] = std::max(box_m[static_cast<std::size_t>(2 * a + 1)], p[a]);
+      }
+    }
     // Room for `need` bytes; returns the bytes it added.
     std::size_t reserve(std::size_t need) {
       if (need <= cap) return 0;
@@ -1349,9 +1367,10 @@ class BlockCopies {
       if (!written) x.size = 0;
       if (x.size == 0) return;
       written = detail::pwrite_full(fd, x.data.get(), x.size, end * crec);
-      blocks[b][z].chunks.push_back({end, x.size / crec});
+      blocks[b][z].chunks.push_back({end, x.size / crec, x.box_m});
       end += x.size / crec;
       x.size = 0;
+      x.box_m = Buffer::empty_box();
     };
     const auto in = tiles_.interior(u);
     const int bn = block_nodes();
@@ -1387,6 +1406,7 @@ class BlockCopies {
       char* q = x.data.get() + x.size;
       x.size += crec;
       std::memcpy(q, record + 1, pb);  // the spill's bytes: Layout::get reads them back alike
+      x.hold(p);
       const auto i32 = static_cast<std::uint32_t>(i);
       std::memcpy(q + crec - 4, &i32, 4);
       if (x.size >= kBlockBuffer) flush(b, z);  // its memory kept for the slab's next records

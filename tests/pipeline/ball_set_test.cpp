@@ -101,10 +101,20 @@ TEST(BallSet, AgreesWithBruteForceAndLeavesOutBallsInsideOthers) {
       ASSERT_EQ(set.contains(p), brute_contains(balls, p)) << "round " << round << " query " << q;
       ASSERT_EQ(set.margin(p), brute_margin(balls, p)) << "round " << round << " query " << q;
     }
-    // Points on the balls' own spheres (the boundary, where rounding decides).
+    // Points on the balls' own spheres (the boundary, where rounding decides): at the side, at
+    // the poles (the z spans' ends) and in random directions, and just inside and outside them.
+    std::normal_distribution<double> g(0.0, 1.0);
     for (const Ball& b : balls) {
-      const double p[3] = {b[0] + b[3], b[1], b[2]};
-      ASSERT_EQ(set.contains(p), brute_contains(balls, p));
+      for (int d = 0; d < 12; ++d) {
+        double v[3] = {1.0, 0.0, 0.0};
+        if (d == 1 || d == 2) v[0] = 0.0, v[2] = d == 1 ? 1.0 : -1.0;
+        if (d >= 3) v[0] = g(rng), v[1] = g(rng), v[2] = g(rng);
+        const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        for (const double f : {1.0, 1.0 - 1e-15, 1.0 + 1e-15, 1.0 + 1e-9}) {
+          const double p[3] = {b[0] + f * b[3] * v[0] / len, b[1] + f * b[3] * v[1] / len, b[2] + f * b[3] * v[2] / len};
+          ASSERT_EQ(set.contains(p), brute_contains(balls, p)) << "round " << round << " direction " << d << " factor " << f;
+        }
+      }
     }
     const double inf = std::numeric_limits<double>::infinity();
     for (int q = 0; q < 500; ++q) {

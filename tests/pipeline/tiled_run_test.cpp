@@ -420,6 +420,17 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   EXPECT_EQ(x.points_off_surface, y.points_off_surface);
   EXPECT_EQ(x.points_hidden, y.points_hidden);
   EXPECT_EQ(x.points_outside, y.points_outside);
+  // The gathering through block copies (each read only where a ball meets a slab of a block and
+  // a chunk's own box: the clutter fills the box in z) against whole reads of the spills: the
+  // same points gathered, judged and removed.
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0);
+  EXPECT_GT(stage_figure(tiled, "tiles", "sum_robust_block_records_read"), 0.0);
+  RunConfig whole_reads = config;
+  whole_reads.scale.block_copies = false;
+  const BuiltScene whole = hc::pipeline::build_scene(whole_reads);
+  for (const char* name : {"sum_robust_points_gathered", "sum_robust_gatherings", "sum_points_judged_past_halo", "sum_removed_robust"}) {
+    EXPECT_EQ(stage_figure(tiled, "tiles", name), stage_figure(whole, "tiles", name)) << name;
+  }
   config.scale.tile_cells = 48;
   config.scale.filter_halo_cells = 8;
   const std::string what = error_of<hc::InputError>(config);
