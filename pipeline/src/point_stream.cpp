@@ -123,6 +123,10 @@ std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path
     if (auto s = detail::open_las_stream(path, detail::quoted(path), &options)) return s;
   }
   if (ext == ".ptx" && std::filesystem::is_regular_file(path, ec)) return detail::open_ptx_stream(path, detail::quoted(path));
+  if (ext == ".pts" && std::filesystem::is_regular_file(path, ec)) return detail::open_pts_stream(path, detail::quoted(path));
+  if ((ext == ".xyz" || ext == ".txt") && std::filesystem::is_regular_file(path, ec)) {
+    return detail::open_xyz_stream(path, detail::quoted(path));
+  }
   if (ext == ".e57" && std::filesystem::is_regular_file(path, ec)) {
     if (auto s = detail::open_e57_stream(path, detail::quoted(path))) return s;
   }

@@ -1033,9 +1033,12 @@ bool runs_tiled(const RunConfig& config) {
   const fs::path& f = config.input.files.front();
   std::string ext = f.extension().string();
   for (char& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
-  // Only a natively streamed file is counted without reading it whole (a PTX file's first look
-  // reads its lines without parsing the points).
-  if (ext != ".ply" && ext != ".las" && ext != ".laz" && ext != ".ptx" && ext != ".e57") return false;
+  // Only a natively streamed file is counted without reading it whole (a PTX, PTS or XYZ
+  // file's first look reads its lines without parsing the points).
+  if (ext != ".ply" && ext != ".las" && ext != ".laz" && ext != ".ptx" && ext != ".e57" && ext != ".pts" && ext != ".xyz" &&
+      ext != ".txt") {
+    return false;
+  }
   std::error_code ec;
   if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
   std::unique_ptr<PointStream> s;
@@ -1045,7 +1048,9 @@ bool runs_tiled(const RunConfig& config) {
         : ext == ".las" ? detail::open_las_stream(f, f.string(), &load)
         : ext == ".laz" ? detail::open_laz_stream(f, f.string(), &load)
         : ext == ".ptx" ? detail::open_ptx_stream(f, f.string())
-                        : detail::open_e57_stream(f, f.string());
+        : ext == ".pts" ? detail::open_pts_stream(f, f.string())
+        : ext == ".e57" ? detail::open_e57_stream(f, f.string())
+                        : detail::open_xyz_stream(f, f.string());
   } catch (const InputError&) {
     return false;  // the in-core read reports the problem
   }

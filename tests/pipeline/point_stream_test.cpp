@@ -446,6 +446,131 @@ TEST(PointStream, ALargeLasFilesColourPassIsReusedAndGivesTheWholeReadsColour) {
   }
 }
 
+// A PTS file of two blocks, about 6 MB of text (more than one 4 MiB read block, so lines are
+// carried across blocks): X Y Z intensity R G B with Leica's integer intensities, CRLF ends,
+// blank lines now and then. `count_off`: added to block 2's count line; `bad_line`: a point
+// line of block 2 replaced by text (0 = none).
+fs::path write_pts(const fs::path& p, long count_off = 0, std::size_t bad_line = 0) {
+  std::ofstream out(p, std::ios::binary);
+  const std::size_t n[2] = {60000, 90001};
+  for (int b = 0; b < 2; ++b) {
+    out << static_cast<long>(n[b]) + (b == 1 ? count_off : 0) << "\r\n";
+    for (std::size_t k = 0; k < n[b]; ++k) {
+      if (k % 991 == 0) out << "  \r\n";  // a blank line now and then
+      if (b == 1 && k + 1 == bad_line) {
+        out << "0.1 0.2 0.3 12 n/a 4 5\r\n";
+        continue;
+      }
+      out << 0.001 * static_cast<double>(k % 300) + 0.5 * b << ' ' << -0.002 * static_cast<double>(k / 300) << ' '
+          << 0.25 + 1e-4 * static_cast<double>(k % 17) << ' ' << static_cast<long>(k % 4096) - 2048 << ' ' << k % 256 << ' '
+          << (3 * k) % 256 << ' ' << 255 - k % 256 << "\r\n";
+    }
+  }
+  return p;
+}
+
+// The real PTS samples and the generated file: every chunking gives load_cloud's points,
+// intensity and colour, and its notes; the generated file's first look counts its points.
+TEST(PointStream, PtsStreamsTheSamePointsIntensityColourAndNotesAsTheWholeRead) {
+  const fs::path dir = hc::test::temp_dir("pts");
+  const fs::path two = write_pts(dir / "two_blocks.pts");
+  std::vector<fs::path> files = {two};
+  for (const char* name : {"pdal-test.pts", "pdal-site_56_8.pts"}) {
+    files.push_back(hc::test::scan_path(std::string("scanner_samples/pts/") + name));
+  }
+  for (const fs::path& p : files) {
+    SCOPED_TRACE(p.filename().string());
+    expect_stream_equals_load_cloud(p, "point lines streamed in chunks");
+  }
+  const Cloud whole = hc::pipeline::load_cloud(two).value;
+  ASSERT_EQ(whole.size(), 150001U);
+  EXPECT_EQ(whole.intensity.size(), whole.size());
+  EXPECT_EQ(whole.rgb.size(), 3 * whole.size());
+  EXPECT_EQ(hc::pipeline::open_point_stream(two)->total_points(), 150001U);
+}
+
+// A bad point line, and a count its point lines do not match (generated, and the shared
+// bunny_8.pts, whose count line says 8 where 9 point lines follow): next() fails with
+// load_cloud's message, and every later call fails.
+TEST(PointStream, PtsErrorsAreTheWholeReadsAndStick) {
+  const fs::path dir = hc::test::temp_dir("pts_bad");
+  const fs::path bad = write_pts(dir / "bad.pts", 0, 4321);
+  const fs::path more = write_pts(dir / "more.pts", 5);
+  const fs::path fewer = write_pts(dir / "fewer.pts", -3);
+  const fs::path lying = hc::test::scan_path("scanner_samples/pts/pdal-bunny_8.pts");
+  for (const fs::path& p : {bad, more, fewer, lying}) {
+    SCOPED_TRACE(p.filename().string());
+    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
+    EXPECT_NE(whole_error.find(p.filename().string()), std::string::npos) << whole_error;
+    auto s = hc::pipeline::open_point_stream(p);
+    ASSERT_TRUE(s->streamed());
+    Cloud c;
+    EXPECT_EQ(hc::test::error_of([&] {
+                while (s->next(c, 10000)) {
+                }
+              }),
+              whole_error);
+    const std::string again = hc::test::error_of([&] { s->next(c, 10); });
+    EXPECT_NE(again.find("failed earlier"), std::string::npos) << again;
+  }
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(bad); }).find("'n/a' is not a number"), std::string::npos);
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(more); }).find("says 90006 points but 90001"), std::string::npos);
+  // Block 2 says 89998: its last 3 point lines run on, where a count line should come.
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(fewer); }).find("says 89998 points but 90001"), std::string::npos);
+}
+
+// An XYZ file of about 5 MB: '#' comments (whole lines and after points), blank lines, commas
+// and tabs, extra columns, CRLF ends. `bad_line`: the point line replaced by text (0 = none).
+fs::path write_xyz(const fs::path& p, std::size_t bad_line = 0) {
+  std::ofstream out(p, std::ios::binary);
+  out << "# x y z r g b, from a test\r\n";
+  for (std::size_t k = 0; k < 200000; ++k) {
+    if (k % 1009 == 0) out << "\r\n   # a comment line\r\n";
+    if (k + 1 == bad_line) {
+      out << "1.5 2.5 z=3\r\n";
+      continue;
+    }
+    const double x = 0.001 * static_cast<double>(k % 400), y = -0.001 * static_cast<double>(k / 400), z = 1e-5 * static_cast<double>(k % 31);
+    if (k % 3 == 0) {
+      out << x << ',' << y << ',' << z << ",10,20,30\r\n";
+    } else {
+      out << x << '\t' << y << ' ' << z << (k % 5 == 0 ? " # trailing\r\n" : "\r\n");
+    }
+  }
+  return p;
+}
+
+TEST(PointStream, XyzStreamsTheSamePointsAsTheWholeReadAndItsErrors) {
+  const fs::path dir = hc::test::temp_dir("xyz");
+  const fs::path p = write_xyz(dir / "points.xyz");
+  expect_stream_equals_load_cloud(p, "lines streamed in chunks");
+  EXPECT_EQ(hc::pipeline::load_cloud(p).value.size(), 200000U);
+  EXPECT_EQ(hc::pipeline::open_point_stream(p)->total_points(), 200000U);
+  // .txt is the same reader.
+  fs::copy_file(p, dir / "points.txt");
+  expect_stream_equals_load_cloud(dir / "points.txt", "lines streamed in chunks");
+  const fs::path bad = write_xyz(dir / "bad.xyz", 150000);
+  const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(bad); });
+  EXPECT_NE(whole_error.find("'z=3' is not a number"), std::string::npos) << whole_error;
+  auto s = hc::pipeline::open_point_stream(bad);
+  Cloud c;
+  EXPECT_EQ(hc::test::error_of([&] {
+              while (s->next(c, 7777)) {
+              }
+            }),
+            whole_error);
+  EXPECT_NE(hc::test::error_of([&] { s->next(c, 10); }).find("failed earlier"), std::string::npos);
+  // Comments and blank lines only: no point, as the whole read says.
+  {
+    std::ofstream(dir / "none.xyz") << "# nothing\n\n  # here\n";
+  }
+  const std::string none = hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "none.xyz"); });
+  EXPECT_NE(none.find("holds no points"), std::string::npos) << none;
+  auto empty = hc::pipeline::open_point_stream(dir / "none.xyz");
+  EXPECT_EQ(empty->total_points(), 0U);
+  EXPECT_EQ(hc::test::error_of([&] { empty->next(c, 10); }), none);
+}
+
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {
   const fs::path dir = hc::test::temp_dir("whole");
   const fs::path p = write_ply(dir, "ascii", 50, "float", false, true, /*ascii=*/true);

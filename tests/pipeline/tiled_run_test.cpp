@@ -1457,6 +1457,39 @@ TEST(TiledRun, EqualsTheInCoreRunOnAPtxFileStreamedLineByLine) {
   (void)expect_streamed_tiled_run(dir, yaml, 64, "point lines streamed in chunks", 100000);
 }
 
+// A PTS file of two blocks (the plate of the PTX test above as two exports: X Y Z intensity R G
+// B, Leica's integer intensities) and the same plate as an XYZ file with comments: each read
+// in blocks of lines at every pass gives the in-core scene in tiles, colour included, and auto
+// counts its points with the first look.
+TEST(TiledRun, EqualsTheInCoreRunOnPtsAndXyzFilesStreamedLineByLine) {
+  const fs::path dir = hc::test::temp_dir("pts_scan");
+  {
+    std::ofstream pts(dir / "plate.pts", std::ios::binary), xyz(dir / "plate.xyz", std::ios::binary);
+    xyz << "# the plate, x y z\n";
+    const int cols = 300, rows = 200;
+    for (int block = 0; block < 2; ++block) {
+      pts << cols * rows << "\r\n";
+      for (int k = 0; k < cols * rows; ++k) {
+        const double x = 0.001 * (k / rows) + 0.0003 * block + 0.15 * block, y = 0.001 * (k % rows);
+        const double z = 0.05 * x + 0.002 * std::sin(80 * x) * std::cos(60 * y);
+        pts << x << ' ' << y << ' ' << z << ' ' << (k % 4096) - 2048 << ' ' << k % 256 << ' ' << (7 * k) % 256 << ' ' << 200 << "\r\n";
+        xyz << x << ' ' << y << ' ' << z << (k % 1000 == 0 ? " # a comment\n" : "\n");
+      }
+    }
+  }
+  const std::string grid =
+      "grid: {n: 400, splat_radius_cells: 1.2, see_through_depth_m: 0.005, hole_fill_max_cells: 64}\n"
+      "cross_check: {tolerance_m: 0.002}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 5000}\n";
+  const BuiltScene pts = expect_streamed_tiled_run(dir, "input: {files: [plate.pts], units: m}\n" + grid, 64,
+                                                   "point lines streamed in chunks", 100000);
+  EXPECT_FALSE(pts.scene.layers.colour_rgb8.empty());
+  (void)expect_streamed_tiled_run(dir, "input: {files: [plate.xyz], units: m}\n" + grid, 64, "lines streamed in chunks", 100000);
+  // Below scale.tiled_above_points, auto stays in core (the first look counted 120 000 points).
+  const RunConfig small = hc::pipeline::parse_run_config("input: {files: [plate.pts], units: m}\n" + grid, dir / "run.yaml",
+                                                         {"scale.tiled_above_points=120000"});
+  EXPECT_FALSE(hc::pipeline::runs_tiled(small));
+}
+
 // A real E57 scan (the bunny, double coordinates), read scan by scan at every pass, gives the
 // in-core scene in tiles too; auto counts its records from the XML.
 TEST(TiledRun, EqualsTheInCoreRunOnARealE57ScanStreamedScanByScan) {

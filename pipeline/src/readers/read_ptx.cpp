@@ -17,6 +17,7 @@
 // 0 0 0 1 — a column-vector reading would give that scan no translation at all.
 
 #include "readers.hpp"
+#include "text_lines.hpp"
 #include "text_parse.hpp"
 
 #include "hc/common/error.hpp"
@@ -32,85 +33,6 @@
 namespace hc::pipeline::detail {
 
 namespace {
-
-/// Walks the lines of a text buffer, skipping blank ones, counting line numbers from 1.
-class Lines {
- public:
-  explicit Lines(const std::string& text) : p_(text.data()), end_(text.data() + text.size()) {}
-
-  /// The next non-blank line in [b, e); false at the end of the text.
-  bool next(const char*& b, const char*& e) {
-    while (p_ < end_) {
-      const void* nl = std::memchr(p_, '\n', static_cast<std::size_t>(end_ - p_));
-      const char* line_end = nl ? static_cast<const char*>(nl) : end_;
-      b = p_;
-      e = line_end;
-      p_ = nl ? line_end + 1 : end_;
-      ++line_no_;
-      const char* q = b;
-      while (q < e && is_space(*q)) ++q;
-      if (q < e) return true;
-    }
-    return false;
-  }
-  std::size_t line_no() const { return line_no_; }
-
- private:
-  const char* p_;
-  const char* end_;
-  std::size_t line_no_ = 0;
-};
-
-/// The same over a file read in blocks (for the stream): lines up to 64 MiB long; a longer one
-/// is an error (no PTX line is near that).
-class FileLines {
- public:
-  FileLines(std::FILE* f, const std::string& name) : f_(f), name_(name) {}
-
-  bool next(const char*& b, const char*& e) {
-    for (;;) {
-      const char* nl = pos_ < buf_.size()
-                           ? static_cast<const char*>(std::memchr(buf_.data() + pos_, '\n', buf_.size() - pos_))
-                           : nullptr;
-      if (nl == nullptr && !eof_) {
-        refill();
-        continue;
-      }
-      if (pos_ >= buf_.size()) return false;  // end of the file
-      b = buf_.data() + pos_;
-      e = nl ? nl : buf_.data() + buf_.size();
-      pos_ = static_cast<std::size_t>(e - buf_.data()) + (nl ? 1 : 0);
-      ++line_no_;
-      const char* q = b;
-      while (q < e && is_space(*q)) ++q;
-      if (q < e) return true;
-    }
-  }
-  std::size_t line_no() const { return line_no_; }
-
- private:
-  void refill() {
-    buf_.erase(0, pos_);  // keep the partial line
-    pos_ = 0;
-    if (buf_.size() > (std::size_t{64} << 20)) {
-      throw InputError("load_cloud: " + name_ + " line " + std::to_string(line_no_ + 1) + " is longer than 64 MiB");
-    }
-    const std::size_t old = buf_.size();
-    buf_.resize(old + kBlock);
-    const std::size_t got = std::fread(buf_.data() + old, 1, kBlock, f_);
-    buf_.resize(old + got);
-    if (got < kBlock) {
-      if (std::ferror(f_)) throw InputError("load_cloud: " + name_ + ": read error after line " + std::to_string(line_no_));
-      eof_ = true;
-    }
-  }
-  static constexpr std::size_t kBlock = std::size_t{4} << 20;
-  std::FILE* f_;
-  const std::string& name_;
-  std::string buf_;
-  std::size_t pos_ = 0, line_no_ = 0;
-  bool eof_ = false;
-};
 
 /// Parses up to `max` numbers of [b, e) into v; returns how many, or max + 1 if there are more
 /// or -1 (as SIZE_MAX) if a token is not a number.
@@ -133,7 +55,7 @@ std::string excerpt(const char* b, const char* e) {
 }
 
 
-/// The PTX parser over a line source (Lines or FileLines): scan headers and point lines, in
+/// The PTX parser over a line source (TextLines or FileLines): scan headers and point lines, in
 /// file order, handing out measured points a block at a time. Every error names the file and the
 /// line, as in the format's description above.
 template <class LineSource>
@@ -417,8 +339,8 @@ class PtxStream final : public PointStream {
 
 ReadResult read_ptx(const ScanSource& source) {
   const std::string& name = source.display_name;
-  Lines lines(source.bytes);
-  PtxParser<Lines> parser(lines, name);
+  TextLines lines(source.bytes);
+  PtxParser<TextLines> parser(lines, name);
   std::vector<double> xyz;
   std::vector<float> intensity;
   std::vector<std::uint8_t> rgb;

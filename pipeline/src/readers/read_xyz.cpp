@@ -1,38 +1,160 @@
 // XYZ / TXT text reader: x y z per line, extra columns ignored, '#' comments and blank lines
-// skipped, blanks or commas as separators. Values are parsed in double (std::from_chars).
+// skipped, blanks or commas as separators. Values are parsed in double (std::from_chars). Read
+// whole (read_xyz) or in chunks (open_xyz_stream, issue 14), by one parser over either kind of
+// line source (text_lines.hpp): the same points and errors.
 
 #include "readers.hpp"
+#include "text_lines.hpp"
 #include "text_parse.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/pipeline/point_stream.hpp"
 
+#include <cstdio>
 #include <cstring>
+#include <limits>
+#include <memory>
 
 namespace hc::pipeline::detail {
 
-ReadResult read_xyz(const ScanSource& source) {
-  const std::string& text = source.bytes;
-  const std::string& name = source.display_name;
-  std::vector<double> xyz;
-  xyz.reserve(text.size() / 16);
-  for_each_line(text, [&](const char* b, const char* e, std::size_t line_no) {
-    if (const void* hash = std::memchr(b, '#', static_cast<std::size_t>(e - b))) e = static_cast<const char*>(hash);
-    const char* p = b;
-    while (p < e && is_space(*p)) ++p;
-    if (p == e) return;  // blank or comment-only line
-    for (int a = 0; a < 3; ++a) {
-      double v = 0.0;
-      if (!parse_double(p, e, v)) {
-        const std::string_view tok = first_token(p, e);
-        throw InputError("load_cloud: " + name + " line " + std::to_string(line_no) + ": " +
-                         (tok.empty() ? std::string("expected 3 numbers (x y z), found only ") + std::to_string(a)
-                                      : "'" + std::string(tok.substr(0, 40)) + "' is not a number (expected x y z)"));
+namespace {
+
+/// [b, e) without a '#' comment and the separators before it and at its start: empty for a
+/// comment-only line.
+void strip_comment(const char*& b, const char*& e) {
+  if (const void* hash = std::memchr(b, '#', static_cast<std::size_t>(e - b))) e = static_cast<const char*>(hash);
+  while (b < e && is_space(*b)) ++b;
+}
+
+/// The XYZ parser over a line source (TextLines or FileLines).
+template <class LineSource>
+class XyzParser {
+ public:
+  XyzParser(LineSource& lines, const std::string& name) : lines_(lines), name_(name) {}
+
+  /// Appends up to `max` (≥ 1) points' x y z to xyz. @return false once the file is done (the
+  /// last points may have come with this call); a file without a point is then an error.
+  /// @throws hc::InputError naming the file and line for a line whose first three tokens are
+  /// not numbers.
+  bool read(std::size_t max, std::vector<double>& xyz) {
+    if (done_) return false;
+    std::size_t taken = 0;
+    const char* b = nullptr;
+    const char* e = nullptr;
+    while (taken < max) {
+      if (!lines_.next(b, e)) {
+        done_ = true;
+        if (points_ == 0) throw InputError("load_cloud: " + name_ + " holds no points (no 'x y z' line)");
+        return false;
       }
-      xyz.push_back(v);
+      strip_comment(b, e);
+      if (b == e) continue;  // comment-only line
+      const char* p = b;
+      for (int a = 0; a < 3; ++a) {
+        double v = 0.0;
+        if (!parse_double(p, e, v)) {
+          const std::string_view tok = first_token(p, e);
+          throw InputError("load_cloud: " + name_ + " line " + std::to_string(lines_.line_no()) + ": " +
+                           (tok.empty() ? std::string("expected 3 numbers (x y z), found only ") + std::to_string(a)
+                                        : "'" + std::string(tok.substr(0, 40)) + "' is not a number (expected x y z)"));
+        }
+        xyz.push_back(v);
+      }
+      ++points_;
+      ++taken;
     }
-  });
-  if (xyz.empty()) throw InputError("load_cloud: " + name + " holds no points (no 'x y z' line)");
+    return true;
+  }
+
+  /// The point lines (neither blank nor comment-only), counted without parsing them.
+  std::uint64_t look() {
+    std::uint64_t n = 0;
+    const char* b = nullptr;
+    const char* e = nullptr;
+    while (lines_.next(b, e)) {
+      strip_comment(b, e);
+      n += b < e ? 1U : 0U;
+    }
+    return n;
+  }
+
+ private:
+  LineSource& lines_;
+  const std::string& name_;
+  std::uint64_t points_ = 0;
+  bool done_ = false;
+};
+
+// An XYZ file read in blocks of lines (point_stream.hpp). Opening it counts its point lines
+// (XyzParser::look), kept for later streams of the same unchanged large file
+// (recall_first_pass); then the points come a chunk at a time.
+class XyzStream final : public PointStream {
+ public:
+  XyzStream(const std::filesystem::path& path, std::string name) : name_(std::move(name)), f_(nullptr, &std::fclose) {
+    f_.reset(std::fopen(path.c_str(), "rb"));
+    if (!f_) throw InputError("load_cloud: " + name_ + ": cannot open it");
+    const std::optional<FileKey> key = large_file_key(fileno(f_.get()));
+    std::array<std::uint64_t, 2> look{};
+    if (key && recall_first_pass(*key, "xyz_look", look)) {
+      total_ = look[0];
+    } else {
+      FileLines lines(f_.get(), name_);
+      XyzParser<FileLines> first(lines, name_);
+      total_ = first.look();
+      if (key) remember_first_pass(*key, "xyz_look", {total_, 0});
+      if (std::fseek(f_.get(), 0, SEEK_SET) != 0) throw InputError("load_cloud: " + name_ + ": cannot seek back to its start");
+    }
+    lines_ = std::make_unique<FileLines>(f_.get(), name_);
+    parser_ = std::make_unique<XyzParser<FileLines>>(*lines_, name_);
+  }
+
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    chunk = Cloud();
+    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
+    try {
+      xyz_.clear();
+      (void)parser_->read(std::max<std::size_t>(max_points, 1), xyz_);
+      const std::size_t n = xyz_.size() / 3;
+      if (n == 0) return false;
+      chunk.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz_.data(), 3, static_cast<Eigen::Index>(n));
+      return true;
+    } catch (const std::exception& e) {
+      failed_ = true;  // the parser's position is undefined: every later call fails too
+      failure_ = e.what();
+      chunk = Cloud();
+      throw;
+    }
+  }
+
+ private:
+  std::string name_;
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f_;
+  std::unique_ptr<FileLines> lines_;
+  std::unique_ptr<XyzParser<FileLines>> parser_;
+  std::uint64_t total_ = 0;
+  bool failed_ = false;
+  std::string failure_;
+  std::vector<double> xyz_;
+  std::vector<std::string> notes_{"XYZ text", "lines streamed in chunks"};
+};
+
+}  // namespace
+
+ReadResult read_xyz(const ScanSource& source) {
+  TextLines lines(source.bytes);
+  XyzParser<TextLines> parser(lines, source.display_name);
+  std::vector<double> xyz;
+  xyz.reserve(source.bytes.size() / 16);
+  (void)parser.read(std::numeric_limits<std::size_t>::max(), xyz);
   return {cloud_from(xyz), {"XYZ text"}};
+}
+
+std::unique_ptr<PointStream> open_xyz_stream(const std::filesystem::path& path, const std::string& name) {
+  return std::make_unique<XyzStream>(path, name);
 }
 
 }  // namespace hc::pipeline::detail

@@ -148,6 +148,20 @@ std::unique_ptr<PointStream> open_e57_stream(const std::filesystem::path& path, 
 /// file that ends inside a scan when opened, a bad point line from next() (sticky).
 std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, const std::string& name);
 
+/// A PTS file (read_pts.cpp) read in blocks of lines: the same points, intensity, colour, notes
+/// and errors as read_pts, in file order. Opening it takes a first look at its count lines,
+/// skipping the point lines unparsed, for the points it holds (total_points: the counts' sum up
+/// to the first line where a count should be and is not, whose problem next() then reports); a
+/// later stream of the same unchanged file of 64 MiB or more reuses it (recall_first_pass).
+/// @throws hc::InputError when the file cannot be opened, and from next() as read_pts (sticky).
+std::unique_ptr<PointStream> open_pts_stream(const std::filesystem::path& path, const std::string& name);
+
+/// An XYZ / TXT file (read_xyz.cpp) read in blocks of lines: the same points and errors as
+/// read_xyz, in file order. Opening it counts its point lines (neither blank nor comment-only)
+/// without parsing them, kept as open_pts_stream keeps its look. @throws hc::InputError when the
+/// file cannot be opened, and from next() as read_xyz (sticky).
+std::unique_ptr<PointStream> open_xyz_stream(const std::filesystem::path& path, const std::string& name);
+
 /// A LAZ file (read_laz.cpp) decompressed and streamed chunk by chunk: the same points,
 /// colour, intensity and CRS as read_laz, in file order, with one LASzip chunk's compressed
 /// bytes and records in memory at a time (read with pread). The header, the (E)VLRs and the
