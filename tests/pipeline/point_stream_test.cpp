@@ -571,15 +571,76 @@ TEST(PointStream, XyzStreamsTheSamePointsAsTheWholeReadAndItsErrors) {
   EXPECT_EQ(hc::test::error_of([&] { empty->next(c, 10); }), none);
 }
 
+// An ASCII PLY (an element of its own before the vertex element, float or double x y z, with
+// and without colour; 200 000 vertices, about 6 MB, more than one read block): streamed in blocks
+// of lines, every chunking gives load_cloud's points, colour and float32 flag; a bad token and a
+// cut file fail as the whole read does, and stay failed.
+TEST(PointStream, AsciiPlyStreamsTheSamePointsAndErrorsAsTheWholeRead) {
+  const fs::path dir = hc::test::temp_dir("ascii_ply");
+  for (const bool rgb : {true, false}) {
+    const fs::path p = write_ply(dir, rgb ? "rgb" : "plain", 200000, rgb ? "float" : "double", false, rgb, /*ascii=*/true);
+    SCOPED_TRACE(p.filename().string());
+    const Cloud whole = hc::pipeline::load_cloud(p).value;
+    ASSERT_EQ(whole.size(), 200000U);
+    for (const std::size_t chunk : {std::size_t{7}, std::size_t{1000}, std::size_t{1} << 20}) {
+      auto s = hc::pipeline::open_point_stream(p);
+      ASSERT_TRUE(s->streamed());
+      EXPECT_EQ(s->total_points(), 200000U);
+      std::size_t chunks = 0;
+      const Cloud got = read_in_chunks(*s, chunk, &chunks);
+      EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
+      EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
+      EXPECT_EQ(got.float32_xyz, whole.float32_xyz) << "chunk " << chunk;
+      EXPECT_EQ(s->notes().front(), "PLY ascii, 200000 vertices (lines streamed in chunks)");
+    }
+  }
+  const fs::path p = write_ply(dir, "bad", 200000, "float", false, true, /*ascii=*/true);
+  {
+    std::fstream io(p, std::ios::in | std::ios::out | std::ios::binary);
+    const std::string text((std::istreambuf_iterator<char>(io)), std::istreambuf_iterator<char>());
+    // The line of vertex 150 000: after the header's last line and the 3 lines of "junk".
+    std::size_t at = text.find('\n', text.find("end_header"));
+    for (int k = 0; k < 3 + 150000; ++k) at = text.find('\n', at + 1);
+    io.seekp(static_cast<std::streamoff>(text.find(' ', at + 1) + 1));
+    io << "q";  // its x (after the tag) begins with a letter now
+  }
+  fs::path cut = dir / "cut.ply";
+  fs::copy_file(write_ply(dir, "whole", 200000, "float", false, true, true), cut);
+  {  // cut at the end of a line, about 1 kB before the end
+    std::ifstream in(cut, std::ios::binary);
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    fs::resize_file(cut, text.rfind('\n', text.size() - 1000) + 1);
+  }
+  for (const fs::path& f : {p, cut}) {
+    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(f); });
+    EXPECT_NE(whole_error.find(f.filename().string()), std::string::npos) << whole_error;
+    auto s = hc::pipeline::open_point_stream(f);
+    Cloud c;
+    EXPECT_EQ(hc::test::error_of([&] {
+                while (s->next(c, 9999)) {
+                }
+              }),
+              whole_error);
+    EXPECT_NE(hc::test::error_of([&] { s->next(c, 10); }).find("failed earlier"), std::string::npos);
+  }
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(p); }).find("is not a number"), std::string::npos);
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(cut); }).find("truncated"), std::string::npos);
+}
+
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {
   const fs::path dir = hc::test::temp_dir("whole");
-  const fs::path p = write_ply(dir, "ascii", 50, "float", false, true, /*ascii=*/true);
+  const fs::path p = dir / "points.obj";
+  {
+    std::ofstream out(p);
+    for (int i = 0; i < 50; ++i) out << "v " << 0.01 * i << ' ' << -0.02 * i << ' ' << 1e-3 * i * i << "\n";
+  }
   auto s = hc::pipeline::open_point_stream(p);
   EXPECT_FALSE(s->streamed());
   std::size_t chunks = 0;
   const Cloud got = read_in_chunks(*s, 16, &chunks);
   EXPECT_EQ(chunks, 4U);
   const Cloud whole = hc::pipeline::load_cloud(p).value;
+  ASSERT_EQ(whole.size(), 50U);
   EXPECT_TRUE(got.xyz == whole.xyz);
   EXPECT_EQ(got.rgb, whole.rgb);
   bool said = false;

@@ -1458,14 +1458,18 @@ TEST(TiledRun, EqualsTheInCoreRunOnAPtxFileStreamedLineByLine) {
 }
 
 // A PTS file of two blocks (the plate of the PTX test above as two exports: X Y Z intensity R G
-// B, Leica's integer intensities) and the same plate as an XYZ file with comments: each read
+// B, Leica's integer intensities), the same plate as an XYZ file with comments and as an ASCII
+// PLY with colour: each read
 // in blocks of lines at every pass gives the in-core scene in tiles, colour included, and auto
 // counts its points with the first look.
-TEST(TiledRun, EqualsTheInCoreRunOnPtsAndXyzFilesStreamedLineByLine) {
+TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAndAsciiPlyFilesStreamedLineByLine) {
   const fs::path dir = hc::test::temp_dir("pts_scan");
   {
     std::ofstream pts(dir / "plate.pts", std::ios::binary), xyz(dir / "plate.xyz", std::ios::binary);
+    std::ofstream ply(dir / "plate.ply", std::ios::binary);
     xyz << "# the plate, x y z\n";
+    ply << "ply\nformat ascii 1.0\nelement vertex 120000\nproperty double x\nproperty double y\nproperty double z\n"
+        << "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n";
     const int cols = 300, rows = 200;
     for (int block = 0; block < 2; ++block) {
       pts << cols * rows << "\r\n";
@@ -1474,6 +1478,7 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsAndXyzFilesStreamedLineByLine) {
         const double z = 0.05 * x + 0.002 * std::sin(80 * x) * std::cos(60 * y);
         pts << x << ' ' << y << ' ' << z << ' ' << (k % 4096) - 2048 << ' ' << k % 256 << ' ' << (7 * k) % 256 << ' ' << 200 << "\r\n";
         xyz << x << ' ' << y << ' ' << z << (k % 1000 == 0 ? " # a comment\n" : "\n");
+        ply << x << ' ' << y << ' ' << z << ' ' << k % 256 << ' ' << (7 * k) % 256 << " 200\n";
       }
     }
   }
@@ -1484,6 +1489,9 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsAndXyzFilesStreamedLineByLine) {
                                                    "point lines streamed in chunks", 100000);
   EXPECT_FALSE(pts.scene.layers.colour_rgb8.empty());
   (void)expect_streamed_tiled_run(dir, "input: {files: [plate.xyz], units: m}\n" + grid, 64, "lines streamed in chunks", 100000);
+  const BuiltScene ply = expect_streamed_tiled_run(dir, "input: {files: [plate.ply], units: m}\n" + grid, 64,
+                                                   "PLY ascii, 120000 vertices (lines streamed in chunks)", 100000);
+  EXPECT_FALSE(ply.scene.layers.colour_rgb8.empty());
   // Below scale.tiled_above_points, auto stays in core (the first look counted 120 000 points).
   const RunConfig small = hc::pipeline::parse_run_config("input: {files: [plate.pts], units: m}\n" + grid, dir / "run.yaml",
                                                          {"scale.tiled_above_points=120000"});

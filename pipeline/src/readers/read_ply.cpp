@@ -27,6 +27,7 @@
 // PCL reads correctly, and the list layouts against the values the test wrote.
 
 #include "readers.hpp"
+#include "text_lines.hpp"
 #include "text_parse.hpp"
 #include "../stage_util.hpp"
 
@@ -463,45 +464,55 @@ Cloud read_binary_records(const std::string& raw, const PlyLayout& ply, std::siz
 // ---------------------------------------------------------------------------------------------
 // ASCII
 
-// Reads the vertex lines (one vertex per line; the elements before it take one line per
-// instance). Each number is parsed in the property's own type (float32 properties give the
-// float nearest to the text, as PCL's reader does); a list takes its count, a non-negative
-// integer, then that many numbers. Any non-numeric token is an error naming the line.
-Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const std::string& name,
-                          std::size_t* end_offset) {
-  const PlyElement& v = ply.vertex();
-  const bool lists = v.has_list();
-  std::size_t skip = 0;
-  for (std::size_t i = 0; i < ply.vertex_index; ++i) skip += ply.elements[i].count;
-  const std::vector<int> axis_of = axes_of(v);
-  const std::size_t nprop = v.properties.size();
-  Cloud cloud;
-  cloud.xyz.resize(3, static_cast<Eigen::Index>(v.count));
-  double* out = cloud.xyz.data();
-  const bool colour = has_colour(axis_of);
-  if (colour) cloud.rgb.resize(3 * v.count);
-  const char* p = raw.data() + ply.body;
-  const char* const end = raw.data() + raw.size();
-  std::size_t line = 0;
-  std::size_t vertex = 0;
-  while (vertex < v.count && p < end) {
-    const void* nl = std::memchr(p, '\n', static_cast<std::size_t>(end - p));
-    const char* e = nl ? static_cast<const char*>(nl) : end;
-    if (line >= skip) {
+// The vertex lines (one vertex per line; the elements before it take one line per instance),
+// over a line source that gives every line (TextLines or FileLines with skip_blank false, from
+// the first line after the header). Each number is parsed in the property's own type (float32
+// properties give the float nearest to the text, as PCL's reader does); a list takes its count,
+// a non-negative integer, then that many numbers. Any non-numeric token is an error naming the
+// line. Read whole (read_ascii_vertices) or in chunks (AsciiPlyStream): the same vertices and
+// errors.
+template <class LineSource>
+class AsciiVertexParser {
+ public:
+  AsciiVertexParser(LineSource& lines, const PlyLayout& ply, const std::string& name)
+      : lines_(lines), ply_(ply), v_(ply.vertex()), name_(name), axis_of_(axes_of(v_)), colour_(has_colour(axis_of_)) {
+    for (std::size_t i = 0; i < ply.vertex_index; ++i) skip_ += ply.elements[i].count;
+  }
+
+  bool colour() const { return colour_; }
+
+  /// Appends up to `max` (≥ 1) vertices: x y z to xyz, r g b to rgb when the vertex has colour.
+  /// @return false once every vertex has been read (the last may have come with this call).
+  /// @throws hc::InputError naming the file, the line and the vertex for a bad token or count,
+  /// and when the file ends before the header's vertex count.
+  bool read(std::size_t max, std::vector<double>& xyz, std::vector<std::uint8_t>& rgb) {
+    const std::size_t nprop = v_.properties.size();
+    const bool lists = v_.has_list();
+    std::size_t taken = 0;
+    const char* b = nullptr;
+    const char* e = nullptr;
+    while (vertex_ < v_.count && taken < max) {
+      if (!lines_.next(b, e)) {
+        throw InputError("load_cloud: " + name_ + ": truncated: the header declares " + std::to_string(v_.count) +
+                         " vertices but only " + std::to_string(vertex_) + " vertex lines follow");
+      }
+      if (lines_.line_no() <= skip_) continue;  // an element before the vertex element
       auto fail = [&](const std::string& what) {
-        return InputError("load_cloud: " + name + ": line " + std::to_string(ply.header_lines + line + 1) +
-                          " (vertex " + std::to_string(vertex) + "): " + what);
+        return InputError("load_cloud: " + name_ + ": line " + std::to_string(ply_.header_lines + lines_.line_no()) + " (vertex " +
+                          std::to_string(vertex_) + "): " + what);
       };
       // The token at t is not a number, or the line ended before property j.
       auto bad_value = [&](const char* t, std::size_t j) {
         const std::string_view tok = first_token(t, e);
         if (!tok.empty()) return fail("'" + std::string(tok.substr(0, 40)) + "' is not a number");
-        return fail(lists ? "the line ends before property '" + v.properties[j].name + "'"
+        return fail(lists ? "the line ends before property '" + v_.properties[j].name + "'"
                           : std::to_string(j) + " values where the header declares " + std::to_string(nprop));
       };
-      const char* q = p;
+      const char* q = b;
+      double p[3] = {0.0, 0.0, 0.0};
+      std::uint8_t c3[3] = {0, 0, 0};
       for (std::size_t j = 0; j < nprop; ++j) {
-        const PlyProperty& pr = v.properties[j];
+        const PlyProperty& pr = v_.properties[j];
         const char* t = q;
         if (pr.is_list) {
           double count = 0.0;
@@ -516,8 +527,8 @@ Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const st
             double item = 0.0;
             if (!parse_number(q, e, item)) {
               if (!first_token(ti, e).empty()) throw bad_value(ti, j);
-              throw fail("list property '" + pr.name + "' declares " + std::to_string(items) +
-                         " items but the line ends after " + std::to_string(k));
+              throw fail("list property '" + pr.name + "' declares " + std::to_string(items) + " items but the line ends after " +
+                         std::to_string(k));
             }
           }
           continue;
@@ -525,17 +536,17 @@ Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const st
         bool ok;
         double value = 0.0;
         if (pr.type == PlyType::kFloat32) {
-          float f = 0.0f;
-          ok = parse_number(q, e, f);
-          value = static_cast<double>(f);
+          float fv = 0.0f;
+          ok = parse_number(q, e, fv);
+          value = static_cast<double>(fv);
         } else {
           ok = parse_number(q, e, value);
         }
         if (!ok) throw bad_value(t, j);
-        if (axis_of[j] >= 3) {
-          cloud.rgb[3 * vertex + static_cast<std::size_t>(axis_of[j] - 3)] = colour_byte(value, pr.type);
-        } else if (axis_of[j] >= 0) {
-          out[3 * vertex + static_cast<std::size_t>(axis_of[j])] = value;
+        if (axis_of_[j] >= 3) {
+          c3[static_cast<std::size_t>(axis_of_[j] - 3)] = colour_byte(value, pr.type);
+        } else if (axis_of_[j] >= 0) {
+          p[static_cast<std::size_t>(axis_of_[j])] = value;
         }
       }
       while (q < e && is_space(*q)) ++q;
@@ -543,16 +554,38 @@ Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const st
         throw fail(lists ? std::string("more values than the header declares")
                          : "more values than the " + std::to_string(nprop) + " the header declares");
       }
-      ++vertex;
+      xyz.insert(xyz.end(), p, p + 3);
+      if (colour_) rgb.insert(rgb.end(), c3, c3 + 3);
+      ++vertex_;
+      ++taken;
     }
-    ++line;
-    p = nl ? e + 1 : end;
+    return vertex_ < v_.count;
   }
-  if (vertex < v.count) {
-    throw InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(v.count) +
-                     " vertices but only " + std::to_string(vertex) + " vertex lines follow");
-  }
-  *end_offset = static_cast<std::size_t>(p - raw.data());
+
+ private:
+  LineSource& lines_;
+  const PlyLayout& ply_;
+  const PlyElement& v_;
+  const std::string& name_;
+  std::vector<int> axis_of_;
+  bool colour_;
+  std::size_t skip_ = 0;  // lines of the elements before the vertex element
+  std::uint64_t vertex_ = 0;
+};
+
+// Reads the vertex lines whole (AsciiVertexParser); *end_offset: the first byte after the last
+// vertex line (where the elements after the vertex element begin).
+Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const std::string& name, std::size_t* end_offset) {
+  TextLines lines(raw, ply.body, false);
+  AsciiVertexParser<TextLines> parser(lines, ply, name);
+  std::vector<double> xyz;
+  std::vector<std::uint8_t> rgb;
+  xyz.reserve(3 * ply.vertex().count);
+  if (parser.colour()) rgb.reserve(3 * ply.vertex().count);
+  (void)parser.read(std::numeric_limits<std::size_t>::max(), xyz, rgb);
+  Cloud cloud = cloud_from(xyz);
+  cloud.rgb = std::move(rgb);
+  *end_offset = lines.offset();
   return cloud;
 }
 
@@ -877,6 +910,69 @@ class PlyStream final : public PointStream {
   std::vector<std::string> notes_;
 };
 
+// An ASCII PLY read in blocks of lines (point_stream.hpp): AsciiVertexParser over FileLines
+// from the first line after the header.
+class AsciiPlyStream final : public PointStream {
+ public:
+  AsciiPlyStream(std::FILE* f, std::string name, PlyLayout ply)
+      : f_(f, &std::fclose), name_(std::move(name)), ply_(std::move(ply)), total_(ply_.vertex().count) {
+    notes_.push_back("PLY ascii, " + std::to_string(total_) + " vertices (lines streamed in chunks)");
+    if (ply_.vertex_index + 1 < ply_.elements.size()) {
+      notes_.push_back("elements after 'vertex' (" + ply_.elements[ply_.vertex_index + 1].name +
+                       ", ...) not read: a streamed scan is taken as points");
+    }
+    if (std::fseek(f_.get(), static_cast<long>(ply_.body), SEEK_SET) != 0) {
+      throw InputError("load_cloud: " + name_ + ": cannot seek to the line after its header");
+    }
+    lines_ = std::make_unique<FileLines>(f_.get(), name_, false);
+    parser_ = std::make_unique<AsciiVertexParser<FileLines>>(*lines_, ply_, name_);
+    int float_axes = 0;
+    const std::vector<int> axis_of = axes_of(ply_.vertex());
+    for (std::size_t j = 0; j < ply_.vertex().properties.size(); ++j) {
+      if (axis_of[j] >= 0 && ply_.vertex().properties[j].type == PlyType::kFloat32) ++float_axes;
+    }
+    float32_ = float_axes == 3;
+  }
+
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    chunk = Cloud();
+    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
+    try {
+      xyz_.clear();
+      rgb_.clear();
+      (void)parser_->read(std::max<std::size_t>(max_points, 1), xyz_, rgb_);
+      const std::size_t n = xyz_.size() / 3;
+      if (n == 0) return false;
+      chunk.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz_.data(), 3, static_cast<Eigen::Index>(n));
+      chunk.rgb = rgb_;
+      chunk.float32_xyz = float32_;
+      return true;
+    } catch (const std::exception& e) {
+      failed_ = true;  // the parser's position is undefined: every later call fails too
+      failure_ = e.what();
+      chunk = Cloud();
+      throw;
+    }
+  }
+
+ private:
+  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f_;
+  std::string name_;
+  PlyLayout ply_;
+  std::uint64_t total_;
+  bool float32_ = false, failed_ = false;
+  std::string failure_;
+  std::unique_ptr<FileLines> lines_;
+  std::unique_ptr<AsciiVertexParser<FileLines>> parser_;
+  std::vector<double> xyz_;
+  std::vector<std::uint8_t> rgb_;
+  std::vector<std::string> notes_;
+};
+
 }  // namespace
 
 std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name, bool points_only) {
@@ -910,7 +1006,18 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
     std::fclose(f);
     throw;
   }
-  bool fixed = ply.format != "ascii";
+  if (ply.format == "ascii") {
+    // Lines: list properties anywhere are parsed or skipped line by line. A mesh is read whole
+    // (its faces kept) unless taken as points.
+    bool mesh = false;
+    for (std::size_t i = ply.vertex_index + 1; !points_only && i < ply.elements.size(); ++i) mesh = mesh || ply.elements[i].name == "face";
+    if (mesh) {
+      std::fclose(f);
+      return nullptr;
+    }
+    return std::make_unique<AsciiPlyStream>(f, name, std::move(ply));
+  }
+  bool fixed = true;
   std::size_t offset = ply.body;
   for (std::size_t i = 0; fixed && i <= ply.vertex_index; ++i) {
     fixed = !ply.elements[i].has_list();

@@ -78,12 +78,14 @@ ReadResult read_laz(const ScanSource& source);  ///< read_laz.cpp (LAZ: LASzip c
 ReadResult read_ptx(const ScanSource& source);  ///< read_ptx.cpp (Leica PTX, one or more scans)
 ReadResult read_pts(const ScanSource& source);  ///< read_pts.cpp (Leica PTS)
 
-/// read_ply.cpp: a binary PLY whose elements up to `vertex` have no lists, streamed in chunks
-/// (point_stream.hpp); nullptr when the file is not such a PLY (ascii, lists, no end_header:
+/// read_ply.cpp: a binary PLY whose elements up to `vertex` have no lists, or an ASCII PLY (lines
+/// read in blocks, AsciiVertexParser: the same vertices, colour and errors as read_ply), streamed
+/// in chunks (point_stream.hpp); nullptr when the file is not such a PLY (binary with lists, no end_header:
 /// the caller reads it whole, and load_cloud's errors name the problem), or when it holds a
 /// `face` element and !points_only (a mesh keeps its faces). `name` is the quoted path for
-/// messages. @throws hc::InputError for a bad header or a file shorter than its
-/// header's vertex data.
+/// messages. @throws hc::InputError for a bad header or a binary file shorter than its header's
+/// vertex data; an ASCII file's bad line or early end comes from next(), as read_ply's error
+/// (sticky).
 std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name,
                                              bool points_only);
 

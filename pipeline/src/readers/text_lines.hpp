@@ -16,12 +16,14 @@
 
 namespace hc::pipeline::detail {
 
-/// Walks the lines of a text buffer, skipping blank ones, counting line numbers from 1.
+/// Walks the lines of a text buffer from byte `from`, skipping blank ones (every line when
+/// !skip_blank: a PLY body, where a blank line is an error), counting line numbers from 1.
 class TextLines {
  public:
-  explicit TextLines(const std::string& text) : p_(text.data()), end_(text.data() + text.size()) {}
+  explicit TextLines(const std::string& text, std::size_t from = 0, bool skip_blank = true)
+      : begin_(text.data()), p_(text.data() + std::min(from, text.size())), end_(text.data() + text.size()), skip_blank_(skip_blank) {}
 
-  /// The next non-blank line in [b, e); false at the end of the text.
+  /// The next non-blank line (or the next line) in [b, e); false at the end of the text.
   bool next(const char*& b, const char*& e) {
     while (p_ < end_) {
       const void* nl = std::memchr(p_, '\n', static_cast<std::size_t>(end_ - p_));
@@ -30,6 +32,7 @@ class TextLines {
       e = line_end;
       p_ = nl ? line_end + 1 : end_;
       ++line_no_;
+      if (!skip_blank_) return true;
       const char* q = b;
       while (q < e && is_space(*q)) ++q;
       if (q < e) return true;
@@ -37,10 +40,14 @@ class TextLines {
     return false;
   }
   std::size_t line_no() const { return line_no_; }
+  /// Bytes of the text before the next line.
+  std::size_t offset() const { return static_cast<std::size_t>(p_ - begin_); }
 
  private:
+  const char* begin_;
   const char* p_;
   const char* end_;
+  bool skip_blank_;
   std::size_t line_no_ = 0;
 };
 
@@ -49,7 +56,8 @@ class TextLines {
 /// `f` and `name` are not owned and must outlive this.
 class FileLines {
  public:
-  FileLines(std::FILE* f, const std::string& name) : f_(f), name_(name) {}
+  /// From the file's current position; skip_blank as TextLines.
+  FileLines(std::FILE* f, const std::string& name, bool skip_blank = true) : f_(f), name_(name), skip_blank_(skip_blank) {}
 
   bool next(const char*& b, const char*& e) {
     for (;;) {
@@ -65,6 +73,7 @@ class FileLines {
       e = nl ? nl : buf_.data() + buf_.size();
       pos_ = static_cast<std::size_t>(e - buf_.data()) + (nl ? 1 : 0);
       ++line_no_;
+      if (!skip_blank_) return true;
       const char* q = b;
       while (q < e && is_space(*q)) ++q;
       if (q < e) return true;
@@ -91,6 +100,7 @@ class FileLines {
   static constexpr std::size_t kBlock = std::size_t{4} << 20;
   std::FILE* f_;
   const std::string& name_;
+  bool skip_blank_;
   std::string buf_;
   std::size_t pos_ = 0, line_no_ = 0;
   bool eof_ = false;
