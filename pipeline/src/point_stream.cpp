@@ -3,6 +3,7 @@
 
 #include "hc/pipeline/point_stream.hpp"
 
+#include "readers/byte_source.hpp"
 #include "readers/readers.hpp"
 #include "readers/text_parse.hpp"
 
@@ -113,25 +114,26 @@ void remember_first_pass(const FileKey& key, const std::string& what, const std:
 }  // namespace detail
 
 std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path, const LoadOptions& options) {
-  std::string ext = path.extension().string();
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });
+  std::string ext;
+  const bool gz = detail::gz_name(path, ext);
   std::error_code ec;
-  if (ext == ".ply" && std::filesystem::is_regular_file(path, ec)) {
-    if (auto s = detail::open_ply_stream(path, detail::quoted(path), options.as_points)) return s;
-  }
-  if (ext == ".las" && std::filesystem::is_regular_file(path, ec)) {
-    if (auto s = detail::open_las_stream(path, detail::quoted(path), &options)) return s;
-  }
-  if (ext == ".ptx" && std::filesystem::is_regular_file(path, ec)) return detail::open_ptx_stream(path, detail::quoted(path));
-  if (ext == ".pts" && std::filesystem::is_regular_file(path, ec)) return detail::open_pts_stream(path, detail::quoted(path));
-  if ((ext == ".xyz" || ext == ".txt") && std::filesystem::is_regular_file(path, ec)) {
-    return detail::open_xyz_stream(path, detail::quoted(path));
-  }
-  if (ext == ".e57" && std::filesystem::is_regular_file(path, ec)) {
-    if (auto s = detail::open_e57_stream(path, detail::quoted(path))) return s;
-  }
-  if (ext == ".laz" && std::filesystem::is_regular_file(path, ec)) {
-    if (auto s = detail::open_laz_stream(path, detail::quoted(path), &options)) return s;
+  if (std::filesystem::is_regular_file(path, ec)) {
+    // Natively streamed; under gzip the text formats and PLY (decompressed as they are read).
+    if (ext == ".ply") {
+      if (auto s = detail::open_ply_stream(path, detail::quoted(path), options.as_points, gz)) return s;
+    }
+    if (ext == ".ptx") return detail::open_ptx_stream(path, detail::quoted(path), gz);
+    if (ext == ".pts") return detail::open_pts_stream(path, detail::quoted(path), gz);
+    if (ext == ".xyz" || ext == ".txt") return detail::open_xyz_stream(path, detail::quoted(path), gz);
+    if (!gz && ext == ".las") {
+      if (auto s = detail::open_las_stream(path, detail::quoted(path), &options)) return s;
+    }
+    if (!gz && ext == ".e57") {
+      if (auto s = detail::open_e57_stream(path, detail::quoted(path))) return s;
+    }
+    if (!gz && ext == ".laz") {
+      if (auto s = detail::open_laz_stream(path, detail::quoted(path), &options)) return s;
+    }
   }
   StageResult<Cloud> read = load_cloud(path, options);
   if (read.value.has_mesh()) {

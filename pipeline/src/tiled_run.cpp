@@ -9,6 +9,7 @@
 #include "wanted_keys.hpp"
 #include "knn_grid.hpp"
 #include "near_knn.hpp"
+#include "readers/byte_source.hpp"
 #include "readers/readers.hpp"
 #include "run_internal.hpp"
 #include "stage_util.hpp"
@@ -1031,26 +1032,25 @@ bool runs_tiled(const RunConfig& config) {
   }
   if (config.input.synthetic || config.input.conf || config.input.files.size() != 1) return false;
   const fs::path& f = config.input.files.front();
-  std::string ext = f.extension().string();
-  for (char& ch : ext) ch = static_cast<char>(std::tolower(static_cast<unsigned char>(ch)));
+  std::string ext;
+  const bool gz = detail::gz_name(f, ext);
   // Only a natively streamed file is counted without reading it whole (a PTX, PTS or XYZ
-  // file's first look reads its lines without parsing the points).
-  if (ext != ".ply" && ext != ".las" && ext != ".laz" && ext != ".ptx" && ext != ".e57" && ext != ".pts" && ext != ".xyz" &&
-      ext != ".txt") {
-    return false;
-  }
+  // file's first look reads its lines without parsing the points; under gzip, decompressing
+  // them).
+  const bool text = ext == ".ptx" || ext == ".pts" || ext == ".xyz" || ext == ".txt";
+  if (!(ext == ".ply" || text || (!gz && (ext == ".las" || ext == ".laz" || ext == ".e57")))) return false;
   std::error_code ec;
   if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
   std::unique_ptr<PointStream> s;
   try {
     const LoadOptions load{config.input.las_drop_classes, config.input.as_points};
-    s = ext == ".ply"   ? detail::open_ply_stream(f, f.string(), config.input.as_points)
+    s = ext == ".ply"   ? detail::open_ply_stream(f, f.string(), config.input.as_points, gz)
         : ext == ".las" ? detail::open_las_stream(f, f.string(), &load)
         : ext == ".laz" ? detail::open_laz_stream(f, f.string(), &load)
-        : ext == ".ptx" ? detail::open_ptx_stream(f, f.string())
-        : ext == ".pts" ? detail::open_pts_stream(f, f.string())
+        : ext == ".ptx" ? detail::open_ptx_stream(f, f.string(), gz)
+        : ext == ".pts" ? detail::open_pts_stream(f, f.string(), gz)
         : ext == ".e57" ? detail::open_e57_stream(f, f.string())
-                        : detail::open_xyz_stream(f, f.string());
+                        : detail::open_xyz_stream(f, f.string(), gz);
   } catch (const InputError&) {
     return false;  // the in-core read reports the problem
   }

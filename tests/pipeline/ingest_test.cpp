@@ -34,12 +34,7 @@ void write_text(const fs::path& p, const std::string& text) {
   out << text;
 }
 
-void write_gzip(const fs::path& p, const std::string& bytes) {
-  gzFile f = gzopen(p.string().c_str(), "wb");
-  ASSERT_NE(f, nullptr);
-  ASSERT_EQ(gzwrite(f, bytes.data(), static_cast<unsigned>(bytes.size())), static_cast<int>(bytes.size()));
-  gzclose(f);
-}
+using hc::test::write_gzip;
 
 // Three points with georeferenced double coordinates (not representable in float).
 const double kGeo[3][3] = {{450000.123456789, 5200000.987654321, 310.000000001},

@@ -7,6 +7,7 @@
 #include "hc/tools/relief.hpp"
 
 #include "error_of.hpp"
+#include "file_bytes.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -625,6 +626,73 @@ TEST(PointStream, AsciiPlyStreamsTheSamePointsAndErrorsAsTheWholeRead) {
   }
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(p); }).find("is not a number"), std::string::npos);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(cut); }).find("truncated"), std::string::npos);
+}
+
+// Gzip-compressed PLY (binary and ASCII), PTX, PTS and XYZ stream too, decompressed as they are
+// read (zlib): every chunking gives load_cloud's points, colour and intensity from the same
+// .gz (which it inflates whole with libdeflate), for one gzip member and for several
+// concatenated; the real Buddha's merged .ply.gz as well. A cut .gz fails naming the file, and a
+// file named .gz that is not gzip is refused as load_cloud refuses it.
+TEST(PointStream, GzipFilesStreamDecompressedAsTheWholeReadInflatesThem) {
+  const fs::path dir = hc::test::temp_dir("gz_stream");
+  const std::vector<fs::path> plain = {write_ply(dir, "bin", 100000, "float", false, true),
+                                       write_ply(dir, "asc", 100000, "double", false, true, /*ascii=*/true), write_ptx(dir / "scans.ptx"),
+                                       write_pts(dir / "blocks.pts"), write_xyz(dir / "points.xyz")};
+  for (const fs::path& p : plain) {
+    for (const int members : {1, 3}) {
+      const fs::path gz = dir / (p.filename().string() + ".gz");
+      hc::test::write_gzip(gz, hc::test::read_bytes(p), members);
+      SCOPED_TRACE(gz.filename().string() + ", members " + std::to_string(members));
+      const auto whole_read = hc::pipeline::load_cloud(gz);
+      const Cloud& whole = whole_read.value;
+      ASSERT_GT(whole.size(), 50000U);
+      for (const std::size_t chunk : {std::size_t{1000}, std::size_t{1} << 20}) {
+        auto s = hc::pipeline::open_point_stream(gz);
+        ASSERT_TRUE(s->streamed());
+        EXPECT_GE(s->total_points(), whole.size());
+        const Cloud got = read_with_intensity(*s, chunk);
+        ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
+        EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
+        EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
+        EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
+      }
+    }
+  }
+  {
+    const fs::path buddha = hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+    const Cloud whole = hc::pipeline::load_cloud(buddha).value;
+    auto s = hc::pipeline::open_point_stream(buddha);
+    ASSERT_TRUE(s->streamed());
+    EXPECT_EQ(s->total_points(), 1099005U);
+    std::size_t chunks = 0;
+    const Cloud got = read_in_chunks(*s, 250000, &chunks);
+    EXPECT_EQ(chunks, 5U);
+    EXPECT_TRUE(got.xyz == whole.xyz);
+    EXPECT_EQ(got.float32_xyz, whole.float32_xyz);
+  }
+  // Cut inside the compressed data: the stream's error names the file and says so.
+  for (const char* name : {"blocks.pts", "bin.ply"}) {
+    const std::string packed = hc::test::read_bytes(dir / (std::string(name) + ".gz"));
+    const fs::path cut = dir / (std::string("cut_") + name + ".gz");
+    hc::test::write_bytes(cut, packed.substr(0, packed.size() / 2));
+    EXPECT_THROW(hc::pipeline::load_cloud(cut), hc::InputError);
+    const std::string e = hc::test::error_of([&] {
+      auto s = hc::pipeline::open_point_stream(cut);
+      Cloud c;
+      while (s->next(c, 5000)) {
+      }
+    });
+    EXPECT_NE(e.find(cut.filename().string()), std::string::npos) << e;
+    EXPECT_TRUE(e.find("truncated") != std::string::npos) << e;
+  }
+  for (const char* name : {"plain.xyz.gz", "plain.ply.gz"}) {
+    fs::copy_file(std::string(name) == "plain.xyz.gz" ? plain[4] : plain[0], dir / name);
+    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(dir / name); });
+    EXPECT_NE(whole_error.find("not valid gzip data"), std::string::npos) << whole_error;
+    const std::string e = hc::test::error_of([&] { hc::pipeline::open_point_stream(dir / name); });
+    EXPECT_NE(e.find("not valid gzip data"), std::string::npos) << e;
+    EXPECT_NE(e.find(name), std::string::npos) << e;
+  }
 }
 
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {

@@ -27,6 +27,7 @@
 // PCL reads correctly, and the list layouts against the values the test wrote.
 
 #include "readers.hpp"
+#include "byte_source.hpp"
 #include "text_lines.hpp"
 #include "text_parse.hpp"
 #include "../stage_util.hpp"
@@ -862,16 +863,14 @@ namespace {
 // A binary PLY read record block by record block (point_stream.hpp).
 class PlyStream final : public PointStream {
  public:
-  PlyStream(std::FILE* f, std::string name, const PlyLayout& ply, std::size_t offset)
-      : f_(f, &std::fclose), name_(std::move(name)), rec_(ply), total_(ply.vertex().count) {
+  PlyStream(std::unique_ptr<ByteSource> src, const PlyLayout& ply, std::size_t offset)
+      : src_(std::move(src)), name_(src_->name()), rec_(ply), total_(ply.vertex().count) {
     notes_.push_back("PLY " + ply.format + ", " + std::to_string(total_) + " vertices (fixed-stride records streamed in chunks)");
     if (ply.vertex_index + 1 < ply.elements.size()) {
       notes_.push_back("elements after 'vertex' (" + ply.elements[ply.vertex_index + 1].name +
                        ", ...) not read: a streamed scan is taken as points");
     }
-    if (std::fseek(f_.get(), static_cast<long>(offset), SEEK_SET) != 0) {
-      throw InputError("load_cloud: " + name_ + ": cannot seek to its vertex data");
-    }
+    src_->seek(offset);
   }
   ~PlyStream() override = default;
   PlyStream(const PlyStream&) = delete;
@@ -886,7 +885,7 @@ class PlyStream final : public PointStream {
     const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
     if (n == 0) return false;
     buffer_.resize(n * rec_.stride);
-    const std::size_t got = std::fread(buffer_.data(), rec_.stride, n, f_.get());
+    const std::size_t got = src_->read(buffer_.data(), n * rec_.stride) / rec_.stride;
     if (got != n) {
       throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) + " of " +
                        std::to_string(total_) + " vertices");
@@ -902,7 +901,7 @@ class PlyStream final : public PointStream {
   bool float32_ = false;
 
  private:
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f_;  // owned from the constructor's first line
+  std::unique_ptr<ByteSource> src_;
   std::string name_;
   FixedRecords rec_;
   std::uint64_t total_ = 0, done_ = 0;
@@ -914,17 +913,15 @@ class PlyStream final : public PointStream {
 // from the first line after the header.
 class AsciiPlyStream final : public PointStream {
  public:
-  AsciiPlyStream(std::FILE* f, std::string name, PlyLayout ply)
-      : f_(f, &std::fclose), name_(std::move(name)), ply_(std::move(ply)), total_(ply_.vertex().count) {
+  AsciiPlyStream(std::unique_ptr<ByteSource> src, PlyLayout ply)
+      : src_(std::move(src)), name_(src_->name()), ply_(std::move(ply)), total_(ply_.vertex().count) {
     notes_.push_back("PLY ascii, " + std::to_string(total_) + " vertices (lines streamed in chunks)");
     if (ply_.vertex_index + 1 < ply_.elements.size()) {
       notes_.push_back("elements after 'vertex' (" + ply_.elements[ply_.vertex_index + 1].name +
                        ", ...) not read: a streamed scan is taken as points");
     }
-    if (std::fseek(f_.get(), static_cast<long>(ply_.body), SEEK_SET) != 0) {
-      throw InputError("load_cloud: " + name_ + ": cannot seek to the line after its header");
-    }
-    lines_ = std::make_unique<FileLines>(f_.get(), name_, false);
+    src_->seek(ply_.body);
+    lines_ = std::make_unique<FileLines>(*src_, false);
     parser_ = std::make_unique<AsciiVertexParser<FileLines>>(*lines_, ply_, name_);
     int float_axes = 0;
     const std::vector<int> axis_of = axes_of(ply_.vertex());
@@ -960,7 +957,7 @@ class AsciiPlyStream final : public PointStream {
   }
 
  private:
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f_;
+  std::unique_ptr<ByteSource> src_;
   std::string name_;
   PlyLayout ply_;
   std::uint64_t total_;
@@ -975,47 +972,43 @@ class AsciiPlyStream final : public PointStream {
 
 }  // namespace
 
-std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name, bool points_only) {
-  std::FILE* f = std::fopen(path.c_str(), "rb");
-  if (!f) return nullptr;
+std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name, bool points_only,
+                                             bool gz) {
+  std::unique_ptr<ByteSource> src;
+  try {
+    src = ByteSource::open(path, name, gz);
+  } catch (const InputError&) {
+    return nullptr;  // load_cloud's whole read says why
+  }
   // The header: read until "end_header" (at most 16 MB).
   std::string head;
   std::size_t end_at = std::string::npos;
-  char block[65536];
+  std::vector<char> block(65536);
   while (end_at == std::string::npos && head.size() < (16u << 20)) {
-    const std::size_t got = std::fread(block, 1, sizeof block, f);
+    const std::size_t got = src->read(block.data(), block.size());
     if (got == 0) break;
-    head.append(block, got);
+    head.append(block.data(), got);
     const std::size_t k = head.find("end_header");
     if (k != std::string::npos) {
       const std::size_t nl = head.find('\n', k);
       if (nl != std::string::npos) end_at = nl + 1;
     }
   }
+  // The data's size: the file's, or unknown under gzip (a short file then fails in next()).
   std::error_code ec;
-  const std::uintmax_t file_size = std::filesystem::file_size(path, ec);
+  const std::uintmax_t file_size = gz ? std::numeric_limits<std::size_t>::max() / 2 : std::filesystem::file_size(path, ec);
   if (end_at == std::string::npos || ec || head.compare(0, 3, "ply") != 0) {
-    std::fclose(f);
     return nullptr;  // not PLY as far as streaming goes: load_cloud's whole read says why
   }
   head.resize(end_at);
-  PlyLayout ply;
-  try {
-    ply = parse_ply_header(head, name, static_cast<std::size_t>(file_size));
-  } catch (...) {
-    std::fclose(f);
-    throw;
-  }
+  PlyLayout ply = parse_ply_header(head, name, static_cast<std::size_t>(file_size));
   if (ply.format == "ascii") {
     // Lines: list properties anywhere are parsed or skipped line by line. A mesh is read whole
     // (its faces kept) unless taken as points.
     bool mesh = false;
     for (std::size_t i = ply.vertex_index + 1; !points_only && i < ply.elements.size(); ++i) mesh = mesh || ply.elements[i].name == "face";
-    if (mesh) {
-      std::fclose(f);
-      return nullptr;
-    }
-    return std::make_unique<AsciiPlyStream>(f, name, std::move(ply));
+    if (mesh) return nullptr;
+    return std::make_unique<AsciiPlyStream>(std::move(src), std::move(ply));
   }
   bool fixed = true;
   std::size_t offset = ply.body;
@@ -1026,17 +1019,11 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
   for (std::size_t i = ply.vertex_index + 1; fixed && !points_only && i < ply.elements.size(); ++i) {
     fixed = ply.elements[i].name != "face";  // a mesh: read whole, so its faces are kept
   }
-  if (!fixed) {
-    std::fclose(f);
-    return nullptr;
-  }
+  if (!fixed) return nullptr;
   const PlyElement& v = ply.vertex();
   const std::size_t have = file_size > offset ? static_cast<std::size_t>(file_size) - offset : 0;
-  if (have < v.stride() * v.count) {
-    std::fclose(f);
-    throw InputError(truncated_vertices(name, v.count, v.stride(), have));
-  }
-  auto stream = std::make_unique<PlyStream>(f, name, ply, offset);
+  if (have < v.stride() * v.count) throw InputError(truncated_vertices(name, v.count, v.stride(), have));
+  auto stream = std::make_unique<PlyStream>(std::move(src), ply, offset);
   int float_axes = 0;
   const std::vector<int> axis_of = axes_of(v);
   for (std::size_t j = 0; j < v.properties.size(); ++j) {

@@ -7,6 +7,7 @@
 // kind of line source (text_lines.hpp): the same points, attributes, notes and errors.
 
 #include "readers.hpp"
+#include "byte_source.hpp"
 #include "text_lines.hpp"
 #include "text_parse.hpp"
 
@@ -199,21 +200,12 @@ class PtsParser {
 // same unchanged large file (recall_first_pass); then the points come a chunk at a time.
 class PtsStream final : public PointStream {
  public:
-  PtsStream(const std::filesystem::path& path, std::string name) : name_(std::move(name)), f_(nullptr, &std::fclose) {
-    f_.reset(std::fopen(path.c_str(), "rb"));
-    if (!f_) throw InputError("load_cloud: " + name_ + ": cannot open it");
-    const std::optional<FileKey> key = large_file_key(fileno(f_.get()));
-    std::array<std::uint64_t, 2> look{};
-    if (key && recall_first_pass(*key, "pts_look", look)) {
-      total_ = look[0];
-    } else {
-      FileLines lines(f_.get(), name_);
-      PtsParser<FileLines> first(lines, name_);
-      total_ = first.look();
-      if (key) remember_first_pass(*key, "pts_look", {total_, 0});
-      if (std::fseek(f_.get(), 0, SEEK_SET) != 0) throw InputError("load_cloud: " + name_ + ": cannot seek back to its start");
-    }
-    lines_ = std::make_unique<FileLines>(f_.get(), name_);
+  PtsStream(const std::filesystem::path& path, std::string name, bool gz) : name_(std::move(name)), src_(ByteSource::open(path, name_, gz)) {
+    total_ = first_look(*src_, "pts_look", [&] {
+      FileLines lines(*src_);
+      return std::array<std::uint64_t, 2>{PtsParser<FileLines>(lines, name_).look(), 0};
+    })[0];
+    lines_ = std::make_unique<FileLines>(*src_);
     parser_ = std::make_unique<PtsParser<FileLines>>(*lines_, name_);
     notes_ = {"PTS, point lines streamed in chunks"};
   }
@@ -250,7 +242,7 @@ class PtsStream final : public PointStream {
 
  private:
   std::string name_;
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f_;
+  std::unique_ptr<ByteSource> src_;
   std::unique_ptr<FileLines> lines_;
   std::unique_ptr<PtsParser<FileLines>> parser_;
   std::uint64_t total_ = 0;
@@ -277,8 +269,8 @@ ReadResult read_pts(const ScanSource& source) {
   return {std::move(cloud), parser.notes()};
 }
 
-std::unique_ptr<PointStream> open_pts_stream(const std::filesystem::path& path, const std::string& name) {
-  return std::make_unique<PtsStream>(path, name);
+std::unique_ptr<PointStream> open_pts_stream(const std::filesystem::path& path, const std::string& name, bool gz) {
+  return std::make_unique<PtsStream>(path, name, gz);
 }
 
 }  // namespace hc::pipeline::detail

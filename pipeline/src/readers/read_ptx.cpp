@@ -17,6 +17,7 @@
 // 0 0 0 1 — a column-vector reading would give that scan no translation at all.
 
 #include "readers.hpp"
+#include "byte_source.hpp"
 #include "text_lines.hpp"
 #include "text_parse.hpp"
 
@@ -251,29 +252,24 @@ class PtxParser {
 // scan by scan, a chunk at a time.
 class PtxStream final : public PointStream {
  public:
-  using File = std::unique_ptr<std::FILE, int (*)(std::FILE*)>;
-  PtxStream(const std::filesystem::path& path, std::string name) : name_(std::move(name)), f_(nullptr, &std::fclose) {
-    f_.reset(std::fopen(path.c_str(), "rb"));
-    if (!f_) throw InputError("load_cloud: " + name_ + ": cannot open it");
+  PtxStream(const std::filesystem::path& path, std::string name, bool gz) : name_(std::move(name)), src_(ByteSource::open(path, name_, gz)) {
     // The first look, or its result for this very file (unchanged, 64 MiB or more) from an
     // earlier stream: a tiled run opens the file once per pass.
-    const std::optional<FileKey> key = large_file_key(fileno(f_.get()));
-    std::array<std::uint64_t, 2> look{};
-    if (key && recall_first_pass(*key, "ptx_look", look)) {
-      total_ = look[0];
-      all_rgb_ = look[1] != 0;
-    } else {
-      FileLines lines(f_.get(), name_);
+    const auto look = first_look(*src_, "ptx_look", [&] {
+      FileLines lines(*src_);
       PtxParser<FileLines> first(lines, name_);
+      std::uint64_t total = 0;
+      bool all_rgb = true;
       while (first.start_scan()) {
-        total_ += first.grid_points();
-        if (first.skip_points() != 7) all_rgb_ = false;
+        total += first.grid_points();
+        if (first.skip_points() != 7) all_rgb = false;
       }
       if (first.scans() == 0) throw InputError("load_cloud: " + name_ + " holds no PTX scan (no header line)");
-      if (key) remember_first_pass(*key, "ptx_look", {total_, all_rgb_ ? 1U : 0U});
-      if (std::fseek(f_.get(), 0, SEEK_SET) != 0) throw InputError("load_cloud: " + name_ + ": cannot seek back to its start");
-    }
-    lines_ = std::make_unique<FileLines>(f_.get(), name_);
+      return std::array<std::uint64_t, 2>{total, all_rgb ? 1U : 0U};
+    });
+    total_ = look[0];
+    all_rgb_ = look[1] != 0;
+    lines_ = std::make_unique<FileLines>(*src_);
     parser_ = std::make_unique<PtxParser<FileLines>>(*lines_, name_);
     assemble_notes();
   }
@@ -323,7 +319,7 @@ class PtxStream final : public PointStream {
   }
 
   std::string name_;
-  File f_;
+  std::unique_ptr<ByteSource> src_;
   std::unique_ptr<FileLines> lines_;
   std::unique_ptr<PtxParser<FileLines>> parser_;
   std::uint64_t total_ = 0, given_ = 0;
@@ -362,8 +358,8 @@ ReadResult read_ptx(const ScanSource& source) {
   return {std::move(cloud), std::move(notes)};
 }
 
-std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, const std::string& name) {
-  return std::make_unique<PtxStream>(path, name);
+std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, const std::string& name, bool gz) {
+  return std::make_unique<PtxStream>(path, name, gz);
 }
 
 }  // namespace hc::pipeline::detail

@@ -4,6 +4,7 @@
 // line source (text_lines.hpp): the same points and errors.
 
 #include "readers.hpp"
+#include "byte_source.hpp"
 #include "text_lines.hpp"
 #include "text_parse.hpp"
 
@@ -90,21 +91,12 @@ class XyzParser {
 // (recall_first_pass); then the points come a chunk at a time.
 class XyzStream final : public PointStream {
  public:
-  XyzStream(const std::filesystem::path& path, std::string name) : name_(std::move(name)), f_(nullptr, &std::fclose) {
-    f_.reset(std::fopen(path.c_str(), "rb"));
-    if (!f_) throw InputError("load_cloud: " + name_ + ": cannot open it");
-    const std::optional<FileKey> key = large_file_key(fileno(f_.get()));
-    std::array<std::uint64_t, 2> look{};
-    if (key && recall_first_pass(*key, "xyz_look", look)) {
-      total_ = look[0];
-    } else {
-      FileLines lines(f_.get(), name_);
-      XyzParser<FileLines> first(lines, name_);
-      total_ = first.look();
-      if (key) remember_first_pass(*key, "xyz_look", {total_, 0});
-      if (std::fseek(f_.get(), 0, SEEK_SET) != 0) throw InputError("load_cloud: " + name_ + ": cannot seek back to its start");
-    }
-    lines_ = std::make_unique<FileLines>(f_.get(), name_);
+  XyzStream(const std::filesystem::path& path, std::string name, bool gz) : name_(std::move(name)), src_(ByteSource::open(path, name_, gz)) {
+    total_ = first_look(*src_, "xyz_look", [&] {
+      FileLines lines(*src_);
+      return std::array<std::uint64_t, 2>{XyzParser<FileLines>(lines, name_).look(), 0};
+    })[0];
+    lines_ = std::make_unique<FileLines>(*src_);
     parser_ = std::make_unique<XyzParser<FileLines>>(*lines_, name_);
   }
 
@@ -132,7 +124,7 @@ class XyzStream final : public PointStream {
 
  private:
   std::string name_;
-  std::unique_ptr<std::FILE, int (*)(std::FILE*)> f_;
+  std::unique_ptr<ByteSource> src_;
   std::unique_ptr<FileLines> lines_;
   std::unique_ptr<XyzParser<FileLines>> parser_;
   std::uint64_t total_ = 0;
@@ -153,8 +145,8 @@ ReadResult read_xyz(const ScanSource& source) {
   return {cloud_from(xyz), {"XYZ text"}};
 }
 
-std::unique_ptr<PointStream> open_xyz_stream(const std::filesystem::path& path, const std::string& name) {
-  return std::make_unique<XyzStream>(path, name);
+std::unique_ptr<PointStream> open_xyz_stream(const std::filesystem::path& path, const std::string& name, bool gz) {
+  return std::make_unique<XyzStream>(path, name, gz);
 }
 
 }  // namespace hc::pipeline::detail

@@ -87,7 +87,7 @@ ReadResult read_pts(const ScanSource& source);  ///< read_pts.cpp (Leica PTS)
 /// vertex data; an ASCII file's bad line or early end comes from next(), as read_ply's error
 /// (sticky).
 std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name,
-                                             bool points_only);
+                                             bool points_only, bool gz = false);
 
 /// A read-only mapping of a whole open file (mmap, MAP_PRIVATE), released on destruction; for
 /// the streams that read a header, (E)VLRs or a table through it and the bulk of the file by
@@ -148,7 +148,7 @@ std::unique_ptr<PointStream> open_e57_stream(const std::filesystem::path& path, 
 /// kept only then, as read_ptx decides); a later stream of the same unchanged file (device,
 /// inode, size, modification time) reuses that look. @throws hc::InputError as read_ptx: a bad header or a
 /// file that ends inside a scan when opened, a bad point line from next() (sticky).
-std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, const std::string& name);
+std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, const std::string& name, bool gz = false);
 
 /// A PTS file (read_pts.cpp) read in blocks of lines: the same points, intensity, colour, notes
 /// and errors as read_pts, in file order. Opening it takes a first look at its count lines,
@@ -156,13 +156,13 @@ std::unique_ptr<PointStream> open_ptx_stream(const std::filesystem::path& path, 
 /// to the first line where a count should be and is not, whose problem next() then reports); a
 /// later stream of the same unchanged file of 64 MiB or more reuses it (recall_first_pass).
 /// @throws hc::InputError when the file cannot be opened, and from next() as read_pts (sticky).
-std::unique_ptr<PointStream> open_pts_stream(const std::filesystem::path& path, const std::string& name);
+std::unique_ptr<PointStream> open_pts_stream(const std::filesystem::path& path, const std::string& name, bool gz = false);
 
 /// An XYZ / TXT file (read_xyz.cpp) read in blocks of lines: the same points and errors as
 /// read_xyz, in file order. Opening it counts its point lines (neither blank nor comment-only)
 /// without parsing them, kept as open_pts_stream keeps its look. @throws hc::InputError when the
 /// file cannot be opened, and from next() as read_xyz (sticky).
-std::unique_ptr<PointStream> open_xyz_stream(const std::filesystem::path& path, const std::string& name);
+std::unique_ptr<PointStream> open_xyz_stream(const std::filesystem::path& path, const std::string& name, bool gz = false);
 
 /// A LAZ file (read_laz.cpp) decompressed and streamed chunk by chunk: the same points,
 /// colour, intensity and CRS as read_laz, in file order, with one LASzip chunk's compressed

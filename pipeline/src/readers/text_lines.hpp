@@ -6,6 +6,7 @@
 /// without its '\n'; a line of separators only (text_parse.hpp's is_space) is blank. Shared by
 /// the PTX, PTS and XYZ readers (private to the pipeline).
 
+#include "byte_source.hpp"
 #include "text_parse.hpp"
 
 #include "hc/common/error.hpp"
@@ -51,13 +52,13 @@ class TextLines {
   std::size_t line_no_ = 0;
 };
 
-/// The same over a file read in blocks (for the streams): lines up to 64 MiB long; a longer one
-/// is an InputError naming `name` and the line (no scan's line is near that), as is a read error.
-/// `f` and `name` are not owned and must outlive this.
+/// The same over a file read in blocks (for the streams; plain or gzip, ByteSource): lines up to
+/// 64 MiB long; a longer one is an InputError naming the file and the line (no scan's line is
+/// near that), as is a read error. `src` is not owned and must outlive this.
 class FileLines {
  public:
   /// From the file's current position; skip_blank as TextLines.
-  FileLines(std::FILE* f, const std::string& name, bool skip_blank = true) : f_(f), name_(name), skip_blank_(skip_blank) {}
+  FileLines(ByteSource& src, bool skip_blank = true) : src_(src), name_(src.name()), skip_blank_(skip_blank) {}
 
   bool next(const char*& b, const char*& e) {
     for (;;) {
@@ -90,15 +91,12 @@ class FileLines {
     }
     const std::size_t old = buf_.size();
     buf_.resize(old + kBlock);
-    const std::size_t got = std::fread(buf_.data() + old, 1, kBlock, f_);
+    const std::size_t got = src_.read(buf_.data() + old, kBlock);
     buf_.resize(old + got);
-    if (got < kBlock) {
-      if (std::ferror(f_)) throw InputError("load_cloud: " + name_ + ": read error after line " + std::to_string(line_no_));
-      eof_ = true;
-    }
+    if (got < kBlock) eof_ = true;
   }
   static constexpr std::size_t kBlock = std::size_t{4} << 20;
-  std::FILE* f_;
+  ByteSource& src_;
   const std::string& name_;
   bool skip_blank_;
   std::string buf_;

@@ -16,7 +16,9 @@
 /// and errors as load_cloud; a first look at open time reads the count lines and skips the point
 /// lines unparsed); XYZ (`.xyz`, `.txt`: the same, the first look counting the point lines);
 /// ASCII PLY (lines read in blocks from the one after the header; list properties parsed and
-/// skipped; the count from the header). The other formats are read whole. Elements after the vertex
+/// skipped; the count from the header). PLY, PTX, PTS and XYZ stream under gzip too (`.ply.gz`
+/// and so on: decompressed as they are read, zlib; every pass decompresses again, and a first
+/// look decompresses the whole file once). The other formats are read whole. Elements after the vertex
 /// element (faces, range grids) are not read: a mesh is rasterised in core (mesh_raster.hpp),
 /// never tiled. Every other file is read whole by load_cloud once and handed out in chunks (the
 /// stream's notes say so), so any format load_cloud reads can be streamed, with its memory.

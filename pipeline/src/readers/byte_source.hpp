@@ -1,0 +1,64 @@
+#pragma once
+/// @file byte_source.hpp
+/// The bytes of a scan file read front to back for the streams of point_stream.hpp: a plain
+/// file (stdio), or a gzip file decompressed as it is read (zlib's gzread; the members of a
+/// concatenated file in turn, as load_cloud's whole read inflates them). Private to the pipeline.
+
+#include "readers.hpp"
+
+#include <array>
+#include <cstdint>
+#include <filesystem>
+#include <memory>
+#include <optional>
+#include <string>
+
+namespace hc::pipeline::detail {
+
+class ByteSource {
+ public:
+  /// Opens `path` (`name`: the quoted path for messages); gz: its data are gzip-compressed.
+  /// @throws hc::InputError naming the file when it cannot be opened, or (gz) when it does not
+  ///         begin as gzip data.
+  static std::unique_ptr<ByteSource> open(const std::filesystem::path& path, const std::string& name, bool gz);
+  virtual ~ByteSource() = default;
+  ByteSource(const ByteSource&) = delete;
+  ByteSource& operator=(const ByteSource&) = delete;
+
+  /// Up to n bytes of the (decompressed) data into out; fewer only at its end.
+  /// @throws hc::InputError naming the file on a read error, or corrupt or truncated gzip data.
+  virtual std::size_t read(char* out, std::size_t n) = 0;
+  /// Moves to byte `offset` of the (decompressed) data: for gzip, decompressed again from the
+  /// start when going back. @throws hc::InputError naming the file when it cannot.
+  virtual void seek(std::uint64_t offset) = 0;
+  /// The file on disk's key when it is large (large_file_key), for a first look kept across
+  /// streams.
+  std::optional<FileKey> key() const { return key_; }
+  const std::string& name() const { return name_; }
+
+ protected:
+  ByteSource(std::string name, std::optional<FileKey> key) : name_(std::move(name)), key_(key) {}
+  std::string name_;
+  std::optional<FileKey> key_;
+};
+
+/// A stream's first look over `src`: `look()` (reading src from its start) gives two numbers,
+/// kept under `what` for later streams of the same unchanged large file (recall_first_pass);
+/// src is then back at its start. @throws what look throws, and hc::InputError naming the
+/// file when it cannot go back.
+template <class Look>
+std::array<std::uint64_t, 2> first_look(ByteSource& src, const std::string& what, Look&& look) {
+  std::array<std::uint64_t, 2> v{};
+  const std::optional<FileKey> key = src.key();
+  if (key && recall_first_pass(*key, what, v)) return v;
+  v = look();
+  if (key) remember_first_pass(*key, what, v);
+  src.seek(0);
+  return v;
+}
+
+/// Whether `path` ends in ".gz" (any case), and its extension before that, lower case (".ply"
+/// for "Scan.PLY.gz").
+bool gz_name(const std::filesystem::path& path, std::string& inner_ext);
+
+}  // namespace hc::pipeline::detail
