@@ -140,6 +140,39 @@ Cloud read_with_intensity(hc::pipeline::PointStream& s, std::size_t chunk_points
   return all;
 }
 
+// `p` streamed natively in chunks of `chunk` points: `whole`'s points, colour and intensity,
+// and a point count of at least its size. Returns the stream, read to its end.
+std::unique_ptr<hc::pipeline::PointStream> expect_chunks_equal(const fs::path& p, const Cloud& whole, std::size_t chunk) {
+  auto s = hc::pipeline::open_point_stream(p);
+  EXPECT_TRUE(s->streamed());
+  EXPECT_GE(s->total_points(), whole.size());
+  const Cloud got = read_with_intensity(*s, chunk);
+  EXPECT_EQ(got.size(), whole.size()) << "chunk " << chunk;
+  if (got.size() != whole.size()) return s;
+  EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
+  EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
+  EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
+  return s;
+}
+
+// Reading `p` in chunks of `chunk` points fails with load_cloud's own message, which names the
+// file, and every later call fails too (the stream's failure is sticky). Returns the message.
+std::string expect_stream_fails_as_whole_read(const fs::path& p, std::size_t chunk) {
+  const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
+  EXPECT_NE(whole_error.find(p.filename().string()), std::string::npos) << whole_error;
+  auto s = hc::pipeline::open_point_stream(p);
+  EXPECT_TRUE(s->streamed());
+  Cloud c;
+  EXPECT_EQ(hc::test::error_of([&] {
+              while (s->next(c, chunk)) {
+              }
+            }),
+            whole_error);
+  const std::string again = hc::test::error_of([&] { s->next(c, 10); });
+  EXPECT_NE(again.find("failed earlier"), std::string::npos) << again;
+  return whole_error;
+}
+
 // The real LAS samples (1.0–1.4, formats with and without colour, 8- and 16-bit colour, WKT
 // and GeoTIFF-key CRS, classes dropped by default): streamed natively, every chunking gives
 // load_cloud's points, colour, intensity and CRS.
@@ -149,15 +182,8 @@ void expect_stream_equals_load_cloud(const fs::path& p, const std::string& how_r
   const auto whole_read = hc::pipeline::load_cloud(p);
   const Cloud& whole = whole_read.value;
   for (const std::size_t chunk : {std::size_t{7}, std::size_t{1000}, std::size_t{1} << 20}) {
-    auto s = hc::pipeline::open_point_stream(p);
-    ASSERT_TRUE(s->streamed());
-    EXPECT_GE(s->total_points(), whole.size());
+    const auto s = expect_chunks_equal(p, whole, chunk);
     EXPECT_EQ(s->crs(), whole.crs);
-    const Cloud got = read_with_intensity(*s, chunk);
-    ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
-    EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
-    EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
-    EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
     std::vector<std::string> notes = s->notes();
     ASSERT_FALSE(notes.empty());
     EXPECT_EQ(notes.back(), how_read);
@@ -311,14 +337,7 @@ TEST(PointStream, PtxStreamsTheSamePointsAndNotesAsTheWholeRead) {
     const Cloud& whole = whole_read.value;
     for (const std::size_t chunk : {std::size_t{1}, std::size_t{7}, std::size_t{5000}, std::size_t{1} << 20}) {
       if (chunk == 1 && whole.size() > 10000) continue;  // one point at a time: the small samples
-      auto s = hc::pipeline::open_point_stream(p);
-      ASSERT_TRUE(s->streamed());
-      EXPECT_GE(s->total_points(), whole.size());
-      const Cloud got = read_with_intensity(*s, chunk);
-      ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
-      EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
-      EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
-      EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
+      const auto s = expect_chunks_equal(p, whole, chunk);
       std::vector<std::string> notes = s->notes();
       ASSERT_FALSE(notes.empty());
       EXPECT_EQ(notes.back(), "point lines streamed in chunks");
@@ -337,17 +356,8 @@ TEST(PointStream, PtxStreamsTheSamePointsAndNotesAsTheWholeRead) {
 TEST(PointStream, PtxErrorsAreTheWholeReadsAndStick) {
   const fs::path dir = hc::test::temp_dir("ptx_bad");
   const fs::path bad = write_ptx(dir / "bad.ptx", 4321);
-  const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(bad); });
+  const std::string whole_error = expect_stream_fails_as_whole_read(bad, 10000);
   EXPECT_NE(whole_error.find("not-a-number"), std::string::npos) << whole_error;
-  auto s = hc::pipeline::open_point_stream(bad);
-  Cloud c;
-  EXPECT_EQ(hc::test::error_of([&] {
-              while (s->next(c, 10000)) {
-              }
-            }),
-            whole_error);
-  const std::string again = hc::test::error_of([&] { s->next(c, 10); });
-  EXPECT_NE(again.find("failed earlier"), std::string::npos) << again;
 
   const fs::path cut = write_ptx(dir / "cut.ptx");
   {  // cut at the end of a line, 100 kB before the end
@@ -501,18 +511,7 @@ TEST(PointStream, PtsErrorsAreTheWholeReadsAndStick) {
   const fs::path lying = hc::test::scan_path("scanner_samples/pts/pdal-bunny_8.pts");
   for (const fs::path& p : {bad, more, fewer, lying}) {
     SCOPED_TRACE(p.filename().string());
-    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
-    EXPECT_NE(whole_error.find(p.filename().string()), std::string::npos) << whole_error;
-    auto s = hc::pipeline::open_point_stream(p);
-    ASSERT_TRUE(s->streamed());
-    Cloud c;
-    EXPECT_EQ(hc::test::error_of([&] {
-                while (s->next(c, 10000)) {
-                }
-              }),
-              whole_error);
-    const std::string again = hc::test::error_of([&] { s->next(c, 10); });
-    EXPECT_NE(again.find("failed earlier"), std::string::npos) << again;
+    (void)expect_stream_fails_as_whole_read(p, 10000);
   }
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(bad); }).find("'n/a' is not a number"), std::string::npos);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(more); }).find("says 90006 points but 90001"), std::string::npos);
@@ -551,16 +550,9 @@ TEST(PointStream, XyzStreamsTheSamePointsAsTheWholeReadAndItsErrors) {
   fs::copy_file(p, dir / "points.txt");
   expect_stream_equals_load_cloud(dir / "points.txt", "lines streamed in chunks");
   const fs::path bad = write_xyz(dir / "bad.xyz", 150000);
-  const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(bad); });
+  const std::string whole_error = expect_stream_fails_as_whole_read(bad, 7777);
   EXPECT_NE(whole_error.find("'z=3' is not a number"), std::string::npos) << whole_error;
-  auto s = hc::pipeline::open_point_stream(bad);
   Cloud c;
-  EXPECT_EQ(hc::test::error_of([&] {
-              while (s->next(c, 7777)) {
-              }
-            }),
-            whole_error);
-  EXPECT_NE(hc::test::error_of([&] { s->next(c, 10); }).find("failed earlier"), std::string::npos);
   // Comments and blank lines only: no point, as the whole read says.
   {
     std::ofstream(dir / "none.xyz") << "# nothing\n\n  # here\n";
@@ -612,18 +604,7 @@ TEST(PointStream, AsciiPlyStreamsTheSamePointsAndErrorsAsTheWholeRead) {
     const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     fs::resize_file(cut, text.rfind('\n', text.size() - 1000) + 1);
   }
-  for (const fs::path& f : {p, cut}) {
-    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(f); });
-    EXPECT_NE(whole_error.find(f.filename().string()), std::string::npos) << whole_error;
-    auto s = hc::pipeline::open_point_stream(f);
-    Cloud c;
-    EXPECT_EQ(hc::test::error_of([&] {
-                while (s->next(c, 9999)) {
-                }
-              }),
-              whole_error);
-    EXPECT_NE(hc::test::error_of([&] { s->next(c, 10); }).find("failed earlier"), std::string::npos);
-  }
+  for (const fs::path& f : {p, cut}) (void)expect_stream_fails_as_whole_read(f, 9999);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(p); }).find("is not a number"), std::string::npos);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(cut); }).find("truncated"), std::string::npos);
 }
@@ -646,16 +627,7 @@ TEST(PointStream, GzipFilesStreamDecompressedAsTheWholeReadInflatesThem) {
       const auto whole_read = hc::pipeline::load_cloud(gz);
       const Cloud& whole = whole_read.value;
       ASSERT_GT(whole.size(), 50000U);
-      for (const std::size_t chunk : {std::size_t{1000}, std::size_t{1} << 20}) {
-        auto s = hc::pipeline::open_point_stream(gz);
-        ASSERT_TRUE(s->streamed());
-        EXPECT_GE(s->total_points(), whole.size());
-        const Cloud got = read_with_intensity(*s, chunk);
-        ASSERT_EQ(got.size(), whole.size()) << "chunk " << chunk;
-        EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
-        EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
-        EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
-      }
+      for (const std::size_t chunk : {std::size_t{1000}, std::size_t{1} << 20}) (void)expect_chunks_equal(gz, whole, chunk);
     }
   }
   {

@@ -28,6 +28,7 @@
 
 #include "readers.hpp"
 #include "byte_source.hpp"
+#include "line_stream.hpp"
 #include "text_lines.hpp"
 #include "text_parse.hpp"
 #include "../stage_util.hpp"
@@ -911,17 +912,17 @@ class PlyStream final : public PointStream {
 
 // An ASCII PLY read in blocks of lines (point_stream.hpp): AsciiVertexParser over FileLines
 // from the first line after the header.
-class AsciiPlyStream final : public PointStream {
+class AsciiPlyStream final : public LineStream {
  public:
-  AsciiPlyStream(std::unique_ptr<ByteSource> src, PlyLayout ply)
-      : src_(std::move(src)), name_(src_->name()), ply_(std::move(ply)), total_(ply_.vertex().count) {
+  AsciiPlyStream(std::unique_ptr<ByteSource> src, PlyLayout ply) : LineStream(std::move(src)), ply_(std::move(ply)) {
+    total_ = ply_.vertex().count;
     notes_.push_back("PLY ascii, " + std::to_string(total_) + " vertices (lines streamed in chunks)");
     if (ply_.vertex_index + 1 < ply_.elements.size()) {
       notes_.push_back("elements after 'vertex' (" + ply_.elements[ply_.vertex_index + 1].name +
                        ", ...) not read: a streamed scan is taken as points");
     }
     src_->seek(ply_.body);
-    lines_ = std::make_unique<FileLines>(*src_, false);
+    start_lines(false);
     parser_ = std::make_unique<AsciiVertexParser<FileLines>>(*lines_, ply_, name_);
     int float_axes = 0;
     const std::vector<int> axis_of = axes_of(ply_.vertex());
@@ -931,43 +932,13 @@ class AsciiPlyStream final : public PointStream {
     float32_ = float_axes == 3;
   }
 
-  std::uint64_t total_points() const override { return total_; }
-  const std::vector<std::string>& notes() const override { return notes_; }
-  bool streamed() const override { return true; }
-
-  bool next(Cloud& chunk, std::size_t max_points) override {
-    chunk = Cloud();
-    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
-    try {
-      xyz_.clear();
-      rgb_.clear();
-      (void)parser_->read(std::max<std::size_t>(max_points, 1), xyz_, rgb_);
-      const std::size_t n = xyz_.size() / 3;
-      if (n == 0) return false;
-      chunk.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz_.data(), 3, static_cast<Eigen::Index>(n));
-      chunk.rgb = rgb_;
-      chunk.float32_xyz = float32_;
-      return true;
-    } catch (const std::exception& e) {
-      failed_ = true;  // the parser's position is undefined: every later call fails too
-      failure_ = e.what();
-      chunk = Cloud();
-      throw;
-    }
-  }
-
  private:
-  std::unique_ptr<ByteSource> src_;
-  std::string name_;
+  void fill(std::size_t max) override { (void)parser_->read(max, xyz_, rgb_); }
+  void shape(Cloud& chunk) override { chunk.float32_xyz = float32_; }
+
   PlyLayout ply_;
-  std::uint64_t total_;
-  bool float32_ = false, failed_ = false;
-  std::string failure_;
-  std::unique_ptr<FileLines> lines_;
+  bool float32_ = false;
   std::unique_ptr<AsciiVertexParser<FileLines>> parser_;
-  std::vector<double> xyz_;
-  std::vector<std::uint8_t> rgb_;
-  std::vector<std::string> notes_;
 };
 
 }  // namespace

@@ -8,6 +8,7 @@
 
 #include "readers.hpp"
 #include "byte_source.hpp"
+#include "line_stream.hpp"
 #include "text_lines.hpp"
 #include "text_parse.hpp"
 
@@ -198,60 +199,26 @@ class PtsParser {
 // A PTS file read in blocks of lines (point_stream.hpp). Opening it takes a first look
 // (PtsParser::look: count lines only) for the points it holds, kept for later streams of the
 // same unchanged large file (recall_first_pass); then the points come a chunk at a time.
-class PtsStream final : public PointStream {
+class PtsStream final : public LineStream {
  public:
-  PtsStream(const std::filesystem::path& path, std::string name, bool gz) : name_(std::move(name)), src_(ByteSource::open(path, name_, gz)) {
+  PtsStream(const std::filesystem::path& path, const std::string& name, bool gz) : LineStream(ByteSource::open(path, name, gz)) {
     total_ = first_look(*src_, "pts_look", [&] {
       FileLines lines(*src_);
       return std::array<std::uint64_t, 2>{PtsParser<FileLines>(lines, name_).look(), 0};
     })[0];
-    lines_ = std::make_unique<FileLines>(*src_);
+    start_lines();
     parser_ = std::make_unique<PtsParser<FileLines>>(*lines_, name_);
     notes_ = {"PTS, point lines streamed in chunks"};
   }
 
-  std::uint64_t total_points() const override { return total_; }
-  const std::vector<std::string>& notes() const override { return notes_; }
-  bool streamed() const override { return true; }
-
-  bool next(Cloud& chunk, std::size_t max_points) override {
-    chunk = Cloud();
-    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
-    try {
-      xyz_.clear();
-      intensity_.clear();
-      rgb_.clear();
-      const bool more = parser_->read(std::max<std::size_t>(max_points, 1), xyz_, intensity_, rgb_);
-      if (!more) {
-        notes_ = parser_->notes();
-        notes_.push_back("point lines streamed in chunks");
-      }
-      const std::size_t n = xyz_.size() / 3;
-      if (n == 0) return false;
-      chunk.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz_.data(), 3, static_cast<Eigen::Index>(n));
-      chunk.intensity = intensity_;
-      chunk.rgb = rgb_;
-      return true;
-    } catch (const std::exception& e) {
-      failed_ = true;  // the parser's position is undefined: every later call fails too
-      failure_ = e.what();
-      chunk = Cloud();
-      throw;
-    }
+ private:
+  void fill(std::size_t max) override {
+    if (parser_->read(max, xyz_, intensity_, rgb_)) return;
+    notes_ = parser_->notes();
+    notes_.push_back("point lines streamed in chunks");
   }
 
- private:
-  std::string name_;
-  std::unique_ptr<ByteSource> src_;
-  std::unique_ptr<FileLines> lines_;
   std::unique_ptr<PtsParser<FileLines>> parser_;
-  std::uint64_t total_ = 0;
-  bool failed_ = false;
-  std::string failure_;
-  std::vector<double> xyz_;
-  std::vector<float> intensity_;
-  std::vector<std::uint8_t> rgb_;
-  std::vector<std::string> notes_;
 };
 
 }  // namespace

@@ -18,6 +18,7 @@
 
 #include "readers.hpp"
 #include "byte_source.hpp"
+#include "line_stream.hpp"
 #include "text_lines.hpp"
 #include "text_parse.hpp"
 
@@ -250,9 +251,9 @@ class PtxParser {
 // points the file holds and whether every scan has colour (as the whole read decides RGB at its
 // end); later streams of the same unchanged large file reuse it (recall_first_pass). Then the points come
 // scan by scan, a chunk at a time.
-class PtxStream final : public PointStream {
+class PtxStream final : public LineStream {
  public:
-  PtxStream(const std::filesystem::path& path, std::string name, bool gz) : name_(std::move(name)), src_(ByteSource::open(path, name_, gz)) {
+  PtxStream(const std::filesystem::path& path, const std::string& name, bool gz) : LineStream(ByteSource::open(path, name, gz)) {
     // The first look, or its result for this very file (unchanged, 64 MiB or more) from an
     // earlier stream: a tiled run opens the file once per pass.
     const auto look = first_look(*src_, "ptx_look", [&] {
@@ -269,48 +270,27 @@ class PtxStream final : public PointStream {
     });
     total_ = look[0];
     all_rgb_ = look[1] != 0;
-    lines_ = std::make_unique<FileLines>(*src_);
+    start_lines();
     parser_ = std::make_unique<PtxParser<FileLines>>(*lines_, name_);
     assemble_notes();
   }
 
-  std::uint64_t total_points() const override { return total_; }
-  const std::vector<std::string>& notes() const override { return notes_; }
-  bool streamed() const override { return true; }
-
-  bool next(Cloud& chunk, std::size_t max_points) override {
-    chunk = Cloud();
-    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
-    try {
-      xyz_.clear();
-      intensity_.clear();
-      rgb_.clear();
-      const bool more = parser_->read(std::max<std::size_t>(max_points, 1), xyz_, intensity_, rgb_, nullptr, nullptr);
-      const std::size_t n = intensity_.size();
-      given_ += n;
-      rgb_given_ = rgb_given_ || !rgb_.empty();
-      if (!more) {
-        assemble_notes();
-        if (given_ == 0) {
-          throw InputError("load_cloud: " + name_ + " holds " + std::to_string(parser_->no_return()) +
-                           " grid points, all 0 0 0 (no return): expected at least one measured point");
-        }
-      }
-      if (n == 0) return false;
-      chunk.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz_.data(), 3, static_cast<Eigen::Index>(n));
-      chunk.intensity = intensity_;
-      if (all_rgb_) chunk.rgb = rgb_;
-      assemble_notes();
-      return true;
-    } catch (const std::exception& e) {
-      failed_ = true;  // the parser's position is undefined: every later call fails too
-      failure_ = e.what();
-      chunk = Cloud();
-      throw;
+ private:
+  void fill(std::size_t max) override {
+    const bool more = parser_->read(max, xyz_, intensity_, rgb_, nullptr, nullptr);
+    given_ += intensity_.size();
+    rgb_given_ = rgb_given_ || !rgb_.empty();
+    if (more) return;
+    assemble_notes();
+    if (given_ == 0) {
+      throw InputError("load_cloud: " + name_ + " holds " + std::to_string(parser_->no_return()) +
+                       " grid points, all 0 0 0 (no return): expected at least one measured point");
     }
   }
-
- private:
+  void shape(Cloud& chunk) override {
+    if (!all_rgb_) chunk.rgb.clear();
+    assemble_notes();
+  }
   // The whole read's notes, in its order, as far as they are known; rgb_given_: some scan had
   // colour (parsed, though not handed out when another scan lacks it).
   void assemble_notes() {
@@ -318,17 +298,9 @@ class PtxStream final : public PointStream {
     notes_.push_back("point lines streamed in chunks");
   }
 
-  std::string name_;
-  std::unique_ptr<ByteSource> src_;
-  std::unique_ptr<FileLines> lines_;
   std::unique_ptr<PtxParser<FileLines>> parser_;
-  std::uint64_t total_ = 0, given_ = 0;
-  bool all_rgb_ = true, rgb_given_ = false, failed_ = false;
-  std::string failure_;
-  std::vector<double> xyz_;
-  std::vector<float> intensity_;
-  std::vector<std::uint8_t> rgb_;
-  std::vector<std::string> notes_;
+  std::uint64_t given_ = 0;
+  bool all_rgb_ = true, rgb_given_ = false;
 };
 
 }  // namespace

@@ -5,6 +5,7 @@
 
 #include "readers.hpp"
 #include "byte_source.hpp"
+#include "line_stream.hpp"
 #include "text_lines.hpp"
 #include "text_parse.hpp"
 
@@ -89,49 +90,22 @@ class XyzParser {
 // An XYZ file read in blocks of lines (point_stream.hpp). Opening it counts its point lines
 // (XyzParser::look), kept for later streams of the same unchanged large file
 // (recall_first_pass); then the points come a chunk at a time.
-class XyzStream final : public PointStream {
+class XyzStream final : public LineStream {
  public:
-  XyzStream(const std::filesystem::path& path, std::string name, bool gz) : name_(std::move(name)), src_(ByteSource::open(path, name_, gz)) {
+  XyzStream(const std::filesystem::path& path, const std::string& name, bool gz) : LineStream(ByteSource::open(path, name, gz)) {
     total_ = first_look(*src_, "xyz_look", [&] {
       FileLines lines(*src_);
       return std::array<std::uint64_t, 2>{XyzParser<FileLines>(lines, name_).look(), 0};
     })[0];
-    lines_ = std::make_unique<FileLines>(*src_);
+    start_lines();
     parser_ = std::make_unique<XyzParser<FileLines>>(*lines_, name_);
-  }
-
-  std::uint64_t total_points() const override { return total_; }
-  const std::vector<std::string>& notes() const override { return notes_; }
-  bool streamed() const override { return true; }
-
-  bool next(Cloud& chunk, std::size_t max_points) override {
-    chunk = Cloud();
-    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
-    try {
-      xyz_.clear();
-      (void)parser_->read(std::max<std::size_t>(max_points, 1), xyz_);
-      const std::size_t n = xyz_.size() / 3;
-      if (n == 0) return false;
-      chunk.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz_.data(), 3, static_cast<Eigen::Index>(n));
-      return true;
-    } catch (const std::exception& e) {
-      failed_ = true;  // the parser's position is undefined: every later call fails too
-      failure_ = e.what();
-      chunk = Cloud();
-      throw;
-    }
+    notes_ = {"XYZ text", "lines streamed in chunks"};
   }
 
  private:
-  std::string name_;
-  std::unique_ptr<ByteSource> src_;
-  std::unique_ptr<FileLines> lines_;
+  void fill(std::size_t max) override { (void)parser_->read(max, xyz_); }
+
   std::unique_ptr<XyzParser<FileLines>> parser_;
-  std::uint64_t total_ = 0;
-  bool failed_ = false;
-  std::string failure_;
-  std::vector<double> xyz_;
-  std::vector<std::string> notes_{"XYZ text", "lines streamed in chunks"};
 };
 
 }  // namespace
