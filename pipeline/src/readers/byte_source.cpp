@@ -1,5 +1,5 @@
-// ByteSource (byte_source.hpp): plain files through stdio, gzip files through zlib's gz*
-// functions (RFC 1952 members in turn), each read error an InputError naming the file.
+// ByteSource (byte_source.hpp): plain files through stdio, gzip files through zlib's inflate
+// (RFC 1952 members in turn), each read error an InputError naming the file.
 
 #include "byte_source.hpp"
 
@@ -8,6 +8,7 @@
 #include <zlib.h>
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -16,6 +17,7 @@
 #include <climits>
 #include <cstdio>
 #include <cstring>
+#include <vector>
 
 namespace hc::pipeline::detail {
 
@@ -41,59 +43,100 @@ class PlainSource final : public ByteSource {
   std::FILE* f_;
 };
 
+// gzip inflated as it is read, with zlib's inflate exactly as load_cloud's whole read inflates a
+// .gz (ingest.cpp, gunzip): the header detected (gzip or zlib, 15 + 32), a member that ends with
+// more bytes after it followed by the next, and the same errors in the same words: data that end
+// inside a member are "truncated", anything else zlib refuses (trailing bytes that are not a
+// member among it) is "not valid gzip data (zlib: …)", and data that decompress to nothing are
+// refused at their end.
 class GzSource final : public ByteSource {
  public:
-  GzSource(int fd, std::string name) : ByteSource(std::move(name), large_file_key(fd)), g_(gzdopen(fd, "rb")) {
-    if (g_ == nullptr) {
-      ::close(fd);
-      throw InputError("load_cloud: " + name_ + ": cannot open it for gzip reading");
-    }
-    (void)gzbuffer(g_, 1u << 20);  // before the first read: 1 MiB of compressed input at a time
-    // zlib reads a file that is not gzip as it is ("transparent"); the whole read refuses it.
-    if (gzdirect(g_) != 0) {
-      gzclose(g_);
-      throw InputError("load_cloud: " + name_ + " is not valid gzip data (its name ends in .gz)");
+  GzSource(int fd, std::string name, std::uint64_t file_bytes)
+      : ByteSource(std::move(name), large_file_key(fd)), fd_(fd), file_bytes_(file_bytes), in_(kIn) {
+    if (inflateInit2(&zs_, 15 + 32) != Z_OK) {
+      ::close(fd_);
+      throw ResourceError("load_cloud: zlib could not initialise an inflate stream for " + name_);
     }
   }
-  ~GzSource() override { gzclose(g_); }
+  ~GzSource() override {
+    inflateEnd(&zs_);
+    ::close(fd_);
+  }
 
   std::size_t read(char* out, std::size_t n) override {
     std::size_t done = 0;
-    while (done < n) {
-      const auto ask = static_cast<unsigned>(std::min<std::size_t>(n - done, std::size_t{1} << 30));
-      const int got = gzread(g_, out + done, ask);
-      if (got < 0) fail();
-      done += static_cast<std::size_t>(got);
-      total_ += static_cast<std::uint64_t>(got);
-      if (static_cast<unsigned>(got) < ask) {
-        int err = Z_OK;
-        (void)gzerror(g_, &err);
-        if (err != Z_OK) fail();  // Z_BUF_ERROR: the data end inside a member
-        break;
+    while (done < n && !ended_) {
+      if (zs_.avail_in == 0 && !file_end_) refill();
+      const auto ask = static_cast<uInt>(std::min<std::size_t>(n - done, std::size_t{1} << 30));
+      zs_.next_out = reinterpret_cast<Bytef*>(out + done);
+      zs_.avail_out = ask;
+      const int rc = inflate(&zs_, Z_NO_FLUSH);
+      const std::size_t got = ask - zs_.avail_out;
+      done += got;
+      produced_ += got;
+      if (rc == Z_STREAM_END) {
+        if (zs_.avail_in == 0 && !file_end_) refill();
+        if (zs_.avail_in == 0) {  // every byte of the file inflated
+          ended_ = true;
+          if (produced_ == 0) throw InputError("load_cloud: " + name_ + " decompresses to 0 bytes");
+          break;
+        }
+        if (inflateReset(&zs_) != Z_OK) fail(rc);  // another member follows (`cat a.gz b.gz`)
+        continue;
       }
+      if (rc == Z_BUF_ERROR && zs_.avail_in == 0 && file_end_) fail(rc);  // the input ended inside a member
+      if (rc != Z_OK && rc != Z_BUF_ERROR) fail(rc);
     }
     return done;
   }
+
   void seek(std::uint64_t offset) override {
-    const bool ok = offset == 0 ? gzrewind(g_) == 0
-                                : offset <= static_cast<std::uint64_t>(LLONG_MAX) &&
-                                      gzseek(g_, static_cast<z_off_t>(offset), SEEK_SET) == static_cast<z_off_t>(offset);
-    if (!ok) throw InputError("load_cloud: " + name_ + ": cannot go to byte " + std::to_string(offset) + " of its gzip data");
-    total_ = offset;
+    if (offset < produced_) {  // back to the start: inflate again from the file's first byte
+      if (::lseek(fd_, 0, SEEK_SET) != 0 || inflateReset(&zs_) != Z_OK) {
+        throw InputError("load_cloud: " + name_ + ": cannot go back to the start of its gzip data");
+      }
+      zs_.avail_in = 0;
+      file_end_ = ended_ = false;
+      produced_ = 0;
+    }
+    std::vector<char> skip(1u << 16);
+    while (produced_ < offset) {
+      const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(offset - produced_, skip.size()));
+      if (read(skip.data(), want) < want) {
+        throw InputError("load_cloud: " + name_ + ": its gzip data end before byte " + std::to_string(offset));
+      }
+    }
+  }
+
+  void drain() override {
+    std::vector<char> rest(1u << 16);
+    while (read(rest.data(), rest.size()) == rest.size()) {
+    }
   }
 
  private:
-  [[noreturn]] void fail() {
-    int err = Z_OK;
-    const char* what = gzerror(g_, &err);
-    if (err == Z_BUF_ERROR) {
-      throw InputError("load_cloud: gzip data of " + name_ + " is truncated (it ends inside a gzip member, after " +
-                       std::to_string(total_) + " bytes decompressed)");
-    }
-    throw InputError("load_cloud: " + name_ + " is not valid gzip data: " + std::string(what != nullptr ? what : "zlib error"));
+  static constexpr std::size_t kIn = std::size_t{1} << 20;
+  void refill() {
+    const ::ssize_t got = ::read(fd_, in_.data(), in_.size());
+    if (got < 0) throw InputError("load_cloud: " + name_ + ": read error: " + std::strerror(errno));
+    zs_.next_in = reinterpret_cast<Bytef*>(in_.data());
+    zs_.avail_in = static_cast<uInt>(got);
+    file_end_ = got == 0 || static_cast<std::size_t>(got) < in_.size();
   }
-  gzFile g_;
-  std::uint64_t total_ = 0;  // decompressed bytes read so far (from the last seek)
+  [[noreturn]] void fail(int rc) {
+    if (rc == Z_BUF_ERROR || rc == Z_OK || rc == Z_STREAM_END) {
+      throw InputError("load_cloud: gzip data of " + name_ + " is truncated (stream ended after " + std::to_string(file_bytes_) +
+                       " compressed bytes)");
+    }
+    throw InputError("load_cloud: " + name_ + " is not valid gzip data" + (zs_.msg != nullptr ? " (zlib: " + std::string(zs_.msg) + ")" : ""));
+  }
+
+  int fd_;
+  std::uint64_t file_bytes_;
+  std::vector<char> in_;
+  z_stream zs_{};
+  bool file_end_ = false, ended_ = false;
+  std::uint64_t produced_ = 0;  // decompressed bytes handed out (or skipped) since the start
 };
 
 }  // namespace
@@ -102,11 +145,21 @@ std::unique_ptr<ByteSource> ByteSource::open(const std::filesystem::path& path, 
   if (!gz) {
     std::FILE* f = std::fopen(path.c_str(), "rb");
     if (f == nullptr) throw InputError("load_cloud: " + name + ": cannot open it: " + std::strerror(errno));
+    struct stat st {};
+    if (::fstat(fileno(f), &st) == 0 && st.st_size == 0) {
+      std::fclose(f);
+      throw InputError("load_cloud: file " + name + " is empty (0 bytes)");  // as the whole read says
+    }
     return std::make_unique<PlainSource>(f, name);
   }
   const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd < 0) throw InputError("load_cloud: " + name + ": cannot open it: " + std::strerror(errno));
-  return std::make_unique<GzSource>(fd, name);
+  struct stat st {};
+  if (::fstat(fd, &st) != 0 || st.st_size == 0) {
+    ::close(fd);
+    throw InputError("load_cloud: file " + name + " is empty (0 bytes)");
+  }
+  return std::make_unique<GzSource>(fd, name, static_cast<std::uint64_t>(st.st_size));
 }
 
 bool gz_name(const std::filesystem::path& path, std::string& inner_ext) {

@@ -1,8 +1,9 @@
 #pragma once
 /// @file byte_source.hpp
 /// The bytes of a scan file read front to back for the streams of point_stream.hpp: a plain
-/// file (stdio), or a gzip file decompressed as it is read (zlib's gzread; the members of a
-/// concatenated file in turn, as load_cloud's whole read inflates them). Private to the pipeline.
+/// file (stdio), or a gzip file decompressed as it is read (zlib's inflate; the members of a
+/// concatenated file in turn, as load_cloud's whole read inflates them, with its errors). Private
+/// to the pipeline.
 
 #include "readers.hpp"
 
@@ -17,20 +18,27 @@ namespace hc::pipeline::detail {
 
 class ByteSource {
  public:
-  /// Opens `path` (`name`: the quoted path for messages); gz: its data are gzip-compressed.
-  /// @throws hc::InputError naming the file when it cannot be opened, or (gz) when it does not
-  ///         begin as gzip data.
+  /// Opens `path` (`name`: the quoted path for messages); gz: its data are gzip-compressed
+  /// (or zlib: the header is detected, as load_cloud's whole read detects it).
+  /// @throws hc::InputError naming the file when it cannot be opened or is empty, in
+  ///         load_cloud's words.
   static std::unique_ptr<ByteSource> open(const std::filesystem::path& path, const std::string& name, bool gz);
   virtual ~ByteSource() = default;
   ByteSource(const ByteSource&) = delete;
   ByteSource& operator=(const ByteSource&) = delete;
 
   /// Up to n bytes of the (decompressed) data into out; fewer only at its end.
-  /// @throws hc::InputError naming the file on a read error, or corrupt or truncated gzip data.
+  /// @throws hc::InputError naming the file on a read error, or on gzip data that are corrupt,
+  ///         truncated, followed by bytes that are no member, or decompress to nothing, in
+  ///         load_cloud's words.
   virtual std::size_t read(char* out, std::size_t n) = 0;
   /// Moves to byte `offset` of the (decompressed) data: for gzip, decompressed again from the
   /// start when going back. @throws hc::InputError naming the file when it cannot.
   virtual void seek(std::uint64_t offset) = 0;
+  /// For gzip, reads the rest of the data so that bad data after the last byte a stream needs
+  /// (after a PLY's vertices) fail as the whole read, which inflates the whole file, fails on
+  /// them. @throws as read.
+  virtual void drain() {}
   /// The file on disk's key when it is large (large_file_key), for a first look kept across
   /// streams.
   std::optional<FileKey> key() const { return key_; }

@@ -896,6 +896,7 @@ class PlyStream final : public PointStream {
     rec_.decode(buffer_.data(), n, chunk.xyz.data(), chunk.rgb.data());
     chunk.float32_xyz = float32_;
     done_ += n;
+    if (done_ == total_) src_->drain();
     return true;
   }
 
@@ -933,7 +934,9 @@ class AsciiPlyStream final : public LineStream {
   }
 
  private:
-  void fill(std::size_t max) override { (void)parser_->read(max, xyz_, rgb_); }
+  void fill(std::size_t max) override {
+    if (!parser_->read(max, xyz_, rgb_)) src_->drain();
+  }
   void shape(Cloud& chunk) override { chunk.float32_xyz = float32_; }
 
   PlyLayout ply_;
@@ -951,18 +954,23 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
   } catch (const InputError&) {
     return nullptr;  // load_cloud's whole read says why
   }
-  // The header: read until "end_header" (at most 16 MB).
+  // The header: read until its "end_header" line (at most 16 MB); the word elsewhere (a
+  // comment "... end_header ...") does not end it.
   std::string head;
-  std::size_t end_at = std::string::npos;
+  std::size_t end_at = std::string::npos, line_from = 0;  // line_from: the first line not yet whole
   std::vector<char> block(65536);
   while (end_at == std::string::npos && head.size() < (16u << 20)) {
     const std::size_t got = src->read(block.data(), block.size());
     if (got == 0) break;
     head.append(block.data(), got);
-    const std::size_t k = head.find("end_header");
-    if (k != std::string::npos) {
-      const std::size_t nl = head.find('\n', k);
-      if (nl != std::string::npos) end_at = nl + 1;
+    for (std::size_t nl = head.find('\n', line_from); nl != std::string::npos; nl = head.find('\n', line_from)) {
+      std::size_t e = nl;
+      while (e > line_from && (head[e - 1] == '\r' || head[e - 1] == ' ' || head[e - 1] == '\t')) --e;
+      if (head.compare(line_from, e - line_from, "end_header") == 0) {
+        end_at = nl + 1;
+        break;
+      }
+      line_from = nl + 1;
     }
   }
   // The data's size: the file's, or unknown under gzip (a short file then fails in next()).
@@ -981,19 +989,27 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
     if (mesh) return nullptr;
     return std::make_unique<AsciiPlyStream>(std::move(src), std::move(ply));
   }
+  // The vertex records' offset; a size that overflows is no layout to stream (the whole read
+  // says what is wrong).
   bool fixed = true;
   std::size_t offset = ply.body;
   for (std::size_t i = 0; fixed && i <= ply.vertex_index; ++i) {
     fixed = !ply.elements[i].has_list();
-    if (i < ply.vertex_index) offset += ply.elements[i].stride() * ply.elements[i].count;
+    std::size_t bytes = 0;
+    if (fixed && i < ply.vertex_index &&
+        (__builtin_mul_overflow(ply.elements[i].stride(), ply.elements[i].count, &bytes) || __builtin_add_overflow(offset, bytes, &offset))) {
+      return nullptr;
+    }
   }
   for (std::size_t i = ply.vertex_index + 1; fixed && !points_only && i < ply.elements.size(); ++i) {
     fixed = ply.elements[i].name != "face";  // a mesh: read whole, so its faces are kept
   }
   if (!fixed) return nullptr;
   const PlyElement& v = ply.vertex();
+  std::size_t vertex_bytes = 0;
+  if (__builtin_mul_overflow(v.stride(), v.count, &vertex_bytes)) return nullptr;
   const std::size_t have = file_size > offset ? static_cast<std::size_t>(file_size) - offset : 0;
-  if (have < v.stride() * v.count) throw InputError(truncated_vertices(name, v.count, v.stride(), have));
+  if (have < vertex_bytes) throw InputError(truncated_vertices(name, v.count, v.stride(), have));
   auto stream = std::make_unique<PlyStream>(std::move(src), ply, offset);
   int float_axes = 0;
   const std::vector<int> axis_of = axes_of(v);

@@ -17,8 +17,10 @@
 /// lines unparsed); XYZ (`.xyz`, `.txt`: the same, the first look counting the point lines);
 /// ASCII PLY (lines read in blocks from the one after the header; list properties parsed and
 /// skipped; the count from the header). PLY, PTX, PTS and XYZ stream under gzip too (`.ply.gz`
-/// and so on: decompressed as they are read, zlib; every pass decompresses again, and a first
-/// look decompresses the whole file once). The other formats are read whole. Elements after the vertex
+/// and so on: decompressed as they are read with zlib's inflate, with load_cloud's errors; every
+/// pass decompresses again, and a first look decompresses the whole file once). The stream's
+/// points, colour, intensity and errors are load_cloud's; a PLY header is read up to its
+/// `end_header` line, and one whose element sizes overflow is left to the whole read. The other formats are read whole. Elements after the vertex
 /// element (faces, range grids) are not read: a mesh is rasterised in core (mesh_raster.hpp),
 /// never tiled. Every other file is read whole by load_cloud once and handed out in chunks (the
 /// stream's notes say so), so any format load_cloud reads can be streamed, with its memory.
