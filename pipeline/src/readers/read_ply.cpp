@@ -38,6 +38,7 @@
 
 #include <algorithm>
 #include <bit>
+#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -954,8 +955,9 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
   } catch (const InputError&) {
     return nullptr;  // load_cloud's whole read says why
   }
-  // The header: read until its "end_header" line (at most 16 MB); the word elsewhere (a
-  // comment "... end_header ...") does not end it.
+  // The header: read until its "end_header" line (at most 16 MB): the first line whose first
+  // word is end_header, as parse_ply_header decides; the word elsewhere (a comment "...
+  // end_header ...") does not end it.
   std::string head;
   std::size_t end_at = std::string::npos, line_from = 0;  // line_from: the first line not yet whole
   std::vector<char> block(65536);
@@ -964,9 +966,11 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
     if (got == 0) break;
     head.append(block.data(), got);
     for (std::size_t nl = head.find('\n', line_from); nl != std::string::npos; nl = head.find('\n', line_from)) {
-      std::size_t e = nl;
-      while (e > line_from && (head[e - 1] == '\r' || head[e - 1] == ' ' || head[e - 1] == '\t')) --e;
-      if (head.compare(line_from, e - line_from, "end_header") == 0) {
+      const auto space = [&](std::size_t i) { return std::isspace(static_cast<unsigned char>(head[i])) != 0; };
+      std::size_t b = line_from, e = line_from;
+      while (b < nl && space(b)) ++b;
+      for (e = b; e < nl && !space(e);) ++e;
+      if (head.compare(b, e - b, "end_header") == 0) {
         end_at = nl + 1;
         break;
       }
