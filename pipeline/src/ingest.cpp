@@ -82,7 +82,7 @@ std::string read_whole_file(const std::filesystem::path& path) {
   if (size > 0 && !in.read(bytes.data(), size)) {
     throw InputError("load_cloud: read error on " + quoted(path));
   }
-  if (bytes.empty()) throw InputError("load_cloud: file " + quoted(path) + " is empty (0 bytes)");
+  if (bytes.empty()) throw detail::empty_file_error(quoted(path));
   return bytes;
 }
 
@@ -129,7 +129,7 @@ std::string gunzip(const std::string& packed, const std::filesystem::path& path)
     }
     std::string out;
     if (gunzip_libdeflate(packed, guess, out)) {
-      if (out.empty()) throw InputError("load_cloud: " + quoted(path) + " decompresses to 0 bytes");
+      if (out.empty()) throw detail::gzip_empty_error(quoted(path));
       return out;
     }
   }
@@ -176,15 +176,10 @@ std::string gunzip(const std::string& packed, const std::filesystem::path& path)
   const std::string msg = zs.msg ? zs.msg : "";
   inflateEnd(&zs);
   if (rc != Z_STREAM_END) {
-    if (rc == Z_BUF_ERROR || rc == Z_OK) {
-      throw InputError("load_cloud: gzip data of " + quoted(path) + " is truncated (stream ended after " +
-                       std::to_string(packed.size()) + " compressed bytes)");
-    }
-    throw InputError("load_cloud: " + quoted(path) + " is not valid gzip data" +
-                     (msg.empty() ? std::string() : " (zlib: " + msg + ")"));
+    throw detail::gzip_data_error(quoted(path), rc == Z_BUF_ERROR || rc == Z_OK, msg.empty() ? nullptr : msg.c_str(), packed.size());
   }
   out.resize(produced);
-  if (out.empty()) throw InputError("load_cloud: " + quoted(path) + " decompresses to 0 bytes");
+  if (out.empty()) throw detail::gzip_empty_error(quoted(path));
   return out;
 }
 

@@ -78,7 +78,7 @@ class GzSource final : public ByteSource {
         if (zs_.avail_in == 0 && !file_end_) refill();
         if (zs_.avail_in == 0) {  // every byte of the file inflated
           ended_ = true;
-          if (produced_ == 0) throw InputError("load_cloud: " + name_ + " decompresses to 0 bytes");
+          if (produced_ == 0) throw gzip_empty_error(name_);
           break;
         }
         if (inflateReset(&zs_) != Z_OK) fail(rc);  // another member follows (`cat a.gz b.gz`)
@@ -124,11 +124,7 @@ class GzSource final : public ByteSource {
     file_end_ = got == 0 || static_cast<std::size_t>(got) < in_.size();
   }
   [[noreturn]] void fail(int rc) {
-    if (rc == Z_BUF_ERROR || rc == Z_OK || rc == Z_STREAM_END) {
-      throw InputError("load_cloud: gzip data of " + name_ + " is truncated (stream ended after " + std::to_string(file_bytes_) +
-                       " compressed bytes)");
-    }
-    throw InputError("load_cloud: " + name_ + " is not valid gzip data" + (zs_.msg != nullptr ? " (zlib: " + std::string(zs_.msg) + ")" : ""));
+    throw gzip_data_error(name_, rc == Z_BUF_ERROR || rc == Z_OK || rc == Z_STREAM_END, zs_.msg, file_bytes_);
   }
 
   int fd_;
@@ -148,7 +144,7 @@ std::unique_ptr<ByteSource> ByteSource::open(const std::filesystem::path& path, 
     struct stat st {};
     if (::fstat(fileno(f), &st) == 0 && st.st_size == 0) {
       std::fclose(f);
-      throw InputError("load_cloud: file " + name + " is empty (0 bytes)");  // as the whole read says
+      throw empty_file_error(name);
     }
     return std::make_unique<PlainSource>(f, name);
   }
@@ -157,10 +153,22 @@ std::unique_ptr<ByteSource> ByteSource::open(const std::filesystem::path& path, 
   struct stat st {};
   if (::fstat(fd, &st) != 0 || st.st_size == 0) {
     ::close(fd);
-    throw InputError("load_cloud: file " + name + " is empty (0 bytes)");
+    throw empty_file_error(name);
   }
   return std::make_unique<GzSource>(fd, name, static_cast<std::uint64_t>(st.st_size));
 }
+
+InputError empty_file_error(const std::string& name) { return InputError("load_cloud: file " + name + " is empty (0 bytes)"); }
+
+InputError gzip_data_error(const std::string& name, bool truncated, const char* zlib_msg, std::uint64_t compressed_bytes) {
+  if (truncated) {
+    return InputError("load_cloud: gzip data of " + name + " is truncated (stream ended after " + std::to_string(compressed_bytes) +
+                      " compressed bytes)");
+  }
+  return InputError("load_cloud: " + name + " is not valid gzip data" + (zlib_msg != nullptr ? " (zlib: " + std::string(zlib_msg) + ")" : ""));
+}
+
+InputError gzip_empty_error(const std::string& name) { return InputError("load_cloud: " + name + " decompresses to 0 bytes"); }
 
 bool gz_name(const std::filesystem::path& path, std::string& inner_ext) {
   std::string file = path.filename().string();

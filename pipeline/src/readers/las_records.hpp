@@ -133,8 +133,8 @@ class LasRecordStream : public PointStream {
   LasRecordDecoder decoder_;
   std::optional<FileKey> key_;
   std::uint64_t done_ = 0;
-  bool colour_decided_ = false, rgb_low_bytes_ = false, failed_ = false;
-  std::string failure_;
+  bool colour_decided_ = false, rgb_low_bytes_ = false;
+  StickyFailure sticky_;
   std::vector<std::string> format_notes_, crs_notes_, notes_;
   std::string crs_;
 };

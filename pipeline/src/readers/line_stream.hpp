@@ -1,9 +1,8 @@
 #pragma once
 /// @file line_stream.hpp
 /// What the text streams (PTX, PTS, XYZ, ASCII PLY; point_stream.hpp) share: a ByteSource read
-/// in blocks of lines (FileLines), chunks filled by the format's parser, and a sticky failure
-/// (after an error the parser's position is undefined, so every later call fails too). Private
-/// to the pipeline.
+/// in blocks of lines (FileLines), chunks filled by the format's parser, and the sticky failure
+/// (StickyFailure, readers.hpp). Private to the pipeline.
 
 #include "byte_source.hpp"
 #include "text_lines.hpp"
@@ -31,9 +30,7 @@ class LineStream : public PointStream {
   /// rgb_, shape() finishes the chunk. @throws hc::InputError as the parser (naming the file and
   /// line), and on every call after a failure.
   bool next(Cloud& chunk, std::size_t max_points) final {
-    chunk = Cloud();
-    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
-    try {
+    return sticky_.run(name_, chunk, [&] {
       xyz_.clear();
       intensity_.clear();
       rgb_.clear();
@@ -45,16 +42,11 @@ class LineStream : public PointStream {
       chunk.rgb = rgb_;
       shape(chunk);
       return true;
-    } catch (const std::exception& e) {
-      failed_ = true;
-      failure_ = e.what();
-      chunk = Cloud();
-      throw;
-    }
+    });
   }
 
  protected:
-  /// `src` opened on the file; `name` the quoted path for messages.
+  /// `src` opened on the file (its name(), the quoted path, names the file in messages).
   explicit LineStream(std::unique_ptr<ByteSource> src) : src_(std::move(src)), name_(src_->name()) {}
   /// The lines from src_'s current position on (after a first look, or a header).
   void start_lines(bool skip_blank = true) { lines_ = std::make_unique<FileLines>(*src_, skip_blank); }
@@ -74,8 +66,7 @@ class LineStream : public PointStream {
   std::vector<std::uint8_t> rgb_;
 
  private:
-  bool failed_ = false;
-  std::string failure_;
+  StickyFailure sticky_;
 };
 
 }  // namespace hc::pipeline::detail

@@ -977,9 +977,7 @@ class E57Stream final : public PointStream {
   std::string crs() const override { return doc_.crs; }
 
   bool next(Cloud& chunk, std::size_t max_points) override {
-    chunk = Cloud();
-    if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
-    try {
+    return sticky_.run(name_, chunk, [&] {
       while (pos_ == scan_.size()) {
         if (next_scan_ == doc_.scans.size()) {
           if (given_ == 0) throw InputError("load_cloud: " + name_ + " holds no valid point in any data3D scan");
@@ -1010,12 +1008,7 @@ class E57Stream final : public PointStream {
         pos_ = 0;
       }
       return true;
-    } catch (const std::exception& e) {
-      failed_ = true;
-      failure_ = e.what();
-      chunk = Cloud();
-      throw;
-    }
+    });
   }
 
  private:
@@ -1028,8 +1021,8 @@ class E57Stream final : public PointStream {
   std::uint64_t total_ = 0, given_ = 0;
   std::size_t next_scan_ = 0, pos_ = 0;
   Cloud scan_;
-  bool keep_intensity_ = false, keep_rgb_ = false, float32_ = false, failed_ = false;
-  std::string failure_;
+  bool keep_intensity_ = false, keep_rgb_ = false, float32_ = false;
+  StickyFailure sticky_;
   std::vector<std::string> notes_;
 };
 

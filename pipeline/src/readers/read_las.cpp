@@ -479,9 +479,8 @@ LasRecordStream::LasRecordStream(std::string name, const LasHeader& header, cons
 }
 
 bool LasRecordStream::next(Cloud& chunk, std::size_t max_points) {
-  chunk = Cloud();
-  if (failed_) throw InputError("load_cloud: " + name_ + ": the stream failed earlier: " + failure_);
-  try {
+  // The position in the file and the counts no longer agree after a failure: StickyFailure.
+  return sticky_.run(name_, chunk, [&] {
     if (!colour_decided_) decide_colour();
     while (done_ < total_) {
       const char* records = nullptr;
@@ -495,15 +494,9 @@ bool LasRecordStream::next(Cloud& chunk, std::size_t max_points) {
       }
       if (k > 0) return true;
     }
-  } catch (const std::exception& e) {
-    // The position in the file and the counts no longer agree: every later call fails too.
-    failed_ = true;
-    failure_ = e.what();
     chunk = Cloud();
-    throw;
-  }
-  chunk = Cloud();
-  return false;
+    return false;
+  });
 }
 
 // Before the first chunk (so that opening a stream to count its points stays cheap).

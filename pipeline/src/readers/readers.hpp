@@ -35,6 +35,7 @@
 /// dispatch table so load_cloud skips the whole-file read (and any .gz inflation, which such
 /// formats do not use) for it. Nothing in the existing readers needs to change for that.
 
+#include "hc/common/error.hpp"
 #include "hc/pipeline/cloud.hpp"
 #include "hc/pipeline/ingest.hpp"
 #include "hc/pipeline/point_stream.hpp"
@@ -120,6 +121,44 @@ std::optional<FileKey> large_file_key(int fd);
 /// its input once per pass. Process-wide, the last 16 entries, thread-safe (point_stream.cpp).
 bool recall_first_pass(const FileKey& key, const std::string& what, std::array<std::uint64_t, 2>& values);
 void remember_first_pass(const FileKey& key, const std::string& what, const std::array<std::uint64_t, 2>& values);
+
+/// The sticky failure of a stream (point_stream.hpp): once next() has thrown, the reader's
+/// position no longer agrees with its counts, so every later call fails too, naming the first
+/// error. The LAS/LAZ, E57 and text streams (line_stream.hpp) run their next() through it.
+class StickyFailure {
+ public:
+  /// Clears `chunk` and returns body()'s result. @throws hc::InputError naming `name` and the
+  /// first failure when an earlier call failed; whatever body() throws (remembered, `chunk`
+  /// cleared).
+  template <class Body>
+  bool run(const std::string& name, Cloud& chunk, Body&& body) {
+    chunk = Cloud();
+    if (failed_) throw InputError("load_cloud: " + name + ": the stream failed earlier: " + failure_);
+    try {
+      return body();
+    } catch (const std::exception& e) {
+      failed_ = true;
+      failure_ = e.what();
+      chunk = Cloud();
+      throw;
+    }
+  }
+
+ private:
+  bool failed_ = false;
+  std::string failure_;
+};
+
+/// load_cloud's words (ingest.cpp) for a scan file of 0 bytes, `name` the quoted path; the
+/// streams (byte_source.cpp) say the same.
+InputError empty_file_error(const std::string& name);
+/// load_cloud's words for gzip (or zlib) data that zlib's inflate refuses: `truncated` (the data
+/// end inside a member, after `compressed_bytes` bytes of file) or not valid (`zlib_msg`, zlib's
+/// z_stream::msg, or nullptr); shared by the whole read's inflate (ingest.cpp) and the streams'
+/// (byte_source.cpp, GzSource). Source: RFC 1950/1952 as zlib reads them.
+InputError gzip_data_error(const std::string& name, bool truncated, const char* zlib_msg, std::uint64_t compressed_bytes);
+/// load_cloud's words for gzip data that decompress to nothing.
+InputError gzip_empty_error(const std::string& name);
 
 /// An uncompressed LAS file (read_las.cpp) streamed in chunks of records: the same points,
 /// colour, intensity and CRS as read_las, in file order. The header and (E)VLRs are read through
