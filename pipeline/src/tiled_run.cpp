@@ -1036,9 +1036,9 @@ bool runs_tiled(const RunConfig& config) {
   const bool gz = detail::gz_name(f, ext);
   // Only a natively streamed file is counted without reading it whole (a PTX, PTS or XYZ
   // file's first look reads its lines without parsing the points; under gzip, decompressing
-  // them).
+  // them; a gzipped PCD's inflates it once for its size).
   const bool text = ext == ".ptx" || ext == ".pts" || ext == ".xyz" || ext == ".txt";
-  if (!(ext == ".ply" || text || (!gz && (ext == ".las" || ext == ".laz" || ext == ".e57")))) return false;
+  if (!(ext == ".ply" || ext == ".pcd" || text || (!gz && (ext == ".las" || ext == ".laz" || ext == ".e57")))) return false;
   std::error_code ec;
   if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
   std::unique_ptr<PointStream> s;
@@ -1050,6 +1050,7 @@ bool runs_tiled(const RunConfig& config) {
         : ext == ".ptx" ? detail::open_ptx_stream(f, f.string(), gz)
         : ext == ".pts" ? detail::open_pts_stream(f, f.string(), gz)
         : ext == ".e57" ? detail::open_e57_stream(f, f.string())
+        : ext == ".pcd" ? detail::open_pcd_stream(f, f.string(), gz)
                         : detail::open_xyz_stream(f, f.string(), gz);
   } catch (const InputError&) {
     return false;  // the in-core read reports the problem
@@ -1718,8 +1719,16 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   o.tile = t;
   const OutlierConfig& oc = config.filters.outliers;
   std::vector<std::uint8_t> flags;
+  // Each step's wall time, summed over the tiles as figures `sum_tile_<step>_s`.
+  auto lap_at = detail::Clock::now();
+  auto lap = [&](const char* step) {
+    const auto now = detail::Clock::now();
+    o.sums[std::string("tile_") + step + "_s"] += std::chrono::duration<double>(now - lap_at).count();
+    lap_at = now;
+  };
   Cloud pts = read_tile_points(plan, spill, t, flags);
   o.in = pts.size();
+  lap("read");
   // The robust test's sample's spacing (stage tile_scale; 0 without the robust filter): the
   // isolated filter's and the honest check's, as in core.
   const double sample_spacing_m = plan.robust_scale ? plan.robust_scale->spacing_m : 0.0;
@@ -1757,6 +1766,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     if (plan.robust_scale) ropt.tile = bounds;
     RobustVerdicts rv;
     auto f1 = remove_robust_outliers(std::move(pts), ropt, &rv);
+    lap("robust");
     if (!rv.past_halo.empty()) {
       f1.value = Cloud();  // replaced below: not held beside the window's points again
       pts = read_tile_points(plan, spill, t, flags);
@@ -1777,6 +1787,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       detail::set_figure(f1.report, "removed_local", static_cast<double>(by[2]));
       detail::set_figure(f1.report, "removed_off_surface", static_cast<double>(by[3]));
       detail::set_figure(f1.report, "removed_robust", static_cast<double>(by[1] + by[2] + by[3]));
+      lap("past_halo");
     }
     // Far clusters among the tile's points, judged against the whole scan's main body and point
     // count, and removed only where the tile holds all of them and every point that could link
@@ -1795,6 +1806,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope);
     add_figures(o.sums, f1f.report);
+    lap("far");
     RemovedPoints isolated;
     // The spacing of the whole scan's robust sample (the plan's RobustScale, the number the
     // in-core run uses), not the window's own estimate.
@@ -1808,6 +1820,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     check_within_window(tiles, t, bounds, isolated, detail::figure_of(f2.report, "isolation_radius_mm", 0.0) * 1e-3,
                         "isolated", spacing_m, filter_halo_now(config, tiles));
     pts = std::move(f2.value);
+    lap("isolated");
   }
   DepthGrid part;
   if (pts.size() > 0) {
@@ -1816,6 +1829,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     auto rp = reproject(pts, ow);
     add_figures(o.sums, rp.report);
     part = std::move(rp.value);
+    lap("reproject");
     if (oc.enabled && oc.despike) {
       const std::size_t before_n = pts.size();
       RemovedPoints removed;
@@ -1834,6 +1848,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
         // Made again only about the removed points (the window's grid bit for bit).
         part = reproject_after_removal(pts, removed, StageResult<DepthGrid>{std::move(part), rp.report}, ow).value;
       }
+      lap("despike");
     }
   }
   if (part.depth.rows() > 0) {
@@ -1883,6 +1898,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   }
   kept.write(t, mask);
   o.kept_bytes = kept.bytes(t);
+  lap("mask");
   o.seconds = detail::seconds_since(t0);
   return o;
 }

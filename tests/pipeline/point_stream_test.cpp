@@ -713,6 +713,96 @@ TEST(PointStream, PlyHeaderEdgesAreTheWholeReads) {
             whole_error);
 }
 
+// A binary PCD of n points: x as float64, y as float32, z as int32, with a packed rgb (U4) before
+// them and a pair of int16 after, so the axes sit at offsets 4, 12 and 16 of a 24-byte record;
+// or, with floats, x y z all float32 (and no other field). The header as PCL writes it.
+fs::path write_binary_pcd(const fs::path& p, std::size_t n, bool floats) {
+  std::ofstream out(p, std::ios::binary);
+  out << "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n";
+  out << (floats ? "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
+                 : "FIELDS rgb x y z pad\nSIZE 4 8 4 4 2\nTYPE U F F I I\nCOUNT 1 1 1 1 2\n");
+  out << "WIDTH " << n << "\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << n << "\nDATA binary\n";
+  auto put = [&](auto v) { out.write(reinterpret_cast<const char*>(&v), sizeof v); };
+  for (std::size_t i = 0; i < n; ++i) {
+    const double x = static_cast<double>(i) * 0.001 + 1.0 / 3.0;
+    const auto y = static_cast<float>(-static_cast<double>(i) / 7.0);
+    const auto z = static_cast<std::int32_t>(i * 37 % 100003) - 50000;
+    if (floats) {
+      put(static_cast<float>(x));
+      put(y);
+      put(static_cast<float>(z) * 1e-3f);
+    } else {
+      put(static_cast<std::uint32_t>(0x00FF8000u + i % 256));
+      put(x);
+      put(y);
+      put(z);
+      put(static_cast<std::int16_t>(i % 7));
+      put(static_cast<std::int16_t>(-1));
+    }
+  }
+  return p;
+}
+
+// A DATA binary PCD streams natively: load_cloud's points and notes in any chunking, plain and
+// under gzip, with its float32 flag; its errors are load_cloud's. An ascii body is read whole.
+TEST(PointStream, BinaryPcdStreamsTheSamePointsAndErrorsAsTheWholeRead) {
+  const fs::path dir = hc::test::temp_dir("pcd_stream");
+  const fs::path mixed = write_binary_pcd(dir / "mixed.pcd", 100000, false);
+  const fs::path floats = write_binary_pcd(dir / "floats.pcd", 70001, true);
+  expect_stream_equals_load_cloud(mixed, "PCD binary, 100000 points (fixed-size records streamed in chunks)");
+  expect_stream_equals_load_cloud(floats, "PCD binary, 70001 points (fixed-size records streamed in chunks)");
+  for (const fs::path& p : {mixed, floats}) {
+    const Cloud whole = hc::pipeline::load_cloud(p).value;
+    EXPECT_EQ(hc::pipeline::open_point_stream(p)->total_points(), whole.size());
+    Cloud c;
+    ASSERT_TRUE(hc::pipeline::open_point_stream(p)->next(c, 10));
+    EXPECT_EQ(c.float32_xyz, whole.float32_xyz);
+    EXPECT_EQ(c.float32_xyz, p == floats);
+    for (const int members : {1, 3}) {
+      const fs::path gz = dir / (p.filename().string() + ".gz");
+      hc::test::write_gzip(gz, hc::test::read_bytes(p), members);
+      SCOPED_TRACE(gz.filename().string() + ", members " + std::to_string(members));
+      (void)expect_chunks_equal(gz, hc::pipeline::load_cloud(gz).value, 4096);
+    }
+  }
+  // The whole read's errors, when the stream is opened or read: a body 5 bytes short (plain and
+  // under gzip), a header without WIDTH, a count larger than the file, a cut gzip member.
+  const std::string packed = hc::test::read_bytes(dir / "mixed.pcd.gz");
+  const std::string bytes = hc::test::read_bytes(mixed);
+  hc::test::write_bytes(dir / "short.pcd", bytes.substr(0, bytes.size() - 5));
+  hc::test::write_gzip(dir / "short.pcd.gz", bytes.substr(0, bytes.size() - 5));
+  std::string no_width = bytes;
+  no_width.replace(no_width.find("WIDTH 100000\n"), 13, "");
+  hc::test::write_bytes(dir / "nowidth.pcd", no_width);
+  std::string huge = bytes.substr(0, bytes.find("DATA binary\n") + 12);
+  for (const char* key : {"WIDTH ", "POINTS "}) huge.replace(huge.find(std::string(key) + "100000"), std::strlen(key) + 6, std::string(key) + "900000000");
+  hc::test::write_bytes(dir / "huge.pcd", huge);
+  hc::test::write_bytes(dir / "cut.pcd.gz", packed.substr(0, packed.size() / 2));
+  for (const char* name : {"short.pcd", "short.pcd.gz", "nowidth.pcd", "huge.pcd", "cut.pcd.gz"}) {
+    SCOPED_TRACE(name);
+    const fs::path p = dir / name;
+    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
+    EXPECT_NE(whole_error.find(name), std::string::npos) << whole_error;
+    EXPECT_EQ(hc::test::error_of([&] {
+                auto s = hc::pipeline::open_point_stream(p);
+                Cloud c;
+                while (s->next(c, 5000)) {
+                }
+              }),
+              whole_error);
+  }
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "short.pcd"); }).find("truncated"), std::string::npos);
+  // An ascii body (the shared bunny) is parsed whole by PCL and handed out in chunks.
+  const fs::path bunny = hc::test::scan_path("bunny/pcl_bunny.pcd");
+  auto s = hc::pipeline::open_point_stream(bunny);
+  EXPECT_FALSE(s->streamed());
+  std::size_t chunks = 0;
+  const Cloud got = read_in_chunks(*s, 100, &chunks);
+  EXPECT_EQ(chunks, 4U);
+  EXPECT_TRUE(got.xyz == hc::pipeline::load_cloud(bunny).value.xyz);
+  EXPECT_EQ(got.size(), 397U);
+}
+
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {
   const fs::path dir = hc::test::temp_dir("whole");
   const fs::path p = dir / "points.obj";

@@ -1462,14 +1462,17 @@ TEST(TiledRun, EqualsTheInCoreRunOnAPtxFileStreamedLineByLine) {
 // PLY with colour: each read
 // in blocks of lines at every pass gives the in-core scene in tiles, colour included, and auto
 // counts its points with the first look.
-TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAndAsciiPlyFilesStreamedLineByLine) {
+TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAsciiPlyAndBinaryPcdFilesStreamedInChunks) {
   const fs::path dir = hc::test::temp_dir("pts_scan");
   {
     std::ofstream pts(dir / "plate.pts", std::ios::binary), xyz(dir / "plate.xyz", std::ios::binary);
-    std::ofstream ply(dir / "plate.ply", std::ios::binary);
+    std::ofstream ply(dir / "plate.ply", std::ios::binary), pcd(dir / "plate.pcd", std::ios::binary);
     xyz << "# the plate, x y z\n";
     ply << "ply\nformat ascii 1.0\nelement vertex 120000\nproperty double x\nproperty double y\nproperty double z\n"
         << "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n";
+    // Float x y z (the spill keeps the file's own floats) and a packed rgb field the reader skips.
+    pcd << "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH 120000\n"
+        << "HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 120000\nDATA binary\n";
     const int cols = 300, rows = 200;
     for (int block = 0; block < 2; ++block) {
       pts << cols * rows << "\r\n";
@@ -1479,6 +1482,10 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAndAsciiPlyFilesStreamedLineByLine) {
         pts << x << ' ' << y << ' ' << z << ' ' << (k % 4096) - 2048 << ' ' << k % 256 << ' ' << (7 * k) % 256 << ' ' << 200 << "\r\n";
         xyz << x << ' ' << y << ' ' << z << (k % 1000 == 0 ? " # a comment\n" : "\n");
         ply << x << ' ' << y << ' ' << z << ' ' << k % 256 << ' ' << (7 * k) % 256 << " 200\n";
+        const float f[3] = {static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)};
+        const std::uint32_t rgb = 0x00C80000u | static_cast<std::uint32_t>(k % 256);
+        pcd.write(reinterpret_cast<const char*>(f), sizeof f);
+        pcd.write(reinterpret_cast<const char*>(&rgb), sizeof rgb);
       }
     }
   }
@@ -1492,6 +1499,11 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAndAsciiPlyFilesStreamedLineByLine) {
   const BuiltScene ply = expect_streamed_tiled_run(dir, "input: {files: [plate.ply], units: m}\n" + grid, 64,
                                                    "PLY ascii, 120000 vertices (lines streamed in chunks)", 100000);
   EXPECT_FALSE(ply.scene.layers.colour_rgb8.empty());
+  const std::string pcd_note = "PCD binary, 120000 points (fixed-size records streamed in chunks)";
+  const BuiltScene pcd = expect_streamed_tiled_run(dir, "input: {files: [plate.pcd], units: m}\n" + grid, 64, pcd_note, 100000);
+  EXPECT_EQ(stage_figure(pcd, "tile_spill", "spill_xyz_floats"), 1.0);
+  hc::test::write_gzip(dir / "plate.pcd.gz", hc::test::read_bytes(dir / "plate.pcd"), 2);
+  (void)expect_streamed_tiled_run(dir, "input: {files: [plate.pcd.gz], units: m}\n" + grid, 64, pcd_note, 100000);
   // Below scale.tiled_above_points, auto stays in core (the first look counted 120 000 points).
   const RunConfig small = hc::pipeline::parse_run_config("input: {files: [plate.pts], units: m}\n" + grid, dir / "run.yaml",
                                                          {"scale.tiled_above_points=120000"});

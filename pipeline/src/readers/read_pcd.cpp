@@ -12,6 +12,7 @@
 // process dies. Where memfd_create is unavailable, an unlinked private temporary file is used
 // the same way.
 
+#include "byte_source.hpp"
 #include "readers.hpp"
 #include "text_parse.hpp"
 
@@ -24,6 +25,8 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
+#include <cctype>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
@@ -160,7 +163,12 @@ Cloud read_binary_body(const std::string& raw, const PcdLayout& l) {
   return cloud;
 }
 
-PcdLayout validate_pcd(const std::string& raw, const std::string& name) {
+// The header (and for ascii and binary_compressed bodies, the data) of a PCD file checked.
+// `raw` holds the file from its start: the whole file, or, with header_only, at least its lines
+// up to the DATA line; file_bytes is the whole file's size (raw.size() for a whole file).
+// header_only: an ascii or binary_compressed body is not checked (the layout says which it is);
+// a binary body's size is checked against file_bytes as for a whole file.
+PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::size_t file_bytes, bool header_only) {
   PcdLayout layout;
   auto fail = [&](const std::string& what) -> InputError {
     return InputError("load_cloud: " + name + ": " + what);
@@ -242,11 +250,11 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name) {
     values += static_cast<std::size_t>(c);
   }
   if (width < 0) throw fail("the PCD header has no WIDTH line");
-  const auto bytes = static_cast<long long>(raw.size());
+  const auto bytes = static_cast<long long>(file_bytes);
   if (width > bytes || height > bytes || points > bytes) {  // every point takes at least one byte
     throw fail("truncated: the header declares WIDTH " + std::to_string(width) + ", HEIGHT " + std::to_string(height) +
                (points >= 0 ? ", POINTS " + std::to_string(points) : std::string()) + " in a file of " +
-               std::to_string(raw.size()) + " bytes");
+               std::to_string(file_bytes) + " bytes");
   }
   if (points < 0) points = width * height;
   if (points != width * height) {
@@ -255,7 +263,12 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name) {
   }
   if (points == 0) throw fail("the PCD header declares 0 points");
   const auto n = static_cast<std::size_t>(points);
-  const std::size_t have = pos < raw.size() ? raw.size() - pos : 0;
+  const std::size_t have = pos < file_bytes ? file_bytes - pos : 0;
+  layout.data = data;
+  layout.pos = pos;
+  layout.n = n;
+  layout.point_bytes = point_bytes;
+  if (header_only && data != "binary") return layout;
   if (data == "ascii") {
     std::size_t lines = 0;
     std::size_t p = pos;
@@ -309,20 +322,129 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name) {
                             "\nCOUNT" + join(counts) + "\nWIDTH " + std::to_string(width) + "\nHEIGHT " +
                             std::to_string(height) + "\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " + std::to_string(n) +
                             "\nDATA " + data + "\n";
-  layout.data = data;
-  layout.pos = pos;
-  layout.n = n;
-  layout.point_bytes = point_bytes;
   return layout;
 }
+
+bool float32_axes(const PcdLayout& l) {
+  bool float32 = true;
+  for (const auto& a : l.axis) float32 = float32 && a.type == 'F' && a.size == 4;
+  return float32;
+}
+
+constexpr const char* kBinaryNote = "PCD (binary, read directly)";
+
+// A DATA binary PCD read in chunks (point_stream.hpp): its fixed-size records after the header,
+// each axis decoded by binary_value as read_binary_body decodes it.
+class PcdStream final : public PointStream {
+ public:
+  PcdStream(std::unique_ptr<ByteSource> src, const PcdLayout& l) : src_(std::move(src)), name_(src_->name()), l_(l) {
+    notes_.push_back(kBinaryNote);
+    notes_.push_back("PCD binary, " + std::to_string(l_.n) + " points (fixed-size records streamed in chunks)");
+    src_->seek(l_.pos);
+  }
+  std::uint64_t total_points() const override { return l_.n; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    return sticky_.run(name_, chunk, [&] {
+      const std::size_t n = std::min(std::max<std::size_t>(max_points, 1), l_.n - done_);
+      if (n == 0) return false;
+      buffer_.resize(n * l_.point_bytes);
+      const std::size_t got = src_->read(buffer_.data(), buffer_.size()) / l_.point_bytes;
+      if (got != n) {  // checked against the size when opened: the file changed since
+        throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) + " of " +
+                         std::to_string(l_.n) + " points");
+      }
+      chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
+      const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
+      for (std::size_t i = 0; i < n; ++i) {
+        const std::uint8_t* rec = base + i * l_.point_bytes;
+        for (int a = 0; a < 3; ++a) {
+          chunk.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l_.axis[a].offset, l_.axis[a].type, l_.axis[a].size);
+        }
+      }
+      chunk.float32_xyz = float32_axes(l_);
+      done_ += n;
+      if (done_ == l_.n) src_->drain();
+      return true;
+    });
+  }
+
+ private:
+  std::unique_ptr<ByteSource> src_;
+  std::string name_;
+  PcdLayout l_;
+  std::size_t done_ = 0;
+  std::vector<char> buffer_;
+  std::vector<std::string> notes_;
+  StickyFailure sticky_;
+};
+
 }  // namespace
 
+std::unique_ptr<PointStream> open_pcd_stream(const std::filesystem::path& path, const std::string& name, bool gz) {
+  std::unique_ptr<ByteSource> src;
+  try {
+    src = ByteSource::open(path, name, gz);
+  } catch (const InputError&) {
+    return nullptr;  // load_cloud's whole read says why
+  }
+  // The data's size: the file's, or under gzip a first look that inflates it all (so that bad
+  // gzip data fail first, as the whole read inflates before it reads the header).
+  std::uint64_t file_bytes = 0;
+  if (gz) {
+    file_bytes = first_look(*src, "pcd_bytes", [&] {
+      std::vector<char> block(1u << 20);
+      std::uint64_t total = 0;
+      for (std::size_t got; (got = src->read(block.data(), block.size())) > 0;) total += got;
+      return std::array<std::uint64_t, 2>{total, 0};
+    })[0];
+  } else {
+    std::error_code ec;
+    file_bytes = std::filesystem::file_size(path, ec);
+    if (ec) return nullptr;
+  }
+  // The header: the lines up to the first whose first word is DATA (validate_pcd's rule), at
+  // most 16 MB; the whole read says what is wrong with a file that has none.
+  std::string head;
+  std::size_t end_at = std::string::npos, line_from = 0;
+  std::vector<char> block(65536);
+  while (end_at == std::string::npos && head.size() < (16u << 20)) {
+    const std::size_t got = src->read(block.data(), block.size());
+    const bool at_end = got == 0;
+    head.append(block.data(), got);
+    for (;;) {
+      std::size_t nl = head.find('\n', line_from);
+      if (nl == std::string::npos) {
+        if (!at_end || line_from >= head.size()) break;
+        nl = head.size();  // the file's last line, unterminated
+      }
+      const auto space = [&](std::size_t i) { return std::isspace(static_cast<unsigned char>(head[i])) != 0; };
+      std::size_t b = line_from;
+      while (b < nl && space(b)) ++b;
+      std::size_t e = b;
+      while (e < nl && !space(e)) ++e;
+      if (head.compare(b, e - b, "DATA") == 0) {
+        end_at = std::min(nl + 1, head.size());
+        break;
+      }
+      line_from = nl + 1;
+    }
+    if (at_end) break;
+  }
+  if (end_at == std::string::npos) return nullptr;
+  head.resize(end_at);
+  const PcdLayout layout = validate_pcd(head, name, static_cast<std::size_t>(file_bytes), /*header_only=*/true);
+  if (layout.data != "binary") return nullptr;  // ascii and binary_compressed bodies: PCL, whole
+  return std::make_unique<PcdStream>(std::move(src), layout);
+}
+
 ReadResult read_pcd(const ScanSource& source) {
-  const PcdLayout layout = validate_pcd(source.bytes, source.display_name);
-  bool float32 = true;
-  for (const auto& a : layout.axis) float32 = float32 && a.type == 'F' && a.size == 4;
+  const PcdLayout layout = validate_pcd(source.bytes, source.display_name, source.bytes.size(), /*header_only=*/false);
+  const bool float32 = float32_axes(layout);
   ReadResult r = layout.data == "binary"
-                     ? ReadResult{read_binary_body(source.bytes, layout), {"PCD (binary, read directly)"}}
+                     ? ReadResult{read_binary_body(source.bytes, layout), {kBinaryNote}}
                      : ReadResult{read_with_pcl(layout.canonical_header + source.bytes.substr(layout.pos), source.path,
                                                 /*from_memory=*/true, source.display_name),
                                   {"PCD"}};

@@ -16,9 +16,12 @@
 /// and errors as load_cloud; a first look at open time reads the count lines and skips the point
 /// lines unparsed); XYZ (`.xyz`, `.txt`: the same, the first look counting the point lines);
 /// ASCII PLY (lines read in blocks from the one after the header; list properties parsed and
-/// skipped; the count from the header). PLY, PTX, PTS and XYZ stream under gzip too (`.ply.gz`
+/// skipped; the count from the header); PCD whose body is DATA binary (`.pcd`: fixed-size records,
+/// the same points and errors as load_cloud; ascii and binary_compressed bodies are read whole).
+/// PLY, PCD, PTX, PTS and XYZ stream under gzip too (`.ply.gz`
 /// and so on: decompressed as they are read with zlib's inflate, with load_cloud's errors; every
-/// pass decompresses again, and a first look decompresses the whole file once). The stream's
+/// pass decompresses again, and a first look decompresses the whole file once: a PCD's to learn
+/// its size, which load_cloud checks the header against). The stream's
 /// points, colour, intensity and errors are load_cloud's; a PLY header is read up to its
 /// `end_header` line, and one whose element sizes overflow is left to the whole read. The other formats are read whole. Elements after the vertex
 /// element (faces, range grids) are not read: a mesh is rasterised in core (mesh_raster.hpp),
