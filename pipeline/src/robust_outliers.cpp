@@ -728,6 +728,9 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     }
   }
   const bool judging = !o.judge_only.empty();
+  if (o.verdicts_only && verdicts == nullptr) {
+    throw ConfigError("remove_robust_outliers: verdicts_only needs the verdicts asked for (verdicts is null)");
+  }
   if (judging && !o.scale) throw ConfigError("remove_robust_outliers: judge_only needs the scale given (options.scale)");
   if (verdicts) *verdicts = RobustVerdicts{};
   StageReport report = make_report("outliers", cloud.size());
@@ -1089,8 +1092,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     verdicts->verdict.assign(cloud.size(), 4);
     for (std::size_t j = 0; j < n; ++j) verdicts->verdict[rows[j]] = judging && !judged[j] ? 0 : out[j];
   }
-  if (!judging) cloud.keep_if(keep);  // judging: the verdicts carry the result
-  report.count_out = cloud.size();
+  if (!judging && !o.verdicts_only) cloud.keep_if(keep);  // else the verdicts carry the result
+  report.count_out = o.verdicts_only ? static_cast<std::size_t>(std::count(keep.begin(), keep.end(), true)) : cloud.size();
   report.figure("k", k);
   report.figure("local_ratio", o.local_ratio);
   report.figure("mad_multiplier", o.mad_multiplier);

@@ -1764,30 +1764,31 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     // (RobustOutlierOptions::tile, judge_past_halo). (Without the plan's scale, every sampled
     // point a copy of others, the test removes nothing.)
     if (plan.robust_scale) ropt.tile = bounds;
+    // The window's points come back whole (the verdicts carry the result), for the second look.
+    ropt.verdicts_only = true;
     RobustVerdicts rv;
     auto f1 = remove_robust_outliers(std::move(pts), ropt, &rv);
     lap("robust");
     if (!rv.past_halo.empty()) {
-      f1.value = Cloud();  // replaced below: not held beside the window's points again
-      pts = read_tile_points(plan, spill, t, flags);
       o.sums["robust_windows_widened"] += 1.0;
-      o.sums["robust_widened_cells"] += judge_past_halo(plan, blocks, t, w, ropt, pts, rv, filter_halo_now(config, tiles), o.sums);
-      // The tile's points with the verdicts, and the removal counts of those (the work counts,
-      // certified and exact_queries, are the first pass's).
-      std::vector<bool> keep(pts.size());
-      std::array<std::size_t, 5> by{};
-      for (std::size_t i = 0; i < pts.size(); ++i) {
-        keep[i] = rv.verdict[i] == 0;
-        ++by[std::min<std::size_t>(rv.verdict[i], 4)];
-      }
-      pts.keep_if(keep);
-      f1.value = std::move(pts);
-      f1.report.count_out = f1.value.size();
+      o.sums["robust_widened_cells"] += judge_past_halo(plan, blocks, t, w, ropt, f1.value, rv, filter_halo_now(config, tiles), o.sums);
+      lap("past_halo");
+    }
+    // The tile's points with the verdicts, and the removal counts of those (the work counts,
+    // certified and exact_queries, are the first pass's).
+    std::vector<bool> keep(f1.value.size());
+    std::array<std::size_t, 5> by{};
+    for (std::size_t i = 0; i < keep.size(); ++i) {
+      keep[i] = rv.verdict[i] == 0;
+      ++by[std::min<std::size_t>(rv.verdict[i], 4)];
+    }
+    f1.value.keep_if(keep);
+    f1.report.count_out = f1.value.size();
+    if (!rv.past_halo.empty()) {
       detail::set_figure(f1.report, "removed_global", static_cast<double>(by[1]));
       detail::set_figure(f1.report, "removed_local", static_cast<double>(by[2]));
       detail::set_figure(f1.report, "removed_off_surface", static_cast<double>(by[3]));
       detail::set_figure(f1.report, "removed_robust", static_cast<double>(by[1] + by[2] + by[3]));
-      lap("past_halo");
     }
     // Far clusters among the tile's points, judged against the whole scan's main body and point
     // count, and removed only where the tile holds all of them and every point that could link

@@ -457,6 +457,27 @@ TEST(RobustOutliers, JudgingListedPointsGivesTheWholeTestsVerdicts) {
   EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError);
 }
 
+// verdicts_only (the tiled run keeps a window's points for its second look): the cloud comes back
+// as given, bit for bit, with the verdicts of the whole test; applying them gives the test's own
+// result, and count_out is the number kept. Oracle: the same test without the option.
+TEST(RobustOutliers, VerdictsOnlyGivesTheCloudBackAndTheTestsVerdicts) {
+  auto [c, o, whole] = judged_cluttered_bunny();
+  const auto filtered = remove_robust_outliers(c, o);
+  ASSERT_LT(filtered.value.size() + 100, c.size());
+  o.verdicts_only = true;
+  hc::pipeline::RobustVerdicts v;
+  const auto back = remove_robust_outliers(c, o, &v);
+  EXPECT_TRUE(back.value.xyz == c.xyz);
+  EXPECT_EQ(v.verdict, whole.verdict);
+  EXPECT_EQ(back.report.count_out, filtered.value.size());
+  std::vector<bool> keep(v.verdict.size());
+  for (std::size_t i = 0; i < keep.size(); ++i) keep[i] = v.verdict[i] == 0;
+  hc::pipeline::Cloud applied = back.value;
+  applied.keep_if(keep);
+  EXPECT_TRUE(applied.xyz == filtered.value.xyz);
+  EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError) << "verdicts_only without verdicts";
+}
+
 // The tile check's promise (RobustOutlierOptions::tile): a point in decides_m whose verdict
 // over the window's points alone differs from the whole cloud's is listed in past_halo. Oracle:
 // the whole test over the whole cloud with the same scale. Windows of several sizes and

@@ -87,6 +87,10 @@ struct RobustOutlierOptions {
   /// the listed points are those checked against the window (decides_m is not used). The tiled
   /// run's second look at the points whose searches could leave its window.
   std::vector<std::uint32_t> judge_only;
+  /// The cloud comes back unchanged, its verdicts (RobustVerdicts::verdict, which must then be
+  /// asked for) carrying the result; count_out is the number kept. The tiled run keeps a
+  /// window's points for its second look instead of reading them again.
+  bool verdicts_only = false;
 };
 
 /// What remove_robust_outliers can tell its caller besides the kept points.
@@ -238,7 +242,8 @@ struct FarClusterOptions {
 ///         centre or radius, or a negative radius); hc::DegenerateInputError when fewer than
 ///         k + 2 finite points remain; hc::ResourceError beyond 2^32 − 2 points; with
 ///         judge_only, hc::ConfigError when `scale` is not given and hc::InputError for a listed
-///         column that is not a finite point of the cloud.
+///         column that is not a finite point of the cloud; hc::ConfigError for verdicts_only
+///         without `verdicts`.
 /// Real-time: no. Threads: 2. Cost: one grid build and counting pass over all points, plus
 /// (sample + uncertified + their neighbours) exact k-NN queries (judge_only: no counting pass;
 /// the listed points, their neighbours and those neighbours' neighbours); with `tile`, one more
