@@ -887,8 +887,14 @@ class PlyStream final : public PointStream {
     const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
     if (n == 0) return false;
     buffer_.resize(n * rec_.stride);
-    const std::size_t got = src_->read(buffer_.data(), n * rec_.stride) / rec_.stride;
-    if (got != n) {
+    const std::size_t bytes = src_->read(buffer_.data(), n * rec_.stride);
+    const std::size_t got = bytes / rec_.stride;
+    if (got != n && gz_) {
+      // The data's size was unknown when opened: the bytes after the vertex offset are those read
+      // so far, and the whole read's message says so.
+      throw InputError(truncated_vertices(name_, total_, rec_.stride, done_ * rec_.stride + bytes));
+    }
+    if (got != n) {  // checked against the file's size when opened: the file changed since
       throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) + " of " +
                        std::to_string(total_) + " vertices");
     }
@@ -902,6 +908,7 @@ class PlyStream final : public PointStream {
   }
 
   bool float32_ = false;
+  bool gz_ = false;  ///< the data are gzip-compressed (their size unknown when opened)
 
  private:
   std::unique_ptr<ByteSource> src_;
@@ -1021,6 +1028,7 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
     if (axis_of[j] >= 0 && v.properties[j].type == PlyType::kFloat32) ++float_axes;
   }
   stream->float32_ = float_axes == 3;
+  stream->gz_ = gz;
   return stream;
 }
 
