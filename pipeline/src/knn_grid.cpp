@@ -731,7 +731,8 @@ class GridPointQueries {
   // first the points within the hint (nearest_by_hint); else blocks of 3³, 5³ and 7³ cells,
   // exact when the k-th distance is within the block's clearance; else the cell-centre tree
   // bounds the k-th distance and every cell within reach is searched.
-  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d = nullptr) const {
+  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d = nullptr,
+               float* kth_m = nullptr) const {
     if (g_.x.size() < k1_) {
       throw std::invalid_argument("PointQueries::nearest: the grid holds " + std::to_string(g_.x.size()) +
                                   " points, k + 1 = " + std::to_string(k1_) + " needed");
@@ -747,8 +748,8 @@ class GridPointQueries {
         cand.emplace_back(dx * dx + dy * dy + dz * dz, g_.original[q]);
       }
     };
-    auto finish = [&] { take_nearest(s, out, mean_d); };
-    if (s.hint > 0.0f && nearest_by_hint(sorted, pt, s, out, mean_d)) return;
+    auto finish = [&] { take_nearest(s, out, mean_d, kth_m); };
+    if (s.hint > 0.0f && nearest_by_hint(sorted, pt, s, out, mean_d, kth_m)) return;
     float best_kth = std::numeric_limits<float>::infinity();
     for (std::int64_t r = 1; r <= 3; ++r) {
       // Squared distances of the block's points (itself left out) and their sorted positions;
@@ -840,7 +841,7 @@ class GridPointQueries {
   // it, thousands of candidates for 16 neighbours. Returns false (nothing written) when fewer
   // than k points lie within tau.
   bool nearest_by_hint(std::uint32_t sorted, const float* pt, Scratch& s, std::vector<std::uint32_t>& out,
-                       float* mean_d) const {
+                       float* mean_d, float* kth_m) const {
     const std::size_t k = k1_ - 1;
     const double tau = s.hint;
     std::array<std::int64_t, 3> lo{}, hi{};
@@ -867,7 +868,7 @@ class GridPointQueries {
     auto& cand = s.pairs;
     cand.clear();
     for (std::size_t i = 0; i < m; ++i) cand.emplace_back(s.d2[i], g_.original[s.pos[i]]);
-    take_nearest(s, out, mean_d);
+    take_nearest(s, out, mean_d, kth_m);
     return true;
   }
 
@@ -878,13 +879,14 @@ class GridPointQueries {
   // distances, summed in double in ascending order (PCL's order) and divided by k.
   // mean_distance sums in its selection's order: the same value unless the distances span more
   // than 2^19, where a double sum of floats stops being exact in every order.
-  void take_nearest(Scratch& s, std::vector<std::uint32_t>& out, float* mean_d) const {
+  void take_nearest(Scratch& s, std::vector<std::uint32_t>& out, float* mean_d, float* kth_m) const {
     const std::size_t k = k1_ - 1;
     auto& cand = s.pairs;
     std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
     out.clear();
     for (std::size_t i = 0; i < k; ++i) out.push_back(cand[i].second);
     std::sort(out.begin(), out.end());
+    if (kth_m != nullptr) *kth_m = std::sqrt(cand[k - 1].first);
     s.hint = std::sqrt(cand[k - 1].first) * kHintFactor;
     if (mean_d == nullptr) return;
     s.near.resize(k);
@@ -1031,8 +1033,8 @@ float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s, float* neare
   return impl_->mean_distance(sorted, *s.state_, nearest_m, top_d2);
 }
 
-void PointQueries::nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d) const {
-  impl_->nearest(sorted, *s.state_, out, mean_d);
+void PointQueries::nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d, float* kth_m) const {
+  impl_->nearest(sorted, *s.state_, out, mean_d, kth_m);
 }
 
 void radix_sort(std::vector<std::uint64_t>& keys, std::vector<std::uint32_t>& idx, int bits) {

@@ -125,9 +125,11 @@ class PointQueries {
   /// mean_distance). Either way the same set. With mean_d, also the mean distance to them, which
   /// equals mean_distance's value (the same float squared distances and square roots; summed in
   /// ascending order, so equal unless they span more than 2^19: then a double sum of floats is
-  /// not exact in every order).
+  /// not exact in every order). With kth_m, also the largest of the k distances [m] (the float
+  /// square root of the k-th smallest float squared distance).
   /// @throws std::invalid_argument when the grid holds fewer than k + 1 points.
-  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d = nullptr) const;
+  void nearest(std::uint32_t sorted, Scratch& s, std::vector<std::uint32_t>& out, float* mean_d = nullptr,
+               float* kth_m = nullptr) const;
 
  private:
   struct Impl;

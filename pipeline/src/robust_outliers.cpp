@@ -208,10 +208,14 @@ class ExactDistances {
   //    duplicate point beside neighbours 10^6 times farther, for example.
   // Each thread takes the second while more than half of its points so far needed neighbours
   // (on the 10^7-point wall, 94 % of them: one search instead of two; on the Buddha few, and
-  // nearest costs more than mean_distance). Returns how many d were not known.
-  std::size_t compute_with_neighbours(const std::vector<std::uint32_t>& list, double d_min, std::vector<std::uint32_t>& nb) {
+  // nearest costs more than mean_distance). With kth_m, (*kth_m)[i] is the k-th of those
+  // neighbours' float distances [m] (PointQueries::nearest's kth_m; +inf where none were
+  // stored). Returns how many d were not known.
+  std::size_t compute_with_neighbours(const std::vector<std::uint32_t>& list, double d_min, std::vector<std::uint32_t>& nb,
+                                      std::vector<float>* kth_m = nullptr) {
     const auto k = static_cast<std::size_t>(k_);
     nb.assign(list.size() * k, 0);
+    if (kth_m != nullptr) kth_m->assign(list.size(), std::numeric_limits<float>::infinity());
     std::vector<std::pair<std::uint32_t, std::uint32_t>> order(list.size());  // (sorted position, i)
     std::size_t unknown = 0;
     for (std::size_t i = 0; i < list.size(); ++i) {
@@ -229,10 +233,14 @@ class ExactDistances {
       for (std::size_t at = b; at < e; ++at, ++done) {
         const std::uint32_t s = order[at].first, i = order[at].second;  // not a binding: clang 14 cannot capture one
         const std::uint32_t j = list[i];
-        auto store = [&] { std::copy(knn.begin(), knn.end(), nb.begin() + static_cast<std::ptrdiff_t>(i * k)); };
+        float kth = std::numeric_limits<float>::infinity();
+        auto store = [&] {
+          std::copy(knn.begin(), knn.end(), nb.begin() + static_cast<std::ptrdiff_t>(i * k));
+          if (kth_m != nullptr) (*kth_m)[i] = kth;
+        };
         if (2 * wanted > done) {  // neighbours first
           float mean_d = 0.0f;
-          q_.nearest(s, scratch, knn, &mean_d);
+          q_.nearest(s, scratch, knn, &mean_d, &kth);
           if (d_[j] < 0.0f) d_[j] = mean_d;
           if (static_cast<double>(d_[j]) > d_min) {
             store();
@@ -242,7 +250,7 @@ class ExactDistances {
         }
         if (d_[j] < 0.0f) d_[j] = q_.mean_distance(s, scratch);
         if (!(static_cast<double>(d_[j]) > d_min)) continue;
-        q_.nearest(s, scratch, knn);
+        q_.nearest(s, scratch, knn, nullptr, &kth);
         store();
         ++wanted;
       }
@@ -843,7 +851,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   // 3. Exact d for the rest; the candidates of the tests (d > d_cert), with their k nearest
   // neighbours (step 4's neighbourhoods).
   std::vector<std::uint32_t> uncertain_nb;  // k per uncertain point (candidates only)
-  queries += d.compute_with_neighbours(uncertain, d_cert, uncertain_nb);
+  std::vector<float> uncertain_kth;         // with a tile: each candidate's k-th float distance [m]
+  queries += d.compute_with_neighbours(uncertain, d_cert, uncertain_nb, o.tile ? &uncertain_kth : nullptr);
   if (judging) {
     // The chance-plane test of a listed point asks whether its neighbours are scattered
     // candidates: they are judged as candidates too (their own verdicts are not reported).
@@ -861,6 +870,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     queries += d.compute_with_neighbours(more, d_cert, more_nb);
     uncertain.insert(uncertain.end(), more.begin(), more.end());
     uncertain_nb.insert(uncertain_nb.end(), more_nb.begin(), more_nb.end());
+    if (o.tile) uncertain_kth.resize(uncertain.size(), std::numeric_limits<float>::infinity());
   }
   std::vector<std::uint8_t> out(n, 0);  // 1 = global, 2 = local, 3 = off surface
   std::vector<std::uint32_t> cand;
@@ -1021,8 +1031,12 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         // float searches' rounding and the slack; a neighbour j lies within r of it, so its
         // bound below is at most 2r plus the slack, and its margin (the distance to the
         // window's open sides, which moves by at most |x_j − x_i|) at least margin(x) − r. Every
-        // excess is then below 0, as the full test would find.
-        const double r_ub = (static_cast<double>(k) * static_cast<double>(d[cand[i]]) * 1.001 + 4.0 * slack_m) * 1.001 + slack_m;
+        // excess is then below 0, as the full test would find. The search's own k-th float
+        // distance bounds r as tightly as the float slack allows (often 20 times below k·d_i on
+        // a surface: the band of candidates checked one by one along the window's open sides
+        // narrows alike).
+        const double kth_f = static_cast<double>(uncertain_kth[cand_at[i]]);
+        const double r_ub = (std::min(static_cast<double>(k) * static_cast<double>(d[cand[i]]), kth_f) * 1.001 + 4.0 * slack_m) * 1.001 + slack_m;
         if (3.01 * r_ub + 4.0 * slack_m < margin(x)) continue;
       }
       const double r = kth(x, nbrs(i));
@@ -1358,8 +1372,9 @@ std::string describe(const PointCluster& c) {
 }  // namespace
 
 StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& o, const FarClusterScope* scope,
-                                       std::size_t size_points) {
+                                       std::size_t size_points, RemovedPoints* removed) {
   const auto t0 = Clock::now();
+  if (removed != nullptr) *removed = RemovedPoints{};
   StageReport report = make_report("far_clusters", cloud.size());
   std::vector<std::uint32_t> gone;
   const FarClusters fc = far_clusters_impl(cloud, link_m, o, &gone, scope, size_points);
@@ -1372,6 +1387,13 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
   if (!gone.empty()) {
     std::vector<bool> keep(cloud.size(), true);
     for (const std::uint32_t i : gone) keep[i] = false;
+    if (removed != nullptr) {
+      for (std::size_t i = 0; i < keep.size(); ++i) {
+        if (keep[i]) continue;
+        removed->at.push_back(i);
+        for (Eigen::Index a = 0; a < 3; ++a) removed->xyz.push_back(cloud.xyz(a, static_cast<Eigen::Index>(i)));
+      }
+    }
     cloud.keep_if(keep);
   }
   report.count_out = cloud.size();
@@ -1403,7 +1425,9 @@ StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOption
   return remove_far_clusters_after(remove_robust_outliers(std::move(cloud), options, nullptr, scale_used), far);
 }
 
-StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far, const FarClusterScope* scope) {
+StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far, const FarClusterScope* scope,
+                                             RemovedPoints* removed_points) {
+  if (removed_points != nullptr) *removed_points = RemovedPoints{};
   const auto t0 = Clock::now();
   StageReport report = std::move(robust.report);
   const double robust_s = report.seconds;
@@ -1418,7 +1442,7 @@ StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const Fa
     if (!(link > 0.0)) link = 1e-3;  // every point a copy of another: any positive link
     // N of the size limit: the points the robust test was given (after non-finite and crop), a
     // number a tiled run knows before its tiles run (it cannot know the count after the test).
-    auto fc = remove_far_clusters(std::move(robust.value), link, far, scope, report.count_in);
+    auto fc = remove_far_clusters(std::move(robust.value), link, far, scope, report.count_in, removed_points);
     report.figure("far_s", fc.report.seconds);
     robust.value = std::move(fc.value);
     for (auto& f : fc.report.figures) report.figures.push_back(std::move(f));

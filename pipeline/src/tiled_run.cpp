@@ -1728,6 +1728,29 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   };
   Cloud pts = read_tile_points(plan, spill, t, flags);
   o.in = pts.size();
+  // Each point's record in the spill, carried through the filters' removals (compose_removal:
+  // `removed_at`, the removed columns, increasing), so that the kept-point mask needs no second
+  // read of the spill.
+  if (flags.size() > std::numeric_limits<std::uint32_t>::max()) {
+    throw ResourceError("tile " + std::to_string(t) + ": its window holds " + std::to_string(flags.size()) +
+                        " spilled records, at most 4294967295 supported (lower scale.tile_max_points or scale.tile_cells)");
+  }
+  std::vector<std::uint32_t> rec_of;
+  rec_of.reserve(pts.size());
+  for (std::size_t r = 0; r < flags.size(); ++r) {
+    if (plan.far_points == 0 || (flags[r] & kFarFlag) == 0) rec_of.push_back(static_cast<std::uint32_t>(r));
+  }
+  auto compose_removal = [&](const std::vector<std::size_t>& removed_at) {
+    std::size_t at = 0, next = 0;
+    for (std::size_t i = 0; i < rec_of.size(); ++i) {
+      if (next < removed_at.size() && removed_at[next] == i) {
+        ++next;
+        continue;
+      }
+      rec_of[at++] = rec_of[i];
+    }
+    rec_of.resize(at);
+  };
   lap("read");
   // The robust test's sample's spacing (stage tile_scale; 0 without the robust filter): the
   // isolated filter's and the honest check's, as in core.
@@ -1784,6 +1807,13 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     f1.value.keep_if(keep);
     f1.report.count_out = f1.value.size();
+    {
+      std::size_t at = 0;
+      for (std::size_t i = 0; i < keep.size(); ++i) {
+        if (keep[i]) rec_of[at++] = rec_of[i];
+      }
+      rec_of.resize(at);
+    }
     if (!rv.past_halo.empty()) {
       detail::set_figure(f1.report, "removed_global", static_cast<double>(by[1]));
       detail::set_figure(f1.report, "removed_local", static_cast<double>(by[2]));
@@ -1805,8 +1835,10 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     } else {
       fco.enabled = false;
     }
-    auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope);
+    RemovedPoints far_removed;
+    auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope, &far_removed);
     add_figures(o.sums, f1f.report);
+    compose_removal(far_removed.at);
     lap("far");
     RemovedPoints isolated;
     // The spacing of the whole scan's robust sample (the plan's RobustScale, the number the
@@ -1815,6 +1847,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     isolation.spacing_m = sample_spacing_m;
     auto f2 = remove_isolated_points(std::move(f1f.value), isolation, &isolated);
     add_figures(o.sums, f2.report);
+    compose_removal(isolated.at);
     spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
     // A point the tile keeps is kept over the whole scan too (more points, more neighbours); a
     // removed one is removed there too unless its radius reaches past the window.
@@ -1838,6 +1871,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
                                     std::max(1.0, ro.splat_radius_cells) * tiles.k, std::isfinite(spacing_m) ? spacing_m : 0.0,
                                     tiles.k, &removed);
       add_figures(o.sums, ds.report);
+      compose_removal(removed.at);
       // The despike's 3-D count searches at most max(4 scan cells, 4 spacings) about a point.
       check_within_window(tiles, t, bounds, removed,
                           despike_search_radius_m(tiles.g.cell_size_m, static_cast<double>(tiles.k), spacing_m), "despike",
@@ -1873,29 +1907,19 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
   }
   // The kept points' records in the spill, each marked interior or halo (the levels sample from
-  // the interior): the filters only remove points, so pts is a subsequence of the window's
-  // points (the spill's records less the far clusters', as read_tile_points reads them) with
-  // the same bytes, and the first record equal to the next kept point is its record (a point
-  // equal to an earlier one in every byte reads back the same).
+  // the interior), by the record numbers carried through the removals. (Until 2026-11-26 the
+  // kept points were matched back to the spill's records in one more read of it: the first
+  // record equal in every byte to the next kept point.)
   const NodeBinner node(tiles.g);
   std::vector<std::uint8_t> mask(spill.records(t), KeptMask::kNotKept);
-  if (pts.size() > 0) {
-    std::size_t rec = 0, j = 0;
-    spill.scan(t, [&](std::uint8_t flag, const double* p, const std::uint8_t* rgb, float v) {
-      const std::size_t i = rec++;
-      if (j == pts.size() || (plan.far_points != 0 && (flag & kFarFlag) != 0)) return;
-      if (std::memcmp(p, pts.xyz.data() + 3 * j, 24) != 0) return;
-      if (rgb != nullptr && std::memcmp(rgb, pts.rgb.data() + 3 * j, 3) != 0) return;
-      if (pts.has_intensity() && std::memcmp(&v, pts.intensity.data() + j, 4) != 0) return;
-      const bool interior = node.inside(p, inner);
-      o.out += interior ? 1U : 0U;
-      mask[i] = interior ? KeptMask::kInterior : KeptMask::kHalo;
-      ++j;
-    });
-    if (j != pts.size()) {
-      throw std::logic_error("process_tile: tile " + std::to_string(t) + ": " + std::to_string(pts.size() - j) +
-                             " kept points are not records of its spill");
-    }
+  if (rec_of.size() != pts.size()) {
+    throw std::logic_error("process_tile: tile " + std::to_string(t) + ": " + std::to_string(rec_of.size()) +
+                           " record numbers for " + std::to_string(pts.size()) + " kept points");
+  }
+  for (std::size_t j = 0; j < pts.size(); ++j) {
+    const bool interior = node.inside(pts.xyz.data() + 3 * j, inner);
+    o.out += interior ? 1U : 0U;
+    mask[rec_of[j]] = interior ? KeptMask::kInterior : KeptMask::kHalo;
   }
   kept.write(t, mask);
   o.kept_bytes = kept.bytes(t);

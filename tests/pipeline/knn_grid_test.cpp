@@ -66,6 +66,8 @@ TEST(RadixSort, EqualsAStableSortOnBothSidesOfTheThreadThreshold) {
   }
 }
 
+// The k nearest (ties by input index), their mean distance and the k-th distance (kth_m) against
+// a full scan of every point.
 TEST(PointQueriesNearest, EqualsAFullScanWithTiesByInputIndex) {
   std::mt19937 rng(5);
   std::uniform_real_distribution<float> u(0.0f, 1.0f);
@@ -85,12 +87,12 @@ TEST(PointQueriesNearest, EqualsAFullScanWithTiesByInputIndex) {
   const hc::pipeline::detail::CellGrid g = hc::pipeline::detail::build_grid(q, n, k);
   const hc::pipeline::detail::PointQueries queries(g, k);
   hc::pipeline::detail::PointQueries::Scratch scratch(k), other(k);
-  std::size_t wrong = 0, wrong_mean = 0, unlike_mean_distance = 0;
+  std::size_t wrong = 0, wrong_mean = 0, unlike_mean_distance = 0, wrong_kth = 0;
   std::vector<std::uint32_t> got;
   for (std::uint32_t s = 0; s < g.original.size(); ++s) {
     const std::uint32_t i = g.original[s];
-    float mean_d = -1.0f;
-    queries.nearest(s, scratch, got, &mean_d);
+    float mean_d = -1.0f, kth = -1.0f;
+    queries.nearest(s, scratch, got, &mean_d, &kth);
     unlike_mean_distance += mean_d != queries.mean_distance(s, other) ? 1U : 0U;
     std::vector<std::pair<float, std::uint32_t>> all;
     for (std::uint32_t j = 0; j < n; ++j) {
@@ -108,7 +110,9 @@ TEST(PointQueriesNearest, EqualsAFullScanWithTiesByInputIndex) {
     std::sort(want.begin(), want.end());
     wrong += got != want ? 1U : 0U;
     wrong_mean += mean_d != static_cast<float>(sum / k) ? 1U : 0U;
+    wrong_kth += kth != std::sqrt(all[k - 1].first) ? 1U : 0U;  // the k-th smallest distance
   }
+  EXPECT_EQ(wrong_kth, 0U) << "k-th distances unlike the full scan's, of " << n;
   EXPECT_EQ(wrong, 0U) << "of " << n << " queries";
   EXPECT_EQ(wrong_mean, 0U) << "mean distances unlike the full scan's, of " << n;
   EXPECT_EQ(unlike_mean_distance, 0U) << "mean distances unlike mean_distance's, of " << n;

@@ -951,9 +951,27 @@ void expect_body_far_five_and_three_above(const Cloud& c, const FarClusterOption
   EXPECT_NEAR(fc.others[0].gap_m, gap_m, 0.01);
   EXPECT_EQ(fc.others[1].count, 3u);
   EXPECT_FALSE(fc.others[1].removed);  // not far at o.far_distance_m
-  const auto r = remove_far_clusters(c, 0.02, o);
+  hc::pipeline::RemovedPoints removed;
+  const auto r = remove_far_clusters(c, 0.02, o, nullptr, 0, &removed);
   ASSERT_EQ(r.value.size(), 303u);
   for (Eigen::Index i = 0; i < r.value.xyz.cols(); ++i) EXPECT_LT(r.value.xyz(0, i), 0.2) << i;  // the far five went
+  // The removed points as listed: the five columns at x >= 0.2 (found here by coordinate), in
+  // order, with their coordinates; the cloud less them is the result.
+  std::vector<std::size_t> far_columns;
+  for (Eigen::Index i = 0; i < c.xyz.cols(); ++i) {
+    if (c.xyz(0, i) >= 0.2) far_columns.push_back(static_cast<std::size_t>(i));
+  }
+  ASSERT_EQ(far_columns.size(), 5u);
+  EXPECT_EQ(removed.at, far_columns);
+  ASSERT_EQ(removed.xyz.size(), 15u);
+  for (std::size_t j = 0; j < 5; ++j) {
+    for (Eigen::Index a = 0; a < 3; ++a) EXPECT_EQ(removed.xyz[3 * j + static_cast<std::size_t>(a)], c.xyz(a, static_cast<Eigen::Index>(far_columns[j])));
+  }
+  std::vector<bool> keep(c.size(), true);
+  for (const std::size_t i : far_columns) keep[i] = false;
+  Cloud rest = c;
+  rest.keep_if(keep);
+  EXPECT_TRUE(rest.xyz == r.value.xyz);
 }
 
 TEST(FarClusters, ComponentsMatchBruteForceSingleLinkage) {

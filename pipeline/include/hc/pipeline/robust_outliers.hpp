@@ -329,11 +329,14 @@ FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarCluste
 /// @param scope   see find_far_clusters (the tiled run's tiles); nullptr: the whole scan
 /// @param size_points N of the size limit when > 0 and no scope is given (remove_far_clusters_after:
 ///                the points the robust test was given); 0: the cloud's finite points
+/// @param removed when given, the removed points (RemovedPoints: their columns in `cloud`,
+///                increasing, and x y z)
 /// @throws hc::ConfigError on a bad link_m or options; hc::InputError on a cloud without finite
 ///         points. Source: single-linkage connected components (Euclidean cluster extraction,
 ///         Rusu 2009, Sec. 6.2) on a cell grid.
 StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClusterOptions& options,
-                                       const FarClusterScope* scope = nullptr, std::size_t size_points = 0);
+                                       const FarClusterScope* scope = nullptr, std::size_t size_points = 0,
+                                       RemovedPoints* removed = nullptr);
 
 /// The outliers stage of method robust: remove_robust_outliers, then (when far.enabled)
 /// remove_far_clusters at far.link_m, or when that is 0 at the robust test's global threshold
@@ -350,9 +353,10 @@ StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOption
 /// global_threshold_mm, the report extended. N of the size limit is the robust report's
 /// count_in (the points the test was given), which a tiled run knows before its tiles run. For a caller that runs the robust test itself
 /// (the tiled run, which may judge points again over gathered points, and passes its tile's
-/// `scope`). Throws what remove_far_clusters throws.
+/// `scope`). `removed` as remove_far_clusters' (columns in robust.value; empty when far is off).
+/// Throws what remove_far_clusters throws.
 StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far,
-                                             const FarClusterScope* scope = nullptr);
+                                             const FarClusterScope* scope = nullptr, RemovedPoints* removed = nullptr);
 
 /// One line for an error message when a cloud's grid is degenerate: the clusters far from the
 /// main body (count, centroid, gap; at most five) and a filters.crop box around the main body,
