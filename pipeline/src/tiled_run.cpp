@@ -1740,6 +1740,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   for (std::size_t r = 0; r < flags.size(); ++r) {
     if (plan.far_points == 0 || (flags[r] & kFarFlag) == 0) rec_of.push_back(static_cast<std::uint32_t>(r));
   }
+  std::vector<std::uint8_t>().swap(flags);  // not read again
   auto compose_removal = [&](const std::vector<std::size_t>& removed_at) {
     std::size_t at = 0, next = 0;
     for (std::size_t i = 0; i < rec_of.size(); ++i) {
