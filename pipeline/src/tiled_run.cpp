@@ -1808,13 +1808,11 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     f1.value.keep_if(keep);
     f1.report.count_out = f1.value.size();
-    {
-      std::size_t at = 0;
-      for (std::size_t i = 0; i < keep.size(); ++i) {
-        if (keep[i]) rec_of[at++] = rec_of[i];
-      }
-      rec_of.resize(at);
+    std::vector<std::size_t> robust_removed;
+    for (std::size_t i = 0; i < keep.size(); ++i) {
+      if (!keep[i]) robust_removed.push_back(i);
     }
+    compose_removal(robust_removed);
     if (!rv.past_halo.empty()) {
       detail::set_figure(f1.report, "removed_global", static_cast<double>(by[1]));
       detail::set_figure(f1.report, "removed_local", static_cast<double>(by[2]));

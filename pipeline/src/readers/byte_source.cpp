@@ -170,6 +170,33 @@ InputError gzip_data_error(const std::string& name, bool truncated, const char* 
 
 InputError gzip_empty_error(const std::string& name) { return InputError("load_cloud: " + name + " decompresses to 0 bytes"); }
 
+std::size_t read_header_until_word(ByteSource& src, std::string_view word, std::string& head, bool unterminated_last,
+                                   std::size_t max_bytes) {
+  std::vector<char> block(65536);
+  std::size_t line_from = 0;  // the first line not yet looked at
+  while (head.size() < max_bytes) {
+    const std::size_t got = src.read(block.data(), block.size());
+    const bool at_end = got == 0;
+    head.append(block.data(), got);
+    for (;;) {
+      std::size_t nl = head.find('\n', line_from);
+      if (nl == std::string::npos) {
+        if (!(at_end && unterminated_last) || line_from >= head.size()) break;
+        nl = head.size();  // the data's last line, unterminated
+      }
+      const auto space = [&](std::size_t i) { return std::isspace(static_cast<unsigned char>(head[i])) != 0; };
+      std::size_t b = line_from;
+      while (b < nl && space(b)) ++b;
+      std::size_t e = b;
+      while (e < nl && !space(e)) ++e;
+      if (std::string_view(head).substr(b, e - b) == word) return std::min(nl + 1, head.size());
+      line_from = nl + 1;
+    }
+    if (at_end) break;
+  }
+  return std::string::npos;
+}
+
 bool gz_name(const std::filesystem::path& path, std::string& inner_ext) {
   std::string file = path.filename().string();
   std::transform(file.begin(), file.end(), file.begin(), [](unsigned char c) { return static_cast<char>(std::tolower(c)); });

@@ -13,6 +13,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <string_view>
 
 namespace hc::pipeline::detail {
 
@@ -64,6 +65,17 @@ std::array<std::uint64_t, 2> first_look(ByteSource& src, const std::string& what
   src.seek(0);
   return v;
 }
+
+/// A text header read from src's current position up to the end of its first line whose first
+/// word (the characters after any std::isspace ones, up to the next one) is `word`: the PLY
+/// header's end_header line, the PCD header's DATA line. The bytes read (in blocks of 64 KiB,
+/// at most max_bytes and one block more) go to `head`, which may hold bytes past that line.
+/// unterminated_last: a last line without a newline at the data's end counts too.
+/// @return the offset in head just past that line's newline (head.size() for an unterminated
+///         last line), or std::string::npos when no such line was found.
+/// @throws what src.read throws.
+std::size_t read_header_until_word(ByteSource& src, std::string_view word, std::string& head, bool unterminated_last,
+                                   std::size_t max_bytes = std::size_t{16} << 20);
 
 /// Whether `path` ends in ".gz" (any case), and its extension before that, lower case (".ply"
 /// for "Scan.PLY.gz").

@@ -13,6 +13,7 @@
 #include <Eigen/Core>
 
 #include <algorithm>
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <string>
@@ -50,6 +51,16 @@ class LineStream : public PointStream {
   explicit LineStream(std::unique_ptr<ByteSource> src) : src_(std::move(src)), name_(src_->name()) {}
   /// The lines from src_'s current position on (after a first look, or a header).
   void start_lines(bool skip_blank = true) { lines_ = std::make_unique<FileLines>(*src_, skip_blank); }
+  /// The points a Parser<FileLines>(lines, name_).look() over the whole file counts, kept under
+  /// `what` for later streams of the same unchanged large file (first_look); src_ then back at
+  /// its start. @throws what the look throws (hc::InputError naming the file).
+  template <template <class> class Parser>
+  std::uint64_t points_by_look(const std::string& what) {
+    return first_look(*src_, what, [&] {
+      FileLines lines(*src_);
+      return std::array<std::uint64_t, 2>{Parser<FileLines>(lines, name_).look(), 0};
+    })[0];
+  }
   /// Parses up to `max` points into xyz_ (x y z each), intensity_ and rgb_ (when the format
   /// has them); at the end of the file, fewer or none, and the end's checks.
   virtual void fill(std::size_t max) = 0;

@@ -26,7 +26,6 @@
 
 #include <algorithm>
 #include <array>
-#include <cctype>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
@@ -408,31 +407,7 @@ std::unique_ptr<PointStream> open_pcd_stream(const std::filesystem::path& path, 
   // The header: the lines up to the first whose first word is DATA (validate_pcd's rule), at
   // most 16 MB; the whole read says what is wrong with a file that has none.
   std::string head;
-  std::size_t end_at = std::string::npos, line_from = 0;
-  std::vector<char> block(65536);
-  while (end_at == std::string::npos && head.size() < (16u << 20)) {
-    const std::size_t got = src->read(block.data(), block.size());
-    const bool at_end = got == 0;
-    head.append(block.data(), got);
-    for (;;) {
-      std::size_t nl = head.find('\n', line_from);
-      if (nl == std::string::npos) {
-        if (!at_end || line_from >= head.size()) break;
-        nl = head.size();  // the file's last line, unterminated
-      }
-      const auto space = [&](std::size_t i) { return std::isspace(static_cast<unsigned char>(head[i])) != 0; };
-      std::size_t b = line_from;
-      while (b < nl && space(b)) ++b;
-      std::size_t e = b;
-      while (e < nl && !space(e)) ++e;
-      if (head.compare(b, e - b, "DATA") == 0) {
-        end_at = std::min(nl + 1, head.size());
-        break;
-      }
-      line_from = nl + 1;
-    }
-    if (at_end) break;
-  }
+  const std::size_t end_at = read_header_until_word(*src, "DATA", head, /*unterminated_last=*/true);
   if (end_at == std::string::npos) return nullptr;
   head.resize(end_at);
   const PcdLayout layout = validate_pcd(head, name, static_cast<std::size_t>(file_bytes), /*header_only=*/true);

@@ -38,7 +38,6 @@
 
 #include <algorithm>
 #include <bit>
-#include <cctype>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -966,24 +965,7 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
   // word is end_header, as parse_ply_header decides; the word elsewhere (a comment "...
   // end_header ...") does not end it.
   std::string head;
-  std::size_t end_at = std::string::npos, line_from = 0;  // line_from: the first line not yet whole
-  std::vector<char> block(65536);
-  while (end_at == std::string::npos && head.size() < (16u << 20)) {
-    const std::size_t got = src->read(block.data(), block.size());
-    if (got == 0) break;
-    head.append(block.data(), got);
-    for (std::size_t nl = head.find('\n', line_from); nl != std::string::npos; nl = head.find('\n', line_from)) {
-      const auto space = [&](std::size_t i) { return std::isspace(static_cast<unsigned char>(head[i])) != 0; };
-      std::size_t b = line_from, e = line_from;
-      while (b < nl && space(b)) ++b;
-      for (e = b; e < nl && !space(e);) ++e;
-      if (head.compare(b, e - b, "end_header") == 0) {
-        end_at = nl + 1;
-        break;
-      }
-      line_from = nl + 1;
-    }
-  }
+  const std::size_t end_at = read_header_until_word(*src, "end_header", head, /*unterminated_last=*/false);
   // The data's size: the file's, or unknown under gzip (a short file then fails in next()).
   std::error_code ec;
   const std::uintmax_t file_size = gz ? std::numeric_limits<std::size_t>::max() / 2 : std::filesystem::file_size(path, ec);

@@ -202,10 +202,7 @@ class PtsParser {
 class PtsStream final : public LineStream {
  public:
   PtsStream(const std::filesystem::path& path, const std::string& name, bool gz) : LineStream(ByteSource::open(path, name, gz)) {
-    total_ = first_look(*src_, "pts_look", [&] {
-      FileLines lines(*src_);
-      return std::array<std::uint64_t, 2>{PtsParser<FileLines>(lines, name_).look(), 0};
-    })[0];
+    total_ = points_by_look<PtsParser>("pts_look");
     start_lines();
     parser_ = std::make_unique<PtsParser<FileLines>>(*lines_, name_);
     notes_ = {"PTS, point lines streamed in chunks"};

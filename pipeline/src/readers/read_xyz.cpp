@@ -93,10 +93,7 @@ class XyzParser {
 class XyzStream final : public LineStream {
  public:
   XyzStream(const std::filesystem::path& path, const std::string& name, bool gz) : LineStream(ByteSource::open(path, name, gz)) {
-    total_ = first_look(*src_, "xyz_look", [&] {
-      FileLines lines(*src_);
-      return std::array<std::uint64_t, 2>{XyzParser<FileLines>(lines, name_).look(), 0};
-    })[0];
+    total_ = points_by_look<XyzParser>("xyz_look");
     start_lines();
     parser_ = std::make_unique<XyzParser<FileLines>>(*lines_, name_);
     notes_ = {"XYZ text", "lines streamed in chunks"};
