@@ -467,6 +467,118 @@ std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, std::size_t n, d
   return isolated;
 }
 
+/// Whether InputCheckScope::near can spare tests (see there): the filters' radius filter_m at
+/// most 0.9 × the test's radius_m, and every finite point of `local` (3 per point, the check's
+/// frame) within 10^4 · radius_m of its origin per axis. The filters' frames are centred inside
+/// the points' box, so their coordinates are at most twice as large; each float coordinate is
+/// off by at most 2^-24 of its size, so a distance by at most 2·√3·2^-24 of the two frames'
+/// sizes, about 6.2e-7 · 3 · 10^4 · radius_m ≈ 0.02 · radius_m, with the float products' few
+/// 1e-7 relative: inside the 0.1 · radius_m between the two radii.
+bool near_flags_usable(const std::vector<float>& local, const std::vector<std::uint8_t>& finite, double filter_m, double radius_m) {
+  if (!(filter_m <= 0.9 * radius_m) || !(radius_m > 0.0)) return false;
+  const double limit = 1e4 * radius_m;
+  for (std::size_t i = 0; i < finite.size(); ++i) {
+    if (!finite[i]) continue;
+    for (std::size_t a = 0; a < 3; ++a) {
+      if (!(std::abs(static_cast<double>(local[3 * i + a])) <= limit)) return false;
+    }
+  }
+  return true;
+}
+
+/// A search of VoxelHash::visit about q over `reach` voxels each way in x and y and reach_z in z.
+struct VoxelSearch {
+  std::array<float, 3> q;
+  int reach = 1, reach_z = 1;
+};
+
+/// Flags (1 per point of `finite`) of the finite points of `local` that lie in a voxel one of
+/// the searches visits, in the voxels of a VoxelHash of edge edge_m (its inverse edge, floor and
+/// clamp; packed without a box, so named independently of which points are hashed): a
+/// VoxelHash of edge edge_m over only these points gives every such search what a hash of all
+/// the points gives it. `count` receives their number.
+std::vector<std::uint8_t> points_about(const std::vector<float>& local, const std::vector<std::uint8_t>& finite, double edge_m,
+                                       const std::vector<VoxelSearch>& searches, std::size_t& count) {
+  const std::size_t n = finite.size();
+  std::vector<std::uint8_t> take(n, 0);
+  count = 0;
+  if (searches.empty()) return take;
+  const double inv = 1.0 / edge_m;
+  auto voxel_key = [inv](const float* q) {
+    return VoxelHash::pack21(VoxelHash::cell_index(q[0], inv), VoxelHash::cell_index(q[1], inv), VoxelHash::cell_index(q[2], inv));
+  };
+  std::vector<std::uint64_t> marked;
+  for (const VoxelSearch& v : searches) {
+    const std::int64_t cx = VoxelHash::cell_index(v.q[0], inv), cy = VoxelHash::cell_index(v.q[1], inv),
+                       cz = VoxelHash::cell_index(v.q[2], inv);
+    for (int dx = -v.reach; dx <= v.reach; ++dx)
+      for (int dy = -v.reach; dy <= v.reach; ++dy)
+        for (int dz = -v.reach_z; dz <= v.reach_z; ++dz) marked.push_back(VoxelHash::pack21(cx + dx, cy + dy, cz + dz));
+  }
+  std::sort(marked.begin(), marked.end());
+  marked.erase(std::unique(marked.begin(), marked.end()), marked.end());
+  // A bit per slot of a multiplicative hash of the marked keys (at least 64 slots per key): a
+  // point whose key's bit is clear is in no marked voxel, without a search.
+  int bits = 6;
+  while (bits < 40 && (std::size_t{1} << bits) < 64 * marked.size()) ++bits;
+  const int shift = 64 - bits;
+  std::vector<std::uint64_t> filter((std::size_t{1} << bits) / 64 + 1, 0);
+  auto slot = [shift](std::uint64_t key) { return (key * 0x9E3779B97F4A7C15ULL) >> shift; };
+  for (const std::uint64_t key : marked) filter[slot(key) >> 6] |= std::uint64_t{1} << (slot(key) & 63);
+  const int threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
+  std::vector<std::size_t> taken(static_cast<std::size_t>(threads), 0);
+  detail::run_parallel(threads, [&](int t) {
+    const auto [b, e] = detail::share_of(n, t, threads);
+    std::size_t c = 0;
+    for (std::size_t i = b; i < e; ++i) {
+      if (!finite[i]) continue;
+      const std::uint64_t key = voxel_key(&local[3 * i]);
+      const std::uint64_t h = slot(key);
+      if (!((filter[h >> 6] >> (h & 63)) & 1U)) continue;
+      if (!std::binary_search(marked.begin(), marked.end(), key)) continue;
+      take[i] = 1;
+      ++c;
+    }
+    taken[static_cast<std::size_t>(t)] = c;
+  });
+  for (const std::size_t c : taken) count += c;
+  return take;
+}
+
+/// isolated_flags for the finite points whose near flag is 0 (the others get 0, which the full
+/// test gives them: InputCheckScope::near), with a voxel hash (edge radius_m, the full test's
+/// voxels) of only the points in the 27 voxels about each tested point: every point the full
+/// test's search about a tested point visits, so each flag is the full test's. `tested` and
+/// `hashed` receive the counts (InputCheck::isolation_tested, isolation_hashed).
+std::vector<std::uint8_t> isolated_flags_about(const std::vector<float>& local, const std::vector<std::uint8_t>& finite,
+                                               const std::vector<std::uint8_t>& near, double radius_m, int min_neighbours,
+                                               std::size_t& tested, std::size_t& hashed) {
+  const std::size_t n = finite.size();
+  std::vector<std::uint8_t> isolated(n, 0);
+  std::vector<std::uint32_t> test;
+  std::vector<VoxelSearch> searches;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!finite[i] || near[i]) continue;
+    test.push_back(static_cast<std::uint32_t>(i));
+    searches.push_back({{local[3 * i], local[3 * i + 1], local[3 * i + 2]}, 1, 1});
+  }
+  tested = test.size();
+  hashed = 0;
+  if (test.empty()) return isolated;
+  const VoxelHash hash(local, points_about(local, finite, radius_m, searches, hashed), radius_m);
+  const auto rho2 = static_cast<float>(radius_m * radius_m);
+  for (const std::uint32_t i : test) {
+    const float* q = &local[3 * static_cast<std::size_t>(i)];
+    int count = 0;
+    hash.visit(q, 1, [&](std::uint32_t, const float* p, std::uint32_t j) {
+      if (j != i && dist_sq(p, q) <= rho2) ++count;
+      return count < min_neighbours;
+    });
+    isolated[i] = count < min_neighbours ? 1 : 0;
+  }
+  return isolated;
+}
+
 struct Coord3Hash {
   std::size_t operator()(const std::array<std::uint64_t, 3>& k) const {
     std::uint64_t h = k[0] * 0x9E3779B97F4A7C15ULL;
@@ -630,8 +742,8 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   InputCheck out;
   const std::size_t n = static_cast<std::size_t>(as_read_m.cols());
   if (scope && (!scope->owned || scope->owned->size() != n || !(scope->spacing_m > 0.0) ||
-                (scope->removed && scope->removed->size() != n))) {
-    throw std::invalid_argument("check_input: a scope needs an owned flag per point (and a removed flag, if any) and a spacing > 0");
+                (scope->removed && scope->removed->size() != n) || (scope->near && scope->near->size() != n))) {
+    throw std::invalid_argument("check_input: a scope needs an owned flag per point (and a removed and a near flag, if any) and a spacing > 0");
   }
   auto owns = [&](std::size_t i) { return !scope || (*scope->owned)[i] != 0; };
   for (std::size_t i = 0; i < n; ++i) out.points += owns(i) ? 1U : 0U;
@@ -731,9 +843,19 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
                   : o.spacing_m > 0.0 ? o.spacing_m
                                       : median_spacing(local, finite, 2.0 * g.cell_size_m);
   out.isolation_radius_m = std::max(o.isolation_radius_spacings * out.spacing_m, 1e-9);
-  const VoxelHash hash(local, finite, out.isolation_radius_m);
-  const std::vector<std::uint8_t> isolated =
-      isolated_flags(hash, finite.size(), out.isolation_radius_m, o.isolation_min_neighbours);
+  // With the near flags (a tiled run), only the points not known to have neighbours are tested,
+  // and steps 4 and 5 hash only the voxels their searches visit; else one hash of every point.
+  std::vector<std::uint8_t> isolated;
+  std::optional<VoxelHash> all_points;
+  const double edge_m = out.isolation_radius_m;
+  if (scope && scope->near && near_flags_usable(local, finite, isolated_filter_radius_m(o, out.spacing_m), edge_m)) {
+    isolated = isolated_flags_about(local, finite, *scope->near, edge_m, o.isolation_min_neighbours, out.isolation_tested,
+                                    out.isolation_hashed);
+  } else {
+    all_points.emplace(local, finite, edge_m);
+    isolated = isolated_flags(*all_points, finite.size(), edge_m, o.isolation_min_neighbours);
+    out.isolation_tested = out.isolation_hashed = all_points->size();
+  }
   for (std::size_t i = 0; i < n; ++i) out.isolated += owns(i) ? isolated[i] : 0U;
 
   // 3. Classes of every point, far points, surface lost.
@@ -819,7 +941,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     const double tol = o.tolerance_m;
     const auto tol2 = static_cast<float>(tol * tol);
     const int reach_cells = static_cast<int>(std::ceil(tol / g.cell_size_m));
-    const int reach_voxels = static_cast<int>(std::ceil(tol / hash.edge()));
+    const int reach_voxels = static_cast<int>(std::ceil(tol / edge_m));
     std::vector<std::size_t> candidates;
     auto sample_local = [&](int r, int c, float* q) {
       q[0] = static_cast<float>(g.x_of_col(c) - centre.x());
@@ -845,6 +967,40 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     }
     std::sort(candidates.begin(), candidates.end());
     candidates.erase(std::unique(candidates.begin(), candidates.end()), candidates.end());
+    // Step 5's reaches (the confirmations within conf_m, or within the footprint in x-y).
+    const double conf_m = std::max(tol, o.spike_min_height_m);
+    const int conf_reach = static_cast<int>(std::ceil(conf_m / edge_m));
+    const bool footprint = o.confirm_footprint_m > 0.0 && cell_flags != nullptr &&
+                           cell_flags->size() == static_cast<std::size_t>(g.rows) * static_cast<std::size_t>(g.cols);
+    constexpr double kMaxFootprintVoxels = 16.0;
+    const int foot_reach = static_cast<int>(std::min(kMaxFootprintVoxels, std::ceil(o.confirm_footprint_m / edge_m)));
+    // The hash the searches of steps 4 and 5 read: every point's, or one of the points in the
+    // voxels they visit.
+    std::optional<VoxelHash> about;
+    if (!all_points) {
+      std::vector<VoxelSearch> searches;
+      for (const std::size_t k : candidates) {
+        VoxelSearch v;
+        sample_local(static_cast<int>(k / static_cast<std::size_t>(g.cols)), static_cast<int>(k % static_cast<std::size_t>(g.cols)), v.q.data());
+        v.reach = v.reach_z = reach_voxels;
+        searches.push_back(v);
+      }
+      for (const auto& rc : spikes ? spikes->flagged : std::vector<std::array<int, 2>>{}) {
+        VoxelSearch v;
+        sample_local(rc[0], rc[1], v.q.data());
+        v.reach = v.reach_z = conf_reach;
+        searches.push_back(v);
+        if (footprint) {
+          v.reach = foot_reach;
+          v.reach_z = std::max(1, conf_reach);
+          searches.push_back(v);
+        }
+      }
+      std::size_t count = 0;
+      about.emplace(local, points_about(local, finite, edge_m, searches, count), edge_m);
+      out.isolation_hashed += count;
+    }
+    const VoxelHash& hash = all_points ? *all_points : *about;
     for (std::size_t k : candidates) {
       const int r = static_cast<int>(k / static_cast<std::size_t>(g.cols)), c = static_cast<int>(k % static_cast<std::size_t>(g.cols));
       float q[3];
@@ -865,16 +1021,9 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     // and that close in height: the point whose disc made the cell.
     if (spikes) {
       spikes->confirmed = 0;
-      const double conf_m = std::max(tol, o.spike_min_height_m);
       const auto conf2 = static_cast<float>(conf_m * conf_m);
       const auto conf_z = static_cast<float>(conf_m);
-      const int conf_reach = static_cast<int>(std::ceil(conf_m / hash.edge()));
-      const bool footprint = o.confirm_footprint_m > 0.0 && cell_flags != nullptr &&
-                             cell_flags->size() == static_cast<std::size_t>(g.rows) * static_cast<std::size_t>(g.cols);
       const auto foot2 = static_cast<float>(o.confirm_footprint_m * o.confirm_footprint_m);
-      constexpr double kMaxFootprintVoxels = 16.0;
-      const int foot_reach =
-          static_cast<int>(std::min(kMaxFootprintVoxels, std::ceil(o.confirm_footprint_m / hash.edge())));
       for (const auto& rc : spikes->flagged) {
         float q[3];
         sample_local(rc[0], rc[1], q);

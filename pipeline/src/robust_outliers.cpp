@@ -735,6 +735,15 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       }
     }
   }
+  if (!(o.near_radius_m >= 0.0) || !std::isfinite(o.near_radius_m)) {
+    throw ConfigError("remove_robust_outliers: near_radius_m = " + format_number(o.near_radius_m) +
+                      ", expected a finite distance >= 0 [m] (0: not asked)");
+  }
+  const bool near_asked = o.near_radius_m > 0.0 && verdicts != nullptr;
+  if (o.near_radius_m > 0.0 && (o.near_min < 1 || o.near_min > k)) {
+    throw ConfigError("remove_robust_outliers: near_min = " + std::to_string(o.near_min) + " with near_radius_m = " +
+                      format_number(o.near_radius_m) + ", expected 1..k (k = " + std::to_string(k) + ")");
+  }
   const bool judging = !o.judge_only.empty();
   if (o.verdicts_only && verdicts == nullptr) {
     throw ConfigError("remove_robust_outliers: verdicts_only needs the verdicts asked for (verdicts is null)");
@@ -793,6 +802,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     if (verdicts) {
       verdicts->verdict.assign(cloud.size(), 4);
       for (const std::uint32_t r : rows) verdicts->verdict[r] = 0;
+      if (near_asked) verdicts->near.assign(cloud.size(), 0);
     }
     report.seconds = seconds_since(t0);
     return {std::move(cloud), std::move(report)};
@@ -1095,6 +1105,22 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     }
   }
   if (verdicts) std::sort(verdicts->past_halo.begin(), verdicts->past_halo.end());
+  if (near_asked) {
+    // The candidates' k nearest are known exactly: at least near_min within near_radius_m.
+    verdicts->near.assign(cloud.size(), 0);
+    const auto r2 = static_cast<float>(o.near_radius_m * o.near_radius_m);
+    for (std::size_t i = 0; i < cand.size(); ++i) {
+      if (judging && !judged[cand[i]]) continue;
+      const float* q = &p[3 * static_cast<std::size_t>(cand[i])];
+      int within = 0;
+      for (const std::uint32_t j : nbrs(i)) {
+        const float* a = &p[3 * static_cast<std::size_t>(j)];
+        const float dx = a[0] - q[0], dy = a[1] - q[1], dz = a[2] - q[2];
+        within += dx * dx + dy * dy + dz * dz <= r2 ? 1 : 0;
+      }
+      verdicts->near[rows[cand[i]]] = within >= o.near_min ? 1 : 0;
+    }
+  }
   std::vector<bool> keep(cloud.size(), false);
   for (std::size_t j = 0; j < n; ++j) {
     n_global += out[j] == 1 ? 1u : 0u;

@@ -467,13 +467,17 @@ class Spill : public TileFiles {
 // Which of a tile's spilled records the tile kept, one file per tile (kept_<t>.bin): a byte per
 // record of its spill (tile_<t>.bin), in the spill's order: kNotKept (removed by a filter, or a
 // removed far cluster's), kInterior (kept, its node in the tile's interior) or kHalo (kept, a
-// halo copy: its own tile counts it). A tile that kept no point has no file. The kept points are
+// halo copy: its own tile counts it), with kNear added to a point (kept or not) that the tile's
+// filters found at least cross_check.honest.isolation_min_neighbours others within the
+// isolated-point filter's radius of (every point kept past that filter; a robust candidate
+// whose k nearest show it): the honest check then need not test it (InputCheckScope::near).
+// A tile that kept no point has no file. The kept points are
 // read back from the spill through it. (Until 2026-11-25 they were a second spill of their own,
 // 25 or more bytes a point: at 10^8 points 2.6 GB written and read back, where the mask is
 // 0.11 GB.) The spill must therefore stay until the last read.
 class KeptMask : public TileFiles {
  public:
-  static constexpr std::uint8_t kNotKept = 0, kInterior = 1, kHalo = 2;
+  static constexpr std::uint8_t kNotKept = 0, kInterior = 1, kHalo = 2, kNear = 4;
 
   // Files dir/<prefix><t>.bin over the records of `spill` (held by reference); a file's size
   // (bytes(t)) is its spill's records, or 0 when the tile kept nothing.
@@ -497,20 +501,30 @@ class KeptMask : public TileFiles {
   }
 
   // out[r] = 1 for tile t's spill records it did not keep, 0 for those it kept (interior and
-  // halo alike); one entry per record. @throws as read().
-  void removed(std::size_t t, std::vector<std::uint8_t>& out) const {
+  // halo alike); near[r] = 1 for those marked kNear; one entry per record. @throws as read().
+  void removed(std::size_t t, std::vector<std::uint8_t>& out, std::vector<std::uint8_t>& near) const {
     const std::vector<std::uint8_t> mask = load(t);
     out.resize(mask.size());
-    for (std::size_t r = 0; r < mask.size(); ++r) out[r] = mask[r] == kNotKept ? 1 : 0;
+    near.resize(mask.size());
+    for (std::size_t r = 0; r < mask.size(); ++r) {
+      out[r] = (mask[r] & kKeptBits) == kNotKept ? 1 : 0;
+      near[r] = (mask[r] & kNear) != 0 ? 1 : 0;
+    }
+  }
+
+  // The records a mask keeps (marked kNear or not).
+  static std::size_t kept(const std::vector<std::uint8_t>& mask) {
+    return static_cast<std::size_t>(
+        std::count_if(mask.begin(), mask.end(), [](std::uint8_t m) { return (m & kKeptBits) != kNotKept; }));
   }
 
  private:
-  // The records a mask keeps.
-  static std::size_t kept(const std::vector<std::uint8_t>& mask) {
-    return static_cast<std::size_t>(std::count_if(mask.begin(), mask.end(), [](std::uint8_t m) { return m != kNotKept; }));
-  }
+  static constexpr std::uint8_t kKeptBits = 3;
   // A mask entry as a kept point's flag (1 interior, 0 halo), or −1 when not kept.
-  static int flag_of(std::uint8_t m) { return m == kNotKept ? -1 : m == kInterior ? 1 : 0; }
+  static int flag_of(std::uint8_t m) {
+    m &= kKeptBits;
+    return m == kNotKept ? -1 : m == kInterior ? 1 : 0;
+  }
 
   // Tile t's mask: its file's bytes, or every record kNotKept when it has none.
   std::vector<std::uint8_t> load(std::size_t t) const {
@@ -530,9 +544,10 @@ class KeptMask : public TileFiles {
                        (errno != 0 ? std::string(": ") + std::strerror(errno) : std::string()));
     }
     for (std::size_t i = 0; i < n; ++i) {
-      if (mask[i] > kHalo) {
+      if ((mask[i] & ~(kKeptBits | kNear)) != 0 || (mask[i] & kKeptBits) > kHalo) {
         throw InputError("tiled run: the kept-point mask " + file(t).string() + " holds the byte " + std::to_string(mask[i]) +
-                         " at offset " + std::to_string(i) + " (expected 0, 1 or 2: run tile-job " + std::to_string(t) + " again, or the run)");
+                         " at offset " + std::to_string(i) + " (expected 0, 1 or 2, plus 4 or not: run tile-job " + std::to_string(t) +
+                         " again, or the run)");
       }
     }
     return mask;
@@ -1770,6 +1785,14 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       tiles.box_m(w),
       tiles.box_m(inner[0] - grid_reach, inner[1] + grid_reach, inner[2] - grid_reach, inner[3] + grid_reach), {}};
   double spacing_m = 0.0;  // the isolated filter's estimate of the scan's spacing (despike)
+  // KeptMask::kNear marks for the honest check: with the whole scan's spacing, which the check
+  // takes too, the isolated-point filter's radius is 0.9 × its test's (isolated_filter_radius_m),
+  // and a point the filter keeps, or a removed candidate with as many neighbours within that
+  // radius, cannot be isolated there (InputCheckScope::near).
+  const int iso_min = config.cross_check.honest.isolation_min_neighbours;
+  const bool near_marks = config.cross_check.enabled && sample_spacing_m > 0.0;
+  bool kept_near = false;                  // the kept points passed the isolated filter at that radius
+  std::vector<std::uint32_t> near_records;  // removed candidates' records with those neighbours
   // A window of fewer than k + 2 points (a corner of stray returns) cannot be judged by the
   // k-NN tests: its points are kept as they are, counted and noted, not an error.
   const bool judgeable = pts.size() >= static_cast<std::size_t>(oc.k) + 2;
@@ -1790,6 +1813,11 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     if (plan.robust_scale) ropt.tile = bounds;
     // The window's points come back whole (the verdicts carry the result), for the second look.
     ropt.verdicts_only = true;
+    // Which removed candidates have the isolated-point filter's neighbours (KeptMask::kNear).
+    if (near_marks && iso_min >= 1 && iso_min <= oc.k) {
+      ropt.near_radius_m = isolated_filter_radius_m(config.cross_check.honest, sample_spacing_m);
+      ropt.near_min = config.cross_check.honest.isolation_min_neighbours;
+    }
     RobustVerdicts rv;
     auto f1 = remove_robust_outliers(std::move(pts), ropt, &rv);
     lap("robust");
@@ -1810,7 +1838,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     f1.report.count_out = f1.value.size();
     std::vector<std::size_t> robust_removed;
     for (std::size_t i = 0; i < keep.size(); ++i) {
-      if (!keep[i]) robust_removed.push_back(i);
+      if (keep[i]) continue;
+      robust_removed.push_back(i);
+      if (!rv.near.empty() && rv.near[i]) near_records.push_back(rec_of[i]);
     }
     compose_removal(robust_removed);
     if (!rv.past_halo.empty()) {
@@ -1845,6 +1875,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     HonestCheckOptions isolation = config.cross_check.honest;
     isolation.spacing_m = sample_spacing_m;
     auto f2 = remove_isolated_points(std::move(f1f.value), isolation, &isolated);
+    kept_near = near_marks;
     add_figures(o.sums, f2.report);
     compose_removal(isolated.at);
     spacing_m = detail::figure_of(f2.report, "spacing_mm", 0.0) * 1e-3;
@@ -1918,8 +1949,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   for (std::size_t j = 0; j < pts.size(); ++j) {
     const bool interior = node.inside(pts.xyz.data() + 3 * j, inner);
     o.out += interior ? 1U : 0U;
-    mask[rec_of[j]] = interior ? KeptMask::kInterior : KeptMask::kHalo;
+    mask[rec_of[j]] = static_cast<std::uint8_t>((interior ? KeptMask::kInterior : KeptMask::kHalo) | (kept_near ? KeptMask::kNear : 0));
   }
+  for (const std::uint32_t r : near_records) mask[r] |= KeptMask::kNear;
   kept.write(t, mask);
   o.kept_bytes = kept.bytes(t);
   lap("mask");
@@ -3067,7 +3099,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
             .push_back(rc);
       }
       const std::vector<std::uint8_t>& flags = scene.layers.flags;
-      std::vector<std::uint8_t> fl_in, removed, owned;
+      std::vector<std::uint8_t> fl_in, removed, near, owned;
       detail::PassProgress tick(progress, "honest_check", "the input as spilled against the grid, tile by tile",
                         config.scale.progress_interval_s);
       detail::TileHeapBudget heap(window_heap_budget(spill, tiles.count()));  // as the tile loop
@@ -3076,7 +3108,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         (void)heap.before_tile();
         const Cloud input = spill.read(t, fl_in);
         if (input.size() == 0) continue;
-        kept.removed(t, removed);  // the mask, instead of a copy of the kept points matched back
+        kept.removed(t, removed, near);  // the mask, instead of a copy of the kept points matched back
         const GridWindow w = tiles.window(t);
         const auto inner = tiles.interior(t);
         owned_by(tiles, t, input, owned);
@@ -3093,10 +3125,13 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         for (const auto& rc : flagged_in[t]) local.flagged.push_back({rc[0] - w.row0, rc[1] - w.col0});
         scope.owned = &owned;
         scope.removed = &removed;
+        scope.near = &near;
         scope.cells = {inner[0] - w.row0, inner[1] - w.row0, inner[2] - w.col0, inner[3] - w.col0};
         const InputCheck part = check_input(input.xyz, Cloud{}, crop, options, 0.0, &local, &crop_flags, &scope);
         in.add_classes(part);
         in.isolated += part.isolated;
+        in.isolation_tested += part.isolation_tested;
+        in.isolation_hashed += part.isolation_hashed;
         in.spikes_kept += part.spikes_kept;
         for (const auto& rc : part.spikes_kept_cells) {
           if (in.spikes_kept_cells.size() < 100) in.spikes_kept_cells.push_back({rc[0] + w.row0, rc[1] + w.col0});
@@ -3113,6 +3148,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       if (in.spacing_m == 0.0) in.spacing_m = spacing_m;
       detail::add_honest_figures(in, spikes, r.report);
       r.report.figure("tiles", static_cast<double>(tiles.count()));
+      r.report.figure("isolation_points_tested", static_cast<double>(in.isolation_tested));
+      r.report.figure("isolation_points_hashed", static_cast<double>(in.isolation_hashed));
       r.report.notes.push_back("tiled run: each tile's input points (as spilled: after units, recentring, view, non-finite and "
                                "crop) and kept points against the whole grid over its window; the spacing is the tiles' "
                                "median weighted by points; " + std::to_string(dropped) +

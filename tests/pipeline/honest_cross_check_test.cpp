@@ -506,6 +506,146 @@ TEST(InputCheck, ClassesOnAFlatGridMatchTheirConstruction) {
       << "a removed flag per point";
 }
 
+// InputCheckScope::near (a tiled run's kept-point mask marks the points its filters saw with
+// neighbours): the point test then searches only about the other points and hashes only the
+// voxels its searches (and the spike searches) visit. Oracles: the same check without the flags
+// (one hash of every point), and a brute-force count of each point's neighbours.
+TEST(InputCheck, NearFlagsSpareTestsButNotOneFigure) {
+  // A rough surface over 40 × 40 mm (nodes every 1 mm), points every 0.5 mm with 0.05 mm of
+  // noise; strays above it (some removed, some kept: one kept 30 mm up made its cell a spike);
+  // a hollow 10 mm below; points removed along a strip (surface lost over no-data cells).
+  GridGeometry g{41, 41, 0.0, 0.0, 0.001};
+  HeightField h(g, 0.0f);
+  auto surf = [](double x, double y) { return 0.002 * std::sin(300.0 * x) * std::cos(200.0 * y); };
+  for (int r = 0; r < 41; ++r)
+    for (int c = 0; c < 41; ++c) h.at(r, c) = static_cast<float>(surf(0.001 * c, 0.001 * r));
+  for (int r = 30; r < 41; ++r)
+    for (int c = 0; c < 5; ++c) h.at(r, c) = kNoData;
+  std::mt19937 rng(11);
+  std::normal_distribution<double> noise(0.0, 0.00005);
+  std::uniform_real_distribution<double> u(0.0, 0.040), up(0.003, 0.030);
+  std::vector<Eigen::Vector3d> pts;
+  std::vector<std::uint8_t> removed;
+  for (int r = 0; r < 80; ++r)
+    for (int c = 0; c < 80; ++c) {
+      const double x = 0.0005 * c + 0.00025, y = 0.0005 * r + 0.00025;
+      pts.emplace_back(x + noise(rng), y + noise(rng), surf(x, y) + noise(rng));
+      removed.push_back(x < 0.004 && y > 0.031 ? 1 : 0);  // over the no-data corner: lost
+    }
+  for (int k = 0; k < 300; ++k) {
+    const double x = u(rng), y = u(rng);
+    pts.emplace_back(x, y, surf(x, y) + up(rng));
+    removed.push_back(k % 3 == 0 ? 0 : 1);
+  }
+  for (int k = 0; k < 4; ++k) {  // a small clump in front (not isolated), removed
+    pts.emplace_back(0.020 + 0.0002 * k, 0.010, 0.012);
+    removed.push_back(1);
+  }
+  pts.emplace_back(0.030, 0.030, 0.030);  // a kept stray that made cell (30, 30)
+  removed.push_back(0);
+  h.at(30, 30) = 0.030f;
+  // Cell (37, 37) raised 15 mm to S, with a kept point A 0.45 mm above S that has only two
+  // others within the test's radius (isolated), and D1 0.45 mm below S that has three (A, D2,
+  // D3): D1 confirms the cell, which is then no spike kept. In the check's frame (centred at
+  // z = 14 mm) S lies 0.2 mm above a voxel boundary and D1 below it: the spike search must reach
+  // the next voxel.
+  const Eigen::Vector3d s_cell(0.037, 0.037, 0.0142);
+  h.at(37, 37) = static_cast<float>(s_cell.z());
+  for (const Eigen::Vector3d& d : {Eigen::Vector3d(0.0, 0.0, 0.00045), Eigen::Vector3d(0.0, 0.0, -0.00045),
+                                   Eigen::Vector3d(-0.0001, 0.0, -0.00045), Eigen::Vector3d(0.0, 0.0, -0.0015)}) {
+    pts.push_back(s_cell + d);
+    removed.push_back(0);
+  }
+  const Cloud c = cloud_of(pts);
+  const std::size_t n = pts.size();
+  HonestCheckOptions o;
+  o.isolation_radius_spacings = 3.0;  // R = 1.5 mm at the 0.5 mm spacing
+  o.confirm_footprint_m = 0.0015;
+  std::vector<std::uint8_t> owned(n, 1), flags(g.cell_count(), kCellMeasured);
+  InputCheckScope scope;
+  scope.owned = &owned;
+  scope.removed = &removed;
+  scope.cells = {0, g.rows, 0, g.cols};
+  scope.spacing_m = 0.0005;
+  scope.valid_lo = Eigen::Vector3d(0.0, 0.0, -0.002);
+  scope.valid_hi = Eigen::Vector3d(0.040, 0.040, 0.030);
+  const double radius = o.isolation_radius_spacings * scope.spacing_m;
+  const double filter = isolated_filter_radius_m(o, scope.spacing_m);
+  ASSERT_NEAR(filter, 0.9 * radius, 1e-12);
+  // Brute force: others within the filter's radius (the flag's promise) and within the test's.
+  std::vector<std::uint8_t> near(n, 0);
+  std::size_t isolated = 0, promised = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    int within_filter = 0, within = 0;
+    for (std::size_t j = 0; j < n; ++j) {
+      if (j == i) continue;
+      const double d = (pts[i] - pts[j]).norm();
+      within_filter += d <= filter * (1.0 - 1e-6) ? 1 : 0;
+      within += d <= radius ? 1 : 0;
+    }
+    isolated += within < o.isolation_min_neighbours ? 1U : 0U;
+    // Most points that have them flagged (every seventh left to its test, as a removed point
+    // whose neighbours no filter saw).
+    if (within_filter >= o.isolation_min_neighbours && i % 7 != 0) {
+      near[i] = 1;
+      ++promised;
+    }
+  }
+  ASSERT_GT(isolated, 100U) << "the strays high above are isolated";
+  ASSERT_GT(promised, n / 2);
+  // With the grid's spikes confirmed (step 5) and without (step 4's searches alone hash their
+  // voxels then).
+  for (const bool with_spikes : {true, false}) {
+    SCOPED_TRACE(with_spikes ? "spikes confirmed" : "no spike confirmation");
+    GridSpikes full_spikes = find_grid_spikes(h, o), near_spikes = full_spikes;
+    ASSERT_FALSE(full_spikes.flagged.empty()) << "the raised cells";
+    scope.near = nullptr;
+    const InputCheck full = check_input(c.xyz, Cloud{}, h, o, 0.0, with_spikes ? &full_spikes : nullptr, &flags, &scope);
+    scope.near = &near;
+    const InputCheck spared = check_input(c.xyz, Cloud{}, h, o, 0.0, with_spikes ? &near_spikes : nullptr, &flags, &scope);
+    EXPECT_EQ(full.isolated, isolated) << "the brute-force count";
+    for (const auto& [name, x, y] : {std::tuple{"removed", full.removed, spared.removed}, std::tuple{"on_surface", full.on_surface, spared.on_surface},
+                                     std::tuple{"off_surface", full.off_surface, spared.off_surface}, std::tuple{"hidden", full.hidden, spared.hidden},
+                                     std::tuple{"no_data", full.no_data, spared.no_data}, std::tuple{"outside", full.outside, spared.outside},
+                                     std::tuple{"isolated", full.isolated, spared.isolated}, std::tuple{"spikes_kept", full.spikes_kept, spared.spikes_kept},
+                                     std::tuple{"surface_lost", full.surface_lost, spared.surface_lost},
+                                     std::tuple{"removed_in_front", full.removed_in_front, spared.removed_in_front},
+                                     std::tuple{"far", full.far, spared.far}}) {
+      EXPECT_EQ(y, x) << name;
+    }
+    // Cell (30, 30) stands on the isolated stray alone; cell (37, 37) is confirmed by D1.
+    EXPECT_EQ(full.spikes_kept_cells, (std::vector<std::array<int, 2>>{{30, 30}}));
+    EXPECT_EQ(spared.spikes_kept_cells, full.spikes_kept_cells);
+    EXPECT_EQ(near_spikes.confirmed, full_spikes.confirmed);
+    EXPECT_GT(full.surface_lost, 0U) << "the strip over no data";
+    // The work: every point tested and hashed without the flags; with them only the unflagged
+    // tested, and the points about them (and about the spike searches) hashed.
+    EXPECT_EQ(full.isolation_tested, n);
+    EXPECT_EQ(full.isolation_hashed, n);
+    EXPECT_EQ(spared.isolation_tested, n - promised);
+  }
+
+  // One point 1 km away: the local frame's coordinates reach past 10^4 test radii, where the
+  // float rounding of the filters' frames is not known to stay inside the margin; the flags are
+  // not used, and the figures are still the full test's.
+  std::vector<Eigen::Vector3d> with_far = pts;
+  with_far.emplace_back(1000.0, 0.0, 0.0);
+  std::vector<std::uint8_t> owned2(n + 1, 1), removed2 = removed, near2 = near;
+  removed2.push_back(1);
+  near2.push_back(0);
+  const Cloud c2 = cloud_of(with_far);
+  InputCheckScope scope2 = scope;
+  scope2.owned = &owned2;
+  scope2.removed = &removed2;
+  scope2.near = &near2;
+  const InputCheck far_near = check_input(c2.xyz, Cloud{}, h, o, 0.0, nullptr, &flags, &scope2);
+  EXPECT_EQ(far_near.isolation_tested, n + 1);
+  EXPECT_EQ(far_near.isolated, isolated + 1);
+  std::vector<std::uint8_t> short_near(n - 1, 0);
+  scope.near = &short_near;
+  EXPECT_THROW(check_input(c.xyz, Cloud{}, h, o, 0.0, nullptr, &flags, &scope), std::invalid_argument) << "a near flag per point";
+}
+
 /// Points at every node of an n × n grid of `pitch` [m] at z = 0.
 std::vector<Eigen::Vector3d> node_lattice(int n, double pitch) {
   std::vector<Eigen::Vector3d> pts;

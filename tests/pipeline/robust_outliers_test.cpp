@@ -478,6 +478,48 @@ TEST(RobustOutliers, VerdictsOnlyGivesTheCloudBackAndTheTestsVerdicts) {
   EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError) << "verdicts_only without verdicts";
 }
 
+// near_radius_m (the tiled run marks the removed points the honest check need not test): a
+// candidate's flag says whether at least near_min other points lie within the radius. Oracle:
+// every removed point's neighbours counted by brute force in double; the verdicts unchanged.
+TEST(RobustOutliers, NearFlagsOfRemovedPointsCountTheirNeighboursWithinTheRadius) {
+  auto [c, o, whole] = judged_cluttered_bunny();
+  const double r = 4.0 * std::exp(o.scale->median_log);  // four times the median k-NN distance
+  o.near_radius_m = r;
+  o.near_min = 3;
+  hc::pipeline::RobustVerdicts v;
+  (void)remove_robust_outliers(c, o, &v);
+  EXPECT_EQ(v.verdict, whole.verdict) << "the flags change no verdict";
+  ASSERT_EQ(v.near.size(), c.size());
+  std::size_t removed_near = 0, removed_not = 0;
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    if (v.verdict[i] == 0 && !v.near[i]) continue;  // a kept point settled by counting, or not near
+    int within = 0;
+    bool tie = false;
+    for (std::size_t j = 0; j < c.size(); ++j) {
+      if (j == i) continue;
+      const double d = (c.xyz.col(static_cast<Eigen::Index>(i)) - c.xyz.col(static_cast<Eigen::Index>(j))).norm();
+      within += d <= r ? 1 : 0;
+      tie = tie || std::abs(d - r) < 1e-6 * r;
+    }
+    if (tie) continue;
+    EXPECT_EQ(v.near[i], within >= 3 ? 1 : 0) << "column " << i << ", verdict " << int(v.verdict[i]) << ", " << within << " within";
+    if (v.verdict[i] != 0) (v.near[i] ? removed_near : removed_not) += 1;
+  }
+  EXPECT_GT(removed_near, 10U) << "removed points beside the surface";
+  EXPECT_GT(removed_not, 10U) << "removed clutter far from everything";
+  // Not asked without the verdicts' vector; bad values refused by name.
+  o.near_min = 0;
+  EXPECT_THROW(remove_robust_outliers(c, o, &v), hc::ConfigError);
+  o.near_min = o.k + 1;
+  EXPECT_THROW(remove_robust_outliers(c, o, &v), hc::ConfigError);
+  o.near_min = 3;
+  o.near_radius_m = -1.0;
+  EXPECT_THROW(remove_robust_outliers(c, o, &v), hc::ConfigError);
+  o.near_radius_m = 0.0;
+  (void)remove_robust_outliers(c, o, &v);
+  EXPECT_TRUE(v.near.empty()) << "not asked";
+}
+
 // The tile check's promise (RobustOutlierOptions::tile): a point in decides_m whose verdict
 // over the window's points alone differs from the whole cloud's is listed in past_halo. Oracle:
 // the whole test over the whole cloud with the same scale. Windows of several sizes and

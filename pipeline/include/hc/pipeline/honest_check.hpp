@@ -112,6 +112,11 @@ struct InputCheck {
   double spacing_m = 0.0;           ///< the scan's spacing the point test used [m] (HonestCheckOptions::spacing_m, or the estimate)
   double isolation_radius_m = 0.0;  ///< radius of the point test [m]
   std::size_t isolated = 0;         ///< points the point test flags
+  /// Points the point test searched about, and points its voxel hash held: every finite point
+  /// for both, unless InputCheckScope::near spared the test (then the points not known to have
+  /// neighbours, and the points in the voxels about them). Work counts, not judged.
+  std::size_t isolation_tested = 0;
+  std::size_t isolation_hashed = 0;
   /// Removed points that are not isolated, not far, and lie over no-data cells or outside the
   /// grid more than the tolerance (x-y) from its nearest valid sample: surface the grid lost.
   std::size_t surface_lost = 0;
@@ -218,6 +223,18 @@ struct InputCheckScope {
   /// matched to as_read_m by coordinates: the figures are the same (they depend on coordinates
   /// only), without a copy of the kept points. Size: as_read_m's columns.
   const std::vector<std::uint8_t>* removed = nullptr;
+  /// Optional, per point of as_read_m: 1 = the tile's filters found at least
+  /// options.isolation_min_neighbours other points of as_read_m within
+  /// isolated_filter_radius_m(options, spacing_m) of it (float32 distances in a frame centred
+  /// inside the box of as_read_m's points: remove_isolated_points and remove_robust_outliers
+  /// recentre on a median of a subset of them), so the point test cannot flag it. Its test is
+  /// then skipped and the voxel hash holds only the voxels about the points tested: the flags
+  /// and every figure stay those of the full test. Used only when that radius is at most 0.9 ×
+  /// the test's and every point lies within 10^4 test radii of the check's local frame's origin
+  /// (the float rounding of both frames, at most about 6e-7 of that distance, then stays far
+  /// inside the 10 % margin); otherwise ignored. A flag set on a point that has not the
+  /// neighbours is the caller's error: the test would not look at it. Size: as_read_m's columns.
+  const std::vector<std::uint8_t>* near = nullptr;
   /// The interior's cells in `grid`: rows [r0, r1), cols [c0, c1). Spikes kept are counted there.
   std::array<int, 4> cells{};
   double spacing_m = 0.0;  ///< the scan's median nearest-neighbour spacing [m], > 0

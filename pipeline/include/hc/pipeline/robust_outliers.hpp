@@ -91,6 +91,14 @@ struct RobustOutlierOptions {
   /// asked for) carrying the result; count_out is the number kept. The tiled run keeps a
   /// window's points for its second look instead of reading them again.
   bool verdicts_only = false;
+  /// When > 0 (with near_min > 0 and the verdicts asked for), RobustVerdicts::near tells, for
+  /// each candidate (d_i above D_cert, its k nearest found exactly), whether at least near_min
+  /// of its k nearest lie within near_radius_m [m] (float32 distances on the recentred
+  /// coordinates the searches use). The tiled run asks with the isolated-point filter's radius,
+  /// so that the honest check need not test a removed point whose neighbours were already seen
+  /// (InputCheckScope::near).
+  double near_radius_m = 0.0;
+  int near_min = 0;  ///< neighbours within near_radius_m [-], 1..k; 0 = not asked
 };
 
 /// What remove_robust_outliers can tell its caller besides the kept points.
@@ -110,6 +118,11 @@ struct RobustVerdicts {
   /// whole scan's, except for a point left out of the searches as a duplicate, whose ball keeps
   /// the bound; a ball too small would only make the second look list the point again).
   std::vector<std::array<double, 4>> reach_m;
+  /// With RobustOutlierOptions::near_radius_m > 0: one per input column, 1 for a candidate at
+  /// least near_min of whose k nearest (this cloud's points, the point itself left out) lie
+  /// within near_radius_m, 0 otherwise (every point settled by counting, non-finite points, and
+  /// with judge_only the points not listed); empty when not asked.
+  std::vector<std::uint8_t> near;
 };
 
 /// The points remove_robust_outliers samples for its scale: min(n, sample) indices into the n
