@@ -740,10 +740,6 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
                       ", expected a finite distance >= 0 [m] (0: not asked)");
   }
   const bool near_asked = o.near_radius_m > 0.0 && verdicts != nullptr;
-  if (o.near_radius_m > 0.0 && (o.near_min < 1 || o.near_min > k)) {
-    throw ConfigError("remove_robust_outliers: near_min = " + std::to_string(o.near_min) + " with near_radius_m = " +
-                      format_number(o.near_radius_m) + ", expected 1..k (k = " + std::to_string(k) + ")");
-  }
   const bool judging = !o.judge_only.empty();
   if (o.verdicts_only && verdicts == nullptr) {
     throw ConfigError("remove_robust_outliers: verdicts_only needs the verdicts asked for (verdicts is null)");
@@ -1106,19 +1102,52 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   }
   if (verdicts) std::sort(verdicts->past_halo.begin(), verdicts->past_halo.end());
   if (near_asked) {
-    // The candidates' k nearest are known exactly: at least near_min within near_radius_m.
+    // How many others each point is shown to have within near_radius_m (RobustVerdicts::near):
+    // a point settled by counting has k within D_cert; a point whose mean k-NN distance d is
+    // known has its j-th nearest within k·d / (k + 1 − j) (at least k + 1 − j of the k
+    // distances are as large); a candidate's k nearest are counted. Float32 distances in this
+    // frame, so nothing is claimed when its coordinates exceed 10^3 radii (the users' margins).
     verdicts->near.assign(cloud.size(), 0);
-    const auto r2 = static_cast<float>(o.near_radius_m * o.near_radius_m);
-    for (std::size_t i = 0; i < cand.size(); ++i) {
-      if (judging && !judged[cand[i]]) continue;
-      const float* q = &p[3 * static_cast<std::size_t>(cand[i])];
-      int within = 0;
-      for (const std::uint32_t j : nbrs(i)) {
-        const float* a = &p[3 * static_cast<std::size_t>(j)];
-        const float dx = a[0] - q[0], dy = a[1] - q[1], dz = a[2] - q[2];
-        within += dx * dx + dy * dy + dz * dz <= r2 ? 1 : 0;
+    float max_abs = 0.0f;
+    for (const float v : p) max_abs = std::max(max_abs, std::abs(v));
+    const double r = o.near_radius_m;
+    const auto most = static_cast<std::uint8_t>(std::min(k, 255));
+    if (static_cast<double>(max_abs) <= 1e3 * r) {
+      // The points settled by counting in grid order (a store each, which does not stall the
+      // loop as a load in input order would); then the points whose d is known: the uncertain
+      // ones (candidates among them) and the copies left out of the grid (d = 0).
+      const auto by_mean = [&](std::uint32_t j) {
+        if (!(d[j] >= 0.0f)) return;
+        const double within = std::floor(static_cast<double>(k) + 1.0 - static_cast<double>(k) * static_cast<double>(d[j]) * (1.0 + 1e-5) / r);
+        std::uint8_t& shown = verdicts->near[rows[j]];
+        shown = std::max(shown, static_cast<std::uint8_t>(std::clamp(within, 0.0, static_cast<double>(most))));
+      };
+      if (!judging && d_cert <= r) {
+        // Every column finite (a tile's points): rows is the identity, not read.
+        const bool every = n == cloud.size();
+        for (std::size_t s = 0; s < certified.size(); ++s) {
+          if (certified[s]) verdicts->near[every ? g.original[s] : rows[g.original[s]]] = most;
+        }
       }
-      verdicts->near[rows[cand[i]]] = within >= o.near_min ? 1 : 0;
+      for (const std::uint32_t j : uncertain) {
+        if (!judging || judged[j]) by_mean(j);
+      }
+      for (const std::uint32_t j : g.zero) {
+        if (!judging || judged[j]) by_mean(j);
+      }
+      const auto r2 = static_cast<float>(r * r);
+      for (std::size_t i = 0; i < cand.size(); ++i) {
+        if (judging && !judged[cand[i]]) continue;
+        const float* q = &p[3 * static_cast<std::size_t>(cand[i])];
+        int within = 0;
+        for (const std::uint32_t j : nbrs(i)) {
+          const float* a = &p[3 * static_cast<std::size_t>(j)];
+          const float dx = a[0] - q[0], dy = a[1] - q[1], dz = a[2] - q[2];
+          within += dx * dx + dy * dy + dz * dz <= r2 ? 1 : 0;
+        }
+        std::uint8_t& shown = verdicts->near[rows[cand[i]]];
+        shown = std::max(shown, static_cast<std::uint8_t>(std::min<int>(within, most)));
+      }
     }
   }
   std::vector<bool> keep(cloud.size(), false);

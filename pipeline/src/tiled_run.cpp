@@ -1723,6 +1723,91 @@ void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierO
                     " (the halo then holds the search beyond the cells the tile decides)");
 }
 
+// The isolated-point filter's known_near flags of `pts` (one per point) from the robust test's
+// counts (RobustVerdicts::near: others shown within the radius before the removals): 1 where
+// the count, less the removed points (gone_m, x y z [m] each, the same frame) within radius_m
+// of the point, is still at least min_neighbours. Returns how many points had the count but
+// lost it so. Voxels of edge radius_m (a thousandth wider, so that two points within the
+// radius never lie two voxels apart, whatever the rounding): each removed point is listed in
+// its voxel and the 26 around it; a point in a voxel with a list is measured against the
+// removed points in it (double distances, a millionth of the radius wider).
+std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>& count, const std::vector<double>& gone_m,
+                               double radius_m, int min_neighbours, std::vector<std::uint8_t>& flags) {
+  const std::size_t n = count.size();
+  flags.assign(n, 0);
+  for (std::size_t i = 0; i < n; ++i) flags[i] = count[i] >= min_neighbours ? 1 : 0;
+  const std::size_t gone = gone_m.size() / 3;
+  if (gone == 0) return 0;
+  const double inv = 1.0 / (radius_m * 1.001);
+  // ⌊v · inv⌋ clamped to ±(2^20 − 1) without a library call (truncation corrected by a
+  // comparison; the clamp keeps points within the radius at most one voxel apart), and the
+  // voxel packed in 21 bits an axis.
+  auto cell = [inv](double v) {
+    constexpr double lim = 1048575.0;
+    const double c = std::min(std::max(v * inv, -lim), lim);
+    const auto t = static_cast<std::int64_t>(c);
+    return t - static_cast<std::int64_t>(static_cast<double>(t) > c);
+  };
+  auto key = [](std::int64_t x, std::int64_t y, std::int64_t z) {
+    auto u = [](std::int64_t v) { return static_cast<std::uint64_t>(std::clamp<std::int64_t>(v, -1048575, 1048575) + 1048576); };
+    return (u(x) << 42) | (u(y) << 21) | u(z);
+  };
+  // (voxel, removed point) for each removed point and each voxel about its own, by voxel; the
+  // voxels in an open-addressing table (a multiplicative hash, linear probing) to their runs.
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> listed;
+  listed.reserve(27 * gone);
+  for (std::size_t g = 0; g < gone; ++g) {
+    const std::int64_t x = cell(gone_m[3 * g]), y = cell(gone_m[3 * g + 1]), z = cell(gone_m[3 * g + 2]);
+    for (int dx = -1; dx <= 1; ++dx)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dz = -1; dz <= 1; ++dz) listed.emplace_back(key(x + dx, y + dy, z + dz), static_cast<std::uint32_t>(g));
+  }
+  std::sort(listed.begin(), listed.end());
+  listed.erase(std::unique(listed.begin(), listed.end()), listed.end());
+  std::vector<std::uint64_t> voxel;  // distinct voxels, ascending
+  std::vector<std::uint32_t> run;    // voxel v's entries of `listed`: run[v] .. run[v + 1] − 1
+  for (std::size_t e = 0; e < listed.size(); ++e) {
+    if (e == 0 || listed[e].first != listed[e - 1].first) {
+      voxel.push_back(listed[e].first);
+      run.push_back(static_cast<std::uint32_t>(e));
+    }
+  }
+  run.push_back(static_cast<std::uint32_t>(listed.size()));
+  int bits = 4;
+  while (bits < 40 && (std::size_t{1} << bits) < 4 * voxel.size()) ++bits;
+  const std::size_t mask = (std::size_t{1} << bits) - 1;
+  const int shift = 64 - bits;
+  constexpr std::uint32_t kEmpty = std::numeric_limits<std::uint32_t>::max();
+  std::vector<std::uint32_t> table(mask + 1, kEmpty);  // a slot: its voxel's number, or kEmpty
+  auto slot = [shift](std::uint64_t k) { return static_cast<std::size_t>((k * 0x9E3779B97F4A7C15ULL) >> shift); };
+  for (std::uint32_t v = 0; v < voxel.size(); ++v) {
+    std::size_t h = slot(voxel[v]);
+    while (table[h] != kEmpty) h = (h + 1) & mask;
+    table[h] = v;
+  }
+  const double r2 = radius_m * radius_m * (1.0 + 2e-6);
+  std::size_t lost = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!flags[i]) continue;
+    const double* p = pts.xyz.data() + 3 * i;
+    const std::uint64_t kp = key(cell(p[0]), cell(p[1]), cell(p[2]));
+    std::size_t h = slot(kp);
+    while (table[h] != kEmpty && voxel[table[h]] != kp) h = (h + 1) & mask;
+    if (table[h] == kEmpty) continue;  // no removed point within a voxel of it
+    int removed = 0;
+    for (std::uint32_t e = run[table[h]]; e < run[table[h] + 1]; ++e) {
+      const double* q = gone_m.data() + 3 * static_cast<std::size_t>(listed[e].second);
+      const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
+      removed += dx * dx + dy * dy + dz * dz <= r2 ? 1 : 0;
+    }
+    if (static_cast<int>(count[i]) - removed < min_neighbours) {
+      flags[i] = 0;
+      ++lost;
+    }
+  }
+  return lost;
+}
+
 // Step 3 for tile t (the file comment of tiling.hpp): its spilled points through the filters and
 // reproject, the interior cut out, which of its spilled records it kept written to `kept`.
 TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, BlockCopies& blocks, KeptMask& kept, std::size_t t) {
@@ -1793,6 +1878,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   const bool near_marks = config.cross_check.enabled && sample_spacing_m > 0.0;
   bool kept_near = false;                  // the kept points passed the isolated filter at that radius
   std::vector<std::uint32_t> near_records;  // removed candidates' records with those neighbours
+  std::vector<std::uint8_t> near_kept;      // the filter's input's RobustVerdicts::near counts (empty: none)
+  std::vector<double> gone_m;               // the points removed before the filter, x y z [m]
   // A window of fewer than k + 2 points (a corner of stray returns) cannot be judged by the
   // k-NN tests: its points are kept as they are, counted and noted, not an error.
   const bool judgeable = pts.size() >= static_cast<std::size_t>(oc.k) + 2;
@@ -1813,10 +1900,11 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     if (plan.robust_scale) ropt.tile = bounds;
     // The window's points come back whole (the verdicts carry the result), for the second look.
     ropt.verdicts_only = true;
-    // Which removed candidates have the isolated-point filter's neighbours (KeptMask::kNear).
-    if (near_marks && iso_min >= 1 && iso_min <= oc.k) {
-      ropt.near_radius_m = isolated_filter_radius_m(config.cross_check.honest, sample_spacing_m);
-      ropt.near_min = config.cross_check.honest.isolation_min_neighbours;
+    // Which points the test shows with the isolated-point filter's neighbours, just inside its
+    // radius: the filter need not search about those that keep them (near_after_removal), nor
+    // the honest check about the removed ones (KeptMask::kNear).
+    if (sample_spacing_m > 0.0 && iso_min >= 1) {
+      ropt.near_radius_m = 0.99 * isolated_filter_radius_m(config.cross_check.honest, sample_spacing_m);
     }
     RobustVerdicts rv;
     auto f1 = remove_robust_outliers(std::move(pts), ropt, &rv);
@@ -1834,13 +1922,25 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       keep[i] = rv.verdict[i] == 0;
       ++by[std::min<std::size_t>(rv.verdict[i], 4)];
     }
+    // The kept points' near flags, and the removed points (which may have been some of the
+    // neighbours the flags count).
+    if (!rv.near.empty()) {
+      for (std::size_t i = 0; i < keep.size(); ++i) {
+        if (keep[i]) {
+          near_kept.push_back(rv.near[i]);
+        } else {
+          const auto c = f1.value.xyz.col(static_cast<Eigen::Index>(i));
+          gone_m.insert(gone_m.end(), {c.x(), c.y(), c.z()});
+        }
+      }
+    }
     f1.value.keep_if(keep);
     f1.report.count_out = f1.value.size();
     std::vector<std::size_t> robust_removed;
     for (std::size_t i = 0; i < keep.size(); ++i) {
       if (keep[i]) continue;
       robust_removed.push_back(i);
-      if (!rv.near.empty() && rv.near[i]) near_records.push_back(rec_of[i]);
+      if (!rv.near.empty() && rv.near[i] >= iso_min) near_records.push_back(rec_of[i]);
     }
     compose_removal(robust_removed);
     if (!rv.past_halo.empty()) {
@@ -1868,13 +1968,30 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope, &far_removed);
     add_figures(o.sums, f1f.report);
     compose_removal(far_removed.at);
+    if (!near_kept.empty()) {
+      std::size_t at = 0, next = 0;
+      for (std::size_t i = 0; i < near_kept.size(); ++i) {
+        if (next < far_removed.at.size() && far_removed.at[next] == i) {
+          ++next;
+          continue;
+        }
+        near_kept[at++] = near_kept[i];
+      }
+      near_kept.resize(at);
+      gone_m.insert(gone_m.end(), far_removed.xyz.begin(), far_removed.xyz.end());
+    }
     lap("far");
     RemovedPoints isolated;
     // The spacing of the whole scan's robust sample (the plan's RobustScale, the number the
     // in-core run uses), not the window's own estimate.
     HonestCheckOptions isolation = config.cross_check.honest;
     isolation.spacing_m = sample_spacing_m;
-    auto f2 = remove_isolated_points(std::move(f1f.value), isolation, &isolated);
+    std::vector<std::uint8_t> known_near;
+    if (!near_kept.empty()) {
+      o.sums["near_lost_to_removals"] += static_cast<double>(near_after_removal(
+          f1f.value, near_kept, gone_m, isolated_filter_radius_m(isolation, sample_spacing_m), iso_min, known_near));
+    }
+    auto f2 = remove_isolated_points(std::move(f1f.value), isolation, &isolated, known_near.empty() ? nullptr : &known_near);
     kept_near = near_marks;
     add_figures(o.sums, f2.report);
     compose_removal(isolated.at);

@@ -405,6 +405,50 @@ TEST(RobustOutliers, TheIsolatedFilterTakesTheSpacingItIsGiven) {
   EXPECT_THROW(remove_isolated_points(c, o), hc::ConfigError);
 }
 
+// remove_isolated_points with known_near (the tiled run passes the robust test's near flags):
+// the points flagged are kept without a search, the rest searched in a hash of only the voxels
+// about them. Oracles: the same filter without the flags (a hash of every point), and every
+// removed point's neighbours counted by brute force.
+TEST(RobustOutliers, TheIsolatedFilterWithKnownNeighboursRemovesWhatTheFullFilterRemoves) {
+  const Cloud c = with_extra(bunny(), uniform_in_box(800, 3));
+  hc::pipeline::HonestCheckOptions io;
+  io.spacing_m = 0.0004;
+  const double radius = hc::pipeline::isolated_filter_radius_m(io, io.spacing_m);
+  RobustOutlierOptions ro;
+  ro.near_radius_m = 0.99 * radius;
+  hc::pipeline::RobustVerdicts v;
+  (void)remove_robust_outliers(c, ro, &v);
+  ASSERT_EQ(v.near.size(), c.size());
+  for (auto& m : v.near) m = m >= io.isolation_min_neighbours ? 1 : 0;  // the counts as flags
+  const auto flagged = static_cast<std::size_t>(std::count(v.near.begin(), v.near.end(), std::uint8_t{1}));
+  ASSERT_GT(flagged, c.size() / 2) << "the bunny's points settled by counting";
+  hc::pipeline::RemovedPoints full_removed, near_removed;
+  const auto full = remove_isolated_points(c, io, &full_removed);
+  const auto spared = remove_isolated_points(c, io, &near_removed, &v.near);
+  EXPECT_TRUE(spared.value.xyz == full.value.xyz);
+  EXPECT_EQ(near_removed.at, full_removed.at);
+  EXPECT_GT(full_removed.at.size(), 300U) << "most of the clutter is isolated";
+  EXPECT_EQ(figure(full.report, "points_tested"), static_cast<double>(c.size()));
+  EXPECT_EQ(figure(spared.report, "points_tested"), static_cast<double>(c.size() - flagged));
+  for (const std::size_t i : full_removed.at) {
+    int within = 0;
+    for (Eigen::Index j = 0; j < c.xyz.cols(); ++j) {
+      if (static_cast<std::size_t>(j) != i && (c.xyz.col(j) - c.xyz.col(static_cast<Eigen::Index>(i))).norm() <= radius) ++within;
+    }
+    EXPECT_LT(within, io.isolation_min_neighbours) << "column " << i;
+  }
+  // A flag on a point 1 km from the rest: the filter's own coordinates then reach past 10^3
+  // radii, the flags are not used, and the far point is searched and removed.
+  Cloud far = with_extra(c, {Eigen::Vector3d(1000.0, 0.0, 0.0)});
+  std::vector<std::uint8_t> near_far = v.near;
+  near_far.push_back(1);
+  const auto far_run = remove_isolated_points(far, io, nullptr, &near_far);
+  EXPECT_EQ(figure(far_run.report, "points_tested"), static_cast<double>(far.size()));
+  EXPECT_EQ(far_run.value.size(), full.value.size());
+  near_far.pop_back();
+  EXPECT_THROW(remove_isolated_points(far, io, nullptr, &near_far), std::invalid_argument) << "a flag per point";
+}
+
 // The cluttered bunny (800 uniform points in its box), the options with the scale of its whole
 // test given, and that test's verdict for every point (the oracle of the tile tests below).
 struct JudgedBunny {
@@ -478,21 +522,21 @@ TEST(RobustOutliers, VerdictsOnlyGivesTheCloudBackAndTheTestsVerdicts) {
   EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError) << "verdicts_only without verdicts";
 }
 
-// near_radius_m (the tiled run marks the removed points the honest check need not test): a
-// candidate's flag says whether at least near_min other points lie within the radius. Oracle:
-// every removed point's neighbours counted by brute force in double; the verdicts unchanged.
-TEST(RobustOutliers, NearFlagsOfRemovedPointsCountTheirNeighboursWithinTheRadius) {
+// near_radius_m (the tiled run's isolated-point filter and honest check need not search about a
+// point whose neighbours the test already saw): each point's count is a lower bound of its
+// neighbours within the radius, and a removed candidate's is exact up to k (its k nearest
+// counted). Oracle: every point's neighbours counted by brute force in double; the verdicts
+// unchanged.
+TEST(RobustOutliers, NearCountsAreLowerBoundsOfTheNeighboursWithinTheRadius) {
   auto [c, o, whole] = judged_cluttered_bunny();
   const double r = 4.0 * std::exp(o.scale->median_log);  // four times the median k-NN distance
   o.near_radius_m = r;
-  o.near_min = 3;
   hc::pipeline::RobustVerdicts v;
   (void)remove_robust_outliers(c, o, &v);
-  EXPECT_EQ(v.verdict, whole.verdict) << "the flags change no verdict";
+  EXPECT_EQ(v.verdict, whole.verdict) << "the counts change no verdict";
   ASSERT_EQ(v.near.size(), c.size());
-  std::size_t removed_near = 0, removed_not = 0;
+  std::size_t exact = 0, at_k = 0, removed_some = 0, removed_none = 0;
   for (std::size_t i = 0; i < c.size(); ++i) {
-    if (v.verdict[i] == 0 && !v.near[i]) continue;  // a kept point settled by counting, or not near
     int within = 0;
     bool tie = false;
     for (std::size_t j = 0; j < c.size(); ++j) {
@@ -502,17 +546,18 @@ TEST(RobustOutliers, NearFlagsOfRemovedPointsCountTheirNeighboursWithinTheRadius
       tie = tie || std::abs(d - r) < 1e-6 * r;
     }
     if (tie) continue;
-    EXPECT_EQ(v.near[i], within >= 3 ? 1 : 0) << "column " << i << ", verdict " << int(v.verdict[i]) << ", " << within << " within";
-    if (v.verdict[i] != 0) (v.near[i] ? removed_near : removed_not) += 1;
+    EXPECT_LE(int(v.near[i]), within) << "column " << i << ", verdict " << int(v.verdict[i]);
+    at_k += v.near[i] == o.k ? 1U : 0U;
+    if (v.verdict[i] != 0) {  // a candidate: its k nearest counted
+      EXPECT_EQ(int(v.near[i]), std::min(within, o.k)) << "column " << i << ", verdict " << int(v.verdict[i]);
+      ++exact;
+      (v.near[i] > 0 ? removed_some : removed_none) += 1;
+    }
   }
-  EXPECT_GT(removed_near, 10U) << "removed points beside the surface";
-  EXPECT_GT(removed_not, 10U) << "removed clutter far from everything";
-  // Not asked without the verdicts' vector; bad values refused by name.
-  o.near_min = 0;
-  EXPECT_THROW(remove_robust_outliers(c, o, &v), hc::ConfigError);
-  o.near_min = o.k + 1;
-  EXPECT_THROW(remove_robust_outliers(c, o, &v), hc::ConfigError);
-  o.near_min = 3;
+  EXPECT_GT(at_k, c.size() / 2) << "the bunny's points settled by counting: k within D_cert";
+  EXPECT_GT(removed_some, 10U) << "removed points beside the surface";
+  EXPECT_GT(removed_none, 10U) << "removed clutter far from everything";
+  // Bad values refused by name; not asked, no counts.
   o.near_radius_m = -1.0;
   EXPECT_THROW(remove_robust_outliers(c, o, &v), hc::ConfigError);
   o.near_radius_m = 0.0;

@@ -279,12 +279,22 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
 /// number.
 /// @param removed_points when given, set to the removed points (coordinates and columns in
 ///        `cloud`): the tiled run checks that none lay within the radius of its window's edge.
+/// @param known_near when given (one per column): 1 = at least isolation_min_neighbours other
+///        points of `cloud` are known to lie within 0.99 × the filter's radius (float32
+///        distances in a frame whose coordinates stay within 10^3 such radii: the robust test's,
+///        RobustVerdicts::near), so the point is kept without its search, and the voxel hash
+///        holds only the voxels about the points searched: the result is the full test's.
+///        Used only when this filter's own recentred coordinates stay within 10^3 radii too
+///        (the float rounding of both frames then stays under 0.1 % of the radius); otherwise
+///        ignored. Report figure points_tested: the points searched.
 /// @throws hc::ConfigError for options outside their ranges (check_honest_options; a
-///         spacing_m that is negative or not finite among them).
+///         spacing_m that is negative or not finite among them); std::invalid_argument when
+///         known_near has not one flag per column.
 /// Source: the radius outlier test (Rusu 2009, PCL's RadiusOutlierRemoval), radius from the
 /// scan's own spacing.
 StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& options,
-                                          RemovedPoints* removed_points = nullptr);
+                                          RemovedPoints* removed_points = nullptr,
+                                          const std::vector<std::uint8_t>* known_near = nullptr);
 
 /// remove_isolated_points' search radius [m] at the scan's spacing `spacing_m` [m]: 0.9 ×
 /// options.isolation_radius_spacings × spacing_m (10 % inside check_input's verdict radius, so

@@ -91,14 +91,12 @@ struct RobustOutlierOptions {
   /// asked for) carrying the result; count_out is the number kept. The tiled run keeps a
   /// window's points for its second look instead of reading them again.
   bool verdicts_only = false;
-  /// When > 0 (with near_min > 0 and the verdicts asked for), RobustVerdicts::near tells, for
-  /// each candidate (d_i above D_cert, its k nearest found exactly), whether at least near_min
-  /// of its k nearest lie within near_radius_m [m] (float32 distances on the recentred
-  /// coordinates the searches use). The tiled run asks with the isolated-point filter's radius,
-  /// so that the honest check need not test a removed point whose neighbours were already seen
-  /// (InputCheckScope::near).
+  /// When > 0 (and the verdicts asked for), RobustVerdicts::near tells how many other points
+  /// the test shows within near_radius_m [m] of each point. The tiled run asks with (just
+  /// inside) the isolated-point filter's radius, so that neither that filter nor the honest
+  /// check searches again about a point whose neighbours were already seen
+  /// (remove_isolated_points' known_near, InputCheckScope::near).
   double near_radius_m = 0.0;
-  int near_min = 0;  ///< neighbours within near_radius_m [-], 1..k; 0 = not asked
 };
 
 /// What remove_robust_outliers can tell its caller besides the kept points.
@@ -118,10 +116,15 @@ struct RobustVerdicts {
   /// whole scan's, except for a point left out of the searches as a duplicate, whose ball keeps
   /// the bound; a ball too small would only make the second look list the point again).
   std::vector<std::array<double, 4>> reach_m;
-  /// With RobustOutlierOptions::near_radius_m > 0: one per input column, 1 for a candidate at
-  /// least near_min of whose k nearest (this cloud's points, the point itself left out) lie
-  /// within near_radius_m, 0 otherwise (every point settled by counting, non-finite points, and
-  /// with judge_only the points not listed); empty when not asked.
+  /// With RobustOutlierOptions::near_radius_m > 0: one per input column, how many other points
+  /// of this cloud are shown to lie within near_radius_m (a lower bound, at most min(k, 255)):
+  /// k for a point settled by the counting pass when D_cert ≤ near_radius_m; the largest j
+  /// with k·d / (k + 1 − j) ≤ near_radius_m for a point whose exact mean k-NN distance d is
+  /// known (its j-th nearest lies within that); for a candidate, at least the number of its k
+  /// nearest within the radius. Float32 distances on the recentred coordinates the searches
+  /// use. 0 for non-finite points, with judge_only for the points not listed, and for every
+  /// point when the recentred coordinates reach past 10^3 × near_radius_m (the users' float
+  /// margins assume no more). Empty when not asked.
   std::vector<std::uint8_t> near;
 };
 
