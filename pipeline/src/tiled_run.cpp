@@ -1729,8 +1729,9 @@ void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierO
 // of the point, is still at least min_neighbours. Returns how many points had the count but
 // lost it so. Voxels of edge radius_m (a thousandth wider, so that two points within the
 // radius never lie two voxels apart, whatever the rounding): each removed point is listed in
-// its voxel and the 26 around it; a point in a voxel with a list is measured against the
-// removed points in it (double distances, a millionth of the radius wider).
+// its voxel and the 26 around it; a point in a voxel with a list (a bit filter, then a hash
+// table) is measured against the removed points in it (double distances, a millionth of the
+// radius wider).
 std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>& count, const std::vector<double>& gone_m,
                                double radius_m, int min_neighbours, std::vector<std::uint8_t>& flags) {
   const std::size_t n = count.size();
@@ -1785,12 +1786,21 @@ std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>
     while (table[h] != kEmpty) h = (h + 1) & mask;
     table[h] = v;
   }
+  // A bit per 16 slots' worth of a second hash of the voxels (a fraction of the table's bytes,
+  // so it stays in cache): a point whose bit is clear is in no listed voxel, without a probe.
+  int fbits = 6;
+  while (fbits < 40 && (std::size_t{1} << fbits) < 16 * voxel.size()) ++fbits;
+  const int fshift = 64 - fbits;
+  auto fslot = [fshift](std::uint64_t k) { return static_cast<std::size_t>((k * 0xC2B2AE3D27D4EB4FULL) >> fshift); };
+  std::vector<std::uint64_t> filter((std::size_t{1} << fbits) / 64 + 1, 0);
+  for (const std::uint64_t v : voxel) filter[fslot(v) >> 6] |= std::uint64_t{1} << (fslot(v) & 63);
   const double r2 = radius_m * radius_m * (1.0 + 2e-6);
   std::size_t lost = 0;
   for (std::size_t i = 0; i < n; ++i) {
     if (!flags[i]) continue;
     const double* p = pts.xyz.data() + 3 * i;
     const std::uint64_t kp = key(cell(p[0]), cell(p[1]), cell(p[2]));
+    if (!((filter[fslot(kp) >> 6] >> (fslot(kp) & 63)) & 1U)) continue;
     std::size_t h = slot(kp);
     while (table[h] != kEmpty && voxel[table[h]] != kp) h = (h + 1) & mask;
     if (table[h] == kEmpty) continue;  // no removed point within a voxel of it
