@@ -898,6 +898,10 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     return std::span<const std::uint32_t>(first, uk);
   };
   std::vector<double> variation(cand.size(), 0.0), off_plane(cand.size(), 0.0);
+  // With near_radius_m: how many of each candidate's k nearest lie within it (RobustVerdicts::near),
+  // counted here where their coordinates are at hand.
+  const auto most_near = static_cast<std::uint8_t>(std::min(k, 255));
+  std::vector<std::uint8_t> cand_near(near_asked ? cand.size() : 0, 0);
   {
     const int th = cand.size() >= 256 ? kSearchThreads : 1;
     run_parallel(th, [&](int t) {
@@ -917,6 +921,13 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         std::size_t held = 0;
         if (above) around[held++] = at(s);
         for (const std::uint32_t q : knn) around[held++] = at(d.pos(q));
+        if (near_asked) {
+          const Eigen::Vector3d c = at(s);
+          const double r2 = o.near_radius_m * o.near_radius_m;
+          int within = 0;
+          for (std::size_t a = above ? 1 : 0; a < held; ++a) within += (around[a] - c).squaredNorm() <= r2 ? 1 : 0;
+          cand_near[i] = static_cast<std::uint8_t>(std::min<int>(within, most_near));
+        }
         Eigen::Vector3d mean = Eigen::Vector3d::Zero();
         for (std::size_t a = 0; a < held; ++a) mean += around[a];
         mean /= static_cast<double>(held);
@@ -995,6 +1006,11 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     const double ref = std::max(median_of(std::move(nd)), d_med);
     if (static_cast<double>(d[cand[i]]) > o.local_ratio * ref) out[cand[i]] = 2;
   }
+  // The largest recentred coordinate (step 6's slack, the near counts' frame limit).
+  float max_abs = 0.0f;
+  if (o.tile || near_asked) {
+    for (const float v : p) max_abs = std::max(max_abs, std::abs(v));
+  }
   // 6. A tile's searches against its window (options.tile; see the header).
   double shortfall_m = 0.0;
   std::size_t past_halo = 0;
@@ -1004,8 +1020,6 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     auto xyz = [&](std::uint32_t j) { return cloud.xyz.col(static_cast<Eigen::Index>(rows[j])); };
     // The searches ran in float32 on recentred coordinates: a relative slack of 1e-5 on their
     // distances, and an absolute one of 8 float steps of the largest recentred coordinate.
-    float max_abs = 0.0f;
-    for (const float v : p) max_abs = std::max(max_abs, std::abs(v));
     const double slack_m = 8.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * static_cast<double>(max_abs);
     std::vector<std::array<double, 4>> reach;  // candidate i's balls (RobustVerdicts::reach_m)
     PointQueries::Scratch scratch(k);
@@ -1105,13 +1119,12 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     // How many others each point is shown to have within near_radius_m (RobustVerdicts::near):
     // a point settled by counting has k within D_cert; a point whose mean k-NN distance d is
     // known has its j-th nearest within k·d / (k + 1 − j) (at least k + 1 − j of the k
-    // distances are as large); a candidate's k nearest are counted. Float32 distances in this
-    // frame, so nothing is claimed when its coordinates exceed 10^3 radii (the users' margins).
+    // distances are as large); a candidate's k nearest are counted (in step 4). Distances
+    // between the float32 recentred coordinates, so nothing is claimed when those exceed 10^3
+    // radii (the users' margins).
     verdicts->near.assign(cloud.size(), 0);
-    float max_abs = 0.0f;
-    for (const float v : p) max_abs = std::max(max_abs, std::abs(v));
     const double r = o.near_radius_m;
-    const auto most = static_cast<std::uint8_t>(std::min(k, 255));
+    const std::uint8_t most = most_near;
     if (static_cast<double>(max_abs) <= 1e3 * r) {
       // The points settled by counting in grid order (a store each, which does not stall the
       // loop as a load in input order would); then the points whose d is known: the uncertain
@@ -1135,18 +1148,10 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       for (const std::uint32_t j : g.zero) {
         if (!judging || judged[j]) by_mean(j);
       }
-      const auto r2 = static_cast<float>(r * r);
       for (std::size_t i = 0; i < cand.size(); ++i) {
         if (judging && !judged[cand[i]]) continue;
-        const float* q = &p[3 * static_cast<std::size_t>(cand[i])];
-        int within = 0;
-        for (const std::uint32_t j : nbrs(i)) {
-          const float* a = &p[3 * static_cast<std::size_t>(j)];
-          const float dx = a[0] - q[0], dy = a[1] - q[1], dz = a[2] - q[2];
-          within += dx * dx + dy * dy + dz * dz <= r2 ? 1 : 0;
-        }
         std::uint8_t& shown = verdicts->near[rows[cand[i]]];
-        shown = std::max(shown, static_cast<std::uint8_t>(std::min<int>(within, most)));
+        shown = std::max(shown, cand_near[i]);
       }
     }
   }

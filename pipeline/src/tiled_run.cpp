@@ -512,14 +512,13 @@ class KeptMask : public TileFiles {
     }
   }
 
+ private:
+  static constexpr std::uint8_t kKeptBits = 3;
   // The records a mask keeps (marked kNear or not).
   static std::size_t kept(const std::vector<std::uint8_t>& mask) {
     return static_cast<std::size_t>(
         std::count_if(mask.begin(), mask.end(), [](std::uint8_t m) { return (m & kKeptBits) != kNotKept; }));
   }
-
- private:
-  static constexpr std::uint8_t kKeptBits = 3;
   // A mask entry as a kept point's flag (1 interior, 0 halo), or −1 when not kept.
   static int flag_of(std::uint8_t m) {
     m &= kKeptBits;

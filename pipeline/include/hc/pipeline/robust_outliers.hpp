@@ -121,8 +121,8 @@ struct RobustVerdicts {
   /// k for a point settled by the counting pass when D_cert ≤ near_radius_m; the largest j
   /// with k·d / (k + 1 − j) ≤ near_radius_m for a point whose exact mean k-NN distance d is
   /// known (its j-th nearest lies within that); for a candidate, at least the number of its k
-  /// nearest within the radius. Float32 distances on the recentred coordinates the searches
-  /// use. 0 for non-finite points, with judge_only for the points not listed, and for every
+  /// nearest within the radius. Distances between the float32 recentred coordinates the
+  /// searches use. 0 for non-finite points, with judge_only for the points not listed, and for every
   /// point when the recentred coordinates reach past 10^3 × near_radius_m (the users' float
   /// margins assume no more). Empty when not asked.
   std::vector<std::uint8_t> near;
