@@ -405,6 +405,30 @@ TEST(RobustOutliers, TheIsolatedFilterTakesTheSpacingItIsGiven) {
   EXPECT_THROW(remove_isolated_points(c, o), hc::ConfigError);
 }
 
+// The mean-distance bound of RobustVerdicts::near where it is tight: a point with k − 1 copies
+// and one more point D away has d = D / k, so its (k − 1)-th nearest lies within k·d / 2 = D/2
+// by the bound, and indeed at 0; at a radius of 0.9 D exactly its k − 1 copies count, and the
+// bound gives k − 1 (one more would claim the point D away).
+TEST(RobustOutliers, NearCountsFromTheMeanDistanceAreTightForCopiesAndOneFarNeighbour) {
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 100; ++i)
+    for (int j = 0; j < 100; ++j) pts.emplace_back(0.001 * i, 0.001 * j, 0.0);
+  const Eigen::Vector3d c(0.050, 0.050, 0.050);
+  for (int i = 0; i < 16; ++i) pts.push_back(c);  // k = 16 points at one place
+  pts.push_back(c + Eigen::Vector3d(0.005, 0.0, 0.0));  // D = 5 mm away
+  RobustOutlierOptions o;
+  ASSERT_EQ(o.k, 16);
+  o.near_radius_m = 0.0045;
+  hc::pipeline::RobustVerdicts v;
+  const auto r = remove_robust_outliers(cloud_of(pts), o, &v);
+  ASSERT_LT(figure(r.report, "certify_distance_mm"), 5.0) << "the copies are not settled by counting";
+  for (std::size_t i = 10000; i < 10016; ++i) {
+    EXPECT_EQ(v.verdict[i], 0) << "a copy is kept";
+    EXPECT_EQ(int(v.near[i]), 15) << "copy " << i - 10000 << ": its 15 copies within 0.9 D, shown by d = D / 16";
+  }
+  EXPECT_EQ(int(v.near[10016]), 0) << "the point D away: its k nearest all lie D away";
+}
+
 // remove_isolated_points with known_near (the tiled run passes the robust test's near flags):
 // the points flagged are kept without a search, the rest searched in a hash of only the voxels
 // about them. Oracles: the same filter without the flags (a hash of every point), and every
