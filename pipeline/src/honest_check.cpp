@@ -15,6 +15,7 @@
 
 #include "knn_grid.hpp"  // detail::radix_sort, run_parallel, kSearchThreads
 #include "stage_util.hpp"  // detail::run_two
+#include "voxel_keys.hpp"
 #include "wanted_keys.hpp"
 
 #include "hc/common/bilinear_surface.hpp"
@@ -179,27 +180,14 @@ class VoxelHash {
     start_.push_back(static_cast<std::uint32_t>(index_.size()));
   }
 
-  static constexpr std::int64_t kLimit = (std::int64_t{1} << 20) - 1;
+  static constexpr std::int64_t kLimit = detail::kVoxelLimit;
   /// Boxes of at most this many cells are sorted by counting (its counts fit in the cache).
   static constexpr std::size_t kCountingSortCells = std::size_t{1} << 21;
   static constexpr std::uint64_t kAbsent = ~std::uint64_t{0};  ///< a key no hashed point has
 
-  /// ⌊v · inv_edge⌋ clamped to ±kLimit (v finite): a voxel coordinate. Without branches
-  /// (min and max, truncation corrected by a comparison): std::floor is a library call on the
-  /// baseline x86-64 target, and a branch on the sign mispredicts on every other point of a
-  /// cloud in no spatial order.
-  static std::int64_t cell_index(float v, double inv_edge) {
-    constexpr auto lim = static_cast<double>(kLimit);
-    const double c = std::min(std::max(static_cast<double>(v) * inv_edge, -lim), lim);
-    const auto t = static_cast<std::int64_t>(c);
-    return t - static_cast<std::int64_t>(static_cast<double>(t) > c);
-  }
-  /// Voxel (x, y, z), each clamped to ±kLimit (so keys repeat beyond it), in 21 bits each: keys
-  /// in the order of the coordinates, x slowest.
-  static std::uint64_t pack21(std::int64_t x, std::int64_t y, std::int64_t z) {
-    auto u = [](std::int64_t v) { return static_cast<std::uint64_t>(std::clamp(v, -kLimit, kLimit) + kLimit + 1); };
-    return (u(x) << 42) | (u(y) << 21) | u(z);
-  }
+  /// A voxel coordinate and a voxel's key without the box: voxel_keys.hpp.
+  static std::int64_t cell_index(float v, double inv_edge) { return detail::voxel_index(static_cast<double>(v), inv_edge); }
+  static std::uint64_t pack21(std::int64_t x, std::int64_t y, std::int64_t z) { return detail::pack_voxel21(x, y, z); }
   std::int64_t cell(float v) const { return cell_index(v, inv_); }
   /// The key of cell (x, y, z), each coordinate clamped to ±kLimit (so keys repeat beyond it):
   /// the linear index in the occupied box, or kAbsent outside it; without the box (more than
@@ -467,13 +455,6 @@ std::vector<std::uint8_t> isolated_flags(const VoxelHash& hash, std::size_t n, d
   return isolated;
 }
 
-/// Whether InputCheckScope::near can spare tests (see there): the filters' radius filter_m at
-/// most 0.9 × the test's radius_m, and every finite point of `local` (3 per point, the check's
-/// frame) within 10^4 · radius_m of its origin per axis. The filters' frames are centred inside
-/// the points' box, so their coordinates are at most twice as large; each float coordinate is
-/// off by at most 2^-24 of its size, so a distance by at most 2·√3·2^-24 of the two frames'
-/// sizes, about 6.2e-7 · 3 · 10^4 · radius_m ≈ 0.02 · radius_m, with the float products' few
-/// 1e-7 relative: inside the 0.1 · radius_m between the two radii.
 /// Whether every finite point of `local` lies within limit_m of its origin on each axis.
 bool coordinates_within(const std::vector<float>& local, const std::vector<std::uint8_t>& finite, double limit_m) {
   for (std::size_t i = 0; i < finite.size(); ++i) {
@@ -485,6 +466,13 @@ bool coordinates_within(const std::vector<float>& local, const std::vector<std::
   return true;
 }
 
+/// Whether InputCheckScope::near can spare tests (see there): the filters' radius filter_m at
+/// most 0.9 × the test's radius_m, and every finite point of `local` (3 per point, the check's
+/// frame) within 10^4 · radius_m of its origin per axis. The filters' frames are centred inside
+/// the points' box, so their coordinates are at most twice as large; each float coordinate is
+/// off by at most 2^-24 of its size, so a distance by at most 2·√3·2^-24 of the two frames'
+/// sizes, about 6.2e-7 · 3 · 10^4 · radius_m ≈ 0.02 · radius_m, with the float products' few
+/// 1e-7 relative: inside the 0.1 · radius_m between the two radii.
 bool near_flags_usable(const std::vector<float>& local, const std::vector<std::uint8_t>& finite, double filter_m, double radius_m) {
   if (!(filter_m <= 0.9 * radius_m) || !(radius_m > 0.0)) return false;
   return coordinates_within(local, finite, 1e4 * radius_m);
@@ -521,14 +509,7 @@ std::vector<std::uint8_t> points_about(const std::vector<float>& local, const st
   }
   std::sort(marked.begin(), marked.end());
   marked.erase(std::unique(marked.begin(), marked.end()), marked.end());
-  // A bit per slot of a multiplicative hash of the marked keys (at least 64 slots per key): a
-  // point whose key's bit is clear is in no marked voxel, without a search.
-  int bits = 6;
-  while (bits < 40 && (std::size_t{1} << bits) < 64 * marked.size()) ++bits;
-  const int shift = 64 - bits;
-  std::vector<std::uint64_t> filter((std::size_t{1} << bits) / 64 + 1, 0);
-  auto slot = [shift](std::uint64_t key) { return (key * 0x9E3779B97F4A7C15ULL) >> shift; };
-  for (const std::uint64_t key : marked) filter[slot(key) >> 6] |= std::uint64_t{1} << (slot(key) & 63);
+  const detail::KeyBits filter(marked, 64);  // most points in no marked voxel pass without a search
   const int threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
   std::vector<std::size_t> taken(static_cast<std::size_t>(threads), 0);
   detail::run_parallel(threads, [&](int t) {
@@ -537,9 +518,7 @@ std::vector<std::uint8_t> points_about(const std::vector<float>& local, const st
     for (std::size_t i = b; i < e; ++i) {
       if (!finite[i]) continue;
       const std::uint64_t key = voxel_key(&local[3 * i]);
-      const std::uint64_t h = slot(key);
-      if (!((filter[h >> 6] >> (h & 63)) & 1U)) continue;
-      if (!std::binary_search(marked.begin(), marked.end(), key)) continue;
+      if (!filter.maybe(key) || !std::binary_search(marked.begin(), marked.end(), key)) continue;
       take[i] = 1;
       ++c;
     }

@@ -1124,7 +1124,6 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     // radii (the users' margins).
     verdicts->near.assign(cloud.size(), 0);
     const double r = o.near_radius_m;
-    const std::uint8_t most = most_near;
     if (static_cast<double>(max_abs) <= 1e3 * r) {
       // The points settled by counting in grid order (a store each, which does not stall the
       // loop as a load in input order would); then the points whose d is known: the uncertain
@@ -1133,13 +1132,13 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         if (!(d[j] >= 0.0f)) return;
         const double within = std::floor(static_cast<double>(k) + 1.0 - static_cast<double>(k) * static_cast<double>(d[j]) * (1.0 + 1e-5) / r);
         std::uint8_t& shown = verdicts->near[rows[j]];
-        shown = std::max(shown, static_cast<std::uint8_t>(std::clamp(within, 0.0, static_cast<double>(most))));
+        shown = std::max(shown, static_cast<std::uint8_t>(std::clamp(within, 0.0, static_cast<double>(most_near))));
       };
       if (!judging && d_cert <= r) {
         // Every column finite (a tile's points): rows is the identity, not read.
         const bool every = n == cloud.size();
         for (std::size_t s = 0; s < certified.size(); ++s) {
-          if (certified[s]) verdicts->near[every ? g.original[s] : rows[g.original[s]]] = most;
+          if (certified[s]) verdicts->near[every ? g.original[s] : rows[g.original[s]]] = most_near;
         }
       }
       for (const std::uint32_t j : uncertain) {

@@ -6,6 +6,7 @@
 #include "ball_set.hpp"
 #include "far_cells.hpp"
 #include "posix_io.hpp"
+#include "voxel_keys.hpp"
 #include "wanted_keys.hpp"
 #include "knn_grid.hpp"
 #include "near_knn.hpp"
@@ -1722,6 +1723,22 @@ void check_within_window(const Tiles& tiles, std::size_t t, const RobustOutlierO
                     " (the halo then holds the search beyond the cells the tile decides)");
 }
 
+// Removes from v the entries at the positions removed_at lists (increasing, each < v.size()),
+// keeping the others' order: a filter's removed columns (RemovedPoints::at) applied to what the
+// tile carries per point.
+template <class T>
+void erase_at(std::vector<T>& v, const std::vector<std::size_t>& removed_at) {
+  std::size_t at = 0, next = 0;
+  for (std::size_t i = 0; i < v.size(); ++i) {
+    if (next < removed_at.size() && removed_at[next] == i) {
+      ++next;
+      continue;
+    }
+    v[at++] = v[i];
+  }
+  v.resize(at);
+}
+
 // The isolated-point filter's known_near flags of `pts` (one per point) from the robust test's
 // counts (RobustVerdicts::near: others shown within the radius before the removals): 1 where
 // the count, less the removed points (gone_m, x y z [m] each, the same frame) within radius_m
@@ -1739,19 +1756,8 @@ std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>
   const std::size_t gone = gone_m.size() / 3;
   if (gone == 0) return 0;
   const double inv = 1.0 / (radius_m * 1.001);
-  // ⌊v · inv⌋ clamped to ±(2^20 − 1) without a library call (truncation corrected by a
-  // comparison; the clamp keeps points within the radius at most one voxel apart), and the
-  // voxel packed in 21 bits an axis.
-  auto cell = [inv](double v) {
-    constexpr double lim = 1048575.0;
-    const double c = std::min(std::max(v * inv, -lim), lim);
-    const auto t = static_cast<std::int64_t>(c);
-    return t - static_cast<std::int64_t>(static_cast<double>(t) > c);
-  };
-  auto key = [](std::int64_t x, std::int64_t y, std::int64_t z) {
-    auto u = [](std::int64_t v) { return static_cast<std::uint64_t>(std::clamp<std::int64_t>(v, -1048575, 1048575) + 1048576); };
-    return (u(x) << 42) | (u(y) << 21) | u(z);
-  };
+  auto cell = [inv](double v) { return detail::voxel_index(v, inv); };
+  auto key = [](std::int64_t x, std::int64_t y, std::int64_t z) { return detail::pack_voxel21(x, y, z); };
   // (voxel, removed point) for each removed point and each voxel about its own, by voxel; the
   // voxels in an open-addressing table (a multiplicative hash, linear probing) to their runs.
   std::vector<std::pair<std::uint64_t, std::uint32_t>> listed;
@@ -1785,21 +1791,16 @@ std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>
     while (table[h] != kEmpty) h = (h + 1) & mask;
     table[h] = v;
   }
-  // A bit per 16 slots' worth of a second hash of the voxels (a fraction of the table's bytes,
-  // so it stays in cache): a point whose bit is clear is in no listed voxel, without a probe.
-  int fbits = 6;
-  while (fbits < 40 && (std::size_t{1} << fbits) < 16 * voxel.size()) ++fbits;
-  const int fshift = 64 - fbits;
-  auto fslot = [fshift](std::uint64_t k) { return static_cast<std::size_t>((k * 0xC2B2AE3D27D4EB4FULL) >> fshift); };
-  std::vector<std::uint64_t> filter((std::size_t{1} << fbits) / 64 + 1, 0);
-  for (const std::uint64_t v : voxel) filter[fslot(v) >> 6] |= std::uint64_t{1} << (fslot(v) & 63);
+  // 16 bits a voxel (a fraction of the table's bytes, so it stays in cache): most points in no
+  // listed voxel pass without a probe.
+  const detail::KeyBits filter(voxel, 16);
   const double r2 = radius_m * radius_m * (1.0 + 2e-6);
   std::size_t lost = 0;
   for (std::size_t i = 0; i < n; ++i) {
     if (!flags[i]) continue;
     const double* p = pts.xyz.data() + 3 * i;
     const std::uint64_t kp = key(cell(p[0]), cell(p[1]), cell(p[2]));
-    if (!((filter[fslot(kp) >> 6] >> (fslot(kp) & 63)) & 1U)) continue;
+    if (!filter.maybe(kp)) continue;
     std::size_t h = slot(kp);
     while (table[h] != kEmpty && voxel[table[h]] != kp) h = (h + 1) & mask;
     if (table[h] == kEmpty) continue;  // no removed point within a voxel of it
@@ -1850,17 +1851,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     if (plan.far_points == 0 || (flags[r] & kFarFlag) == 0) rec_of.push_back(static_cast<std::uint32_t>(r));
   }
   std::vector<std::uint8_t>().swap(flags);  // not read again
-  auto compose_removal = [&](const std::vector<std::size_t>& removed_at) {
-    std::size_t at = 0, next = 0;
-    for (std::size_t i = 0; i < rec_of.size(); ++i) {
-      if (next < removed_at.size() && removed_at[next] == i) {
-        ++next;
-        continue;
-      }
-      rec_of[at++] = rec_of[i];
-    }
-    rec_of.resize(at);
-  };
+  auto compose_removal = [&](const std::vector<std::size_t>& removed_at) { erase_at(rec_of, removed_at); };
   lap("read");
   // The robust test's sample's spacing (stage tile_scale; 0 without the robust filter): the
   // isolated filter's and the honest check's, as in core.
@@ -1978,15 +1969,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     add_figures(o.sums, f1f.report);
     compose_removal(far_removed.at);
     if (!near_kept.empty()) {
-      std::size_t at = 0, next = 0;
-      for (std::size_t i = 0; i < near_kept.size(); ++i) {
-        if (next < far_removed.at.size() && far_removed.at[next] == i) {
-          ++next;
-          continue;
-        }
-        near_kept[at++] = near_kept[i];
-      }
-      near_kept.resize(at);
+      erase_at(near_kept, far_removed.at);
       gone_m.insert(gone_m.end(), far_removed.xyz.begin(), far_removed.xyz.end());
     }
     lap("far");

@@ -225,9 +225,10 @@ struct InputCheckScope {
   const std::vector<std::uint8_t>* removed = nullptr;
   /// Optional, per point of as_read_m: 1 = the tile's filters found at least
   /// options.isolation_min_neighbours other points of as_read_m within
-  /// isolated_filter_radius_m(options, spacing_m) of it (float32 distances in a frame centred
-  /// inside the box of as_read_m's points: remove_isolated_points and remove_robust_outliers
-  /// recentre on a median of a subset of them), so the point test cannot flag it. Its test is
+  /// isolated_filter_radius_m(options, spacing_m) of it (distances between float32 coordinates
+  /// in a frame centred inside the box of as_read_m's points: remove_isolated_points and
+  /// remove_robust_outliers recentre on a median of a subset of them), so the point test cannot
+  /// flag it. Its test is
   /// then skipped and the voxel hash holds only the voxels about the points tested: the flags
   /// and every figure stay those of the full test. Used only when that radius is at most 0.9 ×
   /// the test's and every point lies within 10^4 test radii of the check's local frame's origin
@@ -280,9 +281,9 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
 /// @param removed_points when given, set to the removed points (coordinates and columns in
 ///        `cloud`): the tiled run checks that none lay within the radius of its window's edge.
 /// @param known_near when given (one per column): 1 = at least isolation_min_neighbours other
-///        points of `cloud` are known to lie within 0.99 × the filter's radius (float32
-///        distances in a frame whose coordinates stay within 10^3 such radii: the robust test's,
-///        RobustVerdicts::near), so the point is kept without its search, and the voxel hash
+///        points of `cloud` are known to lie within 0.99 × the filter's radius (distances
+///        between float32 coordinates in a frame whose coordinates stay within 10^3 such radii:
+///        the robust test's, RobustVerdicts::near), so the point is kept without its search, and the voxel hash
 ///        holds only the voxels about the points searched: the result is the full test's.
 ///        Used only when this filter's own recentred coordinates stay within 10^3 radii too
 ///        (the float rounding of both frames then stays under 0.1 % of the radius); otherwise
