@@ -14,9 +14,12 @@
 
 #include <algorithm>
 #include <bit>
+#include <cmath>
+#include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -140,6 +143,17 @@ Cloud read_with_intensity(hc::pipeline::PointStream& s, std::size_t chunk_points
   return all;
 }
 
+// Whether a and b hold the same coordinates: equal values, or NaNs of the same bits (a PCD's
+// "nan").
+bool same_xyz(const Eigen::Matrix3Xd& a, const Eigen::Matrix3Xd& b) {
+  if (a.cols() != b.cols()) return false;
+  for (Eigen::Index i = 0; i < a.size(); ++i) {
+    const double x = a.data()[i], y = b.data()[i];
+    if (!(x == y) && !(std::isnan(x) && std::bit_cast<std::uint64_t>(x) == std::bit_cast<std::uint64_t>(y))) return false;
+  }
+  return true;
+}
+
 // `p` streamed natively in chunks of `chunk` points: `whole`'s points, colour and intensity,
 // and a point count of at least its size. Returns the stream, read to its end.
 std::unique_ptr<hc::pipeline::PointStream> expect_chunks_equal(const fs::path& p, const Cloud& whole, std::size_t chunk) {
@@ -149,7 +163,7 @@ std::unique_ptr<hc::pipeline::PointStream> expect_chunks_equal(const fs::path& p
   const Cloud got = read_with_intensity(*s, chunk);
   EXPECT_EQ(got.size(), whole.size()) << "chunk " << chunk;
   if (got.size() != whole.size()) return s;
-  EXPECT_TRUE(got.xyz == whole.xyz) << "chunk " << chunk;
+  EXPECT_TRUE(same_xyz(got.xyz, whole.xyz)) << "chunk " << chunk;
   EXPECT_EQ(got.rgb, whole.rgb) << "chunk " << chunk;
   EXPECT_EQ(got.intensity, whole.intensity) << "chunk " << chunk;
   return s;
@@ -748,7 +762,7 @@ fs::path write_binary_pcd(const fs::path& p, std::size_t n, bool floats) {
 }
 
 // A DATA binary PCD streams natively: load_cloud's points and notes in any chunking, plain and
-// under gzip, with its float32 flag; its errors are load_cloud's. An ascii body is read whole.
+// under gzip, with its float32 flag; its errors are load_cloud's.
 TEST(PointStream, BinaryPcdStreamsTheSamePointsAndErrorsAsTheWholeRead) {
   const fs::path dir = hc::test::temp_dir("pcd_stream");
   const fs::path mixed = write_binary_pcd(dir / "mixed.pcd", 100000, false);
@@ -796,15 +810,112 @@ TEST(PointStream, BinaryPcdStreamsTheSamePointsAndErrorsAsTheWholeRead) {
               whole_error);
   }
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "short.pcd"); }).find("truncated"), std::string::npos);
-  // An ascii body (the shared bunny) is parsed whole by PCL and handed out in chunks.
+}
+
+// An ascii PCD of n points as PCL's writer lays it out (one point a line, blanks between
+// values): with mixed, a packed rgb (U4), x as float64 (17 digits), y as float32 written with 12
+// digits (so that the float rounding of the decimal matters), a 3-value field, z as int32 and a
+// uint8 label, organised as 2 rows (HEIGHT 2); "nan" for y every 97th point, and a blank line
+// now and then; else x y z float32 only.
+fs::path write_ascii_pcd(const fs::path& p, std::size_t n, bool mixed) {
+  std::ofstream out(p, std::ios::binary);
+  out << "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n";
+  out << (mixed ? "FIELDS rgb x y normal z label\nSIZE 4 8 4 4 4 1\nTYPE U F F F I U\nCOUNT 1 1 1 3 1 1\n"
+                : "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n");
+  out << "WIDTH " << (mixed ? n / 2 : n) << "\nHEIGHT " << (mixed ? 2 : 1) << "\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << n
+      << "\nDATA ascii\n";
+  std::mt19937 rng(20261126);
+  std::uniform_real_distribution<double> u(-3.0, 3.0);
+  char buf[64];
+  for (std::size_t i = 0; i < n; ++i) {
+    const double x = u(rng), y = u(rng) * 1e-3, z = u(rng);
+    if (mixed) {
+      std::snprintf(buf, sizeof buf, "%.17g", x);
+      out << (0x00FF8000u + i % 256) << ' ' << buf << ' ';
+      if (i % 97 == 0) {
+        out << "nan";
+      } else {
+        std::snprintf(buf, sizeof buf, "%.12g", y);
+        out << buf;
+      }
+      out << " 0.1 -0.2 0.97 " << static_cast<long>(std::lround(z * 1e5)) << ' ' << i % 256 << "\n";
+      if (i % 1000 == 999) out << "\n";
+    } else {
+      std::snprintf(buf, sizeof buf, "%.12g %.12g %.12g\n", x, y, z);
+      out << buf;
+    }
+  }
+  return p;
+}
+
+// A DATA ascii PCD streams in blocks of lines (the whole read hands the body to PCL, which has
+// no chunked read): PCL's points (the oracle: load_cloud) bit for bit in any chunking, plain and
+// under gzip, float32 flag included, on generated files of every field type and on the shared
+// bunny; its errors are the whole read's.
+TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
+  const fs::path dir = hc::test::temp_dir("pcd_ascii_stream");
+  const fs::path mixed = write_ascii_pcd(dir / "mixed.pcd", 60000, true);
+  const fs::path floats = write_ascii_pcd(dir / "floats.pcd", 50001, false);
   const fs::path bunny = hc::test::scan_path("bunny/pcl_bunny.pcd");
-  auto s = hc::pipeline::open_point_stream(bunny);
-  EXPECT_FALSE(s->streamed());
-  std::size_t chunks = 0;
-  const Cloud got = read_in_chunks(*s, 100, &chunks);
-  EXPECT_EQ(chunks, 4U);
-  EXPECT_TRUE(got.xyz == hc::pipeline::load_cloud(bunny).value.xyz);
-  EXPECT_EQ(got.size(), 397U);
+  expect_stream_equals_load_cloud(mixed, "PCD ascii, 60000 points (lines streamed in chunks)");
+  expect_stream_equals_load_cloud(floats, "PCD ascii, 50001 points (lines streamed in chunks)");
+  expect_stream_equals_load_cloud(bunny, "PCD ascii, 397 points (lines streamed in chunks)");
+  {
+    const Cloud whole = hc::pipeline::load_cloud(mixed).value;
+    std::size_t nan_y = 0;
+    for (Eigen::Index i = 0; i < whole.xyz.cols(); ++i) nan_y += std::isnan(whole.xyz(1, i)) ? 1U : 0U;
+    EXPECT_EQ(nan_y, (60000U + 96U) / 97U) << "the nan values came through";
+  }
+  for (const fs::path& p : {mixed, floats}) {
+    const Cloud whole = hc::pipeline::load_cloud(p).value;
+    const auto s = hc::pipeline::open_point_stream(p);
+    EXPECT_TRUE(s->streamed());
+    EXPECT_EQ(s->total_points(), whole.size());
+    Cloud c;
+    ASSERT_TRUE(s->next(c, 10));
+    EXPECT_EQ(c.float32_xyz, whole.float32_xyz);
+    EXPECT_EQ(c.float32_xyz, p == floats);
+    const fs::path gz = dir / (p.filename().string() + ".gz");
+    hc::test::write_gzip(gz, hc::test::read_bytes(p), 2);
+    SCOPED_TRACE(gz.filename().string());
+    (void)expect_chunks_equal(gz, hc::pipeline::load_cloud(gz).value, 4096);
+  }
+  // The whole read's errors: a token that is no number on data line 1234, a line of 7 values,
+  // a body short of 10 lines (plain and under gzip).
+  const std::string bytes = hc::test::read_bytes(mixed);
+  const std::size_t body = bytes.find("DATA ascii\n") + 11;
+  const auto line_at = [&](std::size_t k) {  // the offset of data line k (from 1; blank lines skipped)
+    std::size_t at = body;
+    for (std::size_t seen = 0;;) {
+      if (bytes[at] != '\n' && ++seen == k) return at;
+      at = bytes.find('\n', at) + 1;
+    }
+  };
+  std::string word = bytes;
+  word.replace(line_at(1234), bytes.find(' ', line_at(1234)) - line_at(1234), "0x1F");
+  hc::test::write_bytes(dir / "word.pcd", word);
+  std::string seven = bytes;
+  seven.erase(bytes.rfind(' ', bytes.find('\n', line_at(777))), bytes.find('\n', line_at(777)) - bytes.rfind(' ', bytes.find('\n', line_at(777))));
+  hc::test::write_bytes(dir / "seven.pcd", seven);
+  const std::string short_body = bytes.substr(0, line_at(59991));
+  hc::test::write_bytes(dir / "short.pcd", short_body);
+  hc::test::write_gzip(dir / "short.pcd.gz", short_body);
+  for (const char* name : {"word.pcd", "seven.pcd", "short.pcd", "short.pcd.gz"}) {
+    SCOPED_TRACE(name);
+    const fs::path p = dir / name;
+    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
+    EXPECT_NE(whole_error.find(name), std::string::npos) << whole_error;
+    EXPECT_EQ(hc::test::error_of([&] {
+                auto s = hc::pipeline::open_point_stream(p);
+                Cloud c;
+                while (s->next(c, 5000)) {
+                }
+              }),
+              whole_error);
+  }
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "word.pcd"); }).find("data line 1234: '0x1F' is not a number"), std::string::npos);
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "seven.pcd"); }).find("data line 777: 7 values"), std::string::npos);
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "short.pcd"); }).find("only 59990 data lines"), std::string::npos);
 }
 
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {

@@ -13,6 +13,7 @@
 // the same way.
 
 #include "byte_source.hpp"
+#include "line_stream.hpp"
 #include "readers.hpp"
 #include "text_parse.hpp"
 
@@ -27,6 +28,8 @@
 #include <algorithm>
 #include <array>
 #include <cerrno>
+#include <charconv>
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -121,8 +124,10 @@ struct PcdLayout {
   /// parser never sees a line this check read differently (a fuzzed header with repeated
   /// FIELDS lines and stray bytes crashed pcl::PCDReader::read).
   std::string canonical_header;
+  std::size_t values = 0;       ///< numbers on an ascii data line (the fields' counts summed)
   struct Axis {
     std::size_t offset = 0;     ///< byte offset in the record
+    std::size_t value = 0;      ///< place among an ascii line's numbers (from 0)
     char type = 'F';            ///< F, I or U
     int size = 4;               ///< bytes
   } axis[3];
@@ -242,7 +247,7 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
     for (int a = 0; a < 3; ++a) {
       if (fields[i] == std::string(1, static_cast<char>('x' + a)) && !axis_seen[a]) {
         axis_seen[a] = true;
-        layout.axis[a] = {point_bytes, t[0], std::stoi(z)};
+        layout.axis[a] = {point_bytes, values, t[0], std::stoi(z)};
       }
     }
     point_bytes += static_cast<std::size_t>(std::stoi(z)) * static_cast<std::size_t>(c);
@@ -267,6 +272,7 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
   layout.pos = pos;
   layout.n = n;
   layout.point_bytes = point_bytes;
+  layout.values = values;
   if (header_only && data != "binary") return layout;
   if (data == "ascii") {
     std::size_t lines = 0;
@@ -380,6 +386,101 @@ class PcdStream final : public PointStream {
   StickyFailure sticky_;
 };
 
+/// One number of an ascii data line as PCL's ASCII reader (pcl::PCDReader, io/src/pcd_io.cpp,
+/// copyStringValue) stores it in a field of type F, I or U and `size` bytes, widened to double:
+/// F 4 parsed to float (correctly rounded; a value beyond float's range becomes the double's
+/// value cast, ±inf, as PCL's atof fallback gives), F 8 to double, I and U the integer the
+/// token starts with (PCL's istream >> integer stops at a '.' or an 'e'), cast to the field's
+/// width. "nan" in any case is NaN for F (0 for I and U). The token has passed
+/// check_numeric_line (a number std::from_chars reads in double).
+double ascii_value(const char* b, const char* e, char type, int size) {
+  if (*b == '+') ++b;  // from_chars refuses a leading '+', PCL's istream takes it
+  if (type == 'F') {
+    if (size == 4) {
+      float f = 0.0f;
+      const auto r = std::from_chars(b, e, f);
+      if (r.ec == std::errc()) return static_cast<double>(f);
+      double d = 0.0;
+      (void)std::from_chars(b, e, d);
+      return static_cast<double>(static_cast<float>(d));
+    }
+    double d = 0.0;
+    (void)std::from_chars(b, e, d);
+    return d;
+  }
+  long long v = 0;
+  const auto r = std::from_chars(b, e, v);
+  if (r.ec != std::errc()) {
+    double d = 0.0;
+    (void)std::from_chars(b, e, d);
+    if (!std::isfinite(d)) return 0.0;
+    v = static_cast<long long>(std::clamp(d, -9.2e18, 9.2e18));
+  }
+  if (type == 'I') {
+    switch (size) {
+      case 1: return static_cast<std::int8_t>(v);
+      case 2: return static_cast<std::int16_t>(v);
+      case 4: return static_cast<std::int32_t>(v);
+      default: return static_cast<double>(v);
+    }
+  }
+  switch (size) {
+    case 1: return static_cast<std::uint8_t>(v);
+    case 2: return static_cast<std::uint16_t>(v);
+    case 4: return static_cast<std::uint32_t>(v);
+    default: return static_cast<double>(static_cast<std::uint64_t>(v));
+  }
+}
+
+// A DATA ascii PCD read in blocks of lines (point_stream.hpp): the first `n` data lines (lines
+// with a token; validate_pcd's rule), each checked as the whole read checks it (check_numeric_line:
+// exactly `values` numbers; the same words, "data line K"), x y z taken by ascii_value. The
+// whole read hands the body to PCL, which no chunked read of; the points are the same
+// (tests/pipeline/point_stream_test.cpp compares them).
+class PcdAsciiStream final : public LineStream {
+ public:
+  PcdAsciiStream(std::unique_ptr<ByteSource> src, const PcdLayout& l) : LineStream(std::move(src)), l_(l) {
+    total_ = l_.n;
+    src_->seek(l_.pos);
+    start_lines();
+    notes_ = {"PCD", "PCD ascii, " + std::to_string(l_.n) + " points (lines streamed in chunks)"};
+  }
+
+ private:
+  void fill(std::size_t max) override {
+    const char* b = nullptr;
+    const char* e = nullptr;
+    std::array<const char*, 3> tb{}, te{};
+    while (max > 0 && done_ < l_.n) {
+      if (!lines_->next(b, e)) {
+        throw InputError("load_cloud: " + name_ + ": truncated: the header declares " + std::to_string(l_.n) +
+                         " points but only " + std::to_string(done_) + " data lines follow");
+      }
+      ++done_;
+      const std::string problem = check_numeric_line(b, e, l_.values);
+      if (!problem.empty()) throw InputError("load_cloud: " + name_ + ": data line " + std::to_string(done_) + ": " + problem);
+      // The tokens of x, y and z.
+      std::size_t at = 0;
+      for (const char* p = b;; ++at) {
+        while (p < e && is_space(*p)) ++p;
+        if (p >= e) break;
+        const char* q = p;
+        while (q < e && !is_space(*q)) ++q;
+        for (std::size_t a = 0; a < 3; ++a) {
+          if (l_.axis[a].value == at) tb[a] = p, te[a] = q;
+        }
+        p = q;
+      }
+      for (std::size_t a = 0; a < 3; ++a) xyz_.push_back(ascii_value(tb[a], te[a], l_.axis[a].type, l_.axis[a].size));
+      --max;
+    }
+  }
+  void shape(Cloud& chunk) override { chunk.float32_xyz = float32_axes(l_); }
+
+  PcdLayout l_;
+  std::size_t done_ = 0;  // data lines read
+};
+
 }  // namespace
 
 std::unique_ptr<PointStream> open_pcd_stream(const std::filesystem::path& path, const std::string& name, bool gz) {
@@ -411,7 +512,8 @@ std::unique_ptr<PointStream> open_pcd_stream(const std::filesystem::path& path, 
   if (end_at == std::string::npos) return nullptr;
   head.resize(end_at);
   const PcdLayout layout = validate_pcd(head, name, static_cast<std::size_t>(file_bytes), /*header_only=*/true);
-  if (layout.data != "binary") return nullptr;  // ascii and binary_compressed bodies: PCL, whole
+  if (layout.data == "ascii") return std::make_unique<PcdAsciiStream>(std::move(src), layout);
+  if (layout.data != "binary") return nullptr;  // binary_compressed: one LZF block, PCL, whole
   return std::make_unique<PcdStream>(std::move(src), layout);
 }
 
