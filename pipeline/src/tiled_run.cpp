@@ -1745,9 +1745,9 @@ void erase_at(std::vector<T>& v, const std::vector<std::size_t>& removed_at) {
 // of the point, is still at least min_neighbours. Returns how many points had the count but
 // lost it so. Voxels of edge radius_m (a thousandth wider, so that two points within the
 // radius never lie two voxels apart, whatever the rounding): each removed point is listed in
-// its voxel and the 26 around it; a point in a voxel with a list (a bit filter, then a hash
-// table) is measured against the removed points in it (double distances, a millionth of the
-// radius wider).
+// its voxel and the 26 around it; a point whose count could fall below min_neighbours (by the
+// longest list) and in a voxel with a list (a bit filter, then a hash table) is measured
+// against the removed points in it (double distances, a millionth of the radius wider).
 std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>& count, const std::vector<double>& gone_m,
                                double radius_m, int min_neighbours, std::vector<std::uint8_t>& flags) {
   const std::size_t n = count.size();
@@ -1795,9 +1795,15 @@ std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>
   // listed voxel pass without a probe.
   const detail::KeyBits filter(voxel, 16);
   const double r2 = radius_m * radius_m * (1.0 + 2e-6);
+  // Every removed point within the radius of a point is listed in the point's voxel: a point
+  // whose count stays at least min_neighbours less the longest list keeps its flag unlooked
+  // (the robust test's counted points, k = 16, about a few scattered removals).
+  std::uint32_t longest = 0;
+  for (std::size_t v = 0; v + 1 < run.size(); ++v) longest = std::max(longest, run[v + 1] - run[v]);
+  const auto safe = static_cast<std::int64_t>(min_neighbours) + static_cast<std::int64_t>(longest);
   std::size_t lost = 0;
   for (std::size_t i = 0; i < n; ++i) {
-    if (!flags[i]) continue;
+    if (!flags[i] || static_cast<std::int64_t>(count[i]) >= safe) continue;
     const double* p = pts.xyz.data() + 3 * i;
     const std::uint64_t kp = key(cell(p[0]), cell(p[1]), cell(p[2]));
     if (!filter.maybe(kp)) continue;
