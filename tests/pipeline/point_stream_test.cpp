@@ -19,6 +19,7 @@
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <random>
 #include <string>
 #include <vector>
@@ -814,32 +815,39 @@ TEST(PointStream, BinaryPcdStreamsTheSamePointsAndErrorsAsTheWholeRead) {
 
 // An ascii PCD of n points as PCL's writer lays it out (one point a line, blanks between
 // values): with mixed, a packed rgb (U4), x as float64 (17 digits), y as float32 written with 12
-// digits (so that the float rounding of the decimal matters), a 3-value field, z as int32 and a
-// uint8 label, organised as 2 rows (HEIGHT 2); "nan" for y every 97th point, and a blank line
-// now and then; else x y z float32 only.
-fs::path write_ascii_pcd(const fs::path& p, std::size_t n, bool mixed) {
+// digits (so that the float rounding of the decimal matters), a 3-value field, z as float64 and
+// a uint8 label, organised as 2 rows (HEIGHT 2); y "nan", "NaN", beyond float's range (1e39)
+// or subnormal (1e-40) now and then, and a blank line now and then; else x y z float32 only;
+// with int_z, z an int32 field.
+fs::path write_ascii_pcd(const fs::path& p, std::size_t n, bool mixed, bool int_z = false) {
   std::ofstream out(p, std::ios::binary);
   out << "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n";
-  out << (mixed ? "FIELDS rgb x y normal z label\nSIZE 4 8 4 4 4 1\nTYPE U F F F I U\nCOUNT 1 1 1 3 1 1\n"
-                : "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n");
+  out << (mixed ? "FIELDS rgb x y normal z label\nSIZE 4 8 4 4 8 1\nTYPE U F F F F U\nCOUNT 1 1 1 3 1 1\n"
+                : int_z ? "FIELDS x y z\nSIZE 4 4 4\nTYPE F F I\nCOUNT 1 1 1\n" : "FIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n");
   out << "WIDTH " << (mixed ? n / 2 : n) << "\nHEIGHT " << (mixed ? 2 : 1) << "\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " << n
       << "\nDATA ascii\n";
   std::mt19937 rng(20261126);
   std::uniform_real_distribution<double> u(-3.0, 3.0);
-  char buf[64];
+  char buf[96];
   for (std::size_t i = 0; i < n; ++i) {
     const double x = u(rng), y = u(rng) * 1e-3, z = u(rng);
     if (mixed) {
       std::snprintf(buf, sizeof buf, "%.17g", x);
       out << (0x00FF8000u + i % 256) << ' ' << buf << ' ';
       if (i % 97 == 0) {
-        out << "nan";
+        out << (i % 2 == 0 ? "nan" : "NaN");
+      } else if (i % 1001 == 5) {
+        out << (i % 2 == 0 ? "1e39" : "-1e-40");
       } else {
         std::snprintf(buf, sizeof buf, "%.12g", y);
         out << buf;
       }
-      out << " 0.1 -0.2 0.97 " << static_cast<long>(std::lround(z * 1e5)) << ' ' << i % 256 << "\n";
+      std::snprintf(buf, sizeof buf, "%.17g", z);
+      out << " 0.1 -0.2 0.97 " << buf << ' ' << i % 256 << "\n";
       if (i % 1000 == 999) out << "\n";
+    } else if (int_z) {
+      std::snprintf(buf, sizeof buf, "%.9g %.9g %ld\n", x, y, std::lround(z * 1e5));
+      out << buf;
     } else {
       std::snprintf(buf, sizeof buf, "%.12g %.12g %.12g\n", x, y, z);
       out << buf;
@@ -850,8 +858,9 @@ fs::path write_ascii_pcd(const fs::path& p, std::size_t n, bool mixed) {
 
 // A DATA ascii PCD streams in blocks of lines (the whole read hands the body to PCL, which has
 // no chunked read): PCL's points (the oracle: load_cloud) bit for bit in any chunking, plain and
-// under gzip, float32 flag included, on generated files of every field type and on the shared
-// bunny; its errors are the whole read's.
+// under gzip, float32 flag included, on generated files of float32 and float64 axes among
+// fields of every type and on the shared bunny; its errors are the whole read's. An integer
+// axis stays PCL's whole read.
 TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
   const fs::path dir = hc::test::temp_dir("pcd_ascii_stream");
   const fs::path mixed = write_ascii_pcd(dir / "mixed.pcd", 60000, true);
@@ -862,9 +871,26 @@ TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
   expect_stream_equals_load_cloud(bunny, "PCD ascii, 397 points (lines streamed in chunks)");
   {
     const Cloud whole = hc::pipeline::load_cloud(mixed).value;
-    std::size_t nan_y = 0;
-    for (Eigen::Index i = 0; i < whole.xyz.cols(); ++i) nan_y += std::isnan(whole.xyz(1, i)) ? 1U : 0U;
+    std::size_t nan_y = 0, inf_y = 0, tiny_y = 0;
+    for (Eigen::Index i = 0; i < whole.xyz.cols(); ++i) {
+      const double y = whole.xyz(1, i);
+      nan_y += std::isnan(y) ? 1U : 0U;
+      inf_y += std::isinf(y) ? 1U : 0U;
+      tiny_y += y != 0.0 && std::abs(y) < static_cast<double>(std::numeric_limits<float>::min()) ? 1U : 0U;
+    }
     EXPECT_EQ(nan_y, (60000U + 96U) / 97U) << "the nan values came through";
+    EXPECT_GT(inf_y, 0U) << "1e39 is beyond float's range: inf, as PCL stores it";
+    EXPECT_GT(tiny_y, 0U) << "1e-40 is a float subnormal";
+  }
+  // An integer z field: PCL's, read whole (its integer parse of an out-of-range value is
+  // undefined), handed out in chunks.
+  {
+    const fs::path p = write_ascii_pcd(dir / "int_z.pcd", 3000, false, true);
+    const auto s = hc::pipeline::open_point_stream(p);
+    EXPECT_FALSE(s->streamed());
+    std::size_t chunks = 0;
+    EXPECT_TRUE(same_xyz(read_in_chunks(*s, 1000, &chunks).xyz, hc::pipeline::load_cloud(p).value.xyz));
+    EXPECT_EQ(chunks, 3U);
   }
   for (const fs::path& p : {mixed, floats}) {
     const Cloud whole = hc::pipeline::load_cloud(p).value;
@@ -897,10 +923,13 @@ TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
   std::string seven = bytes;
   seven.erase(bytes.rfind(' ', bytes.find('\n', line_at(777))), bytes.find('\n', line_at(777)) - bytes.rfind(' ', bytes.find('\n', line_at(777))));
   hc::test::write_bytes(dir / "seven.pcd", seven);
+  std::string comma = bytes;  // PCL would read "1 2 ,3" as 1 2 0: refused by both
+  comma.insert(bytes.find(' ', line_at(4321)) + 1, ",");
+  hc::test::write_bytes(dir / "comma.pcd", comma);
   const std::string short_body = bytes.substr(0, line_at(59991));
   hc::test::write_bytes(dir / "short.pcd", short_body);
   hc::test::write_gzip(dir / "short.pcd.gz", short_body);
-  for (const char* name : {"word.pcd", "seven.pcd", "short.pcd", "short.pcd.gz"}) {
+  for (const char* name : {"word.pcd", "seven.pcd", "comma.pcd", "short.pcd", "short.pcd.gz"}) {
     SCOPED_TRACE(name);
     const fs::path p = dir / name;
     const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
@@ -916,6 +945,7 @@ TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "word.pcd"); }).find("data line 1234: '0x1F' is not a number"), std::string::npos);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "seven.pcd"); }).find("data line 777: 7 values"), std::string::npos);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "short.pcd"); }).find("only 59990 data lines"), std::string::npos);
+  EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "comma.pcd"); }).find("data line 4321: ',' between values"), std::string::npos);
 }
 
 TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {

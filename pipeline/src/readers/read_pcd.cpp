@@ -22,12 +22,14 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/cloud.hpp"
 
+#include <locale.h>
 #include <sys/mman.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <array>
 #include <cerrno>
+#include <clocale>
 #include <charconv>
 #include <cmath>
 #include <cstdlib>
@@ -167,6 +169,19 @@ Cloud read_binary_body(const std::string& raw, const PcdLayout& l) {
   return cloud;
 }
 
+// An ascii data line's problem, or an empty string: exactly `values` numbers
+// (check_numeric_line), separated by blanks and tabs only, as PCL splits the line (a comma,
+// vertical tab or form feed would be part of a number there: PCL would read "1 2 ,3" as 1 2 0).
+std::string check_ascii_line(const char* b, const char* e, std::size_t values) {
+  for (const char* p = b; p < e; ++p) {
+    if (*p == ',' || *p == '\v' || *p == '\f') {
+      return std::string("'") + (*p == ',' ? "," : *p == '\v' ? "\\v" : "\\f") +
+             "' between values (PCD separates them by blanks or tabs)";
+    }
+  }
+  return check_numeric_line(b, e, values);
+}
+
 // The header (and for ascii and binary_compressed bodies, the data) of a PCD file checked.
 // `raw` holds the file from its start: the whole file, or, with header_only, at least its lines
 // up to the DATA line; file_bytes is the whole file's size (raw.size() for a whole file).
@@ -289,7 +304,7 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
       }
       if (tokens > 0) {
         ++lines;
-        const std::string problem = check_numeric_line(raw.data() + p, raw.data() + nl, values);
+        const std::string problem = check_ascii_line(raw.data() + p, raw.data() + nl, values);
         if (!problem.empty()) throw fail("data line " + std::to_string(lines) + ": " + problem);
       }
       p = nl + 1;
@@ -386,50 +401,27 @@ class PcdStream final : public PointStream {
   StickyFailure sticky_;
 };
 
-/// One number of an ascii data line as PCL's ASCII reader (pcl::PCDReader, io/src/pcd_io.cpp,
-/// copyStringValue) stores it in a field of type F, I or U and `size` bytes, widened to double:
-/// F 4 parsed to float (correctly rounded; a value beyond float's range becomes the double's
-/// value cast, ±inf, as PCL's atof fallback gives), F 8 to double, I and U the integer the
-/// token starts with (PCL's istream >> integer stops at a '.' or an 'e'), cast to the field's
-/// width. "nan" in any case is NaN for F (0 for I and U). The token has passed
-/// check_numeric_line (a number std::from_chars reads in double).
-double ascii_value(const char* b, const char* e, char type, int size) {
-  if (*b == '+') ++b;  // from_chars refuses a leading '+', PCL's istream takes it
-  if (type == 'F') {
-    if (size == 4) {
-      float f = 0.0f;
-      const auto r = std::from_chars(b, e, f);
-      if (r.ec == std::errc()) return static_cast<double>(f);
-      double d = 0.0;
-      (void)std::from_chars(b, e, d);
-      return static_cast<double>(static_cast<float>(d));
-    }
-    double d = 0.0;
-    (void)std::from_chars(b, e, d);
-    return d;
+/// One number of an ascii data line (a token check_numeric_line read, without PCL's
+/// separators in it) as PCL's ASCII reader (pcl::PCDReader::readBodyASCII, copyStringValue in
+/// pcl/io/file_io.h, PCL 1.13) stores it in an F field: "nan" in any case is the quiet NaN;
+/// else the C locale's strtof (SIZE 4) or strtod (SIZE 8), which libstdc++'s istream >> float
+/// calls, a value beyond float's range ±inf as PCL's atof fallback then gives. Only float
+/// fields are streamed (open_pcd_stream).
+double ascii_value(const char* b, const char* e, int size) {
+  const std::size_t len = static_cast<std::size_t>(e - b);
+  if (len == 3 && (b[0] | 0x20) == 'n' && (b[1] | 0x20) == 'a' && (b[2] | 0x20) == 'n') {
+    return size == 4 ? static_cast<double>(std::numeric_limits<float>::quiet_NaN()) : std::numeric_limits<double>::quiet_NaN();
   }
-  long long v = 0;
-  const auto r = std::from_chars(b, e, v);
-  if (r.ec != std::errc()) {
-    double d = 0.0;
-    (void)std::from_chars(b, e, d);
-    if (!std::isfinite(d)) return 0.0;
-    v = static_cast<long long>(std::clamp(d, -9.2e18, 9.2e18));
+  static const locale_t c_locale = ::newlocale(LC_ALL_MASK, "C", static_cast<locale_t>(nullptr));
+  char buf[128];  // the token, terminated (a token check_numeric_line read fits: a number's digits)
+  const std::string big = len < sizeof buf ? std::string() : std::string(b, e);
+  const char* z = big.c_str();
+  if (len < sizeof buf) {
+    std::memcpy(buf, b, len);
+    buf[len] = '\0';
+    z = buf;
   }
-  if (type == 'I') {
-    switch (size) {
-      case 1: return static_cast<std::int8_t>(v);
-      case 2: return static_cast<std::int16_t>(v);
-      case 4: return static_cast<std::int32_t>(v);
-      default: return static_cast<double>(v);
-    }
-  }
-  switch (size) {
-    case 1: return static_cast<std::uint8_t>(v);
-    case 2: return static_cast<std::uint16_t>(v);
-    case 4: return static_cast<std::uint32_t>(v);
-    default: return static_cast<double>(static_cast<std::uint64_t>(v));
-  }
+  return size == 4 ? static_cast<double>(::strtof_l(z, nullptr, c_locale)) : ::strtod_l(z, nullptr, c_locale);
 }
 
 // A DATA ascii PCD read in blocks of lines (point_stream.hpp): the first `n` data lines (lines
@@ -457,7 +449,7 @@ class PcdAsciiStream final : public LineStream {
                          " points but only " + std::to_string(done_) + " data lines follow");
       }
       ++done_;
-      const std::string problem = check_numeric_line(b, e, l_.values);
+      const std::string problem = check_ascii_line(b, e, l_.values);
       if (!problem.empty()) throw InputError("load_cloud: " + name_ + ": data line " + std::to_string(done_) + ": " + problem);
       // The tokens of x, y and z.
       std::size_t at = 0;
@@ -471,7 +463,7 @@ class PcdAsciiStream final : public LineStream {
         }
         p = q;
       }
-      for (std::size_t a = 0; a < 3; ++a) xyz_.push_back(ascii_value(tb[a], te[a], l_.axis[a].type, l_.axis[a].size));
+      for (std::size_t a = 0; a < 3; ++a) xyz_.push_back(ascii_value(tb[a], te[a], l_.axis[a].size));
       --max;
     }
   }
@@ -512,7 +504,11 @@ std::unique_ptr<PointStream> open_pcd_stream(const std::filesystem::path& path, 
   if (end_at == std::string::npos) return nullptr;
   head.resize(end_at);
   const PcdLayout layout = validate_pcd(head, name, static_cast<std::size_t>(file_bytes), /*header_only=*/true);
-  if (layout.data == "ascii") return std::make_unique<PcdAsciiStream>(std::move(src), layout);
+  // An ascii body with an integer x, y or z field stays PCL's, read whole (PCL's integer parse
+  // of an out-of-range value is a cast of atof's double, undefined in C++).
+  bool float_axes = true;
+  for (const auto& a : layout.axis) float_axes = float_axes && a.type == 'F';
+  if (layout.data == "ascii" && float_axes) return std::make_unique<PcdAsciiStream>(std::move(src), layout);
   if (layout.data != "binary") return nullptr;  // binary_compressed: one LZF block, PCL, whole
   return std::make_unique<PcdStream>(std::move(src), layout);
 }
