@@ -412,6 +412,19 @@ double ascii_value(const char* b, const char* e, int size) {
   if (len == 3 && (b[0] | 0x20) == 'n' && (b[1] | 0x20) == 'a' && (b[2] | 0x20) == 'n') {
     return size == 4 ? static_cast<double>(std::numeric_limits<float>::quiet_NaN()) : std::numeric_limits<double>::quiet_NaN();
   }
+  // std::from_chars rounds correctly, as strtof and strtod do: the same value wherever it
+  // gives one (a leading '+' skipped, which strtof takes); strtof_l decides the rest (a value
+  // beyond float's range or under its smallest subnormal).
+  const char* f = *b == '+' ? b + 1 : b;
+  if (size == 4) {
+    float v = 0.0f;
+    const auto r = std::from_chars(f, e, v);
+    if (r.ec == std::errc() && r.ptr == e) return static_cast<double>(v);
+  } else {
+    double v = 0.0;
+    const auto r = std::from_chars(f, e, v);
+    if (r.ec == std::errc() && r.ptr == e) return v;
+  }
   static const locale_t c_locale = ::newlocale(LC_ALL_MASK, "C", static_cast<locale_t>(nullptr));
   char buf[128];  // the token, terminated (a token check_numeric_line read fits: a number's digits)
   const std::string big = len < sizeof buf ? std::string() : std::string(b, e);
