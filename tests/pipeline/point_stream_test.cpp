@@ -18,6 +18,7 @@
 #include <cstdio>
 #include <cstring>
 #include <fstream>
+#include <initializer_list>
 #include <iterator>
 #include <limits>
 #include <random>
@@ -732,6 +733,24 @@ TEST(PointStream, PlyHeaderEdgesAreTheWholeReads) {
             whole_error);
 }
 
+// Each of `names` in `dir`: the whole read fails naming the file, and opening the stream or
+// reading it to the end in chunks of 5000 fails with the same message (when opened or later).
+void expect_stream_fails_as_whole_read_at_any_point(const fs::path& dir, std::initializer_list<const char*> names) {
+  for (const char* name : names) {
+    SCOPED_TRACE(name);
+    const fs::path p = dir / name;
+    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
+    EXPECT_NE(whole_error.find(name), std::string::npos) << whole_error;
+    EXPECT_EQ(hc::test::error_of([&] {
+                auto s = hc::pipeline::open_point_stream(p);
+                Cloud c;
+                while (s->next(c, 5000)) {
+                }
+              }),
+              whole_error);
+  }
+}
+
 // A binary PCD of n points: x as float64, y as float32, z as int32, with a packed rgb (U4) before
 // them and a pair of int16 after, so the axes sit at offsets 4, 12 and 16 of a 24-byte record;
 // or, with floats, x y z all float32 (and no other field). The header as PCL writes it.
@@ -797,19 +816,7 @@ TEST(PointStream, BinaryPcdStreamsTheSamePointsAndErrorsAsTheWholeRead) {
   for (const char* key : {"WIDTH ", "POINTS "}) huge.replace(huge.find(std::string(key) + "100000"), std::strlen(key) + 6, std::string(key) + "900000000");
   hc::test::write_bytes(dir / "huge.pcd", huge);
   hc::test::write_bytes(dir / "cut.pcd.gz", packed.substr(0, packed.size() / 2));
-  for (const char* name : {"short.pcd", "short.pcd.gz", "nowidth.pcd", "huge.pcd", "cut.pcd.gz"}) {
-    SCOPED_TRACE(name);
-    const fs::path p = dir / name;
-    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
-    EXPECT_NE(whole_error.find(name), std::string::npos) << whole_error;
-    EXPECT_EQ(hc::test::error_of([&] {
-                auto s = hc::pipeline::open_point_stream(p);
-                Cloud c;
-                while (s->next(c, 5000)) {
-                }
-              }),
-              whole_error);
-  }
+  expect_stream_fails_as_whole_read_at_any_point(dir, {"short.pcd", "short.pcd.gz", "nowidth.pcd", "huge.pcd", "cut.pcd.gz"});
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "short.pcd"); }).find("truncated"), std::string::npos);
 }
 
@@ -929,19 +936,7 @@ TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
   const std::string short_body = bytes.substr(0, line_at(59991));
   hc::test::write_bytes(dir / "short.pcd", short_body);
   hc::test::write_gzip(dir / "short.pcd.gz", short_body);
-  for (const char* name : {"word.pcd", "seven.pcd", "comma.pcd", "short.pcd", "short.pcd.gz"}) {
-    SCOPED_TRACE(name);
-    const fs::path p = dir / name;
-    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
-    EXPECT_NE(whole_error.find(name), std::string::npos) << whole_error;
-    EXPECT_EQ(hc::test::error_of([&] {
-                auto s = hc::pipeline::open_point_stream(p);
-                Cloud c;
-                while (s->next(c, 5000)) {
-                }
-              }),
-              whole_error);
-  }
+  expect_stream_fails_as_whole_read_at_any_point(dir, {"word.pcd", "seven.pcd", "comma.pcd", "short.pcd", "short.pcd.gz"});
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "word.pcd"); }).find("data line 1234: '0x1F' is not a number"), std::string::npos);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "seven.pcd"); }).find("data line 777: 7 values"), std::string::npos);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "short.pcd"); }).find("only 59990 data lines"), std::string::npos);
