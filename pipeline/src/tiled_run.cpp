@@ -1746,8 +1746,8 @@ void erase_at(std::vector<T>& v, const std::vector<std::size_t>& removed_at) {
 // lost it so. Voxels of edge radius_m (a thousandth wider, so that two points within the
 // radius never lie two voxels apart, whatever the rounding): each removed point is listed in
 // its voxel and the 26 around it; a point whose count could fall below min_neighbours (by the
-// longest list) and in a voxel with a list (a bit filter, then a hash table) is measured
-// against the removed points in it (double distances, a millionth of the radius wider).
+// longest list) and in a voxel with a list (WantedKeys) is measured against the removed points
+// in it (double distances, a millionth of the radius wider).
 std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>& count, const std::vector<double>& gone_m,
                                double radius_m, int min_neighbours, std::vector<std::uint8_t>& flags) {
   const std::size_t n = count.size();
@@ -1758,8 +1758,7 @@ std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>
   const double inv = 1.0 / (radius_m * 1.001);
   auto cell = [inv](double v) { return detail::voxel_index(v, inv); };
   auto key = [](std::int64_t x, std::int64_t y, std::int64_t z) { return detail::pack_voxel21(x, y, z); };
-  // (voxel, removed point) for each removed point and each voxel about its own, by voxel; the
-  // voxels in an open-addressing table (a multiplicative hash, linear probing) to their runs.
+  // (voxel, removed point) for each removed point and each voxel about its own, by voxel.
   std::vector<std::pair<std::uint64_t, std::uint32_t>> listed;
   listed.reserve(27 * gone);
   for (std::size_t g = 0; g < gone; ++g) {
@@ -1779,21 +1778,7 @@ std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>
     }
   }
   run.push_back(static_cast<std::uint32_t>(listed.size()));
-  int bits = 4;
-  while (bits < 40 && (std::size_t{1} << bits) < 4 * voxel.size()) ++bits;
-  const std::size_t mask = (std::size_t{1} << bits) - 1;
-  const int shift = 64 - bits;
-  constexpr std::uint32_t kEmpty = std::numeric_limits<std::uint32_t>::max();
-  std::vector<std::uint32_t> table(mask + 1, kEmpty);  // a slot: its voxel's number, or kEmpty
-  auto slot = [shift](std::uint64_t k) { return static_cast<std::size_t>((k * 0x9E3779B97F4A7C15ULL) >> shift); };
-  for (std::uint32_t v = 0; v < voxel.size(); ++v) {
-    std::size_t h = slot(voxel[v]);
-    while (table[h] != kEmpty) h = (h + 1) & mask;
-    table[h] = v;
-  }
-  // 16 bits a voxel (a fraction of the table's bytes, so it stays in cache): most points in no
-  // listed voxel pass without a probe.
-  const detail::KeyBits filter(voxel, 16);
+  const detail::WantedKeys at(voxel);  // distinct, so voxel v is numbered v
   const double r2 = radius_m * radius_m * (1.0 + 2e-6);
   // Every removed point within the radius of a point is listed in the point's voxel: a point
   // whose count stays at least min_neighbours less the longest list keeps its flag unlooked
@@ -1805,13 +1790,10 @@ std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>
   for (std::size_t i = 0; i < n; ++i) {
     if (!flags[i] || static_cast<std::int64_t>(count[i]) >= safe) continue;
     const double* p = pts.xyz.data() + 3 * i;
-    const std::uint64_t kp = key(cell(p[0]), cell(p[1]), cell(p[2]));
-    if (!filter.maybe(kp)) continue;
-    std::size_t h = slot(kp);
-    while (table[h] != kEmpty && voxel[table[h]] != kp) h = (h + 1) & mask;
-    if (table[h] == kEmpty) continue;  // no removed point within a voxel of it
+    const std::uint32_t v = at.find(key(cell(p[0]), cell(p[1]), cell(p[2])));
+    if (v == detail::WantedKeys::kNone) continue;  // no removed point within a voxel of it
     int removed = 0;
-    for (std::uint32_t e = run[table[h]]; e < run[table[h] + 1]; ++e) {
+    for (std::uint32_t e = run[v]; e < run[v + 1]; ++e) {
       const double* q = gone_m.data() + 3 * static_cast<std::size_t>(listed[e].second);
       const double dx = p[0] - q[0], dy = p[1] - q[1], dz = p[2] - q[2];
       removed += dx * dx + dy * dy + dz * dz <= r2 ? 1 : 0;

@@ -29,9 +29,7 @@
 #include <algorithm>
 #include <array>
 #include <cerrno>
-#include <clocale>
 #include <charconv>
-#include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -426,21 +424,14 @@ double ascii_value(const char* b, const char* e, int size) {
     if (r.ec == std::errc() && r.ptr == e) return v;
   }
   static const locale_t c_locale = ::newlocale(LC_ALL_MASK, "C", static_cast<locale_t>(nullptr));
-  char buf[128];  // the token, terminated (a token check_numeric_line read fits: a number's digits)
-  const std::string big = len < sizeof buf ? std::string() : std::string(b, e);
-  const char* z = big.c_str();
-  if (len < sizeof buf) {
-    std::memcpy(buf, b, len);
-    buf[len] = '\0';
-    z = buf;
-  }
-  return size == 4 ? static_cast<double>(::strtof_l(z, nullptr, c_locale)) : ::strtod_l(z, nullptr, c_locale);
+  const std::string token(b, e);  // terminated for strtof_l (rare: out of range)
+  return size == 4 ? static_cast<double>(::strtof_l(token.c_str(), nullptr, c_locale)) : ::strtod_l(token.c_str(), nullptr, c_locale);
 }
 
 // A DATA ascii PCD read in blocks of lines (point_stream.hpp): the first `n` data lines (lines
-// with a token; validate_pcd's rule), each checked as the whole read checks it (check_numeric_line:
+// with a token; validate_pcd's rule), each checked as the whole read checks it (check_ascii_line:
 // exactly `values` numbers; the same words, "data line K"), x y z taken by ascii_value. The
-// whole read hands the body to PCL, which no chunked read of; the points are the same
+// whole read hands the body to PCL, which has no chunked read; the points are the same
 // (tests/pipeline/point_stream_test.cpp compares them).
 class PcdAsciiStream final : public LineStream {
  public:
