@@ -15,16 +15,29 @@ report has been read.
     python3 bench/scale.py --format ptx --sizes 3e6 --n 800   # PTX text (converted from the PLY)
     python3 bench/scale.py --sizes 1e6,1e7,1e8 --json scale.json --plot docs/images/scale.png
     python3 bench/scale.py --plot-from a.json,b.json --plot docs/images/scale.png   # redraw, no run
+    python3 bench/scale.py --compare old/hapticloud,build/release --sizes 1e8 --n 4096 --modes tiled \
+        --tile-cells 512 --rounds 3                     # builds against each other, interleaved
 
 Printed: a Markdown table (docs/scale.md keeps the measured one) with, per run, wall and CPU
 seconds, peak RSS, bytes per point, M points per wall second and per CPU second, and the three
 slowest stages (wall seconds, with their CPU seconds), and the glibc tunables the runs had.
 Quote it with the machine's load (`uptime`): nothing else should run meanwhile.
+
+--compare runs two or more builds (hapticloud executables, or build folders) on the first size,
+N and mode, in interleaved rounds whose order rotates (on a shared VM the first run after a pause
+is often slower, so no build may always go first), and prints each run, then per build the
+median wall and CPU seconds, the CPU ratio to the first build (the median of the rounds' ratios,
+each taken within one round), the median peak RSS, the median CPU seconds of every stage with
+their ratios, and whether the scene (scene/ and previews/, byte for byte) equals the first
+build's in every round. Speed claims between builds come from these ratios, never from runs on
+different days.
 """
 
 import argparse
+import hashlib
 import json
 import os
+import statistics
 import shutil
 import subprocess
 import sys
@@ -156,6 +169,112 @@ unset multiplot
         os.replace(partial, png)
 
 
+def folder_digests(folder, parts=("scene", "previews")):
+    """{relative path: sha256} of every file under folder/<part> for each part (missing: none)."""
+    out = {}
+    for part in parts:
+        root = os.path.join(folder, part)
+        for d, _, files in os.walk(root):
+            for name in files:
+                path = os.path.join(d, name)
+                h = hashlib.sha256()
+                with open(path, "rb") as f:
+                    for block in iter(lambda: f.read(1 << 20), b""):
+                        h.update(block)
+                out[os.path.relpath(path, folder)] = h.hexdigest()
+    return out
+
+
+def resolve_program(text):
+    """A hapticloud executable from --compare's entry: the file itself, or a build folder holding
+    apps/hapticloud/hapticloud. Exits naming the entry when neither is executable."""
+    for exe in (text, os.path.join(text, "apps", "hapticloud", "hapticloud")):
+        if os.path.isfile(exe) and os.access(exe, os.X_OK):
+            return os.path.abspath(exe)
+    sys.exit(f"scale.py: --compare {text!r}: expected a hapticloud executable or a build folder holding "
+             "apps/hapticloud/hapticloud")
+
+
+def compare_builds(programs, labels, config, scratch, mode, tile_cells, sets, rounds):
+    """Interleaved rounds of `hapticloud run config` for each program (see --compare in the module
+    doc), each named by its label in the tables; returns (rows, summary) for --json. Every run's
+    output folder is removed once its round has been compared."""
+    rows = []
+    for r in range(rounds):
+        order = [(i + r) % len(programs) for i in range(len(programs))]
+        outs = {}
+        for i in order:
+            out = os.path.join(scratch, f"compare_{i}")
+            shutil.rmtree(out, ignore_errors=True)
+            cmd = [programs[i], "run", config, "--out", out, "--set", "scale.tiled=" + ("off" if mode == "in-core" else "on")]
+            if mode != "in-core":
+                cmd += ["--set", f"scale.tile_cells={tile_cells}", "--set", f"scale.scratch={scratch}"]
+            for x in sets:
+                cmd += ["--set", x]
+            code, wall, user, system, rss, err = run_child(cmd)
+            row = {"round": r + 1, "build": labels[i], "program": programs[i], "exit": code, "wall_s": wall,
+                   "cpu_s": user + system, "peak_rss_bytes": rss, "stages_cpu_s": {}}
+            report = os.path.join(out, "report.json")
+            if os.path.exists(report):
+                with open(report) as f:
+                    doc = json.load(f)
+                for st in doc["stages"]:
+                    row["stages_cpu_s"][st["stage"]] = st.get("cpu_seconds", st["seconds"])
+                    row["peak_rss_bytes"] = max(row["peak_rss_bytes"], st.get("peak_rss_mb", 0.0) * 1e6)
+                outs[i] = folder_digests(out)
+            else:
+                row["error"] = err.strip().splitlines()[-1] if err.strip() else "no report"
+            rows.append(row)
+            print(f"round {r + 1}: {labels[i]}: wall {wall:.1f} s, CPU {row['cpu_s']:.1f} s, peak {row['peak_rss_bytes'] / 1e6:.0f} MB"
+                  + (f", failed: {row['error']}" if "error" in row else ""), file=sys.stderr, flush=True)
+        for i in range(len(programs)):
+            mine = [x for x in rows if x["round"] == r + 1 and x["build"] == labels[i]][0]
+            mine["scene_equal_to_first"] = i in outs and 0 in outs and outs[i] == outs[0] and bool(outs[0])
+        for i in order:
+            shutil.rmtree(os.path.join(scratch, f"compare_{i}"), ignore_errors=True)
+    ok = [x for x in rows if "error" not in x]
+    if any("error" in x for x in rows):
+        print("failed runs: " + ", ".join(f"round {x['round']} {x['build']}" for x in rows if "error" in x))
+    print(f"load average after the last run: {os.getloadavg()[0]:.2f}; cores: {os.cpu_count()}; {rounds} rounds, order rotated")
+    print("| build | wall (s), median | CPU (s), median | CPU ratio to the first (rounds' median) | peak RSS (MB), median | scene equal to the first's |")
+    print("|---|---:|---:|---:|---:|---|")
+    summary = []
+    for i, lab in enumerate(labels):
+        mine = [x for x in ok if x["build"] == lab]
+        if not mine:
+            print(f"| {lab} | failed | | | | |")
+            continue
+        ratios = []
+        for x in mine:
+            base = [y for y in ok if y["round"] == x["round"] and y["build"] == labels[0]]
+            if base:
+                ratios.append(x["cpu_s"] / base[0]["cpu_s"])
+        ratio = statistics.median(ratios) if ratios else float("nan")
+        equal = all(x.get("scene_equal_to_first") for x in mine) if i > 0 else True
+        srow = {"build": lab, "wall_s": statistics.median(x["wall_s"] for x in mine),
+                "cpu_s": statistics.median(x["cpu_s"] for x in mine), "cpu_ratio": ratio,
+                "peak_rss_bytes": statistics.median(x["peak_rss_bytes"] for x in mine), "scene_equal": equal}
+        summary.append(srow)
+        print(f"| {lab} | {srow['wall_s']:.1f} | {srow['cpu_s']:.1f} | {ratio:.3f} | {srow['peak_rss_bytes'] / 1e6:.0f} | "
+              + ("(the first)" if i == 0 else "yes" if equal else "**no**") + " |")
+    stages = []
+    for x in ok:
+        for name in x["stages_cpu_s"]:
+            if name not in stages:
+                stages.append(name)
+    print()
+    print("| stage | " + " | ".join(f"{lab} CPU (s)" for lab in labels) + " | " + " | ".join(f"{lab} / first" for lab in labels[1:]) + " |")
+    print("|---|" + "---:|" * (2 * len(labels) - 1))
+    for name in stages:
+        med = []
+        for lab in labels:
+            v = [x["stages_cpu_s"][name] for x in ok if x["build"] == lab and name in x["stages_cpu_s"]]
+            med.append(statistics.median(v) if v else float("nan"))
+        rat = [m / med[0] if med[0] > 0 else float("nan") for m in med[1:]]
+        print(f"| {name} | " + " | ".join(f"{m:.2f}" for m in med) + " | " + " | ".join(f"{q:.3f}" for q in rat) + " |")
+    return rows, summary
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--build", default=os.path.join(ROOT, "build", "release"), help="build folder (release preset)")
@@ -177,6 +296,10 @@ def main():
     ap.add_argument("--plot-from", default=None,
                     help="draw --plot from these --json files (comma-separated) of earlier runs instead of running anything")
     ap.add_argument("--plot-title", default="hapticloud run on generated walls", help="the plot's title")
+    ap.add_argument("--compare", default=None,
+                    help="comma-separated builds (hapticloud executables or build folders), the first the baseline: "
+                         "interleaved rounds on the first size, N and mode (see the module doc)")
+    ap.add_argument("--rounds", type=int, default=3, help="--compare's rounds (each runs every build once)")
     args = ap.parse_args()
     if args.plot_from:
         if not args.plot:
@@ -204,6 +327,21 @@ def main():
     scratch = os.path.abspath(args.scratch or os.path.join(args.build, "bench-scale"))
     os.makedirs(scratch, exist_ok=True)
 
+    if args.compare:
+        entries = [x for x in args.compare.split(",") if x]
+        programs = [resolve_program(x) for x in entries]
+        # Each build named by its last path component, or by the entry as given where two share it.
+        labels = [os.path.basename(os.path.normpath(x)) for x in entries]
+        if len(set(labels)) < len(labels):
+            labels = entries
+        if len(programs) < 2:
+            sys.exit("scale.py: --compare: expected two or more builds, comma-separated")
+        if args.rounds < 1:
+            sys.exit(f"scale.py: --rounds {args.rounds}: expected 1 or more")
+        if modes[0] == "dask":
+            sys.exit("scale.py: --compare runs `hapticloud run` (in-core or tiled), not the dask mode")
+        sizes, grids, modes = sizes[:1], grids[:1], modes[:1]
+
     rows = []
     for points in sizes:
         scan = os.path.join(scratch, f"wall_{points}.{args.format}")
@@ -222,6 +360,14 @@ def main():
             config = os.path.join(scratch, f"wall_{tag}.yaml")
             with open(config, "w") as f:
                 f.write(CONFIG.format(tag=tag, scan=os.path.basename(scan), n=n))
+            if args.compare:
+                print(f"comparing {len(programs)} builds: {points} points, N = {n}, {mode}, {args.format.upper()}, "
+                      f"{args.rounds} rounds")
+                rows, summary = compare_builds(programs, labels, config, scratch, mode, args.tile_cells, args.set, args.rounds)
+                if args.json:
+                    with open(args.json, "w") as f:
+                        json.dump({"runs": rows, "summary": summary}, f, indent=1)
+                return 1 if any("error" in r for r in rows) else 0
             out = os.path.join(scratch, f"run_{tag}")
             shutil.rmtree(out, ignore_errors=True)
             if mode == "dask":

@@ -1,0 +1,68 @@
+"""bench/scale.py --compare (issue 14's builds measured against each other): interleaved rounds in
+rotated order, medians and ratios to the first build, and the scene compared byte for byte.
+
+Oracles: a second copy of the same program must give the first's scene in every round; the same
+program run with a wider splat radius (grid.splat_radius_cells, which changes every depth sample's
+weights) must not; round r must start with build r mod B (the documented rotation), and the CPU
+ratio of a build to itself within a round is 1 exactly.
+"""
+
+import json
+import os
+import subprocess
+import sys
+
+BUILD = os.environ.get("HC_BUILD_DIR")
+SOURCE = os.environ.get("HC_SOURCE_DIR")
+
+
+def wrapper(path, program, extra):
+    with open(path, "w") as f:
+        f.write("#!/bin/sh\nexec '" + program + "' \"$@\" " + extra + "\n")
+    os.chmod(path, 0o755)
+    return str(path)
+
+
+def needs_build():
+    assert BUILD and SOURCE, "set HC_BUILD_DIR (a build folder) and HC_SOURCE_DIR (the checkout): ctest does"
+
+
+def test_compare_rotates_the_order_and_tells_an_equal_scene_from_a_changed_one(tmp_path):
+    needs_build()
+    program = os.path.join(BUILD, "apps", "hapticloud", "hapticloud")
+    same = wrapper(tmp_path / "same", program, "")
+    wider = wrapper(tmp_path / "wider", program, "--set grid.splat_radius_cells=1.6")
+    out_json = tmp_path / "compare.json"
+    scratch = tmp_path / "scratch"
+    res = subprocess.run(
+        [sys.executable, os.path.join(SOURCE, "bench", "scale.py"), "--build", BUILD, "--compare",
+         ",".join([program, same, wider]), "--sizes", "2e5", "--n", "300", "--modes", "tiled",
+         "--tile-cells", "128", "--rounds", "3", "--scratch", str(scratch), "--json", str(out_json)],
+        capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    doc = json.loads(out_json.read_text())
+    runs, summary = doc["runs"], doc["summary"]
+    assert [r["build"] for r in runs] == ["hapticloud", "same", "wider", "same", "wider", "hapticloud",
+                                          "wider", "hapticloud", "same"]
+    assert all(r["exit"] == 0 for r in runs)
+    by = {s["build"]: s for s in summary}
+    assert by["hapticloud"]["cpu_ratio"] == 1.0
+    assert by["same"]["scene_equal"] is True
+    assert by["wider"]["scene_equal"] is False
+    assert all(r["scene_equal_to_first"] for r in runs if r["build"] == "same")
+    assert not any(r["scene_equal_to_first"] for r in runs if r["build"] == "wider")
+    # Every run's output folder is gone; the generated wall and its config stay for the next call.
+    assert not [p for p in os.listdir(scratch) if p.startswith("compare_")]
+    assert "| wider |" in res.stdout and "**no**" in res.stdout
+
+
+def test_compare_refuses_a_single_build_and_a_missing_program(tmp_path):
+    needs_build()
+    program = os.path.join(BUILD, "apps", "hapticloud", "hapticloud")
+    script = os.path.join(SOURCE, "bench", "scale.py")
+    one = subprocess.run([sys.executable, script, "--build", BUILD, "--compare", program, "--sizes", "1e3",
+                          "--scratch", str(tmp_path)], capture_output=True, text=True)
+    assert one.returncode != 0 and "two or more builds" in one.stderr
+    missing = subprocess.run([sys.executable, script, "--build", BUILD, "--compare", program + "," + str(tmp_path / "nope"),
+                              "--sizes", "1e3", "--scratch", str(tmp_path)], capture_output=True, text=True)
+    assert missing.returncode != 0 and "nope" in missing.stderr and "build folder" in missing.stderr
