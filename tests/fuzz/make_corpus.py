@@ -62,6 +62,14 @@ def main():
         "0 0 0\n1 0 0\n0 1 0\n1 1 0.5\n3 0 1 2\n3 1 3 2\n")
     put("ply", "list_before.ply", ply_header("ascii", 3, "property list uchar float extra\nproperty float x\n"
         "property float y\nproperty float z\n") + "2 0.5 0.25 1 2 3\n0 4 5 6\n1 7 7 8 9\n")
+    # Binary, an element with a list property before the vertices (streamed since 2026-11-26:
+    # the stream walks it record by record).
+    cams = b"".join(struct.pack("<fB", 0.5 * r, r % 4) + b"".join(struct.pack("<i", 10 * r + k) for k in range(r % 4)) +
+                    struct.pack("<h", -r) for r in range(12))
+    put("ply", "binary_lists_first.ply", ("ply\nformat binary_little_endian 1.0\nelement junk 3\nproperty short a\n"
+        "element camera 12\nproperty float f\nproperty list uchar int ids\nproperty short s\n"
+        f"element vertex {len(few)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n").encode() +
+        struct.pack("<hhh", 1, 2, 3) + cams + b"".join(struct.pack("<fff", *p) for p in few))
     # PCD: ASCII and binary, v0.7 and v0.5 headers.
     put("pcd", "v05.pcd", "# .PCD v.5 - Point Cloud Data file format\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\n"
         "COUNT 1 1 1\nWIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n0 0 0\n0.01 0 0.001\n0 0.01 0.002\n")

@@ -346,6 +346,66 @@ std::size_t binary_vertex_offset(const std::string& raw, const PlyLayout& ply, c
   return static_cast<std::size_t>(p - begin);
 }
 
+// binary_vertex_offset over a source instead of the whole file's bytes: the elements before the
+// vertex element walked from the body's first byte (src.seek(ply.body)) in blocks of at least 1
+// MiB, record by record (walk_binary_record) where they hold lists, by their stride where not,
+// with the same errors in the same words (a negative list count; "truncated: the data ends
+// inside element ..."). src is left somewhere past the offset returned. Memory: a block and the
+// longest record. Used by open_ply_stream at each pass: a file whose elements with lists come
+// before its vertices streams instead of being read whole (until 2026-11-26 it was read whole).
+std::uint64_t streamed_vertex_offset(ByteSource& src, const PlyLayout& ply, const std::string& name) {
+  const bool swap = needs_swap(ply);
+  src.seek(ply.body);
+  std::vector<char> buf;
+  std::size_t at = 0;               // buf[at, size) not walked yet
+  std::uint64_t base = ply.body;    // the data offset of buf[0]
+  bool ended = false;
+  // Drops the walked bytes and reads at least 1 MiB more (false at the data's end).
+  auto more = [&] {
+    if (ended) return false;
+    buf.erase(buf.begin(), buf.begin() + static_cast<std::ptrdiff_t>(at));
+    base += at;
+    at = 0;
+    const std::size_t old = buf.size(), want = std::max<std::size_t>(std::size_t{1} << 20, old);
+    buf.resize(old + want);
+    const std::size_t got = src.read(buf.data() + old, want);
+    buf.resize(old + got);
+    ended = got < want;
+    return got > 0;
+  };
+  for (std::size_t i = 0; i < ply.vertex_index; ++i) {
+    const PlyElement& el = ply.elements[i];
+    auto truncated = [&](std::size_t whole) {
+      return InputError("load_cloud: " + name + ": truncated: the data ends inside element '" + el.name + "' (" +
+                        std::to_string(whole) + " of " + std::to_string(el.count) +
+                        " records), before the vertex element");
+    };
+    if (!el.has_list()) {
+      const std::size_t stride = el.stride();
+      std::size_t r = 0;  // records skipped
+      while (r < el.count) {
+        const std::size_t have = stride > 0 ? (buf.size() - at) / stride : el.count;
+        const std::size_t take = std::min(have, el.count - r);
+        at += take * stride;
+        r += take;
+        if (r < el.count && !more()) throw truncated(r + (buf.size() - at) / std::max<std::size_t>(stride, 1));
+      }
+      continue;
+    }
+    for (std::size_t r = 0; r < el.count; ++r) {
+      for (;;) {
+        const char* p = walk_binary_record(buf.data() + at, buf.data() + buf.size(), el, r, swap, nullptr, nullptr, name);
+        if (p) {
+          at = static_cast<std::size_t>(p - buf.data());
+          break;
+        }
+        if (!more()) throw truncated(r);
+      }
+    }
+  }
+  return base + at;
+}
+
 // Where the coordinates and colours sit in a fixed-stride binary vertex record.
 struct FixedRecords {
   std::size_t stride = 0;
@@ -982,22 +1042,30 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
     if (mesh) return nullptr;
     return std::make_unique<AsciiPlyStream>(std::move(src), std::move(ply));
   }
-  // The vertex records' offset; a size that overflows is no layout to stream (the whole read
-  // says what is wrong).
-  bool fixed = true;
+  // A vertex element with list properties (records of their own lengths) is read whole; so is a
+  // mesh (a face element after the vertices), so that its faces are kept.
+  if (ply.vertex().has_list()) return nullptr;
+  for (std::size_t i = ply.vertex_index + 1; !points_only && i < ply.elements.size(); ++i) {
+    if (ply.elements[i].name == "face") return nullptr;
+  }
+  // The vertex records' offset: the elements before them skipped by stride, or walked record by
+  // record from the source where they hold lists (streamed_vertex_offset, with the whole read's
+  // errors); a size that overflows is no layout to stream (the whole read says what is wrong).
+  bool lists_before = false;
+  for (std::size_t i = 0; i < ply.vertex_index; ++i) lists_before = lists_before || ply.elements[i].has_list();
   std::size_t offset = ply.body;
-  for (std::size_t i = 0; fixed && i <= ply.vertex_index; ++i) {
-    fixed = !ply.elements[i].has_list();
-    std::size_t bytes = 0;
-    if (fixed && i < ply.vertex_index &&
-        (__builtin_mul_overflow(ply.elements[i].stride(), ply.elements[i].count, &bytes) || __builtin_add_overflow(offset, bytes, &offset))) {
-      return nullptr;
+  if (lists_before) {
+    const std::uint64_t at = streamed_vertex_offset(*src, ply, name);
+    if (at > std::numeric_limits<std::size_t>::max() / 2) return nullptr;
+    offset = static_cast<std::size_t>(at);
+  } else {
+    for (std::size_t i = 0; i < ply.vertex_index; ++i) {
+      std::size_t bytes = 0;
+      if (__builtin_mul_overflow(ply.elements[i].stride(), ply.elements[i].count, &bytes) || __builtin_add_overflow(offset, bytes, &offset)) {
+        return nullptr;
+      }
     }
   }
-  for (std::size_t i = ply.vertex_index + 1; fixed && !points_only && i < ply.elements.size(); ++i) {
-    fixed = ply.elements[i].name != "face";  // a mesh: read whole, so its faces are kept
-  }
-  if (!fixed) return nullptr;
   const PlyElement& v = ply.vertex();
   std::size_t vertex_bytes = 0;
   if (__builtin_mul_overflow(v.stride(), v.count, &vertex_bytes)) return nullptr;
