@@ -317,6 +317,13 @@ const char* walk_binary_record(const char* p, const char* end, const PlyElement&
   return p;
 }
 
+// The error of data that end inside element `el` before the vertex element, after `whole` of
+// its records.
+InputError truncated_before_vertices(const std::string& name, const PlyElement& el, std::size_t whole) {
+  return InputError("load_cloud: " + name + ": truncated: the data ends inside element '" + el.name + "' (" +
+                    std::to_string(whole) + " of " + std::to_string(el.count) + " records), before the vertex element");
+}
+
 // Offset of the vertex data in a binary body: the elements before it are skipped record by
 // record when they hold lists, else by their fixed stride.
 std::size_t binary_vertex_offset(const std::string& raw, const PlyLayout& ply, const std::string& name) {
@@ -326,11 +333,7 @@ std::size_t binary_vertex_offset(const std::string& raw, const PlyLayout& ply, c
   const char* p = begin + ply.body;
   for (std::size_t i = 0; i < ply.vertex_index; ++i) {
     const PlyElement& el = ply.elements[i];
-    auto truncated = [&](std::size_t whole) {
-      return InputError("load_cloud: " + name + ": truncated: the data ends inside element '" + el.name + "' (" +
-                        std::to_string(whole) + " of " + std::to_string(el.count) +
-                        " records), before the vertex element");
-    };
+    auto truncated = [&](std::size_t whole) { return truncated_before_vertices(name, el, whole); };
     if (!el.has_list()) {
       const std::size_t stride = el.stride();
       const auto have = static_cast<std::size_t>(end - p);
@@ -377,11 +380,7 @@ std::uint64_t streamed_vertex_offset(ByteSource& src, const PlyLayout& ply, cons
   };
   for (std::size_t i = 0; i < ply.vertex_index; ++i) {
     const PlyElement& el = ply.elements[i];
-    auto truncated = [&](std::size_t whole) {
-      return InputError("load_cloud: " + name + ": truncated: the data ends inside element '" + el.name + "' (" +
-                        std::to_string(whole) + " of " + std::to_string(el.count) +
-                        " records), before the vertex element");
-    };
+    auto truncated = [&](std::size_t whole) { return truncated_before_vertices(name, el, whole); };
     if (!el.has_list()) {
       const std::size_t stride = el.stride();
       std::size_t r = 0;  // records skipped
