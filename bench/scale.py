@@ -169,6 +169,17 @@ unset multiplot
         os.replace(partial, png)
 
 
+def run_settings(mode, tile_cells, scratch, sets):
+    """The `hapticloud run --set` arguments of a run in `mode` (in-core, tiled or dask): the same
+    for the scaling table and for --compare."""
+    out = ["--set", "scale.tiled=" + ("off" if mode == "in-core" else "on")]
+    if mode != "in-core":
+        out += ["--set", f"scale.tile_cells={tile_cells}", "--set", f"scale.scratch={scratch}"]
+    for x in sets:
+        out += ["--set", x]
+    return out
+
+
 def folder_digests(folder, parts=("scene", "previews")):
     """{relative path: sha256} of every file under folder/<part> for each part (missing: none)."""
     out = {}
@@ -202,15 +213,11 @@ def compare_builds(programs, labels, config, scratch, mode, tile_cells, sets, ro
     rows = []
     for r in range(rounds):
         order = [(i + r) % len(programs) for i in range(len(programs))]
-        outs = {}
+        outs, this_round = {}, {}
         for i in order:
             out = os.path.join(scratch, f"compare_{i}")
             shutil.rmtree(out, ignore_errors=True)
-            cmd = [programs[i], "run", config, "--out", out, "--set", "scale.tiled=" + ("off" if mode == "in-core" else "on")]
-            if mode != "in-core":
-                cmd += ["--set", f"scale.tile_cells={tile_cells}", "--set", f"scale.scratch={scratch}"]
-            for x in sets:
-                cmd += ["--set", x]
+            cmd = [programs[i], "run", config, "--out", out] + run_settings(mode, tile_cells, scratch, sets)
             code, wall, user, system, rss, err = run_child(cmd)
             row = {"round": r + 1, "build": labels[i], "program": programs[i], "exit": code, "wall_s": wall,
                    "cpu_s": user + system, "peak_rss_bytes": rss, "stages_cpu_s": {}}
@@ -225,11 +232,11 @@ def compare_builds(programs, labels, config, scratch, mode, tile_cells, sets, ro
             else:
                 row["error"] = err.strip().splitlines()[-1] if err.strip() else "no report"
             rows.append(row)
+            this_round[i] = row
             print(f"round {r + 1}: {labels[i]}: wall {wall:.1f} s, CPU {row['cpu_s']:.1f} s, peak {row['peak_rss_bytes'] / 1e6:.0f} MB"
                   + (f", failed: {row['error']}" if "error" in row else ""), file=sys.stderr, flush=True)
-        for i in range(len(programs)):
-            mine = [x for x in rows if x["round"] == r + 1 and x["build"] == labels[i]][0]
-            mine["scene_equal_to_first"] = i in outs and 0 in outs and outs[i] == outs[0] and bool(outs[0])
+        for i, row in this_round.items():
+            row["scene_equal_to_first"] = i in outs and 0 in outs and outs[i] == outs[0] and bool(outs[0])
         for i in order:
             shutil.rmtree(os.path.join(scratch, f"compare_{i}"), ignore_errors=True)
     ok = [x for x in rows if "error" not in x]
@@ -377,11 +384,7 @@ def main():
                        "--hapticloud", program, "--workers", str(args.dask_workers), "--scratch", scratch]
             else:
                 cmd = [program, "run", config, "--out", out]
-            cmd += ["--set", "scale.tiled=" + ("off" if mode == "in-core" else "on")]
-            if mode != "in-core":
-                cmd += ["--set", f"scale.tile_cells={args.tile_cells}", "--set", f"scale.scratch={scratch}"]
-            for s in args.set:
-                cmd += ["--set", s]
+            cmd += run_settings(mode, args.tile_cells, scratch, args.set)
             print(f"running {points} points, N = {n}, {mode} ...", file=sys.stderr)
             code, wall, user, system, rss, err = run_child(cmd)
             row = {"points": points, "n": n, "mode": mode, "exit": code, "wall_s": wall, "cpu_s": user + system,

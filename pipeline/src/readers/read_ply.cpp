@@ -356,8 +356,8 @@ std::size_t binary_vertex_offset(const std::string& raw, const PlyLayout& ply, c
 // inside element ..."). src is left somewhere past the offset returned. Memory: a block and the
 // longest record. Used by open_ply_stream at each pass: a file whose elements with lists come
 // before its vertices streams instead of being read whole (until 2026-11-26 it was read whole).
-// Under gzip, the seek here and the stream's seek back to the offset each inflate the data from
-// the start again (ByteSource::seek): the elements before the vertices three times a pass.
+// Under gzip, the stream's seek back to the offset inflates the data from the start again
+// (ByteSource::seek): the elements before the vertices twice a pass.
 std::uint64_t streamed_vertex_offset(ByteSource& src, const PlyLayout& ply, const std::string& name) {
   const bool swap = needs_swap(ply);
   src.seek(ply.body);
@@ -389,7 +389,7 @@ std::uint64_t streamed_vertex_offset(ByteSource& src, const PlyLayout& ply, cons
         const std::size_t take = std::min(have, el.count - r);
         at += take * stride;
         r += take;
-        if (r < el.count && !more()) throw truncated(r + (buf.size() - at) / std::max<std::size_t>(stride, 1));
+        if (r < el.count && !more()) throw truncated(r);  // every whole record in the data taken
       }
       continue;
     }
