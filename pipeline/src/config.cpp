@@ -874,9 +874,16 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
   if (!c.input.files.empty() && c.input.synthetic) {
     r.fail("input", "has both files and synthetic: expected exactly one of them");
   }
-  if (c.input.files.size() > 1 && !c.input.conf) {
+  c.input.shared_frame = r.get_bool("input.shared_frame", false);
+  if (c.input.shared_frame && c.input.conf) {
+    r.fail("input.shared_frame", "is true and input.conf is set: expected one of them (input.conf places scans "
+                                 "by their poses; input.shared_frame takes files already in one frame)");
+  }
+  if (c.input.shared_frame && c.input.synthetic) r.fail("input.shared_frame", "is true with input.synthetic: expected input.files");
+  if (c.input.files.size() > 1 && !c.input.conf && !c.input.shared_frame) {
     r.fail("input.files", "lists several scans but input.conf is missing: expected a scanalyze .conf "
-                          "giving each scan's pose");
+                          "giving each scan's pose, or input.shared_frame: true when the files are parts of one "
+                          "scan in one frame (the tiles of a survey)");
   }
 
   c.view = read_view(r);

@@ -357,4 +357,50 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
   return {std::move(merged), std::move(report)};
 }
 
+void check_same_crs(std::pair<std::string, std::string>& crs, const std::string& file_crs, const std::filesystem::path& file) {
+  if (file_crs.empty()) return;
+  if (crs.first.empty()) {
+    crs = {file_crs, file.string()};
+    return;
+  }
+  if (file_crs != crs.first) {
+    throw InputError("input.shared_frame: " + quoted(file) + " declares the coordinate reference system '" + file_crs + "' but " +
+                     quoted(std::filesystem::path(crs.second)) + " declares '" + crs.first +
+                     "': expected files in one frame (reproject them to one CRS first)");
+  }
+}
+
+StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::path>& files, const LoadOptions& options) {
+  const auto t0 = Clock::now();
+  if (files.empty()) throw InputError("load_files_in_one_frame: no files given (input.files is empty)");
+  StageReport report;
+  report.stage = "load";
+  Cloud all;
+  std::pair<std::string, std::string> crs;  // the CRS seen first and its file
+  std::vector<std::string> lacking;         // attributes already dropped
+  for (std::size_t i = 0; i < files.size(); ++i) {
+    StageResult<Cloud> part = load_cloud(files[i], options);
+    check_same_crs(crs, part.value.crs, files[i]);
+    const std::string name = files[i].filename().string();
+    report.notes.push_back(name + ": " + std::to_string(part.value.size()) + " points");
+    for (const auto& note : part.report.notes) report.notes.push_back(name + ": " + note);
+    for (const std::string& a : all.append(part.value)) {
+      if (std::find(lacking.begin(), lacking.end(), a) != lacking.end()) continue;
+      lacking.push_back(a);
+      const Cloud& c = part.value;
+      const bool has = a == "scan_id" ? c.has_scan_id() : a == "intensity" ? c.has_intensity() : a == "rgb" ? c.has_rgb()
+                     : a == "normal" ? c.has_normals() : a == "curvature" ? !c.curvature.empty()
+                     : a == "texture" ? c.mesh.has_texture() : c.has_grid_index();
+      report.notes.push_back("input.shared_frame: " + a + " dropped: " +
+                             (a == "texture" ? "the meshes up to " + name + " do not share one texture image"
+                                             : (has ? "a file before " + name : name) + " has none"));
+    }
+  }
+  all.crs = crs.first;
+  report.figure("files", static_cast<double>(files.size()));
+  report.count_in = report.count_out = all.size();
+  report.seconds = seconds_since(t0);
+  return {std::move(all), std::move(report)};
+}
+
 }  // namespace hc::pipeline

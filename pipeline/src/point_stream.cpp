@@ -55,6 +55,73 @@ class WholeStream final : public PointStream {
   std::vector<std::string> notes_;
 };
 
+// Several files in one frame (open_point_streams): each file's stream in turn.
+class FilesStream final : public PointStream {
+ public:
+  FilesStream(std::vector<std::filesystem::path> files, const LoadOptions& options) : files_(std::move(files)), options_(options) {
+    std::pair<std::string, std::string> crs;
+    bool rgb = true, intensity = true;
+    std::string no_rgb, no_intensity;  // the first file without each
+    for (const auto& f : files_) {
+      const auto s = open_point_stream(f, options_);
+      total_ += s->total_points();
+      check_same_crs(crs, s->crs(), f);
+      streamed_ = streamed_ && s->streamed();
+      Cloud c;
+      if (!s->next(c, 1)) throw InputError("input.shared_frame: " + detail::quoted(f) + " holds no points");
+      if (rgb && !c.has_rgb()) {
+        rgb = false;
+        no_rgb = f.filename().string();
+      }
+      if (intensity && !c.has_intensity()) {
+        intensity = false;
+        no_intensity = f.filename().string();
+      }
+      float32_ = float32_ || c.float32_xyz;
+      with_rgb_ = with_rgb_ || c.has_rgb();
+      with_intensity_ = with_intensity_ || c.has_intensity();
+    }
+    crs_ = crs.first;
+    keep_rgb_ = rgb;
+    keep_intensity_ = intensity;
+    if (with_rgb_ && !rgb) dropped_.push_back("input.shared_frame: rgb dropped: " + no_rgb + " has none");
+    if (with_intensity_ && !intensity) dropped_.push_back("input.shared_frame: intensity dropped: " + no_intensity + " has none");
+    notes_ = dropped_;
+  }
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return streamed_; }
+  std::string crs() const override { return crs_; }
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    while (at_ < files_.size()) {
+      if (!now_) now_ = open_point_stream(files_[at_], options_);
+      if (now_->next(chunk, max_points)) {
+        if (!keep_rgb_) chunk.rgb.clear();
+        if (!keep_intensity_) chunk.intensity.clear();
+        chunk.float32_xyz = float32_;
+        return true;
+      }
+      const std::string name = files_[at_].filename().string();
+      notes_.push_back(name + ": " + std::to_string(now_->total_points()) + " points");
+      for (const auto& n : now_->notes()) notes_.push_back(name + ": " + n);
+      now_.reset();
+      ++at_;
+    }
+    chunk = Cloud();
+    return false;
+  }
+
+ private:
+  std::vector<std::filesystem::path> files_;
+  LoadOptions options_;
+  std::unique_ptr<PointStream> now_;  // files_[at_]'s stream, once opened
+  std::size_t at_ = 0;
+  std::uint64_t total_ = 0;
+  bool streamed_ = true, float32_ = false, keep_rgb_ = true, keep_intensity_ = true, with_rgb_ = false, with_intensity_ = false;
+  std::string crs_;
+  std::vector<std::string> dropped_, notes_;
+};
+
 }  // namespace
 
 namespace detail {
@@ -144,6 +211,12 @@ std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path
                      " triangles): it is rasterised in core, not streamed (input.as_points: true takes its vertices)");
   }
   return std::make_unique<WholeStream>(std::move(read));
+}
+
+std::unique_ptr<PointStream> open_point_streams(const std::vector<std::filesystem::path>& files, const LoadOptions& options) {
+  if (files.empty()) throw InputError("open_point_streams: no files given (input.files is empty)");
+  if (files.size() == 1) return open_point_stream(files.front(), options);
+  return std::make_unique<FilesStream>(files, options);
 }
 
 }  // namespace hc::pipeline

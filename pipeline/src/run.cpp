@@ -391,6 +391,7 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     if (config.input.synthetic) return StageResult<Cloud>{generate_surface(*config.input.synthetic), {}};
     const LoadOptions load_options{config.input.las_drop_classes, config.input.as_points};
     if (config.input.conf) return load_and_merge_scans(config.input.files, *config.input.conf, load_options);
+    if (config.input.files.size() > 1) return load_files_in_one_frame(config.input.files, load_options);
     return load_cloud(config.input.files.front(), load_options);
   });
   if (reports.back().count_out == 0) reports.back().count_out = cloud.size();
@@ -409,7 +410,7 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
   // 2. Units and recentring (double precision), 3. view transform.
   const double unit_m = metres_per_unit(config.input.units);
   if (precision != nullptr && (in_memory || !config.input.files.empty())) {
-    *precision = stored_precision(cloud, unit_m, in_memory ? std::string("in-memory cloud") : config.input.files.front().string());
+    *precision = stored_precision(cloud, unit_m, in_memory ? std::string("in-memory cloud") : detail::inputs_label(config.input.files));
   }
   cloud = stage("recentre", reports, progress,
                 [&] { return to_metres_and_recentre(std::move(cloud), unit_m, &offset_m, config.input.max_extent_m); });

@@ -124,6 +124,13 @@ constexpr int kCollapsedDistinct = 16;
 /// The stored precision of `cloud` as read (file units; unit_m converts to metres).
 StoredPrecision stored_precision(const Cloud& cloud, double unit_m, const std::string& file);
 
+/// The input files named in one phrase for messages: the file, or "<first> and N more files".
+inline std::string inputs_label(const std::vector<std::filesystem::path>& files) {
+  if (files.empty()) return "no file";
+  if (files.size() == 1) return files.front().string();
+  return files.front().string() + " and " + std::to_string(files.size() - 1) + (files.size() == 2 ? " more file" : " more files");
+}
+
 /// The float-precision check once the cell size is known (warnings, or an error naming the
 /// collapsed axis); see run.cpp.
 void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen::Matrix3d& view_rotation,

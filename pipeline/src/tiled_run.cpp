@@ -75,7 +75,9 @@ void refuse(const char* key, const std::string& why) {
 void check_supported(const RunConfig& c) {
   if (c.input.synthetic) refuse("input.synthetic", "is set");
   if (c.input.conf) refuse("input.conf", "is set (a merge of several scans)");
-  if (c.input.files.size() != 1) refuse("input.files", "lists " + std::to_string(c.input.files.size()) + " files");
+  if (c.input.files.size() != 1 && !c.input.shared_frame) {
+    refuse("input.files", "lists " + std::to_string(c.input.files.size()) + " files without input.shared_frame");
+  }
   if (c.filters.voxel_m > 0.0) refuse("filters.voxel_m", "is > 0");
   if (!c.filters.pcl.empty()) refuse("filters.pcl", "is not empty");
   if (c.filters.outliers.enabled && c.filters.outliers.method != OutlierMethod::kRobust) {
@@ -1023,10 +1025,10 @@ void add_figures(std::map<std::string, double>& sums, const StageReport& r) {
 // One pass over the input in the grid frame: every chunk through to_grid_frame, then `body`,
 // with the pass's progress by points read.
 template <class Body>
-void for_each_grid_chunk(const std::filesystem::path& input, const LoadOptions& load, const RunConfig& config,
+void for_each_grid_chunk(const std::vector<std::filesystem::path>& input, const LoadOptions& load, const RunConfig& config,
                          const Eigen::Vector3d& centre, double unit_m, std::uint64_t total_points,
                          const ProgressFn& progress, const char* stage_name, const char* pass, Body&& body) {
-  auto s = open_point_stream(input, load);
+  auto s = open_point_streams(input, load);
   Cloud c;
   detail::PassProgress tick(progress, stage_name, pass, config.scale.progress_interval_s);
   std::uint64_t read = 0;
@@ -1045,32 +1047,37 @@ bool runs_tiled(const RunConfig& config) {
     check_supported(config);
     return true;
   }
-  if (config.input.synthetic || config.input.conf || config.input.files.size() != 1) return false;
-  const fs::path& f = config.input.files.front();
-  std::string ext;
-  const bool gz = detail::gz_name(f, ext);
-  // Only a natively streamed file is counted without reading it whole (a PTX, PTS or XYZ
-  // file's first look reads its lines without parsing the points; under gzip, decompressing
-  // them; a gzipped PCD's inflates it once for its size).
-  const bool text = ext == ".ptx" || ext == ".pts" || ext == ".xyz" || ext == ".txt";
-  if (!(ext == ".ply" || ext == ".pcd" || text || (!gz && (ext == ".las" || ext == ".laz" || ext == ".e57")))) return false;
-  std::error_code ec;
-  if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
-  std::unique_ptr<PointStream> s;
-  try {
-    const LoadOptions load{config.input.las_drop_classes, config.input.as_points};
-    s = ext == ".ply"   ? detail::open_ply_stream(f, f.string(), config.input.as_points, gz)
-        : ext == ".las" ? detail::open_las_stream(f, f.string(), &load)
-        : ext == ".laz" ? detail::open_laz_stream(f, f.string(), &load)
-        : ext == ".ptx" ? detail::open_ptx_stream(f, f.string(), gz)
-        : ext == ".pts" ? detail::open_pts_stream(f, f.string(), gz)
-        : ext == ".e57" ? detail::open_e57_stream(f, f.string())
-        : ext == ".pcd" ? detail::open_pcd_stream(f, f.string(), gz)
-                        : detail::open_xyz_stream(f, f.string(), gz);
-  } catch (const InputError&) {
-    return false;  // the in-core read reports the problem
+  if (config.input.synthetic || config.input.conf || config.input.files.empty()) return false;
+  if (config.input.files.size() > 1 && !config.input.shared_frame) return false;
+  std::uint64_t total = 0;
+  for (const fs::path& f : config.input.files) {
+    std::string ext;
+    const bool gz = detail::gz_name(f, ext);
+    // Only a natively streamed file is counted without reading it whole (a PTX, PTS or XYZ
+    // file's first look reads its lines without parsing the points; under gzip, decompressing
+    // them; a gzipped PCD's inflates it once for its size).
+    const bool text = ext == ".ptx" || ext == ".pts" || ext == ".xyz" || ext == ".txt";
+    if (!(ext == ".ply" || ext == ".pcd" || text || (!gz && (ext == ".las" || ext == ".laz" || ext == ".e57")))) return false;
+    std::error_code ec;
+    if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
+    std::unique_ptr<PointStream> s;
+    try {
+      const LoadOptions load{config.input.las_drop_classes, config.input.as_points};
+      s = ext == ".ply"   ? detail::open_ply_stream(f, f.string(), config.input.as_points, gz)
+          : ext == ".las" ? detail::open_las_stream(f, f.string(), &load)
+          : ext == ".laz" ? detail::open_laz_stream(f, f.string(), &load)
+          : ext == ".ptx" ? detail::open_ptx_stream(f, f.string(), gz)
+          : ext == ".pts" ? detail::open_pts_stream(f, f.string(), gz)
+          : ext == ".e57" ? detail::open_e57_stream(f, f.string())
+          : ext == ".pcd" ? detail::open_pcd_stream(f, f.string(), gz)
+                          : detail::open_xyz_stream(f, f.string(), gz);
+    } catch (const InputError&) {
+      return false;  // the in-core read reports the problem
+    }
+    if (!s) return false;
+    total += s->total_points();
   }
-  if (!s || s->total_points() <= config.scale.tiled_above_points) return false;
+  if (total <= config.scale.tiled_above_points) return false;
   try {
     check_supported(config);
   } catch (const ConfigError&) {
@@ -1100,7 +1107,7 @@ struct Plan {
   detail::StoredPrecision precision;
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
   std::string crs;
-  SceneInput input;
+  std::vector<SceneInput> inputs;    // the input files in order, with their checksums
   std::vector<StageReport> reports;  // tile_plan, tile_spill, tile_scale
 };
 
@@ -2148,7 +2155,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   check_supported(config);
   Plan plan;
   auto& reports = plan.reports;
-  const fs::path& input = config.input.files.front();
+  const std::vector<fs::path>& input = config.input.files;
+  const std::string input_name = detail::inputs_label(input);
   const LoadOptions load{config.input.las_drop_classes, config.input.as_points};
   const std::size_t chunk_points = config.scale.chunk_points;
   const double unit_m = metres_per_unit(config.input.units);
@@ -2337,7 +2345,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   (void)stage("tile_plan", reports, progress, [&] {
     StageResult<int> r;
     {
-      auto s = open_point_stream(input, load);
+      auto s = open_point_streams(input, load);
       crs = s->crs();
       Cloud c;
       bool first = true;
@@ -2370,7 +2378,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       }
       read_notes = s->notes();  // after the pass: a stream may add notes as it reads (LAS: colour, dropped)
     }
-    if (box.points == 0) throw InputError("tiled run: " + input.string() + " holds no point");
+    if (box.points == 0) throw InputError("tiled run: " + input_name + " holds no point");
     if (box.finite == 0) throw InputError("to_metres_and_recentre: none of the " + std::to_string(box.points) + " points has finite coordinates");
     const Eigen::Vector3d box_m = (box.hi - box.lo) * unit_m;
     for (int a = 0; a < 3; ++a) {
@@ -2409,14 +2417,14 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
 
   detail::StoredPrecision precision;
   precision.float32 = box.float32;
-  precision.file = input.string();
+  precision.file = input_name;
   precision.crs = crs;
   for (int a = 0; a < 3; ++a) {
     precision.max_abs_m[a] = box.max_abs[a] * unit_m;
     precision.distinct[a] = static_cast<int>(box.distinct[static_cast<std::size_t>(a)].size());
   }
   const Eigen::Vector3d offset_m = centre * unit_m;
-  plan.input = {input.string(), sha256_file(input)};
+  for (const fs::path& f : input) plan.inputs.push_back({f.string(), sha256_file(f)});
 
   // 2. Spill every point to the tiles whose window holds its node. The robust test's sample
   // (the points the in-core run samples, by their order after non-finite and crop) is marked
@@ -2929,7 +2937,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
   DepthGrid& grid = merged.grid;
   const Eigen::Vector3d& offset_m = plan.offset_m;
   scene.provenance.crs = plan.crs;
-  scene.provenance.inputs.push_back(plan.input);
+  scene.provenance.inputs.insert(scene.provenance.inputs.end(), plan.inputs.begin(), plan.inputs.end());
   // The levels table's sample: every stride-th interior kept point in tile order, taken in the
   // cross-check's first pass over the kept points (or a pass of its own without it).
   const bool keep_sample = keeps_sample(config);
@@ -3294,7 +3302,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 // Tile jobs in other processes: plan.json, part_<t>.bin, kept_<t>.bin.
 
 // 4: layout.xyz_floats, and spill records of the file's floats when it is set (FileFloats).
-constexpr const char* kPlanFormat = "hapticloud tile plan 4";
+constexpr const char* kPlanFormat = "hapticloud tile plan 5";
 // 2: kept_<t>.bin is a mask over the spill (KeptMask), not the kept points.
 constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '2', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
@@ -3476,7 +3484,8 @@ void write_plan_file(const PlanFile& pf) {
                     {"distinct", {p.precision.distinct.x(), p.precision.distinct.y(), p.precision.distinct.z()}}};
   j["offset_m"] = {hex(p.offset_m.x()), hex(p.offset_m.y()), hex(p.offset_m.z())};
   j["crs"] = text(p.crs);
-  j["input"] = {{"file", text(p.input.file)}, {"sha256", p.input.sha256}};
+  j["inputs"] = nlohmann::json::array();
+  for (const SceneInput& in : p.inputs) j["inputs"].push_back({{"file", text(in.file)}, {"sha256", in.sha256}});
   nlohmann::json reports = nlohmann::json::array();
   for (const auto& r : p.reports) reports.push_back(report_json(r));
   j["reports"] = reports;
@@ -3528,7 +3537,7 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       throw InputError(plan_file.string() + ": spill_bytes has " + std::to_string(pf.spill_bytes.size()) + " entries, expected " +
                        std::to_string(p.tiles.count()) + " (one per tile)");
     }
-    where = "layout, robust_scale, input_points, grid_points, far_points, far_main_box_m, far_size_points, precision, offset_m, crs, input";
+    where = "layout, robust_scale, input_points, grid_points, far_points, far_main_box_m, far_size_points, precision, offset_m, crs, inputs";
     p.layout.rgb = j.at("layout").at("rgb").get<bool>();
     p.layout.intensity = j.at("layout").at("intensity").get<bool>();
     if (const auto& x = j.at("layout").at("xyz_floats"); !x.is_null()) {
@@ -3631,8 +3640,7 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       p.offset_m[a] = unhex(j.at("offset_m").at(static_cast<std::size_t>(a)), plan_file, "offset_m");
     }
     p.crs = untext(j.at("crs"));
-    p.input.file = untext(j.at("input").at("file"));
-    p.input.sha256 = j.at("input").at("sha256").get<std::string>();
+    for (const auto& in : j.at("inputs")) p.inputs.push_back({untext(in.at("file")), in.at("sha256").get<std::string>()});
     where = "reports";
     for (const auto& rj : j.at("reports")) {
       StageReport r;

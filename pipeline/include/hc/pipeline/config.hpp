@@ -31,6 +31,10 @@ namespace hc::pipeline {
 struct InputConfig {
   std::vector<std::filesystem::path> files;     ///< scans, resolved against the config's folder
   std::optional<std::filesystem::path> conf;    ///< scanalyze .conf to merge several views
+  /// input.shared_frame: the files are parts of one scan in one frame (the tiles of a survey, a
+  /// scan cut in pieces): their points are taken in the listed order, as if from one file
+  /// (load_files_in_one_frame, ingest.hpp). Exclusive with conf.
+  bool shared_frame = false;
   std::string units = "m";                      ///< "m" | "cm" | "mm" | "ft" | "us-ft" | "in"
   std::vector<int> las_drop_classes{7, 18};     ///< LAS classes dropped on reading (0..255)
   double max_extent_m = kDefaultMaxExtentM;     ///< largest accepted bounding-box side [m]

@@ -83,4 +83,25 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
                                         const std::filesystem::path& conf_path,
                                         const LoadOptions& options = {});
 
+/// input.shared_frame: loads each file (load_cloud) and takes their points in the listed order,
+/// in the files' own frame and units, as if one file held them all: the parts of one scan (the
+/// tiles of a survey in one CRS, a scan cut in pieces). Attributes follow Cloud::append: an
+/// attribute (colour, intensity, normals, scanner row/column, ...) that some file lacks is
+/// dropped, with a note naming the first file without it; faces are renumbered; a texture is
+/// kept only when every mesh shares one image. float32_xyz: set when any file stores floats.
+/// Notes: each file's points, the dropped attributes and each file's own notes (prefixed with
+/// its name). Figure `files`. The tiled run reads the same points in the same order
+/// (open_point_streams, point_stream.hpp) under the same rules.
+/// @throws hc::InputError as load_cloud for each file (the message names it), when `files` is
+///         empty, or when two files declare different coordinate reference systems (both named
+///         with their CRS).
+/// Real-time: no. Thread-safe: yes. Source: this project (issue 14: whole sites in several files).
+StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::path>& files, const LoadOptions& options = {});
+
+/// The CRS check of load_files_in_one_frame and open_point_streams: `crs` is the CRS seen so far
+/// (empty: none yet) with the file that declared it; a file declaring another one is an error.
+/// Updates the pair when `file_crs` is the first one declared.
+/// @throws hc::InputError naming both files and both CRS.
+void check_same_crs(std::pair<std::string, std::string>& crs, const std::string& file_crs, const std::filesystem::path& file);
+
 }  // namespace hc::pipeline

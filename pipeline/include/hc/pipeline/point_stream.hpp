@@ -64,4 +64,15 @@ class PointStream {
 ///         streamed binary PLY's size is checked against its header when it is opened).
 std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path, const LoadOptions& options = {});
 
+/// input.shared_frame: the files' points in the listed order as one stream, with
+/// load_files_in_one_frame's rules (ingest.hpp): colour or intensity only when every file has
+/// it (a note names a file without it), float32_xyz on every chunk when any file stores floats,
+/// one CRS. One file: open_point_stream(files[0]). Opening probes every file (it opens it and
+/// reads its first point, so a file read whole is read once more per pass); then one file is
+/// open at a time, and a chunk never spans two files. total_points() is the sum; notes() holds
+/// each finished file's notes prefixed with its name; streamed() is true when every file streams.
+/// @throws hc::InputError as open_point_stream for each file, for an empty list, a file without
+///         points, or two files declaring different CRS (check_same_crs).
+std::unique_ptr<PointStream> open_point_streams(const std::vector<std::filesystem::path>& files, const LoadOptions& options = {});
+
 }  // namespace hc::pipeline
