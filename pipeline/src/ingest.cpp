@@ -22,6 +22,7 @@
 #include <string_view>
 #include <system_error>
 #include <thread>
+#include <type_traits>
 
 namespace hc::pipeline {
 
@@ -375,26 +376,98 @@ StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::pa
   if (files.empty()) throw InputError("load_files_in_one_frame: no files given (input.files is empty)");
   StageReport report;
   report.stage = "load";
-  Cloud all;
+  std::vector<Cloud> parts;
+  parts.reserve(files.size());
   std::pair<std::string, std::string> crs;  // the CRS seen first and its file
-  std::vector<std::string> lacking;         // attributes already dropped
-  for (std::size_t i = 0; i < files.size(); ++i) {
-    StageResult<Cloud> part = load_cloud(files[i], options);
-    check_same_crs(crs, part.value.crs, files[i]);
-    const std::string name = files[i].filename().string();
+  for (const auto& f : files) {
+    StageResult<Cloud> part = load_cloud(f, options);
+    check_same_crs(crs, part.value.crs, f);
+    const std::string name = f.filename().string();
     report.notes.push_back(name + ": " + std::to_string(part.value.size()) + " points");
     for (const auto& note : part.report.notes) report.notes.push_back(name + ": " + note);
-    for (const std::string& a : all.append(part.value)) {
-      if (std::find(lacking.begin(), lacking.end(), a) != lacking.end()) continue;
-      lacking.push_back(a);
-      const Cloud& c = part.value;
-      const bool has = a == "scan_id" ? c.has_scan_id() : a == "intensity" ? c.has_intensity() : a == "rgb" ? c.has_rgb()
-                     : a == "normal" ? c.has_normals() : a == "curvature" ? !c.curvature.empty()
-                     : a == "texture" ? c.mesh.has_texture() : c.has_grid_index();
-      report.notes.push_back("input.shared_frame: " + a + " dropped: " +
-                             (a == "texture" ? "the meshes up to " + name + " do not share one texture image"
-                                             : (has ? "a file before " + name : name) + " has none"));
+    parts.push_back(std::move(part.value));
+  }
+  // An attribute is kept when every part has it; else a note names the first part without it
+  // (the stream's wording, open_point_streams).
+  const auto every = [&](const char* what, auto&& has) {
+    for (std::size_t i = 0; i < parts.size(); ++i) {
+      if (has(parts[i])) continue;
+      if (std::any_of(parts.begin(), parts.end(), has)) {
+        report.notes.push_back(std::string("input.shared_frame: ") + what + " dropped: " + files[i].filename().string() + " has none");
+      }
+      return false;
     }
+    return true;
+  };
+  const bool rgb = every("rgb", [](const Cloud& c) { return c.has_rgb(); });
+  const bool intensity = every("intensity", [](const Cloud& c) { return c.has_intensity(); });
+  const bool normals = every("normal", [](const Cloud& c) { return c.has_normals(); });
+  const bool curvature = normals && every("curvature", [](const Cloud& c) { return !c.curvature.empty(); });
+  bool grid_index = every("scanner row/column", [](const Cloud& c) { return c.has_grid_index(); });
+  // Scan ids made distinct across the files (a file's own ids, or 0, plus the scans of the files
+  // before it): scanner rows and columns are per scan (mesh_organised_scans).
+  std::size_t scans = 0, total = 0;
+  for (const Cloud& c : parts) {
+    std::size_t own = 1;
+    for (const auto s : c.scan_id) own = std::max<std::size_t>(own, std::size_t{s} + 1);
+    scans += own;
+    total += c.size();
+  }
+  const bool scan_id = scans <= std::numeric_limits<std::uint16_t>::max() + std::size_t{1};
+  if (!scan_id) {
+    report.notes.push_back("input.shared_frame: scan ids and scanner row/column dropped: the files hold " + std::to_string(scans) +
+                           " scans, more than 65536");
+    grid_index = false;
+  }
+  // The texture when every mesh has one and they share its image (Cloud::append's rule).
+  const auto first_mesh = std::find_if(parts.begin(), parts.end(), [](const Cloud& c) { return !c.mesh.empty(); });
+  bool texture = first_mesh != parts.end();
+  for (const Cloud& c : parts) {
+    texture = texture && (c.mesh.empty() || (c.mesh.has_texture() && c.mesh.texture == first_mesh->mesh.texture));
+  }
+  if (!texture && std::any_of(parts.begin(), parts.end(), [](const Cloud& c) { return c.mesh.has_texture(); })) {
+    report.notes.push_back("input.shared_frame: texture dropped: the meshes do not share one texture image");
+  }
+  Cloud all;
+  all.xyz.resize(3, static_cast<Eigen::Index>(total));
+  Eigen::Index at = 0;
+  std::size_t scan_base = 0;
+  for (Cloud& c : parts) {
+    const Eigen::Index n = c.xyz.cols();
+    all.xyz.middleCols(at, n) = c.xyz;
+    c.xyz = Eigen::Matrix3Xd();
+    const auto take = [](auto& mine, auto& theirs, bool keep) {
+      if (keep) mine.insert(mine.end(), theirs.begin(), theirs.end());
+      std::decay_t<decltype(theirs)>().swap(theirs);
+    };
+    take(all.rgb, c.rgb, rgb);
+    take(all.intensity, c.intensity, intensity);
+    take(all.normal, c.normal, normals);
+    take(all.curvature, c.curvature, curvature);
+    take(all.row, c.row, grid_index);
+    take(all.col, c.col, grid_index);
+    std::size_t own = 1;
+    for (const auto s : c.scan_id) own = std::max<std::size_t>(own, std::size_t{s} + 1);
+    if (scan_id) {
+      for (Eigen::Index i = 0; i < n; ++i) {
+        all.scan_id.push_back(static_cast<std::uint16_t>(scan_base + (c.has_scan_id() ? c.scan_id[static_cast<std::size_t>(i)] : 0)));
+      }
+    }
+    scan_base += own;
+    for (auto tri : c.mesh.triangles) {
+      for (auto& v : tri) v += static_cast<std::uint32_t>(at);
+      all.mesh.triangles.push_back(tri);
+    }
+    if (texture && c.mesh.has_texture()) {
+      all.mesh.corner_uv.insert(all.mesh.corner_uv.end(), c.mesh.corner_uv.begin(), c.mesh.corner_uv.end());
+      all.mesh.texture = c.mesh.texture;
+    }
+    all.float32_xyz = all.float32_xyz || c.float32_xyz;  // any float-stored part limits the precision
+    at += n;
+  }
+  if (total > 0xFFFFFFFEu && all.has_mesh()) {
+    throw InputError("input.shared_frame: the files hold " + std::to_string(total) +
+                     " points with faces: more than 32-bit face indices reach (input.as_points: true takes the vertices)");
   }
   all.crs = crs.first;
   report.figure("files", static_cast<double>(files.size()));

@@ -10,6 +10,9 @@
 #include "hc/common/error.hpp"
 
 #include <algorithm>
+#include <array>
+#include <map>
+#include <optional>
 #include <sys/mman.h>
 #include <sys/stat.h>
 #include <tuple>
@@ -55,6 +58,45 @@ class WholeStream final : public PointStream {
   std::vector<std::string> notes_;
 };
 
+// What opening a file of several in one frame learns (FilesStream): the point count, CRS and
+// attributes of its stream's first chunk.
+struct FileProbe {
+  std::uint64_t total = 0;
+  std::string crs;
+  bool streamed = false, rgb = false, intensity = false, float32 = false;
+};
+
+// Probes kept for the process, by the file's identity (device, inode, size, modification time):
+// every pass of a tiled run opens the files again, and a probe can cost a pass of its own (a
+// LAS file's colour depth, a text file's line count).
+struct ProbeCache {
+  std::mutex mutex;
+  std::map<std::array<std::int64_t, 5>, FileProbe> probes;
+};
+ProbeCache& probe_cache() {
+  static ProbeCache cache;
+  return cache;
+}
+// The probe kept for f, if any; `key` gets f's identity (all 0 when f cannot be stat'ed: then
+// nothing is kept for it).
+std::optional<FileProbe> recall_probe(const std::filesystem::path& f, std::array<std::int64_t, 5>& key) {
+  struct stat st {};
+  if (::stat(f.c_str(), &st) != 0) return std::nullopt;
+  key = {static_cast<std::int64_t>(st.st_dev), static_cast<std::int64_t>(st.st_ino), static_cast<std::int64_t>(st.st_size),
+         static_cast<std::int64_t>(st.st_mtim.tv_sec), static_cast<std::int64_t>(st.st_mtim.tv_nsec)};
+  ProbeCache& c = probe_cache();
+  const std::lock_guard<std::mutex> lock(c.mutex);
+  const auto it = c.probes.find(key);
+  return it == c.probes.end() ? std::nullopt : std::optional<FileProbe>(it->second);
+}
+void remember_probe(const std::array<std::int64_t, 5>& key, const FileProbe& p) {
+  if (key == std::array<std::int64_t, 5>{}) return;
+  ProbeCache& c = probe_cache();
+  const std::lock_guard<std::mutex> lock(c.mutex);
+  if (c.probes.size() >= 4096) c.probes.clear();  // bounded: a few hundred bytes an entry
+  c.probes[key] = p;
+}
+
 // Several files in one frame (open_point_streams): each file's stream in turn.
 class FilesStream final : public PointStream {
  public:
@@ -63,30 +105,35 @@ class FilesStream final : public PointStream {
     bool rgb = true, intensity = true;
     std::string no_rgb, no_intensity;  // the first file without each
     for (const auto& f : files_) {
-      const auto s = open_point_stream(f, options_);
-      total_ += s->total_points();
-      check_same_crs(crs, s->crs(), f);
-      streamed_ = streamed_ && s->streamed();
-      Cloud c;
-      if (!s->next(c, 1)) throw InputError("input.shared_frame: " + detail::quoted(f) + " holds no points");
-      if (rgb && !c.has_rgb()) {
+      std::array<std::int64_t, 5> key{};
+      std::optional<FileProbe> p = recall_probe(f, key);
+      if (!p) {
+        const auto s = open_point_stream(f, options_);
+        Cloud c;
+        if (!s->next(c, 1)) throw InputError("input.shared_frame: " + detail::quoted(f) + " holds no points");
+        p = FileProbe{s->total_points(), s->crs(), s->streamed(), c.has_rgb(), c.has_intensity(), c.float32_xyz};
+        remember_probe(key, *p);
+      }
+      total_ += p->total;
+      check_same_crs(crs, p->crs, f);
+      streamed_ = streamed_ && p->streamed;
+      if (rgb && !p->rgb) {
         rgb = false;
         no_rgb = f.filename().string();
       }
-      if (intensity && !c.has_intensity()) {
+      if (intensity && !p->intensity) {
         intensity = false;
         no_intensity = f.filename().string();
       }
-      float32_ = float32_ || c.float32_xyz;
-      with_rgb_ = with_rgb_ || c.has_rgb();
-      with_intensity_ = with_intensity_ || c.has_intensity();
+      float32_ = float32_ || p->float32;
+      with_rgb_ = with_rgb_ || p->rgb;
+      with_intensity_ = with_intensity_ || p->intensity;
     }
     crs_ = crs.first;
     keep_rgb_ = rgb;
     keep_intensity_ = intensity;
-    if (with_rgb_ && !rgb) dropped_.push_back("input.shared_frame: rgb dropped: " + no_rgb + " has none");
-    if (with_intensity_ && !intensity) dropped_.push_back("input.shared_frame: intensity dropped: " + no_intensity + " has none");
-    notes_ = dropped_;
+    if (with_rgb_ && !rgb) notes_.push_back("input.shared_frame: rgb dropped: " + no_rgb + " has none");
+    if (with_intensity_ && !intensity) notes_.push_back("input.shared_frame: intensity dropped: " + no_intensity + " has none");
   }
   std::uint64_t total_points() const override { return total_; }
   const std::vector<std::string>& notes() const override { return notes_; }
@@ -96,15 +143,17 @@ class FilesStream final : public PointStream {
     while (at_ < files_.size()) {
       if (!now_) now_ = open_point_stream(files_[at_], options_);
       if (now_->next(chunk, max_points)) {
+        given_ += chunk.size();
         if (!keep_rgb_) chunk.rgb.clear();
         if (!keep_intensity_) chunk.intensity.clear();
         chunk.float32_xyz = float32_;
         return true;
       }
       const std::string name = files_[at_].filename().string();
-      notes_.push_back(name + ": " + std::to_string(now_->total_points()) + " points");
+      notes_.push_back(name + ": " + std::to_string(given_) + " points");
       for (const auto& n : now_->notes()) notes_.push_back(name + ": " + n);
       now_.reset();
+      given_ = 0;
       ++at_;
     }
     chunk = Cloud();
@@ -116,10 +165,10 @@ class FilesStream final : public PointStream {
   LoadOptions options_;
   std::unique_ptr<PointStream> now_;  // files_[at_]'s stream, once opened
   std::size_t at_ = 0;
-  std::uint64_t total_ = 0;
+  std::uint64_t total_ = 0, given_ = 0;  // given_: files_[at_]'s points handed out
   bool streamed_ = true, float32_ = false, keep_rgb_ = true, keep_intensity_ = true, with_rgb_ = false, with_intensity_ = false;
   std::string crs_;
-  std::vector<std::string> dropped_, notes_;
+  std::vector<std::string> notes_;
 };
 
 }  // namespace

@@ -391,7 +391,11 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     if (config.input.synthetic) return StageResult<Cloud>{generate_surface(*config.input.synthetic), {}};
     const LoadOptions load_options{config.input.las_drop_classes, config.input.as_points};
     if (config.input.conf) return load_and_merge_scans(config.input.files, *config.input.conf, load_options);
-    if (config.input.files.size() > 1) return load_files_in_one_frame(config.input.files, load_options);
+    if (config.input.shared_frame) return load_files_in_one_frame(config.input.files, load_options);
+    if (config.input.files.size() > 1) {  // a RunConfig made in code: the YAML reader refuses it
+      throw ConfigError("input.files lists " + std::to_string(config.input.files.size()) +
+                        " files without input.conf or input.shared_frame: expected one of them");
+    }
     return load_cloud(config.input.files.front(), load_options);
   });
   if (reports.back().count_out == 0) reports.back().count_out = cloud.size();

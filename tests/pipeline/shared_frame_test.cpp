@@ -222,6 +222,13 @@ TEST(SharedFrame, TheStreamGivesTheConcatenationInChunksThatNeverSpanTwoFiles) {
   EXPECT_TRUE(all.xyz == whole.xyz);
   EXPECT_TRUE(all.rgb.empty());
   EXPECT_TRUE(all.float32_xyz);
+  // Each file's points carry its own scan id (scanner rows and columns are per scan).
+  ASSERT_EQ(all.scan_id.size(), all.size());
+  EXPECT_EQ(std::count(all.scan_id.begin(), all.scan_id.end(), 0), 70'001);
+  EXPECT_EQ(std::count(all.scan_id.begin(), all.scan_id.end(), 1), 89'999);
+  EXPECT_EQ(std::count(all.scan_id.begin(), all.scan_id.end(), 2), 80'000);
+  EXPECT_EQ(all.scan_id[70'000], 0);
+  EXPECT_EQ(all.scan_id[70'001], 1);
   auto s = hc::pipeline::open_point_streams(files);
   EXPECT_EQ(s->total_points(), whole.size());
   hc::pipeline::Cloud chunk;

@@ -85,16 +85,20 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
 
 /// input.shared_frame: loads each file (load_cloud) and takes their points in the listed order,
 /// in the files' own frame and units, as if one file held them all: the parts of one scan (the
-/// tiles of a survey in one CRS, a scan cut in pieces). Attributes follow Cloud::append: an
-/// attribute (colour, intensity, normals, scanner row/column, ...) that some file lacks is
-/// dropped, with a note naming the first file without it; faces are renumbered; a texture is
-/// kept only when every mesh shares one image. float32_xyz: set when any file stores floats.
-/// Notes: each file's points, the dropped attributes and each file's own notes (prefixed with
-/// its name). Figure `files`. The tiled run reads the same points in the same order
-/// (open_point_streams, point_stream.hpp) under the same rules.
+/// tiles of a survey in one CRS, a scan cut in pieces). An attribute (colour, intensity,
+/// normals with their curvature, scanner row/column) that some file lacks is dropped, with a
+/// note naming the first file without it; scan_id is each file's own scan index (0 without one)
+/// plus the scans of the files before it, so scanner rows and columns stay per scan (more than
+/// 65 536 scans: scan ids and rows/columns dropped, with a note); faces are renumbered; a
+/// texture is kept only when every mesh shares one image (Cloud::append's rule). float32_xyz:
+/// set when any file stores floats. The points are copied once into the whole (the parts are
+/// held until then: memory about twice the points). Notes: each file's points and its own notes
+/// (prefixed with its name), then the dropped attributes. Figure `files`. The tiled run reads
+/// the same points in the same order (open_point_streams, point_stream.hpp) under the same
+/// rules for colour, intensity, float32 and CRS.
 /// @throws hc::InputError as load_cloud for each file (the message names it), when `files` is
-///         empty, or when two files declare different coordinate reference systems (both named
-///         with their CRS).
+///         empty, when two files declare different coordinate reference systems (both named
+///         with their CRS), or when meshes hold more points than 32-bit face indices reach.
 /// Real-time: no. Thread-safe: yes. Source: this project (issue 14: whole sites in several files).
 StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::path>& files, const LoadOptions& options = {});
 

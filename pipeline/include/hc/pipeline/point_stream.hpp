@@ -66,11 +66,15 @@ std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path
 
 /// input.shared_frame: the files' points in the listed order as one stream, with
 /// load_files_in_one_frame's rules (ingest.hpp): colour or intensity only when every file has
-/// it (a note names a file without it), float32_xyz on every chunk when any file stores floats,
-/// one CRS. One file: open_point_stream(files[0]). Opening probes every file (it opens it and
-/// reads its first point, so a file read whole is read once more per pass); then one file is
-/// open at a time, and a chunk never spans two files. total_points() is the sum; notes() holds
-/// each finished file's notes prefixed with its name; streamed() is true when every file streams.
+/// it (a note names the first file without it), one CRS, and float32_xyz on every chunk when
+/// any file stores floats (a tiled run's spill then tries the file floats and, at the first
+/// point of a double file, spills again in doubles: one pass more for a mix). One file:
+/// open_point_stream(files[0]). The first open in the process probes each file (opens it and
+/// reads its first point: its count, CRS and attributes), kept for the process by the file's
+/// device, inode, size and modification time, so later passes open each file once; then one
+/// file is open at a time, and a chunk never spans two files. total_points() is the sum;
+/// notes() holds, after each file, its points handed out ("<name>: N points") and its notes
+/// prefixed with its name; streamed() is true when every file streams.
 /// @throws hc::InputError as open_point_stream for each file, for an empty list, a file without
 ///         points, or two files declaring different CRS (check_same_crs).
 std::unique_ptr<PointStream> open_point_streams(const std::vector<std::filesystem::path>& files, const LoadOptions& options = {});

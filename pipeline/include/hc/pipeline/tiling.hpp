@@ -42,8 +42,9 @@
 /// weighted by points, where the isolated count may differ by a few), then the verdict as in core; points dropped before the
 /// spill (non-finite, crop) count as removed without a class. The levels table's support column
 /// is missing (no cloud: a sample instead).
-/// Not supported (tiled: on is an error naming the key): input.conf / several files,
-/// input.synthetic, filters.voxel_m, filters.pcl, filters.outliers other than robust,
+/// Several files are read as one scan with input.shared_frame (open_point_streams).
+/// Not supported (tiled: on is an error naming the key): input.conf, several files without
+/// input.shared_frame, input.synthetic, filters.voxel_m, filters.pcl, filters.outliers other than robust,
 /// grid.organised: mesh, meshes.
 
 #include "hc/pipeline/config.hpp"
@@ -57,8 +58,9 @@
 
 namespace hc::pipeline {
 
-/// Whether build_scene runs `config` tiled: scale.tiled on, or auto and the input is a single
-/// natively streamed file (point_stream.hpp) of more than scale.tiled_above_points points.
+/// Whether build_scene runs `config` tiled: scale.tiled on, or auto and the input is one natively
+/// streamed file (point_stream.hpp), or several with input.shared_frame, of more than
+/// scale.tiled_above_points points in all (each file's header or first-look count).
 /// @throws what opening the input throws (auto only); hc::ConfigError for tiled: on with an
 ///         option the tiled run does not support (the message names the key).
 bool runs_tiled(const RunConfig& config);
