@@ -22,6 +22,7 @@
 #include <cstdint>
 #include <cstring>
 #include <fstream>
+#include <iterator>
 #include <iomanip>
 #include <limits>
 #include <string>
@@ -193,6 +194,29 @@ TEST(SharedFrame, ThreePartsGiveTheSceneOfTheOneFileHoldingThemAll) {
   const BuiltScene in = hc::pipeline::build_scene(config_of(d, "a.ply, b.ply, c.ply", false, false));
   const BuiltScene tiled = hc::pipeline::build_scene(config_of(d, "a.ply, b.ply, c.ply", true, false));
   expect_same_scene(in, tiled, "parts, in core against tiled, outliers off", false);
+}
+
+// Tile jobs (hapticloud tile-plan, tile-job, tile-merge: another process could run each) on the
+// three parts: the plan file lists the three inputs, and the merged scene is the one file's
+// tiled scene.
+TEST(SharedFrame, TileJobsOnThePartsMergeIntoTheOneFilesScene) {
+  const fs::path d = write_wall_and_parts();
+  const BuiltScene whole = hc::pipeline::build_scene(config_of(d, "whole.ply", true, true));
+  // The config as a file for the plan (tile jobs reload it).
+  const RunConfig parts = config_of(d, "a.ply, b.ply, c.ply", true, true);
+  std::ofstream(d / "parts.yaml") << parts.resolved_yaml;
+  const auto info = hc::pipeline::write_tile_plan(d / "parts.yaml", {}, d / "work");
+  ASSERT_GT(info.tiles, 4U);
+  std::ifstream plan(info.plan_file);
+  const std::string text((std::istreambuf_iterator<char>(plan)), std::istreambuf_iterator<char>());
+  for (const char* f : {"a.ply", "b.ply", "c.ply"}) EXPECT_NE(text.find(f), std::string::npos) << f;
+  std::vector<std::size_t> all(info.tiles);
+  for (std::size_t t = 0; t < info.tiles; ++t) all[t] = t;
+  hc::pipeline::run_tile_jobs(info.plan_file, all);
+  const auto merged = hc::pipeline::merge_tile_jobs(info.plan_file);
+  expect_same_scene(whole, merged.built, "tile jobs on the parts against the one file, tiled");
+  ASSERT_EQ(merged.built.scene.provenance.inputs.size(), 3U);
+  EXPECT_EQ(fs::path(merged.built.scene.provenance.inputs[2].file).filename(), "c.ply");
 }
 
 // A part without colour (b.xyz: the same points as text): colour is dropped in both runs, with a
