@@ -237,6 +237,9 @@ def compare_builds(programs, labels, config, scratch, mode, tile_cells, sets, ro
                   + (f", failed: {row['error']}" if "error" in row else ""), file=sys.stderr, flush=True)
         for i, row in this_round.items():
             row["scene_equal_to_first"] = i in outs and 0 in outs and outs[i] == outs[0] and bool(outs[0])
+            if i in outs and 0 in outs and i != 0:
+                # The files that differ from the first build's, or that only one of them wrote.
+                row["scene_files_differing"] = sorted(k for k in set(outs[i]) | set(outs[0]) if outs[i].get(k) != outs[0].get(k))
         for i in order:
             shutil.rmtree(os.path.join(scratch, f"compare_{i}"), ignore_errors=True)
     ok = [x for x in rows if "error" not in x]
@@ -261,9 +264,13 @@ def compare_builds(programs, labels, config, scratch, mode, tile_cells, sets, ro
         srow = {"build": lab, "wall_s": statistics.median(x["wall_s"] for x in mine),
                 "cpu_s": statistics.median(x["cpu_s"] for x in mine), "cpu_ratio": ratio,
                 "peak_rss_bytes": statistics.median(x["peak_rss_bytes"] for x in mine), "scene_equal": equal}
+        differing = sorted({k for x in mine for k in x.get("scene_files_differing", [])})
+        if i > 0:
+            srow["scene_files_differing"] = differing
         summary.append(srow)
+        named = ", ".join(differing[:3]) + (f" and {len(differing) - 3} more" if len(differing) > 3 else "")
         print(f"| {lab} | {srow['wall_s']:.1f} | {srow['cpu_s']:.1f} | {ratio:.3f} | {srow['peak_rss_bytes'] / 1e6:.0f} | "
-              + ("(the first)" if i == 0 else "yes" if equal else "**no**") + " |")
+              + ("(the first)" if i == 0 else "yes" if equal else "**no**" + (f" ({named})" if named else "")) + " |")
     stages = []
     for x in ok:
         for name in x["stages_cpu_s"]:

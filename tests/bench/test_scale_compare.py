@@ -49,11 +49,16 @@ def test_compare_rotates_the_order_and_tells_an_equal_scene_from_a_changed_one(t
     assert by["hapticloud"]["cpu_ratio"] == 1.0
     assert by["same"]["scene_equal"] is True
     assert by["wider"]["scene_equal"] is False
+    # Which files differ: none for the copy; for the wider splat, layers besides scene.yaml
+    # (which records the --set value).
+    assert by["same"]["scene_files_differing"] == []
+    assert "scene/scene.yaml" in by["wider"]["scene_files_differing"]
+    assert any(k.startswith("scene/") and k != "scene/scene.yaml" for k in by["wider"]["scene_files_differing"])
     assert all(r["scene_equal_to_first"] for r in runs if r["build"] == "same")
     assert not any(r["scene_equal_to_first"] for r in runs if r["build"] == "wider")
     # Every run's output folder is gone; the generated wall and its config stay for the next call.
     assert not [p for p in os.listdir(scratch) if p.startswith("compare_")]
-    assert "| wider |" in res.stdout and "**no**" in res.stdout
+    assert "| wider |" in res.stdout and "**no** (" in res.stdout
 
 
 def test_compare_refuses_a_single_build_and_a_missing_program(tmp_path):
