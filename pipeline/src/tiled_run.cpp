@@ -1214,7 +1214,7 @@ class BlockCopies {
     Tile& tl = tile_[u];
     if (!tl.made) {
       ++tl.reads;
-      make(u, balls, sums, fn);
+      make(u, sums, fn);
       return;
     }
     const std::size_t crec = copy_record_bytes();
@@ -1355,11 +1355,9 @@ class BlockCopies {
 
   // One pass over u's spill: fn for each record a gathering can take, each copied (when this
   // read copies) into its slab's buffer, a full buffer appended to the copy as one chunk (every
-  // buffer, and their memory freed, when they hold more than kMaxHeld). fn is left out for the
-  // records of the blocks whose xy box no ball of `balls` meets (none of them lies in a ball: the
-  // test scan() makes before reading a block of a copy).
+  // buffer, and their memory freed, when they hold more than kMaxHeld).
   template <class Fn>
-  void make(std::size_t u, const BallSet& balls, std::map<std::string, double>& sums, Fn& fn) {
+  void make(std::size_t u, std::map<std::string, double>& sums, Fn& fn) {
     Tile& tl = tile_[u];
     const std::size_t n = spill_.records(u);
     sums["robust_spill_points_scanned"] += static_cast<double>(n);
@@ -1405,13 +1403,6 @@ class BlockCopies {
     const auto in = tiles_.interior(u);
     const int bn = block_nodes();
     const detail::ZSlabs zslabs = slabs();
-    std::vector<std::uint8_t> near(blocks.size(), 0);  // per block: a ball meets its xy box
-    for (std::size_t b = 0; b < blocks.size(); ++b) {
-      const auto xy = block_box(u, b);
-      const std::array<double, 6> box{xy[0], xy[1], xy[2], xy[3], -std::numeric_limits<double>::infinity(),
-                                      std::numeric_limits<double>::infinity()};
-      near[b] = std::any_of(balls.balls().begin(), balls.balls().end(), [&](const Ball& s) { return detail::ball_meets(s, box); }) ? 1 : 0;
-    }
     std::size_t held = 0;  // the buffers' memory [bytes]
     std::uint64_t rec = 0;
     const std::size_t pb = lay.point_bytes();
@@ -1423,9 +1414,9 @@ class BlockCopies {
       const std::uint8_t* c3 = lay.get(record + 1, p, v);
       const int r = node_.row(p), c = node_.col(p);
       if (r < in[0] || r >= in[1] || c < in[2] || c >= in[3]) return;
-      const std::size_t b = static_cast<std::size_t>((r - in[0]) / bn) * kSide + static_cast<std::size_t>((c - in[2]) / bn);
-      if (near[b] != 0) fn(static_cast<const double*>(p), c3, v, i);
+      fn(static_cast<const double*>(p), c3, v, i);
       if (!copy) return;
+      const std::size_t b = static_cast<std::size_t>((r - in[0]) / bn) * kSide + static_cast<std::size_t>((c - in[2]) / bn);
       const std::int32_t zs = zslabs.of(p[2]);
       std::vector<Slab>& in_block = blocks[b];
       std::size_t z = last[b];
