@@ -62,13 +62,7 @@ void expect_same_scene(const BuiltScene& a, const BuiltScene& b) {
   const auto& x = a.scene.layers;
   const auto& y = b.scene.layers;
   EXPECT_GT(x.depth.values().size(), 0U);
-  EXPECT_EQ(differing_bits(x.depth, y.depth), 0U);
-  EXPECT_EQ(x.flags, y.flags);
-  EXPECT_EQ(x.colour_rgb8, y.colour_rgb8);
-  EXPECT_EQ(differing_bits(x.envelope, y.envelope), 0U);
-  EXPECT_EQ(differing_bits(x.texture, y.texture), 0U);
-  EXPECT_EQ(differing_bits(x.mu_d, y.mu_d), 0U);
-  EXPECT_EQ(differing_bits(x.mu_s, y.mu_s), 0U);
+  hc::test::expect_same_layers(x, y);
   EXPECT_EQ(differing_bits(x.cell_error, y.cell_error), 0U);
   EXPECT_EQ(a.scene.model_to_grid.matrix(), b.scene.model_to_grid.matrix());
   EXPECT_EQ(a.scene.provenance.recentre_offset_m, b.scene.provenance.recentre_offset_m);

@@ -103,15 +103,7 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
   // write_run gives freed heap back after each stage of the tiled run's scene only.
   EXPECT_FALSE(in.from_tiled_run);
   EXPECT_TRUE(tiled.from_tiled_run);
-  const auto& a = in.scene.layers;
-  const auto& b = tiled.scene.layers;
-  EXPECT_EQ(differing_bits(a.depth, b.depth), 0U);
-  EXPECT_EQ(a.flags, b.flags);
-  EXPECT_EQ(a.colour_rgb8, b.colour_rgb8);
-  EXPECT_EQ(differing_bits(a.envelope, b.envelope), 0U);
-  EXPECT_EQ(differing_bits(a.texture, b.texture), 0U);
-  EXPECT_EQ(differing_bits(a.mu_d, b.mu_d), 0U);
-  EXPECT_EQ(differing_bits(a.mu_s, b.mu_s), 0U);
+  hc::test::expect_same_layers(in.scene.layers, tiled.scene.layers);
   EXPECT_EQ(in.scene.model_to_grid.matrix(), tiled.scene.model_to_grid.matrix());
   ASSERT_TRUE(in.summary.cross_check && tiled.summary.cross_check);
   const auto& x = *in.summary.cross_check;

@@ -3,6 +3,7 @@
 // in-process run).
 
 #include "hc/common/height_field.hpp"
+#include "hc/common/scene.hpp"
 
 #include <gtest/gtest.h>
 
@@ -22,6 +23,18 @@ inline std::size_t differing_bits(const hc::HeightField& a, const hc::HeightFiel
     n += std::bit_cast<std::uint32_t>(a.values()[i]) != std::bit_cast<std::uint32_t>(b.values()[i]) ? 1U : 0U;
   }
   return n;
+}
+
+/// Expects the surface layers of two scenes equal: depth, envelope, texture, μ_d and μ_s bit for
+/// bit, and the flags and colour bytes.
+inline void expect_same_layers(const hc::SceneLayers& a, const hc::SceneLayers& b) {
+  EXPECT_EQ(differing_bits(a.depth, b.depth), 0U);
+  EXPECT_EQ(a.flags, b.flags);
+  EXPECT_EQ(a.colour_rgb8, b.colour_rgb8);
+  EXPECT_EQ(differing_bits(a.envelope, b.envelope), 0U);
+  EXPECT_EQ(differing_bits(a.texture, b.texture), 0U);
+  EXPECT_EQ(differing_bits(a.mu_d, b.mu_d), 0U);
+  EXPECT_EQ(differing_bits(a.mu_s, b.mu_s), 0U);
 }
 
 }  // namespace hc::test
