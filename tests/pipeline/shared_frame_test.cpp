@@ -15,6 +15,7 @@
 
 #include "error_of.hpp"
 #include "height_field_bits.hpp"
+#include "stage_figure.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -107,13 +108,7 @@ bool has_note(const BuiltScene& b, const std::string& text) {
   return false;
 }
 
-double stage_figure(const BuiltScene& b, const std::string& stage, const std::string& name) {
-  for (const auto& s : b.summary.stages)
-    if (s.stage == stage)
-      for (const auto& [n, v] : s.figures)
-        if (n == name) return v;
-  return -1.0;
-}
+using hc::test::stage_figure;
 
 // Every layer bit for bit, the frame, and the cross-check's figures: equal, except the cells'
 // nearest-point distances between an in-core and a tiled run (`exact_cells` false), which each

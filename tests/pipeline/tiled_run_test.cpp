@@ -17,6 +17,7 @@
 #include "hc/tools/relief.hpp"
 
 #include "height_field_bits.hpp"
+#include "stage_figure.hpp"
 #include "file_bytes.hpp"
 #include "test_paths.hpp"
 
@@ -51,13 +52,7 @@ using hc::pipeline::RunConfig;
 
 using hc::test::differing_bits;
 
-double stage_figure(const BuiltScene& b, const std::string& stage, const std::string& name) {
-  for (const auto& s : b.summary.stages)
-    if (s.stage == stage)
-      for (const auto& [n, v] : s.figures)
-        if (n == name) return v;
-  return -1.0;
-}
+using hc::test::stage_figure;
 
 // True when a note of the stage holds `text`.
 bool has_note(const BuiltScene& b, const std::string& stage, const std::string& text) {
