@@ -8,6 +8,7 @@
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/mesh_raster.hpp"
 #include "error_of.hpp"
 #include "test_paths.hpp"
 #include "file_bytes.hpp"
@@ -584,15 +585,45 @@ TEST(PtxReader, TwoScansWithKnownPosesMergeIntoTheCommonFrame) {
   write_bytes(f, text);
   const auto r = hp::load_cloud(f);
   ASSERT_EQ(r.value.size(), 3 * world.size());
+  ASSERT_EQ(r.value.scan_id.size(), r.value.size());
   for (std::size_t s = 0; s < 3; ++s) {
     for (std::size_t i = 0; i < world.size(); ++i) {
       const auto j = static_cast<Eigen::Index>(s * world.size() + i);
       EXPECT_NEAR((r.value.xyz.col(j) - world[i]).norm(), 0.0, 1e-9) << "scan " << s << " point " << i;
       EXPECT_EQ(r.value.row[static_cast<std::size_t>(j)], static_cast<int>(i + 1));
       EXPECT_EQ(r.value.rgb[3 * static_cast<std::size_t>(j)], 10 * i);
+      EXPECT_EQ(r.value.scan_id[static_cast<std::size_t>(j)], s) << "each point carries its scan";
     }
   }
   EXPECT_TRUE(has_note(r.report, "3 scan(s), 3 no-return points"));
+}
+
+// Rows and columns are per scan, so an organised mesh of a file of two scans is the two scans'
+// meshes side by side: as many triangles as the two files of one scan each give. (Before the
+// reader kept scan ids, both scans' points shared one row/column grid.)
+TEST(PtxReader, TwoScansOfOneFileAreMeshedEachOnItsOwn) {
+  const auto scan = [](double x0) {
+    std::ostringstream out;
+    out << std::setprecision(17);
+    const int cols = 12, rows = 9;
+    out << cols << "\n" << rows << "\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n1 0 0 0\n0 1 0 0\n0 0 1 0\n0 0 0 1\n";
+    for (int c = 0; c < cols; ++c) {
+      for (int r = 0; r < rows; ++r) {
+        const double x = x0 + 0.01 * c, y = 0.01 * r;
+        out << x << ' ' << y << ' ' << 1.0 + 0.002 * std::sin(40 * x + 30 * y) << " 0.5\n";
+      }
+    }
+    return out.str();
+  };
+  const fs::path dir = hc::test::temp_dir("ptx_mesh");
+  write_bytes(dir / "a.ptx", scan(0.0));
+  write_bytes(dir / "b.ptx", scan(0.003));  // the same area, shifted by a third of a column
+  write_bytes(dir / "ab.ptx", scan(0.0) + scan(0.003));
+  const auto triangles = [&](const char* f) { return hp::mesh_organised_scans(hp::load_cloud(dir / f).value, 4.0).value.mesh.triangles.size(); };
+  const std::size_t a = triangles("a.ptx"), b = triangles("b.ptx");
+  EXPECT_EQ(a, 2U * 11U * 8U) << "every cell of a smooth 12 x 9 grid gives two triangles";
+  EXPECT_EQ(b, a);
+  EXPECT_EQ(triangles("ab.ptx"), a + b);
 }
 
 TEST(PtxReader, RowCountThatDoesNotMatchIsAnError) {

@@ -67,9 +67,11 @@ class PtxParser {
 
   /// Appends up to `max` measured points (common frame) to xyz (3 per point), intensity and rgb
   /// (3 per point when the scan has colour), and their grid row and column when rows/cols are
-  /// given. @return false once the file is done (after the last scan).
+  /// given, and their scan's index in the file (0 for the first) when scan_out is given.
+  /// @return false once the file is done (after the last scan).
   bool read(std::size_t max, std::vector<double>& xyz, std::vector<float>& intensity, std::vector<std::uint8_t>& rgb,
-            std::vector<std::int32_t>* rows_out, std::vector<std::int32_t>* cols_out) {
+            std::vector<std::int32_t>* rows_out, std::vector<std::int32_t>* cols_out,
+            std::vector<std::size_t>* scan_out = nullptr) {
     std::size_t given = 0;
     while (given < max) {
       if (i_ == n_) {
@@ -109,6 +111,7 @@ class PtxParser {
       }
       if (rows_out) rows_out->push_back(static_cast<std::int32_t>(i % rows_));
       if (cols_out) cols_out->push_back(static_cast<std::int32_t>(i / rows_));
+      if (scan_out) scan_out->push_back(scans_ - 1);
       ++given;
     }
     return true;
@@ -313,7 +316,8 @@ ReadResult read_ptx(const ScanSource& source) {
   std::vector<float> intensity;
   std::vector<std::uint8_t> rgb;
   std::vector<std::int32_t> rows_out, cols_out;
-  parser.read(std::numeric_limits<std::size_t>::max(), xyz, intensity, rgb, &rows_out, &cols_out);
+  std::vector<std::size_t> scan_of;
+  parser.read(std::numeric_limits<std::size_t>::max(), xyz, intensity, rgb, &rows_out, &cols_out, &scan_of);
   if (parser.scans() == 0) throw InputError("load_cloud: " + name + " holds no PTX scan (no header line)");
   const bool all_rgb = parser.all_rgb_seen();
   std::vector<std::string> notes = parser.notes(all_rgb, !rgb.empty());
@@ -326,6 +330,14 @@ ReadResult read_ptx(const ScanSource& source) {
   cloud.intensity = std::move(intensity);
   cloud.row = std::move(rows_out);
   cloud.col = std::move(cols_out);
+  // Several scans: each point's scan (rows and columns are per scan: mesh_organised_scans meshes
+  // each scan's grid on its own), as the E57 reader gives them.
+  if (parser.scans() > 1 && parser.scans() <= std::size_t{std::numeric_limits<std::uint16_t>::max()} + 1) {
+    cloud.scan_id.reserve(scan_of.size());
+    for (const std::size_t k : scan_of) cloud.scan_id.push_back(static_cast<std::uint16_t>(k));
+  } else if (parser.scans() > 1) {
+    notes.push_back("scan ids not kept: " + std::to_string(parser.scans()) + " scans, more than 65536");
+  }
   if (all_rgb) cloud.rgb = std::move(rgb);
   return {std::move(cloud), std::move(notes)};
 }

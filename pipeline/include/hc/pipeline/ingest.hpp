@@ -50,7 +50,8 @@ StageResult<Cloud> load_cloud(const std::filesystem::path& path);
 /// 0–5 with POINT10/GPSTIME11/RGB12/BYTE v2, layered chunked compressor for formats 6–10 with
 /// POINT14/RGB14/RGBNIR14/BYTE14 v3; COPC files read as plain LAZ; the same fields as .las),
 /// .ptx (Leica PTX: every scan moved into the common frame by its
-/// 4×4 transform, no-return points 0 0 0 skipped, intensity, RGB, row/column kept) and .pts
+/// 4×4 transform, no-return points 0 0 0 skipped, intensity, RGB, row/column kept, and with
+/// several scans each point's scan index as scan_id, since rows and columns are per scan) and .pts
 /// (Leica PTS: count line, X Y Z [intensity] [R G B]).
 /// @throws hc::InputError as above, and for a LAS header whose counts exceed the file, an
 ///         unknown point format or a record shorter than its format; a LAZ file without a
