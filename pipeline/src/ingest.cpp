@@ -310,10 +310,23 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
     report.notes.insert(report.notes.end(), part_notes[i].begin(), part_notes[i].end());
   }
 
-  // Scanner row/col (organised scans) are kept when every scan has them, and faces (meshes)
-  // are renumbered into the merged points; other per-point attributes are not merged.
+  // Scanner row/col (organised scans), colour and intensity are kept when every scan has them
+  // (a note names the first scan without colour or intensity when another has it), and faces
+  // (meshes) are renumbered into the merged points; other per-point attributes are not merged.
   const bool grid_index =
       std::all_of(parts.begin(), parts.end(), [](const Cloud& c) { return c.has_grid_index(); });
+  const auto every = [&](const char* what, auto&& has) {
+    for (std::size_t i = 0; i < parts.size(); ++i) {
+      if (has(parts[i])) continue;
+      if (std::any_of(parts.begin(), parts.end(), has)) {
+        report.notes.push_back(std::string("input.conf: ") + what + " dropped: " + scans[i].filename().string() + " has none");
+      }
+      return false;
+    }
+    return true;
+  };
+  const bool rgb = every("rgb", [](const Cloud& c) { return c.has_rgb(); });
+  const bool intensity = every("intensity", [](const Cloud& c) { return c.has_intensity(); });
   Cloud merged;
   merged.xyz.resize(3, static_cast<Eigen::Index>(total));
   merged.scan_id.resize(total);
@@ -331,6 +344,8 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
       merged.row.insert(merged.row.end(), parts[i].row.begin(), parts[i].row.end());
       merged.col.insert(merged.col.end(), parts[i].col.begin(), parts[i].col.end());
     }
+    if (rgb) merged.rgb.insert(merged.rgb.end(), parts[i].rgb.begin(), parts[i].rgb.end());
+    if (intensity) merged.intensity.insert(merged.intensity.end(), parts[i].intensity.begin(), parts[i].intensity.end());
     dropped_textures += parts[i].mesh.has_texture() ? 1 : 0;
     if (total > 0xFFFFFFFEu && parts[i].has_mesh()) {
       report.notes.push_back(scans[i].filename().string() + ": dropped its " +

@@ -821,6 +821,26 @@ TEST(ScanalyzeConf, ScanWithoutPoseNamesBothFiles) {
   EXPECT_THROW(hp::load_and_merge_scans({}, dir / "two.conf"), hc::InputError);
 }
 
+// Colour and intensity survive a merge when every scan has them (until 2026-11-26 they were
+// dropped); a scan without colour drops it, naming that scan. Oracle: the values written.
+TEST(ScanalyzeConf, MergeKeepsColourAndIntensityWhenEveryScanHasThem) {
+  const fs::path dir = hc::test::temp_dir("merge_colour");
+  write_text(dir / "poses.conf", "bmesh a.pts 0 0 0 0 0 0 1\nbmesh b.pts 1 0 0 0 0 0 1\nbmesh c.xyz 2 0 0 0 0 0 1\n");
+  write_text(dir / "a.pts", "2\n0 0 0 10 1 2 3\n0 1 0 20 4 5 6\n");
+  write_text(dir / "b.pts", "1\n0 0 1 30 7 8 9\n");
+  write_text(dir / "c.xyz", "0 0 2\n");
+  const auto ab = hp::load_and_merge_scans({dir / "a.pts", dir / "b.pts"}, dir / "poses.conf");
+  EXPECT_EQ(ab.value.rgb, (std::vector<std::uint8_t>{1, 2, 3, 4, 5, 6, 7, 8, 9}));
+  EXPECT_EQ(ab.value.intensity, (std::vector<float>{10, 20, 30}));
+  EXPECT_EQ(ab.value.xyz(0, 2), 1.0) << "b's pose applied";
+  const auto abc = hp::load_and_merge_scans({dir / "a.pts", dir / "b.pts", dir / "c.xyz"}, dir / "poses.conf");
+  EXPECT_TRUE(abc.value.rgb.empty());
+  EXPECT_TRUE(abc.value.intensity.empty());
+  const auto& notes = abc.report.notes;
+  EXPECT_NE(std::find(notes.begin(), notes.end(), "input.conf: rgb dropped: c.xyz has none"), notes.end());
+  EXPECT_NE(std::find(notes.begin(), notes.end(), "input.conf: intensity dropped: c.xyz has none"), notes.end());
+}
+
 TEST(ScanalyzeConf, MergeMatchesNamesIgnoringGzAndAppliesTheInverseRotation) {
   const fs::path dir = hc::test::temp_dir("merge");
   // A 90° turn about y: q = (w, x, y, z) = (cos 45°, 0, sin 45°, 0), written w last.

@@ -79,6 +79,9 @@ std::vector<ScanPose> read_scanalyze_conf(const std::filesystem::path& conf_path
 
 /// Loads each scan, moves it into the common frame with its pose from `conf_path` (matched by
 /// file name, ignoring a trailing .gz) and concatenates them; scan_id is the index in `scans`.
+/// Scanner row/column, colour and intensity are kept when every scan has them (a note names the
+/// first scan without colour or intensity when another has it); faces are renumbered; other
+/// attributes are not merged.
 /// @throws hc::InputError if a scan has no pose in the .conf (names both files).
 StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>& scans,
                                         const std::filesystem::path& conf_path,
