@@ -240,6 +240,23 @@ StageResult<Cloud> load_cloud(const std::filesystem::path& path, const LoadOptio
   return {std::move(cloud), std::move(report)};
 }
 
+namespace {
+// Whether every part (of files[i]) has the attribute `has` tells; when not, and another part
+// has it, a note "<key>: <what> dropped: <the first file without it> has none".
+template <class Has>
+bool every_part_has(const std::vector<Cloud>& parts, const std::vector<std::filesystem::path>& files, const char* key, const char* what,
+                    Has&& has, StageReport& report) {
+  for (std::size_t i = 0; i < parts.size(); ++i) {
+    if (has(parts[i])) continue;
+    if (std::any_of(parts.begin(), parts.end(), has)) {
+      report.notes.push_back(std::string(key) + ": " + what + " dropped: " + files[i].filename().string() + " has none");
+    }
+    return false;
+  }
+  return true;
+}
+}  // namespace
+
 StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>& scans,
                                         const std::filesystem::path& conf_path, const LoadOptions& options) {
   const auto t0 = Clock::now();
@@ -315,16 +332,7 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
   // (meshes) are renumbered into the merged points; other per-point attributes are not merged.
   const bool grid_index =
       std::all_of(parts.begin(), parts.end(), [](const Cloud& c) { return c.has_grid_index(); });
-  const auto every = [&](const char* what, auto&& has) {
-    for (std::size_t i = 0; i < parts.size(); ++i) {
-      if (has(parts[i])) continue;
-      if (std::any_of(parts.begin(), parts.end(), has)) {
-        report.notes.push_back(std::string("input.conf: ") + what + " dropped: " + scans[i].filename().string() + " has none");
-      }
-      return false;
-    }
-    return true;
-  };
+  const auto every = [&](const char* what, auto&& has) { return every_part_has(parts, scans, "input.conf", what, has, report); };
   const bool rgb = every("rgb", [](const Cloud& c) { return c.has_rgb(); });
   const bool intensity = every("intensity", [](const Cloud& c) { return c.has_intensity(); });
   Cloud merged;
@@ -404,16 +412,7 @@ StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::pa
   }
   // An attribute is kept when every part has it; else a note names the first part without it
   // (the stream's wording, open_point_streams).
-  const auto every = [&](const char* what, auto&& has) {
-    for (std::size_t i = 0; i < parts.size(); ++i) {
-      if (has(parts[i])) continue;
-      if (std::any_of(parts.begin(), parts.end(), has)) {
-        report.notes.push_back(std::string("input.shared_frame: ") + what + " dropped: " + files[i].filename().string() + " has none");
-      }
-      return false;
-    }
-    return true;
-  };
+  const auto every = [&](const char* what, auto&& has) { return every_part_has(parts, files, "input.shared_frame", what, has, report); };
   const bool rgb = every("rgb", [](const Cloud& c) { return c.has_rgb(); });
   const bool intensity = every("intensity", [](const Cloud& c) { return c.has_intensity(); });
   const bool normals = every("normal", [](const Cloud& c) { return c.has_normals(); });
