@@ -420,12 +420,16 @@ StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::pa
   bool grid_index = every("scanner row/column", [](const Cloud& c) { return c.has_grid_index(); });
   // Scan ids made distinct across the files (a file's own ids, or 0, plus the scans of the files
   // before it): scanner rows and columns are per scan (mesh_organised_scans).
+  std::vector<std::size_t> scans_of(parts.size(), 1);  // per part, its scans
   std::size_t scans = 0, total = 0;
-  for (const Cloud& c : parts) {
-    std::size_t own = 1;
-    for (const auto s : c.scan_id) own = std::max<std::size_t>(own, std::size_t{s} + 1);
-    scans += own;
-    total += c.size();
+  for (std::size_t i = 0; i < parts.size(); ++i) {
+    for (const auto s : parts[i].scan_id) scans_of[i] = std::max<std::size_t>(scans_of[i], std::size_t{s} + 1);
+    scans += scans_of[i];
+    total += parts[i].size();
+  }
+  if (total > 0xFFFFFFFEu && std::any_of(parts.begin(), parts.end(), [](const Cloud& c) { return c.has_mesh(); })) {
+    throw InputError("input.shared_frame: the files hold " + std::to_string(total) +
+                     " points with faces: more than 32-bit face indices reach (input.as_points: true takes the vertices)");
   }
   const bool scan_id = scans <= std::numeric_limits<std::uint16_t>::max() + std::size_t{1};
   if (!scan_id) {
@@ -446,7 +450,8 @@ StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::pa
   all.xyz.resize(3, static_cast<Eigen::Index>(total));
   Eigen::Index at = 0;
   std::size_t scan_base = 0;
-  for (Cloud& c : parts) {
+  for (std::size_t part = 0; part < parts.size(); ++part) {
+    Cloud& c = parts[part];
     const Eigen::Index n = c.xyz.cols();
     all.xyz.middleCols(at, n) = c.xyz;
     c.xyz = Eigen::Matrix3Xd();
@@ -460,14 +465,12 @@ StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::pa
     take(all.curvature, c.curvature, curvature);
     take(all.row, c.row, grid_index);
     take(all.col, c.col, grid_index);
-    std::size_t own = 1;
-    for (const auto s : c.scan_id) own = std::max<std::size_t>(own, std::size_t{s} + 1);
     if (scan_id) {
       for (Eigen::Index i = 0; i < n; ++i) {
         all.scan_id.push_back(static_cast<std::uint16_t>(scan_base + (c.has_scan_id() ? c.scan_id[static_cast<std::size_t>(i)] : 0)));
       }
     }
-    scan_base += own;
+    scan_base += scans_of[part];
     for (auto tri : c.mesh.triangles) {
       for (auto& v : tri) v += static_cast<std::uint32_t>(at);
       all.mesh.triangles.push_back(tri);
@@ -478,10 +481,6 @@ StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::pa
     }
     all.float32_xyz = all.float32_xyz || c.float32_xyz;  // any float-stored part limits the precision
     at += n;
-  }
-  if (total > 0xFFFFFFFEu && all.has_mesh()) {
-    throw InputError("input.shared_frame: the files hold " + std::to_string(total) +
-                     " points with faces: more than 32-bit face indices reach (input.as_points: true takes the vertices)");
   }
   all.crs = crs.first;
   report.figure("files", static_cast<double>(files.size()));

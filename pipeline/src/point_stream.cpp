@@ -102,7 +102,7 @@ class FilesStream final : public PointStream {
  public:
   FilesStream(std::vector<std::filesystem::path> files, const LoadOptions& options) : files_(std::move(files)), options_(options) {
     std::pair<std::string, std::string> crs;
-    bool rgb = true, intensity = true;
+    bool any_rgb = false, any_intensity = false;
     std::string no_rgb, no_intensity;  // the first file without each
     for (const auto& f : files_) {
       std::array<std::int64_t, 5> key{};
@@ -117,23 +117,17 @@ class FilesStream final : public PointStream {
       total_ += p->total;
       check_same_crs(crs, p->crs, f);
       streamed_ = streamed_ && p->streamed;
-      if (rgb && !p->rgb) {
-        rgb = false;
-        no_rgb = f.filename().string();
-      }
-      if (intensity && !p->intensity) {
-        intensity = false;
-        no_intensity = f.filename().string();
-      }
       float32_ = float32_ || p->float32;
-      with_rgb_ = with_rgb_ || p->rgb;
-      with_intensity_ = with_intensity_ || p->intensity;
+      any_rgb = any_rgb || p->rgb;
+      any_intensity = any_intensity || p->intensity;
+      if (!p->rgb && no_rgb.empty()) no_rgb = f.filename().string();
+      if (!p->intensity && no_intensity.empty()) no_intensity = f.filename().string();
     }
     crs_ = crs.first;
-    keep_rgb_ = rgb;
-    keep_intensity_ = intensity;
-    if (with_rgb_ && !rgb) notes_.push_back("input.shared_frame: rgb dropped: " + no_rgb + " has none");
-    if (with_intensity_ && !intensity) notes_.push_back("input.shared_frame: intensity dropped: " + no_intensity + " has none");
+    keep_rgb_ = no_rgb.empty();
+    keep_intensity_ = no_intensity.empty();
+    if (any_rgb && !keep_rgb_) notes_.push_back("input.shared_frame: rgb dropped: " + no_rgb + " has none");
+    if (any_intensity && !keep_intensity_) notes_.push_back("input.shared_frame: intensity dropped: " + no_intensity + " has none");
   }
   std::uint64_t total_points() const override { return total_; }
   const std::vector<std::string>& notes() const override { return notes_; }
@@ -166,7 +160,7 @@ class FilesStream final : public PointStream {
   std::unique_ptr<PointStream> now_;  // files_[at_]'s stream, once opened
   std::size_t at_ = 0;
   std::uint64_t total_ = 0, given_ = 0;  // given_: files_[at_]'s points handed out
-  bool streamed_ = true, float32_ = false, keep_rgb_ = true, keep_intensity_ = true, with_rgb_ = false, with_intensity_ = false;
+  bool streamed_ = true, float32_ = false, keep_rgb_ = true, keep_intensity_ = true;
   std::string crs_;
   std::vector<std::string> notes_;
 };

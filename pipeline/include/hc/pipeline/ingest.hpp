@@ -108,8 +108,10 @@ StageResult<Cloud> load_files_in_one_frame(const std::vector<std::filesystem::pa
 
 /// The CRS check of load_files_in_one_frame and open_point_streams: `crs` is the CRS seen so far
 /// (empty: none yet) with the file that declared it; a file declaring another one is an error.
-/// Updates the pair when `file_crs` is the first one declared.
+/// Updates the pair when `file_crs` is the first one declared; an empty `file_crs` (a file that
+/// declares none) is taken as agreeing.
 /// @throws hc::InputError naming both files and both CRS.
+/// Thread-safe: yes (no shared state). Source: this project (issue 14).
 void check_same_crs(std::pair<std::string, std::string>& crs, const std::string& file_crs, const std::filesystem::path& file);
 
 }  // namespace hc::pipeline
