@@ -2,8 +2,8 @@
 // Balls indexed by an xy grid: which contains a point, and how far a search about a point may
 // reach and stay inside one of them. The robust test's tile check against the balls where a set
 // is complete (RobustOutlierOptions::TileBounds::complete_m) and the tiled run's gathering of
-// the points inside them (tiled_run.cpp, judge_past_halo) share it; the gathering's block copies
-// file their records by slab of z (ZSlabs) and read the slabs a ball meets (ball_meets).
+// the points inside them (tiled_run.cpp, judge_strays and gather_owned, which picks a tile's
+// balls by ball_meets) share it.
 
 #include <algorithm>
 #include <array>
@@ -244,29 +244,6 @@ class BallSet {
   std::vector<std::uint32_t> fine_, coarse_flat_;
   // Per fine and per coarse cell, its list's z span (z_spans): a query outside it skips the list.
   std::vector<std::array<double, 2>> fine_z_, coarse_z_;
-};
-
-/// Slabs of z of one height: the tiled run's block copies (tiled_run.cpp, BlockCopies) file a
-/// block's records by slab, so that a gathering reads only the slabs its balls meet
-/// (BallSet::meets with a box of six sides). Pure.
-struct ZSlabs {
-  static constexpr std::int32_t kEnd = 1 << 30;  ///< the clamp: slabs ±kEnd are open-ended
-  double height_m = 1.0;                        ///< > 0 and finite [m]
-
-  /// The slab of a finite z [m]: floor(z / height_m), clamped to [−kEnd, kEnd].
-  std::int32_t of(double z) const {
-    return static_cast<std::int32_t>(std::clamp(std::floor(z / height_m), -static_cast<double>(kEnd), static_cast<double>(kEnd)));
-  }
-
-  /// {lo, hi} [m] holding every finite z whose slab is s: s·h and (s + 1)·h, each widened by a
-  /// millionth of the height and 1e-12 of its own size (the division's and product's rounding);
-  /// −∞ for slab −kEnd, +∞ for kEnd.
-  std::array<double, 2> range(std::int32_t s) const {
-    const double inf = std::numeric_limits<double>::infinity();
-    const double lo = s * height_m, hi = lo + height_m;
-    return {s <= -kEnd ? -inf : lo - 1e-6 * height_m - 1e-12 * std::abs(lo),
-            s >= kEnd ? inf : hi + 1e-6 * height_m + 1e-12 * std::abs(hi)};
-  }
 };
 
 }  // namespace hc::pipeline::detail

@@ -1102,7 +1102,11 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     c.scale.chunk_points = static_cast<std::size_t>(
         r.get_int("scale.chunk_points", static_cast<long long>(c.scale.chunk_points), 1024, 1LL << 28));
     if (r.has("scale.scratch")) c.scale.scratch = base / r.get_string("scale.scratch", "");
-    c.scale.block_copies = r.get_bool("scale.block_copies", c.scale.block_copies);
+    if (r.has("scale.block_copies")) {
+      r.fail("scale.block_copies", "was removed on 2026-11-27: the robust test's strays are judged in one gathering per band of "
+                                   "tiles, which makes no block copies (docs/scale.md); delete the key (scale.band_mb bounds a band)");
+    }
+    c.scale.band_mb = static_cast<int>(r.get_int("scale.band_mb", c.scale.band_mb, 0, 65536));
     c.scale.progress_interval_s = r.get_double("scale.progress_interval_s", c.scale.progress_interval_s, 0.0, 3600.0);
     const std::string st = r.get_string("scale.scene_tiles", "auto", {"auto", "on", "off"});
     c.scale.scene_tiles = st == "on" ? ScaleConfig::Tiled::kOn : st == "off" ? ScaleConfig::Tiled::kOff : ScaleConfig::Tiled::kAuto;

@@ -143,9 +143,9 @@ TEST(Interrupt, SigintDuringATilePlanRemovesItsSpillFilesAndKeepsTheFolder) {
   EXPECT_TRUE(fs::is_empty(work)) << "left in the work folder: " << fs::directory_iterator(work)->path();
 }
 
-// `hapticloud tile-job` over every tile of a plan: SIGINT while its block copies are on disk
-// (a `.blocks-*` folder: the second look reads a neighbour's spill a second time) removes them
-// and its temporary kept file, and leaves the plan's files as they were, so the job can run again.
+// `hapticloud tile-job` over every tile of a plan: SIGINT while a temporary kept file is on disk
+// (`.kept-job-*`: the second sweep of its band is writing tiles' masks) removes it and every
+// other temporary, and leaves the plan's files as they were, so the job can run again.
 TEST(Interrupt, SigintDuringATileJobRemovesItsScratchAndKeepsThePlan) {
   const fs::path dir = hc::test::temp_dir("sigint-job");
   const fs::path work = dir / "work";
@@ -160,12 +160,12 @@ TEST(Interrupt, SigintDuringATileJobRemovesItsScratchAndKeepsThePlan) {
   for (std::size_t t = 0; t < tiles; ++t) all += (t ? "," : "") + std::to_string(t);
   int status = 0;
   interrupt_when({"tile-job", (work / "plan.json").string(), "--tiles", all, "-q"},
-                 [&] { return !entries_like(work, ".blocks-").empty(); }, SIGINT, "a .blocks-* folder in " + work.string(),
+                 [&] { return !entries_like(work, ".kept-job-").empty(); }, SIGINT, "a .kept-job-* file in " + work.string(),
                  status);
   if (HasFatalFailure()) return;
   ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);
   EXPECT_EQ(WEXITSTATUS(status), 128 + SIGINT);
-  EXPECT_TRUE(entries_like(work, ".blocks-").empty()) << "the block copies' folder was left";
+  EXPECT_TRUE(entries_like(work, ".blocks-").empty()) << "a block copies' folder (builds before 2026-11-27)";
   EXPECT_TRUE(entries_like(work, ".kept-job-").empty()) << "a temporary kept file was left";
   EXPECT_TRUE(entries_like(work, "", ".tmp-").empty()) << "a part file's temporary was left";
   for (const auto& [name, size] : plan_files) {

@@ -150,6 +150,21 @@ TEST(Config, FilterHaloIsAutoOrACellCount) {
   }
 }
 
+// scale.band_mb bounds the robust test's band of first looks; scale.block_copies, which the
+// bands replaced, is refused by name with what to do (not taken as an unknown key's typo).
+TEST(Config, BandMegabytesAreReadAndBlockCopiesIsRefusedByName) {
+  const auto band = [](const std::string& extra) { return parse_run_config(kMinimal + extra, "configs/test.yaml").scale.band_mb; };
+  EXPECT_EQ(band(""), 256);
+  EXPECT_EQ(band("scale: {band_mb: 0}\n"), 0);
+  EXPECT_EQ(band("scale: {band_mb: 65536}\n"), 65536);
+  EXPECT_NE(config_error(kMinimal + "scale: {band_mb: -1}\n").find("scale.band_mb"), std::string::npos);
+  EXPECT_NE(config_error(kMinimal + "scale: {band_mb: 65537}\n").find("scale.band_mb"), std::string::npos);
+  const std::string what = config_error(kMinimal + "scale: {block_copies: false}\n");
+  EXPECT_NE(what.find("scale.block_copies"), std::string::npos) << what;
+  EXPECT_NE(what.find("was removed"), std::string::npos) << what;
+  EXPECT_NE(what.find("delete the key"), std::string::npos) << what;
+}
+
 TEST(Config, FalconSectionIsReadAndValidated) {
   const auto c = parse_run_config(kMinimal + "falcon: {firmware: fw/falcon.bin, index: 1, max_force_n: 5}\n",
                                   "configs/test.yaml");

@@ -107,12 +107,12 @@ void expect_same_scene(const BuiltScene& a, const BuiltScene& b) {
   const auto ta = tiles_stage(a), tb = tiles_stage(b);
   EXPECT_EQ(ta.count_in, tb.count_in);
   EXPECT_EQ(ta.count_out, tb.count_out);
-  // Not the work of the second look's block copies: a process copies a tile the first time one
-  // of its own tiles gathers from it, so what it reads and copies depends on the tiles it ran.
+  // Not the work of the second look's gatherings: a process gathers once for the strays of a
+  // band of its own tiles, so what it reads and gathers depends on the tiles it ran together.
   // Nor the freed heap the process gave back (its own memory, not the scene's).
   const auto copies_work = [](const std::string& name) {
-    return name.find("block_cop") != std::string::npos || name.find("block_records") != std::string::npos ||
-           name == "sum_robust_spill_points_scanned" || name == "heap_releases";
+    return name == "sum_robust_spill_points_scanned" || name == "sum_robust_gatherings" ||
+           name == "sum_robust_points_gathered" || name == "heap_releases";
   };
   for (const auto& [name, v] : ta.figures) {
     if ((name.size() > 2 && name.compare(name.size() - 2, 2, "_s") == 0) || name.find("seconds") != std::string::npos) continue;

@@ -398,7 +398,9 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   EXPECT_GE(stage_figure(tiled, "tiles", "sum_points_judged_past_halo"), 100.0);
   const double windows = stage_figure(tiled, "tiles", "sum_robust_windows_widened");
   EXPECT_GE(windows, 4.0);
-  EXPECT_GT(stage_figure(tiled, "tiles", "sum_robust_gatherings"), windows) << "some tile gathered more than once";
+  // Every tile's strays in one band, gathered together: the union of their balls holds the
+  // second look's own searches.
+  EXPECT_EQ(stage_figure(tiled, "tiles", "sum_robust_gatherings"), 1.0) << "one band, one gathering";
   EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
   EXPECT_EQ(in.scene.layers.flags, tiled.scene.layers.flags);
   // The kept points, classified against the grid: the same set gives the same counts.
@@ -410,17 +412,18 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   EXPECT_EQ(x.points_off_surface, y.points_off_surface);
   EXPECT_EQ(x.points_hidden, y.points_hidden);
   EXPECT_EQ(x.points_outside, y.points_outside);
-  // The gathering through block copies (each read only where a ball meets a slab of a block and
-  // a chunk's own box: the clutter fills the box in z) against whole reads of the spills: the
-  // same points gathered, judged and removed.
-  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0);
-  EXPECT_GT(stage_figure(tiled, "tiles", "sum_robust_block_records_read"), 0.0);
-  RunConfig whole_reads = config;
-  whole_reads.scale.block_copies = false;
-  const BuiltScene whole = hc::pipeline::build_scene(whole_reads);
-  for (const char* name : {"sum_robust_points_gathered", "sum_robust_gatherings", "sum_points_judged_past_halo", "sum_removed_robust"}) {
-    EXPECT_EQ(stage_figure(tiled, "tiles", name), stage_figure(whole, "tiles", name)) << name;
+  // One tile a band (scale.band_mb: 0): each tile's strays gathered and judged on their own,
+  // the same points judged and removed, the same grid.
+  RunConfig by_tile = config;
+  by_tile.scale.band_mb = 0;
+  const BuiltScene single = hc::pipeline::build_scene(by_tile);
+  // A tile's balls alone do not always hold its second look's searches (new neighbours from the
+  // tiles around): some band gathers again.
+  EXPECT_GT(stage_figure(single, "tiles", "sum_robust_gatherings"), windows) << "some band gathered more than once";
+  for (const char* name : {"sum_points_judged_past_halo", "sum_removed_robust", "sum_robust_windows_widened"}) {
+    EXPECT_EQ(stage_figure(tiled, "tiles", name), stage_figure(single, "tiles", name)) << name;
   }
+  EXPECT_EQ(differing_bits(tiled.scene.layers.depth, single.scene.layers.depth), 0U);
   config.scale.tile_cells = 48;
   config.scale.filter_halo_cells = 8;
   const std::string what = error_of<hc::InputError>(config);
@@ -611,14 +614,15 @@ HoleLayout write_two_group_plane(const fs::path& dir) {
   return l;
 }
 
-// The second look reads a tile it has read before from that tile's block copy: only the blocks
-// the balls meet, the points put back in spill order. The scene of the test above with a second
-// group and cluster, the same layout turned a quarter: group 2 at the top edge of tile (3, 2)'s
-// interior (tile row 3, column 2; 40-cell tiles), cluster 2 just past that tile's window, in
-// tile (2, 2), which holds cluster 1 too. Tile (2, 1) gathers cluster 1 from tile (2, 2)'s
-// spill, copying it by block; tile (3, 2) then gathers cluster 2 from that copy. Oracle: the
-// in-core run, where group 2 stays (its tile alone would remove it).
-TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
+// Two tiles' strays whose balls meet the same third tile, judged together: group 2 at the top
+// edge of tile (3, 2)'s interior (tile row 3, column 2; 40-cell tiles), cluster 2 just past that
+// tile's window, in tile (2, 2), which holds cluster 1 too, which tile (2, 1)'s strays need. One
+// band holds every tile: one gathering reads tile (2, 2)'s spill once for both. Oracle: the
+// in-core run, where group 2 stays (its tile alone would remove it), and the same run in
+// tiles of one band each (scale.band_mb: 0), whose gatherings read that spill once per band:
+// the same points judged and removed. Mutation: a stray's verdict left as its window gave it
+// (judge_strays not run) removes group 2 and fails the grid checks.
+TEST(TiledRun, StraysOfTwoTilesAreJudgedInOneGatheringAsInCore) {
   const fs::path dir = hc::test::temp_dir("blocks");
   const auto [yaml, g, halo] = write_two_group_plane(dir);
   ASSERT_EQ(g.rows, 200);
@@ -635,43 +639,27 @@ TEST(TiledRun, ASecondGatheringFromATileReadsOnlyTheBlocksItsBallsMeet) {
   ASSERT_TRUE(in.scene.layers.depth.valid(row2, col2));
   EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_windows_widened"), 2.0);
   EXPECT_GE(stage_figure(tiled, "tiles", "sum_points_judged_past_halo"), 16.0);
-  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0);
-  // Cluster 2 (20 points) came from a copy, and only a small part of the copies was read (group
-  // 2's balls, about 10 cm in radius, meet the blocks of 5 nodes, 25 mm, near tile (2, 2)'s
-  // edge).
-  const double read = stage_figure(tiled, "tiles", "sum_robust_block_records_read");
-  EXPECT_GE(read, 20.0);
-  EXPECT_LT(read, 0.25 * stage_figure(tiled, "tiles", "sum_robust_block_records_copied"));
+  EXPECT_EQ(stage_figure(tiled, "tiles", "sum_robust_gatherings"), 1.0) << "one band, one gathering";
+  // Cluster 2 (20 points) and cluster 1 gathered with the plane about them.
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_points_gathered"), 40.0);
   EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
   EXPECT_TRUE(tiled.scene.layers.depth.valid(row2, col2));
-  EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "no spill or block copy is left behind";
-  // Oracle for the gathering itself: without copies (scale.block_copies: false) every gathering
-  // reads the whole spills; the same points are gathered, and the same points judged and removed.
-  tiled_config.scale.block_copies = false;
-  const BuiltScene whole = hc::pipeline::build_scene(tiled_config);
-  EXPECT_EQ(stage_figure(whole, "tiles", "sum_robust_block_copies"), -1.0) << "no copy made";
-  for (const char* name : {"sum_robust_points_gathered", "sum_robust_gatherings", "sum_points_judged_past_halo", "sum_removed_robust"}) {
-    EXPECT_EQ(stage_figure(tiled, "tiles", name), stage_figure(whole, "tiles", name)) << name;
+  EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "no spill is left behind";
+  tiled_config.scale.band_mb = 0;
+  const BuiltScene by_tile = hc::pipeline::build_scene(tiled_config);
+  EXPECT_GE(stage_figure(by_tile, "tiles", "sum_robust_gatherings"), 2.0);
+  for (const char* name : {"sum_points_judged_past_halo", "sum_removed_robust"}) {
+    EXPECT_EQ(stage_figure(tiled, "tiles", name), stage_figure(by_tile, "tiles", name)) << name;
   }
-  EXPECT_GT(stage_figure(whole, "tiles", "sum_robust_spill_points_scanned"), stage_figure(tiled, "tiles", "sum_robust_spill_points_scanned"));
-  EXPECT_EQ(differing_bits(whole.scene.layers.depth, tiled.scene.layers.depth), 0U);
+  EXPECT_GT(stage_figure(by_tile, "tiles", "sum_robust_spill_points_scanned"), stage_figure(tiled, "tiles", "sum_robust_spill_points_scanned"));
+  EXPECT_EQ(differing_bits(by_tile.scene.layers.depth, tiled.scene.layers.depth), 0U);
 }
 
 // A full disk, simulated with RLIMIT_FSIZE (a write that would make a file larger than the limit
 // fails with EFBIG and raises SIGXFSZ; the limit is this test process's alone, as ctest runs each
-// test in a process of its own). While the limit is set to 0, the next write that extends a file
-// fails; the handler below then lifts the limit again, so that exactly one write fails.
+// test in a process of its own).
 rlimit g_fsize_saved{};
-volatile std::sig_atomic_t g_fsize_refusals = 0;
-void lift_file_size_limit(int) {
-  const int saved_errno = errno;
-  g_fsize_refusals = g_fsize_refusals + 1;
-  // setrlimit is not on POSIX's async-signal-safe list; on Linux with glibc it is a bare
-  // system call, which is what this test relies on.
-  setrlimit(RLIMIT_FSIZE, &g_fsize_saved);
-  errno = saved_errno;
-}
-// Sets the limit to `bytes` with `handler` for SIGXFSZ (SIG_IGN or lift_file_size_limit), and
+// Sets the limit to `bytes` with `handler` for SIGXFSZ (SIG_IGN here), and
 // restores both when it goes, whatever the run did. ok() is false (and nothing was changed) when
 // the current limit or handler could not be read.
 class FileSizeLimit {
@@ -700,81 +688,6 @@ class FileSizeLimit {
   bool ok_ = false;
   struct sigaction old_ {};
 };
-
-// The block copies' files under `dir` (those in `.blocks-*` folders, which lie in the run's
-// scratch folder inside it).
-std::size_t block_copy_files(const fs::path& dir) {
-  std::size_t n = 0;
-  for (const auto& e : fs::recursive_directory_iterator(dir)) {
-    if (e.is_regular_file() && e.path().parent_path().filename().string().rfind(".blocks-", 0) == 0) ++n;
-  }
-  return n;
-}
-
-// A block copy the disk refuses (BlockCopies: "a copy that cannot be written is removed and no
-// more are made") must not fail the run: the scene of the test above, the first copy's write
-// refused. Oracle: the same run with scale.block_copies false, whose gatherings read whole
-// spills: the same points scanned, gathered, judged and removed, and the in-core grid. The first
-// run (no limit) finds the tile whose gathering makes the first copy: tile (2, 1), as the test
-// above describes. Mutations: a copy left on disk after the failure, or copies made after it,
-// fail the checks at the ticks; a failure that stopped the run fails the test (build_scene
-// throws).
-TEST(TiledRun, ABlockCopyTheDiskRefusesIsRemovedAndTheGatheringsReadWholeSpills) {
-  const fs::path dir = hc::test::temp_dir("blocks_full_disk");
-  const auto [yaml, g, halo] = write_two_group_plane(dir);
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "plane.yaml");
-  const BuiltScene in = hc::pipeline::build_scene(config);
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.tile_cells = 40;
-  config.scale.scratch = dir;
-  config.scale.progress_interval_s = 0.0;
-  // The tile about to run at a tick of the tile loop (ticks come before tiles 1 ... 24 of 25).
-  const auto tile_at = [](const hc::pipeline::StageReport& r) {
-    if (r.stage != "tiles") return -1;
-    for (const auto& [n, v] : r.figures)
-      if (n == "progress_fraction") return static_cast<int>(std::lround(25.0 * v));
-    return -1;
-  };
-  int first_copy_tile = -1;
-  const BuiltScene free_run = hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
-    const int t = tile_at(r);
-    if (done || t < 0 || first_copy_tile >= 0) return;
-    if (block_copy_files(dir) > 0) first_copy_tile = t - 1;
-  });
-  ASSERT_EQ(stage_figure(free_run, "tile_plan", "tiles"), 25.0);
-  ASSERT_EQ(first_copy_tile, 2 * 5 + 1) << "tile (2, 1) makes the first copy";
-
-  g_fsize_refusals = 0;
-  std::vector<std::size_t> copies_after;  // block copy files at each tick after the refusal
-  BuiltScene refused;
-  {
-    FileSizeLimit limit;
-    ASSERT_TRUE(limit.ok()) << "cannot read RLIMIT_FSIZE or the SIGXFSZ handler";
-    bool set = false;
-    refused = hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
-      const int t = tile_at(r);
-      if (done || t < 0) return;
-      if (t == first_copy_tile) set = limit.set(0, lift_file_size_limit);
-      if (t > first_copy_tile) copies_after.push_back(block_copy_files(dir));
-    });
-    ASSERT_TRUE(set) << "cannot set RLIMIT_FSIZE or the SIGXFSZ handler";
-  }
-  EXPECT_EQ(g_fsize_refusals, 1) << "one write was refused";
-  ASSERT_FALSE(copies_after.empty());
-  for (std::size_t i = 0; i < copies_after.size(); ++i) EXPECT_EQ(copies_after[i], 0U) << "tick " << i << " after the refusal";
-  EXPECT_EQ(stage_figure(refused, "tiles", "sum_robust_block_copy_failures"), 1.0);
-  EXPECT_LE(stage_figure(refused, "tiles", "sum_robust_block_copies"), 0.0) << "no copy made";
-  EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "no spill or block copy is left behind";
-
-  config.scale.block_copies = false;
-  const BuiltScene whole = hc::pipeline::build_scene(config);
-  EXPECT_GE(stage_figure(whole, "tiles", "sum_robust_gatherings"), 2.0);
-  for (const char* name : {"sum_robust_spill_points_scanned", "sum_robust_points_gathered", "sum_robust_gatherings",
-                           "sum_points_judged_past_halo", "sum_removed_robust"}) {
-    EXPECT_EQ(stage_figure(refused, "tiles", name), stage_figure(whole, "tiles", name)) << name;
-  }
-  EXPECT_EQ(differing_bits(in.scene.layers.depth, refused.scene.layers.depth), 0U);
-}
 
 // A spill file the disk refuses (a 1 kB file-size limit, SIGXFSZ ignored: every tile's spill is
 // about 5 kB) stops the run with an error naming the file and what may be wrong, and the scratch
@@ -1608,17 +1521,18 @@ TEST(TiledRun, AFloatScanIsSpilledAsItsOwnFloatsAndReadBackAsTheInCoreRunsDouble
       }
       fs::remove_all(dir / "work");
     } else {
-      EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_block_copies"), 1.0) << "the second look copied a tile's floats by block";
-      EXPECT_GT(stage_figure(tiled, "tiles", "sum_robust_block_records_read"), 0.0) << "and read them back";
-      // Oracle for the copies: without them every gathering reads the whole spills.
+      EXPECT_GT(stage_figure(tiled, "tiles", "sum_robust_points_gathered"), 0.0) << "the second look gathered the spills' floats";
+      // Oracle for the band: one tile a band (each tile's strays gathered on their own) judges
+      // and removes the same points.
       config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
       config.scale.tile_cells = 48;
       config.scale.scratch = dir / "scratch";
-      config.scale.block_copies = false;
+      config.scale.band_mb = 0;
       const BuiltScene whole = hc::pipeline::build_scene(config);
-      for (const char* name : {"sum_robust_points_gathered", "sum_robust_gatherings", "sum_points_judged_past_halo", "sum_removed_robust"}) {
+      for (const char* name : {"sum_points_judged_past_halo", "sum_removed_robust"}) {
         EXPECT_EQ(stage_figure(tiled, "tiles", name), stage_figure(whole, "tiles", name)) << name;
       }
+      EXPECT_EQ(differing_bits(tiled.scene.layers.depth, whole.scene.layers.depth), 0U);
     }
   }
 }

@@ -116,10 +116,11 @@ struct ScaleConfig {
   int filter_halo_cells = kAutoFilterHalo;
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
-  /// The robust test's second look copies a neighbouring tile's points by block the first time
-  /// it reads them, so later gatherings read only the blocks their balls meet (docs/scale.md);
-  /// false: every gathering reads the whole spill files (no extra scratch disk).
-  bool block_copies = true;
+  /// The most memory the robust test's first looks of a band of tiles hold [MiB], 0 to 65536:
+  /// the tile loop looks at consecutive tiles until their verdicts (1 byte a window point, and
+  /// the removed points') hold this much, judges their strays in one gathering, then finishes
+  /// them (docs/scale.md, step 3). 0: one tile a band.
+  int band_mb = 256;
   double progress_interval_s = 1.0;  ///< least time between progress calls within a stage [s], 0 to 3600
   /// The tiled scene on disk (scene_io.hpp format 3, LodPyramid::open_stored): every layer in
   /// square tiles and every level of detail stored beside level 0, so that sessions read only the
