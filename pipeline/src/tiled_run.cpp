@@ -564,7 +564,9 @@ class KeptMask : public TileFiles {
 // ---------------------------------------------------------------------------------------------
 // The tiles.
 
-// How far past a tile's window the robust test's second look may gather points (judge_strays), in tiles.
+// How far past a tile's window the robust test's second look may gather points (judge_strays), in
+// tiles: the balls of a tile's strays past its window; a ball a later gathering adds, past the
+// window of the tile that owns its centre.
 constexpr int kMaxWidenedTiles = 2;
 
 // Whether the tiles' halo holds a filter share (scale.filter_halo_cells): when the outlier
@@ -1241,6 +1243,10 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
   std::vector<std::uint8_t> flags;
   Cloud pts = read_tile_points(plan, spill, t, flags);
   look.points = pts.size();
+  if (flags.size() > std::numeric_limits<std::uint32_t>::max()) {  // as process_tile (record numbers in 32 bits)
+    throw ResourceError("tile " + std::to_string(t) + ": its window holds " + std::to_string(flags.size()) +
+                        " spilled records, at most 4294967295 supported (lower scale.tile_max_points or scale.tile_cells)");
+  }
   if (pts.size() < static_cast<std::size_t>(oc.k) + 2) return look;
   lap("look_read");
   const RobustOutlierOptions ropt = tile_robust_options(config, plan, t);
@@ -1263,9 +1269,22 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
   return look;
 }
 
+// A point's coordinates as the bits of its three doubles, and their hash: judge_strays finds a
+// stray among the gathered points by them (the same spill bytes decode to the same doubles).
+using PointBits = std::array<std::uint64_t, 3>;
+struct PointBitsHash {
+  std::size_t operator()(const PointBits& b) const {
+    std::uint64_t h = b[0] * 0x9E3779B97F4A7C15ULL;
+    h = (h ^ (h >> 29)) + b[1] * 0xBF58476D1CE4E5B9ULL;
+    h = (h ^ (h >> 31)) + b[2] * 0x94D049BB133111EBULL;
+    return static_cast<std::size_t>(h ^ (h >> 32));
+  }
+};
+PointBits bits_of(const double* p) { return {std::bit_cast<std::uint64_t>(p[0]), std::bit_cast<std::uint64_t>(p[1]), std::bit_cast<std::uint64_t>(p[2])}; }
+
 // A point of the scan a gathering took: where it is in its owner tile's spill, and where.
 struct Taken {
-  std::uint64_t tile = 0, rec = 0;
+  std::uint32_t tile = 0, rec = 0;  // process_tile refuses a window of 2^32 spilled records or more
   std::array<double, 3> xyz{};
   bool operator<(const Taken& o) const { return tile != o.tile ? tile < o.tile : rec < o.rec; }
   bool operator==(const Taken& o) const { return tile == o.tile && rec == o.rec; }
@@ -1350,7 +1369,7 @@ void gather_owned(const Plan& plan, const Spill& spill, const BallSet& now, cons
           if (nr < in[0] || nr >= in[1] || nc < in[2] || nc >= in[3]) return;  // another tile owns it
           if (!hit[static_cast<std::size_t>(nr - in[0]) * cols + static_cast<std::size_t>(nc - in[2])]) return;
           if (!set.contains(p) || before.contains(p)) return;
-          out.push_back({u, r, {p[0], p[1], p[2]}});
+          out.push_back({static_cast<std::uint32_t>(u), static_cast<std::uint32_t>(r), {p[0], p[1], p[2]}});
         });
         scanned[static_cast<std::size_t>(th)] += static_cast<double>(spill.records(u));
       }
@@ -1363,6 +1382,7 @@ void gather_owned(const Plan& plan, const Spill& spill, const BallSet& now, cons
   }
   for (std::size_t th = 0; th < part.size(); ++th) {
     taken.insert(taken.end(), part[th].begin(), part[th].end());
+    std::vector<Taken>().swap(part[th]);
     sums["robust_spill_points_scanned"] += scanned[th];
   }
 }
@@ -1441,23 +1461,29 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
   for (const Ball& b : asked) fresh.push_back(pad(b));
   std::vector<Taken> taken;  // by (tile, record), each point once
   const NodeBinner node(tiles.g);
+  // The strays, by their coordinates' bits (a point two tiles' windows hold is one stray).
+  std::unordered_map<PointBits, std::uint32_t, PointBitsHash> wanted;
+  for (const TileLook& L : looks) {
+    for (const auto& p : L.strays_m) wanted.emplace(bits_of(p.data()), 0);
+  }
+  std::string with_strays;  // the tiles with strays, for the errors
+  for (std::size_t i = 0; i < band.size(); ++i) {
+    if (!looks[i].rv.past_halo.empty()) with_strays += (with_strays.empty() ? "" : ", ") + std::to_string(band[i]);
+  }
   for (int pass = 0;; ++pass) {
     if (pass == 8) {
-      throw InputError("tiled run, tiles " + std::to_string(band.front()) + ".." + std::to_string(band.back()) +
-                       ": stage outliers (filters.outliers, robust): the second look's k-NN searches about " + std::to_string(strays) +
-                       " points still leave the balls gathered after 8 gatherings: raise scale.filter_halo_cells (now " + halo_now +
-                       "), crop the strays (filters.crop) or run in core (scale.tiled: off)");
+      throw InputError("tiled run, the strays of tiles " + with_strays + ": stage outliers (filters.outliers, robust): after 8 " +
+                       "gatherings the second look's k-NN searches about " + std::to_string(strays) +
+                       " points still leave the balls gathered (or those hold fewer than k + 2 points): raise " +
+                       "scale.filter_halo_cells (now " + halo_now + "), crop the strays (filters.crop) or run in core (scale.tiled: off)");
     }
     const auto t_gather = detail::Clock::now();
     const std::size_t had = taken.size();
     {
       const BallSet now(fresh), before(balls);
-      std::vector<Taken> more;
-      gather_owned(plan, spill, now, before, more, sums);
-      std::sort(more.begin(), more.end());
-      taken.insert(taken.end(), more.begin(), more.end());
+      gather_owned(plan, spill, now, before, taken, sums);  // appends
+      std::sort(taken.begin() + static_cast<std::ptrdiff_t>(had), taken.end());
       std::inplace_merge(taken.begin(), taken.begin() + static_cast<std::ptrdiff_t>(had), taken.end());
-      taken.erase(std::unique(taken.begin(), taken.end()), taken.end());  // none: `before` excluded them
     }
     balls.insert(balls.end(), fresh.begin(), fresh.end());
     fresh.clear();
@@ -1473,15 +1499,11 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
     }
     Cloud near;
     near.xyz.resize(3, static_cast<Eigen::Index>(taken.size()));
-    std::unordered_map<std::string, std::uint32_t> at;  // a point's coordinates' bytes → its column
-    at.reserve(2 * strays);
-    std::unordered_map<std::string, std::uint32_t> wanted;
-    for (const TileLook& L : looks) {
-      for (const auto& s : L.strays_m) wanted.emplace(std::string(reinterpret_cast<const char*>(s.data()), 24), 0);
-    }
+    std::unordered_map<PointBits, std::uint32_t, PointBitsHash> at;  // a stray's column in `near`
+    at.reserve(wanted.size());
     for (std::size_t j = 0; j < taken.size(); ++j) {
       std::copy(taken[j].xyz.begin(), taken[j].xyz.end(), near.xyz.data() + 3 * j);
-      const std::string key(reinterpret_cast<const char*>(taken[j].xyz.data()), 24);
+      const PointBits key = bits_of(taken[j].xyz.data());
       if (wanted.count(key) != 0) at.emplace(key, static_cast<std::uint32_t>(j));
     }
     sums["robust_gather_s"] += detail::seconds_since(t_gather);
@@ -1502,15 +1524,22 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
     if (wv.past_halo.empty()) {
       for (TileLook& L : looks) {
         L.stray_verdict.clear();
-        for (const auto& s : L.strays_m) L.stray_verdict.push_back(wv.verdict[at.at(std::string(reinterpret_cast<const char*>(s.data()), 24))]);
+        for (const auto& p : L.strays_m) L.stray_verdict.push_back(wv.verdict[at.at(bits_of(p.data()))]);
       }
       return;
     }
     // The second look's searches that leave the balls: their balls next, each within the
-    // limit past the window of the tile that owns its centre.
+    // limit past the window of the tile that owns its centre. When the largest coordinate grew,
+    // every earlier ball again with the new pad (as a single gathering of every ball would
+    // have it: the second look's float slack grows with it).
+    const double coord_before = coord_m;
     for (const Ball& b : wv.reach_m) {
       coord_m = std::max({coord_m, std::abs(b[0]) + b[3], std::abs(b[1]) + b[3], std::abs(b[2]) + b[3]});
     }
+    if (coord_m > coord_before) {
+      for (const Ball& b : asked) fresh.push_back(pad(b));
+    }
+    asked.insert(asked.end(), wv.reach_m.begin(), wv.reach_m.end());
     for (const Ball& b : wv.reach_m) {
       const Ball p = pad(b);
       const double c[3] = {b[0], b[1], b[2]};
@@ -1702,7 +1731,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     // scan's (judge_strays).
     if (!look.ran || look.points != pts.size() || look.stray_verdict.size() != look.rv.past_halo.size()) {
       throw std::logic_error("process_tile: tile " + std::to_string(t) + ": its look judged " + std::to_string(look.points) +
-                             " points (" + (look.ran ? "ran" : "did not run") + "), the window holds " + std::to_string(pts.size()));
+                             " points (" + (look.ran ? "ran" : "did not run") + ") with " + std::to_string(look.rv.past_halo.size()) +
+                             " strays and " + std::to_string(look.stray_verdict.size()) + " stray verdicts; the window holds " +
+                             std::to_string(pts.size()));
     }
     RobustVerdicts rv = std::move(look.rv);
     rv.verdict.assign(pts.size(), 0);
@@ -3714,7 +3745,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
   TileMerge merged(plan);
-  // 3. The tile jobs, in process and in order (tile-job runs the same process_tile elsewhere).
+  // 3. The tile jobs, in process and in order (tile-job runs the same run_tiles elsewhere).
   (void)stage("tiles", built.summary.stages, progress, [&] {
     StageResult<int> r;
     detail::PassProgress tick(progress, "tiles", "the tile loop", config.scale.progress_interval_s);

@@ -1,7 +1,7 @@
 // Issue 15: SIGTERM (or Ctrl-C) while `hapticloud run` writes its output leaves no
 // `<out>.partial-<pid>` behind, and stale ones of dead processes are removed by the next run.
 // Issue 14: nor does it leave a tiled run's spill folder in scale.scratch, a tile plan's spill
-// files, or a tile job's block copies and temporary files.
+// files, or a tile job's temporary files.
 
 #include <gtest/gtest.h>
 
@@ -143,9 +143,10 @@ TEST(Interrupt, SigintDuringATilePlanRemovesItsSpillFilesAndKeepsTheFolder) {
   EXPECT_TRUE(fs::is_empty(work)) << "left in the work folder: " << fs::directory_iterator(work)->path();
 }
 
-// `hapticloud tile-job` over every tile of a plan: SIGINT while a temporary kept file is on disk
-// (`.kept-job-*`: the second sweep of its band is writing tiles' masks) removes it and every
-// other temporary, and leaves the plan's files as they were, so the job can run again.
+// `hapticloud tile-job` over every tile of a plan: SIGINT once its band's second sweep has
+// finished a tile (the first `part_*` file; a temporary kept file lives only between a tile's
+// mask and its rename, too briefly to wait for) removes every temporary it registered, and
+// leaves the plan's files as they were, so the job can run again.
 TEST(Interrupt, SigintDuringATileJobRemovesItsScratchAndKeepsThePlan) {
   const fs::path dir = hc::test::temp_dir("sigint-job");
   const fs::path work = dir / "work";
@@ -160,7 +161,7 @@ TEST(Interrupt, SigintDuringATileJobRemovesItsScratchAndKeepsThePlan) {
   for (std::size_t t = 0; t < tiles; ++t) all += (t ? "," : "") + std::to_string(t);
   int status = 0;
   interrupt_when({"tile-job", (work / "plan.json").string(), "--tiles", all, "-q"},
-                 [&] { return !entries_like(work, ".kept-job-").empty(); }, SIGINT, "a .kept-job-* file in " + work.string(),
+                 [&] { return !entries_like(work, "part_").empty(); }, SIGINT, "a part_* file in " + work.string(),
                  status);
   if (HasFatalFailure()) return;
   ASSERT_TRUE(WIFEXITED(status)) << "killed by signal " << (WIFSIGNALED(status) ? WTERMSIG(status) : 0);

@@ -160,8 +160,8 @@ bool check_output_target(const std::filesystem::path& target, ExistingOutput exi
 /// Removes the staging folders of every StagingDir alive in this process, the scratch folders
 /// and files registered with register_live_scratch_dir, and the entries registered with
 /// register_live_scratch_entries (for a signal watcher thread: SIGINT/SIGTERM during a run, a
-/// tile plan or a tile job must not leave `<out>.partial-<pid>`, spill files, block copies or
-/// temporary files behind). A folder is first renamed aside (a fresh `<folder>.removing-<pid>`
+/// tile plan or a tile job must not leave `<out>.partial-<pid>`, spill files or temporary files
+/// behind). A folder is first renamed aside (a fresh `<folder>.removing-<pid>`
 /// name), so that a writer's next file in it fails to open.
 /// `final` (the watcher, which then _exit()s): the registry's lock is never released again, so
 /// every later register_*, unregister_*, open_live_scratch_file and rename_live_scratch waits
@@ -171,8 +171,8 @@ bool check_output_target(const std::filesystem::path& target, ExistingOutput exi
 int remove_live_staging_dirs(bool final = false) noexcept;
 
 /// Registers `path`, a scratch folder or file this process owns whole, before it exists (the
-/// tiled run's `hapticloud-tiles-*` spill folder under scale.scratch, a tile job's `.blocks-*`
-/// folder or temporary kept file, a write_atomically temporary, the cross-check's residual file),
+/// tiled run's `hapticloud-tiles-*` spill folder under scale.scratch, a tile job's temporary
+/// kept files, a write_atomically temporary, the cross-check's residual file),
 /// for remove_live_staging_dirs; unregister_live_scratch_dir before removing it, and move it
 /// with rename_live_scratch. A trailing separator is ignored. @throws std::bad_alloc only.
 void register_live_scratch_dir(const std::filesystem::path& path);
