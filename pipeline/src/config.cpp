@@ -1106,7 +1106,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
       r.fail("scale.block_copies", "was removed on 2026-11-27: the robust test's strays are judged in one gathering per band of "
                                    "tiles, which makes no block copies (docs/scale.md); delete the key (scale.band_mb bounds a band)");
     }
-    c.scale.band_mb = static_cast<int>(r.get_int("scale.band_mb", c.scale.band_mb, 0, 65536));
+    c.scale.band_mb = r.get_double("scale.band_mb", c.scale.band_mb, 0.0, 65536.0);
     c.scale.progress_interval_s = r.get_double("scale.progress_interval_s", c.scale.progress_interval_s, 0.0, 3600.0);
     const std::string st = r.get_string("scale.scene_tiles", "auto", {"auto", "on", "off"});
     c.scale.scene_tiles = st == "on" ? ScaleConfig::Tiled::kOn : st == "off" ? ScaleConfig::Tiled::kOff : ScaleConfig::Tiled::kAuto;

@@ -1905,7 +1905,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 template <class Done>
 void run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, const std::vector<std::size_t>& list,
                const std::function<void()>& before_tile, const std::function<void(double)>& progress, Done&& done) {
-  const std::size_t band_bytes = static_cast<std::size_t>(config.scale.band_mb) << 20;
+  const auto band_bytes = static_cast<std::size_t>(config.scale.band_mb * 1048576.0);
   const double steps = 2.0 * static_cast<double>(list.size());
   double step = 0.0;
   for (std::size_t first = 0; first < list.size();) {

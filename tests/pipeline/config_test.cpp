@@ -154,9 +154,10 @@ TEST(Config, FilterHaloIsAutoOrACellCount) {
 // bands replaced, is refused by name with what to do (not taken as an unknown key's typo).
 TEST(Config, BandMegabytesAreReadAndBlockCopiesIsRefusedByName) {
   const auto band = [](const std::string& extra) { return parse_run_config(kMinimal + extra, "configs/test.yaml").scale.band_mb; };
-  EXPECT_EQ(band(""), 256);
-  EXPECT_EQ(band("scale: {band_mb: 0}\n"), 0);
-  EXPECT_EQ(band("scale: {band_mb: 65536}\n"), 65536);
+  EXPECT_EQ(band(""), 256.0);
+  EXPECT_EQ(band("scale: {band_mb: 0}\n"), 0.0);
+  EXPECT_EQ(band("scale: {band_mb: 0.01}\n"), 0.01);
+  EXPECT_EQ(band("scale: {band_mb: 65536}\n"), 65536.0);
   EXPECT_NE(config_error(kMinimal + "scale: {band_mb: -1}\n").find("scale.band_mb"), std::string::npos);
   EXPECT_NE(config_error(kMinimal + "scale: {band_mb: 65537}\n").find("scale.band_mb"), std::string::npos);
   const std::string what = config_error(kMinimal + "scale: {block_copies: false}\n");

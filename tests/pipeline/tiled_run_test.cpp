@@ -651,6 +651,15 @@ TEST(TiledRun, StraysOfTwoTilesAreJudgedInOneGatheringAsInCore) {
   EXPECT_EQ(stage_figure(tiled, "tiles", "sum_removed_robust"), stage_figure(by_tile, "tiles", "sum_removed_robust"));
   EXPECT_GT(stage_figure(by_tile, "tiles", "sum_robust_spill_points_scanned"), stage_figure(tiled, "tiles", "sum_robust_spill_points_scanned"));
   EXPECT_EQ(differing_bits(by_tile.scene.layers.depth, tiled.scene.layers.depth), 0U);
+  // Bands of a few tiles each (about 5 000 window points a tile, a byte each: 0.01 MiB holds two
+  // or three): between the one band and one tile a band, the same grid.
+  tiled_config.scale.band_mb = 0.01;
+  const BuiltScene few = hc::pipeline::build_scene(tiled_config);
+  EXPECT_GT(stage_figure(few, "tiles", "sum_robust_gatherings"), 1.0);
+  EXPECT_LT(stage_figure(few, "tiles", "sum_robust_gatherings"), stage_figure(by_tile, "tiles", "sum_robust_gatherings"));
+  EXPECT_EQ(stage_figure(few, "tiles", "sum_removed_robust"), stage_figure(tiled, "tiles", "sum_removed_robust"));
+  EXPECT_EQ(differing_bits(few.scene.layers.depth, tiled.scene.layers.depth), 0U);
+  tiled_config.scale.band_mb = 0;
   // Without the cross-check and the levels sample nothing reads the spills after the loop, so the
   // last band drops each as it finishes it; one tile a band, a later band's gathering still reads
   // the spills of earlier bands' tiles (tile (3, 2)'s strays need tile (2, 2)'s points): the
