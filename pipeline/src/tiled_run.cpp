@@ -1179,7 +1179,13 @@ struct TileLook {
   // The verdicts other than 0 (kept), by window column: (column, RobustVerdicts::verdict), the
   // columns ascending. Sparse: most points are kept, and a band holds every tile's.
   std::vector<std::pair<std::uint32_t, std::uint8_t>> removed;
-  RobustVerdicts rv;  // past_halo, reach_m and near as the first look gave them; verdict emptied
+  RobustVerdicts rv;  // past_halo and reach_m as the first look gave them; verdict and near emptied
+  // RobustVerdicts::near, two points a byte (low nibble first), each count clamped to 15: still
+  // a lower bound of the others within the radius, as near promises, so every use stays sound
+  // (a kept point's count short of the isolated filter's neighbours, up to 1000, only costs
+  // that filter a search; cross_check.isolation_min_neighbours above 15 marks no removed
+  // candidate kNear). Half of a band's memory otherwise.
+  std::vector<std::uint8_t> near_nibbles;
   StageReport report;  // the first look's report
   std::vector<std::array<double, 3>> strays_m;  // rv.past_halo's points, x y z [m, the grid frame]
   std::vector<std::uint8_t> stray_verdict;      // per stray, the whole scan's verdict (judge_strays)
@@ -1187,7 +1193,7 @@ struct TileLook {
   std::map<std::string, double> sums;  // the tile's figures so far (look_tile's times)
   // Memory held [bytes], for the band's budget.
   std::size_t bytes() const {
-    return removed.size() * sizeof(removed[0]) + rv.near.size() + rv.past_halo.size() * 4 + rv.reach_m.size() * 32 +
+    return removed.size() * sizeof(removed[0]) + near_nibbles.size() + rv.past_halo.size() * 4 + rv.reach_m.size() * 32 +
            strays_m.size() * 25;
   }
 };
@@ -1257,6 +1263,13 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
     if (look.rv.verdict[i] != 0) look.removed.emplace_back(static_cast<std::uint32_t>(i), look.rv.verdict[i]);
   }
   std::vector<std::uint8_t>().swap(look.rv.verdict);
+  if (!look.rv.near.empty()) {
+    look.near_nibbles.assign((look.rv.near.size() + 1) / 2, 0);
+    for (std::size_t i = 0; i < look.rv.near.size(); ++i) {
+      look.near_nibbles[i / 2] |= static_cast<std::uint8_t>(std::min<std::uint8_t>(look.rv.near[i], 15) << (4 * (i % 2)));
+    }
+    std::vector<std::uint8_t>().swap(look.rv.near);
+  }
   if (!look.rv.past_halo.empty()) {
     for (const double v : plan.tiles.box_m(plan.tiles.window(t))) look.coord_m = std::isfinite(v) ? std::max(look.coord_m, std::abs(v)) : look.coord_m;
     for (Eigen::Index i = 0; i < f1.value.xyz.cols(); ++i) look.coord_m = std::max(look.coord_m, f1.value.xyz.col(i).cwiseAbs().maxCoeff());
@@ -1737,6 +1750,11 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     RobustVerdicts rv = std::move(look.rv);
     rv.verdict.assign(pts.size(), 0);
+    if (!look.near_nibbles.empty()) {
+      rv.near.resize(pts.size());
+      for (std::size_t i = 0; i < rv.near.size(); ++i) rv.near[i] = static_cast<std::uint8_t>((look.near_nibbles[i / 2] >> (4 * (i % 2))) & 15);
+      std::vector<std::uint8_t>().swap(look.near_nibbles);
+    }
     for (const auto& [c, v] : look.removed) rv.verdict[c] = v;
     for (std::size_t a = 0; a < rv.past_halo.size(); ++a) rv.verdict[rv.past_halo[a]] = look.stray_verdict[a];
     StageResult<Cloud> f1{std::move(pts), std::move(look.report)};
@@ -1896,8 +1914,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 
 // Step 3 over the tiles `list` (ascending, each once), in bands of consecutive tiles: each
 // band's first sweep (look_tile) until its looks hold scale.band_mb MiB or more (TileLook::bytes:
-// 1 byte a window point and the removed points' verdicts; at 10^8 points, 144 M window points,
-// one band of the default 256 MiB, at 10^9 about six), its strays judged
+// half a byte a window point and the removed points' verdicts; at 10^8 points, 144 M window
+// points, one band of the default 128 MiB, at 10^9 about six), its strays judged
 // (judge_strays, whose band figures go to the band's first tile), then its second sweep
 // (process_tile), done(TileOutput, last) called for each tile in order (last: no later band
 // gathers points, so no spill is read again by the loop). before_tile() is called before each

@@ -154,7 +154,7 @@ TEST(Config, FilterHaloIsAutoOrACellCount) {
 // bands replaced, is refused by name with what to do (not taken as an unknown key's typo).
 TEST(Config, BandMegabytesAreReadAndBlockCopiesIsRefusedByName) {
   const auto band = [](const std::string& extra) { return parse_run_config(kMinimal + extra, "configs/test.yaml").scale.band_mb; };
-  EXPECT_EQ(band(""), 256.0);
+  EXPECT_EQ(band(""), 128.0);
   EXPECT_EQ(band("scale: {band_mb: 0}\n"), 0.0);
   EXPECT_EQ(band("scale: {band_mb: 0.01}\n"), 0.01);
   EXPECT_EQ(band("scale: {band_mb: 65536}\n"), 65536.0);

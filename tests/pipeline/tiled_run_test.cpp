@@ -651,9 +651,10 @@ TEST(TiledRun, StraysOfTwoTilesAreJudgedInOneGatheringAsInCore) {
   EXPECT_EQ(stage_figure(tiled, "tiles", "sum_removed_robust"), stage_figure(by_tile, "tiles", "sum_removed_robust"));
   EXPECT_GT(stage_figure(by_tile, "tiles", "sum_robust_spill_points_scanned"), stage_figure(tiled, "tiles", "sum_robust_spill_points_scanned"));
   EXPECT_EQ(differing_bits(by_tile.scene.layers.depth, tiled.scene.layers.depth), 0U);
-  // Bands of a few tiles each (about 5 000 window points a tile, a byte each: 0.01 MiB holds two
-  // or three): between the one band and one tile a band, the same grid.
-  tiled_config.scale.band_mb = 0.01;
+  // Bands of a few tiles each (thousands of window points a tile, half a byte each: 0.004 MiB
+  // holds a few; 0.01 puts both tiles with strays in one band, 0.002 gathers as often as one
+  // tile a band): between the one band and one tile a band, the same grid.
+  tiled_config.scale.band_mb = 0.004;
   const BuiltScene few = hc::pipeline::build_scene(tiled_config);
   EXPECT_GT(stage_figure(few, "tiles", "sum_robust_gatherings"), 1.0);
   EXPECT_LT(stage_figure(few, "tiles", "sum_robust_gatherings"), stage_figure(by_tile, "tiles", "sum_robust_gatherings"));

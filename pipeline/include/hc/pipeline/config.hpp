@@ -117,10 +117,10 @@ struct ScaleConfig {
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
   /// The most memory the robust test's first looks of a band of tiles hold [MiB], 0 to 65536:
-  /// the tile loop looks at consecutive tiles until their verdicts (1 byte a window point, and
+  /// the tile loop looks at consecutive tiles until their verdicts (half a byte a window point, and
   /// the removed points') hold this much, judges their strays in one gathering, then finishes
   /// them (docs/scale.md, step 3). 0: one tile a band. A fraction of a MiB is taken as such.
-  double band_mb = 256.0;
+  double band_mb = 128.0;
   double progress_interval_s = 1.0;  ///< least time between progress calls within a stage [s], 0 to 3600
   /// The tiled scene on disk (scene_io.hpp format 3, LodPyramid::open_stored): every layer in
   /// square tiles and every level of detail stored beside level 0, so that sessions read only the
