@@ -48,6 +48,7 @@
 #include <map>
 #include <unordered_map>
 #include <unordered_set>
+#include <unordered_set>
 #include <optional>
 #include <random>
 #include <string>
@@ -1172,6 +1173,14 @@ constexpr std::string_view kTmpInfix = ".tmp-";            // "." + file + this 
 // block copies of those written to scratch: at 10^8 points, 15 s and 1.6 GB written to judge
 // 8 399 strays (docs/scale.md).
 
+// A window's spilled records are numbered in 32 bits (the kept mask's record numbers, Taken).
+// @throws ResourceError naming the tile and the keys when tile t's window holds more.
+void check_window_records(std::size_t t, std::size_t records) {
+  if (records <= std::numeric_limits<std::uint32_t>::max()) return;
+  throw ResourceError("tile " + std::to_string(t) + ": its window holds " + std::to_string(records) +
+                      " spilled records, at most 4294967295 supported (lower scale.tile_max_points or scale.tile_cells)");
+}
+
 // A tile's robust first look, from look_tile to process_tile.
 struct TileLook {
   bool ran = false;        // the robust test ran on the window (filter on, k + 2 points or more)
@@ -1249,10 +1258,7 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
   std::vector<std::uint8_t> flags;
   Cloud pts = read_tile_points(plan, spill, t, flags);
   look.points = pts.size();
-  if (flags.size() > std::numeric_limits<std::uint32_t>::max()) {  // as process_tile (record numbers in 32 bits)
-    throw ResourceError("tile " + std::to_string(t) + ": its window holds " + std::to_string(flags.size()) +
-                        " spilled records, at most 4294967295 supported (lower scale.tile_max_points or scale.tile_cells)");
-  }
+  check_window_records(t, flags.size());
   if (pts.size() < static_cast<std::size_t>(oc.k) + 2) return look;
   lap("look_read");
   const RobustOutlierOptions ropt = tile_robust_options(config, plan, t);
@@ -1300,7 +1306,6 @@ struct Taken {
   std::uint32_t tile = 0, rec = 0;  // process_tile refuses a window of 2^32 spilled records or more
   std::array<double, 3> xyz{};
   bool operator<(const Taken& o) const { return tile != o.tile ? tile < o.tile : rec < o.rec; }
-  bool operator==(const Taken& o) const { return tile == o.tile && rec == o.rec; }
 };
 
 // Adds to `taken` the points of the scan inside `now` and inside no ball of `before`: each
@@ -1414,6 +1419,19 @@ void gather_owned(const Plan& plan, const Spill& spill, const BallSet& now, cons
                    "(filters.crop) or run in core (scale.tiled: off)");
 }
 
+// Ball b as a gathering takes it: its radius widened by the second look's own float slack (8
+// float steps of its largest recentred coordinate, at most twice coord_m, the largest coordinate
+// of the points and balls [m]), so that no point is listed again for rounding alone.
+Ball padded(Ball b, double coord_m) {
+  b[3] = b[3] * (1.0 + 1e-4) + 64.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * coord_m;
+  return b;
+}
+
+// coord_m grown to the largest |coordinate| ball b reaches [m].
+double reach_coord_m(double coord_m, const Ball& b) {
+  return std::max({coord_m, std::abs(b[0]) + b[3], std::abs(b[1]) + b[3], std::abs(b[2]) + b[3]});
+}
+
 // How far ball b reaches past the box {x_min, x_max, y_min, y_max} [m] (an infinite side: not
 // at all), 0 when inside.
 double past_box_m(const Ball& b, const std::array<double, 4>& box) {
@@ -1449,13 +1467,10 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
     strays += L.rv.past_halo.size();
     // The tile's own check, with the pad a gathering of its balls alone would give.
     double c = L.coord_m;
-    for (const Ball& b : L.rv.reach_m) c = std::max({c, std::abs(b[0]) + b[3], std::abs(b[1]) + b[3], std::abs(b[2]) + b[3]});
+    for (const Ball& b : L.rv.reach_m) c = reach_coord_m(c, b);
     const auto box = tiles.box_m(tiles.window(band[i]));
     double past_m = 0.0;
-    for (Ball b : L.rv.reach_m) {
-      b[3] = b[3] * (1.0 + 1e-4) + 64.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * c;
-      past_m = std::max(past_m, past_box_m(b, box));
-    }
+    for (const Ball& b : L.rv.reach_m) past_m = std::max(past_m, past_box_m(padded(b, c), box));
     const double cells = std::ceil(past_m / tiles.g.cell_size_m);  // in double: a stray kilometres away
     if (cells > limit) throw_too_far(tiles, band[i], L.rv.past_halo.size(), past_m, halo_now);
     L.sums["robust_windows_widened"] += 1.0;
@@ -1465,19 +1480,15 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
   }
   if (strays == 0) return;
   const OutlierConfig& oc = config.filters.outliers;
-  const auto pad = [&](Ball b) {
-    b[3] = b[3] * (1.0 + 1e-4) + 64.0 * static_cast<double>(std::numeric_limits<float>::epsilon()) * coord_m;
-    return b;
-  };
   std::vector<Ball> balls;  // gathered so far, padded
   std::vector<Ball> fresh;  // to gather next, padded
-  for (const Ball& b : asked) fresh.push_back(pad(b));
+  for (const Ball& b : asked) fresh.push_back(padded(b, coord_m));
   std::vector<Taken> taken;  // by (tile, record), each point once
   const NodeBinner node(tiles.g);
   // The strays, by their coordinates' bits (a point two tiles' windows hold is one stray).
-  std::unordered_map<PointBits, std::uint32_t, PointBitsHash> wanted;
+  std::unordered_set<PointBits, PointBitsHash> wanted;
   for (const TileLook& L : looks) {
-    for (const auto& p : L.strays_m) wanted.emplace(bits_of(p.data()), 0);
+    for (const auto& p : L.strays_m) wanted.insert(bits_of(p.data()));
   }
   std::string with_strays;  // the tiles with strays, for the errors
   for (std::size_t i = 0; i < band.size(); ++i) {
@@ -1546,15 +1557,13 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
     // every earlier ball again with the new pad (as a single gathering of every ball would
     // have it: the second look's float slack grows with it).
     const double coord_before = coord_m;
-    for (const Ball& b : wv.reach_m) {
-      coord_m = std::max({coord_m, std::abs(b[0]) + b[3], std::abs(b[1]) + b[3], std::abs(b[2]) + b[3]});
-    }
+    for (const Ball& b : wv.reach_m) coord_m = reach_coord_m(coord_m, b);
     if (coord_m > coord_before) {
-      for (const Ball& b : asked) fresh.push_back(pad(b));
+      for (const Ball& b : asked) fresh.push_back(padded(b, coord_m));
     }
     asked.insert(asked.end(), wv.reach_m.begin(), wv.reach_m.end());
     for (const Ball& b : wv.reach_m) {
-      const Ball p = pad(b);
+      const Ball p = padded(b, coord_m);
       const double c[3] = {b[0], b[1], b[2]};
       const std::size_t owner = static_cast<std::size_t>(node.row(c) / tiles.size) * static_cast<std::size_t>(tiles.tiles_c) +
                                 static_cast<std::size_t>(node.col(c) / tiles.size);
@@ -1699,10 +1708,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   // Each point's record in the spill, carried through the filters' removals (compose_removal:
   // `removed_at`, the removed columns, increasing), so that the kept-point mask needs no second
   // read of the spill.
-  if (flags.size() > std::numeric_limits<std::uint32_t>::max()) {
-    throw ResourceError("tile " + std::to_string(t) + ": its window holds " + std::to_string(flags.size()) +
-                        " spilled records, at most 4294967295 supported (lower scale.tile_max_points or scale.tile_cells)");
-  }
+  check_window_records(t, flags.size());
   std::vector<std::uint32_t> rec_of;
   rec_of.reserve(pts.size());
   for (std::size_t r = 0; r < flags.size(); ++r) {
