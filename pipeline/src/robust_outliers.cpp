@@ -30,6 +30,7 @@
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <limits>
 #include <numeric>
 #include <optional>
@@ -269,29 +270,94 @@ class ExactDistances {
   std::vector<std::pair<std::uint32_t, std::uint32_t>> order_;
 };
 
+// The grid's points in its cell order with each cell's run padded to a multiple of kLanes by
+// sentinels (+inf on every axis: the squared distance to any point is +inf or NaN, never within
+// a bound), for the counting pass's loops: whole vectors, no scalar remainder (on the 10^8-point
+// wall a point's cell holds about 24 points, and the remainder took about as long as the vectors).
+constexpr std::uint32_t kLanes = 8;
+constexpr float kFar = std::numeric_limits<float>::infinity();
+struct PaddedCells {
+  std::vector<float> x, y, z;
+  std::vector<std::uint32_t> start;  // cell c's run: [start[c], start[c + 1]); size cells + 1
+
+  // Two threads above 2^17 points.
+  explicit PaddedCells(const CellGrid& g) : start(g.cells() + 1, 0) {
+    for (std::size_t c = 0; c < g.cells(); ++c) {
+      const std::uint32_t len = g.cell_start[c + 1] - g.cell_start[c];
+      start[c + 1] = start[c] + (len + kLanes - 1) / kLanes * kLanes;
+    }
+    x.resize(start.back());
+    y.resize(start.back());
+    z.resize(start.back());
+    const int th = g.x.size() > (std::size_t{1} << 17) ? kSearchThreads : 1;
+    run_parallel(th, [&](int t) {
+      const auto [cb, ce] = detail::share_of(g.cells(), t, th);
+      for (std::size_t c = cb; c < ce; ++c) {
+        const std::uint32_t pb = g.cell_start[c], len = g.cell_start[c + 1] - pb, q = start[c], qe = start[c + 1];
+        std::copy_n(g.x.begin() + pb, len, x.begin() + q);
+        std::copy_n(g.y.begin() + pb, len, y.begin() + q);
+        std::copy_n(g.z.begin() + pb, len, z.begin() + q);
+        std::fill(x.begin() + q + len, x.begin() + qe, kFar);
+        std::fill(y.begin() + q + len, y.begin() + qe, kFar);
+        std::fill(z.begin() + q + len, z.begin() + qe, kFar);
+      }
+    });
+  }
+};
+
+// Eight floats, eight 32-bit lanes (GCC/Clang vector extensions: one AVX2 register in the AVX2
+// clone, two SSE2 registers otherwise).
+typedef float Lanes8f __attribute__((vector_size(32)));
+typedef std::int32_t Lanes8i __attribute__((vector_size(32)));
+
+// How many of the padded points [qb, qe) (a whole number of kLanes) lie within squared
+// distance cert2 of pt (the same float arithmetic as a scalar loop: dx² + dy² + dz², in that
+// order, compared with cert2). Inlined into its callers' clones.
+inline std::uint32_t count_within(const PaddedCells& pc, std::uint32_t qb, std::uint32_t qe, const float* pt, float cert2) {
+  static_assert(kLanes == 8, "Lanes8f holds kLanes floats");
+  Lanes8i acc{};
+  for (std::uint32_t b = qb; b < qe; b += kLanes) {
+    Lanes8f x, y, z;
+    std::memcpy(&x, pc.x.data() + b, sizeof x);
+    std::memcpy(&y, pc.y.data() + b, sizeof y);
+    std::memcpy(&z, pc.z.data() + b, sizeof z);
+    const Lanes8f dx = x - pt[0], dy = y - pt[1], dz = z - pt[2];
+    acc += dx * dx + dy * dy + dz * dz <= cert2;  // −1 where within, 0 elsewhere
+  }
+  std::int32_t cnt = 0;
+  for (std::uint32_t l = 0; l < kLanes; ++l) cnt -= acc[l];
+  return static_cast<std::uint32_t>(cnt);
+}
+
 // The counting pass of remove_robust_outliers over the cells [cb, ce): certified[s] = 1 for the
 // sorted points s with at least need_count points (itself included) within squared distance
 // cert2 (own cell, then the cells of the 3×3×3 block that come within reach: faces, edges, then
-// corners, stopping at need_count); 0 otherwise. `table` is g's dense_lower_table (or empty). Compiled also for AVX2 where the compiler can (the
+// corners, stopping at need_count); 0 otherwise. `table` is g's dense_lower_table (or empty),
+// `pc` g's points padded (PaddedCells). Compiled also for AVX2 where the compiler can (the
 // distance loops vectorise 8 wide), chosen at load time by the CPU.
-HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const std::vector<std::uint32_t>& table, float cert2,
+HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const PaddedCells& pc, const std::vector<std::uint32_t>& table, float cert2,
                                         std::uint32_t need_count, std::size_t cb, std::size_t ce, std::uint8_t* certified) {
-  // The 3×3×3 block's point ranges, by (dx + 1) + 3 (dy + 1) + 9 (dz + 1).
+  // The 3×3×3 block's padded point ranges, by (dx + 1) + 3 (dy + 1) + 9 (dz + 1).
   std::array<std::pair<std::uint32_t, std::uint32_t>, 27> block{};
   std::array<std::array<std::uint8_t, 12>, 3> by_class{};  // blocks within reach: faces, edges, corners
   std::vector<std::uint32_t> own;
   const auto edge = static_cast<float>(g.cell);
+  // Cell (ix, iy, iz)'s padded range, empty outside the grid or for an empty cell.
+  const auto padded_run = [&](std::int64_t ix, std::int64_t iy, std::int64_t iz) -> std::pair<std::uint32_t, std::uint32_t> {
+    if (ix < 0 || iy < 0 || iz < 0 || ix >= g.n[0] || iy >= g.n[1] || iz >= g.n[2]) return {0, 0};
+    const std::uint64_t key = g.key(ix, iy, iz);
+    const std::size_t c = table.empty() ? g.lower(key) : table[static_cast<std::size_t>(key)];
+    if (c >= g.cells() || g.cell_key[c] != key) return {0, 0};
+    return {pc.start[c], pc.start[c + 1]};
+  };
   for (std::size_t ci = cb; ci < ce; ++ci) {
     const std::uint32_t pb = g.cell_start[ci], pe = g.cell_start[ci + 1];
+    const std::uint32_t qb = pc.start[ci], qe = pc.start[ci + 1];
     own.assign(pe - pb, 0);
     bool all = true;
     for (std::uint32_t a = pb; a < pe; ++a) {
-      const float x = g.x[a], y = g.y[a], z = g.z[a];
-      std::uint32_t cnt = 0;
-      for (std::uint32_t b = pb; b < pe; ++b) {
-        const float dx = g.x[b] - x, dy = g.y[b] - y, dz = g.z[b] - z;
-        cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
-      }
+      const float pt[3] = {g.x[a], g.y[a], g.z[a]};
+      const std::uint32_t cnt = count_within(pc, qb, qe, pt, cert2);
       own[a - pb] = cnt;
       const bool ok = cnt >= need_count;
       certified[a] = ok ? 1 : 0;
@@ -302,8 +368,7 @@ HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const std::vector<std
     for (std::int64_t dz = -1; dz <= 1; ++dz) {
       for (std::int64_t dy = -1; dy <= 1; ++dy) {
         for (std::int64_t dx = -1; dx <= 1; ++dx) {
-          block[static_cast<std::size_t>((dx + 1) + 3 * (dy + 1) + 9 * (dz + 1))] =
-              detail::cell_points(g, table, c[0] + dx, c[1] + dy, c[2] + dz);
+          block[static_cast<std::size_t>((dx + 1) + 3 * (dy + 1) + 9 * (dz + 1))] = padded_run(c[0] + dx, c[1] + dy, c[2] + dz);
         }
       }
     }
@@ -348,10 +413,7 @@ HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const std::vector<std
       for (std::size_t cls = 0; cls < 3 && cnt < need_count; ++cls) {
         for (std::size_t r = 0; r < reach[cls] && cnt < need_count; ++r) {
           const auto& bl = block[by_class[cls][r]];
-          for (std::uint32_t b = bl.first; b < bl.second; ++b) {
-            const float dx = g.x[b] - pt[0], dy = g.y[b] - pt[1], dz = g.z[b] - pt[2];
-            cnt += dx * dx + dy * dy + dz * dz <= cert2 ? 1u : 0u;
-          }
+          cnt += count_within(pc, bl.first, bl.second, pt, cert2);
         }
       }
       certified[a] = cnt >= need_count ? 1 : 0;
@@ -837,12 +899,15 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   }
   std::vector<std::uint8_t> certified(g.original.size(), judging ? 1 : 0);
   for (std::size_t s = 0; judging && s < certified.size(); ++s) certified[s] = judged[g.original[s]] ? 0 : 1;
-  if (!judging) run_parallel(cells > 64 ? kSearchThreads : 1, [&](int t) {
-    const int th = cells > 64 ? kSearchThreads : 1;
-    const std::size_t cb = cells * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
-    const std::size_t ce = cells * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
-    certify_by_counting(g, d.queries().lower_table(), cert2, need_count, cb, ce, certified.data());
-  });
+  if (!judging) {
+    const PaddedCells padded(g);
+    run_parallel(cells > 64 ? kSearchThreads : 1, [&](int t) {
+      const int th = cells > 64 ? kSearchThreads : 1;
+      const std::size_t cb = cells * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
+      const std::size_t ce = cells * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
+      certify_by_counting(g, padded, d.queries().lower_table(), cert2, need_count, cb, ce, certified.data());
+    });
+  }
   std::vector<std::uint32_t> uncertain;
   std::size_t n_certified = g.zero.size();
   for (std::size_t s = 0; s < certified.size(); ++s) {
