@@ -1313,7 +1313,7 @@ struct Taken {
 // clusters left out, so each point once. Reads, on two threads, the spills of the tiles whose
 // interior a ball of `now` meets; each tile's records are tested against the balls that meet
 // its interior only, and only on the nodes those balls' xy boxes cover (a table of the
-// interior's nodes, a byte each: 256 KiB for 512-node tiles, per thread). Memory: the points
+// interior's nodes, a bit each: 32 KiB for 512-node tiles, per thread). Memory: the points
 // taken (48 bytes each). `sums`: robust_spill_points_scanned grows by the records read.
 // @throws InputError naming a spill file that cannot be read.
 void gather_owned(const Plan& plan, const Spill& spill, const BallSet& now, const BallSet& before, std::vector<Taken>& taken,
@@ -1364,28 +1364,33 @@ void gather_owned(const Plan& plan, const Spill& spill, const BallSet& now, cons
           --at(r1 + 1, c0);
           ++at(r1 + 1, c1 + 1);
         }
-        std::vector<std::uint8_t> hit(rows * cols, 0);
+        // A bit per node (32 KiB for 512-node tiles: the table stays in L1 while the records
+        // come in file order, which jumps about the tile).
+        std::vector<std::uint64_t> hit((rows * cols + 63) / 64, 0);
         std::vector<std::int32_t> column(cols + 1, 0);  // the running sums down each column
         for (std::size_t r = 0; r < rows; ++r) {
           std::int32_t across = 0;
           for (std::size_t c = 0; c < cols; ++c) {
             column[c] += diff[r * (cols + 1) + c];
             across += column[c];
-            hit[r * cols + c] = across > 0 ? 1 : 0;
+            if (across > 0) hit[(r * cols + c) >> 6] |= std::uint64_t{1} << ((r * cols + c) & 63);
           }
         }
         std::vector<std::int32_t>().swap(diff);
         std::uint64_t rec = 0;
-        double p[3];
-        float v = 0.0f;
         auto& out = part[static_cast<std::size_t>(th)];
         spill.scan_records(u, [&](const char* record) {
           const std::uint64_t r = rec++;
           if ((static_cast<std::uint8_t>(record[0]) & kFarFlag) != 0) return;
-          (void)lay.get(record + 1, p, v);
-          const int nr = node.row(p), nc = node.col(p);
-          if (nr < in[0] || nr >= in[1] || nc < in[2] || nc >= in[3]) return;  // another tile owns it
-          if (!hit[static_cast<std::size_t>(nr - in[0]) * cols + static_cast<std::size_t>(nc - in[2])]) return;
+          double p[3];
+          lay.xyz(record + 1, p);
+          // The node's place in the interior (unsigned: a node before its first row or column
+          // wraps past the end); another tile owns a point outside it.
+          const auto nr = static_cast<std::size_t>(static_cast<unsigned>(node.row(p) - in[0]));
+          const auto nc = static_cast<std::size_t>(static_cast<unsigned>(node.col(p) - in[2]));
+          if (nr >= rows || nc >= cols) return;
+          const std::size_t at = nr * cols + nc;
+          if (((hit[at >> 6] >> (at & 63)) & 1U) == 0) return;
           if (!set.contains(p) || before.contains(p)) return;
           out.push_back({static_cast<std::uint32_t>(u), static_cast<std::uint32_t>(r), {p[0], p[1], p[2]}});
         });
