@@ -66,31 +66,36 @@ struct FileProbe {
   bool streamed = false, rgb = false, intensity = false, float32 = false;
 };
 
-// Probes kept for the process, by the file's identity (device, inode, size, modification time):
-// every pass of a tiled run opens the files again, and a probe can cost a pass of its own (a
-// LAS file's colour depth, a text file's line count).
+// Probes kept for the process, by the file's identity (device, inode, size, modification time)
+// and the load options it was opened with (input.las.drop_classes and input.as_points change
+// what a file gives: a LAS file read whole counts the points left after the dropped classes, a
+// mesh read as points streams): every pass of a tiled run opens the files again, and a probe can
+// cost a pass of its own (a LAS file's colour depth, a text file's line count).
+using ProbeKey = std::pair<std::array<std::int64_t, 5>, std::string>;
 struct ProbeCache {
   std::mutex mutex;
-  std::map<std::array<std::int64_t, 5>, FileProbe> probes;
+  std::map<ProbeKey, FileProbe> probes;
 };
 ProbeCache& probe_cache() {
   static ProbeCache cache;
   return cache;
 }
-// The probe kept for f, if any; `key` gets f's identity (all 0 when f cannot be stat'ed: then
-// nothing is kept for it).
-std::optional<FileProbe> recall_probe(const std::filesystem::path& f, std::array<std::int64_t, 5>& key) {
+// The probe kept for f opened with `options`, if any; `key` gets f's identity and the options
+// (an empty identity when f cannot be stat'ed: then nothing is kept for it).
+std::optional<FileProbe> recall_probe(const std::filesystem::path& f, const LoadOptions& options, ProbeKey& key) {
   struct stat st {};
   if (::stat(f.c_str(), &st) != 0) return std::nullopt;
-  key = {static_cast<std::int64_t>(st.st_dev), static_cast<std::int64_t>(st.st_ino), static_cast<std::int64_t>(st.st_size),
-         static_cast<std::int64_t>(st.st_mtim.tv_sec), static_cast<std::int64_t>(st.st_mtim.tv_nsec)};
+  key.first = {static_cast<std::int64_t>(st.st_dev), static_cast<std::int64_t>(st.st_ino), static_cast<std::int64_t>(st.st_size),
+               static_cast<std::int64_t>(st.st_mtim.tv_sec), static_cast<std::int64_t>(st.st_mtim.tv_nsec)};
+  key.second = options.as_points ? "points;" : "as read;";
+  for (const int c : options.las_drop_classes) key.second += std::to_string(c) + ",";
   ProbeCache& c = probe_cache();
   const std::lock_guard<std::mutex> lock(c.mutex);
   const auto it = c.probes.find(key);
   return it == c.probes.end() ? std::nullopt : std::optional<FileProbe>(it->second);
 }
-void remember_probe(const std::array<std::int64_t, 5>& key, const FileProbe& p) {
-  if (key == std::array<std::int64_t, 5>{}) return;
+void remember_probe(const ProbeKey& key, const FileProbe& p) {
+  if (key.first == std::array<std::int64_t, 5>{}) return;
   ProbeCache& c = probe_cache();
   const std::lock_guard<std::mutex> lock(c.mutex);
   if (c.probes.size() >= 4096) c.probes.clear();  // bounded: a few hundred bytes an entry
@@ -105,8 +110,8 @@ class FilesStream final : public PointStream {
     bool any_rgb = false, any_intensity = false;
     std::string no_rgb, no_intensity;  // the first file without each
     for (const auto& f : files_) {
-      std::array<std::int64_t, 5> key{};
-      std::optional<FileProbe> p = recall_probe(f, key);
+      ProbeKey key{};
+      std::optional<FileProbe> p = recall_probe(f, options_, key);
       if (!p) {
         const auto s = open_point_stream(f, options_);
         Cloud c;

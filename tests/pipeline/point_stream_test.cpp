@@ -269,6 +269,45 @@ TEST(PointStream, LasChunkOfOneDropsAndTruncationBehaveAsTheWholeRead) {
   EXPECT_EQ(hc::test::error_of([&] { hc::pipeline::open_point_stream(dir / "w.las"); }), truncated);
 }
 
+// Files opened together (open_point_streams) are probed once a process and the probe kept by
+// the file's identity and the load options: a LAS file under gzip is read whole, and its point
+// count is what input.las.drop_classes leaves. Half of a generated LAS file's points are turned
+// to class 7 (low noise): opened with the default options, then keeping every class, then with
+// the defaults again, each time the count load_cloud gives with those options (the oracle). Until
+// 2026-11-27 the probe was kept by the file alone, and the second opening gave the first's count.
+TEST(PointStream, FilesOpenedTogetherCountWhatTheirOwnLoadOptionsKeep) {
+  const fs::path dir = hc::test::temp_dir("probe_options");
+  hc::tools::ReliefSpec spec;
+  spec.points = 3000;
+  hc::tools::write_relief(spec, dir / "w.las");
+  std::string las = hc::test::read_bytes(dir / "w.las");
+  // LAS 1.2 header: offset to the point records (uint32 at byte 96), record length (uint16 at
+  // 105); point format 0: classification in the low 5 bits of byte 15 of a record.
+  std::uint32_t first = 0;
+  std::uint16_t length = 0;
+  std::memcpy(&first, las.data() + 96, 4);
+  std::memcpy(&length, las.data() + 105, 2);
+  ASSERT_EQ(las.size(), first + 3000U * length);
+  for (std::size_t i = 0; i < 3000; i += 2) las[first + i * length + 15] = static_cast<char>(7);
+  hc::test::write_gzip(dir / "w.las.gz", las);
+  hc::tools::ReliefSpec other = spec;
+  other.seed = 2;
+  hc::tools::write_relief(other, dir / "other.las");
+  const std::vector<fs::path> files = {dir / "w.las.gz", dir / "other.las"};
+  hc::pipeline::LoadOptions defaults, keep_all;
+  keep_all.las_drop_classes.clear();
+  for (const auto* o : {&defaults, &keep_all, &defaults}) {
+    const std::uint64_t expected = hc::pipeline::load_cloud(files[0], *o).value.size() + hc::pipeline::load_cloud(files[1], *o).value.size();
+    auto s = hc::pipeline::open_point_streams(files, *o);
+    EXPECT_EQ(s->total_points(), expected) << (o == &keep_all ? "every class kept" : "classes 7 and 18 dropped");
+    std::uint64_t got = 0;
+    Cloud c;
+    while (s->next(c, 1000)) got += c.size();
+    EXPECT_EQ(got, expected);
+  }
+  EXPECT_EQ(hc::pipeline::load_cloud(files[0], defaults).value.size(), 1500U);
+}
+
 // LAZ, decompressed chunk by chunk: the real samples (point-wise chunked, and a layered COPC
 // file with colour) give load_cloud's points, colour, intensity, CRS and notes in any chunking.
 TEST(PointStream, LazStreamsTheSamePointsAsTheWholeReadInAnyChunking) {
