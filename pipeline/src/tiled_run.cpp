@@ -1453,10 +1453,12 @@ double past_box_m(const Ball& b, const std::array<double, 4>& box) {
 // times; a gathering of fewer than k + 2 points (a stray in a cluster of k + 1) is gathered again
 // with every ball twice as wide. Each look's stray_verdict gets the verdicts (a stray two tiles'
 // windows hold is judged once). The balls of a tile's strays may reach at most kMaxWidenedTiles
-// tiles past its window, those of a later gathering as far past the window of the tile that owns
-// their centre: else InputError (throw_too_far), naming the stage, the tile and the keys. Adds
+// tiles past its window, those of a later gathering (a second look's, or grown) as far past the
+// window of the tile that owns their centre: else InputError (throw_too_far), naming the stage,
+// the tile and the keys (a grown ball unbounded would gather all the scan within its reach). Adds
 // to the looks' sums: robust_windows_widened and robust_widened_cells (per tile, its first-look
-// balls); to `sums` (the band's): robust_gatherings, robust_points_gathered,
+// balls); to `sums` (the band's): robust_gatherings, robust_balls_grown (the gatherings of fewer
+// than k + 2 points), robust_points_gathered,
 // robust_spill_points_scanned, robust_gather_s and robust_judge_again_s.
 void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill, const std::vector<std::size_t>& band,
                   std::vector<TileLook>& looks, std::map<std::string, double>& sums) {
@@ -1495,6 +1497,16 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
   for (const TileLook& L : looks) {
     for (const auto& p : L.strays_m) wanted.insert(bits_of(p.data()));
   }
+  // A later ball (a second look's, or a ball grown for a gathering of too few points), padded:
+  // within the limit past the window of the tile that owns its centre, else throw_too_far
+  // naming that tile and `n` points.
+  const auto check_later_ball = [&](const Ball& p, std::size_t n) {
+    const double c[3] = {p[0], p[1], p[2]};
+    const std::size_t owner = static_cast<std::size_t>(node.row(c) / tiles.size) * static_cast<std::size_t>(tiles.tiles_c) +
+                              static_cast<std::size_t>(node.col(c) / tiles.size);
+    const double past_m = past_box_m(p, tiles.box_m(tiles.window(owner)));
+    if (std::ceil(past_m / tiles.g.cell_size_m) > limit) throw_too_far(tiles, owner, n, past_m, halo_now);
+  };
   std::string with_strays;  // the tiles with strays, for the errors
   for (std::size_t i = 0; i < band.size(); ++i) {
     if (!looks[i].rv.past_halo.empty()) with_strays += (with_strays.empty() ? "" : ", ") + std::to_string(band[i]);
@@ -1519,8 +1531,10 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
     sums["robust_gatherings"] += 1.0;
     sums["robust_points_gathered"] += static_cast<double>(taken.size() - had);
     if (taken.size() < static_cast<std::size_t>(oc.k) + 2) {
+      sums["robust_balls_grown"] += 1.0;
       for (Ball b : balls) {
         b[3] = 2.0 * b[3] + tiles.g.cell_size_m;
+        check_later_ball(b, strays);
         fresh.push_back(b);
       }
       sums["robust_gather_s"] += detail::seconds_since(t_gather);
@@ -1569,11 +1583,7 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
     asked.insert(asked.end(), wv.reach_m.begin(), wv.reach_m.end());
     for (const Ball& b : wv.reach_m) {
       const Ball p = padded(b, coord_m);
-      const double c[3] = {b[0], b[1], b[2]};
-      const std::size_t owner = static_cast<std::size_t>(node.row(c) / tiles.size) * static_cast<std::size_t>(tiles.tiles_c) +
-                                static_cast<std::size_t>(node.col(c) / tiles.size);
-      const double past_m = past_box_m(p, tiles.box_m(tiles.window(owner)));
-      if (std::ceil(past_m / tiles.g.cell_size_m) > limit) throw_too_far(tiles, owner, wv.past_halo.size(), past_m, halo_now);
+      check_later_ball(p, wv.past_halo.size());
       fresh.push_back(p);
     }
   }

@@ -675,6 +675,74 @@ TEST(TiledRun, StraysOfTwoTilesAreJudgedInOneGatheringAsInCore) {
   EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "no spill is left behind";
 }
 
+// A stray whose balls hold fewer than k + 2 points of the scan: a blob of k + 1 = 17 points well
+// above the patch (scattered: the global test removes them in core), astride the edge between
+// tile columns 1 and 2, whose k-NN balls reach past the window but not down to the patch. The
+// gathering holds the blob alone, too few points for a k-NN test, so judge_strays gathers again
+// with every ball twice as wide and a cell more (sum_robust_balls_grown), reaching the patch.
+// Oracle: the in-core run's grid, bit for bit, and its removals. Mutation: judging the blob
+// alone throws (fewer than k + 2 points); not growing the balls gathers nothing more and stops
+// after 8 gatherings with an InputError.
+TEST(TiledRun, StraysWhoseBallsHoldTooFewPointsAreGatheredWithWiderBalls) {
+  const fs::path dir = hc::test::temp_dir("grown_balls");
+  const std::string yaml =
+      "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
+      "filters: {outliers: {despike: false}}\ncross_check: {isolation_radius_spacings: 2}\n"
+      "scale: {tile_cells: 40, filter_halo_cells: 5}\n";
+  write_patch_with(dir / "patch.ply", {});
+  hc::GridGeometry g;
+  double halo_m = 0.0, far_m = 0.0;  // the window's halo, and the far-cluster distance
+  {
+    RunConfig layout = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
+    layout.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+    layout.scale.scratch = dir;
+    const BuiltScene bare = hc::pipeline::build_scene(layout);
+    g = bare.scene.layers.depth.geometry();
+    halo_m = stage_figure(bare, "tile_plan", "halo_cells") * g.cell_size_m;
+    far_m = stage_figure(bare, "tile_far_clusters", "far_distance_mm") * 1e-3;
+  }
+  const double c = 0.495;  // the grid frame's origin in the file's frame (x and y)
+  ASSERT_NEAR(g.x_of_col(0) + c, 0.0, 1e-9);
+  // The blob: 17 points on a sphere of radius r (a Fibonacci lattice), its centre 5 mm inside
+  // the right edge of tile column 1's interior (node columns 40..79); its points' k-th
+  // distances (up to 2r) reach past the window (halo_m beyond that edge) and stay above the
+  // patch (the blob's lowest point 1.2 · 2r above it).
+  const double x_edge = g.x_of_col(79.5) + c, r = 0.5 * (halo_m + 0.02), h = 3.5 * r + 0.01;
+  std::vector<std::array<double, 3>> blob;
+  for (int i = 0; i < 17; ++i) {
+    const double zf = 1.0 - 2.0 * (i + 0.5) / 17.0, phi = 2.399963229728653 * i, rho = std::sqrt(1.0 - zf * zf);
+    blob.push_back({x_edge - 0.005 + r * rho * std::cos(phi), 0.5 + r * rho * std::sin(phi), h + r * zf});
+  }
+  write_patch_with(dir / "patch.ply", blob);
+  auto [config, in, tiled] = in_core_and_tiled(dir, yaml, 40);
+  ASSERT_EQ(in.scene.layers.depth.geometry(), g) << "the blob left the layout as it was";
+  EXPECT_EQ(stage_figure(in, "outliers", "removed_robust"), 17.0) << "in core, the blob is removed";
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_points_judged_past_halo"), 1.0);
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_balls_grown"), 1.0);
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_robust_gatherings"), 2.0);
+  // The points removed, over the input (the honest check's count; a window counts its halo's too).
+  EXPECT_EQ(stage_figure(tiled, "honest_check", "input_removed_fraction"), stage_figure(in, "honest_check", "input_removed_fraction"));
+  EXPECT_GT(stage_figure(in, "honest_check", "input_removed_fraction"), 0.0);
+  EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
+  EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "no spill is left behind";
+  // The same blob just nearer the patch than the far-cluster distance (so that it reaches the
+  // robust test), in tiles of 20 cells: the balls grown until they would reach the patch (over
+  // 0.4 m) pass the limit first (kMaxWidenedTiles = 2 tiles, 40 cells, about 0.2 m past the
+  // window; the first look's balls stay under 0.1 m), and the run stops with the stage, the tile
+  // and the keys named, as for a first look's balls. Mutation: without the check on grown
+  // balls the run gathers the patch and ends without an error.
+  for (auto& p : blob) p[2] += far_m - r - 0.02 - h;
+  ASSERT_GT(far_m - 2.0 * r - 0.02, 0.4);
+  write_patch_with(dir / "patch.ply", blob);
+  config.scale.tile_cells = 20;
+  const std::string what = error_of<hc::InputError>(config);
+  for (const char* part : {"stage outliers (filters.outliers, robust)", "past the tile's window (the limit is 40 cells, 2 tiles)",
+                           "scale.filter_halo_cells (now 5)", "filters.crop", "scale.tiled: off"}) {
+    EXPECT_NE(what.find(part), std::string::npos) << part << " in: " << what;
+  }
+  EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "the spill folder is removed on the error";
+}
+
 // A full disk, simulated with RLIMIT_FSIZE (a write that would make a file larger than the limit
 // fails with EFBIG and raises SIGXFSZ; the limit is this test process's alone, as ctest runs each
 // test in a process of its own).
