@@ -58,15 +58,24 @@ struct CellGrid {
 /// (plus 4096): callers then use CellGrid::lower (a binary search). 4 bytes per entry.
 std::vector<std::uint32_t> dense_lower_table(const CellGrid& g);
 
-/// Sorted-position range [first, last) of the points of the cell at integer coordinates
-/// (ix, iy, iz) of `g`; empty when the cell lies outside the grid or holds no point. `table` is
-/// g's dense_lower_table: O(1), or a binary search when it is empty.
-inline std::pair<std::uint32_t, std::uint32_t> cell_points(const CellGrid& g, const std::vector<std::uint32_t>& table,
-                                                           std::int64_t ix, std::int64_t iy, std::int64_t iz) {
-  if (ix < 0 || iy < 0 || iz < 0 || ix >= g.n[0] || iy >= g.n[1] || iz >= g.n[2]) return {0, 0};
+/// The number (0 .. cells() − 1) of the occupied cell at integer coordinates (ix, iy, iz) of
+/// `g`, or g.cells() when the cell lies outside the grid or holds no point. `table` is g's
+/// dense_lower_table: O(1), or a binary search when it is empty.
+inline std::size_t occupied_cell(const CellGrid& g, const std::vector<std::uint32_t>& table, std::int64_t ix, std::int64_t iy,
+                                 std::int64_t iz) {
+  if (ix < 0 || iy < 0 || iz < 0 || ix >= g.n[0] || iy >= g.n[1] || iz >= g.n[2]) return g.cells();
   const std::uint64_t key = g.key(ix, iy, iz);
   const std::size_t c = table.empty() ? g.lower(key) : table[static_cast<std::size_t>(key)];
-  if (c >= g.cells() || g.cell_key[c] != key) return {0, 0};
+  return c < g.cells() && g.cell_key[c] == key ? c : g.cells();
+}
+
+/// Sorted-position range [first, last) of the points of the cell at integer coordinates
+/// (ix, iy, iz) of `g`; empty when the cell lies outside the grid or holds no point
+/// (occupied_cell).
+inline std::pair<std::uint32_t, std::uint32_t> cell_points(const CellGrid& g, const std::vector<std::uint32_t>& table,
+                                                           std::int64_t ix, std::int64_t iy, std::int64_t iz) {
+  const std::size_t c = occupied_cell(g, table, ix, iy, iz);
+  if (c == g.cells()) return {0, 0};
   return {g.cell_start[c], g.cell_start[c + 1]};
 }
 

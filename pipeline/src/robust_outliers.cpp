@@ -274,16 +274,18 @@ class ExactDistances {
 // sentinels (+inf on every axis: the squared distance to any point is +inf or NaN, never within
 // a bound), for the counting pass's loops: whole vectors, no scalar remainder (on the 10^8-point
 // wall a point's cell holds about 24 points, and the remainder took about as long as the vectors).
-constexpr std::uint32_t kLanes = 8;
+// Memory while the counting pass runs: 12 bytes a point and at most 92 a cell (7 sentinels and
+// the start), on top of the grid.
+constexpr std::size_t kLanes = 8;
 constexpr float kFar = std::numeric_limits<float>::infinity();
 struct PaddedCells {
   std::vector<float> x, y, z;
-  std::vector<std::uint32_t> start;  // cell c's run: [start[c], start[c + 1]); size cells + 1
+  std::vector<std::size_t> start;  // cell c's run: [start[c], start[c + 1]); size cells + 1
 
   // Two threads above 2^17 points.
   explicit PaddedCells(const CellGrid& g) : start(g.cells() + 1, 0) {
     for (std::size_t c = 0; c < g.cells(); ++c) {
-      const std::uint32_t len = g.cell_start[c + 1] - g.cell_start[c];
+      const std::size_t len = g.cell_start[c + 1] - g.cell_start[c];
       start[c + 1] = start[c] + (len + kLanes - 1) / kLanes * kLanes;
     }
     x.resize(start.back());
@@ -293,7 +295,7 @@ struct PaddedCells {
     run_parallel(th, [&](int t) {
       const auto [cb, ce] = detail::share_of(g.cells(), t, th);
       for (std::size_t c = cb; c < ce; ++c) {
-        const std::uint32_t pb = g.cell_start[c], len = g.cell_start[c + 1] - pb, q = start[c], qe = start[c + 1];
+        const std::size_t pb = g.cell_start[c], len = g.cell_start[c + 1] - pb, q = start[c], qe = start[c + 1];
         std::copy_n(g.x.begin() + pb, len, x.begin() + q);
         std::copy_n(g.y.begin() + pb, len, y.begin() + q);
         std::copy_n(g.z.begin() + pb, len, z.begin() + q);
@@ -313,10 +315,10 @@ typedef std::int32_t Lanes8i __attribute__((vector_size(32)));
 // How many of the padded points [qb, qe) (a whole number of kLanes) lie within squared
 // distance cert2 of pt (the same float arithmetic as a scalar loop: dx² + dy² + dz², in that
 // order, compared with cert2). Inlined into its callers' clones.
-inline std::uint32_t count_within(const PaddedCells& pc, std::uint32_t qb, std::uint32_t qe, const float* pt, float cert2) {
+inline std::uint32_t count_within(const PaddedCells& pc, std::size_t qb, std::size_t qe, const float* pt, float cert2) {
   static_assert(kLanes == 8, "Lanes8f holds kLanes floats");
   Lanes8i acc{};
-  for (std::uint32_t b = qb; b < qe; b += kLanes) {
+  for (std::size_t b = qb; b < qe; b += kLanes) {
     Lanes8f x, y, z;
     std::memcpy(&x, pc.x.data() + b, sizeof x);
     std::memcpy(&y, pc.y.data() + b, sizeof y);
@@ -325,7 +327,7 @@ inline std::uint32_t count_within(const PaddedCells& pc, std::uint32_t qb, std::
     acc += dx * dx + dy * dy + dz * dz <= cert2;  // −1 where within, 0 elsewhere
   }
   std::int32_t cnt = 0;
-  for (std::uint32_t l = 0; l < kLanes; ++l) cnt -= acc[l];
+  for (std::size_t l = 0; l < kLanes; ++l) cnt -= acc[l];
   return static_cast<std::uint32_t>(cnt);
 }
 
@@ -338,21 +340,19 @@ inline std::uint32_t count_within(const PaddedCells& pc, std::uint32_t qb, std::
 HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const PaddedCells& pc, const std::vector<std::uint32_t>& table, float cert2,
                                         std::uint32_t need_count, std::size_t cb, std::size_t ce, std::uint8_t* certified) {
   // The 3×3×3 block's padded point ranges, by (dx + 1) + 3 (dy + 1) + 9 (dz + 1).
-  std::array<std::pair<std::uint32_t, std::uint32_t>, 27> block{};
+  std::array<std::pair<std::size_t, std::size_t>, 27> block{};
   std::array<std::array<std::uint8_t, 12>, 3> by_class{};  // blocks within reach: faces, edges, corners
   std::vector<std::uint32_t> own;
   const auto edge = static_cast<float>(g.cell);
   // Cell (ix, iy, iz)'s padded range, empty outside the grid or for an empty cell.
-  const auto padded_run = [&](std::int64_t ix, std::int64_t iy, std::int64_t iz) -> std::pair<std::uint32_t, std::uint32_t> {
-    if (ix < 0 || iy < 0 || iz < 0 || ix >= g.n[0] || iy >= g.n[1] || iz >= g.n[2]) return {0, 0};
-    const std::uint64_t key = g.key(ix, iy, iz);
-    const std::size_t c = table.empty() ? g.lower(key) : table[static_cast<std::size_t>(key)];
-    if (c >= g.cells() || g.cell_key[c] != key) return {0, 0};
+  const auto padded_run = [&](std::int64_t ix, std::int64_t iy, std::int64_t iz) -> std::pair<std::size_t, std::size_t> {
+    const std::size_t c = detail::occupied_cell(g, table, ix, iy, iz);
+    if (c == g.cells()) return {0, 0};
     return {pc.start[c], pc.start[c + 1]};
   };
   for (std::size_t ci = cb; ci < ce; ++ci) {
     const std::uint32_t pb = g.cell_start[ci], pe = g.cell_start[ci + 1];
-    const std::uint32_t qb = pc.start[ci], qe = pc.start[ci + 1];
+    const std::size_t qb = pc.start[ci], qe = pc.start[ci + 1];
     own.assign(pe - pb, 0);
     bool all = true;
     for (std::uint32_t a = pb; a < pe; ++a) {
