@@ -36,7 +36,11 @@ FarCells::FarCells(const Eigen::Vector3d& origin_m, double edge_m, std::uint64_t
 std::uint64_t FarCells::key(const double* p) const {
   std::int64_t c[3];
   for (int a = 0; a < 3; ++a) {
-    c[a] = std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor((p[a] - origin_[a]) * inv_)), 0, kMax);
+    // ⌊f⌋ clamped to [0, kMax], without std::floor (a library call on the baseline x86-64
+    // target, three a point here): below 0 (or NaN) 0, from kMax on kMax, else the truncation,
+    // which is the floor of a value ≥ 0.
+    const double f = (p[a] - origin_[a]) * inv_;
+    c[a] = !(f >= 0.0) ? 0 : f >= static_cast<double>(kMax) ? kMax : static_cast<std::int64_t>(f);
   }
   return pack(c[0], c[1], c[2]);
 }
