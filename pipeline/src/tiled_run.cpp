@@ -1259,8 +1259,8 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
   Cloud pts = read_tile_points(plan, spill, t, flags);
   look.points = pts.size();
   check_window_records(t, flags.size());
-  if (pts.size() < static_cast<std::size_t>(oc.k) + 2) return look;
   lap("look_read");
+  if (pts.size() < static_cast<std::size_t>(oc.k) + 2) return look;
   const RobustOutlierOptions ropt = tile_robust_options(config, plan, t);
   auto f1 = remove_robust_outliers(std::move(pts), ropt, &look.rv);
   look.ran = true;
@@ -1307,6 +1307,7 @@ struct Taken {
   std::array<double, 3> xyz{};
   bool operator<(const Taken& o) const { return tile != o.tile ? tile < o.tile : rec < o.rec; }
 };
+static_assert(sizeof(Taken) == 32, "gather_owned's memory figure counts 32 bytes a point taken");
 
 // Adds to `taken` the points of the scan inside `now` and inside no ball of `before`: each
 // from the spill of the tile that owns it (its node in the tile's interior: NodeBinner), far
@@ -1314,7 +1315,7 @@ struct Taken {
 // interior a ball of `now` meets; each tile's records are tested against the balls that meet
 // its interior only, and only on the nodes those balls' xy boxes cover (a table of the
 // interior's nodes, a bit each: 32 KiB for 512-node tiles, per thread). Memory: the points
-// taken (48 bytes each). `sums`: robust_spill_points_scanned grows by the records read.
+// taken (32 bytes each: Taken). `sums`: robust_spill_points_scanned grows by the records read.
 // @throws InputError naming a spill file that cannot be read.
 void gather_owned(const Plan& plan, const Spill& spill, const BallSet& now, const BallSet& before, std::vector<Taken>& taken,
                   std::map<std::string, double>& sums) {
