@@ -388,7 +388,7 @@ TEST(ServoLoop, ThreadedLoopRunsAndStops) {
 }
 
 /// Runs a threaded loop at `rate_hz`, publishes a surface (tag 7) just after the second tick,
-/// and returns the trace up to one tick after the surface was adopted.
+/// and returns the trace up to at least one tick after the surface was adopted.
 std::vector<TickRecord> publish_between_ticks(double rate_hz, double wake_min_period, ServoStats& stats) {
   ThreadedRig rig(50, rate_hz);
   rig.cfg.wake_on_surface_min_period = wake_min_period;
@@ -399,8 +399,10 @@ std::vector<TickRecord> publish_between_ticks(double rate_hz, double wake_min_pe
   wait_until([&] { return rig.shared.counters.ticks.load() >= 2; });
   rig.shared.publish_surface(sinusoid_surface(50), rig.cfg.workspace, 7);
   wait_until([&] { return rig.shared.counters.surface_tag.load() == 7; });
+  // The adopting tick stores the tag before it counts itself, so `ticks` read here may not yet
+  // include it: two more counted ticks guarantee the row after the adopting one is in the trace.
   const std::uint64_t adopted_at = rig.shared.counters.ticks.load();
-  wait_until([&] { return rig.shared.counters.ticks.load() >= adopted_at + 1; });
+  wait_until([&] { return rig.shared.counters.ticks.load() >= adopted_at + 2; });
   loop.stop();
   stats = loop.stats();
   trace.resize(loop.trace_size());
