@@ -13,6 +13,7 @@
 #include "readers/byte_source.hpp"
 #include "readers/readers.hpp"
 #include "run_internal.hpp"
+#include "inline_bilinear.hpp"
 #include "stage_util.hpp"
 
 #include "hc/common/bilinear_surface.hpp"
@@ -2875,7 +2876,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       cc.hidden_band_m = config.cross_check.hidden_band_m;
       cc.cell_error_m = HeightField(tiles.g);
       cc.cell_error_m.model_to_grid = model_to_grid;
-      const BilinearSurface surface(HeightFieldView::of(grid.depth));
+      const detail::InlineResidual residual_at(HeightFieldView::of(grid.depth));  // point_residual, inline
       RadixPercentiles vertical, normal;
       std::vector<std::uint8_t> flag;
       // Samples whose nearest point may lie beyond their tile's halo (judged on the tile's
@@ -2887,6 +2888,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       };
       std::vector<Far> unverified;
       std::size_t researched = 0, improved = 0;
+      std::size_t by_corners = 0, by_scan = 0, by_buckets = 0;  // cell_errors_in_block's counts
       // Freed heap back past a window's worth before a tile's points are read (TileHeapBudget).
       detail::TileHeapBudget heap(window_heap_budget(spill, tiles.count()));
       auto research = [&](std::vector<Far>& far) {
@@ -2938,7 +2940,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
           const double* p = pts.xyz.data() + 3 * i;
           if (keep_sample) sample_point(p);
-          const PointResidual pr = point_residual(surface, tiles.g, p[0], p[1], p[2], cc.hidden_band_m);
+          const PointResidual pr = residual_at(p[0], p[1], p[2], cc.hidden_band_m);
           switch (pr.kind) {
             case PointResidual::kOutside: ++cc.points_outside; break;
             case PointResidual::kOffSurface: ++cc.points_off_surface; break;
@@ -2972,14 +2974,20 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
               valid += std::isnan(crop.at(rr, c)) ? 0U : 1U;
             }
           if (valid == 0 || w.rows < 2 || w.cols < 2) continue;
-          const CrossCheck part = detail::cross_check_cell_errors(pts, crop, cc.tolerance_m, cc.hidden_band_m).value;
+          // The interior's samples only (the window's others are other tiles' interiors).
+          const detail::CellErrorsInBlock part = detail::cell_errors_in_block(
+              pts, crop, {in[0] - w.row0, in[1] - w.row0, in[2] - w.col0, in[3] - w.col0}, cc.tolerance_m, cc.hidden_band_m);
+          by_corners += part.by_corners;
+          by_scan += part.by_scan;
+          by_buckets += part.by_buckets;
           // A point outside the window has its node outside it: at least (index distance −
           // 1/2) cells from the query in x-y. A distance beyond that margin is re-searched
           // over every tile's points below.
           const double cell = tiles.g.cell_size_m;
+          const auto in_cols = static_cast<std::size_t>(in[3] - in[2]);
           for (int rr = in[0]; rr < in[1]; ++rr) {
             for (int c = in[2]; c < in[3]; ++c) {
-              const float d = part.cell_error_m.at(rr - w.row0, c - w.col0);
+              const float d = part.error_m[static_cast<std::size_t>(rr - in[0]) * in_cols + static_cast<std::size_t>(c - in[2])];
               cc.cell_error_m.at(rr, c) = d;
               if (std::isnan(d)) continue;
               int edge = std::numeric_limits<int>::max();
@@ -3039,6 +3047,9 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       r.report.figure("supported_fraction", cc.supported_fraction);
       r.report.figure("samples_researched_across_tiles", static_cast<double>(researched));
       r.report.figure("samples_nearer_in_another_tile", static_cast<double>(improved));
+      r.report.figure("samples_settled_by_their_cells", static_cast<double>(by_corners));
+      r.report.figure("samples_settled_by_a_scan_of_the_window", static_cast<double>(by_scan));
+      r.report.figure("samples_settled_by_a_bucket_search", static_cast<double>(by_buckets));
       r.report.notes.push_back("merged over " + std::to_string(tiles.count()) +
                                " tiles: (a) per interior point on the whole grid (exact percentiles by radix selection), "
                                "(b) per interior cell against its tile's kept points, halo included");
