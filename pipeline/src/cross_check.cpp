@@ -50,14 +50,12 @@
 #include <nanoflann.hpp>
 
 #include <algorithm>
-#include <array>
 #include <chrono>
 #include <cmath>
 #include <exception>
 #include <limits>
 #include <memory>
 #include <sstream>
-#include <stdexcept>
 #include <thread>
 #include <utility>
 
@@ -223,22 +221,6 @@ constexpr double kFarRingCellBudget = 2e7;
 /// key of a non-finite point.
 constexpr std::uint32_t kSkip = std::numeric_limits<std::uint32_t>::max();
 
-/// The local frame's origin of the float coordinates (Run::centre): the grid's middle in x-y,
-/// the middle of its valid samples' height range in z. Shared by the bucket search and
-/// detail::cell_errors_in_block, whose distances must be the same floats.
-Eigen::Vector3d local_centre(const HeightField& grid) {
-  const GridGeometry& g = grid.geometry();
-  Eigen::Vector3d centre(g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)), 0.0);
-  float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
-  for (float v : grid.values()) {
-    if (std::isnan(v)) continue;
-    z_lo = std::min(z_lo, v);
-    z_hi = std::max(z_hi, v);
-  }
-  centre.z() = 0.5 * (static_cast<double>(z_lo) + static_cast<double>(z_hi));
-  return centre;
-}
-
 /// The inputs and the state shared by the phases of one cross_check run.
 struct Run {
   const Cloud& points_m;
@@ -311,7 +293,16 @@ void plan(Run& run) {
     msg << "cross_check: the " << g.cols << " x " << g.rows << " grid has no valid cell";
     throw InputError(msg.str());
   }
-  run.centre = local_centre(run.grid);
+  run.centre = Eigen::Vector3d(g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)), 0.0);
+  {
+    float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
+    for (float v : run.grid.values()) {
+      if (std::isnan(v)) continue;
+      z_lo = std::min(z_lo, v);
+      z_hi = std::max(z_hi, v);
+    }
+    run.centre.z() = 0.5 * (static_cast<double>(z_lo) + static_cast<double>(z_hi));
+  }
   std::size_t acc = 0;
   for (int r = 0; r < g.rows; ++r) {
     acc += valid_in_row[static_cast<std::size_t>(r)];
@@ -779,116 +770,6 @@ namespace detail {
 StageResult<CrossCheck> cross_check_cell_errors(const Cloud& points_m, const HeightField& grid, double tolerance_m,
                                                 double hidden_band_m) {
   return run_cross_check(points_m, grid, tolerance_m, hidden_band_m, false);
-}
-
-CellErrorsInBlock cell_errors_in_block(const Cloud& points_m, const HeightField& grid, std::array<int, 4> block,
-                                       double tolerance_m, double hidden_band_m) {
-  const GridGeometry& g = grid.geometry();
-  const int r0 = block[0], r1 = block[1], c0 = block[2], c1 = block[3];
-  if (!(0 <= r0 && r0 <= r1 && r1 <= g.rows && 0 <= c0 && c0 <= c1 && c1 <= g.cols)) {
-    throw std::invalid_argument("cell_errors_in_block: block outside the grid");
-  }
-  check_arguments(points_m, grid, tolerance_m, hidden_band_m);
-  CellErrorsInBlock out;
-  const int bw = c1 - c0, bh = r1 - r0;
-  const std::size_t cells = static_cast<std::size_t>(bw) * static_cast<std::size_t>(bh);
-  out.error_m.assign(cells, kNoData);
-  if (cells == 0) return out;
-  const Eigen::Vector3d centre = local_centre(grid);
-  // The samples' float coordinates as query_point gives them (columns, rows, and z per sample).
-  std::vector<float> qx(static_cast<std::size_t>(bw)), qy(static_cast<std::size_t>(bh)), qz(cells);
-  for (int c = c0; c < c1; ++c) qx[static_cast<std::size_t>(c - c0)] = static_cast<float>(g.x_of_col(c) - centre.x());
-  for (int r = r0; r < r1; ++r) qy[static_cast<std::size_t>(r - r0)] = static_cast<float>(g.y_of_row(r) - centre.y());
-  std::size_t valid = 0;
-  for (int r = r0; r < r1; ++r)
-    for (int c = c0; c < c1; ++c) {
-      const float z = grid.at(r, c);
-      const std::size_t k = static_cast<std::size_t>(r - r0) * static_cast<std::size_t>(bw) + static_cast<std::size_t>(c - c0);
-      qz[k] = static_cast<float>(static_cast<double>(z) - centre.z());  // NaN for no data
-      valid += std::isnan(z) ? 0U : 1U;
-    }
-  if (valid == 0) return out;
-  const float inf = std::numeric_limits<float>::infinity();
-  // (1) Each finite point offers itself to the four samples at the corners of its cell (cell
-  // (i, j) spans samples i..i+1, j..j+1), two halves of the points on two threads.
-  std::vector<float> best[2];
-  std::size_t finite[2] = {0, 0};
-  const double inv_cell = 1.0 / g.cell_size_m;
-  auto offer = [&](std::size_t begin, std::size_t end, std::vector<float>& b, std::size_t& finite_points) {
-    b.assign(cells, inf);
-    const double* p = points_m.xyz.data() + 3 * begin;
-    for (std::size_t i = begin; i < end; ++i, p += 3) {
-      if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
-      ++finite_points;
-      const double fc = detail::floor_of((p[0] - g.x0_m) * inv_cell), fr = detail::floor_of((p[1] - g.y0_m) * inv_cell);
-      // The corners c ∈ {fc, fc + 1}, r ∈ {fr, fr + 1} inside the block (also keeps the casts in range).
-      if (fc + 1.0 < c0 || fc >= c1 || fr + 1.0 < r0 || fr >= r1) continue;
-      const float px = static_cast<float>(p[0] - centre.x()), py = static_cast<float>(p[1] - centre.y()),
-                  pz = static_cast<float>(p[2] - centre.z());
-      const int ci = static_cast<int>(fc), ri = static_cast<int>(fr);
-      for (int r = std::max(ri, r0); r <= std::min(ri + 1, r1 - 1); ++r) {
-        const float dy = py - qy[static_cast<std::size_t>(r - r0)];
-        const std::size_t row = static_cast<std::size_t>(r - r0) * static_cast<std::size_t>(bw);
-        for (int c = std::max(ci, c0); c <= std::min(ci + 1, c1 - 1); ++c) {
-          const std::size_t k = row + static_cast<std::size_t>(c - c0);
-          const float dx = px - qx[static_cast<std::size_t>(c - c0)], dz = pz - qz[k];
-          b[k] = std::min(b[k], dx * dx + dy * dy + dz * dz);  // scan()'s arithmetic; NaN qz: no data, unused
-        }
-      }
-    }
-  };
-  const std::size_t n = points_m.size();
-  detail::run_two([&] { offer(n / 2, n, best[1], finite[1]); }, [&] { offer(0, n / 2, best[0], finite[0]); });
-  if (finite[0] + finite[1] == 0) {
-    std::ostringstream msg;
-    msg << "cross_check: none of the " << n << " points is finite";  // as bucket_offsets
-    throw InputError(msg.str());
-  }
-  // (2) A point outside a sample's four cells lies at least a cell from it in x-y (less the
-  // rounding of the cell index in double and of the float local coordinates, at most 2^-22 of
-  // the largest coordinate and of the cell): a nearest found within `settled` is the nearest.
-  const double extent = g.cell_size_m * (std::max(g.cols, g.rows) + 2) + std::abs(g.x0_m) + std::abs(g.y0_m) +
-                        centre.head<2>().cwiseAbs().sum();
-  const double reach = g.cell_size_m - 0x1p-20 * (extent + g.cell_size_m);
-  const float settled = static_cast<float>(reach > 0.0 ? reach * reach * (1.0 - 1e-5) : 0.0);
-  std::vector<std::size_t> open;
-  for (std::size_t k = 0; k < cells; ++k) {
-    if (std::isnan(qz[k])) continue;
-    const float b = std::min(best[0][k], best[1][k]);
-    best[0][k] = b;
-    if (b < settled) {
-      out.error_m[k] = static_cast<float>(std::sqrt(static_cast<double>(b)));
-    } else {
-      open.push_back(k);
-    }
-  }
-  out.by_corners = valid - open.size();
-  if (open.empty()) return out;
-  // (3) The rest: over every point (few samples: a filled hole, a depth step), else the bucket
-  // search of the whole grid; either gives the exact nearest, as the bucket search does.
-  if (static_cast<double>(open.size()) * static_cast<double>(n) <= kBruteForceBudget) {
-    out.by_scan = open.size();
-    for (const std::size_t k : open) {
-      const float q[3] = {qx[k % static_cast<std::size_t>(bw)], qy[k / static_cast<std::size_t>(bw)], qz[k]};
-      float b = best[0][k];
-      const double* p = points_m.xyz.data();
-      for (std::size_t i = 0; i < n; ++i, p += 3) {
-        if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) continue;
-        const float dx = static_cast<float>(p[0] - centre.x()) - q[0], dy = static_cast<float>(p[1] - centre.y()) - q[1],
-                    dz = static_cast<float>(p[2] - centre.z()) - q[2];
-        b = std::min(b, dx * dx + dy * dy + dz * dz);
-      }
-      out.error_m[k] = static_cast<float>(std::sqrt(static_cast<double>(b)));
-    }
-    return out;
-  }
-  out.by_buckets = open.size();
-  const CrossCheck all = cross_check_cell_errors(points_m, grid, tolerance_m, hidden_band_m).value;
-  for (const std::size_t k : open) {
-    out.error_m[k] = all.cell_error_m.at(r0 + static_cast<int>(k / static_cast<std::size_t>(bw)),
-                                         c0 + static_cast<int>(k % static_cast<std::size_t>(bw)));
-  }
-  return out;
 }
 
 }  // namespace detail

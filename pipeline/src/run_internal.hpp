@@ -13,7 +13,6 @@
 
 #include <Eigen/Geometry>
 
-#include <array>
 #include <cstddef>
 #include <string>
 #include <vector>
@@ -27,28 +26,6 @@ namespace hc::pipeline::detail {
 /// errors only. Arguments and errors as cross_check() (cross_check.hpp).
 StageResult<CrossCheck> cross_check_cell_errors(const Cloud& points_m, const HeightField& grid, double tolerance_m,
                                                 double hidden_band_m);
-
-/// The cell errors of cross_check_cell_errors (the distance [m] from each valid sample to its
-/// nearest finite point), for the samples of one block of `grid` only, bit for bit the same
-/// floats: the same local frame (local_centre), the same float arithmetic and the exact nearest.
-/// For the tiled run, which needs each window's interior only. Found from the points: each
-/// offers itself to the four samples at the corners of its cell, and a sample whose nearest
-/// so found is under a cell away (less rounding) has it, since every other point lies at least
-/// a cell away in x-y. The others (a filled hole, a depth step: 66 of 8.4 M samples on the
-/// 10^8-point wall at N = 4096) are found over every point when that costs at most
-/// kBruteForceBudget distances, else by cross_check_cell_errors over the whole grid.
-/// @param block  rows [block[0], block[1]) × columns [block[2], block[3]) of `grid`
-/// @return error_m: the block's samples row-major, NaN for no-data samples; the counts of
-///         samples settled by each of the three ways.
-/// @throws std::invalid_argument for a block outside the grid; else as cross_check().
-/// Threads: 2. Memory: 16 bytes per block sample (+ cross_check's, when it falls back).
-struct CellErrorsInBlock {
-  std::vector<float> error_m;
-  std::size_t by_corners = 0, by_scan = 0, by_buckets = 0;
-};
-constexpr double kBruteForceBudget = 2e8;
-CellErrorsInBlock cell_errors_in_block(const Cloud& points_m, const HeightField& grid, std::array<int, 4> block,
-                                       double tolerance_m, double hidden_band_m);
 
 /// Resets the process's resident-memory high-water mark (Linux, proc(5): writing "5" to
 /// /proc/self/clear_refs resets VmHWM). @return false when it cannot.

@@ -2888,7 +2888,6 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       };
       std::vector<Far> unverified;
       std::size_t researched = 0, improved = 0;
-      std::size_t by_corners = 0, by_scan = 0, by_buckets = 0;  // cell_errors_in_block's counts
       // Freed heap back past a window's worth before a tile's points are read (TileHeapBudget).
       detail::TileHeapBudget heap(window_heap_budget(spill, tiles.count()));
       auto research = [&](std::vector<Far>& far) {
@@ -2974,20 +2973,14 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
               valid += std::isnan(crop.at(rr, c)) ? 0U : 1U;
             }
           if (valid == 0 || w.rows < 2 || w.cols < 2) continue;
-          // The interior's samples only (the window's others are other tiles' interiors).
-          const detail::CellErrorsInBlock part = detail::cell_errors_in_block(
-              pts, crop, {in[0] - w.row0, in[1] - w.row0, in[2] - w.col0, in[3] - w.col0}, cc.tolerance_m, cc.hidden_band_m);
-          by_corners += part.by_corners;
-          by_scan += part.by_scan;
-          by_buckets += part.by_buckets;
+          const CrossCheck part = detail::cross_check_cell_errors(pts, crop, cc.tolerance_m, cc.hidden_band_m).value;
           // A point outside the window has its node outside it: at least (index distance −
           // 1/2) cells from the query in x-y. A distance beyond that margin is re-searched
           // over every tile's points below.
           const double cell = tiles.g.cell_size_m;
-          const auto in_cols = static_cast<std::size_t>(in[3] - in[2]);
           for (int rr = in[0]; rr < in[1]; ++rr) {
             for (int c = in[2]; c < in[3]; ++c) {
-              const float d = part.error_m[static_cast<std::size_t>(rr - in[0]) * in_cols + static_cast<std::size_t>(c - in[2])];
+              const float d = part.cell_error_m.at(rr - w.row0, c - w.col0);
               cc.cell_error_m.at(rr, c) = d;
               if (std::isnan(d)) continue;
               int edge = std::numeric_limits<int>::max();
@@ -3047,9 +3040,6 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       r.report.figure("supported_fraction", cc.supported_fraction);
       r.report.figure("samples_researched_across_tiles", static_cast<double>(researched));
       r.report.figure("samples_nearer_in_another_tile", static_cast<double>(improved));
-      r.report.figure("samples_settled_by_their_cells", static_cast<double>(by_corners));
-      r.report.figure("samples_settled_by_a_scan_of_the_window", static_cast<double>(by_scan));
-      r.report.figure("samples_settled_by_a_bucket_search", static_cast<double>(by_buckets));
       r.report.notes.push_back("merged over " + std::to_string(tiles.count()) +
                                " tiles: (a) per interior point on the whole grid (exact percentiles by radix selection), "
                                "(b) per interior cell against its tile's kept points, halo included");
