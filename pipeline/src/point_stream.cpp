@@ -240,6 +240,9 @@ std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path
     if (ext == ".ptx") return detail::open_ptx_stream(path, detail::quoted(path), gz);
     if (ext == ".pts") return detail::open_pts_stream(path, detail::quoted(path), gz);
     if (ext == ".xyz" || ext == ".txt") return detail::open_xyz_stream(path, detail::quoted(path), gz);
+    if (ext == ".obj") {
+      if (auto s = detail::open_obj_stream(path, detail::quoted(path), options.as_points, gz)) return s;
+    }
     if (ext == ".pcd") {
       if (auto s = detail::open_pcd_stream(path, detail::quoted(path), gz)) return s;
     }

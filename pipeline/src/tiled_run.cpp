@@ -1058,9 +1058,10 @@ bool runs_tiled(const RunConfig& config) {
     std::string ext;
     const bool gz = detail::gz_name(f, ext);
     // Only a natively streamed file is counted without reading it whole (a PTX, PTS or XYZ
-    // file's first look reads its lines without parsing the points; under gzip, decompressing
-    // them; a gzipped PCD's inflates it once for its size).
-    const bool text = ext == ".ptx" || ext == ".pts" || ext == ".xyz" || ext == ".txt";
+    // file's first look reads its lines without parsing the points, an OBJ's counts the numbers
+    // of its `v` lines; under gzip, decompressing them; a gzipped PCD's inflates it once for its
+    // size). An OBJ with faces counts only with input.as_points (else a mesh, in core).
+    const bool text = ext == ".ptx" || ext == ".pts" || ext == ".xyz" || ext == ".txt" || ext == ".obj";
     if (!(ext == ".ply" || ext == ".pcd" || text || (!gz && (ext == ".las" || ext == ".laz" || ext == ".e57")))) return false;
     std::error_code ec;
     if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
@@ -1074,6 +1075,7 @@ bool runs_tiled(const RunConfig& config) {
           : ext == ".pts" ? detail::open_pts_stream(f, f.string(), gz)
           : ext == ".e57" ? detail::open_e57_stream(f, f.string())
           : ext == ".pcd" ? detail::open_pcd_stream(f, f.string(), gz)
+          : ext == ".obj" ? detail::open_obj_stream(f, f.string(), config.input.as_points, gz)
                           : detail::open_xyz_stream(f, f.string(), gz);
     } catch (const InputError&) {
       return false;  // the in-core read reports the problem

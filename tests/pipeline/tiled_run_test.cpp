@@ -1449,16 +1449,18 @@ TEST(TiledRun, EqualsTheInCoreRunOnAPtxFileStreamedLineByLine) {
 }
 
 // A PTS file of two blocks (the plate of the PTX test above as two exports: X Y Z intensity R G
-// B, Leica's integer intensities), the same plate as an XYZ file with comments and as an ASCII
-// PLY with colour: each read
+// B, Leica's integer intensities), the same plate as an XYZ file with comments, as an ASCII
+// PLY with colour and as an OBJ mesh's coloured vertices (input.as_points): each read
 // in blocks of lines at every pass gives the in-core scene in tiles, colour included, and auto
 // counts its points with the first look.
-TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAsciiPlyAndBinaryPcdFilesStreamedInChunks) {
+TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAsciiPlyObjAndBinaryPcdFilesStreamedInChunks) {
   const fs::path dir = hc::test::temp_dir("pts_scan");
   {
     std::ofstream pts(dir / "plate.pts", std::ios::binary), xyz(dir / "plate.xyz", std::ios::binary);
     std::ofstream ply(dir / "plate.ply", std::ios::binary), pcd(dir / "plate.pcd", std::ios::binary);
+    std::ofstream obj(dir / "plate.obj", std::ios::binary);
     xyz << "# the plate, x y z\n";
+    obj << "# the plate as a mesh's vertices with colour, and faces the run does not read\n";
     ply << "ply\nformat ascii 1.0\nelement vertex 120000\nproperty double x\nproperty double y\nproperty double z\n"
         << "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n";
     // Float x y z (the spill keeps the file's own floats) and a packed rgb field the reader skips.
@@ -1473,6 +1475,8 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAsciiPlyAndBinaryPcdFilesStreamedInChun
         pts << x << ' ' << y << ' ' << z << ' ' << (k % 4096) - 2048 << ' ' << k % 256 << ' ' << (7 * k) % 256 << ' ' << 200 << "\r\n";
         xyz << x << ' ' << y << ' ' << z << (k % 1000 == 0 ? " # a comment\n" : "\n");
         ply << x << ' ' << y << ' ' << z << ' ' << k % 256 << ' ' << (7 * k) % 256 << " 200\n";
+        obj << "v " << x << ' ' << y << ' ' << z << ' ' << (k % 256) / 255.0 << ' ' << ((7 * k) % 256) / 255.0 << " 0.8\n";
+        if (k % rows >= 1 && k >= rows) obj << "f -1 -2 -" << rows + 2 << " -" << rows + 1 << "\n";
         const float f[3] = {static_cast<float>(x), static_cast<float>(y), static_cast<float>(z)};
         const std::uint32_t rgb = 0x00C80000u | static_cast<std::uint32_t>(k % 256);
         pcd.write(reinterpret_cast<const char*>(f), sizeof f);
@@ -1490,6 +1494,9 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAsciiPlyAndBinaryPcdFilesStreamedInChun
   const BuiltScene ply = expect_streamed_tiled_run(dir, "input: {files: [plate.ply], units: m}\n" + grid, 64,
                                                    "PLY ascii, 120000 vertices (lines streamed in chunks)", 100000);
   EXPECT_FALSE(ply.scene.layers.colour_rgb8.empty());
+  const BuiltScene obj = expect_streamed_tiled_run(dir, "input: {files: [plate.obj], units: m, as_points: true}\n" + grid, 64,
+                                                   "lines streamed in chunks", 100000);
+  EXPECT_FALSE(obj.scene.layers.colour_rgb8.empty());
   const std::string pcd_note = "PCD binary, 120000 points (fixed-size records streamed in chunks)";
   const BuiltScene pcd = expect_streamed_tiled_run(dir, "input: {files: [plate.pcd], units: m}\n" + grid, 64, pcd_note, 100000);
   EXPECT_EQ(stage_figure(pcd, "tile_spill", "spill_xyz_floats"), 1.0);

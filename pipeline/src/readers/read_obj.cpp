@@ -14,16 +14,21 @@
 // Visualizer manual): vt's v axis points up the image, so v = 0 is the image's bottom row.
 
 #include "../image_io.hpp"
+#include "byte_source.hpp"
+#include "line_stream.hpp"
 #include "readers.hpp"
+#include "text_lines.hpp"
 #include "text_parse.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/pipeline/point_stream.hpp"
 
 
 #include <algorithm>
 #include <charconv>
 #include <fstream>
 #include <map>
+#include <memory>
 #include <sstream>
 #include <system_error>
 
@@ -75,6 +80,74 @@ std::map<std::string, std::string> read_mtl(const std::filesystem::path& file) {
   return out;
 }
 
+// The error of a bad line: InputError naming the file and line.
+InputError bad_line(const std::string& name, std::size_t line_no, const std::string& what) {
+  return InputError("load_cloud: " + name + " line " + std::to_string(line_no) + ": " + what);
+}
+
+// A `v` line after its keyword: x y z appended to xyz, and up to four more numbers into extra
+// (their count returned: 3 is a colour r g b). @throws bad_line for fewer than three numbers.
+int parse_vertex(const char* p, const char* e, std::vector<double>& xyz, double (&extra)[4], const std::string& name,
+                 std::size_t line_no) {
+  for (int a = 0; a < 3; ++a) {
+    double v = 0.0;
+    if (!parse_double(p, e, v)) {
+      const std::string_view tok = first_token(p, e);
+      throw bad_line(name, line_no,
+                     "malformed vertex line (" +
+                         (tok.empty() ? std::string("fewer than 3 coordinates") : "'" + std::string(tok.substr(0, 40)) + "' is not a number") +
+                         "), expected 'v x y z'");
+    }
+    xyz.push_back(v);
+  }
+  int n_extra = 0;
+  while (n_extra < 4 && parse_double(p, e, extra[n_extra])) ++n_extra;
+  return n_extra;
+}
+
+// A `vt` line after its keyword: u and v (0 when absent). @throws bad_line without u.
+void parse_texture_coordinate(const char* p, const char* e, double& u, double& v, const std::string& name, std::size_t line_no) {
+  if (!parse_double(p, e, u)) throw bad_line(name, line_no, "malformed texture coordinate line, expected 'vt u v'");
+  if (!parse_double(p, e, v)) v = 0.0;  // 'vt u' is allowed: v defaults to 0
+}
+
+struct Corner {
+  long long v, t;  // absolute, 0-based; t = -1 without a texture coordinate
+};
+
+// An `f` line after its keyword: its corners into `face` (cleared), relative indices counted
+// back from nv vertices and nt texture coordinates defined so far. @throws bad_line for a
+// corner that is not v, v/vt, v/vt/vn or v//vn with non-zero integer indices.
+void parse_face(const char* p, const char* e, long long nv, long long nt, std::vector<Corner>& face, const std::string& name,
+                std::size_t line_no) {
+  face.clear();
+  while (true) {
+    const std::string_view tok = first_token(p, e);
+    if (tok.empty()) break;
+    p = tok.data() + tok.size();
+    const std::size_t s1 = tok.find('/');
+    const std::string_view vs = tok.substr(0, s1);
+    std::string_view ts;
+    if (s1 != std::string_view::npos) {
+      const std::string_view rest = tok.substr(s1 + 1);
+      ts = rest.substr(0, rest.find('/'));
+    }
+    long long vi = 0, ti = 0;
+    if (!parse_index(vs, vi) || vi == 0 || (!ts.empty() && (!parse_index(ts, ti) || ti == 0))) {
+      throw bad_line(name, line_no,
+                     "malformed face corner '" + std::string(tok.substr(0, 40)) +
+                         "', expected v, v/vt, v/vt/vn or v//vn with non-zero integer indices");
+    }
+    // 1-based; negative counts back from the last vertex defined so far.
+    face.push_back({vi > 0 ? vi - 1 : nv + vi, ts.empty() ? -1 : (ti > 0 ? ti - 1 : nt + ti)});
+  }
+}
+
+// A vertex colour as read_obj keeps it: the value as float, clamped to [0, 1], to 8 bits.
+std::uint8_t colour_byte(double c) {
+  return static_cast<std::uint8_t>(std::lround(std::clamp(static_cast<float>(c), 0.0f, 1.0f) * 255.0f));
+}
+
 }  // namespace
 
 ReadResult read_obj(const ScanSource& source) {
@@ -85,9 +158,6 @@ ReadResult read_obj(const ScanSource& source) {
   bool all_colour = true;
   std::vector<float> vt;
   xyz.reserve(text.size() / 24);
-  struct Corner {
-    long long v, t;
-  };
   std::vector<Corner> corners;          // every face's corners, face after face (absolute, 0-based)
   std::vector<std::uint32_t> face_size;
   std::vector<int> face_material;       // index into materials, -1 = none
@@ -97,24 +167,9 @@ ReadResult read_obj(const ScanSource& source) {
   for_each_line(text, [&](const char* b, const char* e, std::size_t line_no) {
     const char* p = b;
     const std::string_view kw = keyword(p, e);
-    auto fail = [&](const std::string& what) {
-      return InputError("load_cloud: " + name + " line " + std::to_string(line_no) + ": " + what);
-    };
     if (kw == "v") {
-      for (int a = 0; a < 3; ++a) {
-        double v = 0.0;
-        if (!parse_double(p, e, v)) {
-          const std::string_view tok = first_token(p, e);
-          throw fail("malformed vertex line (" +
-                     (tok.empty() ? std::string("fewer than 3 coordinates")
-                                  : "'" + std::string(tok.substr(0, 40)) + "' is not a number") +
-                     "), expected 'v x y z'");
-        }
-        xyz.push_back(v);
-      }
       double extra[4];
-      int n_extra = 0;
-      while (n_extra < 4 && parse_double(p, e, extra[n_extra])) ++n_extra;
+      const int n_extra = parse_vertex(p, e, xyz, extra, name, line_no);
       if (n_extra == 3 && all_colour) {
         for (int k = 0; k < 3; ++k) vrgb.push_back(static_cast<float>(extra[k]));
       } else {
@@ -122,32 +177,11 @@ ReadResult read_obj(const ScanSource& source) {
       }
     } else if (kw == "vt") {
       double u = 0.0, v = 0.0;
-      if (!parse_double(p, e, u)) throw fail("malformed texture coordinate line, expected 'vt u v'");
-      if (!parse_double(p, e, v)) v = 0.0;  // 'vt u' is allowed: v defaults to 0
+      parse_texture_coordinate(p, e, u, v, name, line_no);
       vt.push_back(static_cast<float>(u));
       vt.push_back(static_cast<float>(v));
     } else if (kw == "f") {
-      face.clear();
-      const long long nv = static_cast<long long>(xyz.size() / 3), nt = static_cast<long long>(vt.size() / 2);
-      while (true) {
-        const std::string_view tok = first_token(p, e);
-        if (tok.empty()) break;
-        p = tok.data() + tok.size();
-        const std::size_t s1 = tok.find('/');
-        const std::string_view vs = tok.substr(0, s1);
-        std::string_view ts;
-        if (s1 != std::string_view::npos) {
-          const std::string_view rest = tok.substr(s1 + 1);
-          ts = rest.substr(0, rest.find('/'));
-        }
-        long long vi = 0, ti = 0;
-        if (!parse_index(vs, vi) || vi == 0 || (!ts.empty() && (!parse_index(ts, ti) || ti == 0))) {
-          throw fail("malformed face corner '" + std::string(tok.substr(0, 40)) +
-                     "', expected v, v/vt, v/vt/vn or v//vn with non-zero integer indices");
-        }
-        // 1-based; negative counts back from the last vertex defined so far.
-        face.push_back({vi > 0 ? vi - 1 : nv + vi, ts.empty() ? -1 : (ti > 0 ? ti - 1 : nt + ti)});
-      }
+      parse_face(p, e, static_cast<long long>(xyz.size() / 3), static_cast<long long>(vt.size() / 2), face, name, line_no);
       face_size.push_back(static_cast<std::uint32_t>(face.size()));
       face_material.push_back(current_material);
       corners.insert(corners.end(), face.begin(), face.end());
@@ -167,9 +201,7 @@ ReadResult read_obj(const ScanSource& source) {
   const std::size_t nv = xyz.size() / 3, nt = vt.size() / 2;
   if (all_colour && vrgb.size() == 3 * nv) {
     cloud.rgb.resize(3 * nv);
-    for (std::size_t i = 0; i < 3 * nv; ++i) {
-      cloud.rgb[i] = static_cast<std::uint8_t>(std::lround(std::clamp(vrgb[i], 0.0f, 1.0f) * 255.0f));
-    }
+    for (std::size_t i = 0; i < 3 * nv; ++i) cloud.rgb[i] = colour_byte(vrgb[i]);
     result.notes.push_back("vertex colours (v x y z r g b) read as 8-bit RGB");
   }
   if (face_size.empty()) return result;
@@ -280,6 +312,93 @@ ReadResult read_obj(const ScanSource& source) {
   result.notes.push_back("texture " + quoted(image_path) + " (" + std::to_string(img.width) + " × " +
                          std::to_string(img.height) + ", map_Kd)");
   return result;
+}
+
+namespace {
+
+// An OBJ file's vertices read in blocks of lines (point_stream.hpp). The first look counts the
+// `v` lines and whether each holds exactly six numbers (read_obj keeps colour only when every
+// one does) and whether any `f` line is there, without keeping anything; a later stream of the
+// same unchanged large file reuses it. The stream then parses every line as read_obj does (a
+// bad `v`, `vt` or `f` line is read_obj's error, in file order) and hands out the vertices.
+class ObjStream final : public LineStream {
+ public:
+  ObjStream(const std::filesystem::path& path, const std::string& name, bool gz) : LineStream(ByteSource::open(path, name, gz)) {
+    const auto look = first_look(*src_, "obj_look", [&] {
+      FileLines lines(*src_);
+      std::uint64_t vertices = 0;
+      bool all_colour = true, faces = false;
+      const char* b = nullptr;
+      const char* e = nullptr;
+      while (lines.next(b, e)) {
+        const char* p = b;
+        const std::string_view kw = keyword(p, e);
+        if (kw == "v") {
+          ++vertices;
+          int numbers = 0;
+          double v = 0.0;
+          while (numbers < 7 && parse_double(p, e, v)) ++numbers;
+          all_colour = all_colour && numbers == 6;  // x y z r g b (read_obj: three numbers after x y z)
+        } else if (kw == "f") {
+          faces = true;
+        }
+      }
+      return std::array<std::uint64_t, 2>{vertices, (all_colour ? 1U : 0U) | (faces ? 2U : 0U)};
+    });
+    total_ = look[0];
+    all_colour_ = (look[1] & 1U) != 0 && total_ > 0;
+    faces_ = (look[1] & 2U) != 0;
+    start_lines();
+    notes_ = {"OBJ vertex lines"};
+    if (all_colour_) notes_.push_back("vertex colours (v x y z r g b) read as 8-bit RGB");
+    if (faces_) notes_.push_back("faces not read (input.as_points: the vertices only)");
+    notes_.push_back("lines streamed in chunks");
+  }
+
+  bool has_faces() const { return faces_; }
+
+ private:
+  void fill(std::size_t max) override {
+    std::size_t taken = 0;
+    const char* b = nullptr;
+    const char* e = nullptr;
+    while (taken < max) {
+      if (!lines_->next(b, e)) {
+        if (vertices_ == 0) throw InputError("load_cloud: " + name_ + " holds no vertices ('v x y z' lines)");
+        return;
+      }
+      const char* p = b;
+      const std::string_view kw = keyword(p, e);
+      if (kw == "v") {
+        double extra[4];
+        const int n_extra = parse_vertex(p, e, xyz_, extra, name_, lines_->line_no());
+        if (all_colour_) {
+          if (n_extra != 3) throw InputError("load_cloud: " + name_ + " changed while it was read (a vertex's colour)");
+          for (int k = 0; k < 3; ++k) rgb_.push_back(colour_byte(extra[k]));
+        }
+        ++vertices_;
+        ++taken;
+      } else if (kw == "vt") {
+        double u = 0.0, v = 0.0;
+        parse_texture_coordinate(p, e, u, v, name_, lines_->line_no());
+        ++texture_coordinates_;
+      } else if (kw == "f") {
+        parse_face(p, e, vertices_, texture_coordinates_, face_, name_, lines_->line_no());
+      }
+    }
+  }
+
+  bool all_colour_ = false, faces_ = false;
+  long long vertices_ = 0, texture_coordinates_ = 0;
+  std::vector<Corner> face_;
+};
+
+}  // namespace
+
+std::unique_ptr<PointStream> open_obj_stream(const std::filesystem::path& path, const std::string& name, bool as_points, bool gz) {
+  auto s = std::make_unique<ObjStream>(path, name, gz);
+  if (s->has_faces() && !as_points) return nullptr;  // a mesh: rasterised in core
+  return s;
 }
 
 }  // namespace hc::pipeline::detail

@@ -214,6 +214,15 @@ std::unique_ptr<PointStream> open_pts_stream(const std::filesystem::path& path, 
 /// file cannot be opened, and from next() as read_xyz (sticky).
 std::unique_ptr<PointStream> open_xyz_stream(const std::filesystem::path& path, const std::string& name, bool gz = false);
 
+/// An OBJ file's vertices (read_obj.cpp) read in blocks of lines: the same points, vertex colour
+/// and errors as read_obj, in file order (its `vt` and `f` lines parsed for their errors, not
+/// kept). Opening it takes a first look (the `v` lines, whether all hold r g b, whether there is
+/// an `f` line), kept as open_pts_stream keeps its look. nullptr when the file has faces and
+/// as_points is false (a mesh, rasterised in core). @throws hc::InputError when the file cannot
+/// be opened, and from next() as read_obj (sticky).
+std::unique_ptr<PointStream> open_obj_stream(const std::filesystem::path& path, const std::string& name, bool as_points,
+                                             bool gz = false);
+
 /// A LAZ file (read_laz.cpp) decompressed and streamed chunk by chunk: the same points,
 /// colour, intensity and CRS as read_laz, in file order, with one LASzip chunk's compressed
 /// bytes and records in memory at a time (read with pread). The header, the (E)VLRs and the
