@@ -40,7 +40,6 @@
 //     for coordinates far from the origin. nanoflann's squared distances never leave this file.
 
 #include "run_internal.hpp"
-#include "inline_bilinear.hpp"
 #include "stage_util.hpp"
 #include "hc/pipeline/cross_check.hpp"
 
@@ -338,7 +337,6 @@ void phase1_residuals_and_keys(Run& run, int h) {
   const int split_row = run.split_row;
   Part& out = run.parts[h];
   out.count.assign(run.cells, 0);
-  const detail::InlineResidual residual_at(run.surface.view());  // point_residual, inline
   const double* p = run.points_m.xyz.data() + 3 * out.point_begin;
   for (std::size_t i = out.point_begin; i < out.point_end; ++i, p += 3) {
     if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
@@ -355,7 +353,7 @@ void phase1_residuals_and_keys(Run& run, int h) {
     ++out.count[k];
     ++out.finite;
     if (!run.point_residuals) continue;
-    const PointResidual pr = residual_at(p[0], p[1], p[2], run.hidden_band_m);
+    const PointResidual pr = point_residual(run.surface, g, p[0], p[1], p[2], run.hidden_band_m);
     switch (pr.kind) {
       case PointResidual::kOutside: ++out.outside; break;
       case PointResidual::kOffSurface: ++out.off_surface; break;
@@ -650,27 +648,6 @@ void add_error_stats_figures(StageReport& report, const std::string& prefix, con
   report.figure(prefix + "_p95_mm", s.p95_mm);
   report.figure(prefix + "_p99_mm", s.p99_mm);
   report.figure(prefix + "_max_mm", s.max_mm);
-}
-
-PointResidual point_residual(const BilinearSurface& surface, const GridGeometry& g, double x, double y, double z,
-                             double hidden_band_m) {
-  PointResidual r;
-  if (x < g.x0_m || x > g.x_of_col(g.cols - 1) || y < g.y0_m || y > g.y_of_row(g.rows - 1)) return r;
-  const SurfaceSample s = surface.sample(x, y);
-  if (!s.valid) {
-    r.kind = PointResidual::kOffSurface;
-    return r;
-  }
-  const double residual = z - s.z_m;
-  if (residual < -hidden_band_m) {
-    r.kind = PointResidual::kHidden;
-    return r;
-  }
-  r.kind = PointResidual::kOnSurface;
-  const double n_z = 1.0 / std::sqrt(1.0 + s.dz_dx * s.dz_dx + s.dz_dy * s.dz_dy);
-  r.vertical_m = static_cast<float>(std::abs(residual));
-  r.normal_m = static_cast<float>(std::abs(residual) * n_z);
-  return r;
 }
 
 double supported_fraction(const Cloud& points_m, const HeightField& grid, double tolerance_m) {

@@ -14,7 +14,6 @@
 #include <Eigen/Cholesky>
 
 #include "knn_grid.hpp"  // detail::radix_sort, run_parallel, kSearchThreads
-#include "inline_bilinear.hpp"
 #include "stage_util.hpp"  // detail::run_two
 #include "voxel_keys.hpp"
 #include "wanted_keys.hpp"
@@ -853,7 +852,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     // is then far above the tolerance; a window without a valid cell has no distance at all).
     if (scope) cv::min(gap_cells, static_cast<double>(g.rows + g.cols), gap_cells);
   }
-  const detail::InlineBilinear surface(HeightFieldView::of(grid));  // BilinearSurface::sample, inline
+  const BilinearSurface surface(HeightFieldView::of(grid));
   const double x_max = g.x_of_col(g.cols - 1), y_max = g.y_of_row(g.rows - 1);
   auto xy_gap = [&](double x, double y) {
     const double cx = std::clamp(x, g.x0_m, x_max), cy = std::clamp(y, g.y0_m, y_max);
@@ -887,7 +886,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
         cls = kOutside;
         gap = xy_gap(p.x(), p.y());
       } else {
-        const SurfaceSample s = surface.at<false>(p.x(), p.y());  // z only
+        const SurfaceSample s = surface.sample(p.x(), p.y());
         if (!s.valid) {
           cls = kNoData;
           gap = xy_gap(p.x(), p.y());

@@ -13,7 +13,6 @@
 #include "readers/byte_source.hpp"
 #include "readers/readers.hpp"
 #include "run_internal.hpp"
-#include "inline_bilinear.hpp"
 #include "stage_util.hpp"
 
 #include "hc/common/bilinear_surface.hpp"
@@ -2878,7 +2877,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       cc.hidden_band_m = config.cross_check.hidden_band_m;
       cc.cell_error_m = HeightField(tiles.g);
       cc.cell_error_m.model_to_grid = model_to_grid;
-      const detail::InlineResidual residual_at(HeightFieldView::of(grid.depth));  // point_residual, inline
+      const BilinearSurface surface(HeightFieldView::of(grid.depth));
       RadixPercentiles vertical, normal;
       std::vector<std::uint8_t> flag;
       // Samples whose nearest point may lie beyond their tile's halo (judged on the tile's
@@ -2941,7 +2940,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
           const double* p = pts.xyz.data() + 3 * i;
           if (keep_sample) sample_point(p);
-          const PointResidual pr = residual_at(p[0], p[1], p[2], cc.hidden_band_m);
+          const PointResidual pr = point_residual(surface, tiles.g, p[0], p[1], p[2], cc.hidden_band_m);
           switch (pr.kind) {
             case PointResidual::kOutside: ++cc.points_outside; break;
             case PointResidual::kOffSurface: ++cc.points_off_surface; break;

@@ -6,6 +6,7 @@
 #include "hc/common/height_field.hpp"
 #include "hc/pipeline/cloud.hpp"
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
 #include <string>
@@ -62,8 +63,28 @@ struct PointResidual {
   enum Kind : std::uint8_t { kOutside, kOffSurface, kHidden, kOnSurface } kind = kOutside;
   float vertical_m = 0.0f, normal_m = 0.0f;  ///< set for kOnSurface
 };
-PointResidual point_residual(const BilinearSurface& surface, const GridGeometry& g, double x_m, double y_m, double z_m,
-                             double hidden_band_m);
+/// Inline, as BilinearSurface::sample: the cross-check's (a) and the tiled run's evaluate it at
+/// every interior point.
+inline PointResidual point_residual(const BilinearSurface& surface, const GridGeometry& g, double x_m, double y_m,
+                                    double z_m, double hidden_band_m) {
+  PointResidual r;
+  if (x_m < g.x0_m || x_m > g.x_of_col(g.cols - 1) || y_m < g.y0_m || y_m > g.y_of_row(g.rows - 1)) return r;
+  const SurfaceSample s = surface.sample(x_m, y_m);
+  if (!s.valid) {
+    r.kind = PointResidual::kOffSurface;
+    return r;
+  }
+  const double residual = z_m - s.z_m;
+  if (residual < -hidden_band_m) {
+    r.kind = PointResidual::kHidden;
+    return r;
+  }
+  r.kind = PointResidual::kOnSurface;
+  const double n_z = 1.0 / std::sqrt(1.0 + s.dz_dx * s.dz_dx + s.dz_dy * s.dz_dy);
+  r.vertical_m = static_cast<float>(std::abs(residual));
+  r.normal_m = static_cast<float>(std::abs(residual) * n_z);
+  return r;
+}
 
 /// Cross-check (b)'s supported fraction alone: the fraction of valid samples of `grid` (node
 /// (r, c) at (x_of_col(c), y_of_row(r), f(r, c)), grid frame [m]) with a finite point of
