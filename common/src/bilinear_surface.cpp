@@ -1,9 +1,6 @@
 #include "hc/common/bilinear_surface.hpp"
 
-#include <algorithm>
 #include <cassert>
-#include <cmath>
-#include <limits>
 
 namespace hc {
 

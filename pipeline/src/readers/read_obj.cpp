@@ -85,23 +85,32 @@ InputError bad_line(const std::string& name, std::size_t line_no, const std::str
   return InputError("load_cloud: " + name + " line " + std::to_string(line_no) + ": " + what);
 }
 
-// A `v` line after its keyword: x y z appended to xyz, and up to four more numbers into extra
-// (their count returned: 3 is a colour r g b). @throws bad_line for fewer than three numbers.
-int parse_vertex(const char* p, const char* e, std::vector<double>& xyz, double (&extra)[4], const std::string& name,
-                 std::size_t line_no) {
-  for (int a = 0; a < 3; ++a) {
-    double v = 0.0;
-    if (!parse_double(p, e, v)) {
-      const std::string_view tok = first_token(p, e);
-      throw bad_line(name, line_no,
-                     "malformed vertex line (" +
-                         (tok.empty() ? std::string("fewer than 3 coordinates") : "'" + std::string(tok.substr(0, 40)) + "' is not a number") +
-                         "), expected 'v x y z'");
-    }
-    xyz.push_back(v);
+// A `v` line after its keyword: x y z into xyz3 and up to four more numbers into extra. Returns
+// the count of those (3 is a colour r g b), or -1 when fewer than three coordinates parse, with
+// p left at the token that failed. Never throws: the stream's first look reads every line with
+// it, and the errors come from parse_vertex, in file order.
+int read_vertex(const char*& p, const char* e, double (&xyz3)[3], double (&extra)[4]) {
+  for (double& v : xyz3) {
+    if (!parse_double(p, e, v)) return -1;
   }
   int n_extra = 0;
   while (n_extra < 4 && parse_double(p, e, extra[n_extra])) ++n_extra;
+  return n_extra;
+}
+
+// read_vertex, x y z appended to xyz. @throws bad_line for fewer than three numbers.
+int parse_vertex(const char* p, const char* e, std::vector<double>& xyz, double (&extra)[4], const std::string& name,
+                 std::size_t line_no) {
+  double c[3];
+  const int n_extra = read_vertex(p, e, c, extra);
+  if (n_extra < 0) {
+    const std::string_view tok = first_token(p, e);
+    throw bad_line(name, line_no,
+                   "malformed vertex line (" +
+                       (tok.empty() ? std::string("fewer than 3 coordinates") : "'" + std::string(tok.substr(0, 40)) + "' is not a number") +
+                       "), expected 'v x y z'");
+  }
+  xyz.insert(xyz.end(), c, c + 3);
   return n_extra;
 }
 
@@ -317,7 +326,7 @@ ReadResult read_obj(const ScanSource& source) {
 namespace {
 
 // An OBJ file's vertices read in blocks of lines (point_stream.hpp). The first look counts the
-// `v` lines and whether each holds exactly six numbers (read_obj keeps colour only when every
+// `v` lines and whether each holds r g b (read_vertex; read_obj keeps colour only when every
 // one does) and whether any `f` line is there, without keeping anything; a later stream of the
 // same unchanged large file reuses it. The stream then parses every line as read_obj does (a
 // bad `v`, `vt` or `f` line is read_obj's error, in file order) and hands out the vertices.
@@ -335,10 +344,8 @@ class ObjStream final : public LineStream {
         const std::string_view kw = keyword(p, e);
         if (kw == "v") {
           ++vertices;
-          int numbers = 0;
-          double v = 0.0;
-          while (numbers < 7 && parse_double(p, e, v)) ++numbers;
-          all_colour = all_colour && numbers == 6;  // x y z r g b (read_obj: three numbers after x y z)
+          double c[3], extra[4];
+          all_colour = all_colour && read_vertex(p, e, c, extra) == 3;  // r g b, as read_obj decides
         } else if (kw == "f") {
           faces = true;
         }

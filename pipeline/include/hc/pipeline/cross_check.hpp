@@ -63,10 +63,12 @@ struct PointResidual {
   enum Kind : std::uint8_t { kOutside, kOffSurface, kHidden, kOnSurface } kind = kOutside;
   float vertical_m = 0.0f, normal_m = 0.0f;  ///< set for kOnSurface
 };
-/// Inline, as BilinearSurface::sample: the cross-check's (a) and the tiled run's evaluate it at
-/// every interior point.
+/// point_residual: the PointResidual of (x_m, y_m, z_m) as described above; g is the geometry of
+/// the grid `surface` views, hidden_band_m > 0 [m]. No errors (a non-finite point is outside or
+/// off the surface). Inline, as BilinearSurface::sample: the cross-check's (a) and the tiled
+/// run's evaluate it at every interior point.
 inline PointResidual point_residual(const BilinearSurface& surface, const GridGeometry& g, double x_m, double y_m,
-                                    double z_m, double hidden_band_m) {
+                                    double z_m, double hidden_band_m) noexcept {
   PointResidual r;
   if (x_m < g.x0_m || x_m > g.x_of_col(g.cols - 1) || y_m < g.y0_m || y_m > g.y_of_row(g.rows - 1)) return r;
   const SurfaceSample s = surface.sample(x_m, y_m);
