@@ -104,6 +104,68 @@ TEST(Relief, ClassesAndPositionsFollowTheSpec) {
   EXPECT_NE(hc::tools::relief_point(s, 123).x_m, hc::tools::relief_point(other, 123).x_m);
 }
 
+// Scan order: 20 000 points on the 2 m × 1 m wall make a raster of round(√10 000) = 100 rows
+// and 200 columns (by hand); point i lies in column i / 100, row i mod 100, each cell 10 mm
+// square; every cell holds one point; the classes come out as in the default order. 20 001
+// points: 100 rows, 201 columns, the last holding one point at the bottom.
+TEST(Relief, ScanOrderWalksVerticalProfilesLeftToRight) {
+  ReliefSpec s = small_spec(20'000);
+  s.scan_order = true;
+  s.back_fraction = 0.1;
+  s.outlier_fraction = 0.01;
+  const hc::tools::ScanRaster ras = hc::tools::scan_raster(s);
+  EXPECT_EQ(ras.rows, 100U);
+  EXPECT_EQ(ras.cols, 200U);
+  std::vector<int> hits(20'000, 0);
+  std::uint64_t back = 0, outliers = 0;
+  for (std::uint64_t i = 0; i < s.points; ++i) {
+    const hc::tools::ReliefPoint p = hc::tools::relief_point(s, i);
+    const double col = (p.x_m + 1.0) / 0.01, row = (p.y_m + 0.5) / 0.01;
+    ASSERT_EQ(static_cast<std::uint64_t>(col), i / 100) << "point " << i << " x " << p.x_m;
+    ASSERT_EQ(static_cast<std::uint64_t>(row), i % 100) << "point " << i << " y " << p.y_m;
+    ++hits[static_cast<std::size_t>(col) * 100 + static_cast<std::size_t>(row)];
+    back += p.kind == ReliefPointKind::kBack ? 1U : 0U;
+    outliers += p.kind == ReliefPointKind::kOutlier ? 1U : 0U;
+    if (p.kind == ReliefPointKind::kFront) {
+      EXPECT_LE(std::fabs(p.z_m - hc::tools::relief_height_m(s, p.x_m, p.y_m)), 6.0 * s.noise_sigma_m);
+    }
+    // Consecutive points within a profile are at most two cells apart.
+    if (i % 100 != 0) {
+      const hc::tools::ReliefPoint q = hc::tools::relief_point(s, i - 1);
+      EXPECT_LE(std::hypot(p.x_m - q.x_m, p.y_m - q.y_m), 0.02 * std::sqrt(2.0) + 1e-12) << "point " << i;
+    }
+  }
+  EXPECT_TRUE(std::all_of(hits.begin(), hits.end(), [](int h) { return h == 1; }));
+  // The class of a point is drawn as in the default order: the same counts.
+  ReliefSpec random = s;
+  random.scan_order = false;
+  std::uint64_t back_r = 0, outliers_r = 0;
+  for (std::uint64_t i = 0; i < s.points; ++i) {
+    const auto k = hc::tools::relief_point(random, i).kind;
+    back_r += k == ReliefPointKind::kBack ? 1U : 0U;
+    outliers_r += k == ReliefPointKind::kOutlier ? 1U : 0U;
+  }
+  EXPECT_EQ(back, back_r);
+  EXPECT_EQ(outliers, outliers_r);
+  ReliefSpec odd = s;
+  odd.points = 20'001;
+  EXPECT_EQ(hc::tools::scan_raster(odd).rows, 100U);
+  EXPECT_EQ(hc::tools::scan_raster(odd).cols, 201U);
+  const hc::tools::ReliefPoint last = hc::tools::relief_point(odd, 20'000);
+  EXPECT_GE(last.x_m, -1.0 + 200.0 * 2.0 / 201.0);
+  EXPECT_LT(last.y_m, -0.5 + 0.01);
+  // One point, and a wall far taller than wide: at least one row, at most one a point.
+  ReliefSpec one = s;
+  one.points = 1;
+  EXPECT_EQ(hc::tools::scan_raster(one).rows, 1U);
+  EXPECT_EQ(hc::tools::scan_raster(one).cols, 1U);
+  ReliefSpec tall = s;
+  tall.points = 10;
+  tall.height_m = 1000.0;
+  EXPECT_EQ(hc::tools::scan_raster(tall).rows, 10U);
+  EXPECT_EQ(hc::tools::scan_raster(tall).cols, 1U);
+}
+
 TEST(Relief, FilesDoNotDependOnChunksOrThreads) {
   const fs::path dir = hc::test::temp_dir("chunks");
   ReliefSpec s = small_spec(50'001);

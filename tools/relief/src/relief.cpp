@@ -125,7 +125,7 @@ void encode_slice(const ReliefSpec& spec, ReliefFormat format, std::uint64_t fir
 std::string ply_header(const ReliefSpec& spec) {
   std::ostringstream h;
   h << "ply\nformat binary_little_endian 1.0\n";
-  h << "comment hc-gen-relief: generated carved wall, units m, seed " << spec.seed << "\n";
+  h << "comment hc-gen-relief: generated carved wall, units m, seed " << spec.seed << (spec.scan_order ? ", scan order" : "") << "\n";
   h << "element vertex " << spec.points << "\n";
   h << "property float x\nproperty float y\nproperty float z\n";
   if (spec.rgb) h << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
@@ -212,6 +212,14 @@ void validate(const ReliefSpec& s) {
   require(finite(s.outlier_reach_m) && s.outlier_reach_m >= 0.0, "outlier_reach_m", s.outlier_reach_m, ">= 0");
 }
 
+ScanRaster scan_raster(const ReliefSpec& s) {
+  ScanRaster r;
+  const double rows = std::round(std::sqrt(static_cast<double>(s.points) * s.height_m / s.width_m));
+  r.rows = rows < 1.0 ? 1 : rows >= static_cast<double>(s.points) ? s.points : static_cast<std::uint64_t>(rows);
+  r.cols = (s.points + r.rows - 1) / r.rows;
+  return r;
+}
+
 double relief_height_m(const ReliefSpec& s, double x, double y) {
   // Joints: rows of blocks from the bottom-left corner, odd courses shifted by half a block.
   const double u = x + 0.5 * s.width_m;
@@ -244,8 +252,15 @@ ReliefPoint relief_point(const ReliefSpec& s, std::uint64_t i) {
   const std::uint64_t seed = mix64(s.seed);
   ReliefPoint p;
   const double c = uniform(seed, i, 0);
-  p.x_m = (uniform(seed, i, 1) - 0.5) * s.width_m;
-  p.y_m = (uniform(seed, i, 2) - 0.5) * s.height_m;
+  if (s.scan_order) {
+    const ScanRaster ras = scan_raster(s);
+    const double col = static_cast<double>(i / ras.rows), row = static_cast<double>(i % ras.rows);
+    p.x_m = ((col + uniform(seed, i, 1)) / static_cast<double>(ras.cols) - 0.5) * s.width_m;
+    p.y_m = ((row + uniform(seed, i, 2)) / static_cast<double>(ras.rows) - 0.5) * s.height_m;
+  } else {
+    p.x_m = (uniform(seed, i, 1) - 0.5) * s.width_m;
+    p.y_m = (uniform(seed, i, 2) - 0.5) * s.height_m;
+  }
   if (c < s.outlier_fraction) {
     p.kind = ReliefPointKind::kOutlier;
     p.z_m = -s.thickness_m + uniform(seed, i, 3) * (s.thickness_m + s.outlier_reach_m);

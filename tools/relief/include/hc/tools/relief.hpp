@@ -43,6 +43,15 @@ struct ReliefSpec {
   double outlier_reach_m = 0.3;
   std::uint64_t seed = 1;
   bool rgb = false;  ///< write a stone colour per point (PLY uchar r g b; LAS point format 2)
+  /// The points' order. false (the default): every point's x and y are drawn uniformly over the
+  /// wall, so consecutive points lie anywhere on it (the worst case for any per-point access to
+  /// a grid). true: the order a terrestrial scanner in front of the wall records them, vertical
+  /// profiles from left to right, each from the bottom up: point i lies in cell (column
+  /// i / R, row i mod R) of a raster of R = max(1, round(√(points · height_m / width_m))) rows
+  /// and C = ⌈points / R⌉ columns over the wall, uniformly within its cell (the last column
+  /// holds the remainder, from the bottom). Back-face points and outliers are drawn as in the
+  /// default order, at their raster cell's x and y.
+  bool scan_order = false;
 };
 
 /// The class of a generated point.
@@ -59,6 +68,13 @@ struct ReliefPoint {
 /// allowed range.
 void validate(const ReliefSpec& spec);
 
+/// The raster of ReliefSpec::scan_order: rows (points per vertical profile) and columns.
+struct ScanRaster {
+  std::uint64_t rows = 1, cols = 1;
+};
+/// R = max(1, round(√(points · height_m / width_m))), at most points, and C = ⌈points / R⌉
+/// (ReliefSpec::scan_order). Does not validate `spec`.
+ScanRaster scan_raster(const ReliefSpec& spec);
 /// The front face without noise: z [m] at (x, y) [m], for any x, y (the pattern repeats past
 /// the wall's edges). The sum of
 ///   - the joints: −joint_depth_m · exp(−(d / joint_half_width_m)²), d the distance to the
@@ -74,7 +90,8 @@ double relief_height_m(const ReliefSpec& spec, double x_m, double y_m);
 
 /// Point `index` (0 ≤ index < spec.points) of the scan; the same for any chunking.
 /// Classes: the first uniform draw u picks outlier (u < outlier_fraction), back face
-/// (u < outlier_fraction + back_fraction) or front face; x, y uniform over the wall; z the face
+/// (u < outlier_fraction + back_fraction) or front face; x, y uniform over the wall (with
+/// spec.scan_order: uniform over the point's raster cell); z the face
 /// plus N(0, noise_sigma_m²) (Box–Muller), or uniform in the outlier box. Colour (if spec.rgb):
 /// a sandstone tone shaded by the height over the ashlar. Does not validate `spec`.
 ReliefPoint relief_point(const ReliefSpec& spec, std::uint64_t index);
