@@ -14,6 +14,7 @@ report has been read.
     python3 bench/scale.py --format las --sizes 1e7 --n 800   # LAS 1.2 instead of PLY
     python3 bench/scale.py --format ptx --sizes 3e6 --n 800   # PTX text (converted from the PLY)
     python3 bench/scale.py --order scan --sizes 1e8 --n 4096 --modes tiled   # a scanner's point order
+    python3 bench/scale.py --order sorted --sizes 1e8 --n 4096 --modes tiled # the same points, sorted so
     python3 bench/scale.py --sizes 1e6,1e7,1e8 --json scale.json --plot docs/images/scale.png
     python3 bench/scale.py --plot-from a.json,b.json --plot docs/images/scale.png   # redraw, no run
     python3 bench/scale.py --compare old/hapticloud,build/release --sizes 1e8 --n 4096 --modes tiled \
@@ -302,9 +303,10 @@ def main():
     ap.add_argument("--tile-cells", type=int, default=256, help="scale.tile_cells of the tiled runs")
     ap.add_argument("--dask-workers", type=int, default=2, help="LocalCluster workers of the dask mode")
     ap.add_argument("--set", action="append", default=[], help="extra `hapticloud run --set` overrides")
-    ap.add_argument("--order", default="random", choices=["random", "scan"],
-                    help="the generated points' order: uniformly at random (the worst case for locality) or a "
-                         "scanner's vertical profiles from left to right (hc-gen-relief --scan-order)")
+    ap.add_argument("--order", default="random", choices=["random", "scan", "sorted"],
+                    help="the generated points' order: uniformly at random (the worst case for locality), a "
+                         "scanner's vertical profiles from left to right on a raster (hc-gen-relief --scan-order), "
+                         "or the random wall's own points sorted into that order (--sorted: the same points)")
     ap.add_argument("--format", default="ply", choices=["ply", "las", "ptx"],
                     help="the generated scans' format: binary float PLY, LAS 1.2 (point format 0), or PTX "
                          "(one scan of 1000 rows, converted here from the generated PLY)")
@@ -362,8 +364,8 @@ def main():
 
     rows = []
     for points in sizes:
-        stem = f"wall_{points}" if args.order == "random" else f"wall_scan_{points}"
-        order_flag = [] if args.order == "random" else ["--scan-order"]
+        stem = f"wall_{points}" if args.order == "random" else f"wall_{args.order}_{points}"
+        order_flag = {"random": [], "scan": ["--scan-order"], "sorted": ["--sorted"]}[args.order]
         scan = os.path.join(scratch, f"{stem}.{args.format}")
         if not os.path.exists(scan):
             print(f"generating {scan} ...", file=sys.stderr)
@@ -376,7 +378,7 @@ def main():
                 subprocess.run([generator, scan, "--points", str(points), "--quiet"] + order_flag, check=True)
         for n in grids:
           for mode in modes:
-            tag = f"{points}_{args.format}_{n}_{mode}" + ("" if args.order == "random" else "_scan")
+            tag = f"{points}_{args.format}_{n}_{mode}" + ("" if args.order == "random" else "_" + args.order)
             config = os.path.join(scratch, f"wall_{tag}.yaml")
             with open(config, "w") as f:
                 f.write(CONFIG.format(tag=tag, scan=os.path.basename(scan), n=n))

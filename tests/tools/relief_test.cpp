@@ -166,6 +166,62 @@ TEST(Relief, ScanOrderWalksVerticalProfilesLeftToRight) {
   EXPECT_EQ(hc::tools::scan_raster(tall).cols, 1U);
 }
 
+// Sorted: the default order's points, written column by column of the scan raster (by x) and
+// up each column (by y). The file read back holds the same points (as a multiset, against
+// relief_point of every index) in that order, checked pair by pair; the scan order and sorted
+// together are refused.
+TEST(Relief, SortedWritesTheDefaultPointsInAScannersOrder) {
+  const fs::path dir = hc::test::temp_dir("sorted");
+  ReliefSpec s = small_spec(20'001);
+  s.rgb = true;
+  s.sorted = true;
+  const auto stats = hc::tools::write_relief(s, dir / "w.ply", 3000, 2);
+  const hc::pipeline::Cloud c = hc::pipeline::load_cloud(dir / "w.ply").value;
+  ASSERT_EQ(c.size(), s.points);
+  // 100 rows, 201 columns of 2 m / 201 each (by hand: round(√(20001 / 2)) = 100).
+  const double col_w = 2.0 / 201.0;
+  std::vector<std::array<float, 3>> want, got;
+  std::uint64_t back = 0;
+  for (std::uint64_t i = 0; i < s.points; ++i) {
+    const hc::tools::ReliefPoint p = hc::tools::relief_point(s, i);
+    want.push_back({static_cast<float>(p.x_m), static_cast<float>(p.y_m), static_cast<float>(p.z_m)});
+    back += p.kind == ReliefPointKind::kBack ? 1U : 0U;
+  }
+  // A point's column from its float x: the lowest and highest it can be (a float x within a
+  // rounding step of a column's edge may sit on either side of it).
+  const auto col_range = [&](double x) {
+    return std::array<double, 2>{std::floor((x + 1.0) / col_w - 1e-6), std::floor((x + 1.0) / col_w + 1e-6)};
+  };
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    const auto e = static_cast<Eigen::Index>(i);
+    got.push_back({static_cast<float>(c.xyz(0, e)), static_cast<float>(c.xyz(1, e)), static_cast<float>(c.xyz(2, e))});
+    if (i == 0) continue;
+    const auto prev = col_range(c.xyz(0, e - 1)), now = col_range(c.xyz(0, e));
+    ASSERT_GE(now[1], prev[0]) << "point " << i << ": its column lies before the one of the point before it";
+    if (prev[0] == prev[1] && now[0] == now[1] && now[0] == prev[0]) {
+      ASSERT_GE(c.xyz(1, e), c.xyz(1, e - 1)) << "point " << i << ": lower than the point before it in its column";
+    }
+  }
+  std::sort(want.begin(), want.end());
+  std::sort(got.begin(), got.end());
+  EXPECT_EQ(want, got);
+  EXPECT_EQ(stats.back, back);
+  // The default file holds the same points in index order: not the sorted one's.
+  ReliefSpec plain = s;
+  plain.sorted = false;
+  hc::tools::write_relief(plain, dir / "plain.ply", 3000, 2);
+  EXPECT_NE(read_all(dir / "plain.ply"), read_all(dir / "w.ply"));
+  ReliefSpec both = s;
+  both.scan_order = true;
+  try {
+    hc::tools::write_relief(both, dir / "both.ply");
+    ADD_FAILURE() << "no error";
+  } catch (const hc::ConfigError& e) {
+    EXPECT_NE(std::string(e.what()).find("sorted"), std::string::npos) << e.what();
+  }
+  EXPECT_FALSE(fs::exists(dir / "both.ply"));
+}
+
 TEST(Relief, FilesDoNotDependOnChunksOrThreads) {
   const fs::path dir = hc::test::temp_dir("chunks");
   ReliefSpec s = small_spec(50'001);

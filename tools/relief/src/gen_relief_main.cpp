@@ -38,6 +38,8 @@ int main(int argc, char** argv) {
   app.add_flag("--rgb", spec.rgb, "Write a colour per point (PLY uchar rgb, LAS point format 2)");
   app.add_flag("--scan-order", spec.scan_order,
                "Points in a scanner's order (vertical profiles left to right) instead of uniformly at random");
+  app.add_flag("--sorted", spec.sorted,
+               "The default order's points sorted into a scanner's order (holds 12 bytes a point while sorting)");
   app.add_option("--chunk", chunk, "Points per chunk (the writer's memory: chunk x 12-26 bytes)")->capture_default_str();
   app.add_option("--threads", threads, "Generator threads (0 = all cores)")->capture_default_str();
   app.add_flag("-q,--quiet", quiet, "No progress on stderr");

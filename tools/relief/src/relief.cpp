@@ -80,12 +80,13 @@ struct SliceResult {
                                  std::numeric_limits<std::int32_t>::min()};
 };
 
-// Encodes points [first, first + count) into `out` (record_bytes each).
+// Encodes the points written at places [first, first + count) into `out` (record_bytes each):
+// point first + k, or with `order` (ReliefSpec::sorted) point order[first + k].
 void encode_slice(const ReliefSpec& spec, ReliefFormat format, std::uint64_t first, std::size_t count, unsigned char* out,
-                  SliceResult& r) {
+                  SliceResult& r, const std::uint32_t* order) {
   unsigned char* p = out;
   for (std::size_t k = 0; k < count; ++k) {
-    const ReliefPoint pt = relief_point(spec, first + k);
+    const ReliefPoint pt = relief_point(spec, order != nullptr ? order[first + k] : first + k);
     switch (pt.kind) {
       case ReliefPointKind::kFront: ++r.front; break;
       case ReliefPointKind::kBack: ++r.back; break;
@@ -125,7 +126,8 @@ void encode_slice(const ReliefSpec& spec, ReliefFormat format, std::uint64_t fir
 std::string ply_header(const ReliefSpec& spec) {
   std::ostringstream h;
   h << "ply\nformat binary_little_endian 1.0\n";
-  h << "comment hc-gen-relief: generated carved wall, units m, seed " << spec.seed << (spec.scan_order ? ", scan order" : "") << "\n";
+  h << "comment hc-gen-relief: generated carved wall, units m, seed " << spec.seed
+    << (spec.scan_order ? ", scan order" : spec.sorted ? ", sorted into scan order" : "") << "\n";
   h << "element vertex " << spec.points << "\n";
   h << "property float x\nproperty float y\nproperty float z\n";
   if (spec.rgb) h << "property uchar red\nproperty uchar green\nproperty uchar blue\n";
@@ -210,6 +212,10 @@ void validate(const ReliefSpec& s) {
   require(s.back_fraction + s.outlier_fraction <= 1.0, "back_fraction + outlier_fraction",
           s.back_fraction + s.outlier_fraction, "<= 1");
   require(finite(s.outlier_reach_m) && s.outlier_reach_m >= 0.0, "outlier_reach_m", s.outlier_reach_m, ">= 0");
+  if (s.sorted) {
+    require(!s.scan_order, "sorted", 1.0, "0 with scan_order (two orders asked for)");
+    require(s.points < std::numeric_limits<std::uint32_t>::max(), "points", static_cast<double>(s.points), "< 2^32 - 1 with sorted");
+  }
 }
 
 ScanRaster scan_raster(const ReliefSpec& s) {
@@ -286,6 +292,29 @@ ReliefPoint relief_point(const ReliefSpec& s, std::uint64_t i) {
   return p;
 }
 
+namespace {
+
+// ReliefSpec::sorted: the indices of the default order's points in the order written.
+std::vector<std::uint32_t> sorted_order(const ReliefSpec& s) {
+  // Each point's column of the scan raster from its x (the default order's draw), and its y as
+  // a 32-bit fraction of the wall's height: one 64-bit key, sorted with the index as the tie.
+  const std::uint64_t seed = mix64(s.seed);
+  const ScanRaster ras = scan_raster(s);
+  const auto cols = static_cast<double>(ras.cols);
+  std::vector<std::uint64_t> key(s.points);
+  std::vector<std::uint32_t> order(s.points);
+  for (std::uint64_t i = 0; i < s.points; ++i) {
+    const double col = std::min(cols - 1.0, std::floor(uniform(seed, i, 1) * cols));
+    const double y = std::min(uniform(seed, i, 2) * 0x1p32, 0x1p32 - 1.0);
+    key[i] = (static_cast<std::uint64_t>(col) << 32) | static_cast<std::uint64_t>(y);
+    order[i] = static_cast<std::uint32_t>(i);
+  }
+  std::sort(order.begin(), order.end(), [&key](std::uint32_t a, std::uint32_t b) { return key[a] != key[b] ? key[a] < key[b] : a < b; });
+  return order;
+}
+
+}  // namespace
+
 ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::size_t chunk_points, unsigned threads,
                               const ReliefProgressFn& progress) {
   validate(spec);
@@ -332,6 +361,7 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
   }
 
   ReliefWriteStats stats;
+  const std::vector<std::uint32_t> order = spec.sorted ? sorted_order(spec) : std::vector<std::uint32_t>();
   std::vector<unsigned char> buffer(chunk_points * record);
   stats.buffer_bytes = buffer.size();
   SliceResult total;
@@ -346,7 +376,7 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
       const std::size_t a = std::min(n, t * per), b = std::min(n, a + per);
       auto body = [&, t, a, b] {
         try {
-          encode_slice(spec, format, first + a, b - a, buffer.data() + a * record, parts[t]);
+          encode_slice(spec, format, first + a, b - a, buffer.data() + a * record, parts[t], order.empty() ? nullptr : order.data());
         } catch (...) {
           errors[t] = std::current_exception();
         }

@@ -52,6 +52,14 @@ struct ReliefSpec {
   /// holds the remainder, from the bottom). Back-face points and outliers are drawn as in the
   /// default order, at their raster cell's x and y.
   bool scan_order = false;
+  /// Written by write_relief only: the default order's points (scan_order false), written in a
+  /// scanner's order: by the column of the scan raster their x falls in (scan_raster's C
+  /// columns over the wall), then up by y, then by index. The same points as the default file
+  /// in another order, so that a run's speed on the two differs by the order alone
+  /// (bench/scale.py --order sorted). The permutation is held while writing: 12 bytes a point
+  /// (1.2 GB at 10⁸), and points < 2³² − 1. relief_point(spec, i) is still the default order's
+  /// point i.
+  bool sorted = false;
 };
 
 /// The class of a generated point.
@@ -119,7 +127,8 @@ using ReliefProgressFn = std::function<void(std::uint64_t done, std::uint64_t to
 /// file_output.hpp): an existing file is never replaced, and a failure leaves nothing behind.
 /// LAS: the header's bounds are those of the stored (quantised) coordinates; coordinates are
 /// X = round(x / 0.0001 m); every point is a single return of class 1 (unclassified).
-/// Memory: one chunk (chunk_points × the record size). Bytes out: PLY 12 (15 with rgb) per point
+/// Memory: one chunk (chunk_points × the record size), and with spec.sorted the permutation (12
+/// bytes a point while sorting, 4 after). Bytes out: PLY 12 (15 with rgb) per point
 /// plus the header; LAS 20 (26) plus 227.
 /// @throws hc::ConfigError for an invalid spec (validate), chunk_points 0, an extension other
 ///         than .ply / .las, a LAS file of 2³² points or more, or coordinates outside LAS's
