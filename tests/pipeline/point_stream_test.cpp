@@ -982,34 +982,89 @@ TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "comma.pcd"); }).find("data line 4321: ',' between values"), std::string::npos);
 }
 
-TEST(PointStream, OtherLayoutsAreReadWholeAndHandedOutInChunks) {
-  // A binary PLY vertex element with a list property (not streamed: a vertex's size varies).
-  const fs::path dir = hc::test::temp_dir("whole");
-  const fs::path p = dir / "points.ply";
-  {
-    std::ofstream out(p, std::ios::binary);
-    out << "ply\nformat binary_little_endian 1.0\nelement vertex 50\nproperty float x\nproperty float y\n"
-           "property float z\nproperty list uchar int ids\nend_header\n";
-    for (int i = 0; i < 50; ++i) {
-      const float xyz[3] = {0.01f * static_cast<float>(i), -0.02f * static_cast<float>(i), 1e-3f * static_cast<float>(i * i)};
-      const unsigned char n = static_cast<unsigned char>(i % 3);
-      out.write(reinterpret_cast<const char*>(xyz), sizeof xyz);
-      out.write(reinterpret_cast<const char*>(&n), 1);
-      for (int k = 0; k < n; ++k) out.write(reinterpret_cast<const char*>(&i), sizeof i);  // little-endian host
+// A binary PLY whose vertex element holds list properties (records of their own lengths) among
+// its scalars: x float, a list of r mod 6 ints (count type `count`), y double, red green blue,
+// a list of r mod 3 floats (ushort count), z float; then an element "extra" of 3 bytes. Vertex r
+// has x = r/1000 + 1/3, y = −r, z = r²·10⁻⁶, colour (r, 2r, 3r) mod 256.
+// negative_at: the vertex whose first list count is −1 (a char count), or none.
+fs::path write_ply_vertex_lists(const fs::path& p, std::size_t n, bool big_endian, const std::string& count = "uchar",
+                                std::size_t negative_at = std::numeric_limits<std::size_t>::max()) {
+  std::ofstream out(p, std::ios::binary);
+  out << "ply\nformat " << (big_endian ? "binary_big_endian" : "binary_little_endian") << " 1.0\n";
+  out << "element vertex " << n << "\nproperty float x\nproperty list " << count << " int ids\nproperty double y\n"
+      << "property uchar red\nproperty uchar green\nproperty uchar blue\nproperty list ushort float w\nproperty float z\n"
+      << "element extra 3\nproperty uchar k\nend_header\n";
+  auto put = [&](auto v) {
+    char b[sizeof v];
+    std::memcpy(b, &v, sizeof v);
+    if (big_endian) std::reverse(b, b + sizeof v);
+    out.write(b, sizeof v);
+  };
+  for (std::size_t r = 0; r < n; ++r) {
+    put(static_cast<float>(static_cast<double>(r) * 0.001 + 1.0 / 3.0));
+    const int items = r == negative_at ? -1 : static_cast<int>(r % 6);
+    if (count == "char") {
+      put(static_cast<std::int8_t>(items));
+    } else {
+      put(static_cast<std::uint8_t>(items));
+    }
+    for (int k = 0; k < items; ++k) put(static_cast<std::int32_t>(r + static_cast<std::size_t>(k)));
+    put(-static_cast<double>(r));
+    put(static_cast<std::uint8_t>(r % 256));
+    put(static_cast<std::uint8_t>((2 * r) % 256));
+    put(static_cast<std::uint8_t>((3 * r) % 256));
+    put(static_cast<std::uint16_t>(r % 3));
+    for (std::size_t k = 0; k < r % 3; ++k) put(static_cast<float>(k) + 0.5f);
+    put(static_cast<float>(static_cast<double>(r * r) * 1e-6));
+  }
+  for (int k = 0; k < 3; ++k) put(static_cast<std::uint8_t>(k));
+  return p;
+}
+
+// Until 2026-11-27 a binary PLY with list properties in its vertex element was read whole at
+// every pass of a tiled run. Now its records are walked from blocks of 1 MiB or more as they
+// are read (here about 4.4 MB of them), little and big endian and under gzip. Oracles: the whole
+// read (load_cloud), bit for bit with colour, and the values written; its errors, word for word,
+// sticky, where the read reaches them: a negative list count at vertex 90 000 and data that end
+// inside vertex 100 000.
+TEST(PointStream, BinaryPlyWithListsInItsVerticesStreamsAsTheWholeRead) {
+  const fs::path dir = hc::test::temp_dir("ply_vertex_lists");
+  for (const bool big : {false, true}) {
+    const fs::path p = write_ply_vertex_lists(dir / (big ? "be.ply" : "le.ply"), 120001, big);
+    const fs::path gz = dir / (p.filename().string() + ".gz");
+    hc::test::write_gzip(gz, hc::test::read_bytes(p), 2);
+    for (const fs::path& f : {p, gz}) {
+      SCOPED_TRACE(f.filename().string());
+      const Cloud whole = hc::pipeline::load_cloud(f).value;
+      ASSERT_EQ(whole.size(), 120001U);
+      EXPECT_EQ(whole.xyz(0, 120000), static_cast<double>(static_cast<float>(120.0 + 1.0 / 3.0)));
+      EXPECT_EQ(whole.xyz(1, 12345), -12345.0);
+      EXPECT_EQ(whole.xyz(2, 1000), static_cast<double>(static_cast<float>(1.0)));
+      ASSERT_TRUE(whole.has_rgb());
+      EXPECT_EQ(whole.rgb[3 * 300 + 1], 600 % 256);
+      for (const std::size_t chunk : {std::size_t{7}, std::size_t{1000}, std::size_t{1} << 20}) {
+        const auto s = expect_chunks_equal(f, whole, chunk);
+        EXPECT_EQ(s->total_points(), 120001U);
+        bool said = false;
+        for (const std::string& n : s->notes()) said = said || n.find("records with list properties streamed in chunks") != std::string::npos;
+        EXPECT_TRUE(said);
+      }
     }
   }
-  auto s = hc::pipeline::open_point_stream(p);
-  EXPECT_FALSE(s->streamed());
-  std::size_t chunks = 0;
-  const Cloud got = read_in_chunks(*s, 16, &chunks);
-  EXPECT_EQ(chunks, 4U);
-  const Cloud whole = hc::pipeline::load_cloud(p).value;
-  ASSERT_EQ(whole.size(), 50U);
-  EXPECT_TRUE(got.xyz == whole.xyz);
-  EXPECT_EQ(got.rgb, whole.rgb);
-  bool said = false;
-  for (const std::string& n : s->notes()) said = said || n.find("read whole") != std::string::npos;
-  EXPECT_TRUE(said);
+  const fs::path negative = write_ply_vertex_lists(dir / "negative.ply", 120001, false, "char", 90000);
+  EXPECT_NE(expect_stream_fails_as_whole_read(negative, 5000).find("vertex 90000: list property 'ids' has the negative item count -1"),
+            std::string::npos);
+  const std::string bytes = hc::test::read_bytes(write_ply_vertex_lists(dir / "whole.ply", 120001, false));
+  // Vertex r's record: 4 + 1 + 4·(r mod 6) + 8 + 3 + 2 + 4·(r mod 3) + 4 = 22 + … bytes.
+  std::size_t at = bytes.find("end_header\n") + 11;
+  for (std::size_t r = 0; r < 100000; ++r) at += 22 + 4 * (r % 6) + 4 * (r % 3);
+  std::ofstream(dir / "cut.ply", std::ios::binary) << bytes.substr(0, at + 10);
+  hc::test::write_gzip(dir / "cut.ply.gz", bytes.substr(0, at + 10));
+  for (const char* cut : {"cut.ply", "cut.ply.gz"}) {
+    SCOPED_TRACE(cut);
+    EXPECT_NE(expect_stream_fails_as_whole_read(dir / cut, 5000).find("the data ends inside vertex 100000 (100000 whole vertices)"),
+              std::string::npos);
+  }
 }
 
 // An OBJ of about 9 MB (more than one read block): 120 000 vertices with colour (v x y z r g b,

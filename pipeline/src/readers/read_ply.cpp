@@ -14,7 +14,8 @@
 //   * binary, vertex element without list properties: a fixed-stride copy (about 20x faster
 //     than PCL's PLY reader on the 1.1 M-point Buddha);
 //   * binary, vertex element with list properties (any position): record by record, each
-//     list's count read in its count type and its items skipped;
+//     list's count read in its count type and its items skipped (streamed in chunks the same
+//     way: ListPlyStream);
 //   * ascii: one line per element instance, numbers parsed with std::from_chars (PCL's ASCII
 //     reader accepts a non-numeric token silently and is about 10x slower); a list property
 //     takes its count and then that many values.
@@ -979,6 +980,100 @@ class PlyStream final : public PointStream {
   std::vector<std::string> notes_;
 };
 
+// A binary PLY whose vertex element holds list properties (records of their own lengths), read
+// in blocks of at least 1 MiB and walked record by record with the whole read's own
+// walk_binary_record and decoding (read_binary_records): the same points, colour and errors (a
+// negative list count names its vertex; data that end inside a vertex give the whole read's
+// message), raised where the read reaches them; every later call fails too (StickyFailure). Memory: a
+// block and the records of one chunk. Since 2026-11-27 (until then read whole at every pass).
+class ListPlyStream final : public PointStream {
+ public:
+  ListPlyStream(std::unique_ptr<ByteSource> src, const PlyLayout& ply, std::size_t offset)
+      : src_(std::move(src)), name_(src_->name()), v_(ply.vertex()), axis_of_(axes_of(v_)), swap_(needs_swap(ply)),
+        colour_(has_colour(axis_of_)), total_(v_.count) {
+    for (std::size_t j = 0; j < v_.properties.size(); ++j) {
+      if (axis_of_[j] >= 3) colour_type_[axis_of_[j] - 3] = v_.properties[j].type;
+    }
+    notes_.push_back("PLY " + ply.format + ", " + std::to_string(total_) + " vertices (records with list properties streamed in chunks)");
+    for (const auto& pr : v_.properties) {
+      if (pr.is_list) notes_.push_back("skipped the vertex list property '" + pr.name + "'");
+    }
+    if (ply.vertex_index + 1 < ply.elements.size()) {
+      notes_.push_back("elements after 'vertex' (" + ply.elements[ply.vertex_index + 1].name +
+                       ", ...) not read: a streamed scan is taken as points");
+    }
+    src_->seek(offset);
+  }
+  ~ListPlyStream() override = default;
+  ListPlyStream(const ListPlyStream&) = delete;
+  ListPlyStream& operator=(const ListPlyStream&) = delete;
+
+  std::uint64_t total_points() const override { return total_; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    return sticky_.run(name_, chunk, [&] {
+      const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
+      if (n == 0) return false;
+      chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
+      if (colour_) chunk.rgb.resize(3 * n);
+      double* out = chunk.xyz.data();
+      for (std::size_t i = 0; i < n; ++i) {
+        double slots[6] = {0, 0, 0, 0, 0, 0};
+        const char* q = nullptr;
+        for (;;) {
+          q = walk_binary_record(buf_.data() + at_, buf_.data() + buf_.size(), v_, done_ + i, swap_, axis_of_.data(), slots, name_);
+          if (q != nullptr || !more()) break;
+        }
+        if (q == nullptr) {
+          throw InputError("load_cloud: " + name_ + ": truncated: the header declares " + std::to_string(total_) +
+                           " vertices but the data ends inside vertex " + std::to_string(done_ + i) + " (" +
+                           std::to_string(done_ + i) + " whole vertices)");
+        }
+        at_ = static_cast<std::size_t>(q - buf_.data());
+        std::copy_n(slots, 3, out + 3 * i);
+        for (std::size_t a = 0; colour_ && a < 3; ++a) chunk.rgb[3 * i + a] = colour_byte(slots[3 + a], colour_type_[a]);
+      }
+      chunk.float32_xyz = float32_;
+      done_ += n;
+      if (done_ == total_) src_->drain();
+      return true;
+    });
+  }
+
+  bool float32_ = false;
+
+ private:
+  // Drops the walked bytes and reads at least 1 MiB more (or as much again as a record left
+  // unwalked needs); false at the data's end.
+  bool more() {
+    if (ended_) return false;
+    buf_.erase(buf_.begin(), buf_.begin() + static_cast<std::ptrdiff_t>(at_));
+    at_ = 0;
+    const std::size_t old = buf_.size(), want = std::max<std::size_t>(std::size_t{1} << 20, old);
+    buf_.resize(old + want);
+    const std::size_t got = src_->read(buf_.data() + old, want);
+    buf_.resize(old + got);
+    ended_ = got < want;
+    return got > 0;
+  }
+
+  std::unique_ptr<ByteSource> src_;
+  std::string name_;
+  PlyElement v_;
+  std::vector<int> axis_of_;
+  bool swap_ = false;
+  bool colour_ = false;
+  PlyType colour_type_[3] = {PlyType::kUint8, PlyType::kUint8, PlyType::kUint8};
+  std::uint64_t total_ = 0, done_ = 0;
+  std::vector<char> buf_;
+  std::size_t at_ = 0;  // buf_[at_, size) not walked yet
+  bool ended_ = false;
+  StickyFailure sticky_;  // once next() failed, every later call fails too
+  std::vector<std::string> notes_;
+};
+
 // An ASCII PLY read in blocks of lines (point_stream.hpp): AsciiVertexParser over FileLines
 // from the first line after the header.
 class AsciiPlyStream final : public LineStream {
@@ -1043,9 +1138,7 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
     if (mesh) return nullptr;
     return std::make_unique<AsciiPlyStream>(std::move(src), std::move(ply));
   }
-  // A vertex element with list properties (records of their own lengths) is read whole; so is a
-  // mesh (a face element after the vertices), so that its faces are kept.
-  if (ply.vertex().has_list()) return nullptr;
+  // A mesh (a face element after the vertices) is read whole, so that its faces are kept.
   for (std::size_t i = ply.vertex_index + 1; !points_only && i < ply.elements.size(); ++i) {
     if (ply.elements[i].name == "face") return nullptr;
   }
@@ -1068,16 +1161,23 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
     }
   }
   const PlyElement& v = ply.vertex();
-  std::size_t vertex_bytes = 0;
-  if (__builtin_mul_overflow(v.stride(), v.count, &vertex_bytes)) return nullptr;
-  const std::size_t have = file_size > offset ? static_cast<std::size_t>(file_size) - offset : 0;
-  if (have < vertex_bytes) throw InputError(truncated_vertices(name, v.count, v.stride(), have));
-  auto stream = std::make_unique<PlyStream>(std::move(src), ply, offset);
   int float_axes = 0;
   const std::vector<int> axis_of = axes_of(v);
   for (std::size_t j = 0; j < v.properties.size(); ++j) {
     if (axis_of[j] >= 0 && v.properties[j].type == PlyType::kFloat32) ++float_axes;
   }
+  if (v.has_list()) {
+    // Records of their own lengths: walked as they are read (ListPlyStream), a truncation found
+    // where the read reaches it.
+    auto stream = std::make_unique<ListPlyStream>(std::move(src), ply, offset);
+    stream->float32_ = float_axes == 3;
+    return stream;
+  }
+  std::size_t vertex_bytes = 0;
+  if (__builtin_mul_overflow(v.stride(), v.count, &vertex_bytes)) return nullptr;
+  const std::size_t have = file_size > offset ? static_cast<std::size_t>(file_size) - offset : 0;
+  if (have < vertex_bytes) throw InputError(truncated_vertices(name, v.count, v.stride(), have));
+  auto stream = std::make_unique<PlyStream>(std::move(src), ply, offset);
   stream->float32_ = float_axes == 3;
   stream->gz_ = gz;
   return stream;

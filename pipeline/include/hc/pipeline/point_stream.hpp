@@ -3,8 +3,10 @@
 /// Reading a scan in chunks (issue 14): the passes of the tiled pipeline read the input several
 /// times and must never hold it whole.
 ///
-/// Streamed natively (memory: one chunk): binary PLY (little or big endian) whose elements up to
-/// and including `vertex` have no list properties, not gzip-compressed; uncompressed LAS 1.0–1.4
+/// Streamed natively (memory: one chunk): binary PLY (little or big endian; fixed-stride vertex
+/// records, or records with list properties walked one by one from blocks of 1 MiB or more,
+/// since 2026-11-27; elements with lists before the vertices walked over when opened);
+/// uncompressed LAS 1.0–1.4
 /// (`.las`: the same points, colour, intensity, dropped classes and CRS as load_cloud; with
 /// colour, one extra pass over the records before the first chunk decides 8- or 16-bit RGB, as
 /// load_cloud does); LAZ (`.laz`, one LASzip chunk decompressed at a time, the same points as
