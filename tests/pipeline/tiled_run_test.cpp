@@ -1450,16 +1450,20 @@ TEST(TiledRun, EqualsTheInCoreRunOnAPtxFileStreamedLineByLine) {
 
 // A PTS file of two blocks (the plate of the PTX test above as two exports: X Y Z intensity R G
 // B, Leica's integer intensities), the same plate as an XYZ file with comments, as an ASCII
-// PLY with colour and as an OBJ mesh's coloured vertices (input.as_points): each read
+// PLY with colour, as a binary PLY with a list property among its vertices' own (records walked
+// one by one) and as an OBJ mesh's coloured vertices (input.as_points): each read
 // in blocks of lines at every pass gives the in-core scene in tiles, colour included, and auto
 // counts its points with the first look.
-TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAsciiPlyObjAndBinaryPcdFilesStreamedInChunks) {
+TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzPlyObjAndBinaryPcdFilesStreamedInChunks) {
   const fs::path dir = hc::test::temp_dir("pts_scan");
   {
     std::ofstream pts(dir / "plate.pts", std::ios::binary), xyz(dir / "plate.xyz", std::ios::binary);
     std::ofstream ply(dir / "plate.ply", std::ios::binary), pcd(dir / "plate.pcd", std::ios::binary);
-    std::ofstream obj(dir / "plate.obj", std::ios::binary);
+    std::ofstream obj(dir / "plate.obj", std::ios::binary), lists(dir / "plate_lists.ply", std::ios::binary);
     xyz << "# the plate, x y z\n";
+    // Binary, with list properties among the vertex's own (records of their own lengths).
+    lists << "ply\nformat binary_little_endian 1.0\nelement vertex 120000\nproperty float x\nproperty list uchar int ids\n"
+          << "property float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n";
     obj << "# the plate as a mesh's vertices with colour, and faces the run does not read\n";
     ply << "ply\nformat ascii 1.0\nelement vertex 120000\nproperty double x\nproperty double y\nproperty double z\n"
         << "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n";
@@ -1481,6 +1485,13 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAsciiPlyObjAndBinaryPcdFilesStreamedInC
         const std::uint32_t rgb = 0x00C80000u | static_cast<std::uint32_t>(k % 256);
         pcd.write(reinterpret_cast<const char*>(f), sizeof f);
         pcd.write(reinterpret_cast<const char*>(&rgb), sizeof rgb);
+        const auto items = static_cast<unsigned char>(k % 5);
+        const unsigned char colour[3] = {static_cast<unsigned char>(k % 256), static_cast<unsigned char>((7 * k) % 256), 200};
+        lists.write(reinterpret_cast<const char*>(f), 4);
+        lists.write(reinterpret_cast<const char*>(&items), 1);
+        for (int i = 0; i < items; ++i) lists.write(reinterpret_cast<const char*>(&k), sizeof k);  // a little-endian host
+        lists.write(reinterpret_cast<const char*>(f + 1), 8);
+        lists.write(reinterpret_cast<const char*>(colour), 3);
       }
     }
   }
@@ -1497,6 +1508,10 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzAsciiPlyObjAndBinaryPcdFilesStreamedInC
   const BuiltScene obj = expect_streamed_tiled_run(dir, "input: {files: [plate.obj], units: m, as_points: true}\n" + grid, 64,
                                                    "lines streamed in chunks", 100000);
   EXPECT_FALSE(obj.scene.layers.colour_rgb8.empty());
+  const BuiltScene lists = expect_streamed_tiled_run(dir, "input: {files: [plate_lists.ply], units: m}\n" + grid, 64,
+                                                     "PLY binary_little_endian, 120000 vertices (records with list properties streamed in chunks)",
+                                                     100000);
+  EXPECT_FALSE(lists.scene.layers.colour_rgb8.empty());
   const std::string pcd_note = "PCD binary, 120000 points (fixed-size records streamed in chunks)";
   const BuiltScene pcd = expect_streamed_tiled_run(dir, "input: {files: [plate.pcd], units: m}\n" + grid, 64, pcd_note, 100000);
   EXPECT_EQ(stage_figure(pcd, "tile_spill", "spill_xyz_floats"), 1.0);
