@@ -14,7 +14,7 @@ report has been read.
     python3 bench/scale.py --format las --sizes 1e7 --n 800   # LAS 1.2 instead of PLY
     python3 bench/scale.py --format ptx --sizes 3e6 --n 800   # PTX text (converted from the PLY)
     python3 bench/scale.py --order scan --sizes 1e8 --n 4096 --modes tiled   # a scanner's point order
-    python3 bench/scale.py --order sorted --sizes 1e8 --n 4096 --modes tiled # the same points, sorted so
+    python3 bench/scale.py --order sorted --sizes 1e8 --n 4096 --modes tiled # the random wall's points, sorted
     python3 bench/scale.py --sizes 1e6,1e7,1e8 --json scale.json --plot docs/images/scale.png
     python3 bench/scale.py --plot-from a.json,b.json --plot docs/images/scale.png   # redraw, no run
     python3 bench/scale.py --compare old/hapticloud,build/release --sizes 1e8 --n 4096 --modes tiled \
@@ -402,8 +402,8 @@ def main():
             cmd += run_settings(mode, args.tile_cells, scratch, args.set)
             print(f"running {points} points, N = {n}, {mode} ...", file=sys.stderr)
             code, wall, user, system, rss, err = run_child(cmd)
-            row = {"points": points, "n": n, "mode": mode, "exit": code, "wall_s": wall, "cpu_s": user + system,
-                   "peak_rss_bytes": rss}
+            row = {"points": points, "n": n, "mode": mode, "order": args.order, "exit": code, "wall_s": wall,
+                   "cpu_s": user + system, "peak_rss_bytes": rss}
             if mode == "dask":
                 # The workers are not this child's waited descendants: their CPU time and memory
                 # are not in its rusage. Only the wall time and the merge's stages count.
@@ -435,7 +435,7 @@ def main():
             shutil.rmtree(out, ignore_errors=True)
             rows.append(row)
 
-    print(f"scans: generated walls, {args.format.upper()}")
+    print(f"scans: generated walls, {args.format.upper()}, points in {args.order} order")
     print(f"load average before the last run: {os.getloadavg()[0]:.2f}; cores: {os.cpu_count()}")
     tunables = sorted({r.get("glibc_tunables", "") for r in rows if "slowest" in r})
     print("GLIBC_TUNABLES of the runs (hapticloud adds glibc.malloc.hugetlb=1 where it helps): " +

@@ -70,6 +70,16 @@ def main():
         "element camera 12\nproperty float f\nproperty list uchar int ids\nproperty short s\n"
         f"element vertex {len(few)}\nproperty float x\nproperty float y\nproperty float z\nend_header\n").encode() +
         struct.pack("<hhh", 1, 2, 3) + cams + b"".join(struct.pack("<fff", *p) for p in few))
+    # Binary, list properties among the vertex's own (streamed since 2026-11-27: records walked
+    # one by one), then an element after the vertices.
+    verts = b"".join(struct.pack("<fB", r * 0.5 + 1 / 3, r % 3) + b"".join(struct.pack("<i", r + k) for k in range(r % 3)) +
+                     struct.pack("<d", -r) + bytes([r, 2 * r, 3 * r]) + struct.pack("<H", r % 2) +
+                     b"".join(struct.pack("<f", k + 0.5) for k in range(r % 2)) + struct.pack("<f", r * r * 0.01)
+                     for r in range(6))
+    put("ply", "vertex_lists.ply", ("ply\nformat binary_little_endian 1.0\nelement vertex 6\nproperty float x\n"
+        "property list uchar int ids\nproperty double y\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n"
+        "property list ushort float w\nproperty float z\nelement extra 2\nproperty uchar k\nend_header\n").encode() +
+        verts + bytes([0, 1]))
     # PCD: ASCII and binary, v0.7 and v0.5 headers.
     put("pcd", "v05.pcd", "# .PCD v.5 - Point Cloud Data file format\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\n"
         "COUNT 1 1 1\nWIDTH 3\nHEIGHT 1\nPOINTS 3\nDATA ascii\n0 0 0\n0.01 0 0.001\n0 0.01 0.002\n")

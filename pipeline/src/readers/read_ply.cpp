@@ -112,6 +112,14 @@ struct PlyLayout {
 };
 
 // `file_size`: the whole file's size when `raw` holds only its beginning (a streamed read);
+// The whole read's words for a header that declares more vertices than bytes follow it (every
+// vertex takes at least one byte): parse_ply_header's check, and the streams' under gzip, where
+// the data's size is learnt only at its end.
+InputError too_many_vertices(const std::string& name, std::size_t count, std::uint64_t bytes_after_header) {
+  return InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(count) + " vertices but only " +
+                    std::to_string(bytes_after_header) + " bytes follow it");
+}
+
 // npos = raw is the whole file.
 PlyLayout parse_ply_header(const std::string& raw, const std::string& name, std::size_t file_size = std::string::npos) {
   const std::size_t size = file_size == std::string::npos ? raw.size() : file_size;
@@ -203,10 +211,7 @@ PlyLayout parse_ply_header(const std::string& raw, const std::string& name, std:
   if (out.vertex_index == out.elements.size()) throw fail("the header declares no 'vertex' element");
   const PlyElement& vertex = out.vertex();
   if (vertex.count == 0) throw fail("the header declares 0 vertices");
-  if (vertex.count > size - out.body) {  // every vertex takes at least one byte
-    throw fail("truncated: the header declares " + std::to_string(vertex.count) + " vertices but only " +
-               std::to_string(size - out.body) + " bytes follow it");
-  }
+  if (vertex.count > size - out.body) throw too_many_vertices(name, vertex.count, size - out.body);  // a byte a vertex at least
   for (const char* axis : {"x", "y", "z"}) {
     const auto n = std::count_if(vertex.properties.begin(), vertex.properties.end(),
                                  [&](const PlyProperty& p) { return p.name == axis; });
@@ -381,7 +386,14 @@ std::uint64_t streamed_vertex_offset(ByteSource& src, const PlyLayout& ply, cons
   };
   for (std::size_t i = 0; i < ply.vertex_index; ++i) {
     const PlyElement& el = ply.elements[i];
-    auto truncated = [&](std::size_t whole) { return truncated_before_vertices(name, el, whole); };
+    // The data end inside this element after `whole` records: under gzip their size is known
+    // only now, and the whole read's header check (a byte a vertex at least) comes first (for a
+    // plain file it ran when the stream opened).
+    auto truncated = [&](std::size_t whole) {
+      const std::uint64_t after_header = base + buf.size() - ply.body;
+      if (ply.vertex().count > after_header) return too_many_vertices(name, ply.vertex().count, after_header);
+      return truncated_before_vertices(name, el, whole);
+    };
     if (!el.has_list()) {
       const std::size_t stride = el.stride();
       std::size_t r = 0;  // records skipped
@@ -923,12 +935,25 @@ ReadResult read_ply(const ScanSource& source) {
 
 namespace {
 
+// The notes the whole read (read_ply) gives a binary PLY's vertices, in its order, after its
+// first: the vertex list properties skipped, the non-standard header lines, the colour.
+void add_whole_read_notes(const PlyLayout& ply, bool colour, std::vector<std::string>& notes) {
+  for (const auto& pr : ply.vertex().properties) {
+    if (pr.is_list) notes.push_back("skipped the vertex list property '" + pr.name + "'");
+  }
+  if (ply.skipped_lines > 0) {
+    notes.push_back("skipped " + std::to_string(ply.skipped_lines) + " non-standard header lines (obj_info and stray lines)");
+  }
+  if (colour) notes.push_back("vertex colours (red, green, blue) read as 8-bit RGB");
+}
+
 // A binary PLY read record block by record block (point_stream.hpp).
 class PlyStream final : public PointStream {
  public:
   PlyStream(std::unique_ptr<ByteSource> src, const PlyLayout& ply, std::size_t offset)
-      : src_(std::move(src)), name_(src_->name()), rec_(ply), total_(ply.vertex().count) {
+      : src_(std::move(src)), name_(src_->name()), rec_(ply), total_(ply.vertex().count), before_(offset - ply.body) {
     notes_.push_back("PLY " + ply.format + ", " + std::to_string(total_) + " vertices (fixed-stride records streamed in chunks)");
+    add_whole_read_notes(ply, rec_.colour, notes_);
     if (ply.vertex_index + 1 < ply.elements.size()) {
       notes_.push_back("elements after 'vertex' (" + ply.elements[ply.vertex_index + 1].name +
                        ", ...) not read: a streamed scan is taken as points");
@@ -952,8 +977,11 @@ class PlyStream final : public PointStream {
     const std::size_t got = bytes / rec_.stride;
     if (got != n && gz_) {
       // The data's size was unknown when opened: the bytes after the vertex offset are those read
-      // so far, and the whole read's message says so.
-      throw InputError(truncated_vertices(name_, total_, rec_.stride, done_ * rec_.stride + bytes));
+      // so far, and the whole read's message says so (its header check, a byte a vertex at
+      // least, first).
+      const std::uint64_t vertex_bytes = done_ * rec_.stride + bytes;
+      if (total_ > before_ + vertex_bytes) throw too_many_vertices(name_, total_, before_ + vertex_bytes);
+      throw InputError(truncated_vertices(name_, total_, rec_.stride, vertex_bytes));
     }
     if (got != n) {  // checked against the file's size when opened: the file changed since
       throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) + " of " +
@@ -976,6 +1004,7 @@ class PlyStream final : public PointStream {
   std::string name_;
   FixedRecords rec_;
   std::uint64_t total_ = 0, done_ = 0;
+  std::uint64_t before_ = 0;  // data bytes between the header and the vertices
   std::vector<char> buffer_;
   std::vector<std::string> notes_;
 };
@@ -985,19 +1014,19 @@ class PlyStream final : public PointStream {
 // walk_binary_record and decoding (read_binary_records): the same points, colour and errors (a
 // negative list count names its vertex; data that end inside a vertex give the whole read's
 // message), raised where the read reaches them; every later call fails too (StickyFailure). Memory: a
-// block and the records of one chunk. Since 2026-11-27 (until then read whole at every pass).
+// block (1 MiB, or as much as one record needs: a list count past the data's end reads the rest
+// of the data, doubling the block, before it fails, as the whole read held all of it) and one
+// chunk's points. Since 2026-11-27 (until then read whole at every pass).
 class ListPlyStream final : public PointStream {
  public:
   ListPlyStream(std::unique_ptr<ByteSource> src, const PlyLayout& ply, std::size_t offset)
       : src_(std::move(src)), name_(src_->name()), v_(ply.vertex()), axis_of_(axes_of(v_)), swap_(needs_swap(ply)),
-        colour_(has_colour(axis_of_)), total_(v_.count) {
+        colour_(has_colour(axis_of_)), total_(v_.count), before_(offset - ply.body) {
     for (std::size_t j = 0; j < v_.properties.size(); ++j) {
       if (axis_of_[j] >= 3) colour_type_[axis_of_[j] - 3] = v_.properties[j].type;
     }
     notes_.push_back("PLY " + ply.format + ", " + std::to_string(total_) + " vertices (records with list properties streamed in chunks)");
-    for (const auto& pr : v_.properties) {
-      if (pr.is_list) notes_.push_back("skipped the vertex list property '" + pr.name + "'");
-    }
+    add_whole_read_notes(ply, colour_, notes_);
     if (ply.vertex_index + 1 < ply.elements.size()) {
       notes_.push_back("elements after 'vertex' (" + ply.elements[ply.vertex_index + 1].name +
                        ", ...) not read: a streamed scan is taken as points");
@@ -1027,6 +1056,10 @@ class ListPlyStream final : public PointStream {
           if (q != nullptr || !more()) break;
         }
         if (q == nullptr) {
+          // The data end inside vertex done_ + i: under gzip their size is known only now, and
+          // the whole read's header check (a byte a vertex at least) comes first (for a plain
+          // file it ran when the stream opened).
+          if (total_ > before_ + read_) throw too_many_vertices(name_, total_, before_ + read_);
           throw InputError("load_cloud: " + name_ + ": truncated: the header declares " + std::to_string(total_) +
                            " vertices but the data ends inside vertex " + std::to_string(done_ + i) + " (" +
                            std::to_string(done_ + i) + " whole vertices)");
@@ -1055,6 +1088,7 @@ class ListPlyStream final : public PointStream {
     buf_.resize(old + want);
     const std::size_t got = src_->read(buf_.data() + old, want);
     buf_.resize(old + got);
+    read_ += got;
     ended_ = got < want;
     return got > 0;
   }
@@ -1067,6 +1101,8 @@ class ListPlyStream final : public PointStream {
   bool colour_ = false;
   PlyType colour_type_[3] = {PlyType::kUint8, PlyType::kUint8, PlyType::kUint8};
   std::uint64_t total_ = 0, done_ = 0;
+  std::uint64_t before_ = 0;  // data bytes between the header and the vertices
+  std::uint64_t read_ = 0;    // bytes read from the vertices' start
   std::vector<char> buf_;
   std::size_t at_ = 0;  // buf_[at_, size) not walked yet
   bool ended_ = false;
@@ -1148,7 +1184,21 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
   bool lists_before = false;
   for (std::size_t i = 0; i < ply.vertex_index; ++i) lists_before = lists_before || ply.elements[i].has_list();
   std::size_t offset = ply.body;
-  if (lists_before) {
+  // Under gzip the elements before the vertices are walked too (a seek inflates them anyway),
+  // so that data ending inside one fail with the whole read's words; so are a plain file's whose
+  // strides pass its end.
+  bool walk = lists_before || (gz && ply.vertex_index > 0);
+  if (!walk) {
+    for (std::size_t i = 0; i < ply.vertex_index; ++i) {
+      std::size_t bytes = 0;
+      if (__builtin_mul_overflow(ply.elements[i].stride(), ply.elements[i].count, &bytes) || __builtin_add_overflow(offset, bytes, &offset)) {
+        return nullptr;
+      }
+    }
+    walk = offset > file_size;
+    offset = ply.body;
+  }
+  if (walk) {
     const std::uint64_t at = streamed_vertex_offset(*src, ply, name);
     if (at > std::numeric_limits<std::size_t>::max() / 2) return nullptr;
     offset = static_cast<std::size_t>(at);

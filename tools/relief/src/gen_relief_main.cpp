@@ -40,7 +40,7 @@ int main(int argc, char** argv) {
                "Points in a scanner's order (vertical profiles left to right) instead of uniformly at random");
   app.add_flag("--sorted", spec.sorted,
                "The default order's points sorted into a scanner's order (holds 12 bytes a point while sorting)");
-  app.add_option("--chunk", chunk, "Points per chunk (the writer's memory: chunk x 12-26 bytes)")->capture_default_str();
+  app.add_option("--chunk", chunk, "Points per chunk (the writer's memory: chunk x 12-26 bytes, and 12 bytes a point with --sorted)")->capture_default_str();
   app.add_option("--threads", threads, "Generator threads (0 = all cores)")->capture_default_str();
   app.add_flag("-q,--quiet", quiet, "No progress on stderr");
   try {

@@ -221,8 +221,9 @@ void validate(const ReliefSpec& s) {
 ScanRaster scan_raster(const ReliefSpec& s) {
   ScanRaster r;
   const double rows = std::round(std::sqrt(static_cast<double>(s.points) * s.height_m / s.width_m));
-  r.rows = rows < 1.0 ? 1 : rows >= static_cast<double>(s.points) ? s.points : static_cast<std::uint64_t>(rows);
-  r.cols = (s.points + r.rows - 1) / r.rows;
+  // NaN (a spec not validated) and anything below 1 give one row; at most a row a point.
+  r.rows = !(rows >= 1.0) ? 1 : rows >= static_cast<double>(s.points) ? std::max<std::uint64_t>(s.points, 1) : static_cast<std::uint64_t>(rows);
+  r.cols = s.points / r.rows + (s.points % r.rows != 0 ? 1 : 0);
   return r;
 }
 

@@ -19,8 +19,10 @@
 /// lines unparsed); XYZ (`.xyz`, `.txt`: the same, the first look counting the point lines);
 /// ASCII PLY (lines read in blocks from the one after the header; list properties parsed and
 /// skipped; the count from the header); PCD whose body is DATA binary (`.pcd`: fixed-size records,
-/// the same points and errors as load_cloud; ascii and binary_compressed bodies are read whole).
-/// PLY, PCD, PTX, PTS and XYZ stream under gzip too (`.ply.gz`
+/// the same points and errors as load_cloud) or DATA ascii with float axes (lines in blocks;
+/// binary_compressed bodies and integer axes are read whole, as PCL reads them); OBJ vertices
+/// (`.obj` without faces, or with `input.as_points`). PLY, PCD, OBJ, PTX, PTS and XYZ stream under
+/// gzip too (`.ply.gz`
 /// and so on: decompressed as they are read with zlib's inflate, with load_cloud's errors; every
 /// pass decompresses again, and a first look decompresses the whole file once: a PCD's to learn
 /// its size, which load_cloud checks the header against). The stream's

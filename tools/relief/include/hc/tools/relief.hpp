@@ -4,7 +4,8 @@
 /// of blocks with mortar joints, a rosette medallion on every block, a fine chisel texture),
 /// sampled as a terrestrial survey would see it (noise on z, points on the wall's back face,
 /// a few outliers), written as binary PLY or LAS in chunks so that 10⁹ points need no more
-/// memory than one chunk.
+/// memory than one chunk (ReliefSpec::sorted, a permutation at write time, also holds 12 bytes a
+/// point while sorting).
 ///
 /// Every point is a pure function of (seed, index): a counter-based generator (SplitMix64 of the
 /// seed and the index) draws its class, position and noise. So a file does not depend on the
@@ -57,8 +58,8 @@ struct ReliefSpec {
   /// columns over the wall), then up by y, then by index. The same points as the default file
   /// in another order, so that a run's speed on the two differs by the order alone
   /// (bench/scale.py --order sorted). The permutation is held while writing: 12 bytes a point
-  /// (1.2 GB at 10⁸), and points < 2³² − 1. relief_point(spec, i) is still the default order's
-  /// point i.
+  /// while sorting (1.2 GB at 10⁸), 4 after; points < 2³² − 1. relief_point(spec, i) is still
+  /// the default order's point i.
   bool sorted = false;
 };
 
@@ -115,7 +116,7 @@ struct ReliefWriteStats {
   std::uint64_t points = 0, front = 0, back = 0, outliers = 0;
   std::uint64_t bytes = 0;
   double seconds = 0.0;
-  std::size_t buffer_bytes = 0;  ///< the one chunk buffer (the writer's whole working memory)
+  std::size_t buffer_bytes = 0;  ///< the one chunk buffer (the writer's working memory, besides sorted's permutation)
 };
 
 /// Progress: points written so far and the total.
