@@ -935,9 +935,11 @@ ReadResult read_ply(const ScanSource& source) {
 
 namespace {
 
-// The notes the whole read (read_ply) gives a binary PLY's vertices, in its order, after its
-// first: the vertex list properties skipped, the non-standard header lines, the colour.
-void add_whole_read_notes(const PlyLayout& ply, bool colour, std::vector<std::string>& notes) {
+// A binary PLY stream's notes: its first (`how` the vertices are read), then the whole read's
+// (read_ply), in its order: the vertex list properties skipped, the non-standard header lines,
+// the colour; then that the elements after the vertices are not read.
+std::vector<std::string> stream_notes(const PlyLayout& ply, const std::string& how, bool colour) {
+  std::vector<std::string> notes{"PLY " + ply.format + ", " + std::to_string(ply.vertex().count) + " vertices (" + how + ")"};
   for (const auto& pr : ply.vertex().properties) {
     if (pr.is_list) notes.push_back("skipped the vertex list property '" + pr.name + "'");
   }
@@ -945,6 +947,11 @@ void add_whole_read_notes(const PlyLayout& ply, bool colour, std::vector<std::st
     notes.push_back("skipped " + std::to_string(ply.skipped_lines) + " non-standard header lines (obj_info and stray lines)");
   }
   if (colour) notes.push_back("vertex colours (red, green, blue) read as 8-bit RGB");
+  if (ply.vertex_index + 1 < ply.elements.size()) {
+    notes.push_back("elements after 'vertex' (" + ply.elements[ply.vertex_index + 1].name +
+                    ", ...) not read: a streamed scan is taken as points");
+  }
+  return notes;
 }
 
 // A binary PLY read record block by record block (point_stream.hpp).
@@ -952,12 +959,7 @@ class PlyStream final : public PointStream {
  public:
   PlyStream(std::unique_ptr<ByteSource> src, const PlyLayout& ply, std::size_t offset)
       : src_(std::move(src)), name_(src_->name()), rec_(ply), total_(ply.vertex().count), before_(offset - ply.body) {
-    notes_.push_back("PLY " + ply.format + ", " + std::to_string(total_) + " vertices (fixed-stride records streamed in chunks)");
-    add_whole_read_notes(ply, rec_.colour, notes_);
-    if (ply.vertex_index + 1 < ply.elements.size()) {
-      notes_.push_back("elements after 'vertex' (" + ply.elements[ply.vertex_index + 1].name +
-                       ", ...) not read: a streamed scan is taken as points");
-    }
+    notes_ = stream_notes(ply, "fixed-stride records streamed in chunks", rec_.colour);
     src_->seek(offset);
   }
   ~PlyStream() override = default;
@@ -1025,12 +1027,7 @@ class ListPlyStream final : public PointStream {
     for (std::size_t j = 0; j < v_.properties.size(); ++j) {
       if (axis_of_[j] >= 3) colour_type_[axis_of_[j] - 3] = v_.properties[j].type;
     }
-    notes_.push_back("PLY " + ply.format + ", " + std::to_string(total_) + " vertices (records with list properties streamed in chunks)");
-    add_whole_read_notes(ply, colour_, notes_);
-    if (ply.vertex_index + 1 < ply.elements.size()) {
-      notes_.push_back("elements after 'vertex' (" + ply.elements[ply.vertex_index + 1].name +
-                       ", ...) not read: a streamed scan is taken as points");
-    }
+    notes_ = stream_notes(ply, "records with list properties streamed in chunks", colour_);
     src_->seek(offset);
   }
   ~ListPlyStream() override = default;
