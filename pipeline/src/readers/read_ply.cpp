@@ -112,12 +112,13 @@ struct PlyLayout {
 };
 
 // `file_size`: the whole file's size when `raw` holds only its beginning (a streamed read);
-// The whole read's words for a header that declares more vertices than bytes follow it (every
-// vertex takes at least one byte): parse_ply_header's check, and the streams' under gzip, where
-// the data's size is learnt only at its end.
-InputError too_many_vertices(const std::string& name, std::size_t count, std::uint64_t bytes_after_header) {
-  return InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(count) + " vertices but only " +
-                    std::to_string(bytes_after_header) + " bytes follow it");
+// The whole read's check that the data after the header can hold `count` vertices (each takes
+// one byte at least): parse_ply_header's, and the streams' under gzip, where the data's size is
+// learnt only at their end. @throws InputError naming the file, the count and the bytes.
+void require_bytes_for_vertices(const std::string& name, std::size_t count, std::uint64_t bytes_after_header) {
+  if (count <= bytes_after_header) return;
+  throw InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(count) + " vertices but only " +
+                   std::to_string(bytes_after_header) + " bytes follow it");
 }
 
 // npos = raw is the whole file.
@@ -211,7 +212,7 @@ PlyLayout parse_ply_header(const std::string& raw, const std::string& name, std:
   if (out.vertex_index == out.elements.size()) throw fail("the header declares no 'vertex' element");
   const PlyElement& vertex = out.vertex();
   if (vertex.count == 0) throw fail("the header declares 0 vertices");
-  if (vertex.count > size - out.body) throw too_many_vertices(name, vertex.count, size - out.body);  // a byte a vertex at least
+  require_bytes_for_vertices(name, vertex.count, size - out.body);
   for (const char* axis : {"x", "y", "z"}) {
     const auto n = std::count_if(vertex.properties.begin(), vertex.properties.end(),
                                  [&](const PlyProperty& p) { return p.name == axis; });
@@ -390,8 +391,7 @@ std::uint64_t streamed_vertex_offset(ByteSource& src, const PlyLayout& ply, cons
     // only now, and the whole read's header check (a byte a vertex at least) comes first (for a
     // plain file it ran when the stream opened).
     auto truncated = [&](std::size_t whole) {
-      const std::uint64_t after_header = base + buf.size() - ply.body;
-      if (ply.vertex().count > after_header) return too_many_vertices(name, ply.vertex().count, after_header);
+      require_bytes_for_vertices(name, ply.vertex().count, base + buf.size() - ply.body);
       return truncated_before_vertices(name, el, whole);
     };
     if (!el.has_list()) {
@@ -504,34 +504,54 @@ Cloud read_binary_fixed(const std::string& raw, const PlyLayout& ply, std::size_
 }
 
 // Record-by-record read of binary vertex records with list properties.
+// The whole read's words for vertex data that end inside vertex `i` of `count`.
+InputError truncated_inside_vertex(const std::string& name, std::size_t count, std::uint64_t i) {
+  return InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(count) +
+                    " vertices but the data ends inside vertex " + std::to_string(i) + " (" + std::to_string(i) + " whole vertices)");
+}
+
+// Binary vertex records with list properties (records of their own lengths): where the
+// coordinates and colours sit, and one record's decoding, for the whole read
+// (read_binary_records) and the stream (ListPlyStream) alike.
+struct ListRecords {
+  const PlyElement* v = nullptr;
+  std::vector<int> axis_of;
+  bool swap = false;
+  bool colour = false;
+  PlyType colour_type[3] = {PlyType::kUint8, PlyType::kUint8, PlyType::kUint8};
+
+  // `vertex` must outlive this (it is read at every decode); `swap_bytes`: needs_swap.
+  ListRecords(const PlyElement& vertex, bool swap_bytes) : v(&vertex), axis_of(axes_of(vertex)), swap(swap_bytes), colour(has_colour(axis_of)) {
+    for (std::size_t j = 0; j < v->properties.size(); ++j) {
+      if (axis_of[j] >= 3) colour_type[axis_of[j] - 3] = v->properties[j].type;
+    }
+  }
+
+  // Vertex `record` at p (the data end at `end`): x y z into xyz [3] and, with colour, r g b
+  // into rgb [3]. @return the first byte after it, nullptr when the data end inside it.
+  // @throws InputError for a negative list count (walk_binary_record).
+  const char* decode(const char* p, const char* end, std::size_t record, double* xyz, std::uint8_t* rgb, const std::string& name) const {
+    double slots[6] = {0, 0, 0, 0, 0, 0};
+    p = walk_binary_record(p, end, *v, record, swap, axis_of.data(), slots, name);
+    if (p == nullptr) return nullptr;
+    std::copy_n(slots, 3, xyz);
+    for (std::size_t a = 0; colour && a < 3; ++a) rgb[a] = colour_byte(slots[3 + a], colour_type[a]);
+    return p;
+  }
+};
+
 Cloud read_binary_records(const std::string& raw, const PlyLayout& ply, std::size_t offset, const std::string& name,
                           std::size_t* end_offset) {
-  const PlyElement& v = ply.vertex();
-  const std::vector<int> axis_of = axes_of(v);
-  const bool swap = needs_swap(ply);
+  const ListRecords rec(ply.vertex(), needs_swap(ply));
+  const std::size_t count = ply.vertex().count;
   Cloud cloud;
-  cloud.xyz.resize(3, static_cast<Eigen::Index>(v.count));
-  double* out = cloud.xyz.data();
+  cloud.xyz.resize(3, static_cast<Eigen::Index>(count));
+  if (rec.colour) cloud.rgb.resize(3 * count);
   const char* p = raw.data() + offset;
   const char* const end = raw.data() + raw.size();
-  const bool colour = has_colour(axis_of);
-  if (colour) cloud.rgb.resize(3 * v.count);
-  PlyType colour_type[3] = {PlyType::kUint8, PlyType::kUint8, PlyType::kUint8};
-  for (std::size_t j = 0; j < v.properties.size(); ++j) {
-    if (axis_of[j] >= 3) colour_type[axis_of[j] - 3] = v.properties[j].type;
-  }
-  for (std::size_t i = 0; i < v.count; ++i) {
-    double slots[6] = {0, 0, 0, 0, 0, 0};
-    p = walk_binary_record(p, end, v, i, swap, axis_of.data(), slots, name);
-    if (p) {
-      std::copy_n(slots, 3, out + 3 * i);
-      for (std::size_t a = 0; colour && a < 3; ++a) cloud.rgb[3 * i + a] = colour_byte(slots[3 + a], colour_type[a]);
-    }
-    if (!p) {
-      throw InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(v.count) +
-                       " vertices but the data ends inside vertex " + std::to_string(i) + " (" + std::to_string(i) +
-                       " whole vertices)");
-    }
+  for (std::size_t i = 0; i < count; ++i) {
+    p = rec.decode(p, end, i, cloud.xyz.data() + 3 * i, rec.colour ? cloud.rgb.data() + 3 * i : nullptr, name);
+    if (p == nullptr) throw truncated_inside_vertex(name, count, i);
   }
   *end_offset = static_cast<std::size_t>(p - raw.data());
   return cloud;
@@ -982,7 +1002,7 @@ class PlyStream final : public PointStream {
       // so far, and the whole read's message says so (its header check, a byte a vertex at
       // least, first).
       const std::uint64_t vertex_bytes = done_ * rec_.stride + bytes;
-      if (total_ > before_ + vertex_bytes) throw too_many_vertices(name_, total_, before_ + vertex_bytes);
+      require_bytes_for_vertices(name_, total_, before_ + vertex_bytes);
       throw InputError(truncated_vertices(name_, total_, rec_.stride, vertex_bytes));
     }
     if (got != n) {  // checked against the file's size when opened: the file changed since
@@ -1013,7 +1033,7 @@ class PlyStream final : public PointStream {
 
 // A binary PLY whose vertex element holds list properties (records of their own lengths), read
 // in blocks of at least 1 MiB and walked record by record with the whole read's own
-// walk_binary_record and decoding (read_binary_records): the same points, colour and errors (a
+// record decoding (ListRecords, as read_binary_records): the same points, colour and errors (a
 // negative list count names its vertex; data that end inside a vertex give the whole read's
 // message), raised where the read reaches them; every later call fails too (StickyFailure). Memory: a
 // block (1 MiB, or as much as one record needs: a list count past the data's end reads the rest
@@ -1022,12 +1042,8 @@ class PlyStream final : public PointStream {
 class ListPlyStream final : public PointStream {
  public:
   ListPlyStream(std::unique_ptr<ByteSource> src, const PlyLayout& ply, std::size_t offset)
-      : src_(std::move(src)), name_(src_->name()), v_(ply.vertex()), axis_of_(axes_of(v_)), swap_(needs_swap(ply)),
-        colour_(has_colour(axis_of_)), total_(v_.count), before_(offset - ply.body) {
-    for (std::size_t j = 0; j < v_.properties.size(); ++j) {
-      if (axis_of_[j] >= 3) colour_type_[axis_of_[j] - 3] = v_.properties[j].type;
-    }
-    notes_ = stream_notes(ply, "records with list properties streamed in chunks", colour_);
+      : src_(std::move(src)), name_(src_->name()), v_(ply.vertex()), rec_(v_, needs_swap(ply)), total_(v_.count), before_(offset - ply.body) {
+    notes_ = stream_notes(ply, "records with list properties streamed in chunks", rec_.colour);
     src_->seek(offset);
   }
   ~ListPlyStream() override = default;
@@ -1043,27 +1059,19 @@ class ListPlyStream final : public PointStream {
       const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(std::max<std::size_t>(max_points, 1), total_ - done_));
       if (n == 0) return false;
       chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
-      if (colour_) chunk.rgb.resize(3 * n);
-      double* out = chunk.xyz.data();
+      if (rec_.colour) chunk.rgb.resize(3 * n);
       for (std::size_t i = 0; i < n; ++i) {
-        double slots[6] = {0, 0, 0, 0, 0, 0};
-        const char* q = nullptr;
-        for (;;) {
-          q = walk_binary_record(buf_.data() + at_, buf_.data() + buf_.size(), v_, done_ + i, swap_, axis_of_.data(), slots, name_);
-          if (q != nullptr || !more()) break;
-        }
+        std::uint8_t* rgb = rec_.colour ? chunk.rgb.data() + 3 * i : nullptr;
+        const auto decode = [&] { return rec_.decode(buf_.data() + at_, buf_.data() + buf_.size(), done_ + i, chunk.xyz.data() + 3 * i, rgb, name_); };
+        const char* q = decode();
+        while (q == nullptr && more()) q = decode();  // the record goes past the block: read more
         if (q == nullptr) {
           // The data end inside vertex done_ + i: under gzip their size is known only now, and
-          // the whole read's header check (a byte a vertex at least) comes first (for a plain
-          // file it ran when the stream opened).
-          if (total_ > before_ + read_) throw too_many_vertices(name_, total_, before_ + read_);
-          throw InputError("load_cloud: " + name_ + ": truncated: the header declares " + std::to_string(total_) +
-                           " vertices but the data ends inside vertex " + std::to_string(done_ + i) + " (" +
-                           std::to_string(done_ + i) + " whole vertices)");
+          // the whole read's header check comes first (for a plain file it ran when opened).
+          require_bytes_for_vertices(name_, total_, before_ + read_);
+          throw truncated_inside_vertex(name_, total_, done_ + i);
         }
         at_ = static_cast<std::size_t>(q - buf_.data());
-        std::copy_n(slots, 3, out + 3 * i);
-        for (std::size_t a = 0; colour_ && a < 3; ++a) chunk.rgb[3 * i + a] = colour_byte(slots[3 + a], colour_type_[a]);
       }
       chunk.float32_xyz = float32_;
       done_ += n;
@@ -1093,10 +1101,7 @@ class ListPlyStream final : public PointStream {
   std::unique_ptr<ByteSource> src_;
   std::string name_;
   PlyElement v_;
-  std::vector<int> axis_of_;
-  bool swap_ = false;
-  bool colour_ = false;
-  PlyType colour_type_[3] = {PlyType::kUint8, PlyType::kUint8, PlyType::kUint8};
+  ListRecords rec_;  // reads v_ (declared before it)
   std::uint64_t total_ = 0, done_ = 0;
   std::uint64_t before_ = 0;  // data bytes between the header and the vertices
   std::uint64_t read_ = 0;    // bytes read from the vertices' start
@@ -1185,7 +1190,7 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
   // so that data ending inside one fail with the whole read's words; so are a plain file's whose
   // strides pass its end.
   bool walk = lists_before || (gz && ply.vertex_index > 0);
-  if (!walk) {
+  if (!walk) {  // fixed strides: summed
     for (std::size_t i = 0; i < ply.vertex_index; ++i) {
       std::size_t bytes = 0;
       if (__builtin_mul_overflow(ply.elements[i].stride(), ply.elements[i].count, &bytes) || __builtin_add_overflow(offset, bytes, &offset)) {
@@ -1193,19 +1198,11 @@ std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, 
       }
     }
     walk = offset > file_size;
-    offset = ply.body;
   }
   if (walk) {
     const std::uint64_t at = streamed_vertex_offset(*src, ply, name);
     if (at > std::numeric_limits<std::size_t>::max() / 2) return nullptr;
     offset = static_cast<std::size_t>(at);
-  } else {
-    for (std::size_t i = 0; i < ply.vertex_index; ++i) {
-      std::size_t bytes = 0;
-      if (__builtin_mul_overflow(ply.elements[i].stride(), ply.elements[i].count, &bytes) || __builtin_add_overflow(offset, bytes, &offset)) {
-        return nullptr;
-      }
-    }
   }
   const PlyElement& v = ply.vertex();
   int float_axes = 0;
