@@ -675,6 +675,51 @@ TEST(TiledRun, StraysOfTwoTilesAreJudgedInOneGatheringAsInCore) {
   EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "no spill is left behind";
 }
 
+// A spill file that goes while the run needs it (a scratch cleaner, another user): the strays'
+// gathering (gather_owned, two reading threads) meets it missing inside a worker thread. The
+// run stops with an InputError naming that file, from the thread that read it, and removes its
+// scratch folder. On the two-group plane in 40-cell tiles (5 x 5; one band) tile 12 (row 2,
+// column 2) holds the points the strays of tiles 11 and 17 need (previous test); its spill is
+// removed through the progress callback once its own first look is done (the tile loop's tick
+// before tile 13's look, progress 13/50: 25 looks, then 25 second sweeps), so that the first
+// read of it after that is the gathering's. Mutations: without the worker's catch, an exception
+// leaves a std::thread and the test process ends in std::terminate; without the removal, no error.
+TEST(TiledRun, ASpillRemovedBeforeTheStraysAreGatheredStopsTheRunNamingItAndLeavesNothing) {
+  const fs::path dir = hc::test::temp_dir("spill_removed");
+  const auto [yaml, g, halo] = write_two_group_plane(dir);
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "plane.yaml");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 40;
+  config.scale.scratch = dir;
+  config.scale.progress_interval_s = 0.0;  // every tick reaches the callback
+  // The same run as it goes without the removal: 25 tiles, one gathering, which read tile 12.
+  const BuiltScene whole = hc::pipeline::build_scene(config);
+  ASSERT_EQ(stage_figure(whole, "tile_plan", "tiles"), 25.0);
+  ASSERT_EQ(stage_figure(whole, "tiles", "sum_robust_gatherings"), 1.0);
+  ASSERT_GE(stage_figure(whole, "tiles", "sum_points_judged_past_halo"), 16.0);
+  fs::path removed;
+  std::string what;
+  try {
+    (void)hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
+      if (done || r.stage != "tiles" || !removed.empty()) return;
+      double f = -1.0;
+      for (const auto& [n, v] : r.figures) f = n == "progress_fraction" ? v : f;
+      if (f < 13.0 / 50.0 - 1e-9) return;
+      ASSERT_LT(f, 14.0 / 50.0) << "the tick before tile 13's look";
+      for (const auto& e : fs::recursive_directory_iterator(dir)) {
+        if (e.path().filename() == "tile_12.bin") removed = e.path();
+      }
+      ASSERT_FALSE(removed.empty()) << "tile 12's spill file under " << dir;
+      fs::remove(removed);
+    });
+  } catch (const hc::InputError& e) {
+    what = e.what();
+  }
+  ASSERT_FALSE(removed.empty()) << "the tile loop's progress never reached 13/50";
+  EXPECT_EQ(what, "tiled run: cannot read the spill file " + removed.string());
+  EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "the scratch folder is removed on the error";
+}
+
 // A stray whose balls hold fewer than k + 2 points of the scan: a blob of k + 1 = 17 points well
 // above the patch (scattered: the global test removes them in core), astride the edge between
 // tile columns 1 and 2, whose k-NN balls reach past the window but not down to the patch. The
