@@ -60,6 +60,13 @@ namespace {
 // Search radius for the next point = this point's (k+1)-th neighbour distance times this.
 constexpr float kHintFactor = 1.15f;
 
+// A k-NN candidate's rank: its float squared distance d2 in the high 32 bits, as its bit pattern
+// (non-negative floats, +inf included, order as their patterns; d2 is a sum of squares, never
+// NaN or -0), its input index in the low 32. The keys order as the pairs (d2, index) do, ties
+// of d2 by index, in one integer compare.
+inline std::uint64_t ranked_key(float d2, std::uint32_t index) { return (std::uint64_t{std::bit_cast<std::uint32_t>(d2)} << 32) | index; }
+inline float key_d2(std::uint64_t key) { return std::bit_cast<float>(static_cast<std::uint32_t>(key >> 32)); }
+
 // Mean over every `stride`-th point of the number of sampled points in its cell, with the cell
 // edge scaled by sqrt(stride) so that on a surface the estimate matches the full cloud at edge
 // `cell`. This point-weighted count is what one k-NN search costs.
@@ -721,7 +728,7 @@ class GridPointQueries {
     std::vector<float> d2, near;
     SmallestK top;
     std::vector<std::pair<std::uint32_t, float>> found;
-    std::vector<std::pair<float, std::uint32_t>> pairs;  // (squared distance, input index)
+    std::vector<std::uint64_t> pairs;  // (squared distance, input index) as ranked_key packs them
     std::vector<std::uint32_t> pos;                      // sorted positions of d2's entries (nearest)
     float hint = 0.0f;
   };
@@ -745,7 +752,7 @@ class GridPointQueries {
       for (std::size_t q = pb; q < pe; ++q) {
         if (q == sorted) continue;
         const float dx = g_.x[q] - pt[0], dy = g_.y[q] - pt[1], dz = g_.z[q] - pt[2];
-        cand.emplace_back(dx * dx + dy * dy + dz * dz, g_.original[q]);
+        cand.push_back(ranked_key(dx * dx + dy * dy + dz * dz, g_.original[q]));
       }
     };
     auto finish = [&] { take_nearest(s, out, mean_d, kth_m); };
@@ -776,7 +783,7 @@ class GridPointQueries {
       if (settled(tau, block_clearance(g_, c, r, pt))) {
         cand.clear();
         for (std::size_t i = 0; i < m; ++i) {
-          if (s.d2[i] <= tau) cand.emplace_back(s.d2[i], g_.original[s.pos[i]]);
+          if (s.d2[i] <= tau) cand.push_back(ranked_key(s.d2[i], g_.original[s.pos[i]]));
         }
         finish();
         return;
@@ -798,7 +805,7 @@ class GridPointQueries {
         if (cand.size() >= k || want == centres_.kdtree_get_point_count()) break;
       }
       std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
-      best_kth = cand[k - 1].first;
+      best_kth = key_d2(cand[k - 1]);
     }
     const double reach = std::sqrt(static_cast<double>(best_kth)) * (1.0 + 1e-5) + 0.8661 * g_.cell + 1e-6 * g_.cell +
                          1e-6 * knn_.extent();
@@ -867,7 +874,7 @@ class GridPointQueries {
     // points within it, about k of the m ≈ 1.3 k here).
     auto& cand = s.pairs;
     cand.clear();
-    for (std::size_t i = 0; i < m; ++i) cand.emplace_back(s.d2[i], g_.original[s.pos[i]]);
+    for (std::size_t i = 0; i < m; ++i) cand.push_back(ranked_key(s.d2[i], g_.original[s.pos[i]]));
     take_nearest(s, out, mean_d, kth_m);
     return true;
   }
@@ -882,18 +889,20 @@ class GridPointQueries {
   void take_nearest(Scratch& s, std::vector<std::uint32_t>& out, float* mean_d, float* kth_m) const {
     const std::size_t k = k1_ - 1;
     auto& cand = s.pairs;
+    // The k smallest keys, ascending: by squared distance, then by input index (ranked_key).
     std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
+    std::sort(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1));
     out.clear();
-    for (std::size_t i = 0; i < k; ++i) out.push_back(cand[i].second);
+    for (std::size_t i = 0; i < k; ++i) out.push_back(static_cast<std::uint32_t>(cand[i]));
     std::sort(out.begin(), out.end());
-    if (kth_m != nullptr) *kth_m = std::sqrt(cand[k - 1].first);
-    s.hint = std::sqrt(cand[k - 1].first) * kHintFactor;
+    const float kth = std::sqrt(key_d2(cand[k - 1]));
+    if (kth_m != nullptr) *kth_m = kth;
+    s.hint = kth * kHintFactor;
     if (mean_d == nullptr) return;
-    s.near.resize(k);
-    for (std::size_t i = 0; i < k; ++i) s.near[i] = std::sqrt(cand[i].first);
-    std::sort(s.near.begin(), s.near.begin() + static_cast<std::ptrdiff_t>(k));
+    // Square roots of ascending squared distances ascend (sqrt is monotone): the order a sort
+    // of the k distances gives.
     double sum = 0.0;
-    for (std::size_t i = 0; i < k; ++i) sum += s.near[i];
+    for (std::size_t i = 0; i < k; ++i) sum += std::sqrt(key_d2(cand[i]));
     *mean_d = static_cast<float>(sum / static_cast<double>(k));
   }
 

@@ -970,13 +970,18 @@ class RadixPercentiles {
         acc += high_[h];
       }
       ps_.push_back(p);
-      low_.emplace(p.high, std::vector<std::uint64_t>(1u << 16, 0));
+      if (std::find(highs_.begin(), highs_.end(), p.high) == highs_.end()) {
+        highs_.push_back(p.high);
+        lows_.emplace_back(1u << 16, 0);
+      }
     }
   }
   void pass2(float v) {
     const std::uint32_t b = std::bit_cast<std::uint32_t>(v);
-    const auto it = low_.find(b >> 16);
-    if (it != low_.end()) ++it->second[b & 0xFFFFu];
+    // At most three bins: a scan of them, not a search of a tree, per value.
+    for (std::size_t i = 0; i < highs_.size(); ++i) {
+      if (highs_[i] == b >> 16) ++lows_[i][b & 0xFFFFu];
+    }
   }
   ErrorStats stats() {
     ErrorStats s;
@@ -985,7 +990,7 @@ class RadixPercentiles {
     double out[3];
     for (std::size_t i = 0; i < ps_.size(); ++i) {
       const Percentile& p = ps_[i];
-      const std::vector<std::uint64_t>& low = low_.at(p.high);
+      const std::vector<std::uint64_t>& low = lows_[static_cast<std::size_t>(std::find(highs_.begin(), highs_.end(), p.high) - highs_.begin())];
       std::uint64_t acc = p.below;
       std::uint32_t l = 0;
       for (; l < low.size(); ++l) {
@@ -1004,7 +1009,8 @@ class RadixPercentiles {
 
  private:
   std::vector<std::uint64_t> high_ = std::vector<std::uint64_t>(1u << 16, 0);
-  std::map<std::uint32_t, std::vector<std::uint64_t>> low_;
+  std::vector<std::uint32_t> highs_;              // the bins holding the ranks, each once
+  std::vector<std::vector<std::uint64_t>> lows_;  // per such bin, the counts of the low 16 bits
   std::vector<Percentile> ps_;
   std::uint64_t n_ = 0;
   double sum_sq_ = 0.0;
