@@ -686,8 +686,7 @@ TEST(TiledRun, StraysOfTwoTilesAreJudgedInOneGatheringAsInCore) {
 // leaves a std::thread and the test process ends in std::terminate; without the removal, no error.
 TEST(TiledRun, ASpillRemovedBeforeTheStraysAreGatheredStopsTheRunNamingItAndLeavesNothing) {
   const fs::path dir = hc::test::temp_dir("spill_removed");
-  const auto [yaml, g, halo] = write_two_group_plane(dir);
-  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "plane.yaml");
+  RunConfig config = hc::pipeline::parse_run_config(write_two_group_plane(dir).yaml, dir / "plane.yaml");
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
   config.scale.tile_cells = 40;
   config.scale.scratch = dir;

@@ -111,7 +111,6 @@ struct PlyLayout {
   const PlyElement& vertex() const { return elements[vertex_index]; }
 };
 
-// `file_size`: the whole file's size when `raw` holds only its beginning (a streamed read);
 // The whole read's check that the data after the header can hold `count` vertices (each takes
 // one byte at least): parse_ply_header's, and the streams' under gzip, where the data's size is
 // learnt only at their end. @throws InputError naming the file, the count and the bytes.
@@ -121,6 +120,7 @@ void require_bytes_for_vertices(const std::string& name, std::size_t count, std:
                    std::to_string(bytes_after_header) + " bytes follow it");
 }
 
+// `file_size`: the whole file's size when `raw` holds only its beginning (a streamed read);
 // npos = raw is the whole file.
 PlyLayout parse_ply_header(const std::string& raw, const std::string& name, std::size_t file_size = std::string::npos) {
   const std::size_t size = file_size == std::string::npos ? raw.size() : file_size;
@@ -503,7 +503,6 @@ Cloud read_binary_fixed(const std::string& raw, const PlyLayout& ply, std::size_
   return cloud;
 }
 
-// Record-by-record read of binary vertex records with list properties.
 // The whole read's words for vertex data that end inside vertex `i` of `count`.
 InputError truncated_inside_vertex(const std::string& name, std::size_t count, std::uint64_t i) {
   return InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(count) +
@@ -540,6 +539,7 @@ struct ListRecords {
   }
 };
 
+// Record-by-record read of binary vertex records with list properties.
 Cloud read_binary_records(const std::string& raw, const PlyLayout& ply, std::size_t offset, const std::string& name,
                           std::size_t* end_offset) {
   const ListRecords rec(ply.vertex(), needs_swap(ply));

@@ -84,6 +84,7 @@ struct ScanRaster {
 /// R = max(1, round(√(points · height_m / width_m))), at most points, and C = ⌈points / R⌉
 /// (ReliefSpec::scan_order). Does not validate `spec`.
 ScanRaster scan_raster(const ReliefSpec& spec);
+
 /// The front face without noise: z [m] at (x, y) [m], for any x, y (the pattern repeats past
 /// the wall's edges). The sum of
 ///   - the joints: −joint_depth_m · exp(−(d / joint_half_width_m)²), d the distance to the
