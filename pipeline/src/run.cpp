@@ -167,6 +167,11 @@ bool TileHeapBudget::before_tile() {
   if (g_heap_release_holders.load(std::memory_order_relaxed) <= 0) return false;
   const std::size_t now = resident_bytes();
   if (now == 0 || now <= base_ + budget_) return false;
+  return release_now();
+}
+
+bool TileHeapBudget::release_now() {
+  if (g_heap_release_holders.load(std::memory_order_relaxed) <= 0) return false;
 #ifdef __GLIBC__
   (void)malloc_trim(0);
 #endif

@@ -1948,11 +1948,15 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // points, one band of the default 128 MiB, at 10^9 about six), its strays judged
 // (judge_strays, whose band figures go to the band's first tile), then its second sweep
 // (process_tile), done(TileOutput, last) called for each tile in order (last: no later band
-// gathers points, so no spill is read again by the loop). before_tile() is called before each
-// tile of either sweep, progress(fraction) with the share of both sweeps done.
+// gathers points, so no spill is read again by the loop). heap.before_tile() is called before
+// each tile of either sweep; heap.release_now() before a gathering (a band with strays) and
+// before each band's first sweep but the first's: there the fragments the budget lets the
+// tiles keep served the next step poorly (at 10⁹ points a gathering took RSS from 780 MB to
+// 1.2 GB, a band's first look from 633 MB to 1.04 GB; docs/scale.md, thirty-ninth session).
+// progress(fraction) is called with the share of both sweeps done.
 template <class Done>
 void run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, const std::vector<std::size_t>& list,
-               const std::function<void()>& before_tile, const std::function<void(double)>& progress, Done&& done) {
+               detail::TileHeapBudget& heap, const std::function<void(double)>& progress, Done&& done) {
   const auto band_bytes = static_cast<std::size_t>(config.scale.band_mb * 1048576.0);
   const double steps = 2.0 * static_cast<double>(list.size());
   double step = 0.0;
@@ -1960,22 +1964,24 @@ void run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
     std::vector<std::size_t> band;
     std::vector<TileLook> looks;
     std::size_t held = 0;
+    if (first > 0) (void)heap.release_now();
     while (first + band.size() < list.size() && (band.empty() || held < band_bytes)) {
       const std::size_t t = list[first + band.size()];
       progress(step++ / steps);
-      before_tile();
+      (void)heap.before_tile();
       looks.push_back(look_tile(config, plan, spill, t));
       held += looks.back().bytes();
       band.push_back(t);
     }
     std::map<std::string, double> band_sums;
+    if (std::any_of(looks.begin(), looks.end(), [](const TileLook& L) { return !L.rv.past_halo.empty(); })) (void)heap.release_now();
     judge_strays(config, plan, spill, band, looks, band_sums);
     for (const auto& [k, v] : band_sums) looks.front().sums[k] += v;
     first += band.size();
     const bool last = first == list.size();
     for (std::size_t i = 0; i < band.size(); ++i) {
       progress(step++ / steps);
-      before_tile();
+      (void)heap.before_tile();
       done(process_tile(config, plan, spill, kept, band[i], std::move(looks[i])), last);
       looks[i] = TileLook{};  // its memory back
     }
@@ -3807,7 +3813,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     std::iota(all.begin(), all.end(), std::size_t{0});
     std::vector<std::size_t> left;  // processed, its spill kept for a later band
     run_tiles(
-        config, plan, spill, kept, all, [&] { (void)heap.before_tile(); }, [&](double f) { tick(f); },
+        config, plan, spill, kept, all, heap, [&](double f) { tick(f); },
         [&](TileOutput&& o, bool last) {
           const std::size_t t = o.tile;
           merged.add(tiles, std::move(o));
@@ -3904,7 +3910,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
   for (const std::size_t t : tiles) temps.emplace_back(kept.file(t));
   // The tiles in bands as in the tile loop of build_scene_tiled (run_tiles): the strays of a
   // band judged over the whole scan, read from every spill their balls meet.
-  run_tiles(config, plan, spill, kept, tiles, [&] { (void)heap.before_tile(); }, [](double) {}, [&](TileOutput&& o, bool) {
+  run_tiles(config, plan, spill, kept, tiles, heap, [](double) {}, [&](TileOutput&& o, bool) {
     const std::size_t t = o.tile;
     std::error_code ec;
     if (o.kept_bytes > 0) {

@@ -1,7 +1,8 @@
 // detail::StageHeapRelease and release_freed_heap_if_asked (run_internal.hpp): the tiled run's
 // stages give freed heap back to the system when they end; nothing is given back without a
 // holder, and holders nest. detail::TileHeapBudget gives it back before a tile only when the
-// resident size grew past its budget since the last release, and only with a holder.
+// resident size grew past its budget since the last release, before a gathering whatever the
+// budget (release_now), and only with a holder.
 //
 // Oracle: the process's resident size from the kernel's statm file (proc(5); the library reads
 // VmRSS of /proc/self/status), around a 256 MiB block taken from the heap, touched and freed
@@ -142,6 +143,46 @@ TEST(TileHeapBudget, GivesBackOnlyPastItsBudgetAndWithAHolder) {
     EXPECT_LT(resident_bytes(), kept - kBlock + kSlack);
     EXPECT_EQ(budget.releases(), 1U);
     EXPECT_FALSE(budget.before_tile()) << "nothing grew since the release";
+  }
+  (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
+  (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
+  malloc_trim(0);
+}
+
+// release_now (before a band's gathering of strays): gives back whatever the budget says, only
+// with a holder; counted; the resident size after it is the new base.
+TEST(TileHeapBudget, ReleasesNowWithinItsBudgetOnlyWithAHolder) {
+  using hc::pipeline::detail::TileHeapBudget;
+  constexpr std::size_t kBlock = std::size_t{256} << 20;
+  constexpr std::size_t kSlack = std::size_t{32} << 20;
+  ASSERT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
+  ASSERT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
+  {
+    // Without a holder: nothing given back, nothing counted.
+    TileHeapBudget budget(std::size_t{1} << 30);
+    touch_and_free(kBlock);
+    const std::size_t kept = resident_bytes();
+    EXPECT_FALSE(budget.release_now());
+    EXPECT_GT(resident_bytes(), kept - kSlack);
+    EXPECT_EQ(budget.releases(), 0U);
+  }
+  const StageHeapRelease holder;
+  malloc_trim(0);
+  {
+    // A budget of 1 GiB, which before_tile keeps the freed block under: release_now gives it back.
+    TileHeapBudget budget(std::size_t{1} << 30);
+    touch_and_free(kBlock);
+    const std::size_t kept = resident_bytes();
+    ASSERT_FALSE(budget.before_tile()) << "the premise: within the budget, before_tile keeps the block";
+    EXPECT_GT(resident_bytes(), kept - kSlack);
+    EXPECT_TRUE(budget.release_now());
+    EXPECT_LT(resident_bytes(), kept - kBlock + kSlack);
+    EXPECT_EQ(budget.releases(), 1U);
+    // The base is the resident size after the release: a block of a quarter of the budget is
+    // then kept.
+    touch_and_free(kBlock);
+    EXPECT_FALSE(budget.before_tile());
+    EXPECT_EQ(budget.releases(), 1U);
   }
   (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
   (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
