@@ -44,6 +44,9 @@ namespace {
 using hc::pipeline::detail::release_freed_heap_if_asked;
 using hc::pipeline::detail::StageHeapRelease;
 
+constexpr std::size_t kBlock = std::size_t{256} << 20;  // the block each test takes and frees
+constexpr std::size_t kSlack = std::size_t{32} << 20;   // other allocations, page tables
+
 // Resident size [bytes] from /proc/self/statm (its second field, in pages): a reading of its
 // own, not the library's (status); 0 if unreadable.
 std::size_t resident_bytes() {
@@ -64,8 +67,6 @@ void touch_and_free(std::size_t bytes) {
 }
 
 TEST(StageHeapRelease, GivesFreedHeapBackOnlyWhileHeld) {
-  constexpr std::size_t kBlock = std::size_t{256} << 20;
-  constexpr std::size_t kSlack = std::size_t{32} << 20;  // other allocations, page tables
   ASSERT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
   ASSERT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
   ASSERT_GT(resident_bytes(), 0U) << "/proc/self/status has no VmRSS";
@@ -104,25 +105,41 @@ TEST(StageHeapRelease, GivesFreedHeapBackOnlyWhileHeld) {
   malloc_trim(0);
 }
 
+using hc::pipeline::detail::TileHeapBudget;
+
+// `hapticloud run`'s policy (freed heap kept) while alive; glibc's defaults (fixed) and the freed
+// heap given back after, for the tests that follow.
+struct KeptHeapPolicy {
+  KeptHeapPolicy() {
+    EXPECT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
+    EXPECT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
+  }
+  ~KeptHeapPolicy() {
+    (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
+    (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
+    malloc_trim(0);
+  }
+};
+
+// Without a StageHeapRelease alive: `step` (before_tile or release_now) of a budget of
+// `budget_bytes`, after a freed block past it, gives nothing back and counts nothing.
+void expect_nothing_given_back_without_a_holder(std::size_t budget_bytes, bool (TileHeapBudget::*step)()) {
+  TileHeapBudget budget(budget_bytes);
+  touch_and_free(kBlock);
+  const std::size_t kept = resident_bytes();
+  EXPECT_FALSE((budget.*step)());
+  EXPECT_GT(resident_bytes(), kept - kSlack);
+  EXPECT_EQ(budget.releases(), 0U);
+}
+
 TEST(TileHeapBudget, GivesBackOnlyPastItsBudgetAndWithAHolder) {
-  using hc::pipeline::detail::TileHeapBudget;
-  constexpr std::size_t kBlock = std::size_t{256} << 20;
-  constexpr std::size_t kSlack = std::size_t{32} << 20;
-  ASSERT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
-  ASSERT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
+  const KeptHeapPolicy policy;
   // The library's reading (status), which the budget compares, agrees with this test's (statm).
   const std::size_t r0 = hc::pipeline::detail::resident_bytes(), r1 = resident_bytes();
   EXPECT_LT(r0 > r1 ? r0 - r1 : r1 - r0, kSlack);
 
-  {
-    // Without a holder: the budget is passed, nothing is given back.
-    TileHeapBudget budget(std::size_t{64} << 20);
-    touch_and_free(kBlock);
-    const std::size_t kept = resident_bytes();
-    EXPECT_FALSE(budget.before_tile());
-    EXPECT_GT(resident_bytes(), kept - kSlack);
-    EXPECT_EQ(budget.releases(), 0U);
-  }
+  // Without a holder: the budget is passed, nothing is given back.
+  expect_nothing_given_back_without_a_holder(std::size_t{64} << 20, &TileHeapBudget::before_tile);
   const StageHeapRelease holder;
   malloc_trim(0);
   {
@@ -144,49 +161,29 @@ TEST(TileHeapBudget, GivesBackOnlyPastItsBudgetAndWithAHolder) {
     EXPECT_EQ(budget.releases(), 1U);
     EXPECT_FALSE(budget.before_tile()) << "nothing grew since the release";
   }
-  (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
-  (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
-  malloc_trim(0);
 }
 
-// release_now (before a band's gathering of strays): gives back whatever the budget says, only
-// with a holder; counted; the resident size after it is the new base.
+// release_now (before a band's gathering of strays and its first sweep): gives back whatever the
+// budget says, only with a holder; counted; the resident size after it is the new base.
 TEST(TileHeapBudget, ReleasesNowWithinItsBudgetOnlyWithAHolder) {
-  using hc::pipeline::detail::TileHeapBudget;
-  constexpr std::size_t kBlock = std::size_t{256} << 20;
-  constexpr std::size_t kSlack = std::size_t{32} << 20;
-  ASSERT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
-  ASSERT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
-  {
-    // Without a holder: nothing given back, nothing counted.
-    TileHeapBudget budget(std::size_t{1} << 30);
-    touch_and_free(kBlock);
-    const std::size_t kept = resident_bytes();
-    EXPECT_FALSE(budget.release_now());
-    EXPECT_GT(resident_bytes(), kept - kSlack);
-    EXPECT_EQ(budget.releases(), 0U);
-  }
+  const KeptHeapPolicy policy;
+  expect_nothing_given_back_without_a_holder(std::size_t{1} << 30, &TileHeapBudget::release_now);
   const StageHeapRelease holder;
   malloc_trim(0);
-  {
-    // A budget of 1 GiB, which before_tile keeps the freed block under: release_now gives it back.
-    TileHeapBudget budget(std::size_t{1} << 30);
-    touch_and_free(kBlock);
-    const std::size_t kept = resident_bytes();
-    ASSERT_FALSE(budget.before_tile()) << "the premise: within the budget, before_tile keeps the block";
-    EXPECT_GT(resident_bytes(), kept - kSlack);
-    EXPECT_TRUE(budget.release_now());
-    EXPECT_LT(resident_bytes(), kept - kBlock + kSlack);
-    EXPECT_EQ(budget.releases(), 1U);
-    // The base is the resident size after the release: a block of a quarter of the budget is
-    // then kept.
-    touch_and_free(kBlock);
-    EXPECT_FALSE(budget.before_tile());
-    EXPECT_EQ(budget.releases(), 1U);
-  }
-  (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
-  (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
-  malloc_trim(0);
+  // A budget of 1 GiB, which before_tile keeps the freed block under: release_now gives it back.
+  TileHeapBudget budget(std::size_t{1} << 30);
+  touch_and_free(kBlock);
+  const std::size_t kept = resident_bytes();
+  ASSERT_FALSE(budget.before_tile()) << "the premise: within the budget, before_tile keeps the block";
+  EXPECT_GT(resident_bytes(), kept - kSlack);
+  EXPECT_TRUE(budget.release_now());
+  EXPECT_LT(resident_bytes(), kept - kBlock + kSlack);
+  EXPECT_EQ(budget.releases(), 1U);
+  // The base is the resident size after the release: a block of a quarter of the budget is then
+  // kept.
+  touch_and_free(kBlock);
+  EXPECT_FALSE(budget.before_tile());
+  EXPECT_EQ(budget.releases(), 1U);
 }
 
 #endif  // glibc, no sanitizer
