@@ -68,8 +68,9 @@ class TileHeapBudget {
   /// gave freed heap back.
   bool before_tile();
   /// Before a step whose memory the tiles' freed fragments serve poorly (tiled_run.cpp,
-  /// run_tiles: a band's gathering of strays, a band's first sweep after another band's second;
-  /// at 10⁹ points each took over 400 MB above a resident size already near the budget):
+  /// run_tiles, with more than one band: a band's gathering of strays, a band's first sweep
+  /// after another band's second; at 10⁹ points each took over 400 MB above a resident size
+  /// already near the budget):
   /// releases whatever the budget says, then takes the resident size after the release as the
   /// base. @return whether it gave freed heap back (false while no StageHeapRelease is alive).
   bool release_now();

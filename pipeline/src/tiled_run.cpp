@@ -1949,11 +1949,14 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // (judge_strays, whose band figures go to the band's first tile), then its second sweep
 // (process_tile), done(TileOutput, last) called for each tile in order (last: no later band
 // gathers points, so no spill is read again by the loop). heap.before_tile() is called before
-// each tile of either sweep; heap.release_now() before a gathering (a band with strays) and
-// before each band's first sweep but the first's: there the fragments the budget lets the
-// tiles keep served the next step poorly (at 10⁹ points a gathering took RSS from 780 MB to
-// 1.2 GB, a band's first look from 633 MB to 1.04 GB; docs/scale.md, thirty-ninth session).
-// progress(fraction) is called with the share of both sweeps done.
+// each tile of either sweep; with more than one band, heap.release_now() before a gathering (a
+// band with strays) and before each band's first sweep but the first's: there the fragments
+// the budget lets the tiles keep served the next step poorly (at 10⁹ points, 6 bands, a
+// gathering took RSS from 780 MB to 1.2 GB, a band's first look from 633 MB to 1.04 GB). One
+// band (the 10⁸ wall) keeps them: its one gathering (0.8 M points there) stayed under its
+// tiles' peak, and a release would make the second sweep fault its windows in again
+// (docs/scale.md, thirty-ninth session). progress(fraction) is called with the share of both
+// sweeps done.
 template <class Done>
 void run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, const std::vector<std::size_t>& list,
                detail::TileHeapBudget& heap, const std::function<void(double)>& progress, Done&& done) {
@@ -1974,7 +1977,10 @@ void run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
       band.push_back(t);
     }
     std::map<std::string, double> band_sums;
-    if (std::any_of(looks.begin(), looks.end(), [](const TileLook& L) { return !L.rv.past_halo.empty(); })) (void)heap.release_now();
+    const bool one_band = first == 0 && band.size() == list.size();
+    if (!one_band && std::any_of(looks.begin(), looks.end(), [](const TileLook& L) { return !L.rv.past_halo.empty(); })) {
+      (void)heap.release_now();
+    }
     judge_strays(config, plan, spill, band, looks, band_sums);
     for (const auto& [k, v] : band_sums) looks.front().sums[k] += v;
     first += band.size();
