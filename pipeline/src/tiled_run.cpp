@@ -1951,7 +1951,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // gathers points, so no spill is read again by the loop). heap.before_tile() is called before
 // each tile of either sweep; with more than one band, heap.release_now() before a gathering (a
 // band with strays) and before each band's first sweep but the first's: there the fragments
-// the budget lets the tiles keep served the next step poorly (at 10⁹ points, 6 bands, a
+// the budget lets the tiles keep served the next step poorly (at 10⁹ points, 6–7 bands, a
 // gathering took RSS from 780 MB to 1.2 GB, a band's first look from 633 MB to 1.04 GB). One
 // band (the 10⁸ wall) keeps them: its one gathering (0.8 M points there) stayed under its
 // tiles' peak, and a release would make the second sweep fault its windows in again
