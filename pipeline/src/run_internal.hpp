@@ -70,9 +70,10 @@ class TileHeapBudget {
   /// Before a step whose memory the tiles' freed fragments serve poorly (tiled_run.cpp,
   /// run_tiles, with more than one band: a band's gathering of strays, a band's first sweep
   /// after another band's second; at 10⁹ points each took over 400 MB above a resident size
-  /// already near the budget):
-  /// releases whatever the budget says, then takes the resident size after the release as the
-  /// base. @return whether it gave freed heap back (false while no StageHeapRelease is alive).
+  /// already near the budget): releases whatever the budget says, then takes the resident size
+  /// after the release as the base. Source: malloc_trim(3); docs/scale.md, thirty-ninth
+  /// session. @return whether it gave freed heap back (false while no StageHeapRelease is
+  /// alive). Not thread-safe, throws nothing (as before_tile).
   bool release_now();
   std::size_t releases() const { return releases_; }
 

@@ -878,7 +878,7 @@ struct Percentile {
   std::uint64_t rank;  // 0-based rank (nearest-rank rule of ErrorStats)
   std::uint32_t high = 0;
   std::uint64_t below = 0;  // values in lower high-bins
-  float value = 0.0f;
+  std::size_t bin = 0;      // RadixPercentiles: which of its low-bit counts is high's
 };
 
 // The cross-check's on-surface residuals (vertical, normal; float pairs) of the first pass over
@@ -969,11 +969,12 @@ class RadixPercentiles {
         }
         acc += high_[h];
       }
-      ps_.push_back(p);
-      if (std::find(highs_.begin(), highs_.end(), p.high) == highs_.end()) {
+      p.bin = static_cast<std::size_t>(std::find(highs_.begin(), highs_.end(), p.high) - highs_.begin());
+      if (p.bin == highs_.size()) {
         highs_.push_back(p.high);
         lows_.emplace_back(1u << 16, 0);
       }
+      ps_.push_back(p);
     }
   }
   void pass2(float v) {
@@ -990,7 +991,7 @@ class RadixPercentiles {
     double out[3];
     for (std::size_t i = 0; i < ps_.size(); ++i) {
       const Percentile& p = ps_[i];
-      const std::vector<std::uint64_t>& low = lows_[static_cast<std::size_t>(std::find(highs_.begin(), highs_.end(), p.high) - highs_.begin())];
+      const std::vector<std::uint64_t>& low = lows_[p.bin];
       std::uint64_t acc = p.below;
       std::uint32_t l = 0;
       for (; l < low.size(); ++l) {
