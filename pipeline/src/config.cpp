@@ -1107,6 +1107,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
                                    "tiles, which makes no block copies (docs/scale.md); delete the key (scale.band_mb bounds a band)");
     }
     c.scale.band_mb = r.get_double("scale.band_mb", c.scale.band_mb, 0.0, 65536.0);
+    c.scale.max_gatherings = static_cast<int>(r.get_int("scale.max_gatherings", c.scale.max_gatherings, 1, 64));
     c.scale.progress_interval_s = r.get_double("scale.progress_interval_s", c.scale.progress_interval_s, 0.0, 3600.0);
     const std::string st = r.get_string("scale.scene_tiles", "auto", {"auto", "on", "off"});
     c.scale.scene_tiles = st == "on" ? ScaleConfig::Tiled::kOn : st == "off" ? ScaleConfig::Tiled::kOff : ScaleConfig::Tiled::kAuto;

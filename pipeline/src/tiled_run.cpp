@@ -1459,9 +1459,10 @@ double past_box_m(const Ball& b, const std::array<double, 4>& box) {
 // reach_m, each radius padded by the float slack of the second look: 8 float steps of the
 // largest coordinate, at most twice the largest grid coordinate here), gathered by gather_owned
 // in one pass; where the second look's own searches leave those balls, their balls are gathered
-// in turn (only their points outside the balls before) and the strays judged again, at most 8
-// times; a gathering of fewer than k + 2 points (a stray in a cluster of k + 1) is gathered again
-// with every ball twice as wide. Each look's stray_verdict gets the verdicts (a stray two tiles'
+// in turn (only their points outside the balls before) and the strays judged again, at most
+// scale.max_gatherings times (8; else InputError naming the tiles and the keys); a gathering of
+// fewer than k + 2 points (a stray in a cluster of k + 1) is gathered again with every ball
+// twice as wide. Each look's stray_verdict gets the verdicts (a stray two tiles'
 // windows hold is judged once). The balls of a tile's strays may reach at most kMaxWidenedTiles
 // tiles past its window, those of a later gathering (a second look's, or grown) as far past the
 // window of the tile that owns their centre: else InputError (throw_too_far), naming the stage,
@@ -1521,12 +1522,13 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
   for (std::size_t i = 0; i < band.size(); ++i) {
     if (!looks[i].rv.past_halo.empty()) with_strays += (with_strays.empty() ? "" : ", ") + std::to_string(band[i]);
   }
+  const int most = config.scale.max_gatherings;
   for (int pass = 0;; ++pass) {
-    if (pass == 8) {
-      throw InputError("tiled run, the strays of tiles " + with_strays + ": stage outliers (filters.outliers, robust): after 8 " +
-                       "gatherings the second look's k-NN searches about " + std::to_string(strays) +
-                       " points still leave the balls gathered (or those hold fewer than k + 2 points): raise " +
-                       "scale.filter_halo_cells (now " + halo_now + "), crop the strays (filters.crop) or run in core (scale.tiled: off)");
+    if (pass == most) {
+      throw InputError("tiled run, the strays of tiles " + with_strays + ": stage outliers (filters.outliers, robust): after " +
+                       std::to_string(most) + (most == 1 ? " gathering" : " gatherings") + " (scale.max_gatherings) the second look's k-NN searches about " +
+                       std::to_string(strays) + " points still leave the balls gathered (or those hold fewer than k + 2 points): raise " +
+                       "scale.filter_halo_cells (now " + halo_now + ") or scale.max_gatherings, crop the strays (filters.crop) or run in core (scale.tiled: off)");
     }
     const auto t_gather = detail::Clock::now();
     const std::size_t had = taken.size();

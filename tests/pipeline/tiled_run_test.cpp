@@ -769,6 +769,20 @@ TEST(TiledRun, StraysWhoseBallsHoldTooFewPointsAreGatheredWithWiderBalls) {
   EXPECT_GT(stage_figure(in, "honest_check", "input_removed_fraction"), 0.0);
   EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
   EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "no spill is left behind";
+  // The same run allowed one gathering (scale.max_gatherings: 1): the blob's strays still want
+  // the wider balls' points, so the run stops with the tiles, the stage and the keys named, and
+  // leaves no spill. Mutation: a fixed limit of 8 gatherings (the key not read) ends the run
+  // without an error.
+  {
+    RunConfig once = config;
+    once.scale.max_gatherings = 1;
+    const std::string what = error_of<hc::InputError>(once);
+    for (const char* part : {"the strays of tiles ", "stage outliers (filters.outliers, robust)", "after 1 gathering (scale.max_gatherings)",
+                             "scale.filter_halo_cells (now 5) or scale.max_gatherings", "scale.tiled: off"}) {
+      EXPECT_NE(what.find(part), std::string::npos) << part << " in: " << what;
+    }
+    EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "the spill folder is removed on the error";
+  }
   // The same blob just nearer the patch than the far-cluster distance (so that it reaches the
   // robust test), in tiles of 20 cells: the balls grown until they would reach the patch (over
   // 0.4 m) pass the limit first (kMaxWidenedTiles = 2 tiles, 40 cells, about 0.2 m past the

@@ -121,6 +121,11 @@ struct ScaleConfig {
   /// the removed points') hold this much, judges their strays in one gathering, then finishes
   /// them (docs/scale.md, step 3). 0: one tile a band. A fraction of a MiB is taken as such.
   double band_mb = 128.0;
+  /// The most gatherings of a band's strays, 1 to 64: where the second look's k-NN searches
+  /// still leave the balls gathered (or those hold fewer than k + 2 points) after this many, the
+  /// run stops with an InputError naming the tiles and the keys (tiled_run.cpp, judge_strays;
+  /// docs/scale.md, step 3). The 10⁸ wall gathers twice in its one band.
+  int max_gatherings = 8;
   double progress_interval_s = 1.0;  ///< least time between progress calls within a stage [s], 0 to 3600
   /// The tiled scene on disk (scene_io.hpp format 3, LodPyramid::open_stored): every layer in
   /// square tiles and every level of detail stored beside level 0, so that sessions read only the
