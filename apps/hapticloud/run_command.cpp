@@ -13,7 +13,6 @@
 
 #ifdef __GLIBC__
 #include <gnu/libc-version.h>
-#include <malloc.h>
 #endif
 #include <sys/auxv.h>
 #include <unistd.h>
@@ -109,16 +108,12 @@ void print_summary(const pipeline::RunSummary& summary, const std::filesystem::p
 /// glibc 2.36 (Debian 12) takes thresholds up to 1 GiB; a C library that refuses one or has no
 /// mallopt keeps its default. Source: mallopt(3), M_MMAP_THRESHOLD and M_TRIM_THRESHOLD.
 /// Sessions (touch, explore) keep the default.
+/// (pipeline::keep_freed_heap_for_reuse, run.hpp, sets them and records the threshold for the
+/// tile loop.)
 void keep_freed_memory_for_reuse() {
-#ifdef __GLIBC__
-  constexpr int kOneGiB = 1 << 30;
-  const bool mmap_set = mallopt(M_MMAP_THRESHOLD, kOneGiB) == 1;
-  const bool trim_set = mallopt(M_TRIM_THRESHOLD, kOneGiB) == 1;
-  if (!mmap_set || !trim_set) {
-    spdlog::debug("mallopt: M_MMAP_THRESHOLD {}, M_TRIM_THRESHOLD {}: the C library's default stays for what it refused",
-                  mmap_set ? "set" : "refused", trim_set ? "set" : "refused");
+  if (!pipeline::keep_freed_heap_for_reuse()) {
+    spdlog::debug("mallopt: M_MMAP_THRESHOLD or M_TRIM_THRESHOLD refused (or no glibc): the C library's default stays for what it refused");
   }
-#endif
 }
 
 void run(const RunArgs& a) {

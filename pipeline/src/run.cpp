@@ -152,6 +152,26 @@ namespace {
 std::atomic<int> g_heap_release_holders{0};
 }  // namespace
 
+// The M_MMAP_THRESHOLD keep_freed_heap_for_reuse set [bytes]; 0: the C library's own.
+std::atomic<int> g_kept_mmap_threshold{0};
+
+LargeBlocksMapped::LargeBlocksMapped(std::size_t threshold_bytes) {
+#ifdef __GLIBC__
+  const int kept = g_kept_mmap_threshold.load(std::memory_order_relaxed);
+  if (kept <= 0 || g_heap_release_holders.load(std::memory_order_relaxed) <= 0) return;
+  const auto want = static_cast<int>(std::min<std::size_t>(threshold_bytes, static_cast<std::size_t>(kept)));
+  active_ = mallopt(M_MMAP_THRESHOLD, want) == 1;
+#else
+  (void)threshold_bytes;
+#endif
+}
+
+LargeBlocksMapped::~LargeBlocksMapped() {
+#ifdef __GLIBC__
+  if (active_) (void)mallopt(M_MMAP_THRESHOLD, g_kept_mmap_threshold.load(std::memory_order_relaxed));
+#endif
+}
+
 StageHeapRelease::StageHeapRelease() { g_heap_release_holders.fetch_add(1, std::memory_order_relaxed); }
 StageHeapRelease::~StageHeapRelease() { g_heap_release_holders.fetch_sub(1, std::memory_order_relaxed); }
 
@@ -734,6 +754,18 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
 }  // namespace
 
 void set_stage_memory_measurement(bool on) { detail::g_measure_stage_memory.store(on, std::memory_order_relaxed); }
+
+bool keep_freed_heap_for_reuse() {
+#ifdef __GLIBC__
+  constexpr int kOneGiB = 1 << 30;
+  const bool mmap_set = mallopt(M_MMAP_THRESHOLD, kOneGiB) == 1;
+  const bool trim_set = mallopt(M_TRIM_THRESHOLD, kOneGiB) == 1;
+  if (mmap_set) detail::g_kept_mmap_threshold.store(kOneGiB, std::memory_order_relaxed);
+  return mmap_set && trim_set;
+#else
+  return false;
+#endif
+}
 
 namespace {
 /// build_scene's choice: scans too large for memory take the streaming tiled run (tiling.hpp;

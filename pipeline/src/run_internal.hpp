@@ -13,6 +13,7 @@
 
 #include <Eigen/Geometry>
 
+#include <atomic>
 #include <cstddef>
 #include <string>
 #include <vector>
@@ -81,6 +82,34 @@ class TileHeapBudget {
   std::size_t budget_;
   std::size_t base_;
   std::size_t releases_ = 0;
+};
+
+/// The M_MMAP_THRESHOLD hc::pipeline::keep_freed_heap_for_reuse() set [bytes] (run.hpp); 0
+/// while the C library keeps its own. Read by LargeBlocksMapped.
+extern std::atomic<int> g_kept_mmap_threshold;
+
+/// While alive: blocks of `threshold_bytes` or more are mapped on their own (glibc's
+/// M_MMAP_THRESHOLD) and unmapped when freed, instead of coming from the kept heap; the
+/// destructor restores the threshold keep_freed_heap_for_reuse() set. Acts only when that
+/// function set one and a StageHeapRelease is alive (a tiled run of a batch command); else
+/// nothing. For the tile loop of a run of several bands (tiled_run.cpp, run_tiles): there the
+/// kept heap's holes, left by windows of other sizes, did not fit the next window's arrays, so
+/// the resident size grew by several hundred MB above what was in use (10⁹ points, 392 tiles:
+/// the tile loop 1 084 → 882 MB, its CPU 1 178 → 1 121 s with 157 → 17 releases, the scene the
+/// same bytes; docs/scale.md, fortieth session). A mapped block costs its pages' faults and
+/// zeroing each time, which the kept heap saves in a run of one band. Source: mallopt(3).
+/// One at a time (not nested); construct and destroy on one thread; throws nothing.
+class LargeBlocksMapped {
+ public:
+  explicit LargeBlocksMapped(std::size_t threshold_bytes);
+  ~LargeBlocksMapped();
+  LargeBlocksMapped(const LargeBlocksMapped&) = delete;
+  LargeBlocksMapped& operator=(const LargeBlocksMapped&) = delete;
+  /// Whether the threshold was changed (and is restored at the end).
+  bool active() const { return active_; }
+
+ private:
+  bool active_ = false;
 };
 
 /// While alive, every stage's end gives freed heap back (release_freed_heap_if_asked). The

@@ -2,7 +2,8 @@
 // stages give freed heap back to the system when they end; nothing is given back without a
 // holder, and holders nest. detail::TileHeapBudget gives it back before a tile only when the
 // resident size grew past its budget since the last release, before a gathering whatever the
-// budget (release_now), and only with a holder.
+// budget (release_now), and only with a holder. detail::LargeBlocksMapped maps large blocks on
+// their own while alive, under the kept policy with a holder.
 //
 // Oracle: the process's resident size from the kernel's statm file (proc(5); the library reads
 // VmRSS of /proc/self/status), around a 256 MiB block taken from the heap, touched and freed
@@ -184,6 +185,51 @@ TEST(TileHeapBudget, ReleasesNowWithinItsBudgetOnlyWithAHolder) {
   touch_and_free(kBlock);
   EXPECT_FALSE(budget.before_tile());
   EXPECT_EQ(budget.releases(), 1U);
+}
+
+using hc::pipeline::detail::LargeBlocksMapped;
+
+// LargeBlocksMapped (the tile loop of a run of several bands): while alive, with the threshold
+// keep_freed_heap_for_reuse() set and a holder, a block of its threshold or more is given back
+// when freed (mapped on its own); once it ends, the kept threshold is back and a freed block
+// stays resident again; without a holder, or before the process set the kept policy, it changes
+// nothing. Mutation: a constructor that does not set the threshold keeps the block resident
+// (the second check fails); a destructor that does not restore it gives the last block back.
+TEST(LargeBlocksMapped, MapsLargeBlocksOnlyUnderTheKeptPolicyWithAHolderAndRestoresIt) {
+  constexpr std::size_t kThreshold = std::size_t{8} << 20;
+  {
+    // This process has not set the kept policy through the library (ctest runs each test in a
+    // process of its own; no other test of this binary calls keep_freed_heap_for_reuse).
+    const StageHeapRelease holder;
+    const LargeBlocksMapped mapped(kThreshold);
+    EXPECT_FALSE(mapped.active()) << "no kept threshold to restore: nothing changed";
+  }
+  ASSERT_TRUE(hc::pipeline::keep_freed_heap_for_reuse());
+  {
+    // No holder: the kept policy stands; a freed block stays resident.
+    const LargeBlocksMapped mapped(kThreshold);
+    EXPECT_FALSE(mapped.active());
+    const std::size_t before = resident_bytes();
+    touch_and_free(kBlock);
+    EXPECT_GT(resident_bytes(), before + kBlock - kSlack);
+  }
+  const StageHeapRelease holder;
+  malloc_trim(0);
+  {
+    const LargeBlocksMapped mapped(kThreshold);
+    EXPECT_TRUE(mapped.active());
+    const std::size_t before = resident_bytes();
+    touch_and_free(kBlock);
+    EXPECT_LT(resident_bytes(), before + kSlack) << "the block was unmapped when freed";
+  }
+  // The kept threshold back: freed, a block stays resident (nothing trims it: no stage ended).
+  const std::size_t before = resident_bytes();
+  touch_and_free(kBlock);
+  EXPECT_GT(resident_bytes(), before + kBlock - kSlack);
+  // glibc's defaults (fixed) for anything after this test in the same process.
+  (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
+  (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
+  malloc_trim(0);
 }
 
 #endif  // glibc, no sanitizer

@@ -86,6 +86,18 @@ struct BuiltScene {
 /// ru_maxrss, VmHWM). `hapticloud run` turns it on. Process-wide; thread-safe.
 void set_stage_memory_measurement(bool on);
 
+/// The batch commands' allocator policy (`hapticloud run`, `tile-plan`, `tile-job`,
+/// `tile-merge`; sessions keep the C library's default): glibc's M_MMAP_THRESHOLD and
+/// M_TRIM_THRESHOLD set to 1 GiB, so that large blocks come from the heap and freed heap is
+/// kept for reuse instead of every stage faulting in and zeroing fresh pages (10⁷ points in
+/// core: 1.8 → 0.7 s of system time; bench/README.md). The tiled run gives freed heap back at
+/// each stage's end and within its tile loop (docs/architecture.md, memory). The threshold set
+/// is recorded: the tile loop of a run of several bands maps its large blocks on their own for
+/// a while and then restores it (docs/scale.md, fortieth session). Source: mallopt(3).
+/// Process-wide; call it before any stage starts a thread. @return whether the C library took
+/// both thresholds (glibc 2.36 does; without glibc: false, and nothing is changed).
+bool keep_freed_heap_for_reuse();
+
 /// Runs every stage of `config` in memory: ingest → units + recentre → view transform → filters
 /// → reproject → hole fill → surface layers → cross-check. Nothing is written. When
 /// runs_tiled(config) (scale.tiled; tiling.hpp) the streaming tiled run makes the scene instead:
