@@ -95,7 +95,7 @@ extern std::atomic<int> g_kept_mmap_threshold;
 /// nothing. For the tile loop of a run of several bands (tiled_run.cpp, run_tiles): there the
 /// kept heap's holes, left by windows of other sizes, did not fit the next window's arrays, so
 /// the resident size grew by several hundred MB above what was in use (10⁹ points, 392 tiles:
-/// the tile loop 1 084 → 882 MB, its CPU 1 178 → 1 121 s with 157 → 17 releases, the scene the
+/// the tile loop 1 084 → 893 MB, its CPU 1 178 → 1 111 s with 157 → 19 releases, the scene the
 /// same bytes; docs/scale.md, fortieth session). A mapped block costs its pages' faults and
 /// zeroing each time, which the kept heap saves in a run of one band. Source: mallopt(3).
 /// One at a time (not nested); construct and destroy on one thread; throws nothing.

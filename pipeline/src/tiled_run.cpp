@@ -1957,7 +1957,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // the budget lets the tiles keep served the next step poorly (at 10⁹ points, 6–7 bands, a
 // gathering took RSS from 780 MB to 1.2 GB, a band's first look from 633 MB to 1.04 GB); and
 // from the first band's gathering on, blocks of 8 MiB or more are mapped on their own
-// (detail::LargeBlocksMapped: the 10⁹ tile loop 1 084 → 882 MB, its CPU 5 % less). One band
+// (detail::LargeBlocksMapped: the 10⁹ tile loop 1 084 → 893 MB, its CPU 6 % less). One band
 // (the 10⁸ wall) keeps its fragments: its one gathering (0.8 M points there) stayed under its
 // tiles' peak, and a release would make the second sweep fault its windows in again
 // (docs/scale.md, thirty-ninth and fortieth sessions). progress(fraction) is called with the
