@@ -111,8 +111,10 @@ void print_summary(const pipeline::RunSummary& summary, const std::filesystem::p
 /// (pipeline::keep_freed_heap_for_reuse, run.hpp, sets them and records the threshold for the
 /// tile loop.)
 void keep_freed_memory_for_reuse() {
-  if (!pipeline::keep_freed_heap_for_reuse()) {
-    spdlog::debug("mallopt: M_MMAP_THRESHOLD or M_TRIM_THRESHOLD refused (or no glibc): the C library's default stays for what it refused");
+  const pipeline::HeapPolicyTaken taken = pipeline::keep_freed_heap_for_reuse();
+  if (!taken.mmap_threshold_set || !taken.trim_threshold_set) {
+    spdlog::debug("mallopt: M_MMAP_THRESHOLD {}, M_TRIM_THRESHOLD {}: the C library's default stays for what it refused",
+                  taken.mmap_threshold_set ? "set" : "refused", taken.trim_threshold_set ? "set" : "refused");
   }
 }
 

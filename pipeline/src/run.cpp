@@ -155,12 +155,26 @@ std::atomic<int> g_heap_release_holders{0};
 // The M_MMAP_THRESHOLD keep_freed_heap_for_reuse set [bytes]; 0: the C library's own.
 std::atomic<int> g_kept_mmap_threshold{0};
 
+namespace {
+// Live LargeBlocksMapped guards that changed the threshold: the first sets it, the last restores
+// the threshold recorded when the first set it.
+std::atomic<int> g_mapped_holders{0};
+std::atomic<int> g_mapped_restore{0};
+}  // namespace
+
 LargeBlocksMapped::LargeBlocksMapped(std::size_t threshold_bytes) {
 #ifdef __GLIBC__
   const int kept = g_kept_mmap_threshold.load(std::memory_order_relaxed);
   if (kept <= 0 || g_heap_release_holders.load(std::memory_order_relaxed) <= 0) return;
   const auto want = static_cast<int>(std::min<std::size_t>(threshold_bytes, static_cast<std::size_t>(kept)));
-  active_ = mallopt(M_MMAP_THRESHOLD, want) == 1;
+  if (g_mapped_holders.fetch_add(1, std::memory_order_acq_rel) == 0) {
+    g_mapped_restore.store(kept, std::memory_order_relaxed);
+    if (mallopt(M_MMAP_THRESHOLD, want) != 1) {
+      g_mapped_holders.fetch_sub(1, std::memory_order_acq_rel);
+      return;
+    }
+  }
+  active_ = true;
 #else
   (void)threshold_bytes;
 #endif
@@ -168,7 +182,9 @@ LargeBlocksMapped::LargeBlocksMapped(std::size_t threshold_bytes) {
 
 LargeBlocksMapped::~LargeBlocksMapped() {
 #ifdef __GLIBC__
-  if (active_) (void)mallopt(M_MMAP_THRESHOLD, g_kept_mmap_threshold.load(std::memory_order_relaxed));
+  if (active_ && g_mapped_holders.fetch_sub(1, std::memory_order_acq_rel) == 1) {
+    (void)mallopt(M_MMAP_THRESHOLD, g_mapped_restore.load(std::memory_order_relaxed));
+  }
 #endif
 }
 
@@ -755,16 +771,15 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
 
 void set_stage_memory_measurement(bool on) { detail::g_measure_stage_memory.store(on, std::memory_order_relaxed); }
 
-bool keep_freed_heap_for_reuse() {
+HeapPolicyTaken keep_freed_heap_for_reuse() noexcept {
+  HeapPolicyTaken taken;
 #ifdef __GLIBC__
   constexpr int kOneGiB = 1 << 30;
-  const bool mmap_set = mallopt(M_MMAP_THRESHOLD, kOneGiB) == 1;
-  const bool trim_set = mallopt(M_TRIM_THRESHOLD, kOneGiB) == 1;
-  if (mmap_set) detail::g_kept_mmap_threshold.store(kOneGiB, std::memory_order_relaxed);
-  return mmap_set && trim_set;
-#else
-  return false;
+  taken.mmap_threshold_set = mallopt(M_MMAP_THRESHOLD, kOneGiB) == 1;
+  taken.trim_threshold_set = mallopt(M_TRIM_THRESHOLD, kOneGiB) == 1;
+  if (taken.mmap_threshold_set) detail::g_kept_mmap_threshold.store(kOneGiB, std::memory_order_relaxed);
 #endif
+  return taken;
 }
 
 namespace {

@@ -38,7 +38,8 @@ std::size_t peak_rss();
 /// Gives the heap's free pages back to the system (glibc malloc_trim(0), malloc(3): the free
 /// pages of every arena, not only the top) when a StageHeapRelease is alive in the process;
 /// else, or without glibc, nothing. Called by stage() and the write stage when they end.
-/// `hapticloud run` keeps freed heap for reuse (mallopt thresholds of 1 GiB, run_command.cpp),
+/// `hapticloud run` keeps freed heap for reuse (mallopt thresholds of 1 GiB,
+/// hc::pipeline::keep_freed_heap_for_reuse in run.hpp),
 /// so without this a tiled run's resident size would be the sum of every stage's high-water
 /// and the fragments between (10⁷ wall, N = 4096: 652 MB, 524 MB with it, docs/scale.md).
 void release_freed_heap_if_asked();
@@ -98,7 +99,9 @@ extern std::atomic<int> g_kept_mmap_threshold;
 /// the tile loop 1 084 → 893 MB, its CPU 1 178 → 1 111 s with 157 → 19 releases, the scene the
 /// same bytes; docs/scale.md, fortieth session). A mapped block costs its pages' faults and
 /// zeroing each time, which the kept heap saves in a run of one band. Source: mallopt(3).
-/// One at a time (not nested); construct and destroy on one thread; throws nothing.
+/// Guards nest and may live on several threads at once: the first that acts sets the
+/// threshold, the last to end restores the one recorded when the first set it (a run's memory
+/// only; results do not depend on it). Throws nothing.
 class LargeBlocksMapped {
  public:
   explicit LargeBlocksMapped(std::size_t threshold_bytes);

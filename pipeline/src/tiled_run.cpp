@@ -1961,9 +1961,11 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // (the 10⁸ wall) keeps its fragments: its one gathering (0.8 M points there) stayed under its
 // tiles' peak, and a release would make the second sweep fault its windows in again
 // (docs/scale.md, thirty-ninth and fortieth sessions). progress(fraction) is called with the
-// share of both sweeps done.
+// share of both sweeps done. @return whether large blocks were mapped on their own
+// (LargeBlocksMapped acted: several bands under hc::pipeline::keep_freed_heap_for_reuse's
+// policy, figure `large_blocks_mapped` of `tiles`).
 template <class Done>
-void run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, const std::vector<std::size_t>& list,
+bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, const std::vector<std::size_t>& list,
                detail::TileHeapBudget& heap, const std::function<void(double)>& progress, Done&& done) {
   const auto band_bytes = static_cast<std::size_t>(config.scale.band_mb * 1048576.0);
   const double steps = 2.0 * static_cast<double>(list.size());
@@ -2002,6 +2004,7 @@ void run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
       looks[i] = TileLook{};  // its memory back
     }
   }
+  return mapped && mapped->active();
 }
 
 // The tiles' results gathered: the whole grid's cells, the summed figures, the levels sample.
@@ -3828,7 +3831,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     std::vector<std::size_t> all(tiles.count());
     std::iota(all.begin(), all.end(), std::size_t{0});
     std::vector<std::size_t> left;  // processed, its spill kept for a later band
-    run_tiles(
+    const bool mapped = run_tiles(
         config, plan, spill, kept, all, heap, [&](double f) { tick(f); },
         [&](TileOutput&& o, bool last) {
           const std::size_t t = o.tile;
@@ -3844,6 +3847,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         });
     merged.report(config, r.report);
     r.report.figure("heap_releases", static_cast<double>(heap.releases()));
+    r.report.figure("large_blocks_mapped", mapped ? 1.0 : 0.0);
     return r;
   });
   return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
@@ -3926,7 +3930,7 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
   for (const std::size_t t : tiles) temps.emplace_back(kept.file(t));
   // The tiles in bands as in the tile loop of build_scene_tiled (run_tiles): the strays of a
   // band judged over the whole scan, read from every spill their balls meet.
-  run_tiles(config, plan, spill, kept, tiles, heap, [](double) {}, [&](TileOutput&& o, bool) {
+  (void)run_tiles(config, plan, spill, kept, tiles, heap, [](double) {}, [&](TileOutput&& o, bool) {
     const std::size_t t = o.tile;
     std::error_code ec;
     if (o.kept_bytes > 0) {

@@ -193,18 +193,20 @@ using hc::pipeline::detail::LargeBlocksMapped;
 // keep_freed_heap_for_reuse() set and a holder, a block of its threshold or more is given back
 // when freed (mapped on its own); once it ends, the kept threshold is back and a freed block
 // stays resident again; without a holder, or before the process set the kept policy, it changes
-// nothing. Mutation: a constructor that does not set the threshold keeps the block resident
-// (the second check fails); a destructor that does not restore it gives the last block back.
+// nothing; nested guards keep the threshold until the outer one ends. Mutation: a constructor
+// that does not set the threshold keeps the block resident (the second check fails); a
+// destructor that does not restore it gives the last block back; one that restores at every
+// guard's end fails the nested check.
 TEST(LargeBlocksMapped, MapsLargeBlocksOnlyUnderTheKeptPolicyWithAHolderAndRestoresIt) {
   constexpr std::size_t kThreshold = std::size_t{8} << 20;
+  hc::pipeline::detail::g_kept_mmap_threshold.store(0);  // as in a process that never set the kept policy
   {
-    // This process has not set the kept policy through the library (ctest runs each test in a
-    // process of its own; no other test of this binary calls keep_freed_heap_for_reuse).
     const StageHeapRelease holder;
     const LargeBlocksMapped mapped(kThreshold);
     EXPECT_FALSE(mapped.active()) << "no kept threshold to restore: nothing changed";
   }
-  ASSERT_TRUE(hc::pipeline::keep_freed_heap_for_reuse());
+  const hc::pipeline::HeapPolicyTaken taken = hc::pipeline::keep_freed_heap_for_reuse();
+  ASSERT_TRUE(taken.mmap_threshold_set && taken.trim_threshold_set);
   {
     // No holder: the kept policy stands; a freed block stays resident.
     const LargeBlocksMapped mapped(kThreshold);
@@ -222,13 +224,26 @@ TEST(LargeBlocksMapped, MapsLargeBlocksOnlyUnderTheKeptPolicyWithAHolderAndResto
     touch_and_free(kBlock);
     EXPECT_LT(resident_bytes(), before + kSlack) << "the block was unmapped when freed";
   }
+  {
+    // Nested: the inner guard's end leaves the outer's threshold in force.
+    const LargeBlocksMapped outer(kThreshold);
+    {
+      const LargeBlocksMapped inner(kThreshold);
+      EXPECT_TRUE(inner.active());
+    }
+    const std::size_t before = resident_bytes();
+    touch_and_free(kBlock);
+    EXPECT_LT(resident_bytes(), before + kSlack) << "still mapped while the outer guard lives";
+  }
   // The kept threshold back: freed, a block stays resident (nothing trims it: no stage ended).
   const std::size_t before = resident_bytes();
   touch_and_free(kBlock);
   EXPECT_GT(resident_bytes(), before + kBlock - kSlack);
-  // glibc's defaults (fixed) for anything after this test in the same process.
+  // glibc's defaults (fixed) and no recorded threshold for anything after this test in the same
+  // process.
   (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
   (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
+  hc::pipeline::detail::g_kept_mmap_threshold.store(0);
   malloc_trim(0);
 }
 

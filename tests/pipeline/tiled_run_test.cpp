@@ -15,6 +15,7 @@
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/tiling.hpp"
 #include "hc/tools/relief.hpp"
+#include "run_internal.hpp"
 
 #include "height_field_bits.hpp"
 #include "stage_figure.hpp"
@@ -43,6 +44,9 @@
 #include <tuple>
 
 #include <sys/resource.h>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 
 namespace {
 
@@ -62,6 +66,27 @@ bool has_note(const BuiltScene& b, const std::string& stage, const std::string& 
         if (note.find(text) != std::string::npos) return true;
   return false;
 }
+
+// The batch commands' allocator policy (hc::pipeline::keep_freed_heap_for_reuse: mallopt
+// thresholds of 1 GiB, recorded for the tile loop) while alive; glibc's defaults (fixed) and no
+// recorded threshold after, for whatever runs next in the same process. `mapping` is false where
+// the C library refused the mmap threshold (AddressSanitizer's allocator answers mallopt with 0):
+// then no tile loop maps its blocks on their own.
+struct BatchHeapPolicy {
+  BatchHeapPolicy() : mapping(hc::pipeline::keep_freed_heap_for_reuse().mmap_threshold_set) {
+    if (!mapping) std::printf("the C library refused M_MMAP_THRESHOLD: no tile loop maps its large blocks here, large_blocks_mapped is 0\n");
+  }
+  const bool mapping;
+  ~BatchHeapPolicy() {
+#ifdef __GLIBC__
+    (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
+    (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
+#endif
+    hc::pipeline::detail::g_kept_mmap_threshold.store(0);
+  }
+  BatchHeapPolicy(const BatchHeapPolicy&) = delete;
+  BatchHeapPolicy& operator=(const BatchHeapPolicy&) = delete;
+};
 
 // The message of the E that build_scene(config) throws; a test failure and "" when it throws
 // nothing (any other exception propagates and fails the test).
@@ -380,10 +405,15 @@ TEST(TiledRun, ClutterWithTheFilterOffFailsTheVerdictAsInCore) {
 // changes no verdict: a clutter point the window removes is removed over the whole scan too, and
 // the grid stays equal with the gathering from other tiles cut out;
 // TheRobustTestJudgesAgainPointsWhoseSearchesLeaveTheWindow is the case where it matters. This
-// one runs the second look at scale.) In 48-cell tiles with an 8-cell
+// one runs the second look at scale.) Both tiled runs go under the batch commands' allocator
+// policy (keep_freed_heap_for_reuse): the run of one tile a band maps its large blocks on their
+// own (figure large_blocks_mapped 1), the run of one band does not (0), and the grids stay
+// equal. Mutation: not constructing the guard in run_tiles, or constructing it for one band,
+// fails the figures. In 48-cell tiles with an 8-cell
 // halo the balls reach more than two tiles (75 mm) past a window: an error naming the key.
 TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   const fs::path dir = hc::test::temp_dir("clutter_robust");
+  const BatchHeapPolicy policy;
   write_cluttered_bunny(dir);
   const std::string yaml = "input: {files: [cluttered.ply], units: m}\ngrid: {n: 200}\n";
   RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "run.yaml");
@@ -402,6 +432,7 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   // Every tile's strays in one band, gathered together: the union of their balls holds the
   // second look's own searches.
   EXPECT_EQ(stage_figure(tiled, "tiles", "sum_robust_gatherings"), 1.0) << "one band, one gathering";
+  EXPECT_EQ(stage_figure(tiled, "tiles", "large_blocks_mapped"), 0.0) << "one band keeps its large blocks in the heap";
   EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
   EXPECT_EQ(in.scene.layers.flags, tiled.scene.layers.flags);
   // The kept points, classified against the grid: the same set gives the same counts.
@@ -421,6 +452,7 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   // A tile's balls alone do not always hold its second look's searches (new neighbours from the
   // tiles around): some band gathers again.
   EXPECT_GT(stage_figure(single, "tiles", "sum_robust_gatherings"), windows) << "some band gathered more than once";
+  EXPECT_EQ(stage_figure(single, "tiles", "large_blocks_mapped"), policy.mapping ? 1.0 : 0.0) << "several bands map their large blocks";
   EXPECT_EQ(stage_figure(tiled, "tiles", "sum_removed_robust"), stage_figure(single, "tiles", "sum_removed_robust"));
   EXPECT_EQ(differing_bits(tiled.scene.layers.depth, single.scene.layers.depth), 0U);
   config.scale.tile_cells = 48;
@@ -726,7 +758,7 @@ TEST(TiledRun, ASpillRemovedBeforeTheStraysAreGatheredStopsTheRunNamingItAndLeav
 // with every ball twice as wide and a cell more (sum_robust_balls_grown), reaching the patch.
 // Oracle: the in-core run's grid, bit for bit, and its removals. Mutation: judging the blob
 // alone throws (fewer than k + 2 points); not growing the balls gathers nothing more and stops
-// after 8 gatherings with an InputError.
+// after scale.max_gatherings (8) gatherings with an InputError.
 TEST(TiledRun, StraysWhoseBallsHoldTooFewPointsAreGatheredWithWiderBalls) {
   const fs::path dir = hc::test::temp_dir("grown_balls");
   const std::string yaml =
@@ -771,8 +803,9 @@ TEST(TiledRun, StraysWhoseBallsHoldTooFewPointsAreGatheredWithWiderBalls) {
   EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "no spill is left behind";
   // The same run allowed one gathering (scale.max_gatherings: 1): the blob's strays still want
   // the wider balls' points, so the run stops with the tiles, the stage and the keys named, and
-  // leaves no spill. Mutation: a fixed limit of 8 gatherings (the key not read) ends the run
-  // without an error.
+  // leaves no spill; allowed the gatherings it needed, it ends as before. Mutations: a fixed
+  // limit of 8 gatherings (the key not read) ends the first run without an error; a limit one
+  // short of the key's stops the second.
   {
     RunConfig once = config;
     once.scale.max_gatherings = 1;
@@ -782,6 +815,12 @@ TEST(TiledRun, StraysWhoseBallsHoldTooFewPointsAreGatheredWithWiderBalls) {
       EXPECT_NE(what.find(part), std::string::npos) << part << " in: " << what;
     }
     EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "the spill folder is removed on the error";
+    // Allowed exactly the gatherings its one band needed, the run ends as before.
+    RunConfig enough = config;
+    enough.scale.max_gatherings = static_cast<int>(stage_figure(tiled, "tiles", "sum_robust_gatherings"));
+    ASSERT_EQ(stage_figure(tiled, "tile_plan", "tiles"), 25.0) << "25 tiles of 40 cells: one band";
+    const BuiltScene just = hc::pipeline::build_scene(enough);
+    EXPECT_EQ(differing_bits(in.scene.layers.depth, just.scene.layers.depth), 0U);
   }
   // The same blob just nearer the patch than the far-cluster distance (so that it reaches the
   // robust test), in tiles of 20 cells: the balls grown until they would reach the patch (over

@@ -86,17 +86,25 @@ struct BuiltScene {
 /// ru_maxrss, VmHWM). `hapticloud run` turns it on. Process-wide; thread-safe.
 void set_stage_memory_measurement(bool on);
 
+/// Which of keep_freed_heap_for_reuse()'s settings the C library took.
+struct HeapPolicyTaken {
+  bool mmap_threshold_set = false;  ///< M_MMAP_THRESHOLD = 1 GiB taken
+  bool trim_threshold_set = false;  ///< M_TRIM_THRESHOLD = 1 GiB taken
+};
+
 /// The batch commands' allocator policy (`hapticloud run`, `tile-plan`, `tile-job`,
 /// `tile-merge`; sessions keep the C library's default): glibc's M_MMAP_THRESHOLD and
-/// M_TRIM_THRESHOLD set to 1 GiB, so that large blocks come from the heap and freed heap is
-/// kept for reuse instead of every stage faulting in and zeroing fresh pages (10⁷ points in
+/// M_TRIM_THRESHOLD set to 1 GiB [bytes], so that large blocks come from the heap and freed heap
+/// is kept for reuse instead of every stage faulting in and zeroing fresh pages (10⁷ points in
 /// core: 1.8 → 0.7 s of system time; bench/README.md). The tiled run gives freed heap back at
-/// each stage's end and within its tile loop (docs/architecture.md, memory). The threshold set
+/// each stage's end and within its tile loop (docs/architecture.md, memory). A threshold taken
 /// is recorded: the tile loop of a run of several bands maps its large blocks on their own for
-/// a while and then restores it (docs/scale.md, fortieth session). Source: mallopt(3).
-/// Process-wide; call it before any stage starts a thread. @return whether the C library took
-/// both thresholds (glibc 2.36 does; without glibc: false, and nothing is changed).
-bool keep_freed_heap_for_reuse();
+/// a while and then restores it (docs/scale.md, fortieth session); without a recorded one it
+/// leaves the threshold alone. Permanent for the process (glibc's dynamic mmap threshold stays
+/// off; nothing undoes it); call it once, before any stage starts a thread, not while a run is
+/// going. Source: mallopt(3). Throws nothing; without glibc it changes nothing and returns
+/// {false, false}.
+HeapPolicyTaken keep_freed_heap_for_reuse() noexcept;
 
 /// Runs every stage of `config` in memory: ingest → units + recentre → view transform → filters
 /// → reproject → hole fill → surface layers → cross-check. Nothing is written. When
