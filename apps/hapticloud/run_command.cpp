@@ -93,23 +93,9 @@ void print_summary(const pipeline::RunSummary& summary, const std::filesystem::p
   }
 }
 
-/// The batch commands' stages each allocate and free arrays of every point (10⁷ points: 40–240
-/// MB each) or of every point of a tile. glibc serves blocks above its mmap threshold (at most
-/// 32 MB by its dynamic default) with fresh mappings, so every stage faulted in and zeroed its
-/// pages again: 1.8 s of system time in a 10⁷-point run in core. Served from the heap and not
-/// trimmed, freed pages are reused: 0.7 s, the run 8.2–8.5 → 7.1–7.2 s wall; tiled, 18.8 →
-/// 15.0 s (bench/README.md, "the point stages on a wall in no order"). In core the process
-/// keeps its peak resident until it exits (a batch command does at once); the peak itself moves
-/// little, since freed blocks are reused (10⁷ wall: 1285 → 1383 MB), but each stage's
-/// `peak_rss_mb` includes the memory kept from the stages before it. The tiled run gives each
-/// stage's freed heap back when the stage ends (detail::StageHeapRelease, pipeline/src/
-/// run_internal.hpp): its stages free a window's worth, and kept, the fragments of many
-/// windows added up (10⁷ wall at N = 4096: 652 → 524 MB, docs/scale.md).
-/// glibc 2.36 (Debian 12) takes thresholds up to 1 GiB; a C library that refuses one or has no
-/// mallopt keeps its default. Source: mallopt(3), M_MMAP_THRESHOLD and M_TRIM_THRESHOLD.
-/// Sessions (touch, explore) keep the default.
-/// (pipeline::keep_freed_heap_for_reuse, run.hpp, sets them and records the threshold for the
-/// tile loop.)
+/// The batch commands' allocator policy: pipeline::keep_freed_heap_for_reuse (run.hpp, with
+/// the reasons and figures); what the C library refused is logged at debug level. Sessions
+/// (touch, explore) keep the C library's default.
 void keep_freed_memory_for_reuse() {
   const pipeline::HeapPolicyTaken taken = pipeline::keep_freed_heap_for_reuse();
   if (!taken.mmap_threshold_set || !taken.trim_threshold_set) {

@@ -1989,9 +1989,9 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
     }
     std::map<std::string, double> band_sums;
     const bool one_band = first == 0 && band.size() == list.size();
-    if (!one_band && !mapped) mapped.emplace(kMappedBlockBytes);
-    if (!one_band && std::any_of(looks.begin(), looks.end(), [](const TileLook& L) { return !L.rv.past_halo.empty(); })) {
-      (void)heap.release_now();
+    if (!one_band) {
+      if (!mapped) mapped.emplace(kMappedBlockBytes);
+      if (std::any_of(looks.begin(), looks.end(), [](const TileLook& L) { return !L.rv.past_halo.empty(); })) (void)heap.release_now();
     }
     judge_strays(config, plan, spill, band, looks, band_sums);
     for (const auto& [k, v] : band_sums) looks.front().sums[k] += v;

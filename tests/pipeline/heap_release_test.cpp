@@ -15,6 +15,7 @@
 // quarantine of their own, so no resident-size oracle holds there. `scripts/test` (the release
 // build, CI's first stage) runs them.
 
+#include "batch_heap_policy.hpp"
 #include "run_internal.hpp"
 
 #include <gtest/gtest.h>
@@ -68,8 +69,8 @@ void touch_and_free(std::size_t bytes) {
 }
 
 TEST(StageHeapRelease, GivesFreedHeapBackOnlyWhileHeld) {
-  ASSERT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
-  ASSERT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
+  const hc::test::BatchHeapPolicy policy;  // glibc's defaults back when the test ends
+  ASSERT_TRUE(policy.both());
   ASSERT_GT(resident_bytes(), 0U) << "/proc/self/status has no VmRSS";
 
   // The premise: freed, the block stays resident.
@@ -99,28 +100,9 @@ TEST(StageHeapRelease, GivesFreedHeapBackOnlyWhileHeld) {
   release_freed_heap_if_asked();
   EXPECT_GT(resident_bytes(), kept_again - kSlack);
   EXPECT_GT(kept_again, after_release + kBlock - kSlack);
-
-  // The process's default policy back for the tests after this one (glibc's defaults, fixed).
-  (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
-  (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
-  malloc_trim(0);
 }
 
 using hc::pipeline::detail::TileHeapBudget;
-
-// `hapticloud run`'s policy (freed heap kept) while alive; glibc's defaults (fixed) and the freed
-// heap given back after, for the tests that follow.
-struct KeptHeapPolicy {
-  KeptHeapPolicy() {
-    EXPECT_EQ(mallopt(M_MMAP_THRESHOLD, 1 << 30), 1);
-    EXPECT_EQ(mallopt(M_TRIM_THRESHOLD, 1 << 30), 1);
-  }
-  ~KeptHeapPolicy() {
-    (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
-    (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
-    malloc_trim(0);
-  }
-};
 
 // Without a StageHeapRelease alive: `step` (before_tile or release_now) of a budget of
 // `budget_bytes`, after a freed block past it, gives nothing back and counts nothing.
@@ -134,7 +116,8 @@ void expect_nothing_given_back_without_a_holder(std::size_t budget_bytes, bool (
 }
 
 TEST(TileHeapBudget, GivesBackOnlyPastItsBudgetAndWithAHolder) {
-  const KeptHeapPolicy policy;
+  const hc::test::BatchHeapPolicy policy;
+  ASSERT_TRUE(policy.both());
   // The library's reading (status), which the budget compares, agrees with this test's (statm).
   const std::size_t r0 = hc::pipeline::detail::resident_bytes(), r1 = resident_bytes();
   EXPECT_LT(r0 > r1 ? r0 - r1 : r1 - r0, kSlack);
@@ -167,7 +150,8 @@ TEST(TileHeapBudget, GivesBackOnlyPastItsBudgetAndWithAHolder) {
 // release_now (before a band's gathering of strays and its first sweep): gives back whatever the
 // budget says, only with a holder; counted; the resident size after it is the new base.
 TEST(TileHeapBudget, ReleasesNowWithinItsBudgetOnlyWithAHolder) {
-  const KeptHeapPolicy policy;
+  const hc::test::BatchHeapPolicy policy;
+  ASSERT_TRUE(policy.both());
   expect_nothing_given_back_without_a_holder(std::size_t{1} << 30, &TileHeapBudget::release_now);
   const StageHeapRelease holder;
   malloc_trim(0);
@@ -205,8 +189,8 @@ TEST(LargeBlocksMapped, MapsLargeBlocksOnlyUnderTheKeptPolicyWithAHolderAndResto
     const LargeBlocksMapped mapped(kThreshold);
     EXPECT_FALSE(mapped.active()) << "no kept threshold to restore: nothing changed";
   }
-  const hc::pipeline::HeapPolicyTaken taken = hc::pipeline::keep_freed_heap_for_reuse();
-  ASSERT_TRUE(taken.mmap_threshold_set && taken.trim_threshold_set);
+  const hc::test::BatchHeapPolicy policy;  // glibc's defaults and no recorded threshold after
+  ASSERT_TRUE(policy.both());
   {
     // No holder: the kept policy stands; a freed block stays resident.
     const LargeBlocksMapped mapped(kThreshold);
@@ -239,12 +223,6 @@ TEST(LargeBlocksMapped, MapsLargeBlocksOnlyUnderTheKeptPolicyWithAHolderAndResto
   const std::size_t before = resident_bytes();
   touch_and_free(kBlock);
   EXPECT_GT(resident_bytes(), before + kBlock - kSlack);
-  // glibc's defaults (fixed) and no recorded threshold for anything after this test in the same
-  // process.
-  (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
-  (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
-  hc::pipeline::detail::g_kept_mmap_threshold.store(0);
-  malloc_trim(0);
 }
 
 #endif  // glibc, no sanitizer

@@ -15,7 +15,7 @@
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/tiling.hpp"
 #include "hc/tools/relief.hpp"
-#include "run_internal.hpp"
+#include "batch_heap_policy.hpp"
 
 #include "height_field_bits.hpp"
 #include "stage_figure.hpp"
@@ -44,9 +44,6 @@
 #include <tuple>
 
 #include <sys/resource.h>
-#ifdef __GLIBC__
-#include <malloc.h>
-#endif
 
 namespace {
 
@@ -66,27 +63,6 @@ bool has_note(const BuiltScene& b, const std::string& stage, const std::string& 
         if (note.find(text) != std::string::npos) return true;
   return false;
 }
-
-// The batch commands' allocator policy (hc::pipeline::keep_freed_heap_for_reuse: mallopt
-// thresholds of 1 GiB, recorded for the tile loop) while alive; glibc's defaults (fixed) and no
-// recorded threshold after, for whatever runs next in the same process. `mapping` is false where
-// the C library refused the mmap threshold (AddressSanitizer's allocator answers mallopt with 0):
-// then no tile loop maps its blocks on their own.
-struct BatchHeapPolicy {
-  BatchHeapPolicy() : mapping(hc::pipeline::keep_freed_heap_for_reuse().mmap_threshold_set) {
-    if (!mapping) std::printf("the C library refused M_MMAP_THRESHOLD: no tile loop maps its large blocks here, large_blocks_mapped is 0\n");
-  }
-  const bool mapping;
-  ~BatchHeapPolicy() {
-#ifdef __GLIBC__
-    (void)mallopt(M_MMAP_THRESHOLD, 128 * 1024);
-    (void)mallopt(M_TRIM_THRESHOLD, 128 * 1024);
-#endif
-    hc::pipeline::detail::g_kept_mmap_threshold.store(0);
-  }
-  BatchHeapPolicy(const BatchHeapPolicy&) = delete;
-  BatchHeapPolicy& operator=(const BatchHeapPolicy&) = delete;
-};
 
 // The message of the E that build_scene(config) throws; a test failure and "" when it throws
 // nothing (any other exception propagates and fails the test).
@@ -413,7 +389,10 @@ TEST(TiledRun, ClutterWithTheFilterOffFailsTheVerdictAsInCore) {
 // halo the balls reach more than two tiles (75 mm) past a window: an error naming the key.
 TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   const fs::path dir = hc::test::temp_dir("clutter_robust");
-  const BatchHeapPolicy policy;
+  const hc::test::BatchHeapPolicy policy;
+  if (!policy.taken.mmap_threshold_set) {
+    std::printf("the C library refused M_MMAP_THRESHOLD: no tile loop maps its large blocks here, large_blocks_mapped is 0\n");
+  }
   write_cluttered_bunny(dir);
   const std::string yaml = "input: {files: [cluttered.ply], units: m}\ngrid: {n: 200}\n";
   RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "run.yaml");
@@ -452,7 +431,7 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   // A tile's balls alone do not always hold its second look's searches (new neighbours from the
   // tiles around): some band gathers again.
   EXPECT_GT(stage_figure(single, "tiles", "sum_robust_gatherings"), windows) << "some band gathered more than once";
-  EXPECT_EQ(stage_figure(single, "tiles", "large_blocks_mapped"), policy.mapping ? 1.0 : 0.0) << "several bands map their large blocks";
+  EXPECT_EQ(stage_figure(single, "tiles", "large_blocks_mapped"), policy.taken.mmap_threshold_set ? 1.0 : 0.0) << "several bands map their large blocks";
   EXPECT_EQ(stage_figure(tiled, "tiles", "sum_removed_robust"), stage_figure(single, "tiles", "sum_removed_robust"));
   EXPECT_EQ(differing_bits(tiled.scene.layers.depth, single.scene.layers.depth), 0U);
   config.scale.tile_cells = 48;

@@ -95,9 +95,12 @@ struct HeapPolicyTaken {
 /// The batch commands' allocator policy (`hapticloud run`, `tile-plan`, `tile-job`,
 /// `tile-merge`; sessions keep the C library's default): glibc's M_MMAP_THRESHOLD and
 /// M_TRIM_THRESHOLD set to 1 GiB [bytes], so that large blocks come from the heap and freed heap
-/// is kept for reuse instead of every stage faulting in and zeroing fresh pages (10⁷ points in
-/// core: 1.8 → 0.7 s of system time; bench/README.md). The tiled run gives freed heap back at
-/// each stage's end and within its tile loop (docs/architecture.md, memory). A threshold taken
+/// is kept for reuse instead of every stage faulting in and zeroing fresh pages (glibc's dynamic
+/// threshold maps blocks of up to 32 MB afresh; 10⁷ points in core: 1.8 → 0.7 s of system
+/// time, the run 8.2–8.5 → 7.1–7.2 s; bench/README.md). In core the process keeps its peak
+/// resident until it exits, and each stage's `peak_rss_mb` includes what the stages before it
+/// kept. The tiled run gives freed heap back at each stage's end and within its tile loop
+/// (docs/architecture.md, memory). A threshold taken
 /// is recorded: the tile loop of a run of several bands maps its large blocks on their own for
 /// a while and then restores it (docs/scale.md, fortieth session); without a recorded one it
 /// leaves the threshold alone. Permanent for the process (glibc's dynamic mmap threshold stays
