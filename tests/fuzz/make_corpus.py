@@ -92,6 +92,28 @@ def main():
     put("pcd", "binary_xyzi.pcd", pcd("binary", "x y z intensity", "4 4 4 4", "F F F F", "1 1 1 1").encode() +
         b"".join(struct.pack("<ffff", x, y, z, 0.5) for x, y, z in few))
     put("pcd", "ascii_double.pcd", pcd("ascii", size="8 8 8") + "".join(f"{x!r} {y!r} {z!r}\n" for x, y, z in few))
+    # binary_compressed (streamed since 2026-11-27): columns x, y, z packed as LZF (liblzf's
+    # format: literal runs of up to 32 bytes; z a constant column, one literal value then
+    # overlapping back references 4 bytes back, short and long).
+    def lzf_literals(data):
+        return b"".join(bytes([len(data[i:i + 32]) - 1]) + data[i:i + 32] for i in range(0, len(data), 32))
+    def lzf_repeat_back4(length):
+        out = b""
+        while length > 0:
+            n = min(length, 264)
+            if n < 3:  # a reference copies 3 bytes at least: the rest as a literal
+                return out, n
+            field = n - 2
+            out += bytes([(field << 5) | 0, 3]) if field < 7 else bytes([(7 << 5) | 0, field - 7, 3])
+            length -= n
+        return out, 0
+    xs = b"".join(struct.pack("<f", x) for x, _, _ in few)
+    ys = b"".join(struct.pack("<f", y) for _, y, _ in few)
+    zc = struct.pack("<f", 0.5)
+    refs, rest = lzf_repeat_back4(4 * len(few) - 4)
+    block = lzf_literals(xs + ys) + lzf_literals(zc) + refs + (bytes([rest - 1]) + zc[4 - rest:] if rest else b"")
+    unpacked = 12 * len(few)
+    put("pcd", "binary_compressed.pcd", pcd("binary_compressed").encode() + struct.pack("<II", len(block), unpacked) + block)
     # OBJ: vertices, with comments, normals, faces, a w component.
     put("obj", "vertices.obj", "# fuzz seed\n" + "".join(f"v {x} {y} {z}\n" for x, y, z in few))
     put("obj", "mesh.obj", "o tri\nv 0 0 0\nv 1 0 0\nv 0 1 0 1.0\nvn 0 0 1\nvt 0 0\nf 1/1/1 2/1/1 3/1/1\ng g\nusemtl m\n")

@@ -8,6 +8,7 @@
 
 #include "error_of.hpp"
 #include "file_bytes.hpp"
+#include "pcl_pcd_writer.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -857,6 +858,119 @@ TEST(PointStream, BinaryPcdStreamsTheSamePointsAndErrorsAsTheWholeRead) {
   hc::test::write_bytes(dir / "cut.pcd.gz", packed.substr(0, packed.size() / 2));
   expect_stream_fails_as_whole_read_at_any_point(dir, {"short.pcd", "short.pcd.gz", "nowidth.pcd", "huge.pcd", "cut.pcd.gz"});
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "short.pcd"); }).find("truncated"), std::string::npos);
+}
+
+// A DATA binary_compressed PCD written by PCL's own writer (its LZF compressor): x y z float32,
+// a packed rgb, a normal and a curvature, n points as `height` rows. With repeats, x cycles over
+// 1000 values, z holds runs of 300 equal values and the normal is constant (so the block holds
+// long, overlapping back references); y is NaN now and then.
+fs::path write_compressed_normals_pcd(const fs::path& p, std::uint32_t width, std::uint32_t height) {
+  std::string rec;
+  auto put = [&](auto v) { rec.append(reinterpret_cast<const char*>(&v), sizeof v); };
+  const std::size_t n = static_cast<std::size_t>(width) * height;
+  for (std::size_t i = 0; i < n; ++i) {
+    put(static_cast<float>(i % 1000) * 0.01f);
+    put(i % 97 == 5 ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(i) * -3.7e-4f);
+    put((i / 300) % 2 == 0 ? 0.25f : 0.5f);
+    put(static_cast<std::uint32_t>(0x00808080u));
+    put(0.0f);
+    put(0.0f);
+    put(1.0f);
+    put(static_cast<float>(i) * 1e-6f);
+  }
+  hc::test::write_pcl_compressed_pcd(p,
+                                     {{"x", 'F', 4, 1}, {"y", 'F', 4, 1}, {"z", 'F', 4, 1}, {"rgb", 'U', 4, 1}, {"normal_x", 'F', 4, 1},
+                                      {"normal_y", 'F', 4, 1}, {"normal_z", 'F', 4, 1}, {"curvature", 'F', 4, 1}},
+                                     rec, width, height);
+  return p;
+}
+
+// Where a PCD's binary_compressed block starts in `bytes`, and its two sizes (compressed, unpacked).
+std::size_t compressed_block(const std::string& bytes, std::uint32_t sizes[2]) {
+  const std::size_t pos = bytes.find("DATA binary_compressed\n") + 23;
+  std::memcpy(sizes, bytes.data() + pos, 8);
+  return pos;
+}
+
+// A DATA binary_compressed PCD streams natively (one LZF decoder per axis): the points PCL's
+// whole read gives (its own LZF decoder) in any chunking, plain and under gzip. The files are
+// PCL's own: mixed field types with the axes after a packed colour (float64 x, int32 z), and
+// float32 axes before a colour, a normal and a curvature, organised, with NaN and a block of
+// mostly back references.
+TEST(PointStream, CompressedPcdStreamsThePointsPclReads) {
+  const fs::path dir = hc::test::temp_dir("pcd_compressed_stream");
+  const fs::path binary = write_binary_pcd(dir / "mixed_binary.pcd", 100000, false);
+  const std::string binary_bytes = hc::test::read_bytes(binary);
+  const fs::path mixed = dir / "mixed.pcd";
+  hc::test::write_pcl_compressed_pcd(mixed, {{"rgb", 'U', 4, 1}, {"x", 'F', 8, 1}, {"y", 'F', 4, 1}, {"z", 'I', 4, 1}, {"pad", 'I', 2, 2}},
+                                     binary_bytes.substr(binary_bytes.find("DATA binary\n") + 12), 100000);
+  const fs::path normals = write_compressed_normals_pcd(dir / "normals.pcd", 1001, 70);
+  // PCL's whole read of its own file holds the points the binary file holds (read directly).
+  EXPECT_TRUE(same_xyz(hc::pipeline::load_cloud(mixed).value.xyz, hc::pipeline::load_cloud(binary).value.xyz));
+  // The repeats pack 32 bytes a point into fewer than 12: most of the block is back references.
+  std::uint32_t sizes[2];
+  (void)compressed_block(hc::test::read_bytes(normals), sizes);
+  EXPECT_EQ(sizes[1], 70070U * 32U);
+  EXPECT_LT(sizes[0], 70070U * 12U);
+  expect_stream_equals_load_cloud(mixed, "PCD binary_compressed, 100000 points (one LZF block decoded as it is read, a decoder per axis)");
+  expect_stream_equals_load_cloud(normals, "PCD binary_compressed, 70070 points (one LZF block decoded as it is read, a decoder per axis)");
+  for (const fs::path& p : {mixed, normals}) {
+    SCOPED_TRACE(p.filename().string());
+    const Cloud whole = hc::pipeline::load_cloud(p).value;
+    EXPECT_EQ(hc::pipeline::open_point_stream(p)->total_points(), whole.size());
+    (void)expect_chunks_equal(p, whole, 1);
+    Cloud c;
+    ASSERT_TRUE(hc::pipeline::open_point_stream(p)->next(c, 10));
+    EXPECT_EQ(c.float32_xyz, whole.float32_xyz);
+    EXPECT_EQ(c.float32_xyz, p == normals);
+    for (const int members : {1, 3}) {
+      const fs::path gz = dir / (p.filename().string() + ".gz");
+      hc::test::write_gzip(gz, hc::test::read_bytes(p), members);
+      SCOPED_TRACE("members " + std::to_string(members));
+      (void)expect_chunks_equal(gz, hc::pipeline::load_cloud(gz).value, 4096);
+    }
+  }
+}
+
+// A bad binary_compressed block fails the stream (when opened or read) as it fails the whole
+// read, in the same words, which say what is wrong and where: a back reference before the data's
+// start, a block declared one byte short (its last instruction cut), a block that unpacks past
+// the size its header declares, a wrong unpacked size, a file cut inside the block, a cut gzip.
+TEST(PointStream, CompressedPcdErrorsAreTheWholeReadsAndSayWhere) {
+  const fs::path dir = hc::test::temp_dir("pcd_compressed_errors");
+  const std::string bytes = hc::test::read_bytes(write_compressed_normals_pcd(dir / "good.pcd", 5000, 1));
+  std::uint32_t sizes[2];
+  const std::size_t pos = compressed_block(bytes, sizes);
+  ASSERT_LT(static_cast<unsigned char>(bytes[pos + 8]), 32U);  // PCL's block starts with a literal run
+  std::string start = bytes;
+  start[pos + 8] = static_cast<char>(0x20);  // a reference of 3 bytes, 1 + the next byte back, at output byte 0
+  hc::test::write_bytes(dir / "start.pcd", start);
+  const auto with_sizes = [&](std::uint32_t packed, std::uint32_t unpacked, const std::string& from) {
+    std::string b = from;
+    const std::uint32_t v[2] = {packed, unpacked};
+    std::memcpy(b.data() + pos, v, 8);
+    return b;
+  };
+  hc::test::write_bytes(dir / "short_block.pcd", with_sizes(sizes[0] - 1, sizes[1], bytes));
+  // 4999 points declared (the header as long as before): the block unpacks 32 bytes past them.
+  std::string fewer = with_sizes(sizes[0], sizes[1] - 32, bytes);
+  for (const char* key : {"WIDTH 5000", "POINTS 5000"}) fewer.replace(fewer.find(key), std::strlen(key), std::string(key, std::strlen(key) - 4) + "4999");
+  hc::test::write_bytes(dir / "overrun.pcd", fewer);
+  hc::test::write_bytes(dir / "unpacked.pcd", with_sizes(sizes[0], sizes[1] + 32, bytes));
+  hc::test::write_bytes(dir / "cut.pcd", bytes.substr(0, pos + 8 + sizes[0] - 10));  // PCL pads its file to whole pages
+  hc::test::write_gzip(dir / "good.pcd.gz", bytes);
+  const std::string packed = hc::test::read_bytes(dir / "good.pcd.gz");
+  hc::test::write_bytes(dir / "cut.pcd.gz", packed.substr(0, packed.size() / 2));
+  expect_stream_fails_as_whole_read_at_any_point(dir, {"start.pcd", "short_block.pcd", "overrun.pcd", "unpacked.pcd", "cut.pcd", "cut.pcd.gz"});
+  const auto error = [&](const char* name) { return hc::test::error_of([&] { hc::pipeline::load_cloud(dir / name); }); };
+  EXPECT_NE(error("start.pcd").find("start.pcd': the binary_compressed body (LZF): corrupt at compressed byte 0 (output byte 0): a back reference"),
+            std::string::npos)
+      << error("start.pcd");
+  EXPECT_NE(error("short_block.pcd").find("the " + std::to_string(sizes[0] - 1) + " compressed bytes"), std::string::npos) << error("short_block.pcd");
+  EXPECT_NE(error("overrun.pcd").find("past the " + std::to_string(sizes[1] - 32) + " bytes the header declares"), std::string::npos)
+      << error("overrun.pcd");
+  EXPECT_NE(error("unpacked.pcd").find("unpacks to"), std::string::npos) << error("unpacked.pcd");
+  EXPECT_NE(error("cut.pcd").find("truncated: the compressed block needs"), std::string::npos) << error("cut.pcd");
 }
 
 // An ascii PCD of n points as PCL's writer lays it out (one point a line, blanks between

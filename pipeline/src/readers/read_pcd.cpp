@@ -14,6 +14,7 @@
 
 #include "byte_source.hpp"
 #include "line_stream.hpp"
+#include "lzf_reader.hpp"
 #include "readers.hpp"
 #include "text_parse.hpp"
 
@@ -130,6 +131,7 @@ struct PcdLayout {
     std::size_t value = 0;      ///< place among an ascii line's numbers (from 0)
     char type = 'F';            ///< F, I or U
     int size = 4;               ///< bytes
+    std::size_t field_bytes = 4;  ///< the field's bytes in a record: SIZE × COUNT (the first value is the axis)
   } axis[3];
 };
 
@@ -178,6 +180,22 @@ std::string check_ascii_line(const char* b, const char* e, std::size_t values) {
     }
   }
   return check_numeric_line(b, e, values);
+}
+
+// The start of a binary_compressed body's errors (LzfReader's `what`).
+std::string compressed_what(const std::string& name) { return "load_cloud: " + name + ": the binary_compressed body (LZF)"; }
+
+// A binary_compressed body's two sizes (compressed, then unpacked: sizes, or nullptr when
+// fewer than 8 bytes follow the header) against the layout and the `have` bytes after the header.
+void check_compressed_sizes(const std::string& name, const PcdLayout& l, std::size_t have, const std::uint32_t* sizes) {
+  auto fail = [&](const std::string& what) { return InputError("load_cloud: " + name + ": " + what); };
+  if (sizes == nullptr) throw fail("truncated: no compressed block after the header");
+  if (sizes[1] != l.n * l.point_bytes) {
+    throw fail("the compressed block unpacks to " + std::to_string(sizes[1]) + " bytes, expected " + std::to_string(l.n * l.point_bytes));
+  }
+  if (have - 8 < sizes[0]) {
+    throw fail("truncated: the compressed block needs " + std::to_string(sizes[0]) + " bytes, " + std::to_string(have - 8) + " follow");
+  }
 }
 
 // The header (and for ascii and binary_compressed bodies, the data) of a PCD file checked.
@@ -260,7 +278,7 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
     for (int a = 0; a < 3; ++a) {
       if (fields[i] == std::string(1, static_cast<char>('x' + a)) && !axis_seen[a]) {
         axis_seen[a] = true;
-        layout.axis[a] = {point_bytes, values, t[0], std::stoi(z)};
+        layout.axis[a] = {point_bytes, values, t[0], std::stoi(z), static_cast<std::size_t>(std::stoi(z)) * static_cast<std::size_t>(c)};
       }
     }
     point_bytes += static_cast<std::size_t>(std::stoi(z)) * static_cast<std::size_t>(c);
@@ -286,7 +304,7 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
   layout.n = n;
   layout.point_bytes = point_bytes;
   layout.values = values;
-  if (header_only && data != "binary") return layout;
+  if (header_only && data != "binary") return layout;  // a binary_compressed body's sizes: PcdCompressedStream
   if (data == "ascii") {
     std::size_t lines = 0;
     std::size_t p = pos;
@@ -318,16 +336,17 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
     }
   } else if (data == "binary_compressed") {
     std::uint32_t sizes_lz[2] = {0, 0};
-    if (have < 8) throw fail("truncated: no compressed block after the header");
-    std::memcpy(sizes_lz, raw.data() + pos, 8);
-    if (sizes_lz[1] != n * point_bytes) {
-      throw fail("the compressed block unpacks to " + std::to_string(sizes_lz[1]) + " bytes, expected " +
-                 std::to_string(n * point_bytes));
-    }
-    if (have - 8 < sizes_lz[0]) {
-      throw fail("truncated: the compressed block needs " + std::to_string(sizes_lz[0]) + " bytes, " +
-                 std::to_string(have - 8) + " follow");
-    }
+    if (have >= 8) std::memcpy(sizes_lz, raw.data() + pos, 8);
+    check_compressed_sizes(name, layout, have, have >= 8 ? sizes_lz : nullptr);
+    // The block decoded here first (LzfReader), so that a corrupt one fails in the words the
+    // streamed read (PcdCompressedStream) uses, naming where, rather than PCL's bare refusal.
+    std::size_t at = pos + 8;
+    LzfReader lzf(sizes_lz[0], sizes_lz[1], [&](char* out, std::size_t k) {
+      std::memcpy(out, raw.data() + at, k);  // k ≤ the bytes left of the block (LzfReader), within raw (checked above)
+      at += k;
+      return k;
+    }, compressed_what(name));
+    lzf.finish();
   } else {
     throw fail("unknown PCD DATA type '" + data + "' (expected ascii, binary or binary_compressed)");
   }
@@ -393,6 +412,88 @@ class PcdStream final : public PointStream {
   std::unique_ptr<ByteSource> src_;
   std::string name_;
   PcdLayout l_;
+  std::size_t done_ = 0;
+  std::vector<char> buffer_;
+  std::vector<std::string> notes_;
+  StickyFailure sticky_;
+};
+
+// A DATA binary_compressed PCD read in chunks (point_stream.hpp). The body is one LZF block
+// (lzf_reader.hpp) that unpacks to the fields one after another, each as n values of the field's
+// SIZE × COUNT bytes (PCL's pcd_io.cpp "xxyyzz": field f's column starts at n × its offset in
+// a record). So each axis has a decoder of its own, over a source of its own, that decodes and
+// drops the columns before its own and then hands out its column's values chunk by chunk:
+// memory about 350 KiB an axis, whatever the file's size, for decoding work of up to three
+// times the block's (the whole read decodes it once, into memory of the whole body). After the
+// last point, the decoder of the farthest axis decodes the rest and checks the block's sizes,
+// as the whole read does before PCL parses it; the values are binary_value's, as
+// PcdStream's and the whole read's (PCL's, compared in tests/pipeline/pcd_compressed_test.cpp).
+class PcdCompressedStream final : public PointStream {
+ public:
+  // file_bytes: the data's size (under gzip, inflated).
+  PcdCompressedStream(const std::filesystem::path& path, bool gz, std::uint64_t file_bytes, std::unique_ptr<ByteSource> first,
+                      const PcdLayout& l)
+      : name_(first->name()), l_(l) {
+    notes_.push_back("PCD");  // the whole read's note (PCL parses the body there)
+    notes_.push_back("PCD binary_compressed, " + std::to_string(l_.n) + " points (one LZF block decoded as it is read, a decoder per axis)");
+    // The block's sizes (validate_pcd checked the header's: the file holds the block, which
+    // unpacks to n records' bytes).
+    first->seek(l_.pos);
+    std::uint32_t sizes[2] = {0, 0};
+    const bool whole = first->read(reinterpret_cast<char*>(sizes), sizeof sizes) == sizeof sizes;
+    check_compressed_sizes(name_, l_, file_bytes > l_.pos ? static_cast<std::size_t>(file_bytes - l_.pos) : 0, whole ? sizes : nullptr);
+    for (int a = 0; a < 3; ++a) {
+      Axis& ax = axes_[static_cast<std::size_t>(a)];
+      ax.src = a == 0 ? std::move(first) : ByteSource::open(path, name_, gz);
+      ax.src->seek(l_.pos + 8);
+      ByteSource* src = ax.src.get();
+      ax.lzf = std::make_unique<LzfReader>(sizes[0], sizes[1], [src](char* out, std::size_t k) { return src->read(out, k); },
+                                           compressed_what(name_));
+    }
+    last_ = 0;
+    for (std::size_t a = 1; a < 3; ++a) {
+      if (l_.axis[a].offset > l_.axis[last_].offset) last_ = a;
+    }
+  }
+  std::uint64_t total_points() const override { return l_.n; }
+  const std::vector<std::string>& notes() const override { return notes_; }
+  bool streamed() const override { return true; }
+
+  bool next(Cloud& chunk, std::size_t max_points) override {
+    return sticky_.run(name_, chunk, [&] {
+      const std::size_t n = std::min(std::max<std::size_t>(max_points, 1), l_.n - done_);
+      if (n == 0) return false;
+      chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
+      for (std::size_t a = 0; a < 3; ++a) {
+        const PcdLayout::Axis& la = l_.axis[a];
+        LzfReader& lzf = *axes_[a].lzf;
+        if (done_ == 0) lzf.read(nullptr, l_.n * la.offset);  // the columns before this axis's
+        buffer_.resize(n * la.field_bytes);
+        lzf.read(buffer_.data(), buffer_.size());
+        const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
+        for (std::size_t i = 0; i < n; ++i) {
+          chunk.xyz(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(i)) = binary_value(base + i * la.field_bytes, la.type, la.size);
+        }
+      }
+      chunk.float32_xyz = float32_axes(l_);
+      done_ += n;
+      if (done_ == l_.n) {
+        axes_[last_].lzf->finish();
+        axes_[last_].src->drain();
+      }
+      return true;
+    });
+  }
+
+ private:
+  struct Axis {
+    std::unique_ptr<ByteSource> src;
+    std::unique_ptr<LzfReader> lzf;
+  };
+  std::string name_;
+  PcdLayout l_;
+  std::array<Axis, 3> axes_;
+  std::size_t last_ = 0;  // the axis whose column comes last: its decoder checks the block's end
   std::size_t done_ = 0;
   std::vector<char> buffer_;
   std::vector<std::string> notes_;
@@ -513,7 +614,8 @@ std::unique_ptr<PointStream> open_pcd_stream(const std::filesystem::path& path, 
   bool float_axes = true;
   for (const auto& a : layout.axis) float_axes = float_axes && a.type == 'F';
   if (layout.data == "ascii" && float_axes) return std::make_unique<PcdAsciiStream>(std::move(src), layout);
-  if (layout.data != "binary") return nullptr;  // binary_compressed: one LZF block, PCL, whole
+  if (layout.data == "binary_compressed") return std::make_unique<PcdCompressedStream>(path, gz, file_bytes, std::move(src), layout);
+  if (layout.data != "binary") return nullptr;  // an ascii body with an integer axis: PCL, whole
   return std::make_unique<PcdStream>(std::move(src), layout);
 }
 

@@ -1,0 +1,28 @@
+#pragma once
+/// @file pcl_pcd_writer.hpp
+/// PCD files written by PCL itself, for the reader tests' oracles (tests/pipeline/pcl_pcd_writer.cpp).
+
+#include <cstdint>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+namespace hc::test {
+
+/// A PCD field as its header declares it: TYPE (F, I or U), SIZE [bytes], COUNT.
+struct PcdField {
+  std::string name;
+  char type = 'F';
+  int size = 4;
+  int count = 1;
+};
+
+/// Writes width × height records to `p` as DATA binary_compressed with PCL's own writer
+/// (pcl::PCDWriter::writeBinaryCompressed, PCL 1.13: its LZF compressor and its "xxyyzz" column
+/// layout). `records`: the points one after another, each the fields' values in order, packed
+/// (a record is the sum of SIZE × COUNT bytes), little-endian.
+/// @throws std::runtime_error when PCL fails or `records` is not width × height records.
+void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<PcdField>& fields, const std::string& records,
+                              std::uint32_t width, std::uint32_t height = 1);
+
+}  // namespace hc::test
