@@ -2,8 +2,6 @@
 
 #include "far_cells.hpp"
 
-#include "wanted_keys.hpp"
-
 #include "hc/common/format.hpp"
 
 #include <algorithm>
@@ -100,42 +98,56 @@ void FarCells::begin_tile(int tile_row) {
     evict_before_row();
     row_ = tile_row;
   }
-  tile_.clear();
+  std::fill(tile_slots_.begin(), tile_slots_.end(), Slot{0, kFree});
+  tile_cells_.clear();
+  tile_keys_.clear();
   in_tile_ = true;
+}
+
+std::uint32_t FarCells::tile_find(std::uint64_t key) const {
+  const std::size_t mask = tile_slots_.size() - 1;
+  for (std::size_t i = static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ULL) >> (64 - tile_bits_));; i = (i + 1) & mask) {
+    const Slot& s = tile_slots_[i];
+    if (s.index == kFree || s.key == key) return s.index;
+  }
+}
+
+void FarCells::tile_grow() {
+  ++tile_bits_;
+  tile_slots_.assign(std::size_t{1} << tile_bits_, Slot{0, kFree});
+  const std::size_t mask = tile_slots_.size() - 1;
+  for (std::uint32_t c = 0; c < tile_keys_.size(); ++c) {
+    std::size_t i = static_cast<std::size_t>((tile_keys_[c] * 0x9E3779B97F4A7C15ULL) >> (64 - tile_bits_));
+    while (tile_slots_[i].index != kFree) i = (i + 1) & mask;
+    tile_slots_[i] = Slot{tile_keys_[c], c};
+  }
+}
+
+std::uint32_t FarCells::tile_cell(std::uint64_t key) {
+  const std::size_t mask = tile_slots_.size() - 1;
+  for (std::size_t i = static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ULL) >> (64 - tile_bits_));; i = (i + 1) & mask) {
+    Slot& s = tile_slots_[i];
+    if (s.key == key && s.index != kFree) return s.index;
+    if (s.index != kFree) continue;
+    const auto c = static_cast<std::uint32_t>(tile_cells_.size());
+    s = Slot{key, c};
+    tile_cells_.emplace_back();
+    tile_keys_.push_back(key);
+    if (2 * tile_keys_.size() > tile_slots_.size()) tile_grow();
+    return c;
+  }
 }
 
 void FarCells::add_points(const double* xyz, std::size_t n) {
   if (!in_tile_) throw std::logic_error("FarCells::add_points outside a tile");
-  constexpr std::size_t kRun = std::size_t{1} << 16;
-  std::vector<std::uint64_t> keys;
-  std::vector<Cell> sum;
-  std::vector<std::uint64_t> key_of;
-  for (std::size_t first = 0; first < n; first += kRun) {
-    const std::size_t m = std::min(n, first + kRun) - first;
-    keys.resize(m);
-    for (std::size_t i = 0; i < m; ++i) keys[i] = key(xyz + 3 * (first + i));
-    const WantedKeys cell(keys);
-    sum.assign(cell.size(), Cell{});
-    key_of.resize(cell.size());
-    for (std::size_t j = 0; j < m; ++j) {
-      const std::uint32_t c_at = cell.find(keys[j]);
-      key_of[c_at] = keys[j];
-      Cell& c = sum[c_at];
-      ++c.count;
-      const double* p = xyz + 3 * (first + j);
-      for (int a = 0; a < 3; ++a) {
-        const auto v = static_cast<float>(p[a] - origin_[a]);
-        c.lo[a] = std::min(c.lo[a], v);
-        c.hi[a] = std::max(c.hi[a], v);
-      }
-    }
-    for (std::size_t q = 0; q < sum.size(); ++q) {
-      Cell& c = tile_[key_of[q]];
-      c.count += sum[q].count;
-      for (int a = 0; a < 3; ++a) {
-        c.lo[a] = std::min(c.lo[a], sum[q].lo[a]);
-        c.hi[a] = std::max(c.hi[a], sum[q].hi[a]);
-      }
+  for (std::size_t j = 0; j < n; ++j) {
+    const double* p = xyz + 3 * j;
+    Cell& c = tile_cells_[tile_cell(key(p))];
+    ++c.count;
+    for (int a = 0; a < 3; ++a) {
+      const auto v = static_cast<float>(p[a] - origin_[a]);
+      c.lo[a] = std::min(c.lo[a], v);
+      c.hi[a] = std::max(c.hi[a], v);
     }
   }
 }
@@ -143,13 +155,11 @@ void FarCells::add_points(const double* xyz, std::size_t n) {
 void FarCells::end_tile() {
   if (!in_tile_) throw std::logic_error("FarCells::end_tile outside a tile");
   in_tile_ = false;
-  if (tile_.empty()) return;
+  if (tile_keys_.empty()) return;
 
   // The tile's components: its cells in key order, linked to their 13 neighbours of larger key
   // (a pair of neighbours is one link, seen from its smaller key).
-  std::vector<std::uint64_t> keys;
-  keys.reserve(tile_.size());
-  for (const auto& [k, c] : tile_) keys.push_back(k);
+  std::vector<std::uint64_t> keys = tile_keys_;
   std::sort(keys.begin(), keys.end());
   const auto index_of = [&keys](std::uint64_t k) -> std::int64_t {
     const auto it = std::lower_bound(keys.begin(), keys.end(), k);
@@ -192,7 +202,7 @@ void FarCells::end_tile() {
     } else {
       label[i] = label[root];
     }
-    const Cell& c = tile_.at(keys[i]);
+    const Cell& c = tile_cells_[tile_find(keys[i])];
     Comp& q = comps_[label[i]];
     q.count += c.count;
     for (int a = 0; a < 3; ++a) {
@@ -242,7 +252,9 @@ FarCells::Result FarCells::components(double far_m) {
   if (done_) throw std::logic_error("FarCells::components called twice");
   if (in_tile_) throw std::logic_error("FarCells::components: the last tile was not ended");
   done_ = true;
-  std::unordered_map<std::uint64_t, Cell>().swap(tile_);
+  std::vector<Slot>().swap(tile_slots_);
+  std::vector<Cell>().swap(tile_cells_);
+  std::vector<std::uint64_t>().swap(tile_keys_);
   std::unordered_map<std::uint64_t, std::uint32_t>().swap(frontier_);
   Result r = stats_;
   r.cells = cells_;

@@ -44,7 +44,8 @@ namespace hc::pipeline::detail {
 /// neighbours an earlier tile's cell only within one index of its own tile's smallest x or y
 /// index, which is what is looked up.
 ///
-/// Memory: one tile's cells (a hash-map node each, about 60 bytes), the frontier (about two rows
+/// Memory: one tile's cells (about 70 bytes each: the cell, its key, two slots of the tile's
+/// table), the frontier (about two rows
 /// of tiles' far sides, about 40 bytes a cell), about 100 bytes per component and 8 bytes per
 /// cell of each component of at most `small_points` points (a far cluster that may be removed);
 /// no point is held. Not thread-safe.
@@ -65,9 +66,9 @@ class FarCells {
   /// @throws std::logic_error when tile_row decreases, a tile is begun twice or not begun, or
   ///         after components().
   void begin_tile(int tile_row);
-  /// xyz: n points of the tile as x y z doubles [m] (grid frame), all the tile's own. Per 2^16
-  /// points the batch's cells are summed first (detail::WantedKeys), so the tile's table is
-  /// looked up once per cell a batch holds, not once per point.
+  /// xyz: n points of the tile as x y z doubles [m] (grid frame), all the tile's own. Each point
+  /// is added to its cell in the tile's own table (open addressing, at most half full: a tile's
+  /// few thousand cells stay in cache, where a table sized by the points did not).
   void add_points(const double* xyz, std::size_t n);
   /// Joins the tile's cells among themselves and to the frontier, and keeps its far sides.
   void end_tile();
@@ -136,7 +137,20 @@ class FarCells {
   std::uint64_t y_seen_max_ = 0;  // the largest y index of any cell added so far
   std::size_t cells_ = 0, listed_ = 0;
   Result stats_;
-  std::unordered_map<std::uint64_t, Cell> tile_;          // the current tile's cells
+  // The current tile's cells, in order of first appearance (tile_cells_, tile_keys_), found by
+  // key through tile_slots_ (open addressing, a power of two slots, at most half full).
+  struct Slot {
+    std::uint64_t key;
+    std::uint32_t index;  // into tile_cells_; kFree when the slot is free
+  };
+  static constexpr std::uint32_t kFree = std::numeric_limits<std::uint32_t>::max();
+  std::uint32_t tile_cell(std::uint64_t key);      // the cell of `key`, added when new
+  std::uint32_t tile_find(std::uint64_t key) const;  // the cell of a key the tile holds
+  void tile_grow();
+  int tile_bits_ = 10;
+  std::vector<Slot> tile_slots_ = std::vector<Slot>(std::size_t{1} << 10, Slot{0, kFree});
+  std::vector<Cell> tile_cells_;
+  std::vector<std::uint64_t> tile_keys_;
   std::unordered_map<std::uint64_t, std::uint32_t> frontier_;  // cell key -> component
   std::vector<std::uint32_t> parent_;
   std::vector<Comp> comps_;

@@ -1,7 +1,6 @@
 #pragma once
 // A fixed set of 64-bit keys numbered in order of first appearance: the honest check's wanted
-// voxels (honest_check.cpp), the tiled run's far-cluster cells of a tile (far_cells.cpp,
-// FarCells::add_tile), the cells about a few listed points (robust_outliers.cpp, near_rows)
+// voxels (honest_check.cpp), the cells about a few listed points (robust_outliers.cpp, near_rows)
 // and the voxels about a tile's removed points (tiled_run.cpp, near_after_removal) look their
 // points' keys up in it; group_by_wanted_key gathers the points by key.
 
