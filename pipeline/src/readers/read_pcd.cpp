@@ -370,52 +370,73 @@ bool float32_axes(const PcdLayout& l) {
 
 constexpr const char* kBinaryNote = "PCD (binary, read directly)";
 
-// A DATA binary PCD read in chunks (point_stream.hpp): its fixed-size records after the header,
-// each axis decoded by binary_value as read_binary_body decodes it.
-class PcdStream final : public PointStream {
+// The chunking both binary streams share: n points handed out in chunks of up to max_points (at
+// least 1), each filled by fill() once chunk.xyz has its columns; finished() after the last
+// point; a failure sticks (StickyFailure).
+class PcdChunks : public PointStream {
  public:
-  PcdStream(std::unique_ptr<ByteSource> src, const PcdLayout& l) : src_(std::move(src)), name_(src_->name()), l_(l) {
-    notes_.push_back(kBinaryNote);
-    notes_.push_back("PCD binary, " + std::to_string(l_.n) + " points (fixed-size records streamed in chunks)");
-    src_->seek(l_.pos);
-  }
   std::uint64_t total_points() const override { return l_.n; }
   const std::vector<std::string>& notes() const override { return notes_; }
   bool streamed() const override { return true; }
 
-  bool next(Cloud& chunk, std::size_t max_points) override {
+  bool next(Cloud& chunk, std::size_t max_points) final {
     return sticky_.run(name_, chunk, [&] {
       const std::size_t n = std::min(std::max<std::size_t>(max_points, 1), l_.n - done_);
       if (n == 0) return false;
-      buffer_.resize(n * l_.point_bytes);
-      const std::size_t got = src_->read(buffer_.data(), buffer_.size()) / l_.point_bytes;
-      if (got != n) {  // checked against the size when opened: the file changed since
-        throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) + " of " +
-                         std::to_string(l_.n) + " points");
-      }
       chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
-      const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
-      for (std::size_t i = 0; i < n; ++i) {
-        const std::uint8_t* rec = base + i * l_.point_bytes;
-        for (int a = 0; a < 3; ++a) {
-          chunk.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l_.axis[a].offset, l_.axis[a].type, l_.axis[a].size);
-        }
-      }
+      fill(chunk, n);
       chunk.float32_xyz = float32_axes(l_);
       done_ += n;
-      if (done_ == l_.n) src_->drain();
+      if (done_ == l_.n) finished();
       return true;
     });
   }
 
- private:
-  std::unique_ptr<ByteSource> src_;
+ protected:
+  PcdChunks(std::string name, const PcdLayout& l) : name_(std::move(name)), l_(l) {}
+  // chunk.xyz's n columns: points done_ .. done_ + n − 1.
+  virtual void fill(Cloud& chunk, std::size_t n) = 0;
+  virtual void finished() = 0;
+
   std::string name_;
   PcdLayout l_;
-  std::size_t done_ = 0;
-  std::vector<char> buffer_;
+  std::size_t done_ = 0;  // points handed out
   std::vector<std::string> notes_;
+
+ private:
   StickyFailure sticky_;
+};
+
+// A DATA binary PCD read in chunks (point_stream.hpp): its fixed-size records after the header,
+// each axis decoded by binary_value as read_binary_body decodes it.
+class PcdStream final : public PcdChunks {
+ public:
+  PcdStream(std::unique_ptr<ByteSource> src, const PcdLayout& l) : PcdChunks(src->name(), l), src_(std::move(src)) {
+    notes_.push_back(kBinaryNote);
+    notes_.push_back("PCD binary, " + std::to_string(l_.n) + " points (fixed-size records streamed in chunks)");
+    src_->seek(l_.pos);
+  }
+
+ private:
+  void fill(Cloud& chunk, std::size_t n) override {
+    buffer_.resize(n * l_.point_bytes);
+    const std::size_t got = src_->read(buffer_.data(), buffer_.size()) / l_.point_bytes;
+    if (got != n) {  // checked against the size when opened: the file changed since
+      throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) + " of " +
+                       std::to_string(l_.n) + " points");
+    }
+    const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint8_t* rec = base + i * l_.point_bytes;
+      for (int a = 0; a < 3; ++a) {
+        chunk.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l_.axis[a].offset, l_.axis[a].type, l_.axis[a].size);
+      }
+    }
+  }
+  void finished() override { src_->drain(); }
+
+  std::unique_ptr<ByteSource> src_;
+  std::vector<char> buffer_;
 };
 
 // A DATA binary_compressed PCD read in chunks (point_stream.hpp). The body is one LZF block
@@ -427,13 +448,13 @@ class PcdStream final : public PointStream {
 // times the block's (the whole read decodes it once, into memory of the whole body). After the
 // last point, the decoder of the farthest axis decodes the rest and checks the block's sizes,
 // as the whole read does before PCL parses it; the values are binary_value's, as
-// PcdStream's and the whole read's (PCL's, compared in tests/pipeline/pcd_compressed_test.cpp).
-class PcdCompressedStream final : public PointStream {
+// PcdStream's and the whole read's (PCL's, compared in tests/pipeline/point_stream_test.cpp).
+class PcdCompressedStream final : public PcdChunks {
  public:
   // file_bytes: the data's size (under gzip, inflated).
   PcdCompressedStream(const std::filesystem::path& path, bool gz, std::uint64_t file_bytes, std::unique_ptr<ByteSource> first,
                       const PcdLayout& l)
-      : name_(first->name()), l_(l) {
+      : PcdChunks(first->name(), l) {
     notes_.push_back("PCD");  // the whole read's note (PCL parses the body there)
     notes_.push_back("PCD binary_compressed, " + std::to_string(l_.n) + " points (one LZF block decoded as it is read, a decoder per axis)");
     // The block's sizes (validate_pcd checked the header's: the file holds the block, which
@@ -450,54 +471,37 @@ class PcdCompressedStream final : public PointStream {
       ax.lzf = std::make_unique<LzfReader>(sizes[0], sizes[1], [src](char* out, std::size_t k) { return src->read(out, k); },
                                            compressed_what(name_));
     }
-    last_ = 0;
     for (std::size_t a = 1; a < 3; ++a) {
       if (l_.axis[a].offset > l_.axis[last_].offset) last_ = a;
     }
   }
-  std::uint64_t total_points() const override { return l_.n; }
-  const std::vector<std::string>& notes() const override { return notes_; }
-  bool streamed() const override { return true; }
-
-  bool next(Cloud& chunk, std::size_t max_points) override {
-    return sticky_.run(name_, chunk, [&] {
-      const std::size_t n = std::min(std::max<std::size_t>(max_points, 1), l_.n - done_);
-      if (n == 0) return false;
-      chunk.xyz.resize(3, static_cast<Eigen::Index>(n));
-      for (std::size_t a = 0; a < 3; ++a) {
-        const PcdLayout::Axis& la = l_.axis[a];
-        LzfReader& lzf = *axes_[a].lzf;
-        if (done_ == 0) lzf.read(nullptr, l_.n * la.offset);  // the columns before this axis's
-        buffer_.resize(n * la.field_bytes);
-        lzf.read(buffer_.data(), buffer_.size());
-        const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
-        for (std::size_t i = 0; i < n; ++i) {
-          chunk.xyz(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(i)) = binary_value(base + i * la.field_bytes, la.type, la.size);
-        }
-      }
-      chunk.float32_xyz = float32_axes(l_);
-      done_ += n;
-      if (done_ == l_.n) {
-        axes_[last_].lzf->finish();
-        axes_[last_].src->drain();
-      }
-      return true;
-    });
-  }
 
  private:
+  void fill(Cloud& chunk, std::size_t n) override {
+    for (std::size_t a = 0; a < 3; ++a) {
+      const PcdLayout::Axis& la = l_.axis[a];
+      LzfReader& lzf = *axes_[a].lzf;
+      if (done_ == 0) lzf.read(nullptr, l_.n * la.offset);  // the columns before this axis's
+      buffer_.resize(n * la.field_bytes);
+      lzf.read(buffer_.data(), buffer_.size());
+      const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
+      for (std::size_t i = 0; i < n; ++i) {
+        chunk.xyz(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(i)) = binary_value(base + i * la.field_bytes, la.type, la.size);
+      }
+    }
+  }
+  void finished() override {
+    axes_[last_].lzf->finish();
+    axes_[last_].src->drain();
+  }
+
   struct Axis {
     std::unique_ptr<ByteSource> src;
     std::unique_ptr<LzfReader> lzf;
   };
-  std::string name_;
-  PcdLayout l_;
   std::array<Axis, 3> axes_;
   std::size_t last_ = 0;  // the axis whose column comes last: its decoder checks the block's end
-  std::size_t done_ = 0;
   std::vector<char> buffer_;
-  std::vector<std::string> notes_;
-  StickyFailure sticky_;
 };
 
 /// One number of an ascii data line (a token check_numeric_line read, without PCL's
