@@ -55,4 +55,50 @@ void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<
   if (writer.writeBinaryCompressed(p.string(), cloud) != 0) throw std::runtime_error("PCL could not write " + p.string());
 }
 
+void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std::vector<std::uint8_t>& rgb) {
+  pcl::PCLPointCloud2 cloud;
+  pcl::PCDReader reader;
+  if (reader.read(p.string(), cloud) < 0) throw std::runtime_error("PCL could not read " + p.string());
+  const auto field = [&](const std::string& name) -> const pcl::PCLPointField* {
+    for (const auto& f : cloud.fields)
+      if (f.name == name) return &f;
+    return nullptr;
+  };
+  const auto value = [](const pcl::PCLPointField& f, const std::uint8_t* at) -> double {
+    using T = pcl::PCLPointField;
+    const auto get = [at](auto v) {
+      std::memcpy(&v, at, sizeof v);
+      return static_cast<double>(v);
+    };
+    switch (f.datatype) {
+      case T::INT8: return get(std::int8_t{});
+      case T::UINT8: return get(std::uint8_t{});
+      case T::INT16: return get(std::int16_t{});
+      case T::UINT16: return get(std::uint16_t{});
+      case T::INT32: return get(std::int32_t{});
+      case T::UINT32: return get(std::uint32_t{});
+      case T::FLOAT32: return get(float{});
+      default: return get(double{});
+    }
+  };
+  const pcl::PCLPointField* axis[3] = {field("x"), field("y"), field("z")};
+  for (const auto* a : axis)
+    if (a == nullptr) throw std::runtime_error("read_pcl_pcd: no x, y or z in " + p.string());
+  const pcl::PCLPointField* colour = field("rgb") != nullptr ? field("rgb") : field("rgba");
+  const std::size_t n = static_cast<std::size_t>(cloud.width) * cloud.height;
+  xyz.assign(3 * n, 0.0);
+  rgb.assign(colour != nullptr ? 3 * n : 0, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint8_t* rec = cloud.data.data() + i * cloud.point_step;
+    for (std::size_t a = 0; a < 3; ++a) xyz[3 * i + a] = value(*axis[a], rec + axis[a]->offset);
+    if (colour != nullptr) {
+      std::uint32_t v = 0;
+      std::memcpy(&v, rec + colour->offset, 4);
+      rgb[3 * i] = static_cast<std::uint8_t>(v >> 16);
+      rgb[3 * i + 1] = static_cast<std::uint8_t>(v >> 8);
+      rgb[3 * i + 2] = static_cast<std::uint8_t>(v);
+    }
+  }
+}
+
 }  // namespace hc::test

@@ -14,6 +14,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <bit>
 #include <cmath>
 #include <cstdio>
@@ -905,8 +906,30 @@ TEST(PointStream, CompressedPcdStreamsThePointsPclReads) {
   hc::test::write_pcl_compressed_pcd(mixed, {{"rgb", 'U', 4, 1}, {"x", 'F', 8, 1}, {"y", 'F', 4, 1}, {"z", 'I', 4, 1}, {"pad", 'I', 2, 2}},
                                      binary_bytes.substr(binary_bytes.find("DATA binary\n") + 12), 100000);
   const fs::path normals = write_compressed_normals_pcd(dir / "normals.pcd", 1001, 70);
-  // PCL's whole read of its own file holds the points the binary file holds (read directly).
-  EXPECT_TRUE(same_xyz(hc::pipeline::load_cloud(mixed).value.xyz, hc::pipeline::load_cloud(binary).value.xyz));
+  // The whole read gives PCL's own reader's points and colours (the oracle), and for the mixed
+  // file the binary file's (read directly) and the colours written: R 0xFF, G 0x80, B the point's
+  // number mod 256; the normals file's colour is grey 128.
+  for (const fs::path& p : {mixed, normals}) {
+    SCOPED_TRACE(p.filename().string());
+    std::vector<double> xyz;
+    std::vector<std::uint8_t> rgb;
+    hc::test::read_pcl_pcd(p, xyz, rgb);
+    const Cloud whole = hc::pipeline::load_cloud(p).value;
+    EXPECT_TRUE(same_xyz(whole.xyz, Eigen::Map<const Eigen::Matrix3Xd>(xyz.data(), 3, static_cast<Eigen::Index>(xyz.size() / 3))));
+    EXPECT_EQ(whole.rgb, rgb);
+    ASSERT_EQ(whole.rgb.size(), 3 * whole.size());
+    for (std::size_t i = 0; i < whole.size(); ++i) {
+      const std::array<std::uint8_t, 3> want = p == mixed ? std::array<std::uint8_t, 3>{0xFF, 0x80, static_cast<std::uint8_t>(i % 256)}
+                                                          : std::array<std::uint8_t, 3>{128, 128, 128};
+      if (!std::equal(want.begin(), want.end(), whole.rgb.begin() + static_cast<std::ptrdiff_t>(3 * i))) {
+        ADD_FAILURE() << "point " << i << ": colour not as written";
+        break;
+      }
+    }
+  }
+  const Cloud from_binary = hc::pipeline::load_cloud(binary).value;
+  EXPECT_TRUE(same_xyz(hc::pipeline::load_cloud(mixed).value.xyz, from_binary.xyz));
+  EXPECT_EQ(hc::pipeline::load_cloud(mixed).value.rgb, from_binary.rgb);
   // The repeats pack 32 bytes a point into fewer than 12: most of the block is back references.
   std::uint32_t sizes[2];
   (void)compressed_block(hc::test::read_bytes(normals), sizes);

@@ -1,6 +1,7 @@
 #pragma once
 /// @file pcl_pcd_writer.hpp
-/// PCD files written by PCL itself, for the reader tests' oracles (tests/pipeline/pcl_pcd_writer.cpp).
+/// PCD files written and read by PCL itself, for the reader tests' oracles
+/// (tests/pipeline/pcl_pcd_writer.cpp).
 
 #include <cstdint>
 #include <filesystem>
@@ -24,5 +25,11 @@ struct PcdField {
 /// @throws std::runtime_error when PCL fails or `records` is not width × height records.
 void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<PcdField>& fields, const std::string& records,
                               std::uint32_t width, std::uint32_t height = 1);
+
+/// What PCL's own reader (pcl::PCDReader into a pcl::PCLPointCloud2, PCL 1.13) gives for `p`:
+/// x y z of every point as doubles (3 per point, each field's declared type converted) and, when
+/// a field is named rgb or rgba, R G B from its packed value (0x??RRGGBB; else empty).
+/// @throws std::runtime_error when PCL cannot read the file or it lacks x, y or z.
+void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std::vector<std::uint8_t>& rgb);
 
 }  // namespace hc::test

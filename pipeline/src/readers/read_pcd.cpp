@@ -1,9 +1,11 @@
 // PCD reader. The header and the amount of data are checked here first (PCL's PCDReader crashes
 // on some malformed files, a garbage file without FIELDS for example, and accepts a non-numeric
 // ASCII token silently); a DATA binary body is then read here directly (PCL crashed on a fuzzed
-// binary file with a sound header), while PCL parses ascii and binary_compressed bodies into a
-// pcl::PCLPointCloud2, whose fields keep their declared type (float64 stays double), and x, y, z
-// are copied into a Cloud. PCL runs in the PCL module hc_pcl.so (pipeline/pcl/pcl_module.cpp,
+// binary file with a sound header), and so is a binary_compressed one (its LZF block decoded by
+// lzf_reader.hpp, which the streamed read needs anyway), each with its packed rgb/rgba colour;
+// PCL parses ascii bodies into a pcl::PCLPointCloud2, whose fields keep their declared type
+// (float64 stays double), and x, y, z are copied into a Cloud (an ascii body's colour is not
+// read: a note says so). PCL runs in the PCL module hc_pcl.so (pipeline/pcl/pcl_module.cpp,
 // loaded on the first PCD that needs it: modules.hpp).
 //
 // PCL's readers take a file name only. Data that exists only in memory (a decompressed .gz) is
@@ -92,7 +94,7 @@ double read_as_double(const std::uint8_t* p) {
 }
 
 Cloud read_with_pcl(const std::string& bytes, const std::filesystem::path& original_path, bool from_memory, const std::string& display_name) {
-  const PclModule& pcl = pcl_module("load_cloud: " + display_name + " (a PCD file with an ascii or binary_compressed body)");
+  const PclModule& pcl = pcl_module("load_cloud: " + display_name + " (a PCD file with an ascii body)");
   HcPcdResult res{};
   // The module's buffer, released on every way out (an allocation below may throw).
   const auto release = [&pcl](double* p) { pcl.free(p); };
@@ -121,7 +123,7 @@ struct PcdLayout {
   std::size_t n = 0;            ///< points
   std::size_t point_bytes = 0;  ///< record size of a binary point
   /// The header as validated here, written anew in PCL's canonical form (one keyword a line,
-  /// no comments): what PCL parses for ascii and binary_compressed bodies, so that its header
+  /// no comments): what PCL parses for ascii bodies, so that its header
   /// parser never sees a line this check read differently (a fuzzed header with repeated
   /// FIELDS lines and stray bytes crashed pcl::PCDReader::read).
   std::string canonical_header;
@@ -133,6 +135,10 @@ struct PcdLayout {
     int size = 4;               ///< bytes
     std::size_t field_bytes = 4;  ///< the field's bytes in a record: SIZE × COUNT (the first value is the axis)
   } axis[3];
+  /// The colour: the first field named rgb or rgba of SIZE 4 (any TYPE: PCL packs 0x00RRGGBB or
+  /// 0xAARRGGBB into its four bytes, little-endian, a float's or an integer's alike).
+  bool has_rgb = false;
+  Axis rgb;
 };
 
 /// One value of a binary record: type F/I/U and size in bytes (as the header declared).
@@ -154,17 +160,62 @@ double binary_value(const std::uint8_t* p, char type, int size) {
   }
 }
 
+/// A packed PCL colour's R G B (its four bytes at p, little-endian 0x??RRGGBB: B first) into out.
+inline void packed_rgb(const std::uint8_t* p, std::uint8_t* out) {
+  out[0] = p[2];
+  out[1] = p[1];
+  out[2] = p[0];
+}
+
 /// DATA binary, read here (PCL's reader crashed on a fuzzed binary file whose header was sound):
-/// n records of point_bytes bytes, little-endian as PCL writes them.
+/// n records of point_bytes bytes, little-endian as PCL writes them; the colour when the layout
+/// has one.
 Cloud read_binary_body(const std::string& raw, const PcdLayout& l) {
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(l.n));
+  if (l.has_rgb) cloud.rgb.resize(3 * l.n);
   const auto* base = reinterpret_cast<const std::uint8_t*>(raw.data()) + l.pos;
   for (std::size_t i = 0; i < l.n; ++i) {
     const std::uint8_t* rec = base + i * l.point_bytes;
     for (int a = 0; a < 3; ++a) {
       cloud.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l.axis[a].offset, l.axis[a].type, l.axis[a].size);
     }
+    if (l.has_rgb) packed_rgb(rec + l.rgb.offset, cloud.rgb.data() + 3 * i);
+  }
+  return cloud;
+}
+
+std::string compressed_what(const std::string& name);
+
+/// DATA binary_compressed, read here: the LZF block (validate_pcd checked its sizes) decoded
+/// once (LzfReader, which checks it as liblzf and PCL do) into the fields' columns (PCL's
+/// "xxyyzz": field f's n values from n × its record offset), x y z by binary_value and the
+/// colour as read_binary_body takes them. The whole body is held (n × point_bytes bytes), as PCL
+/// held it.
+Cloud read_compressed_body(const std::string& raw, const PcdLayout& l, const std::string& name) {
+  std::uint32_t sizes[2] = {0, 0};
+  std::memcpy(sizes, raw.data() + l.pos, 8);
+  std::size_t at = l.pos + 8;
+  LzfReader lzf(sizes[0], sizes[1], [&](char* out, std::size_t k) {
+    std::memcpy(out, raw.data() + at, k);  // k ≤ the bytes left of the block (LzfReader), within raw (validate_pcd)
+    at += k;
+    return k;
+  }, compressed_what(name));
+  std::string body(sizes[1], '\0');
+  lzf.read(body.data(), body.size());
+  lzf.finish();
+  Cloud cloud;
+  cloud.xyz.resize(3, static_cast<Eigen::Index>(l.n));
+  if (l.has_rgb) cloud.rgb.resize(3 * l.n);
+  const auto* base = reinterpret_cast<const std::uint8_t*>(body.data());
+  for (int a = 0; a < 3; ++a) {
+    const PcdLayout::Axis& la = l.axis[a];
+    const std::uint8_t* col = base + l.n * la.offset;
+    for (std::size_t i = 0; i < l.n; ++i) cloud.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(col + i * la.field_bytes, la.type, la.size);
+  }
+  if (l.has_rgb) {
+    const std::uint8_t* col = base + l.n * l.rgb.offset;
+    for (std::size_t i = 0; i < l.n; ++i) packed_rgb(col + i * l.rgb.field_bytes, cloud.rgb.data() + 3 * i);
   }
   return cloud;
 }
@@ -275,6 +326,10 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
       throw fail("field '" + fields[i] + "' has TYPE " + t + ", SIZE " + z + ", COUNT " + counts[i] +
                  " (expected F 4|8 or I/U 1|2|4|8 and a count >= 1)");
     }
+    if ((fields[i] == "rgb" || fields[i] == "rgba") && z == "4" && !layout.has_rgb) {
+      layout.has_rgb = true;
+      layout.rgb = {point_bytes, values, t[0], 4, 4 * static_cast<std::size_t>(c)};
+    }
     for (int a = 0; a < 3; ++a) {
       if (fields[i] == std::string(1, static_cast<char>('x' + a)) && !axis_seen[a]) {
         axis_seen[a] = true;
@@ -338,15 +393,6 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
     std::uint32_t sizes_lz[2] = {0, 0};
     if (have >= 8) std::memcpy(sizes_lz, raw.data() + pos, 8);
     check_compressed_sizes(name, layout, have, have >= 8 ? sizes_lz : nullptr);
-    // The block decoded here first (LzfReader), so that a corrupt one fails in the words the
-    // streamed read (PcdCompressedStream) uses, naming where, rather than PCL's bare refusal.
-    std::size_t at = pos + 8;
-    LzfReader lzf(sizes_lz[0], sizes_lz[1], [&](char* out, std::size_t k) {
-      std::memcpy(out, raw.data() + at, k);  // k ≤ the bytes left of the block (LzfReader), within raw (checked above)
-      at += k;
-      return k;
-    }, compressed_what(name));
-    lzf.finish();
   } else {
     throw fail("unknown PCD DATA type '" + data + "' (expected ascii, binary or binary_compressed)");
   }
@@ -369,6 +415,8 @@ bool float32_axes(const PcdLayout& l) {
 }
 
 constexpr const char* kBinaryNote = "PCD (binary, read directly)";
+constexpr const char* kCompressedNote = "PCD (binary_compressed, read directly)";
+constexpr const char* kAsciiColourNote = "PCD: the rgb field of an ascii body is not read (x y z only)";
 
 // The chunking both binary streams share: n points handed out in chunks of up to max_points (at
 // least 1), each filled by fill() once chunk.xyz has its columns; finished() after the last
@@ -426,11 +474,13 @@ class PcdStream final : public PcdChunks {
                        std::to_string(l_.n) + " points");
     }
     const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
+    if (l_.has_rgb) chunk.rgb.resize(3 * n);
     for (std::size_t i = 0; i < n; ++i) {
       const std::uint8_t* rec = base + i * l_.point_bytes;
       for (int a = 0; a < 3; ++a) {
         chunk.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l_.axis[a].offset, l_.axis[a].type, l_.axis[a].size);
       }
+      if (l_.has_rgb) packed_rgb(rec + l_.rgb.offset, chunk.rgb.data() + 3 * i);
     }
   }
   void finished() override { src_->drain(); }
@@ -446,16 +496,17 @@ class PcdStream final : public PcdChunks {
 // drops the columns before its own and then hands out its column's values chunk by chunk:
 // memory about 350 KiB an axis, whatever the file's size, for decoding work of up to three
 // times the block's (the whole read decodes it once, into memory of the whole body). After the
-// last point, the decoder of the farthest axis decodes the rest and checks the block's sizes,
-// as the whole read does before PCL parses it; the values are binary_value's, as
-// PcdStream's and the whole read's (PCL's, compared in tests/pipeline/point_stream_test.cpp).
+// last point, the decoder of the farthest column decodes the rest and checks the block's sizes,
+// as the whole read (read_compressed_body) does; the values are binary_value's and packed_rgb's,
+// as PcdStream's and the whole read's (PCL's reader is the tests' oracle,
+// tests/pipeline/point_stream_test.cpp). A colour column has a decoder of its own too.
 class PcdCompressedStream final : public PcdChunks {
  public:
   // file_bytes: the data's size (under gzip, inflated).
   PcdCompressedStream(const std::filesystem::path& path, bool gz, std::uint64_t file_bytes, std::unique_ptr<ByteSource> first,
                       const PcdLayout& l)
       : PcdChunks(first->name(), l) {
-    notes_.push_back("PCD");  // the whole read's note (PCL parses the body there)
+    notes_.push_back(kCompressedNote);
     notes_.push_back("PCD binary_compressed, " + std::to_string(l_.n) + " points (one LZF block decoded as it is read, a decoder per axis)");
     // The block's sizes (validate_pcd checked the header's: the file holds the block, which
     // unpacks to n records' bytes).
@@ -463,30 +514,39 @@ class PcdCompressedStream final : public PcdChunks {
     std::uint32_t sizes[2] = {0, 0};
     const bool whole = first->read(reinterpret_cast<char*>(sizes), sizeof sizes) == sizeof sizes;
     check_compressed_sizes(name_, l_, file_bytes > l_.pos ? static_cast<std::size_t>(file_bytes - l_.pos) : 0, whole ? sizes : nullptr);
-    for (int a = 0; a < 3; ++a) {
-      Axis& ax = axes_[static_cast<std::size_t>(a)];
+    columns_ = l_.has_rgb ? 4 : 3;
+    for (std::size_t a = 0; a < columns_; ++a) {
+      Axis& ax = axes_[a];
       ax.src = a == 0 ? std::move(first) : ByteSource::open(path, name_, gz);
       ax.src->seek(l_.pos + 8);
       ByteSource* src = ax.src.get();
       ax.lzf = std::make_unique<LzfReader>(sizes[0], sizes[1], [src](char* out, std::size_t k) { return src->read(out, k); },
                                            compressed_what(name_));
     }
-    for (std::size_t a = 1; a < 3; ++a) {
-      if (l_.axis[a].offset > l_.axis[last_].offset) last_ = a;
+    for (std::size_t a = 1; a < columns_; ++a) {
+      if (column(a).offset > column(last_).offset) last_ = a;
     }
   }
 
  private:
+  // Column a: x, y, z, then the colour.
+  const PcdLayout::Axis& column(std::size_t a) const { return a < 3 ? l_.axis[a] : l_.rgb; }
+
   void fill(Cloud& chunk, std::size_t n) override {
-    for (std::size_t a = 0; a < 3; ++a) {
-      const PcdLayout::Axis& la = l_.axis[a];
+    if (l_.has_rgb) chunk.rgb.resize(3 * n);
+    for (std::size_t a = 0; a < columns_; ++a) {
+      const PcdLayout::Axis& la = column(a);
       LzfReader& lzf = *axes_[a].lzf;
-      if (done_ == 0) lzf.read(nullptr, l_.n * la.offset);  // the columns before this axis's
+      if (done_ == 0) lzf.read(nullptr, l_.n * la.offset);  // the columns before this one
       buffer_.resize(n * la.field_bytes);
       lzf.read(buffer_.data(), buffer_.size());
       const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
       for (std::size_t i = 0; i < n; ++i) {
-        chunk.xyz(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(i)) = binary_value(base + i * la.field_bytes, la.type, la.size);
+        if (a < 3) {
+          chunk.xyz(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(i)) = binary_value(base + i * la.field_bytes, la.type, la.size);
+        } else {
+          packed_rgb(base + i * la.field_bytes, chunk.rgb.data() + 3 * i);
+        }
       }
     }
   }
@@ -499,8 +559,9 @@ class PcdCompressedStream final : public PcdChunks {
     std::unique_ptr<ByteSource> src;
     std::unique_ptr<LzfReader> lzf;
   };
-  std::array<Axis, 3> axes_;
-  std::size_t last_ = 0;  // the axis whose column comes last: its decoder checks the block's end
+  std::array<Axis, 4> axes_;  // x, y, z and, with a colour, its column
+  std::size_t columns_ = 3;
+  std::size_t last_ = 0;  // the column that comes last in the block: its decoder checks the block's end
   std::vector<char> buffer_;
 };
 
@@ -544,7 +605,9 @@ class PcdAsciiStream final : public LineStream {
     total_ = l_.n;
     src_->seek(l_.pos);
     start_lines();
-    notes_ = {"PCD", "PCD ascii, " + std::to_string(l_.n) + " points (lines streamed in chunks)"};
+    notes_ = {"PCD"};
+    if (l_.has_rgb) notes_.push_back(kAsciiColourNote);  // as the whole read says
+    notes_.push_back("PCD ascii, " + std::to_string(l_.n) + " points (lines streamed in chunks)");
   }
 
  private:
@@ -626,11 +689,12 @@ std::unique_ptr<PointStream> open_pcd_stream(const std::filesystem::path& path, 
 ReadResult read_pcd(const ScanSource& source) {
   const PcdLayout layout = validate_pcd(source.bytes, source.display_name, source.bytes.size(), /*header_only=*/false);
   const bool float32 = float32_axes(layout);
-  ReadResult r = layout.data == "binary"
-                     ? ReadResult{read_binary_body(source.bytes, layout), {kBinaryNote}}
-                     : ReadResult{read_with_pcl(layout.canonical_header + source.bytes.substr(layout.pos), source.path,
-                                                /*from_memory=*/true, source.display_name),
-                                  {"PCD"}};
+  ReadResult r = layout.data == "binary"              ? ReadResult{read_binary_body(source.bytes, layout), {kBinaryNote}}
+                 : layout.data == "binary_compressed" ? ReadResult{read_compressed_body(source.bytes, layout, source.display_name), {kCompressedNote}}
+                                                      : ReadResult{read_with_pcl(layout.canonical_header + source.bytes.substr(layout.pos), source.path,
+                                                                                 /*from_memory=*/true, source.display_name),
+                                                                   {"PCD"}};
+  if (layout.data == "ascii" && layout.has_rgb) r.notes.push_back(kAsciiColourNote);
   r.cloud.float32_xyz = float32;
   return r;
 }
