@@ -28,7 +28,7 @@ std::uint8_t datatype_of(const PcdField& f) {
 }  // namespace
 
 void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<PcdField>& fields, const std::string& records,
-                              std::uint32_t width, std::uint32_t height) {
+                              std::uint32_t width, std::uint32_t height, bool compressed) {
   pcl::PCLPointCloud2 cloud;
   std::uint32_t step = 0;
   for (const PcdField& f : fields) {
@@ -52,10 +52,13 @@ void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<
   cloud.data.resize(records.size());
   std::memcpy(cloud.data.data(), records.data(), records.size());
   pcl::PCDWriter writer;
-  if (writer.writeBinaryCompressed(p.string(), cloud) != 0) throw std::runtime_error("PCL could not write " + p.string());
+  if ((compressed ? writer.writeBinaryCompressed(p.string(), cloud) : writer.writeBinary(p.string(), cloud)) != 0) {
+    throw std::runtime_error("PCL could not write " + p.string());
+  }
 }
 
-void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std::vector<std::uint8_t>& rgb) {
+void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std::vector<std::uint8_t>& rgb,
+                  std::vector<float>& intensity) {
   pcl::PCLPointCloud2 cloud;
   pcl::PCDReader reader;
   if (reader.read(p.string(), cloud) < 0) throw std::runtime_error("PCL could not read " + p.string());
@@ -88,9 +91,12 @@ void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std:
   const std::size_t n = static_cast<std::size_t>(cloud.width) * cloud.height;
   xyz.assign(3 * n, 0.0);
   rgb.assign(colour != nullptr ? 3 * n : 0, 0);
+  const pcl::PCLPointField* level = field("intensity");
+  intensity.assign(level != nullptr ? n : 0, 0.0f);
   for (std::size_t i = 0; i < n; ++i) {
     const std::uint8_t* rec = cloud.data.data() + i * cloud.point_step;
     for (std::size_t a = 0; a < 3; ++a) xyz[3 * i + a] = value(*axis[a], rec + axis[a]->offset);
+    if (level != nullptr) intensity[i] = static_cast<float>(value(*level, rec + level->offset));
     if (colour != nullptr) {
       std::uint32_t v = 0;
       std::memcpy(&v, rec + colour->offset, 4);

@@ -861,11 +861,12 @@ TEST(PointStream, BinaryPcdStreamsTheSamePointsAndErrorsAsTheWholeRead) {
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "short.pcd"); }).find("truncated"), std::string::npos);
 }
 
-// A DATA binary_compressed PCD written by PCL's own writer (its LZF compressor): x y z float32,
-// a packed rgb, a normal and a curvature, n points as `height` rows. With repeats, x cycles over
-// 1000 values, z holds runs of 300 equal values and the normal is constant (so the block holds
-// long, overlapping back references); y is NaN now and then.
-fs::path write_compressed_normals_pcd(const fs::path& p, std::uint32_t width, std::uint32_t height) {
+// A DATA binary_compressed PCD written by PCL's own writer (its LZF compressor), or DATA binary
+// with compressed false: x y z float32, a packed rgb, a normal, a curvature and a uint16
+// intensity (7 × the point's number mod 65536), n points as `height` rows. With repeats, x
+// cycles over 1000 values, z holds runs of 300 equal values and the normal is constant (so the
+// block holds long, overlapping back references); y is NaN now and then.
+fs::path write_compressed_normals_pcd(const fs::path& p, std::uint32_t width, std::uint32_t height, bool compressed = true) {
   std::string rec;
   auto put = [&](auto v) { rec.append(reinterpret_cast<const char*>(&v), sizeof v); };
   const std::size_t n = static_cast<std::size_t>(width) * height;
@@ -878,11 +879,12 @@ fs::path write_compressed_normals_pcd(const fs::path& p, std::uint32_t width, st
     put(0.0f);
     put(1.0f);
     put(static_cast<float>(i) * 1e-6f);
+    put(static_cast<std::uint16_t>(7 * i % 65536));
   }
   hc::test::write_pcl_compressed_pcd(p,
                                      {{"x", 'F', 4, 1}, {"y", 'F', 4, 1}, {"z", 'F', 4, 1}, {"rgb", 'U', 4, 1}, {"normal_x", 'F', 4, 1},
-                                      {"normal_y", 'F', 4, 1}, {"normal_z", 'F', 4, 1}, {"curvature", 'F', 4, 1}},
-                                     rec, width, height);
+                                      {"normal_y", 'F', 4, 1}, {"normal_z", 'F', 4, 1}, {"curvature", 'F', 4, 1}, {"intensity", 'U', 2, 1}},
+                                     rec, width, height, compressed);
   return p;
 }
 
@@ -906,34 +908,42 @@ TEST(PointStream, CompressedPcdStreamsThePointsPclReads) {
   hc::test::write_pcl_compressed_pcd(mixed, {{"rgb", 'U', 4, 1}, {"x", 'F', 8, 1}, {"y", 'F', 4, 1}, {"z", 'I', 4, 1}, {"pad", 'I', 2, 2}},
                                      binary_bytes.substr(binary_bytes.find("DATA binary\n") + 12), 100000);
   const fs::path normals = write_compressed_normals_pcd(dir / "normals.pcd", 1001, 70);
-  // The whole read gives PCL's own reader's points and colours (the oracle), and for the mixed
-  // file the binary file's (read directly) and the colours written: R 0xFF, G 0x80, B the point's
-  // number mod 256; the normals file's colour is grey 128.
-  for (const fs::path& p : {mixed, normals}) {
+  const fs::path normals_binary = write_compressed_normals_pcd(dir / "normals_binary.pcd", 1001, 70, false);
+  // The whole read gives PCL's own reader's points, colours and intensities (the oracle), and
+  // the values written: for the mixed file the binary file's points (read directly) and R 0xFF,
+  // G 0x80, B the point's number mod 256; for the normals file grey 128 and 7 × the point's
+  // number mod 65536, binary or compressed.
+  for (const fs::path& p : {mixed, normals, normals_binary}) {
     SCOPED_TRACE(p.filename().string());
     std::vector<double> xyz;
     std::vector<std::uint8_t> rgb;
-    hc::test::read_pcl_pcd(p, xyz, rgb);
+    std::vector<float> intensity;
+    hc::test::read_pcl_pcd(p, xyz, rgb, intensity);
     const Cloud whole = hc::pipeline::load_cloud(p).value;
     EXPECT_TRUE(same_xyz(whole.xyz, Eigen::Map<const Eigen::Matrix3Xd>(xyz.data(), 3, static_cast<Eigen::Index>(xyz.size() / 3))));
     EXPECT_EQ(whole.rgb, rgb);
+    EXPECT_EQ(whole.intensity, intensity);
     ASSERT_EQ(whole.rgb.size(), 3 * whole.size());
+    ASSERT_EQ(whole.intensity.size(), p == mixed ? 0U : whole.size());
     for (std::size_t i = 0; i < whole.size(); ++i) {
       const std::array<std::uint8_t, 3> want = p == mixed ? std::array<std::uint8_t, 3>{0xFF, 0x80, static_cast<std::uint8_t>(i % 256)}
                                                           : std::array<std::uint8_t, 3>{128, 128, 128};
-      if (!std::equal(want.begin(), want.end(), whole.rgb.begin() + static_cast<std::ptrdiff_t>(3 * i))) {
-        ADD_FAILURE() << "point " << i << ": colour not as written";
+      if (!std::equal(want.begin(), want.end(), whole.rgb.begin() + static_cast<std::ptrdiff_t>(3 * i)) ||
+          (p != mixed && whole.intensity[i] != static_cast<float>(7 * i % 65536))) {
+        ADD_FAILURE() << "point " << i << ": colour or intensity not as written";
         break;
       }
     }
   }
+  EXPECT_TRUE(same_xyz(hc::pipeline::load_cloud(normals_binary).value.xyz, hc::pipeline::load_cloud(normals).value.xyz));
+  expect_stream_equals_load_cloud(normals_binary, "PCD binary, 70070 points (fixed-size records streamed in chunks)");
   const Cloud from_binary = hc::pipeline::load_cloud(binary).value;
   EXPECT_TRUE(same_xyz(hc::pipeline::load_cloud(mixed).value.xyz, from_binary.xyz));
   EXPECT_EQ(hc::pipeline::load_cloud(mixed).value.rgb, from_binary.rgb);
-  // The repeats pack 32 bytes a point into fewer than 12: most of the block is back references.
+  // The repeats pack 34 bytes a point into fewer than 12: most of the block is back references.
   std::uint32_t sizes[2];
   (void)compressed_block(hc::test::read_bytes(normals), sizes);
-  EXPECT_EQ(sizes[1], 70070U * 32U);
+  EXPECT_EQ(sizes[1], 70070U * 34U);
   EXPECT_LT(sizes[0], 70070U * 12U);
   expect_stream_equals_load_cloud(mixed, "PCD binary_compressed, 100000 points (one LZF block decoded as it is read, a decoder per axis)");
   expect_stream_equals_load_cloud(normals, "PCD binary_compressed, 70070 points (one LZF block decoded as it is read, a decoder per axis)");
@@ -975,11 +985,11 @@ TEST(PointStream, CompressedPcdErrorsAreTheWholeReadsAndSayWhere) {
     return b;
   };
   hc::test::write_bytes(dir / "short_block.pcd", with_sizes(sizes[0] - 1, sizes[1], bytes));
-  // 4999 points declared (the header as long as before): the block unpacks 32 bytes past them.
-  std::string fewer = with_sizes(sizes[0], sizes[1] - 32, bytes);
+  // 4999 points declared (the header as long as before): the block unpacks 34 bytes past them.
+  std::string fewer = with_sizes(sizes[0], sizes[1] - 34, bytes);
   for (const char* key : {"WIDTH 5000", "POINTS 5000"}) fewer.replace(fewer.find(key), std::strlen(key), std::string(key, std::strlen(key) - 4) + "4999");
   hc::test::write_bytes(dir / "overrun.pcd", fewer);
-  hc::test::write_bytes(dir / "unpacked.pcd", with_sizes(sizes[0], sizes[1] + 32, bytes));
+  hc::test::write_bytes(dir / "unpacked.pcd", with_sizes(sizes[0], sizes[1] + 34, bytes));
   hc::test::write_bytes(dir / "cut.pcd", bytes.substr(0, pos + 8 + sizes[0] - 10));  // PCL pads its file to whole pages
   hc::test::write_gzip(dir / "good.pcd.gz", bytes);
   const std::string packed = hc::test::read_bytes(dir / "good.pcd.gz");
@@ -990,7 +1000,7 @@ TEST(PointStream, CompressedPcdErrorsAreTheWholeReadsAndSayWhere) {
             std::string::npos)
       << error("start.pcd");
   EXPECT_NE(error("short_block.pcd").find("the " + std::to_string(sizes[0] - 1) + " compressed bytes"), std::string::npos) << error("short_block.pcd");
-  EXPECT_NE(error("overrun.pcd").find("past the " + std::to_string(sizes[1] - 32) + " bytes the header declares"), std::string::npos)
+  EXPECT_NE(error("overrun.pcd").find("past the " + std::to_string(sizes[1] - 34) + " bytes the header declares"), std::string::npos)
       << error("overrun.pcd");
   EXPECT_NE(error("unpacked.pcd").find("unpacks to"), std::string::npos) << error("unpacked.pcd");
   EXPECT_NE(error("cut.pcd").find("truncated: the compressed block needs"), std::string::npos) << error("cut.pcd");

@@ -20,16 +20,19 @@ struct PcdField {
 
 /// Writes width × height records to `p` as DATA binary_compressed with PCL's own writer
 /// (pcl::PCDWriter::writeBinaryCompressed, PCL 1.13: its LZF compressor and its "xxyyzz" column
-/// layout). `records`: the points one after another, each the fields' values in order, packed
-/// (a record is the sum of SIZE × COUNT bytes), little-endian.
+/// layout), or with compressed false as DATA binary (pcl::PCDWriter::writeBinary). `records`:
+/// the points one after another, each the fields' values in order, packed (a record is the sum
+/// of SIZE × COUNT bytes), little-endian.
 /// @throws std::runtime_error when PCL fails or `records` is not width × height records.
 void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<PcdField>& fields, const std::string& records,
-                              std::uint32_t width, std::uint32_t height = 1);
+                              std::uint32_t width, std::uint32_t height = 1, bool compressed = true);
 
 /// What PCL's own reader (pcl::PCDReader into a pcl::PCLPointCloud2, PCL 1.13) gives for `p`:
-/// x y z of every point as doubles (3 per point, each field's declared type converted) and, when
-/// a field is named rgb or rgba, R G B from its packed value (0x??RRGGBB; else empty).
+/// x y z of every point as doubles (3 per point, each field's declared type converted); when a
+/// field is named rgb or rgba, R G B from its packed value (0x??RRGGBB; else empty); when one
+/// is named intensity, its values as floats (else empty).
 /// @throws std::runtime_error when PCL cannot read the file or it lacks x, y or z.
-void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std::vector<std::uint8_t>& rgb);
+void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std::vector<std::uint8_t>& rgb,
+                  std::vector<float>& intensity);
 
 }  // namespace hc::test

@@ -2,7 +2,8 @@
 // on some malformed files, a garbage file without FIELDS for example, and accepts a non-numeric
 // ASCII token silently); a DATA binary body is then read here directly (PCL crashed on a fuzzed
 // binary file with a sound header), and so is a binary_compressed one (its LZF block decoded by
-// lzf_reader.hpp, which the streamed read needs anyway), each with its packed rgb/rgba colour;
+// lzf_reader.hpp, which the streamed read needs anyway), each with its packed rgb/rgba colour
+// and its intensity field;
 // PCL parses ascii bodies into a pcl::PCLPointCloud2, whose fields keep their declared type
 // (float64 stays double), and x, y, z are copied into a Cloud (an ascii body's colour is not
 // read: a note says so). PCL runs in the PCL module hc_pcl.so (pipeline/pcl/pcl_module.cpp,
@@ -139,6 +140,9 @@ struct PcdLayout {
   /// 0xAARRGGBB into its four bytes, little-endian, a float's or an integer's alike).
   bool has_rgb = false;
   Axis rgb;
+  /// The intensity: the first field named intensity (its first value, as the scanner stored it).
+  bool has_intensity = false;
+  Axis intensity;
 };
 
 /// One value of a binary record: type F/I/U and size in bytes (as the header declared).
@@ -160,6 +164,9 @@ double binary_value(const std::uint8_t* p, char type, int size) {
   }
 }
 
+/// An intensity field's value as Cloud::intensity holds it (a float; the scanner's scale).
+inline float intensity_value(const std::uint8_t* p, const PcdLayout::Axis& f) { return static_cast<float>(binary_value(p, f.type, f.size)); }
+
 /// A packed PCL colour's R G B (its four bytes at p, little-endian 0x??RRGGBB: B first) into out.
 inline void packed_rgb(const std::uint8_t* p, std::uint8_t* out) {
   out[0] = p[2];
@@ -174,6 +181,7 @@ Cloud read_binary_body(const std::string& raw, const PcdLayout& l) {
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(l.n));
   if (l.has_rgb) cloud.rgb.resize(3 * l.n);
+  if (l.has_intensity) cloud.intensity.resize(l.n);
   const auto* base = reinterpret_cast<const std::uint8_t*>(raw.data()) + l.pos;
   for (std::size_t i = 0; i < l.n; ++i) {
     const std::uint8_t* rec = base + i * l.point_bytes;
@@ -181,6 +189,7 @@ Cloud read_binary_body(const std::string& raw, const PcdLayout& l) {
       cloud.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l.axis[a].offset, l.axis[a].type, l.axis[a].size);
     }
     if (l.has_rgb) packed_rgb(rec + l.rgb.offset, cloud.rgb.data() + 3 * i);
+    if (l.has_intensity) cloud.intensity[i] = intensity_value(rec + l.intensity.offset, l.intensity);
   }
   return cloud;
 }
@@ -216,6 +225,11 @@ Cloud read_compressed_body(const std::string& raw, const PcdLayout& l, const std
   if (l.has_rgb) {
     const std::uint8_t* col = base + l.n * l.rgb.offset;
     for (std::size_t i = 0; i < l.n; ++i) packed_rgb(col + i * l.rgb.field_bytes, cloud.rgb.data() + 3 * i);
+  }
+  if (l.has_intensity) {
+    cloud.intensity.resize(l.n);
+    const std::uint8_t* col = base + l.n * l.intensity.offset;
+    for (std::size_t i = 0; i < l.n; ++i) cloud.intensity[i] = intensity_value(col + i * l.intensity.field_bytes, l.intensity);
   }
   return cloud;
 }
@@ -326,6 +340,10 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
       throw fail("field '" + fields[i] + "' has TYPE " + t + ", SIZE " + z + ", COUNT " + counts[i] +
                  " (expected F 4|8 or I/U 1|2|4|8 and a count >= 1)");
     }
+    if (fields[i] == "intensity" && !layout.has_intensity) {
+      layout.has_intensity = true;
+      layout.intensity = {point_bytes, values, t[0], std::stoi(z), static_cast<std::size_t>(std::stoi(z)) * static_cast<std::size_t>(c)};
+    }
     if ((fields[i] == "rgb" || fields[i] == "rgba") && z == "4" && !layout.has_rgb) {
       layout.has_rgb = true;
       layout.rgb = {point_bytes, values, t[0], 4, 4 * static_cast<std::size_t>(c)};
@@ -416,7 +434,7 @@ bool float32_axes(const PcdLayout& l) {
 
 constexpr const char* kBinaryNote = "PCD (binary, read directly)";
 constexpr const char* kCompressedNote = "PCD (binary_compressed, read directly)";
-constexpr const char* kAsciiColourNote = "PCD: the rgb field of an ascii body is not read (x y z only)";
+constexpr const char* kAsciiColourNote = "PCD: the rgb and intensity fields of an ascii body are not read (x y z only)";
 
 // The chunking both binary streams share: n points handed out in chunks of up to max_points (at
 // least 1), each filled by fill() once chunk.xyz has its columns; finished() after the last
@@ -475,12 +493,14 @@ class PcdStream final : public PcdChunks {
     }
     const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
     if (l_.has_rgb) chunk.rgb.resize(3 * n);
+    if (l_.has_intensity) chunk.intensity.resize(n);
     for (std::size_t i = 0; i < n; ++i) {
       const std::uint8_t* rec = base + i * l_.point_bytes;
       for (int a = 0; a < 3; ++a) {
         chunk.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l_.axis[a].offset, l_.axis[a].type, l_.axis[a].size);
       }
       if (l_.has_rgb) packed_rgb(rec + l_.rgb.offset, chunk.rgb.data() + 3 * i);
+      if (l_.has_intensity) chunk.intensity[i] = intensity_value(rec + l_.intensity.offset, l_.intensity);
     }
   }
   void finished() override { src_->drain(); }
@@ -499,7 +519,7 @@ class PcdStream final : public PcdChunks {
 // last point, the decoder of the farthest column decodes the rest and checks the block's sizes,
 // as the whole read (read_compressed_body) does; the values are binary_value's and packed_rgb's,
 // as PcdStream's and the whole read's (PCL's reader is the tests' oracle,
-// tests/pipeline/point_stream_test.cpp). A colour column has a decoder of its own too.
+// tests/pipeline/point_stream_test.cpp). A colour or intensity column has a decoder of its own too.
 class PcdCompressedStream final : public PcdChunks {
  public:
   // file_bytes: the data's size (under gzip, inflated).
@@ -514,8 +534,10 @@ class PcdCompressedStream final : public PcdChunks {
     std::uint32_t sizes[2] = {0, 0};
     const bool whole = first->read(reinterpret_cast<char*>(sizes), sizeof sizes) == sizeof sizes;
     check_compressed_sizes(name_, l_, file_bytes > l_.pos ? static_cast<std::size_t>(file_bytes - l_.pos) : 0, whole ? sizes : nullptr);
-    columns_ = l_.has_rgb ? 4 : 3;
-    for (std::size_t a = 0; a < columns_; ++a) {
+    kinds_ = {kX, kY, kZ};
+    if (l_.has_rgb) kinds_.push_back(kColour);
+    if (l_.has_intensity) kinds_.push_back(kIntensity);
+    for (std::size_t a = 0; a < kinds_.size(); ++a) {
       Axis& ax = axes_[a];
       ax.src = a == 0 ? std::move(first) : ByteSource::open(path, name_, gz);
       ax.src->seek(l_.pos + 8);
@@ -523,18 +545,22 @@ class PcdCompressedStream final : public PcdChunks {
       ax.lzf = std::make_unique<LzfReader>(sizes[0], sizes[1], [src](char* out, std::size_t k) { return src->read(out, k); },
                                            compressed_what(name_));
     }
-    for (std::size_t a = 1; a < columns_; ++a) {
+    for (std::size_t a = 1; a < kinds_.size(); ++a) {
       if (column(a).offset > column(last_).offset) last_ = a;
     }
   }
 
  private:
-  // Column a: x, y, z, then the colour.
-  const PcdLayout::Axis& column(std::size_t a) const { return a < 3 ? l_.axis[a] : l_.rgb; }
+  // The columns read: x, y, z, then the colour and the intensity when the file has them.
+  enum Kind { kX, kY, kZ, kColour, kIntensity };
+  const PcdLayout::Axis& column(std::size_t a) const {
+    return kinds_[a] == kColour ? l_.rgb : kinds_[a] == kIntensity ? l_.intensity : l_.axis[kinds_[a]];
+  }
 
   void fill(Cloud& chunk, std::size_t n) override {
     if (l_.has_rgb) chunk.rgb.resize(3 * n);
-    for (std::size_t a = 0; a < columns_; ++a) {
+    if (l_.has_intensity) chunk.intensity.resize(n);
+    for (std::size_t a = 0; a < kinds_.size(); ++a) {
       const PcdLayout::Axis& la = column(a);
       LzfReader& lzf = *axes_[a].lzf;
       if (done_ == 0) lzf.read(nullptr, l_.n * la.offset);  // the columns before this one
@@ -542,10 +568,11 @@ class PcdCompressedStream final : public PcdChunks {
       lzf.read(buffer_.data(), buffer_.size());
       const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
       for (std::size_t i = 0; i < n; ++i) {
-        if (a < 3) {
-          chunk.xyz(static_cast<Eigen::Index>(a), static_cast<Eigen::Index>(i)) = binary_value(base + i * la.field_bytes, la.type, la.size);
-        } else {
-          packed_rgb(base + i * la.field_bytes, chunk.rgb.data() + 3 * i);
+        const std::uint8_t* v = base + i * la.field_bytes;
+        switch (kinds_[a]) {
+          case kColour: packed_rgb(v, chunk.rgb.data() + 3 * i); break;
+          case kIntensity: chunk.intensity[i] = intensity_value(v, la); break;
+          default: chunk.xyz(static_cast<Eigen::Index>(kinds_[a]), static_cast<Eigen::Index>(i)) = binary_value(v, la.type, la.size);
         }
       }
     }
@@ -559,8 +586,8 @@ class PcdCompressedStream final : public PcdChunks {
     std::unique_ptr<ByteSource> src;
     std::unique_ptr<LzfReader> lzf;
   };
-  std::array<Axis, 4> axes_;  // x, y, z and, with a colour, its column
-  std::size_t columns_ = 3;
+  std::array<Axis, 5> axes_;  // a decoder per column (kinds_)
+  std::vector<Kind> kinds_;
   std::size_t last_ = 0;  // the column that comes last in the block: its decoder checks the block's end
   std::vector<char> buffer_;
 };
@@ -606,7 +633,7 @@ class PcdAsciiStream final : public LineStream {
     src_->seek(l_.pos);
     start_lines();
     notes_ = {"PCD"};
-    if (l_.has_rgb) notes_.push_back(kAsciiColourNote);  // as the whole read says
+    if (l_.has_rgb || l_.has_intensity) notes_.push_back(kAsciiColourNote);  // as the whole read says
     notes_.push_back("PCD ascii, " + std::to_string(l_.n) + " points (lines streamed in chunks)");
   }
 
@@ -694,7 +721,7 @@ ReadResult read_pcd(const ScanSource& source) {
                                                       : ReadResult{read_with_pcl(layout.canonical_header + source.bytes.substr(layout.pos), source.path,
                                                                                  /*from_memory=*/true, source.display_name),
                                                                    {"PCD"}};
-  if (layout.data == "ascii" && layout.has_rgb) r.notes.push_back(kAsciiColourNote);
+  if (layout.data == "ascii" && (layout.has_rgb || layout.has_intensity)) r.notes.push_back(kAsciiColourNote);
   r.cloud.float32_xyz = float32;
   return r;
 }
