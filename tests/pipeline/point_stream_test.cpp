@@ -935,6 +935,36 @@ TEST(PointStream, CompressedPcdStreamsThePointsPclReads) {
       }
     }
   }
+  // An axis of COUNT 2 (its first value; the column's stride is both), a float64 y, an rgba and a
+  // float64 intensity, binary and compressed: PCL's points, colours and intensities.
+  {
+    std::string rec;
+    auto put = [&](auto v) { rec.append(reinterpret_cast<const char*>(&v), sizeof v); };
+    for (std::uint32_t i = 0; i < 3000; ++i) {
+      put(static_cast<float>(i) * 0.25f);
+      put(-1.0f);
+      put(static_cast<double>(i) / 3.0);
+      put(static_cast<float>(i % 17));
+      put(0xFF000000u | (i * 2654435761u >> 8));
+      put(static_cast<double>(i) * 1e-3);
+    }
+    const std::vector<hc::test::PcdField> fields = {{"x", 'F', 4, 2}, {"y", 'F', 8, 1}, {"z", 'F', 4, 1}, {"rgba", 'U', 4, 1}, {"intensity", 'F', 8, 1}};
+    for (const bool compressed : {true, false}) {
+      const fs::path p = dir / (compressed ? "count2.pcd" : "count2_binary.pcd");
+      SCOPED_TRACE(p.filename().string());
+      hc::test::write_pcl_compressed_pcd(p, fields, rec, 3000, 1, compressed);
+      std::vector<double> xyz;
+      std::vector<std::uint8_t> rgb;
+      std::vector<float> intensity;
+      hc::test::read_pcl_pcd(p, xyz, rgb, intensity);
+      const Cloud whole = hc::pipeline::load_cloud(p).value;
+      EXPECT_TRUE(same_xyz(whole.xyz, Eigen::Map<const Eigen::Matrix3Xd>(xyz.data(), 3, static_cast<Eigen::Index>(xyz.size() / 3))));
+      EXPECT_EQ(whole.rgb, rgb);
+      EXPECT_EQ(whole.intensity, intensity);
+      EXPECT_EQ(whole.intensity.size(), 3000U);
+      (void)expect_chunks_equal(p, whole, 7);
+    }
+  }
   EXPECT_TRUE(same_xyz(hc::pipeline::load_cloud(normals_binary).value.xyz, hc::pipeline::load_cloud(normals).value.xyz));
   expect_stream_equals_load_cloud(normals_binary, "PCD binary, 70070 points (fixed-size records streamed in chunks)");
   const Cloud from_binary = hc::pipeline::load_cloud(binary).value;
@@ -994,8 +1024,24 @@ TEST(PointStream, CompressedPcdErrorsAreTheWholeReadsAndSayWhere) {
   hc::test::write_gzip(dir / "good.pcd.gz", bytes);
   const std::string packed = hc::test::read_bytes(dir / "good.pcd.gz");
   hc::test::write_bytes(dir / "cut.pcd.gz", packed.substr(0, packed.size() / 2));
-  expect_stream_fails_as_whole_read_at_any_point(dir, {"start.pcd", "short_block.pcd", "overrun.pcd", "unpacked.pcd", "cut.pcd", "cut.pcd.gz"});
   const auto error = [&](const char* name) { return hc::test::error_of([&] { hc::pipeline::load_cloud(dir / name); }); };
+  // A COUNT whose record passes 2^32 − 1 bytes (it wrapped the sizes, and a read ran past the
+  // body), and a block declaring far more bytes than LZF can unpack from it (4 GB asked of a
+  // 1-byte block, allocated before anything was decoded): both refused from the header.
+  const std::string head = "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 8\nTYPE F F U\nCOUNT 1 1 2305843009213693952\n"
+                           "WIDTH 10\nHEIGHT 1\nPOINTS 10\nDATA binary_compressed\n";
+  const std::uint32_t wrapped[2] = {81, 80};
+  hc::test::write_bytes(dir / "count.pcd", head + std::string(reinterpret_cast<const char*>(wrapped), 8) + std::string(81, '\x00'));
+  const std::uint32_t bomb[2] = {1, 4000000008U};
+  hc::test::write_bytes(dir / "bomb.pcd", "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1000000000 1 1\n"
+                                          "WIDTH 1\nHEIGHT 1\nPOINTS 1\nDATA binary_compressed\n" +
+                                              std::string(reinterpret_cast<const char*>(bomb), 8) + std::string(1, '\x00'));
+  expect_stream_fails_as_whole_read_at_any_point(
+      dir, {"start.pcd", "short_block.pcd", "overrun.pcd", "unpacked.pcd", "cut.pcd", "cut.pcd.gz", "count.pcd", "bomb.pcd"});
+  EXPECT_NE(error("count.pcd").find("field 'z' has SIZE 8 and COUNT 2305843009213693952: a point record of more than 4294967295 bytes"),
+            std::string::npos)
+      << error("count.pcd");
+  EXPECT_NE(error("bomb.pcd").find("the compressed block of 1 bytes cannot unpack to 4000000008"), std::string::npos) << error("bomb.pcd");
   EXPECT_NE(error("start.pcd").find("start.pcd': the binary_compressed body (LZF): corrupt at compressed byte 0 (output byte 0): a back reference"),
             std::string::npos)
       << error("start.pcd");

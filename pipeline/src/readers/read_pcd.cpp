@@ -250,13 +250,24 @@ std::string check_ascii_line(const char* b, const char* e, std::size_t values) {
 // The start of a binary_compressed body's errors (LzfReader's `what`).
 std::string compressed_what(const std::string& name) { return "load_cloud: " + name + ": the binary_compressed body (LZF)"; }
 
+// The largest point record PCL takes (its point_step is 32-bit) [bytes].
+constexpr std::size_t kMaxRecordBytes = 0xFFFFFFFFu;
+
 // A binary_compressed body's two sizes (compressed, then unpacked: sizes, or nullptr when
 // fewer than 8 bytes follow the header) against the layout and the `have` bytes after the header.
 void check_compressed_sizes(const std::string& name, const PcdLayout& l, std::size_t have, const std::uint32_t* sizes) {
   auto fail = [&](const std::string& what) { return InputError("load_cloud: " + name + ": " + what); };
   if (sizes == nullptr) throw fail("truncated: no compressed block after the header");
-  if (sizes[1] != l.n * l.point_bytes) {
-    throw fail("the compressed block unpacks to " + std::to_string(sizes[1]) + " bytes, expected " + std::to_string(l.n * l.point_bytes));
+  std::size_t body = 0;
+  if (__builtin_mul_overflow(l.n, l.point_bytes, &body) || sizes[1] != body) {
+    throw fail("the compressed block unpacks to " + std::to_string(sizes[1]) + " bytes, expected " + std::to_string(l.n) + " x " +
+               std::to_string(l.point_bytes));
+  }
+  // LZF gives at most 88 bytes a compressed byte (a back reference of 264 bytes in 3): a
+  // larger size is refused before anything is allocated for it.
+  if (sizes[1] > 88ULL * sizes[0]) {
+    throw fail("the compressed block of " + std::to_string(sizes[0]) + " bytes cannot unpack to " + std::to_string(sizes[1]) +
+               " (LZF gives at most 88 bytes a compressed byte)");
   }
   if (have - 8 < sizes[0]) {
     throw fail("truncated: the compressed block needs " + std::to_string(sizes[0]) + " bytes, " + std::to_string(have - 8) + " follow");
@@ -340,6 +351,13 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
       throw fail("field '" + fields[i] + "' has TYPE " + t + ", SIZE " + z + ", COUNT " + counts[i] +
                  " (expected F 4|8 or I/U 1|2|4|8 and a count >= 1)");
     }
+    // A record of at most 2^32 − 1 bytes (PCL's point_step is 32-bit): no product or sum of
+    // sizes below can wrap.
+    const auto field_size = static_cast<std::size_t>(std::stoi(z));
+    if (static_cast<unsigned long long>(c) > kMaxRecordBytes / field_size || point_bytes + field_size * static_cast<std::size_t>(c) > kMaxRecordBytes) {
+      throw fail("field '" + fields[i] + "' has SIZE " + z + " and COUNT " + counts[i] + ": a point record of more than " +
+                 std::to_string(kMaxRecordBytes) + " bytes (PCL's limit)");
+    }
     if (fields[i] == "intensity" && !layout.has_intensity) {
       layout.has_intensity = true;
       layout.intensity = {point_bytes, values, t[0], std::stoi(z), static_cast<std::size_t>(std::stoi(z)) * static_cast<std::size_t>(c)};
@@ -403,8 +421,9 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
                  " data lines follow");
     }
   } else if (data == "binary") {
-    if (have < n * point_bytes) {
-      throw fail("truncated: the header declares " + std::to_string(n) + " points (" + std::to_string(n * point_bytes) +
+    std::size_t body = 0;
+    if (__builtin_mul_overflow(n, point_bytes, &body) || have < body) {
+      throw fail("truncated: the header declares " + std::to_string(n) + " points (" + std::to_string(n) + " x " + std::to_string(point_bytes) +
                  " bytes) but only " + std::to_string(have) + " bytes follow");
     }
   } else if (data == "binary_compressed") {
@@ -514,8 +533,9 @@ class PcdStream final : public PcdChunks {
 // SIZE × COUNT bytes (PCL's pcd_io.cpp "xxyyzz": field f's column starts at n × its offset in
 // a record). So each axis has a decoder of its own, over a source of its own, that decodes and
 // drops the columns before its own and then hands out its column's values chunk by chunk:
-// memory about 350 KiB an axis, whatever the file's size, for decoding work of up to three
-// times the block's (the whole read decodes it once, into memory of the whole body). After the
+// memory about 350 KiB a column, whatever the file's size, for decoding work of up to five
+// times the block's with colour and intensity (the whole read decodes it once, into memory of
+// the whole body). After the
 // last point, the decoder of the farthest column decodes the rest and checks the block's sizes,
 // as the whole read (read_compressed_body) does; the values are binary_value's and packed_rgb's,
 // as PcdStream's and the whole read's (PCL's reader is the tests' oracle,
