@@ -570,6 +570,31 @@ class KeptMask : public TileFiles {
 // window of the tile that owns its centre.
 constexpr int kMaxWidenedTiles = 2;
 
+// What a tiled run holds a grid sample for [bytes]: level 0 whole from the tile loop's merge
+// through the checks (depth, flags, the cross-check's error and the layers' inputs; the 10^8
+// wall at N = 16384, 134 M cells, peaked at 2.1 GB in honest_check: docs/scale.md).
+constexpr double kTiledBytesPerCell = 15.0;
+
+// grid_geometry_for_box for the tiled plan: a grid of more than grid.max_cells cells is refused
+// in the tiled run's words, with what it holds for the grid (kTiledBytesPerCell a cell, besides
+// its windows), not the in-core reprojection's working memory that make_geometry's message
+// gives. @throws hc::ResourceError naming the grid, the key and the bytes; what
+// grid_geometry_for_box throws otherwise.
+GridGeometry tiled_grid_geometry(double x_min, double x_max, double y_min, double y_max, std::size_t kept, const ReprojectOptions& ro) {
+  ReprojectOptions uncapped = ro;
+  uncapped.grid.max_cells = std::numeric_limits<std::size_t>::max();
+  const GridGeometry g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, uncapped);
+  const double cells = static_cast<double>(g.rows) * static_cast<double>(g.cols);
+  if (cells > static_cast<double>(ro.grid.max_cells)) {
+    throw ResourceError("tiled run: a grid of " + std::to_string(g.cols) + " x " + std::to_string(g.rows) + " = " +
+                        std::to_string(static_cast<std::uint64_t>(g.rows) * static_cast<std::uint64_t>(g.cols)) + " cells (cell size " + format_number(g.cell_size_m) + " m) exceeds grid.max_cells = " +
+                        std::to_string(ro.grid.max_cells) + "; a tiled run holds level 0 of the grid whole, about " +
+                        format_number(kTiledBytesPerCell) + " bytes a cell (" + format_number(std::round(cells * kTiledBytesPerCell / 1e6)) +
+                        " MB here) besides its windows: raise grid.max_cells or coarsen the grid");
+  }
+  return g;
+}
+
 // Whether the tiles' halo holds a filter share (scale.filter_halo_cells): when the outlier
 // filter or the cross-check runs.
 bool filter_halo_added(const RunConfig& config) { return config.filters.outliers.enabled || config.cross_check.enabled; }
@@ -2200,7 +2225,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
                           });
     }
     grid_points = kept;
-    tiles.g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
+    tiles.g = tiled_grid_geometry(x_min, x_max, y_min, y_max, kept, ro);
     // Points per block for the tile side, counted with the first coverage pass when there is one.
     counts.reset();
     if (config.scale.tile_max_points > 0 && box.points > config.scale.tile_max_points) counts.emplace(tiles.g);
@@ -2778,7 +2803,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         bool same_layout = kept > 0;
         if (same_layout) {
           ro = config.grid.reproject;
-          const GridGeometry new_g = grid_geometry_for_box(x_min, x_max, y_min, y_max, kept, ro);
+          const GridGeometry new_g = tiled_grid_geometry(x_min, x_max, y_min, y_max, kept, ro);
           same_layout = new_g.rows == old_g.rows && new_g.cols == old_g.cols && new_g.x0_m == old_g.x0_m &&
                         new_g.y0_m == old_g.y0_m && new_g.cell_size_m == old_g.cell_size_m;
           if (same_layout && cov) {

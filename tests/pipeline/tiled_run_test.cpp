@@ -170,6 +170,27 @@ TEST(TiledRun, EqualsTheInCoreRunOnTheBuddhaInTilesOf64Cells) {
 // takes smaller tiles. Oracles: the spill's own record counts (every window's points as written,
 // not the plan's block count), the in-core run (the scene is the same bit for bit whatever the
 // tiles), and the same run without the bound (the configured side, two tiles).
+// A grid past grid.max_cells is refused in the tiled run's own words, before any spill: what the
+// tiled run holds for it (level 0 whole, about 15 bytes a cell), where the in-core run's message
+// gives its reprojection's working memory (bytes per cell of its own).
+TEST(TiledRun, AGridPastMaxCellsIsRefusedWithWhatTheTiledRunHoldsForIt) {
+  hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/happy_buddha.yaml";
+  RunConfig config = hc::pipeline::load_run_config(cfg, {"grid.max_cells=10000"});
+  const fs::path scratch = hc::test::temp_dir("scratch");
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = scratch;
+  const std::string tiled = error_of<hc::ResourceError>(config);
+  EXPECT_EQ(tiled.rfind("tiled run: a grid of ", 0), 0U) << tiled;
+  EXPECT_NE(tiled.find("exceeds grid.max_cells = 10000; a tiled run holds level 0 of the grid whole, about 15 bytes a cell"), std::string::npos)
+      << tiled;
+  EXPECT_EQ(entries_besides(scratch, ""), 0U) << "the refused run left files in its scratch folder";
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+  const std::string in_core = error_of<hc::ResourceError>(config);
+  EXPECT_NE(in_core.find("exceeds max_cells = 10000"), std::string::npos) << in_core;
+  EXPECT_NE(in_core.find("bytes per cell"), std::string::npos) << in_core;
+}
+
 TEST(TiledRun, TilesShrinkSoThatNoWindowHoldsMoreThanTileMaxPoints) {
   hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
   const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/happy_buddha.yaml";
