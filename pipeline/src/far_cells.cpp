@@ -106,7 +106,7 @@ void FarCells::begin_tile(int tile_row) {
 
 std::uint32_t FarCells::tile_find(std::uint64_t key) const {
   const std::size_t mask = tile_slots_.size() - 1;
-  for (std::size_t i = static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ULL) >> (64 - tile_bits_));; i = (i + 1) & mask) {
+  for (std::size_t i = tile_home(key);; i = (i + 1) & mask) {
     const Slot& s = tile_slots_[i];
     if (s.index == kFree || s.key == key) return s.index;
   }
@@ -117,7 +117,7 @@ void FarCells::tile_grow() {
   tile_slots_.assign(std::size_t{1} << tile_bits_, Slot{0, kFree});
   const std::size_t mask = tile_slots_.size() - 1;
   for (std::uint32_t c = 0; c < tile_keys_.size(); ++c) {
-    std::size_t i = static_cast<std::size_t>((tile_keys_[c] * 0x9E3779B97F4A7C15ULL) >> (64 - tile_bits_));
+    std::size_t i = tile_home(tile_keys_[c]);
     while (tile_slots_[i].index != kFree) i = (i + 1) & mask;
     tile_slots_[i] = Slot{tile_keys_[c], c};
   }
@@ -125,7 +125,7 @@ void FarCells::tile_grow() {
 
 std::uint32_t FarCells::tile_cell(std::uint64_t key) {
   const std::size_t mask = tile_slots_.size() - 1;
-  for (std::size_t i = static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ULL) >> (64 - tile_bits_));; i = (i + 1) & mask) {
+  for (std::size_t i = tile_home(key);; i = (i + 1) & mask) {
     Slot& s = tile_slots_[i];
     if (s.key == key && s.index != kFree) return s.index;
     if (s.index != kFree) continue;

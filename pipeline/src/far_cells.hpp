@@ -144,6 +144,8 @@ class FarCells {
     std::uint32_t index;  // into tile_cells_; kFree when the slot is free
   };
   static constexpr std::uint32_t kFree = std::numeric_limits<std::uint32_t>::max();
+  // The slot where the search for `key` starts (Fibonacci hashing to tile_bits_ bits).
+  std::size_t tile_home(std::uint64_t key) const { return static_cast<std::size_t>((key * 0x9E3779B97F4A7C15ULL) >> (64 - tile_bits_)); }
   std::uint32_t tile_cell(std::uint64_t key);      // the cell of `key`, added when new
   std::uint32_t tile_find(std::uint64_t key) const;  // the cell of a key the tile holds
   void tile_grow();

@@ -977,8 +977,8 @@ TEST(PointStream, CompressedPcdStreamsThePointsPclReads) {
   (void)compressed_block(hc::test::read_bytes(normals), sizes);
   EXPECT_EQ(sizes[1], 70070U * 34U);
   EXPECT_LT(sizes[0], 70070U * 12U);
-  expect_stream_equals_load_cloud(mixed, "PCD binary_compressed, 100000 points (one LZF block decoded as it is read, a decoder per axis)");
-  expect_stream_equals_load_cloud(normals, "PCD binary_compressed, 70070 points (one LZF block decoded as it is read, a decoder per axis)");
+  expect_stream_equals_load_cloud(mixed, "PCD binary_compressed, 100000 points (one LZF block decoded as it is read, a decoder per column)");
+  expect_stream_equals_load_cloud(normals, "PCD binary_compressed, 70070 points (one LZF block decoded as it is read, a decoder per column)");
   for (const fs::path& p : {mixed, normals}) {
     SCOPED_TRACE(p.filename().string());
     const Cloud whole = hc::pipeline::load_cloud(p).value;

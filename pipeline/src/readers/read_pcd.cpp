@@ -174,23 +174,57 @@ inline void packed_rgb(const std::uint8_t* p, std::uint8_t* out) {
   out[2] = p[0];
 }
 
-/// DATA binary, read here (PCL's reader crashed on a fuzzed binary file whose header was sound):
-/// n records of point_bytes bytes, little-endian as PCL writes them; the colour when the layout
-/// has one.
-Cloud read_binary_body(const std::string& raw, const PcdLayout& l) {
-  Cloud cloud;
-  cloud.xyz.resize(3, static_cast<Eigen::Index>(l.n));
-  if (l.has_rgb) cloud.rgb.resize(3 * l.n);
-  if (l.has_intensity) cloud.intensity.resize(l.n);
-  const auto* base = reinterpret_cast<const std::uint8_t*>(raw.data()) + l.pos;
-  for (std::size_t i = 0; i < l.n; ++i) {
+/// Points 0 .. n − 1 of `out` (xyz, and rgb and intensity when the layout has them, sized to
+/// n) from n records of l.point_bytes bytes at base, laid out as the
+/// header declares (DATA binary): x y z by binary_value, the colour by packed_rgb, the
+/// intensity by intensity_value.
+void decode_records(const std::uint8_t* base, std::size_t n, const PcdLayout& l, Cloud& out) {
+  out.xyz.resize(3, static_cast<Eigen::Index>(n));
+  if (l.has_rgb) out.rgb.resize(3 * n);
+  if (l.has_intensity) out.intensity.resize(n);
+  for (std::size_t i = 0; i < n; ++i) {
     const std::uint8_t* rec = base + i * l.point_bytes;
     for (int a = 0; a < 3; ++a) {
-      cloud.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l.axis[a].offset, l.axis[a].type, l.axis[a].size);
+      out.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l.axis[a].offset, l.axis[a].type, l.axis[a].size);
     }
-    if (l.has_rgb) packed_rgb(rec + l.rgb.offset, cloud.rgb.data() + 3 * i);
-    if (l.has_intensity) cloud.intensity[i] = intensity_value(rec + l.intensity.offset, l.intensity);
+    if (l.has_rgb) packed_rgb(rec + l.rgb.offset, out.rgb.data() + 3 * i);
+    if (l.has_intensity) out.intensity[i] = intensity_value(rec + l.intensity.offset, l.intensity);
   }
+}
+
+/// The columns a binary_compressed body is read by: x, y, z, then the colour and the intensity
+/// when the layout has them.
+enum class Column { kX, kY, kZ, kColour, kIntensity };
+std::vector<Column> columns_of(const PcdLayout& l) {
+  std::vector<Column> c = {Column::kX, Column::kY, Column::kZ};
+  if (l.has_rgb) c.push_back(Column::kColour);
+  if (l.has_intensity) c.push_back(Column::kIntensity);
+  return c;
+}
+/// The field a column reads.
+const PcdLayout::Axis& field_of(const PcdLayout& l, Column c) {
+  return c == Column::kColour ? l.rgb : c == Column::kIntensity ? l.intensity : l.axis[static_cast<int>(c)];
+}
+
+/// n values of column c from base (one every field_bytes, as a binary_compressed body's columns
+/// hold them) into points 0 .. n − 1 of `out`, whose xyz, rgb or intensity the caller sized.
+void decode_column(Column c, const PcdLayout& l, const std::uint8_t* base, std::size_t n, Cloud& out) {
+  const PcdLayout::Axis& f = field_of(l, c);
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint8_t* v = base + i * f.field_bytes;
+    switch (c) {
+      case Column::kColour: packed_rgb(v, out.rgb.data() + 3 * i); break;
+      case Column::kIntensity: out.intensity[i] = intensity_value(v, f); break;
+      default: out.xyz(static_cast<Eigen::Index>(c), static_cast<Eigen::Index>(i)) = binary_value(v, f.type, f.size);
+    }
+  }
+}
+
+/// DATA binary, read here (PCL's reader crashed on a fuzzed binary file whose header was sound):
+/// n records of point_bytes bytes, little-endian as PCL writes them (decode_records).
+Cloud read_binary_body(const std::string& raw, const PcdLayout& l) {
+  Cloud cloud;
+  decode_records(reinterpret_cast<const std::uint8_t*>(raw.data()) + l.pos, l.n, l, cloud);
   return cloud;
 }
 
@@ -198,9 +232,8 @@ std::string compressed_what(const std::string& name);
 
 /// DATA binary_compressed, read here: the LZF block (validate_pcd checked its sizes) decoded
 /// once (LzfReader, which checks it as liblzf and PCL do) into the fields' columns (PCL's
-/// "xxyyzz": field f's n values from n × its record offset), x y z by binary_value and the
-/// colour as read_binary_body takes them. The whole body is held (n × point_bytes bytes), as PCL
-/// held it.
+/// "xxyyzz": field f's n values from n × its record offset), each read by decode_column. The
+/// whole body is held (n × point_bytes bytes), as PCL held it.
 Cloud read_compressed_body(const std::string& raw, const PcdLayout& l, const std::string& name) {
   std::uint32_t sizes[2] = {0, 0};
   std::memcpy(sizes, raw.data() + l.pos, 8);
@@ -216,21 +249,9 @@ Cloud read_compressed_body(const std::string& raw, const PcdLayout& l, const std
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(l.n));
   if (l.has_rgb) cloud.rgb.resize(3 * l.n);
+  if (l.has_intensity) cloud.intensity.resize(l.n);
   const auto* base = reinterpret_cast<const std::uint8_t*>(body.data());
-  for (int a = 0; a < 3; ++a) {
-    const PcdLayout::Axis& la = l.axis[a];
-    const std::uint8_t* col = base + l.n * la.offset;
-    for (std::size_t i = 0; i < l.n; ++i) cloud.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(col + i * la.field_bytes, la.type, la.size);
-  }
-  if (l.has_rgb) {
-    const std::uint8_t* col = base + l.n * l.rgb.offset;
-    for (std::size_t i = 0; i < l.n; ++i) packed_rgb(col + i * l.rgb.field_bytes, cloud.rgb.data() + 3 * i);
-  }
-  if (l.has_intensity) {
-    cloud.intensity.resize(l.n);
-    const std::uint8_t* col = base + l.n * l.intensity.offset;
-    for (std::size_t i = 0; i < l.n; ++i) cloud.intensity[i] = intensity_value(col + i * l.intensity.field_bytes, l.intensity);
-  }
+  for (const Column c : columns_of(l)) decode_column(c, l, base + l.n * field_of(l, c).offset, l.n, cloud);
   return cloud;
 }
 
@@ -510,17 +531,7 @@ class PcdStream final : public PcdChunks {
       throw InputError("load_cloud: " + name_ + ": truncated or unreadable after " + std::to_string(done_ + got) + " of " +
                        std::to_string(l_.n) + " points");
     }
-    const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
-    if (l_.has_rgb) chunk.rgb.resize(3 * n);
-    if (l_.has_intensity) chunk.intensity.resize(n);
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint8_t* rec = base + i * l_.point_bytes;
-      for (int a = 0; a < 3; ++a) {
-        chunk.xyz(a, static_cast<Eigen::Index>(i)) = binary_value(rec + l_.axis[a].offset, l_.axis[a].type, l_.axis[a].size);
-      }
-      if (l_.has_rgb) packed_rgb(rec + l_.rgb.offset, chunk.rgb.data() + 3 * i);
-      if (l_.has_intensity) chunk.intensity[i] = intensity_value(rec + l_.intensity.offset, l_.intensity);
-    }
+    decode_records(reinterpret_cast<const std::uint8_t*>(buffer_.data()), n, l_, chunk);
   }
   void finished() override { src_->drain(); }
 
@@ -531,15 +542,14 @@ class PcdStream final : public PcdChunks {
 // A DATA binary_compressed PCD read in chunks (point_stream.hpp). The body is one LZF block
 // (lzf_reader.hpp) that unpacks to the fields one after another, each as n values of the field's
 // SIZE × COUNT bytes (PCL's pcd_io.cpp "xxyyzz": field f's column starts at n × its offset in
-// a record). So each axis has a decoder of its own, over a source of its own, that decodes and
+// a record). So each column read (columns_of) has a decoder of its own, over a source of its own, that decodes and
 // drops the columns before its own and then hands out its column's values chunk by chunk:
 // memory about 350 KiB a column, whatever the file's size, for decoding work of up to five
 // times the block's with colour and intensity (the whole read decodes it once, into memory of
 // the whole body). After the
 // last point, the decoder of the farthest column decodes the rest and checks the block's sizes,
-// as the whole read (read_compressed_body) does; the values are binary_value's and packed_rgb's,
-// as PcdStream's and the whole read's (PCL's reader is the tests' oracle,
-// tests/pipeline/point_stream_test.cpp). A colour or intensity column has a decoder of its own too.
+// as the whole read (read_compressed_body) does; the values are decode_column's, as the whole
+// read's (PCL's reader is the tests' oracle, tests/pipeline/point_stream_test.cpp).
 class PcdCompressedStream final : public PcdChunks {
  public:
   // file_bytes: the data's size (under gzip, inflated).
@@ -547,16 +557,14 @@ class PcdCompressedStream final : public PcdChunks {
                       const PcdLayout& l)
       : PcdChunks(first->name(), l) {
     notes_.push_back(kCompressedNote);
-    notes_.push_back("PCD binary_compressed, " + std::to_string(l_.n) + " points (one LZF block decoded as it is read, a decoder per axis)");
+    notes_.push_back("PCD binary_compressed, " + std::to_string(l_.n) + " points (one LZF block decoded as it is read, a decoder per column)");
     // The block's sizes (validate_pcd checked the header's: the file holds the block, which
     // unpacks to n records' bytes).
     first->seek(l_.pos);
     std::uint32_t sizes[2] = {0, 0};
     const bool whole = first->read(reinterpret_cast<char*>(sizes), sizeof sizes) == sizeof sizes;
     check_compressed_sizes(name_, l_, file_bytes > l_.pos ? static_cast<std::size_t>(file_bytes - l_.pos) : 0, whole ? sizes : nullptr);
-    kinds_ = {kX, kY, kZ};
-    if (l_.has_rgb) kinds_.push_back(kColour);
-    if (l_.has_intensity) kinds_.push_back(kIntensity);
+    kinds_ = columns_of(l_);
     for (std::size_t a = 0; a < kinds_.size(); ++a) {
       Axis& ax = axes_[a];
       ax.src = a == 0 ? std::move(first) : ByteSource::open(path, name_, gz);
@@ -566,35 +574,21 @@ class PcdCompressedStream final : public PcdChunks {
                                            compressed_what(name_));
     }
     for (std::size_t a = 1; a < kinds_.size(); ++a) {
-      if (column(a).offset > column(last_).offset) last_ = a;
+      if (field_of(l_, kinds_[a]).offset > field_of(l_, kinds_[last_]).offset) last_ = a;
     }
   }
 
  private:
-  // The columns read: x, y, z, then the colour and the intensity when the file has them.
-  enum Kind { kX, kY, kZ, kColour, kIntensity };
-  const PcdLayout::Axis& column(std::size_t a) const {
-    return kinds_[a] == kColour ? l_.rgb : kinds_[a] == kIntensity ? l_.intensity : l_.axis[kinds_[a]];
-  }
-
   void fill(Cloud& chunk, std::size_t n) override {
     if (l_.has_rgb) chunk.rgb.resize(3 * n);
     if (l_.has_intensity) chunk.intensity.resize(n);
     for (std::size_t a = 0; a < kinds_.size(); ++a) {
-      const PcdLayout::Axis& la = column(a);
+      const PcdLayout::Axis& f = field_of(l_, kinds_[a]);
       LzfReader& lzf = *axes_[a].lzf;
-      if (done_ == 0) lzf.read(nullptr, l_.n * la.offset);  // the columns before this one
-      buffer_.resize(n * la.field_bytes);
+      if (done_ == 0) lzf.read(nullptr, l_.n * f.offset);  // the columns before this one
+      buffer_.resize(n * f.field_bytes);
       lzf.read(buffer_.data(), buffer_.size());
-      const auto* base = reinterpret_cast<const std::uint8_t*>(buffer_.data());
-      for (std::size_t i = 0; i < n; ++i) {
-        const std::uint8_t* v = base + i * la.field_bytes;
-        switch (kinds_[a]) {
-          case kColour: packed_rgb(v, chunk.rgb.data() + 3 * i); break;
-          case kIntensity: chunk.intensity[i] = intensity_value(v, la); break;
-          default: chunk.xyz(static_cast<Eigen::Index>(kinds_[a]), static_cast<Eigen::Index>(i)) = binary_value(v, la.type, la.size);
-        }
-      }
+      decode_column(kinds_[a], l_, reinterpret_cast<const std::uint8_t*>(buffer_.data()), n, chunk);
     }
   }
   void finished() override {
@@ -607,7 +601,7 @@ class PcdCompressedStream final : public PcdChunks {
     std::unique_ptr<LzfReader> lzf;
   };
   std::array<Axis, 5> axes_;  // a decoder per column (kinds_)
-  std::vector<Kind> kinds_;
+  std::vector<Column> kinds_;
   std::size_t last_ = 0;  // the column that comes last in the block: its decoder checks the block's end
   std::vector<char> buffer_;
 };
