@@ -25,10 +25,8 @@ std::uint8_t datatype_of(const PcdField& f) {
   }
 }
 
-}  // namespace
-
-void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<PcdField>& fields, const std::string& records,
-                              std::uint32_t width, std::uint32_t height, bool compressed) {
+// The PCLPointCloud2 of width × height records of `fields`.
+pcl::PCLPointCloud2 cloud_of(const std::vector<PcdField>& fields, const std::string& records, std::uint32_t width, std::uint32_t height) {
   pcl::PCLPointCloud2 cloud;
   std::uint32_t step = 0;
   for (const PcdField& f : fields) {
@@ -51,8 +49,25 @@ void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<
   }
   cloud.data.resize(records.size());
   std::memcpy(cloud.data.data(), records.data(), records.size());
+  return cloud;
+}
+
+}  // namespace
+
+void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<PcdField>& fields, const std::string& records,
+                              std::uint32_t width, std::uint32_t height, bool compressed) {
+  const pcl::PCLPointCloud2 cloud = cloud_of(fields, records, width, height);
   pcl::PCDWriter writer;
   if ((compressed ? writer.writeBinaryCompressed(p.string(), cloud) : writer.writeBinary(p.string(), cloud)) != 0) {
+    throw std::runtime_error("PCL could not write " + p.string());
+  }
+}
+
+void write_pcl_ascii_pcd(const std::filesystem::path& p, const std::vector<PcdField>& fields, const std::string& records,
+                         std::uint32_t width, std::uint32_t height, int precision) {
+  const pcl::PCLPointCloud2 cloud = cloud_of(fields, records, width, height);
+  pcl::PCDWriter writer;
+  if (writer.writeASCII(p.string(), cloud, Eigen::Vector4f::Zero(), Eigen::Quaternionf::Identity(), precision) != 0) {
     throw std::runtime_error("PCL could not write " + p.string());
   }
 }

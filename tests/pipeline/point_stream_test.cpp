@@ -1097,19 +1097,26 @@ fs::path write_ascii_pcd(const fs::path& p, std::size_t n, bool mixed, bool int_
   return p;
 }
 
-// A DATA ascii PCD streams in blocks of lines (the whole read hands the body to PCL, which has
-// no chunked read): PCL's points (the oracle: load_cloud) bit for bit in any chunking, plain and
-// under gzip, float32 flag included, on generated files of float32 and float64 axes among
-// fields of every type and on the shared bunny; its errors are the whole read's. An integer
-// axis stays PCL's whole read.
+// A DATA ascii PCD streams in blocks of lines: the points, colours and intensities of PCL's own
+// reader (the oracle, hc::test::read_pcl_pcd) bit for bit in any chunking, whole or streamed,
+// plain and under gzip, float32 flag included, on generated files of float32 and float64 axes
+// among fields of every type, an integer axis and the shared bunny; its errors are the whole read's.
 TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
   const fs::path dir = hc::test::temp_dir("pcd_ascii_stream");
   const fs::path mixed = write_ascii_pcd(dir / "mixed.pcd", 60000, true);
   const fs::path floats = write_ascii_pcd(dir / "floats.pcd", 50001, false);
   const fs::path bunny = hc::test::scan_path("bunny/pcl_bunny.pcd");
+  const fs::path int_z = write_ascii_pcd(dir / "int_z.pcd", 3000, false, true);
+  for (const fs::path& p : {mixed, floats, bunny, int_z}) {
+    SCOPED_TRACE(p.filename().string());
+    const Cloud whole = expect_whole_read_is_pcls(p);
+    EXPECT_EQ(whole.rgb.size(), p == mixed ? 3 * whole.size() : 0U);  // the mixed file's packed colour
+  }
   expect_stream_equals_load_cloud(mixed, "PCD ascii, 60000 points (lines streamed in chunks)");
   expect_stream_equals_load_cloud(floats, "PCD ascii, 50001 points (lines streamed in chunks)");
   expect_stream_equals_load_cloud(bunny, "PCD ascii, 397 points (lines streamed in chunks)");
+  // An integer z field (int32) streams too (until 2026-11-28 PCL read it whole at every pass).
+  expect_stream_equals_load_cloud(int_z, "PCD ascii, 3000 points (lines streamed in chunks)");
   {
     const Cloud whole = hc::pipeline::load_cloud(mixed).value;
     std::size_t nan_y = 0, inf_y = 0, tiny_y = 0;
@@ -1122,19 +1129,6 @@ TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
     EXPECT_EQ(nan_y, (60000U + 96U) / 97U) << "the nan values came through";
     EXPECT_GT(inf_y, 0U) << "1e39 is beyond float's range: inf, as PCL stores it";
     EXPECT_GT(tiny_y, 0U) << "1e-40 is a float subnormal";
-  }
-  // An integer z field: PCL's, read whole (its integer parse of an out-of-range value is
-  // undefined), handed out in chunks.
-  {
-    const fs::path p = write_ascii_pcd(dir / "int_z.pcd", 3000, false, true);
-    const auto s = hc::pipeline::open_point_stream(p);
-    EXPECT_FALSE(s->streamed());
-    std::size_t chunks = 0;
-    EXPECT_TRUE(same_xyz(read_in_chunks(*s, 1000, &chunks).xyz, hc::pipeline::load_cloud(p).value.xyz));
-    EXPECT_EQ(chunks, 3U);
-    bool said = false;  // the note the tiled run's tests look for
-    for (const std::string& n : s->notes()) said = said || n.find("read whole") != std::string::npos;
-    EXPECT_TRUE(said);
   }
   for (const fs::path& p : {mixed, floats}) {
     const Cloud whole = hc::pipeline::load_cloud(p).value;
@@ -1178,6 +1172,150 @@ TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "seven.pcd"); }).find("data line 777: 7 values"), std::string::npos);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "short.pcd"); }).find("only 59990 data lines"), std::string::npos);
   EXPECT_NE(hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "comma.pcd"); }).find("data line 4321: ',' between values"), std::string::npos);
+}
+
+// A PCD of an unknown DATA type is refused naming it, streamed or whole, before any buffer of its
+// records is sized (a fuzzed header declaring 4 GB records once had the stream allocate them).
+TEST(PointStream, PcdOfUnknownDataTypeIsRefusedBeforeItsRecordsAreSized) {
+  const fs::path dir = hc::test::temp_dir("pcd_unknown_data");
+  hc::test::write_bytes(dir / "odd.pcd", std::string("VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1000000001 1 1\nWIDTH 1\n"
+                                                     "HEIGHT 1\nPOINTS 1\nDATA bincry_compressed\n") + std::string(12, '\x01'));
+  const std::string whole = hc::test::error_of([&] { hc::pipeline::load_cloud(dir / "odd.pcd"); });
+  EXPECT_NE(whole.find("odd.pcd': unknown PCD DATA type 'bincry_compressed' (expected ascii, binary or binary_compressed)"), std::string::npos)
+      << whole;
+  const std::string streamed = hc::test::error_of([&] {
+    Cloud c;
+    const auto s = hc::pipeline::open_point_stream(dir / "odd.pcd");
+    while (s->next(c, 1000)) {
+    }
+  });
+  EXPECT_EQ(streamed, whole);
+}
+
+// An ascii PCD's colour and intensity (until 2026-11-28 only x y z were read from an ascii body):
+// files written by PCL's own ascii writer give PCL's own reader's colours and intensities, and
+// the values written, whole and streamed; a packed colour declared TYPE F (older PCL's layout)
+// is the float's bits; an integer field holds an integer of its range or the file is refused,
+// naming the line, the field and the value, streamed or whole.
+TEST(PointStream, AsciiPcdColourAndIntensityAreReadAndIntegersChecked) {
+  const fs::path dir = hc::test::temp_dir("pcd_ascii_colour");
+  // PCL's writer: float32 axes before rgb (U4), a curvature and a uint16 intensity (7·i mod
+  // 65536, grey 128), 200 × 100; and an x of COUNT 2, a float64 y, an rgba (U4) and a float64
+  // intensity (i / 1000), 17 digits.
+  std::string normals, count2;
+  auto put = [](std::string& rec, auto v) { rec.append(reinterpret_cast<const char*>(&v), sizeof v); };
+  for (std::uint32_t i = 0; i < 20000; ++i) {
+    put(normals, static_cast<float>(i % 1000) * 0.01f);
+    put(normals, i % 97 == 5 ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(i) * -3.7e-4f);
+    put(normals, 0.25f);
+    put(normals, static_cast<std::uint32_t>(0x00808080u));
+    put(normals, 0.0f);
+    put(normals, static_cast<std::uint16_t>(7 * i % 65536));
+    put(count2, static_cast<float>(i) * 0.25f);
+    put(count2, -1.0f);
+    put(count2, static_cast<double>(i) / 3.0);
+    put(count2, static_cast<float>(i % 17));
+    put(count2, 0xFF000000u | (i * 2654435761u >> 8));
+    put(count2, static_cast<double>(i) * 1e-3);
+  }
+  hc::test::write_pcl_ascii_pcd(dir / "normals.pcd",
+                                {{"x", 'F', 4, 1}, {"y", 'F', 4, 1}, {"z", 'F', 4, 1}, {"rgb", 'U', 4, 1}, {"curvature", 'F', 4, 1}, {"intensity", 'U', 2, 1}},
+                                normals, 200, 100);
+  hc::test::write_pcl_ascii_pcd(dir / "count2.pcd",
+                                {{"x", 'F', 4, 2}, {"y", 'F', 8, 1}, {"z", 'F', 4, 1}, {"rgba", 'U', 4, 1}, {"intensity", 'F', 8, 1}}, count2, 20000,
+                                1, 17);
+  for (const char* name : {"normals.pcd", "count2.pcd"}) {
+    SCOPED_TRACE(name);
+    const fs::path p = dir / name;
+    const Cloud whole = expect_whole_read_is_pcls(p);
+    ASSERT_EQ(whole.rgb.size(), 60000U);
+    ASSERT_EQ(whole.intensity.size(), 20000U);
+    const bool n = std::string(name) == "normals.pcd";
+    for (std::uint32_t i = 0; i < 20000; ++i) {
+      const std::uint32_t c = n ? 0x808080u : (i * 2654435761u >> 8) & 0xFFFFFFu;
+      const std::array<std::uint8_t, 3> want{static_cast<std::uint8_t>(c >> 16), static_cast<std::uint8_t>(c >> 8), static_cast<std::uint8_t>(c)};
+      const float level = n ? static_cast<float>(7 * i % 65536) : static_cast<float>(static_cast<double>(i) * 1e-3);
+      if (!std::equal(want.begin(), want.end(), whole.rgb.begin() + 3 * static_cast<std::ptrdiff_t>(i)) || whole.intensity[i] != level) {
+        ADD_FAILURE() << "point " << i << ": colour or intensity not as written";
+        break;
+      }
+    }
+    expect_stream_equals_load_cloud(p, "PCD ascii, 20000 points (lines streamed in chunks)");
+    const fs::path gz = dir / (std::string(name) + ".gz");
+    hc::test::write_gzip(gz, hc::test::read_bytes(p), 2);
+    (void)expect_chunks_equal(gz, whole, 4096);
+  }
+  // A colour declared TYPE F, written as the float whose bits pack it (0x00RRGGBB: a subnormal
+  // float), 9 significant digits: the colour is those bits, as PCL reads them.
+  {
+    std::ostringstream out;
+    out << "VERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F F\nCOUNT 1 1 1 1\nWIDTH 300\nHEIGHT 1\nPOINTS 300\nDATA ascii\n";
+    std::vector<std::uint8_t> want;
+    char buf[64];
+    for (std::uint32_t i = 0; i < 300; ++i) {
+      const std::uint32_t c = (i * 40503u) & 0xFFFFFFu;
+      float f = 0.0f;
+      std::memcpy(&f, &c, 4);
+      std::snprintf(buf, sizeof buf, "%u 0 1 %.9g\n", i, static_cast<double>(f));
+      out << buf;
+      want.insert(want.end(), {static_cast<std::uint8_t>(c >> 16), static_cast<std::uint8_t>(c >> 8), static_cast<std::uint8_t>(c)});
+    }
+    hc::test::write_bytes(dir / "float_rgb.pcd", out.str());
+    const Cloud whole = expect_whole_read_is_pcls(dir / "float_rgb.pcd");
+    EXPECT_EQ(whole.rgb, want);
+    (void)expect_chunks_equal(dir / "float_rgb.pcd", whole, 7);
+  }
+  // Integer fields: int8 x, int16 y, int32 z, a U4 rgb and a uint16 intensity, the extremes of
+  // each range read (PCL's reader the oracle); int64 and uint64 (which PCL 1.13 does not read)
+  // against the values written; one value past a range, a fraction, a sign on an unsigned field
+  // or "nan" in an integer field refuses the file on its line, whole and streamed.
+  const std::string head =
+      "VERSION 0.7\nFIELDS x y z rgb intensity\nSIZE 1 2 4 4 2\nTYPE I I I U U\nCOUNT 1 1 1 1 1\nWIDTH 4\nHEIGHT 1\nPOINTS 4\nDATA ascii\n";
+  const std::string two = "-128 32767 -2147483648 4294967295 65535\n127 -32768 2147483647 0 0\n";
+  hc::test::write_bytes(dir / "ints.pcd", head + two + "+5 0 1 16777215 1\n0 0 0 255 7\n");
+  {
+    const Cloud whole = expect_whole_read_is_pcls(dir / "ints.pcd");
+    EXPECT_EQ(whole.xyz(0, 0), -128.0);
+    EXPECT_EQ(whole.xyz(1, 1), -32768.0);
+    EXPECT_EQ(whole.xyz(2, 1), 2147483647.0);
+    EXPECT_EQ(whole.xyz(0, 2), 5.0);
+    EXPECT_EQ(whole.rgb, (std::vector<std::uint8_t>{255, 255, 255, 0, 0, 0, 255, 255, 255, 0, 0, 255}));
+    EXPECT_EQ(whole.intensity, (std::vector<float>{65535.0f, 0.0f, 1.0f, 7.0f}));
+    (void)expect_chunks_equal(dir / "ints.pcd", whole, 1);
+  }
+  hc::test::write_bytes(dir / "ints64.pcd", "VERSION 0.7\nFIELDS x y z\nSIZE 8 8 4\nTYPE I U F\nWIDTH 2\nPOINTS 2\nDATA ascii\n"
+                                            "-9223372036854775808 18446744073709551615 1\n9007199254740993 9007199254740993 2\n");
+  {
+    const Cloud whole = hc::pipeline::load_cloud(dir / "ints64.pcd").value;
+    ASSERT_EQ(whole.size(), 2U);
+    EXPECT_EQ(whole.xyz(0, 0), -9223372036854775808.0);
+    EXPECT_EQ(whole.xyz(1, 0), 18446744073709551615.0);
+    EXPECT_EQ(whole.xyz(0, 1), 9007199254740992.0);  // 2^53 + 1 rounds to even as a double
+    EXPECT_EQ(whole.xyz(1, 1), 9007199254740992.0);
+    (void)expect_chunks_equal(dir / "ints64.pcd", whole, 1);
+  }
+  const std::vector<std::pair<std::string, std::string>> bad = {
+      {"x_past.pcd", "128 0 0 0 0"},        {"y_fraction.pcd", "0 1.5 0 0 0"}, {"rgb_sign.pcd", "0 0 0 -5 0"},
+      {"intensity_past.pcd", "0 0 0 0 70000"}, {"z_nan.pcd", "0 0 nan 0 0"},    {"z_past.pcd", "0 0 2147483648 0 0"}};
+  for (const auto& [name, line] : bad) hc::test::write_bytes(dir / name, head + two + line + "\n0 0 0 0 0\n");
+  expect_stream_fails_as_whole_read_at_any_point(dir, {"x_past.pcd", "y_fraction.pcd", "rgb_sign.pcd", "intensity_past.pcd", "z_nan.pcd", "z_past.pcd"});
+  const auto error = [&](const std::string& name) { return hc::test::error_of([&] { hc::pipeline::load_cloud(dir / name); }); };
+  EXPECT_NE(error("x_past.pcd").find("x_past.pcd': data line 3: field 'x' (TYPE I SIZE 1) holds '128': expected an integer from -128 to 127"),
+            std::string::npos)
+      << error("x_past.pcd");
+  EXPECT_NE(error("y_fraction.pcd").find("data line 3: field 'y' (TYPE I SIZE 2) holds '1.5': expected an integer from -32768 to 32767"),
+            std::string::npos)
+      << error("y_fraction.pcd");
+  EXPECT_NE(error("rgb_sign.pcd").find("data line 3: field 'rgb' (TYPE U SIZE 4) holds '-5': expected an integer from 0 to 4294967295"),
+            std::string::npos)
+      << error("rgb_sign.pcd");
+  EXPECT_NE(error("intensity_past.pcd").find("field 'intensity' (TYPE U SIZE 2) holds '70000': expected an integer from 0 to 65535"),
+            std::string::npos)
+      << error("intensity_past.pcd");
+  EXPECT_NE(error("z_nan.pcd").find("field 'z' (TYPE I SIZE 4) holds 'nan'"), std::string::npos) << error("z_nan.pcd");
+  EXPECT_NE(error("z_past.pcd").find("holds '2147483648': expected an integer from -2147483648 to 2147483647"),
+            std::string::npos)
+      << error("z_past.pcd");
 }
 
 // A binary PLY whose vertex element holds list properties (records of their own lengths) among

@@ -27,6 +27,13 @@ struct PcdField {
 void write_pcl_compressed_pcd(const std::filesystem::path& p, const std::vector<PcdField>& fields, const std::string& records,
                               std::uint32_t width, std::uint32_t height = 1, bool compressed = true);
 
+/// Writes width × height records (laid out as for write_pcl_compressed_pcd) to `p` as DATA
+/// ascii with PCL's own writer (pcl::PCDWriter::writeASCII, PCL 1.13, `precision` significant
+/// digits for floats; an rgb field of TYPE F as its integer bits, as PCL writes it).
+/// @throws std::runtime_error when PCL fails or `records` is not width × height records.
+void write_pcl_ascii_pcd(const std::filesystem::path& p, const std::vector<PcdField>& fields, const std::string& records,
+                         std::uint32_t width, std::uint32_t height = 1, int precision = 8);
+
 /// What PCL's own reader (pcl::PCDReader into a pcl::PCLPointCloud2, PCL 1.13) gives for `p`:
 /// x y z of every point as doubles (3 per point, each field's declared type converted); when a
 /// field is named rgb or rgba, R G B from its packed value (0x??RRGGBB; else empty); when one

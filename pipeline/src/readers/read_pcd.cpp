@@ -1,19 +1,12 @@
-// PCD reader. The header and the amount of data are checked here first (PCL's PCDReader crashes
-// on some malformed files, a garbage file without FIELDS for example, and accepts a non-numeric
-// ASCII token silently); a DATA binary body is then read here directly (PCL crashed on a fuzzed
-// binary file with a sound header), and so is a binary_compressed one (its LZF block decoded by
-// lzf_reader.hpp, which the streamed read needs anyway), each with its packed rgb/rgba colour
-// and its intensity field;
-// PCL parses ascii bodies into a pcl::PCLPointCloud2, whose fields keep their declared type
-// (float64 stays double), and x, y, z are copied into a Cloud (an ascii body's colour is not
-// read: a note says so). PCL runs in the PCL module hc_pcl.so (pipeline/pcl/pcl_module.cpp,
-// loaded on the first PCD that needs it: modules.hpp).
-//
-// PCL's readers take a file name only. Data that exists only in memory (a decompressed .gz) is
-// handed over through an anonymous memory file (memfd_create) opened as /proc/self/fd/N:
-// nothing touches the disk and the kernel frees it when the descriptor closes, even if the
-// process dies. Where memfd_create is unavailable, an unlinked private temporary file is used
-// the same way.
+// PCD reader (PCD v0.5/v0.7, as PCL's pcd_io.cpp writes and reads it). The header and the
+// amount of data are checked here first (PCL's PCDReader crashed on some malformed files, a
+// garbage file without FIELDS for example, and accepts a non-numeric ASCII token silently); the
+// body is then read here too, whole (read_pcd) or in chunks (open_pcd_stream) by the same
+// decoders: a DATA binary body's records (PCL crashed on a fuzzed binary file with a sound
+// header), a binary_compressed one's LZF block (lzf_reader.hpp, which the streamed read needs
+// anyway) and an ascii body's lines (since 2026-11-28: before, PCL parsed the whole read's and
+// an integer axis kept the file from streaming), each with its packed rgb/rgba colour and its
+// intensity field. PCL's own reader is the tests' oracle (tests/support/pcl_pcd_writer.hpp).
 
 #include "byte_source.hpp"
 #include "line_stream.hpp"
@@ -21,14 +14,10 @@
 #include "readers.hpp"
 #include "text_parse.hpp"
 
-#include "../modules.hpp"
-
 #include "hc/common/error.hpp"
 #include "hc/pipeline/cloud.hpp"
 
 #include <locale.h>
-#include <sys/mman.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <array>
@@ -48,70 +37,11 @@ namespace hc::pipeline::detail {
 
 namespace {
 
-// An in-memory file readable by path; closed (and so freed) on destruction.
-class MemoryFile {
- public:
-  MemoryFile(const std::string& bytes, const std::string& display_name) {
-    fd_ = static_cast<int>(::memfd_create("hapticloud-scan", MFD_CLOEXEC));
-    if (fd_ < 0) {
-      std::string tmpl = (std::filesystem::temp_directory_path() / "hapticloud-scan-XXXXXX").string();
-      fd_ = ::mkstemp(tmpl.data());
-      if (fd_ < 0) {
-        throw ResourceError("load_cloud: " + display_name + ": cannot create an in-memory or temporary file (" +
-                            std::strerror(errno) + ")");
-      }
-      ::unlink(tmpl.c_str());  // removed now; readable through /proc/self/fd until closed
-    }
-    std::size_t done = 0;
-    while (done < bytes.size()) {
-      const ssize_t w = ::write(fd_, bytes.data() + done, bytes.size() - done);
-      if (w < 0) {
-        if (errno == EINTR) continue;
-        const std::string err = std::strerror(errno);
-        ::close(fd_);
-        throw ResourceError("load_cloud: " + display_name + ": cannot stage " + std::to_string(bytes.size()) +
-                            " bytes in memory (" + err + ")");
-      }
-      done += static_cast<std::size_t>(w);
-    }
-    path_ = "/proc/self/fd/" + std::to_string(fd_);
-  }
-  MemoryFile(const MemoryFile&) = delete;
-  MemoryFile& operator=(const MemoryFile&) = delete;
-  ~MemoryFile() { ::close(fd_); }
-
-  const std::string& path() const { return path_; }
-
- private:
-  int fd_ = -1;
-  std::string path_;
-};
-
 template <class T>
 double read_as_double(const std::uint8_t* p) {
   T v;
   std::memcpy(&v, p, sizeof(T));
   return static_cast<double>(v);
-}
-
-Cloud read_with_pcl(const std::string& bytes, const std::filesystem::path& original_path, bool from_memory, const std::string& display_name) {
-  const PclModule& pcl = pcl_module("load_cloud: " + display_name + " (a PCD file with an ascii body)");
-  HcPcdResult res{};
-  // The module's buffer, released on every way out (an allocation below may throw).
-  const auto release = [&pcl](double* p) { pcl.free(p); };
-  int rc = 0;
-  if (from_memory) {
-    const MemoryFile file(bytes, display_name);
-    rc = pcl.read_pcd(HC_PCL_ABI, file.path().c_str(), display_name.c_str(), &res);
-  } else {
-    rc = pcl.read_pcd(HC_PCL_ABI, original_path.string().c_str(), display_name.c_str(), &res);
-  }
-  const std::unique_ptr<double, decltype(release)> owned(res.xyz, release);
-  if (rc != 0) throw InputError(res.detail);
-  Cloud cloud;
-  cloud.xyz.resize(3, static_cast<Eigen::Index>(res.n));
-  if (res.n > 0) std::memcpy(cloud.xyz.data(), res.xyz, 3 * res.n * sizeof(double));
-  return cloud;
 }
 
 // PCD header check. PCL's PCDReader crashes on some malformed files (a garbage file without
@@ -123,11 +53,6 @@ struct PcdLayout {
   std::size_t pos = 0;          ///< first byte after the header
   std::size_t n = 0;            ///< points
   std::size_t point_bytes = 0;  ///< record size of a binary point
-  /// The header as validated here, written anew in PCL's canonical form (one keyword a line,
-  /// no comments): what PCL parses for ascii bodies, so that its header
-  /// parser never sees a line this check read differently (a fuzzed header with repeated
-  /// FIELDS lines and stray bytes crashed pcl::PCDReader::read).
-  std::string canonical_header;
   std::size_t values = 0;       ///< numbers on an ascii data line (the fields' counts summed)
   struct Axis {
     std::size_t offset = 0;     ///< byte offset in the record
@@ -140,6 +65,7 @@ struct PcdLayout {
   /// 0xAARRGGBB into its four bytes, little-endian, a float's or an integer's alike).
   bool has_rgb = false;
   Axis rgb;
+  std::string rgb_name;         ///< rgb or rgba, for messages
   /// The intensity: the first field named intensity (its first value, as the scanner stored it).
   bool has_intensity = false;
   Axis intensity;
@@ -386,6 +312,7 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
     if ((fields[i] == "rgb" || fields[i] == "rgba") && z == "4" && !layout.has_rgb) {
       layout.has_rgb = true;
       layout.rgb = {point_bytes, values, t[0], 4, 4 * static_cast<std::size_t>(c)};
+      layout.rgb_name = fields[i];
     }
     for (int a = 0; a < 3; ++a) {
       if (fields[i] == std::string(1, static_cast<char>('x' + a)) && !axis_seen[a]) {
@@ -418,29 +345,7 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
   layout.values = values;
   if (header_only && data != "binary") return layout;  // a binary_compressed body's sizes: PcdCompressedStream
   if (data == "ascii") {
-    std::size_t lines = 0;
-    std::size_t p = pos;
-    while (p < raw.size() && lines < n) {
-      std::size_t nl = raw.find('\n', p);
-      if (nl == std::string::npos) nl = raw.size();
-      std::size_t tokens = 0;
-      bool in = false;
-      for (std::size_t i = p; i < nl; ++i) {
-        const bool sp = is_space(raw[i]);
-        if (!sp && !in) ++tokens;
-        in = !sp;
-      }
-      if (tokens > 0) {
-        ++lines;
-        const std::string problem = check_ascii_line(raw.data() + p, raw.data() + nl, values);
-        if (!problem.empty()) throw fail("data line " + std::to_string(lines) + ": " + problem);
-      }
-      p = nl + 1;
-    }
-    if (lines < n) {
-      throw fail("truncated: the header declares " + std::to_string(n) + " points but only " + std::to_string(lines) +
-                 " data lines follow");
-    }
+    // its lines are checked as they are decoded (read_ascii_body, PcdAsciiStream)
   } else if (data == "binary") {
     std::size_t body = 0;
     if (__builtin_mul_overflow(n, point_bytes, &body) || have < body) {
@@ -454,15 +359,6 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
   } else {
     throw fail("unknown PCD DATA type '" + data + "' (expected ascii, binary or binary_compressed)");
   }
-  const auto join = [](const std::vector<std::string>& v) {
-    std::string out;
-    for (const std::string& t : v) out += " " + t;
-    return out;
-  };
-  layout.canonical_header = "VERSION 0.7\nFIELDS" + join(fields) + "\nSIZE" + join(sizes) + "\nTYPE" + join(types) +
-                            "\nCOUNT" + join(counts) + "\nWIDTH " + std::to_string(width) + "\nHEIGHT " +
-                            std::to_string(height) + "\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS " + std::to_string(n) +
-                            "\nDATA " + data + "\n";
   return layout;
 }
 
@@ -474,7 +370,7 @@ bool float32_axes(const PcdLayout& l) {
 
 constexpr const char* kBinaryNote = "PCD (binary, read directly)";
 constexpr const char* kCompressedNote = "PCD (binary_compressed, read directly)";
-constexpr const char* kAsciiColourNote = "PCD: the rgb and intensity fields of an ascii body are not read (x y z only)";
+constexpr const char* kAsciiNote = "PCD (ascii, read directly)";
 
 // The chunking both binary streams share: n points handed out in chunks of up to max_points (at
 // least 1), each filled by fill() once chunk.xyz has its columns; finished() after the last
@@ -635,48 +531,156 @@ double ascii_value(const char* b, const char* e, int size) {
   return size == 4 ? static_cast<double>(::strtof_l(token.c_str(), nullptr, c_locale)) : ::strtod_l(token.c_str(), nullptr, c_locale);
 }
 
+/// One integer value of an ascii data line (a token check_numeric_line read) as an I or U field
+/// of `size` bytes holds it: its little-endian bytes into out[0 .. size). Returns an empty string,
+/// or the problem: a token that is not an integer of the field's range (PCL's reader would cut
+/// "1.5" to 1 and give an out-of-range value through a cast of atof's double, undefined in C++;
+/// refused here instead, naming the value and the range).
+std::string ascii_integer(const char* b, const char* e, const PcdLayout::Axis& f, const char* field, std::uint8_t* out) {
+  const char* s = *b == '+' ? b + 1 : b;
+  const int bits = 8 * f.size;
+  bool ok = false;
+  if (f.type == 'I') {
+    std::int64_t v = 0;
+    const auto r = std::from_chars(s, e, v);
+    const std::int64_t hi = bits == 64 ? std::numeric_limits<std::int64_t>::max() : (std::int64_t{1} << (bits - 1)) - 1;
+    ok = r.ec == std::errc() && r.ptr == e && v <= hi && v >= -hi - 1;
+    if (ok) std::memcpy(out, &v, static_cast<std::size_t>(f.size));  // the low bytes: two's complement, little-endian
+  } else {
+    std::uint64_t v = 0;
+    const auto r = std::from_chars(s, e, v);
+    ok = r.ec == std::errc() && r.ptr == e && (bits == 64 || v >> bits == 0);
+    if (ok) std::memcpy(out, &v, static_cast<std::size_t>(f.size));
+  }
+  if (ok) return {};
+  const std::string lo = f.type == 'U' ? "0" : bits == 64 ? "-9223372036854775808" : "-" + std::to_string(std::uint64_t{1} << (bits - 1));
+  const std::string hi = f.type == 'U' ? (bits == 64 ? "18446744073709551615" : std::to_string((std::uint64_t{1} << bits) - 1))
+                                       : (bits == 64 ? "9223372036854775807" : std::to_string((std::uint64_t{1} << (bits - 1)) - 1));
+  std::string problem = std::string("field '") + field + "' (TYPE ";
+  problem += f.type;
+  problem += " SIZE " + std::to_string(f.size) + ") holds '" + std::string(b, static_cast<std::size_t>(std::min<std::ptrdiff_t>(e - b, 40))) +
+             "': expected an integer from " + lo + " to " + hi;
+  return problem;
+}
+
+/// One value of an ascii data line as field f holds it in a binary record: its f.size
+/// little-endian bytes into out (F by ascii_value, I and U by ascii_integer), so that the
+/// record decoders (binary_value, packed_rgb, intensity_value) read it as they read a binary
+/// body's. A packed colour in an F field is the float's bits (PCL's reader parses the token as
+/// a float; PCL 1.13's writer declares rgb U and writes the integer). Returns the problem, or "".
+std::string ascii_field(const char* b, const char* e, const PcdLayout::Axis& f, const char* field, std::uint8_t* out) {
+  if (f.type != 'F') return ascii_integer(b, e, f, field, out);
+  if (f.size == 4) {
+    const auto v = static_cast<float>(ascii_value(b, e, 4));
+    std::memcpy(out, &v, 4);
+  } else {
+    const double v = ascii_value(b, e, 8);
+    std::memcpy(out, &v, 8);
+  }
+  return {};
+}
+
+/// The values an ascii data line [b, e) holds for the fields read (x, y, z, and the colour and
+/// the intensity when the layout has them): x y z into xyz, R G B into rgb, the intensity into
+/// *intensity. The line was checked (check_ascii_line: `values` numbers). Returns the problem
+/// (ascii_field's), or "".
+std::string decode_ascii_line(const char* b, const char* e, const PcdLayout& l, double* xyz, std::uint8_t* rgb, float* intensity) {
+  static const char* const kNames[5] = {"x", "y", "z", "", "intensity"};  // the colour's: l.rgb_name
+  std::array<Column, 5> cols{Column::kX, Column::kY, Column::kZ};  // columns_of's, without an allocation a line
+  std::size_t n_cols = 3;
+  if (l.has_rgb) cols[n_cols++] = Column::kColour;
+  if (l.has_intensity) cols[n_cols++] = Column::kIntensity;
+  std::array<const char*, 5> tb{}, te{};
+  std::size_t at = 0, found = 0;
+  for (const char* p = b; found < n_cols; ++at) {
+    while (p < e && is_space(*p)) ++p;
+    if (p >= e) break;
+    const char* q = p;
+    while (q < e && !is_space(*q)) ++q;
+    for (std::size_t c = 0; c < n_cols; ++c) {
+      if (field_of(l, cols[c]).value == at) tb[c] = p, te[c] = q, ++found;
+    }
+    p = q;
+  }
+  std::uint8_t bytes[8];
+  for (std::size_t c = 0; c < n_cols; ++c) {
+    const PcdLayout::Axis& f = field_of(l, cols[c]);
+    const std::string problem = ascii_field(tb[c], te[c], f, cols[c] == Column::kColour ? l.rgb_name.c_str() : kNames[static_cast<int>(cols[c])], bytes);
+    if (!problem.empty()) return problem;
+    switch (cols[c]) {
+      case Column::kColour: packed_rgb(bytes, rgb); break;
+      case Column::kIntensity: *intensity = intensity_value(bytes, f); break;
+      default: xyz[static_cast<int>(cols[c])] = binary_value(bytes, f.type, f.size);
+    }
+  }
+  return {};
+}
+
+/// DATA ascii, read here as the stream reads it: the first n data lines after the header
+/// (lines with a token: validate_pcd's rule), each checked (check_ascii_line) and decoded
+/// (decode_ascii_line). @throws hc::InputError naming the file and the data line, or the lines
+/// missing.
+Cloud read_ascii_body(const std::string& raw, const PcdLayout& l, const std::string& name) {
+  Cloud cloud;
+  cloud.xyz.resize(3, static_cast<Eigen::Index>(l.n));
+  if (l.has_rgb) cloud.rgb.resize(3 * l.n);
+  if (l.has_intensity) cloud.intensity.resize(l.n);
+  std::size_t lines = 0;
+  for (std::size_t p = l.pos; p < raw.size() && lines < l.n;) {
+    std::size_t nl = raw.find('\n', p);
+    if (nl == std::string::npos) nl = raw.size();
+    const char* b = raw.data() + p;
+    const char* e = raw.data() + nl;
+    p = nl + 1;
+    if (first_token(b, e).empty()) continue;
+    std::string problem = check_ascii_line(b, e, l.values);
+    if (problem.empty()) {
+      problem = decode_ascii_line(b, e, l, cloud.xyz.col(static_cast<Eigen::Index>(lines)).data(),
+                                  l.has_rgb ? cloud.rgb.data() + 3 * lines : nullptr, l.has_intensity ? &cloud.intensity[lines] : nullptr);
+    }
+    ++lines;
+    if (!problem.empty()) throw InputError("load_cloud: " + name + ": data line " + std::to_string(lines) + ": " + problem);
+  }
+  if (lines < l.n) {
+    throw InputError("load_cloud: " + name + ": truncated: the header declares " + std::to_string(l.n) + " points but only " +
+                     std::to_string(lines) + " data lines follow");
+  }
+  return cloud;
+}
+
 // A DATA ascii PCD read in blocks of lines (point_stream.hpp): the first `n` data lines (lines
-// with a token; validate_pcd's rule), each checked as the whole read checks it (check_ascii_line:
-// exactly `values` numbers; the same words, "data line K"), x y z taken by ascii_value. The
-// whole read hands the body to PCL, which has no chunked read; the points are the same
-// (tests/pipeline/point_stream_test.cpp compares them).
+// with a token; validate_pcd's rule), each checked and decoded as the whole read
+// (read_ascii_body) does it (check_ascii_line, decode_ascii_line; the same words, "data line
+// K"): x y z, and the colour and the intensity when the header has them. PCL's reader is the
+// tests' oracle (tests/pipeline/point_stream_test.cpp).
 class PcdAsciiStream final : public LineStream {
  public:
   PcdAsciiStream(std::unique_ptr<ByteSource> src, const PcdLayout& l) : LineStream(std::move(src)), l_(l) {
     total_ = l_.n;
     src_->seek(l_.pos);
     start_lines();
-    notes_ = {"PCD"};
-    if (l_.has_rgb || l_.has_intensity) notes_.push_back(kAsciiColourNote);  // as the whole read says
-    notes_.push_back("PCD ascii, " + std::to_string(l_.n) + " points (lines streamed in chunks)");
+    notes_ = {kAsciiNote, "PCD ascii, " + std::to_string(l_.n) + " points (lines streamed in chunks)"};
   }
 
  private:
   void fill(std::size_t max) override {
     const char* b = nullptr;
     const char* e = nullptr;
-    std::array<const char*, 3> tb{}, te{};
+    double xyz[3];
+    std::uint8_t rgb[3];
+    float intensity = 0.0f;
     while (max > 0 && done_ < l_.n) {
       if (!lines_->next(b, e)) {
         throw InputError("load_cloud: " + name_ + ": truncated: the header declares " + std::to_string(l_.n) +
                          " points but only " + std::to_string(done_) + " data lines follow");
       }
       ++done_;
-      const std::string problem = check_ascii_line(b, e, l_.values);
+      std::string problem = check_ascii_line(b, e, l_.values);
+      if (problem.empty()) problem = decode_ascii_line(b, e, l_, xyz, rgb, &intensity);
       if (!problem.empty()) throw InputError("load_cloud: " + name_ + ": data line " + std::to_string(done_) + ": " + problem);
-      // The tokens of x, y and z.
-      std::size_t at = 0;
-      for (const char* p = b;; ++at) {
-        while (p < e && is_space(*p)) ++p;
-        if (p >= e) break;
-        const char* q = p;
-        while (q < e && !is_space(*q)) ++q;
-        for (std::size_t a = 0; a < 3; ++a) {
-          if (l_.axis[a].value == at) tb[a] = p, te[a] = q;
-        }
-        p = q;
-      }
-      for (std::size_t a = 0; a < 3; ++a) xyz_.push_back(ascii_value(tb[a], te[a], l_.axis[a].size));
+      xyz_.insert(xyz_.end(), xyz, xyz + 3);
+      if (l_.has_rgb) rgb_.insert(rgb_.end(), rgb, rgb + 3);
+      if (l_.has_intensity) intensity_.push_back(intensity);
       --max;
     }
   }
@@ -717,26 +721,18 @@ std::unique_ptr<PointStream> open_pcd_stream(const std::filesystem::path& path, 
   if (end_at == std::string::npos) return nullptr;
   head.resize(end_at);
   const PcdLayout layout = validate_pcd(head, name, static_cast<std::size_t>(file_bytes), /*header_only=*/true);
-  // An ascii body with an integer x, y or z field stays PCL's, read whole (PCL's integer parse
-  // of an out-of-range value is a cast of atof's double, undefined in C++).
-  bool float_axes = true;
-  for (const auto& a : layout.axis) float_axes = float_axes && a.type == 'F';
-  if (layout.data == "ascii" && float_axes) return std::make_unique<PcdAsciiStream>(std::move(src), layout);
+  if (layout.data == "ascii") return std::make_unique<PcdAsciiStream>(std::move(src), layout);
   if (layout.data == "binary_compressed") return std::make_unique<PcdCompressedStream>(path, gz, file_bytes, std::move(src), layout);
-  if (layout.data != "binary") return nullptr;  // an ascii body with an integer axis: PCL, whole
+  if (layout.data != "binary") return nullptr;  // an unknown DATA type: the whole read refuses it, naming it
   return std::make_unique<PcdStream>(std::move(src), layout);
 }
 
 ReadResult read_pcd(const ScanSource& source) {
   const PcdLayout layout = validate_pcd(source.bytes, source.display_name, source.bytes.size(), /*header_only=*/false);
-  const bool float32 = float32_axes(layout);
   ReadResult r = layout.data == "binary"              ? ReadResult{read_binary_body(source.bytes, layout), {kBinaryNote}}
                  : layout.data == "binary_compressed" ? ReadResult{read_compressed_body(source.bytes, layout, source.display_name), {kCompressedNote}}
-                                                      : ReadResult{read_with_pcl(layout.canonical_header + source.bytes.substr(layout.pos), source.path,
-                                                                                 /*from_memory=*/true, source.display_name),
-                                                                   {"PCD"}};
-  if (layout.data == "ascii" && (layout.has_rgb || layout.has_intensity)) r.notes.push_back(kAsciiColourNote);
-  r.cloud.float32_xyz = float32;
+                                                      : ReadResult{read_ascii_body(source.bytes, layout, source.display_name), {kAsciiNote}};
+  r.cloud.float32_xyz = float32_axes(layout);
   return r;
 }
 

@@ -3,8 +3,8 @@
 /// The per-format scan readers behind hc::pipeline::load_cloud (private to the pipeline; not
 /// installed, not public API). One file per format under pipeline/src/readers/:
 ///   read_ply.cpp  PLY ascii / binary_little_endian / binary_big_endian (own parser, lists too)
-///   read_pcd.cpp  PCD v0.5/v0.7 (header and data check here; binary bodies read here, also
-///                 in chunks; ascii and binary_compressed bodies parsed by PCL)
+///   read_pcd.cpp  PCD v0.5/v0.7 (header and data checked and every body read here, whole
+///                 or in chunks: binary, binary_compressed and ascii; PCL's reader the tests' oracle)
 ///   read_obj.cpp  OBJ `v x y z` lines
 ///   read_xyz.cpp  XYZ / TXT text, x y z per line
 ///   read_conf.cpp scanalyze .conf poses (read_scanalyze_conf of the public header)
@@ -91,14 +91,15 @@ ReadResult read_pts(const ScanSource& source);  ///< read_pts.cpp (Leica PTS)
 std::unique_ptr<PointStream> open_ply_stream(const std::filesystem::path& path, const std::string& name,
                                              bool points_only, bool gz = false);
 
-/// read_pcd.cpp: a PCD whose body is DATA binary, streamed in chunks (point_stream.hpp): the
-/// same points (x y z of each fixed-size record, any declared type widened as read_pcd widens
-/// it), notes and errors as read_pcd, in file order; nullptr when the body is ascii or
-/// binary_compressed (read whole through PCL), or the file has no DATA line in its first 16 MB
-/// (the whole read says what is wrong). Under gzip, opening it inflates the file once to learn
-/// its size (kept for later streams of a large file, first_look). `name` is the quoted path for
-/// messages. @throws hc::InputError, in read_pcd's words, for a bad header, a body shorter than
-/// the header declares, and bad gzip data.
+/// read_pcd.cpp: a PCD streamed in chunks (point_stream.hpp), DATA binary (records),
+/// binary_compressed (an LZF decoder per column read) or ascii (blocks of lines): the same
+/// points (x y z, any declared type widened as read_pcd widens it), colours, intensities, notes
+/// and errors as read_pcd, in file order; nullptr when the file has no DATA line in its first
+/// 16 MB (the whole read says what is wrong). Under gzip, opening it inflates the file once to
+/// learn its size (kept for later streams of a large file, first_look). `name` is the quoted
+/// path for messages. @throws hc::InputError, in read_pcd's words, for a bad header, a body
+/// shorter than the header declares, and bad gzip data; a bad data line's error comes from
+/// next() (sticky).
 std::unique_ptr<PointStream> open_pcd_stream(const std::filesystem::path& path, const std::string& name, bool gz = false);
 
 /// A read-only mapping of a whole open file (mmap, MAP_PRIVATE), released on destruction; for
