@@ -1,12 +1,10 @@
-// The PCL module hc_pcl.so (interface pipeline/src/pcl_module.h): PCL's PCD reader and filter
-// classes behind a C interface, loaded by hc::pipeline on first use so that no other command
+// The PCL module hc_pcl.so (interface pipeline/src/pcl_module.h): PCL's filter classes behind a C interface, loaded by hc::pipeline on first use so that no other command
 // pays PCL's start-up. Each entry point catches every exception; nothing C++ crosses the
-// boundary. The host (pcl_filters.cpp, filters.cpp, readers/read_pcd.cpp) checks the parameters,
+// boundary. The host (pcl_filters.cpp, filters.cpp) checks the parameters,
 // copies the points in and maps the result back onto its cloud.
 
 #include "pcl_module.h"
 
-#include <pcl/PCLPointCloud2.h>
 #include <pcl/exceptions.h>
 #include <pcl/filters/approximate_voxel_grid.h>
 #include <pcl/filters/crop_box.h>
@@ -15,7 +13,6 @@
 #include <pcl/filters/statistical_outlier_removal.h>
 #include <pcl/filters/uniform_sampling.h>
 #include <pcl/filters/voxel_grid.h>
-#include <pcl/io/pcd_io.h>
 #include <pcl/point_cloud.h>
 #include <pcl/point_types.h>
 #include <pcl/search/kdtree.h>
@@ -40,10 +37,6 @@ namespace {
 
 using PointCloudXYZ = pcl::PointCloud<pcl::PointXYZ>;
 
-void put(char* out, std::size_t size, const std::string& text) noexcept {
-  std::snprintf(out, size, "%s", text.c_str());
-}
-
 // For the catch blocks: no allocation, so nothing can throw out of an entry point.
 void put_c(char* out, std::size_t size, const char* a, const char* b = "") noexcept {
   std::snprintf(out, size, "%s%s", a, b);
@@ -56,62 +49,6 @@ T* copy_out(const std::vector<T>& v) {
   if (p == nullptr) throw std::bad_alloc();
   std::memcpy(p, v.data(), v.size() * sizeof(T));
   return p;
-}
-
-template <class T>
-double read_as_double(const std::uint8_t* p) {
-  T v;
-  std::memcpy(&v, p, sizeof(T));
-  return static_cast<double>(v);
-}
-
-double read_field(const std::uint8_t* p, std::uint8_t datatype) {
-  switch (datatype) {
-    case pcl::PCLPointField::INT8: return read_as_double<std::int8_t>(p);
-    case pcl::PCLPointField::UINT8: return read_as_double<std::uint8_t>(p);
-    case pcl::PCLPointField::INT16: return read_as_double<std::int16_t>(p);
-    case pcl::PCLPointField::UINT16: return read_as_double<std::uint16_t>(p);
-    case pcl::PCLPointField::INT32: return read_as_double<std::int32_t>(p);
-    case pcl::PCLPointField::UINT32: return read_as_double<std::uint32_t>(p);
-    case pcl::PCLPointField::FLOAT32: return read_as_double<float>(p);
-    case pcl::PCLPointField::FLOAT64: return read_as_double<double>(p);
-    default: return std::numeric_limits<double>::quiet_NaN();
-  }
-}
-
-// x, y, z of every point of a PCLPointCloud2, each field in its own type; an error message
-// (empty on success).
-std::string to_xyz(const pcl::PCLPointCloud2& pc, const std::string& name, std::vector<double>& xyz) {
-  const pcl::PCLPointField* f[3] = {nullptr, nullptr, nullptr};
-  const char* names[3] = {"x", "y", "z"};
-  for (const auto& field : pc.fields) {
-    for (int a = 0; a < 3; ++a) {
-      if (field.name == names[a]) f[a] = &field;
-    }
-  }
-  for (int a = 0; a < 3; ++a) {
-    if (!f[a]) return "load_cloud: " + name + " has no '" + names[a] + "' field";
-    if (f[a]->datatype < pcl::PCLPointField::INT8 || f[a]->datatype > pcl::PCLPointField::FLOAT64) {
-      return "load_cloud: " + name + ": field '" + names[a] + "' has an unsupported type";
-    }
-  }
-  const std::size_t n = static_cast<std::size_t>(pc.width) * pc.height;
-  if (pc.data.size() < n * pc.point_step) {
-    return "load_cloud: " + name + ": PCL returned " + std::to_string(pc.data.size()) + " bytes for " +
-           std::to_string(n) + " points (file truncated?)";
-  }
-  xyz.resize(3 * n);
-  const std::uint8_t* base = pc.data.data();
-  const bool all_float = f[0]->datatype == pcl::PCLPointField::FLOAT32 && f[1]->datatype == pcl::PCLPointField::FLOAT32 &&
-                         f[2]->datatype == pcl::PCLPointField::FLOAT32;
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::uint8_t* p = base + i * pc.point_step;
-    for (int a = 0; a < 3; ++a) {
-      xyz[3 * i + static_cast<std::size_t>(a)] =
-          all_float ? read_as_double<float>(p + f[a]->offset) : read_field(p + f[a]->offset, f[a]->datatype);
-    }
-  }
-  return {};
 }
 
 // The filter of the job; the kept indices (subset filters) or the new points in `out`.
@@ -273,52 +210,6 @@ extern "C" __attribute__((visibility("default"))) int hc_pcl_filter(const HcPclF
     result->xyz = nullptr;
     put_c(result->what, sizeof result->what, "PCL failed");
     put_c(result->detail, sizeof result->detail, "an unknown exception");
-  }
-  return 1;
-}
-
-extern "C" __attribute__((visibility("default"))) int hc_pcl_read_pcd(int abi, const char* path, const char* display_name,
-                                                                     HcPcdResult* result) {
-  if (path == nullptr || display_name == nullptr || result == nullptr) return 1;
-  *result = HcPcdResult{};
-  if (abi != HC_PCL_ABI) {
-    std::snprintf(result->detail, sizeof result->detail, "load_cloud: %s: the PCL module speaks ABI %d, the host %d",
-                  display_name, HC_PCL_ABI, abi);
-    return 1;
-  }
-  try {
-    const std::string name = display_name;
-    pcl::PCLPointCloud2 pc;
-    int rc = -1;
-    try {
-      pcl::PCDReader reader;
-      rc = reader.read(path, pc);
-    } catch (const std::exception& e) {
-      put(result->detail, sizeof result->detail, "load_cloud: " + name + ": PCL's PCD reader failed: " + e.what());
-      return 1;
-    }
-    if (rc < 0) {
-      put(result->detail, sizeof result->detail,
-          "load_cloud: " + name + ": PCL's PCD reader rejected the file (malformed header or data; its message is above)");
-      return 1;
-    }
-    std::vector<double> xyz;
-    const std::string why = to_xyz(pc, name, xyz);
-    if (!why.empty()) {
-      put(result->detail, sizeof result->detail, why);
-      return 1;
-    }
-    result->xyz = copy_out(xyz);
-    result->n = xyz.size() / 3;
-    return 0;
-  } catch (const std::exception& e) {
-    std::free(result->xyz);
-    result->xyz = nullptr;
-    std::snprintf(result->detail, sizeof result->detail, "load_cloud: %s: %s", display_name, e.what());
-  } catch (...) {
-    std::free(result->xyz);
-    result->xyz = nullptr;
-    std::snprintf(result->detail, sizeof result->detail, "load_cloud: %s: an unknown exception in the PCL module", display_name);
   }
   return 1;
 }

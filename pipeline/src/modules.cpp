@@ -69,11 +69,10 @@ const PclModule& pcl_module(const std::string& who) {
   static std::once_flag once;
   std::call_once(once, [] {
     const LoadedModule m =
-        load_module("hc_pcl.so", "HC_PCL_MODULE", {HC_PCL_FILTER_SYMBOL, HC_PCL_READ_PCD_SYMBOL, HC_PCL_FREE_SYMBOL});
+        load_module("hc_pcl.so", "HC_PCL_MODULE", {HC_PCL_FILTER_SYMBOL, HC_PCL_FREE_SYMBOL});
     tried = m.tried;
     if (!m.handle) return;
     module.filter = reinterpret_cast<HcPclFilterFn>(dlsym(m.handle, HC_PCL_FILTER_SYMBOL));
-    module.read_pcd = reinterpret_cast<HcPclReadPcdFn>(dlsym(m.handle, HC_PCL_READ_PCD_SYMBOL));
     module.free = reinterpret_cast<HcPclFreeFn>(dlsym(m.handle, HC_PCL_FREE_SYMBOL));
     module.path = m.path;
   });

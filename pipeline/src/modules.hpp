@@ -28,7 +28,6 @@ LoadedModule load_module(const char* file_name, const char* env_var, std::initia
 /// The PCL module's entry points (pcl_module.h), loaded on the first call.
 struct PclModule {
   HcPclFilterFn filter = nullptr;
-  HcPclReadPcdFn read_pcd = nullptr;
   HcPclFreeFn free = nullptr;
   std::string path;
 };

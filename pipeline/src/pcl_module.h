@@ -1,6 +1,6 @@
 /* The interface between hc::pipeline and the PCL module hc_pcl.so (pipeline/pcl/pcl_module.cpp),
- * which links PCL. The pipeline loads the module with dlopen when a run first needs PCL: a PCD
- * file (read with pcl::PCDReader), filters.voxel_m (pcl::VoxelGrid) or a filters.pcl stage. No
+ * which links PCL. The pipeline loads the module with dlopen when a run first needs PCL:
+ * filters.voxel_m (pcl::VoxelGrid) or a filters.pcl stage. No
  * other command loads PCL's libraries and VTK, about 50 ms of every start (bench/README.md,
  * "Start-up"). Plain C data only: the two sides share no C++ types, exceptions or allocations
  * (what the module allocates, hc_pcl_free releases). Private to hc::pipeline. */
@@ -70,20 +70,7 @@ typedef struct HcPclFilterResult {
 typedef int (*HcPclFilterFn)(const HcPclFilterJob* job, HcPclFilterResult* result);
 #define HC_PCL_FILTER_SYMBOL "hc_pcl_filter"
 
-/* A PCD file read by pcl::PCDReader: x, y and z of every point as double (each field read in its
- * own declared type). On failure `detail` holds the whole message. */
-typedef struct HcPcdResult {
-  double* xyz;                  /* 3 · n values */
-  size_t n;
-  char detail[1024];
-} HcPcdResult;
-
-/* Returns 0 on success, else non-zero with `result->detail` set; `abi` is HC_PCL_ABI (a module of
- * another ABI refuses); `display_name` names the file in messages. */
-typedef int (*HcPclReadPcdFn)(int abi, const char* path, const char* display_name, HcPcdResult* result);
-#define HC_PCL_READ_PCD_SYMBOL "hc_pcl_read_pcd"
-
-/* Releases what the module allocated (HcPclFilterResult::kept / xyz, HcPcdResult::xyz). */
+/* Releases what the module allocated (HcPclFilterResult::kept / xyz). */
 typedef void (*HcPclFreeFn)(void* p);
 #define HC_PCL_FREE_SYMBOL "hc_pcl_free"
 
