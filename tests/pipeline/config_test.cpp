@@ -166,11 +166,11 @@ TEST(Config, BandMegabytesAreReadAndBlockCopiesIsRefusedByName) {
   EXPECT_NE(what.find("delete the key"), std::string::npos) << what;
 }
 
-// scale.max_gatherings: 1 to 64 gatherings of a band's strays, 8 by default; a value outside,
+// scale.max_gatherings: 1 to 64 gatherings of a band's strays, 32 by default (8 until 2026-11-28); a value outside,
 // or not a whole number, is refused naming the key.
 TEST(Config, MaxGatheringsIsReadWithinItsRange) {
   const auto most = [](const std::string& extra) { return parse_run_config(kMinimal + extra, "configs/test.yaml").scale.max_gatherings; };
-  EXPECT_EQ(most(""), 8);
+  EXPECT_EQ(most(""), 32);
   EXPECT_EQ(most("scale: {max_gatherings: 1}\n"), 1);
   EXPECT_EQ(most("scale: {max_gatherings: 64}\n"), 64);
   for (const char* bad : {"0", "65", "2.5", "many"}) {

@@ -758,7 +758,7 @@ TEST(TiledRun, ASpillRemovedBeforeTheStraysAreGatheredStopsTheRunNamingItAndLeav
 // with every ball twice as wide and a cell more (sum_robust_balls_grown), reaching the patch.
 // Oracle: the in-core run's grid, bit for bit, and its removals. Mutation: judging the blob
 // alone throws (fewer than k + 2 points); not growing the balls gathers nothing more and stops
-// after scale.max_gatherings (8) gatherings with an InputError.
+// after scale.max_gatherings (32) gatherings with an InputError.
 TEST(TiledRun, StraysWhoseBallsHoldTooFewPointsAreGatheredWithWiderBalls) {
   const fs::path dir = hc::test::temp_dir("grown_balls");
   const std::string yaml =
