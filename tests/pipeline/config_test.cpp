@@ -166,7 +166,7 @@ TEST(Config, BandMegabytesAreReadAndBlockCopiesIsRefusedByName) {
   EXPECT_NE(what.find("delete the key"), std::string::npos) << what;
 }
 
-// scale.max_gatherings: 1 to 64 gatherings of a band's strays, 32 by default (8 until 2026-11-28); a value outside,
+// scale.max_gatherings: 1 to 64 gatherings of a band's strays, 32 by default (8 until the forty-second session); a value outside,
 // or not a whole number, is refused naming the key.
 TEST(Config, MaxGatheringsIsReadWithinItsRange) {
   const auto most = [](const std::string& extra) { return parse_run_config(kMinimal + extra, "configs/test.yaml").scale.max_gatherings; };

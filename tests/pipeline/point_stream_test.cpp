@@ -1115,7 +1115,7 @@ TEST(PointStream, AsciiPcdStreamsThePointsPclReads) {
   expect_stream_equals_load_cloud(mixed, "PCD ascii, 60000 points (lines streamed in chunks)");
   expect_stream_equals_load_cloud(floats, "PCD ascii, 50001 points (lines streamed in chunks)");
   expect_stream_equals_load_cloud(bunny, "PCD ascii, 397 points (lines streamed in chunks)");
-  // An integer z field (int32) streams too (until 2026-11-28 PCL read it whole at every pass).
+  // An integer z field (int32) streams too (until the forty-second session, 2026-11-27, PCL read it whole at every pass).
   expect_stream_equals_load_cloud(int_z, "PCD ascii, 3000 points (lines streamed in chunks)");
   {
     const Cloud whole = hc::pipeline::load_cloud(mixed).value;
@@ -1192,7 +1192,7 @@ TEST(PointStream, PcdOfUnknownDataTypeIsRefusedBeforeItsRecordsAreSized) {
   EXPECT_EQ(streamed, whole);
 }
 
-// An ascii PCD's colour and intensity (until 2026-11-28 only x y z were read from an ascii body):
+// An ascii PCD's colour and intensity (until the forty-second session, 2026-11-27, only x y z were read from an ascii body):
 // files written by PCL's own ascii writer give PCL's own reader's colours and intensities, and
 // the values written, whole and streamed; a packed colour declared TYPE F (older PCL's layout)
 // is the float's bits; an integer field holds an integer of its range or the file is refused,

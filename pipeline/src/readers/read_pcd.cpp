@@ -4,7 +4,7 @@
 // body is then read here too, whole (read_pcd) or in chunks (open_pcd_stream) by the same
 // decoders: a DATA binary body's records (PCL crashed on a fuzzed binary file with a sound
 // header), a binary_compressed one's LZF block (lzf_reader.hpp, which the streamed read needs
-// anyway) and an ascii body's lines (since 2026-11-28: before, PCL parsed the whole read's and
+// anyway) and an ascii body's lines (since 2026-11-27, forty-second session: before, PCL parsed the whole read's and
 // an integer axis kept the file from streaming), each with its packed rgb/rgba colour and its
 // intensity field. PCL's own reader is the tests' oracle (tests/support/pcl_pcd_writer.hpp).
 

@@ -125,7 +125,7 @@ struct ScaleConfig {
   /// still leave the balls gathered (or those hold fewer than k + 2 points) after this many, the
   /// run stops with an InputError naming the tiles and the keys (tiled_run.cpp, judge_strays;
   /// docs/scale.md, step 3). The 10⁸ wall gathers twice in its one band; the 10⁷ wall with its
-  /// coordinates rounded to whole millimetres 11 times (8 until 2026-11-28, which stopped it).
+  /// coordinates rounded to whole millimetres 11 times (8 until the forty-second session, 2026-11-27, which stopped it).
   int max_gatherings = 32;
   double progress_interval_s = 1.0;  ///< least time between progress calls within a stage [s], 0 to 3600
   /// The tiled scene on disk (scene_io.hpp format 3, LodPyramid::open_stored): every layer in
