@@ -96,6 +96,8 @@ void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std:
       case T::INT32: return get(std::int32_t{});
       case T::UINT32: return get(std::uint32_t{});
       case T::FLOAT32: return get(float{});
+      case T::INT64: return get(std::int64_t{});
+      case T::UINT64: return get(std::uint64_t{});
       default: return get(double{});
     }
   };

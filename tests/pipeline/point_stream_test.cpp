@@ -1266,9 +1266,12 @@ TEST(PointStream, AsciiPcdColourAndIntensityAreReadAndIntegersChecked) {
     (void)expect_chunks_equal(dir / "float_rgb.pcd", whole, 7);
   }
   // Integer fields: int8 x, int16 y, int32 z, a U4 rgb and a uint16 intensity, the extremes of
-  // each range read (PCL's reader the oracle); int64 and uint64 (which PCL 1.13 does not read)
-  // against the values written; one value past a range, a fraction, a sign on an unsigned field
-  // or "nan" in an integer field refuses the file on its line, whole and streamed.
+  // each range read (PCL's reader the oracle); int64 and uint64 against the values written (PCL
+  // 1.13 reads them through a double, wrong at the ends of their ranges); decimals whose values
+  // are integers ("255.000000", "1e3", "-0") against the values written (PCL's stream parse
+  // reads "1e3" as 1); one value past a range, a fraction, a minus sign on an unsigned field, "nan"
+  // or "+-1" refuses the file on its line, whole and streamed, and so does a header declaring more
+  // points than its body's bytes can hold (before anything is sized for them).
   const std::string head =
       "VERSION 0.7\nFIELDS x y z rgb intensity\nSIZE 1 2 4 4 2\nTYPE I I I U U\nCOUNT 1 1 1 1 1\nWIDTH 4\nHEIGHT 1\nPOINTS 4\nDATA ascii\n";
   const std::string two = "-128 32767 -2147483648 4294967295 65535\n127 -32768 2147483647 0 0\n";
@@ -1294,11 +1297,31 @@ TEST(PointStream, AsciiPcdColourAndIntensityAreReadAndIntegersChecked) {
     EXPECT_EQ(whole.xyz(1, 1), 9007199254740992.0);
     (void)expect_chunks_equal(dir / "ints64.pcd", whole, 1);
   }
+  hc::test::write_bytes(dir / "decimals.pcd", "VERSION 0.7\nFIELDS x y z rgb intensity\nSIZE 4 2 8 4 2\nTYPE I U I U U\nWIDTH 2\nPOINTS 2\n"
+                                              "DATA ascii\n1.0 -0 1e3 255.000000 7.0\n-2.5e1 +0 -0.0 1.6777215e7 65535.0\n");
+  {
+    const Cloud whole = hc::pipeline::load_cloud(dir / "decimals.pcd").value;
+    ASSERT_EQ(whole.size(), 2U);
+    EXPECT_EQ(whole.xyz.col(0), Eigen::Vector3d(1.0, 0.0, 1000.0));
+    EXPECT_EQ(whole.xyz.col(1), Eigen::Vector3d(-25.0, 0.0, 0.0));
+    EXPECT_EQ(whole.rgb, (std::vector<std::uint8_t>{0, 0, 255, 255, 255, 255}));
+    EXPECT_EQ(whole.intensity, (std::vector<float>{7.0f, 65535.0f}));
+    (void)expect_chunks_equal(dir / "decimals.pcd", whole, 1);
+  }
   const std::vector<std::pair<std::string, std::string>> bad = {
       {"x_past.pcd", "128 0 0 0 0"},        {"y_fraction.pcd", "0 1.5 0 0 0"}, {"rgb_sign.pcd", "0 0 0 -5 0"},
-      {"intensity_past.pcd", "0 0 0 0 70000"}, {"z_nan.pcd", "0 0 nan 0 0"},    {"z_past.pcd", "0 0 2147483648 0 0"}};
+      {"intensity_past.pcd", "0 0 0 0 70000"}, {"z_nan.pcd", "0 0 nan 0 0"},    {"z_past.pcd", "0 0 2147483648 0 0"},
+      {"plus_minus.pcd", "0 0 +-1 0 0"},    {"rgb_minus_decimal.pcd", "0 0 0 -1.0 0"}};
   for (const auto& [name, line] : bad) hc::test::write_bytes(dir / name, head + two + line + "\n0 0 0 0 0\n");
-  expect_stream_fails_as_whole_read_at_any_point(dir, {"x_past.pcd", "y_fraction.pcd", "rgb_sign.pcd", "intensity_past.pcd", "z_nan.pcd", "z_past.pcd"});
+  // 3·10^6 points declared, one data line and 3·10^6 line ends; a DATA line the file ends in.
+  const std::string bomb = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 3000000\nPOINTS 3000000\nDATA ascii\n1 2 3\n" + std::string(3000000, '\n');
+  hc::test::write_bytes(dir / "bomb.pcd", bomb);
+  hc::test::write_gzip(dir / "bomb.pcd.gz", bomb);
+  const std::string bare = "VERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nWIDTH 1\nPOINTS 1\nDATA ascii";
+  hc::test::write_bytes(dir / "bare.pcd", bare);
+  hc::test::write_gzip(dir / "bare.pcd.gz", bare);
+  expect_stream_fails_as_whole_read_at_any_point(dir, {"x_past.pcd", "y_fraction.pcd", "rgb_sign.pcd", "intensity_past.pcd", "z_nan.pcd", "z_past.pcd",
+                                                       "plus_minus.pcd", "rgb_minus_decimal.pcd", "bomb.pcd", "bomb.pcd.gz", "bare.pcd", "bare.pcd.gz"});
   const auto says = [&](const std::string& name, const std::string& text) {
     const std::string what = hc::test::error_of([&] { hc::pipeline::load_cloud(dir / name); });
     EXPECT_NE(what.find(text), std::string::npos) << what;
@@ -1309,6 +1332,12 @@ TEST(PointStream, AsciiPcdColourAndIntensityAreReadAndIntegersChecked) {
   says("intensity_past.pcd", "field 'intensity' (TYPE U SIZE 2) holds '70000': expected an integer from 0 to 65535");
   says("z_nan.pcd", "field 'z' (TYPE I SIZE 4) holds 'nan'");
   says("z_past.pcd", "holds '2147483648': expected an integer from -2147483648 to 2147483647");
+  says("plus_minus.pcd", "data line 3: '+-1' is not a number");
+  says("rgb_minus_decimal.pcd", "field 'rgb' (TYPE U SIZE 4) holds '-1.0': expected an integer from 0 to 4294967295");
+  for (const char* name : {"bomb.pcd", "bomb.pcd.gz"}) {
+    says(name, "truncated: the header declares 3000000 points of 3 values, but the 3000006 bytes after it hold at most 500001 data lines");
+  }
+  for (const char* name : {"bare.pcd", "bare.pcd.gz"}) says(name, "truncated: the header declares 1 points of 3 values, but the 0 bytes after it hold at most 0 data lines");
 }
 
 // A binary PLY whose vertex element holds list properties (records of their own lengths) among

@@ -23,6 +23,7 @@
 #include <array>
 #include <cerrno>
 #include <charconv>
+#include <cmath>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
@@ -337,7 +338,16 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
   }
   if (points == 0) throw fail("the PCD header declares 0 points");
   const auto n = static_cast<std::size_t>(points);
-  const std::size_t have = pos < file_bytes ? file_bytes - pos : 0;
+  pos = std::min(pos, file_bytes);  // a DATA line the file ends in, unterminated: the body is empty
+  const std::size_t have = file_bytes - pos;
+  // An ascii data line takes at least 2 bytes a value (a digit and a blank or the line's end):
+  // a header declaring more points than the body can hold is refused before anything is sized
+  // for them.
+  if (data == "ascii" && n > (have + 1) / (2 * values)) {
+    throw fail("truncated: the header declares " + std::to_string(n) + " points of " + std::to_string(values) +
+               " values, but the " + std::to_string(have) + " bytes after it hold at most " + std::to_string((have + 1) / (2 * values)) +
+               " data lines");
+  }
   layout.data = data;
   layout.pos = pos;
   layout.n = n;
@@ -506,8 +516,7 @@ class PcdCompressedStream final : public PcdChunks {
 /// separators in it) as PCL's ASCII reader (pcl::PCDReader::readBodyASCII, copyStringValue in
 /// pcl/io/file_io.h, PCL 1.13) stores it in an F field: "nan" in any case is the quiet NaN;
 /// else the C locale's strtof (SIZE 4) or strtod (SIZE 8), which libstdc++'s istream >> float
-/// calls, a value beyond float's range ±inf as PCL's atof fallback then gives. Only float
-/// fields are streamed (open_pcd_stream).
+/// calls, a value beyond float's range ±inf as PCL's atof fallback then gives.
 double ascii_value(const char* b, const char* e, int size) {
   const std::size_t len = static_cast<std::size_t>(e - b);
   if (len == 3 && (b[0] | 0x20) == 'n' && (b[1] | 0x20) == 'a' && (b[2] | 0x20) == 'n') {
@@ -532,30 +541,48 @@ double ascii_value(const char* b, const char* e, int size) {
 }
 
 /// One integer value of an ascii data line (a token check_numeric_line read) as an I or U field
-/// of `size` bytes holds it: its little-endian bytes into out[0 .. size). Returns an empty string,
-/// or the problem: a token that is not an integer of the field's range (PCL's reader would cut
-/// "1.5" to 1 and give an out-of-range value through a cast of atof's double, undefined in C++;
-/// refused here instead, naming the value and the range).
+/// of `size` bytes holds it: its little-endian bytes into out[0 .. size). Taken: an integer of
+/// the field's range in decimal digits (a leading '+', and "-0" on U, as PCL's stream parse
+/// takes them), or a decimal number whose value is such an integer and at most 2^53 in
+/// magnitude, exactly a double ("255.000000", "1e3": a writer's %f or %g in every column). Returns
+/// an empty string, or the problem: a fraction, "nan", or a value past the range (PCL's reader
+/// would cut 1.5 to 1 and give a value out of range through a cast of atof's double, undefined
+/// in C++; refused here instead, naming the value and the range).
 std::string ascii_integer(const char* b, const char* e, const PcdLayout::Axis& f, const char* field, std::uint8_t* out) {
   const char* s = *b == '+' ? b + 1 : b;
   const int bits = 8 * f.size;
+  const std::int64_t i_hi = bits == 64 ? std::numeric_limits<std::int64_t>::max() : (std::int64_t{1} << (bits - 1)) - 1;
+  const std::uint64_t u_hi = bits == 64 ? std::numeric_limits<std::uint64_t>::max() : (std::uint64_t{1} << bits) - 1;
   bool ok = false;
   if (f.type == 'I') {
     std::int64_t v = 0;
     const auto r = std::from_chars(s, e, v);
-    const std::int64_t hi = bits == 64 ? std::numeric_limits<std::int64_t>::max() : (std::int64_t{1} << (bits - 1)) - 1;
-    ok = r.ec == std::errc() && r.ptr == e && v <= hi && v >= -hi - 1;
+    bool whole = r.ec == std::errc() && r.ptr == e;
+    if (!whole && r.ptr != e) {  // not digits alone: a decimal whose value is an integer
+      double d = 0.0;
+      const auto rd = std::from_chars(s, e, d);
+      whole = rd.ec == std::errc() && rd.ptr == e && std::abs(d) <= 0x1p53 && d == std::trunc(d);
+      v = whole ? static_cast<std::int64_t>(d) : 0;
+    }
+    ok = whole && v <= i_hi && v >= -i_hi - 1;
     if (ok) std::memcpy(out, &v, static_cast<std::size_t>(f.size));  // the low bytes: two's complement, little-endian
   } else {
     std::uint64_t v = 0;
-    const auto r = std::from_chars(s, e, v);
-    ok = r.ec == std::errc() && r.ptr == e && (bits == 64 || v >> bits == 0);
+    const bool minus_zero = s < e && *s == '-';
+    const auto r = std::from_chars(minus_zero ? s + 1 : s, e, v);
+    bool whole = r.ec == std::errc() && r.ptr == e && (!minus_zero || v == 0);
+    if (!whole && r.ptr != e) {
+      double d = 0.0;
+      const auto rd = std::from_chars(s, e, d);
+      whole = rd.ec == std::errc() && rd.ptr == e && d >= 0.0 && d <= 0x1p53 && d == std::trunc(d);
+      v = whole ? static_cast<std::uint64_t>(d) : 0;
+    }
+    ok = whole && v <= u_hi;
     if (ok) std::memcpy(out, &v, static_cast<std::size_t>(f.size));
   }
   if (ok) return {};
-  const std::string lo = f.type == 'U' ? "0" : bits == 64 ? "-9223372036854775808" : "-" + std::to_string(std::uint64_t{1} << (bits - 1));
-  const std::string hi = f.type == 'U' ? (bits == 64 ? "18446744073709551615" : std::to_string((std::uint64_t{1} << bits) - 1))
-                                       : (bits == 64 ? "9223372036854775807" : std::to_string((std::uint64_t{1} << (bits - 1)) - 1));
+  const std::string lo = f.type == 'U' ? "0" : std::to_string(-i_hi - 1);
+  const std::string hi = f.type == 'U' ? std::to_string(u_hi) : std::to_string(i_hi);
   std::string problem = std::string("field '") + field + "' (TYPE ";
   problem += f.type;
   problem += " SIZE " + std::to_string(f.size) + ") holds '" + std::string(b, static_cast<std::size_t>(std::min<std::ptrdiff_t>(e - b, 40))) +

@@ -40,7 +40,10 @@ bool parse_number(const char*& p, const char* end, T& value) {
   while (p < end && is_space(*p)) ++p;
   if (p >= end) return false;
   const char* start = p;
-  if (*start == '+') ++start;  // from_chars rejects a leading '+'
+  if (*start == '+') {  // from_chars rejects a leading '+'
+    ++start;
+    if (start < end && (*start == '-' || *start == '+')) return false;  // "+-1" is no number
+  }
   const auto res = std::from_chars(start, end, value);
   if (res.ec != std::errc()) return false;
   if (res.ptr < end && !is_space(*res.ptr)) return false;

@@ -2,8 +2,8 @@
 // hc::pipeline::load_cloud (hc/pipeline/ingest.hpp), which dispatches on the extension, and
 // through open_point_stream (hc/pipeline/point_stream.hpp), read to the end in chunks. A clear
 // hc::Error is a correct answer to bad bytes; anything else (a crash, another exception, a leak,
-// a hang) is a finding, and so is a natively streamed file whose points differ from load_cloud's
-// when both accept it (reported as std::logic_error).
+// a hang) is a finding, and so is a natively streamed file whose points, colours or intensities
+// differ from load_cloud's when both accept it (reported as std::logic_error).
 #include "../fuzz_support.hpp"
 
 #include "hc/common/error.hpp"
@@ -31,14 +31,22 @@ void scan_file(const char* extension, const std::uint8_t* data, std::size_t size
   try {
     auto stream = pipeline::open_point_stream(path);
     std::vector<double> xyz;
+    std::vector<std::uint8_t> rgb;
+    std::vector<float> intensity;
     pipeline::Cloud chunk;
-    while (stream->next(chunk, 97)) xyz.insert(xyz.end(), chunk.xyz.data(), chunk.xyz.data() + chunk.xyz.size());
+    while (stream->next(chunk, 97)) {
+      xyz.insert(xyz.end(), chunk.xyz.data(), chunk.xyz.data() + chunk.xyz.size());
+      rgb.insert(rgb.end(), chunk.rgb.begin(), chunk.rgb.end());
+      intensity.insert(intensity.end(), chunk.intensity.begin(), chunk.intensity.end());
+    }
     if (whole_ok && stream->streamed()) {
-      const bool same = xyz.size() == static_cast<std::size_t>(whole.xyz.size()) &&
-                        std::equal(xyz.begin(), xyz.end(), whole.xyz.data(), [](double a, double b) {
-                          return a == b || (a != a && b != b);  // NaN equals NaN here
-                        });
+      const auto same_value = [](double a, double b) { return a == b || (a != a && b != b); };  // NaN equals NaN here
+      const bool same = xyz.size() == static_cast<std::size_t>(whole.xyz.size()) && std::equal(xyz.begin(), xyz.end(), whole.xyz.data(), same_value);
       if (!same) throw std::logic_error(std::string("the stream's points differ from load_cloud's (") + extension + ")");
+      if (rgb != whole.rgb) throw std::logic_error(std::string("the stream's colours differ from load_cloud's (") + extension + ")");
+      if (intensity.size() != whole.intensity.size() || !std::equal(intensity.begin(), intensity.end(), whole.intensity.begin(), same_value)) {
+        throw std::logic_error(std::string("the stream's intensities differ from load_cloud's (") + extension + ")");
+      }
     }
   } catch (const hc::Error&) {
   }

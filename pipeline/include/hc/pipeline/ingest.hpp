@@ -34,8 +34,9 @@ struct LoadOptions {
 /// OBJ vertex colours become Cloud::rgb). A face element that cannot be used (truncated,
 /// indices out of range) is dropped with a note in the report, never silently.
 /// PLY is read by the project's own parser (binary records, ASCII lines), list properties
-/// included in any position of any element up to `vertex` (skipped); PCD by PCL after a
-/// header and data check. NaN values are kept (see remove_non_finite). scan_id is left empty.
+/// included in any position of any element up to `vertex` (skipped); PCD (ascii, binary and
+/// binary_compressed bodies) by the project's own reader after a header check, its x y z, packed
+/// colour and intensity the values PCL's reader gives where both accept a file. NaN values are kept (see remove_non_finite). scan_id is left empty.
 /// @return N > 0 points.
 /// @throws hc::InputError naming the file when it is missing, unreadable, empty, truncated,
 ///         declares more points than it holds, holds a non-numeric value (the message names the

@@ -18,9 +18,9 @@
 /// and errors as load_cloud; a first look at open time reads the count lines and skips the point
 /// lines unparsed); XYZ (`.xyz`, `.txt`: the same, the first look counting the point lines);
 /// ASCII PLY (lines read in blocks from the one after the header; list properties parsed and
-/// skipped; the count from the header); PCD whose body is DATA binary (`.pcd`: fixed-size records,
-/// the same points and errors as load_cloud) or DATA ascii with float axes (lines in blocks;
-/// binary_compressed bodies and integer axes are read whole, as PCL reads them); OBJ vertices
+/// skipped; the count from the header); PCD (`.pcd`: DATA binary in fixed-size records, binary_compressed
+/// through an LZF decoder per column, ascii in blocks of lines; the same points, colours,
+/// intensities and errors as load_cloud); OBJ vertices
 /// (`.obj` without faces, or with `input.as_points`). PLY, PCD, OBJ, PTX, PTS and XYZ stream under
 /// gzip too (`.ply.gz`
 /// and so on: decompressed as they are read with zlib's inflate, with load_cloud's errors; every
