@@ -104,7 +104,12 @@ void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std:
   const pcl::PCLPointField* axis[3] = {field("x"), field("y"), field("z")};
   for (const auto* a : axis)
     if (a == nullptr) throw std::runtime_error("read_pcl_pcd: no x, y or z in " + p.string());
-  const pcl::PCLPointField* colour = field("rgb") != nullptr ? field("rgb") : field("rgba");
+  // A packed colour is 4 bytes (PCL's pcl::RGB): a field named rgb or rgba of another size is none.
+  const auto packed = [](const pcl::PCLPointField* f) {
+    using T = pcl::PCLPointField;
+    return f != nullptr && (f->datatype == T::UINT32 || f->datatype == T::INT32 || f->datatype == T::FLOAT32) ? f : nullptr;
+  };
+  const pcl::PCLPointField* colour = packed(field("rgb")) != nullptr ? packed(field("rgb")) : packed(field("rgba"));
   const std::size_t n = static_cast<std::size_t>(cloud.width) * cloud.height;
   xyz.assign(3 * n, 0.0);
   rgb.assign(colour != nullptr ? 3 * n : 0, 0);

@@ -1192,6 +1192,37 @@ TEST(PointStream, PcdOfUnknownDataTypeIsRefusedBeforeItsRecordsAreSized) {
   EXPECT_EQ(streamed, whole);
 }
 
+// A field named rgb of a SIZE other than 4 holds no packed colour: not read as colour, and a
+// note says so, in the whole read and the stream, for an ascii and a binary body (the points
+// PCL's).
+TEST(PointStream, PcdColourFieldOfAnotherSizeIsNotReadAndANoteSaysSo) {
+  const fs::path dir = hc::test::temp_dir("pcd_rgb_size");
+  std::string rec;
+  for (std::uint8_t i = 0; i < 40; ++i) {
+    const float xyz[3] = {static_cast<float>(i), 0.5f, -1.0f};
+    rec.append(reinterpret_cast<const char*>(xyz), sizeof xyz);
+    rec.push_back(static_cast<char>(i));
+  }
+  const std::vector<hc::test::PcdField> fields = {{"x", 'F', 4, 1}, {"y", 'F', 4, 1}, {"z", 'F', 4, 1}, {"rgb", 'U', 1, 1}};
+  hc::test::write_pcl_compressed_pcd(dir / "binary.pcd", fields, rec, 40, 1, false);
+  hc::test::write_pcl_ascii_pcd(dir / "ascii.pcd", fields, rec, 40);
+  const std::string note = "PCD: field 'rgb' has SIZE 1, not a packed colour's 4 bytes: not read as colour";
+  for (const char* name : {"binary.pcd", "ascii.pcd"}) {
+    SCOPED_TRACE(name);
+    const auto whole = hc::pipeline::load_cloud(dir / name);
+    EXPECT_TRUE(whole.value.rgb.empty());
+    EXPECT_NE(std::find(whole.report.notes.begin(), whole.report.notes.end(), note), whole.report.notes.end());
+    std::vector<double> xyz;
+    std::vector<std::uint8_t> rgb;
+    std::vector<float> intensity;
+    hc::test::read_pcl_pcd(dir / name, xyz, rgb, intensity);
+    EXPECT_TRUE(same_xyz(whole.value.xyz, Eigen::Map<const Eigen::Matrix3Xd>(xyz.data(), 3, 40)));
+    const auto s = hc::pipeline::open_point_stream(dir / name);
+    EXPECT_NE(std::find(s->notes().begin(), s->notes().end(), note), s->notes().end());
+    (void)expect_chunks_equal(dir / name, whole.value, 7);
+  }
+}
+
 // An ascii PCD's colour and intensity (until the forty-second session, 2026-11-27, only x y z were read from an ascii body):
 // files written by PCL's own ascii writer give PCL's own reader's colours and intensities, and
 // the values written, whole and streamed; a packed colour declared TYPE F (older PCL's layout)

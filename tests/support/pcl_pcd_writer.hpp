@@ -36,7 +36,7 @@ void write_pcl_ascii_pcd(const std::filesystem::path& p, const std::vector<PcdFi
 
 /// What PCL's own reader (pcl::PCDReader into a pcl::PCLPointCloud2, PCL 1.13) gives for `p`:
 /// x y z of every point as doubles (3 per point, each field's declared type converted); when a
-/// field is named rgb or rgba, R G B from its packed value (0x??RRGGBB; else empty); when one
+/// field of 4 bytes is named rgb (else rgba), R G B from its packed value (0x??RRGGBB; else empty); when one
 /// is named intensity, its values as floats (else empty).
 /// @throws std::runtime_error when PCL cannot read the file or it lacks x, y or z.
 void read_pcl_pcd(const std::filesystem::path& p, std::vector<double>& xyz, std::vector<std::uint8_t>& rgb,

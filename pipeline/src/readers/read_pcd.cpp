@@ -67,6 +67,9 @@ struct PcdLayout {
   bool has_rgb = false;
   Axis rgb;
   std::string rgb_name;         ///< rgb or rgba, for messages
+  /// When the first field named rgb or rgba has a SIZE other than 4 (no packed colour): a note
+  /// that says it is not read; else empty.
+  std::string colour_note;
   /// The intensity: the first field named intensity (its first value, as the scanner stored it).
   bool has_intensity = false;
   Axis intensity;
@@ -315,6 +318,9 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
       layout.rgb = {point_bytes, values, t[0], 4, 4 * static_cast<std::size_t>(c)};
       layout.rgb_name = fields[i];
     }
+    if ((fields[i] == "rgb" || fields[i] == "rgba") && z != "4" && !layout.has_rgb && layout.colour_note.empty()) {
+      layout.colour_note = "PCD: field '" + fields[i] + "' has SIZE " + z + ", not a packed colour's 4 bytes: not read as colour";
+    }
     for (int a = 0; a < 3; ++a) {
       if (fields[i] == std::string(1, static_cast<char>('x' + a)) && !axis_seen[a]) {
         axis_seen[a] = true;
@@ -425,6 +431,7 @@ class PcdStream final : public PcdChunks {
  public:
   PcdStream(std::unique_ptr<ByteSource> src, const PcdLayout& l) : PcdChunks(src->name(), l), src_(std::move(src)) {
     notes_.push_back(kBinaryNote);
+    if (!l_.colour_note.empty()) notes_.push_back(l_.colour_note);
     notes_.push_back("PCD binary, " + std::to_string(l_.n) + " points (fixed-size records streamed in chunks)");
     src_->seek(l_.pos);
   }
@@ -463,6 +470,7 @@ class PcdCompressedStream final : public PcdChunks {
                       const PcdLayout& l)
       : PcdChunks(first->name(), l) {
     notes_.push_back(kCompressedNote);
+    if (!l_.colour_note.empty()) notes_.push_back(l_.colour_note);
     notes_.push_back("PCD binary_compressed, " + std::to_string(l_.n) + " points (one LZF block decoded as it is read, a decoder per column)");
     // The block's sizes (validate_pcd checked the header's: the file holds the block, which
     // unpacks to n records' bytes).
@@ -686,7 +694,9 @@ class PcdAsciiStream final : public LineStream {
     total_ = l_.n;
     src_->seek(l_.pos);
     start_lines();
-    notes_ = {kAsciiNote, "PCD ascii, " + std::to_string(l_.n) + " points (lines streamed in chunks)"};
+    notes_ = {kAsciiNote};
+    if (!l_.colour_note.empty()) notes_.push_back(l_.colour_note);
+    notes_.push_back("PCD ascii, " + std::to_string(l_.n) + " points (lines streamed in chunks)");
   }
 
  private:
@@ -759,6 +769,7 @@ ReadResult read_pcd(const ScanSource& source) {
   ReadResult r = layout.data == "binary"              ? ReadResult{read_binary_body(source.bytes, layout), {kBinaryNote}}
                  : layout.data == "binary_compressed" ? ReadResult{read_compressed_body(source.bytes, layout, source.display_name), {kCompressedNote}}
                                                       : ReadResult{read_ascii_body(source.bytes, layout, source.display_name), {kAsciiNote}};
+  if (!layout.colour_note.empty()) r.notes.push_back(layout.colour_note);
   r.cloud.float32_xyz = float32_axes(layout);
   return r;
 }
