@@ -1551,12 +1551,13 @@ TEST(TiledRun, EqualsTheInCoreRunOnAPtxFileStreamedLineByLine) {
 // one by one) and as an OBJ mesh's coloured vertices (input.as_points): each read
 // in blocks of lines at every pass gives the in-core scene in tiles, colour included, and auto
 // counts its points with the first look.
-TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzPlyObjAndBinaryPcdFilesStreamedInChunks) {
+TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzPlyObjAndPcdFilesStreamedInChunks) {
   const fs::path dir = hc::test::temp_dir("pts_scan");
   {
     std::ofstream pts(dir / "plate.pts", std::ios::binary), xyz(dir / "plate.xyz", std::ios::binary);
     std::ofstream ply(dir / "plate.ply", std::ios::binary), pcd(dir / "plate.pcd", std::ios::binary);
     std::ofstream obj(dir / "plate.obj", std::ios::binary), lists(dir / "plate_lists.ply", std::ios::binary);
+    std::ofstream apcd(dir / "plate_ascii.pcd", std::ios::binary);
     xyz << "# the plate, x y z\n";
     // Binary, with list properties among the vertex's own (records of their own lengths).
     lists << "ply\nformat binary_little_endian 1.0\nelement vertex 120000\nproperty float x\nproperty list uchar int ids\n"
@@ -1564,9 +1565,14 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzPlyObjAndBinaryPcdFilesStreamedInChunks
     obj << "# the plate as a mesh's vertices with colour, and faces the run does not read\n";
     ply << "ply\nformat ascii 1.0\nelement vertex 120000\nproperty double x\nproperty double y\nproperty double z\n"
         << "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n";
-    // Float x y z (the spill keeps the file's own floats) and a packed rgb field the reader skips.
+    // Float x y z (the spill keeps the file's own floats) and a packed rgb field (read since the
+    // forty-first session).
     pcd << "# .PCD v0.7\nVERSION 0.7\nFIELDS x y z rgb\nSIZE 4 4 4 4\nTYPE F F F U\nCOUNT 1 1 1 1\nWIDTH 120000\n"
         << "HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 120000\nDATA binary\n";
+    // The same as an ascii body with a uint16 intensity (colour and intensity of ascii bodies
+    // read since the forty-second session).
+    apcd << "VERSION 0.7\nFIELDS x y z rgb intensity\nSIZE 4 4 4 4 2\nTYPE F F F U U\nCOUNT 1 1 1 1 1\nWIDTH 120000\nHEIGHT 1\n"
+         << "POINTS 120000\nDATA ascii\n";
     const int cols = 300, rows = 200;
     for (int block = 0; block < 2; ++block) {
       pts << cols * rows << "\r\n";
@@ -1582,6 +1588,10 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzPlyObjAndBinaryPcdFilesStreamedInChunks
         const std::uint32_t rgb = 0x00C80000u | static_cast<std::uint32_t>(k % 256);
         pcd.write(reinterpret_cast<const char*>(f), sizeof f);
         pcd.write(reinterpret_cast<const char*>(&rgb), sizeof rgb);
+        char line[96];
+        std::snprintf(line, sizeof line, "%.9g %.9g %.9g %u %d\n", static_cast<double>(f[0]), static_cast<double>(f[1]), static_cast<double>(f[2]), rgb,
+                      k % 4096);
+        apcd << line;
         const auto items = static_cast<unsigned char>(k % 5);
         const unsigned char colour[3] = {static_cast<unsigned char>(k % 256), static_cast<unsigned char>((7 * k) % 256), 200};
         lists.write(reinterpret_cast<const char*>(f), 4);
@@ -1612,6 +1622,11 @@ TEST(TiledRun, EqualsTheInCoreRunOnPtsXyzPlyObjAndBinaryPcdFilesStreamedInChunks
   const std::string pcd_note = "PCD binary, 120000 points (fixed-size records streamed in chunks)";
   const BuiltScene pcd = expect_streamed_tiled_run(dir, "input: {files: [plate.pcd], units: m}\n" + grid, 64, pcd_note, 100000);
   EXPECT_EQ(stage_figure(pcd, "tile_spill", "spill_xyz_floats"), 1.0);
+  EXPECT_FALSE(pcd.scene.layers.colour_rgb8.empty());
+  const BuiltScene apcd = expect_streamed_tiled_run(dir, "input: {files: [plate_ascii.pcd], units: m}\n" + grid, 64,
+                                                    "PCD ascii, 120000 points (lines streamed in chunks)", 100000);
+  EXPECT_FALSE(apcd.scene.layers.colour_rgb8.empty());
+  EXPECT_EQ(apcd.scene.layers.colour_rgb8, pcd.scene.layers.colour_rgb8);  // the same floats and colours as the binary file
   hc::test::write_gzip(dir / "plate.pcd.gz", hc::test::read_bytes(dir / "plate.pcd"), 2);
   (void)expect_streamed_tiled_run(dir, "input: {files: [plate.pcd.gz], units: m}\n" + grid, 64, pcd_note, 100000);
   // Below scale.tiled_above_points, auto stays in core (the first look counted 120 000 points).
