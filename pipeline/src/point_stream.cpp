@@ -246,6 +246,18 @@ std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path
     if (ext == ".pcd") {
       if (auto s = detail::open_pcd_stream(path, detail::quoted(path), gz)) return s;
     }
+    // A gzipped LAS, LAZ or E57 file with a plain copy (LoadOptions::inflated): the copy, named
+    // as the original.
+    if (gz && (ext == ".las" || ext == ".laz" || ext == ".e57")) {
+      for (const auto& [original, copy] : options.inflated) {
+        if (original != path) continue;
+        std::unique_ptr<PointStream> s = ext == ".las"   ? detail::open_las_stream(copy, detail::quoted(path), &options)
+                                         : ext == ".laz" ? detail::open_laz_stream(copy, detail::quoted(path), &options)
+                                                         : detail::open_e57_stream(copy, detail::quoted(path));
+        if (s) return s;
+        break;  // the whole read (of the original) says what is wrong
+      }
+    }
     if (!gz && ext == ".las") {
       if (auto s = detail::open_las_stream(path, detail::quoted(path), &options)) return s;
     }

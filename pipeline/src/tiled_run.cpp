@@ -12,6 +12,7 @@
 #include "near_knn.hpp"
 #include "readers/byte_source.hpp"
 #include "readers/readers.hpp"
+#include "readers/text_parse.hpp"
 #include "run_internal.hpp"
 #include "stage_util.hpp"
 
@@ -2120,13 +2121,50 @@ void check_honest_halo(const RunConfig& config, const Tiles& tiles, const Honest
 
 // Passes 1, 2 and 2b (the file comment of tiling.hpp): the plan, the spill into `dir`
 // (tile_<t>.bin) and the robust test's scale. Stage reports go to plan.reports.
+// The gzipped LAS, LAZ and E57 files of `input`, which have no stream of their own under gzip
+// (their readers seek: the header's VLRs and EVLRs, LAZ's chunk table, E57's XML section at the
+// end), each inflated once into `dir` (the run's scratch folder, removed with it at the end or
+// on failure) and listed in load.inflated, so that every pass streams it from the copy
+// (open_point_stream) instead of reading the whole file at every pass; a note names each.
+// Returns the copies' size [MB]. @throws hc::InputError naming the file for bad gzip data (as
+// the whole read would), hc::ResourceError naming the folder when a copy cannot be written.
+double inflate_seeking_inputs(const std::vector<fs::path>& input, const fs::path& dir, LoadOptions& load, std::vector<std::string>& notes) {
+  double bytes = 0.0;
+  for (std::size_t i = 0; i < input.size(); ++i) {
+    const fs::path& f = input[i];
+    std::string ext;
+    if (!detail::gz_name(f, ext) || !(ext == ".las" || ext == ".laz" || ext == ".e57")) continue;
+    std::error_code ec;
+    if (!fs::is_regular_file(f, ec)) continue;  // the whole read says what is wrong
+    const fs::path copy = dir / ("input_" + std::to_string(i) + ext);
+    const auto src = detail::ByteSource::open(f, detail::quoted(f), true);
+    std::unique_ptr<std::FILE, int (*)(std::FILE*)> out(std::fopen(copy.c_str(), "wb"), &std::fclose);
+    if (!out) throw ResourceError("tiled run: cannot create " + copy.string() + " to inflate " + detail::quoted(f) + ": " + std::strerror(errno));
+    std::vector<char> block(std::size_t{4} << 20);
+    std::uint64_t written = 0;
+    for (std::size_t got; (got = src->read(block.data(), block.size())) > 0;) {
+      if (std::fwrite(block.data(), 1, got, out.get()) != got) {
+        throw ResourceError("tiled run: cannot write " + copy.string() + " (inflating " + detail::quoted(f) + "; scale.scratch full?): " +
+                            std::strerror(errno));
+      }
+      written += got;
+    }
+    if (std::fflush(out.get()) != 0) throw ResourceError("tiled run: cannot write " + copy.string() + ": " + std::strerror(errno));
+    load.inflated.emplace_back(f, copy);
+    bytes += static_cast<double>(written);
+    notes.push_back("input: " + f.filename().string() + " inflated once into the scratch folder (" + format_number(std::round(static_cast<double>(written) / 1e6)) +
+                    " MB) and streamed from there");
+  }
+  return bytes / 1e6;
+}
+
 Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn& progress) {
   check_supported(config);
   Plan plan;
   auto& reports = plan.reports;
   const std::vector<fs::path>& input = config.input.files;
   const std::string input_name = detail::inputs_label(input);
-  const LoadOptions load{config.input.las_drop_classes, config.input.as_points};
+  LoadOptions load{config.input.las_drop_classes, config.input.as_points};
   const std::size_t chunk_points = config.scale.chunk_points;
   const double unit_m = metres_per_unit(config.input.units);
 
@@ -2313,6 +2351,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   };
   (void)stage("tile_plan", reports, progress, [&] {
     StageResult<int> r;
+    const double inflated_mb = inflate_seeking_inputs(input, dir, load, r.report.notes);
+    if (!load.inflated.empty()) r.report.figure("inflated_input_mb", inflated_mb);
     {
       auto s = open_point_streams(input, load);
       crs = s->crs();

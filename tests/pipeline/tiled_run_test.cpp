@@ -1509,6 +1509,74 @@ TEST(TiledRun, EqualsTheInCoreRunOnALasWallStreamedNatively) {
   EXPECT_FALSE(tiled.scene.layers.colour_rgb8.empty());
 }
 
+// A gzipped LAS, LAZ or E57 file (their readers seek: no stream of their own under gzip) is
+// inflated once into the run's scratch folder and streamed from the copy at every pass, where it
+// was read whole at every pass before (forty-second session). Oracles: the in-core run of the
+// same gzipped file (read whole), bit for bit; the copy's size (the plain file's bytes); nothing
+// left in the scratch folder afterwards. A cut gzip fails naming the original file.
+TEST(TiledRun, GzippedLasLazAndE57AreInflatedOnceAndStreamedFromTheCopy) {
+  const fs::path dir = hc::test::temp_dir("gz_seeking");
+  write_coloured_wall(dir / "wall.las", 120'000);
+  hc::test::write_gzip(dir / "wall.las.gz", hc::test::read_bytes(dir / "wall.las"), 2);
+  hc::test::write_gzip(dir / "autzen.laz.gz", hc::test::read_bytes(hc::test::scan_path("scanner_samples/laz/pdal-autzen_trim.laz")));
+  hc::test::write_gzip(dir / "bunny.e57.gz", hc::test::read_bytes(hc::test::scan_path("scanner_samples/e57/libe57-bunnyDouble.e57")));
+  struct Case {
+    const char* file;
+    const char* yaml;
+    int tile;
+    const char* streamed;
+    std::uintmax_t plain_bytes;
+  };
+  const Case cases[] = {
+      {"wall.las.gz",
+       "input: {files: [wall.las.gz], units: m}\n"
+       "grid: {n: 400, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02, hole_fill_max_cells: 64}\n"
+       "cross_check: {tolerance_m: 0.002}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 5000}\n",
+       64, "point records streamed in chunks", fs::file_size(dir / "wall.las")},
+      {"autzen.laz.gz",
+       "input: {files: [autzen.laz.gz], units: ft}\n"
+       "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 0.5, hole_fill_max_cells: 64}\n"
+       "cross_check: {tolerance_m: 0.3}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 5000}\n",
+       48, "point records streamed in chunks", fs::file_size(hc::test::scan_path("scanner_samples/laz/pdal-autzen_trim.laz"))},
+      {"bunny.e57.gz",
+       "input: {files: [bunny.e57.gz], units: m}\n"
+       "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 0.002, hole_fill_max_cells: 64}\n"
+       "cross_check: {tolerance_m: 0.001}\nfilters: {outliers: {enabled: false}}\nscale: {chunk_points: 3000}\n",
+       48, "data3D scans read one at a time", fs::file_size(hc::test::scan_path("scanner_samples/e57/libe57-bunnyDouble.e57"))},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.file);
+    const fs::path scratch = dir / (std::string("scratch_") + c.file);
+    fs::create_directory(scratch);
+    const RunConfig config = hc::pipeline::parse_run_config(c.yaml, dir / "run.yaml");
+    BuiltScene tiled;
+    expect_tiled_equals_in_core(config, c.tile, scratch, &tiled);
+    bool streamed = false, read_whole = false, inflated = false;
+    for (const auto& st : tiled.summary.stages)
+      for (const std::string& n : st.notes) {
+        streamed = streamed || n.find(c.streamed) != std::string::npos;
+        read_whole = read_whole || n.find("read whole") != std::string::npos;
+        inflated = inflated || n.find(std::string("input: ") + c.file + " inflated once into the scratch folder") != std::string::npos;
+      }
+    EXPECT_TRUE(streamed);
+    EXPECT_FALSE(read_whole);
+    EXPECT_TRUE(inflated);
+    EXPECT_DOUBLE_EQ(stage_figure(tiled, "tile_plan", "inflated_input_mb"), static_cast<double>(c.plain_bytes) / 1e6);
+    EXPECT_TRUE(fs::is_empty(scratch)) << "the copy and the spill are gone";
+  }
+  // A cut gzip: the error names the original file, and nothing is left.
+  const std::string gz = hc::test::read_bytes(dir / "wall.las.gz");
+  hc::test::write_bytes(dir / "cut.las.gz", gz.substr(0, gz.size() / 2));
+  RunConfig cut = hc::pipeline::parse_run_config("input: {files: [cut.las.gz], units: m}\ngrid: {n: 400}\nfilters: {outliers: {enabled: false}}\n",
+                                                 dir / "run.yaml");
+  cut.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  cut.scale.scratch = dir / "scratch_cut";
+  fs::create_directory(cut.scale.scratch);
+  const std::string what = error_of<hc::InputError>(cut);
+  EXPECT_NE(what.find("cut.las.gz"), std::string::npos) << what;
+  EXPECT_TRUE(fs::is_empty(cut.scale.scratch));
+}
+
 // A real LAZ scan (aerial lidar, point-wise chunked), decompressed chunk by chunk at every
 // pass, gives the in-core scene too, and auto counts its points from the header.
 TEST(TiledRun, EqualsTheInCoreRunOnARealLazScanStreamedChunkByChunk) {

@@ -9,6 +9,7 @@
 
 #include <filesystem>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace hc::pipeline {
@@ -21,6 +22,11 @@ struct LoadOptions {
   /// `input.as_points`: read a mesh's vertices only. The faces a PLY or OBJ file holds are
   /// dropped (the load report's notes say how many) and an OBJ's texture is not read.
   bool as_points = false;
+  /// Gzipped LAS, LAZ and E57 files and a plain copy of each ({original, copy}): open_point_stream
+  /// streams such a file from its copy natively (their readers seek, so they have no stream under
+  /// gzip), naming the original in every message; load_cloud does not use it. The tiled run
+  /// fills it with copies inflated once into its scratch folder (tiled_run.cpp).
+  std::vector<std::pair<std::filesystem::path, std::filesystem::path>> inflated{};
 };
 
 /// Reads every vertex of one scan file, in the file's own units and frame.

@@ -21,7 +21,8 @@
 /// skipped; the count from the header); PCD (`.pcd`: DATA binary in fixed-size records, binary_compressed
 /// through an LZF decoder per column, ascii in blocks of lines; the same points, colours,
 /// intensities and errors as load_cloud); OBJ vertices
-/// (`.obj` without faces, or with `input.as_points`). PLY, PCD, OBJ, PTX, PTS and XYZ stream under
+/// (`.obj` without faces, or with `input.as_points`). A gzipped LAS, LAZ or E57 file streams from
+/// its plain copy when LoadOptions::inflated lists one (the tiled run's). PLY, PCD, OBJ, PTX, PTS and XYZ stream under
 /// gzip too (`.ply.gz`
 /// and so on: decompressed as they are read with zlib's inflate, with load_cloud's errors; every
 /// pass decompresses again, and a first look decompresses the whole file once: a PCD's to learn
