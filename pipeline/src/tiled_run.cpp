@@ -2124,8 +2124,9 @@ void check_honest_halo(const RunConfig& config, const Tiles& tiles, const Honest
 // The gzipped LAS, LAZ and E57 files of `input`, which have no stream of their own under gzip
 // (their readers seek: the header's VLRs and EVLRs, LAZ's chunk table, E57's XML section at the
 // end), each inflated once into `dir` (the run's scratch folder, removed with it at the end or
-// on failure) and listed in load.inflated, so that every pass streams it from the copy
-// (open_point_stream) instead of reading the whole file at every pass; a note names each.
+// on failure; plan_passes removes it after its last pass) and listed in load.inflated, so that
+// every pass streams it from the copy (open_point_stream) instead of reading the whole file at
+// every pass; a note names each.
 // Returns the copies' size [MB]. @throws hc::InputError naming the file for bad gzip data (as
 // the whole read would), hc::ResourceError naming the folder when a copy cannot be written.
 double inflate_seeking_inputs(const std::vector<fs::path>& input, const fs::path& dir, LoadOptions& load, std::vector<std::string>& notes) {
@@ -2922,6 +2923,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   plan.precision = precision;
   plan.offset_m = offset_m;
   plan.crs = crs;
+  // The passes over the input are done: the inflated copies go now (a tile job's plan folder
+  // keeps no copy of the input; the scratch folder would take them at the end anyway).
+  for (const auto& [original, copy] : load.inflated) {
+    std::error_code ec;
+    fs::remove(copy, ec);
+  }
   return plan;
 }
 

@@ -1564,6 +1564,12 @@ TEST(TiledRun, GzippedLasLazAndE57AreInflatedOnceAndStreamedFromTheCopy) {
     EXPECT_DOUBLE_EQ(stage_figure(tiled, "tile_plan", "inflated_input_mb"), static_cast<double>(c.plain_bytes) / 1e6);
     EXPECT_TRUE(fs::is_empty(scratch)) << "the copy and the spill are gone";
   }
+  // A tile job's plan folder keeps no copy of the input: the copy goes after the plan's passes.
+  hc::test::write_bytes(dir / "plan.yaml", cases[0].yaml);
+  (void)hc::pipeline::write_tile_plan(dir / "plan.yaml", {}, dir / "plan");
+  for (const auto& e : fs::directory_iterator(dir / "plan")) {
+    EXPECT_NE(e.path().filename().string().rfind("input_", 0), 0U) << e.path();
+  }
   // A cut gzip: the error names the original file, and nothing is left.
   const std::string gz = hc::test::read_bytes(dir / "wall.las.gz");
   hc::test::write_bytes(dir / "cut.las.gz", gz.substr(0, gz.size() / 2));
