@@ -1077,6 +1077,33 @@ void for_each_grid_chunk(const std::vector<std::filesystem::path>& input, const 
 
 }  // namespace
 
+namespace {
+
+// The point count in the header of a gzipped LAS or LAZ file `f`, reading only its first 375
+// bytes through the gzip stream (ASPRS LAS 1.4 R15, Table 3: "LASF" at 0, version minor at
+// byte 25, the legacy uint32 count at 107, from version 1.4 the uint64 count at 247); nullopt
+// when those bytes are not such a header (the in-core read then says what is wrong).
+std::optional<std::uint64_t> gzipped_las_count(const fs::path& f) {
+  try {
+    const auto src = detail::ByteSource::open(f, detail::quoted(f), true);
+    std::array<char, 375> h{};
+    const std::size_t got = src->read(h.data(), h.size());
+    if (got < 227 || std::string_view(h.data(), 4) != "LASF") return std::nullopt;
+    std::uint32_t legacy = 0;
+    std::memcpy(&legacy, h.data() + 107, 4);  // little-endian, as LAS is (a little-endian host)
+    if (static_cast<unsigned char>(h[25]) >= 4 && got >= 255) {
+      std::uint64_t count = 0;
+      std::memcpy(&count, h.data() + 247, 8);
+      return count;
+    }
+    return legacy;
+  } catch (const InputError&) {
+    return std::nullopt;
+  }
+}
+
+}  // namespace
+
 bool runs_tiled(const RunConfig& config) {
   if (config.scale.tiled == ScaleConfig::Tiled::kOff) return false;
   if (config.scale.tiled == ScaleConfig::Tiled::kOn) {
@@ -1093,10 +1120,19 @@ bool runs_tiled(const RunConfig& config) {
     // file's first look reads its lines without parsing the points, an OBJ's counts the numbers
     // of its `v` lines; under gzip, decompressing them; a gzipped PCD's inflates it once for its
     // size). An OBJ with faces counts only with input.as_points (else a mesh, in core).
+    // A gzipped LAS or LAZ file by its header's count (the tiled run inflates it once:
+    // inflate_seeking_inputs); a gzipped E57's count lies in its XML at the end: not counted.
     const bool text = ext == ".ptx" || ext == ".pts" || ext == ".xyz" || ext == ".txt" || ext == ".obj";
-    if (!(ext == ".ply" || ext == ".pcd" || text || (!gz && (ext == ".las" || ext == ".laz" || ext == ".e57")))) return false;
+    const bool gz_las = gz && (ext == ".las" || ext == ".laz");
+    if (!(ext == ".ply" || ext == ".pcd" || text || gz_las || (!gz && (ext == ".las" || ext == ".laz" || ext == ".e57")))) return false;
     std::error_code ec;
     if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
+    if (gz_las) {
+      const std::optional<std::uint64_t> n = gzipped_las_count(f);
+      if (!n) return false;
+      total += *n;
+      continue;
+    }
     std::unique_ptr<PointStream> s;
     try {
       const LoadOptions load{config.input.las_drop_classes, config.input.as_points};

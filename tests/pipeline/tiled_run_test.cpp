@@ -13,6 +13,7 @@
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/robust_outliers.hpp"
 #include "hc/pipeline/run.hpp"
+#include "hc/pipeline/point_stream.hpp"
 #include "hc/pipeline/tiling.hpp"
 #include "hc/tools/relief.hpp"
 #include "batch_heap_policy.hpp"
@@ -1564,6 +1565,29 @@ TEST(TiledRun, GzippedLasLazAndE57AreInflatedOnceAndStreamedFromTheCopy) {
     EXPECT_DOUBLE_EQ(stage_figure(tiled, "tile_plan", "inflated_input_mb"), static_cast<double>(c.plain_bytes) / 1e6);
     EXPECT_TRUE(fs::is_empty(scratch)) << "the copy and the spill are gone";
   }
+  // scale.tiled: auto counts a gzipped LAS or LAZ by its header, as the plain file's stream
+  // counts it (the oracle: the plain file's decision at the same thresholds); a gzipped E57 (its
+  // count at the end of the file) is not counted: in core.
+  // (LAS 1.4's 64-bit count too: the PDAL sample.)
+  hc::test::write_gzip(dir / "test1_4.las.gz", hc::test::read_bytes(hc::test::scan_path("scanner_samples/las/pdal-test1_4.las")));
+  for (const auto& [gz_name, plain] : {std::pair<std::string, fs::path>{"wall.las.gz", dir / "wall.las"},
+                                       {"autzen.laz.gz", hc::test::scan_path("scanner_samples/laz/pdal-autzen_trim.laz")},
+                                       {"test1_4.las.gz", hc::test::scan_path("scanner_samples/las/pdal-test1_4.las")}}) {
+    SCOPED_TRACE(gz_name);
+    const std::uint64_t n = hc::pipeline::open_point_stream(plain)->total_points();
+    ASSERT_GE(n, 1000U);
+    for (const std::uint64_t above : {n - 1, n}) {
+      const auto decide = [&](const std::string& file) {
+        return hc::pipeline::runs_tiled(hc::pipeline::parse_run_config("input: {files: [" + file + "], units: m}\n", dir / "run.yaml",
+                                                                       {"scale.tiled_above_points=" + std::to_string(above)}));
+      };
+      fs::copy_file(plain, dir / ("plain" + plain.extension().string()), fs::copy_options::overwrite_existing);
+      EXPECT_EQ(decide(gz_name), above < n);
+      EXPECT_EQ(decide("plain" + plain.extension().string()), above < n);
+    }
+  }
+  EXPECT_FALSE(hc::pipeline::runs_tiled(
+      hc::pipeline::parse_run_config("input: {files: [bunny.e57.gz], units: m}\n", dir / "run.yaml", {"scale.tiled_above_points=1"})));
   // A tile job's plan folder keeps no copy of the input: the copy goes after the plan's passes.
   hc::test::write_bytes(dir / "plan.yaml", cases[0].yaml);
   (void)hc::pipeline::write_tile_plan(dir / "plan.yaml", {}, dir / "plan");
