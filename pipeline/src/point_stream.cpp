@@ -248,7 +248,7 @@ std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path
     }
     // A gzipped LAS, LAZ or E57 file with a plain copy (LoadOptions::inflated): the copy, named
     // as the original.
-    if (gz && (ext == ".las" || ext == ".laz" || ext == ".e57")) {
+    if (gz && detail::reader_seeks(ext)) {
       for (const auto& [original, copy] : options.inflated) {
         if (original != path) continue;
         std::unique_ptr<PointStream> s = ext == ".las"   ? detail::open_las_stream(copy, detail::quoted(path), &options)

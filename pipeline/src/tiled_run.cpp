@@ -11,6 +11,7 @@
 #include "knn_grid.hpp"
 #include "near_knn.hpp"
 #include "readers/byte_source.hpp"
+#include "readers/las_records.hpp"
 #include "readers/readers.hpp"
 #include "readers/text_parse.hpp"
 #include "run_internal.hpp"
@@ -1075,13 +1076,8 @@ void for_each_grid_chunk(const std::vector<std::filesystem::path>& input, const 
   }
 }
 
-}  // namespace
-
-namespace {
-
 // The point count in the header of a gzipped LAS or LAZ file `f`, reading only its first 375
-// bytes through the gzip stream (ASPRS LAS 1.4 R15, Table 3: "LASF" at 0, version minor at
-// byte 25, the legacy uint32 count at 107, from version 1.4 the uint64 count at 247); nullopt
+// bytes through the gzip stream (detail::las_header_point_count, LAS 1.4 R15 Table 3); nullopt
 // when those bytes are not such a header (the in-core read then says what is wrong).
 std::optional<std::uint64_t> gzipped_las_count(const fs::path& f) {
   try {
@@ -1089,14 +1085,8 @@ std::optional<std::uint64_t> gzipped_las_count(const fs::path& f) {
     std::array<char, 375> h{};
     const std::size_t got = src->read(h.data(), h.size());
     if (got < 227 || std::string_view(h.data(), 4) != "LASF") return std::nullopt;
-    std::uint32_t legacy = 0;
-    std::memcpy(&legacy, h.data() + 107, 4);  // little-endian, as LAS is (a little-endian host)
-    if (static_cast<unsigned char>(h[25]) >= 4 && got >= 255) {
-      std::uint64_t count = 0;
-      std::memcpy(&count, h.data() + 247, 8);
-      return count;
-    }
-    return legacy;
+    if (static_cast<unsigned char>(h[25]) >= 4 && got < 375) return std::nullopt;
+    return detail::las_header_point_count(h.data());
   } catch (const InputError&) {
     return std::nullopt;
   }
@@ -2155,8 +2145,6 @@ void check_honest_halo(const RunConfig& config, const Tiles& tiles, const Honest
       "; with tile jobs, make a new plan with it and run its jobs again");
 }
 
-// Passes 1, 2 and 2b (the file comment of tiling.hpp): the plan, the spill into `dir`
-// (tile_<t>.bin) and the robust test's scale. Stage reports go to plan.reports.
 // The gzipped LAS, LAZ and E57 files of `input`, which have no stream of their own under gzip
 // (their readers seek: the header's VLRs and EVLRs, LAZ's chunk table, E57's XML section at the
 // end), each inflated once into `dir` (the run's scratch folder, removed with it at the end or
@@ -2170,7 +2158,7 @@ double inflate_seeking_inputs(const std::vector<fs::path>& input, const fs::path
   for (std::size_t i = 0; i < input.size(); ++i) {
     const fs::path& f = input[i];
     std::string ext;
-    if (!detail::gz_name(f, ext) || !(ext == ".las" || ext == ".laz" || ext == ".e57")) continue;
+    if (!detail::gz_name(f, ext) || !detail::reader_seeks(ext)) continue;
     std::error_code ec;
     if (!fs::is_regular_file(f, ec)) continue;  // the whole read says what is wrong
     const fs::path copy = dir / ("input_" + std::to_string(i) + ext);
@@ -2195,6 +2183,8 @@ double inflate_seeking_inputs(const std::vector<fs::path>& input, const fs::path
   return bytes / 1e6;
 }
 
+// Passes 1, 2 and 2b (the file comment of tiling.hpp): the plan, the spill into `dir`
+// (tile_<t>.bin) and the robust test's scale. Stage reports go to plan.reports.
 Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn& progress) {
   check_supported(config);
   Plan plan;

@@ -80,5 +80,10 @@ std::size_t read_header_until_word(ByteSource& src, std::string_view word, std::
 /// Whether `path` ends in ".gz" (any case), and its extension before that, lower case (".ply"
 /// for "Scan.PLY.gz").
 bool gz_name(const std::filesystem::path& path, std::string& inner_ext);
+/// Whether the reader of the format with extension `ext` (as gz_name gives it) seeks through the
+/// file (LAS: its VLRs and EVLRs; LAZ: its chunk table; E57: its XML section at the end), so
+/// that it has no stream under gzip: a gzipped such file streams from a plain copy
+/// (LoadOptions::inflated).
+inline bool reader_seeks(const std::string& ext) { return ext == ".las" || ext == ".laz" || ext == ".e57"; }
 
 }  // namespace hc::pipeline::detail

@@ -56,6 +56,11 @@ struct LasHeader {
 /// (the LAZ reader checks its chunks against the file size). Throws hc::InputError naming the
 /// file and the offending field.
 LasHeader parse_las_header(const ScanSource& source, bool compressed);
+/// The point count of a LAS public header at `b` (at least 227 bytes, 375 for LAS 1.4; the
+/// caller checked the signature and the size): the legacy uint32 count at byte 107, from version
+/// 1.4 the uint64 count at byte 247 unless that is 0 and the legacy one is not (ASPRS LAS 1.4 R15,
+/// Table 3). parse_las_header's rule, without its checks of the rest of the file.
+std::uint64_t las_header_point_count(const char* b);
 /// The same on the file's bytes `bytes` (a whole file in memory or mapped), `name` quoted for
 /// messages. The VLRs' `data` point into `bytes`.
 LasHeader parse_las_header(std::string_view bytes, const std::string& name, bool compressed);

@@ -153,6 +153,13 @@ std::string wkt_last_unit(const std::string& wkt) {
 
 }  // namespace
 
+std::uint64_t las_header_point_count(const char* b) {
+  const std::uint64_t legacy = load_le<std::uint32_t>(b + 107);
+  if (static_cast<unsigned char>(b[25]) < 4) return legacy;
+  const std::uint64_t count64 = load_le<std::uint64_t>(b + 247);
+  return count64 == 0 && legacy != 0 ? legacy : count64;
+}
+
 LasHeader parse_las_header(const ScanSource& source, bool compressed) {
   return parse_las_header(std::string_view(source.bytes), source.display_name, compressed);
 }
@@ -199,19 +206,16 @@ LasHeader parse_las_header(std::string_view bytes, const std::string& name, bool
          std::to_string(format) + " needs at least " + std::to_string(base));
   }
   const std::uint64_t legacy_count = load_le<std::uint32_t>(b + 107);
-  std::uint64_t count = legacy_count;
+  const std::uint64_t count = las_header_point_count(b);
   std::vector<std::string> notes;
   if (minor >= 4) {
     const std::uint64_t count64 = load_le<std::uint64_t>(b + 247);
     if (count64 == 0 && legacy_count != 0) {
       notes.push_back("LAS 1.4 header: the 64-bit point count is 0, the legacy count " + std::to_string(legacy_count) +
                       " is used");
-    } else {
-      if (legacy_count != 0 && legacy_count != count64) {
-        fail("has a legacy point count of " + std::to_string(legacy_count) + " and a 64-bit point count of " +
-             std::to_string(count64) + ": expected equal counts (or a legacy count of 0)");
-      }
-      count = count64;
+    } else if (legacy_count != 0 && legacy_count != count64) {
+      fail("has a legacy point count of " + std::to_string(legacy_count) + " and a 64-bit point count of " +
+           std::to_string(count64) + ": expected equal counts (or a legacy count of 0)");
     }
   }
   if (offset < header_size || offset > size) {

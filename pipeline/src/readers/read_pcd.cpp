@@ -21,7 +21,6 @@
 
 #include <algorithm>
 #include <array>
-#include <cerrno>
 #include <charconv>
 #include <cmath>
 #include <cstdlib>
@@ -122,13 +121,23 @@ void decode_records(const std::uint8_t* base, std::size_t n, const PcdLayout& l,
   }
 }
 
-/// The columns a binary_compressed body is read by: x, y, z, then the colour and the intensity
-/// when the layout has them.
+/// The fields a body is read by: x, y, z, then the colour and the intensity when the layout has
+/// them (a binary_compressed body's columns, an ascii line's values). A fixed list: an ascii
+/// body takes it once a line.
 enum class Column { kX, kY, kZ, kColour, kIntensity };
-std::vector<Column> columns_of(const PcdLayout& l) {
-  std::vector<Column> c = {Column::kX, Column::kY, Column::kZ};
-  if (l.has_rgb) c.push_back(Column::kColour);
-  if (l.has_intensity) c.push_back(Column::kIntensity);
+struct Columns {
+  std::array<Column, 5> at{};
+  std::size_t n = 0;
+  std::size_t size() const { return n; }
+  Column operator[](std::size_t i) const { return at[i]; }
+  const Column* begin() const { return at.data(); }
+  const Column* end() const { return at.data() + n; }
+};
+Columns columns_of(const PcdLayout& l) {
+  Columns c;
+  for (const Column k : {Column::kX, Column::kY, Column::kZ}) c.at[c.n++] = k;
+  if (l.has_rgb) c.at[c.n++] = Column::kColour;
+  if (l.has_intensity) c.at[c.n++] = Column::kIntensity;
   return c;
 }
 /// The field a column reads.
@@ -515,7 +524,7 @@ class PcdCompressedStream final : public PcdChunks {
     std::unique_ptr<LzfReader> lzf;
   };
   std::array<Axis, 5> axes_;  // a decoder per column (kinds_)
-  std::vector<Column> kinds_;
+  Columns kinds_;
   std::size_t last_ = 0;  // the column that comes last in the block: its decoder checks the block's end
   std::vector<char> buffer_;
 };
@@ -621,10 +630,8 @@ std::string ascii_field(const char* b, const char* e, const PcdLayout::Axis& f, 
 /// (ascii_field's), or "".
 std::string decode_ascii_line(const char* b, const char* e, const PcdLayout& l, double* xyz, std::uint8_t* rgb, float* intensity) {
   static const char* const kNames[5] = {"x", "y", "z", "", "intensity"};  // the colour's: l.rgb_name
-  std::array<Column, 5> cols{Column::kX, Column::kY, Column::kZ};  // columns_of's, without an allocation a line
-  std::size_t n_cols = 3;
-  if (l.has_rgb) cols[n_cols++] = Column::kColour;
-  if (l.has_intensity) cols[n_cols++] = Column::kIntensity;
+  const Columns cols = columns_of(l);
+  const std::size_t n_cols = cols.size();
   std::array<const char*, 5> tb{}, te{};
   std::size_t at = 0, found = 0;
   for (const char* p = b; found < n_cols; ++at) {
