@@ -1092,6 +1092,19 @@ std::optional<std::uint64_t> gzipped_las_count(const fs::path& f) {
   }
 }
 
+// The points in a gzipped E57 file `f` as its plain file's stream counts them: the file is
+// inflated up to the end of its XML section, which lies near the end (detail::e57_record_count:
+// one inflate of the file, its bytes not kept, before the tiled run inflates it again into its
+// scratch folder); nullopt when it is no such file (the in-core read then says what is wrong).
+std::optional<std::uint64_t> gzipped_e57_count(const fs::path& f) {
+  try {
+    const auto src = detail::ByteSource::open(f, detail::quoted(f), true);
+    return detail::e57_record_count(*src, detail::quoted(f));
+  } catch (const InputError&) {
+    return std::nullopt;
+  }
+}
+
 }  // namespace
 
 bool runs_tiled(const RunConfig& config) {
@@ -1110,15 +1123,15 @@ bool runs_tiled(const RunConfig& config) {
     // file's first look reads its lines without parsing the points, an OBJ's counts the numbers
     // of its `v` lines; under gzip, decompressing them; a gzipped PCD's inflates it once for its
     // size). An OBJ with faces counts only with input.as_points (else a mesh, in core).
-    // A gzipped LAS or LAZ file by its header's count (the tiled run inflates it once:
-    // inflate_seeking_inputs); a gzipped E57's count lies in its XML at the end: not counted.
+    // A gzipped LAS or LAZ file by its header's count, a gzipped E57 by its XML section's (the
+    // tiled run inflates them once: inflate_seeking_inputs).
     const bool text = ext == ".ptx" || ext == ".pts" || ext == ".xyz" || ext == ".txt" || ext == ".obj";
-    const bool gz_las = gz && (ext == ".las" || ext == ".laz");
-    if (!(ext == ".ply" || ext == ".pcd" || text || gz_las || (!gz && (ext == ".las" || ext == ".laz" || ext == ".e57")))) return false;
+    const bool gz_seeking = gz && detail::reader_seeks(ext);
+    if (!(ext == ".ply" || ext == ".pcd" || text || gz_seeking || (!gz && detail::reader_seeks(ext)))) return false;
     std::error_code ec;
     if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
-    if (gz_las) {
-      const std::optional<std::uint64_t> n = gzipped_las_count(f);
+    if (gz_seeking) {
+      const std::optional<std::uint64_t> n = ext == ".e57" ? gzipped_e57_count(f) : gzipped_las_count(f);
       if (!n) return false;
       total += *n;
       continue;

@@ -1565,17 +1565,24 @@ TEST(TiledRun, GzippedLasLazAndE57AreInflatedOnceAndStreamedFromTheCopy) {
     EXPECT_DOUBLE_EQ(stage_figure(tiled, "tile_plan", "inflated_input_mb"), static_cast<double>(c.plain_bytes) / 1e6);
     EXPECT_TRUE(fs::is_empty(scratch)) << "the copy and the spill are gone";
   }
-  // scale.tiled: auto counts a gzipped LAS or LAZ by its header, as the plain file's stream
-  // counts it (the oracle: the plain file's decision at the same thresholds); a gzipped E57 (its
-  // count at the end of the file) is not counted: in core.
-  // (LAS 1.4's 64-bit count too: the PDAL sample.)
+  // scale.tiled: auto counts a gzipped LAS or LAZ by its header, and a gzipped E57 by its XML
+  // section near the end, as the plain file's stream counts it (the oracle: the plain file's
+  // decision at the same thresholds). LAS 1.4's 64-bit count too (the PDAL sample); E57 with its
+  // XML at the end (the bunny, a scan with an image), beginning in the header's page and over
+  // several pages (PDAL's two scans), and one of several small scans.
   hc::test::write_gzip(dir / "test1_4.las.gz", hc::test::read_bytes(hc::test::scan_path("scanner_samples/las/pdal-test1_4.las")));
-  for (const auto& [gz_name, plain] : {std::pair<std::string, fs::path>{"wall.las.gz", dir / "wall.las"},
-                                       {"autzen.laz.gz", hc::test::scan_path("scanner_samples/laz/pdal-autzen_trim.laz")},
-                                       {"test1_4.las.gz", hc::test::scan_path("scanner_samples/las/pdal-test1_4.las")}}) {
+  std::vector<std::pair<std::string, fs::path>> counted = {{"wall.las.gz", dir / "wall.las"},
+                                                           {"autzen.laz.gz", hc::test::scan_path("scanner_samples/laz/pdal-autzen_trim.laz")},
+                                                           {"test1_4.las.gz", hc::test::scan_path("scanner_samples/las/pdal-test1_4.las")}};
+  for (const char* e57 : {"libe57-bunnyDouble.e57", "pdal-A_B.e57", "pye57-pumpAVisualReferenceImage.e57", "libe57-ColourRepresentation.e57"}) {
+    const fs::path plain = hc::test::scan_path(std::string("scanner_samples/e57/") + e57);
+    hc::test::write_gzip(dir / (std::string(e57) + ".gz"), hc::test::read_bytes(plain));
+    counted.emplace_back(std::string(e57) + ".gz", plain);
+  }
+  for (const auto& [gz_name, plain] : counted) {
     SCOPED_TRACE(gz_name);
     const std::uint64_t n = hc::pipeline::open_point_stream(plain)->total_points();
-    ASSERT_GE(n, 1000U);
+    ASSERT_GE(n, 2U);
     for (const std::uint64_t above : {n - 1, n}) {
       const auto decide = [&](const std::string& file) {
         return hc::pipeline::runs_tiled(hc::pipeline::parse_run_config("input: {files: [" + file + "], units: m}\n", dir / "run.yaml",
@@ -1586,8 +1593,23 @@ TEST(TiledRun, GzippedLasLazAndE57AreInflatedOnceAndStreamedFromTheCopy) {
       EXPECT_EQ(decide("plain" + plain.extension().string()), above < n);
     }
   }
-  EXPECT_FALSE(hc::pipeline::runs_tiled(
-      hc::pipeline::parse_run_config("input: {files: [bunny.e57.gz], units: m}\n", dir / "run.yaml", {"scale.tiled_above_points=1"})));
+  // A gzipped E57 cut before the end of its XML section, or with a page of its XML section
+  // corrupt, is not counted (the in-core read names the fault): in core.
+  {
+    const std::string bunny = hc::test::read_bytes(hc::test::scan_path("scanner_samples/e57/libe57-bunnyDouble.e57"));
+    hc::test::write_gzip(dir / "cut.e57.gz", bunny.substr(0, bunny.size() - 1500));
+    std::string bad = bunny;
+    bad[bad.size() - 1024 + 10] ^= 0x20;  // a byte of the last page's data: its CRC-32C fails
+    hc::test::write_gzip(dir / "bad.e57.gz", bad);
+    for (const char* f : {"cut.e57.gz", "bad.e57.gz"}) {
+      SCOPED_TRACE(f);
+      EXPECT_FALSE(hc::pipeline::runs_tiled(hc::pipeline::parse_run_config(std::string("input: {files: [") + f + "], units: m}\n",
+                                                                           dir / "run.yaml", {"scale.tiled_above_points=1"})));
+      EXPECT_THROW((void)hc::pipeline::build_scene(hc::pipeline::parse_run_config(std::string("input: {files: [") + f + "], units: m}\n",
+                                                                                dir / "run.yaml", {"scale.tiled=off"})),
+                   hc::InputError);
+    }
+  }
   // A tile job's plan folder keeps no copy of the input: the copy goes after the plan's passes.
   hc::test::write_bytes(dir / "plan.yaml", cases[0].yaml);
   (void)hc::pipeline::write_tile_plan(dir / "plan.yaml", {}, dir / "plan");

@@ -6,6 +6,7 @@
 // Data3D, PointRecord, Pose, IntensityLimits, ColorLimits).
 
 #include "byte_io.hpp"
+#include "byte_source.hpp"
 #include "../posix_io.hpp"
 #include "readers.hpp"
 #include "text_parse.hpp"
@@ -910,6 +911,12 @@ std::uint64_t valid_records(PagedFile& file, const Xml& xml, const pugi::xml_nod
   return static_cast<std::uint64_t>(std::count(v.begin(), v.end(), 0.0));
 }
 
+/// A scan's recordCount as E57Stream::total_points counts it (at most 2^32 − 1: read_scan
+/// refuses more).
+std::uint64_t counted_records(std::uint64_t record_count) {
+  return std::min<std::uint64_t>(record_count, std::numeric_limits<std::uint32_t>::max());
+}
+
 // An E57 file read scan by scan (point_stream.hpp): pages come from the file with pread (each
 // checked), one data3D scan is decoded at a time and handed out in chunks; the attributes kept
 // are those every scan's prototype carries, as the whole read's merge keeps them.
@@ -928,7 +935,7 @@ class E57Stream final : public PointStream {
     for (std::size_t s = 0; s < doc_.scans.size(); ++s) {
       const ScanAttributes a = scan_attributes(xml_, doc_.scans[s]);
       const std::uint64_t records = xml_.attr<std::uint64_t>(doc_.scans[s].child("points"), "recordCount", 0);
-      total_ += std::min<std::uint64_t>(records, std::numeric_limits<std::uint32_t>::max());
+      total_ += counted_records(records);
       const std::uint64_t kept = several ? valid_records(file_, xml_, doc_.scans[s], name_) : records;
       const bool some = kept > 0;
       std::vector<std::string> dropped;
@@ -1067,6 +1074,66 @@ ReadResult read_e57(const ScanSource& source) {
   }
   result.notes = std::move(notes);
   return result;
+}
+
+std::uint64_t e57_record_count(ByteSource& src, const std::string& name) {
+  unsigned char u[48] = {};
+  const std::size_t got = src.read(reinterpret_cast<char*>(u), sizeof u);
+  // The header's own file length stands for the file's size, which a gzip stream does not
+  // give before its end: a stream that ends early fails below, where its pages are missing.
+  const E57Header h = parse_e57_header(u, got < 48 ? got : load_le<std::uint64_t>(u + 16), name);
+  // The pages that hold the XML section (E2807 § 7.3: xml_len logical bytes from the physical
+  // offset xml_off), kept; the pages before them read and dropped.
+  const std::uint64_t first_page = h.xml_off / h.page;
+  const std::uint64_t payload = h.page - 4;
+  const std::uint64_t in_first = h.xml_off % h.page;
+  if (in_first >= payload) {
+    throw InputError("load_cloud: " + name + ": the E57 header puts the XML section at physical offset " +
+                     std::to_string(h.xml_off) + ", inside a page's checksum: the file is corrupt");
+  }
+  const std::uint64_t pages = (in_first + h.xml_len + payload - 1) / payload;
+  if (h.xml_off >= h.phys_len || pages > h.phys_len / h.page - first_page) {
+    throw InputError("load_cloud: " + name + ": the XML section (" + std::to_string(h.xml_len) + " bytes at physical offset " +
+                     std::to_string(h.xml_off) + ") runs past the file length " + std::to_string(h.phys_len) +
+                     " in the E57 header: the file is truncated or corrupt");
+  }
+  std::vector<char> skip(std::size_t{1} << 20);
+  std::uint64_t at = sizeof u;
+  const std::uint64_t start = first_page * h.page;
+  while (at < start) {
+    const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(skip.size(), start - at));
+    const std::size_t r = src.read(skip.data(), n);
+    if (r == 0) break;
+    at += r;
+  }
+  std::string bytes(static_cast<std::size_t>(pages * h.page), '\0');
+  std::size_t filled = 0;
+  if (start == 0) {  // the header's page: its 48 bytes are read already
+    std::memcpy(bytes.data(), u, sizeof u);
+    filled = sizeof u;
+  }
+  while (at >= start && filled < bytes.size()) {
+    const std::size_t r = src.read(bytes.data() + filled, bytes.size() - filled);
+    if (r == 0) break;
+    filled += r;
+  }
+  if (at < start || filled < bytes.size()) {
+    throw InputError("load_cloud: " + name + " ends at byte " + std::to_string(at < start ? at : start + filled) +
+                     ", before the end of its XML section's pages at byte " + std::to_string(start + bytes.size()) +
+                     ": the file is truncated");
+  }
+  // The kept pages as a paged file of their own: the XML section at the same offset within
+  // its first page.
+  PagedFile file(bytes, h.page, name);
+  E57Header local = h;
+  local.xml_off = in_first;
+  local.phys_len = bytes.size();
+  E57Document d;
+  load_e57_document(file, local, bytes.size(), name, d);
+  const Xml xml(name);
+  std::uint64_t total = 0;
+  for (const pugi::xml_node& scan : d.scans) total += counted_records(xml.attr<std::uint64_t>(scan.child("points"), "recordCount", 0));
+  return total;
 }
 
 std::unique_ptr<PointStream> open_e57_stream(const std::filesystem::path& path, const std::string& name) {

@@ -192,6 +192,17 @@ std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, 
 /// packet or bytestream from next() (sticky).
 std::unique_ptr<PointStream> open_e57_stream(const std::filesystem::path& path, const std::string& name);
 
+class ByteSource;
+/// The points open_e57_stream's stream of the same file counts (total_points: each data3D scan's
+/// recordCount, at most 2^32 − 1 each), from the file's bytes read front to back through `src`
+/// (read_e57.cpp), for a gzipped E57, which has no stream (its reader seeks): the XML section
+/// (ASTM E2807 § 7.2: the header's xmlPhysicalOffset and xmlLogicalLength) lies near the end, so
+/// src is read up to it; the pages before it are dropped as they come, the XML's pages kept
+/// (a few KiB to MiB) and checked (CRC-32C, § 7.3). `name` is the quoted path for messages.
+/// @throws hc::InputError as open_e57_stream for a bad header, page or XML section, or when src
+///         ends before the XML section does; what src.read throws.
+std::uint64_t e57_record_count(ByteSource& src, const std::string& name);
+
 /// A PTX file (read_ptx.cpp) read in blocks of lines: the same points, intensity, colour and
 /// notes as read_ptx (no row/column), in file order. Opening it reads every scan header and
 /// each scan's first point line, skipping the other lines unparsed, for the points the file
