@@ -1091,8 +1091,9 @@ std::uint64_t e57_record_count(ByteSource& src, const std::string& name) {
     throw InputError("load_cloud: " + name + ": the E57 header puts the XML section at physical offset " +
                      std::to_string(h.xml_off) + ", inside a page's checksum: the file is corrupt");
   }
-  const std::uint64_t pages = (in_first + h.xml_len + payload - 1) / payload;
-  if (h.xml_off >= h.phys_len || pages > h.phys_len / h.page - first_page) {
+  const bool fits = h.phys_len <= (std::uint64_t{1} << 62) && h.xml_off < h.phys_len && h.xml_len <= h.phys_len;
+  const std::uint64_t pages = fits ? (in_first + h.xml_len + payload - 1) / payload : 0;
+  if (!fits || pages > h.phys_len / h.page - first_page) {
     throw InputError("load_cloud: " + name + ": the XML section (" + std::to_string(h.xml_len) + " bytes at physical offset " +
                      std::to_string(h.xml_off) + ") runs past the file length " + std::to_string(h.phys_len) +
                      " in the E57 header: the file is truncated or corrupt");
@@ -1106,20 +1107,20 @@ std::uint64_t e57_record_count(ByteSource& src, const std::string& name) {
     if (r == 0) break;
     at += r;
   }
-  std::string bytes(static_cast<std::size_t>(pages * h.page), '\0');
-  std::size_t filled = 0;
-  if (start == 0) {  // the header's page: its 48 bytes are read already
-    std::memcpy(bytes.data(), u, sizeof u);
-    filled = sizeof u;
-  }
-  while (at >= start && filled < bytes.size()) {
-    const std::size_t r = src.read(bytes.data() + filled, bytes.size() - filled);
+  // Grown as the bytes come (a header's lengths are not trusted with an allocation: a stream
+  // that ends early fails having held only what it gave).
+  const std::uint64_t want = pages * h.page;
+  std::string bytes;
+  if (start == 0) bytes.assign(reinterpret_cast<const char*>(u), sizeof u);  // the header's page: read already
+  while (at >= start && bytes.size() < want) {
+    const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(skip.size(), want - bytes.size()));
+    const std::size_t r = src.read(skip.data(), n);
     if (r == 0) break;
-    filled += r;
+    bytes.append(skip.data(), r);
   }
-  if (at < start || filled < bytes.size()) {
-    throw InputError("load_cloud: " + name + " ends at byte " + std::to_string(at < start ? at : start + filled) +
-                     ", before the end of its XML section's pages at byte " + std::to_string(start + bytes.size()) +
+  if (at < start || bytes.size() < want) {
+    throw InputError("load_cloud: " + name + " ends at byte " + std::to_string(at < start ? at : start + bytes.size()) +
+                     ", before the end of its XML section's pages at byte " + std::to_string(start + want) +
                      ": the file is truncated");
   }
   // The kept pages as a paged file of their own: the XML section at the same offset within
