@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <fstream>
 #include <random>
 #include <string>
@@ -180,6 +181,8 @@ struct SynthScan {
   Eigen::Vector3d t;
   std::size_t claimed = 0;  // recordCount written to the XML (0: the real count)
   std::vector<std::uint8_t> state = {};  // cartesianInvalidState per point (8-bit Integer); empty: no field
+  std::vector<double> intensity = {};     // intensity per point (Float, no limits); empty: no field
+  std::uint8_t trailing_packet_type = 0;  // a 16-byte packet of this type after the data (0: none)
 };
 
 // Writes an E57 file: header, one binary section per scan (packets of at most 700 records, with an
@@ -200,14 +203,17 @@ std::string write_e57(const std::vector<SynthScan>& scans, const std::string& xm
       put<std::uint8_t>(pk, 1);
       put<std::uint8_t>(pk, 0);
       put<std::uint16_t>(pk, 0);  // length − 1, patched below
-      const bool with_state = !sc.state.empty();
-      put<std::uint16_t>(pk, with_state ? 4 : 3);
+      const bool with_state = !sc.state.empty(), with_intensity = !sc.intensity.empty();
+      put<std::uint16_t>(pk, static_cast<std::uint16_t>(3 + (with_state ? 1 : 0) + (with_intensity ? 1 : 0)));
       for (int a = 0; a < 3; ++a) put<std::uint16_t>(pk, static_cast<std::uint16_t>(8 * m));
       if (with_state) put<std::uint16_t>(pk, static_cast<std::uint16_t>(m));
+      if (with_intensity) put<std::uint16_t>(pk, static_cast<std::uint16_t>(8 * m));
       for (int a = 0; a < 3; ++a)
         for (std::size_t i = i0; i < i0 + m; ++i) put<double>(pk, sc.local(a, static_cast<Eigen::Index>(i)));
       if (with_state)
         for (std::size_t i = i0; i < i0 + m; ++i) put<std::uint8_t>(pk, sc.state[i]);
+      if (with_intensity)
+        for (std::size_t i = i0; i < i0 + m; ++i) put<double>(pk, sc.intensity[i]);
       while (pk.size() % 4) pk += '\0';
       const auto l1 = static_cast<std::uint16_t>(pk.size() - 1);
       std::memcpy(pk.data() + 2, &l1, 2);
@@ -221,6 +227,14 @@ std::string write_e57(const std::vector<SynthScan>& scans, const std::string& xm
         body += e;
         first = false;
       }
+    }
+    if (sc.trailing_packet_type != 0) {
+      std::string e;
+      put<std::uint8_t>(e, sc.trailing_packet_type);
+      put<std::uint8_t>(e, 0);
+      put<std::uint16_t>(e, 15);
+      e.append(12, '\0');
+      body += e;
     }
     std::string hdr;
     put<std::uint8_t>(hdr, 1);
@@ -253,7 +267,8 @@ std::string write_e57(const std::vector<SynthScan>& scans, const std::string& xm
                     "<cartesianZ type=\"Float\"/>%s</prototype><codecs type=\"Vector\" allowHeterogeneousChildren=\"1\"/>"
                     "</points></vectorChild>\n",
                     offsets[k], sc.claimed ? sc.claimed : static_cast<std::size_t>(sc.local.cols()),
-                    sc.state.empty() ? "" : "<cartesianInvalidState type=\"Integer\" minimum=\"0\" maximum=\"255\"/>");
+                    (std::string(sc.state.empty() ? "" : "<cartesianInvalidState type=\"Integer\" minimum=\"0\" maximum=\"255\"/>") +
+                     (sc.intensity.empty() ? "" : "<intensity type=\"Float\"/>")).c_str());
       xml += buf;
     }
     xml += "</data3D>\n</e57Root>\n";
@@ -685,6 +700,50 @@ TEST(E57Stream, TwoPosedScansStreamAsTheWholeRead) {
   expect_stream_equals_whole(p);
 }
 
+// Intensity without usable limits (a Float field without bounds) is normalised by the data's
+// own range: the least and greatest non-NaN value of the scan's records, invalid ones included,
+// found before the first record is handed out, so every chunking gives the same values. The
+// oracle: that range computed here from the values written; a NaN stays NaN. 5000 records in
+// packets of 700, states 0, 1 and 2 mixed, the extremes in the last packet and behind invalid
+// records.
+TEST(E57Stream, IntensityNormalisedByTheDataRangeIsTheSameInEveryChunking) {
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  SynthScan s{Eigen::Matrix3Xd(3, 5000), {1, 0, 0, 0}, Eigen::Vector3d::Zero()};
+  for (Eigen::Index i = 0; i < s.local.cols(); ++i) s.local.col(i) = Eigen::Vector3d(u(rng), u(rng), u(rng));
+  for (std::size_t i = 0; i < 5000; ++i) {
+    s.state.push_back(static_cast<std::uint8_t>(i % 7 == 3 ? 2 : i % 11 == 5 ? 1 : 0));
+    s.intensity.push_back(i % 97 == 0 ? std::numeric_limits<double>::quiet_NaN() : 100.0 + 50.0 * u(rng));
+  }
+  s.intensity[4998] = 12.5;   // the least, in the last packet, a valid record
+  s.intensity[4997] = 301.0;  // the greatest, on a record of invalid state 2
+  s.state[4997] = 2;
+  const fs::path p = hc::test::temp_dir("e57_stream") / "intensity.e57";
+  write_bytes(p, write_e57({s}));
+  const auto whole = hp::load_cloud(p);
+  double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+  for (const double v : s.intensity)
+    if (!std::isnan(v)) lo = std::min(lo, v), hi = std::max(hi, v);
+  ASSERT_EQ(lo, 12.5);
+  ASSERT_EQ(hi, 301.0);
+  std::vector<float> want;
+  for (std::size_t i = 0; i < 5000; ++i)
+    if (s.state[i] == 0) want.push_back(static_cast<float>(std::clamp((s.intensity[i] - lo) * (1.0 / (hi - lo)), 0.0, 1.0)));
+  ASSERT_EQ(whole.value.intensity.size(), want.size());
+  EXPECT_EQ(std::memcmp(whole.value.intensity.data(), want.data(), want.size() * sizeof(float)), 0);
+  bool noted = false;
+  for (const std::string& n : whole.report.notes)
+    noted = noted || n.find("intensity normalised from [12.5, 301] (the data's own range (no usable limits))") != std::string::npos;
+  EXPECT_TRUE(noted);
+  for (const std::size_t chunk : {std::size_t{1}, std::size_t{7}, std::size_t{699}, std::size_t{1} << 20}) {
+    const Streamed got = read_stream(p, chunk);
+    ASSERT_EQ(got.error, "") << "chunk " << chunk;
+    ASSERT_EQ(got.cloud.intensity.size(), want.size()) << "chunk " << chunk;
+    EXPECT_EQ(std::memcmp(got.cloud.intensity.data(), want.data(), want.size() * sizeof(float)), 0) << "chunk " << chunk;
+    EXPECT_TRUE(got.cloud.xyz == whole.value.xyz) << "chunk " << chunk;
+  }
+}
+
 // A bad page inside the point data, and a bytestream shorter than its count: the stream fails
 // with load_cloud's message (when opened or in next()), and a later call fails too.
 TEST(E57Stream, ErrorsAreTheWholeReadsAndStick) {
@@ -694,14 +753,27 @@ TEST(E57Stream, ErrorsAreTheWholeReadsAndStick) {
   write_bytes(dir / "flipped.e57", b);
   SynthScan s{Eigen::Matrix3Xd::Random(3, 10), {1, 0, 0, 0}, Eigen::Vector3d::Zero(), 11};
   write_bytes(dir / "short.e57", write_e57({s}));
-  for (const char* name : {"flipped.e57", "short.e57"}) {
+  // A packet of an unknown type after every record's bytes: the whole read reads every packet
+  // and refuses it; so does the stream, when the scan's last records have been read.
+  SynthScan t{Eigen::Matrix3Xd::Random(3, 1500), {1, 0, 0, 0}, Eigen::Vector3d::Zero()};
+  t.trailing_packet_type = 7;
+  write_bytes(dir / "trailing.e57", write_e57({t}));
+  EXPECT_NE(load_error(dir / "trailing.e57").find("has packet type 7, expected 0 (index), 1 (data) or 2 (empty)"), std::string::npos)
+      << load_error(dir / "trailing.e57");
+  for (const char* name : {"flipped.e57", "short.e57", "trailing.e57"}) {
     SCOPED_TRACE(name);
     const std::string whole = load_error(dir / name);
     ASSERT_NE(whole, "(no error)");
     EXPECT_EQ(read_stream(dir / name, 100).error, whole);
   }
+  // The scan is decoded a chunk at a time: the 10 records its packets hold come first (two
+  // chunks of 5), and the 11th, which recordCount claims, fails the stream.
   auto st = hc::pipeline::open_point_stream(dir / "short.e57");
   hc::pipeline::Cloud c;
+  ASSERT_TRUE(st->next(c, 5));
+  EXPECT_EQ(c.size(), 5U);
+  ASSERT_TRUE(st->next(c, 5));
+  EXPECT_EQ(c.size(), 5U);
   EXPECT_THROW(st->next(c, 5), hc::InputError);
   try {
     st->next(c, 5);

@@ -27,9 +27,11 @@
 #include <cstring>
 #include <limits>
 #include <map>
+#include <memory>
 #include <optional>
 #include <string>
 #include <string_view>
+#include <tuple>
 #include <vector>
 
 #include <cerrno>
@@ -368,14 +370,16 @@ void collect_fields(const Xml& xml, const pugi::xml_node& node, std::vector<Fiel
   }
 }
 
-/// Decodes `count` values of one field from its whole bytestream (already checked long enough;
-/// `s` carries 16 bytes of zero padding). Bit packing: value i occupies bits [i·b, (i+1)·b) of
-/// the stream, least significant bit first (E2807 § 9.3.3); value = minimum + raw, then
-/// raw·scale + offset for ScaledInteger.
-/// Value i goes to out[i · stride].
-void decode_field(const Field& f, const std::string& s, std::size_t count, double* out, std::size_t stride) {
-  const auto* p = reinterpret_cast<const unsigned char*>(s.data());
+/// Decodes `count` values of one field from bytestream bytes `p`, the first value starting at
+/// bit `bit0` (a multiple of 8 for Float fields and byte-wide integers; `p` carries 16 bytes of
+/// zero padding after the last byte a value needs). Bit packing: value i occupies bits
+/// [bit0 + i·b, bit0 + (i+1)·b) of the stream, least significant bit first (E2807 § 9.3.3);
+/// value = minimum + raw, then raw·scale + offset for ScaledInteger. Value i goes to
+/// out[i · stride].
+void decode_field(const Field& f, const unsigned char* p, std::uint64_t bit0, std::size_t count, double* out,
+                  std::size_t stride) {
   if (f.kind == Field::Kind::Float) {
+    p += bit0 / 8;
     if (f.single) {
       for (std::size_t i = 0; i < count; ++i) out[i * stride] = static_cast<double>(std::bit_cast<float>(load_le<std::uint32_t>(p + 4 * i)));
     } else {
@@ -395,6 +399,7 @@ void decode_field(const Field& f, const std::string& s, std::size_t count, doubl
     return;
   }
   if (b == 8 || b == 16 || b == 32 || b == 64) {  // byte-aligned widths
+    p += bit0 / 8;
     const unsigned nb = b / 8;
     for (std::size_t i = 0; i < count; ++i) {
       std::uint64_t raw = 0;
@@ -409,7 +414,7 @@ void decode_field(const Field& f, const std::string& s, std::size_t count, doubl
     return;
   }
   const std::uint64_t mask = (std::uint64_t{1} << b) - 1;  // b < 64 here
-  std::uint64_t bit = 0;
+  std::uint64_t bit = bit0;
   for (std::size_t i = 0; i < count; ++i, bit += b) {
     const std::uint64_t byte = bit >> 3;
     const unsigned shift = static_cast<unsigned>(bit & 7U);
@@ -447,93 +452,155 @@ Pose read_pose(const Xml& xml, const pugi::xml_node& scan) {
   return pose;
 }
 
-/// Reads the bytestreams of one CompressedVector (E2807 § 9: binary section header, then packets
-/// from dataPhysicalOffset to the end of the section). Returns one byte string per field; with
-/// `only` < fields.size(), only that field's bytes are kept (the others stay empty).
-std::vector<std::string> read_bytestreams(PagedFile& file, const Xml& xml, const pugi::xml_node& points,
-                                          const std::vector<Field>& fields, std::uint64_t count,
-                                          const std::string& name, std::size_t only = SIZE_MAX) {
-  std::vector<std::string> streams(fields.size());
-  if (count == 0) return streams;
-  const auto section_phys = xml.attr<std::uint64_t>(points, "fileOffset", 0);
-  if (!points.attribute("fileOffset")) xml.fail(points, "CompressedVector without fileOffset");
-  const std::uint64_t section_log = file.to_logical(section_phys);
-  unsigned char hdr[32];
-  file.read(section_log, 32, hdr, "the CompressedVector section header");
-  if (hdr[0] != 1) {
-    throw InputError("load_cloud: " + name + ": the binary section at physical offset " +
-                     std::to_string(section_phys) + " has section id " + std::to_string(hdr[0]) +
-                     ", expected 1 (CompressedVector)");
-  }
-  const auto section_len = load_le<std::uint64_t>(hdr + 8);
-  const auto data_phys = load_le<std::uint64_t>(hdr + 16);
-  const std::uint64_t section_end = section_log + section_len;
-  std::uint64_t pos = file.to_logical(data_phys);
-  if (section_len < 32 || pos < section_log + 32 || pos > section_end) {
-    throw InputError("load_cloud: " + name + ": the binary section at physical offset " +
-                     std::to_string(section_phys) + " has length " + std::to_string(section_len) +
-                     " and data offset " + std::to_string(data_phys) + ", expected the data inside the section");
-  }
-  std::vector<std::uint64_t> needed(fields.size());
-  for (std::size_t k = 0; k < fields.size(); ++k) {
-    needed[k] = only == SIZE_MAX || only == k ? fields[k].bytes_needed(count) : 0;
-    streams[k].reserve(needed[k] + 16);
-  }
-  std::vector<unsigned char> lengths;
-  while (pos + 4 <= section_end) {
-    unsigned char ph[4];
-    file.read(pos, 4, ph, "a packet header");
-    const std::uint64_t plen = std::uint64_t{load_le<std::uint16_t>(ph + 2)} + 1;
-    const std::string where = "the packet at logical offset " + std::to_string(pos);
-    if (pos + plen > section_end) {
-      throw InputError("load_cloud: " + name + ": " + where + " (" + std::to_string(plen) +
-                       " bytes) runs past the end of its binary section (logical " +
-                       std::to_string(section_end) + "): the file is corrupt");
+/// The bytestreams of one CompressedVector (E2807 § 9: a binary section header, then packets
+/// from dataPhysicalOffset to the end of the section), read packet by packet as its values are
+/// asked for: each field's buffers are queued as the packets come and dropped once decoded, so
+/// the memory is the records asked for at once (and what the packets hold ahead of them), not
+/// the scan. Fields not `wanted` are read too when `read_all` (their pages checked, as a whole
+/// read of every bytestream checks them) and their bytes dropped.
+/// The errors, in the order a read of every packet meets them: the section header, a packet's
+/// header, type or length, a page's CRC; then (finish(), or a field asked for more records than
+/// the packets held) a bytestream shorter than recordCount needs: the first field so in
+/// prototype order, among every field when `read_all`, else among the wanted ones.
+class BytestreamCursor {
+ public:
+  BytestreamCursor(PagedFile& file, const Xml& xml, const pugi::xml_node& points, const std::vector<Field>& fields,
+                   std::uint64_t count, const std::string& name, std::vector<bool> wanted, bool read_all)
+      : file_(file), fields_(fields), count_(count), name_(name), wanted_(std::move(wanted)), read_all_(read_all),
+        queue_(fields.size()), total_(fields.size(), 0) {
+    if (count == 0) return;  // no section is read for an empty scan
+    const auto section_phys = xml.attr<std::uint64_t>(points, "fileOffset", 0);
+    if (!points.attribute("fileOffset")) xml.fail(points, "CompressedVector without fileOffset");
+    const std::uint64_t section_log = file.to_logical(section_phys);
+    unsigned char hdr[32];
+    file.read(section_log, 32, hdr, "the CompressedVector section header");
+    if (hdr[0] != 1) {
+      throw InputError("load_cloud: " + name + ": the binary section at physical offset " + std::to_string(section_phys) +
+                       " has section id " + std::to_string(hdr[0]) + ", expected 1 (CompressedVector)");
     }
-    if (ph[0] == 1) {  // data packet: type, flags, length − 1, bytestream count, buffer lengths
-      if (plen < 6) throw InputError("load_cloud: " + name + ": " + where + " is shorter than a data packet header");
-      unsigned char cnt[2];
-      file.read(pos + 4, 2, cnt, "a data packet header");
-      const std::size_t nstreams = load_le<std::uint16_t>(cnt);
-      if (nstreams != fields.size()) {
-        throw InputError("load_cloud: " + name + ": " + where + " holds " + std::to_string(nstreams) +
-                         " bytestreams, expected " + std::to_string(fields.size()) +
-                         " (one per prototype field)");
+    const auto section_len = load_le<std::uint64_t>(hdr + 8);
+    const auto data_phys = load_le<std::uint64_t>(hdr + 16);
+    end_ = section_log + section_len;
+    pos_ = file.to_logical(data_phys);
+    if (section_len < 32 || pos_ < section_log + 32 || pos_ > end_) {
+      throw InputError("load_cloud: " + name + ": the binary section at physical offset " + std::to_string(section_phys) +
+                       " has length " + std::to_string(section_len) + " and data offset " + std::to_string(data_phys) +
+                       ", expected the data inside the section");
+    }
+  }
+
+  /// Decodes the next n values of wanted field k into out[i · stride] (decode_field), reading
+  /// packets until its queue holds them. @throws as the class says.
+  void decode(std::size_t k, std::size_t n, double* out, std::size_t stride) {
+    Queue& q = queue_[k];
+    const Field& f = fields_[k];
+    const std::uint64_t bits = f.kind == Field::Kind::Float ? (f.single ? 32U : 64U) : f.bits;
+    const std::uint64_t need_bits = q.bit + bits * n;
+    while (static_cast<std::uint64_t>(q.bytes.size()) * 8 < need_bits) {
+      if (!read_packet()) {
+        check_lengths();  // throws: this field (or an earlier one) is short
+        throw std::logic_error("BytestreamCursor: field " + f.name + " ran out of bytes that its length check allows");
       }
-      std::uint64_t at = 6 + 2 * nstreams;
-      if (at > plen) throw InputError("load_cloud: " + name + ": " + where + " is shorter than its header");
-      lengths.resize(2 * nstreams);
-      file.read(pos + 6, lengths.size(), lengths.data(), "a data packet header");
-      for (std::size_t k = 0; k < nstreams; ++k) {
-        const std::uint64_t len = load_le<std::uint16_t>(lengths.data() + 2 * k);
-        if (at + len > plen) {
-          throw InputError("load_cloud: " + name + ": " + where + ": bytestream " + std::to_string(k) +
-                           " (" + fields[k].name + ") of " + std::to_string(len) +
-                           " bytes runs past the packet's end");
-        }
-        if (only == SIZE_MAX || only == k) {
-          const std::size_t old = streams[k].size();
-          streams[k].resize(old + len);
-          file.read(pos + at, len, reinterpret_cast<unsigned char*>(streams[k].data() + old), "a bytestream buffer");
-        }
-        at += len;
+    }
+    q.bytes.append(16, '\0');  // padding for the 8-byte loads of the bit unpacker
+    decode_field(f, reinterpret_cast<const unsigned char*>(q.bytes.data()), q.bit, n, out, stride);
+    q.bytes.resize(q.bytes.size() - 16);
+    q.bit += bits * n;
+    q.bytes.erase(0, static_cast<std::size_t>(q.bit / 8));
+    q.bit %= 8;
+  }
+
+  /// Reads the packets left (their errors) and checks the bytestreams' lengths against
+  /// recordCount. @throws as the class says.
+  void finish() {
+    while (read_packet()) {
+    }
+    check_lengths();
+  }
+
+ private:
+  struct Queue {
+    std::string bytes;   // the field's bytes not yet decoded, from the byte holding bit `bit`
+    std::uint64_t bit = 0;
+  };
+
+  /// Appends the next data packet's buffers to the queues (index and empty packets skipped);
+  /// false at the section's end.
+  bool read_packet() {
+    while (pos_ + 4 <= end_) {
+      unsigned char ph[4];
+      file_.read(pos_, 4, ph, "a packet header");
+      const std::uint64_t plen = std::uint64_t{load_le<std::uint16_t>(ph + 2)} + 1;
+      const std::string where = "the packet at logical offset " + std::to_string(pos_);
+      if (pos_ + plen > end_) {
+        throw InputError("load_cloud: " + name_ + ": " + where + " (" + std::to_string(plen) +
+                         " bytes) runs past the end of its binary section (logical " + std::to_string(end_) +
+                         "): the file is corrupt");
       }
-    } else if (ph[0] != 0 && ph[0] != 2) {  // 0 index packet, 2 empty packet: skipped
-      throw InputError("load_cloud: " + name + ": " + where + " has packet type " + std::to_string(ph[0]) +
-                       ", expected 0 (index), 1 (data) or 2 (empty)");
+      const std::uint64_t at_packet = pos_;
+      pos_ += plen;
+      if (ph[0] == 1) {  // data packet: type, flags, length − 1, bytestream count, buffer lengths
+        if (plen < 6) throw InputError("load_cloud: " + name_ + ": " + where + " is shorter than a data packet header");
+        unsigned char cnt[2];
+        file_.read(at_packet + 4, 2, cnt, "a data packet header");
+        const std::size_t nstreams = load_le<std::uint16_t>(cnt);
+        if (nstreams != fields_.size()) {
+          throw InputError("load_cloud: " + name_ + ": " + where + " holds " + std::to_string(nstreams) +
+                           " bytestreams, expected " + std::to_string(fields_.size()) + " (one per prototype field)");
+        }
+        std::uint64_t at = 6 + 2 * nstreams;
+        if (at > plen) throw InputError("load_cloud: " + name_ + ": " + where + " is shorter than its header");
+        lengths_.resize(2 * nstreams);
+        file_.read(at_packet + 6, lengths_.size(), lengths_.data(), "a data packet header");
+        for (std::size_t k = 0; k < nstreams; ++k) {
+          const std::uint64_t len = load_le<std::uint16_t>(lengths_.data() + 2 * k);
+          if (at + len > plen) {
+            throw InputError("load_cloud: " + name_ + ": " + where + ": bytestream " + std::to_string(k) + " (" +
+                             fields_[k].name + ") of " + std::to_string(len) + " bytes runs past the packet's end");
+          }
+          if (wanted_[k] || read_all_) {
+            total_[k] += len;
+            std::string& into = wanted_[k] ? queue_[k].bytes : scratch_;
+            const std::size_t old = wanted_[k] ? into.size() : 0;
+            into.resize(old + len);
+            file_.read(at_packet + at, len, reinterpret_cast<unsigned char*>(into.data() + old), "a bytestream buffer");
+          }
+          at += len;
+        }
+        return true;
+      }
+      if (ph[0] != 0 && ph[0] != 2) {  // 0 index packet, 2 empty packet: skipped
+        throw InputError("load_cloud: " + name_ + ": " + where + " has packet type " + std::to_string(ph[0]) +
+                         ", expected 0 (index), 1 (data) or 2 (empty)");
+      }
     }
-    pos += plen;
+    return false;
   }
-  for (std::size_t k = 0; k < fields.size(); ++k) {
-    if (streams[k].size() < needed[k]) {
-      throw InputError("load_cloud: " + name + ": the bytestream of field '" + fields[k].name + "' holds " +
-                       std::to_string(streams[k].size()) + " bytes, expected " + std::to_string(needed[k]) +
-                       " for recordCount " + std::to_string(count) + ": the file is truncated or corrupt");
+
+  void check_lengths() const {
+    for (std::size_t k = 0; k < fields_.size(); ++k) {
+      if (!(wanted_[k] || read_all_)) continue;
+      const std::uint64_t needed = fields_[k].bytes_needed(count_);
+      if (total_[k] < needed) {
+        throw InputError("load_cloud: " + name_ + ": the bytestream of field '" + fields_[k].name + "' holds " +
+                         std::to_string(total_[k]) + " bytes, expected " + std::to_string(needed) + " for recordCount " +
+                         std::to_string(count_) + ": the file is truncated or corrupt");
+      }
     }
-    streams[k].append(16, '\0');  // padding for the 8-byte loads of the bit unpacker
   }
-  return streams;
-}
+
+  PagedFile& file_;
+  const std::vector<Field>& fields_;
+  std::uint64_t count_;
+  const std::string& name_;
+  std::vector<bool> wanted_;
+  bool read_all_;
+  std::vector<Queue> queue_;
+  std::vector<std::uint64_t> total_;  // bytes seen per field
+  std::uint64_t pos_ = 0, end_ = 0;   // logical offsets: the next packet, the section's end
+  std::vector<unsigned char> lengths_;
+  std::string scratch_;
+};
 
 const char* const kKnownFields[] = {"cartesianX",     "cartesianY",           "cartesianZ",
                                     "sphericalRange", "sphericalAzimuth",     "sphericalElevation",
@@ -546,219 +613,311 @@ struct ScanOut {
   std::vector<std::string> notes;
 };
 
-ScanOut read_scan(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, std::size_t index,
-                  const std::string& name) {
-  ScanOut out;
-  const std::string label = "scan " + std::to_string(index) +
-                            (scan.child("name") ? " '" + std::string(trim(scan.child("name").child_value())) + "'" : "");
-  const pugi::xml_node points = scan.child("points");
-  if (!points) xml.fail(scan, "data3D scan without a 'points' CompressedVector");
-  if (std::string(points.attribute("type").value()) != "CompressedVector")
-    xml.fail(points, "type '" + std::string(points.attribute("type").value()) + "' found, expected CompressedVector");
-  if (!points.attribute("recordCount")) xml.fail(points, "CompressedVector without recordCount");
-  const auto count = xml.attr<std::uint64_t>(points, "recordCount", 0);
-  const pugi::xml_node proto = points.child("prototype");
-  if (!proto) xml.fail(points, "CompressedVector without a prototype");
-  std::vector<Field> fields;
-  collect_fields(xml, proto, fields);
+/// One data3D scan (E2807 § 8.4) decoded in order, any number of records at a time (the whole
+/// read: all at once; the stream: a chunk's worth), with the same values either way: each
+/// record's point and attributes depend on that record and on values fixed before the first
+/// (pose, limits). Points: cartesian, or spherical turned cartesian (§ 8.4.20), in the file
+/// frame by the scan's pose; records of invalid state 1 or 2 skipped. Intensity normalised to
+/// [0, 1] with intensityLimits, else the prototype's bounds, else the data's own range (the
+/// least and greatest non-NaN intensity of the scan's records, from a first pass over its
+/// bytestreams); colour scaled to 8 bit with colorLimits, else the prototype's bounds, else
+/// [0, 255]; row/col with `grid_index`. The scan's notes come from finish().
+/// @throws hc::InputError naming the file as read_e57 (a bad scan element, packet, page or
+/// bytestream; BytestreamCursor).
+class ScanReader {
+ public:
+  ScanReader(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, std::size_t index, const std::string& name,
+             bool grid_index)
+      : name_(name), grid_index_(grid_index) {
+    label_ = "scan " + std::to_string(index) + (scan.child("name") ? " '" + std::string(trim(scan.child("name").child_value())) + "'" : "");
+    const pugi::xml_node points = scan.child("points");
+    if (!points) xml.fail(scan, "data3D scan without a 'points' CompressedVector");
+    if (std::string(points.attribute("type").value()) != "CompressedVector")
+      xml.fail(points, "type '" + std::string(points.attribute("type").value()) + "' found, expected CompressedVector");
+    if (!points.attribute("recordCount")) xml.fail(points, "CompressedVector without recordCount");
+    count_ = xml.attr<std::uint64_t>(points, "recordCount", 0);
+    const pugi::xml_node proto = points.child("prototype");
+    if (!proto) xml.fail(points, "CompressedVector without a prototype");
+    collect_fields(xml, proto, fields_);
+    for (std::size_t k = 0; k < fields_.size(); ++k) at_.emplace(fields_[k].name, k);
+    cart_ = has("cartesianX") && has("cartesianY") && has("cartesianZ");
+    const bool sph = has("sphericalRange") && has("sphericalAzimuth") && has("sphericalElevation");
+    if (!cart_ && !sph) {
+      std::string list;
+      for (const auto& f : fields_) list += (list.empty() ? "" : ", ") + f.name;
+      xml.fail(proto, "no coordinates: found fields {" + list + "}, expected cartesianX/Y/Z or sphericalRange/Azimuth/Elevation");
+    }
+    if (count_ > std::numeric_limits<std::uint32_t>::max())
+      xml.fail(points, "recordCount " + std::to_string(count_) + " is larger than this reader accepts");
 
-  std::map<std::string, std::size_t> at;
-  for (std::size_t k = 0; k < fields.size(); ++k) at.emplace(fields[k].name, k);
-  auto has = [&](const char* n) { return at.count(n) > 0; };
-  const bool cart = has("cartesianX") && has("cartesianY") && has("cartesianZ");
-  const bool sph = has("sphericalRange") && has("sphericalAzimuth") && has("sphericalElevation");
-  if (!cart && !sph) {
-    std::string list;
-    for (const auto& f : fields) list += (list.empty() ? "" : ", ") + f.name;
-    xml.fail(proto, "no coordinates: found fields {" + list +
-                        "}, expected cartesianX/Y/Z or sphericalRange/Azimuth/Elevation");
+    pose_ = read_pose(xml, scan);
+    rot_ = pose_.q.toRotationMatrix();
+    identity_ = !pose_.has_rotation && !pose_.has_translation;
+    // Stored precision: single-precision floats in the file's own frame (a pose moves the points
+    // away from what was stored, so only an identity pose tells the loader the stored magnitudes).
+    float32_ = cart_ && identity_ && fields_[at_["cartesianX"]].single && fields_[at_["cartesianY"]].single &&
+               fields_[at_["cartesianZ"]].single && fields_[at_["cartesianX"]].kind == Field::Kind::Float;
+    direct_ = cart_ && !has("cartesianInvalidState");  // every record a point: decoded in place
+    state_ = field_of(cart_ ? "cartesianInvalidState" : "sphericalInvalidState");
+    intensity_ = field_of("intensity");
+    rgb_ = has("colorRed") && has("colorGreen") && has("colorBlue");
+    row_col_ = has("rowIndex") && has("columnIndex");
+
+    // What is decoded: the coordinates, state, intensity, colour and (grid_index) row/col.
+    std::vector<bool> wanted(fields_.size(), false);
+    for (const char* key : {"cartesianX", "cartesianY", "cartesianZ"})
+      if (cart_) wanted[at_[key]] = true;
+    for (const char* key : {"sphericalRange", "sphericalAzimuth", "sphericalElevation"})
+      if (!cart_) wanted[at_[key]] = true;
+    if (state_ != kNone) wanted[state_] = true;
+    if (intensity_ != kNone) wanted[intensity_] = true;
+    if (rgb_)
+      for (const char* key : {"colorRed", "colorGreen", "colorBlue"}) wanted[at_[key]] = true;
+    if (row_col_ && grid_index_)
+      for (const char* key : {"rowIndex", "columnIndex"}) wanted[at_[key]] = true;
+
+    if (intensity_ != kNone) {  // normalised with intensityLimits, else the prototype's bounds
+      const Field& f = fields_[intensity_];
+      std::tie(i_lo_, i_hi_) = f.bounds();
+      i_source_ = "prototype bounds";
+      if (const pugi::xml_node lim = scan.child("intensityLimits")) {
+        i_lo_ = xml.child_number(lim, "intensityMinimum", i_lo_);
+        i_hi_ = xml.child_number(lim, "intensityMaximum", i_hi_);
+        i_source_ = "intensityLimits";
+      }
+      if (!(i_hi_ > i_lo_) || !std::isfinite(i_hi_ - i_lo_)) {
+        // The data's own range: a first pass over every bytestream (their errors as the read's).
+        i_lo_ = 0.0;
+        i_hi_ = 1.0;
+        bool any = false;
+        std::vector<bool> only(fields_.size(), false);
+        only[intensity_] = true;
+        BytestreamCursor first(file, xml, points, fields_, count_, name_, only, true);
+        std::vector<double> v;
+        for (std::uint64_t done = 0; done < count_;) {
+          const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(count_ - done, std::uint64_t{1} << 16));
+          v.resize(n);
+          first.decode(intensity_, n, v.data(), 1);
+          for (const double x : v) {
+            if (std::isnan(x)) continue;
+            i_lo_ = any ? std::min(i_lo_, x) : x;
+            i_hi_ = any ? std::max(i_hi_, x) : x;
+            any = true;
+          }
+          done += n;
+        }
+        first.finish();
+        i_source_ = "the data's own range (no usable limits)";
+      }
+      i_inv_ = i_hi_ > i_lo_ ? 1.0 / (i_hi_ - i_lo_) : 0.0;
+    }
+    if (rgb_) {
+      const char* keys[3] = {"colorRed", "colorGreen", "colorBlue"};
+      const char* lim_keys[3][2] = {{"colorRedMinimum", "colorRedMaximum"},
+                                    {"colorGreenMinimum", "colorGreenMaximum"},
+                                    {"colorBlueMinimum", "colorBlueMaximum"}};
+      const pugi::xml_node lim = scan.child("colorLimits");
+      colour_limits_ = static_cast<bool>(lim);
+      for (int ch = 0; ch < 3; ++ch) {
+        auto [lo, hi] = fields_[at_[keys[ch]]].bounds();
+        if (lim) {
+          lo = xml.child_number(lim, lim_keys[ch][0], lo);
+          hi = xml.child_number(lim, lim_keys[ch][1], hi);
+        }
+        if (!(hi > lo) || !std::isfinite(hi - lo)) {
+          lo = 0.0;
+          hi = 255.0;
+        }
+        c_lo_[ch] = lo;
+        c_k_[ch] = 255.0 / (hi - lo);
+      }
+    }
+    cursor_.emplace(file, xml, points, fields_, count_, name_, std::move(wanted), true);
   }
-  if (count > std::numeric_limits<std::uint32_t>::max())
-    xml.fail(points, "recordCount " + std::to_string(count) + " is larger than this reader accepts");
 
-  const std::vector<std::string> streams = read_bytestreams(file, xml, points, fields, count, name);
-  const auto n = static_cast<std::size_t>(count);
-  auto decode = [&](const char* key, std::vector<double>& v) {
-    const auto it = at.find(key);
-    if (it == at.end()) return false;
-    v.resize(n);
-    decode_field(fields[it->second], streams[it->second], n, v.data(), 1);
-    return true;
-  };
-  const Pose pose = read_pose(xml, scan);
-  const Eigen::Matrix3d rot = pose.q.toRotationMatrix();
-  const bool identity = !pose.has_rotation && !pose.has_translation;
-  // Stored precision: single-precision floats in the file's own frame (a pose moves the points
-  // away from what was stored, so only an identity pose tells the loader the stored magnitudes).
-  out.cloud.float32_xyz = cart && identity && fields[at["cartesianX"]].single && fields[at["cartesianY"]].single &&
-                          fields[at["cartesianZ"]].single && fields[at["cartesianX"]].kind == Field::Kind::Float;
+  ScanReader(const ScanReader&) = delete;  // its cursor refers to its fields
+  ScanReader& operator=(const ScanReader&) = delete;
 
-  std::vector<double> a, b, c, state;
-  std::string coords;
-  bool have_state = false;
-  const bool direct = cart && !has("cartesianInvalidState");  // every record a point: decode in place
-  if (direct) {
-    coords = "cartesian";
-    out.cloud.xyz.resize(3, static_cast<Eigen::Index>(n));
-    const char* axes[3] = {"cartesianX", "cartesianY", "cartesianZ"};
-    for (std::size_t k = 0; k < 3; ++k) {
-      const std::size_t f = at[axes[k]];
-      decode_field(fields[f], streams[f], n, out.cloud.xyz.data() + k, 3);
-    }
-    if (!identity) {
-      for (Eigen::Index j = 0; j < out.cloud.xyz.cols(); ++j)
-        out.cloud.xyz.col(j) = rot * out.cloud.xyz.col(j) + pose.t;
-    }
-  } else if (cart) {
-    coords = "cartesian";
-    decode("cartesianX", a);
-    decode("cartesianY", b);
-    decode("cartesianZ", c);
-    have_state = decode("cartesianInvalidState", state);
-  } else {
-    coords = "spherical";
-    std::vector<double> r, az, el;
-    decode("sphericalRange", r);
-    decode("sphericalAzimuth", az);
-    decode("sphericalElevation", el);
-    have_state = decode("sphericalInvalidState", state);
-    a.resize(n);
-    b.resize(n);
-    c.resize(n);
-    for (std::size_t i = 0; i < n; ++i) {  // E2807 § 8.4.20: x = r cos(el) cos(az), ...
-      const double ce = std::cos(el[i]);
-      a[i] = r[i] * ce * std::cos(az[i]);
-      b[i] = r[i] * ce * std::sin(az[i]);
-      c[i] = r[i] * std::sin(el[i]);
-    }
-  }
-  std::size_t direction_only = 0, no_point = 0;
-  std::vector<std::size_t> keep;
-  if (!direct) keep.reserve(n);
-  for (std::size_t i = 0; !direct && i < n; ++i) {
-    const double s = have_state ? state[i] : 0.0;
-    if (s == 0.0) {
-      keep.push_back(i);
-    } else if (s == 1.0) {
-      ++direction_only;
+  /// Whether the scan's coordinates are single-precision floats in the file frame (Cloud::float32_xyz).
+  bool float32_xyz() const { return float32_; }
+  /// Records not decoded yet.
+  std::uint64_t left() const { return count_ - done_; }
+
+  /// Decodes the next min(n, left()) records into `out` (replaced): their kept points, and
+  /// intensity, rgb and (grid_index) row/col where the scan has them.
+  void next(std::size_t n, Cloud& out) {
+    n = static_cast<std::size_t>(std::min<std::uint64_t>(n, left()));
+    out = Cloud();
+    out.float32_xyz = float32_;
+    std::vector<std::size_t> keep;
+    if (direct_) {
+      out.xyz.resize(3, static_cast<Eigen::Index>(n));
+      const char* axes[3] = {"cartesianX", "cartesianY", "cartesianZ"};
+      for (std::size_t k = 0; k < 3; ++k) cursor_->decode(at_[axes[k]], n, out.xyz.data() + k, 3);
+      if (!identity_) {
+        for (Eigen::Index j = 0; j < out.xyz.cols(); ++j) out.xyz.col(j) = rot_ * out.xyz.col(j) + pose_.t;
+      }
+      if (intensity_ != kNone || rgb_ || (row_col_ && grid_index_)) {  // index for the attributes
+        keep.resize(n);
+        for (std::size_t i = 0; i < n; ++i) keep[i] = i;
+      }
     } else {
-      ++no_point;
+      std::vector<double> a(n), b(n), c(n), state;
+      if (cart_) {
+        cursor_->decode(at_["cartesianX"], n, a.data(), 1);
+        cursor_->decode(at_["cartesianY"], n, b.data(), 1);
+        cursor_->decode(at_["cartesianZ"], n, c.data(), 1);
+      } else {
+        std::vector<double> r(n), az(n), el(n);
+        cursor_->decode(at_["sphericalRange"], n, r.data(), 1);
+        cursor_->decode(at_["sphericalAzimuth"], n, az.data(), 1);
+        cursor_->decode(at_["sphericalElevation"], n, el.data(), 1);
+        for (std::size_t i = 0; i < n; ++i) {  // E2807 § 8.4.20: x = r cos(el) cos(az), ...
+          const double ce = std::cos(el[i]);
+          a[i] = r[i] * ce * std::cos(az[i]);
+          b[i] = r[i] * ce * std::sin(az[i]);
+          c[i] = r[i] * std::sin(el[i]);
+        }
+      }
+      if (state_ != kNone) {
+        state.resize(n);
+        cursor_->decode(state_, n, state.data(), 1);
+      }
+      keep.reserve(n);
+      for (std::size_t i = 0; i < n; ++i) {
+        const double s = state_ != kNone ? state[i] : 0.0;
+        if (s == 0.0) {
+          keep.push_back(i);
+        } else if (s == 1.0) {
+          ++direction_only_;
+        } else {
+          ++no_point_;
+        }
+      }
+      out.xyz.resize(3, static_cast<Eigen::Index>(keep.size()));
+      for (std::size_t j = 0; j < keep.size(); ++j) {
+        const std::size_t i = keep[j];
+        out.xyz.col(static_cast<Eigen::Index>(j)) = rot_ * Eigen::Vector3d(a[i], b[i], c[i]) + pose_.t;
+      }
     }
-  }
-  const std::size_t m = direct ? n : keep.size();
-  Cloud& cloud = out.cloud;
-  if (direct) {
-    if (has("intensity") || has("colorRed") || has("rowIndex")) {  // index for the attributes
-      keep.resize(n);
-      for (std::size_t i = 0; i < n; ++i) keep[i] = i;
+    const std::size_t m = static_cast<std::size_t>(out.xyz.cols());
+    std::vector<double> v(n);
+    if (intensity_ != kNone) {
+      cursor_->decode(intensity_, n, v.data(), 1);
+      out.intensity.resize(m);
+      for (std::size_t j = 0; j < m; ++j) out.intensity[j] = static_cast<float>(std::clamp((v[keep[j]] - i_lo_) * i_inv_, 0.0, 1.0));
     }
-  } else {
-    cloud.xyz.resize(3, static_cast<Eigen::Index>(m));
-    for (std::size_t j = 0; j < m; ++j) {
-      const std::size_t i = keep[j];
-      cloud.xyz.col(static_cast<Eigen::Index>(j)) = rot * Eigen::Vector3d(a[i], b[i], c[i]) + pose.t;
+    if (rgb_) {
+      out.rgb.resize(3 * m);
+      const char* keys[3] = {"colorRed", "colorGreen", "colorBlue"};
+      for (int ch = 0; ch < 3; ++ch) {
+        cursor_->decode(at_[keys[ch]], n, v.data(), 1);
+        for (std::size_t j = 0; j < m; ++j)
+          out.rgb[3 * j + static_cast<std::size_t>(ch)] =
+              static_cast<std::uint8_t>(std::lround(std::clamp((v[keep[j]] - c_lo_[ch]) * c_k_[ch], 0.0, 255.0)));
+      }
     }
+    if (row_col_ && grid_index_) {
+      std::vector<double> col(n);
+      cursor_->decode(at_["rowIndex"], n, v.data(), 1);
+      cursor_->decode(at_["columnIndex"], n, col.data(), 1);
+      out.row.resize(m);
+      out.col.resize(m);
+      for (std::size_t j = 0; j < m; ++j) {
+        out.row[j] = static_cast<std::int32_t>(v[keep[j]]);
+        out.col[j] = static_cast<std::int32_t>(col[keep[j]]);
+      }
+    }
+    done_ += n;
   }
 
-  std::string kept_attrs;
-  std::vector<double> v;
-  if (decode("intensity", v)) {  // normalised with intensityLimits, else the prototype's bounds
-    const Field& f = fields[at["intensity"]];
-    auto [lo, hi] = f.bounds();
-    std::string source = "prototype bounds";
-    if (const pugi::xml_node lim = scan.child("intensityLimits")) {
-      lo = xml.child_number(lim, "intensityMinimum", lo);
-      hi = xml.child_number(lim, "intensityMaximum", hi);
-      source = "intensityLimits";
+  /// After the last record (left() == 0): reads the scan's packets left and checks its
+  /// bytestreams (BytestreamCursor::finish), and returns its notes, those of read_e57.
+  std::vector<std::string> finish() {
+    if (left() != 0) throw std::logic_error("ScanReader::finish: " + std::to_string(left()) + " records not read");
+    cursor_->finish();
+    std::vector<std::string> notes;
+    std::string kept_attrs;
+    if (intensity_ != kNone) {
+      char buf[160];
+      std::snprintf(buf, sizeof buf, "intensity normalised from [%g, %g] (%s)", i_lo_, i_hi_, i_source_.c_str());
+      kept_attrs += buf;
     }
-    if (!(hi > lo) || !std::isfinite(hi - lo)) {
-      const auto [mn, mx] = std::minmax_element(v.begin(), v.end());
-      lo = n ? *mn : 0.0;
-      hi = n ? *mx : 1.0;
-      source = "the data's own range (no usable limits)";
+    if (rgb_) {
+      kept_attrs += std::string(kept_attrs.empty() ? "" : "; ") + "colour scaled to 8 bit" +
+                    (colour_limits_ ? " with colorLimits" : " with the prototype's bounds");
+    } else if (has("colorRed") || has("colorGreen") || has("colorBlue")) {
+      notes.push_back(label_ + ": colour dropped: the prototype lacks one of colorRed/Green/Blue");
     }
-    const double inv = hi > lo ? 1.0 / (hi - lo) : 0.0;
-    cloud.intensity.resize(m);
-    for (std::size_t j = 0; j < m; ++j)
-      cloud.intensity[j] = static_cast<float>(std::clamp((v[keep[j]] - lo) * inv, 0.0, 1.0));
-    char buf[160];
-    std::snprintf(buf, sizeof buf, "intensity normalised from [%g, %g] (%s)", lo, hi, source.c_str());
-    kept_attrs += std::string(kept_attrs.empty() ? "" : "; ") + buf;
-  }
-  if (has("colorRed") && has("colorGreen") && has("colorBlue")) {
-    cloud.rgb.resize(3 * m);
-    const char* keys[3] = {"colorRed", "colorGreen", "colorBlue"};
-    const char* lim_keys[3][2] = {{"colorRedMinimum", "colorRedMaximum"},
-                                  {"colorGreenMinimum", "colorGreenMaximum"},
-                                  {"colorBlueMinimum", "colorBlueMaximum"}};
-    const pugi::xml_node lim = scan.child("colorLimits");
-    for (int ch = 0; ch < 3; ++ch) {
-      decode(keys[ch], v);
-      auto [lo, hi] = fields[at[keys[ch]]].bounds();
-      if (lim) {
-        lo = xml.child_number(lim, lim_keys[ch][0], lo);
-        hi = xml.child_number(lim, lim_keys[ch][1], hi);
-      }
-      if (!(hi > lo) || !std::isfinite(hi - lo)) {
-        lo = 0.0;
-        hi = 255.0;
-      }
-      const double k = 255.0 / (hi - lo);
-      for (std::size_t j = 0; j < m; ++j)
-        cloud.rgb[3 * j + static_cast<std::size_t>(ch)] =
-            static_cast<std::uint8_t>(std::lround(std::clamp((v[keep[j]] - lo) * k, 0.0, 255.0)));
+    if (row_col_) {
+      kept_attrs += std::string(kept_attrs.empty() ? "" : "; ") + "rowIndex/columnIndex kept";
+    } else if (has("rowIndex") || has("columnIndex")) {
+      notes.push_back(label_ + ": grid index dropped: the prototype has only one of rowIndex/columnIndex");
     }
-    kept_attrs += std::string(kept_attrs.empty() ? "" : "; ") + "colour scaled to 8 bit" +
-                  (lim ? " with colorLimits" : " with the prototype's bounds");
-  } else if (has("colorRed") || has("colorGreen") || has("colorBlue")) {
-    out.notes.push_back(label + ": colour dropped: the prototype lacks one of colorRed/Green/Blue");
-  }
-  if (has("rowIndex") && has("columnIndex")) {
-    std::vector<double> col;
-    decode("rowIndex", v);
-    decode("columnIndex", col);
-    cloud.row.resize(m);
-    cloud.col.resize(m);
-    for (std::size_t j = 0; j < m; ++j) {
-      cloud.row[j] = static_cast<std::int32_t>(v[keep[j]]);
-      cloud.col[j] = static_cast<std::int32_t>(col[keep[j]]);
+    std::string proto_list, skipped;
+    for (const auto& f : fields_) {
+      proto_list += (proto_list.empty() ? "" : ", ") + f.describe();
+      if (std::find_if(std::begin(kKnownFields), std::end(kKnownFields), [&](const char* k) { return f.name == k; }) ==
+          std::end(kKnownFields))
+        skipped += (skipped.empty() ? "" : ", ") + f.name;
+      else if (cart_ && f.name.rfind("spherical", 0) == 0)
+        skipped += (skipped.empty() ? "" : ", ") + f.name + " (cartesian used)";
     }
-    kept_attrs += std::string(kept_attrs.empty() ? "" : "; ") + "rowIndex/columnIndex kept";
-  } else if (has("rowIndex") || has("columnIndex")) {
-    out.notes.push_back(label + ": grid index dropped: the prototype has only one of rowIndex/columnIndex");
+    std::string pose_text = "no pose (identity)";
+    if (pose_.has_rotation || pose_.has_translation) {
+      char buf[200];
+      std::snprintf(buf, sizeof buf, "pose q(w x y z) = (%.9g %.9g %.9g %.9g)%s, t = (%.9g %.9g %.9g) m%s", pose_.q.w(),
+                    pose_.q.x(), pose_.q.y(), pose_.q.z(), pose_.has_rotation ? "" : " [no rotation: identity]", pose_.t.x(),
+                    pose_.t.y(), pose_.t.z(), pose_.has_translation ? "" : " [no translation]");
+      pose_text = buf;
+    }
+    notes.push_back(label_ + ": " + std::to_string(count_) + " records, " + (cart_ ? "cartesian" : "spherical") +
+                    " coordinates, prototype {" + proto_list + "}, " + pose_text);
+    if (!kept_attrs.empty()) notes.push_back(label_ + ": " + kept_attrs);
+    if (!skipped.empty()) notes.push_back(label_ + ": fields skipped: " + skipped);
+    if (direction_only_ > 0) {
+      notes.push_back(label_ + ": " + std::to_string(direction_only_) + " records with invalid state 1 (direction only, no range) skipped");
+    }
+    if (no_point_ > 0) {
+      notes.push_back(label_ + ": " + std::to_string(no_point_) + " records with invalid state 2 (no point) skipped");
+    }
+    return notes;
   }
 
-  std::string proto_list, skipped;
-  for (const auto& f : fields) {
-    proto_list += (proto_list.empty() ? "" : ", ") + f.describe();
-    if (std::find_if(std::begin(kKnownFields), std::end(kKnownFields),
-                     [&](const char* k) { return f.name == k; }) == std::end(kKnownFields))
-      skipped += (skipped.empty() ? "" : ", ") + f.name;
-    else if (cart && f.name.rfind("spherical", 0) == 0)
-      skipped += (skipped.empty() ? "" : ", ") + f.name + " (cartesian used)";
+ private:
+  static constexpr std::size_t kNone = std::numeric_limits<std::size_t>::max();
+  bool has(const char* key) const { return at_.count(key) > 0; }
+  std::size_t field_of(const char* key) const {
+    const auto it = at_.find(key);
+    return it == at_.end() ? kNone : it->second;
   }
-  std::string pose_text = "no pose (identity)";
-  if (pose.has_rotation || pose.has_translation) {
-    char buf[200];
-    std::snprintf(buf, sizeof buf, "pose q(w x y z) = (%.9g %.9g %.9g %.9g)%s, t = (%.9g %.9g %.9g) m%s",
-                  pose.q.w(), pose.q.x(), pose.q.y(), pose.q.z(), pose.has_rotation ? "" : " [no rotation: identity]",
-                  pose.t.x(), pose.t.y(), pose.t.z(), pose.has_translation ? "" : " [no translation]");
-    pose_text = buf;
-  }
-  out.notes.push_back(label + ": " + std::to_string(count) + " records, " + coords + " coordinates, prototype {" +
-                      proto_list + "}, " + pose_text);
-  if (!kept_attrs.empty()) out.notes.push_back(label + ": " + kept_attrs);
-  if (!skipped.empty()) out.notes.push_back(label + ": fields skipped: " + skipped);
-  if (direction_only > 0) {
-    out.notes.push_back(label + ": " + std::to_string(direction_only) +
-                        " records with invalid state 1 (direction only, no range) skipped");
-  }
-  if (no_point > 0) {
-    out.notes.push_back(label + ": " + std::to_string(no_point) + " records with invalid state 2 (no point) skipped");
-  }
+
+  const std::string& name_;
+  bool grid_index_;
+  std::string label_;
+  std::uint64_t count_ = 0, done_ = 0;
+  std::vector<Field> fields_;
+  std::map<std::string, std::size_t> at_;
+  bool cart_ = false, direct_ = false, identity_ = true, float32_ = false, rgb_ = false, row_col_ = false;
+  bool colour_limits_ = false;
+  std::size_t state_ = kNone, intensity_ = kNone;
+  Pose pose_;
+  Eigen::Matrix3d rot_ = Eigen::Matrix3d::Identity();
+  double i_lo_ = 0.0, i_hi_ = 1.0, i_inv_ = 0.0;
+  std::string i_source_;
+  double c_lo_[3] = {0.0, 0.0, 0.0}, c_k_[3] = {1.0, 1.0, 1.0};
+  std::size_t direction_only_ = 0, no_point_ = 0;
+  std::optional<BytestreamCursor> cursor_;
+};
+
+/// One data3D scan read whole (read_e57): every record decoded at once.
+ScanOut read_scan(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, std::size_t index, const std::string& name) {
+  ScanReader reader(file, xml, scan, index, name, true);
+  ScanOut out;
+  reader.next(static_cast<std::size_t>(reader.left()), out.cloud);
+  out.notes = reader.finish();
   return out;
 }
-
 
 /// The E57 file header (E2807 § 7.2) of the first 48 bytes `u` of a file of `file_size` bytes,
 /// checked: signature, version 1, page size, file length (within the file, a multiple of the
@@ -905,10 +1064,20 @@ std::uint64_t valid_records(PagedFile& file, const Xml& xml, const pugi::xml_nod
   const bool cart = at.count("cartesianX") && at.count("cartesianY") && at.count("cartesianZ");
   const auto state = at.find(cart ? "cartesianInvalidState" : "sphericalInvalidState");
   if (state == at.end()) return count;
-  const std::vector<std::string> streams = read_bytestreams(file, xml, points, fields, count, name, state->second);
-  std::vector<double> v(static_cast<std::size_t>(count));
-  decode_field(fields[state->second], streams[state->second], v.size(), v.data(), 1);
-  return static_cast<std::uint64_t>(std::count(v.begin(), v.end(), 0.0));
+  std::vector<bool> only(fields.size(), false);
+  only[state->second] = true;
+  BytestreamCursor cursor(file, xml, points, fields, count, name, only, false);
+  std::uint64_t valid = 0;
+  std::vector<double> v;
+  for (std::uint64_t done = 0; done < count;) {
+    const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(count - done, std::uint64_t{1} << 16));
+    v.resize(n);
+    cursor.decode(state->second, n, v.data(), 1);
+    valid += static_cast<std::uint64_t>(std::count(v.begin(), v.end(), 0.0));
+    done += n;
+  }
+  cursor.finish();
+  return valid;
 }
 
 /// A scan's recordCount as E57Stream::total_points counts it (at most 2^32 − 1: read_scan
@@ -983,38 +1152,41 @@ class E57Stream final : public PointStream {
   bool streamed() const override { return true; }
   std::string crs() const override { return doc_.crs; }
 
+  // A chunk holds at most max_points records of one scan, and fewer points where records are
+  // invalid (a chunk of none is not handed out: the next records are read).
   bool next(Cloud& chunk, std::size_t max_points) override {
     return sticky_.run(name_, chunk, [&] {
-      while (pos_ == scan_.size()) {
-        if (next_scan_ == doc_.scans.size()) {
-          if (given_ == 0) throw InputError("load_cloud: " + name_ + " holds no valid point in any data3D scan");
-          return false;
+      for (;;) {
+        if (!reader_) {
+          if (next_scan_ == doc_.scans.size()) {
+            if (given_ == 0) throw InputError("load_cloud: " + name_ + " holds no valid point in any data3D scan");
+            return false;
+          }
+          reader_ = std::make_unique<ScanReader>(file_, xml_, doc_.scans[next_scan_], next_scan_, name_, false);
+          ++next_scan_;
         }
-        const std::size_t s = next_scan_++;
-        ScanOut one = read_scan(file_, xml_, doc_.scans[s], s, name_);
-        scan_ = std::move(one.cloud);
-        pos_ = 0;
-        notes_.pop_back();
-        notes_.insert(notes_.end(), one.notes.begin(), one.notes.end());
-        notes_.insert(notes_.end(), drop_notes_[s].begin(), drop_notes_[s].end());
-        if (next_scan_ == doc_.scans.size() && !doc_.crs.empty()) notes_.push_back(crs_note(doc_.crs));
-        notes_.push_back("data3D scans read one at a time");
+        if (reader_->left() > 0) {
+          reader_->next(std::max<std::size_t>(max_points, 1), chunk);
+        } else {
+          chunk = Cloud();
+        }
+        if (reader_->left() == 0) {  // the scan's last records: its packets left checked, its notes
+          const std::size_t s = next_scan_ - 1;
+          const std::vector<std::string> scan_notes = reader_->finish();
+          reader_.reset();
+          notes_.pop_back();
+          notes_.insert(notes_.end(), scan_notes.begin(), scan_notes.end());
+          notes_.insert(notes_.end(), drop_notes_[s].begin(), drop_notes_[s].end());
+          if (next_scan_ == doc_.scans.size() && !doc_.crs.empty()) notes_.push_back(crs_note(doc_.crs));
+          notes_.push_back("data3D scans read one at a time");
+        }
+        if (chunk.size() == 0) continue;
+        if (!keep_intensity_) chunk.intensity.clear();
+        if (!keep_rgb_) chunk.rgb.clear();
+        chunk.float32_xyz = float32_;
+        given_ += chunk.size();
+        return true;
       }
-      const std::size_t n = std::min(std::max<std::size_t>(max_points, 1), scan_.size() - pos_);
-      const auto first = static_cast<Eigen::Index>(pos_), count = static_cast<Eigen::Index>(n);
-      chunk.xyz = scan_.xyz.middleCols(first, count);
-      if (keep_intensity_ && scan_.has_intensity()) {
-        chunk.intensity.assign(scan_.intensity.begin() + first, scan_.intensity.begin() + first + count);
-      }
-      if (keep_rgb_ && scan_.has_rgb()) chunk.rgb.assign(scan_.rgb.begin() + 3 * first, scan_.rgb.begin() + 3 * (first + count));
-      chunk.float32_xyz = float32_;
-      pos_ += n;
-      given_ += n;
-      if (pos_ == scan_.size()) {  // free the scan once handed out
-        scan_ = Cloud();
-        pos_ = 0;
-      }
-      return true;
     });
   }
 
@@ -1026,8 +1198,8 @@ class E57Stream final : public PointStream {
   E57Document doc_;
   std::vector<std::vector<std::string>> drop_notes_;  // per scan
   std::uint64_t total_ = 0, given_ = 0;
-  std::size_t next_scan_ = 0, pos_ = 0;
-  Cloud scan_;
+  std::size_t next_scan_ = 0;
+  std::unique_ptr<ScanReader> reader_;  // the scan being read
   bool keep_intensity_ = false, keep_rgb_ = false, float32_ = false;
   StickyFailure sticky_;
   std::vector<std::string> notes_;
