@@ -6,6 +6,7 @@
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/ingest.hpp"
+#include "hc/pipeline/point_stream.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/tools/relief.hpp"
 
@@ -232,7 +233,7 @@ TEST(Relief, FilesDoNotDependOnChunksOrThreads) {
   const fs::path dir = hc::test::temp_dir("chunks");
   ReliefSpec s = small_spec(50'001);
   s.rgb = true;
-  for (const char* ext : {".ply", ".las"}) {
+  for (const char* ext : {".ply", ".las", ".e57"}) {
     const auto a = hc::tools::write_relief(s, dir / (std::string("a") + ext), 1000, 1);
     const auto b = hc::tools::write_relief(s, dir / (std::string("b") + ext), 65536, 2);
     EXPECT_EQ(read_all(dir / (std::string("a") + ext)), read_all(dir / (std::string("b") + ext))) << ext;
@@ -240,7 +241,7 @@ TEST(Relief, FilesDoNotDependOnChunksOrThreads) {
     EXPECT_EQ(a.front, b.front);
     EXPECT_EQ(a.outliers, b.outliers);
     EXPECT_EQ(a.bytes, fs::file_size(dir / (std::string("a") + ext)));
-    EXPECT_EQ(a.buffer_bytes, 1000U * (std::string(ext) == ".ply" ? 15U : 26U));
+    EXPECT_EQ(a.buffer_bytes, 1000U * (std::string(ext) == ".las" ? 26U : 15U));
   }
 }
 
@@ -283,6 +284,53 @@ TEST(Relief, ThePipelineReadersReadBackEveryPoint) {
     std::memcpy(&mn, bytes.data() + 187 + 16 * a, 8);
     EXPECT_NEAR(mx, hi[a], 1e-9);
     EXPECT_NEAR(mn, lo[a], 1e-9);
+  }
+}
+
+// The E57 output (one scan, float coordinates, 8-bit colour, 8 packets of up to 4096 records)
+// read by the pipeline's E57 reader gives the PLY output's points and colours exactly (both store
+// floats), whole and streamed in chunks; every page's CRC-32C, computed here bit by bit, is the
+// one stored big-endian after its 1020 bytes (E2807 § 7.3); the file is whole pages.
+TEST(Relief, TheE57OutputIsThePlysPointsInCheckedPages) {
+  const fs::path dir = hc::test::temp_dir("e57");
+  ReliefSpec s = small_spec(30'000);
+  s.rgb = true;
+  const auto stats = hc::tools::write_relief(s, dir / "w.e57", 7000, 2);
+  hc::tools::write_relief(s, dir / "w.ply", 7000, 2);
+  const std::vector<char> bytes = read_all(dir / "w.e57");
+  ASSERT_EQ(bytes.size() % 1024, 0U);
+  EXPECT_EQ(stats.bytes, bytes.size());
+  for (std::size_t page = 0; page < bytes.size() / 1024; ++page) {
+    std::uint32_t c = 0xFFFFFFFFU;
+    for (std::size_t i = 0; i < 1020; ++i) {
+      c ^= static_cast<unsigned char>(bytes[page * 1024 + i]);
+      for (int k = 0; k < 8; ++k) c = (c & 1U) ? (c >> 1) ^ 0x82F63B78U : c >> 1;
+    }
+    c = ~c;
+    const auto* q = reinterpret_cast<const unsigned char*>(bytes.data() + page * 1024 + 1020);
+    ASSERT_EQ((std::uint32_t{q[0]} << 24) | (std::uint32_t{q[1]} << 16) | (std::uint32_t{q[2]} << 8) | q[3], c) << "page " << page;
+  }
+  const hc::pipeline::Cloud ply = hc::pipeline::load_cloud(dir / "w.ply").value;
+  const auto e57 = hc::pipeline::load_cloud(dir / "w.e57");
+  ASSERT_EQ(e57.value.size(), s.points);
+  EXPECT_TRUE(e57.value.xyz == ply.xyz);
+  EXPECT_EQ(e57.value.rgb, ply.rgb);
+  EXPECT_TRUE(e57.value.float32_xyz);
+  for (const std::size_t chunk : {std::size_t{7}, std::size_t{5000}}) {
+    auto stream = hc::pipeline::open_point_stream(dir / "w.e57");
+    ASSERT_TRUE(stream->streamed());
+    EXPECT_EQ(stream->total_points(), s.points);
+    std::vector<double> xyz;
+    std::vector<std::uint8_t> rgb;
+    hc::pipeline::Cloud c;
+    while (stream->next(c, chunk)) {
+      ASSERT_LE(c.size(), chunk);
+      xyz.insert(xyz.end(), c.xyz.data(), c.xyz.data() + c.xyz.size());
+      rgb.insert(rgb.end(), c.rgb.begin(), c.rgb.end());
+    }
+    ASSERT_EQ(xyz.size(), 3 * s.points) << "chunk " << chunk;
+    EXPECT_TRUE(std::equal(xyz.begin(), xyz.end(), ply.xyz.data())) << "chunk " << chunk;
+    EXPECT_EQ(rgb, ply.rgb) << "chunk " << chunk;
   }
 }
 

@@ -25,7 +25,7 @@ int main(int argc, char** argv) {
   std::size_t chunk = 1u << 20;
   unsigned threads = 0;
   bool quiet = false;
-  app.add_option("out", out, "Output file, .ply or .las (never replaced if it exists)")->required();
+  app.add_option("out", out, "Output file, .ply, .las or .e57 (never replaced if it exists)")->required();
   app.add_option("--points", points, "Number of points, e.g. 1e8 (an integer >= 1)")->capture_default_str();
   app.add_option("--width", spec.width_m, "Wall width along x [m]")->capture_default_str();
   app.add_option("--height", spec.height_m, "Wall height along y [m]")->capture_default_str();

@@ -16,6 +16,7 @@
 #include <string>
 #include <system_error>
 #include <thread>
+#include <optional>
 #include <vector>
 
 namespace hc::tools {
@@ -173,6 +174,148 @@ std::vector<unsigned char> las_header(const ReliefSpec& spec, const SliceResult&
   return h;
 }
 
+[[noreturn]] void write_failed(const fs::path& out, int err) {
+  throw InputError("relief: cannot write " + out.string() + ": " + std::generic_category().message(err));
+}
+
+// ---- E57 (ASTM E2807-11): one data3D scan, written in pages as the points come ----------------
+
+constexpr std::uint64_t kE57Page = 1024, kE57Payload = 1020;
+constexpr std::size_t kE57Records = 4096;  // records per data packet (at most 18 + 15·4096 bytes < 64 KiB)
+
+// CRC-32C (Castagnoli, reflected polynomial 0x82F63B78), table-driven: E2807 § 7.3's page checksum.
+std::uint32_t crc32c(const unsigned char* p, std::size_t n) {
+  static const std::array<std::uint32_t, 256> table = [] {
+    std::array<std::uint32_t, 256> t{};
+    for (std::uint32_t i = 0; i < 256; ++i) {
+      std::uint32_t c = i;
+      for (int k = 0; k < 8; ++k) c = (c & 1U) ? (c >> 1) ^ 0x82F63B78U : c >> 1;
+      t[i] = c;
+    }
+    return t;
+  }();
+  std::uint32_t c = 0xFFFFFFFFU;
+  for (std::size_t i = 0; i < n; ++i) c = table[(c ^ p[i]) & 0xFFU] ^ (c >> 8);
+  return ~c;
+}
+
+std::uint64_t e57_physical(std::uint64_t logical) { return logical / kE57Payload * kE57Page + logical % kE57Payload; }
+
+// The E57 paged file (E2807 § 7.3): logical bytes in, pages of 1020 of them and their CRC-32C
+// (stored big-endian, as the reader checks it) out. Page 0 (the file header and the section
+// header, which are known only at the end) is kept and written last.
+class E57Pages {
+ public:
+  E57Pages(std::FILE* f, const fs::path& out) : f_(f), out_(out) { page_.reserve(kE57Page); }
+  std::uint64_t logical() const { return logical_; }
+  void put(const void* data, std::size_t n) {
+    const auto* p = static_cast<const unsigned char*>(data);
+    while (n > 0) {
+      const std::size_t take = std::min<std::size_t>(n, kE57Payload - page_.size());
+      page_.insert(page_.end(), p, p + take);
+      p += take;
+      n -= take;
+      logical_ += take;
+      if (page_.size() == kE57Payload) flush();
+    }
+  }
+  void pad_page() {
+    while (logical_ % kE57Payload != 0) put("", 1);
+  }
+  // Writes page 0 with `first` over its first bytes (the headers), at the start of the file.
+  void finish(const std::vector<unsigned char>& first) {
+    if (!page_.empty()) throw std::logic_error("E57Pages::finish: a page is not full");
+    std::memcpy(page0_.data(), first.data(), first.size());
+    seal(page0_);
+    if (std::fseek(f_, 0, SEEK_SET) != 0 || std::fwrite(page0_.data(), 1, kE57Page, f_) != kE57Page) write_failed(out_, errno);
+  }
+
+ private:
+  static void seal(std::vector<unsigned char>& page) {
+    const std::uint32_t c = crc32c(page.data(), kE57Payload);
+    page.resize(kE57Page);
+    for (int k = 0; k < 4; ++k) page[kE57Payload + static_cast<std::size_t>(k)] = static_cast<unsigned char>(c >> (24 - 8 * k));
+  }
+  void flush() {
+    if (pages_++ == 0) {
+      page0_ = page_;  // written by finish()
+      page0_.resize(kE57Page, 0);
+      if (std::fwrite(page0_.data(), 1, kE57Page, f_) != kE57Page) write_failed(out_, errno);
+      page0_.resize(kE57Payload);
+    } else {
+      seal(page_);
+      if (std::fwrite(page_.data(), 1, kE57Page, f_) != kE57Page) write_failed(out_, errno);
+    }
+    page_.clear();
+  }
+  std::FILE* f_;
+  fs::path out_;
+  std::vector<unsigned char> page_, page0_;
+  std::uint64_t logical_ = 0, pages_ = 0;
+};
+
+// Writes n records (PLY layout: x y z float [, r g b]) as data packets of kE57Records records:
+// one bytestream per field (cartesianX/Y/Z Float single [, colorRed/Green/Blue Integer 0..255]).
+// The records of a last, partial packet wait in `pending` for the next call (last: written), so
+// that the packets do not depend on the chunks.
+void e57_packets(E57Pages& pages, std::vector<unsigned char>& pending, const unsigned char* in, std::size_t in_n, bool rgb, bool last) {
+  const std::size_t record = rgb ? 15U : 12U;
+  pending.insert(pending.end(), in, in + in_n * record);
+  std::size_t n = pending.size() / record;
+  if (!last) n -= n % kE57Records;
+  const unsigned char* records = pending.data();
+  const std::size_t streams = rgb ? 6U : 3U;
+  std::vector<unsigned char> packet;
+  for (std::size_t i0 = 0; i0 < n; i0 += kE57Records) {
+    const std::size_t m = std::min(kE57Records, n - i0);
+    packet.clear();
+    const auto u16 = [&](std::uint16_t v) {
+      packet.push_back(static_cast<unsigned char>(v & 0xFFU));
+      packet.push_back(static_cast<unsigned char>(v >> 8));
+    };
+    packet.push_back(1);  // data packet
+    packet.push_back(0);  // flags
+    u16(0);               // packet length − 1, set below
+    u16(static_cast<std::uint16_t>(streams));
+    for (std::size_t a = 0; a < 3; ++a) u16(static_cast<std::uint16_t>(4 * m));
+    if (rgb)
+      for (std::size_t a = 0; a < 3; ++a) u16(static_cast<std::uint16_t>(m));
+    for (std::size_t a = 0; a < 3; ++a)
+      for (std::size_t i = i0; i < i0 + m; ++i) packet.insert(packet.end(), records + i * record + 4 * a, records + i * record + 4 * a + 4);
+    if (rgb)
+      for (std::size_t a = 0; a < 3; ++a)
+        for (std::size_t i = i0; i < i0 + m; ++i) packet.push_back(records[i * record + 12 + a]);
+    while (packet.size() % 4 != 0) packet.push_back(0);
+    const auto l1 = static_cast<std::uint16_t>(packet.size() - 1);
+    packet[2] = static_cast<unsigned char>(l1 & 0xFFU);
+    packet[3] = static_cast<unsigned char>(l1 >> 8);
+    pages.put(packet.data(), packet.size());
+  }
+  pending.erase(pending.begin(), pending.begin() + static_cast<std::ptrdiff_t>(n * record));
+}
+
+std::string e57_xml(const ReliefSpec& spec, std::uint64_t section_physical) {
+  std::string x =
+      "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+      "<e57Root type=\"Structure\" xmlns=\"http://www.astm.org/COMMIT/E57/2010-e57-v1.0\">\n"
+      "<formatName type=\"String\"><![CDATA[ASTM E57 3D Imaging Data File]]></formatName>\n"
+      "<guid type=\"String\"><![CDATA[hc-gen-relief-" + std::to_string(spec.seed) + "-" + std::to_string(spec.points) + "]]></guid>\n"
+      "<versionMajor type=\"Integer\">1</versionMajor><versionMinor type=\"Integer\">0</versionMinor>\n"
+      "<data3D type=\"Vector\" allowHeterogeneousChildren=\"1\"><vectorChild type=\"Structure\">\n"
+      "<guid type=\"String\"><![CDATA[hc-gen-relief-scan]]></guid><name type=\"String\"><![CDATA[generated relief wall]]></name>\n"
+      "<points type=\"CompressedVector\" fileOffset=\"" + std::to_string(section_physical) + "\" recordCount=\"" +
+      std::to_string(spec.points) + "\"><prototype type=\"Structure\">"
+      "<cartesianX type=\"Float\" precision=\"single\"/><cartesianY type=\"Float\" precision=\"single\"/>"
+      "<cartesianZ type=\"Float\" precision=\"single\"/>";
+  if (spec.rgb) {
+    x += "<colorRed type=\"Integer\" minimum=\"0\" maximum=\"255\"/><colorGreen type=\"Integer\" minimum=\"0\" maximum=\"255\"/>"
+         "<colorBlue type=\"Integer\" minimum=\"0\" maximum=\"255\"/>";
+  }
+  x += "</prototype><codecs type=\"Vector\" allowHeterogeneousChildren=\"1\"/></points>\n"
+       "</vectorChild></data3D>\n</e57Root>\n";
+  return x;
+}
+
 struct TempFile {
   fs::path path;
   std::FILE* f = nullptr;
@@ -185,9 +328,6 @@ struct TempFile {
   }
 };
 
-[[noreturn]] void write_failed(const fs::path& out, int err) {
-  throw InputError("relief: cannot write " + out.string() + ": " + std::generic_category().message(err));
-}
 
 }  // namespace
 
@@ -326,8 +466,12 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
     format = ReliefFormat::kPly;
   } else if (ext == ".las" || ext == ".LAS") {
     format = ReliefFormat::kLas;
+  } else if (ext == ".e57" || ext == ".E57") {
+    format = ReliefFormat::kE57;
+    require(spec.points <= std::numeric_limits<std::uint32_t>::max(), "points", static_cast<double>(spec.points),
+            "< 2^32 for one E57 scan (hapticloud's reader)");
   } else {
-    throw ConfigError("relief: " + out.string() + ": extension '" + ext + "' (expected .ply or .las)");
+    throw ConfigError("relief: " + out.string() + ": extension '" + ext + "' (expected .ply, .las or .e57)");
   }
   if (format == ReliefFormat::kLas) {
     require(spec.points <= std::numeric_limits<std::uint32_t>::max(), "points", static_cast<double>(spec.points),
@@ -343,7 +487,7 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
     throw InputError("relief: " + out.string() + " exists (the generator never replaces a file)");
   }
   const auto t0 = std::chrono::steady_clock::now();
-  const std::size_t record = format == ReliefFormat::kPly ? (spec.rgb ? 15U : 12U) : (spec.rgb ? 26U : 20U);
+  const std::size_t record = format != ReliefFormat::kLas ? (spec.rgb ? 15U : 12U) : (spec.rgb ? 26U : 20U);
   if (threads == 0) threads = std::max(1U, std::thread::hardware_concurrency());
   chunk_points = static_cast<std::size_t>(std::min<std::uint64_t>(chunk_points, spec.points));
 
@@ -354,7 +498,14 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
 
   const std::string ply = format == ReliefFormat::kPly ? ply_header(spec) : std::string();
   const std::size_t header_bytes = format == ReliefFormat::kPly ? ply.size() : kLasHeaderBytes;
-  if (format == ReliefFormat::kPly) {
+  // E57: the file header (48 bytes), the binary section's header (32), then its data packets.
+  std::optional<E57Pages> e57;
+  std::vector<unsigned char> e57_pending;  // records of a partial packet (at most 4095)
+  if (format == ReliefFormat::kE57) {
+    e57.emplace(tmp.f, out);
+    const std::vector<unsigned char> headers(80, 0);  // written at the end (E57Pages::finish)
+    e57->put(headers.data(), headers.size());
+  } else if (format == ReliefFormat::kPly) {
     if (std::fwrite(ply.data(), 1, ply.size(), tmp.f) != ply.size()) write_failed(out, errno);
   } else {
     const std::vector<unsigned char> placeholder(kLasHeaderBytes, 0);
@@ -377,7 +528,8 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
       const std::size_t a = std::min(n, t * per), b = std::min(n, a + per);
       auto body = [&, t, a, b] {
         try {
-          encode_slice(spec, format, first + a, b - a, buffer.data() + a * record, parts[t], order.empty() ? nullptr : order.data());
+          encode_slice(spec, format == ReliefFormat::kE57 ? ReliefFormat::kPly : format, first + a, b - a, buffer.data() + a * record,
+                       parts[t], order.empty() ? nullptr : order.data());
         } catch (...) {
           errors[t] = std::current_exception();
         }
@@ -400,8 +552,41 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
         total.hi[a] = std::max(total.hi[a], r.hi[a]);
       }
     }
-    if (std::fwrite(buffer.data(), record, n, tmp.f) != n) write_failed(out, errno);
+    if (e57) {
+      e57_packets(*e57, e57_pending, buffer.data(), n, spec.rgb, first + n == spec.points);
+    } else if (std::fwrite(buffer.data(), record, n, tmp.f) != n) {
+      write_failed(out, errno);
+    }
     if (progress) progress(first + n, spec.points);
+  }
+  std::uint64_t e57_bytes = 0;
+  if (e57) {
+    // The section ends with its last packet; the XML follows (E2807 § 8), then the last page's
+    // padding; then page 0 gets the two headers.
+    const std::uint64_t section_logical_bytes = e57->logical() - 48;
+    const std::string xml = e57_xml(spec, 48);
+    while (e57->logical() % 4 != 0) e57->put("", 1);
+    const std::uint64_t xml_logical = e57->logical();
+    e57->put(xml.data(), xml.size());
+    e57->pad_page();
+    const std::uint64_t physical_bytes = e57->logical() / kE57Payload * kE57Page;
+    std::vector<unsigned char> h(80, 0);
+    unsigned char* p = h.data();
+    std::memcpy(p, "ASTM-E57", 8);
+    p += 8;
+    put(p, std::uint32_t{1});  // versionMajor
+    put(p, std::uint32_t{0});  // versionMinor
+    put(p, physical_bytes);    // filePhysicalLength
+    put(p, e57_physical(xml_logical));
+    put(p, static_cast<std::uint64_t>(xml.size()));
+    put(p, kE57Page);
+    put(p, std::uint8_t{1});  // binary section header (§ 9.1): CompressedVector
+    p += 7;
+    put(p, section_logical_bytes);
+    put(p, e57_physical(80));      // dataPhysicalOffset: the first packet
+    put(p, std::uint64_t{0});      // indexPhysicalOffset: no index packets
+    e57->finish(h);
+    e57_bytes = physical_bytes;
   }
   if (format == ReliefFormat::kLas) {
     const std::vector<unsigned char> header = las_header(spec, total);
@@ -423,7 +608,7 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
   stats.front = total.front;
   stats.back = total.back;
   stats.outliers = total.outliers;
-  stats.bytes = header_bytes + spec.points * record;
+  stats.bytes = e57 ? e57_bytes : header_bytes + spec.points * record;
   stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return stats;
 }

@@ -110,6 +110,10 @@ ReliefPoint relief_point(const ReliefSpec& spec, std::uint64_t index);
 enum class ReliefFormat {
   kPly,  ///< .ply: binary_little_endian 1.0, vertex x y z float [m] (+ red green blue uchar)
   kLas,  ///< .las: LAS 1.2, point data format 0 (2 with rgb), scale 0.1 mm, offset 0, class 1
+  /// .e57: ASTM E2807-11, one data3D scan without a pose: cartesianX/Y/Z Float single [m]
+  /// (+ colorRed/Green/Blue Integer 0..255), data packets of 4096 records, pages of 1024 bytes
+  /// with their CRC-32C (§ 7.3), the XML section after the points.
+  kE57,
 };
 
 /// What write_relief wrote.
@@ -123,7 +127,7 @@ struct ReliefWriteStats {
 /// Progress: points written so far and the total.
 using ReliefProgressFn = std::function<void(std::uint64_t done, std::uint64_t total)>;
 
-/// Writes the scan to `out` (.ply or .las, by extension) in chunks of chunk_points points,
+/// Writes the scan to `out` (.ply, .las or .e57, by extension) in chunks of chunk_points points,
 /// generated on up to `threads` threads (0 = the hardware's count). The file is written into an
 /// exclusive temporary beside `out` and put in place only when complete (hc/common/
 /// file_output.hpp): an existing file is never replaced, and a failure leaves nothing behind.
@@ -131,9 +135,10 @@ using ReliefProgressFn = std::function<void(std::uint64_t done, std::uint64_t to
 /// X = round(x / 0.0001 m); every point is a single return of class 1 (unclassified).
 /// Memory: one chunk (chunk_points × the record size), and with spec.sorted the permutation (12
 /// bytes a point while sorting, 4 after). Bytes out: PLY 12 (15 with rgb) per point
-/// plus the header; LAS 20 (26) plus 227.
+/// plus the header; LAS 20 (26) plus 227; E57 the same records as PLY in packets (18 bytes a
+/// packet of 4096 records), 4 bytes of CRC a 1020-byte page, and the XML section.
 /// @throws hc::ConfigError for an invalid spec (validate), chunk_points 0, an extension other
-///         than .ply / .las, a LAS file of 2³² points or more, or coordinates outside LAS's
+///         than .ply / .las / .e57, a LAS or E57 file of 2³² points or more, or coordinates outside LAS's
 ///         32-bit range at 0.1 mm (±214 km); hc::InputError naming `out` if it exists, cannot be
 ///         written or the disk fills.
 ReliefWriteStats write_relief(const ReliefSpec& spec, const std::filesystem::path& out, std::size_t chunk_points = 1u << 20,
