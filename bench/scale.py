@@ -13,6 +13,7 @@ report has been read.
     python3 bench/scale.py --build build/release --scratch /big/disk/scale
     python3 bench/scale.py --format las --sizes 1e7 --n 800   # LAS 1.2 instead of PLY
     python3 bench/scale.py --format ptx --sizes 3e6 --n 800   # PTX text (converted from the PLY)
+    python3 bench/scale.py --format e57 --sizes 1e8 --n 4096 --modes tiled   # one E57 scan
     python3 bench/scale.py --order scan --sizes 1e8 --n 4096 --modes tiled   # a scanner's point order
     python3 bench/scale.py --order sorted --sizes 1e8 --n 4096 --modes tiled # the random wall's points, sorted
     python3 bench/scale.py --sizes 1e6,1e7,1e8 --json scale.json --plot docs/images/scale.png
@@ -307,9 +308,10 @@ def main():
                     help="the generated points' order: uniformly at random (the worst case for locality), a "
                          "scanner's vertical profiles from left to right on a raster (hc-gen-relief --scan-order), "
                          "or the random wall's own points sorted into that order (--sorted: the same points)")
-    ap.add_argument("--format", default="ply", choices=["ply", "las", "ptx"],
-                    help="the generated scans' format: binary float PLY, LAS 1.2 (point format 0), or PTX "
-                         "(one scan of 1000 rows, converted here from the generated PLY)")
+    ap.add_argument("--format", default="ply", choices=["ply", "las", "ptx", "e57"],
+                    help="the generated scans' format: binary float PLY, LAS 1.2 (point format 0), PTX "
+                         "(one scan of 1000 rows, converted here from the generated PLY), or E57 (one data3D scan, "
+                         "float coordinates, written by hc-gen-relief)")
     ap.add_argument("--keep-reports", default=None,
                     help="copy each run's report.json (every stage's figures and peak_rss_mb) into this folder as report_<tag>.json")
     ap.add_argument("--plot", default=None, help="also draw the rows with gnuplot into this PNG (throughput and peak RSS)")

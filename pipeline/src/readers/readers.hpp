@@ -74,7 +74,7 @@ ReadResult read_ply(const ScanSource& source);  ///< read_ply.cpp
 ReadResult read_pcd(const ScanSource& source);  ///< read_pcd.cpp
 ReadResult read_obj(const ScanSource& source);  ///< read_obj.cpp
 ReadResult read_xyz(const ScanSource& source);  ///< read_xyz.cpp
-ReadResult read_e57(const ScanSource& source);  ///< read_e57.cpp: ASTM E2807 E57, every data3D scan posed into the file frame and merged (metres; scan_id when > 1 scan; intensity [0,1], rgb 8 bit, row/col); InputError on bad CRC-32C page (its offset), truncation, bad XML, zero scans
+ReadResult read_e57(const ScanSource& source);  ///< read_e57.cpp: ASTM E2807 E57, every data3D scan posed into the file frame and merged (metres; scan_id when > 1 scan; intensity [0,1], rgb 8 bit, row/col; intensity by intensityLimits, else the prototype's bounds, else the least and greatest non-NaN value of the scan's records); InputError on bad CRC-32C page (its offset), truncation, bad XML, zero scans
 ReadResult read_las(const ScanSource& source);  ///< read_las.cpp (LAS 1.0–1.4, formats 0–10)
 ReadResult read_laz(const ScanSource& source);  ///< read_laz.cpp (LAZ: LASzip compressors 1–3, formats 0–3 and 6–8; COPC as plain LAZ)
 ReadResult read_ptx(const ScanSource& source);  ///< read_ptx.cpp (Leica PTX, one or more scans)
@@ -184,8 +184,9 @@ std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, 
                                              const LoadOptions* options);
 
 /// An E57 file (read_e57.cpp) read scan by scan: its pages read with pread and each checked
-/// (CRC-32C), one data3D scan decoded at a time (memory: the largest scan) and handed out in
-/// chunks; the same points, intensity, colour, CRS and notes as read_e57 (no scan_id or
+/// (CRC-32C), each data3D scan decoded max_points records at a time as its packets are read
+/// (memory: a chunk and the packet buffers ahead of it, not the scan; with several scans, the
+/// valid records of each are counted at open, one more pass over their state bytestreams); the same points, intensity, colour, CRS and notes as read_e57 (no scan_id or
 /// row/column). The attributes kept are decided from the scans' prototypes as read_e57's merge
 /// decides them. nullptr when the file cannot be opened or is shorter than its header.
 /// @throws hc::InputError as read_e57: a bad header or XML section when opened; a bad page,

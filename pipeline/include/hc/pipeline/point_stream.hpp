@@ -12,8 +12,8 @@
 /// load_cloud does); LAZ (`.laz`, one LASzip chunk decompressed at a time, the same points as
 /// load_cloud, and the same extra pass with colour); PTX (`.ptx`, lines read in blocks, the same
 /// points and notes as load_cloud without row/column; a first look at open time reads every scan
-/// header and counts the point lines); E57 (`.e57`, scan by scan: one data3D scan decoded at a
-/// time, pages read and checked from the file; the same points, intensity, colour, CRS and notes
+/// header and counts the point lines); E57 (`.e57`, scan by scan, each decoded a chunk of records at
+/// a time as its packets are read, pages read and checked from the file; the same points, intensity, colour, CRS and notes
 /// as load_cloud); PTS (`.pts`, lines read in blocks, the same points, intensity, colour, notes
 /// and errors as load_cloud; a first look at open time reads the count lines and skips the point
 /// lines unparsed); XYZ (`.xyz`, `.txt`: the same, the first look counting the point lines);
