@@ -1048,36 +1048,37 @@ ScanAttributes scan_attributes(const Xml& xml, const pugi::xml_node& scan) {
   return a;
 }
 
-/// How many records of `scan` read_scan keeps: recordCount, less those whose invalid state
-/// (cartesianInvalidState, or sphericalInvalidState for spherical coordinates) is not 0; only
-/// that field's bytestream is read. A scan read_scan will refuse counts as its recordCount (the
-/// refusal comes when it is read).
-std::uint64_t valid_records(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, const std::string& name) {
+/// Whether read_scan keeps a record of `scan`: recordCount > 0 and, with an invalid-state field
+/// (cartesianInvalidState, or sphericalInvalidState for spherical coordinates), a record of state
+/// 0. Only that field's bytestream is read, and only up to its first 0 (the first packet of a
+/// scanner's file, most often; the whole field for a scan of invalid records only, checked for
+/// its length then). A scan read_scan will refuse counts as keeping one (the refusal comes when
+/// it is read).
+bool keeps_a_record(PagedFile& file, const Xml& xml, const pugi::xml_node& scan, const std::string& name) {
   const pugi::xml_node points = scan.child("points");
   const auto count = xml.attr<std::uint64_t>(points, "recordCount", 0);
   const pugi::xml_node proto = points.child("prototype");
-  if (count == 0 || !proto || count > std::numeric_limits<std::uint32_t>::max()) return count;
+  if (count == 0 || !proto || count > std::numeric_limits<std::uint32_t>::max()) return count > 0;
   std::vector<Field> fields;
   collect_fields(xml, proto, fields);
   std::map<std::string, std::size_t> at;
   for (std::size_t k = 0; k < fields.size(); ++k) at.emplace(fields[k].name, k);
   const bool cart = at.count("cartesianX") && at.count("cartesianY") && at.count("cartesianZ");
   const auto state = at.find(cart ? "cartesianInvalidState" : "sphericalInvalidState");
-  if (state == at.end()) return count;
+  if (state == at.end()) return true;
   std::vector<bool> only(fields.size(), false);
   only[state->second] = true;
   BytestreamCursor cursor(file, xml, points, fields, count, name, only, false);
-  std::uint64_t valid = 0;
   std::vector<double> v;
   for (std::uint64_t done = 0; done < count;) {
-    const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(count - done, std::uint64_t{1} << 16));
+    const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(count - done, 4096));
     v.resize(n);
     cursor.decode(state->second, n, v.data(), 1);
-    valid += static_cast<std::uint64_t>(std::count(v.begin(), v.end(), 0.0));
+    if (std::find(v.begin(), v.end(), 0.0) != v.end()) return true;
     done += n;
   }
   cursor.finish();
-  return valid;
+  return false;
 }
 
 /// A scan's recordCount as E57Stream::total_points counts it (at most 2^32 − 1: read_scan
@@ -1096,20 +1097,19 @@ class E57Stream final : public PointStream {
     load_e57_document(file_, h, file_size, name_, doc_);
     notes_ = doc_.notes;
     // The merge of the whole read (read_e57 and Cloud::append), on the prototypes and, with
-    // several scans, the records each keeps (a scan with none carries no attribute): an
+    // several scans, whether each keeps a record (a scan with none carries no attribute): an
     // attribute some scans lack is dropped, with a note at each scan where the two sides differ.
     const bool several = doc_.scans.size() > 1;
     bool intensity = false, rgb = false, row = false, col = false, scan_id = false, float32 = false;
-    std::uint64_t merged = 0;
+    bool merged = false;  // a scan before keeps a record
     for (std::size_t s = 0; s < doc_.scans.size(); ++s) {
       const ScanAttributes a = scan_attributes(xml_, doc_.scans[s]);
       const std::uint64_t records = xml_.attr<std::uint64_t>(doc_.scans[s].child("points"), "recordCount", 0);
       total_ += counted_records(records);
-      const std::uint64_t kept = several ? valid_records(file_, xml_, doc_.scans[s], name_) : records;
-      const bool some = kept > 0;
+      const bool some = several ? keeps_a_record(file_, xml_, doc_.scans[s], name_) : records > 0;
       std::vector<std::string> dropped;
       drop_notes_.push_back({});
-      if (merged == 0) {  // the first scan, or everything before it was empty: taken whole
+      if (!merged) {  // the first scan, or everything before it was empty: taken whole
         intensity = a.intensity && some;
         rgb = a.rgb && some;
         row = col = a.row_col && some;
@@ -1133,7 +1133,7 @@ class E57Stream final : public PointStream {
                                        std::to_string(s) + ")");
         }
       }
-      merged += kept;
+      merged = merged || some;
     }
     (void)row;
     (void)col;

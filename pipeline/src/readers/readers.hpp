@@ -185,8 +185,8 @@ std::unique_ptr<PointStream> open_las_stream(const std::filesystem::path& path, 
 
 /// An E57 file (read_e57.cpp) read scan by scan: its pages read with pread and each checked
 /// (CRC-32C), each data3D scan decoded max_points records at a time as its packets are read
-/// (memory: a chunk and the packet buffers ahead of it, not the scan; with several scans, the
-/// valid records of each are counted at open, one more pass over their state bytestreams); the same points, intensity, colour, CRS and notes as read_e57 (no scan_id or
+/// (memory: a chunk and the packet buffers ahead of it, not the scan; with several scans, each
+/// scan's invalid-state bytestream is read at open up to its first valid record, for the merge); the same points, intensity, colour, CRS and notes as read_e57 (no scan_id or
 /// row/column). The attributes kept are decided from the scans' prototypes as read_e57's merge
 /// decides them. nullptr when the file cannot be opened or is shorter than its header.
 /// @throws hc::InputError as read_e57: a bad header or XML section when opened; a bad page,
