@@ -40,6 +40,111 @@ def ply_header(fmt, n, props="property float x\nproperty float y\nproperty float
     return f"ply\nformat {fmt} 1.0\ncomment fuzz seed\nelement vertex {n}\n{props}{extra}end_header\n"
 
 
+def crc32c(data):
+    """CRC-32C (Castagnoli, reflected 0x82F63B78): the E57 page checksum (E2807 section 7.3)."""
+    c = 0xFFFFFFFF
+    for b in data:
+        c ^= b
+        for _ in range(8):
+            c = (c >> 1) ^ 0x82F63B78 if c & 1 else c >> 1
+    return c ^ 0xFFFFFFFF
+
+
+def e57_two_scans():
+    """A synthetic E57 (E2807) of two data3D scans, written from the specification: scan 0 holds
+    600 cartesian records as 13-bit ScaledIntegers, an invalid state (2 bits) and a Float single
+    intensity whose bounds leave no range (minimum = maximum: normalised by the data's own range), its bytestreams cut into
+    packets by bytes so that values straddle packets, an empty packet among them; scan 1 holds 150
+    spherical Float double records under a rotated and translated pose. Pages of 1024 bytes, each
+    1020 bytes of data and their CRC-32C big-endian."""
+    import math
+
+    def bits_pack(values, nbits):
+        acc, n, out = 0, 0, bytearray()
+        for v in values:
+            acc |= v << n
+            n += nbits
+            while n >= 8:
+                out.append(acc & 0xFF)
+                acc >>= 8
+                n -= 8
+        if n:
+            out.append(acc & 0xFF)
+        return bytes(out)
+
+    def packets(streams, pieces):
+        """Data packets holding each bytestream cut into `pieces` slices of about equal bytes."""
+        out = b""
+        for k in range(pieces):
+            bufs = [st[len(st) * k // pieces:len(st) * (k + 1) // pieces] for st in streams]
+            body = struct.pack("<H", len(bufs)) + b"".join(struct.pack("<H", len(b)) for b in bufs) + b"".join(bufs)
+            pk = bytearray(struct.pack("<BBH", 1, 0, 0) + body)
+            while len(pk) % 4:
+                pk.append(0)
+            struct.pack_into("<H", pk, 2, len(pk) - 1)
+            out += bytes(pk)
+            if k == 0:
+                out += struct.pack("<BBH", 2, 0, 15) + bytes(12)  # an empty packet
+        return out
+
+    n0, n1 = 600, 150
+    xs = [(i * 37) % 8192 for i in range(n0)]
+    ys = [(i * 91 + 5) % 8192 for i in range(n0)]
+    zs = [(i * 13 + 1000) % 8192 for i in range(n0)]
+    states = [2 if i % 9 == 4 else 1 if i % 13 == 6 else 0 for i in range(n0)]
+    inten = [float("nan") if i % 50 == 7 else 3.0 + math.sin(i) for i in range(n0)]
+    s0 = [bits_pack(xs, 13), bits_pack(ys, 13), bits_pack(zs, 13), bits_pack(states, 2),
+          b"".join(struct.pack("<f", v) for v in inten)]
+    rng = [1.0 + 0.001 * i for i in range(n1)]
+    az = [0.01 * i for i in range(n1)]
+    el = [0.3 - 0.002 * i for i in range(n1)]
+    s1 = [b"".join(struct.pack("<d", v) for v in col) for col in (rng, az, el)]
+    log = bytearray(48)
+    sections = []
+    for streams, pieces in ((s0, 7), (s1, 3)):
+        while len(log) % 4:
+            log.append(0)
+        start = len(log)
+        body = packets(streams, pieces)
+        log += struct.pack("<B7xQQQ", 1, 32 + len(body), 0, 0) + body
+        sections.append(start)
+
+    def physical(logical):
+        return logical // 1020 * 1024 + logical % 1020
+
+    for start in sections:  # dataPhysicalOffset: the first packet
+        struct.pack_into("<Q", log, start + 16, physical(start + 32))
+    xml = ('<?xml version="1.0" encoding="UTF-8"?>\n<e57Root type="Structure" '
+           'xmlns="http://www.astm.org/COMMIT/E57/2010-e57-v1.0"><data3D type="Vector" allowHeterogeneousChildren="1">'
+           '<vectorChild type="Structure"><name type="String"><![CDATA[packed]]></name>'
+           f'<points type="CompressedVector" fileOffset="{physical(sections[0])}" recordCount="{n0}"><prototype type="Structure">'
+           '<cartesianX type="ScaledInteger" minimum="0" maximum="8191" scale="0.0001" offset="-0.4"/>'
+           '<cartesianY type="ScaledInteger" minimum="0" maximum="8191" scale="0.0001" offset="-0.4"/>'
+           '<cartesianZ type="ScaledInteger" minimum="0" maximum="8191" scale="0.0001"/>'
+           '<cartesianInvalidState type="Integer" minimum="0" maximum="2"/><intensity type="Float" precision="single" minimum="0" maximum="0"/>'
+           '</prototype><codecs type="Vector" allowHeterogeneousChildren="1"/></points></vectorChild>'
+           '<vectorChild type="Structure"><name type="String"><![CDATA[spherical]]></name><pose type="Structure">'
+           '<rotation type="Structure"><w type="Float">0.9</w><x type="Float">0.1</x><y type="Float">-0.3</y>'
+           '<z type="Float">0.2</z></rotation><translation type="Structure"><x type="Float">1.5</x>'
+           '<y type="Float">-2</y><z type="Float">0.25</z></translation></pose>'
+           f'<points type="CompressedVector" fileOffset="{physical(sections[1])}" recordCount="{n1}"><prototype type="Structure">'
+           '<sphericalRange type="Float"/><sphericalAzimuth type="Float"/><sphericalElevation type="Float"/>'
+           '</prototype><codecs type="Vector" allowHeterogeneousChildren="1"/></points></vectorChild>'
+           '</data3D></e57Root>\n').encode()
+    while len(log) % 4:
+        log.append(0)
+    xml_at = len(log)
+    log += xml
+    while len(log) % 1020:
+        log.append(0)
+    struct.pack_into("<8sIIQQQQ", log, 0, b"ASTM-E57", 1, 0, len(log) // 1020 * 1024, physical(xml_at), len(xml), 1024)
+    out = b""
+    for at in range(0, len(log), 1020):
+        page = bytes(log[at:at + 1020])
+        out += page + struct.pack(">I", crc32c(page))
+    return out
+
+
 def main():
     pts = surface_points(300)
     few = pts[:40]
@@ -188,6 +293,9 @@ def main():
     if os.path.exists(cube):
         with open(cube, "rb") as f:
             put("e57", "cc0_colour_cube.e57", f.read())
+    # E57, synthetic: two scans, bit-packed values straddling packets, invalid states, intensity
+    # whose bounds leave no range, spherical coordinates under a pose.
+    put("e57", "synthetic_two_scans.e57", e57_two_scans())
     # LAZ: the BSD-licensed PDAL samples (data/README.md credits them, © Hobu, Inc.), a
     # point-wise (LAS 1.2 format 3) and a layered COPC (LAS 1.4 format 7) file, when present.
     for name in ("pdal-simple.laz", "pdal-1.2-with-color.copc.laz"):
