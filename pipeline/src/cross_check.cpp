@@ -49,6 +49,7 @@
 #include <nanoflann.hpp>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <exception>
@@ -228,7 +229,9 @@ struct Run {
   double tolerance_m, hidden_band_m;
   CrossCheck& cc;  ///< the result being filled
   std::size_t ucols = 0, cells = 0, n_points = 0;
-  std::size_t valid_total = 0;  ///< valid samples of the grid
+  std::size_t valid_total = 0;  ///< valid samples of the grid that are searched (inside the query box)
+  /// The samples searched: rows [q_r0, q_r1), columns [q_c0, q_c1) (the whole grid by default).
+  int q_r0 = 0, q_r1 = 0, q_c0 = 0, q_c1 = 0;
   /// Local frame of the float coordinates: centred on the grid (x, y) and on the middle of its
   /// height range (z), so that float keeps ~1e-9 relative precision even for coordinates far
   /// from the origin.
@@ -281,14 +284,20 @@ void plan(Run& run) {
   std::ostringstream msg;
   run.ucols = static_cast<std::size_t>(g.cols);
   std::vector<std::size_t> valid_in_row(static_cast<std::size_t>(g.rows), 0);
+  std::size_t valid_anywhere = 0;
   for (int r = 0; r < g.rows; ++r) {
     const float* row = run.grid.data() + static_cast<std::size_t>(r) * run.ucols;
-    std::size_t n = 0;
-    for (int c = 0; c < g.cols; ++c) n += std::isnan(row[c]) ? 0U : 1U;
-    valid_in_row[static_cast<std::size_t>(r)] = n;
-    run.valid_total += n;
+    std::size_t n = 0, searched = 0;
+    for (int c = 0; c < g.cols; ++c) {
+      const bool valid = !std::isnan(row[c]);
+      n += valid ? 1U : 0U;
+      searched += valid && r >= run.q_r0 && r < run.q_r1 && c >= run.q_c0 && c < run.q_c1 ? 1U : 0U;
+    }
+    valid_in_row[static_cast<std::size_t>(r)] = searched;
+    run.valid_total += searched;
+    valid_anywhere += n;
   }
-  if (run.valid_total == 0) {
+  if (valid_anywhere == 0) {
     msg << "cross_check: the " << g.cols << " x " << g.rows << " grid has no valid cell";
     throw InputError(msg.str());
   }
@@ -305,7 +314,7 @@ void plan(Run& run) {
   std::size_t acc = 0;
   for (int r = 0; r < g.rows; ++r) {
     acc += valid_in_row[static_cast<std::size_t>(r)];
-    if (2 * acc >= run.valid_total) {
+    if (2 * acc >= run.valid_total && run.valid_total > 0) {
       run.split_row = std::clamp(r + 1, 1, g.rows - 1);
       break;
     }
@@ -480,15 +489,14 @@ void record(Run& run, Part& out, int r, int c, std::size_t slot, float best_sq) 
   out.supported += d <= run.tolerance_m ? 1U : 0U;
 }
 
-/// Phase 4 (per half of the rows): exact nearest input point of every valid sample, by rings
-/// up to kRingsNearLimit; farther searches are deferred to phase 5 (Part::far).
+/// Phase 4 (per half of the rows): exact nearest input point of every valid sample inside the
+/// query box, by rings up to kRingsNearLimit; farther searches are deferred to phase 5 (Part::far).
 void phase4_near_queries(Run& run, int h) {
-  const GridGeometry& g = run.g;
   Part& out = run.parts[h];
   out.cell_m.reserve(run.valid_total / 2 + 1);
-  for (int r = out.row_begin; r < out.row_end; ++r) {
+  for (int r = std::max(out.row_begin, run.q_r0); r < std::min(out.row_end, run.q_r1); ++r) {
     const float* row = run.grid.data() + static_cast<std::size_t>(r) * run.ucols;
-    for (int c = 0; c < g.cols; ++c) {
+    for (int c = run.q_c0; c < run.q_c1; ++c) {
       if (std::isnan(row[c])) continue;
       float q[3];
       query_point(run, r, c, q);
@@ -606,8 +614,9 @@ void summarise(Run& run) {
   cc.points_outside = parts[0].outside + parts[1].outside;
   cc.hidden_band_m = run.hidden_band_m;
   cc.tolerance_m = run.tolerance_m;
-  cc.supported_fraction = static_cast<double>(parts[0].supported + parts[1].supported) /
-                          static_cast<double>(run.valid_total);
+  cc.supported_fraction = run.valid_total == 0 ? 0.0
+                                              : static_cast<double>(parts[0].supported + parts[1].supported) /
+                                                    static_cast<double>(run.valid_total);
 }
 
 /// The stage report: every figure of the result plus the search's own counts.
@@ -713,12 +722,19 @@ double supported_fraction(const Cloud& points_m, const HeightField& grid, double
 namespace {
 
 StageResult<CrossCheck> run_cross_check(const Cloud& points_m, const HeightField& grid, double tolerance_m,
-                                        double hidden_band_m, bool point_residuals) {
+                                        double hidden_band_m, bool point_residuals,
+                                        std::array<int, 4> query = {0, std::numeric_limits<int>::max(), 0,
+                                                                    std::numeric_limits<int>::max()}) {
   const auto t0 = detail::Clock::now();
   check_arguments(points_m, grid, tolerance_m, hidden_band_m);
   StageResult<CrossCheck> result;
   Run run(points_m, grid, tolerance_m, hidden_band_m, result.value);
   run.point_residuals = point_residuals;
+  const GridGeometry& qg = grid.geometry();
+  run.q_r0 = std::clamp(query[0], 0, qg.rows);
+  run.q_r1 = std::clamp(query[1], run.q_r0, qg.rows);
+  run.q_c0 = std::clamp(query[2], 0, qg.cols);
+  run.q_c1 = std::clamp(query[3], run.q_c0, qg.cols);
   plan(run);
   on_both_halves(run, phase1_residuals_and_keys);  // (a), and each point's bucket
   bucket_offsets(run);
@@ -745,8 +761,8 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
 namespace detail {
 
 StageResult<CrossCheck> cross_check_cell_errors(const Cloud& points_m, const HeightField& grid, double tolerance_m,
-                                                double hidden_band_m) {
-  return run_cross_check(points_m, grid, tolerance_m, hidden_band_m, false);
+                                                double hidden_band_m, std::array<int, 4> query) {
+  return run_cross_check(points_m, grid, tolerance_m, hidden_band_m, false, query);
 }
 
 }  // namespace detail

@@ -13,8 +13,10 @@
 
 #include <Eigen/Geometry>
 
+#include <array>
 #include <atomic>
 #include <cstddef>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -25,8 +27,16 @@ namespace hc::pipeline::detail {
 /// while the point counts by kind are 0 and point_vertical / point_normal empty. For the tiled
 /// run, which measures (a) once over every tile's interior points and needs each window's cell
 /// errors only. Arguments and errors as cross_check() (cross_check.hpp).
+/// `query` {row_begin, row_end, col_begin, col_end} (grid indices, clamped to the grid): only
+/// the samples inside it are searched (the tiled run's tile interior inside its window); the
+/// others' cell_error_m is NaN, and cell_to_point and supported_fraction cover the searched
+/// ones (supported_fraction 0 when none is valid). Every point and every valid sample's height
+/// still set the search's float frame, so a searched sample's distance is the one the whole
+/// search gives, bit for bit.
 StageResult<CrossCheck> cross_check_cell_errors(const Cloud& points_m, const HeightField& grid, double tolerance_m,
-                                                double hidden_band_m);
+                                                double hidden_band_m,
+                                                std::array<int, 4> query = {0, std::numeric_limits<int>::max(), 0,
+                                                                            std::numeric_limits<int>::max()});
 
 /// Resets the process's resident-memory high-water mark (Linux, proc(5): writing "5" to
 /// /proc/self/clear_refs resets VmHWM). @return false when it cannot.

@@ -3116,7 +3116,11 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
               valid += std::isnan(crop.at(rr, c)) ? 0U : 1U;
             }
           if (valid == 0 || w.rows < 2 || w.cols < 2) continue;
-          const CrossCheck part = detail::cross_check_cell_errors(pts, crop, cc.tolerance_m, cc.hidden_band_m).value;
+          // Only the interior's samples are searched (the window's halo samples are other tiles'
+          // interiors); the halo's points and heights still set the search and its frame.
+          const CrossCheck part = detail::cross_check_cell_errors(pts, crop, cc.tolerance_m, cc.hidden_band_m,
+                                                                  {in[0] - w.row0, in[1] - w.row0, in[2] - w.col0, in[3] - w.col0})
+                                      .value;
           // A point outside the window has its node outside it: at least (index distance −
           // 1/2) cells from the query in x-y. A distance beyond that margin is re-searched
           // over every tile's points below.

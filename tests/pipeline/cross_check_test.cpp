@@ -6,10 +6,14 @@
 #include "hc/pipeline/synthetic.hpp"
 
 #include "cloud_fixtures.hpp"
+#include "run_internal.hpp"
 #include "stage_figure.hpp"
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
+#include <bit>
+#include <cstdint>
 #include <cmath>
 #include <limits>
 #include <random>
@@ -201,6 +205,50 @@ TEST(CrossCheck, CellDistancesEqualBruteForceOnAReprojectedScan) {
   o.see_through_depth_m = 0.002;
   const auto grid = fill_holes(reproject(both, o).value, 20).value;
   expect_cells_match_brute_force(both, grid.depth, 2e-4);
+}
+
+// detail::cross_check_cell_errors with a query box (the tiled run's tile interior inside its
+// window) searches only the samples inside it: each gives the whole search's distance bit for
+// bit (the oracle: the same call without a box, itself checked against brute force above), the
+// others are NaN, and the figures cover the searched samples. Boxes: an inner block, one
+// reaching past the grid (clamped), one over no valid sample, and samples far from every point
+// (deferred searches) inside the box.
+TEST(CrossCheck, AQueryBoxSearchesItsSamplesAsTheWholeSearchDoes) {
+  std::mt19937_64 rng(31);
+  std::uniform_real_distribution<double> u(-0.01, 0.01), uz(-0.004, 0.004);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 900; ++i) pts.emplace_back(u(rng), u(rng), uz(rng));
+  GridGeometry g{61, 47, -0.012, -0.011, 0.0004};
+  HeightField h(g);
+  for (float& v : h.values()) v = static_cast<float>(uz(rng));
+  for (int r = 40; r < 47; ++r)  // a block of no data, and a corner far from every point
+    for (int c = 0; c < 8; ++c) h.at(r, c) = std::numeric_limits<float>::quiet_NaN();
+  h.at(0, 60) = 0.02f;
+  const Cloud cloud = cloud_of(pts);
+  const CrossCheck whole = detail::cross_check_cell_errors(cloud, h, 0.001, 0.01).value;
+  for (const std::array<int, 4> box : {std::array<int, 4>{5, 30, 7, 50}, std::array<int, 4>{-3, 2, 55, 99},
+                                       std::array<int, 4>{41, 47, 0, 8}}) {
+    SCOPED_TRACE(::testing::Message() << box[0] << " " << box[1] << " " << box[2] << " " << box[3]);
+    const CrossCheck part = detail::cross_check_cell_errors(cloud, h, 0.001, 0.01, box).value;
+    std::vector<double> inside;
+    std::size_t supported = 0;
+    for (int r = 0; r < g.rows; ++r) {
+      for (int c = 0; c < g.cols; ++c) {
+        const bool in = r >= box[0] && r < box[1] && c >= box[2] && c < box[3] && !std::isnan(h.at(r, c));
+        if (!in) {
+          EXPECT_TRUE(std::isnan(part.cell_error_m.at(r, c))) << r << "," << c;
+          continue;
+        }
+        ASSERT_EQ(std::bit_cast<std::uint32_t>(part.cell_error_m.at(r, c)), std::bit_cast<std::uint32_t>(whole.cell_error_m.at(r, c)))
+            << r << "," << c;
+        inside.push_back(whole.cell_error_m.at(r, c));
+        supported += whole.cell_error_m.at(r, c) <= 0.001 ? 1U : 0U;
+      }
+    }
+    EXPECT_EQ(part.cell_to_point.count, inside.size());
+    EXPECT_DOUBLE_EQ(part.supported_fraction,
+                     inside.empty() ? 0.0 : static_cast<double>(supported) / static_cast<double>(inside.size()));
+  }
 }
 
 TEST(CrossCheck, SupportedFractionIgnoresNonFiniteAndFarPointsAndChecksItsArguments) {
