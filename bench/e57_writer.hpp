@@ -5,7 +5,7 @@
 ///   - § 7.2 file header, 48 bytes at physical offset 0: "ASTM-E57", major 1, minor 0 (u32 each),
 ///     file physical length, XML physical offset, XML logical length, page size (u64 each);
 ///   - § 7.3 pages of 1024 bytes: 1020 logical bytes, then the CRC-32C (Castagnoli) of those
-///     bytes, big-endian; logical offset L lies at physical (L / 1020)·1024 + L % 1020;
+///     bytes, big-endian (hc/tools/e57_pages.hpp);
 ///   - § 9 one CompressedVector binary section right after the header (logical 48): a 32-byte
 ///     section header (id 1, 7 reserved bytes, section logical length, data physical offset,
 ///     index physical offset 0 = no index), then data packets (type 1, flags 0, logical length
@@ -21,6 +21,7 @@
 /// The cloud's coordinates are written as they are (no pose); the caller checks the round trip.
 
 #include "hc/pipeline/cloud.hpp"
+#include "hc/tools/e57_pages.hpp"
 
 #include <algorithm>
 #include <bit>
@@ -39,7 +40,7 @@ struct E57Options {
 
 namespace e57_detail {
 
-inline constexpr std::size_t kPage = 1024, kPayload = 1020, kRecordsPerPacket = 4096;
+inline constexpr std::size_t kPage = hc::tools::kE57PageBytes, kPayload = hc::tools::kE57PagePayloadBytes, kRecordsPerPacket = 4096;
 
 template <class T>
 void append(std::string& s, T v) {
@@ -50,16 +51,7 @@ void put(std::string& s, std::size_t at, T v) {
   std::memcpy(s.data() + at, &v, sizeof v);
 }
 
-inline std::uint32_t crc32c(const char* p, std::size_t n) {  // reflected 0x82F63B78; set-up only
-  std::uint32_t c = 0xFFFFFFFFu;
-  for (std::size_t i = 0; i < n; ++i) {
-    c ^= static_cast<unsigned char>(p[i]);
-    for (int k = 0; k < 8; ++k) c = (c & 1u) ? (c >> 1) ^ 0x82F63B78u : c >> 1;
-  }
-  return ~c;
-}
-
-inline std::uint64_t physical(std::uint64_t logical) { return logical / kPayload * kPage + logical % kPayload; }
+using hc::tools::e57_physical;
 
 inline std::string number(double v) {
   char buf[40];
@@ -126,7 +118,7 @@ inline std::string e57_bytes(const hc::pipeline::Cloud& c, const E57Options& o) 
   }
   log[section_at] = 1;  // CompressedVector section
   put<std::uint64_t>(log, section_at + 8, log.size() - section_at);
-  put<std::uint64_t>(log, section_at + 16, physical(data_at));
+  put<std::uint64_t>(log, section_at + 16, e57_physical(data_at));
   put<std::uint64_t>(log, section_at + 24, 0);
 
   std::string proto;
@@ -148,7 +140,7 @@ inline std::string e57_bytes(const hc::pipeline::Cloud& c, const E57Options& o) 
       "<data3D type=\"Vector\" allowHeterogeneousChildren=\"1\"><vectorChild type=\"Structure\">"
       "<guid type=\"String\"><![CDATA[{5c2a3e0e-7d43-4b8e-9f57-000000000002}]]></guid>"
       "<name type=\"String\"><![CDATA[hapticloud read-rate bench]]></name>"
-      "<points type=\"CompressedVector\" fileOffset=\"" + std::to_string(physical(section_at)) +
+      "<points type=\"CompressedVector\" fileOffset=\"" + std::to_string(e57_physical(section_at)) +
       "\" recordCount=\"" + std::to_string(n) + "\"><prototype type=\"Structure\">" + proto +
       "</prototype><codecs type=\"Vector\" allowHeterogeneousChildren=\"1\"></codecs></points>"
       "</vectorChild></data3D><images2D type=\"Vector\" allowHeterogeneousChildren=\"1\"></images2D></e57Root>\n";
@@ -161,19 +153,12 @@ inline std::string e57_bytes(const hc::pipeline::Cloud& c, const E57Options& o) 
   append<std::uint32_t>(h, 1);
   append<std::uint32_t>(h, 0);
   append<std::uint64_t>(h, log.size() / kPayload * kPage);
-  append<std::uint64_t>(h, physical(xml_at));
+  append<std::uint64_t>(h, e57_physical(xml_at));
   append<std::uint64_t>(h, xml.size());
   append<std::uint64_t>(h, kPage);
   log.replace(0, 48, h);
 
-  std::string file;
-  file.reserve(log.size() / kPayload * kPage);
-  for (std::size_t at = 0; at < log.size(); at += kPayload) {
-    file.append(log, at, kPayload);
-    const std::uint32_t crc = crc32c(log.data() + at, kPayload);
-    for (int sh = 24; sh >= 0; sh -= 8) file += static_cast<char>((crc >> sh) & 0xFFu);
-  }
-  return file;
+  return hc::tools::e57_pages(log);
 }
 
 }  // namespace hc::bench

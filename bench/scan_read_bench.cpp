@@ -6,6 +6,7 @@
 // Run: build/release/bench/scan_read_bench [--benchmark_filter=...]
 
 #include "hc/pipeline/ingest.hpp"
+#include "hc/tools/e57_pages.hpp"
 
 #include <benchmark/benchmark.h>
 
@@ -28,16 +29,7 @@ void put(std::string& s, T v) {
   s.append(reinterpret_cast<const char*>(&v), sizeof(T));
 }
 
-std::uint32_t crc32c(const char* p, std::size_t n) {  // Castagnoli, bitwise (set-up only)
-  std::uint32_t c = 0xFFFFFFFFU;
-  for (std::size_t i = 0; i < n; ++i) {
-    c ^= static_cast<unsigned char>(p[i]);
-    for (int k = 0; k < 8; ++k) c = (c & 1U) ? (c >> 1) ^ 0x82F63B78U : c >> 1;
-  }
-  return ~c;
-}
-
-std::size_t physical_of(std::size_t logical) { return logical / 1020 * 1024 + logical % 1020; }
+using hc::tools::e57_physical;
 
 /// One-scan E57 (ASTM E2807): header, one CompressedVector section of data packets holding
 /// cartesianX/Y/Z as Float (T = float: single, double: double), the XML, 1024-byte pages with
@@ -66,7 +58,7 @@ std::string write_e57(const Cloud& c) {
   put<std::uint8_t>(log, 1);
   log.append(7, '\0');
   put<std::uint64_t>(log, 32 + body.size());
-  put<std::uint64_t>(log, physical_of(48 + 32));
+  put<std::uint64_t>(log, e57_physical(48 + 32));
   put<std::uint64_t>(log, 0);
   log += body;
   const char* precision = sizeof(T) == 4 ? "single" : "double";
@@ -85,18 +77,11 @@ std::string write_e57(const Cloud& c) {
   put<std::uint32_t>(h, 1);
   put<std::uint32_t>(h, 0);
   put<std::uint64_t>(h, log.size() / 1020 * 1024);
-  put<std::uint64_t>(h, physical_of(xml_at));
+  put<std::uint64_t>(h, e57_physical(xml_at));
   put<std::uint64_t>(h, xml.size());
   put<std::uint64_t>(h, 1024);
   log.replace(0, 48, h);
-  std::string file;
-  file.reserve(log.size() / 1020 * 1024);
-  for (std::size_t at = 0; at < log.size(); at += 1020) {
-    file.append(log, at, 1020);
-    const std::uint32_t crc = crc32c(log.data() + at, 1020);
-    for (int sh = 24; sh >= 0; sh -= 8) file += static_cast<char>((crc >> sh) & 0xFFU);
-  }
-  return file;
+  return hc::tools::e57_pages(log);
 }
 
 std::string write_ply(const Cloud& c) {

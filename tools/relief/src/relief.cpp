@@ -1,4 +1,5 @@
 #include "hc/tools/relief.hpp"
+#include "hc/tools/e57_pages.hpp"
 
 #include "hc/common/error.hpp"
 #include "hc/common/file_output.hpp"
@@ -13,6 +14,7 @@
 #include <limits>
 #include <numbers>
 #include <sstream>
+#include <stdexcept>
 #include <string>
 #include <system_error>
 #include <thread>
@@ -180,26 +182,8 @@ std::vector<unsigned char> las_header(const ReliefSpec& spec, const SliceResult&
 
 // ---- E57 (ASTM E2807-11): one data3D scan, written in pages as the points come ----------------
 
-constexpr std::uint64_t kE57Page = 1024, kE57Payload = 1020;
+constexpr std::uint64_t kE57Page = kE57PageBytes, kE57Payload = kE57PagePayloadBytes;
 constexpr std::size_t kE57Records = 4096;  // records per data packet (at most 18 + 15·4096 bytes < 64 KiB)
-
-// CRC-32C (Castagnoli, reflected polynomial 0x82F63B78), table-driven: E2807 § 7.3's page checksum.
-std::uint32_t crc32c(const unsigned char* p, std::size_t n) {
-  static const std::array<std::uint32_t, 256> table = [] {
-    std::array<std::uint32_t, 256> t{};
-    for (std::uint32_t i = 0; i < 256; ++i) {
-      std::uint32_t c = i;
-      for (int k = 0; k < 8; ++k) c = (c & 1U) ? (c >> 1) ^ 0x82F63B78U : c >> 1;
-      t[i] = c;
-    }
-    return t;
-  }();
-  std::uint32_t c = 0xFFFFFFFFU;
-  for (std::size_t i = 0; i < n; ++i) c = table[(c ^ p[i]) & 0xFFU] ^ (c >> 8);
-  return ~c;
-}
-
-std::uint64_t e57_physical(std::uint64_t logical) { return logical / kE57Payload * kE57Page + logical % kE57Payload; }
 
 // The E57 paged file (E2807 § 7.3): logical bytes in, pages of 1020 of them and their CRC-32C
 // (stored big-endian, as the reader checks it) out. Page 0 (the file header and the section
@@ -232,9 +216,8 @@ class E57Pages {
 
  private:
   static void seal(std::vector<unsigned char>& page) {
-    const std::uint32_t c = crc32c(page.data(), kE57Payload);
     page.resize(kE57Page);
-    for (int k = 0; k < 4; ++k) page[kE57Payload + static_cast<std::size_t>(k)] = static_cast<unsigned char>(c >> (24 - 8 * k));
+    e57_seal_page(page.data());
   }
   void flush() {
     if (pages_++ == 0) {
@@ -611,6 +594,39 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
   stats.bytes = e57 ? e57_bytes : header_bytes + spec.points * record;
   stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return stats;
+}
+
+std::uint32_t e57_crc32c(const unsigned char* p, std::size_t n) {
+  static const std::array<std::uint32_t, 256> table = [] {
+    std::array<std::uint32_t, 256> t{};
+    for (std::uint32_t i = 0; i < 256; ++i) {
+      std::uint32_t c = i;
+      for (int k = 0; k < 8; ++k) c = (c & 1U) ? (c >> 1) ^ 0x82F63B78U : c >> 1;
+      t[i] = c;
+    }
+    return t;
+  }();
+  std::uint32_t c = 0xFFFFFFFFU;
+  for (std::size_t i = 0; i < n; ++i) c = table[(c ^ p[i]) & 0xFFU] ^ (c >> 8);
+  return ~c;
+}
+
+void e57_seal_page(unsigned char* page) {
+  const std::uint32_t c = e57_crc32c(page, kE57PagePayloadBytes);
+  for (std::size_t k = 0; k < 4; ++k) page[kE57PagePayloadBytes + k] = static_cast<unsigned char>(c >> (24 - 8 * k));
+}
+
+std::string e57_pages(std::string_view logical) {
+  if (logical.size() % kE57PagePayloadBytes != 0) {
+    throw std::invalid_argument("e57_pages: a logical stream of " + std::to_string(logical.size()) +
+                                " bytes (expected a multiple of 1020: pad it to whole pages)");
+  }
+  std::string file(logical.size() / kE57PagePayloadBytes * kE57PageBytes, '\0');
+  for (std::size_t at = 0, out = 0; at < logical.size(); at += kE57PagePayloadBytes, out += kE57PageBytes) {
+    std::memcpy(file.data() + out, logical.data() + at, kE57PagePayloadBytes);
+    e57_seal_page(reinterpret_cast<unsigned char*>(file.data() + out));
+  }
+  return file;
 }
 
 }  // namespace hc::tools
