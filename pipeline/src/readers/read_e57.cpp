@@ -489,6 +489,17 @@ class BytestreamCursor {
     }
   }
 
+  /// Reserves each wanted queue for the next n records (what a packet holds past them
+  /// included, and the decoder's padding), so that a large request (the whole read's: every
+  /// record) fills its queues without growing them packet by packet.
+  void expect(std::uint64_t n) {
+    for (std::size_t k = 0; k < fields_.size(); ++k) {
+      if (!wanted_[k]) continue;
+      const std::uint64_t want = queue_[k].bytes.size() + fields_[k].bytes_needed(std::min(n, count_)) + 65536 + 16;
+      if (want > queue_[k].bytes.capacity()) queue_[k].bytes.reserve(static_cast<std::size_t>(want));
+    }
+  }
+
   /// Decodes the next n values of wanted field k into out[i · stride] (decode_field), reading
   /// packets until its queue holds them. @throws as the class says.
   void decode(std::size_t k, std::size_t n, double* out, std::size_t stride) {
@@ -508,6 +519,21 @@ class BytestreamCursor {
     q.bit += bits * n;
     q.bytes.erase(0, static_cast<std::size_t>(q.bit / 8));
     q.bit %= 8;
+  }
+
+  /// Decodes the next n values of wanted field k in blocks of at most `block` values, calling
+  /// each(const std::vector<double>& values) per block until it returns false.
+  /// @return false when `each` stopped it. @throws as decode.
+  template <class Each>
+  bool each_block(std::size_t k, std::uint64_t n, std::size_t block, Each&& each) {
+    std::vector<double> v;
+    for (std::uint64_t done = 0; done < n;) {
+      v.resize(static_cast<std::size_t>(std::min<std::uint64_t>(n - done, block)));
+      decode(k, v.size(), v.data(), 1);
+      if (!each(v)) return false;
+      done += v.size();
+    }
+    return true;
   }
 
   /// Reads the packets left (their errors) and checks the bytestreams' lengths against
@@ -693,19 +719,15 @@ class ScanReader {
         std::vector<bool> only(fields_.size(), false);
         only[intensity_] = true;
         BytestreamCursor first(file, xml, points, fields_, count_, name_, only, true);
-        std::vector<double> v;
-        for (std::uint64_t done = 0; done < count_;) {
-          const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(count_ - done, std::uint64_t{1} << 16));
-          v.resize(n);
-          first.decode(intensity_, n, v.data(), 1);
+        (void)first.each_block(intensity_, count_, std::size_t{1} << 16, [&](const std::vector<double>& v) {
           for (const double x : v) {
             if (std::isnan(x)) continue;
             i_lo_ = any ? std::min(i_lo_, x) : x;
             i_hi_ = any ? std::max(i_hi_, x) : x;
             any = true;
           }
-          done += n;
-        }
+          return true;
+        });
         first.finish();
         i_source_ = "the data's own range (no usable limits)";
       }
@@ -747,6 +769,7 @@ class ScanReader {
   /// intensity, rgb and (grid_index) row/col where the scan has them.
   void next(std::size_t n, Cloud& out) {
     n = static_cast<std::size_t>(std::min<std::uint64_t>(n, left()));
+    cursor_->expect(n);
     out = Cloud();
     out.float32_xyz = float32_;
     std::vector<std::size_t> keep;
@@ -1069,14 +1092,10 @@ bool keeps_a_record(PagedFile& file, const Xml& xml, const pugi::xml_node& scan,
   std::vector<bool> only(fields.size(), false);
   only[state->second] = true;
   BytestreamCursor cursor(file, xml, points, fields, count, name, only, false);
-  std::vector<double> v;
-  for (std::uint64_t done = 0; done < count;) {
-    const auto n = static_cast<std::size_t>(std::min<std::uint64_t>(count - done, 4096));
-    v.resize(n);
-    cursor.decode(state->second, n, v.data(), 1);
-    if (std::find(v.begin(), v.end(), 0.0) != v.end()) return true;
-    done += n;
-  }
+  const bool none = cursor.each_block(state->second, count, 4096, [](const std::vector<double>& v) {
+    return std::find(v.begin(), v.end(), 0.0) == v.end();  // go on while no record is valid
+  });
+  if (!none) return true;
   cursor.finish();
   return false;
 }
