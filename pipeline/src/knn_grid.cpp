@@ -101,18 +101,19 @@ double load_estimate(const std::vector<float>& p, std::size_t count, double cell
 
 }  // namespace
 
-std::vector<std::uint32_t> dense_lower_table(const CellGrid& g) {
-  std::vector<std::uint32_t> lower;
+LowerTable::LowerTable(const CellGrid& g) {
   const auto total = static_cast<std::uint64_t>(g.n[0] * g.n[1] * g.n[2]);
-  if (total > 16u * static_cast<std::uint64_t>(g.x.size()) + 4096u) return lower;
-  lower.resize(static_cast<std::size_t>(total) + 1);
-  std::size_t c = 0;
-  for (std::uint64_t key = 0; key <= total; ++key) {
-    while (c < g.cells() && g.cell_key[c] < key) ++c;
-    lower[static_cast<std::size_t>(key)] = static_cast<std::uint32_t>(c);
+  if (total > 64u * static_cast<std::uint64_t>(g.x.size()) + 4096u) return;
+  words_.resize(static_cast<std::size_t>(total / 64 + 1));  // key `total` (the end) has a word too
+  for (const std::uint64_t key : g.cell_key) words_[static_cast<std::size_t>(key >> 6)].bits |= std::uint64_t{1} << (key & 63);
+  std::uint32_t run = 0;
+  for (Word& w : words_) {
+    w.before = run;
+    run += static_cast<std::uint32_t>(std::popcount(w.bits));
   }
-  return lower;
 }
+
+LowerTable dense_lower_table(const CellGrid& g) { return LowerTable(g); }
 
 // Builds the grid. `p` holds 3·count floats (x, y, z interleaved). The cell edge is chosen so
 // that a point's cell holds about 0.85·(k+1) points (then most points' k+1 nearest neighbours
@@ -820,7 +821,7 @@ class GridPointQueries {
     finish();
   }
 
-  const std::vector<std::uint32_t>& lower_table() const { return lower_; }
+  const LowerTable& lower_table() const { return lower_; }
 
   // Appends the points at sorted positions [pb, pe), `sorted` left out, whose float squared
   // distance to pt is at most t2, to s.d2 and s.pos from entry m; returns the new count.
@@ -1009,12 +1010,12 @@ class GridPointQueries {
   }
 
  private:
-  std::size_t lower(std::uint64_t key) const { return lower_.empty() ? g_.lower(key) : lower_[static_cast<std::size_t>(key)]; }
+  std::size_t lower(std::uint64_t key) const { return lower_.empty() ? g_.lower(key) : lower_.lower(key); }
 
   const CellGrid& g_;
   KnnDistances knn_;
   std::size_t k1_;
-  std::vector<std::uint32_t> lower_;  // first occupied cell with key >= the index; empty = binary search
+  LowerTable lower_;  // first occupied cell with key >= a key; empty = binary search
   mutable std::once_flag tree_once_;
   mutable CellCentres centres_;
   mutable std::unique_ptr<CellTree> tree_;
@@ -1036,7 +1037,7 @@ PointQueries::~PointQueries() = default;
 PointQueries::Scratch::Scratch(int k) : state_(std::make_unique<State>(k)) {}
 PointQueries::Scratch::~Scratch() = default;
 
-const std::vector<std::uint32_t>& PointQueries::lower_table() const { return impl_->lower_table(); }
+const LowerTable& PointQueries::lower_table() const { return impl_->lower_table(); }
 
 float PointQueries::mean_distance(std::uint32_t sorted, Scratch& s, float* nearest_m, float* top_d2) const {
   return impl_->mean_distance(sorted, *s.state_, nearest_m, top_d2);

@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cstddef>
 #include <cstdint>
 #include <limits>
@@ -53,27 +54,58 @@ struct CellGrid {
   }
 };
 
-/// Dense table of CellGrid::lower: entry `key` (0..n0·n1·n2) is the first occupied cell with a
-/// key >= `key`, so a cell is found in O(1). Empty when the grid has more than 16 cells per point
-/// (plus 4096): callers then use CellGrid::lower (a binary search). 4 bytes per entry.
-std::vector<std::uint32_t> dense_lower_table(const CellGrid& g);
+/// CellGrid::lower for every key in O(1): a bit per key of the grid (set for an occupied cell)
+/// with, per word of 64 keys, the number of occupied cells before it (a rank directory, as in
+/// Jacobson's succinct bit vectors: G. Jacobson, "Space-efficient static trees and graphs", FOCS
+/// 1989). lower(key) is the word's count plus the set bits below the key in its word, which is
+/// exactly CellGrid::lower's binary search; occupied(key) is the key's bit. 16 bytes a word (a
+/// quarter byte a key; until 2026-11-28 a dense table of 4 bytes a key, 114 MB for a window of
+/// 3.9 M points of the 10^8 wall at N = 800). Empty when the grid has more than 64 keys per
+/// point (plus 4096: 16 bytes a point at most): callers then use CellGrid::lower.
+class LowerTable {
+ public:
+  LowerTable() = default;
+  /// Built over `g` (its keys ascending, each below n0·n1·n2), or empty as above.
+  explicit LowerTable(const CellGrid& g);
+  bool empty() const { return words_.empty(); }
+  /// The first occupied cell with a key >= `key` (0 .. n0·n1·n2, the last giving g.cells()).
+  std::size_t lower(std::uint64_t key) const {
+    const Word& w = words_[static_cast<std::size_t>(key >> 6)];
+    return w.before + static_cast<std::size_t>(std::popcount(w.bits & ((std::uint64_t{1} << (key & 63)) - 1)));
+  }
+  /// Whether the cell of key `key` (below n0·n1·n2) holds a point.
+  bool occupied(std::uint64_t key) const { return ((words_[static_cast<std::size_t>(key >> 6)].bits >> (key & 63)) & 1U) != 0; }
+  /// Memory held [bytes].
+  std::size_t bytes() const { return words_.size() * sizeof(Word); }
+
+ private:
+  struct Word {
+    std::uint64_t bits = 0;     // bit b: key 64·w + b occupied
+    std::uint32_t before = 0;   // occupied cells with a key below 64·w
+    std::uint32_t unused = 0;   // 16 bytes a word: one cache line holds four, a lookup one load
+  };
+  std::vector<Word> words_;
+};
+
+/// The grid's LowerTable (empty on very sparse grids; see there).
+LowerTable dense_lower_table(const CellGrid& g);
 
 /// The number (0 .. cells() − 1) of the occupied cell at integer coordinates (ix, iy, iz) of
 /// `g`, or g.cells() when the cell lies outside the grid or holds no point. `table` is g's
 /// dense_lower_table: O(1), or a binary search when it is empty.
-inline std::size_t occupied_cell(const CellGrid& g, const std::vector<std::uint32_t>& table, std::int64_t ix, std::int64_t iy,
-                                 std::int64_t iz) {
+inline std::size_t occupied_cell(const CellGrid& g, const LowerTable& table, std::int64_t ix, std::int64_t iy, std::int64_t iz) {
   if (ix < 0 || iy < 0 || iz < 0 || ix >= g.n[0] || iy >= g.n[1] || iz >= g.n[2]) return g.cells();
   const std::uint64_t key = g.key(ix, iy, iz);
-  const std::size_t c = table.empty() ? g.lower(key) : table[static_cast<std::size_t>(key)];
+  if (!table.empty()) return table.occupied(key) ? table.lower(key) : g.cells();
+  const std::size_t c = g.lower(key);
   return c < g.cells() && g.cell_key[c] == key ? c : g.cells();
 }
 
 /// Sorted-position range [first, last) of the points of the cell at integer coordinates
 /// (ix, iy, iz) of `g`; empty when the cell lies outside the grid or holds no point
 /// (occupied_cell).
-inline std::pair<std::uint32_t, std::uint32_t> cell_points(const CellGrid& g, const std::vector<std::uint32_t>& table,
-                                                           std::int64_t ix, std::int64_t iy, std::int64_t iz) {
+inline std::pair<std::uint32_t, std::uint32_t> cell_points(const CellGrid& g, const LowerTable& table, std::int64_t ix,
+                                                           std::int64_t iy, std::int64_t iz) {
   const std::size_t c = occupied_cell(g, table, ix, iy, iz);
   if (c == g.cells()) return {0, 0};
   return {g.cell_start[c], g.cell_start[c + 1]};
@@ -123,7 +155,7 @@ class PointQueries {
   float mean_distance(std::uint32_t sorted, Scratch& s, float* nearest_m = nullptr, float* top_d2 = nullptr) const;
 
   /// The grid's dense_lower_table (built once by the constructor; empty on very sparse grids).
-  const std::vector<std::uint32_t>& lower_table() const;
+  const LowerTable& lower_table() const;
 
   /// The k nearest neighbours of the point at sorted grid position `sorted`, itself excluded, as
   /// input indices in `out`, ascending (size k; needs at least k + 1 points in the grid). Exact; equal

@@ -48,6 +48,7 @@ using detail::build_grid;
 using detail::group_by_wanted_key;
 using detail::KeyGroups;
 using detail::CellGrid;
+using detail::LowerTable;
 using detail::Clock;
 using detail::kSearchThreads;
 using detail::make_report;
@@ -337,7 +338,7 @@ inline std::uint32_t count_within(const PaddedCells& pc, std::size_t qb, std::si
 // corners, stopping at need_count); 0 otherwise. `table` is g's dense_lower_table (or empty),
 // `pc` g's points padded (PaddedCells). Compiled also for AVX2 where the compiler can (the
 // distance loops vectorise 8 wide), chosen at load time by the CPU.
-HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const PaddedCells& pc, const std::vector<std::uint32_t>& table, float cert2,
+HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const PaddedCells& pc, const LowerTable& table, float cert2,
                                         std::uint32_t need_count, std::size_t cb, std::size_t ce, std::uint8_t* certified) {
   // The 3×3×3 block's padded point ranges, by (dx + 1) + 3 (dy + 1) + 9 (dz + 1).
   std::array<std::pair<std::size_t, std::size_t>, 27> block{};

@@ -119,3 +119,64 @@ TEST(PointQueriesNearest, EqualsAFullScanWithTiesByInputIndex) {
 }
 
 }  // namespace
+
+// LowerTable (the k-NN grid's cell lookup: a bit per key and a rank directory) against a linear
+// count of the grid's occupied keys, for every key 0 .. n0·n1·n2 (the last one the end): lower()
+// is the number of occupied keys below the key, occupied() whether the key is one of them. Grids
+// of a wall with a sparse back layer (words with several cells, empty words, runs across words),
+// of 63, 64 and 65 points on a line (the last word full, one past it), and of a single point;
+// a grid with more than 64 keys a point leaves the table empty (callers search instead).
+TEST(LowerTable, CountsTheOccupiedKeysBelowEveryKey) {
+  using hc::pipeline::detail::CellGrid;
+  using hc::pipeline::detail::LowerTable;
+  std::mt19937 rng(9);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  std::vector<std::vector<float>> clouds;
+  {
+    std::vector<float> p;
+    for (int i = 0; i < 3000; ++i) p.insert(p.end(), {0.2f * u(rng), 0.1f * u(rng), 0.002f * u(rng)});
+    for (int i = 0; i < 200; ++i) p.insert(p.end(), {0.2f * u(rng), 0.1f * u(rng), -0.03f - 0.01f * u(rng)});
+    clouds.push_back(std::move(p));
+  }
+  for (const int n : {63, 64, 65}) {
+    std::vector<float> p;
+    for (int i = 0; i < n; ++i) p.insert(p.end(), {0.001f * static_cast<float>(i), 0.0f, 0.0f});
+    clouds.push_back(std::move(p));
+  }
+  clouds.push_back({0.5f, 0.25f, 0.125f});
+  std::size_t checked = 0, wrong_lower = 0, wrong_occupied = 0, built = 0;
+  for (const auto& p : clouds) {
+    const std::size_t n = p.size() / 3;
+    const CellGrid g = hc::pipeline::detail::build_grid(p, n, 1);
+    const LowerTable t(g);
+    const auto total = static_cast<std::uint64_t>(g.n[0] * g.n[1] * g.n[2]);
+    if (total > 64u * n + 4096u) {
+      EXPECT_TRUE(t.empty()) << total << " keys for " << n << " points";
+      continue;
+    }
+    ASSERT_FALSE(t.empty()) << total << " keys for " << n << " points";
+    ++built;
+    std::size_t below = 0;  // occupied keys < key, counted along
+    std::size_t next = 0;   // the next occupied key's place in cell_key
+    for (std::uint64_t key = 0; key <= total; ++key) {
+      const bool occ = next < g.cell_key.size() && g.cell_key[next] == key;
+      wrong_lower += t.lower(key) != below ? 1U : 0U;
+      if (key < total) wrong_occupied += t.occupied(key) != occ ? 1U : 0U;
+      if (occ) {
+        ++below;
+        ++next;
+      }
+      ++checked;
+    }
+    EXPECT_EQ(below, g.cells());
+  }
+  EXPECT_GE(built, 4U);
+  EXPECT_GT(checked, 1000U);
+  EXPECT_EQ(wrong_lower, 0U) << "of " << checked << " keys";
+  EXPECT_EQ(wrong_occupied, 0U) << "of " << checked << " keys";
+  // More than 64 keys a point: two points at the ends of a long diagonal.
+  const std::vector<float> sparse = {0.0f, 0.0f, 0.0f, 1.0f, 1.0f, 1.0f, 0.0f, 0.0f, 0.001f};
+  const CellGrid gs = hc::pipeline::detail::build_grid(sparse, 3, 1);
+  const auto total = static_cast<std::uint64_t>(gs.n[0] * gs.n[1] * gs.n[2]);
+  EXPECT_EQ(LowerTable(gs).empty(), total > 64u * 3u + 4096u) << total << " keys";
+}
