@@ -621,6 +621,58 @@ TEST(PointStream, XyzStreamsTheSamePointsAsTheWholeReadAndItsErrors) {
   EXPECT_EQ(hc::test::error_of([&] { empty->next(c, 10); }), none);
 }
 
+// A text line longer than 64 MiB (2^26 bytes without its '\n') is refused by the whole read and
+// by the stream with the same words, naming the file and the line; one of exactly 2^26 bytes is
+// read by both. The limit is the test's own figure, and both lengths are written here: "1 2 3"
+// padded with blanks (separators, so the line is still a point), between two short lines. Until
+// 2026-11-28 only the stream refused long lines, and at a length that depended on where its
+// 4 MiB blocks fell: both of these lines were read. The same for an OBJ of vertices.
+TEST(PointStream, ATextLineLongerThan64MiBIsRefusedWholeAndStreamedInTheSameWords) {
+  const fs::path dir = hc::test::temp_dir("long_line");
+  constexpr std::size_t kLimit = std::size_t{1} << 26;
+  auto write = [&](const fs::path& p, std::size_t line_bytes) {
+    std::string line = "1 2 3";
+    line.resize(line_bytes, ' ');
+    std::ofstream(p, std::ios::binary) << "0 0 0\n" << line << "\n4 5 6\n";
+    return p;
+  };
+  {
+    const fs::path p = write(dir / "at_limit.xyz", kLimit);
+    const Cloud whole = hc::pipeline::load_cloud(p).value;
+    ASSERT_EQ(whole.size(), 3U);
+    EXPECT_EQ(whole.xyz(0, 1), 1.0);
+    EXPECT_EQ(whole.xyz(2, 1), 3.0);
+    auto s = hc::pipeline::open_point_stream(p);
+    EXPECT_TRUE(s->streamed());
+    const Cloud got = read_with_intensity(*s, 2);
+    ASSERT_EQ(got.size(), 3U);
+    EXPECT_TRUE(same_xyz(got.xyz, whole.xyz));
+    fs::remove(p);
+  }
+  auto expect_refused_alike = [&](const fs::path& p) {
+    SCOPED_TRACE(p.filename().string());
+    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
+    EXPECT_NE(whole_error.find(p.filename().string()), std::string::npos) << whole_error;
+    EXPECT_NE(whole_error.find("line 2 is longer than 64 MiB"), std::string::npos) << whole_error;
+    Cloud c;
+    const std::string stream_error = hc::test::error_of([&] {
+      auto s = hc::pipeline::open_point_stream(p);
+      while (s->next(c, 2)) {
+      }
+    });
+    EXPECT_EQ(stream_error, whole_error);
+    fs::remove(p);
+  };
+  expect_refused_alike(write(dir / "past_limit.xyz", kLimit + 1));
+  // An OBJ of vertices (its whole read walks its lines on its own): "v 1 2 3" padded alike.
+  {
+    std::string line = "v 1 2 3";
+    line.resize(kLimit + 1, ' ');
+    std::ofstream(dir / "past_limit.obj", std::ios::binary) << "v 0 0 0\n" << line << "\nv 4 5 6\n";
+  }
+  expect_refused_alike(dir / "past_limit.obj");
+}
+
 // An ASCII PLY (an element of its own before the vertex element, float or double x y z, with
 // and without colour; 200 000 vertices, about 6 MB, more than one read block): streamed in blocks
 // of lines, every chunking gives load_cloud's points, colour and float32 flag; a bad token and a

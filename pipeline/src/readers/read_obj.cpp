@@ -174,6 +174,8 @@ ReadResult read_obj(const ScanSource& source) {
   int current_material = -1;
   std::vector<Corner> face;
   for_each_line(text, [&](const char* b, const char* e, std::size_t line_no) {
+    // The streams' limit (FileLines), so that both refuse the same files in the same words.
+    if (static_cast<std::size_t>(e - b) > kMaxTextLineBytes) throw_text_line_too_long(name, line_no);
     const char* p = b;
     const std::string_view kw = keyword(p, e);
     if (kw == "v") {

@@ -672,7 +672,7 @@ class AsciiVertexParser {
 // Reads the vertex lines whole (AsciiVertexParser); *end_offset: the first byte after the last
 // vertex line (where the elements after the vertex element begin).
 Cloud read_ascii_vertices(const std::string& raw, const PlyLayout& ply, const std::string& name, std::size_t* end_offset) {
-  TextLines lines(raw, ply.body, false);
+  TextLines lines(raw, name, ply.body, false);
   AsciiVertexParser<TextLines> parser(lines, ply, name);
   std::vector<double> xyz;
   std::vector<std::uint8_t> rgb;

@@ -221,7 +221,7 @@ class PtsStream final : public LineStream {
 }  // namespace
 
 ReadResult read_pts(const ScanSource& source) {
-  TextLines lines(source.bytes);
+  TextLines lines(source.bytes, source.display_name);
   PtsParser<TextLines> parser(lines, source.display_name, source.bytes.size() / 8);
   std::vector<double> xyz;
   std::vector<float> intensity;

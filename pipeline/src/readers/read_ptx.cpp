@@ -310,7 +310,7 @@ class PtxStream final : public LineStream {
 
 ReadResult read_ptx(const ScanSource& source) {
   const std::string& name = source.display_name;
-  TextLines lines(source.bytes);
+  TextLines lines(source.bytes, name);
   PtxParser<TextLines> parser(lines, name);
   std::vector<double> xyz;
   std::vector<float> intensity;

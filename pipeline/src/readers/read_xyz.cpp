@@ -108,7 +108,7 @@ class XyzStream final : public LineStream {
 }  // namespace
 
 ReadResult read_xyz(const ScanSource& source) {
-  TextLines lines(source.bytes);
+  TextLines lines(source.bytes, source.display_name);
   XyzParser<TextLines> parser(lines, source.display_name);
   std::vector<double> xyz;
   xyz.reserve(source.bytes.size() / 16);
