@@ -6,8 +6,8 @@
 /// without its '\n'; a line of separators only (text_parse.hpp's is_space) is blank; a line longer
 /// than kMaxTextLineBytes is an InputError naming the file and the line in both (no scan's line
 /// is near that long; until 2026-11-28 only the streams refused one, at a length that depended on
-/// where their 4 MiB blocks fell). Shared by the PTX, PTS, XYZ and ASCII PLY readers (private to
-/// the pipeline).
+/// where their 4 MiB blocks fell). Shared by the PTX, PTS, XYZ and ASCII PLY readers and OBJ's
+/// stream (OBJ's whole read applies the same limit; private to the pipeline).
 
 #include "byte_source.hpp"
 #include "text_parse.hpp"
