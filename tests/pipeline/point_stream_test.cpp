@@ -626,7 +626,8 @@ TEST(PointStream, XyzStreamsTheSamePointsAsTheWholeReadAndItsErrors) {
 // read by both. The limit is the test's own figure, and both lengths are written here: "1 2 3"
 // padded with blanks (separators, so the line is still a point), between two short lines. Until
 // 2026-11-28 only the stream refused long lines, and at a length that depended on where its
-// 4 MiB blocks fell: both of these lines were read. The same for an OBJ of vertices.
+// 4 MiB blocks fell: both of these lines were read. The same for an OBJ of vertices and an ascii
+// PCD.
 TEST(PointStream, ATextLineLongerThan64MiBIsRefusedWholeAndStreamedInTheSameWords) {
   const fs::path dir = hc::test::temp_dir("long_line");
   constexpr std::size_t kLimit = std::size_t{1} << 26;
@@ -671,6 +672,41 @@ TEST(PointStream, ATextLineLongerThan64MiBIsRefusedWholeAndStreamedInTheSameWord
     std::ofstream(dir / "past_limit.obj", std::ios::binary) << "v 0 0 0\n" << line << "\nv 4 5 6\n";
   }
   expect_refused_alike(dir / "past_limit.obj");
+  // An ascii PCD (its whole read walks its data lines on its own; its stream starts after the
+  // header): the line named by its number in the file, 10 header lines and one data line before.
+  auto write_pcd = [&](const fs::path& p, std::size_t line_bytes) {
+    std::string line = "1 2 3";
+    line.resize(line_bytes, ' ');
+    std::ofstream(p, std::ios::binary) << "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\n"
+                                          "HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\n0 0 0\n"
+                                       << line << "\n4 5 6\n";
+    return p;
+  };
+  {
+    const fs::path p = write_pcd(dir / "at_limit.pcd", kLimit);
+    const Cloud whole = hc::pipeline::load_cloud(p).value;
+    ASSERT_EQ(whole.size(), 3U);
+    EXPECT_EQ(whole.xyz(1, 1), 2.0);
+    auto s = hc::pipeline::open_point_stream(p);
+    EXPECT_TRUE(s->streamed());
+    const Cloud got = read_with_intensity(*s, 2);
+    ASSERT_EQ(got.size(), 3U);
+    EXPECT_TRUE(same_xyz(got.xyz, whole.xyz));
+    fs::remove(p);
+  }
+  {
+    const fs::path p = write_pcd(dir / "past_limit.pcd", kLimit + 1);
+    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
+    EXPECT_NE(whole_error.find("line 12 is longer than 64 MiB"), std::string::npos) << whole_error;
+    Cloud c;
+    EXPECT_EQ(hc::test::error_of([&] {
+                auto s = hc::pipeline::open_point_stream(p);
+                while (s->next(c, 2)) {
+                }
+              }),
+              whole_error);
+    fs::remove(p);
+  }
 }
 
 // An ASCII PLY (an element of its own before the vertex element, float or double x y z, with

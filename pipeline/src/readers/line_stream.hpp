@@ -49,8 +49,11 @@ class LineStream : public PointStream {
  protected:
   /// `src` opened on the file (its name(), the quoted path, names the file in messages).
   explicit LineStream(std::unique_ptr<ByteSource> src) : src_(std::move(src)), name_(src_->name()) {}
-  /// The lines from src_'s current position on (after a first look, or a header).
-  void start_lines(bool skip_blank = true) { lines_ = std::make_unique<FileLines>(*src_, skip_blank); }
+  /// The lines from src_'s current position on (after a first look, or a header of
+  /// `lines_before` lines: FileLines).
+  void start_lines(bool skip_blank = true, std::size_t lines_before = 0) {
+    lines_ = std::make_unique<FileLines>(*src_, skip_blank, lines_before);
+  }
   /// The points a Parser<FileLines>(lines, name_).look() over the whole file counts, kept under
   /// `what` for later streams of the same unchanged large file (first_look); src_ then back at
   /// its start. @throws what the look throws (hc::InputError naming the file).

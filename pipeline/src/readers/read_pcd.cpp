@@ -54,6 +54,7 @@ struct PcdLayout {
   std::size_t n = 0;            ///< points
   std::size_t point_bytes = 0;  ///< record size of a binary point
   std::size_t values = 0;       ///< numbers on an ascii data line (the fields' counts summed)
+  std::size_t header_lines = 0; ///< lines up to and with the DATA line (an ascii body's first line is the next)
   struct Axis {
     std::size_t offset = 0;     ///< byte offset in the record
     std::size_t value = 0;      ///< place among an ascii line's numbers (from 0)
@@ -365,6 +366,7 @@ PcdLayout validate_pcd(const std::string& raw, const std::string& name, std::siz
   }
   layout.data = data;
   layout.pos = pos;
+  layout.header_lines = line_no;
   layout.n = n;
   layout.point_bytes = point_bytes;
   layout.values = values;
@@ -661,19 +663,24 @@ std::string decode_ascii_line(const char* b, const char* e, const PcdLayout& l, 
 /// DATA ascii, read here as the stream reads it: the first n data lines after the header
 /// (lines with a token: validate_pcd's rule), each checked (check_ascii_line) and decoded
 /// (decode_ascii_line). @throws hc::InputError naming the file and the data line, or the lines
-/// missing.
+/// missing, or a line longer than kMaxTextLineBytes (text_lines.hpp: the stream's words, the
+/// line's number in the file).
 Cloud read_ascii_body(const std::string& raw, const PcdLayout& l, const std::string& name) {
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(l.n));
   if (l.has_rgb) cloud.rgb.resize(3 * l.n);
   if (l.has_intensity) cloud.intensity.resize(l.n);
   std::size_t lines = 0;
+  std::size_t file_line = l.header_lines;  // the file's line number, blank lines counted
   for (std::size_t p = l.pos; p < raw.size() && lines < l.n;) {
     std::size_t nl = raw.find('\n', p);
     if (nl == std::string::npos) nl = raw.size();
     const char* b = raw.data() + p;
     const char* e = raw.data() + nl;
     p = nl + 1;
+    // The stream's limit (FileLines), in its words.
+    if (static_cast<std::size_t>(e - b) > kMaxTextLineBytes) throw_text_line_too_long(name, ++file_line);
+    ++file_line;
     if (first_token(b, e).empty()) continue;
     std::string problem = check_ascii_line(b, e, l.values);
     if (problem.empty()) {
@@ -700,7 +707,7 @@ class PcdAsciiStream final : public LineStream {
   PcdAsciiStream(std::unique_ptr<ByteSource> src, const PcdLayout& l) : LineStream(std::move(src)), l_(l) {
     total_ = l_.n;
     src_->seek(l_.pos);
-    start_lines();
+    start_lines(true, l_.header_lines);  // a line over 64 MiB named by its line in the file, as read_ascii_body does
     notes_ = {kAsciiNote};
     if (!l_.colour_note.empty()) notes_.push_back(l_.colour_note);
     notes_.push_back("PCD ascii, " + std::to_string(l_.n) + " points (lines streamed in chunks)");

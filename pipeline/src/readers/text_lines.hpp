@@ -75,8 +75,10 @@ class TextLines {
 /// `src` is not owned and must outlive this.
 class FileLines {
  public:
-  /// From the file's current position; skip_blank as TextLines.
-  FileLines(ByteSource& src, bool skip_blank = true) : src_(src), name_(src.name()), skip_blank_(skip_blank) {}
+  /// From the file's current position; skip_blank as TextLines; `lines_before`: the lines of the
+  /// file before that position (a header read on its own), so that line numbers are the file's.
+  FileLines(ByteSource& src, bool skip_blank = true, std::size_t lines_before = 0)
+      : src_(src), name_(src.name()), skip_blank_(skip_blank), line_no_(lines_before) {}
 
   bool next(const char*& b, const char*& e) {
     for (;;) {
@@ -116,8 +118,9 @@ class FileLines {
   ByteSource& src_;
   const std::string& name_;
   bool skip_blank_;
+  std::size_t line_no_;
   std::string buf_;
-  std::size_t pos_ = 0, line_no_ = 0;
+  std::size_t pos_ = 0;
   bool eof_ = false;
 };
 
