@@ -631,17 +631,21 @@ TEST(PointStream, XyzStreamsTheSamePointsAsTheWholeReadAndItsErrors) {
 TEST(PointStream, ATextLineLongerThan64MiBIsRefusedWholeAndStreamedInTheSameWords) {
   const fs::path dir = hc::test::temp_dir("long_line");
   constexpr std::size_t kLimit = std::size_t{1} << 26;
-  auto write = [&](const fs::path& p, std::size_t line_bytes) {
-    std::string line = "1 2 3";
+  // `head`, then the point line "<tag>1 2 3" padded with blanks to `line_bytes`, then the point
+  // line "<tag>4 5 6".
+  auto write = [&](const fs::path& p, const std::string& head, const std::string& tag, std::size_t line_bytes) {
+    std::string line = tag + "1 2 3";
     line.resize(line_bytes, ' ');
-    std::ofstream(p, std::ios::binary) << "0 0 0\n" << line << "\n4 5 6\n";
+    std::ofstream(p, std::ios::binary) << head << line << "\n" << tag << "4 5 6\n";
     return p;
   };
-  {
-    const fs::path p = write(dir / "at_limit.xyz", kLimit);
+  // Read whole and streamed: three points, the long line's (1, 2, 3) the second.
+  auto expect_read_alike = [&](const fs::path& p) {
+    SCOPED_TRACE(p.filename().string());
     const Cloud whole = hc::pipeline::load_cloud(p).value;
     ASSERT_EQ(whole.size(), 3U);
     EXPECT_EQ(whole.xyz(0, 1), 1.0);
+    EXPECT_EQ(whole.xyz(1, 1), 2.0);
     EXPECT_EQ(whole.xyz(2, 1), 3.0);
     auto s = hc::pipeline::open_point_stream(p);
     EXPECT_TRUE(s->streamed());
@@ -649,12 +653,13 @@ TEST(PointStream, ATextLineLongerThan64MiBIsRefusedWholeAndStreamedInTheSameWord
     ASSERT_EQ(got.size(), 3U);
     EXPECT_TRUE(same_xyz(got.xyz, whole.xyz));
     fs::remove(p);
-  }
-  auto expect_refused_alike = [&](const fs::path& p) {
+  };
+  // Refused whole and streamed in the same words, naming the file and line `line_no`.
+  auto expect_refused_alike = [&](const fs::path& p, int line_no) {
     SCOPED_TRACE(p.filename().string());
     const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
     EXPECT_NE(whole_error.find(p.filename().string()), std::string::npos) << whole_error;
-    EXPECT_NE(whole_error.find("line 2 is longer than 64 MiB"), std::string::npos) << whole_error;
+    EXPECT_NE(whole_error.find("line " + std::to_string(line_no) + " is longer than 64 MiB"), std::string::npos) << whole_error;
     Cloud c;
     const std::string stream_error = hc::test::error_of([&] {
       auto s = hc::pipeline::open_point_stream(p);
@@ -664,49 +669,17 @@ TEST(PointStream, ATextLineLongerThan64MiBIsRefusedWholeAndStreamedInTheSameWord
     EXPECT_EQ(stream_error, whole_error);
     fs::remove(p);
   };
-  expect_refused_alike(write(dir / "past_limit.xyz", kLimit + 1));
-  // An OBJ of vertices (its whole read walks its lines on its own): "v 1 2 3" padded alike.
-  {
-    std::string line = "v 1 2 3";
-    line.resize(kLimit + 1, ' ');
-    std::ofstream(dir / "past_limit.obj", std::ios::binary) << "v 0 0 0\n" << line << "\nv 4 5 6\n";
-  }
-  expect_refused_alike(dir / "past_limit.obj");
+  expect_read_alike(write(dir / "at_limit.xyz", "0 0 0\n", "", kLimit));
+  expect_refused_alike(write(dir / "past_limit.xyz", "0 0 0\n", "", kLimit + 1), 2);
+  // An OBJ of vertices (its whole read walks its lines on its own).
+  expect_refused_alike(write(dir / "past_limit.obj", "v 0 0 0\n", "v ", kLimit + 1), 2);
   // An ascii PCD (its whole read walks its data lines on its own; its stream starts after the
   // header): the line named by its number in the file, 10 header lines and one data line before.
-  auto write_pcd = [&](const fs::path& p, std::size_t line_bytes) {
-    std::string line = "1 2 3";
-    line.resize(line_bytes, ' ');
-    std::ofstream(p, std::ios::binary) << "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\n"
-                                          "HEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 3\nDATA ascii\n0 0 0\n"
-                                       << line << "\n4 5 6\n";
-    return p;
-  };
-  {
-    const fs::path p = write_pcd(dir / "at_limit.pcd", kLimit);
-    const Cloud whole = hc::pipeline::load_cloud(p).value;
-    ASSERT_EQ(whole.size(), 3U);
-    EXPECT_EQ(whole.xyz(1, 1), 2.0);
-    auto s = hc::pipeline::open_point_stream(p);
-    EXPECT_TRUE(s->streamed());
-    const Cloud got = read_with_intensity(*s, 2);
-    ASSERT_EQ(got.size(), 3U);
-    EXPECT_TRUE(same_xyz(got.xyz, whole.xyz));
-    fs::remove(p);
-  }
-  {
-    const fs::path p = write_pcd(dir / "past_limit.pcd", kLimit + 1);
-    const std::string whole_error = hc::test::error_of([&] { hc::pipeline::load_cloud(p); });
-    EXPECT_NE(whole_error.find("line 12 is longer than 64 MiB"), std::string::npos) << whole_error;
-    Cloud c;
-    EXPECT_EQ(hc::test::error_of([&] {
-                auto s = hc::pipeline::open_point_stream(p);
-                while (s->next(c, 2)) {
-                }
-              }),
-              whole_error);
-    fs::remove(p);
-  }
+  const std::string pcd_head =
+      "VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 3\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\n"
+      "POINTS 3\nDATA ascii\n0 0 0\n";
+  expect_read_alike(write(dir / "at_limit.pcd", pcd_head, "", kLimit));
+  expect_refused_alike(write(dir / "past_limit.pcd", pcd_head, "", kLimit + 1), 12);
 }
 
 // An ASCII PLY (an element of its own before the vertex element, float or double x y z, with
