@@ -26,7 +26,7 @@
 // Scope front (remove_front_statistical_outliers) tests only the points that can reach the Monge
 // grid: a stratified sample for the threshold, the extremes of the x-y box, then the front-most
 // point of every grid cell, again and again while it is an outlier. The queries use the same
-// grid with a dense key table (no binary searches), in grid order, the 3×3×3 block first and
+// grid with a table of its keys (LowerTable: no binary searches), in grid order, the 3×3×3 block first and
 // the radius hint of stage A; larger blocks are trimmed to the cells within the best (k+1)-th
 // distance so far. On the merged Buddha at N = 800 it tests 253 k of 1.1 M points.
 //
@@ -112,8 +112,6 @@ LowerTable::LowerTable(const CellGrid& g) {
     run += static_cast<std::uint32_t>(std::popcount(w.bits));
   }
 }
-
-LowerTable dense_lower_table(const CellGrid& g) { return LowerTable(g); }
 
 // Builds the grid. `p` holds 3·count floats (x, y, z interleaved). The cell edge is chosen so
 // that a point's cell holds about 0.85·(k+1) points (then most points' k+1 nearest neighbours
@@ -712,7 +710,7 @@ std::vector<float> mean_knn_distances(const std::vector<float>& p, std::size_t c
 namespace {
 
 // Mean k-NN distance of single points on demand (any thread). First the 3×3×3 block around the
-// point's cell, looked up in a dense table of the grid's keys (binary searches when the grid is
+// point's cell, looked up in the grid's key table (LowerTable; binary searches when the grid is
 // too sparse for one): with a search radius tau from the previous query of the same thread (the
 // points come roughly in spatial order), the k+1 nearest are exact when at least k+1 candidates
 // lie within tau ≤ the block's clearance; else the whole block, exact when the (k+1)-th distance
@@ -721,7 +719,7 @@ namespace {
 class GridPointQueries {
  public:
   GridPointQueries(const CellGrid& g, int k)
-      : g_(g), knn_(g, k), k1_(static_cast<std::size_t>(k + 1)), lower_(dense_lower_table(g)) {}
+      : g_(g), knn_(g, k), k1_(static_cast<std::size_t>(k + 1)), lower_(g) {}
 
   // Per-thread buffers and search radius.
   struct Scratch {

@@ -75,8 +75,6 @@ class LowerTable {
   }
   /// Whether the cell of key `key` (below n0·n1·n2) holds a point.
   bool occupied(std::uint64_t key) const { return ((words_[static_cast<std::size_t>(key >> 6)].bits >> (key & 63)) & 1U) != 0; }
-  /// Memory held [bytes].
-  std::size_t bytes() const { return words_.size() * sizeof(Word); }
 
  private:
   struct Word {
@@ -87,12 +85,9 @@ class LowerTable {
   std::vector<Word> words_;
 };
 
-/// The grid's LowerTable (empty on very sparse grids; see there).
-LowerTable dense_lower_table(const CellGrid& g);
-
 /// The number (0 .. cells() − 1) of the occupied cell at integer coordinates (ix, iy, iz) of
 /// `g`, or g.cells() when the cell lies outside the grid or holds no point. `table` is g's
-/// dense_lower_table: O(1), or a binary search when it is empty.
+/// LowerTable: O(1), or a binary search when it is empty.
 inline std::size_t occupied_cell(const CellGrid& g, const LowerTable& table, std::int64_t ix, std::int64_t iy, std::int64_t iz) {
   if (ix < 0 || iy < 0 || iz < 0 || ix >= g.n[0] || iy >= g.n[1] || iz >= g.n[2]) return g.cells();
   const std::uint64_t key = g.key(ix, iy, iz);
@@ -154,7 +149,7 @@ class PointQueries {
   /// the mean depends on (the tiled run's tile_scale bounds a window's truncated searches with them).
   float mean_distance(std::uint32_t sorted, Scratch& s, float* nearest_m = nullptr, float* top_d2 = nullptr) const;
 
-  /// The grid's dense_lower_table (built once by the constructor; empty on very sparse grids).
+  /// The grid's LowerTable (built once by the constructor; empty on very sparse grids).
   const LowerTable& lower_table() const;
 
   /// The k nearest neighbours of the point at sorted grid position `sorted`, itself excluded, as

@@ -335,7 +335,7 @@ inline std::uint32_t count_within(const PaddedCells& pc, std::size_t qb, std::si
 // The counting pass of remove_robust_outliers over the cells [cb, ce): certified[s] = 1 for the
 // sorted points s with at least need_count points (itself included) within squared distance
 // cert2 (own cell, then the cells of the 3×3×3 block that come within reach: faces, edges, then
-// corners, stopping at need_count); 0 otherwise. `table` is g's dense_lower_table (or empty),
+// corners, stopping at need_count); 0 otherwise. `table` is g's LowerTable (or empty),
 // `pc` g's points padded (PaddedCells). Compiled also for AVX2 where the compiler can (the
 // distance loops vectorise 8 wide), chosen at load time by the CPU.
 HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const PaddedCells& pc, const LowerTable& table, float cert2,

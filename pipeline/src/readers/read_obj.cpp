@@ -173,9 +173,8 @@ ReadResult read_obj(const ScanSource& source) {
   std::vector<std::string> materials, mtllibs;
   int current_material = -1;
   std::vector<Corner> face;
-  for_each_line(text, [&](const char* b, const char* e, std::size_t line_no) {
-    // The streams' limit (FileLines), so that both refuse the same files in the same words.
-    if (static_cast<std::size_t>(e - b) > kMaxTextLineBytes) throw_text_line_too_long(name, line_no);
+  // Every line, blank ones too (TextLines: the streams' line numbers and line limit).
+  const auto on_line = [&](const char* b, const char* e, std::size_t line_no) {
     const char* p = b;
     const std::string_view kw = keyword(p, e);
     if (kw == "v") {
@@ -205,7 +204,9 @@ ReadResult read_obj(const ScanSource& source) {
       const std::string_view lib = trim(p, e);
       if (!lib.empty()) mtllibs.emplace_back(lib);
     }
-  });
+  };
+  TextLines lines(text, name, 0, /*skip_blank=*/false);
+  for (const char *b = nullptr, *e = nullptr; lines.next(b, e);) on_line(b, e, lines.line_no());
   if (xyz.empty()) throw InputError("load_cloud: " + name + " holds no vertices ('v x y z' lines)");
   ReadResult result{cloud_from(xyz), {"OBJ vertex lines"}};
   Cloud& cloud = result.cloud;

@@ -663,24 +663,17 @@ std::string decode_ascii_line(const char* b, const char* e, const PcdLayout& l, 
 /// DATA ascii, read here as the stream reads it: the first n data lines after the header
 /// (lines with a token: validate_pcd's rule), each checked (check_ascii_line) and decoded
 /// (decode_ascii_line). @throws hc::InputError naming the file and the data line, or the lines
-/// missing, or a line longer than kMaxTextLineBytes (text_lines.hpp: the stream's words, the
-/// line's number in the file).
+/// missing, or a line longer than kMaxTextLineBytes (TextLines: the stream's words, the line's
+/// number in the file).
 Cloud read_ascii_body(const std::string& raw, const PcdLayout& l, const std::string& name) {
   Cloud cloud;
   cloud.xyz.resize(3, static_cast<Eigen::Index>(l.n));
   if (l.has_rgb) cloud.rgb.resize(3 * l.n);
   if (l.has_intensity) cloud.intensity.resize(l.n);
   std::size_t lines = 0;
-  std::size_t file_line = l.header_lines;  // the file's line number, blank lines counted
-  for (std::size_t p = l.pos; p < raw.size() && lines < l.n;) {
-    std::size_t nl = raw.find('\n', p);
-    if (nl == std::string::npos) nl = raw.size();
-    const char* b = raw.data() + p;
-    const char* e = raw.data() + nl;
-    p = nl + 1;
-    // The stream's limit (FileLines), in its words.
-    if (static_cast<std::size_t>(e - b) > kMaxTextLineBytes) throw_text_line_too_long(name, ++file_line);
-    ++file_line;
+  // Every line after the header, numbered as in the file (TextLines: the stream's line limit).
+  TextLines text(raw, name, l.pos, /*skip_blank=*/false, l.header_lines);
+  for (const char *b = nullptr, *e = nullptr; lines < l.n && text.next(b, e);) {
     if (first_token(b, e).empty()) continue;
     std::string problem = check_ascii_line(b, e, l.values);
     if (problem.empty()) {

@@ -6,8 +6,8 @@
 /// without its '\n'; a line of separators only (text_parse.hpp's is_space) is blank; a line longer
 /// than kMaxTextLineBytes is an InputError naming the file and the line in both (no scan's line
 /// is near that long; until 2026-11-28 only the streams refused one, at a length that depended on
-/// where their 4 MiB blocks fell). Shared by the PTX, PTS, XYZ and ASCII PLY readers and OBJ's
-/// stream (OBJ's whole read applies the same limit; private to the pipeline).
+/// where their 4 MiB blocks fell). Shared by the PTX, PTS, XYZ, OBJ, ascii PCD and ASCII PLY
+/// readers (private to the pipeline).
 
 #include "byte_source.hpp"
 #include "text_parse.hpp"
@@ -33,12 +33,13 @@ inline constexpr std::size_t kMaxTextLineBytes = std::size_t{64} << 20;
 
 /// Walks the lines of a text buffer from byte `from`, skipping blank ones (every line when
 /// !skip_blank: a PLY body, where a blank line is an error), counting line numbers from 1.
-/// `name` names the file in the error for a line longer than kMaxTextLineBytes (InputError).
+/// `name` names the file in the error for a line longer than kMaxTextLineBytes (InputError);
+/// `lines_before`: the file's lines before `from` (as FileLines), so that line numbers are the file's.
 class TextLines {
  public:
-  TextLines(const std::string& text, std::string name, std::size_t from = 0, bool skip_blank = true)
+  TextLines(const std::string& text, std::string name, std::size_t from = 0, bool skip_blank = true, std::size_t lines_before = 0)
       : begin_(text.data()), p_(text.data() + std::min(from, text.size())), end_(text.data() + text.size()),
-        skip_blank_(skip_blank), name_(std::move(name)) {}
+        skip_blank_(skip_blank), name_(std::move(name)), line_no_(lines_before) {}
 
   /// The next non-blank line (or the next line) in [b, e); false at the end of the text.
   bool next(const char*& b, const char*& e) {
@@ -67,7 +68,7 @@ class TextLines {
   const char* end_;
   bool skip_blank_;
   std::string name_;
-  std::size_t line_no_ = 0;
+  std::size_t line_no_;
 };
 
 /// The same over a file read in blocks (for the streams; plain or gzip, ByteSource), with the

@@ -85,21 +85,6 @@ inline std::string check_numeric_line(const char* b, const char* e, std::size_t 
   return {};
 }
 
-/// Iterates over the lines of a buffer: f(line_begin, line_end, line_number) with '\n' removed.
-template <class F>
-void for_each_line(const std::string& text, F&& f) {
-  const char* p = text.data();
-  const char* const end = p + text.size();
-  std::size_t line_no = 0;
-  while (p < end) {
-    const void* nl = std::memchr(p, '\n', static_cast<std::size_t>(end - p));
-    const char* e = nl ? static_cast<const char*>(nl) : end;
-    ++line_no;
-    f(p, e, line_no);
-    p = nl ? e + 1 : end;
-  }
-}
-
 /// Header line reader shared by the PLY and PCD header parsers: copies the line that starts at
 /// `pos` into `line` (without its '\n' and a trailing '\r') and moves `pos` past it. Returns
 /// false when no line is left; an unterminated last line counts only if accept_unterminated.
