@@ -725,6 +725,10 @@ std::array<int, 4> tiles_of(const Tiles& t, int r, int c) {
           std::max(0, floor_div(c - t.halo, t.size)), std::min(t.tiles_c - 1, floor_div(c + t.halo, t.size))};
 }
 
+// A tiled run leaves grid.upsample auto's factor to the spill when the scan has at least this
+// many points per grid node on average (plan_passes, spill_may_decide).
+constexpr double kSpillDecidesPointsPerNode = 4.0;
+
 // A point's grid node as reproject bins it (nearest node, clamped to the grid): what decides
 // the tiles a point is spilled to, and which of them owns it.
 struct NodeBinner {
@@ -2257,6 +2261,115 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
                           " cells), more than scale.tile_max_points: the tile loop's memory follows that window");
     }
   };
+  // The x-y area of the grid's box [m²] (the last lay_out's), for the spacing estimate.
+  double grid_area_m2 = 0.0;
+  // With the upsample factor left to the spill (lay_out): the coverage of factors 1 and 2 that
+  // spill_pass takes of every point it writes; empty otherwise.
+  std::optional<UpsampleCoverage> spill_coverage;
+  // Whether tile_plan leaves the upsample factor to the spill, the tiles cut for factor 1: when
+  // that factor is likely, from the points per node of the grid (tiles.g, grid_points): at least kSpillDecidesPointsPerNode
+  // on average (uniform points at that density miss about 2 % of the nodes, and factor 1 needs
+  // kAutoUpsampleCoverage, 90 %, of the hit nodes with their 4 neighbours hit), and with
+  // scale.tile_max_points, a window of the configured side (clipped to the grid) holding fewer
+  // points than it at that mean (else smaller tiles are likely, which the spill could only find
+  // after writing).
+  const auto spill_may_decide = [&] {
+    const double nodes = static_cast<double>(tiles.g.rows) * static_cast<double>(tiles.g.cols);
+    const double per_node = nodes > 0.0 ? static_cast<double>(grid_points) / nodes : 0.0;
+    if (!(per_node >= kSpillDecidesPointsPerNode)) return false;
+    if (!counts) return true;
+    const int side = tiles.size + 2 * tiles.halo;
+    const double window = static_cast<double>(std::min(side, tiles.g.rows)) * static_cast<double>(std::min(side, tiles.g.cols));
+    return per_node * window <= static_cast<double>(config.scale.tile_max_points);
+  };
+  // Points per block for the tile side (choose_side): with scale.tile_max_points below the
+  // scan's points; `counted` once a pass over every point has filled them.
+  bool counted = false;
+  double coverage = 0.0;  // the upsample coverage at the factor chosen
+  // The upsample coverage of factors k_first to k_last over the input (without the points `far`
+  // holds), in a pass of its own that fills `counts` too when they are wanted and not counted;
+  // returns UpsampleCoverage::factor.
+  const auto coverage_pass = [&](const FarCells* far, int k_first, int k_last, const char* stage_name, const char* what) {
+    UpsampleCoverage cov(tiles.g, k_first, k_last);
+    const bool count = counts && !counted;
+    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name, what, [&](const Cloud& g) {
+      if (!far) {
+        cov.add(g.xyz.data(), g.size());
+        if (count)
+          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
+        return;
+      }
+      for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
+        // Far points too: the spill keeps them (marked) in the windows of their clamped nodes.
+        if (count) counts->add(g.xyz.data() + 3 * i);
+        if (far->holds(g.xyz.data() + 3 * i)) continue;
+        cov.add(g.xyz.data() + 3 * i, 1);
+      }
+    });
+    counted = counted || count;
+    return cov.factor(&coverage);
+  };
+  // The tiles for the factor tiles.k on the grid tiles.g (the last lay_out's): their side
+  // (scale.tile_cells, a multiple of the factor), the filter halo and the halo; with
+  // scale.tile_max_points, the side from the points per block (`counts`, counted here in a pass of
+  // their own unless a pass counted them already), or, when `counts_now` is false, the
+  // configured side until the spill has counted them (settle_layout).
+  const auto cut_tiles = [&](StageReport& rep, const char* stage_name, bool counts_now) {
+    ro = config.grid.reproject;
+    ro.upsample_factor = tiles.k;
+    const int k = tiles.k;
+    tiles.size = (config.scale.tile_cells + k - 1) / k * k;
+    if (!filter_halo_added(config)) {
+      tiles.filter = 0;  // no filter share in the halo (tile_halo), whatever the key says
+    } else if (config.scale.filter_halo_cells != ScaleConfig::kAutoFilterHalo) {
+      tiles.filter = config.scale.filter_halo_cells;
+    } else if (sample_spacing_m > 0.0) {
+      // auto, the robust sample's spacing known (a layout after tile_far_clusters)
+      tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, sample_spacing_m);
+    } else {
+      // auto at tile_plan: from an estimate of the scan's spacing, the x-y box's area per point
+      // (a surface that fills its box; slopes, back sides and holes make the true spacing
+      // larger or smaller), half as large again; stage tile_scale widens the halo, and spills
+      // the points again, when the robust sample's spacing needs more. Without a robust sample
+      // (no robust filter, or more than 2^32 − 2 points: each tile its own scale) nothing
+      // corrects it before the tile loop, so the halo keeps the former fixed default, 32, at
+      // least.
+      const std::uint64_t kept = grid_points;
+      spacing_estimate_m = kept > 0 && grid_area_m2 > 0.0 ? std::sqrt(grid_area_m2 / static_cast<double>(kept)) : 0.0;
+      tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, 1.5 * spacing_estimate_m);
+      if (tiles.filter < 0) throw no_filter_halo_error(stage_name, "estimated", spacing_estimate_m, tiles.g.cell_size_m);
+      if (!sample_to_come(kept)) tiles.filter = std::max(tiles.filter, 32);
+    }
+    if (tiles.filter < 0) throw no_filter_halo_error(stage_name, "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
+    tiles.halo = tile_halo(config, k, tiles.filter);
+    // scale.tile_max_points: tiles small enough that no window holds more points than that
+    // (each tile's memory is its window's points), down to the halo's side.
+    configured_side = tiles.size;
+    window_points_bound = 0;
+    if (counts && !counts_now) {
+      tiles.cut(tiles.size);  // the side waits for the counts the spill takes (settle_layout)
+    } else if (counts) {
+      if (!counted) {
+        count_pass = true;
+        for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
+                            "pass 2d of 3: the points per block, for the tile size", [&](const Cloud& g) {
+                              // Far points too, as the coverage pass counts them.
+                              for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
+                            });
+        counted = true;
+      }
+      counts->finish();
+      choose_side(rep);
+    } else {
+      tiles.cut(tiles.size);
+    }
+  };
+  // The grid (tiles.g) from the points in the grid frame without those `far` holds, then the
+  // upsample factor and the tiles (cut_tiles). With grid.upsample auto the factor needs a pass
+  // over the points (their coverage of the grid). At tile_plan, on a scan dense enough for its
+  // grid that factor 1 is likely (spill_may_decide), that pass is left to the spill: the tiles
+  // are cut for factor 1 and spill_pass takes the coverage (and the points per block) as it
+  // writes; settle_layout then checks the guess, and only a wrong one costs a spill again.
   auto lay_out = [&](const FarCells* far, StageReport& rep) {
     const char* stage_name = far ? "tile_far_clusters" : "tile_plan";
     ro = config.grid.reproject;
@@ -2304,90 +2417,41 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     }
     grid_points = kept;
     tiles.g = tiled_grid_geometry(x_min, x_max, y_min, y_max, kept, ro);
-    // Points per block for the tile side, counted with the first coverage pass when there is one.
+    grid_area_m2 = std::max(0.0, x_max - x_min) * std::max(0.0, y_max - y_min);
     counts.reset();
     if (config.scale.tile_max_points > 0 && box.points > config.scale.tile_max_points) counts.emplace(tiles.g);
-    bool counted = false;
-    double coverage = 0.0;
+    counted = false;
+    coverage_passes = 0;
+    count_pass = false;
+    spill_coverage.reset();
     if (config.grid.reproject.upsample_factor == 0) {
+      bool guess = !far;
+      if (guess) {
+        tiles.k = 1;
+        try {
+          cut_tiles(rep, "tile_plan", false);
+        } catch (const ConfigError&) {
+          guess = false;  // no filter halo for factor 1: the coverage pass first, as without a guess
+        }
+      }
+      if (guess && spill_may_decide()) {
+        spill_coverage.emplace(tiles.g, 1, 2);
+        return;
+      }
       // Factors 1 and 2 first (a scan as dense as its grid stops there); the rest, 3 to
       // kMaxUpsampleFactor, in one more pass only when both fail. Each factor's coverage is its
       // own grid's, so the factor is the one a single pass over all factors gives.
-      const auto coverage_pass = [&](int k_first, int k_last, const char* what) {
-        UpsampleCoverage cov(tiles.g, k_first, k_last);
-        const bool count = counts && !counted;
-        for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name, what, [&](const Cloud& g) {
-          if (!far) {
-            cov.add(g.xyz.data(), g.size());
-            if (count)
-              for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
-            return;
-          }
-          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
-            // Far points too: the spill keeps them (marked) in the windows of their clamped nodes.
-            if (count) counts->add(g.xyz.data() + 3 * i);
-            if (far->holds(g.xyz.data() + 3 * i)) continue;
-            cov.add(g.xyz.data() + 3 * i, 1);
-          }
-        });
-        counted = counted || count;
-        return cov.factor(&coverage);
-      };
-      tiles.k = coverage_pass(1, 2, "pass 2b of 3: the upsample coverage");
+      tiles.k = coverage_pass(far, 1, 2, stage_name, "pass 2b of 3: the upsample coverage");
       coverage_passes = 1;
       if (tiles.k == 0) {
-        tiles.k = coverage_pass(3, kMaxUpsampleFactor, "pass 2c of 3: the upsample coverage, factors 3 and more");
+        tiles.k = coverage_pass(far, 3, kMaxUpsampleFactor, stage_name, "pass 2c of 3: the upsample coverage, factors 3 and more");
         coverage_passes = 2;
       }
       rep.figure("upsample_coverage", coverage);
     } else {
       tiles.k = ro.upsample_factor;
     }
-    ro = config.grid.reproject;
-    ro.upsample_factor = tiles.k;
-    const int k = tiles.k;
-    tiles.size = (config.scale.tile_cells + k - 1) / k * k;
-    if (!filter_halo_added(config)) {
-      tiles.filter = 0;  // no filter share in the halo (tile_halo), whatever the key says
-    } else if (config.scale.filter_halo_cells != ScaleConfig::kAutoFilterHalo) {
-      tiles.filter = config.scale.filter_halo_cells;
-    } else if (sample_spacing_m > 0.0) {
-      // auto, the robust sample's spacing known (a layout after tile_far_clusters)
-      tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, sample_spacing_m);
-    } else {
-      // auto at tile_plan: from an estimate of the scan's spacing, the x-y box's area per point
-      // (a surface that fills its box; slopes, back sides and holes make the true spacing
-      // larger or smaller), half as large again; stage tile_scale widens the halo, and spills
-      // the points again, when the robust sample's spacing needs more. Without a robust sample
-      // (no robust filter, or more than 2^32 − 2 points: each tile its own scale) nothing
-      // corrects it before the tile loop, so the halo keeps the former fixed default, 32, at
-      // least.
-      const double area_m2 = std::max(0.0, x_max - x_min) * std::max(0.0, y_max - y_min);
-      spacing_estimate_m = kept > 0 && area_m2 > 0.0 ? std::sqrt(area_m2 / static_cast<double>(kept)) : 0.0;
-      tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, 1.5 * spacing_estimate_m);
-      if (tiles.filter < 0) throw no_filter_halo_error(stage_name, "estimated", spacing_estimate_m, tiles.g.cell_size_m);
-      if (!sample_to_come(kept)) tiles.filter = std::max(tiles.filter, 32);
-    }
-    if (tiles.filter < 0) throw no_filter_halo_error(stage_name, "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
-    tiles.halo = tile_halo(config, k, tiles.filter);
-    // scale.tile_max_points: tiles small enough that no window holds more points than that
-    // (each tile's memory is its window's points), down to the halo's side.
-    configured_side = tiles.size;
-    window_points_bound = 0;
-    if (counts) {
-      if (!counted) {
-        count_pass = true;
-        for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
-                            "pass 2d of 3: the points per block, for the tile size", [&](const Cloud& g) {
-                              // Far points too, as the coverage pass counts them.
-                              for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
-                            });
-      }
-      counts->finish();
-      choose_side(rep);
-    } else {
-      tiles.cut(tiles.size);
-    }
+    cut_tiles(rep, stage_name, true);
   };
   (void)stage("tile_plan", reports, progress, [&] {
     StageResult<int> r;
@@ -2454,6 +2518,17 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     r.report.figure("filter_halo_cells", tiles.filter);
     if (spacing_estimate_m > 0.0) r.report.figure("spacing_estimate_mm", spacing_estimate_m * 1e3);
     r.report.notes.insert(r.report.notes.begin(), read_notes.begin(), read_notes.end());
+    if (spill_coverage) {
+      // The factor, the tiles and the halo above are factor 1's until the spill has the
+      // coverage (settle_layout sets them).
+      r.report.notes.push_back(std::string("passes over the input: the file box, ") + (grid_box_from_file ? "" : "the grid box, ") +
+                               "then the spill, which took the upsample coverage" +
+                               (counts ? " and the points per block for the tile size" : "") + " (" +
+                               format_number(static_cast<double>(grid_points) / (static_cast<double>(tiles.g.rows) * tiles.g.cols)) +
+                               " points per grid node: factor 1 likely)" +
+                               (grid_box_from_file ? " (the grid's box is the file box's, recentred: identity view, no crop)" : ""));
+      return r;
+    }
     r.report.notes.push_back(std::string("passes over the input: the file box, ") +
                              (grid_box_from_file ? "" : "the grid box, ") +
                              (coverage_passes == 2   ? "the upsample coverage for factors 1 and 2, again for 3 and more, "
@@ -2499,6 +2574,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         }
       }
       far_points = 0;
+      // The upsample factor left to this pass (lay_out): the coverage and the points per block
+      // of every point it writes, taken again if the pass starts again.
+      if (spill_coverage) {
+        spill_coverage.emplace(tiles.g, 1, 2);
+        if (counts) counts.emplace(tiles.g);
+      }
       spill.emplace(dir, "tile_", tiles.count(), box.layout);
       spill_tiles = tiles.count();
       spilled = copies = 0;
@@ -2518,7 +2599,13 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       std::uint64_t seen = 0;
       try {
       for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
-                          "pass 3 of 3: the spill", [&](const Cloud& g) {
+                          spill_coverage ? "pass 3 of 3: the spill, with the upsample coverage" : "pass 3 of 3: the spill",
+                          [&](const Cloud& g) {
+        if (spill_coverage) {
+          spill_coverage->add(g.xyz.data(), g.size());
+          if (counts)
+            for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
+        }
         for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++seen) {
           const double* p = g.xyz.data() + 3 * i;
           const bool far_point = far && far->holds(p);
@@ -2568,9 +2655,53 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     rep.notes.push_back("spill folder " + dir.string());
     return spilled;
   };
+  // After a spill that took the upsample coverage (lay_out left the factor to it): the factor
+  // from that coverage (factors 3 and more in a pass of their own when 1 and 2 both fail, as
+  // lay_out would), the tiles cut for it with the points per block the spill counted, and
+  // tile_plan's figures set to them. Returns whether those are the tiles spilled; when not
+  // (another factor, or smaller tiles for scale.tile_max_points), the points must be spilled
+  // again.
+  const auto settle_layout = [&]() -> bool {
+    StageReport* plan_rep = nullptr;
+    for (StageReport& rp : reports) plan_rep = rp.stage == "tile_plan" ? &rp : plan_rep;
+    if (plan_rep == nullptr) throw std::logic_error("tiled run: settle_layout before stage tile_plan");
+    counted = counts.has_value();
+    int k = spill_coverage->factor(&coverage);
+    spill_coverage.reset();
+    if (k == 0) {
+      k = coverage_pass(nullptr, 3, kMaxUpsampleFactor, "tile_spill", "the upsample coverage, factors 3 and more");
+      coverage_passes = 1;
+    }
+    const Tiles spilled = tiles;
+    tiles.k = k;
+    cut_tiles(*plan_rep, "tile_plan", true);
+    detail::set_figure(*plan_rep, "upsample_coverage", coverage);
+    detail::set_figure(*plan_rep, "upsample_factor", tiles.k);
+    detail::set_figure(*plan_rep, "tiles", static_cast<double>(tiles.count()));
+    detail::set_figure(*plan_rep, "tile_cells", tiles.size);
+    if (window_points_bound > 0) detail::set_figure(*plan_rep, "window_points_bound", static_cast<double>(window_points_bound));
+    detail::set_figure(*plan_rep, "halo_cells", tiles.halo);
+    detail::set_figure(*plan_rep, "filter_halo_cells", tiles.filter);
+    if (spacing_estimate_m > 0.0) detail::set_figure(*plan_rep, "spacing_estimate_mm", spacing_estimate_m * 1e3);
+    const bool same = tiles.k == spilled.k && tiles.size == spilled.size && tiles.halo == spilled.halo && tiles.filter == spilled.filter &&
+                      tiles.tiles_r == spilled.tiles_r && tiles.tiles_c == spilled.tiles_c;
+    if (!same) {
+      plan_rep->notes.push_back("upsample factor " + std::to_string(tiles.k) + ", tiles of " + std::to_string(tiles.size) + " cells, halo " +
+                                std::to_string(tiles.halo) + " cells: found by the spill, which had guessed factor 1 and " +
+                                std::to_string(spilled.size) + "-cell tiles; the points were spilled again" +
+                                (coverage_passes == 1 ? " after a pass for the coverage of factors 3 and more" : ""));
+    }
+    return same;
+  };
   (void)stage("tile_spill", reports, progress, [&] {
     StageResult<int> r;
     (void)spill_pass(nullptr, r.report, "tile_spill");
+    if (spill_coverage && !settle_layout()) {
+      r.report = StageReport{};
+      (void)spill_pass(nullptr, r.report, "tile_spill");
+      r.report.notes.push_back("spilled twice: the first spill's guess of the upsample factor or the tile side was not the one its "
+                               "coverage and counts gave (see tile_plan)");
+    }
     return r;
   });
 
@@ -2887,9 +3018,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           same_layout = new_g.rows == old_g.rows && new_g.cols == old_g.cols && new_g.x0_m == old_g.x0_m &&
                         new_g.y0_m == old_g.y0_m && new_g.cell_size_m == old_g.cell_size_m;
           if (same_layout && cov) {
-            double coverage = 0.0;
-            same_layout = cov->factor(&coverage) == old_k;
-            if (same_layout) r.report.figure("upsample_coverage", coverage);  // else lay_out reports it
+            double without_far = 0.0;
+            same_layout = cov->factor(&without_far) == old_k;
+            if (same_layout) r.report.figure("upsample_coverage", without_far);  // else lay_out reports it
           }
           ro.upsample_factor = old_k;
         }

@@ -41,6 +41,7 @@
 #include <map>
 #include <numeric>
 #include <vector>
+#include <set>
 #include <string>
 #include <tuple>
 
@@ -1385,6 +1386,141 @@ TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {
   EXPECT_GE(stage_figure(tiled, "tile_plan", "upsample_factor"), 3.0);
   EXPECT_TRUE(has_note(tiled, "tile_plan", "the upsample coverage for factors 1 and 2, again for 3 and more"));
   EXPECT_FALSE(tiled.scene.layers.colour_rgb8.empty());
+}
+
+void write_float_ply(const fs::path& file, const std::vector<std::array<float, 3>>& pts);  // below
+
+// grid.upsample auto on a scan dense for its grid: the plan leaves the factor to the spill,
+// which takes the coverage (and, with scale.tile_max_points, the points per block) as it writes
+// (one pass over the input fewer); where that pass finds another factor or a smaller tile side
+// than it guessed, the points are spilled again. Oracles: the in-core run (the scene and the
+// cross-check the same, and its reproject stage's own coverage and factor), the progress
+// callback (which passes ran), and the spill's record counts (every window's points).
+TEST(TiledRun, TheSpillTakesTheUpsampleCoverageOfADenseScanAndSpillsAgainWhenItsGuessIsWrong) {
+  const fs::path dir = hc::test::temp_dir("spill_coverage");
+  const fs::path scratch = dir / "scratch";
+  fs::create_directory(scratch);
+  // The passes a tiled build of `config` ran, by their progress notes.
+  const auto passes_of = [&](RunConfig config, BuiltScene& out) {
+    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+    config.scale.tile_cells = 32;
+    config.scale.scratch = scratch;
+    std::set<std::string> passes;
+    out = hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
+      if (!done && !r.notes.empty()) passes.insert(r.stage + ": " + r.notes.front());
+    });
+    return passes;
+  };
+  const auto in_core_figure = [](const RunConfig& c, const char* name) {
+    RunConfig in = c;
+    in.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+    return stage_figure(hc::pipeline::build_scene(in), "reproject", name);
+  };
+  const std::string head = "input: {files: [scan.ply], units: m}\ngrid: {n: 150, upsample: auto}\nfilters: {outliers: {enabled: false}}\n";
+  const std::string progress = "scale: {progress_interval_s: 0}\n";
+
+  {
+    SCOPED_TRACE("a wall of 17 points per node: factor 1, guessed right");
+    hc::tools::ReliefSpec spec;
+    spec.points = 200'000;
+    spec.width_m = 1.0;
+    spec.height_m = 0.5;
+    hc::tools::write_relief(spec, dir / "scan.ply");
+    RunConfig config = hc::pipeline::parse_run_config(head + progress, dir / "scan.yaml");
+    BuiltScene tiled;
+    expect_tiled_equals_in_core(config, 32, scratch, &tiled);
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_factor"), 1.0);
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_factor"), in_core_figure(config, "upsample_factor"));
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_coverage"), in_core_figure(config, "upsample_coverage"));
+    EXPECT_TRUE(has_note(tiled, "tile_plan", "then the spill, which took the upsample coverage"));
+    EXPECT_FALSE(has_note(tiled, "tile_spill", "spilled twice"));
+    BuiltScene again;
+    const std::set<std::string> passes = passes_of(config, again);
+    EXPECT_EQ(passes.count("tile_spill: pass 3 of 3: the spill, with the upsample coverage"), 1U);
+    for (const std::string& p : passes) {
+      EXPECT_FALSE(p.rfind("tile_plan", 0) == 0 && p.find("upsample coverage") != std::string::npos) << "a coverage pass of its own: " << p;
+    }
+  }
+  {
+    SCOPED_TRACE("scan lines 2.5 nodes apart, 5 points per node: a factor above 1, the guess wrong");
+    std::vector<std::array<float, 3>> pts;
+    for (int j = 0; j < 30; ++j) {
+      for (int i = 0; i < 2000; ++i) {
+        const float x = (static_cast<float>(i) + 0.5f * static_cast<float>(j % 2)) / 2000.0f, y = 0.0167f * static_cast<float>(j);
+        pts.push_back({x, y, 0.01f * std::sin(6.0f * x) * std::cos(9.0f * y)});
+      }
+    }
+    write_float_ply(dir / "scan.ply", pts);
+    RunConfig config = hc::pipeline::parse_run_config(head + progress, dir / "scan.yaml");
+    BuiltScene tiled;
+    expect_tiled_equals_in_core(config, 32, scratch, &tiled);
+    const double k = stage_figure(tiled, "tile_plan", "upsample_factor");
+    EXPECT_GE(k, 2.0);
+    EXPECT_EQ(k, in_core_figure(config, "upsample_factor"));
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_coverage"), in_core_figure(config, "upsample_coverage"));
+    EXPECT_EQ(static_cast<int>(stage_figure(tiled, "tile_plan", "tile_cells")) % static_cast<int>(k), 0);
+    EXPECT_TRUE(has_note(tiled, "tile_plan", "found by the spill, which had guessed factor 1"));
+    EXPECT_TRUE(has_note(tiled, "tile_spill", "spilled twice"));
+    // Every point in the windows of the layout in use: as many records as a spill of it alone.
+    RunConfig fixed = config;
+    fixed.grid.reproject.upsample_factor = static_cast<int>(k);
+    fixed.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+    fixed.scale.tile_cells = 32;
+    fixed.scale.scratch = scratch;
+    const BuiltScene direct = hc::pipeline::build_scene(fixed);
+    EXPECT_EQ(stage_figure(tiled, "tile_spill", "points_spilled"), stage_figure(direct, "tile_spill", "points_spilled"));
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "halo_cells"), stage_figure(direct, "tile_plan", "halo_cells"));
+  }
+  {
+    SCOPED_TRACE("a dense strip: windows there past scale.tile_max_points, the average below: smaller tiles, the guess wrong");
+    // A 4 m x 0.5 m wall (250 000 points, 5.5 per node: factor 1) and 100 000 more on a 0.4 m
+    // strip at its left end.
+    hc::tools::ReliefSpec spec;
+    spec.points = 250'000;
+    spec.width_m = 4.0;
+    spec.height_m = 0.5;
+    spec.outlier_fraction = 0.0;
+    std::vector<std::array<float, 3>> pts;
+    for (std::uint64_t i = 0; i < spec.points; ++i) {
+      const auto q = hc::tools::relief_point(spec, i);
+      pts.push_back({static_cast<float>(q.x_m), static_cast<float>(q.y_m), static_cast<float>(q.z_m)});
+    }
+    spec.points = 100'000;
+    spec.width_m = 0.4;
+    spec.seed = 2;
+    for (std::uint64_t i = 0; i < spec.points; ++i) {
+      const auto q = hc::tools::relief_point(spec, i);
+      pts.push_back({static_cast<float>(q.x_m - 1.8), static_cast<float>(q.y_m), static_cast<float>(q.z_m)});
+    }
+    write_float_ply(dir / "scan.ply", pts);
+    RunConfig config = hc::pipeline::parse_run_config(head, dir / "scan.yaml", {"grid.n=600"});
+    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+    config.scale.tile_cells = 64;
+    config.scale.scratch = scratch;
+    config.scale.tile_max_points = 0;
+    const BuiltScene unbounded = hc::pipeline::build_scene(config);
+    // The plan's guess: the mean points per node over a whole window of the configured side.
+    const double nodes = stage_figure(unbounded, "tile_plan", "rows") * stage_figure(unbounded, "tile_plan", "cols");
+    const double side = 64.0 + 2.0 * stage_figure(unbounded, "tile_plan", "halo_cells");
+    const double mean_window = static_cast<double>(pts.size()) / nodes * std::min(side, stage_figure(unbounded, "tile_plan", "rows")) *
+                               std::min(side, stage_figure(unbounded, "tile_plan", "cols"));
+    const double most = stage_figure(unbounded, "tile_spill", "window_points_max");
+    ASSERT_LT(mean_window, 0.8 * most) << "the test needs a window well above the mean";
+    const auto bound = static_cast<std::uint64_t>(0.5 * (mean_window + most));
+    config.scale.tile_max_points = bound;
+    BuiltScene tiled;
+    expect_tiled_equals_in_core(config, 64, scratch, &tiled);
+    EXPECT_LT(stage_figure(tiled, "tile_plan", "tile_cells"), 64.0);
+    // No window past the bound, or (the strip alone nearly fills it) tiles as small as the halo
+    // and a note that the densest window still holds more.
+    if (stage_figure(tiled, "tile_spill", "window_points_max") > static_cast<double>(bound)) {
+      EXPECT_EQ(stage_figure(tiled, "tile_plan", "tile_cells"), stage_figure(tiled, "tile_plan", "halo_cells"));
+      EXPECT_TRUE(has_note(tiled, "tile_plan", "the densest window holds up to"));
+    }
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_factor"), 1.0);
+    EXPECT_TRUE(has_note(tiled, "tile_plan", "found by the spill, which had guessed factor 1 and 64-cell tiles"));
+    EXPECT_TRUE(has_note(tiled, "tile_spill", "spilled twice"));
+  }
 }
 
 // Level 0's surface layers left to the tiled scene's level builder (SurfaceLayersAt::kSceneLevels,

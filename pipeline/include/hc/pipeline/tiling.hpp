@@ -9,7 +9,10 @@
 ///     recentring offset, as to_metres_and_recentre takes it; the stored-precision figures), (b)
 ///     every point through units, recentring, view transform, non-finite and crop, exactly as the
 ///     in-core stages compute them: the grid's box (the geometry reproject would make) and, for
-///     grid.upsample: auto, the node coverage at every upsample factor (UpsampleCoverage);
+///     grid.upsample: auto, the node coverage at every upsample factor (UpsampleCoverage); on a
+///     scan of at least 4 points per grid node the coverage is left to the spill, which takes it
+///     as it writes the tiles cut for factor 1, and spills again only when it finds another
+///     factor or a smaller tile side (docs/scale.md);
 ///  2. spill: stream a third time and write each point (x y z as double in the grid frame,
 ///     colour and intensity when the scan has them, in the input's order) to the spill file of every
 ///     tile whose window (the tile plus its halo) holds its grid node;
