@@ -761,6 +761,22 @@ double coverage_of_hits(const std::vector<std::uint8_t>& hit, const GridGeometry
   return occupied == 0 ? 0.0 : static_cast<double>(interior) / static_cast<double>(occupied);
 }
 
+// coverage_of_hits over a bit per node (UpsampleCoverage): the same counts.
+double coverage_of_bits(const std::vector<std::uint64_t>& hit, const GridGeometry& g) {
+  const std::size_t cols = static_cast<std::size_t>(g.cols);
+  const auto at = [&](std::size_t i) { return static_cast<unsigned>((hit[i >> 6] >> (i & 63)) & 1U); };
+  std::size_t occupied = 0, interior = 0;
+  for (int r = 1; r + 1 < g.rows; ++r) {
+    for (int c = 1; c + 1 < g.cols; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r) * cols + static_cast<std::size_t>(c);
+      if (!at(i)) continue;
+      ++occupied;
+      interior += (at(i - 1) & at(i + 1) & at(i - cols) & at(i + cols)) != 0U ? 1U : 0U;
+    }
+  }
+  return occupied == 0 ? 0.0 : static_cast<double>(interior) / static_cast<double>(occupied);
+}
+
 // The grid whose node (R, C) is node (K·R, K·C) of g: same origin, K× the cell, covering g.
 GridGeometry coarse_geometry(const GridGeometry& g, int k) {
   GridGeometry c = g;
@@ -1603,7 +1619,7 @@ UpsampleCoverage::UpsampleCoverage(const GridGeometry& g, int k_first, int k_las
     const GridGeometry c = coarse_geometry(g, k);
     if (c.cols < 3 || c.rows < 3) break;  // and every larger factor's grid
     coarse_.push_back(c);
-    hit_.emplace_back(c.cell_count(), 0);
+    hit_.emplace_back((c.cell_count() + 63) / 64, 0);
   }
   if (k_last < kMaxUpsampleFactor) {
     const GridGeometry next = coarse_geometry(g, k_last + 1);
@@ -1612,7 +1628,23 @@ UpsampleCoverage::UpsampleCoverage(const GridGeometry& g, int k_first, int k_las
 }
 
 void UpsampleCoverage::add(const double* xyz, std::size_t n) {
-  for (std::size_t k = 0; k < coarse_.size(); ++k) mark_hits(xyz, n, coarse_[k], false, hit_[k].data());
+  for (std::size_t k = 0; k < coarse_.size(); ++k) {
+    // mark_hits' node, as a bit.
+    const GridGeometry& g = coarse_[k];
+    std::uint64_t* hit = hit_[k].data();
+    const double inv = 1.0 / g.cell_size_m;
+    const double cx = 0.5 - g.x0_m * inv, cy = 0.5 - g.y0_m * inv;
+    const auto c_max = static_cast<unsigned>(g.cols - 1), r_max = static_cast<unsigned>(g.rows - 1);
+    const std::size_t cols = static_cast<std::size_t>(g.cols);
+    const double* p = xyz;
+    for (std::size_t i = 0; i < n; ++i, p += 3) {
+      if (!finite_point(p)) continue;
+      const unsigned c = std::min(static_cast<unsigned>(static_cast<int>(p[0] * inv + cx)), c_max);
+      const unsigned r = std::min(static_cast<unsigned>(static_cast<int>(p[1] * inv + cy)), r_max);
+      const std::size_t at = static_cast<std::size_t>(r) * cols + c;
+      hit[at >> 6] |= std::uint64_t{1} << (at & 63);
+    }
+  }
 }
 
 int UpsampleCoverage::factor(double* coverage) const {
@@ -1621,7 +1653,7 @@ int UpsampleCoverage::factor(double* coverage) const {
   for (int k = k_first_; k <= k_last_; ++k) {
     const std::size_t at = static_cast<std::size_t>(k - k_first_);
     if (at >= coarse_.size()) return std::max(1, k - 1);  // this factor's grid is too small
-    *coverage = coverage_of_hits(hit_[at], coarse_[at]);
+    *coverage = coverage_of_bits(hit_[at], coarse_[at]);
     if (*coverage >= kAutoUpsampleCoverage) return k;
   }
   if (k_last_ == kMaxUpsampleFactor) return kMaxUpsampleFactor;

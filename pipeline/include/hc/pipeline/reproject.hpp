@@ -239,7 +239,9 @@ GridGeometry grid_geometry_for_box(double x_min, double x_max, double y_min, dou
 /// same stopping rule). It tracks the factors k_first to k_last only, so that a streamed run can
 /// decide the common factors (1 and 2) in one pass and read the points again for the rest only
 /// when those fail (each factor's coverage comes from its own nodes, so the split changes
-/// nothing). Memory: one byte per node of each tracked factor's grid (g's nodes / K²).
+/// nothing). Memory: one bit per node of each tracked factor's grid (g's nodes / K²): 1 MB for
+/// a 4 096 × 2 049 grid at factor 1, small enough to stay in a core's cache while points in
+/// random order mark it (a byte per node, until 2026-11-28, missed it for most points).
 class UpsampleCoverage {
  public:
   /// @throws std::invalid_argument unless 1 ≤ k_first ≤ k_last ≤ kMaxUpsampleFactor.
@@ -258,7 +260,7 @@ class UpsampleCoverage {
   int k_first_ = 1, k_last_ = kMaxUpsampleFactor;
   bool next_too_small_ = false;  // factor k_last + 1's grid has fewer than 3 nodes along a side
   std::vector<GridGeometry> coarse_;
-  std::vector<std::vector<std::uint8_t>> hit_;
+  std::vector<std::vector<std::uint64_t>> hit_;  // per tracked factor, a bit per node (row-major)
 };
 
 /// How far [fine nodes] a node's value in reproject can depend on points, for a window's halo:
