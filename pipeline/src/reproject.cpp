@@ -717,8 +717,10 @@ inline bool ray_has_higher(const float* depth, int rows, int cols, int r, int c,
 // Coverage of the scan on geometry g: of the nodes holding at least one point, the fraction
 // whose 4 neighbours hold one too (1 for a scan denser than the grid everywhere; about p⁴ when
 // a node is hit with probability p, so it falls fast once cells get finer than the spacing).
-// Marks the node of every finite point (the binning of bin_front_most, clamped) in `hit`.
-void mark_hits(const double* p, std::size_t n, const GridGeometry& g, bool all_finite, std::uint8_t* hit) {
+// Marks the node of every finite point (the binning of bin_front_most, clamped) in `hit`, a bit
+// per node (row-major, (g's nodes + 63) / 64 words): 1 MB for 4 096 × 2 049 nodes, which points
+// in random order mostly find in a core's cache (a byte per node, until 2026-11-28, missed it).
+void mark_hits(const double* p, std::size_t n, const GridGeometry& g, bool all_finite, std::uint64_t* hit) {
   const double inv = 1.0 / g.cell_size_m;
   const double cx = 0.5 - g.x0_m * inv, cy = 0.5 - g.y0_m * inv;
   const auto c_max = static_cast<unsigned>(g.cols - 1), r_max = static_cast<unsigned>(g.rows - 1);
@@ -727,19 +729,23 @@ void mark_hits(const double* p, std::size_t n, const GridGeometry& g, bool all_f
     if (!all_finite && !finite_point(p)) continue;
     const unsigned c = std::min(static_cast<unsigned>(static_cast<int>(p[0] * inv + cx)), c_max);
     const unsigned r = std::min(static_cast<unsigned>(static_cast<int>(p[1] * inv + cy)), r_max);
-    hit[static_cast<std::size_t>(r) * cols + c] = 1;
+    const std::size_t at = static_cast<std::size_t>(r) * cols + c;
+    hit[at >> 6] |= std::uint64_t{1} << (at & 63);
   }
 }
 
+// Words of a bit per node of g (mark_hits' `hit`).
+std::size_t hit_words(const GridGeometry& g) { return (g.cell_count() + 63) / 64; }
+
 // Of the hit nodes not on the border, the fraction whose 4 neighbours are hit.
-double coverage_of_hits(const std::vector<std::uint8_t>& hit, const GridGeometry& g);
+double coverage_of_hits(const std::vector<std::uint64_t>& hit, const GridGeometry& g);
 
 double coverage_on(const double* p, std::size_t n, const GridGeometry& g, bool all_finite) {
-  std::vector<std::uint8_t> hit(g.cell_count(), 0);
+  std::vector<std::uint64_t> hit(hit_words(g), 0);
   if (n < kTwoThreadPoints) {
     mark_hits(p, n, g, all_finite, hit.data());
   } else {  // each half of the points marks its own array; the marks are joined (OR) after
-    std::vector<std::uint8_t> upper(hit.size(), 0);
+    std::vector<std::uint64_t> upper(hit.size(), 0);
     run_two([&] { mark_hits(p + 3 * (n / 2), n - n / 2, g, all_finite, upper.data()); },
             [&] { mark_hits(p, n / 2, g, all_finite, hit.data()); });
     for (std::size_t i = 0; i < hit.size(); ++i) hit[i] |= upper[i];
@@ -747,22 +753,7 @@ double coverage_on(const double* p, std::size_t n, const GridGeometry& g, bool a
   return coverage_of_hits(hit, g);
 }
 
-double coverage_of_hits(const std::vector<std::uint8_t>& hit, const GridGeometry& g) {
-  const std::size_t cols = static_cast<std::size_t>(g.cols);
-  std::size_t occupied = 0, interior = 0;
-  for (int r = 1; r + 1 < g.rows; ++r) {
-    for (int c = 1; c + 1 < g.cols; ++c) {
-      const std::size_t i = static_cast<std::size_t>(r) * cols + static_cast<std::size_t>(c);
-      if (!hit[i]) continue;
-      ++occupied;
-      interior += (hit[i - 1] & hit[i + 1] & hit[i - cols] & hit[i + cols]) ? 1U : 0U;
-    }
-  }
-  return occupied == 0 ? 0.0 : static_cast<double>(interior) / static_cast<double>(occupied);
-}
-
-// coverage_of_hits over a bit per node (UpsampleCoverage): the same counts.
-double coverage_of_bits(const std::vector<std::uint64_t>& hit, const GridGeometry& g) {
+double coverage_of_hits(const std::vector<std::uint64_t>& hit, const GridGeometry& g) {
   const std::size_t cols = static_cast<std::size_t>(g.cols);
   const auto at = [&](std::size_t i) { return static_cast<unsigned>((hit[i >> 6] >> (i & 63)) & 1U); };
   std::size_t occupied = 0, interior = 0;
@@ -1619,7 +1610,7 @@ UpsampleCoverage::UpsampleCoverage(const GridGeometry& g, int k_first, int k_las
     const GridGeometry c = coarse_geometry(g, k);
     if (c.cols < 3 || c.rows < 3) break;  // and every larger factor's grid
     coarse_.push_back(c);
-    hit_.emplace_back((c.cell_count() + 63) / 64, 0);
+    hit_.emplace_back(hit_words(c), 0);
   }
   if (k_last < kMaxUpsampleFactor) {
     const GridGeometry next = coarse_geometry(g, k_last + 1);
@@ -1628,23 +1619,7 @@ UpsampleCoverage::UpsampleCoverage(const GridGeometry& g, int k_first, int k_las
 }
 
 void UpsampleCoverage::add(const double* xyz, std::size_t n) {
-  for (std::size_t k = 0; k < coarse_.size(); ++k) {
-    // mark_hits' node, as a bit.
-    const GridGeometry& g = coarse_[k];
-    std::uint64_t* hit = hit_[k].data();
-    const double inv = 1.0 / g.cell_size_m;
-    const double cx = 0.5 - g.x0_m * inv, cy = 0.5 - g.y0_m * inv;
-    const auto c_max = static_cast<unsigned>(g.cols - 1), r_max = static_cast<unsigned>(g.rows - 1);
-    const std::size_t cols = static_cast<std::size_t>(g.cols);
-    const double* p = xyz;
-    for (std::size_t i = 0; i < n; ++i, p += 3) {
-      if (!finite_point(p)) continue;
-      const unsigned c = std::min(static_cast<unsigned>(static_cast<int>(p[0] * inv + cx)), c_max);
-      const unsigned r = std::min(static_cast<unsigned>(static_cast<int>(p[1] * inv + cy)), r_max);
-      const std::size_t at = static_cast<std::size_t>(r) * cols + c;
-      hit[at >> 6] |= std::uint64_t{1} << (at & 63);
-    }
-  }
+  for (std::size_t k = 0; k < coarse_.size(); ++k) mark_hits(xyz, n, coarse_[k], false, hit_[k].data());
 }
 
 int UpsampleCoverage::factor(double* coverage) const {
@@ -1653,7 +1628,7 @@ int UpsampleCoverage::factor(double* coverage) const {
   for (int k = k_first_; k <= k_last_; ++k) {
     const std::size_t at = static_cast<std::size_t>(k - k_first_);
     if (at >= coarse_.size()) return std::max(1, k - 1);  // this factor's grid is too small
-    *coverage = coverage_of_bits(hit_[at], coarse_[at]);
+    *coverage = coverage_of_hits(hit_[at], coarse_[at]);
     if (*coverage >= kAutoUpsampleCoverage) return k;
   }
   if (k_last_ == kMaxUpsampleFactor) return kMaxUpsampleFactor;

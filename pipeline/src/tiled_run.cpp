@@ -2384,6 +2384,15 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       tiles.cut(tiles.size);
     }
   };
+  // tile_plan's figures of the tiles in use (set, or appended the first time).
+  const auto set_tile_figures = [&](StageReport& rep) {
+    detail::set_figure(rep, "upsample_factor", tiles.k);
+    detail::set_figure(rep, "tiles", static_cast<double>(tiles.count()));
+    detail::set_figure(rep, "tile_cells", tiles.size);
+    if (window_points_bound > 0) detail::set_figure(rep, "window_points_bound", static_cast<double>(window_points_bound));
+    detail::set_figure(rep, "halo_cells", tiles.halo);
+    detail::set_figure(rep, "filter_halo_cells", tiles.filter);
+  };
   // The grid (tiles.g) from the points in the grid frame without those `far` holds, then the
   // upsample factor and the tiles (cut_tiles). With grid.upsample auto the factor needs a pass
   // over the points (their coverage of the grid). At tile_plan, on a scan dense enough for its
@@ -2525,17 +2534,11 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     // The spill keeps a float file's own x y z: half the bytes (FileFloats).
     if (box.float32) box.layout.floats = FileFloats::of(centre, unit_m, config.view);
     lay_out(nullptr, r.report);
-    const int k = tiles.k;
     r.report.count_in = box.points;
     r.report.count_out = grid_points;
     r.report.figure("rows", tiles.g.rows);
     r.report.figure("cols", tiles.g.cols);
-    r.report.figure("upsample_factor", k);
-    r.report.figure("tiles", static_cast<double>(tiles.count()));
-    r.report.figure("tile_cells", tiles.size);
-    if (window_points_bound > 0) r.report.figure("window_points_bound", static_cast<double>(window_points_bound));
-    r.report.figure("halo_cells", tiles.halo);
-    r.report.figure("filter_halo_cells", tiles.filter);
+    set_tile_figures(r.report);
     if (spacing_estimate_m > 0.0) r.report.figure("spacing_estimate_mm", spacing_estimate_m * 1e3);
     r.report.notes.insert(r.report.notes.begin(), read_notes.begin(), read_notes.end());
     if (spill_coverage) {
@@ -2696,13 +2699,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     tiles.k = k;
     cut_tiles(*plan_rep, "tile_plan", true);
     detail::set_figure(*plan_rep, "upsample_coverage", coverage);
-    detail::set_figure(*plan_rep, "upsample_factor", tiles.k);
-    detail::set_figure(*plan_rep, "tiles", static_cast<double>(tiles.count()));
-    detail::set_figure(*plan_rep, "tile_cells", tiles.size);
-    if (window_points_bound > 0) detail::set_figure(*plan_rep, "window_points_bound", static_cast<double>(window_points_bound));
-    detail::set_figure(*plan_rep, "halo_cells", tiles.halo);
-    detail::set_figure(*plan_rep, "filter_halo_cells", tiles.filter);
-    if (spacing_estimate_m > 0.0) detail::set_figure(*plan_rep, "spacing_estimate_mm", spacing_estimate_m * 1e3);
+    set_tile_figures(*plan_rep);
     const bool same = tiles.k == spilled.k && tiles.size == spilled.size && tiles.halo == spilled.halo && tiles.filter == spilled.filter &&
                       tiles.tiles_r == spilled.tiles_r && tiles.tiles_c == spilled.tiles_c;
     if (!same) {

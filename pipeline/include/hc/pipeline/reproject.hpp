@@ -239,9 +239,8 @@ GridGeometry grid_geometry_for_box(double x_min, double x_max, double y_min, dou
 /// same stopping rule). It tracks the factors k_first to k_last only, so that a streamed run can
 /// decide the common factors (1 and 2) in one pass and read the points again for the rest only
 /// when those fail (each factor's coverage comes from its own nodes, so the split changes
-/// nothing). Memory: one bit per node of each tracked factor's grid (g's nodes / K²): 1 MB for
-/// a 4 096 × 2 049 grid at factor 1, small enough to stay in a core's cache while points in
-/// random order mark it (a byte per node, until 2026-11-28, missed it for most points).
+/// nothing). Memory: one bit per node of each tracked factor's grid (g's nodes / K²; 1 MB for a
+/// 4 096 × 2 049 grid at factor 1), as reproject's own coverage keeps it.
 class UpsampleCoverage {
  public:
   /// @throws std::invalid_argument unless 1 ≤ k_first ≤ k_last ≤ kMaxUpsampleFactor.
