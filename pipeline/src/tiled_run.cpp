@@ -761,15 +761,21 @@ class BlockCounts {
       : node_(g), b_(std::max(1, (std::max(g.rows, g.cols) + 2047) / 2048)), br_((g.rows + b_ - 1) / b_), bc_((g.cols + b_ - 1) / b_),
         n_(static_cast<std::size_t>(br_) * static_cast<std::size_t>(bc_), 0) {}
   // Counts the point at p (grid frame [m], 3 doubles).
-  void add(const double* p) {
-    const std::size_t i =
-        static_cast<std::size_t>(node_.row(p) / b_) * static_cast<std::size_t>(bc_) + static_cast<std::size_t>(node_.col(p) / b_);
-    if (!wide_.empty()) {
-      ++wide_[i];
-    } else if (++n_[i] == 0) {  // the 2^32-th point of block i: the table turns 64-bit
-      wide_.assign(n_.begin(), n_.end());
-      wide_[i] = std::uint64_t{1} << 32;
-      std::vector<std::uint32_t>().swap(n_);
+  void add(const double* p) { bump(block_of(p)); }
+  // Counts the n points at xyz (grid frame [m], 3·n doubles), the same counts as add(p) for each.
+  // A point in random order misses the cache in the table (8 MB at 4 096 × 2 049): each point's
+  // block is prefetched kAhead points before it is counted, so that the misses overlap instead of
+  // stalling one by one (measured on the 10^8 wall's spill, 2026-11-28: the point-by-point loop
+  // was a third of tile_spill's CPU time, nine tenths of it on the increment).
+  void add(const double* xyz, std::size_t n) {
+    constexpr std::size_t kAhead = 16;
+    std::array<std::size_t, kAhead> ring{};
+    const std::size_t lead = std::min(n, kAhead);
+    for (std::size_t i = 0; i < lead; ++i) ring[i] = ahead(xyz + 3 * i);
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::size_t b = ring[i % kAhead];
+      if (i + kAhead < n) ring[i % kAhead] = ahead(xyz + 3 * (i + kAhead));
+      bump(b);
     }
   }
   // After the last add: the summed-area table (sums() reads it).
@@ -793,6 +799,24 @@ class BlockCounts {
   }
 
  private:
+  std::size_t block_of(const double* p) const {
+    return static_cast<std::size_t>(node_.row(p) / b_) * static_cast<std::size_t>(bc_) + static_cast<std::size_t>(node_.col(p) / b_);
+  }
+  // p's block, its counter prefetched for writing.
+  std::size_t ahead(const double* p) const {
+    const std::size_t i = block_of(p);
+    if (wide_.empty()) __builtin_prefetch(n_.data() + i, 1);
+    return i;
+  }
+  void bump(std::size_t i) {
+    if (!wide_.empty()) {
+      ++wide_[i];
+    } else if (++n_[i] == 0) {  // the 2^32-th point of block i: the table turns 64-bit
+      wide_.assign(n_.begin(), n_.end());
+      wide_[i] = std::uint64_t{1} << 32;
+      std::vector<std::uint32_t>().swap(n_);
+    }
+  }
   NodeBinner node_;
   int b_, br_, bc_;
   std::vector<std::uint32_t> n_;
@@ -2315,8 +2339,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name, what, [&](const Cloud& g) {
       if (!far) {
         cov.add(g.xyz.data(), g.size());
-        if (count)
-          for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
+        if (count) counts->add(g.xyz.data(), g.size());
         return;
       }
       for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
@@ -2374,7 +2397,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
                             "pass 2d of 3: the points per block, for the tile size", [&](const Cloud& g) {
                               // Far points too, as the coverage pass counts them.
-                              for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
+                              counts->add(g.xyz.data(), g.size());
                             });
         counted = true;
       }
@@ -2626,8 +2649,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
                           [&](const Cloud& g) {
         if (spill_coverage) {
           spill_coverage->add(g.xyz.data(), g.size());
-          if (counts)
-            for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) counts->add(g.xyz.data() + 3 * i);
+          if (counts) counts->add(g.xyz.data(), g.size());
         }
         for (Eigen::Index i = 0; i < g.xyz.cols(); ++i, ++seen) {
           const double* p = g.xyz.data() + 3 * i;
