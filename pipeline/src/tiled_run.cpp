@@ -752,17 +752,15 @@ struct NodeBinner {
 // Points per block of b × b grid nodes (NodeBinner's nodes; b chosen so that the table has at
 // most 2048 blocks along a side), for the tile side (choose_tile_side): a window's points are at
 // most the sum of the blocks it meets, from a summed-area table. The counts are 32-bit (16 MB
-// at most, 8 MB for a 4 096 × 2 049 grid: points in random order miss a cache line per point
-// either way, but a table half the size misses less; 64-bit until 2026-11-28); the table turns
-// 64-bit the first time a block would pass 2^32 − 1 points.
+// at most, 8 MB for a 4 096 × 2 049 grid, which points in random order miss on nearly every
+// count: add prefetches; 64-bit until 2026-11-28); the table turns 64-bit the first time a
+// block would pass 2^32 − 1 points.
 class BlockCounts {
  public:
   explicit BlockCounts(const GridGeometry& g)
       : node_(g), b_(std::max(1, (std::max(g.rows, g.cols) + 2047) / 2048)), br_((g.rows + b_ - 1) / b_), bc_((g.cols + b_ - 1) / b_),
         n_(static_cast<std::size_t>(br_) * static_cast<std::size_t>(bc_), 0) {}
-  // Counts the point at p (grid frame [m], 3 doubles).
-  void add(const double* p) { bump(block_of(p)); }
-  // Counts the n points at xyz (grid frame [m], 3·n doubles), the same counts as add(p) for each.
+  // Counts the n points at xyz (grid frame [m], 3·n doubles), each in the block of its node.
   // A point in random order misses the cache in the table (8 MB at 4 096 × 2 049): each point's
   // block is prefetched kAhead points before it is counted, so that the misses overlap instead of
   // stalling one by one (measured on the 10^8 wall's spill, 2026-11-28: the point-by-point loop
@@ -778,7 +776,7 @@ class BlockCounts {
       bump(b);
     }
   }
-  // After the last add: the summed-area table (sums() reads it).
+  // After the last add: the summed-area table (at_most reads it).
   void finish() {
     sat_.assign(static_cast<std::size_t>(br_ + 1) * static_cast<std::size_t>(bc_ + 1), 0);
     const auto at = [&](int r, int c) -> std::uint64_t& { return sat_[static_cast<std::size_t>(r) * static_cast<std::size_t>(bc_ + 1) + static_cast<std::size_t>(c)]; };
@@ -2337,16 +2335,14 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     UpsampleCoverage cov(tiles.g, k_first, k_last);
     const bool count = counts && !counted;
     for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name, what, [&](const Cloud& g) {
+      // Far points counted too: the spill keeps them (marked) in the windows of their clamped nodes.
+      if (count) counts->add(g.xyz.data(), g.size());
       if (!far) {
         cov.add(g.xyz.data(), g.size());
-        if (count) counts->add(g.xyz.data(), g.size());
         return;
       }
       for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
-        // Far points too: the spill keeps them (marked) in the windows of their clamped nodes.
-        if (count) counts->add(g.xyz.data() + 3 * i);
-        if (far->holds(g.xyz.data() + 3 * i)) continue;
-        cov.add(g.xyz.data() + 3 * i, 1);
+        if (!far->holds(g.xyz.data() + 3 * i)) cov.add(g.xyz.data() + 3 * i, 1);
       }
     });
     counted = counted || count;
