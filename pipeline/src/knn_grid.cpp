@@ -109,7 +109,7 @@ LowerTable::LowerTable(const CellGrid& g) {
   std::uint32_t run = 0;
   for (Word& w : words_) {
     w.before = run;
-    run += static_cast<std::uint32_t>(std::popcount(w.bits));
+    run += static_cast<std::uint32_t>(popcount64(w.bits));
   }
 }
 

@@ -180,3 +180,32 @@ TEST(LowerTable, CountsTheOccupiedKeysBelowEveryKey) {
   const auto total = static_cast<std::uint64_t>(gs.n[0] * gs.n[1] * gs.n[2]);
   EXPECT_EQ(LowerTable(gs).empty(), total > 64u * 3u + 4096u) << total << " keys";
 }
+
+// popcount64 (LowerTable's count of set bits: SWAR on a baseline x86-64 build, the POPCNT
+// instruction where the target has it) against a count bit by bit: 0, all ones, every single
+// bit, every prefix mask (as LowerTable::lower forms them) and random words of every density.
+TEST(Popcount64, EqualsACountBitByBit) {
+  using hc::pipeline::detail::popcount64;
+  const auto by_bits = [](std::uint64_t x) {
+    unsigned n = 0;
+    for (int b = 0; b < 64; ++b) n += static_cast<unsigned>((x >> b) & 1U);
+    return n;
+  };
+  std::vector<std::uint64_t> words = {0, ~std::uint64_t{0}};
+  for (int b = 0; b < 64; ++b) {
+    words.push_back(std::uint64_t{1} << b);
+    words.push_back((std::uint64_t{1} << b) - 1);
+  }
+  std::mt19937_64 rng(47);
+  for (int i = 0; i < 20000; ++i) {
+    std::uint64_t x = rng();
+    for (int thin = i % 4; thin > 0; --thin) x &= rng();  // sparser words
+    for (int thick = (i / 4) % 3; thick > 0; --thick) x |= rng();  // denser words
+    words.push_back(x);
+  }
+  std::size_t wrong = 0;
+  for (const std::uint64_t x : words) wrong += popcount64(x) != by_bits(x) ? 1U : 0U;
+  EXPECT_EQ(wrong, 0U) << "of " << words.size() << " words";
+  EXPECT_EQ(popcount64(~std::uint64_t{0}), 64U);
+  EXPECT_EQ(popcount64(0x8000000000000001ULL), 2U);
+}
