@@ -15,8 +15,13 @@ namespace hc::pipeline::detail {
 struct NearSearch {
   bool near = false;              ///< the listed points were searched among a subset of the cloud
   std::size_t blocks = 0;         ///< listed points (distinct) whose subset share is their block
+  std::size_t wide_blocks = 0;    ///< listed points (distinct) whose subset share is their wider
+                                  ///< block (9 × 9 × 9 cells), their 3 × 3 × 3 one not enough
   std::size_t balls = 0;          ///< listed points (distinct) whose subset share is a ball
   std::size_t subset_points = 0;  ///< the subset's points (0 without one)
+  bool columns = false;           ///< the pass over the cloud met most points by their x-y column
+                                  ///< alone (a bit per column of the blocks' cells; not when their
+                                  ///< range spans more than 2^24 columns)
 };
 
 /// hc::pipeline::mean_knn_distances (robust_outliers.hpp: shapes, units, errors, result), with
@@ -24,8 +29,11 @@ struct NearSearch {
 /// few (at most 1/1024 of the finite points). Cubic cells are sized for about k + 1 points on
 /// the largest face of the cloud's 1 %–99 % box (of a sample of 4096 points). A listed point
 /// whose block of 3 × 3 × 3 cells about its own holds k + 1 points within a distance that stays
-/// inside the block takes the block; any other takes the ball of the smallest such distance
-/// its block or the sample gives (k + 1 points always bound the k-th neighbour's distance). The
+/// inside the block takes the block; any other, its block of 9 × 9 × 9 cells on the same terms
+/// (a second pass, for those only: a sparse sheet beside a dense one); any other the ball of the
+/// smallest such distance its blocks or the sample give (k + 1 points always bound the k-th
+/// neighbour's distance). The passes meet a point outside the blocks' x-y columns on its x and
+/// y alone. The
 /// union then holds every point within each listed point's k-th distance, and the grid search
 /// over it (the same centre and float coordinates, copies at distance 0 alike) gives the same
 /// result as over the whole cloud: the same k distances, summed in double. That sum is exact in
@@ -34,8 +42,8 @@ struct NearSearch {
 /// depends on the search's order. The whole cloud is searched when the union holds more than
 /// half of it or fewer than k + 2 points, when the cells cannot be sized (the sampled points on
 /// one line or at one point) or a bound is not finite. `how`, when given, says which.
-/// Cost: one pass over the cloud, two with a ball (each on two threads), then the grid search
-/// over the subset (two threads).
+/// Cost: one pass over the cloud, two with a wider block, three with a ball (each on two
+/// threads), then the grid search over the subset (two threads).
 std::vector<double> mean_knn_distances_of(const Cloud& cloud, const std::vector<std::uint32_t>& columns, int k,
                                           std::vector<double>* nearest_m, bool near_only, NearSearch* how);
 

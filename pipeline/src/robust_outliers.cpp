@@ -490,6 +490,74 @@ namespace {
 // fraction of the cloud: a listed point's block holds some hundreds of points.
 constexpr std::size_t kNearRatio = 1024;
 
+// The x-y columns (cells of `edge` in x and y about the coordinates' origin: column
+// (⌊x / edge⌋, ⌊y / edge⌋), as near_rows' cell_of takes them) that some rectangles of columns
+// cover, a bit each over their range, each rectangle widened by a column up in x and in y: near_rows
+// passes over a point outside them on its x and y alone. The probe (Probe::may_hold) takes a
+// point's column as cell_of does (the float coordinate times 1 / edge, in double) but
+// truncated instead of floored: a negative value's truncation is its floor plus one, so the
+// widening keeps every point whose exact column is in a rectangle (the caller's exact test
+// follows). Empty (every point may be held) when the range spans more than 2^24 columns
+// (2 MiB), a rectangle reaches 2^20 − 2 columns from the origin, or none is given. A few
+// operations and one bit a point (on the tiled 10^8 wall, floor_of's exact floor took about as
+// long as the rest of the pass).
+class ColumnTable {
+ public:
+  explicit ColumnTable(double inv_edge) : inv_edge_(inv_edge) {}
+  // Adds the columns [x0, x1] × [y0, y1] (call add for all, then build).
+  void add(std::int64_t x0, std::int64_t x1, std::int64_t y0, std::int64_t y1) { rects_.push_back({x0, x1 + 1, y0, y1 + 1}); }
+  // Returns whether the table is in use.
+  bool build() {
+    if (rects_.empty() || !std::isfinite(inv_edge_)) return false;
+    std::int64_t x_lo = rects_[0][0], x_hi = rects_[0][1], y_lo = rects_[0][2], y_hi = rects_[0][3];
+    for (const auto& r : rects_) x_lo = std::min(x_lo, r[0]), x_hi = std::max(x_hi, r[1]), y_lo = std::min(y_lo, r[2]), y_hi = std::max(y_hi, r[3]);
+    constexpr std::int64_t kFar = (std::int64_t{1} << 20) - 2;
+    if (x_lo < -kFar || y_lo < -kFar || x_hi > kFar || y_hi > kFar) return false;
+    if ((x_hi - x_lo + 1) * (y_hi - y_lo + 1) > (std::int64_t{1} << 24)) return false;
+    probe_.x0 = static_cast<std::int32_t>(x_lo), probe_.y0 = static_cast<std::int32_t>(y_lo);
+    probe_.nx = static_cast<std::uint32_t>(x_hi - x_lo + 1), probe_.ny = static_cast<std::uint32_t>(y_hi - y_lo + 1);
+    bits_.assign(static_cast<std::size_t>((probe_.nx * std::uint64_t{probe_.ny} + 63) / 64), 0);
+    for (const auto& r : rects_) {
+      for (std::int64_t y = r[2]; y <= r[3]; ++y) {
+        for (std::int64_t x = r[0]; x <= r[1]; ++x) {
+          const auto b = static_cast<std::size_t>((y - y_lo) * static_cast<std::int64_t>(probe_.nx) + (x - x_lo));
+          bits_[b >> 6] |= std::uint64_t{1} << (b & 63);
+        }
+      }
+    }
+    std::vector<std::array<std::int64_t, 4>>().swap(rects_);
+    probe_.bits = bits_.data();
+    probe_.inv_edge = inv_edge_;
+    return true;
+  }
+  bool empty() const { return bits_.empty(); }
+  // What a pass copies (a value: no reload through the table in its loop).
+  struct Probe {
+    const std::uint64_t* bits = nullptr;
+    double inv_edge = 0.0;
+    std::int32_t x0 = 0, y0 = 0;
+    std::uint32_t nx = 0, ny = 0;
+    // Whether the point (float x y z) may lie in a column of the table (false beyond 2^20
+    // columns from the origin, where no rectangle reaches).
+    bool may_hold(const float* pt) const {
+      const double fx = static_cast<double>(pt[0]) * inv_edge, fy = static_cast<double>(pt[1]) * inv_edge;
+      if (!(std::abs(fx) < 1048576.0) || !(std::abs(fy) < 1048576.0)) return false;
+      const auto ux = static_cast<std::uint32_t>(static_cast<std::int32_t>(fx) - x0);
+      const auto uy = static_cast<std::uint32_t>(static_cast<std::int32_t>(fy) - y0);
+      if (ux >= nx || uy >= ny) return false;
+      const std::uint64_t b = std::uint64_t{uy} * nx + ux;
+      return ((bits[b >> 6] >> (b & 63)) & 1U) != 0;
+    }
+  };
+  const Probe& probe() const { return probe_; }
+
+ private:
+  double inv_edge_;
+  Probe probe_;
+  std::vector<std::array<std::int64_t, 4>> rects_;
+  std::vector<std::uint64_t> bits_;
+};
+
 // Rows (positions in src, increasing) of the subset mean_knn_distances_of searches for the
 // listed rows `list` (positions in src): the union of the settled points' blocks and of the
 // other listed points' balls (near_knn.hpp); empty when the cell size cannot be had or a bound
@@ -536,10 +604,18 @@ std::vector<std::uint32_t> near_rows(const Src& src, const std::vector<std::uint
     return s2;
   };
   // A cell's integer coordinates fit 21 bits each about the centre ([−2^20, 2^20)). A point of
-  // the cloud farther out than 2^20 − 1 cells has none; a listed point needs 3 cells more
-  // (else it is searched by ball), so every cell of its block lies where every point has one.
+  // the cloud farther out than 2^20 − 1 cells has none; a listed point needs kWide + 1 cells
+  // more (else it is searched by ball), so every cell of its blocks lies where every point has
+  // one.
   constexpr std::int64_t kHalf = std::int64_t{1} << 20;
-  constexpr double kCloudReach = static_cast<double>(kHalf - 1), kListedReach = static_cast<double>(kHalf - 4);
+  // The wider block's half-width [cells] (9 × 9 × 9 cells), for the listed points the 3 × 3 × 3
+  // block does not settle: on a wall's sparse back side (a nineteenth of the front's density, the
+  // cells sized for the front) the k nearest lie about 3.3 cells away, where the sample's bound
+  // gave balls of some 40 mm that took tens of thousands of the front's points each (the tiled
+  // 10^8 wall: 250 k points of a window's 3.4 M in the subset; forty-seventh session,
+  // 2026-11-28).
+  constexpr std::int64_t kWide = 4;
+  constexpr double kCloudReach = static_cast<double>(kHalf - 1), kListedReach = static_cast<double>(kHalf - 1 - kWide);
   const double inv_edge = 1.0 / edge;
   const auto cell_of = [&](const float* pf, double reach, std::array<std::int64_t, 3>& c) {
     for (std::size_t a = 0; a < 3; ++a) {
@@ -556,72 +632,99 @@ std::vector<std::uint32_t> near_rows(const Src& src, const std::vector<std::uint
   std::vector<std::uint32_t> listed = list;
   std::sort(listed.begin(), listed.end());
   listed.erase(std::unique(listed.begin(), listed.end()), listed.end());
-  // The 27 cells about each listed point.
   std::vector<std::array<float, 3>> at(listed.size());
   std::vector<std::array<std::int64_t, 3>> cell(listed.size());
   std::vector<std::uint8_t> keyed(listed.size(), 0);
-  std::vector<std::uint64_t> keys;
+  std::vector<std::size_t> first_try;  // the keyed listed points
   for (std::size_t q = 0; q < listed.size(); ++q) {
     src.get(listed[q], at[q].data());
     keyed[q] = cell_of(at[q].data(), kListedReach, cell[q]) ? 1 : 0;
-    if (keyed[q] == 0) continue;
-    for (std::int64_t dz = -1; dz <= 1; ++dz) {
-      for (std::int64_t dy = -1; dy <= 1; ++dy) {
-        for (std::int64_t dx = -1; dx <= 1; ++dx) keys.push_back(key_of(cell[q], dx, dy, dz));
-      }
-    }
+    if (keyed[q] != 0) first_try.push_back(q);
   }
-  const WantedKeys wanted(keys);
-  // One pass over the cloud (two threads): the points in those cells, grouped by cell.
   const int threads = n > (std::size_t{1} << 17) ? kSearchThreads : 1;
-  const KeyGroups cells_held = group_by_wanted_key(n, wanted, threads, [&](std::size_t j, std::uint64_t& key) {
-    float pt[3];
-    std::array<std::int64_t, 3> ct{};
-    src.get(j, pt);
-    if (!cell_of(pt, kCloudReach, ct)) return false;
-    key = key_of(ct, 0, 0, 0);
-    return true;
-  });
-  const std::vector<std::uint32_t>& first = cells_held.first;
-  const std::vector<std::uint32_t>& member = cells_held.members;
-  // Each listed point: settled by its block when the block holds k + 1 points within a bound
-  // that stays inside it; else searched in a ball of the smaller of the block's bound (with k
-  // + 1 points) and the sample's.
   std::vector<std::uint32_t> chosen;
-  std::vector<BallSet::Ball> balls;
-  float pf[3];
-  for (std::size_t q = 0; q < listed.size(); ++q) {
-    double r = std::numeric_limits<double>::infinity();
-    if (keyed[q] != 0) {
+  // Each listed point's bound so far [m]: the (k + 1)-th distance in a block that held k + 1
+  // points (+inf before).
+  std::vector<double> r_of(listed.size(), std::numeric_limits<double>::infinity());
+  // The listed points `qs` against their blocks of (2R + 1)³ cells: one pass over the cloud (two
+  // threads) groups the points of those cells by cell, those outside the blocks' x-y columns
+  // passed over on their x and y alone (ColumnTable: before their z, their key and the hash;
+  // in tile_scale the blocks' columns cover a few per cent of a window's). A listed point is
+  // settled by its block when the block holds k + 1 points within a bound that stays inside it:
+  // the block's points join `chosen`. Returns the others (r_of holds the bound of those whose
+  // block held k + 1 points). The same points are grouped with or without the column table.
+  const auto try_blocks = [&](const std::vector<std::size_t>& qs, std::int64_t R) {
+    std::vector<std::uint64_t> keys;
+    keys.reserve(qs.size() * static_cast<std::size_t>((2 * R + 1) * (2 * R + 1) * (2 * R + 1)));
+    ColumnTable columns(inv_edge);
+    for (const std::size_t q : qs) {
+      for (std::int64_t dz = -R; dz <= R; ++dz) {
+        for (std::int64_t dy = -R; dy <= R; ++dy) {
+          for (std::int64_t dx = -R; dx <= R; ++dx) keys.push_back(key_of(cell[q], dx, dy, dz));
+        }
+      }
+      columns.add(cell[q][0] - R, cell[q][0] + R, cell[q][1] - R, cell[q][1] + R);
+    }
+    const WantedKeys wanted(keys);
+    const bool by_column = columns.build();
+    how.columns = by_column || how.columns;
+    const ColumnTable::Probe probe = columns.probe();
+    const KeyGroups held = group_by_wanted_key(n, wanted, threads, [&, probe, by_column](std::size_t j, std::uint64_t& key) {
+      float pt[3];
+      std::array<std::int64_t, 3> ct{};
+      src.get(j, pt);
+      if (by_column && !probe.may_hold(pt)) return false;  // in no wanted cell
+      if (!cell_of(pt, kCloudReach, ct)) return false;
+      key = key_of(ct, 0, 0, 0);
+      return true;
+    });
+    std::vector<std::size_t> unsettled;
+    std::vector<std::uint32_t> block;
+    float pf[3];
+    for (const std::size_t q : qs) {
       d2.clear();
-      std::array<std::uint32_t, 27> block{};
-      std::size_t b = 0;
-      for (std::int64_t dz = -1; dz <= 1; ++dz) {
-        for (std::int64_t dy = -1; dy <= 1; ++dy) {
-          for (std::int64_t dx = -1; dx <= 1; ++dx) {
+      block.clear();
+      for (std::int64_t dz = -R; dz <= R; ++dz) {
+        for (std::int64_t dy = -R; dy <= R; ++dy) {
+          for (std::int64_t dx = -R; dx <= R; ++dx) {
             const std::uint32_t w = wanted.find(key_of(cell[q], dx, dy, dz));
-            block[b++] = w;
-            for (std::size_t i = first[w]; i < first[w + 1]; ++i) {
-              src.get(member[i], pf);
+            block.push_back(w);
+            for (std::size_t i = held.first[w]; i < held.first[w + 1]; ++i) {
+              src.get(held.members[i], pf);
               d2.push_back(dist2(pf, at[q].data()));
             }
           }
         }
       }
       if (d2.size() >= k1) {
-        r = bound(d2);
+        const double r = bound(d2);
+        r_of[q] = std::min(r_of[q], r);
         double clearance = std::numeric_limits<double>::infinity();
         for (std::size_t a = 0; a < 3; ++a) {
-          const double lo = static_cast<double>(cell[q][a] - 1) * edge, hi = static_cast<double>(cell[q][a] + 2) * edge;
+          const double lo = static_cast<double>(cell[q][a] - R) * edge, hi = static_cast<double>(cell[q][a] + R + 1) * edge;
           clearance = std::min({clearance, static_cast<double>(at[q][a]) - lo, hi - static_cast<double>(at[q][a])});
         }
         if (r + 1e-6 * edge < clearance) {
-          for (const std::uint32_t w : block) chosen.insert(chosen.end(), member.begin() + first[w], member.begin() + first[w + 1]);
-          ++how.blocks;
+          for (const std::uint32_t w : block) chosen.insert(chosen.end(), held.members.begin() + held.first[w], held.members.begin() + held.first[w + 1]);
+          ++(R == 1 ? how.blocks : how.wide_blocks);
           continue;
         }
       }
+      unsettled.push_back(q);
     }
+    return unsettled;
+  };
+  // The 3 × 3 × 3 blocks, then the wider ones for the points those leave.
+  const std::vector<std::size_t> left = try_blocks(try_blocks(first_try, 1), kWide);
+  // The rest (and the listed points without a cell) are searched in a ball of the smaller of
+  // their blocks' bound and the sample's.
+  std::vector<BallSet::Ball> balls;
+  std::vector<std::uint8_t> to_ball(listed.size(), 0);
+  for (const std::size_t q : left) to_ball[q] = 1;
+  for (std::size_t q = 0; q < listed.size(); ++q) {
+    if (keyed[q] == 0) to_ball[q] = 1;
+    if (to_ball[q] == 0) continue;
+    double r = r_of[q];
     if (m >= k1) {
       d2.clear();
       for (std::size_t j = 0; j < m; ++j) d2.push_back(dist2(sample.data() + 3 * j, at[q].data()));
@@ -632,23 +735,45 @@ std::vector<std::uint32_t> near_rows(const Src& src, const std::vector<std::uint
   }
   how.balls = balls.size();
   if (!balls.empty()) {
-    // A second pass (two threads, each a contiguous share): the points in the balls.
+    // A second pass (two threads, each a contiguous share): the points in the balls, those
+    // outside the columns of the balls' x-y boxes passed over first (ColumnTable; a column
+    // more each side over the rounding of the boxes' sides: floor of a product is
+    // non-decreasing, so a point within a ball's box has its column within the box's).
     const BallSet set(balls);
+    ColumnTable ball_columns(inv_edge);
+    for (const BallSet::Ball& b : balls) {
+      const auto col = [&](double v) {  // clamped far out: build() then refuses the table
+        const double f = std::clamp(v * inv_edge, -4.0 * kHalf, 4.0 * kHalf);
+        return static_cast<std::int64_t>(detail::floor_of(f));
+      };
+      ball_columns.add(col(b[0] - b[3]) - 1, col(b[0] + b[3]) + 1, col(b[1] - b[3]) - 1, col(b[1] + b[3]) + 1);
+    }
+    const bool by_column = ball_columns.build();
+    const ColumnTable::Probe probe = ball_columns.probe();
     std::vector<std::vector<std::uint32_t>> in_balls(static_cast<std::size_t>(threads));
-    run_parallel(threads, [&](int t) {
+    run_parallel(threads, [&, probe, by_column](int t) {
       const auto [jb, je] = detail::share_of(n, t, threads);
       float pt[3];
       double pd[3];
       for (std::size_t j = jb; j < je; ++j) {
         src.get(j, pt);
+        if (by_column && !probe.may_hold(pt)) continue;  // in no ball's x-y box
         for (std::size_t a = 0; a < 3; ++a) pd[a] = pt[a];
         if (set.contains(pd)) in_balls[static_cast<std::size_t>(t)].push_back(static_cast<std::uint32_t>(j));
       }
     });
     for (const auto& v : in_balls) chosen.insert(chosen.end(), v.begin(), v.end());
   }
-  std::sort(chosen.begin(), chosen.end());
-  chosen.erase(std::unique(chosen.begin(), chosen.end()), chosen.end());
+  // Ascending and each once: a bit per row of the cloud (n / 8 bytes), read back in order (a
+  // sort of the 150 k entries of a tile_scale window took 7–9 ms, the bits about 1).
+  std::vector<std::uint64_t> mark((n + 63) / 64, 0);
+  for (const std::uint32_t j : chosen) mark[j >> 6] |= std::uint64_t{1} << (j & 63);
+  chosen.clear();
+  for (std::size_t w = 0; w < mark.size(); ++w) {
+    for (std::uint64_t bits = mark[w]; bits != 0; bits &= bits - 1) {
+      chosen.push_back(static_cast<std::uint32_t>(64 * w + static_cast<std::size_t>(std::countr_zero(bits))));
+    }
+  }
   return chosen;
 }
 

@@ -2754,6 +2754,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       std::size_t past_window = 0;
       double past_window_m = 0.0;
       std::vector<std::array<double, 2>> log_bounds, nearest_bounds;
+      // How the sampled points' searches went (detail::NearSearch, summed over the windows).
+      detail::NearSearch searched;
       // The scale from the sampled points' k-NN distances over their tiles' windows (the spill
       // as it is). A point's search over its window gives its true k + 1 nearest when the
       // (k + 1)-th lies closer than any point outside the window: closer than its xy clearance b
@@ -2772,6 +2774,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         std::vector<std::uint32_t> mine;
         found = in_small_tiles = past_window = 0;
         past_window_m = 0.0;
+        searched = detail::NearSearch{};
         const auto k1 = static_cast<std::size_t>(k) + 1;
         const double inf = std::numeric_limits<double>::infinity();
         // A thousandth of a cell off the clearance: NodeBinner's rounding step (a millionth of a
@@ -2792,7 +2795,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
             continue;
           }
           const auto wb = tiles.box_m(tiles.window(t));
-          const auto d = detail::mean_knn_distances_of(xyz, mine, k, &nearest, true, nullptr, &top_d2);
+          detail::NearSearch how;
+          const auto d = detail::mean_knn_distances_of(xyz, mine, k, &nearest, true, &how, &top_d2);
+          searched.blocks += how.blocks;
+          searched.wide_blocks += how.wide_blocks;
+          searched.balls += how.balls;
+          searched.subset_points += how.subset_points;
           for (std::size_t i = 0; i < mine.size(); ++i) {
             const double x = wc[0] + static_cast<double>(xyz[3 * mine[i]]), y = wc[1] + static_cast<double>(xyz[3 * mine[i] + 1]);
             const double b = std::max(0.0, std::min({x - wb[0], wb[1] - x, y - wb[2], wb[3] - y}) - slack_m);
@@ -2911,6 +2919,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       r.report.count_in = robust_sample.size();
       r.report.count_out = found;
       r.report.figure("sampled_in_sparse_tiles", static_cast<double>(in_small_tiles));
+      // Each window's sampled points searched among the points near them (near_knn.hpp): by
+      // their 3 × 3 × 3 block of cells, their 9 × 9 × 9 one, or a ball; the subsets' points.
+      r.report.figure("sampled_by_block", static_cast<double>(searched.blocks));
+      r.report.figure("sampled_by_wider_block", static_cast<double>(searched.wide_blocks));
+      r.report.figure("sampled_by_ball", static_cast<double>(searched.balls));
+      r.report.figure("sample_search_points", static_cast<double>(searched.subset_points));
       if (robust_scale) {
         r.report.figure("median_knn_distance_mm", std::exp(robust_scale->median_log) * 1e3);
         r.report.figure("mad_log_knn_distance", robust_scale->mad_log);

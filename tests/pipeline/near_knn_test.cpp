@@ -132,8 +132,9 @@ TEST(NearKnn, SameBitsAsTheWholeCloudsSearch) {
       EXPECT_FALSE(whole.near);
       // About 40 blocks, and 30 balls of 6–35 mm on a relief of 0.6 points per mm²: a tenth.
       EXPECT_LT(near.subset_points, s.cloud.size() / 5) << "a subset, not the cloud";
-      EXPECT_GT(near.balls, 0U) << "the strays above the relief are searched by ball";
-      EXPECT_GT(near.blocks, 2 * near.balls) << "the points on the relief, by block";
+      EXPECT_GT(near.wide_blocks + near.balls, 0U) << "the strays above the relief, by the wider block or by ball";
+      EXPECT_GT(near.blocks, 2 * (near.wide_blocks + near.balls)) << "the points on the relief, by block";
+      EXPECT_TRUE(near.columns) << "the blocks' x-y columns span a few hundred cells a side";
       ASSERT_EQ(a.size(), s.list.size());
       ASSERT_EQ(nn_near.size(), s.list.size());
       for (std::size_t q = 0; q < s.list.size(); ++q) {
@@ -153,9 +154,11 @@ TEST(NearKnn, SameBitsAsTheWholeCloudsSearch) {
 
 // A wall's two sides: a relief of 400 000 points, and 10 cm behind it a back side twenty times
 // sparser (what a scanner sees past an open edge), as on the generated 10^8 wall. The cells are
-// sized for the front, so a back-side point's block holds too few points and it is searched in
-// a ball; the distances equal the whole cloud's search bit for bit, and brute force, for the
-// cloud and for the same points given as floats (the tiled run's stage tile_scale).
+// sized for the front, so a back-side point's 3 × 3 × 3 block holds too few points and it is
+// searched in its 9 × 9 × 9 block (until 2026-11-28 in a ball of the sample's bound, which took
+// in much of the front); the distances equal the whole cloud's search bit for bit, and brute
+// force, for the cloud and for the same points given as floats (the tiled run's stage
+// tile_scale).
 TEST(NearKnn, SparseBackSideAndFloatPoints) {
   std::mt19937 rng(11);
   std::uniform_real_distribution<double> u(0.0, 1.0);
@@ -178,7 +181,7 @@ TEST(NearKnn, SparseBackSideAndFloatPoints) {
   const auto a = mean_knn_distances_of(c, list, k, &nn_near, true, &near);
   const auto b = mean_knn_distances_of(c, list, k, &nn_whole, false, &whole);
   ASSERT_TRUE(near.near);
-  EXPECT_GE(near.balls, back.size() / 2) << "most back-side points by ball";
+  EXPECT_GE(near.wide_blocks, back.size() / 2) << "most back-side points by the wider block";
   EXPECT_LT(near.subset_points, c.size() / 10) << "a subset, not the cloud";
   EXPECT_EQ(a, b);
   EXPECT_EQ(nn_near, nn_whole);
@@ -200,7 +203,7 @@ TEST(NearKnn, SparseBackSideAndFloatPoints) {
   const auto fw = mean_knn_distances_of(xyz, list, k, &nn_fw, false, &whole_f);
   EXPECT_TRUE(near_f.near);
   EXPECT_FALSE(whole_f.near);
-  EXPECT_GE(near_f.balls, back.size() / 2) << "the back side by ball over the floats too";
+  EXPECT_GE(near_f.wide_blocks, back.size() / 2) << "the back side by the wider block over the floats too";
   EXPECT_EQ(f, fw) << "near and whole search over the floats";
   EXPECT_EQ(nn_f, nn_fw) << "near and whole search over the floats";
   for (std::size_t q = 0; q < list.size(); q += 3) {
@@ -267,6 +270,43 @@ TEST(NearKnn, FarNeighboursAndManyListedPoints) {
   EXPECT_FALSE(near.near);
   EXPECT_EQ(near.balls, 0U);
   EXPECT_EQ(near.subset_points, 0U);
+}
+
+// Listed points whose blocks' x-y columns span more than 2^24 columns (two small clusters
+// 400 m from the relief on either side, diagonally: about 2 × 10^5 cells each way): the pass
+// over the cloud keys every point without the column table, and the result is still the whole
+// cloud's search, bit for bit; with the relief's listed points alone it takes the table, to the
+// same bits.
+TEST(NearKnn, ListedPointsFarApartKeyEveryPoint) {
+  Scene s = relief(5);
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(0.0, 0.01);
+  const Eigen::Index n0 = s.cloud.xyz.cols();
+  const Eigen::Vector3d at = s.cloud.xyz.col(static_cast<Eigen::Index>(s.list.front()));
+  s.cloud.xyz.conservativeResize(3, n0 + 40);
+  for (Eigen::Index i = 0; i < 40; ++i) {
+    const double side = i < 20 ? -400.0 : 400.0;
+    s.cloud.xyz.col(n0 + i) = at + Eigen::Vector3d(side + u(rng), side + u(rng), u(rng));
+  }
+  for (const bool far_listed : {true, false}) {
+    std::vector<std::uint32_t> list = s.list;
+    if (far_listed) {
+      list.push_back(static_cast<std::uint32_t>(n0 + 3));
+      list.push_back(static_cast<std::uint32_t>(n0 + 27));
+    }
+    NearSearch near, whole;
+    const auto a = mean_knn_distances_of(s.cloud, list, 8, nullptr, true, &near);
+    const auto b = mean_knn_distances_of(s.cloud, list, 8, nullptr, false, &whole);
+    ASSERT_TRUE(near.near) << "far listed: " << far_listed;
+    EXPECT_EQ(near.columns, !far_listed);
+    ASSERT_EQ(a.size(), list.size());
+    for (std::size_t q = 0; q < list.size(); ++q) EXPECT_EQ(a[q], b[q]) << "point " << list[q] << ", far listed: " << far_listed;
+    if (far_listed) {
+      const double far_mean = brute(s.cloud, list.back(), 8).first;
+      EXPECT_LT(far_mean, 0.02) << "its 8 nearest are in its own cluster";
+      EXPECT_NEAR(a.back(), far_mean, 1e-5 * far_mean + 1e-4) << "float coordinates 400 m from the centre";
+    }
+  }
 }
 
 }  // namespace
