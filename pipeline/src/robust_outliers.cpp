@@ -18,6 +18,7 @@
 #include "knn_grid.hpp"
 #include "near_knn.hpp"
 #include "stage_util.hpp"
+#include "voxel_keys.hpp"
 #include "wanted_keys.hpp"
 
 #include "hc/common/error.hpp"
@@ -489,74 +490,6 @@ namespace {
 // The listed points are searched among a subset (near_rows) when they are at most this
 // fraction of the cloud: a listed point's block holds some hundreds of points.
 constexpr std::size_t kNearRatio = 1024;
-
-// The x-y columns (cells of `edge` in x and y about the coordinates' origin: column
-// (⌊x / edge⌋, ⌊y / edge⌋), as near_rows' cell_of takes them) that some rectangles of columns
-// cover, a bit each over their range, each rectangle widened by a column up in x and in y: near_rows
-// passes over a point outside them on its x and y alone. The probe (Probe::may_hold) takes a
-// point's column as cell_of does (the float coordinate times 1 / edge, in double) but
-// truncated instead of floored: a negative value's truncation is its floor plus one, so the
-// widening keeps every point whose exact column is in a rectangle (the caller's exact test
-// follows). Empty (every point may be held) when the range spans more than 2^24 columns
-// (2 MiB), a rectangle reaches 2^20 − 2 columns from the origin, or none is given. A few
-// operations and one bit a point (on the tiled 10^8 wall, floor_of's exact floor took about as
-// long as the rest of the pass).
-class ColumnTable {
- public:
-  explicit ColumnTable(double inv_edge) : inv_edge_(inv_edge) {}
-  // Adds the columns [x0, x1] × [y0, y1] (call add for all, then build).
-  void add(std::int64_t x0, std::int64_t x1, std::int64_t y0, std::int64_t y1) { rects_.push_back({x0, x1 + 1, y0, y1 + 1}); }
-  // Returns whether the table is in use.
-  bool build() {
-    if (rects_.empty() || !std::isfinite(inv_edge_)) return false;
-    std::int64_t x_lo = rects_[0][0], x_hi = rects_[0][1], y_lo = rects_[0][2], y_hi = rects_[0][3];
-    for (const auto& r : rects_) x_lo = std::min(x_lo, r[0]), x_hi = std::max(x_hi, r[1]), y_lo = std::min(y_lo, r[2]), y_hi = std::max(y_hi, r[3]);
-    constexpr std::int64_t kFar = (std::int64_t{1} << 20) - 2;
-    if (x_lo < -kFar || y_lo < -kFar || x_hi > kFar || y_hi > kFar) return false;
-    if ((x_hi - x_lo + 1) * (y_hi - y_lo + 1) > (std::int64_t{1} << 24)) return false;
-    probe_.x0 = static_cast<std::int32_t>(x_lo), probe_.y0 = static_cast<std::int32_t>(y_lo);
-    probe_.nx = static_cast<std::uint32_t>(x_hi - x_lo + 1), probe_.ny = static_cast<std::uint32_t>(y_hi - y_lo + 1);
-    bits_.assign(static_cast<std::size_t>((probe_.nx * std::uint64_t{probe_.ny} + 63) / 64), 0);
-    for (const auto& r : rects_) {
-      for (std::int64_t y = r[2]; y <= r[3]; ++y) {
-        for (std::int64_t x = r[0]; x <= r[1]; ++x) {
-          const auto b = static_cast<std::size_t>((y - y_lo) * static_cast<std::int64_t>(probe_.nx) + (x - x_lo));
-          bits_[b >> 6] |= std::uint64_t{1} << (b & 63);
-        }
-      }
-    }
-    std::vector<std::array<std::int64_t, 4>>().swap(rects_);
-    probe_.bits = bits_.data();
-    probe_.inv_edge = inv_edge_;
-    return true;
-  }
-  bool empty() const { return bits_.empty(); }
-  // What a pass copies (a value: no reload through the table in its loop).
-  struct Probe {
-    const std::uint64_t* bits = nullptr;
-    double inv_edge = 0.0;
-    std::int32_t x0 = 0, y0 = 0;
-    std::uint32_t nx = 0, ny = 0;
-    // Whether the point (float x y z) may lie in a column of the table (false beyond 2^20
-    // columns from the origin, where no rectangle reaches).
-    bool may_hold(const float* pt) const {
-      const double fx = static_cast<double>(pt[0]) * inv_edge, fy = static_cast<double>(pt[1]) * inv_edge;
-      if (!(std::abs(fx) < 1048576.0) || !(std::abs(fy) < 1048576.0)) return false;
-      const auto ux = static_cast<std::uint32_t>(static_cast<std::int32_t>(fx) - x0);
-      const auto uy = static_cast<std::uint32_t>(static_cast<std::int32_t>(fy) - y0);
-      if (ux >= nx || uy >= ny) return false;
-      const std::uint64_t b = std::uint64_t{uy} * nx + ux;
-      return ((bits[b >> 6] >> (b & 63)) & 1U) != 0;
-    }
-  };
-  const Probe& probe() const { return probe_; }
-
- private:
-  double inv_edge_;
-  Probe probe_;
-  std::vector<std::array<std::int64_t, 4>> rects_;
-  std::vector<std::uint64_t> bits_;
-};
 
 // Rows (positions in src, increasing) of the subset mean_knn_distances_of searches for the
 // listed rows `list` (positions in src): the union of the settled points' blocks and of the

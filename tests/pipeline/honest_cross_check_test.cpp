@@ -646,6 +646,74 @@ TEST(InputCheck, NearFlagsSpareTestsButNotOneFigure) {
   EXPECT_THROW(check_input(c.xyz, Cloud{}, h, o, 0.0, nullptr, &flags, &scope), std::invalid_argument) << "a near flag per point";
 }
 
+// A few points left to the point test, the rest flagged near (as a tiled run's filters flag the
+// points they saw with neighbours; every flag here a true promise): strays above a surface, each
+// beside a clump of four points (flagged) on its low-x side, 1.2 mm away for half of them (then
+// not isolated) and 1.7 mm for the rest (isolated), at offsets that sweep a voxel's width, so
+// that the clump lies in the voxels (and the x-y columns, which the hash's pass tests first)
+// before the stray's own. The spared check hashes only the voxels about the tested strays and
+// must still count the clumps. Oracles: the check without the flags (every point hashed) and a
+// brute-force count.
+TEST(InputCheck, SparseTestsCountNeighboursInTheColumnsBeforeTheirOwn) {
+  GridGeometry g{41, 41, 0.0, 0.0, 0.001};
+  HeightField h(g, 0.0f);
+  std::vector<Eigen::Vector3d> pts;
+  std::vector<std::uint8_t> near;
+  for (int r = 0; r < 80; ++r)
+    for (int c = 0; c < 80; ++c) {
+      pts.emplace_back(0.0005 * c + 0.00025, 0.0005 * r + 0.00025, 0.0);
+      near.push_back(1);  // 8 others within 0.9 × 1.5 mm at the least (a corner)
+    }
+  HonestCheckOptions o;
+  o.isolation_radius_spacings = 3.0;  // R = 1.5 mm at the 0.5 mm spacing
+  std::vector<std::size_t> strays;
+  for (int i = 0; i < 24; ++i) {
+    // Strays 6 mm above the surface, 3.6 mm apart, their x-y offsets sweeping a voxel's width
+    // (1.5 mm) in steps of about 0.13 mm.
+    const Eigen::Vector3d p(0.003 + 0.00363 * (i % 8) + 0.00013 * i, 0.004 + 0.0105 * (i / 8) + 0.00011 * i, 0.006);
+    strays.push_back(pts.size());
+    pts.push_back(p);
+    near.push_back(0);
+    const Eigen::Vector3d clump = p + Eigen::Vector3d(i % 2 == 0 ? -0.0012 : -0.0017, 0.0, 0.0);
+    for (const Eigen::Vector3d& d : {Eigen::Vector3d(0.0001, 0.0, 0.0), Eigen::Vector3d(-0.0001, 0.0, 0.0),
+                                     Eigen::Vector3d(0.0, 0.0001, 0.0), Eigen::Vector3d(0.0, -0.0001, 0.0)}) {
+      pts.push_back(clump + d);
+      near.push_back(1);  // three others within 0.2 mm
+    }
+  }
+  const std::size_t n = pts.size();
+  const double radius = o.isolation_radius_spacings * 0.0005;
+  std::size_t expected_isolated = 0, strays_isolated = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    int within = 0;
+    for (std::size_t j = 0; j < n; ++j) within += j != i && (pts[i] - pts[j]).norm() <= radius ? 1 : 0;
+    const bool isolated = within < o.isolation_min_neighbours;
+    expected_isolated += isolated ? 1U : 0U;
+    if (std::find(strays.begin(), strays.end(), i) != strays.end()) strays_isolated += isolated ? 1U : 0U;
+    if (near[i] != 0) {
+      ASSERT_GE(within, o.isolation_min_neighbours) << "a near flag is a promise, point " << i;
+    }
+  }
+  ASSERT_EQ(strays_isolated, 12U) << "the strays 1.7 mm from their clumps";
+  ASSERT_EQ(expected_isolated, 12U);
+  const Cloud c = cloud_of(pts);
+  std::vector<std::uint8_t> owned(n, 1), removed(n, 0), flags(g.cell_count(), kCellMeasured);
+  InputCheckScope scope;
+  scope.owned = &owned;
+  scope.removed = &removed;
+  scope.cells = {0, g.rows, 0, g.cols};
+  scope.spacing_m = 0.0005;
+  scope.valid_lo = Eigen::Vector3d(0.0, 0.0, 0.0);
+  scope.valid_hi = Eigen::Vector3d(0.040, 0.040, 0.0);
+  const InputCheck full = check_input(c.xyz, Cloud{}, h, o, 0.0, nullptr, &flags, &scope);
+  scope.near = &near;
+  const InputCheck spared = check_input(c.xyz, Cloud{}, h, o, 0.0, nullptr, &flags, &scope);
+  EXPECT_EQ(full.isolated, expected_isolated) << "the brute-force count";
+  EXPECT_EQ(spared.isolated, expected_isolated) << "the spared check";
+  EXPECT_EQ(spared.isolation_tested, strays.size());
+  EXPECT_LT(spared.isolation_hashed, 1000U) << "only the voxels about the tested strays hashed";
+}
+
 /// Points at every node of an n × n grid of `pitch` [m] at z = 0.
 std::vector<Eigen::Vector3d> node_lattice(int n, double pitch) {
   std::vector<Eigen::Vector3d> pts;
