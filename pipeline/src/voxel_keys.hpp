@@ -7,6 +7,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -71,7 +72,8 @@ class KeyBits {
 /// truncated instead of floored: a negative value's truncation is its floor plus one, so the
 /// widening keeps every point whose exact column is in a rectangle (the caller's exact test
 /// follows). Empty (every point may be held) when the range spans more than 2^24 columns
-/// (2 MiB), a rectangle reaches 2^20 − 2 columns from the origin, or none is given. A few
+/// (2 MiB), a rectangle reaches 2^20 − 2 columns from the origin, more than half the range is
+/// covered (most points would pass), or none is given. A few
 /// operations and one bit a point (on the tiled 10^8 wall, an exact floor took about as long as
 /// the rest of the pass). No errors (but std::bad_alloc).
 class ColumnTable {
@@ -99,6 +101,15 @@ class ColumnTable {
       }
     }
     std::vector<std::array<std::int64_t, 4>>().swap(rects_);
+    // Most of the range covered: most points would pass, and the probe would only add its cost
+    // (the honest check's isolation tests about thousands of points a tile, in voxels of the
+    // test's radius).
+    std::uint64_t set = 0;
+    for (const std::uint64_t w : bits_) set += static_cast<std::uint64_t>(std::popcount(w));
+    if (2 * set > std::uint64_t{probe_.nx} * probe_.ny) {
+      std::vector<std::uint64_t>().swap(bits_);
+      return false;
+    }
     probe_.bits = bits_.data();
     probe_.inv_edge = inv_edge_;
     return true;

@@ -668,9 +668,10 @@ TEST(InputCheck, SparseTestsCountNeighboursInTheColumnsBeforeTheirOwn) {
   o.isolation_radius_spacings = 3.0;  // R = 1.5 mm at the 0.5 mm spacing
   std::vector<std::size_t> strays;
   for (int i = 0; i < 24; ++i) {
-    // Strays 6 mm above the surface, 3.6 mm apart, their x-y offsets sweeping a voxel's width
-    // (1.5 mm) in steps of about 0.13 mm.
-    const Eigen::Vector3d p(0.003 + 0.00363 * (i % 8) + 0.00013 * i, 0.004 + 0.0105 * (i / 8) + 0.00011 * i, 0.006);
+    // Strays 6 mm above the surface (some beyond its x-y extent), 12 mm apart (so that the
+    // columns about them cover under half of their range, and the hash's pass uses the column
+    // table), their x-y offsets sweeping a voxel's width (1.5 mm) in steps of about 0.13 mm.
+    const Eigen::Vector3d p(0.003 + 0.012 * (i % 6) + 0.00013 * i, 0.004 + 0.012 * (i / 6) + 0.00011 * i, 0.006);
     strays.push_back(pts.size());
     pts.push_back(p);
     near.push_back(0);
