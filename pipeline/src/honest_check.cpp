@@ -517,16 +517,16 @@ std::vector<std::uint8_t> points_about(const std::vector<float>& local, const st
     const std::int64_t cx = VoxelHash::cell_index(v.q[0], inv), cy = VoxelHash::cell_index(v.q[1], inv);
     columns.add(cx - v.reach, cx + v.reach, cy - v.reach, cy + v.reach);
   }
-  const bool by_column = columns.build();
+  (void)columns.build();
   const detail::ColumnTable::Probe probe = columns.probe();
   const int threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
   std::vector<std::size_t> taken(static_cast<std::size_t>(threads), 0);
-  detail::run_parallel(threads, [&, probe, by_column](int t) {
+  detail::run_parallel(threads, [&, probe](int t) {
     const auto [b, e] = detail::share_of(n, t, threads);
     std::size_t c = 0;
     for (std::size_t i = b; i < e; ++i) {
       if (!finite[i]) continue;
-      if (by_column && !probe.may_hold(&local[3 * i])) continue;  // in no marked voxel's column
+      if (!probe.may_hold(&local[3 * i])) continue;  // in no marked voxel's column
       const std::uint64_t key = voxel_key(&local[3 * i]);
       if (!filter.maybe(key) || !std::binary_search(marked.begin(), marked.end(), key)) continue;
       take[i] = 1;

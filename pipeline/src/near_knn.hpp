@@ -19,9 +19,10 @@ struct NearSearch {
                                   ///< block (9 × 9 × 9 cells), their 3 × 3 × 3 one not enough
   std::size_t balls = 0;          ///< listed points (distinct) whose subset share is a ball
   std::size_t subset_points = 0;  ///< the subset's points (0 without one)
-  bool columns = false;           ///< the pass over the cloud met most points by their x-y column
-                                  ///< alone (a bit per column of the blocks' cells; not when their
-                                  ///< range spans more than 2^24 columns)
+  bool columns = false;           ///< a pass over the cloud met most points by their x-y column
+                                  ///< alone (ColumnTable, voxel_keys.hpp: not when the blocks'
+                                  ///< columns span more than 2^24, reach near 2^20 from the
+                                  ///< centre or cover more than half their range)
 };
 
 /// hc::pipeline::mean_knn_distances (robust_outliers.hpp: shapes, units, errors, result), with

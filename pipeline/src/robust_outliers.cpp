@@ -599,14 +599,13 @@ std::vector<std::uint32_t> near_rows(const Src& src, const std::vector<std::uint
       columns.add(cell[q][0] - R, cell[q][0] + R, cell[q][1] - R, cell[q][1] + R);
     }
     const WantedKeys wanted(keys);
-    const bool by_column = columns.build();
-    how.columns = by_column || how.columns;
+    how.columns = columns.build() || how.columns;
     const ColumnTable::Probe probe = columns.probe();
-    const KeyGroups held = group_by_wanted_key(n, wanted, threads, [&, probe, by_column](std::size_t j, std::uint64_t& key) {
+    const KeyGroups held = group_by_wanted_key(n, wanted, threads, [&, probe](std::size_t j, std::uint64_t& key) {
       float pt[3];
       std::array<std::int64_t, 3> ct{};
       src.get(j, pt);
-      if (by_column && !probe.may_hold(pt)) return false;  // in no wanted cell
+      if (!probe.may_hold(pt)) return false;  // in no wanted cell
       if (!cell_of(pt, kCloudReach, ct)) return false;
       key = key_of(ct, 0, 0, 0);
       return true;
@@ -681,16 +680,16 @@ std::vector<std::uint32_t> near_rows(const Src& src, const std::vector<std::uint
       };
       ball_columns.add(col(b[0] - b[3]) - 1, col(b[0] + b[3]) + 1, col(b[1] - b[3]) - 1, col(b[1] + b[3]) + 1);
     }
-    const bool by_column = ball_columns.build();
+    (void)ball_columns.build();
     const ColumnTable::Probe probe = ball_columns.probe();
     std::vector<std::vector<std::uint32_t>> in_balls(static_cast<std::size_t>(threads));
-    run_parallel(threads, [&, probe, by_column](int t) {
+    run_parallel(threads, [&, probe](int t) {
       const auto [jb, je] = detail::share_of(n, t, threads);
       float pt[3];
       double pd[3];
       for (std::size_t j = jb; j < je; ++j) {
         src.get(j, pt);
-        if (by_column && !probe.may_hold(pt)) continue;  // in no ball's x-y box
+        if (!probe.may_hold(pt)) continue;  // in no ball's x-y box
         for (std::size_t a = 0; a < 3; ++a) pd[a] = pt[a];
         if (set.contains(pd)) in_balls[static_cast<std::size_t>(t)].push_back(static_cast<std::uint32_t>(j));
       }

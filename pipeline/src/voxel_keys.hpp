@@ -81,7 +81,7 @@ class ColumnTable {
   explicit ColumnTable(double inv_edge) : inv_edge_(inv_edge) {}
   /// Adds the columns [x0, x1] × [y0, y1] (call add for all, then build).
   void add(std::int64_t x0, std::int64_t x1, std::int64_t y0, std::int64_t y1) { rects_.push_back({x0, x1 + 1, y0, y1 + 1}); }
-  /// Builds the table; returns whether it is in use (else every point may be held).
+  /// Builds the table; returns whether it is in use (else probe() holds every point).
   bool build() {
     if (rects_.empty() || !std::isfinite(inv_edge_)) return false;
     std::int64_t x_lo = rects_[0][0], x_hi = rects_[0][1], y_lo = rects_[0][2], y_hi = rects_[0][3];
@@ -114,16 +114,17 @@ class ColumnTable {
     probe_.inv_edge = inv_edge_;
     return true;
   }
-  bool empty() const { return bits_.empty(); }
   /// What a pass copies (a value: no reload through the table in its loop).
   struct Probe {
-    const std::uint64_t* bits = nullptr;
+    const std::uint64_t* bits = nullptr;  // null: the table is not in use
     double inv_edge = 0.0;
     std::int32_t x0 = 0, y0 = 0;
     std::uint32_t nx = 0, ny = 0;
-    /// Whether the point (float x y z) may lie in a column of the table (false beyond 2^20
-    /// columns from the origin, where no rectangle reaches).
+    /// Whether the point (float x y z) may lie in a column of the table: true for every point
+    /// when the table is not in use; else false beyond 2^20 columns from the origin, where no
+    /// rectangle reaches, and whether its column's bit is set.
     bool may_hold(const float* pt) const {
+      if (bits == nullptr) return true;
       const double fx = static_cast<double>(pt[0]) * inv_edge, fy = static_cast<double>(pt[1]) * inv_edge;
       if (!(std::abs(fx) < 1048576.0) || !(std::abs(fy) < 1048576.0)) return false;
       const auto ux = static_cast<std::uint32_t>(static_cast<std::int32_t>(fx) - x0);
