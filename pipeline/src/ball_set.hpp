@@ -10,6 +10,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <utility>
 #include <vector>
 
 namespace hc::pipeline::detail {
@@ -27,13 +28,17 @@ inline bool ball_meets(const std::array<double, 4>& s, const std::array<double, 
 /// 256 cells and the lists already hold 2^22 entries, in each cell its xy box meets of a coarse
 /// grid of 16 × 16 cells over the same box (the large balls: a stray's own search, and its
 /// neighbours'; a query tests every large ball of its coarse cell, so the fine lists take as
-/// many as the budget allows, largest first). A query reads its cell's list and its coarse
-/// cell's, each only when the query's z lies in the list's z span over its cell (a stray's
-/// large ball above a surface lists the surface's cells, not its points). A ball inside another
-/// is left out. Memory: at most 2^22 entries plus 256 a ball, and 16 bytes a cell (272 KiB).
-/// Non-finite balls are refused by the caller. (Until 2026-11-24 the large balls were in
-/// one list every query read: at 10^8 points, hundreds of them for each of the 274 M records a
-/// tiled run's second look read.)
+/// many as the budget allows, largest first). A cell's list is kept in two parts, split at the
+/// widest gap in z between its balls' z spans over the cell. A query reads a part of its cell's
+/// list, and its coarse cell's list, only when the query's z lies in that part's or list's z
+/// span over its cell (a stray's large ball above a surface lists the surface's cells, not its
+/// points; a cell with both the surface's small balls and such a ball reads only one of them).
+/// A ball inside another is left out. Memory: at most 2^22 entries plus 256 a ball, and 48
+/// bytes a fine cell (768 KiB). Non-finite balls are refused by the caller. (Until 2026-11-24
+/// the large balls were in one list every query read: at 10^8 points, hundreds of them for each
+/// of the 274 M records a tiled run's second look read. Until 2026-11-28, forty-eighth session,
+/// a fine list was one part: on the 10^8 wall the gathering's first pass tested some 76 M
+/// records against both the surface's balls and the strays' behind it.)
 class BallSet {
  public:
   using Ball = std::array<double, 4>;
@@ -94,12 +99,16 @@ class BallSet {
         for (int c = c0; c <= c1; ++c) at_[index(r, c)].push_back(i);
       }
     }
+    // Each fine list in two parts by z over its cell (split_by_z), each with its z span, and
+    // each coarse list's z span: a query's z outside a span skips that list (a stray's ball
+    // above a surface covers the surface's cells in x-y but not its points' z; where a cell
+    // holds both, the surface's small balls and the stray's large one are apart in z).
+    fine_z_ = split_by_z(at_, fine_mid_);
     flatten(at_, fine_at_, fine_);
+    for (std::size_t l = 0; l < at_.size(); ++l) fine_mid_[l] += fine_at_[l];
     flatten(coarse_, coarse_at_, coarse_flat_);
-    // Each list's z span over its cell (the query's first test): a stray's ball above a surface
-    // covers the surface's cells in x-y but not its points' z.
-    fine_z_ = z_spans(at_, 1);
-    coarse_z_ = z_spans(coarse_, kPerCoarse);
+    coarse_z_.resize(coarse_.size());
+    for (std::size_t l = 0; l < coarse_.size(); ++l) coarse_z_[l] = span_of_list(coarse_[l], l, kPerCoarse);
     std::vector<std::vector<std::uint32_t>>().swap(at_);
     std::vector<std::vector<std::uint32_t>>().swap(coarse_);
   }
@@ -109,6 +118,13 @@ class BallSet {
   const std::vector<Ball>& balls() const { return balls_; }
 
   bool empty() const { return balls_.empty(); }
+
+  /// The fine cells whose list is in two non-empty parts (split_by_z): for the tests.
+  std::size_t cells_split() const {
+    std::size_t n = 0;
+    for (std::size_t l = 0; l + 1 < fine_at_.size(); ++l) n += fine_mid_[l] > fine_at_[l] && fine_mid_[l] < fine_at_[l + 1] ? 1U : 0U;
+    return n;
+  }
 
   /// Whether p (x, y, z [m]) lies in one of the balls (distance at most the radius).
   bool contains(const double* p) const {
@@ -120,8 +136,14 @@ class BallSet {
     };
     const int r = cell_of(p[1], 2), c = cell_of(p[0], 0);
     const std::size_t f = index(r, c);
-    if (p[2] >= fine_z_[f][0] && p[2] <= fine_z_[f][1]) {
-      for (std::size_t k = fine_at_[f]; k < fine_at_[f + 1]; ++k) {
+    const auto& z = fine_z_[f];
+    if (p[2] >= z[0] && p[2] <= z[1]) {
+      for (std::size_t k = fine_at_[f]; k < fine_mid_[f]; ++k) {
+        if (in(fine_[k])) return true;
+      }
+    }
+    if (p[2] >= z[2] && p[2] <= z[3]) {
+      for (std::size_t k = fine_mid_[f]; k < fine_at_[f + 1]; ++k) {
         if (in(fine_[k])) return true;
       }
     }
@@ -196,34 +218,73 @@ class BallSet {
     for (const auto& l : lists) flat.insert(flat.end(), l.begin(), l.end());
   }
   static std::size_t index(int r, int c) { return static_cast<std::size_t>(r) * kSide + static_cast<std::size_t>(c); }
-  // Per list of `lists` (a side × side grid of cells of `per` fine cells each way: the fine grid
-  // or the coarse one), the z span {lo, hi} [m] of its balls over the cell's x-y rectangle: every
-  // z of a point that contains() finds in one of them and that cell_of puts in the cell lies in
-  // it; {+inf, −inf} for an empty list. The rectangle is widened by a millionth of a fine cell and
-  // 1e-12 of its coordinates (cell_of's rounding), the grid's outer cells to infinity (cell_of
-  // clamps), and the span by a millionth of the radius and 1e-12 of the centre's z and radius
-  // (the rounding of contains' squared distance, whose error is a few units in the last place of
-  // R², so of √(1e-15)·R in z).
-  std::vector<std::array<double, 2>> z_spans(const std::vector<std::vector<std::uint32_t>>& lists, int per) const {
+  // The z span {lo, hi} [m] of ball i over cell l's x-y rectangle (cell l of a side × side grid
+  // of cells of `per` fine cells each way: the fine grid or the coarse one): every z of a point
+  // in the ball that cell_of puts in the cell lies in it. The rectangle is widened by a
+  // millionth of a fine cell and 1e-12 of its coordinates (cell_of's rounding), the grid's outer
+  // cells to infinity (cell_of clamps), and the span by a millionth of the radius and 1e-12 of
+  // the centre's z and radius (the rounding of contains' squared distance, whose error is a few
+  // units in the last place of R², so of √(1e-15)·R in z).
+  std::array<double, 2> span_of(std::uint32_t i, std::size_t l, int per) const {
     const double inf = std::numeric_limits<double>::infinity();
-    std::vector<std::array<double, 2>> z(lists.size(), std::array<double, 2>{inf, -inf});
     const int side = kSide / per;
-    const auto sides = [&](int i, int a) {
-      const double lo = box_[static_cast<std::size_t>(a)] + static_cast<double>(i * per) * cell_;
-      const double hi = box_[static_cast<std::size_t>(a)] + static_cast<double>((i + 1) * per) * cell_;
+    const auto sides = [&](int k, int a) {
+      const double lo = box_[static_cast<std::size_t>(a)] + static_cast<double>(k * per) * cell_;
+      const double hi = box_[static_cast<std::size_t>(a)] + static_cast<double>((k + 1) * per) * cell_;
       const double pad = 1e-6 * cell_ + 1e-12 * (std::abs(lo) + std::abs(hi));
-      return std::array<double, 2>{i == 0 ? -inf : lo - pad, i == side - 1 ? inf : hi + pad};
+      return std::array<double, 2>{k == 0 ? -inf : lo - pad, k == side - 1 ? inf : hi + pad};
     };
+    const auto ys = sides(static_cast<int>(l) / side, 2), xs = sides(static_cast<int>(l) % side, 0);
+    const Ball& b = balls_[i];
+    const double dx = std::max({xs[0] - b[0], b[0] - xs[1], 0.0}), dy = std::max({ys[0] - b[1], b[1] - ys[1], 0.0});
+    const double half = std::sqrt(std::max(0.0, b[3] * b[3] - (dx * dx + dy * dy)));
+    const double pad = 1e-6 * b[3] + 1e-12 * (std::abs(b[2]) + b[3]);
+    return {b[2] - half - pad, b[2] + half + pad};
+  }
+  // The z span of a whole list (cell l's), {+inf, −inf} when it is empty.
+  std::array<double, 2> span_of_list(const std::vector<std::uint32_t>& list, std::size_t l, int per) const {
+    const double inf = std::numeric_limits<double>::infinity();
+    std::array<double, 2> z{inf, -inf};
+    for (const std::uint32_t i : list) {
+      const auto s = span_of(i, l, per);
+      z = {std::min(z[0], s[0]), std::max(z[1], s[1])};
+    }
+    return z;
+  }
+  // Each fine list reordered into two parts split at the widest gap in z between its balls'
+  // spans over the cell (span_of; no gap: the second part empty). Returns per list the parts'
+  // spans {lo0, hi0, lo1, hi1} ({+inf, −inf} for an empty part); `mid` gets the second part's
+  // start in the list. The union of the two spans holds every ball's span, so a query whose z
+  // lies in neither skips the list, and otherwise reads only the part whose span holds it.
+  std::vector<std::array<double, 4>> split_by_z(std::vector<std::vector<std::uint32_t>>& lists, std::vector<std::size_t>& mid) const {
+    const double inf = std::numeric_limits<double>::infinity();
+    std::vector<std::array<double, 4>> z(lists.size(), std::array<double, 4>{inf, -inf, inf, -inf});
+    mid.assign(lists.size(), 0);
+    std::vector<std::pair<std::array<double, 2>, std::uint32_t>> spans;
     for (std::size_t l = 0; l < lists.size(); ++l) {
-      if (lists[l].empty()) continue;
-      const auto ys = sides(static_cast<int>(l) / side, 2), xs = sides(static_cast<int>(l) % side, 0);
-      for (const std::uint32_t i : lists[l]) {
-        const Ball& b = balls_[i];
-        const double dx = std::max({xs[0] - b[0], b[0] - xs[1], 0.0}), dy = std::max({ys[0] - b[1], b[1] - ys[1], 0.0});
-        const double half = std::sqrt(std::max(0.0, b[3] * b[3] - (dx * dx + dy * dy)));
-        const double pad = 1e-6 * b[3] + 1e-12 * (std::abs(b[2]) + b[3]);
-        z[l] = {std::min(z[l][0], b[2] - half - pad), std::max(z[l][1], b[2] + half + pad)};
+      auto& list = lists[l];
+      if (list.empty()) continue;
+      spans.clear();
+      for (const std::uint32_t i : list) spans.push_back({span_of(i, l, 1), i});
+      std::sort(spans.begin(), spans.end());  // by lo, then hi, then ball: the same order every time
+      // The widest gap between the running top of the spans so far and the next span's bottom.
+      double top = spans[0].first[1], best_gap = 0.0;
+      std::size_t cut = spans.size();  // the second part's first span
+      for (std::size_t k = 1; k < spans.size(); ++k) {
+        const double gap = spans[k].first[0] - top;
+        if (gap > best_gap) {
+          best_gap = gap;
+          cut = k;
+        }
+        top = std::max(top, spans[k].first[1]);
       }
+      for (std::size_t k = 0; k < spans.size(); ++k) {
+        list[k] = spans[k].second;
+        const std::size_t part = k < cut ? 0 : 2;
+        z[l][part] = std::min(z[l][part], spans[k].first[0]);
+        z[l][part + 1] = std::max(z[l][part + 1], spans[k].first[1]);
+      }
+      mid[l] = cut;
     }
     return z;
   }
@@ -239,11 +300,14 @@ class BallSet {
   // The balls by cell, and the large ones by coarse cell, while the constructor adds them.
   std::vector<std::vector<std::uint32_t>> at_, coarse_;
   // The same lists flattened (queries read these): cell i's balls are fine_[fine_at_[i]] ..
-  // fine_[fine_at_[i + 1] - 1]; coarse_flat_ empty when no ball is large.
-  std::vector<std::size_t> fine_at_, coarse_at_;
+  // fine_[fine_at_[i + 1] - 1], its second part (split_by_z) from fine_[fine_mid_[i]];
+  // coarse_flat_ empty when no ball is large.
+  std::vector<std::size_t> fine_at_, fine_mid_, coarse_at_;
   std::vector<std::uint32_t> fine_, coarse_flat_;
-  // Per fine and per coarse cell, its list's z span (z_spans): a query outside it skips the list.
-  std::vector<std::array<double, 2>> fine_z_, coarse_z_;
+  // Per fine cell its two parts' z spans {lo0, hi0, lo1, hi1} (split_by_z), per coarse cell its
+  // list's z span (span_of_list): a query outside a span skips that list.
+  std::vector<std::array<double, 4>> fine_z_;
+  std::vector<std::array<double, 2>> coarse_z_;
 };
 
 }  // namespace hc::pipeline::detail

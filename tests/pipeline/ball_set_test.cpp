@@ -134,6 +134,54 @@ TEST(BallSet, AgreesWithBruteForceAndLeavesOutBallsInsideOthers) {
   }
 }
 
+// The tiled run's gathering: a surface's small balls (about z = 0, the surface rippled) and
+// strays' large balls behind it (centres 60 to 90 mm below, radii 40 to 80 mm), so that most
+// cells list both and split them in z; some large balls reach through the surface. Queries on
+// the surface, in the gap, behind it, and on the balls' spheres, against brute force.
+TEST(BallSet, SplitsACellsBallsInZAndAgreesWithBruteForce) {
+  std::mt19937 rng(20261128);
+  std::uniform_real_distribution<double> u(0.0, 0.3), small(0.0008, 0.002), below(-0.09, -0.06), large(0.04, 0.08);
+  std::normal_distribution<double> g(0.0, 1.0);
+  const auto surface_z = [](double x, double y) { return 0.003 * std::sin(40.0 * x) * std::cos(30.0 * y); };
+  for (int round = 0; round < 8; ++round) {
+    std::vector<Ball> balls;
+    for (int i = 0; i < 3000; ++i) {
+      const double x = u(rng), y = u(rng);
+      balls.push_back({x, y, surface_z(x, y) + 0.0005 * g(rng), small(rng)});
+    }
+    for (int i = 0; i < 20 + 10 * round; ++i) balls.push_back({u(rng), u(rng), below(rng), large(rng)});
+    const BallSet set = round % 2 == 0 ? BallSet(balls) : BallSet(balls, 0);
+    // With the default budget every ball is listed by fine cell, and a cell with both kinds splits; with
+    // none the large balls go by coarse cell, and the fine lists hold the small ones alone.
+    if (round % 2 == 0) {
+      ASSERT_GT(set.cells_split(), 3000U) << "round " << round << ": cells with both kinds of ball split them in z";
+    } else {
+      ASSERT_LT(set.cells_split(), 200U) << "round " << round;
+    }
+    std::uniform_real_distribution<double> at(-0.02, 0.32), dz(-0.004, 0.004), deep(-0.2, 0.02);
+    for (int q = 0; q < 40000; ++q) {
+      const double x = at(rng), y = at(rng);
+      const double p[3] = {x, y, q % 2 == 0 ? surface_z(x, y) + dz(rng) : deep(rng)};
+      ASSERT_EQ(set.contains(p), brute_contains(balls, p)) << "round " << round << " query " << q;
+      if (q % 8 == 0) {
+        ASSERT_EQ(set.margin(p), brute_margin(balls, p)) << "round " << round << " query " << q;
+      }
+    }
+    for (std::size_t k = 0; k < balls.size(); k += 7) {
+      const Ball& b = balls[k];
+      for (int d = 0; d < 6; ++d) {
+        double v[3] = {g(rng), g(rng), g(rng)};
+        if (d < 2) v[0] = 0.0, v[1] = 0.0, v[2] = d == 0 ? 1.0 : -1.0;  // the poles: a span's ends
+        const double len = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+        for (const double f : {1.0, 1.0 - 1e-15, 1.0 + 1e-15}) {
+          const double p[3] = {b[0] + f * b[3] * v[0] / len, b[1] + f * b[3] * v[1] / len, b[2] + f * b[3] * v[2] / len};
+          ASSERT_EQ(set.contains(p), brute_contains(balls, p)) << "round " << round << " ball " << k << " direction " << d;
+        }
+      }
+    }
+  }
+}
+
 TEST(BallSet, OneBallAndNoBall) {
   const BallSet none(std::vector<Ball>{});
   const double p[3] = {0.0, 0.0, 0.0};
