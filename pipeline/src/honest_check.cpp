@@ -1088,15 +1088,64 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
     std::size_t tested = 0, spikes = 0, pits = 0;
     std::vector<GridAnomaly> all;
   };
+  // Each cell's window minimum, maximum and valid count come first from its rows' horizontal
+  // ones (a ring of 2h + 1 rows, each entry over the row's 2h + 1 cells about a column, clipped
+  // to the grid, NaN left out): the same exact values as the window's cells one by one, about
+  // 2(2h + 1) reads a cell instead of (2h + 1)². Only a cell that the smooth test below does
+  // not settle (a neighbour farther than spike_min_height_m from it) gathers its window. (Until
+  // 2026-11-28, forty-eighth session, every valid cell gathered its window: at 10^8 points, a
+  // 4096 × 2049 grid, 1.1 s of CPU of the tiled run's honest check.)
+  const int wside = 2 * h + 1;
+  const auto ucols = static_cast<std::size_t>(g.cols);
   auto scan_rows = [&](int row_begin, int row_end, Half& out) {
     std::vector<float> win, dev;
     FloodScratch flood;
-    win.reserve(static_cast<std::size_t>((2 * h + 1) * (2 * h + 1)));
+    win.reserve(static_cast<std::size_t>(wside * wside));
     dev.reserve(win.capacity());
-    for (int r = row_begin; r < row_end; ++r)
+    std::vector<float> row_lo(static_cast<std::size_t>(wside) * ucols), row_hi(row_lo.size());
+    std::vector<std::uint8_t> row_valid(row_lo.size());
+    // Row rr's horizontal minimum, maximum and valid count about each column, into its slot.
+    auto horizontal = [&](int rr) {
+      const std::size_t at = static_cast<std::size_t>(rr % wside) * ucols;
+      for (int c = 0; c < g.cols; ++c) {
+        float lo = std::numeric_limits<float>::infinity(), hi = -lo;
+        std::uint8_t n = 0;
+        for (int cc = std::max(0, c - h); cc <= std::min(g.cols - 1, c + h); ++cc) {
+          const float v = grid.at(rr, cc);
+          if (std::isnan(v)) continue;
+          lo = std::min(lo, v);
+          hi = std::max(hi, v);
+          ++n;
+        }
+        row_lo[at + static_cast<std::size_t>(c)] = lo;
+        row_hi[at + static_cast<std::size_t>(c)] = hi;
+        row_valid[at + static_cast<std::size_t>(c)] = n;
+      }
+    };
+    for (int rr = std::max(0, row_begin - h); rr < std::min(g.rows, row_begin + h); ++rr) horizontal(rr);
+    for (int r = row_begin; r < row_end; ++r) {
+      if (r + h < g.rows) horizontal(r + h);
+      const int r0 = std::max(0, r - h), r1 = std::min(g.rows - 1, r + h);
       for (int c = 0; c < g.cols; ++c) {
         const float z = grid.at(r, c);
         if (std::isnan(z)) continue;
+        {
+          // The window's minimum, maximum and valid count (z among them).
+          float wlo = z, whi = z;
+          int valid = 0;
+          for (int rr = r0; rr <= r1; ++rr) {
+            const std::size_t i = static_cast<std::size_t>(rr % wside) * ucols + static_cast<std::size_t>(c);
+            wlo = std::min(wlo, row_lo[i]);
+            whi = std::max(whi, row_hi[i]);
+            valid += row_valid[i];
+          }
+          if (valid - 1 < 3) continue;  // fewer than 3 valid neighbours: not tested
+          if (std::max(static_cast<double>(z) - static_cast<double>(wlo), static_cast<double>(whi) - static_cast<double>(z)) <=
+              o.spike_min_height_m) {
+            ++out.tested;  // smooth: the test below cannot fire (its own early exit, from the same values)
+            continue;
+          }
+        }
         win.clear();
         bool edge = false;  // the window holds no data or crosses the grid's border
         float lo = z, hi = z;
@@ -1145,6 +1194,7 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
         (d > 0 ? out.spikes : out.pits) += 1;
         out.all.push_back({r, c, z, static_cast<float>(d)});
       }
+    }
   };
   Half halves[2];
   const int split = g.rows / 2;

@@ -18,6 +18,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <cstdio>
 #include <limits>
@@ -329,6 +330,82 @@ TEST(GridSpikes, PlantedSpikesInBothHalvesAndAtTheSplitAreFoundExactlyOnce) {
     EXPECT_EQ(s.worst[i].col, want_cols[i]) << i;
   }
   EXPECT_EQ(s.flagged.size(), 4u);
+}
+
+// Windows of 3, 5 and 7 cells on a tilted plane with holes (a fifth of the cells no data, some
+// whole blocks of them) and isolated spikes and pits, some beside holes and on the border:
+// `tested` and the spikes and pits found against a brute force over each cell's window (the
+// valid neighbours, their median and MAD, the silhouette rule for pits). Isolated planted cells
+// are no part of a larger surface, so the flood never spares one here.
+TEST(GridSpikes, WindowsWithHolesAndBordersAgreeWithBruteForce) {
+  std::mt19937 rng(20261128);
+  for (const int window : {3, 5, 7}) {
+    GridGeometry g{61, 77, 0.0, 0.0, 0.001};
+    HeightField h(g);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    for (int r = 0; r < g.rows; ++r)
+      for (int c = 0; c < g.cols; ++c) {
+        const bool hole = u(rng) < 0.2 || (r / 9 == 3 && c / 11 == 4);
+        h.at(r, c) = hole ? std::numeric_limits<float>::quiet_NaN() : static_cast<float>(0.2 * g.x_of_col(c) - 0.1 * g.y_of_row(r));
+      }
+    // Two valid cells amid the block of holes (rows 27..35, cols 44..54): fewer than 3 valid
+    // neighbours in any of the windows.
+    for (const int c : {49, 50}) h.at(31, c) = static_cast<float>(0.2 * g.x_of_col(c) - 0.1 * g.y_of_row(31));
+    // Planted cells at least a window apart, so that no window holds two.
+    std::vector<std::array<int, 2>> planted;
+    for (int tries = 0; tries < 4000 && planted.size() < 60; ++tries) {
+      const int r = static_cast<int>(u(rng) * g.rows), c = static_cast<int>(u(rng) * g.cols);
+      if (std::isnan(h.at(r, c))) continue;
+      if (std::any_of(planted.begin(), planted.end(), [&](const auto& q) { return std::abs(q[0] - r) <= window && std::abs(q[1] - c) <= window; })) continue;
+      planted.push_back({r, c});
+      h.at(r, c) += static_cast<float>((u(rng) < 0.5 ? -1.0 : 1.0) * (0.001 + 0.009 * u(rng)));  // 1 to 10 mm
+    }
+    HonestCheckOptions o;
+    o.spike_window_cells = window;
+    const GridSpikes s = find_grid_spikes(h, o);
+    // The brute force.
+    const int hw = window / 2;
+    std::size_t tested = 0, spikes = 0, pits = 0, valid = 0;
+    std::vector<std::array<int, 2>> flagged;
+    for (int r = 0; r < g.rows; ++r)
+      for (int c = 0; c < g.cols; ++c) {
+        const float z = h.at(r, c);
+        if (std::isnan(z)) continue;
+        ++valid;
+        std::vector<float> nb;
+        bool edge = r - hw < 0 || r + hw >= g.rows || c - hw < 0 || c + hw >= g.cols;
+        for (int rr = std::max(0, r - hw); rr <= std::min(g.rows - 1, r + hw); ++rr)
+          for (int cc = std::max(0, c - hw); cc <= std::min(g.cols - 1, c + hw); ++cc) {
+            if (rr == r && cc == c) continue;
+            if (std::isnan(h.at(rr, cc))) {
+              edge = true;
+            } else {
+              nb.push_back(h.at(rr, cc));
+            }
+          }
+        if (nb.size() < 3) continue;
+        ++tested;
+        std::vector<float> sorted = nb;
+        std::sort(sorted.begin(), sorted.end());
+        const double median = sorted[sorted.size() / 2];
+        std::vector<float> dev;
+        for (const float v : nb) dev.push_back(std::abs(static_cast<float>(v - median)));
+        std::sort(dev.begin(), dev.end());
+        const double d = static_cast<double>(z) - median;
+        if (std::abs(d) <= o.spike_min_height_m || std::abs(d) <= o.spike_mad_factor * 1.4826 * static_cast<double>(dev[dev.size() / 2])) continue;
+        if (d < 0 && edge) continue;
+        (d > 0 ? spikes : pits) += 1;
+        flagged.push_back({r, c});
+      }
+    EXPECT_EQ(s.tested, tested) << "window " << window;
+    EXPECT_EQ(s.spikes, spikes) << "window " << window;
+    EXPECT_EQ(s.pits, pits) << "window " << window;
+    std::vector<std::array<int, 2>> found = s.flagged;
+    std::sort(found.begin(), found.end());
+    EXPECT_EQ(found, flagged) << "window " << window;
+    EXPECT_GE(spikes + pits, 10U) << "window " << window << ": planted cells over 2 mm are found";
+    EXPECT_LT(tested, valid) << "window " << window << ": cells amid holes have fewer than 3 valid neighbours";
+  }
 }
 
 TEST(GridSpikes, IslandsAreSmallGroupsApartFromTheSurface) {
