@@ -77,7 +77,10 @@ class BilinearSurface {
   HeightFieldView view_{};
 };
 
-inline SurfaceSample BilinearSurface::sample(double x_m, double y_m) const noexcept {
+// Always inlined: GCC 12 at -O3 left two of the pipeline's per-point calls out of line (the
+// honest check's classes and the cross-check's (b) bucketing pass: about 10^8 calls each at 10^8
+// points; inlined, the tiled run's honest check took 1.0 s less of CPU, forty-eighth session).
+[[gnu::always_inline]] inline SurfaceSample BilinearSurface::sample(double x_m, double y_m) const noexcept {
   const GridGeometry& g = view_.geometry;
   assert(g.rows >= 2 && g.cols >= 2 && g.cell_size_m > 0.0);
   const double max_u = static_cast<double>(g.cols - 1);
