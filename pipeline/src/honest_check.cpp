@@ -1088,9 +1088,9 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
     std::size_t tested = 0, spikes = 0, pits = 0;
     std::vector<GridAnomaly> all;
   };
-  // Each cell's window minimum, maximum and valid count come first from its rows' horizontal
-  // ones (a ring of 2h + 1 rows, each entry over the row's 2h + 1 cells about a column, clipped
-  // to the grid, NaN left out): the same exact values as the window's cells one by one, about
+  // Each cell's window minimum, maximum and valid count come from its rows' horizontal ones (a
+  // ring of 2h + 1 rows, each entry over the row's 2h + 1 cells about a column, clipped to the
+  // grid, NaN left out): the same exact values as the window's cells one by one, about
   // 2(2h + 1) reads a cell instead of (2h + 1)². Only a cell that the smooth test below does
   // not settle (a neighbour farther than spike_min_height_m from it) gathers its window. (Until
   // 2026-11-28, forty-eighth session, every valid cell gathered its window: at 10^8 points, a
@@ -1129,26 +1129,27 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
       for (int c = 0; c < g.cols; ++c) {
         const float z = grid.at(r, c);
         if (std::isnan(z)) continue;
-        {
-          // The window's minimum, maximum and valid count (z among them).
-          float wlo = z, whi = z;
-          int valid = 0;
-          for (int rr = r0; rr <= r1; ++rr) {
-            const std::size_t i = static_cast<std::size_t>(rr % wside) * ucols + static_cast<std::size_t>(c);
-            wlo = std::min(wlo, row_lo[i]);
-            whi = std::max(whi, row_hi[i]);
-            valid += row_valid[i];
-          }
-          if (valid - 1 < 3) continue;  // fewer than 3 valid neighbours: not tested
-          if (std::max(static_cast<double>(z) - static_cast<double>(wlo), static_cast<double>(whi) - static_cast<double>(z)) <=
-              o.spike_min_height_m) {
-            ++out.tested;  // smooth: the test below cannot fire (its own early exit, from the same values)
-            continue;
-          }
-        }
-        win.clear();
-        bool edge = false;  // the window holds no data or crosses the grid's border
+        // The window's minimum, maximum and valid count (z among them), from the ring.
         float lo = z, hi = z;
+        int valid = 0;
+        for (int rr = r0; rr <= r1; ++rr) {
+          const std::size_t i = static_cast<std::size_t>(rr % wside) * ucols + static_cast<std::size_t>(c);
+          lo = std::min(lo, row_lo[i]);
+          hi = std::max(hi, row_hi[i]);
+          valid += row_valid[i];
+        }
+        if (valid - 1 < 3) continue;  // fewer than 3 valid neighbours: not tested
+        ++out.tested;
+        // The median lies in [lo, hi]: when every neighbour is within spike_min_height_m of z,
+        // so is the median, and the test below cannot fire (exact; saves the selections on
+        // the smooth majority of cells).
+        if (std::max(static_cast<double>(z) - static_cast<double>(lo), static_cast<double>(hi) - static_cast<double>(z)) <=
+            o.spike_min_height_m) {
+          continue;
+        }
+        // The window's valid neighbours, and whether it holds no data or crosses the border.
+        win.clear();
+        bool edge = false;
         for (int rr = r - h; rr <= r + h; ++rr)
           for (int cc = c - h; cc <= c + h; ++cc) {
             if (rr < 0 || rr >= g.rows || cc < 0 || cc >= g.cols) {
@@ -1161,19 +1162,8 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
               edge = true;
             } else {
               win.push_back(v);
-              lo = std::min(lo, v);
-              hi = std::max(hi, v);
             }
           }
-        if (win.size() < 3) continue;
-        ++out.tested;
-        // The median lies in [lo, hi]: when every neighbour is within spike_min_height_m of z,
-        // so is the median, and the test below cannot fire (exact; saves the selections on
-        // the smooth majority of cells).
-        if (std::max(static_cast<double>(z) - static_cast<double>(lo), static_cast<double>(hi) - static_cast<double>(z)) <=
-            o.spike_min_height_m) {
-          continue;
-        }
         // Median (upper median for an even count) and MAD.
         const auto mid = win.begin() + static_cast<std::ptrdiff_t>(win.size() / 2);
         std::nth_element(win.begin(), mid, win.end());
