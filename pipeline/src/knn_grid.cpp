@@ -889,11 +889,10 @@ class GridPointQueries {
     const std::size_t k = k1_ - 1;
     auto& cand = s.pairs;
     // The k smallest keys, ascending: by squared distance, then by input index (ranked_key).
-    std::nth_element(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1), cand.end());
-    std::sort(cand.begin(), cand.begin() + static_cast<std::ptrdiff_t>(k - 1));
-    out.clear();
-    for (std::size_t i = 0; i < k; ++i) out.push_back(static_cast<std::uint32_t>(cand[i]));
-    std::sort(out.begin(), out.end());
+    smallest_keys_first(cand.data(), cand.size(), k);
+    out.resize(k);
+    for (std::size_t i = 0; i < k; ++i) out[i] = static_cast<std::uint32_t>(cand[i]);
+    sort_indices(out.data(), k);
     const float kth = std::sqrt(key_d2(cand[k - 1]));
     if (kth_m != nullptr) *kth_m = kth;
     s.hint = kth * kHintFactor;

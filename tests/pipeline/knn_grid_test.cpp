@@ -6,6 +6,11 @@
 // two-thread threshold (2^17 keys), many equal keys, a middle digit equal in every key
 // (skipped), a last digit narrower than 11 bits, and 64-bit keys.
 //
+// sort16 (Batcher's network) on every 0-1 input of 16 entries (by the 0-1 principle, then every
+// input) and on shuffled 64-bit keys; smallest_keys_first (the k-NN queries' take of the k
+// smallest candidates) against std::sort, for k = 16 (the network's path: one block, part of a
+// second, whole blocks, keys in ascending, descending and no order) and k = 8 (the other path).
+//
 // PointQueries::nearest (the robust filter's neighbourhoods) against a full scan, on a cloud
 // made to take every path: a dense lattice (equal distances everywhere: ties ordered by input
 // index) with a sparse layer 4 mm behind it, whose neighbourhoods reach past the 3³ block into
@@ -19,6 +24,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstdint>
 #include <random>
@@ -63,6 +69,49 @@ TEST(RadixSort, EqualsAStableSortOnBothSidesOfTheThreadThreshold) {
     // Full 64-bit keys, distinct almost surely.
     for (auto& k : keys) k = rng();
     expect_stable_sorted(keys, 64, "64-bit keys");
+  }
+}
+
+TEST(SortingNetwork, SortsEveryZeroOneInputAndShuffledKeys) {
+  std::size_t unsorted = 0;
+  for (std::uint32_t bits = 0; bits < (1U << 16); ++bits) {
+    std::uint32_t a[16];
+    for (std::uint32_t i = 0; i < 16; ++i) a[i] = (bits >> i) & 1U;
+    hc::pipeline::detail::sort16(a);
+    unsorted += std::is_sorted(a, a + 16) && std::count(a, a + 16, 1U) == std::popcount(bits) ? 0U : 1U;
+  }
+  EXPECT_EQ(unsorted, 0U) << "0-1 inputs left unsorted (or changed) by sort16, of 65536";
+  std::mt19937_64 rng(3);
+  for (int t = 0; t < 1000; ++t) {
+    std::uint64_t a[16];
+    for (auto& v : a) v = rng() >> (t % 60);  // narrower keys now and then: equal ones
+    std::vector<std::uint64_t> want(a, a + 16);
+    std::sort(want.begin(), want.end());
+    hc::pipeline::detail::sort16(a);
+    ASSERT_TRUE(std::equal(want.begin(), want.end(), a)) << "trial " << t;
+  }
+}
+
+TEST(SortingNetwork, SmallestKeysFirstEqualsAFullSort) {
+  std::mt19937_64 rng(4);
+  for (const std::size_t k : {std::size_t{16}, std::size_t{8}}) {
+    for (const std::size_t m : {16, 17, 27, 31, 32, 33, 48, 100, 257}) {
+      if (m < k) continue;
+      for (int order = 0; order < 3; ++order) {  // no order, ascending, descending
+        std::vector<std::uint64_t> keys(m);
+        for (auto& v : keys) v = rng();
+        std::sort(keys.begin(), keys.end());
+        keys.erase(std::unique(keys.begin(), keys.end()), keys.end());
+        ASSERT_EQ(keys.size(), m);
+        if (order == 0) std::shuffle(keys.begin(), keys.end(), rng);
+        if (order == 2) std::reverse(keys.begin(), keys.end());
+        std::vector<std::uint64_t> want = keys;
+        std::sort(want.begin(), want.end());
+        hc::pipeline::detail::smallest_keys_first(keys.data(), m, k);
+        EXPECT_TRUE(std::equal(want.begin(), want.begin() + static_cast<std::ptrdiff_t>(k), keys.begin()))
+            << "k " << k << ", m " << m << ", order " << order;
+      }
+    }
   }
 }
 
