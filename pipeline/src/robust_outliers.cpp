@@ -213,12 +213,14 @@ class ExactDistances {
   // (on the 10^7-point wall, 94 % of them: one search instead of two; on the Buddha few, and
   // nearest costs more than mean_distance). With kth_m, (*kth_m)[i] is the k-th of those
   // neighbours' float distances [m] (PointQueries::nearest's kth_m; +inf where none were
-  // stored). Returns how many d were not known.
+  // stored). With list_d, (*list_d)[i] is list[i]'s d (in list order: the candidates' tests
+  // read it there, not at random places of the window's d). Returns how many d were not known.
   std::size_t compute_with_neighbours(const std::vector<std::uint32_t>& list, double d_min, std::vector<std::uint32_t>& nb,
-                                      std::vector<float>* kth_m = nullptr) {
+                                      std::vector<float>* kth_m = nullptr, std::vector<float>* list_d = nullptr) {
     const auto k = static_cast<std::size_t>(k_);
     nb.assign(list.size() * k, 0);
     if (kth_m != nullptr) kth_m->assign(list.size(), std::numeric_limits<float>::infinity());
+    if (list_d != nullptr) list_d->assign(list.size(), 0.0f);
     std::vector<std::pair<std::uint32_t, std::uint32_t>> order(list.size());  // (sorted position, i)
     std::size_t unknown = 0;
     for (std::size_t i = 0; i < list.size(); ++i) {
@@ -245,6 +247,7 @@ class ExactDistances {
           float mean_d = 0.0f;
           q_.nearest(s, scratch, knn, &mean_d, &kth);
           if (d_[j] < 0.0f) d_[j] = mean_d;
+          if (list_d != nullptr) (*list_d)[i] = d_[j];
           if (static_cast<double>(d_[j]) > d_min) {
             store();
             ++wanted;
@@ -252,6 +255,7 @@ class ExactDistances {
           continue;
         }
         if (d_[j] < 0.0f) d_[j] = q_.mean_distance(s, scratch);
+        if (list_d != nullptr) (*list_d)[i] = d_[j];
         if (!(static_cast<double>(d_[j]) > d_min)) continue;
         q_.nearest(s, scratch, knn, nullptr, &kth);
         store();
@@ -981,13 +985,14 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   // neighbours (step 4's neighbourhoods).
   std::vector<std::uint32_t> uncertain_nb;  // k per uncertain point (candidates only)
   std::vector<float> uncertain_kth;         // with a tile: each candidate's k-th float distance [m]
-  queries += d.compute_with_neighbours(uncertain, d_cert, uncertain_nb, o.tile ? &uncertain_kth : nullptr);
+  std::vector<float> uncertain_d;           // each uncertain point's d
+  queries += d.compute_with_neighbours(uncertain, d_cert, uncertain_nb, o.tile ? &uncertain_kth : nullptr, &uncertain_d);
   if (judging) {
     // The chance-plane test of a listed point asks whether its neighbours are scattered
     // candidates: they are judged as candidates too (their own verdicts are not reported).
     std::vector<std::uint32_t> more;
     for (std::size_t u = 0; u < uncertain.size(); ++u) {
-      if (!(static_cast<double>(d[uncertain[u]]) > d_cert)) continue;
+      if (!(static_cast<double>(uncertain_d[u]) > d_cert)) continue;
       for (std::size_t a = 0; a < static_cast<std::size_t>(k); ++a) {
         const std::uint32_t j = uncertain_nb[u * static_cast<std::size_t>(k) + a];
         if (!judged[j] && d.pos(j) != kNotInGrid) more.push_back(j);
@@ -996,18 +1001,22 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     std::sort(more.begin(), more.end());
     more.erase(std::unique(more.begin(), more.end()), more.end());
     std::vector<std::uint32_t> more_nb;
-    queries += d.compute_with_neighbours(more, d_cert, more_nb);
+    std::vector<float> more_d;
+    queries += d.compute_with_neighbours(more, d_cert, more_nb, nullptr, &more_d);
     uncertain.insert(uncertain.end(), more.begin(), more.end());
+    uncertain_d.insert(uncertain_d.end(), more_d.begin(), more_d.end());
     uncertain_nb.insert(uncertain_nb.end(), more_nb.begin(), more_nb.end());
     if (o.tile) uncertain_kth.resize(uncertain.size(), std::numeric_limits<float>::infinity());
   }
   std::vector<std::uint8_t> out(n, 0);  // 1 = global, 2 = local, 3 = off surface
   std::vector<std::uint32_t> cand;
   std::vector<std::size_t> cand_at;  // each candidate's place in uncertain
+  std::vector<float> cand_d;         // each candidate's d, read in candidate order (not d[cand[i]]: a random read)
   for (std::size_t u = 0; u < uncertain.size(); ++u) {
-    if (static_cast<double>(d[uncertain[u]]) > d_cert) {
+    if (static_cast<double>(uncertain_d[u]) > d_cert) {
       cand.push_back(uncertain[u]);
       cand_at.push_back(u);
+      cand_d.push_back(uncertain_d[u]);
     }
   }
   const double t_exact = seconds_since(t0);
@@ -1038,7 +1047,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         // at any density, about 1/3 in isotropic clutter: above d_glob of the point and its k
         // neighbours; below it of the neighbours alone, with the point's distance from their
         // least-squares plane (normal = eigenvector of λ0) as a fraction of d_i.
-        const bool above = static_cast<double>(d[cand[i]]) > d_glob;
+        const bool above = static_cast<double>(cand_d[i]) > d_glob;
         auto at = [&](std::uint32_t q) { return Eigen::Vector3d(g.x[q], g.y[q], g.z[q]); };
         // The point (above d_glob) and its neighbours, gathered once.
         std::size_t held = 0;
@@ -1075,7 +1084,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         const double tr = ev.sum();
         variation[i] = tr > 0.0 ? std::max(ev(0), 0.0) / tr : 0.0;
         if (above) continue;
-        const double di = static_cast<double>(d[cand[i]]);
+        const double di = static_cast<double>(cand_d[i]);
         off_plane[i] = di > 0.0 ? std::abs(es.eigenvectors().col(0).dot(at(s) - mean)) / di : 0.0;
       }
     });
@@ -1094,7 +1103,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   std::size_t n_planar = 0, n_among_scattered = 0;
   std::vector<std::uint32_t> need;
   for (std::size_t i = 0; i < cand.size(); ++i) {
-    if (static_cast<double>(d[cand[i]]) > d_glob) {
+    if (static_cast<double>(cand_d[i]) > d_glob) {
       if (variation[i] > o.max_surface_variation) {
         out[cand[i]] = 1;
         continue;
@@ -1107,12 +1116,12 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         continue;
       }
       ++n_planar;
-    } else if (static_cast<double>(d[cand[i]]) > d_off && variation[i] <= o.max_surface_variation &&
+    } else if (static_cast<double>(cand_d[i]) > d_off && variation[i] <= o.max_surface_variation &&
                off_plane[i] > kOffSurfaceFraction) {
       out[cand[i]] = 3;
       continue;
     }
-    if (static_cast<double>(d[cand[i]]) > d_local && (!judging || judged[cand[i]])) {
+    if (static_cast<double>(cand_d[i]) > d_local && (!judging || judged[cand[i]])) {
       need.insert(need.end(), nbrs(i).begin(), nbrs(i).end());
     }
   }
@@ -1121,18 +1130,27 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   // 5. Local test against the neighbours' median distance.
   std::size_t n_local = 0, n_global = 0, n_off = 0, local_tests = 0;
   for (std::size_t i = 0; i < cand.size(); ++i) {
-    if (out[cand[i]] != 0 || static_cast<double>(d[cand[i]]) <= d_local || (judging && !judged[cand[i]])) continue;
+    if (out[cand[i]] != 0 || static_cast<double>(cand_d[i]) <= d_local || (judging && !judged[cand[i]])) continue;
     ++local_tests;
     std::vector<double> nd;
     nd.reserve(uk);
     for (const std::uint32_t j : nbrs(i)) nd.push_back(d[j]);
     const double ref = std::max(median_of(std::move(nd)), d_med);
-    if (static_cast<double>(d[cand[i]]) > o.local_ratio * ref) out[cand[i]] = 2;
+    if (static_cast<double>(cand_d[i]) > o.local_ratio * ref) out[cand[i]] = 2;
   }
-  // The largest recentred coordinate (step 6's slack, the near counts' frame limit).
+  // The largest recentred coordinate (step 6's slack, the near counts' frame limit): over four
+  // interleaved runs, which the compiler can keep in one vector (a single running maximum is
+  // one dependent compare a coordinate: about 0.2 % of the 10^8-point wall's CPU); the maximum
+  // of finite floats does not depend on the order.
   float max_abs = 0.0f;
   if (o.tile || near_asked) {
-    for (const float v : p) max_abs = std::max(max_abs, std::abs(v));
+    std::array<float, 4> most{};
+    std::size_t at = 0;
+    for (; at + 4 <= p.size(); at += 4) {
+      for (std::size_t a = 0; a < 4; ++a) most[a] = std::max(most[a], std::abs(p[at + a]));
+    }
+    for (; at < p.size(); ++at) most[0] = std::max(most[0], std::abs(p[at]));
+    max_abs = std::max(std::max(most[0], most[1]), std::max(most[2], most[3]));
   }
   // 6. A tile's searches against its window (options.tile; see the header).
   double shortfall_m = 0.0;
@@ -1163,7 +1181,15 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       for (const std::uint32_t q : knn) r = std::max(r, (xyz(q) - c).norm());
       return r * (1.0 + 1e-5) + slack_m;
     };
+    // The candidates come in grid order, their coordinates at random places of the window's
+    // cloud: fetched a few candidates ahead (rows is the identity when every point is finite).
+    const bool rows_identity = n == cloud.size();
+    constexpr std::size_t kAhead = 8;
     for (std::size_t i = 0; i < cand.size(); ++i) {
+      if (i + kAhead < cand.size()) {
+        const std::uint32_t ahead = cand[i + kAhead];
+        __builtin_prefetch(cloud.xyz.data() + 3 * static_cast<std::size_t>(rows_identity ? ahead : rows[ahead]));
+      }
       const Eigen::Vector3d x = xyz(cand[i]);
       if (judging ? !judged[cand[i]] : !(x.x() >= dec[0] && x.x() < dec[1] && x.y() >= dec[2] && x.y() < dec[3])) continue;
       if (balls.empty()) {
@@ -1179,7 +1205,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         // a surface: the band of candidates checked one by one along the window's open sides
         // narrows alike).
         const double kth_f = static_cast<double>(uncertain_kth[cand_at[i]]);
-        const double r_ub = (std::min(static_cast<double>(k) * static_cast<double>(d[cand[i]]), kth_f) * 1.001 + 4.0 * slack_m) * 1.001 + slack_m;
+        const double r_ub = (std::min(static_cast<double>(k) * static_cast<double>(cand_d[i]), kth_f) * 1.001 + 4.0 * slack_m) * 1.001 + slack_m;
         if (3.01 * r_ub + 4.0 * slack_m < margin(x)) continue;
       }
       const double r = kth(x, nbrs(i));
@@ -1192,7 +1218,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       // mean of its k distances, known: every neighbour of a candidate that reaches the local
       // test, and every candidate; an unknown d_j is certified by counting, below D_cert), and
       // where both reach past the margin, at most its k-th distance here.
-      const double di = static_cast<double>(d[cand[i]]);
+      const double di = static_cast<double>(cand_d[i]);
       const bool own = (di > d_glob && variation[i] > o.max_surface_variation) || out[cand[i]] == 3;
       searched.clear();
       if (di > d_local && !own) {
