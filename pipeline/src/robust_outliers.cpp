@@ -267,6 +267,8 @@ class ExactDistances {
   float operator[](std::size_t j) const { return d_[j]; }
   const PointQueries& queries() const { return q_; }
   std::uint32_t pos(std::size_t j) const { return pos_[j]; }
+  // Where pos(j) is kept (for a prefetch).
+  const std::uint32_t* pos_at(std::size_t j) const { return pos_.data() + j; }
 
  private:
   PointQueries q_;
@@ -1041,6 +1043,21 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       const std::size_t b = cand.size() * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
       const std::size_t e = cand.size() * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
       for (std::size_t i = b; i < e; ++i) {
+        // The neighbours' grid positions lie at random places (input order): fetched two
+        // candidates ahead, and their coordinates one ahead (the positions fetched then).
+        if (i + 2 < e) {
+          __builtin_prefetch(d.pos_at(cand[i + 2]));
+          for (const std::uint32_t q : nbrs(i + 2)) __builtin_prefetch(d.pos_at(q));
+        }
+        if (i + 1 < e) {
+          for (const std::uint32_t q : nbrs(i + 1)) {
+            const std::uint32_t sq = d.pos(q);
+            if (sq == kNotInGrid) continue;
+            __builtin_prefetch(g.x.data() + sq);
+            __builtin_prefetch(g.y.data() + sq);
+            __builtin_prefetch(g.z.data() + sq);
+          }
+        }
         const std::uint32_t s = d.pos(cand[i]);
         const std::span<const std::uint32_t> knn = nbrs(i);
         // Surface variation λ0 / (λ0 + λ1 + λ2) (Pauly et al. 2002), near 0 on a surface or a line
