@@ -875,6 +875,9 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   StageReport report = make_report("outliers", cloud.size());
   const std::vector<std::uint32_t> rows = finite_rows(cloud, "remove_robust_outliers");
   const std::size_t n = rows.size();
+  // Every column finite (a tile's points): rows is the identity, and the loops that map a
+  // finite index to a column in a random order skip reading it.
+  const bool rows_identity = n == cloud.size();
   if (n < static_cast<std::size_t>(k) + 2) {
     throw DegenerateInputError("remove_robust_outliers: the cloud has " + std::to_string(n) + " finite points; k = " +
                                std::to_string(k) + " needs at least " + std::to_string(k + 2));
@@ -1050,9 +1053,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
           for (const std::uint32_t q : nbrs(i + 2)) __builtin_prefetch(d.pos_at(q));
         }
         if (i + 1 < e) {
-          for (const std::uint32_t q : nbrs(i + 1)) {
+          for (const std::uint32_t q : nbrs(i + 1)) {  // a neighbour is a grid point: pos is known
             const std::uint32_t sq = d.pos(q);
-            if (sq == kNotInGrid) continue;
             __builtin_prefetch(g.x.data() + sq);
             __builtin_prefetch(g.y.data() + sq);
             __builtin_prefetch(g.z.data() + sq);
@@ -1199,8 +1201,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       return r * (1.0 + 1e-5) + slack_m;
     };
     // The candidates come in grid order, their coordinates at random places of the window's
-    // cloud: fetched a few candidates ahead (rows is the identity when every point is finite).
-    const bool rows_identity = n == cloud.size();
+    // cloud: fetched a few candidates ahead.
     constexpr std::size_t kAhead = 8;
     for (std::size_t i = 0; i < cand.size(); ++i) {
       if (i + kAhead < cand.size()) {
@@ -1301,10 +1302,8 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         shown = std::max(shown, static_cast<std::uint8_t>(std::clamp(within, 0.0, static_cast<double>(most_near))));
       };
       if (!judging && d_cert <= r) {
-        // Every column finite (a tile's points): rows is the identity, not read.
-        const bool every = n == cloud.size();
         for (std::size_t s = 0; s < certified.size(); ++s) {
-          if (certified[s]) verdicts->near[every ? g.original[s] : rows[g.original[s]]] = most_near;
+          if (certified[s]) verdicts->near[rows_identity ? g.original[s] : rows[g.original[s]]] = most_near;
         }
       }
       for (const std::uint32_t j : uncertain) {
