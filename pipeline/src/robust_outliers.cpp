@@ -342,11 +342,13 @@ inline std::uint32_t count_within(const PaddedCells& pc, std::size_t qb, std::si
 // The counting pass of remove_robust_outliers over the cells [cb, ce): certified[s] = 1 for the
 // sorted points s with at least need_count points (itself included) within squared distance
 // cert2 (own cell, then the cells of the 3×3×3 block that come within reach: faces, edges, then
-// corners, stopping at need_count); 0 otherwise. `table` is g's LowerTable (or empty),
+// corners, stopping at need_count); 0 otherwise; with `wanted` (one byte per cell), only the
+// cells marked non-zero are counted (the others' points are left as they are). `table` is g's LowerTable (or empty),
 // `pc` g's points padded (PaddedCells). Compiled also for AVX2 where the compiler can (the
 // distance loops vectorise 8 wide), chosen at load time by the CPU.
 HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const PaddedCells& pc, const LowerTable& table, float cert2,
-                                        std::uint32_t need_count, std::size_t cb, std::size_t ce, std::uint8_t* certified) {
+                                        std::uint32_t need_count, std::size_t cb, std::size_t ce, std::uint8_t* certified,
+                                        const std::uint8_t* wanted) {
   // The 3×3×3 block's padded point ranges, by (dx + 1) + 3 (dy + 1) + 9 (dz + 1).
   std::array<std::pair<std::size_t, std::size_t>, 27> block{};
   std::array<std::array<std::uint8_t, 12>, 3> by_class{};  // blocks within reach: faces, edges, corners
@@ -359,6 +361,7 @@ HC_SIMD_CLONES void certify_by_counting(const CellGrid& g, const PaddedCells& pc
     return {pc.start[c], pc.start[c + 1]};
   };
   for (std::size_t ci = cb; ci < ce; ++ci) {
+    if (wanted != nullptr && wanted[ci] == 0) continue;
     const std::uint32_t pb = g.cell_start[ci], pe = g.cell_start[ci + 1];
     const std::size_t qb = pc.start[ci], qe = pc.start[ci + 1];
     own.assign(pe - pb, 0);
@@ -866,11 +869,21 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
                       ", expected a finite distance >= 0 [m] (0: not asked)");
   }
   const bool near_asked = o.near_radius_m > 0.0 && verdicts != nullptr;
-  const bool judging = !o.judge_only.empty();
+  const bool listed = !o.judge_only.empty();
+  const bool masked = !o.judge_mask.empty();
+  const bool judging = listed || masked;
+  if (listed && masked) throw ConfigError("remove_robust_outliers: judge_only and judge_mask given together (expected one)");
+  if (masked && o.judge_mask.size() != cloud.size()) {
+    throw ConfigError("remove_robust_outliers: judge_mask holds " + std::to_string(o.judge_mask.size()) + " bytes for a cloud of " +
+                      std::to_string(cloud.size()) + " points (expected one a point)");
+  }
   if (o.verdicts_only && verdicts == nullptr) {
     throw ConfigError("remove_robust_outliers: verdicts_only needs the verdicts asked for (verdicts is null)");
   }
-  if (judging && !o.scale) throw ConfigError("remove_robust_outliers: judge_only needs the scale given (options.scale)");
+  if (judging && !o.scale) {
+    throw ConfigError(std::string("remove_robust_outliers: ") + (listed ? "judge_only" : "judge_mask") +
+                      " needs the scale given (options.scale)");
+  }
   if (verdicts) *verdicts = RobustVerdicts{};
   StageReport report = make_report("outliers", cloud.size());
   const std::vector<std::uint32_t> rows = finite_rows(cloud, "remove_robust_outliers");
@@ -952,8 +965,13 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   const std::size_t cells = g.cells();
   const auto need_count = static_cast<std::uint32_t>(k) + 1;  // the point itself counts once
   // Judging listed points only (options.judge_only): no counting, the listed are the uncertain.
+  // Judging the marked points (options.judge_mask): counting over the cells that hold one, the
+  // marked points it does not settle are the uncertain.
   std::vector<std::uint8_t> judged(judging ? n : 0, 0);
-  if (judging) {
+  if (masked) {
+    for (std::size_t j = 0; j < n; ++j) judged[j] = o.judge_mask[rows_identity ? j : rows[j]] != 0 ? 1 : 0;
+  }
+  if (listed) {
     std::vector<std::uint32_t> finite_of(cloud.size(), kNotInGrid);
     for (std::size_t j = 0; j < n; ++j) finite_of[rows[j]] = static_cast<std::uint32_t>(j);
     for (const std::uint32_t c : o.judge_only) {
@@ -964,16 +982,35 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       judged[finite_of[c]] = 1;
     }
   }
+  // certified in grid order, 0 for the points to judge (the listed or marked), 1 for the others:
+  // one pass in grid order, a random read of judged each (the mask and the counting pass's fix-up
+  // below read these bytes, in grid order, instead).
   std::vector<std::uint8_t> certified(g.original.size(), judging ? 1 : 0);
   for (std::size_t s = 0; judging && s < certified.size(); ++s) certified[s] = judged[g.original[s]] ? 0 : 1;
-  if (!judging) {
+  if (!listed) {
+    // With the mask: the cells that hold a marked point (the others' points stay settled), and
+    // which points those are (the counting pass overwrites certified for all of a cell's).
+    std::vector<std::uint8_t> wanted(masked ? cells : 0, 0);
+    std::vector<std::uint8_t> marked_s;
+    if (masked) {
+      marked_s.resize(certified.size());
+      for (std::size_t s = 0; s < certified.size(); ++s) marked_s[s] = certified[s] ^ 1;
+      for (std::size_t ci = 0; ci < wanted.size(); ++ci) {
+        std::uint8_t any = 0;
+        for (std::uint32_t s = g.cell_start[ci]; s < g.cell_start[ci + 1]; ++s) any |= marked_s[s];
+        wanted[ci] = any;
+      }
+    }
     const PaddedCells padded(g);
     run_parallel(cells > 64 ? kSearchThreads : 1, [&](int t) {
       const int th = cells > 64 ? kSearchThreads : 1;
       const std::size_t cb = cells * static_cast<std::size_t>(t) / static_cast<std::size_t>(th);
       const std::size_t ce = cells * static_cast<std::size_t>(t + 1) / static_cast<std::size_t>(th);
-      certify_by_counting(g, padded, d.queries().lower_table(), cert2, need_count, cb, ce, certified.data());
+      certify_by_counting(g, padded, d.queries().lower_table(), cert2, need_count, cb, ce, certified.data(),
+                          masked ? wanted.data() : nullptr);
     });
+    // A counted cell's unmarked points are not judged: settled, as the ones not counted.
+    for (std::size_t s = 0; masked && s < certified.size(); ++s) certified[s] = static_cast<std::uint8_t>(certified[s] | (marked_s[s] ^ 1));
   }
   std::vector<std::uint32_t> uncertain;
   std::size_t n_certified = g.zero.size();
@@ -1209,7 +1246,10 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         __builtin_prefetch(cloud.xyz.data() + 3 * static_cast<std::size_t>(rows_identity ? ahead : rows[ahead]));
       }
       const Eigen::Vector3d x = xyz(cand[i]);
-      if (judging ? !judged[cand[i]] : !(x.x() >= dec[0] && x.x() < dec[1] && x.y() >= dec[2] && x.y() < dec[3])) continue;
+      if (listed ? !judged[cand[i]]
+                 : (masked && !judged[cand[i]]) || !(x.x() >= dec[0] && x.x() < dec[1] && x.y() >= dec[2] && x.y() < dec[3])) {
+        continue;
+      }
       if (balls.empty()) {
         // Far inside the window, no search of the verdict can leave it, and the point's and its
         // neighbours' searches are not bounded one by one (a random read of k neighbours each,
@@ -1301,9 +1341,9 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
         std::uint8_t& shown = verdicts->near[rows[j]];
         shown = std::max(shown, static_cast<std::uint8_t>(std::clamp(within, 0.0, static_cast<double>(most_near))));
       };
-      if (!judging && d_cert <= r) {
+      if (!listed && d_cert <= r) {
         for (std::size_t s = 0; s < certified.size(); ++s) {
-          if (certified[s]) verdicts->near[rows_identity ? g.original[s] : rows[g.original[s]]] = most_near;
+          if (certified[s] && (!masked || judged[g.original[s]])) verdicts->near[rows_identity ? g.original[s] : rows[g.original[s]]] = most_near;
         }
       }
       for (const std::uint32_t j : uncertain) {
@@ -1320,6 +1360,9 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     }
   }
   std::vector<bool> keep(cloud.size(), false);
+  // With the mask, an unmarked point's verdict is not this test's to give (a neighbour judged as a
+  // candidate for a marked point's chance-plane test may have one here): 0.
+  for (std::size_t j = 0; masked && j < n; ++j) out[j] = judged[j] ? out[j] : 0;
   for (std::size_t j = 0; j < n; ++j) {
     n_global += out[j] == 1 ? 1u : 0u;
     n_local += out[j] == 2 ? 1u : 0u;

@@ -1301,6 +1301,79 @@ void check_window_records(std::size_t t, std::size_t records) {
                       " spilled records, at most 4294967295 supported (lower scale.tile_max_points or scale.tile_cells)");
 }
 
+// The ring of a tile's interior that other tiles' decided regions reach [nodes]: the grid
+// stages' reach (the halo less the filters' share; tile_bounds), and a node more for the
+// rounding that can put a point a step inside a box its node lies outside (Tiles::box_m).
+int owned_ring(const Tiles& tiles) { return std::max(0, tiles.halo - tiles.filter) + 1; }
+
+// Node (r, c)'s index among the nodes of the interior `in` (Tiles::interior) within `w` nodes of
+// its edge, row by row; kNotInRing for a node farther inside. `count`, when given, receives the
+// ring's nodes.
+constexpr std::uint32_t kNotInRing = std::numeric_limits<std::uint32_t>::max();
+std::uint32_t ring_index(const std::array<int, 4>& in, int w, int r, int c, std::size_t* count = nullptr) {
+  const int h = in[1] - in[0], wd = in[3] - in[2];
+  const int top = std::min(w, h), mid = std::max(0, h - 2 * w), bottom = h - top - mid;
+  const int mid_w = wd <= 2 * w ? wd : 2 * w;
+  if (count) *count = static_cast<std::size_t>(top + bottom) * static_cast<std::size_t>(wd) + static_cast<std::size_t>(mid) * static_cast<std::size_t>(mid_w);
+  const int lr = r - in[0], lc = c - in[2];
+  if (lr < top) return static_cast<std::uint32_t>(lr * wd + lc);
+  if (lr < top + mid) {
+    if (wd > 2 * w && lc >= w && lc < wd - w) return kNotInRing;
+    const int at = wd <= 2 * w ? lc : (lc < w ? lc : lc - (wd - 2 * w));
+    return static_cast<std::uint32_t>(top * wd + (lr - top) * mid_w + at);
+  }
+  return static_cast<std::uint32_t>(top * wd + mid * mid_w + (lr - top - mid) * wd + lc);
+}
+
+// Per node of a window, the place in the band (run_tiles' band_at) of the tile that owns it
+// (whose interior holds it), -1 outside the band, and the node's index in that tile's ring
+// (ring_index with owned_ring; kNotInRing outside the band or the ring): table reads a point
+// instead of divisions.
+struct WindowBand {
+  WindowBand(const Tiles& tiles, const GridWindow& w, const std::vector<int>& band_at)
+      : row0(w.row0), col0(w.col0), rows(w.rows), cols(w.cols), place(static_cast<std::size_t>(w.rows) * static_cast<std::size_t>(w.cols)),
+        local(place.size()) {
+    const int ring = owned_ring(tiles);
+    for (int r = 0; r < w.rows; ++r) {
+      const int tr = (r + w.row0) / tiles.size;
+      for (int c = 0; c < w.cols; ++c) {
+        const int tc = (c + w.col0) / tiles.size;
+        const std::size_t wn = static_cast<std::size_t>(r) * static_cast<std::size_t>(w.cols) + static_cast<std::size_t>(c);
+        place[wn] = band_at[static_cast<std::size_t>(tr * tiles.tiles_c + tc)];
+        local[wn] = place[wn] < 0 ? kNotInRing
+                                  : ring_index(tiles.interior(static_cast<std::size_t>(tr * tiles.tiles_c + tc)), ring, r + w.row0, c + w.col0);
+      }
+    }
+  }
+  bool holds(int r, int c) const { return r >= row0 && r < row0 + rows && c >= col0 && c < col0 + cols; }
+  // Node (r, c) of the whole grid's index in the window (holds(r, c)).
+  std::size_t at(int r, int c) const { return static_cast<std::size_t>(r - row0) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(c - col0); }
+  int row0, col0, rows, cols;
+  std::vector<int> place;
+  std::vector<std::uint32_t> local;
+};
+
+
+
+// A band tile's robust verdicts of the points it owns near its interior's edge (its ring,
+// owned_ring nodes wide: the reach of other tiles' decided regions into it), for the other
+// tiles of its band, whose windows hold some of them: look_tile leaves such a point, where it
+// lies in its own decided region, to its owner, and process_tile takes the owner's verdict
+// (docs/scale.md, "Each point judged by its owner", fiftieth session). Each ring node's points
+// are held together, in the window's (input) order: the points of a node come in that order in
+// every window that holds the node (a window holds whole nodes, and every spill file keeps the
+// input's order), so a node's j-th point in one window is its j-th in another. Memory: a byte a
+// ring point, 4 bytes a ring node.
+struct OwnedVerdicts {
+  std::vector<std::uint32_t> start;  // per ring node (ring_index), its first point in vn; one more at the end
+  // Per ring point, node by node: the robust verdict (RobustVerdicts::verdict, low 4 bits) and
+  // the near count clamped to 15 (RobustVerdicts::near, high 4 bits; 0 when not asked).
+  std::vector<std::uint8_t> vn;
+  // The ring's strays (rv.past_halo): (place in vn, index in past_halo), until judge_strays has
+  // given their whole-scan verdicts (run_tiles).
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> strays;
+};
+
 // A tile's robust first look, from look_tile to process_tile.
 struct TileLook {
   bool ran = false;        // the robust test ran on the window (filter on, k + 2 points or more)
@@ -1313,18 +1386,20 @@ struct TileLook {
   // a lower bound of the others within the radius, as near promises, so every use stays sound
   // (a kept point's count short of the isolated filter's neighbours, up to 1000, only costs
   // that filter a search; cross_check.isolation_min_neighbours above 15 marks no removed
-  // candidate kNear). Half of a band's memory otherwise.
+  // candidate kNear). Half of a band's memory otherwise. In a band (shares), only of the points
+  // judged here, in column order (the others' counts are their owners').
   std::vector<std::uint8_t> near_nibbles;
   StageReport report;  // the first look's report
   std::vector<std::array<double, 3>> strays_m;  // rv.past_halo's points, x y z [m, the grid frame]
   std::vector<std::uint8_t> stray_verdict;      // per stray, the whole scan's verdict (judge_strays)
   double coord_m = 0.0;  // the largest |coordinate| of the window's finite box sides and points [m]
   std::map<std::string, double> sums;  // the tile's figures so far (look_tile's times)
-  // Memory held [bytes], for the band's budget.
-  std::size_t bytes() const {
-    return removed.size() * sizeof(removed[0]) + near_nibbles.size() + rv.past_halo.size() * 4 + rv.reach_m.size() * 32 +
-           strays_m.size() * 25;
-  }
+  // In a band of more than one tile: the verdicts of the points the tile owns (OwnedVerdicts),
+  // for the band's other tiles; the points that another tile of the band owns in this tile's
+  // decided region were not judged here (their verdicts 0 in `removed` and near_nibbles).
+  bool shares = false;
+  OwnedVerdicts owned;
+  bool near = false;  // the test gave near counts (RobustVerdicts::near): near_nibbles, or owned's, hold them
 };
 
 // Tile t's window and the region whose verdicts it keeps (the halo less the filters' share):
@@ -1365,7 +1440,12 @@ RobustOutlierOptions tile_robust_options(const RunConfig& config, const Plan& pl
 // The first sweep for tile t: its window's points read and the robust test's first look run
 // over them (tile_robust_options); nothing kept but the verdicts (TileLook). A look that did
 // not run (filter off, fewer than k + 2 points) leaves process_tile to do as without the filter.
-TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill, std::size_t t) {
+// `band_at`: each tile's place in t's band, -1 outside it (empty: a band of t alone). In a band
+// of more than one tile (with the whole scan's scale), a point that another tile of the band
+// owns is not judged here (RobustOutlierOptions::judge_mask): its owner judges it, with the same
+// whole-scan verdict (each owner's interior lies in its decided region), and t's own points'
+// verdicts go to TileLook::owned.
+TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill, std::size_t t, const std::vector<int>& band_at) {
   TileLook look;
   const OutlierConfig& oc = config.filters.outliers;
   if (!oc.enabled) return look;
@@ -1380,19 +1460,98 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
   look.points = pts.size();
   check_window_records(t, flags.size());
   lap("look_read");
-  if (pts.size() < static_cast<std::size_t>(oc.k) + 2) return look;
-  const RobustOutlierOptions ropt = tile_robust_options(config, plan, t);
+  if (pts.size() < static_cast<std::size_t>(oc.k) + 2) {
+    if (band_at[t] >= 0) {
+      throw std::logic_error("look_tile: tile " + std::to_string(t) + " shares its points' judging with " + std::to_string(pts.size()) +
+                             " points in its window, fewer than k + 2");
+    }
+    return look;
+  }
+  RobustOutlierOptions ropt = tile_robust_options(config, plan, t);
+  // In a band of more than one tile: the points t owns, and those it leaves to their owners
+  // (another tile of the band) where their verdicts are the whole scan's, in its decided region
+  // (TileBounds::decides_m, as the test's own check of its searches bounds it). The points of
+  // the band between that region and the window's edge are judged here whoever owns them: their
+  // verdicts in this window (which the isolated-point and despike counts of decided points
+  // see) need not be the whole scan's, and they must not depend on which tiles share a band.
+  const Tiles& tiles = plan.tiles;
+  look.shares = plan.robust_scale && band_at[t] >= 0 && std::count_if(band_at.begin(), band_at.end(), [](int b) { return b >= 0; }) > 1;
+  std::vector<std::uint32_t> owned_col, owned_li;  // t's ring points' columns (ascending) and ring nodes (ring_index)
+  std::optional<WindowBand> wb;  // with look.shares
+  if (look.shares) {
+    const NodeBinner node(tiles.g);
+    const auto in = tiles.interior(t);
+    const auto& dec = ropt.tile->decides_m;
+    std::size_t ring_nodes = 0;
+    (void)ring_index(in, owned_ring(tiles), in[0], in[2], &ring_nodes);
+    look.owned.start.assign(ring_nodes + 1, 0);
+    ropt.judge_mask.assign(pts.size(), 1);
+    const GridWindow w = tiles.window(t);
+    wb.emplace(tiles, w, band_at);
+    const int me = band_at[t];
+    std::vector<std::uint32_t> count(ring_nodes + 1, 0);  // per ring node, t's points; the last for the others (not kept)
+    owned_col.resize(pts.size() + 1);
+    owned_li.resize(pts.size() + 1);
+    std::size_t o = 0, left_out = 0;
+    // Without a branch on the owner (the points come in no spatial order: a branch on it missed
+    // about every other point).
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      const double* p = pts.xyz.data() + 3 * i;
+      const int r = node.row(p), c = node.col(p);
+      if (!wb->holds(r, c)) {
+        throw std::logic_error("look_tile: tile " + std::to_string(t) + "'s window holds a point of node (" + std::to_string(r) + ", " +
+                               std::to_string(c) + "), outside it");
+      }
+      const std::size_t wn = wb->at(r, c);
+      const int b = wb->place[wn];
+      const std::uint32_t li = wb->local[wn];
+      const bool ring = b == me && li != kNotInRing;
+      const bool left = (b >= 0) & (b != me) & (p[0] >= dec[0]) & (p[0] < dec[1]) & (p[1] >= dec[2]) & (p[1] < dec[3]);
+      ropt.judge_mask[i] = left ? 0 : 1;
+      left_out += left ? 1U : 0U;
+      owned_col[o] = static_cast<std::uint32_t>(i);
+      owned_li[o] = li;
+      o += ring ? 1U : 0U;
+      ++count[ring ? li : ring_nodes];
+    }
+    owned_col.resize(o);
+    owned_li.resize(o);
+    const bool all = left_out == 0;
+    for (std::size_t a = 0; a < ring_nodes; ++a) look.owned.start[a + 1] = look.owned.start[a] + count[a];
+    if (all) ropt.judge_mask.clear();  // every point is t's to judge: the whole test
+  }
   auto f1 = remove_robust_outliers(std::move(pts), ropt, &look.rv);
   look.ran = true;
   look.report = std::move(f1.report);
+  const bool near = !look.rv.near.empty();
+  look.near = near;
+  if (look.shares) {
+    // t's points' verdicts and near counts node by node, each node's in window order; the owned
+    // strays' places.
+    std::vector<std::uint32_t> next(look.owned.start.begin(), look.owned.start.end() - 1);
+    look.owned.vn.assign(look.owned.start.back(), 0);
+    std::size_t a = 0;  // the next stray (rv.past_halo, ascending)
+    for (std::size_t o = 0; o < owned_col.size(); ++o) {
+      const std::uint32_t i = owned_col[o];
+      const std::uint32_t at = next[owned_li[o]]++;
+      const std::uint8_t nv = near ? std::min<std::uint8_t>(look.rv.near[i], 15) : 0;
+      look.owned.vn[at] = static_cast<std::uint8_t>(look.rv.verdict[i] | (nv << 4));
+      while (a < look.rv.past_halo.size() && look.rv.past_halo[a] < i) ++a;
+      if (a < look.rv.past_halo.size() && look.rv.past_halo[a] == i) look.owned.strays.emplace_back(at, static_cast<std::uint32_t>(a));
+    }
+  }
   for (std::size_t i = 0; i < look.rv.verdict.size(); ++i) {
     if (look.rv.verdict[i] != 0) look.removed.emplace_back(static_cast<std::uint32_t>(i), look.rv.verdict[i]);
   }
   std::vector<std::uint8_t>().swap(look.rv.verdict);
-  if (!look.rv.near.empty()) {
-    look.near_nibbles.assign((look.rv.near.size() + 1) / 2, 0);
-    for (std::size_t i = 0; i < look.rv.near.size(); ++i) {
-      look.near_nibbles[i / 2] |= static_cast<std::uint8_t>(std::min<std::uint8_t>(look.rv.near[i], 15) << (4 * (i % 2)));
+  if (near) {
+    const std::vector<std::uint8_t>& judged = ropt.judge_mask;  // empty: every point
+    const std::size_t held = judged.empty() ? look.rv.near.size() : static_cast<std::size_t>(std::count(judged.begin(), judged.end(), std::uint8_t{1}));
+    look.near_nibbles.assign((held + 1) / 2, 0);
+    for (std::size_t i = 0, j = 0; i < look.rv.near.size(); ++i) {
+      if (!judged.empty() && judged[i] == 0) continue;
+      look.near_nibbles[j / 2] |= static_cast<std::uint8_t>(std::min<std::uint8_t>(look.rv.near[i], 15) << (4 * (j % 2)));
+      ++j;
     }
     std::vector<std::uint8_t>().swap(look.rv.near);
   }
@@ -1824,7 +1983,78 @@ std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>
 // through the filters (the robust test's verdicts from its look, look_tile and judge_strays) and
 // reproject, the interior cut out, which of its spilled records it kept written to `kept`.
 // @throws std::logic_error when the window's points are not those the look judged.
-TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, std::size_t t, TileLook look) {
+// The robust verdicts (and near counts when `near`) that look_tile left to the owners, into
+// rv.verdict and rv.near: of tile t's window points `pts` (window order), those another tile of
+// its band owns inside t's decided region (tile_bounds' decides_m), from the owners'
+// OwnedVerdicts (`owned`, by place in the band; band_at: each tile's place, -1 outside); left[i]
+// = 1 for those (the points look_tile did not judge), 0 for the others. A node's j-th point in
+// the window is its j-th in its owner's. @throws std::logic_error when a node's points in the
+// window are not as many as its owner holds.
+void take_owned_verdicts(const Tiles& tiles, std::size_t t, const Cloud& pts, const std::vector<int>& band_at,
+                         const std::vector<OwnedVerdicts>& owned, bool near, RobustVerdicts& rv, std::vector<std::uint8_t>& left) {
+  left.assign(pts.size(), 0);
+  const NodeBinner node(tiles.g);
+  const GridWindow w = tiles.window(t);
+  const auto dec = tile_bounds(tiles, t).decides_m;
+  const int mine = band_at[t];
+  const WindowBand wb(tiles, w, band_at);
+  // The points another tile of the band owns, with their window nodes: listed without a branch
+  // on the owner (the points come in no spatial order), a chunk at a time, then taken in order.
+  constexpr std::size_t kChunk = 65536;
+  std::vector<std::array<std::uint32_t, 2>> theirs(kChunk + 1);
+  std::vector<std::uint32_t> seen(wb.place.size(), 0);
+  for (std::size_t first = 0; first < pts.size(); first += kChunk) {
+    const std::size_t last = std::min(pts.size(), first + kChunk);
+    std::size_t n = 0;
+    for (std::size_t i = first; i < last; ++i) {
+      const double* p = pts.xyz.data() + 3 * i;
+      const int r = node.row(p), c = node.col(p);
+      if (!wb.holds(r, c)) {
+        throw std::logic_error("take_owned_verdicts: tile " + std::to_string(t) + "'s window holds a point of node (" + std::to_string(r) +
+                               ", " + std::to_string(c) + "), outside it");
+      }
+      const std::size_t wn = wb.at(r, c);
+      const int b = wb.place[wn];
+      theirs[n] = {static_cast<std::uint32_t>(i), static_cast<std::uint32_t>(wn)};
+      n += (b >= 0) & (b != mine) ? 1U : 0U;
+    }
+    for (std::size_t a = 0; a < n; ++a) {
+      const auto [i, wn] = theirs[a];
+      const double* p = pts.xyz.data() + 3 * static_cast<std::size_t>(i);
+      const bool decided = p[0] >= dec[0] && p[0] < dec[1] && p[1] >= dec[2] && p[1] < dec[3];
+      const std::uint32_t li = wb.local[wn];
+      if (li == kNotInRing) {
+        if (!decided) continue;  // judged by t, and not in its owner's ring
+        throw std::logic_error("take_owned_verdicts: tile " + std::to_string(t) + "'s decided region holds a point of node (" +
+                               std::to_string(wb.row0 + static_cast<int>(wn / static_cast<std::size_t>(wb.cols))) + ", " +
+                               std::to_string(wb.col0 + static_cast<int>(wn % static_cast<std::size_t>(wb.cols))) +
+                               ") that its owner does not hold in its ring");
+      }
+      const OwnedVerdicts& ov = owned[static_cast<std::size_t>(wb.place[wn])];
+      const std::size_t at = ov.start[li] + seen[wn]++;
+      if (!decided) continue;  // judged by t
+      left[i] = 1;
+      if (at >= ov.start[li + 1]) continue;  // more on the node than its owner holds: the count below names it
+      rv.verdict[i] = ov.vn[at] & 15;
+      if (near) rv.near[i] = static_cast<std::uint8_t>(ov.vn[at] >> 4);
+    }
+  }
+  for (std::size_t wn = 0; wn < wb.place.size(); ++wn) {
+    const int b = wb.place[wn];
+    if (b < 0 || b == mine || wb.local[wn] == kNotInRing) continue;
+    const OwnedVerdicts& ov = owned[static_cast<std::size_t>(b)];
+    const std::size_t held = ov.start[wb.local[wn] + 1] - ov.start[wb.local[wn]];
+    if (seen[wn] != held) {
+      throw std::logic_error("take_owned_verdicts: tile " + std::to_string(t) + "'s window holds " + std::to_string(seen[wn]) +
+                             " points on node (" + std::to_string(wb.row0 + static_cast<int>(wn / static_cast<std::size_t>(wb.cols))) + ", " +
+                             std::to_string(wb.col0 + static_cast<int>(wn % static_cast<std::size_t>(wb.cols))) + "), its owner " +
+                             std::to_string(held));
+    }
+  }
+}
+
+TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, std::size_t t, TileLook look,
+                        const std::vector<int>& band_at, const std::vector<OwnedVerdicts>& owned) {
   const auto t0 = detail::Clock::now();
   const Tiles& tiles = plan.tiles;
   ReprojectOptions ro = config.grid.reproject;
@@ -1894,9 +2124,18 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     RobustVerdicts rv = std::move(look.rv);
     rv.verdict.assign(pts.size(), 0);
+    if (look.near) rv.near.assign(pts.size(), 0);
+    std::vector<std::uint8_t> left;  // in a band: 1 for the points t left to their owners (take_owned_verdicts)
+    if (look.shares) take_owned_verdicts(plan.tiles, t, pts, band_at, owned, look.near, rv, left);
     if (!look.near_nibbles.empty()) {
-      rv.near.resize(pts.size());
-      for (std::size_t i = 0; i < rv.near.size(); ++i) rv.near[i] = static_cast<std::uint8_t>((look.near_nibbles[i / 2] >> (4 * (i % 2))) & 15);
+      std::size_t j = 0;  // the counts of the points t judged, in column order
+      for (std::size_t i = 0; i < rv.near.size(); ++i) {
+        if (!left.empty() && left[i]) continue;
+        if (j / 2 >= look.near_nibbles.size()) throw std::logic_error("process_tile: tile " + std::to_string(t) + ": fewer near counts than points judged");
+        rv.near[i] = static_cast<std::uint8_t>((look.near_nibbles[j / 2] >> (4 * (j % 2))) & 15);
+        ++j;
+      }
+      if ((j + 1) / 2 != look.near_nibbles.size()) throw std::logic_error("process_tile: tile " + std::to_string(t) + ": more near counts than points judged");
       std::vector<std::uint8_t>().swap(look.near_nibbles);
     }
     for (const auto& [c, v] : look.removed) rv.verdict[c] = v;
@@ -1924,6 +2163,10 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     f1.value.keep_if(keep);
     f1.report.count_out = f1.value.size();
+    // A removed point with the isolated filter's neighbours shown is marked kNear. (Its count is
+    // a lower bound from the window that judged it: in a band, another tile's point in t's
+    // decided region has its owner's, which can differ from t's own, so that bit of the
+    // kept-point mask, a hint to the honest check, depends on the tiles run together.)
     std::vector<std::size_t> robust_removed;
     for (std::size_t i = 0; i < keep.size(); ++i) {
       if (keep[i]) continue;
@@ -1931,7 +2174,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       if (!rv.near.empty() && rv.near[i] >= iso_min) near_records.push_back(rec_of[i]);
     }
     compose_removal(robust_removed);
-    if (!rv.past_halo.empty()) {
+    {  // the window's verdicts (the look's own counts leave out the strays' and, in a band, the owners')
       detail::set_figure(f1.report, "removed_global", static_cast<double>(by[1]));
       detail::set_figure(f1.report, "removed_local", static_cast<double>(by[2]));
       detail::set_figure(f1.report, "removed_off_surface", static_cast<double>(by[3]));
@@ -2085,18 +2328,55 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
   // window's per-point arrays) mapped on their own (LargeBlocksMapped).
   constexpr std::size_t kMappedBlockBytes = std::size_t{8} << 20;
   std::optional<detail::LargeBlocksMapped> mapped;
+  // What a tile's look will hold [bytes], estimated from its window's records before it is
+  // looked at (a band's tiles are chosen first: each look must know which tiles share its band):
+  // the near counts, half a byte a point it judges (when asked), and a byte a point of its ring
+  // (OwnedVerdicts), with the points spread evenly over the nodes (judged: the window's less
+  // the other tiles' in its decided region; the ring's: the points per record over all windows,
+  // of the interior's share that is ring). The removed points' verdicts and the strays are left
+  // out (a few per cent). (Until the fiftieth session a band closed on its looks' own bytes.)
+  std::uintmax_t records = 0;
+  for (std::size_t t = 0; t < plan.tiles.count(); ++t) records += spill.records(t);
+  const double owned_per_record = records > 0 ? std::min(1.0, static_cast<double>(plan.grid_points) / static_cast<double>(records)) : 1.0;
+  const bool near_asked = plan.robust_scale && tile_robust_options(config, plan, 0).near_radius_m > 0.0;
+  const auto look_bytes = [&](std::size_t t) {
+    const Tiles& tiles = plan.tiles;
+    const auto in = tiles.interior(t);
+    const GridWindow w = tiles.window(t);
+    const int reach = std::max(0, tiles.halo - tiles.filter);
+    const auto nodes = [&](int r0, int r1, int c0, int c1) {
+      return static_cast<double>(std::max(0, std::min(r1, tiles.g.rows) - std::max(r0, 0))) *
+             static_cast<double>(std::max(0, std::min(c1, tiles.g.cols) - std::max(c0, 0)));
+    };
+    const double interior = nodes(in[0], in[1], in[2], in[3]);
+    const double decided = nodes(in[0] - reach, in[1] + reach, in[2] - reach, in[3] + reach);
+    const double window = static_cast<double>(w.rows) * static_cast<double>(w.cols);
+    std::size_t ring = 0;
+    (void)ring_index(in, owned_ring(tiles), in[0], in[2], &ring);
+    const double rec = static_cast<double>(spill.records(t));
+    const double judged = window > 0.0 ? 1.0 - (decided - interior) / window : 1.0;
+    return (near_asked ? 0.5 * rec * judged : 0.0) + (interior > 0.0 ? rec * owned_per_record * static_cast<double>(ring) / interior : 0.0);
+  };
+  std::vector<int> band_at(plan.tiles.count(), -1);  // each tile's place in the band, -1 outside
   for (std::size_t first = 0; first < list.size();) {
     std::vector<std::size_t> band;
-    std::vector<TileLook> looks;
-    std::size_t held = 0;
-    if (first > 0) (void)heap.release_now();
-    while (first + band.size() < list.size() && (band.empty() || held < band_bytes)) {
+    double held = 0.0;
+    while (first + band.size() < list.size() && (band.empty() || held < static_cast<double>(band_bytes))) {
       const std::size_t t = list[first + band.size()];
+      held += look_bytes(t);
+      // A tile whose window could fall short of the robust test's k + 2 points (all the far
+      // points in it, which read_tile_points leaves out) neither shares its points' judging nor
+      // leaves its points to others: every tile that holds them judges them, as before.
+      const std::uint64_t least = static_cast<std::uint64_t>(config.filters.outliers.k) + 2 + plan.far_points;
+      if (config.filters.outliers.enabled && plan.robust_scale && spill.records(t) >= least) band_at[t] = static_cast<int>(band.size());
+      band.push_back(t);
+    }
+    std::vector<TileLook> looks;
+    if (first > 0) (void)heap.release_now();
+    for (const std::size_t t : band) {
       progress(step++ / steps);
       (void)heap.before_tile();
-      looks.push_back(look_tile(config, plan, spill, t));
-      held += looks.back().bytes();
-      band.push_back(t);
+      looks.push_back(look_tile(config, plan, spill, t, band_at));
     }
     std::map<std::string, double> band_sums;
     const bool one_band = first == 0 && band.size() == list.size();
@@ -2106,14 +2386,26 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
     }
     judge_strays(config, plan, spill, band, looks, band_sums);
     for (const auto& [k, v] : band_sums) looks.front().sums[k] += v;
+    // The owned strays' whole-scan verdicts into the owners' OwnedVerdicts, which then leave the
+    // looks (the other tiles of the band take from them).
+    std::vector<OwnedVerdicts> owned(band.size());
+    for (std::size_t i = 0; i < band.size(); ++i) {
+      TileLook& L = looks[i];
+      for (const auto& [at, a] : L.owned.strays) {
+        L.owned.vn[at] = static_cast<std::uint8_t>((L.owned.vn[at] & 0xF0) | L.stray_verdict[a]);
+      }
+      L.owned.strays.clear();
+      owned[i] = std::move(L.owned);
+    }
     first += band.size();
     const bool last = first == list.size();
     for (std::size_t i = 0; i < band.size(); ++i) {
       progress(step++ / steps);
       (void)heap.before_tile();
-      done(process_tile(config, plan, spill, kept, band[i], std::move(looks[i])), last);
+      done(process_tile(config, plan, spill, kept, band[i], std::move(looks[i]), band_at, owned), last);
       looks[i] = TileLook{};  // its memory back
     }
+    for (const std::size_t t : band) band_at[t] = -1;
   }
   return mapped && mapped->active();
 }

@@ -525,6 +525,72 @@ TEST(RobustOutliers, JudgingListedPointsGivesTheWholeTestsVerdicts) {
   EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError);
 }
 
+// judge_mask (the tiled run's first look at a window whose points other tiles of its band own):
+// each marked point gets the verdict and the near count the whole test gives it, the counting
+// pass settling the points it can; an unmarked point gets 0 and 0. With a tile, the marked points
+// whose searches could leave the window are among the whole test's. Oracle: the whole test on
+// the same cloud, scale and tile, over marks that take every third point, removed and kept alike.
+TEST(RobustOutliers, JudgingMarkedPointsGivesTheWholeTestsVerdictsAndNearCounts) {
+  auto [c, o, whole_plain] = judged_cluttered_bunny();
+  o.near_radius_m = 4.0 * std::exp(o.scale->median_log);
+  // A window narrower than the cloud along x (its searches near the cut may leave it), deciding
+  // all of it.
+  const double x_mid = 0.5 * (c.xyz.row(0).minCoeff() + c.xyz.row(0).maxCoeff());
+  const double inf = std::numeric_limits<double>::infinity();
+  o.tile = RobustOutlierOptions::TileBounds{{-inf, x_mid, -inf, inf}, {-inf, x_mid, -inf, inf}, {}};
+  hc::pipeline::RobustVerdicts whole;
+  const auto full = remove_robust_outliers(c, o, &whole);
+  o.judge_mask.assign(c.size(), 0);
+  std::size_t marked_removed = 0, marked_certified_near = 0;
+  for (std::size_t j = 0; j < c.size(); j += 3) {
+    o.judge_mask[j] = 1;
+    marked_removed += whole.verdict[j] != 0 ? 1U : 0U;
+    marked_certified_near += whole.near[j] == std::min(o.k, 255) ? 1U : 0U;
+  }
+  ASSERT_GT(marked_removed, 30U);
+  ASSERT_GT(marked_certified_near, 100U) << "points settled by counting among the marked";
+  hc::pipeline::RobustVerdicts part;
+  const auto judged = remove_robust_outliers(c, o, &part);
+  EXPECT_EQ(judged.value.size(), c.size()) << "judging leaves the cloud as it was";
+  ASSERT_EQ(part.verdict.size(), c.size());
+  ASSERT_EQ(part.near.size(), c.size());
+  for (std::size_t j = 0; j < c.size(); ++j) {
+    if (o.judge_mask[j]) {
+      EXPECT_EQ(part.verdict[j], whole.verdict[j]) << "column " << j;
+      EXPECT_EQ(part.near[j], whole.near[j]) << "column " << j;
+    } else {
+      ASSERT_EQ(part.verdict[j], 0) << "an unmarked point is not judged";
+      ASSERT_EQ(part.near[j], 0) << "an unmarked point is not counted";
+    }
+  }
+  EXPECT_LT(figure(judged.report, "exact_queries"), figure(full.report, "exact_queries")) << "the unmarked are not searched";
+  ASSERT_FALSE(whole.past_halo.empty()) << "the cut leaves searches past the window";
+  std::size_t past_marked = 0;
+  for (const std::uint32_t j : whole.past_halo) past_marked += o.judge_mask[j];
+  EXPECT_GT(past_marked, 0U);
+  for (const std::uint32_t j : part.past_halo) {
+    EXPECT_EQ(o.judge_mask[j], 1) << "column " << j << ": listed past the window, not marked";
+    EXPECT_TRUE(std::binary_search(whole.past_halo.begin(), whole.past_halo.end(), j)) << "column " << j;
+  }
+  EXPECT_FALSE(part.past_halo.empty());
+  // Marking every point is the whole test.
+  o.judge_mask.assign(c.size(), 1);
+  hc::pipeline::RobustVerdicts every;
+  (void)remove_robust_outliers(c, o, &every);
+  EXPECT_EQ(every.verdict, whole.verdict);
+  EXPECT_EQ(every.near, whole.near);
+  EXPECT_EQ(every.past_halo, whole.past_halo);
+  o.judge_mask.pop_back();
+  EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError) << "a byte a point";
+  o.judge_mask.push_back(1);
+  o.judge_only = {0};
+  EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError) << "judge_only and judge_mask together";
+  o.judge_only.clear();
+  o.scale.reset();
+  EXPECT_THROW(remove_robust_outliers(c, o), hc::ConfigError) << "no scale given";
+  (void)whole_plain;
+}
+
 // verdicts_only (the tiled run keeps a window's points for its second look): the cloud comes back
 // as given, bit for bit, with the verdicts of the whole test; applying them gives the test's own
 // result, and count_out is the number kept. Oracle: the same test without the option.

@@ -431,9 +431,11 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   EXPECT_GE(stage_figure(tiled, "tiles", "sum_points_judged_past_halo"), 100.0);
   const double windows = stage_figure(tiled, "tiles", "sum_robust_windows_widened");
   EXPECT_GE(windows, 4.0);
-  // Every tile's strays in one band, gathered together: the union of their balls holds the
-  // second look's own searches.
-  EXPECT_EQ(stage_figure(tiled, "tiles", "sum_robust_gatherings"), 1.0) << "one band, one gathering";
+  // Every tile's strays in one band, gathered together: fewer gatherings than tiles with strays.
+  // (Until the fiftieth session, when every window judged all its decided points, the union of
+  // their balls held the second look's own searches: one gathering. Now each point is judged by
+  // the tile that owns it, and a second look's search may leave the fewer balls: two here.)
+  EXPECT_LT(stage_figure(tiled, "tiles", "sum_robust_gatherings"), windows) << "one band gathers its tiles' strays together";
   EXPECT_EQ(stage_figure(tiled, "tiles", "large_blocks_mapped"), 0.0) << "one band keeps its large blocks in the heap";
   EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
   EXPECT_EQ(in.scene.layers.flags, tiled.scene.layers.flags);
@@ -689,10 +691,11 @@ TEST(TiledRun, StraysOfTwoTilesAreJudgedInOneGatheringAsInCore) {
   EXPECT_GE(stage_figure(by_tile, "tiles", "sum_robust_gatherings"), 2.0);
   EXPECT_GT(stage_figure(by_tile, "tiles", "sum_robust_spill_points_scanned"), stage_figure(tiled, "tiles", "sum_robust_spill_points_scanned"));
   same_as_one_band(by_tile, "one tile a band");
-  // Bands of a few tiles each (thousands of window points a tile, half a byte each: 0.004 MiB
-  // holds a few; 0.01 puts both tiles with strays in one band, 0.002 gathers as often as one
-  // tile a band): between the one band and one tile a band, the same grid.
-  tiled_config.scale.band_mb = 0.004;
+  // Bands of a few tiles each (thousands of window points a tile, about a byte each by the
+  // band's estimate of its looks since the fiftieth session: 0.002 MiB holds a few; 0.004 and
+  // 0.01 put both tiles with strays in one band, 0.001 gathers as often as one tile a band):
+  // between the one band and one tile a band, the same grid.
+  tiled_config.scale.band_mb = 0.002;
   const BuiltScene few = hc::pipeline::build_scene(tiled_config);
   EXPECT_GT(stage_figure(few, "tiles", "sum_robust_gatherings"), 1.0);
   EXPECT_LT(stage_figure(few, "tiles", "sum_robust_gatherings"), stage_figure(by_tile, "tiles", "sum_robust_gatherings"));

@@ -87,6 +87,14 @@ struct RobustOutlierOptions {
   /// the listed points are those checked against the window (decides_m is not used). The tiled
   /// run's second look at the points whose searches could leave its window.
   std::vector<std::uint32_t> judge_only;
+  /// Judge only the columns marked 1 (one byte per input column; empty: every column), with
+  /// `scale` given and judge_only empty: as judge_only, each marked point gets the verdict the
+  /// whole test gives it and every other point's verdict (and near count) is 0, but the
+  /// counting pass still settles the marked points it can (over the cells that hold one), and
+  /// with `tile` only the marked points within decides_m are checked against the window. The
+  /// tiled run's first look at a tile whose window holds points that another tile of its band
+  /// owns and judges (docs/scale.md, "Each point judged by its owner", fiftieth session).
+  std::vector<std::uint8_t> judge_mask;
   /// The cloud comes back unchanged, its verdicts (RobustVerdicts::verdict, which must then be
   /// asked for) carrying the result; count_out is the number kept. The tiled run keeps a
   /// window's points for its second look instead of reading them again.
