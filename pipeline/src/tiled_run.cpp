@@ -2153,17 +2153,17 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
         throw std::logic_error("process_tile: tile " + std::to_string(t) + ": " + std::to_string(look.near_nibbles.size()) +
                                " bytes of near counts for " + std::to_string(judged) + " points judged");
       }
-      std::vector<std::uint8_t> counts(2 * look.near_nibbles.size() + 1, 0);
-      for (std::size_t j = 0; j < 2 * look.near_nibbles.size(); ++j) counts[j] = static_cast<std::uint8_t>((look.near_nibbles[j / 2] >> (4 * (j % 2))) & 15);
-      std::vector<std::uint8_t>().swap(look.near_nibbles);
       if (left.empty()) {
-        std::copy(counts.begin(), counts.begin() + static_cast<std::ptrdiff_t>(rv.near.size()), rv.near.begin());
+        for (std::size_t i = 0; i < rv.near.size(); ++i) rv.near[i] = static_cast<std::uint8_t>((look.near_nibbles[i / 2] >> (4 * (i % 2))) & 15);
       } else {
+        std::vector<std::uint8_t> counts(2 * look.near_nibbles.size() + 1, 0);
+        for (std::size_t j = 0; j < 2 * look.near_nibbles.size(); ++j) counts[j] = static_cast<std::uint8_t>((look.near_nibbles[j / 2] >> (4 * (j % 2))) & 15);
         for (std::size_t i = 0, j = 0; i < rv.near.size(); ++i) {
           rv.near[i] = left[i] ? rv.near[i] : counts[j];
           j += left[i] ^ 1U;
         }
       }
+      std::vector<std::uint8_t>().swap(look.near_nibbles);
     }
     for (const auto& [c, v] : look.removed) rv.verdict[c] = v;
     for (std::size_t a = 0; a < rv.past_halo.size(); ++a) rv.verdict[rv.past_halo[a]] = look.stray_verdict[a];
