@@ -1394,12 +1394,18 @@ struct TileLook {
   std::vector<std::uint8_t> stray_verdict;      // per stray, the whole scan's verdict (judge_strays)
   double coord_m = 0.0;  // the largest |coordinate| of the window's finite box sides and points [m]
   std::map<std::string, double> sums;  // the tile's figures so far (look_tile's times)
-  // In a band of more than one tile: the verdicts of the points the tile owns (OwnedVerdicts),
-  // for the band's other tiles; the points that another tile of the band owns in this tile's
-  // decided region were not judged here (their verdicts 0 in `removed` and near_nibbles).
+  // In a band of more than one tile: the verdicts of the points the tile owns near its edge
+  // (OwnedVerdicts), for the band's other tiles; the points that another tile of the band owns
+  // in this tile's decided region were not judged here (not in `removed`, and left out of
+  // near_nibbles).
   bool shares = false;
   OwnedVerdicts owned;
   bool near = false;  // the test gave near counts (RobustVerdicts::near): near_nibbles, or owned's, hold them
+  // Memory held [bytes], for the band's budget where tiles do not share (run_tiles).
+  std::size_t bytes() const {
+    return removed.size() * sizeof(removed[0]) + near_nibbles.size() + rv.past_halo.size() * 4 + rv.reach_m.size() * 32 +
+           strays_m.size() * 25 + owned.vn.size() + owned.start.size() * 4;
+  }
 };
 
 // Tile t's window and the region whose verdicts it keeps (the halo less the filters' share):
@@ -1440,7 +1446,7 @@ RobustOutlierOptions tile_robust_options(const RunConfig& config, const Plan& pl
 // The first sweep for tile t: its window's points read and the robust test's first look run
 // over them (tile_robust_options); nothing kept but the verdicts (TileLook). A look that did
 // not run (filter off, fewer than k + 2 points) leaves process_tile to do as without the filter.
-// `band_at`: each tile's place in t's band, -1 outside it (empty: a band of t alone). In a band
+// `band_at`: each tile's place in t's band, -1 outside it or not sharing (run_tiles). In a band
 // of more than one tile (with the whole scan's scale), a point that another tile of the band
 // owns is not judged here (RobustOutlierOptions::judge_mask): its owner judges it, with the same
 // whole-scan verdict (each owner's interior lies in its decided region), and t's own points'
@@ -1992,10 +1998,6 @@ std::size_t near_after_removal(const Cloud& pts, const std::vector<std::uint8_t>
   return lost;
 }
 
-// Step 3 for tile t (the file comment of tiling.hpp), the second sweep: its spilled points
-// through the filters (the robust test's verdicts from its look, look_tile and judge_strays) and
-// reproject, the interior cut out, which of its spilled records it kept written to `kept`.
-// @throws std::logic_error when the window's points are not those the look judged.
 // The robust verdicts (and near counts when `near`) that look_tile left to the owners, into
 // rv.verdict and rv.near: of tile t's window points `pts` (window order), those another tile of
 // its band owns inside t's decided region (tile_bounds' decides_m), from the owners'
@@ -2071,6 +2073,11 @@ void take_owned_verdicts(const Tiles& tiles, std::size_t t, const Cloud& pts, co
   }
 }
 
+// Step 3 for tile t (the file comment of tiling.hpp), the second sweep: its spilled points
+// through the filters (the robust test's verdicts from its look, look_tile and judge_strays; in a band, the owners'
+// verdicts of the points the look left to them: band_at, owned, take_owned_verdicts) and
+// reproject, the interior cut out, which of its spilled records it kept written to `kept`.
+// @throws std::logic_error when the window's points are not those the look judged.
 TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, std::size_t t, TileLook look,
                         const std::vector<int>& band_at, const std::vector<OwnedVerdicts>& owned) {
   const auto t0 = detail::Clock::now();
@@ -2329,7 +2336,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // Step 3 over the tiles `list` (ascending, each once), in bands of consecutive tiles: each
 // band's first sweep (look_tile) until its looks hold scale.band_mb MiB or more (TileLook::bytes:
 // half a byte a window point and the removed points' verdicts; at 10^8 points, 144 M window
-// points, one band of the default 128 MiB, at 10^9 about six), its strays judged
+// points, one band of the default 128 MiB, at 10^9 about six; where tiles share their points'
+// judging, the band's tiles are chosen before their looks, from an estimate of those bytes),
+// its strays judged
 // (judge_strays, whose band figures go to the band's first tile), then its second sweep
 // (process_tile), done(TileOutput, last) called for each tile in order (last: no later band
 // gathers points, so no spill is read again by the loop). heap.before_tile() is called before
@@ -2355,13 +2364,14 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
   // window's per-point arrays) mapped on their own (LargeBlocksMapped).
   constexpr std::size_t kMappedBlockBytes = std::size_t{8} << 20;
   std::optional<detail::LargeBlocksMapped> mapped;
-  // What a tile's look will hold [bytes], estimated from its window's records before it is
-  // looked at (a band's tiles are chosen first: each look must know which tiles share its band):
-  // the near counts, half a byte a point it judges (when asked), and a byte a point of its ring
-  // (OwnedVerdicts), with the points spread evenly over the nodes (judged: the window's less
-  // the other tiles' in its decided region; the ring's: the points per record over all windows,
-  // of the interior's share that is ring). The removed points' verdicts and the strays are left
-  // out (a few per cent). (Until the fiftieth session a band closed on its looks' own bytes.)
+  // Where tiles share: what a tile's look will hold [bytes], estimated from its window's
+  // records before it is looked at (a band's tiles are chosen first: each look must know which
+  // tiles share its band): the near counts, half a byte a point it judges (when asked), the
+  // removed points' verdicts, and a byte a point of its ring (OwnedVerdicts), with the points
+  // spread evenly over the nodes (judged: the window's less the other tiles' in its decided
+  // region; the ring's: the points per record over all windows, of the interior's share that is
+  // ring). The strays' balls are left out. Where tiles do not share, a band closes on its looks'
+  // own bytes (TileLook::bytes), as before the fiftieth session.
   std::uintmax_t records = 0;
   for (std::size_t t = 0; t < plan.tiles.count(); ++t) records += spill.records(t);
   const double owned_per_record = records > 0 ? std::min(1.0, static_cast<double>(plan.grid_points) / static_cast<double>(records)) : 1.0;
@@ -2395,16 +2405,28 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
     std::size_t ring = 0;
     (void)ring_index(in, owned_ring(tiles), in[0], in[2], &ring);
     const double rec = static_cast<double>(spill.records(t));
-    if (!sharing) return near_asked ? 0.5 * rec : 0.0;
     const double judged = window > 0.0 ? 1.0 - (decided - interior) / window : 1.0;
-    return (near_asked ? 0.5 * rec * judged : 0.0) + (interior > 0.0 ? rec * owned_per_record * static_cast<double>(ring) / interior : 0.0);
+    // The removed points' verdicts (8 bytes each) at 0.5 % of the points judged, so that the
+    // estimate grows without the near counts too.
+    return (near_asked ? 0.5 * rec * judged : 0.0) + 0.04 * rec * judged +
+           (interior > 0.0 ? rec * owned_per_record * static_cast<double>(ring) / interior : 0.0);
   };
   std::vector<int> band_at(plan.tiles.count(), -1);  // each tile's place in the band, -1 outside
   for (std::size_t first = 0; first < list.size();) {
     std::vector<std::size_t> band;
+    std::vector<TileLook> looks;
+    if (first > 0) (void)heap.release_now();
     double held = 0.0;
     while (first + band.size() < list.size() && (band.empty() || held < static_cast<double>(band_bytes))) {
       const std::size_t t = list[first + band.size()];
+      if (!sharing) {  // the looks' own bytes, as before the fiftieth session
+        progress(step++ / steps);
+        (void)heap.before_tile();
+        looks.push_back(look_tile(config, plan, spill, t, band_at));
+        held += static_cast<double>(looks.back().bytes());
+        band.push_back(t);
+        continue;
+      }
       held += look_bytes(t);
       // A tile whose window could fall short of the robust test's k + 2 points (all the far
       // points in it, which read_tile_points leaves out) neither shares its points' judging nor
@@ -2413,12 +2435,10 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
       if (sharing && config.filters.outliers.enabled && plan.robust_scale && spill.records(t) >= least) band_at[t] = static_cast<int>(band.size());
       band.push_back(t);
     }
-    std::vector<TileLook> looks;
-    if (first > 0) (void)heap.release_now();
-    for (const std::size_t t : band) {
+    for (std::size_t i = looks.size(); i < band.size(); ++i) {
       progress(step++ / steps);
       (void)heap.before_tile();
-      looks.push_back(look_tile(config, plan, spill, t, band_at));
+      looks.push_back(look_tile(config, plan, spill, band[i], band_at));
     }
     std::map<std::string, double> band_sums;
     const bool one_band = first == 0 && band.size() == list.size();
