@@ -987,11 +987,12 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   // below read these bytes, in grid order, instead).
   std::vector<std::uint8_t> certified(g.original.size(), judging ? 1 : 0);
   for (std::size_t s = 0; judging && s < certified.size(); ++s) certified[s] = judged[g.original[s]] ? 0 : 1;
+  // With the mask: which points in grid order are marked (the counting pass overwrites certified
+  // for all of a cell's points; the near counts below read it in grid order too).
+  std::vector<std::uint8_t> marked_s;
   if (!listed) {
-    // With the mask: the cells that hold a marked point (the others' points stay settled), and
-    // which points those are (the counting pass overwrites certified for all of a cell's).
+    // With the mask: the cells that hold a marked point (the others' points stay settled).
     std::vector<std::uint8_t> wanted(masked ? cells : 0, 0);
-    std::vector<std::uint8_t> marked_s;
     if (masked) {
       marked_s.resize(certified.size());
       for (std::size_t s = 0; s < certified.size(); ++s) marked_s[s] = certified[s] ^ 1;
@@ -1343,7 +1344,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       };
       if (!listed && d_cert <= r) {
         for (std::size_t s = 0; s < certified.size(); ++s) {
-          if (certified[s] && (!masked || judged[g.original[s]])) verdicts->near[rows_identity ? g.original[s] : rows[g.original[s]]] = most_near;
+          if (certified[s] && (!masked || marked_s[s])) verdicts->near[rows_identity ? g.original[s] : rows[g.original[s]]] = most_near;
         }
       }
       for (const std::uint32_t j : uncertain) {

@@ -1345,15 +1345,25 @@ struct WindowBand {
       }
     }
   }
-  bool holds(int r, int c) const { return r >= row0 && r < row0 + rows && c >= col0 && c < col0 + cols; }
-  // Node (r, c) of the whole grid's index in the window (holds(r, c)).
-  std::size_t at(int r, int c) const { return static_cast<std::size_t>(r - row0) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(c - col0); }
+  // Point p's node (NodeBinner) as an index in the window. @throws std::logic_error naming
+  // `who` and tile t when the node lies outside the window (the spill put p in another's).
+  std::size_t node_at(const NodeBinner& node, const double* p, std::size_t t, const char* who) const {
+    const int r = node.row(p), c = node.col(p);
+    if (r < row0 || r >= row0 + rows || c < col0 || c >= col0 + cols) {
+      throw std::logic_error(std::string(who) + ": tile " + std::to_string(t) + "'s window holds a point of node (" + std::to_string(r) +
+                             ", " + std::to_string(c) + "), outside it");
+    }
+    return static_cast<std::size_t>(r - row0) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(c - col0);
+  }
+  // Window node wn as "(row, col)" of the whole grid, for errors.
+  std::string node_text(std::size_t wn) const {
+    return "(" + std::to_string(row0 + static_cast<int>(wn / static_cast<std::size_t>(cols))) + ", " +
+           std::to_string(col0 + static_cast<int>(wn % static_cast<std::size_t>(cols))) + ")";
+  }
   int row0, col0, rows, cols;
   std::vector<int> place;
   std::vector<std::uint32_t> local;
 };
-
-
 
 // A band tile's robust verdicts of the points it owns near its interior's edge (its ring,
 // owned_ring nodes wide: the reach of other tiles' decided regions into it), for the other
@@ -1503,12 +1513,7 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
     // about every other point).
     for (std::size_t i = 0; i < pts.size(); ++i) {
       const double* p = pts.xyz.data() + 3 * i;
-      const int r = node.row(p), c = node.col(p);
-      if (!wb->holds(r, c)) {
-        throw std::logic_error("look_tile: tile " + std::to_string(t) + "'s window holds a point of node (" + std::to_string(r) + ", " +
-                               std::to_string(c) + "), outside it");
-      }
-      const std::size_t wn = wb->at(r, c);
+      const std::size_t wn = wb->node_at(node, p, t, "look_tile");
       const int b = wb->place[wn];
       const std::uint32_t li = wb->local[wn];
       // 0 or 1 each, and all-ones masks from them, so that the compiler makes no branch.
@@ -2022,13 +2027,7 @@ void take_owned_verdicts(const Tiles& tiles, std::size_t t, const Cloud& pts, co
     const std::size_t last = std::min(pts.size(), first + kChunk);
     std::size_t n = 0;
     for (std::size_t i = first; i < last; ++i) {
-      const double* p = pts.xyz.data() + 3 * i;
-      const int r = node.row(p), c = node.col(p);
-      if (!wb.holds(r, c)) {
-        throw std::logic_error("take_owned_verdicts: tile " + std::to_string(t) + "'s window holds a point of node (" + std::to_string(r) +
-                               ", " + std::to_string(c) + "), outside it");
-      }
-      const std::size_t wn = wb.at(r, c);
+      const std::size_t wn = wb.node_at(node, pts.xyz.data() + 3 * i, t, "take_owned_verdicts");
       const int b = wb.place[wn];
       theirs[n] = {static_cast<std::uint32_t>(i), static_cast<std::uint32_t>(wn)};
       n += (b >= 0) & (b != mine) ? 1U : 0U;
@@ -2042,10 +2041,8 @@ void take_owned_verdicts(const Tiles& tiles, std::size_t t, const Cloud& pts, co
       const std::uint32_t li = wb.local[wn];
       if (li == kNotInRing) {
         if (decided == 0) continue;  // judged by t, and not in its owner's ring
-        throw std::logic_error("take_owned_verdicts: tile " + std::to_string(t) + "'s decided region holds a point of node (" +
-                               std::to_string(wb.row0 + static_cast<int>(wn / static_cast<std::size_t>(wb.cols))) + ", " +
-                               std::to_string(wb.col0 + static_cast<int>(wn % static_cast<std::size_t>(wb.cols))) +
-                               ") that its owner does not hold in its ring");
+        throw std::logic_error("take_owned_verdicts: tile " + std::to_string(t) + "'s decided region holds a point of node " +
+                               wb.node_text(wn) + ", which its owner does not hold in its ring");
       }
       const OwnedVerdicts& ov = owned[static_cast<std::size_t>(wb.place[wn])];
       const std::size_t at = ov.start[li] + seen[wn]++;
@@ -2066,9 +2063,7 @@ void take_owned_verdicts(const Tiles& tiles, std::size_t t, const Cloud& pts, co
     const std::size_t held = ov.start[wb.local[wn] + 1] - ov.start[wb.local[wn]];
     if (seen[wn] != held) {
       throw std::logic_error("take_owned_verdicts: tile " + std::to_string(t) + "'s window holds " + std::to_string(seen[wn]) +
-                             " points on node (" + std::to_string(wb.row0 + static_cast<int>(wn / static_cast<std::size_t>(wb.cols))) + ", " +
-                             std::to_string(wb.col0 + static_cast<int>(wn % static_cast<std::size_t>(wb.cols))) + "), its owner " +
-                             std::to_string(held));
+                             " points on node " + wb.node_text(wn) + ", its owner " + std::to_string(held));
     }
   }
 }
@@ -2432,7 +2427,7 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
       // points in it, which read_tile_points leaves out) neither shares its points' judging nor
       // leaves its points to others: every tile that holds them judges them, as before.
       const std::uint64_t least = static_cast<std::uint64_t>(config.filters.outliers.k) + 2 + plan.far_points;
-      if (sharing && config.filters.outliers.enabled && plan.robust_scale && spill.records(t) >= least) band_at[t] = static_cast<int>(band.size());
+      if (config.filters.outliers.enabled && plan.robust_scale && spill.records(t) >= least) band_at[t] = static_cast<int>(band.size());
       band.push_back(t);
     }
     for (std::size_t i = looks.size(); i < band.size(); ++i) {
