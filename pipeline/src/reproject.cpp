@@ -1637,9 +1637,29 @@ int UpsampleCoverage::factor(double* coverage) const {
 
 int reproject_reach_cells(const ReprojectOptions& o, int k) {
   if (k < 1) throw ConfigError("reproject_reach_cells: upsample factor " + std::to_string(k) + " (expected >= 1)");
-  const int r = static_cast<int>(std::ceil(std::max(0.0, o.splat_radius_cells)));
+  const double radius = std::max(0.0, o.splat_radius_cells);
+  // The splat's reach S [scan nodes] (the header's derivation): how far, Chebyshev, the nodes
+  // whose binned points a node's splatted value reads can lie. A point's node is at most half a
+  // node from it in x and y (the 1e-6 node covers the two index formulas' rounding).
+  int s = 0;
+  if (radius > 0.0) {
+    const int disc = static_cast<int>(std::floor(radius));
+    switch (o.splat_mode) {
+      case SplatMode::kDisc:
+        s = disc;
+        break;
+      case SplatMode::kInterpolate:  // with see-through handling a tap's emptying reads its own front disc
+        s = o.see_through_depth_m > 0.0 ? 2 * disc : disc;
+        break;
+      case SplatMode::kPlane:
+        s = std::max(static_cast<int>(std::floor(radius + 0.5 + 1e-6)), static_cast<int>(std::floor(radius + 0.7072)));
+        break;
+    }
+  }
   const int w = o.see_through_depth_m > 0.0 ? o.see_through_window_cells : 0;
-  return k * (2 * r + 3 + w) + k;
+  // Until 2026-11-28 (fifty-first session) K·(2⌈r⌉ + 3 + w) + K: 11 nodes for the shipped
+  // plane splats where 4 suffice.
+  return k == 1 ? s + w : k * (s + w + 2);
 }
 
 }  // namespace hc::pipeline

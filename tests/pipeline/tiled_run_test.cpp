@@ -213,12 +213,13 @@ TEST(TiledRun, TilesShrinkSoThatNoWindowHoldsMoreThanTileMaxPoints) {
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
   config.scale.tile_cells = 512;
   config.scale.scratch = scratch;
-  // A bound no tile as wide as the halo (43 cells here) meets: tiles of the halo's side, and a
-  // note that the densest window still holds more.
-  config.scale.tile_max_points = 100000;
+  // A bound no tile as wide as the halo (36 cells here; 43 until the grid stages' reach was
+  // tightened, 2026-11-28) meets: tiles of the halo's side, and a note that the densest window
+  // still holds more.
+  config.scale.tile_max_points = 40000;
   const BuiltScene tight = hc::pipeline::build_scene(config);
   EXPECT_EQ(stage_figure(tight, "tile_plan", "tile_cells"), stage_figure(tight, "tile_plan", "halo_cells"));
-  EXPECT_GT(stage_figure(tight, "tile_spill", "window_points_max"), 100000.0);
+  EXPECT_GT(stage_figure(tight, "tile_spill", "window_points_max"), 40000.0);
   EXPECT_TRUE(has_note(tight, "tile_plan", "the densest window holds up to"));
 
   // Without the bound: the configured side, and windows of far more points.
@@ -408,8 +409,10 @@ TEST(TiledRun, ClutterWithTheFilterOffFailsTheVerdictAsInCore) {
 // policy (keep_freed_heap_for_reuse): the run of one tile a band maps its large blocks on their
 // own (figure large_blocks_mapped 1), the run of one band does not (0), and the grids stay
 // equal. Mutation: not constructing the guard in run_tiles, or constructing it for one band,
-// fails the figures. In 48-cell tiles with an 8-cell
-// halo the balls reach more than two tiles (75 mm) past a window: an error naming the key.
+// fails the figures. In 48-cell tiles with a 12-cell
+// filter halo (the whole halo, the grid stages having no reach without splats: 12 cells, as an
+// 8-cell filter halo gave until the reach was tightened on 2026-11-28) the balls reach more
+// than two tiles (75 mm) past a window: an error naming the key.
 TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   const fs::path dir = hc::test::temp_dir("clutter_robust");
   const hc::test::BatchHeapPolicy policy;
@@ -460,12 +463,12 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   EXPECT_EQ(stage_figure(tiled, "tiles", "sum_removed_robust"), stage_figure(single, "tiles", "sum_removed_robust"));
   EXPECT_EQ(differing_bits(tiled.scene.layers.depth, single.scene.layers.depth), 0U);
   config.scale.tile_cells = 48;
-  config.scale.filter_halo_cells = 8;
+  config.scale.filter_halo_cells = 12;
   const std::string what = error_of<hc::InputError>(config);
   EXPECT_NE(what.find("stage outliers"), std::string::npos) << what;
   EXPECT_NE(what.find("past the tile's window"), std::string::npos) << what;
   EXPECT_NE(what.find("2 tiles"), std::string::npos) << what;
-  EXPECT_NE(what.find("scale.filter_halo_cells (now 8)"), std::string::npos) << what;
+  EXPECT_NE(what.find("scale.filter_halo_cells (now 12)"), std::string::npos) << what;
   EXPECT_EQ(entries_besides(dir, "cluttered.ply"), 0U) << "the spill folder is removed on the error";
 }
 
@@ -540,7 +543,9 @@ void write_plane_with_hole(const fs::path& file, double hole_x_m, const std::vec
   write_plane_with_holes(file, {{hole_x_m, 0.5, 0.2}}, extra);
 }
 
-// The config of the plane-with-holes tests (40-cell tiles, a 5-cell filter halo) and the layout
+// The config of the plane-with-holes tests (40-cell tiles, a 10-cell filter halo: with the
+// grid stages' one node an 11-node halo, as a 5-cell filter halo gave until the grid stages'
+// reach was tightened on 2026-11-28) and the layout
 // its tiled run gives the plane with one hole and nothing else: the grid and the tiles' halo
 // [cells]. The groups and clusters the tests add lie inside the plane's box, so the layout stays.
 struct HoleLayout {
@@ -553,7 +558,7 @@ HoleLayout hole_plane_layout(const fs::path& dir) {
   l.yaml =
       "input: {files: [plane.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
       "filters: {outliers: {despike: false}}\ncross_check: {isolation_radius_spacings: 2}\n"
-      "scale: {tile_cells: 40, filter_halo_cells: 5}\n";
+      "scale: {tile_cells: 40, filter_halo_cells: 10}\n";
   write_plane_with_hole(dir / "plane.ply", 0.4, {});
   RunConfig config = hc::pipeline::parse_run_config(l.yaml, dir / "plane.yaml");
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
@@ -692,10 +697,11 @@ TEST(TiledRun, StraysOfTwoTilesAreJudgedInOneGatheringAsInCore) {
   EXPECT_GT(stage_figure(by_tile, "tiles", "sum_robust_spill_points_scanned"), stage_figure(tiled, "tiles", "sum_robust_spill_points_scanned"));
   same_as_one_band(by_tile, "one tile a band");
   // Bands of a few tiles each (thousands of window points a tile, about a byte each by the
-  // band's estimate of its looks since the fiftieth session: 0.002 MiB holds a few; 0.004 and
-  // 0.01 put both tiles with strays in one band, 0.001 gathers as often as one tile a band):
+  // band's estimate of its looks since the fiftieth session: 0.003 MiB holds a few, as 0.004
+  // does; 0.002 gathers as often as one tile a band since the grid stages' reach was tightened,
+  // 2026-11-28, which left more of a window to judge):
   // between the one band and one tile a band, the same grid.
-  tiled_config.scale.band_mb = 0.002;
+  tiled_config.scale.band_mb = 0.003;
   const BuiltScene few = hc::pipeline::build_scene(tiled_config);
   EXPECT_GT(stage_figure(few, "tiles", "sum_robust_gatherings"), 1.0);
   EXPECT_LT(stage_figure(few, "tiles", "sum_robust_gatherings"), stage_figure(by_tile, "tiles", "sum_robust_gatherings"));
@@ -769,7 +775,7 @@ TEST(TiledRun, StraysWhoseBallsHoldTooFewPointsAreGatheredWithWiderBalls) {
   const std::string yaml =
       "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
       "filters: {outliers: {despike: false}}\ncross_check: {isolation_radius_spacings: 2}\n"
-      "scale: {tile_cells: 40, filter_halo_cells: 5}\n";
+      "scale: {tile_cells: 40, filter_halo_cells: 10}\n";
   write_patch_with(dir / "patch.ply", {});
   hc::GridGeometry g;
   double halo_m = 0.0, far_m = 0.0;  // the window's halo, and the far-cluster distance
@@ -816,7 +822,7 @@ TEST(TiledRun, StraysWhoseBallsHoldTooFewPointsAreGatheredWithWiderBalls) {
     once.scale.max_gatherings = 1;
     const std::string what = error_of<hc::InputError>(once);
     for (const char* part : {"the strays of tiles ", "stage outliers (filters.outliers, robust)", "after 1 gathering (scale.max_gatherings)",
-                             "scale.filter_halo_cells (now 5) or scale.max_gatherings", "scale.tiled: off"}) {
+                             "scale.filter_halo_cells (now 10) or scale.max_gatherings", "scale.tiled: off"}) {
       EXPECT_NE(what.find(part), std::string::npos) << part << " in: " << what;
     }
     EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "the spill folder is removed on the error";
@@ -839,7 +845,7 @@ TEST(TiledRun, StraysWhoseBallsHoldTooFewPointsAreGatheredWithWiderBalls) {
   config.scale.tile_cells = 20;
   const std::string what = error_of<hc::InputError>(config);
   for (const char* part : {"stage outliers (filters.outliers, robust)", "past the tile's window (the limit is 40 cells, 2 tiles)",
-                           "scale.filter_halo_cells (now 5)", "filters.crop", "scale.tiled: off"}) {
+                           "scale.filter_halo_cells (now 10)", "filters.crop", "scale.tiled: off"}) {
     EXPECT_NE(what.find(part), std::string::npos) << part << " in: " << what;
   }
   EXPECT_EQ(entries_besides(dir, "patch.ply"), 0U) << "the spill folder is removed on the error";
@@ -908,11 +914,12 @@ TEST(TiledRun, ASpillTheDiskRefusesStopsTheRunNamingTheFileAndLeavesNothing) {
 }
 
 // A point the isolated-point test removes within its radius of the window's edge might be kept
-// over the whole scan: an error naming the key. On the 10 mm patch with a 2-cell filter halo
-// (10 mm) and 200 neighbours wanted within 9 spacings (90 mm, about 250 points in the open), the
+// over the whole scan: an error naming the key. On the 10 mm patch with a 6-cell filter halo
+// (30 mm; 10 cells with the grid stages' own, as a 2-cell one gave before their reach was
+// tightened on 2026-11-28) and 200 neighbours wanted within 9 spacings (90 mm, about 250 points in the open), the
 // points near a window's edge have too few in their tile; over the whole patch only its own rim
 // does (at the grid's edge, where no point is missing: no error for those). The cross-check is
-// off: its own reach (10 spacings) would refuse the 2-cell halo before the tile loop (the next
+// off: its own reach (10 spacings) would refuse the halo before the tile loop (the next
 // test), and this one is about the filter's search.
 TEST(TiledRun, AHaloNarrowerThanThePointSearchesIsAnErrorNamingTheKey) {
   const fs::path dir = hc::test::temp_dir("narrow");
@@ -924,7 +931,7 @@ TEST(TiledRun, AHaloNarrowerThanThePointSearchesIsAnErrorNamingTheKey) {
                                                   dir / "patch.yaml");
   wide.scale.scratch = dir;
   EXPECT_NO_THROW((void)hc::pipeline::build_scene(wide));
-  RunConfig config = hc::pipeline::parse_run_config(yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 2}\n",
+  RunConfig config = hc::pipeline::parse_run_config(yaml + "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 6}\n",
                                                     dir / "patch.yaml");
   config.scale.scratch = dir;
   const std::string what = error_of<hc::ConfigError>(config);
@@ -1037,9 +1044,9 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   std::vector<std::string> stages_started;
   std::string what;
   try {
-    (void)hc::pipeline::build_scene(robust_with(2), false,
+    (void)hc::pipeline::build_scene(robust_with(6), false,
                                     [&](const hc::pipeline::StageReport& st, bool done) { if (!done) stages_started.push_back(st.stage); });
-    FAIL() << "a 2-cell halo ran";
+    FAIL() << "a 6-cell filter halo ran";
   } catch (const hc::ConfigError& e) {
     what = e.what();
   }
@@ -1047,7 +1054,7 @@ TEST(TiledRun, AHaloNarrowerThanTheHonestChecksSearchesIsAnErrorNamingTheKey) {
   EXPECT_NE(what.find("before the tile loop"), std::string::npos) << what;
   EXPECT_EQ(std::count(stages_started.begin(), stages_started.end(), std::string("tiles")), 0) << "no tile ran";
   EXPECT_GT(std::count(stages_started.begin(), stages_started.end(), std::string("tile_scale")), 0);
-  const std::string key = "raise scale.filter_halo_cells (now 2) to at least ";
+  const std::string key = "raise scale.filter_halo_cells (now 6) to at least ";
   const auto at = what.find(key);
   ASSERT_NE(at, std::string::npos) << what;
   const int needed = std::stoi(what.substr(at + key.size()));

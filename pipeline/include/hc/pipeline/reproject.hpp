@@ -263,12 +263,28 @@ class UpsampleCoverage {
 };
 
 /// How far [fine nodes] a node's value in reproject can depend on points, for a window's halo:
-/// with r = splat_radius_cells, w = see_through_window_cells (0 when see-through handling is
-/// off) and K = upsample_factor (≥ 1), K·(2⌈r⌉ + 3 + w) + K: a plane splat gathers points
-/// within r of the node around a reference disc of radius r + √2/2 over binned nodes (half a
-/// node from their points), the see-through test reads w nodes of the filled grid each way,
-/// and upsampling reads the next coarse node. A window's nodes this far or farther inside its
-/// edge equal the whole grid's when the window got every point whose node lies inside it.
+/// a window's nodes this far or farther inside its edge (or on the whole grid's edge) equal the
+/// whole grid's, value, flag and attributes, when the window got every point whose node (the
+/// nearest, as reproject bins it) lies inside it. With r = splat_radius_cells, w =
+/// see_through_window_cells (0 when see-through handling is off) and K = upsample_factor:
+///  - the splat's reach S [scan nodes, Chebyshev]: kPlane max(⌊r + ½⌋, ⌊r + 0.7072⌋) (a node's
+///    plane gathers the points within r of it, whose nodes lie within r + ½ of it; its front
+///    reference is the front-most binned node within r + 0.7072, the disc splat_discs takes;
+///    attributes read the winners of that disc), kDisc ⌊r⌋ (the disc dilation of the binned
+///    grid), kInterpolate ⌊r⌋, 2⌊r⌋ with see-through handling (a tap's own emptying then reads
+///    its front disc); 0 without splats;
+///  - the see-through test reads the splatted grid w nodes each way (a box, then rays);
+///  - K = 1: S + w. K ≥ 2: K·(S + w + 2), the scan running on the coarse grid (a coarse node's
+///    points lie on fine nodes within K of it; the bilinear upsampling reads the next coarse node).
+/// The shipped plane splats (r = 1.2, w = 3) reach 4 nodes at K = 1. Until 2026-11-28 (fifty-first
+/// session) this was K·(2⌈r⌉ + 3 + w) + K, 11 there: it added the reference disc to the
+/// gathering radius (the disc lies about the node, not about the gathered points) and counted
+/// the coarse grid's binning and upsampling at K = 1 too. Test: ReprojectWindow (tests/pipeline/
+/// reproject_window_test.cpp: each mode, see-through on and off, K = 1 and 2, windows at every
+/// offset of a cloud with back surfaces and gaps; at K = 1 without see-through one node less
+/// finds nodes that differ). kInterpolate's windows equal the whole grid's to float rounding
+/// only (its sums are taken relative to the first measured node's height, which a window finds
+/// elsewhere).
 /// @throws hc::ConfigError if K < 1.
 int reproject_reach_cells(const ReprojectOptions& options, int upsample_factor);
 
