@@ -109,6 +109,22 @@ Eigen::Vector3d sample_centre(const Cloud& cloud, const std::vector<std::uint32_
   return centre;
 }
 
+}  // namespace
+
+std::optional<std::array<double, 3>> robust_sample_centre(const std::vector<std::array<double, 3>>& xyz) {
+  if (xyz.empty()) return std::nullopt;
+  std::array<double, 3> centre{};
+  std::vector<double> v(xyz.size());
+  for (std::size_t a = 0; a < 3; ++a) {
+    for (std::size_t j = 0; j < xyz.size(); ++j) v[j] = xyz[j][a];
+    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+    centre[a] = v[v.size() / 2];
+  }
+  return centre;
+}
+
+namespace {
+
 // The float32 coordinates of column `col` recentred on `centre` (the subtraction in double).
 inline void recentre_point(const Cloud& cloud, std::uint32_t col, const Eigen::Vector3d& centre, float* out) {
   for (Eigen::Index a = 0; a < 3; ++a) {
@@ -895,7 +911,28 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     throw DegenerateInputError("remove_robust_outliers: the cloud has " + std::to_string(n) + " finite points; k = " +
                                std::to_string(k) + " needs at least " + std::to_string(k + 2));
   }
-  const std::vector<float> p = recentred(cloud, rows);
+  // The float frame (RobustScale::centre_m): the sample's per-axis median, or the given scale's
+  // centre, so that a tiled run's windows compute the in-core run's floats; a given scale
+  // without one: this cloud's own (sample_centre).
+  std::size_t m = std::min(n, o.sample);
+  std::vector<std::uint32_t> sample;
+  Eigen::Vector3d centre;
+  if (!o.scale) {
+    sample = stratified_sample(n, m);
+    std::vector<std::array<double, 3>> at(sample.size());
+    for (std::size_t j = 0; j < sample.size(); ++j) {
+      const auto c = cloud.xyz.col(static_cast<Eigen::Index>(rows[sample[j]]));
+      at[j] = {c.x(), c.y(), c.z()};
+    }
+    const auto mid = robust_sample_centre(at);
+    centre = Eigen::Vector3d((*mid)[0], (*mid)[1], (*mid)[2]);  // n >= k + 2 > 0 sampled points
+  } else if (o.scale->centre_m) {
+    centre = Eigen::Vector3d((*o.scale->centre_m)[0], (*o.scale->centre_m)[1], (*o.scale->centre_m)[2]);
+  } else {
+    centre = sample_centre(cloud, rows);
+  }
+  std::vector<float> p(3 * n);
+  for (std::size_t j = 0; j < n; ++j) recentre_point(cloud, rows[j], centre, p.data() + 3 * j);
   // Cells of about 0.85·(3k+2) points: larger cells settle more points in their own cell by
   // counting, smaller ones make the exact queries cheaper; on the Buddha (k = 16) 2k+1 and 4k+1
   // cost about 10 % and 2 % more CPU than 3k+1 (outlier_bench, BM_RobustAndFar/0).
@@ -905,11 +942,9 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
 
   // 1. Robust scale from the sample: median and MAD of ln d over its points with d > 0 (or the
   // scale given: the tiled run's, reduced across its tiles).
-  std::size_t m = std::min(n, o.sample);
   std::size_t queries = 0;
   std::optional<RobustScale> scale = o.scale;
   if (!scale) {
-    const std::vector<std::uint32_t> sample = stratified_sample(n, m);
     std::vector<float> near;
     queries = d.compute(sample, &near);
     std::vector<double> logs, nearest_logs;
@@ -922,6 +957,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
       if (v > 0.0f) nearest_logs.push_back(std::log(static_cast<double>(v)));
     }
     scale = robust_scale_of(std::move(logs), m, std::move(nearest_logs));
+    if (scale) scale->centre_m = std::array<double, 3>{centre.x(), centre.y(), centre.z()};
   } else {
     m = scale->sample;
     report.notes.push_back("scale (median and MAD of ln d) given, reduced over " + std::to_string(m) +

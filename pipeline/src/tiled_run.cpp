@@ -873,14 +873,16 @@ void owned_by(const Tiles& tiles, std::size_t t, const Cloud& pts, std::vector<s
 // order. Float's resolution is about 6e-8 of the distance from that centre: within the window's
 // xy extent (a tile and its halo) and a z span of 10 m, better than 0.6 µm; points far from the
 // first records' height lose precision in proportion. sampled: the records flagged kSampleFlag
-// (their positions in file order). xyz (3 floats a record) and sampled are reused buffers.
+// (their positions in file order). xyz (3 floats a record) and sampled are reused buffers;
+// sampled_m, when given, gets the sampled records' x y z [m] (grid frame) appended, as the
+// in-core run holds them (RobustScale::centre_m).
 // Returns the centre [m] (grid frame): point j lies at centre + xyz[3j .. 3j + 2].
 // @throws InputError naming the spill file when it cannot be read (Spill::scan), or naming the
 //         tile and the record when a coordinate about the centre overflows float.
 // (Until 2026-11-25 the window was read as a Cloud of doubles, recentred and converted on each
 // pass of the search: at 10^8 points, 112 M records.)
 std::array<double, 3> read_window_floats(const Spill& spill, const Tiles& tiles, std::size_t t, std::vector<float>& xyz,
-                                         std::vector<std::uint32_t>& sampled) {
+                                         std::vector<std::uint32_t>& sampled, std::vector<std::array<double, 3>>* sampled_m = nullptr) {
   const std::size_t n = spill.records(t);
   xyz.resize(3 * n);
   sampled.clear();
@@ -910,7 +912,10 @@ std::array<double, 3> read_window_floats(const Spill& spill, const Tiles& tiles,
     for (std::size_t j = 0; 3 * j < held.size(); ++j) put(j, held.data() + 3 * j);
   };
   spill.scan(t, [&](std::uint8_t flag, const double* p, const std::uint8_t*, float) {
-    if (flag & kSampleFlag) sampled.push_back(static_cast<std::uint32_t>(i));
+    if (flag & kSampleFlag) {
+      sampled.push_back(static_cast<std::uint32_t>(i));
+      if (sampled_m != nullptr) sampled_m->push_back({p[0], p[1], p[2]});
+    }
     if (i < kHeld) {
       held.insert(held.end(), p, p + 3);
       if (i + 1 == std::min(n, kHeld)) settle();
@@ -2377,7 +2382,10 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
   // in a 17-node halo) 31 %, which spares 29 % of the first look's exact queries and about
   // 6 % of the run's CPU; at N = 4096 (512-node tiles) 6 %, where the bookkeeping (the mask,
   // the owners' rings, the lookups) cost more than it spared (4.6 % more CPU in three
-  // alternated rounds; fiftieth session).
+  // alternated rounds; fiftieth session). Since the grid stages' reach is their true one
+  // (reproject_reach_cells, fifty-first session) the N = 800 wall takes 92-node tiles with a
+  // 4-node reach in a 10-node halo: 12 %, no sharing; a grid stage of wider reach (larger
+  // splats, a wider see-through window, upsampling) can bring it back.
   constexpr double kShareAtLeast = 0.15;
   const double share = [&] {
     const Tiles& tiles = plan.tiles;
@@ -3121,6 +3129,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         nearest_bounds.clear();
         std::vector<float> xyz, top_d2;  // reused: a window's points as floats (read_window_floats)
         std::vector<std::uint32_t> mine;
+        std::vector<std::array<double, 3>> sampled_m;  // every sampled point, once (its owner's window)
+        sampled_m.reserve(robust_sample.size());
         found = in_small_tiles = past_window = 0;
         past_window_m = 0.0;
         searched = detail::NearSearch{};
@@ -3132,7 +3142,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         detail::PassProgress tick(progress, "tile_scale", "the robust test's sample, tile by tile", config.scale.progress_interval_s);
         for (std::size_t t = 0; t < tiles.count(); ++t) {
           tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
-          const auto wc = read_window_floats(*spill, tiles, t, xyz, mine);
+          const auto wc = read_window_floats(*spill, tiles, t, xyz, mine, &sampled_m);
           found += mine.size();
           if (mine.empty()) continue;
           if (xyz.size() / 3 < k1 + 1) {
@@ -3177,7 +3187,15 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
             }
           }
         }
-        return robust_scale_of(std::move(logs), found - in_small_tiles, std::move(nearest_logs));
+        auto scale = robust_scale_of(std::move(logs), found - in_small_tiles, std::move(nearest_logs));
+        // The in-core run's float frame: the same sampled points' median (every one is marked
+        // once, in the tile that owns it).
+        if (sampled_m.size() != robust_sample.size()) {
+          throw std::logic_error("tiled run, stage tile_scale: " + std::to_string(sampled_m.size()) + " sampled points found in the spill, " +
+                                 std::to_string(robust_sample.size()) + " marked");
+        }
+        if (scale) scale->centre_m = robust_sample_centre(sampled_m);
+        return scale;
       };
       // The least filter halo [cells] whose windows hold the farthest sampled search seen (the
       // halo grows by its excess, one node to spare; tile_halo rounds to the upsample factor);
@@ -4057,6 +4075,10 @@ void write_plan_file(const PlanFile& pf) {
                                                       {"sample", p.robust_scale->sample},
                                                       {"spacing_m", hex(p.robust_scale->spacing_m)}}
                                      : nlohmann::json();
+  if (p.robust_scale && p.robust_scale->centre_m) {
+    const auto& c = *p.robust_scale->centre_m;
+    j["robust_scale"]["centre_m"] = {hex(c[0]), hex(c[1]), hex(c[2])};
+  }
   j["input_points"] = p.input_points;
   j["grid_points"] = p.grid_points;
   j["far_points"] = p.far_points;
@@ -4194,6 +4216,20 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       p.robust_scale = RobustScale{unhex(rs.at("median_log"), plan_file, "robust_scale.median_log"),
                                    unhex(rs.at("mad_log"), plan_file, "robust_scale.mad_log"), rs.at("sample").get<std::size_t>(),
                                    unhex(rs.at("spacing_m"), plan_file, "robust_scale.spacing_m")};
+      if (rs.contains("centre_m")) {  // written since 2026-11-28 (fifty-first session)
+        const auto& c = rs.at("centre_m");
+        if (!c.is_array() || c.size() != 3) {
+          throw InputError(plan_file.string() + ": robust_scale.centre_m is " + c.dump() + ", expected 3 numbers (x y z [m])");
+        }
+        std::array<double, 3> v{};
+        for (std::size_t a = 0; a < 3; ++a) {
+          v[a] = unhex(c.at(a), plan_file, "robust_scale.centre_m");
+          if (!std::isfinite(v[a])) {
+            throw InputError(plan_file.string() + ": robust_scale.centre_m holds " + format_number(v[a]) + ", expected finite coordinates [m]");
+          }
+        }
+        p.robust_scale->centre_m = v;
+      }
       if (!std::isfinite(p.robust_scale->spacing_m) || p.robust_scale->spacing_m < 0.0) {
         throw InputError(plan_file.string() + ": robust_scale.spacing_m is " + format_number(p.robust_scale->spacing_m) +
                          ", expected a finite spacing >= 0 [m] (0: unknown)");

@@ -5,6 +5,7 @@
 // a plan never writes into a folder that holds something.
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
+#include "hc/pipeline/robust_outliers.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/tiling.hpp"
@@ -12,6 +13,8 @@
 #include "test_paths.hpp"
 
 #include <algorithm>
+#include <array>
+#include <cstdlib>
 #include <gtest/gtest.h>
 
 #include <bit>
@@ -133,6 +136,56 @@ void expect_same_scene(const BuiltScene& a, const BuiltScene& b) {
     }
     EXPECT_TRUE(found) << name;
   }
+}
+
+// The robust test's float frame (RobustScale::centre_m) that plan.json hands every job is the
+// in-core run's: the per-axis median of the points the in-core test samples. Oracle: the robust
+// test's input as the in-core run makes it (prepare_points with the outlier filters off), the
+// sampled indices (robust_sample_indices) and a full sort per axis; the in-core test reports
+// that centre in its scale too. Found on the 10^8 wall at N = 800 (fifty-first session): each
+// window's own frame rounded one point's distances otherwise, a neighbour of equal distance
+// was swapped, and its off-surface verdict differed from the in-core run's.
+TEST(TileJobs, ThePlanCarriesTheInCoreRobustTestsFloatFrame) {
+  hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
+  const fs::path scratch = hc::test::temp_dir("scratch");
+  const fs::path work = hc::test::temp_dir("work") / "plan";
+  const auto info = hc::pipeline::write_tile_plan(buddha_config(), buddha_overrides(scratch), work);
+  std::array<double, 3> planned{};
+  {
+    std::ifstream in(info.plan_file);
+    const std::string text{std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+    const auto at = text.find("\"centre_m\"");
+    ASSERT_NE(at, std::string::npos) << "plan.json names robust_scale.centre_m";
+    std::size_t from = text.find('[', at);
+    for (std::size_t a = 0; a < 3; ++a) {
+      const std::size_t q0 = text.find('"', from) + 1, q1 = text.find('"', q0);
+      planned[a] = std::strtod(text.substr(q0, q1 - q0).c_str(), nullptr);  // hexadecimal floats, exact
+      from = q1 + 1;
+    }
+  }
+  std::vector<std::string> off = buddha_overrides(scratch);
+  off.push_back("filters.outliers.enabled=false");
+  off.push_back("scale.tiled=off");
+  const hc::pipeline::Cloud input = hc::pipeline::prepare_points(hc::pipeline::load_run_config(buddha_config(), off));
+  const std::vector<std::uint32_t> sample = hc::pipeline::robust_sample_indices(input.size(), hc::pipeline::RobustOutlierOptions{}.sample);
+  ASSERT_EQ(sample.size(), 20000U);
+  for (Eigen::Index a = 0; a < 3; ++a) {
+    std::vector<double> v;
+    for (const std::uint32_t j : sample) v.push_back(input.xyz(a, static_cast<Eigen::Index>(j)));
+    std::sort(v.begin(), v.end());
+    EXPECT_EQ(planned[static_cast<std::size_t>(a)], v[v.size() / 2]) << "axis " << a;
+  }
+  // The in-core test's scale carries the same centre, and a scale given with it hands it on.
+  hc::pipeline::RobustScale used;
+  const hc::pipeline::RobustOutlierOptions o;
+  (void)hc::pipeline::remove_robust_outliers(input, o, nullptr, &used);
+  ASSERT_TRUE(used.centre_m.has_value());
+  EXPECT_EQ(*used.centre_m, planned);
+  hc::pipeline::RobustOutlierOptions given = o;
+  given.scale = used;
+  hc::pipeline::RobustScale again;
+  (void)hc::pipeline::remove_robust_outliers(input, given, nullptr, &again);
+  EXPECT_EQ(again.centre_m, used.centre_m);
 }
 
 TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {

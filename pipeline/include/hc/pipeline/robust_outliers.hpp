@@ -37,7 +37,20 @@ struct RobustScale {
   /// takes it (remove_isolated_points), so that a tiled run's tiles and the in-core run use one
   /// number.
   double spacing_m = 0.0;
+  /// The float frame's centre [m, the cloud's frame]: the per-axis median (the (m/2)-th smallest
+  /// of the m values) of the sampled points' coordinates. The test's searches run in float32 on
+  /// coordinates less this centre (the subtraction in double), so a tiled run's windows, given
+  /// the scale, compute the very floats the in-core run does and find the same k nearest (a
+  /// window's own centre rounds differently: on the 10^8-point wall at N = 800 one point's
+  /// neighbour set, hence its verdict, differed; fifty-first session). Empty: each call takes
+  /// its own cloud's (a scale written before 2026-11-28, or made by hand).
+  std::optional<std::array<double, 3>> centre_m = std::nullopt;
 };
+
+/// The float frame's centre of RobustScale::centre_m over the sampled points `xyz` (x y z
+/// each, metres): per axis the (m/2)-th smallest of the m values. Empty for no point. Source:
+/// this project.
+std::optional<std::array<double, 3>> robust_sample_centre(const std::vector<std::array<double, 3>>& xyz);
 
 /// Options of the robust test (filters.outliers.*; docs/config.md).
 struct RobustOutlierOptions {
