@@ -1364,11 +1364,15 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
     // a point settled by counting has k within D_cert; a point whose mean k-NN distance d is
     // known has its j-th nearest within k·d / (k + 1 − j) (at least k + 1 − j of the k
     // distances are as large); a candidate's k nearest are counted (in step 4). Distances
-    // between the float32 recentred coordinates, so nothing is claimed when those exceed 10^3
-    // radii (the users' margins).
+    // between the float32 recentred coordinates, so nothing is claimed when those exceed 10^4
+    // radii: a distance's rounding is then at most about 2e-3 of the radius, far inside the
+    // users' 10 % margins (the honest check's limit too, InputCheckScope::near). 10^3 until
+    // 2026-11-28: a tiled run's windows now share the in-core run's frame (RobustScale::
+    // centre_m), so their coordinates reach as far as the scan does (a 15 m façade at the 10^8
+    // wall's 0.2 mm spacing: 10^4 radii of 1.6 mm).
     verdicts->near.assign(cloud.size(), 0);
     const double r = o.near_radius_m;
-    if (static_cast<double>(max_abs) <= 1e3 * r) {
+    if (static_cast<double>(max_abs) <= 1e4 * r) {
       // The points settled by counting in grid order (a store each, which does not stall the
       // loop as a load in input order would); then the points whose d is known: the uncertain
       // ones (candidates among them) and the copies left out of the grid (d = 0).

@@ -647,6 +647,21 @@ TEST(RobustOutliers, NearCountsAreLowerBoundsOfTheNeighboursWithinTheRadius) {
   EXPECT_GT(at_k, c.size() / 2) << "the bunny's points settled by counting: k within D_cert";
   EXPECT_GT(removed_some, 10U) << "removed points beside the surface";
   EXPECT_GT(removed_none, 10U) << "removed clutter far from everything";
+  // Claimed while the recentred coordinates stay within 10^4 radii (a distance's float rounding
+  // then stays under about 2e-3 of the radius): with one more point 5 000 radii out the counts
+  // stand, 20 000 radii out none is claimed. (10^3 until 2026-11-28, when a tiled run's windows
+  // took the in-core run's float frame, whose coordinates reach as far as the scan does.)
+  for (const auto& [radii, claimed] : {std::pair{5e3, true}, std::pair{2e4, false}}) {
+    const Cloud far = with_extra(c, {Eigen::Vector3d(radii * r, 0.0, 0.0)});
+    hc::pipeline::RobustVerdicts fv;
+    (void)remove_robust_outliers(far, o, &fv);
+    const auto counted = static_cast<std::size_t>(std::count_if(fv.near.begin(), fv.near.end(), [](std::uint8_t m) { return m > 0; }));
+    if (claimed) {
+      EXPECT_GT(counted, c.size() / 2) << radii << " radii out";
+    } else {
+      EXPECT_EQ(counted, 0U) << radii << " radii out";
+    }
+  }
   // Bad values refused by name; not asked, no counts.
   o.near_radius_m = -1.0;
   EXPECT_THROW(remove_robust_outliers(c, o, &v), hc::ConfigError);
