@@ -605,13 +605,32 @@ GridGeometry tiled_grid_geometry(double x_min, double x_max, double y_min, doubl
 // filter or the cross-check runs.
 bool filter_halo_added(const RunConfig& config) { return config.filters.outliers.enabled || config.cross_check.enabled; }
 
-// A tile's halo [nodes] with upsample factor k and scale.filter_halo_cells = filter_cells: the
-// grid stages' reach (reproject_reach_cells), plus filter_cells for the per-tile filters' k-NN
-// searches and the honest check's point test when either runs, rounded up to a multiple of k.
-int tile_halo(const RunConfig& config, int k, int filter_cells) {
+// The halo's grid share [nodes] with upsample factor k: how far about a tile's interior the
+// points must have the whole scan's verdicts (the decided region, tile_bounds). Without the
+// despike, the grid stages' reach R (reproject_reach_cells): the interior's nodes read the
+// points that far. With it, 2R + D: a point within R of the interior changes the interior when
+// the despike removes it; its despike test reads the window's grid within D = ⌈max(1, r)·K⌉ +
+// ⌊spike_window_cells / 2⌋ of its node (a spike cell within the candidates' reach, and that
+// cell's plane window; remove_spike_points); and a node of the window's grid is the whole
+// grid's where every point within R of it is there with the whole scan's verdict. (Islands
+// of the despike, connected groups of up to island_max_cells, can reach farther: not covered.)
+// Until 2026-11-28 (fifty-first session) the share was the old reach formula alone,
+// K·(2⌈r⌉ + 3 + w) + K: 11 nodes for the shipped splats, where the despike needs 12.
+int grid_share_cells(const RunConfig& config, int k) {
   ReprojectOptions ro = config.grid.reproject;
   ro.upsample_factor = k;
-  int halo = reproject_reach_cells(ro, k);
+  const int reach = reproject_reach_cells(ro, k);
+  const OutlierConfig& oc = config.filters.outliers;
+  if (!(oc.enabled && oc.despike)) return reach;
+  const int d = static_cast<int>(std::ceil(std::max(1.0, ro.splat_radius_cells) * k)) + config.cross_check.honest.spike_window_cells / 2;
+  return 2 * reach + d;
+}
+
+// A tile's halo [nodes] with upsample factor k and scale.filter_halo_cells = filter_cells: the
+// grid share (grid_share_cells), plus filter_cells for the per-tile filters' k-NN searches and
+// the honest check's point test when either runs, rounded up to a multiple of k.
+int tile_halo(const RunConfig& config, int k, int filter_cells) {
+  int halo = grid_share_cells(config, k);
   if (filter_halo_added(config)) halo += filter_cells;
   return (halo + k - 1) / k * k;
 }
