@@ -2401,10 +2401,9 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
   // in a 17-node halo) 31 %, which spares 29 % of the first look's exact queries and about
   // 6 % of the run's CPU; at N = 4096 (512-node tiles) 6 %, where the bookkeeping (the mask,
   // the owners' rings, the lookups) cost more than it spared (4.6 % more CPU in three
-  // alternated rounds; fiftieth session). Since the grid stages' reach is their true one
-  // (reproject_reach_cells, fifty-first session) the N = 800 wall takes 92-node tiles with a
-  // 4-node reach in a 10-node halo: 12 %, no sharing; a grid stage of wider reach (larger
-  // splats, a wider see-through window, upsampling) can bring it back.
+  // alternated rounds; fiftieth session). The decided region is the halo's grid share
+  // (grid_share_cells): 12 nodes with the despike on at the shipped splats since the fifty-first
+  // session (76-node tiles at N = 800: 34 %), 4 with it off (92-node tiles: 12 %, no sharing).
   constexpr double kShareAtLeast = 0.15;
   const double share = [&] {
     const Tiles& tiles = plan.tiles;
