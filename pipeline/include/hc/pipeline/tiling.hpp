@@ -30,9 +30,10 @@
 /// What equals the in-core run: with filters.outliers disabled and disc or plane splats, the
 /// depth, flags, colour, intensity, texture, friction and cross-check (a) figures are identical
 /// bit for bit (interpolating splats sum heights relative to the window's first measured cell,
-/// so their values agree to float rounding only; the halo
-/// is reproject_reach_cells wide, so every node of a tile's interior sees every point it
-/// depends on, in file order); (b)'s distances agree to float rounding (each tile searches in its
+/// so their values agree to float rounding only; the halo's grid share is at least
+/// reproject_reach_cells, 2 × it plus the despike's reads of the grid with the despike on, so
+/// every node of a tile's interior sees every point it depends on, in file order, with the
+/// whole scan's verdict); (b)'s distances agree to float rounding (each tile searches in its
 /// own float frame) and the RMS figures to the last bits (summed in another order).
 /// With the robust outlier filter, the scale is the whole scan's (stage tile_scale) and far
 /// clusters are found over the whole scan on coarse cells (stage tile_far_clusters; the grid is
