@@ -1338,6 +1338,10 @@ double despike_search_radius_m(double cell_m, double upsample_factor, double spa
   return std::max(4.0 * upsample_factor * cell_m, 4.0 * spacing_m);
 }
 
+int despike_grid_reach_cells(const HonestCheckOptions& options, double reach_cells) {
+  return static_cast<int>(std::ceil(reach_cells)) + options.spike_window_cells / 2;
+}
+
 StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o, RemovedPoints* removed_points,
                                           const std::vector<std::uint8_t>* known_near) {
   check_honest_options(o);

@@ -1639,8 +1639,7 @@ int reproject_reach_cells(const ReprojectOptions& o, int k) {
   if (k < 1) throw ConfigError("reproject_reach_cells: upsample factor " + std::to_string(k) + " (expected >= 1)");
   const double radius = std::max(0.0, o.splat_radius_cells);
   // The splat's reach S [scan nodes] (the header's derivation): how far, Chebyshev, the nodes
-  // whose binned points a node's splatted value reads can lie. A point's node is at most half a
-  // node from it in x and y (the 1e-6 node covers the two index formulas' rounding).
+  // whose binned points a node's splatted value reads can lie.
   int s = 0;
   if (radius > 0.0) {
     const int disc = static_cast<int>(std::floor(radius));
@@ -1651,8 +1650,8 @@ int reproject_reach_cells(const ReprojectOptions& o, int k) {
       case SplatMode::kInterpolate:  // with see-through handling a tap's emptying reads its own front disc
         s = o.see_through_depth_m > 0.0 ? 2 * disc : disc;
         break;
-      case SplatMode::kPlane:
-        s = std::max(static_cast<int>(std::floor(radius + 0.5 + 1e-6)), static_cast<int>(std::floor(radius + 0.7072)));
+      case SplatMode::kPlane:  // the reference disc; the gathered points' nodes lie within ⌊r + ½⌋, never farther
+        s = static_cast<int>(std::floor(radius + 0.7072));
         break;
     }
   }

@@ -94,21 +94,6 @@ std::vector<std::uint32_t> finite_rows(const Cloud& cloud, const char* who) {
   return rows;
 }
 
-// The centre recentred() and mean_knn_distances_of over a Cloud use: the per-axis median of a
-// sample of at most 4096 of the rows.
-Eigen::Vector3d sample_centre(const Cloud& cloud, const std::vector<std::uint32_t>& rows) {
-  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
-  if (rows.empty()) return centre;
-  const std::size_t m = std::min<std::size_t>(rows.size(), 4096);
-  std::vector<double> v(m);
-  for (Eigen::Index a = 0; a < 3; ++a) {
-    for (std::size_t j = 0; j < m; ++j) v[j] = cloud.xyz(a, static_cast<Eigen::Index>(rows[j * rows.size() / m]));
-    std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(m / 2), v.end());
-    centre(a) = v[m / 2];
-  }
-  return centre;
-}
-
 }  // namespace
 
 std::optional<std::array<double, 3>> robust_sample_centre(const std::vector<std::array<double, 3>>& xyz) {
@@ -124,6 +109,26 @@ std::optional<std::array<double, 3>> robust_sample_centre(const std::vector<std:
 }
 
 namespace {
+
+// The per-axis median (robust_sample_centre) of the points of `cloud` at the given columns.
+Eigen::Vector3d centre_of_columns(const Cloud& cloud, const std::vector<std::uint32_t>& columns) {
+  std::vector<std::array<double, 3>> at(columns.size());
+  for (std::size_t j = 0; j < columns.size(); ++j) {
+    const auto c = cloud.xyz.col(static_cast<Eigen::Index>(columns[j]));
+    at[j] = {c.x(), c.y(), c.z()};
+  }
+  const auto mid = robust_sample_centre(at);
+  return mid ? Eigen::Vector3d((*mid)[0], (*mid)[1], (*mid)[2]) : Eigen::Vector3d::Zero();
+}
+
+// The centre recentred() and mean_knn_distances_of over a Cloud use: the per-axis median of a
+// sample of at most 4096 of the rows (positions j·n/m).
+Eigen::Vector3d sample_centre(const Cloud& cloud, const std::vector<std::uint32_t>& rows) {
+  const std::size_t m = std::min<std::size_t>(rows.size(), 4096);
+  std::vector<std::uint32_t> columns(m);
+  for (std::size_t j = 0; j < m; ++j) columns[j] = rows[j * rows.size() / m];
+  return centre_of_columns(cloud, columns);
+}
 
 // The float32 coordinates of column `col` recentred on `centre` (the subtraction in double).
 inline void recentre_point(const Cloud& cloud, std::uint32_t col, const Eigen::Vector3d& centre, float* out) {
@@ -919,13 +924,9 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   Eigen::Vector3d centre;
   if (!o.scale) {
     sample = stratified_sample(n, m);
-    std::vector<std::array<double, 3>> at(sample.size());
-    for (std::size_t j = 0; j < sample.size(); ++j) {
-      const auto c = cloud.xyz.col(static_cast<Eigen::Index>(rows[sample[j]]));
-      at[j] = {c.x(), c.y(), c.z()};
-    }
-    const auto mid = robust_sample_centre(at);
-    centre = Eigen::Vector3d((*mid)[0], (*mid)[1], (*mid)[2]);  // n >= k + 2 > 0 sampled points
+    std::vector<std::uint32_t> columns(sample.size());
+    for (std::size_t j = 0; j < sample.size(); ++j) columns[j] = rows[sample[j]];
+    centre = centre_of_columns(cloud, columns);
   } else if (o.scale->centre_m) {
     centre = Eigen::Vector3d((*o.scale->centre_m)[0], (*o.scale->centre_m)[1], (*o.scale->centre_m)[2]);
   } else {

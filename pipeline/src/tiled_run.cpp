@@ -605,13 +605,17 @@ GridGeometry tiled_grid_geometry(double x_min, double x_max, double y_min, doubl
 // filter or the cross-check runs.
 bool filter_halo_added(const RunConfig& config) { return config.filters.outliers.enabled || config.cross_check.enabled; }
 
+// The cells a point's disc writes, which the despike takes as its candidates' reach
+// (remove_spike_points' reach_cells): the splat radius, at least 1, times the upsample factor k.
+double despike_reach_cells(const RunConfig& config, int k) { return std::max(1.0, config.grid.reproject.splat_radius_cells) * k; }
+
 // The halo's grid share [nodes] with upsample factor k: how far about a tile's interior the
 // points must have the whole scan's verdicts (the decided region, tile_bounds). Without the
 // despike, the grid stages' reach R (reproject_reach_cells): the interior's nodes read the
 // points that far. With it, 2R + D: a point within R of the interior changes the interior when
 // the despike removes it; its despike test reads the window's grid within D = ⌈max(1, r)·K⌉ +
 // ⌊spike_window_cells / 2⌋ of its node (a spike cell within the candidates' reach, and that
-// cell's plane window; remove_spike_points); and a node of the window's grid is the whole
+// cell's plane window; despike_grid_reach_cells); and a node of the window's grid is the whole
 // grid's where every point within R of it is there with the whole scan's verdict. (Islands
 // of the despike, connected groups of up to island_max_cells, can reach farther: not covered.)
 // Until 2026-11-28 (fifty-first session) the share was the old reach formula alone,
@@ -622,8 +626,7 @@ int grid_share_cells(const RunConfig& config, int k) {
   const int reach = reproject_reach_cells(ro, k);
   const OutlierConfig& oc = config.filters.outliers;
   if (!(oc.enabled && oc.despike)) return reach;
-  const int d = static_cast<int>(std::ceil(std::max(1.0, ro.splat_radius_cells) * k)) + config.cross_check.honest.spike_window_cells / 2;
-  return 2 * reach + d;
+  return 2 * reach + despike_grid_reach_cells(config.cross_check.honest, despike_reach_cells(config, k));
 }
 
 // A tile's halo [nodes] with upsample factor k and scale.filter_halo_cells = filter_cells: the
@@ -2291,7 +2294,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       const std::size_t before_n = pts.size();
       RemovedPoints removed;
       auto ds = remove_spike_points(std::move(pts), part.depth, config.cross_check.honest,
-                                    std::max(1.0, ro.splat_radius_cells) * tiles.k, std::isfinite(spacing_m) ? spacing_m : 0.0,
+                                    despike_reach_cells(config, tiles.k), std::isfinite(spacing_m) ? spacing_m : 0.0,
                                     tiles.k, &removed);
       add_figures(o.sums, ds.report);
       compose_removal(removed.at);

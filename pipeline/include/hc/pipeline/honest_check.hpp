@@ -358,6 +358,14 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
 /// its halo with it and checks removed points against it. No validation. Source: this project.
 double despike_search_radius_m(double cell_m, double upsample_factor, double spacing_m);
 
+/// How far [grid cells, Chebyshev] remove_spike_points reads its grid about a point's node:
+/// ⌈reach_cells⌉ to a spike cell the point is a candidate of, plus spike_window_cells / 2 (the
+/// cell's plane window); a rim cell and its 8 neighbours lie nearer. Island cells (groups of up
+/// to island_max_cells) can reach farther and are not counted. The tiled run sizes the region
+/// whose points need the whole scan's verdicts with it (grid_share_cells). reach_cells as
+/// remove_spike_points takes it (≥ 0). No validation. Source: this project.
+int despike_grid_reach_cells(const HonestCheckOptions& options, double reach_cells);
+
 
 /// One reason of a verdict: a stable code, its level and a sentence with the figures.
 struct VerdictReason {

@@ -267,10 +267,11 @@ class UpsampleCoverage {
 /// whole grid's, value, flag and attributes, when the window got every point whose node (the
 /// nearest, as reproject bins it) lies inside it. With r = splat_radius_cells, w =
 /// see_through_window_cells (0 when see-through handling is off) and K = upsample_factor:
-///  - the splat's reach S [scan nodes, Chebyshev]: kPlane max(⌊r + ½⌋, ⌊r + 0.7072⌋) (a node's
-///    plane gathers the points within r of it, whose nodes lie within r + ½ of it; its front
-///    reference is the front-most binned node within r + 0.7072, the disc splat_discs takes;
-///    attributes read the winners of that disc), kDisc ⌊r⌋ (the disc dilation of the binned
+///  - the splat's reach S [scan nodes, Chebyshev]: kPlane ⌊r + 0.7072⌋ (its front reference is
+///    the front-most binned node within r + 0.7072, the disc splat_discs takes; the points the
+///    plane gathers, within r of the node, lie on nodes within ⌊r + ½⌋, never farther, up to a
+///    rounding step of the two index formulas far below the 0.2 node between them; attributes
+///    read the winners of that disc), kDisc ⌊r⌋ (the disc dilation of the binned
 ///    grid), kInterpolate ⌊r⌋, 2⌊r⌋ with see-through handling (a tap's own emptying then reads
 ///    its front disc); 0 without splats;
 ///  - the see-through test reads the splatted grid w nodes each way (a box, then rays);
