@@ -609,6 +609,15 @@ bool filter_halo_added(const RunConfig& config) { return config.filters.outliers
 // (remove_spike_points' reach_cells): the splat radius, at least 1, times the upsample factor k.
 double despike_reach_cells(const RunConfig& config, int k) { return std::max(1.0, config.grid.reproject.splat_radius_cells) * k; }
 
+// The grid stages' reach R [nodes] with upsample factor k (reproject_reach_cells): the region
+// about a tile's interior whose points' final verdicts (the despike's included) the interior's
+// nodes read.
+int grid_reach_cells(const RunConfig& config, int k) {
+  ReprojectOptions ro = config.grid.reproject;
+  ro.upsample_factor = k;
+  return reproject_reach_cells(ro, k);
+}
+
 // The halo's grid share [nodes] with upsample factor k: how far about a tile's interior the
 // points must have the whole scan's verdicts (the decided region, tile_bounds). Without the
 // despike, the grid stages' reach R (reproject_reach_cells): the interior's nodes read the
@@ -621,19 +630,32 @@ double despike_reach_cells(const RunConfig& config, int k) { return std::max(1.0
 // Until 2026-11-28 (fifty-first session) the share was the old reach formula alone,
 // K·(2⌈r⌉ + 3 + w) + K: 11 nodes for the shipped splats, where the despike needs 12.
 int grid_share_cells(const RunConfig& config, int k) {
-  ReprojectOptions ro = config.grid.reproject;
-  ro.upsample_factor = k;
-  const int reach = reproject_reach_cells(ro, k);
+  const int reach = grid_reach_cells(config, k);
   const OutlierConfig& oc = config.filters.outliers;
   if (!(oc.enabled && oc.despike)) return reach;
   return 2 * reach + despike_grid_reach_cells(config.cross_check.honest, despike_reach_cells(config, k));
 }
 
-// A tile's halo [nodes] with upsample factor k and scale.filter_halo_cells = filter_cells: the
-// grid share (grid_share_cells), plus filter_cells for the per-tile filters' k-NN searches and
-// the honest check's point test when either runs, rounded up to a multiple of k.
-int tile_halo(const RunConfig& config, int k, int filter_cells) {
+// A tile's halo [nodes] with upsample factor k, scale.filter_halo_cells = filter_cells and, with
+// auto, the despike's and the isolated filter's search radii in cells (despike_cells,
+// isolated_cells; 0 with a fixed value): the decided region (tile_bounds: the halo less
+// filter_cells) is max(G, R + despike_cells) + isolated_cells, the filter share then holds the
+// filters' searches about its points, rounded up to a multiple of k. G: the grid share
+// (grid_share_cells). R + despike_cells: the despike's verdicts are needed only within R of the
+// interior (grid_reach_cells; process_tile checks its searches there), and its count searches
+// about those points see the isolated filter's verdicts out to despike_cells more.
+// + isolated_cells: the isolated filter's verdicts in that region count the robust test's
+// verdicts out to its radius, which the robust test then checks (its decided region is this
+// one; judge_strays). With a fixed filter share (despike_cells = isolated_cells = 0) the
+// halo is G + filter_cells, as before 2026-11-29 (fifty-second session), when one decided
+// region of G and a filter share holding every filter's search (the despike's, 4 scan cells,
+// was the widest: 6 cells at the shipped settings) made 18 nodes where this makes 15; the
+// isolated filter's counts near the decided region's edge then saw unchecked robust verdicts.
+int tile_halo(const RunConfig& config, int k, int filter_cells, int despike_cells, int isolated_cells) {
   int halo = grid_share_cells(config, k);
+  const OutlierConfig& oc = config.filters.outliers;
+  if (oc.enabled && oc.despike) halo = std::max(halo, grid_reach_cells(config, k) + despike_cells);
+  halo += isolated_cells;
   if (filter_halo_added(config)) halo += filter_cells;
   return (halo + k - 1) / k * k;
 }
@@ -645,27 +667,43 @@ double honest_reach_m(const HonestCheckOptions& o, double spacing_m) {
   return o.isolation_radius_spacings * spacing_m + std::max({o.tolerance_m, o.spike_min_height_m, o.confirm_footprint_m});
 }
 
-// The least filter halo [cells] (scale.filter_halo_cells: auto) whose tiles hold the per-tile
-// filters' and the honest check's searches at the scan's spacing `spacing_m` on a grid of
-// `cell_m` cells with upsample factor k: the band between a tile's decided region and its
-// window's edge (the value itself: process_tile's decided region is the halo less it, which
-// check_within_window tests) wider than the isolated filter's radius (isolated_filter_radius_m)
-// and the despike's widest count search (despike_search_radius_m), and the whole halo
-// (tile_halo, check_honest_halo) at least the honest check's reach (honest_reach_m), each with
-// 1 % and one cell to spare. -1 when no value up to 4096 is enough. Without the outlier filter
-// and the cross-check no filter halo is added (tile_halo): 0.
-int auto_filter_halo_cells(const RunConfig& config, int k, double cell_m, double spacing_m) {
-  if (!filter_halo_added(config)) return 0;
+// The halo's shares that scale.filter_halo_cells: auto chooses (tile_halo): `filter` [cells],
+// -1 when no value up to 4096 is enough; despike and isolated, the despike's count search and
+// the isolated filter's radius in cells (each with 1 % to spare, rounded up).
+struct FilterShares {
+  int filter = 0;
+  int despike = 0;
+  int isolated = 0;
+};
+
+// The least filter halo (scale.filter_halo_cells: auto) whose tiles hold the per-tile filters'
+// and the honest check's searches at the scan's spacing `spacing_m` on a grid of `cell_m` cells
+// with upsample factor k: the filter share (the band between a tile's decided region and its
+// window's edge, which check_within_window tests) wider than the isolated filter's radius
+// (isolated_filter_radius_m) with 1 % and one cell to spare, the despike's and the isolated
+// filter's radii added to the decided region (tile_halo), and the whole halo (check_honest_halo)
+// at least the honest check's reach (honest_reach_m) with 1 % and a cell to spare. Without the
+// outlier filter and the cross-check no filter halo is added (tile_halo): all 0. Until
+// 2026-11-29 (fifty-second session) the filter share held the despike's count search too (6
+// cells for 4 at the shipped settings), and the decided region was the grid share alone.
+FilterShares auto_filter_shares(const RunConfig& config, int k, double cell_m, double spacing_m) {
+  FilterShares s;
+  if (!filter_halo_added(config)) return s;
   const HonestCheckOptions o = detail::honest_options_for(config, false, static_cast<double>(k), cell_m);
-  const double filters_m =
-      config.filters.outliers.enabled
-          ? std::max(isolated_filter_radius_m(o, spacing_m), despike_search_radius_m(cell_m, static_cast<double>(k), spacing_m))
-          : 0.0;
+  const OutlierConfig& oc = config.filters.outliers;
+  const double iso_m = oc.enabled ? isolated_filter_radius_m(o, spacing_m) : 0.0;
+  const auto cells = [cell_m](double m) { return static_cast<int>(std::min(std::ceil(1.01 * m / cell_m), 4096.0)); };
+  s.isolated = cells(iso_m);
+  s.despike = oc.enabled && oc.despike ? cells(despike_search_radius_m(cell_m, static_cast<double>(k), spacing_m)) : 0;
   const double honest_m = config.cross_check.enabled ? honest_reach_m(o, spacing_m) : 0.0;
   for (int f = 0; f <= 4096; ++f) {
-    if (f * cell_m >= 1.01 * filters_m + cell_m && tile_halo(config, k, f) * cell_m >= 1.01 * honest_m + cell_m) return f;
+    if (f * cell_m >= 1.01 * iso_m + cell_m && tile_halo(config, k, f, s.despike, s.isolated) * cell_m >= 1.01 * honest_m + cell_m) {
+      s.filter = f;
+      return s;
+    }
   }
-  return -1;
+  s.filter = -1;
+  return s;
 }
 
 // The error when auto_filter_halo_cells finds no value: naming the stage, the key and the
@@ -681,8 +719,12 @@ struct Tiles {
   GridGeometry g;
   int k = 1;        // upsample factor
   int size = 512;   // tile side [nodes], a multiple of k
-  int halo = 0;     // [nodes], a multiple of k: tile_halo(config, k, filter)
+  int halo = 0;     // [nodes], a multiple of k: tile_halo(config, k, filter, despike, isolated)
   int filter = 0;   // the filters' share of it [cells]: scale.filter_halo_cells, or the value auto chose
+  // With scale.filter_halo_cells auto, the despike's count search and the isolated filter's
+  // radius [cells] that the decided region holds besides the grid share (FilterShares); 0 with
+  // a fixed value.
+  int despike = 0, isolated = 0;
   int tiles_r = 0, tiles_c = 0;
 
   std::size_t count() const { return static_cast<std::size_t>(tiles_r) * static_cast<std::size_t>(tiles_c); }
@@ -2298,8 +2340,12 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
                                     tiles.k, &removed);
       add_figures(o.sums, ds.report);
       compose_removal(removed.at);
-      // The despike's 3-D count searches at most max(4 scan cells, 4 spacings) about a point.
-      check_within_window(tiles, t, bounds, removed,
+      // The despike's 3-D count searches at most max(4 scan cells, 4 spacings) about a point;
+      // its verdicts are needed within the grid stages' reach of the interior (tile_halo).
+      RobustOutlierOptions::TileBounds despike_bounds = bounds;
+      const int reach = grid_reach_cells(config, tiles.k);
+      despike_bounds.decides_m = tiles.box_m(inner[0] - reach, inner[1] + reach, inner[2] - reach, inner[3] + reach);
+      check_within_window(tiles, t, despike_bounds, removed,
                           despike_search_radius_m(tiles.g.cell_size_m, static_cast<double>(tiles.k), spacing_m), "despike",
                           spacing_m, filter_halo_now(config, tiles));
       pts = std::move(ds.value);
@@ -2406,7 +2452,9 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
   // the owners' rings, the lookups) cost more than it spared (4.6 % more CPU in three
   // alternated rounds; fiftieth session). The decided region is the halo's grid share
   // (grid_share_cells): 12 nodes with the despike on at the shipped splats since the fifty-first
-  // session (76-node tiles at N = 800: 34 %), 4 with it off (92-node tiles: 12 %, no sharing).
+  // session (76-node tiles at N = 800: 34 %), 4 with it off (92-node tiles: 12 %, no sharing);
+  // since the fifty-second, under scale.filter_halo_cells auto, the halo less its 2-node filter
+  // band, 13 of 15 nodes (82-node tiles at N = 800: 39 %).
   constexpr double kShareAtLeast = 0.15;
   const double share = [&] {
     const Tiles& tiles = plan.tiles;
@@ -2566,7 +2614,7 @@ void check_honest_halo(const RunConfig& config, const Tiles& tiles, const Honest
   // factor) holds the reach, if the key's range has one.
   int needed = -1;
   for (int f = tiles.filter + 1; f <= 4096 && needed < 0; ++f) {
-    if (tile_halo(config, tiles.k, f) * cell_m >= reach_m) needed = f;
+    if (tile_halo(config, tiles.k, f, tiles.despike, tiles.isolated) * cell_m >= reach_m) needed = f;
   }
   throw ConfigError(
       std::string("tiled run, stage ") + stage + ": the tiles' halo (" + format_number(halo_m * 1e3) + " mm, " +
@@ -2736,13 +2784,19 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     ro.upsample_factor = tiles.k;
     const int k = tiles.k;
     tiles.size = (config.scale.tile_cells + k - 1) / k * k;
+    tiles.despike = tiles.isolated = 0;  // with a fixed value (or no filter share)
+    const auto take_shares = [&](const FilterShares& s) {
+      tiles.filter = s.filter;
+      tiles.despike = s.despike;
+      tiles.isolated = s.isolated;
+    };
     if (!filter_halo_added(config)) {
       tiles.filter = 0;  // no filter share in the halo (tile_halo), whatever the key says
     } else if (config.scale.filter_halo_cells != ScaleConfig::kAutoFilterHalo) {
       tiles.filter = config.scale.filter_halo_cells;
     } else if (sample_spacing_m > 0.0) {
       // auto, the robust sample's spacing known (a layout after tile_far_clusters)
-      tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, sample_spacing_m);
+      take_shares(auto_filter_shares(config, k, tiles.g.cell_size_m, sample_spacing_m));
     } else {
       // auto at tile_plan: from an estimate of the scan's spacing, the x-y box's area per point
       // (a surface that fills its box; slopes, back sides and holes make the true spacing
@@ -2753,12 +2807,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       // least.
       const std::uint64_t kept = grid_points;
       spacing_estimate_m = kept > 0 && grid_area_m2 > 0.0 ? std::sqrt(grid_area_m2 / static_cast<double>(kept)) : 0.0;
-      tiles.filter = auto_filter_halo_cells(config, k, tiles.g.cell_size_m, 1.5 * spacing_estimate_m);
+      take_shares(auto_filter_shares(config, k, tiles.g.cell_size_m, 1.5 * spacing_estimate_m));
       if (tiles.filter < 0) throw no_filter_halo_error(stage_name, "estimated", spacing_estimate_m, tiles.g.cell_size_m);
       if (!sample_to_come(kept)) tiles.filter = std::max(tiles.filter, 32);
     }
     if (tiles.filter < 0) throw no_filter_halo_error(stage_name, "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
-    tiles.halo = tile_halo(config, k, tiles.filter);
+    tiles.halo = tile_halo(config, k, tiles.filter, tiles.despike, tiles.isolated);
     // scale.tile_max_points: tiles small enough that no window holds more points than that
     // (each tile's memory is its window's points), down to the halo's side.
     configured_side = tiles.size;
@@ -2789,6 +2843,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     if (window_points_bound > 0) detail::set_figure(rep, "window_points_bound", static_cast<double>(window_points_bound));
     detail::set_figure(rep, "halo_cells", tiles.halo);
     detail::set_figure(rep, "filter_halo_cells", tiles.filter);
+    detail::set_figure(rep, "despike_halo_cells", tiles.despike);
+    detail::set_figure(rep, "isolated_halo_cells", tiles.isolated);
   };
   // The grid (tiles.g) from the points in the grid frame without those `far` holds, then the
   // upsample factor and the tiles (cut_tiles). With grid.upsample auto the factor needs a pass
@@ -3097,7 +3153,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     detail::set_figure(*plan_rep, "upsample_coverage", coverage);
     set_tile_figures(*plan_rep);
     const bool same = tiles.k == spilled.k && tiles.size == spilled.size && tiles.halo == spilled.halo && tiles.filter == spilled.filter &&
-                      tiles.tiles_r == spilled.tiles_r && tiles.tiles_c == spilled.tiles_c;
+                      tiles.despike == spilled.despike && tiles.isolated == spilled.isolated && tiles.tiles_r == spilled.tiles_r && tiles.tiles_c == spilled.tiles_c;
     if (!same) {
       plan_rep->notes.push_back("upsample factor " + std::to_string(tiles.k) + ", tiles of " + std::to_string(tiles.size) + " cells, halo " +
                                 std::to_string(tiles.halo) + " cells: found by the spill, which had guessed factor 1 and " +
@@ -3225,7 +3281,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         if (past_window == 0) return 0;
         const double want = tiles.halo + std::ceil(past_window_m / tiles.g.cell_size_m) + 1.0;
         for (int f = tiles.filter + 1; f <= 4096; ++f) {
-          if (tile_halo(config, tiles.k, f) >= want) return f;
+          if (tile_halo(config, tiles.k, f, tiles.despike, tiles.isolated) >= want) return f;
         }
         return -1;
       };
@@ -3256,17 +3312,21 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       if (config.scale.filter_halo_cells == ScaleConfig::kAutoFilterHalo && filter_halo_added(config)) {
         for (int pass = 0; pass < 3; ++pass) {
           sample_spacing_m = robust_scale ? robust_scale->spacing_m : 0.0;
-          int needed = sample_spacing_m > 0.0 ? auto_filter_halo_cells(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m)
-                                              : std::max(tiles.filter, 32);
-          if (needed < 0) throw no_filter_halo_error("tile_scale", "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
+          FilterShares need = sample_spacing_m > 0.0 ? auto_filter_shares(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m)
+                                                     : FilterShares{std::max(tiles.filter, 32), tiles.despike, tiles.isolated};
+          if (need.filter < 0) throw no_filter_halo_error("tile_scale", "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
           // The sampled points' own searches, where they leave the scale open (check_fixed
           // names the key when no halo up to 4096 holds them, or after the last pass).
-          if (!robust_scale_fixed(log_bounds, nearest_bounds)) needed = std::max(needed, filter_for_searches());
+          if (!robust_scale_fixed(log_bounds, nearest_bounds)) need.filter = std::max(need.filter, filter_for_searches());
+          const int needed = need.filter;
           r.report.figure("filter_halo_cells_needed", needed);
-          if (needed <= tiles.filter) break;
-          const int planned = tiles.filter;
-          tiles.filter = needed;
-          tiles.halo = tile_halo(config, tiles.k, tiles.filter);
+          if (need.filter <= tiles.filter && need.despike <= tiles.despike && need.isolated <= tiles.isolated) break;
+          const int planned = tiles.filter, planned_despike = tiles.despike, planned_isolated = tiles.isolated;
+          // Each share as wide as the sample needs, or as planned where that is wider.
+          tiles.filter = std::max(tiles.filter, need.filter);
+          tiles.despike = std::max(tiles.despike, need.despike);
+          tiles.isolated = std::max(tiles.isolated, need.isolated);
+          tiles.halo = tile_halo(config, tiles.k, tiles.filter, tiles.despike, tiles.isolated);
           // scale.tile_max_points: the wider halo widens every window; the side is chosen
           // again from the plan's counts (smaller tiles, or the same).
           const int side_before = tiles.size;
@@ -3274,14 +3334,19 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           StageReport again;
           (void)spill_pass(nullptr, again, "tile_scale");
           r.report.figure("second_spill", 1.0);
-          r.report.notes.push_back("scale.filter_halo_cells auto: the sample's spacing or k-NN searches need " + std::to_string(needed) + " cells, " +
-                                   (pass == 0 ? "tile_plan's estimate gave " : "the halo had ") + std::to_string(planned) +
-                                   ": the points were spilled again with the wider halo and the scale taken again");
+          r.report.notes.push_back("scale.filter_halo_cells auto: the sample's spacing or k-NN searches need a filter share of " +
+                                   std::to_string(needed) + " cells (the despike's and the isolated filter's radii: " +
+                                   std::to_string(need.despike) + " and " + std::to_string(need.isolated) + " cells), " +
+                                   (pass == 0 ? "tile_plan's estimate gave " : "the halo had ") + std::to_string(planned) + " (" +
+                                   std::to_string(planned_despike) + ", " + std::to_string(planned_isolated) +
+                                   "): the points were spilled again with the wider halo and the scale taken again");
           // The plan's and the spill's figures describe the halo in use.
           for (StageReport& rp : reports) {
             if (rp.stage == "tile_plan") {
               detail::set_figure(rp, "halo_cells", tiles.halo);
               detail::set_figure(rp, "filter_halo_cells", tiles.filter);
+              detail::set_figure(rp, "despike_halo_cells", tiles.despike);
+              detail::set_figure(rp, "isolated_halo_cells", tiles.isolated);
               if (pass == 0) rp.notes.push_back("halo_cells, filter_halo_cells: widened at tile_scale for the robust sample's spacing");
               if (tiles.size != side_before) {
                 detail::set_figure(rp, "tile_cells", tiles.size);
@@ -3487,6 +3552,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
             if (rp.stage == "tile_plan" && name == "upsample_factor") v = tiles.k;
             if (rp.stage == "tile_plan" && name == "halo_cells") v = tiles.halo;
             if (rp.stage == "tile_plan" && name == "filter_halo_cells") v = tiles.filter;
+            if (rp.stage == "tile_plan" && name == "despike_halo_cells") v = tiles.despike;
+            if (rp.stage == "tile_plan" && name == "isolated_halo_cells") v = tiles.isolated;
             if (rp.stage == "tile_plan" && name == "tile_cells") v = tiles.size;
             if (rp.stage == "tile_plan" && name == "window_points_bound") v = static_cast<double>(window_points_bound);
           }
@@ -4071,7 +4138,8 @@ void write_plan_file(const PlanFile& pf) {
   j["tiles"] = {{"count", t.count()},         {"rows", t.g.rows},           {"cols", t.g.cols},
                 {"x0_m", hex(t.g.x0_m)},       {"y0_m", hex(t.g.y0_m)},       {"cell_size_m", hex(t.g.cell_size_m)},
                 {"upsample_factor", t.k},     {"tile_cells", t.size},       {"halo_cells", t.halo},
-                {"filter_halo_cells", t.filter}, {"tiles_r", t.tiles_r},    {"tiles_c", t.tiles_c}};
+                {"filter_halo_cells", t.filter}, {"despike_halo_cells", t.despike}, {"isolated_halo_cells", t.isolated},
+                {"tiles_r", t.tiles_r},    {"tiles_c", t.tiles_c}};
   j["spill_bytes"] = pf.spill_bytes;
   j["layout"] = {{"rgb", p.layout.rgb}, {"intensity", p.layout.intensity}, {"xyz_floats", nullptr}};
   if (const auto& ff = p.layout.floats) {
@@ -4154,13 +4222,16 @@ PlanFile read_plan_file(const fs::path& plan_file) {
     p.tiles.size = t.at("tile_cells").get<int>();
     p.tiles.halo = t.at("halo_cells").get<int>();
     p.tiles.filter = t.at("filter_halo_cells").get<int>();
+    p.tiles.despike = t.at("despike_halo_cells").get<int>();
+    p.tiles.isolated = t.at("isolated_halo_cells").get<int>();
     p.tiles.tiles_r = t.at("tiles_r").get<int>();
     p.tiles.tiles_c = t.at("tiles_c").get<int>();
     if (p.tiles.g.rows < 1 || p.tiles.g.cols < 1 || p.tiles.size < 1 || p.tiles.k < 1 || p.tiles.halo < 0 ||
-        p.tiles.filter < 0 || p.tiles.filter > p.tiles.halo ||
+        p.tiles.filter < 0 || p.tiles.filter > p.tiles.halo || p.tiles.despike < 0 || p.tiles.isolated < 0 ||
+        p.tiles.isolated + p.tiles.filter > p.tiles.halo ||
         p.tiles.tiles_r != (p.tiles.g.rows + p.tiles.size - 1) / p.tiles.size ||
         p.tiles.tiles_c != (p.tiles.g.cols + p.tiles.size - 1) / p.tiles.size || !(p.tiles.g.cell_size_m > 0.0)) {
-      throw InputError(plan_file.string() + ": tiles does not describe a tiling of the grid (rows, cols, tile_cells, tiles_r, tiles_c, halo_cells, filter_halo_cells: at least 0 and at most halo_cells)");
+      throw InputError(plan_file.string() + ": tiles does not describe a tiling of the grid (rows, cols, tile_cells, tiles_r, tiles_c, halo_cells, filter_halo_cells: at least 0 and at most halo_cells; despike_halo_cells and isolated_halo_cells: at least 0, isolated_halo_cells + filter_halo_cells at most halo_cells)");
     }
     where = "spill_bytes";
     pf.spill_bytes = j.at("spill_bytes").get<std::vector<std::uintmax_t>>();

@@ -1149,6 +1149,26 @@ TEST(TiledRun, AnAutoFilterHaloShortOfTheSamplesSpacingIsWidenedAndThePointsSpil
   ASSERT_GT(radius_mm, 0.0);
   EXPECT_LT(std::stoi(planned) * cell_mm, radius_mm);
   EXPECT_GE(filter * cell_mm, radius_mm);
+  // The decided region (the halo less the filter band) holds, about the interior: the grid
+  // stages' reach R (reproject_reach_cells) plus the despike's widest count search (its rim
+  // radius, max(4 scan cells, 4 spacings): honest_check.hpp), plus the isolated filter's
+  // radius, within which that filter's verdicts count the robust test's; and the grid share
+  // 2R + D (D: the despike's grid reads, ⌈r⌉ + spike_window_cells / 2) plus that radius. From
+  // the options and the in-core radius, not the run's own shares.
+  {
+    const double halo = stage_figure(tiled, "tile_plan", "halo_cells");
+    hc::pipeline::ReprojectOptions ro = config.grid.reproject;
+    ro.upsample_factor = 1;
+    const int reach = hc::pipeline::reproject_reach_cells(ro, 1);
+    const double spacing_mm = stage_figure(tiled, "tile_scale", "sample_spacing_mm");
+    const double despike_mm = std::max(4.0 * cell_mm, 4.0 * spacing_mm);
+    const int d = static_cast<int>(std::ceil(std::max(1.0, ro.splat_radius_cells))) + config.cross_check.honest.spike_window_cells / 2;
+    const double decided_mm = (halo - filter) * cell_mm;
+    EXPECT_GE(decided_mm, reach * cell_mm + despike_mm + radius_mm);
+    EXPECT_GE(decided_mm, (2 * reach + d) * cell_mm + radius_mm);
+    EXPECT_GE(stage_figure(tiled, "tile_plan", "despike_halo_cells") * cell_mm, despike_mm);
+    EXPECT_GE(stage_figure(tiled, "tile_plan", "isolated_halo_cells") * cell_mm, radius_mm);
+  }
   // With neither the outlier filter nor the cross-check the halo holds no filter share, and the
   // plan says 0 whatever the key (a plan of 32 in a halo of 6 was refused by tile jobs).
   config.filters.outliers.enabled = false;

@@ -82,7 +82,9 @@ struct RobustOutlierOptions {
   /// not cover: the tiled run leaves far-cluster points (removed over the whole scan first) out
   /// of every tile, where in core they are neighbours in this test; and the verdicts of points
   /// between decides_m and the window's edge, which the isolated-point and despike counts of
-  /// decided points see, are not checked (docs/scale.md).
+  /// decided points see, are not checked (docs/scale.md); with scale.filter_halo_cells auto the
+  /// tiled run widens decides_m by the isolated filter's radius, and its despike verdicts are
+  /// needed only that radius and the despike's inside it (tiled_run.cpp, tile_halo).
   struct TileBounds {
     std::array<double, 4> window_m{};
     std::array<double, 4> decides_m{};

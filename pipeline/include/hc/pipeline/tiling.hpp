@@ -33,7 +33,9 @@
 /// so their values agree to float rounding only; the halo's grid share is at least
 /// reproject_reach_cells, 2 × it plus the despike's reads of the grid with the despike on, so
 /// every node of a tile's interior sees every point it depends on, in file order, with the
-/// whole scan's verdict); (b)'s distances agree to float rounding (each tile searches in its
+/// whole scan's verdict; with scale.filter_halo_cells auto the decided region adds the
+/// isolated filter's radius, whose counts then see only checked robust verdicts, and holds the
+/// despike's count searches about the points within the grid stages' reach); (b)'s distances agree to float rounding (each tile searches in its
 /// own float frame) and the RMS figures to the last bits (summed in another order).
 /// With the robust outlier filter, the scale is the whole scan's (stage tile_scale) and far
 /// clusters are found over the whole scan on coarse cells (stage tile_far_clusters; the grid is
