@@ -20,6 +20,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <limits>
 #include <random>
@@ -431,7 +432,14 @@ TEST(GridSpikes, IslandsAreSmallGroupsApartFromTheSurface) {
 // stands about 4 mm above its window's plane, and is joined to the plane by samples), 3 stray points 3–5 mm in front of the plane, one stray point alone in
 // the background (an island), and one stray 1 mm in front (below the 2 mm spike height: not
 // judged). Oracle: the construction; exactly the 4 judged strays go.
-TEST(DespikeGrid, RemovesStraysInFrontAndInTheBackgroundAndKeepsDenseRelief) {
+// The construction below: the surface's points, then the 4 judged strays, then the shallow one.
+struct DespikeScene {
+  Cloud cloud;
+  std::size_t n_surface = 0;
+  Eigen::Vector3d shallow;
+  DepthGrid grid;
+};
+DespikeScene despike_scene() {
   auto plane = [](double x, double y) { return 0.2 * x + 0.1 * y; };
   auto hill = [](double x, double y) {
     const double d2 = (x - 0.030) * (x - 0.030) + (y - 0.020) * (y - 0.020);
@@ -443,21 +451,31 @@ TEST(DespikeGrid, RemovesStraysInFrontAndInTheBackgroundAndKeepsDenseRelief) {
       const double x = 0.00025 * i, y = 0.00025 * j;
       pts.emplace_back(x, y, plane(x, y) + hill(x, y));
     }
-  const std::size_t n_surface = pts.size();
+  DespikeScene d;
+  d.n_surface = pts.size();
   const std::vector<Eigen::Vector3d> judged = {{0.010, 0.010, plane(0.010, 0.010) + 0.003},
                                                {0.045, 0.030, plane(0.045, 0.030) + 0.005},
                                                {0.015, 0.035, plane(0.015, 0.035) + 0.004},
                                                {0.049, 0.045, plane(0.049, 0.045)}};  // background
-  const Eigen::Vector3d shallow(0.040, 0.008, plane(0.040, 0.008) + 0.001);
+  d.shallow = Eigen::Vector3d(0.040, 0.008, plane(0.040, 0.008) + 0.001);
   pts.insert(pts.end(), judged.begin(), judged.end());
-  pts.push_back(shallow);
+  pts.push_back(d.shallow);
   // The background point lies beyond the sampled y range (0–40 mm): move it there.
-  pts[n_surface + 3].y() = 0.049;
+  pts[d.n_surface + 3].y() = 0.049;
   ReprojectOptions ro;
   ro.grid.cell_size_m = 0.001;
   ro.splat_radius_cells = 1.0;
-  const Cloud cloud = cloud_of(pts);
-  const DepthGrid grid = reproject(cloud, ro).value;
+  d.cloud = cloud_of(pts);
+  d.grid = reproject(d.cloud, ro).value;
+  return d;
+}
+
+TEST(DespikeGrid, RemovesStraysInFrontAndInTheBackgroundAndKeepsDenseRelief) {
+  const DespikeScene d = despike_scene();
+  const Cloud& cloud = d.cloud;
+  const std::size_t n_surface = d.n_surface;
+  const Eigen::Vector3d& shallow = d.shallow;
+  const DepthGrid& grid = d.grid;
   const auto r = remove_spike_points(cloud, grid.depth, HonestCheckOptions{}, 1.0, 0.00025);
   ASSERT_EQ(r.value.size(), cloud.size() - 4) << "removed " << cloud.size() - r.value.size();
   // Every surface point and the shallow stray are kept, in order; the 4 judged strays are gone.
@@ -469,6 +487,74 @@ TEST(DespikeGrid, RemovesStraysInFrontAndInTheBackgroundAndKeepsDenseRelief) {
   // The hill's top cells are judged (spikes of their window's plane) and kept: their points
   // have neighbours within half their height.
   EXPECT_GT(hc::test::figure(r.report, "spike_cells"), 4.0);
+}
+
+// despike_grid_reach_cells, which sizes the tiled run's halo (a tile's window gives the
+// despike the whole grid only that near the points whose verdicts it keeps): a point's verdict
+// reads the grid only within D = ⌈reach⌉ + spike_window_cells / 2 cells (Chebyshev) of its node.
+// Oracle: the verdicts on the whole grid of the construction above, against those on grids
+// equal within D of one point's node and changed beyond it (every valid cell past D moved by
+// up to ±8 mm, far more than the spike height, in five random draws; validity kept, so no rim
+// or island moves: islands can reach farther, and the function's comment says so), for each
+// judged stray and for 40 surface points about them and the hill. At D − 2 (inside the plane
+// window of a stray's own spike cell) the same changes move verdicts, so the test sees the
+// grid's reads; at D − 1 none moves here: no point of the construction is a candidate only
+// through a neighbouring spike cell, the ⌈reach⌉ term, which the derivation alone covers.
+TEST(DespikeGrid, AVerdictReadsTheGridOnlyWithinItsGridReach) {
+  const DespikeScene d = despike_scene();
+  const HonestCheckOptions options;
+  const double reach_cells = 1.0, spacing_m = 0.00025;
+  const int reach = despike_grid_reach_cells(options, reach_cells);
+  ASSERT_EQ(reach, 1 + options.spike_window_cells / 2);
+  const HeightField& whole = d.grid.depth;
+  const GridGeometry& g = whole.geometry();
+  auto removed_of = [&](const HeightField& grid) {
+    RemovedPoints removed;
+    (void)remove_spike_points(d.cloud, grid, options, reach_cells, spacing_m, 1.0, &removed);
+    std::vector<std::uint8_t> gone(d.cloud.size(), 0);
+    for (const std::size_t c : removed.at) gone[c] = 1;
+    return gone;
+  };
+  const std::vector<std::uint8_t> base = removed_of(whole);
+  ASSERT_EQ(std::count(base.begin(), base.end(), std::uint8_t{1}), 4);
+  // The points looked at: the judged strays, and surface points at and about the strays and the
+  // hill's top (candidates among them: relief near spike cells).
+  std::vector<std::size_t> looked;
+  for (std::size_t i = d.n_surface; i < d.n_surface + 4; ++i) looked.push_back(i);
+  std::mt19937 pick(7);
+  for (const auto& c : {std::array{0.010, 0.010}, std::array{0.045, 0.030}, std::array{0.015, 0.035}, std::array{0.030, 0.020}}) {
+    std::uniform_real_distribution<double> off(-0.002, 0.002);
+    for (int n = 0; n < 10; ++n) {
+      const double x = c[0] + off(pick), y = c[1] + off(pick);
+      const int i = std::clamp(static_cast<int>(std::lround(x / 0.00025)), 0, 200), j = std::clamp(static_cast<int>(std::lround(y / 0.00025)), 0, 160);
+      looked.push_back(static_cast<std::size_t>(j) * 201 + static_cast<std::size_t>(i));
+    }
+  }
+  std::size_t moved_inside = 0;  // verdicts moved by changes past D − 2
+  for (const int claim : {reach, reach - 2}) {
+    for (const std::size_t p : looked) {
+      const auto col = d.cloud.xyz.col(static_cast<Eigen::Index>(p));
+      const int pr = static_cast<int>(std::lround((col.y() - g.y0_m) / g.cell_size_m));
+      const int pc = static_cast<int>(std::lround((col.x() - g.x0_m) / g.cell_size_m));
+      for (int draw = 0; draw < 5; ++draw) {
+        std::mt19937 rng(static_cast<unsigned>(1000 * draw + p));
+        std::uniform_real_distribution<float> bump(-0.008f, 0.008f);
+        HeightField changed = whole;
+        for (int r = 0; r < g.rows; ++r)
+          for (int c = 0; c < g.cols; ++c) {
+            if (std::max(std::abs(r - pr), std::abs(c - pc)) <= claim || std::isnan(changed.at(r, c))) continue;
+            changed.at(r, c) += bump(rng);
+          }
+        const bool same = removed_of(changed)[p] == base[p];
+        if (claim == reach) {
+          EXPECT_TRUE(same) << "point " << p << " (node " << pr << ", " << pc << "), draw " << draw;
+        } else {
+          moved_inside += same ? 0U : 1U;
+        }
+      }
+    }
+  }
+  EXPECT_GT(moved_inside, 0U) << "changes two cells nearer than D move no verdict: the test cannot see the grid's reads";
 }
 
 TEST(DespikeGrid, RemovesAStrayJustBeyondASilhouetteAtEverySplatRadius) {
