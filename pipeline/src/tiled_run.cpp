@@ -706,7 +706,7 @@ FilterShares auto_filter_shares(const RunConfig& config, int k, double cell_m, d
   return s;
 }
 
-// The error when auto_filter_halo_cells finds no value: naming the stage, the key and the
+// The error when auto_filter_shares finds no value: naming the stage, the key and the
 // spacing it took (`what`: "estimated", "the robust sample's").
 ConfigError no_filter_halo_error(const std::string& stage, const std::string& what, double spacing_m, double cell_m) {
   return ConfigError("tiled run, stage " + stage + ": scale.filter_halo_cells auto: no halo up to 4096 cells holds the filters' "
@@ -3996,7 +3996,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 // Tile jobs in other processes: plan.json, part_<t>.bin, kept_<t>.bin.
 
 // 4: layout.xyz_floats, and spill records of the file's floats when it is set (FileFloats).
-constexpr const char* kPlanFormat = "hapticloud tile plan 5";
+constexpr const char* kPlanFormat = "hapticloud tile plan 6";
 // 2: kept_<t>.bin is a mask over the spill (KeptMask), not the kept points.
 constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '2', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};

@@ -108,7 +108,7 @@ struct ScaleConfig {
   /// (tiled_run.cpp, choose_tile_side). The tile loop holds about 150 bytes a window point.
   std::uint64_t tile_max_points = 4'000'000;
   /// scale.filter_halo_cells: auto, the halo from the scan's spacing (tiled_run.cpp,
-  /// auto_filter_halo_cells).
+  /// auto_filter_shares).
   static constexpr int kAutoFilterHalo = -1;
   /// Extra halo for the per-tile outlier filters and the honest check [cells], 0 to 4096, or
   /// kAutoFilterHalo: the least that holds their searches at the scan's spacing (an estimate at
