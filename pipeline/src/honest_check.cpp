@@ -1395,6 +1395,11 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
     lo[e] = at(0.01);
     hi[e] = at(0.99);
   }
+  // The run's frame when given (HonestCheckOptions::frame_centre_m), so that a tile's window
+  // rounds its searches as the in-core run does.
+  if (std::isfinite(o.frame_centre_m[0]) && std::isfinite(o.frame_centre_m[1]) && std::isfinite(o.frame_centre_m[2])) {
+    centre = Eigen::Vector3d(o.frame_centre_m[0], o.frame_centre_m[1], o.frame_centre_m[2]);
+  }
   local_floats(cloud.xyz, centre, local, finite);  // the same flags again, and the copy
   const Eigen::Vector3d ext = (hi - lo).cwiseMax(1e-9);
   const double start_edge = std::max(std::cbrt(ext.prod() / static_cast<double>(n_finite)), 1e-9);
@@ -1406,10 +1411,12 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   const double radius = isolated_filter_radius_m(o, spacing);
   std::vector<std::uint8_t> isolated;
   std::size_t tested = 0, hashed = 0;
-  if (known_near != nullptr && coordinates_within(local, finite, 1e3 * radius)) {
+  if (known_near != nullptr && coordinates_within(local, finite, 1e4 * radius)) {
     // The flags' frame and this one each round a distance by at most 2·√3·2^-24 of their
-    // coordinates' size (10^3 radii): 4e-4 radii in all, inside the 1 % between 0.99 × radius
-    // and radius.
+    // coordinates' size (10^4 radii): 4e-3 radii in all, inside the 1 % between 0.99 × radius
+    // and radius. (10^3 radii until 2026-11-29, fifty-second session, when a tile's window
+    // still centred on its own median; in the run's frame a window lies as far out as the scan
+    // reaches, as the robust test's near counts do since the fifty-first session.)
     isolated = isolated_flags_about(local, finite, *known_near, radius, o.isolation_min_neighbours, tested, hashed);
   } else {
     const VoxelHash hash(local, finite, radius);

@@ -2307,6 +2307,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     // in-core run uses), not the window's own estimate.
     HonestCheckOptions isolation = config.cross_check.honest;
     isolation.spacing_m = sample_spacing_m;
+    // And its float frame, the in-core run's (RobustScale::centre_m), not the window's median.
+    if (plan.robust_scale && plan.robust_scale->centre_m) isolation.frame_centre_m = *plan.robust_scale->centre_m;
     std::vector<std::uint8_t> known_near;
     if (!near_kept.empty()) {
       o.sums["near_lost_to_removals"] += static_cast<double>(near_after_removal(

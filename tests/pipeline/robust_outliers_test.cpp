@@ -405,6 +405,66 @@ TEST(RobustOutliers, TheIsolatedFilterTakesTheSpacingItIsGiven) {
   EXPECT_THROW(remove_isolated_points(c, o), hc::ConfigError);
 }
 
+// remove_isolated_points' float frame (HonestCheckOptions::frame_centre_m): a tiled run's window
+// given the run's frame rounds its searches as the whole cloud does. 1 800 pairs of points,
+// each pair's two points a radius apart to within ±4e-5 of it (the rounding of float32
+// coordinates about a metre out is about 1e-5 of the 9 mm radius), the pairs 5 cm apart over
+// 3 m × 1.5 m; one neighbour wanted, so a point goes exactly when its partner rounds to farther
+// than the radius. Oracle: the whole cloud's verdicts in its frame (centre given: the middle of
+// the box) against those of the window x > 2 m (its own median 2.5 m out), with the frame given
+// (every verdict equal) and without it (the window's median: some pairs round the other way,
+// so the test sees the frame).
+TEST(RobustOutliers, TheIsolatedFilterRoundsInTheFrameItIsGiven) {
+  hc::pipeline::HonestCheckOptions o;
+  o.spacing_m = 0.001;
+  o.isolation_min_neighbours = 1;
+  const double radius = 0.9 * o.isolation_radius_spacings * o.spacing_m;
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> tweak(-4e-5, 4e-5), angle(0.0, 6.283185307179586);
+  std::vector<Eigen::Vector3d> pts;
+  for (int i = 0; i < 60; ++i)
+    for (int j = 0; j < 30; ++j) {
+      const Eigen::Vector3d a(0.05 * i + 0.01, 0.05 * j + 0.01, 0.001 * (j % 7));
+      const double d = radius * (1.0 + tweak(rng)), t = angle(rng);
+      pts.push_back(a);
+      pts.push_back(a + d * Eigen::Vector3d(std::cos(t), std::sin(t), 0.0));
+    }
+  ASSERT_EQ(pts.size(), 3600U);
+  const Cloud whole = cloud_of(pts);
+  o.frame_centre_m = {1.5, 0.75, 0.0};
+  hc::pipeline::RemovedPoints gone;
+  (void)remove_isolated_points(whole, o, &gone);
+  std::vector<std::uint8_t> whole_gone(pts.size(), 0);
+  for (const std::size_t c : gone.at) whole_gone[c] = 1;
+  const std::size_t n_gone = gone.at.size();
+  ASSERT_GT(n_gone, 100U) << "about half the pairs round apart";
+  ASSERT_LT(n_gone, pts.size() - 100U);
+  // The window: the pairs whose first point lies at x > 2 m (both points inside it).
+  std::vector<Eigen::Vector3d> win;
+  std::vector<std::size_t> of;
+  for (std::size_t p = 0; p < pts.size(); p += 2) {
+    if (pts[p].x() <= 2.0) continue;
+    for (std::size_t q = p; q < p + 2; ++q) {
+      win.push_back(pts[q]);
+      of.push_back(q);
+    }
+  }
+  ASSERT_GT(win.size(), 600U);
+  const auto differ = [&](const hc::pipeline::HonestCheckOptions& opt) {
+    hc::pipeline::RemovedPoints w;
+    (void)remove_isolated_points(cloud_of(win), opt, &w);
+    std::vector<std::uint8_t> wg(win.size(), 0);
+    for (const std::size_t c : w.at) wg[c] = 1;
+    std::size_t n = 0;
+    for (std::size_t i = 0; i < win.size(); ++i) n += wg[i] != whole_gone[of[i]] ? 1U : 0U;
+    return n;
+  };
+  EXPECT_EQ(differ(o), 0U) << "the run's frame given: the window's verdicts are the whole cloud's";
+  hc::pipeline::HonestCheckOptions own = o;
+  own.frame_centre_m = {std::nan(""), std::nan(""), std::nan("")};
+  EXPECT_GT(differ(own), 0U) << "about its own median the window rounds some pairs the other way";
+}
+
 // The mean-distance bound of RobustVerdicts::near where it is tight: a point with k − 1 copies
 // and one more point D away has d = D / k, so its (k − 1)-th nearest lies within k·d / 2 = D/2
 // by the bound, and indeed at 0; at a radius of 0.9 D exactly its k − 1 copies count, and the

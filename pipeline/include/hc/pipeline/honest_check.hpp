@@ -25,6 +25,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -70,6 +71,13 @@ struct HonestCheckOptions {
   /// with one number. 0: check_input and remove_isolated_points estimate it from their points
   /// (median_spacing).
   double spacing_m = 0.0;
+  /// The float frame's centre for remove_isolated_points [m, the cloud's frame] (set by run,
+  /// not a config key): the robust test's (RobustScale::centre_m), so that a tiled run's
+  /// windows and the in-core run round every distance of the filter's searches alike. NaN (the
+  /// default): the filter centres on the median of its own points. Since 2026-11-29 (fifty-second
+  /// session; before, each window rounded about its own median).
+  std::array<double, 3> frame_centre_m{std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::quiet_NaN(),
+                                       std::numeric_limits<double>::quiet_NaN()};
   /// Connected groups of valid cells (8-neighbours) of at most this many cells, apart from the
   /// largest group, are islands [cells].
   int island_max_cells = 16;
@@ -277,16 +285,18 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
 /// The spacing is options.spacing_m when > 0 instead of this cloud's own estimate: build_scene
 /// passes the robust test's (RobustScale::spacing_m), measured on the whole scan before that
 /// test, so that the tiled run's tiles, which each hold a window of the scan, use the very same
-/// number.
+/// number. Its searches run in float32 about options.frame_centre_m when given (build_scene and
+/// the tiled run's tiles: the robust test's RobustScale::centre_m, one frame for every window),
+/// else about the median of up to 65 536 evenly strided points.
 /// @param removed_points when given, set to the removed points (coordinates and columns in
 ///        `cloud`): the tiled run checks that none lay within the radius of its window's edge.
 /// @param known_near when given (one per column): 1 = at least isolation_min_neighbours other
 ///        points of `cloud` are known to lie within 0.99 × the filter's radius (distances
-///        between float32 coordinates in a frame whose coordinates stay within 10^3 such radii:
+///        between float32 coordinates in a frame whose coordinates stay within 10^4 such radii:
 ///        the robust test's, RobustVerdicts::near), so the point is kept without its search, and the voxel hash
 ///        holds only the voxels about the points searched: the result is the full test's.
-///        Used only when this filter's own recentred coordinates stay within 10^3 radii too
-///        (the float rounding of both frames then stays under 0.1 % of the radius); otherwise
+///        Used only when this filter's own recentred coordinates stay within 10^4 radii too
+///        (the float rounding of both frames then stays under 0.5 % of the radius); otherwise
 ///        ignored. Report figure points_tested: the points searched.
 /// @throws hc::ConfigError for options outside their ranges (check_honest_options; a
 ///         spacing_m that is negative or not finite among them); std::invalid_argument when
