@@ -1370,8 +1370,8 @@ void check_window_records(std::size_t t, std::size_t records) {
                       " spilled records, at most 4294967295 supported (lower scale.tile_max_points or scale.tile_cells)");
 }
 
-// The ring of a tile's interior that other tiles' decided regions reach [nodes]: the grid
-// stages' reach (the halo less the filters' share; tile_bounds), and a node more for the
+// The ring of a tile's interior that other tiles' decided regions reach [nodes]: the decided
+// region's width (the halo less the filters' share; tile_bounds), and a node more for the
 // rounding that can put a point a step inside a box its node lies outside (Tiles::box_m).
 int owned_ring(const Tiles& tiles) { return std::max(0, tiles.halo - tiles.filter) + 1; }
 
@@ -2323,6 +2323,20 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     // removed one is removed there too unless its radius reaches past the window.
     check_within_window(tiles, t, bounds, isolated, detail::figure_of(f2.report, "isolation_radius_mm", 0.0) * 1e-3,
                         "isolated", spacing_m, filter_halo_now(config, tiles));
+    // Under scale.filter_halo_cells auto the decided region was sized for these radii
+    // (auto_filter_shares, at the plan's spacing, which the filters take): a radius past its
+    // share would leave a count reading an unchecked verdict, which no window check sees.
+    if (tiles.isolated > 0 || tiles.despike > 0) {
+      const double cell = tiles.g.cell_size_m;
+      const double iso_m = detail::figure_of(f2.report, "isolation_radius_mm", 0.0) * 1e-3;
+      const double despike_m = oc.despike ? despike_search_radius_m(cell, static_cast<double>(tiles.k), spacing_m) : 0.0;
+      if (iso_m > tiles.isolated * cell * (1.0 + 1e-9) || despike_m > tiles.despike * cell * (1.0 + 1e-9)) {
+        throw std::logic_error("process_tile: tile " + std::to_string(t) + ": the isolated filter's radius " + format_number(iso_m * 1e3) +
+                               " mm or the despike's " + format_number(despike_m * 1e3) + " mm exceeds the plan's shares (" +
+                               std::to_string(tiles.isolated) + " and " + std::to_string(tiles.despike) + " cells of " +
+                               format_number(cell * 1e3) + " mm)");
+      }
+    }
     pts = std::move(f2.value);
     lap("isolated");
   }
@@ -2343,7 +2357,11 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       add_figures(o.sums, ds.report);
       compose_removal(removed.at);
       // The despike's 3-D count searches at most max(4 scan cells, 4 spacings) about a point;
-      // its verdicts are needed within the grid stages' reach of the interior (tile_halo).
+      // its verdicts are needed within the grid stages' reach of the interior (tile_halo). (The
+      // honest check's confirmations read kept points within its tolerance, spike height or
+      // splat footprint of an interior cell, which can lie past that reach: their despike
+      // verdicts are this window's, never checked as the whole scan's; before 2026-11-29 this
+      // check ran to the grid share, whose verdicts were not the whole scan's either.)
       RobustOutlierOptions::TileBounds despike_bounds = bounds;
       const int reach = grid_reach_cells(config, tiles.k);
       despike_bounds.decides_m = tiles.box_m(inner[0] - reach, inner[1] + reach, inner[2] - reach, inner[3] + reach);
@@ -2613,10 +2631,11 @@ void check_honest_halo(const RunConfig& config, const Tiles& tiles, const Honest
   const double halo_m = tiles.halo * cell_m;
   if (!(halo_m < reach_m)) return;
   // The least scale.filter_halo_cells whose halo (rounded up to a multiple of the upsample
-  // factor) holds the reach, if the key's range has one.
+  // factor) holds the reach, if the key's range has one: a fixed value, so without auto's
+  // shares (tile_halo), which the user's value replaces.
   int needed = -1;
-  for (int f = tiles.filter + 1; f <= 4096 && needed < 0; ++f) {
-    if (tile_halo(config, tiles.k, f, tiles.despike, tiles.isolated) * cell_m >= reach_m) needed = f;
+  for (int f = 0; f <= 4096 && needed < 0; ++f) {
+    if (tile_halo(config, tiles.k, f, 0, 0) * cell_m >= reach_m) needed = f;
   }
   throw ConfigError(
       std::string("tiled run, stage ") + stage + ": the tiles' halo (" + format_number(halo_m * 1e3) + " mm, " +
@@ -3279,18 +3298,19 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       // The least filter halo [cells] whose windows hold the farthest sampled search seen (the
       // halo grows by its excess, one node to spare; tile_halo rounds to the upsample factor);
       // -1 when none up to 4096 does, 0 when every search stayed inside.
-      const auto filter_for_searches = [&] {
+      // fixed_value: the value to name to the user, which replaces auto's shares (tile_halo).
+      const auto filter_for_searches = [&](bool fixed_value) {
         if (past_window == 0) return 0;
         const double want = tiles.halo + std::ceil(past_window_m / tiles.g.cell_size_m) + 1.0;
-        for (int f = tiles.filter + 1; f <= 4096; ++f) {
-          if (tile_halo(config, tiles.k, f, tiles.despike, tiles.isolated) >= want) return f;
+        for (int f = fixed_value ? 0 : tiles.filter + 1; f <= 4096; ++f) {
+          if (fixed_value ? tile_halo(config, tiles.k, f, 0, 0) >= want : tile_halo(config, tiles.k, f, tiles.despike, tiles.isolated) >= want) return f;
         }
         return -1;
       };
       // Throws when the windows leave the scale open (see scale_from_spill).
       const auto check_fixed = [&] {
         if (robust_scale_fixed(log_bounds, nearest_bounds)) return;
-        const int needed = filter_for_searches();
+        const int needed = filter_for_searches(true);
         std::string what = "tiled run, stage tile_scale: the robust test's scale (median and MAD of ln d, and the spacing) could "
                            "differ from the in-core run's: of its " + std::to_string(found) + " sampled points, ";
         if (past_window > 0) {
@@ -3312,17 +3332,38 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       // are spilled again with it and the scale taken again over the new windows (a wider halo
       // is kept).
       if (config.scale.filter_halo_cells == ScaleConfig::kAutoFilterHalo && filter_halo_added(config)) {
-        for (int pass = 0; pass < 3; ++pass) {
+        const auto holds = [&](const FilterShares& n) {
+          return n.filter <= tiles.filter && n.despike <= tiles.despike && n.isolated <= tiles.isolated;
+        };
+        for (int pass = 0;; ++pass) {
           sample_spacing_m = robust_scale ? robust_scale->spacing_m : 0.0;
-          FilterShares need = sample_spacing_m > 0.0 ? auto_filter_shares(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m)
-                                                     : FilterShares{std::max(tiles.filter, 32), tiles.despike, tiles.isolated};
-          if (need.filter < 0) throw no_filter_halo_error("tile_scale", "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
+          const FilterShares for_spacing = sample_spacing_m > 0.0 ? auto_filter_shares(config, tiles.k, tiles.g.cell_size_m, sample_spacing_m)
+                                                                  : FilterShares{std::max(tiles.filter, 32), tiles.despike, tiles.isolated};
+          if (for_spacing.filter < 0) throw no_filter_halo_error("tile_scale", "the robust sample's", sample_spacing_m, tiles.g.cell_size_m);
+          FilterShares need = for_spacing;
           // The sampled points' own searches, where they leave the scale open (check_fixed
           // names the key when no halo up to 4096 holds them, or after the last pass).
-          if (!robust_scale_fixed(log_bounds, nearest_bounds)) need.filter = std::max(need.filter, filter_for_searches());
+          if (!robust_scale_fixed(log_bounds, nearest_bounds)) need.filter = std::max(need.filter, filter_for_searches(false));
           const int needed = need.filter;
           r.report.figure("filter_halo_cells_needed", needed);
-          if (need.filter <= tiles.filter && need.despike <= tiles.despike && need.isolated <= tiles.isolated) break;
+          r.report.figure("despike_halo_cells_needed", need.despike);
+          r.report.figure("isolated_halo_cells_needed", need.isolated);
+          if (holds(need)) break;
+          if (pass == 3) {
+            // Three spills, and the sample's spacing still asks for more than the last one held
+            // (each wider halo moved it). The searches' share is check_fixed's to name.
+            if (holds(for_spacing)) break;
+            int fixed = -1;
+            const int want = tile_halo(config, tiles.k, std::max(tiles.filter, for_spacing.filter), std::max(tiles.despike, for_spacing.despike),
+                                       std::max(tiles.isolated, for_spacing.isolated));
+            for (int f = 0; f <= 4096 && fixed < 0; ++f)
+              if (tile_halo(config, tiles.k, f, 0, 0) >= want) fixed = f;
+            throw ConfigError("tiled run, stage tile_scale: scale.filter_halo_cells auto: after three spills the robust sample's spacing (" +
+                              format_number(sample_spacing_m * 1e3) + " mm) still needs a wider halo than the last spill's (" +
+                              std::to_string(tiles.halo) + " cells, " + std::to_string(want) + " needed): set scale.filter_halo_cells to " +
+                              (fixed >= 0 ? "at least " + std::to_string(fixed) : std::string("a value")) +
+                              ", or use larger tiles (scale.tile_cells)");
+          }
           const int planned = tiles.filter, planned_despike = tiles.despike, planned_isolated = tiles.isolated;
           // Each share as wide as the sample needs, or as planned where that is wider.
           tiles.filter = std::max(tiles.filter, need.filter);
@@ -3349,7 +3390,10 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
               detail::set_figure(rp, "filter_halo_cells", tiles.filter);
               detail::set_figure(rp, "despike_halo_cells", tiles.despike);
               detail::set_figure(rp, "isolated_halo_cells", tiles.isolated);
-              if (pass == 0) rp.notes.push_back("halo_cells, filter_halo_cells: widened at tile_scale for the robust sample's spacing");
+              if (pass == 0) {
+                rp.notes.push_back("halo_cells, filter_halo_cells, despike_halo_cells, isolated_halo_cells: widened at tile_scale for the "
+                                   "robust sample's spacing");
+              }
               if (tiles.size != side_before) {
                 detail::set_figure(rp, "tile_cells", tiles.size);
                 detail::set_figure(rp, "tiles", static_cast<double>(tiles.count()));
@@ -3366,6 +3410,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           robust_scale = scale_from_spill();
         }
         r.report.figure("filter_halo_cells", tiles.filter);
+        r.report.figure("despike_halo_cells", tiles.despike);
+        r.report.figure("isolated_halo_cells", tiles.isolated);
         r.report.figure("halo_cells", tiles.halo);
       }
       check_fixed();
@@ -3997,7 +4043,9 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 // ---------------------------------------------------------------------------------------------
 // Tile jobs in other processes: plan.json, part_<t>.bin, kept_<t>.bin.
 
-// 4: layout.xyz_floats, and spill records of the file's floats when it is set (FileFloats).
+// 4: layout.xyz_floats, and spill records of the file's floats when it is set (FileFloats);
+// 5: the input files as a list (inputs); 6: the halo's shares under auto (tiles'
+// despike_halo_cells, isolated_halo_cells; 2026-11-29).
 constexpr const char* kPlanFormat = "hapticloud tile plan 6";
 // 2: kept_<t>.bin is a mask over the spill (KeptMask), not the kept points.
 constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '2', '\n'};
@@ -4230,10 +4278,10 @@ PlanFile read_plan_file(const fs::path& plan_file) {
     p.tiles.tiles_c = t.at("tiles_c").get<int>();
     if (p.tiles.g.rows < 1 || p.tiles.g.cols < 1 || p.tiles.size < 1 || p.tiles.k < 1 || p.tiles.halo < 0 ||
         p.tiles.filter < 0 || p.tiles.filter > p.tiles.halo || p.tiles.despike < 0 || p.tiles.isolated < 0 ||
-        p.tiles.isolated + p.tiles.filter > p.tiles.halo ||
+        p.tiles.isolated + p.tiles.filter > p.tiles.halo || p.tiles.despike > p.tiles.halo ||
         p.tiles.tiles_r != (p.tiles.g.rows + p.tiles.size - 1) / p.tiles.size ||
         p.tiles.tiles_c != (p.tiles.g.cols + p.tiles.size - 1) / p.tiles.size || !(p.tiles.g.cell_size_m > 0.0)) {
-      throw InputError(plan_file.string() + ": tiles does not describe a tiling of the grid (rows, cols, tile_cells, tiles_r, tiles_c, halo_cells, filter_halo_cells: at least 0 and at most halo_cells; despike_halo_cells and isolated_halo_cells: at least 0, isolated_halo_cells + filter_halo_cells at most halo_cells)");
+      throw InputError(plan_file.string() + ": tiles does not describe a tiling of the grid (rows, cols, tile_cells, tiles_r, tiles_c, halo_cells, filter_halo_cells: at least 0 and at most halo_cells; despike_halo_cells and isolated_halo_cells: at least 0, despike_halo_cells and isolated_halo_cells + filter_halo_cells at most halo_cells)");
     }
     where = "spill_bytes";
     pf.spill_bytes = j.at("spill_bytes").get<std::vector<std::uintmax_t>>();

@@ -534,8 +534,9 @@ TEST(DespikeGrid, AVerdictReadsTheGridOnlyWithinItsGridReach) {
   for (const int claim : {reach, reach - 2}) {
     for (const std::size_t p : looked) {
       const auto col = d.cloud.xyz.col(static_cast<Eigen::Index>(p));
-      const int pr = static_cast<int>(std::lround((col.y() - g.y0_m) / g.cell_size_m));
-      const int pc = static_cast<int>(std::lround((col.x() - g.x0_m) / g.cell_size_m));
+      // Its node, nearest as the grid bins points (ties up).
+      const int pr = static_cast<int>(std::floor((col.y() - g.y0_m) * (1.0 / g.cell_size_m) + 0.5));
+      const int pc = static_cast<int>(std::floor((col.x() - g.x0_m) * (1.0 / g.cell_size_m) + 0.5));
       for (int draw = 0; draw < 5; ++draw) {
         std::mt19937 rng(static_cast<unsigned>(1000 * draw + p));
         std::uniform_real_distribution<float> bump(-0.008f, 0.008f);
