@@ -1685,41 +1685,6 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
   const auto t0 = Clock::now();
   if (removed != nullptr) *removed = RemovedPoints{};
   StageReport report = make_report("far_clusters", cloud.size());
-  if (scope != nullptr && link_m > 0.0 && std::isfinite(link_m) && o.far_distance_m >= 0.0 && std::isfinite(o.far_distance_m) &&
-      o.max_fraction >= 0.0 && o.max_fraction <= 1.0) {  // (bad options: far_clusters_impl names them)
-    // A part of a scan (a tiled run's window) whose every finite point lies within the far
-    // distance of the main body's box has no far cluster: a cluster's gap, box to box, is at
-    // most any of its points' distance to that box. No components are joined then (5 % of the
-    // 10^8 wall's CPU at N = 800, where no window holds a far point; fifty-second session).
-    const double far = o.far_distance_m > 0.0 ? o.far_distance_m : 10.0 * link_m;
-    const Eigen::Vector3d& lo = scope->main_body_min_m;
-    const Eigen::Vector3d& hi = scope->main_body_max_m;
-    const double* xyz = cloud.xyz.data();
-    bool near = true, finite = false;
-    for (std::size_t i = 0; i < cloud.size() && near; ++i) {
-      const double* p = xyz + 3 * i;
-      if (!(std::isfinite(p[0]) && std::isfinite(p[1]) && std::isfinite(p[2]))) continue;
-      finite = true;
-      double g2 = 0.0;
-      for (int a = 0; a < 3; ++a) {
-        const double g = std::max({lo[a] - p[a], p[a] - hi[a], 0.0});
-        g2 += g * g;
-      }
-      near = !(std::sqrt(g2) > far);
-    }
-    if (near && finite) {
-      report.count_out = cloud.size();
-      report.figure("link_mm", link_m * 1e3);
-      report.figure("far_distance_mm", far * 1e3);
-      report.figure("far_clusters", 0.0);
-      report.figure("removed_far_clusters", 0.0);
-      report.figure("kept_far_clusters", 0.0);
-      report.figure("undecided_far_clusters", 0.0);
-      report.figure("components_not_joined", 1.0);
-      report.seconds = seconds_since(t0);
-      return {std::move(cloud), std::move(report)};
-    }
-  }
   std::vector<std::uint32_t> gone;
   const FarClusters fc = far_clusters_impl(cloud, link_m, o, &gone, scope, size_points);
   std::size_t removed_clusters = 0, kept_far = 0, undecided = 0;

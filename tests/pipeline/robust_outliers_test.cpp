@@ -1297,27 +1297,6 @@ TEST(FarClusters, AScopeJudgesEveryComponentAgainstTheWholeScansMainBodyAndRemov
   EXPECT_EQ(in_body.main_body.count, 0U);
   EXPECT_EQ(in_body.main_body.max_m, whole.main_body_max_m);
   EXPECT_EQ(kept_points(&whole), 310U);
-  // Every point within the far distance of the main body's box: no component is joined (a
-  // cluster's gap is at most any of its points' distance to the box), and find_far_clusters,
-  // which joins them, agrees that none is far.
-  EXPECT_EQ(figure(remove_far_clusters(c, 0.02, o, &whole).report, "components_not_joined"), 1.0);
-  {
-    FarClusterScope near_square = whole;
-    near_square.main_body_min_m = Eigen::Vector3d(0.0, 0.0, -0.01);
-    near_square.main_body_max_m = Eigen::Vector3d(0.1, 0.1, 0.01);
-    FarClusterOptions wide = o;
-    wide.far_distance_m = 0.5;  // P lies 0.49 m above the box, Q 0.2 m beside it
-    const auto r = remove_far_clusters(c, 0.02, wide, &near_square);
-    EXPECT_EQ(r.value.size(), 310U);
-    EXPECT_EQ(figure(r.report, "components_not_joined"), 1.0);
-    for (const PointCluster& pc : find_far_clusters(c, 0.02, wide, &near_square).others) EXPECT_FALSE(pc.removed || pc.undecided);
-    wide.far_distance_m = 0.48;  // P now beyond it: joined, and P removed
-    const auto joined = remove_far_clusters(c, 0.02, wide, &near_square);
-    EXPECT_EQ(joined.value.size(), 305U);
-    EXPECT_TRUE(std::none_of(joined.report.figures.begin(), joined.report.figures.end(),
-                             [](const auto& f) { return f.first == "components_not_joined"; }));
-    EXPECT_EQ(figure(joined.report, "clusters"), 4.0) << "the main body's box and the three components";
-  }
 
   FarClusterScope square = whole;
   square.main_body_min_m = Eigen::Vector3d(0.0, 0.0, -0.01);

@@ -363,10 +363,7 @@ FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarCluste
 /// centroid, gap) in a note; figures: link_mm, far_distance_mm, clusters, far_clusters,
 /// removed_far_clusters (points), kept_far_clusters (far but too large: still in the cloud);
 /// with a scope also undecided_far_clusters (small and far, kept at the scope's edge: see
-/// FarClusterScope). With a scope, when every finite point lies within the far distance of the
-/// main body's box no cluster can be far (a cluster's gap is at most any of its points'
-/// distance to that box): the components are not joined, nothing is removed, figure
-/// components_not_joined is 1 and clusters is not reported.
+/// FarClusterScope).
 /// @param link_m  linking distance [m], > 0 (build_scene: options.link_m, or when 0 the robust
 ///                test's global threshold distance, the largest mean k-NN distance it keeps)
 /// @param scope   see find_far_clusters (the tiled run's tiles); nullptr: the whole scan
