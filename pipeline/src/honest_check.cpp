@@ -1397,9 +1397,7 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
   }
   // The run's frame when given (HonestCheckOptions::frame_centre_m), so that a tile's window
   // rounds its searches as the in-core run does.
-  if (std::isfinite(o.frame_centre_m[0]) && std::isfinite(o.frame_centre_m[1]) && std::isfinite(o.frame_centre_m[2])) {
-    centre = Eigen::Vector3d(o.frame_centre_m[0], o.frame_centre_m[1], o.frame_centre_m[2]);
-  }
+  if (o.frame_centre_m) centre = Eigen::Vector3d((*o.frame_centre_m)[0], (*o.frame_centre_m)[1], (*o.frame_centre_m)[2]);
   local_floats(cloud.xyz, centre, local, finite);  // the same flags again, and the copy
   const Eigen::Vector3d ext = (hi - lo).cwiseMax(1e-9);
   const double start_edge = std::max(std::cbrt(ext.prod() / static_cast<double>(n_finite)), 1e-9);

@@ -512,7 +512,7 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
       // At the spacing the robust test's sample measured (a tiled run's tiles take the same).
       HonestCheckOptions isolation = config.cross_check.honest;
       isolation.spacing_m = robust_scale.spacing_m;
-      if (robust_scale.centre_m) isolation.frame_centre_m = *robust_scale.centre_m;  // the frame a tiled run's windows take
+      isolation.frame_centre_m = robust_scale.centre_m;  // the frame a tiled run's windows take
       cloud = stage("isolated", reports, progress, [&] { return remove_isolated_points(std::move(cloud), isolation); });
       if (sample_spacing_m != nullptr) *sample_spacing_m = robust_scale.spacing_m;
     }

@@ -660,6 +660,17 @@ int tile_halo(const RunConfig& config, int k, int filter_cells, int despike_cell
   return (halo + k - 1) / k * k;
 }
 
+// The least scale.filter_halo_cells in [0, 4096] a user could set (a fixed value: no auto
+// shares, tile_halo) whose halo [nodes] `enough` accepts; -1 when none does. For the value an
+// error advises.
+template <class Enough>
+int least_fixed_filter_cells(const RunConfig& config, int k, Enough&& enough) {
+  for (int f = 0; f <= 4096; ++f) {
+    if (enough(tile_halo(config, k, f, 0, 0))) return f;
+  }
+  return -1;
+}
+
 // The honest check's reach about a point [m] at the scan's spacing `spacing_m`: the point test's
 // radius (cross_check.isolation_radius_spacings spacings) plus the spike searches' (the largest
 // of the tolerance, the spike height and the confirmation footprint).
@@ -2308,7 +2319,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     HonestCheckOptions isolation = config.cross_check.honest;
     isolation.spacing_m = sample_spacing_m;
     // And its float frame, the in-core run's (RobustScale::centre_m), not the window's median.
-    if (plan.robust_scale && plan.robust_scale->centre_m) isolation.frame_centre_m = *plan.robust_scale->centre_m;
+    if (plan.robust_scale) isolation.frame_centre_m = plan.robust_scale->centre_m;
     std::vector<std::uint8_t> known_near;
     if (!near_kept.empty()) {
       o.sums["near_lost_to_removals"] += static_cast<double>(near_after_removal(
@@ -2633,10 +2644,7 @@ void check_honest_halo(const RunConfig& config, const Tiles& tiles, const Honest
   // The least scale.filter_halo_cells whose halo (rounded up to a multiple of the upsample
   // factor) holds the reach, if the key's range has one: a fixed value, so without auto's
   // shares (tile_halo), which the user's value replaces.
-  int needed = -1;
-  for (int f = 0; f <= 4096 && needed < 0; ++f) {
-    if (tile_halo(config, tiles.k, f, 0, 0) * cell_m >= reach_m) needed = f;
-  }
+  const int needed = least_fixed_filter_cells(config, tiles.k, [&](int halo) { return halo * cell_m >= reach_m; });
   throw ConfigError(
       std::string("tiled run, stage ") + stage + ": the tiles' halo (" + format_number(halo_m * 1e3) + " mm, " +
       std::to_string(tiles.halo) + " cells) is narrower than the point test's and spike searches' reach (" +
@@ -3302,8 +3310,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       const auto filter_for_searches = [&](bool fixed_value) {
         if (past_window == 0) return 0;
         const double want = tiles.halo + std::ceil(past_window_m / tiles.g.cell_size_m) + 1.0;
-        for (int f = fixed_value ? 0 : tiles.filter + 1; f <= 4096; ++f) {
-          if (fixed_value ? tile_halo(config, tiles.k, f, 0, 0) >= want : tile_halo(config, tiles.k, f, tiles.despike, tiles.isolated) >= want) return f;
+        if (fixed_value) return least_fixed_filter_cells(config, tiles.k, [want](int halo) { return halo >= want; });
+        for (int f = tiles.filter + 1; f <= 4096; ++f) {
+          if (tile_halo(config, tiles.k, f, tiles.despike, tiles.isolated) >= want) return f;
         }
         return -1;
       };
@@ -3353,11 +3362,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
             // Three spills, and the sample's spacing still asks for more than the last one held
             // (each wider halo moved it). The searches' share is check_fixed's to name.
             if (holds(for_spacing)) break;
-            int fixed = -1;
             const int want = tile_halo(config, tiles.k, std::max(tiles.filter, for_spacing.filter), std::max(tiles.despike, for_spacing.despike),
                                        std::max(tiles.isolated, for_spacing.isolated));
-            for (int f = 0; f <= 4096 && fixed < 0; ++f)
-              if (tile_halo(config, tiles.k, f, 0, 0) >= want) fixed = f;
+            const int fixed = least_fixed_filter_cells(config, tiles.k, [want](int halo) { return halo >= want; });
             throw ConfigError("tiled run, stage tile_scale: scale.filter_halo_cells auto: after three spills the robust sample's spacing (" +
                               format_number(sample_spacing_m * 1e3) + " mm) still needs a wider halo than the last spill's (" +
                               std::to_string(tiles.halo) + " cells, " + std::to_string(want) + " needed): set scale.filter_halo_cells to " +

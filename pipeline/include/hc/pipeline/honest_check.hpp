@@ -25,7 +25,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
-#include <limits>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -73,11 +73,10 @@ struct HonestCheckOptions {
   double spacing_m = 0.0;
   /// The float frame's centre for remove_isolated_points [m, the cloud's frame] (set by run,
   /// not a config key): the robust test's (RobustScale::centre_m), so that a tiled run's
-  /// windows and the in-core run round every distance of the filter's searches alike. NaN (the
+  /// windows and the in-core run round every distance of the filter's searches alike. Empty (the
   /// default): the filter centres on the median of its own points. Since 2026-11-29 (fifty-second
   /// session; before, each window rounded about its own median).
-  std::array<double, 3> frame_centre_m{std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::quiet_NaN(),
-                                       std::numeric_limits<double>::quiet_NaN()};
+  std::optional<std::array<double, 3>> frame_centre_m;
   /// Connected groups of valid cells (8-neighbours) of at most this many cells, apart from the
   /// largest group, are islands [cells].
   int island_max_cells = 16;
