@@ -1047,8 +1047,9 @@ namespace {
 
 // Per cell (row-major), 1 where the cell belongs to an island: a group of valid cells
 // (8-connected, OpenCV's connected components) of at most max_cells cells that is not the
-// largest group. *islands = the number of such groups.
-std::vector<std::uint8_t> island_mask(const HeightField& grid, int max_cells, std::size_t* islands) {
+// largest group (with spare_largest; without it, the largest too when that small:
+// HonestCheckOptions::spare_largest_group). *islands = the number of such groups.
+std::vector<std::uint8_t> island_mask(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest) {
   const GridGeometry& g = grid.geometry();
   cv::Mat valid(g.rows, g.cols, CV_8UC1);
   for (int r = 0; r < g.rows; ++r)
@@ -1063,7 +1064,7 @@ std::vector<std::uint8_t> island_mask(const HeightField& grid, int max_cells, st
   std::vector<std::uint8_t> is_island(static_cast<std::size_t>(std::max(n_labels, 1)), 0);
   *islands = 0;
   for (int l = 1; l < n_labels; ++l) {
-    if (l == largest || stats.at<int>(l, cv::CC_STAT_AREA) > max_cells) continue;
+    if ((spare_largest && l == largest) || stats.at<int>(l, cv::CC_STAT_AREA) > max_cells) continue;
     is_island[static_cast<std::size_t>(l)] = 1;
     ++*islands;
   }
@@ -1206,7 +1207,7 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
   out.worst = all;
 
   // Islands: small groups of valid cells away from the largest group.
-  const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &out.islands);
+  const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &out.islands, o.spare_largest_group);
   for (std::size_t i = 0; i < island.size(); ++i) {
     if (!island[i]) continue;
     ++out.island_cells;
@@ -1340,6 +1341,53 @@ double despike_search_radius_m(double cell_m, double upsample_factor, double spa
 
 int despike_grid_reach_cells(const HonestCheckOptions& options, double reach_cells) {
   return static_cast<int>(std::ceil(reach_cells)) + options.spike_window_cells / 2;
+}
+
+WindowIslands window_islands(const HeightField& window, int max_cells, const std::array<int, 4>& exact,
+                             const std::array<int, 4>& needed, const std::array<bool, 4>& open) {
+  const GridGeometry& g = window.geometry();
+  const auto region = [](const std::array<int, 4>& a) {
+    return "{" + std::to_string(a[0]) + ", " + std::to_string(a[1]) + ", " + std::to_string(a[2]) + ", " + std::to_string(a[3]) + "}";
+  };
+  if (max_cells < 1) throw std::invalid_argument("window_islands: max_cells = " + std::to_string(max_cells) + " (expected >= 1)");
+  if (!(0 <= exact[0] && exact[0] <= exact[1] && exact[1] <= g.rows && 0 <= exact[2] && exact[2] <= exact[3] && exact[3] <= g.cols)) {
+    throw std::invalid_argument("window_islands: exact region " + region(exact) + " is not inside the window of " +
+                                std::to_string(g.rows) + " x " + std::to_string(g.cols) + " cells");
+  }
+  if (needed[0] < needed[1] && needed[2] < needed[3] &&
+      !(exact[0] <= needed[0] && needed[1] <= exact[1] && exact[2] <= needed[2] && needed[3] <= exact[3])) {
+    throw std::invalid_argument("window_islands: needed region " + region(needed) + " is not inside the exact region " + region(exact));
+  }
+  WindowIslands out;
+  const int rows = exact[1] - exact[0], cols = exact[3] - exact[2];
+  if (rows <= 0 || cols <= 0) return out;
+  cv::Mat valid(rows, cols, CV_8UC1);
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c) valid.at<std::uint8_t>(r, c) = std::isnan(window.at(exact[0] + r, exact[2] + c)) ? 0 : 255;
+  cv::Mat labels, stats, centroids;
+  const int n_labels = cv::connectedComponentsWithStats(valid, labels, stats, centroids, 8, CV_32S);
+  // Per group: whether it touches an open side, and one of its cells in the needed region.
+  std::vector<std::uint8_t> touches(static_cast<std::size_t>(std::max(n_labels, 1)), 0);
+  std::vector<std::array<int, 2>> needed_cell(touches.size(), {-1, -1});
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c) {
+      const int l = labels.at<int>(r, c);
+      if (l == 0) continue;
+      const std::size_t ul = static_cast<std::size_t>(l);
+      if ((open[0] && r == 0) || (open[1] && r == rows - 1) || (open[2] && c == 0) || (open[3] && c == cols - 1)) touches[ul] = 1;
+      const int wr = exact[0] + r, wc = exact[2] + c;
+      if (needed_cell[ul][0] < 0 && needed[0] <= wr && wr < needed[1] && needed[2] <= wc && wc < needed[3]) needed_cell[ul] = {wr, wc};
+    }
+  for (int l = 1; l < n_labels; ++l) {
+    const auto area = static_cast<std::size_t>(stats.at<int>(l, cv::CC_STAT_AREA));
+    out.largest_exact_group = std::max(out.largest_exact_group, area);
+    const std::size_t ul = static_cast<std::size_t>(l);
+    if (area > static_cast<std::size_t>(max_cells) || !touches[ul] || needed_cell[ul][0] < 0) continue;
+    ++out.undecided_groups;
+    out.undecided_cells += area;
+    if (out.first_undecided[0] < 0) out.first_undecided = needed_cell[ul];
+  }
+  return out;
 }
 
 StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions& o, RemovedPoints* removed_points,
@@ -1506,7 +1554,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
   // Island cells: every point within the reach of one is a candidate (found first, so that an
   // island's cells are not judged again as rim cells).
   std::size_t n_islands = 0, n_island_cells = 0;
-  const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &n_islands);
+  const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &n_islands, o.spare_largest_group);
   // A valid cell's target, if it is a spike cell, a lone peak or a rim cell.
   auto judge = [&](int r, int c) -> std::optional<Target> {
     const float z = grid.at(r, c);

@@ -558,6 +558,138 @@ TEST(DespikeGrid, AVerdictReadsTheGridOnlyWithinItsGridReach) {
   EXPECT_GT(moved_inside, 0U) << "changes two cells nearer than D move no verdict: the test cannot see the grid's reads";
 }
 
+// window_islands (the tiled run's despike): a window whose cells equal the whole grid's only
+// inside its exact region (the rest drawn at random, as a window's halo grid can differ) gives
+// the whole grid's island labels (find_grid_spikes' marked cells on a flat grid: islands only)
+// to every valid cell of the needed region whenever it reports no undecided group, with
+// spare_largest_group off (the whole grid's largest group, a 400-cell block, is larger than
+// island_max_cells). Oracles: the whole grid's labels, and a flood fill of the test's own
+// (4-way loops over the 8 neighbours) for the undecided groups and the largest group. Over
+// 300 random windows of a grid of random walks of 1 to 24 cells both cases occur, and some window
+// that reports undecided groups does label a needed cell differently: the report is needed.
+TEST(DespikeGrid, AWindowGivesTheWholeGridsIslandsWhereItReportsNoUndecidedGroup) {
+  const GridGeometry g{90, 110, 0.0, 0.0, 0.001};
+  HeightField whole(g);
+  for (float& v : whole.values()) v = std::numeric_limits<float>::quiet_NaN();
+  std::mt19937 rng(53);
+  for (int r = 35; r < 55; ++r)
+    for (int c = 45; c < 65; ++c) whole.at(r, c) = 0.0f;
+  for (int w = 0; w < 260; ++w) {
+    int r = std::uniform_int_distribution<int>(0, g.rows - 1)(rng), c = std::uniform_int_distribution<int>(0, g.cols - 1)(rng);
+    const int len = std::uniform_int_distribution<int>(1, 24)(rng);
+    for (int k = 0; k < len; ++k) {
+      whole.at(r, c) = 0.0f;
+      r = std::clamp(r + std::uniform_int_distribution<int>(-1, 1)(rng), 0, g.rows - 1);
+      c = std::clamp(c + std::uniform_int_distribution<int>(-1, 1)(rng), 0, g.cols - 1);
+    }
+  }
+  HonestCheckOptions options;  // island_max_cells 16
+  const int m = options.island_max_cells;
+  auto islands_of = [](const HeightField& h, const HonestCheckOptions& o) {
+    const GridSpikes s = find_grid_spikes(h, o);
+    EXPECT_EQ(s.spikes + s.pits, 0U) << "a flat grid";
+    EXPECT_LT(s.marked.size(), 1000U) << "marked is cut at 1000 cells";
+    std::vector<std::uint8_t> mask(h.geometry().cell_count(), 0);
+    for (const auto& rc : s.marked) mask[static_cast<std::size_t>(rc[0]) * static_cast<std::size_t>(h.geometry().cols) + static_cast<std::size_t>(rc[1])] = 1;
+    return mask;
+  };
+  const std::vector<std::uint8_t> truth = islands_of(whole, options);
+  HonestCheckOptions in_window = options;
+  in_window.spare_largest_group = false;
+  std::size_t decided_windows = 0, undecided_windows = 0, undecided_and_wrong = 0;
+  for (int draw = 0; draw < 300; ++draw) {
+    auto pick = [&](int lo, int hi) { return std::uniform_int_distribution<int>(lo, hi)(rng); };
+    const int h = pick(20, 60), w = pick(20, 60);
+    const int r0 = pick(-10, g.rows - h + 10), c0 = pick(-10, g.cols - w + 10);  // the window, clipped to the grid
+    const int wr0 = std::max(0, r0), wr1 = std::min(g.rows, r0 + h), wc0 = std::max(0, c0), wc1 = std::min(g.cols, c0 + w);
+    const int a = pick(2, 7), b = pick(0, 5);
+    // exact: the window less a cells where the grid goes on; needed: exact less b more.
+    const std::array<int, 4> ex{wr0 > 0 ? a : 0, wr1 < g.rows ? (wr1 - wr0) - a : wr1 - wr0, wc0 > 0 ? a : 0,
+                                wc1 < g.cols ? (wc1 - wc0) - a : wc1 - wc0};
+    if (ex[1] - ex[0] < 2 * b + 1 || ex[3] - ex[2] < 2 * b + 1) continue;
+    const std::array<int, 4> need{ex[0] + b, ex[1] - b, ex[2] + b, ex[3] - b};
+    const std::array<bool, 4> open{wr0 + ex[0] > 0, wr0 + ex[1] < g.rows, wc0 + ex[2] > 0, wc0 + ex[3] < g.cols};
+    HeightField win(GridGeometry{wr1 - wr0, wc1 - wc0, g.x_of_col(wc0), g.y_of_row(wr0), g.cell_size_m});
+    std::bernoulli_distribution valid(0.3);
+    for (int r = 0; r < win.rows(); ++r)
+      for (int c = 0; c < win.cols(); ++c) {
+        const bool inside = r >= ex[0] && r < ex[1] && c >= ex[2] && c < ex[3];
+        win.at(r, c) = inside ? whole.at(wr0 + r, wc0 + c) : (valid(rng) ? 0.0f : std::numeric_limits<float>::quiet_NaN());
+      }
+    const WindowIslands wi = window_islands(win, m, ex, need, open);
+    // The oracle's groups of exact's valid cells.
+    const int er = ex[1] - ex[0], ec = ex[3] - ex[2];
+    std::vector<int> label(static_cast<std::size_t>(er * ec), -1);
+    std::size_t groups_undecided = 0, cells_undecided = 0, largest = 0;
+    for (int s0 = 0; s0 < er * ec; ++s0) {
+      if (label[static_cast<std::size_t>(s0)] >= 0 || std::isnan(win.at(ex[0] + s0 / ec, ex[2] + s0 % ec))) continue;
+      std::vector<int> stack{s0}, cells;
+      label[static_cast<std::size_t>(s0)] = s0;
+      while (!stack.empty()) {
+        const int q = stack.back();
+        stack.pop_back();
+        cells.push_back(q);
+        for (int dr = -1; dr <= 1; ++dr)
+          for (int dc = -1; dc <= 1; ++dc) {
+            const int rr = q / ec + dr, cc = q % ec + dc;
+            if (rr < 0 || rr >= er || cc < 0 || cc >= ec) continue;
+            const int nq = rr * ec + cc;
+            if (label[static_cast<std::size_t>(nq)] >= 0 || std::isnan(win.at(ex[0] + rr, ex[2] + cc))) continue;
+            label[static_cast<std::size_t>(nq)] = s0;
+            stack.push_back(nq);
+          }
+      }
+      largest = std::max(largest, cells.size());
+      bool touches = false, in_need = false;
+      for (const int q : cells) {
+        const int rr = q / ec, cc = q % ec;
+        touches = touches || (open[0] && rr == 0) || (open[1] && rr == er - 1) || (open[2] && cc == 0) || (open[3] && cc == ec - 1);
+        const int wr = ex[0] + rr, wc = ex[2] + cc;
+        in_need = in_need || (wr >= need[0] && wr < need[1] && wc >= need[2] && wc < need[3]);
+      }
+      if (cells.size() <= static_cast<std::size_t>(m) && touches && in_need) ++groups_undecided, cells_undecided += cells.size();
+    }
+    EXPECT_EQ(wi.undecided_groups, groups_undecided) << "draw " << draw;
+    EXPECT_EQ(wi.undecided_cells, cells_undecided) << "draw " << draw;
+    EXPECT_EQ(wi.largest_exact_group, largest) << "draw " << draw;
+    // The labels the window gives its needed cells against the whole grid's.
+    const std::vector<std::uint8_t> seen = islands_of(win, in_window);
+    std::size_t wrong = 0;
+    for (int r = need[0]; r < need[1]; ++r)
+      for (int c = need[2]; c < need[3]; ++c) {
+        if (std::isnan(win.at(r, c))) continue;
+        const std::uint8_t t = truth[static_cast<std::size_t>(wr0 + r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(wc0 + c)];
+        wrong += seen[static_cast<std::size_t>(r) * static_cast<std::size_t>(win.cols()) + static_cast<std::size_t>(c)] != t ? 1U : 0U;
+      }
+    if (wi.undecided_groups == 0) {
+      ++decided_windows;
+      EXPECT_EQ(wrong, 0U) << "draw " << draw << ": a window with no undecided group labels a needed cell unlike the whole grid";
+    } else {
+      ++undecided_windows;
+      undecided_and_wrong += wrong > 0 ? 1U : 0U;
+    }
+  }
+  EXPECT_GT(decided_windows, 50U);
+  EXPECT_GT(undecided_windows, 20U);
+  // A window that holds only small groups, all inside its exact region (a tile beyond a
+  // silhouette): every one is an island, as in the whole grid, its largest too.
+  {
+    HeightField w2(GridGeometry{30, 30, 0.0, 0.0, 0.001});
+    for (float& v : w2.values()) v = std::numeric_limits<float>::quiet_NaN();
+    for (const auto& rc : {std::array{10, 10}, std::array{10, 11}, std::array{11, 10}, std::array{20, 20}, std::array{15, 22}}) w2.at(rc[0], rc[1]) = 0.0f;
+    const WindowIslands wi = window_islands(w2, m, {3, 27, 3, 27}, {6, 24, 6, 24}, {true, true, true, true});
+    EXPECT_EQ(wi.undecided_groups, 0U);
+    EXPECT_EQ(wi.largest_exact_group, 3U);
+    const std::vector<std::uint8_t> seen = islands_of(w2, in_window);
+    EXPECT_EQ(std::count(seen.begin(), seen.end(), std::uint8_t{1}), 5) << "the largest group (3 cells) is an island too";
+  }
+  EXPECT_GT(undecided_and_wrong, 0U) << "no undecided window labelled a cell wrongly: the test cannot see what the report guards";
+  // The arguments' checks.
+  EXPECT_THROW((void)window_islands(whole, 0, {0, 10, 0, 10}, {0, 5, 0, 5}, {}), std::invalid_argument);
+  EXPECT_THROW((void)window_islands(whole, m, {0, 10, 0, 200}, {0, 5, 0, 5}, {}), std::invalid_argument);
+  EXPECT_THROW((void)window_islands(whole, m, {5, 10, 5, 10}, {0, 8, 5, 8}, {}), std::invalid_argument);
+}
+
 TEST(DespikeGrid, RemovesAStrayJustBeyondASilhouetteAtEverySplatRadius) {
   // A tilted plane sampled every 0.25 mm on x in [0, 30] and [45, 50] mm (the gap between is no
   // data) and one stray 1.3 cells (0.65 mm) beyond the silhouette at x = 30 mm, 2.5 mm behind

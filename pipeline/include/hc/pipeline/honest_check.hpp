@@ -80,6 +80,14 @@ struct HonestCheckOptions {
   /// Connected groups of valid cells (8-neighbours) of at most this many cells, apart from the
   /// largest group, are islands [cells].
   int island_max_cells = 16;
+  /// Whether the grid's largest group is spared as an island whatever its size (set by run, not
+  /// a config key): true for a whole grid. A tiled run's window sets it false: the whole grid's
+  /// largest group is larger than island_max_cells (which the run checks after its tiles,
+  /// WindowIslands::largest_exact_group), so every group of at most island_max_cells cells is an
+  /// island there, as in core, even where it is the window's largest. Since 2026-11-29
+  /// (fifty-third session; before, a window beyond a silhouette holding only stray groups spared
+  /// its largest, which the in-core run judged).
+  bool spare_largest_group = true;
   // Verdict limits (decide_verdict).
   int max_spike_cells = 0;                  ///< unconfirmed spike + pit cells allowed before "fail"
   /// ... or this fraction of the tested cells, whichever allows more. The merged Buddha at
@@ -328,7 +336,7 @@ double isolated_filter_radius_m(const HonestCheckOptions& options, double spacin
 ///    valid 8-neighbour (a stray whose splat did not spread; the plane's curvature error can
 ///    hide a stray just over h);
 ///  - island cells: island_mask's groups of at most island_max_cells cells apart from the
-///    largest (as find_grid_spikes);
+///    largest (as find_grid_spikes; the largest too when options.spare_largest_group is off);
 ///  - rim cells: the other valid cells, islands excepted, with a no-data cell among their 8
 ///    neighbours inside the grid (a stray just beyond a silhouette or a hole's edge extends the
 ///    surface there without standing above it; the grid's border is not a rim, so a tiled
@@ -369,11 +377,42 @@ double despike_search_radius_m(double cell_m, double upsample_factor, double spa
 
 /// How far [grid cells, Chebyshev] remove_spike_points reads its grid about a point's node:
 /// ⌈reach_cells⌉ to a spike cell the point is a candidate of, plus spike_window_cells / 2 (the
-/// cell's plane window); a rim cell and its 8 neighbours lie nearer. Island cells (groups of up
-/// to island_max_cells) can reach farther and are not counted. The tiled run sizes the region
-/// whose points need the whole scan's verdicts with it (grid_share_cells). reach_cells as
+/// cell's plane window); a rim cell and its 8 neighbours lie nearer. Island labels (groups of
+/// up to island_max_cells) can reach farther and are not counted: the tiled run checks each
+/// window's with window_islands, or holds them with scale.island_halo. The tiled run sizes the
+/// region whose points need the whole scan's verdicts with it (grid_share_cells). reach_cells as
 /// remove_spike_points takes it (≥ 0). No validation. Source: this project.
 int despike_grid_reach_cells(const HonestCheckOptions& options, double reach_cells);
+
+/// What a window of a grid decides of the island test (find_grid_spikes' and
+/// remove_spike_points' islands: groups of at most island_max_cells valid cells, 8-neighbours).
+struct WindowIslands {
+  /// Groups of the exact region (valid cells inside it, 8-connected) of at most max_cells cells
+  /// that hold a cell of the needed region and touch an open side of the exact region: the
+  /// whole grid's group may run on past that side, so the window cannot say whether they are
+  /// islands.
+  std::size_t undecided_groups = 0;
+  std::size_t undecided_cells = 0;  ///< the cells of those groups
+  std::array<int, 2> first_undecided{-1, -1};  ///< (row, col) in the window of one, or (-1, -1)
+  /// Cells of the exact region's largest group: the whole grid holds a group at least this
+  /// large (the exact region's groups are parts of the whole grid's).
+  std::size_t largest_exact_group = 0;
+};
+
+/// Which island decisions a window of a grid can make as the whole grid would. `window`: the
+/// window's grid (heights [m], NaN = no data). `exact`: the window's region {row0, row1, col0,
+/// col1} (half-open, window cells) whose validity equals the whole grid's (a tiled run: the
+/// cells within its decided region less the grid stages' reach R of the interior). `needed`: the
+/// region (inside `exact`) whose island labels the caller reads. `open`: per side of `exact`
+/// {top, bottom, left, right}, whether whole-grid cells lie beyond it (false at the whole grid's
+/// edge). A group of `exact`'s valid cells (8-connected) that touches no open side is a whole
+/// group of the whole grid; one with more than max_cells cells is part of a group that is no
+/// island; the rest, where they reach `needed`, are undecided. Cost: O(cells of `exact`).
+/// @throws std::invalid_argument when `needed` is not inside `exact` or `exact` not inside the
+///         window, or max_cells < 1.
+/// Source: this project (the tiled run's despike, issue 14).
+WindowIslands window_islands(const HeightField& window, int max_cells, const std::array<int, 4>& exact,
+                             const std::array<int, 4>& needed, const std::array<bool, 4>& open);
 
 
 /// One reason of a verdict: a stable code, its level and a sentence with the figures.
