@@ -1099,6 +1099,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
         c.scale.filter_halo_cells = *f;
       }
     }
+    c.scale.island_halo = r.get_bool("scale.island_halo", c.scale.island_halo);
     c.scale.chunk_points = static_cast<std::size_t>(
         r.get_int("scale.chunk_points", static_cast<long long>(c.scale.chunk_points), 1024, 1LL << 28));
     if (r.has("scale.scratch")) c.scale.scratch = base / r.get_string("scale.scratch", "");

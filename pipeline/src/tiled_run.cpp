@@ -626,14 +626,24 @@ int grid_reach_cells(const RunConfig& config, int k) {
 // ⌊spike_window_cells / 2⌋ of its node (a spike cell within the candidates' reach, and that
 // cell's plane window; despike_grid_reach_cells); and a node of the window's grid is the whole
 // grid's where every point within R of it is there with the whole scan's verdict. (Islands
-// of the despike, connected groups of up to island_max_cells, can reach farther: not covered.)
+// of the despike, connected groups of up to island_max_cells, can reach farther: see below.)
 // Until 2026-11-28 (fifty-first session) the share was the old reach formula alone,
 // K·(2⌈r⌉ + 3 + w) + K: 11 nodes for the shipped splats, where the despike needs 12.
+//
+// With scale.island_halo, 2R + ⌈reach⌉ + max(spike_window_cells / 2, island_max_cells): the
+// despike reads the island labels of the cells within R + ⌈reach⌉ of the interior (the
+// candidates of the points within R), and a group of up to island_max_cells cells holding such
+// a cell lies, with its ring of no-data cells, within R + ⌈reach⌉ + island_max_cells of the
+// interior, inside the region whose window cells are the whole grid's (the decided region less
+// R). Without it, process_tile stops the run where such a group runs past that region
+// (window_islands; 2026-11-29, fifty-third session).
 int grid_share_cells(const RunConfig& config, int k) {
   const int reach = grid_reach_cells(config, k);
   const OutlierConfig& oc = config.filters.outliers;
   if (!(oc.enabled && oc.despike)) return reach;
-  return 2 * reach + despike_grid_reach_cells(config.cross_check.honest, despike_reach_cells(config, k));
+  const int share = 2 * reach + despike_grid_reach_cells(config.cross_check.honest, despike_reach_cells(config, k));
+  if (!config.scale.island_halo) return share;
+  return std::max(share, 2 * reach + static_cast<int>(std::ceil(despike_reach_cells(config, k))) + config.cross_check.honest.island_max_cells);
 }
 
 // A tile's halo [nodes] with upsample factor k, scale.filter_halo_cells = filter_cells and, with
@@ -2362,10 +2372,45 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     if (oc.enabled && oc.despike) {
       const std::size_t before_n = pts.size();
       RemovedPoints removed;
-      auto ds = remove_spike_points(std::move(pts), part.depth, config.cross_check.honest,
-                                    despike_reach_cells(config, tiles.k), std::isfinite(spacing_m) ? spacing_m : 0.0,
-                                    tiles.k, &removed);
+      // Every group of at most island_max_cells cells is an island, even the window's largest
+      // (the whole grid's is larger: checked after the tiles, TileMerge::report).
+      HonestCheckOptions despike_options = config.cross_check.honest;
+      despike_options.spare_largest_group = false;
+      auto ds = remove_spike_points(std::move(pts), part.depth, despike_options, despike_reach_cells(config, tiles.k),
+                                    std::isfinite(spacing_m) ? spacing_m : 0.0, tiles.k, &removed);
       add_figures(o.sums, ds.report);
+      // The island labels the despike reads, of the cells within R + ⌈reach⌉ of the interior
+      // (the candidates of the points within R, and the spike cells it skips as islands), are
+      // the whole grid's where their group lies inside the region whose cells are (the decided
+      // region less R) without touching its edge, or is larger than island_max_cells there.
+      {
+        const int reach = grid_reach_cells(config, tiles.k);
+        const int e = std::max(0, tiles.halo - tiles.filter - reach);
+        const int need = reach + static_cast<int>(std::ceil(despike_reach_cells(config, tiles.k)));
+        const auto clip = [&](int grow) -> std::array<int, 4> {
+          return {std::max(0, inner[0] - grow - w.row0), std::min(w.rows, inner[1] + grow - w.row0),
+                  std::max(0, inner[2] - grow - w.col0), std::min(w.cols, inner[3] + grow - w.col0)};
+        };
+        const std::array<int, 4> exact = clip(e), needed = clip(std::min(need, e));
+        const std::array<bool, 4> open = {w.row0 + exact[0] > 0, w.row0 + exact[1] < tiles.g.rows, w.col0 + exact[2] > 0,
+                                          w.col0 + exact[3] < tiles.g.cols};
+        const WindowIslands wi = window_islands(part.depth, despike_options.island_max_cells, exact, needed, open);
+        if (wi.undecided_groups > 0) {
+          RunConfig wider = config;
+          wider.scale.island_halo = true;
+          const int now = tiles.halo, then = now - grid_share_cells(config, tiles.k) + grid_share_cells(wider, tiles.k);
+          throw ConfigError("tiled run, tile " + std::to_string(t) + ": stage despike: " + std::to_string(wi.undecided_groups) +
+                            " group(s) of at most cross_check.island_max_cells = " + std::to_string(despike_options.island_max_cells) +
+                            " valid cells near the tile's interior, the first at grid cell (" +
+                            std::to_string(wi.first_undecided[0] + w.row0) + ", " + std::to_string(wi.first_undecided[1] + w.col0) +
+                            "), run on past the cells its window has as the whole grid does, so the window cannot tell whether "
+                            "the despike judges them as islands: set scale.island_halo: true (a halo of about " + std::to_string(then) +
+                            " nodes instead of " + std::to_string(now) +
+                            "), lower cross_check.island_max_cells, or run in core (scale.tiled: off)");
+        }
+        o.sums["tiles_with_a_group_past_island_max_cells"] +=
+            wi.largest_exact_group > static_cast<std::size_t>(despike_options.island_max_cells) ? 1.0 : 0.0;
+      }
       compose_removal(removed.at);
       // The despike's 3-D count searches at most max(4 scan cells, 4 spacings) about a point;
       // its verdicts are needed within the grid stages' reach of the interior (tile_halo). (The
@@ -2621,6 +2666,14 @@ struct TileMerge {
     r.count_out = out;
     for (const auto& [name, v] : sums) r.figure("sum_" + name, v);
     r.figure("points_in_windows_too_sparse_to_filter", static_cast<double>(unjudged));
+    // The windows' despike took every group of at most island_max_cells cells as an island
+    // (HonestCheckOptions::spare_largest_group false), as the in-core run does when the whole
+    // grid's largest group is larger: shown where a tile's decided cells hold such a group.
+    if (const auto it = sums.find("tiles_with_a_group_past_island_max_cells"); it != sums.end() && it->second == 0.0) {
+      r.notes.push_back("no tile's decided cells held a group of more than cross_check.island_max_cells valid cells: the in-core "
+                        "run's despike spares the whole grid's largest group as no island, the tiles spared none, so the "
+                        "scene may differ from the in-core run's in that group's cells");
+    }
     if (unjudged > 0) {
       r.notes.push_back(std::to_string(unjudged) + " points (halo copies included) lay in tile windows of fewer than "
                         "k + 2 points: kept unfiltered");

@@ -1184,6 +1184,105 @@ TEST(TiledRun, AnAutoFilterHaloShortOfTheSamplesSpacingIsWidenedAndThePointsSpil
   EXPECT_EQ(stage_figure(bare, "tile_plan", "halo_cells"), hc::pipeline::reproject_reach_cells(ro, 1));
 }
 
+// The despike's islands in the tiles (HonestCheckOptions::spare_largest_group, window_islands).
+// The 1 m plane at 1 cm spacing, a 10 cm strip of it at x = 2.9 m (so that the grid's box stays
+// whatever the despike removes: in core a changed box makes another grid), `extra` points, and
+// the shipped plane splats (radius 1.2, see-through window 3: the grid stages' reach R = 4) on
+// 1 cm cells, with a robust test that keeps lone points (ratios of 100, no far-cluster or
+// off-surface test), in 32-cell tiles with a fixed 12-cell filter halo: a 24-node halo, a
+// decided region of 12 nodes (2R + ⌈1.2⌉ + 5 / 2), of which the window's cells are the whole
+// grid's within 8 (12 less R), and island labels read within 6 (R + ⌈1.2⌉).
+RunConfig island_config(const fs::path& dir, const std::vector<std::array<double, 3>>& extra) {
+  std::vector<std::array<double, 3>> pts = extra;
+  for (int i = 0; i < 10; ++i)
+    for (int j = 0; j < 100; ++j) pts.push_back({2.9 + 0.01 * i, 0.01 * j, 0.0});
+  write_plane_with_holes(dir / "plane.ply", {}, pts);
+  const std::string yaml =
+      "input: {files: [plane.ply], units: m}\n"
+      "grid: {n: 300, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.002, see_through_window_cells: 3}\n"
+      "filters: {outliers: {local_ratio: 100, mad_multiplier: 100, off_surface_ratio: 0, far_clusters: {enabled: false}}}\n"
+      "cross_check: {isolation_min_neighbours: 2}\nscale: {filter_halo_cells: 12}\n";
+  return hc::pipeline::parse_run_config(yaml, dir / "plane.yaml");
+}
+
+// Four points at the corners of a 5 cm square, 50 cm past the plane's edge: each has three
+// others within the isolated filter's 9 cm (2 needed) but none within the despike's island
+// radius (4 cm), and each point's disc is a group of 5 cells apart from the patch: an island
+// in core, whose points the despike removes. The tile holding them sees no cell of the plane
+// in its window (it starts 24 cells before col 128; the plane ends at col 99), so the window's
+// largest group is one of the four, an island all the same (spare_largest_group off). Oracle:
+// the in-core run (the grid, bit for bit). (The rule before the fifty-third session, sparing
+// the window's largest group, still gives the in-core grid here: that group's cells are rim
+// cells, and at K = 1 the rim test judges its point with the island's radius; the rule is
+// tested on the labels, DespikeGrid.AWindowGivesTheWholeGridsIslandsWhereItReportsNoUndecidedGroup.)
+TEST(TiledRun, AWindowHoldingOnlyIslandsJudgesEveryOneAsTheWholeGridDoes) {
+  const fs::path dir = hc::test::temp_dir("islands_only");
+  RunConfig config = island_config(dir, {{1.50, 0.45, 0.002}, {1.55, 0.45, 0.002}, {1.50, 0.50, 0.002}, {1.55, 0.50, 0.002}});
+  InCoreAndTiled r{config, hc::pipeline::build_scene(config), {}};
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 32;
+  config.scale.scratch = dir;
+  r.tiled = hc::pipeline::build_scene(config);
+  ASSERT_NEAR(r.in.scene.geometry.cell_size_m, 0.01, 1e-9);
+  EXPECT_EQ(stage_figure(r.tiled, "tile_plan", "halo_cells"), 24.0);
+  EXPECT_GE(stage_figure(r.in, "despike", "island_cells"), 20.0) << "the four discs are islands in core";
+  EXPECT_EQ(stage_figure(r.in, "despike", "removed_spike_points"), 4.0);
+  // The grid's columns from x = 0 at 1 cm: the square at cols 150 and 155, in the tile of
+  // cols 128 to 159, whose window starts at col 104; the plane ends at col 99, the strip starts
+  // at col 290. In core nothing is left between them.
+  const hc::HeightField& depth = r.in.scene.layers.depth;
+  ASSERT_EQ(depth.cols(), 300);
+  std::size_t between = 0;
+  for (int row = 0; row < depth.rows(); ++row)
+    for (int col = 102; col < 288; ++col) between += std::isnan(depth.at(row, col)) ? 0U : 1U;
+  EXPECT_EQ(between, 0U) << "the islands are removed in core";
+  EXPECT_EQ(differing_bits(r.in.scene.layers.depth, r.tiled.scene.layers.depth), 0U);
+  EXPECT_EQ(r.in.scene.layers.flags, r.tiled.scene.layers.flags);
+  EXPECT_GE(stage_figure(r.tiled, "tiles", "sum_tiles_with_a_group_past_island_max_cells"), 1.0);
+  EXPECT_FALSE(has_note(r.tiled, "tiles", "no tile's decided cells held a group"));
+}
+
+// Three points 3 cm apart in a row (a group of 15 cells: their discs), between 1 and 9 cells
+// left of a tile boundary (col 128): the tile right of it reads the labels of the cells within
+// 6 of its interior and has its window's cells as the whole grid's only within 8, where the
+// group still runs on: the run stops naming the stage, the cell and scale.island_halo, and
+// leaves no spill. With scale.island_halo the decided region holds the group (26 nodes: 8 +
+// ⌈1.2⌉ + 16, so a 38-node halo) and the run equals the in-core one, which removes the row's
+// end points (one neighbour within the island radius, 4 cm). Oracles: the group's cells from
+// the geometry, the in-core run; mutation (the check removed, run): no error.
+TEST(TiledRun, AnIslandRunningPastTheCellsATileDecidesStopsTheRunNamingTheKey) {
+  const fs::path dir = hc::test::temp_dir("island_edge");
+  RunConfig config = island_config(dir, {{1.16, 0.45, 0.002}, {1.19, 0.45, 0.002}, {1.22, 0.45, 0.002}});
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = 32;
+  config.scale.scratch = dir;
+  const std::string what = error_of<hc::ConfigError>(config);
+  for (const char* part : {"stage despike", "cross_check.island_max_cells = 16", "scale.island_halo: true", "halo of about 38 nodes instead of 24",
+                           "scale.tiled: off"}) {
+    EXPECT_NE(what.find(part), std::string::npos) << part << " in: " << what;
+  }
+  // The first undecided cell named is one of the group's (row 44 to 46, cols 115 to 123 at 1 cm).
+  const auto at = what.find("grid cell (");
+  ASSERT_NE(at, std::string::npos) << what;
+  int cell_r = -1, cell_c = -1;
+  ASSERT_EQ(std::sscanf(what.c_str() + at, "grid cell (%d, %d)", &cell_r, &cell_c), 2) << what;
+  EXPECT_GE(cell_r, 44);
+  EXPECT_LE(cell_r, 46);
+  EXPECT_GE(cell_c, 122) << "a cell the tile right of col 128 reads (within 6 of it)";
+  EXPECT_LE(cell_c, 123);
+  EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "the spill folder is removed on the error";
+  config.scale.island_halo = true;
+  fs::create_directory(dir / "scratch");
+  BuiltScene tiled;
+  expect_tiled_equals_in_core(config, 32, dir / "scratch", &tiled);
+  if (HasFatalFailure()) return;
+  EXPECT_EQ(stage_figure(tiled, "tile_plan", "halo_cells"), 38.0);
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+  const BuiltScene in = hc::pipeline::build_scene(config);
+  ASSERT_NEAR(in.scene.geometry.cell_size_m, 0.01, 1e-9);
+  EXPECT_EQ(stage_figure(in, "despike", "removed_spike_points"), 2.0) << "the row's end points";
+}
+
 // A far cluster (30 stray returns 2 m beyond a 1 m patch, as a passer-by in a terrestrial scan)
 // lies in tiles of its own, where it is the main body: only the whole scan shows it is far. The
 // tiled run finds it over every point (stage tile_far_clusters), removes it and lays the grid
