@@ -1206,7 +1206,7 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
   all.resize(std::min<std::size_t>(all.size(), 10));
   out.worst = all;
 
-  // Islands: small groups of valid cells away from the largest group.
+  // Islands: small groups of valid cells away from the largest group (island_mask).
   const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &out.islands, o.spare_largest_group);
   for (std::size_t i = 0; i < island.size(); ++i) {
     if (!island[i]) continue;

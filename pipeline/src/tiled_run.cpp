@@ -2373,7 +2373,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       const std::size_t before_n = pts.size();
       RemovedPoints removed;
       // Every group of at most island_max_cells cells is an island, even the window's largest
-      // (the whole grid's is larger: checked after the tiles, TileMerge::report).
+      // (the whole grid's is larger where some window shows one: finish_tiled warns otherwise).
       HonestCheckOptions despike_options = config.cross_check.honest;
       despike_options.spare_largest_group = false;
       auto ds = remove_spike_points(std::move(pts), part.depth, despike_options, despike_reach_cells(config, tiles.k),
@@ -2391,22 +2391,28 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
           return {std::max(0, inner[0] - grow - w.row0), std::min(w.rows, inner[1] + grow - w.row0),
                   std::max(0, inner[2] - grow - w.col0), std::min(w.cols, inner[3] + grow - w.col0)};
         };
-        const std::array<int, 4> exact = clip(e), needed = clip(std::min(need, e));
+        if (e < need) {  // the grid share (2R + D, D ≥ ⌈reach⌉) holds the labels read
+          throw std::logic_error("process_tile: tile " + std::to_string(t) + ": the window's cells are the whole grid's within " +
+                                 std::to_string(e) + " nodes of the interior, the despike reads island labels within " +
+                                 std::to_string(need));
+        }
+        const std::array<int, 4> exact = clip(e), needed = clip(need);
         const std::array<bool, 4> open = {w.row0 + exact[0] > 0, w.row0 + exact[1] < tiles.g.rows, w.col0 + exact[2] > 0,
                                           w.col0 + exact[3] < tiles.g.cols};
         const WindowIslands wi = window_islands(part.depth, despike_options.island_max_cells, exact, needed, open);
         if (wi.undecided_groups > 0) {
           RunConfig wider = config;
           wider.scale.island_halo = true;
-          const int now = tiles.halo, then = now - grid_share_cells(config, tiles.k) + grid_share_cells(wider, tiles.k);
+          const int now = tiles.halo, then = tile_halo(wider, tiles.k, tiles.filter, tiles.despike, tiles.isolated);
           throw ConfigError("tiled run, tile " + std::to_string(t) + ": stage despike: " + std::to_string(wi.undecided_groups) +
                             " group(s) of at most cross_check.island_max_cells = " + std::to_string(despike_options.island_max_cells) +
                             " valid cells near the tile's interior, the first at grid cell (" +
                             std::to_string(wi.first_undecided[0] + w.row0) + ", " + std::to_string(wi.first_undecided[1] + w.col0) +
                             "), run on past the cells its window has as the whole grid does, so the window cannot tell whether "
-                            "the despike judges them as islands: set scale.island_halo: true (a halo of about " + std::to_string(then) +
+                            "the despike judges them as islands: set scale.island_halo: true (a halo of " + std::to_string(then) +
                             " nodes instead of " + std::to_string(now) +
-                            "), lower cross_check.island_max_cells, or run in core (scale.tiled: off)");
+                            " at this filter share), lower cross_check.island_max_cells (which changes the in-core run's islands "
+                            "too), or run in core (scale.tiled: off)");
         }
         o.sums["tiles_with_a_group_past_island_max_cells"] +=
             wi.largest_exact_group > static_cast<std::size_t>(despike_options.island_max_cells) ? 1.0 : 0.0;
@@ -2666,14 +2672,6 @@ struct TileMerge {
     r.count_out = out;
     for (const auto& [name, v] : sums) r.figure("sum_" + name, v);
     r.figure("points_in_windows_too_sparse_to_filter", static_cast<double>(unjudged));
-    // The windows' despike took every group of at most island_max_cells cells as an island
-    // (HonestCheckOptions::spare_largest_group false), as the in-core run does when the whole
-    // grid's largest group is larger: shown where a tile's decided cells hold such a group.
-    if (const auto it = sums.find("tiles_with_a_group_past_island_max_cells"); it != sums.end() && it->second == 0.0) {
-      r.notes.push_back("no tile's decided cells held a group of more than cross_check.island_max_cells valid cells: the in-core "
-                        "run's despike spares the whole grid's largest group as no island, the tiles spared none, so the "
-                        "scene may differ from the in-core run's in that group's cells");
-    }
     if (unjudged > 0) {
       r.notes.push_back(std::to_string(unjudged) + " points (halo copies included) lay in tile windows of fewer than "
                         "k + 2 points: kept unfiltered");
@@ -3747,6 +3745,21 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
     if (interior_seen++ % stride == 0) sample_xyz.insert(sample_xyz.end(), p, p + 3);
   };
 
+  // The windows' despike took every group of at most island_max_cells cells as an island
+  // (HonestCheckOptions::spare_largest_group off), as the in-core run does where the whole grid's
+  // largest group is larger: shown where some window's cells that are the whole grid's hold such
+  // a group. Otherwise (a grid of specks only) the in-core run spares its largest speck, which no
+  // window can name: a warning, the scenes may differ about that speck.
+  for (StageReport& rep : reports) {
+    if (rep.stage != "tiles" || detail::figure_of(rep, "sum_tiles_with_a_group_past_island_max_cells", 1.0) != 0.0) continue;
+    rep.notes.push_back("warning: no tile's window held a group of more than cross_check.island_max_cells = " +
+                        std::to_string(config.cross_check.honest.island_max_cells) +
+                        " valid cells (a grid of specks only): the tiles' despike took every group as an island, where an "
+                        "in-core run spares the whole grid's largest group, so the scenes may differ about that group "
+                        "(scale.tiled: off gives the in-core one)");
+    summary.warnings.push_back(rep.notes.back().substr(9));
+  }
+
   // 4. The whole grid, as in core; its surface layers after the checks (step 6), which do not
   // read them, so that their 16 bytes a sample are not held beside the checks' windows.
   const std::size_t grid_report = reports.size() - 1;
@@ -3816,6 +3829,10 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       };
       detail::PassProgress tick(progress, "cross_check", "the tiles' kept points, then their residuals again", config.scale.progress_interval_s);
       ResidualFile residuals(kept.dir() / "cross_check_residuals.bin");
+      // The kept points' x-y box: the in-core run lays its grid on it (after the filters and the
+      // despike), the tiled run on the box of the points before the robust test.
+      double kx_lo = std::numeric_limits<double>::infinity(), kx_hi = -kx_lo, ky_lo = kx_lo, ky_hi = -kx_lo;
+      std::size_t kept_points = 0;
       // The first pass over the kept points.
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(0.9 * static_cast<double>(t) / static_cast<double>(tiles.count()));
@@ -3824,6 +3841,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         for (std::size_t i = 0; i < pts.size(); ++i) {
           if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
           const double* p = pts.xyz.data() + 3 * i;
+          kx_lo = std::min(kx_lo, p[0]), kx_hi = std::max(kx_hi, p[0]), ky_lo = std::min(ky_lo, p[1]), ky_hi = std::max(ky_hi, p[1]);
+          ++kept_points;
           if (keep_sample) sample_point(p);
           const PointResidual pr = point_residual(surface, tiles.g, p[0], p[1], p[2], cc.hidden_band_m);
           switch (pr.kind) {
@@ -3930,6 +3949,27 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       r.report.figure("supported_fraction", cc.supported_fraction);
       r.report.figure("samples_researched_across_tiles", static_cast<double>(researched));
       r.report.figure("samples_nearer_in_another_tile", static_cast<double>(improved));
+      // Where the filters removed a point that set the box, the in-core run's grid differs from
+      // this one: said, not silent (docs/scale.md, "What equals the in-core run").
+      if (kept_points > 0) {
+        ReprojectOptions ro = config.grid.reproject;
+        ro.upsample_factor = tiles.k;
+        ro.grid.max_cells = std::numeric_limits<std::size_t>::max();
+        const GridGeometry g_core = grid_geometry_for_box(kx_lo, kx_hi, ky_lo, ky_hi, kept_points, ro);
+        const GridGeometry& g = tiles.g;
+        if (!(g_core.rows == g.rows && g_core.cols == g.cols && g_core.x0_m == g.x0_m && g_core.y0_m == g.y0_m &&
+              g_core.cell_size_m == g.cell_size_m)) {
+          r.report.notes.push_back(
+              "warning: the kept points span x " + format_number(kx_lo) + " to " + format_number(kx_hi) + " m, y " +
+              format_number(ky_lo) + " to " + format_number(ky_hi) + " m; the grid was laid on the points before the outlier "
+              "filters (" + std::to_string(g.cols) + " x " + std::to_string(g.rows) + " cells of " + format_number(g.cell_size_m * 1e3) +
+              " mm from x " + format_number(g.x0_m) + ", y " + format_number(g.y0_m) + " m); an in-core run lays it on the kept "
+              "points (" + std::to_string(g_core.cols) + " x " + std::to_string(g_core.rows) + " cells of " +
+              format_number(g_core.cell_size_m * 1e3) + " mm), so its scene differs from this one; scale.tiled: off gives "
+              "the in-core grid");
+          summary.warnings.push_back(r.report.notes.back().substr(9));
+        }
+      }
       r.report.notes.push_back("merged over " + std::to_string(tiles.count()) +
                                " tiles: (a) per interior point on the whole grid (exact percentiles by radix selection), "
                                "(b) per interior cell against its tile's kept points, halo included");

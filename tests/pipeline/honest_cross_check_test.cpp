@@ -425,6 +425,18 @@ TEST(GridSpikes, IslandsAreSmallGroupsApartFromTheSurface) {
   s = find_grid_spikes(h, o);
   EXPECT_EQ(s.islands, 1u);
   EXPECT_EQ(s.island_cells, 1u);
+  // Without the surface the group of 3 is the grid's largest: spared (a small grid's whole
+  // surface is no island), unless spare_largest_group is off (a tiled run's windows).
+  for (int r = 0; r < 20; ++r)
+    for (int c = 0; c < 20; ++c) h.at(r, c) = std::numeric_limits<float>::quiet_NaN();
+  o.island_max_cells = 3;
+  s = find_grid_spikes(h, o);
+  EXPECT_EQ(s.islands, 1u);
+  EXPECT_EQ(s.island_cells, 1u);
+  o.spare_largest_group = false;
+  s = find_grid_spikes(h, o);
+  EXPECT_EQ(s.islands, 2u);
+  EXPECT_EQ(s.island_cells, 4u);
 }
 
 // remove_spike_points on a construction whose strays are known: a tilted plane sampled every

@@ -133,6 +133,7 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
     if (std::isnan(u) != std::isnan(v) || (!std::isnan(u) && std::abs(u - v) > 1e-9 * extent_mm)) ++far;
   }
   EXPECT_EQ(far, 0U) << "cells whose nearest point differs";
+  for (const std::string& w : tiled.summary.warnings) EXPECT_EQ(w.find("the kept points span"), std::string::npos) << w;
   // The spill folder is gone.
   EXPECT_TRUE(fs::is_empty(scratch));
 }
@@ -1184,7 +1185,33 @@ TEST(TiledRun, AnAutoFilterHaloShortOfTheSamplesSpacingIsWidenedAndThePointsSpil
   EXPECT_EQ(stage_figure(bare, "tile_plan", "halo_cells"), hc::pipeline::reproject_reach_cells(ro, 1));
 }
 
-// The despike's islands in the tiles (HonestCheckOptions::spare_largest_group, window_islands).
+// A stray 0.5 m above the patch and 0.2 m past its x edge, which the robust test removes (far
+// clusters off, so that it reaches the filters): the tiled run lays its grid on the points
+// before the filters, the in-core run on the kept ones, so the grids differ, and the tiled run
+// says so in a warning naming both grids. Oracle: the in-core run's geometry (another cell size
+// and width); the equal runs of expect_tiled_equals_in_core assert no such warning.
+TEST(TiledRun, AGridLaidOnAPointTheFiltersRemoveIsAWarning) {
+  const fs::path dir = hc::test::temp_dir("box_warning");
+  write_patch_with(dir / "patch.ply", {{1.19, 0.5, 0.5}});
+  const auto r = in_core_and_tiled(dir,
+                                   "input: {files: [patch.ply], units: m}\ngrid: {n: 120}\n"
+                                   "filters: {outliers: {far_clusters: {enabled: false}}}\nscale: {filter_halo_cells: 24}\n",
+                                   32);
+  ASSERT_GE(stage_figure(r.in, "outliers", "removed"), 1.0) << "the stray goes in core";
+  const hc::GridGeometry& a = r.in.scene.geometry;
+  const hc::GridGeometry& b = r.tiled.scene.geometry;
+  ASSERT_TRUE(a.cell_size_m != b.cell_size_m || a.cols != b.cols) << "the grids differ";
+  std::string warning;
+  for (const std::string& w : r.tiled.summary.warnings)
+    if (w.find("the kept points span") != std::string::npos) warning = w;
+  ASSERT_FALSE(warning.empty()) << "no warning of the grid's box";
+  EXPECT_NE(warning.find(std::to_string(a.cols) + " x " + std::to_string(a.rows) + " cells"), std::string::npos) << warning;
+  EXPECT_NE(warning.find(std::to_string(b.cols) + " x " + std::to_string(b.rows) + " cells"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("scale.tiled: off"), std::string::npos) << warning;
+  EXPECT_TRUE(has_note(r.tiled, "cross_check", "warning: the kept points span"));
+}
+
+// The despike's islands in the tiles (window_islands).
 // The 1 m plane at 1 cm spacing, a 10 cm strip of it at x = 2.9 m (so that the grid's box stays
 // whatever the despike removes: in core a changed box makes another grid), `extra` points, and
 // the shipped plane splats (radius 1.2, see-through window 3: the grid stages' reach R = 4) on
@@ -1209,13 +1236,15 @@ RunConfig island_config(const fs::path& dir, const std::vector<std::array<double
 // others within the isolated filter's 9 cm (2 needed) but none within the despike's island
 // radius (4 cm), and each point's disc is a group of 5 cells apart from the patch: an island
 // in core, whose points the despike removes. The tile holding them sees no cell of the plane
-// in its window (it starts 24 cells before col 128; the plane ends at col 99), so the window's
-// largest group is one of the four, an island all the same (spare_largest_group off). Oracle:
-// the in-core run (the grid, bit for bit). (The rule before the fifty-third session, sparing
-// the window's largest group, still gives the in-core grid here: that group's cells are rim
-// cells, and at K = 1 the rim test judges its point with the island's radius; the rule is
-// tested on the labels, DespikeGrid.AWindowGivesTheWholeGridsIslandsWhereItReportsNoUndecidedGroup.)
-TEST(TiledRun, AWindowHoldingOnlyIslandsJudgesEveryOneAsTheWholeGridDoes) {
+// in its window (it starts 24 cells before col 128; the plane ends at col 99): its window's
+// groups are the four alone, each an island (HonestCheckOptions::spare_largest_group off), as in
+// the whole grid, where the plane is the largest group. Oracle: the in-core run (the grid, bit
+// for bit). (Before the fifty-third session the window spared its own largest group, one of the
+// four; that still gave the in-core grid here: that group's cells are rim cells, and at K = 1
+// the rim test judges its point with the island's radius. The rule is tested on the labels:
+// DespikeGrid.AWindowGivesTheWholeGrids...) The tiles count the windows that show a group
+// larger than island_max_cells, and no warning of specks comes.
+TEST(TiledRun, AWindowHoldingOnlyIslandsGivesTheInCoreGrid) {
   const fs::path dir = hc::test::temp_dir("islands_only");
   RunConfig config = island_config(dir, {{1.50, 0.45, 0.002}, {1.55, 0.45, 0.002}, {1.50, 0.50, 0.002}, {1.55, 0.50, 0.002}});
   InCoreAndTiled r{config, hc::pipeline::build_scene(config), {}};
@@ -1239,29 +1268,45 @@ TEST(TiledRun, AWindowHoldingOnlyIslandsJudgesEveryOneAsTheWholeGridDoes) {
   EXPECT_EQ(differing_bits(r.in.scene.layers.depth, r.tiled.scene.layers.depth), 0U);
   EXPECT_EQ(r.in.scene.layers.flags, r.tiled.scene.layers.flags);
   EXPECT_GE(stage_figure(r.tiled, "tiles", "sum_tiles_with_a_group_past_island_max_cells"), 1.0);
-  EXPECT_FALSE(has_note(r.tiled, "tiles", "no tile's decided cells held a group"));
+  EXPECT_TRUE(r.tiled.summary.warnings.empty());
 }
 
-// Three points 3 cm apart in a row (a group of 15 cells: their discs), between 1 and 9 cells
-// left of a tile boundary (col 128): the tile right of it reads the labels of the cells within
-// 6 of its interior and has its window's cells as the whole grid's only within 8, where the
-// group still runs on: the run stops naming the stage, the cell and scale.island_halo, and
-// leaves no spill. With scale.island_halo the decided region holds the group (26 nodes: 8 +
-// ⌈1.2⌉ + 16, so a 38-node halo) and the run equals the in-core one, which removes the row's
-// end points (one neighbour within the island radius, 4 cm). Oracles: the group's cells from
-// the geometry, the in-core run; mutation (the check removed, run): no error.
+// Three points 3 cm apart in a row: their discs make a group of 15 cells (rows 44 to 46) over
+// 9 columns. The tile right of col 128 reads island labels within 6 of its interior (from col
+// 122) and has its window's cells as the whole grid's within 8 (from col 120). Cols 120 to 128
+// (points at 1.21, 1.24, 1.27 m): the group reaches col 120, on that region's edge, where the
+// whole grid's group may run on: the run stops naming the stage, a cell of the group the tile
+// reads and scale.island_halo, and leaves no spill. Cols 121 to 129 (one cell right): the
+// group and its ring of no-data cells lie inside, and the run goes on and equals the in-core one,
+// as it does with a group of three points on the grid's edge (row 0, where no open side is;
+// a tile's check that took the grid's edge for an open side would stop). With scale.island_halo
+// (26-node grid share: 2R + ⌈1.2⌉ + 16, so a 38-node halo) the first layout equals the in-core
+// run, which removes the row's two end points (one neighbour within the island radius, 4 cm).
+// Oracles: the group's cells from the geometry, the in-core run; mutations, run: the check
+// dropped (no error), the exact region one node wider or narrower (one layout's verdict flips).
 TEST(TiledRun, AnIslandRunningPastTheCellsATileDecidesStopsTheRunNamingTheKey) {
+  const std::vector<std::array<double, 3>> edge_group = {{1.60, 0.0, 0.0}, {1.60, 0.0, 0.001}, {1.60, 0.0, 0.002}};
+  {
+    const fs::path dir = hc::test::temp_dir("island_inside");
+    std::vector<std::array<double, 3>> extra = {{1.22, 0.45, 0.002}, {1.25, 0.45, 0.002}, {1.28, 0.45, 0.002}};
+    extra.insert(extra.end(), edge_group.begin(), edge_group.end());
+    RunConfig config = island_config(dir, extra);
+    fs::create_directory(dir / "scratch");
+    BuiltScene tiled;
+    expect_tiled_equals_in_core(config, 32, dir / "scratch", &tiled);
+    if (HasFatalFailure()) return;
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "halo_cells"), 24.0);
+  }
   const fs::path dir = hc::test::temp_dir("island_edge");
-  RunConfig config = island_config(dir, {{1.16, 0.45, 0.002}, {1.19, 0.45, 0.002}, {1.22, 0.45, 0.002}});
+  RunConfig config = island_config(dir, {{1.21, 0.45, 0.002}, {1.24, 0.45, 0.002}, {1.27, 0.45, 0.002}});
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
   config.scale.tile_cells = 32;
   config.scale.scratch = dir;
   const std::string what = error_of<hc::ConfigError>(config);
-  for (const char* part : {"stage despike", "cross_check.island_max_cells = 16", "scale.island_halo: true", "halo of about 38 nodes instead of 24",
+  for (const char* part : {"stage despike", "cross_check.island_max_cells = 16", "scale.island_halo: true", "halo of 38 nodes instead of 24",
                            "scale.tiled: off"}) {
     EXPECT_NE(what.find(part), std::string::npos) << part << " in: " << what;
   }
-  // The first undecided cell named is one of the group's (row 44 to 46, cols 115 to 123 at 1 cm).
   const auto at = what.find("grid cell (");
   ASSERT_NE(at, std::string::npos) << what;
   int cell_r = -1, cell_c = -1;
@@ -1269,7 +1314,7 @@ TEST(TiledRun, AnIslandRunningPastTheCellsATileDecidesStopsTheRunNamingTheKey) {
   EXPECT_GE(cell_r, 44);
   EXPECT_LE(cell_r, 46);
   EXPECT_GE(cell_c, 122) << "a cell the tile right of col 128 reads (within 6 of it)";
-  EXPECT_LE(cell_c, 123);
+  EXPECT_LE(cell_c, 128);
   EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "the spill folder is removed on the error";
   config.scale.island_halo = true;
   fs::create_directory(dir / "scratch");
@@ -1281,6 +1326,47 @@ TEST(TiledRun, AnIslandRunningPastTheCellsATileDecidesStopsTheRunNamingTheKey) {
   const BuiltScene in = hc::pipeline::build_scene(config);
   ASSERT_NEAR(in.scene.geometry.cell_size_m, 0.01, 1e-9);
   EXPECT_EQ(stage_figure(in, "despike", "removed_spike_points"), 2.0) << "the row's end points";
+}
+
+// A grid of specks only: fifteen groups of six points (1 mm apart in z; k = 4, so that every
+// window holds k + 2 points), one a tile, each the disc of 5 cells about its tile's first node
+// (3 cells at the grid's corners, 4 on its edges: 59 cells). The in-core run spares the grid's
+// largest group from the island test (one speck of 5 cells: 54 island cells); the tiles take
+// every speck as an island and no window shows a larger group, so the run warns that the
+// scenes may differ about that speck. Here they do not (the despike removes no speck either
+// way: six points within 5 mm). Oracles: the layout, the in-core run; mutation, run: the
+// warning's check dropped.
+TEST(TiledRun, AGridOfSpecksOnlyWarnsThatTheInCoreRunSparesOne) {
+  const fs::path dir = hc::test::temp_dir("specks");
+  std::vector<std::array<double, 3>> pts;
+  for (int i = 0; i < 5; ++i)
+    for (int j = 0; j < 3; ++j)
+      for (int k = 0; k < 6; ++k) pts.push_back({0.32 * i, 0.32 * j, 0.001 * k});
+  std::ofstream out(dir / "specks.ply");
+  out << "ply\nformat ascii 1.0\nelement vertex " << pts.size() << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
+  for (const auto& p : pts) out << p[0] << " " << p[1] << " " << p[2] << "\n";
+  out.close();
+  const std::string yaml =
+      "input: {files: [specks.ply], units: m}\n"
+      "grid: {n: 129, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.002, see_through_window_cells: 3}\n"
+      "filters: {outliers: {k: 4, local_ratio: 100, mad_multiplier: 100, off_surface_ratio: 0, far_clusters: {enabled: false}}}\n"
+      "cross_check: {isolation_min_neighbours: 2}\nscale: {filter_halo_cells: 12}\n";
+  const RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "specks.yaml");
+  const BuiltScene in = hc::pipeline::build_scene(config);
+  ASSERT_NEAR(in.scene.geometry.cell_size_m, 0.01, 1e-9);
+  const std::size_t cells = 4U * 3U + 8U * 4U + 3U * 5U;
+  EXPECT_EQ(in.scene.layers.depth.valid_count(), cells) << "fifteen groups, none removed";
+  EXPECT_EQ(stage_figure(in, "despike", "island_cells"), static_cast<double>(cells - 5U)) << "one speck of 5 cells spared";
+  fs::create_directory(dir / "scratch");
+  BuiltScene tiled;
+  expect_tiled_equals_in_core(config, 32, dir / "scratch", &tiled);
+  if (HasFatalFailure()) return;
+  EXPECT_EQ(stage_figure(tiled, "tiles", "sum_tiles_with_a_group_past_island_max_cells"), 0.0);
+  std::string warning;
+  for (const std::string& w : tiled.summary.warnings)
+    if (w.find("no tile's window held a group of more than cross_check.island_max_cells = 16") != std::string::npos) warning = w;
+  EXPECT_FALSE(warning.empty()) << "no warning of the spared speck";
+  EXPECT_NE(warning.find("scale.tiled: off"), std::string::npos) << warning;
 }
 
 // A far cluster (30 stray returns 2 m beyond a 1 m patch, as a passer-by in a terrestrial scan)

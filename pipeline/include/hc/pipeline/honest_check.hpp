@@ -82,9 +82,10 @@ struct HonestCheckOptions {
   int island_max_cells = 16;
   /// Whether the grid's largest group is spared as an island whatever its size (set by run, not
   /// a config key): true for a whole grid. A tiled run's window sets it false: the whole grid's
-  /// largest group is larger than island_max_cells (which the run checks after its tiles,
-  /// WindowIslands::largest_exact_group), so every group of at most island_max_cells cells is an
-  /// island there, as in core, even where it is the window's largest. Since 2026-11-29
+  /// largest group is larger than island_max_cells, so every group of at most island_max_cells
+  /// cells is an island there, as in core, even where it is the window's largest. The run warns
+  /// when no window showed such a group (WindowIslands::largest_exact_group): a grid of specks
+  /// only, where the in-core run spares one speck no window can name. Since 2026-11-29
   /// (fifty-third session; before, a window beyond a silhouette holding only stray groups spared
   /// its largest, which the in-core run judged).
   bool spare_largest_group = true;
@@ -402,7 +403,7 @@ struct WindowIslands {
 /// Which island decisions a window of a grid can make as the whole grid would. `window`: the
 /// window's grid (heights [m], NaN = no data). `exact`: the window's region {row0, row1, col0,
 /// col1} (half-open, window cells) whose validity equals the whole grid's (a tiled run: the
-/// cells within its decided region less the grid stages' reach R of the interior). `needed`: the
+/// cells within halo − filter share − R nodes of the interior, R the grid stages' reach). `needed`: the
 /// region (inside `exact`) whose island labels the caller reads. `open`: per side of `exact`
 /// {top, bottom, left, right}, whether whole-grid cells lie beyond it (false at the whole grid's
 /// edge). A group of `exact`'s valid cells (8-connected) that touches no open side is a whole
