@@ -1045,17 +1045,25 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
 
 namespace {
 
+// The groups of valid cells (8-connected, OpenCV's connected components) of `grid`'s region
+// {row0, row1, col0, col1} (half-open): labels (CV_32S, the region's shape, 0 = no data) and
+// stats (CC_STAT_AREA per label); returns the number of labels, background included.
+int valid_groups(const HeightField& grid, const std::array<int, 4>& region, cv::Mat& labels, cv::Mat& stats) {
+  cv::Mat valid(region[1] - region[0], region[3] - region[2], CV_8UC1);
+  for (int r = 0; r < valid.rows; ++r)
+    for (int c = 0; c < valid.cols; ++c) valid.at<std::uint8_t>(r, c) = std::isnan(grid.at(region[0] + r, region[2] + c)) ? 0 : 255;
+  cv::Mat centroids;
+  return cv::connectedComponentsWithStats(valid, labels, stats, centroids, 8, CV_32S);
+}
+
 // Per cell (row-major), 1 where the cell belongs to an island: a group of valid cells
 // (8-connected, OpenCV's connected components) of at most max_cells cells that is not the
 // largest group (with spare_largest; without it, the largest too when that small:
 // HonestCheckOptions::spare_largest_group). *islands = the number of such groups.
 std::vector<std::uint8_t> island_mask(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest) {
   const GridGeometry& g = grid.geometry();
-  cv::Mat valid(g.rows, g.cols, CV_8UC1);
-  for (int r = 0; r < g.rows; ++r)
-    for (int c = 0; c < g.cols; ++c) valid.at<std::uint8_t>(r, c) = std::isnan(grid.at(r, c)) ? 0 : 255;
-  cv::Mat labels, stats, centroids;
-  const int n_labels = cv::connectedComponentsWithStats(valid, labels, stats, centroids, 8, CV_32S);
+  cv::Mat labels, stats;
+  const int n_labels = valid_groups(grid, {0, g.rows, 0, g.cols}, labels, stats);
   int largest = 0, largest_area = -1;
   for (int l = 1; l < n_labels; ++l) {
     const int area = stats.at<int>(l, cv::CC_STAT_AREA);
@@ -1361,11 +1369,8 @@ WindowIslands window_islands(const HeightField& window, int max_cells, const std
   WindowIslands out;
   const int rows = exact[1] - exact[0], cols = exact[3] - exact[2];
   if (rows <= 0 || cols <= 0) return out;
-  cv::Mat valid(rows, cols, CV_8UC1);
-  for (int r = 0; r < rows; ++r)
-    for (int c = 0; c < cols; ++c) valid.at<std::uint8_t>(r, c) = std::isnan(window.at(exact[0] + r, exact[2] + c)) ? 0 : 255;
-  cv::Mat labels, stats, centroids;
-  const int n_labels = cv::connectedComponentsWithStats(valid, labels, stats, centroids, 8, CV_32S);
+  cv::Mat labels, stats;
+  const int n_labels = valid_groups(window, exact, labels, stats);
   // Per group: whether it touches an open side, and one of its cells in the needed region.
   std::vector<std::uint8_t> touches(static_cast<std::size_t>(std::max(n_labels, 1)), 0);
   std::vector<std::array<int, 2>> needed_cell(touches.size(), {-1, -1});

@@ -641,9 +641,9 @@ int grid_share_cells(const RunConfig& config, int k) {
   const int reach = grid_reach_cells(config, k);
   const OutlierConfig& oc = config.filters.outliers;
   if (!(oc.enabled && oc.despike)) return reach;
-  const int share = 2 * reach + despike_grid_reach_cells(config.cross_check.honest, despike_reach_cells(config, k));
-  if (!config.scale.island_halo) return share;
-  return std::max(share, 2 * reach + static_cast<int>(std::ceil(despike_reach_cells(config, k))) + config.cross_check.honest.island_max_cells);
+  const HonestCheckOptions& h = config.cross_check.honest;
+  const int d = despike_grid_reach_cells(h, despike_reach_cells(config, k));  // ⌈reach⌉ + spike_window_cells / 2
+  return 2 * reach + (config.scale.island_halo ? d - h.spike_window_cells / 2 + std::max(h.spike_window_cells / 2, h.island_max_cells) : d);
 }
 
 // A tile's halo [nodes] with upsample factor k, scale.filter_halo_cells = filter_cells and, with
@@ -2379,12 +2379,12 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       auto ds = remove_spike_points(std::move(pts), part.depth, despike_options, despike_reach_cells(config, tiles.k),
                                     std::isfinite(spacing_m) ? spacing_m : 0.0, tiles.k, &removed);
       add_figures(o.sums, ds.report);
+      const int reach = grid_reach_cells(config, tiles.k);  // R [nodes]
       // The island labels the despike reads, of the cells within R + ⌈reach⌉ of the interior
       // (the candidates of the points within R, and the spike cells it skips as islands), are
       // the whole grid's where their group lies inside the region whose cells are (the decided
       // region less R) without touching its edge, or is larger than island_max_cells there.
       {
-        const int reach = grid_reach_cells(config, tiles.k);
         const int e = std::max(0, tiles.halo - tiles.filter - reach);
         const int need = reach + static_cast<int>(std::ceil(despike_reach_cells(config, tiles.k)));
         const auto clip = [&](int grow) -> std::array<int, 4> {
@@ -2425,7 +2425,6 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       // verdicts are this window's, never checked as the whole scan's; before 2026-11-29 this
       // check ran to the grid share, whose verdicts were not the whole scan's either.)
       RobustOutlierOptions::TileBounds despike_bounds = bounds;
-      const int reach = grid_reach_cells(config, tiles.k);
       despike_bounds.decides_m = tiles.box_m(inner[0] - reach, inner[1] + reach, inner[2] - reach, inner[3] + reach);
       check_within_window(tiles, t, despike_bounds, removed,
                           despike_search_radius_m(tiles.g.cell_size_m, static_cast<double>(tiles.k), spacing_m), "despike",

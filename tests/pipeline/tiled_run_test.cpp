@@ -518,6 +518,15 @@ TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
   EXPECT_GT(tiled.scene.layers.depth.valid_count(), 0U);
 }
 
+// The points `pts` [m] as an ASCII PLY of doubles (17 digits: read back bit for bit).
+void write_points_ply(const fs::path& file, const std::vector<std::array<double, 3>>& pts) {
+  std::ofstream out(file);
+  out << "ply\nformat ascii 1.0\nelement vertex " << pts.size()
+      << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
+  out.precision(17);
+  for (const auto& p : pts) out << p[0] << " " << p[1] << " " << p[2] << "\n";
+}
+
 // A 1 m plane at 10 mm spacing (z = 0), less the discs `holes` (x, y, radius [m]), plus `extra`
 // points.
 void write_plane_with_holes(const fs::path& file, const std::vector<std::array<double, 3>>& holes,
@@ -532,11 +541,7 @@ void write_plane_with_holes(const fs::path& file, const std::vector<std::array<d
     }
   }
   pts.insert(pts.end(), extra.begin(), extra.end());
-  std::ofstream out(file);
-  out << "ply\nformat ascii 1.0\nelement vertex " << pts.size()
-      << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
-  out.precision(17);
-  for (const auto& p : pts) out << p[0] << " " << p[1] << " " << p[2] << "\n";
+  write_points_ply(file, pts);
 }
 
 // The plane with a hole of 20 cm radius about (hole_x_m, 0.5).
@@ -1342,10 +1347,7 @@ TEST(TiledRun, AGridOfSpecksOnlyWarnsThatTheInCoreRunSparesOne) {
   for (int i = 0; i < 5; ++i)
     for (int j = 0; j < 3; ++j)
       for (int k = 0; k < 6; ++k) pts.push_back({0.32 * i, 0.32 * j, 0.001 * k});
-  std::ofstream out(dir / "specks.ply");
-  out << "ply\nformat ascii 1.0\nelement vertex " << pts.size() << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
-  for (const auto& p : pts) out << p[0] << " " << p[1] << " " << p[2] << "\n";
-  out.close();
+  write_points_ply(dir / "specks.ply", pts);
   const std::string yaml =
       "input: {files: [specks.ply], units: m}\n"
       "grid: {n: 129, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.002, see_through_window_cells: 3}\n"
