@@ -86,17 +86,21 @@ std::size_t entries_besides(const fs::path& dir, const std::string& keep) {
   return n;
 }
 
-// Both runs of one config; the tiled one with tiles of `tile` cells under `scratch`, handed back
-// in tiled_out when given (config itself is left as it was).
-void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scratch, BuiltScene* tiled_out = nullptr) {
+// Both runs of one config; the tiled one with tiles of `tile` cells under `scratch` (its stage
+// reports passed to tiled_progress when given), handed back in tiled_out and the in-core one in
+// in_core_out when given (config itself is left as it was).
+void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scratch, BuiltScene* tiled_out = nullptr,
+                                 BuiltScene* in_core_out = nullptr, const hc::pipeline::ProgressFn& tiled_progress = {}) {
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
-  const BuiltScene in = hc::pipeline::build_scene(config);
+  BuiltScene in_local;
+  BuiltScene& in = in_core_out != nullptr ? *in_core_out : in_local;
+  in = hc::pipeline::build_scene(config);
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
   config.scale.tile_cells = tile;
   config.scale.scratch = scratch;
   BuiltScene local;
   BuiltScene& tiled = tiled_out != nullptr ? *tiled_out : local;
-  tiled = hc::pipeline::build_scene(config);
+  tiled = hc::pipeline::build_scene(config, false, tiled_progress);
   ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0) << "the grid was cut into several tiles";
   // write_run gives freed heap back after each stage of the tiled run's scene only.
   EXPECT_FALSE(in.from_tiled_run);
@@ -1617,21 +1621,10 @@ TEST(TiledRun, TheSpillTakesTheUpsampleCoverageOfADenseScanAndSpillsAgainWhenIts
   const fs::path dir = hc::test::temp_dir("spill_coverage");
   const fs::path scratch = dir / "scratch";
   fs::create_directory(scratch);
-  // The passes a tiled build of `config` (32-cell tiles) ran, by their progress notes.
-  const auto passes_of = [&](RunConfig config) {
-    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-    config.scale.tile_cells = 32;
-    config.scale.scratch = scratch;
-    std::set<std::string> passes;
-    (void)hc::pipeline::build_scene(config, false, [&](const hc::pipeline::StageReport& r, bool done) {
-      if (!done && !r.notes.empty()) passes.insert(r.stage + ": " + r.notes.front());
-    });
-    return passes;
-  };
-  const auto in_core_figure = [](const RunConfig& c, const char* name) {
-    RunConfig in = c;
-    in.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
-    return stage_figure(hc::pipeline::build_scene(in), "reproject", name);
+  // The passes a tiled build ran, by its progress notes.
+  std::set<std::string> passes;
+  const hc::pipeline::ProgressFn note_passes = [&](const hc::pipeline::StageReport& r, bool done) {
+    if (!done && !r.notes.empty()) passes.insert(r.stage + ": " + r.notes.front());
   };
   const std::string head = "input: {files: [scan.ply], units: m}\ngrid: {n: 150, upsample: auto}\nfilters: {outliers: {enabled: false}}\n";
   const std::string progress = "scale: {progress_interval_s: 0}\n";
@@ -1644,14 +1637,13 @@ TEST(TiledRun, TheSpillTakesTheUpsampleCoverageOfADenseScanAndSpillsAgainWhenIts
     spec.height_m = 0.5;
     hc::tools::write_relief(spec, dir / "scan.ply");
     RunConfig config = hc::pipeline::parse_run_config(head + progress, dir / "scan.yaml");
-    BuiltScene tiled;
-    expect_tiled_equals_in_core(config, 32, scratch, &tiled);
+    BuiltScene tiled, in;
+    expect_tiled_equals_in_core(config, 32, scratch, &tiled, &in, note_passes);
     EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_factor"), 1.0);
-    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_factor"), in_core_figure(config, "upsample_factor"));
-    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_coverage"), in_core_figure(config, "upsample_coverage"));
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_factor"), stage_figure(in, "reproject", "upsample_factor"));
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_coverage"), stage_figure(in, "reproject", "upsample_coverage"));
     EXPECT_TRUE(has_note(tiled, "tile_plan", "then the spill, which took the upsample coverage"));
     EXPECT_FALSE(has_note(tiled, "tile_spill", "spilled twice"));
-    const std::set<std::string> passes = passes_of(config);
     EXPECT_EQ(passes.count("tile_spill: pass 3 of 3: the spill, with the upsample coverage"), 1U);
     for (const std::string& p : passes) {
       EXPECT_FALSE(p.rfind("tile_plan", 0) == 0 && p.find("upsample coverage") != std::string::npos) << "a coverage pass of its own: " << p;
@@ -1668,12 +1660,12 @@ TEST(TiledRun, TheSpillTakesTheUpsampleCoverageOfADenseScanAndSpillsAgainWhenIts
     }
     write_float_ply(dir / "scan.ply", pts);
     RunConfig config = hc::pipeline::parse_run_config(head + progress, dir / "scan.yaml");
-    BuiltScene tiled;
-    expect_tiled_equals_in_core(config, 32, scratch, &tiled);
+    BuiltScene tiled, in;
+    expect_tiled_equals_in_core(config, 32, scratch, &tiled, &in);
     const double k = stage_figure(tiled, "tile_plan", "upsample_factor");
     EXPECT_GE(k, 2.0);
-    EXPECT_EQ(k, in_core_figure(config, "upsample_factor"));
-    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_coverage"), in_core_figure(config, "upsample_coverage"));
+    EXPECT_EQ(k, stage_figure(in, "reproject", "upsample_factor"));
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_coverage"), stage_figure(in, "reproject", "upsample_coverage"));
     EXPECT_EQ(static_cast<int>(stage_figure(tiled, "tile_plan", "tile_cells")) % static_cast<int>(k), 0);
     EXPECT_TRUE(has_note(tiled, "tile_plan", "found by the spill, which had guessed factor 1"));
     EXPECT_TRUE(has_note(tiled, "tile_spill", "spilled twice"));
