@@ -1621,11 +1621,6 @@ TEST(TiledRun, TheSpillTakesTheUpsampleCoverageOfADenseScanAndSpillsAgainWhenIts
   const fs::path dir = hc::test::temp_dir("spill_coverage");
   const fs::path scratch = dir / "scratch";
   fs::create_directory(scratch);
-  // The passes a tiled build ran, by its progress notes.
-  std::set<std::string> passes;
-  const hc::pipeline::ProgressFn note_passes = [&](const hc::pipeline::StageReport& r, bool done) {
-    if (!done && !r.notes.empty()) passes.insert(r.stage + ": " + r.notes.front());
-  };
   const std::string head = "input: {files: [scan.ply], units: m}\ngrid: {n: 150, upsample: auto}\nfilters: {outliers: {enabled: false}}\n";
   const std::string progress = "scale: {progress_interval_s: 0}\n";
 
@@ -1637,8 +1632,11 @@ TEST(TiledRun, TheSpillTakesTheUpsampleCoverageOfADenseScanAndSpillsAgainWhenIts
     spec.height_m = 0.5;
     hc::tools::write_relief(spec, dir / "scan.ply");
     RunConfig config = hc::pipeline::parse_run_config(head + progress, dir / "scan.yaml");
+    std::set<std::string> passes;  // the passes the tiled build ran, by its progress notes
     BuiltScene tiled, in;
-    expect_tiled_equals_in_core(config, 32, scratch, &tiled, &in, note_passes);
+    expect_tiled_equals_in_core(config, 32, scratch, &tiled, &in, [&](const hc::pipeline::StageReport& r, bool done) {
+      if (!done && !r.notes.empty()) passes.insert(r.stage + ": " + r.notes.front());
+    });
     EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_factor"), 1.0);
     EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_factor"), stage_figure(in, "reproject", "upsample_factor"));
     EXPECT_EQ(stage_figure(tiled, "tile_plan", "upsample_coverage"), stage_figure(in, "reproject", "upsample_coverage"));
