@@ -3,12 +3,15 @@
 /// Exit codes (README, "Using it"): 0 success; 1 an input or config error (hc::Error: the message
 /// names the file, key or value); 2 a usage error (unknown subcommand or option, missing or
 /// malformed argument: the usage line follows); 3 an internal error (a bug: please report it);
-/// 4 `run` wrote its output but the cross-check's verdict is fail (report.md says why).
+/// 4 `run` wrote its output but the cross-check's verdict is fail (report.md says why);
+/// 5 `tile-job` under scale.island_halo: auto met an island group its plan's halo cannot decide
+/// (hc::pipeline::UndecidedIslandsError): plan again with scale.island_halo: true.
 /// `-v/--verbose` and `-q/--quiet` set the log level (spdlog, on stderr) for every subcommand.
 
 #include "commands.hpp"
 
 #include "hc/common/error.hpp"
+#include "hc/pipeline/tiling.hpp"
 
 #include <CLI/CLI.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
@@ -23,6 +26,7 @@ constexpr int kExitInput = 1;
 constexpr int kExitUsage = 2;
 constexpr int kExitInternal = 3;
 constexpr int kExitVerdictFail = 4;
+constexpr int kExitPlanAgain = 5;
 
 /// Progress and diagnostics go to stderr through one logger: "hapticloud: message".
 void set_up_logging(int verbosity) {
@@ -89,6 +93,9 @@ int main(int argc, char** argv) {
   } catch (const hc::app::VerdictFailed& e) {
     std::cerr << "hapticloud: verdict fail: " << e.what() << "\n";
     return kExitVerdictFail;
+  } catch (const hc::pipeline::UndecidedIslandsError& e) {
+    std::cerr << "hapticloud: error: " << e.what() << "\n";
+    return e.under_auto ? kExitPlanAgain : kExitInput;
   } catch (const hc::Error& e) {
     std::cerr << "hapticloud: error: " << e.what() << "\n";
     return kExitInput;

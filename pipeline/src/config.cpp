@@ -150,6 +150,25 @@ class Reader {
     return v;
   }
 
+  /// auto (or the key absent): nullopt; else true or false as get_bool reads them. The resolved
+  /// config holds auto or the bool.
+  std::optional<bool> get_bool_or_auto(const std::string& path) {
+    mark_known(path);
+    std::optional<bool> v;
+    if (const auto n = find(path)) {
+      if (!(n->IsScalar() && n->Scalar() == "auto")) {
+        try {
+          if (!n->IsScalar()) throw YAML::Exception(YAML::Mark::null_mark(), "");
+          v = n->as<bool>();
+        } catch (const YAML::Exception&) {
+          fail(path, "= " + scalar_text(*n) + ": expected auto, true or false");
+        }
+      }
+    }
+    resolved_set(path, v ? YAML::Node(*v) : YAML::Node("auto"));
+    return v;
+  }
+
   std::string get_string(const std::string& path, const std::string& def,
                          const std::vector<std::string>& allowed = {}) {
     mark_known(path);
@@ -1099,7 +1118,10 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
         c.scale.filter_halo_cells = *f;
       }
     }
-    c.scale.island_halo = r.get_bool("scale.island_halo", c.scale.island_halo);
+    {
+      const std::optional<bool> ih = r.get_bool_or_auto("scale.island_halo");
+      c.scale.island_halo = !ih ? ScaleConfig::Tiled::kAuto : *ih ? ScaleConfig::Tiled::kOn : ScaleConfig::Tiled::kOff;
+    }
     c.scale.chunk_points = static_cast<std::size_t>(
         r.get_int("scale.chunk_points", static_cast<long long>(c.scale.chunk_points), 1024, 1LL << 28));
     if (r.has("scale.scratch")) c.scale.scratch = base / r.get_string("scale.scratch", "");

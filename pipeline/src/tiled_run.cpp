@@ -643,7 +643,7 @@ int grid_share_cells(const RunConfig& config, int k) {
   if (!(oc.enabled && oc.despike)) return reach;
   const HonestCheckOptions& h = config.cross_check.honest;
   const int d = despike_grid_reach_cells(h, despike_reach_cells(config, k));  // ⌈reach⌉ + spike_window_cells / 2
-  return 2 * reach + (config.scale.island_halo ? d - h.spike_window_cells / 2 + std::max(h.spike_window_cells / 2, h.island_max_cells) : d);
+  return 2 * reach + (config.scale.island_halo == ScaleConfig::Tiled::kOn ? d - h.spike_window_cells / 2 + std::max(h.spike_window_cells / 2, h.island_max_cells) : d);
 }
 
 // A tile's halo [nodes] with upsample factor k, scale.filter_halo_cells = filter_cells and, with
@@ -2402,17 +2402,19 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
         const WindowIslands wi = window_islands(part.depth, despike_options.island_max_cells, exact, needed, open);
         if (wi.undecided_groups > 0) {
           RunConfig wider = config;
-          wider.scale.island_halo = true;
+          wider.scale.island_halo = ScaleConfig::Tiled::kOn;
           const int now = tiles.halo, then = tile_halo(wider, tiles.k, tiles.filter, tiles.despike, tiles.isolated);
-          throw ConfigError("tiled run, tile " + std::to_string(t) + ": stage despike: " + std::to_string(wi.undecided_groups) +
+          throw UndecidedIslandsError("tiled run, tile " + std::to_string(t) + ": stage despike: " + std::to_string(wi.undecided_groups) +
                             " group(s) of at most cross_check.island_max_cells = " + std::to_string(despike_options.island_max_cells) +
                             " valid cells near the tile's interior, the first at grid cell (" +
                             std::to_string(wi.first_undecided[0] + w.row0) + ", " + std::to_string(wi.first_undecided[1] + w.col0) +
                             "), run on past the cells its window has as the whole grid does, so the window cannot tell whether "
                             "the despike judges them as islands: set scale.island_halo: true (a halo of " + std::to_string(then) +
                             " nodes instead of " + std::to_string(now) +
-                            " at this filter share), lower cross_check.island_max_cells (which changes the in-core run's islands "
-                            "too), or run in core (scale.tiled: off)");
+                            " at this filter share; under auto only the in-process run widens it itself, a tile job keeps its "
+                            "plan's), lower cross_check.island_max_cells (which changes the in-core run's islands "
+                            "too), or run in core (scale.tiled: off)",
+                            t, now, then, config.scale.island_halo == ScaleConfig::Tiled::kAuto);
         }
         o.sums["tiles_with_a_group_past_island_max_cells"] +=
             wi.largest_exact_group > static_cast<std::size_t>(despike_options.island_max_cells) ? 1.0 : 0.0;
@@ -2924,6 +2926,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     detail::set_figure(rep, "filter_halo_cells", tiles.filter);
     detail::set_figure(rep, "despike_halo_cells", tiles.despike);
     detail::set_figure(rep, "isolated_halo_cells", tiles.isolated);
+    // 1: the grid share holds the despike's island groups (scale.island_halo on, or auto's
+    // second attempt); 0: a window that cannot decide one stops (off) or starts again (auto).
+    detail::set_figure(rep, "island_halo", config.scale.island_halo == ScaleConfig::Tiled::kOn ? 1.0 : 0.0);
   };
   // The grid (tiles.g) from the points in the grid frame without those `far` holds, then the
   // upsample factor and the tiles (cut_tiles). With grid.upsample auto the factor needs a pass
@@ -4726,8 +4731,47 @@ std::string random_id() {
 
 }  // namespace
 
+namespace {
+BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers,
+                                  detail::Clock::time_point t_start);
+}  // namespace
+
 BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers) {
   const auto t_start = detail::Clock::now();
+  if (config.scale.island_halo != ScaleConfig::Tiled::kAuto) return build_scene_tiled_once(config, progress, layers, t_start);
+  std::string why;
+  std::size_t tile = 0;
+  int now = 0, then = 0;
+  try {
+    return build_scene_tiled_once(config, progress, layers, t_start);  // the narrower share
+  } catch (const UndecidedIslandsError& e) {  // the first attempt's scratch folder is gone with it
+    why = e.what();
+    tile = e.tile;
+    now = e.halo_now;
+    then = e.halo_then;
+  }
+  const double lost_s = detail::seconds_since(t_start);
+  RunConfig wide = config;
+  wide.scale.island_halo = ScaleConfig::Tiled::kOn;
+  BuiltScene built = build_scene_tiled_once(wide, progress, layers, t_start);
+  const std::string warning =
+      "scale.island_halo: auto: tile " + std::to_string(tile) + "'s window could not decide whether a group of at most " +
+      "cross_check.island_max_cells = " + std::to_string(config.cross_check.honest.island_max_cells) +
+      " valid cells is an island, so the run started again from the plan with the wider grid share (a halo of " +
+      std::to_string(then) + " nodes instead of " + std::to_string(now) + ") after " + format_number(lost_s) +
+      " s; set scale.island_halo: true to skip the first attempt with this scan and config. The first attempt stopped with: " + why;
+  for (StageReport& rep : built.summary.stages) {
+    if (rep.stage != "tile_plan") continue;
+    rep.figure("island_halo_restarted_after_s", lost_s);
+    rep.notes.push_back("warning: " + warning);
+  }
+  built.summary.warnings.push_back(warning);
+  return built;
+}
+
+namespace {
+BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers,
+                                  detail::Clock::time_point t_start) {
   const detail::StageHeapRelease heap_release;  // each stage's freed heap back when it ends
   ScratchDir scratch(config.scale.scratch);
   Plan plan = plan_passes(config, scratch.path(), progress);
@@ -4773,6 +4817,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   });
   return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
 }
+}  // namespace
 
 TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std::string>& overrides, const fs::path& work_dir,
                              const ProgressFn& progress) {

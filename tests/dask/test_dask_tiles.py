@@ -188,3 +188,48 @@ def test_a_local_cluster_gives_the_single_process_scene_and_a_failing_tile_stops
     p = subprocess.run([sys.executable, DRIVER, config, "--out", str(tmp_path / "x"), "--scheduler", "tcp://127.0.0.1:1"],
                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert p.returncode == 2 and "--work" in p.stdout
+
+
+def test_an_island_the_plans_halo_cannot_decide_is_planned_again_with_the_wider_halo(tmp_path):
+    # The scene of TiledRun.AnIslandRunningPastTheCellsATileDecides... (tests/pipeline/
+    # tiled_run_test.cpp): a 1 m plane of points 1 cm apart, a strip at x 2.9 to 2.99 m, and three
+    # points 3 cm apart at x 1.21 to 1.27 m whose discs make a 15-cell group reaching the edge of
+    # the cells the window of the tile right of col 128 has as the whole grid's. Under
+    # scale.island_halo: auto a tile job exits 5 there; the driver plans again with the key true
+    # and its scene is byte for byte the single-process run's with the key true (the oracle).
+    # With the key false the driver stops naming it. A LocalCluster (about 10 s).
+    pts = [(0.01 * i, 0.01 * j, 0.0) for i in range(100) for j in range(100)]
+    pts += [(2.9 + 0.01 * i, 0.01 * j, 0.0) for i in range(10) for j in range(100)]
+    pts += [(1.21, 0.45, 0.002), (1.24, 0.45, 0.002), (1.27, 0.45, 0.002)]
+    with open(tmp_path / "plane.ply", "w") as f:
+        f.write("ply\nformat ascii 1.0\nelement vertex %d\nproperty double x\nproperty double y\nproperty double z\n"
+                "end_header\n" % len(pts))
+        f.writelines("%.17g %.17g %.17g\n" % p for p in pts)
+    config = tmp_path / "plane.yaml"
+    config.write_text(
+        "input: {files: [plane.ply], units: m}\n"
+        "grid: {n: 300, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.002, see_through_window_cells: 3}\n"
+        "filters: {outliers: {local_ratio: 100, mad_multiplier: 100, off_surface_ratio: 0, far_clusters: {enabled: false}}}\n"
+        "cross_check: {isolation_min_neighbours: 2}\nscale: {filter_halo_cells: 12, tiled: on, tile_cells: 32}\n")
+    ref = tmp_path / "ref"
+    subprocess.run([HAPTICLOUD, "run", str(config), "--out", str(ref), "--set", "scale.island_halo=true"], check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    out = tmp_path / "run"
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    p = subprocess.run([sys.executable, DRIVER, str(config), "--out", str(out), "--workers", "2", "--scratch", str(scratch),
+                        "--hapticloud", HAPTICLOUD], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert p.returncode == 0, p.stdout[-3000:]
+    assert "planning again with --set scale.island_halo=true" in p.stdout, p.stdout[-3000:]
+    assert "stage despike" in p.stdout, p.stdout[-3000:]
+    assert same_folder(ref / "scene", out / "scene") == []
+    assert json.loads((out / "report.json").read_text())["cross_check"] == json.loads((ref / "report.json").read_text())["cross_check"]
+    assert os.listdir(scratch) == []
+    # The key false: the tile job's error, named, after the retries; no run folder.
+    p = subprocess.run([sys.executable, DRIVER, str(config), "--out", str(tmp_path / "failed"), "--workers", "1",
+                        "--scratch", str(scratch), "--hapticloud", HAPTICLOUD, "--retries", "0",
+                        "--set", "scale.island_halo=false"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert p.returncode == 1, p.stdout[-3000:]
+    assert "set scale.island_halo: true" in p.stdout and "planning again" not in p.stdout, p.stdout[-3000:]
+    assert not (tmp_path / "failed").exists()
+    assert os.listdir(scratch) == []

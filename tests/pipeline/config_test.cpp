@@ -150,6 +150,24 @@ TEST(Config, FilterHaloIsAutoOrACellCount) {
   }
 }
 
+// scale.island_halo: auto (the default), or a YAML bool; the resolved config says which.
+TEST(Config, IslandHaloIsAutoOrABool) {
+  using hc::pipeline::ScaleConfig;
+  const auto parsed = [](const std::string& extra) { return parse_run_config(kMinimal + extra, "configs/test.yaml"); };
+  EXPECT_EQ(parsed("").scale.island_halo, ScaleConfig::Tiled::kAuto) << "auto is the default";
+  EXPECT_EQ(parsed("scale: {island_halo: auto}\n").scale.island_halo, ScaleConfig::Tiled::kAuto);
+  EXPECT_EQ(parsed("scale: {island_halo: true}\n").scale.island_halo, ScaleConfig::Tiled::kOn);
+  EXPECT_EQ(parsed("scale: {island_halo: yes}\n").scale.island_halo, ScaleConfig::Tiled::kOn);
+  EXPECT_EQ(parsed("scale: {island_halo: false}\n").scale.island_halo, ScaleConfig::Tiled::kOff);
+  EXPECT_NE(parsed("").resolved_yaml.find("island_halo: auto"), std::string::npos) << parsed("").resolved_yaml;
+  EXPECT_NE(parsed("scale: {island_halo: off}\n").resolved_yaml.find("island_halo: false"), std::string::npos);
+  for (const std::string bad : {"2", "maybe", "Auto"}) {
+    const std::string what = config_error(kMinimal + "scale: {island_halo: " + bad + "}\n");
+    EXPECT_NE(what.find("scale.island_halo = '" + bad + "': expected auto, true or false"), std::string::npos) << what;
+  }
+  EXPECT_NE(config_error(kMinimal + "scale: {island_halo: [true]}\n").find("scale.island_halo = "), std::string::npos);
+}
+
 // scale.band_mb bounds the robust test's band of first looks; scale.block_copies, which the
 // bands replaced, is refused by name with what to do (not taken as an unknown key's typo).
 TEST(Config, BandMegabytesAreReadAndBlockCopiesIsRefusedByName) {

@@ -1284,16 +1284,19 @@ TEST(TiledRun, AWindowHoldingOnlyIslandsGivesTheInCoreGrid) {
 // 9 columns. The tile right of col 128 reads island labels within 6 of its interior (from col
 // 122) and has its window's cells as the whole grid's within 8 (from col 120). Cols 120 to 128
 // (points at 1.21, 1.24, 1.27 m): the group reaches col 120, on that region's edge, where the
-// whole grid's group may run on: the run stops naming the stage, a cell of the group the tile
-// reads and scale.island_halo, and leaves no spill. Cols 121 to 129 (one cell right): the
+// whole grid's group may run on: with scale.island_halo: false the run stops naming the stage,
+// a cell of the group the tile reads and scale.island_halo, and leaves no spill; under auto (the
+// default) it starts again with the key's wider share, warns naming the tile and both halos,
+// leaves no spill of either attempt, and equals the in-core run. Cols 121 to 129 (one cell right): the
 // group and its ring of no-data cells lie inside, and the run goes on and equals the in-core one,
 // as it does with a group of three points on the grid's edge (row 0, where no open side is;
 // a tile's check that took the grid's edge for an open side would stop). With scale.island_halo
 // (26-node grid share: 2R + ⌈1.2⌉ + 16, so a 38-node halo) the first layout equals the in-core
 // run, which removes the row's two end points (one neighbour within the island radius, 4 cm).
 // Oracles: the group's cells from the geometry, the in-core run; mutations, run: the check
-// dropped (no error), the exact region one node wider or narrower (one layout's verdict flips).
-TEST(TiledRun, AnIslandRunningPastTheCellsATileDecidesStopsTheRunNamingTheKey) {
+// dropped (no error), the exact region one node wider or narrower (one layout's verdict flips),
+// auto left narrow on the second attempt (the error again).
+TEST(TiledRun, AnIslandRunningPastTheCellsATileDecidesWidensTheHaloOrStopsTheRunNamingTheKey) {
   const std::vector<std::array<double, 3>> edge_group = {{1.60, 0.0, 0.0}, {1.60, 0.0, 0.001}, {1.60, 0.0, 0.002}};
   {
     const fs::path dir = hc::test::temp_dir("island_inside");
@@ -1305,9 +1308,31 @@ TEST(TiledRun, AnIslandRunningPastTheCellsATileDecidesStopsTheRunNamingTheKey) {
     expect_tiled_equals_in_core(config, 32, dir / "scratch", &tiled);
     if (HasFatalFailure()) return;
     EXPECT_EQ(stage_figure(tiled, "tile_plan", "halo_cells"), 24.0);
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "island_halo"), 0.0);
+    EXPECT_TRUE(tiled.summary.warnings.empty()) << "no window needed the wider share";
   }
   const fs::path dir = hc::test::temp_dir("island_edge");
   RunConfig config = island_config(dir, {{1.21, 0.45, 0.002}, {1.24, 0.45, 0.002}, {1.27, 0.45, 0.002}});
+  ASSERT_EQ(config.scale.island_halo, hc::pipeline::ScaleConfig::Tiled::kAuto) << "the default";
+  {
+    fs::create_directory(dir / "scratch_auto");
+    BuiltScene tiled;
+    expect_tiled_equals_in_core(config, 32, dir / "scratch_auto", &tiled);  // both attempts' spills gone too
+    if (HasFatalFailure()) return;
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "halo_cells"), 38.0) << "the second attempt's";
+    EXPECT_EQ(stage_figure(tiled, "tile_plan", "island_halo"), 1.0);
+    EXPECT_GT(stage_figure(tiled, "tile_plan", "island_halo_restarted_after_s"), 0.0);
+    std::string warning;
+    for (const std::string& w : tiled.summary.warnings)
+      if (w.find("scale.island_halo: auto") != std::string::npos) warning = w;
+    ASSERT_FALSE(warning.empty()) << "the restart is said";
+    for (const char* part : {"a halo of 38 nodes instead of 24", "set scale.island_halo: true", "grid cell ("}) {
+      EXPECT_NE(warning.find(part), std::string::npos) << part << " in: " << warning;
+    }
+    EXPECT_TRUE(has_note(tiled, "tile_plan", "started again from the plan"));
+    fs::remove(dir / "scratch_auto");
+  }
+  config.scale.island_halo = hc::pipeline::ScaleConfig::Tiled::kOff;
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
   config.scale.tile_cells = 32;
   config.scale.scratch = dir;
@@ -1325,12 +1350,13 @@ TEST(TiledRun, AnIslandRunningPastTheCellsATileDecidesStopsTheRunNamingTheKey) {
   EXPECT_GE(cell_c, 122) << "a cell the tile right of col 128 reads (within 6 of it)";
   EXPECT_LE(cell_c, 128);
   EXPECT_EQ(entries_besides(dir, "plane.ply"), 0U) << "the spill folder is removed on the error";
-  config.scale.island_halo = true;
+  config.scale.island_halo = hc::pipeline::ScaleConfig::Tiled::kOn;
   fs::create_directory(dir / "scratch");
   BuiltScene tiled;
   expect_tiled_equals_in_core(config, 32, dir / "scratch", &tiled);
   if (HasFatalFailure()) return;
   EXPECT_EQ(stage_figure(tiled, "tile_plan", "halo_cells"), 38.0);
+  EXPECT_TRUE(tiled.summary.warnings.empty()) << "on from the start: no second attempt";
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
   const BuiltScene in = hc::pipeline::build_scene(config);
   ASSERT_NEAR(in.scene.geometry.cell_size_m, 0.01, 1e-9);

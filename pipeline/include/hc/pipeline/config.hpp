@@ -114,14 +114,19 @@ struct ScaleConfig {
   /// kAutoFilterHalo: the least that holds their searches at the scan's spacing (an estimate at
   /// tile_plan, the robust sample's at tile_scale, the points spilled again when it is wider).
   int filter_halo_cells = kAutoFilterHalo;
-  /// With the despike on: widen every tile's decided region so that each group of up to
-  /// cross_check.island_max_cells valid cells whose island label the despike reads near the
-  /// interior lies inside it (tiled_run.cpp, grid_share_cells: 2R + ⌈reach⌉ + island_max_cells
-  /// nodes instead of 2R + ⌈reach⌉ + spike_window_cells / 2; 26 instead of 12 nodes at the shipped
-  /// settings). Off (the default): a window that cannot decide such a group stops the run with
-  /// a ConfigError naming this key (islands near a tile's edge are rare: none in 56–275 tiles of
-  /// the Buddha, the bunny and the E57 pump at 32-cell tiles). Since 2026-11-29 (fifty-third session).
-  bool island_halo = false;
+  /// With the despike on: whether every tile's decided region is widened so that each group of
+  /// up to cross_check.island_max_cells valid cells whose island label the despike reads near
+  /// the interior lies inside it (tiled_run.cpp, grid_share_cells: 2R + ⌈reach⌉ +
+  /// island_max_cells nodes instead of 2R + ⌈reach⌉ + spike_window_cells / 2; 26 instead of 12
+  /// nodes at the shipped settings). on: always. off: a window that cannot decide such a group
+  /// stops the run with a ConfigError naming this key. auto (the default, since 2026-11-29,
+  /// fifty-fifth session): the narrower share; where a window cannot decide a group, the
+  /// in-process run (build_scene_tiled) starts again from the plan with the wider one, and says
+  /// so in a warning (islands near a tile's edge are rare: none in 56–275 tiles of the Buddha,
+  /// the bunny and the E57 pump at 32-cell tiles). A tile job cannot widen its plan's halo: under
+  /// auto it stops as under off (write the plan again with on). Before the fifty-fifth session a
+  /// bool, false by default (the fifty-third session's).
+  Tiled island_halo = Tiled::kAuto;
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
   /// The most memory the robust test's first looks of a band of tiles hold [MiB], 0 to 65536:

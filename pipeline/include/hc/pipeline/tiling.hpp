@@ -64,6 +64,24 @@
 
 namespace hc::pipeline {
 
+/// A tile's window could not decide whether a group of at most cross_check.island_max_cells
+/// valid cells near its interior is an island of the despike (honest_check.hpp, window_islands):
+/// the group runs on past the window's cells that are the whole grid's. A ConfigError whose
+/// message names the stage, a grid cell of the group (row, col), scale.island_halo and
+/// cross_check.island_max_cells. build_scene_tiled under scale.island_halo: auto catches it and
+/// starts again with the key on; a tile job (run_tile_jobs) cannot widen its plan's halo, and
+/// `hapticloud tile-job` exits 5 for it under auto, so that the Dask driver plans again with the
+/// key on (docs/scale.md, "Islands in a tile's window"). Source: this project.
+class UndecidedIslandsError : public ConfigError {
+ public:
+  UndecidedIslandsError(const std::string& what, std::size_t t, int now, int then, bool auto_key)
+      : ConfigError(what), tile(t), halo_now(now), halo_then(then), under_auto(auto_key) {}
+  std::size_t tile;  ///< the tile whose window met the group
+  int halo_now;      ///< the plan's halo [grid nodes]
+  int halo_then;     ///< the halo with scale.island_halo on [grid nodes]
+  bool under_auto;   ///< the config's scale.island_halo is auto (not false)
+};
+
 /// Whether build_scene runs `config` tiled: scale.tiled on, or auto and the input is one natively
 /// streamed file (point_stream.hpp), or several with input.shared_frame, of more than
 /// scale.tiled_above_points points in all (each file's header or first-look count).
@@ -136,7 +154,8 @@ std::size_t tile_plan_tiles(const std::filesystem::path& plan_file);
 /// Idempotent: running a tile again gives the same bytes.
 /// @throws hc::InputError for a plan that cannot be read, a tile index outside the plan, or a
 ///         spill file whose size is not the plan's (naming it); hc::ConfigError when the plan's
-///         config now resolves to other values than when the plan was made.
+///         config now resolves to other values than when the plan was made;
+///         UndecidedIslandsError where the plan's halo cannot decide an island group.
 /// Memory: one tile's points and its window of the grid.
 void run_tile_jobs(const std::filesystem::path& plan_file, const std::vector<std::size_t>& tiles);
 
