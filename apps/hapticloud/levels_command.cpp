@@ -1,7 +1,8 @@
 /// `hapticloud levels SCENE`: speed against error per level of detail. Builds every level of the
 /// scene's pyramid and prints, per level: cell size, size, build time, cross-check RMS and p95
 /// against the original points (found through the scene's provenance), the servo's per-tick
-/// cost on a window of the level and the time to switch to it.
+/// cost on a window of the level and the time to switch to it. A tiled scene that stores its
+/// levels (scale.scene_tiles) is read as stored, a window at a time (lod_report.hpp).
 
 #include "commands.hpp"
 
@@ -79,7 +80,16 @@ void run_levels(const LevelsOptions& o) {
                        (ec ? ": " + ec.message() : std::string(" (a file of that name exists)")));
     }
   }
-  Scene scene = pipeline::load_scene(dir);
+  // A tiled scene that stores its levels (issue 14) is opened as such: no level is built, and a
+  // level larger than the table's window is read a window at a time (level_table).
+  Scene scene = pipeline::load_scene(dir, false);
+  const bool stored = scene.storage.stores_levels();
+  if (stored && o.min_cells > 0) {
+    throw ConfigError("levels --min-cells " + std::to_string(o.min_cells) + ": " + dir.string() + " stores its " +
+                      std::to_string(scene.storage.stored_levels) + " levels, which the table reads as they are "
+                      "(leave --min-cells out)");
+  }
+  if (!stored) scene = pipeline::load_scene(dir);
   // Levels ≥ 1 get the layers the scene's own options make (its typed metadata).
   const pipeline::SurfaceLayerOptions layer_options = scene.layer_options;
   pipeline::LodOptions lod = scene.lod;
@@ -87,7 +97,12 @@ void run_levels(const LevelsOptions& o) {
   if (o.window_cells > 0) lod.window_cells = o.window_cells;
   std::optional<pipeline::Cloud> points;
   if (!o.no_cross_check) points = scene_points(scene, o.config);
-  const auto pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
+  const auto pyramid =
+      stored ? pipeline::LodPyramid::open_stored(dir, lod) : pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
+  if (stored) {
+    std::cout << "levels: " << dir.string() << " stores its levels: read in windows of "
+              << pipeline::LevelTableOptions{}.stored_window_samples << " samples, not built\n";
+  }
   pipeline::LevelTableOptions to;
   to.cross_check = points.has_value();
   to.sample_points = lod.report_sample_points;  // the scene's own (lod.report_sample_points)

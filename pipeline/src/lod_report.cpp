@@ -15,8 +15,11 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <iomanip>
+#include <limits>
 #include <sstream>
+#include <stdexcept>
 
 namespace hc::pipeline {
 namespace {
@@ -35,6 +38,91 @@ std::string level_sampling_note(const std::vector<LevelRow>& rows) {
   return note.str().empty() ? std::string() : note.str() + "\n";
 }
 
+// A level of a stored pyramid larger than options.stored_window_samples² samples, read a window
+// at a time (issue 14: a level of a 65 536 × 32 768 scene is never read whole). Windows of
+// side × side samples own their samples; each is read with one more row and column (the far
+// corners of its last cells), so that every point whose bilinear cell lies in a window's own part
+// is evaluated there with point_residual_of_part, bit for bit as on the whole level. Fills the
+// row's valid cells, μ_d histogram (merged counts) and, with `points`, (a) on every stride-th
+// point, its residuals kept in the points' order (so error_stats_mm sums as the whole level's
+// path does). The support is not measured (it needs every point against the whole level).
+void stored_level_row(LodPyramid& pyramid, int level, const Cloud* points, std::size_t stride, std::size_t total,
+                      const LevelTableOptions& options, LevelRow& row) {
+  const GridGeometry& g = pyramid.geometry(level);
+  const int side = options.stored_window_samples;
+  const int wr = (g.rows + side - 1) / side, wc = (g.cols + side - 1) / side;
+  const std::size_t n = points != nullptr ? points->size() : 0;
+  const std::size_t checked = n == 0 ? 0 : (n + stride - 1) / stride;
+  // The checked points by the window owning their cell (index into `checked` order).
+  std::vector<std::vector<std::uint32_t>> mine(static_cast<std::size_t>(wr) * static_cast<std::size_t>(wc));
+  if (points != nullptr) {
+    const double* p = points->xyz.data();
+    const double max_u = static_cast<double>(g.cols - 1), max_v = static_cast<double>(g.rows - 1);
+    for (std::size_t i = 0, k = 0; i < n; i += stride, ++k) {
+      const double* q = p + 3 * i;
+      if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
+      if (q[0] < g.x0_m || q[0] > g.x_of_col(g.cols - 1) || q[1] < g.y0_m || q[1] > g.y_of_row(g.rows - 1)) continue;  // outside
+      // The cell as BilinearSurface::sample finds it.
+      const int ci = std::min(static_cast<int>(std::clamp((q[0] - g.x0_m) / g.cell_size_m, 0.0, max_u)), g.cols - 2);
+      const int cj = std::min(static_cast<int>(std::clamp((q[1] - g.y0_m) / g.cell_size_m, 0.0, max_v)), g.rows - 2);
+      mine[static_cast<std::size_t>(cj / side) * static_cast<std::size_t>(wc) + static_cast<std::size_t>(ci / side)].push_back(
+          static_cast<std::uint32_t>(k));
+    }
+  }
+  std::vector<float> vertical(checked, std::numeric_limits<float>::quiet_NaN());
+  const double mu_min = pyramid.layer_options().mu_min, mu_max = pyramid.layer_options().mu_max;
+  FrictionHistogram mu;
+  bool has_mu = false;
+  std::size_t valid = 0;
+  for (int a = 0; a < wr; ++a) {
+    for (int b = 0; b < wc; ++b) {
+      const int r0 = a * side, c0 = b * side;
+      const int r1 = std::min(g.rows, r0 + side), c1 = std::min(g.cols, c0 + side);  // own part [r0, r1) × [c0, c1)
+      const int rs = std::min(r0, g.rows - 2), cs = std::min(c0, g.cols - 2);       // read from here (at least 2 × 2)
+      const int re = std::min(g.rows, r1 + 1), ce = std::min(g.cols, c1 + 1);
+      const auto w = pyramid.window(level, rs, cs, re - rs, ce - cs);
+      if (w->row0 != rs || w->col0 != cs || w->depth_m.rows() != re - rs || w->depth_m.cols() != ce - cs) {
+        throw std::logic_error("level_table: level " + std::to_string(level) + "'s window at (" + std::to_string(rs) + ", " +
+                               std::to_string(cs) + ") came back moved or cut");
+      }
+      const HeightField& d = w->depth_m;
+      for (int r = r0; r < r1; ++r)
+        for (int c = c0; c < c1; ++c) valid += std::isnan(d.at(r - rs, c - cs)) ? 0U : 1U;
+      if (w->mu_d.rows() > 0) {
+        HeightField own(GridGeometry{r1 - r0, c1 - c0, g.x_of_col(c0), g.y_of_row(r0), g.cell_size_m});
+        for (int r = r0; r < r1; ++r)
+          for (int c = c0; c < c1; ++c) own.at(r - r0, c - c0) = w->mu_d.at(r - rs, c - cs);
+        const FrictionHistogram h = friction_histogram(own, mu_min, mu_max);
+        if (!has_mu) {
+          mu = h;
+          has_mu = true;
+        } else {
+          mu.valid += h.valid;
+          mu.at_min += h.at_min;
+          mu.at_max += h.at_max;
+          for (std::size_t k = 0; k < mu.bins.size(); ++k) mu.bins[k] += h.bins[k];
+        }
+      }
+      for (const std::uint32_t k : mine[static_cast<std::size_t>(a) * static_cast<std::size_t>(wc) + static_cast<std::size_t>(b)]) {
+        const double* q = points->xyz.data() + 3 * (static_cast<std::size_t>(k) * stride);
+        const PointResidual pr = point_residual_of_part(d.data(), d.cols(), rs, cs, g, q[0], q[1], q[2], options.hidden_band_m);
+        if (pr.kind == PointResidual::kOnSurface) vertical[k] = pr.vertical_m;
+      }
+    }
+  }
+  row.valid_cells = valid;
+  if (has_mu) row.mu_d = mu;
+  if (points == nullptr || valid == 0) return;
+  std::vector<double> vertical_m;
+  vertical_m.reserve(checked);
+  for (const float v : vertical)
+    if (!std::isnan(v)) vertical_m.push_back(static_cast<double>(v));
+  if (vertical_m.empty()) return;
+  row.point_vertical = error_stats_mm(std::move(vertical_m));
+  row.points_checked = checked;
+  row.points_total = total;
+}
+
 }  // namespace
 
 std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, const Cloud* points,
@@ -51,11 +139,31 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
   const std::size_t stride = !whole_set || options.sample_points == 0 || n <= options.sample_points
                                  ? 1
                                  : (n + options.sample_points - 1) / options.sample_points;
+  if (options.stored_window_samples < 2) {
+    throw ConfigError("level_table: stored_window_samples = " + std::to_string(options.stored_window_samples) +
+                      " (expected at least 2)");
+  }
   std::vector<LevelRow> rows;
   for (int level = 0; level < pyramid->level_count(); ++level) {
     LevelRow row;
     row.level = level;
+    if (pyramid->stored()) {
+      const GridGeometry& g = pyramid->geometry(level);
+      const auto side = static_cast<std::size_t>(options.stored_window_samples);
+      if (g.rows >= 2 && g.cols >= 2 && g.cell_count() > side * side) {
+        row.rows = g.rows;
+        row.cols = g.cols;
+        row.cell_size_m = g.cell_size_m;
+        row.stored = true;
+        const auto t_check = detail::Clock::now();
+        stored_level_row(*pyramid, level, options.cross_check ? points : nullptr, stride, total, options, row);
+        row.cross_check_seconds = options.cross_check && points != nullptr ? detail::seconds_since(t_check) : 0.0;
+        rows.push_back(row);
+        continue;
+      }
+    }
     const auto lvl = pyramid->level(level);
+    row.stored = pyramid->stored();
     const GridGeometry& g = lvl->depth_m.geometry();
     row.rows = g.rows;
     row.cols = g.cols;
@@ -109,7 +217,7 @@ std::string level_table_markdown(const std::vector<LevelRow>& rows) {
         "| switch (ms) | μ_d at min / max | μ_d histogram (10 bins, %) |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const LevelRow& r : rows) {
     md << "| " << r.level << " | " << fixed(r.cell_size_m * 1000.0, 4) << " | " << r.cols << " × " << r.rows << " | "
-       << r.valid_cells << " | " << fixed(r.build_seconds * 1000.0, 1) << " | ";
+       << r.valid_cells << " | " << (r.stored ? std::string("stored") : fixed(r.build_seconds * 1000.0, 1)) << " | ";
     if (r.point_vertical) {
       md << fixed(r.point_vertical->rms_mm, 3) << " | " << fixed(r.point_vertical->p95_mm, 3) << " | "
          << (r.support_measured ? fixed(100.0 * r.supported_fraction, 1) + " %" : std::string("–")) << " | ";
@@ -144,7 +252,8 @@ std::string level_table_text(const std::vector<LevelRow>& rows) {
     << "supported" << std::setw(13) << "tick_p50_ns" << std::setw(12) << "tick_p99_ns" << "switch_ms\n";
   for (const LevelRow& r : rows) {
     t << std::setw(6) << r.level << std::setw(11) << fixed(r.cell_size_m * 1000.0, 4) << std::setw(14)
-      << (std::to_string(r.cols) + " x " + std::to_string(r.rows)) << std::setw(10) << fixed(r.build_seconds * 1000.0, 1);
+      << (std::to_string(r.cols) + " x " + std::to_string(r.rows)) << std::setw(10)
+      << (r.stored ? std::string("stored") : fixed(r.build_seconds * 1000.0, 1));
     if (r.point_vertical) {
       t << std::setw(10) << fixed(r.point_vertical->rms_mm, 3) << std::setw(10) << fixed(r.point_vertical->p95_mm, 3)
         << std::setw(11) << (r.support_measured ? fixed(100.0 * r.supported_fraction, 1) + "%" : std::string("-"));

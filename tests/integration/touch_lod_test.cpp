@@ -211,6 +211,35 @@ TEST(LevelsCommand, PrintsOneRowPerLevelWithCrossCheckAndWritesPreviews) {
                     &log),
             1);
   EXPECT_NE(log.find("--previews"), std::string::npos) << log;
+
+  // The same run storing a tiled scene with its levels (scale.scene_tiles: on): the table reads
+  // the stored levels (no build; rows say "stored") and gives each level's RMS and p95 as the
+  // untiled scene's table does (the oracle: the stored levels equal the in-memory pyramid's).
+  const auto columns = [](const std::string& text, const std::string& level) {
+    const auto at = text.find("\n" + level + " ");
+    std::istringstream row(at == std::string::npos ? std::string() : text.substr(at + 1, text.find('\n', at + 1) - at - 1));
+    std::vector<std::string> out;
+    for (std::string w; row >> w;) out.push_back(w);
+    return out;  // level cell cols x rows build rms p95 ...
+  };
+  std::string plain;
+  ASSERT_EQ(run_app("levels " + (dir / "run" / "scene").string() + " --ticks 300", &plain), 0) << plain;
+  ASSERT_EQ(run_app("run " + (dir / "sin.yaml").string() + " --out " + (dir / "tiled").string() + " --set scale.scene_tiles=on", &log), 0)
+      << log;
+  log.clear();
+  ASSERT_EQ(run_app("levels " + (dir / "tiled" / "scene").string() + " --ticks 300", &log), 0) << log;
+  EXPECT_NE(log.find("stores its levels"), std::string::npos) << log;
+  for (const char* level : {"0", "1", "2"}) {
+    const auto a = columns(log, level), b = columns(plain, level);
+    ASSERT_GE(a.size(), 8U) << log;
+    ASSERT_GE(b.size(), 8U) << plain;
+    EXPECT_EQ(a[5], "stored") << log;
+    EXPECT_EQ(a[6], b[6]) << "RMS of level " << level;
+    EXPECT_EQ(a[7], b[7]) << "p95 of level " << level;
+  }
+  log.clear();
+  EXPECT_EQ(run_app("levels " + (dir / "tiled" / "scene").string() + " --min-cells 30", &log), 1) << log;
+  EXPECT_NE(log.find("stores its 3 levels"), std::string::npos) << log;
 }
 
 }  // namespace

@@ -9,10 +9,12 @@
 #include "file_bytes.hpp"
 #include "test_paths.hpp"
 
+#include "hc/common/bilinear_surface.hpp"
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/level_builder.hpp"
 #include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
@@ -22,6 +24,7 @@
 #include <nlohmann/json.hpp>
 #include <tiffio.h>
 
+#include <algorithm>
 #include <array>
 #include <cmath>
 #include <set>
@@ -238,6 +241,89 @@ TEST(TiledScene, LayersAreTiledTiffsWithNoDataTilesStoredWithoutBytesAndLoadAsTh
   EXPECT_EQ(h.layers.depth.rows(), 0);
   EXPECT_EQ(h.geometry, s.geometry);
   EXPECT_EQ(h.storage, a.storage);
+}
+
+// The levels table of a stored pyramid (hapticloud levels on a tiled scene, issue 14): a level
+// of more than stored_window_samples² samples is read a window at a time, never whole, and its row
+// equals the in-memory pyramid's (the oracle: level_table on memory_pyramid, whose levels the
+// stored ones equal bit for bit): valid cells, the μ_d histogram, and (a) on every s-th point
+// bit for bit; its support is not measured. Points: random over the grid's extent and past it,
+// some non-finite, some hidden below the surface, on the no-data hole, and on the grid's last
+// row and column (the clamped cells). Window sides 30 (level 0's 300 rows end in a band of
+// exactly one window, 211 columns in one of a single column: read from one column before) and 37
+// (partial windows). Mutations, run: the windows read without the extra row and column (a
+// point's far corners outside: the check throws or reads past), and the residuals kept in window
+// order (the RMS's last bits differ).
+TEST(TiledScene, TheLevelsTableOfAStoredPyramidReadsWindowsAndEqualsTheInMemoryTable) {
+  const Scene s = wavy_scene(300, 211, 96, 48, 100);
+  const fs::path dir = hc::test::temp_dir("levels_table");
+  const fs::path scene_dir = write_tiled(s, dir, 48);
+  const GridGeometry& g = s.geometry;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> ux(g.x0_m - 0.01, g.x_of_col(g.cols - 1) + 0.01);
+  std::uniform_real_distribution<double> uy(g.y0_m - 0.01, g.y_of_row(g.rows - 1) + 0.01);
+  std::normal_distribution<double> dz(0.0, 0.001);
+  std::vector<std::array<double, 3>> p;
+  const hc::BilinearSurface f(hc::HeightFieldView::of(s.layers.depth));
+  for (int i = 0; i < 40000; ++i) {
+    const double x = ux(rng), y = uy(rng);
+    const double z = f.height(std::clamp(x, g.x0_m, g.x_of_col(g.cols - 1)), std::clamp(y, g.y0_m, g.y_of_row(g.rows - 1)));
+    p.push_back({x, y, (std::isnan(z) ? 0.0 : z) + dz(rng) - (i % 50 == 0 ? 0.01 : 0.0)});
+  }
+  for (int c = 0; c < g.cols; ++c) p.push_back({g.x_of_col(c), g.y_of_row(g.rows - 1), 0.0});  // the last row
+  for (int r = 0; r < g.rows; ++r) p.push_back({g.x_of_col(g.cols - 2), g.y_of_row(r), 0.0});   // next to the last column
+  p.push_back({std::numeric_limits<double>::quiet_NaN(), 0.0, 0.0});
+  p.push_back({0.0, std::numeric_limits<double>::infinity(), 0.0});
+  hc::pipeline::Cloud points;
+  points.xyz.resize(3, static_cast<Eigen::Index>(p.size()));
+  for (std::size_t i = 0; i < p.size(); ++i)
+    for (int a = 0; a < 3; ++a) points.xyz(a, static_cast<Eigen::Index>(i)) = p[i][static_cast<std::size_t>(a)];
+  hc::pipeline::LevelTableOptions to;
+  to.sample_points = 15000;  // every 3rd point
+  const auto mem = hc::pipeline::level_table(memory_pyramid(s), &points, to);
+  for (const int side : {30, 37}) {
+    SCOPED_TRACE("window side " + std::to_string(side));
+    auto stored = LodPyramid::open_stored(scene_dir, s.lod);
+    to.stored_window_samples = side;
+    const auto rows = hc::pipeline::level_table(stored, &points, to);
+    ASSERT_EQ(rows.size(), mem.size());
+    int windowed = 0;
+    for (std::size_t l = 0; l < rows.size(); ++l) {
+      SCOPED_TRACE("level " + std::to_string(l));
+      const auto& a = rows[l];
+      const auto& b = mem[l];
+      const bool in_windows = static_cast<std::size_t>(a.rows) * static_cast<std::size_t>(a.cols) >
+                              static_cast<std::size_t>(side) * static_cast<std::size_t>(side);
+      windowed += in_windows ? 1 : 0;
+      EXPECT_TRUE(a.stored);
+      EXPECT_EQ(stored->is_cached(static_cast<int>(l), false), !in_windows) << "a windowed level is never read whole";
+      EXPECT_EQ(a.rows, b.rows);
+      EXPECT_EQ(a.cols, b.cols);
+      EXPECT_EQ(a.cell_size_m, b.cell_size_m);
+      EXPECT_EQ(a.valid_cells, b.valid_cells);
+      ASSERT_TRUE(a.mu_d && b.mu_d);
+      EXPECT_EQ(a.mu_d->valid, b.mu_d->valid);
+      EXPECT_EQ(a.mu_d->at_min, b.mu_d->at_min);
+      EXPECT_EQ(a.mu_d->at_max, b.mu_d->at_max);
+      EXPECT_EQ(a.mu_d->bins, b.mu_d->bins);
+      ASSERT_TRUE(a.point_vertical && b.point_vertical);
+      EXPECT_EQ(a.point_vertical->count, b.point_vertical->count);
+      EXPECT_EQ(a.point_vertical->rms_mm, b.point_vertical->rms_mm);
+      EXPECT_EQ(a.point_vertical->p95_mm, b.point_vertical->p95_mm);
+      EXPECT_EQ(a.point_vertical->max_mm, b.point_vertical->max_mm);
+      EXPECT_EQ(a.points_checked, b.points_checked);
+      EXPECT_EQ(a.points_total, b.points_total);
+      EXPECT_EQ(a.support_measured, !in_windows);
+      if (!in_windows) {
+        EXPECT_EQ(a.supported_fraction, b.supported_fraction);
+      }
+      EXPECT_GT(b.point_vertical->count, 100U) << "the comparison saw points";
+    }
+    EXPECT_GE(windowed, 3) << "levels 0 to 2 at least go by windows";
+    EXPECT_NE(hc::pipeline::level_table_text(rows).find("stored"), std::string::npos);
+  }
+  to.stored_window_samples = 1;
+  EXPECT_THROW((void)hc::pipeline::level_table(LodPyramid::open_stored(scene_dir, s.lod), &points, to), hc::ConfigError);
 }
 
 TEST(TiledScene, StoredWindowsAndLevelsEqualTheInMemoryPyramidAndReadOnlyTheirTiles) {

@@ -77,11 +77,27 @@ class BilinearSurface {
   HeightFieldView view_{};
 };
 
+/// BilinearSurface::sample of the whole grid of geometry `g` (rows, cols ≥ 2), read from a
+/// part of it held apart: `data` holds grid samples from (row0, col0) on, `row_stride` floats a
+/// row, and must cover the cell (x_m, y_m) falls in and its far corners (rows j, j + 1 and
+/// columns i, i + 1, i = min(⌊clamped u⌋, cols − 2), likewise j). The index arithmetic is the
+/// whole grid's, so the result is bit for bit what sample() gives on the whole grid (sample()
+/// calls this with row0 = col0 = 0): the levels table of a stored pyramid evaluates a level a
+/// window at a time with it (lod_report.cpp). Real-time: yes. Source: as BilinearSurface.
+[[gnu::always_inline]] inline SurfaceSample bilinear_sample_of_part(const float* data, std::ptrdiff_t row_stride, int row0,
+                                                                    int col0, const GridGeometry& g, double x_m,
+                                                                    double y_m) noexcept;
+
 // Always inlined: GCC 12 at -O3 left two of the pipeline's per-point calls out of line (the
 // honest check's classes and the cross-check's (b) bucketing pass: about 10^8 calls each at 10^8
 // points; inlined, the tiled run's honest check took 1.0 s less of CPU, forty-eighth session).
 [[gnu::always_inline]] inline SurfaceSample BilinearSurface::sample(double x_m, double y_m) const noexcept {
-  const GridGeometry& g = view_.geometry;
+  return bilinear_sample_of_part(view_.data, view_.row_stride, 0, 0, view_.geometry, x_m, y_m);
+}
+
+[[gnu::always_inline]] inline SurfaceSample bilinear_sample_of_part(const float* data, std::ptrdiff_t row_stride, int row0,
+                                                                    int col0, const GridGeometry& g, double x_m,
+                                                                    double y_m) noexcept {
   assert(g.rows >= 2 && g.cols >= 2 && g.cell_size_m > 0.0);
   const double max_u = static_cast<double>(g.cols - 1);
   const double max_v = static_cast<double>(g.rows - 1);
@@ -97,9 +113,9 @@ class BilinearSurface {
   const int j = std::min(static_cast<int>(cv), g.rows - 2);
   const double u = cu - i;
   const double v = cv - j;
-  const float* row0 = view_.data + static_cast<std::ptrdiff_t>(j) * view_.row_stride + i;
-  const float* row1 = row0 + view_.row_stride;
-  const double z00 = row0[0], z10 = row0[1], z01 = row1[0], z11 = row1[1];
+  const float* top = data + static_cast<std::ptrdiff_t>(j - row0) * row_stride + (i - col0);
+  const float* bottom = top + row_stride;
+  const double z00 = top[0], z10 = top[1], z01 = bottom[0], z11 = bottom[1];
   SurfaceSample s;
   s.z_m = (1 - u) * (1 - v) * z00 + u * (1 - v) * z10 + (1 - u) * v * z01 + u * v * z11;
   s.valid = !std::isnan(s.z_m);

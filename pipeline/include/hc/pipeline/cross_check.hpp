@@ -63,15 +63,33 @@ struct PointResidual {
   enum Kind : std::uint8_t { kOutside, kOffSurface, kHidden, kOnSurface } kind = kOutside;
   float vertical_m = 0.0f, normal_m = 0.0f;  ///< set for kOnSurface
 };
+/// The PointResidual of a point given its surface sample `s` at (x_m, y_m) (inside g's x-y
+/// extent): what point_residual and point_residual_of_part compute after sampling.
+inline PointResidual point_residual_of_sample(const SurfaceSample& s, double z_m, double hidden_band_m) noexcept;
+
 /// point_residual: the PointResidual of (x_m, y_m, z_m) as described above; g is the geometry of
 /// the grid `surface` views, hidden_band_m > 0 [m]. No errors (a non-finite point is outside or
 /// off the surface). Inline, as BilinearSurface::sample: the cross-check's (a) and the tiled
 /// run's evaluate it at every interior point.
 inline PointResidual point_residual(const BilinearSurface& surface, const GridGeometry& g, double x_m, double y_m,
                                     double z_m, double hidden_band_m) noexcept {
+  if (x_m < g.x0_m || x_m > g.x_of_col(g.cols - 1) || y_m < g.y0_m || y_m > g.y_of_row(g.rows - 1)) return {};
+  return point_residual_of_sample(surface.sample(x_m, y_m), z_m, hidden_band_m);
+}
+
+/// point_residual of (x_m, y_m, z_m) against the whole grid of geometry g, read from a part of
+/// it (bilinear_sample_of_part: `data` from grid sample (row0, col0), `row_stride` floats a row,
+/// covering the point's cell and its far corners): bit for bit point_residual on the whole
+/// grid. No errors. Source: as point_residual.
+inline PointResidual point_residual_of_part(const float* data, std::ptrdiff_t row_stride, int row0, int col0,
+                                            const GridGeometry& g, double x_m, double y_m, double z_m,
+                                            double hidden_band_m) noexcept {
+  if (x_m < g.x0_m || x_m > g.x_of_col(g.cols - 1) || y_m < g.y0_m || y_m > g.y_of_row(g.rows - 1)) return {};
+  return point_residual_of_sample(bilinear_sample_of_part(data, row_stride, row0, col0, g, x_m, y_m), z_m, hidden_band_m);
+}
+
+inline PointResidual point_residual_of_sample(const SurfaceSample& s, double z_m, double hidden_band_m) noexcept {
   PointResidual r;
-  if (x_m < g.x0_m || x_m > g.x_of_col(g.cols - 1) || y_m < g.y0_m || y_m > g.y_of_row(g.rows - 1)) return r;
-  const SurfaceSample s = surface.sample(x_m, y_m);
   if (!s.valid) {
     r.kind = PointResidual::kOffSurface;
     return r;

@@ -25,6 +25,7 @@ struct LevelRow {
   double cell_size_m = 0.0;
   std::size_t valid_cells = 0;
   double build_seconds = 0.0;   ///< smoothing + decimation + layers of this level [s] (level 0: its layers, if computed here)
+  bool stored = false;          ///< read from a stored pyramid (LodPyramid::open_stored): not built here, build_seconds 0
   std::optional<ErrorStats> point_vertical;  ///< cross-check (a): points vs the level's bilinear surface
   double supported_fraction = 0.0;           ///< cross-check (b): samples with a point within tolerance
   bool support_measured = false;             ///< supported_fraction was measured (it needs every point)
@@ -55,6 +56,9 @@ struct LevelTableOptions {
   std::size_t points_represent = 0;
   /// Level 0's cross-check when the caller has it already (the run's): reused, not recomputed.
   std::optional<CrossCheck> level0_cross_check;
+  /// A stored pyramid's level of more than this² samples is read in windows of this side
+  /// [samples], ≥ 2 (each read with one more row and column), never whole (issue 14).
+  int stored_window_samples = 1024;
 };
 
 /// Builds every level of `pyramid` (with layers) and measures its row: size, build time and the
@@ -67,9 +71,16 @@ struct LevelTableOptions {
 /// rows say what was sampled (points_checked of points_total). The servo columns (tick cost,
 /// switch time) are left unmeasured (`timed` false): the pipeline does not run servo loops;
 /// hc::session's time_levels fills them.
-/// @throws what building the levels or the cross-check throws. Real-time: no. Cost: every level
-/// is built; per level O(sample_points) residuals and an O(N) support pass with no search
-/// structure.
+/// A stored pyramid (LodPyramid::open_stored, a tiled scene) builds nothing: a level of more than
+/// options.stored_window_samples² samples is read a window at a time (memory: one window of every
+/// layer and the sampled points' residuals, 4 bytes each), with the same figures as the whole
+/// level gives (bit for bit: the residuals by point_residual_of_part, the μ_d histogram's counts
+/// summed) except the support, which is not measured there (reported so); smaller levels are read
+/// whole. Rows say `stored`.
+/// @throws what building the levels or the cross-check throws; hc::ConfigError for
+/// stored_window_samples < 2; what reading a stored window throws (hc::InputError naming the
+/// file). Real-time: no. Cost: every level is built (or read); per level O(sample_points)
+/// residuals and an O(N) support pass with no search structure.
 std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, const Cloud* points,
                                   const LevelTableOptions& options);
 
