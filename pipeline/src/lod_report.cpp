@@ -169,7 +169,7 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
     row.cols = g.cols;
     row.cell_size_m = g.cell_size_m;
     row.valid_cells = lvl->depth_m.valid_count();
-    row.build_seconds = lvl->depth_seconds + lvl->layers_seconds;
+    row.build_seconds = row.stored ? 0.0 : lvl->depth_seconds + lvl->layers_seconds;  // a stored level is read, not built
     if (lvl->has_layers && lvl->mu_d.rows() > 0) {
       row.mu_d = friction_histogram(lvl->mu_d, pyramid->layer_options().mu_min, pyramid->layer_options().mu_max);
     }

@@ -45,12 +45,16 @@ def run(config, out=None, sets=()):
 def levels(scene, config=None, servo_ticks=3000):
     """The speed-against-error table of the scene's levels of detail, as `hapticloud levels`.
 
-    scene: a Scene (its own lod options and layer options are used).
+    scene: a Scene (its own lod options and layer options are used), or the Levels of a tiled
+        scene (open_levels): its stored levels as they are, nothing built (build_s 0, stored
+        True), a level of more than 1024² samples read a window at a time (supported_fraction
+        None there), so that a scene larger than memory gets its table.
     config: None, or the run config the scene was made from (a path or a dict, as for run()):
         its points are read and each level is cross-checked against them.
     servo_ticks: servo ticks timed per level (>= 10; 0 or None leaves the timing columns None).
     Returns a list of dicts, one per level from 0 (finest), SI units: level, rows, cols,
-    cell_size_m [m], valid_cells, build_s [s] (smoothing + decimation + layers); with a config,
+    cell_size_m [m], valid_cells, build_s [s] (smoothing + decimation + layers), stored (read
+    from a tiled scene's files, not built); with a config,
     rms_m, p95_m, max_m [m] (vertical distance of the points to the level's bilinear surface),
     points_checked (points on the surface among those evaluated), supported_fraction (samples
     with a point within 0.5 mm, over every point), points_sampled and points_total (the RMS,

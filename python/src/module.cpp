@@ -23,6 +23,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <variant>
 #include <vector>
 
 namespace py = pybind11;
@@ -295,17 +296,27 @@ PYBIND11_MODULE(_hapticloud, m) {
 
   // levels(): the speed-against-error table of `hapticloud levels`. `config` (a parsed run
   // config, or none) supplies the points of the cross-check; servo_ticks > 0 times the servo.
-  const auto levels = [](const hc::Scene& s, const std::optional<hc::pipeline::RunConfig>& config, int servo_ticks) {
+  // A Levels object (open_levels: a tiled scene's stored levels) goes as it is: nothing is built,
+  // a large level is read a window at a time (level_table); a Scene is copied into a pyramid.
+  const auto levels = [](const std::variant<SceneRef, std::shared_ptr<LodPyramid>>& source,
+                         const std::optional<hc::pipeline::RunConfig>& config, int servo_ticks) {
     if (servo_ticks < 0 || (servo_ticks > 0 && servo_ticks < 10)) {
       throw hc::ConfigError("levels: servo_ticks " + std::to_string(servo_ticks) + " (expected 0: no timing, or >= 10)");
     }
     std::vector<hc::pipeline::LevelRow> rows;
     {
       py::gil_scoped_release release;  // no Python object is touched in here
-      hc::Scene copy = s;
-      const auto layer_options = copy.layer_options;
-      const auto lod = copy.lod;
-      auto pyramid = hc::pipeline::LodPyramid::from_scene(std::move(copy), layer_options, lod);
+      std::shared_ptr<LodPyramid> pyramid;
+      hc::LodOptions lod;
+      if (const auto* stored = std::get_if<std::shared_ptr<LodPyramid>>(&source)) {
+        pyramid = *stored;
+        lod = pyramid->options();
+      } else {
+        hc::Scene copy = *std::get<SceneRef>(source);
+        const auto layer_options = copy.layer_options;
+        lod = copy.lod;
+        pyramid = hc::pipeline::LodPyramid::from_scene(std::move(copy), layer_options, lod);
+      }
       std::optional<hc::pipeline::Cloud> points;
       if (config) points = hc::pipeline::prepare_points(*config);
       hc::pipeline::LevelTableOptions o;
@@ -324,6 +335,7 @@ PYBIND11_MODULE(_hapticloud, m) {
       d["cell_size_m"] = r.cell_size_m;
       d["valid_cells"] = r.valid_cells;
       d["build_s"] = r.build_seconds;
+      d["stored"] = r.stored;
       if (r.point_vertical) {
         d["rms_m"] = 1e-3 * r.point_vertical->rms_mm;
         d["p95_m"] = 1e-3 * r.point_vertical->p95_mm;
@@ -348,9 +360,10 @@ PYBIND11_MODULE(_hapticloud, m) {
     }
     return out;
   };
+  using LevelsSource = std::variant<SceneRef, std::shared_ptr<LodPyramid>>;
   m.def(
       "_levels_file",
-      [levels](const hc::Scene& s, const std::optional<std::string>& config_path, int servo_ticks) {
+      [levels](const LevelsSource& s, const std::optional<std::string>& config_path, int servo_ticks) {
         std::optional<hc::pipeline::RunConfig> config;
         if (config_path) config = hc::pipeline::load_run_config(*config_path);
         return levels(s, config, servo_ticks);
@@ -358,7 +371,7 @@ PYBIND11_MODULE(_hapticloud, m) {
       py::arg("scene"), py::arg("config"), py::arg("servo_ticks"));
   m.def(
       "_levels_text",
-      [levels](const hc::Scene& s, const std::string& text, const std::string& origin, int servo_ticks) {
+      [levels](const LevelsSource& s, const std::string& text, const std::string& origin, int servo_ticks) {
         return levels(s, hc::pipeline::parse_run_config(text, origin), servo_ticks);
       },
       py::arg("scene"), py::arg("text"), py::arg("origin"), py::arg("servo_ticks"));

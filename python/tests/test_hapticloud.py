@@ -198,6 +198,27 @@ def test_open_levels_reads_windows_of_a_tiled_scene_as_slices_of_the_whole_scene
         hapticloud.open_levels(hapticloud_run_untiled(tmp_path))
 
 
+def test_levels_of_a_tiled_scene_read_as_stored_equal_the_table_of_the_scene_loaded_whole(tmp_path):
+    # The oracle: levels() of the same scene loaded whole (its pyramid built in memory, whose
+    # levels the stored ones equal bit for bit). This scene's levels are below 1024² samples, so
+    # they are read whole from the files; the windowed reading is checked in C++
+    # (TiledScene.TheLevelsTableOfAStoredPyramidReadsWindowsAndEqualsTheInMemoryTable).
+    out = tmp_path / "run"
+    config = SOURCE / "configs" / "sinusoid.yaml"
+    sets = ["lod.report=false", "scale.scene_tiles=on", "scale.scene_tile_cells=64", "lod.min_cells=20"]
+    hapticloud.run(config, out=out, sets=sets)
+    whole = hapticloud.levels(hapticloud.load_scene(out / "scene"), config=config, servo_ticks=0)
+    stored = hapticloud.levels(hapticloud.open_levels(out / "scene"), config=config, servo_ticks=0)
+    assert len(stored) == len(whole) >= 3
+    for a, b in zip(stored, whole):
+        assert a["stored"] and not b["stored"]
+        assert a["build_s"] == 0.0
+        for k in ("level", "rows", "cols", "cell_size_m", "valid_cells", "rms_m", "p95_m", "max_m", "points_checked",
+                  "points_sampled", "points_total", "supported_fraction", "mu_d_at_min_fraction", "mu_d_at_max_fraction"):
+            assert a[k] == b[k], (a["level"], k)
+        assert a["rms_m"] is not None
+
+
 def hapticloud_run_untiled(tmp_path):
     out = tmp_path / "untiled"
     hapticloud.run(SOURCE / "configs" / "sinusoid.yaml", out=out, sets=["lod.report=false", "grid.n=40"])
