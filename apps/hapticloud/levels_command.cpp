@@ -15,6 +15,7 @@
 
 #include <CLI/CLI.hpp>
 
+#include <cstdint>
 #include <filesystem>
 #include <iostream>
 #include <memory>
@@ -96,7 +97,22 @@ void run_levels(const LevelsOptions& o) {
   if (o.min_cells > 0) lod.min_cells = o.min_cells;
   if (o.window_cells > 0) lod.window_cells = o.window_cells;
   std::optional<pipeline::Cloud> points;
-  if (!o.no_cross_check) points = scene_points(scene, o.config);
+  std::uint64_t points_represent = 0;
+  if (!o.no_cross_check) {
+    // A tiled scene's stored sample of its points (points_sample.bin), unless --config asks for
+    // the scan: no scan read again, bounded memory (issue 14).
+    std::optional<pipeline::LevelPointSample> sample;
+    if (stored && o.config.empty()) sample = pipeline::read_level_point_sample(dir);
+    if (sample) {
+      std::cout << "levels: the cross-check's points: the " << sample->points.size() << " of " << sample->represents
+                << " filtered points stored with the scene (" << pipeline::kLevelPointSampleFile
+                << "; --config RUN.yaml reads the scan instead)\n";
+      if (sample->represents > sample->points.size()) points_represent = sample->represents;
+      points = std::move(sample->points);
+    } else {
+      points = scene_points(scene, o.config);
+    }
+  }
   const auto pyramid =
       stored ? pipeline::LodPyramid::open_stored(dir, lod) : pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
   if (stored) {
@@ -106,6 +122,7 @@ void run_levels(const LevelsOptions& o) {
   pipeline::LevelTableOptions to;
   to.cross_check = points.has_value();
   to.sample_points = lod.report_sample_points;  // the scene's own (lod.report_sample_points)
+  to.points_represent = points_represent;       // a stored sample of more points: (a) from it, no support
   auto rows = pipeline::level_table(pyramid, points ? &*points : nullptr, to);
   session::time_levels(pyramid, rows, o.ticks);
   std::cout << "levels of " << dir.string() << " (window " << lod.window_cells << " samples; switch = request to "

@@ -14,6 +14,12 @@
 
 
 #include <algorithm>
+#include <string>
+#include <optional>
+#include <filesystem>
+#include <cstring>
+#include <cstdio>
+#include <cerrno>
 #include <cmath>
 #include <cstdint>
 #include <iomanip>
@@ -269,6 +275,65 @@ std::string level_table_text(const std::vector<LevelRow>& rows) {
   }
   t << level_sampling_note(rows);
   return t.str();
+}
+
+namespace {
+constexpr char kSampleMagic[8] = {'H', 'C', 'P', 'S', 'M', 'P', '1', '\n'};
+constexpr std::size_t kSampleHeader = 24;  // magic, count, represents
+}  // namespace
+
+void write_level_point_sample(const std::filesystem::path& scene_dir, const Cloud& points, std::size_t stride,
+                              std::uint64_t represents) {
+  const std::filesystem::path file = scene_dir / kLevelPointSampleFile;
+  stride = std::max<std::size_t>(stride, 1);
+  const std::size_t n = points.size();
+  const std::uint64_t count = n == 0 ? 0 : (n + stride - 1) / stride;
+  if (represents == 0) represents = n;
+  std::string bytes(kSampleHeader + count * 24, '\0');
+  std::memcpy(bytes.data(), kSampleMagic, 8);
+  std::memcpy(bytes.data() + 8, &count, 8);  // little-endian hosts only (as every binary file here)
+  std::memcpy(bytes.data() + 16, &represents, 8);
+  char* out = bytes.data() + kSampleHeader;
+  for (std::size_t i = 0; i < n; i += stride, out += 24) std::memcpy(out, points.xyz.data() + 3 * i, 24);
+  std::FILE* f = std::fopen(file.c_str(), "wb");
+  const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
+  const int err = errno;
+  const bool closed = f && std::fclose(f) == 0;
+  if (!ok || !closed) throw InputError("cannot write " + file.string() + ": " + std::strerror(ok ? errno : err));
+}
+
+std::optional<LevelPointSample> read_level_point_sample(const std::filesystem::path& scene_dir) {
+  const std::filesystem::path file = scene_dir / kLevelPointSampleFile;
+  std::error_code ec;
+  if (!std::filesystem::exists(file, ec)) return std::nullopt;
+  const auto bad = [&](const std::string& why) {
+    return InputError(file.string() + ": " + why + " (expected the levels table's point sample a tiled scene stores; "
+                      "delete the file to cross-check against the scan with --config)");
+  };
+  std::FILE* f = std::fopen(file.c_str(), "rb");
+  if (!f) throw InputError(file.string() + " cannot be opened: " + std::strerror(errno));
+  std::string bytes;
+  char buf[1 << 16];
+  std::size_t got;
+  while ((got = std::fread(buf, 1, sizeof buf, f)) > 0) bytes.append(buf, got);
+  const bool read_error = std::ferror(f) != 0;
+  std::fclose(f);
+  if (read_error) throw InputError(file.string() + " cannot be read");
+  if (bytes.size() < kSampleHeader || std::memcmp(bytes.data(), kSampleMagic, 8) != 0) throw bad("no HCPSMP1 header");
+  std::uint64_t count = 0, represents = 0;
+  std::memcpy(&count, bytes.data() + 8, 8);
+  std::memcpy(&represents, bytes.data() + 16, 8);
+  if (count > (bytes.size() - kSampleHeader) / 24 || bytes.size() != kSampleHeader + count * 24) {
+    throw bad(std::to_string(bytes.size()) + " bytes for " + std::to_string(count) + " points (24 bytes each after a " +
+              std::to_string(kSampleHeader) + "-byte header)");
+  }
+  if (represents < count) throw bad("it stands for " + std::to_string(represents) + " points, fewer than its " + std::to_string(count));
+  LevelPointSample s;
+  s.represents = represents;
+  s.points.xyz.resize(3, static_cast<Eigen::Index>(count));
+  if (count > 0) std::memcpy(s.points.xyz.data(), bytes.data() + kSampleHeader, count * 24);
+  if (!s.points.xyz.allFinite()) throw bad("a coordinate is not finite");
+  return s;
 }
 
 std::vector<std::string> write_level_previews(LodPyramid& pyramid, const std::filesystem::path& dir) {

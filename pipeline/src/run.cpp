@@ -947,6 +947,19 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
   if (config.input.synthetic && in_memory == nullptr) prov.synthetic = to_string(config.input.synthetic->kind);
   prov.resolved_config_yaml = config.resolved_yaml;
 
+  // A tiled scene stores the levels table's points (points_sample.bin, lod_report.hpp): every
+  // ⌈N / lod.report_sample_points⌉-th filtered point, as the tiled run keeps its sample.
+  if (!keep_cloud && config.cross_check.enabled && cloud.size() > 0 && writes_tiled_scene(config.scale, scene.geometry)) {
+    const std::size_t per = config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
+    const std::size_t stride = std::max<std::size_t>(1, (cloud.size() + per - 1) / per);
+    Cloud sample;
+    sample.xyz.resize(3, static_cast<Eigen::Index>((cloud.size() + stride - 1) / stride));
+    for (std::size_t i = 0, k = 0; i < cloud.size(); i += stride, ++k) {
+      sample.xyz.col(static_cast<Eigen::Index>(k)) = cloud.xyz.col(static_cast<Eigen::Index>(i));
+    }
+    built.point_sample = std::move(sample);
+    built.point_sample_of = cloud.size();
+  }
   if (keep_cloud) built.cloud = std::move(cloud);
   summary.total_seconds = seconds_since(t_start);
   return built;
@@ -1034,7 +1047,18 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   // The scene's files and the previews are independent files: two threads take them in turn,
   // the scene first (the longest), then the previews (each writes its own PNG).
   std::vector<std::function<void()>> files;
-  files.emplace_back([&] { write_scene(scene, staging.path() / "scene", storage); });
+  files.emplace_back([&] {
+    write_scene(scene, staging.path() / "scene", storage);
+    // The levels table's points beside a tiled scene, so that `hapticloud levels` cross-checks
+    // it without the scan (lod_report.hpp): the run's sample, or every s-th point of its cloud.
+    if (!tiled_scene || !summary.cross_check) return;
+    if (built.point_sample) {
+      write_level_point_sample(staging.path() / "scene", *built.point_sample, 1, std::max<std::uint64_t>(built.point_sample_of, built.point_sample->size()));
+    } else if (built.cloud && built.cloud->size() > 0) {
+      const std::size_t per = config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
+      write_level_point_sample(staging.path() / "scene", *built.cloud, std::max<std::size_t>(1, (built.cloud->size() + per - 1) / per));
+    }
+  });
   add_previews(files, level0_previews, now, previews, marks, friction_name);
   if (!scene.layers.intensity.values().empty()) {
     files.emplace_back([&] {

@@ -3740,7 +3740,10 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
   scene.provenance.inputs.insert(scene.provenance.inputs.end(), plan.inputs.begin(), plan.inputs.end());
   // The levels table's sample: every stride-th interior kept point in tile order, taken in the
   // cross-check's first pass over the kept points (or a pass of its own without it).
-  const bool keep_sample = keeps_sample(config);
+  // Also with the cross-check on (whose first pass takes it at no extra read): a tiled scene
+  // stores it for `hapticloud levels` (points_sample.bin, lod_report.hpp); at most
+  // lod.report_sample_points points (200 000: 4.8 MB).
+  const bool keep_sample = keeps_sample(config) || config.cross_check.enabled;
   const std::size_t stride = sample_stride_of(config, plan.input_points);
   std::vector<double> sample_xyz;
   std::size_t interior_seen = 0;

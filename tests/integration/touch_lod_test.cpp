@@ -229,6 +229,7 @@ TEST(LevelsCommand, PrintsOneRowPerLevelWithCrossCheckAndWritesPreviews) {
   log.clear();
   ASSERT_EQ(run_app("levels " + (dir / "tiled" / "scene").string() + " --ticks 300", &log), 0) << log;
   EXPECT_NE(log.find("stores its levels"), std::string::npos) << log;
+  EXPECT_NE(log.find("filtered points stored with the scene"), std::string::npos) << "the stored sample, not the scan: " << log;
   for (const char* level : {"0", "1", "2"}) {
     const auto a = columns(log, level), b = columns(plain, level);
     ASSERT_GE(a.size(), 8U) << log;

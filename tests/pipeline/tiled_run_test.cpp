@@ -7,6 +7,7 @@
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/preview.hpp"
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/ingest.hpp"
@@ -1838,6 +1839,14 @@ TEST(TiledRun, LevelZerosLayersMadeByTheLevelBuilderEqualTheWholeGridsAndTheScen
   ASSERT_FALSE(stage_of(ja, "scene_levels").is_null());
   EXPECT_TRUE(stage_of(ja, "scene_levels")["figures"].contains("level0_layers_s")) << stage_of(ja, "scene_levels").dump();
   EXPECT_FALSE(stage_of(jb, "scene_levels")["figures"].contains("level0_layers_s"));
+  // The levels table's points stored with the scene (points_sample.bin): the tiled run's sample,
+  // the same from both writes, standing for every kept point the cross-check classified.
+  const auto sample = hc::pipeline::read_level_point_sample(a / "scene");
+  ASSERT_TRUE(sample.has_value());
+  EXPECT_EQ(hc::test::read_bytes(a / "scene" / "points_sample.bin"), hc::test::read_bytes(b / "scene" / "points_sample.bin"));
+  EXPECT_EQ(sample->represents, stage_of(ja, "cross_check")["count_in"].get<std::uint64_t>());
+  EXPECT_GT(sample->points.size(), 1000U);
+  EXPECT_EQ(sample->points.size(), sample->represents) << "fewer input points than lod.report_sample_points: every one";
 
   // Previews capped below level 0's width come from the stored level that fits, colour too
   // (read from the level's colour.tiff): the in-memory pyramid's level drawn the same way.

@@ -29,6 +29,7 @@
 #include <cmath>
 #include <set>
 #include <cstdint>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -324,6 +325,47 @@ TEST(TiledScene, TheLevelsTableOfAStoredPyramidReadsWindowsAndEqualsTheInMemoryT
   }
   to.stored_window_samples = 1;
   EXPECT_THROW((void)hc::pipeline::level_table(LodPyramid::open_stored(scene_dir, s.lod), &points, to), hc::ConfigError);
+}
+
+// points_sample.bin (lod_report.hpp): every stride-th point and the count it stands for read
+// back bit for bit; an absent file is no sample; a file cut short, with another header, a count
+// above what it stands for, or a NaN is an error naming the file. Oracle: the points written.
+TEST(TiledScene, TheLevelsPointSampleReadsBackAndRefusesAMalformedFile) {
+  const fs::path dir = hc::test::temp_dir("point_sample");
+  EXPECT_FALSE(hc::pipeline::read_level_point_sample(dir).has_value());
+  hc::pipeline::Cloud pts;
+  pts.xyz.resize(3, 10);
+  for (int i = 0; i < 10; ++i) pts.xyz.col(i) = Eigen::Vector3d(0.1 * i + 1e-17, -0.3 * i, std::ldexp(1.0, -i) / 3.0);
+  hc::pipeline::write_level_point_sample(dir, pts, 3, 1000);
+  const auto back = hc::pipeline::read_level_point_sample(dir);
+  ASSERT_TRUE(back.has_value());
+  EXPECT_EQ(back->represents, 1000U);
+  ASSERT_EQ(back->points.size(), 4U);  // points 0, 3, 6, 9
+  for (int k = 0; k < 4; ++k) EXPECT_EQ(back->points.xyz.col(k), pts.xyz.col(3 * k)) << k;
+  hc::pipeline::write_level_point_sample(dir, pts, 1);
+  EXPECT_EQ(hc::pipeline::read_level_point_sample(dir)->represents, 10U) << "0: the points' count";
+  const fs::path file = dir / "points_sample.bin";
+  const std::string good = hc::test::read_bytes(file);
+  const auto refused = [&](std::string bytes, const std::string& why) {
+    std::ofstream(file, std::ios::binary | std::ios::trunc) << bytes;
+    try {
+      (void)hc::pipeline::read_level_point_sample(dir);
+      ADD_FAILURE() << why << ": no error";
+    } catch (const hc::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(file.string()), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find(why), std::string::npos) << e.what();
+    }
+  };
+  refused(good.substr(0, good.size() - 1), "bytes for 10 points");
+  refused("HCPSMP2\n" + good.substr(8), "no HCPSMP1 header");
+  refused(good.substr(0, 10), "no HCPSMP1 header");
+  std::string fewer = good;
+  fewer[16] = 9;  // represents 9 < count 10
+  refused(fewer, "fewer than its 10");
+  std::string nan = good;
+  const double q = std::numeric_limits<double>::quiet_NaN();
+  std::memcpy(nan.data() + 24 + 8, &q, 8);
+  refused(nan, "not finite");
 }
 
 TEST(TiledScene, StoredWindowsAndLevelsEqualTheInMemoryPyramidAndReadOnlyTheirTiles) {

@@ -9,6 +9,7 @@
 #include "hc/pipeline/cross_check.hpp"
 #include "hc/pipeline/lod.hpp"
 
+#include <cstdint>
 #include <filesystem>
 #include <memory>
 #include <optional>
@@ -88,6 +89,27 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
 std::string level_table_markdown(const std::vector<LevelRow>& rows);
 /// The table as plain text for a terminal.
 std::string level_table_text(const std::vector<LevelRow>& rows);
+
+/// The levels table's points stored beside a tiled scene (issue 14): `points_sample.bin` in the
+/// scene folder, so that `hapticloud levels` cross-checks a scene larger than memory without
+/// reading its scan again. Little-endian: the 8 bytes "HCPSMP1\n", uint64 count, uint64
+/// represents (the filtered points the sample stands for, ≥ count), then count × (x, y, z) as
+/// float64, grid frame [m]. Source: this project.
+struct LevelPointSample {
+  Cloud points;                 ///< grid frame [m]
+  std::uint64_t represents = 0; ///< ≥ points.size(); equal: the sample is every point
+};
+inline constexpr const char* kLevelPointSampleFile = "points_sample.bin";
+
+/// Writes every stride-th point of `points` (stride ≥ 1; from the first) to
+/// scene_dir/points_sample.bin with `represents` (0: the points' count).
+/// @throws hc::InputError naming the file when it cannot be written.
+void write_level_point_sample(const std::filesystem::path& scene_dir, const Cloud& points, std::size_t stride,
+                              std::uint64_t represents = 0);
+/// Reads scene_dir/points_sample.bin: nullopt when the file does not exist.
+/// @throws hc::InputError naming the file when it is not such a file (magic, sizes, count
+///         above represents, a non-finite coordinate).
+std::optional<LevelPointSample> read_level_point_sample(const std::filesystem::path& scene_dir);
 
 /// Writes `lod_level_<L>.png` (hillshade) for every level into `dir`, and `lod_levels.png`: all
 /// levels side by side at the same height (nearest-neighbour enlargement, so coarse levels show
