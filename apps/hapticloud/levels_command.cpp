@@ -72,15 +72,6 @@ pipeline::Cloud scene_points(const Scene& scene, const std::string& config_optio
 
 void run_levels(const LevelsOptions& o) {
   const fs::path dir(o.scene);
-  if (!o.previews.empty()) {
-    // Made before the (long) level table, so an unusable folder stops the command at once.
-    std::error_code ec;
-    fs::create_directories(o.previews, ec);
-    if (ec || !fs::is_directory(o.previews)) {
-      throw InputError("levels: --previews '" + o.previews + "': cannot create the folder" +
-                       (ec ? ": " + ec.message() : std::string(" (a file of that name exists)")));
-    }
-  }
   // A tiled scene that stores its levels (issue 14) is opened as such: no level is built, and a
   // level larger than the table's window is read a window at a time (level_table).
   Scene scene = pipeline::load_scene(dir, false);
@@ -89,6 +80,31 @@ void run_levels(const LevelsOptions& o) {
     throw ConfigError("levels --min-cells " + std::to_string(o.min_cells) + ": " + dir.string() + " stores its " +
                       std::to_string(scene.storage.stored_levels) + " levels, which the table reads as they are "
                       "(leave --min-cells out)");
+  }
+  if (stored && !o.previews.empty()) {
+    // Previews draw whole levels: a stored level must fit in the 3/4 of lod.memory_budget_mb a
+    // stored pyramid gives levels (about 27 bytes a sample), refused before the long table.
+    for (int level = 0; level < scene.storage.stored_levels; ++level) {
+      const GridGeometry g = pipeline::lod_level_geometry(scene.geometry, level);
+      const double mb = 27.0 * static_cast<double>(g.cell_count()) / (1024.0 * 1024.0);
+      if (mb > 0.75 * scene.lod.memory_budget_mb) {
+        throw ConfigError("levels --previews: level " + std::to_string(level) + " of " + dir.string() + " (" +
+                          std::to_string(g.cols) + " x " + std::to_string(g.rows) + " samples, about " +
+                          std::to_string(static_cast<long long>(mb)) + " MB) is larger than 3/4 of the scene's "
+                          "lod.memory_budget_mb = " + std::to_string(static_cast<long long>(scene.lod.memory_budget_mb)) +
+                          " MB, and previews draw whole levels: leave --previews out (the run's own previews are "
+                          "in its previews/ folder)");
+      }
+    }
+  }
+  if (!o.previews.empty()) {
+    // Made before the (long) level table, so an unusable folder stops the command at once.
+    std::error_code ec;
+    fs::create_directories(o.previews, ec);
+    if (ec || !fs::is_directory(o.previews)) {
+      throw InputError("levels: --previews '" + o.previews + "': cannot create the folder" +
+                       (ec ? ": " + ec.message() : std::string(" (a file of that name exists)")));
+    }
   }
   if (!stored) scene = pipeline::load_scene(dir);
   // Levels ≥ 1 get the layers the scene's own options make (its typed metadata).
@@ -116,8 +132,8 @@ void run_levels(const LevelsOptions& o) {
   const auto pyramid =
       stored ? pipeline::LodPyramid::open_stored(dir, lod) : pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
   if (stored) {
-    std::cout << "levels: " << dir.string() << " stores its levels: read in windows of "
-              << pipeline::LevelTableOptions{}.stored_window_samples << " samples, not built\n";
+    std::cout << "levels: " << dir.string() << " stores its levels: read as stored (a large level a window at a "
+                 "time), not built\n";
   }
   pipeline::LevelTableOptions to;
   to.cross_check = points.has_value();

@@ -53,14 +53,13 @@ std::string level_sampling_note(const std::vector<LevelRow>& rows) {
 // point, its residuals kept in the points' order (so error_stats_mm sums as the whole level's
 // path does). The support is not measured (it needs every point against the whole level).
 void stored_level_row(LodPyramid& pyramid, int level, const Cloud* points, std::size_t stride, std::size_t total,
-                      const LevelTableOptions& options, LevelRow& row) {
+                      const LevelTableOptions& options, int side, LevelRow& row) {
   const GridGeometry& g = pyramid.geometry(level);
-  const int side = options.stored_window_samples;
   const int wr = (g.rows + side - 1) / side, wc = (g.cols + side - 1) / side;
   const std::size_t n = points != nullptr ? points->size() : 0;
   const std::size_t checked = n == 0 ? 0 : (n + stride - 1) / stride;
   // The checked points by the window owning their cell (index into `checked` order).
-  std::vector<std::vector<std::uint32_t>> mine(static_cast<std::size_t>(wr) * static_cast<std::size_t>(wc));
+  std::vector<std::vector<std::size_t>> mine(static_cast<std::size_t>(wr) * static_cast<std::size_t>(wc));
   if (points != nullptr) {
     const double* p = points->xyz.data();
     const double max_u = static_cast<double>(g.cols - 1), max_v = static_cast<double>(g.rows - 1);
@@ -71,8 +70,7 @@ void stored_level_row(LodPyramid& pyramid, int level, const Cloud* points, std::
       // The cell as BilinearSurface::sample finds it.
       const int ci = std::min(static_cast<int>(std::clamp((q[0] - g.x0_m) / g.cell_size_m, 0.0, max_u)), g.cols - 2);
       const int cj = std::min(static_cast<int>(std::clamp((q[1] - g.y0_m) / g.cell_size_m, 0.0, max_v)), g.rows - 2);
-      mine[static_cast<std::size_t>(cj / side) * static_cast<std::size_t>(wc) + static_cast<std::size_t>(ci / side)].push_back(
-          static_cast<std::uint32_t>(k));
+      mine[static_cast<std::size_t>(cj / side) * static_cast<std::size_t>(wc) + static_cast<std::size_t>(ci / side)].push_back(k);
     }
   }
   std::vector<float> vertical(checked, std::numeric_limits<float>::quiet_NaN());
@@ -109,8 +107,8 @@ void stored_level_row(LodPyramid& pyramid, int level, const Cloud* points, std::
           for (std::size_t k = 0; k < mu.bins.size(); ++k) mu.bins[k] += h.bins[k];
         }
       }
-      for (const std::uint32_t k : mine[static_cast<std::size_t>(a) * static_cast<std::size_t>(wc) + static_cast<std::size_t>(b)]) {
-        const double* q = points->xyz.data() + 3 * (static_cast<std::size_t>(k) * stride);
+      for (const std::size_t k : mine[static_cast<std::size_t>(a) * static_cast<std::size_t>(wc) + static_cast<std::size_t>(b)]) {
+        const double* q = points->xyz.data() + 3 * (k * stride);
         const PointResidual pr = point_residual_of_part(d.data(), d.cols(), rs, cs, g, q[0], q[1], q[2], options.hidden_band_m);
         if (pr.kind == PointResidual::kOnSurface) vertical[k] = pr.vertical_m;
       }
@@ -155,15 +153,29 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
     row.level = level;
     if (pyramid->stored()) {
       const GridGeometry& g = pyramid->geometry(level);
-      const auto side = static_cast<std::size_t>(options.stored_window_samples);
+      // The window's side: options.stored_window_samples, less where a window of every layer
+      // (about 27 bytes a sample, 32 taken) would hold more than half of the 3/4 of
+      // lod.memory_budget_mb a stored pyramid gives windows and levels (LodPyramid::window
+      // refuses more); a level read whole is at most that too.
+      const double entry_bytes = 0.75 * pyramid->options().memory_budget_mb * 1024.0 * 1024.0;
+      const int budget_side = static_cast<int>(std::floor(std::sqrt(0.5 * entry_bytes / 32.0))) - 1;
+      const int side_i = std::max(2, std::min(options.stored_window_samples, budget_side));
+      const auto side = static_cast<std::size_t>(side_i);
       if (g.rows >= 2 && g.cols >= 2 && g.cell_count() > side * side) {
         row.rows = g.rows;
         row.cols = g.cols;
         row.cell_size_m = g.cell_size_m;
         row.stored = true;
         const auto t_check = detail::Clock::now();
-        stored_level_row(*pyramid, level, options.cross_check ? points : nullptr, stride, total, options, row);
+        stored_level_row(*pyramid, level, options.cross_check ? points : nullptr, stride, total, options, side_i, row);
         row.cross_check_seconds = options.cross_check && points != nullptr ? detail::seconds_since(t_check) : 0.0;
+        if (options.cross_check && level == 0 && options.level0_cross_check) {  // as the whole level's path
+          row.point_vertical = options.level0_cross_check->point_vertical;
+          row.supported_fraction = options.level0_cross_check->supported_fraction;
+          row.support_measured = true;
+          row.points_checked = row.points_total = total;
+          row.cross_check_seconds = 0.0;
+        }
         rows.push_back(row);
         continue;
       }
@@ -308,30 +320,34 @@ std::optional<LevelPointSample> read_level_point_sample(const std::filesystem::p
   if (!std::filesystem::exists(file, ec)) return std::nullopt;
   const auto bad = [&](const std::string& why) {
     return InputError(file.string() + ": " + why + " (expected the levels table's point sample a tiled scene stores; "
-                      "delete the file to cross-check against the scan with --config)");
+                      "pass --config RUN.yaml to read the scan instead, or --no-cross-check)");
   };
+  const std::uintmax_t size = std::filesystem::file_size(file, ec);
+  if (ec) throw InputError(file.string() + " cannot be read: " + ec.message());
   std::FILE* f = std::fopen(file.c_str(), "rb");
   if (!f) throw InputError(file.string() + " cannot be opened: " + std::strerror(errno));
-  std::string bytes;
-  char buf[1 << 16];
-  std::size_t got;
-  while ((got = std::fread(buf, 1, sizeof buf, f)) > 0) bytes.append(buf, got);
-  const bool read_error = std::ferror(f) != 0;
-  std::fclose(f);
-  if (read_error) throw InputError(file.string() + " cannot be read");
-  if (bytes.size() < kSampleHeader || std::memcmp(bytes.data(), kSampleMagic, 8) != 0) throw bad("no HCPSMP1 header");
+  // The header, then the points straight into the matrix (no second copy).
+  char head[kSampleHeader] = {};
+  const bool got_head = size >= kSampleHeader && std::fread(head, 1, kSampleHeader, f) == kSampleHeader;
   std::uint64_t count = 0, represents = 0;
-  std::memcpy(&count, bytes.data() + 8, 8);
-  std::memcpy(&represents, bytes.data() + 16, 8);
-  if (count > (bytes.size() - kSampleHeader) / 24 || bytes.size() != kSampleHeader + count * 24) {
-    throw bad(std::to_string(bytes.size()) + " bytes for " + std::to_string(count) + " points (24 bytes each after a " +
-              std::to_string(kSampleHeader) + "-byte header)");
+  std::memcpy(&count, head + 8, 8);
+  std::memcpy(&represents, head + 16, 8);
+  const auto fail = [&](const InputError& e) {
+    std::fclose(f);
+    throw e;
+  };
+  if (!got_head || std::memcmp(head, kSampleMagic, 8) != 0) fail(bad("no HCPSMP1 header"));
+  if (count > (size - kSampleHeader) / 24 || size != kSampleHeader + count * 24) {
+    fail(bad(std::to_string(size) + " bytes for " + std::to_string(count) + " points (24 bytes each after a " +
+             std::to_string(kSampleHeader) + "-byte header)"));
   }
-  if (represents < count) throw bad("it stands for " + std::to_string(represents) + " points, fewer than its " + std::to_string(count));
+  if (represents < count) fail(bad("it stands for " + std::to_string(represents) + " points, fewer than its " + std::to_string(count)));
   LevelPointSample s;
   s.represents = represents;
   s.points.xyz.resize(3, static_cast<Eigen::Index>(count));
-  if (count > 0) std::memcpy(s.points.xyz.data(), bytes.data() + kSampleHeader, count * 24);
+  const bool got = count == 0 || std::fread(s.points.xyz.data(), 24, count, f) == count;
+  std::fclose(f);
+  if (!got) throw InputError(file.string() + " cannot be read (cut short while it was read?)");
   if (!s.points.xyz.allFinite()) throw bad("a coordinate is not finite");
   return s;
 }

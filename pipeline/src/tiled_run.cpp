@@ -4749,6 +4749,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
     return build_scene_tiled_once(config, progress, layers, t_start);  // the narrower share
   } catch (const UndecidedIslandsError& e) {  // the first attempt's scratch folder is gone with it
     why = e.what();
+    why = why.substr(0, std::min(why.size(), why.find(": set scale.island_halo")));  // its advice does not apply now
     tile = e.tile;
     now = e.halo_now;
     then = e.halo_then;

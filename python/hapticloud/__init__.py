@@ -48,7 +48,9 @@ def levels(scene, config=None, servo_ticks=3000):
     scene: a Scene (its own lod options and layer options are used), or the Levels of a tiled
         scene (open_levels): its stored levels as they are, nothing built (build_s 0, stored
         True), a level of more than 1024² samples read a window at a time (supported_fraction
-        None there), so that a scene larger than memory gets its table.
+        None there), so that a scene larger than memory gets its table; its config, when given,
+        still reads the scan whole (the points_sample.bin the scene stores is used by
+        `hapticloud levels`, not here).
     config: None, or the run config the scene was made from (a path or a dict, as for run()):
         its points are read and each level is cross-checked against them.
     servo_ticks: servo ticks timed per level (>= 10; 0 or None leaves the timing columns None).

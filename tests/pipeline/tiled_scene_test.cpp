@@ -323,8 +323,37 @@ TEST(TiledScene, TheLevelsTableOfAStoredPyramidReadsWindowsAndEqualsTheInMemoryT
     EXPECT_GE(windowed, 3) << "levels 0 to 2 at least go by windows";
     EXPECT_NE(hc::pipeline::level_table_text(rows).find("stored"), std::string::npos);
   }
+  // The points as a sample of ten times as many (a stored points_sample.bin): (a) from every one,
+  // no support, the same figures as the in-memory table given the same.
+  to.stored_window_samples = 30;
+  to.points_represent = 10 * points.size();
+  const auto mem_sampled = hc::pipeline::level_table(memory_pyramid(s), &points, to);
+  const auto stored_sampled = hc::pipeline::level_table(LodPyramid::open_stored(scene_dir, s.lod), &points, to);
+  ASSERT_EQ(stored_sampled.size(), mem_sampled.size());
+  for (std::size_t l = 0; l < mem_sampled.size(); ++l) {
+    const auto& a = stored_sampled[l];
+    const auto& b = mem_sampled[l];
+    ASSERT_TRUE(a.point_vertical && b.point_vertical) << l;
+    EXPECT_EQ(a.point_vertical->rms_mm, b.point_vertical->rms_mm) << l;
+    EXPECT_EQ(a.points_checked, points.size()) << l;
+    EXPECT_EQ(a.points_total, 10 * points.size()) << l;
+    EXPECT_FALSE(a.support_measured) << l;
+  }
+  to.points_represent = 0;
   to.stored_window_samples = 1;
   EXPECT_THROW((void)hc::pipeline::level_table(LodPyramid::open_stored(scene_dir, s.lod), &points, to), hc::ConfigError);
+  // A small lod.memory_budget_mb narrows the windows below stored_window_samples (a window of
+  // every layer must fit): the table still reads, and equals the in-memory one.
+  LodOptions small = s.lod;
+  small.memory_budget_mb = 0.5;  // about 7 000 samples a window: sides of 79 instead of 1024
+  to.stored_window_samples = 1024;
+  const auto narrowed = hc::pipeline::level_table(LodPyramid::open_stored(scene_dir, small), &points, to);
+  ASSERT_EQ(narrowed.size(), mem.size());
+  for (std::size_t l = 0; l < mem.size(); ++l) {
+    ASSERT_TRUE(narrowed[l].point_vertical) << l;
+    EXPECT_EQ(narrowed[l].point_vertical->rms_mm, mem[l].point_vertical->rms_mm) << l;
+    EXPECT_EQ(narrowed[l].valid_cells, mem[l].valid_cells) << l;
+  }
 }
 
 // points_sample.bin (lod_report.hpp): every stride-th point and the count it stands for read

@@ -124,8 +124,9 @@ struct ScaleConfig {
   /// in-process run (build_scene_tiled) starts again from the plan with the wider one, and says
   /// so in a warning (islands near a tile's edge are rare: none in 56–275 tiles of the Buddha,
   /// the bunny and the E57 pump at 32-cell tiles). A tile job cannot widen its plan's halo: under
-  /// auto it stops as under off (write the plan again with on). Before the fifty-fifth session a
-  /// bool, false by default (the fifty-third session's).
+  /// auto `hapticloud tile-job` exits 5 (under off 1, as any error), and the Dask driver plans
+  /// again with on. Before the fifty-fifth session a bool, false by default (the fifty-third
+  /// session's).
   Tiled island_halo = Tiled::kAuto;
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder

@@ -63,8 +63,10 @@ struct PointResidual {
   enum Kind : std::uint8_t { kOutside, kOffSurface, kHidden, kOnSurface } kind = kOutside;
   float vertical_m = 0.0f, normal_m = 0.0f;  ///< set for kOnSurface
 };
-/// The PointResidual of a point given its surface sample `s` at (x_m, y_m) (inside g's x-y
-/// extent): what point_residual and point_residual_of_part compute after sampling.
+/// The PointResidual of a point at height z_m [m] whose bilinear surface sample (at its x-y,
+/// inside the grid's extent) is `s`: off the surface, hidden (more than hidden_band_m > 0 [m]
+/// below), or on it with |z − f| and |z − f|·n_z: what point_residual and
+/// point_residual_of_part compute after sampling. No errors. Source: as point_residual.
 inline PointResidual point_residual_of_sample(const SurfaceSample& s, double z_m, double hidden_band_m) noexcept;
 
 /// point_residual: the PointResidual of (x_m, y_m, z_m) as described above; g is the geometry of

@@ -58,7 +58,8 @@ struct LevelTableOptions {
   /// Level 0's cross-check when the caller has it already (the run's): reused, not recomputed.
   std::optional<CrossCheck> level0_cross_check;
   /// A stored pyramid's level of more than this² samples is read in windows of this side
-  /// [samples], ≥ 2 (each read with one more row and column), never whole (issue 14).
+  /// [samples], ≥ 2 (each read with one more row and column), never whole (issue 14); smaller
+  /// where lod.memory_budget_mb would not hold such a window (level_table).
   int stored_window_samples = 1024;
 };
 
@@ -73,8 +74,9 @@ struct LevelTableOptions {
 /// switch time) are left unmeasured (`timed` false): the pipeline does not run servo loops;
 /// hc::session's time_levels fills them.
 /// A stored pyramid (LodPyramid::open_stored, a tiled scene) builds nothing: a level of more than
-/// options.stored_window_samples² samples is read a window at a time (memory: one window of every
-/// layer and the sampled points' residuals, 4 bytes each), with the same figures as the whole
+/// side² samples is read a window of side × side samples at a time, side the smaller of
+/// options.stored_window_samples and what half of the pyramid's window budget holds (memory: one
+/// window of every layer, and per sampled point a residual and an index, 12 bytes), with the same figures as the whole
 /// level gives (bit for bit: the residuals by point_residual_of_part, the μ_d histogram's counts
 /// summed) except the support, which is not measured there (reported so); smaller levels are read
 /// whole. Rows say `stored`.

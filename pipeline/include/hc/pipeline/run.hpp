@@ -72,10 +72,13 @@ struct BuiltScene {
   bool from_tiled_run = false;
   RunSummary summary;          ///< stage reports and the cross-check
   std::optional<Cloud> cloud;  ///< the filtered points in the grid frame [m], when kept
-  /// The tiled run, which keeps no cloud: when lod.report and lod.report_cross_check are on, an
-  /// evenly strided sample of the filtered points (of each tile, every ⌈N_input / lod.report_sample_points⌉-th
-  /// interior point, in tile order; grid frame [m]) for the levels table's cross-check (a);
-  /// point_sample_of is the number of filtered points it stands for.
+  /// An evenly strided sample of the filtered points (grid frame [m]) for the levels table's
+  /// cross-check (a) and a tiled scene's points_sample.bin (lod_report.hpp): the tiled run's,
+  /// which keeps no cloud, when the cross-check or lod.report with lod.report_cross_check is on
+  /// (every ⌈N_input / lod.report_sample_points⌉-th interior kept point, in tile order); the
+  /// in-core run's when it keeps no cloud, the cross-check is on and the scene will be stored
+  /// tiled (every ⌈N / lod.report_sample_points⌉-th point of its cloud). point_sample_of is the
+  /// number of filtered points it stands for.
   std::optional<Cloud> point_sample;
   std::size_t point_sample_of = 0;
 };

@@ -90,15 +90,19 @@ class UndecidedIslandsError : public ConfigError {
 bool runs_tiled(const RunConfig& config);
 
 /// The tiled run (see the file comment): the same BuiltScene build_scene gives, without the
-/// cloud (a strided sample of it instead, BuiltScene::point_sample, when the config's levels
-/// table cross-checks); the report has stages tile_plan,
+/// cloud (a strided sample of it instead, BuiltScene::point_sample, when the cross-check is on
+/// or the config's levels table cross-checks); the report has stages tile_plan,
 /// tile_spill (spill_bytes_peak_mb, tiles, halo_cells) and tiles (per-tile sums), then the
 /// in-core stages from corrugation on (the honest_check stage tile by tile). With the cross-check
 /// or the levels sample on, the input's spill files stay on disk until the kept points have been
 /// read through them and the honest check has read them (the spill peak is then the input's
 /// files and the kept-point masks, a byte a record, together).
-/// @throws hc::ConfigError as runs_tiled; hc::InputError for unreadable input or a scratch
-///         folder that cannot be written (naming it); what the stages throw.
+/// Under scale.island_halo: auto, a tile whose window cannot decide an island group makes the
+/// run start again from the plan with the key on (up to twice the time; a warning in the
+/// summary and in tile_plan's notes says so); under false it throws UndecidedIslandsError.
+/// @throws hc::ConfigError as runs_tiled, and UndecidedIslandsError (above); hc::InputError for
+///         unreadable input or a scratch folder that cannot be written (naming it); what the
+///         stages throw.
 /// With `layers` SurfaceLayersAt::kSceneLevels (run.hpp) and a scene write_run will store tiled
 /// without the levels table, level 0's surface layers are left to write_run's level builder
 /// (no stage surface_layers; BuiltScene::surface_layers_at says which happened).
