@@ -2,6 +2,7 @@
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/lod.hpp"
+#include "hc/pipeline/lod_report.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
 #include <algorithm>
@@ -45,7 +46,8 @@ void write_bytes(const fs::path& file, const char* data, std::size_t size) {
 /// Every file's bytes are kept: any of them (an image, scene.yaml) may be the one replaced.
 struct SceneCopy {
   fs::path base, dir;
-  std::vector<std::string> images;
+  std::vector<std::string> images;  ///< the image files, then the binary ones (.bin)
+  std::vector<std::string> binaries;
   std::map<std::string, std::string> base_bytes;  ///< the base's bytes of each file (relative path)
   std::string replaced;
 
@@ -61,10 +63,15 @@ struct SceneCopy {
       write_bytes(dir / rel, bytes.data(), bytes.size());
       const auto ext = e.path().extension();
       if (ext == ".tif" || ext == ".tiff" || ext == ".png") images.push_back(rel.string());
+      if (ext == ".bin") binaries.push_back(rel.string());
       base_bytes.emplace(rel.string(), std::move(bytes));
     }
     std::sort(images.begin(), images.end());
     if (images.empty()) throw std::runtime_error("hc fuzz: no image file in " + base.string());
+    // Binary files after the images, so that a corpus input's first byte keeps naming the image
+    // it named before they were added (scene_tiled: points_sample.bin, 2026-11-29).
+    std::sort(binaries.begin(), binaries.end());
+    images.insert(images.end(), binaries.begin(), binaries.end());
   }
 
   /// Writes `data` over `file` (restoring the file the previous call replaced), then runs `use`.
@@ -122,6 +129,10 @@ void open_tiled_scene_with(const std::string& file, const std::uint8_t* data, st
       }
     }
     (void)levels->level(levels->level_count() - 1);
+    try {
+      (void)pipeline::read_level_point_sample(s.dir);
+    } catch (const hc::Error&) {
+    }
   });
 }
 

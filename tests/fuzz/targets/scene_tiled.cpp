@@ -1,8 +1,10 @@
 // Fuzz target: one file of a tiled scene folder (format 3, scene.yaml valid; made by
 // `tiled_scene_bench generate DIR --rows 40 --cols 44 --band 30 --tile 16 --colour --min-cells 8
 // --window-cells 24`) through load_scene and LodPyramid::open_stored with window reads at every
-// level: any tiled TIFF of any level (float layers, the cross-check error and the colour). The
-// first byte picks the file (modulo their number, in name order), the rest is its content.
+// level: any tiled TIFF of any level (float layers, the cross-check error and the colour), and
+// points_sample.bin (the levels table's stored points, read_level_point_sample; added to the
+// base by hand, 5 points standing for 50). The first byte picks the file (modulo their number:
+// the images in name order, then the .bin), the rest is its content.
 #include "scene_common.hpp"
 
 namespace hc::fuzz {
