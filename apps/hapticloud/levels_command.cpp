@@ -81,19 +81,25 @@ void run_levels(const LevelsOptions& o) {
                       std::to_string(scene.storage.stored_levels) + " levels, which the table reads as they are "
                       "(leave --min-cells out)");
   }
+  // Levels ≥ 1 get the layers the scene's own options make (its typed metadata).
+  pipeline::LodOptions lod = scene.lod;
+  if (o.min_cells > 0) lod.min_cells = o.min_cells;
+  if (o.window_cells > 0) lod.window_cells = o.window_cells;
+  std::shared_ptr<pipeline::LodPyramid> pyramid;  // a stored one now (scene.yaml and directories only)
+  if (stored) pyramid = pipeline::LodPyramid::open_stored(dir, lod);
   if (stored && !o.previews.empty()) {
-    // Previews draw whole levels: a stored level must fit in the 3/4 of lod.memory_budget_mb a
-    // stored pyramid gives levels (about 27 bytes a sample), refused before the long table.
-    for (int level = 0; level < scene.storage.stored_levels; ++level) {
-      const GridGeometry g = pipeline::lod_level_geometry(scene.geometry, level);
-      const double mb = 27.0 * static_cast<double>(g.cell_count()) / (1024.0 * 1024.0);
-      if (mb > 0.75 * scene.lod.memory_budget_mb) {
+    // Previews draw whole levels, which a stored pyramid reads only when they fit its budget
+    // (LodPyramid::level): refused before the long table.
+    for (int level = 0; level < pyramid->level_count(); ++level) {
+      const GridGeometry& g = pyramid->geometry(level);
+      const std::size_t bytes = g.cell_count() * pyramid->stored_bytes_per_sample();
+      if (bytes > pyramid->entry_budget_bytes()) {
         throw ConfigError("levels --previews: level " + std::to_string(level) + " of " + dir.string() + " (" +
-                          std::to_string(g.cols) + " x " + std::to_string(g.rows) + " samples, about " +
-                          std::to_string(static_cast<long long>(mb)) + " MB) is larger than 3/4 of the scene's "
-                          "lod.memory_budget_mb = " + std::to_string(static_cast<long long>(scene.lod.memory_budget_mb)) +
-                          " MB, and previews draw whole levels: leave --previews out (the run's own previews are "
-                          "in its previews/ folder)");
+                          std::to_string(g.cols) + " x " + std::to_string(g.rows) + " samples, " +
+                          std::to_string(bytes >> 20) + " MiB with its layers) is larger than the " +
+                          std::to_string(pyramid->entry_budget_bytes() >> 20) + " MiB the scene's lod.memory_budget_mb "
+                          "lets a whole level hold, and previews draw whole levels: leave --previews out (the run's "
+                          "own previews are in its previews/ folder)");
       }
     }
   }
@@ -107,11 +113,7 @@ void run_levels(const LevelsOptions& o) {
     }
   }
   if (!stored) scene = pipeline::load_scene(dir);
-  // Levels ≥ 1 get the layers the scene's own options make (its typed metadata).
   const pipeline::SurfaceLayerOptions layer_options = scene.layer_options;
-  pipeline::LodOptions lod = scene.lod;
-  if (o.min_cells > 0) lod.min_cells = o.min_cells;
-  if (o.window_cells > 0) lod.window_cells = o.window_cells;
   std::optional<pipeline::Cloud> points;
   std::uint64_t points_represent = 0;
   if (!o.no_cross_check) {
@@ -129,8 +131,7 @@ void run_levels(const LevelsOptions& o) {
       points = scene_points(scene, o.config);
     }
   }
-  const auto pyramid =
-      stored ? pipeline::LodPyramid::open_stored(dir, lod) : pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
+  if (!stored) pyramid = pipeline::LodPyramid::from_scene(std::move(scene), layer_options, lod);
   if (stored) {
     std::cout << "levels: " << dir.string() << " stores its levels: read as stored (a large level a window at a "
                  "time), not built\n";

@@ -465,6 +465,12 @@ std::shared_ptr<LodPyramid> LodPyramid::open_stored(const std::filesystem::path&
 
 std::uint64_t LodPyramid::tiles_read() const { return stored_ ? stored_->tiles_read() : 0; }
 
+std::size_t LodPyramid::stored_bytes_per_sample() const noexcept { return stored_ ? stored_->bytes_per_sample() : 0; }
+
+std::size_t LodPyramid::entry_budget_bytes() const noexcept {
+  return static_cast<std::size_t>(entry_budget_mb() * 1024.0 * 1024.0);
+}
+
 std::shared_ptr<LodWindowLayers> LodPyramid::read_stored_window(int level, int row0, int col0, int rows, int cols,
                                                                 bool cached) const {
   Stored& st = *stored_;
@@ -517,7 +523,7 @@ double LodPyramid::entry_budget_mb() const noexcept {
 }
 
 void LodPyramid::evict_locked() {
-  const auto budget = static_cast<std::size_t>(entry_budget_mb() * 1024.0 * 1024.0);
+  const std::size_t budget = entry_budget_bytes();
   while (bytes_ > budget && entries_.size() > 1) {
     // Least recently used, but never the entry touched last (the one just built or returned).
     auto victim = entries_.end();

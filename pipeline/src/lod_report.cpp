@@ -62,15 +62,13 @@ void stored_level_row(LodPyramid& pyramid, int level, const Cloud* points, std::
   std::vector<std::vector<std::size_t>> mine(static_cast<std::size_t>(wr) * static_cast<std::size_t>(wc));
   if (points != nullptr) {
     const double* p = points->xyz.data();
-    const double max_u = static_cast<double>(g.cols - 1), max_v = static_cast<double>(g.rows - 1);
     for (std::size_t i = 0, k = 0; i < n; i += stride, ++k) {
       const double* q = p + 3 * i;
       if (!std::isfinite(q[0]) || !std::isfinite(q[1]) || !std::isfinite(q[2])) continue;
       if (q[0] < g.x0_m || q[0] > g.x_of_col(g.cols - 1) || q[1] < g.y0_m || q[1] > g.y_of_row(g.rows - 1)) continue;  // outside
-      // The cell as BilinearSurface::sample finds it.
-      const int ci = std::min(static_cast<int>(std::clamp((q[0] - g.x0_m) / g.cell_size_m, 0.0, max_u)), g.cols - 2);
-      const int cj = std::min(static_cast<int>(std::clamp((q[1] - g.y0_m) / g.cell_size_m, 0.0, max_v)), g.rows - 2);
-      mine[static_cast<std::size_t>(cj / side) * static_cast<std::size_t>(wc) + static_cast<std::size_t>(ci / side)].push_back(k);
+      const BilinearCell cell = bilinear_cell(g, q[0], q[1]);  // the cell BilinearSurface::sample reads
+      mine[static_cast<std::size_t>(cell.j / side) * static_cast<std::size_t>(wc) + static_cast<std::size_t>(cell.i / side)]
+          .push_back(k);
     }
   }
   std::vector<float> vertical(checked, std::numeric_limits<float>::quiet_NaN());
@@ -154,11 +152,11 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
     if (pyramid->stored()) {
       const GridGeometry& g = pyramid->geometry(level);
       // The window's side: options.stored_window_samples, less where a window of every layer
-      // (about 27 bytes a sample, 32 taken) would hold more than half of the 3/4 of
-      // lod.memory_budget_mb a stored pyramid gives windows and levels (LodPyramid::window
-      // refuses more); a level read whole is at most that too.
-      const double entry_bytes = 0.75 * pyramid->options().memory_budget_mb * 1024.0 * 1024.0;
-      const int budget_side = static_cast<int>(std::floor(std::sqrt(0.5 * entry_bytes / 32.0))) - 1;
+      // would hold more than half of what the pyramid lets windows and levels hold
+      // (LodPyramid::window refuses more); a level read whole is at most that too.
+      const double per_sample = static_cast<double>(std::max<std::size_t>(1, pyramid->stored_bytes_per_sample()));
+      const double half_budget = 0.5 * static_cast<double>(pyramid->entry_budget_bytes());
+      const int budget_side = static_cast<int>(std::floor(std::sqrt(half_budget / per_sample))) - 1;
       const int side_i = std::max(2, std::min(options.stored_window_samples, budget_side));
       const auto side = static_cast<std::size_t>(side_i);
       if (g.rows >= 2 && g.cols >= 2 && g.cell_count() > side * side) {
@@ -289,26 +287,38 @@ std::string level_table_text(const std::vector<LevelRow>& rows) {
   return t.str();
 }
 
+std::size_t level_sample_stride(std::uint64_t n, std::size_t sample_points) {
+  const std::uint64_t per = sample_points > 0 ? sample_points : LodOptions{}.report_sample_points;
+  return static_cast<std::size_t>(std::max<std::uint64_t>(1, (n + per - 1) / per));
+}
+
+Cloud every_nth_point(const Cloud& points, std::size_t stride) {
+  stride = std::max<std::size_t>(stride, 1);
+  const std::size_t n = points.size();
+  Cloud out;
+  out.xyz.resize(3, static_cast<Eigen::Index>(n == 0 ? 0 : (n + stride - 1) / stride));
+  for (std::size_t i = 0, k = 0; i < n; i += stride, ++k) {
+    out.xyz.col(static_cast<Eigen::Index>(k)) = points.xyz.col(static_cast<Eigen::Index>(i));
+  }
+  return out;
+}
+
 namespace {
 constexpr char kSampleMagic[8] = {'H', 'C', 'P', 'S', 'M', 'P', '1', '\n'};
 constexpr std::size_t kSampleHeader = 24;  // magic, count, represents
 }  // namespace
 
-void write_level_point_sample(const std::filesystem::path& scene_dir, const Cloud& points, std::size_t stride,
-                              std::uint64_t represents) {
+void write_level_point_sample(const std::filesystem::path& scene_dir, const Cloud& points, std::uint64_t represents) {
   const std::filesystem::path file = scene_dir / kLevelPointSampleFile;
-  stride = std::max<std::size_t>(stride, 1);
-  const std::size_t n = points.size();
-  const std::uint64_t count = n == 0 ? 0 : (n + stride - 1) / stride;
-  if (represents == 0) represents = n;
-  std::string bytes(kSampleHeader + count * 24, '\0');
-  std::memcpy(bytes.data(), kSampleMagic, 8);
-  std::memcpy(bytes.data() + 8, &count, 8);  // little-endian hosts only (as every binary file here)
-  std::memcpy(bytes.data() + 16, &represents, 8);
-  char* out = bytes.data() + kSampleHeader;
-  for (std::size_t i = 0; i < n; i += stride, out += 24) std::memcpy(out, points.xyz.data() + 3 * i, 24);
+  const std::uint64_t count = points.size();
+  if (represents == 0) represents = count;
+  char head[kSampleHeader];
+  std::memcpy(head, kSampleMagic, 8);
+  std::memcpy(head + 8, &count, 8);  // little-endian hosts only (as every binary file here)
+  std::memcpy(head + 16, &represents, 8);
   std::FILE* f = std::fopen(file.c_str(), "wb");
-  const bool ok = f && std::fwrite(bytes.data(), 1, bytes.size(), f) == bytes.size();
+  const bool ok = f && std::fwrite(head, 1, kSampleHeader, f) == kSampleHeader &&
+                  (count == 0 || std::fwrite(points.xyz.data(), 24, count, f) == count);
   const int err = errno;
   const bool closed = f && std::fclose(f) == 0;
   if (!ok || !closed) throw InputError("cannot write " + file.string() + ": " + std::strerror(ok ? errno : err));

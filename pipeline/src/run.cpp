@@ -950,14 +950,7 @@ BuiltScene build_scene_impl(const RunConfig& config, bool keep_cloud, const Prog
   // A tiled scene stores the levels table's points (points_sample.bin, lod_report.hpp): every
   // ⌈N / lod.report_sample_points⌉-th filtered point, as the tiled run keeps its sample.
   if (!keep_cloud && config.cross_check.enabled && cloud.size() > 0 && writes_tiled_scene(config.scale, scene.geometry)) {
-    const std::size_t per = config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
-    const std::size_t stride = std::max<std::size_t>(1, (cloud.size() + per - 1) / per);
-    Cloud sample;
-    sample.xyz.resize(3, static_cast<Eigen::Index>((cloud.size() + stride - 1) / stride));
-    for (std::size_t i = 0, k = 0; i < cloud.size(); i += stride, ++k) {
-      sample.xyz.col(static_cast<Eigen::Index>(k)) = cloud.xyz.col(static_cast<Eigen::Index>(i));
-    }
-    built.point_sample = std::move(sample);
+    built.point_sample = every_nth_point(cloud, level_sample_stride(cloud.size(), config.lod.report_sample_points));
     built.point_sample_of = cloud.size();
   }
   if (keep_cloud) built.cloud = std::move(cloud);
@@ -1053,10 +1046,12 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
     // it without the scan (lod_report.hpp): the run's sample, or every s-th point of its cloud.
     if (!tiled_scene || !summary.cross_check) return;
     if (built.point_sample) {
-      write_level_point_sample(staging.path() / "scene", *built.point_sample, 1, std::max<std::uint64_t>(built.point_sample_of, built.point_sample->size()));
+      write_level_point_sample(staging.path() / "scene", *built.point_sample,
+                               std::max<std::uint64_t>(built.point_sample_of, built.point_sample->size()));
     } else if (built.cloud && built.cloud->size() > 0) {
-      const std::size_t per = config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
-      write_level_point_sample(staging.path() / "scene", *built.cloud, std::max<std::size_t>(1, (built.cloud->size() + per - 1) / per));
+      const Cloud& c = *built.cloud;
+      write_level_point_sample(staging.path() / "scene", every_nth_point(c, level_sample_stride(c.size(), config.lod.report_sample_points)),
+                               c.size());
     }
   });
   add_previews(files, level0_previews, now, previews, marks, friction_name);

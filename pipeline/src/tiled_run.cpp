@@ -2,6 +2,7 @@
 // grid's layers, and the cross-check merged over tiles.
 
 #include "hc/pipeline/tiling.hpp"
+#include "hc/pipeline/lod_report.hpp"
 
 #include "ball_set.hpp"
 #include "far_cells.hpp"
@@ -1342,9 +1343,7 @@ struct TileOutput {
 // kept points after the tile loop). 0 ("every point") would hold the whole cloud in memory, which
 // the tiled run exists to avoid: it takes the default sample instead (docs/scale.md).
 std::size_t sample_stride_of(const RunConfig& config, std::uint64_t input_points) {
-  const std::size_t sample_points =
-      config.lod.report_sample_points > 0 ? config.lod.report_sample_points : LodOptions{}.report_sample_points;
-  return std::max<std::size_t>(1, static_cast<std::size_t>((input_points + sample_points - 1) / sample_points));
+  return level_sample_stride(input_points, config.lod.report_sample_points);
 }
 
 bool keeps_sample(const RunConfig& config) { return config.lod.report && config.lod.report_cross_check; }

@@ -241,6 +241,21 @@ TEST(LevelsCommand, PrintsOneRowPerLevelWithCrossCheckAndWritesPreviews) {
   log.clear();
   EXPECT_EQ(run_app("levels " + (dir / "tiled" / "scene").string() + " --min-cells 30", &log), 1) << log;
   EXPECT_NE(log.find("stores its 3 levels"), std::string::npos) << log;
+  // Previews draw whole levels: with a budget no level 0 fits (0.05 MB: 120 × 120 samples of
+  // 27 bytes are 0.37 MB), refused before the table, naming the level, and no folder made.
+  log.clear();
+  ASSERT_EQ(run_app("run " + (dir / "sin.yaml").string() + " --out " + (dir / "small").string() +
+                        " --set scale.scene_tiles=on --set lod.memory_budget_mb=0.05",
+                    &log),
+            0)
+      << log;
+  log.clear();
+  EXPECT_EQ(run_app("levels " + (dir / "small" / "scene").string() + " --no-cross-check --previews " + (dir / "prev_small").string(),
+                    &log),
+            1);
+  EXPECT_NE(log.find("levels --previews: level 0 of"), std::string::npos) << log;
+  EXPECT_EQ(log.find("rms_mm"), std::string::npos) << "refused before the table: " << log;
+  EXPECT_FALSE(fs::exists(dir / "prev_small"));
 }
 
 }  // namespace

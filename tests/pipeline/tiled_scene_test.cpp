@@ -365,13 +365,13 @@ TEST(TiledScene, TheLevelsPointSampleReadsBackAndRefusesAMalformedFile) {
   hc::pipeline::Cloud pts;
   pts.xyz.resize(3, 10);
   for (int i = 0; i < 10; ++i) pts.xyz.col(i) = Eigen::Vector3d(0.1 * i + 1e-17, -0.3 * i, std::ldexp(1.0, -i) / 3.0);
-  hc::pipeline::write_level_point_sample(dir, pts, 3, 1000);
+  hc::pipeline::write_level_point_sample(dir, hc::pipeline::every_nth_point(pts, 3), 1000);
   const auto back = hc::pipeline::read_level_point_sample(dir);
   ASSERT_TRUE(back.has_value());
   EXPECT_EQ(back->represents, 1000U);
   ASSERT_EQ(back->points.size(), 4U);  // points 0, 3, 6, 9
   for (int k = 0; k < 4; ++k) EXPECT_EQ(back->points.xyz.col(k), pts.xyz.col(3 * k)) << k;
-  hc::pipeline::write_level_point_sample(dir, pts, 1);
+  hc::pipeline::write_level_point_sample(dir, pts);
   EXPECT_EQ(hc::pipeline::read_level_point_sample(dir)->represents, 10U) << "0: the points' count";
   const fs::path file = dir / "points_sample.bin";
   const std::string good = hc::test::read_bytes(file);

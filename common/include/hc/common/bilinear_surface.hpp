@@ -77,10 +77,42 @@ class BilinearSurface {
   HeightFieldView view_{};
 };
 
+/// The cell of a grid of geometry `g` (rows, cols ≥ 2) that BilinearSurface::sample evaluates
+/// at (x_m, y_m) [m, grid frame]: i, j its first column and row (i ≤ cols − 2, j ≤ rows − 2),
+/// u, v ∈ [0, 1] the point's place in it after clamping to the grid's extent (outside_u,
+/// outside_v: it was clamped), nan: a coordinate is NaN (no cell). Real-time: yes. Source: as
+/// BilinearSurface (the index arithmetic every bilinear evaluation here shares).
+struct BilinearCell {
+  int i = 0, j = 0;
+  double u = 0.0, v = 0.0;
+  bool outside_u = false, outside_v = false, nan = false;
+};
+[[gnu::always_inline]] inline BilinearCell bilinear_cell(const GridGeometry& g, double x_m, double y_m) noexcept {
+  const double max_u = static_cast<double>(g.cols - 1);
+  const double max_v = static_cast<double>(g.rows - 1);
+  double cu = (x_m - g.x0_m) / g.cell_size_m;
+  double cv = (y_m - g.y0_m) / g.cell_size_m;
+  BilinearCell c;
+  // NaN coordinates would make the index arithmetic undefined: no cell.
+  if (!(cu == cu) || !(cv == cv)) {
+    c.nan = true;
+    return c;
+  }
+  c.outside_u = cu < 0.0 || cu > max_u;  // beyond the border: constant extension
+  c.outside_v = cv < 0.0 || cv > max_v;
+  cu = std::clamp(cu, 0.0, max_u);
+  cv = std::clamp(cv, 0.0, max_v);
+  c.i = std::min(static_cast<int>(cu), g.cols - 2);
+  c.j = std::min(static_cast<int>(cv), g.rows - 2);
+  c.u = cu - c.i;
+  c.v = cv - c.j;
+  return c;
+}
+
 /// BilinearSurface::sample of the whole grid of geometry `g` (rows, cols ≥ 2), read from a
 /// part of it held apart: `data` holds grid samples from (row0, col0) on, `row_stride` floats a
 /// row, and must cover the cell (x_m, y_m) falls in and its far corners (rows j, j + 1 and
-/// columns i, i + 1, i = min(⌊clamped u⌋, cols − 2), likewise j). The index arithmetic is the
+/// columns i, i + 1 of bilinear_cell). The index arithmetic is the
 /// whole grid's, so the result is bit for bit what sample() gives on the whole grid (sample()
 /// calls this with row0 = col0 = 0): the levels table of a stored pyramid evaluates a level a
 /// window at a time with it (lod_report.cpp). Real-time: yes. Source: as BilinearSurface.
@@ -99,20 +131,10 @@ class BilinearSurface {
                                                                     int col0, const GridGeometry& g, double x_m,
                                                                     double y_m) noexcept {
   assert(g.rows >= 2 && g.cols >= 2 && g.cell_size_m > 0.0);
-  const double max_u = static_cast<double>(g.cols - 1);
-  const double max_v = static_cast<double>(g.rows - 1);
-  double cu = (x_m - g.x0_m) / g.cell_size_m;
-  double cv = (y_m - g.y0_m) / g.cell_size_m;
-  // NaN coordinates would make the index arithmetic undefined: treat as no data.
-  if (!(cu == cu) || !(cv == cv)) return SurfaceSample{std::numeric_limits<double>::quiet_NaN(), 0, 0, false};
-  const bool outside_u = cu < 0.0 || cu > max_u;  // beyond the border: constant extension
-  const bool outside_v = cv < 0.0 || cv > max_v;
-  cu = std::clamp(cu, 0.0, max_u);
-  cv = std::clamp(cv, 0.0, max_v);
-  const int i = std::min(static_cast<int>(cu), g.cols - 2);
-  const int j = std::min(static_cast<int>(cv), g.rows - 2);
-  const double u = cu - i;
-  const double v = cv - j;
+  const BilinearCell cell = bilinear_cell(g, x_m, y_m);
+  if (cell.nan) return SurfaceSample{std::numeric_limits<double>::quiet_NaN(), 0, 0, false};
+  const int i = cell.i, j = cell.j;
+  const double u = cell.u, v = cell.v;
   const float* top = data + static_cast<std::ptrdiff_t>(j - row0) * row_stride + (i - col0);
   const float* bottom = top + row_stride;
   const double z00 = top[0], z10 = top[1], z01 = bottom[0], z11 = bottom[1];
@@ -121,8 +143,8 @@ class BilinearSurface {
   s.valid = !std::isnan(s.z_m);
   if (!s.valid) return s;
   const double inv = 1.0 / g.cell_size_m;
-  s.dz_dx = outside_u ? 0.0 : ((1 - v) * (z10 - z00) + v * (z11 - z01)) * inv;
-  s.dz_dy = outside_v ? 0.0 : ((1 - u) * (z01 - z00) + u * (z11 - z10)) * inv;
+  s.dz_dx = cell.outside_u ? 0.0 : ((1 - v) * (z10 - z00) + v * (z11 - z01)) * inv;
+  s.dz_dy = cell.outside_v ? 0.0 : ((1 - u) * (z01 - z00) + u * (z11 - z10)) * inv;
   return s;
 }
 

@@ -168,6 +168,13 @@ class LodPyramid {
   /// Tiles decoded from the stored layer files so far (0 for a pyramid in memory): what a
   /// window cost on disk, for tests and benchmarks.
   std::uint64_t tiles_read() const;
+  /// A stored pyramid's bytes a sample of a window or whole level read with every layer it
+  /// stores (four bytes a float layer, three for colour); 0 for a pyramid in memory.
+  std::size_t stored_bytes_per_sample() const noexcept;
+  /// The bytes cached windows and whole levels may hold [bytes]: 3/4 of memory_budget_mb for a
+  /// stored pyramid (the rest is its decoded tiles'), all of it for one in memory. A stored level
+  /// of more than this is never read whole (level() throws), nor is such a window.
+  std::size_t entry_budget_bytes() const noexcept;
 
   int level_count() const noexcept { return level_count_; }
   /// Geometry of level L (nothing is built). @throws hc::InputError for L out of range.

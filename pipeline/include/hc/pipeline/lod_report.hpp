@@ -103,11 +103,16 @@ struct LevelPointSample {
 };
 inline constexpr const char* kLevelPointSampleFile = "points_sample.bin";
 
-/// Writes every stride-th point of `points` (stride ≥ 1; from the first) to
-/// scene_dir/points_sample.bin with `represents` (0: the points' count).
+/// The stride of the levels table's stored sample of n filtered points: ⌈n / s⌉ ≥ 1, s =
+/// sample_points, or lod.report_sample_points' default (200 000) for 0 (a stored sample never
+/// holds every point of a large scan). The tiled run's and the in-core run's rule.
+std::size_t level_sample_stride(std::uint64_t n, std::size_t sample_points);
+/// Every stride-th point of `points` (stride ≥ 1, from the first; xyz only, as they are).
+Cloud every_nth_point(const Cloud& points, std::size_t stride);
+/// Writes `points` (grid frame [m]) to scene_dir/points_sample.bin with `represents` (0: the
+/// points' count).
 /// @throws hc::InputError naming the file when it cannot be written.
-void write_level_point_sample(const std::filesystem::path& scene_dir, const Cloud& points, std::size_t stride,
-                              std::uint64_t represents = 0);
+void write_level_point_sample(const std::filesystem::path& scene_dir, const Cloud& points, std::uint64_t represents = 0);
 /// Reads scene_dir/points_sample.bin: nullopt when the file does not exist.
 /// @throws hc::InputError naming the file when it is not such a file (magic, sizes, count
 ///         above represents, a non-finite coordinate).
