@@ -53,6 +53,12 @@ inline CLI::Validator finite_in(double lo, double hi, bool lo_open = false) {
 /// kernel's admin-guide/mm/transhuge.rst; getauxval(3) (AT_SECURE).
 void reexec_with_heap_huge_pages(int argc, char** argv);
 
+/// The batch commands' allocator policy (run, tile-plan, tile-job, tile-merge, levels):
+/// pipeline::keep_freed_heap_for_reuse (run.hpp, with the reasons and figures); what the C
+/// library refused is logged at debug level. Sessions (touch, explore) keep the C library's
+/// default. Call once, before any thread starts.
+void keep_freed_memory_for_reuse();
+
 /// `hapticloud run CONFIG.yaml [--out DIR] [--set key=value ...]`: the offline pipeline; also
 /// `tile-plan`, `tile-job` and `tile-merge`, the tiled run in separate processes (tiling.hpp).
 void add_run_command(CLI::App& app);

@@ -93,17 +93,6 @@ void print_summary(const pipeline::RunSummary& summary, const std::filesystem::p
   }
 }
 
-/// The batch commands' allocator policy: pipeline::keep_freed_heap_for_reuse (run.hpp, with
-/// the reasons and figures); what the C library refused is logged at debug level. Sessions
-/// (touch, explore) keep the C library's default.
-void keep_freed_memory_for_reuse() {
-  const pipeline::HeapPolicyTaken taken = pipeline::keep_freed_heap_for_reuse();
-  if (!taken.mmap_threshold_set || !taken.trim_threshold_set) {
-    spdlog::debug("mallopt: M_MMAP_THRESHOLD {}, M_TRIM_THRESHOLD {}: the C library's default stays for what it refused",
-                  taken.mmap_threshold_set ? "set" : "refused", taken.trim_threshold_set ? "set" : "refused");
-  }
-}
-
 void run(const RunArgs& a) {
   // Before any stage starts a thread: Ctrl-C removes the unfinished output folder.
   const session::InterruptCleanup cleanup;
@@ -134,6 +123,14 @@ struct TileMergeArgs {
 };
 
 }  // namespace
+
+void keep_freed_memory_for_reuse() {
+  const pipeline::HeapPolicyTaken taken = pipeline::keep_freed_heap_for_reuse();
+  if (!taken.mmap_threshold_set || !taken.trim_threshold_set) {
+    spdlog::debug("mallopt: M_MMAP_THRESHOLD {}, M_TRIM_THRESHOLD {}: the C library's default stays for what it refused",
+                  taken.mmap_threshold_set ? "set" : "refused", taken.trim_threshold_set ? "set" : "refused");
+  }
+}
 
 void reexec_with_heap_huge_pages(int argc, char** argv) {
 #if defined(__linux__) && defined(__GLIBC__)

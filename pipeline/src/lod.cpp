@@ -465,6 +465,8 @@ std::shared_ptr<LodPyramid> LodPyramid::open_stored(const std::filesystem::path&
 
 std::uint64_t LodPyramid::tiles_read() const { return stored_ ? stored_->tiles_read() : 0; }
 
+std::filesystem::path LodPyramid::stored_dir() const { return stored_ ? stored_->dir : std::filesystem::path(); }
+
 std::size_t LodPyramid::stored_bytes_per_sample() const noexcept { return stored_ ? stored_->bytes_per_sample() : 0; }
 
 std::size_t LodPyramid::entry_budget_bytes() const noexcept {
@@ -672,7 +674,7 @@ bool LodPyramid::is_cached(int level, bool with_layers) const {
   return false;
 }
 
-std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, int col0, int rows, int cols) {
+std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, int col0, int rows, int cols, bool keep) {
   const GridGeometry& g = geometry(level);
   if (rows < 2 || cols < 2) {
     throw InputError("lod: window of " + std::to_string(rows) + " x " + std::to_string(cols) +
@@ -715,6 +717,7 @@ std::shared_ptr<const LodWindowLayers> LodPyramid::window(int level, int row0, i
   if (auto hit = cached_window()) return hit;  // cropped by another thread meanwhile
   ++misses_;
   if (!win) win = crop_window_locked(*lvl, level, row0, col0, rows, cols);
+  if (!keep) return win;  // read once: not cached
   auto entry = std::make_shared<Entry>();
   entry->is_window = true;
   entry->level = level;

@@ -82,7 +82,7 @@ void stored_level_row(LodPyramid& pyramid, int level, const Cloud* points, std::
       const int r1 = std::min(g.rows, r0 + side), c1 = std::min(g.cols, c0 + side);  // own part [r0, r1) × [c0, c1)
       const int rs = std::min(r0, g.rows - 2), cs = std::min(c0, g.cols - 2);       // read from here (at least 2 × 2)
       const int re = std::min(g.rows, r1 + 1), ce = std::min(g.cols, c1 + 1);
-      const auto w = pyramid.window(level, rs, cs, re - rs, ce - cs);
+      const auto w = pyramid.window(level, rs, cs, re - rs, ce - cs, false);  // each read once: not cached
       if (w->row0 != rs || w->col0 != cs || w->depth_m.rows() != re - rs || w->depth_m.cols() != ce - cs) {
         throw std::logic_error("level_table: level " + std::to_string(level) + "'s window at (" + std::to_string(rs) + ", " +
                                std::to_string(cs) + ") came back moved or cut");

@@ -322,6 +322,28 @@ TEST(TiledScene, TheLevelsTableOfAStoredPyramidReadsWindowsAndEqualsTheInMemoryT
     }
     EXPECT_GE(windowed, 3) << "levels 0 to 2 at least go by windows";
     EXPECT_NE(hc::pipeline::level_table_text(rows).find("stored"), std::string::npos);
+    // The sweep's windows are read once and not cached (window(..., keep = false)): the cache
+    // holds no window after it, and its misses count every window read.
+    const auto cs = stored->cache_stats();
+    EXPECT_EQ(cs.windows_cached, 0);
+    EXPECT_EQ(cs.hits, 0U);
+    EXPECT_GE(cs.misses, 3U * 3U) << "level 0 alone is read in at least 3 x 3 windows";
+  }
+  {
+    // window(keep = false) itself: read and not cached; a kept window is then taken from the cache.
+    auto stored = LodPyramid::open_stored(scene_dir, s.lod);
+    const auto once = stored->window(0, 10, 20, 40, 50, false);
+    EXPECT_EQ(stored->cache_stats().windows_cached, 0);
+    const auto kept = stored->window(0, 10, 20, 40, 50);
+    EXPECT_EQ(stored->cache_stats().windows_cached, 1);
+    const auto again = stored->window(0, 10, 20, 40, 50, false);
+    EXPECT_EQ(again.get(), kept.get()) << "a cached window is taken, not read again";
+    EXPECT_NE(once.get(), kept.get());
+    ASSERT_EQ(once->depth_m.values().size(), kept->depth_m.values().size());
+    EXPECT_EQ(std::memcmp(once->depth_m.data(), kept->depth_m.data(), once->depth_m.values().size() * sizeof(float)), 0);
+    const auto c = stored->cache_stats();
+    EXPECT_EQ(c.misses, 2U);
+    EXPECT_EQ(c.hits, 1U);
   }
   // The points as a sample of ten times as many (a stored points_sample.bin): (a) from every one,
   // no support, the same figures as the in-memory table given the same.

@@ -165,6 +165,9 @@ class LodPyramid {
   static std::shared_ptr<LodPyramid> open_stored(const std::filesystem::path& scene_dir, const LodOptions& options);
   /// True for a pyramid opened by open_stored.
   bool stored() const noexcept { return stored_ != nullptr; }
+  /// The scene folder a stored pyramid reads (open_stored's scene_dir); empty for a pyramid in
+  /// memory. For the files stored beside the levels (points_sample.bin, lod_report.hpp).
+  std::filesystem::path stored_dir() const;
   /// Tiles decoded from the stored layer files so far (0 for a pyramid in memory): what a
   /// window cost on disk, for tests and benchmarks.
   std::uint64_t tiles_read() const;
@@ -195,9 +198,13 @@ class LodPyramid {
   /// The window of rows × cols samples of level L at (row0, col0), clamped so that it lies
   /// inside the level (a level smaller than the window gives the whole level), cropped from the
   /// level's layers (a stored pyramid: read from the tiles it overlaps) and cached.
+  /// `keep` false: a window read once (a sweep over a level, as the levels table's): taken from
+  /// the cache when it is there, else read (a stored pyramid's tiles still pass the tile cache)
+  /// and not added to the cache, so the sweep does not fill the budget with windows nobody reads
+  /// again, nor evict the session's.
   /// @throws hc::InputError for L out of range or a size < 2; for a stored pyramid also for a
   ///         window larger than 3/4 of memory_budget_mb and a file that cannot be read (naming it).
-  std::shared_ptr<const LodWindowLayers> window(int level, int row0, int col0, int rows, int cols);
+  std::shared_ptr<const LodWindowLayers> window(int level, int row0, int col0, int rows, int cols, bool keep = true);
 
   /// Cache figures.
   struct CacheStats {

@@ -96,7 +96,7 @@ struct HeapPolicyTaken {
 };
 
 /// The batch commands' allocator policy (`hapticloud run`, `tile-plan`, `tile-job`,
-/// `tile-merge`; sessions keep the C library's default): glibc's M_MMAP_THRESHOLD and
+/// `tile-merge`, `levels`; sessions keep the C library's default): glibc's M_MMAP_THRESHOLD and
 /// M_TRIM_THRESHOLD set to 1 GiB [bytes], so that large blocks come from the heap and freed heap
 /// is kept for reuse instead of every stage faulting in and zeroing fresh pages (glibc's dynamic
 /// threshold maps blocks of up to 32 MB afresh; 10⁷ points in core: 1.8 → 0.7 s of system
