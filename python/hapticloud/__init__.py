@@ -42,38 +42,47 @@ def run(config, out=None, sets=()):
     return _native._run_file(_os.fspath(config), out, list(sets))
 
 
-def levels(scene, config=None, servo_ticks=3000):
+def levels(scene, config=None, servo_ticks=3000, cross_check=True):
     """The speed-against-error table of the scene's levels of detail, as `hapticloud levels`.
 
     scene: a Scene (its own lod options and layer options are used), or the Levels of a tiled
         scene (open_levels): its stored levels as they are, nothing built (build_s 0, stored
         True), a level of more than 1024² samples read a window at a time (supported_fraction
-        None there), so that a scene larger than memory gets its table; its config, when given,
-        still reads the scan whole (the points_sample.bin the scene stores is used by
-        `hapticloud levels`, not here).
+        None there), so that a scene larger than memory gets its table.
     config: None, or the run config the scene was made from (a path or a dict, as for run()):
-        its points are read and each level is cross-checked against them.
+        its scan is read whole and filtered, and each level is cross-checked against its points.
+        Without a config, the Levels of a tiled scene written with the cross-check on are
+        cross-checked against the sample of filtered points the scene stores
+        (points_sample.bin: at most lod.report_sample_points of them, in the grid frame, as
+        `hapticloud levels` takes them; supported_fraction None, as it needs every point); a
+        Scene without a config is not cross-checked.
     servo_ticks: servo ticks timed per level (>= 10; 0 or None leaves the timing columns None).
+    cross_check: False skips the cross-check (as `hapticloud levels --no-cross-check`); a config
+        given with it is an error.
     Returns a list of dicts, one per level from 0 (finest), SI units: level, rows, cols,
     cell_size_m [m], valid_cells, build_s [s] (smoothing + decimation + layers), stored (read
-    from a tiled scene's files, not built); with a config,
+    from a tiled scene's files, not built), points_from ("scan": the config's;
+    "points_sample.bin": the scene's stored sample; None: no cross-check); with a cross-check,
     rms_m, p95_m, max_m [m] (vertical distance of the points to the level's bilinear surface),
     points_checked (points on the surface among those evaluated), supported_fraction (samples
     with a point within 0.5 mm, over every point), points_sampled and points_total (the RMS,
     p95 and max come from every ⌈points_total / lod.report_sample_points⌉-th point: the scene's
-    option, 200 000 by default) and sampled (points_sampled < points_total), else None;
+    option, 200 000 by default; with the stored sample, its points of the points_total it
+    stands for) and sampled (points_sampled < points_total), else None;
     mu_d_at_min_fraction and mu_d_at_max_fraction (cells at the friction clamps); with
     servo_ticks, tick_p50_s and tick_p99_s [s] (servo tick compute on a window of the level)
     and switch_s [s] (request to the first tick on a new window). Times are wall-clock on
     this machine: compare them within one run, never against fixed numbers.
     Raises hapticloud.Error naming the file, key or value on bad input.
     """
+    if not isinstance(cross_check, bool):
+        raise Error(f"levels: cross_check {cross_check!r} (expected True or False)")
     if isinstance(config, dict):
         origin = _os.path.join(_os.getcwd(), "<dict config>")
-        return _native._levels_text(scene, _json.dumps(config), origin, _ticks(servo_ticks))
+        return _native._levels_text(scene, _json.dumps(config), origin, _ticks(servo_ticks), cross_check)
     servo_ticks = _ticks(servo_ticks)
     path = None if config is None else _os.fspath(config)
-    return _native._levels_file(scene, path, servo_ticks)
+    return _native._levels_file(scene, path, servo_ticks, cross_check)
 
 
 def _ticks(servo_ticks):

@@ -294,16 +294,24 @@ PYBIND11_MODULE(_hapticloud, m) {
       "a dict of per-tick arrays, grid frame, SI: t_s (n,), hip_m (n,3), proxy_m (n,3), force_n (n,3) (force on the "
       "hand, grid axes), in_contact (n,), mu_d (n,), surface_z_m (n,) (rendered height under the proxy).");
 
-  // levels(): the speed-against-error table of `hapticloud levels`. `config` (a parsed run
-  // config, or none) supplies the points of the cross-check; servo_ticks > 0 times the servo.
-  // A Levels object (open_levels: a tiled scene's stored levels) goes as it is: nothing is built,
-  // a large level is read a window at a time (level_table); a Scene is copied into a pyramid.
+  // levels(): the speed-against-error table of `hapticloud levels`. The cross-check's points
+  // (cross_check true): `config`'s (a parsed run config: its scan read and filtered), else, for
+  // a Levels object whose folder stores points_sample.bin (a tiled run's strided sample of its
+  // filtered points, lod_report.hpp), that sample, as `hapticloud levels` takes it; else none.
+  // servo_ticks > 0 times the servo. A Levels object (open_levels: a tiled scene's stored
+  // levels) goes as it is: nothing is built, a large level is read a window at a time
+  // (level_table); a Scene is copied into a pyramid.
   const auto levels = [](const std::variant<SceneRef, std::shared_ptr<LodPyramid>>& source,
-                         const std::optional<hc::pipeline::RunConfig>& config, int servo_ticks) {
+                         const std::optional<hc::pipeline::RunConfig>& config, int servo_ticks, bool cross_check) {
     if (servo_ticks < 0 || (servo_ticks > 0 && servo_ticks < 10)) {
       throw hc::ConfigError("levels: servo_ticks " + std::to_string(servo_ticks) + " (expected 0: no timing, or >= 10)");
     }
+    if (config && !cross_check) {
+      throw hc::ConfigError("levels: a config was given with cross_check=False (the config only supplies the "
+                            "cross-check's points: leave it out, or leave cross_check True)");
+    }
     std::vector<hc::pipeline::LevelRow> rows;
+    const char* points_from = nullptr;  // the rows' "points_from"
     {
       py::gil_scoped_release release;  // no Python object is touched in here
       std::shared_ptr<LodPyramid> pyramid;
@@ -318,10 +326,21 @@ PYBIND11_MODULE(_hapticloud, m) {
         pyramid = hc::pipeline::LodPyramid::from_scene(std::move(copy), layer_options, lod);
       }
       std::optional<hc::pipeline::Cloud> points;
-      if (config) points = hc::pipeline::prepare_points(*config);
+      std::uint64_t points_represent = 0;
+      if (config) {
+        points = hc::pipeline::prepare_points(*config);
+        points_from = "scan";
+      } else if (cross_check && pyramid->stored()) {
+        if (auto sample = hc::pipeline::read_level_point_sample(pyramid->stored_dir())) {
+          if (sample->represents > sample->points.size()) points_represent = sample->represents;
+          points = std::move(sample->points);
+          points_from = hc::pipeline::kLevelPointSampleFile;
+        }
+      }
       hc::pipeline::LevelTableOptions o;
       o.cross_check = points.has_value();
       o.sample_points = lod.report_sample_points;
+      o.points_represent = points_represent;  // a stored sample of more points: (a) from it, no support
       rows = hc::pipeline::level_table(pyramid, points ? &*points : nullptr, o);
       if (servo_ticks > 0) hc::session::time_levels(pyramid, rows, servo_ticks);
     }
@@ -336,6 +355,7 @@ PYBIND11_MODULE(_hapticloud, m) {
       d["valid_cells"] = r.valid_cells;
       d["build_s"] = r.build_seconds;
       d["stored"] = r.stored;
+      d["points_from"] = points_from ? py::object(py::str(points_from)) : none;
       if (r.point_vertical) {
         d["rms_m"] = 1e-3 * r.point_vertical->rms_mm;
         d["p95_m"] = 1e-3 * r.point_vertical->p95_mm;
@@ -363,16 +383,16 @@ PYBIND11_MODULE(_hapticloud, m) {
   using LevelsSource = std::variant<SceneRef, std::shared_ptr<LodPyramid>>;
   m.def(
       "_levels_file",
-      [levels](const LevelsSource& s, const std::optional<std::string>& config_path, int servo_ticks) {
+      [levels](const LevelsSource& s, const std::optional<std::string>& config_path, int servo_ticks, bool cross_check) {
         std::optional<hc::pipeline::RunConfig> config;
         if (config_path) config = hc::pipeline::load_run_config(*config_path);
-        return levels(s, config, servo_ticks);
+        return levels(s, config, servo_ticks, cross_check);
       },
-      py::arg("scene"), py::arg("config"), py::arg("servo_ticks"));
+      py::arg("scene"), py::arg("config"), py::arg("servo_ticks"), py::arg("cross_check"));
   m.def(
       "_levels_text",
-      [levels](const LevelsSource& s, const std::string& text, const std::string& origin, int servo_ticks) {
-        return levels(s, hc::pipeline::parse_run_config(text, origin), servo_ticks);
+      [levels](const LevelsSource& s, const std::string& text, const std::string& origin, int servo_ticks, bool cross_check) {
+        return levels(s, hc::pipeline::parse_run_config(text, origin), servo_ticks, cross_check);
       },
-      py::arg("scene"), py::arg("text"), py::arg("origin"), py::arg("servo_ticks"));
+      py::arg("scene"), py::arg("text"), py::arg("origin"), py::arg("servo_ticks"), py::arg("cross_check"));
 }

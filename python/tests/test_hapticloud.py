@@ -217,6 +217,27 @@ def test_levels_of_a_tiled_scene_read_as_stored_equal_the_table_of_the_scene_loa
                   "points_sampled", "points_total", "supported_fraction", "mu_d_at_min_fraction", "mu_d_at_max_fraction"):
             assert a[k] == b[k], (a["level"], k)
         assert a["rms_m"] is not None
+        assert a["points_from"] == b["points_from"] == "scan"
+    # Without a config the Levels take the filtered points the scene stores (points_sample.bin):
+    # every 2nd of this scan's 400 000 (lod.report_sample_points 200 000), which are the points
+    # the table from the scan read again evaluates, so the RMS, p95 and max are equal; the
+    # support needs every point and is not measured from the sample.
+    sample = hapticloud.levels(hapticloud.open_levels(out / "scene"), servo_ticks=0)
+    for a, b in zip(sample, whole):
+        assert a["points_from"] == "points_sample.bin"
+        assert (a["points_sampled"], a["points_total"]) == (200000, 400000) and a["sampled"]
+        for k in ("rms_m", "p95_m", "max_m", "points_checked", "points_sampled", "points_total"):
+            assert a[k] == b[k], (a["level"], k)
+        assert a["supported_fraction"] is None and b["supported_fraction"] is not None
+    # A scene without the sample, cross_check=False, and a config given with it.
+    (out / "scene" / "points_sample.bin").unlink()
+    for rows in (hapticloud.levels(hapticloud.open_levels(out / "scene"), servo_ticks=0),
+                 hapticloud.levels(hapticloud.open_levels(out / "scene"), servo_ticks=0, cross_check=False)):
+        assert all(r["points_from"] is None and r["rms_m"] is None for r in rows)
+    with pytest.raises(hapticloud.Error, match="cross_check=False"):
+        hapticloud.levels(hapticloud.open_levels(out / "scene"), config=config, cross_check=False)
+    with pytest.raises(hapticloud.Error, match="cross_check"):
+        hapticloud.levels(hapticloud.open_levels(out / "scene"), cross_check="no")
 
 
 def hapticloud_run_untiled(tmp_path):
