@@ -122,10 +122,11 @@ void run_levels(const LevelsOptions& o) {
   std::optional<pipeline::Cloud> points;
   std::uint64_t points_represent = 0;
   if (!o.no_cross_check) {
-    // A tiled scene's stored sample of its points (points_sample.bin), unless --config asks for
-    // the scan: no scan read again, bounded memory (issue 14).
+    // The sample of its points a tiled scene, or a scene of a tiled run, stores
+    // (points_sample.bin), unless --config asks for the scan: no scan read again, bounded
+    // memory (issue 14).
     std::optional<pipeline::LevelPointSample> sample;
-    if (stored && o.config.empty()) sample = pipeline::read_level_point_sample(dir);
+    if (o.config.empty()) sample = pipeline::read_level_point_sample(dir);
     if (sample) {
       std::cout << "levels: the cross-check's points: the " << sample->points.size() << " of " << sample->represents
                 << " filtered points stored with the scene (" << pipeline::kLevelPointSampleFile
@@ -165,7 +166,8 @@ void add_levels_command(CLI::App& app) {
                                                "cross-check, per-tick cost, switch time).");
   cmd->add_option("SCENE", opts->scene, "Scene folder written by `hapticloud run`")->required();
   cmd->add_option("--config", opts->config,
-                  "Run config to read the points from (default: the one named in scene.yaml's provenance)");
+                  "Run config to read the points from (default: the points sample a tiled scene or a tiled run's scene stores, "
+                  "points_sample.bin; without one, the run config named in scene.yaml's provenance)");
   cmd->add_flag("--no-cross-check", opts->no_cross_check, "Skip the cross-check (no points needed)");
   cmd->add_option("--previews", opts->previews, "Write a hillshade per level and all side by side into this folder");
   cmd->add_option("--min-cells", opts->min_cells, "Override lod.min_cells")->check(CLI::Range(2, 65536));

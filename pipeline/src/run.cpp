@@ -1042,13 +1042,15 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   std::vector<std::function<void()>> files;
   files.emplace_back([&] {
     write_scene(scene, staging.path() / "scene", storage);
-    // The levels table's points beside a tiled scene, so that `hapticloud levels` cross-checks
-    // it without the scan (lod_report.hpp): the run's sample, or every s-th point of its cloud.
-    if (!tiled_scene || !summary.cross_check) return;
-    if (built.point_sample) {
+    // The levels table's points beside a tiled scene, or any scene of a tiled run, so that
+    // `hapticloud levels` cross-checks it without reading the scan again (lod_report.hpp): the
+    // run's sample, or every s-th point of its cloud. (A scene of an in-core run that is not
+    // stored tiled has none: its scan fits in memory, and levels reads it through the config.)
+    if (!summary.cross_check) return;
+    if (built.point_sample && (tiled_scene || built.from_tiled_run)) {
       write_level_point_sample(staging.path() / "scene", *built.point_sample,
                                std::max<std::uint64_t>(built.point_sample_of, built.point_sample->size()));
-    } else if (built.cloud && built.cloud->size() > 0) {
+    } else if (tiled_scene && built.cloud && built.cloud->size() > 0) {
       const Cloud& c = *built.cloud;
       write_level_point_sample(staging.path() / "scene", every_nth_point(c, level_sample_stride(c.size(), config.lod.report_sample_points)),
                                c.size());

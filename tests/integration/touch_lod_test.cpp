@@ -7,6 +7,8 @@
 #include "app_runner.hpp"
 #include "test_paths.hpp"
 
+#include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <fstream>
 #include <sstream>
@@ -256,6 +258,69 @@ TEST(LevelsCommand, PrintsOneRowPerLevelWithCrossCheckAndWritesPreviews) {
   EXPECT_NE(log.find("levels --previews: level 0 of"), std::string::npos) << log;
   EXPECT_EQ(log.find("rms_mm"), std::string::npos) << "refused before the table: " << log;
   EXPECT_FALSE(fs::exists(dir / "prev_small"));
+}
+
+// A scene of a tiled run that is not itself stored tiled (a grid below scale.scene_tiles' size):
+// the run stores its sample of the kept points beside it (points_sample.bin), and `levels`
+// cross-checks against that instead of reading the scan again. The oracle: the table from the
+// scan read again through --config (the same points: no filter, fewer than
+// lod.report_sample_points, so the sample is every point), and the sample's own file.
+TEST(LevelsCommand, ASceneOfATiledRunIsCrossCheckedAgainstTheSampleItStores) {
+  const fs::path dir = hc::test::temp_dir("levels_tiled_run");
+  {
+    // A sinusoid relief on a jittered raster, 150 x 150 points over 4 cm (x y z in metres).
+    std::ofstream xyz(dir / "relief.xyz");
+    std::uint32_t state = 12345;
+    const auto jitter = [&state] {
+      state = state * 1664525u + 1013904223u;
+      return (static_cast<double>(state >> 8) / 16777216.0 - 0.5) * 1e-4;
+    };
+    char line[96];
+    for (int i = 0; i < 150; ++i)
+      for (int j = 0; j < 150; ++j) {
+        const double x = -0.02 + 0.04 * j / 149.0 + jitter(), y = -0.02 + 0.04 * i / 149.0 + jitter();
+        const double z = 0.002 * std::sin(2.0 * 3.14159265358979 * x / 0.008) * std::cos(2.0 * 3.14159265358979 * y / 0.011);
+        std::snprintf(line, sizeof line, "%.9f %.9f %.9f\n", x, y, z);
+        xyz << line;
+      }
+    std::ofstream cfg(dir / "relief.yaml");
+    cfg << "input: {files: [relief.xyz], units: m}\n"
+           "filters: {outliers: {enabled: false}}\n"
+           "grid: {n: 100, splat_radius_cells: 1.0}\n"
+           "lod: {min_cells: 25, report: false}\n";
+  }
+  std::string log;
+  ASSERT_EQ(run_app("run " + (dir / "relief.yaml").string() + " --out " + (dir / "run").string() +
+                        " --set scale.tiled=on --set scale.tile_cells=32",
+                    &log),
+            0)
+      << log;
+  const fs::path scene = dir / "run" / "scene";
+  ASSERT_TRUE(fs::exists(scene / "points_sample.bin")) << "a tiled run's scene stores its sample";
+  EXPECT_EQ(fs::file_size(scene / "points_sample.bin"), 24U + 150U * 150U * 24U) << "every point: 150 x 150 of them";
+  ASSERT_FALSE(fs::exists(scene / "levels")) << "the scene itself is not stored tiled";
+  const auto columns = [](const std::string& text, const std::string& level) {
+    const auto at = text.find("\n" + level + " ");
+    std::istringstream row(at == std::string::npos ? std::string() : text.substr(at + 1, text.find('\n', at + 1) - at - 1));
+    std::vector<std::string> out;
+    for (std::string w; row >> w;) out.push_back(w);
+    return out;  // level cell cols x rows build rms p95 supported ...
+  };
+  std::string from_sample, from_scan;
+  ASSERT_EQ(run_app("levels " + scene.string() + " --ticks 300", &from_sample), 0) << from_sample;
+  EXPECT_NE(from_sample.find("filtered points stored with the scene"), std::string::npos) << from_sample;
+  EXPECT_EQ(from_sample.find("reading the scene's points"), std::string::npos) << "no scan read: " << from_sample;
+  ASSERT_EQ(run_app("levels " + scene.string() + " --ticks 300 --config " + (dir / "relief.yaml").string(), &from_scan), 0)
+      << from_scan;
+  EXPECT_NE(from_scan.find("reading the scene's points"), std::string::npos) << from_scan;
+  for (const char* level : {"0", "1", "2"}) {
+    const auto a = columns(from_sample, level), b = columns(from_scan, level);
+    ASSERT_GE(a.size(), 9U) << from_sample;
+    ASSERT_GE(b.size(), 9U) << from_scan;
+    EXPECT_EQ(a[6], b[6]) << "RMS of level " << level;
+    EXPECT_EQ(a[7], b[7]) << "p95 of level " << level;
+    EXPECT_EQ(a[8], b[8]) << "supported (every point stored) of level " << level;
+  }
 }
 
 }  // namespace

@@ -92,9 +92,10 @@ std::string level_table_markdown(const std::vector<LevelRow>& rows);
 /// The table as plain text for a terminal.
 std::string level_table_text(const std::vector<LevelRow>& rows);
 
-/// The levels table's points stored beside a tiled scene (issue 14): `points_sample.bin` in the
-/// scene folder, so that `hapticloud levels` cross-checks a scene larger than memory without
-/// reading its scan again. Little-endian: the 8 bytes "HCPSMP1\n", uint64 count, uint64
+/// The levels table's points stored beside a tiled scene, or any scene of a tiled run (issue
+/// 14): `points_sample.bin` in the scene folder, so that `hapticloud levels` cross-checks a
+/// scene larger than memory, or one made from a scan larger than memory, without reading its
+/// scan again. Little-endian: the 8 bytes "HCPSMP1\n", uint64 count, uint64
 /// represents (the filtered points the sample stands for, ≥ count), then count × (x, y, z) as
 /// float64, grid frame [m]. Source: this project.
 struct LevelPointSample {

@@ -73,7 +73,8 @@ struct BuiltScene {
   RunSummary summary;          ///< stage reports and the cross-check
   std::optional<Cloud> cloud;  ///< the filtered points in the grid frame [m], when kept
   /// An evenly strided sample of the filtered points (grid frame [m]) for the levels table's
-  /// cross-check (a) and a tiled scene's points_sample.bin (lod_report.hpp): the tiled run's,
+  /// cross-check (a) and the points_sample.bin of a tiled scene or of any scene of a tiled run
+  /// (lod_report.hpp; write_run stores it when the cross-check ran): the tiled run's,
   /// which keeps no cloud, when the cross-check or lod.report with lod.report_cross_check is on
   /// (every ⌈N_input / lod.report_sample_points⌉-th interior kept point, in tile order); the
   /// in-core run's when it keeps no cloud, the cross-check is on and the scene will be stored
