@@ -1059,8 +1059,10 @@ int valid_groups(const HeightField& grid, const std::array<int, 4>& region, cv::
 // Per cell (row-major), 1 where the cell belongs to an island: a group of valid cells
 // (8-connected, OpenCV's connected components) of at most max_cells cells that is not the
 // largest group (with spare_largest; without it, the largest too when that small:
-// HonestCheckOptions::spare_largest_group). *islands = the number of such groups.
-std::vector<std::uint8_t> island_mask(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest) {
+// HonestCheckOptions::spare_largest_group). *islands = the number of such groups. One
+// labelling of the whole grid: 6 bytes a cell while it runs (detail::island_cells' reference,
+// and its way when every group is small and the largest is spared).
+std::vector<std::uint8_t> island_mask_whole(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest) {
   const GridGeometry& g = grid.geometry();
   cv::Mat labels, stats;
   const int n_labels = valid_groups(grid, {0, g.rows, 0, g.cols}, labels, stats);
@@ -1085,7 +1087,63 @@ std::vector<std::uint8_t> island_mask(const HeightField& grid, int max_cells, st
   return mask;
 }
 
+// island_mask_whole's mask from detail::island_cells (rows of bands, not the whole grid at once).
+std::vector<std::uint8_t> island_mask(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest) {
+  std::vector<std::uint8_t> mask(grid.geometry().cell_count(), 0);
+  for (const std::size_t i : detail::island_cells(grid, max_cells, islands, spare_largest)) mask[i] = 1;
+  return mask;
+}
+
 }  // namespace
+
+std::vector<std::size_t> detail::island_cells(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest,
+                                              int band_rows) {
+  const GridGeometry& g = grid.geometry();
+  if (max_cells < 1) throw std::invalid_argument("island_cells: max_cells = " + std::to_string(max_cells) + " (expected >= 1)");
+  if (band_rows <= 0) band_rows = std::max(1, static_cast<int>(kIslandBandCells / static_cast<std::size_t>(std::max(g.cols, 1))));
+  // A group of at most max_cells cells spans at most max_cells rows. So a group with a cell in
+  // a band's rows [b0, b1) that the window [b0 − max_cells, b1 + max_cells) cuts runs over at
+  // least max_cells + 1 of the window's rows, more than max_cells cells there: no island, as in
+  // the whole grid. Every other group with a cell in the band lies whole in the window, with
+  // its whole area. Each group is counted by the band holding its top row; each cell is
+  // written by the band holding it, in row-major order.
+  const int over = max_cells;
+  std::vector<std::size_t> out;
+  std::size_t count = 0;
+  bool some_group_larger = false;  // a group of more than max_cells cells: the largest is none of the islands
+  for (int b0 = 0; b0 < g.rows; b0 += band_rows) {
+    const int b1 = std::min(g.rows, b0 + band_rows);
+    const int w0 = std::max(0, b0 - over), w1 = std::min(g.rows, b1 + over);
+    cv::Mat labels, stats;
+    const int n_labels = valid_groups(grid, {w0, w1, 0, g.cols}, labels, stats);
+    std::vector<std::uint8_t> small(static_cast<std::size_t>(std::max(n_labels, 1)), 0);
+    for (int l = 1; l < n_labels; ++l) {
+      if (stats.at<int>(l, cv::CC_STAT_AREA) > max_cells) {
+        some_group_larger = true;
+        continue;
+      }
+      small[static_cast<std::size_t>(l)] = 1;
+      const int top = w0 + stats.at<int>(l, cv::CC_STAT_TOP);
+      if (top >= b0 && top < b1) ++count;
+    }
+    for (int r = b0; r < b1; ++r)
+      for (int c = 0; c < g.cols; ++c)
+        if (small[static_cast<std::size_t>(labels.at<int>(r - w0, c))]) {
+          out.push_back(static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c));
+        }
+  }
+  if (spare_largest && !some_group_larger && count > 0) {
+    // Every group is small: the largest (OpenCV's first among equals) is spared, which only one
+    // labelling of the whole grid names.
+    const std::vector<std::uint8_t> mask = island_mask_whole(grid, max_cells, islands, true);
+    out.clear();
+    for (std::size_t i = 0; i < mask.size(); ++i)
+      if (mask[i]) out.push_back(i);
+    return out;
+  }
+  *islands = count;
+  return out;
+}
 
 GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o) {
   check_honest_options(o);
@@ -1215,9 +1273,9 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
   out.worst = all;
 
   // Islands: small groups of valid cells away from the largest group (island_mask).
-  const std::vector<std::uint8_t> island = island_mask(grid, o.island_max_cells, &out.islands, o.spare_largest_group);
-  for (std::size_t i = 0; i < island.size(); ++i) {
-    if (!island[i]) continue;
+  // (The cells as a list, labelled in bands: no whole-grid mask or labels; issue 14.)
+  const std::vector<std::size_t> island = detail::island_cells(grid, o.island_max_cells, &out.islands, o.spare_largest_group);
+  for (const std::size_t i : island) {
     ++out.island_cells;
     if (out.marked.size() < 1000)
       out.marked.push_back({static_cast<int>(i / static_cast<std::size_t>(g.cols)), static_cast<int>(i % static_cast<std::size_t>(g.cols))});

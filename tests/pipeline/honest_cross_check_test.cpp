@@ -439,6 +439,90 @@ TEST(GridSpikes, IslandsAreSmallGroupsApartFromTheSurface) {
   EXPECT_EQ(s.island_cells, 4u);
 }
 
+// detail::island_cells labels the grid in bands of rows with max_cells rows above and below;
+// the oracle is a breadth-first flood fill of the whole grid (8-neighbours, no OpenCV): the
+// cells of every group of at most max_cells cells. Random grids of 25 % valid cells (groups of
+// many sizes, many across the band edges) with a cross of a full row and a full column planted
+// (one group through every band, thin enough that a band's window holds little of it), bands
+// of 1 row up to the whole grid; the cross is larger than max_cells, so the largest is spared
+// or not alike. Then a grid of specks only (every group small: the largest spared, found by
+// one labelling of the whole grid).
+std::vector<std::vector<std::size_t>> flood_groups(const HeightField& h) {
+  const int rows = h.rows(), cols = h.cols();
+  std::vector<int> seen(static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols), 0);
+  std::vector<std::vector<std::size_t>> groups;
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c) {
+      const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(c);
+      if (seen[i] || std::isnan(h.at(r, c))) continue;
+      std::vector<std::size_t> group{i};
+      seen[i] = 1;
+      for (std::size_t k = 0; k < group.size(); ++k) {
+        const int gr = static_cast<int>(group[k] / static_cast<std::size_t>(cols)), gc = static_cast<int>(group[k] % static_cast<std::size_t>(cols));
+        for (int dr = -1; dr <= 1; ++dr)
+          for (int dc = -1; dc <= 1; ++dc) {
+            const int nr = gr + dr, nc = gc + dc;
+            if (nr < 0 || nr >= rows || nc < 0 || nc >= cols || std::isnan(h.at(nr, nc))) continue;
+            const std::size_t j = static_cast<std::size_t>(nr) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(nc);
+            if (!seen[j]) {
+              seen[j] = 1;
+              group.push_back(j);
+            }
+          }
+      }
+      groups.push_back(std::move(group));
+    }
+  return groups;
+}
+
+TEST(GridSpikes, IslandCellsLabelledInBandsEqualAFloodFillOfTheWholeGrid) {
+  std::mt19937 rng(20261129);
+  std::bernoulli_distribution valid(0.25);
+  for (const int max_cells : {1, 3, 16}) {
+    GridGeometry g{61, 47, 0.0, 0.0, 0.001};
+    HeightField h(g);
+    for (int r = 0; r < g.rows; ++r)
+      for (int c = 0; c < g.cols; ++c)
+        if (valid(rng) || r == 30 || c == 20) h.at(r, c) = 0.0f;
+    std::vector<std::size_t> expected;
+    std::size_t expected_groups = 0, largest = 0;
+    for (const auto& group : flood_groups(h)) {
+      largest = std::max(largest, group.size());
+      if (group.size() > static_cast<std::size_t>(max_cells)) continue;
+      ++expected_groups;
+      expected.insert(expected.end(), group.begin(), group.end());
+    }
+    std::sort(expected.begin(), expected.end());
+    ASSERT_GT(largest, static_cast<std::size_t>(max_cells)) << "a group larger than max_cells";
+    ASSERT_GT(expected_groups, 20U);
+    for (const int band : {1, 2, 3, 5, 8, 13, 60, 61, 0}) {
+      for (const bool spare : {true, false}) {
+        SCOPED_TRACE("max_cells " + std::to_string(max_cells) + ", band " + std::to_string(band) + (spare ? ", spare" : ""));
+        std::size_t groups = 0;
+        const auto cells = detail::island_cells(h, max_cells, &groups, spare, band);
+        EXPECT_EQ(cells, expected);
+        EXPECT_EQ(groups, expected_groups);
+      }
+    }
+  }
+  // Specks only: groups of 1, 2 and 4 cells (the 4 the largest, alone of its size), some across
+  // the edges of 2-row bands; the largest is spared unless spare is off.
+  GridGeometry g{12, 12, 0.0, 0.0, 0.001};
+  HeightField h(g);
+  for (const auto& rc : std::vector<std::array<int, 2>>{{0, 0}, {1, 5}, {2, 5}, {3, 9}, {4, 9}, {5, 10}, {6, 10}, {9, 2}, {11, 11}}) {
+    h.at(rc[0], rc[1]) = 0.0f;
+  }
+  std::size_t groups = 0;
+  const auto spared = detail::island_cells(h, 4, &groups, true, 2);
+  EXPECT_EQ(groups, 4U);  // {0,0}, the pair at column 5, {9,2}, {11,11}; the group of 4 spared
+  const std::vector<std::size_t> want = {0, 1 * 12 + 5, 2 * 12 + 5, 9 * 12 + 2, 11 * 12 + 11};
+  EXPECT_EQ(spared, want);
+  const auto all = detail::island_cells(h, 4, &groups, false, 2);
+  EXPECT_EQ(groups, 5U);
+  EXPECT_EQ(all.size(), 9U);
+  EXPECT_THROW((void)detail::island_cells(h, 0, &groups, true), std::invalid_argument);
+}
+
 // remove_spike_points on a construction whose strays are known: a tilted plane sampled every
 // 0.25 mm (1 mm cells) carrying a dense Gaussian hill 6 mm high, σ 1.5 mm (relief: its top
 // stands about 4 mm above its window's plane, and is joined to the plane by samples), 3 stray points 3–5 mm in front of the plane, one stray point alone in

@@ -416,6 +416,24 @@ WindowIslands window_islands(const HeightField& window, int max_cells, const std
                              const std::array<int, 4>& needed, const std::array<bool, 4>& open);
 
 
+namespace detail {
+/// The cells a band of island_cells labels at a time (the rows of 16 M cells, at least one):
+/// about 5 bytes a cell while it runs (OpenCV's 8-bit input and 32-bit labels).
+inline constexpr std::size_t kIslandBandCells = std::size_t{1} << 24;
+/// The island cells of `grid` (heights [m], NaN = no data) as row-major indices in ascending
+/// order: the cells of the groups of at most max_cells valid cells (8-connected), less the
+/// whole grid's largest group when spare_largest (HonestCheckOptions::island_max_cells and
+/// spare_largest_group; find_grid_spikes' and remove_spike_points' islands). *islands = the
+/// number of those groups. Labels `band_rows` rows at a time (0: kIslandBandCells / cols) with
+/// max_cells rows above and below, so memory is O(band), not O(grid), and the result equals one
+/// labelling of the whole grid; only when every group has at most max_cells cells and the
+/// largest is spared (a grid of specks) is the whole grid labelled at once, to name that group
+/// as OpenCV orders its labels. Source: this project (issue 14).
+/// @throws std::invalid_argument for max_cells < 1.
+std::vector<std::size_t> island_cells(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest,
+                                      int band_rows = 0);
+}  // namespace detail
+
 /// One reason of a verdict: a stable code, its level and a sentence with the figures.
 struct VerdictReason {
   std::string code;     ///< e.g. "grid_spikes", "spikes_kept", "surface_lost", "far_points"
