@@ -1026,7 +1026,11 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
   level0_previews.g = scene.geometry;
   level0_previews.depth = &depth;
   level0_previews.colour = &scene.layers.colour_rgb8;
-  if (summary.cross_check) level0_previews.cell_error = &summary.cross_check->cell_error_m;
+  // The scene's layer: a tiled run's summary holds no copy of it (RunSummary::cross_check).
+  if (summary.cross_check) {
+    level0_previews.cell_error =
+        scene.layers.cell_error.rows() > 0 ? &scene.layers.cell_error : &summary.cross_check->cell_error_m;
+  }
   level0_previews.texture = &scene.layers.texture;
   level0_previews.mu_d = &scene.layers.mu_d;
   level0_previews.mu_s = &scene.layers.mu_s;
@@ -1095,6 +1099,11 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
     }
     std::vector<std::uint8_t>().swap(l.colour_rgb8);
     if (summary.cross_check) summary.cross_check->cell_error_m = HeightField();
+    // Given back now, not at scene_levels' end: with the batch heap policy (thresholds of 1 GiB)
+    // freed layers inside the heap stay resident until a trim, and stage scene_levels held them
+    // as its own (fifty-sixth session: 490 MB at 134 M cells once the error map was no longer
+    // copied, the copy's freeing having pushed the heap's top past the trim threshold before).
+    detail::release_freed_heap_if_asked();
   }
 
   // 9. Levels of detail (issue 4): speed against error per level, with previews side by side.

@@ -132,9 +132,14 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
     EXPECT_NEAR(s, t, 1e-6 * extent_mm);
   }
   EXPECT_NEAR(x.supported_fraction, y.supported_fraction, 1e-4);
+  // The tiled run's map is its scene's layer, moved there (no copy in the summary).
+  EXPECT_EQ(y.cell_error_m.values().size(), 0U);
+  const hc::HeightField& y_error = tiled.scene.layers.cell_error;
+  ASSERT_EQ(y_error.values().size(), x.cell_error_m.values().size());
+  EXPECT_EQ(differing_bits(in.scene.layers.cell_error, x.cell_error_m), 0U) << "in core: the scene's layer is the summary's map";
   std::size_t far = 0;
   for (std::size_t i = 0; i < x.cell_error_m.values().size(); ++i) {
-    const float u = x.cell_error_m.values()[i], v = y.cell_error_m.values()[i];
+    const float u = x.cell_error_m.values()[i], v = y_error.values()[i];
     if (std::isnan(u) != std::isnan(v) || (!std::isnan(u) && std::abs(u - v) > 1e-9 * extent_mm)) ++far;
   }
   EXPECT_EQ(far, 0U) << "cells whose nearest point differs";

@@ -26,8 +26,10 @@ using ProgressFn = std::function<void(const StageReport& stage, bool done)>;
 
 struct RunSummary {
   std::vector<StageReport> stages;
-  /// When enabled; cell_error_m holds the map, except in the summary write_run(BuiltScene&&)
-  /// returns for a tiled scene without the levels table (its grid is freed before scene_levels).
+  /// When enabled; cell_error_m holds the map, except in a tiled run's summary (build_scene's
+  /// from_tiled_run, merge_tile_jobs: the map is moved into the scene's cell_error layer, not
+  /// copied; since 2026-11-29) and in the summary write_run(BuiltScene&&) returns for a tiled
+  /// scene without the levels table (its grid is freed before scene_levels).
   std::optional<CrossCheck> cross_check;
   std::optional<CrossCheck> naive_cross_check;  ///< the naive front-most grid's, when compared
   /// The honest cross-check (when the cross-check is enabled): the grid against the input as
