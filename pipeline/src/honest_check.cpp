@@ -26,6 +26,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include <algorithm>
+#include <functional>
 #include <array>
 #include <chrono>
 #include <cmath>
@@ -1087,33 +1088,44 @@ std::vector<std::uint8_t> island_mask_whole(const HeightField& grid, int max_cel
   return mask;
 }
 
-// island_mask_whole's mask from detail::island_cells (rows of bands, not the whole grid at once).
+// island_mask_whole's mask from detail::for_each_island_cell (rows of bands, not the whole grid
+// at once): the mask and the band's labels, no list of the cells.
 std::vector<std::uint8_t> island_mask(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest) {
   std::vector<std::uint8_t> mask(grid.geometry().cell_count(), 0);
-  for (const std::size_t i : detail::island_cells(grid, max_cells, islands, spare_largest)) mask[i] = 1;
+  detail::for_each_island_cell(grid, max_cells, islands, spare_largest, 0, [&mask](std::size_t i) { mask[i] = 1; });
   return mask;
 }
 
 }  // namespace
 
-std::vector<std::size_t> detail::island_cells(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest,
-                                              int band_rows) {
+void detail::for_each_island_cell(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest,
+                                  int band_rows, const std::function<void(std::size_t)>& cell) {
   const GridGeometry& g = grid.geometry();
   if (max_cells < 1) throw std::invalid_argument("island_cells: max_cells = " + std::to_string(max_cells) + " (expected >= 1)");
-  if (band_rows <= 0) band_rows = std::max(1, static_cast<int>(kIslandBandCells / static_cast<std::size_t>(std::max(g.cols, 1))));
   // A group of at most max_cells cells spans at most max_cells rows. So a group with a cell in
   // a band's rows [b0, b1) that the window [b0 − max_cells, b1 + max_cells) cuts runs over at
   // least max_cells + 1 of the window's rows, more than max_cells cells there: no island, as in
   // the whole grid. Every other group with a cell in the band lies whole in the window, with
   // its whole area. Each group is counted by the band holding its top row; each cell is
-  // written by the band holding it, in row-major order.
-  const int over = max_cells;
-  std::vector<std::size_t> out;
+  // given by the band holding it, in row-major order. The default band is at least 4·max_cells
+  // rows, so the windows' overlap costs at most half again; a band of the grid's rows is one
+  // labelling of the whole grid.
+  const std::int64_t over = max_cells;
+  std::int64_t band = band_rows > 0 ? band_rows
+                                    : std::max<std::int64_t>({1, static_cast<std::int64_t>(kIslandBandCells / static_cast<std::size_t>(std::max(g.cols, 1))),
+                                                              4 * over});
+  band = std::min<std::int64_t>(band, std::max(g.rows, 1));
   std::size_t count = 0;
-  bool some_group_larger = false;  // a group of more than max_cells cells: the largest is none of the islands
-  for (int b0 = 0; b0 < g.rows; b0 += band_rows) {
-    const int b1 = std::min(g.rows, b0 + band_rows);
-    const int w0 = std::max(0, b0 - over), w1 = std::min(g.rows, b1 + over);
+  // Whether some group has more than max_cells cells: then the largest group is none of the
+  // islands and every small group is one. Until a band shows one, the cells are held back: in
+  // a grid of specks only, with the largest spared, one labelling of the whole grid names that
+  // group (OpenCV's first among equals), below.
+  bool some_group_larger = !spare_largest;
+  std::vector<std::size_t> held;
+  for (std::int64_t b0 = 0; b0 < g.rows; b0 += band) {
+    const int b1 = static_cast<int>(std::min<std::int64_t>(g.rows, b0 + band));
+    const int w0 = static_cast<int>(std::max<std::int64_t>(0, b0 - over));
+    const int w1 = static_cast<int>(std::min<std::int64_t>(g.rows, b1 + over));
     cv::Mat labels, stats;
     const int n_labels = valid_groups(grid, {w0, w1, 0, g.cols}, labels, stats);
     std::vector<std::uint8_t> small(static_cast<std::size_t>(std::max(n_labels, 1)), 0);
@@ -1123,25 +1135,39 @@ std::vector<std::size_t> detail::island_cells(const HeightField& grid, int max_c
         continue;
       }
       small[static_cast<std::size_t>(l)] = 1;
-      const int top = w0 + stats.at<int>(l, cv::CC_STAT_TOP);
+      const std::int64_t top = w0 + stats.at<int>(l, cv::CC_STAT_TOP);
       if (top >= b0 && top < b1) ++count;
     }
-    for (int r = b0; r < b1; ++r)
+    if (some_group_larger && !held.empty()) {
+      for (const std::size_t i : held) cell(i);
+      std::vector<std::size_t>().swap(held);
+    }
+    for (int r = static_cast<int>(b0); r < b1; ++r)
       for (int c = 0; c < g.cols; ++c)
         if (small[static_cast<std::size_t>(labels.at<int>(r - w0, c))]) {
-          out.push_back(static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c));
+          const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(c);
+          if (some_group_larger) {
+            cell(i);
+          } else {
+            held.push_back(i);
+          }
         }
   }
-  if (spare_largest && !some_group_larger && count > 0) {
-    // Every group is small: the largest (OpenCV's first among equals) is spared, which only one
-    // labelling of the whole grid names.
+  if (!some_group_larger && count > 0) {
+    // Every group is small and the largest is spared: only one labelling of the whole grid
+    // names it as OpenCV orders its labels.
     const std::vector<std::uint8_t> mask = island_mask_whole(grid, max_cells, islands, true);
-    out.clear();
     for (std::size_t i = 0; i < mask.size(); ++i)
-      if (mask[i]) out.push_back(i);
-    return out;
+      if (mask[i]) cell(i);
+    return;
   }
   *islands = count;
+}
+
+std::vector<std::size_t> detail::island_cells(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest,
+                                              int band_rows) {
+  std::vector<std::size_t> out;
+  for_each_island_cell(grid, max_cells, islands, spare_largest, band_rows, [&out](std::size_t i) { out.push_back(i); });
   return out;
 }
 
@@ -1273,13 +1299,13 @@ GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& o
   out.worst = all;
 
   // Islands: small groups of valid cells away from the largest group (island_mask).
-  // (The cells as a list, labelled in bands: no whole-grid mask or labels; issue 14.)
-  const std::vector<std::size_t> island = detail::island_cells(grid, o.island_max_cells, &out.islands, o.spare_largest_group);
-  for (const std::size_t i : island) {
+  // (Labelled in bands, the cells counted as they come: no whole-grid labels, mask or list;
+  // issue 14.)
+  detail::for_each_island_cell(grid, o.island_max_cells, &out.islands, o.spare_largest_group, 0, [&](std::size_t i) {
     ++out.island_cells;
     if (out.marked.size() < 1000)
       out.marked.push_back({static_cast<int>(i / static_cast<std::size_t>(g.cols)), static_cast<int>(i % static_cast<std::size_t>(g.cols))});
-  }
+  });
   return out;
 }
 

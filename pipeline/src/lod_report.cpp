@@ -329,8 +329,9 @@ std::optional<LevelPointSample> read_level_point_sample(const std::filesystem::p
   std::error_code ec;
   if (!std::filesystem::exists(file, ec)) return std::nullopt;
   const auto bad = [&](const std::string& why) {
-    return InputError(file.string() + ": " + why + " (expected the levels table's point sample a tiled scene stores; "
-                      "pass --config RUN.yaml to read the scan instead, or --no-cross-check)");
+    return InputError(file.string() + ": " + why + " (expected the levels table's point sample that a tiled scene, or a "
+                      "scene of a tiled run, stores; read the scan instead with a run config (hapticloud levels --config, "
+                      "Python levels(config=...)), or skip the cross-check)");
   };
   const std::uintmax_t size = std::filesystem::file_size(file, ec);
   if (ec) throw InputError(file.string() + " cannot be read: " + ec.message());

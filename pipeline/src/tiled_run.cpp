@@ -4117,7 +4117,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
     summary.grid_spikes = std::move(honest.spikes);
   }
   // 6. The surface layers of the whole grid (or, for a tiled scene, left to its level builder);
-  // then the scene's copy of the cross-check's error map, not held through the stages before.
+  // then the cross-check's error map into the scene.
   detail::scene_surface_layers(grid.depth, config, reports, progress, built);
   // Moved, not copied (4 bytes a cell; a copy made the write stage hold two): the summary's
   // map is the scene's layer (RunSummary::cross_check).

@@ -77,6 +77,9 @@ def levels(scene, config=None, servo_ticks=3000, cross_check=True):
     """
     if not isinstance(cross_check, bool):
         raise Error(f"levels: cross_check {cross_check!r} (expected True or False)")
+    if config is not None and not cross_check:
+        raise Error("levels: a config was given with cross_check=False (the config only supplies the "
+                    "cross-check's points: leave it out, or leave cross_check True)")
     if isinstance(config, dict):
         origin = _os.path.join(_os.getcwd(), "<dict config>")
         return _native._levels_text(scene, _json.dumps(config), origin, _ticks(servo_ticks), cross_check)

@@ -236,6 +236,8 @@ def test_levels_of_a_tiled_scene_read_as_stored_equal_the_table_of_the_scene_loa
         assert all(r["points_from"] is None and r["rms_m"] is None for r in rows)
     with pytest.raises(hapticloud.Error, match="cross_check=False"):
         hapticloud.levels(hapticloud.open_levels(out / "scene"), config=config, cross_check=False)
+    with pytest.raises(hapticloud.Error, match="cross_check=False"):  # refused before the config is read
+        hapticloud.levels(hapticloud.open_levels(out / "scene"), config=tmp_path / "no-such.yaml", cross_check=False)
     with pytest.raises(hapticloud.Error, match="cross_check"):
         hapticloud.levels(hapticloud.open_levels(out / "scene"), cross_check="no")
 

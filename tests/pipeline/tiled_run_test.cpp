@@ -5,6 +5,7 @@
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
+#include "hc/pipeline/cross_check.hpp"
 #include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/lod_report.hpp"
@@ -143,6 +144,22 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
     if (std::isnan(u) != std::isnan(v) || (!std::isnan(u) && std::abs(u - v) > 1e-9 * extent_mm)) ++far;
   }
   EXPECT_EQ(far, 0U) << "cells whose nearest point differs";
+  // The tiled run's cell-to-point figures (radix selection over its error map, no copy) are
+  // error_stats_mm_of_floats of its supported cells' errors bit for bit.
+  {
+    std::vector<float> supported;
+    const hc::HeightField& depth = tiled.scene.layers.depth;
+    for (std::size_t i = 0; i < y_error.values().size(); ++i) {
+      if (!std::isnan(depth.values()[i]) && !std::isnan(y_error.values()[i])) supported.push_back(y_error.values()[i]);
+    }
+    const hc::pipeline::ErrorStats e = hc::pipeline::error_stats_mm_of_floats(std::move(supported));
+    EXPECT_EQ(y.cell_to_point.count, e.count);
+    EXPECT_EQ(y.cell_to_point.p50_mm, e.p50_mm);
+    EXPECT_EQ(y.cell_to_point.p95_mm, e.p95_mm);
+    EXPECT_EQ(y.cell_to_point.p99_mm, e.p99_mm);
+    EXPECT_EQ(y.cell_to_point.max_mm, e.max_mm);
+    EXPECT_EQ(y.cell_to_point.rms_mm, e.rms_mm);
+  }
   for (const std::string& w : tiled.summary.warnings) EXPECT_EQ(w.find("the kept points span"), std::string::npos) << w;
   // The spill folder is gone.
   EXPECT_TRUE(fs::is_empty(scratch));

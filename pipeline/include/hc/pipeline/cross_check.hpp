@@ -51,7 +51,8 @@ struct CrossCheck {
   /// Fraction of valid cells whose nearest input point is within tolerance_m [-].
   double supported_fraction = 0.0;
   double tolerance_m = 0.0;
-  /// Per-cell error map [m]: (b)'s distance per valid cell, NaN elsewhere.
+  /// Per-cell error map [m]: (b)'s distance per valid cell, NaN elsewhere. Empty in a tiled
+  /// run's RunSummary: there it is the scene's cell_error layer (moved, not copied; run.hpp).
   HeightField cell_error_m;
 };
 

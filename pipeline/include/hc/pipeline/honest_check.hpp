@@ -25,6 +25,7 @@
 #include <array>
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <optional>
 #include <string>
 #include <vector>
@@ -417,19 +418,25 @@ WindowIslands window_islands(const HeightField& window, int max_cells, const std
 
 
 namespace detail {
-/// The cells a band of island_cells labels at a time (the rows of 16 M cells, at least one):
-/// about 5 bytes a cell while it runs (OpenCV's 8-bit input and 32-bit labels).
+/// The cells a band of for_each_island_cell labels at a time by default (the rows of 16 M
+/// cells, at least 4·max_cells rows): about 5 bytes a cell of its window while it runs
+/// (OpenCV's 8-bit input and 32-bit labels).
 inline constexpr std::size_t kIslandBandCells = std::size_t{1} << 24;
-/// The island cells of `grid` (heights [m], NaN = no data) as row-major indices in ascending
-/// order: the cells of the groups of at most max_cells valid cells (8-connected), less the
-/// whole grid's largest group when spare_largest (HonestCheckOptions::island_max_cells and
-/// spare_largest_group; find_grid_spikes' and remove_spike_points' islands). *islands = the
-/// number of those groups. Labels `band_rows` rows at a time (0: kIslandBandCells / cols) with
-/// max_cells rows above and below, so memory is O(band), not O(grid), and the result equals one
-/// labelling of the whole grid; only when every group has at most max_cells cells and the
-/// largest is spared (a grid of specks) is the whole grid labelled at once, to name that group
-/// as OpenCV orders its labels. Source: this project (issue 14).
+/// The island cells of `grid` (heights [m], NaN = no data), given to `cell` as row-major
+/// indices in ascending order: the cells of the groups of at most max_cells valid cells
+/// (8-connected), less the whole grid's largest group when spare_largest
+/// (HonestCheckOptions::island_max_cells and spare_largest_group; find_grid_spikes' and
+/// remove_spike_points' islands). *islands = the number of those groups. Labels `band_rows`
+/// rows at a time (0: kIslandBandCells / cols, at least 4·max_cells) with max_cells rows above
+/// and below, so memory is O((band_rows + 2·max_cells)·cols), not O(grid), and the result
+/// equals one labelling of the whole grid. With spare_largest, cells are held back until a
+/// group of more than max_cells cells shows (in a scanned surface, in the first band); in a
+/// grid of specks only, the whole grid is labelled once to name the largest group as OpenCV
+/// orders its labels. Source: this project (issue 14).
 /// @throws std::invalid_argument for max_cells < 1.
+void for_each_island_cell(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest, int band_rows,
+                          const std::function<void(std::size_t)>& cell);
+/// for_each_island_cell's cells as a list (8 bytes a cell: for tests and small grids).
 std::vector<std::size_t> island_cells(const HeightField& grid, int max_cells, std::size_t* islands, bool spare_largest,
                                       int band_rows = 0);
 }  // namespace detail
