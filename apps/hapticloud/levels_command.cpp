@@ -131,7 +131,7 @@ void run_levels(const LevelsOptions& o) {
       std::cout << "levels: the cross-check's points: the " << sample->points.size() << " of " << sample->represents
                 << " filtered points stored with the scene (" << pipeline::kLevelPointSampleFile
                 << "; --config RUN.yaml reads the scan instead)\n";
-      if (sample->represents > sample->points.size()) points_represent = sample->represents;
+      points_represent = sample->represents;  // every point: the whole set (level_table)
       points = std::move(sample->points);
     } else {
       points = scene_points(scene, o.config);

@@ -136,7 +136,7 @@ std::vector<LevelRow> level_table(const std::shared_ptr<LodPyramid>& pyramid, co
     throw ConfigError(msg.str());
   }
   const std::size_t n = points != nullptr ? points->size() : 0;
-  const bool whole_set = options.points_represent == 0;
+  const bool whole_set = options.points_represent <= n;  // 0, or a sample of every point
   const std::size_t total = whole_set ? n : options.points_represent;
   const std::size_t stride = !whole_set || options.sample_points == 0 || n <= options.sample_points
                                  ? 1

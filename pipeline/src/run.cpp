@@ -1147,10 +1147,9 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
       // Every filtered point in core; the tiled run's strided sample otherwise (no support then).
       const Cloud* level_points = built.cloud ? &*built.cloud : built.point_sample ? &*built.point_sample : nullptr;
       to.cross_check = config.lod.report_cross_check && level_points != nullptr;
-      // A sample that holds every point (a small tiled run) is the whole set: support measured.
-      if (!built.cloud && built.point_sample && built.point_sample_of > built.point_sample->size()) {
-        to.points_represent = built.point_sample_of;
-      }
+      // A sample that holds every point (a small tiled run) is the whole set (level_table):
+      // support measured.
+      if (!built.cloud && built.point_sample) to.points_represent = built.point_sample_of;
       to.tolerance_m = config.cross_check.tolerance_m;
       to.hidden_band_m = config.cross_check.hidden_band_m;
       to.sample_points = config.lod.report_sample_points;

@@ -295,7 +295,8 @@ PYBIND11_MODULE(_hapticloud, m) {
       "hand, grid axes), in_contact (n,), mu_d (n,), surface_z_m (n,) (rendered height under the proxy).");
 
   // levels(): the speed-against-error table of `hapticloud levels`. The cross-check's points
-  // (cross_check true): `config`'s (a parsed run config: its scan read and filtered), else, for
+  // (cross_check true; levels() in __init__.py refuses a config with it false): `config`'s (a
+  // parsed run config: its scan read and filtered), else, for
   // a Levels object whose folder stores points_sample.bin (a tiled run's strided sample of its
   // filtered points, lod_report.hpp), that sample, as `hapticloud levels` takes it; else none.
   // servo_ticks > 0 times the servo. A Levels object (open_levels: a tiled scene's stored
@@ -305,10 +306,6 @@ PYBIND11_MODULE(_hapticloud, m) {
                          const std::optional<hc::pipeline::RunConfig>& config, int servo_ticks, bool cross_check) {
     if (servo_ticks < 0 || (servo_ticks > 0 && servo_ticks < 10)) {
       throw hc::ConfigError("levels: servo_ticks " + std::to_string(servo_ticks) + " (expected 0: no timing, or >= 10)");
-    }
-    if (config && !cross_check) {
-      throw hc::ConfigError("levels: a config was given with cross_check=False (the config only supplies the "
-                            "cross-check's points: leave it out, or leave cross_check True)");
     }
     std::vector<hc::pipeline::LevelRow> rows;
     const char* points_from = nullptr;  // the rows' "points_from"
@@ -332,7 +329,7 @@ PYBIND11_MODULE(_hapticloud, m) {
         points_from = "scan";
       } else if (cross_check && pyramid->stored()) {
         if (auto sample = hc::pipeline::read_level_point_sample(pyramid->stored_dir())) {
-          if (sample->represents > sample->points.size()) points_represent = sample->represents;
+          points_represent = sample->represents;  // every point: the whole set (level_table)
           points = std::move(sample->points);
           points_from = hc::pipeline::kLevelPointSampleFile;
         }

@@ -51,9 +51,10 @@ struct LevelTableOptions {
   /// (a) on every ⌈N / sample_points⌉-th point of `points` (N of them; in their order), so a
   /// level costs O(sample_points) for (a) whatever N; 0 = every point (lod.report_sample_points).
   std::size_t sample_points = 200000;
-  /// When `points` is itself an evenly strided sample of a larger set (the tiled run keeps one),
-  /// that set's size: (a) uses the sample as it is and the support is not measured (it needs
-  /// every point). 0: `points` is the whole set.
+  /// When `points` is itself an evenly strided sample of a larger set (the tiled run keeps one,
+  /// points_sample.bin stores one), that set's size: (a) uses the sample as it is and the support
+  /// is not measured (it needs every point). 0, or at most points->size() (a sample that holds
+  /// every point): `points` is the whole set.
   std::size_t points_represent = 0;
   /// Level 0's cross-check when the caller has it already (the run's): reused, not recomputed.
   std::optional<CrossCheck> level0_cross_check;
@@ -68,7 +69,7 @@ struct LevelTableOptions {
 /// cross-check) against the level's bilinear surface: (a) point_residual (cross_check.hpp) of
 /// every s-th point, s = ⌈N / sample_points⌉ (s = 1 when sample_points is 0 or N ≤ it), and
 /// the supported fraction over every point (supported_fraction, cross_check.hpp; not measured
-/// when `points` is a sample, options.points_represent > 0). Level 0 takes
+/// when `points` is a sample, options.points_represent > its size). Level 0 takes
 /// options.level0_cross_check when given (the run's exact cross-check over every point). The
 /// rows say what was sampled (points_checked of points_total). The servo columns (tick cost,
 /// switch time) are left unmeasured (`timed` false): the pipeline does not run servo loops;
