@@ -654,6 +654,7 @@ Scene load_scene(const fs::path& scene_dir, bool load_layers) {
   } catch (const ConfigError& e) {
     throw InputError(meta.string() + ": malformed scene metadata: " + e.what());
   }
+  s.loaded_from = scene_dir;
   return s;
 }
 

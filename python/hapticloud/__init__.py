@@ -54,8 +54,9 @@ def levels(scene, config=None, servo_ticks=3000, cross_check=True):
         Without a config, the Levels of a tiled scene written with the cross-check on are
         cross-checked against the sample of filtered points the scene stores
         (points_sample.bin: at most lod.report_sample_points of them, in the grid frame, as
-        `hapticloud levels` takes them; supported_fraction None, as it needs every point); a
-        Scene without a config is not cross-checked.
+        `hapticloud levels` takes them; supported_fraction None, as it needs every point), and
+        so is a Scene loaded from such a folder (load_scene, or run() with out); a Scene built
+        in memory (run() without out) is not cross-checked without a config.
     servo_ticks: servo ticks timed per level (>= 10; 0 or None leaves the timing columns None).
     cross_check: False skips the cross-check (as `hapticloud levels --no-cross-check`); a config
         given with it is an error.

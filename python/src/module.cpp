@@ -297,8 +297,9 @@ PYBIND11_MODULE(_hapticloud, m) {
   // levels(): the speed-against-error table of `hapticloud levels`. The cross-check's points
   // (cross_check true; levels() in __init__.py refuses a config with it false): `config`'s (a
   // parsed run config: its scan read and filtered), else, for
-  // a Levels object whose folder stores points_sample.bin (a tiled run's strided sample of its
-  // filtered points, lod_report.hpp), that sample, as `hapticloud levels` takes it; else none.
+  // a Levels object or a loaded Scene (Scene::loaded_from) whose folder stores points_sample.bin
+  // (a tiled run's strided sample of its filtered points, lod_report.hpp), that sample, as
+  // `hapticloud levels` takes it; else none.
   // servo_ticks > 0 times the servo. A Levels object (open_levels: a tiled scene's stored
   // levels) goes as it is: nothing is built, a large level is read a window at a time
   // (level_table); a Scene is copied into a pyramid.
@@ -313,13 +314,16 @@ PYBIND11_MODULE(_hapticloud, m) {
       py::gil_scoped_release release;  // no Python object is touched in here
       std::shared_ptr<LodPyramid> pyramid;
       hc::LodOptions lod;
+      std::filesystem::path folder;  // the scene's folder, where its points_sample.bin would be
       if (const auto* stored = std::get_if<std::shared_ptr<LodPyramid>>(&source)) {
         pyramid = *stored;
         lod = pyramid->options();
+        folder = pyramid->stored_dir();
       } else {
         hc::Scene copy = *std::get<SceneRef>(source);
         const auto layer_options = copy.layer_options;
         lod = copy.lod;
+        folder = copy.loaded_from;  // empty for a scene built in memory (run() without out)
         pyramid = hc::pipeline::LodPyramid::from_scene(std::move(copy), layer_options, lod);
       }
       std::optional<hc::pipeline::Cloud> points;
@@ -327,8 +331,8 @@ PYBIND11_MODULE(_hapticloud, m) {
       if (config) {
         points = hc::pipeline::prepare_points(*config);
         points_from = "scan";
-      } else if (cross_check && pyramid->stored()) {
-        if (auto sample = hc::pipeline::read_level_point_sample(pyramid->stored_dir())) {
+      } else if (cross_check && !folder.empty()) {
+        if (auto sample = hc::pipeline::read_level_point_sample(folder)) {
           points_represent = sample->represents;  // every point: the whole set (level_table)
           points = std::move(sample->points);
           points_from = hc::pipeline::kLevelPointSampleFile;

@@ -229,9 +229,17 @@ def test_levels_of_a_tiled_scene_read_as_stored_equal_the_table_of_the_scene_loa
         for k in ("rms_m", "p95_m", "max_m", "points_checked", "points_sampled", "points_total"):
             assert a[k] == b[k], (a["level"], k)
         assert a["supported_fraction"] is None and b["supported_fraction"] is not None
+    # The scene loaded whole takes the sample its folder stores too (Scene::loaded_from): its
+    # levels built in memory, the same figures as the stored levels' against the same sample.
+    loaded = hapticloud.levels(hapticloud.load_scene(out / "scene"), servo_ticks=0)
+    for a, b in zip(loaded, sample):
+        assert a["points_from"] == "points_sample.bin" and not a["stored"]
+        for k in ("rms_m", "p95_m", "max_m", "points_checked", "points_sampled", "points_total", "supported_fraction"):
+            assert a[k] == b[k], (a["level"], k)
     # A scene without the sample, cross_check=False, and a config given with it.
     (out / "scene" / "points_sample.bin").unlink()
     for rows in (hapticloud.levels(hapticloud.open_levels(out / "scene"), servo_ticks=0),
+                 hapticloud.levels(hapticloud.load_scene(out / "scene"), servo_ticks=0),
                  hapticloud.levels(hapticloud.open_levels(out / "scene"), servo_ticks=0, cross_check=False)):
         assert all(r["points_from"] is None and r["rms_m"] is None for r in rows)
     with pytest.raises(hapticloud.Error, match="cross_check=False"):

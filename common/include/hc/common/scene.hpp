@@ -16,6 +16,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <filesystem>
 #include <optional>
 #include <string>
 #include <vector>
@@ -151,6 +152,10 @@ struct Scene {
   int format_version = 0;               ///< on a loaded scene: the folder's format_version
   SceneStorage storage;                 ///< on a loaded scene: how its folder stores the layers
   std::vector<std::string> notes;       ///< what loading assumed (e.g. defaults for an old folder)
+  /// On a loaded scene: the folder load_scene read (as given to it), so that what the folder
+  /// stores beside the layers (points_sample.bin, the levels table's points) can be found from
+  /// the Scene; empty on a scene built in memory. Not written (fifty-seventh session, 2026-11-29).
+  std::filesystem::path loaded_from;
 
   const HeightField& depth() const noexcept { return layers.depth; }
 };

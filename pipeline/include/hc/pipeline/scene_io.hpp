@@ -221,6 +221,7 @@ bool is_hapticloud_output(const std::filesystem::path& dir);
 
 /// Loads a scene folder written by `hapticloud run` (format_version 2, or 1: then the layer
 /// and LoD options were not recorded as typed keys, defaults are assumed and a note says so).
+/// Scene::loaded_from is set to `scene_dir`.
 /// @throws hc::InputError naming the folder or file when scene.yaml or a layer is missing or
 ///         malformed, the format version is unknown, or a layer's size disagrees with the geometry.
 ///
