@@ -1479,21 +1479,68 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   if (!(o.max_fraction >= 0.0) || o.max_fraction > 1.0) {
     throw ConfigError("find_far_clusters: max_fraction = " + format_number(o.max_fraction) + ", expected 0..1");
   }
-  const std::vector<std::uint32_t> rows = finite_rows(cloud, "find_far_clusters");
-  const std::size_t n = rows.size();
-  if (n == 0) throw InputError("find_far_clusters: the cloud has no finite points");
+  std::vector<std::uint32_t> rows = finite_rows(cloud, "find_far_clusters");
+  if (rows.empty()) throw InputError("find_far_clusters: the cloud has no finite points");
   const double* xyz = cloud.xyz.data();  // column-major 3 × N: point i at xyz[3i .. 3i+2]
   // The per-point passes on two threads, each a contiguous share of the points (the step was
   // serial: 27 ms of the Buddha's outlier stage). Box, keys, cells, components, counts and
   // boxes are exactly the serial passes'; a centroid's coordinate sum is the sum of the two
   // shares' sums (its last bits may differ from one running sum; it is only reported).
-  const int threads = n > (std::size_t{1} << 17) ? kSearchThreads : 1;
+  const auto threads_for = [](std::size_t points) { return points > (std::size_t{1} << 17) ? kSearchThreads : 1; };
   const auto box = detail::parallel_box<double>(
-      n, threads, [&](std::size_t j) { return xyz + 3 * static_cast<std::size_t>(rows[j]); });
+      rows.size(), threads_for(rows.size()), [&](std::size_t j) { return xyz + 3 * static_cast<std::size_t>(rows[j]); });
   const std::array<double, 3>& lo = box.first;  // named references: the lambdas below capture them
   const std::array<double, 3>& hi = box.second;
   // Cells of edge >= link (at most 2^21 per axis: keys fit 63 bits).
   const double edge = std::max({link_m, (hi[0] - lo[0]) / 2097150.0, (hi[1] - lo[1]) / 2097150.0, (hi[2] - lo[2]) / 2097150.0});
+  const double far_m = o.far_distance_m > 0.0 ? o.far_distance_m : 10.0 * link_m;
+  // With a scope (a tile of a scan, whose main body box is given), only the points that could
+  // belong to a far cluster are linked (fifty-seventh session, 2026-11-29): those farther than
+  // far − δ from the main body box, δ the longest link (two cell edges per axis, a millionth
+  // more for the index's rounding, so 2√3 edges) and ε = a millionth of an edge (far above the
+  // distances' rounding). Why the far clusters are the same: the distance to a box changes by
+  // at most a step's length along a chain of links, so a chain from a point farther than `far`
+  // to a point left out passes a kept point within far − ε first, and only through kept points;
+  // a kept component holding no point within far − ε is then the whole cloud's component (its
+  // points, box and count), and one holding such a point has a gap below `far`, as has the
+  // whole cloud's component around it: not far, not removed. The cells are the whole cloud's (its
+  // box's origin and edge). On a tile of a scanned surface almost every point lies in the main
+  // body's box, so the linking, the larger part of the tile's far-cluster time, is spared.
+  std::size_t near_main_body = 0;
+  if (scope != nullptr) {
+    const double delta = 2.0 * std::sqrt(3.0) * edge * (1.0 + 1e-6) + 1e-6 * edge;
+    const double cut = far_m - delta;  // a point at most this far from the box cannot be in a far cluster
+    if (cut >= 0.0) {
+      const double cut2 = cut * cut;
+      const Eigen::Vector3d& bmin = scope->main_body_min_m;
+      const Eigen::Vector3d& bmax = scope->main_body_max_m;
+      std::size_t w = 0;
+      for (const std::uint32_t i : rows) {
+        const double* q = xyz + 3 * static_cast<std::size_t>(i);
+        double d2 = 0.0;
+        for (int a = 0; a < 3; ++a) {
+          const double g = std::max({bmin[a] - q[a], q[a] - bmax[a], 0.0});
+          d2 += g * g;
+        }
+        if (!(d2 <= cut2)) rows[w++] = i;
+      }
+      near_main_body = rows.size() - w;
+      rows.resize(w);
+    }
+  }
+  const std::size_t n = rows.size();
+  const int threads = threads_for(n);
+  if (n == 0) {  // every point within far − δ of the scope's main body: no far cluster
+    FarClusters none;
+    none.link_m = link_m;
+    none.far_distance_m = far_m;
+    none.points_near_main_body = near_main_body;
+    none.main_body.min_m = scope->main_body_min_m;
+    none.main_body.max_m = scope->main_body_max_m;
+    none.main_body.centroid_m = 0.5 * (scope->main_body_min_m + scope->main_body_max_m);
+    if (removed_rows) removed_rows->clear();
+    return none;
+  }
   std::array<std::int64_t, 3> nc{};
   for (std::size_t a = 0; a < 3; ++a) nc[a] = static_cast<std::int64_t>((hi[a] - lo[a]) / edge) + 1;
   auto key_of = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
@@ -1623,7 +1670,8 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   std::stable_sort(rank.begin(), rank.end(), [&](std::uint32_t a, std::uint32_t b) { return comps[a].count > comps[b].count; });
   FarClusters result;
   result.link_m = link_m;
-  result.far_distance_m = o.far_distance_m > 0.0 ? o.far_distance_m : 10.0 * link_m;
+  result.far_distance_m = far_m;
+  result.points_near_main_body = near_main_body;
   if (scope != nullptr) {  // the whole scan's main body; every component of the part judged
     result.main_body.min_m = scope->main_body_min_m;
     result.main_body.max_m = scope->main_body_max_m;
@@ -1712,7 +1760,10 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
   report.figure("far_clusters", static_cast<double>(removed_clusters));
   report.figure("removed_far_clusters", static_cast<double>(report.count_in - report.count_out));
   report.figure("kept_far_clusters", static_cast<double>(kept_far));
-  if (scope != nullptr) report.figure("undecided_far_clusters", static_cast<double>(undecided));
+  if (scope != nullptr) {
+    report.figure("undecided_far_clusters", static_cast<double>(undecided));
+    report.figure("points_near_main_body", static_cast<double>(fc.points_near_main_body));
+  }
   std::size_t listed = 0;
   for (const auto& c : fc.others) {
     if (!c.removed && !(c.gap_m > fc.far_distance_m)) continue;

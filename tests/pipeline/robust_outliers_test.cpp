@@ -28,6 +28,9 @@
 #include <sstream>
 #include <functional>
 #include <limits>
+#include <map>
+#include <numeric>
+#include <tuple>
 #include <algorithm>
 #include <optional>
 #include <random>
@@ -1277,7 +1280,8 @@ TEST(FarClusters, CompactBoxGivesTheSameKnownAnswer) {
 // 0.304). Linked at 2 cm, far beyond 10 cm. The known answers by construction:
 // - alone (no scope) P and Q are far from the square, the part's main body: both removed;
 // - with the whole scan's main body box holding all three (a statue whose other parts link
-//   them outside the part), nothing is far: all kept, every component listed with gap 0;
+//   them outside the part), nothing is far: all kept; every point lies within far − 2√3 cell
+//   edges of the box, so none is linked and no component listed (find_far_clusters);
 // - with a main body box that is the square's, both far; Q's box grown by two cell edges (4 cm)
 //   reaches x = 0.344, so a complete box ending at x = 0.33 leaves Q undecided (kept) and P
 //   removed; one ending at x = 0.36 removes both;
@@ -1301,11 +1305,8 @@ TEST(FarClusters, AScopeJudgesEveryComponentAgainstTheWholeScansMainBodyAndRemov
   whole.main_body_max_m = Eigen::Vector3d(1.0, 1.0, 1.0);
   whole.points = 100000;
   const FarClusters in_body = find_far_clusters(c, 0.02, o, &whole);
-  ASSERT_EQ(in_body.others.size(), 3U) << "with a scope every component is judged, the part's largest too";
-  for (const PointCluster& pc : in_body.others) {
-    EXPECT_EQ(pc.gap_m, 0.0);
-    EXPECT_FALSE(pc.removed || pc.undecided);
-  }
+  EXPECT_TRUE(in_body.others.empty()) << "every point within far - 2 sqrt(3) edges of the main body box: none linked";
+  EXPECT_EQ(in_body.points_near_main_body, 310U);
   EXPECT_EQ(in_body.main_body.count, 0U);
   EXPECT_EQ(in_body.main_body.max_m, whole.main_body_max_m);
   EXPECT_EQ(kept_points(&whole), 310U);
@@ -1321,7 +1322,8 @@ TEST(FarClusters, AScopeJudgesEveryComponentAgainstTheWholeScansMainBodyAndRemov
   EXPECT_EQ(figure(r.report, "undecided_far_clusters"), 1.0);
   EXPECT_EQ(figure(r.report, "kept_far_clusters"), 0.0);
   const FarClusters at_edge = find_far_clusters(c, 0.02, o, &square);
-  ASSERT_EQ(at_edge.others.size(), 3U);
+  ASSERT_EQ(at_edge.others.size(), 2U) << "P and Q; the square lies in the main body box, not linked";
+  EXPECT_EQ(at_edge.points_near_main_body, 300U);
   std::size_t undecided = 0;
   for (const PointCluster& pc : at_edge.others) {
     if (!pc.undecided) continue;
@@ -1341,6 +1343,159 @@ TEST(FarClusters, AScopeJudgesEveryComponentAgainstTheWholeScansMainBodyAndRemov
   const auto large = remove_far_clusters(c, 0.02, o, &square);
   EXPECT_EQ(large.value.size(), 310U) << "4 points are small: P and Q are not";
   EXPECT_EQ(figure(large.report, "kept_far_clusters"), 2.0);
+}
+
+// With a scope, far-cluster removal links only the points farther than far − 2√3 cell edges
+// from the main body box (find_far_clusters). The oracle links every finite point pair by pair
+// (no cell table, no union of cells: two points are joined when their cells, edge
+// max(link, extent / 2097150) from the box's low corner, differ by at most one per axis, the
+// linking find_far_clusters documents) and applies the removal rules to the components. The
+// clouds are built to cross the cut: a slab (the main body) with chains of points 1.5 cm apart
+// running out of it past `far`, their outer parts small enough to be removed were they cut off
+// (leaving out the points within `far` instead of far − 2√3 edges fails here), clusters just
+// inside and just past `far`, an L-shaped cluster whose box comes nearer than its points, and
+// scattered points; main body boxes that hold the slab or only part of it, complete boxes
+// that cut some clusters off. Each case: the removed points (their columns), and the far
+// components (count, box, removed, undecided) equal the oracle's.
+TEST(FarClusters, AScopeLinksOnlyThePointsThatCouldBeFarAndFindsTheFarClustersOfLinkingEveryPoint) {
+  struct Comp {
+    std::size_t count = 0;
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    bool removed = false, undecided = false;
+    auto key() const { return std::tuple(count, lo.x(), lo.y(), lo.z(), hi.x(), hi.y(), hi.z(), removed, undecided); }
+  };
+  // The oracle: every pair, the rules of FarClusterScope and remove_far_clusters.
+  const auto oracle = [](const std::vector<Eigen::Vector3d>& p, double link, double far, const FarClusterOptions& o,
+                         const FarClusterScope& scope, std::vector<std::size_t>& removed) {
+    Eigen::Vector3d lo = p[0], hi = p[0];
+    for (const auto& q : p) {
+      lo = lo.cwiseMin(q);
+      hi = hi.cwiseMax(q);
+    }
+    const double edge = std::max({link, (hi.x() - lo.x()) / 2097150.0, (hi.y() - lo.y()) / 2097150.0, (hi.z() - lo.z()) / 2097150.0});
+    std::vector<std::array<std::int64_t, 3>> cell(p.size());
+    for (std::size_t i = 0; i < p.size(); ++i) {
+      for (int a = 0; a < 3; ++a) {
+        const auto cells = static_cast<std::int64_t>((hi[a] - lo[a]) / edge) + 1;
+        cell[i][a] = std::clamp<std::int64_t>(static_cast<std::int64_t>((p[i][a] - lo[a]) * (1.0 / edge)), 0, cells - 1);
+      }
+    }
+    std::vector<std::size_t> up(p.size());
+    std::iota(up.begin(), up.end(), std::size_t{0});
+    std::function<std::size_t(std::size_t)> root = [&](std::size_t i) { return up[i] == i ? i : up[i] = root(up[i]); };
+    for (std::size_t i = 0; i < p.size(); ++i) {
+      for (std::size_t j = i + 1; j < p.size(); ++j) {
+        if (std::abs(cell[i][0] - cell[j][0]) <= 1 && std::abs(cell[i][1] - cell[j][1]) <= 1 && std::abs(cell[i][2] - cell[j][2]) <= 1) {
+          up[root(i)] = root(j);
+        }
+      }
+    }
+    std::map<std::size_t, Comp> comps;
+    for (std::size_t i = 0; i < p.size(); ++i) {
+      Comp& c = comps[root(i)];
+      ++c.count;
+      c.lo = c.lo.cwiseMin(p[i]);
+      c.hi = c.hi.cwiseMax(p[i]);
+    }
+    const double small = std::max(static_cast<double>(o.max_points), o.max_fraction * static_cast<double>(scope.points));
+    const double reach = 2.0 * edge * (1.0 + 1e-6);
+    std::vector<Comp> far_comps;
+    for (auto& [r, c] : comps) {
+      const double gap = (scope.main_body_min_m - c.hi).cwiseMax(c.lo - scope.main_body_max_m).cwiseMax(0.0).norm();
+      if (!(gap > far)) continue;
+      if (static_cast<double>(c.count) <= small) {
+        const auto& b = scope.complete_xy_m;
+        const bool complete = c.lo.x() - reach >= b[0] && c.hi.x() + reach <= b[1] && c.lo.y() - reach >= b[2] && c.hi.y() + reach <= b[3];
+        c.removed = complete;
+        c.undecided = !complete;
+      }
+      far_comps.push_back(c);
+    }
+    removed.clear();
+    for (std::size_t i = 0; i < p.size(); ++i)
+      if (comps[root(i)].removed) removed.push_back(i);
+    std::sort(far_comps.begin(), far_comps.end(), [](const Comp& a, const Comp& b) { return a.key() < b.key(); });
+    return far_comps;
+  };
+
+  const double link = 0.02;
+  std::size_t cases = 0, removed_total = 0, kept_far_total = 0, left_out_total = 0;
+  for (const unsigned seed : {1u, 2u, 3u, 4u, 5u, 6u}) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::vector<Eigen::Vector3d> pts;
+    for (int i = 0; i < 1500; ++i) pts.emplace_back(u(rng), 0.5 * u(rng), 0.02 * u(rng));  // the slab
+    const double far = seed % 2 == 0 ? 0.1 : 0.2;
+    // Chains from inside the slab out past `far` in x, y and z, 1.5 cm steps (linked: adjacent
+    // cells), their outer parts 3 to 8 points.
+    for (int chain = 0; chain < 6; ++chain) {
+      const Eigen::Vector3d dir = chain % 3 == 0 ? Eigen::Vector3d(1, 0, 0) : chain % 3 == 1 ? Eigen::Vector3d(0, 1, 0) : Eigen::Vector3d(0, 0, 1);
+      const Eigen::Vector3d from = chain % 3 == 0 ? Eigen::Vector3d(0.95, 0.1 + 0.06 * chain, 0.01)
+                                 : chain % 3 == 1 ? Eigen::Vector3d(0.1 + 0.13 * chain, 0.45, 0.01)
+                                                  : Eigen::Vector3d(0.1 + 0.13 * chain, 0.1 + 0.05 * chain, 0.015);
+      const int steps = static_cast<int>((far + 0.05 + 0.015 * (chain % 4)) / 0.015) + 3;
+      for (int k = 0; k < steps; ++k) pts.push_back(from + 0.015 * k * dir);
+    }
+    // Clusters of 4 points 1 cm apart: at gaps far − 3 cm to far + 3 cm from the slab in -x,
+    // and one in +y; an L beyond the slab's corner whose box reaches nearer than its points.
+    for (int d = -3; d <= 3; ++d) {
+      const double gap = far + 0.01 * d + 0.001 * seed;
+      for (int k = 0; k < 4; ++k) pts.emplace_back(-gap - 0.01 * k, 0.05 + 0.06 * (d + 3), 0.01);
+      for (int k = 0; k < 4; ++k) pts.emplace_back(0.05 + 0.12 * (d + 3), 0.5 + gap + 0.01 * k, 0.01);
+    }
+    // The L: two arms of 3 points 1.5 cm apart off the slab's (1, 0.5) corner, its box's near
+    // corner (0.7 far out in x and y: a gap of 0.99 far) empty, every point more than far out.
+    for (int k = 0; k < 3; ++k) pts.emplace_back(1.0 + 0.7 * far + 0.015 * k, 0.5 + 0.7 * far + 0.03, 0.01);
+    for (int k = 0; k < 3; ++k) pts.emplace_back(1.0 + 0.7 * far + 0.03, 0.5 + 0.7 * far + 0.015 * k, 0.01);
+    // And a cluster too large to remove (12 points) well past far.
+    for (int k = 0; k < 12; ++k) pts.emplace_back(1.0 + 2.0 * far + 0.01 * k, 0.25, 0.01);
+    for (int i = 0; i < 60; ++i) pts.emplace_back(-0.5 + 2.0 * u(rng), -0.5 + 1.5 * u(rng), -0.3 + 0.6 * u(rng));
+    const Cloud c = cloud_of(pts);
+    FarClusterOptions o;
+    o.far_distance_m = far;
+    o.max_points = 7;
+    o.max_fraction = 0.0;
+    for (int box = 0; box < 3; ++box) {
+      FarClusterScope scope;
+      scope.points = 100000;
+      scope.main_body_min_m = Eigen::Vector3d(0.0, 0.0, 0.0);
+      scope.main_body_max_m = box == 1 ? Eigen::Vector3d(0.6, 0.5, 0.02) : Eigen::Vector3d(1.0, 0.5, 0.02);
+      if (box == 2) scope.complete_xy_m = {-0.25, 1.1, -1.0, 0.62};
+      std::vector<std::size_t> want_removed;
+      const std::vector<Comp> want = oracle(pts, link, far, o, scope, want_removed);
+      RemovedPoints got_removed;
+      const auto r = remove_far_clusters(c, link, o, &scope, 0, &got_removed);
+      const std::vector<std::size_t> got_at(got_removed.at.begin(), got_removed.at.end());
+      EXPECT_EQ(got_at, want_removed) << "seed " << seed << ", box " << box;
+      const FarClusters fc = find_far_clusters(c, link, o, &scope);
+      std::vector<Comp> got;
+      for (const PointCluster& pc : fc.others) {
+        if (!(pc.gap_m > far)) continue;
+        Comp g;
+        g.count = pc.count;
+        g.lo = pc.min_m;
+        g.hi = pc.max_m;
+        g.removed = pc.removed;
+        g.undecided = pc.undecided;
+        got.push_back(g);
+      }
+      std::sort(got.begin(), got.end(), [](const Comp& a, const Comp& b) { return a.key() < b.key(); });
+      ASSERT_EQ(got.size(), want.size()) << "seed " << seed << ", box " << box;
+      for (std::size_t i = 0; i < got.size(); ++i) EXPECT_EQ(got[i].key(), want[i].key()) << "seed " << seed << ", box " << box << ", far component " << i;
+      EXPECT_GT(fc.points_near_main_body, 0U);
+      EXPECT_EQ(figure(r.report, "points_near_main_body"), static_cast<double>(fc.points_near_main_body));
+      ++cases;
+      removed_total += want_removed.size();
+      for (const Comp& w : want) kept_far_total += w.removed ? 0 : 1;
+      left_out_total += fc.points_near_main_body;
+    }
+  }
+  // The cases are not empty: points left out, far clusters removed and kept.
+  EXPECT_EQ(cases, 18U);
+  EXPECT_GT(removed_total, 100U);
+  EXPECT_GT(kept_far_total, 10U);
+  EXPECT_GT(left_out_total, 18U * 800U);
 }
 
 }  // namespace

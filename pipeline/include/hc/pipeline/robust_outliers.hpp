@@ -338,8 +338,13 @@ struct FarClusters {
   /// The largest component; with a FarClusterScope, the scope's main body box (count 0,
   /// centroid its centre), the whole scan's.
   PointCluster main_body;
-  /// Every other component, largest first; with a scope, every component.
+  /// Every other component, largest first; with a scope, every component of the points that
+  /// could belong to a far cluster (farther than far_distance_m − 2√3 cell edges from the main
+  /// body box; the others cannot, and are not linked: see find_far_clusters).
   std::vector<PointCluster> others;
+  /// With a scope: the finite points left out of the linking as too near the main body box to
+  /// belong to a far cluster [-]; 0 without one.
+  std::size_t points_near_main_body = 0;
 };
 
 /// Connected components of the finite points at linking distance link_m, and which of them are
@@ -351,7 +356,14 @@ struct FarClusters {
 /// @param link_m  > 0 [m]; far_distance_m in `options` (0 = 10·link_m) and max_points /
 ///                max_fraction decide `removed`.
 /// @param scope   when given, the cloud is part of a scan (FarClusterScope): gaps to its main
-///                body box, N its points, removal only of clusters complete in its box.
+///                body box, N its points, removal only of clusters complete in its box. Only
+///                the points farther than far − δ from the main body box are linked (δ: the
+///                longest link, 2√3 cell edges, plus a millionth of an edge), on the cells of the
+///                whole cloud's box: the far clusters, their points, boxes and counts are those
+///                of linking every point (a chain of links from a point beyond `far` to one left
+///                out passes a linked point within far − ε, so its component is not far either
+///                way); `others` lists the linked points' components only (fifty-seventh
+///                session; before, every point was linked).
 /// @throws hc::ConfigError if link_m <= 0 or not finite; hc::InputError if no point is finite.
 FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarClusterOptions& options,
                               const FarClusterScope* scope = nullptr);
@@ -363,7 +375,8 @@ FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarCluste
 /// centroid, gap) in a note; figures: link_mm, far_distance_mm, clusters, far_clusters,
 /// removed_far_clusters (points), kept_far_clusters (far but too large: still in the cloud);
 /// with a scope also undecided_far_clusters (small and far, kept at the scope's edge: see
-/// FarClusterScope).
+/// FarClusterScope) and points_near_main_body (left out of the linking: find_far_clusters), and
+/// `clusters` counts the components of the linked points only.
 /// @param link_m  linking distance [m], > 0 (build_scene: options.link_m, or when 0 the robust
 ///                test's global threshold distance, the largest mean k-NN distance it keeps)
 /// @param scope   see find_far_clusters (the tiled run's tiles); nullptr: the whole scan
