@@ -1672,7 +1672,7 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   result.link_m = link_m;
   result.far_distance_m = far_m;
   result.points_near_main_body = near_main_body;
-  if (scope != nullptr) {  // the whole scan's main body; every component of the part judged
+  if (scope != nullptr) {  // the whole scan's main body; every component of the linked points judged
     result.main_body.min_m = scope->main_body_min_m;
     result.main_body.max_m = scope->main_body_max_m;
     result.main_body.centroid_m = 0.5 * (scope->main_body_min_m + scope->main_body_max_m);
@@ -1756,7 +1756,8 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
   report.count_out = cloud.size();
   report.figure("link_mm", fc.link_m * 1e3);
   report.figure("far_distance_mm", fc.far_distance_m * 1e3);
-  report.figure("clusters", static_cast<double>(fc.others.size() + 1));
+  // With a scope the main body is the scope's box, no component of the cloud.
+  report.figure("clusters", static_cast<double>(fc.others.size() + (scope != nullptr ? 0 : 1)));
   report.figure("far_clusters", static_cast<double>(removed_clusters));
   report.figure("removed_far_clusters", static_cast<double>(report.count_in - report.count_out));
   report.figure("kept_far_clusters", static_cast<double>(kept_far));

@@ -1287,7 +1287,7 @@ TEST(FarClusters, CompactBoxGivesTheSameKnownAnswer) {
 //   removed; one ending at x = 0.36 removes both;
 // - N of the size limit is the scope's: max_points 4, max_fraction 0.01 and 1000 points give 10
 //   (both small: removed); 100 points give 4 (both too large: kept far).
-TEST(FarClusters, AScopeJudgesEveryComponentAgainstTheWholeScansMainBodyAndRemovesOnlyCompleteOnes) {
+TEST(FarClusters, AScopeJudgesTheLinkedComponentsAgainstTheWholeScansMainBodyAndRemovesOnlyCompleteOnes) {
   std::mt19937 rng(9);
   std::uniform_real_distribution<double> u(0.0, 1.0);
   std::vector<Eigen::Vector3d> pts;
@@ -1345,6 +1345,70 @@ TEST(FarClusters, AScopeJudgesEveryComponentAgainstTheWholeScansMainBodyAndRemov
   EXPECT_EQ(figure(large.report, "kept_far_clusters"), 2.0);
 }
 
+struct FarComp {
+    std::size_t count = 0;
+    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    Eigen::Vector3d hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
+    bool removed = false, undecided = false;
+  auto key() const { return std::tuple(count, lo.x(), lo.y(), lo.z(), hi.x(), hi.y(), hi.z(), removed, undecided); }
+};
+// The far-cluster oracle: every finite point pair linked when their cells (edge
+// max(link, extent / 2097150) from the box's low corner) differ by at most one per axis, then
+// the rules of FarClusterScope and remove_far_clusters on the components. Returns the far
+// components (gap > far) in key order; `removed` gets the removed points' indices.
+std::vector<FarComp> far_oracle(const std::vector<Eigen::Vector3d>& p, double link, double far, const FarClusterOptions& o,
+                                const FarClusterScope& scope, std::vector<std::size_t>& removed) {
+  Eigen::Vector3d lo = p[0], hi = p[0];
+  for (const auto& q : p) {
+    lo = lo.cwiseMin(q);
+    hi = hi.cwiseMax(q);
+  }
+  const double edge = std::max({link, (hi.x() - lo.x()) / 2097150.0, (hi.y() - lo.y()) / 2097150.0, (hi.z() - lo.z()) / 2097150.0});
+  std::vector<std::array<std::int64_t, 3>> cell(p.size());
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    for (int a = 0; a < 3; ++a) {
+      const auto cells = static_cast<std::int64_t>((hi[a] - lo[a]) / edge) + 1;
+      cell[i][a] = std::clamp<std::int64_t>(static_cast<std::int64_t>((p[i][a] - lo[a]) * (1.0 / edge)), 0, cells - 1);
+    }
+  }
+  std::vector<std::size_t> up(p.size());
+  std::iota(up.begin(), up.end(), std::size_t{0});
+  std::function<std::size_t(std::size_t)> root = [&](std::size_t i) { return up[i] == i ? i : up[i] = root(up[i]); };
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    for (std::size_t j = i + 1; j < p.size(); ++j) {
+      if (std::abs(cell[i][0] - cell[j][0]) <= 1 && std::abs(cell[i][1] - cell[j][1]) <= 1 && std::abs(cell[i][2] - cell[j][2]) <= 1) {
+        up[root(i)] = root(j);
+      }
+    }
+  }
+  std::map<std::size_t, FarComp> comps;
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    FarComp& c = comps[root(i)];
+    ++c.count;
+    c.lo = c.lo.cwiseMin(p[i]);
+    c.hi = c.hi.cwiseMax(p[i]);
+  }
+  const double small = std::max(static_cast<double>(o.max_points), o.max_fraction * static_cast<double>(scope.points));
+  const double reach = 2.0 * edge * (1.0 + 1e-6);
+  std::vector<FarComp> far_comps;
+  for (auto& [r, c] : comps) {
+    const double gap = (scope.main_body_min_m - c.hi).cwiseMax(c.lo - scope.main_body_max_m).cwiseMax(0.0).norm();
+    if (!(gap > far)) continue;
+    if (static_cast<double>(c.count) <= small) {
+      const auto& b = scope.complete_xy_m;
+      const bool complete = c.lo.x() - reach >= b[0] && c.hi.x() + reach <= b[1] && c.lo.y() - reach >= b[2] && c.hi.y() + reach <= b[3];
+      c.removed = complete;
+      c.undecided = !complete;
+    }
+    far_comps.push_back(c);
+  }
+  removed.clear();
+  for (std::size_t i = 0; i < p.size(); ++i)
+    if (comps[root(i)].removed) removed.push_back(i);
+  std::sort(far_comps.begin(), far_comps.end(), [](const FarComp& a, const FarComp& b) { return a.key() < b.key(); });
+  return far_comps;
+}
+
 // With a scope, far-cluster removal links only the points farther than far − 2√3 cell edges
 // from the main body box (find_far_clusters). The oracle links every finite point pair by pair
 // (no cell table, no union of cells: two points are joined when their cells, edge
@@ -1358,67 +1422,6 @@ TEST(FarClusters, AScopeJudgesEveryComponentAgainstTheWholeScansMainBodyAndRemov
 // that cut some clusters off. Each case: the removed points (their columns), and the far
 // components (count, box, removed, undecided) equal the oracle's.
 TEST(FarClusters, AScopeLinksOnlyThePointsThatCouldBeFarAndFindsTheFarClustersOfLinkingEveryPoint) {
-  struct Comp {
-    std::size_t count = 0;
-    Eigen::Vector3d lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-    Eigen::Vector3d hi = -Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity());
-    bool removed = false, undecided = false;
-    auto key() const { return std::tuple(count, lo.x(), lo.y(), lo.z(), hi.x(), hi.y(), hi.z(), removed, undecided); }
-  };
-  // The oracle: every pair, the rules of FarClusterScope and remove_far_clusters.
-  const auto oracle = [](const std::vector<Eigen::Vector3d>& p, double link, double far, const FarClusterOptions& o,
-                         const FarClusterScope& scope, std::vector<std::size_t>& removed) {
-    Eigen::Vector3d lo = p[0], hi = p[0];
-    for (const auto& q : p) {
-      lo = lo.cwiseMin(q);
-      hi = hi.cwiseMax(q);
-    }
-    const double edge = std::max({link, (hi.x() - lo.x()) / 2097150.0, (hi.y() - lo.y()) / 2097150.0, (hi.z() - lo.z()) / 2097150.0});
-    std::vector<std::array<std::int64_t, 3>> cell(p.size());
-    for (std::size_t i = 0; i < p.size(); ++i) {
-      for (int a = 0; a < 3; ++a) {
-        const auto cells = static_cast<std::int64_t>((hi[a] - lo[a]) / edge) + 1;
-        cell[i][a] = std::clamp<std::int64_t>(static_cast<std::int64_t>((p[i][a] - lo[a]) * (1.0 / edge)), 0, cells - 1);
-      }
-    }
-    std::vector<std::size_t> up(p.size());
-    std::iota(up.begin(), up.end(), std::size_t{0});
-    std::function<std::size_t(std::size_t)> root = [&](std::size_t i) { return up[i] == i ? i : up[i] = root(up[i]); };
-    for (std::size_t i = 0; i < p.size(); ++i) {
-      for (std::size_t j = i + 1; j < p.size(); ++j) {
-        if (std::abs(cell[i][0] - cell[j][0]) <= 1 && std::abs(cell[i][1] - cell[j][1]) <= 1 && std::abs(cell[i][2] - cell[j][2]) <= 1) {
-          up[root(i)] = root(j);
-        }
-      }
-    }
-    std::map<std::size_t, Comp> comps;
-    for (std::size_t i = 0; i < p.size(); ++i) {
-      Comp& c = comps[root(i)];
-      ++c.count;
-      c.lo = c.lo.cwiseMin(p[i]);
-      c.hi = c.hi.cwiseMax(p[i]);
-    }
-    const double small = std::max(static_cast<double>(o.max_points), o.max_fraction * static_cast<double>(scope.points));
-    const double reach = 2.0 * edge * (1.0 + 1e-6);
-    std::vector<Comp> far_comps;
-    for (auto& [r, c] : comps) {
-      const double gap = (scope.main_body_min_m - c.hi).cwiseMax(c.lo - scope.main_body_max_m).cwiseMax(0.0).norm();
-      if (!(gap > far)) continue;
-      if (static_cast<double>(c.count) <= small) {
-        const auto& b = scope.complete_xy_m;
-        const bool complete = c.lo.x() - reach >= b[0] && c.hi.x() + reach <= b[1] && c.lo.y() - reach >= b[2] && c.hi.y() + reach <= b[3];
-        c.removed = complete;
-        c.undecided = !complete;
-      }
-      far_comps.push_back(c);
-    }
-    removed.clear();
-    for (std::size_t i = 0; i < p.size(); ++i)
-      if (comps[root(i)].removed) removed.push_back(i);
-    std::sort(far_comps.begin(), far_comps.end(), [](const Comp& a, const Comp& b) { return a.key() < b.key(); });
-    return far_comps;
-  };
-
   const double link = 0.02;
   std::size_t cases = 0, removed_total = 0, kept_far_total = 0, left_out_total = 0;
   for (const unsigned seed : {1u, 2u, 3u, 4u, 5u, 6u}) {
@@ -1463,16 +1466,16 @@ TEST(FarClusters, AScopeLinksOnlyThePointsThatCouldBeFarAndFindsTheFarClustersOf
       scope.main_body_max_m = box == 1 ? Eigen::Vector3d(0.6, 0.5, 0.02) : Eigen::Vector3d(1.0, 0.5, 0.02);
       if (box == 2) scope.complete_xy_m = {-0.25, 1.1, -1.0, 0.62};
       std::vector<std::size_t> want_removed;
-      const std::vector<Comp> want = oracle(pts, link, far, o, scope, want_removed);
+      const std::vector<FarComp> want = far_oracle(pts, link, far, o, scope, want_removed);
       RemovedPoints got_removed;
       const auto r = remove_far_clusters(c, link, o, &scope, 0, &got_removed);
       const std::vector<std::size_t> got_at(got_removed.at.begin(), got_removed.at.end());
       EXPECT_EQ(got_at, want_removed) << "seed " << seed << ", box " << box;
       const FarClusters fc = find_far_clusters(c, link, o, &scope);
-      std::vector<Comp> got;
+      std::vector<FarComp> got;
       for (const PointCluster& pc : fc.others) {
         if (!(pc.gap_m > far)) continue;
-        Comp g;
+        FarComp g;
         g.count = pc.count;
         g.lo = pc.min_m;
         g.hi = pc.max_m;
@@ -1480,14 +1483,14 @@ TEST(FarClusters, AScopeLinksOnlyThePointsThatCouldBeFarAndFindsTheFarClustersOf
         g.undecided = pc.undecided;
         got.push_back(g);
       }
-      std::sort(got.begin(), got.end(), [](const Comp& a, const Comp& b) { return a.key() < b.key(); });
+      std::sort(got.begin(), got.end(), [](const FarComp& a, const FarComp& b) { return a.key() < b.key(); });
       ASSERT_EQ(got.size(), want.size()) << "seed " << seed << ", box " << box;
       for (std::size_t i = 0; i < got.size(); ++i) EXPECT_EQ(got[i].key(), want[i].key()) << "seed " << seed << ", box " << box << ", far component " << i;
       EXPECT_GT(fc.points_near_main_body, 0U);
       EXPECT_EQ(figure(r.report, "points_near_main_body"), static_cast<double>(fc.points_near_main_body));
       ++cases;
       removed_total += want_removed.size();
-      for (const Comp& w : want) kept_far_total += w.removed ? 0 : 1;
+      for (const FarComp& w : want) kept_far_total += w.removed ? 0 : 1;
       left_out_total += fc.points_near_main_body;
     }
   }
@@ -1496,6 +1499,65 @@ TEST(FarClusters, AScopeLinksOnlyThePointsThatCouldBeFarAndFindsTheFarClustersOf
   EXPECT_GT(removed_total, 100U);
   EXPECT_GT(kept_far_total, 10U);
   EXPECT_GT(left_out_total, 18U * 800U);
+}
+
+// The longest link crosses the cut: a small cluster P past `far` off the main body box's
+// corner, joined to the box by one step across two cell diagonals (opposite corners of
+// diagonally adjacent cells, 1.96 edges per axis: 3.4 edges) to a point q, which a chain of
+// short steps joins to the box. q lies beyond far − 2√3 edges (linked) but within far − 2
+// edges and far − 2√3 links: leaving out the points within either of those instead (δ too
+// short, or taken from the link where the cell edge is longer) cuts P off, and P, small and
+// far, would be removed; linking every point (the oracle) keeps it, joined to the main body.
+// Two scales: the cell edge the link (2 cm), and an edge of 4.8 cm set by a point 100 km away.
+TEST(FarClusters, AClusterOneLongLinkFromAPointNearTheCutIsKeptWithTheMainBody) {
+  for (const bool long_edge : {false, true}) {
+    const double link = 0.02, far = long_edge ? 0.3 : 0.1;
+    const int k = long_edge ? 2 : 1;  // q's cell: k cells out from the corner's, per axis
+    std::vector<Eigen::Vector3d> pts;
+    pts.emplace_back(-0.5, -0.5, -0.5);  // the cells' low corner (a far point: removed)
+    if (long_edge) pts.emplace_back(1e5, 0.0, 0.0);
+    const Eigen::Vector3d lo(-0.5, -0.5, -0.5);
+    const double extent = long_edge ? 1e5 + 0.5 : 0.0;
+    const double edge = std::max(link, extent / 2097150.0);
+    ASSERT_EQ(edge > link, long_edge);
+    // The main body box's high corner c on a cell corner near (1, 0.5, 0.02); the slab under it.
+    Eigen::Vector3d c;
+    for (int a = 0; a < 3; ++a) c[a] = lo[a] + edge * std::round((Eigen::Vector3d(1.0, 0.5, 0.02)[a] - lo[a]) / edge);
+    for (double x = 0.0; x <= c.x(); x += 0.01)
+      for (double y = 0.0; y <= c.y(); y += 0.01) pts.emplace_back(x, y, 0.5 * c.z());
+    pts.push_back(c);
+    const Eigen::Vector3d one(1.0, 1.0, 1.0);
+    const Eigen::Vector3d q = c + edge * (k + 0.02) * one;
+    for (double t = 0.01; t < edge * (k + 0.02); t += 0.01) pts.push_back(c + t * one);  // the chain to q
+    pts.push_back(q);
+    const Eigen::Vector3d p = c + edge * (k + 1 + 0.98) * one;
+    const std::size_t p_at = pts.size();
+    pts.push_back(p);
+    pts.push_back(p - Eigen::Vector3d(0.001, 0.0, 0.0));
+    pts.push_back(p - Eigen::Vector3d(0.0, 0.001, 0.0));
+    const double dq = (q - c).norm(), dp = (p - Eigen::Vector3d(0.001, 0.0, 0.0) - c).norm();
+    const double cut = far - 2.0 * std::sqrt(3.0) * edge;
+    ASSERT_GT(dq, cut + 1e-4) << "q is linked";
+    ASSERT_LT(dq, far - (long_edge ? 2.0 * std::sqrt(3.0) * link : 2.0 * edge)) << "q lies within the wrong cuts";
+    ASSERT_GT(dp, far) << "P is far";
+
+    FarClusterScope scope;
+    scope.points = 100000;
+    scope.main_body_min_m = Eigen::Vector3d::Zero();
+    scope.main_body_max_m = c;
+    FarClusterOptions o;
+    o.far_distance_m = far;
+    o.max_points = 7;
+    o.max_fraction = 0.0;
+    std::vector<std::size_t> want_removed;
+    const std::vector<FarComp> want = far_oracle(pts, link, far, o, scope, want_removed);
+    EXPECT_EQ(std::count(want_removed.begin(), want_removed.end(), p_at), 0) << "the oracle keeps P, joined to the main body";
+    EXPECT_EQ(std::count(want_removed.begin(), want_removed.end(), std::size_t{0}), 1) << "and removes the corner point";
+    RemovedPoints got;
+    (void)remove_far_clusters(cloud_of(pts), link, o, &scope, 0, &got);
+    EXPECT_EQ(std::vector<std::size_t>(got.at.begin(), got.at.end()), want_removed) << (long_edge ? "long edge" : "edge = link");
+    EXPECT_GT(find_far_clusters(cloud_of(pts), link, o, &scope).points_near_main_body, pts.size() / 2);
+  }
 }
 
 }  // namespace

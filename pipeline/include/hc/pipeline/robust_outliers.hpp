@@ -315,7 +315,8 @@ struct PointCluster {
 struct FarClusterScope {
   /// The whole scan's main body's bounding box, in the cloud's frame [m]: gaps are measured to
   /// it instead of to the part's largest component (a fragment of a statue cut off by a tile's
-  /// edge is then never far), and every component of the part is judged, its largest too. The
+  /// edge is then never far), and every component of the linked points (find_far_clusters) is
+  /// judged, the part's largest too. The
   /// tiled run passes the box of the largest component of its whole-scan pass on coarse cells
   /// (stage tile_far_clusters), which holds the in-core main body's box.
   Eigen::Vector3d main_body_min_m{0, 0, 0}, main_body_max_m{0, 0, 0};
@@ -376,7 +377,8 @@ FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarCluste
 /// removed_far_clusters (points), kept_far_clusters (far but too large: still in the cloud);
 /// with a scope also undecided_far_clusters (small and far, kept at the scope's edge: see
 /// FarClusterScope) and points_near_main_body (left out of the linking: find_far_clusters), and
-/// `clusters` counts the components of the linked points only.
+/// `clusters` is the number of the linked points' components (without a scope: the main body
+/// and the others).
 /// @param link_m  linking distance [m], > 0 (build_scene: options.link_m, or when 0 the robust
 ///                test's global threshold distance, the largest mean k-NN distance it keeps)
 /// @param scope   see find_far_clusters (the tiled run's tiles); nullptr: the whole scan
