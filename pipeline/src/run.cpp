@@ -26,6 +26,7 @@
 #include <nlohmann/json.hpp>
 #include <openssl/evp.h>
 #include <sys/resource.h>
+#include <sys/sysinfo.h>
 
 #ifdef __GLIBC__
 #include <malloc.h>
@@ -783,6 +784,75 @@ HeapPolicyTaken keep_freed_heap_for_reuse() noexcept {
   return taken;
 }
 
+std::uint64_t memory_limit_bytes() noexcept {
+  std::uint64_t limit = 0;
+  struct sysinfo si {};
+  if (sysinfo(&si) == 0) {
+    limit = (static_cast<std::uint64_t>(si.totalram) + static_cast<std::uint64_t>(si.totalswap)) * si.mem_unit;
+  }
+  // The memory cgroup's limit, and its ancestors' (a container's, a systemd slice's): cgroup v2
+  // (the line "0::<path>" of /proc/self/cgroup; memory.max, "max" when none) or v1 (the line
+  // "<n>:memory:<path>"; memory.limit_in_bytes, a huge number when none).
+  const auto lower_to = [&limit](const std::filesystem::path& file) {
+    std::ifstream f(file);
+    std::string text;
+    if (!(f >> text) || text.empty() || !std::all_of(text.begin(), text.end(), [](char ch) { return ch >= '0' && ch <= '9'; })) return;
+    const std::uint64_t cg = std::strtoull(text.c_str(), nullptr, 10);
+    if (cg > 0 && (limit == 0 || cg < limit)) limit = cg;
+  };
+  std::ifstream groups("/proc/self/cgroup");
+  for (std::string line; std::getline(groups, line);) {
+    std::filesystem::path root, name;
+    if (line.rfind("0::", 0) == 0) {
+      root = "/sys/fs/cgroup";
+      name = "memory.max";
+      line.erase(0, 3);
+    } else if (const auto at = line.find(":memory:"); at != std::string::npos) {
+      root = "/sys/fs/cgroup/memory";
+      name = "memory.limit_in_bytes";
+      line.erase(0, at + 8);
+    } else {
+      continue;
+    }
+    for (std::filesystem::path dir = std::filesystem::path(line).relative_path();; dir = dir.parent_path()) {
+      lower_to(root / dir / name);
+      if (dir.empty()) break;
+    }
+  }
+  return limit;
+}
+
+void check_in_core_fits(const RunConfig& config, std::uint64_t limit_bytes, const std::string& way_out) {
+  if (limit_bytes == 0) return;
+  const std::optional<std::uint64_t> points = counted_input_points(config);
+  if (!points) return;
+  const auto need = static_cast<long double>(*points) * static_cast<long double>(kInCoreBytesPerPointAtLeast);
+  if (need <= static_cast<long double>(limit_bytes)) return;
+  std::string files;
+  for (const auto& f : config.input.files) files += (files.empty() ? "" : ", ") + f.string();
+  const auto gb = [](long double b) { return format_number(static_cast<double>(b / 1e9), 3) + " GB"; };
+  throw ResourceError(files + ": " + std::to_string(*points) + " points read whole (in core) need at least " + gb(need) +
+                      " (" + std::to_string(kInCoreBytesPerPointAtLeast) + " bytes a point), more than the " +
+                      gb(static_cast<long double>(limit_bytes)) + " of memory and swap this process may use: " + way_out);
+}
+
+void check_in_core_run_fits(const RunConfig& config, bool keep_cloud, std::uint64_t limit_bytes) {
+  std::string why;
+  if (config.scale.tiled == ScaleConfig::Tiled::kOff) {
+    why = "scale.tiled is off; set it to auto or on, and the tiled run streams the scan in chunks (docs/scale.md)";
+  } else if (const std::string refusal = tiled_run_refusal(config); !refusal.empty()) {
+    why = "the run stays in core because " + refusal + ", which the tiled run does not support yet; without it the "
+          "tiled run streams the scan in chunks (docs/scale.md)";
+  } else if (keep_cloud) {
+    why = "the caller keeps the whole cloud (the levels table's cross-check in core); set scale.tiled: on, whose "
+          "run keeps a sample of the points instead";
+  } else {
+    why = "scale.tiled_above_points (" + std::to_string(config.scale.tiled_above_points) +
+          ") keeps it in core; lower it or set scale.tiled: on to stream the scan in chunks";
+  }
+  check_in_core_fits(config, limit_bytes, why);
+}
+
 namespace {
 /// build_scene's choice: scans too large for memory take the streaming tiled run (tiling.hpp;
 /// it keeps no cloud, so a caller that asks for the cloud stays in core unless scale.tiled is on).
@@ -794,6 +864,7 @@ bool takes_tiled_run(const RunConfig& config, bool keep_cloud) {
 
 BuiltScene build_scene(const RunConfig& config, bool keep_cloud, const ProgressFn& progress) {
   if (takes_tiled_run(config, keep_cloud)) return build_scene_tiled(config, progress);
+  check_in_core_run_fits(config, keep_cloud, memory_limit_bytes());  // before minutes of reading, not after
   return build_scene_impl(config, keep_cloud, progress, nullptr);
 }
 

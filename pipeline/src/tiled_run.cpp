@@ -74,23 +74,27 @@ using detail::stage;
 // ---------------------------------------------------------------------------------------------
 // Which configs the tiled run takes.
 
-void refuse(const char* key, const std::string& why) {
-  throw ConfigError(std::string("scale.tiled: on, but ") + key + " " + why +
-                    " (the tiled run does not support it yet: docs/scale.md; set scale.tiled: off)");
+// The first option of `c` the tiled run does not support, as "<key> <why>", or "".
+std::string unsupported_option(const RunConfig& c) {
+  const auto refuse = [](const char* key, const std::string& why) { return std::string(key) + " " + why; };
+  if (c.input.synthetic) return refuse("input.synthetic", "is set");
+  if (c.input.conf) return refuse("input.conf", "is set (a merge of several scans)");
+  if (c.input.files.size() != 1 && !c.input.shared_frame) {
+    return refuse("input.files", "lists " + std::to_string(c.input.files.size()) + " files without input.shared_frame");
+  }
+  if (c.filters.voxel_m > 0.0) return refuse("filters.voxel_m", "is > 0");
+  if (!c.filters.pcl.empty()) return refuse("filters.pcl", "is not empty");
+  if (c.filters.outliers.enabled && c.filters.outliers.method != OutlierMethod::kRobust) {
+    return refuse("filters.outliers.method", "is not robust");
+  }
+  if (c.grid.organised_mesh) return refuse("grid.organised", "is mesh");
+  return {};
 }
 
 void check_supported(const RunConfig& c) {
-  if (c.input.synthetic) refuse("input.synthetic", "is set");
-  if (c.input.conf) refuse("input.conf", "is set (a merge of several scans)");
-  if (c.input.files.size() != 1 && !c.input.shared_frame) {
-    refuse("input.files", "lists " + std::to_string(c.input.files.size()) + " files without input.shared_frame");
+  if (const std::string why = unsupported_option(c); !why.empty()) {
+    throw ConfigError("scale.tiled: on, but " + why + " (the tiled run does not support it yet: docs/scale.md; set scale.tiled: off)");
   }
-  if (c.filters.voxel_m > 0.0) refuse("filters.voxel_m", "is > 0");
-  if (!c.filters.pcl.empty()) refuse("filters.pcl", "is not empty");
-  if (c.filters.outliers.enabled && c.filters.outliers.method != OutlierMethod::kRobust) {
-    refuse("filters.outliers.method", "is not robust");
-  }
-  if (c.grid.organised_mesh) refuse("grid.organised", "is mesh");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1244,14 +1248,8 @@ std::optional<std::uint64_t> gzipped_e57_count(const fs::path& f) {
 
 }  // namespace
 
-bool runs_tiled(const RunConfig& config) {
-  if (config.scale.tiled == ScaleConfig::Tiled::kOff) return false;
-  if (config.scale.tiled == ScaleConfig::Tiled::kOn) {
-    check_supported(config);
-    return true;
-  }
-  if (config.input.synthetic || config.input.conf || config.input.files.empty()) return false;
-  if (config.input.files.size() > 1 && !config.input.shared_frame) return false;
+std::optional<std::uint64_t> counted_input_points(const RunConfig& config) {
+  if (config.input.synthetic || config.input.conf || config.input.files.empty()) return std::nullopt;
   std::uint64_t total = 0;
   for (const fs::path& f : config.input.files) {
     std::string ext;
@@ -1264,12 +1262,12 @@ bool runs_tiled(const RunConfig& config) {
     // tiled run inflates them once: inflate_seeking_inputs).
     const bool text = ext == ".ptx" || ext == ".pts" || ext == ".xyz" || ext == ".txt" || ext == ".obj";
     const bool gz_seeking = gz && detail::reader_seeks(ext);
-    if (!(ext == ".ply" || ext == ".pcd" || text || gz_seeking || (!gz && detail::reader_seeks(ext)))) return false;
+    if (!(ext == ".ply" || ext == ".pcd" || text || gz_seeking || (!gz && detail::reader_seeks(ext)))) return std::nullopt;
     std::error_code ec;
-    if (!fs::is_regular_file(f, ec)) return false;  // (a FIFO would block) the in-core read reports it
+    if (!fs::is_regular_file(f, ec)) return std::nullopt;  // (a FIFO would block) the in-core read reports it
     if (gz_seeking) {
       const std::optional<std::uint64_t> n = ext == ".e57" ? gzipped_e57_count(f) : gzipped_las_count(f);
-      if (!n) return false;
+      if (!n) return std::nullopt;
       total += *n;
       continue;
     }
@@ -1286,12 +1284,25 @@ bool runs_tiled(const RunConfig& config) {
           : ext == ".obj" ? detail::open_obj_stream(f, f.string(), config.input.as_points, gz)
                           : detail::open_xyz_stream(f, f.string(), gz);
     } catch (const InputError&) {
-      return false;  // the in-core read reports the problem
+      return std::nullopt;  // the in-core read reports the problem
     }
-    if (!s) return false;
+    if (!s) return std::nullopt;
     total += s->total_points();
   }
-  if (total <= config.scale.tiled_above_points) return false;
+  return total;
+}
+
+std::string tiled_run_refusal(const RunConfig& config) { return unsupported_option(config); }
+
+bool runs_tiled(const RunConfig& config) {
+  if (config.scale.tiled == ScaleConfig::Tiled::kOff) return false;
+  if (config.scale.tiled == ScaleConfig::Tiled::kOn) {
+    check_supported(config);
+    return true;
+  }
+  if (config.input.files.size() > 1 && !config.input.shared_frame) return false;
+  const std::optional<std::uint64_t> total = counted_input_points(config);
+  if (!total || *total <= config.scale.tiled_above_points) return false;
   try {
     check_supported(config);
   } catch (const ConfigError&) {

@@ -329,6 +329,9 @@ PYBIND11_MODULE(_hapticloud, m) {
       std::optional<hc::pipeline::Cloud> points;
       std::uint64_t points_represent = 0;
       if (config) {
+        hc::pipeline::check_in_core_fits(*config, hc::pipeline::memory_limit_bytes(),
+                                         "leave config out to cross-check against the points sample the folder of a "
+                                         "tiled run's scene stores (points_sample.bin), or pass cross_check=False");
         points = hc::pipeline::prepare_points(*config);
         points_from = "scan";
       } else if (cross_check && !folder.empty()) {

@@ -148,4 +148,62 @@ TEST(SceneIo, MissingOrCorruptScenesAreNamedErrors) {
   EXPECT_THROW(load_scene(dir / "s"), hc::InputError);
 }
 
+// An in-core read of a scan that cannot fit is refused before it starts (check_in_core_fits):
+// an XYZ file of 1 000 points (counted by its lines without parsing them) needs at least
+// 1 000 × kInCoreBytesPerPointAtLeast = 100 000 bytes. The oracle is that product: a limit one
+// byte below it refuses, naming the file, the count and the way out; the product itself, an
+// unknown limit (0) and an uncounted input (a synthetic one) pass. check_in_core_run_fits names
+// what keeps the run in core: scale.tiled off, an option the tiled run lacks (by its key), the
+// count at or below scale.tiled_above_points.
+TEST(InCoreMemory, AScanThatCannotFitIsRefusedBeforeItIsReadNamingTheFileAndTheWayOut) {
+  const fs::path dir = hc::test::temp_dir("in_core_memory");
+  {
+    std::ofstream xyz(dir / "scan.xyz");
+    for (int i = 0; i < 1000; ++i) xyz << 0.001 * i << " " << 0.002 * (i % 37) << " " << 0.0005 * (i % 11) << "\n";
+  }
+  const auto config_with = [&](const std::string& extra) {
+    return parse_run_config("input: {files: [scan.xyz], units: m}\ngrid: {n: 40}\n" + extra, dir / "run.yaml");
+  };
+  const RunConfig off = config_with("scale: {tiled: \"off\"}\n");
+  const std::uint64_t need = 1000 * kInCoreBytesPerPointAtLeast;
+  try {
+    check_in_core_fits(off, need - 1, "THE WAY OUT");
+    ADD_FAILURE() << "a limit below the need was not refused";
+  } catch (const hc::ResourceError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("scan.xyz"), std::string::npos) << m;
+    EXPECT_NE(m.find("1000 points"), std::string::npos) << m;
+    EXPECT_NE(m.find("THE WAY OUT"), std::string::npos) << m;
+  }
+  EXPECT_NO_THROW(check_in_core_fits(off, need, "x"));
+  EXPECT_NO_THROW(check_in_core_fits(off, 0, "x")) << "an unknown limit refuses nothing";
+  EXPECT_NO_THROW(check_in_core_fits(parse_run_config("input: {synthetic: {surface: sinusoid}}\ngrid: {n: 40}\n", dir / "s.yaml"), 1, "x"))
+      << "an input not counted without reading it";
+  const auto why = [&](const RunConfig& c) {
+    try {
+      check_in_core_run_fits(c, false, 1);
+    } catch (const hc::ResourceError& e) {
+      return std::string(e.what());
+    }
+    return std::string("(not refused)");
+  };
+  EXPECT_NE(why(off).find("scale.tiled is off"), std::string::npos) << why(off);
+  const RunConfig voxel = config_with("filters: {voxel_m: 0.01}\n");
+  EXPECT_NE(why(voxel).find("filters.voxel_m"), std::string::npos) << why(voxel);
+  const RunConfig small = config_with("");
+  EXPECT_NE(why(small).find("scale.tiled_above_points"), std::string::npos) << why(small);
+  // The limit this process reports: some memory, no more than the machine's RAM and swap.
+  std::ifstream meminfo("/proc/meminfo");
+  std::uint64_t total_kb = 0;
+  for (std::string key; meminfo >> key;) {
+    std::uint64_t kb = 0;
+    meminfo >> kb;
+    if (key == "MemTotal:" || key == "SwapTotal:") total_kb += kb;
+    meminfo.ignore(64, '\n');
+  }
+  ASSERT_GT(total_kb, 0U);
+  EXPECT_GT(memory_limit_bytes(), 0U);
+  EXPECT_LE(memory_limit_bytes(), total_kb * 1024 + 4096);
+}
+
 }  // namespace

@@ -115,6 +115,30 @@ struct HeapPolicyTaken {
 /// {false, false}.
 HeapPolicyTaken keep_freed_heap_for_reuse() noexcept;
 
+/// The memory this process may use [bytes]: RAM and swap (sysinfo(2)), or the limit of its
+/// memory cgroup or an ancestor's when lower (cgroup v2 memory.max, v1 memory.limit_in_bytes,
+/// found through /proc/self/cgroup); 0 when unknown. Throws nothing.
+std::uint64_t memory_limit_bytes() noexcept;
+
+/// The least an in-core run holds per point of its scan at its peak [bytes]: measured 100–230
+/// (docs/scale.md, "Scale"; 131 on the generated 2 M-point wall, fifty-seventh session).
+inline constexpr std::uint64_t kInCoreBytesPerPointAtLeast = 100;
+
+/// Refuses to read config's scan whole (in core) when it cannot fit: when its points counted
+/// without reading them (counted_input_points, tiling.hpp) times kInCoreBytesPerPointAtLeast
+/// exceed `limit_bytes` (memory_limit_bytes()), rather than being killed by the kernel after
+/// minutes of reading. Nothing when the count or the limit (0) is unknown.
+/// @param way_out what the caller can do instead, appended to the message
+/// @throws hc::ResourceError naming the input file(s), the points, the bytes needed and
+///         available, and `way_out`.
+void check_in_core_fits(const RunConfig& config, std::uint64_t limit_bytes, const std::string& way_out);
+
+/// check_in_core_fits for build_scene's in-core path, `way_out` saying what keeps the run in
+/// core: scale.tiled: off, an option the tiled run lacks (tiled_run_refusal, naming its key;
+/// several files without input.shared_frame among them), keep_cloud under auto, or a count at
+/// or below scale.tiled_above_points.
+void check_in_core_run_fits(const RunConfig& config, bool keep_cloud, std::uint64_t limit_bytes);
+
 /// Runs every stage of `config` in memory: ingest → units + recentre → view transform → filters
 /// → reproject → hole fill → surface layers → cross-check. Nothing is written. When
 /// runs_tiled(config) (scale.tiled; tiling.hpp) the streaming tiled run makes the scene instead:
@@ -123,7 +147,8 @@ HeapPolicyTaken keep_freed_heap_for_reuse() noexcept;
 /// scale.tiled is on (then no cloud is returned).
 /// @param keep_cloud keep the filtered points (grid frame, metres) in the result (for the
 ///        levels table's cross-check or a viewer's cloud preview); otherwise they are freed.
-/// @throws hc::Error subclasses from any stage (naming file, key or value).
+/// @throws hc::Error subclasses from any stage (naming file, key or value); hc::ResourceError
+///         before reading when an in-core run's scan cannot fit (check_in_core_run_fits).
 /// Real-time: no. Threads: stages use up to two threads internally.
 BuiltScene build_scene(const RunConfig& config, bool keep_cloud = false, const ProgressFn& progress = {});
 

@@ -58,6 +58,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <optional>
 #include <filesystem>
 #include <string>
 #include <vector>
@@ -81,6 +82,18 @@ class UndecidedIslandsError : public ConfigError {
   int halo_then;     ///< the halo with scale.island_halo on [grid nodes]
   bool under_auto;   ///< the config's scale.island_halo is auto (not false)
 };
+
+/// The points of config.input's files counted without reading them, as scale.tiled: auto counts
+/// them: each file natively streamed (point_stream.hpp) by its header or first-look count (a
+/// gzipped LAS, LAZ or E57 by its header's or XML section's); nullopt for a synthetic input, a
+/// .conf, no file, or a file not counted so (a mesh, another format, a file that does not open:
+/// the in-core read reports it). Throws nothing the in-core read would not.
+std::optional<std::uint64_t> counted_input_points(const RunConfig& config);
+
+/// The first option of `config` the tiled run does not support, as "<key> <why>" (e.g.
+/// "filters.voxel_m is > 0"; scale.tiled: on refuses it naming it), or "" when it takes them
+/// all. Throws nothing.
+std::string tiled_run_refusal(const RunConfig& config);
 
 /// Whether build_scene runs `config` tiled: scale.tiled on, or auto and the input is one natively
 /// streamed file (point_stream.hpp), or several with input.shared_frame, of more than
