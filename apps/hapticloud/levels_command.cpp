@@ -54,8 +54,11 @@ pipeline::Cloud scene_points(const Scene& scene, const std::string& config_optio
   if (config.input.conf) inputs.push_back(config.input.conf->string());
   // A scan too large to read whole is refused before its checksum and read take minutes.
   pipeline::check_in_core_fits(config, pipeline::memory_limit_bytes(),
-                               "leave --config out to cross-check against the points sample the scene of a tiled run "
-                               "stores (points_sample.bin), or pass --no-cross-check");
+                               config_option.empty()
+                                   ? std::string("the scene stores no points sample (points_sample.bin: a tiled run's "
+                                                 "scenes do); pass --no-cross-check")
+                                   : std::string("leave --config out to cross-check against the points sample the scene "
+                                                 "of a tiled run stores (points_sample.bin), or pass --no-cross-check"));
   for (const std::string& f : inputs) {
     if (!fs::exists(f)) throw InputError("levels: the scan '" + f + "' of " + config_file.string() + " does not exist");
     const std::string sum = pipeline::sha256_file(f);

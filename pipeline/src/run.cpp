@@ -36,6 +36,7 @@
 #include <array>
 #include <atomic>
 #include <cctype>
+#include <cerrno>
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -784,47 +785,68 @@ HeapPolicyTaken keep_freed_heap_for_reuse() noexcept {
   return taken;
 }
 
-std::uint64_t memory_limit_bytes() noexcept {
-  std::uint64_t limit = 0;
-  struct sysinfo si {};
-  if (sysinfo(&si) == 0) {
-    limit = (static_cast<std::uint64_t>(si.totalram) + static_cast<std::uint64_t>(si.totalswap)) * si.mem_unit;
-  }
-  // The memory cgroup's limit, and its ancestors' (a container's, a systemd slice's): cgroup v2
-  // (the line "0::<path>" of /proc/self/cgroup; memory.max, "max" when none) or v1 (the line
-  // "<n>:memory:<path>"; memory.limit_in_bytes, a huge number when none).
+namespace detail {
+
+std::uint64_t memory_limit_from(const std::string& proc_self_cgroup, const std::filesystem::path& cgroup_root,
+                                std::uint64_t ram_and_swap_bytes) {
+  std::uint64_t limit = ram_and_swap_bytes;
   const auto lower_to = [&limit](const std::filesystem::path& file) {
     std::ifstream f(file);
     std::string text;
     if (!(f >> text) || text.empty() || !std::all_of(text.begin(), text.end(), [](char ch) { return ch >= '0' && ch <= '9'; })) return;
+    errno = 0;
     const std::uint64_t cg = std::strtoull(text.c_str(), nullptr, 10);
-    if (cg > 0 && (limit == 0 || cg < limit)) limit = cg;
+    if (errno == 0 && cg > 0 && (limit == 0 || cg < limit)) limit = cg;
   };
-  std::ifstream groups("/proc/self/cgroup");
-  for (std::string line; std::getline(groups, line);) {
-    std::filesystem::path root, name;
-    if (line.rfind("0::", 0) == 0) {
-      root = "/sys/fs/cgroup";
-      name = "memory.max";
-      line.erase(0, 3);
-    } else if (const auto at = line.find(":memory:"); at != std::string::npos) {
-      root = "/sys/fs/cgroup/memory";
-      name = "memory.limit_in_bytes";
-      line.erase(0, at + 8);
+  std::istringstream lines(proc_self_cgroup);
+  for (std::string line; std::getline(lines, line);) {
+    // "<id>:<controllers>:<path>"; the path may hold ':' itself.
+    const auto a = line.find(':');
+    const auto b = a == std::string::npos ? a : line.find(':', a + 1);
+    if (b == std::string::npos) continue;
+    const std::string id = line.substr(0, a), controllers = line.substr(a + 1, b - a - 1);
+    const std::filesystem::path path = std::filesystem::path(line.substr(b + 1)).relative_path();
+    std::vector<std::pair<std::filesystem::path, const char*>> where;  // (mount, limit file)
+    if (id == "0" && controllers.empty()) {  // cgroup v2: the unified mount, or on a hybrid host its own
+      where = {{cgroup_root, "memory.max"}, {cgroup_root / "unified", "memory.max"}};
     } else {
-      continue;
+      bool memory = false;
+      std::istringstream names(controllers);
+      for (std::string n; std::getline(names, n, ',');) memory = memory || n == "memory";
+      if (!memory) continue;
+      where = {{cgroup_root / "memory", "memory.limit_in_bytes"}, {cgroup_root / controllers, "memory.limit_in_bytes"}};
     }
-    for (std::filesystem::path dir = std::filesystem::path(line).relative_path();; dir = dir.parent_path()) {
-      lower_to(root / dir / name);
-      if (dir.empty()) break;
+    for (const auto& [mount, name] : where) {
+      for (std::filesystem::path dir = path;; dir = dir.parent_path()) {
+        lower_to(mount / dir / name);
+        if (dir.empty()) break;
+      }
     }
   }
   return limit;
 }
 
+}  // namespace detail
+
+std::uint64_t memory_limit_bytes() noexcept {
+  try {
+    std::uint64_t ram_swap = 0;
+    struct sysinfo si {};
+    if (sysinfo(&si) == 0) {
+      ram_swap = (static_cast<std::uint64_t>(si.totalram) + static_cast<std::uint64_t>(si.totalswap)) * si.mem_unit;
+    }
+    std::ifstream f("/proc/self/cgroup");
+    std::ostringstream text;
+    text << f.rdbuf();
+    return detail::memory_limit_from(text.str(), "/sys/fs/cgroup", ram_swap);
+  } catch (...) {
+    return 0;
+  }
+}
+
 void check_in_core_fits(const RunConfig& config, std::uint64_t limit_bytes, const std::string& way_out) {
   if (limit_bytes == 0) return;
-  const std::optional<std::uint64_t> points = counted_input_points(config);
+  const std::optional<std::uint64_t> points = counted_input_points(config, true);
   if (!points) return;
   const auto need = static_cast<long double>(*points) * static_cast<long double>(kInCoreBytesPerPointAtLeast);
   if (need <= static_cast<long double>(limit_bytes)) return;
@@ -833,7 +855,8 @@ void check_in_core_fits(const RunConfig& config, std::uint64_t limit_bytes, cons
   const auto gb = [](long double b) { return format_number(static_cast<double>(b / 1e9), 3) + " GB"; };
   throw ResourceError(files + ": " + std::to_string(*points) + " points read whole (in core) need at least " + gb(need) +
                       " (" + std::to_string(kInCoreBytesPerPointAtLeast) + " bytes a point), more than the " +
-                      gb(static_cast<long double>(limit_bytes)) + " of memory and swap this process may use: " + way_out);
+                      gb(static_cast<long double>(limit_bytes)) + " of memory this process may use (RAM and swap, or "
+                      "its memory cgroup's limit): " + way_out);
 }
 
 void check_in_core_run_fits(const RunConfig& config, bool keep_cloud, std::uint64_t limit_bytes) {

@@ -1248,12 +1248,22 @@ std::optional<std::uint64_t> gzipped_e57_count(const fs::path& f) {
 
 }  // namespace
 
-std::optional<std::uint64_t> counted_input_points(const RunConfig& config) {
+std::optional<std::uint64_t> counted_input_points(const RunConfig& config, bool headers_only) {
   if (config.input.synthetic || config.input.conf || config.input.files.empty()) return std::nullopt;
   std::uint64_t total = 0;
   for (const fs::path& f : config.input.files) {
     std::string ext;
     const bool gz = detail::gz_name(f, ext);
+    if (headers_only) {
+      // Counts that cost a pass over the file (text lines, an inflate) are left out, and so are
+      // LAS and LAZ files of which the read drops classes other than the noise ones (7, 18: the
+      // default, a few points): their headers count the dropped points too.
+      const bool las = ext == ".las" || ext == ".laz";
+      const bool header = (!gz && (las || ext == ".ply" || ext == ".pcd" || ext == ".e57")) || (gz && las);
+      const auto& drop = config.input.las_drop_classes;
+      const bool drops_more = std::any_of(drop.begin(), drop.end(), [](int c) { return c != 7 && c != 18; });
+      if (!header || (las && drops_more)) return std::nullopt;
+    }
     // Only a natively streamed file is counted without reading it whole (a PTX, PTS or XYZ
     // file's first look reads its lines without parsing the points, an OBJ's counts the numbers
     // of its `v` lines; under gzip, decompressing them; a gzipped PCD's inflates it once for its
@@ -1301,7 +1311,7 @@ bool runs_tiled(const RunConfig& config) {
     return true;
   }
   if (config.input.files.size() > 1 && !config.input.shared_frame) return false;
-  const std::optional<std::uint64_t> total = counted_input_points(config);
+  const std::optional<std::uint64_t> total = counted_input_points(config, false);
   if (!total || *total <= config.scale.tiled_above_points) return false;
   try {
     check_supported(config);

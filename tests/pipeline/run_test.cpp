@@ -149,20 +149,28 @@ TEST(SceneIo, MissingOrCorruptScenesAreNamedErrors) {
 }
 
 // An in-core read of a scan that cannot fit is refused before it starts (check_in_core_fits):
-// an XYZ file of 1 000 points (counted by its lines without parsing them) needs at least
+// a binary PLY of 1 000 points (counted from its header) needs at least
 // 1 000 × kInCoreBytesPerPointAtLeast = 100 000 bytes. The oracle is that product: a limit one
 // byte below it refuses, naming the file, the count and the way out; the product itself, an
-// unknown limit (0) and an uncounted input (a synthetic one) pass. check_in_core_run_fits names
-// what keeps the run in core: scale.tiled off, an option the tiled run lacks (by its key), the
-// count at or below scale.tiled_above_points.
+// unknown limit (0), an input counted only by a pass over it (an XYZ text file of the same
+// points) and an uncounted input (a synthetic one) pass. check_in_core_run_fits names what
+// keeps the run in core: scale.tiled off, an option the tiled run lacks (by its key), the count
+// at or below scale.tiled_above_points.
 TEST(InCoreMemory, AScanThatCannotFitIsRefusedBeforeItIsReadNamingTheFileAndTheWayOut) {
   const fs::path dir = hc::test::temp_dir("in_core_memory");
   {
-    std::ofstream xyz(dir / "scan.xyz");
-    for (int i = 0; i < 1000; ++i) xyz << 0.001 * i << " " << 0.002 * (i % 37) << " " << 0.0005 * (i % 11) << "\n";
+    std::ofstream xyz(dir / "text.xyz");
+    std::ofstream ply(dir / "scan.ply", std::ios::binary);
+    ply << "ply\nformat binary_little_endian 1.0\nelement vertex 1000\nproperty float x\nproperty float y\n"
+           "property float z\nend_header\n";
+    for (int i = 0; i < 1000; ++i) {
+      const float p[3] = {0.001f * static_cast<float>(i), 0.002f * static_cast<float>(i % 37), 0.0005f * static_cast<float>(i % 11)};
+      ply.write(reinterpret_cast<const char*>(p), sizeof p);
+      xyz << p[0] << " " << p[1] << " " << p[2] << "\n";
+    }
   }
   const auto config_with = [&](const std::string& extra) {
-    return parse_run_config("input: {files: [scan.xyz], units: m}\ngrid: {n: 40}\n" + extra, dir / "run.yaml");
+    return parse_run_config("input: {files: [scan.ply], units: m}\ngrid: {n: 40}\n" + extra, dir / "run.yaml");
   };
   const RunConfig off = config_with("scale: {tiled: \"off\"}\n");
   const std::uint64_t need = 1000 * kInCoreBytesPerPointAtLeast;
@@ -171,12 +179,14 @@ TEST(InCoreMemory, AScanThatCannotFitIsRefusedBeforeItIsReadNamingTheFileAndTheW
     ADD_FAILURE() << "a limit below the need was not refused";
   } catch (const hc::ResourceError& e) {
     const std::string m = e.what();
-    EXPECT_NE(m.find("scan.xyz"), std::string::npos) << m;
+    EXPECT_NE(m.find("scan.ply"), std::string::npos) << m;
     EXPECT_NE(m.find("1000 points"), std::string::npos) << m;
     EXPECT_NE(m.find("THE WAY OUT"), std::string::npos) << m;
   }
   EXPECT_NO_THROW(check_in_core_fits(off, need, "x"));
   EXPECT_NO_THROW(check_in_core_fits(off, 0, "x")) << "an unknown limit refuses nothing";
+  EXPECT_NO_THROW(check_in_core_fits(parse_run_config("input: {files: [text.xyz], units: m}\ngrid: {n: 40}\n", dir / "t.yaml"), 1, "x"))
+      << "a text file is counted only by a pass over it: left out";
   EXPECT_NO_THROW(check_in_core_fits(parse_run_config("input: {synthetic: {surface: sinusoid}}\ngrid: {n: 40}\n", dir / "s.yaml"), 1, "x"))
       << "an input not counted without reading it";
   const auto why = [&](const RunConfig& c) {
@@ -204,6 +214,39 @@ TEST(InCoreMemory, AScanThatCannotFitIsRefusedBeforeItIsReadNamingTheFileAndTheW
   ASSERT_GT(total_kb, 0U);
   EXPECT_GT(memory_limit_bytes(), 0U);
   EXPECT_LE(memory_limit_bytes(), total_kb * 1024 + 4096);
+}
+
+// The memory limit from /proc/self/cgroup's text and a cgroup tree built in a temporary folder
+// (detail::memory_limit_from): the least of RAM + swap and every limit on the process's
+// cgroup's path, v2 (memory.max, under the root or unified/ on a hybrid host) and v1
+// (memory.limit_in_bytes, under memory/ or the controllers' folder); "max", v1's "no limit"
+// number, text and missing files are no limit; a line without the memory controller is not read.
+TEST(InCoreMemory, TheMemoryLimitIsTheLeastOfRamAndTheCgroupLimitsOnTheProcesssPath) {
+  const fs::path root = hc::test::temp_dir("cgroup_tree");
+  const auto put = [&](const fs::path& rel, const std::string& text) {
+    fs::create_directories((root / rel).parent_path());
+    std::ofstream(root / rel) << text << "\n";
+  };
+  put("memory.max", "max");
+  put("a/memory.max", "3000");
+  put("a/b/memory.max", "max");
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("0::/a/b\n", root, 10000), 3000U) << "an ancestor's limit";
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("0::/a/b\n", root, 2000), 2000U) << "RAM and swap below it";
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("0::/a/b\n", root, 0), 3000U) << "RAM unknown";
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("0::/\n", root, 10000), 10000U) << "the root: max";
+  put("unified/a/b/memory.max", "2500");
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("0::/a/b\n", root, 10000), 2500U) << "a hybrid host's unified tree";
+  put("memory/x/memory.limit_in_bytes", "9223372036854771712");
+  put("memory/memory.limit_in_bytes", "1800");
+  put("cpuset,memory/y/memory.limit_in_bytes", "1500");
+  put("cpu/z/memory.limit_in_bytes", "100");
+  put("memory/w/memory.limit_in_bytes", "lots");
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("4:memory:/x\n", root, 10000), 1800U) << "v1: no limit on x, 1800 on its root";
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("4:cpuset,memory:/y\n", root, 10000), 1500U) << "v1 with two controllers";
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("3:cpu:/z\n1:name=systemd:/\n", root, 10000), 10000U) << "no memory controller";
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("4:memory:/w\n", root, 10000), 1800U) << "text is no limit";
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("garbage\n\n", root, 0), 0U) << "unknown";
+  EXPECT_EQ(hc::pipeline::detail::memory_limit_from("4:memory:/x\n0::/a/b\n", root, 10000), 1800U) << "both trees: the least";
 }
 
 }  // namespace

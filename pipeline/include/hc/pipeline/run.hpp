@@ -116,16 +116,30 @@ struct HeapPolicyTaken {
 HeapPolicyTaken keep_freed_heap_for_reuse() noexcept;
 
 /// The memory this process may use [bytes]: RAM and swap (sysinfo(2)), or the limit of its
-/// memory cgroup or an ancestor's when lower (cgroup v2 memory.max, v1 memory.limit_in_bytes,
-/// found through /proc/self/cgroup); 0 when unknown. Throws nothing.
+/// memory cgroup or an ancestor's when lower (detail::memory_limit_from on /proc/self/cgroup
+/// and /sys/fs/cgroup); 0 when unknown. Throws nothing.
 std::uint64_t memory_limit_bytes() noexcept;
+
+namespace detail {
+/// The least of `ram_and_swap_bytes` (0: unknown) and the memory limits of the cgroups that
+/// `proc_self_cgroup` (the text of /proc/self/cgroup: lines "<id>:<controllers>:<path>") places
+/// the process in, and their ancestors', read under `cgroup_root` (/sys/fs/cgroup): cgroup v2
+/// (the line "0::<path>") memory.max under the root or, on a hybrid host, its unified/ folder;
+/// v1 (a line whose controllers include memory) memory.limit_in_bytes under memory/ or the
+/// controllers' own folder ("cpuset,memory"). "max", a missing file and a value that is no number
+/// are no limit. (The cgroup limits leave swap out.) Source: the kernel's cgroup-v2.rst and
+/// cgroup-v1/memory.rst. @throws std::bad_alloc only.
+std::uint64_t memory_limit_from(const std::string& proc_self_cgroup, const std::filesystem::path& cgroup_root,
+                                std::uint64_t ram_and_swap_bytes);
+}  // namespace detail
 
 /// The least an in-core run holds per point of its scan at its peak [bytes]: measured 100–230
 /// (docs/scale.md, "Scale"; 131 on the generated 2 M-point wall, fifty-seventh session).
 inline constexpr std::uint64_t kInCoreBytesPerPointAtLeast = 100;
 
 /// Refuses to read config's scan whole (in core) when it cannot fit: when its points counted
-/// without reading them (counted_input_points, tiling.hpp) times kInCoreBytesPerPointAtLeast
+/// from the files' headers (counted_input_points with headers_only, tiling.hpp: binary PLY,
+/// PCD, LAS, LAZ, E57; no count costs a pass over a file) times kInCoreBytesPerPointAtLeast
 /// exceed `limit_bytes` (memory_limit_bytes()), rather than being killed by the kernel after
 /// minutes of reading. Nothing when the count or the limit (0) is unknown.
 /// @param way_out what the caller can do instead, appended to the message

@@ -87,8 +87,11 @@ class UndecidedIslandsError : public ConfigError {
 /// them: each file natively streamed (point_stream.hpp) by its header or first-look count (a
 /// gzipped LAS, LAZ or E57 by its header's or XML section's); nullopt for a synthetic input, a
 /// .conf, no file, or a file not counted so (a mesh, another format, a file that does not open:
-/// the in-core read reports it). Throws nothing the in-core read would not.
-std::optional<std::uint64_t> counted_input_points(const RunConfig& config);
+/// the in-core read reports it). With `headers_only`, also nullopt where counting costs a pass
+/// over a file (text formats, gzipped ones but LAS and LAZ) or the header overcounts what the read
+/// keeps (LAS and LAZ whose input.las_drop_classes name classes other than the noise ones, 7
+/// and 18). Throws nothing the in-core read would not.
+std::optional<std::uint64_t> counted_input_points(const RunConfig& config, bool headers_only = false);
 
 /// The first option of `config` the tiled run does not support, as "<key> <why>" (e.g.
 /// "filters.voxel_m is > 0"; scale.tiled: on refuses it naming it), or "" when it takes them
