@@ -1528,18 +1528,20 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
       rows.resize(w);
     }
   }
+  FarClusters result;
+  result.link_m = link_m;
+  result.far_distance_m = far_m;
+  result.points_near_main_body = near_main_body;
+  if (scope != nullptr) {  // the whole scan's main body; every component of the linked points judged
+    result.main_body.min_m = scope->main_body_min_m;
+    result.main_body.max_m = scope->main_body_max_m;
+    result.main_body.centroid_m = 0.5 * (scope->main_body_min_m + scope->main_body_max_m);
+  }
   const std::size_t n = rows.size();
   const int threads = threads_for(n);
   if (n == 0) {  // every point within far − δ of the scope's main body: no far cluster
-    FarClusters none;
-    none.link_m = link_m;
-    none.far_distance_m = far_m;
-    none.points_near_main_body = near_main_body;
-    none.main_body.min_m = scope->main_body_min_m;
-    none.main_body.max_m = scope->main_body_max_m;
-    none.main_body.centroid_m = 0.5 * (scope->main_body_min_m + scope->main_body_max_m);
     if (removed_rows) removed_rows->clear();
-    return none;
+    return result;
   }
   std::array<std::int64_t, 3> nc{};
   for (std::size_t a = 0; a < 3; ++a) nc[a] = static_cast<std::int64_t>((hi[a] - lo[a]) / edge) + 1;
@@ -1668,17 +1670,7 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   std::vector<std::uint32_t> rank(comps.size());
   std::iota(rank.begin(), rank.end(), 0u);
   std::stable_sort(rank.begin(), rank.end(), [&](std::uint32_t a, std::uint32_t b) { return comps[a].count > comps[b].count; });
-  FarClusters result;
-  result.link_m = link_m;
-  result.far_distance_m = far_m;
-  result.points_near_main_body = near_main_body;
-  if (scope != nullptr) {  // the whole scan's main body; every component of the linked points judged
-    result.main_body.min_m = scope->main_body_min_m;
-    result.main_body.max_m = scope->main_body_max_m;
-    result.main_body.centroid_m = 0.5 * (scope->main_body_min_m + scope->main_body_max_m);
-  } else {
-    result.main_body = comps[rank.front()];
-  }
+  if (scope == nullptr) result.main_body = comps[rank.front()];
   const std::size_t n_size = scope != nullptr ? scope->points : size_points > 0 ? size_points : n;  // N of the size limit
   const double small = std::max(static_cast<double>(o.max_points), o.max_fraction * static_cast<double>(n_size));
   // A point linked to a cluster lies less than two cell edges from it per axis (adjacent cells;

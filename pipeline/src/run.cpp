@@ -814,7 +814,8 @@ std::uint64_t memory_limit_from(const std::string& proc_self_cgroup, const std::
       std::istringstream names(controllers);
       for (std::string n; std::getline(names, n, ',');) memory = memory || n == "memory";
       if (!memory) continue;
-      where = {{cgroup_root / "memory", "memory.limit_in_bytes"}, {cgroup_root / controllers, "memory.limit_in_bytes"}};
+      where = {{cgroup_root / "memory", "memory.limit_in_bytes"}};
+      if (controllers != "memory") where.emplace_back(cgroup_root / controllers, "memory.limit_in_bytes");  // "cpuset,memory"
     }
     for (const auto& [mount, name] : where) {
       for (std::filesystem::path dir = path;; dir = dir.parent_path()) {

@@ -151,6 +151,7 @@ void check_in_core_fits(const RunConfig& config, std::uint64_t limit_bytes, cons
 /// core: scale.tiled: off, an option the tiled run lacks (tiled_run_refusal, naming its key;
 /// several files without input.shared_frame among them), keep_cloud under auto, or a count at
 /// or below scale.tiled_above_points.
+/// @throws hc::ResourceError as check_in_core_fits.
 void check_in_core_run_fits(const RunConfig& config, bool keep_cloud, std::uint64_t limit_bytes);
 
 /// Runs every stage of `config` in memory: ingest → units + recentre → view transform → filters
