@@ -33,7 +33,12 @@ median wall and CPU seconds, the CPU ratio to the first build (the median of the
 each taken within one round), the median peak RSS, the median CPU seconds of every stage with
 their ratios, and whether the scene (scene/ and previews/, byte for byte) equals the first
 build's in every round. Speed claims between builds come from these ratios, never from runs on
-different days.
+different days. An entry may end in @in-core, @tiled or @as-is to run that build in that mode
+instead of --modes' first; @as-is gives it no `--set scale.…` argument at all, for a build from
+before the tiled run (issue 14's baseline, which knows no scale keys and always runs in core):
+
+    python3 bench/scale.py --compare base/hapticloud@as-is,build/release --sizes 1e8 --n 800 \
+        --modes tiled --tile-cells 512 --rounds 2      # the issue's baseline against today's build
 """
 
 import argparse
@@ -51,11 +56,15 @@ ROOT = os.path.dirname(HERE)
 
 # The same physical options at every size: 2 m x 1 m wall, 0.5 mm noise, 5 % back face,
 # 0.1 % outliers (the generator's defaults), gridded with plane splats and the robust filter.
+# The naive grid's cross-check and the levels table are off, as they are by default since the
+# twenty-fourth session: said here so that a build from before then (whose defaults had them on)
+# does the same work under --compare.
 CONFIG = """name: relief_wall_{tag}
 input: {{files: [{scan}], units: m}}
 grid: {{n: {n}, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02,
         hole_fill_max_cells: 64, upsample: auto}}
-cross_check: {{tolerance_m: 0.002}}
+cross_check: {{tolerance_m: 0.002, compare_naive: false}}
+lod: {{report: false}}
 layers: {{texture: {{sigma_space_cells: 3, sigma_range_m: 0.005}}}}
 """
 
@@ -173,10 +182,11 @@ unset multiplot
 
 
 def run_settings(mode, tile_cells, scratch, sets):
-    """The `hapticloud run --set` arguments of a run in `mode` (in-core, tiled or dask): the same
-    for the scaling table and for --compare."""
-    out = ["--set", "scale.tiled=" + ("off" if mode == "in-core" else "on")]
-    if mode != "in-core":
+    """The `hapticloud run --set` arguments of a run in `mode` (in-core, tiled or dask; as-is: none
+    of scale.*, for --compare's builds from before the tiled run): the same for the scaling table
+    and for --compare. `sets` (--set) go to every mode."""
+    out = [] if mode == "as-is" else ["--set", "scale.tiled=" + ("off" if mode == "in-core" else "on")]
+    if mode == "tiled" or mode == "dask":
         out += ["--set", f"scale.tile_cells={tile_cells}", "--set", f"scale.scratch={scratch}"]
     for x in sets:
         out += ["--set", x]
@@ -209,10 +219,20 @@ def resolve_program(text):
              "apps/hapticloud/hapticloud")
 
 
-def compare_builds(programs, labels, config, scratch, mode, tile_cells, sets, rounds):
+def split_mode(entry):
+    """(program text, mode or None) of a --compare entry: PATH, or PATH@in-core, PATH@tiled,
+    PATH@as-is (see the module doc)."""
+    for m in ("in-core", "tiled", "as-is"):
+        if entry.endswith("@" + m):
+            return entry[:-len(m) - 1], m
+    return entry, None
+
+
+def compare_builds(programs, labels, config, scratch, modes, tile_cells, sets, rounds, points):
     """Interleaved rounds of `hapticloud run config` for each program (see --compare in the module
-    doc), each named by its label in the tables; returns (rows, summary) for --json. Every run's
-    output folder is removed once its round has been compared."""
+    doc), programs[i] in modes[i], each named by its label in the tables; returns (rows, summary)
+    for --json. `points`: the input's, for the M points per CPU second. Every run's output folder
+    is removed once its round has been compared."""
     rows = []
     for r in range(rounds):
         order = [(i + r) % len(programs) for i in range(len(programs))]
@@ -220,9 +240,9 @@ def compare_builds(programs, labels, config, scratch, mode, tile_cells, sets, ro
         for i in order:
             out = os.path.join(scratch, f"compare_{i}")
             shutil.rmtree(out, ignore_errors=True)
-            cmd = [programs[i], "run", config, "--out", out] + run_settings(mode, tile_cells, scratch, sets)
+            cmd = [programs[i], "run", config, "--out", out] + run_settings(modes[i], tile_cells, scratch, sets)
             code, wall, user, system, rss, err = run_child(cmd)
-            row = {"round": r + 1, "build": labels[i], "program": programs[i], "exit": code, "wall_s": wall,
+            row = {"round": r + 1, "build": labels[i], "program": programs[i], "mode": modes[i], "exit": code, "wall_s": wall,
                    "cpu_s": user + system, "peak_rss_bytes": rss, "stages_cpu_s": {}}
             report = os.path.join(out, "report.json")
             if os.path.exists(report):
@@ -249,13 +269,14 @@ def compare_builds(programs, labels, config, scratch, mode, tile_cells, sets, ro
     if any("error" in x for x in rows):
         print("failed runs: " + ", ".join(f"round {x['round']} {x['build']}" for x in rows if "error" in x))
     print(f"load average after the last run: {os.getloadavg()[0]:.2f}; cores: {os.cpu_count()}; {rounds} rounds, order rotated")
-    print("| build | wall (s), median | CPU (s), median | CPU ratio to the first (rounds' median) | peak RSS (MB), median | scene equal to the first's |")
-    print("|---|---:|---:|---:|---:|---|")
+    print("| build | mode | wall (s), median | CPU (s), median | M points per CPU s | CPU ratio to the first (rounds' median) | "
+          "peak RSS (MB), median | scene equal to the first's |")
+    print("|---|---|---:|---:|---:|---:|---:|---|")
     summary = []
     for i, lab in enumerate(labels):
         mine = [x for x in ok if x["build"] == lab]
         if not mine:
-            print(f"| {lab} | failed | | | | |")
+            print(f"| {lab} | {modes[i]} | failed | | | | | |")
             continue
         ratios = []
         for x in mine:
@@ -265,14 +286,16 @@ def compare_builds(programs, labels, config, scratch, mode, tile_cells, sets, ro
         ratio = statistics.median(ratios) if ratios else float("nan")
         equal = all(x.get("scene_equal_to_first") for x in mine) if i > 0 else True
         srow = {"build": lab, "wall_s": statistics.median(x["wall_s"] for x in mine),
-                "cpu_s": statistics.median(x["cpu_s"] for x in mine), "cpu_ratio": ratio,
+                "mode": modes[i], "cpu_s": statistics.median(x["cpu_s"] for x in mine), "cpu_ratio": ratio,
                 "peak_rss_bytes": statistics.median(x["peak_rss_bytes"] for x in mine), "scene_equal": equal}
         differing = sorted({k for x in mine for k in x.get("scene_files_differing", [])})
         if i > 0:
             srow["scene_files_differing"] = differing
         summary.append(srow)
         named = ", ".join(differing[:3]) + (f" and {len(differing) - 3} more" if len(differing) > 3 else "")
-        print(f"| {lab} | {srow['wall_s']:.1f} | {srow['cpu_s']:.1f} | {ratio:.3f} | {srow['peak_rss_bytes'] / 1e6:.0f} | "
+        srow["m_points_per_cpu_s"] = points / srow["cpu_s"] / 1e6 if srow["cpu_s"] > 0 else float("nan")
+        print(f"| {lab} | {modes[i]} | {srow['wall_s']:.1f} | {srow['cpu_s']:.1f} | {srow['m_points_per_cpu_s']:.3f} | {ratio:.3f} | "
+              f"{srow['peak_rss_bytes'] / 1e6:.0f} | "
               + ("(the first)" if i == 0 else "yes" if equal else "**no**" + (f" ({named})" if named else "")) + " |")
     stages = []
     for x in ok:
@@ -319,8 +342,9 @@ def main():
                     help="draw --plot from these --json files (comma-separated) of earlier runs instead of running anything")
     ap.add_argument("--plot-title", default="hapticloud run on generated walls", help="the plot's title")
     ap.add_argument("--compare", default=None,
-                    help="comma-separated builds (hapticloud executables or build folders), the first the baseline: "
-                         "interleaved rounds on the first size, N and mode (see the module doc)")
+                    help="comma-separated builds (hapticloud executables or build folders), the first the baseline, each "
+                         "optionally ending in @in-core, @tiled or @as-is (its mode; else --modes' first): interleaved "
+                         "rounds on the first size and N (see the module doc)")
     ap.add_argument("--rounds", type=int, default=3, help="--compare's rounds (each runs every build once)")
     args = ap.parse_args()
     if args.plot_from:
@@ -350,12 +374,13 @@ def main():
     os.makedirs(scratch, exist_ok=True)
 
     if args.compare:
-        entries = [x for x in args.compare.split(",") if x]
-        programs = [resolve_program(x) for x in entries]
-        # Each build named by its last path component, or by the entry as given where two share it.
-        labels = [os.path.basename(os.path.normpath(x)) for x in entries]
+        entries = [split_mode(x) for x in args.compare.split(",") if x]
+        programs = [resolve_program(x) for x, _ in entries]
+        # Each build named by its last path component (and its mode when given), or by the entry
+        # as given where two share it.
+        labels = [os.path.basename(os.path.normpath(x)) + (f"@{m}" if m else "") for x, m in entries]
         if len(set(labels)) < len(labels):
-            labels = entries
+            labels = [x + (f"@{m}" if m else "") for x, m in entries]
         if len(programs) < 2:
             sys.exit("scale.py: --compare: expected two or more builds, comma-separated")
         if args.rounds < 1:
@@ -363,6 +388,7 @@ def main():
         if modes[0] == "dask":
             sys.exit("scale.py: --compare runs `hapticloud run` (in-core or tiled), not the dask mode")
         sizes, grids, modes = sizes[:1], grids[:1], modes[:1]
+        build_modes = [m or modes[0] for _, m in entries]
 
     rows = []
     for points in sizes:
@@ -385,9 +411,10 @@ def main():
             with open(config, "w") as f:
                 f.write(CONFIG.format(tag=tag, scan=os.path.basename(scan), n=n))
             if args.compare:
-                print(f"comparing {len(programs)} builds: {points} points, N = {n}, {mode}, {args.format.upper()}, "
+                print(f"comparing {len(programs)} builds: {points} points, N = {n}, {', '.join(build_modes)}, {args.format.upper()}, "
                       f"{args.rounds} rounds")
-                rows, summary = compare_builds(programs, labels, config, scratch, mode, args.tile_cells, args.set, args.rounds)
+                rows, summary = compare_builds(programs, labels, config, scratch, build_modes, args.tile_cells, args.set,
+                                               args.rounds, points)
                 if args.json:
                     with open(args.json, "w") as f:
                         json.dump({"runs": rows, "summary": summary}, f, indent=1)

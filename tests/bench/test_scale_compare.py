@@ -71,3 +71,40 @@ def test_compare_refuses_a_single_build_and_a_missing_program(tmp_path):
     missing = subprocess.run([sys.executable, script, "--build", BUILD, "--compare", program + "," + str(tmp_path / "nope"),
                               "--sizes", "1e3", "--scratch", str(tmp_path)], capture_output=True, text=True)
     assert missing.returncode != 0 and "nope" in missing.stderr and "build folder" in missing.stderr
+
+
+def test_an_entry_runs_in_its_own_mode_and_as_is_passes_no_scale_key(tmp_path):
+    """@in-core, @tiled and @as-is (a build from before the tiled run, issue 14's baseline).
+    Oracles: a wrapper that refuses any `scale.` argument, as a build that knows no scale keys
+    refuses an unknown key, runs under @as-is and fails without it; the runs' own reports show
+    which path ran (stage tile_plan only in the tiled run)."""
+    needs_build()
+    program = os.path.join(BUILD, "apps", "hapticloud", "hapticloud")
+    pre_scale = tmp_path / "pre_scale"
+    pre_scale.write_text("#!/bin/sh\nfor a in \"$@\"; do case \"$a\" in scale.*) echo \"unknown key $a\" >&2; exit 2;; esac; done\n"
+                         "exec '" + program + "' \"$@\"\n")
+    os.chmod(pre_scale, 0o755)
+    script = os.path.join(SOURCE, "bench", "scale.py")
+    common = ["--sizes", "2e5", "--n", "300", "--modes", "tiled", "--tile-cells", "128", "--rounds", "1",
+              "--scratch", str(tmp_path / "scratch")]
+    out_json = tmp_path / "modes.json"
+    res = subprocess.run([sys.executable, script, "--build", BUILD, "--compare",
+                          ",".join([program + "@tiled", str(pre_scale) + "@as-is", program + "@in-core"]),
+                          "--json", str(out_json)] + common, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stdout + res.stderr
+    doc = json.loads(out_json.read_text())
+    by = {r["build"]: r for r in doc["runs"]}
+    assert set(by) == {"hapticloud@tiled", "pre_scale@as-is", "hapticloud@in-core"}
+    assert all(r["exit"] == 0 for r in by.values())
+    assert [by[b]["mode"] for b in ("hapticloud@tiled", "pre_scale@as-is", "hapticloud@in-core")] == ["tiled", "as-is", "in-core"]
+    assert "tile_plan" in by["hapticloud@tiled"]["stages_cpu_s"]
+    # 2·10^5 points are below scale.tiled_above_points: auto (as-is) stays in core, as off does.
+    for b in ("pre_scale@as-is", "hapticloud@in-core"):
+        assert "tile_plan" not in by[b]["stages_cpu_s"] and "outliers" in by[b]["stages_cpu_s"], b
+    summary = {s["build"]: s for s in doc["summary"]}
+    assert summary["pre_scale@as-is"]["m_points_per_cpu_s"] > 0.0
+    assert "| pre_scale@as-is | as-is |" in res.stdout
+    # The same wrapper given the mode's scale.* arguments fails, and the comparison says so.
+    bad = subprocess.run([sys.executable, script, "--build", BUILD, "--compare", ",".join([program, str(pre_scale)])] + common,
+                         capture_output=True, text=True, timeout=300)
+    assert bad.returncode != 0 and "failed runs: round 1 pre_scale" in bad.stdout
