@@ -56,9 +56,9 @@ ROOT = os.path.dirname(HERE)
 
 # The same physical options at every size: 2 m x 1 m wall, 0.5 mm noise, 5 % back face,
 # 0.1 % outliers (the generator's defaults), gridded with plane splats and the robust filter.
-# The naive grid's cross-check and the levels table are off, as they are by default since the
-# twenty-fourth session: said here so that a build from before then (whose defaults had them on)
-# does the same work under --compare.
+# The naive grid's cross-check and the levels table are off, as they are by default (since
+# 2026-11-23 and 2026-11-24): said here so that a build from before then (whose defaults had them on)
+# runs the same stages under --compare.
 CONFIG = """name: relief_wall_{tag}
 input: {{files: [{scan}], units: m}}
 grid: {{n: {n}, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02,
