@@ -74,25 +74,8 @@ using detail::stage;
 // ---------------------------------------------------------------------------------------------
 // Which configs the tiled run takes.
 
-// The first option of `c` the tiled run does not support, as "<key> <why>", or "".
-std::string unsupported_option(const RunConfig& c) {
-  const auto refuse = [](const char* key, const std::string& why) { return std::string(key) + " " + why; };
-  if (c.input.synthetic) return refuse("input.synthetic", "is set");
-  if (c.input.conf) return refuse("input.conf", "is set (a merge of several scans)");
-  if (c.input.files.size() != 1 && !c.input.shared_frame) {
-    return refuse("input.files", "lists " + std::to_string(c.input.files.size()) + " files without input.shared_frame");
-  }
-  if (c.filters.voxel_m > 0.0) return refuse("filters.voxel_m", "is > 0");
-  if (!c.filters.pcl.empty()) return refuse("filters.pcl", "is not empty");
-  if (c.filters.outliers.enabled && c.filters.outliers.method != OutlierMethod::kRobust) {
-    return refuse("filters.outliers.method", "is not robust");
-  }
-  if (c.grid.organised_mesh) return refuse("grid.organised", "is mesh");
-  return {};
-}
-
 void check_supported(const RunConfig& c) {
-  if (const std::string why = unsupported_option(c); !why.empty()) {
+  if (const std::string why = tiled_run_refusal(c); !why.empty()) {
     throw ConfigError("scale.tiled: on, but " + why + " (the tiled run does not support it yet: docs/scale.md; set scale.tiled: off)");
   }
 }
@@ -1303,7 +1286,21 @@ std::optional<std::uint64_t> counted_input_points(const RunConfig& config, bool 
   return total;
 }
 
-std::string tiled_run_refusal(const RunConfig& config) { return unsupported_option(config); }
+std::string tiled_run_refusal(const RunConfig& c) {
+  const auto refuse = [](const char* key, const std::string& why) { return std::string(key) + " " + why; };
+  if (c.input.synthetic) return refuse("input.synthetic", "is set");
+  if (c.input.conf) return refuse("input.conf", "is set (a merge of several scans)");
+  if (c.input.files.size() != 1 && !c.input.shared_frame) {
+    return refuse("input.files", "lists " + std::to_string(c.input.files.size()) + " files without input.shared_frame");
+  }
+  if (c.filters.voxel_m > 0.0) return refuse("filters.voxel_m", "is > 0");
+  if (!c.filters.pcl.empty()) return refuse("filters.pcl", "is not empty");
+  if (c.filters.outliers.enabled && c.filters.outliers.method != OutlierMethod::kRobust) {
+    return refuse("filters.outliers.method", "is not robust");
+  }
+  if (c.grid.organised_mesh) return refuse("grid.organised", "is mesh");
+  return {};
+}
 
 bool runs_tiled(const RunConfig& config) {
   if (config.scale.tiled == ScaleConfig::Tiled::kOff) return false;
@@ -1314,12 +1311,7 @@ bool runs_tiled(const RunConfig& config) {
   if (config.input.files.size() > 1 && !config.input.shared_frame) return false;
   const std::optional<std::uint64_t> total = counted_input_points(config, false);
   if (!total || *total <= config.scale.tiled_above_points) return false;
-  try {
-    check_supported(config);
-  } catch (const ConfigError&) {
-    return false;  // auto: an option the tiled run lacks keeps the run in core
-  }
-  return true;
+  return tiled_run_refusal(config).empty();  // auto: an option the tiled run lacks keeps the run in core
 }
 
 namespace {

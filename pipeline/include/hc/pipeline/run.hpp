@@ -139,9 +139,10 @@ inline constexpr std::uint64_t kInCoreBytesPerPointAtLeast = 100;
 
 /// Refuses to read config's scan whole (in core) when it cannot fit: when its points counted
 /// from the files' headers (counted_input_points with headers_only, tiling.hpp: binary PLY,
-/// PCD, LAS, LAZ, E57; no count costs a pass over a file) times kInCoreBytesPerPointAtLeast
-/// exceed `limit_bytes` (memory_limit_bytes()), rather than being killed by the kernel after
-/// minutes of reading. Nothing when the count or the limit (0) is unknown.
+/// PCD, LAS, LAZ, E57, gzipped LAS and LAZ; no count costs a pass over a file) times
+/// kInCoreBytesPerPointAtLeast exceed `limit_bytes` (memory_limit_bytes()), rather than being
+/// killed by the kernel after minutes of reading. Nothing when the count or the limit (0) is
+/// unknown. Source: this project (the per-point peaks measured in docs/scale.md).
 /// @param way_out what the caller can do instead, appended to the message
 /// @throws hc::ResourceError naming the input file(s), the points, the bytes needed and
 ///         available, and `way_out`.

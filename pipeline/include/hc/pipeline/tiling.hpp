@@ -58,8 +58,8 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <optional>
 #include <filesystem>
+#include <optional>
 #include <string>
 #include <vector>
 
