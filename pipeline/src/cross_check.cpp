@@ -347,7 +347,11 @@ void phase1_residuals_and_keys(Run& run, int h) {
   Part& out = run.parts[h];
   out.count.assign(run.cells, 0);
   const double* p = run.points_m.xyz.data() + 3 * out.point_begin;
+  // Points in input order fall on random cells: with (a), each one's two grid rows are fetched
+  // kAhead points before its residual (BilinearSurface::prefetch).
+  constexpr std::size_t kAhead = 8;
   for (std::size_t i = out.point_begin; i < out.point_end; ++i, p += 3) {
+    if (run.point_residuals && i + kAhead < out.point_end) run.surface.prefetch(p[3 * kAhead], p[3 * kAhead + 1]);
     if (!std::isfinite(p[0]) || !std::isfinite(p[1]) || !std::isfinite(p[2])) {
       run.key[i] = kSkip;
       continue;

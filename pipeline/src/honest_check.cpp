@@ -877,7 +877,11 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
   detail::run_parallel(class_threads, [&](int t) {
     InputCheck& pc = part[static_cast<std::size_t>(t)];
     const auto [b, e] = detail::share_of(n, t, class_threads);
+    // The points in input order fall on random cells of the grid: each one's two grid rows
+    // fetched kAhead points before it is classified (BilinearSurface::prefetch).
+    constexpr std::size_t kAhead = 8;
     for (std::size_t i = b; i < e; ++i) {
+      if (i + kAhead < e) surface.prefetch(as_read_m(0, static_cast<Eigen::Index>(i + kAhead)), as_read_m(1, static_cast<Eigen::Index>(i + kAhead)));
       if (!owns(i)) continue;  // a halo copy: its own tile counts it
       if (!finite[i]) {
         ++pc.removed;  // the non-finite filter drops it
