@@ -2,6 +2,9 @@
 
 #include <gtest/gtest.h>
 
+#include <cmath>
+#include <limits>
+
 namespace {
 
 hc::HeightField plane_field(int rows, int cols, double cell, double a, double b, double c) {
@@ -67,6 +70,42 @@ TEST(BilinearSurface, WindowViewMatchesTheWholeField) {
   const hc::BilinearSurface part(win);
   const double x = win.geometry.x_of_col(2.3), y = win.geometry.y_of_row(1.7);
   EXPECT_DOUBLE_EQ(whole.height(x, y), part.height(x, y));
+}
+
+// cell_address (what prefetch fetches) names the cell sample() reads away from cell edges, and
+// never a sample outside the view (nor the row below it) however far, huge or odd the point:
+// the oracle is bilinear_cell and the view's own bounds.
+TEST(BilinearSurface, CellAddressIsTheSampledCellAndStaysInsideTheView) {
+  const auto field = plane_field(10, 12, 0.01, 0.7, 0.4, 0.0);
+  for (const auto& view : {hc::HeightFieldView::of(field), hc::HeightFieldView::window(field, 3, 4, 5, 6)}) {
+    const hc::BilinearSurface s(view);
+    const hc::GridGeometry& g = view.geometry;
+    // Cell centres: no edge near, so the multiplication and the division agree.
+    for (int r = 0; r + 1 < g.rows; ++r) {
+      for (int c = 0; c + 1 < g.cols; ++c) {
+        const double x = g.x_of_col(c + 0.5), y = g.y_of_row(r + 0.5);
+        const hc::BilinearCell cell = hc::bilinear_cell(g, x, y);
+        EXPECT_EQ(s.cell_address(x, y), view.data + cell.j * view.row_stride + cell.i) << r << ", " << c;
+      }
+    }
+    const double big = 1e300, inf = std::numeric_limits<double>::infinity();
+    for (double x : {-big, -inf, -1.0, g.x0_m, g.x_of_col(g.cols - 1), 1.0, big, inf}) {
+      for (double y : {-big, -inf, -1.0, g.y0_m, g.y_of_row(g.rows - 1), 1.0, big, inf}) {
+        const float* top = s.cell_address(x, y);
+        ASSERT_NE(top, nullptr);
+        const std::ptrdiff_t off = top - view.data;
+        const std::ptrdiff_t row = off / view.row_stride, col = off % view.row_stride;
+        EXPECT_GE(row, 0);
+        EXPECT_LE(row, g.rows - 2);  // its row and the one below are the view's
+        EXPECT_GE(col, 0);
+        EXPECT_LE(col, g.cols - 2);
+        s.prefetch(x, y);  // no fault, no effect
+      }
+    }
+    EXPECT_EQ(s.cell_address(std::nan(""), 0.0), nullptr);
+    EXPECT_EQ(s.cell_address(0.0, std::nan("")), nullptr);
+  }
+  EXPECT_EQ(hc::BilinearSurface().cell_address(0.0, 0.0), nullptr);  // no data
 }
 
 }  // namespace

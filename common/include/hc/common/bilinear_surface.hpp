@@ -68,22 +68,30 @@ class BilinearSurface {
   /// f(x, y) [m] only (NaN where a corner is no-data).
   double height(double x_m, double y_m) const noexcept { return sample(x_m, y_m).z_m; }
 
-  /// Asks the processor to fetch the two grid rows sample(x_m, y_m) will read (the cell's top
-  /// and bottom corners; grid frame, metres), so that a loop over points in no spatial order can
-  /// name a point some iterations ahead and find its cell in cache. The cell is bilinear_cell's,
-  /// found with a multiplication instead of its division (it may differ at a cell edge: one
-  /// cell's fetch lost, never a wrong value); a NaN coordinate, or a grid under 2 × 2, fetches nothing. No effect on any
-  /// result. Real-time: yes (no allocation, no fault: a prefetch never faults, and the address
-  /// stays inside the grid). Added 2026-11-29 (fifty-ninth session): the tiled run's cross-check
-  /// spent a quarter of its first pass waiting on this load at 10^8 points (N = 4096).
-  void prefetch(double x_m, double y_m) const noexcept {
+  /// The top-left corner of the cell sample(x_m, y_m) reads (grid frame, metres), as prefetch()
+  /// names it: the cell is bilinear_cell's, found with a multiplication instead of its division,
+  /// so it may be the neighbouring cell at a cell edge; clamped to the grid, so that it and the
+  /// sample below it (one row_stride on) are always samples of the view. nullptr for a NaN
+  /// coordinate, a view without data or a grid under 2 × 2 cells. Real-time: yes.
+  const float* cell_address(double x_m, double y_m) const noexcept {
     const GridGeometry& g = view_.geometry;
     const double inv = 1.0 / g.cell_size_m;
     const double cu = (x_m - g.x0_m) * inv, cv = (y_m - g.y0_m) * inv;
-    if (!(cu == cu) || !(cv == cv) || view_.data == nullptr || g.rows < 2 || g.cols < 2) return;
+    if (!(cu == cu) || !(cv == cv) || view_.data == nullptr || g.rows < 2 || g.cols < 2) return nullptr;
     const int i = static_cast<int>(std::clamp(cu, 0.0, static_cast<double>(g.cols - 2)));
     const int j = static_cast<int>(std::clamp(cv, 0.0, static_cast<double>(g.rows - 2)));
-    const float* top = view_.data + static_cast<std::ptrdiff_t>(j) * view_.row_stride + i;
+    return view_.data + static_cast<std::ptrdiff_t>(j) * view_.row_stride + i;
+  }
+
+  /// Asks the processor to fetch the two grid rows sample(x_m, y_m) will read (cell_address and
+  /// the sample below it), so that a loop over points in no spatial order can name a point some
+  /// iterations ahead and find its cell in cache. No effect on any result; nothing for a point
+  /// cell_address gives none. Real-time: yes. Added 2026-11-29 (fifty-ninth session): about a
+  /// quarter of the tiled run's cross-check first pass was spent waiting on these loads at 10^8
+  /// points (N = 4096, a 32 MB grid; `perf annotate`).
+  void prefetch(double x_m, double y_m) const noexcept {
+    const float* top = cell_address(x_m, y_m);
+    if (top == nullptr) return;
     __builtin_prefetch(top);
     __builtin_prefetch(top + view_.row_stride);
   }
