@@ -72,12 +72,13 @@ class BilinearSurface {
   /// names it: the cell is bilinear_cell's, found with a multiplication instead of its division,
   /// so it may be the neighbouring cell at a cell edge; clamped to the grid, so that it and the
   /// sample below it (one row_stride on) are always samples of the view. nullptr for a NaN
-  /// coordinate, a view without data or a grid under 2 × 2 cells. Real-time: yes.
+  /// coordinate, a view without data, a grid under 2 × 2 cells or a cell size not > 0. Real-time: yes.
   const float* cell_address(double x_m, double y_m) const noexcept {
     const GridGeometry& g = view_.geometry;
+    if (view_.data == nullptr || g.rows < 2 || g.cols < 2 || !(g.cell_size_m > 0.0)) return nullptr;
     const double inv = 1.0 / g.cell_size_m;
     const double cu = (x_m - g.x0_m) * inv, cv = (y_m - g.y0_m) * inv;
-    if (!(cu == cu) || !(cv == cv) || view_.data == nullptr || g.rows < 2 || g.cols < 2) return nullptr;
+    if (!(cu == cu) || !(cv == cv)) return nullptr;
     const int i = static_cast<int>(std::clamp(cu, 0.0, static_cast<double>(g.cols - 2)));
     const int j = static_cast<int>(std::clamp(cv, 0.0, static_cast<double>(g.rows - 2)));
     return view_.data + static_cast<std::ptrdiff_t>(j) * view_.row_stride + i;
