@@ -377,21 +377,30 @@ class Spill : public TileFiles {
     const std::size_t rec = layout_.bytes();
     const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
     if (n == 0) return;
-    std::vector<char> raw(bytes_[t]);
+    // Read in chunks of about 4 MB, the buffer reused (as scan_records): the whole file in one
+    // buffer (47 MB for a window of 3.6 M float records) was zeroed on allocation and, given
+    // back between tiles, faulted in and zeroed again by the kernel for every tile.
+    const std::size_t per = std::max<std::size_t>(1, (4u << 20) / rec);
+    std::vector<char> raw(std::min(per, n) * rec);
     errno = 0;
     const int fd = ::open(file(t).c_str(), O_RDWR | O_CLOEXEC);
-    bool ok = fd >= 0 && detail::pread_full(fd, raw.data(), raw.size(), 0);
+    bool ok = fd >= 0;
     double p[3];
-    for (std::size_t i = 0; ok && i < n; ++i) {
-      const char* q = raw.data() + i * rec;
-      layout_.xyz(q + 1, p);
-      const char flag = static_cast<char>(mark(static_cast<const double*>(p)));
-      if (flag != q[0]) ok = detail::pwrite_full(fd, &flag, 1, i * rec);
+    for (std::size_t done = 0; ok && done < n;) {
+      const std::size_t m = std::min(per, n - done);
+      ok = detail::pread_full(fd, raw.data(), m * rec, done * rec);
+      for (std::size_t i = 0; ok && i < m; ++i) {
+        const char* q = raw.data() + i * rec;
+        layout_.xyz(q + 1, p);
+        const char flag = static_cast<char>(mark(static_cast<const double*>(p)));
+        if (flag != q[0]) ok = detail::pwrite_full(fd, &flag, 1, (done + i) * rec);
+      }
+      done += m;
     }
     const int err = errno;
     const bool closed = fd >= 0 && ::close(fd) == 0;
     if (!ok || !closed) {
-      throw InputError("scale.scratch: cannot re-mark the " + std::to_string(raw.size()) + " bytes of the spill file " +
+      throw InputError("scale.scratch: cannot re-mark the " + std::to_string(bytes_[t]) + " bytes of the spill file " +
                        file(t).string() + (err != 0 ? std::string(": ") + std::strerror(err) : std::string()) + " (is the disk full?)");
     }
   }

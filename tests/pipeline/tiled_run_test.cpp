@@ -1573,6 +1573,41 @@ TEST(TiledRun, AFarClusterBehindTheSurfaceIsReMarkedInTheSpillNotSpilledAgain) {
   }
 }
 
+// The far cluster's points re-marked where they lie in a spill file longer than the re-mark's
+// read of about 4 MB (Spill::remark reads a tile's file in such chunks since the sixtieth
+// session, 2026-11-30): one tile holds a patch of 420 × 420 points and the cluster, written
+// last. The file gives doubles, so the spill holds 25 bytes a record (a flag and x y z as
+// doubles) and the cluster's records, from record 176 400 on, lie past the first chunk's
+// 167 772. Marked at the wrong records, the cluster would reach the tile's filters (which would
+// remove it as a far cluster of their own) and other points would go as far ones.
+TEST(TiledRun, AFarClusterPastTheFirstChunkOfALongSpillFileIsReMarked) {
+  const fs::path dir = hc::test::temp_dir("far_long_spill");
+  constexpr int kSide = 420;
+  {
+    std::ofstream out(dir / "patch.ply");
+    out << "ply\nformat ascii 1.0\nelement vertex " << kSide * kSide + 30
+        << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
+    for (int i = 0; i < kSide; ++i)
+      for (int j = 0; j < kSide; ++j) out << 0.0025 * i << " " << 0.0025 * j << " " << 0.0002 * ((i * 7 + j * 3) % 5) << "\n";
+    for (int i = 0; i < 30; ++i) out << 0.5 + 0.002 * (i % 6) << " " << 0.5 + 0.002 * (i / 6) << " " << -2.0 + 0.001 * (i % 3) << "\n";
+  }
+  const auto [config, in, tiled] =
+      in_core_and_tiled(dir, "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n", 256);
+  ASSERT_EQ(stage_figure(tiled, "tile_plan", "tiles"), 1.0) << "one tile holds every point";
+  ASSERT_EQ(stage_figure(tiled, "tile_spill", "spill_xyz_floats"), 0.0) << "the case needs the doubles' 25-byte records";
+  ASSERT_GT(stage_figure(tiled, "tile_spill", "points_spilled"), 4.0 * 1024 * 1024 / 25.0) << "and a file longer than one chunk";
+  EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "second_spill"), 0.0) << "re-marked, not spilled again";
+  EXPECT_EQ(stage_figure(tiled, "tile_far_clusters", "far_points_spilled_marked"), 30.0);
+  EXPECT_EQ(stage_figure(tiled, "tiles", "sum_removed_far_clusters"), 0.0) << "every far point marked in the file";
+  EXPECT_EQ(stage_figure(in, "outliers", "removed_far_clusters"), 30.0);
+  EXPECT_EQ(tiled.scene.geometry, in.scene.geometry);
+  EXPECT_EQ(differing_bits(in.scene.layers.depth, tiled.scene.layers.depth), 0U);
+  ASSERT_TRUE(tiled.summary.input_check && in.summary.input_check);
+  EXPECT_EQ(tiled.summary.input_check->far, 30U);
+  EXPECT_EQ(tiled.summary.input_check->removed, in.summary.input_check->removed);
+  EXPECT_EQ(tiled.summary.input_check->on_surface, in.summary.input_check->on_surface);
+}
+
 // A plate of 8 × 8 points (1 cm apart) floating 30 cm above the middle of the patch, with a
 // wall 50 cm high (100 × 50 points, 1 cm apart) standing on the patch's edge at x = 0: the
 // scan's main body (patch and wall) spans the plate's height, so in core the plate is not far
