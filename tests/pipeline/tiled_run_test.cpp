@@ -238,21 +238,35 @@ TEST(TiledRun, TilesShrinkSoThatNoWindowHoldsMoreThanTileMaxPoints) {
   EXPECT_TRUE(has_note(tiled, "tile_plan", "not scale.tile_cells' 512"));
   EXPECT_FALSE(has_note(tiled, "tile_plan", "the densest window holds up to"));
 
-  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
-  config.scale.tile_cells = 512;
-  config.scale.scratch = scratch;
+  // The two bounds below change only the plan (the tile side, the spill): their plans alone are
+  // written (hapticloud tile-plan's passes, the same code as the run's), not two more whole runs
+  // of the tile loop (sixtieth session, 2026-11-30: this test was the heaviest of the ASan stage).
+  const auto planned = [&](const std::string& name, const std::string& max_points) {
+    const auto info = hc::pipeline::write_tile_plan(
+        cfg, {"filters.outliers.enabled=false", "scale.tile_cells=512", "scale.tile_max_points=" + max_points}, scratch / name);
+    std::ifstream in(info.plan_file);
+    const nlohmann::json plan = nlohmann::json::parse(in);
+    BuiltScene b;  // its summary's stages: the plan's reports, figures as the plan writes them (%a)
+    for (const auto& rj : plan.at("reports")) {
+      hc::pipeline::StageReport r;
+      r.stage = rj.at("stage").get<std::string>();
+      for (const auto& fj : rj.at("figures")) r.figure(fj.at(0).get<std::string>(), std::strtod(fj.at(1).get<std::string>().c_str(), nullptr));
+      r.notes = rj.at("notes").get<std::vector<std::string>>();
+      b.summary.stages.push_back(std::move(r));
+    }
+    fs::remove_all(scratch / name);  // the plan's spill, kept for tile jobs that will not run
+    return b;
+  };
   // A bound no tile as wide as the halo (36 cells here; 43 until the grid stages' reach was
   // tightened, 2026-11-28) meets: tiles of the halo's side, and a note that the densest window
   // still holds more.
-  config.scale.tile_max_points = 40000;
-  const BuiltScene tight = hc::pipeline::build_scene(config);
+  const BuiltScene tight = planned("tight", "40000");
   EXPECT_EQ(stage_figure(tight, "tile_plan", "tile_cells"), stage_figure(tight, "tile_plan", "halo_cells"));
   EXPECT_GT(stage_figure(tight, "tile_spill", "window_points_max"), 40000.0);
   EXPECT_TRUE(has_note(tight, "tile_plan", "the densest window holds up to"));
 
   // Without the bound: the configured side, and windows of far more points.
-  config.scale.tile_max_points = 0;
-  const BuiltScene whole = hc::pipeline::build_scene(config);
+  const BuiltScene whole = planned("whole", "0");
   EXPECT_EQ(stage_figure(whole, "tile_plan", "tile_cells"), 512.0);
   EXPECT_GT(stage_figure(whole, "tile_spill", "window_points_max"), 400000.0);
   EXPECT_LT(stage_figure(whole, "tile_plan", "window_points_bound"), 0.0) << "no count without the bound";
