@@ -89,8 +89,11 @@ class BilinearSurface {
   /// iterations ahead and find its cell in cache. No effect on any result; nothing for a point
   /// cell_address gives none. Real-time: yes. Added 2026-11-29 (fifty-ninth session): about a
   /// quarter of the tiled run's cross-check first pass was spent waiting on these loads at 10^8
-  /// points (N = 4096, a 32 MB grid; `perf annotate`).
-  void prefetch(double x_m, double y_m) const noexcept {
+  /// points (N = 4096, a 32 MB grid; `perf annotate`). Always inlined: GCC 12's pure-const
+  /// analysis takes a function whose only effect is __builtin_prefetch for a pure one and, its
+  /// result unused, deletes its calls; not inlined, this emitted no instruction at all (found
+  /// 2026-11-30 in the release binary's disassembly: the fifty-ninth session's fetch ahead never ran).
+  [[gnu::always_inline]] void prefetch(double x_m, double y_m) const noexcept {
     const float* top = cell_address(x_m, y_m);
     if (top == nullptr) return;
     __builtin_prefetch(top);
