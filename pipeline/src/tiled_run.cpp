@@ -377,10 +377,10 @@ class Spill : public TileFiles {
     const std::size_t rec = layout_.bytes();
     const std::size_t n = static_cast<std::size_t>(bytes_[t] / rec);
     if (n == 0) return;
-    // Read in chunks of about 4 MB, the buffer reused (as scan_records): the whole file in one
-    // buffer (47 MB for a window of 3.6 M float records) was zeroed on allocation and, given
+    // Read in chunks (records_per_read), the buffer reused, as scan_records: the whole file in
+    // one buffer (47 MB for a window of 3.6 M float records) was zeroed on allocation and, given
     // back between tiles, faulted in and zeroed again by the kernel for every tile.
-    const std::size_t per = std::max<std::size_t>(1, (4u << 20) / rec);
+    const std::size_t per = records_per_read();
     std::vector<char> raw(std::min(per, n) * rec);
     errno = 0;
     const int fd = ::open(file(t).c_str(), O_RDWR | O_CLOEXEC);
@@ -450,7 +450,7 @@ class Spill : public TileFiles {
     const std::unique_ptr<std::FILE, int (*)(std::FILE*)> file_closed(std::fopen(file(t).c_str(), "rb"), &std::fclose);
     std::FILE* f = file_closed.get();
     if (!f) throw InputError("tiled run: cannot read the spill file " + file(t).string());
-    const std::size_t per = std::max<std::size_t>(1, (4u << 20) / rec);
+    const std::size_t per = records_per_read();
     std::vector<char> raw(std::min(per, n) * rec);
     for (std::size_t done = 0; done < n;) {
       const std::size_t m = std::min(per, n - done);
@@ -466,6 +466,9 @@ class Spill : public TileFiles {
   }
 
  private:
+  // Records a read of a tile's file takes at once (scan_records, remark): about 4 MB of them.
+  std::size_t records_per_read() const { return std::max<std::size_t>(1, (std::size_t{4} << 20) / layout_.bytes()); }
+
   static constexpr std::size_t kTileBuffer = 1u << 18;
   static constexpr std::size_t kTotalBuffer = 64u << 20;
 
