@@ -257,19 +257,14 @@ bool every_part_has(const std::vector<Cloud>& parts, const std::vector<std::file
 }
 }  // namespace
 
-StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>& scans,
-                                        const std::filesystem::path& conf_path, const LoadOptions& options) {
-  const auto t0 = Clock::now();
-  if (scans.empty()) throw InputError("load_and_merge_scans: no scan files given (conf " + quoted(conf_path) + ")");
+std::vector<Eigen::Affine3d> scan_poses(const std::vector<std::filesystem::path>& scans, const std::filesystem::path& conf_path) {
+  if (scans.empty()) throw InputError("input.conf: no scan files given (conf " + quoted(conf_path) + ")");
   if (scans.size() > std::numeric_limits<std::uint16_t>::max()) {
-    throw InputError("load_and_merge_scans: " + std::to_string(scans.size()) + " scans given, at most 65535 supported");
+    throw InputError("input.conf: " + std::to_string(scans.size()) + " scans given, at most 65535 supported");
   }
   const std::vector<ScanPose> poses = read_scanalyze_conf(conf_path);
-  StageReport report;
-  report.stage = "load";
-
-  // Resolve every pose before reading any scan, so a missing pose fails fast.
-  std::vector<const ScanPose*> matched;
+  std::vector<Eigen::Affine3d> out;
+  out.reserve(scans.size());
   for (const auto& scan : scans) {
     const std::string want = strip_gz(scan.filename().string());
     const ScanPose* found = nullptr;
@@ -280,11 +275,31 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
       }
     }
     if (!found) {
-      throw InputError("load_and_merge_scans: scan " + quoted(scan) + " has no bmesh line named '" + want +
-                       "' in " + quoted(conf_path));
+      throw InputError("input.conf: scan " + quoted(scan) + " has no bmesh line named '" + want + "' in " + quoted(conf_path));
     }
-    matched.push_back(found);
+    out.push_back(found->scan_to_world());
   }
+  return out;
+}
+
+// Not inlined: one body for both callers, so a build that contracts to FMAs contracts both alike.
+[[gnu::noinline]] void move_to_world(const Eigen::Affine3d& scan_to_world, Eigen::Matrix3Xd& xyz) {
+  const Eigen::Matrix3d l = scan_to_world.linear();
+  const Eigen::Vector3d t = scan_to_world.translation();
+  double* p = xyz.data();
+  const Eigen::Index n = xyz.cols();
+  for (Eigen::Index i = 0; i < n; ++i, p += 3) {
+    const double x = p[0], y = p[1], z = p[2];
+    for (int a = 0; a < 3; ++a) p[a] = ((l(a, 0) * x + l(a, 1) * y) + l(a, 2) * z) + t[a];
+  }
+}
+
+StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>& scans,
+                                        const std::filesystem::path& conf_path, const LoadOptions& options) {
+  const auto t0 = Clock::now();
+  const std::vector<Eigen::Affine3d> matched = scan_poses(scans, conf_path);  // every pose before any scan is read
+  StageReport report;
+  report.stage = "load";
 
   // Scans are read and moved into the common frame on two threads; the first error (in scan
   // order) is rethrown.
@@ -303,8 +318,7 @@ StageResult<Cloud> load_and_merge_scans(const std::vector<std::filesystem::path>
             part_notes[i].push_back(scans[i].filename().string() + ": " + note);
           }
         }
-        const Eigen::Affine3d m = matched[i]->scan_to_world();
-        c.xyz = (m.linear() * c.xyz).colwise() + m.translation();
+        move_to_world(matched[i], c.xyz);
         parts[i] = std::move(c);
       } catch (...) {
         errors[i] = std::current_exception();

@@ -102,25 +102,32 @@ void remember_probe(const ProbeKey& key, const FileProbe& p) {
   c.probes[key] = p;
 }
 
-// Several files in one frame (open_point_streams): each file's stream in turn.
+// Several files in one frame (open_point_streams), or scans placed by their poses
+// (open_posed_point_streams): each file's stream in turn.
 class FilesStream final : public PointStream {
  public:
-  FilesStream(std::vector<std::filesystem::path> files, const LoadOptions& options) : files_(std::move(files)), options_(options) {
+  // `poses`: empty (input.shared_frame), or one scan-to-world transform per file (input.conf).
+  FilesStream(std::vector<std::filesystem::path> files, const LoadOptions& options, std::vector<Eigen::Affine3d> poses = {})
+      : files_(std::move(files)), options_(options), poses_(std::move(poses)) {
+    const bool posed = !poses_.empty();
+    const char* key = posed ? "input.conf" : "input.shared_frame";
     std::pair<std::string, std::string> crs;
     bool any_rgb = false, any_intensity = false;
     std::string no_rgb, no_intensity;  // the first file without each
     for (const auto& f : files_) {
-      ProbeKey key{};
-      std::optional<FileProbe> p = recall_probe(f, options_, key);
+      ProbeKey probe_key{};
+      std::optional<FileProbe> p = recall_probe(f, options_, probe_key);
       if (!p) {
         const auto s = open_point_stream(f, options_);
         Cloud c;
-        if (!s->next(c, 1)) throw InputError("input.shared_frame: " + detail::quoted(f) + " holds no points");
+        const bool any = s->next(c, 1);
+        // A scan without points merges as none (load_and_merge_scans: no colour, no intensity).
+        if (!any && !posed) throw InputError("input.shared_frame: " + detail::quoted(f) + " holds no points");
         p = FileProbe{s->total_points(), s->crs(), s->streamed(), c.has_rgb(), c.has_intensity(), c.float32_xyz};
-        remember_probe(key, *p);
+        remember_probe(probe_key, *p);
       }
       total_ += p->total;
-      check_same_crs(crs, p->crs, f);
+      if (!posed) check_same_crs(crs, p->crs, f);  // poses place the scans: the merge declares no CRS
       streamed_ = streamed_ && p->streamed;
       float32_ = float32_ || p->float32;
       any_rgb = any_rgb || p->rgb;
@@ -129,10 +136,11 @@ class FilesStream final : public PointStream {
       if (!p->intensity && no_intensity.empty()) no_intensity = f.filename().string();
     }
     crs_ = crs.first;
+    float32_ = float32_ && !posed;  // posed coordinates are no file's floats: spilled as doubles
     keep_rgb_ = no_rgb.empty();
     keep_intensity_ = no_intensity.empty();
-    if (any_rgb && !keep_rgb_) notes_.push_back("input.shared_frame: rgb dropped: " + no_rgb + " has none");
-    if (any_intensity && !keep_intensity_) notes_.push_back("input.shared_frame: intensity dropped: " + no_intensity + " has none");
+    if (any_rgb && !keep_rgb_) notes_.push_back(std::string(key) + ": rgb dropped: " + no_rgb + " has none");
+    if (any_intensity && !keep_intensity_) notes_.push_back(std::string(key) + ": intensity dropped: " + no_intensity + " has none");
   }
   std::uint64_t total_points() const override { return total_; }
   const std::vector<std::string>& notes() const override { return notes_; }
@@ -145,6 +153,7 @@ class FilesStream final : public PointStream {
         given_ += chunk.size();
         if (!keep_rgb_) chunk.rgb.clear();
         if (!keep_intensity_) chunk.intensity.clear();
+        if (!poses_.empty()) move_to_world(poses_[at_], chunk.xyz);
         chunk.float32_xyz = float32_;
         return true;
       }
@@ -162,6 +171,7 @@ class FilesStream final : public PointStream {
  private:
   std::vector<std::filesystem::path> files_;
   LoadOptions options_;
+  std::vector<Eigen::Affine3d> poses_;  // per file, or empty
   std::unique_ptr<PointStream> now_;  // files_[at_]'s stream, once opened
   std::size_t at_ = 0;
   std::uint64_t total_ = 0, given_ = 0;  // given_: files_[at_]'s points handed out
@@ -280,6 +290,11 @@ std::unique_ptr<PointStream> open_point_streams(const std::vector<std::filesyste
   if (files.empty()) throw InputError("open_point_streams: no files given (input.files is empty)");
   if (files.size() == 1) return open_point_stream(files.front(), options);
   return std::make_unique<FilesStream>(files, options);
+}
+
+std::unique_ptr<PointStream> open_posed_point_streams(const std::vector<std::filesystem::path>& scans,
+                                                      const std::filesystem::path& conf_path, const LoadOptions& options) {
+  return std::make_unique<FilesStream>(scans, options, scan_poses(scans, conf_path));
 }
 
 }  // namespace hc::pipeline

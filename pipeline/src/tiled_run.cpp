@@ -1195,13 +1195,20 @@ void add_figures(std::map<std::string, double>& sums, const StageReport& r) {
   }
 }
 
+// The run's input as one stream: the scans placed by their poses (input.conf), else the files
+// in one frame (input.shared_frame) or the one file.
+std::unique_ptr<PointStream> open_input(const RunConfig& config, const LoadOptions& load) {
+  if (config.input.conf) return open_posed_point_streams(config.input.files, *config.input.conf, load);
+  return open_point_streams(config.input.files, load);
+}
+
 // One pass over the input in the grid frame: every chunk through to_grid_frame, then `body`,
 // with the pass's progress by points read.
 template <class Body>
-void for_each_grid_chunk(const std::vector<std::filesystem::path>& input, const LoadOptions& load, const RunConfig& config,
+void for_each_grid_chunk(const LoadOptions& load, const RunConfig& config,
                          const Eigen::Vector3d& centre, double unit_m, std::uint64_t total_points,
                          const ProgressFn& progress, const char* stage_name, const char* pass, Body&& body) {
-  auto s = open_point_streams(input, load);
+  auto s = open_input(config, load);
   Cloud c;
   detail::PassProgress tick(progress, stage_name, pass, config.scale.progress_interval_s);
   std::uint64_t read = 0;
@@ -1244,7 +1251,7 @@ std::optional<std::uint64_t> gzipped_e57_count(const fs::path& f) {
 }  // namespace
 
 std::optional<std::uint64_t> counted_input_points(const RunConfig& config, bool headers_only) {
-  if (config.input.synthetic || config.input.conf || config.input.files.empty()) return std::nullopt;
+  if (config.input.synthetic || config.input.files.empty()) return std::nullopt;
   std::uint64_t total = 0;
   for (const fs::path& f : config.input.files) {
     std::string ext;
@@ -1301,9 +1308,8 @@ std::optional<std::uint64_t> counted_input_points(const RunConfig& config, bool 
 std::string tiled_run_refusal(const RunConfig& c) {
   const auto refuse = [](const char* key, const std::string& why) { return std::string(key) + " " + why; };
   if (c.input.synthetic) return refuse("input.synthetic", "is set");
-  if (c.input.conf) return refuse("input.conf", "is set (a merge of several scans)");
-  if (c.input.files.size() != 1 && !c.input.shared_frame) {
-    return refuse("input.files", "lists " + std::to_string(c.input.files.size()) + " files without input.shared_frame");
+  if (c.input.files.size() != 1 && !c.input.shared_frame && !c.input.conf) {
+    return refuse("input.files", "lists " + std::to_string(c.input.files.size()) + " files without input.shared_frame or input.conf");
   }
   if (c.filters.voxel_m > 0.0) return refuse("filters.voxel_m", "is > 0");
   if (!c.filters.pcl.empty()) return refuse("filters.pcl", "is not empty");
@@ -1320,7 +1326,7 @@ bool runs_tiled(const RunConfig& config) {
     check_supported(config);
     return true;
   }
-  if (config.input.files.size() > 1 && !config.input.shared_frame) return false;
+  if (config.input.files.size() > 1 && !config.input.shared_frame && !config.input.conf) return false;
   const std::optional<std::uint64_t> total = counted_input_points(config, false);
   if (!total || *total <= config.scale.tiled_above_points) return false;
   return tiled_run_refusal(config).empty();  // auto: an option the tiled run lacks keeps the run in core
@@ -2866,7 +2872,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   const auto coverage_pass = [&](const FarCells* far, int k_first, int k_last, const char* stage_name, const char* what) {
     UpsampleCoverage cov(tiles.g, k_first, k_last);
     const bool count = counts && !counted;
-    for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name, what, [&](const Cloud& g) {
+    for_each_grid_chunk(load, config, centre, unit_m, box.points, progress, stage_name, what, [&](const Cloud& g) {
       // Far points counted too: the spill keeps them (marked) in the windows of their clamped nodes.
       if (count) counts->add(g.xyz.data(), g.size());
       if (!far) {
@@ -2928,7 +2934,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     } else if (counts) {
       if (!counted) {
         count_pass = true;
-        for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
+        for_each_grid_chunk(load, config, centre, unit_m, box.points, progress, stage_name,
                             "pass 2d of 3: the points per block, for the tile size", [&](const Cloud& g) {
                               // Far points too, as the coverage pass counts them.
                               counts->add(g.xyz.data(), g.size());
@@ -2992,7 +2998,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     }
     grid_box_from_file = file_frame;
     if (!file_frame) {
-      for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
+      for_each_grid_chunk(load, config, centre, unit_m, box.points, progress, stage_name,
                           "pass 2 of 3: the grid's box", [&](const Cloud& g) {
                             for (Eigen::Index i = 0; i < g.xyz.cols(); ++i) {
                               if (far && far->holds(g.xyz.data() + 3 * i)) continue;
@@ -3049,7 +3055,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     const double inflated_mb = inflate_seeking_inputs(input, dir, load, r.report.notes);
     if (!load.inflated.empty()) r.report.figure("inflated_input_mb", inflated_mb);
     {
-      auto s = open_point_streams(input, load);
+      auto s = open_input(config, load);
       crs = s->crs();
       Cloud c;
       bool first = true;
@@ -3134,6 +3140,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   }
   const Eigen::Vector3d offset_m = centre * unit_m;
   for (const fs::path& f : input) plan.inputs.push_back({f.string(), sha256_file(f)});
+  if (config.input.conf) plan.inputs.push_back({config.input.conf->string(), sha256_file(*config.input.conf)});
 
   // 2. Spill every point to the tiles whose window holds its node. The robust test's sample
   // (the points the in-core run samples, by their order after non-finite and crop) is marked
@@ -3183,7 +3190,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       const std::vector<std::array<int, 3>> row_tiles = spans(tiles.g.rows, true), col_tiles = spans(tiles.g.cols, false);
       std::uint64_t seen = 0;
       try {
-      for_each_grid_chunk(input, load, config, centre, unit_m, box.points, progress, stage_name,
+      for_each_grid_chunk(load, config, centre, unit_m, box.points, progress, stage_name,
                           spill_coverage ? "pass 3 of 3: the spill, with the upsample coverage" : "pass 3 of 3: the spill",
                           [&](const Cloud& g) {
         if (spill_coverage) {

@@ -4,6 +4,10 @@
 // (hc::tools::relief_point): its scene, in core and tiled, must equal the parts' bit for bit.
 // Also: colour that one part lacks is dropped in both runs alike, two CRS are refused naming both
 // files, and several files without input.conf or input.shared_frame are refused naming both keys.
+// input.conf (raw scans placed by their poses, the Buddha's real scans and scanalyze .conf): the
+// tiled run streams them; its oracle is the in-core merge (load_and_merge_scans, whose pose
+// convention ingest_test.cpp proves by the overlap of neighbouring views): the same scene, and
+// the stream's points the merge's bit for bit in any chunk size.
 
 #include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
@@ -21,12 +25,14 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <fstream>
 #include <iterator>
 #include <iomanip>
 #include <limits>
+#include <random>
 #include <string>
 #include <vector>
 
@@ -299,6 +305,134 @@ TEST(SharedFrameConfig, SeveralFilesNeedConfOrSharedFrameAndNotBoth) {
   EXPECT_EQ(error_of("{files: [a.ply, b.ply], shared_frame: true}"), "");
   const std::string wrong = error_of("{files: [a.ply, b.ply], shared_frame: maybe}");
   EXPECT_NE(wrong.find("input.shared_frame = 'maybe': expected true or false"), std::string::npos) << wrong;
+}
+
+// --- input.conf ----------------------------------------------------------------------------------
+
+// The Buddha's raw scans at 0°, 24°, 48° and 72° (285 k points) and their real .conf.
+std::vector<fs::path> raw_scans() {
+  const fs::path raw = hc::test::scan_path("happy_buddha/raw_scans");
+  return {raw / "happyStandRight_0.ply.gz", raw / "happyStandRight_24.ply.gz", raw / "happyStandRight_48.ply.gz",
+          raw / "happyStandRight_72.ply.gz"};
+}
+fs::path raw_conf() { return hc::test::scan_path("happy_buddha/raw_scans/happyStandRight.conf"); }
+
+RunConfig posed_config(const fs::path& dir, const std::vector<fs::path>& scans, bool tiled) {
+  std::string files;
+  for (const fs::path& f : scans) files += (files.empty() ? "" : ", ") + f.string();
+  const std::string yaml = "input: {files: [" + files + "], conf: " + raw_conf().string() +
+                           ", units: m}\n"
+                           "grid: {n: 400, splat_radius_cells: 1.2, see_through_depth_m: 0.002, hole_fill_max_cells: 64}\n"
+                           "cross_check: {tolerance_m: 0.0005}\n"
+                           "filters: {outliers: {enabled: true}}\n"
+                           "scale: {chunk_points: 20000, tile_cells: 64, tiled: " +
+                           std::string(tiled ? "'on'" : "'off'") + "}\n";
+  RunConfig c = hc::pipeline::parse_run_config(yaml, dir / "run.yaml");
+  c.scale.scratch = dir / "scratch";
+  fs::create_directories(c.scale.scratch);
+  return c;
+}
+
+// The tiled run of raw scans placed by their poses equals the in-core merge's run (robust
+// filter and cross-check on), streams every scan, leaves nothing in the scratch folder, and lists
+// the scans and the .conf in the provenance as the in-core run does; scale.tiled: auto counts
+// the scans' points together.
+TEST(PosedScans, TheTiledRunOfRawScansEqualsTheInCoreMerge) {
+  const fs::path d = hc::test::temp_dir("posed_scans");
+  const BuiltScene in = hc::pipeline::build_scene(posed_config(d, raw_scans(), false));
+  const BuiltScene tiled = hc::pipeline::build_scene(posed_config(d, raw_scans(), true));
+  EXPECT_FALSE(in.from_tiled_run);
+  ASSERT_TRUE(tiled.from_tiled_run);
+  EXPECT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0);
+  expect_same_scene(in, tiled, "raw scans by their poses, in core against tiled", false);
+  EXPECT_GT(in.scene.geometry.rows * in.scene.geometry.cols, 50'000);
+  EXPECT_FALSE(has_note(tiled, "read whole"));
+  std::size_t total = 0, last = 0;  // the scans' points as load_cloud reads each
+  for (const fs::path& f : raw_scans()) total += (last = hc::pipeline::load_cloud(f).value.size());
+  EXPECT_TRUE(has_note(tiled, "happyStandRight_72.ply.gz: " + std::to_string(last) + " points"));
+  EXPECT_TRUE(fs::is_empty(d / "scratch"));
+  for (const BuiltScene* b : {&in, &tiled}) {
+    const auto& inputs = b->scene.provenance.inputs;
+    ASSERT_EQ(inputs.size(), 5U);
+    EXPECT_EQ(fs::path(inputs[1].file).filename(), "happyStandRight_24.ply.gz");
+    EXPECT_EQ(fs::path(inputs[4].file).filename(), "happyStandRight.conf");
+    EXPECT_EQ(inputs[4].sha256.size(), 64U);
+  }
+  RunConfig aut = posed_config(d, raw_scans(), false);
+  aut.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kAuto;
+  ASSERT_GT(total, 250'000U);
+  aut.scale.tiled_above_points = total - 1;
+  EXPECT_TRUE(hc::pipeline::runs_tiled(aut));
+  aut.scale.tiled_above_points = total;
+  EXPECT_FALSE(hc::pipeline::runs_tiled(aut));
+}
+
+// The posed stream hands out the in-core merge's points bit for bit, in its order, in chunks of
+// 1, 13 (sizes at which an Eigen product takes another kernel) and 50 000 points, never across two
+// scans, with no float32 flag (posed coordinates are no file's floats).
+TEST(PosedScans, TheStreamGivesTheMergesPointsBitForBitInAnyChunkSize) {
+  const std::vector<fs::path> scans = {raw_scans()[0], raw_scans()[1]};
+  const hc::pipeline::Cloud merged = hc::pipeline::load_and_merge_scans(scans, raw_conf()).value;
+  ASSERT_EQ(merged.size(), 78'056U + 75'582U);
+  for (const std::size_t chunk_points : {std::size_t{1}, std::size_t{13}, std::size_t{50'000}}) {
+    SCOPED_TRACE(chunk_points);
+    auto s = hc::pipeline::open_posed_point_streams(scans, raw_conf());
+    EXPECT_EQ(s->total_points(), merged.size());
+    EXPECT_EQ(s->crs(), "");
+    hc::pipeline::Cloud chunk;
+    Eigen::Index at = 0;
+    bool same = true, float32 = false, spans = false;
+    while (s->next(chunk, chunk_points)) {
+      ASSERT_LE(at + chunk.xyz.cols(), merged.xyz.cols());
+      same = same && std::memcmp(chunk.xyz.data(), merged.xyz.col(at).data(), sizeof(double) * 3 * chunk.size()) == 0;
+      float32 = float32 || chunk.float32_xyz;
+      spans = spans || (at < 78'056 && at + chunk.xyz.cols() > 78'056);
+      at += chunk.xyz.cols();
+    }
+    EXPECT_EQ(at, merged.xyz.cols());
+    EXPECT_TRUE(same);
+    EXPECT_FALSE(float32);
+    EXPECT_FALSE(spans);
+  }
+}
+
+// move_to_world is the pose's affine map (Eigen's product as the oracle, to rounding), also for
+// a pose with a translation far from the origin.
+TEST(PosedScans, MoveToWorldIsThePosesAffineMap) {
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> u(-2.0, 2.0);
+  const auto poses = hc::pipeline::scan_poses(raw_scans(), raw_conf());
+  ASSERT_EQ(poses.size(), 4U);
+  std::vector<Eigen::Affine3d> all(poses.begin(), poses.end());
+  Eigen::Affine3d far = poses[2];
+  far.translation() += Eigen::Vector3d(1e5, -3e4, 12.0);
+  all.push_back(far);
+  for (const Eigen::Affine3d& m : all) {
+    Eigen::Matrix3Xd p(3, 257);
+    for (Eigen::Index i = 0; i < p.size(); ++i) p.data()[i] = u(rng);
+    Eigen::Matrix3Xd q = p;
+    hc::pipeline::move_to_world(m, q);
+    for (Eigen::Index i = 0; i < p.cols(); ++i) {
+      const Eigen::Vector3d want = m * Eigen::Vector3d(p.col(i));
+      EXPECT_LE((q.col(i) - want).cwiseAbs().maxCoeff(), 4.0 * std::numeric_limits<double>::epsilon() * (want.cwiseAbs().maxCoeff() + 2.0))
+          << i;
+    }
+  }
+}
+
+// A scan the .conf has no pose for stops both runs before any scan is read, naming the scan and
+// the .conf; the tiled run leaves nothing in its scratch folder.
+TEST(PosedScans, AScanWithoutAPoseIsRefusedNamingItAndTheConf) {
+  const fs::path d = hc::test::temp_dir("posed_scans_stray");
+  fs::copy_file(raw_scans()[0], d / "stray.ply.gz", fs::copy_options::overwrite_existing);
+  for (const bool tiled : {false, true}) {
+    SCOPED_TRACE(tiled ? "tiled" : "in core");
+    const std::string m = hc::test::error_of([&] { (void)hc::pipeline::build_scene(posed_config(d, {raw_scans()[0], d / "stray.ply.gz"}, tiled)); });
+    EXPECT_NE(m.find("stray.ply.gz"), std::string::npos) << m;
+    EXPECT_NE(m.find("happyStandRight.conf"), std::string::npos) << m;
+    EXPECT_NE(m.find("no bmesh line"), std::string::npos) << m;
+  }
+  EXPECT_TRUE(fs::is_empty(d / "scratch"));
 }
 
 }  // namespace

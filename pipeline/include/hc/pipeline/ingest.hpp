@@ -84,6 +84,24 @@ struct ScanPose {
 /// @throws hc::InputError naming the file and line for a malformed bmesh line or a file with none.
 std::vector<ScanPose> read_scanalyze_conf(const std::filesystem::path& conf_path);
 
+/// Each scan's scan-to-world transform (ScanPose::scan_to_world) from the scanalyze .conf at
+/// `conf_path`, in the order of `scans`: the bmesh line whose file name equals the scan's, a
+/// trailing .gz ignored on both sides (the first such line). All are resolved before any scan
+/// is read, so a missing pose fails at once. Shared by load_and_merge_scans and the tiled run's
+/// streams (open_posed_point_streams), so both place a scan by the same line.
+/// @throws hc::InputError for no scans, more than 65 535, a malformed .conf
+///         (read_scanalyze_conf), or a scan without a bmesh line (names the scan and the .conf).
+/// Thread-safe: yes. Source: scanalyze's .conf convention (data/README.md).
+std::vector<Eigen::Affine3d> scan_poses(const std::vector<std::filesystem::path>& scans, const std::filesystem::path& conf_path);
+
+/// Moves `xyz` (3 × n, a scan's own frame and units) into the common frame:
+/// p ← L·p + t with L = scan_to_world.linear(), t = its translation, each coordinate summed as
+/// ((L(i,0)·x + L(i,1)·y) + L(i,2)·z) + t(i) in double. One function for the in-core merge and
+/// the tiled run's chunks, so both give the same doubles bit for bit whatever the chunk size
+/// (an Eigen product picks its kernel by size, which may round a sum of zeros to +0 or −0).
+/// Real-time: no. Thread-safe: yes (on distinct arrays). Source: this project.
+void move_to_world(const Eigen::Affine3d& scan_to_world, Eigen::Matrix3Xd& xyz);
+
 /// Loads each scan, moves it into the common frame with its pose from `conf_path` (matched by
 /// file name, ignoring a trailing .gz) and concatenates them; scan_id is the index in `scans`.
 /// Scanner row/column, colour and intensity are kept when every scan has them (a note names the

@@ -84,4 +84,20 @@ std::unique_ptr<PointStream> open_point_stream(const std::filesystem::path& path
 ///         points, or two files declaring different CRS (check_same_crs).
 std::unique_ptr<PointStream> open_point_streams(const std::vector<std::filesystem::path>& files, const LoadOptions& options = {});
 
+/// input.conf: the scans in the listed order, each moved into the common frame by its pose
+/// from the scanalyze .conf at `conf_path` (scan_poses, move_to_world: the doubles
+/// load_and_merge_scans computes, bit for bit), as one stream of the points the in-core merge
+/// holds, in its order. Colour or intensity only when every scan has it (a note "input.conf:
+/// rgb dropped: <scan> has none"); no CRS (the poses place the scans); float32_xyz never set
+/// (posed coordinates are no file's floats); a scan without points gives none. One file is
+/// open at a time and a chunk never spans two scans; total_points(), notes() and streamed() as
+/// open_point_streams. A scan with faces streams only with LoadOptions::as_points (else the
+/// error of open_point_stream: a mesh is rasterised in core).
+/// @throws hc::InputError as scan_poses (a scan without a pose names both files) before any
+///         scan is opened, then as open_point_stream for each scan.
+/// Real-time: no. Thread-safe: one reader per stream. Source: this project (issue 14: a
+/// survey's stations placed by their registration).
+std::unique_ptr<PointStream> open_posed_point_streams(const std::vector<std::filesystem::path>& scans,
+                                                      const std::filesystem::path& conf_path, const LoadOptions& options = {});
+
 }  // namespace hc::pipeline
