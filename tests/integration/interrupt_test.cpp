@@ -1,7 +1,8 @@
 // Issue 15: SIGTERM (or Ctrl-C) while `hapticloud run` writes its output leaves no
 // `<out>.partial-<pid>` behind, and stale ones of dead processes are removed by the next run.
 // Issue 14: nor does it leave a tiled run's spill folder in scale.scratch, a tile plan's spill
-// files, or a tile job's temporary files.
+// files, or a tile job's temporary files. Nor does the scan generator hc-gen-relief leave its
+// half-written `.part-*` temporary.
 
 #include <gtest/gtest.h>
 
@@ -33,15 +34,16 @@ bool has_partial(const fs::path& dir) {
   return false;
 }
 
-// Starts the app with `args` (after the program name); its pid, or -1 when it cannot start.
-pid_t spawn_app(const std::vector<std::string>& args) {
-  std::vector<std::string> all = {HC_APP};
+// Starts `program` (default the app) with `args` (after the program name); its pid, or -1 when
+// it cannot start.
+pid_t spawn_app(const std::vector<std::string>& args, const char* program = HC_APP) {
+  std::vector<std::string> all = {program};
   all.insert(all.end(), args.begin(), args.end());
   std::vector<char*> argv;
   for (auto& a : all) argv.push_back(a.data());
   argv.push_back(nullptr);
   pid_t pid = 0;
-  return posix_spawn(&pid, HC_APP, nullptr, nullptr, argv.data(), environ) == 0 ? pid : -1;
+  return posix_spawn(&pid, program, nullptr, nullptr, argv.data(), environ) == 0 ? pid : -1;
 }
 
 // Starts the app with `args` (after the program name), waits until `seen()` (polling), sends
@@ -178,6 +180,47 @@ TEST(Interrupt, SigintDuringATileJobRemovesItsScratchAndKeepsThePlan) {
     const std::string n = e.path().filename().string();
     if (plan_files.count(n)) continue;
     EXPECT_TRUE(n.rfind("part_", 0) == 0 || n.rfind("kept_", 0) == 0) << "left: " << n;
+  }
+}
+
+// hc-gen-relief stopped by SIGTERM, SIGINT or SIGHUP while it writes: its exclusive temporary
+// (`<out>.part-*`, already holding points) is removed, no output appears, and the exit status is
+// 128 + the signal. 2 × 10^7 points on one thread in small chunks take seconds, so the signal
+// comes mid-write.
+TEST(Interrupt, TheGeneratorStoppedMidWriteLeavesNoTemporary) {
+  for (const int signo : {SIGTERM, SIGINT, SIGHUP}) {
+    SCOPED_TRACE(signo);
+    const fs::path dir = hc::test::temp_dir("interrupt_gen_relief_" + std::to_string(signo));
+    const fs::path out = dir / "wall.ply";
+    const auto part_with_points = [&] {
+      for (const auto& e : fs::directory_iterator(dir)) {
+        std::error_code ec;
+        if (e.path().filename().string().rfind("wall.ply.part-", 0) == 0 && fs::file_size(e.path(), ec) > 4096) return true;
+      }
+      return false;
+    };
+    const pid_t pid = spawn_app({out.string(), "--points", "2e7", "--threads", "1", "--chunk", "2000", "--quiet"}, HC_GEN_RELIEF);
+    ASSERT_GT(pid, 0) << "cannot start " << HC_GEN_RELIEF;
+    int status = 0;
+    bool seen = false, ended = false;
+    const auto deadline = std::chrono::steady_clock::now() + std::chrono::seconds(120);
+    while (!seen && std::chrono::steady_clock::now() < deadline) {
+      if (waitpid(pid, &status, WNOHANG) == pid) {
+        ended = true;
+        break;
+      }
+      seen = part_with_points();
+      if (!seen) std::this_thread::sleep_for(std::chrono::microseconds(500));
+    }
+    if (!ended) {
+      ASSERT_TRUE(seen) << "no temporary with points appeared in 120 s";
+      ASSERT_EQ(kill(pid, signo), 0);
+      ASSERT_EQ(waitpid(pid, &status, 0), pid);
+    }
+    ASSERT_FALSE(ended) << "the generator ended before its temporary held points";
+    ASSERT_TRUE(WIFEXITED(status)) << "ended by the signal's default action (status " << status << ")";
+    EXPECT_EQ(WEXITSTATUS(status), 128 + signo);
+    EXPECT_TRUE(fs::is_empty(dir)) << "left behind: " << fs::directory_iterator(dir)->path();
   }
 }
 

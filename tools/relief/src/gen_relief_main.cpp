@@ -4,7 +4,8 @@
 //   hc-gen-relief wall_1e8.ply --points 1e8
 //   hc-gen-relief wall.las --points 2e7 --rgb --width 4 --height 3
 //
-// Exit codes: 0 written; 1 bad input, an existing output, a write failure; 2 bad command line.
+// Exit codes: 0 written; 1 bad input, an existing output, a write failure; 2 bad command line;
+// 128 + the signal's number after SIGINT, SIGTERM or SIGHUP, the half-written temporary removed.
 
 #include "hc/common/error.hpp"
 #include "hc/tools/relief.hpp"
@@ -12,9 +13,49 @@
 #include <CLI/CLI.hpp>
 
 #include <cmath>
+#include <csignal>
 #include <cstdio>
 #include <exception>
+#include <filesystem>
+#include <mutex>
 #include <string>
+#include <thread>
+
+#include <pthread.h>
+#include <unistd.h>
+
+namespace {
+
+// The temporary write_relief is filling, for the signal watcher (empty: none).
+std::mutex g_part_mutex;
+std::filesystem::path g_part;
+
+// SIGINT, SIGTERM and SIGHUP blocked in every thread (set before any other thread starts) and
+// taken by one watcher thread, which removes the temporary and ends the process: a generator
+// stopped half-way leaves no `.part-*` file of gigabytes behind.
+void watch_signals() {
+  sigset_t set;
+  sigemptyset(&set);
+  sigaddset(&set, SIGINT);
+  sigaddset(&set, SIGTERM);
+  sigaddset(&set, SIGHUP);
+  if (pthread_sigmask(SIG_BLOCK, &set, nullptr) != 0) return;  // default actions then
+  std::thread([set] {
+    int sig = 0;
+    if (sigwait(&set, &sig) != 0) return;
+    const std::lock_guard<std::mutex> lock(g_part_mutex);  // held to the end: no new temporary
+    if (!g_part.empty()) {
+      std::error_code ec;
+      std::filesystem::remove(g_part, ec);
+      std::fprintf(stderr, "\nhc-gen-relief: stopped by signal %d; %s removed\n", sig, g_part.c_str());
+    } else {
+      std::fprintf(stderr, "\nhc-gen-relief: stopped by signal %d\n", sig);
+    }
+    std::_Exit(128 + sig);
+  }).detach();
+}
+
+}  // namespace
 
 int main(int argc, char** argv) {
   CLI::App app{"Write a generated carved-wall scan (binary PLY or LAS 1.2) in chunks, for scaling tests."};
@@ -63,7 +104,12 @@ int main(int argc, char** argv) {
       std::fprintf(stderr, "\rhc-gen-relief: %3d %%", pct);
       if (done == total) std::fputc('\n', stderr);
     };
-    const hc::tools::ReliefWriteStats s = hc::tools::write_relief(spec, out, chunk, threads, progress);
+    watch_signals();
+    const auto temporary = [](const std::filesystem::path& part) {
+      const std::lock_guard<std::mutex> lock(g_part_mutex);
+      g_part = part;
+    };
+    const hc::tools::ReliefWriteStats s = hc::tools::write_relief(spec, out, chunk, threads, progress, temporary);
     std::printf("%s: %llu points (front %llu, back %llu, outliers %llu), %.1f MB in %.2f s (%.1f M points/s), buffer %.1f MB\n",
                 out.c_str(), static_cast<unsigned long long>(s.points), static_cast<unsigned long long>(s.front),
                 static_cast<unsigned long long>(s.back), static_cast<unsigned long long>(s.outliers),

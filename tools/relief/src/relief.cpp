@@ -302,12 +302,14 @@ std::string e57_xml(const ReliefSpec& spec, std::uint64_t section_physical) {
 struct TempFile {
   fs::path path;
   std::FILE* f = nullptr;
+  const ReliefTemporaryFn* told = nullptr;  // told the path, and that it is gone
   ~TempFile() {
     if (f) std::fclose(f);
     if (!path.empty()) {
       std::error_code ec;
       fs::remove(path, ec);
     }
+    if (told != nullptr && *told) (*told)(fs::path());
   }
 };
 
@@ -440,7 +442,7 @@ std::vector<std::uint32_t> sorted_order(const ReliefSpec& s) {
 }  // namespace
 
 ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::size_t chunk_points, unsigned threads,
-                              const ReliefProgressFn& progress) {
+                              const ReliefProgressFn& progress, const ReliefTemporaryFn& temporary) {
   validate(spec);
   require(chunk_points >= 1, "chunk_points", static_cast<double>(chunk_points), ">= 1");
   const std::string ext = out.extension().string();
@@ -476,6 +478,10 @@ ReliefWriteStats write_relief(const ReliefSpec& spec, const fs::path& out, std::
 
   TempFile tmp;
   tmp.path = create_temporary_beside(out);
+  if (temporary) {
+    tmp.told = &temporary;
+    temporary(tmp.path);
+  }
   tmp.f = std::fopen(tmp.path.c_str(), "wb");
   if (!tmp.f) write_failed(out, errno);
 

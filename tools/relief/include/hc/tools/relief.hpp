@@ -126,6 +126,10 @@ struct ReliefWriteStats {
 
 /// Progress: points written so far and the total.
 using ReliefProgressFn = std::function<void(std::uint64_t done, std::uint64_t total)>;
+/// Told the exclusive temporary's path once it exists, and an empty path once it is gone (put
+/// in place, or removed after a failure): a caller's signal clean-up removes what it was told
+/// last (hc-gen-relief on SIGINT, SIGTERM or SIGHUP). Called on the writing thread.
+using ReliefTemporaryFn = std::function<void(const std::filesystem::path& temporary)>;
 
 /// Writes the scan to `out` (.ply, .las or .e57, by extension) in chunks of chunk_points points,
 /// generated on up to `threads` threads (0 = the hardware's count). The file is written into an
@@ -141,7 +145,9 @@ using ReliefProgressFn = std::function<void(std::uint64_t done, std::uint64_t to
 ///         than .ply / .las / .e57, a LAS or E57 file of 2³² points or more, or coordinates outside LAS's
 ///         32-bit range at 0.1 mm (±214 km); hc::InputError naming `out` if it exists, cannot be
 ///         written or the disk fills.
+/// `temporary`, when given, is told the temporary's path (ReliefTemporaryFn).
 ReliefWriteStats write_relief(const ReliefSpec& spec, const std::filesystem::path& out, std::size_t chunk_points = 1u << 20,
-                              unsigned threads = 0, const ReliefProgressFn& progress = {});
+                              unsigned threads = 0, const ReliefProgressFn& progress = {},
+                              const ReliefTemporaryFn& temporary = {});
 
 }  // namespace hc::tools
