@@ -1122,6 +1122,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
       const std::optional<bool> ih = r.get_bool_or_auto("scale.island_halo");
       c.scale.island_halo = !ih ? ScaleConfig::Tiled::kAuto : *ih ? ScaleConfig::Tiled::kOn : ScaleConfig::Tiled::kOff;
     }
+    c.scale.grid_on_kept_points = r.get_bool("scale.grid_on_kept_points", c.scale.grid_on_kept_points);
     c.scale.chunk_points = static_cast<std::size_t>(
         r.get_int("scale.chunk_points", static_cast<long long>(c.scale.chunk_points), 1024, 1LL << 28));
     if (r.has("scale.scratch")) c.scale.scratch = base / r.get_string("scale.scratch", "");

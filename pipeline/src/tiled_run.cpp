@@ -1369,6 +1369,19 @@ struct TileOutput {
   std::uint64_t spacing_points = 0;  // the input points it came from (its weight)
   std::uintmax_t kept_bytes = 0;   // size of the tile's kept-point mask file (0: none kept, no file)
   double seconds = 0.0;
+  // The x-y box [m, grid frame] and count of the points the tile owns that the outlier filters
+  // keep (the robust test, far clusters, the isolated filter; before the despike): the in-core
+  // run lays its grid on the whole scan's (scale.grid_on_kept_points). None with the filters off.
+  double kept_x_lo = std::numeric_limits<double>::infinity(), kept_x_hi = -kept_x_lo;
+  double kept_y_lo = kept_x_lo, kept_y_hi = -kept_x_lo;
+  std::uint64_t kept_owned = 0;
+  // The same after the despike (`after_*`, equal to the above where it removed no owned
+  // point), and the owned points it removed (x y z [m] each; in process only, not in a tile
+  // job's result): build_scene_tiled lays the grid on that box when the in-core run would.
+  double after_x_lo = std::numeric_limits<double>::infinity(), after_x_hi = -after_x_lo;
+  double after_y_lo = after_x_lo, after_y_hi = -after_x_lo;
+  std::uint64_t after_owned = 0;
+  std::vector<std::array<double, 3>> despiked_m;
 };
 
 // The levels table's sample: every sample_stride-th interior point, in tile order (read from the
@@ -2391,6 +2404,20 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     pts = std::move(f2.value);
     lap("isolated");
+    // The box of the owned points kept so far: their verdicts are the whole scan's (the decided
+    // region holds the interior), so the tiles' boxes merge into the in-core grid's box.
+    const NodeBinner node(tiles.g);
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      const double* p = pts.xyz.data() + 3 * i;
+      if (!node.inside(p, inner)) continue;
+      o.kept_x_lo = std::min(o.kept_x_lo, p[0]);
+      o.kept_x_hi = std::max(o.kept_x_hi, p[0]);
+      o.kept_y_lo = std::min(o.kept_y_lo, p[1]);
+      o.kept_y_hi = std::max(o.kept_y_hi, p[1]);
+      ++o.kept_owned;
+    }
+    o.after_x_lo = o.kept_x_lo, o.after_x_hi = o.kept_x_hi, o.after_y_lo = o.kept_y_lo, o.after_y_hi = o.kept_y_hi;
+    o.after_owned = o.kept_owned;
   }
   DepthGrid part;
   if (pts.size() > 0) {
@@ -2400,7 +2427,34 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     add_figures(o.sums, rp.report);
     part = std::move(rp.value);
     lap("reproject");
-    if (oc.enabled && oc.despike) {
+    const ScaleConfig::GridBox* carried = config.scale.grid_box && config.scale.grid_box->despiked_m ? &*config.scale.grid_box : nullptr;
+    if (oc.enabled && oc.despike && carried != nullptr) {
+      // The grid lies on the box left after an earlier attempt's despike (build_scene_tiled):
+      // its removals, made on the grid the in-core despike reads, are taken over, not judged
+      // again on this one (the in-core run lays its grid again after its despike, no second one).
+      const std::vector<std::array<double, 3>>& gone = *carried->despiked_m;  // sorted
+      RemovedPoints removed;
+      std::vector<bool> keep(pts.size(), true);
+      for (std::size_t i = 0; i < pts.size(); ++i) {
+        const double* p = pts.xyz.data() + 3 * i;
+        const std::array<double, 3> key{p[0], p[1], p[2]};
+        if (!std::binary_search(gone.begin(), gone.end(), key)) continue;
+        keep[i] = false;
+        removed.at.push_back(i);
+        removed.xyz.insert(removed.xyz.end(), p, p + 3);
+      }
+      o.sums["despike_points_taken_over"] += static_cast<double>(removed.size());
+      if (removed.size() > 0) {
+        pts.keep_if(keep);
+        compose_removal(removed.at);
+        if (pts.size() == 0) {
+          part = DepthGrid();
+        } else {
+          part = reproject_after_removal(pts, removed, StageResult<DepthGrid>{std::move(part), rp.report}, ow).value;
+        }
+      }
+      lap("despike");
+    } else if (oc.enabled && oc.despike) {
       const std::size_t before_n = pts.size();
       RemovedPoints removed;
       // Every group of at most island_max_cells cells is an island, even the window's largest
@@ -2451,6 +2505,13 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
             wi.largest_exact_group > static_cast<std::size_t>(despike_options.island_max_cells) ? 1.0 : 0.0;
       }
       compose_removal(removed.at);
+      {
+        const NodeBinner node(tiles.g);
+        for (std::size_t j = 0; j < removed.size(); ++j) {
+          const double* p = removed.xyz.data() + 3 * j;
+          if (node.inside(p, inner)) o.despiked_m.push_back({p[0], p[1], p[2]});
+        }
+      }
       // The despike's 3-D count searches at most max(4 scan cells, 4 spacings) about a point;
       // its verdicts are needed within the grid stages' reach of the interior (tile_halo). (The
       // honest check's confirmations read kept points within its tolerance, spike height or
@@ -2463,6 +2524,21 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
                           despike_search_radius_m(tiles.g.cell_size_m, static_cast<double>(tiles.k), spacing_m), "despike",
                           spacing_m, filter_halo_now(config, tiles));
       pts = std::move(ds.value);
+      if (!o.despiked_m.empty()) {  // an owned point gone: the box of those left
+        const NodeBinner node(tiles.g);
+        o.after_x_lo = o.after_y_lo = std::numeric_limits<double>::infinity();
+        o.after_x_hi = o.after_y_hi = -std::numeric_limits<double>::infinity();
+        o.after_owned = 0;
+        for (std::size_t i = 0; i < pts.size(); ++i) {
+          const double* p = pts.xyz.data() + 3 * i;
+          if (!node.inside(p, inner)) continue;
+          o.after_x_lo = std::min(o.after_x_lo, p[0]);
+          o.after_x_hi = std::max(o.after_x_hi, p[0]);
+          o.after_y_lo = std::min(o.after_y_lo, p[1]);
+          o.after_y_hi = std::max(o.after_y_hi, p[1]);
+          ++o.after_owned;
+        }
+      }
       if (pts.size() == 0) {
         part = DepthGrid();  // nothing left: the tile's cells stay no data
       } else if (pts.size() < before_n) {
@@ -2665,6 +2741,14 @@ struct TileMerge {
   std::uint64_t in = 0, out = 0, unjudged = 0;
   std::vector<std::pair<double, std::uint64_t>> spacings;  // each tile's spacing [m] and weight
   double job_seconds = 0.0;
+  // The kept points' box and count over the tiles (TileOutput::kept_x_lo ...).
+  double kept_x_lo = std::numeric_limits<double>::infinity(), kept_x_hi = -kept_x_lo;
+  double kept_y_lo = kept_x_lo, kept_y_hi = -kept_x_lo;
+  std::uint64_t kept_owned = 0;
+  double after_x_lo = std::numeric_limits<double>::infinity(), after_x_hi = -after_x_lo;
+  double after_y_lo = after_x_lo, after_y_hi = -after_x_lo;
+  std::uint64_t after_owned = 0;
+  std::vector<std::array<double, 3>> despiked_m;  // in process only (TileOutput::despiked_m)
 
   TileMerge(const Plan& plan) {
     const GridGeometry& g = plan.tiles.g;
@@ -2696,6 +2780,17 @@ struct TileMerge {
     unjudged += o.unjudged;
     if (o.spacing_m > 0.0 && o.spacing_points > 0) spacings.emplace_back(o.spacing_m, o.spacing_points);
     job_seconds += o.seconds;
+    kept_x_lo = std::min(kept_x_lo, o.kept_x_lo);
+    kept_x_hi = std::max(kept_x_hi, o.kept_x_hi);
+    kept_y_lo = std::min(kept_y_lo, o.kept_y_lo);
+    kept_y_hi = std::max(kept_y_hi, o.kept_y_hi);
+    kept_owned += o.kept_owned;
+    after_x_lo = std::min(after_x_lo, o.after_x_lo);
+    after_x_hi = std::max(after_x_hi, o.after_x_hi);
+    after_y_lo = std::min(after_y_lo, o.after_y_lo);
+    after_y_hi = std::max(after_y_hi, o.after_y_hi);
+    after_owned += o.after_owned;
+    despiked_m.insert(despiked_m.end(), o.despiked_m.begin(), o.despiked_m.end());
   }
 
   // The "tiles" stage's figures and notes.
@@ -2791,6 +2886,15 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   LoadOptions load{config.input.las_drop_classes, config.input.as_points};
   const std::size_t chunk_points = config.scale.chunk_points;
   const double unit_m = metres_per_unit(config.input.units);
+
+  // The grid's geometry for the box of the points measured, or, in the tiled run's second
+  // attempt (ScaleConfig::grid_box), for the box of the points the first one's filters kept.
+  const auto grid_geometry_of = [&](double x0, double x1, double y0, double y1, std::size_t n, const ReprojectOptions& o) {
+    if (const auto& b = config.scale.grid_box) {
+      return tiled_grid_geometry(b->x_min_m, b->x_max_m, b->y_min_m, b->y_max_m, static_cast<std::size_t>(b->points), o);
+    }
+    return tiled_grid_geometry(x0, x1, y0, y1, n, o);
+  };
 
   // 1. Plan: the file box (recentring), then the grid box and coverage in the grid frame.
   FileBox box;
@@ -3013,7 +3117,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
                           });
     }
     grid_points = kept;
-    tiles.g = tiled_grid_geometry(x_min, x_max, y_min, y_max, kept, ro);
+    tiles.g = grid_geometry_of(x_min, x_max, y_min, y_max, kept, ro);
     grid_area_m2 = std::max(0.0, x_max - x_min) * std::max(0.0, y_max - y_min);
     counts.reset();
     if (config.scale.tile_max_points > 0 && box.points > config.scale.tile_max_points) counts.emplace(tiles.g);
@@ -3658,7 +3762,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         bool same_layout = kept > 0;
         if (same_layout) {
           ro = config.grid.reproject;
-          const GridGeometry new_g = tiled_grid_geometry(x_min, x_max, y_min, y_max, kept, ro);
+          const GridGeometry new_g = grid_geometry_of(x_min, x_max, y_min, y_max, kept, ro);
           same_layout = new_g.rows == old_g.rows && new_g.cols == old_g.cols && new_g.x0_m == old_g.x0_m &&
                         new_g.y0_m == old_g.y0_m && new_g.cell_size_m == old_g.cell_size_m;
           if (same_layout && cov) {
@@ -4013,8 +4117,11 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
               "filters (" + std::to_string(g.cols) + " x " + std::to_string(g.rows) + " cells of " + format_number(g.cell_size_m * 1e3) +
               " mm from x " + format_number(g.x0_m) + ", y " + format_number(g.y0_m) + " m); an in-core run lays it on the kept "
               "points (" + std::to_string(g_core.cols) + " x " + std::to_string(g_core.rows) + " cells of " +
-              format_number(g_core.cell_size_m * 1e3) + " mm), so its scene differs from this one; scale.tiled: off gives "
-              "the in-core grid");
+              format_number(g_core.cell_size_m * 1e3) + " mm), so its scene differs from this one; " +
+              (config.scale.grid_on_kept_points
+                   ? std::string()
+                   : std::string("scale.grid_on_kept_points: true (the default) lays it on the kept points by starting again; ")) +
+              "scale.tiled: off gives the in-core grid");
           summary.warnings.push_back(r.report.notes.back().substr(9));
         }
       }
@@ -4201,7 +4308,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 // despike_halo_cells, isolated_halo_cells; 2026-11-29).
 constexpr const char* kPlanFormat = "hapticloud tile plan 6";
 // 2: kept_<t>.bin is a mask over the spill (KeptMask), not the kept points.
-constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '2', '\n'};
+constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '3', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
 
 // Doubles as C99 hexadecimal floats ("%a"), so every value reads back to the same bits.
@@ -4616,6 +4723,16 @@ std::string encode_part(const std::string& plan_id, const TileOutput& o) {
   }
   put(s, o.spacing_m);
   put(s, o.spacing_points);
+  put(s, o.kept_x_lo);
+  put(s, o.kept_x_hi);
+  put(s, o.kept_y_lo);
+  put(s, o.kept_y_hi);
+  put(s, o.kept_owned);
+  put(s, o.after_x_lo);
+  put(s, o.after_x_hi);
+  put(s, o.after_y_lo);
+  put(s, o.after_y_hi);
+  put(s, o.after_owned);
   const DepthGrid& g = o.interior;
   const std::int32_t rows = g.depth.rows(), cols = g.depth.cols();
   put(s, rows);
@@ -4692,6 +4809,16 @@ TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::si
   }
   o.spacing_m = r.get<double>();
   o.spacing_points = r.get<std::uint64_t>();
+  o.kept_x_lo = r.get<double>();
+  o.kept_x_hi = r.get<double>();
+  o.kept_y_lo = r.get<double>();
+  o.kept_y_hi = r.get<double>();
+  o.kept_owned = r.get<std::uint64_t>();
+  o.after_x_lo = r.get<double>();
+  o.after_x_hi = r.get<double>();
+  o.after_y_lo = r.get<double>();
+  o.after_y_hi = r.get<double>();
+  o.after_owned = r.get<std::uint64_t>();
   const auto rows = r.get<std::int32_t>(), cols = r.get<std::int32_t>();
   const bool colour = r.get<std::uint8_t>() != 0, intensity = r.get<std::uint8_t>() != 0;
   if (rows > 0) {
@@ -4783,10 +4910,70 @@ std::string random_id() {
 namespace {
 BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers,
                                   detail::Clock::time_point t_start);
+
+// Thrown by build_scene_tiled_once after its tile loop (scale.grid_on_kept_points, no
+// ScaleConfig::grid_box yet) when the outlier filters removed a point that set the x-y box the
+// grid was laid on: the in-core run lays it on `box`, the kept points' box, as `kept`.
+struct GridOnKeptPoints : std::runtime_error {
+  GridOnKeptPoints(ScaleConfig::GridBox b, const GridGeometry& f, const GridGeometry& k, bool d)
+      : std::runtime_error("tiled run: the grid is to be laid on the kept points (caught by build_scene_tiled)"),
+        box(std::move(b)), first(f), kept(k), after_despike(d) {}
+  ScaleConfig::GridBox box;
+  GridGeometry first, kept;
+  bool after_despike = false;  // the box left after the despike (its removals taken over)
+};
+
+std::string grid_words(const GridGeometry& g) {
+  return std::to_string(g.cols) + " x " + std::to_string(g.rows) + " cells of " + format_number(g.cell_size_m * 1e3) + " mm from x " +
+         format_number(g.x0_m) + ", y " + format_number(g.y0_m) + " m";
+}
+
+BuiltScene build_scene_tiled_on_its_grid(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers,
+                                         detail::Clock::time_point t_start);
 }  // namespace
 
+// The tiled run. Its plan lays the grid on the points before the outlier filters; where those
+// remove a point that set the box (a stray at the scan's edge), the in-core run's grid is
+// another one, so the run starts again from the plan with the kept points' box (the first
+// attempt stops after its tile loop, which gave the box; the verdicts do not depend on the
+// tiles, so the second attempt keeps the same points and its grid is the in-core one).
 BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers) {
   const auto t_start = detail::Clock::now();
+  RunConfig now = config;
+  std::vector<std::string> why;  // one line per attempt started again
+  // At most three attempts: the box before the filters, the box they keep (on whose grid the
+  // despike judges), the box the despike leaves (its removals taken over). Each later
+  // attempt's box comes from verdicts that do not depend on the grid laid, so none starts a
+  // fourth (a logic error if one did).
+  for (int attempt = 1;; ++attempt) {
+    try {
+      BuiltScene built = build_scene_tiled_on_its_grid(now, progress, layers, t_start);
+      if (!why.empty()) {
+        const double lost_s = detail::seconds_since(t_start);
+        for (StageReport& rep : built.summary.stages) {
+          if (rep.stage != "tile_plan") continue;
+          rep.figure("grid_relaid", static_cast<double>(why.size()));
+          for (const std::string& w : why) rep.notes.push_back(w);
+          rep.notes.push_back("(" + format_number(lost_s) + " s in all; scale.grid_on_kept_points: false keeps the first grid "
+                              "and skips the later attempts)");
+        }
+      }
+      return built;
+    } catch (const GridOnKeptPoints& e) {  // the attempt's scratch folder is gone with it
+      if (attempt == 3) throw std::logic_error("tiled run: a third attempt's tile loop asked for another grid (" + grid_words(e.kept) + ")");
+      why.push_back(std::string(e.after_despike ? "the despike" : "the outlier filters") +
+                    " removed a point that set the x-y box of the grid " + grid_words(e.first) + ", so the run started again after " +
+                    format_number(detail::seconds_since(t_start)) + " s with the grid laid on the points " +
+                    (e.after_despike ? "the despike left (its removals taken over)" : "the filters keep") +
+                    ", as the in-core run lays it: " + grid_words(e.kept));
+      now.scale.grid_box = e.box;
+    }
+  }
+}
+
+namespace {
+BuiltScene build_scene_tiled_on_its_grid(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers,
+                                         detail::Clock::time_point t_start) {
   if (config.scale.island_halo != ScaleConfig::Tiled::kAuto) return build_scene_tiled_once(config, progress, layers, t_start);
   std::string why;
   std::size_t tile = 0;
@@ -4819,7 +5006,6 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   return built;
 }
 
-namespace {
 BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers,
                                   detail::Clock::time_point t_start) {
   const detail::StageHeapRelease heap_release;  // each stage's freed heap back when it ends
@@ -4865,6 +5051,32 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
     r.report.figure("large_blocks_mapped", mapped ? 1.0 : 0.0);
     return r;
   });
+  // The in-core run lays its grid on the points the filters keep: where that is another grid,
+  // build_scene_tiled starts again with their box (scale.grid_on_kept_points).
+  // First the box the filters before the despike leave (the despike must judge on its grid),
+  // then the box its removals leave (taken over, not judged again: GridBox::despiked_m).
+  const bool taken_over = config.scale.grid_box && config.scale.grid_box->despiked_m;
+  if (config.scale.grid_on_kept_points && !taken_over && merged.kept_owned > 0) {
+    ReprojectOptions ro = config.grid.reproject;
+    ro.upsample_factor = plan.tiles.k;
+    ro.grid.max_cells = std::numeric_limits<std::size_t>::max();
+    const GridGeometry g = grid_geometry_for_box(merged.kept_x_lo, merged.kept_x_hi, merged.kept_y_lo, merged.kept_y_hi,
+                                                 static_cast<std::size_t>(merged.kept_owned), ro);
+    if (!(g == plan.tiles.g)) {
+      throw GridOnKeptPoints({merged.kept_x_lo, merged.kept_x_hi, merged.kept_y_lo, merged.kept_y_hi, merged.kept_owned, nullptr},
+                             plan.tiles.g, g, false);
+    }
+    if (merged.after_owned > 0 && !merged.despiked_m.empty()) {
+      const GridGeometry a = grid_geometry_for_box(merged.after_x_lo, merged.after_x_hi, merged.after_y_lo, merged.after_y_hi,
+                                                   static_cast<std::size_t>(merged.after_owned), ro);
+      if (!(a == plan.tiles.g)) {
+        std::sort(merged.despiked_m.begin(), merged.despiked_m.end());
+        auto gone = std::make_shared<const std::vector<std::array<double, 3>>>(std::move(merged.despiked_m));
+        throw GridOnKeptPoints({merged.after_x_lo, merged.after_x_hi, merged.after_y_lo, merged.after_y_hi, merged.after_owned, std::move(gone)},
+                               plan.tiles.g, a, true);
+      }
+    }
+  }
   return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
 }
 }  // namespace

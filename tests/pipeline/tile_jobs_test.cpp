@@ -255,15 +255,15 @@ TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
     EXPECT_NE(what.find("1 of " + std::to_string(info.tiles) + " tiles have no result (5)"), std::string::npos) << what;
     EXPECT_NE(what.find("--tiles 5"), std::string::npos) << what;
   }
-  // A result of the version before (whose kept files held the points) is refused as such.
+  // A result of the version before (without the kept points' box) is refused as such.
   hc::pipeline::run_tile_jobs(info.plan_file, {5});
   {
     std::string older = bytes_of(work / "part_5.bin");
-    ASSERT_EQ(older.substr(0, 11), "HCTILEPART2");
-    older[10] = '1';
+    ASSERT_EQ(older.substr(0, 11), "HCTILEPART3");
+    older[10] = '2';
     std::ofstream(work / "part_5.bin", std::ios::binary | std::ios::trunc) << older;
     const std::string what = merge_refusal(info.plan_file, "a result of another version");
-    EXPECT_NE(what.find("part_5.bin: a tile result of another hapticloud version (HCTILEPART1, expected HCTILEPART2)"),
+    EXPECT_NE(what.find("part_5.bin: a tile result of another hapticloud version (HCTILEPART2, expected HCTILEPART3)"),
               std::string::npos) << what;
   }
   // A truncated result is refused too.

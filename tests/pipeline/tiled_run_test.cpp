@@ -547,11 +547,13 @@ TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
   const fs::path dir = hc::test::temp_dir("sparse");
   write_patch_with(dir / "patch.ply", {{2.99, 2.99, 0.0}, {2.995, 2.99, 0.0}, {2.99, 2.995, 0.0}});
   // Far-cluster removal off: on, the three returns 2.8 m from the patch are a far cluster and go
-  // before the tiles (the next test).
+  // before the tiles (the next test). The isolated filter then removes them, so the run would
+  // start again on the patch's box (scale.grid_on_kept_points), whose finer cells the fixed
+  // 7-cell filter halo does not cover: this test keeps the first grid, the corner tile's.
   const std::string yaml =
       "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
       "filters: {outliers: {far_clusters: {enabled: false}}}\n"
-      "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 7}\n";
+      "scale: {tiled: 'on', tile_cells: 32, filter_halo_cells: 7, grid_on_kept_points: false}\n";
   RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "patch.yaml");
   config.scale.scratch = dir;
   const BuiltScene tiled = hc::pipeline::build_scene(config);
@@ -1232,16 +1234,19 @@ TEST(TiledRun, AnAutoFilterHaloShortOfTheSamplesSpacingIsWidenedAndThePointsSpil
 }
 
 // A stray 0.5 m above the patch and 0.2 m past its x edge, which the robust test removes (far
-// clusters off, so that it reaches the filters): the tiled run lays its grid on the points
-// before the filters, the in-core run on the kept ones, so the grids differ, and the tiled run
-// says so in a warning naming both grids. Oracle: the in-core run's geometry (another cell size
-// and width); the equal runs of expect_tiled_equals_in_core assert no such warning.
+// clusters off, so that it reaches the filters), with scale.grid_on_kept_points: false: the
+// tiled run keeps its grid on the points before the filters, the in-core run lays it on the
+// kept ones, so the grids differ, and the tiled run says so in a warning naming both grids and
+// the key. Oracle: the in-core run's geometry (another cell size and width); the equal runs of
+// expect_tiled_equals_in_core assert no such warning (the default starts again:
+// AStrayThatSetsTheBoxIsRemovedAndTheGridLaidAgainOnTheKeptPoints).
 TEST(TiledRun, AGridLaidOnAPointTheFiltersRemoveIsAWarning) {
   const fs::path dir = hc::test::temp_dir("box_warning");
   write_patch_with(dir / "patch.ply", {{1.19, 0.5, 0.5}});
   const auto r = in_core_and_tiled(dir,
                                    "input: {files: [patch.ply], units: m}\ngrid: {n: 120}\n"
-                                   "filters: {outliers: {far_clusters: {enabled: false}}}\nscale: {filter_halo_cells: 24}\n",
+                                   "filters: {outliers: {far_clusters: {enabled: false}}}\n"
+                                   "scale: {filter_halo_cells: 24, grid_on_kept_points: false}\n",
                                    32);
   ASSERT_GE(stage_figure(r.in, "outliers", "removed"), 1.0) << "the stray goes in core";
   const hc::GridGeometry& a = r.in.scene.geometry;
@@ -1254,6 +1259,7 @@ TEST(TiledRun, AGridLaidOnAPointTheFiltersRemoveIsAWarning) {
   EXPECT_NE(warning.find(std::to_string(a.cols) + " x " + std::to_string(a.rows) + " cells"), std::string::npos) << warning;
   EXPECT_NE(warning.find(std::to_string(b.cols) + " x " + std::to_string(b.rows) + " cells"), std::string::npos) << warning;
   EXPECT_NE(warning.find("scale.tiled: off"), std::string::npos) << warning;
+  EXPECT_NE(warning.find("scale.grid_on_kept_points: true"), std::string::npos) << warning;
   EXPECT_TRUE(has_note(r.tiled, "cross_check", "warning: the kept points span"));
 }
 
@@ -2481,4 +2487,55 @@ TEST(TiledRun, AutoTakesLargeStreamedScansAndOptionsItLacksAreRefusedByName) {
   EXPECT_NE(scratch.find("no/such/folder"), std::string::npos) << scratch;
 }
 
+// A stray return beyond a scan's edge sets the x-y box of the points before the filters, on
+// which the tiled plan lays its grid; the filters remove it, and the in-core run lays its grid
+// on the points they keep. The tiled run starts again with that box and gives the in-core scene
+// (the oracle: expect_tiled_equals_in_core); with scale.grid_on_kept_points: false it keeps its
+// first grid, another one than the in-core run's, and warns. Two cases: a generated patch with a
+// stray 7 cm past its edge that the outlier filters remove (the second attempt's path), and a
+// real LAS 1.4 file (PDAL's test1_4.las) whose box a point the despike removes sets (its
+// removals taken over by the next attempt, as the in-core run grids again after its despike).
+TEST(TiledRun, AStrayThatSetsTheBoxIsRemovedAndTheGridLaidAgainOnTheKeptPoints) {
+  const fs::path dir = hc::test::temp_dir("grid_on_kept");
+  write_patch_with(dir / "patch.ply", {{1.06, 0.5, 0.002}});
+  fs::copy_file(hc::test::scan_path("scanner_samples/las/pdal-test1_4.las"), dir / "test1_4.las", fs::copy_options::overwrite_existing);
+  struct Case {
+    const char* yaml;
+    int tile;
+    const char* by;
+  };
+  const Case cases[] = {
+      {"input: {files: [patch.ply], units: m}\n"
+       "grid: {n: 200, splat_radius_cells: 1.2, see_through_depth_m: 0.01, hole_fill_max_cells: 16}\n"
+       "cross_check: {tolerance_m: 0.002}\n",
+       32, "the outlier filters removed"},
+      {"input: {files: [test1_4.las], units: m}\n"
+       "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 2, hole_fill_max_cells: 32}\n"
+       "cross_check: {tolerance_m: 0.5}\n",
+       48, "the despike removed"},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.by);
+    const fs::path scratch = dir / "scratch";
+    fs::create_directories(scratch);
+    const RunConfig config = hc::pipeline::parse_run_config(c.yaml, dir / "run.yaml");
+    BuiltScene tiled, in;
+    expect_tiled_equals_in_core(config, c.tile, scratch, &tiled, &in);
+    EXPECT_GE(stage_figure(tiled, "tile_plan", "grid_relaid"), 1.0);
+    EXPECT_TRUE(has_note(tiled, "tile_plan", c.by));
+    RunConfig first = config;
+    first.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+    first.scale.tile_cells = c.tile;
+    first.scale.scratch = scratch;
+    first.scale.grid_on_kept_points = false;
+    const BuiltScene kept_first = hc::pipeline::build_scene(first);
+    EXPECT_FALSE(kept_first.scene.geometry == in.scene.geometry) << "the first grid is the one before the filters";
+    EXPECT_EQ(stage_figure(kept_first, "tile_plan", "grid_relaid"), -1.0);
+    EXPECT_TRUE(std::any_of(kept_first.summary.warnings.begin(), kept_first.summary.warnings.end(),
+                            [](const std::string& w) { return w.find("the kept points span") != std::string::npos; }));
+    EXPECT_TRUE(fs::is_empty(scratch));
+  }
+}
+
 }  // namespace
+

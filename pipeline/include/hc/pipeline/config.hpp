@@ -22,6 +22,7 @@
 
 #include <cstdint>
 #include <filesystem>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -128,6 +129,27 @@ struct ScaleConfig {
   /// again with on. Before the fifty-fifth session a bool, false by default (the fifty-third
   /// session's).
   Tiled island_halo = Tiled::kAuto;
+  /// scale.grid_on_kept_points: true (the default): where the outlier filters (the robust test,
+  /// far clusters, the isolated filter) remove a point that sets the x-y box of the points the
+  /// tiled run laid its grid on, the run starts again after its tile loop with the grid laid on
+  /// the kept points' box, as the in-core run lays it; where its despike does, once more with
+  /// the box it leaves, its removals taken over (at most three attempts: notes and figure
+  /// `grid_relaid` of `tile_plan`; tiled_run.cpp, build_scene_tiled). false: the first grid
+  /// stays, with the warning that the in-core scene differs. Only the in-process run starts
+  /// again; tile jobs keep their plan's grid (the warning then).
+  bool grid_on_kept_points = true;
+  /// Not a config key: set by the tiled run's later attempts. The x-y box [m, grid frame] and
+  /// the point count the plan lays the grid on (grid_geometry_for_box) instead of those of the
+  /// points before the outlier filters; and, when the box is the one left after an attempt's
+  /// despike, the points that despike removed (x y z [m, grid frame] each, sorted as triples):
+  /// the tiles remove them instead of running the despike on this grid, as the in-core run
+  /// lays its grid again after its despike without a second one.
+  struct GridBox {
+    double x_min_m = 0.0, x_max_m = 0.0, y_min_m = 0.0, y_max_m = 0.0;
+    std::uint64_t points = 0;
+    std::shared_ptr<const std::vector<std::array<double, 3>>> despiked_m;
+  };
+  std::optional<GridBox> grid_box;
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
   /// The most memory the robust test's first looks of a band of tiles hold [MiB], 0 to 65536:
