@@ -1360,6 +1360,43 @@ struct Plan {
 // One tile's result: its interior of the grid and its figures (the levels sample is read from
 // the kept points after the loop).
 // Which of its spilled records it kept is in its kept-point mask (kept_<t>.bin, KeptMask).
+// The despike's figures as the tiles sum them (remove_spike_points's report, and the windows'
+// island groups): carried into an attempt that takes its removals over (GridBox::despike_sums).
+constexpr const char* kDespikeSums[] = {"removed_spike_points", "spike_cells", "rim_cells", "island_cells",
+                                        "tiles_with_a_group_past_island_max_cells"};
+
+// An x-y box [m, grid frame] and the points it was taken over (none: empty, infinite bounds).
+struct XyBox {
+  double x_lo = std::numeric_limits<double>::infinity(), x_hi = -x_lo, y_lo = x_lo, y_hi = -x_lo;
+  std::uint64_t points = 0;
+  void add(const double* p) {
+    x_lo = std::min(x_lo, p[0]);
+    x_hi = std::max(x_hi, p[0]);
+    y_lo = std::min(y_lo, p[1]);
+    y_hi = std::max(y_hi, p[1]);
+    ++points;
+  }
+  void merge(const XyBox& b) {
+    x_lo = std::min(x_lo, b.x_lo);
+    x_hi = std::max(x_hi, b.x_hi);
+    y_lo = std::min(y_lo, b.y_lo);
+    y_hi = std::max(y_hi, b.y_hi);
+    points += b.points;
+  }
+};
+
+// The box of the points of `pts` whose grid node lies in `inner` (a tile's interior: the points
+// it owns; each point of the scan is owned by one tile).
+XyBox owned_box(const Tiles& tiles, const std::array<int, 4>& inner, const Cloud& pts) {
+  const NodeBinner node(tiles.g);
+  XyBox b;
+  for (std::size_t i = 0; i < pts.size(); ++i) {
+    const double* p = pts.xyz.data() + 3 * i;
+    if (node.inside(p, inner)) b.add(p);
+  }
+  return b;
+}
+
 struct TileOutput {
   std::size_t tile = 0;
   DepthGrid interior;  // the tile's interior rows × cols; empty when no point is left in it
@@ -1369,18 +1406,15 @@ struct TileOutput {
   std::uint64_t spacing_points = 0;  // the input points it came from (its weight)
   std::uintmax_t kept_bytes = 0;   // size of the tile's kept-point mask file (0: none kept, no file)
   double seconds = 0.0;
-  // The x-y box [m, grid frame] and count of the points the tile owns that the outlier filters
-  // keep (the robust test, far clusters, the isolated filter; before the despike): the in-core
-  // run lays its grid on the whole scan's (scale.grid_on_kept_points). None with the filters off.
-  double kept_x_lo = std::numeric_limits<double>::infinity(), kept_x_hi = -kept_x_lo;
-  double kept_y_lo = kept_x_lo, kept_y_hi = -kept_x_lo;
-  std::uint64_t kept_owned = 0;
-  // The same after the despike (`after_*`, equal to the above where it removed no owned
-  // point), and the owned points it removed (x y z [m] each; in process only, not in a tile
-  // job's result): build_scene_tiled lays the grid on that box when the in-core run would.
-  double after_x_lo = std::numeric_limits<double>::infinity(), after_x_hi = -after_x_lo;
-  double after_y_lo = after_x_lo, after_y_hi = -after_x_lo;
-  std::uint64_t after_owned = 0;
+  // The x-y box of the points the tile owns that the outlier filters keep (the robust test,
+  // far clusters, the isolated filter; points of a window too sparse to judge are kept too),
+  // before the despike: the in-core run lays its grid on the whole scan's
+  // (scale.grid_on_kept_points). Empty with the filters off.
+  XyBox kept_box;
+  // The same after the despike (equal to kept_box where it removed no owned point), and the
+  // owned points it removed (x y z [m] each; in process only, not in a tile job's result):
+  // build_scene_tiled lays the grid on that box when the in-core run would.
+  XyBox after_box;
   std::vector<std::array<double, 3>> despiked_m;
 };
 
@@ -2404,20 +2438,13 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     pts = std::move(f2.value);
     lap("isolated");
-    // The box of the owned points kept so far: their verdicts are the whole scan's (the decided
-    // region holds the interior), so the tiles' boxes merge into the in-core grid's box.
-    const NodeBinner node(tiles.g);
-    for (std::size_t i = 0; i < pts.size(); ++i) {
-      const double* p = pts.xyz.data() + 3 * i;
-      if (!node.inside(p, inner)) continue;
-      o.kept_x_lo = std::min(o.kept_x_lo, p[0]);
-      o.kept_x_hi = std::max(o.kept_x_hi, p[0]);
-      o.kept_y_lo = std::min(o.kept_y_lo, p[1]);
-      o.kept_y_hi = std::max(o.kept_y_hi, p[1]);
-      ++o.kept_owned;
-    }
-    o.after_x_lo = o.kept_x_lo, o.after_x_hi = o.kept_x_hi, o.after_y_lo = o.kept_y_lo, o.after_y_hi = o.kept_y_hi;
-    o.after_owned = o.kept_owned;
+  }
+  if (oc.enabled) {
+    // The box of the owned points kept so far (judged or too sparse to judge): their verdicts are
+    // the whole scan's (the decided region holds the interior), so the tiles' boxes merge into
+    // the in-core grid's box.
+    o.kept_box = owned_box(tiles, inner, pts);
+    o.after_box = o.kept_box;
   }
   DepthGrid part;
   if (pts.size() > 0) {
@@ -2435,6 +2462,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       const std::vector<std::array<double, 3>>& gone = *carried->despiked_m;  // sorted
       RemovedPoints removed;
       std::vector<bool> keep(pts.size(), true);
+      const NodeBinner node(tiles.g);
       for (std::size_t i = 0; i < pts.size(); ++i) {
         const double* p = pts.xyz.data() + 3 * i;
         const std::array<double, 3> key{p[0], p[1], p[2]};
@@ -2442,8 +2470,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
         keep[i] = false;
         removed.at.push_back(i);
         removed.xyz.insert(removed.xyz.end(), p, p + 3);
+        if (node.inside(p, inner)) o.sums["despike_points_taken_over"] += 1.0;  // each point once, by its owner
       }
-      o.sums["despike_points_taken_over"] += static_cast<double>(removed.size());
       if (removed.size() > 0) {
         pts.keep_if(keep);
         compose_removal(removed.at);
@@ -2524,21 +2552,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
                           despike_search_radius_m(tiles.g.cell_size_m, static_cast<double>(tiles.k), spacing_m), "despike",
                           spacing_m, filter_halo_now(config, tiles));
       pts = std::move(ds.value);
-      if (!o.despiked_m.empty()) {  // an owned point gone: the box of those left
-        const NodeBinner node(tiles.g);
-        o.after_x_lo = o.after_y_lo = std::numeric_limits<double>::infinity();
-        o.after_x_hi = o.after_y_hi = -std::numeric_limits<double>::infinity();
-        o.after_owned = 0;
-        for (std::size_t i = 0; i < pts.size(); ++i) {
-          const double* p = pts.xyz.data() + 3 * i;
-          if (!node.inside(p, inner)) continue;
-          o.after_x_lo = std::min(o.after_x_lo, p[0]);
-          o.after_x_hi = std::max(o.after_x_hi, p[0]);
-          o.after_y_lo = std::min(o.after_y_lo, p[1]);
-          o.after_y_hi = std::max(o.after_y_hi, p[1]);
-          ++o.after_owned;
-        }
-      }
+      if (!o.despiked_m.empty()) o.after_box = owned_box(tiles, inner, pts);  // an owned point gone
       if (pts.size() == 0) {
         part = DepthGrid();  // nothing left: the tile's cells stay no data
       } else if (pts.size() < before_n) {
@@ -2741,13 +2755,7 @@ struct TileMerge {
   std::uint64_t in = 0, out = 0, unjudged = 0;
   std::vector<std::pair<double, std::uint64_t>> spacings;  // each tile's spacing [m] and weight
   double job_seconds = 0.0;
-  // The kept points' box and count over the tiles (TileOutput::kept_x_lo ...).
-  double kept_x_lo = std::numeric_limits<double>::infinity(), kept_x_hi = -kept_x_lo;
-  double kept_y_lo = kept_x_lo, kept_y_hi = -kept_x_lo;
-  std::uint64_t kept_owned = 0;
-  double after_x_lo = std::numeric_limits<double>::infinity(), after_x_hi = -after_x_lo;
-  double after_y_lo = after_x_lo, after_y_hi = -after_x_lo;
-  std::uint64_t after_owned = 0;
+  XyBox kept_box, after_box;  // over the tiles (TileOutput::kept_box, after_box)
   std::vector<std::array<double, 3>> despiked_m;  // in process only (TileOutput::despiked_m)
 
   TileMerge(const Plan& plan) {
@@ -2780,16 +2788,8 @@ struct TileMerge {
     unjudged += o.unjudged;
     if (o.spacing_m > 0.0 && o.spacing_points > 0) spacings.emplace_back(o.spacing_m, o.spacing_points);
     job_seconds += o.seconds;
-    kept_x_lo = std::min(kept_x_lo, o.kept_x_lo);
-    kept_x_hi = std::max(kept_x_hi, o.kept_x_hi);
-    kept_y_lo = std::min(kept_y_lo, o.kept_y_lo);
-    kept_y_hi = std::max(kept_y_hi, o.kept_y_hi);
-    kept_owned += o.kept_owned;
-    after_x_lo = std::min(after_x_lo, o.after_x_lo);
-    after_x_hi = std::max(after_x_hi, o.after_x_hi);
-    after_y_lo = std::min(after_y_lo, o.after_y_lo);
-    after_y_hi = std::max(after_y_hi, o.after_y_hi);
-    after_owned += o.after_owned;
+    kept_box.merge(o.kept_box);
+    after_box.merge(o.after_box);
     despiked_m.insert(despiked_m.end(), o.despiked_m.begin(), o.despiked_m.end());
   }
 
@@ -3100,7 +3100,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       z_max = std::max(z_max, to_grid(box.hi.z(), 2));
       kept = box.finite;
     }
-    grid_box_from_file = file_frame;
+    grid_box_from_file = file_frame && !config.scale.grid_box;  // a later attempt's box is the kept points'
     if (!file_frame) {
       for_each_grid_chunk(load, config, centre, unit_m, box.points, progress, stage_name,
                           "pass 2 of 3: the grid's box", [&](const Cloud& g) {
@@ -4723,16 +4723,13 @@ std::string encode_part(const std::string& plan_id, const TileOutput& o) {
   }
   put(s, o.spacing_m);
   put(s, o.spacing_points);
-  put(s, o.kept_x_lo);
-  put(s, o.kept_x_hi);
-  put(s, o.kept_y_lo);
-  put(s, o.kept_y_hi);
-  put(s, o.kept_owned);
-  put(s, o.after_x_lo);
-  put(s, o.after_x_hi);
-  put(s, o.after_y_lo);
-  put(s, o.after_y_hi);
-  put(s, o.after_owned);
+  for (const XyBox* b : {&o.kept_box, &o.after_box}) {
+    put(s, b->x_lo);
+    put(s, b->x_hi);
+    put(s, b->y_lo);
+    put(s, b->y_hi);
+    put(s, b->points);
+  }
   const DepthGrid& g = o.interior;
   const std::int32_t rows = g.depth.rows(), cols = g.depth.cols();
   put(s, rows);
@@ -4809,16 +4806,13 @@ TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::si
   }
   o.spacing_m = r.get<double>();
   o.spacing_points = r.get<std::uint64_t>();
-  o.kept_x_lo = r.get<double>();
-  o.kept_x_hi = r.get<double>();
-  o.kept_y_lo = r.get<double>();
-  o.kept_y_hi = r.get<double>();
-  o.kept_owned = r.get<std::uint64_t>();
-  o.after_x_lo = r.get<double>();
-  o.after_x_hi = r.get<double>();
-  o.after_y_lo = r.get<double>();
-  o.after_y_hi = r.get<double>();
-  o.after_owned = r.get<std::uint64_t>();
+  for (XyBox* b : {&o.kept_box, &o.after_box}) {
+    b->x_lo = r.get<double>();
+    b->x_hi = r.get<double>();
+    b->y_lo = r.get<double>();
+    b->y_hi = r.get<double>();
+    b->points = r.get<std::uint64_t>();
+  }
   const auto rows = r.get<std::int32_t>(), cols = r.get<std::int32_t>();
   const bool colour = r.get<std::uint8_t>() != 0, intensity = r.get<std::uint8_t>() != 0;
   if (rows > 0) {
@@ -4921,6 +4915,7 @@ struct GridOnKeptPoints : std::runtime_error {
   ScaleConfig::GridBox box;
   GridGeometry first, kept;
   bool after_despike = false;  // the box left after the despike (its removals taken over)
+  std::string island_halo_widened;  // the warning, when the attempt ran with the wider grid share
 };
 
 std::string grid_words(const GridGeometry& g) {
@@ -4935,24 +4930,29 @@ BuiltScene build_scene_tiled_on_its_grid(const RunConfig& config, const Progress
 // The tiled run. Its plan lays the grid on the points before the outlier filters; where those
 // remove a point that set the box (a stray at the scan's edge), the in-core run's grid is
 // another one, so the run starts again from the plan with the kept points' box (the first
-// attempt stops after its tile loop, which gave the box; the verdicts do not depend on the
-// tiles, so the second attempt keeps the same points and its grid is the in-core one).
+// attempt stops after its tile loop, which gave the box; the verdicts are the whole scan's, so
+// the second attempt keeps the same points and its grid is the in-core one).
 BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers) {
   const auto t_start = detail::Clock::now();
   RunConfig now = config;
   std::vector<std::string> why;  // one line per attempt started again
   // At most three attempts: the box before the filters, the box they keep (on whose grid the
-  // despike judges), the box the despike leaves (its removals taken over). Each later
-  // attempt's box comes from verdicts that do not depend on the grid laid, so none starts a
-  // fourth (a logic error if one did).
+  // despike judges), the box the despike leaves (its removals taken over). The verdicts are the
+  // whole scan's and so the same on any grid, save where the tiles decide them (a far cluster
+  // removed only where one window's decided region holds it whole, a window too sparse to
+  // judge): the third attempt checks no more, and finish_tiled warns if its grid still differs.
   for (int attempt = 1;; ++attempt) {
+    if (attempt == 3) now.scale.grid_box->last = true;  // checks no more (finish_tiled warns)
     try {
       BuiltScene built = build_scene_tiled_on_its_grid(now, progress, layers, t_start);
       if (!why.empty()) {
         const double lost_s = detail::seconds_since(t_start);
+        for (const std::string& w : why) {
+          if (w.rfind("warning: ", 0) == 0) built.summary.warnings.push_back(w.substr(9));
+        }
         for (StageReport& rep : built.summary.stages) {
           if (rep.stage != "tile_plan") continue;
-          rep.figure("grid_relaid", static_cast<double>(why.size()));
+          rep.figure("grid_relaid", static_cast<double>(attempt - 1));
           for (const std::string& w : why) rep.notes.push_back(w);
           rep.notes.push_back("(" + format_number(lost_s) + " s in all; scale.grid_on_kept_points: false keeps the first grid "
                               "and skips the later attempts)");
@@ -4960,7 +4960,10 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       }
       return built;
     } catch (const GridOnKeptPoints& e) {  // the attempt's scratch folder is gone with it
-      if (attempt == 3) throw std::logic_error("tiled run: a third attempt's tile loop asked for another grid (" + grid_words(e.kept) + ")");
+      if (!e.island_halo_widened.empty()) {  // the later attempts start with the wider share
+        now.scale.island_halo = ScaleConfig::Tiled::kOn;
+        why.push_back("warning: " + e.island_halo_widened);
+      }
       why.push_back(std::string(e.after_despike ? "the despike" : "the outlier filters") +
                     " removed a point that set the x-y box of the grid " + grid_words(e.first) + ", so the run started again after " +
                     format_number(detail::seconds_since(t_start)) + " s with the grid laid on the points " +
@@ -4990,13 +4993,19 @@ BuiltScene build_scene_tiled_on_its_grid(const RunConfig& config, const Progress
   const double lost_s = detail::seconds_since(t_start);
   RunConfig wide = config;
   wide.scale.island_halo = ScaleConfig::Tiled::kOn;
-  BuiltScene built = build_scene_tiled_once(wide, progress, layers, t_start);
   const std::string warning =
       "scale.island_halo: auto: tile " + std::to_string(tile) + "'s window could not decide whether a group of at most " +
       "cross_check.island_max_cells = " + std::to_string(config.cross_check.honest.island_max_cells) +
       " valid cells is an island, so the run started again from the plan with the wider grid share (a halo of " +
       std::to_string(then) + " nodes instead of " + std::to_string(now) + ") after " + format_number(lost_s) +
       " s; set scale.island_halo: true to skip the first attempt with this scan and config. The first attempt stopped with: " + why;
+  BuiltScene built;
+  try {
+    built = build_scene_tiled_once(wide, progress, layers, t_start);
+  } catch (GridOnKeptPoints& e) {  // build_scene_tiled starts again, with the wider share
+    e.island_halo_widened = warning;
+    throw;
+  }
   for (StageReport& rep : built.summary.stages) {
     if (rep.stage != "tile_plan") continue;
     rep.figure("island_halo_restarted_after_s", lost_s);
@@ -5046,6 +5055,12 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
           left.clear();
           spill.remove(t);
         });
+    // Where the despike's removals were taken over, its figures are those of the attempt that
+    // judged them (on the grid the in-core despike reads).
+    if (config.scale.grid_box && config.scale.grid_box->despiked_m) {
+      for (const char* name : kDespikeSums) merged.sums.erase(name);
+      for (const auto& [name, v] : config.scale.grid_box->despike_sums) merged.sums[name] = v;
+    }
     merged.report(config, r.report);
     r.report.figure("heap_releases", static_cast<double>(heap.releases()));
     r.report.figure("large_blocks_mapped", mapped ? 1.0 : 0.0);
@@ -5055,25 +5070,35 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
   // build_scene_tiled starts again with their box (scale.grid_on_kept_points).
   // First the box the filters before the despike leave (the despike must judge on its grid),
   // then the box its removals leave (taken over, not judged again: GridBox::despiked_m).
-  const bool taken_over = config.scale.grid_box && config.scale.grid_box->despiked_m;
-  if (config.scale.grid_on_kept_points && !taken_over && merged.kept_owned > 0) {
+  // The last attempt (GridBox::last) and one whose despike removals were taken over check no
+  // more: finish_tiled's warning names a grid that still differs.
+  const ScaleConfig::GridBox* now_box = config.scale.grid_box ? &*config.scale.grid_box : nullptr;
+  const bool checks = config.scale.grid_on_kept_points && !(now_box != nullptr && (now_box->despiked_m || now_box->last));
+  if (checks && merged.kept_box.points > 0) {
     ReprojectOptions ro = config.grid.reproject;
     ro.upsample_factor = plan.tiles.k;
     ro.grid.max_cells = std::numeric_limits<std::size_t>::max();
-    const GridGeometry g = grid_geometry_for_box(merged.kept_x_lo, merged.kept_x_hi, merged.kept_y_lo, merged.kept_y_hi,
-                                                 static_cast<std::size_t>(merged.kept_owned), ro);
-    if (!(g == plan.tiles.g)) {
-      throw GridOnKeptPoints({merged.kept_x_lo, merged.kept_x_hi, merged.kept_y_lo, merged.kept_y_hi, merged.kept_owned, nullptr},
-                             plan.tiles.g, g, false);
+    const auto geometry = [&](const XyBox& b) {
+      return grid_geometry_for_box(b.x_lo, b.x_hi, b.y_lo, b.y_hi, static_cast<std::size_t>(b.points), ro);
+    };
+    const auto box_of = [](const XyBox& b) {
+      ScaleConfig::GridBox g;
+      g.x_min_m = b.x_lo, g.x_max_m = b.x_hi, g.y_min_m = b.y_lo, g.y_max_m = b.y_hi, g.points = b.points;
+      return g;
+    };
+    if (const GridGeometry g = geometry(merged.kept_box); !(g == plan.tiles.g)) {
+      throw GridOnKeptPoints(box_of(merged.kept_box), plan.tiles.g, g, false);
     }
-    if (merged.after_owned > 0 && !merged.despiked_m.empty()) {
-      const GridGeometry a = grid_geometry_for_box(merged.after_x_lo, merged.after_x_hi, merged.after_y_lo, merged.after_y_hi,
-                                                   static_cast<std::size_t>(merged.after_owned), ro);
-      if (!(a == plan.tiles.g)) {
+    if (merged.after_box.points > 0 && !merged.despiked_m.empty()) {
+      if (const GridGeometry a = geometry(merged.after_box); !(a == plan.tiles.g)) {
+        ScaleConfig::GridBox b = box_of(merged.after_box);
         std::sort(merged.despiked_m.begin(), merged.despiked_m.end());
-        auto gone = std::make_shared<const std::vector<std::array<double, 3>>>(std::move(merged.despiked_m));
-        throw GridOnKeptPoints({merged.after_x_lo, merged.after_x_hi, merged.after_y_lo, merged.after_y_hi, merged.after_owned, std::move(gone)},
-                               plan.tiles.g, a, true);
+        b.despiked_m = std::make_shared<const std::vector<std::array<double, 3>>>(std::move(merged.despiked_m));
+        // The despike's figures, which the attempt that takes its removals over cannot count.
+        for (const char* name : kDespikeSums) {
+          if (const auto it = merged.sums.find(name); it != merged.sums.end()) b.despike_sums[name] = it->second;
+        }
+        throw GridOnKeptPoints(std::move(b), plan.tiles.g, a, true);
       }
     }
   }

@@ -547,9 +547,10 @@ TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
   const fs::path dir = hc::test::temp_dir("sparse");
   write_patch_with(dir / "patch.ply", {{2.99, 2.99, 0.0}, {2.995, 2.99, 0.0}, {2.99, 2.995, 0.0}});
   // Far-cluster removal off: on, the three returns 2.8 m from the patch are a far cluster and go
-  // before the tiles (the next test). The isolated filter then removes them, so the run would
-  // start again on the patch's box (scale.grid_on_kept_points), whose finer cells the fixed
-  // 7-cell filter halo does not cover: this test keeps the first grid, the corner tile's.
+  // before the tiles (the next test). Kept unjudged by the outlier filters, they stay in the box
+  // those keep; the despike then removes them (an island on the grid), so the run would start
+  // again on the box it leaves (scale.grid_on_kept_points), whose finer cells the fixed 7-cell
+  // filter halo does not cover (an error naming the key): this test keeps the first grid.
   const std::string yaml =
       "input: {files: [patch.ply], units: m}\ngrid: {n: 200, splat_radius_cells: 1.0}\n"
       "filters: {outliers: {far_clusters: {enabled: false}}}\n"
@@ -559,6 +560,7 @@ TEST(TiledRun, AWindowTooSparseForTheOutlierTestIsKeptAndCounted) {
   const BuiltScene tiled = hc::pipeline::build_scene(config);
   EXPECT_GE(stage_figure(tiled, "tiles", "points_in_windows_too_sparse_to_filter"), 3.0);
   EXPECT_GT(tiled.scene.layers.depth.valid_count(), 0U);
+  EXPECT_GE(stage_figure(tiled, "tiles", "sum_removed_spike_points"), 3.0) << "the despike removes them";
 }
 
 // The points `pts` [m] as an ASCII PLY of doubles (17 digits: read back bit for bit).

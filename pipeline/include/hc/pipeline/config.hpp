@@ -19,6 +19,7 @@
 
 #include <array>
 #include <limits>
+#include <map>
 
 #include <cstdint>
 #include <filesystem>
@@ -144,10 +145,14 @@ struct ScaleConfig {
   /// despike, the points that despike removed (x y z [m, grid frame] each, sorted as triples):
   /// the tiles remove them instead of running the despike on this grid, as the in-core run
   /// lays its grid again after its despike without a second one.
+  /// `despike_sums`: that despike's figures as the tiles summed them (the report's). `last`: the
+  /// last attempt, which lays no other grid (a grid still unlike the in-core one is a warning).
   struct GridBox {
     double x_min_m = 0.0, x_max_m = 0.0, y_min_m = 0.0, y_max_m = 0.0;
     std::uint64_t points = 0;
     std::shared_ptr<const std::vector<std::array<double, 3>>> despiked_m;
+    std::map<std::string, double> despike_sums;
+    bool last = false;
   };
   std::optional<GridBox> grid_box;
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
