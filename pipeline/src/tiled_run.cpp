@@ -1357,9 +1357,6 @@ struct Plan {
   std::vector<StageReport> reports;  // tile_plan, tile_spill, tile_scale
 };
 
-// One tile's result: its interior of the grid and its figures (the levels sample is read from
-// the kept points after the loop).
-// Which of its spilled records it kept is in its kept-point mask (kept_<t>.bin, KeptMask).
 // The despike's figures as the tiles sum them (remove_spike_points's report, and the windows'
 // island groups): carried into an attempt that takes its removals over (GridBox::despike_sums).
 constexpr const char* kDespikeSums[] = {"removed_spike_points", "spike_cells", "rim_cells", "island_cells",
@@ -1385,6 +1382,12 @@ struct XyBox {
   }
 };
 
+// A grid's size, cells and origin, for notes and warnings.
+std::string grid_words(const GridGeometry& g) {
+  return std::to_string(g.cols) + " x " + std::to_string(g.rows) + " cells of " + format_number(g.cell_size_m * 1e3) + " mm from x " +
+         format_number(g.x0_m) + ", y " + format_number(g.y0_m) + " m";
+}
+
 // The box of the points of `pts` whose grid node lies in `inner` (a tile's interior: the points
 // it owns; each point of the scan is owned by one tile).
 XyBox owned_box(const Tiles& tiles, const std::array<int, 4>& inner, const Cloud& pts) {
@@ -1397,6 +1400,9 @@ XyBox owned_box(const Tiles& tiles, const std::array<int, 4>& inner, const Cloud
   return b;
 }
 
+// One tile's result: its interior of the grid and its figures (the levels sample is read from
+// the kept points after the loop).
+// Which of its spilled records it kept is in its kept-point mask (kept_<t>.bin, KeptMask).
 struct TileOutput {
   std::size_t tile = 0;
   DepthGrid interior;  // the tile's interior rows × cols; empty when no point is left in it
@@ -2475,6 +2481,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       if (removed.size() > 0) {
         pts.keep_if(keep);
         compose_removal(removed.at);
+        o.after_box = owned_box(tiles, inner, pts);
         if (pts.size() == 0) {
           part = DepthGrid();
         } else {
@@ -3972,10 +3979,6 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       };
       detail::PassProgress tick(progress, "cross_check", "the tiles' kept points, then their residuals again", config.scale.progress_interval_s);
       ResidualFile residuals(kept.dir() / "cross_check_residuals.bin");
-      // The kept points' x-y box: the in-core run lays its grid on it (after the filters and the
-      // despike), the tiled run on the box of the points before the robust test.
-      double kx_lo = std::numeric_limits<double>::infinity(), kx_hi = -kx_lo, ky_lo = kx_lo, ky_hi = -kx_lo;
-      std::size_t kept_points = 0;
       // The first pass over the kept points.
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(0.9 * static_cast<double>(t) / static_cast<double>(tiles.count()));
@@ -3991,8 +3994,6 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           }
           if (flag[i] == 0) continue;  // a halo copy: its own tile counts it
           const double* p = pts.xyz.data() + 3 * i;
-          kx_lo = std::min(kx_lo, p[0]), kx_hi = std::max(kx_hi, p[0]), ky_lo = std::min(ky_lo, p[1]), ky_hi = std::max(ky_hi, p[1]);
-          ++kept_points;
           if (keep_sample) sample_point(p);
           const PointResidual pr = point_residual(surface, tiles.g, p[0], p[1], p[2], cc.hidden_band_m);
           switch (pr.kind) {
@@ -4102,22 +4103,20 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       r.report.figure("samples_researched_across_tiles", static_cast<double>(researched));
       r.report.figure("samples_nearer_in_another_tile", static_cast<double>(improved));
       // Where the filters removed a point that set the box, the in-core run's grid differs from
-      // this one: said, not silent (docs/scale.md, "What equals the in-core run").
-      if (kept_points > 0) {
+      // this one: said, not silent (docs/scale.md, "What equals the in-core run"). The kept
+      // points' box is the tiles' (TileMerge::after_box: the points each owns after its filters
+      // and despike, those the kept masks hold), which the in-core run lays its grid on.
+      if (const XyBox& kb = merged.after_box; kb.points > 0) {
         ReprojectOptions ro = config.grid.reproject;
         ro.upsample_factor = tiles.k;
         ro.grid.max_cells = std::numeric_limits<std::size_t>::max();
-        const GridGeometry g_core = grid_geometry_for_box(kx_lo, kx_hi, ky_lo, ky_hi, kept_points, ro);
-        const GridGeometry& g = tiles.g;
-        if (!(g_core.rows == g.rows && g_core.cols == g.cols && g_core.x0_m == g.x0_m && g_core.y0_m == g.y0_m &&
-              g_core.cell_size_m == g.cell_size_m)) {
+        const GridGeometry g_core = grid_geometry_for_box(kb.x_lo, kb.x_hi, kb.y_lo, kb.y_hi, static_cast<std::size_t>(kb.points), ro);
+        if (!(g_core == tiles.g)) {
           r.report.notes.push_back(
-              "warning: the kept points span x " + format_number(kx_lo) + " to " + format_number(kx_hi) + " m, y " +
-              format_number(ky_lo) + " to " + format_number(ky_hi) + " m; the grid was laid on the points before the outlier "
-              "filters (" + std::to_string(g.cols) + " x " + std::to_string(g.rows) + " cells of " + format_number(g.cell_size_m * 1e3) +
-              " mm from x " + format_number(g.x0_m) + ", y " + format_number(g.y0_m) + " m); an in-core run lays it on the kept "
-              "points (" + std::to_string(g_core.cols) + " x " + std::to_string(g_core.rows) + " cells of " +
-              format_number(g_core.cell_size_m * 1e3) + " mm), so its scene differs from this one; " +
+              "warning: the kept points span x " + format_number(kb.x_lo) + " to " + format_number(kb.x_hi) + " m, y " +
+              format_number(kb.y_lo) + " to " + format_number(kb.y_hi) + " m; the grid was laid on the points before the outlier "
+              "filters (" + grid_words(tiles.g) + "); an in-core run lays it on the kept points (" + grid_words(g_core) +
+              "), so its scene differs from this one; " +
               (config.scale.grid_on_kept_points
                    ? std::string()
                    : std::string("scale.grid_on_kept_points: true (the default) lays it on the kept points by starting again; ")) +
@@ -4917,11 +4916,6 @@ struct GridOnKeptPoints : std::runtime_error {
   bool after_despike = false;  // the box left after the despike (its removals taken over)
   std::string island_halo_widened;  // the warning, when the attempt ran with the wider grid share
 };
-
-std::string grid_words(const GridGeometry& g) {
-  return std::to_string(g.cols) + " x " + std::to_string(g.rows) + " cells of " + format_number(g.cell_size_m * 1e3) + " mm from x " +
-         format_number(g.x0_m) + ", y " + format_number(g.y0_m) + " m";
-}
 
 BuiltScene build_scene_tiled_on_its_grid(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers,
                                          detail::Clock::time_point t_start);
