@@ -5,7 +5,9 @@
 /// malformed argument: the usage line follows); 3 an internal error (a bug: please report it);
 /// 4 `run` wrote its output but the cross-check's verdict is fail (report.md says why);
 /// 5 `tile-job` under scale.island_halo: auto met an island group its plan's halo cannot decide
-/// (hc::pipeline::UndecidedIslandsError): plan again with scale.island_halo: true.
+/// (hc::pipeline::UndecidedIslandsError): plan again with scale.island_halo: true;
+/// 6 `tile-merge` found that the in-core run lays its grid on the kept points' box, another one
+/// (hc::pipeline::GridBoxError): plan again with `tile-plan --grid-box WORK/grid_box.json`.
 /// `-v/--verbose` and `-q/--quiet` set the log level (spdlog, on stderr) for every subcommand.
 
 #include "commands.hpp"
@@ -27,6 +29,7 @@ constexpr int kExitUsage = 2;
 constexpr int kExitInternal = 3;
 constexpr int kExitVerdictFail = 4;
 constexpr int kExitPlanAgain = 5;
+constexpr int kExitGridBox = 6;
 
 /// Progress and diagnostics go to stderr through one logger: "hapticloud: message".
 void set_up_logging(int verbosity) {
@@ -96,6 +99,9 @@ int main(int argc, char** argv) {
   } catch (const hc::pipeline::UndecidedIslandsError& e) {
     std::cerr << "hapticloud: error: " << e.what() << "\n";
     return e.under_auto ? kExitPlanAgain : kExitInput;
+  } catch (const hc::pipeline::GridBoxError& e) {
+    std::cerr << "hapticloud: error: " << e.what() << "\n";
+    return kExitGridBox;
   } catch (const hc::Error& e) {
     std::cerr << "hapticloud: error: " << e.what() << "\n";
     return kExitInput;

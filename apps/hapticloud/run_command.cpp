@@ -110,6 +110,7 @@ void run(const RunArgs& a) {
 struct TilePlanArgs {
   std::string config, work;
   std::vector<std::string> sets;
+  std::string grid_box;  // --grid-box: a tile-merge's WORK/grid_box.json, or empty
 };
 
 struct TileJobArgs {
@@ -212,12 +213,15 @@ void add_run_command(CLI::App& app) {
   pc->add_option("--work", plan->work, "Work folder for the plan and the tiles (new or empty; on storage every job sees)")
       ->required();
   pc->add_option("--set", plan->sets, "Override a config key, e.g. --set grid.n=400 (repeatable)");
+  pc->add_option("--grid-box", plan->grid_box,
+                 "Lay the grid on the box a tile-merge wrote (WORK/grid_box.json; it exits 6 for it): the kept points' box, "
+                 "as the in-core run lays it (scale.grid_on_kept_points)");
   pc->callback([plan] {
     // Before any thread starts: Ctrl-C removes the plan's spill files (or the folder it made).
     const session::InterruptCleanup cleanup;
     keep_freed_memory_for_reuse();
     spdlog::info("hapticloud tile-plan {} -> {}", plan->config, plan->work);
-    const auto info = pipeline::write_tile_plan(plan->config, plan->sets, plan->work, log_progress);
+    const auto info = pipeline::write_tile_plan(plan->config, plan->sets, plan->work, log_progress, plan->grid_box);
     std::cout << "plan: " << info.plan_file.string() << "\ntiles: " << info.tiles << "\nspill: "
               << hc::format_number(static_cast<double>(info.spill_bytes) / 1e6, 1, hc::NumberStyle::kFixed) << " MB\n";
   });

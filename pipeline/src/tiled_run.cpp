@@ -60,6 +60,7 @@
 #include <vector>
 
 #include <nlohmann/json.hpp>
+#include <yaml-cpp/yaml.h>
 #include <fcntl.h>
 #include <signal.h>
 #include <unistd.h>
@@ -1418,8 +1419,8 @@ struct TileOutput {
   // (scale.grid_on_kept_points). Empty with the filters off.
   XyBox kept_box;
   // The same after the despike (equal to kept_box where it removed no owned point), and the
-  // owned points it removed (x y z [m] each; in process only, not in a tile job's result):
-  // build_scene_tiled lays the grid on that box when the in-core run would.
+  // owned points it removed (x y z [m] each; in a tile job's result too): build_scene_tiled and
+  // tile-merge lay the grid on that box when the in-core run would.
   XyBox after_box;
   std::vector<std::array<double, 3>> despiked_m;
 };
@@ -2763,7 +2764,7 @@ struct TileMerge {
   std::vector<std::pair<double, std::uint64_t>> spacings;  // each tile's spacing [m] and weight
   double job_seconds = 0.0;
   XyBox kept_box, after_box;  // over the tiles (TileOutput::kept_box, after_box)
-  std::vector<std::array<double, 3>> despiked_m;  // in process only (TileOutput::despiked_m)
+  std::vector<std::array<double, 3>> despiked_m;  // TileOutput::despiked_m of every tile
 
   TileMerge(const Plan& plan) {
     const GridGeometry& g = plan.tiles.g;
@@ -4304,10 +4305,12 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 
 // 4: layout.xyz_floats, and spill records of the file's floats when it is set (FileFloats);
 // 5: the input files as a list (inputs); 6: the halo's shares under auto (tiles'
-// despike_halo_cells, isolated_halo_cells; 2026-11-29).
-constexpr const char* kPlanFormat = "hapticloud tile plan 6";
+// despike_halo_cells, isolated_halo_cells; 2026-11-29);
+// 7: the grid's box from an earlier plan's kept points (grid_box; 2026-11-30).
+constexpr const char* kPlanFormat = "hapticloud tile plan 7";
 // 2: kept_<t>.bin is a mask over the spill (KeptMask), not the kept points.
-constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '3', '\n'};
+// 3: the kept points' boxes (scale.grid_on_kept_points); 4: the despike's removed points.
+constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '4', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
 
 // Doubles as C99 hexadecimal floats ("%a"), so every value reads back to the same bits.
@@ -4400,6 +4403,11 @@ struct PlanFile {
   std::vector<std::string> overrides;
   std::string resolved_yaml;
   std::vector<std::uintmax_t> spill_bytes;  // tile_<t>.bin sizes as written
+  // The box a tile-merge of an earlier plan found the grid is to be laid on
+  // (scale.grid_on_kept_points; tile-plan --grid-box), set as the config's scale.grid_box; and
+  // the lines saying why, one per earlier plan (its tile_plan notes).
+  std::optional<ScaleConfig::GridBox> grid_box;
+  std::vector<std::string> grid_why;
 };
 
 // A string that must read back byte for byte: as is when it is UTF-8, else {"hex": its bytes}.
@@ -4432,6 +4440,62 @@ nlohmann::json report_json(const StageReport& r) {
   for (const auto& [name, v] : r.figures) figures.push_back({name, hex(v)});
   return {{"stage", r.stage},     {"count_in", r.count_in}, {"count_out", r.count_out}, {"seconds", hex(r.seconds)},
           {"peak_rss_bytes", r.peak_rss_bytes}, {"figures", figures},   {"notes", r.notes}};
+}
+
+// A ScaleConfig::GridBox as plan.json and grid_box.json hold it: its bounds [m] as hexadecimal
+// floats, its point count, `last`, the despike's removed points [m] (sorted, as
+// grid_on_kept_points leaves them; null: none taken over) and the despike's figures.
+nlohmann::json grid_box_json(const ScaleConfig::GridBox& b) {
+  nlohmann::json j{{"x_min_m", hex(b.x_min_m)}, {"x_max_m", hex(b.x_max_m)}, {"y_min_m", hex(b.y_min_m)},
+                   {"y_max_m", hex(b.y_max_m)}, {"points", b.points},          {"last", b.last}};
+  j["despiked_m"] = nullptr;
+  if (b.despiked_m) {
+    j["despiked_m"] = nlohmann::json::array();
+    for (const auto& p : *b.despiked_m) j["despiked_m"].push_back({hex(p[0]), hex(p[1]), hex(p[2])});
+  }
+  j["despike_sums"] = nlohmann::json::object();
+  for (const auto& [name, v] : b.despike_sums) j["despike_sums"][name] = hex(v);
+  return j;
+}
+
+// grid_box_json's object `j`, found at `key` of `file`.
+// @throws InputError naming file and key for a missing or mistyped member, a coordinate that is
+//         not finite, a minimum above its maximum, no points, or removed points out of order.
+ScaleConfig::GridBox grid_box_of(const nlohmann::json& j, const fs::path& file, const std::string& key) {
+  const auto finite = [&](const nlohmann::json& v, const std::string& k) {
+    const double d = unhex(v, file, k.c_str());
+    if (!std::isfinite(d)) throw InputError(file.string() + ": " + k + " is " + format_number(d) + ", expected a finite coordinate [m]");
+    return d;
+  };
+  ScaleConfig::GridBox b;
+  b.x_min_m = finite(j.at("x_min_m"), key + ".x_min_m");
+  b.x_max_m = finite(j.at("x_max_m"), key + ".x_max_m");
+  b.y_min_m = finite(j.at("y_min_m"), key + ".y_min_m");
+  b.y_max_m = finite(j.at("y_max_m"), key + ".y_max_m");
+  if (!(b.x_min_m <= b.x_max_m && b.y_min_m <= b.y_max_m)) {
+    throw InputError(file.string() + ": " + key + " has a minimum above its maximum (expected x_min_m <= x_max_m and y_min_m <= y_max_m)");
+  }
+  b.points = j.at("points").get<std::uint64_t>();
+  if (b.points == 0) throw InputError(file.string() + ": " + key + ".points is 0, expected the count of the points the box holds (>= 1)");
+  b.last = j.at("last").get<bool>();
+  if (const auto& d = j.at("despiked_m"); !d.is_null()) {
+    if (!d.is_array()) throw InputError(file.string() + ": " + key + ".despiked_m is not a list of points (x y z [m]) or null");
+    auto v = std::make_shared<std::vector<std::array<double, 3>>>();
+    v->reserve(d.size());
+    for (std::size_t i = 0; i < d.size(); ++i) {
+      const std::string k = key + ".despiked_m[" + std::to_string(i) + "]";
+      if (!d[i].is_array() || d[i].size() != 3) throw InputError(file.string() + ": " + k + " is not 3 numbers (x y z [m])");
+      v->push_back({finite(d[i][0], k), finite(d[i][1], k), finite(d[i][2], k)});
+    }
+    if (!std::is_sorted(v->begin(), v->end())) {
+      throw InputError(file.string() + ": " + key + ".despiked_m is not in increasing order of x, y, z (as tile-merge writes it)");
+    }
+    b.despiked_m = std::move(v);
+  }
+  for (const auto& [name, v] : j.at("despike_sums").items()) {
+    b.despike_sums[name] = unhex(v, file, (key + ".despike_sums." + name).c_str());
+  }
+  return b;
 }
 
 void write_plan_file(const PlanFile& pf) {
@@ -4497,6 +4561,12 @@ void write_plan_file(const PlanFile& pf) {
   nlohmann::json reports = nlohmann::json::array();
   for (const auto& r : p.reports) reports.push_back(report_json(r));
   j["reports"] = reports;
+  j["grid_box"] = nullptr;
+  if (pf.grid_box) {
+    j["grid_box"] = grid_box_json(*pf.grid_box);
+    j["grid_box"]["why"] = nlohmann::json::array();
+    for (const std::string& w : pf.grid_why) j["grid_box"]["why"].push_back(text(w));
+  }
   // Notes and figure names are for reading only: a byte that is not UTF-8 becomes U+FFFD.
   detail::write_atomically(pf.dir / "plan.json", j.dump(1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");
 }
@@ -4678,6 +4748,11 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       r.notes = rj.at("notes").get<std::vector<std::string>>();
       p.reports.push_back(std::move(r));
     }
+    where = "grid_box";
+    if (const auto& gb = j.at("grid_box"); !gb.is_null()) {
+      pf.grid_box = grid_box_of(gb, plan_file, "grid_box");
+      for (const auto& w : gb.at("why")) pf.grid_why.push_back(untext(w));
+    }
   } catch (const nlohmann::json::exception& e) {
     throw InputError(plan_file.string() + ": " + where + ": not as hapticloud tile-plan writes it (" + e.what() + ")");
   } catch (const std::logic_error& e) {  // std::stoi of a hex text
@@ -4695,6 +4770,7 @@ RunConfig config_of(const PlanFile& pf, const fs::path& plan_file) {
                       " (with the plan's --set overrides) resolves to other values than when the plan was made; make a new plan "
                       "(hapticloud tile-plan)");
   }
+  config.scale.grid_box = pf.grid_box;  // not a key: tile-plan --grid-box
   return config;
 }
 
@@ -4729,6 +4805,8 @@ std::string encode_part(const std::string& plan_id, const TileOutput& o) {
     put(s, b->y_hi);
     put(s, b->points);
   }
+  put(s, static_cast<std::uint64_t>(o.despiked_m.size()));
+  for (const auto& p : o.despiked_m) s.append(reinterpret_cast<const char*>(p.data()), sizeof p);
   const DepthGrid& g = o.interior;
   const std::int32_t rows = g.depth.rows(), cols = g.depth.cols();
   put(s, rows);
@@ -4812,6 +4890,10 @@ TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::si
     b->y_hi = r.get<double>();
     b->points = r.get<std::uint64_t>();
   }
+  const auto n_despiked = r.get<std::uint64_t>();
+  if (n_despiked > o.in) r.bad("lists " + std::to_string(n_despiked) + " despiked points of " + std::to_string(o.in) + " input points");
+  o.despiked_m.resize(static_cast<std::size_t>(n_despiked));
+  for (auto& p : o.despiked_m) r.take(p.data(), sizeof p);
   const auto rows = r.get<std::int32_t>(), cols = r.get<std::int32_t>();
   const bool colour = r.get<std::uint8_t>() != 0, intensity = r.get<std::uint8_t>() != 0;
   if (rows > 0) {
@@ -4917,8 +4999,127 @@ struct GridOnKeptPoints : std::runtime_error {
   std::string island_halo_widened;  // the warning, when the attempt ran with the wider grid share
 };
 
+// scale.grid_on_kept_points after a tile loop (in process or merged from tile jobs): where the
+// points the tiles' filters kept (TileMerge::kept_box), or those their despike left
+// (after_box), give another grid than the plan's, the box the next attempt lays its grid on.
+// First the filters' box (the despike must judge on its grid), then the despike's (its removals
+// taken over: GridBox::despiked_m, despike_sums). None when the key is false, the plan's box is
+// already the despike's or the last one (GridBox::last), or the grids agree.
+std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, const Plan& plan, TileMerge& merged) {
+  const ScaleConfig::GridBox* now_box = config.scale.grid_box ? &*config.scale.grid_box : nullptr;
+  const bool checks = config.scale.grid_on_kept_points && !(now_box != nullptr && (now_box->despiked_m || now_box->last));
+  if (!checks || merged.kept_box.points == 0) return std::nullopt;
+  ReprojectOptions ro = config.grid.reproject;
+  ro.upsample_factor = plan.tiles.k;
+  ro.grid.max_cells = std::numeric_limits<std::size_t>::max();
+  const auto geometry = [&](const XyBox& b) {
+    return grid_geometry_for_box(b.x_lo, b.x_hi, b.y_lo, b.y_hi, static_cast<std::size_t>(b.points), ro);
+  };
+  const auto box_of = [](const XyBox& b) {
+    ScaleConfig::GridBox g;
+    g.x_min_m = b.x_lo, g.x_max_m = b.x_hi, g.y_min_m = b.y_lo, g.y_max_m = b.y_hi, g.points = b.points;
+    return g;
+  };
+  if (const GridGeometry g = geometry(merged.kept_box); !(g == plan.tiles.g)) {
+    return GridOnKeptPoints(box_of(merged.kept_box), plan.tiles.g, g, false);
+  }
+  if (merged.after_box.points > 0 && !merged.despiked_m.empty()) {
+    if (const GridGeometry a = geometry(merged.after_box); !(a == plan.tiles.g)) {
+      ScaleConfig::GridBox b = box_of(merged.after_box);
+      std::sort(merged.despiked_m.begin(), merged.despiked_m.end());
+      b.despiked_m = std::make_shared<const std::vector<std::array<double, 3>>>(std::move(merged.despiked_m));
+      merged.despiked_m.clear();
+      // The despike's figures, which the attempt that takes its removals over cannot count.
+      for (const char* name : kDespikeSums) {
+        if (const auto it = merged.sums.find(name); it != merged.sums.end()) b.despike_sums[name] = it->second;
+      }
+      return GridOnKeptPoints(std::move(b), plan.tiles.g, a, true);
+    }
+  }
+  return std::nullopt;
+}
+
+// Where the plan's box took the despike's removals over, its figures are those of the attempt
+// that judged them (on the grid the in-core despike reads).
+void take_over_despike_sums(const RunConfig& config, TileMerge& merged) {
+  if (!config.scale.grid_box || !config.scale.grid_box->despiked_m) return;
+  for (const char* name : kDespikeSums) merged.sums.erase(name);
+  for (const auto& [name, v] : config.scale.grid_box->despike_sums) merged.sums[name] = v;
+}
+
+// The line a later attempt's tile_plan notes for an attempt that stopped for `e`, ending with
+// `then` (what happened next: "the run started again after 12 s").
+std::string grid_relaid_why(const GridOnKeptPoints& e, const std::string& then) {
+  return std::string(e.after_despike ? "the despike" : "the outlier filters") + " removed a point that set the x-y box of the grid " +
+         grid_words(e.first) + ", so " + then + " with the grid laid on the points " +
+         (e.after_despike ? "the despike left (its removals taken over)" : "the filters keep") + ", as the in-core run lays it: " +
+         grid_words(e.kept);
+}
+
 BuiltScene build_scene_tiled_on_its_grid(const RunConfig& config, const ProgressFn& progress, SurfaceLayersAt layers,
                                          detail::Clock::time_point t_start);
+
+// grid_box.json, which tile-merge writes for the next plan (GridBoxError, tile-plan --grid-box).
+constexpr const char* kGridBoxFormat = "hapticloud grid box 1";
+
+struct GridBoxFile {
+  ScaleConfig::GridBox box;
+  std::vector<std::string> why;  // one line per plan before the next
+  std::string plan_id;           // the plan whose merge wrote it
+  std::string resolved_yaml;     // its config's
+  Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();  // its recentring (Plan::offset_m)
+  std::vector<SceneInput> inputs;                      // its input files and their SHA-256
+};
+
+void write_grid_box_file(const fs::path& file, const GridBoxFile& g) {
+  nlohmann::json j;
+  j["format"] = kGridBoxFormat;
+  j["plan"] = g.plan_id;
+  j["resolved_yaml"] = text(g.resolved_yaml);
+  j["offset_m"] = {hex(g.offset_m.x()), hex(g.offset_m.y()), hex(g.offset_m.z())};
+  j["inputs"] = nlohmann::json::array();
+  for (const SceneInput& in : g.inputs) j["inputs"].push_back({{"file", text(in.file)}, {"sha256", in.sha256}});
+  j["box"] = grid_box_json(g.box);
+  j["why"] = nlohmann::json::array();
+  for (const std::string& w : g.why) j["why"].push_back(text(w));
+  detail::write_atomically(file, j.dump(1, ' ', false, nlohmann::json::error_handler_t::replace) + "\n");
+}
+
+GridBoxFile read_grid_box_file(const fs::path& file) {
+  const std::string bytes = read_file_bytes(file, "the grid box (tile-plan --grid-box)");
+  GridBoxFile g;
+  std::string where = "the JSON text";
+  try {
+    const nlohmann::json j = nlohmann::json::parse(bytes);
+    where = "format";
+    if (!j.is_object() || j.value("format", std::string()) != kGridBoxFormat) {
+      throw InputError(file.string() + ": not a grid box of this version (format is not \"" + kGridBoxFormat +
+                       "\"; hapticloud tile-merge writes it as WORK/grid_box.json)");
+    }
+    where = "plan, resolved_yaml, offset_m, inputs";
+    g.plan_id = j.at("plan").get<std::string>();
+    g.resolved_yaml = untext(j.at("resolved_yaml"));
+    for (int a = 0; a < 3; ++a) g.offset_m[a] = unhex(j.at("offset_m").at(static_cast<std::size_t>(a)), file, "offset_m");
+    for (const auto& in : j.at("inputs")) g.inputs.push_back({untext(in.at("file")), in.at("sha256").get<std::string>()});
+    where = "box";
+    g.box = grid_box_of(j.at("box"), file, "box");
+    where = "why";
+    for (const auto& w : j.at("why")) g.why.push_back(untext(w));
+  } catch (const nlohmann::json::exception& e) {
+    throw InputError(file.string() + ": " + where + ": not as hapticloud tile-merge writes a grid box (" + e.what() + ")");
+  }
+  return g;
+}
+
+// The resolved YAML `yaml` without its `scale` section (tiling, scratch and halo keys, which do
+// not change the scene), as yaml-cpp emits it.
+std::string yaml_but_scale(const std::string& yaml) {
+  YAML::Node n = YAML::Load(yaml);
+  if (n.IsMap() && n["scale"]) n.remove("scale");
+  YAML::Emitter e;
+  e << n;
+  return e.c_str();
+}
 }  // namespace
 
 // The tiled run. Its plan lays the grid on the points before the outlier filters; where those
@@ -4958,11 +5159,7 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         now.scale.island_halo = ScaleConfig::Tiled::kOn;
         why.push_back("warning: " + e.island_halo_widened);
       }
-      why.push_back(std::string(e.after_despike ? "the despike" : "the outlier filters") +
-                    " removed a point that set the x-y box of the grid " + grid_words(e.first) + ", so the run started again after " +
-                    format_number(detail::seconds_since(t_start)) + " s with the grid laid on the points " +
-                    (e.after_despike ? "the despike left (its removals taken over)" : "the filters keep") +
-                    ", as the in-core run lays it: " + grid_words(e.kept));
+      why.push_back(grid_relaid_why(e, "the run started again after " + format_number(detail::seconds_since(t_start)) + " s"));
       now.scale.grid_box = e.box;
     }
   }
@@ -5049,12 +5246,7 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
           left.clear();
           spill.remove(t);
         });
-    // Where the despike's removals were taken over, its figures are those of the attempt that
-    // judged them (on the grid the in-core despike reads).
-    if (config.scale.grid_box && config.scale.grid_box->despiked_m) {
-      for (const char* name : kDespikeSums) merged.sums.erase(name);
-      for (const auto& [name, v] : config.scale.grid_box->despike_sums) merged.sums[name] = v;
-    }
+    take_over_despike_sums(config, merged);
     merged.report(config, r.report);
     r.report.figure("heap_releases", static_cast<double>(heap.releases()));
     r.report.figure("large_blocks_mapped", mapped ? 1.0 : 0.0);
@@ -5062,49 +5254,26 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
   });
   // The in-core run lays its grid on the points the filters keep: where that is another grid,
   // build_scene_tiled starts again with their box (scale.grid_on_kept_points).
-  // First the box the filters before the despike leave (the despike must judge on its grid),
-  // then the box its removals leave (taken over, not judged again: GridBox::despiked_m).
-  // The last attempt (GridBox::last) and one whose despike removals were taken over check no
-  // more: finish_tiled's warning names a grid that still differs.
-  const ScaleConfig::GridBox* now_box = config.scale.grid_box ? &*config.scale.grid_box : nullptr;
-  const bool checks = config.scale.grid_on_kept_points && !(now_box != nullptr && (now_box->despiked_m || now_box->last));
-  if (checks && merged.kept_box.points > 0) {
-    ReprojectOptions ro = config.grid.reproject;
-    ro.upsample_factor = plan.tiles.k;
-    ro.grid.max_cells = std::numeric_limits<std::size_t>::max();
-    const auto geometry = [&](const XyBox& b) {
-      return grid_geometry_for_box(b.x_lo, b.x_hi, b.y_lo, b.y_hi, static_cast<std::size_t>(b.points), ro);
-    };
-    const auto box_of = [](const XyBox& b) {
-      ScaleConfig::GridBox g;
-      g.x_min_m = b.x_lo, g.x_max_m = b.x_hi, g.y_min_m = b.y_lo, g.y_max_m = b.y_hi, g.points = b.points;
-      return g;
-    };
-    if (const GridGeometry g = geometry(merged.kept_box); !(g == plan.tiles.g)) {
-      throw GridOnKeptPoints(box_of(merged.kept_box), plan.tiles.g, g, false);
-    }
-    if (merged.after_box.points > 0 && !merged.despiked_m.empty()) {
-      if (const GridGeometry a = geometry(merged.after_box); !(a == plan.tiles.g)) {
-        ScaleConfig::GridBox b = box_of(merged.after_box);
-        std::sort(merged.despiked_m.begin(), merged.despiked_m.end());
-        b.despiked_m = std::make_shared<const std::vector<std::array<double, 3>>>(std::move(merged.despiked_m));
-        // The despike's figures, which the attempt that takes its removals over cannot count.
-        for (const char* name : kDespikeSums) {
-          if (const auto it = merged.sums.find(name); it != merged.sums.end()) b.despike_sums[name] = it->second;
-        }
-        throw GridOnKeptPoints(std::move(b), plan.tiles.g, a, true);
-      }
-    }
-  }
+  if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged)) throw std::move(*again);
   return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
 }
 }  // namespace
 
 TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std::string>& overrides, const fs::path& work_dir,
-                             const ProgressFn& progress) {
+                             const ProgressFn& progress, const fs::path& grid_box_file) {
   const fs::path config_abs = fs::absolute(config_file);
   RunConfig config = load_run_config(config_abs, overrides);
   check_supported(config);
+  std::optional<GridBoxFile> box;
+  if (!grid_box_file.empty()) {
+    box = read_grid_box_file(grid_box_file);
+    if (yaml_but_scale(box->resolved_yaml) != yaml_but_scale(config.resolved_yaml)) {
+      throw ConfigError("tile-plan --grid-box " + grid_box_file.string() + ": the box was found with a config that resolves to other " +
+                        "values outside scale than " + config_abs.string() + " with these --set overrides (the kept points, and so " +
+                        "their box, depend on them): plan with that config, or without --grid-box");
+    }
+    config.scale.grid_box = box->box;
+  }
   std::error_code ec;
   bool made = false;
   if (fs::exists(work_dir, ec)) {
@@ -5129,6 +5298,27 @@ TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std:
   pf.config_file = config_abs;
   pf.overrides = overrides;
   pf.resolved_yaml = config.resolved_yaml;
+  if (box) {
+    // The box is in the grid frame of the scan it came from: the same files, recentred alike.
+    bool same_inputs = box->inputs.size() == pf.plan.inputs.size();
+    for (std::size_t i = 0; same_inputs && i < box->inputs.size(); ++i) {
+      same_inputs = box->inputs[i].file == pf.plan.inputs[i].file && box->inputs[i].sha256 == pf.plan.inputs[i].sha256;
+    }
+    if (!same_inputs || box->offset_m != pf.plan.offset_m) {
+      throw InputError("tile-plan --grid-box " + grid_box_file.string() + ": the box was found on " +
+                       (same_inputs ? std::string("the same input files recentred otherwise") : std::string("other input files (or files that changed since)")) +
+                       " than this plan reads: plan again without --grid-box");
+    }
+    pf.grid_box = box->box;
+    pf.grid_why = box->why;
+    for (StageReport& rep : pf.plan.reports) {
+      if (rep.stage != "tile_plan") continue;
+      rep.figure("grid_relaid", static_cast<double>(box->why.size()));
+      for (const std::string& w : box->why) rep.notes.push_back(w);
+      rep.notes.push_back("(the box from " + grid_box_file.string() + ", which tile-merge of plan " + box->plan_id +
+                          " wrote; scale.grid_on_kept_points: false merges the first plan's grid instead)");
+    }
+  }
   Spill spill(work_dir, "tile_", pf.plan.tiles.count(), pf.plan.layout);
   spill.adopt_existing();
   TilePlanInfo info;
@@ -5367,6 +5557,7 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
       }
       merged.add(plan.tiles, std::move(o));
     }
+    take_over_despike_sums(config, merged);
     merged.report(config, r.report);
     r.report.figure("tile_job_seconds", merged.job_seconds);
     // Every tile has its result: the scratch of attempts that were killed is of no use to anyone.
@@ -5375,6 +5566,31 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
                              pf.dir.string());
     return r;
   });
+  // The in-core run lays its grid on the points the filters keep: where that is another grid, the
+  // box for a new plan, as build_scene_tiled starts again in process (scale.grid_on_kept_points).
+  if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged)) {
+    GridBoxFile g;
+    g.box = std::move(again->box);
+    g.box.last = config.scale.grid_box.has_value();  // the third plan checks no more, as the third attempt
+    g.why = pf.grid_why;
+    g.why.push_back(grid_relaid_why(*again, "tile-merge of plan " + pf.id + " stopped and a new plan was made"));
+    g.plan_id = pf.id;
+    g.resolved_yaml = pf.resolved_yaml;
+    g.offset_m = plan.offset_m;
+    g.inputs = plan.inputs;
+    const fs::path box_file = pf.dir / "grid_box.json";
+    write_grid_box_file(box_file, g);
+    std::string sets;
+    for (const std::string& o : pf.overrides) sets += " --set '" + o + "'";
+    throw GridBoxError("tile-merge: " + plan_file.string() + ": " + std::string(again->after_despike ? "the despike" : "the outlier filters") +
+                       " removed a point that set the x-y box of the plan's grid " + grid_words(again->first) +
+                       "; the in-core run lays its grid on the points " + (again->after_despike ? "the despike left" : "they keep") +
+                       " (" + grid_words(again->kept) + "). Their box is in " + box_file.string() + ": plan again with hapticloud tile-plan " +
+                       pf.config_file.string() + sets + " --grid-box " + box_file.string() +
+                       " --work NEW_FOLDER, run its tile jobs and merge it (tools/dask/hapticloud-dask does so), or set "
+                       "scale.grid_on_kept_points: false to merge this plan's grid with a warning. No scene was written.",
+                       box_file);
+  }
   for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
     if (spill.bytes(t) != pf.spill_bytes[t]) {
       throw InputError(spill.file(t).string() + " holds " + std::to_string(spill.bytes(t)) + " bytes, the plan wrote " +

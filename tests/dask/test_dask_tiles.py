@@ -233,3 +233,42 @@ def test_an_island_the_plans_halo_cannot_decide_is_planned_again_with_the_wider_
     assert "set scale.island_halo: true" in p.stdout and "planning again" not in p.stdout, p.stdout[-3000:]
     assert not (tmp_path / "failed").exists()
     assert os.listdir(scratch) == []
+
+
+def test_a_grid_the_filters_changed_is_planned_again_on_the_kept_points_box(tmp_path):
+    # The patch of TiledRun.AStrayThatSetsTheBoxIsRemovedAndTheGridLaidAgainOnTheKeptPoints
+    # (tests/pipeline/tiled_run_test.cpp): 100 x 100 points 1 cm apart and a stray 7 cm past the
+    # edge that sets the plan's x-y box and that the outlier filters remove. The in-core run lays
+    # its grid on the kept points; tile-merge exits 6 and writes their box, and the driver plans
+    # again with --grid-box. Its scene is byte for byte the single-process run's (the oracle,
+    # which starts again in process), and the run's grid is the in-core one. A LocalCluster.
+    pts = [(0.01 * i, 0.01 * j, 0.001 * ((i * 7 + j * 3) % 5)) for i in range(100) for j in range(100)]
+    pts += [(1.06, 0.5, 0.002)]
+    with open(tmp_path / "patch.ply", "w") as f:
+        f.write("ply\nformat ascii 1.0\nelement vertex %d\nproperty double x\nproperty double y\nproperty double z\n"
+                "end_header\n" % len(pts))
+        f.writelines("%.17g %.17g %.17g\n" % p for p in pts)
+    config = tmp_path / "patch.yaml"
+    config.write_text(
+        "input: {files: [patch.ply], units: m}\n"
+        "grid: {n: 200, splat_radius_cells: 1.2, see_through_depth_m: 0.01, hole_fill_max_cells: 16}\n"
+        "cross_check: {tolerance_m: 0.002}\nscale: {tiled: on, tile_cells: 32}\n")
+    ref = tmp_path / "ref"
+    subprocess.run([HAPTICLOUD, "run", str(config), "--out", str(ref)], check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    core = tmp_path / "core"
+    subprocess.run([HAPTICLOUD, "run", str(config), "--out", str(core), "--set", "scale.tiled=off"], check=True,
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    out = tmp_path / "run"
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    p = subprocess.run([sys.executable, DRIVER, str(config), "--out", str(out), "--workers", "2", "--scratch", str(scratch),
+                        "--tiles-per-job", "8", "--hapticloud", HAPTICLOUD],
+                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    assert p.returncode == 0, p.stdout[-3000:]
+    assert "planning again with --grid-box" in p.stdout, p.stdout[-3000:]
+    assert sum(line.startswith("hapticloud tile-plan ") for line in p.stdout.splitlines()) == 2, p.stdout[-3000:]
+    assert same_folder(ref / "scene", out / "scene") == []
+    grid = json.loads((out / "report.json").read_text())["grid"]
+    assert grid == json.loads((core / "report.json").read_text())["grid"]
+    assert os.listdir(scratch) == []

@@ -10,18 +10,23 @@
 #include "hc/pipeline/scene_io.hpp"
 #include "hc/pipeline/tiling.hpp"
 #include "height_field_bits.hpp"
+#include "patch_scan.hpp"
+#include "stage_figure.hpp"
 #include "test_paths.hpp"
 
 #include <algorithm>
 #include <array>
 #include <cstdlib>
 #include <gtest/gtest.h>
+#include <nlohmann/json.hpp>
 
 #include <bit>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 #include <iterator>
+#include <optional>
 #include <string>
 #include <vector>
 
@@ -255,15 +260,15 @@ TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
     EXPECT_NE(what.find("1 of " + std::to_string(info.tiles) + " tiles have no result (5)"), std::string::npos) << what;
     EXPECT_NE(what.find("--tiles 5"), std::string::npos) << what;
   }
-  // A result of the version before (without the kept points' box) is refused as such.
+  // A result of the version before (without the despike's removed points) is refused as such.
   hc::pipeline::run_tile_jobs(info.plan_file, {5});
   {
     std::string older = bytes_of(work / "part_5.bin");
-    ASSERT_EQ(older.substr(0, 11), "HCTILEPART3");
-    older[10] = '2';
+    ASSERT_EQ(older.substr(0, 11), "HCTILEPART4");
+    older[10] = '3';
     std::ofstream(work / "part_5.bin", std::ios::binary | std::ios::trunc) << older;
     const std::string what = merge_refusal(info.plan_file, "a result of another version");
-    EXPECT_NE(what.find("part_5.bin: a tile result of another hapticloud version (HCTILEPART2, expected HCTILEPART3)"),
+    EXPECT_NE(what.find("part_5.bin: a tile result of another hapticloud version (HCTILEPART3, expected HCTILEPART4)"),
               std::string::npos) << what;
   }
   // A truncated result is refused too.
@@ -357,6 +362,140 @@ TEST(TileJobs, RefusesAResultOfAnotherPlanAChangedConfigAndAFolderInUse) {
   EXPECT_THROW((void)hc::pipeline::write_tile_plan(cfg, {"input.files=[" + (dir / "none.ply").string() + "]"}, dir / "d"),
                hc::Error);
   EXPECT_FALSE(fs::exists(dir / "d"));
+}
+
+// Every tile of `plan_file` in one job each.
+void run_every_tile(const hc::pipeline::TilePlanInfo& info) {
+  for (std::size_t t = 0; t < info.tiles; ++t) hc::pipeline::run_tile_jobs(info.plan_file, {t});
+}
+
+// The InputError or ConfigError message of a plan with `box`, which must refuse it.
+std::string plan_refusal(const fs::path& cfg, const std::vector<std::string>& sets, const fs::path& work, const fs::path& box) {
+  try {
+    (void)hc::pipeline::write_tile_plan(cfg, sets, work, {}, box);
+  } catch (const hc::Error& e) {
+    EXPECT_FALSE(fs::exists(work)) << "a refused plan leaves no folder";
+    return e.what();
+  }
+  ADD_FAILURE() << "a plan with " << box << " was made";
+  return "";
+}
+
+// A stray that sets the plan's x-y box and that the filters remove (the cases of
+// TiledRun.AStrayThatSetsTheBoxIsRemovedAndTheGridLaidAgainOnTheKeptPoints: a generated patch
+// with a stray 7 cm past its edge, and PDAL's test1_4.las, whose box a point the despike removes
+// sets). The in-core run lays its grid on the kept points; build_scene_tiled starts again in
+// process for them. Through tile jobs, tile-merge refuses the plan's grid and writes the kept
+// points' box (GridBoxError, exit 6 in the app); plans made on it (--grid-box) until a merge goes
+// through give the in-process run's scene bit for bit and the in-core run's grid (the oracles).
+// A box file that is not tile-merge's, or was found with another config or scan, is refused by
+// name; a scale key that differs is taken.
+TEST(TileJobs, AMergeOnAGridTheFiltersChangedWritesTheKeptBoxAndAPlanOnItGivesTheInProcessScene) {
+  const fs::path dir = hc::test::temp_dir("grid_box_jobs");
+  hc::test::write_patch_with(dir / "patch.ply", {{1.06, 0.5, 0.002}});
+  fs::copy_file(hc::test::scan_path("scanner_samples/las/pdal-test1_4.las"), dir / "test1_4.las", fs::copy_options::overwrite_existing);
+  struct Case {
+    const char* name;
+    const char* yaml;
+    int tile;
+    int plans;  // the plans through tile jobs: the in-process run's attempts
+  };
+  const Case cases[] = {
+      {"patch",
+       "input: {files: [patch.ply], units: m}\n"
+       "grid: {n: 200, splat_radius_cells: 1.2, see_through_depth_m: 0.01, hole_fill_max_cells: 16}\n"
+       "cross_check: {tolerance_m: 0.002}\n",
+       32, 2},
+      {"las",
+       "input: {files: [test1_4.las], units: m}\n"
+       "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 2, hole_fill_max_cells: 32}\n"
+       "cross_check: {tolerance_m: 0.5}\n",
+       48, 0},
+  };
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const fs::path cfg = dir / (std::string(c.name) + ".yaml");
+    std::ofstream(cfg) << c.yaml;
+    const fs::path scratch = dir / "scratch";
+    fs::create_directories(scratch);
+    const std::vector<std::string> sets = {"scale.tiled=on", "scale.tile_cells=" + std::to_string(c.tile), "scale.scratch=" + scratch.string()};
+    RunConfig in_core_config = hc::pipeline::load_run_config(cfg, sets);
+    in_core_config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+    const BuiltScene in_core = hc::pipeline::build_scene(in_core_config);
+    const BuiltScene in_process = hc::pipeline::build_scene_tiled(hc::pipeline::load_run_config(cfg, sets));
+    const double relaid = hc::test::stage_figure(in_process, "tile_plan", "grid_relaid");
+    ASSERT_GE(relaid, 1.0) << "the in-process run started again";
+    fs::path box;
+    std::optional<hc::pipeline::MergedTileRun> merged;
+    int plans = 0;
+    while (!merged && plans < 4) {
+      ++plans;
+      const fs::path work = dir / (std::string(c.name) + "_plan" + std::to_string(plans));
+      std::vector<std::string> now = sets;
+      if (plans > 1) now.push_back("scale.progress_interval_s=2");  // a scale key: not the scene's
+      const auto info = hc::pipeline::write_tile_plan(cfg, now, work, {}, box);
+      run_every_tile(info);
+      try {
+        merged = hc::pipeline::merge_tile_jobs(info.plan_file);
+      } catch (const hc::pipeline::GridBoxError& e) {
+        EXPECT_EQ(e.box_file, work / "grid_box.json");
+        EXPECT_TRUE(fs::is_regular_file(e.box_file));
+        const std::string what = e.what();
+        EXPECT_NE(what.find("--grid-box " + e.box_file.string()), std::string::npos) << what;
+        EXPECT_NE(what.find("No scene was written"), std::string::npos) << what;
+        box = e.box_file;
+      }
+    }
+    ASSERT_TRUE(merged.has_value()) << "no plan's merge went through";
+    EXPECT_EQ(plans, static_cast<int>(relaid) + 1) << "as many plans as the in-process run's attempts";
+    if (c.plans > 0) {
+      EXPECT_EQ(plans, c.plans);
+    }
+    EXPECT_EQ(hc::test::stage_figure(merged->built, "tile_plan", "grid_relaid"), relaid);
+    EXPECT_TRUE(merged->built.scene.geometry == in_core.scene.geometry) << "the in-core run's grid";
+    expect_same_scene(in_process, merged->built);
+    EXPECT_TRUE(merged->built.summary.warnings.empty() ||
+                std::none_of(merged->built.summary.warnings.begin(), merged->built.summary.warnings.end(),
+                             [](const std::string& w) { return w.find("the kept points span") != std::string::npos; }));
+    if (std::string(c.name) != "patch") continue;
+
+    // The refusals, on the patch's box file.
+    ASSERT_FALSE(box.empty());
+    const std::string good = bytes_of(box);
+    const fs::path bad = dir / "bad_box.json";
+    const auto refused_with = [&](const std::function<void(nlohmann::json&)>& change, const std::vector<std::string>& now) {
+      nlohmann::json j = nlohmann::json::parse(good);
+      change(j);
+      std::ofstream(bad, std::ios::trunc) << j.dump();
+      return plan_refusal(cfg, now, dir / "refused_plan", bad);
+    };
+    {
+      const std::string what = refused_with([](nlohmann::json& j) { j["format"] = "hapticloud grid box 0"; }, sets);
+      EXPECT_NE(what.find(bad.string() + ": not a grid box of this version"), std::string::npos) << what;
+    }
+    {
+      const std::string what = refused_with([](nlohmann::json& j) { std::swap(j["box"]["x_min_m"], j["box"]["x_max_m"]); }, sets);
+      EXPECT_NE(what.find("box has a minimum above its maximum"), std::string::npos) << what;
+    }
+    {
+      const std::string what = refused_with([](nlohmann::json& j) { j["box"].erase("points"); }, sets);
+      EXPECT_NE(what.find(bad.string() + ": box: not as hapticloud tile-merge writes a grid box"), std::string::npos) << what;
+    }
+    {
+      std::vector<std::string> other = sets;
+      other.push_back("grid.n=210");
+      const std::string what = refused_with([](nlohmann::json&) {}, other);
+      EXPECT_NE(what.find("resolves to other values outside scale"), std::string::npos) << what;
+    }
+    {
+      const std::string what = refused_with([](nlohmann::json& j) { j["offset_m"][0] = "0x1p-3"; }, sets);
+      EXPECT_NE(what.find("the same input files recentred otherwise"), std::string::npos) << what;
+    }
+    {
+      const std::string what = refused_with([](nlohmann::json& j) { j["inputs"][0]["sha256"] = std::string(64, '0'); }, sets);
+      EXPECT_NE(what.find("other input files"), std::string::npos) << what;
+    }
+  }
 }
 
 }  // namespace tile_jobs_test

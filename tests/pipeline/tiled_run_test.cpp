@@ -23,6 +23,7 @@
 #include "height_field_bits.hpp"
 #include "stage_figure.hpp"
 #include "file_bytes.hpp"
+#include "patch_scan.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -58,6 +59,7 @@ using hc::pipeline::RunConfig;
 using hc::test::differing_bits;
 
 using hc::test::stage_figure;
+using hc::test::write_patch_with;
 
 // True when a note of the stage holds `text`.
 bool has_note(const BuiltScene& b, const std::string& stage, const std::string& text) {
@@ -514,16 +516,6 @@ TEST(TiledRun, ClutterJudgedPastTheWindowGivesTheInCoreGridAndTooFarIsAnError) {
   EXPECT_EQ(entries_besides(dir, "cluttered.ply"), 0U) << "the spill folder is removed on the error";
 }
 
-// A 1 m × 1 m patch of 100 × 100 points (1 cm apart, z in 0..4 mm) and `extra` points after
-// them, as an ASCII PLY.
-void write_patch_with(const fs::path& file, const std::vector<std::array<double, 3>>& extra) {
-  std::ofstream out(file);
-  out << "ply\nformat ascii 1.0\nelement vertex " << 100 * 100 + extra.size()
-      << "\nproperty double x\nproperty double y\nproperty double z\nend_header\n";
-  for (int i = 0; i < 100; ++i)
-    for (int j = 0; j < 100; ++j) out << 0.01 * i << " " << 0.01 * j << " " << 0.001 * ((i * 7 + j * 3) % 5) << "\n";
-  for (const auto& p : extra) out << p[0] << " " << p[1] << " " << p[2] << "\n";
-}
 
 // One config (YAML, files relative to dir) run in core and then tiled in tiles of `tile_cells`
 // with the spill under dir; `config` is left in its tiled form.

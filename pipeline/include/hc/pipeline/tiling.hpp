@@ -83,6 +83,19 @@ class UndecidedIslandsError : public ConfigError {
   bool under_auto;   ///< the config's scale.island_halo is auto (not false)
 };
 
+/// Thrown by merge_tile_jobs (`hapticloud tile-merge` exits 6 for it) where the outlier filters or
+/// the despike removed a point that set the x-y box of the plan's grid, so that the in-core run
+/// lays its grid on another box (scale.grid_on_kept_points; build_scene_tiled starts again in
+/// process there). The merge wrote that box to `box_file` (WORK/grid_box.json: the kept points'
+/// x-y bounds in the grid frame [m], the despike's removed points where it set the box) and no
+/// scene. write_tile_plan with box_file makes the plan whose jobs and merge give the in-core
+/// grid (at most three plans in all, as the in-process run's attempts). Source: this project.
+class GridBoxError : public Error {
+ public:
+  GridBoxError(const std::string& what, std::filesystem::path file) : Error(what), box_file(std::move(file)) {}
+  std::filesystem::path box_file;  ///< the box for the next plan (tile-plan --grid-box)
+};
+
 /// The points of config.input's files counted without reading them, as scale.tiled: auto counts
 /// them: each file natively streamed (point_stream.hpp) by its header or first-look count (a
 /// gzipped LAS, LAZ or E57 by its header's or XML section's); nullopt for a synthetic input, a
@@ -157,12 +170,19 @@ struct TilePlanInfo {
 /// scale) for `config_file` with `overrides` ("dotted.key=value", as load_run_config), into
 /// `work_dir` (created; or an existing empty folder), kept for tile jobs. The config is read
 /// through its absolute path, so the resolved input paths hold in every process.
+/// `grid_box_file` (`--grid-box`; empty: none): the grid box a tile-merge wrote (GridBoxError),
+/// on which this plan lays its grid and whose despike removals it takes over; its tile_plan
+/// report then says why (figure grid_relaid, notes), as build_scene_tiled's later attempts do.
 /// @throws hc::ConfigError as load_run_config, or for an option the tiled run lacks (naming the
-///         key); hc::InputError for a work_dir that exists and is not an empty folder, unreadable
-///         input, or a write that fails (what the plan wrote is removed again: the folder if it
-///         made it, else its tile_*.bin and plan.json).
+///         key), or for a grid box made with a config that resolves to other values outside
+///         `scale`; hc::InputError for a work_dir that exists and is not an empty folder,
+///         unreadable input, a grid box file that is not as tile-merge writes it (naming the
+///         key) or was made from other input files or another recentring, or a write that fails
+///         (what the plan wrote is removed again: the folder if it made it, else its tile_*.bin
+///         and plan.json).
 TilePlanInfo write_tile_plan(const std::filesystem::path& config_file, const std::vector<std::string>& overrides,
-                             const std::filesystem::path& work_dir, const ProgressFn& progress = {});
+                             const std::filesystem::path& work_dir, const ProgressFn& progress = {},
+                             const std::filesystem::path& grid_box_file = {});
 
 /// The number of tiles of a plan written by write_tile_plan.
 /// @throws hc::InputError for a file that is not such a plan (naming it and the key).
@@ -191,7 +211,9 @@ struct MergedTileRun {
 /// @throws hc::InputError naming the tiles without a result (a partial scene is never made), a
 ///         result written for another plan or by another version, truncated, or whose kept file
 ///         has another size or a byte that is not 0, 1 or 2; a spill file whose size is not the
-///         plan's; hc::ConfigError as run_tile_jobs.
+///         plan's; hc::ConfigError as run_tile_jobs; GridBoxError where the in-core run lays
+///         its grid on another box (scale.grid_on_kept_points: the plan's folder then holds
+///         grid_box.json for a new plan; nothing else is written).
 /// `layers` as build_scene_tiled's.
 MergedTileRun merge_tile_jobs(const std::filesystem::path& plan_file, const ProgressFn& progress = {},
                               SurfaceLayersAt layers = SurfaceLayersAt::kMemory);
