@@ -4321,7 +4321,7 @@ std::string hex(double v) {
 }
 
 double unhex(const nlohmann::json& j, const fs::path& file, const char* key) {
-  if (!j.is_string()) throw InputError(file.string() + ": " + key + " is not a hexadecimal float string (a plan written by hapticloud tile-plan?)");
+  if (!j.is_string()) throw InputError(file.string() + ": " + key + " is not a hexadecimal float string (as hapticloud writes it)");
   const std::string s = j.get<std::string>();
   char* end = nullptr;
   const double v = std::strtod(s.c_str(), &end);
@@ -4475,8 +4475,11 @@ ScaleConfig::GridBox grid_box_of(const nlohmann::json& j, const fs::path& file, 
   if (!(b.x_min_m <= b.x_max_m && b.y_min_m <= b.y_max_m)) {
     throw InputError(file.string() + ": " + key + " has a minimum above its maximum (expected x_min_m <= x_max_m and y_min_m <= y_max_m)");
   }
+  if (!j.at("points").is_number_unsigned() || j.at("points").get<std::uint64_t>() == 0) {
+    throw InputError(file.string() + ": " + key + ".points is " + j.at("points").dump() +
+                     ", expected the count of the points the box holds (a whole number >= 1)");
+  }
   b.points = j.at("points").get<std::uint64_t>();
-  if (b.points == 0) throw InputError(file.string() + ": " + key + ".points is 0, expected the count of the points the box holds (>= 1)");
   b.last = j.at("last").get<bool>();
   if (const auto& d = j.at("despiked_m"); !d.is_null()) {
     if (!d.is_array()) throw InputError(file.string() + ": " + key + ".despiked_m is not a list of points (x y z [m]) or null");
@@ -4491,6 +4494,14 @@ ScaleConfig::GridBox grid_box_of(const nlohmann::json& j, const fs::path& file, 
       throw InputError(file.string() + ": " + key + ".despiked_m is not in increasing order of x, y, z (as tile-merge writes it)");
     }
     b.despiked_m = std::move(v);
+  }
+  if (!j.at("despike_sums").is_object()) {
+    throw InputError(file.string() + ": " + key + ".despike_sums is " + j.at("despike_sums").dump() +
+                     ", expected an object of the despike's figures (name: hexadecimal float)");
+  }
+  if (b.despiked_m && j.at("despike_sums").empty()) {
+    throw InputError(file.string() + ": " + key + ".despike_sums is empty where despiked_m lists the despike's removed points "
+                     "(expected its figures beside them, as tile-merge writes them)");
   }
   for (const auto& [name, v] : j.at("despike_sums").items()) {
     b.despike_sums[name] = unhex(v, file, (key + ".despike_sums." + name).c_str());
@@ -4848,6 +4859,7 @@ class PartReader {
     return s;
   }
   bool at_end() const { return at_ == b_.size(); }
+  std::size_t left() const { return b_.size() - at_; }
   [[noreturn]] void bad(const std::string& why) const {
     throw InputError(file_.string() + ": " + why + " (not a complete tile result of this plan; run its tile-job again)");
   }
@@ -4891,7 +4903,10 @@ TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::si
     b->points = r.get<std::uint64_t>();
   }
   const auto n_despiked = r.get<std::uint64_t>();
-  if (n_despiked > o.in) r.bad("lists " + std::to_string(n_despiked) + " despiked points of " + std::to_string(o.in) + " input points");
+  if (n_despiked > o.in || n_despiked > r.left() / (3 * sizeof(double))) {
+    r.bad("lists " + std::to_string(n_despiked) + " despiked points of " + std::to_string(o.in) + " input points in " +
+          std::to_string(r.left()) + " bytes left");
+  }
   o.despiked_m.resize(static_cast<std::size_t>(n_despiked));
   for (auto& p : o.despiked_m) r.take(p.data(), sizeof p);
   const auto rows = r.get<std::int32_t>(), cols = r.get<std::int32_t>();
@@ -5104,6 +5119,9 @@ GridBoxFile read_grid_box_file(const fs::path& file) {
     where = "box";
     g.box = grid_box_of(j.at("box"), file, "box");
     where = "why";
+    if (!j.at("why").is_array() || j.at("why").empty()) {
+      throw InputError(file.string() + ": why is " + j.at("why").dump() + ", expected a list of lines, one per plan before the next");
+    }
     for (const auto& w : j.at("why")) g.why.push_back(untext(w));
   } catch (const nlohmann::json::exception& e) {
     throw InputError(file.string() + ": " + where + ": not as hapticloud tile-merge writes a grid box (" + e.what() + ")");
@@ -5113,8 +5131,14 @@ GridBoxFile read_grid_box_file(const fs::path& file) {
 
 // The resolved YAML `yaml` without its `scale` section (tiling, scratch and halo keys, which do
 // not change the scene), as yaml-cpp emits it.
-std::string yaml_but_scale(const std::string& yaml) {
-  YAML::Node n = YAML::Load(yaml);
+// @throws InputError naming `file` and `key` for text that is not YAML.
+std::string yaml_but_scale(const std::string& yaml, const fs::path& file, const char* key) {
+  YAML::Node n;
+  try {
+    n = YAML::Load(yaml);
+  } catch (const YAML::Exception& e) {
+    throw InputError(file.string() + ": " + key + " is not YAML text (" + e.what() + "; expected a resolved run config)");
+  }
   if (n.IsMap() && n["scale"]) n.remove("scale");
   YAML::Emitter e;
   e << n;
@@ -5267,7 +5291,8 @@ TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std:
   std::optional<GridBoxFile> box;
   if (!grid_box_file.empty()) {
     box = read_grid_box_file(grid_box_file);
-    if (yaml_but_scale(box->resolved_yaml) != yaml_but_scale(config.resolved_yaml)) {
+    if (yaml_but_scale(box->resolved_yaml, grid_box_file, "resolved_yaml") !=
+        yaml_but_scale(config.resolved_yaml, config_abs, "the config")) {
       throw ConfigError("tile-plan --grid-box " + grid_box_file.string() + ": the box was found with a config that resolves to other " +
                         "values outside scale than " + config_abs.string() + " with these --set overrides (the kept points, and so " +
                         "their box, depend on them): plan with that config, or without --grid-box");
@@ -5305,8 +5330,11 @@ TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std:
       same_inputs = box->inputs[i].file == pf.plan.inputs[i].file && box->inputs[i].sha256 == pf.plan.inputs[i].sha256;
     }
     if (!same_inputs || box->offset_m != pf.plan.offset_m) {
+      const auto words = [](const Eigen::Vector3d& v) { return "(" + hex(v.x()) + ", " + hex(v.y()) + ", " + hex(v.z()) + ") m"; };
       throw InputError("tile-plan --grid-box " + grid_box_file.string() + ": the box was found on " +
-                       (same_inputs ? std::string("the same input files recentred otherwise") : std::string("other input files (or files that changed since)")) +
+                       (same_inputs ? "the same input files recentred otherwise (offset_m " + words(box->offset_m) + ", this plan's " +
+                                          words(pf.plan.offset_m) + ")"
+                                    : std::string("other input files (or files that changed since)")) +
                        " than this plan reads: plan again without --grid-box");
     }
     pf.grid_box = box->box;
@@ -5316,7 +5344,7 @@ TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std:
       rep.figure("grid_relaid", static_cast<double>(box->why.size()));
       for (const std::string& w : box->why) rep.notes.push_back(w);
       rep.notes.push_back("(the box from " + grid_box_file.string() + ", which tile-merge of plan " + box->plan_id +
-                          " wrote; scale.grid_on_kept_points: false merges the first plan's grid instead)");
+                          " wrote; a plan with scale.grid_on_kept_points: false keeps the first grid)");
     }
   }
   Spill spill(work_dir, "tile_", pf.plan.tiles.count(), pf.plan.layout);
@@ -5566,6 +5594,12 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
                              pf.dir.string());
     return r;
   });
+  for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
+    if (spill.bytes(t) != pf.spill_bytes[t]) {
+      throw InputError(spill.file(t).string() + " holds " + std::to_string(spill.bytes(t)) + " bytes, the plan wrote " +
+                       std::to_string(pf.spill_bytes[t]) + " (the kept points and the honest check read it; a missing or changed spill file: make a new plan)");
+    }
+  }
   // The in-core run lays its grid on the points the filters keep: where that is another grid, the
   // box for a new plan, as build_scene_tiled starts again in process (scale.grid_on_kept_points).
   if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged)) {
@@ -5581,21 +5615,19 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
     const fs::path box_file = pf.dir / "grid_box.json";
     write_grid_box_file(box_file, g);
     std::string sets;
-    for (const std::string& o : pf.overrides) sets += " --set '" + o + "'";
+    for (const std::string& o : pf.overrides) {
+      std::string quoted;  // for a POSIX shell: ' closes, \' is the quote, ' opens again
+      for (const char ch : o) quoted += ch == '\'' ? std::string("'\\''") : std::string(1, ch);
+      sets += " --set '" + quoted + "'";
+    }
     throw GridBoxError("tile-merge: " + plan_file.string() + ": " + std::string(again->after_despike ? "the despike" : "the outlier filters") +
                        " removed a point that set the x-y box of the plan's grid " + grid_words(again->first) +
                        "; the in-core run lays its grid on the points " + (again->after_despike ? "the despike left" : "they keep") +
                        " (" + grid_words(again->kept) + "). Their box is in " + box_file.string() + ": plan again with hapticloud tile-plan " +
                        pf.config_file.string() + sets + " --grid-box " + box_file.string() +
-                       " --work NEW_FOLDER, run its tile jobs and merge it (tools/dask/hapticloud-dask does so), or set "
-                       "scale.grid_on_kept_points: false to merge this plan's grid with a warning. No scene was written.",
+                       " --work NEW_FOLDER, run its tile jobs and merge it (tools/dask/hapticloud-dask does so); a plan made "
+                       "with --set scale.grid_on_kept_points=false keeps the first grid instead, with a warning. No scene was written.",
                        box_file);
-  }
-  for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
-    if (spill.bytes(t) != pf.spill_bytes[t]) {
-      throw InputError(spill.file(t).string() + " holds " + std::to_string(spill.bytes(t)) + " bytes, the plan wrote " +
-                       std::to_string(pf.spill_bytes[t]) + " (the kept points and the honest check read it; a missing or changed spill file: make a new plan)");
-    }
   }
   m.built = finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
   return m;

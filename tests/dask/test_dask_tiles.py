@@ -241,7 +241,8 @@ def test_a_grid_the_filters_changed_is_planned_again_on_the_kept_points_box(tmp_
     # edge that sets the plan's x-y box and that the outlier filters remove. The in-core run lays
     # its grid on the kept points; tile-merge exits 6 and writes their box, and the driver plans
     # again with --grid-box. Its scene is byte for byte the single-process run's (the oracle,
-    # which starts again in process), and the run's grid is the in-core one. A LocalCluster.
+    # which starts again in process), and the run's grid is the in-core one; the first plan's
+    # folder is gone and its box kept (--keep-work shows the work folder). A LocalCluster.
     pts = [(0.01 * i, 0.01 * j, 0.001 * ((i * 7 + j * 3) % 5)) for i in range(100) for j in range(100)]
     pts += [(1.06, 0.5, 0.002)]
     with open(tmp_path / "patch.ply", "w") as f:
@@ -263,7 +264,7 @@ def test_a_grid_the_filters_changed_is_planned_again_on_the_kept_points_box(tmp_
     scratch = tmp_path / "scratch"
     scratch.mkdir()
     p = subprocess.run([sys.executable, DRIVER, str(config), "--out", str(out), "--workers", "2", "--scratch", str(scratch),
-                        "--tiles-per-job", "8", "--hapticloud", HAPTICLOUD],
+                        "--tiles-per-job", "8", "--keep-work", "--hapticloud", HAPTICLOUD],
                        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     assert p.returncode == 0, p.stdout[-3000:]
     assert "planning again with --grid-box" in p.stdout, p.stdout[-3000:]
@@ -271,4 +272,6 @@ def test_a_grid_the_filters_changed_is_planned_again_on_the_kept_points_box(tmp_
     assert same_folder(ref / "scene", out / "scene") == []
     grid = json.loads((out / "report.json").read_text())["grid"]
     assert grid == json.loads((core / "report.json").read_text())["grid"]
-    assert os.listdir(scratch) == []
+    # The first plan (its spill as large as the scan) went once its box was copied out.
+    (work,) = os.listdir(scratch)
+    assert sorted(os.listdir(scratch / work)) == ["grid_box-1.json", "plan-2"]

@@ -16,6 +16,7 @@
 
 #include <algorithm>
 #include <array>
+#include <cstdio>
 #include <cstdlib>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
@@ -364,6 +365,13 @@ TEST(TileJobs, RefusesAResultOfAnotherPlanAChangedConfigAndAFolderInUse) {
   EXPECT_FALSE(fs::exists(dir / "d"));
 }
 
+// `v` as a hexadecimal float ("%a"), as plan.json and grid_box.json hold numbers.
+std::string hex_of(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%a", v);
+  return buf;
+}
+
 // Every tile of `plan_file` in one job each.
 void run_every_tile(const hc::pipeline::TilePlanInfo& info) {
   for (std::size_t t = 0; t < info.tiles; ++t) hc::pipeline::run_tile_jobs(info.plan_file, {t});
@@ -389,7 +397,8 @@ std::string plan_refusal(const fs::path& cfg, const std::vector<std::string>& se
 // points' box (GridBoxError, exit 6 in the app); plans made on it (--grid-box) until a merge goes
 // through give the in-process run's scene bit for bit and the in-core run's grid (the oracles).
 // A box file that is not tile-merge's, or was found with another config or scan, is refused by
-// name; a scale key that differs is taken.
+// name; a scale key that differs is taken. A plan on a box that is not the kept points' makes
+// its merge write their box marked last, as the in-process run's third attempt.
 TEST(TileJobs, AMergeOnAGridTheFiltersChangedWritesTheKeptBoxAndAPlanOnItGivesTheInProcessScene) {
   const fs::path dir = hc::test::temp_dir("grid_box_jobs");
   hc::test::write_patch_with(dir / "patch.ply", {{1.06, 0.5, 0.002}});
@@ -410,7 +419,7 @@ TEST(TileJobs, AMergeOnAGridTheFiltersChangedWritesTheKeptBoxAndAPlanOnItGivesTh
        "input: {files: [test1_4.las], units: m}\n"
        "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 2, hole_fill_max_cells: 32}\n"
        "cross_check: {tolerance_m: 0.5}\n",
-       48, 0},
+       48, 2},
   };
   for (const Case& c : cases) {
     SCOPED_TRACE(c.name);
@@ -448,9 +457,7 @@ TEST(TileJobs, AMergeOnAGridTheFiltersChangedWritesTheKeptBoxAndAPlanOnItGivesTh
     }
     ASSERT_TRUE(merged.has_value()) << "no plan's merge went through";
     EXPECT_EQ(plans, static_cast<int>(relaid) + 1) << "as many plans as the in-process run's attempts";
-    if (c.plans > 0) {
-      EXPECT_EQ(plans, c.plans);
-    }
+    EXPECT_EQ(plans, c.plans);
     EXPECT_EQ(hc::test::stage_figure(merged->built, "tile_plan", "grid_relaid"), relaid);
     EXPECT_TRUE(merged->built.scene.geometry == in_core.scene.geometry) << "the in-core run's grid";
     expect_same_scene(in_process, merged->built);
@@ -459,9 +466,39 @@ TEST(TileJobs, AMergeOnAGridTheFiltersChangedWritesTheKeptBoxAndAPlanOnItGivesTh
                              [](const std::string& w) { return w.find("the kept points span") != std::string::npos; }));
     if (std::string(c.name) != "patch") continue;
 
-    // The refusals, on the patch's box file.
+    // A plan on a box that is not the kept points' (the first box widened by 5 cm in x) gives
+    // another grid again: its merge writes the kept points' box once more, marked last (the
+    // in-process run's third attempt, which checks no more); a plan on that one goes through
+    // with the in-core grid and two grids relaid.
     ASSERT_FALSE(box.empty());
     const std::string good = bytes_of(box);
+    {
+      nlohmann::json j = nlohmann::json::parse(good);
+      EXPECT_FALSE(j["box"]["last"].get<bool>());
+      j["box"]["x_max_m"] = hex_of(std::strtod(j["box"]["x_max_m"].get<std::string>().c_str(), nullptr) + 0.05);
+      std::ofstream(dir / "wider_box.json") << j.dump();
+      const auto wider = hc::pipeline::write_tile_plan(cfg, sets, dir / "wider_plan", {}, dir / "wider_box.json");
+      run_every_tile(wider);
+      fs::path third;
+      try {
+        (void)hc::pipeline::merge_tile_jobs(wider.plan_file);
+        ADD_FAILURE() << "a plan on a box wider than the kept points' merged";
+      } catch (const hc::pipeline::GridBoxError& e) {
+        third = e.box_file;
+      }
+      ASSERT_FALSE(third.empty());
+      const nlohmann::json k = nlohmann::json::parse(bytes_of(third));
+      EXPECT_TRUE(k["box"]["last"].get<bool>());
+      EXPECT_EQ(k["box"]["x_max_m"], nlohmann::json::parse(good)["box"]["x_max_m"]) << "the kept points' box again";
+      EXPECT_EQ(k["why"].size(), 2U);
+      const auto last = hc::pipeline::write_tile_plan(cfg, sets, dir / "last_plan", {}, third);
+      run_every_tile(last);
+      const auto m = hc::pipeline::merge_tile_jobs(last.plan_file);
+      EXPECT_TRUE(m.built.scene.geometry == in_core.scene.geometry);
+      EXPECT_EQ(hc::test::stage_figure(m.built, "tile_plan", "grid_relaid"), 2.0);
+    }
+
+    // The refusals, on the patch's box file.
     const fs::path bad = dir / "bad_box.json";
     const auto refused_with = [&](const std::function<void(nlohmann::json&)>& change, const std::vector<std::string>& now) {
       nlohmann::json j = nlohmann::json::parse(good);
@@ -480,6 +517,14 @@ TEST(TileJobs, AMergeOnAGridTheFiltersChangedWritesTheKeptBoxAndAPlanOnItGivesTh
     {
       const std::string what = refused_with([](nlohmann::json& j) { j["box"].erase("points"); }, sets);
       EXPECT_NE(what.find(bad.string() + ": box: not as hapticloud tile-merge writes a grid box"), std::string::npos) << what;
+    }
+    {
+      const std::string what = refused_with([](nlohmann::json& j) { j["box"]["points"] = -1; }, sets);
+      EXPECT_NE(what.find("box.points is -1, expected the count of the points the box holds"), std::string::npos) << what;
+    }
+    {
+      const std::string what = refused_with([](nlohmann::json& j) { j["resolved_yaml"] = "grid: {n: [200"; }, sets);
+      EXPECT_NE(what.find(bad.string() + ": resolved_yaml is not YAML text"), std::string::npos) << what;
     }
     {
       std::vector<std::string> other = sets;

@@ -136,10 +136,11 @@ struct ScaleConfig {
   /// the kept points' box, as the in-core run lays it; where its despike does, once more with
   /// the box it leaves, its removals taken over (at most three attempts: notes and figure
   /// `grid_relaid` of `tile_plan`; tiled_run.cpp, build_scene_tiled). false: the first grid
-  /// stays, with the warning that the in-core scene differs. Only the in-process run starts
-  /// again; tile jobs keep their plan's grid (the warning then).
+  /// stays, with the warning that the in-core scene differs. Through tile jobs, tile-merge
+  /// writes the box for a new plan instead (GridBoxError, tile-plan --grid-box; tiling.hpp).
   bool grid_on_kept_points = true;
-  /// Not a config key: set by the tiled run's later attempts. The x-y box [m, grid frame] and
+  /// Not a config key: set by the tiled run's later attempts (in process; through tile jobs,
+  /// from plan.json's grid_box, which tile-plan --grid-box takes from a merge). The x-y box [m, grid frame] and
   /// the point count the plan lays the grid on (grid_geometry_for_box) instead of those of the
   /// points before the outlier filters; and, when the box is the one left after an attempt's
   /// despike, the points that despike removed (x y z [m, grid frame] each, sorted as triples):

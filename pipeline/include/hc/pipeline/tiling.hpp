@@ -89,7 +89,8 @@ class UndecidedIslandsError : public ConfigError {
 /// process there). The merge wrote that box to `box_file` (WORK/grid_box.json: the kept points'
 /// x-y bounds in the grid frame [m], the despike's removed points where it set the box) and no
 /// scene. write_tile_plan with box_file makes the plan whose jobs and merge give the in-core
-/// grid (at most three plans in all, as the in-process run's attempts). Source: this project.
+/// grid (at most three plans on grid boxes counting the first, as the in-process run's three
+/// attempts: a merge of a plan that had a box marks the box it writes `last`). Source: this project.
 class GridBoxError : public Error {
  public:
   GridBoxError(const std::string& what, std::filesystem::path file) : Error(what), box_file(std::move(file)) {}
