@@ -45,6 +45,29 @@ def same_folder(a, b):
     return bad
 
 
+def write_ascii_ply(path, pts):
+    """Points (x, y, z) [m] as an ASCII PLY of double vertices, every digit kept."""
+    with open(path, "w") as f:
+        f.write("ply\nformat ascii 1.0\nelement vertex %d\nproperty double x\nproperty double y\nproperty double z\n"
+                "end_header\n" % len(pts))
+        f.writelines("%.17g %.17g %.17g\n" % p for p in pts)
+
+
+def run_quietly(config, out, *sets):
+    """`hapticloud run CONFIG --out OUT [--set S ...]` in one process: the oracle's scene."""
+    cmd = [HAPTICLOUD, "run", str(config), "--out", str(out)]
+    for s in sets:
+        cmd += ["--set", s]
+    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
+def drive_local(config, out, scratch, *extra):
+    """The driver on a LocalCluster of two workers, its work folder under `scratch`; its output."""
+    return subprocess.run([sys.executable, DRIVER, str(config), "--out", str(out), "--workers", "2", "--scratch",
+                           str(scratch), "--hapticloud", HAPTICLOUD] + list(extra),
+                          stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+
+
 @pytest.fixture(scope="module")
 def cluster(tmp_path_factory):
     """A scheduler and two workers (one thread each) on 127.0.0.1; yields the address and the
@@ -201,10 +224,7 @@ def test_an_island_the_plans_halo_cannot_decide_is_planned_again_with_the_wider_
     pts = [(0.01 * i, 0.01 * j, 0.0) for i in range(100) for j in range(100)]
     pts += [(2.9 + 0.01 * i, 0.01 * j, 0.0) for i in range(10) for j in range(100)]
     pts += [(1.21, 0.45, 0.002), (1.24, 0.45, 0.002), (1.27, 0.45, 0.002)]
-    with open(tmp_path / "plane.ply", "w") as f:
-        f.write("ply\nformat ascii 1.0\nelement vertex %d\nproperty double x\nproperty double y\nproperty double z\n"
-                "end_header\n" % len(pts))
-        f.writelines("%.17g %.17g %.17g\n" % p for p in pts)
+    write_ascii_ply(tmp_path / "plane.ply", pts)
     config = tmp_path / "plane.yaml"
     config.write_text(
         "input: {files: [plane.ply], units: m}\n"
@@ -212,13 +232,11 @@ def test_an_island_the_plans_halo_cannot_decide_is_planned_again_with_the_wider_
         "filters: {outliers: {local_ratio: 100, mad_multiplier: 100, off_surface_ratio: 0, far_clusters: {enabled: false}}}\n"
         "cross_check: {isolation_min_neighbours: 2}\nscale: {filter_halo_cells: 12, tiled: on, tile_cells: 32}\n")
     ref = tmp_path / "ref"
-    subprocess.run([HAPTICLOUD, "run", str(config), "--out", str(ref), "--set", "scale.island_halo=true"], check=True,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    run_quietly(config, ref, "scale.island_halo=true")
     out = tmp_path / "run"
     scratch = tmp_path / "scratch"
     scratch.mkdir()
-    p = subprocess.run([sys.executable, DRIVER, str(config), "--out", str(out), "--workers", "2", "--scratch", str(scratch),
-                        "--hapticloud", HAPTICLOUD], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    p = drive_local(config, out, scratch)
     assert p.returncode == 0, p.stdout[-3000:]
     assert "planning again with --set scale.island_halo=true" in p.stdout, p.stdout[-3000:]
     assert "stage despike" in p.stdout, p.stdout[-3000:]
@@ -245,27 +263,20 @@ def test_a_grid_the_filters_changed_is_planned_again_on_the_kept_points_box(tmp_
     # folder is gone and its box kept (--keep-work shows the work folder). A LocalCluster.
     pts = [(0.01 * i, 0.01 * j, 0.001 * ((i * 7 + j * 3) % 5)) for i in range(100) for j in range(100)]
     pts += [(1.06, 0.5, 0.002)]
-    with open(tmp_path / "patch.ply", "w") as f:
-        f.write("ply\nformat ascii 1.0\nelement vertex %d\nproperty double x\nproperty double y\nproperty double z\n"
-                "end_header\n" % len(pts))
-        f.writelines("%.17g %.17g %.17g\n" % p for p in pts)
+    write_ascii_ply(tmp_path / "patch.ply", pts)
     config = tmp_path / "patch.yaml"
     config.write_text(
         "input: {files: [patch.ply], units: m}\n"
         "grid: {n: 200, splat_radius_cells: 1.2, see_through_depth_m: 0.01, hole_fill_max_cells: 16}\n"
         "cross_check: {tolerance_m: 0.002}\nscale: {tiled: on, tile_cells: 32}\n")
     ref = tmp_path / "ref"
-    subprocess.run([HAPTICLOUD, "run", str(config), "--out", str(ref)], check=True,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    run_quietly(config, ref)
     core = tmp_path / "core"
-    subprocess.run([HAPTICLOUD, "run", str(config), "--out", str(core), "--set", "scale.tiled=off"], check=True,
-                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    run_quietly(config, core, "scale.tiled=off")
     out = tmp_path / "run"
     scratch = tmp_path / "scratch"
     scratch.mkdir()
-    p = subprocess.run([sys.executable, DRIVER, str(config), "--out", str(out), "--workers", "2", "--scratch", str(scratch),
-                        "--tiles-per-job", "8", "--keep-work", "--hapticloud", HAPTICLOUD],
-                       stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    p = drive_local(config, out, scratch, "--tiles-per-job", "8", "--keep-work")
     assert p.returncode == 0, p.stdout[-3000:]
     assert "planning again with --grid-box" in p.stdout, p.stdout[-3000:]
     assert sum(line.startswith("hapticloud tile-plan ") for line in p.stdout.splitlines()) == 2, p.stdout[-3000:]
