@@ -53,12 +53,13 @@ def write_ascii_ply(path, pts):
         f.writelines("%.17g %.17g %.17g\n" % p for p in pts)
 
 
-def run_quietly(config, out, *sets):
-    """`hapticloud run CONFIG --out OUT [--set S ...]` in one process: the oracle's scene."""
+def run_quietly(config, out, *sets, code=0):
+    """`hapticloud run CONFIG --out OUT [--set S ...]` in one process: the oracle's scene; it must
+    exit with `code` (4: written, the verdict fail)."""
     cmd = [HAPTICLOUD, "run", str(config), "--out", str(out)]
     for s in sets:
         cmd += ["--set", s]
-    subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    assert subprocess.run(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL).returncode == code
 
 
 def drive_local(config, out, scratch, *extra):
@@ -286,3 +287,26 @@ def test_a_grid_the_filters_changed_is_planned_again_on_the_kept_points_box(tmp_
     # The first plan (its spill as large as the scan) went once its box was copied out.
     (work,) = os.listdir(scratch)
     assert sorted(os.listdir(scratch / work)) == ["grid_box-1.json", "plan-2"]
+
+
+def test_a_run_whose_verdict_fails_is_written_and_the_driver_exits_4(tmp_path):
+    # PDAL's autzen_trim_7.las (data/get-data) at N = 300: the honest check confirms grid spikes,
+    # so `hapticloud run` writes its folder and exits 4. The driver writes the same scene and
+    # exits 4 too, not 1 (which says no run folder was made). A LocalCluster.
+    scan = os.path.join(SRC, "data", "scans", "scanner_samples", "las", "pdal-autzen_trim_7.las")
+    config = tmp_path / "autzen.yaml"
+    config.write_text(
+        "input: {files: [%s], units: ft}\n"
+        "grid: {n: 300, splat_radius_cells: 1.2, see_through_depth_m: 1, hole_fill_max_cells: 32}\n"
+        "cross_check: {tolerance_m: 0.3}\nscale: {tiled: on, tile_cells: 48}\n" % scan)
+    ref = tmp_path / "ref"
+    run_quietly(config, ref, code=4)
+    out = tmp_path / "run"
+    scratch = tmp_path / "scratch"
+    scratch.mkdir()
+    p = drive_local(config, out, scratch, "--tiles-per-job", "8")
+    assert p.returncode == 4, p.stdout[-3000:]
+    assert "the cross-check's verdict is fail" in p.stdout, p.stdout[-3000:]
+    assert json.loads((out / "report.json").read_text())["verdict"]["status"] == "fail"
+    assert same_folder(ref / "scene", out / "scene") == []
+    assert os.listdir(scratch) == []
