@@ -1389,6 +1389,16 @@ std::string grid_words(const GridGeometry& g) {
          format_number(g.x0_m) + ", y " + format_number(g.y0_m) + " m";
 }
 
+// The grid the in-core run lays on the points of `b` (grid_geometry_for_box, with the plan's
+// upsample factor and no cell limit: the plan checked it for the first box), for
+// scale.grid_on_kept_points and its warning.
+GridGeometry grid_for_box(const RunConfig& config, const Tiles& tiles, const XyBox& b) {
+  ReprojectOptions ro = config.grid.reproject;
+  ro.upsample_factor = tiles.k;
+  ro.grid.max_cells = std::numeric_limits<std::size_t>::max();
+  return grid_geometry_for_box(b.x_lo, b.x_hi, b.y_lo, b.y_hi, static_cast<std::size_t>(b.points), ro);
+}
+
 // The box of the points of `pts` whose grid node lies in `inner` (a tile's interior: the points
 // it owns; each point of the scan is owned by one tile).
 XyBox owned_box(const Tiles& tiles, const std::array<int, 4>& inner, const Cloud& pts) {
@@ -4108,10 +4118,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       // points' box is the tiles' (TileMerge::after_box: the points each owns after its filters
       // and despike, those the kept masks hold), which the in-core run lays its grid on.
       if (const XyBox& kb = merged.after_box; kb.points > 0) {
-        ReprojectOptions ro = config.grid.reproject;
-        ro.upsample_factor = tiles.k;
-        ro.grid.max_cells = std::numeric_limits<std::size_t>::max();
-        const GridGeometry g_core = grid_geometry_for_box(kb.x_lo, kb.x_hi, kb.y_lo, kb.y_hi, static_cast<std::size_t>(kb.points), ro);
+        const GridGeometry g_core = grid_for_box(config, tiles, kb);
         if (!(g_core == tiles.g)) {
           r.report.notes.push_back(
               "warning: the kept points span x " + format_number(kb.x_lo) + " to " + format_number(kb.x_hi) + " m, y " +
@@ -5024,12 +5031,7 @@ std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, con
   const ScaleConfig::GridBox* now_box = config.scale.grid_box ? &*config.scale.grid_box : nullptr;
   const bool checks = config.scale.grid_on_kept_points && !(now_box != nullptr && (now_box->despiked_m || now_box->last));
   if (!checks || merged.kept_box.points == 0) return std::nullopt;
-  ReprojectOptions ro = config.grid.reproject;
-  ro.upsample_factor = plan.tiles.k;
-  ro.grid.max_cells = std::numeric_limits<std::size_t>::max();
-  const auto geometry = [&](const XyBox& b) {
-    return grid_geometry_for_box(b.x_lo, b.x_hi, b.y_lo, b.y_hi, static_cast<std::size_t>(b.points), ro);
-  };
+  const auto geometry = [&](const XyBox& b) { return grid_for_box(config, plan.tiles, b); };
   const auto box_of = [](const XyBox& b) {
     ScaleConfig::GridBox g;
     g.x_min_m = b.x_lo, g.x_max_m = b.x_hi, g.y_min_m = b.y_lo, g.y_max_m = b.y_hi, g.points = b.points;
