@@ -378,22 +378,19 @@ void splat_discs(const float* measured, int rows, int cols, double radius_cells,
 // disc still weighs exp(−2) ≈ 0.14 of the centre); it is written in place (only measured cells
 // are read, so the order of the writes does not matter) and flagged kCellSplatted. Cells with
 // no measured cell in their (2⌊r⌋+1)² box are skipped in O(1) with a summed-area table of the
-// mask, which is what keeps the background of a large grid cheap. Heights are taken relative
-// to one measured height so that float sums keep their precision. Rows are split between two
-// threads for large grids. Returns the number of cells filled.
+// mask, which is what keeps the background of a large grid cheap. Each cell's heights are summed
+// relative to a measured height of its own disc (its first measured tap, in tap order), so that
+// the float sums keep their precision and a cell's value depends on its disc alone: a window of
+// the grid (ReprojectOptions::window, the tiled run) gives every cell whose disc it holds the
+// whole grid's value bit for bit. (Until 2026-11-30 the reference was the grid's first measured
+// cell, which a window finds elsewhere: windows agreed to float rounding only.) Rows are split
+// between two threads for large grids. Returns the number of cells filled.
 std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int cols, double radius_cells,
                               const float* front, float depth_gap) {
   const int reach = static_cast<int>(std::floor(radius_cells));
   const std::size_t ucols = static_cast<std::size_t>(cols);
   const std::size_t cells = static_cast<std::size_t>(rows) * ucols;
   if (reach < 1) return 0;  // a disc of radius < 1 holds no other node
-  float z_ref = 0.0f;
-  for (std::size_t i = 0; i < cells; ++i) {
-    if (flags[i] == kCellMeasured) {
-      z_ref = depth[i];
-      break;
-    }
-  }
   // z·mask and mask, padded by `reach` on every side so the inner loop needs no bounds checks.
   const int pc = cols + 2 * reach;
   const std::size_t upc = static_cast<std::size_t>(pc);
@@ -408,7 +405,7 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
       const std::size_t i = static_cast<std::size_t>(r) * ucols + static_cast<std::size_t>(c);
       const bool m = flags[i] == kCellMeasured;
       if (m) {
-        zm[prow + static_cast<std::size_t>(c)] = depth[i] - z_ref;
+        zm[prow + static_cast<std::size_t>(c)] = depth[i];
         mask[prow + static_cast<std::size_t>(c)] = 1.0f;
       }
       run += m ? 1u : 0u;
@@ -446,24 +443,30 @@ std::size_t splat_interpolate(float* depth, std::uint8_t* flags, int rows, int c
         if (flags[i] != kCellEmpty || box_count(r, c) == 0) continue;
         const std::ptrdiff_t p = static_cast<std::ptrdiff_t>(static_cast<std::size_t>(r + reach) * upc +
                                                              static_cast<std::size_t>(c + reach));
+        // The cell's reference height: its disc's first measured tap (none: nothing to fill; a
+        // measured cell in the box may still lie outside the disc).
+        std::size_t first = 0;
+        while (first < taps && mask[static_cast<std::size_t>(p + offset[first])] == 0.0f) ++first;
+        if (first == taps) continue;
+        const float z_ref = zm[static_cast<std::size_t>(p + offset[first])];
         float num = 0.0f, den = 0.0f;
         if (front == nullptr) {
-          for (std::size_t k = 0; k < taps; ++k) {
+          for (std::size_t k = first; k < taps; ++k) {
             const std::size_t q = static_cast<std::size_t>(p + offset[k]);
-            num += weight[k] * zm[q];
+            num += weight[k] * mask[q] * (zm[q] - z_ref);
             den += weight[k] * mask[q];
           }
         } else {
           // Only the front surface: measured cells within depth_gap of the front-most one.
-          const float lim = front[i] - z_ref - depth_gap;
-          for (std::size_t k = 0; k < taps; ++k) {
+          const float lim = front[i] - depth_gap;
+          for (std::size_t k = first; k < taps; ++k) {
             const std::size_t q = static_cast<std::size_t>(p + offset[k]);
             const float m = (mask[q] > 0.0f && zm[q] >= lim) ? 1.0f : 0.0f;
-            num += m * weight[k] * zm[q];
+            num += m * weight[k] * (zm[q] - z_ref);
             den += m * weight[k];
           }
         }
-        if (den > 0.0f) {  // a measured cell in the box may still lie outside the disc
+        if (den > 0.0f) {
           depth[i] = z_ref + num / den;
           flags[i] = kCellSplatted;
           ++n;
@@ -1311,7 +1314,10 @@ StageResult<DepthGrid> reproject_after_removal(const Cloud& points_m, const Remo
     return r;
   };
   if (options.splat_radius_cells > 0.0 && options.splat_mode == SplatMode::kInterpolate) {
-    return whole("interpolating splats sum heights relative to a window's first cell, so a window is not bit for bit the grid");
+    // The nodes are the grid's bit for bit in a window (splat_interpolate), but the fills its
+    // margin counts before and after the removal need not differ as the whole grid's do (a
+    // margin node reads taps past the window), so the report's cells_splat_filled_empty would.
+    return whole("a window's margin counts interpolating splats' fills that the whole grid does not");
   }
   if (m > 4096) return whole("more than 4096 points removed");
   if (n >= std::numeric_limits<std::uint32_t>::max()) return whole("2^32 - 1 points or more (the windows list points by 32-bit column)");

@@ -30,9 +30,8 @@ std::uint32_t bits(float v) { return std::bit_cast<std::uint32_t>(v); }
 // The nodes of window w that lie `margin` or more nodes inside its edge (or on the whole grid's
 // edge) and differ from the whole grid's (value bits, flag or colour); `compared` and `valid`
 // count the compared nodes and those with a value, `first` (when given) gets the first
-// differing node's whole-grid row and column. With tolerance_m > 0 a value within it of the
-// whole grid's counts as equal (kInterpolate: float rounding).
-std::size_t differing_inside(const DepthGrid& whole, const DepthGrid& part, const GridWindow& w, int margin, double tolerance_m,
+// differing node's whole-grid row and column.
+std::size_t differing_inside(const DepthGrid& whole, const DepthGrid& part, const GridWindow& w, int margin,
                              std::size_t* compared, std::size_t* valid, std::array<int, 2>* first = nullptr) {
   std::size_t differ = 0;
   for (int r = 0; r < w.rows; ++r) {
@@ -44,7 +43,7 @@ std::size_t differing_inside(const DepthGrid& whole, const DepthGrid& part, cons
       const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(w.cols) + static_cast<std::size_t>(c);
       const std::size_t j = static_cast<std::size_t>(gr) * static_cast<std::size_t>(w.grid.cols) + static_cast<std::size_t>(gc);
       const float a = part.depth.data()[i], b = whole.depth.data()[j];
-      const bool same_value = bits(a) == bits(b) || (tolerance_m > 0.0 && std::abs(static_cast<double>(a) - b) <= tolerance_m);
+      const bool same_value = bits(a) == bits(b);
       const bool same_colour =
           !whole.has_colour() || std::memcmp(part.colour_rgb8.data() + 3 * i, whole.colour_rgb8.data() + 3 * j, 3) == 0;
       const bool same = same_value && part.flags[i] == whole.flags[j] && same_colour;
@@ -62,7 +61,7 @@ std::size_t differing_inside(const DepthGrid& whole, const DepthGrid& part, cons
 void expect_equal_inside(const DepthGrid& whole, const DepthGrid& part, const GridWindow& w, int margin) {
   std::size_t compared = 0, valid = 0;
   std::array<int, 2> first{-1, -1};
-  EXPECT_EQ(differing_inside(whole, part, w, margin, 0.0, &compared, &valid, &first), 0U)
+  EXPECT_EQ(differing_inside(whole, part, w, margin, &compared, &valid, &first), 0U)
       << "the first differing node: " << first[0] << ", " << first[1];
   EXPECT_GT(compared, 0U);
   EXPECT_GT(valid, 0U);
@@ -204,8 +203,8 @@ TEST(ReprojectWindow, EqualsTheWholeGridInsideTheReachForEverySplatModeAndFactor
         const auto whole = hc::pipeline::reproject(cloud, o);
         const hc::GridGeometry g = whole.value.depth.geometry();
         const int reach = hc::pipeline::reproject_reach_cells(o, k);
-        // kInterpolate's sums are relative to the first measured node's height (header).
-        const double tolerance_m = mode == SplatMode::kInterpolate ? 1e-6 : 0.0;
+        // Every mode bit for bit (kInterpolate since its sums are relative to each node's own
+        // disc, 2026-11-30; before, to the grid's first measured node, and to 1e-6 m here).
         const bool tight = k == 1 && see_through_m == 0.0;
         std::size_t compared = 0, valid = 0, differ = 0, differ_closer = 0;
         for (const auto& [rows, cols] : {std::array<int, 2>{2 * reach + 12, 2 * reach + 9}, std::array<int, 2>{2 * reach + 7, 2 * reach + 15}}) {
@@ -217,10 +216,10 @@ TEST(ReprojectWindow, EqualsTheWholeGridInsideTheReachForEverySplatModeAndFactor
               const hc::pipeline::Cloud mine = binned_into(cloud, w);
               if (mine.size() == 0) continue;
               const DepthGrid part = hc::pipeline::reproject(mine, ow).value;
-              differ += differing_inside(whole.value, part, w, reach, tolerance_m, &compared, &valid);
+              differ += differing_inside(whole.value, part, w, reach, &compared, &valid);
               if (tight) {
                 std::size_t c2 = 0, v2 = 0;
-                differ_closer += differing_inside(whole.value, part, w, reach - 1, tolerance_m, &c2, &v2);
+                differ_closer += differing_inside(whole.value, part, w, reach - 1, &c2, &v2);
               }
             }
           }

@@ -27,10 +27,11 @@
 /// Spill files live in a fresh folder under scale.scratch (default: the system's temporary
 /// folder), removed when the run ends or fails; their peak size is reported (tile_spill stage).
 ///
-/// What equals the in-core run: with filters.outliers disabled and disc or plane splats, the
-/// depth, flags, colour, intensity, texture, friction and cross-check (a) figures are identical
-/// bit for bit (interpolating splats sum heights relative to the window's first measured cell,
-/// so their values agree to float rounding only; the halo's grid share is at least
+/// What equals the in-core run: with filters.outliers disabled, the depth, flags, colour,
+/// intensity, texture, friction and cross-check (a) figures are identical bit for bit, for
+/// every splat mode (interpolating splats sum each cell's heights relative to its own disc's
+/// first measured cell since 2026-11-30; before, to the window's, and agreed to float rounding
+/// only; the halo's grid share is at least
 /// reproject_reach_cells, 2 × it plus the despike's reads of the grid with the despike on, so
 /// every node of a tile's interior sees every point it depends on, in file order, with the
 /// whole scan's verdict; with scale.filter_halo_cells auto the decided region adds the
