@@ -863,8 +863,16 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
     // is then far above the tolerance; a window without a valid cell has no distance at all).
     if (scope) cv::min(gap_cells, static_cast<double>(g.rows + g.cols), gap_cells);
   }
-  const BilinearSurface surface(HeightFieldView::of(grid));
+  // The classes' surface and extent: the whole grid's where the scope gives it.
+  const HeightField& classes_on = scope && scope->whole ? *scope->whole : grid;
+  const GridGeometry& cg = classes_on.geometry();
+  if (cg.cell_size_m != g.cell_size_m) {
+    throw std::invalid_argument("check_input: the scope's whole grid has cells of " + format_number(cg.cell_size_m) +
+                                " m, its window " + format_number(g.cell_size_m) + " m");
+  }
+  const BilinearSurface surface(HeightFieldView::of(classes_on));
   const double x_max = g.x_of_col(g.cols - 1), y_max = g.y_of_row(g.rows - 1);
+  const double class_x_max = cg.x_of_col(cg.cols - 1), class_y_max = cg.y_of_row(cg.rows - 1);
   auto xy_gap = [&](double x, double y) {
     const double cx = std::clamp(x, g.x0_m, x_max), cy = std::clamp(y, g.y0_m, y_max);
     const int c = std::clamp(static_cast<int>(std::lround((cx - g.x0_m) / g.cell_size_m)), 0, g.cols - 1);
@@ -897,7 +905,7 @@ InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, c
       // Geometry against the grid.
       double gap = 0.0;  // > tolerance: not represented
       enum { kOn, kOff, kHidden, kNoData, kOutside } cls = kOn;
-      if (p.x() < g.x0_m || p.x() > x_max || p.y() < g.y0_m || p.y() > y_max) {
+      if (p.x() < cg.x0_m || p.x() > class_x_max || p.y() < cg.y0_m || p.y() > class_y_max) {
         cls = kOutside;
         gap = xy_gap(p.x(), p.y());
       } else {

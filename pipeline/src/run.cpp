@@ -45,6 +45,7 @@
 #include <functional>
 #include <future>
 #include <iomanip>
+#include <limits>
 #include <memory>
 #include <optional>
 #include <sstream>
@@ -369,7 +370,8 @@ void check_stored_precision(const StoredPrecision& p, double cell_m, const Eigen
 /// Ingest, units and recentring, view transform and filters, each recorded as a stage.
 /// `inputs` gets the input files with their checksums, `offset_m` the recentring offset.
 /// `as_read`, when given, gets a copy of the coordinates after the view transform, before any
-/// filter (24 bytes per point: 26 MB for the 1.1 M-point Buddha), for the honest cross-check.
+/// filter (24 bytes per point: 26 MB for the 1.1 M-point Buddha), for the honest cross-check;
+/// the points filters.crop removes are NaN in it (counted as removed, not classified).
 /// `in_memory`, when given, replaces ingest: its points (moved from) are the input, in
 /// config.input.units, and input.files, conf and synthetic are not read. The input files'
 /// SHA-256 is computed on a second thread while ingest runs (given up if ingest throws).
@@ -470,6 +472,21 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     cloud = stage("crop", reports, progress, [&] {
       return crop_box(std::move(cloud), config.filters.crop_m->first, config.filters.crop_m->second);
     });
+    // The honest check judges the scan within the crop: a point outside it counts as removed and
+    // is not classified (NaN, as a non-finite point), as in a tiled run, whose passes drop it
+    // before the spill. Until 2026-11-30 it was classified: a far stray cropped as the
+    // far_points warning advises still warned, and cropped points changed the isolated count
+    // (found by tests/pipeline/tiled_differential_test.cpp).
+    if (as_read) {
+      const Eigen::Vector3d& lo = config.filters.crop_m->first;
+      const Eigen::Vector3d& hi = config.filters.crop_m->second;
+      for (Eigen::Index i = 0; i < as_read->cols(); ++i) {
+        const auto p = as_read->col(i);
+        if (p.allFinite() && !((p.array() >= lo.array()).all() && (p.array() <= hi.array()).all())) {
+          as_read->col(i).setConstant(std::numeric_limits<double>::quiet_NaN());
+        }
+      }
+    }
   }
   // Meshes: the point filters that would delete vertices (and so open holes in the faces) or
   // replace them (voxel centroids carry no faces) are skipped, with a note (mesh_raster.hpp).

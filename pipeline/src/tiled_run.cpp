@@ -4186,6 +4186,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       // The box of the whole grid's valid samples (far points).
       InputCheckScope scope;
       scope.spacing_m = spacing_m;
+      scope.whole = &grid.depth;  // the points' classes on the whole grid, as in core
       {
         int r_lo = tiles.g.rows, r_hi = -1, c_lo = tiles.g.cols, c_hi = -1;
         float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;

@@ -133,6 +133,34 @@ TEST(HonestCrossCheck, OnePointOneKilometreAwayWarnsOfFarPoints) {
   expect_partition(*b.summary.input_check);
 }
 
+// The far_points warning advises cropping a far stray (filters.crop): cropped, it counts as
+// removed and is neither far nor classified, as a tiled run (which drops it before its spill)
+// counts it. Until 2026-11-30 the in-core check classified the points outside the crop, so the
+// warning stayed after following its advice.
+TEST(HonestCrossCheck, AFarPointCroppedAsTheWarningAdvisesIsRemovedAndNotFar) {
+  const Cloud c = with_points(bunny(), {middle_point(bunny()) + Eigen::Vector3d(1000.0, 0.0, 0.0)});
+  // Recentred on the box's centre (transform.hpp): the bunny lies near x = −500 m, the point
+  // near +500 m.
+  const BuiltScene b =
+      build_bunny_variant(c, "far_point_cropped", {"filters.crop.min_m=[-1000, -5, -5]", "filters.crop.max_m=[0, 5, 5]"});
+  ASSERT_TRUE(b.summary.verdict.has_value());
+  EXPECT_FALSE(b.summary.verdict->has("far_points")) << reasons_of(b);
+  const InputCheck& in = *b.summary.input_check;
+  EXPECT_EQ(in.far, 0u);
+  EXPECT_EQ(in.points, static_cast<std::size_t>(c.xyz.cols()));
+  expect_partition(in);
+  std::size_t cropped = 0, removed_by_stages = 0;
+  for (const auto& st : b.summary.stages) {
+    if (st.stage == "crop") cropped = st.count_in - st.count_out;
+    if (st.stage == "non_finite" || st.stage == "crop" || st.stage == "outliers" || st.stage == "isolated" || st.stage == "despike") {
+      removed_by_stages += st.count_in - st.count_out;
+    }
+  }
+  EXPECT_EQ(cropped, 1u);
+  EXPECT_EQ(in.removed, removed_by_stages);
+  // The same run without the crop: the point is far and warned of (the test above).
+}
+
 TEST(HonestCrossCheck, TwoPercentUniformOutliersAreNotAPass) {
   const Cloud& base = bunny();
   const Eigen::Vector3d lo = base.xyz.rowwise().minCoeff(), hi = base.xyz.rowwise().maxCoeff();
@@ -1289,6 +1317,76 @@ TEST(MedianPointSpacing, EqualsTheBruteForceMedianOfTheStridedSample) {
       EXPECT_NE(std::string(e.what()).find("start_edge_m"), std::string::npos) << e.what();
     }
   }
+}
+
+}  // namespace
+}  // namespace hc::pipeline
+
+namespace hc::pipeline {
+namespace {
+
+// InputCheckScope::whole: a tile's points classified on the whole grid, as in core. The window's
+// own origin (the whole grid's plus c0 cells, rounded) puts its last column's x a float step
+// off the whole grid's; a point exactly on the whole grid's last column (the point that set its
+// box) then falls outside the window's extent. The oracle: check_input on the whole grid without
+// a scope (the in-core classes), and the window's x-y extent computed independently.
+TEST(HonestCrossCheck, AWindowsPointsAreClassifiedOnTheWholeGridWhenTheScopeGivesIt) {
+  GridGeometry g;
+  g.rows = 12;
+  g.cols = 40;
+  g.cell_size_m = 0.0047468682685932;  // as a generated wall's: no short binary fraction
+  g.x0_m = -0.678796619176864;
+  g.y0_m = -0.194621599012321;
+  HeightField whole(g);
+  for (float& z : whole.values()) z = 0.01f;
+  // A window of the last columns whose own last x is below the whole grid's.
+  int c0 = -1;
+  for (int c = 1; c < g.cols - 2 && c0 < 0; ++c) {
+    const double window_x0 = g.x_of_col(c);
+    if (window_x0 + static_cast<double>(g.cols - 1 - c) * g.cell_size_m < g.x_of_col(g.cols - 1)) c0 = c;
+  }
+  ASSERT_GE(c0, 0) << "no window whose last x rounds below the whole grid's: pick another cell size";
+  GridGeometry wg = g;
+  wg.cols = g.cols - c0;
+  wg.x0_m = g.x_of_col(c0);
+  HeightField window(wg);
+  for (float& z : window.values()) z = 0.01f;
+  // Points on the whole grid's last column, on the surface; one inside for contrast.
+  const double x_last = g.x_of_col(g.cols - 1);
+  std::vector<Eigen::Vector3d> pts;
+  for (int r = 0; r < g.rows; ++r) pts.emplace_back(x_last, g.y_of_row(r), 0.01);
+  pts.emplace_back(g.x_of_col(g.cols - 3), g.y_of_row(5), 0.01);
+  const Cloud cloud = hc::test::cloud_of(pts);
+  HonestCheckOptions o;
+  o.tolerance_m = 0.001;
+  o.spacing_m = g.cell_size_m;
+  const InputCheck in_core = check_input(cloud.xyz, cloud, whole, o);
+  ASSERT_EQ(in_core.outside, 0U);
+  ASSERT_EQ(in_core.on_surface, pts.size());
+  std::vector<std::uint8_t> owned(pts.size(), 1), removed(pts.size(), 0);
+  InputCheckScope scope;
+  scope.owned = &owned;
+  scope.removed = &removed;
+  scope.cells = {0, wg.rows, 0, wg.cols};
+  scope.spacing_m = g.cell_size_m;
+  scope.valid_lo = Eigen::Vector3d(g.x0_m, g.y0_m, 0.01);
+  scope.valid_hi = Eigen::Vector3d(x_last, g.y_of_row(g.rows - 1), 0.01);
+  // Without the whole grid: the window's extent leaves the last column's points outside.
+  const InputCheck windowed = check_input(cloud.xyz, Cloud{}, window, o, 0.0, nullptr, nullptr, &scope);
+  EXPECT_EQ(windowed.outside, static_cast<std::size_t>(g.rows)) << "the window's own extent (the case the scope's grid fixes)";
+  scope.whole = &whole;
+  const InputCheck tiled = check_input(cloud.xyz, Cloud{}, window, o, 0.0, nullptr, nullptr, &scope);
+  EXPECT_EQ(tiled.outside, in_core.outside);
+  EXPECT_EQ(tiled.on_surface, in_core.on_surface);
+  EXPECT_EQ(tiled.off_surface, in_core.off_surface);
+  EXPECT_EQ(tiled.hidden, in_core.hidden);
+  EXPECT_EQ(tiled.no_data, in_core.no_data);
+  // A whole grid of another cell size is the caller's error.
+  GridGeometry other = g;
+  other.cell_size_m *= 2.0;
+  const HeightField wrong(other);
+  scope.whole = &wrong;
+  EXPECT_THROW(check_input(cloud.xyz, Cloud{}, window, o, 0.0, nullptr, nullptr, &scope), std::invalid_argument);
 }
 
 }  // namespace

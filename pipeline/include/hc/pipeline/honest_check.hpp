@@ -191,7 +191,9 @@ struct GridSpikes {
 };
 
 /// Grid vs the input as read. `as_read_m` (3 × N, grid frame, metres) is the cloud after units,
-/// recentring and view transform, before any filter; `kept_m` the points the grid was made from
+/// recentring and view transform, before any filter (non-finite columns count as removed and are
+/// not classified: the run sets the points outside filters.crop to NaN, as a tiled run drops
+/// them before its spill); `kept_m` the points the grid was made from
 /// (the same frame); `grid` the final depth (metres, NaN = no data), `voxel_leaf_m` the voxel
 /// filter's leaf (0 = off; see InputCheck::removal_exact).
 /// Method: the point test counts, for every input point, the other points within the isolation
@@ -256,6 +258,14 @@ struct InputCheckScope {
   /// The interior's cells in `grid`: rows [r0, r1), cols [c0, c1). Spikes kept are counted there.
   std::array<int, 4> cells{};
   double spacing_m = 0.0;  ///< the scan's median nearest-neighbour spacing [m], > 0
+  /// Optional: the whole grid, of which `grid` is a window (same cell size, its origin on a
+  /// node of this one). When given, each owned point's class (on, off, hidden, no data,
+  /// outside) and residual come from this grid's bilinear surface and x-y extent, so that they
+  /// are the whole run's bit for bit: `grid`'s own origin, the whole grid's plus a number of
+  /// cells, rounds otherwise, and a point on the grid's last row or column (the one that set
+  /// the box) could fall outside a window's extent by that rounding (found by
+  /// tests/pipeline/tiled_differential_test.cpp, 2026-11-30). The other tests read `grid`.
+  const HeightField* whole = nullptr;
   Eigen::Vector3d valid_lo = Eigen::Vector3d::Zero();  ///< box of the whole grid's valid samples [m]
   Eigen::Vector3d valid_hi = Eigen::Vector3d::Zero();
 };
