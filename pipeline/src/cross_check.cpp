@@ -487,10 +487,13 @@ void query_point(const Run& run, int r, int c, float* q) {
 
 /// Stores the distance of the sample at (r, c) (error map and the part's list, at `slot`).
 void record(Run& run, Part& out, int r, int c, std::size_t slot, float best_sq) {
-  const double d = std::sqrt(static_cast<double>(best_sq));
-  run.cc.cell_error_m.at(r, c) = static_cast<float>(d);
-  out.cell_m[slot] = static_cast<float>(d);
-  out.supported += d <= run.tolerance_m ? 1U : 0U;
+  const float d = static_cast<float>(std::sqrt(static_cast<double>(best_sq)));
+  run.cc.cell_error_m.at(r, c) = d;
+  out.cell_m[slot] = d;
+  // Supported by the map's own value (float), as a tiled run counts from its merged map and a
+  // reader of the scene's cell_error layer would; until 2026-11-30 the double before rounding,
+  // so a distance within a float step of the tolerance could count otherwise.
+  out.supported += static_cast<double>(d) <= run.tolerance_m ? 1U : 0U;
 }
 
 /// Phase 4 (per half of the rows): exact nearest input point of every valid sample inside the

@@ -207,6 +207,45 @@ TEST(CrossCheck, CellDistancesEqualBruteForceOnAReprojectedScan) {
   expect_cells_match_brute_force(both, grid.depth, 2e-4);
 }
 
+// The supported fraction is the share of valid cells whose error map value (a float) is within
+// the tolerance, so that the scene's cell_error layer gives the figure back and a tiled run,
+// which counts from its merged map, counts alike. Each tolerance is set to one cell's stored
+// error exactly: before 2026-11-30 the double distance before its rounding to float was
+// compared, and a cell whose double lay above its float then counted as unsupported (about
+// half of the tolerances below; the oracle is a count over the map).
+TEST(CrossCheck, TheSupportedFractionIsTheErrorMapsShareWithinTheTolerance) {
+  SyntheticSpec s;
+  s.kind = SurfaceKind::kSinusoid;
+  s.half_extent_m = 0.01;
+  s.density_per_m2 = 1.5e7;
+  s.noise_sigma_m = 5e-5;
+  const Cloud cloud = generate_surface(s);
+  ReprojectOptions o;
+  o.grid.n_long_side = 60;
+  const auto grid = reproject(cloud, o).value;
+  const auto first = cross_check(cloud, grid.depth, 1e-4).value;
+  std::vector<float> errors;
+  for (const float e : first.cell_error_m.values()) {
+    if (!std::isnan(e) && e > 0.0f) errors.push_back(e);
+  }
+  ASSERT_GT(errors.size(), 100U);
+  int checked = 0;
+  for (std::size_t i = 0; i < errors.size(); i += errors.size() / 40) {
+    const double tol = static_cast<double>(errors[i]);
+    const auto r = cross_check(cloud, grid.depth, tol).value;
+    std::size_t valid = 0, within = 0;
+    for (std::size_t c = 0; c < r.cell_error_m.values().size(); ++c) {
+      if (std::isnan(grid.depth.values()[c])) continue;
+      ++valid;
+      const float e = r.cell_error_m.values()[c];
+      within += !std::isnan(e) && static_cast<double>(e) <= tol ? 1U : 0U;
+    }
+    EXPECT_EQ(r.supported_fraction, static_cast<double>(within) / static_cast<double>(valid)) << "tolerance " << tol << " m";
+    ++checked;
+  }
+  EXPECT_GE(checked, 40);
+}
+
 // detail::cross_check_cell_errors with a query box (the tiled run's tile interior inside its
 // window) searches only the samples inside it: each gives the whole search's distance bit for
 // bit (the oracle: the same call without a box, itself checked against brute force above), the

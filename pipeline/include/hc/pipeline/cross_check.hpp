@@ -48,7 +48,9 @@ struct CrossCheck {
   /// finite points outside the grid's x-y extent. Points above the surface always count.
   std::size_t points_hidden = 0, points_outside = 0;
   double hidden_band_m = 0.0;
-  /// Fraction of valid cells whose nearest input point is within tolerance_m [-].
+  /// Fraction of valid cells whose nearest input point is within tolerance_m [-]: the error
+  /// map's float value ≤ tolerance_m (since 2026-11-30; the tiled run counts the same way from
+  /// its merged map, so the scene's cell_error layer gives the figure back).
   double supported_fraction = 0.0;
   double tolerance_m = 0.0;
   /// Per-cell error map [m]: (b)'s distance per valid cell, NaN elsewhere. Empty in a tiled
