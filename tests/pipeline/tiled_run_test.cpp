@@ -24,6 +24,7 @@
 #include "stage_figure.hpp"
 #include "file_bytes.hpp"
 #include "patch_scan.hpp"
+#include "tiled_oracle.hpp"
 #include "test_paths.hpp"
 
 #include <gtest/gtest.h>
@@ -106,65 +107,7 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
   BuiltScene& tiled = tiled_out != nullptr ? *tiled_out : local;
   tiled = hc::pipeline::build_scene(config, false, tiled_progress);
   ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0) << "the grid was cut into several tiles";
-  // write_run gives freed heap back after each stage of the tiled run's scene only.
-  EXPECT_FALSE(in.from_tiled_run);
-  EXPECT_TRUE(tiled.from_tiled_run);
-  hc::test::expect_same_layers(in.scene.layers, tiled.scene.layers);
-  EXPECT_EQ(in.scene.model_to_grid.matrix(), tiled.scene.model_to_grid.matrix());
-  ASSERT_TRUE(in.summary.cross_check && tiled.summary.cross_check);
-  const auto& x = *in.summary.cross_check;
-  const auto& y = *tiled.summary.cross_check;
-  for (const auto& [s, t] : {std::pair{x.point_vertical, y.point_vertical}, std::pair{x.point_normal, y.point_normal}}) {
-    EXPECT_EQ(s.count, t.count);
-    EXPECT_EQ(s.p50_mm, t.p50_mm);
-    EXPECT_EQ(s.p95_mm, t.p95_mm);
-    EXPECT_EQ(s.p99_mm, t.p99_mm);
-    EXPECT_EQ(s.max_mm, t.max_mm);
-    EXPECT_NEAR(s.rms_mm, t.rms_mm, 1e-9 * s.rms_mm);
-  }
-  EXPECT_EQ(x.points_on_surface, y.points_on_surface);
-  EXPECT_EQ(x.points_hidden, y.points_hidden);
-  EXPECT_EQ(x.points_off_surface, y.points_off_surface);
-  EXPECT_EQ(x.points_outside, y.points_outside);
-  // (b): each tile searches in its own float frame: the same nearest points, distances to float
-  // rounding of the coordinates (about 1e-7 of the scene's extent).
-  EXPECT_EQ(x.cell_to_point.count, y.cell_to_point.count);
-  const double extent_mm = 1e3 * in.scene.geometry.cell_size_m * std::max(in.scene.geometry.rows, in.scene.geometry.cols);
-  for (const auto& [s, t] : {std::pair{x.cell_to_point.p50_mm, y.cell_to_point.p50_mm}, std::pair{x.cell_to_point.p95_mm, y.cell_to_point.p95_mm},
-                             std::pair{x.cell_to_point.max_mm, y.cell_to_point.max_mm}, std::pair{x.cell_to_point.rms_mm, y.cell_to_point.rms_mm}}) {
-    EXPECT_NEAR(s, t, 1e-6 * extent_mm);
-  }
-  EXPECT_NEAR(x.supported_fraction, y.supported_fraction, 1e-4);
-  // The tiled run's map is its scene's layer, moved there (no copy in the summary).
-  EXPECT_EQ(y.cell_error_m.values().size(), 0U);
-  const hc::HeightField& y_error = tiled.scene.layers.cell_error;
-  ASSERT_EQ(y_error.values().size(), x.cell_error_m.values().size());
-  EXPECT_EQ(differing_bits(in.scene.layers.cell_error, x.cell_error_m), 0U) << "in core: the scene's layer is the summary's map";
-  std::size_t far = 0;
-  for (std::size_t i = 0; i < x.cell_error_m.values().size(); ++i) {
-    const float u = x.cell_error_m.values()[i], v = y_error.values()[i];
-    if (std::isnan(u) != std::isnan(v) || (!std::isnan(u) && std::abs(u - v) > 1e-9 * extent_mm)) ++far;
-  }
-  EXPECT_EQ(far, 0U) << "cells whose nearest point differs";
-  // The tiled run's cell-to-point figures (radix selection over its error map, no copy) are
-  // error_stats_mm_of_floats of its supported cells' errors bit for bit.
-  {
-    std::vector<float> supported;
-    const hc::HeightField& depth = tiled.scene.layers.depth;
-    for (std::size_t i = 0; i < y_error.values().size(); ++i) {
-      if (!std::isnan(depth.values()[i]) && !std::isnan(y_error.values()[i])) supported.push_back(y_error.values()[i]);
-    }
-    const hc::pipeline::ErrorStats e = hc::pipeline::error_stats_mm_of_floats(std::move(supported));
-    EXPECT_EQ(y.cell_to_point.count, e.count);
-    EXPECT_EQ(y.cell_to_point.p50_mm, e.p50_mm);
-    EXPECT_EQ(y.cell_to_point.p95_mm, e.p95_mm);
-    EXPECT_EQ(y.cell_to_point.p99_mm, e.p99_mm);
-    EXPECT_EQ(y.cell_to_point.max_mm, e.max_mm);
-    EXPECT_EQ(y.cell_to_point.rms_mm, e.rms_mm);
-  }
-  for (const std::string& w : tiled.summary.warnings) EXPECT_EQ(w.find("the kept points span"), std::string::npos) << w;
-  // The spill folder is gone.
-  EXPECT_TRUE(fs::is_empty(scratch));
+  hc::test::expect_tiled_scene_equals_in_core(in, tiled, scratch);
 }
 
 // A natively streamed input (`file` in `dir`, config `yaml`): auto takes the tiled run, which

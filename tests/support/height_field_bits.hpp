@@ -26,9 +26,18 @@ inline std::size_t differing_bits(const hc::HeightField& a, const hc::HeightFiel
 }
 
 /// Expects the surface layers of two scenes equal: depth, envelope, texture, μ_d and μ_s bit for
-/// bit, and the flags and colour bytes.
+/// bit, the intensity and region layers bit for bit where either scene has them, and the flags
+/// and colour bytes.
 inline void expect_same_layers(const hc::SceneLayers& a, const hc::SceneLayers& b) {
   EXPECT_EQ(differing_bits(a.depth, b.depth), 0U);
+  EXPECT_EQ(a.intensity.values().size(), b.intensity.values().size());
+  if (!a.intensity.values().empty() && a.intensity.values().size() == b.intensity.values().size()) {
+    EXPECT_EQ(differing_bits(a.intensity, b.intensity), 0U);
+  }
+  EXPECT_EQ(a.region_id.values().size(), b.region_id.values().size());
+  if (!a.region_id.values().empty() && a.region_id.values().size() == b.region_id.values().size()) {
+    EXPECT_EQ(differing_bits(a.region_id, b.region_id), 0U);
+  }
   EXPECT_EQ(a.flags, b.flags);
   EXPECT_EQ(a.colour_rgb8, b.colour_rgb8);
   EXPECT_EQ(differing_bits(a.envelope, b.envelope), 0U);

@@ -1,0 +1,314 @@
+// The tiled run against the in-core run on random scans and random configs (issue 14: "the
+// result equals the in-core run"). Each seed draws a generated relief scan (hc::tools::relief:
+// size, shape, relief, noise, back face, outliers, colour, order; PLY, LAS or E57) and a config
+// (grid size, splat mode and radius, see-through, hole filling, upsample, the robust filter and
+// its despike and far clusters, the honest check's spike limits, texture), then runs it in core
+// and in tiles of a random side. The oracle is the in-core run: every layer bit for bit, the
+// cross-check's figures and the honest check's counts and verdict (tiled_oracle.hpp). Where the
+// in-core run stops, the tiled run stops with the same kind of error. A tiled run may instead
+// stop where its halo is too narrow, with an error naming the scale key to raise (as issue 14
+// asks: "a search that would leave the halo is an error naming the stage, not a silent edge");
+// that is counted and printed. So is a documented difference: where the in-core run removed far
+// clusters, the tiled run's are a subset of them (docs/scale.md), so it may keep more points;
+// then only that is checked. Together they may take at most a quarter of the seeds.
+//
+// Seeds: HC_TILED_DIFF_SEEDS="first:count" (default 1:12, about 5 s on the 2-core VM; .ci/run
+// runs 13:188 after scripts/test); a failing seed prints its YAML and keeps its folder, so that
+// it can be run alone.
+
+#include "hc/common/error.hpp"
+#include "hc/pipeline/config.hpp"
+#include "hc/pipeline/honest_check.hpp"
+#include "hc/pipeline/run.hpp"
+#include "hc/tools/relief.hpp"
+
+#include "stage_figure.hpp"
+#include "test_paths.hpp"
+#include "tiled_oracle.hpp"
+
+#include <gtest/gtest.h>
+
+#include <bit>
+#include <cstdint>
+#include <cstdlib>
+#include <exception>
+#include <filesystem>
+#include <iostream>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <typeinfo>
+#include <vector>
+
+namespace tiled_differential {
+namespace {
+
+namespace fs = std::filesystem;
+using hc::pipeline::BuiltScene;
+using hc::pipeline::RunConfig;
+
+// A small deterministic generator (SplitMix64), so that a seed draws the same case on every
+// machine and library version (std::uniform_*_distribution is not specified bit for bit).
+class Draw {
+ public:
+  // The seed mixed first: consecutive seeds must not give shifted copies of one sequence.
+  explicit Draw(std::uint64_t seed) : s_(seed) { s_ = bits(); }
+  std::uint64_t bits() {
+    std::uint64_t z = (s_ += 0x9E3779B97F4A7C15ULL);
+    z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ULL;
+    z = (z ^ (z >> 27)) * 0x94D049BB133111EBULL;
+    return z ^ (z >> 31);
+  }
+  double uniform(double lo, double hi) { return lo + (hi - lo) * static_cast<double>(bits() >> 11) * 0x1.0p-53; }
+  int integer(int lo, int hi) { return lo + static_cast<int>(bits() % static_cast<std::uint64_t>(hi - lo + 1)); }
+  bool coin(double p = 0.5) { return uniform(0.0, 1.0) < p; }
+
+ private:
+  std::uint64_t s_;
+};
+
+struct Case {
+  hc::tools::ReliefSpec spec;
+  std::string file;
+  std::string yaml;
+  std::vector<std::string> sets;  ///< dotted key=value overrides (hapticloud run --set)
+  int tile_cells = 0;
+};
+
+std::string number(double v) {
+  std::ostringstream o;
+  o.precision(17);
+  o << v;
+  return o.str();
+}
+
+Case draw_case(std::uint64_t seed) {
+  Draw d(seed);
+  Case c;
+  hc::tools::ReliefSpec& s = c.spec;
+  s.seed = seed;
+  s.points = static_cast<std::uint64_t>(d.integer(15'000, 90'000));
+  s.width_m = d.uniform(0.3, 2.0);
+  s.height_m = d.uniform(0.2, 1.2);
+  s.relief_depth_m = d.coin(0.8) ? d.uniform(0.0, 0.05) : 0.0;
+  s.course_m = d.uniform(0.08, 0.3);
+  s.block_m = d.uniform(0.1, 0.5);
+  s.chisel_amplitude_m = d.uniform(0.0, 0.001);
+  s.noise_sigma_m = d.coin(0.8) ? d.uniform(0.0, 0.002) : 0.0;
+  s.thickness_m = d.uniform(0.05, 0.4);
+  s.back_fraction = d.coin(0.7) ? d.uniform(0.0, 0.2) : 0.0;
+  s.outlier_fraction = d.coin(0.7) ? d.uniform(0.0, 0.02) : 0.0;
+  s.outlier_reach_m = d.uniform(0.0, 0.5);
+  s.rgb = d.coin();
+  s.scan_order = d.coin(0.3);
+  const int format = d.integer(0, 2);
+  c.file = format == 0 ? "scan.ply" : format == 1 ? "scan.las" : "scan.e57";
+
+  const int n = d.integer(60, 360);
+  std::ostringstream y;
+  y << "input: {files: [" << c.file << "], units: m}\n";
+  if (d.coin(0.25)) {
+    // A view tilted about x and y: the back face and the relief's flanks move in depth.
+    y << "view: {rotation: {euler_deg: [" << number(d.uniform(-25, 25)) << ", " << number(d.uniform(-25, 25)) << ", "
+      << number(d.uniform(-180, 180)) << "], order: xyz}}\n";
+  }
+  const char* modes[] = {"disc", "interpolate", "plane"};
+  y << "grid: {n: " << n << ", splat_mode: " << modes[d.integer(0, 2)] << ", splat_radius_cells: " << number(d.uniform(0.6, 2.5))
+    << ", see_through_depth_m: " << (d.coin(0.7) ? number(d.uniform(0.003, 0.05)) : "0")
+    << ", hole_fill_max_cells: " << (d.coin(0.6) ? d.integer(1, 64) : 0);
+  const int up = d.integer(0, 3);
+  y << ", upsample: " << (up == 0 ? "off" : up == 1 ? "auto" : std::to_string(up)) << "}\n";
+  const bool filter = d.coin(0.75);
+  y << "filters: {outliers: {enabled: " << (filter ? "true" : "false");
+  if (filter) {
+    y << ", k: " << d.integer(6, 24) << ", local_ratio: " << number(d.uniform(2.0, 5.0))
+      << ", mad_multiplier: " << number(d.uniform(2.0, 6.0)) << ", despike: " << (d.coin(0.7) ? "true" : "false")
+      << ", far_clusters: {enabled: " << (d.coin(0.7) ? "true" : "false") << "}";
+  }
+  y << "}}\n";
+  y << "cross_check: {tolerance_m: " << number(d.uniform(0.0005, 0.004)) << ", spike_min_height_m: " << number(d.uniform(0.002, 0.02))
+    << ", island_max_cells: " << d.integer(1, 12) << "}\n";
+  y << "layers: {texture: {sigma_space_cells: " << number(d.uniform(1.0, 4.0)) << ", sigma_range_m: " << number(d.uniform(0.001, 0.01))
+    << "}}\n";
+  y << "scale: {chunk_points: " << d.integer(1024, 20'000) << "}\n";
+  c.tile_cells = d.integer(std::max(16, n / 10), std::max(16, n / 3));  // 9 to 100 tiles or so
+  // Drawn after the above, so that adding them left the earlier draws of every seed as they
+  // were; given as --set overrides (c.sets).
+  auto set = [&](const std::string& key, const std::string& value) { c.sets.push_back(key + "=" + value); };
+  if (d.coin(0.2)) {
+    // A crop box (grid frame) cutting into the wall's sides and, at times, its back face.
+    const double x0 = -0.5 * s.width_m * d.uniform(0.5, 1.2), y0 = -0.5 * s.height_m * d.uniform(0.5, 1.2);
+    const double z0 = -s.thickness_m * d.uniform(0.1, 1.5);
+    const double x1 = 0.5 * s.width_m * d.uniform(0.5, 1.2), y1 = 0.5 * s.height_m * d.uniform(0.5, 1.2);
+    set("filters.crop.min_m", "[" + number(x0) + ", " + number(y0) + ", " + number(z0) + "]");
+    set("filters.crop.max_m", "[" + number(x1) + ", " + number(y1) + ", 1]");
+  }
+  if (filter && d.coin(0.3)) set("filters.outliers.off_surface_ratio", d.coin(0.3) ? "0" : number(d.uniform(1.5, 4.0)));
+  if (d.coin(0.3)) {
+    set("cross_check.isolation_min_neighbours", std::to_string(d.integer(1, 6)));
+    set("cross_check.isolation_radius_spacings", number(d.uniform(3.0, 20.0)));
+  }
+  if (d.coin(0.3)) set("grid.hole_fill_max_step_m", number(d.uniform(0.002, 0.05)));
+  // Several bands of tiles (their strays gathered band by band), smaller tiles by the point
+  // bound, a fixed filter halo (too narrow at times: then an error naming the key).
+  if (d.coin(0.3)) set("scale.band_mb", number(d.uniform(0.02, 1.0)));
+  if (d.coin(0.2)) set("scale.tile_max_points", std::to_string(d.integer(1000, 20'000)));
+  if (d.coin(0.15)) set("scale.filter_halo_cells", std::to_string(d.integer(0, 40)));
+  c.yaml = y.str();
+  return c;
+}
+
+// The points a run kept after every filter: its cross-check's input (stage cross_check's
+// count in, in core and tiled).
+double kept_points(const BuiltScene& b) {
+  for (const auto& r : b.summary.stages) {
+    if (r.stage == "cross_check") return static_cast<double>(r.count_in);
+  }
+  ADD_FAILURE() << "no stage cross_check";
+  return -1.0;
+}
+
+// The overrides as `--set` options, one line.
+std::string sets_text(const std::vector<std::string>& sets) {
+  std::string t;
+  for (const std::string& v : sets) t += "--set '" + v + "' ";
+  return t.empty() ? t : t + "\n";
+}
+
+// The kind of a thrown exception, for comparing the two runs' stops.
+struct Stop {
+  std::string type;
+  std::string message;
+};
+
+// The first `most` cells where two height fields' bits differ, as "(row, col) in-core tiled"
+// lines with the cell's place in its tile, for a diverging seed's report.
+std::string first_differences(const hc::HeightField& a, const hc::HeightField& b, int tile_cells, std::size_t most = 12) {
+  std::ostringstream o;
+  if (a.values().size() != b.values().size()) return "the layers differ in size\n";
+  std::size_t shown = 0, all = 0;
+  for (std::size_t i = 0; i < a.values().size(); ++i) {
+    if (std::bit_cast<std::uint32_t>(a.values()[i]) == std::bit_cast<std::uint32_t>(b.values()[i])) continue;
+    ++all;
+    if (shown++ >= most) continue;
+    const std::size_t r = i / static_cast<std::size_t>(a.cols()), col = i % static_cast<std::size_t>(a.cols());
+    o << "  (" << r << ", " << col << ") " << number(a.values()[i]) << " " << number(b.values()[i]) << "  tile row+"
+      << r % static_cast<std::size_t>(tile_cells) << " col+" << col % static_cast<std::size_t>(tile_cells) << "\n";
+  }
+  o << "  " << all << " cells differ of " << a.values().size() << " (" << a.rows() << " x " << a.cols() << ")\n";
+  return o.str();
+}
+
+template <class F>
+std::optional<Stop> stop_of(F&& f) {
+  try {
+    f();
+  } catch (const std::exception& e) {
+    return Stop{typeid(e).name(), e.what()};
+  }
+  return std::nullopt;
+}
+
+// A tiled run's refusal of a halo too narrow for a search, naming the key to raise.
+bool names_a_halo_key(const std::string& message) {
+  for (const char* key : {"scale.filter_halo_cells", "scale.max_gatherings", "scale.island_halo"}) {
+    if (message.find(key) != std::string::npos) return true;
+  }
+  return false;
+}
+
+std::pair<std::uint64_t, std::uint64_t> seeds_asked() {
+  std::uint64_t first = 1, count = 12;
+  if (const char* e = std::getenv("HC_TILED_DIFF_SEEDS")) {
+    const std::string s = e;
+    const auto colon = s.find(':');
+    if (colon == std::string::npos) {
+      ADD_FAILURE() << "HC_TILED_DIFF_SEEDS=" << s << ": expected first:count, e.g. 1:12";
+      return {1, 0};
+    }
+    first = std::stoull(s.substr(0, colon));
+    count = std::stoull(s.substr(colon + 1));
+  }
+  return {first, count};
+}
+
+TEST(TiledDifferential, RandomScansAndConfigsGiveTheInCoreScene) {
+  const auto [first, count] = seeds_asked();
+  std::size_t compared = 0, stopped_alike = 0, halo_refusals = 0, far_subset = 0;
+  for (std::uint64_t seed = first; seed < first + count; ++seed) {
+    const Case c = draw_case(seed);
+    SCOPED_TRACE("seed " + std::to_string(seed) + " (HC_TILED_DIFF_SEEDS=" + std::to_string(seed) + ":1), tile_cells " +
+                 std::to_string(c.tile_cells) + ", " + std::to_string(c.spec.points) + " points\n" + c.yaml + sets_text(c.sets));
+    const fs::path dir = hc::test::temp_dir("tiled_diff_" + std::to_string(seed));
+    (void)hc::tools::write_relief(c.spec, dir / c.file, 8192, 1);
+    fs::create_directory(dir / "scratch");
+    RunConfig config = hc::pipeline::parse_run_config(c.yaml, dir / "run.yaml", c.sets);
+    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+    BuiltScene in, tiled;
+    const auto in_stop = stop_of([&] { in = hc::pipeline::build_scene(config); });
+    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+    config.scale.tile_cells = c.tile_cells;
+    config.scale.scratch = dir / "scratch";
+    const auto tiled_stop = stop_of([&] { tiled = hc::pipeline::build_scene(config); });
+    EXPECT_TRUE(fs::is_empty(dir / "scratch")) << "the spill is removed, also after a stop";
+    if (in_stop) {
+      ASSERT_TRUE(tiled_stop) << "the in-core run stopped (" << in_stop->message << "), the tiled run did not";
+      EXPECT_EQ(in_stop->type, tiled_stop->type) << "in core: " << in_stop->message << "\ntiled: " << tiled_stop->message;
+      ++stopped_alike;
+    } else if (tiled_stop) {
+      EXPECT_TRUE(names_a_halo_key(tiled_stop->message)) << "the tiled run stopped where the in-core run did not: " << tiled_stop->message;
+      std::cout << "[ halo     ] seed " << seed << ": " << tiled_stop->message << "\n";
+      ++halo_refusals;
+    } else if (const double far = hc::test::stage_figure(in, "outliers", "removed_far_clusters");
+               far > 0.0 && kept_points(tiled) > kept_points(in)) {
+      // Documented (docs/scale.md, "each tile looks for far clusters again"): the tiled run's far
+      // clusters are a subset of the in-core run's, so it may keep points that core removes
+      // (a small cluster joined to the main body on the coarse cells through others, or a main
+      // body whose coarse box holds a back face that core keeps as a large far cluster).
+      std::cout << "[ far      ] seed " << seed << ": in core " << far << " points removed in far clusters; the tiled run kept "
+                << kept_points(tiled) - kept_points(in) << " more points (a subset of the far clusters)\n";
+      ++far_subset;
+    } else {
+      ASSERT_GT(hc::test::stage_figure(tiled, "tile_plan", "tiles"), 1.0) << "the grid was cut into several tiles";
+      hc::test::expect_tiled_scene_equals_in_core(in, tiled, dir / "scratch");
+      if (::testing::Test::HasFailure()) {
+        std::cout << "depth:\n" << first_differences(in.scene.layers.depth, tiled.scene.layers.depth, c.tile_cells);
+      }
+      ASSERT_TRUE(in.summary.verdict && tiled.summary.verdict && in.summary.input_check && tiled.summary.input_check);
+      EXPECT_EQ(in.summary.verdict->status, tiled.summary.verdict->status);
+      const auto& a = *in.summary.input_check;
+      const auto& b = *tiled.summary.input_check;
+      EXPECT_EQ(a.points, b.points);
+      EXPECT_EQ(a.removed, b.removed);
+      EXPECT_EQ(a.on_surface, b.on_surface);
+      EXPECT_EQ(a.off_surface, b.off_surface);
+      EXPECT_EQ(a.hidden, b.hidden);
+      EXPECT_EQ(a.no_data, b.no_data);
+      EXPECT_EQ(a.outside, b.outside);
+      EXPECT_EQ(a.far, b.far);
+      // The isolated-point test's radius comes from the scan's spacing: the robust filter's
+      // sample's in both runs; without the filter, the in-core run's strided sample and the
+      // tiles' median weighted by points (honest_check.hpp, median_point_spacing), which differ.
+      if (config.filters.outliers.enabled) {
+        EXPECT_EQ(a.spacing_m, b.spacing_m);
+        EXPECT_EQ(a.isolated, b.isolated);
+      }
+      ++compared;
+    }
+    if (!tiled_stop) {
+      std::cout << "[ seed     ] " << seed << ": " << c.spec.points << " points, " << hc::test::stage_figure(tiled, "tile_plan", "tiles")
+                << " tiles of " << c.tile_cells << " cells; " << sets_text(c.sets) << "\n";
+    }
+    if (::testing::Test::HasFailure()) {
+      std::cout << "[ diverged ] seed " << seed << "; the scan and config are in " << dir << "\n";
+      return;  // the first divergent seed is the one to look at; its folder is kept
+    }
+    fs::remove_all(dir);
+  }
+  std::cout << "[ tiled    ] " << compared << " scenes compared, " << stopped_alike << " stopped in both, " << halo_refusals
+            << " tiled runs stopped naming a halo key, " << far_subset << " kept points of far clusters core removed\n";
+  EXPECT_LE(4 * (halo_refusals + far_subset), count) << "too many of the random cases were not compared";
+}
+
+}  // namespace
+}  // namespace tiled_differential
