@@ -56,6 +56,7 @@
 #include <limits>
 #include <memory>
 #include <sstream>
+#include <stdexcept>
 #include <thread>
 #include <utility>
 
@@ -240,6 +241,7 @@ struct Run {
   double y_split = 0;   ///< y of the boundary between the halves [m]
   BilinearSurface surface;
   bool point_residuals = true;  ///< (a) too; false: (b) only (cross_check_cell_errors)
+  const detail::CellErrorFrame* frame = nullptr;  ///< a larger grid's frame and positions (cross_check_cell_errors)
   Part parts[2];
   std::vector<std::uint32_t> key;    ///< cell of each point, kSkip if not finite
   std::vector<std::uint32_t> first;  ///< bucket k = sorted points [first[k], first[k+1])
@@ -301,16 +303,7 @@ void plan(Run& run) {
     msg << "cross_check: the " << g.cols << " x " << g.rows << " grid has no valid cell";
     throw InputError(msg.str());
   }
-  run.centre = Eigen::Vector3d(g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)), 0.0);
-  {
-    float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
-    for (float v : run.grid.values()) {
-      if (std::isnan(v)) continue;
-      z_lo = std::min(z_lo, v);
-      z_hi = std::max(z_hi, v);
-    }
-    run.centre.z() = 0.5 * (static_cast<double>(z_lo) + static_cast<double>(z_hi));
-  }
+  run.centre = run.frame ? run.frame->centre : detail::cross_check_frame_centre(run.grid);
   std::size_t acc = 0;
   for (int r = 0; r < g.rows; ++r) {
     acc += valid_in_row[static_cast<std::size_t>(r)];
@@ -480,14 +473,16 @@ bool search_rings(const Run& run, int r, int c, const float* q, float& best_sq, 
 
 /// The sample at (r, c) in the local frame.
 void query_point(const Run& run, int r, int c, float* q) {
-  q[0] = static_cast<float>(run.g.x_of_col(c) - run.centre.x());
-  q[1] = static_cast<float>(run.g.y_of_row(r) - run.centre.y());
+  const double x = run.frame ? run.frame->whole.x_of_col(run.frame->col0 + c) : run.g.x_of_col(c);
+  const double y = run.frame ? run.frame->whole.y_of_row(run.frame->row0 + r) : run.g.y_of_row(r);
+  q[0] = static_cast<float>(x - run.centre.x());
+  q[1] = static_cast<float>(y - run.centre.y());
   q[2] = static_cast<float>(static_cast<double>(run.grid.at(r, c)) - run.centre.z());
 }
 
 /// Stores the distance of the sample at (r, c) (error map and the part's list, at `slot`).
 void record(Run& run, Part& out, int r, int c, std::size_t slot, float best_sq) {
-  const float d = static_cast<float>(std::sqrt(static_cast<double>(best_sq)));
+  const float d = detail::cross_check_recorded_distance(best_sq);
   run.cc.cell_error_m.at(r, c) = d;
   out.cell_m[slot] = d;
   // Supported by the map's own value (float), as a tiled run counts from its merged map and a
@@ -731,12 +726,18 @@ namespace {
 StageResult<CrossCheck> run_cross_check(const Cloud& points_m, const HeightField& grid, double tolerance_m,
                                         double hidden_band_m, bool point_residuals,
                                         std::array<int, 4> query = {0, std::numeric_limits<int>::max(), 0,
-                                                                    std::numeric_limits<int>::max()}) {
+                                                                    std::numeric_limits<int>::max()},
+                                        const detail::CellErrorFrame* frame = nullptr) {
   const auto t0 = detail::Clock::now();
   check_arguments(points_m, grid, tolerance_m, hidden_band_m);
   StageResult<CrossCheck> result;
   Run run(points_m, grid, tolerance_m, hidden_band_m, result.value);
   run.point_residuals = point_residuals;
+  if (frame && (frame->whole.cell_size_m != grid.geometry().cell_size_m || frame->row0 < 0 || frame->col0 < 0 ||
+                frame->row0 + grid.geometry().rows > frame->whole.rows || frame->col0 + grid.geometry().cols > frame->whole.cols)) {
+    throw std::invalid_argument("cross_check_cell_errors: the frame's grid does not hold the window (cells, rows, cols)");
+  }
+  run.frame = frame;
   const GridGeometry& qg = grid.geometry();
   run.q_r0 = std::clamp(query[0], 0, qg.rows);
   run.q_r1 = std::clamp(query[1], run.q_r0, qg.rows);
@@ -768,8 +769,21 @@ StageResult<CrossCheck> cross_check(const Cloud& points_m, const HeightField& gr
 namespace detail {
 
 StageResult<CrossCheck> cross_check_cell_errors(const Cloud& points_m, const HeightField& grid, double tolerance_m,
-                                                double hidden_band_m, std::array<int, 4> query) {
-  return run_cross_check(points_m, grid, tolerance_m, hidden_band_m, false, query);
+                                                double hidden_band_m, std::array<int, 4> query, const CellErrorFrame* frame) {
+  return run_cross_check(points_m, grid, tolerance_m, hidden_band_m, false, query, frame);
+}
+
+Eigen::Vector3d cross_check_frame_centre(const HeightField& grid) {
+  const GridGeometry& g = grid.geometry();
+  Eigen::Vector3d centre(g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)), 0.0);
+  float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
+  for (const float v : grid.values()) {
+    if (std::isnan(v)) continue;
+    z_lo = std::min(z_lo, v);
+    z_hi = std::max(z_hi, v);
+  }
+  if (z_lo <= z_hi) centre.z() = 0.5 * (static_cast<double>(z_lo) + static_cast<double>(z_hi));
+  return centre;
 }
 
 }  // namespace detail

@@ -17,6 +17,7 @@
 #include <atomic>
 #include <cstddef>
 #include <limits>
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -33,10 +34,32 @@ namespace hc::pipeline::detail {
 /// ones (supported_fraction 0 when none is valid). Every point and every valid sample's height
 /// still set the search's float frame, so a searched sample's distance is the one the whole
 /// search gives, bit for bit.
+/// `frame`, when given, is the float frame and the sample positions of a larger grid of which
+/// `grid` is a window (the tiled run: the whole grid, held whole): the samples sit at the whole
+/// grid's x_of_col(col0 + c), y_of_row(row0 + r), and the float coordinates are taken about
+/// `centre` (cross_check_frame_centre of the whole grid), so that a sample whose nearest point
+/// the window holds gets the whole grid's cross_check() distance bit for bit (since
+/// 2026-11-30; before, the window's own frame, to float rounding of the coordinates).
+struct CellErrorFrame {
+  GridGeometry whole;
+  int row0 = 0, col0 = 0;
+  Eigen::Vector3d centre = Eigen::Vector3d::Zero();
+};
 StageResult<CrossCheck> cross_check_cell_errors(const Cloud& points_m, const HeightField& grid, double tolerance_m,
                                                 double hidden_band_m,
                                                 std::array<int, 4> query = {0, std::numeric_limits<int>::max(), 0,
-                                                                            std::numeric_limits<int>::max()});
+                                                                            std::numeric_limits<int>::max()},
+                                                const CellErrorFrame* frame = nullptr);
+
+/// The float frame's centre cross_check() takes for `grid` [m, grid frame]: the grid's middle in
+/// x and y (x_of_col((cols − 1) / 2), y_of_row((rows − 1) / 2)) and the middle of its valid
+/// heights' range in z (0 without a valid cell).
+Eigen::Vector3d cross_check_frame_centre(const HeightField& grid);
+
+/// The distance cross_check() records for a float squared distance `best_sq` [m²] found in its
+/// float frame: the float nearest √best_sq (the error map's value; the tiled run's search
+/// again over other tiles records the same).
+inline float cross_check_recorded_distance(float best_sq) { return static_cast<float>(std::sqrt(static_cast<double>(best_sq))); }
 
 /// Resets the process's resident-memory high-water mark (Linux, proc(5): writing "5" to
 /// /proc/self/clear_refs resets VmHWM). @return false when it cannot.

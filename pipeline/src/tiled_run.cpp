@@ -3939,12 +3939,18 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       const BilinearSurface surface(HeightFieldView::of(grid.depth));
       RadixPercentiles vertical, normal;
       std::vector<std::uint8_t> flag;
+      // The in-core search's float frame (cross_check_frame_centre of the whole grid): every
+      // tile's search and the search again below take it, so that the error map is the in-core
+      // one bit for bit (since 2026-11-30; before, each tile's own frame, to float rounding).
+      const Eigen::Vector3d frame_centre = detail::cross_check_frame_centre(grid.depth);
       // Samples whose nearest point may lie beyond their tile's halo (judged on the tile's
-      // float distance): found again, in double, over the interior points of every tile their
-      // search disc reaches (brute force: few samples on a grid made from the points).
+      // distance): found again over the interior points of every tile their search disc
+      // reaches (brute force: few samples on a grid made from the points), with the in-core
+      // search's float arithmetic (squared distances in float in its frame).
       struct Far {
         int r, c;
-        double best_m;
+        double best_m;  ///< the tile's recorded distance (infinity: none), then the least found [m]
+        float best_sq = std::numeric_limits<float>::infinity();  ///< the search again's least squared distance
       };
       std::vector<Far> unverified;
       std::size_t researched = 0, improved = 0;
@@ -3963,29 +3969,37 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           for (std::size_t f = 0; f < far.size(); ++f) {
             const double qx = tiles.g.x_of_col(far[f].c), qy = tiles.g.y_of_row(far[f].r);
             const double dx = std::max({x_lo - qx, 0.0, qx - x_hi}), dy = std::max({y_lo - qy, 0.0, qy - y_hi});
-            if (dx * dx + dy * dy <= far[f].best_m * far[f].best_m) mine.push_back(f);
+            const double reach_m = far[f].best_m * (1.0 + 1e-6);  // the float distances' rounding
+            if (dx * dx + dy * dy <= reach_m * reach_m) mine.push_back(f);
           }
           if (mine.empty()) continue;
           (void)heap.before_tile();
           const Cloud pts = kept.read(t, fl);
           for (const std::size_t f : mine) {
-            const double qx = tiles.g.x_of_col(far[f].c), qy = tiles.g.y_of_row(far[f].r);
-            const double qz = grid.depth.at(far[f].r, far[f].c);
-            double best = far[f].best_m * far[f].best_m;
+            const float q[3] = {static_cast<float>(tiles.g.x_of_col(far[f].c) - frame_centre.x()),
+                                static_cast<float>(tiles.g.y_of_row(far[f].r) - frame_centre.y()),
+                                static_cast<float>(static_cast<double>(grid.depth.at(far[f].r, far[f].c)) - frame_centre.z())};
+            float best_sq = far[f].best_sq;
             for (std::size_t i = 0; i < pts.size(); ++i) {
               if (fl[i] == 0) continue;
               const double* p = pts.xyz.data() + 3 * i;
-              const double d2 = (p[0] - qx) * (p[0] - qx) + (p[1] - qy) * (p[1] - qy) + (p[2] - qz) * (p[2] - qz);
-              best = std::min(best, d2);
+              const float dx = static_cast<float>(p[0] - frame_centre.x()) - q[0];
+              const float dy = static_cast<float>(p[1] - frame_centre.y()) - q[1];
+              const float dz = static_cast<float>(p[2] - frame_centre.z()) - q[2];
+              best_sq = std::min(best_sq, dx * dx + dy * dy + dz * dz);
             }
-            if (std::sqrt(best) < far[f].best_m) {
-              far[f].best_m = std::sqrt(best);
-              ++improved;
-            }
+            far[f].best_sq = best_sq;
           }
         }
-        for (const Far& f : far) {
-          if (std::isfinite(f.best_m)) cc.cell_error_m.at(f.r, f.c) = static_cast<float>(f.best_m);
+        // The least of the tile's and the search again's: recording (√, to float) is monotone,
+        // so this is the record of the least squared distance, as the in-core search's.
+        for (Far& f : far) {
+          if (!std::isfinite(f.best_sq)) continue;
+          const float again = detail::cross_check_recorded_distance(f.best_sq);
+          if (!(static_cast<double>(again) < f.best_m)) continue;
+          f.best_m = static_cast<double>(again);
+          cc.cell_error_m.at(f.r, f.c) = again;
+          ++improved;
         }
       };
       detail::PassProgress tick(progress, "cross_check", "the tiles' kept points, then their residuals again", config.scale.progress_interval_s);
@@ -4042,8 +4056,10 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
           if (valid == 0 || w.rows < 2 || w.cols < 2) continue;
           // Only the interior's samples are searched (the window's halo samples are other tiles'
           // interiors); the halo's points and heights still set the search and its frame.
+          // In the whole grid's float frame and at its sample positions, as the in-core search.
+          const detail::CellErrorFrame frame{tiles.g, w.row0, w.col0, frame_centre};
           const CrossCheck part = detail::cross_check_cell_errors(pts, crop, cc.tolerance_m, cc.hidden_band_m,
-                                                                  {in[0] - w.row0, in[1] - w.row0, in[2] - w.col0, in[3] - w.col0})
+                                                                  {in[0] - w.row0, in[1] - w.row0, in[2] - w.col0, in[3] - w.col0}, &frame)
                                       .value;
           // A point outside the window has its node outside it: at least (index distance −
           // 1/2) cells from the query in x-y. A distance beyond that margin is re-searched

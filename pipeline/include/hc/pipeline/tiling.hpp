@@ -36,8 +36,10 @@
 /// every node of a tile's interior sees every point it depends on, in file order, with the
 /// whole scan's verdict; with scale.filter_halo_cells auto the decided region adds the
 /// isolated filter's radius, whose counts then see only checked robust verdicts, and holds the
-/// despike's count searches about the points within the grid stages' reach); (b)'s distances agree to float rounding (each tile searches in its
-/// own float frame) and the RMS figures to the last bits (summed in another order).
+/// despike's count searches about the points within the grid stages' reach); (b)'s error map,
+/// its percentiles and the supported fraction too (each tile searches in the whole grid's float
+/// frame, at its sample positions: detail::CellErrorFrame; since 2026-11-30, before to float
+/// rounding), and the RMS figures to the last bits (summed in another order).
 /// With the robust outlier filter, the scale is the whole scan's (stage tile_scale) and far
 /// clusters are found over the whole scan on coarse cells (stage tile_far_clusters; the grid is
 /// then laid out and spilled again without them). What does not yet equal the in-core run: each
