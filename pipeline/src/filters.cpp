@@ -93,6 +93,16 @@ StageResult<Cloud> remove_non_finite(Cloud cloud) {
   return {std::move(cloud), std::move(report)};
 }
 
+Cloud keep_inside_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m) {
+  std::vector<bool> keep(cloud.size());
+  for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
+    const auto p = cloud.xyz.col(i);
+    keep[static_cast<std::size_t>(i)] = (p.array() >= min_m.array()).all() && (p.array() <= max_m.array()).all();
+  }
+  cloud.keep_if(keep);
+  return cloud;
+}
+
 StageResult<Cloud> crop_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m) {
   const auto t0 = Clock::now();
   if (!min_m.allFinite() || !max_m.allFinite() || (min_m.array() > max_m.array()).any()) {
@@ -102,12 +112,7 @@ StageResult<Cloud> crop_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eig
   }
   if (cloud.size() == 0) throw InputError("crop_box: the cloud is empty");
   StageReport report = make_report("crop", cloud.size());
-  std::vector<bool> keep(cloud.size());
-  for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
-    const auto p = cloud.xyz.col(i);
-    keep[static_cast<std::size_t>(i)] = (p.array() >= min_m.array()).all() && (p.array() <= max_m.array()).all();
-  }
-  cloud.keep_if(keep);
+  cloud = keep_inside_box(std::move(cloud), min_m, max_m);
   if (cloud.size() == 0) {
     throw DegenerateInputError("crop_box: no point of " + std::to_string(report.count_in) +
                                " lies inside the box min (" + format_number(min_m.x()) + ", " + format_number(min_m.y()) + ", " +

@@ -1034,7 +1034,7 @@ Cloud to_grid_frame(Cloud chunk, const Eigen::Vector3d& centre, double unit_m, c
   if (unit_m != 1.0) chunk.xyz *= unit_m;
   chunk = apply_view_transform(std::move(chunk), config.view).value;
   chunk = remove_non_finite(std::move(chunk)).value;
-  if (config.filters.crop_m) chunk = crop_box(std::move(chunk), config.filters.crop_m->first, config.filters.crop_m->second).value;
+  if (config.filters.crop_m) chunk = keep_inside_box(std::move(chunk), config.filters.crop_m->first, config.filters.crop_m->second);
   return chunk;
 }
 
@@ -3135,6 +3135,14 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
                           });
     }
     grid_points = kept;
+    if (kept == 0 && config.filters.crop_m && box.finite > 0) {
+      // As the in-core crop stage stops (crop_box), not later at an empty grid.
+      const Eigen::Vector3d& lo = config.filters.crop_m->first;
+      const Eigen::Vector3d& hi = config.filters.crop_m->second;
+      throw DegenerateInputError("crop_box: no point of " + std::to_string(box.finite) + " lies inside the box min (" + format_number(lo.x()) +
+                                 ", " + format_number(lo.y()) + ", " + format_number(lo.z()) + ") m, max (" + format_number(hi.x()) + ", " +
+                                 format_number(hi.y()) + ", " + format_number(hi.z()) + ") m (grid frame; tiled run)");
+    }
     tiles.g = grid_geometry_of(x_min, x_max, y_min, y_max, kept, ro);
     grid_area_m2 = std::max(0.0, x_max - x_min) * std::max(0.0, y_max - y_min);
     counts.reset();

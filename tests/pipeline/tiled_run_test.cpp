@@ -1627,6 +1627,39 @@ void write_coloured_wall(const fs::path& file, std::uint64_t points) {
   hc::tools::write_relief(spec, file);
 }
 
+// filters.crop in a tiled run: each chunk of the stream is cropped, and a chunk wholly outside
+// the box is not an error (until 2026-11-30 the tiled run called crop_box per chunk, which stops
+// at a chunk with no point inside: six of the first 200 random cases of TiledDifferential). A
+// wall in a scanner's order (vertical profiles left to right), chunks of 1 024 points, a crop
+// keeping the middle third in x: most chunks lie wholly outside. Oracles: the in-core run (the
+// scene and the cross-check bit for bit); a crop holding no point stops both runs with the same
+// kind of error, naming the crop, and leaves no spill.
+TEST(TiledRun, ACropThatLeavesWholeChunksEmptyGivesTheInCoreScene) {
+  const fs::path dir = hc::test::temp_dir("crop_chunks");
+  hc::tools::ReliefSpec spec;
+  spec.points = 60'000;
+  spec.scan_order = true;
+  spec.outlier_fraction = 0.0;
+  hc::tools::write_relief(spec, dir / "wall.ply");
+  const std::string yaml =
+      "input: {files: [wall.ply], units: m}\n"
+      "grid: {n: 240, splat_radius_cells: 1.2, splat_mode: plane, see_through_depth_m: 0.02}\n"
+      "filters: {crop: {min_m: [-0.33, -1, -1], max_m: [0.33, 1, 1]}}\n"
+      "cross_check: {tolerance_m: 0.002}\nscale: {chunk_points: 1024}\n";
+  RunConfig config = hc::pipeline::parse_run_config(yaml, dir / "wall.yaml");
+  fs::create_directory(dir / "scratch");
+  expect_tiled_equals_in_core(config, 16, dir / "scratch");
+  config.filters.crop_m = std::make_pair(Eigen::Vector3d(5.0, 5.0, 5.0), Eigen::Vector3d(6.0, 6.0, 6.0));
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+  const std::string in_core = error_of<hc::DegenerateInputError>(config);
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.scratch = dir / "scratch";
+  const std::string tiled = error_of<hc::DegenerateInputError>(config);
+  EXPECT_NE(in_core.find("no point of 60000 lies inside the box"), std::string::npos) << in_core;
+  EXPECT_NE(tiled.find("no point of 60000 lies inside the box"), std::string::npos) << tiled;
+  EXPECT_TRUE(fs::is_empty(dir / "scratch"));
+}
+
 // A generated wall with colour, read natively in chunks (binary PLY), at a grid finer than the
 // scan (an upsample factor above 2, tiles aligned to it; the plan's second coverage pass).
 TEST(TiledRun, EqualsTheInCoreRunOnAColouredUpsampledWall) {

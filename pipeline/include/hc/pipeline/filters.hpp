@@ -85,6 +85,13 @@ StageResult<Cloud> remove_front_statistical_outliers(Cloud cloud, int k, double 
 /// hc::DegenerateInputError if no point lies inside.
 StageResult<Cloud> crop_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m);
 
+/// crop_box's selection alone: the points inside [min_m, max_m] (faces included), attributes
+/// kept alongside; no check, no report, and no point inside is not an error (a chunk of a
+/// streamed scan may lie wholly outside the crop: the tiled run crops chunk by chunk and judges
+/// the whole scan; until 2026-11-30 it called crop_box and stopped at such a chunk).
+Cloud keep_inside_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m);
+
+
 /// Replaces the points of each cubic voxel of edge leaf_m [m] by their centroid (PCL VoxelGrid;
 /// float32; scan_id is dropped). @throws hc::ConfigError if leaf_m <= 0 or so small that PCL's
 /// 32-bit voxel indices would overflow (the message gives the smallest usable leaf);
