@@ -309,14 +309,7 @@ TEST(TiledDifferential, RandomScansAndConfigsGiveTheInCoreScene) {
       EXPECT_EQ(in.summary.verdict->status, tiled.summary.verdict->status);
       const auto& a = *in.summary.input_check;
       const auto& b = *tiled.summary.input_check;
-      EXPECT_EQ(a.points, b.points);
-      EXPECT_EQ(a.removed, b.removed);
-      EXPECT_EQ(a.on_surface, b.on_surface);
-      EXPECT_EQ(a.off_surface, b.off_surface);
-      EXPECT_EQ(a.hidden, b.hidden);
-      EXPECT_EQ(a.no_data, b.no_data);
-      EXPECT_EQ(a.outside, b.outside);
-      EXPECT_EQ(a.far, b.far);
+      hc::test::expect_same_point_classes(a, b);
       // The isolated-point test's radius comes from the scan's spacing: the robust filter's
       // sample's in both runs; without the filter, the in-core run's strided sample and the
       // tiles' median weighted by points (honest_check.hpp, median_point_spacing), which differ.

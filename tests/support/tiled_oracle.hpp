@@ -7,6 +7,7 @@
 
 #include "hc/common/height_field.hpp"
 #include "hc/pipeline/cross_check.hpp"
+#include "hc/pipeline/honest_check.hpp"
 #include "hc/pipeline/run.hpp"
 
 #include "height_field_bits.hpp"
@@ -83,6 +84,19 @@ inline void expect_tiled_scene_equals_in_core(const hc::pipeline::BuiltScene& in
   for (const std::string& w : tiled.summary.warnings) EXPECT_EQ(w.find("the kept points span"), std::string::npos) << w;
   // The spill folder is gone.
   EXPECT_TRUE(fs::is_empty(scratch));
+}
+
+/// Expects the honest check's point classes and far points of `tiled` to be those of `in`
+/// (the in-core run's InputCheck): every point in the same class in both runs.
+inline void expect_same_point_classes(const hc::pipeline::InputCheck& in, const hc::pipeline::InputCheck& tiled) {
+  EXPECT_EQ(tiled.points, in.points);
+  EXPECT_EQ(tiled.removed, in.removed);
+  EXPECT_EQ(tiled.on_surface, in.on_surface);
+  EXPECT_EQ(tiled.off_surface, in.off_surface);
+  EXPECT_EQ(tiled.hidden, in.hidden);
+  EXPECT_EQ(tiled.no_data, in.no_data);
+  EXPECT_EQ(tiled.outside, in.outside);
+  EXPECT_EQ(tiled.far, in.far);
 }
 
 }  // namespace hc::test
