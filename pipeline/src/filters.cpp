@@ -93,12 +93,19 @@ StageResult<Cloud> remove_non_finite(Cloud cloud) {
   return {std::move(cloud), std::move(report)};
 }
 
+bool inside_box(const Eigen::Ref<const Eigen::Vector3d>& p_m, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m) {
+  return (p_m.array() >= min_m.array()).all() && (p_m.array() <= max_m.array()).all();
+}
+
+void throw_nothing_inside_box(std::size_t points, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m, const std::string& where) {
+  throw DegenerateInputError("crop_box: no point of " + std::to_string(points) + " lies inside the box min (" + format_number(min_m.x()) +
+                             ", " + format_number(min_m.y()) + ", " + format_number(min_m.z()) + ") m, max (" + format_number(max_m.x()) +
+                             ", " + format_number(max_m.y()) + ", " + format_number(max_m.z()) + ") m (grid frame" + where + ")");
+}
+
 Cloud keep_inside_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m) {
   std::vector<bool> keep(cloud.size());
-  for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) {
-    const auto p = cloud.xyz.col(i);
-    keep[static_cast<std::size_t>(i)] = (p.array() >= min_m.array()).all() && (p.array() <= max_m.array()).all();
-  }
+  for (Eigen::Index i = 0; i < cloud.xyz.cols(); ++i) keep[static_cast<std::size_t>(i)] = inside_box(cloud.xyz.col(i), min_m, max_m);
   cloud.keep_if(keep);
   return cloud;
 }
@@ -113,12 +120,7 @@ StageResult<Cloud> crop_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eig
   if (cloud.size() == 0) throw InputError("crop_box: the cloud is empty");
   StageReport report = make_report("crop", cloud.size());
   cloud = keep_inside_box(std::move(cloud), min_m, max_m);
-  if (cloud.size() == 0) {
-    throw DegenerateInputError("crop_box: no point of " + std::to_string(report.count_in) +
-                               " lies inside the box min (" + format_number(min_m.x()) + ", " + format_number(min_m.y()) + ", " +
-                               format_number(min_m.z()) + ") m, max (" + format_number(max_m.x()) + ", " + format_number(max_m.y()) + ", " +
-                               format_number(max_m.z()) + ") m (grid frame)");
-  }
+  if (cloud.size() == 0) throw_nothing_inside_box(report.count_in, min_m, max_m);
   report.count_out = cloud.size();
   report.figure("removed", static_cast<double>(report.count_in - report.count_out));
   report.seconds = seconds_since(t0);

@@ -478,11 +478,8 @@ Cloud prepare_points_staged(const RunConfig& config, std::vector<StageReport>& r
     // far_points warning advises still warned, and cropped points changed the isolated count
     // (found by tests/pipeline/tiled_differential_test.cpp).
     if (as_read) {
-      const Eigen::Vector3d& lo = config.filters.crop_m->first;
-      const Eigen::Vector3d& hi = config.filters.crop_m->second;
       for (Eigen::Index i = 0; i < as_read->cols(); ++i) {
-        const auto p = as_read->col(i);
-        if (p.allFinite() && !((p.array() >= lo.array()).all() && (p.array() <= hi.array()).all())) {
+        if (as_read->col(i).allFinite() && !inside_box(as_read->col(i), config.filters.crop_m->first, config.filters.crop_m->second)) {
           as_read->col(i).setConstant(std::numeric_limits<double>::quiet_NaN());
         }
       }

@@ -16,8 +16,8 @@
 #include <array>
 #include <atomic>
 #include <cstddef>
-#include <limits>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <vector>
 

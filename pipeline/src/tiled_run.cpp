@@ -3137,11 +3137,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     grid_points = kept;
     if (kept == 0 && config.filters.crop_m && box.finite > 0) {
       // As the in-core crop stage stops (crop_box), not later at an empty grid.
-      const Eigen::Vector3d& lo = config.filters.crop_m->first;
-      const Eigen::Vector3d& hi = config.filters.crop_m->second;
-      throw DegenerateInputError("crop_box: no point of " + std::to_string(box.finite) + " lies inside the box min (" + format_number(lo.x()) +
-                                 ", " + format_number(lo.y()) + ", " + format_number(lo.z()) + ") m, max (" + format_number(hi.x()) + ", " +
-                                 format_number(hi.y()) + ", " + format_number(hi.z()) + ") m (grid frame; tiled run)");
+      throw_nothing_inside_box(box.finite, config.filters.crop_m->first, config.filters.crop_m->second, "; tiled run");
     }
     tiles.g = grid_geometry_of(x_min, x_max, y_min, y_max, kept, ro);
     grid_area_m2 = std::max(0.0, x_max - x_min) * std::max(0.0, y_max - y_min);

@@ -8,6 +8,7 @@
 #include <Eigen/Core>
 
 #include <cstddef>
+#include <string>
 
 namespace hc::pipeline {
 
@@ -91,6 +92,15 @@ StageResult<Cloud> crop_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eig
 /// the whole scan; until 2026-11-30 it called crop_box and stopped at such a chunk).
 Cloud keep_inside_box(Cloud cloud, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m);
 
+/// crop_box's test for one point: p_m (3-vector, grid frame [m]) inside [min_m, max_m], faces
+/// included. False for a non-finite coordinate.
+bool inside_box(const Eigen::Ref<const Eigen::Vector3d>& p_m, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m);
+
+/// crop_box's error when none of `points` finite points lies inside [min_m, max_m] (grid frame
+/// [m]); `where` is appended inside the message's last parentheses (e.g. "; tiled run").
+/// @throws hc::DegenerateInputError always, naming the count and the box.
+[[noreturn]] void throw_nothing_inside_box(std::size_t points, const Eigen::Vector3d& min_m, const Eigen::Vector3d& max_m,
+                                           const std::string& where = "");
 
 /// Replaces the points of each cubic voxel of edge leaf_m [m] by their centroid (PCL VoxelGrid;
 /// float32; scan_id is dropped). @throws hc::ConfigError if leaf_m <= 0 or so small that PCL's
