@@ -1491,7 +1491,9 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
       rows.size(), threads_for(rows.size()), [&](std::size_t j) { return xyz + 3 * static_cast<std::size_t>(rows[j]); });
   const std::array<double, 3>& lo = box.first;  // named references: the lambdas below capture them
   const std::array<double, 3>& hi = box.second;
-  // Cells of edge >= link (at most 2^21 per axis: keys fit 63 bits).
+  // Cells of edge >= link (at most 2^21 per axis: keys fit 63 bits). The edge is link_m unless
+  // the box spans more than 2 097 150 links on an axis (2 km at a 1 mm link); only then does it
+  // depend on the box, and a part of a scan may link otherwise than the whole.
   const double edge = std::max({link_m, (hi[0] - lo[0]) / 2097150.0, (hi[1] - lo[1]) / 2097150.0, (hi[2] - lo[2]) / 2097150.0});
   const double far_m = o.far_distance_m > 0.0 ? o.far_distance_m : 10.0 * link_m;
   // With a scope (a tile of a scan, whose main body box is given), only the points that could
@@ -1503,8 +1505,8 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   // to a point left out passes a kept point within far − ε first, and only through kept points;
   // a kept component holding no point within far − ε is then the whole cloud's component (its
   // points, box and count), and one holding such a point has a gap below `far`, as has the
-  // whole cloud's component around it: not far, not removed. The cells are the whole cloud's (its
-  // box's origin and edge). On a tile of a scanned surface almost every point lies in the main
+  // whole cloud's component around it: not far, not removed. The cells are the whole cloud's (on
+  // multiples of its edge in the frame). On a tile of a scanned surface almost every point lies in the main
   // body's box, so the linking, the larger part of the tile's far-cluster time, is spared.
   std::size_t near_main_body = 0;
   if (scope != nullptr) {
@@ -1543,14 +1545,23 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
     if (removed_rows) removed_rows->clear();
     return result;
   }
-  std::array<std::int64_t, 3> nc{};
-  for (std::size_t a = 0; a < 3; ++a) nc[a] = static_cast<std::int64_t>((hi[a] - lo[a]) / edge) + 1;
+  // A point's cell: floor(q · (1 / edge)) per axis, counted from the box's lowest cell: the
+  // cells lie on multiples of the edge in the cloud's frame, whatever part of the scan the cloud
+  // holds, so that a tile of a scan (the tiled run, the same frame and coordinates) links its
+  // points as the whole scan does (sixty-fourth session, 2026-11-30; before, the cells started
+  // at the cloud's own box, and two points between link_m and 2√3 edges apart could share a
+  // component in one and not in the other). The multiplication rounds monotonically, so every
+  // point's index lies within [base, floor(hi · (1 / edge))]; an index one off at a cell
+  // boundary still joins every pair closer than the link: they stay in adjacent cells.
+  const double inv_edge = 1.0 / edge;
+  std::array<std::int64_t, 3> base{}, nc{};
+  for (std::size_t a = 0; a < 3; ++a) {
+    base[a] = static_cast<std::int64_t>(std::floor(lo[a] * inv_edge));
+    nc[a] = static_cast<std::int64_t>(std::floor(hi[a] * inv_edge)) - base[a] + 1;
+  }
   auto key_of = [&](std::int64_t x, std::int64_t y, std::int64_t z) {
     return static_cast<std::uint64_t>(x + nc[0] * (y + nc[1] * z));
   };
-  // A point's cell: floor((q - lo) / edge) per axis, by a multiplication (an index one off at a
-  // cell boundary still joins every pair closer than the link: they stay in adjacent cells).
-  const double inv_edge = 1.0 / edge;
   std::vector<std::uint64_t> point_keys(n);
   run_parallel(threads, [&](int t) {
     const auto [b, e] = detail::share_of(n, t, threads);
@@ -1558,7 +1569,7 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
       const double* q = xyz + 3 * static_cast<std::size_t>(rows[j]);
       std::array<std::int64_t, 3> c{};
       for (std::size_t a = 0; a < 3; ++a) {
-        c[a] = std::clamp<std::int64_t>(static_cast<std::int64_t>((q[a] - lo[a]) * inv_edge), 0, nc[a] - 1);
+        c[a] = std::clamp<std::int64_t>(static_cast<std::int64_t>(std::floor(q[a] * inv_edge)) - base[a], 0, nc[a] - 1);
       }
       point_keys[j] = key_of(c[0], c[1], c[2]);
     }

@@ -1353,7 +1353,7 @@ struct FarComp {
   auto key() const { return std::tuple(count, lo.x(), lo.y(), lo.z(), hi.x(), hi.y(), hi.z(), removed, undecided); }
 };
 // The far-cluster oracle: every finite point pair linked when their cells (edge
-// max(link, extent / 2097150) from the box's low corner) differ by at most one per axis, then
+// max(link, extent / 2097150), on multiples of it in the frame) differ by at most one per axis, then
 // the rules of FarClusterScope and remove_far_clusters on the components. Returns the far
 // components (gap > far) in key order; `removed` gets the removed points' indices.
 std::vector<FarComp> far_oracle(const std::vector<Eigen::Vector3d>& p, double link, double far, const FarClusterOptions& o,
@@ -1366,10 +1366,7 @@ std::vector<FarComp> far_oracle(const std::vector<Eigen::Vector3d>& p, double li
   const double edge = std::max({link, (hi.x() - lo.x()) / 2097150.0, (hi.y() - lo.y()) / 2097150.0, (hi.z() - lo.z()) / 2097150.0});
   std::vector<std::array<std::int64_t, 3>> cell(p.size());
   for (std::size_t i = 0; i < p.size(); ++i) {
-    for (int a = 0; a < 3; ++a) {
-      const auto cells = static_cast<std::int64_t>((hi[a] - lo[a]) / edge) + 1;
-      cell[i][a] = std::clamp<std::int64_t>(static_cast<std::int64_t>((p[i][a] - lo[a]) * (1.0 / edge)), 0, cells - 1);
-    }
+    for (int a = 0; a < 3; ++a) cell[i][a] = static_cast<std::int64_t>(std::floor(p[i][a] * (1.0 / edge)));
   }
   std::vector<std::size_t> up(p.size());
   std::iota(up.begin(), up.end(), std::size_t{0});
@@ -1514,15 +1511,15 @@ TEST(FarClusters, AClusterOneLongLinkFromAPointNearTheCutIsKeptWithTheMainBody) 
     const double link = 0.02, far = long_edge ? 0.3 : 0.1;
     const int k = long_edge ? 2 : 1;  // q's cell: k cells out from the corner's, per axis
     std::vector<Eigen::Vector3d> pts;
-    pts.emplace_back(-0.5, -0.5, -0.5);  // the cells' low corner (a far point: removed)
+    pts.emplace_back(-0.5, -0.5, -0.5);  // the box's low corner (a far point: removed)
     if (long_edge) pts.emplace_back(1e5, 0.0, 0.0);
-    const Eigen::Vector3d lo(-0.5, -0.5, -0.5);
     const double extent = long_edge ? 1e5 + 0.5 : 0.0;
     const double edge = std::max(link, extent / 2097150.0);
     ASSERT_EQ(edge > link, long_edge);
-    // The main body box's high corner c on a cell corner near (1, 0.5, 0.02); the slab under it.
+    // The main body box's high corner c on a cell corner (a multiple of the edge in the frame)
+    // near (1, 0.5, 0.02); the slab under it.
     Eigen::Vector3d c;
-    for (int a = 0; a < 3; ++a) c[a] = lo[a] + edge * std::round((Eigen::Vector3d(1.0, 0.5, 0.02)[a] - lo[a]) / edge);
+    for (int a = 0; a < 3; ++a) c[a] = edge * std::round(Eigen::Vector3d(1.0, 0.5, 0.02)[a] / edge);
     for (double x = 0.0; x <= c.x(); x += 0.01)
       for (double y = 0.0; y <= c.y(); y += 0.01) pts.emplace_back(x, y, 0.5 * c.z());
     pts.push_back(c);
@@ -1558,6 +1555,60 @@ TEST(FarClusters, AClusterOneLongLinkFromAPointNearTheCutIsKeptWithTheMainBody) 
     EXPECT_EQ(std::vector<std::size_t>(got.at.begin(), got.at.end()), want_removed) << (long_edge ? "long edge" : "edge = link");
     EXPECT_GT(find_far_clusters(cloud_of(pts), link, o, &scope).points_near_main_body, pts.size() / 2);
   }
+}
+
+// A tile of a scan links its points as the whole scan does (the tiled run's far clusters per
+// tile, FarClusterScope): sparse random points (mean spacing about the link, so that many pairs
+// lie between one link and 2√3 cell edges apart, where the cells decide) in a 1 m × 0.6 m slab;
+// parts: the points inside random x-y boxes, which start at no multiple of the edge. Every
+// component of a part whose box, grown by two cell edges, lies inside the part's x-y box must
+// be a component of the whole scan: the same count and box. With every point far from the
+// main body box (10 m away), every point is linked and every component listed. Until the
+// sixty-fourth session the cells started at each cloud's own box, and a part linked otherwise
+// (seed 331 of TiledDifferential: a point alone in a tile joined the back face in core).
+TEST(FarClusters, APartOfTheScanInTheSameFrameLinksItsPointsAsTheWholeScan) {
+  const double link = 0.02;
+  std::size_t checked = 0, single = 0;
+  for (const unsigned seed : {1u, 2u, 3u, 4u}) {
+    std::mt19937 rng(seed);
+    std::uniform_real_distribution<double> u(0.0, 1.0);
+    std::vector<Eigen::Vector3d> pts;
+    for (int i = 0; i < 450; ++i) pts.emplace_back(0.013 + u(rng), 0.007 + 0.6 * u(rng), 0.001 + 0.015 * u(rng));
+    FarClusterOptions o;
+    o.far_distance_m = 0.2;
+    o.max_points = 1000000;
+    FarClusterScope scope;
+    scope.points = pts.size();
+    scope.main_body_min_m = Eigen::Vector3d(10.0, 10.0, 10.0);
+    scope.main_body_max_m = Eigen::Vector3d(10.1, 10.1, 10.1);
+    const auto key = [](const PointCluster& pc) {
+      return std::tuple(pc.count, pc.min_m.x(), pc.min_m.y(), pc.min_m.z(), pc.max_m.x(), pc.max_m.y(), pc.max_m.z());
+    };
+    std::set<decltype(key(PointCluster{}))> whole;
+    const FarClusters all = find_far_clusters(cloud_of(pts), link, o, &scope);
+    ASSERT_EQ(all.points_near_main_body, 0U);
+    for (const PointCluster& pc : all.others) whole.insert(key(pc));
+    ASSERT_GT(whole.size(), 60U) << "sparse enough to leave many components";
+    for (int part = 0; part < 8; ++part) {
+      const double x0 = 0.4 * u(rng), y0 = 0.15 * u(rng);
+      const std::array<double, 4> box{x0, x0 + 0.3 + 0.3 * u(rng), y0, y0 + 0.25 + 0.2 * u(rng)};
+      std::vector<Eigen::Vector3d> in;
+      for (const auto& q : pts) {
+        if (q.x() >= box[0] && q.x() <= box[1] && q.y() >= box[2] && q.y() <= box[3]) in.push_back(q);
+      }
+      ASSERT_GT(in.size(), 20U);
+      const double reach = 2.0 * link * (1.0 + 1e-6);
+      for (const PointCluster& pc : find_far_clusters(cloud_of(in), link, o, &scope).others) {
+        if (pc.min_m.x() - reach < box[0] || pc.max_m.x() + reach > box[1] || pc.min_m.y() - reach < box[2] || pc.max_m.y() + reach > box[3]) continue;
+        EXPECT_EQ(whole.count(key(pc)), 1U) << "seed " << seed << ", part " << part << ": a component of " << pc.count << " points at ("
+                                            << pc.min_m.x() << ", " << pc.min_m.y() << ") is not one of the whole scan's";
+        ++checked;
+        single += pc.count == 1 ? 1U : 0U;
+      }
+    }
+  }
+  EXPECT_GT(checked, 200U);
+  EXPECT_GT(single, 20U);
 }
 
 }  // namespace

@@ -231,8 +231,6 @@ constexpr KnownDivergence kKnownDivergences[] = {
     {198, "grid.upsample auto, as seed 121 (factor 1 against 2: the coverage at 1 is 0.90001 before the filters)"},
     {308, "the tiles' despike removes one point more than the in-core despike (plane splats of radius 0.93, 63-cell tiles, "
           "scale.tile_max_points 2899)"},
-    {331, "scale.filter_halo_cells 3 (fixed): a tile removes a point the in-core run keeps, where a halo too narrow should "
-          "stop the run naming the key"},
 };
 
 const KnownDivergence* known_divergence(std::uint64_t seed) {

@@ -352,15 +352,18 @@ struct FarClusters {
 /// small and far (see remove_far_clusters). Two points closer than link_m always share a
 /// component; the components are unions of grid cells of edge ≥ link_m linked with their 26
 /// neighbours, so points up to 2√3 cell edges apart may share one too (a coarser linking, never
-/// a finer one). Cost O(N): cells found in a dense table, or by sorted keys (radix sort, binary
+/// a finer one). The cells lie on multiples of the edge in the cloud's frame (not on the
+/// cloud's box), and the edge is link_m unless the box spans more than 2 097 150 links on an
+/// axis: a part of a scan in the same frame and coordinates links its points as the whole scan
+/// does (sixty-fourth session, 2026-11-30). Cost O(N): cells found in a dense table, or by sorted keys (radix sort, binary
 /// searches) when the box has more than 4 cells per point. Non-finite points are ignored.
 /// @param link_m  > 0 [m]; far_distance_m in `options` (0 = 10·link_m) and max_points /
 ///                max_fraction decide `removed`.
 /// @param scope   when given, the cloud is part of a scan (FarClusterScope): gaps to its main
 ///                body box, N its points, removal only of clusters complete in its box. Only
 ///                the points farther than far − δ from the main body box are linked (δ: the
-///                longest link, 2√3 cell edges, plus a millionth of an edge), on the cells of the
-///                whole cloud's box: the far clusters, their points, boxes and counts are those
+///                longest link, 2√3 cell edges, plus a millionth of an edge), on the whole
+///                cloud's cells: the far clusters, their points, boxes and counts are those
 ///                of linking every point (a chain of links from a point beyond `far` to one left
 ///                out passes a linked point within far − ε, so its component is not far either
 ///                way); `others` lists the linked points' components only (fifty-seventh
