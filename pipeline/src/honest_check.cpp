@@ -1599,9 +1599,17 @@ StageResult<Cloud> remove_isolated_points(Cloud cloud, const HonestCheckOptions&
 
 StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& o,
                                        double reach_cells, double spacing_m, double upsample_factor,
-                                       RemovedPoints* removed_points) {
+                                       RemovedPoints* removed_points, const GridWindow* window) {
   check_honest_options(o);
   if (removed_points != nullptr) *removed_points = RemovedPoints{};
+  if (window != nullptr && (window->rows != grid.rows() || window->cols != grid.cols() || window->row0 < 0 || window->col0 < 0 ||
+                            window->row0 + window->rows > window->grid.rows || window->col0 + window->cols > window->grid.cols)) {
+    throw std::invalid_argument("remove_spike_points: a window of rows " + std::to_string(window->row0) + " + " +
+                                std::to_string(window->rows) + ", cols " + std::to_string(window->col0) + " + " +
+                                std::to_string(window->cols) + " of a " + std::to_string(window->grid.rows) + " x " +
+                                std::to_string(window->grid.cols) + " grid for a " + std::to_string(grid.rows()) + " x " +
+                                std::to_string(grid.cols()) + " height field");
+  }
   if (!(reach_cells >= 0.0) || !std::isfinite(reach_cells)) {
     throw std::invalid_argument("remove_spike_points: reach_cells = " + std::to_string(reach_cells) +
                                 " (expected a finite value >= 0)");
@@ -1632,23 +1640,34 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
   // Spike cells: more than spike_min_height_m above the least-squares plane through the other
   // valid cells of the window (at least 3 of them). A plane, not the median: on a steep flank
   // the window's spread hides a spike from a median and MAD test, not from the plane. In a full
-  // window the offsets are symmetric, so the plane at the node is the mean of the other cells
-  // (summed-area tables); partial windows (rims, holes) are solved.
+  // window the offsets are symmetric, so the plane at the node is the mean of the other cells;
+  // partial windows (rims, holes) are solved. The valid cells are counted by a summed-area
+  // table (integers: exact); a full window's heights are summed in a fixed order about the cell
+  // (its columns' sums of 2h + 1 rows, then those left to right), so that a tile's window of
+  // the grid gives the whole grid's base to the bit. (Until the sixty-fourth session,
+  // 2026-11-30, a summed-area table of the heights gave it, whose rounding depends on where
+  // the grid starts: a cell a rounding error from the spike height could be judged otherwise
+  // in a window. No run was seen to differ by it.)
   const std::size_t ucols = static_cast<std::size_t>(g.cols), w1 = ucols + 1;
-  std::vector<double> sat_z((static_cast<std::size_t>(g.rows) + 1) * w1, 0.0);
-  std::vector<std::uint32_t> sat_n(sat_z.size(), 0u);
+  std::vector<std::uint32_t> sat_n((static_cast<std::size_t>(g.rows) + 1) * w1, 0u);
   for (int r = 0; r < g.rows; ++r) {
-    double run_z = 0.0;
     std::uint32_t run_n = 0;
     for (int c = 0; c < g.cols; ++c) {
-      const float v = grid.at(r, c);
-      if (!std::isnan(v)) {
-        run_z += static_cast<double>(v);
-        ++run_n;
-      }
+      run_n += std::isnan(grid.at(r, c)) ? 0U : 1U;
       const std::size_t k = (static_cast<std::size_t>(r) + 1) * w1 + static_cast<std::size_t>(c) + 1;
-      sat_z[k] = sat_z[k - w1] + run_z;
       sat_n[k] = sat_n[k - w1] + run_n;
+    }
+  }
+  // column_z[r · cols + c]: the valid heights of column c over rows r − h .. r + h (clipped),
+  // summed top to bottom.
+  std::vector<double> column_z(static_cast<std::size_t>(g.rows) * ucols, 0.0);
+  for (int r = 0; r < g.rows; ++r) {
+    double* out = column_z.data() + static_cast<std::size_t>(r) * ucols;
+    for (int rr = std::max(0, r - h); rr < std::min(g.rows, r + h + 1); ++rr) {
+      for (int c = 0; c < g.cols; ++c) {
+        const float v = grid.at(rr, c);
+        out[c] += std::isnan(v) ? 0.0 : static_cast<double>(v);
+      }
     }
   }
   const auto full = static_cast<std::uint32_t>((2 * h + 1) * (2 * h + 1));
@@ -1676,7 +1695,9 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     const std::uint32_t n_win = sat_n[r1 * w1 + c1] + sat_n[r0 * w1 + c0] - sat_n[r0 * w1 + c1] - sat_n[r1 * w1 + c0];
     double base;
     if (n_win == full) {
-      const double sum = sat_z[r1 * w1 + c1] + sat_z[r0 * w1 + c0] - sat_z[r0 * w1 + c1] - sat_z[r1 * w1 + c0];
+      const double* col_sums = column_z.data() + static_cast<std::size_t>(r) * ucols;
+      double sum = 0.0;
+      for (std::size_t cc = c0; cc < c1; ++cc) sum += col_sums[cc];
       base = (sum - static_cast<double>(z)) / static_cast<double>(full - 1);
     } else {
       if (n_win < 4) return rim_or_nothing();  // the cell and at least 3 others
@@ -1746,6 +1767,11 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
     // Points binned by nearest node (reproject's rule), as compressed rows: first[cell]..first[cell + 1].
     const std::size_t n = cloud.size(), cells = g.cell_count();
     const double inv = 1.0 / g.cell_size_m;
+    // Nodes as reproject bins them, on the whole grid when a window is given.
+    const GridGeometry& whole = window != nullptr ? window->grid : g;
+    const double inv_whole = 1.0 / whole.cell_size_m;
+    const double cx = 0.5 - whole.x0_m * inv_whole, cy = 0.5 - whole.y0_m * inv_whole;
+    const double first_col = window != nullptr ? window->col0 : 0, first_row = window != nullptr ? window->row0 : 0;
     std::vector<std::uint32_t> cell_of(n, std::numeric_limits<std::uint32_t>::max());
     std::vector<std::uint32_t> first(cells + 1, 0);
     const int bin_threads = n > (std::size_t{1} << 17) ? detail::kSearchThreads : 1;
@@ -1754,7 +1780,7 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
       for (std::size_t i = b; i < e; ++i) {
         const auto p = cloud.xyz.col(static_cast<Eigen::Index>(i));
         if (!p.allFinite()) continue;
-        const double fc = floor_of((p.x() - g.x0_m) * inv + 0.5), fr = floor_of((p.y() - g.y0_m) * inv + 0.5);
+        const double fc = floor_of(p.x() * inv_whole + cx) - first_col, fr = floor_of(p.y() * inv_whole + cy) - first_row;
         if (fc < 0.0 || fr < 0.0 || fc >= g.cols || fr >= g.rows) continue;
         cell_of[i] = static_cast<std::uint32_t>(static_cast<std::size_t>(fr) * static_cast<std::size_t>(g.cols) + static_cast<std::size_t>(fc));
       }

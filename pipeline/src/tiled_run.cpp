@@ -2508,7 +2508,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       HonestCheckOptions despike_options = config.cross_check.honest;
       despike_options.spare_largest_group = false;
       auto ds = remove_spike_points(std::move(pts), part.depth, despike_options, despike_reach_cells(config, tiles.k),
-                                    std::isfinite(spacing_m) ? spacing_m : 0.0, tiles.k, &removed);
+                                    std::isfinite(spacing_m) ? spacing_m : 0.0, tiles.k, &removed, &w);
       add_figures(o.sums, ds.report);
       const int reach = grid_reach_cells(config, tiles.k);  // R [nodes]
       // The island labels the despike reads, of the cells within R + ⌈reach⌉ of the interior

@@ -613,6 +613,93 @@ TEST(DespikeGrid, RemovesStraysInFrontAndInTheBackgroundAndKeepsDenseRelief) {
   EXPECT_GT(hc::test::figure(r.report, "spike_cells"), 4.0);
 }
 
+// A window of the grid given as such (remove_spike_points' `window`) bins each point where the
+// whole grid does, so that its verdicts are the whole grid's. The construction makes a point's
+// verdict hang on its node: on a ramp of −1 mm a column (cells of 1.6889 mm, an origin that is
+// no round number), spike cells 8 mm above it at columns c − 1 and c + 2 of a row, and a stray
+// S on the boundary between the nodes c and c + 1 with three neighbours 3.6 mm from it. Binned
+// to node c, S is a candidate of the spike at c − 1 only, 4.5 mm above its plane: its radius is
+// ρ_lo = 3.378 mm and it has no neighbour within it (removed); binned to c + 1, of the spike at
+// c + 2 only, 7.5 mm above: ρ = 3.75 mm and three neighbours (kept); controls a hundredth of
+// a cell off the boundary show both. 72 such strays, each on
+// a node boundary as the grid computes it (x_of_col(c + 0.5)), where a window's own origin (the
+// whole grid's plus col0 cells) rounds some of them to the other node. The oracle is the whole
+// grid's call: every point whose node lies more than 10 cells inside a window (the spikes'
+// planes and the count's rings held) gets the whole grid's verdict. TiledDifferential seed 308
+// (sixty-fourth session, 2026-11-30): a tile kept a stray the in-core run removed.
+TEST(DespikeGrid, AWindowGivenAsSuchBinsItsPointsAsTheWholeGridAndJudgesThemAlike) {
+  GridGeometry g;
+  g.rows = 40;
+  g.cols = 200;
+  g.x0_m = -0.29640000000000001;
+  g.y0_m = -0.23644444444444446;
+  g.cell_size_m = 0.0016888888888888889;
+  HeightField grid(g);
+  const auto ramp = [](double c) { return -0.001 * c; };
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) grid.at(r, c) = static_cast<float>(ramp(c));
+  std::vector<Eigen::Vector3d> pts;
+  std::vector<std::size_t> strays;    // on node boundaries
+  std::vector<std::size_t> controls;  // a hundredth of a cell before a boundary, then after it
+  for (const int r : {5, 10, 15, 20, 25, 35}) {
+    for (int c = 10; c < 190; c += 10) {
+      grid.at(r, c - 1) = static_cast<float>(ramp(c - 1) + 0.008);
+      grid.at(r, c + 2) = static_cast<float>(ramp(c + 2) + 0.008);
+      const bool control = r == 10 || r == 20;
+      const double at = c + 0.5 + (control ? (r == 10 ? -0.01 : 0.01) : 0.0);
+      const Eigen::Vector3d s(g.x_of_col(at), g.y_of_row(r), ramp(c + 0.5) + 0.006);
+      (control ? controls : strays).push_back(pts.size());
+      pts.push_back(s);
+      for (const Eigen::Vector3d& d : {Eigen::Vector3d(0, 1, 0), Eigen::Vector3d(0, -1, 0), Eigen::Vector3d(0, 0, 1)}) pts.push_back(s + 0.0036 * d);
+    }
+  }
+  const Cloud cloud = cloud_of(pts);
+  HonestCheckOptions o;
+  o.spike_min_height_m = 0.004;
+  const auto verdicts = [&](const HeightField& field, const GridWindow* w) {
+    RemovedPoints removed;
+    (void)remove_spike_points(cloud, field, o, 1.0, 0.0, 1.0, &removed, w);
+    std::vector<std::uint8_t> gone(cloud.size(), 0);
+    for (const std::size_t i : removed.at) gone[i] = 1;
+    return gone;
+  };
+  const std::vector<std::uint8_t> whole = verdicts(grid, nullptr);
+  // The construction: a stray binned to node c goes, one binned to c + 1 stays.
+  for (const std::size_t i : controls) {
+    const bool before = g.col_of_x(pts[i].x()) - std::floor(g.col_of_x(pts[i].x())) < 0.5;
+    EXPECT_EQ(whole[i], before ? 1 : 0) << "control stray " << i << " at column " << g.col_of_x(pts[i].x());
+  }
+  std::size_t compared = 0;
+  for (const int col0 : {1, 3, 7, 11, 13, 29, 37, 53, 61, 77, 90}) {
+    GridWindow w;
+    w.grid = g;
+    w.row0 = 0;
+    w.col0 = col0;
+    w.rows = g.rows;
+    w.cols = std::min(g.cols - col0, 97);
+    GridGeometry wg = g;
+    wg.x0_m = g.x_of_col(col0);
+    wg.cols = w.cols;
+    HeightField part(wg);
+    for (int r = 0; r < wg.rows; ++r)
+      for (int c = 0; c < wg.cols; ++c) part.at(r, c) = grid.at(r, c + col0);
+    const std::vector<std::uint8_t> got = verdicts(part, &w);
+    for (const std::size_t i : strays) {
+      const double c = g.col_of_x(pts[i].x());
+      if (c < col0 + 10 || c > col0 + w.cols - 11) continue;
+      for (std::size_t j = i; j < i + 4; ++j) EXPECT_EQ(got[j], whole[j]) << "window from column " << col0 << ", point " << j << " (stray " << i << ")";
+      compared += 4;
+    }
+  }
+  EXPECT_GT(compared, 400U);
+  // A window that does not fit its height field is refused.
+  GridWindow bad;
+  bad.grid = g;
+  bad.rows = g.rows;
+  bad.cols = 10;
+  EXPECT_THROW((void)remove_spike_points(cloud, grid, o, 1.0, 0.0, 1.0, nullptr, &bad), std::invalid_argument);
+}
+
 // despike_grid_reach_cells, which sizes the tiled run's halo (a tile's window gives the
 // despike the whole grid only that near the points whose verdicts it keeps): a point's verdict
 // reads the grid only within D = ⌈reach⌉ + spike_window_cells / 2 cells (Chebyshev) of its node.

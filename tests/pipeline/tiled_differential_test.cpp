@@ -229,8 +229,6 @@ constexpr KnownDivergence kKnownDivergences[] = {
     {121, "grid.upsample auto: the tiled plan takes the coverage of every point, the in-core run that of the points its "
           "filters keep (factor 3 against 4: the coverage at 3 is 0.90015 before the filters)"},
     {198, "grid.upsample auto, as seed 121 (factor 1 against 2: the coverage at 1 is 0.90001 before the filters)"},
-    {308, "the tiles' despike removes one point more than the in-core despike (plane splats of radius 0.93, 63-cell tiles, "
-          "scale.tile_max_points 2899)"},
 };
 
 const KnownDivergence* known_divergence(std::uint64_t seed) {

@@ -19,6 +19,7 @@
 
 #include "hc/common/height_field.hpp"
 #include "hc/pipeline/cloud.hpp"
+#include "hc/pipeline/reproject.hpp"
 
 #include <Eigen/Core>
 
@@ -377,9 +378,16 @@ double isolated_filter_radius_m(const HonestCheckOptions& options, double spacin
 ///         std::invalid_argument if reach_cells or spacing_m is negative or not finite, or
 ///         upsample_factor is below 1 or not finite.
 /// Source: this project (the radius test of Rusu 2009 applied at the spike's own scale).
+/// @param window   when given, `grid` is this window of window->grid (rows and cols equal), and
+///                 the points are binned by the whole grid's nodes (node = ⌊p · (1 / cell) +
+///                 (0.5 − origin / cell)⌋ per axis, reproject's rule, less the window's first row
+///                 and column), so that a tiled run's window bins each point where the whole grid
+///                 does: a point on a node boundary rounds alike (the window's own origin, the
+///                 whole grid's plus a number of cells, rounds otherwise; TiledDifferential seed
+///                 308, sixty-fourth session, 2026-11-30). Without it, the same rule on `grid`.
 StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& options,
                                        double reach_cells, double spacing_m, double upsample_factor = 1.0,
-                                       RemovedPoints* removed = nullptr);
+                                       RemovedPoints* removed = nullptr, const GridWindow* window = nullptr);
 
 /// The widest of remove_spike_points' neighbour searches [m], ρ_rim = max(4 × upsample_factor ×
 /// cell_m, 4 × spacing_m) (it bounds ρ_lo and ρ_hi), for a grid of cell_m [m] cells upsampled by
