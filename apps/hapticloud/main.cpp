@@ -97,10 +97,11 @@ int main(int argc, char** argv) {
     std::cerr << "hapticloud: verdict fail: " << e.what() << "\n";
     return kExitVerdictFail;
   } catch (const hc::pipeline::UndecidedIslandsError& e) {
-    std::cerr << "hapticloud: error: " << e.what() << "\n";
+    // Under auto an expected step of a tile job (the driver plans again), not an error.
+    std::cerr << "hapticloud: " << (e.under_auto ? "plan again: " : "error: ") << e.what() << "\n";
     return e.under_auto ? kExitPlanAgain : kExitInput;
   } catch (const hc::pipeline::GridBoxError& e) {
-    std::cerr << "hapticloud: error: " << e.what() << "\n";
+    std::cerr << "hapticloud: plan again: " << e.what() << "\n";
     return kExitGridBox;
   } catch (const hc::Error& e) {
     std::cerr << "hapticloud: error: " << e.what() << "\n";
