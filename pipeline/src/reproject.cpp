@@ -62,6 +62,7 @@
 #include "hc/common/error.hpp"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <exception>
@@ -742,6 +743,8 @@ std::size_t hit_words(const GridGeometry& g) { return (g.cell_count() + 63) / 64
 
 // Of the hit nodes not on the border, the fraction whose 4 neighbours are hit.
 double coverage_of_hits(const std::vector<std::uint64_t>& hit, const GridGeometry& g);
+// The counts behind it: the hit nodes not on the border, and those of them whose 4 neighbours are hit.
+std::array<std::uint64_t, 2> coverage_counts_of_hits(const std::vector<std::uint64_t>& hit, const GridGeometry& g);
 
 double coverage_on(const double* p, std::size_t n, const GridGeometry& g, bool all_finite) {
   std::vector<std::uint64_t> hit(hit_words(g), 0);
@@ -757,6 +760,11 @@ double coverage_on(const double* p, std::size_t n, const GridGeometry& g, bool a
 }
 
 double coverage_of_hits(const std::vector<std::uint64_t>& hit, const GridGeometry& g) {
+  const auto [occupied, interior] = coverage_counts_of_hits(hit, g);
+  return occupied == 0 ? 0.0 : static_cast<double>(interior) / static_cast<double>(occupied);
+}
+
+std::array<std::uint64_t, 2> coverage_counts_of_hits(const std::vector<std::uint64_t>& hit, const GridGeometry& g) {
   const std::size_t cols = static_cast<std::size_t>(g.cols);
   const auto at = [&](std::size_t i) { return static_cast<unsigned>((hit[i >> 6] >> (i & 63)) & 1U); };
   std::size_t occupied = 0, interior = 0;
@@ -768,7 +776,7 @@ double coverage_of_hits(const std::vector<std::uint64_t>& hit, const GridGeometr
       interior += (at(i - 1) & at(i + 1) & at(i - cols) & at(i + cols)) != 0U ? 1U : 0U;
     }
   }
-  return occupied == 0 ? 0.0 : static_cast<double>(interior) / static_cast<double>(occupied);
+  return {occupied, interior};
 }
 
 // The grid whose node (R, C) is node (K·R, K·C) of g: same origin, K× the cell, covering g.
@@ -1626,6 +1634,13 @@ UpsampleCoverage::UpsampleCoverage(const GridGeometry& g, int k_first, int k_las
 
 void UpsampleCoverage::add(const double* xyz, std::size_t n) {
   for (std::size_t k = 0; k < coarse_.size(); ++k) mark_hits(xyz, n, coarse_[k], false, hit_[k].data());
+  points_ += n;
+}
+
+std::optional<std::array<std::uint64_t, 2>> UpsampleCoverage::counts(int k) const {
+  if (k < k_first_ || k > k_last_ || static_cast<std::size_t>(k - k_first_) >= coarse_.size()) return std::nullopt;
+  const std::size_t at = static_cast<std::size_t>(k - k_first_);
+  return coverage_counts_of_hits(hit_[at], coarse_[at]);
 }
 
 int UpsampleCoverage::factor(double* coverage) const {

@@ -1351,6 +1351,11 @@ struct Plan {
   // did not run.
   std::optional<std::array<Eigen::Vector3d, 2>> far_main_box_m;
   std::uint64_t far_size_points = 0;  // N of the far clusters' size limit: the points after non-finite and crop
+  // grid.upsample: auto (in process; a plan read from plan.json has none): the coverage counts
+  // of factors 1 to tiles.k (UpsampleCoverage::counts, index k − 1) over the factor_points
+  // points the plan chose the factor from, for factor_may_change; empty when not known.
+  std::vector<std::array<std::uint64_t, 2>> factor_counts;
+  std::uint64_t factor_points = 0;
   detail::StoredPrecision precision;
   Eigen::Vector3d offset_m = Eigen::Vector3d::Zero();
   std::string crs;
@@ -2988,6 +2993,24 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   // scan's points; `counted` once a pass over every point has filled them.
   bool counted = false;
   double coverage = 0.0;  // the upsample coverage at the factor chosen
+  // grid.upsample: auto: factor j's coverage counts (UpsampleCoverage::counts) at index j − 1,
+  // for j = 1 to the factor chosen, over the factor_points points it was chosen from (Plan).
+  std::vector<std::array<std::uint64_t, 2>> factor_counts;
+  std::uint64_t factor_points = 0;
+  const auto take_counts = [&](const UpsampleCoverage& cov, int k_first, int k_to) {
+    for (int j = k_first; j <= k_to; ++j) {
+      const auto c = cov.counts(j);
+      if (!c || factor_counts.size() != static_cast<std::size_t>(j - 1)) {  // not tracked: none known
+        factor_counts.clear();
+        factor_points = 0;
+        return;
+      }
+      factor_counts.push_back(*c);
+    }
+    factor_points = cov.points();
+  };
+  // The factor an earlier attempt found on the kept points (ScaleConfig::GridBox::upsample_factor).
+  const int carried_k = config.scale.grid_box ? config.scale.grid_box->upsample_factor : 0;
   // The upsample coverage of factors k_first to k_last over the input (without the points `far`
   // holds), in a pass of its own that fills `counts` too when they are wanted and not counted;
   // returns UpsampleCoverage::factor.
@@ -3006,7 +3029,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       }
     });
     counted = counted || count;
-    return cov.factor(&coverage);
+    const int k = cov.factor(&coverage);
+    take_counts(cov, k_first, k > 0 ? k : k_last);
+    return k;
   };
   // The tiles for the factor tiles.k on the grid tiles.g (the last lay_out's): their side
   // (scale.tile_cells, a multiple of the factor), the filter halo and the halo; with
@@ -3147,7 +3172,9 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     coverage_passes = 0;
     count_pass = false;
     spill_coverage.reset();
-    if (config.grid.reproject.upsample_factor == 0) {
+    factor_counts.clear();
+    factor_points = 0;
+    if (config.grid.reproject.upsample_factor == 0 && carried_k == 0) {
       bool guess = !far;
       if (guess) {
         tiles.k = 1;
@@ -3172,7 +3199,11 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       }
       rep.figure("upsample_coverage", coverage);
     } else {
-      tiles.k = ro.upsample_factor;
+      tiles.k = carried_k > 0 ? carried_k : ro.upsample_factor;
+      if (carried_k > 0) {
+        rep.notes.push_back("upsample factor " + std::to_string(carried_k) + ": the factor grid.upsample: auto gives the points an earlier "
+                            "attempt's filters kept on this grid, as the in-core run chooses it");
+      }
     }
     cut_tiles(rep, stage_name, true);
   };
@@ -3384,6 +3415,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
     if (plan_rep == nullptr) throw std::logic_error("tiled run: settle_layout before stage tile_plan");
     counted = counts.has_value();
     int k = spill_coverage->factor(&coverage);
+    take_counts(*spill_coverage, 1, k > 0 ? k : 2);
     spill_coverage.reset();
     if (k == 0) {
       k = coverage_pass(nullptr, 3, kMaxUpsampleFactor, "tile_spill", "the upsample coverage, factors 3 and more");
@@ -3748,7 +3780,7 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
         // old_k, not of larger ones (factor() returns another value exactly when the full
         // range's search would). Coverage is not monotone in the points (an isolated hit lowers
         // it), so the smaller factors are tracked again.
-        if (config.grid.reproject.upsample_factor == 0) cov.emplace(old_g, 1, old_k);
+        if (config.grid.reproject.upsample_factor == 0 && carried_k == 0) cov.emplace(old_g, 1, old_k);
         std::vector<double> own_kept;  // a tile's kept points, for the coverage in one batch
         const NodeBinner node(old_g);
         detail::PassProgress tick2(progress, "tile_far_clusters", "far points re-marked in the spill, tile by tile", config.scale.progress_interval_s);
@@ -3790,7 +3822,11 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
           if (same_layout && cov) {
             double without_far = 0.0;
             same_layout = cov->factor(&without_far) == old_k;
-            if (same_layout) r.report.figure("upsample_coverage", without_far);  // else lay_out reports it
+            if (same_layout) {
+              r.report.figure("upsample_coverage", without_far);  // else lay_out reports it
+              factor_counts.clear();
+              take_counts(*cov, 1, old_k);
+            }
           }
           ro.upsample_factor = old_k;
         }
@@ -3858,6 +3894,8 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   }
 
   plan.tiles = tiles;
+  plan.factor_counts = std::move(factor_counts);
+  plan.factor_points = factor_points;
   plan.layout = box.layout;
   plan.robust_scale = robust_scale;
   plan.input_points = box.points;
@@ -4471,11 +4509,12 @@ nlohmann::json report_json(const StageReport& r) {
 }
 
 // A ScaleConfig::GridBox as plan.json and grid_box.json hold it: its bounds [m] as hexadecimal
-// floats, its point count, `last`, the despike's removed points [m] (sorted, as
+// floats, its point count, `last`, the upsample factor (0: the plan's choice), the despike's removed points [m] (sorted, as
 // grid_on_kept_points leaves them; null: none taken over) and the despike's figures.
 nlohmann::json grid_box_json(const ScaleConfig::GridBox& b) {
   nlohmann::json j{{"x_min_m", hex(b.x_min_m)}, {"x_max_m", hex(b.x_max_m)}, {"y_min_m", hex(b.y_min_m)},
-                   {"y_max_m", hex(b.y_max_m)}, {"points", b.points},          {"last", b.last}};
+                   {"y_max_m", hex(b.y_max_m)}, {"points", b.points},          {"last", b.last},
+                   {"upsample_factor", b.upsample_factor}};
   j["despiked_m"] = nullptr;
   if (b.despiked_m) {
     j["despiked_m"] = nlohmann::json::array();
@@ -4509,6 +4548,14 @@ ScaleConfig::GridBox grid_box_of(const nlohmann::json& j, const fs::path& file, 
   }
   b.points = j.at("points").get<std::uint64_t>();
   b.last = j.at("last").get<bool>();
+  if (j.contains("upsample_factor")) {  // absent in the files of builds before 2026-11-30: 0
+    const auto& k = j.at("upsample_factor");
+    if (!k.is_number_integer() || k.get<int>() < 0 || k.get<int>() > kMaxUpsampleFactor) {
+      throw InputError(file.string() + ": " + key + ".upsample_factor is " + k.dump() + ", expected 0 (the plan chooses) or a factor 1 to " +
+                       std::to_string(kMaxUpsampleFactor));
+    }
+    b.upsample_factor = k.get<int>();
+  }
   if (const auto& d = j.at("despiked_m"); !d.is_null()) {
     if (!d.is_array()) throw InputError(file.string() + ": " + key + ".despiked_m is not a list of points (x y z [m]) or null");
     auto v = std::make_shared<std::vector<std::array<double, 3>>>();
@@ -5033,14 +5080,59 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
 // ScaleConfig::grid_box yet) when the outlier filters removed a point that set the x-y box the
 // grid was laid on: the in-core run lays it on `box`, the kept points' box, as `kept`.
 struct GridOnKeptPoints : std::runtime_error {
-  GridOnKeptPoints(ScaleConfig::GridBox b, const GridGeometry& f, const GridGeometry& k, bool d)
+  GridOnKeptPoints(ScaleConfig::GridBox b, const GridGeometry& f, const GridGeometry& k, bool d, int k_first = 0)
       : std::runtime_error("tiled run: the grid is to be laid on the kept points (caught by build_scene_tiled)"),
-        box(std::move(b)), first(f), kept(k), after_despike(d) {}
+        box(std::move(b)), first(f), kept(k), after_despike(d), first_factor(k_first) {}
   ScaleConfig::GridBox box;
   GridGeometry first, kept;
   bool after_despike = false;  // the box left after the despike (its removals taken over)
+  int first_factor = 0;        // the attempt's upsample factor, where box.upsample_factor differs from it
   std::string island_halo_widened;  // the warning, when the attempt ran with the wider grid share
 };
+
+// Whether grid.upsample: auto could give another factor than the plan's (plan.tiles.k) to
+// `kept_points` of the plan.factor_points it chose from (a subset: the filters only remove).
+// Removing a point un-hits at most one node of a factor's grid, which takes one node out of
+// the hit ones (O) and at most five out of those with their 4 neighbours hit (I, itself and its
+// neighbours): with m removed, a factor's coverage I / O stays within [(I − 5m) / (O − m),
+// I / (O − m)]. It may change when a factor below the plan's could reach
+// kAutoUpsampleCoverage or the plan's fall below it. True when the plan's counts are not known
+// (a plan read from plan.json, a factor carried over): then the kept points are read.
+bool factor_may_change(const Plan& plan, std::uint64_t kept_points) {
+  const std::size_t k = static_cast<std::size_t>(plan.tiles.k);
+  if (plan.factor_counts.size() != k || kept_points > plan.factor_points) return true;
+  const double m = static_cast<double>(plan.factor_points - kept_points);
+  for (std::size_t j = 0; j < k; ++j) {
+    const double o = static_cast<double>(plan.factor_counts[j][0]), i = static_cast<double>(plan.factor_counts[j][1]);
+    if (!(o - m > 0.0)) return true;
+    if (j + 1 < k && i / (o - m) >= kAutoUpsampleCoverage) return true;  // a smaller factor could pass
+    if (j + 1 == k && (i - 5.0 * m) / (o - m) < kAutoUpsampleCoverage) return true;  // the plan's could fail
+  }
+  return false;
+}
+
+// The factor grid.upsample: auto gives on grid g (UpsampleCoverage over every factor) the
+// interior points the tiles kept (KeptMask, read through the spill) and, with `despiked`, the
+// points their despike removed (TileMerge::despiked_m): those the in-core run's filters keep
+// before its despike; without, those it leaves. One read of the kept points.
+int kept_points_factor(const Plan& plan, const KeptMask& kept, const GridGeometry& g, const std::vector<std::array<double, 3>>* despiked) {
+  UpsampleCoverage cov(g, 1, kMaxUpsampleFactor);
+  std::vector<std::uint8_t> flag;
+  std::vector<double> own;
+  for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
+    const Cloud pts = kept.read(t, flag);
+    own.clear();
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      if (flag[i] == 1) own.insert(own.end(), pts.xyz.data() + 3 * i, pts.xyz.data() + 3 * i + 3);
+    }
+    cov.add(own.data(), own.size() / 3);
+  }
+  if (despiked != nullptr) {
+    for (const auto& p : *despiked) cov.add(p.data(), 1);
+  }
+  double coverage = 0.0;
+  return cov.factor(&coverage);
+}
 
 // scale.grid_on_kept_points after a tile loop (in process or merged from tile jobs): where the
 // points the tiles' filters kept (TileMerge::kept_box), or those their despike left
@@ -5048,7 +5140,7 @@ struct GridOnKeptPoints : std::runtime_error {
 // First the filters' box (the despike must judge on its grid), then the despike's (its removals
 // taken over: GridBox::despiked_m, despike_sums). None when the key is false, the plan's box is
 // already the despike's or the last one (GridBox::last), or the grids agree.
-std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, const Plan& plan, TileMerge& merged) {
+std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, const Plan& plan, TileMerge& merged, const KeptMask& kept) {
   const ScaleConfig::GridBox* now_box = config.scale.grid_box ? &*config.scale.grid_box : nullptr;
   const bool checks = config.scale.grid_on_kept_points && !(now_box != nullptr && (now_box->despiked_m || now_box->last));
   if (!checks || merged.kept_box.points == 0) return std::nullopt;
@@ -5058,12 +5150,31 @@ std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, con
     g.x_min_m = b.x_lo, g.x_max_m = b.x_hi, g.y_min_m = b.y_lo, g.y_max_m = b.y_hi, g.points = b.points;
     return g;
   };
+  // grid.upsample: auto: the in-core run chooses the factor on the points its filters keep, and
+  // again on those its despike leaves (reproject_after_removal).
+  const bool auto_k = config.grid.reproject.upsample_factor == 0;
+  const bool k_carried = now_box != nullptr && now_box->upsample_factor > 0;  // found on these very points
   if (const GridGeometry g = geometry(merged.kept_box); !(g == plan.tiles.g)) {
-    return GridOnKeptPoints(box_of(merged.kept_box), plan.tiles.g, g, false);
+    ScaleConfig::GridBox b = box_of(merged.kept_box);
+    if (auto_k) b.upsample_factor = kept_points_factor(plan, kept, g, &merged.despiked_m);
+    return GridOnKeptPoints(std::move(b), plan.tiles.g, g, false);
+  }
+  if (auto_k && !k_carried && factor_may_change(plan, merged.kept_box.points)) {
+    if (const int k = kept_points_factor(plan, kept, plan.tiles.g, &merged.despiked_m); k != plan.tiles.k) {
+      ScaleConfig::GridBox b = box_of(merged.kept_box);
+      b.upsample_factor = k;
+      return GridOnKeptPoints(std::move(b), plan.tiles.g, plan.tiles.g, false, plan.tiles.k);
+    }
   }
   if (merged.after_box.points > 0 && !merged.despiked_m.empty()) {
-    if (const GridGeometry a = geometry(merged.after_box); !(a == plan.tiles.g)) {
+    const GridGeometry a = geometry(merged.after_box);
+    int k_after = plan.tiles.k;
+    if (auto_k && (!(a == plan.tiles.g) || factor_may_change(plan, merged.after_box.points))) {
+      k_after = kept_points_factor(plan, kept, a, nullptr);
+    }
+    if (!(a == plan.tiles.g) || k_after != plan.tiles.k) {
       ScaleConfig::GridBox b = box_of(merged.after_box);
+      if (auto_k) b.upsample_factor = k_after;
       std::sort(merged.despiked_m.begin(), merged.despiked_m.end());
       b.despiked_m = std::make_shared<const std::vector<std::array<double, 3>>>(std::move(merged.despiked_m));
       merged.despiked_m.clear();
@@ -5071,7 +5182,7 @@ std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, con
       for (const char* name : kDespikeSums) {
         if (const auto it = merged.sums.find(name); it != merged.sums.end()) b.despike_sums[name] = it->second;
       }
-      return GridOnKeptPoints(std::move(b), plan.tiles.g, a, true);
+      return GridOnKeptPoints(std::move(b), plan.tiles.g, a, true, k_after != plan.tiles.k ? plan.tiles.k : 0);
     }
   }
   return std::nullopt;
@@ -5088,6 +5199,12 @@ void take_over_despike_sums(const RunConfig& config, TileMerge& merged) {
 // The line a later attempt's tile_plan notes for an attempt that stopped for `e`, ending with
 // `then` (what happened next: "the run started again after 12 s").
 std::string grid_relaid_why(const GridOnKeptPoints& e, const std::string& then) {
+  if (e.first_factor > 0 && e.first == e.kept) {
+    return std::string(e.after_despike ? "the despike" : "the outlier filters") + " moved the upsample coverage (grid.upsample: auto): " +
+           "the in-core run takes factor " + std::to_string(e.box.upsample_factor) + " on the points " +
+           (e.after_despike ? "the despike leaves (its removals taken over)" : "the filters keep") + ", not " + std::to_string(e.first_factor) +
+           " as on every point, so " + then + " with factor " + std::to_string(e.box.upsample_factor);
+  }
   return std::string(e.after_despike ? "the despike" : "the outlier filters") + " removed a point that set the x-y box of the grid " +
          grid_words(e.first) + ", so " + then + " with the grid laid on the points " +
          (e.after_despike ? "the despike left (its removals taken over)" : "the filters keep") + ", as the in-core run lays it: " +
@@ -5301,7 +5418,7 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
   });
   // The in-core run lays its grid on the points the filters keep: where that is another grid,
   // build_scene_tiled starts again with their box (scale.grid_on_kept_points).
-  if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged)) throw std::move(*again);
+  if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged, kept)) throw std::move(*again);
   return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
 }
 }  // namespace
@@ -5625,7 +5742,7 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
   }
   // The in-core run lays its grid on the points the filters keep: where that is another grid, the
   // box for a new plan, as build_scene_tiled starts again in process (scale.grid_on_kept_points).
-  if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged)) {
+  if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged, kept)) {
     GridBoxFile g;
     g.box = std::move(again->box);
     g.box.last = config.scale.grid_box.has_value();  // the third plan checks no more, as the third attempt
@@ -5643,10 +5760,15 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
       for (const char ch : o) quoted += ch == '\'' ? std::string("'\\''") : std::string(1, ch);
       sets += " --set '" + quoted + "'";
     }
-    throw GridBoxError("tile-merge: " + plan_file.string() + ": " + std::string(again->after_despike ? "the despike" : "the outlier filters") +
-                       " removed a point that set the x-y box of the plan's grid " + grid_words(again->first) +
-                       "; the in-core run lays its grid on the points " + (again->after_despike ? "the despike left" : "they keep") +
-                       " (" + grid_words(again->kept) + "). Their box is in " + box_file.string() + ": plan again with hapticloud tile-plan " +
+    const bool factor_only = again->first_factor > 0 && again->first == again->kept;
+    throw GridBoxError("tile-merge: " + plan_file.string() + ": " +
+                       (factor_only ? grid_relaid_why(*again, "the plan is to be made again") + ". Their box and factor are in "
+                                    : std::string(again->after_despike ? "the despike" : "the outlier filters") +
+                                          " removed a point that set the x-y box of the plan's grid " + grid_words(again->first) +
+                                          "; the in-core run lays its grid on the points " +
+                                          (again->after_despike ? "the despike left" : "they keep") + " (" + grid_words(again->kept) +
+                                          "). Their box is in ") +
+                       box_file.string() + ": plan again with hapticloud tile-plan " +
                        pf.config_file.string() + sets + " --grid-box " + box_file.string() +
                        " --work NEW_FOLDER, run its tile jobs and merge it (tools/dask/hapticloud-dask does so); a plan made "
                        "with --set scale.grid_on_kept_points=false keeps the first grid instead, with a warning. No scene was written.",

@@ -6,11 +6,13 @@
 
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <set>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 namespace upsample_coverage_test {
 
@@ -129,6 +131,73 @@ TEST(UpsampleCoverage, RejectsAnEmptyOrReversedRange) {
   EXPECT_THROW(UpsampleCoverage(g, 0, 2), std::invalid_argument);
   EXPECT_THROW(UpsampleCoverage(g, 3, 2), std::invalid_argument);
   EXPECT_THROW(UpsampleCoverage(g, 1, hc::pipeline::kMaxUpsampleFactor + 1), std::invalid_argument);
+}
+
+// The bound the tiled run skips its read of the kept points by (tiled_run.cpp,
+// factor_may_change): removing m of the points a factor's counts (O hit nodes off the border, I
+// of them with their 4 neighbours hit) were taken from keeps its coverage within
+// [(I − 5m) / (O − m), I / (O − m)]. The oracle: the kept points' coverage counted afresh
+// (UpsampleCoverage over them, which the tests above hold to reproject's own choice). Random
+// clouds at densities about the 0.9 threshold; m from 1 point to a fifth,
+// removed at random and in a block (a hole: many nodes un-hit together). counts() equals
+// coverage's figures: I / O is the coverage factor() reports.
+TEST(UpsampleCoverage, RemovingPointsKeepsEachFactorsCoverageWithinTheBoundOfItsCounts) {
+  std::mt19937 rng(13);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::size_t checked = 0, moved = 0;
+  for (const std::size_t n : {60000u, 20000u, 9000u, 4000u}) {
+    std::vector<double> xyz(3 * n);
+    for (std::size_t i = 0; i < n; ++i) {
+      xyz[3 * i] = u(rng);
+      xyz[3 * i + 1] = 0.5 * u(rng);
+      xyz[3 * i + 2] = 0.01 * u(rng);
+    }
+    Cloud c;
+    c.xyz = Eigen::Map<const Eigen::Matrix3Xd>(xyz.data(), 3, static_cast<Eigen::Index>(n));
+    ReprojectOptions o;
+    o.grid.n_long_side = 301;
+    o.upsample_factor = 0;
+    const hc::GridGeometry g = hc::pipeline::reproject(c, o).value.depth.geometry();
+    UpsampleCoverage all(g, 1, 4);
+    all.add(xyz.data(), n);
+    EXPECT_EQ(all.points(), n);
+    for (const std::size_t m : {std::size_t{1}, n / 100, n / 20, n / 5}) {
+      for (const bool block : {false, true}) {
+        // The kept points: all but m, the removed ones at random or the m nearest x = 0.3.
+        std::vector<std::size_t> order(n);
+        for (std::size_t i = 0; i < n; ++i) order[i] = i;
+        if (block) {
+          std::sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return std::abs(xyz[3 * a] - 0.3) < std::abs(xyz[3 * b] - 0.3); });
+        } else {
+          std::shuffle(order.begin(), order.end(), rng);
+        }
+        std::vector<double> kept;
+        for (std::size_t j = m; j < n; ++j) kept.insert(kept.end(), xyz.begin() + 3 * order[j], xyz.begin() + 3 * order[j] + 3);
+        UpsampleCoverage now(g, 1, 4);
+        now.add(kept.data(), kept.size() / 3);
+        for (int k = 1; k <= 4; ++k) {
+          const auto before = all.counts(k), after = now.counts(k);
+          ASSERT_TRUE(before && after) << "factor " << k;
+          const double oc = static_cast<double>((*before)[0]), ic = static_cast<double>((*before)[1]);
+          const double md = static_cast<double>(m);
+          const double cov = (*after)[0] == 0 ? 0.0 : static_cast<double>((*after)[1]) / static_cast<double>((*after)[0]);
+          if (!(oc - md > 0.0)) continue;  // more removed than nodes hit: no bound (factor_may_change reads the points)
+          EXPECT_GE(cov, (ic - 5.0 * md) / (oc - md) - 1e-12) << n << " points, m " << m << ", factor " << k << (block ? ", a block" : "");
+          EXPECT_LE(cov, ic / (oc - md) + 1e-12) << n << " points, m " << m << ", factor " << k << (block ? ", a block" : "");
+          moved += std::abs(cov - ic / oc) > 1e-3 ? 1U : 0U;
+          ++checked;
+        }
+      }
+    }
+    // counts() behind factor(): the chosen factor's I / O is the coverage it reports.
+    double coverage = 0.0;
+    const int k = all.factor(&coverage);
+    if (k >= 1 && k <= 4) {
+      EXPECT_EQ(static_cast<double>((*all.counts(k))[1]) / static_cast<double>((*all.counts(k))[0]), coverage);
+    }
+  }
+  EXPECT_GT(checked, 100U);  // of 128 (4 densities, 4 removals, 2 ways, 4 factors)
+  EXPECT_GT(moved, 20U) << "the removals moved the coverages";
 }
 
 }  // namespace upsample_coverage_test

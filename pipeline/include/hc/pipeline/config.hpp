@@ -148,9 +148,13 @@ struct ScaleConfig {
   /// lays its grid again after its despike without a second one.
   /// `despike_sums`: that despike's figures as the tiles summed them (the report's). `last`: the
   /// last attempt, which lays no other grid (a grid still unlike the in-core one is a warning).
+  /// `upsample_factor` (grid.upsample: auto only; 0: the plan chooses it from every point): the
+  /// factor auto gives the points the filters keep (or, with despiked_m, the despike leaves) on
+  /// this box's grid, as the in-core run chooses it; the plan takes it (sixty-fourth session).
   struct GridBox {
     double x_min_m = 0.0, x_max_m = 0.0, y_min_m = 0.0, y_max_m = 0.0;
     std::uint64_t points = 0;
+    int upsample_factor = 0;
     std::shared_ptr<const std::vector<std::array<double, 3>>> despiked_m;
     std::map<std::string, double> despike_sums;
     bool last = false;

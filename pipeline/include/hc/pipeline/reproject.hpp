@@ -6,6 +6,7 @@
 #include "hc/common/height_field.hpp"
 #include "hc/pipeline/cloud.hpp"
 
+#include <array>
 #include <cstdint>
 #include <optional>
 #include <vector>
@@ -253,6 +254,13 @@ class UpsampleCoverage {
   /// The factors below k_first must have been rejected already (their coverage below
   /// kAutoUpsampleCoverage).
   int factor(double* coverage) const;
+  /// Factor k's counts behind its coverage: {hit nodes off the border, those of them with their 4
+  /// neighbours hit} (coverage = second / first); none for a factor not tracked or whose grid
+  /// is too small. The tiled run bounds with them how far removing points can move the
+  /// coverage (tiled_run.cpp, factor_may_change).
+  std::optional<std::array<std::uint64_t, 2>> counts(int k) const;
+  /// The points given to add() so far (non-finite ones too).
+  std::uint64_t points() const { return points_; }
 
  private:
   GridGeometry g_;
@@ -260,6 +268,7 @@ class UpsampleCoverage {
   bool next_too_small_ = false;  // factor k_last + 1's grid has fewer than 3 nodes along a side
   std::vector<GridGeometry> coarse_;
   std::vector<std::vector<std::uint64_t>> hit_;  // per tracked factor, a bit per node (row-major)
+  std::uint64_t points_ = 0;
 };
 
 /// How far [fine nodes] a node's value in reproject can depend on points, for a window's halo:
