@@ -2779,6 +2779,7 @@ struct TileMerge {
   std::vector<std::pair<double, std::uint64_t>> spacings;  // each tile's spacing [m] and weight
   double job_seconds = 0.0;
   XyBox kept_box, after_box;  // over the tiles (TileOutput::kept_box, after_box)
+  int factor_reads = 0;        // reads of the kept points for grid.upsample: auto (grid_on_kept_points)
   std::vector<std::array<double, 3>> despiked_m;  // TileOutput::despiked_m of every tile
 
   TileMerge(const Plan& plan) {
@@ -5134,6 +5135,21 @@ int kept_points_factor(const Plan& plan, const KeptMask& kept, const GridGeometr
   return cov.factor(&coverage);
 }
 
+// kept_points_factor, counted in merged.factor_reads (figure upsample_factor_reads of stage tiles).
+int kept_points_factor_counted(TileMerge& merged, const Plan& plan, const KeptMask& kept, const GridGeometry& g,
+                               const std::vector<std::array<double, 3>>* despiked) {
+  ++merged.factor_reads;
+  return kept_points_factor(plan, kept, g, despiked);
+}
+
+// Figure upsample_factor_reads of stage tiles: how often grid_on_kept_points read the kept
+// points for the upsample factor (0 where the plan's counts showed the removals cannot move it).
+void note_factor_reads(const TileMerge& merged, std::vector<StageReport>& reports) {
+  for (StageReport& rep : reports) {
+    if (rep.stage == "tiles") detail::set_figure(rep, "upsample_factor_reads", static_cast<double>(merged.factor_reads));
+  }
+}
+
 // scale.grid_on_kept_points after a tile loop (in process or merged from tile jobs): where the
 // points the tiles' filters kept (TileMerge::kept_box), or those their despike left
 // (after_box), give another grid than the plan's, the box the next attempt lays its grid on.
@@ -5156,11 +5172,11 @@ std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, con
   const bool k_carried = now_box != nullptr && now_box->upsample_factor > 0;  // found on these very points
   if (const GridGeometry g = geometry(merged.kept_box); !(g == plan.tiles.g)) {
     ScaleConfig::GridBox b = box_of(merged.kept_box);
-    if (auto_k) b.upsample_factor = kept_points_factor(plan, kept, g, &merged.despiked_m);
+    if (auto_k) b.upsample_factor = kept_points_factor_counted(merged, plan, kept, g, &merged.despiked_m);
     return GridOnKeptPoints(std::move(b), plan.tiles.g, g, false);
   }
   if (auto_k && !k_carried && factor_may_change(plan, merged.kept_box.points)) {
-    if (const int k = kept_points_factor(plan, kept, plan.tiles.g, &merged.despiked_m); k != plan.tiles.k) {
+    if (const int k = kept_points_factor_counted(merged, plan, kept, plan.tiles.g, &merged.despiked_m); k != plan.tiles.k) {
       ScaleConfig::GridBox b = box_of(merged.kept_box);
       b.upsample_factor = k;
       return GridOnKeptPoints(std::move(b), plan.tiles.g, plan.tiles.g, false, plan.tiles.k);
@@ -5170,7 +5186,7 @@ std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, con
     const GridGeometry a = geometry(merged.after_box);
     int k_after = plan.tiles.k;
     if (auto_k && (!(a == plan.tiles.g) || factor_may_change(plan, merged.after_box.points))) {
-      k_after = kept_points_factor(plan, kept, a, nullptr);
+      k_after = kept_points_factor_counted(merged, plan, kept, a, nullptr);
     }
     if (!(a == plan.tiles.g) || k_after != plan.tiles.k) {
       ScaleConfig::GridBox b = box_of(merged.after_box);
@@ -5419,6 +5435,7 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
   // The in-core run lays its grid on the points the filters keep: where that is another grid,
   // build_scene_tiled starts again with their box (scale.grid_on_kept_points).
   if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged, kept)) throw std::move(*again);
+  note_factor_reads(merged, built.summary.stages);
   return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
 }
 }  // namespace
@@ -5774,6 +5791,7 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
                        "with --set scale.grid_on_kept_points=false keeps the first grid instead, with a warning. No scene was written.",
                        box_file);
   }
+  note_factor_reads(merged, built.summary.stages);
   m.built = finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
   return m;
 }
