@@ -1351,7 +1351,7 @@ struct Plan {
   // did not run.
   std::optional<std::array<Eigen::Vector3d, 2>> far_main_box_m;
   std::uint64_t far_size_points = 0;  // N of the far clusters' size limit: the points after non-finite and crop
-  // grid.upsample: auto (in process; a plan read from plan.json has none): the coverage counts
+  // grid.upsample: auto (in process and in plan.json since 2026-11-30): the coverage counts
   // of factors 1 to tiles.k (UpsampleCoverage::counts, index k − 1) over the factor_points
   // points the plan chose the factor from, for factor_may_change; empty when not known.
   std::vector<std::array<std::uint64_t, 2>> factor_counts;
@@ -4636,6 +4636,9 @@ void write_plan_file(const PlanFile& pf) {
                                                            hex((*p.far_main_box_m)[1].y()), hex((*p.far_main_box_m)[1].z())}
                                          : nlohmann::json();
   j["far_size_points"] = p.far_size_points;
+  j["factor_counts"] = nlohmann::json::array();  // grid.upsample auto: {O, I} of factors 1 to k (factor_may_change)
+  for (const auto& c : p.factor_counts) j["factor_counts"].push_back({c[0], c[1]});
+  j["factor_points"] = p.factor_points;
   j["precision"] = {{"float32", p.precision.float32},
                     {"file", text(p.precision.file)},
                     {"crs", text(p.precision.crs)},
@@ -4812,6 +4815,15 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       p.far_main_box_m = box;
     }
     p.far_size_points = j.at("far_size_points").get<std::uint64_t>();
+    if (j.contains("factor_counts")) {  // absent in plans of builds before 2026-11-30: none known (the merge reads the kept points)
+      where = "factor_counts, factor_points";
+      for (const auto& c : j.at("factor_counts")) p.factor_counts.push_back({c.at(0).get<std::uint64_t>(), c.at(1).get<std::uint64_t>()});
+      p.factor_points = j.at("factor_points").get<std::uint64_t>();
+      if (!p.factor_counts.empty() && p.factor_counts.size() != static_cast<std::size_t>(p.tiles.k)) {
+        throw InputError(plan_file.string() + ": factor_counts holds " + std::to_string(p.factor_counts.size()) +
+                         " factors' counts, expected none or one per factor up to upsample_factor " + std::to_string(p.tiles.k));
+      }
+    }
     const auto& pr = j.at("precision");
     p.precision.float32 = pr.at("float32").get<bool>();
     p.precision.file = untext(pr.at("file"));
@@ -5098,7 +5110,7 @@ struct GridOnKeptPoints : std::runtime_error {
 // neighbours): with m removed, a factor's coverage I / O stays within [(I − 5m) / (O − m),
 // I / (O − m)]. It may change when a factor below the plan's could reach
 // kAutoUpsampleCoverage or the plan's fall below it. True when the plan's counts are not known
-// (a plan read from plan.json, a factor carried over): then the kept points are read.
+// (a factor carried over, a plan.json of an older build): then the kept points are read.
 bool factor_may_change(const Plan& plan, std::uint64_t kept_points) {
   const std::size_t k = static_cast<std::size_t>(plan.tiles.k);
   if (plan.factor_counts.size() != k || kept_points > plan.factor_points) return true;
