@@ -3922,6 +3922,50 @@ std::size_t window_heap_budget(const Spill& spill, std::size_t tile_count) {
   return most * detail::TileHeapBudget::kBytesPerWindowPoint;
 }
 
+// Whether grid.upsample: auto could give another factor than the plan's (plan.tiles.k) to
+// `kept_points` of the plan.factor_points it chose from (a subset: the filters only remove).
+// Removing a point un-hits at most one node of a factor's grid, which takes one node out of
+// the hit ones (O) and at most five out of those with their 4 neighbours hit (I, itself and its
+// neighbours): with m removed, a factor's coverage I / O stays within [(I − 5m) / (O − m),
+// I / (O − m)]. It may change when a factor below the plan's could reach
+// kAutoUpsampleCoverage or the plan's fall below it. True when the plan's counts are not known
+// (a factor carried over, a plan.json of an older build): then the kept points are read.
+bool factor_may_change(const Plan& plan, std::uint64_t kept_points) {
+  const std::size_t k = static_cast<std::size_t>(plan.tiles.k);
+  if (plan.factor_counts.size() != k || kept_points > plan.factor_points) return true;
+  const double m = static_cast<double>(plan.factor_points - kept_points);
+  for (std::size_t j = 0; j < k; ++j) {
+    const double o = static_cast<double>(plan.factor_counts[j][0]), i = static_cast<double>(plan.factor_counts[j][1]);
+    if (!(o - m > 0.0)) return true;
+    if (j + 1 < k && i / (o - m) >= kAutoUpsampleCoverage) return true;  // a smaller factor could pass
+    if (j + 1 == k && (i - 5.0 * m) / (o - m) < kAutoUpsampleCoverage) return true;  // the plan's could fail
+  }
+  return false;
+}
+
+// The factor grid.upsample: auto gives on grid g (UpsampleCoverage over every factor) the
+// interior points the tiles kept (KeptMask, read through the spill) and, with `despiked`, the
+// points their despike removed (TileMerge::despiked_m): those the in-core run's filters keep
+// before its despike; without, those it leaves. One read of the kept points.
+int kept_points_factor(const Plan& plan, const KeptMask& kept, const GridGeometry& g, const std::vector<std::array<double, 3>>* despiked) {
+  UpsampleCoverage cov(g, 1, kMaxUpsampleFactor);
+  std::vector<std::uint8_t> flag;
+  std::vector<double> own;
+  for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
+    const Cloud pts = kept.read(t, flag);
+    own.clear();
+    for (std::size_t i = 0; i < pts.size(); ++i) {
+      if (flag[i] == 1) own.insert(own.end(), pts.xyz.data() + 3 * i, pts.xyz.data() + 3 * i + 3);
+    }
+    cov.add(own.data(), own.size() / 3);
+  }
+  if (despiked != nullptr) {
+    for (const auto& p : *despiked) cov.add(p.data(), 1);
+  }
+  double coverage = 0.0;
+  return cov.factor(&coverage);
+}
+
 // ---------------------------------------------------------------------------------------------
 // Steps 4 to 6 on the gathered tiles: the whole grid, the merged cross-check, the surface layers.
 // `built.summary.stages` holds the plan's and the tile loop's reports.
@@ -4189,6 +4233,21 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
                    : std::string("scale.grid_on_kept_points: true (the default) lays it on the kept points by starting again; ")) +
               "scale.tiled: off gives the in-core grid");
           summary.warnings.push_back(r.report.notes.back().substr(9));
+        } else if (const ScaleConfig::GridBox* gb = config.scale.grid_box ? &*config.scale.grid_box : nullptr;
+                   config.grid.reproject.upsample_factor == 0 && (!config.scale.grid_on_kept_points || (gb != nullptr && gb->last)) &&
+                   factor_may_change(plan, kb.points)) {
+          // grid.upsample: auto where no later attempt checks the factor (scale.grid_on_kept_points
+          // false, or the last attempt): the kept points' own, said where it differs, not silent.
+          if (const int k_core = kept_points_factor(plan, kept, tiles.g, nullptr); k_core != tiles.k) {
+            r.report.notes.push_back("warning: grid.upsample: auto gives the kept points factor " + std::to_string(k_core) + ", not " +
+                                     std::to_string(tiles.k) + " as chosen before the outlier filters; an in-core run upsamples them by " +
+                                     std::to_string(k_core) + ", so its scene differs from this one; " +
+                                     (config.scale.grid_on_kept_points
+                                          ? std::string()
+                                          : std::string("scale.grid_on_kept_points: true (the default) takes their factor by starting again; ")) +
+                                     "scale.tiled: off gives the in-core grid");
+            summary.warnings.push_back(r.report.notes.back().substr(9));
+          }
         }
       }
       r.report.notes.push_back("merged over " + std::to_string(tiles.count()) +
@@ -5102,50 +5161,6 @@ struct GridOnKeptPoints : std::runtime_error {
   int first_factor = 0;        // the attempt's upsample factor, where box.upsample_factor differs from it
   std::string island_halo_widened;  // the warning, when the attempt ran with the wider grid share
 };
-
-// Whether grid.upsample: auto could give another factor than the plan's (plan.tiles.k) to
-// `kept_points` of the plan.factor_points it chose from (a subset: the filters only remove).
-// Removing a point un-hits at most one node of a factor's grid, which takes one node out of
-// the hit ones (O) and at most five out of those with their 4 neighbours hit (I, itself and its
-// neighbours): with m removed, a factor's coverage I / O stays within [(I − 5m) / (O − m),
-// I / (O − m)]. It may change when a factor below the plan's could reach
-// kAutoUpsampleCoverage or the plan's fall below it. True when the plan's counts are not known
-// (a factor carried over, a plan.json of an older build): then the kept points are read.
-bool factor_may_change(const Plan& plan, std::uint64_t kept_points) {
-  const std::size_t k = static_cast<std::size_t>(plan.tiles.k);
-  if (plan.factor_counts.size() != k || kept_points > plan.factor_points) return true;
-  const double m = static_cast<double>(plan.factor_points - kept_points);
-  for (std::size_t j = 0; j < k; ++j) {
-    const double o = static_cast<double>(plan.factor_counts[j][0]), i = static_cast<double>(plan.factor_counts[j][1]);
-    if (!(o - m > 0.0)) return true;
-    if (j + 1 < k && i / (o - m) >= kAutoUpsampleCoverage) return true;  // a smaller factor could pass
-    if (j + 1 == k && (i - 5.0 * m) / (o - m) < kAutoUpsampleCoverage) return true;  // the plan's could fail
-  }
-  return false;
-}
-
-// The factor grid.upsample: auto gives on grid g (UpsampleCoverage over every factor) the
-// interior points the tiles kept (KeptMask, read through the spill) and, with `despiked`, the
-// points their despike removed (TileMerge::despiked_m): those the in-core run's filters keep
-// before its despike; without, those it leaves. One read of the kept points.
-int kept_points_factor(const Plan& plan, const KeptMask& kept, const GridGeometry& g, const std::vector<std::array<double, 3>>* despiked) {
-  UpsampleCoverage cov(g, 1, kMaxUpsampleFactor);
-  std::vector<std::uint8_t> flag;
-  std::vector<double> own;
-  for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
-    const Cloud pts = kept.read(t, flag);
-    own.clear();
-    for (std::size_t i = 0; i < pts.size(); ++i) {
-      if (flag[i] == 1) own.insert(own.end(), pts.xyz.data() + 3 * i, pts.xyz.data() + 3 * i + 3);
-    }
-    cov.add(own.data(), own.size() / 3);
-  }
-  if (despiked != nullptr) {
-    for (const auto& p : *despiked) cov.add(p.data(), 1);
-  }
-  double coverage = 0.0;
-  return cov.factor(&coverage);
-}
 
 // kept_points_factor, counted in merged.factor_reads (figure upsample_factor_reads of stage tiles).
 int kept_points_factor_counted(TileMerge& merged, const Plan& plan, const KeptMask& kept, const GridGeometry& g,

@@ -31,6 +31,7 @@
 #include <gtest/gtest.h>
 
 #include <bit>
+#include <algorithm>
 #include <array>
 #include <cstdint>
 #include <cstdlib>
@@ -356,6 +357,33 @@ TEST(TiledDifferential, TheSeedsThatFoundADivergenceGiveTheInCoreScene) {
   Tally t;
   check_seeds({121, 198, 308, 331}, t);
   EXPECT_EQ(t.compared, 4U) << "each a scene compared (not a stop, a halo refusal or a far-cluster subset)";
+}
+
+// Seed 121 with scale.grid_on_kept_points: false: no attempt starts again, so the tiled scene
+// keeps the factor chosen from every point, and the run says that the in-core run (the oracle:
+// its reproject's factor) takes another one, instead of differing silently.
+TEST(TiledDifferential, WithTheKeptPointsCheckOffAFactorTheFiltersMoveIsAWarning) {
+  const Case c = draw_case(121);
+  const fs::path dir = hc::test::temp_dir("tiled_diff_factor_warning");
+  (void)hc::tools::write_relief(c.spec, dir / c.file, 8192, 1);
+  RunConfig config = hc::pipeline::parse_run_config(c.yaml, dir / "run.yaml", c.sets);
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+  const BuiltScene in = hc::pipeline::build_scene(config);
+  config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
+  config.scale.tile_cells = c.tile_cells;
+  config.scale.grid_on_kept_points = false;
+  const BuiltScene tiled = hc::pipeline::build_scene(config);
+  const double k_core = hc::test::stage_figure(in, "reproject", "upsample_factor");
+  const double k_tiled = hc::test::stage_figure(tiled, "tile_plan", "upsample_factor");
+  ASSERT_NE(k_core, k_tiled) << "the case moves the factor";
+  const std::string want = "grid.upsample: auto gives the kept points factor " + std::to_string(static_cast<int>(k_core)) + ", not " +
+                           std::to_string(static_cast<int>(k_tiled));
+  EXPECT_EQ(std::count_if(tiled.summary.warnings.begin(), tiled.summary.warnings.end(),
+                          [&](const std::string& w) { return w.find(want) != std::string::npos; }),
+            1)
+      << want;
+  EXPECT_EQ(hc::test::stage_figure(tiled, "tiles", "upsample_factor_reads"), 0.0) << "the check after the loop did not run";
+  fs::remove_all(dir);
 }
 
 // The same two upsample cases through tile jobs (write_tile_plan, run_tile_jobs, merge_tile_jobs):
