@@ -3946,8 +3946,11 @@ bool factor_may_change(const Plan& plan, std::uint64_t kept_points) {
 // The factor grid.upsample: auto gives on grid g (UpsampleCoverage over every factor) the
 // interior points the tiles kept (KeptMask, read through the spill) and, with `despiked`, the
 // points their despike removed (TileMerge::despiked_m): those the in-core run's filters keep
-// before its despike; without, those it leaves. One read of the kept points.
-int kept_points_factor(const Plan& plan, const KeptMask& kept, const GridGeometry& g, const std::vector<std::array<double, 3>>* despiked) {
+// before its despike; without, those it leaves. One read of the kept points, counted in
+// merged.factor_reads (figure upsample_factor_reads of stage tiles).
+int kept_points_factor(TileMerge& merged, const Plan& plan, const KeptMask& kept, const GridGeometry& g,
+                       const std::vector<std::array<double, 3>>* despiked) {
+  ++merged.factor_reads;
   UpsampleCoverage cov(g, 1, kMaxUpsampleFactor);
   std::vector<std::uint8_t> flag;
   std::vector<double> own;
@@ -4238,7 +4241,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
                    factor_may_change(plan, kb.points)) {
           // grid.upsample: auto where no later attempt checks the factor (scale.grid_on_kept_points
           // false, or the last attempt): the kept points' own, said where it differs, not silent.
-          if (const int k_core = kept_points_factor(plan, kept, tiles.g, nullptr); k_core != tiles.k) {
+          if (const int k_core = kept_points_factor(merged, plan, kept, tiles.g, nullptr); k_core != tiles.k) {
             r.report.notes.push_back("warning: grid.upsample: auto gives the kept points factor " + std::to_string(k_core) + ", not " +
                                      std::to_string(tiles.k) + " as chosen before the outlier filters; an in-core run upsamples them by " +
                                      std::to_string(k_core) + ", so its scene differs from this one; " +
@@ -4388,6 +4391,12 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
     summary.verdict = decide_verdict(honest.input, honest.spikes, supported, reports, config.cross_check.honest);
     summary.input_check = std::move(honest.input);
     summary.grid_spikes = std::move(honest.spikes);
+  }
+  // How often the kept points were read for grid.upsample: auto's factor (kept_points_factor:
+  // the attempts' check, and the cross-check stage's warning; 0 where the plan's counts showed
+  // the removals cannot move it).
+  for (StageReport& rep : reports) {
+    if (rep.stage == "tiles") detail::set_figure(rep, "upsample_factor_reads", static_cast<double>(merged.factor_reads));
   }
   // 6. The surface layers of the whole grid (or, for a tiled scene, left to its level builder);
   // then the cross-check's error map into the scene.
@@ -5159,23 +5168,10 @@ struct GridOnKeptPoints : std::runtime_error {
   GridGeometry first, kept;
   bool after_despike = false;  // the box left after the despike (its removals taken over)
   int first_factor = 0;        // the attempt's upsample factor, where box.upsample_factor differs from it
+  // Only the factor moved: the grid is the attempt's.
+  bool factor_only() const { return first_factor > 0 && first == kept; }
   std::string island_halo_widened;  // the warning, when the attempt ran with the wider grid share
 };
-
-// kept_points_factor, counted in merged.factor_reads (figure upsample_factor_reads of stage tiles).
-int kept_points_factor_counted(TileMerge& merged, const Plan& plan, const KeptMask& kept, const GridGeometry& g,
-                               const std::vector<std::array<double, 3>>* despiked) {
-  ++merged.factor_reads;
-  return kept_points_factor(plan, kept, g, despiked);
-}
-
-// Figure upsample_factor_reads of stage tiles: how often grid_on_kept_points read the kept
-// points for the upsample factor (0 where the plan's counts showed the removals cannot move it).
-void note_factor_reads(const TileMerge& merged, std::vector<StageReport>& reports) {
-  for (StageReport& rep : reports) {
-    if (rep.stage == "tiles") detail::set_figure(rep, "upsample_factor_reads", static_cast<double>(merged.factor_reads));
-  }
-}
 
 // scale.grid_on_kept_points after a tile loop (in process or merged from tile jobs): where the
 // points the tiles' filters kept (TileMerge::kept_box), or those their despike left
@@ -5199,11 +5195,11 @@ std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, con
   const bool k_carried = now_box != nullptr && now_box->upsample_factor > 0;  // found on these very points
   if (const GridGeometry g = geometry(merged.kept_box); !(g == plan.tiles.g)) {
     ScaleConfig::GridBox b = box_of(merged.kept_box);
-    if (auto_k) b.upsample_factor = kept_points_factor_counted(merged, plan, kept, g, &merged.despiked_m);
+    if (auto_k) b.upsample_factor = kept_points_factor(merged, plan, kept, g, &merged.despiked_m);
     return GridOnKeptPoints(std::move(b), plan.tiles.g, g, false);
   }
   if (auto_k && !k_carried && factor_may_change(plan, merged.kept_box.points)) {
-    if (const int k = kept_points_factor_counted(merged, plan, kept, plan.tiles.g, &merged.despiked_m); k != plan.tiles.k) {
+    if (const int k = kept_points_factor(merged, plan, kept, plan.tiles.g, &merged.despiked_m); k != plan.tiles.k) {
       ScaleConfig::GridBox b = box_of(merged.kept_box);
       b.upsample_factor = k;
       return GridOnKeptPoints(std::move(b), plan.tiles.g, plan.tiles.g, false, plan.tiles.k);
@@ -5213,7 +5209,7 @@ std::optional<GridOnKeptPoints> grid_on_kept_points(const RunConfig& config, con
     const GridGeometry a = geometry(merged.after_box);
     int k_after = plan.tiles.k;
     if (auto_k && (!(a == plan.tiles.g) || factor_may_change(plan, merged.after_box.points))) {
-      k_after = kept_points_factor_counted(merged, plan, kept, a, nullptr);
+      k_after = kept_points_factor(merged, plan, kept, a, nullptr);
     }
     if (!(a == plan.tiles.g) || k_after != plan.tiles.k) {
       ScaleConfig::GridBox b = box_of(merged.after_box);
@@ -5242,7 +5238,7 @@ void take_over_despike_sums(const RunConfig& config, TileMerge& merged) {
 // The line a later attempt's tile_plan notes for an attempt that stopped for `e`, ending with
 // `then` (what happened next: "the run started again after 12 s").
 std::string grid_relaid_why(const GridOnKeptPoints& e, const std::string& then) {
-  if (e.first_factor > 0 && e.first == e.kept) {
+  if (e.factor_only()) {
     return std::string(e.after_despike ? "the despike" : "the outlier filters") + " moved the upsample coverage (grid.upsample: auto): " +
            "the in-core run takes factor " + std::to_string(e.box.upsample_factor) + " on the points " +
            (e.after_despike ? "the despike leaves (its removals taken over)" : "the filters keep") + ", not " + std::to_string(e.first_factor) +
@@ -5462,7 +5458,6 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
   // The in-core run lays its grid on the points the filters keep: where that is another grid,
   // build_scene_tiled starts again with their box (scale.grid_on_kept_points).
   if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged, kept)) throw std::move(*again);
-  note_factor_reads(merged, built.summary.stages);
   return finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
 }
 }  // namespace
@@ -5804,9 +5799,8 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
       for (const char ch : o) quoted += ch == '\'' ? std::string("'\\''") : std::string(1, ch);
       sets += " --set '" + quoted + "'";
     }
-    const bool factor_only = again->first_factor > 0 && again->first == again->kept;
     throw GridBoxError("tile-merge: " + plan_file.string() + ": " +
-                       (factor_only ? grid_relaid_why(*again, "the plan is to be made again") + ". Their box and factor are in "
+                       (again->factor_only() ? grid_relaid_why(*again, "the plan is to be made again") + ". Their box and factor are in "
                                     : std::string(again->after_despike ? "the despike" : "the outlier filters") +
                                           " removed a point that set the x-y box of the plan's grid " + grid_words(again->first) +
                                           "; the in-core run lays its grid on the points " +
@@ -5818,7 +5812,6 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
                        "with --set scale.grid_on_kept_points=false keeps the first grid instead, with a warning. No scene was written.",
                        box_file);
   }
-  note_factor_reads(merged, built.summary.stages);
   m.built = finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
   return m;
 }

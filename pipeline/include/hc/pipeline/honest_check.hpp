@@ -372,12 +372,8 @@ double isolated_filter_radius_m(const HonestCheckOptions& options, double spacin
 /// spike_cells (lone peaks included), rim_cells, island_cells, candidates, removed_spike_points. The caller grids again when
 /// points were removed (reproject_after_removal, given `removed`: the removed points' coordinates and
 /// columns, when not null). Skipped (with a note) for 2^32 − 1 points or cells or more. Cost: O(cells)
-/// summed-area tables plus O(N) binning plus, per candidate, the points within ρ_hi (2·⌈ρ_hi /
+/// (a summed-area table of the valid cells, the heights' column sums) plus O(N) binning plus, per candidate, the points within ρ_hi (2·⌈ρ_hi /
 /// cell⌉ + 1)² cells.
-/// @throws hc::ConfigError for options outside their ranges (check_honest_options);
-///         std::invalid_argument if reach_cells or spacing_m is negative or not finite, or
-///         upsample_factor is below 1 or not finite.
-/// Source: this project (the radius test of Rusu 2009 applied at the spike's own scale).
 /// @param window   when given, `grid` is this window of window->grid (rows and cols equal), and
 ///                 the points are binned by the whole grid's nodes (node = ⌊p · (1 / cell) +
 ///                 (0.5 − origin / cell)⌋ per axis, reproject's rule, less the window's first row
@@ -385,6 +381,11 @@ double isolated_filter_radius_m(const HonestCheckOptions& options, double spacin
 ///                 does: a point on a node boundary rounds alike (the window's own origin, the
 ///                 whole grid's plus a number of cells, rounds otherwise; TiledDifferential seed
 ///                 308, sixty-fourth session, 2026-11-30). Without it, the same rule on `grid`.
+/// @throws hc::ConfigError for options outside their ranges (check_honest_options);
+///         std::invalid_argument if reach_cells or spacing_m is negative or not finite,
+///         upsample_factor is below 1 or not finite, or `window` is not a window of its grid
+///         of `grid`'s rows and cols.
+/// Source: this project (the radius test of Rusu 2009 applied at the spike's own scale).
 StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, const HonestCheckOptions& options,
                                        double reach_cells, double spacing_m, double upsample_factor = 1.0,
                                        RemovedPoints* removed = nullptr, const GridWindow* window = nullptr);
