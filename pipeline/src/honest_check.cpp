@@ -1379,13 +1379,26 @@ Verdict decide_verdict(const InputCheck& in, const GridSpikes& sp, double suppor
             std::to_string(o.island_max_cells) + " cells apart from the surface; limit cross_check.max_island_cells = " +
             std::to_string(o.max_island_cells) + ")");
   }
-  const double far_clusters_removed = figure("outliers", "removed_far_clusters");
+  double far_clusters_removed = figure("outliers", "removed_far_clusters");
+  double clusters = figure("outliers", "far_clusters");
+  if (!std::isfinite(far_clusters_removed)) {
+    // A tiled run (tiled_run.cpp) has no outliers stage: its far clusters are those of the
+    // whole-scan pass before the tiles (stage tile_far_clusters) and the tiles' own (stage
+    // tiles: each point summed by the tile that owns it, each cluster by the owner of its least
+    // point), together the in-core counts where the scenes agree.
+    const double pass = figure("tile_far_clusters", "removed_far_clusters");
+    const double owned = figure("tiles", "sum_far_points_owned");
+    if (std::isfinite(pass) || std::isfinite(owned)) {
+      const auto or0 = [](double x) { return std::isfinite(x) ? x : 0.0; };
+      far_clusters_removed = or0(pass) + or0(owned);
+      clusters = or0(figure("tile_far_clusters", "far_clusters")) + or0(figure("tiles", "sum_far_clusters_owned"));
+    }
+  }
   if (in.far > 0 || (std::isfinite(far_clusters_removed) && far_clusters_removed > 0)) {
     std::string msg = std::to_string(in.far) + " input points lie farther from the grid's box than its diagonal";
     if (in.far > 0) msg += " (the farthest " + format_number(in.far_max_distance_m, 4) + " m away)";
     if (std::isfinite(far_clusters_removed) && far_clusters_removed > 0) {
       msg += "; the outlier stage removed " + format_number(far_clusters_removed) + " points in far clusters";
-      const double clusters = figure("outliers", "far_clusters");
       if (std::isfinite(clusters)) msg += " (" + format_number(clusters) + " clusters)";
     }
     add("far_points", "warn", msg + ": far points in the scan (stray returns or another object); crop them "

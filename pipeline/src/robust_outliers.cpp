@@ -1466,9 +1466,11 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
 namespace {
 
 // find_far_clusters; `removed_rows`, when given, receives the cloud columns of the removed
-// clusters' points.
+// clusters' points, and `removed_cluster`, when given too, each one's cluster (its component's
+// number, the same for the points of one cluster).
 FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarClusterOptions& o,
-                              std::vector<std::uint32_t>* removed_rows, const FarClusterScope* scope, std::size_t size_points) {
+                              std::vector<std::uint32_t>* removed_rows, const FarClusterScope* scope, std::size_t size_points,
+                              std::vector<std::uint32_t>* removed_cluster = nullptr) {
   if (!(link_m > 0.0) || !std::isfinite(link_m)) {
     throw ConfigError("find_far_clusters: link distance = " + format_number(link_m) + " m, expected a finite value > 0");
   }
@@ -1543,6 +1545,7 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   const int threads = threads_for(n);
   if (n == 0) {  // every point within far − δ of the scope's main body: no far cluster
     if (removed_rows) removed_rows->clear();
+    if (removed_cluster) removed_cluster->clear();
     return result;
   }
   // A point's cell: floor(q · (1 / edge)) per axis, counted from the box's lowest cell: the
@@ -1703,6 +1706,7 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
   }
   if (removed_rows) {
     removed_rows->clear();
+    if (removed_cluster) removed_cluster->clear();
     std::vector<std::uint8_t> cell_removed(keys.size(), 0);
     bool any = false;
     for (std::size_t c = 0; c < keys.size(); ++c) {
@@ -1710,7 +1714,9 @@ FarClusters far_clusters_impl(const Cloud& cloud, double link_m, const FarCluste
       any = any || cell_removed[c] != 0;
     }
     for (std::size_t j = 0; any && j < n; ++j) {
-      if (cell_removed[cell_of[j]] != 0) removed_rows->push_back(rows[j]);
+      if (cell_removed[cell_of[j]] == 0) continue;
+      removed_rows->push_back(rows[j]);
+      if (removed_cluster) removed_cluster->push_back(comp_of_cell[root_of[cell_of[j]]]);
     }
   }
   return result;
@@ -1736,8 +1742,8 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
   const auto t0 = Clock::now();
   if (removed != nullptr) *removed = RemovedPoints{};
   StageReport report = make_report("far_clusters", cloud.size());
-  std::vector<std::uint32_t> gone;
-  const FarClusters fc = far_clusters_impl(cloud, link_m, o, &gone, scope, size_points);
+  std::vector<std::uint32_t> gone, gone_cluster;
+  const FarClusters fc = far_clusters_impl(cloud, link_m, o, &gone, scope, size_points, removed != nullptr ? &gone_cluster : nullptr);
   std::size_t removed_clusters = 0, kept_far = 0, undecided = 0;
   for (const auto& c : fc.others) {
     removed_clusters += c.removed ? 1u : 0u;
@@ -1748,10 +1754,16 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
     std::vector<bool> keep(cloud.size(), true);
     for (const std::uint32_t i : gone) keep[i] = false;
     if (removed != nullptr) {
+      // Each removed point's cluster, numbered 0, 1, ... in the order of the clusters' first
+      // points in the cloud.
+      std::vector<std::uint32_t> cluster_of_row(cloud.size(), 0);
+      for (std::size_t g = 0; g < gone.size(); ++g) cluster_of_row[gone[g]] = gone_cluster[g];
+      std::unordered_map<std::uint32_t, std::uint32_t> number;
       for (std::size_t i = 0; i < keep.size(); ++i) {
         if (keep[i]) continue;
         removed->at.push_back(i);
         for (Eigen::Index a = 0; a < 3; ++a) removed->xyz.push_back(cloud.xyz(a, static_cast<Eigen::Index>(i)));
+        removed->cluster.push_back(number.emplace(cluster_of_row[i], static_cast<std::uint32_t>(number.size())).first->second);
       }
     }
     cloud.keep_if(keep);

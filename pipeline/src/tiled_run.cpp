@@ -2417,6 +2417,28 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     RemovedPoints far_removed;
     auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope, &far_removed);
     add_figures(o.sums, f1f.report);
+    if (!far_removed.at.empty()) {
+      // The whole scan's far-cluster figures (the verdict's far_points reason reads them): a
+      // window's removals count the halo's copies too, and a cluster two windows hold whole is
+      // removed by both. So each removed point is counted by the tile that owns it, and each
+      // cluster by the tile that owns its least point (x, then y, then z). Where the tiled
+      // scene equals the in-core one, each owner removed its points as the whole scan's
+      // cluster (a removal is made only on a whole cluster), so the sums are the in-core counts.
+      const NodeBinner owner(tiles.g);
+      std::vector<std::array<double, 3>> least;  // per cluster of far_removed.cluster
+      double points_owned = 0.0;
+      for (std::size_t i = 0; i < far_removed.size(); ++i) {
+        const double* p = far_removed.xyz.data() + 3 * i;
+        points_owned += owner.inside(p, inner) ? 1.0 : 0.0;
+        const std::uint32_t c = far_removed.cluster.at(i);
+        if (c >= least.size()) least.resize(c + 1, {std::numeric_limits<double>::infinity(), 0.0, 0.0});
+        least[c] = std::min(least[c], std::array<double, 3>{p[0], p[1], p[2]});
+      }
+      double clusters_owned = 0.0;
+      for (const auto& q : least) clusters_owned += owner.inside(q.data(), inner) ? 1.0 : 0.0;
+      o.sums["far_points_owned"] += points_owned;
+      o.sums["far_clusters_owned"] += clusters_owned;
+    }
     compose_removal(far_removed.at);
     if (!near_kept.empty()) {
       erase_at(near_kept, far_removed.at);

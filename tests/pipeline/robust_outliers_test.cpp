@@ -1287,6 +1287,42 @@ TEST(FarClusters, CompactBoxGivesTheSameKnownAnswer) {
 //   removed; one ending at x = 0.36 removes both;
 // - N of the size limit is the scope's: max_points 4, max_fraction 0.01 and 1000 points give 10
 //   (both small: removed); 100 points give 4 (both too large: kept far).
+// RemovedPoints::cluster: the points of one removed cluster share a number, those of two
+// clusters do not, numbered 0, 1, ... by each cluster's first point in the cloud (the tiled run
+// counts a cluster once, by the tile owning its least point). Oracle: the clusters as built.
+TEST(FarClusters, RemovedPointsNameTheirClusterInTheOrderOfItsFirstPoint) {
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(0.0, 1.0);
+  std::vector<Eigen::Vector3d> pts;
+  std::vector<int> built;  // -1 main body, else the far cluster (0: Q at z = 0.5, 1: R at x = 0.4)
+  const auto add = [&](const Eigen::Vector3d& p, int c) {
+    pts.push_back(p);
+    built.push_back(c);
+  };
+  for (int i = 0; i < 400; ++i) {
+    // R's first point comes before Q's: the numbers follow the cloud's order, not the building's.
+    if (i == 100) add(Eigen::Vector3d(0.4, 0.05, 0.0), 1);
+    if (i == 150) add(Eigen::Vector3d(0.05, 0.05, 0.5), 0);
+    if (i > 150 && i % 50 == 7) add(Eigen::Vector3d(0.05 + 0.001 * (i % 7), 0.06, 0.5), 0);
+    if (i > 100 && i % 60 == 9) add(Eigen::Vector3d(0.4, 0.05 + 0.002 * (i % 5), 0.001), 1);
+    add(Eigen::Vector3d(u(rng) * 0.1, u(rng) * 0.1, 0.0), -1);
+  }
+  FarClusterOptions o;
+  o.far_distance_m = 0.1;
+  RemovedPoints removed;
+  const auto r = remove_far_clusters(cloud_of(pts), 0.02, o, nullptr, 0, &removed);
+  ASSERT_EQ(removed.cluster.size(), removed.size());
+  std::size_t far = 0;
+  for (const int c : built) far += c >= 0 ? 1U : 0U;
+  ASSERT_EQ(removed.size(), far) << "Q and R removed, the main body kept";
+  EXPECT_EQ(r.value.size(), pts.size() - far);
+  for (std::size_t i = 0; i < removed.size(); ++i) {
+    const int b = built[removed.at[i]];
+    ASSERT_GE(b, 0);
+    EXPECT_EQ(removed.cluster[i], b == 1 ? 0U : 1U) << "R's first point is the cloud's first far point";
+  }
+}
+
 TEST(FarClusters, AScopeJudgesTheLinkedComponentsAgainstTheWholeScansMainBodyAndRemovesOnlyCompleteOnes) {
   std::mt19937 rng(9);
   std::uniform_real_distribution<double> u(0.0, 1.0);

@@ -87,6 +87,9 @@ struct Cloud {
 struct RemovedPoints {
   std::vector<double> xyz;      ///< 3 per point: x y z [m] in the cloud's frame
   std::vector<std::size_t> at;  ///< each point's column in the cloud before the removal, increasing
+  /// Far-cluster removal only (remove_far_clusters): each point's cluster, numbered 0, 1, ... in
+  /// the order of the clusters' first points in the cloud; empty for every other stage.
+  std::vector<std::uint32_t> cluster;
   std::size_t size() const { return at.size(); }
 };
 

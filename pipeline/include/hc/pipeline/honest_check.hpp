@@ -477,7 +477,9 @@ struct Verdict {
 /// The run's verdict from the figures of the honest cross-check, cross_check's supported
 /// fraction (`supported_fraction`, NaN if the cross-check did not run) and the filter stages'
 /// reports (`stages`: by stage and figure name; absent figures are skipped: "outliers"
-/// threshold_mm, removed_far_clusters and far_clusters when a stage reports them).
+/// threshold_mm, removed_far_clusters and far_clusters when a stage reports them; a tiled run's
+/// far clusters, which has no "outliers" stage: "tile_far_clusters" removed_far_clusters and
+/// far_clusters plus "tiles" sum_far_points_owned and sum_far_clusters_owned).
 /// Reasons and their levels: grid_spikes (fail), spikes_kept (fail), islands (warn),
 /// removed_fraction (warn), surface_lost (warn), far_points (warn), visible_off_surface (warn),
 /// unsupported (warn), filter_threshold (warn). The limits are HonestCheckOptions'.

@@ -388,7 +388,8 @@ FarClusters find_far_clusters(const Cloud& cloud, double link_m, const FarCluste
 /// @param size_points N of the size limit when > 0 and no scope is given (remove_far_clusters_after:
 ///                the points the robust test was given); 0: the cloud's finite points
 /// @param removed when given, the removed points (RemovedPoints: their columns in `cloud`,
-///                increasing, and x y z)
+///                increasing, x y z, and each one's cluster, numbered in the order of the
+///                clusters' first points: the tiled run counts each cluster once by it)
 /// @throws hc::ConfigError on a bad link_m or options; hc::InputError on a cloud without finite
 ///         points. Source: single-linkage connected components (Euclidean cluster extraction,
 ///         Rusu 2009, Sec. 6.2) on a cell grid.
