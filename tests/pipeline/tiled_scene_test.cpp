@@ -8,6 +8,7 @@
 #include "height_field_bits.hpp"
 #include "file_bytes.hpp"
 #include "test_paths.hpp"
+#include "tiled_scene_fixture.hpp"
 
 #include "hc/common/bilinear_surface.hpp"
 #include "hc/common/error.hpp"
@@ -19,7 +20,6 @@
 #include "hc/pipeline/run.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
-#include <gdal.h>
 #include <gtest/gtest.h>
 #include <nlohmann/json.hpp>
 #include <tiffio.h>
@@ -51,48 +51,10 @@ using hc::pipeline::LodOptions;
 using hc::pipeline::LodPyramid;
 using hc::pipeline::SurfaceLayerOptions;
 using hc::test::differing_bits;
+using hc::test::wavy_scene;
+using hc::test::write_tiled;
 
 constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
-
-/// A scene of rows × cols samples: a wavy surface with random relief, no data in the block
-/// [hole_r0, hole_r0 + hole) × [hole_c0, hole_c0 + hole) and along the last column; colour
-/// from the position; layers (envelope, texture, μ) and the cross-check error as smooth fields.
-Scene wavy_scene(int rows, int cols, int hole_r0, int hole_c0, int hole) {
-  std::mt19937 rng(7);
-  std::uniform_real_distribution<float> noise(-1e-4f, 1e-4f);
-  Scene s;
-  s.geometry = GridGeometry{rows, cols, -0.1, -0.05, 0.001};
-  HeightField d(s.geometry), env(s.geometry), tex(s.geometry), mud(s.geometry), mus(s.geometry), err(s.geometry);
-  s.layers.colour_rgb8.assign(3 * s.geometry.cell_count(), 0);
-  for (int r = 0; r < rows; ++r) {
-    for (int c = 0; c < cols; ++c) {
-      const std::size_t i = static_cast<std::size_t>(r) * static_cast<std::size_t>(cols) + static_cast<std::size_t>(c);
-      const bool hole_cell = (r >= hole_r0 && r < hole_r0 + hole && c >= hole_c0 && c < hole_c0 + hole) || c == cols - 1;
-      const float e = static_cast<float>(0.01 * std::sin(0.05 * r) * std::cos(0.03 * c));
-      const float t = noise(rng);
-      d.data()[i] = hole_cell ? kNaN : e + t;
-      env.data()[i] = hole_cell ? kNaN : e;
-      tex.data()[i] = hole_cell ? kNaN : t;
-      mud.data()[i] = hole_cell ? kNaN : 0.3f + 0.1f * static_cast<float>(std::sin(0.2 * c));
-      mus.data()[i] = hole_cell ? kNaN : 0.4f;
-      err.data()[i] = hole_cell ? kNaN : 1e-4f * static_cast<float>(r % 7);
-      if (!hole_cell) {
-        s.layers.colour_rgb8[3 * i] = static_cast<std::uint8_t>(r % 256);
-        s.layers.colour_rgb8[3 * i + 1] = static_cast<std::uint8_t>(c % 256);
-        s.layers.colour_rgb8[3 * i + 2] = static_cast<std::uint8_t>((r + c) % 256);
-      }
-    }
-  }
-  s.layers.depth = std::move(d);
-  s.layers.envelope = std::move(env);
-  s.layers.texture = std::move(tex);
-  s.layers.mu_d = std::move(mud);
-  s.layers.mu_s = std::move(mus);
-  s.layers.cell_error = std::move(err);
-  s.lod.min_cells = 16;
-  s.lod.window_cells = 40;
-  return s;
-}
 
 std::shared_ptr<LodPyramid> memory_pyramid(const Scene& s) {
   LodLevel l0;
@@ -105,15 +67,6 @@ std::shared_ptr<LodPyramid> memory_pyramid(const Scene& s) {
   l0.cell_error_m = s.layers.cell_error;
   l0.colour_rgb8 = s.layers.colour_rgb8;
   return std::make_shared<LodPyramid>(std::move(l0), s.layer_options, s.lod);
-}
-
-/// Writes `s` as a tiled scene with every level of its pyramid (the streaming level builder,
-/// which level_builder_test checks bit for bit against the in-memory pyramid).
-fs::path write_tiled(const Scene& s, const fs::path& dir, int tile) {
-  const fs::path scene_dir = dir / "scene";
-  hc::pipeline::write_scene(s, scene_dir, SceneStorage{tile, hc::pipeline::lod_level_count(s.geometry, s.lod.min_cells)});
-  (void)hc::pipeline::build_stored_levels(scene_dir, dir / "scratch");
-  return scene_dir;
 }
 
 /// A tiled float TIFF read with libtiff directly: values (NaN for a tile without bytes) and
@@ -215,27 +168,8 @@ TEST(TiledScene, LayersAreTiledTiffsWithNoDataTilesStoredWithoutBytesAndLoadAsTh
   EXPECT_EQ(a.layers.colour_rgb8, s.layers.colour_rgb8);
   EXPECT_EQ(a.geometry, s.geometry);
 
-  // GDAL (an independent reader, as QGIS and rasterio use it) reads the no-data tile (2, 1) as
-  // NaN through the file's no-data tag, and the tile beside it as the layer.
-  GDALAllRegister();
-  GDALDatasetH ds = GDALOpen((tiled / "depth.tiff").c_str(), GA_ReadOnly);
-  ASSERT_NE(ds, nullptr);
-  GDALRasterBandH band = GDALGetRasterBand(ds, 1);
-  int has_nodata = 0;
-  EXPECT_TRUE(std::isnan(GDALGetRasterNoDataValue(band, &has_nodata)));
-  EXPECT_TRUE(has_nodata);
-  std::vector<float> block(32 * 64);
-  ASSERT_EQ(GDALRasterIO(band, GF_Read, 32, 64, 64, 32, block.data(), 64, 32, GDT_Float32, 0, 0), CE_None);
-  for (int r = 0; r < 32; ++r) {
-    for (int c = 0; c < 64; ++c) {
-      const float want = c < 32 ? kNaN : s.layers.depth.at(64 + r, 32 + c);
-      EXPECT_EQ(std::isnan(block[static_cast<std::size_t>(r * 64 + c)]), std::isnan(want)) << r << "," << c;
-      if (!std::isnan(want)) {
-        EXPECT_EQ(block[static_cast<std::size_t>(r * 64 + c)], want) << r << "," << c;
-      }
-    }
-  }
-  GDALClose(ds);
+  // (GDAL reads the same file in TiledScene.GdalReadsATileWithoutBytesAsNoDataAndTheTileBesideItAsTheLayer,
+  // tiled_scene_gdal_test.cpp, in the executable that links GDAL.)
 
   // Metadata only: no layer, the storage record.
   const Scene h = hc::pipeline::load_scene(tiled, false);
