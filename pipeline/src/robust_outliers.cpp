@@ -1754,16 +1754,14 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
     std::vector<bool> keep(cloud.size(), true);
     for (const std::uint32_t i : gone) keep[i] = false;
     if (removed != nullptr) {
-      // Each removed point's cluster, numbered 0, 1, ... in the order of the clusters' first
-      // points in the cloud.
-      std::vector<std::uint32_t> cluster_of_row(cloud.size(), 0);
-      for (std::size_t g = 0; g < gone.size(); ++g) cluster_of_row[gone[g]] = gone_cluster[g];
+      // `gone` lists the columns in increasing order (far_clusters_impl walks the finite rows in
+      // order), with each one's component; the clusters are numbered 0, 1, ... as first met.
       std::unordered_map<std::uint32_t, std::uint32_t> number;
-      for (std::size_t i = 0; i < keep.size(); ++i) {
-        if (keep[i]) continue;
+      for (std::size_t g = 0; g < gone.size(); ++g) {
+        const std::uint32_t i = gone[g];
         removed->at.push_back(i);
         for (Eigen::Index a = 0; a < 3; ++a) removed->xyz.push_back(cloud.xyz(a, static_cast<Eigen::Index>(i)));
-        removed->cluster.push_back(number.emplace(cluster_of_row[i], static_cast<std::uint32_t>(number.size())).first->second);
+        removed->cluster.push_back(number.emplace(gone_cluster[g], static_cast<std::uint32_t>(number.size())).first->second);
       }
     }
     cloud.keep_if(keep);

@@ -1275,18 +1275,6 @@ TEST(FarClusters, CompactBoxGivesTheSameKnownAnswer) {
   EXPECT_NEAR(find_far_clusters(c, 0.02, o).others.at(0).centroid_m.x(), 0.398, 1e-12);
 }
 
-// A part of a scan (FarClusterScope): a 10 cm square of 300 points (z = 0, the part's largest
-// component), 5 points 50 cm above its middle (P) and 5 points 20 cm beside it (Q, x 0.3 to
-// 0.304). Linked at 2 cm, far beyond 10 cm. The known answers by construction:
-// - alone (no scope) P and Q are far from the square, the part's main body: both removed;
-// - with the whole scan's main body box holding all three (a statue whose other parts link
-//   them outside the part), nothing is far: all kept; every point lies within far − 2√3 cell
-//   edges of the box, so none is linked and no component listed (find_far_clusters);
-// - with a main body box that is the square's, both far; Q's box grown by two cell edges (4 cm)
-//   reaches x = 0.344, so a complete box ending at x = 0.33 leaves Q undecided (kept) and P
-//   removed; one ending at x = 0.36 removes both;
-// - N of the size limit is the scope's: max_points 4, max_fraction 0.01 and 1000 points give 10
-//   (both small: removed); 100 points give 4 (both too large: kept far).
 // RemovedPoints::cluster: the points of one removed cluster share a number, those of two
 // clusters do not, numbered 0, 1, ... by each cluster's first point in the cloud (the tiled run
 // counts a cluster once, by the tile owning its least point). Oracle: the clusters as built.
@@ -1323,6 +1311,18 @@ TEST(FarClusters, RemovedPointsNameTheirClusterInTheOrderOfItsFirstPoint) {
   }
 }
 
+// A part of a scan (FarClusterScope): a 10 cm square of 300 points (z = 0, the part's largest
+// component), 5 points 50 cm above its middle (P) and 5 points 20 cm beside it (Q, x 0.3 to
+// 0.304). Linked at 2 cm, far beyond 10 cm. The known answers by construction:
+// - alone (no scope) P and Q are far from the square, the part's main body: both removed;
+// - with the whole scan's main body box holding all three (a statue whose other parts link
+//   them outside the part), nothing is far: all kept; every point lies within far − 2√3 cell
+//   edges of the box, so none is linked and no component listed (find_far_clusters);
+// - with a main body box that is the square's, both far; Q's box grown by two cell edges (4 cm)
+//   reaches x = 0.344, so a complete box ending at x = 0.33 leaves Q undecided (kept) and P
+//   removed; one ending at x = 0.36 removes both;
+// - N of the size limit is the scope's: max_points 4, max_fraction 0.01 and 1000 points give 10
+//   (both small: removed); 100 points give 4 (both too large: kept far).
 TEST(FarClusters, AScopeJudgesTheLinkedComponentsAgainstTheWholeScansMainBodyAndRemovesOnlyCompleteOnes) {
   std::mt19937 rng(9);
   std::uniform_real_distribution<double> u(0.0, 1.0);
