@@ -145,11 +145,45 @@ void FarCells::add_points(const double* xyz, std::size_t n) {
     Cell& c = tile_cells_[tile_cell(key(p))];
     ++c.count;
     for (int a = 0; a < 3; ++a) {
-      const auto v = static_cast<float>(p[a] - origin_[a]);
-      c.lo[a] = std::min(c.lo[a], v);
-      c.hi[a] = std::max(c.hi[a], v);
+      c.lo[a] = std::min(c.lo[a], p[a]);
+      c.hi[a] = std::max(c.hi[a], p[a]);
     }
   }
+}
+
+void FarCells::add_cell(std::uint64_t key, std::uint32_t count, const double* lo, const double* hi) {
+  if (!in_tile_) throw std::logic_error("FarCells::add_cell outside a tile");
+  if (key == kNoKey) throw std::logic_error("FarCells::add_cell: a cell without a key (kNoKey)");
+  Cell& c = tile_cells_[tile_cell(key)];
+  c.count += count;
+  for (int a = 0; a < 3; ++a) {
+    c.lo[a] = std::min(c.lo[a], lo[a]);
+    c.hi[a] = std::max(c.hi[a], hi[a]);
+  }
+}
+
+std::uint64_t FarCells::link_key(const double* p, double inv_edge) {
+  constexpr double kHalf = static_cast<double>(std::int64_t{1} << 20);
+  std::int64_t c[3];
+  for (int a = 0; a < 3; ++a) {
+    const double f = std::floor(p[a] * inv_edge);
+    if (!(f >= -kHalf && f < kHalf)) return kNoKey;  // NaN too
+    c[a] = static_cast<std::int64_t>(f) + (std::int64_t{1} << 20);
+  }
+  return pack(c[0], c[1], c[2]);
+}
+
+FarCells::FarCellList FarCells::far_cells() const {
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> all(far_.begin(), far_.end());
+  std::sort(all.begin(), all.end());
+  FarCellList l;
+  l.keys.reserve(all.size());
+  l.cluster.reserve(all.size());
+  for (const auto& [k, c] : all) {
+    l.keys.push_back(k);
+    l.cluster.push_back(c);
+  }
+  return l;
 }
 
 void FarCells::end_tile() {
@@ -206,8 +240,10 @@ void FarCells::end_tile() {
     Comp& q = comps_[label[i]];
     q.count += c.count;
     for (int a = 0; a < 3; ++a) {
-      q.lo[a] = std::min(q.lo[a], origin_[a] + static_cast<double>(c.lo[a]));
-      q.hi[a] = std::max(q.hi[a], origin_[a] + static_cast<double>(c.hi[a]));
+      q.lo[a] = std::min(q.lo[a], c.lo[a]);
+      q.hi[a] = std::max(q.hi[a], c.hi[a]);
+      stats_.box_lo[a] = std::min(stats_.box_lo[a], c.lo[a]);
+      stats_.box_hi[a] = std::max(stats_.box_hi[a], c.hi[a]);
     }
   }
   for (std::uint32_t i = 0; i < keys.size(); ++i) {
@@ -285,7 +321,7 @@ FarCells::Result FarCells::components(double far_m) {
       if (remove) {
         r.removed_points += count;
         for (const std::uint64_t k : listed_cells_[q]) {
-          far_.insert(k);
+          far_.emplace(k, static_cast<std::uint32_t>(r.removed_clusters - 1));
           const std::uint64_t b = filter_bit(k);
           far_filter_[b >> 6] |= std::uint64_t{1} << (b & 63);
         }

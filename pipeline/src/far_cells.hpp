@@ -21,7 +21,6 @@
 #include <limits>
 #include <string>
 #include <unordered_map>
-#include <unordered_set>
 #include <vector>
 
 namespace hc::pipeline::detail {
@@ -44,7 +43,12 @@ namespace hc::pipeline::detail {
 /// neighbours an earlier tile's cell only within one index of its own tile's smallest x or y
 /// index, which is what is looked up.
 ///
-/// Memory: one tile's cells (about 70 bytes each: the cell, its key, two slots of the tile's
+/// Two ways to feed a tile: its points (add_points: cells on `origin` as above, the tiled run's
+/// coarse whole-scan pass), or its cells whole (add_cell, keys from link_key: the link cells of
+/// the points each tile's robust test kept, which the merge joins into the in-core run's far
+/// clusters; sixty-sixth session, 2026-11-30). Do not mix them in one FarCells.
+///
+/// Memory: one tile's cells (about 95 bytes each: the cell, its key, two slots of the tile's
 /// table), the frontier (about two rows
 /// of tiles' far sides, about 40 bytes a cell), about 100 bytes per component and 8 bytes per
 /// cell of each component of at most `small_points` points (a far cluster that may be removed);
@@ -70,8 +74,22 @@ class FarCells {
   /// is added to its cell in the tile's own table (open addressing, at most half full: a tile's
   /// few thousand cells stay in cache, where a table sized by the points did not).
   void add_points(const double* xyz, std::size_t n);
+  /// A cell of the tile whole: key from link_key (kNoKey not allowed), its points' count and
+  /// box lo, hi (3 doubles each, grid frame [m]). A key given twice in one tile is one cell (the
+  /// counts added, the boxes joined).
+  /// @throws std::logic_error outside a tile or for kNoKey.
+  void add_cell(std::uint64_t key, std::uint32_t count, const double* lo, const double* hi);
   /// Joins the tile's cells among themselves and to the frontier, and keeps its far sides.
   void end_tile();
+
+  /// No cell: a point beyond link_key's range.
+  static constexpr std::uint64_t kNoKey = std::numeric_limits<std::uint64_t>::max();
+  /// The key of the cell of edge 1 / inv_edge [m] that holds the point at p (3 doubles, grid
+  /// frame [m]): per axis floor(p · inv_edge), the in-core cell of remove_far_clusters
+  /// (robust_outliers.cpp: the same product and floor, so the same cell of every point), plus
+  /// 2^20 so that it fits 21 bits; kNoKey when an index lies outside [−2^20, 2^20 − 1] or p is
+  /// not finite. Adjacency is unchanged by the shift, so the components are the in-core ones.
+  static std::uint64_t link_key(const double* p, double inv_edge);
 
   /// What components() found.
   struct Result {
@@ -80,6 +98,8 @@ class FarCells {
     std::size_t removed_clusters = 0, kept_far_clusters = 0;
     std::uint64_t removed_points = 0;
     Eigen::Vector3d main_lo = Eigen::Vector3d::Zero(), main_hi = Eigen::Vector3d::Zero();  ///< the main body's box [m]
+    /// The box of every point fed [m] (infinite, inverted, when none).
+    Eigen::Vector3d box_lo = Eigen::Vector3d::Constant(std::numeric_limits<double>::infinity()), box_hi = -box_lo;
     std::vector<std::string> notes;  ///< the first 20 far clusters, in order of their least cell key
     // How much the tile-by-tile joining held (stage figures).
     std::size_t frontier_cells_peak = 0;  ///< most cells in the frontier at once
@@ -91,13 +111,23 @@ class FarCells {
   /// (the first in order of least cell key on a tie). A component other than it whose box lies
   /// more than far_m [m] from the main body's box (Euclidean distance between the boxes) is far;
   /// a far one of at most small_points points is removed (holds() then tells its points), a
-  /// larger one is kept and noted. Boxes are the points' boxes, kept per cell as float offsets
-  /// from the origin. Same rule as remove_far_clusters (robust_outliers.hpp).
+  /// larger one is kept and noted. Boxes are the points' boxes, in doubles (until the
+  /// sixty-sixth session float offsets from the origin). Same rule as remove_far_clusters
+  /// (robust_outliers.hpp), but for a tie of the largest components (there the first in the
+  /// cloud's order of points).
   /// @throws std::logic_error when called twice.
   Result components(double far_m);
 
   /// Whether the point at p (3 doubles, grid frame [m]) lies in a removed cluster's cell
   /// (false before components()). A bitmap over a hash of the key answers most points.
+  /// The removed clusters' cells (empty before components()): their keys, increasing, and each
+  /// one's cluster, numbered 0, 1, ... in the order of the clusters' least cell keys.
+  struct FarCellList {
+    std::vector<std::uint64_t> keys;
+    std::vector<std::uint32_t> cluster;
+  };
+  FarCellList far_cells() const;
+
   bool holds(const double* p) const {
     if (far_.empty()) return false;
     const std::uint64_t k = key(p);
@@ -110,12 +140,12 @@ class FarCells {
   // The cell key of the point at p (x index << 42 | y << 21 | z, each clamped to [0, 2^21 − 1]).
   std::uint64_t key(const double* p) const;
   static constexpr std::uint64_t kMask = (std::uint64_t{1} << 21) - 1;
-  struct Cell {  // 28 bytes: the point count and the points' box (float offsets from the origin)
-    std::uint32_t count = 0;
-    float lo[3] = {std::numeric_limits<float>::infinity(), std::numeric_limits<float>::infinity(),
-                   std::numeric_limits<float>::infinity()};
-    float hi[3] = {-std::numeric_limits<float>::infinity(), -std::numeric_limits<float>::infinity(),
-                   -std::numeric_limits<float>::infinity()};
+  struct Cell {  // 56 bytes: the point count and the points' box [m]
+    std::uint64_t count = 0;
+    double lo[3] = {std::numeric_limits<double>::infinity(), std::numeric_limits<double>::infinity(),
+                    std::numeric_limits<double>::infinity()};
+    double hi[3] = {-std::numeric_limits<double>::infinity(), -std::numeric_limits<double>::infinity(),
+                    -std::numeric_limits<double>::infinity()};
   };
   struct Comp {  // a component's summary, valid at its root
     std::uint64_t count = 0;
@@ -159,7 +189,7 @@ class FarCells {
   std::vector<std::vector<std::uint64_t>> listed_cells_;  // per root of at most small_ points
   static constexpr int kFilterBits = 20;                 // 128 KiB
   static std::uint64_t filter_bit(std::uint64_t k) { return (k * 0x9E3779B97F4A7C15ULL) >> (64 - kFilterBits); }
-  std::unordered_set<std::uint64_t> far_;
+  std::unordered_map<std::uint64_t, std::uint32_t> far_;  // removed cell key -> its cluster
   std::vector<std::uint64_t> far_filter_;
 };
 

@@ -987,7 +987,7 @@ StageResult<Cloud> remove_robust_outliers(Cloud cloud, const RobustOutlierOption
   const double sigma = 1.4826 * mad;
   const double d_med = std::exp(med);
   const double d_local = o.local_ratio * d_med;
-  const double d_glob = std::max(std::exp(med + o.mad_multiplier * sigma), d_local);
+  const double d_glob = robust_global_threshold_m(*scale, o);
   // Below d_cert no test can fail: the local and global tests need d_i > d_local, the
   // off-surface test d_i > d_off.
   const double d_off = o.off_surface_ratio > 0.0 ? o.off_surface_ratio * d_med : std::numeric_limits<double>::infinity();
@@ -1799,6 +1799,29 @@ StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOption
   return remove_far_clusters_after(remove_robust_outliers(std::move(cloud), options, nullptr, scale_used), far);
 }
 
+double robust_global_threshold_m(const RobustScale& scale, const RobustOutlierOptions& o) {
+  const double sigma = 1.4826 * scale.mad_log;
+  return std::max(std::exp(scale.median_log + o.mad_multiplier * sigma), o.local_ratio * std::exp(scale.median_log));
+}
+
+double far_link_m(const FarClusterOptions& far, double global_threshold_m) {
+  double link = far.link_m;
+  if (!(link > 0.0)) link = (global_threshold_m * 1e3) * 1e-3;
+  if (!(link > 0.0)) link = 1e-3;
+  return link;
+}
+
+double far_link_m(const FarClusterOptions& far, const StageReport& robust_report) {
+  double link = far.link_m;
+  if (!(link > 0.0)) {
+    for (const auto& [name, v] : robust_report.figures) {
+      if (name == "global_threshold_mm") link = v * 1e-3;
+    }
+  }
+  if (!(link > 0.0)) link = 1e-3;  // every point a copy of another: any positive link
+  return link;
+}
+
 StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const FarClusterOptions& far, const FarClusterScope* scope,
                                              RemovedPoints* removed_points) {
   if (removed_points != nullptr) *removed_points = RemovedPoints{};
@@ -1807,13 +1830,7 @@ StageResult<Cloud> remove_far_clusters_after(StageResult<Cloud> robust, const Fa
   const double robust_s = report.seconds;
   auto removed = static_cast<double>(report.count_in - robust.value.size());
   if (far.enabled && robust.value.size() > 0) {
-    double link = far.link_m;
-    if (!(link > 0.0)) {
-      for (const auto& [name, v] : report.figures) {
-        if (name == "global_threshold_mm") link = v * 1e-3;
-      }
-    }
-    if (!(link > 0.0)) link = 1e-3;  // every point a copy of another: any positive link
+    const double link = far_link_m(far, report);
     // N of the size limit: the points the robust test was given (after non-finite and crop), a
     // number a tiled run knows before its tiles run (it cannot know the count after the test).
     auto fc = remove_far_clusters(std::move(robust.value), link, far, scope, report.count_in, removed_points);

@@ -2,7 +2,8 @@
 // flood fill over every occupied cell of the whole scan at once (written here from the rule:
 // floor((p − origin)/E) per axis clamped to [0, 2^21 − 1], 26-neighbour linkage, the main body
 // the component of most points, far when its box is more than far_m from the main body's box,
-// removed when also at most `small` points).
+// removed when also at most `small` points; boxes of the points in doubles). Its link-cell mode
+// (link_key, add_cell: the tiled run's merge) against the in-core remove_far_clusters itself.
 //
 // The scene (grid frame, metres): a carved wall 2 m × 1 m in 8 × 4 tiles of 0.25 m, and about
 // it the cases the joining along tile edges must get right: a small far cluster on a corner
@@ -18,6 +19,8 @@
 #include "far_cells.hpp"
 
 #include "hc/common/format.hpp"
+#include "hc/pipeline/robust_outliers.hpp"
+#include "stage_util.hpp"
 
 #include <gtest/gtest.h>
 
@@ -101,7 +104,7 @@ int tile_row(const Eigen::Vector3d& p) { return std::clamp(static_cast<int>(std:
 
 struct OracleCell {
   std::uint64_t count = 0;
-  std::array<float, 3> lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
+  std::array<double, 3> lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
 };
 
 struct Oracle {
@@ -127,7 +130,7 @@ Oracle flood_fill(const Scene& s, const Eigen::Vector3d& origin, double edge, st
     OracleCell& c = cells[cell_of(p, origin, edge)];
     ++c.count;
     for (std::size_t a = 0; a < 3; ++a) {
-      const auto v = static_cast<float>(p[static_cast<int>(a)] - origin[static_cast<int>(a)]);
+      const double v = p[static_cast<int>(a)];
       c.lo[a] = std::min(c.lo[a], v);
       c.hi[a] = std::max(c.hi[a], v);
     }
@@ -151,8 +154,8 @@ Oracle flood_fill(const Scene& s, const Eigen::Vector3d& origin, double edge, st
       const OracleCell& oc = cells.at(k);
       c.count += oc.count;
       for (int a = 0; a < 3; ++a) {
-        c.lo[a] = std::min(c.lo[a], origin[a] + static_cast<double>(oc.lo[static_cast<std::size_t>(a)]));
-        c.hi[a] = std::max(c.hi[a], origin[a] + static_cast<double>(oc.hi[static_cast<std::size_t>(a)]));
+        c.lo[a] = std::min(c.lo[a], oc.lo[static_cast<std::size_t>(a)]);
+        c.hi[a] = std::max(c.hi[a], oc.hi[static_cast<std::size_t>(a)]);
       }
       for (int dx = -1; dx <= 1; ++dx)
         for (int dy = -1; dy <= 1; ++dy)
@@ -275,6 +278,99 @@ TEST(FarCells, TileByTileFindsTheWholeScansComponentsWithCellsLargerThanATile) {
   expect_same_as_flood_fill(0.3, 0.35, 1000);
   // E = 60 cm, the small limit above the U's and A's points.
   expect_same_as_flood_fill(0.6, 0.7, 6000);
+}
+
+// The merge's use (tiled_run.cpp, exact_far_clusters): each tile's own points reduced to its
+// link cells (link_key at the link, count, box), fed whole in row order. The oracle is the
+// in-core step, remove_far_clusters on the whole cloud at the same link: the points in the far
+// keys' cells are exactly the ones it removes, and the counts agree. The scene lies partly at
+// negative coordinates (the clamped points), which link_key's shift must carry. A tile's cells
+// are fed in shuffled order, one key twice (two half cells), as add_cell allows.
+TEST(FarCells, LinkCellsFedWholeGiveTheInCoreFarClusters) {
+  const Scene s = carved_wall_with_clusters();
+  for (const double link : {0.01, 0.004}) {
+    SCOPED_TRACE("link " + format_number(link) + " m");
+    hc::pipeline::Cloud cloud;
+    cloud.xyz.resize(3, static_cast<Eigen::Index>(s.points.size()));
+    for (std::size_t i = 0; i < s.points.size(); ++i) cloud.xyz.col(static_cast<Eigen::Index>(i)) = s.points[i];
+    hc::pipeline::FarClusterOptions o;
+    o.max_points = 1000;
+    o.max_fraction = 0.0;
+    o.far_distance_m = 0.1;
+    hc::pipeline::RemovedPoints removed;
+    const auto in_core = hc::pipeline::remove_far_clusters(cloud, link, o, nullptr, 0, &removed);
+    ASSERT_GT(removed.size(), 100U) << "the scene's far clusters";
+
+    FarCells cells(Eigen::Vector3d::Zero(), link, 1000);
+    std::mt19937_64 rng(11);
+    for (int r = 0; r < kTilesR; ++r) {
+      for (int c = 0; c < kTilesC; ++c) {
+        struct Cell {
+          std::uint64_t count = 0;
+          double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
+        };
+        std::map<std::uint64_t, Cell> own;
+        for (const Eigen::Vector3d& p : s.points) {
+          if (tile_row(p) != r || tile_col(p) != c) continue;
+          const std::uint64_t k = FarCells::link_key(p.data(), 1.0 / link);
+          ASSERT_NE(k, FarCells::kNoKey);
+          Cell& q = own[k];
+          ++q.count;
+          for (int a = 0; a < 3; ++a) {
+            q.lo[a] = std::min(q.lo[a], p[a]);
+            q.hi[a] = std::max(q.hi[a], p[a]);
+          }
+        }
+        std::vector<std::pair<std::uint64_t, Cell>> list(own.begin(), own.end());
+        std::shuffle(list.begin(), list.end(), rng);
+        cells.begin_tile(r);
+        for (std::size_t i = 0; i < list.size(); ++i) {
+          const auto& [k, q] = list[i];
+          if (i == 0 && q.count >= 2) {  // one cell in two halves: the same box, the count split
+            cells.add_cell(k, 1, q.lo, q.hi);
+            cells.add_cell(k, static_cast<std::uint32_t>(q.count - 1), q.lo, q.hi);
+          } else {
+            cells.add_cell(k, static_cast<std::uint32_t>(q.count), q.lo, q.hi);
+          }
+        }
+        cells.end_tile();
+      }
+    }
+    const FarCells::Result fc = cells.components(0.1);
+    EXPECT_EQ(fc.removed_points, removed.size());
+    EXPECT_EQ(static_cast<double>(fc.removed_clusters), hc::pipeline::detail::figure_of(in_core.report, "far_clusters", -1.0));
+    const FarCells::FarCellList list = cells.far_cells();
+    const std::vector<std::uint64_t>& far = list.keys;
+    EXPECT_TRUE(std::is_sorted(far.begin(), far.end()));
+    ASSERT_EQ(list.cluster.size(), far.size());
+    // The clusters: the in-core run's numbers (in the order of their first points) map one to
+    // one onto these (in the order of their least cells).
+    std::map<std::uint32_t, std::uint32_t> ours_of_core;
+    std::set<std::uint32_t> ours;
+    for (std::size_t j = 0; j < removed.size(); ++j) {
+      const auto at = std::lower_bound(far.begin(), far.end(), FarCells::link_key(s.points[removed.at[j]].data(), 1.0 / link));
+      ASSERT_TRUE(at != far.end());
+      const std::uint32_t c = list.cluster[static_cast<std::size_t>(at - far.begin())];
+      EXPECT_EQ(ours_of_core.emplace(removed.cluster[j], c).first->second, c) << "one in-core cluster, one of ours";
+      ours.insert(c);
+    }
+    EXPECT_EQ(ours.size(), ours_of_core.size()) << "and one of ours, one in-core cluster";
+    EXPECT_EQ(ours.size(), fc.removed_clusters);
+    std::set<std::size_t> gone(removed.at.begin(), removed.at.end());
+    std::size_t wrong = 0;
+    for (std::size_t i = 0; i < s.points.size(); ++i) {
+      const bool in_far = std::binary_search(far.begin(), far.end(), FarCells::link_key(s.points[i].data(), 1.0 / link));
+      wrong += in_far != (gone.count(i) > 0) ? 1U : 0U;
+    }
+    EXPECT_EQ(wrong, 0U);
+    EXPECT_EQ(fc.box_lo, Eigen::Vector3d(-0.4, -0.2, cloud.xyz.row(2).minCoeff()));
+  }
+  // Beyond the shifted 21 bits, and not finite: no key.
+  const double big[3] = {0.0, 2.0e6, 0.0}, nan[3] = {std::nan(""), 0.0, 0.0};
+  EXPECT_EQ(FarCells::link_key(big, 1.0), FarCells::kNoKey);
+  EXPECT_EQ(FarCells::link_key(nan, 1.0), FarCells::kNoKey);
+  const double edge[3] = {-1048576.0, 1048575.5, 0.0};
+  EXPECT_NE(FarCells::link_key(edge, 1.0), FarCells::kNoKey);
 }
 
 TEST(FarCells, RefusesTilesOutOfRowOrderAndABadEdge) {

@@ -407,6 +407,21 @@ StageResult<Cloud> remove_far_clusters(Cloud cloud, double link_m, const FarClus
 StageResult<Cloud> remove_outliers_robust(Cloud cloud, const RobustOutlierOptions& options,
                                           const FarClusterOptions& far, RobustScale* scale_used = nullptr);
 
+/// The robust test's global threshold D_glob = max(exp(m + mad_multiplier·1.4826·MAD),
+/// local_ratio·exp(m)) [m] for a scale (m = median_log, MAD = mad_log) and options, the very
+/// value remove_robust_outliers computes (it calls this). Never throws.
+double robust_global_threshold_m(const RobustScale& scale, const RobustOutlierOptions& options);
+
+/// The linking distance of far-cluster removal after a robust test [m]: far.link_m when > 0,
+/// else the robust report's figure global_threshold_mm × 10⁻³ (the value remove_far_clusters_after
+/// takes, rounding included), else 1 mm (every point a copy of another). The tiled run's tiles
+/// take the same value for the in-core cells of their kept points. Never throws.
+double far_link_m(const FarClusterOptions& far, const StageReport& robust_report);
+/// The same for a robust test that did not run where its global threshold is known (the tiled
+/// run's windows too sparse to judge): far.link_m when > 0, else global_threshold_m as the
+/// report carries it (× 10³, then × 10⁻³), else 1 mm.
+double far_link_m(const FarClusterOptions& far, double global_threshold_m);
+
 /// The second step of remove_outliers_robust on the result of remove_robust_outliers (as
 /// remove_outliers_robust runs it): far-cluster removal at far.link_m or the robust report's
 /// global_threshold_mm, the report extended. N of the size limit is the robust report's
