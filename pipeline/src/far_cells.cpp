@@ -140,6 +140,8 @@ std::uint32_t FarCells::tile_cell(std::uint64_t key) {
 
 void FarCells::add_points(const double* xyz, std::size_t n) {
   if (!in_tile_) throw std::logic_error("FarCells::add_points outside a tile");
+  if (cells_fed_) throw std::logic_error("FarCells::add_points after add_cell (one way of feeding per FarCells)");
+  points_fed_ = points_fed_ || n > 0;
   for (std::size_t j = 0; j < n; ++j) {
     const double* p = xyz + 3 * j;
     Cell& c = tile_cells_[tile_cell(key(p))];
@@ -153,6 +155,8 @@ void FarCells::add_points(const double* xyz, std::size_t n) {
 
 void FarCells::add_cell(std::uint64_t key, std::uint32_t count, const double* lo, const double* hi) {
   if (!in_tile_) throw std::logic_error("FarCells::add_cell outside a tile");
+  if (points_fed_) throw std::logic_error("FarCells::add_cell after add_points (one way of feeding per FarCells)");
+  cells_fed_ = true;
   if (key == kNoKey) throw std::logic_error("FarCells::add_cell: a cell without a key (kNoKey)");
   Cell& c = tile_cells_[tile_cell(key)];
   c.count += count;
@@ -166,9 +170,13 @@ std::uint64_t FarCells::link_key(const double* p, double inv_edge) {
   constexpr double kHalf = static_cast<double>(std::int64_t{1} << 20);
   std::int64_t c[3];
   for (int a = 0; a < 3; ++a) {
-    const double f = std::floor(p[a] * inv_edge);
+    // ⌊f⌋ without std::floor (a library call on the baseline x86-64 target): the truncation,
+    // one less where it rounded a negative value up; exact within the range checked.
+    const double f = p[a] * inv_edge;
     if (!(f >= -kHalf && f < kHalf)) return kNoKey;  // NaN too
-    c[a] = static_cast<std::int64_t>(f) + (std::int64_t{1} << 20);
+    auto t = static_cast<std::int64_t>(f);
+    t -= static_cast<double>(t) > f ? 1 : 0;
+    c[a] = t + (std::int64_t{1} << 20);
   }
   return pack(c[0], c[1], c[2]);
 }

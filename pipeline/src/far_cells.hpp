@@ -19,6 +19,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <stdexcept>
 #include <string>
 #include <unordered_map>
 #include <vector>
@@ -77,7 +78,7 @@ class FarCells {
   /// A cell of the tile whole: key from link_key (kNoKey not allowed), its points' count and
   /// box lo, hi (3 doubles each, grid frame [m]). A key given twice in one tile is one cell (the
   /// counts added, the boxes joined).
-  /// @throws std::logic_error outside a tile or for kNoKey.
+  /// @throws std::logic_error outside a tile, for kNoKey, or after add_points.
   void add_cell(std::uint64_t key, std::uint32_t count, const double* lo, const double* hi);
   /// Joins the tile's cells among themselves and to the frontier, and keeps its far sides.
   void end_tile();
@@ -128,7 +129,10 @@ class FarCells {
   };
   FarCellList far_cells() const;
 
+  /// For a FarCells fed points (add_points) only: its keys are the origin's, not link_key's.
+  /// @throws std::logic_error on one fed whole cells (far_cells() lists theirs).
   bool holds(const double* p) const {
+    if (cells_fed_) throw std::logic_error("FarCells::holds on cells fed whole: look their keys up in far_cells()");
     if (far_.empty()) return false;
     const std::uint64_t k = key(p);
     const std::uint64_t b = filter_bit(k);
@@ -163,6 +167,7 @@ class FarCells {
   double edge_, inv_;
   std::uint64_t small_;
   bool done_ = false, in_tile_ = false;
+  bool points_fed_ = false, cells_fed_ = false;  // which way it was fed (not both)
   int row_ = 0;
   std::uint64_t y_seen_max_ = 0;  // the largest y index of any cell added so far
   std::size_t cells_ = 0, listed_ = 0;

@@ -51,7 +51,7 @@
 #include <map>
 #include <unordered_map>
 #include <unordered_set>
-#include <unordered_set>
+#include <set>
 #include <optional>
 #include <random>
 #include <string>
@@ -1351,6 +1351,10 @@ struct Plan {
   // did not run.
   std::optional<std::array<Eigen::Vector3d, 2>> far_main_box_m;
   std::uint64_t far_size_points = 0;  // N of the far clusters' size limit: the points after non-finite and crop
+  // The whole scan's extent before the far clusters go (tile_far_clusters: the longest side of
+  // the grid's box, two cells wider, or the z span) [m]; 0 when that stage did not run
+  // (exact_far_clusters).
+  double far_extent_m = 0.0;
   // grid.upsample: auto (in process and in plan.json since 2026-11-30): the coverage counts
   // of factors 1 to tiles.k (UpsampleCoverage::counts, index k − 1) over the factor_points
   // points the plan chose the factor from, for factor_may_change; empty when not known.
@@ -1438,6 +1442,83 @@ struct TileOutput {
   // tile-merge lay the grid on that box when the in-core run would.
   XyBox after_box;
   std::vector<std::array<double, 3>> despiked_m;
+  // The in-core run's far-cluster cells (FarCells::link_key at edge link_m, the linking
+  // distance remove_far_clusters_after takes) of the points the tile owns that its robust test
+  // kept, before any far cluster goes, each with its points' count and box [m]: the merge joins
+  // them, tile by tile, into the in-core run's far clusters (exact_far_clusters; sixty-sixth
+  // session). Empty with the robust test or far clusters off. A window too sparse to judge sends its owned points' cells as kept
+  // (its points are kept untested). link_cells_partial: a point lies beyond link_key's range,
+  // so the cells cannot be the in-core ones.
+  struct LinkCell {
+    std::uint64_t key = 0, count = 0;
+    double lo[3] = {0, 0, 0}, hi[3] = {0, 0, 0};
+  };
+  std::vector<LinkCell> link_cells;
+  double link_m = 0.0;
+  bool link_cells_partial = false;
+  // Where the attempt carries ScaleConfig::far_cells: the carried clusters (their numbers) of
+  // which the tile removed an owned point, for the merge's cluster count (in process only: a
+  // tile job's plan carries no cells).
+  std::vector<std::uint32_t> far_clusters_hit;
+};
+
+// The link cells of a tile's points (TileOutput::link_cells): open addressing on the key (a
+// power of two slots, at most half full), the last cell remembered (a scan's neighbours share
+// cells). add() returns false for a point without a key (FarCells::link_key's kNoKey).
+class LinkCellTable {
+ public:
+  explicit LinkCellTable(double link_m) : inv_(1.0 / link_m) {}
+  bool add(const double* p) {
+    const std::uint64_t k = FarCells::link_key(p, inv_);
+    if (k == FarCells::kNoKey) return false;
+    if (k != last_key_ || cells_.empty()) {
+      last_ = find(k);
+      last_key_ = k;
+    }
+    TileOutput::LinkCell& c = cells_[last_];
+    if (c.count++ == 0) {
+      for (int a = 0; a < 3; ++a) c.lo[a] = c.hi[a] = p[a];
+    } else {
+      for (int a = 0; a < 3; ++a) {
+        c.lo[a] = std::min(c.lo[a], p[a]);
+        c.hi[a] = std::max(c.hi[a], p[a]);
+      }
+    }
+    return true;
+  }
+  std::vector<TileOutput::LinkCell> take() { return std::move(cells_); }
+
+ private:
+  static std::size_t home(std::uint64_t k, int bits) { return static_cast<std::size_t>((k * 0x9E3779B97F4A7C15ULL) >> (64 - bits)); }
+  std::uint32_t find(std::uint64_t k) {
+    const std::size_t mask = slots_.size() - 1;
+    for (std::size_t i = home(k, bits_);; i = (i + 1) & mask) {
+      if (slots_[i] == kFree) {
+        slots_[i] = static_cast<std::uint32_t>(cells_.size());
+        cells_.emplace_back().key = k;
+        if (2 * cells_.size() > slots_.size()) grow();
+        return static_cast<std::uint32_t>(cells_.size() - 1);
+      }
+      if (cells_[slots_[i]].key == k) return slots_[i];
+    }
+  }
+  void grow() {
+    ++bits_;
+    slots_.assign(std::size_t{1} << bits_, kFree);
+    const std::size_t mask = slots_.size() - 1;
+    for (std::uint32_t c = 0; c < cells_.size(); ++c) {
+      std::size_t i = home(cells_[c].key, bits_);
+      while (slots_[i] != kFree) i = (i + 1) & mask;
+      slots_[i] = c;
+    }
+  }
+  static constexpr std::uint32_t kFree = std::numeric_limits<std::uint32_t>::max();
+  double inv_;
+  int bits_ = 10;
+  std::vector<std::uint32_t> slots_ = std::vector<std::uint32_t>(std::size_t{1} << 10, kFree);
+  std::vector<TileOutput::LinkCell> cells_;
+  std::uint64_t last_key_ = 0;
+  std::uint32_t last_ = 0;
 };
 
 // The levels table's sample: every sample_stride-th interior point, in tile order (read from the
@@ -2323,6 +2404,53 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   // k-NN tests: its points are kept as they are, counted and noted, not an error.
   const bool judgeable = pts.size() >= static_cast<std::size_t>(oc.k) + 2;
   if (oc.enabled && pts.size() > 0 && !judgeable) o.unjudged = pts.size();
+  // The in-core far clusters' cells, collected in every attempt (one that carries them checks
+  // that they are still the ones its kept points give).
+  const bool link_cells = oc.enabled && oc.method == OutlierMethod::kRobust && oc.far_clusters.enabled && plan.robust_scale.has_value();
+  if (link_cells && pts.size() > 0 && !judgeable) {
+    // Its points are kept untested: their cells go to the merge as kept points' (a stray far
+    // from everything, which the in-core run's robust test may keep and its far clusters then
+    // remove), and where an attempt carries the far clusters' cells, those in them go.
+    const double link_m = far_link_m(oc.far_clusters, robust_global_threshold_m(*plan.robust_scale, tile_robust_options(config, plan, t)));
+    const NodeBinner owner(tiles.g);
+    if (link_cells) {
+      LinkCellTable table(link_m);
+      for (std::size_t i = 0; i < pts.size() && !o.link_cells_partial; ++i) {
+        const double* p = pts.xyz.data() + 3 * i;
+        if (owner.inside(p, inner) && !table.add(p)) o.link_cells_partial = true;
+      }
+      o.link_m = link_m;
+      if (!o.link_cells_partial) o.link_cells = table.take();
+    }
+    if (config.scale.far_cells != nullptr && !config.scale.far_cells->keys.empty()) {
+      const ScaleConfig::FarCellKeys& carried = *config.scale.far_cells;
+      if (link_m != carried.link_m) {
+        throw std::logic_error("process_tile: tile " + std::to_string(t) + ": the far clusters' link is " + format_number(link_m * 1e3) +
+                               " mm, the carried cells' " + format_number(carried.link_m * 1e3) + " mm");
+      }
+      std::vector<bool> keep_far(pts.size(), true);
+      std::vector<std::size_t> gone;
+      double owned_gone = 0.0;
+      for (std::size_t i = 0; i < pts.size(); ++i) {
+        const double* p = pts.xyz.data() + 3 * i;
+        const std::uint64_t k = FarCells::link_key(p, 1.0 / carried.link_m);
+        const auto at = std::lower_bound(carried.keys.begin(), carried.keys.end(), k);
+        if (k == FarCells::kNoKey || at == carried.keys.end() || *at != k) continue;
+        keep_far[i] = false;
+        gone.push_back(i);
+        if (owner.inside(p, inner)) {
+          owned_gone += 1.0;
+          o.far_clusters_hit.push_back(carried.cluster[static_cast<std::size_t>(at - carried.keys.begin())]);
+        }
+      }
+      if (!gone.empty()) {
+        pts.keep_if(keep_far);
+        compose_removal(gone);
+        o.sums["far_points_owned"] += owned_gone;
+        o.sums["removed_far_clusters"] += static_cast<double>(gone.size());
+      }
+    }
+  }
   if (oc.enabled && judgeable) {
     // The robust test's verdicts, from the look (tile_robust_options), the strays' the whole
     // scan's (judge_strays).
@@ -2404,6 +2532,25 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     // to them with the whole scan's verdicts (its decided region): a fragment of the object cut
     // off by the window is never far, and no removal rests on the window's edge. Without the
     // whole scan's main body (tile_far_clusters did not run: no robust scale), none are looked for.
+    const ScaleConfig::FarCellKeys* carried = config.scale.far_cells.get();
+    if (link_cells || carried != nullptr) {
+      const double link_m = far_link_m(oc.far_clusters, f1.report);
+      if (carried != nullptr && link_m != carried->link_m) {
+        throw std::logic_error("process_tile: tile " + std::to_string(t) + ": the far clusters' link is " + format_number(link_m * 1e3) +
+                               " mm, the carried cells' " + format_number(carried->link_m * 1e3) + " mm");
+      }
+      const NodeBinner owner(tiles.g);
+      if (link_cells) {  // the owned kept points' in-core cells, for the merge (exact_far_clusters)
+        LinkCellTable table(link_m);
+        for (std::size_t i = 0; i < f1.value.size() && !o.link_cells_partial; ++i) {
+          const double* p = f1.value.xyz.data() + 3 * i;
+          if (owner.inside(p, inner) && !table.add(p)) o.link_cells_partial = true;
+        }
+        o.link_m = link_m;
+        if (!o.link_cells_partial) o.link_cells = table.take();
+      }
+      lap("link_cells");
+    }
     FarClusterOptions fco = oc.far_clusters;
     FarClusterScope far_scope;
     if (plan.far_main_box_m) {
@@ -2415,7 +2562,26 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       fco.enabled = false;
     }
     RemovedPoints far_removed;
-    auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope, &far_removed);
+    if (carried != nullptr && oc.far_clusters.enabled && !carried->keys.empty()) {
+      // An attempt that carries the in-core far clusters' cells (ScaleConfig::far_cells): the
+      // window's kept points in them go, as the in-core run removes them; no cluster is judged.
+      const double inv = 1.0 / carried->link_m;
+      std::vector<bool> keep_far(f1.value.size(), true);
+      for (std::size_t i = 0; i < f1.value.size(); ++i) {
+        const double* p = f1.value.xyz.data() + 3 * i;
+        const std::uint64_t k = FarCells::link_key(p, inv);
+        const auto at = std::lower_bound(carried->keys.begin(), carried->keys.end(), k);
+        if (k == FarCells::kNoKey || at == carried->keys.end() || *at != k) continue;
+        keep_far[i] = false;
+        far_removed.at.push_back(i);
+        far_removed.xyz.insert(far_removed.xyz.end(), p, p + 3);
+        far_removed.cluster.push_back(carried->cluster[static_cast<std::size_t>(at - carried->keys.begin())]);
+      }
+      if (!far_removed.at.empty()) f1.value.keep_if(keep_far);
+    }
+    if (carried != nullptr) fco.enabled = false;
+    auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope, carried != nullptr ? nullptr : &far_removed);
+    if (carried != nullptr) detail::set_figure(f1f.report, "removed_far_clusters", static_cast<double>(far_removed.size()));
     add_figures(o.sums, f1f.report);
     if (!far_removed.at.empty()) {
       // The whole scan's far-cluster figures (the verdict's far_points reason reads them): a
@@ -2437,7 +2603,13 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       double clusters_owned = 0.0;
       for (const auto& q : least) clusters_owned += owner.inside(q.data(), inner) ? 1.0 : 0.0;
       o.sums["far_points_owned"] += points_owned;
-      o.sums["far_clusters_owned"] += clusters_owned;
+      if (carried == nullptr) {
+        o.sums["far_clusters_owned"] += clusters_owned;
+      } else {  // the merge counts the carried clusters hit (a cluster may lie in several tiles)
+        for (std::size_t i = 0; i < far_removed.size(); ++i) {
+          if (owner.inside(far_removed.xyz.data() + 3 * i, inner)) o.far_clusters_hit.push_back(far_removed.cluster[i]);
+        }
+      }
     }
     compose_removal(far_removed.at);
     if (!near_kept.empty()) {
@@ -2803,8 +2975,17 @@ struct TileMerge {
   XyBox kept_box, after_box;  // over the tiles (TileOutput::kept_box, after_box)
   int factor_reads = 0;        // reads of the kept points for grid.upsample: auto (grid_on_kept_points)
   std::vector<std::array<double, 3>> despiked_m;  // TileOutput::despiked_m of every tile
+  // The in-core run's far clusters, joined from the tiles' link cells in tile order
+  // (TileOutput::link_cells; exact_far_clusters reads them); none when no tile sent cells.
+  std::optional<FarCells> link_cells;
+  double link_m = 0.0;
+  bool link_cells_partial = false;
+  std::uint64_t far_small_points = 0;  // the far clusters' size limit (FarClusterOptions), N the plan's
+  std::set<std::uint32_t> far_clusters_hit;  // TileOutput::far_clusters_hit of every tile
 
-  TileMerge(const Plan& plan) {
+  TileMerge(const RunConfig& config, const Plan& plan) {
+    const FarClusterOptions& fco = config.filters.outliers.far_clusters;
+    far_small_points = std::max<std::uint64_t>(fco.max_points, static_cast<std::uint64_t>(fco.max_fraction * static_cast<double>(plan.far_size_points)));
     const GridGeometry& g = plan.tiles.g;
     grid.depth = HeightField(g);
     grid.flags.assign(g.cell_count(), kCellEmpty);
@@ -2837,6 +3018,21 @@ struct TileMerge {
     kept_box.merge(o.kept_box);
     after_box.merge(o.after_box);
     despiked_m.insert(despiked_m.end(), o.despiked_m.begin(), o.despiked_m.end());
+    far_clusters_hit.insert(o.far_clusters_hit.begin(), o.far_clusters_hit.end());
+    link_cells_partial = link_cells_partial || o.link_cells_partial;
+    if (!link_cells_partial && !o.link_cells.empty()) {
+      if (!link_cells) {
+        link_m = o.link_m;
+        link_cells.emplace(Eigen::Vector3d::Zero(), link_m, far_small_points);
+      }
+      if (o.link_m != link_m) {
+        throw std::logic_error("TileMerge: tile " + std::to_string(o.tile) + " linked its far-cluster cells at " + format_number(o.link_m * 1e3) +
+                               " mm, an earlier tile at " + format_number(link_m * 1e3) + " mm");
+      }
+      link_cells->begin_tile(static_cast<int>(o.tile / static_cast<std::size_t>(tiles.tiles_c)));
+      for (const TileOutput::LinkCell& c : o.link_cells) link_cells->add_cell(c.key, static_cast<std::uint32_t>(c.count), c.lo, c.hi);
+      link_cells->end_tile();
+    }
   }
 
   // The "tiles" stage's figures and notes.
@@ -2855,6 +3051,79 @@ struct TileMerge {
                           : "no point filter: every tile's interior equals the in-core grid's");
   }
 };
+
+// After the tile loop (in process, and at tile-merge): the in-core run's far clusters among the
+// points the tiles' robust test kept, joined from the tiles' link cells (TileMerge::link_cells;
+// the in-core cells, linking distance, far distance and size limit, so the in-core components,
+// but for a tie of the largest two), against the points the tiles removed as far (the owners'
+// sum far_points_owned). The tiles judge far clusters only against the coarse whole-scan pass's
+// main body, and only where a window holds them whole, so they remove a part of the in-core
+// run's (docs/scale.md, "Far clusters exact"). Returns the cells of the in-core clusters where
+// the tiles fell short (the run then starts again carrying them: ScaleConfig::far_cells), else
+// nullptr. With cells carried, the tiles removed the points in them: this checks that the cells
+// found now are the same (another attempt's grid moves the whole-scan pass's coarse cells, and
+// with them the points that pass leaves), returns the new ones where they are not (unless the
+// carried ones are the last: a warning), and counts the carried clusters the owners hit.
+// Figures on `r` (stage tiles): exact_far_checked (1 when compared), exact_far_points,
+// exact_far_clusters, link_cells.
+std::shared_ptr<const ScaleConfig::FarCellKeys> exact_far_clusters(const RunConfig& config, const Plan& plan, TileMerge& merged,
+                                                                   StageReport& r) {
+  const ScaleConfig::FarCellKeys* carried = config.scale.far_cells.get();
+  const auto it = merged.sums.find("far_points_owned");
+  const double tiles_far = it != merged.sums.end() ? it->second : 0.0;
+  if (carried != nullptr) {
+    merged.sums["far_clusters_owned"] = static_cast<double>(merged.far_clusters_hit.size());
+    r.notes.push_back("far clusters: the tiles removed the kept points in the " + std::to_string(carried->keys.size()) + " cells of " +
+                      std::to_string(carried->clusters) + " far clusters (" + std::to_string(carried->points) +
+                      " points) found by the attempt before from every tile's kept points");
+    for (const std::string& n : carried->notes) r.notes.push_back(n);
+  }
+  const auto unchecked = [&](const std::string& why) {
+    r.figure("exact_far_checked", 0.0);
+    r.notes.push_back("far clusters: not compared with the whole scan's (" + why + ")");
+    return nullptr;
+  };
+  if (!merged.link_cells) return nullptr;  // no tile sent cells: no far step, or no kept point
+  if (merged.link_cells_partial) return unchecked("a point lies more than 2^20 linking distances from the frame's centre");
+  const FarClusterOptions& fco = config.filters.outliers.far_clusters;
+  const double far_m = fco.far_distance_m > 0.0 ? fco.far_distance_m : 10.0 * merged.link_m;
+  const FarCells::Result fc = merged.link_cells->components(far_m);
+  // The in-core cells' edge is the link unless the robust test's kept points span more than
+  // 2 097 150 links on an axis (robust_outliers.cpp, far_clusters_impl). Those the tiles kept,
+  // and the whole scan's extent (plan.far_extent_m: the whole-scan pass's points too), must not.
+  if (std::max((fc.box_hi - fc.box_lo).maxCoeff(), plan.far_extent_m) / 2097150.0 > merged.link_m) {
+    return unchecked("the scan spans more than 2 097 150 linking distances, where the in-core cells may be wider than the link");
+  }
+  r.figure("exact_far_checked", 1.0);
+  r.figure("exact_far_points", static_cast<double>(fc.removed_points));
+  r.figure("exact_far_clusters", static_cast<double>(fc.removed_clusters));
+  r.figure("link_cells", static_cast<double>(fc.cells));
+  FarCells::FarCellList list = merged.link_cells->far_cells();
+  const auto found = [&] {
+    auto k = std::make_shared<ScaleConfig::FarCellKeys>();
+    k->link_m = merged.link_m;
+    k->keys = std::move(list.keys);
+    k->cluster = std::move(list.cluster);
+    k->points = fc.removed_points;
+    k->clusters = fc.removed_clusters;
+    k->notes = fc.notes;
+    return k;
+  };
+  if (carried != nullptr) {
+    if (list.keys == carried->keys) return nullptr;
+    if (!carried->last) return found();
+    r.notes.push_back("warning: the far clusters of the points the tiles kept (" + std::to_string(fc.removed_points) + " points in " +
+                      std::to_string(fc.removed_clusters) + " clusters) are not the carried ones, which the tiles removed (" +
+                      std::to_string(carried->points) + " points in " + std::to_string(carried->clusters) + ")");
+    return nullptr;
+  }
+  if (static_cast<double>(fc.removed_points) > tiles_far) return found();
+  if (static_cast<double>(fc.removed_points) < tiles_far) {  // the tiles' removals are a part of the in-core ones
+    r.notes.push_back("warning: the tiles removed " + format_number(tiles_far) + " points as far, the whole scan's far clusters hold " +
+                      std::to_string(fc.removed_points));
+  }
+  return nullptr;
+}
 
 // Throws the error naming `stage` and scale.filter_halo_cells when the tiles' halo is narrower
 // than the honest check's reach at `spacing_m` (`spacing_what` says where that spacing comes
@@ -3725,13 +3994,12 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
   if (robust && fco.enabled && robust_scale && grid_points > 0) {
     (void)stage("tile_far_clusters", reports, progress, [&] {
       StageResult<int> r;
-      const RobustOutlierOptions ro_defaults;
       const OutlierConfig& oc = config.filters.outliers;
-      const double d_med = std::exp(robust_scale->median_log);
-      const double link = fco.link_m > 0.0 ? fco.link_m
-                                           : std::max(std::exp(robust_scale->median_log + oc.mad_multiplier * 1.4826 * robust_scale->mad_log),
-                                                      oc.local_ratio * d_med);
-      (void)ro_defaults;
+      // The in-core run's link (far_link_m, the robust test's own threshold).
+      RobustOutlierOptions threshold_options;
+      threshold_options.local_ratio = oc.local_ratio;
+      threshold_options.mad_multiplier = oc.mad_multiplier;
+      const double link = far_link_m(fco, robust_global_threshold_m(*robust_scale, threshold_options));
       const double far_d = fco.far_distance_m > 0.0 ? fco.far_distance_m : 10.0 * link;
       const Eigen::Vector3d lo(tiles.g.x0_m - tiles.g.cell_size_m, tiles.g.y0_m - tiles.g.cell_size_m, z_min);
       const double extent = std::max({tiles.g.cell_size_m * (tiles.g.cols + 2), tiles.g.cell_size_m * (tiles.g.rows + 2), z_max - z_min});
@@ -3778,9 +4046,11 @@ Plan plan_passes(const RunConfig& config, const fs::path& dir, const ProgressFn&
       r.report.figure("kept_far_clusters", static_cast<double>(fc.kept_far_clusters));
       for (const std::string& n : fc.notes) r.report.notes.push_back(n);
       plan.far_size_points = grid_points;  // before the far clusters go: as in core (remove_far_clusters_after)
+      plan.far_extent_m = extent;
       if (fc.clusters > 0) {
-        // The cells keep their points' boxes as float offsets from the origin: a millionth of
-        // the extent wider, the box holds every point of the main body.
+        // A millionth of the extent wider than the main body's points' box (kept as float
+        // offsets from the origin until the sixty-sixth session, which this slack covered): a
+        // wider box only spares clusters, never removes one the in-core run keeps.
         const Eigen::Vector3d slack = Eigen::Vector3d::Constant(1e-6 * extent);
         plan.far_main_box_m = std::array<Eigen::Vector3d, 2>{fc.main_lo - slack, fc.main_hi + slack};
       }
@@ -4463,11 +4733,13 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
 // 4: layout.xyz_floats, and spill records of the file's floats when it is set (FileFloats);
 // 5: the input files as a list (inputs); 6: the halo's shares under auto (tiles'
 // despike_halo_cells, isolated_halo_cells; 2026-11-29);
-// 7: the grid's box from an earlier plan's kept points (grid_box; 2026-11-30).
-constexpr const char* kPlanFormat = "hapticloud tile plan 7";
+// 7: the grid's box from an earlier plan's kept points (grid_box; 2026-11-30);
+// 8: the whole scan's extent for the far clusters' check (far_extent_m; 2026-11-30).
+constexpr const char* kPlanFormat = "hapticloud tile plan 8";
 // 2: kept_<t>.bin is a mask over the spill (KeptMask), not the kept points.
-// 3: the kept points' boxes (scale.grid_on_kept_points); 4: the despike's removed points.
-constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '4', '\n'};
+// 3: the kept points' boxes (scale.grid_on_kept_points); 4: the despike's removed points;
+// 5: the far clusters' link cells (TileOutput::link_cells; 2026-11-30).
+constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '5', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
 
 // Doubles as C99 hexadecimal floats ("%a"), so every value reads back to the same bits.
@@ -4726,6 +4998,7 @@ void write_plan_file(const PlanFile& pf) {
                                                            hex((*p.far_main_box_m)[1].y()), hex((*p.far_main_box_m)[1].z())}
                                          : nlohmann::json();
   j["far_size_points"] = p.far_size_points;
+  j["far_extent_m"] = hex(p.far_extent_m);
   j["factor_counts"] = nlohmann::json::array();  // grid.upsample auto: {O, I} of factors 1 to k (factor_may_change)
   for (const auto& c : p.factor_counts) j["factor_counts"].push_back({c[0], c[1]});
   j["factor_points"] = p.factor_points;
@@ -4798,7 +5071,7 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       throw InputError(plan_file.string() + ": spill_bytes has " + std::to_string(pf.spill_bytes.size()) + " entries, expected " +
                        std::to_string(p.tiles.count()) + " (one per tile)");
     }
-    where = "layout, robust_scale, input_points, grid_points, far_points, far_main_box_m, far_size_points, precision, offset_m, crs, inputs";
+    where = "layout, robust_scale, input_points, grid_points, far_points, far_main_box_m, far_size_points, far_extent_m, precision, offset_m, crs, inputs";
     p.layout.rgb = j.at("layout").at("rgb").get<bool>();
     p.layout.intensity = j.at("layout").at("intensity").get<bool>();
     if (const auto& x = j.at("layout").at("xyz_floats"); !x.is_null()) {
@@ -4905,6 +5178,7 @@ PlanFile read_plan_file(const fs::path& plan_file) {
       p.far_main_box_m = box;
     }
     p.far_size_points = j.at("far_size_points").get<std::uint64_t>();
+    p.far_extent_m = unhex(j.at("far_extent_m"), plan_file, "far_extent_m");
     if (j.contains("factor_counts")) {  // absent in plans of builds before 2026-11-30: none known (the merge reads the kept points)
       where = "factor_counts, factor_points";
       for (const auto& c : j.at("factor_counts")) p.factor_counts.push_back({c.at(0).get<std::uint64_t>(), c.at(1).get<std::uint64_t>()});
@@ -4996,6 +5270,15 @@ std::string encode_part(const std::string& plan_id, const TileOutput& o) {
   }
   put(s, static_cast<std::uint64_t>(o.despiked_m.size()));
   for (const auto& p : o.despiked_m) s.append(reinterpret_cast<const char*>(p.data()), sizeof p);
+  put(s, o.link_m);
+  put(s, static_cast<std::uint8_t>(o.link_cells_partial));
+  put(s, static_cast<std::uint64_t>(o.link_cells.size()));
+  for (const TileOutput::LinkCell& c : o.link_cells) {
+    put(s, c.key);
+    put(s, c.count);
+    for (const double v : c.lo) put(s, v);
+    for (const double v : c.hi) put(s, v);
+  }
   const DepthGrid& g = o.interior;
   const std::int32_t rows = g.depth.rows(), cols = g.depth.cols();
   put(s, rows);
@@ -5087,6 +5370,23 @@ TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::si
   }
   o.despiked_m.resize(static_cast<std::size_t>(n_despiked));
   for (auto& p : o.despiked_m) r.take(p.data(), sizeof p);
+  o.link_m = r.get<double>();
+  o.link_cells_partial = r.get<std::uint8_t>() != 0;
+  const auto n_cells = r.get<std::uint64_t>();
+  if (n_cells > 0 && !(std::isfinite(o.link_m) && o.link_m > 0.0)) r.bad("its far-cluster link cells have a link of " + format_number(o.link_m) + " m");
+  constexpr std::size_t kCellBytes = 2 * sizeof(std::uint64_t) + 6 * sizeof(double);
+  if (n_cells > o.in || n_cells > r.left() / kCellBytes) {
+    r.bad("lists " + std::to_string(n_cells) + " far-cluster link cells of " + std::to_string(o.in) + " input points in " +
+          std::to_string(r.left()) + " bytes left");
+  }
+  o.link_cells.resize(static_cast<std::size_t>(n_cells));
+  for (TileOutput::LinkCell& c : o.link_cells) {
+    c.key = r.get<std::uint64_t>();
+    c.count = r.get<std::uint64_t>();
+    if (c.key == FarCells::kNoKey || c.count == 0 || c.count > o.in) r.bad("holds a far-cluster link cell without a key or points");
+    for (double& v : c.lo) v = r.get<double>();
+    for (double& v : c.hi) v = r.get<double>();
+  }
   const auto rows = r.get<std::int32_t>(), cols = r.get<std::int32_t>();
   const bool colour = r.get<std::uint8_t>() != 0, intensity = r.get<std::uint8_t>() != 0;
   if (rows > 0) {
@@ -5194,6 +5494,27 @@ struct GridOnKeptPoints : std::runtime_error {
   bool factor_only() const { return first_factor > 0 && first == kept; }
   std::string island_halo_widened;  // the warning, when the attempt ran with the wider grid share
 };
+
+// Thrown by build_scene_tiled_once after its tile loop when the in-core run's far clusters
+// hold points the tiles kept (exact_far_clusters): build_scene_tiled starts again carrying their
+// cells (ScaleConfig::far_cells).
+struct FarCellsAgain : std::runtime_error {
+  explicit FarCellsAgain(std::shared_ptr<const ScaleConfig::FarCellKeys> c)
+      : std::runtime_error("tiled run: far clusters to be removed by their cells (caught by build_scene_tiled)"), cells(std::move(c)) {}
+  std::shared_ptr<const ScaleConfig::FarCellKeys> cells;
+  std::string island_halo_widened;  // as GridOnKeptPoints'
+};
+
+// tile-merge's warning where the in-core run's far clusters hold points the tiles kept (a plan
+// carries no cells: the in-process run starts again instead).
+std::string far_short_warning(const ScaleConfig::FarCellKeys& k, const TileMerge& merged) {
+  const auto it = merged.sums.find("far_points_owned");
+  const double tiles_far = it != merged.sums.end() ? it->second : 0.0;
+  return "the whole scan's far clusters (filters.outliers.far_clusters) hold " + std::to_string(k.points) + " points in " +
+         std::to_string(k.clusters) + " clusters, the tile jobs removed " + format_number(tiles_far) +
+         " as far: the scene keeps the others, which the in-core run removes (a tile judges far clusters only where its "
+         "window holds them whole); hapticloud run, tiled in process, starts again and removes them all";
+}
 
 // scale.grid_on_kept_points after a tile loop (in process or merged from tile jobs): where the
 // points the tiles' filters kept (TileMerge::kept_box), or those their despike left
@@ -5361,7 +5682,12 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
   // whole scan's and so the same on any grid, save where the tiles decide them (a far cluster
   // removed only where one window's decided region holds it whole, a window too sparse to
   // judge): the third attempt checks no more, and finish_tiled warns if its grid still differs.
-  for (int attempt = 1;; ++attempt) {
+  // One more attempt, counted apart, where the in-core run's far clusters hold points the tiles
+  // kept (FarCellsAgain: their cells carried; once at most, since an attempt that carries them
+  // does not look again).
+  int attempt = 0;  // of the grid's attempts
+  for (;;) {
+    ++attempt;
     if (attempt == 3) now.scale.grid_box->last = true;  // checks no more (finish_tiled warns)
     try {
       BuiltScene built = build_scene_tiled_on_its_grid(now, progress, layers, t_start);
@@ -5373,9 +5699,10 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
         for (StageReport& rep : built.summary.stages) {
           if (rep.stage != "tile_plan") continue;
           rep.figure("grid_relaid", static_cast<double>(attempt - 1));
+          rep.figure("far_cells_carried", now.scale.far_cells ? 1.0 : 0.0);
           for (const std::string& w : why) rep.notes.push_back(w);
-          rep.notes.push_back("(" + format_number(lost_s) + " s in all; scale.grid_on_kept_points: false keeps the first grid "
-                              "and skips the later attempts)");
+          rep.notes.push_back("(" + format_number(lost_s) + " s in all" +
+                              (attempt > 1 ? "; scale.grid_on_kept_points: false keeps the first grid and skips the grid's later attempts)" : ")"));
         }
       }
       return built;
@@ -5386,6 +5713,23 @@ BuiltScene build_scene_tiled(const RunConfig& config, const ProgressFn& progress
       }
       why.push_back(grid_relaid_why(e, "the run started again after " + format_number(detail::seconds_since(t_start)) + " s"));
       now.scale.grid_box = e.box;
+    } catch (const FarCellsAgain& e) {
+      if (!e.island_halo_widened.empty()) {
+        now.scale.island_halo = ScaleConfig::Tiled::kOn;
+        why.push_back("warning: " + e.island_halo_widened);
+      }
+      if (now.scale.far_cells && now.scale.far_cells->last) throw std::logic_error("build_scene_tiled: far-cluster cells carried after the last");
+      const bool again = now.scale.far_cells != nullptr;  // the carried cells were another grid's: once more, the last
+      why.push_back((again ? std::string("the far clusters of the kept points moved with the grid (the whole-scan pass's coarse cells lie on it): ")
+                           : std::string("the whole scan's far clusters, joined from the tiles' kept points, hold more points than the tiles "
+                                         "removed (they judge far clusters only where a window holds them whole): ")) +
+                    std::to_string(e.cells->points) + " points in " + std::to_string(e.cells->clusters) + " clusters; the run started again after " +
+                    format_number(detail::seconds_since(t_start)) + " s, its tiles removing the kept points in those clusters' " +
+                    std::to_string(e.cells->keys.size()) + " cells");
+      auto cells = std::make_shared<ScaleConfig::FarCellKeys>(*e.cells);
+      cells->last = again;
+      now.scale.far_cells = std::move(cells);
+      --attempt;  // not one of the grid's attempts
     }
   }
 }
@@ -5421,6 +5765,9 @@ BuiltScene build_scene_tiled_on_its_grid(const RunConfig& config, const Progress
   } catch (GridOnKeptPoints& e) {  // build_scene_tiled starts again, with the wider share
     e.island_halo_widened = warning;
     throw;
+  } catch (FarCellsAgain& e) {  // likewise
+    e.island_halo_widened = warning;
+    throw;
   }
   for (StageReport& rep : built.summary.stages) {
     if (rep.stage != "tile_plan") continue;
@@ -5443,7 +5790,8 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
   built.surface_layers_at = layers;  // asked for; scene_surface_layers says what it did
   built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
-  TileMerge merged(plan);
+  TileMerge merged(config, plan);
+  std::shared_ptr<const ScaleConfig::FarCellKeys> far_again;  // exact_far_clusters
   // 3. The tile jobs, in process and in order (tile-job runs the same run_tiles elsewhere).
   (void)stage("tiles", built.summary.stages, progress, [&] {
     StageResult<int> r;
@@ -5472,11 +5820,15 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
           spill.remove(t);
         });
     take_over_despike_sums(config, merged);
+    far_again = exact_far_clusters(config, plan, merged, r.report);
     merged.report(config, r.report);
     r.report.figure("heap_releases", static_cast<double>(heap.releases()));
     r.report.figure("large_blocks_mapped", mapped ? 1.0 : 0.0);
     return r;
   });
+  // The in-core run's far clusters hold points the tiles kept: build_scene_tiled starts again
+  // carrying their cells (before the grid's box is looked at: their points may set it).
+  if (far_again) throw FarCellsAgain(std::move(far_again));
   // The in-core run lays its grid on the points the filters keep: where that is another grid,
   // build_scene_tiled starts again with their box (scale.grid_on_kept_points).
   if (std::optional<GridOnKeptPoints> again = grid_on_kept_points(config, plan, merged, kept)) throw std::move(*again);
@@ -5775,7 +6127,8 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
   built.surface_layers_at = layers;  // asked for; scene_surface_layers says what it did
   built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
-  TileMerge merged(plan);
+  TileMerge merged(config, plan);
+  std::shared_ptr<const ScaleConfig::FarCellKeys> far_short;  // exact_far_clusters: not carried into another plan
   (void)stage("tiles", built.summary.stages, progress, [&] {
     StageResult<int> r;
     for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
@@ -5787,6 +6140,10 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
       merged.add(plan.tiles, std::move(o));
     }
     take_over_despike_sums(config, merged);
+    far_short = exact_far_clusters(config, plan, merged, r.report);
+    if (far_short) {
+      r.report.notes.push_back("warning: " + far_short_warning(*far_short, merged));
+    }
     merged.report(config, r.report);
     r.report.figure("tile_job_seconds", merged.job_seconds);
     // Every tile has its result: the scratch of attempts that were killed is of no use to anyone.
@@ -5835,6 +6192,7 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
                        box_file);
   }
   m.built = finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
+  if (far_short) m.built.summary.warnings.push_back(far_short_warning(*far_short, merged));
   return m;
 }
 

@@ -371,6 +371,19 @@ TEST(FarCells, LinkCellsFedWholeGiveTheInCoreFarClusters) {
   EXPECT_EQ(FarCells::link_key(nan, 1.0), FarCells::kNoKey);
   const double edge[3] = {-1048576.0, 1048575.5, 0.0};
   EXPECT_NE(FarCells::link_key(edge, 1.0), FarCells::kNoKey);
+  // floor, not truncation, below 0: -0.5 and -1 share cell -1, 0 is the next.
+  const double a[3] = {-0.5, 0.0, 0.0}, b[3] = {-1.0, 0.0, 0.0}, c[3] = {0.0, 0.0, 0.0};
+  EXPECT_EQ(FarCells::link_key(a, 1.0), FarCells::link_key(b, 1.0));
+  EXPECT_EQ(FarCells::link_key(c, 1.0), FarCells::link_key(a, 1.0) + (std::uint64_t{1} << 42));
+  // One way of feeding per FarCells; holds() only for points fed.
+  FarCells fed(Eigen::Vector3d::Zero(), 0.01, 10);
+  fed.begin_tile(0);
+  const double lo[3] = {0, 0, 0};
+  fed.add_cell(FarCells::link_key(lo, 100.0), 1, lo, lo);
+  EXPECT_THROW(fed.add_points(lo, 1), std::logic_error);
+  fed.end_tile();
+  (void)fed.components(1.0);
+  EXPECT_THROW((void)fed.holds(lo), std::logic_error);
 }
 
 TEST(FarCells, RefusesTilesOutOfRowOrderAndABadEdge) {

@@ -160,6 +160,25 @@ struct ScaleConfig {
     bool last = false;
   };
   std::optional<GridBox> grid_box;
+  /// Not a config key: set by the in-process tiled run's later attempt (build_scene_tiled) when
+  /// the in-core run's far clusters among the points the tiles' robust test kept (found at the
+  /// merge from every tile's link cells) held more points than the tiles removed as far (sixty-sixth
+  /// session, 2026-11-30). `keys`: the removed clusters' link cells (FarCells::link_key at
+  /// edge link_m [m], increasing); the tiles of that attempt remove the points of their windows
+  /// that the robust test keeps in those cells instead of judging far clusters themselves.
+  /// `cluster`: each key's cluster (0, 1, ...). `points`, `clusters`: the in-core run's removed
+  /// far-cluster points and clusters [-]; `notes`: its notes on them. The whole-scan pass's own
+  /// removals (stage tile_far_clusters) are not among them. `last`: carried a second time (the
+  /// grid moved the first ones); an attempt with them warns instead of starting again.
+  struct FarCellKeys {
+    double link_m = 0.0;
+    std::vector<std::uint64_t> keys;
+    std::vector<std::uint32_t> cluster;
+    std::uint64_t points = 0, clusters = 0;
+    std::vector<std::string> notes;
+    bool last = false;
+  };
+  std::shared_ptr<const FarCellKeys> far_cells;
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
   /// The most memory the robust test's first looks of a band of tiles hold [MiB], 0 to 65536:
