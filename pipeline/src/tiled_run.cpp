@@ -2968,22 +2968,28 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
 // The tiles' results gathered: the whole grid's cells, the summed figures, the levels sample.
 struct TileMerge {
   DepthGrid grid;
+  // The totals over the tiles, in tile order (finish(), from `parts`):
   std::map<std::string, double> sums;
   std::uint64_t in = 0, out = 0, unjudged = 0;
   std::vector<std::pair<double, std::uint64_t>> spacings;  // each tile's spacing [m] and weight
   double job_seconds = 0.0;
   XyBox kept_box, after_box;  // over the tiles (TileOutput::kept_box, after_box)
-  int factor_reads = 0;        // reads of the kept points for grid.upsample: auto (grid_on_kept_points)
   std::vector<std::array<double, 3>> despiked_m;  // TileOutput::despiked_m of every tile
+  std::set<std::uint32_t> far_clusters_hit;       // TileOutput::far_clusters_hit of every tile
+  int factor_reads = 0;        // reads of the kept points for grid.upsample: auto (grid_on_kept_points)
   // The in-core run's far clusters, joined from the tiles' link cells in tile order
-  // (TileOutput::link_cells; exact_far_clusters reads them); none when no tile sent cells.
+  // (TileOutput::link_cells; exact_far_clusters reads them, then they take no more tiles); none
+  // when no tile sent cells.
   std::optional<FarCells> link_cells;
   double link_m = 0.0;
-  bool link_cells_partial = false;
+  bool link_cells_partial = false, link_cells_joined = false;
   std::uint64_t far_small_points = 0;  // the far clusters' size limit (FarClusterOptions), N the plan's
-  std::set<std::uint32_t> far_clusters_hit;  // TileOutput::far_clusters_hit of every tile
+  // Each tile's output but its interior and link cells (in the grid and link_cells): the totals
+  // are made from them, so that a tile processed again (the far clusters' fix-up) replaces its
+  // figures. A few kB a tile.
+  std::vector<TileOutput> parts;
 
-  TileMerge(const RunConfig& config, const Plan& plan) {
+  TileMerge(const RunConfig& config, const Plan& plan) : parts(plan.tiles.count()) {
     const FarClusterOptions& fco = config.filters.outliers.far_clusters;
     far_small_points = std::max<std::uint64_t>(fco.max_points, static_cast<std::uint64_t>(fco.max_fraction * static_cast<double>(plan.far_size_points)));
     const GridGeometry& g = plan.tiles.g;
@@ -2993,6 +2999,9 @@ struct TileMerge {
     if (plan.layout.intensity) grid.intensity = HeightField(g);
   }
 
+  // Tile o.tile's output: its interior into the grid, its link cells into link_cells (tiles in
+  // order, until exact_far_clusters joins them), the rest kept for finish(). A tile given again
+  // replaces the one before.
   void add(const Tiles& tiles, TileOutput&& o) {
     const auto inner = tiles.interior(o.tile);
     const DepthGrid& part = o.interior;
@@ -3008,30 +3017,60 @@ struct TileMerge {
           if (part.has_intensity() && grid.has_intensity()) grid.intensity.data()[j] = part.intensity.data()[i];
         }
       }
+    } else {  // an interior left empty (again: a tile processed again may lose its last point)
+      const std::size_t gc = static_cast<std::size_t>(tiles.g.cols);
+      for (int r = inner[0]; r < inner[1]; ++r) {
+        for (int c = inner[2]; c < inner[3]; ++c) {
+          const std::size_t j = static_cast<std::size_t>(r) * gc + static_cast<std::size_t>(c);
+          grid.depth.data()[j] = kNoData;
+          grid.flags[j] = kCellEmpty;
+          if (grid.has_colour()) std::memset(grid.colour_rgb8.data() + 3 * j, 0, 3);
+          if (grid.has_intensity()) grid.intensity.data()[j] = kNoData;
+        }
+      }
     }
-    for (const auto& [name, v] : o.sums) sums[name] += v;
-    in += o.in;
-    out += o.out;
-    unjudged += o.unjudged;
-    if (o.spacing_m > 0.0 && o.spacing_points > 0) spacings.emplace_back(o.spacing_m, o.spacing_points);
-    job_seconds += o.seconds;
-    kept_box.merge(o.kept_box);
-    after_box.merge(o.after_box);
-    despiked_m.insert(despiked_m.end(), o.despiked_m.begin(), o.despiked_m.end());
-    far_clusters_hit.insert(o.far_clusters_hit.begin(), o.far_clusters_hit.end());
-    link_cells_partial = link_cells_partial || o.link_cells_partial;
-    if (!link_cells_partial && !o.link_cells.empty()) {
-      if (!link_cells) {
-        link_m = o.link_m;
-        link_cells.emplace(Eigen::Vector3d::Zero(), link_m, far_small_points);
+    o.interior = DepthGrid{};
+    if (!link_cells_joined) {
+      link_cells_partial = link_cells_partial || o.link_cells_partial;
+      if (!link_cells_partial && !o.link_cells.empty()) {
+        if (!link_cells) {
+          link_m = o.link_m;
+          link_cells.emplace(Eigen::Vector3d::Zero(), link_m, far_small_points);
+        }
+        if (o.link_m != link_m) {
+          throw std::logic_error("TileMerge: tile " + std::to_string(o.tile) + " linked its far-cluster cells at " + format_number(o.link_m * 1e3) +
+                                 " mm, an earlier tile at " + format_number(link_m * 1e3) + " mm");
+        }
+        link_cells->begin_tile(static_cast<int>(o.tile / static_cast<std::size_t>(tiles.tiles_c)));
+        for (const TileOutput::LinkCell& c : o.link_cells) link_cells->add_cell(c.key, static_cast<std::uint32_t>(c.count), c.lo, c.hi);
+        link_cells->end_tile();
       }
-      if (o.link_m != link_m) {
-        throw std::logic_error("TileMerge: tile " + std::to_string(o.tile) + " linked its far-cluster cells at " + format_number(o.link_m * 1e3) +
-                               " mm, an earlier tile at " + format_number(link_m * 1e3) + " mm");
-      }
-      link_cells->begin_tile(static_cast<int>(o.tile / static_cast<std::size_t>(tiles.tiles_c)));
-      for (const TileOutput::LinkCell& c : o.link_cells) link_cells->add_cell(c.key, static_cast<std::uint32_t>(c.count), c.lo, c.hi);
-      link_cells->end_tile();
+    }
+    std::vector<TileOutput::LinkCell>().swap(o.link_cells);
+    const std::size_t t = o.tile;
+    parts.at(t) = std::move(o);
+  }
+
+  // The totals from the parts, in tile order (after the loop, and again after a fix-up).
+  void finish() {
+    sums.clear();
+    in = out = unjudged = 0;
+    spacings.clear();
+    job_seconds = 0.0;
+    kept_box = after_box = XyBox{};
+    despiked_m.clear();
+    far_clusters_hit.clear();
+    for (const TileOutput& o : parts) {
+      for (const auto& [name, v] : o.sums) sums[name] += v;
+      in += o.in;
+      out += o.out;
+      unjudged += o.unjudged;
+      if (o.spacing_m > 0.0 && o.spacing_points > 0) spacings.emplace_back(o.spacing_m, o.spacing_points);
+      job_seconds += o.seconds;
+      kept_box.merge(o.kept_box);
+      after_box.merge(o.after_box);
+      despiked_m.insert(despiked_m.end(), o.despiked_m.begin(), o.despiked_m.end());
+      far_clusters_hit.insert(o.far_clusters_hit.begin(), o.far_clusters_hit.end());
     }
   }
 
@@ -3052,6 +3091,30 @@ struct TileMerge {
   }
 };
 
+// The tiles whose windows may hold a point in one of the cells `far` lists (each cell's x-y
+// extent from its key, a link wider each way, taken to nodes; tiles_of gives the windows that
+// hold a node, as the spill writes them): in tile order.
+std::vector<std::size_t> tiles_holding(const Tiles& tiles, const ScaleConfig::FarCellKeys& far) {
+  const NodeBinner node(tiles.g);
+  std::vector<char> hit(tiles.count(), 0);
+  constexpr std::int64_t kShift = std::int64_t{1} << 20, kMask = (std::int64_t{1} << 21) - 1;
+  for (const std::uint64_t key : far.keys) {
+    const auto ix = static_cast<std::int64_t>(key >> 42) - kShift;
+    const auto iy = (static_cast<std::int64_t>(key >> 21) & kMask) - kShift;
+    const double lo[3] = {static_cast<double>(ix - 1) * far.link_m, static_cast<double>(iy - 1) * far.link_m, 0.0};
+    const double hi[3] = {static_cast<double>(ix + 2) * far.link_m, static_cast<double>(iy + 2) * far.link_m, 0.0};
+    const auto a = tiles_of(tiles, node.row(lo), node.col(lo)), b = tiles_of(tiles, node.row(hi), node.col(hi));
+    for (int tr = a[0]; tr <= b[1]; ++tr) {
+      for (int tc = a[2]; tc <= b[3]; ++tc) hit[static_cast<std::size_t>(tr) * static_cast<std::size_t>(tiles.tiles_c) + static_cast<std::size_t>(tc)] = 1;
+    }
+  }
+  std::vector<std::size_t> list;
+  for (std::size_t t = 0; t < hit.size(); ++t) {
+    if (hit[t] != 0) list.push_back(t);
+  }
+  return list;
+}
+
 // After the tile loop (in process, and at tile-merge): the in-core run's far clusters among the
 // points the tiles' robust test kept, joined from the tiles' link cells (TileMerge::link_cells;
 // the in-core cells, linking distance, far distance and size limit, so the in-core components,
@@ -3059,7 +3122,8 @@ struct TileMerge {
 // sum far_points_owned). The tiles judge far clusters only against the coarse whole-scan pass's
 // main body, and only where a window holds them whole, so they remove a part of the in-core
 // run's (docs/scale.md, "Far clusters exact"). Returns the cells of the in-core clusters where
-// the tiles fell short (the run then starts again carrying them: ScaleConfig::far_cells), else
+// the tiles fell short (the tiles holding them are then processed again with them, or where the
+// spills are gone the run starts again carrying them: ScaleConfig::far_cells), else
 // nullptr. With cells carried, the tiles removed the points in them: this checks that the cells
 // found now are the same (another attempt's grid moves the whole-scan pass's coarse cells, and
 // with them the points that pass leaves), returns the new ones where they are not (unless the
@@ -3088,6 +3152,7 @@ std::shared_ptr<const ScaleConfig::FarCellKeys> exact_far_clusters(const RunConf
   const FarClusterOptions& fco = config.filters.outliers.far_clusters;
   const double far_m = fco.far_distance_m > 0.0 ? fco.far_distance_m : 10.0 * merged.link_m;
   const FarCells::Result fc = merged.link_cells->components(far_m);
+  merged.link_cells_joined = true;
   // The in-core cells' edge is the link unless the robust test's kept points span more than
   // 2 097 150 links on an axis (robust_outliers.cpp, far_clusters_impl). Those the tiles kept,
   // and the whole scan's extent (plan.far_extent_m: the whole-scan pass's points too), must not.
@@ -5496,7 +5561,8 @@ struct GridOnKeptPoints : std::runtime_error {
 };
 
 // Thrown by build_scene_tiled_once after its tile loop when the in-core run's far clusters
-// hold points the tiles kept (exact_far_clusters): build_scene_tiled starts again carrying their
+// hold points the tiles kept (exact_far_clusters) and the spills are gone (no tile can be
+// processed again): build_scene_tiled starts again carrying their
 // cells (ScaleConfig::far_cells).
 struct FarCellsAgain : std::runtime_error {
   explicit FarCellsAgain(std::shared_ptr<const ScaleConfig::FarCellKeys> c)
@@ -5799,7 +5865,11 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
     // When nothing reads the kept points after the loop (no cross-check, no levels sample), a
     // tile's spill goes once the last band (the strays judged) has processed it.
     const Tiles& tiles = plan.tiles;
-    const bool drop = !config.cross_check.enabled && !keeps_sample(config);
+    // grid.upsample: auto under scale.grid_on_kept_points reads the kept points after the loop
+    // too (kept_points_factor; until the sixty-sixth session the spills were dropped under it,
+    // and that read failed on a missing spill file).
+    const bool factor_reads = config.grid.reproject.upsample_factor == 0 && config.scale.grid_on_kept_points;
+    const bool drop = !config.cross_check.enabled && !keeps_sample(config) && !factor_reads;
     // Freed heap back when the tiles before left more than a window's worth (TileHeapBudget).
     detail::TileHeapBudget heap(window_heap_budget(spill, tiles.count()));
     std::vector<std::size_t> all(tiles.count());
@@ -5819,14 +5889,41 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
           left.clear();
           spill.remove(t);
         });
-    take_over_despike_sums(config, merged);
+    merged.finish();
     far_again = exact_far_clusters(config, plan, merged, r.report);
+    if (far_again && !drop && config.scale.far_cells == nullptr) {
+      // The in-core far clusters hold points the tiles kept: the tiles whose windows hold one
+      // are processed again, removing the kept points in those clusters' cells (their spills
+      // are all still there), and replace their results (docs/scale.md, "Far clusters exact").
+      const std::vector<std::size_t> again = tiles_holding(tiles, *far_again);
+      RunConfig fix = config;
+      fix.scale.far_cells = far_again;
+      (void)run_tiles(fix, plan, spill, kept, again, heap, [](double) {}, [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); });
+      merged.finish();
+      const auto it = merged.sums.find("far_points_owned");
+      const double removed = it != merged.sums.end() ? it->second : 0.0;
+      if (removed != static_cast<double>(far_again->points)) {
+        throw std::logic_error("tiled run: the " + std::to_string(again.size()) + " tiles processed again removed " + format_number(removed) +
+                               " owned points in the far clusters' cells, which hold " + std::to_string(far_again->points));
+      }
+      merged.sums["far_clusters_owned"] = static_cast<double>(merged.far_clusters_hit.size());
+      r.report.figure("far_tiles_again", static_cast<double>(again.size()));
+      r.report.notes.push_back("far clusters: the whole scan's, joined from the tiles' kept points, hold " + std::to_string(far_again->points) +
+                               " points in " + std::to_string(far_again->clusters) + " clusters, more than the tiles removed (they judge far "
+                               "clusters only where a window holds them whole): the " + std::to_string(again.size()) +
+                               " tiles whose windows hold them were processed again, removing the kept points in their " +
+                               std::to_string(far_again->keys.size()) + " cells");
+      for (const std::string& n : far_again->notes) r.report.notes.push_back(n);
+      far_again = nullptr;
+    }
+    take_over_despike_sums(config, merged);
     merged.report(config, r.report);
     r.report.figure("heap_releases", static_cast<double>(heap.releases()));
     r.report.figure("large_blocks_mapped", mapped ? 1.0 : 0.0);
     return r;
   });
-  // The in-core run's far clusters hold points the tiles kept: build_scene_tiled starts again
+  // The in-core run's far clusters hold points the tiles kept, and the spills are gone (else the
+  // tiles were processed again above): build_scene_tiled starts again
   // carrying their cells (before the grid's box is looked at: their points may set it).
   if (far_again) throw FarCellsAgain(std::move(far_again));
   // The in-core run lays its grid on the points the filters keep: where that is another grid,
@@ -6139,6 +6236,7 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
       }
       merged.add(plan.tiles, std::move(o));
     }
+    merged.finish();
     take_over_despike_sums(config, merged);
     far_short = exact_far_clusters(config, plan, merged, r.report);
     if (far_short) {

@@ -160,9 +160,10 @@ struct ScaleConfig {
     bool last = false;
   };
   std::optional<GridBox> grid_box;
-  /// Not a config key: set by the in-process tiled run's later attempt (build_scene_tiled) when
-  /// the in-core run's far clusters among the points the tiles' robust test kept (found at the
-  /// merge from every tile's link cells) held more points than the tiles removed as far (sixty-sixth
+  /// Not a config key: set by the in-process tiled run (tiled_run.cpp) for the tiles it processes
+  /// again (or, where the spills are gone, for the attempt it starts again) when the in-core
+  /// run's far clusters among the points the tiles' robust test kept (found at the merge from
+  /// every tile's link cells) held more points than the tiles removed as far (sixty-sixth
   /// session, 2026-11-30). `keys`: the removed clusters' link cells (FarCells::link_key at
   /// edge link_m [m], increasing); the tiles of that attempt remove the points of their windows
   /// that the robust test keeps in those cells instead of judging far clusters themselves.
