@@ -1456,9 +1456,9 @@ struct TileOutput {
   std::vector<LinkCell> link_cells;
   double link_m = 0.0;
   bool link_cells_partial = false;
-  // Where the attempt carries ScaleConfig::far_cells: the carried clusters (their numbers) of
-  // which the tile removed an owned point, for the merge's cluster count (in process only: a
-  // tile job's plan carries no cells).
+  // Where the tile runs with ScaleConfig::far_cells (processed again, or an attempt that carries
+  // them): the given clusters (their numbers) of which the tile removed an owned point, for the
+  // merge's cluster count (in process only: a tile job's plan carries no cells).
   std::vector<std::uint32_t> far_clusters_hit;
 };
 
@@ -2589,8 +2589,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     }
     RemovedPoints far_removed;
     if (carried != nullptr && oc.far_clusters.enabled && !carried->keys.empty()) {
-      // An attempt that carries the in-core far clusters' cells (ScaleConfig::far_cells): the
-      // window's kept points in them go, as the in-core run removes them; no cluster is judged.
+      // The in-core far clusters' cells given (ScaleConfig::far_cells: a tile processed again, or
+      // an attempt that carries them): the window's kept points in them go, as the in-core run
+      // removes them; no cluster is judged.
       const double inv = 1.0 / carried->link_m;
       std::vector<bool> keep_far(f1.value.size(), true);
       for (std::size_t i = 0; i < f1.value.size(); ++i) {
