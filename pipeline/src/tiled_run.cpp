@@ -1553,6 +1553,37 @@ class LinkCellTable {
   std::size_t used_ = 0;
 };
 
+// The points of `pts` (any cloud in the grid frame) in the cells `far` lists (the in-core far
+// clusters' cells, ScaleConfig::far_cells): their columns (increasing), x y z [m] and each one's
+// cluster number in `far`. link_m: the linking distance the tile finds (far_link_m), which must
+// be the one the cells were found at. @throws std::logic_error naming tile t where it is not.
+RemovedPoints in_far_cells(const Cloud& pts, const ScaleConfig::FarCellKeys& far, double link_m, std::size_t t) {
+  if (link_m != far.link_m) {
+    throw std::logic_error("process_tile: tile " + std::to_string(t) + ": the far clusters' link is " + format_number(link_m * 1e3) +
+                           " mm, the given cells' " + format_number(far.link_m * 1e3) + " mm");
+  }
+  RemovedPoints r;
+  const double inv = 1.0 / far.link_m;
+  for (std::size_t i = 0; i < pts.size() && !far.keys.empty(); ++i) {
+    const double* p = pts.xyz.data() + 3 * i;
+    const std::uint64_t k = FarCells::link_key(p, inv);
+    const auto at = std::lower_bound(far.keys.begin(), far.keys.end(), k);
+    if (k == FarCells::kNoKey || at == far.keys.end() || *at != k) continue;
+    r.at.push_back(i);
+    r.xyz.insert(r.xyz.end(), p, p + 3);
+    r.cluster.push_back(far.cluster[static_cast<std::size_t>(at - far.keys.begin())]);
+  }
+  return r;
+}
+
+// Removes the columns `at` (increasing) from `pts`.
+void remove_columns(Cloud& pts, const std::vector<std::size_t>& at) {
+  if (at.empty()) return;
+  std::vector<bool> keep(pts.size(), true);
+  for (const std::size_t i : at) keep[i] = false;
+  pts.keep_if(keep);
+}
+
 // The levels table's sample: every sample_stride-th interior point, in tile order (read from the
 // kept points after the tile loop). 0 ("every point") would hold the whole cloud in memory, which
 // the tiled run exists to avoid: it takes the default sample instead (docs/scale.md).
@@ -2439,45 +2470,31 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
   // The in-core far clusters' cells, collected in every attempt (one that carries them checks
   // that they are still the ones its kept points give).
   const bool link_cells = oc.enabled && oc.method == OutlierMethod::kRobust && oc.far_clusters.enabled && plan.robust_scale.has_value();
+  const NodeBinner owner(tiles.g);
+  // The owned points' in-core cells (of `kept`: the points the robust test kept, or all of a
+  // window too sparse to judge), for the merge (exact_far_clusters).
+  const auto collect_link_cells = [&](const Cloud& kept_pts, double link_m) {
+    LinkCellTable table(link_m);
+    o.link_cells_partial = !table.add_owned(kept_pts.xyz.data(), kept_pts.size(), owner, inner);
+    o.link_m = link_m;
+    if (!o.link_cells_partial) o.link_cells = table.take();
+  };
   if (link_cells && pts.size() > 0 && !judgeable) {
     // Its points are kept untested: their cells go to the merge as kept points' (a stray far
     // from everything, which the in-core run's robust test may keep and its far clusters then
     // remove), and where an attempt carries the far clusters' cells, those in them go.
     const double link_m = far_link_m(oc.far_clusters, robust_global_threshold_m(*plan.robust_scale, tile_robust_options(config, plan, t)));
-    const NodeBinner owner(tiles.g);
-    if (link_cells) {
-      LinkCellTable table(link_m);
-      o.link_cells_partial = !table.add_owned(pts.xyz.data(), pts.size(), owner, inner);
-      o.link_m = link_m;
-      if (!o.link_cells_partial) o.link_cells = table.take();
-    }
-    if (config.scale.far_cells != nullptr && !config.scale.far_cells->keys.empty()) {
-      const ScaleConfig::FarCellKeys& carried = *config.scale.far_cells;
-      if (link_m != carried.link_m) {
-        throw std::logic_error("process_tile: tile " + std::to_string(t) + ": the far clusters' link is " + format_number(link_m * 1e3) +
-                               " mm, the carried cells' " + format_number(carried.link_m * 1e3) + " mm");
+    collect_link_cells(pts, link_m);
+    if (config.scale.far_cells != nullptr) {
+      const RemovedPoints gone = in_far_cells(pts, *config.scale.far_cells, link_m, t);
+      for (std::size_t i = 0; i < gone.size(); ++i) {
+        if (!owner.inside(gone.xyz.data() + 3 * i, inner)) continue;
+        o.sums["far_points_owned"] += 1.0;
+        o.far_clusters_hit.push_back(gone.cluster[i]);
       }
-      std::vector<bool> keep_far(pts.size(), true);
-      std::vector<std::size_t> gone;
-      double owned_gone = 0.0;
-      for (std::size_t i = 0; i < pts.size(); ++i) {
-        const double* p = pts.xyz.data() + 3 * i;
-        const std::uint64_t k = FarCells::link_key(p, 1.0 / carried.link_m);
-        const auto at = std::lower_bound(carried.keys.begin(), carried.keys.end(), k);
-        if (k == FarCells::kNoKey || at == carried.keys.end() || *at != k) continue;
-        keep_far[i] = false;
-        gone.push_back(i);
-        if (owner.inside(p, inner)) {
-          owned_gone += 1.0;
-          o.far_clusters_hit.push_back(carried.cluster[static_cast<std::size_t>(at - carried.keys.begin())]);
-        }
-      }
-      if (!gone.empty()) {
-        pts.keep_if(keep_far);
-        compose_removal(gone);
-        o.sums["far_points_owned"] += owned_gone;
-        o.sums["removed_far_clusters"] += static_cast<double>(gone.size());
-      }
+      if (!gone.at.empty()) o.sums["removed_far_clusters"] += static_cast<double>(gone.size());
+      remove_columns(pts, gone.at);
+      compose_removal(gone.at);
     }
   }
   if (oc.enabled && judgeable) {
@@ -2562,19 +2579,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
     // off by the window is never far, and no removal rests on the window's edge. Without the
     // whole scan's main body (tile_far_clusters did not run: no robust scale), none are looked for.
     const ScaleConfig::FarCellKeys* carried = config.scale.far_cells.get();
-    if (link_cells || carried != nullptr) {
-      const double link_m = far_link_m(oc.far_clusters, f1.report);
-      if (carried != nullptr && link_m != carried->link_m) {
-        throw std::logic_error("process_tile: tile " + std::to_string(t) + ": the far clusters' link is " + format_number(link_m * 1e3) +
-                               " mm, the carried cells' " + format_number(carried->link_m * 1e3) + " mm");
-      }
-      const NodeBinner owner(tiles.g);
-      if (link_cells) {  // the owned kept points' in-core cells, for the merge (exact_far_clusters)
-        LinkCellTable table(link_m);
-        o.link_cells_partial = !table.add_owned(f1.value.xyz.data(), f1.value.size(), owner, inner);
-        o.link_m = link_m;
-        if (!o.link_cells_partial) o.link_cells = table.take();
-      }
+    const double link_m = far_link_m(oc.far_clusters, f1.report);
+    if (link_cells) {
+      collect_link_cells(f1.value, link_m);
       lap("link_cells");
     }
     FarClusterOptions fco = oc.far_clusters;
@@ -2588,23 +2595,12 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       fco.enabled = false;
     }
     RemovedPoints far_removed;
-    if (carried != nullptr && oc.far_clusters.enabled && !carried->keys.empty()) {
+    if (carried != nullptr && oc.far_clusters.enabled) {
       // The in-core far clusters' cells given (ScaleConfig::far_cells: a tile processed again, or
       // an attempt that carries them): the window's kept points in them go, as the in-core run
       // removes them; no cluster is judged.
-      const double inv = 1.0 / carried->link_m;
-      std::vector<bool> keep_far(f1.value.size(), true);
-      for (std::size_t i = 0; i < f1.value.size(); ++i) {
-        const double* p = f1.value.xyz.data() + 3 * i;
-        const std::uint64_t k = FarCells::link_key(p, inv);
-        const auto at = std::lower_bound(carried->keys.begin(), carried->keys.end(), k);
-        if (k == FarCells::kNoKey || at == carried->keys.end() || *at != k) continue;
-        keep_far[i] = false;
-        far_removed.at.push_back(i);
-        far_removed.xyz.insert(far_removed.xyz.end(), p, p + 3);
-        far_removed.cluster.push_back(carried->cluster[static_cast<std::size_t>(at - carried->keys.begin())]);
-      }
-      if (!far_removed.at.empty()) f1.value.keep_if(keep_far);
+      far_removed = in_far_cells(f1.value, *carried, link_m, t);
+      remove_columns(f1.value, far_removed.at);
     }
     if (carried != nullptr) fco.enabled = false;
     auto f1f = remove_far_clusters_after(std::move(f1), fco, &far_scope, carried != nullptr ? nullptr : &far_removed);
@@ -2617,7 +2613,6 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
       // cluster by the tile that owns its least point (x, then y, then z). Where the tiled
       // scene equals the in-core one, each owner removed its points as the whole scan's
       // cluster (a removal is made only on a whole cluster), so the sums are the in-core counts.
-      const NodeBinner owner(tiles.g);
       std::vector<std::array<double, 3>> least;  // per cluster of far_removed.cluster
       double points_owned = 0.0;
       for (std::size_t i = 0; i < far_removed.size(); ++i) {
