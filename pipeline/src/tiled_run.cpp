@@ -5582,6 +5582,37 @@ struct GridOnKeptPoints : std::runtime_error {
   std::string island_halo_widened;  // the warning, when the attempt ran with the wider grid share
 };
 
+// Where exact_far_clusters found that the in-core run's far clusters (`far`) hold points the
+// tiles kept and every spill is still there (in process; at tile-merge always): the tiles whose
+// windows hold a point in their cells (tiles_holding) are processed again by `again`, given the
+// config with ScaleConfig::far_cells set and the tiles' list, which feeds each new output to
+// `merged` (TileMerge::add replaces a tile's output); the totals are then made again. Those tiles
+// remove the kept points in the clusters' cells, so the scene is the in-core run's (docs/scale.md,
+// "Far clusters exact"). Figure far_tiles_again and notes on `r` (stage tiles).
+// @throws std::logic_error when the owners did not remove exactly the clusters' points (a bug).
+void far_tiles_again(const RunConfig& config, const Tiles& tiles, std::shared_ptr<const ScaleConfig::FarCellKeys> far, TileMerge& merged,
+                     StageReport& r, const std::function<void(const RunConfig&, const std::vector<std::size_t>&)>& again) {
+  const std::vector<std::size_t> list = tiles_holding(tiles, *far);
+  RunConfig fix = config;
+  fix.scale.far_cells = far;
+  again(fix, list);
+  merged.finish();
+  const auto it = merged.sums.find("far_points_owned");
+  const double removed = it != merged.sums.end() ? it->second : 0.0;
+  if (removed != static_cast<double>(far->points)) {
+    throw std::logic_error("tiled run: the " + std::to_string(list.size()) + " tiles processed again removed " + format_number(removed) +
+                           " owned points in the far clusters' cells, which hold " + std::to_string(far->points));
+  }
+  merged.sums["far_clusters_owned"] = static_cast<double>(merged.far_clusters_hit.size());
+  r.figure("far_tiles_again", static_cast<double>(list.size()));
+  r.notes.push_back("far clusters: the whole scan's, joined from the tiles' kept points, hold " + std::to_string(far->points) +
+                    " points in " + std::to_string(far->clusters) + " clusters, more than the tiles removed (they judge far "
+                    "clusters only where a window holds them whole): the " + std::to_string(list.size()) +
+                    " tiles whose windows hold them were processed again, removing the kept points in their " +
+                    std::to_string(far->keys.size()) + " cells");
+  for (const std::string& n : far->notes) r.notes.push_back(n);
+}
+
 // Thrown by build_scene_tiled_once after its tile loop when the in-core run's far clusters
 // hold points the tiles kept (exact_far_clusters) and the spills are gone (no tile can be
 // processed again): build_scene_tiled starts again carrying their
@@ -5592,17 +5623,6 @@ struct FarCellsAgain : std::runtime_error {
   std::shared_ptr<const ScaleConfig::FarCellKeys> cells;
   std::string island_halo_widened;  // as GridOnKeptPoints'
 };
-
-// tile-merge's warning where the in-core run's far clusters hold points the tiles kept (a plan
-// carries no cells: the in-process run starts again instead).
-std::string far_short_warning(const ScaleConfig::FarCellKeys& k, const TileMerge& merged) {
-  const auto it = merged.sums.find("far_points_owned");
-  const double tiles_far = it != merged.sums.end() ? it->second : 0.0;
-  return "the whole scan's far clusters (filters.outliers.far_clusters) hold " + std::to_string(k.points) + " points in " +
-         std::to_string(k.clusters) + " clusters, the tile jobs removed " + format_number(tiles_far) +
-         " as far: the scene keeps the others, which the in-core run removes (a tile judges far clusters only where its "
-         "window holds them whole); hapticloud run, tiled in process, starts again and removes them all";
-}
 
 // scale.grid_on_kept_points after a tile loop (in process or merged from tile jobs): where the
 // points the tiles' filters kept (TileMerge::kept_box), or those their despike left
@@ -5914,28 +5934,10 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
     merged.finish();
     far_again = exact_far_clusters(config, plan, merged, r.report);
     if (far_again && !drop && config.scale.far_cells == nullptr) {
-      // The in-core far clusters hold points the tiles kept: the tiles whose windows hold one
-      // are processed again, removing the kept points in those clusters' cells (their spills
-      // are all still there), and replace their results (docs/scale.md, "Far clusters exact").
-      const std::vector<std::size_t> again = tiles_holding(tiles, *far_again);
-      RunConfig fix = config;
-      fix.scale.far_cells = far_again;
-      (void)run_tiles(fix, plan, spill, kept, again, heap, [](double) {}, [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); });
-      merged.finish();
-      const auto it = merged.sums.find("far_points_owned");
-      const double removed = it != merged.sums.end() ? it->second : 0.0;
-      if (removed != static_cast<double>(far_again->points)) {
-        throw std::logic_error("tiled run: the " + std::to_string(again.size()) + " tiles processed again removed " + format_number(removed) +
-                               " owned points in the far clusters' cells, which hold " + std::to_string(far_again->points));
-      }
-      merged.sums["far_clusters_owned"] = static_cast<double>(merged.far_clusters_hit.size());
-      r.report.figure("far_tiles_again", static_cast<double>(again.size()));
-      r.report.notes.push_back("far clusters: the whole scan's, joined from the tiles' kept points, hold " + std::to_string(far_again->points) +
-                               " points in " + std::to_string(far_again->clusters) + " clusters, more than the tiles removed (they judge far "
-                               "clusters only where a window holds them whole): the " + std::to_string(again.size()) +
-                               " tiles whose windows hold them were processed again, removing the kept points in their " +
-                               std::to_string(far_again->keys.size()) + " cells");
-      for (const std::string& n : far_again->notes) r.report.notes.push_back(n);
+      // Their spills are all still there: the tiles holding them are processed again.
+      far_tiles_again(config, tiles, std::move(far_again), merged, r.report, [&](const RunConfig& fix, const std::vector<std::size_t>& again) {
+        (void)run_tiles(fix, plan, spill, kept, again, heap, [](double) {}, [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); });
+      });
       far_again = nullptr;
     }
     take_over_despike_sums(config, merged);
@@ -6035,20 +6037,17 @@ TilePlanInfo write_tile_plan(const fs::path& config_file, const std::vector<std:
 
 std::size_t tile_plan_tiles(const fs::path& plan_file) { return read_plan_file(plan_file).plan.tiles.count(); }
 
-void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& tiles_asked) {
-  const detail::StageHeapRelease heap_release;  // each tile's freed heap back, as in the tile loop
-  std::vector<std::size_t> tiles = tiles_asked;  // each tile once
-  std::sort(tiles.begin(), tiles.end());
-  tiles.erase(std::unique(tiles.begin(), tiles.end()), tiles.end());
-  const PlanFile pf = read_plan_file(plan_file);
-  const RunConfig config = config_of(pf, plan_file);
+namespace {
+
+// Processes `tiles` (each once, in order, all in the plan) of plan file `plan_file` (read into
+// `pf`) under `config` as tile jobs do: their kept masks written under a temporary name and
+// moved to kept_<t>.bin once whole and flushed, then their results written atomically to their
+// part files (so a merge never pairs a new result with an old mask); `then` gets each result
+// after its files are written. Used by run_tile_jobs and by tile-merge's far-cluster fix-up.
+// @throws InputError naming a spill file that is missing or changed, or a file that cannot be
+// written or moved.
+void run_jobs(const PlanFile& pf, const RunConfig& config, const std::vector<std::size_t>& tiles, const std::function<void(TileOutput&&)>& then) {
   const Plan& plan = pf.plan;
-  for (const std::size_t t : tiles) {
-    if (t >= plan.tiles.count()) {
-      throw InputError(plan_file.string() + ": no tile " + std::to_string(t) + " (the plan has tiles 0 to " +
-                       std::to_string(plan.tiles.count() - 1) + ")");
-    }
-  }
   Spill spill(pf.dir, "tile_", plan.tiles.count(), plan.layout);
   spill.adopt_existing();
   const std::string tmp_prefix = std::string(kKeptJobPrefix) + attempt_tag() + "-";
@@ -6093,7 +6092,26 @@ void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& ti
       if (ec) throw InputError("tile-job: cannot move " + kept.file(t).string() + " to " + kept_final.string() + ": " + ec.message());
     }
     detail::write_atomically(part_file(pf.dir, t), encode_part(pf.id, o));
+    then(std::move(o));
   });
+}
+
+}  // namespace
+
+void run_tile_jobs(const fs::path& plan_file, const std::vector<std::size_t>& tiles_asked) {
+  const detail::StageHeapRelease heap_release;  // each tile's freed heap back, as in the tile loop
+  std::vector<std::size_t> tiles = tiles_asked;  // each tile once
+  std::sort(tiles.begin(), tiles.end());
+  tiles.erase(std::unique(tiles.begin(), tiles.end()), tiles.end());
+  const PlanFile pf = read_plan_file(plan_file);
+  const RunConfig config = config_of(pf, plan_file);
+  for (const std::size_t t : tiles) {
+    if (t >= pf.plan.tiles.count()) {
+      throw InputError(plan_file.string() + ": no tile " + std::to_string(t) + " (the plan has tiles 0 to " +
+                       std::to_string(pf.plan.tiles.count() - 1) + ")");
+    }
+  }
+  run_jobs(pf, config, tiles, [](TileOutput&&) {});
 }
 
 namespace {
@@ -6247,7 +6265,6 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
   built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
   TileMerge merged(config, plan);
-  std::shared_ptr<const ScaleConfig::FarCellKeys> far_short;  // exact_far_clusters: not carried into another plan
   (void)stage("tiles", built.summary.stages, progress, [&] {
     StageResult<int> r;
     for (std::size_t t = 0; t < plan.tiles.count(); ++t) {
@@ -6260,9 +6277,14 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
     }
     merged.finish();
     take_over_despike_sums(config, merged);
-    far_short = exact_far_clusters(config, plan, merged, r.report);
-    if (far_short) {
-      r.report.notes.push_back("warning: " + far_short_warning(*far_short, merged));
+    // Where the in-core run's far clusters hold points the tiles kept, the tiles holding them are
+    // processed again here, as the in-process run does, and their results and masks replaced (a
+    // merge run again then finds nothing short).
+    if (auto far_short = exact_far_clusters(config, plan, merged, r.report)) {
+      far_tiles_again(config, plan.tiles, std::move(far_short), merged, r.report, [&](const RunConfig& fix, const std::vector<std::size_t>& again) {
+        run_jobs(pf, fix, again, [&](TileOutput&& o) { merged.add(plan.tiles, std::move(o)); });
+      });
+      kept.adopt_existing();
     }
     merged.report(config, r.report);
     r.report.figure("tile_job_seconds", merged.job_seconds);
@@ -6312,7 +6334,6 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
                        box_file);
   }
   m.built = finish_tiled(config, plan, merged, spill, kept, std::move(built), progress, t_start);
-  if (far_short) m.built.summary.warnings.push_back(far_short_warning(*far_short, merged));
   return m;
 }
 

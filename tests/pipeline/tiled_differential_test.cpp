@@ -466,10 +466,12 @@ TEST(TiledDifferential, WithoutTheCrossCheckFarClustersTheTilesMissedAreRemovedT
   }
 }
 
-// Through tile jobs a plan carries no far clusters' cells: tile-merge makes the scene the tiles
-// made and warns with the in-core run's far-cluster count (the oracle: the in-core run's
-// outliers stage), instead of keeping those points silently.
-TEST(TiledDifferential, ThroughTileJobsFarClustersTheTilesMissedAreAWarning) {
+// Seed 59 through tile jobs (write_tile_plan, run_tile_jobs, merge_tile_jobs): the tiles miss
+// far clusters, and tile-merge processes the tiles holding them again itself, replacing their
+// results and kept masks, so the merged scene is the in-core run's (the oracle: the in-core run's
+// layers and far count). A second merge of the same plan finds nothing short and gives the same
+// scene without processing a tile (the replaced parts and masks agree).
+TEST(TiledDifferential, ThroughTileJobsFarClustersTheTilesMissedAreRemovedByTheMerge) {
   const std::uint64_t seed = 59;
   const Case c = draw_case(seed);
   const fs::path dir = hc::test::temp_dir("tiled_diff_jobs_far");
@@ -485,22 +487,26 @@ TEST(TiledDifferential, ThroughTileJobsFarClustersTheTilesMissedAreAWarning) {
   sets.push_back("scale.tile_cells=" + std::to_string(c.tile_cells));
   fs::path box;
   std::optional<hc::pipeline::MergedTileRun> merged;
+  fs::path plan_file;
   for (int plans = 1; !merged && plans <= 3; ++plans) {
     const auto info = hc::pipeline::write_tile_plan(dir / "run.yaml", sets, dir / ("plan" + std::to_string(plans)), {}, box);
     for (std::size_t t = 0; t < info.tiles; ++t) hc::pipeline::run_tile_jobs(info.plan_file, {t});
     try {
       merged = hc::pipeline::merge_tile_jobs(info.plan_file);
+      plan_file = info.plan_file;
     } catch (const hc::pipeline::GridBoxError& e) {
       box = e.box_file;
     }
   }
   ASSERT_TRUE(merged.has_value());
-  const std::string want = "far clusters (filters.outliers.far_clusters) hold " + std::to_string(static_cast<long long>(far)) + " points";
-  EXPECT_EQ(std::count_if(merged->built.summary.warnings.begin(), merged->built.summary.warnings.end(),
-                          [&](const std::string& w) { return w.find(want) != std::string::npos; }),
-            1)
-      << want;
+  EXPECT_GT(hc::test::stage_figure(merged->built, "tiles", "far_tiles_again"), 0.0) << "the merge processed tiles again";
   EXPECT_EQ(hc::test::stage_figure(merged->built, "tiles", "exact_far_points"), far);
+  EXPECT_EQ(tiled_far_points(merged->built), far);
+  hc::test::expect_same_layers(in.scene.layers, merged->built.scene.layers);
+  const hc::pipeline::MergedTileRun again = hc::pipeline::merge_tile_jobs(plan_file);
+  EXPECT_EQ(hc::test::stage_figure(again.built, "tiles", "far_tiles_again"), -1.0) << "nothing left short (no such figure)";
+  EXPECT_EQ(tiled_far_points(again.built), far);
+  hc::test::expect_same_layers(in.scene.layers, again.built.scene.layers);
   fs::remove_all(dir);
 }
 
