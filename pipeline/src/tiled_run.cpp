@@ -1938,6 +1938,42 @@ struct PointBitsHash {
 };
 PointBits bits_of(const double* p) { return {std::bit_cast<std::uint64_t>(p[0]), std::bit_cast<std::uint64_t>(p[1]), std::bit_cast<std::uint64_t>(p[2])}; }
 
+// The whole scan's verdicts of the strays a tile loop judged (judge_strays), by the bits of
+// their coordinates, kept for the tiles processed again after that loop (the far clusters'
+// fix-up, far_tiles_again): a stray's verdict is the in-core robust test's over the whole scan
+// (its balls hold every point its searches need), which neither the band nor the far clusters'
+// cells change, so a band whose strays all have one here needs no gathering (on the 10^8 wall
+// such a band's two gatherings read 37 of the 40 spills for 4 tiles). At most kMost verdicts
+// (32 bytes each: 32 MiB); past that no more are kept, and a band with a stray not kept gathers
+// as before. seal() sorts them for find().
+class StrayVerdicts {
+ public:
+  static constexpr std::size_t kMost = std::size_t{1} << 20;
+  void add(const PointBits& b, std::uint8_t v) {
+    if (v_.size() < kMost) v_.push_back({b, v});
+  }
+  void seal() {
+    std::sort(v_.begin(), v_.end(), [](const Entry& a, const Entry& b) { return a.bits < b.bits; });
+    sealed_ = true;
+  }
+  bool sealed() const { return sealed_; }
+  std::size_t size() const { return v_.size(); }
+  // The verdict kept for the stray at bits b, or -1 (none, or not sealed).
+  int find(const PointBits& b) const {
+    if (!sealed_) return -1;
+    const auto it = std::lower_bound(v_.begin(), v_.end(), b, [](const Entry& e, const PointBits& k) { return e.bits < k; });
+    return it != v_.end() && it->bits == b ? static_cast<int>(it->verdict) : -1;
+  }
+
+ private:
+  struct Entry {
+    PointBits bits;
+    std::uint8_t verdict = 0;
+  };
+  std::vector<Entry> v_;
+  bool sealed_ = false;
+};
+
 // A point of the scan a gathering took: where it is in its owner tile's spill, and where.
 struct Taken {
   std::uint32_t tile = 0, rec = 0;  // process_tile refuses a window of 2^32 spilled records or more
@@ -2098,9 +2134,12 @@ double past_box_m(const Ball& b, const std::array<double, 4>& box) {
 // to the looks' sums: robust_windows_widened and robust_widened_cells (per tile, its first-look
 // balls); to `sums` (the band's): robust_gatherings, robust_balls_grown (the gatherings of fewer
 // than k + 2 points), robust_points_gathered,
-// robust_spill_points_scanned, robust_gather_s and robust_judge_again_s.
+// robust_spill_points_scanned, robust_gather_s and robust_judge_again_s. `verdicts` (may be
+// null): unsealed, gets every stray's verdict; sealed (the loop after), where it holds every
+// stray's verdict, those are taken and nothing is gathered (figure
+// robust_strays_verdicts_kept).
 void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill, const std::vector<std::size_t>& band,
-                  std::vector<TileLook>& looks, std::map<std::string, double>& sums) {
+                  std::vector<TileLook>& looks, std::map<std::string, double>& sums, StrayVerdicts* verdicts) {
   const Tiles& tiles = plan.tiles;
   const std::string halo_now = filter_halo_now(config, tiles);
   const int limit = kMaxWidenedTiles * tiles.size;
@@ -2125,6 +2164,21 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
     asked.insert(asked.end(), L.rv.reach_m.begin(), L.rv.reach_m.end());
   }
   if (strays == 0) return;
+  // Every stray's verdict kept from the loop before (the far clusters' fix-up): no gathering.
+  if (verdicts != nullptr && verdicts->sealed()) {
+    bool all = true;
+    for (const TileLook& L : looks) {
+      for (const auto& p : L.strays_m) all = all && verdicts->find(bits_of(p.data())) >= 0;
+    }
+    if (all) {
+      for (TileLook& L : looks) {
+        L.stray_verdict.clear();
+        for (const auto& p : L.strays_m) L.stray_verdict.push_back(static_cast<std::uint8_t>(verdicts->find(bits_of(p.data()))));
+      }
+      sums["robust_strays_verdicts_kept"] += static_cast<double>(strays);
+      return;
+    }
+  }
   const OutlierConfig& oc = config.filters.outliers;
   std::vector<Ball> balls;  // gathered so far, padded
   std::vector<Ball> fresh;  // to gather next, padded
@@ -2208,6 +2262,9 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
       for (TileLook& L : looks) {
         L.stray_verdict.clear();
         for (const auto& p : L.strays_m) L.stray_verdict.push_back(wv.verdict[at.at(bits_of(p.data()))]);
+      }
+      if (verdicts != nullptr && !verdicts->sealed()) {
+        for (const auto& [key, col] : at) verdicts->add(key, wv.verdict[col]);
       }
       return;
     }
@@ -2858,7 +2915,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // the budget lets the tiles keep served the next step poorly (at 10⁹ points, 6–7 bands, a
 // gathering took RSS from 780 MB to 1.2 GB, a band's first look from 633 MB to 1.04 GB); and
 // from the first band's gathering on, blocks of 8 MiB or more are mapped on their own
-// (detail::LargeBlocksMapped: the 10⁹ tile loop 1 084 → 893 MB, its CPU 6 % less). One band
+// (detail::LargeBlocksMapped: the 10⁹ tile loop 1 084 → 893 MB, its CPU 6 % less); `verdicts`
+// as judge_strays (the in-process loop records, its far clusters' fix-up takes). One band
 // (the 10⁸ wall) keeps its fragments: its one gathering (0.8 M points there) stayed under its
 // tiles' peak, and a release would make the second sweep fault its windows in again
 // (docs/scale.md, thirty-ninth and fortieth sessions). progress(fraction) is called with the
@@ -2867,7 +2925,7 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // policy, figure `large_blocks_mapped` of `tiles`).
 template <class Done>
 bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, const std::vector<std::size_t>& list,
-               detail::TileHeapBudget& heap, const std::function<void(double)>& progress, Done&& done) {
+               detail::TileHeapBudget& heap, const std::function<void(double)>& progress, Done&& done, StrayVerdicts* verdicts = nullptr) {
   const auto band_bytes = static_cast<std::size_t>(config.scale.band_mb * 1048576.0);
   const double steps = 2.0 * static_cast<double>(list.size());
   double step = 0.0;
@@ -2961,7 +3019,7 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
       if (!mapped) mapped.emplace(kMappedBlockBytes);
       if (std::any_of(looks.begin(), looks.end(), [](const TileLook& L) { return !L.rv.past_halo.empty(); })) (void)heap.release_now();
     }
-    judge_strays(config, plan, spill, band, looks, band_sums);
+    judge_strays(config, plan, spill, band, looks, band_sums, verdicts);
     for (const auto& [k, v] : band_sums) looks.front().sums[k] += v;
     // The owned strays' whole-scan verdicts into the owners' OwnedVerdicts, which then leave the
     // looks (the other tiles of the band take from them).
@@ -5917,6 +5975,7 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
     std::vector<std::size_t> all(tiles.count());
     std::iota(all.begin(), all.end(), std::size_t{0});
     std::vector<std::size_t> left;  // processed, its spill kept for a later band
+    StrayVerdicts verdicts;  // the strays' verdicts, for the tiles the fix-up below processes again
     const bool mapped = run_tiles(
         config, plan, spill, kept, all, heap, [&](double f) { tick(f); },
         [&](TileOutput&& o, bool last) {
@@ -5930,13 +5989,18 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
           for (const std::size_t u : left) spill.remove(u);
           left.clear();
           spill.remove(t);
-        });
+        },
+        &verdicts);
     merged.finish();
     far_again = exact_far_clusters(config, plan, merged, r.report);
     if (far_again && !drop && config.scale.far_cells == nullptr) {
-      // Their spills are all still there: the tiles holding them are processed again.
+      // Their spills are all still there: the tiles holding them are processed again, their
+      // strays' verdicts the loop's (no gathering where it kept them all).
+      verdicts.seal();
+      r.report.figure("strays_verdicts_kept", static_cast<double>(verdicts.size()));
       far_tiles_again(config, tiles, std::move(far_again), merged, r.report, [&](const RunConfig& fix, const std::vector<std::size_t>& again) {
-        (void)run_tiles(fix, plan, spill, kept, again, heap, [](double) {}, [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); });
+        (void)run_tiles(fix, plan, spill, kept, again, heap, [](double) {}, [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); },
+                        &verdicts);
       });
       far_again = nullptr;
     }

@@ -271,12 +271,14 @@ std::pair<std::uint64_t, std::uint64_t> seeds_asked() {
 struct Tally {
   std::size_t compared = 0, stopped_alike = 0, halo_refusals = 0, far_subset = 0, known = 0;
   std::size_t far_cells_carried = 0;  // compared scenes whose tiled run processed tiles again (or started again) for far clusters' cells
+  std::size_t verdicts_kept = 0;  // of those, runs whose tiles processed again took strays' verdicts kept from the loop (no gathering)
 };
 
 // Each seed's case in core and tiled (the file's header), counted in `tally`; returns at the
-// first divergent seed. (void: the gtest ASSERTs return.)
-void check_seeds(const std::vector<std::uint64_t>& seeds, Tally& tally) {
-  auto& [compared, stopped_alike, halo_refusals, far_subset, known, far_cells_carried] = tally;
+// first divergent seed. (void: the gtest ASSERTs return.) `band_mb`, when given, replaces the
+// tiled run's scale.band_mb (0: one tile a band, so no tile shares its points' judging).
+void check_seeds(const std::vector<std::uint64_t>& seeds, Tally& tally, std::optional<double> band_mb = std::nullopt) {
+  auto& [compared, stopped_alike, halo_refusals, far_subset, known, far_cells_carried, verdicts_kept] = tally;
   for (const std::uint64_t seed : seeds) {
     if (const KnownDivergence* k = known_divergence(seed)) {
       std::cout << "[ known    ] seed " << seed << " not run: " << k->why << "\n";
@@ -295,6 +297,7 @@ void check_seeds(const std::vector<std::uint64_t>& seeds, Tally& tally) {
     const auto in_stop = stop_of([&] { in = hc::pipeline::build_scene(config); });
     config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOn;
     config.scale.tile_cells = c.tile_cells;
+    if (band_mb) config.scale.band_mb = *band_mb;
     config.scale.scratch = dir / "scratch";
     const auto tiled_stop = stop_of([&] { tiled = hc::pipeline::build_scene(config); });
     EXPECT_TRUE(fs::is_empty(dir / "scratch")) << "the spill is removed, also after a stop";
@@ -376,6 +379,7 @@ void check_seeds(const std::vector<std::uint64_t>& seeds, Tally& tally) {
       if (hc::test::stage_figure(tiled, "tiles", "far_tiles_again") > 0.0 || hc::test::stage_figure(tiled, "tile_plan", "far_cells_carried") == 1.0) {
         ++far_cells_carried;
       }
+      if (hc::test::stage_figure(tiled, "tiles", "sum_robust_strays_verdicts_kept") > 0.0) ++verdicts_kept;
     }
     if (!tiled_stop) {
       std::cout << "[ seed     ] " << seed << ": " << c.spec.points << " points, " << hc::test::stage_figure(tiled, "tile_plan", "tiles")
@@ -389,7 +393,8 @@ void check_seeds(const std::vector<std::uint64_t>& seeds, Tally& tally) {
   }
   std::cout << "[ tiled    ] " << compared << " scenes compared, " << stopped_alike << " stopped in both, " << halo_refusals
             << " tiled runs stopped naming a halo key, " << far_subset << " kept points of far clusters core removed, " << known
-            << " known divergences not run; " << far_cells_carried << " of the compared processed tiles again for far clusters' cells\n";
+            << " known divergences not run; " << far_cells_carried << " of the compared processed tiles again for far clusters' cells (" << verdicts_kept
+            << " taking the loop's stray verdicts)\n";
 }
 
 TEST(TiledDifferential, RandomScansAndConfigsGiveTheInCoreScene) {
@@ -429,6 +434,56 @@ TEST(TiledDifferential, WhereTheTilesMissFarClustersTheTilesHoldingThemAreProces
   Tally relaid;  // the scene's own attempt needs no fix-up: its whole-scan pass took the point
   check_seeds({323}, relaid);
   EXPECT_EQ(relaid.compared, 1U);
+}
+
+// The tiles processed again for far clusters' cells take their strays' whole-scan verdicts from
+// the tile loop before (StrayVerdicts) instead of gathering them again. With scale.band_mb 0
+// (one tile a band) no tile shares its judging, so the strays a tile processed again finds are
+// the loop's. The oracle is the same plan through tile jobs, whose merge processes those tiles
+// again gathering the strays' verdicts anew: the tiles' robust figures (each window's removals by
+// reason, its strays' verdicts among them), the far points and the layers must be the same, and
+// the layers the in-core run's. (Where tiles share a band, a tile processed alone judges points
+// its band left to their owners, and gathers for those.)
+TEST(TiledDifferential, TheTilesProcessedAgainTakeTheLoopsStrayVerdicts) {
+  for (const std::uint64_t seed : {5U, 59U}) {
+    SCOPED_TRACE("seed " + std::to_string(seed));
+    const Case c = draw_case(seed);
+    const fs::path dir = hc::test::temp_dir("tiled_diff_verdicts_" + std::to_string(seed));
+    (void)hc::tools::write_relief(c.spec, dir / c.file, 8192, 1);
+    std::ofstream(dir / "run.yaml") << c.yaml;
+    std::vector<std::string> sets = c.sets;
+    sets.push_back("scale.tiled=on");
+    sets.push_back("scale.tile_cells=" + std::to_string(c.tile_cells));
+    sets.push_back("scale.band_mb=0");
+    RunConfig config = hc::pipeline::parse_run_config(c.yaml, dir / "run.yaml", sets);
+    const BuiltScene tiled = hc::pipeline::build_scene(config);
+    EXPECT_GT(hc::test::stage_figure(tiled, "tiles", "far_tiles_again"), 0.0) << "tiles processed again";
+    EXPECT_GT(hc::test::stage_figure(tiled, "tiles", "sum_robust_strays_verdicts_kept"), 0.0) << "taking the loop's verdicts";
+    fs::path box;
+    std::optional<hc::pipeline::MergedTileRun> merged;
+    for (int plans = 1; !merged && plans <= 3; ++plans) {
+      const auto info = hc::pipeline::write_tile_plan(dir / "run.yaml", sets, dir / ("plan" + std::to_string(plans)), {}, box);
+      for (std::size_t t = 0; t < info.tiles; ++t) hc::pipeline::run_tile_jobs(info.plan_file, {t});
+      try {
+        merged = hc::pipeline::merge_tile_jobs(info.plan_file);
+      } catch (const hc::pipeline::GridBoxError& e) {
+        box = e.box_file;
+      }
+    }
+    ASSERT_TRUE(merged.has_value());
+    const BuiltScene& jobs = merged->built;
+    EXPECT_GT(hc::test::stage_figure(jobs, "tiles", "far_tiles_again"), 0.0);
+    EXPECT_EQ(hc::test::stage_figure(jobs, "tiles", "sum_robust_strays_verdicts_kept"), -1.0) << "the merge gathers";
+    for (const char* f : {"sum_removed_global", "sum_removed_local", "sum_removed_off_surface", "sum_removed_robust", "sum_far_points_owned",
+                          "sum_removed_isolated", "far_tiles_again"}) {
+      EXPECT_EQ(hc::test::stage_figure(tiled, "tiles", f), hc::test::stage_figure(jobs, "tiles", f)) << f;
+    }
+    hc::test::expect_same_layers(jobs.scene.layers, tiled.scene.layers);
+    config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
+    const BuiltScene in = hc::pipeline::build_scene(config);
+    hc::test::expect_same_layers(in.scene.layers, tiled.scene.layers);
+    fs::remove_all(dir);
+  }
 }
 
 // Seed 59 with the cross-check and the levels table off. With grid.upsample 2 nothing reads the
