@@ -1458,7 +1458,8 @@ struct TileOutput {
   bool link_cells_partial = false;
   // Where the tile runs with ScaleConfig::far_cells (processed again, or an attempt that carries
   // them): the given clusters (their numbers) of which the tile removed an owned point, for the
-  // merge's cluster count (in process only: a tile job's plan carries no cells).
+  // merge's cluster count (in the part file since format 6, for the tiles tile-merge processes
+  // again).
   std::vector<std::uint32_t> far_clusters_hit;
 };
 
@@ -3152,6 +3153,9 @@ struct TileMerge {
       despiked_m.insert(despiked_m.end(), o.despiked_m.begin(), o.despiked_m.end());
       far_clusters_hit.insert(o.far_clusters_hit.begin(), o.far_clusters_hit.end());
     }
+    // The carried clusters the tiles processed with them hit (those tiles count none of their
+    // own: the far step is off there): also in a merge of parts a fix-up wrote (format 6).
+    if (!far_clusters_hit.empty()) sums["far_clusters_owned"] += static_cast<double>(far_clusters_hit.size());
   }
 
   // The "tiles" stage's figures and notes.
@@ -4884,7 +4888,7 @@ constexpr const char* kPlanFormat = "hapticloud tile plan 8";
 // 2: kept_<t>.bin is a mask over the spill (KeptMask), not the kept points.
 // 3: the kept points' boxes (scale.grid_on_kept_points); 4: the despike's removed points;
 // 5: the far clusters' link cells (TileOutput::link_cells; 2026-11-30).
-constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '5', '\n'};
+constexpr char kPartMagic[12] = {'H', 'C', 'T', 'I', 'L', 'E', 'P', 'A', 'R', 'T', '6', '\n'};
 constexpr char kPartEnd[4] = {'E', 'N', 'D', '\n'};
 
 // Doubles as C99 hexadecimal floats ("%a"), so every value reads back to the same bits.
@@ -5424,6 +5428,8 @@ std::string encode_part(const std::string& plan_id, const TileOutput& o) {
     for (const double v : c.lo) put(s, v);
     for (const double v : c.hi) put(s, v);
   }
+  put(s, static_cast<std::uint64_t>(o.far_clusters_hit.size()));
+  for (const std::uint32_t c : o.far_clusters_hit) put(s, c);
   const DepthGrid& g = o.interior;
   const std::int32_t rows = g.depth.rows(), cols = g.depth.cols();
   put(s, rows);
@@ -5532,6 +5538,13 @@ TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::si
     for (double& v : c.lo) v = r.get<double>();
     for (double& v : c.hi) v = r.get<double>();
   }
+  const auto n_hit = r.get<std::uint64_t>();
+  if (n_hit > o.in || n_hit > r.left() / sizeof(std::uint32_t)) {
+    r.bad("lists " + std::to_string(n_hit) + " far clusters hit of " + std::to_string(o.in) + " input points in " + std::to_string(r.left()) +
+          " bytes left");
+  }
+  o.far_clusters_hit.resize(static_cast<std::size_t>(n_hit));
+  for (std::uint32_t& c : o.far_clusters_hit) c = r.get<std::uint32_t>();
   const auto rows = r.get<std::int32_t>(), cols = r.get<std::int32_t>();
   const bool colour = r.get<std::uint8_t>() != 0, intensity = r.get<std::uint8_t>() != 0;
   if (rows > 0) {
@@ -5990,7 +6003,7 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
           left.clear();
           spill.remove(t);
         },
-        &verdicts);
+        drop ? nullptr : &verdicts);  // kept only where the spills stay for a fix-up
     merged.finish();
     far_again = exact_far_clusters(config, plan, merged, r.report);
     if (far_again && !drop && config.scale.far_cells == nullptr) {
@@ -6296,6 +6309,53 @@ void remove_stale_scratch(const fs::path& dir, StageReport& report) {
 
 }  // namespace
 
+namespace {
+
+// far_fixup.json (tile-merge's far clusters' fix-up under way): the plan's id and the cells
+// (ScaleConfig::FarCellKeys; the link as a hexadecimal float), written atomically.
+void write_far_fixup_file(const fs::path& file, const std::string& plan_id, const ScaleConfig::FarCellKeys& k) {
+  nlohmann::json j;
+  j["plan_id"] = plan_id;
+  j["link_m"] = hex(k.link_m);
+  j["keys"] = k.keys;
+  j["cluster"] = k.cluster;
+  j["points"] = k.points;
+  j["clusters"] = k.clusters;
+  j["notes"] = k.notes;
+  detail::write_atomically(file, j.dump() + "\n");
+}
+
+// The cells of far_fixup.json. @throws InputError naming the file and the key when it is not
+// as write_far_fixup_file writes it, or belongs to another plan.
+std::shared_ptr<const ScaleConfig::FarCellKeys> read_far_fixup_file(const fs::path& file, const std::string& plan_id) {
+  const std::string text = read_file_bytes(file, "far-cluster fix-up");
+  const nlohmann::json j = nlohmann::json::parse(text, nullptr, false);
+  const auto bad = [&](const std::string& what) -> InputError {
+    return InputError(file.string() + ": " + what + " (tile-merge writes this file while it processes tiles again for far clusters; "
+                      "remove it only together with the plan's part files)");
+  };
+  if (j.is_discarded() || !j.is_object()) throw bad("not a JSON object");
+  if (!j.contains("plan_id") || j["plan_id"] != plan_id) throw bad("plan_id is not this plan's (" + plan_id + ")");
+  auto k = std::make_shared<ScaleConfig::FarCellKeys>();
+  try {
+    k->link_m = unhex(j.at("link_m"), file, "link_m");
+    k->keys = j.at("keys").get<std::vector<std::uint64_t>>();
+    k->cluster = j.at("cluster").get<std::vector<std::uint32_t>>();
+    k->points = j.at("points").get<std::uint64_t>();
+    k->clusters = j.at("clusters").get<std::uint64_t>();
+    k->notes = j.at("notes").get<std::vector<std::string>>();
+  } catch (const nlohmann::json::exception& e) {
+    throw bad(std::string("a key is missing or of another type: ") + e.what());
+  }
+  if (!(std::isfinite(k->link_m) && k->link_m > 0.0)) throw bad("link_m is not a positive length");
+  if (k->keys.empty() || k->cluster.size() != k->keys.size() || !std::is_sorted(k->keys.begin(), k->keys.end())) {
+    throw bad("keys must be sorted and as many as cluster's entries, at least one");
+  }
+  return k;
+}
+
+}  // namespace
+
 MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progress, SurfaceLayersAt layers) {
   const auto t_start = detail::Clock::now();
   const detail::StageHeapRelease heap_release;  // as build_scene_tiled
@@ -6340,16 +6400,30 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
       merged.add(plan.tiles, std::move(o));
     }
     merged.finish();
-    take_over_despike_sums(config, merged);
     // Where the in-core run's far clusters hold points the tiles kept, the tiles holding them are
     // processed again here, as the in-process run does, and their results and masks replaced (a
-    // merge run again then finds nothing short).
-    if (auto far_short = exact_far_clusters(config, plan, merged, r.report)) {
+    // merge run again then finds nothing short). Their cells are written first to
+    // far_fixup.json, which goes once every such tile is replaced and checked: a merge that finds
+    // it (the one before stopped half way) processes the same tiles again with those cells, since
+    // the parts already replaced no longer show them short.
+    const fs::path fixup_file = pf.dir / "far_fixup.json";
+    std::shared_ptr<const ScaleConfig::FarCellKeys> far_short = exact_far_clusters(config, plan, merged, r.report);
+    if (std::error_code ec; fs::exists(fixup_file, ec)) {
+      far_short = read_far_fixup_file(fixup_file, pf.id);
+      r.report.notes.push_back("far clusters: " + fixup_file.string() + " (a merge stopped while processing tiles again) gives the cells");
+    } else if (far_short) {
+      write_far_fixup_file(fixup_file, pf.id, *far_short);
+    }
+    if (far_short) {
       far_tiles_again(config, plan.tiles, std::move(far_short), merged, r.report, [&](const RunConfig& fix, const std::vector<std::size_t>& again) {
         run_jobs(pf, fix, again, [&](TileOutput&& o) { merged.add(plan.tiles, std::move(o)); });
       });
       kept.adopt_existing();
+      std::error_code ec;
+      fs::remove(fixup_file, ec);
+      if (ec) throw InputError("tile-merge: cannot remove " + fixup_file.string() + ": " + ec.message());
     }
+    take_over_despike_sums(config, merged);  // after the fix-up: its finish() makes the totals again
     merged.report(config, r.report);
     r.report.figure("tile_job_seconds", merged.job_seconds);
     // Every tile has its result: the scratch of attempts that were killed is of no use to anyone.

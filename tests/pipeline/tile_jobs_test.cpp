@@ -261,15 +261,15 @@ TEST(TileJobs, PlanJobsInAnyOrderAndMergeGiveTheInProcessScene) {
     EXPECT_NE(what.find("1 of " + std::to_string(info.tiles) + " tiles have no result (5)"), std::string::npos) << what;
     EXPECT_NE(what.find("--tiles 5"), std::string::npos) << what;
   }
-  // A result of the version before (without the far clusters' link cells) is refused as such.
+  // A result of the version before (without the far clusters hit) is refused as such.
   hc::pipeline::run_tile_jobs(info.plan_file, {5});
   {
     std::string older = bytes_of(work / "part_5.bin");
-    ASSERT_EQ(older.substr(0, 11), "HCTILEPART5");
-    older[10] = '4';
+    ASSERT_EQ(older.substr(0, 11), "HCTILEPART6");
+    older[10] = '5';
     std::ofstream(work / "part_5.bin", std::ios::binary | std::ios::trunc) << older;
     const std::string what = merge_refusal(info.plan_file, "a result of another version");
-    EXPECT_NE(what.find("part_5.bin: a tile result of another hapticloud version (HCTILEPART4, expected HCTILEPART5)"),
+    EXPECT_NE(what.find("part_5.bin: a tile result of another hapticloud version (HCTILEPART5, expected HCTILEPART6)"),
               std::string::npos) << what;
   }
   // A truncated result is refused too.

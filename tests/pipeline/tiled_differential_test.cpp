@@ -543,25 +543,64 @@ TEST(TiledDifferential, ThroughTileJobsFarClustersTheTilesMissedAreRemovedByTheM
   fs::path box;
   std::optional<hc::pipeline::MergedTileRun> merged;
   fs::path plan_file;
+  std::size_t tiles = 0;
   for (int plans = 1; !merged && plans <= 3; ++plans) {
     const auto info = hc::pipeline::write_tile_plan(dir / "run.yaml", sets, dir / ("plan" + std::to_string(plans)), {}, box);
     for (std::size_t t = 0; t < info.tiles; ++t) hc::pipeline::run_tile_jobs(info.plan_file, {t});
     try {
       merged = hc::pipeline::merge_tile_jobs(info.plan_file);
       plan_file = info.plan_file;
+      tiles = info.tiles;
     } catch (const hc::pipeline::GridBoxError& e) {
       box = e.box_file;
     }
   }
   ASSERT_TRUE(merged.has_value());
+  // The far-points reason (its counts of points and clusters) and the honest check's point
+  // classes, which read the kept masks the merge replaced.
+  const auto far_reason = [](const BuiltScene& b) {
+    for (const auto& x : b.summary.verdict->reasons) {
+      if (x.code == "far_points") return x.message;
+    }
+    return std::string();
+  };
+  const auto same_as_in_core = [&](const BuiltScene& b) {
+    EXPECT_EQ(tiled_far_points(b), far);
+    hc::test::expect_same_layers(in.scene.layers, b.scene.layers);
+    ASSERT_TRUE(in.summary.input_check && b.summary.input_check && in.summary.verdict && b.summary.verdict);
+    hc::test::expect_same_point_classes(*in.summary.input_check, *b.summary.input_check);
+    EXPECT_EQ(far_reason(in), far_reason(b));
+  };
   EXPECT_GT(hc::test::stage_figure(merged->built, "tiles", "far_tiles_again"), 0.0) << "the merge processed tiles again";
   EXPECT_EQ(hc::test::stage_figure(merged->built, "tiles", "exact_far_points"), far);
-  EXPECT_EQ(tiled_far_points(merged->built), far);
-  hc::test::expect_same_layers(in.scene.layers, merged->built.scene.layers);
-  const hc::pipeline::MergedTileRun again = hc::pipeline::merge_tile_jobs(plan_file);
-  EXPECT_EQ(hc::test::stage_figure(again.built, "tiles", "far_tiles_again"), -1.0) << "nothing left short (no such figure)";
-  EXPECT_EQ(tiled_far_points(again.built), far);
-  hc::test::expect_same_layers(in.scene.layers, again.built.scene.layers);
+  same_as_in_core(merged->built);
+  const fs::path work = plan_file.parent_path();
+  EXPECT_FALSE(fs::exists(work / "far_fixup.json"));
+  {
+    SCOPED_TRACE("a second merge");
+    const hc::pipeline::MergedTileRun again = hc::pipeline::merge_tile_jobs(plan_file);
+    EXPECT_EQ(hc::test::stage_figure(again.built, "tiles", "far_tiles_again"), -1.0) << "nothing left short (no such figure)";
+    same_as_in_core(again.built);
+  }
+  // A merge stopped while processing tiles again (here: a spill file missing when the fix-up
+  // reads the spills, after the tile jobs were run again and gave their first results back)
+  // leaves far_fixup.json; the next merge takes the cells from it.
+  for (std::size_t t = 0; t < tiles; ++t) hc::pipeline::run_tile_jobs(plan_file, {t});
+  fs::rename(work / "tile_0.bin", work / "tile_0.bin.away");
+  EXPECT_THROW((void)hc::pipeline::merge_tile_jobs(plan_file), hc::InputError);
+  EXPECT_TRUE(fs::exists(work / "far_fixup.json"));
+  fs::rename(work / "tile_0.bin.away", work / "tile_0.bin");
+  {
+    SCOPED_TRACE("the merge after one stopped");
+    const hc::pipeline::MergedTileRun resumed = hc::pipeline::merge_tile_jobs(plan_file);
+    const auto& notes = resumed.built.summary.stages;
+    EXPECT_TRUE(std::any_of(notes.begin(), notes.end(), [](const hc::pipeline::StageReport& r) {
+      return std::any_of(r.notes.begin(), r.notes.end(), [](const std::string& n) { return n.find("far_fixup.json") != std::string::npos; });
+    }));
+    EXPECT_GT(hc::test::stage_figure(resumed.built, "tiles", "far_tiles_again"), 0.0);
+    same_as_in_core(resumed.built);
+  }
+  EXPECT_FALSE(fs::exists(work / "far_fixup.json"));
   fs::remove_all(dir);
 }
 
