@@ -6227,8 +6227,9 @@ bool all_digits(const std::string& s) {
 // host's is removed: its attempt is a duplicate of a tile that has a result, and it fails
 // without harm (tile-job checks its kept file's size before moving it). Figures into `report`
 // (only when something was removed): stale_scratch_removed (entries), stale_scratch_mb (their
-// bytes / 10^6); a note names up to five of them, and one names what could not go.
-void remove_stale_scratch(const fs::path& dir, StageReport& report) {
+// bytes / 10^6); a note names up to five of them, and one names what could not go. Returns
+// the entries left as a running attempt's.
+std::size_t remove_stale_scratch(const fs::path& dir, StageReport& report) {
   const std::string me = host_tag();
   std::vector<fs::path> stale;
   std::size_t running = 0;
@@ -6270,7 +6271,7 @@ void remove_stale_scratch(const fs::path& dir, StageReport& report) {
     report.notes.push_back(std::to_string(running) + " scratch entries of processes still running on this host left in " +
                            dir.string());
   }
-  if (stale.empty()) return;
+  if (stale.empty()) return running;
   std::sort(stale.begin(), stale.end());
   std::uintmax_t bytes = 0;
   std::size_t removed = 0;
@@ -6300,11 +6301,12 @@ void remove_stale_scratch(const fs::path& dir, StageReport& report) {
     bytes += b;
     if (removed++ < 5) names += (names.empty() ? "" : ", ") + p.filename().string();
   }
-  if (removed == 0) return;
+  if (removed == 0) return running;
   report.figure("stale_scratch_removed", static_cast<double>(removed));
   report.figure("stale_scratch_mb", static_cast<double>(bytes) / 1e6);
   report.notes.push_back("removed " + std::to_string(removed) + " entries (" + format_number(static_cast<double>(bytes) / 1e6) +
                          " MB) that killed tile jobs left in " + dir.string() + ": " + names + (removed > 5 ? ", ..." : ""));
+  return running;
 }
 
 }  // namespace
@@ -6406,8 +6408,17 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
     // far_fixup.json, which goes once every such tile is replaced and checked: a merge that finds
     // it (the one before stopped half way) processes the same tiles again with those cells, since
     // the parts already replaced no longer show them short.
+    // Every tile has its result: the scratch of attempts that were killed is of no use to anyone,
+    // and another host's duplicate attempt, its kept file gone, then fails without moving it over
+    // a tile the fix-up below replaces. One still running on this host could: the fix-up waits.
+    const std::size_t running = remove_stale_scratch(pf.dir, r.report);
     const fs::path fixup_file = pf.dir / "far_fixup.json";
     std::shared_ptr<const ScaleConfig::FarCellKeys> far_short = exact_far_clusters(config, plan, merged, r.report);
+    if (running > 0 && (far_short || fs::exists(fixup_file))) {
+      throw InputError("tile-merge: " + plan_file.string() + ": the tiles missed far clusters, and the merge processes the tiles holding them "
+                       "again, replacing their results; " + std::to_string(running) + " scratch entries of tile-job attempts still running "
+                       "on this host are in " + pf.dir.string() + ": run tile-merge again once they have ended (no scene was written)");
+    }
     if (std::error_code ec; fs::exists(fixup_file, ec)) {
       far_short = read_far_fixup_file(fixup_file, pf.id);
       r.report.notes.push_back("far clusters: " + fixup_file.string() + " (a merge stopped while processing tiles again) gives the cells");
@@ -6426,8 +6437,6 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
     take_over_despike_sums(config, merged);  // after the fix-up: its finish() makes the totals again
     merged.report(config, r.report);
     r.report.figure("tile_job_seconds", merged.job_seconds);
-    // Every tile has its result: the scratch of attempts that were killed is of no use to anyone.
-    remove_stale_scratch(pf.dir, r.report);
     r.report.notes.push_back("merged from the results of " + std::to_string(plan.tiles.count()) + " tile jobs (hapticloud tile-job) in " +
                              pf.dir.string());
     return r;

@@ -32,6 +32,7 @@
 #include <gtest/gtest.h>
 
 #include <bit>
+#include <cctype>
 #include <algorithm>
 #include <array>
 #include <cstdint>
@@ -46,6 +47,8 @@
 #include <typeinfo>
 #include <numeric>
 #include <vector>
+
+#include <unistd.h>
 
 namespace tiled_differential {
 namespace {
@@ -576,6 +579,29 @@ TEST(TiledDifferential, ThroughTileJobsFarClustersTheTilesMissedAreRemovedByTheM
   same_as_in_core(merged->built);
   const fs::path work = plan_file.parent_path();
   EXPECT_FALSE(fs::exists(work / "far_fixup.json"));
+  {
+    // A tile job's attempt still running on this host (its temporary kept file, named with this
+    // host and this live process): a merge that would process tiles again waits, naming it.
+    for (std::size_t t = 0; t < tiles; ++t) hc::pipeline::run_tile_jobs(plan_file, {t});  // the first results back
+    char host[256] = {0};
+    ASSERT_EQ(::gethostname(host, sizeof host - 1), 0);
+    std::string h;
+    for (const char* ch = host; *ch; ++ch) h.push_back(std::isalnum(static_cast<unsigned char>(*ch)) ? *ch : '_');
+    const fs::path live = work / (".kept-job-" + h + "-" + std::to_string(::getpid()) + "-0123456789abcdef-0.bin");
+    std::ofstream(live) << "x";
+    try {
+      (void)hc::pipeline::merge_tile_jobs(plan_file);
+      ADD_FAILURE() << "the merge went on beside a running attempt";
+    } catch (const hc::InputError& e) {
+      EXPECT_NE(std::string(e.what()).find("still running"), std::string::npos) << e.what();
+    }
+    EXPECT_TRUE(fs::exists(live)) << "a running attempt's file is left";
+    EXPECT_FALSE(fs::exists(work / "far_fixup.json")) << "nothing replaced, no fix-up under way";
+    fs::remove(live);
+    const hc::pipeline::MergedTileRun fixed = hc::pipeline::merge_tile_jobs(plan_file);
+    EXPECT_GT(hc::test::stage_figure(fixed.built, "tiles", "far_tiles_again"), 0.0);
+    same_as_in_core(fixed.built);
+  }
   {
     SCOPED_TRACE("a second merge");
     const hc::pipeline::MergedTileRun again = hc::pipeline::merge_tile_jobs(plan_file);
