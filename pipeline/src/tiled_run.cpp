@@ -6012,8 +6012,10 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
       verdicts.seal();
       r.report.figure("strays_verdicts_kept", static_cast<double>(verdicts.size()));
       far_tiles_again(config, tiles, std::move(far_again), merged, r.report, [&](const RunConfig& fix, const std::vector<std::size_t>& again) {
-        (void)run_tiles(fix, plan, spill, kept, again, heap, [](double) {}, [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); },
-                        &verdicts);
+        detail::PassProgress again_tick(progress, "tiles", "the tiles holding far clusters the loop kept, processed again",
+                                        config.scale.progress_interval_s);
+        (void)run_tiles(fix, plan, spill, kept, again, heap, [&](double f) { again_tick(f); },
+                        [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); }, &verdicts);
       });
       far_again = nullptr;
     }
@@ -6120,10 +6122,12 @@ namespace {
 // `pf`) under `config` as tile jobs do: their kept masks written under a temporary name and
 // moved to kept_<t>.bin once whole and flushed, then their results written atomically to their
 // part files (so a merge never pairs a new result with an old mask); `then` gets each result
-// after its files are written. Used by run_tile_jobs and by tile-merge's far-cluster fix-up.
+// after its files are written; `progress` the share of the tiles' two sweeps done. Used by
+// run_tile_jobs and by tile-merge's far-cluster fix-up.
 // @throws InputError naming a spill file that is missing or changed, or a file that cannot be
 // written or moved.
-void run_jobs(const PlanFile& pf, const RunConfig& config, const std::vector<std::size_t>& tiles, const std::function<void(TileOutput&&)>& then) {
+void run_jobs(const PlanFile& pf, const RunConfig& config, const std::vector<std::size_t>& tiles, const std::function<void(TileOutput&&)>& then,
+              const std::function<void(double)>& progress = [](double) {}) {
   const Plan& plan = pf.plan;
   Spill spill(pf.dir, "tile_", plan.tiles.count(), plan.layout);
   spill.adopt_existing();
@@ -6143,7 +6147,7 @@ void run_jobs(const PlanFile& pf, const RunConfig& config, const std::vector<std
   for (const std::size_t t : tiles) temps.emplace_back(kept.file(t));
   // The tiles in bands as in the tile loop of build_scene_tiled (run_tiles): the strays of a
   // band judged over the whole scan, read from every spill their balls meet.
-  (void)run_tiles(config, plan, spill, kept, tiles, heap, [](double) {}, [&](TileOutput&& o, bool) {
+  (void)run_tiles(config, plan, spill, kept, tiles, heap, progress, [&](TileOutput&& o, bool) {
     const std::size_t t = o.tile;
     std::error_code ec;
     if (o.kept_bytes > 0) {
@@ -6427,7 +6431,9 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
     }
     if (far_short) {
       far_tiles_again(config, plan.tiles, std::move(far_short), merged, r.report, [&](const RunConfig& fix, const std::vector<std::size_t>& again) {
-        run_jobs(pf, fix, again, [&](TileOutput&& o) { merged.add(plan.tiles, std::move(o)); });
+        detail::PassProgress again_tick(progress, "tiles", "the tiles holding far clusters the tile jobs kept, processed again",
+                                        config.scale.progress_interval_s);
+        run_jobs(pf, fix, again, [&](TileOutput&& o) { merged.add(plan.tiles, std::move(o)); }, [&](double f) { again_tick(f); });
       });
       kept.adopt_existing();
       std::error_code ec;
