@@ -2167,15 +2167,18 @@ void judge_strays(const RunConfig& config, const Plan& plan, const Spill& spill,
   if (strays == 0) return;
   // Every stray's verdict kept from the loop before (the far clusters' fix-up): no gathering.
   if (verdicts != nullptr && verdicts->sealed()) {
+    std::vector<std::vector<std::uint8_t>> kept(looks.size());
     bool all = true;
-    for (const TileLook& L : looks) {
-      for (const auto& p : L.strays_m) all = all && verdicts->find(bits_of(p.data())) >= 0;
+    for (std::size_t i = 0; i < looks.size() && all; ++i) {
+      for (const auto& p : looks[i].strays_m) {
+        const int v = verdicts->find(bits_of(p.data()));
+        all = v >= 0;
+        if (!all) break;
+        kept[i].push_back(static_cast<std::uint8_t>(v));
+      }
     }
     if (all) {
-      for (TileLook& L : looks) {
-        L.stray_verdict.clear();
-        for (const auto& p : L.strays_m) L.stray_verdict.push_back(static_cast<std::uint8_t>(verdicts->find(bits_of(p.data()))));
-      }
+      for (std::size_t i = 0; i < looks.size(); ++i) looks[i].stray_verdict = std::move(kept[i]);
       sums["robust_strays_verdicts_kept"] += static_cast<double>(strays);
       return;
     }
@@ -3153,8 +3156,10 @@ struct TileMerge {
       despiked_m.insert(despiked_m.end(), o.despiked_m.begin(), o.despiked_m.end());
       far_clusters_hit.insert(o.far_clusters_hit.begin(), o.far_clusters_hit.end());
     }
-    // The carried clusters the tiles processed with them hit (those tiles count none of their
-    // own: the far step is off there): also in a merge of parts a fix-up wrote (format 6).
+    // The given clusters the tiles processed with ScaleConfig::far_cells hit (those tiles count
+    // none of their own: the far step is off there, and a tile that removed a far cluster itself
+    // holds its cells, so it is among them): the whole count, in process, carried, and in a
+    // merge of parts a fix-up wrote (format 6).
     if (!far_clusters_hit.empty()) sums["far_clusters_owned"] += static_cast<double>(far_clusters_hit.size());
   }
 
@@ -3219,8 +3224,7 @@ std::shared_ptr<const ScaleConfig::FarCellKeys> exact_far_clusters(const RunConf
   const ScaleConfig::FarCellKeys* carried = config.scale.far_cells.get();
   const auto it = merged.sums.find("far_points_owned");
   const double tiles_far = it != merged.sums.end() ? it->second : 0.0;
-  if (carried != nullptr) {
-    merged.sums["far_clusters_owned"] = static_cast<double>(merged.far_clusters_hit.size());
+  if (carried != nullptr) {  // the clusters the owners hit are counted by TileMerge::finish
     r.notes.push_back("far clusters: the tiles removed the kept points in the " + std::to_string(carried->keys.size()) + " cells of " +
                       std::to_string(carried->clusters) + " far clusters (" + std::to_string(carried->points) +
                       " points) found by the attempt before from every tile's kept points");
@@ -5657,16 +5661,19 @@ struct GridOnKeptPoints : std::runtime_error {
 // tiles kept and every spill is still there (in process; at tile-merge always): the tiles whose
 // windows hold a point in their cells (tiles_holding) are processed again by `again`, given the
 // config with ScaleConfig::far_cells set and the tiles' list, which feeds each new output to
-// `merged` (TileMerge::add replaces a tile's output); the totals are then made again. Those tiles
+// `merged` (TileMerge::add replaces a tile's output; its third argument takes the share of their
+// sweeps done, for `progress`); the totals are then made again. Those tiles
 // remove the kept points in the clusters' cells, so the scene is the in-core run's (docs/scale.md,
 // "Far clusters exact"). Figure far_tiles_again and notes on `r` (stage tiles).
 // @throws std::logic_error when the owners did not remove exactly the clusters' points (a bug).
 void far_tiles_again(const RunConfig& config, const Tiles& tiles, std::shared_ptr<const ScaleConfig::FarCellKeys> far, TileMerge& merged,
-                     StageReport& r, const std::function<void(const RunConfig&, const std::vector<std::size_t>&)>& again) {
+                     StageReport& r, const ProgressFn& progress,
+                     const std::function<void(const RunConfig&, const std::vector<std::size_t>&, const std::function<void(double)>&)>& again) {
   const std::vector<std::size_t> list = tiles_holding(tiles, *far);
   RunConfig fix = config;
   fix.scale.far_cells = far;
-  again(fix, list);
+  detail::PassProgress tick(progress, "tiles", "the tiles holding far clusters the tiles kept, processed again", config.scale.progress_interval_s);
+  again(fix, list, [&](double f) { tick(f); });
   merged.finish();
   const auto it = merged.sums.find("far_points_owned");
   const double removed = it != merged.sums.end() ? it->second : 0.0;
@@ -5674,7 +5681,6 @@ void far_tiles_again(const RunConfig& config, const Tiles& tiles, std::shared_pt
     throw std::logic_error("tiled run: the " + std::to_string(list.size()) + " tiles processed again removed " + format_number(removed) +
                            " owned points in the far clusters' cells, which hold " + std::to_string(far->points));
   }
-  merged.sums["far_clusters_owned"] = static_cast<double>(merged.far_clusters_hit.size());
   r.figure("far_tiles_again", static_cast<double>(list.size()));
   r.notes.push_back("far clusters: the whole scan's, joined from the tiles' kept points, hold " + std::to_string(far->points) +
                     " points in " + std::to_string(far->clusters) + " clusters, more than the tiles removed (they judge far "
@@ -6011,12 +6017,11 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
       // strays' verdicts the loop's (no gathering where it kept them all).
       verdicts.seal();
       r.report.figure("strays_verdicts_kept", static_cast<double>(verdicts.size()));
-      far_tiles_again(config, tiles, std::move(far_again), merged, r.report, [&](const RunConfig& fix, const std::vector<std::size_t>& again) {
-        detail::PassProgress again_tick(progress, "tiles", "the tiles holding far clusters the loop kept, processed again",
-                                        config.scale.progress_interval_s);
-        (void)run_tiles(fix, plan, spill, kept, again, heap, [&](double f) { again_tick(f); },
-                        [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); }, &verdicts);
-      });
+      far_tiles_again(config, tiles, std::move(far_again), merged, r.report, progress,
+                      [&](const RunConfig& fix, const std::vector<std::size_t>& again, const std::function<void(double)>& again_tick) {
+                        (void)run_tiles(fix, plan, spill, kept, again, heap, again_tick, [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); },
+                                        &verdicts);
+                      });
       far_again = nullptr;
     }
     take_over_despike_sums(config, merged);
@@ -6406,35 +6411,36 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
       merged.add(plan.tiles, std::move(o));
     }
     merged.finish();
+    // Every tile has its result: the scratch of attempts that were killed is of no use to anyone,
+    // and another host's duplicate attempt, its kept file gone, then fails without moving it over
+    // a tile the fix-up below replaces. One still running on this host could: the fix-up waits.
+    const std::size_t running = remove_stale_scratch(pf.dir, r.report);
     // Where the in-core run's far clusters hold points the tiles kept, the tiles holding them are
     // processed again here, as the in-process run does, and their results and masks replaced (a
     // merge run again then finds nothing short). Their cells are written first to
     // far_fixup.json, which goes once every such tile is replaced and checked: a merge that finds
     // it (the one before stopped half way) processes the same tiles again with those cells, since
     // the parts already replaced no longer show them short.
-    // Every tile has its result: the scratch of attempts that were killed is of no use to anyone,
-    // and another host's duplicate attempt, its kept file gone, then fails without moving it over
-    // a tile the fix-up below replaces. One still running on this host could: the fix-up waits.
-    const std::size_t running = remove_stale_scratch(pf.dir, r.report);
     const fs::path fixup_file = pf.dir / "far_fixup.json";
+    std::error_code fixup_ec;
+    const bool resuming = fs::exists(fixup_file, fixup_ec);
     std::shared_ptr<const ScaleConfig::FarCellKeys> far_short = exact_far_clusters(config, plan, merged, r.report);
-    if (running > 0 && (far_short || fs::exists(fixup_file))) {
+    if (running > 0 && (far_short || resuming)) {
       throw InputError("tile-merge: " + plan_file.string() + ": the tiles missed far clusters, and the merge processes the tiles holding them "
                        "again, replacing their results; " + std::to_string(running) + " scratch entries of tile-job attempts still running "
                        "on this host are in " + pf.dir.string() + ": run tile-merge again once they have ended (no scene was written)");
     }
-    if (std::error_code ec; fs::exists(fixup_file, ec)) {
+    if (resuming) {
       far_short = read_far_fixup_file(fixup_file, pf.id);
       r.report.notes.push_back("far clusters: " + fixup_file.string() + " (a merge stopped while processing tiles again) gives the cells");
     } else if (far_short) {
       write_far_fixup_file(fixup_file, pf.id, *far_short);
     }
     if (far_short) {
-      far_tiles_again(config, plan.tiles, std::move(far_short), merged, r.report, [&](const RunConfig& fix, const std::vector<std::size_t>& again) {
-        detail::PassProgress again_tick(progress, "tiles", "the tiles holding far clusters the tile jobs kept, processed again",
-                                        config.scale.progress_interval_s);
-        run_jobs(pf, fix, again, [&](TileOutput&& o) { merged.add(plan.tiles, std::move(o)); }, [&](double f) { again_tick(f); });
-      });
+      far_tiles_again(config, plan.tiles, std::move(far_short), merged, r.report, progress,
+                      [&](const RunConfig& fix, const std::vector<std::size_t>& again, const std::function<void(double)>& tick) {
+                        run_jobs(pf, fix, again, [&](TileOutput&& o) { merged.add(plan.tiles, std::move(o)); }, tick);
+                      });
       kept.adopt_existing();
       std::error_code ec;
       fs::remove(fixup_file, ec);
