@@ -30,7 +30,7 @@ RunConfig config_for(const fs::path& file, const std::string& extra = "") {
                           file.parent_path() / "run.yaml");
 }
 
-bool same_bits(const std::vector<float>& a, const std::vector<float>& b) {
+bool same_bits(const hc::CellBuffer<float>& a, const hc::CellBuffer<float>& b) {
   return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
 }
 

@@ -289,7 +289,7 @@ TEST(LodPyramid, CacheStaysWithinItsBudgetAndRebuildsIdentically) {
   // Level 1 with layers: 257² · 5 floats ≈ 1.3 MB; budget 1.5 MB holds about one level.
   opt.memory_budget_mb = 1.5;
   LodPyramid pyr(std::move(l0), SurfaceLayerOptions{}, opt);
-  const std::vector<float> first = pyr.level(1)->depth_m.values();
+  const CellBuffer<float> first = pyr.level(1)->depth_m.values();
   (void)pyr.level(3);
   (void)pyr.level(2);
   (void)pyr.window(2, 0, 0, 50, 50);
@@ -298,7 +298,7 @@ TEST(LodPyramid, CacheStaysWithinItsBudgetAndRebuildsIdentically) {
   EXPECT_LE(stats.bytes, stats.budget_bytes);
   EXPECT_FALSE(pyr.is_cached(1));
   EXPECT_EQ(pyr.level(1)->depth_m.values().size(), first.size());
-  const std::vector<float> again = pyr.level(1)->depth_m.values();
+  const CellBuffer<float> again = pyr.level(1)->depth_m.values();
   for (std::size_t i = 0; i < first.size(); ++i) ASSERT_TRUE(first[i] == again[i] || (std::isnan(first[i]) && std::isnan(again[i])));
   // Levels nobody asked for are never built.
   LodLevel big;

@@ -3,6 +3,8 @@
 /// The Monge grid z = f(x, y): the data contract between the offline pipeline and the online
 /// haptic renderer (see docs/architecture.md, "Data contract").
 
+#include "hc/common/cell_buffer.hpp"
+
 #include <Eigen/Geometry>
 
 #include <cmath>
@@ -42,6 +44,8 @@ inline constexpr float kNoData = std::numeric_limits<float>::quiet_NaN();
 /// Owning rows × cols grid of float heights in metres, row-major, NaN = no data.
 /// `model_to_grid` is the rigid-plus-uniform-scale transform that took a model point (metres,
 /// after units and recentring) into this grid's frame, so a grid point can be mapped back.
+/// The cells are on the heap, or in a scratch file's mapping (file_backed(); a tiled run's
+/// level 0, docs/scale.md "Level 0 in a file"); a copy is on the heap.
 /// Thread-safe for concurrent reads; not real-time to construct (allocates).
 class HeightField {
  public:
@@ -50,6 +54,11 @@ class HeightField {
   /// @param fill     initial value of every cell (default: no data).
   explicit HeightField(const GridGeometry& geometry, float fill = kNoData)
       : geometry_(geometry), z_m_(geometry.cell_count(), fill) {}
+  /// The same, its cells in a ScratchMapping in `dir` (cell_buffer.hpp).
+  /// @param what what the layer is, for the error message ("level 0's depth").
+  /// @throws ResourceError naming `dir` where the file cannot be made, reserved or mapped.
+  HeightField(const GridGeometry& geometry, float fill, const std::filesystem::path& dir, const std::string& what)
+      : geometry_(geometry), z_m_(dir, geometry.cell_count(), fill, what) {}
 
   const GridGeometry& geometry() const { return geometry_; }
   int rows() const { return geometry_.rows; }
@@ -63,13 +72,22 @@ class HeightField {
 
   float* data() { return z_m_.data(); }
   const float* data() const { return z_m_.data(); }
-  std::vector<float>& values() { return z_m_; }
-  const std::vector<float>& values() const { return z_m_; }
+  CellBuffer<float>& values() { return z_m_; }
+  const CellBuffer<float>& values() const { return z_m_; }
+  /// True where the cells are in a scratch file's mapping.
+  bool file_backed() const { return z_m_.file_backed(); }
 
-  /// Number of cells holding a finite height.
+  /// Number of cells holding a finite height. A file-backed field's pages are given back as the
+  /// count passes (CellBuffer::release_resident, every 4 Mi cells).
   std::size_t valid_count() const {
     std::size_t n = 0;
-    for (float v : z_m_) n += std::isnan(v) ? 0U : 1U;
+    constexpr std::size_t kBlock = std::size_t{1} << 22;
+    const float* z = z_m_.data();
+    for (std::size_t i = 0; i < z_m_.size(); i += kBlock) {
+      const std::size_t end = i + kBlock < z_m_.size() ? i + kBlock : z_m_.size();
+      for (std::size_t j = i; j < end; ++j) n += std::isnan(z[j]) ? 0U : 1U;
+      z_m_.release_resident();
+    }
     return n;
   }
 
@@ -81,7 +99,7 @@ class HeightField {
            static_cast<std::size_t>(col);
   }
   GridGeometry geometry_{};
-  std::vector<float> z_m_;
+  CellBuffer<float> z_m_;
 };
 
 }  // namespace hc

@@ -1,0 +1,56 @@
+#include "hc/common/cell_buffer.hpp"
+
+#include "hc/common/error.hpp"
+
+#include <cerrno>
+#include <cstdlib>
+#include <cstring>
+#include <string>
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <unistd.h>
+
+namespace hc {
+
+namespace {
+
+[[noreturn]] void fail(const std::filesystem::path& dir, std::size_t bytes, const std::string& what, const char* step, int err) {
+  throw ResourceError("scale.scratch: cannot " + std::string(step) + " a file of " + std::to_string(bytes) + " bytes in " +
+                      dir.string() + " for " + what + ": " + std::strerror(err) +
+                      (err == ENOSPC ? " (the disk is full: expected room for it, or another scale.scratch)" : ""));
+}
+
+}  // namespace
+
+ScratchMapping::ScratchMapping(const std::filesystem::path& dir, std::size_t bytes, const std::string& what) : bytes_(bytes) {
+  std::string name = (dir / "layer-XXXXXX").string();
+  const int fd = ::mkstemp(name.data());
+  if (fd < 0) fail(dir, bytes, what, "create", errno);
+  // Unlinked at once: the mapping keeps the file's blocks until it goes, and nothing stays in
+  // the folder whatever ends the process.
+  (void)::unlink(name.c_str());
+  // Every block reserved now (posix_fallocate returns the error, it does not set errno).
+  if (const int e = ::posix_fallocate(fd, 0, static_cast<off_t>(bytes)); e != 0) {
+    ::close(fd);
+    fail(dir, bytes, what, "reserve", e);
+  }
+  void* p = ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
+  const int e = errno;
+  ::close(fd);  // the mapping holds the file
+  if (p == MAP_FAILED) fail(dir, bytes, what, "map", e);
+  data_ = p;
+}
+
+ScratchMapping::~ScratchMapping() {
+  if (data_ != nullptr) (void)::munmap(data_, bytes_);
+}
+
+void ScratchMapping::release_resident() const {
+  // For a shared file mapping, MADV_DONTNEED unmaps the pages; their written contents stay in
+  // the page cache (a dirty page stays dirty there and is written back), and a later access
+  // maps the file's up-to-date contents again (madvise(2)).
+  if (data_ != nullptr) (void)::madvise(data_, bytes_, MADV_DONTNEED);
+}
+
+}  // namespace hc

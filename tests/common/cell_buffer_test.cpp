@@ -1,0 +1,136 @@
+#include "hc/common/cell_buffer.hpp"
+#include "hc/common/error.hpp"
+#include "hc/common/height_field.hpp"
+
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <cstdint>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <iterator>
+#include <sstream>
+#include <string>
+
+#include <unistd.h>
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// A fresh empty folder under the system's temporary one, removed at the end.
+struct TempDir {
+  fs::path path;
+  TempDir() {
+    std::string t = (fs::temp_directory_path() / "hc-cell-buffer-XXXXXX").string();
+    if (::mkdtemp(t.data()) == nullptr) throw std::runtime_error("mkdtemp failed");
+    path = t;
+  }
+  ~TempDir() {
+    std::error_code ec;
+    fs::remove_all(path, ec);
+  }
+};
+
+// The resident size [bytes] of this process's mapping that holds `p`, from /proc/self/smaps
+// (the kernel's own count, independent of the code under test); -1 where no mapping holds it.
+long long resident_bytes_of_mapping(const void* p) {
+  std::ifstream in("/proc/self/smaps");
+  const auto at = reinterpret_cast<std::uintptr_t>(p);
+  bool inside = false;
+  for (std::string line; std::getline(in, line);) {
+    unsigned long long lo = 0, hi = 0;
+    char dash = 0;
+    std::istringstream head(line);
+    if (head >> std::hex >> lo >> dash >> hi && dash == '-') {
+      inside = at >= lo && at < hi;
+      continue;
+    }
+    if (inside && line.rfind("Rss:", 0) == 0) return std::stoll(line.substr(4)) * 1024;
+  }
+  return -1;
+}
+
+TEST(CellBuffer, AFileBackedLayerLeavesNothingInItsFolderAndKeepsWhatWasWrittenWhenItsPagesGoBack) {
+  TempDir dir;
+  constexpr std::size_t n = 16u << 20;  // 64 MiB of floats
+  hc::CellBuffer<float> b(dir.path, n, hc::kNoData, "a test layer");
+  ASSERT_TRUE(b.file_backed());
+  ASSERT_EQ(b.size(), n);
+  // The file is unlinked once mapped: the folder stays empty.
+  EXPECT_TRUE(fs::is_empty(dir.path));
+  for (std::size_t i = 0; i < n; ++i) ASSERT_TRUE(std::isnan(b[i])) << i;
+  for (std::size_t i = 0; i < n; ++i) b[i] = static_cast<float>(i % 100003) * 0.25f;
+  const long long before = resident_bytes_of_mapping(b.data());
+  ASSERT_GE(before, static_cast<long long>(n * sizeof(float)) - (1 << 20)) << "every page written is resident";
+  b.release_resident();
+  const long long after = resident_bytes_of_mapping(b.data());
+  EXPECT_LE(after, 1 << 20) << "release_resident drops the mapping's pages from the resident set";
+  // What was written comes back from the page cache (or the file).
+  for (std::size_t i = 0; i < n; ++i) ASSERT_EQ(b[i], static_cast<float>(i % 100003) * 0.25f) << i;
+  // A copy is on the heap and equal; a move keeps the mapping.
+  const hc::CellBuffer<float> copy = b;
+  EXPECT_FALSE(copy.file_backed());
+  EXPECT_TRUE(copy == b);
+  const float* at = b.data();
+  hc::CellBuffer<float> moved = std::move(b);
+  EXPECT_TRUE(moved.file_backed());
+  EXPECT_EQ(moved.data(), at);
+  EXPECT_TRUE(b.empty());  // NOLINT(bugprone-use-after-move): a moved-from buffer is empty
+  moved[7] = -1.0f;
+  EXPECT_FALSE(copy == moved);
+}
+
+TEST(CellBuffer, AHeapBufferIsAVectorsCellsAndItsReleaseDoesNothing) {
+  hc::CellBuffer<std::uint8_t> b(1000, 7);
+  EXPECT_FALSE(b.file_backed());
+  b.release_resident();
+  for (const std::uint8_t v : b) ASSERT_EQ(v, 7);
+  std::vector<float> v = {1.0f, 2.0f, 3.0f};
+  hc::CellBuffer<float> f;
+  f = std::move(v);
+  ASSERT_EQ(f.size(), 3u);
+  EXPECT_EQ(f[2], 3.0f);
+  // NaN cells are unequal, as in std::vector<float>.
+  hc::CellBuffer<float> a(2, hc::kNoData), c(2, hc::kNoData);
+  EXPECT_FALSE(a == c);
+}
+
+TEST(CellBuffer, AFolderThatCannotTakeTheFileIsAResourceErrorNamingItAndTheLayer) {
+  TempDir dir;
+  const fs::path missing = dir.path / "no-such-folder";
+  try {
+    const hc::HeightField h(hc::GridGeometry{4, 5, 0.0, 0.0, 0.001}, hc::kNoData, missing, "level 0's depth");
+    FAIL() << "expected a ResourceError";
+  } catch (const hc::ResourceError& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find(missing.string()), std::string::npos) << m;
+    EXPECT_NE(m.find("level 0's depth"), std::string::npos) << m;
+    EXPECT_NE(m.find("scale.scratch"), std::string::npos) << m;
+  }
+}
+
+TEST(CellBuffer, AFileBackedHeightFieldReadsAndWritesAsOneOnTheHeap) {
+  TempDir dir;
+  const hc::GridGeometry g{37, 53, -0.2, 0.1, 0.004};
+  hc::HeightField heap(g), file(g, hc::kNoData, dir.path, "a test layer");
+  ASSERT_TRUE(file.file_backed());
+  ASSERT_FALSE(heap.file_backed());
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) {
+      if ((r * 7 + c) % 5 == 0) continue;  // left no data
+      const float z = static_cast<float>(std::sin(0.1 * r) * std::cos(0.07 * c));
+      heap.at(r, c) = z;
+      file.at(r, c) = z;
+    }
+  file.values().release_resident();
+  EXPECT_EQ(file.valid_count(), heap.valid_count());
+  for (int r = 0; r < g.rows; ++r)
+    for (int c = 0; c < g.cols; ++c) {
+      const float a = heap.at(r, c), b = file.at(r, c);
+      ASSERT_TRUE(a == b || (std::isnan(a) && std::isnan(b))) << r << " " << c;
+    }
+}
+
+}  // namespace
