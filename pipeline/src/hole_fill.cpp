@@ -140,16 +140,21 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
     std::vector<std::uint8_t> seen(cells, 0);
     std::vector<std::size_t> stack, component, fillable, rim;
     for (std::size_t start = 0; start < cells; ++start) {
+      // A file-backed level 0's pages given back every 16 Mi cells swept (cell_buffer.hpp).
+      if ((start & ((std::size_t{1} << 24) - 1)) == 0) grid.depth.values().release_resident();
       if (seen[start] || !std::isnan(z[start])) continue;
       ++holes_total;
       component.clear();
       bool border = false;
       stack.push_back(start);
       seen[start] = 1;
+      std::size_t size = 0;
       while (!stack.empty()) {
         const std::size_t i = stack.back();
         stack.pop_back();
-        component.push_back(i);
+        // Cells recorded only while the hole may still be filled: a larger one (the background
+        // around a scan, which may be most of a fine grid) is counted, not listed.
+        if (++size <= static_cast<std::size_t>(max_hole_cells)) component.push_back(i);
         const std::size_t r = i / ucols, c = i % ucols;
         if (r == 0 || c == 0 || r + 1 == static_cast<std::size_t>(rows) || c + 1 == ucols) border = true;
         auto visit = [&](std::size_t j) {
@@ -163,7 +168,7 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
         if (r > 0) visit(i - ucols);
         if (r + 1 < static_cast<std::size_t>(rows)) visit(i + ucols);
       }
-      if (border || component.size() > static_cast<std::size_t>(max_hole_cells)) continue;
+      if (border || size > static_cast<std::size_t>(max_hole_cells)) continue;
       if (max_rim_step_m > 0.0 && rim_departs(z, ucols, component, rim, max_rim_step_m)) {
         ++holes_at_steps;
         continue;
@@ -253,6 +258,8 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
     }
   }
 
+  grid.depth.values().release_resident();
+  grid.intensity.values().release_resident();
   rep.count_out = rep.count_in + cells_filled;
   rep.figure("max_hole_cells", max_hole_cells);
   rep.figure("no_data_regions", static_cast<double>(holes_total));
