@@ -1126,6 +1126,7 @@ RunConfig build(Reader& r, const std::filesystem::path& origin) {
     c.scale.chunk_points = static_cast<std::size_t>(
         r.get_int("scale.chunk_points", static_cast<long long>(c.scale.chunk_points), 1024, 1LL << 28));
     if (r.has("scale.scratch")) c.scale.scratch = base / r.get_string("scale.scratch", "");
+    c.scale.level0_file = r.get_bool("scale.level0_file", c.scale.level0_file);
     if (r.has("scale.block_copies")) {
       r.fail("scale.block_copies", "was removed on 2026-11-27: the robust test's strays are judged in one gathering per band of "
                                    "tiles, which makes no block copies (docs/scale.md); delete the key (scale.band_mb bounds a band)");

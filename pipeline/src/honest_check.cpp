@@ -1164,6 +1164,7 @@ void detail::for_each_island_cell(const HeightField& grid, int max_cells, std::s
             held.push_back(i);
           }
         }
+    grid.values().release_resident();  // a file-backed level 0's band given back (cell_buffer.hpp)
   }
   if (!some_group_larger && count > 0) {
     // Every group is small and the largest is spared: only one labelling of the whole grid

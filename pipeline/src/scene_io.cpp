@@ -322,6 +322,7 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
     } else {
       write_float_tiff(layer, file);
     }
+    layer.values().release_resident();  // a file-backed layer's pages given back (cell_buffer.hpp)
   });
   std::string flags_file, colour_file;
   if (!scene.layers.flags.empty()) {

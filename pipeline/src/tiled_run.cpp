@@ -578,12 +578,14 @@ class KeptMask : public TileFiles {
 constexpr int kMaxWidenedTiles = 2;
 
 // What a tiled run holds a grid sample for [bytes]: level 0 whole from the tile loop's merge
-// through the checks (depth, flags, the cross-check's error and the layers' inputs; the 10^8
-// wall at N = 16384, 134 M cells, peaked at 2.1 GB in honest_check: docs/scale.md).
-constexpr double kTiledBytesPerCell = 15.0;
+// through the checks. In memory: the flags and the hole fill's marks (colour 3 more); in files
+// of the scratch folder under scale.level0_file (in memory without it): the depth and the
+// cross-check's error map (intensity 4 more) (docs/scale.md, "Level 0 in a file").
+constexpr double kTiledMemoryBytesPerCell = 2.0;
+constexpr double kTiledFileBytesPerCell = 8.0;
 
 // grid_geometry_for_box for the tiled plan: a grid of more than grid.max_cells cells is refused
-// in the tiled run's words, with what it holds for the grid (kTiledBytesPerCell a cell, besides
+// in the tiled run's words, with what it holds for the grid (kTiledMemoryBytesPerCell and kTiledFileBytesPerCell a cell, besides
 // its windows), not the in-core reprojection's working memory that make_geometry's message
 // gives. @throws hc::ResourceError naming the grid, the key and the bytes; what
 // grid_geometry_for_box throws otherwise.
@@ -595,9 +597,13 @@ GridGeometry tiled_grid_geometry(double x_min, double x_max, double y_min, doubl
   if (cells > static_cast<double>(ro.grid.max_cells)) {
     throw ResourceError("tiled run: a grid of " + std::to_string(g.cols) + " x " + std::to_string(g.rows) + " = " +
                         std::to_string(static_cast<std::uint64_t>(g.rows) * static_cast<std::uint64_t>(g.cols)) + " cells (cell size " + format_number(g.cell_size_m) + " m) exceeds grid.max_cells = " +
-                        std::to_string(ro.grid.max_cells) + "; a tiled run holds level 0 of the grid whole, about " +
-                        format_number(kTiledBytesPerCell) + " bytes a cell (" + format_number(std::round(cells * kTiledBytesPerCell / 1e6)) +
-                        " MB here) besides its windows: raise grid.max_cells or coarsen the grid");
+                        std::to_string(ro.grid.max_cells) + "; a tiled run holds level 0 of the grid whole: about " +
+                        format_number(kTiledMemoryBytesPerCell) + " bytes a cell in memory (" +
+                        format_number(std::round(cells * kTiledMemoryBytesPerCell / 1e6)) + " MB here; 3 more with colour) and " +
+                        format_number(kTiledFileBytesPerCell) + " in files of the scratch folder under scale.level0_file (" +
+                        format_number(std::round(cells * kTiledFileBytesPerCell / 1e6)) +
+                        " MB here; 4 more with intensity; in memory without it), besides its windows: raise grid.max_cells or "
+                        "coarsen the grid");
   }
   return g;
 }
@@ -3050,6 +3056,13 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
 }
 
 // The tiles' results gathered: the whole grid's cells, the summed figures, the levels sample.
+// A grid layer of level 0 (no data everywhere) as scale.level0_file asks: in a mapping of a
+// file in `dir` (HeightField's file-backed constructor; ResourceError naming `dir` where it
+// cannot be made), or on the heap.
+HeightField level0_layer(const RunConfig& config, const GridGeometry& g, const fs::path& dir, const std::string& what) {
+  return config.scale.level0_file ? HeightField(g, kNoData, dir, what) : HeightField(g);
+}
+
 struct TileMerge {
   DepthGrid grid;
   // The totals over the tiles, in tile order (finish(), from `parts`):
@@ -3073,14 +3086,23 @@ struct TileMerge {
   // figures. A few kB a tile.
   std::vector<TileOutput> parts;
 
-  TileMerge(const RunConfig& config, const Plan& plan) : parts(plan.tiles.count()) {
+  // Level 0 (`grid`) of the plan's grid; its depth and intensity in mappings of files in
+  // `layer_dir` under scale.level0_file (level0_layer).
+  TileMerge(const RunConfig& config, const Plan& plan, const fs::path& layer_dir) : parts(plan.tiles.count()) {
     const FarClusterOptions& fco = config.filters.outliers.far_clusters;
     far_small_points = std::max<std::uint64_t>(fco.max_points, static_cast<std::uint64_t>(fco.max_fraction * static_cast<double>(plan.far_size_points)));
     const GridGeometry& g = plan.tiles.g;
-    grid.depth = HeightField(g);
+    grid.depth = level0_layer(config, g, layer_dir, "level 0's depth");
     grid.flags.assign(g.cell_count(), kCellEmpty);
     if (plan.layout.rgb) grid.colour_rgb8.assign(3 * g.cell_count(), 0);
-    if (plan.layout.intensity) grid.intensity = HeightField(g);
+    if (plan.layout.intensity) grid.intensity = level0_layer(config, g, layer_dir, "level 0's intensity");
+  }
+
+  // Level 0's file-backed layers' pages given back to the kernel (ScratchMapping::
+  // release_resident; nothing for those on the heap).
+  void release_level0() const {
+    grid.depth.values().release_resident();
+    grid.intensity.values().release_resident();
   }
 
   // Tile o.tile's output: its interior into the grid, its link cells into link_cells (tiles in
@@ -3114,6 +3136,7 @@ struct TileMerge {
       }
     }
     o.interior = DepthGrid{};
+    release_level0();  // the tile's rows written: the page cache holds them (scale.level0_file)
     if (!link_cells_joined) {
       link_cells_partial = link_cells_partial || o.link_cells_partial;
       if (!link_cells_partial && !o.link_cells.empty()) {
@@ -4461,6 +4484,14 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
   const std::size_t grid_report = reports.size() - 1;
   const Eigen::Affine3d model_to_grid =
       detail::scene_from_grid(grid, config, reports, progress, plan.precision, offset_m, grid_report, built);
+  // Level 0's file-backed layers (scale.level0_file): their pages given back to the kernel after
+  // each sweep and each tile below, so that the page cache, not the run, holds them.
+  auto release_level0 = [&] {
+    grid.depth.values().release_resident();
+    scene.layers.intensity.values().release_resident();
+  };
+  constexpr std::size_t kReleaseCells = (std::size_t{1} << 22) - 1;  // the sweeps below give pages back every 4 Mi cells
+  release_level0();
 
   // 5. The cross-check, per tile, merged.
   if (config.cross_check.enabled) {
@@ -4469,8 +4500,12 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       CrossCheck& cc = r.value;
       cc.tolerance_m = config.cross_check.tolerance_m;
       cc.hidden_band_m = config.cross_check.hidden_band_m;
-      cc.cell_error_m = HeightField(tiles.g);
+      cc.cell_error_m = level0_layer(config, tiles.g, kept.dir(), "the cross-check's error map");
       cc.cell_error_m.model_to_grid = model_to_grid;
+      auto release_maps = [&] {
+        release_level0();
+        cc.cell_error_m.values().release_resident();
+      };
       const BilinearSurface surface(HeightFieldView::of(grid.depth));
       RadixPercentiles vertical, normal;
       std::vector<std::uint8_t> flag;
@@ -4478,6 +4513,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       // tile's search and the search again below take it, so that the error map is the in-core
       // one bit for bit (since 2026-11-30; before, each tile's own frame, to float rounding).
       const Eigen::Vector3d frame_centre = detail::cross_check_frame_centre(grid.depth);
+      release_level0();
       // Samples whose nearest point may lie beyond their tile's halo (judged on the tile's
       // distance): found again over the interior points of every tile their search disc
       // reaches (brute force: few samples on a grid made from the points), with the in-core
@@ -4543,6 +4579,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(0.9 * static_cast<double>(t) / static_cast<double>(tiles.count()));
         (void)heap.before_tile();
+        release_maps();
         const Cloud pts = kept.read(t, flag);
         // The points come in spill order, at random cells of the whole grid (32 MB at N = 4096):
         // each one's two grid rows fetched kAhead points before it is evaluated.
@@ -4637,6 +4674,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       const float* depth = grid.depth.data();
       const float* error = cc.cell_error_m.data();
       for (std::size_t i = 0; i < tiles.g.cell_count(); ++i) {
+        if ((i & kReleaseCells) == kReleaseCells) release_maps();
         if (std::isnan(depth[i])) continue;
         ++valid;
         const float d = error[i];
@@ -4647,9 +4685,11 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       if (valid == 0) throw InputError("cross_check: the grid has no valid cell (tiled run)");
       cell_errors.prepare();
       for (std::size_t i = 0; i < tiles.g.cell_count(); ++i) {
+        if ((i & kReleaseCells) == kReleaseCells) release_maps();
         if (!std::isnan(depth[i]) && !std::isnan(error[i])) cell_errors.pass2(error[i]);
       }
       cc.cell_to_point = cell_errors.stats();
+      release_maps();
       cc.supported_fraction = valid ? static_cast<double>(supported) / static_cast<double>(valid) : 0.0;
       r.report.count_in = cc.points_on_surface + cc.points_off_surface + cc.points_hidden + cc.points_outside;
       r.report.count_out = valid;
@@ -4747,6 +4787,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
                         from_sample ? "the robust test's sample's"
                                     : "the tiles' median, measured on their windows, which a wider halo changes a little");
       r.value.spikes = find_grid_spikes(grid.depth, options);
+      release_level0();
       GridSpikes& spikes = r.value.spikes;
       spikes.confirmed = 0;
       // The box of the whole grid's valid samples (far points).
@@ -4756,17 +4797,20 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       {
         int r_lo = tiles.g.rows, r_hi = -1, c_lo = tiles.g.cols, c_hi = -1;
         float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
-        for (int rr = 0; rr < tiles.g.rows; ++rr)
+        for (int rr = 0; rr < tiles.g.rows; ++rr) {
+          if (rr % 256 == 255) release_level0();
           for (int c = 0; c < tiles.g.cols; ++c) {
             const float z = grid.depth.at(rr, c);
             if (std::isnan(z)) continue;
             r_lo = std::min(r_lo, rr), r_hi = std::max(r_hi, rr), c_lo = std::min(c_lo, c), c_hi = std::max(c_hi, c);
             z_lo = std::min(z_lo, z), z_hi = std::max(z_hi, z);
           }
+        }
         if (r_hi < 0) throw InputError("honest check: the grid has no valid cell (tiled run)");
         scope.valid_lo = Eigen::Vector3d(tiles.g.x_of_col(c_lo), tiles.g.y_of_row(r_lo), z_lo);
         scope.valid_hi = Eigen::Vector3d(tiles.g.x_of_col(c_hi), tiles.g.y_of_row(r_hi), z_hi);
       }
+      release_level0();
       // The flagged spike and pit cells by tile.
       std::vector<std::vector<std::array<int, 2>>> flagged_in(tiles.count());
       for (const auto& rc : spikes.flagged) {
@@ -4782,6 +4826,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       for (std::size_t t = 0; t < tiles.count(); ++t) {
         tick(static_cast<double>(t) / static_cast<double>(tiles.count()));
         (void)heap.before_tile();
+        release_level0();
         const Cloud input = spill.read(t, fl_in);
         if (input.size() == 0) continue;
         kept.removed(t, removed, near);  // the mask, instead of a copy of the kept points matched back
@@ -4852,6 +4897,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
     scene.layers.cell_error = std::move(summary.cross_check->cell_error_m);
     summary.cross_check->cell_error_m = HeightField();
   }
+  release_level0();
   if (keep_sample && !sampled) {
     std::vector<std::uint8_t> flag;
     for (std::size_t t = 0; t < tiles.count(); ++t) {
@@ -5975,7 +6021,7 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
   built.surface_layers_at = layers;  // asked for; scene_surface_layers says what it did
   built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
-  TileMerge merged(config, plan);
+  TileMerge merged(config, plan, scratch.path());
   std::shared_ptr<const ScaleConfig::FarCellKeys> far_again;  // exact_far_clusters
   // 3. The tile jobs, in process and in order (tile-job runs the same run_tiles elsewhere).
   (void)stage("tiles", built.summary.stages, progress, [&] {
@@ -6399,7 +6445,7 @@ MergedTileRun merge_tile_jobs(const fs::path& plan_file, const ProgressFn& progr
   built.surface_layers_at = layers;  // asked for; scene_surface_layers says what it did
   built.from_tiled_run = true;
   built.summary.stages = std::move(plan.reports);
-  TileMerge merged(config, plan);
+  TileMerge merged(config, plan, pf.dir);
   (void)stage("tiles", built.summary.stages, progress, [&] {
     StageResult<int> r;
     for (std::size_t t = 0; t < plan.tiles.count(); ++t) {

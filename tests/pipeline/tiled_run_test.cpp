@@ -108,6 +108,11 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
   tiled = hc::pipeline::build_scene(config, false, tiled_progress);
   ASSERT_GT(stage_figure(tiled, "tile_plan", "tiles"), 4.0) << "the grid was cut into several tiles";
   hc::test::expect_tiled_scene_equals_in_core(in, tiled, scratch);
+  // Level 0 in files of the scratch folder (scale.level0_file, the default); the in-core scene's
+  // on the heap. The scene equal above, whichever holds it.
+  EXPECT_EQ(tiled.scene.layers.depth.file_backed(), config.scale.level0_file);
+  if (tiled.summary.cross_check) EXPECT_EQ(tiled.scene.layers.cell_error.file_backed(), config.scale.level0_file);
+  EXPECT_FALSE(in.scene.layers.depth.file_backed());
 }
 
 // A natively streamed input (`file` in `dir`, config `yaml`): auto takes the tiled run, which
@@ -137,6 +142,9 @@ TEST(TiledRun, EqualsTheInCoreRunOnTheBuddhaInTilesOf64Cells) {
   RunConfig config = hc::pipeline::load_run_config(std::string(HC_SOURCE_DIR) + "/configs/happy_buddha.yaml",
                                                    {"filters.outliers.enabled=false"});
   expect_tiled_equals_in_core(config, 64, hc::test::temp_dir("scratch"));
+  // The same with level 0 on the heap (scale.level0_file: false).
+  config.scale.level0_file = false;
+  expect_tiled_equals_in_core(config, 64, hc::test::temp_dir("scratch-heap"));
 }
 
 // scale.tile_max_points: where a window of scale.tile_cells would hold more points, the plan
@@ -145,7 +153,8 @@ TEST(TiledRun, EqualsTheInCoreRunOnTheBuddhaInTilesOf64Cells) {
 // tiles), and the same run without the bound (the configured side, two tiles).
 // A grid past grid.max_cells is refused in the tiled run's own words, before any spill: what the
 // tiled run holds for it (level 0 whole, about 15 bytes a cell), where the in-core run's message
-// gives its reprojection's working memory (bytes per cell of its own).
+// gives its reprojection's working memory (bytes per cell of its own). (Level 0's depth and
+// error map in files since 2026-12-01: the message gives both.)
 TEST(TiledRun, AGridPastMaxCellsIsRefusedWithWhatTheTiledRunHoldsForIt) {
   hc::test::scan_path("happy_buddha/happy_stand_merged_1099005pts.ply.gz");
   const std::string cfg = std::string(HC_SOURCE_DIR) + "/configs/happy_buddha.yaml";
@@ -155,8 +164,10 @@ TEST(TiledRun, AGridPastMaxCellsIsRefusedWithWhatTheTiledRunHoldsForIt) {
   config.scale.scratch = scratch;
   const std::string tiled = error_of<hc::ResourceError>(config);
   EXPECT_EQ(tiled.rfind("tiled run: a grid of ", 0), 0U) << tiled;
-  EXPECT_NE(tiled.find("exceeds grid.max_cells = 10000; a tiled run holds level 0 of the grid whole, about 15 bytes a cell"), std::string::npos)
+  EXPECT_NE(tiled.find("exceeds grid.max_cells = 10000; a tiled run holds level 0 of the grid whole: about 2 bytes a cell in memory"),
+            std::string::npos)
       << tiled;
+  EXPECT_NE(tiled.find("and 8 in files of the scratch folder under scale.level0_file"), std::string::npos) << tiled;
   EXPECT_EQ(entries_besides(scratch, ""), 0U) << "the refused run left files in its scratch folder";
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
   const std::string in_core = error_of<hc::ResourceError>(config);
