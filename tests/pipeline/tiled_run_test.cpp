@@ -111,7 +111,9 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
   // Level 0 in files of the scratch folder (scale.level0_file, the default); the in-core scene's
   // on the heap. The scene equal above, whichever holds it.
   EXPECT_EQ(tiled.scene.layers.depth.file_backed(), config.scale.level0_file);
-  if (tiled.summary.cross_check) EXPECT_EQ(tiled.scene.layers.cell_error.file_backed(), config.scale.level0_file);
+  if (tiled.summary.cross_check) {
+    EXPECT_EQ(tiled.scene.layers.cell_error.file_backed(), config.scale.level0_file);
+  }
   EXPECT_FALSE(in.scene.layers.depth.file_backed());
 }
 
