@@ -54,7 +54,7 @@ void Session::show_window() {
   const int ov = fitting_level(*lod_, 256);
   const std::shared_ptr<const pipeline::LodLevel> overview = lod_->pyramid().level(ov);
   d->overview = overview->depth_m;
-  d->overview_layers.colour_rgb8 = overview->colour_rgb8;
+  d->overview_layers.colour_rgb8.assign(overview->colour_rgb8.begin(), overview->colour_rgb8.end());
   d->overview_layers.texture_m = overview->texture_m;
   d->overview_layers.mu_d = overview->mu_d;
   d->overview_layers.cell_error_m = overview->cell_error_m;

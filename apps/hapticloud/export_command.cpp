@@ -10,6 +10,7 @@
 #include "hc/pipeline/raster_export.hpp"
 #include "hc/pipeline/scene_io.hpp"
 
+#include <span>
 #include <CLI/CLI.hpp>
 
 #include <filesystem>
@@ -135,12 +136,12 @@ void run_export(const ExportOptions& o) {
   Scene scene = pipeline::load_scene(o.scene);
   const Eigen::Vector3d d = scene.provenance.recentre_offset_m;
   // The depth and colour of the level, cropped to --window.
-  auto triangulate = [&o](const HeightField& depth, const std::vector<std::uint8_t>& colour) {
+  auto triangulate = [&o](const HeightField& depth, std::span<const std::uint8_t> colour) {
     if (o.window.empty()) return pipeline::triangulate_height_field(depth, colour);
     const pipeline::SampleWindow w = window_of(o, depth.geometry());
-    return pipeline::triangulate_height_field(
-        pipeline::crop_height_field(depth, w.row0, w.col0, w.rows, w.cols),
-        colour.empty() ? colour : pipeline::crop_colour(colour, depth.geometry(), w.row0, w.col0, w.rows, w.cols));
+    const std::vector<std::uint8_t> cropped =
+        colour.empty() ? std::vector<std::uint8_t>() : pipeline::crop_colour(colour, depth.geometry(), w.row0, w.col0, w.rows, w.cols);
+    return pipeline::triangulate_height_field(pipeline::crop_height_field(depth, w.row0, w.col0, w.rows, w.cols), cropped);
   };
   pipeline::HeightMesh mesh;
   if (o.level == 0) {

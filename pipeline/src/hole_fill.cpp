@@ -137,7 +137,8 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
     const auto ucols = static_cast<std::size_t>(cols);
     // Label the no-data components (4-connectivity) with an explicit stack; keep the cells of
     // the fillable ones.
-    std::vector<std::uint8_t> seen(cells, 0);
+    // A bit a cell (an eighth of a byte: the grid may be a file-backed level 0 larger than memory).
+    std::vector<bool> seen(cells, false);
     std::vector<std::size_t> stack, component, fillable, rim;
     for (std::size_t start = 0; start < cells; ++start) {
       // A file-backed level 0's pages given back every 16 Mi cells swept (cell_buffer.hpp).
@@ -147,7 +148,7 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
       component.clear();
       bool border = false;
       stack.push_back(start);
-      seen[start] = 1;
+      seen[start] = true;
       std::size_t size = 0;
       while (!stack.empty()) {
         const std::size_t i = stack.back();
@@ -159,7 +160,7 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
         if (r == 0 || c == 0 || r + 1 == static_cast<std::size_t>(rows) || c + 1 == ucols) border = true;
         auto visit = [&](std::size_t j) {
           if (!seen[j] && std::isnan(z[j])) {
-            seen[j] = 1;
+            seen[j] = true;
             stack.push_back(j);
           }
         };
@@ -260,6 +261,8 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
 
   grid.depth.values().release_resident();
   grid.intensity.values().release_resident();
+  grid.flags.release_resident();
+  grid.colour_rgb8.release_resident();
   rep.count_out = rep.count_in + cells_filled;
   rep.figure("max_hole_cells", max_hole_cells);
   rep.figure("no_data_regions", static_cast<double>(holes_total));

@@ -729,7 +729,7 @@ void check_honest_options(const HonestCheckOptions& o) {
 
 InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
                        const HonestCheckOptions& o, double voxel_leaf_m, GridSpikes* spikes,
-                       const std::vector<std::uint8_t>* cell_flags, const InputCheckScope* scope) {
+                       const CellBuffer<std::uint8_t>* cell_flags, const InputCheckScope* scope) {
   const auto t0 = Clock::now();
   check_honest_options(o);
   const GridGeometry& g = grid.geometry();

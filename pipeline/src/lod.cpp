@@ -40,7 +40,7 @@ void validate_options(const LodOptions& o) {
 
 /// Colour of the next level: each channel by downsample_2x over the samples whose depth is
 /// valid (so the same mask, the same weights and the same validity as the depth), rounded.
-std::vector<std::uint8_t> downsample_colour_2x(const HeightField& fine_depth, const std::vector<std::uint8_t>& fine_rgb,
+std::vector<std::uint8_t> downsample_colour_2x(const HeightField& fine_depth, std::span<const std::uint8_t> fine_rgb,
                                                double sigma_cells, double valid_fraction) {
   const std::size_t n = fine_depth.values().size();
   std::vector<std::uint8_t> out;
@@ -788,7 +788,7 @@ HeightField crop_height_field(const HeightField& src, int row0, int col0, int ro
   return out;
 }
 
-std::vector<std::uint8_t> crop_colour(const std::vector<std::uint8_t>& src, const GridGeometry& g, int row0, int col0,
+std::vector<std::uint8_t> crop_colour(std::span<const std::uint8_t> src, const GridGeometry& g, int row0, int col0,
                                       int rows, int cols) {
   std::vector<std::uint8_t> out(3 * static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols));
   for (int r = 0; r < rows; ++r) {

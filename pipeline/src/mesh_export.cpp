@@ -125,7 +125,7 @@ std::filesystem::path write_temporary(const std::filesystem::path& file, Body&& 
 }  // namespace
 
 
-HeightMesh triangulate_height_field(const HeightField& depth, const std::vector<std::uint8_t>& colour_rgb8) {
+HeightMesh triangulate_height_field(const HeightField& depth, std::span<const std::uint8_t> colour_rgb8) {
   const GridGeometry& g = depth.geometry();
   const std::size_t cells = g.cell_count();
   if (!colour_rgb8.empty() && colour_rgb8.size() != 3 * cells) {

@@ -259,7 +259,7 @@ void write_hillshades_side_by_side(const std::vector<const HeightField*>& fields
   save(composite, png);
 }
 
-void write_rgb_preview(const HeightField& depth_m, const std::vector<std::uint8_t>& colour_rgb8,
+void write_rgb_preview(const HeightField& depth_m, std::span<const std::uint8_t> colour_rgb8,
                        const std::filesystem::path& png, bool shaded) {
   const int rows = depth_m.rows(), cols = depth_m.cols();
   const std::size_t cells = static_cast<std::size_t>(rows) * static_cast<std::size_t>(cols);

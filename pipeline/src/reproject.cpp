@@ -897,7 +897,7 @@ struct FlagCounts {
   std::size_t measured = 0, splatted = 0, upsampled = 0;
   std::size_t valid() const { return measured + splatted + upsampled; }
 };
-FlagCounts count_flags(const std::vector<std::uint8_t>& flags) {
+FlagCounts count_flags(const CellBuffer<std::uint8_t>& flags) {
   FlagCounts n;
   for (const std::uint8_t f : flags) {
     n.measured += f == kCellMeasured ? 1U : 0U;

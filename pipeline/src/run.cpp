@@ -584,7 +584,7 @@ struct PreviewLevel {
   GridGeometry g;
   fs::path scene_dir;  ///< stored layers (empty: in memory)
   const HeightField *depth = nullptr, *cell_error = nullptr, *texture = nullptr, *mu_d = nullptr, *mu_s = nullptr;
-  const std::vector<std::uint8_t>* colour = nullptr;
+  const CellBuffer<std::uint8_t>* colour = nullptr;
 
   /// Calls f with layer `name` (the in-memory one, or read from level `level`'s file).
   template <class F>
@@ -1206,7 +1206,7 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
     for (HeightField* f : {&l.depth, &l.envelope, &l.texture, &l.mu_d, &l.mu_s, &l.cell_error, &l.region_id, &l.intensity}) {
       *f = HeightField();
     }
-    std::vector<std::uint8_t>().swap(l.colour_rgb8);
+    l.colour_rgb8.clear();
     if (summary.cross_check) summary.cross_check->cell_error_m = HeightField();
     // Given back now, not at scene_levels' end: with the batch heap policy (thresholds of 1 GiB)
     // freed layers inside the heap stay resident until a trim, and stage scene_levels held them

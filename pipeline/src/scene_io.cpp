@@ -335,11 +335,13 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
                        (space.rfind("no space", 0) == 0 ? space : why));
     }
     flags_file = "flags.png";
+    scene.layers.flags.release_resident();
   }
   if (!scene.layers.colour_rgb8.empty() && tiled) {
     detail::write_tiled_layer(scene_dir / "colour.tiff", scene.layers.colour_rgb8.data(), g, storage.tile_cells,
                               detail::TileSamples::kRgb8);
     colour_file = "colour.tiff";
+    scene.layers.colour_rgb8.release_resident();
   } else if (!scene.layers.colour_rgb8.empty()) {
     errno = 0;
     const std::string why = detail::write_png(scene_dir / "colour.png", scene.layers.colour_rgb8.data(), g.cols, g.rows,
@@ -617,7 +619,7 @@ Scene load_scene(const fs::path& scene_dir, bool load_layers) {
     if (const YAML::Node colour = root["colour"]; colour && load_layers && version == kTiledSceneFormatVersion) {
       const fs::path file = scene_dir / colour.as<std::string>();
       const std::string why = detail::read_tiled_layer(file, g, detail::TileSamples::kRgb8, [&] {
-        s.layers.colour_rgb8.resize(3 * g.cell_count());  // only once the file is known to be g's size
+        s.layers.colour_rgb8.assign(3 * g.cell_count(), 0);  // only once the file is known to be g's size
         return static_cast<void*>(s.layers.colour_rgb8.data());
       });
       if (!why.empty()) {

@@ -3063,6 +3063,11 @@ HeightField level0_layer(const RunConfig& config, const GridGeometry& g, const f
   return config.scale.level0_file ? HeightField(g, kNoData, dir, what) : HeightField(g);
 }
 
+// The same for a layer of `n` bytes of `fill` (the flags, the colour).
+CellBuffer<std::uint8_t> level0_bytes(const RunConfig& config, std::size_t n, std::uint8_t fill, const fs::path& dir, const std::string& what) {
+  return config.scale.level0_file ? CellBuffer<std::uint8_t>(dir, n, fill, what) : CellBuffer<std::uint8_t>(n, fill);
+}
+
 struct TileMerge {
   DepthGrid grid;
   // The totals over the tiles, in tile order (finish(), from `parts`):
@@ -3093,8 +3098,8 @@ struct TileMerge {
     far_small_points = std::max<std::uint64_t>(fco.max_points, static_cast<std::uint64_t>(fco.max_fraction * static_cast<double>(plan.far_size_points)));
     const GridGeometry& g = plan.tiles.g;
     grid.depth = level0_layer(config, g, layer_dir, "level 0's depth");
-    grid.flags.assign(g.cell_count(), kCellEmpty);
-    if (plan.layout.rgb) grid.colour_rgb8.assign(3 * g.cell_count(), 0);
+    grid.flags = level0_bytes(config, g.cell_count(), kCellEmpty, layer_dir, "level 0's flags");
+    if (plan.layout.rgb) grid.colour_rgb8 = level0_bytes(config, 3 * g.cell_count(), 0, layer_dir, "level 0's colour");
     if (plan.layout.intensity) grid.intensity = level0_layer(config, g, layer_dir, "level 0's intensity");
   }
 
@@ -3103,6 +3108,8 @@ struct TileMerge {
   void release_level0() const {
     grid.depth.values().release_resident();
     grid.intensity.values().release_resident();
+    grid.flags.release_resident();
+    grid.colour_rgb8.release_resident();
   }
 
   // Tile o.tile's output: its interior into the grid, its link cells into link_cells (tiles in
@@ -4489,6 +4496,8 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
   auto release_level0 = [&] {
     grid.depth.values().release_resident();
     scene.layers.intensity.values().release_resident();
+    scene.layers.flags.release_resident();
+    scene.layers.colour_rgb8.release_resident();
   };
   constexpr std::size_t kReleaseCells = (std::size_t{1} << 22) - 1;  // the sweeps below give pages back every 4 Mi cells
   release_level0();
@@ -4818,7 +4827,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
                    static_cast<std::size_t>(rc[1] / tiles.size)]
             .push_back(rc);
       }
-      const std::vector<std::uint8_t>& flags = scene.layers.flags;
+      const CellBuffer<std::uint8_t>& flags = scene.layers.flags;
       std::vector<std::uint8_t> fl_in, removed, near, owned;
       detail::PassProgress tick(progress, "honest_check", "the input as spilled against the grid, tile by tile",
                         config.scale.progress_interval_s);
@@ -4835,7 +4844,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
         owned_by(tiles, t, input, owned);
         const GridGeometry wg = tiles.part(w.row0, w.col0, w.rows, w.cols);
         HeightField crop(wg);
-        std::vector<std::uint8_t> crop_flags(wg.cell_count());
+        CellBuffer<std::uint8_t> crop_flags(wg.cell_count(), 0);
         for (int rr = 0; rr < w.rows; ++rr)
           for (int c = 0; c < w.cols; ++c) {
             crop.at(rr, c) = grid.depth.at(w.row0 + rr, w.col0 + c);
@@ -5609,10 +5618,10 @@ TileOutput decode_part(const fs::path& file, const std::string& plan_id, std::si
     DepthGrid& d = o.interior;
     d.depth = HeightField(g);
     r.take(d.depth.data(), g.cell_count() * sizeof(float));
-    d.flags.resize(g.cell_count());
+    d.flags.assign(g.cell_count(), 0);
     r.take(d.flags.data(), d.flags.size());
     if (colour) {
-      d.colour_rgb8.resize(3 * g.cell_count());
+      d.colour_rgb8.assign(3 * g.cell_count(), 0);
       r.take(d.colour_rgb8.data(), d.colour_rgb8.size());
     }
     if (intensity) {

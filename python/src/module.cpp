@@ -60,7 +60,7 @@ py::dict layers_of(const SceneRef& s) {
 }
 
 py::object colour_of(const SceneRef& s) {
-  const std::vector<std::uint8_t>& c = s->layers.colour_rgb8;
+  const auto& c = s->layers.colour_rgb8;
   if (c.empty()) return py::none();
   return readonly_view(c.data(), {s->geometry.rows, s->geometry.cols, 3}, s);
 }

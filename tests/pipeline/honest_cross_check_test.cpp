@@ -1068,7 +1068,8 @@ TEST(InputCheck, NearFlagsSpareTestsButNotOneFigure) {
   HonestCheckOptions o;
   o.isolation_radius_spacings = 3.0;  // R = 1.5 mm at the 0.5 mm spacing
   o.confirm_footprint_m = 0.0015;
-  std::vector<std::uint8_t> owned(n, 1), flags(g.cell_count(), kCellMeasured);
+  std::vector<std::uint8_t> owned(n, 1);
+  CellBuffer<std::uint8_t> flags(g.cell_count(), kCellMeasured);
   InputCheckScope scope;
   scope.owned = &owned;
   scope.removed = &removed;
@@ -1205,7 +1206,8 @@ TEST(InputCheck, SparseTestsCountNeighboursInTheColumnsBeforeTheirOwn) {
   ASSERT_EQ(strays_isolated, 12U) << "the strays 1.7 mm from their clumps";
   ASSERT_EQ(expected_isolated, 12U);
   const Cloud c = cloud_of(pts);
-  std::vector<std::uint8_t> owned(n, 1), removed(n, 0), flags(g.cell_count(), kCellMeasured);
+  std::vector<std::uint8_t> owned(n, 1), removed(n, 0);
+  CellBuffer<std::uint8_t> flags(g.cell_count(), kCellMeasured);
   InputCheckScope scope;
   scope.owned = &owned;
   scope.removed = &removed;
@@ -1255,7 +1257,7 @@ TEST(InputCheck, ASpikeDrawnFromAGenuinePointsDiscIsConfirmedOnlyAtThatPointsHei
   std::vector<Eigen::Vector3d> pts = node_lattice(21, 0.005);
   for (int k = 0; k < 4; ++k) pts.emplace_back(0.0535 + 0.0001 * (k % 2), 0.050 + 0.0001 * (k / 2), 0.040);
   const Cloud c = cloud_of(pts);
-  std::vector<std::uint8_t> flags(g.cell_count(), kCellMeasured);
+  CellBuffer<std::uint8_t> flags(g.cell_count(), kCellMeasured);
   auto confirmed_with = [&](float cell_z_m, double footprint_m, std::uint8_t flag = kCellSplatted,
                             const Cloud* kept = nullptr) {
     HeightField grid = h;

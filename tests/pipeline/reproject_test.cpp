@@ -751,7 +751,7 @@ TEST(FillHoles, ZeroDisablesAndNegativeIsAnError) {
   EXPECT_EQ(r.value.depth.valid_count(), 96u);
   EXPECT_THROW(fill_holes(d, -1), ConfigError);
   DepthGrid bad = d;
-  bad.flags.pop_back();
+  bad.flags = std::vector<std::uint8_t>(d.flags.size() - 1, kCellMeasured);
   EXPECT_THROW(fill_holes(bad, 10), InputError);
 }
 

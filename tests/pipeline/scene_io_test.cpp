@@ -53,7 +53,8 @@ TEST(SceneIo, FormatTwoRoundTripsEveryTypedField) {
   s.layers.region_id = hc::HeightField(g, 2.0f);
   s.layers.flags.assign(12, kCellMeasured);
   s.layers.flags[6] = kCellSeeThrough;
-  for (int i = 0; i < 36; ++i) s.layers.colour_rgb8.push_back(static_cast<std::uint8_t>(7 * i));
+  s.layers.colour_rgb8.assign(36, 0);
+  for (std::size_t i = 0; i < 36; ++i) s.layers.colour_rgb8[i] = static_cast<std::uint8_t>(7 * i);
   s.friction_model = hc::FrictionModel::kCurvature;
   s.layer_options.sigma_space_cells = 2.5;
   s.layer_options.sigma_range_m = 0.0007;
@@ -112,7 +113,8 @@ TEST(SceneIo, LayerFilesAreReadBackByOtherReaders) {
   s.layers.depth.at(200, 7) = hc::kNoData;
   s.layers.flags.assign(g.cell_count(), kCellMeasured);
   s.layers.flags[12345] = kCellFilled;
-  for (std::size_t i = 0; i < 3 * g.cell_count(); ++i) s.layers.colour_rgb8.push_back(static_cast<std::uint8_t>(i * 31 % 251));
+  s.layers.colour_rgb8.assign(3 * g.cell_count(), 0);
+  for (std::size_t i = 0; i < 3 * g.cell_count(); ++i) s.layers.colour_rgb8[i] = static_cast<std::uint8_t>(i * 31 % 251);
   write_scene(s, dir / "scene");
   const cv::Mat depth = cv::imread((dir / "scene" / "depth.tiff").string(), cv::IMREAD_UNCHANGED);
   ASSERT_EQ(depth.type(), CV_32FC1);

@@ -42,7 +42,7 @@ std::shared_ptr<viewer::DisplayScene> display_of(session::LodController& lod) {
   d->window_layers = {win->colour_rgb8, win->texture_m, win->mu_d, win->cell_error_m};
   const auto ov = lod.pyramid().level(lod.level_count() - 1);
   d->overview = ov->depth_m;
-  d->overview_layers = {ov->colour_rgb8, ov->texture_m, ov->mu_d, ov->cell_error_m};
+  d->overview_layers = {std::vector<std::uint8_t>(ov->colour_rgb8.begin(), ov->colour_rgb8.end()), ov->texture_m, ov->mu_d, ov->cell_error_m};
   d->workspace = w.map;
   d->level = w.level;
   d->level_count = lod.level_count();

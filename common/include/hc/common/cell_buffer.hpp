@@ -75,7 +75,7 @@ class CellBuffer {
     }
   }
   /// The cells of `v`, on the heap (moved, not copied).
-  explicit CellBuffer(std::vector<T>&& v) : heap_(std::move(v)) { point_at_heap(); }
+  CellBuffer(std::vector<T>&& v) : heap_(std::move(v)) { point_at_heap(); }  // NOLINT(google-explicit-constructor): a move
 
   CellBuffer(const CellBuffer& o) : heap_(o.begin(), o.end()) { point_at_heap(); }
   CellBuffer& operator=(const CellBuffer& o) {
@@ -90,6 +90,10 @@ class CellBuffer {
   }
   /// Takes `v`'s cells (on the heap); the storage held before is let go.
   CellBuffer& operator=(std::vector<T>&& v) { return *this = CellBuffer(std::move(v)); }
+  /// `n` cells of `fill` on the heap (std::vector::assign); the storage held before is let go.
+  void assign(std::size_t n, const T& fill) { *this = CellBuffer(n, fill); }
+  /// No cells; the storage held before is let go.
+  void clear() { *this = CellBuffer(); }
 
   std::size_t size() const { return size_; }
   bool empty() const { return size_ == 0; }

@@ -118,8 +118,10 @@ struct SceneLayers {
   HeightField cell_error;   ///< cross-check: grid sample to nearest point [m]
   HeightField region_id;    ///< sounding/semantic region per cell as float, NaN = none
   HeightField intensity;    ///< scanner return intensity [-] (as stored by the scanner)
-  std::vector<std::uint8_t> flags;        ///< CellFlag per cell (hc/pipeline/reproject.hpp), or empty
-  std::vector<std::uint8_t> colour_rgb8;  ///< rows·cols·3 bytes, R G B per cell, or empty
+  /// CellFlag per cell (hc/pipeline/reproject.hpp), or empty; on the heap, or in a scratch
+  /// file's mapping (cell_buffer.hpp; a tiled run's level 0)
+  CellBuffer<std::uint8_t> flags;
+  CellBuffer<std::uint8_t> colour_rgb8;  ///< rows·cols·3 bytes, R G B per cell, or empty (as `flags`)
 
   /// True when envelope, texture, μ_d and μ_s are all present (the haptic surface layers).
   bool has_surface_layers() const noexcept {

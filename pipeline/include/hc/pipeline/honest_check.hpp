@@ -219,7 +219,7 @@ struct GridSpikes {
 struct InputCheckScope;
 InputCheck check_input(const Eigen::Matrix3Xd& as_read_m, const Cloud& kept_m, const HeightField& grid,
                        const HonestCheckOptions& options, double voxel_leaf_m = 0.0,
-                       GridSpikes* spikes = nullptr, const std::vector<std::uint8_t>* cell_flags = nullptr,
+                       GridSpikes* spikes = nullptr, const CellBuffer<std::uint8_t>* cell_flags = nullptr,
                        const InputCheckScope* scope = nullptr);
 
 /// check_input on one tile of a tiled run (tiling.hpp): as_read_m and kept_m are the points of

@@ -12,6 +12,7 @@
 #include "hc/pipeline/surface_layers.hpp"
 
 #include <cstddef>
+#include <span>
 #include <cstdint>
 #include <filesystem>
 #include <memory>
@@ -39,7 +40,7 @@ struct LodLevel {
   /// Coarser levels: each channel by the same normalised smoothing as depth (downsample_2x over
   /// the samples with valid depth, rounded to 8 bit), so it is present exactly where depth is;
   /// 0, 0, 0 where depth is no data. Built together with the depth.
-  std::vector<std::uint8_t> colour_rgb8{};
+  CellBuffer<std::uint8_t> colour_rgb8{};
   /// Empty, or the scene's cross-check error per sample [m] (scene layer cell_error: 3-D
   /// distance from the level-0 grid sample to its nearest input point, ≥ 0, NaN = none). Level 0
   /// holds the scene's map; a coarser level holds level 0's map carried down by downsample_2x
@@ -123,7 +124,7 @@ HeightField crop_height_field(const HeightField& src, int row0, int col0, int ro
 
 /// The colour bytes (3 per sample, row-major, of a grid `g`) of the same window. The caller keeps
 /// the window inside `g` and `src` at 3·g.rows·g.cols bytes.
-std::vector<std::uint8_t> crop_colour(const std::vector<std::uint8_t>& src, const GridGeometry& g, int row0, int col0,
+std::vector<std::uint8_t> crop_colour(std::span<const std::uint8_t> src, const GridGeometry& g, int row0, int col0,
                                       int rows, int cols);
 
 /// The pyramid and its cache. Level 0 is given (the scene's depth and, when present, its

@@ -5,6 +5,7 @@
 
 #include "hc/common/height_field.hpp"
 
+#include <span>
 #include <cstdint>
 #include <filesystem>
 #include <string>
@@ -36,7 +37,7 @@ struct HeightMesh {
 /// scene's colour layer (rows·cols·3 bytes, row-major) or empty.
 /// @throws std::invalid_argument when colour_rgb8 is neither empty nor rows·cols·3 bytes;
 ///         hc::ResourceError at 2^32 − 1 vertices or more.
-HeightMesh triangulate_height_field(const HeightField& depth, const std::vector<std::uint8_t>& colour_rgb8);
+HeightMesh triangulate_height_field(const HeightField& depth, std::span<const std::uint8_t> colour_rgb8);
 
 /// Mesh file formats.
 enum class MeshFormat {

@@ -5,6 +5,7 @@
 
 #include "hc/common/height_field.hpp"
 
+#include <span>
 #include <array>
 #include <filesystem>
 #include <cstdint>
@@ -68,7 +69,7 @@ void write_hillshades_side_by_side(const std::vector<const HeightField*>& fields
 /// write_hillshade_preview (colour over hillshade). Cells whose depth is no data are grey.
 /// @throws hc::InputError naming the file if colour_rgb8 does not match the grid or the file
 ///         cannot be written.
-void write_rgb_preview(const HeightField& depth_m, const std::vector<std::uint8_t>& colour_rgb8,
+void write_rgb_preview(const HeightField& depth_m, std::span<const std::uint8_t> colour_rgb8,
                        const std::filesystem::path& png, bool shaded);
 
 }  // namespace hc::pipeline

@@ -138,11 +138,11 @@ enum CellFlag : std::uint8_t {
 /// carries per-point rgb / intensity (else empty), with the layout of the scene's layers.
 struct DepthGrid {
   HeightField depth;                ///< heights [m], NaN = no data
-  std::vector<std::uint8_t> flags;  ///< CellFlag per cell
+  CellBuffer<std::uint8_t> flags;   ///< CellFlag per cell (on the heap, or a scratch file's mapping: cell_buffer.hpp)
   /// Empty, or rows·cols·3 bytes, R G B per cell, row-major like `depth`. A cell takes the
   /// colour of the point that gave it its depth (see reproject); no-data cells are 0, 0, 0
   /// (the flag says no data).
-  std::vector<std::uint8_t> colour_rgb8{};
+  CellBuffer<std::uint8_t> colour_rgb8{};
   /// Empty, or the geometry of `depth`: the scanner intensity [-] of the point that gave the
   /// cell its depth (as stored by the scanner, see Cloud::intensity); NaN where depth is NaN.
   HeightField intensity{};
