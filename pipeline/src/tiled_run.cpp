@@ -578,14 +578,13 @@ class KeptMask : public TileFiles {
 constexpr int kMaxWidenedTiles = 2;
 
 // What a tiled run holds a grid sample for [bytes]: level 0 whole from the tile loop's merge
-// through the checks. In memory: the flags and the hole fill's marks (colour 3 more); in files
-// of the scratch folder under scale.level0_file (in memory without it): the depth and the
-// cross-check's error map (intensity 4 more) (docs/scale.md, "Level 0 in a file").
-constexpr double kTiledMemoryBytesPerCell = 2.0;
-constexpr double kTiledFileBytesPerCell = 8.0;
+// through the checks, the depth, the cross-check's error map and the flags (colour 3 and
+// intensity 4 more), in files of the scratch folder under scale.level0_file, in memory without
+// it (docs/scale.md, "Level 0 in a file"; the hole fill's marks, a bit a cell, in memory).
+constexpr double kTiledBytesPerCell = 9.0;
 
 // grid_geometry_for_box for the tiled plan: a grid of more than grid.max_cells cells is refused
-// in the tiled run's words, with what it holds for the grid (kTiledMemoryBytesPerCell and kTiledFileBytesPerCell a cell, besides
+// in the tiled run's words, with what it holds for the grid (kTiledBytesPerCell a cell, besides
 // its windows), not the in-core reprojection's working memory that make_geometry's message
 // gives. @throws hc::ResourceError naming the grid, the key and the bytes; what
 // grid_geometry_for_box throws otherwise.
@@ -597,13 +596,10 @@ GridGeometry tiled_grid_geometry(double x_min, double x_max, double y_min, doubl
   if (cells > static_cast<double>(ro.grid.max_cells)) {
     throw ResourceError("tiled run: a grid of " + std::to_string(g.cols) + " x " + std::to_string(g.rows) + " = " +
                         std::to_string(static_cast<std::uint64_t>(g.rows) * static_cast<std::uint64_t>(g.cols)) + " cells (cell size " + format_number(g.cell_size_m) + " m) exceeds grid.max_cells = " +
-                        std::to_string(ro.grid.max_cells) + "; a tiled run holds level 0 of the grid whole: about " +
-                        format_number(kTiledMemoryBytesPerCell) + " bytes a cell in memory (" +
-                        format_number(std::round(cells * kTiledMemoryBytesPerCell / 1e6)) + " MB here; 3 more with colour) and " +
-                        format_number(kTiledFileBytesPerCell) + " in files of the scratch folder under scale.level0_file (" +
-                        format_number(std::round(cells * kTiledFileBytesPerCell / 1e6)) +
-                        " MB here; 4 more with intensity; in memory without it), besides its windows: raise grid.max_cells or "
-                        "coarsen the grid");
+                        std::to_string(ro.grid.max_cells) + "; a tiled run holds level 0 of the grid whole, about " +
+                        format_number(kTiledBytesPerCell) + " bytes a cell (" + format_number(std::round(cells * kTiledBytesPerCell / 1e6)) +
+                        " MB here; 3 more with colour, 4 with intensity) in files of the scratch folder under scale.level0_file "
+                        "(in memory without it), besides its windows: raise grid.max_cells or coarsen the grid");
   }
   return g;
 }
@@ -3055,7 +3051,6 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
   return mapped && mapped->active();
 }
 
-// The tiles' results gathered: the whole grid's cells, the summed figures, the levels sample.
 // A grid layer of level 0 (no data everywhere) as scale.level0_file asks: in a mapping of a
 // file in `dir` (HeightField's file-backed constructor; ResourceError naming `dir` where it
 // cannot be made), or on the heap.
@@ -3068,6 +3063,7 @@ CellBuffer<std::uint8_t> level0_bytes(const RunConfig& config, std::size_t n, st
   return config.scale.level0_file ? CellBuffer<std::uint8_t>(dir, n, fill, what) : CellBuffer<std::uint8_t>(n, fill);
 }
 
+// The tiles' results gathered: the whole grid's cells, the summed figures, the levels sample.
 struct TileMerge {
   DepthGrid grid;
   // The totals over the tiles, in tile order (finish(), from `parts`):
@@ -3091,8 +3087,8 @@ struct TileMerge {
   // figures. A few kB a tile.
   std::vector<TileOutput> parts;
 
-  // Level 0 (`grid`) of the plan's grid; its depth and intensity in mappings of files in
-  // `layer_dir` under scale.level0_file (level0_layer).
+  // Level 0 (`grid`) of the plan's grid; its layers in mappings of files in `layer_dir` under
+  // scale.level0_file (level0_layer, level0_bytes).
   TileMerge(const RunConfig& config, const Plan& plan, const fs::path& layer_dir) : parts(plan.tiles.count()) {
     const FarClusterOptions& fco = config.filters.outliers.far_clusters;
     far_small_points = std::max<std::uint64_t>(fco.max_points, static_cast<std::uint64_t>(fco.max_fraction * static_cast<double>(plan.far_size_points)));
@@ -4894,8 +4890,21 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
   // How often the kept points were read for grid.upsample: auto's factor (kept_points_factor:
   // the attempts' check, and the cross-check stage's warning; 0 where the plan's counts showed
   // the removals cannot move it).
+  // The scratch disk level 0's file-backed layers take while the scene holds them
+  // (scale.level0_file), beside the spill's spill_bytes_peak_mb.
+  double level0_file_bytes = 0.0;
+  auto count_file = [&level0_file_bytes](const auto& cells) {
+    if (cells.file_backed()) level0_file_bytes += static_cast<double>(cells.size() * sizeof(cells[0]));
+  };
+  count_file(grid.depth.values());
+  count_file(scene.layers.flags);
+  count_file(scene.layers.colour_rgb8);
+  count_file(scene.layers.intensity.values());
+  if (summary.cross_check) count_file(summary.cross_check->cell_error_m.values());
   for (StageReport& rep : reports) {
-    if (rep.stage == "tiles") detail::set_figure(rep, "upsample_factor_reads", static_cast<double>(merged.factor_reads));
+    if (rep.stage != "tiles") continue;
+    detail::set_figure(rep, "upsample_factor_reads", static_cast<double>(merged.factor_reads));
+    detail::set_figure(rep, "level0_file_mb", level0_file_bytes / 1e6);
   }
   // 6. The surface layers of the whole grid (or, for a tiled scene, left to its level builder);
   // then the cross-check's error map into the scene.

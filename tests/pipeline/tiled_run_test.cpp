@@ -114,6 +114,13 @@ void expect_tiled_equals_in_core(RunConfig config, int tile, const fs::path& scr
   if (tiled.summary.cross_check) {
     EXPECT_EQ(tiled.scene.layers.cell_error.file_backed(), config.scale.level0_file);
   }
+  // Its disk: the layers' own sizes (4 bytes a cell of depth and of the error map, 1 of flags,
+  // 3 of colour, 4 of intensity), counted here from the scene, not from the run's figure.
+  const hc::SceneLayers& l = tiled.scene.layers;
+  const double bytes = 4.0 * static_cast<double>(l.depth.values().size()) + 4.0 * static_cast<double>(l.cell_error.values().size()) +
+                       static_cast<double>(l.flags.size()) + static_cast<double>(l.colour_rgb8.size()) +
+                       4.0 * static_cast<double>(l.intensity.values().size());
+  EXPECT_NEAR(stage_figure(tiled, "tiles", "level0_file_mb"), config.scale.level0_file ? bytes / 1e6 : 0.0, 1e-9);
   EXPECT_FALSE(in.scene.layers.depth.file_backed());
 }
 
@@ -166,10 +173,10 @@ TEST(TiledRun, AGridPastMaxCellsIsRefusedWithWhatTheTiledRunHoldsForIt) {
   config.scale.scratch = scratch;
   const std::string tiled = error_of<hc::ResourceError>(config);
   EXPECT_EQ(tiled.rfind("tiled run: a grid of ", 0), 0U) << tiled;
-  EXPECT_NE(tiled.find("exceeds grid.max_cells = 10000; a tiled run holds level 0 of the grid whole: about 2 bytes a cell in memory"),
+  EXPECT_NE(tiled.find("exceeds grid.max_cells = 10000; a tiled run holds level 0 of the grid whole, about 9 bytes a cell"),
             std::string::npos)
       << tiled;
-  EXPECT_NE(tiled.find("and 8 in files of the scratch folder under scale.level0_file"), std::string::npos) << tiled;
+  EXPECT_NE(tiled.find("in files of the scratch folder under scale.level0_file (in memory without it)"), std::string::npos) << tiled;
   EXPECT_EQ(entries_besides(scratch, ""), 0U) << "the refused run left files in its scratch folder";
   config.scale.tiled = hc::pipeline::ScaleConfig::Tiled::kOff;
   const std::string in_core = error_of<hc::ResourceError>(config);

@@ -182,8 +182,8 @@ struct ScaleConfig {
   std::shared_ptr<const FarCellKeys> far_cells;
   std::size_t chunk_points = 1u << 20;  ///< points read per chunk, 1024 to 2^28
   std::filesystem::path scratch;  ///< folder for the spill files; empty = the system's temporary folder
-  /// scale.level0_file: true (the default): a tiled run holds level 0's depth and intensity
-  /// and the cross-check's error map (4 bytes a cell each) in shared mappings of files in the
+  /// scale.level0_file: true (the default): a tiled run holds level 0's depth, flags, colour and
+  /// intensity and the cross-check's error map (9 bytes a cell, 16 with colour and intensity) in shared mappings of files in the
   /// scratch folder (cell_buffer.hpp: reserved in full, unlinked at once), each stage giving
   /// their pages back to the kernel as it goes, so that the page cache, not the process, holds a
   /// level 0 larger than memory (docs/scale.md, "Level 0 in a file"); false: on the heap.
