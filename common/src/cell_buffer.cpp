@@ -50,7 +50,7 @@ void ScratchMapping::release_resident() const {
   // For a shared file mapping, MADV_DONTNEED unmaps the pages; their written contents stay in
   // the page cache (a dirty page stays dirty there and is written back), and a later access
   // maps the file's up-to-date contents again (madvise(2)).
-  if (data_ != nullptr) (void)::madvise(data_, bytes_, MADV_DONTNEED);
+  if (data_ != nullptr && bytes_ >= kReleaseAboveBytes) (void)::madvise(data_, bytes_, MADV_DONTNEED);
 }
 
 }  // namespace hc

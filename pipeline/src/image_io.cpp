@@ -425,7 +425,7 @@ std::string TiledTiffWriter::finish() {
 std::uint64_t TiledTiffWriter::bytes_written() const { return impl_->bytes; }
 
 std::string write_tiled_tiff(const std::filesystem::path& file, const void* values, int width, int height, int tile,
-                             TileSamples samples) {
+                             TileSamples samples, const std::function<void()>& after_tile_row) {
   TiledTiffWriter w;
   if (std::string why = w.open(file, width, height, tile, samples); !why.empty()) return why;
   const auto bps = static_cast<std::size_t>(tile_sample_bytes(samples));
@@ -449,6 +449,7 @@ std::string write_tiled_tiff(const std::filesystem::path& file, const void* valu
       }
       if (std::string why = w.write_tile(tr, tc, block.data()); !why.empty()) return why;
     }
+    if (after_tile_row) after_tile_row();
   }
   return w.finish();
 }

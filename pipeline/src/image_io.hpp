@@ -7,6 +7,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <functional>
 #include <filesystem>
 #include <memory>
 #include <string>
@@ -109,9 +110,11 @@ void copy_tile_part(const std::uint8_t* tile_data, int tile_row, int tile_col, i
                     int col0, int rows, int cols, void* out);
 
 /// Writes a whole image (rows top to bottom, `values` width·height samples, × 3 bytes for RGB)
-/// as a tiled TIFF through TiledTiffWriter (sparse all-NaN float tiles). @return "" or why not.
+/// as a tiled TIFF through TiledTiffWriter (sparse all-NaN float tiles), calling
+/// `after_tile_row` (when set) once each row of tiles is written (a file-backed layer gives its
+/// pages back there: cell_buffer.hpp). @return "" or why not.
 std::string write_tiled_tiff(const std::filesystem::path& file, const void* values, int width, int height, int tile,
-                             TileSamples samples);
+                             TileSamples samples, const std::function<void()>& after_tile_row = {});
 
 /// Reads rectangles of a tiled TIFF written by TiledTiffWriter (or any uncompressed or
 /// libtiff-decodable tiled TIFF of one float channel or 8-bit RGB), one tile at a time; only the

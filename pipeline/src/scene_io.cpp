@@ -56,9 +56,9 @@ void write_float_tiff(const HeightField& f, const fs::path& file) {
 }  // namespace
 
 void detail::write_tiled_layer(const fs::path& file, const void* values, const GridGeometry& g, int tile_cells,
-                               TileSamples samples) {
+                               TileSamples samples, const std::function<void()>& after_tile_row) {
   errno = 0;
-  const std::string why = detail::write_tiled_tiff(file, values, g.cols, g.rows, tile_cells, samples);
+  const std::string why = detail::write_tiled_tiff(file, values, g.cols, g.rows, tile_cells, samples, after_tile_row);
   if (!why.empty()) {
     const std::string space =
         write_failure_reason(file, g.cell_count() * static_cast<std::size_t>(detail::tile_sample_bytes(samples)));
@@ -318,7 +318,9 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
     layer_files.emplace_back(name);
     const fs::path file = scene_dir / (std::string(name) + ".tiff");
     if (tiled) {
-      detail::write_tiled_layer(file, layer.data(), g, storage.tile_cells, detail::TileSamples::kFloat32);
+      // A file-backed layer's pages given back after each row of tiles (cell_buffer.hpp).
+      detail::write_tiled_layer(file, layer.data(), g, storage.tile_cells, detail::TileSamples::kFloat32,
+                                [&layer] { layer.values().release_resident(); });
     } else {
       write_float_tiff(layer, file);
     }
@@ -339,7 +341,7 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
   }
   if (!scene.layers.colour_rgb8.empty() && tiled) {
     detail::write_tiled_layer(scene_dir / "colour.tiff", scene.layers.colour_rgb8.data(), g, storage.tile_cells,
-                              detail::TileSamples::kRgb8);
+                              detail::TileSamples::kRgb8, [&scene] { scene.layers.colour_rgb8.release_resident(); });
     colour_file = "colour.tiff";
     scene.layers.colour_rgb8.release_resident();
   } else if (!scene.layers.colour_rgb8.empty()) {

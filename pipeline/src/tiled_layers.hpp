@@ -13,10 +13,11 @@
 namespace hc::pipeline::detail {
 
 /// Writes one layer of grid `g` (rows·cols samples, row-major, × 3 bytes for RGB) as a tiled
-/// TIFF (write_tiled_tiff: square tiles of `tile_cells`, all-NaN tiles sparse).
+/// TIFF (write_tiled_tiff: square tiles of `tile_cells`, all-NaN tiles sparse), calling
+/// `after_tile_row` (when set) after each row of tiles.
 /// @throws hc::InputError naming the file and why (no space left, a libtiff error).
 void write_tiled_layer(const std::filesystem::path& file, const void* values, const GridGeometry& g, int tile_cells,
-                       TileSamples samples);
+                       TileSamples samples, const std::function<void()>& after_tile_row = {});
 
 /// Reads the whole tiled TIFF `file` of grid `g` (as write_tiled_layer writes it) into the
 /// memory `buffer()` returns, which it calls only once the file is known to hold g.cols × g.rows

@@ -36,8 +36,12 @@ class ScratchMapping {
   /// Drops the mapping's pages from this process's resident set (madvise MADV_DONTNEED): what
   /// was written stays in the page cache and the file, and the next read maps it again. Reads
   /// and writes may go on at once from other threads (they map the pages again); no-op on
-  /// failure (the pages stay resident, as before the call).
+  /// failure (the pages stay resident, as before the call), and for a mapping smaller than
+  /// kReleaseAboveBytes, whose pages would cost more to fault in again than they hold (a tiled
+  /// run gives a small grid's level 0 back after every tile: 7 % more CPU on the Buddha in
+  /// 64-cell tiles, measured 2026-12-01).
   void release_resident() const;
+  static constexpr std::size_t kReleaseAboveBytes = std::size_t{32} << 20;
 
  private:
   void* data_ = nullptr;
