@@ -16,9 +16,11 @@ namespace hc {
 namespace {
 
 [[noreturn]] void fail(const std::filesystem::path& dir, std::size_t bytes, const std::string& what, const char* step, int err) {
-  throw ResourceError("scale.scratch: cannot " + std::string(step) + " a file of " + std::to_string(bytes) + " bytes in " +
-                      dir.string() + " for " + what + ": " + std::strerror(err) +
-                      (err == ENOSPC ? " (the disk is full: expected room for it, or another scale.scratch)" : ""));
+  throw ResourceError("cannot " + std::string(step) + " a file of " + std::to_string(bytes) + " bytes in " + dir.string() + " for " +
+                      what + ": " + std::strerror(err) +
+                      (err == ENOSPC ? " (the disk is full: expected room for it there; a run's scratch folder is scale.scratch, "
+                                       "tile-merge's the plan's folder)"
+                                     : ""));
 }
 
 }  // namespace
@@ -31,12 +33,16 @@ ScratchMapping::ScratchMapping(const std::filesystem::path& dir, std::size_t byt
   // the folder whatever ends the process.
   (void)::unlink(name.c_str());
   // Every block reserved now (posix_fallocate returns the error, it does not set errno).
-  if (const int e = ::posix_fallocate(fd, 0, static_cast<off_t>(bytes)); e != 0) {
+  int e = 0;
+  do {
+    e = ::posix_fallocate(fd, 0, static_cast<off_t>(bytes));
+  } while (e == EINTR);  // a signal during a large reservation
+  if (e != 0) {
     ::close(fd);
     fail(dir, bytes, what, "reserve", e);
   }
   void* p = ::mmap(nullptr, bytes, PROT_READ | PROT_WRITE, MAP_SHARED, fd, 0);
-  const int e = errno;
+  e = errno;
   ::close(fd);  // the mapping holds the file
   if (p == MAP_FAILED) fail(dir, bytes, what, "map", e);
   data_ = p;

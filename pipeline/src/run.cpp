@@ -1370,6 +1370,7 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
     n_see_through += f == kCellSeeThrough;
     n_splatted += f == kCellSplatted;
   }
+  scene.layers.flags.release_resident();  // a file-backed layer's pages given back (cell_buffer.hpp)
   json j;
   j["name"] = json_text(config.name);
   j["tool"] = std::string("hapticloud ") + HC_VERSION;

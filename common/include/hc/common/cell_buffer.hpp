@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cstddef>
+#include <cstring>
 #include <filesystem>
 #include <memory>
 #include <string>
@@ -16,16 +17,18 @@ namespace hc {
 
 /// A shared, writable mapping of a new scratch file of `bytes` bytes (Linux mmap(2),
 /// MAP_SHARED). The file is reserved in full first (posix_fallocate), so that a full disk is an
-/// error here and not a SIGBUS at a later write, and it is unlinked as soon as it is mapped:
-/// nothing is left in the folder, whatever ends the process; its blocks are freed at unmapping.
+/// error here and not a SIGBUS at a later write (on file systems that write in place, such as
+/// ext4 and XFS; a copy-on-write one, btrfs or ZFS, may still need new blocks at write-back),
+/// and it is unlinked as soon as it is mapped: nothing is left in the folder, whatever ends the
+/// process; its blocks are freed at unmapping.
 class ScratchMapping {
  public:
   /// @param dir   an existing folder on a file system that supports mmap (the run's scratch
   ///              folder, scale.scratch).
   /// @param bytes size of the mapping [bytes], > 0.
   /// @param what  what the mapping holds, for the error message ("level 0's depth").
-  /// @throws ResourceError naming `dir` and `what` when the file cannot be created, reserved
-  ///         (ENOSPC: the disk is full) or mapped.
+  /// @throws ResourceError naming `dir`, the bytes and `what` when the file cannot be created,
+  ///         reserved (ENOSPC: the disk is full) or mapped.
   ScratchMapping(const std::filesystem::path& dir, std::size_t bytes, const std::string& what);
   ~ScratchMapping();
   ScratchMapping(const ScratchMapping&) = delete;
@@ -71,6 +74,9 @@ class CellBuffer {
     file_ = std::make_shared<ScratchMapping>(dir, n * sizeof(T), what);
     data_ = static_cast<T*>(file_->data());
     size_ = n;
+    // A fill of zero bytes is what the reserved file reads as already: nothing to write.
+    const T zero{};
+    if (std::memcmp(&fill, &zero, sizeof(T)) == 0) return;
     // Filled a block at a time, each block's pages given back (the page cache keeps them).
     constexpr std::size_t kBlock = std::size_t{1} << 22;
     for (std::size_t i = 0; i < n; i += kBlock) {
