@@ -141,8 +141,8 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
     std::vector<bool> seen(cells, false);
     std::vector<std::size_t> stack, component, fillable, rim;
     for (std::size_t start = 0; start < cells; ++start) {
-      // A file-backed level 0's pages given back every 16 Mi cells swept (cell_buffer.hpp).
-      if ((start & ((std::size_t{1} << 24) - 1)) == 0) grid.depth.values().release_resident();
+      // A file-backed level 0's pages given back as the sweep passes (cell_buffer.hpp).
+      if (start % kReleaseEveryCells == 0) grid.depth.values().release_resident();
       if (seen[start] || !std::isnan(z[start])) continue;
       ++holes_total;
       component.clear();
@@ -259,10 +259,7 @@ StageResult<DepthGrid> fill_holes(DepthGrid grid, int max_hole_cells, double max
     }
   }
 
-  grid.depth.values().release_resident();
-  grid.intensity.values().release_resident();
-  grid.flags.release_resident();
-  grid.colour_rgb8.release_resident();
+  grid.release_resident();
   rep.count_out = rep.count_in + cells_filled;
   rep.figure("max_hole_cells", max_hole_cells);
   rep.figure("no_data_regions", static_cast<double>(holes_total));

@@ -463,10 +463,7 @@ StageResult<int> corrugation(const DepthGrid& grid) {
   std::size_t count[2] = {0, 0};
   for (int r = 0; r < g.rows; ++r) {
     // A file-backed level 0's rows given back as the sweep passes (cell_buffer.hpp).
-    if (r % 256 == 255) {
-      h.values().release_resident();
-      grid.flags.release_resident();
-    }
+    if (r % 256 == 255) grid.release_resident();
     for (int c = 0; c < g.cols; ++c) {
       if (!usable(r, c)) continue;
       const double z = h.at(r, c);
@@ -482,8 +479,7 @@ StageResult<int> corrugation(const DepthGrid& grid) {
       }
     }
   }
-  h.values().release_resident();
-  grid.flags.release_resident();
+  grid.release_resident();
   const double ex = count[0] ? e[0] / static_cast<double>(count[0]) : 0.0;
   const double ey = count[1] ? e[1] / static_cast<double>(count[1]) : 0.0;
   StageReport& rep = result.report;

@@ -343,7 +343,6 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
     detail::write_tiled_layer(scene_dir / "colour.tiff", scene.layers.colour_rgb8.data(), g, storage.tile_cells,
                               detail::TileSamples::kRgb8, [&scene] { scene.layers.colour_rgb8.release_resident(); });
     colour_file = "colour.tiff";
-    scene.layers.colour_rgb8.release_resident();
   } else if (!scene.layers.colour_rgb8.empty()) {
     errno = 0;
     const std::string why = detail::write_png(scene_dir / "colour.png", scene.layers.colour_rgb8.data(), g.cols, g.rows,

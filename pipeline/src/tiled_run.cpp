@@ -3099,15 +3099,6 @@ struct TileMerge {
     if (plan.layout.intensity) grid.intensity = level0_layer(config, g, layer_dir, "level 0's intensity");
   }
 
-  // Level 0's file-backed layers' pages given back to the kernel (ScratchMapping::
-  // release_resident; nothing for those on the heap).
-  void release_level0() const {
-    grid.depth.values().release_resident();
-    grid.intensity.values().release_resident();
-    grid.flags.release_resident();
-    grid.colour_rgb8.release_resident();
-  }
-
   // Tile o.tile's output: its interior into the grid, its link cells into link_cells (tiles in
   // order, until exact_far_clusters joins them), the rest kept for finish(). A tile given again
   // replaces the one before.
@@ -3139,7 +3130,7 @@ struct TileMerge {
       }
     }
     o.interior = DepthGrid{};
-    release_level0();  // the tile's rows written: the page cache holds them (scale.level0_file)
+    grid.release_resident();  // the tile's rows written: the page cache holds them (scale.level0_file)
     if (!link_cells_joined) {
       link_cells_partial = link_cells_partial || o.link_cells_partial;
       if (!link_cells_partial && !o.link_cells.empty()) {
@@ -4489,13 +4480,11 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       detail::scene_from_grid(grid, config, reports, progress, plan.precision, offset_m, grid_report, built);
   // Level 0's file-backed layers (scale.level0_file): their pages given back to the kernel after
   // each sweep and each tile below, so that the page cache, not the run, holds them.
+  // (The depth is still `grid`'s; scene_from_grid moved the other layers into the scene.)
   auto release_level0 = [&] {
-    grid.depth.values().release_resident();
-    scene.layers.intensity.values().release_resident();
-    scene.layers.flags.release_resident();
-    scene.layers.colour_rgb8.release_resident();
+    grid.release_resident();
+    scene.layers.release_resident();
   };
-  constexpr std::size_t kReleaseCells = (std::size_t{1} << 22) - 1;  // the sweeps below give pages back every 4 Mi cells
   release_level0();
 
   // 5. The cross-check, per tile, merged.
@@ -4679,7 +4668,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       const float* depth = grid.depth.data();
       const float* error = cc.cell_error_m.data();
       for (std::size_t i = 0; i < tiles.g.cell_count(); ++i) {
-        if ((i & kReleaseCells) == kReleaseCells) release_maps();
+        if (i % kReleaseEveryCells == kReleaseEveryCells - 1) release_maps();
         if (std::isnan(depth[i])) continue;
         ++valid;
         const float d = error[i];
@@ -4690,7 +4679,7 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
       if (valid == 0) throw InputError("cross_check: the grid has no valid cell (tiled run)");
       cell_errors.prepare();
       for (std::size_t i = 0; i < tiles.g.cell_count(); ++i) {
-        if ((i & kReleaseCells) == kReleaseCells) release_maps();
+        if (i % kReleaseEveryCells == kReleaseEveryCells - 1) release_maps();
         if (!std::isnan(depth[i]) && !std::isnan(error[i])) cell_errors.pass2(error[i]);
       }
       cc.cell_to_point = cell_errors.stats();
@@ -4887,9 +4876,6 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
     summary.input_check = std::move(honest.input);
     summary.grid_spikes = std::move(honest.spikes);
   }
-  // How often the kept points were read for grid.upsample: auto's factor (kept_points_factor:
-  // the attempts' check, and the cross-check stage's warning; 0 where the plan's counts showed
-  // the removals cannot move it).
   // The scratch disk level 0's file-backed layers take while the scene holds them
   // (scale.level0_file), beside the spill's spill_bytes_peak_mb.
   double level0_file_bytes = 0.0;
@@ -4901,6 +4887,9 @@ BuiltScene finish_tiled(const RunConfig& config, const Plan& plan, TileMerge& me
   count_file(scene.layers.colour_rgb8);
   count_file(scene.layers.intensity.values());
   if (summary.cross_check) count_file(summary.cross_check->cell_error_m.values());
+  // And how often the kept points were read for grid.upsample: auto's factor (kept_points_factor:
+  // the attempts' check, and the cross-check stage's warning; 0 where the plan's counts showed
+  // the removals cannot move it).
   for (StageReport& rep : reports) {
     if (rep.stage != "tiles") continue;
     detail::set_figure(rep, "upsample_factor_reads", static_cast<double>(merged.factor_reads));

@@ -51,6 +51,10 @@ class ScratchMapping {
   std::size_t bytes_ = 0;
 };
 
+/// How often a sweep over a file-backed layer gives its pages back [cells]: every 4 Mi cells
+/// (16 MiB of floats), so that a sweep holds at most that much of each layer resident.
+inline constexpr std::size_t kReleaseEveryCells = std::size_t{1} << 22;
+
 /// `size()` cells of trivially copyable T, contiguous: a std::vector<T> on the heap (the
 /// default), or a ScratchMapping (file_backed()). The interface is the part of std::vector's
 /// that a grid layer uses: a buffer's size is set when it is made. Copies are on the heap;
@@ -78,9 +82,8 @@ class CellBuffer {
     const T zero{};
     if (std::memcmp(&fill, &zero, sizeof(T)) == 0) return;
     // Filled a block at a time, each block's pages given back (the page cache keeps them).
-    constexpr std::size_t kBlock = std::size_t{1} << 22;
-    for (std::size_t i = 0; i < n; i += kBlock) {
-      std::fill(data_ + i, data_ + std::min(n, i + kBlock), fill);
+    for (std::size_t i = 0; i < n; i += kReleaseEveryCells) {
+      std::fill(data_ + i, data_ + std::min(n, i + kReleaseEveryCells), fill);
       file_->release_resident();
     }
   }

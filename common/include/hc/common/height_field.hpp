@@ -78,13 +78,12 @@ class HeightField {
   bool file_backed() const { return z_m_.file_backed(); }
 
   /// Number of cells holding a finite height. A file-backed field's pages are given back as the
-  /// count passes (CellBuffer::release_resident, every 4 Mi cells).
+  /// count passes (CellBuffer::release_resident, every kReleaseEveryCells cells).
   std::size_t valid_count() const {
     std::size_t n = 0;
-    constexpr std::size_t kBlock = std::size_t{1} << 22;
     const float* z = z_m_.data();
-    for (std::size_t i = 0; i < z_m_.size(); i += kBlock) {
-      const std::size_t end = i + kBlock < z_m_.size() ? i + kBlock : z_m_.size();
+    for (std::size_t i = 0; i < z_m_.size(); i += kReleaseEveryCells) {
+      const std::size_t end = i + kReleaseEveryCells < z_m_.size() ? i + kReleaseEveryCells : z_m_.size();
       for (std::size_t j = i; j < end; ++j) n += std::isnan(z[j]) ? 0U : 1U;
       z_m_.release_resident();
     }

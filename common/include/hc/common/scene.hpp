@@ -127,6 +127,15 @@ struct SceneLayers {
   bool has_surface_layers() const noexcept {
     return envelope.rows() > 0 && texture.rows() > 0 && mu_d.rows() > 0 && mu_s.rows() > 0;
   }
+  /// Every file-backed layer's pages given back to the kernel (CellBuffer::release_resident;
+  /// nothing for layers on the heap). Thread-safe with concurrent reads and writes.
+  void release_resident() const {
+    for (const HeightField* f : {&depth, &envelope, &texture, &mu_d, &mu_s, &cell_error, &region_id, &intensity}) {
+      f->values().release_resident();
+    }
+    flags.release_resident();
+    colour_rgb8.release_resident();
+  }
 };
 
 /// How a scene folder stores its layers (issue 14; docs/scale.md "The tiled scene").

@@ -149,6 +149,14 @@ struct DepthGrid {
 
   bool has_colour() const { return !colour_rgb8.empty(); }
   bool has_intensity() const { return !intensity.values().empty(); }
+  /// Every file-backed layer's pages given back to the kernel (CellBuffer::release_resident;
+  /// nothing for layers on the heap): a tiled run's level 0 after a tile or a sweep.
+  void release_resident() const {
+    depth.values().release_resident();
+    flags.release_resident();
+    colour_rgb8.release_resident();
+    intensity.values().release_resident();
+  }
 };
 
 /// Reprojects grid-frame points (metres; z towards the viewer) onto a grid covering their x-y
