@@ -100,12 +100,17 @@ void on_png_error(png_structp png, png_const_charp message) {
 }
 void on_png_warning(png_structp, png_const_charp) {}  // not errors
 
-// The previews' PNG writer (libpng's full API): zlib level 1 and no row filters, about half the
-// time of the simplified API's PNG_IMAGE_FLAG_FAST for files about 10 % larger (a 330 × 844
-// hillshade: 15.2 → 6.9 ms, 238 → 261 kB). Only trivially destructible objects live between
-// setjmp and the writes (libpng longjmps on error). Returns 0 or a message in *error.
-int write_png_level1(std::FILE* fp, const std::uint8_t* pixels, int width, int height, PixelFormat format,
-                     std::size_t stride, PngError* error) {
+// PNG through libpng's full API, row by row. `fast` (the previews): zlib level 1 and no row
+// filters, about half the time of the simplified API's PNG_IMAGE_FLAG_FAST for files about 10 %
+// larger (a 330 × 844 hillshade: 15.2 → 6.9 ms, 238 → 261 kB). Otherwise libpng's defaults (zlib
+// level 6, adaptive filters) and, for colour, the sRGB chunk, as its simplified API writes.
+// `after_rows`, if set, is called after each block of rows of at least kRowBlockBytes and after
+// the last row (it must not throw: libpng's frames lie between). Only trivially destructible
+// objects live between setjmp and the writes (libpng longjmps on error). Returns 0 or a message
+// in *error.
+constexpr std::size_t kRowBlockBytes = std::size_t{4} << 20;
+int write_png_rows(std::FILE* fp, const std::uint8_t* pixels, int width, int height, PixelFormat format,
+                   std::size_t stride, bool fast, const std::function<void()>* after_rows, PngError* error) {
   png_structp png = png_create_write_struct(PNG_LIBPNG_VER_STRING, error, &on_png_error, &on_png_warning);
   if (png == nullptr) return 1;
   png_infop info = png_create_info_struct(png);
@@ -121,11 +126,23 @@ int write_png_level1(std::FILE* fp, const std::uint8_t* pixels, int width, int h
   png_set_IHDR(png, info, static_cast<png_uint_32>(width), static_cast<png_uint_32>(height), 8,
                format == PixelFormat::kGray ? PNG_COLOR_TYPE_GRAY : PNG_COLOR_TYPE_RGB, PNG_INTERLACE_NONE,
                PNG_COMPRESSION_TYPE_DEFAULT, PNG_FILTER_TYPE_DEFAULT);
-  png_set_filter(png, PNG_FILTER_TYPE_BASE, PNG_FILTER_NONE);
-  png_set_compression_level(png, 1);
+  if (fast) {
+    png_set_filter(png, PNG_FILTER_TYPE_BASE, PNG_FILTER_NONE);
+    png_set_compression_level(png, 1);
+  } else if (format != PixelFormat::kGray) {
+    png_set_sRGB(png, info, PNG_sRGB_INTENT_PERCEPTUAL);  // colour tagged as the simplified API tags it
+  }
   png_write_info(png, info);
   if (format == PixelFormat::kBgr) png_set_bgr(png);
-  for (int r = 0; r < height; ++r) png_write_row(png, pixels + static_cast<std::size_t>(r) * stride);
+  std::size_t block = 0;
+  for (int r = 0; r < height; ++r) {
+    png_write_row(png, pixels + static_cast<std::size_t>(r) * stride);
+    block += stride;
+    if (after_rows != nullptr && *after_rows && (block >= kRowBlockBytes || r + 1 == height)) {
+      (*after_rows)();
+      block = 0;
+    }
+  }
   png_write_end(png, info);
   png_destroy_write_struct(&png, &info);
   return 0;
@@ -134,14 +151,14 @@ int write_png_level1(std::FILE* fp, const std::uint8_t* pixels, int width, int h
 }  // namespace
 
 std::string write_png(const std::filesystem::path& file, const std::uint8_t* pixels, int width, int height,
-                      PixelFormat format, std::size_t row_stride, bool fast) {
+                      PixelFormat format, std::size_t row_stride, bool fast, const std::function<void()>& after_rows) {
   if (width < 1 || height < 1) return "an empty image";
-  if (fast) {
+  if (fast || after_rows) {
     const std::size_t stride = row_stride ? row_stride : static_cast<std::size_t>(width * channels_of(format));
     std::FILE* fp = std::fopen(file.c_str(), "wb");
     if (fp == nullptr) return std::strerror(errno);
     PngError error;
-    const int failed = write_png_level1(fp, pixels, width, height, format, stride, &error);
+    const int failed = write_png_rows(fp, pixels, width, height, format, stride, fast, &after_rows, &error);
     const bool closed = std::fclose(fp) == 0;
     const int close_errno = errno;
     if (!failed && closed) return {};

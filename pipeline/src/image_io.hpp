@@ -18,13 +18,17 @@ namespace hc::pipeline::detail {
 /// Channel layouts of 8-bit pixels: one byte per channel, channels interleaved, rows top to bottom.
 enum class PixelFormat { kGray, kRgb, kBgr };
 
-/// Writes an 8-bit PNG (libpng's simplified API, PNG 1.2 / ISO 15948). `row_stride` is the
-/// distance between rows in bytes (0 = width × channels). `fast`, for previews: no row filters
-/// and zlib level 1 (libpng's full API; about half the time of the simplified API's
-/// PNG_IMAGE_FLAG_FAST, files about 10 % larger). A write that fails removes its file, either
-/// way. @return "" on success, else why not (libpng's message, or the system's for the file).
+/// Writes an 8-bit PNG (PNG 1.2 / ISO 15948, on libpng). `row_stride` is the distance between
+/// rows in bytes (0 = width × channels). `fast`, for previews: no row filters and zlib level 1
+/// (libpng's full API; about half the time of the simplified API's PNG_IMAGE_FLAG_FAST, files
+/// about 10 % larger). `after_rows`, if set, is called after each block of at least 4 MiB of rows
+/// and after the last (the scene's flags give a file-backed layer's pages back by it,
+/// cell_buffer.hpp); it must not throw. Without `fast` the file is compressed as libpng's
+/// simplified API does (zlib level 6, adaptive filters). A write that fails removes its file,
+/// either way. @return "" on success, else why not (libpng's message, or the system's for the file).
 std::string write_png(const std::filesystem::path& file, const std::uint8_t* pixels, int width, int height,
-                      PixelFormat format, std::size_t row_stride = 0, bool fast = false);
+                      PixelFormat format, std::size_t row_stride = 0, bool fast = false,
+                      const std::function<void()>& after_rows = {});
 
 /// The same PNG in memory. @return the bytes; empty on failure, with *error set.
 std::vector<std::uint8_t> encode_png(const std::uint8_t* pixels, int width, int height, PixelFormat format,

@@ -330,14 +330,14 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
   if (!scene.layers.flags.empty()) {
     errno = 0;
     const std::string why =
-        detail::write_png(scene_dir / "flags.png", scene.layers.flags.data(), g.cols, g.rows, detail::PixelFormat::kGray);
+        detail::write_png(scene_dir / "flags.png", scene.layers.flags.data(), g.cols, g.rows, detail::PixelFormat::kGray,
+                          0, false, [&scene] { scene.layers.flags.release_resident(); });  // by blocks of rows
     if (!why.empty()) {
       const std::string space = write_failure_reason(scene_dir / "flags.png", g.cell_count());
       throw InputError((scene_dir / "flags.png").string() + ": cannot write the flags layer: " +
                        (space.rfind("no space", 0) == 0 ? space : why));
     }
     flags_file = "flags.png";
-    scene.layers.flags.release_resident();
   }
   if (!scene.layers.colour_rgb8.empty() && tiled) {
     detail::write_tiled_layer(scene_dir / "colour.tiff", scene.layers.colour_rgb8.data(), g, storage.tile_cells,
@@ -345,8 +345,9 @@ void write_scene(const Scene& scene, const fs::path& scene_dir, const SceneStora
     colour_file = "colour.tiff";
   } else if (!scene.layers.colour_rgb8.empty()) {
     errno = 0;
-    const std::string why = detail::write_png(scene_dir / "colour.png", scene.layers.colour_rgb8.data(), g.cols, g.rows,
-                                              detail::PixelFormat::kRgb);
+    const std::string why =
+        detail::write_png(scene_dir / "colour.png", scene.layers.colour_rgb8.data(), g.cols, g.rows,
+                          detail::PixelFormat::kRgb, 0, false, [&scene] { scene.layers.colour_rgb8.release_resident(); });
     if (!why.empty()) {
       const std::string space = write_failure_reason(scene_dir / "colour.png", 3 * g.cell_count());
       throw InputError((scene_dir / "colour.png").string() + ": cannot write the colour layer: " +

@@ -1,6 +1,7 @@
 // The scene contract on disk: format 2 round-trips every typed field; format-1 folders written
 // by earlier versions still load.
 
+#include "hc/common/cell_buffer.hpp"
 #include "hc/common/error.hpp"
 #include "hc/pipeline/reproject.hpp"
 #include "hc/pipeline/scene_io.hpp"
@@ -9,11 +10,13 @@
 #include <opencv2/imgcodecs.hpp>
 #include <gdal_priv.h>
 
+#include "image_io.hpp"  // pipeline/src: write_png
 #include "test_paths.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <fstream>
+#include <sstream>
 
 namespace {
 
@@ -160,6 +163,60 @@ TEST(SceneIo, LayerFilesAreReadBackByOtherReaders) {
   } catch (const hc::InputError& e) {
     EXPECT_NE(std::string(e.what()).find("flags.png"), std::string::npos) << e.what();
   }
+}
+
+// The resident size [bytes] of this process's mapping that holds `p`, from /proc/self/smaps
+// (the kernel's own count, independent of the code under test); -1 where no mapping holds it.
+long long resident_bytes_of_mapping(const void* p) {
+  std::ifstream in("/proc/self/smaps");
+  const auto at = reinterpret_cast<std::uintptr_t>(p);
+  bool inside = false;
+  for (std::string line; std::getline(in, line);) {
+    unsigned long long lo = 0, hi = 0;
+    char dash = 0;
+    std::istringstream head(line);
+    if (head >> std::hex >> lo >> dash >> hi && dash == '-') {
+      inside = at >= lo && at < hi;
+      continue;
+    }
+    if (inside && line.rfind("Rss:", 0) == 0) return std::stoll(line.substr(4)) * 1024;
+  }
+  return -1;
+}
+
+// The scene's flags (and an untiled colour layer) are written row by row, a file-backed layer's
+// pages given back after each 4 MiB of rows (scene_io.cpp): a level 0 in a file is never
+// resident whole while its PNG is written. Oracles: the kernel's resident count, OpenCV's decoder.
+TEST(SceneIo, APngWrittenByBlocksOfRowsGivesAFileBackedLayersPagesBackAndDecodesToItsCells) {
+  const fs::path dir = hc::test::temp_dir("png-rows");
+  constexpr int cols = 4096, rows = 9000;  // 35.2 MiB: above ScratchMapping::kReleaseAboveBytes
+  const std::size_t n = std::size_t{cols} * rows;
+  hc::CellBuffer<std::uint8_t> flags(dir, n, 0, "a test flags layer");
+  ASSERT_TRUE(flags.file_backed());
+  for (std::size_t i = 0; i < n; ++i) flags[i] = static_cast<std::uint8_t>((i / 7 + i / cols) % 5);
+  ASSERT_GE(resident_bytes_of_mapping(flags.data()), static_cast<long long>(n) - (1 << 20));
+  flags.release_resident();  // as the run's stages leave it (cell_buffer.hpp)
+  int calls = 0;
+  long long most_resident = 0;
+  const std::string why = detail::write_png(dir / "flags.png", flags.data(), cols, rows, detail::PixelFormat::kGray, 0,
+                                            false, [&] {
+                                              ++calls;
+                                              // What the block just written made resident.
+                                              most_resident = std::max(most_resident, resident_bytes_of_mapping(flags.data()));
+                                              flags.release_resident();
+                                            });
+  ASSERT_EQ(why, "");
+  // 4 MiB of 4096-byte rows is 1024 rows: 8 full blocks in 9000 rows, then the last 808 rows.
+  EXPECT_EQ(calls, 9);
+  EXPECT_LE(most_resident, 5 << 20) << "each block's pages were given back before the next block";
+  EXPECT_LE(resident_bytes_of_mapping(flags.data()), 1 << 20);
+  const cv::Mat back = cv::imread((dir / "flags.png").string(), cv::IMREAD_UNCHANGED);
+  ASSERT_EQ(back.type(), CV_8UC1);
+  ASSERT_EQ(back.rows, rows);
+  ASSERT_EQ(back.cols, cols);
+  ASSERT_TRUE(back.isContinuous());
+  for (std::size_t i = 0; i < n; ++i)
+    ASSERT_EQ(back.ptr<std::uint8_t>(0)[i], static_cast<std::uint8_t>((i / 7 + i / cols) % 5)) << i;
 }
 
 TEST(SceneIo, AFormatOneFolderStillLoads) {
