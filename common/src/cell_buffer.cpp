@@ -2,6 +2,7 @@
 
 #include "hc/common/error.hpp"
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
@@ -57,6 +58,15 @@ void ScratchMapping::release_resident() const {
   // the page cache (a dirty page stays dirty there and is written back), and a later access
   // maps the file's up-to-date contents again (madvise(2)).
   if (data_ != nullptr && bytes_ >= kReleaseAboveBytes) (void)::madvise(data_, bytes_, MADV_DONTNEED);
+}
+
+void ScratchMapping::release_resident(std::size_t offset, std::size_t count) const {
+  if (data_ == nullptr || bytes_ < kReleaseAboveBytes || offset >= bytes_) return;
+  const std::size_t end = offset + std::min(count, bytes_ - offset);
+  const auto page = static_cast<std::size_t>(::sysconf(_SC_PAGESIZE));
+  // The mapping starts on a page (mmap), so whole pages of it are whole pages of memory.
+  const std::size_t lo = (offset + page - 1) / page * page, hi = end / page * page;
+  if (hi > lo) (void)::madvise(static_cast<char*>(data_) + lo, hi - lo, MADV_DONTNEED);
 }
 
 }  // namespace hc

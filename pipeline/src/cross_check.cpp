@@ -777,7 +777,13 @@ Eigen::Vector3d cross_check_frame_centre(const HeightField& grid) {
   const GridGeometry& g = grid.geometry();
   Eigen::Vector3d centre(g.x_of_col(0.5 * (g.cols - 1)), g.y_of_row(0.5 * (g.rows - 1)), 0.0);
   float z_lo = std::numeric_limits<float>::infinity(), z_hi = -z_lo;
-  for (const float v : grid.values()) {
+  const CellBuffer<float>& cells = grid.values();
+  for (std::size_t i = 0; i < cells.size(); ++i) {
+    // A file-backed level 0 given back as the sweep passes it (cell_buffer.hpp; before
+    // 2026-12-01, sixty-ninth session, this sweep made the whole depth resident: the tiled
+    // cross-check's 579 MB at N = 16384).
+    if (i % kReleaseEveryCells == kReleaseEveryCells - 1) cells.release_resident(i + 1 - kReleaseEveryCells, kReleaseEveryCells);
+    const float v = cells[i];
     if (std::isnan(v)) continue;
     z_lo = std::min(z_lo, v);
     z_hi = std::max(z_hi, v);

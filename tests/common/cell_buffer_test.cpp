@@ -82,6 +82,25 @@ TEST(CellBuffer, AFileBackedLayerLeavesNothingInItsFolderAndKeepsWhatWasWrittenW
   EXPECT_FALSE(copy == moved);
 }
 
+TEST(CellBuffer, ARangeGivesBackTheWholePagesInsideItAndNoOthers) {
+  TempDir dir;
+  constexpr std::size_t n = 16u << 20;  // 64 MiB of floats
+  hc::CellBuffer<float> b(dir.path, n, 0.0f, "a test layer");
+  for (std::size_t i = 0; i < n; ++i) b[i] = static_cast<float>(i % 7919);
+  const auto page = static_cast<long long>(::sysconf(_SC_PAGESIZE));
+  const long long all = resident_bytes_of_mapping(b.data());
+  ASSERT_GE(all, static_cast<long long>(n * sizeof(float)) - page);
+  // Cells [n/4 + 1, n/2 + 1): their bytes start 4 bytes into a page and end 4 bytes into one,
+  // so the whole pages inside are those of [n/4, n/2) less the first: 16 MiB less one page.
+  b.release_resident(n / 4 + 1, n / 4);
+  const long long after = resident_bytes_of_mapping(b.data());
+  EXPECT_EQ(all - after, static_cast<long long>(n / 4 * sizeof(float)) - page);
+  // A range past the end is clipped; the last quarter goes.
+  b.release_resident(3 * n / 4, n);
+  EXPECT_EQ(after - resident_bytes_of_mapping(b.data()), static_cast<long long>(n / 4 * sizeof(float)));
+  for (std::size_t i = 0; i < n; ++i) ASSERT_EQ(b[i], static_cast<float>(i % 7919)) << i;
+}
+
 TEST(CellBuffer, AFileBackedByteLayerHoldsItsFillZeroOrNot) {
   TempDir dir;
   // A zero fill is not written (the reserved file reads as zeros); any other fill is.

@@ -44,6 +44,10 @@ class ScratchMapping {
   /// run gives a small grid's level 0 back after every tile: 7 % more CPU on the Buddha in
   /// 64-cell tiles, measured 2026-12-01).
   void release_resident() const;
+  /// The same for the whole pages inside bytes [offset, offset + count) of the mapping (a range
+  /// beyond its end is clipped; the partial pages at either end stay): a sweep gives back what
+  /// it has passed while other threads keep their own parts resident.
+  void release_resident(std::size_t offset, std::size_t count) const;
   static constexpr std::size_t kReleaseAboveBytes = std::size_t{32} << 20;
 
  private:
@@ -125,6 +129,11 @@ class CellBuffer {
   /// release_resident); nothing for one on the heap.
   void release_resident() const {
     if (file_) file_->release_resident();
+  }
+  /// The pages of cells [first, first + count) only (ScratchMapping::release_resident(offset,
+  /// count): whole pages inside the range); nothing for a buffer on the heap.
+  void release_resident(std::size_t first, std::size_t count) const {
+    if (file_) file_->release_resident(first * sizeof(T), count * sizeof(T));
   }
 
   friend bool operator==(const CellBuffer& a, const CellBuffer& b) { return std::equal(a.begin(), a.end(), b.begin(), b.end()); }
