@@ -34,6 +34,7 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <utility>
 #include <chrono>
 #include <cctype>
 #include <cerrno>
@@ -1710,9 +1711,55 @@ struct WindowBand {
 // are held together, in the window's (input) order: the points of a node come in that order in
 // every window that holds the node (a window holds whole nodes, and every spill file keeps the
 // input's order), so a node's j-th point in one window is its j-th in another. Memory: a byte a
-// ring point, 4 bytes a ring node.
+// ring point, 4 bytes a ring node that holds points and about 0.19 bytes a ring node (RingStarts).
+
+// Where each ring node's points start in OwnedVerdicts::vn (offsets of a compressed sparse row
+// layout), held by the nodes that hold points: a bit a node (whether it holds any), the count of
+// such nodes before each 64-node word, and the start of each such node, then the total. A node
+// without points starts where the next one with points does. About 0.19 bytes a node plus 4 a
+// node with points. Until 2026-12-01 (sixty-ninth session) a dense offset per node: 4 bytes a
+// node, which on a grid finer than the scan (10^7 points at N = 16384, 0.07 points a cell, a
+// 166-node ring about each 512-node tile) made 470 MB for a band of 512 tiles, most of the tile
+// loop's peak, for a few points each.
+class RingStarts {
+ public:
+  // From `count`, each of the `nodes` ring nodes' points (count[a] for a < nodes).
+  void assign(const std::vector<std::uint32_t>& count, std::size_t nodes) {
+    bits_.assign((nodes + 63) / 64, 0);
+    rank_.assign(bits_.size(), 0);
+    starts_.clear();
+    std::uint32_t at = 0;
+    for (std::size_t a = 0; a < nodes; ++a) {
+      if (a % 64 == 0) rank_[a / 64] = static_cast<std::uint32_t>(starts_.size());
+      if (count[a] == 0) continue;
+      bits_[a / 64] |= std::uint64_t{1} << (a % 64);
+      starts_.push_back(at);
+      at += count[a];
+    }
+    starts_.push_back(at);
+    starts_.shrink_to_fit();
+  }
+  // Node a's first place in vn, and one past its last (a < nodes).
+  std::uint32_t begin(std::size_t a) const { return starts_[rank(a)]; }
+  std::uint32_t end(std::size_t a) const {
+    return starts_[rank(a) + static_cast<std::size_t>((bits_[a / 64] >> (a % 64)) & 1U)];
+  }
+  std::uint32_t total() const { return starts_.empty() ? 0 : starts_.back(); }
+  std::size_t bytes() const { return bits_.size() * 8 + rank_.size() * 4 + starts_.size() * 4; }
+
+ private:
+  // The nodes with points before node a.
+  std::size_t rank(std::size_t a) const {
+    const std::uint64_t below = bits_[a / 64] & ((std::uint64_t{1} << (a % 64)) - 1);
+    return rank_[a / 64] + static_cast<std::size_t>(std::popcount(below));
+  }
+  std::vector<std::uint64_t> bits_;
+  std::vector<std::uint32_t> rank_;
+  std::vector<std::uint32_t> starts_;
+};
+
 struct OwnedVerdicts {
-  std::vector<std::uint32_t> start;  // per ring node (ring_index), its first point in vn; one more at the end
+  RingStarts start;  // per ring node (ring_index), where its points are in vn
   // Per ring point, node by node: the robust verdict (RobustVerdicts::verdict, low 4 bits) and
   // the near count clamped to 15 (RobustVerdicts::near, high 4 bits; 0 when not asked).
   std::vector<std::uint8_t> vn;
@@ -1751,7 +1798,7 @@ struct TileLook {
   // Memory held [bytes], for the band's budget where tiles do not share (run_tiles).
   std::size_t bytes() const {
     return removed.size() * sizeof(removed[0]) + near_nibbles.size() + rv.past_halo.size() * 4 + rv.reach_m.size() * 32 +
-           strays_m.size() * 25 + owned.vn.size() + owned.start.size() * 4;
+           strays_m.size() * 25 + owned.vn.size() + owned.start.bytes();
   }
 };
 
@@ -1830,6 +1877,7 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
   const Tiles& tiles = plan.tiles;
   look.shares = plan.robust_scale && band_at[t] >= 0 && std::count_if(band_at.begin(), band_at.end(), [](int b) { return b >= 0; }) > 1;
   std::vector<std::uint32_t> owned_col, owned_li;  // t's ring points' columns (ascending) and ring nodes (ring_index)
+  std::vector<std::uint32_t> ring_count;            // per ring node: t's points, then the first place of them in vn
   std::optional<WindowBand> wb;  // with look.shares
   if (look.shares) {
     const NodeBinner node(tiles.g);
@@ -1837,12 +1885,12 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
     const auto& dec = ropt.tile->decides_m;
     std::size_t ring_nodes = 0;
     (void)ring_index(in, owned_ring(tiles), in[0], in[2], &ring_nodes);
-    look.owned.start.assign(ring_nodes + 1, 0);
     ropt.judge_mask.assign(pts.size(), 1);
     const GridWindow w = tiles.window(t);
     wb.emplace(tiles, w, band_at);
     const int me = band_at[t];
-    std::vector<std::uint32_t> count(ring_nodes + 1, 0);  // per ring node, t's points; the last for the others (not kept)
+    ring_count.assign(ring_nodes + 1, 0);  // per ring node, t's points; the last for the others (not kept)
+    std::vector<std::uint32_t>& count = ring_count;
     owned_col.resize(pts.size() + 1);
     owned_li.resize(pts.size() + 1);
     std::size_t o = 0, left_out = 0;
@@ -1868,7 +1916,10 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
     owned_col.resize(o);
     owned_li.resize(o);
     const bool all = left_out == 0;
-    for (std::size_t a = 0; a < ring_nodes; ++a) look.owned.start[a + 1] = look.owned.start[a] + count[a];
+    look.owned.start.assign(count, ring_nodes);
+    // From here on, each ring node's first place in vn (dense, for this tile's scatter below).
+    std::uint32_t first = 0;
+    for (std::size_t a = 0; a < ring_nodes; ++a) first += std::exchange(count[a], first);
     if (all) ropt.judge_mask.clear();  // every point is t's to judge: the whole test
   }
   lap("look_mask");
@@ -1881,8 +1932,8 @@ TileLook look_tile(const RunConfig& config, const Plan& plan, const Spill& spill
   if (look.shares) {
     // t's points' verdicts and near counts node by node, each node's in window order; the owned
     // strays' places.
-    std::vector<std::uint32_t> next(look.owned.start.begin(), look.owned.start.end() - 1);
-    look.owned.vn.assign(look.owned.start.back(), 0);
+    std::vector<std::uint32_t>& next = ring_count;
+    look.owned.vn.assign(look.owned.start.total(), 0);
     std::size_t a = 0;  // the next stray (rv.past_halo, ascending)
     for (std::size_t o = 0; o < owned_col.size(); ++o) {
       const std::uint32_t i = owned_col[o];
@@ -2442,10 +2493,10 @@ void take_owned_verdicts(const Tiles& tiles, std::size_t t, const Cloud& pts, co
                                wb.node_text(wn) + ", which its owner does not hold in its ring");
       }
       const OwnedVerdicts& ov = owned[static_cast<std::size_t>(wb.place[wn])];
-      const std::size_t at = ov.start[li] + seen[wn]++;
+      const std::size_t at = ov.start.begin(li) + seen[wn]++;
       // Taken where decided (a point past its node's count is named by the count below), without
       // a branch: read at 0 of a byte that is there otherwise.
-      const auto take = decided & static_cast<std::uint32_t>(at < ov.start[li + 1]);
+      const auto take = decided & static_cast<std::uint32_t>(at < ov.start.end(li));
       const std::uint8_t* vn = take != 0 ? ov.vn.data() + at : &none;
       const std::uint8_t code = *vn;
       left[i] = static_cast<std::uint8_t>(decided);
@@ -2457,7 +2508,7 @@ void take_owned_verdicts(const Tiles& tiles, std::size_t t, const Cloud& pts, co
     const int b = wb.place[wn];
     if (b < 0 || b == mine || wb.local[wn] == kNotInRing) continue;
     const OwnedVerdicts& ov = owned[static_cast<std::size_t>(b)];
-    const std::size_t held = ov.start[wb.local[wn] + 1] - ov.start[wb.local[wn]];
+    const std::size_t held = ov.start.end(wb.local[wn]) - ov.start.begin(wb.local[wn]);
     if (seen[wn] != held) {
       throw std::logic_error("take_owned_verdicts: tile " + std::to_string(t) + "'s window holds " + std::to_string(seen[wn]) +
                              " points on node " + wb.node_text(wn) + ", its owner " + std::to_string(held));
@@ -2986,9 +3037,13 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
     const double rec = static_cast<double>(spill.records(t));
     const double judged = window > 0.0 ? 1.0 - (decided - interior) / window : 1.0;
     // The removed points' verdicts (8 bytes each) at 0.5 % of the points judged, so that the
-    // estimate grows without the near counts too.
-    return (near_asked ? 0.5 * rec * judged : 0.0) + 0.04 * rec * judged +
-           (interior > 0.0 ? rec * owned_per_record * static_cast<double>(ring) / interior : 0.0);
+    // estimate grows without the near counts too. The ring's starts (RingStarts): 0.19 bytes a
+    // node and 4 a node with points, at most one a ring point (left out before the sixty-ninth
+    // session, when they were 4 bytes a node: a band of 512 tiles then held 470 MB of them at
+    // N = 16384 where this estimate said a few MB).
+    const double ring_points = interior > 0.0 ? rec * owned_per_record * static_cast<double>(ring) / interior : 0.0;
+    return (near_asked ? 0.5 * rec * judged : 0.0) + 0.04 * rec * judged + ring_points +
+           0.1875 * static_cast<double>(ring) + 4.0 * std::min(static_cast<double>(ring), ring_points);
   };
   std::vector<int> band_at(plan.tiles.count(), -1);  // each tile's place in the band, -1 outside
   for (std::size_t first = 0; first < list.size();) {
