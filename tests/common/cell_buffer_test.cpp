@@ -3,6 +3,7 @@
 #include "hc/common/height_field.hpp"
 
 #include <gtest/gtest.h>
+#include "resident_bytes.hpp"
 
 #include <cmath>
 #include <cstdint>
@@ -33,24 +34,7 @@ struct TempDir {
   }
 };
 
-// The resident size [bytes] of this process's mapping that holds `p`, from /proc/self/smaps
-// (the kernel's own count, independent of the code under test); -1 where no mapping holds it.
-long long resident_bytes_of_mapping(const void* p) {
-  std::ifstream in("/proc/self/smaps");
-  const auto at = reinterpret_cast<std::uintptr_t>(p);
-  bool inside = false;
-  for (std::string line; std::getline(in, line);) {
-    unsigned long long lo = 0, hi = 0;
-    char dash = 0;
-    std::istringstream head(line);
-    if (head >> std::hex >> lo >> dash >> hi && dash == '-') {
-      inside = at >= lo && at < hi;
-      continue;
-    }
-    if (inside && line.rfind("Rss:", 0) == 0) return std::stoll(line.substr(4)) * 1024;
-  }
-  return -1;
-}
+using hc::test::resident_bytes_of_mapping;
 
 TEST(CellBuffer, AFileBackedLayerLeavesNothingInItsFolderAndKeepsWhatWasWrittenWhenItsPagesGoBack) {
   TempDir dir;

@@ -12,11 +12,11 @@
 
 #include "image_io.hpp"  // pipeline/src: write_png
 #include "test_paths.hpp"
+#include "resident_bytes.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <fstream>
-#include <sstream>
 
 namespace {
 
@@ -165,24 +165,7 @@ TEST(SceneIo, LayerFilesAreReadBackByOtherReaders) {
   }
 }
 
-// The resident size [bytes] of this process's mapping that holds `p`, from /proc/self/smaps
-// (the kernel's own count, independent of the code under test); -1 where no mapping holds it.
-long long resident_bytes_of_mapping(const void* p) {
-  std::ifstream in("/proc/self/smaps");
-  const auto at = reinterpret_cast<std::uintptr_t>(p);
-  bool inside = false;
-  for (std::string line; std::getline(in, line);) {
-    unsigned long long lo = 0, hi = 0;
-    char dash = 0;
-    std::istringstream head(line);
-    if (head >> std::hex >> lo >> dash >> hi && dash == '-') {
-      inside = at >= lo && at < hi;
-      continue;
-    }
-    if (inside && line.rfind("Rss:", 0) == 0) return std::stoll(line.substr(4)) * 1024;
-  }
-  return -1;
-}
+using hc::test::resident_bytes_of_mapping;
 
 // The scene's flags (and an untiled colour layer) are written row by row, a file-backed layer's
 // pages given back after each 4 MiB of rows (scene_io.cpp): a level 0 in a file is never
