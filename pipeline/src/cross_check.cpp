@@ -782,7 +782,7 @@ Eigen::Vector3d cross_check_frame_centre(const HeightField& grid) {
     // A file-backed level 0 given back as the sweep passes it (cell_buffer.hpp; before
     // 2026-12-01, sixty-ninth session, this sweep made the whole depth resident: the tiled
     // cross-check's 579 MB at N = 16384).
-    if (i % kReleaseEveryCells == kReleaseEveryCells - 1) cells.release_resident(i + 1 - kReleaseEveryCells, kReleaseEveryCells);
+    if (i % kReleaseEveryCells == kReleaseEveryCells - 1) cells.release_resident();
     const float v = cells[i];
     if (std::isnan(v)) continue;
     z_lo = std::min(z_lo, v);

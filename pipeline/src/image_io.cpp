@@ -153,29 +153,19 @@ int write_png_rows(std::FILE* fp, const std::uint8_t* pixels, int width, int hei
 std::string write_png(const std::filesystem::path& file, const std::uint8_t* pixels, int width, int height,
                       PixelFormat format, std::size_t row_stride, bool fast, const std::function<void()>& after_rows) {
   if (width < 1 || height < 1) return "an empty image";
-  if (fast || after_rows) {
-    const std::size_t stride = row_stride ? row_stride : static_cast<std::size_t>(width * channels_of(format));
-    std::FILE* fp = std::fopen(file.c_str(), "wb");
-    if (fp == nullptr) return std::strerror(errno);
-    PngError error;
-    const int failed = write_png_rows(fp, pixels, width, height, format, stride, fast, &after_rows, &error);
-    const bool closed = std::fclose(fp) == 0;
-    const int close_errno = errno;
-    if (!failed && closed) return {};
-    // Nothing half-written is left, as png_image_write_to_file removes its file on failure.
-    std::error_code ec;
-    if (std::filesystem::is_regular_file(file, ec)) std::filesystem::remove(file, ec);
-    if (failed) return error.text;
-    return std::string("closing the file: ") + std::strerror(close_errno);
-  }
-  png_image image = png_image_for(width, height, format);
-  const auto stride = static_cast<png_int_32>(row_stride ? row_stride : static_cast<std::size_t>(width * channels_of(format)));
-  if (png_image_write_to_file(&image, file.c_str(), 0, pixels, stride, nullptr) == 0) {
-    const std::string why = png_message(image, "libpng cannot write it");
-    png_image_free(&image);
-    return why;
-  }
-  return {};
+  const std::size_t stride = row_stride ? row_stride : static_cast<std::size_t>(width * channels_of(format));
+  std::FILE* fp = std::fopen(file.c_str(), "wb");
+  if (fp == nullptr) return std::strerror(errno);
+  PngError error;
+  const int failed = write_png_rows(fp, pixels, width, height, format, stride, fast, &after_rows, &error);
+  const bool closed = std::fclose(fp) == 0;
+  const int close_errno = errno;
+  if (!failed && closed) return {};
+  // Nothing half-written is left.
+  std::error_code ec;
+  if (std::filesystem::is_regular_file(file, ec)) std::filesystem::remove(file, ec);
+  if (failed) return error.text;
+  return std::string("closing the file: ") + std::strerror(close_errno);
 }
 
 std::vector<std::uint8_t> encode_png(const std::uint8_t* pixels, int width, int height, PixelFormat format,

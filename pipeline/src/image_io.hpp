@@ -18,14 +18,14 @@ namespace hc::pipeline::detail {
 /// Channel layouts of 8-bit pixels: one byte per channel, channels interleaved, rows top to bottom.
 enum class PixelFormat { kGray, kRgb, kBgr };
 
-/// Writes an 8-bit PNG (PNG 1.2 / ISO 15948, on libpng). `row_stride` is the distance between
-/// rows in bytes (0 = width × channels). `fast`, for previews: no row filters and zlib level 1
-/// (libpng's full API; about half the time of the simplified API's PNG_IMAGE_FLAG_FAST, files
-/// about 10 % larger). `after_rows`, if set, is called after each block of at least 4 MiB of rows
-/// and after the last (the scene's flags give a file-backed layer's pages back by it,
-/// cell_buffer.hpp); it must not throw. Without `fast` the file is compressed as libpng's
-/// simplified API does (zlib level 6, adaptive filters). A write that fails removes its file,
-/// either way. @return "" on success, else why not (libpng's message, or the system's for the file).
+/// Writes an 8-bit PNG (PNG 1.2 / ISO 15948), row by row through libpng's full API. `row_stride`
+/// is the distance between rows in bytes (0 = width × channels). Without `fast`: zlib level 6 and
+/// adaptive row filters, and an sRGB chunk for colour, as libpng's simplified API writes. `fast`,
+/// for previews: no row filters and zlib level 1 (about half the time of the simplified API's
+/// PNG_IMAGE_FLAG_FAST, files about 10 % larger). `after_rows`, if set, is called after each
+/// block of at least 4 MiB of rows and after the last (the scene's flags give a file-backed
+/// layer's pages back by it, cell_buffer.hpp); it must not throw. A write that fails removes its
+/// file. @return "" on success, else why not (libpng's message, or the system's for the file).
 std::string write_png(const std::filesystem::path& file, const std::uint8_t* pixels, int width, int height,
                       PixelFormat format, std::size_t row_stride = 0, bool fast = false,
                       const std::function<void()>& after_rows = {});

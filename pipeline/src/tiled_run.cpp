@@ -34,7 +34,6 @@
 #include <algorithm>
 #include <array>
 #include <bit>
-#include <utility>
 #include <chrono>
 #include <cctype>
 #include <cerrno>
@@ -58,6 +57,7 @@
 #include <string>
 #include <string_view>
 #include <system_error>
+#include <utility>
 #include <vector>
 
 #include <nlohmann/json.hpp>

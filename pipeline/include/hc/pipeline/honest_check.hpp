@@ -289,7 +289,9 @@ double median_point_spacing(const Eigen::Matrix3Xd& xyz_m, double start_edge_m);
 /// connected components (8-connectivity) of the valid mask.
 /// @throws hc::ConfigError for a window < 3 or even, or non-positive limits.
 /// Real-time: no. Threads: 2 (halves of the rows). Cost: O(cells · window²); the median and MAD
-/// only where a neighbour differs from the cell by more than spike_min_height_m.
+/// only where a neighbour differs from the cell by more than spike_min_height_m. Memory: a
+/// file-backed grid (a tiled run's level 0, CellBuffer) is given back as each half passes its
+/// rows, so a band of rows is resident, not the grid.
 GridSpikes find_grid_spikes(const HeightField& grid, const HonestCheckOptions& options);
 
 /// Removes the points the verdict calls isolated (check_input's point test, on this cloud): a
