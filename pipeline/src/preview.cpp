@@ -10,6 +10,7 @@
 #include <stdexcept>
 #include <cmath>
 #include <cstdio>
+#include <utility>
 #include <vector>
 
 namespace hc::pipeline {
@@ -17,15 +18,17 @@ namespace {
 
 constexpr int kMinPreviewPx = 400;
 
-/// Up-scales small images (nearest neighbour) and flips rows so +y points up.
-cv::Mat present(const cv::Mat& img) {
-  cv::Mat flipped;
-  cv::flip(img, flipped, 0);
+/// Flips rows so +y points up and up-scales a small image (nearest neighbour). The flip is made
+/// in `img`'s own pixels (OpenCV's vertical flip swaps row pairs, so in place is exact): a large
+/// preview holds no second copy of its body (issue 14: a 4096 x 2048 body is 25 MB, and two
+/// previews are drawn at a time).
+cv::Mat present(cv::Mat img) {
+  cv::flip(img, img, 0);
   const int long_side = std::max(img.rows, img.cols);
-  if (long_side >= kMinPreviewPx) return flipped;
+  if (long_side >= kMinPreviewPx) return img;
   const int factor = (kMinPreviewPx + long_side - 1) / long_side;
   cv::Mat big;
-  cv::resize(flipped, big, cv::Size(), factor, factor, cv::INTER_NEAREST);
+  cv::resize(img, big, cv::Size(), factor, factor, cv::INTER_NEAREST);
   return big;
 }
 
@@ -101,34 +104,10 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
                           const std::vector<std::array<int, 2>>& marks) {
   const ColourBar bar = colour_bar(layer, scale);
   const double lo = bar.lo, hi = bar.hi;
-  cv::Mat idx(layer.rows(), layer.cols(), CV_8UC1);
-  cv::Mat nodata(layer.rows(), layer.cols(), CV_8UC1, cv::Scalar(0));
-  for (int r = 0; r < layer.rows(); ++r) {
-    for (int c = 0; c < layer.cols(); ++c) {
-      const float v = layer.at(r, c);
-      if (!std::isfinite(v)) {
-        nodata.at<std::uint8_t>(r, c) = 255;
-        idx.at<std::uint8_t>(r, c) = 0;
-      } else {
-        idx.at<std::uint8_t>(r, c) =
-            static_cast<std::uint8_t>(std::clamp((v - lo) / (hi - lo) * 255.0, 0.0, 255.0));
-      }
-    }
-  }
-  cv::Mat colour;
-  cv::applyColorMap(idx, colour, cv::COLORMAP_TURBO);
-  colour.setTo(cv::Scalar(90, 90, 90), nodata);
-  cv::Mat body = present(colour);
-  if (!marks.empty()) {
-    // present() flips rows and enlarges by an integer factor: map (row, col) the same way.
-    const double f = static_cast<double>(body.cols) / std::max(1, layer.cols());
-    const int radius = std::max(4, static_cast<int>(std::lround(3.0 * f)));
-    for (const auto& m : marks) {
-      const cv::Point centre(static_cast<int>((m[1] + 0.5) * f), static_cast<int>((layer.rows() - 1 - m[0] + 0.5) * f));
-      cv::circle(body, centre, radius, cv::Scalar(255, 0, 255), 1, cv::LINE_AA);
-    }
-  }
-
+  // The body's size as present() makes it: the layer's, or enlarged by an integer factor.
+  const int long_side = std::max(layer.rows(), layer.cols());
+  const int factor = long_side >= kMinPreviewPx ? 1 : (kMinPreviewPx + long_side - 1) / long_side;
+  const cv::Size body_size(layer.cols() * factor, layer.rows() * factor);
   // Legend: a vertical colour bar with range labels (clipped ends: a triangle and the true
   // extreme), and a title strip. The margin and the width fit the longest label and the title,
   // so no text is ever cut off.
@@ -140,13 +119,55 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   if (!bar.max_label.empty()) label_w = std::max(label_w, text_width(bar.max_label, 0.3));
   if (!bar.min_label.empty()) label_w = std::max(label_w, text_width(bar.min_label, 0.3));
   const int margin = std::max(110, 8 + bar_w + 4 + label_w + 8);
-  const int width = std::max({body.cols + margin, text_width(full_title, 0.5) + 12, clipped ? text_width(foot, 0.4) + 12 : 0});
+  const int width = std::max({body_size.width + margin, text_width(full_title, 0.5) + 12, clipped ? text_width(foot, 0.4) + 12 : 0});
   // The legend needs about 100 px of height (range, extreme and unit labels): a short, wide
   // layer gets white space below it rather than overlapping labels.
   const int legend_h = 100;
-  const int body_h = std::max(body.rows, legend_h + 20);
+  const int body_h = std::max(body_size.height, legend_h + 20);
   cv::Mat canvas(body_h + title_h + foot_h, width, CV_8UC3, cv::Scalar(255, 255, 255));
-  body.copyTo(canvas(cv::Rect(0, title_h, body.cols, body.rows)));
+  // The body: each cell's turbo colour (OpenCV's map of its 8-bit index, the same as
+  // cv::applyColorMap on the index image) and grey (90) for no data, drawn straight into the
+  // canvas with rows flipped (+y up), so that no full-size index, mask or colour image is held
+  // beside the canvas (issue 14: at 4096 x 2048 samples those were 67 MB a preview, two previews
+  // drawn at a time); an enlarged body is drawn small and then enlarged into the canvas.
+  cv::Mat lut;
+  {
+    cv::Mat ramp(1, 256, CV_8UC1);
+    for (int i = 0; i < 256; ++i) ramp.at<std::uint8_t>(0, i) = static_cast<std::uint8_t>(i);
+    cv::applyColorMap(ramp, lut, cv::COLORMAP_TURBO);
+  }
+  cv::Mat body = canvas(cv::Rect(0, title_h, body_size.width, body_size.height));
+  {
+    cv::Mat small;
+    if (factor > 1) small.create(layer.rows(), layer.cols(), CV_8UC3);
+    cv::Mat& to = factor > 1 ? small : body;
+    const cv::Vec3b grey(90, 90, 90);
+    const cv::Vec3b* turbo = lut.ptr<cv::Vec3b>(0);
+    for (int r = 0; r < layer.rows(); ++r) {
+      auto* row = to.ptr<cv::Vec3b>(layer.rows() - 1 - r);
+      for (int c = 0; c < layer.cols(); ++c) {
+        const float v = layer.at(r, c);
+        if (!std::isfinite(v)) {
+          row[c] = grey;
+        } else {
+          const auto i = static_cast<std::uint8_t>(std::clamp((v - lo) / (hi - lo) * 255.0, 0.0, 255.0));
+          row[c] = turbo[i];
+        }
+      }
+    }
+    // Into the canvas's own pixels: the destination already has the size and type asked for.
+    if (factor > 1) cv::resize(small, body, body_size, 0, 0, cv::INTER_NEAREST);
+  }
+  if (!marks.empty()) {
+    // Rows flipped and enlarged by an integer factor: map (row, col) the same way. Circles are
+    // clipped at the body's edge (body is a view of the canvas with its own bounds).
+    const double f = static_cast<double>(body.cols) / std::max(1, layer.cols());
+    const int radius = std::max(4, static_cast<int>(std::lround(3.0 * f)));
+    for (const auto& m : marks) {
+      const cv::Point centre(static_cast<int>((m[1] + 0.5) * f), static_cast<int>((layer.rows() - 1 - m[0] + 0.5) * f));
+      cv::circle(body, centre, radius, cv::Scalar(255, 0, 255), 1, cv::LINE_AA);
+    }
+  }
   const int bar_top = title_h + 10, bar_h = body_h - 20;
   cv::Mat ramp(bar_h, 1, CV_8UC1);
   for (int r = 0; r < bar_h; ++r)
@@ -154,7 +175,7 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   cv::Mat ramp_col;
   cv::applyColorMap(ramp, ramp_col, cv::COLORMAP_TURBO);
   cv::resize(ramp_col, ramp_col, cv::Size(bar_w, bar_h), 0, 0, cv::INTER_NEAREST);
-  const int bar_x = body.cols + 8;
+  const int bar_x = body_size.width + 8;
   ramp_col.copyTo(canvas(cv::Rect(bar_x, bar_top, bar_w, bar_h)));
   const cv::Scalar black(0, 0, 0);
   auto triangle = [&](int tip_y, int base_y) {
@@ -216,7 +237,7 @@ constexpr const char* kHillshadeLegend = "light from the north-west; grey: no da
 
 /// The hillshade image of write_hillshade_preview without its title strip (flipped, enlarged).
 cv::Mat hillshade_body(const HeightField& depth_m) {
-  const cv::Mat grey = hillshade_grey(depth_m);
+  cv::Mat grey = hillshade_grey(depth_m);
   cv::Mat shade(depth_m.rows(), depth_m.cols(), CV_8UC3, cv::Scalar(90, 90, 90));
   for (int r = 0; r < depth_m.rows(); ++r) {
     for (int c = 0; c < depth_m.cols(); ++c) {
@@ -225,7 +246,8 @@ cv::Mat hillshade_body(const HeightField& depth_m) {
       shade.at<cv::Vec3b>(r, c) = cv::Vec3b(g, g, g);
     }
   }
-  return present(shade);
+  grey.release();
+  return present(std::move(shade));
 }
 
 }  // namespace
@@ -281,7 +303,8 @@ void write_rgb_preview(const HeightField& depth_m, std::span<const std::uint8_t>
       img.at<cv::Vec3b>(r, c) = cv::Vec3b(ch(rgb[2]), ch(rgb[1]), ch(rgb[0]));  // OpenCV is BGR
     }
   }
-  save(present(img), png);
+  grey.release();
+  save(present(std::move(img)), png);
 }
 
 std::vector<std::array<int, 2>> marks_on_level(const std::vector<std::array<int, 2>>& marks, int level,

@@ -1334,6 +1334,10 @@ RunSummary write_run_impl(const BuiltScene& built, BuiltScene* movable, const Ru
         }
         std::vector<std::function<void()>> tasks;
         add_previews(tasks, stored, later, previews, marks, friction_name);
+        // Each preview's layer and canvas (up to scale.preview_max_side² × 4 and × 3 bytes) are
+        // mapped on their own and given back when freed, so the kept heap does not grow by
+        // them (detail::LargeBlocksMapped; a tiled run only).
+        const detail::LargeBlocksMapped mapped(std::size_t{4} << 20);
         detail::run_tasks_on_two(tasks);
         r.report.figure("previews_level", preview_level);
         r.report.figure("previews_s", seconds_since(t_previews));

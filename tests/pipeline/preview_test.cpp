@@ -8,6 +8,7 @@
 #include "test_paths.hpp"
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include <sys/resource.h>
 
@@ -187,6 +188,38 @@ TEST(Previews, TheFastPngWriterKeepsEveryPixel) {
       const bool grey = std::isnan(depth.values()[k]);
       const cv::Vec3b want = grey ? cv::Vec3b(90, 90, 90) : cv::Vec3b(rgb[3 * k + 2], rgb[3 * k + 1], rgb[3 * k]);
       wrong += p != want;
+    }
+  EXPECT_EQ(wrong, 0u);
+}
+
+TEST(Previews, AColourPreviewsBodyIsTheLayerColourMappedAndFlipped) {
+  // Oracle: OpenCV's turbo map of the indices the documented rule gives. The lower half of the
+  // rows is 0, the upper half 1, so the 1st and 99th percentiles are 0 and 1 and the cells map to
+  // indices 0 and 255; one no-data cell (row 0, column 0) is grey (90). The layer is wider than
+  // the preview minimum, so it is not enlarged, and has an odd number of rows (the flip's middle
+  // row stays). Its body sits under a 30 px title strip with row 0 at the bottom (+y up).
+  const int rows = 451, cols = 500;
+  HeightField layer(GridGeometry{rows, cols, 0.0, 0.0, 0.001});
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c) layer.at(r, c) = r < rows / 2 ? 0.0f : 1.0f;
+  layer.at(0, 0) = std::nanf("");
+  const fs::path png = hc::test::temp_dir("preview_colour_body") / "c.png";
+  write_colour_preview(layer, png, "t", "m", 1.0);
+  const cv::Mat img = cv::imread(png.string(), cv::IMREAD_COLOR);
+  ASSERT_FALSE(img.empty());
+  cv::Mat ends(1, 2, CV_8UC1);
+  ends.at<std::uint8_t>(0, 0) = 0;
+  ends.at<std::uint8_t>(0, 1) = 255;
+  cv::Mat turbo;
+  cv::applyColorMap(ends, turbo, cv::COLORMAP_TURBO);
+  const int title_h = 30;
+  ASSERT_GE(img.rows, title_h + rows);
+  ASSERT_GT(img.cols, cols);
+  std::size_t wrong = 0;
+  for (int r = 0; r < rows; ++r)
+    for (int c = 0; c < cols; ++c) {
+      const cv::Vec3b want = (r == 0 && c == 0) ? cv::Vec3b(90, 90, 90) : turbo.at<cv::Vec3b>(0, r < rows / 2 ? 0 : 1);
+      wrong += img.at<cv::Vec3b>(title_h + rows - 1 - r, c) != want;
     }
   EXPECT_EQ(wrong, 0u);
 }

@@ -42,7 +42,9 @@ std::vector<std::array<int, 2>> marks_on_level(const std::vector<std::array<int,
 /// legend bar labelled in `unit` after multiplying values by `scale` (e.g. 1000 for metres → mm);
 /// clipped ends are marked by a triangle on the bar and labelled with the true min / max.
 /// `marks` (row, col) are circled in magenta (spikes, pits, islands). Grids smaller than 400 px
-/// on their long side are enlarged (nearest neighbour).
+/// on their long side are enlarged (nearest neighbour). Memory: besides `layer`, a copy of its
+/// finite values (4 bytes a cell, for the percentiles; freed before the image) and then the
+/// image only (3 bytes a pixel): the colours are drawn straight into it.
 /// @throws hc::InputError naming the file if it cannot be written.
 void write_colour_preview(const HeightField& layer, const std::filesystem::path& png,
                           const std::string& title, const std::string& unit, double scale,
