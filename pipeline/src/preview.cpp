@@ -10,6 +10,7 @@
 #include <stdexcept>
 #include <cmath>
 #include <cstdio>
+#include <string>
 #include <utility>
 #include <vector>
 
@@ -102,6 +103,10 @@ ColourBar colour_bar(const HeightField& layer, double scale) {
 void write_colour_preview(const HeightField& layer, const std::filesystem::path& png,
                           const std::string& title, const std::string& unit, double scale,
                           const std::vector<std::array<int, 2>>& marks) {
+  if (layer.rows() < 1 || layer.cols() < 1) {
+    throw InputError(png.string() + ": cannot write the preview: the layer is empty (" + std::to_string(layer.cols()) +
+                     " x " + std::to_string(layer.rows()) + " samples; expected at least 1 x 1)");
+  }
   const ColourBar bar = colour_bar(layer, scale);
   const double lo = bar.lo, hi = bar.hi;
   // The body's size as present() makes it: the layer's, or enlarged by an integer factor.

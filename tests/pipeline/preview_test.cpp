@@ -5,6 +5,7 @@
 #include "hc/pipeline/lod.hpp"
 #include "hc/pipeline/preview.hpp"
 
+#include "hc/common/error.hpp"
 #include "test_paths.hpp"
 #include <gtest/gtest.h>
 #include <opencv2/imgcodecs.hpp>
@@ -222,6 +223,23 @@ TEST(Previews, AColourPreviewsBodyIsTheLayerColourMappedAndFlipped) {
       wrong += img.at<cv::Vec3b>(title_h + rows - 1 - r, c) != want;
     }
   EXPECT_EQ(wrong, 0u);
+}
+
+TEST(Previews, AnEmptyLayersColourPreviewIsRefusedNamingTheFile) {
+  // Before, an empty layer reached OpenCV (or a division by its zero size): now the file and
+  // the layer's size are named, and nothing is written.
+  const fs::path png = hc::test::temp_dir("preview_empty") / "e.png";
+  for (const GridGeometry g : {GridGeometry{0, 5, 0.0, 0.0, 0.001}, GridGeometry{3, 0, 0.0, 0.0, 0.001}}) {
+    const HeightField empty(g);
+    try {
+      write_colour_preview(empty, png, "t", "m", 1.0);
+      FAIL() << "an empty layer was drawn";
+    } catch (const InputError& e) {
+      EXPECT_NE(std::string(e.what()).find(png.string()), std::string::npos) << e.what();
+      EXPECT_NE(std::string(e.what()).find("empty"), std::string::npos) << e.what();
+    }
+    EXPECT_FALSE(fs::exists(png));
+  }
 }
 
 TEST(Previews, AnUnwritablePreviewIsNamedInTheError) {

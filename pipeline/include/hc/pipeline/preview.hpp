@@ -45,7 +45,7 @@ std::vector<std::array<int, 2>> marks_on_level(const std::vector<std::array<int,
 /// on their long side are enlarged (nearest neighbour). Memory: besides `layer`, a copy of its
 /// finite values (4 bytes a cell, for the percentiles; freed before the image) and then the
 /// image only (3 bytes a pixel): the colours are drawn straight into it.
-/// @throws hc::InputError naming the file if it cannot be written.
+/// @throws hc::InputError naming the file if it cannot be written or `layer` has no sample.
 void write_colour_preview(const HeightField& layer, const std::filesystem::path& png,
                           const std::string& title, const std::string& unit, double scale,
                           const std::vector<std::array<int, 2>>& marks = {});
