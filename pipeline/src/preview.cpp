@@ -19,15 +19,21 @@ namespace {
 
 constexpr int kMinPreviewPx = 400;
 
-/// Flips rows so +y points up and up-scales a small image (nearest neighbour). The flip is made
-/// in `img`'s own pixels (OpenCV's vertical flip swaps row pairs, so in place is exact): a large
+/// The integer factor a preview body of rows x cols samples is enlarged by (nearest neighbour)
+/// so that its long side reaches kMinPreviewPx; 1 when it does already. rows, cols >= 1.
+int enlargement(int rows, int cols) {
+  const int long_side = std::max(rows, cols);
+  return long_side >= kMinPreviewPx ? 1 : (kMinPreviewPx + long_side - 1) / long_side;
+}
+
+/// Flips rows so +y points up and up-scales a small image (enlargement). The flip is made in
+/// `img`'s own pixels (OpenCV's vertical flip swaps row pairs, so in place is exact): a large
 /// preview holds no second copy of its body (issue 14: a 4096 x 2048 body is 25 MB, and two
 /// previews are drawn at a time).
 cv::Mat present(cv::Mat img) {
   cv::flip(img, img, 0);
-  const int long_side = std::max(img.rows, img.cols);
-  if (long_side >= kMinPreviewPx) return img;
-  const int factor = (kMinPreviewPx + long_side - 1) / long_side;
+  const int factor = enlargement(img.rows, img.cols);
+  if (factor == 1) return img;
   cv::Mat big;
   cv::resize(img, big, cv::Size(), factor, factor, cv::INTER_NEAREST);
   return big;
@@ -110,8 +116,7 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   const ColourBar bar = colour_bar(layer, scale);
   const double lo = bar.lo, hi = bar.hi;
   // The body's size as present() makes it: the layer's, or enlarged by an integer factor.
-  const int long_side = std::max(layer.rows(), layer.cols());
-  const int factor = long_side >= kMinPreviewPx ? 1 : (kMinPreviewPx + long_side - 1) / long_side;
+  const int factor = enlargement(layer.rows(), layer.cols());
   const cv::Size body_size(layer.cols() * factor, layer.rows() * factor);
   // Legend: a vertical colour bar with range labels (clipped ends: a triangle and the true
   // extreme), and a title strip. The margin and the width fit the longest label and the title,
@@ -166,7 +171,7 @@ void write_colour_preview(const HeightField& layer, const std::filesystem::path&
   if (!marks.empty()) {
     // Rows flipped and enlarged by an integer factor: map (row, col) the same way. Circles are
     // clipped at the body's edge (body is a view of the canvas with its own bounds).
-    const double f = static_cast<double>(body.cols) / std::max(1, layer.cols());
+    const double f = factor;
     const int radius = std::max(4, static_cast<int>(std::lround(3.0 * f)));
     for (const auto& m : marks) {
       const cv::Point centre(static_cast<int>((m[1] + 0.5) * f), static_cast<int>((layer.rows() - 1 - m[0] + 0.5) * f));
