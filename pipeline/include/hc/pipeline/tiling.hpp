@@ -56,6 +56,7 @@
 /// input.shared_frame, input.synthetic, filters.voxel_m, filters.pcl, filters.outliers other than robust,
 /// grid.organised: mesh, meshes.
 
+#include "hc/common/error.hpp"
 #include "hc/pipeline/config.hpp"
 #include "hc/pipeline/run.hpp"
 
