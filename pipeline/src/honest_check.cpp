@@ -628,27 +628,39 @@ bool part_of_large_surface(const HeightField& grid, int r0, int c0, double step_
 /// The least-squares plane z = a + b·dc + c·dr (dc, dr: cell offsets) through the valid cells
 /// of the (2h+1)² window about (r, c), the cell itself excluded, fitted once, then again
 /// without the cells more than trim_m above the first plane; its height at the cell's node
-/// [m]. nullopt when a fit has fewer than 3 cells or they lie on one line.
-std::optional<double> trimmed_plane_at(const HeightField& grid, int r, int c, int h, double trim_m) {
+/// [m]. nullopt when a fit has fewer than 3 cells or they lie on one line. noinline, as
+/// plane_offset_at below and for the same reason.
+[[gnu::noinline]] std::optional<double> trimmed_plane_at(const HeightField& grid, int r, int c, int h, double trim_m) {
   const int rows = grid.rows(), cols = grid.cols();
   const auto z0 = static_cast<double>(grid.at(r, c));
   std::optional<Eigen::Vector3d> plane;
   for (int pass = 0; pass < 2; ++pass) {
-    Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
-    Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
+    // The normal equations as scalar sums, as plane_offset_at sums them (the same values to
+    // the bit as Eigen's `a += q * q.transpose(); rhs += q * dz`).
+    double n = 0.0, sx = 0.0, sy = 0.0, sxx = 0.0, sxy = 0.0, syy = 0.0, sz = 0.0, sxz = 0.0, syz = 0.0;
     int used = 0;
     for (int rr = std::max(0, r - h); rr <= std::min(rows - 1, r + h); ++rr)
       for (int cc = std::max(0, c - h); cc <= std::min(cols - 1, c + h); ++cc) {
         const float v = grid.at(rr, cc);
         if ((rr == r && cc == c) || std::isnan(v)) continue;
-        const Eigen::Vector3d q(1.0, cc - c, rr - r);
+        const auto dx = static_cast<double>(cc - c), dy = static_cast<double>(rr - r);
         const double dz = static_cast<double>(v) - z0;
-        if (plane && dz - plane->dot(q) > trim_m) continue;
-        a += q * q.transpose();
-        rhs += q * dz;
+        if (plane && dz - plane->dot(Eigen::Vector3d(1.0, dx, dy)) > trim_m) continue;
+        n += 1.0;
+        sx += dx;
+        sy += dy;
+        sxx += dx * dx;
+        sxy += dx * dy;
+        syy += dy * dy;
+        sz += dz;
+        sxz += dx * dz;
+        syz += dy * dz;
         ++used;
       }
     if (used < 3) return std::nullopt;
+    Eigen::Matrix3d a;
+    a << n, sx, sy, sx, sxx, sxy, sy, sxy, syy;
+    const Eigen::Vector3d rhs(sz, sxz, syz);
     const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
     if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) return std::nullopt;
     const Eigen::Vector3d coef = ldlt.solve(rhs);
@@ -656,6 +668,46 @@ std::optional<double> trimmed_plane_at(const HeightField& grid, int r, int c, in
     plane = coef;
   }
   return z0 + (*plane)(0);
+}
+
+/// The least-squares plane z − z(r, c) = a + b·dc + c·dr (dc, dr: cell offsets) through the
+/// valid cells of rows [r0, r1) and columns [c0, c1) but (r, c) itself: a [m], the plane's
+/// height at the cell's node above the cell. nullopt when the cells lie on one line (LDLT fails
+/// or its reciprocal condition is under 1e-9) or the solution is not finite. The caller checks
+/// that at least 3 other cells are valid. The normal equations are summed as scalars in the
+/// window's row-major order: the products of the offsets are small integers (exact), and each
+/// right-hand side sum adds q_i · dz in the same order as Eigen's `rhs += q * dz`, so the
+/// result is the earlier vector form's to the bit. Kept out of remove_spike_points' cell
+/// verdict (noinline), which judges every cell: its frame stays small, and the sanitizer
+/// builds, which poison a frame's temporaries on every call, judge the full windows quickly.
+[[gnu::noinline]] std::optional<double> plane_offset_at(const HeightField& grid, int r, int c, int r0, int r1, int c0,
+                                                         int c1) {
+  const auto z = static_cast<double>(grid.at(r, c));
+  double n = 0.0, sx = 0.0, sy = 0.0, sxx = 0.0, sxy = 0.0, syy = 0.0, sz = 0.0, sxz = 0.0, syz = 0.0;
+  for (int rr = r0; rr < r1; ++rr)
+    for (int cc = c0; cc < c1; ++cc) {
+      const float v = grid.at(rr, cc);
+      if ((rr == r && cc == c) || std::isnan(v)) continue;
+      const auto dx = static_cast<double>(cc - c), dy = static_cast<double>(rr - r);
+      const double dz = static_cast<double>(v) - z;
+      n += 1.0;
+      sx += dx;
+      sy += dy;
+      sxx += dx * dx;
+      sxy += dx * dy;
+      syy += dy * dy;
+      sz += dz;
+      sxz += dx * dz;
+      syz += dy * dz;
+    }
+  Eigen::Matrix3d a;
+  a << n, sx, sy, sx, sxx, sxy, sy, sxy, syy;
+  const Eigen::Vector3d rhs(sz, sxz, syz);
+  const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
+  if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) return std::nullopt;
+  const Eigen::Vector3d coef = ldlt.solve(rhs);
+  if (!coef.allFinite()) return std::nullopt;
+  return coef(0);
 }
 
 /// Whether the valid cell (r, c) stands more than height_m above every valid 8-neighbour (at
@@ -1726,21 +1778,10 @@ StageResult<Cloud> remove_spike_points(Cloud cloud, const HeightField& grid, con
       base = (sum - static_cast<double>(z)) / static_cast<double>(full - 1);
     } else {
       if (n_win < 4) return rim_or_nothing();  // the cell and at least 3 others
-      Eigen::Matrix3d a = Eigen::Matrix3d::Zero();
-      Eigen::Vector3d rhs = Eigen::Vector3d::Zero();
-      for (int rr = static_cast<int>(r0); rr < static_cast<int>(r1); ++rr)
-        for (int cc = static_cast<int>(c0); cc < static_cast<int>(c1); ++cc) {
-          const float v = grid.at(rr, cc);
-          if ((rr == r && cc == c) || std::isnan(v)) continue;
-          const Eigen::Vector3d q(1.0, cc - c, rr - r);
-          a += q * q.transpose();
-          rhs += q * (static_cast<double>(v) - static_cast<double>(z));
-        }
-      const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
-      if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) return rim_or_nothing();  // collinear cells: no plane
-      const Eigen::Vector3d coef = ldlt.solve(rhs);
-      if (!coef.allFinite()) return rim_or_nothing();
-      base = static_cast<double>(z) + coef(0);  // the plane at the cell's node
+      const std::optional<double> offset =
+          plane_offset_at(grid, r, c, static_cast<int>(r0), static_cast<int>(r1), static_cast<int>(c0), static_cast<int>(c1));
+      if (!offset) return rim_or_nothing();  // collinear cells: no plane
+      base = static_cast<double>(z) + *offset;  // the plane at the cell's node
     }
     // A point's splat raises the cells around its own with it, and they pull the plane up: a
     // stray just over spike_min_height_m in front shows only about 2/3 of it above a full
