@@ -2478,7 +2478,7 @@ void take_owned_verdicts(const Tiles& tiles, std::size_t t, const Cloud& pts, co
       const std::size_t wn = wb.node_at(node, pts.xyz.data() + 3 * i, t, "take_owned_verdicts");
       const int b = wb.place[wn];
       theirs[n] = {static_cast<std::uint32_t>(i), static_cast<std::uint32_t>(wn)};
-      n += (b >= 0) & (b != mine) ? 1U : 0U;
+      n += ((b >= 0) & (b != mine)) ? 1U : 0U;
     }
     static const std::uint8_t none = 0;
     for (std::size_t a = 0; a < n; ++a) {
