@@ -689,7 +689,7 @@ struct PlaneSums {
 /// plane's height at the cell's node above the cell. nullopt when the cells lie on one line or
 /// the solution is not finite. The caller checks that at least 3 other cells are valid. Kept
 /// out of remove_spike_points' cell verdict (noinline), which judges every cell: its frame
-/// stays small (536 bytes where it was 6 968 with the fit inline), and the sanitizer builds,
+/// stays small (under ASan 536 bytes where it was 6 968 with the fit inline), and the sanitizer builds,
 /// which poison a frame's temporaries on every call, judge the full windows quickly.
 [[gnu::noinline]] std::optional<double> plane_offset_at(const HeightField& grid, int r, int c, int r0, int r1, int c0,
                                                          int c1) {
