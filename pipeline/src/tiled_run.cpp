@@ -2028,6 +2028,52 @@ class StrayVerdicts {
   bool sealed_ = false;
 };
 
+// The tile loop's first looks (TileLook, as look_tile gave them, before judge_strays), kept for
+// the tiles processed again after that loop (the far clusters' fix-up, far_tiles_again): a look
+// is the robust test over the tile's window, which the far clusters' cells given to the fix-up
+// (ScaleConfig::far_cells) do not change, so the fix-up takes the kept look instead of reading
+// the window and running the test again (the second half of each tile: reprojection, despike,
+// the mask, reads the window again as before). Only looks that do not share their band's judging
+// (TileLook::shares false: a shared look depends on the band's other tiles; on the 10^8 wall at
+// N = 4096 none share, nor in a band of one tile), and at most `budget` bytes of them
+// (TileLook::bytes; kBudgetBytes, 128 MiB, in process; the later ones are not kept and are looked
+// at again). In the fix-up a tile with a kept look shares with no other tile of its band (as one
+// whose window may hold too few points: the others judge their points themselves). A look is kept in place of its release after process_tile
+// (which takes a copy), so a band of looks holds no more at its start than before; after the loop
+// the kept ones stay until the fix-up has run (seventy-second session: on the 10^8 wall at
+// N = 4096 the 40 looks hold about 60 MB).
+class KeptLooks {
+ public:
+  static constexpr std::size_t kBudgetBytes = std::size_t{128} << 20;  // the in-process loop's
+  explicit KeptLooks(std::size_t budget) : budget_(budget) {}
+  // Whether tile t's look is to be kept: none taken yet (the fix-up's own looks are not), it does
+  // not share, none is kept for t, and it fits.
+  bool wants(std::size_t t, const TileLook& look) const {
+    return taken_ == 0 && !look.shares && look.owned.vn.empty() && looks_.count(t) == 0 && held_ + look.bytes() <= budget_;
+  }
+  // Keeps tile t's look (after wants(t, look)).
+  void keep(std::size_t t, TileLook&& look) {
+    held_ += look.bytes();
+    looks_.emplace(t, std::move(look));
+  }
+  // Tile t's kept look, moved out (its bytes stay counted: none is offered after the loop), or none.
+  std::optional<TileLook> take(std::size_t t) {
+    const auto it = looks_.find(t);
+    if (it == looks_.end()) return std::nullopt;
+    std::optional<TileLook> out(std::move(it->second));
+    looks_.erase(it);
+    ++taken_;
+    return out;
+  }
+  bool has(std::size_t t) const { return looks_.count(t) != 0; }
+  std::size_t taken() const { return taken_; }
+  std::size_t bytes() const { return held_; }
+
+ private:
+  std::size_t budget_ = 0, held_ = 0, taken_ = 0;
+  std::map<std::size_t, TileLook> looks_;
+};
+
 // A point of the scan a gathering took: where it is in its owner tile's spill, and where.
 struct Taken {
   std::uint32_t tile = 0, rec = 0;  // process_tile refuses a window of 2^32 spilled records or more
@@ -2982,7 +3028,8 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // policy, figure `large_blocks_mapped` of `tiles`).
 template <class Done>
 bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, KeptMask& kept, const std::vector<std::size_t>& list,
-               detail::TileHeapBudget& heap, const std::function<void(double)>& progress, Done&& done, StrayVerdicts* verdicts = nullptr) {
+               detail::TileHeapBudget& heap, const std::function<void(double)>& progress, Done&& done, StrayVerdicts* verdicts = nullptr,
+               KeptLooks* looks_kept = nullptr) {
   const auto band_bytes = static_cast<std::size_t>(config.scale.band_mb * 1048576.0);
   const double steps = 2.0 * static_cast<double>(list.size());
   double step = 0.0;
@@ -3049,6 +3096,9 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
   for (std::size_t first = 0; first < list.size();) {
     std::vector<std::size_t> band;
     std::vector<TileLook> looks;
+    // Where looks_kept is given: each look's figures as look_tile gave them, before judge_strays
+    // adds to them (none for a look taken from looks_kept, or made where tiles share).
+    std::vector<std::optional<std::map<std::string, double>>> look_sums;
     if (first > 0) (void)heap.release_now();
     double held = 0.0;
     while (first + band.size() < list.size() && (band.empty() || held < static_cast<double>(band_bytes))) {
@@ -3056,23 +3106,29 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
       if (!sharing) {  // the looks' own bytes, as before the fiftieth session
         progress(step++ / steps);
         (void)heap.before_tile();
-        looks.push_back(look_tile(config, plan, spill, t, band_at));
+        std::optional<TileLook> again = looks_kept != nullptr ? looks_kept->take(t) : std::nullopt;
+        looks.push_back(again ? std::move(*again) : look_tile(config, plan, spill, t, band_at));
+        look_sums.push_back(again ? std::nullopt : std::optional(looks.back().sums));
         held += static_cast<double>(looks.back().bytes());
         band.push_back(t);
         continue;
       }
       held += look_bytes(t);
+      // A tile whose first look is kept (the fix-up) does not share: its look was made alone.
+      const bool alone = looks_kept != nullptr && looks_kept->has(t);
       // A tile whose window could fall short of the robust test's k + 2 points (all the far
       // points in it, which read_tile_points leaves out) neither shares its points' judging nor
       // leaves its points to others: every tile that holds them judges them, as before.
       const std::uint64_t least = static_cast<std::uint64_t>(config.filters.outliers.k) + 2 + plan.far_points;
-      if (config.filters.outliers.enabled && plan.robust_scale && spill.records(t) >= least) band_at[t] = static_cast<int>(band.size());
+      if (config.filters.outliers.enabled && plan.robust_scale && spill.records(t) >= least && !alone) band_at[t] = static_cast<int>(band.size());
       band.push_back(t);
     }
     for (std::size_t i = looks.size(); i < band.size(); ++i) {
       progress(step++ / steps);
       (void)heap.before_tile();
-      looks.push_back(look_tile(config, plan, spill, band[i], band_at));
+      std::optional<TileLook> again = looks_kept != nullptr ? looks_kept->take(band[i]) : std::nullopt;
+      looks.push_back(again ? std::move(*again) : look_tile(config, plan, spill, band[i], band_at));
+      look_sums.push_back(again ? std::nullopt : std::optional(looks.back().sums));
     }
     std::map<std::string, double> band_sums;
     const bool one_band = first == 0 && band.size() == list.size();
@@ -3098,7 +3154,17 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
     for (std::size_t i = 0; i < band.size(); ++i) {
       progress(step++ / steps);
       (void)heap.before_tile();
-      done(process_tile(config, plan, spill, kept, band[i], std::move(looks[i]), band_at, owned), last);
+      if (looks_kept != nullptr && look_sums[i] && looks_kept->wants(band[i], looks[i])) {
+        // process_tile takes a copy; looks_kept the look as look_tile gave it (judge_strays'
+        // verdicts and figures taken off again: the fix-up's judge_strays gives them anew).
+        TileLook copy = looks[i];
+        looks[i].sums = std::move(*look_sums[i]);
+        looks[i].stray_verdict.clear();
+        looks_kept->keep(band[i], std::move(looks[i]));
+        done(process_tile(config, plan, spill, kept, band[i], std::move(copy), band_at, owned), last);
+      } else {
+        done(process_tile(config, plan, spill, kept, band[i], std::move(looks[i]), band_at, owned), last);
+      }
       looks[i] = TileLook{};  // its memory back
     }
     for (const std::size_t t : band) band_at[t] = -1;
@@ -5781,7 +5847,11 @@ void far_tiles_again(const RunConfig& config, const Tiles& tiles, std::shared_pt
   RunConfig fix = config;
   fix.scale.far_cells = far;
   detail::PassProgress tick(progress, "tiles", "the tiles holding far clusters the tiles kept, processed again", config.scale.progress_interval_s);
+  const auto t_again = detail::Clock::now();
+  const double cpu_again = detail::process_cpu_seconds();
   again(fix, list, [&](double f) { tick(f); });
+  r.figure("far_tiles_again_s", detail::seconds_since(t_again));
+  r.figure("far_tiles_again_cpu_s", detail::process_cpu_seconds() - cpu_again);
   merged.finish();
   const auto it = merged.sums.find("far_points_owned");
   const double removed = it != merged.sums.end() ? it->second : 0.0;
@@ -6103,6 +6173,8 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
     std::iota(all.begin(), all.end(), std::size_t{0});
     std::vector<std::size_t> left;  // processed, its spill kept for a later band
     StrayVerdicts verdicts;  // the strays' verdicts, for the tiles the fix-up below processes again
+    // Their first looks too, up to a band's bytes (KeptLooks).
+    KeptLooks looks_kept(KeptLooks::kBudgetBytes);
     const bool mapped = run_tiles(
         config, plan, spill, kept, all, heap, [&](double f) { tick(f); },
         [&](TileOutput&& o, bool last) {
@@ -6117,7 +6189,7 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
           left.clear();
           spill.remove(t);
         },
-        drop ? nullptr : &verdicts);  // kept only where the spills stay for a fix-up
+        drop ? nullptr : &verdicts, drop ? nullptr : &looks_kept);  // kept only where the spills stay for a fix-up
     merged.finish();
     far_again = exact_far_clusters(config, plan, merged, r.report);
     if (far_again && !drop && config.scale.far_cells == nullptr) {
@@ -6128,10 +6200,13 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
       far_tiles_again(config, tiles, std::move(far_again), merged, r.report, progress,
                       [&](const RunConfig& fix, const std::vector<std::size_t>& again, const std::function<void(double)>& again_tick) {
                         (void)run_tiles(fix, plan, spill, kept, again, heap, again_tick, [&](TileOutput&& o, bool) { merged.add(tiles, std::move(o)); },
-                                        &verdicts);
+                                        &verdicts, &looks_kept);
                       });
+      r.report.figure("far_tiles_again_looks_kept", static_cast<double>(looks_kept.taken()));
+      r.report.figure("looks_kept_mb", static_cast<double>(looks_kept.bytes()) / 1e6);
       far_again = nullptr;
     }
+    looks_kept = KeptLooks(0);  // their memory back
     take_over_despike_sums(config, merged);
     merged.report(config, r.report);
     r.report.figure("heap_releases", static_cast<double>(heap.releases()));

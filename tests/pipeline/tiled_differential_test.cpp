@@ -440,7 +440,8 @@ TEST(TiledDifferential, WhereTheTilesMissFarClustersTheTilesHoldingThemAreProces
 }
 
 // The tiles processed again for far clusters' cells take their strays' whole-scan verdicts from
-// the tile loop before (StrayVerdicts) instead of gathering them again. With scale.band_mb 0
+// the tile loop before (StrayVerdicts) instead of gathering them again, and their first looks
+// (KeptLooks, seventy-second session) instead of running the robust test again. With scale.band_mb 0
 // (one tile a band) no tile shares its judging, so the strays a tile processed again finds are
 // the loop's. The oracle is the same plan through tile jobs, whose merge processes those tiles
 // again gathering the strays' verdicts anew: the tiles' robust figures (each window's removals by
@@ -462,6 +463,10 @@ TEST(TiledDifferential, TheTilesProcessedAgainTakeTheLoopsStrayVerdicts) {
     const BuiltScene tiled = hc::pipeline::build_scene(config);
     EXPECT_GT(hc::test::stage_figure(tiled, "tiles", "far_tiles_again"), 0.0) << "tiles processed again";
     EXPECT_GT(hc::test::stage_figure(tiled, "tiles", "sum_robust_strays_verdicts_kept"), 0.0) << "taking the loop's verdicts";
+    // One tile a band: no look shares, so every tile processed again takes its first look
+    // (KeptLooks) instead of running the robust test again; the oracles below ran it anew.
+    EXPECT_EQ(hc::test::stage_figure(tiled, "tiles", "far_tiles_again_looks_kept"), hc::test::stage_figure(tiled, "tiles", "far_tiles_again"))
+        << "every tile processed again took its kept look";
     fs::path box;
     std::optional<hc::pipeline::MergedTileRun> merged;
     for (int plans = 1; !merged && plans <= 3; ++plans) {
