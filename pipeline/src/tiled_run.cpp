@@ -2038,10 +2038,11 @@ class StrayVerdicts {
 // N = 4096 none share, nor in a band of one tile), and at most `budget` bytes of them
 // (TileLook::bytes; kBudgetBytes, 128 MiB, in process; the later ones are not kept and are looked
 // at again). In the fix-up a tile with a kept look shares with no other tile of its band (as one
-// whose window may hold too few points: the others judge their points themselves). A look is kept in place of its release after process_tile
-// (which takes a copy), so a band of looks holds no more at its start than before; after the loop
-// the kept ones stay until the fix-up has run (seventy-second session: on the 10^8 wall at
-// N = 4096 the 40 looks hold about 60 MB).
+// whose window may hold too few points: the others judge their points themselves). A look is
+// kept in place of its release after process_tile (which takes a copy), so a band of looks holds
+// no more at its start than before; after the loop the kept ones stay until the fix-up has run.
+// Seventy-second session, the 10^8 wall at N = 4096: the 40 looks hold 68 MB (the tile loop's
+// peak 721 -> 771 MB), the fix-up's 4 tiles 9.6 -> 3.5 CPU s (docs/scale.md).
 class KeptLooks {
  public:
   static constexpr std::size_t kBudgetBytes = std::size_t{128} << 20;  // the in-process loop's
@@ -3019,7 +3020,9 @@ TileOutput process_tile(const RunConfig& config, const Plan& plan, const Spill& 
 // gathering took RSS from 780 MB to 1.2 GB, a band's first look from 633 MB to 1.04 GB); and
 // from the first band's gathering on, blocks of 8 MiB or more are mapped on their own
 // (detail::LargeBlocksMapped: the 10⁹ tile loop 1 084 → 893 MB, its CPU 6 % less); `verdicts`
-// as judge_strays (the in-process loop records, its far clusters' fix-up takes). One band
+// as judge_strays (the in-process loop records, its far clusters' fix-up takes); `looks_kept`
+// (may be null): the loop keeps its looks there (KeptLooks::wants, keep), the fix-up takes
+// them instead of calling look_tile (a tile with one shares with no other tile of its band). One band
 // (the 10⁸ wall) keeps its fragments: its one gathering (0.8 M points there) stayed under its
 // tiles' peak, and a release would make the second sweep fault its windows in again
 // (docs/scale.md, thirty-ninth and fortieth sessions). progress(fraction) is called with the
@@ -5838,7 +5841,8 @@ struct GridOnKeptPoints : std::runtime_error {
 // `merged` (TileMerge::add replaces a tile's output; its third argument takes the share of their
 // sweeps done, for `progress`); the totals are then made again. Those tiles
 // remove the kept points in the clusters' cells, so the scene is the in-core run's (docs/scale.md,
-// "Far clusters exact"). Figure far_tiles_again and notes on `r` (stage tiles).
+// "Far clusters exact"). Figures far_tiles_again, far_tiles_again_s and far_tiles_again_cpu_s
+// (the wall and process CPU seconds of `again`) and notes on `r` (stage tiles).
 // @throws std::logic_error when the owners did not remove exactly the clusters' points (a bug).
 void far_tiles_again(const RunConfig& config, const Tiles& tiles, std::shared_ptr<const ScaleConfig::FarCellKeys> far, TileMerge& merged,
                      StageReport& r, const ProgressFn& progress,
@@ -6173,7 +6177,8 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
     std::iota(all.begin(), all.end(), std::size_t{0});
     std::vector<std::size_t> left;  // processed, its spill kept for a later band
     StrayVerdicts verdicts;  // the strays' verdicts, for the tiles the fix-up below processes again
-    // Their first looks too, up to a band's bytes (KeptLooks).
+    // Their first looks too, up to KeptLooks::kBudgetBytes (figures far_tiles_again_looks_kept
+    // and looks_kept_mb where the fix-up ran).
     KeptLooks looks_kept(KeptLooks::kBudgetBytes);
     const bool mapped = run_tiles(
         config, plan, spill, kept, all, heap, [&](double f) { tick(f); },
