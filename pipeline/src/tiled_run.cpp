@@ -2035,9 +2035,8 @@ class StrayVerdicts {
 // the window and running the test again (the second half of each tile: reprojection, despike,
 // the mask, reads the window again as before). Only looks that do not share their band's judging
 // (TileLook::shares false: a shared look depends on the band's other tiles; on the 10^8 wall at
-// N = 4096 none share, nor in a band of one tile), and at most `budget` bytes of them
-// (TileLook::bytes; kBudgetBytes, 128 MiB, in process; the later ones are not kept and are looked
-// at again). In the fix-up a tile with a kept look shares with no other tile of its band (as one
+// N = 4096 none share, nor in a band of one tile), and at most kBudgetBytes (128 MiB) of them
+// (TileLook::bytes; the later ones are not kept and are looked at again). In the fix-up a tile with a kept look shares with no other tile of its band (as one
 // whose window may hold too few points: the others judge their points themselves). A look is
 // kept in place of its release after process_tile (which takes a copy), so a band of looks holds
 // no more at its start than before; after the loop the kept ones stay until the fix-up has run.
@@ -2045,12 +2044,11 @@ class StrayVerdicts {
 // peak 721 -> 771 MB), the fix-up's 4 tiles 9.6 -> 3.5 CPU s (docs/scale.md).
 class KeptLooks {
  public:
-  static constexpr std::size_t kBudgetBytes = std::size_t{128} << 20;  // the in-process loop's
-  explicit KeptLooks(std::size_t budget) : budget_(budget) {}
+  static constexpr std::size_t kBudgetBytes = std::size_t{128} << 20;
   // Whether tile t's look is to be kept: none taken yet (the fix-up's own looks are not), it does
   // not share, none is kept for t, and it fits.
   bool wants(std::size_t t, const TileLook& look) const {
-    return taken_ == 0 && !look.shares && look.owned.vn.empty() && looks_.count(t) == 0 && held_ + look.bytes() <= budget_;
+    return taken_ == 0 && !look.shares && looks_.count(t) == 0 && held_ + look.bytes() <= kBudgetBytes;
   }
   // Keeps tile t's look (after wants(t, look)).
   void keep(std::size_t t, TileLook&& look) {
@@ -2071,7 +2069,7 @@ class KeptLooks {
   std::size_t bytes() const { return held_; }
 
  private:
-  std::size_t budget_ = 0, held_ = 0, taken_ = 0;
+  std::size_t held_ = 0, taken_ = 0;
   std::map<std::size_t, TileLook> looks_;
 };
 
@@ -3100,8 +3098,15 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
     std::vector<std::size_t> band;
     std::vector<TileLook> looks;
     // Where looks_kept is given: each look's figures as look_tile gave them, before judge_strays
-    // adds to them (none for a look taken from looks_kept, or made where tiles share).
+    // adds to them (none for a look taken from looks_kept, or one that shares).
     std::vector<std::optional<std::map<std::string, double>>> look_sums;
+    // Tile t's look: its kept one (the fix-up), else look_tile's, with look_sums in step.
+    const auto add_look = [&](std::size_t t) {
+      std::optional<TileLook> again = looks_kept != nullptr ? looks_kept->take(t) : std::nullopt;
+      looks.push_back(again ? std::move(*again) : look_tile(config, plan, spill, t, band_at));
+      const bool keepable = looks_kept != nullptr && !again && !looks.back().shares;
+      look_sums.push_back(keepable ? std::optional(looks.back().sums) : std::nullopt);
+    };
     if (first > 0) (void)heap.release_now();
     double held = 0.0;
     while (first + band.size() < list.size() && (band.empty() || held < static_cast<double>(band_bytes))) {
@@ -3109,9 +3114,7 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
       if (!sharing) {  // the looks' own bytes, as before the fiftieth session
         progress(step++ / steps);
         (void)heap.before_tile();
-        std::optional<TileLook> again = looks_kept != nullptr ? looks_kept->take(t) : std::nullopt;
-        looks.push_back(again ? std::move(*again) : look_tile(config, plan, spill, t, band_at));
-        look_sums.push_back(again ? std::nullopt : std::optional(looks.back().sums));
+        add_look(t);
         held += static_cast<double>(looks.back().bytes());
         band.push_back(t);
         continue;
@@ -3129,9 +3132,7 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
     for (std::size_t i = looks.size(); i < band.size(); ++i) {
       progress(step++ / steps);
       (void)heap.before_tile();
-      std::optional<TileLook> again = looks_kept != nullptr ? looks_kept->take(band[i]) : std::nullopt;
-      looks.push_back(again ? std::move(*again) : look_tile(config, plan, spill, band[i], band_at));
-      look_sums.push_back(again ? std::nullopt : std::optional(looks.back().sums));
+      add_look(band[i]);
     }
     std::map<std::string, double> band_sums;
     const bool one_band = first == 0 && band.size() == list.size();
@@ -3157,7 +3158,7 @@ bool run_tiles(const RunConfig& config, const Plan& plan, const Spill& spill, Ke
     for (std::size_t i = 0; i < band.size(); ++i) {
       progress(step++ / steps);
       (void)heap.before_tile();
-      if (looks_kept != nullptr && look_sums[i] && looks_kept->wants(band[i], looks[i])) {
+      if (look_sums[i] && looks_kept->wants(band[i], looks[i])) {
         // process_tile takes a copy; looks_kept the look as look_tile gave it (judge_strays'
         // verdicts and figures taken off again: the fix-up's judge_strays gives them anew).
         TileLook copy = looks[i];
@@ -6179,7 +6180,7 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
     StrayVerdicts verdicts;  // the strays' verdicts, for the tiles the fix-up below processes again
     // Their first looks too, up to KeptLooks::kBudgetBytes (figures far_tiles_again_looks_kept
     // and looks_kept_mb where the fix-up ran).
-    KeptLooks looks_kept(KeptLooks::kBudgetBytes);
+    KeptLooks looks_kept;
     const bool mapped = run_tiles(
         config, plan, spill, kept, all, heap, [&](double f) { tick(f); },
         [&](TileOutput&& o, bool last) {
@@ -6211,7 +6212,7 @@ BuiltScene build_scene_tiled_once(const RunConfig& config, const ProgressFn& pro
       r.report.figure("looks_kept_mb", static_cast<double>(looks_kept.bytes()) / 1e6);
       far_again = nullptr;
     }
-    looks_kept = KeptLooks(0);  // their memory back
+    looks_kept = KeptLooks{};  // their memory back
     take_over_despike_sums(config, merged);
     merged.report(config, r.report);
     r.report.figure("heap_releases", static_cast<double>(heap.releases()));
