@@ -14,6 +14,7 @@
 #include <Eigen/Cholesky>
 
 #include "knn_grid.hpp"  // detail::radix_sort, run_parallel, kSearchThreads
+#include "plane_solve.hpp"  // detail::solve_plane_ldlt
 #include "stage_util.hpp"  // detail::run_two
 #include "voxel_keys.hpp"
 #include "wanted_keys.hpp"
@@ -645,14 +646,13 @@ struct PlaneSums {
     syz += dy * dz;
   }
   /// (a, b, c) [m, m/cell, m/cell]; nullopt when the cells lie on one line (LDLT fails or its
-  /// reciprocal condition is under 1e-9) or the solution is not finite.
+  /// reciprocal condition is under 1e-9) or the solution is not finite. The solve is
+  /// plane_solve.cpp's, which the sanitizer builds leave uninstrumented.
   [[nodiscard]] std::optional<Eigen::Vector3d> solve() const {
-    Eigen::Matrix3d a;
-    a << n, sx, sy, sx, sxx, sxy, sy, sxy, syy;
-    const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
-    if (ldlt.info() != Eigen::Success || ldlt.rcond() < 1e-9) return std::nullopt;
-    const Eigen::Vector3d coef = ldlt.solve(Eigen::Vector3d(sz, sxz, syz));
-    if (!coef.allFinite()) return std::nullopt;
+    const double a[9] = {n, sx, sy, sx, sxx, sxy, sy, sxy, syy};
+    const double b[3] = {sz, sxz, syz};
+    Eigen::Vector3d coef;
+    if (!detail::solve_plane_ldlt(a, b, 1e-9, coef.data())) return std::nullopt;
     return coef;
   }
 };
