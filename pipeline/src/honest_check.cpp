@@ -11,8 +11,6 @@
 
 #include "hc/pipeline/honest_check.hpp"
 
-#include <Eigen/Cholesky>
-
 #include "knn_grid.hpp"  // detail::radix_sort, run_parallel, kSearchThreads
 #include "plane_solve.hpp"  // detail::solve_plane_ldlt
 #include "stage_util.hpp"  // detail::run_two
@@ -649,11 +647,9 @@ struct PlaneSums {
   /// reciprocal condition is under 1e-9) or the solution is not finite. The solve is
   /// plane_solve.cpp's, which the sanitizer builds leave uninstrumented.
   [[nodiscard]] std::optional<Eigen::Vector3d> solve() const {
-    const double a[9] = {n, sx, sy, sx, sxx, sxy, sy, sxy, syy};
-    const double b[3] = {sz, sxz, syz};
-    Eigen::Vector3d coef;
-    if (!detail::solve_plane_ldlt(a, b, 1e-9, coef.data())) return std::nullopt;
-    return coef;
+    Eigen::Matrix3d a;
+    a << n, sx, sy, sx, sxx, sxy, sy, sxy, syy;
+    return detail::solve_plane_ldlt(a, Eigen::Vector3d(sz, sxz, syz), 1e-9);
   }
 };
 

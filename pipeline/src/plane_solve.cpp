@@ -6,21 +6,16 @@
 #include "plane_solve.hpp"
 
 #include <Eigen/Cholesky>
-#include <Eigen/Core>
 
 namespace hc::pipeline::detail {
 
-bool solve_plane_ldlt(const double* a, const double* b, double min_rcond, double* x) noexcept {
-  Eigen::Matrix3d m;
-  m << a[0], a[1], a[2], a[3], a[4], a[5], a[6], a[7], a[8];
-  const Eigen::LDLT<Eigen::Matrix3d> ldlt(m);
-  if (ldlt.info() != Eigen::Success || ldlt.rcond() < min_rcond) return false;
-  const Eigen::Vector3d coef = ldlt.solve(Eigen::Vector3d(b[0], b[1], b[2]));
-  if (!coef.allFinite()) return false;
-  x[0] = coef(0);
-  x[1] = coef(1);
-  x[2] = coef(2);
-  return true;
+std::optional<Eigen::Vector3d> solve_plane_ldlt(const Eigen::Matrix3d& a, const Eigen::Vector3d& b,
+                                                double min_rcond) noexcept {
+  const Eigen::LDLT<Eigen::Matrix3d> ldlt(a);
+  if (ldlt.info() != Eigen::Success || ldlt.rcond() < min_rcond) return std::nullopt;
+  const Eigen::Vector3d x = ldlt.solve(b);
+  if (!x.allFinite()) return std::nullopt;
+  return x;
 }
 
 }  // namespace hc::pipeline::detail
